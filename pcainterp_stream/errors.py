@@ -1,0 +1,38 @@
+"""The project's exceptions.
+
+Every error a user can cause by what they pass in (a file, a topic, an option) is a
+subclass of :class:`PcaInterpError` whose message is one sentence naming the thing and the
+fix. The command line prints that sentence and exits non-zero; it never shows a traceback
+for these. Library errors are wrapped at the I/O boundary (``raise LogReadError(...) from
+err``) so callers only ever need to catch this family.
+"""
+
+from __future__ import annotations
+
+
+class PcaInterpError(Exception):
+    """Root of every error this package raises on bad input."""
+
+
+class BasisError(PcaInterpError):
+    """A basis file is missing, malformed, or does not fit the data it is used with."""
+
+
+class LogReadError(PcaInterpError):
+    """An input log cannot be opened or read (missing, not a log, damaged)."""
+
+
+class TopicNotFoundError(LogReadError):
+    """A requested topic is not in the log."""
+
+
+class CalibrationError(PcaInterpError):
+    """Camera calibration is missing or unusable (no baseline, bad projection matrix)."""
+
+
+class LogWriteError(PcaInterpError):
+    """An output log cannot be written (bad path, the input itself, disk error)."""
+
+
+class DatasetImportError(PcaInterpError):
+    """A dataset folder (KITTI) is missing files or has malformed ones."""

@@ -1,0 +1,98 @@
+"""Plain typed records passed between the stages of the pipeline.
+
+Data flows one way: reader -> :class:`StereoFrame` -> processor -> result -> writer. The
+records here are shared by readers, writers, the synthetic generator and the processor, so
+that none of those modules has to import another (as rosbags keeps its shared record
+types in ``interfaces``). Time is integer nanoseconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+
+@dataclass(frozen=True)
+class StereoCamera:
+    """A rectified stereo pair's intrinsics, as ROS ``CameraInfo`` P matrices give them.
+
+    Attributes:
+        width: image width (px).
+        height: image height (px).
+        fx: focal length along x (px).
+        fy: focal length along y (px).
+        cx: principal point x (px).
+        cy: principal point y (px).
+        baseline: distance between the optical centres (m), positive.
+    """
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    baseline: float
+
+    @property
+    def focal_baseline(self) -> float:
+        """Return f*b (px*m): depth = focal_baseline / disparity."""
+        return self.fx * self.baseline
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """Return (height, width) in px."""
+        return (self.height, self.width)
+
+    def projection_left(self) -> npt.NDArray[np.float64]:
+        """Return the left camera's 3x4 rectified projection matrix P."""
+        return np.array(
+            [[self.fx, 0.0, self.cx, 0.0], [0.0, self.fy, self.cy, 0.0], [0.0, 0.0, 1.0, 0.0]]
+        )
+
+    def projection_right(self) -> npt.NDArray[np.float64]:
+        """Return the right camera's 3x4 P, with P[0, 3] = -fx * baseline (ROS convention)."""
+        p = self.projection_left()
+        p[0, 3] = -self.fx * self.baseline
+        return p
+
+
+class StereoFrame(NamedTuple):
+    """One rectified stereo pair read from a log.
+
+    Attributes:
+        index: 0-based position of the pair in the stream.
+        stamp_ns: header stamp of the left image (ns).
+        log_time_ns: log time of the left image message (ns).
+        frame_id: header frame_id of the left image.
+        left: (H, W) uint8/uint16 grey or (H, W, 3) uint8 RGB left image.
+        right: right image, same size and layout as ``left``.
+        camera: the pair's calibration.
+    """
+
+    index: int
+    stamp_ns: int
+    log_time_ns: int
+    frame_id: str
+    left: npt.NDArray[np.generic]
+    right: npt.NDArray[np.generic]
+    camera: StereoCamera
+
+
+class SparseFeatures(NamedTuple):
+    """Sparse 3-D points another system wrote into the log (``/features``).
+
+    Attributes:
+        stamp_ns: header stamp (ns).
+        log_time_ns: log time of the message (ns).
+        frame_id: header frame_id (the left optical frame).
+        points: (n, 3) float32 x, y, z in the left optical frame (m).
+    """
+
+    stamp_ns: int
+    log_time_ns: int
+    frame_id: str
+    points: npt.NDArray[np.float32]

@@ -1,0 +1,319 @@
+"""ROS 2 message construction and array conversion, shared by every log reader and writer.
+
+Messages are rosbags typestore objects (``sensor_msgs/msg/Image`` and friends) of the ROS 2
+Humble store; ROS 1 bags use the same types (rosbags converts the wire format). This module
+knows message layouts only: nothing here opens a file.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from rosbags.typesys import Stores, get_typestore
+from scipy.spatial.transform import Rotation
+
+from pcainterp_stream.records import StereoCamera
+
+TYPESTORE = get_typestore(Stores.ROS2_HUMBLE)
+
+IMAGE = "sensor_msgs/msg/Image"
+COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+POINT_CLOUD2 = "sensor_msgs/msg/PointCloud2"
+DISPARITY_IMAGE = "stereo_msgs/msg/DisparityImage"
+POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+
+_T = TYPESTORE.types
+
+# encoding -> (numpy dtype, channels)
+IMAGE_ENCODINGS: dict[str, tuple[str, int]] = {
+    "mono8": ("u1", 1),
+    "8UC1": ("u1", 1),
+    "rgb8": ("u1", 3),
+    "bgr8": ("u1", 3),
+    "8UC3": ("u1", 3),
+    "mono16": ("u2", 1),
+    "16UC1": ("u2", 1),
+    "32FC1": ("f4", 1),
+}
+
+# PointField datatype code -> numpy dtype
+POINT_FIELD_DTYPES: dict[int, str] = {
+    1: "i1",
+    2: "u1",
+    3: "i2",
+    4: "u2",
+    5: "i4",
+    6: "u4",
+    7: "f4",
+    8: "f8",
+}
+
+
+@cache
+def schema_text(typename: str) -> str:
+    """Return the ``ros2msg`` schema text of a message type (with its dependencies)."""
+    return str(TYPESTORE.generate_msgdef(typename, ros_version=2)[0])
+
+
+def serialize(message: Any) -> bytes:
+    """Serialize a typestore message to CDR bytes (little endian)."""
+    return bytes(TYPESTORE.serialize_cdr(message, message.__msgtype__))
+
+
+def deserialize(data: bytes | memoryview, typename: str) -> Any:
+    """Deserialize CDR bytes into a typestore message of ``typename``."""
+    return TYPESTORE.deserialize_cdr(data, typename)
+
+
+def header(stamp_ns: int, frame_id: str) -> Any:
+    """Return a ``std_msgs/msg/Header`` for a stamp in ns."""
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    return _T["std_msgs/msg/Header"](
+        stamp=_T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id=frame_id
+    )
+
+
+def stamp_ns(message: Any) -> int:
+    """Return the header stamp of a message in ns (ROS 1 and ROS 2 field names)."""
+    stamp = message.header.stamp
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def image_message(
+    array: npt.NDArray[np.generic], stamp_ns: int, frame_id: str, *, encoding: str | None = None
+) -> Any:
+    """Build a ``sensor_msgs/msg/Image`` from an array.
+
+    Args:
+        array: (H, W) uint8 / uint16 / float32 or (H, W, 3) uint8 image.
+        stamp_ns: header stamp (ns).
+        frame_id: header frame id.
+        encoding: ROS encoding; inferred when None (mono8, rgb8, mono16, 32FC1).
+
+    Returns:
+        The message, little endian, rows packed (step = W * bytes per pixel).
+    """
+    if encoding is None:
+        kind = (array.dtype.str[1:], 1 if array.ndim == 2 else array.shape[2])
+        encoding = {
+            ("u1", 1): "mono8",
+            ("u1", 3): "rgb8",
+            ("u2", 1): "mono16",
+            ("f4", 1): "32FC1",
+        }.get(kind, "")
+        if not encoding:
+            raise ValueError(
+                f"cannot infer an image encoding for dtype {array.dtype} and shape {array.shape}"
+            )
+    dtype, channels = IMAGE_ENCODINGS[encoding]
+    data = np.ascontiguousarray(array, dtype=np.dtype(dtype).newbyteorder("<"))
+    height, width = data.shape[:2]
+    return _T[IMAGE](
+        header=header(stamp_ns, frame_id),
+        height=height,
+        width=width,
+        encoding=encoding,
+        is_bigendian=0,
+        step=width * channels * data.dtype.itemsize,
+        data=data.reshape(-1).view(np.uint8),
+    )
+
+
+def image_array(message: Any) -> npt.NDArray[np.generic]:
+    """Decode a ``sensor_msgs/Image`` into an array, honouring step and endianness.
+
+    Returns:
+        (H, W) or (H, W, 3) array of the encoding's dtype; ``bgr8`` is returned as RGB.
+
+    Raises:
+        ValueError: for an encoding outside :data:`IMAGE_ENCODINGS` or a data size that does
+            not match height * step.
+    """
+    encoding = str(message.encoding)
+    if encoding not in IMAGE_ENCODINGS:
+        raise ValueError(
+            f"unsupported image encoding {encoding!r}; supported: {', '.join(IMAGE_ENCODINGS)}"
+        )
+    dtype_code, channels = IMAGE_ENCODINGS[encoding]
+    dtype = np.dtype(dtype_code).newbyteorder(">" if message.is_bigendian else "<")
+    height, width, step = int(message.height), int(message.width), int(message.step)
+    row_bytes = width * channels * dtype.itemsize
+    raw = np.asarray(message.data, dtype=np.uint8)
+    if step < row_bytes or raw.size < height * step:
+        raise ValueError(
+            f"image data has {raw.size} bytes, expected {height} rows of step {step} "
+            f">= {row_bytes} for {width}x{height} {encoding}"
+        )
+    rows = raw[: height * step].reshape(height, step)[:, :row_bytes]
+    image = np.ascontiguousarray(rows).view(dtype).astype(dtype.newbyteorder("="), copy=False)
+    image = image.reshape((height, width, channels) if channels > 1 else (height, width))
+    if encoding == "bgr8":
+        image = np.ascontiguousarray(image[:, :, ::-1])
+    return image
+
+
+def compressed_image_message(data: bytes, image_format: str, stamp_ns: int, frame_id: str) -> Any:
+    """Build a ``sensor_msgs/msg/CompressedImage`` (``image_format``: "png" or "jpeg")."""
+    return _T[COMPRESSED_IMAGE](
+        header=header(stamp_ns, frame_id),
+        format=image_format,
+        data=np.frombuffer(data, dtype=np.uint8),
+    )
+
+
+def camera_info_message(
+    camera: StereoCamera, stamp_ns: int, frame_id: str, *, right: bool = False
+) -> Any:
+    """Build the ``sensor_msgs/msg/CameraInfo`` of the left (or right) rectified camera."""
+    p = camera.projection_right() if right else camera.projection_left()
+    k = p[:, :3].copy()
+    return _T[CAMERA_INFO](
+        header=header(stamp_ns, frame_id),
+        height=camera.height,
+        width=camera.width,
+        distortion_model="plumb_bob",
+        d=np.zeros(5),
+        k=k.reshape(-1),
+        r=np.eye(3).reshape(-1),
+        p=p.reshape(-1),
+        binning_x=0,
+        binning_y=0,
+        roi=_T["sensor_msgs/msg/RegionOfInterest"](
+            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+        ),
+    )
+
+
+def projection_matrix(message: Any) -> npt.NDArray[np.float64]:
+    """Return the 3x4 P of a CameraInfo (ROS 2 field ``p`` or ROS 1 field ``P``)."""
+    p = getattr(message, "p", None)
+    if p is None:
+        p = message.P
+    return np.asarray(p, dtype=np.float64).reshape(3, 4)
+
+
+def pointcloud2_message(
+    fields: dict[str, npt.NDArray[np.float32]], stamp_ns: int, frame_id: str
+) -> Any:
+    """Build an unorganised ``sensor_msgs/msg/PointCloud2`` of float32 fields.
+
+    Args:
+        fields: name -> (n,) float32 values, all of the same length, in the order given.
+        stamp_ns: header stamp (ns).
+        frame_id: header frame id.
+    """
+    names = list(fields)
+    n = len(next(iter(fields.values()))) if fields else 0
+    record = np.zeros(n, dtype=[(name, "<f4") for name in names])
+    for name in names:
+        record[name] = fields[name]
+    point_field = _T["sensor_msgs/msg/PointField"]
+    return _T[POINT_CLOUD2](
+        header=header(stamp_ns, frame_id),
+        height=1,
+        width=n,
+        fields=[
+            point_field(name=name, offset=4 * i, datatype=7, count=1)
+            for i, name in enumerate(names)
+        ],
+        is_bigendian=False,
+        point_step=4 * len(names),
+        row_step=4 * len(names) * n,
+        data=record.view(np.uint8).reshape(-1),
+        is_dense=True,
+    )
+
+
+def pointcloud2_arrays(message: Any) -> dict[str, npt.NDArray[np.float64]]:
+    """Decode every scalar field of a ``PointCloud2`` into float64 arrays of length n.
+
+    Raises:
+        ValueError: for a field type code outside 1..8 or data shorter than the points need.
+    """
+    n = int(message.height) * int(message.width)
+    point_step = int(message.point_step)
+    raw = np.asarray(message.data, dtype=np.uint8)
+    if raw.size < n * point_step:
+        raise ValueError(f"point cloud data has {raw.size} bytes, {n} points need {n * point_step}")
+    order = ">" if message.is_bigendian else "<"
+    out: dict[str, npt.NDArray[np.float64]] = {}
+    for field in message.fields:
+        code = int(field.datatype)
+        if code not in POINT_FIELD_DTYPES:
+            raise ValueError(f"point field {field.name!r} has unknown datatype {code}")
+        dtype = np.dtype(order + POINT_FIELD_DTYPES[code])
+        if int(field.offset) + dtype.itemsize > point_step:
+            raise ValueError(f"point field {field.name!r} lies outside the point step {point_step}")
+        view = (
+            np.ndarray(
+                shape=(n,),
+                dtype=dtype,
+                buffer=raw[: n * point_step].tobytes(),
+                offset=int(field.offset),
+                strides=(point_step,),
+            )
+            if n
+            else np.zeros(0, dtype=dtype)
+        )
+        out[str(field.name)] = view.astype(np.float64)
+    return out
+
+
+def disparity_image_message(
+    disparity: npt.NDArray[np.float32],
+    stamp_ns: int,
+    frame_id: str,
+    *,
+    focal: float,
+    baseline: float,
+    min_disparity: float,
+    max_disparity: float,
+) -> Any:
+    """Build a ``stereo_msgs/msg/DisparityImage`` (32FC1 px, f in px, t = baseline in m)."""
+    height, width = disparity.shape
+    return _T[DISPARITY_IMAGE](
+        header=header(stamp_ns, frame_id),
+        image=image_message(disparity.astype(np.float32, copy=False), stamp_ns, frame_id),
+        f=float(focal),
+        t=float(baseline),
+        valid_window=_T["sensor_msgs/msg/RegionOfInterest"](
+            x_offset=0, y_offset=0, height=height, width=width, do_rectify=False
+        ),
+        min_disparity=float(min_disparity),
+        max_disparity=float(max_disparity),
+        delta_d=0.0,
+    )
+
+
+def pose_stamped_message(
+    camera_to_world: npt.NDArray[np.float64], stamp_ns: int, frame_id: str
+) -> Any:
+    """Build a ``geometry_msgs/msg/PoseStamped`` from a 4x4 (or 3x4) camera-to-world matrix."""
+    rotation = np.asarray(camera_to_world, dtype=np.float64)[:3, :3]
+    translation = np.asarray(camera_to_world, dtype=np.float64)[:3, 3]
+    qx, qy, qz, qw = Rotation.from_matrix(rotation).as_quat()
+    return _T[POSE_STAMPED](
+        header=header(stamp_ns, frame_id),
+        pose=_T["geometry_msgs/msg/Pose"](
+            position=_T["geometry_msgs/msg/Point"](
+                x=float(translation[0]), y=float(translation[1]), z=float(translation[2])
+            ),
+            orientation=_T["geometry_msgs/msg/Quaternion"](
+                x=float(qx), y=float(qy), z=float(qz), w=float(qw)
+            ),
+        ),
+    )
+
+
+def pose_matrix(message: Any) -> npt.NDArray[np.float64]:
+    """Return the 4x4 matrix of a ``PoseStamped`` (or ``Pose``) message."""
+    pose = getattr(message, "pose", message)
+    q = pose.orientation
+    matrix = np.eye(4)
+    matrix[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+    matrix[:3, 3] = [pose.position.x, pose.position.y, pose.position.z]
+    return matrix
