@@ -96,3 +96,61 @@ class SparseFeatures(NamedTuple):
     log_time_ns: int
     frame_id: str
     points: npt.NDArray[np.float32]
+
+
+class SynthFrame(NamedTuple):
+    """One frame of the synthetic driving world, with its ground truth.
+
+    Attributes:
+        index: 0-based frame number.
+        stamp_ns: capture time (ns), 10 Hz from the start of the drive.
+        left: (H, W) uint8 rectified left grey image.
+        right: (H, W) uint8 rectified right grey image.
+        depth: (H, W) float32 ground-truth depth of the left camera (m, z along the optical
+            axis), NaN where there is no surface (sky), as REP 118 asks.
+        camera_to_world: (4, 4) float64 pose of the left camera (optical frame: x right,
+            y down, z forward) in the world frame.
+        camera: the stereo calibration.
+    """
+
+    index: int
+    stamp_ns: int
+    left: npt.NDArray[np.uint8]
+    right: npt.NDArray[np.uint8]
+    depth: npt.NDArray[np.float32]
+    camera_to_world: npt.NDArray[np.float64]
+    camera: StereoCamera
+
+
+class RawMessage(NamedTuple):
+    """One message of a log exactly as stored, for copying it into an output log.
+
+    ROS 1 messages are converted to CDR with a ``ros2msg`` schema by the reader, so every
+    ROS message reaches a writer in the ROS 2 MCAP profile; other encodings pass unchanged.
+
+    Attributes:
+        topic: channel topic.
+        msgtype: ROS type name in ROS 2 spelling (``sensor_msgs/msg/Image``), or the schema
+            name for non-ROS channels.
+        schema_name: schema name as the output should record it.
+        schema_encoding: ``ros2msg`` for ROS messages, else the input's (``jsonschema``...).
+        schema_data: schema text/bytes.
+        message_encoding: ``cdr`` for ROS messages, else the input's.
+        channel_metadata: channel metadata (e.g. ``offered_qos_profiles``).
+        data: serialized message.
+        log_time_ns: log time (ns).
+        publish_time_ns: publish time (ns).
+        sequence: channel sequence number (0 when the format has none).
+    """
+
+    topic: str
+    msgtype: str
+    schema_name: str
+    schema_encoding: str
+    schema_data: bytes
+    message_encoding: str
+    channel_metadata: dict[str, str]
+    data: bytes
+    log_time_ns: int
+    publish_time_ns: int
+    sequence: int
