@@ -73,7 +73,7 @@ class StereoFrame(NamedTuple):
         camera: the pair's calibration.
     """
 
-    index: int
+    index: int  # type: ignore[assignment]  # shadows tuple.index on purpose: the frame number
     stamp_ns: int
     log_time_ns: int
     frame_id: str
@@ -113,7 +113,7 @@ class SynthFrame(NamedTuple):
         camera: the stereo calibration.
     """
 
-    index: int
+    index: int  # type: ignore[assignment]  # shadows tuple.index on purpose: the frame number
     stamp_ns: int
     left: npt.NDArray[np.uint8]
     right: npt.NDArray[np.uint8]
@@ -154,3 +154,29 @@ class RawMessage(NamedTuple):
     log_time_ns: int
     publish_time_ns: int
     sequence: int
+
+
+class DensifiedFrame(NamedTuple):
+    """The processor's output for one stereo pair, ready for the writers.
+
+    Attributes:
+        frame: the input pair (stamp, frame id, images, camera).
+        pixels: (k, 2) float32 (x, y) image px of the measurements used.
+        disparities: (k,) float32 measured disparities (px).
+        disparity: (H, W) float32 dense MAP disparity (px).
+        disparity_std: (H, W) float32 posterior std of the disparity (px).
+        depth: (H, W) float32 depth (m), NaN where the disparity is not positive.
+        depth_std: (H, W) float32 posterior std of the depth (m), NaN where depth is.
+        measurement_source: "stereo" (GFTT + SGBM) or "features" (a sparse stream).
+        counts: named counts of the frame (corners, lookups rejected by reason, dropped).
+    """
+
+    frame: StereoFrame
+    pixels: npt.NDArray[np.float32]
+    disparities: npt.NDArray[np.float32]
+    disparity: npt.NDArray[np.float32]
+    disparity_std: npt.NDArray[np.float32]
+    depth: npt.NDArray[np.float32]
+    depth_std: npt.NDArray[np.float32]
+    measurement_source: str
+    counts: dict[str, int]

@@ -1,0 +1,115 @@
+"""Rerun sink: log densified frames to a viewer or an ``.rrd`` recording.
+
+Entity layout (one time line, ``stamp``, the left image's header stamp):
+
+- ``camera``: the left camera's ``Pinhole`` (image plane, focal length, principal point);
+- ``camera/image``: the left image;
+- ``camera/features``: the sparse measurements, coloured by disparity;
+- ``camera/depth``: the dense depth (``DepthImage``, metres, turbo colour map);
+- ``depth_std``: the posterior depth std (m) as a second depth image, so it gets its own view.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import TracebackType
+
+import numpy as np
+import rerun as rr
+
+from pcainterp_stream.errors import LogWriteError
+from pcainterp_stream.records import DensifiedFrame
+
+TIMELINE = "stamp"
+
+
+class RerunSink:
+    """Log :class:`DensifiedFrame` records to Rerun, as a context manager.
+
+    Args:
+        rrd_path: write a recording to this file (written to a temporary beside it and
+            renamed when the sink closes without error).
+        spawn: start a viewer and stream to it.
+        application_id: Rerun application id.
+    """
+
+    def __init__(
+        self,
+        *,
+        rrd_path: str | Path | None = None,
+        spawn: bool = False,
+        application_id: str = "pcainterp",
+    ) -> None:
+        if rrd_path is None and not spawn:
+            raise ValueError("RerunSink needs rrd_path or spawn=True")
+        self.rrd_path = Path(rrd_path) if rrd_path is not None else None
+        self.spawn = spawn
+        self.application_id = application_id
+        self._partial: Path | None = None
+        self._recording: rr.RecordingStream | None = None
+        self._camera_logged: tuple[int, int, float, float, float, float] | None = None
+
+    def __enter__(self) -> RerunSink:
+        recording = rr.RecordingStream(self.application_id)
+        if self.rrd_path is not None:
+            if not self.rrd_path.parent.is_dir():
+                raise LogWriteError(
+                    f"cannot write {self.rrd_path}: folder {self.rrd_path.parent} does not exist"
+                )
+            self._partial = self.rrd_path.with_name(f".{self.rrd_path.name}.partial")
+            recording.save(self._partial)
+        if self.spawn:
+            recording.spawn(connect=self.rrd_path is None)
+        self._recording = recording
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        recording = self._recording
+        self._recording = None
+        if recording is None:
+            return
+        recording.flush()
+        recording.disconnect()
+        if self._partial is not None and self.rrd_path is not None:
+            if exc_type is None:
+                self._partial.replace(self.rrd_path)
+            else:
+                self._partial.unlink(missing_ok=True)
+
+    def log(self, result: DensifiedFrame) -> None:
+        """Log one densified frame at its left-image stamp."""
+        recording = self._recording
+        if recording is None:
+            raise RuntimeError("RerunSink.log called outside its with-block")
+        frame = result.frame
+        camera = frame.camera
+        recording.set_time(TIMELINE, timestamp=np.datetime64(frame.stamp_ns, "ns"))
+        key = (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy)
+        if key != self._camera_logged:
+            recording.log(
+                "camera",
+                rr.Pinhole(
+                    focal_length=[camera.fx, camera.fy],
+                    principal_point=[camera.cx, camera.cy],
+                    resolution=[camera.width, camera.height],
+                ),
+            )
+            self._camera_logged = key
+        recording.log("camera/image", rr.Image(frame.left))
+        recording.log("camera/depth", rr.DepthImage(result.depth, meter=1.0, colormap="turbo"))
+        disparities = result.disparities
+        if disparities.size:
+            span = float(np.ptp(disparities)) or 1.0
+            level = (disparities - disparities.min()) / span
+            colors = np.stack(
+                [255 * level, 64 * np.ones_like(level), 255 * (1 - level)], axis=1
+            ).astype(np.uint8)
+        else:
+            colors = np.zeros((0, 3), dtype=np.uint8)
+        recording.log("camera/features", rr.Points2D(result.pixels, radii=2.0, colors=colors))
+        recording.log("depth_std", rr.DepthImage(result.depth_std, meter=1.0, colormap="viridis"))
