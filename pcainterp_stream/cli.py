@@ -1,0 +1,245 @@
+"""The ``pcainterp`` command line.
+
+Parsing and error reporting only; the work is done by :mod:`pcainterp_stream.jobs`, which
+is imported lazily so that ``--help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from types import FrameType
+
+from pcainterp_stream import __version__
+from pcainterp_stream.errors import PcaInterpError
+
+PROG = "pcainterp"
+
+
+def _formatter(prog: str) -> argparse.HelpFormatter:
+    return argparse.RawDescriptionHelpFormatter(prog, max_help_position=32)
+
+
+def _add_topic_options(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("topics (DESIGN.md defaults)")
+    group.add_argument("--left-topic", default="/stereo/left/image_rect", metavar="TOPIC")
+    group.add_argument("--right-topic", default="/stereo/right/image_rect", metavar="TOPIC")
+    group.add_argument("--left-info-topic", default="/stereo/left/camera_info", metavar="TOPIC")
+    group.add_argument(
+        "--right-info-topic", default="/stereo/right/camera_info", metavar="TOPIC"
+    )
+    group.add_argument(
+        "--stamp-tolerance-ms",
+        type=float,
+        default=1.0,
+        metavar="MS",
+        help="left/right header stamps closer than this form a pair (default: %(default)s)",
+    )
+
+
+def _add_stereo_options(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("stereo front end (GFTT corners, SGBM lookups)")
+    group.add_argument("--corners", type=int, default=None, metavar="N", help="max GFTT corners")
+    group.add_argument(
+        "--quality", type=float, default=None, metavar="Q", help="GFTT quality level"
+    )
+    group.add_argument(
+        "--min-distance", type=float, default=None, metavar="PX", help="GFTT min corner distance"
+    )
+    group.add_argument(
+        "--num-disparities", type=int, default=None, metavar="N", help="SGBM disparity range"
+    )
+    group.add_argument("--block-size", type=int, default=None, metavar="N", help="SGBM block")
+    group.add_argument(
+        "--sgbm-mode",
+        choices=["sgbm", "hh", "sgbm_3way", "hh4"],
+        default=None,
+        help="SGBM variant",
+    )
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the argument parser of ``pcainterp``."""
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        formatter_class=_formatter,
+        description=(
+            "Densify sparse depth in stereo-camera logs (MCAP, ROS 1 .bag, rosbag2) with a\n"
+            "learned PCA basis and a MAP estimate with per-pixel uncertainty\n"
+            "(Ochs, Bradler & Mester, IEEE IV 2017)."
+        ),
+        epilog=(
+            "examples:\n"
+            "  pcainterp demo                  # the whole job on a generated log\n"
+            "  pcainterp synth train.mcap --frames 200 --seed 1\n"
+            "  pcainterp learn train.mcap -o basis.npz --components 200\n"
+            "  pcainterp densify drive.mcap -o drive_dense.mcap --basis basis.npz --rrd drive.rrd\n"
+            "  pcainterp info drive_dense.mcap\n"
+        ),
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    synth = commands.add_parser(
+        "synth",
+        formatter_class=_formatter,
+        help="write a synthetic KITTI-like stereo driving log with ground truth",
+        description="Render a procedural street world and write a stereo log with ground truth.",
+        epilog=(
+            "examples:\n"
+            "  pcainterp synth drive.mcap                       # 100 frames at KITTI size\n"
+            "  pcainterp synth small.mcap --frames 10 --scale 0.25\n"
+            "  pcainterp synth drive_bag --format rosbag2 --seed 3\n"
+            "  pcainterp synth drive.bag --format ros1\n"
+        ),
+    )
+    synth.add_argument("out", type=Path, metavar="OUT", help="output log path")
+    synth.add_argument("--frames", type=int, default=100, metavar="N", help="(default: 100)")
+    synth.add_argument("--seed", type=int, default=0, metavar="S", help="world seed (default: 0)")
+    synth.add_argument(
+        "--scale", type=float, default=1.0, metavar="F", help="image scale, 1 = 1241x376"
+    )
+    synth.add_argument(
+        "--format",
+        choices=["mcap", "rosbag2", "rosbag2-sqlite3", "ros1"],
+        default=None,
+        help="log format (default: from OUT's suffix; .mcap -> mcap, .bag -> ros1)",
+    )
+
+    kitti = commands.add_parser(
+        "import-kitti",
+        formatter_class=_formatter,
+        help="convert a KITTI raw drive or odometry sequence into an MCAP log",
+        description=(
+            "Convert a KITTI raw drive folder (<date>/<date>_drive_XXXX_sync) or an odometry\n"
+            "sequence (sequences/XX with calib.txt) into the project's MCAP layout."
+        ),
+        epilog=(
+            "examples:\n"
+            "  pcainterp import-kitti 2011_09_26/2011_09_26_drive_0001_sync drive.mcap\n"
+            "  pcainterp import-kitti dataset/sequences/00 seq00.mcap\n"
+        ),
+    )
+    kitti.add_argument("kitti_dir", type=Path, metavar="KITTI_DIR")
+    kitti.add_argument("out", type=Path, metavar="OUT")
+    kitti.add_argument("--max-frames", type=int, default=None, metavar="N")
+
+    learn = commands.add_parser(
+        "learn",
+        formatter_class=_formatter,
+        help="learn a PCA basis from the disparity maps of logs",
+        description=(
+            "Learn a PCA basis of dense disparity maps from stereo logs: SGBM on every pair\n"
+            "(or a ground-truth depth topic), the paper's preprocessing, streaming PCA."
+        ),
+        epilog=(
+            "examples:\n"
+            "  pcainterp learn a.mcap b.mcap -o basis.npz --components 300\n"
+            "  pcainterp learn drive.mcap -o basis.npz --variance 0.95 --grid-scale 0.125\n"
+            "  pcainterp learn synth.mcap -o basis.npz --depth-topic /ground_truth/depth\n"
+        ),
+    )
+    learn.add_argument("logs", type=Path, nargs="+", metavar="LOG")
+    learn.add_argument("-o", "--output", type=Path, required=True, metavar="BASIS.npz")
+    size = learn.add_mutually_exclusive_group()
+    size.add_argument("--components", type=int, default=None, metavar="L")
+    size.add_argument("--variance", type=float, default=None, metavar="R")
+    learn.add_argument("--grid-scale", type=float, default=None, metavar="G")
+    learn.add_argument(
+        "--depth-topic",
+        default=None,
+        metavar="TOPIC",
+        help="learn from this depth image topic (32FC1, m) instead of SGBM maps",
+    )
+    learn.add_argument("--every", type=int, default=1, metavar="N", help="use every N-th frame")
+    _add_topic_options(learn)
+    _add_stereo_options(learn)
+
+    densify = commands.add_parser(
+        "densify",
+        formatter_class=_formatter,
+        help="densify a stereo log: add depth and uncertainty channels",
+        description=(
+            "Read a stereo log, densify every pair (GFTT + SGBM lookups + MAP), and write a\n"
+            "copy of the log with /pcainterp/* depth and uncertainty channels added."
+        ),
+        epilog=(
+            "examples:\n"
+            "  pcainterp densify drive.mcap -o drive_dense.mcap --basis basis.npz\n"
+            "  pcainterp densify drive.bag -o out.mcap --basis basis.npz --rerun\n"
+            "  pcainterp densify slam.mcap -o out.mcap --basis b.npz --features-topic /features\n"
+        ),
+    )
+    densify.add_argument("input", type=Path, metavar="INPUT")
+    densify.add_argument("-o", "--output", type=Path, required=True, metavar="OUTPUT")
+    densify.add_argument("--basis", type=Path, required=True, metavar="BASIS.npz")
+    densify.add_argument("--rerun", action="store_true", help="stream to a Rerun viewer")
+    densify.add_argument("--rrd", type=Path, default=None, metavar="FILE", help="write .rrd")
+    densify.add_argument("--sigma", type=float, default=2.0, metavar="PX")
+    densify.add_argument(
+        "--uncertainty", choices=["exact", "paper", "none"], default="exact"
+    )
+    densify.add_argument(
+        "--features-topic",
+        default=None,
+        metavar="TOPIC",
+        help="take measurements from this PointCloud2 stream instead of GFTT + SGBM",
+    )
+    densify.add_argument(
+        "--depth-mm", action="store_true", help="also write a 16UC1 millimetre depth (Foxglove)"
+    )
+    _add_topic_options(densify)
+    _add_stereo_options(densify)
+
+    info = commands.add_parser(
+        "info",
+        formatter_class=_formatter,
+        help="describe a log (topics, counts, duration) or a basis file",
+        epilog="examples:\n  pcainterp info drive.mcap\n  pcainterp info basis.npz\n",
+    )
+    info.add_argument("file", type=Path, metavar="FILE")
+
+    demo = commands.add_parser(
+        "demo",
+        formatter_class=_formatter,
+        help="run the whole job on generated logs and print a summary",
+        description=(
+            "Generate a synthetic training log and a held-out log, learn a basis, densify the\n"
+            "held-out log and compare with ground truth (PCA-MAP against nearest neighbour)."
+        ),
+        epilog="examples:\n  pcainterp demo\n  pcainterp demo --out /tmp/demo --rerun\n",
+    )
+    demo.add_argument("--out", type=Path, default=Path("demo_out"), metavar="DIR")
+    demo.add_argument("--rerun", action="store_true", help="watch the densified log in Rerun")
+    return parser
+
+
+def _raise_keyboard_interrupt(signum: int, frame: FrameType | None) -> None:
+    raise KeyboardInterrupt
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``pcainterp``; return the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    # SIGTERM takes the same clean-up path as Ctrl-C: temporaries removed, target untouched.
+    signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)
+    try:
+        from pcainterp_stream import jobs
+
+        return jobs.run(args)
+    except PcaInterpError as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; no partial output was left at the target", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,124 @@
+"""The ``/pcainterp/*`` output messages of one densified frame (DESIGN.md section 3).
+
+Every output message carries the left image's header (stamp, frame_id); the caller writes
+them at the left image's log time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from pcainterp_stream import rosmsg
+from pcainterp_stream.records import DensifiedFrame
+
+
+@dataclass(frozen=True)
+class OutputTopics:
+    """Names of the output channels; the defaults are DESIGN.md's."""
+
+    depth: str = "/pcainterp/depth"
+    depth_std: str = "/pcainterp/depth_std"
+    disparity: str = "/pcainterp/disparity"
+    disparity_std: str = "/pcainterp/disparity_std"
+    features: str = "/pcainterp/features"
+    camera_info: str = "/pcainterp/camera_info"
+    depth_mm: str | None = None
+    """When set, also a ``16UC1`` millimetre copy of the depth (0 = invalid), which
+    Foxglove's image panel colour-maps (it draws ``32FC1`` as grey)."""
+
+    @classmethod
+    def with_prefix(cls, prefix: str, *, depth_mm: bool = False) -> OutputTopics:
+        """Return the default topics under another prefix (``/pcainterp`` by default)."""
+        prefix = "/" + prefix.strip("/")
+        return cls(
+            depth=f"{prefix}/depth",
+            depth_std=f"{prefix}/depth_std",
+            disparity=f"{prefix}/disparity",
+            disparity_std=f"{prefix}/disparity_std",
+            features=f"{prefix}/features",
+            camera_info=f"{prefix}/camera_info",
+            depth_mm=f"{prefix}/depth_mm" if depth_mm else None,
+        )
+
+    def all(self) -> list[str]:
+        """Return every output topic in use."""
+        topics = [
+            self.depth,
+            self.depth_std,
+            self.disparity,
+            self.disparity_std,
+            self.features,
+            self.camera_info,
+        ]
+        return topics + ([self.depth_mm] if self.depth_mm else [])
+
+
+def output_messages(result: DensifiedFrame, topics: OutputTopics) -> list[tuple[str, Any]]:
+    """Build the output messages of one frame.
+
+    Args:
+        result: the densified frame.
+        topics: output channel names.
+
+    Returns:
+        (topic, typestore message) pairs, in a fixed order.
+    """
+    frame = result.frame
+    camera = frame.camera
+    stamp, frame_id = frame.stamp_ns, frame.frame_id
+    pixels = result.pixels.astype(np.float32, copy=False)
+    disparities = result.disparities.astype(np.float32, copy=False)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(disparities > 0, camera.focal_baseline / disparities, np.nan)
+    x = (pixels[:, 0] - camera.cx) * z / camera.fx
+    y = (pixels[:, 1] - camera.cy) * z / camera.fy
+    finite = np.isfinite(result.disparity)
+    messages: list[tuple[str, Any]] = [
+        (topics.depth, rosmsg.image_message(result.depth, stamp, frame_id, encoding="32FC1")),
+        (
+            topics.depth_std,
+            rosmsg.image_message(result.depth_std, stamp, frame_id, encoding="32FC1"),
+        ),
+        (
+            topics.disparity,
+            rosmsg.disparity_image_message(
+                result.disparity,
+                stamp,
+                frame_id,
+                focal=camera.fx,
+                baseline=camera.baseline,
+                min_disparity=float(np.min(result.disparity[finite])) if finite.any() else 0.0,
+                max_disparity=float(np.max(result.disparity[finite])) if finite.any() else 0.0,
+            ),
+        ),
+        (
+            topics.disparity_std,
+            rosmsg.image_message(result.disparity_std, stamp, frame_id, encoding="32FC1"),
+        ),
+        (
+            topics.features,
+            rosmsg.pointcloud2_message(
+                {
+                    "x": x.astype(np.float32),
+                    "y": y.astype(np.float32),
+                    "z": z.astype(np.float32),
+                    "u": pixels[:, 0],
+                    "v": pixels[:, 1],
+                    "disparity": disparities,
+                },
+                stamp,
+                frame_id,
+            ),
+        ),
+        (topics.camera_info, rosmsg.camera_info_message(camera, stamp, frame_id)),
+    ]
+    if topics.depth_mm:
+        millimetres = np.nan_to_num(result.depth * 1000.0, nan=0.0, posinf=0.0, neginf=0.0)
+        depth_mm = np.clip(np.rint(millimetres), 0, 65535).astype(np.uint16)
+        messages.append(
+            (topics.depth_mm, rosmsg.image_message(depth_mm, stamp, frame_id, encoding="16UC1"))
+        )
+    return messages

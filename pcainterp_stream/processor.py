@@ -1,0 +1,221 @@
+"""The incremental frame processor: stereo pairs in, densified frames out.
+
+Per pair: GFTT corners on the left image, SGBM disparity, disparity lookups at the corners
+(or the points of a sparse feature stream instead), then MAP densification with the basis.
+Stereo matching of the next frames runs in a worker thread while the current batch is
+densified (OpenCV and BLAS release the GIL), so both cores stay busy; memory is bounded by
+the look-ahead, whatever the length of the stream.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections import deque
+from collections.abc import Iterable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from types import TracebackType
+from typing import NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.basis import Basis
+from pcainterp_stream.estimator import densify_batch
+from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoCamera, StereoFrame
+from pcainterp_stream.stereo import GfttConfig, SgbmConfig, StereoFrontEnd
+
+
+class MeasurementSource(enum.Enum):
+    """Where the sparse measurements of a frame come from."""
+
+    STEREO = "stereo"
+    """GFTT corners on the left image, disparities looked up in an SGBM map."""
+    FEATURES = "features"
+    """The points of a sparse feature stream (``/features``) with the frame's stamp."""
+
+
+@dataclass(frozen=True)
+class ProcessorConfig:
+    """Options of the frame processor.
+
+    Attributes:
+        gftt: corner detector options.
+        sgbm: stereo matcher options.
+        sigma: measurement noise std (px) of the MAP estimate.
+        uncertainty: "exact", "paper" or "none".
+        source: measurement source.
+        batch_size: frames densified together (matrix-matrix products).
+        lookahead: frames stereo-matched ahead of densification.
+    """
+
+    gftt: GfttConfig = field(default_factory=GfttConfig)
+    sgbm: SgbmConfig = field(default_factory=SgbmConfig)
+    sigma: float = 2.0
+    uncertainty: str = "exact"
+    source: MeasurementSource = MeasurementSource.STEREO
+    batch_size: int = 4
+    lookahead: int = 2
+
+
+class _Measured(NamedTuple):
+    frame: StereoFrame
+    pixels: npt.NDArray[np.float32]
+    disparities: npt.NDArray[np.float32]
+    counts: dict[str, int]
+
+
+def features_to_measurements(
+    features: SparseFeatures | None, camera: StereoCamera
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32], dict[str, int]]:
+    """Project sparse 3-D points of the left optical frame to pixels and disparities.
+
+    Args:
+        features: the frame's points, or None when the stream has none for this stamp.
+        camera: the stereo calibration.
+
+    Returns:
+        pixels (k, 2) float32 (x, y) px, disparities (k,) float32 px = f*b / z, and counts
+        (points, behind the camera or outside the image).
+    """
+    if features is None or features.points.size == 0:
+        empty = np.zeros((0, 2), dtype=np.float32)
+        return empty, np.zeros(0, dtype=np.float32), {"features": 0, "features_rejected": 0}
+    points = features.points.astype(np.float64)
+    z = points[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = camera.fx * points[:, 0] / z + camera.cx
+        v = camera.fy * points[:, 1] / z + camera.cy
+        disparity = camera.focal_baseline / z
+    keep = (
+        np.isfinite(u)
+        & np.isfinite(v)
+        & (z > 0)
+        & (u >= -0.5)
+        & (u <= camera.width - 0.5)
+        & (v >= -0.5)
+        & (v <= camera.height - 0.5)
+    )
+    pixels = np.stack([u[keep], v[keep]], axis=1).astype(np.float32)
+    counts = {"features": int(points.shape[0]), "features_rejected": int((~keep).sum())}
+    return pixels, disparity[keep].astype(np.float32), counts
+
+
+class FrameProcessor:
+    """Densify a stream of stereo pairs, pipelined; use as a context manager.
+
+    ``submit`` takes frames in order and returns the frames finished so far, in order;
+    ``finish`` returns the rest. ``process`` wraps both for a plain iterable.
+
+    Args:
+        basis: the PCA basis.
+        config: processor options.
+    """
+
+    def __init__(self, basis: Basis, config: ProcessorConfig | None = None) -> None:
+        self.basis = basis
+        self.config = config or ProcessorConfig()
+        if self.config.batch_size < 1 or self.config.lookahead < 0:
+            raise ValueError("batch_size must be >= 1 and lookahead >= 0")
+        self.front_end = StereoFrontEnd(self.config.gftt, self.config.sgbm)
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stereo")
+        self._pending: deque[Future[_Measured]] = deque()
+        self._ready: list[_Measured] = []
+        self.frames_done = 0
+
+    def __enter__(self) -> FrameProcessor:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Stop the worker thread, dropping frames still in flight."""
+        for future in self._pending:
+            future.cancel()
+        self._pending.clear()
+        self._executor.shutdown(wait=True, cancel_futures=True)
+
+    def _measure(self, frame: StereoFrame, features: SparseFeatures | None) -> _Measured:
+        if self.config.source is MeasurementSource.FEATURES:
+            pixels, disparities, counts = features_to_measurements(features, frame.camera)
+            return _Measured(frame, pixels, disparities, counts)
+        measurements = self.front_end.measure(frame.left, frame.right)
+        return _Measured(
+            frame, measurements.pixels, measurements.disparities, dict(measurements.counts)
+        )
+
+    def submit(
+        self, frame: StereoFrame, features: SparseFeatures | None = None
+    ) -> list[DensifiedFrame]:
+        """Queue one frame; return the frames finished meanwhile, in stream order."""
+        self._pending.append(self._executor.submit(self._measure, frame, features))
+        while len(self._pending) > self.config.lookahead:
+            self._ready.append(self._pending.popleft().result())
+        if len(self._ready) >= self.config.batch_size:
+            return self._densify_ready()
+        return []
+
+    def finish(self) -> list[DensifiedFrame]:
+        """Finish every queued frame and return them in stream order."""
+        while self._pending:
+            self._ready.append(self._pending.popleft().result())
+        return self._densify_ready()
+
+    def process(
+        self, frames: Iterable[StereoFrame | tuple[StereoFrame, SparseFeatures | None]]
+    ) -> Iterator[DensifiedFrame]:
+        """Densify every frame of an iterable, yielding results in order."""
+        for item in frames:
+            if isinstance(item, StereoFrame):
+                yield from self.submit(item)
+            else:
+                yield from self.submit(*item)
+        yield from self.finish()
+
+    def _densify_ready(self) -> list[DensifiedFrame]:
+        ready, self._ready = self._ready, []
+        if not ready:
+            return []
+        results: list[DensifiedFrame] = []
+        # Frames of one camera are densified together; a camera change splits the batch.
+        start = 0
+        while start < len(ready):
+            camera = ready[start].frame.camera
+            stop = start
+            while stop < len(ready) and ready[stop].frame.camera == camera:
+                stop += 1
+            group = ready[start:stop]
+            estimates = densify_batch(
+                self.basis,
+                [item.pixels for item in group],
+                [item.disparities for item in group],
+                sigma=self.config.sigma,
+                uncertainty=self.config.uncertainty,
+                image_size=camera.image_size,
+                focal_baseline=camera.focal_baseline,
+            )
+            for item, estimate in zip(group, estimates, strict=True):
+                counts = dict(item.counts)
+                counts["dropped"] = int(estimate.n_dropped)
+                results.append(
+                    DensifiedFrame(
+                        frame=item.frame,
+                        pixels=item.pixels,
+                        disparities=item.disparities,
+                        disparity=estimate.disparity,
+                        disparity_std=estimate.disparity_std,
+                        depth=estimate.depth,
+                        depth_std=estimate.depth_std,
+                        measurement_source=self.config.source.value,
+                        counts=counts,
+                    )
+                )
+            start = stop
+        self.frames_done += len(results)
+        return results
