@@ -1,0 +1,775 @@
+"""Stereo front end: Shi-Tomasi corners, SGBM disparity, and the disparity at the corners.
+
+This is the paper's KITTI measurement setup (Ochs, Bradler & Mester 2017, section IV):
+"good features to track" corners on the left image whose disparities are read from an
+SGBM disparity map. Everything here is a pure function over arrays (no log I/O, no PCA):
+
+* :func:`detect_corners` -- ``cv2.goodFeaturesToTrack`` (+ ``cv2.cornerSubPix``);
+* :func:`compute_disparity` -- ``cv2.StereoSGBM`` as float32 px, NaN where invalid;
+* :func:`compute_right_disparity` -- the right view's map, for an explicit left-right check;
+* :func:`lookup_disparities` -- sub-pixel disparity at the corners, with validity checks;
+* :class:`StereoFrontEnd` -- the three bundled for one stereo pair.
+
+Corners like to sit on object outlines, exactly where a disparity map jumps and where SGBM
+is least reliable (foreground fattening, occlusions). A lookup is therefore kept only when
+the disparity map is valid and smooth around the corner, and, optionally, when the right
+view's map agrees with it.
+
+Defaults were chosen from measurements on real KITTI raw frames (1242x375, 2 cores); see
+``docs/benchmarks.md``, section "Stereo front end (issue 4)", and ``tools/bench_stereo.py``.
+
+Threading: OpenCV releases the GIL inside SGBM, so a worker thread can compute frame t+1
+while the main thread densifies frame t. A ``cv2.StereoSGBM`` object is not safe to share
+between threads; the matcher cache here is per thread (and per configuration).
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any, NamedTuple
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+__all__ = [
+    "GfttConfig",
+    "Lookup",
+    "LookupConfig",
+    "LookupMethod",
+    "Measurements",
+    "RejectionCounts",
+    "SgbmConfig",
+    "SgbmMode",
+    "StereoFrontEnd",
+    "compute_disparity",
+    "compute_right_disparity",
+    "detect_corners",
+    "lookup_disparities",
+    "to_grey8",
+    "to_grey8_pair",
+]
+
+FloatArray = npt.NDArray[np.float32]
+UInt8Array = npt.NDArray[np.uint8]
+
+# Percentile of a 16-bit image mapped to 255 when converting it to 8 bit (see to_grey8).
+_UINT16_PERCENTILE = 99.9
+
+
+# ---------------------------------------------------------------------------------------
+# Image conversion
+# ---------------------------------------------------------------------------------------
+
+
+def _check_image(image: npt.NDArray[Any], name: str) -> None:
+    layout_ok = image.ndim == 2 or (image.ndim == 3 and image.shape[2] in (1, 3))
+    if layout_ok and image.dtype in (np.uint8, np.uint16):
+        return
+    raise ValueError(
+        f"{name} image has shape {image.shape} and dtype {image.dtype}; expected (H, W) "
+        "uint8/uint16 grey or (H, W, 3) uint8/uint16 RGB"
+    )
+
+
+def _grey_of(image: npt.NDArray[Any]) -> npt.NDArray[Any]:
+    if image.ndim == 3 and image.shape[2] == 1:
+        return image[:, :, 0]
+    if image.ndim == 3:
+        return np.asarray(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY))
+    return image
+
+
+def to_grey8_pair(left: npt.NDArray[Any], right: npt.NDArray[Any]) -> tuple[UInt8Array, UInt8Array]:
+    """Convert a stereo pair to 8-bit grey, both images with the same intensity mapping.
+
+    RGB (channel order R, G, B; for BGR the weights differ slightly, which does not matter
+    for matching as both views get the same) is converted with ``cv2.COLOR_RGB2GRAY``.
+    16-bit images are scaled linearly so that the 99.9th percentile of the pair (on a 4x
+    subsampled grid, for speed) maps to 255, and clipped: ``>> 8`` would leave 12-bit
+    cameras with 16 grey levels. Both views share one scale, so matching costs are not
+    biased by a per-image gain.
+
+    Args:
+        left: (H, W) uint8/uint16 grey, (H, W, 1), or (H, W, 3) uint8/uint16 RGB left image.
+        right: right image, same shape and dtype as ``left``.
+
+    Returns:
+        (left, right): two (H, W) uint8 grey images.
+
+    Raises:
+        ValueError: if the shapes or dtypes differ, or an image is not one of the above.
+    """
+    if left.shape != right.shape or left.dtype != right.dtype:
+        raise ValueError(
+            f"left image is {left.shape} {left.dtype} but right image is {right.shape} "
+            f"{right.dtype}; pass a rectified pair of equal size and type"
+        )
+    _check_image(left, "left")
+    grey_left = _grey_of(left)
+    grey_right = _grey_of(right)
+    if grey_left.dtype == np.uint8:
+        return np.ascontiguousarray(grey_left), np.ascontiguousarray(grey_right)
+    top = max(
+        float(np.percentile(grey_left[::4, ::4], _UINT16_PERCENTILE)),
+        float(np.percentile(grey_right[::4, ::4], _UINT16_PERCENTILE)),
+        1.0,
+    )
+    scale = 255.0 / top
+    return (
+        np.asarray(cv2.convertScaleAbs(grey_left, alpha=scale), np.uint8),
+        np.asarray(cv2.convertScaleAbs(grey_right, alpha=scale), np.uint8),
+    )
+
+
+def to_grey8(image: npt.NDArray[Any]) -> UInt8Array:
+    """Convert one image to 8-bit grey, as :func:`to_grey8_pair` does for a pair.
+
+    Args:
+        image: (H, W) uint8/uint16 grey, (H, W, 1), or (H, W, 3) uint8/uint16 RGB.
+
+    Returns:
+        (H, W) uint8 grey image.
+    """
+    return to_grey8_pair(image, image)[0]
+
+
+# ---------------------------------------------------------------------------------------
+# Corners
+# ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class GfttConfig:
+    """Shi-Tomasi corner detection (``cv2.goodFeaturesToTrack``) settings.
+
+    The defaults give ~300 well spread valid lookups per KITTI frame (1242x375) after the
+    checks of :func:`lookup_disparities` (measured: ``docs/benchmarks.md``).
+
+    Attributes:
+        max_corners: most corners returned (strongest first).
+        quality_level: minimum accepted corner response as a fraction of the strongest.
+        min_distance: minimum distance between corners (px).
+        block_size: size of the averaging block of the structure tensor (px).
+        border: corners closer than this to any image edge are dropped (px).
+        use_harris: use the Harris response instead of the Shi-Tomasi minimum eigenvalue.
+        harris_k: Harris detector free parameter (only with ``use_harris``).
+        subpixel: refine positions with ``cv2.cornerSubPix``.
+        subpixel_window: half size of the ``cornerSubPix`` search window (px).
+    """
+
+    max_corners: int = 400
+    quality_level: float = 0.01
+    min_distance: float = 10.0
+    block_size: int = 3
+    border: int = 8
+    use_harris: bool = False
+    harris_k: float = 0.04
+    subpixel: bool = True
+    subpixel_window: int = 3
+
+    def __post_init__(self) -> None:
+        if self.max_corners < 1:
+            raise ValueError(f"max_corners must be >= 1, got {self.max_corners}")
+        if not 0.0 < self.quality_level < 1.0:
+            raise ValueError(f"quality_level must be in (0, 1), got {self.quality_level}")
+        if self.border < 0 or self.block_size < 1 or self.subpixel_window < 1:
+            raise ValueError(
+                f"border ({self.border}) must be >= 0, block_size ({self.block_size}) and "
+                f"subpixel_window ({self.subpixel_window}) >= 1"
+            )
+
+
+_SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 20, 0.03)
+
+
+def detect_corners(
+    left_grey: npt.NDArray[np.uint8],
+    config: GfttConfig = GfttConfig(),  # frozen, so a shared default is safe
+    *,
+    min_x: int = 0,
+) -> FloatArray:
+    """Find Shi-Tomasi corners in the left image.
+
+    Corners are searched only inside the image minus ``config.border`` px on every side and
+    right of ``min_x`` (pass ``min_disparity + num_disparities`` of the matcher: left of it
+    SGBM has no disparity, so corners there would be wasted).
+
+    Args:
+        left_grey: (H, W) uint8 grey left image.
+        config: detector settings.
+        min_x: corners with x < min_x are not searched for (px).
+
+    Returns:
+        (k, 2) float32 corner positions (x, y) in image px, strongest first; (0, 2) when the
+        image has no corners (e.g. a blank image).
+
+    Raises:
+        ValueError: if ``left_grey`` is not a 2-D uint8 array.
+    """
+    if left_grey.ndim != 2 or left_grey.dtype != np.uint8:
+        raise ValueError(
+            f"left_grey must be (H, W) uint8, got {left_grey.shape} {left_grey.dtype}; "
+            "convert with to_grey8"
+        )
+    height, width = left_grey.shape
+    x_start = max(config.border, min_x)
+    if x_start >= width - config.border or 2 * config.border >= height:
+        return np.zeros((0, 2), np.float32)
+    mask = np.zeros((height, width), np.uint8)
+    mask[config.border : height - config.border, x_start : width - config.border] = 255
+    found = cv2.goodFeaturesToTrack(
+        left_grey,
+        maxCorners=config.max_corners,
+        qualityLevel=config.quality_level,
+        minDistance=config.min_distance,
+        mask=mask,
+        blockSize=config.block_size,
+        useHarrisDetector=config.use_harris,
+        k=config.harris_k,
+    )
+    if found is None or len(found) == 0:
+        return np.zeros((0, 2), np.float32)
+    corners = np.ascontiguousarray(found.reshape(-1, 2), dtype=np.float32)
+    if config.subpixel:
+        window = (config.subpixel_window, config.subpixel_window)
+        refined = cv2.cornerSubPix(left_grey, corners, window, (-1, -1), _SUBPIX_CRITERIA)
+        corners = np.asarray(refined, np.float32).reshape(-1, 2)
+    return corners
+
+
+# ---------------------------------------------------------------------------------------
+# SGBM
+# ---------------------------------------------------------------------------------------
+
+
+class SgbmMode(Enum):
+    """The dynamic-programming variant of ``cv2.StereoSGBM``.
+
+    ``SGBM`` aggregates 5 directions in one pass; ``SGBM_3WAY`` 3 directions, parallelised
+    over image strips (fastest, and the default); ``HH`` the full 8-direction
+    Hirschmuller algorithm (much more memory); ``HH4`` 4 directions.
+    """
+
+    SGBM = cv2.STEREO_SGBM_MODE_SGBM
+    HH = cv2.STEREO_SGBM_MODE_HH
+    SGBM_3WAY = cv2.STEREO_SGBM_MODE_SGBM_3WAY
+    HH4 = cv2.STEREO_SGBM_MODE_HH4
+
+
+@dataclass(frozen=True)
+class SgbmConfig:
+    """``cv2.StereoSGBM`` settings (see the OpenCV documentation of ``StereoSGBM_create``).
+
+    The defaults are for KITTI size (1242x375, disparities up to ~100 px for objects at
+    4 m) and were chosen from the measurements in ``docs/benchmarks.md``.
+
+    Attributes:
+        min_disparity: smallest disparity searched (px).
+        num_disparities: number of disparities searched (px), a multiple of 16; pixels with
+            x < min_disparity + num_disparities have no full search range and are mostly
+            invalid.
+        block_size: matched block size (odd, px).
+        p1: penalty on disparity changes of 1 px between neighbours; ``None`` means
+            8 * 1 * block_size**2 (one grey channel).
+        p2: penalty on larger changes; ``None`` means 32 * 1 * block_size**2.
+        disp12_max_diff: OpenCV's built-in left-right check tolerance (px, integer);
+            negative disables it.
+        uniqueness_ratio: margin (%) by which the best cost must beat the second best.
+        speckle_window_size: largest connected region (px) of similar disparity that is
+            removed as a speckle; 0 disables speckle filtering.
+        speckle_range: largest disparity variation inside a connected region (px; OpenCV
+            multiplies it by 16 internally).
+        pre_filter_cap: clip value of the x-derivative prefilter.
+        mode: the aggregation variant.
+        downscale: 1 matches at full resolution; 2 matches at half resolution (INTER_AREA)
+            with half the disparity range and upsamples the map (INTER_LINEAR, values x2),
+            ~4x cheaper and coarser.
+    """
+
+    min_disparity: int = 0
+    num_disparities: int = 128
+    block_size: int = 5
+    p1: int | None = None
+    p2: int | None = None
+    disp12_max_diff: int = 1
+    uniqueness_ratio: int = 10
+    speckle_window_size: int = 100
+    speckle_range: int = 2
+    pre_filter_cap: int = 63
+    mode: SgbmMode = SgbmMode.SGBM_3WAY
+    downscale: int = 1
+
+    def __post_init__(self) -> None:
+        if self.num_disparities <= 0 or self.num_disparities % 16:
+            raise ValueError(
+                f"num_disparities must be a positive multiple of 16, got {self.num_disparities}"
+            )
+        if self.block_size < 1 or self.block_size % 2 == 0:
+            raise ValueError(f"block_size must be odd and >= 1, got {self.block_size}")
+        if self.downscale not in (1, 2):
+            raise ValueError(f"downscale must be 1 or 2, got {self.downscale}")
+
+    @property
+    def penalty_small(self) -> int:
+        """Return P1, the resolved penalty for 1 px disparity changes."""
+        return self.p1 if self.p1 is not None else 8 * self.block_size**2
+
+    @property
+    def penalty_large(self) -> int:
+        """Return P2, the resolved penalty for larger disparity changes."""
+        return self.p2 if self.p2 is not None else 32 * self.block_size**2
+
+    @property
+    def valid_min_x(self) -> int:
+        """Return the first column (px) where the full disparity range can be searched."""
+        return self.min_disparity + self.num_disparities
+
+    def matched(self) -> SgbmConfig:
+        """Return the configuration SGBM actually runs with at the matching resolution."""
+        if self.downscale == 1:
+            return self
+        factor = self.downscale
+        num = -(-self.num_disparities // (16 * factor)) * 16
+        return SgbmConfig(
+            min_disparity=self.min_disparity // factor,
+            num_disparities=num,
+            block_size=self.block_size,
+            p1=self.p1,
+            p2=self.p2,
+            disp12_max_diff=self.disp12_max_diff,
+            uniqueness_ratio=self.uniqueness_ratio,
+            speckle_window_size=self.speckle_window_size // (factor * factor),
+            speckle_range=self.speckle_range,
+            pre_filter_cap=self.pre_filter_cap,
+            mode=self.mode,
+            downscale=1,
+        )
+
+
+_matchers = threading.local()
+
+
+def _matcher(config: SgbmConfig) -> cv2.StereoSGBM:
+    """Return this thread's cached ``cv2.StereoSGBM`` for ``config`` (full resolution)."""
+    cache: dict[SgbmConfig, cv2.StereoSGBM] | None = getattr(_matchers, "cache", None)
+    if cache is None:
+        cache = {}
+        _matchers.cache = cache
+    matcher = cache.get(config)
+    if matcher is None:
+        matcher = cv2.StereoSGBM.create(
+            minDisparity=config.min_disparity,
+            numDisparities=config.num_disparities,
+            blockSize=config.block_size,
+            P1=config.penalty_small,
+            P2=config.penalty_large,
+            disp12MaxDiff=config.disp12_max_diff,
+            uniquenessRatio=config.uniqueness_ratio,
+            speckleWindowSize=config.speckle_window_size,
+            speckleRange=config.speckle_range,
+            preFilterCap=config.pre_filter_cap,
+            mode=config.mode.value,
+        )
+        cache[config] = matcher
+    return matcher
+
+
+def _flip(image: UInt8Array) -> UInt8Array:
+    """Mirror an image left to right (contiguous)."""
+    return np.asarray(cv2.flip(image, 1), np.uint8)
+
+
+def _sgbm_grey(left: UInt8Array, right: UInt8Array, config: SgbmConfig) -> FloatArray:
+    """Run SGBM on an 8-bit pair, returning float32 px with NaN where invalid."""
+    height, width = left.shape
+    matched = config.matched()
+    if config.downscale != 1:
+        size = (-(-width // config.downscale), -(-height // config.downscale))
+        left = np.asarray(cv2.resize(left, size, interpolation=cv2.INTER_AREA), np.uint8)
+        right = np.asarray(cv2.resize(right, size, interpolation=cv2.INTER_AREA), np.uint8)
+    fixed = _matcher(matched).compute(left, right)
+    # SGBM returns 16 * disparity as int16; invalid pixels are (min_disparity - 1) * 16.
+    disparity = fixed.astype(np.float32)
+    disparity *= np.float32(1.0 / 16.0)
+    disparity[fixed < matched.min_disparity * 16] = np.nan
+    if config.downscale != 1:
+        # Pixel-centre aligned upsampling; a NaN spreads to every output it touches.
+        scale = np.float32(width / left.shape[1])
+        upsampled = cv2.resize(disparity, (width, height), interpolation=cv2.INTER_LINEAR)
+        disparity = np.asarray(upsampled, np.float32) * scale
+    return disparity
+
+
+def compute_disparity(
+    left: npt.NDArray[Any],
+    right: npt.NDArray[Any],
+    config: SgbmConfig = SgbmConfig(),  # frozen, so a shared default is safe
+) -> FloatArray:
+    """Compute the left view's SGBM disparity map.
+
+    The matcher is created once per configuration and thread and reused. Images are
+    converted with :func:`to_grey8_pair` (uint8 grey as is; RGB to grey; uint16 scaled by
+    the pair's 99.9th percentile).
+
+    Args:
+        left: (H, W) uint8/uint16 grey or (H, W, 3) RGB rectified left image.
+        right: rectified right image, same shape and dtype.
+        config: matcher settings.
+
+    Returns:
+        (H, W) float32 disparity (px) of each left pixel; NaN where SGBM found none
+        (occlusions, failed uniqueness or left-right checks, speckles, and most of the
+        left band x < min_disparity + num_disparities).
+
+    Raises:
+        ValueError: if the images differ in shape or dtype or are not images.
+    """
+    grey_left, grey_right = to_grey8_pair(left, right)
+    return _sgbm_grey(grey_left, grey_right, config)
+
+
+def compute_right_disparity(
+    left: npt.NDArray[Any],
+    right: npt.NDArray[Any],
+    config: SgbmConfig = SgbmConfig(),  # frozen, so a shared default is safe
+) -> FloatArray:
+    """Compute the right view's disparity map, for an explicit left-right check.
+
+    SGBM only searches leftwards, so the right view's map is SGBM on the horizontally
+    flipped, swapped pair, flipped back: right pixel (x_r, y) matches left pixel
+    (x_r + d_r, y). It costs a second SGBM.
+
+    Args:
+        left: (H, W) uint8/uint16 grey or (H, W, 3) RGB rectified left image.
+        right: rectified right image, same shape and dtype.
+        config: matcher settings (as for :func:`compute_disparity`).
+
+    Returns:
+        (H, W) float32 disparity (px) of each right pixel, NaN where invalid (including
+        the right band x >= W - min_disparity - num_disparities).
+    """
+    grey_left, grey_right = to_grey8_pair(left, right)
+    flipped = _sgbm_grey(_flip(grey_right), _flip(grey_left), config)
+    return np.ascontiguousarray(flipped[:, ::-1])
+
+
+# ---------------------------------------------------------------------------------------
+# Lookup
+# ---------------------------------------------------------------------------------------
+
+
+class LookupMethod(Enum):
+    """How the disparity at a sub-pixel corner is read from the map."""
+
+    BILINEAR = "bilinear"
+    """Bilinear interpolation of the 2x2 pixel cell around the corner."""
+    MEDIAN = "median"
+    """Median of a small square window around the nearest pixel (robust, integer-ish)."""
+
+
+@dataclass(frozen=True)
+class LookupConfig:
+    """Validity checks of :func:`lookup_disparities`.
+
+    Attributes:
+        method: bilinear (sub-pixel) or window median.
+        max_gradient: largest |d difference| between 4-neighbouring pixels (px per px)
+            allowed in the support patch; larger means a depth discontinuity is near.
+        discontinuity_radius: the support patch is the sampled pixels (2x2 cell or median
+            window) grown by this many px on each side; every pixel in it must be valid
+            and smooth. A hole next to a valid sample is usually an occlusion at an object
+            outline.
+        median_window: side of the median window (odd px), for ``MEDIAN``.
+        lr_max_diff: largest |left - right| disparity difference (px) of the explicit
+            left-right check (used only when a right map is given).
+    """
+
+    method: LookupMethod = LookupMethod.BILINEAR
+    max_gradient: float = 1.0
+    discontinuity_radius: int = 1
+    median_window: int = 3
+    lr_max_diff: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.median_window < 1 or self.median_window % 2 == 0:
+            raise ValueError(f"median_window must be odd and >= 1, got {self.median_window}")
+        if self.discontinuity_radius < 0 or not self.max_gradient > 0.0:
+            raise ValueError(
+                f"discontinuity_radius ({self.discontinuity_radius}) must be >= 0 and "
+                f"max_gradient ({self.max_gradient}) > 0"
+            )
+
+
+class RejectionCounts(NamedTuple):
+    """How many corners a lookup kept and why it rejected the others.
+
+    Each rejected corner is counted once, under the first failed check in this order:
+    outside, invalid, discontinuity, inconsistent. ``corners == kept + outside + invalid +
+    discontinuity + inconsistent``. ``_asdict()`` gives a plain dict.
+
+    Attributes:
+        corners: corners given.
+        kept: lookups returned.
+        outside: the support patch left the image.
+        invalid: a sampled pixel has no disparity.
+        discontinuity: a hole or a gradient above ``max_gradient`` in the support patch.
+        inconsistent: the right view's disparity disagrees by more than ``lr_max_diff``.
+    """
+
+    corners: int
+    kept: int
+    outside: int
+    invalid: int
+    discontinuity: int
+    inconsistent: int
+
+
+class Lookup(NamedTuple):
+    """Disparities read at corners.
+
+    Attributes:
+        pixels: (m, 2) float32 (x, y) image px of the kept corners.
+        disparities: (m,) float32 disparity at each kept corner (px).
+        indices: (m,) int64 index of each kept corner in the input ``corners``.
+        counts: kept and rejected counts by reason.
+    """
+
+    pixels: FloatArray
+    disparities: FloatArray
+    indices: npt.NDArray[np.int64]
+    counts: RejectionCounts
+
+
+def _patches(
+    image: FloatArray, top: npt.NDArray[np.int64], left: npt.NDArray[np.int64], size: int
+) -> FloatArray:
+    """Gather (m, size, size) patches whose top-left corners are (top, left)."""
+    offsets = np.arange(size)
+    rows = (top[:, None] + offsets)[:, :, None]
+    cols = (left[:, None] + offsets)[:, None, :]
+    return np.asarray(image[rows, cols], np.float32)
+
+
+def _bilinear(image: FloatArray, x: FloatArray, y: FloatArray) -> FloatArray:
+    """Sample ``image`` bilinearly at (x, y) px; NaN outside or when a neighbour is NaN."""
+    height, width = image.shape
+    inside = np.isfinite(x) & np.isfinite(y)
+    inside &= (x >= 0) & (y >= 0) & (x <= width - 1) & (y <= height - 1)
+    x_safe = np.where(inside, x, 0).astype(np.float32)
+    y_safe = np.where(inside, y, 0).astype(np.float32)
+    x0 = np.minimum(np.floor(x_safe).astype(np.int64), width - 2)
+    y0 = np.minimum(np.floor(y_safe).astype(np.int64), height - 2)
+    cell = _patches(image, y0, x0, 2)
+    fx = x_safe - x0
+    fy = y_safe - y0
+    top = cell[:, 0, 0] * (1 - fx) + cell[:, 0, 1] * fx
+    bottom = cell[:, 1, 0] * (1 - fx) + cell[:, 1, 1] * fx
+    values = np.asarray(top * (1 - fy) + bottom * fy, np.float32)
+    values[~inside] = np.nan
+    return values
+
+
+def lookup_disparities(
+    disparity: FloatArray,
+    corners: FloatArray,
+    *,
+    right_disparity: FloatArray | None = None,
+    method: LookupMethod = LookupMethod.BILINEAR,
+    max_gradient: float = 1.0,
+    discontinuity_radius: int = 1,
+    median_window: int = 3,
+    lr_max_diff: float = 1.0,
+) -> Lookup:
+    """Read the disparity at (sub-pixel) corners and keep only trustworthy values.
+
+    A corner's value is the bilinear interpolation of the 2x2 pixel cell containing it
+    (``BILINEAR``), or the median of a ``median_window`` square around its nearest pixel
+    (``MEDIAN``). It is kept only when (checks in this order):
+
+    1. the support patch (the sampled pixels grown by ``discontinuity_radius``) is inside
+       the image;
+    2. every sampled pixel is valid (not NaN);
+    3. every pixel of the support patch is valid and no two 4-neighbours in it differ by
+       more than ``max_gradient`` px: a corner near a depth discontinuity, where SGBM
+       is unreliable, is rejected;
+    4. with ``right_disparity``: the right view's map at (x - d, y) (bilinear) agrees with
+       d within ``lr_max_diff`` px.
+
+    Args:
+        disparity: (H, W) float32 left disparity map (px), NaN where invalid.
+        corners: (k, 2) float32 (x, y) corner positions (px); (0, 2) is allowed.
+        right_disparity: optional (H, W) float32 right disparity map (px) from
+            :func:`compute_right_disparity`, for the explicit left-right check.
+        method: bilinear (sub-pixel) or window median.
+        max_gradient: largest neighbour difference (px per px) in the support patch.
+        discontinuity_radius: growth of the support patch around the samples (px).
+        median_window: odd side of the median window (px), for ``MEDIAN``.
+        lr_max_diff: tolerance of the left-right check (px).
+
+    Returns:
+        The kept pixels (m, 2) float32, their disparities (m,) float32 (px), their indices
+        into ``corners`` and the counts of rejections by reason.
+
+    Raises:
+        ValueError: if ``disparity`` is not 2-D, ``corners`` not (k, 2), or
+            ``right_disparity`` differs in shape from ``disparity``.
+    """
+    if disparity.ndim != 2:
+        raise ValueError(f"disparity must be a 2-D (H, W) map, got shape {disparity.shape}")
+    if corners.ndim != 2 or corners.shape[1] != 2:
+        raise ValueError(f"corners must have shape (k, 2) of (x, y), got {corners.shape}")
+    if right_disparity is not None and right_disparity.shape != disparity.shape:
+        raise ValueError(
+            f"right_disparity has shape {right_disparity.shape} but disparity has "
+            f"{disparity.shape}; compute both from the same pair"
+        )
+    if median_window < 1 or median_window % 2 == 0:
+        raise ValueError(f"median_window must be odd and >= 1, got {median_window}")
+    disparity = np.asarray(disparity, np.float32)
+    height, width = disparity.shape
+    count = corners.shape[0]
+    x = corners[:, 0].astype(np.float32)
+    y = corners[:, 1].astype(np.float32)
+    finite = np.isfinite(x) & np.isfinite(y)
+    x_safe = np.where(finite, x, 0)
+    y_safe = np.where(finite, y, 0)
+
+    if method is LookupMethod.BILINEAR:
+        sample_x0 = np.floor(x_safe).astype(np.int64)
+        sample_y0 = np.floor(y_safe).astype(np.int64)
+        sample_size = 2
+    else:
+        half = median_window // 2
+        sample_x0 = np.floor(x_safe + 0.5).astype(np.int64) - half
+        sample_y0 = np.floor(y_safe + 0.5).astype(np.int64) - half
+        sample_size = median_window
+    radius = discontinuity_radius
+    size = sample_size + 2 * radius
+    top = sample_y0 - radius
+    left = sample_x0 - radius
+    inside = finite & (top >= 0) & (left >= 0) & (top + size <= height) & (left + size <= width)
+
+    patch = _patches(disparity, np.where(inside, top, 0), np.where(inside, left, 0), size)
+    samples = patch[:, radius : radius + sample_size, radius : radius + sample_size]
+    sampled_valid = ~np.isnan(samples).any(axis=(1, 2))
+    # Any hole or jump between 4-neighbours of the patch (NaN differences compare False,
+    # so holes are tested separately).
+    jump_x = np.abs(np.diff(patch, axis=2)) > max_gradient
+    jump_y = np.abs(np.diff(patch, axis=1)) > max_gradient
+    smooth = ~(np.isnan(patch).any(axis=(1, 2)) | jump_x.any(axis=(1, 2)) | jump_y.any(axis=(1, 2)))
+
+    if method is LookupMethod.BILINEAR:
+        fx = x_safe - sample_x0
+        fy = y_safe - sample_y0
+        upper = samples[:, 0, 0] * (1 - fx) + samples[:, 0, 1] * fx
+        lower = samples[:, 1, 0] * (1 - fx) + samples[:, 1, 1] * fx
+        values = (upper * (1 - fy) + lower * fy).astype(np.float32)
+    else:
+        values = np.median(samples.reshape(count, -1), axis=1).astype(np.float32)
+
+    is_outside = ~inside
+    is_invalid = inside & ~sampled_valid
+    is_discontinuity = inside & sampled_valid & ~smooth
+    passed = inside & sampled_valid & smooth
+    consistent = np.ones(count, bool)
+    if right_disparity is not None:
+        right_values = _bilinear(
+            np.asarray(right_disparity, np.float32), x_safe - np.where(passed, values, 0), y_safe
+        )
+        with np.errstate(invalid="ignore"):
+            consistent = np.abs(right_values - values) <= lr_max_diff
+    is_inconsistent = passed & ~consistent
+    kept = passed & consistent
+
+    indices = np.flatnonzero(kept).astype(np.int64)
+    counts = RejectionCounts(
+        corners=count,
+        kept=int(indices.size),
+        outside=int(is_outside.sum()),
+        invalid=int(is_invalid.sum()),
+        discontinuity=int(is_discontinuity.sum()),
+        inconsistent=int(is_inconsistent.sum()),
+    )
+    pixels = np.ascontiguousarray(np.stack([x[indices], y[indices]], axis=1), np.float32)
+    return Lookup(pixels.reshape(-1, 2), values[indices], indices, counts)
+
+
+# ---------------------------------------------------------------------------------------
+# Front end
+# ---------------------------------------------------------------------------------------
+
+
+class Measurements(NamedTuple):
+    """Sparse disparity measurements of one stereo pair.
+
+    Attributes:
+        pixels: (k, 2) float32 (x, y) left-image px of the measurements.
+        disparities: (k,) float32 disparities (px).
+        disparity_map: (H, W) float32 SGBM left disparity map (px), NaN where invalid.
+        counts: corners found, lookups kept and rejected by reason.
+    """
+
+    pixels: FloatArray
+    disparities: FloatArray
+    disparity_map: FloatArray
+    counts: RejectionCounts
+
+
+@dataclass(frozen=True)
+class StereoFrontEnd:
+    """GFTT corners + SGBM disparity + checked lookup, for one stereo pair at a time.
+
+    Safe to call from several threads at once (each thread gets its own SGBM matcher).
+
+    Attributes:
+        gftt: corner detector settings.
+        sgbm: matcher settings.
+        lookup: lookup checks.
+        lr_check: also compute the right view's map (a second SGBM, roughly doubling the
+            cost) and reject lookups whose two disparities disagree.
+
+    Example:
+        >>> front_end = StereoFrontEnd()
+        >>> result = front_end.measure(left, right)  # doctest: +SKIP
+        >>> result.pixels.shape, result.counts.kept  # doctest: +SKIP
+    """
+
+    gftt: GfttConfig = field(default_factory=GfttConfig)
+    sgbm: SgbmConfig = field(default_factory=SgbmConfig)
+    lookup: LookupConfig = field(default_factory=LookupConfig)
+    lr_check: bool = False
+
+    def measure(self, left: npt.NDArray[Any], right: npt.NDArray[Any]) -> Measurements:
+        """Measure sparse disparities of one rectified stereo pair.
+
+        Args:
+            left: (H, W) uint8/uint16 grey or (H, W, 3) RGB rectified left image.
+            right: rectified right image, same shape and dtype.
+
+        Returns:
+            The kept measurements, the full disparity map and the counts.
+
+        Raises:
+            ValueError: if the images differ in shape or dtype or are not images.
+        """
+        grey_left, grey_right = to_grey8_pair(left, right)
+        disparity_map = _sgbm_grey(grey_left, grey_right, self.sgbm)
+        right_map = None
+        if self.lr_check:
+            flipped = _sgbm_grey(_flip(grey_right), _flip(grey_left), self.sgbm)
+            right_map = np.ascontiguousarray(flipped[:, ::-1])
+        corners = detect_corners(grey_left, self.gftt, min_x=self.sgbm.valid_min_x)
+        found = lookup_disparities(
+            disparity_map,
+            corners,
+            right_disparity=right_map,
+            method=self.lookup.method,
+            max_gradient=self.lookup.max_gradient,
+            discontinuity_radius=self.lookup.discontinuity_radius,
+            median_window=self.lookup.median_window,
+            lr_max_diff=self.lookup.lr_max_diff,
+        )
+        return Measurements(found.pixels, found.disparities, disparity_map, found.counts)
