@@ -1,0 +1,585 @@
+"""Log writers: MCAP (ROS 2 profile), rosbag2 (MCAP or SQLite 3 storage) and ROS 1 bags.
+
+One small interface hides the format: ::
+
+    with open_writer("out.mcap", LogFormat.MCAP, inputs=["in.mcap"]) as writer:
+        writer.add_raw(raw)                                  # copy an input message unchanged
+        writer.add_message("/pcainterp/depth", message, log_time_ns)
+
+Messages are rosbags typestore objects of :data:`rosmsg.TYPESTORE` (ROS 2 Humble); a
+channel (connection) is registered on first use of a topic with a message type.
+
+Output is atomic: everything is written into a hidden folder beside the target
+(``.OUT.partial-XXXX``) and moved onto the target only once complete and closed. An
+exception or KeyboardInterrupt inside the ``with`` block removes the partial output and
+leaves an existing target untouched. The writer refuses to write onto one of its inputs.
+
+This module knows message layouts only through :mod:`rosmsg`; it never reads a log.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from abc import ABC, abstractmethod
+from collections import Counter
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from enum import Enum
+from pathlib import Path
+from types import TracebackType
+from typing import IO, Any, Self
+
+from mcap.writer import CompressionType
+from mcap.writer import Writer as McapWriter
+from rosbags.convert.converter import is_same_wireformat
+from rosbags.interfaces import Connection
+from rosbags.rosbag1 import Writer as Rosbag1Writer
+from rosbags.rosbag2 import StoragePlugin
+from rosbags.rosbag2 import Writer as Rosbag2Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
+
+from pcainterp_stream import rosmsg
+from pcainterp_stream.errors import LogWriteError
+from pcainterp_stream.records import RawMessage
+
+ProgressCallback = Callable[[int, int | None], None]
+"""Called as ``progress(done, total)`` after each unit of work; ``total`` None if unknown."""
+
+LIBRARY = "pcainterp_stream"
+MCAP_CHUNK_SIZE = 4 * 1024 * 1024
+"""Uncompressed MCAP chunk size (bytes): a few KITTI images per zstd chunk."""
+
+
+class LogFormat(Enum):
+    """Output log formats."""
+
+    MCAP = "mcap"
+    """A single ``.mcap`` file, ``ros2`` profile, CDR messages, zstd chunks."""
+    ROSBAG2 = "rosbag2"
+    """A rosbag2 folder (``metadata.yaml`` + one ``.mcap`` storage file)."""
+    ROSBAG2_SQLITE3 = "rosbag2-sqlite3"
+    """A rosbag2 folder with SQLite 3 storage (``.db3``)."""
+    ROS1 = "ros1"
+    """A ROS 1 ``.bag`` file (format 2.0, uncompressed chunks)."""
+
+
+def format_from_path(path: str | os.PathLike[str]) -> LogFormat:
+    """Choose the output format from a path's name.
+
+    ``.mcap`` -> MCAP, ``.bag`` -> ROS 1, an existing folder or a name without a suffix ->
+    rosbag2 (MCAP storage).
+
+    Raises:
+        LogWriteError: for any other suffix.
+    """
+    target = Path(path)
+    suffix = target.suffix.lower()
+    if suffix == ".mcap":
+        return LogFormat.MCAP
+    if suffix == ".bag":
+        return LogFormat.ROS1
+    if target.is_dir() or not suffix:
+        return LogFormat.ROSBAG2
+    raise LogWriteError(
+        f"cannot tell the log format of {target} from its suffix {target.suffix!r}; "
+        "name it .mcap or .bag, use a folder name without a suffix for rosbag2, "
+        "or pass the format explicitly"
+    )
+
+
+@dataclass(frozen=True)
+class WriteSummary:
+    """What a writer wrote.
+
+    Attributes:
+        path: the finished output (file or rosbag2 folder).
+        format: its format.
+        message_count: number of messages.
+        topic_counts: messages per topic, in order of first appearance.
+        start_ns: smallest log time (ns), 0 when empty.
+        end_ns: largest log time (ns), 0 when empty.
+    """
+
+    path: Path
+    format: LogFormat
+    message_count: int
+    topic_counts: dict[str, int] = field(default_factory=dict)
+    start_ns: int = 0
+    end_ns: int = 0
+
+
+class LogWriter(ABC):
+    """Common interface of every format's writer; use as a context manager.
+
+    Subclasses write into :attr:`partial_path` (inside a hidden folder beside the target);
+    :meth:`close` moves it onto :attr:`path`, :meth:`abort` deletes it.
+    """
+
+    format: LogFormat
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._partial_dir: Path | None = None
+        self._topic_counts: Counter[str] = Counter()
+        self._start_ns: int | None = None
+        self._end_ns = 0
+        self._summary: WriteSummary | None = None
+
+    @property
+    def partial_path(self) -> Path:
+        """The file or folder being written (inside the hidden partial folder)."""
+        if self._partial_dir is None:
+            raise LogWriteError(f"writer for {self.path} is not open; use it in a with block")
+        return self._partial_dir / self.path.name
+
+    def open(self) -> None:
+        """Create the hidden partial folder and open the format's writer in it."""
+        parent = self.path.parent
+        if not parent.is_dir():
+            raise LogWriteError(
+                f"cannot write {self.path}: folder {parent} does not exist; create it first"
+            )
+        try:
+            self._partial_dir = Path(
+                tempfile.mkdtemp(prefix=f".{self.path.name}.partial-", dir=parent)
+            )
+        except OSError as err:
+            raise LogWriteError(
+                f"cannot write {self.path}: {err.strerror}; choose a writable folder"
+            ) from err
+        try:
+            self._open_partial()
+        except BaseException:
+            self._remove_partial()
+            raise
+
+    def add_message(
+        self, topic: str, message: Any, log_time_ns: int, publish_time_ns: int | None = None
+    ) -> None:
+        """Serialize and write a typestore message, registering its channel on first use.
+
+        Args:
+            topic: channel topic.
+            message: a :data:`rosmsg.TYPESTORE` message (``message.__msgtype__`` names it).
+            log_time_ns: log time (ns).
+            publish_time_ns: publish time (ns); the log time when None (MCAP only; the bag
+                formats store one time).
+        """
+        self._add_message(
+            topic,
+            str(message.__msgtype__),
+            rosmsg.serialize(message),
+            int(log_time_ns),
+            int(log_time_ns if publish_time_ns is None else publish_time_ns),
+        )
+        self._count(topic, int(log_time_ns))
+
+    def add_raw(self, raw: RawMessage) -> None:
+        """Copy a message of an input log unchanged (schema, encoding, metadata, times).
+
+        MCAP keeps everything; the bag formats keep topic, type, data and log time, and
+        accept CDR (``ros2msg``) messages only.
+        """
+        self._add_raw(raw)
+        self._count(raw.topic, int(raw.log_time_ns))
+
+    def close(self) -> WriteSummary:
+        """Finish the output and move it onto the target; return what was written."""
+        try:
+            self._close_partial()
+            self._commit()
+        except BaseException:
+            self._remove_partial()
+            raise
+        self._summary = self.summary()
+        return self._summary
+
+    def abort(self) -> None:
+        """Drop the partial output; the target is left as it was."""
+        try:
+            self._abort_partial()
+        finally:
+            self._remove_partial()
+
+    def summary(self) -> WriteSummary:
+        """Return the counts written so far."""
+        return WriteSummary(
+            path=self.path,
+            format=self.format,
+            message_count=sum(self._topic_counts.values()),
+            topic_counts=dict(self._topic_counts),
+            start_ns=self._start_ns or 0,
+            end_ns=self._end_ns,
+        )
+
+    def __enter__(self) -> Self:
+        self.open()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc_value: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+    def _count(self, topic: str, log_time_ns: int) -> None:
+        self._topic_counts[topic] += 1
+        self._start_ns = log_time_ns if self._start_ns is None else min(self._start_ns, log_time_ns)
+        self._end_ns = max(self._end_ns, log_time_ns)
+
+    def _commit(self) -> None:
+        """Move the finished partial output onto the target (replacing an old one)."""
+        assert self._partial_dir is not None
+        partial = self.partial_path
+        target = self.path
+        try:
+            if target.is_dir() and not target.is_symlink():
+                _check_replaceable_folder(target)
+                old = self._partial_dir / ".replaced"
+                os.replace(target, old)
+                os.replace(partial, target)
+            else:
+                os.replace(partial, target)
+        except OSError as err:
+            raise LogWriteError(
+                f"cannot move the finished output onto {target}: {err.strerror}; "
+                "check the folder's permissions"
+            ) from err
+        self._remove_partial()
+
+    def _remove_partial(self) -> None:
+        if self._partial_dir is not None:
+            shutil.rmtree(self._partial_dir, ignore_errors=True)
+            self._partial_dir = None
+
+    @abstractmethod
+    def _open_partial(self) -> None: ...
+
+    @abstractmethod
+    def _add_message(
+        self, topic: str, msgtype: str, data: bytes, log_time_ns: int, publish_time_ns: int
+    ) -> None: ...
+
+    @abstractmethod
+    def _add_raw(self, raw: RawMessage) -> None: ...
+
+    @abstractmethod
+    def _close_partial(self) -> None: ...
+
+    @abstractmethod
+    def _abort_partial(self) -> None: ...
+
+
+def _check_replaceable_folder(target: Path) -> None:
+    """Refuse to replace a folder that is not a rosbag2 bag (it may hold anything)."""
+    if not (target / "metadata.yaml").is_file():
+        raise LogWriteError(
+            f"output {target} is an existing folder that is not a rosbag2 bag (no "
+            "metadata.yaml); remove it or choose another output path"
+        )
+
+
+class McapLogWriter(LogWriter):
+    """MCAP in the ``ros2`` profile: ``ros2msg`` schemas, CDR messages, zstd chunks.
+
+    The summary repeats schemas and channels and holds statistics and a chunk index, so
+    seeking readers (mcap ``make_reader``, Foxglove, Rerun) can use it.
+    """
+
+    format = LogFormat.MCAP
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(path)
+        self._stream: IO[bytes] | None = None
+        self._writer: McapWriter | None = None
+        self._schemas: dict[tuple[str, str, bytes], int] = {}
+        self._channels: dict[tuple[str, str, int, tuple[tuple[str, str], ...]], int] = {}
+
+    def _open_partial(self) -> None:
+        self._stream = self.partial_path.open("xb")
+        self._writer = McapWriter(
+            self._stream, chunk_size=MCAP_CHUNK_SIZE, compression=CompressionType.ZSTD
+        )
+        self._writer.start(profile="ros2", library=LIBRARY)
+
+    def _schema_id(self, name: str, encoding: str, data: bytes) -> int:
+        if not name and not encoding and not data:
+            return 0  # a channel without a schema
+        key = (name, encoding, data)
+        if key not in self._schemas:
+            assert self._writer is not None
+            self._schemas[key] = self._writer.register_schema(name, encoding, data)
+        return self._schemas[key]
+
+    def _channel_id(
+        self, topic: str, message_encoding: str, schema_id: int, metadata: dict[str, str]
+    ) -> int:
+        key = (topic, message_encoding, schema_id, tuple(sorted(metadata.items())))
+        if key not in self._channels:
+            assert self._writer is not None
+            self._channels[key] = self._writer.register_channel(
+                topic, message_encoding, schema_id, dict(metadata)
+            )
+        return self._channels[key]
+
+    def _add_message(
+        self, topic: str, msgtype: str, data: bytes, log_time_ns: int, publish_time_ns: int
+    ) -> None:
+        schema_id = self._schema_id(msgtype, "ros2msg", rosmsg.schema_text(msgtype).encode())
+        channel_id = self._channel_id(topic, "cdr", schema_id, {})
+        assert self._writer is not None
+        self._writer.add_message(channel_id, log_time_ns, data, publish_time_ns)
+
+    def _add_raw(self, raw: RawMessage) -> None:
+        schema_id = self._schema_id(raw.schema_name, raw.schema_encoding, bytes(raw.schema_data))
+        channel_id = self._channel_id(
+            raw.topic, raw.message_encoding, schema_id, raw.channel_metadata
+        )
+        assert self._writer is not None
+        self._writer.add_message(
+            channel_id,
+            int(raw.log_time_ns),
+            bytes(raw.data),
+            int(raw.publish_time_ns),
+            sequence=int(raw.sequence),
+        )
+
+    def _close_partial(self) -> None:
+        assert self._writer is not None
+        assert self._stream is not None
+        try:
+            self._writer.finish()  # type: ignore[no-untyped-call]
+        finally:
+            self._stream.close()
+            self._writer = None
+            self._stream = None
+
+    def _abort_partial(self) -> None:
+        if self._stream is not None:
+            self._stream.close()
+        self._writer = None
+        self._stream = None
+
+
+def _raw_typestore(raw: RawMessage, base: Typestore) -> Typestore:
+    """Return ``base`` if it knows ``raw.msgtype``, else a copy extended by the raw schema."""
+    if raw.msgtype in base.fielddefs:
+        return base
+    if raw.message_encoding != "cdr" or raw.schema_encoding != "ros2msg":
+        raise LogWriteError(
+            f"topic {raw.topic} has {raw.message_encoding!r} messages with a "
+            f"{raw.schema_encoding!r} schema; bag outputs take ROS (cdr/ros2msg) messages "
+            "only; write an .mcap output to copy it"
+        )
+    store = get_typestore(Stores.EMPTY)
+    store.register(dict(base.fielddefs))
+    try:
+        store.register(get_types_from_msg(bytes(raw.schema_data).decode(), raw.msgtype))
+    except Exception as err:
+        raise LogWriteError(
+            f"cannot parse the ros2msg schema of {raw.msgtype} on topic {raw.topic}: {err}; "
+            "write an .mcap output to copy it unchanged"
+        ) from err
+    return store
+
+
+class Rosbag2LogWriter(LogWriter):
+    """A rosbag2 folder (version 9) with MCAP or SQLite 3 storage, CDR messages."""
+
+    def __init__(self, path: Path, storage: StoragePlugin) -> None:
+        super().__init__(path)
+        self.format = (
+            LogFormat.ROSBAG2 if storage == StoragePlugin.MCAP else LogFormat.ROSBAG2_SQLITE3
+        )
+        self._storage = storage
+        self._writer: Rosbag2Writer | None = None
+        self._connections: dict[tuple[str, str], Connection] = {}
+
+    def _open_partial(self) -> None:
+        self._writer = Rosbag2Writer(
+            self.partial_path, version=Rosbag2Writer.VERSION_LATEST, storage_plugin=self._storage
+        )
+        self._writer.open()
+
+    def _connection(self, topic: str, msgtype: str, typestore: Typestore) -> Connection:
+        key = (topic, msgtype)
+        if key not in self._connections:
+            assert self._writer is not None
+            self._connections[key] = self._writer.add_connection(
+                topic, msgtype, typestore=typestore
+            )
+        return self._connections[key]
+
+    def _add_message(
+        self, topic: str, msgtype: str, data: bytes, log_time_ns: int, publish_time_ns: int
+    ) -> None:
+        assert self._writer is not None
+        self._writer.write(self._connection(topic, msgtype, rosmsg.TYPESTORE), log_time_ns, data)
+
+    def _add_raw(self, raw: RawMessage) -> None:
+        store = _raw_typestore(raw, rosmsg.TYPESTORE)
+        assert self._writer is not None
+        self._writer.write(
+            self._connection(raw.topic, raw.msgtype, store), int(raw.log_time_ns), raw.data
+        )
+
+    def _close_partial(self) -> None:
+        assert self._writer is not None
+        writer, self._writer = self._writer, None
+        writer.close()
+
+    def _abort_partial(self) -> None:
+        if self._writer is not None:
+            writer, self._writer = self._writer, None
+            writer.abort()
+
+
+class Ros1LogWriter(LogWriter):
+    """A ROS 1 bag (format 2.0): messages converted from CDR to the ROS 1 wire format.
+
+    Connections use the ROS 1 Noetic definitions (and MD5 sums) whenever the ROS 2 type has
+    the same wire format there (Image, CameraInfo, PointCloud2, DisparityImage, PoseStamped
+    do: ``std_msgs/Header`` gains ``seq = 0``, CameraInfo's fields are spelt ``K``, ``P``).
+    Other types keep their ROS 2 definition with the ROS 1 header, as ``rosbags-convert``
+    does.
+    """
+
+    format = LogFormat.ROS1
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(path)
+        self._writer: Rosbag1Writer | None = None
+        self._connections: dict[tuple[str, str], Connection] = {}
+        self._noetic = get_typestore(Stores.ROS1_NOETIC)
+
+    def _open_partial(self) -> None:
+        self._writer = Rosbag1Writer(self.partial_path)
+        self._writer.open()
+
+    def _ros1_store(self, msgtype: str, source: Typestore) -> Typestore:
+        if msgtype in self._noetic.fielddefs and is_same_wireformat(
+            source, self._noetic, msgtype, msgtype
+        ):
+            return self._noetic
+        store = get_typestore(Stores.EMPTY)
+        store.register(
+            {
+                **source.fielddefs,
+                "std_msgs/msg/Header": self._noetic.fielddefs["std_msgs/msg/Header"],
+            }
+        )
+        return store
+
+    def _write(
+        self, topic: str, msgtype: str, cdr: bytes, log_time_ns: int, source: Typestore
+    ) -> None:
+        key = (topic, msgtype)
+        if key not in self._connections:
+            assert self._writer is not None
+            self._connections[key] = self._writer.add_connection(
+                topic, msgtype, typestore=self._ros1_store(msgtype, source)
+            )
+        assert self._writer is not None
+        data = source.cdr_to_ros1(cdr, msgtype)
+        self._writer.write(self._connections[key], log_time_ns, data)
+
+    def _add_message(
+        self, topic: str, msgtype: str, data: bytes, log_time_ns: int, publish_time_ns: int
+    ) -> None:
+        self._write(topic, msgtype, data, log_time_ns, rosmsg.TYPESTORE)
+
+    def _add_raw(self, raw: RawMessage) -> None:
+        store = _raw_typestore(raw, rosmsg.TYPESTORE)
+        self._write(raw.topic, raw.msgtype, bytes(raw.data), int(raw.log_time_ns), store)
+
+    def _close_partial(self) -> None:
+        assert self._writer is not None
+        writer, self._writer = self._writer, None
+        writer.close()
+
+    def _abort_partial(self) -> None:
+        if self._writer is not None and self._writer.bio is not None:
+            self._writer.bio.close()
+        self._writer = None
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    return path == folder or folder in path.parents
+
+
+def check_not_input(target: Path, inputs: Iterable[str | os.PathLike[str]]) -> None:
+    """Refuse a target that is, or contains, one of the inputs.
+
+    Raises:
+        LogWriteError: naming the path and the fix.
+    """
+    resolved = target.resolve()
+    for item in inputs:
+        source = Path(item)
+        same = resolved == source.resolve() or _inside(source.resolve(), resolved)
+        if not same and target.exists() and source.exists():
+            try:
+                same = os.path.samefile(target, source)
+            except OSError:
+                same = False
+        if same:
+            raise LogWriteError(
+                f"refusing to write the output onto the input {source}; "
+                "choose a different output path"
+            )
+
+
+def open_writer(
+    path: str | os.PathLike[str],
+    format: LogFormat | str | None = None,
+    *,
+    inputs: Iterable[str | os.PathLike[str]] = (),
+) -> LogWriter:
+    """Return a writer for ``path``; use it as a context manager.
+
+    Args:
+        path: output file (MCAP, ROS 1) or rosbag2 folder.
+        format: a :class:`LogFormat` or its value (``"mcap"``, ``"rosbag2"``,
+            ``"rosbag2-sqlite3"``, ``"ros1"``); chosen by :func:`format_from_path` if None.
+        inputs: the input logs of this run; writing onto one of them is refused.
+
+    Raises:
+        LogWriteError: bad format name, the output is an input, its folder is missing, or
+            the target is a folder that is not a rosbag2 bag.
+    """
+    target = Path(path)
+    if format is None:
+        chosen = format_from_path(target)
+    elif isinstance(format, LogFormat):
+        chosen = format
+    else:
+        try:
+            chosen = LogFormat(format)
+        except ValueError:
+            names = ", ".join(item.value for item in LogFormat)
+            raise LogWriteError(
+                f"unknown log format {format!r} for {target}; choose one of {names}"
+            ) from None
+    check_not_input(target, inputs)
+    if target.is_dir() and not target.is_symlink():
+        if chosen in (LogFormat.MCAP, LogFormat.ROS1):
+            raise LogWriteError(
+                f"output {target} is a folder but format {chosen.value} writes a file; "
+                "choose a file path"
+            )
+        _check_replaceable_folder(target)
+    if chosen == LogFormat.MCAP:
+        return McapLogWriter(target)
+    if chosen == LogFormat.ROS1:
+        return Ros1LogWriter(target)
+    if chosen == LogFormat.ROSBAG2:
+        return Rosbag2LogWriter(target, StoragePlugin.MCAP)
+    return Rosbag2LogWriter(target, StoragePlugin.SQLITE3)

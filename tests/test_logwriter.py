@@ -1,0 +1,379 @@
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from rosbags.highlevel import AnyReader
+
+from pcainterp_stream import rosmsg
+from pcainterp_stream.errors import LogWriteError
+from pcainterp_stream.logwriter import (
+    LogFormat,
+    format_from_path,
+    open_writer,
+)
+from pcainterp_stream.records import RawMessage, StereoCamera
+
+CAMERA = StereoCamera(width=8, height=6, fx=50.0, fy=50.0, cx=4.0, cy=3.0, baseline=0.5)
+T0 = 1_700_000_000_000_000_000
+DT = 100_000_000
+
+OUTPUT_NAMES = {
+    LogFormat.MCAP: "out.mcap",
+    LogFormat.ROSBAG2: "out_bag",
+    LogFormat.ROSBAG2_SQLITE3: "out_db3",
+    LogFormat.ROS1: "out.bag",
+}
+
+
+def _messages(n: int = 3) -> list[tuple[str, Any, int]]:
+    """(topic, message, log_time_ns) of a few frames of every type the project writes."""
+    rng = np.random.default_rng(0)
+    out: list[tuple[str, Any, int]] = []
+    for i in range(n):
+        stamp = T0 + i * DT
+        grey = rng.integers(0, 256, size=(6, 8), dtype=np.uint8)
+        depth = rng.uniform(1, 50, size=(6, 8)).astype(np.float32)
+        depth[0, :] = np.nan
+        pose = np.eye(4)
+        pose[:3, 3] = [i, 0.5 * i, 2.0]
+        out += [
+            ("/stereo/left/image_rect", rosmsg.image_message(grey, stamp, "left"), stamp),
+            ("/stereo/left/camera_info", rosmsg.camera_info_message(CAMERA, stamp, "left"), stamp),
+            ("/ground_truth/depth", rosmsg.image_message(depth, stamp, "left"), stamp),
+            ("/ground_truth/pose", rosmsg.pose_stamped_message(pose, stamp, "world"), stamp),
+            (
+                "/pcainterp/features",
+                rosmsg.pointcloud2_message(
+                    {"x": rng.random(5, dtype=np.float32), "u": rng.random(5, dtype=np.float32)},
+                    stamp,
+                    "left",
+                ),
+                stamp,
+            ),
+            (
+                "/pcainterp/disparity",
+                rosmsg.disparity_image_message(
+                    depth,
+                    stamp,
+                    "left",
+                    focal=50.0,
+                    baseline=0.5,
+                    min_disparity=0,
+                    max_disparity=64,
+                ),
+                stamp,
+            ),
+        ]
+    return out
+
+
+def _read_anyreader(path: Path) -> list[tuple[str, str, int, Any]]:
+    with AnyReader([path], default_typestore=rosmsg.TYPESTORE) as reader:
+        return [
+            (conn.topic, conn.msgtype, log_time, reader.deserialize(data, conn.msgtype))
+            for conn, log_time, data in reader.messages()
+        ]
+
+
+def _check_same(expected: Any, actual: Any) -> None:
+    """Compare two messages field by field (ROS 1 adds header.seq, spells K/P upper case)."""
+    for name in expected.__dataclass_fields__:
+        if name == "__msgtype__":
+            continue
+        want = getattr(expected, name)
+        have = getattr(actual, name, None)
+        if have is None:
+            have = getattr(actual, name.upper())
+        if hasattr(want, "__dataclass_fields__"):
+            _check_same(want, have)
+        elif isinstance(want, np.ndarray):
+            np.testing.assert_array_equal(np.asarray(have), want)
+        elif isinstance(want, list):
+            assert len(want) == len(have)
+            for w, h in zip(want, have, strict=True):
+                _check_same(w, h)
+        else:
+            assert want == have, name
+
+
+@pytest.mark.parametrize("fmt", list(LogFormat))
+def test_round_trip_anyreader(tmp_path: Path, fmt: LogFormat) -> None:
+    messages = _messages()
+    target = tmp_path / OUTPUT_NAMES[fmt]
+    with open_writer(target, fmt) as writer:
+        for topic, message, log_time in messages:
+            writer.add_message(topic, message, log_time)
+    summary = writer.summary()
+    assert summary.message_count == len(messages)
+    assert summary.topic_counts["/ground_truth/depth"] == 3
+    assert (summary.start_ns, summary.end_ns) == (T0, T0 + 2 * DT)
+    assert [p.name for p in tmp_path.iterdir()] == [target.name]  # no partial left over
+
+    read = _read_anyreader(target)
+    assert len(read) == len(messages)
+    by_topic: dict[str, list[tuple[str, int, Any]]] = {}
+    for topic, msgtype, log_time, message in read:
+        by_topic.setdefault(topic, []).append((msgtype, log_time, message))
+    for topic, message, log_time in messages:
+        msgtype, read_time, read_message = by_topic[topic].pop(0)
+        assert msgtype == message.__msgtype__
+        assert read_time == log_time
+        assert rosmsg.stamp_ns(read_message) == log_time
+        _check_same(message, read_message)
+    depth = next(m for t, _, _, m in read if t == "/ground_truth/depth")
+    np.testing.assert_array_equal(rosmsg.image_array(depth), rosmsg.image_array(messages[2][1]))
+
+
+def test_ros1_uses_noetic_definitions(tmp_path: Path) -> None:
+    target = tmp_path / "out.bag"
+    with open_writer(target) as writer:
+        for topic, message, log_time in _messages(1):
+            writer.add_message(topic, message, log_time)
+    with AnyReader([target]) as reader:
+        digests = {c.msgtype: c.digest for c in reader.connections}
+        info = next(
+            reader.deserialize(d, c.msgtype)
+            for c, _, d in reader.messages()
+            if c.msgtype == rosmsg.CAMERA_INFO
+        )
+    # the MD5 sums of ROS 1 Noetic, so ROS 1 tools accept the bag
+    assert digests[rosmsg.CAMERA_INFO] == "c9a58c1b0b154e0e6da7578cb991d214"
+    assert digests[rosmsg.IMAGE] == "060021388200f6f0f447d0fcd9c64743"
+    assert info.header.seq == 0
+    np.testing.assert_array_equal(info.P, CAMERA.projection_left().reshape(-1))
+
+
+def test_mcap_profile_summary_and_decoding(tmp_path: Path) -> None:
+    messages = _messages()
+    target = tmp_path / "out.mcap"
+    with open_writer(target) as writer:
+        for topic, message, log_time in messages:
+            writer.add_message(topic, message, log_time, publish_time_ns=log_time + 7)
+    with target.open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        header = reader.get_header()
+        summary = reader.get_summary()
+        decoded = list(reader.iter_decoded_messages(log_time_order=False))
+    assert header.profile == "ros2"
+    assert summary is not None
+    assert summary.statistics.message_count == len(messages)
+    assert summary.statistics.channel_count == 6
+    assert len(summary.schemas) == 5  # the two Image topics share one schema
+    assert {s.encoding for s in summary.schemas.values()} == {"ros2msg"}
+    assert {c.message_encoding for c in summary.channels.values()} == {"cdr"}
+    assert summary.chunk_indexes
+    assert {c.compression for c in summary.chunk_indexes} == {"zstd"}
+    assert len(decoded) == len(messages)
+    for (topic, message, log_time), item in zip(messages, decoded, strict=True):
+        assert item.channel.topic == topic
+        assert item.schema.name == message.__msgtype__
+        assert item.message.log_time == log_time
+        assert item.message.publish_time == log_time + 7
+    image = decoded[0].decoded_message
+    np.testing.assert_array_equal(
+        np.frombuffer(bytes(image.data), dtype=np.uint8), np.asarray(messages[0][1].data)
+    )
+
+
+def _raw(topic: str, data: bytes, log_time: int, **changes: Any) -> RawMessage:
+    fields: dict[str, Any] = {
+        "topic": topic,
+        "msgtype": "example/Text",
+        "schema_name": "example/Text",
+        "schema_encoding": "jsonschema",
+        "schema_data": b'{"type": "object"}',
+        "message_encoding": "json",
+        "channel_metadata": {"qos": "reliable"},
+        "data": data,
+        "log_time_ns": log_time,
+        "publish_time_ns": log_time - 5,
+        "sequence": 3,
+    }
+    fields.update(changes)
+    return RawMessage(**fields)
+
+
+def test_mcap_add_raw_copies_unchanged_and_deduplicates(tmp_path: Path) -> None:
+    image = rosmsg.image_message(np.arange(48, dtype=np.uint8).reshape(6, 8), T0, "left")
+    ros_raw = RawMessage(
+        topic="/stereo/left/image_rect",
+        msgtype=rosmsg.IMAGE,
+        schema_name=rosmsg.IMAGE,
+        schema_encoding="ros2msg",
+        schema_data=rosmsg.schema_text(rosmsg.IMAGE).encode(),
+        message_encoding="cdr",
+        channel_metadata={"offered_qos_profiles": "- history: 3"},
+        data=rosmsg.serialize(image),
+        log_time_ns=T0,
+        publish_time_ns=T0 - 1,
+        sequence=0,
+    )
+    raws = [_raw("/text", b'{"a": %d}' % i, T0 + i) for i in range(3)]
+    raws.append(_raw("/other", b"{}", T0 + 9, channel_metadata={}))
+    target = tmp_path / "copy.mcap"
+    with open_writer(target, LogFormat.MCAP) as writer:
+        writer.add_raw(ros_raw)
+        for raw in raws:
+            writer.add_raw(raw)
+        writer.add_message("/pcainterp/depth", image, T0)  # shares the Image schema
+    with target.open("rb") as stream:
+        reader = make_reader(stream)
+        summary = reader.get_summary()
+        records = list(reader.iter_messages(log_time_order=False))
+    assert summary is not None
+    assert len(summary.schemas) == 2
+    assert len(summary.channels) == 4
+    assert [r[2].data for r in records] == [ros_raw.data, *[r.data for r in raws], ros_raw.data]
+    schema, channel, message = records[1]
+    assert (schema.name, schema.encoding, schema.data) == (
+        "example/Text",
+        "jsonschema",
+        b'{"type": "object"}',
+    )
+    assert channel.metadata == {"qos": "reliable"}
+    assert channel.message_encoding == "json"
+    assert (message.log_time, message.publish_time, message.sequence) == (T0, T0 - 5, 3)
+    assert records[0][1].metadata == {"offered_qos_profiles": "- history: 3"}
+
+
+@pytest.mark.parametrize("fmt", [LogFormat.ROSBAG2, LogFormat.ROS1])
+def test_bag_add_raw_takes_cdr_and_refuses_json(tmp_path: Path, fmt: LogFormat) -> None:
+    image = rosmsg.image_message(np.arange(48, dtype=np.uint8).reshape(6, 8), T0, "left")
+    ros_raw = _raw(
+        "/img",
+        rosmsg.serialize(image),
+        T0,
+        msgtype=rosmsg.IMAGE,
+        schema_name=rosmsg.IMAGE,
+        schema_encoding="ros2msg",
+        schema_data=rosmsg.schema_text(rosmsg.IMAGE).encode(),
+        message_encoding="cdr",
+    )
+    target = tmp_path / OUTPUT_NAMES[fmt]
+    with open_writer(target, fmt) as writer:
+        writer.add_raw(ros_raw)
+    (_, msgtype, log_time, message), *_ = _read_anyreader(target)
+    assert (msgtype, log_time) == (rosmsg.IMAGE, T0)
+    np.testing.assert_array_equal(rosmsg.image_array(message), rosmsg.image_array(image))
+    with (
+        pytest.raises(LogWriteError, match=r"topic /text has 'json' messages.*write an \.mcap"),
+        open_writer(tmp_path / ("b_" + target.name), fmt) as writer,
+    ):
+        writer.add_raw(_raw("/text", b"{}", T0))
+    assert not (tmp_path / ("b_" + target.name)).exists()
+
+
+@pytest.mark.parametrize("fmt", list(LogFormat))
+@pytest.mark.parametrize("error", [RuntimeError, KeyboardInterrupt])
+def test_failure_leaves_no_target_and_no_partial(
+    tmp_path: Path, fmt: LogFormat, error: type[BaseException]
+) -> None:
+    target = tmp_path / OUTPUT_NAMES[fmt]
+    with pytest.raises(error), open_writer(target, fmt) as writer:
+        topic, message, log_time = _messages(1)[0]
+        writer.add_message(topic, message, log_time)
+        assert writer.partial_path.exists()
+        assert writer.partial_path.parent.name.startswith(f".{target.name}.partial-")
+        raise error
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("fmt", list(LogFormat))
+def test_existing_target_survives_failure_and_is_replaced_on_success(
+    tmp_path: Path, fmt: LogFormat
+) -> None:
+    target = tmp_path / OUTPUT_NAMES[fmt]
+    topic, message, log_time = _messages(1)[0]
+    with open_writer(target, fmt) as writer:
+        writer.add_message(topic, message, log_time)
+    before = sorted((p.relative_to(tmp_path), p.read_bytes()) for p in _files(tmp_path))
+    with pytest.raises(RuntimeError), open_writer(target, fmt) as writer:
+        writer.add_message(topic, message, log_time + 1)
+        raise RuntimeError
+    after = sorted((p.relative_to(tmp_path), p.read_bytes()) for p in _files(tmp_path))
+    assert after == before
+    with open_writer(target, fmt) as writer:
+        writer.add_message(topic, message, log_time + 1)
+        writer.add_message(topic, message, log_time + 2)
+    assert [t for _, _, t, _ in _read_anyreader(target)] == [log_time + 1, log_time + 2]
+    assert [p.name for p in tmp_path.iterdir()] == [target.name]
+
+
+def _files(folder: Path) -> list[Path]:
+    return [p for p in folder.rglob("*") if p.is_file()]
+
+
+def test_refuses_to_write_onto_input(tmp_path: Path) -> None:
+    source = tmp_path / "in.mcap"
+    with open_writer(source) as writer:
+        writer.add_message(*_messages(1)[0])
+    with pytest.raises(
+        LogWriteError, match=r"refusing to write the output onto the input .*in\.mcap"
+    ):
+        open_writer(tmp_path / "." / "in.mcap", inputs=[source])
+    link = tmp_path / "link.mcap"
+    link.symlink_to(source)
+    with pytest.raises(LogWriteError, match="refusing to write the output onto the input"):
+        open_writer(link, inputs=[source])
+    bag = tmp_path / "bag"
+    with open_writer(bag, LogFormat.ROSBAG2) as writer:
+        writer.add_message(*_messages(1)[0])
+    storage = bag / "bag.mcap"
+    with pytest.raises(LogWriteError, match="refusing to write the output onto the input"):
+        open_writer(bag, LogFormat.ROSBAG2, inputs=[storage])
+    open_writer(tmp_path / "out.mcap", inputs=[source])  # a different path is fine
+
+
+def test_errors_on_bad_paths(tmp_path: Path) -> None:
+    with pytest.raises(LogWriteError, match=r"folder .*missing does not exist; create it first"):
+        open_writer(tmp_path / "missing" / "out.mcap").__enter__()
+    with pytest.raises(LogWriteError, match=r"unknown log format 'zip'.*choose one of mcap"):
+        open_writer(tmp_path / "out.mcap", "zip")
+    folder = tmp_path / "stuff"
+    folder.mkdir()
+    (folder / "keep.txt").write_text("precious")
+    with pytest.raises(LogWriteError, match="not a rosbag2 bag.*remove it or choose another"):
+        open_writer(folder, LogFormat.ROSBAG2)
+    with pytest.raises(LogWriteError, match="is a folder but format mcap writes a file"):
+        open_writer(folder, LogFormat.MCAP)
+    assert (folder / "keep.txt").read_text() == "precious"
+
+
+def test_error_on_unwritable_folder(tmp_path: Path) -> None:
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    try:
+        folder = locked
+        if _can_write(locked):  # root ignores permissions; /proc refuses new entries
+            if not Path("/proc/self").is_dir():
+                pytest.skip("running as root without /proc: no unwritable folder to try")
+            folder = Path("/proc")
+        with pytest.raises(LogWriteError, match=r"cannot write .*out\.mcap: .*writable folder"):
+            open_writer(folder / "out.mcap").__enter__()
+    finally:
+        locked.chmod(0o700)
+
+
+def _can_write(folder: Path) -> bool:
+    try:
+        (folder / "probe").write_bytes(b"")
+    except OSError:
+        return False
+    (folder / "probe").unlink()
+    return True
+
+
+def test_format_from_path(tmp_path: Path) -> None:
+    assert format_from_path("a/b.mcap") == LogFormat.MCAP
+    assert format_from_path("b.MCAP") == LogFormat.MCAP
+    assert format_from_path("b.bag") == LogFormat.ROS1
+    assert format_from_path("drive_bag") == LogFormat.ROSBAG2
+    assert format_from_path(tmp_path) == LogFormat.ROSBAG2
+    with pytest.raises(LogWriteError, match=r"cannot tell the log format of x\.zip"):
+        format_from_path("x.zip")
