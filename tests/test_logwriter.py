@@ -268,18 +268,23 @@ def test_bag_add_raw_takes_cdr_and_refuses_json(tmp_path: Path, fmt: LogFormat) 
     assert not (tmp_path / ("b_" + target.name)).exists()
 
 
+def _write_then_fail(target: Path, fmt: LogFormat, error: type[BaseException]) -> None:
+    with open_writer(target, fmt) as writer:
+        topic, message, log_time = _messages(1)[0]
+        writer.add_message(topic, message, log_time + 1)
+        assert writer.partial_path.exists()
+        assert writer.partial_path.parent.name.startswith(f".{target.name}.partial-")
+        raise error
+
+
 @pytest.mark.parametrize("fmt", list(LogFormat))
 @pytest.mark.parametrize("error", [RuntimeError, KeyboardInterrupt])
 def test_failure_leaves_no_target_and_no_partial(
     tmp_path: Path, fmt: LogFormat, error: type[BaseException]
 ) -> None:
     target = tmp_path / OUTPUT_NAMES[fmt]
-    with pytest.raises(error), open_writer(target, fmt) as writer:
-        topic, message, log_time = _messages(1)[0]
-        writer.add_message(topic, message, log_time)
-        assert writer.partial_path.exists()
-        assert writer.partial_path.parent.name.startswith(f".{target.name}.partial-")
-        raise error
+    with pytest.raises(error):
+        _write_then_fail(target, fmt, error)
     assert list(tmp_path.iterdir()) == []
 
 
@@ -292,9 +297,8 @@ def test_existing_target_survives_failure_and_is_replaced_on_success(
     with open_writer(target, fmt) as writer:
         writer.add_message(topic, message, log_time)
     before = sorted((p.relative_to(tmp_path), p.read_bytes()) for p in _files(tmp_path))
-    with pytest.raises(RuntimeError), open_writer(target, fmt) as writer:
-        writer.add_message(topic, message, log_time + 1)
-        raise RuntimeError
+    with pytest.raises(RuntimeError):
+        _write_then_fail(target, fmt, RuntimeError)
     after = sorted((p.relative_to(tmp_path), p.read_bytes()) for p in _files(tmp_path))
     assert after == before
     with open_writer(target, fmt) as writer:
@@ -337,7 +341,7 @@ def test_errors_on_bad_paths(tmp_path: Path) -> None:
     folder = tmp_path / "stuff"
     folder.mkdir()
     (folder / "keep.txt").write_text("precious")
-    with pytest.raises(LogWriteError, match="not a rosbag2 bag.*remove it or choose another"):
+    with pytest.raises(LogWriteError, match=r"not a rosbag2 bag.*remove it or choose another"):
         open_writer(folder, LogFormat.ROSBAG2)
     with pytest.raises(LogWriteError, match="is a folder but format mcap writes a file"):
         open_writer(folder, LogFormat.MCAP)
