@@ -1,0 +1,462 @@
+"""The PCA basis of disparity maps: the ``pcainterp-basis/1`` file and the grid it lives on.
+
+A basis is learned for one image size and one f*b, on a grid that may be coarser than the
+image. Grid and image are related by pixel-centre-aligned scaling (DESIGN.md section 2),
+
+    g = (p + 0.5) * (grid_size / image_size) - 0.5,
+
+OpenCV's ``INTER_LINEAR`` convention, so that bilinear sampling of the grid at image
+positions and ``cv2.resize(grid, image, INTER_LINEAR)`` are the same function. Everything a
+frame needs that depends only on the basis (the pixel-major component matrix, the prior
+variance sum_i lambda_i u_i(x)^2, coarser variance grids) is computed once per
+:class:`Basis` and cached on it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import zipfile
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.errors import BasisError
+
+FORMAT = "pcainterp-basis/1"
+"""The format string stored under the ``format`` key of a basis file."""
+
+ORTHONORMALITY_TOLERANCE = 1e-3
+"""Largest allowed |B^T B - I| entry when loading a basis (float32 storage rounding)."""
+
+_KEYS = (
+    "format",
+    "mean",
+    "components",
+    "eigenvalues",
+    "total_variance",
+    "image_size",
+    "focal_baseline",
+    "n_train",
+    "meta",
+)
+
+
+def grid_size_for(image_size: tuple[int, int], grid_scale: float) -> tuple[int, int]:
+    """Return the basis grid size for an image size and a scale factor.
+
+    Args:
+        image_size: (height, width) of the images (px).
+        grid_scale: grid pixels per image pixel, in (0, 1].
+
+    Returns:
+        (grid_height, grid_width), each ``max(1, round(size * grid_scale))``.
+    """
+    if not 0.0 < grid_scale <= 1.0:
+        raise ValueError(f"grid_scale must be in (0, 1], got {grid_scale}")
+    return (
+        max(1, round(image_size[0] * grid_scale)),
+        max(1, round(image_size[1] * grid_scale)),
+    )
+
+
+def image_to_grid(
+    pixels: npt.NDArray[np.floating[Any]],
+    image_size: tuple[int, int],
+    grid_size: tuple[int, int],
+) -> npt.NDArray[np.float64]:
+    """Map image positions to grid positions, pixel-centre aligned (cv2 INTER_LINEAR).
+
+    Args:
+        pixels: (k, 2) float, (x, y) in image px.
+        image_size: (height, width) of the image (px).
+        grid_size: (height, width) of the grid (grid px).
+
+    Returns:
+        (k, 2) float64, (x, y) in grid px: g = (p + 0.5) * (grid / image) - 0.5.
+    """
+    scale = np.array(
+        [grid_size[1] / image_size[1], grid_size[0] / image_size[0]], dtype=np.float64
+    )
+    return (np.asarray(pixels, dtype=np.float64) + 0.5) * scale - 0.5
+
+
+def bilinear_weights(
+    grid_positions: npt.NDArray[np.float64], grid_size: tuple[int, int]
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.float64]]:
+    """Return flat indices and weights of the four grid pixels around each position.
+
+    Positions outside the grid are clamped to its border, as ``cv2.resize`` does.
+
+    Args:
+        grid_positions: (k, 2) float64, (x, y) in grid px.
+        grid_size: (height, width) of the grid.
+
+    Returns:
+        indices: (k, 4) intp, flat (row-major) grid indices.
+        weights: (k, 4) float64, bilinear weights summing to 1 per row.
+    """
+    gh, gw = grid_size
+    x = np.clip(grid_positions[:, 0], 0.0, gw - 1)
+    y = np.clip(grid_positions[:, 1], 0.0, gh - 1)
+    x0 = np.minimum(np.floor(x).astype(np.intp), max(gw - 2, 0))
+    y0 = np.minimum(np.floor(y).astype(np.intp), max(gh - 2, 0))
+    x1 = np.minimum(x0 + 1, gw - 1)
+    y1 = np.minimum(y0 + 1, gh - 1)
+    fx = x - x0
+    fy = y - y0
+    indices = np.stack([y0 * gw + x0, y0 * gw + x1, y1 * gw + x0, y1 * gw + x1], axis=1)
+    weights = np.stack(
+        [(1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx], axis=1
+    )
+    return indices, weights
+
+
+def sample_rows(
+    pixel_major: npt.NDArray[np.float32],
+    indices: npt.NDArray[np.intp],
+    weights: npt.NDArray[np.float64],
+) -> npt.NDArray[np.float32]:
+    """Bilinearly interpolate rows of a pixel-major matrix.
+
+    Args:
+        pixel_major: (s, c) float32, one row per grid pixel (row-major grid order).
+        indices: (k, 4) intp from :func:`bilinear_weights`.
+        weights: (k, 4) float64 from :func:`bilinear_weights`.
+
+    Returns:
+        (k, c) float32, the interpolated rows.
+    """
+    w = weights.astype(np.float32)
+    out = pixel_major[indices[:, 0]] * w[:, 0:1]
+    for corner in range(1, 4):
+        out += pixel_major[indices[:, corner]] * w[:, corner : corner + 1]
+    return out
+
+
+def resample_grid(
+    grid_map: npt.NDArray[np.floating[Any]], image_size: tuple[int, int]
+) -> npt.NDArray[np.float32]:
+    """Resample a grid map to an image size, bilinear and pixel-centre aligned.
+
+    Args:
+        grid_map: (gh, gw) float, values on the grid.
+        image_size: (height, width) of the output (px).
+
+    Returns:
+        (height, width) float32.
+    """
+    grid32 = np.ascontiguousarray(grid_map, dtype=np.float32)
+    if grid32.shape == tuple(image_size):
+        return grid32
+    resized = cv2.resize(
+        grid32, (int(image_size[1]), int(image_size[0])), interpolation=cv2.INTER_LINEAR
+    )
+    return np.asarray(resized, dtype=np.float32)
+
+
+@dataclass(frozen=True, eq=False)
+class VarianceGrid:
+    """The basis sampled on a (possibly coarser) grid where the posterior std is evaluated.
+
+    Attributes:
+        size: (height, width) of this grid.
+        component_rows: (l, s_v) float32, u_i at the grid's pixel centres, C-contiguous.
+        prior_variance: (s_v,) float32, sum_i lambda_i u_i(x)^2 at those centres (px^2).
+    """
+
+    size: tuple[int, int]
+    component_rows: npt.NDArray[np.float32]
+    prior_variance: npt.NDArray[np.float32]
+
+    @cached_property
+    def squared_rows(self) -> npt.NDArray[np.float32]:
+        """(l, s_v) float32, u_i(x)^2, for the paper's diagonal variance (eq. 15/16)."""
+        return self.component_rows * self.component_rows
+
+
+@dataclass(frozen=True, eq=False)
+class Basis:
+    """A learned PCA basis of disparity maps (the ``pcainterp-basis/1`` file).
+
+    Attributes:
+        mean: (gh, gw) float32, mean disparity on the grid (px).
+        components: (l, gh, gw) float32, orthonormal over grid pixels.
+        eigenvalues: (l,) float64, variances (px^2 summed over the grid), descending.
+        total_variance: trace of the training covariance over all components.
+        image_size: (height, width) of the images the basis is for (px).
+        focal_baseline: f*b (px*m) of the training camera; 0 when unknown.
+        n_train: number of training maps.
+        meta: preprocessing, SGBM and learning parameters, software version.
+    """
+
+    mean: npt.NDArray[np.float32]
+    components: npt.NDArray[np.float32]
+    eigenvalues: npt.NDArray[np.float64]
+    total_variance: float
+    image_size: tuple[int, int]
+    focal_baseline: float
+    n_train: int
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        _check_arrays(self, "Basis()")
+
+    @property
+    def n_components(self) -> int:
+        """Return l, the number of components."""
+        return int(self.components.shape[0])
+
+    @property
+    def grid_size(self) -> tuple[int, int]:
+        """Return (gh, gw), the size of the basis grid."""
+        return (int(self.mean.shape[0]), int(self.mean.shape[1]))
+
+    @property
+    def explained_variance_ratio(self) -> float:
+        """Return sum(eigenvalues) / total_variance, the share of variance the basis keeps."""
+        if self.total_variance <= 0:
+            return 1.0
+        return float(self.eigenvalues.sum() / self.total_variance)
+
+    @cached_property
+    def pixel_major(self) -> npt.NDArray[np.float32]:
+        """(s, l) float32 C-contiguous: B with one row per grid pixel, for gathers and B @ Y."""
+        s = self.grid_size[0] * self.grid_size[1]
+        return np.ascontiguousarray(self.components.reshape(self.n_components, s).T)
+
+    @cached_property
+    def component_rows(self) -> npt.NDArray[np.float32]:
+        """(l, s) float32 C-contiguous view of the components: B^T."""
+        s = self.grid_size[0] * self.grid_size[1]
+        return np.ascontiguousarray(self.components.reshape(self.n_components, s))
+
+    @cached_property
+    def mean_flat(self) -> npt.NDArray[np.float32]:
+        """(s,) float32, the mean map flattened in row-major grid order."""
+        return np.ascontiguousarray(self.mean.reshape(-1))
+
+    @cached_property
+    def prior_variance(self) -> npt.NDArray[np.float32]:
+        """(gh, gw) float32, prior variance sum_i lambda_i u_i(x)^2 on the grid (px^2)."""
+        return self.variance_grid(1).prior_variance.reshape(self.grid_size)
+
+    @cached_property
+    def _variance_grids(self) -> dict[int, VarianceGrid]:
+        return {}
+
+    def variance_grid(self, stride: int) -> VarianceGrid:
+        """Return the basis sampled on a grid ``stride`` times coarser than the basis grid.
+
+        The coarse grid is pixel-centre aligned with the basis grid; components are sampled
+        there bilinearly, so the posterior variance computed on it is exact at those points.
+        Cached per stride.
+
+        Args:
+            stride: coarsening factor >= 1 (1: the basis grid itself).
+
+        Returns:
+            The :class:`VarianceGrid`.
+        """
+        if stride < 1:
+            raise ValueError(f"variance stride must be >= 1, got {stride}")
+        cached = self._variance_grids.get(stride)
+        if cached is not None:
+            return cached
+        gh, gw = self.grid_size
+        if stride == 1:
+            size = (gh, gw)
+            rows = self.component_rows
+        else:
+            size = (max(1, -(-gh // stride)), max(1, -(-gw // stride)))
+            ys, xs = np.mgrid[0 : size[0], 0 : size[1]]
+            coarse = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64)
+            fine = image_to_grid(coarse, size, (gh, gw))
+            indices, weights = bilinear_weights(fine, (gh, gw))
+            rows = np.ascontiguousarray(sample_rows(self.pixel_major, indices, weights).T)
+        prior = np.einsum(
+            "i,is,is->s", self.eigenvalues, rows.astype(np.float64), rows.astype(np.float64)
+        ).astype(np.float32)
+        grid = VarianceGrid(size=size, component_rows=rows, prior_variance=prior)
+        self._variance_grids[stride] = grid
+        return grid
+
+    def save(self, path: str | os.PathLike[str]) -> None:
+        """Write the basis as a ``pcainterp-basis/1`` .npz file, atomically.
+
+        The file is written beside the target and renamed over it, so a crash never leaves
+        a half-written basis.
+
+        Args:
+            path: destination file (conventionally ``.npz``).
+        """
+        target = Path(path)
+        arrays: dict[str, npt.NDArray[Any]] = {
+            "format": np.array(FORMAT),
+            "mean": np.ascontiguousarray(self.mean, dtype=np.float32),
+            "components": np.ascontiguousarray(self.components, dtype=np.float32),
+            "eigenvalues": np.ascontiguousarray(self.eigenvalues, dtype=np.float64),
+            "total_variance": np.array(self.total_variance, dtype=np.float64),
+            "image_size": np.array(self.image_size, dtype=np.int64),
+            "focal_baseline": np.array(self.focal_baseline, dtype=np.float64),
+            "n_train": np.array(self.n_train, dtype=np.int64),
+            "meta": np.array(json.dumps(self.meta, sort_keys=True)),
+        }
+        handle, temp_name = tempfile.mkstemp(
+            prefix=f".{target.name}.", suffix=".tmp", dir=target.parent
+        )
+        try:
+            with os.fdopen(handle, "wb") as stream:
+                np.savez(stream, **arrays)  # type: ignore[arg-type]
+            os.replace(temp_name, target)
+        except BaseException:
+            Path(temp_name).unlink(missing_ok=True)
+            raise
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> Basis:
+        """Read and validate a ``pcainterp-basis/1`` file.
+
+        Args:
+            path: the .npz file.
+
+        Returns:
+            The validated :class:`Basis`.
+
+        Raises:
+            BasisError: the file is missing, not an .npz, truncated, or a key is missing or
+                has the wrong dtype, shape or non-finite values; the message names the file,
+                the key and the problem.
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise BasisError(f"basis file {path} does not exist; pass the path of a basis .npz")
+        try:
+            with np.load(path, allow_pickle=False) as archive:
+                missing = [key for key in _KEYS if key not in archive.files]
+                if missing:
+                    raise BasisError(
+                        f"basis file {path} has no key {missing[0]!r}; "
+                        "it is not a complete pcainterp-basis/1 file, re-run `pcainterp learn`"
+                    )
+                data = {key: archive[key] for key in _KEYS}
+        except BasisError:
+            raise
+        except (zipfile.BadZipFile, EOFError, OSError, ValueError) as err:
+            raise BasisError(
+                f"basis file {path} is not a readable .npz archive ({err}); "
+                "it is truncated or not a basis, re-run `pcainterp learn`"
+            ) from err
+        return _from_arrays(data, path)
+
+
+def _expect(
+    data: dict[str, npt.NDArray[Any]],
+    key: str,
+    kind: str,
+    ndim: int,
+    where: Path,
+) -> npt.NDArray[Any]:
+    value = data[key]
+    if value.dtype.kind not in kind:
+        raise BasisError(
+            f"basis file {where}: key {key!r} has dtype {value.dtype}, expected "
+            f"{_KIND_NAMES[kind]}; the file is not a pcainterp-basis/1 basis"
+        )
+    if value.ndim != ndim:
+        raise BasisError(
+            f"basis file {where}: key {key!r} has shape {value.shape}, expected {ndim} "
+            "dimensions; the file is not a pcainterp-basis/1 basis"
+        )
+    if value.dtype.kind == "f" and not np.all(np.isfinite(value)):
+        raise BasisError(
+            f"basis file {where}: key {key!r} has non-finite values; the basis is damaged, "
+            "re-run `pcainterp learn`"
+        )
+    return value
+
+
+_KIND_NAMES = {"U": "a string", "f": "floating point", "iu": "integer"}
+
+
+def _from_arrays(data: dict[str, npt.NDArray[Any]], where: Path) -> Basis:
+    fmt = _expect(data, "format", "U", 0, where)
+    if str(fmt) != FORMAT:
+        raise BasisError(
+            f"basis file {where}: key 'format' is {str(fmt)!r}, expected {FORMAT!r}; "
+            "this version reads only that format"
+        )
+    mean = _expect(data, "mean", "f", 2, where)
+    components = _expect(data, "components", "f", 3, where)
+    eigenvalues = _expect(data, "eigenvalues", "f", 1, where)
+    total_variance = _expect(data, "total_variance", "f", 0, where)
+    image_size = _expect(data, "image_size", "iu", 1, where)
+    focal_baseline = _expect(data, "focal_baseline", "f", 0, where)
+    n_train = _expect(data, "n_train", "iu", 0, where)
+    meta_text = _expect(data, "meta", "U", 0, where)
+    try:
+        meta = json.loads(str(meta_text))
+    except json.JSONDecodeError as err:
+        raise BasisError(
+            f"basis file {where}: key 'meta' is not valid JSON ({err}); the basis is damaged"
+        ) from err
+    if not isinstance(meta, dict):
+        raise BasisError(f"basis file {where}: key 'meta' is not a JSON object; damaged basis")
+    if image_size.shape != (2,):
+        raise BasisError(
+            f"basis file {where}: key 'image_size' has shape {image_size.shape}, expected (2,)"
+        )
+    try:
+        return Basis(
+            mean=mean.astype(np.float32, copy=False),
+            components=components.astype(np.float32, copy=False),
+            eigenvalues=eigenvalues.astype(np.float64, copy=False),
+            total_variance=float(total_variance),
+            image_size=(int(image_size[0]), int(image_size[1])),
+            focal_baseline=float(focal_baseline),
+            n_train=int(n_train),
+            meta=meta,
+        )
+    except ValueError as err:
+        raise BasisError(f"basis file {where}: {err}") from err
+
+
+def _check_arrays(basis: Basis, where: str) -> None:
+    """Validate shapes, order and orthonormality; raise ValueError naming the problem."""
+    if basis.mean.ndim != 2:
+        raise ValueError(f"{where}: key 'mean' must be (gh, gw), got shape {basis.mean.shape}")
+    if basis.components.ndim != 3 or basis.components.shape[1:] != basis.mean.shape:
+        raise ValueError(
+            f"key 'components' has shape {basis.components.shape}, expected "
+            f"(l, {basis.mean.shape[0]}, {basis.mean.shape[1]}) to match 'mean'"
+        )
+    n_components = basis.components.shape[0]
+    if basis.eigenvalues.shape != (n_components,):
+        raise ValueError(
+            f"key 'eigenvalues' has shape {basis.eigenvalues.shape}, expected ({n_components},)"
+        )
+    if np.any(basis.eigenvalues < 0) or np.any(np.diff(basis.eigenvalues) > 0):
+        raise ValueError("key 'eigenvalues' must be non-negative and descending")
+    if basis.image_size[0] < 1 or basis.image_size[1] < 1:
+        raise ValueError(f"key 'image_size' must be positive, got {basis.image_size}")
+    if not (np.isfinite(basis.focal_baseline) and basis.focal_baseline >= 0):
+        raise ValueError(
+            f"key 'focal_baseline' must be finite and >= 0, got {basis.focal_baseline}"
+        )
+    if basis.n_train < 0:
+        raise ValueError(f"key 'n_train' must be >= 0, got {basis.n_train}")
+    if n_components:
+        # float32 Gram (s * l^2 flops): its rounding, ~sqrt(s) * 6e-8, is far below the tolerance
+        rows = basis.components.reshape(n_components, -1).astype(np.float32, copy=False)
+        error = float(np.abs(rows @ rows.T - np.eye(n_components, dtype=np.float32)).max())
+        if error > ORTHONORMALITY_TOLERANCE:
+            raise ValueError(
+                f"key 'components' is not orthonormal over grid pixels (max |B^T B - I| = "
+                f"{error:.3g} > {ORTHONORMALITY_TOLERANCE})"
+            )

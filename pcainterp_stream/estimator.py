@@ -1,0 +1,485 @@
+"""MAP densification of sparse disparities with a PCA basis (paper section III-B, III-C).
+
+Per frame, with k measurements z at image positions p and the basis sampled there
+bilinearly (B~ (k, l), m~ (k,)), z~ = z - m~, prior y ~ N(0, Lambda), noise N(0, sigma^2 I):
+
+coefficient (l-space) form, the paper's system pre- and post-multiplied by Lambda^(1/2),
+
+    A = sigma^2 I + Lambda^(1/2) B~^T B~ Lambda^(1/2) = R^T R        (l x l, Cholesky)
+    y_hat = Lambda^(1/2) A^-1 Lambda^(1/2) B~^T z~                    (= paper eq. (11))
+    Sigma_y = sigma^2 Lambda^(1/2) A^-1 Lambda^(1/2)                  (paper misses sigma^2)
+
+measurement (k-space, Woodbury) form,
+
+    K = B~ Lambda B~^T + sigma^2 I = L L^T                            (k x k, Cholesky)
+    y_hat = Lambda B~^T K^-1 z~,   Sigma_y = Lambda - W^T W,  W = L^-1 B~ Lambda
+
+and the dense map d_hat(x) = b(x)^T y_hat + m(x), b(x) the (l,) row of B at pixel x. The
+posterior variance of d_hat(x) is b(x)^T Sigma_y b(x):
+
+    exact, measurement form: sum_i lambda_i u_i(x)^2 - ||W b(x)||^2   (k*l per pixel)
+    exact, coefficient form: ||V b(x)||^2, V = sigma R^-T Lambda^(1/2)  (l*l per pixel)
+    paper (eq. 15/16):       sum_i kappa_i^2 u_i(x)^2,  kappa_i^2 = [Sigma_y]_ii
+
+The small solves run in float64; the products with the basis (s rows) run in float32 BLAS,
+batched over frames. The variance may be evaluated on a grid coarser than the basis grid
+(``variance_stride``): it is exact at that grid's points and resampled bilinearly.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from enum import StrEnum
+
+import numpy as np
+import numpy.typing as npt
+import scipy.linalg
+
+from pcainterp_stream.basis import (
+    Basis,
+    VarianceGrid,
+    bilinear_weights,
+    image_to_grid,
+    resample_grid,
+    sample_rows,
+)
+
+DEFAULT_SIGMA = 2.0
+"""Measurement noise std (px), the paper's value."""
+
+DEFAULT_VARIANCE_GRID_SCALE = 0.125
+"""Automatic variance grid: the coarsest stride whose grid is still >= this scale of the image."""
+
+_VARIANCE_ROWS_PER_CHUNK = 2048
+"""Rows of the stacked exact-variance factor multiplied at once (bounds memory to ~rows*s)."""
+
+
+class Uncertainty(StrEnum):
+    """How the per-pixel posterior std is computed."""
+
+    NONE = "none"
+    """No uncertainty: ``disparity_std`` and ``depth_std`` are None."""
+    PAPER = "paper"
+    """The paper's diagonal approximation sum_i kappa_i^2 u_i(x)^2."""
+    EXACT = "exact"
+    """The true posterior variance diag(B Sigma_y B^T)."""
+
+
+class SolveForm(StrEnum):
+    """Which linear system computes the MAP estimate."""
+
+    AUTO = "auto"
+    """Measurement form when k < l, otherwise coefficient form."""
+    COEFFICIENT = "coefficient"
+    """l x l system (paper's form)."""
+    MEASUREMENT = "measurement"
+    """k x k system (Woodbury)."""
+
+
+@dataclass(frozen=True, eq=False)
+class DensifyResult:
+    """The dense estimate of one frame.
+
+    Attributes:
+        disparity: (H, W) float32, MAP disparity (px) at the output image size.
+        disparity_std: (H, W) float32, posterior std of disparity (px); None when the
+            uncertainty mode is ``none``.
+        depth: (H, W) float32, f*b / disparity (m), NaN where disparity <= 0; None when no
+            focal_baseline is known.
+        depth_std: (H, W) float32, f*b / d^2 * disparity_std (m) (delta method), NaN where
+            disparity <= 0; None when depth or disparity_std is None.
+        coefficients: (l,) float64, the MAP estimate y_hat (basis units).
+        coefficient_variance: (l,) float64, kappa_i^2 = [Sigma_y]_ii.
+        pixels: (k, 2) float64, the measurements used, (x, y) in output image px.
+        disparities: (k,) float64, the measured disparities used (px, output camera).
+        n_dropped: number of measurements dropped (non-finite or outside the image).
+        solve_form: the system that was solved.
+        uncertainty: the uncertainty mode.
+        focal_baseline: f*b (px*m) used for depth; 0 when unknown.
+    """
+
+    disparity: npt.NDArray[np.float32]
+    disparity_std: npt.NDArray[np.float32] | None
+    depth: npt.NDArray[np.float32] | None
+    depth_std: npt.NDArray[np.float32] | None
+    coefficients: npt.NDArray[np.float64]
+    coefficient_variance: npt.NDArray[np.float64]
+    pixels: npt.NDArray[np.float64]
+    disparities: npt.NDArray[np.float64]
+    n_dropped: int
+    solve_form: SolveForm
+    uncertainty: Uncertainty
+    focal_baseline: float
+
+    @property
+    def n_measurements(self) -> int:
+        """Return k, the number of measurements used."""
+        return int(self.disparities.shape[0])
+
+
+@dataclass(frozen=True)
+class _Posterior:
+    coefficients: npt.NDArray[np.float64]
+    coefficient_variance: npt.NDArray[np.float64]
+    # rows r with variance(x) = base(x) + sign * ||factor b(x)||^2; None unless exact
+    factor: npt.NDArray[np.float32] | None
+    subtract_from_prior: bool
+    solve_form: SolveForm
+
+
+def densify(
+    basis: Basis,
+    pixels: npt.ArrayLike,
+    disparities: npt.ArrayLike,
+    *,
+    sigma: float = DEFAULT_SIGMA,
+    uncertainty: Uncertainty | str = Uncertainty.EXACT,
+    solve_form: SolveForm | str = SolveForm.AUTO,
+    focal_baseline: float | None = None,
+    image_size: tuple[int, int] | None = None,
+    variance_stride: int | None = None,
+) -> DensifyResult:
+    """Densify one frame's sparse disparities with the MAP estimate.
+
+    Args:
+        basis: the PCA basis.
+        pixels: (k, 2) float, (x, y) positions in px of the output image (``image_size``).
+        disparities: (k,) float, measured disparities (px) of the output camera.
+        sigma: measurement noise std (px), > 0.
+        uncertainty: ``"exact"``, ``"paper"`` or ``"none"`` (see :class:`Uncertainty`).
+        solve_form: ``"auto"``, ``"coefficient"`` or ``"measurement"``.
+        focal_baseline: f*b (px*m) of the camera the measurements come from; defaults to
+            the basis's. Disparities are scaled by basis.focal_baseline / focal_baseline
+            onto the basis and back, and depth = focal_baseline / disparity.
+        image_size: (height, width) of the camera the measurements come from and of the
+            result; defaults to the basis's. Pixels are mapped pixel-centre aligned.
+        variance_stride: evaluate the std on a grid this many times coarser than the basis
+            grid (exact there, resampled bilinearly); None picks it automatically
+            (:data:`DEFAULT_VARIANCE_GRID_SCALE`).
+
+    Returns:
+        The :class:`DensifyResult`. Zero usable measurements give the prior (mean map,
+        prior std); non-finite or out-of-image measurements are dropped and counted.
+
+    Raises:
+        ValueError: an argument has the wrong shape or value.
+    """
+    return densify_batch(
+        basis,
+        [pixels],
+        [disparities],
+        sigma=sigma,
+        uncertainty=uncertainty,
+        solve_form=solve_form,
+        focal_baseline=focal_baseline,
+        image_size=image_size,
+        variance_stride=variance_stride,
+    )[0]
+
+
+def densify_batch(
+    basis: Basis,
+    pixels_list: Sequence[npt.ArrayLike],
+    disparities_list: Sequence[npt.ArrayLike],
+    *,
+    sigma: float = DEFAULT_SIGMA,
+    uncertainty: Uncertainty | str = Uncertainty.EXACT,
+    solve_form: SolveForm | str = SolveForm.AUTO,
+    focal_baseline: float | None = None,
+    image_size: tuple[int, int] | None = None,
+    variance_stride: int | None = None,
+) -> list[DensifyResult]:
+    """Densify several frames at once with matrix-matrix products across frames.
+
+    Numerically the same as calling :func:`densify` per frame (to float32 rounding), but
+    the products with the basis are batched: B @ Y for all frames' maps and one stacked
+    product for all frames' exact-variance factors.
+
+    Args:
+        basis: the PCA basis.
+        pixels_list: F arrays (k_f, 2) float, (x, y) in output image px.
+        disparities_list: F arrays (k_f,) float, disparities (px).
+        sigma: measurement noise std (px), > 0.
+        uncertainty: ``"exact"``, ``"paper"`` or ``"none"``.
+        solve_form: ``"auto"``, ``"coefficient"`` or ``"measurement"``.
+        focal_baseline: f*b (px*m) of the measurements' camera (default: the basis's).
+        image_size: (height, width) of the measurements' camera (default: the basis's).
+        variance_stride: std grid coarsening over the basis grid; None: automatic.
+
+    Returns:
+        One :class:`DensifyResult` per frame, in order.
+
+    Raises:
+        ValueError: an argument has the wrong shape or value.
+    """
+    if len(pixels_list) != len(disparities_list):
+        raise ValueError(
+            f"Expected `disparities_list` to have one array per frame of `pixels_list` "
+            f"({len(pixels_list)}), got {len(disparities_list)}"
+        )
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise ValueError(f"Expected `sigma` > 0 (px), got {sigma}")
+    mode = Uncertainty(uncertainty)
+    form = SolveForm(solve_form)
+    out_size = _image_size(basis, image_size)
+    fb_out = _focal_baseline(basis, focal_baseline)
+    # disparity in basis units = disparity of the output camera * to_basis
+    to_basis = basis.focal_baseline / fb_out if basis.focal_baseline > 0 and fb_out > 0 else 1.0
+    stride = _variance_stride(basis, variance_stride)
+
+    frames = [
+        _clean(pixels, disparities, out_size)
+        for pixels, disparities in zip(pixels_list, disparities_list, strict=True)
+    ]
+    eigenvalues = basis.eigenvalues
+    posteriors = []
+    for frame_pixels, frame_disparities, _ in frames:
+        grid_positions = image_to_grid(frame_pixels, out_size, basis.grid_size)
+        indices, weights = bilinear_weights(grid_positions, basis.grid_size)
+        rows = sample_rows(basis.pixel_major, indices, weights).astype(np.float64)
+        mean_at = (basis.mean_flat[indices] * weights).sum(axis=1)
+        residual = frame_disparities * to_basis - mean_at
+        posteriors.append(
+            _solve(rows, residual, eigenvalues, sigma, form, need_factor=mode is Uncertainty.EXACT)
+        )
+
+    # d_hat = B Y + m for all frames at once (s, F)
+    coefficients = np.stack([p.coefficients for p in posteriors], axis=1).astype(np.float32)
+    grid_maps = basis.pixel_major @ coefficients
+    grid_maps += basis.mean_flat[:, None]
+    grid_maps *= np.float32(1.0 / to_basis)
+
+    variances: npt.NDArray[np.float32] | None = None
+    vgrid = basis.variance_grid(stride) if mode is not Uncertainty.NONE else None
+    if vgrid is not None:
+        variances = _variances(vgrid, posteriors, mode)
+
+    results = []
+    for index, (posterior, (frame_pixels, frame_disparities, n_dropped)) in enumerate(
+        zip(posteriors, frames, strict=True)
+    ):
+        disparity = resample_grid(grid_maps[:, index].reshape(basis.grid_size), out_size)
+        disparity_std = None
+        if vgrid is not None and variances is not None:
+            grid_std = np.sqrt(np.maximum(variances[index], 0.0)) * np.float32(1.0 / to_basis)
+            disparity_std = resample_grid(grid_std.reshape(vgrid.size), out_size)
+        depth, depth_std = _depth(disparity, disparity_std, fb_out)
+        results.append(
+            DensifyResult(
+                disparity=disparity,
+                disparity_std=disparity_std,
+                depth=depth,
+                depth_std=depth_std,
+                coefficients=posterior.coefficients,
+                coefficient_variance=posterior.coefficient_variance,
+                pixels=frame_pixels,
+                disparities=frame_disparities,
+                n_dropped=n_dropped,
+                solve_form=posterior.solve_form,
+                uncertainty=mode,
+                focal_baseline=fb_out,
+            )
+        )
+    return results
+
+
+def posterior_covariance(
+    basis: Basis,
+    pixels: npt.ArrayLike,
+    disparities: npt.ArrayLike,
+    *,
+    sigma: float = DEFAULT_SIGMA,
+    image_size: tuple[int, int] | None = None,
+) -> npt.NDArray[np.float64]:
+    """Return the full coefficient posterior covariance Sigma_y (for tests and analysis).
+
+    Args:
+        basis: the PCA basis.
+        pixels: (k, 2) float, (x, y) in image px.
+        disparities: (k,) float (px); only their count and validity matter.
+        sigma: measurement noise std (px).
+        image_size: (height, width) of the measurements' camera (default: the basis's).
+
+    Returns:
+        (l, l) float64, Sigma_y = sigma^2 (sigma^2 Lambda^-1 + B~^T B~)^-1, computed in the
+        coefficient form (valid for zero eigenvalues too).
+    """
+    out_size = _image_size(basis, image_size)
+    frame_pixels, _, _ = _clean(pixels, disparities, out_size)
+    indices, weights = bilinear_weights(
+        image_to_grid(frame_pixels, out_size, basis.grid_size), basis.grid_size
+    )
+    rows = sample_rows(basis.pixel_major, indices, weights).astype(np.float64)
+    root = np.sqrt(basis.eigenvalues)
+    scaled = rows * root
+    system = sigma**2 * np.eye(basis.n_components) + scaled.T @ scaled
+    covariance: npt.NDArray[np.float64] = sigma**2 * (
+        root[:, None] * np.linalg.inv(system) * root[None, :]
+    )
+    return covariance
+
+
+def _solve(
+    rows: npt.NDArray[np.float64],
+    residual: npt.NDArray[np.float64],
+    eigenvalues: npt.NDArray[np.float64],
+    sigma: float,
+    form: SolveForm,
+    *,
+    need_factor: bool,
+) -> _Posterior:
+    """MAP estimate and posterior of one frame; rows = B~ (k, l), residual = z~ (k,)."""
+    k, n_components = rows.shape
+    if k == 0:
+        return _Posterior(
+            coefficients=np.zeros(n_components),
+            coefficient_variance=eigenvalues.copy(),
+            factor=np.zeros((0, n_components), dtype=np.float32) if need_factor else None,
+            subtract_from_prior=True,
+            solve_form=SolveForm.MEASUREMENT,
+        )
+    if form is SolveForm.AUTO:
+        form = SolveForm.MEASUREMENT if k < n_components else SolveForm.COEFFICIENT
+    variance = sigma**2
+    if form is SolveForm.MEASUREMENT:
+        # Woodbury: K = B~ Lambda B~^T + sigma^2 I = L L^T
+        rows_lambda = rows * eigenvalues
+        system = rows_lambda @ rows.T
+        system.flat[:: k + 1] += variance
+        lower = scipy.linalg.cholesky(system, lower=True)
+        alpha = scipy.linalg.cho_solve((lower, True), residual)
+        coefficients = rows_lambda.T @ alpha  # y = Lambda B~^T K^-1 z~
+        whitened = scipy.linalg.solve_triangular(lower, rows_lambda, lower=True)  # W = L^-1 B~ Λ
+        coefficient_variance = eigenvalues - np.einsum("kl,kl->l", whitened, whitened)
+        factor = whitened.astype(np.float32) if need_factor else None
+        return _Posterior(coefficients, coefficient_variance, factor, True, form)
+    # coefficient form: A = sigma^2 I + Λ^½ B~^T B~ Λ^½ = R^T R (paper's system, symmetrised)
+    root = np.sqrt(eigenvalues)
+    scaled = rows * root
+    system = scaled.T @ scaled
+    system.flat[:: n_components + 1] += variance
+    upper = scipy.linalg.cholesky(system, lower=False)
+    coefficients = root * scipy.linalg.cho_solve((upper, False), scaled.T @ residual)
+    # Sigma_y = V^T V with V = sigma R^-T Λ^½
+    factor64 = scipy.linalg.solve_triangular(upper, np.diag(sigma * root), trans="T")
+    coefficient_variance = np.einsum("rl,rl->l", factor64, factor64)
+    factor = factor64.astype(np.float32) if need_factor else None
+    return _Posterior(coefficients, coefficient_variance, factor, False, form)
+
+
+def _variances(
+    vgrid: VarianceGrid, posteriors: list[_Posterior], mode: Uncertainty
+) -> npt.NDArray[np.float32]:
+    """Posterior variance (F, s_v) float32 on the variance grid (basis disparity units)."""
+    n_frames = len(posteriors)
+    if mode is Uncertainty.PAPER:
+        kappa2 = np.stack([p.coefficient_variance for p in posteriors], axis=1)
+        # eq. (15/16): sum_i kappa_i^2 u_i(x)^2, one GEMM for all frames
+        paper: npt.NDArray[np.float32] = (vgrid.squared_rows.T @ kappa2.astype(np.float32)).T
+        return np.ascontiguousarray(paper)
+    out = np.empty((n_frames, vgrid.prior_variance.shape[0]), dtype=np.float32)
+    # stack frames' factors and multiply in chunks of rows: (sum r_f, l) @ (l, s_v)
+    start = 0
+    while start < n_frames:
+        stop = start
+        n_rows = 0
+        while stop < n_frames and (stop == start or n_rows < _VARIANCE_ROWS_PER_CHUNK):
+            factor = posteriors[stop].factor
+            n_rows += 0 if factor is None else factor.shape[0]
+            stop += 1
+        factors = [_factor(p) for p in posteriors[start:stop]]
+        counts = [f.shape[0] for f in factors]
+        projected = np.concatenate(factors, axis=0) @ vgrid.component_rows
+        projected *= projected
+        offset = 0
+        for index, count in enumerate(counts):
+            reduction = projected[offset : offset + count].sum(axis=0)
+            offset += count
+            posterior = posteriors[start + index]
+            if posterior.subtract_from_prior:
+                out[start + index] = vgrid.prior_variance - reduction
+            else:
+                out[start + index] = reduction
+        start = stop
+    return out
+
+
+def _factor(posterior: _Posterior) -> npt.NDArray[np.float32]:
+    if posterior.factor is None:
+        raise AssertionError("exact variance needs the posterior factor")
+    return posterior.factor
+
+
+def _depth(
+    disparity: npt.NDArray[np.float32],
+    disparity_std: npt.NDArray[np.float32] | None,
+    focal_baseline: float,
+) -> tuple[npt.NDArray[np.float32] | None, npt.NDArray[np.float32] | None]:
+    """Depth w = f*b / d and its delta-method std f*b / d^2 * std_d; NaN where d <= 0."""
+    if focal_baseline <= 0:
+        return None, None
+    positive = disparity > 0
+    inverse = np.full(disparity.shape, np.nan, dtype=np.float32)
+    np.divide(np.float32(1.0), disparity, out=inverse, where=positive)
+    depth = inverse * np.float32(focal_baseline)
+    if disparity_std is None:
+        return depth, None
+    depth_std = depth * inverse
+    depth_std *= disparity_std
+    return depth, depth_std
+
+
+def _clean(
+    pixels: npt.ArrayLike, disparities: npt.ArrayLike, image_size: tuple[int, int]
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], int]:
+    """Validate shapes, drop non-finite and out-of-image measurements, count the drops."""
+    pixel_array = np.asarray(pixels, dtype=np.float64)
+    disparity_array = np.asarray(disparities, dtype=np.float64)
+    if pixel_array.size == 0 and pixel_array.ndim < 2:
+        pixel_array = pixel_array.reshape(0, 2)
+    if pixel_array.ndim != 2 or pixel_array.shape[1] != 2:
+        raise ValueError(f"Expected `pixels` of shape (k, 2) as (x, y), got {pixel_array.shape}")
+    if disparity_array.shape != (pixel_array.shape[0],):
+        raise ValueError(
+            f"Expected `disparities` of shape ({pixel_array.shape[0]},) to match `pixels`, "
+            f"got {disparity_array.shape}"
+        )
+    height, width = image_size
+    x, y = pixel_array[:, 0], pixel_array[:, 1]
+    with np.errstate(invalid="ignore"):
+        keep = (
+            np.isfinite(disparity_array)
+            & (x >= -0.5)
+            & (x <= width - 0.5)
+            & (y >= -0.5)
+            & (y <= height - 0.5)
+        )
+    n_dropped = int(keep.size - np.count_nonzero(keep))
+    return pixel_array[keep], disparity_array[keep], n_dropped
+
+
+def _image_size(basis: Basis, image_size: tuple[int, int] | None) -> tuple[int, int]:
+    if image_size is None:
+        return basis.image_size
+    size = tuple(int(v) for v in image_size)
+    if len(size) != 2 or size[0] < 1 or size[1] < 1:
+        raise ValueError(f"Expected `image_size` as (height, width) > 0, got {image_size}")
+    return (size[0], size[1])
+
+
+def _focal_baseline(basis: Basis, focal_baseline: float | None) -> float:
+    if focal_baseline is None:
+        return basis.focal_baseline
+    if not (np.isfinite(focal_baseline) and focal_baseline > 0):
+        raise ValueError(f"Expected `focal_baseline` > 0 (px*m), got {focal_baseline}")
+    return float(focal_baseline)
+
+
+def _variance_stride(basis: Basis, variance_stride: int | None) -> int:
+    if variance_stride is not None:
+        if variance_stride < 1:
+            raise ValueError(f"Expected `variance_stride` >= 1, got {variance_stride}")
+        return int(variance_stride)
+    grid_scale = basis.grid_size[0] / basis.image_size[0]
+    return max(1, int(np.floor(grid_scale / DEFAULT_VARIANCE_GRID_SCALE + 1e-9)))
