@@ -1,0 +1,144 @@
+"""Write synthetic (or imported) stereo frames as a log with the project's input topics.
+
+Per frame, all stamped with the frame's capture time (header stamp = log time), in this
+order (DESIGN.md section 3):
+
+==============================  ===============================  =======================
+topic                           type                             content
+==============================  ===============================  =======================
+``/stereo/left/image_rect``     sensor_msgs/msg/Image mono8      rectified left grey
+``/stereo/right/image_rect``    sensor_msgs/msg/Image mono8      rectified right grey
+``/stereo/left/camera_info``    sensor_msgs/msg/CameraInfo       P = [fx 0 cx 0; ...]
+``/stereo/right/camera_info``   sensor_msgs/msg/CameraInfo       P[0, 3] = -fx * b
+``/ground_truth/depth``         sensor_msgs/msg/Image 32FC1      metres, NaN for sky
+``/ground_truth/pose``          geometry_msgs/msg/PoseStamped    left camera in "world"
+==============================  ===============================  =======================
+
+The ground-truth topics are optional per frame (:func:`frame_messages` with
+``ground_truth=False``), which the KITTI importer uses.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Iterator
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream import rosmsg
+from pcainterp_stream.logwriter import (
+    LogFormat,
+    LogWriter,
+    ProgressCallback,
+    WriteSummary,
+    open_writer,
+)
+from pcainterp_stream.records import StereoCamera, SynthFrame
+
+LEFT_IMAGE = "/stereo/left/image_rect"
+RIGHT_IMAGE = "/stereo/right/image_rect"
+LEFT_INFO = "/stereo/left/camera_info"
+RIGHT_INFO = "/stereo/right/camera_info"
+DEPTH = "/ground_truth/depth"
+POSE = "/ground_truth/pose"
+
+LEFT_FRAME = "stereo_left_optical"
+RIGHT_FRAME = "stereo_right_optical"
+WORLD_FRAME = "world"
+
+
+def stereo_messages(
+    stamp_ns: int,
+    left: npt.NDArray[np.uint8],
+    right: npt.NDArray[np.uint8],
+    camera: StereoCamera,
+) -> Iterator[tuple[str, Any]]:
+    """Yield (topic, message) for one rectified pair and its two camera infos.
+
+    Args:
+        stamp_ns: header stamp (ns).
+        left: (H, W) uint8 left grey image.
+        right: (H, W) uint8 right grey image.
+        camera: the pair's calibration; (H, W) must equal ``camera.image_size``.
+
+    Raises:
+        ValueError: if an image's shape or dtype does not match the camera.
+    """
+    for name, image in (("left", left), ("right", right)):
+        if image.shape != camera.image_size or image.dtype != np.uint8:
+            raise ValueError(
+                f"Expected `{name}` to be uint8 of shape {camera.image_size}, "
+                f"got {image.dtype} {image.shape}"
+            )
+    yield LEFT_IMAGE, rosmsg.image_message(left, stamp_ns, LEFT_FRAME, encoding="mono8")
+    yield RIGHT_IMAGE, rosmsg.image_message(right, stamp_ns, RIGHT_FRAME, encoding="mono8")
+    yield LEFT_INFO, rosmsg.camera_info_message(camera, stamp_ns, LEFT_FRAME)
+    yield RIGHT_INFO, rosmsg.camera_info_message(camera, stamp_ns, RIGHT_FRAME, right=True)
+
+
+def pose_message(camera_to_world: npt.NDArray[np.float64], stamp_ns: int) -> Any:
+    """Return the ``/ground_truth/pose`` message: (4, 4) left camera-to-world, frame "world"."""
+    return rosmsg.pose_stamped_message(camera_to_world, stamp_ns, WORLD_FRAME)
+
+
+def frame_messages(frame: SynthFrame, *, ground_truth: bool = True) -> Iterator[tuple[str, Any]]:
+    """Yield (topic, message) of one synthetic frame in the order of the module table.
+
+    Args:
+        frame: the frame; ``depth`` (H, W) float32 metres, NaN for sky.
+        ground_truth: also yield ``/ground_truth/depth`` and ``/ground_truth/pose``.
+
+    Raises:
+        ValueError: if an array's shape does not match the frame's camera.
+    """
+    yield from stereo_messages(frame.stamp_ns, frame.left, frame.right, frame.camera)
+    if not ground_truth:
+        return
+    if frame.depth.shape != frame.camera.image_size:
+        raise ValueError(
+            f"Expected `depth` of frame {frame.index} to have shape {frame.camera.image_size}, "
+            f"got {frame.depth.shape}"
+        )
+    depth = np.asarray(frame.depth, dtype=np.float32)
+    yield DEPTH, rosmsg.image_message(depth, frame.stamp_ns, LEFT_FRAME, encoding="32FC1")
+    yield POSE, pose_message(frame.camera_to_world, frame.stamp_ns)
+
+
+def write_frame(writer: LogWriter, frame: SynthFrame, *, ground_truth: bool = True) -> None:
+    """Add one frame's messages to an open writer (log time = header stamp)."""
+    for topic, message in frame_messages(frame, ground_truth=ground_truth):
+        writer.add_message(topic, message, frame.stamp_ns)
+
+
+def write_synthetic_log(
+    frames: Iterable[SynthFrame],
+    path: str | os.PathLike[str],
+    *,
+    format: LogFormat | str | None = None,
+    progress: ProgressCallback | None = None,
+    total: int | None = None,
+) -> WriteSummary:
+    """Write frames with their ground truth as a log, one frame in memory at a time.
+
+    Args:
+        frames: the frames, e.g. ``pcainterp_stream.synth.generate(config)``.
+        path: output ``.mcap``, ``.bag`` or rosbag2 folder; written atomically.
+        format: output format; chosen from the path's name when None.
+        progress: called as ``progress(frames_done, total)`` after every frame.
+        total: number of frames, passed on to ``progress`` (None if unknown).
+
+    Returns:
+        What was written (path, counts per topic, first and last log time).
+
+    Raises:
+        LogWriteError: the output cannot be written.
+        ValueError: a frame's arrays do not match its camera.
+    """
+    with open_writer(path, format) as writer:
+        for done, frame in enumerate(frames, start=1):
+            write_frame(writer, frame)
+            if progress is not None:
+                progress(done, total)
+    return writer.summary()
