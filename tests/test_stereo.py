@@ -1,0 +1,365 @@
+"""Tests of the stereo front end on synthetic pairs with known disparity (and one KITTI pair)."""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from pcainterp_stream.stereo import (
+    GfttConfig,
+    LookupMethod,
+    SgbmConfig,
+    StereoFrontEnd,
+    compute_disparity,
+    compute_right_disparity,
+    detect_corners,
+    lookup_disparities,
+    to_grey8_pair,
+)
+
+REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+KITTI_DRIVE = REALDATA / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0001_sync"
+
+HEIGHT, WIDTH = 160, 320
+D_BACK, D_FRONT = 10.3, 20.6  # fractional on purpose: sub-pixel recovery is tested
+RECT = (150, 50, 250, 110)  # x0, y0, x1, y1 of the nearer rectangle in the left image
+SGBM = SgbmConfig(num_disparities=32)
+GFTT = GfttConfig(max_corners=300, min_distance=5.0)
+
+
+def _texture(rng: np.random.Generator, height: int, width: int) -> npt.NDArray[np.float32]:
+    noise = rng.random((height, width)).astype(np.float32)
+    image = cv2.GaussianBlur(noise, (0, 0), 1.2)
+    return np.asarray((image - image.min()) / (image.max() - image.min()), np.float32)
+
+
+def _synthetic_pair(
+    seed: int = 0,
+) -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.uint8], npt.NDArray[np.float32]]:
+    """Textured plane at D_BACK with a nearer textured rectangle at D_FRONT.
+
+    Right pixel (x_r, y) sees the surface point of left pixel (x_r + d, y); the rectangle
+    occludes the background in both views. Returns (left, right, true left disparity).
+    """
+    rng = np.random.default_rng(seed)
+    back = _texture(rng, HEIGHT, WIDTH + 64)
+    front = _texture(rng, HEIGHT, WIDTH + 64)
+    x0, y0, x1, y1 = RECT
+    ys, xs = np.mgrid[0:HEIGHT, 0:WIDTH].astype(np.float32)
+    in_left = (xs >= x0) & (xs < x1) & (ys >= y0) & (ys < y1)
+    left = np.where(in_left, front[:, :WIDTH], back[:, :WIDTH])
+    x_front = xs + np.float32(D_FRONT)
+    right_back = cv2.remap(back, xs + np.float32(D_BACK), ys, cv2.INTER_CUBIC)
+    right_front = cv2.remap(front, x_front, ys, cv2.INTER_CUBIC)
+    in_right = (x_front >= x0) & (x_front < x1) & (ys >= y0) & (ys < y1)
+    right = np.where(in_right, right_front, right_back)
+    truth = np.where(in_left, D_FRONT, D_BACK).astype(np.float32)
+
+    def to_uint8(image: npt.NDArray[np.float32]) -> npt.NDArray[np.uint8]:
+        return np.asarray(np.clip(image * 255 + 0.5, 0, 255), np.uint8)
+
+    return to_uint8(left), to_uint8(right), truth
+
+
+@pytest.fixture(scope="module")
+def pair() -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.uint8], npt.NDArray[np.float32]]:
+    return _synthetic_pair()
+
+
+@pytest.fixture(scope="module")
+def disparity(
+    pair: tuple[npt.NDArray[np.uint8], npt.NDArray[np.uint8], npt.NDArray[np.float32]],
+) -> npt.NDArray[np.float32]:
+    return compute_disparity(pair[0], pair[1], SGBM)
+
+
+def _truth_at(truth: npt.NDArray[np.float32], pixels: npt.NDArray[np.float32]) -> npt.NDArray[Any]:
+    cols = np.clip(np.round(pixels[:, 0]).astype(int), 0, truth.shape[1] - 1)
+    rows = np.clip(np.round(pixels[:, 1]).astype(int), 0, truth.shape[0] - 1)
+    return np.asarray(truth[rows, cols])
+
+
+def _ramp(height: int = 100, width: int = 200) -> npt.NDArray[np.float32]:
+    ys, xs = np.mgrid[0:height, 0:width].astype(np.float32)
+    return np.asarray(10.0 + 0.3 * xs + 0.2 * ys, np.float32)
+
+
+# --- corners -----------------------------------------------------------------------------
+
+
+def test_corners_found_inside_usable_area(pair: tuple[npt.NDArray[Any], ...]) -> None:
+    corners = detect_corners(pair[0], GFTT, min_x=SGBM.valid_min_x)
+    assert corners.dtype == np.float32
+    assert corners.shape[1] == 2
+    assert corners.shape[0] >= 200
+    slack = GFTT.subpixel_window  # cornerSubPix moves a corner at most this far
+    assert corners[:, 0].min() >= SGBM.valid_min_x - slack
+    assert corners[:, 0].max() <= WIDTH - 1 - GFTT.border + slack
+    assert corners[:, 1].min() >= GFTT.border - slack
+    assert corners[:, 1].max() <= HEIGHT - 1 - GFTT.border + slack
+    # sub-pixel refinement moves positions off the integer grid
+    assert np.mean(corners != np.round(corners)) > 0.5
+
+
+def test_blank_image_gives_empty_corners_and_measurements() -> None:
+    blank = np.full((HEIGHT, WIDTH), 128, np.uint8)
+    corners = detect_corners(blank, GFTT)
+    assert corners.shape == (0, 2)
+    assert corners.dtype == np.float32
+    result = StereoFrontEnd(gftt=GFTT, sgbm=SGBM).measure(blank, blank)
+    assert result.pixels.shape == (0, 2)
+    assert result.disparities.shape == (0,)
+    assert result.counts.corners == 0
+    assert result.disparity_map.shape == (HEIGHT, WIDTH)
+
+
+def test_left_band_is_not_searched(pair: tuple[npt.NDArray[Any], ...]) -> None:
+    corners = detect_corners(pair[0], GFTT, min_x=WIDTH)
+    assert corners.shape == (0, 2)
+
+
+# --- lookup on analytic maps ---------------------------------------------------------------
+
+
+def test_bilinear_lookup_is_exact_on_a_ramp() -> None:
+    disparity = _ramp()
+    rng = np.random.default_rng(1)
+    corners = np.column_stack([rng.uniform(5, 190, 200), rng.uniform(5, 90, 200)]).astype(
+        np.float32
+    )
+    found = lookup_disparities(disparity, corners)
+    assert found.counts.kept == 200
+    expected = 10.0 + 0.3 * corners[:, 0] + 0.2 * corners[:, 1]
+    np.testing.assert_allclose(found.disparities, expected, atol=1e-3)
+    np.testing.assert_array_equal(found.pixels, corners)
+
+
+def test_median_lookup_takes_the_nearest_pixel_value_on_a_ramp() -> None:
+    disparity = _ramp()
+    corners = np.array([[20.4, 30.6], [100.0, 50.0], [150.7, 70.2]], np.float32)
+    found = lookup_disparities(disparity, corners, method=LookupMethod.MEDIAN, median_window=5)
+    nearest = np.round(corners)
+    np.testing.assert_allclose(
+        found.disparities, 10.0 + 0.3 * nearest[:, 0] + 0.2 * nearest[:, 1], atol=1e-4
+    )
+
+
+def test_invalid_region_yields_no_lookups() -> None:
+    disparity = _ramp()
+    disparity[40:60, 80:120] = np.nan
+    inside_hole = np.array([[90.3, 45.5], [100.0, 50.0], [110.6, 55.2]], np.float32)
+    next_to_hole = np.array([[78.0, 50.0], [100.0, 60.2]], np.float32)
+    far = np.array([[30.0, 30.0]], np.float32)
+    found = lookup_disparities(disparity, np.concatenate([inside_hole, next_to_hole, far]))
+    assert found.counts.invalid == 3
+    assert found.counts.discontinuity == 2  # valid sample, but a hole in the support patch
+    assert found.counts.kept == 1
+    np.testing.assert_array_equal(found.indices, [5])
+
+
+def test_out_of_image_and_nan_corners_are_counted() -> None:
+    corners = np.array([[-1.0, 10.0], [199.5, 10.0], [50.0, 0.2], [np.nan, 5.0]], np.float32)
+    found = lookup_disparities(_ramp(), corners)
+    assert found.counts.outside == 4
+    assert found.pixels.shape == (0, 2)
+
+
+def test_empty_corners_are_data() -> None:
+    found = lookup_disparities(_ramp(), np.zeros((0, 2), np.float32))
+    assert found.pixels.shape == (0, 2)
+    assert found.disparities.shape == (0,)
+    assert found.counts.corners == 0
+
+
+def test_lr_check_rejects_an_injected_inconsistency() -> None:
+    left = np.full((100, 200), 12.0, np.float32)
+    right = np.full((100, 200), 12.0, np.float32)
+    right[:, 100:140] += 3.0  # right pixels 100..139 disagree; they match left x 112..151
+    corners = np.array([[60.0, 50.0], [120.5, 50.0], [140.2, 30.0], [170.0, 20.0]], np.float32)
+    without = lookup_disparities(left, corners)
+    assert without.counts.kept == 4
+    checked = lookup_disparities(left, corners, right_disparity=right)
+    assert checked.counts.inconsistent == 2
+    np.testing.assert_array_equal(checked.indices, [0, 3])
+
+
+def test_bad_lookup_arguments_raise() -> None:
+    with pytest.raises(ValueError, match=r"corners must have shape \(k, 2\)"):
+        lookup_disparities(_ramp(), np.zeros((3, 3), np.float32))
+    with pytest.raises(ValueError, match=r"right_disparity has shape \(5, 5\)"):
+        lookup_disparities(
+            _ramp(), np.zeros((0, 2), np.float32), right_disparity=np.zeros((5, 5), np.float32)
+        )
+
+
+# --- SGBM on the synthetic pair ------------------------------------------------------------
+
+
+def test_sgbm_lookups_recover_the_true_disparity(
+    pair: tuple[npt.NDArray[Any], ...],
+) -> None:
+    left, right, truth = pair
+    result = StereoFrontEnd(gftt=GFTT, sgbm=SGBM).measure(left, right)
+    assert result.counts.kept >= 200
+    error = np.abs(result.disparities - _truth_at(truth, result.pixels))
+    # SGBM's parabolic sub-pixel fit is biased towards integers ("pixel locking", up to
+    # ~0.3 px at fractional parts near 0.5), so bound the bulk, not every value.
+    assert np.median(error) < 0.15
+    assert np.mean(error < 0.25) >= 0.9
+    # no lookup takes a value blended across the rectangle's outline
+    nearest_layer = np.minimum(
+        np.abs(result.disparities - D_BACK), np.abs(result.disparities - D_FRONT)
+    )
+    assert nearest_layer.max() < 1.0
+    counts = result.counts
+    assert counts.corners == (
+        counts.kept + counts.outside + counts.invalid + counts.discontinuity + counts.inconsistent
+    )
+
+
+def test_corners_on_the_rectangle_outline_are_rejected(
+    disparity: npt.NDArray[np.float32],
+) -> None:
+    x0, y0, x1, y1 = RECT
+    ys = np.arange(y0 + 2, y1 - 2, 0.7, dtype=np.float32)
+    xs = np.arange(x0 + 2, x1 - 2, 0.7, dtype=np.float32)
+    outline = np.concatenate(
+        [
+            np.column_stack([np.full_like(ys, x0 - 0.5), ys]),
+            np.column_stack([np.full_like(ys, x1 - 0.5), ys]),
+            np.column_stack([xs, np.full_like(xs, y0 - 0.5)]),
+            np.column_stack([xs, np.full_like(xs, y1 - 0.5)]),
+        ]
+    )
+    found = lookup_disparities(disparity, outline)
+    assert found.counts.kept <= 0.05 * len(outline)
+    assert found.counts.discontinuity + found.counts.invalid >= 0.9 * len(outline)
+
+
+def test_sgbm_left_band_yields_no_lookups(disparity: npt.NDArray[np.float32]) -> None:
+    ys = np.arange(20.0, 140.0, 7.0, dtype=np.float32)
+    band = np.column_stack([np.full_like(ys, 5.0), ys])  # x < min_disp + num_disp - ~10
+    assert np.isnan(disparity[:, :10]).all()
+    assert lookup_disparities(disparity, band).counts.kept == 0
+
+
+def test_lr_check_on_sgbm_keeps_good_lookups(pair: tuple[npt.NDArray[Any], ...]) -> None:
+    left, right, _ = pair
+    right_map = compute_right_disparity(left, right, SGBM)
+    # the right view's map: right pixel x_r matches left x_r + d
+    rows, cols = 80, np.arange(60, 120)
+    np.testing.assert_allclose(np.nanmedian(right_map[rows, cols]), D_BACK, atol=0.25)
+    plain = StereoFrontEnd(gftt=GFTT, sgbm=SGBM).measure(left, right)
+    checked = StereoFrontEnd(gftt=GFTT, sgbm=SGBM, lr_check=True).measure(left, right)
+    assert checked.counts.kept >= 0.9 * plain.counts.kept
+    assert checked.counts.kept + checked.counts.inconsistent == plain.counts.kept
+
+
+def test_half_resolution_matching(pair: tuple[npt.NDArray[Any], ...]) -> None:
+    left, right, truth = pair
+    half = SgbmConfig(num_disparities=32, downscale=2)
+    result = StereoFrontEnd(gftt=GFTT, sgbm=half).measure(left, right)
+    assert result.disparity_map.shape == (HEIGHT, WIDTH)
+    assert result.counts.kept >= 150
+    error = np.abs(result.disparities - _truth_at(truth, result.pixels))
+    assert np.median(error) < 0.3
+
+
+# --- inputs --------------------------------------------------------------------------------
+
+
+def test_mismatched_sizes_raise_naming_both_shapes(pair: tuple[npt.NDArray[Any], ...]) -> None:
+    with pytest.raises(ValueError, match=r"\(160, 320\).*\(160, 300\)"):
+        compute_disparity(pair[0], pair[1][:, :300], SGBM)
+    with pytest.raises(ValueError, match=r"\(160, 320\).*\(160, 300\)"):
+        StereoFrontEnd().measure(pair[0], pair[1][:, :300])
+
+
+def test_unsupported_image_type_raises() -> None:
+    image = np.zeros((10, 40), np.float32)
+    with pytest.raises(ValueError, match="left image has shape"):
+        compute_disparity(image, image, SGBM)
+
+
+def test_rgb_input_matches_grey(
+    pair: tuple[npt.NDArray[Any], ...], disparity: npt.NDArray[np.float32]
+) -> None:
+    left, right, _ = pair
+    rgb_left = np.repeat(left[:, :, None], 3, axis=2)
+    rgb_right = np.repeat(right[:, :, None], 3, axis=2)
+    np.testing.assert_array_equal(compute_disparity(rgb_left, rgb_right, SGBM), disparity)
+
+
+def test_uint16_input_is_scaled_to_8_bit(
+    pair: tuple[npt.NDArray[Any], ...], disparity: npt.NDArray[np.float32]
+) -> None:
+    left, right, _ = pair
+    # a 12-bit camera: >> 8 would leave 16 grey levels
+    left16 = (left.astype(np.uint16) * 16).astype(np.uint16)
+    right16 = (right.astype(np.uint16) * 16).astype(np.uint16)
+    grey_left, _ = to_grey8_pair(left16, right16)
+    assert grey_left.dtype == np.uint8
+    assert grey_left.max() == 255
+    assert len(np.unique(grey_left)) > 150
+    from16 = compute_disparity(left16, right16, SGBM)
+    both = ~np.isnan(from16) & ~np.isnan(disparity)
+    assert both.mean() > 0.8
+    assert np.mean(np.abs(from16[both] - disparity[both]) <= 0.25) > 0.95
+
+
+def test_config_validation() -> None:
+    with pytest.raises(ValueError, match="multiple of 16, got 100"):
+        SgbmConfig(num_disparities=100)
+    with pytest.raises(ValueError, match="block_size must be odd"):
+        SgbmConfig(block_size=4)
+    assert SgbmConfig(block_size=5).penalty_small == 200
+    assert SgbmConfig(block_size=5).penalty_large == 800
+
+
+def test_concurrent_threads_give_the_sequential_result(
+    pair: tuple[npt.NDArray[Any], ...],
+) -> None:
+    left, right, _ = pair
+    front_end = StereoFrontEnd(gftt=GFTT, sgbm=SGBM)
+    expected = front_end.measure(left, right)
+    results: list[Any] = [None] * 4
+
+    def work(slot: int) -> None:
+        results[slot] = front_end.measure(left, right)
+
+    threads = [threading.Thread(target=work, args=(slot,)) for slot in range(4)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    for result in results:
+        np.testing.assert_array_equal(result.pixels, expected.pixels)
+        np.testing.assert_array_equal(result.disparities, expected.disparities)
+
+
+# --- real data -----------------------------------------------------------------------------
+
+
+@pytest.mark.realdata
+def test_kitti_pair_gives_many_well_spread_lookups() -> None:
+    if not KITTI_DRIVE.is_dir():
+        pytest.skip(f"KITTI raw drive not found at {KITTI_DRIVE} (../shared/realdata absent)")
+    left = np.asarray(cv2.imread(str(KITTI_DRIVE / "image_00" / "data" / "0000000000.png"), 0))
+    right = np.asarray(cv2.imread(str(KITTI_DRIVE / "image_01" / "data" / "0000000000.png"), 0))
+    front_end = StereoFrontEnd()
+    result = front_end.measure(left, right)
+    assert result.counts.kept >= 250
+    assert np.isfinite(result.disparities).all()
+    assert result.disparities.min() >= 0.0
+    assert result.disparities.max() <= front_end.sgbm.valid_min_x
+    # spread: a 4 x 3 grid over the searched area, at least 10 of its 12 cells used
+    x_start = front_end.sgbm.valid_min_x
+    cols = ((result.pixels[:, 0] - x_start) / (left.shape[1] - x_start) * 4).astype(int)
+    rows = (result.pixels[:, 1] / left.shape[0] * 3).astype(int)
+    assert len(set(zip(cols.tolist(), rows.tolist(), strict=True))) >= 10
