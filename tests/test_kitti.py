@@ -1,0 +1,333 @@
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from rosbags.highlevel import AnyReader
+
+from pcainterp_stream import rosmsg
+from pcainterp_stream.errors import DatasetImportError
+from pcainterp_stream.kitti import KittiLayout, import_kitti, iter_frames, open_kitti
+from pcainterp_stream.logwriter import LogFormat
+
+REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+RAW_DRIVE = REALDATA / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0001_sync"
+ODOMETRY = REALDATA / "kitti_odometry_clip" / "sequences" / "a"
+needs_realdata = pytest.mark.skipif(
+    not REALDATA.is_dir(), reason=f"real KITTI data not found at {REALDATA}"
+)
+
+HEIGHT, WIDTH = 6, 10
+FX, CX, CY, TX = 100.0, 4.5, 2.5, -54.0  # baseline 0.54 m
+P_LEFT = [FX, 0, CX, 0, 0, FX, CY, 0, 0, 0, 1, 0]
+P_RIGHT = [FX, 0, CX, TX, 0, FX, CY, 0, 0, 0, 1, 0]
+
+
+def _numbers(values: list[float]) -> str:
+    return " ".join(f"{v:e}" for v in values)
+
+
+def _write_images(folder: Path, names: list[str], seed: int) -> list[np.ndarray]:
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    images = []
+    for name in names:
+        image = rng.integers(0, 256, size=(HEIGHT, WIDTH), dtype=np.uint8)
+        assert cv2.imwrite(str(folder / name), image)
+        images.append(image)
+    return images
+
+
+def make_raw(root: Path, n: int = 3, *, calib_in_drive: bool = False) -> Path:
+    """A tiny raw layout: root/2011_01_01/2011_01_01_drive_0007_sync."""
+    date = root / "2011_01_01"
+    drive = date / "2011_01_01_drive_0007_sync"
+    names = [f"{i:010d}.png" for i in range(n)]
+    _write_images(drive / "image_00" / "data", names, seed=1)
+    _write_images(drive / "image_01" / "data", names, seed=2)
+    stamps = [f"2011-01-01 12:00:{i:02d}.{i * 1000:09d}" for i in range(n)]
+    (drive / "image_00" / "timestamps.txt").write_text("\n".join(stamps) + "\n")
+    calib = (
+        "calib_time: 01-Jan-2011 00:00:00\n"
+        f"S_rect_00: {WIDTH} {HEIGHT}\n"
+        f"P_rect_00: {_numbers(P_LEFT)}\n"
+        f"P_rect_01: {_numbers(P_RIGHT)}\n"
+    )
+    ((drive if calib_in_drive else date) / "calib_cam_to_cam.txt").write_text(calib)
+    return drive
+
+
+def make_odometry(root: Path, n: int = 4, *, times: bool = True, poses: bool = True) -> Path:
+    """A tiny odometry layout: root/sequences/05 and root/poses/05.txt."""
+    sequence = root / "sequences" / "05"
+    names = [f"{i:06d}.png" for i in range(n)]
+    _write_images(sequence / "image_0", names, seed=3)
+    _write_images(sequence / "image_1", names, seed=4)
+    (sequence / "calib.txt").write_text(
+        f"P0: {_numbers(P_LEFT)}\nP1: {_numbers(P_RIGHT)}\nP2: {_numbers(P_LEFT)}\n"
+    )
+    if times:
+        (sequence / "times.txt").write_text("".join(f"{0.1037 * i:e}\n" for i in range(n)))
+    if poses:
+        (root / "poses").mkdir()
+        lines = [_numbers([1, 0, 0, 0.1 * i, 0, 1, 0, 0, 0, 0, 1, 1.0 * i]) for i in range(n)]
+        (root / "poses" / "05.txt").write_text("\n".join(lines))
+    return sequence
+
+
+def _read(path: Path) -> list[tuple[str, int, object]]:
+    with AnyReader([path], default_typestore=rosmsg.TYPESTORE) as reader:
+        return [(c.topic, t, reader.deserialize(d, c.msgtype)) for c, t, d in reader.messages()]
+
+
+@pytest.mark.parametrize("calib_in_drive", [False, True])
+def test_raw_layout(tmp_path: Path, calib_in_drive: bool) -> None:
+    drive = make_raw(tmp_path / "in", calib_in_drive=calib_in_drive)
+    sequence = open_kitti(drive)
+    assert sequence.layout == KittiLayout.RAW
+    assert (sequence.camera.fx, sequence.camera.cx, sequence.camera.cy) == (FX, CX, CY)
+    assert sequence.camera.baseline == pytest.approx(0.54)
+    assert sequence.camera.image_size == (HEIGHT, WIDTH)
+    t0 = 1_293_883_200_000_000_000  # 2011-01-01 12:00:00 UTC
+    assert sequence.stamps_ns.tolist() == [t0, t0 + 1_000_001_000, t0 + 2_000_002_000]
+    assert open_kitti(drive.parent).folder == drive  # a date folder with one drive
+    calls: list[tuple[int, int | None]] = []
+    summary = import_kitti(drive, tmp_path / "raw.mcap", progress=lambda d, t: calls.append((d, t)))
+    assert calls == [(1, 3), (2, 3), (3, 3)]
+    assert summary.topic_counts == {
+        "/stereo/left/image_rect": 3,
+        "/stereo/right/image_rect": 3,
+        "/stereo/left/camera_info": 3,
+        "/stereo/right/camera_info": 3,
+    }
+    read = _read(tmp_path / "raw.mcap")
+    left = [m for topic, _, m in read if topic == "/stereo/left/image_rect"]
+    expected = cv2.imread(str(drive / "image_00" / "data" / "0000000001.png"), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_array_equal(rosmsg.image_array(left[1]), expected)
+    right_info = next(m for topic, _, m in read if topic == "/stereo/right/camera_info")
+    np.testing.assert_allclose(rosmsg.projection_matrix(right_info).reshape(-1), P_RIGHT)
+    assert [t for topic, t, _ in read if topic == "/stereo/right/image_rect"] == (
+        sequence.stamps_ns.tolist()
+    )
+
+
+@pytest.mark.parametrize("fmt", [LogFormat.MCAP, LogFormat.ROS1])
+def test_odometry_layout_with_times_and_poses(tmp_path: Path, fmt: LogFormat) -> None:
+    sequence_dir = make_odometry(tmp_path / "in")
+    sequence = open_kitti(sequence_dir)
+    assert sequence.layout == KittiLayout.ODOMETRY
+    assert sequence.stamps_ns.tolist() == [0, 103_700_000, 207_400_000, 311_100_000]
+    assert sequence.camera_to_world is not None
+    out = tmp_path / ("odo.mcap" if fmt == LogFormat.MCAP else "odo.bag")
+    summary = import_kitti(sequence_dir, out, max_frames=3)
+    assert summary.message_count == 15
+    poses = [(t, m) for topic, t, m in _read(out) if topic == "/ground_truth/pose"]
+    assert [t for t, _ in poses] == [0, 103_700_000, 207_400_000]
+    matrix = rosmsg.pose_matrix(poses[2][1])
+    np.testing.assert_allclose(matrix[:3, 3], [0.2, 0.0, 2.0])
+    assert poses[2][1].header.frame_id == "world"
+
+
+def test_odometry_without_times_or_poses_is_10_hz(tmp_path: Path) -> None:
+    sequence = open_kitti(make_odometry(tmp_path, times=False, poses=False))
+    assert sequence.stamps_ns.tolist() == [0, 100_000_000, 200_000_000, 300_000_000]
+    assert sequence.camera_to_world is None
+    frames = list(iter_frames(sequence, max_frames=2))
+    assert [f.frame_index for f in frames] == [0, 1]
+    assert frames[0].left.shape == (HEIGHT, WIDTH)
+    assert frames[0].camera_to_world is None
+
+
+@needs_realdata
+@pytest.mark.realdata
+def test_real_raw_drive(tmp_path: Path) -> None:
+    sequence = open_kitti(RAW_DRIVE)
+    assert (sequence.layout, len(sequence)) == (KittiLayout.RAW, 108)
+    camera = sequence.camera
+    assert (camera.width, camera.height) == (1242, 375)
+    assert (camera.fx, camera.cx, camera.cy) == (721.5377, 609.5593, 172.854)
+    assert camera.baseline == pytest.approx(387.5744 / 721.5377)
+    assert sequence.stamps_ns[0] == 1_317_042_145_967_790_592  # 2011-09-26 13:02:25.967790592
+    assert np.all(np.diff(sequence.stamps_ns) > 90_000_000)
+    out = tmp_path / "drive.mcap"
+    summary = import_kitti(RAW_DRIVE, out, max_frames=12)
+    assert summary.message_count == 48
+    read = _read(out)
+    left = [m for topic, _, m in read if topic == "/stereo/left/image_rect"]
+    expected = cv2.imread(str(sequence.left_paths[11]), cv2.IMREAD_GRAYSCALE)
+    np.testing.assert_array_equal(rosmsg.image_array(left[11]), expected)
+
+
+@needs_realdata
+@pytest.mark.realdata
+def test_real_odometry_clip(tmp_path: Path) -> None:
+    out = tmp_path / "clip.mcap"
+    summary = import_kitti(ODOMETRY, out)
+    assert summary.topic_counts["/stereo/left/image_rect"] == 51
+    assert summary.topic_counts["/ground_truth/pose"] == 51
+    assert (summary.start_ns, summary.end_ns) == (0, 5_000_000_000)
+    read = _read(out)
+    info = next(m for topic, _, m in read if topic == "/stereo/right/camera_info")
+    p = rosmsg.projection_matrix(info)
+    assert (info.width, info.height) == (1226, 370)
+    assert -p[0, 3] / p[0, 0] == pytest.approx(379.8145 / 707.0912)
+    last_pose = [m for topic, _, m in read if topic == "/ground_truth/pose"][-1]
+    first_line = (REALDATA / "kitti_odometry_clip" / "poses" / "a.txt").read_text().splitlines()
+    expected = np.array(first_line[-1].split(), dtype=float).reshape(3, 4)
+    np.testing.assert_allclose(rosmsg.pose_matrix(last_pose)[:3], expected, atol=1e-6)
+
+
+# --- one test per error message -------------------------------------------------------
+
+
+def test_error_missing_folder(tmp_path: Path) -> None:
+    with pytest.raises(DatasetImportError, match=r"KITTI folder .*nope does not exist; expected"):
+        import_kitti(tmp_path / "nope", tmp_path / "o.mcap")
+
+
+def test_error_not_kitti(tmp_path: Path) -> None:
+    (tmp_path / "stuff").mkdir()
+    with pytest.raises(DatasetImportError, match=r"is not a KITTI folder; expected a KITTI raw"):
+        open_kitti(tmp_path / "stuff")
+
+
+def test_error_raw_missing_calibration(tmp_path: Path) -> None:
+    drive = make_raw(tmp_path)
+    (drive.parent / "calib_cam_to_cam.txt").unlink()
+    with pytest.raises(DatasetImportError, match=r"no calib_cam_to_cam\.txt in .*drive_0007_sync"):
+        open_kitti(drive)
+
+
+def test_error_raw_missing_camera_folder(tmp_path: Path) -> None:
+    drive = make_raw(tmp_path)
+    for image in (drive / "image_00" / "data").iterdir():
+        image.unlink()
+    (drive / "image_00" / "data").rmdir()
+    with pytest.raises(DatasetImportError, match=r"raw drive .* has no image_00/data folder"):
+        open_kitti(drive)
+
+
+def test_error_calibration_missing_key(tmp_path: Path) -> None:
+    drive = make_raw(tmp_path)
+    calib = drive.parent / "calib_cam_to_cam.txt"
+    calib.write_text("\n".join(x for x in calib.read_text().splitlines() if "P_rect_01" not in x))
+    with pytest.raises(DatasetImportError, match=r"calib_cam_to_cam\.txt has no P_rect_01: line"):
+        open_kitti(drive)
+
+
+def test_error_calibration_malformed_line(tmp_path: Path) -> None:
+    sequence = make_odometry(tmp_path)
+    (sequence / "calib.txt").write_text(f"P0: {_numbers(P_LEFT)}\nP1: 1 2 3 x\n")
+    with pytest.raises(DatasetImportError, match=r"line 2 \(P1\) of calibration file .*12 finite"):
+        open_kitti(sequence)
+
+
+def test_error_odometry_missing_calibration(tmp_path: Path) -> None:
+    sequence = make_odometry(tmp_path)
+    (sequence / "calib.txt").unlink()
+    with pytest.raises(DatasetImportError, match=r"sequence .*05 has no calib\.txt"):
+        open_kitti(sequence)
+
+
+def test_error_bad_baseline(tmp_path: Path) -> None:
+    sequence = make_odometry(tmp_path)
+    (sequence / "calib.txt").write_text(f"P0: {_numbers(P_RIGHT)}\nP1: {_numbers(P_LEFT)}\n")
+    with pytest.raises(DatasetImportError, match=r"gives a baseline of -0\.54 m"):
+        open_kitti(sequence)
+
+
+def test_error_unequal_frame_counts(tmp_path: Path) -> None:
+    sequence = make_odometry(tmp_path)
+    (sequence / "image_1" / "000003.png").unlink()
+    with pytest.raises(DatasetImportError, match=r"image_0 has 4 images but .*image_1 has 3"):
+        open_kitti(sequence)
+
+
+def test_error_mismatched_names(tmp_path: Path) -> None:
+    sequence = make_odometry(tmp_path)
+    (sequence / "image_1" / "000003.png").rename(sequence / "image_1" / "000009.png")
+    with pytest.raises(DatasetImportError, match=r"000003\.png has no right image of the same"):
+        open_kitti(sequence)
+
+
+def test_error_only_one_camera(tmp_path: Path) -> None:
+    sequence = make_odometry(tmp_path)
+    for image in (sequence / "image_1").iterdir():
+        image.unlink()
+    (sequence / "image_1").rmdir()
+    with pytest.raises(DatasetImportError, match="needs both image_0 and image_1"):
+        open_kitti(sequence)
+
+
+def test_error_no_images(tmp_path: Path) -> None:
+    sequence = make_odometry(tmp_path, n=0)
+    with pytest.raises(DatasetImportError, match=r"image_0 holds no \.png images"):
+        open_kitti(sequence)
+
+
+def test_error_unreadable_image(tmp_path: Path) -> None:
+    sequence = make_odometry(tmp_path)
+    (sequence / "image_1" / "000002.png").write_bytes(b"not a png")
+    with pytest.raises(DatasetImportError, match=r"cannot read image .*image_1/000002\.png"):
+        import_kitti(sequence, tmp_path / "o.mcap")
+    assert not (tmp_path / "o.mcap").exists()
+
+
+def test_error_image_size_changes(tmp_path: Path) -> None:
+    sequence = make_odometry(tmp_path)
+    cv2.imwrite(str(sequence / "image_0" / "000001.png"), np.zeros((4, 4), np.uint8))
+    with pytest.raises(DatasetImportError, match=r"000001\.png is 4x4 but .*first image is 10x6"):
+        list(iter_frames(open_kitti(sequence)))
+
+
+def test_error_timestamps_count(tmp_path: Path) -> None:
+    drive = make_raw(tmp_path)
+    (drive / "image_00" / "timestamps.txt").write_text("2011-01-01 12:00:00.000000000\n")
+    with pytest.raises(DatasetImportError, match=r"timestamps\.txt has 1 timestamps for 3 images"):
+        open_kitti(drive)
+
+
+def test_error_timestamps_malformed(tmp_path: Path) -> None:
+    drive = make_raw(tmp_path, n=1)
+    (drive / "image_00" / "timestamps.txt").write_text("yesterday at noon\n")
+    with pytest.raises(DatasetImportError, match=r"line 1 of .* is 'yesterday at noon', expected"):
+        open_kitti(drive)
+
+
+def test_error_times_count(tmp_path: Path) -> None:
+    sequence = make_odometry(tmp_path)
+    (sequence / "times.txt").write_text("0.0\n0.1\n")
+    with pytest.raises(DatasetImportError, match=r"times\.txt has 2 times for 4 images"):
+        open_kitti(sequence)
+
+
+def test_error_times_malformed(tmp_path: Path) -> None:
+    sequence = make_odometry(tmp_path, n=2)
+    (sequence / "times.txt").write_text("0.0\nsoon\n")
+    with pytest.raises(DatasetImportError, match=r"must hold one number \(seconds\) per line"):
+        open_kitti(sequence)
+
+
+def test_error_poses_count(tmp_path: Path) -> None:
+    sequence = make_odometry(tmp_path)
+    poses = tmp_path / "poses" / "05.txt"
+    poses.write_text("\n".join(poses.read_text().splitlines()[:3]))
+    with pytest.raises(DatasetImportError, match=r"pose file .*05\.txt has 3 poses for 4 images"):
+        open_kitti(sequence)
+
+
+def test_error_poses_malformed(tmp_path: Path) -> None:
+    sequence = make_odometry(tmp_path, n=1)
+    (tmp_path / "poses" / "05.txt").write_text("1 0 0 0\n")
+    with pytest.raises(DatasetImportError, match=r"line 1 of pose file .* must hold 12 numbers"):
+        open_kitti(sequence)
+
+
+def test_error_several_drives(tmp_path: Path) -> None:
+    drive = make_raw(tmp_path)
+    other = drive.parent / "2011_01_01_drive_0008_sync"
+    (other / "image_00" / "data").mkdir(parents=True)
+    with pytest.raises(DatasetImportError, match=r"holds 2 KITTI raw drives .*pass one drive"):
+        open_kitti(drive.parent)
