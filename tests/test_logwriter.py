@@ -381,3 +381,66 @@ def test_format_from_path(tmp_path: Path) -> None:
     assert format_from_path(tmp_path) == LogFormat.ROSBAG2
     with pytest.raises(LogWriteError, match=r"cannot tell the log format of x\.zip"):
         format_from_path("x.zip")
+
+
+REAL_ROS2_MCAP = (
+    Path(__file__).resolve().parents[2]
+    / "shared"
+    / "realdata"
+    / "mcap_ros2"
+    / "supported_ros2_messages.mcap"
+)
+
+
+def _real_raws() -> list[RawMessage]:
+    with REAL_ROS2_MCAP.open("rb") as stream:
+        return [
+            RawMessage(
+                topic=channel.topic,
+                msgtype=schema.name,
+                schema_name=schema.name,
+                schema_encoding=schema.encoding,
+                schema_data=schema.data,
+                message_encoding=channel.message_encoding,
+                channel_metadata=dict(channel.metadata),
+                data=message.data,
+                log_time_ns=message.log_time,
+                publish_time_ns=message.publish_time,
+                sequence=message.sequence,
+            )
+            for schema, channel, message in make_reader(stream).iter_messages(log_time_order=False)
+        ]
+
+
+@pytest.mark.realdata
+@pytest.mark.skipif(not REAL_ROS2_MCAP.is_file(), reason=f"{REAL_ROS2_MCAP} not found")
+@pytest.mark.parametrize("fmt", list(LogFormat))
+def test_copy_real_ros2_recording(tmp_path: Path, fmt: LogFormat) -> None:
+    raws = _real_raws()
+    assert len(raws) > 100
+    target = tmp_path / OUTPUT_NAMES[fmt]
+    with open_writer(target, fmt, inputs=[REAL_ROS2_MCAP]) as writer:
+        for raw in raws:
+            writer.add_raw(raw)
+    read = _read_anyreader(target)
+    assert [(t, m, lt) for t, m, lt, _ in read] == [
+        (r.topic, r.msgtype, r.log_time_ns) for r in raws
+    ]
+    if fmt == LogFormat.MCAP:
+        with target.open("rb") as stream:
+            copied = list(make_reader(stream).iter_messages(log_time_order=False))
+        for raw, (schema, channel, message) in zip(raws, copied, strict=True):
+            assert (schema.name, schema.encoding, schema.data) == (
+                raw.schema_name,
+                raw.schema_encoding,
+                raw.schema_data,
+            )
+            assert (channel.message_encoding, channel.metadata) == (
+                raw.message_encoding,
+                raw.channel_metadata,
+            )
+            assert (message.data, message.publish_time, message.sequence) == (
+                raw.data,
+                raw.publish_time_ns,
+                raw.sequence,
+            )
