@@ -480,8 +480,8 @@ class McapLogReader(LogReader):
         stats = self._statistics
         self._summary_complete = (
             stats is not None
-            and len(self._summary_channels) == stats.channel_count
-            and len(self._summary_schemas) == stats.schema_count
+            and len(self._summary_channels) >= stats.channel_count
+            and len(self._summary_schemas) >= stats.schema_count
         )
 
     # topics -------------------------------------------------------------------------------

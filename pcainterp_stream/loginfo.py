@@ -1,0 +1,133 @@
+"""Describe a log for ``pcainterp info FILE``: format, topics, time span, damage.
+
+Uses the log's own index where it has one (MCAP statistics, bag metadata) and otherwise
+counts by reading every message once. Nothing here decodes message contents.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pcainterp_stream.errors import LogReadError
+from pcainterp_stream.logreader import LogFormat, TopicInfo, looks_like_kitti, open_log
+
+
+@dataclass(frozen=True)
+class LogInfo:
+    """What :func:`describe` found in a log.
+
+    Attributes:
+        path: the log's path.
+        format: container format.
+        topics: topic -> :class:`~logreader.TopicInfo` (counts as read or indexed).
+        message_count: total messages.
+        start_ns: first log time (ns), None for an empty log.
+        end_ns: last log time (ns), None for an empty log.
+        counted: True when the counts come from reading every message, False when from
+            the log's index.
+        damage: one-line descriptions of damage found.
+        warnings: one-line notes that are not damage.
+    """
+
+    path: Path
+    format: LogFormat
+    topics: dict[str, TopicInfo]
+    message_count: int
+    start_ns: int | None
+    end_ns: int | None
+    counted: bool
+    damage: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def duration_ns(self) -> int:
+        """Return end - start log time (ns); 0 for an empty log."""
+        if self.start_ns is None or self.end_ns is None:
+            return 0
+        return self.end_ns - self.start_ns
+
+
+def describe(path: str | Path, *, count: bool = False) -> LogInfo:
+    """Describe a log: format, topics with types and counts, time span, damage.
+
+    Args:
+        path: an MCAP file, a ROS 1 ``.bag``, or a rosbag2 folder or storage file.
+        count: read every message even when the log has an index (finds damage the index
+            does not show, at the cost of a full read).
+
+    Raises:
+        LogReadError: the path is missing or not a log (a KITTI folder is named as such with
+            the ``pcainterp import-kitti`` hint).
+    """
+    path = Path(path)
+    if path.is_dir() and not (path / "metadata.yaml").is_file() and looks_like_kitti(path):
+        raise LogReadError(
+            f"{path} is a KITTI folder, not a log; convert it with "
+            f"`pcainterp import-kitti {path} OUT.mcap`"
+        )
+    with open_log(path) as reader:
+        topics = reader.topics()
+        stats = None if count else reader.message_stats()
+        counts_known = all(info.message_count is not None for info in topics.values())
+        if stats is not None and counts_known and not reader.damage:
+            total, start_ns, end_ns = stats
+            counted = False
+        else:
+            per_topic: dict[str, int] = {}
+            total, start_ns, end_ns = 0, None, None
+            for raw in reader.messages():
+                total += 1
+                per_topic[raw.topic] = per_topic.get(raw.topic, 0) + 1
+                t = raw.log_time_ns
+                start_ns = t if start_ns is None else min(start_ns, t)
+                end_ns = t if end_ns is None else max(end_ns, t)
+            topics = {
+                name: TopicInfo(
+                    info.topic,
+                    info.msgtype,
+                    per_topic.get(name, 0),
+                    info.message_encoding,
+                    info.schema_encoding,
+                )
+                for name, info in topics.items()
+            }
+            counted = True
+        return LogInfo(
+            path=path,
+            format=reader.format,
+            topics=topics,
+            message_count=total,
+            start_ns=start_ns,
+            end_ns=end_ns,
+            counted=counted,
+            damage=list(reader.damage),
+            warnings=list(reader.warnings),
+        )
+
+
+def format_info(info: LogInfo) -> str:
+    """Return a log description as text for the terminal (one topic per line)."""
+    lines = [f"{info.path}: {info.format.value} log"]
+    if info.start_ns is None or info.end_ns is None:
+        lines.append("  messages: 0")
+    else:
+        lines.append(
+            f"  messages: {info.message_count} ({'counted' if info.counted else 'from the index'})"
+        )
+        lines.append(f"  start: {info.start_ns / 1e9:.9f} s   end: {info.end_ns / 1e9:.9f} s")
+        lines.append(f"  duration: {info.duration_ns / 1e9:.3f} s")
+    lines.append(f"  topics: {len(info.topics)}")
+    width = max((len(name) for name in info.topics), default=0)
+    for name, topic in info.topics.items():
+        count = "?" if topic.message_count is None else str(topic.message_count)
+        kind = topic.msgtype or "(no schema)"
+        if topic.message_encoding not in ("cdr", ""):
+            kind += f" [{topic.message_encoding}]"
+        lines.append(f"    {name:<{width}}  {count:>8}  {kind}")
+    for note in info.warnings:
+        lines.append(f"  note: {note}")
+    if info.damage:
+        lines.append(f"  DAMAGE ({len(info.damage)}):")
+        lines.extend(f"    {note}" for note in info.damage)
+    return "\n".join(lines)

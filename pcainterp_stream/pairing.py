@@ -1,0 +1,557 @@
+"""Pair left and right images of a message stream into stereo frames (no I/O).
+
+:class:`StereoPairer` is fed the decoded messages of a log one at a time (in file order)
+and emits a :class:`~records.StereoFrame` as soon as a left and a right image with matching
+header stamps, and a camera info of each side, are there. It keeps bounded buffers, so a
+stream with a missing or late side cannot make it grow; what it drops it counts in
+:class:`PairingStats`. An optional sparse feature stream (``/features``, PointCloud2 with x,
+y, z in the left optical frame) is associated with the frame of the same stamp.
+
+A single pass over a log (the processor's loop)::
+
+    pairer = StereoPairer(PairingConfig(features_topic="/features"))
+    with open_log(path) as reader:
+        reader.require_topics(pairer.config.required_topics())
+        for raw in reader.messages():
+            writer.add_raw(raw)
+            for frame in pairer.push_raw(raw, reader.decode):
+                processor.submit(frame, pairer.features_for(frame))
+    for frame in pairer.flush():
+        processor.submit(frame, pairer.features_for(frame))
+    stats = pairer.finish()
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from pcainterp_stream import rosmsg
+from pcainterp_stream.errors import CalibrationError, LogReadError
+from pcainterp_stream.logreader import LogReader, decode_image
+from pcainterp_stream.records import RawMessage, SparseFeatures, StereoCamera, StereoFrame
+
+MAX_PROBLEMS = 20
+"""How many one-line problem descriptions :class:`PairingStats` keeps (counts are exact)."""
+
+
+@dataclass(frozen=True)
+class PairingConfig:
+    """Which topics make a stereo frame and how stamps are matched.
+
+    Attributes:
+        left_topic: left rectified image (``Image`` or ``CompressedImage``).
+        right_topic: right rectified image.
+        left_info_topic: left ``CameraInfo`` (P gives fx, fy, cx, cy).
+        right_info_topic: right ``CameraInfo`` (baseline b = -P[0, 3] / P[0, 0]).
+        features_topic: optional ``PointCloud2`` of sparse points (x, y, z, m, left optical
+            frame); None for no feature stream.
+        tolerance_ns: largest difference of header stamps that still pairs (ns).
+        window: unpaired images kept per side (and frames held waiting for features);
+            the oldest beyond it is dropped and counted.
+        baseline: baseline override (m); when set, the right camera info's P[0, 3] is not
+            used and may be 0.
+        fail_on_size_mismatch: raise :class:`~errors.LogReadError` on a left/right size
+            mismatch instead of counting it and skipping the pair.
+    """
+
+    left_topic: str = "/stereo/left/image_rect"
+    right_topic: str = "/stereo/right/image_rect"
+    left_info_topic: str = "/stereo/left/camera_info"
+    right_info_topic: str = "/stereo/right/camera_info"
+    features_topic: str | None = None
+    tolerance_ns: int = 1_000_000
+    window: int = 8
+    baseline: float | None = None
+    fail_on_size_mismatch: bool = False
+
+    def __post_init__(self) -> None:
+        if self.tolerance_ns < 0:
+            raise ValueError(f"tolerance_ns must be >= 0, got {self.tolerance_ns}")
+        if self.window < 1:
+            raise ValueError(f"window must be >= 1, got {self.window}")
+        if self.baseline is not None and not self.baseline > 0:
+            raise ValueError(f"baseline override must be > 0 m, got {self.baseline}")
+
+    def required_topics(self) -> dict[str, str]:
+        """Return topic -> command-line option, for :meth:`LogReader.require_topics`."""
+        topics = {
+            self.left_topic: "--left-topic",
+            self.right_topic: "--right-topic",
+            self.left_info_topic: "--left-info-topic",
+            self.right_info_topic: "--right-info-topic",
+        }
+        if self.features_topic is not None:
+            topics[self.features_topic] = "--features-topic"
+        return topics
+
+    @property
+    def topics(self) -> list[str]:
+        """Return every topic the pairer reads (to pass to :meth:`LogReader.messages`)."""
+        return list(self.required_topics())
+
+
+@dataclass
+class PairingStats:
+    """Counts of what the pairer did (a mutable accumulator).
+
+    Attributes:
+        pairs: stereo frames emitted.
+        unpaired_left: left images dropped without a right partner.
+        unpaired_right: right images dropped without a left partner.
+        undecodable: images (or feature clouds) that could not be decoded, by reason.
+        size_mismatches: pairs skipped because left and right sizes differ.
+        no_camera_info: pairs dropped because a side never had a camera info in time.
+        features_matched: frames that got a feature cloud of their stamp.
+        features_unmatched: feature clouds that matched no frame.
+        non_monotonic_stamps: images whose stamp is earlier than the previous one on the
+            same side.
+        problems: the first :data:`MAX_PROBLEMS` one-line problem descriptions.
+    """
+
+    pairs: int = 0
+    unpaired_left: int = 0
+    unpaired_right: int = 0
+    undecodable: dict[str, int] = field(default_factory=dict)
+    size_mismatches: int = 0
+    no_camera_info: int = 0
+    features_matched: int = 0
+    features_unmatched: int = 0
+    non_monotonic_stamps: int = 0
+    problems: list[str] = field(default_factory=list)
+
+    def note(self, problem: str) -> None:
+        """Keep a one-line problem description (only the first few are kept)."""
+        if len(self.problems) < MAX_PROBLEMS:
+            self.problems.append(problem)
+
+    def summary(self) -> str:
+        """Return the counts as one line."""
+        parts = [
+            f"{self.pairs} pairs",
+            f"{self.unpaired_left} unpaired left",
+            f"{self.unpaired_right} unpaired right",
+        ]
+        if self.size_mismatches:
+            parts.append(f"{self.size_mismatches} size mismatches")
+        if self.no_camera_info:
+            parts.append(f"{self.no_camera_info} without camera info")
+        if self.non_monotonic_stamps:
+            parts.append(f"{self.non_monotonic_stamps} non-monotonic stamps")
+        for reason, count in self.undecodable.items():
+            parts.append(f"{count} undecodable ({reason})")
+        if self.features_matched or self.features_unmatched:
+            parts.append(
+                f"{self.features_matched} frames with features, "
+                f"{self.features_unmatched} unmatched feature clouds"
+            )
+        return ", ".join(parts)
+
+
+class _Pending:
+    """One image waiting for its partner: the message is decoded only when paired."""
+
+    __slots__ = ("log_time_ns", "message", "stamp_ns")
+
+    def __init__(self, stamp_ns: int, log_time_ns: int, message: Any) -> None:
+        self.stamp_ns = stamp_ns
+        self.log_time_ns = log_time_ns
+        self.message = message
+
+
+def camera_from_infos(
+    left_info: Any,
+    right_info: Any,
+    *,
+    width: int,
+    height: int,
+    left_topic: str = "left camera_info",
+    right_topic: str = "right camera_info",
+    baseline: float | None = None,
+) -> StereoCamera:
+    """Build the stereo calibration from the two rectified ``CameraInfo`` messages.
+
+    Args:
+        left_info: left ``CameraInfo`` (ROS 1 ``P`` or ROS 2 ``p``).
+        right_info: right ``CameraInfo``; its P[0, 3] = -fx * baseline.
+        width: image width (px).
+        height: image height (px).
+        left_topic: topic name used in error messages.
+        right_topic: topic name used in error messages.
+        baseline: override (m); when given the right P[0, 3] is not used.
+
+    Raises:
+        CalibrationError: fx or fy is not positive, or the right P gives no positive baseline
+            and no override is given.
+    """
+    p_left = rosmsg.projection_matrix(left_info)
+    p_right = rosmsg.projection_matrix(right_info)
+    fx, fy, cx, cy = p_left[0, 0], p_left[1, 1], p_left[0, 2], p_left[1, 2]
+    if not (np.isfinite(p_left).all() and fx > 0 and fy > 0):
+        raise CalibrationError(
+            f"camera info on {left_topic} has P with fx={fx}, fy={fy}; a rectified camera "
+            "needs positive focal lengths: fix the calibration"
+        )
+    if baseline is None:
+        if not (np.isfinite(p_right).all() and p_right[0, 0] > 0):
+            raise CalibrationError(
+                f"camera info on {right_topic} has P with fx={p_right[0, 0]}; fix the "
+                "calibration or pass --baseline"
+            )
+        baseline = float(-p_right[0, 3] / p_right[0, 0])
+        if not baseline > 0:
+            raise CalibrationError(
+                f"camera info on {right_topic} gives no baseline (P[0,3] = {p_right[0, 3]}, "
+                "expected -fx * baseline < 0); pass --baseline METRES"
+            )
+    return StereoCamera(
+        width=int(width),
+        height=int(height),
+        fx=float(fx),
+        fy=float(fy),
+        cx=float(cx),
+        cy=float(cy),
+        baseline=float(baseline),
+    )
+
+
+def features_from_pointcloud(message: Any, log_time_ns: int) -> SparseFeatures:
+    """Convert a ``PointCloud2`` with x, y, z fields into :class:`~records.SparseFeatures`.
+
+    Points with a non-finite coordinate are dropped.
+
+    Raises:
+        ValueError: the cloud lacks an x, y or z field or its data is short.
+    """
+    fields = rosmsg.pointcloud2_arrays(message)
+    missing = [name for name in ("x", "y", "z") if name not in fields]
+    if missing:
+        raise ValueError(
+            f"point cloud has no field {', '.join(missing)} (fields: {', '.join(fields)})"
+        )
+    points = np.stack([fields["x"], fields["y"], fields["z"]], axis=1).astype(np.float32)
+    points = points[np.isfinite(points).all(axis=1)]
+    return SparseFeatures(
+        stamp_ns=rosmsg.stamp_ns(message),
+        log_time_ns=int(log_time_ns),
+        frame_id=str(message.header.frame_id),
+        points=points.reshape(-1, 3),
+    )
+
+
+class StereoPairer:
+    """Incrementally pair stereo images by header stamp; see the module docstring.
+
+    Args:
+        config: topics, stamp tolerance, window and options.
+    """
+
+    def __init__(self, config: PairingConfig | None = None) -> None:
+        self.config = config or PairingConfig()
+        self.stats = PairingStats()
+        self._left: deque[_Pending] = deque()
+        self._right: deque[_Pending] = deque()
+        self._matched: deque[tuple[_Pending, _Pending]] = deque()  # waiting for camera info
+        self._left_info: Any = None
+        self._right_info: Any = None
+        self._camera_cache: dict[tuple[int, int, int, int], StereoCamera] = {}
+        self._held: deque[StereoFrame] = deque()  # waiting for features of their stamp
+        self._features: deque[SparseFeatures] = deque()  # waiting for a frame
+        self._frame_features: dict[int, SparseFeatures] = {}
+        self._last_stamp = {"left": -(2**63), "right": -(2**63)}
+        self._last_feature_stamp_ns: int | None = None
+        self._index = 0
+
+    def wants(self, topic: str) -> bool:
+        """Return True for a topic this pairer reads (decode only those)."""
+        return topic in self.config.required_topics()
+
+    def push_raw(self, raw: RawMessage, decode: Callable[[RawMessage], Any]) -> list[StereoFrame]:
+        """Decode a raw message of a wanted topic with ``decode`` and :meth:`push` it.
+
+        Messages of other topics return [] without being decoded; a message that does not
+        decode is counted in ``stats.undecodable``.
+        """
+        if not self.wants(raw.topic):
+            return []
+        try:
+            message = decode(raw)
+            stamp = rosmsg.stamp_ns(message)
+        except (LogReadError, AttributeError) as err:
+            self._undecodable("message does not deserialize", f"{raw.topic}: {err}")
+            return []
+        return self.push(raw.topic, stamp, raw.log_time_ns, message)
+
+    def push(self, topic: str, stamp_ns: int, log_time_ns: int, message: Any) -> list[StereoFrame]:
+        """Add one decoded message; return the frames it completes (often none, or one).
+
+        Args:
+            topic: the message's topic; topics outside the configuration are ignored.
+            stamp_ns: header stamp (ns).
+            log_time_ns: log time (ns).
+            message: the decoded typestore message (images are converted to arrays only
+                when paired).
+
+        Raises:
+            CalibrationError: a camera info without usable fx or baseline (see
+                :func:`camera_from_infos`).
+            LogReadError: a size mismatch when ``fail_on_size_mismatch`` is set.
+        """
+        config = self.config
+        if topic == config.left_info_topic:
+            self._left_info = message
+            return self._release_matched()
+        if topic == config.right_info_topic:
+            self._right_info = message
+            return self._release_matched()
+        if topic == config.features_topic:
+            return self._push_features(message, log_time_ns)
+        if topic == config.left_topic:
+            return self._push_image("left", _Pending(stamp_ns, log_time_ns, message))
+        if topic == config.right_topic:
+            return self._push_image("right", _Pending(stamp_ns, log_time_ns, message))
+        return []
+
+    def features_for(self, frame: StereoFrame) -> SparseFeatures | None:
+        """Return (once) the feature cloud of a frame's stamp, or None when there is none.
+
+        With a features topic configured, frames are released only once their features are
+        known (they arrived, a later cloud arrived, or the window overflowed).
+        """
+        return self._frame_features.pop(frame.index, None)
+
+    def flush(self) -> list[StereoFrame]:
+        """Release frames still held waiting for features (call at the end of the stream)."""
+        frames = list(self._held)
+        self._held.clear()
+        self.stats.features_unmatched += len(self._features)
+        self._features.clear()
+        return frames
+
+    def finish(self) -> PairingStats:
+        """Count what is left unpaired and return the final statistics.
+
+        Call :meth:`flush` first to get held frames; frames still held are dropped here.
+        """
+        self.flush()
+        self.stats.unpaired_left += len(self._left)
+        self.stats.unpaired_right += len(self._right)
+        if self._matched:
+            self.stats.no_camera_info += len(self._matched)
+            self.stats.note(
+                f"{len(self._matched)} pairs never had a camera info on both "
+                f"{self.config.left_info_topic} and {self.config.right_info_topic}"
+            )
+        self._left.clear()
+        self._right.clear()
+        self._matched.clear()
+        return self.stats
+
+    # images ---------------------------------------------------------------------------
+    def _push_image(self, side: str, item: _Pending) -> list[StereoFrame]:
+        if item.stamp_ns < self._last_stamp[side]:
+            self.stats.non_monotonic_stamps += 1
+        self._last_stamp[side] = max(self._last_stamp[side], item.stamp_ns)
+        own, other = (self._left, self._right) if side == "left" else (self._right, self._left)
+        partner = self._closest(other, item.stamp_ns)
+        if partner is None:
+            own.append(item)
+            if len(own) > self.config.window:
+                own.popleft()
+                self._count_unpaired(side, 1)
+            return []
+        other.remove(partner)
+        left, right = (item, partner) if side == "left" else (partner, item)
+        # Stamps before this pair (minus the tolerance) will not pair any more in an
+        # ordered stream: drop them now so the counts are exact and the buffers small.
+        horizon = left.stamp_ns - self.config.tolerance_ns
+        for queue, name in ((self._left, "left"), (self._right, "right")):
+            stale = [p for p in queue if p.stamp_ns < horizon]
+            for p in stale:
+                queue.remove(p)
+            self._count_unpaired(name, len(stale))
+        self._matched.append((left, right))
+        if len(self._matched) > self.config.window:
+            self._matched.popleft()
+            self.stats.no_camera_info += 1
+        return self._release_matched()
+
+    def _count_unpaired(self, side: str, count: int) -> None:
+        if side == "left":
+            self.stats.unpaired_left += count
+        else:
+            self.stats.unpaired_right += count
+
+    def _closest(self, queue: deque[_Pending], stamp_ns: int) -> _Pending | None:
+        best: _Pending | None = None
+        for candidate in queue:
+            gap = abs(candidate.stamp_ns - stamp_ns)
+            if gap <= self.config.tolerance_ns and (
+                best is None or gap < abs(best.stamp_ns - stamp_ns)
+            ):
+                best = candidate
+        return best
+
+    def _release_matched(self) -> list[StereoFrame]:
+        if self._left_info is None or self._right_info is None:
+            return []
+        frames: list[StereoFrame] = []
+        while self._matched:
+            left, right = self._matched.popleft()
+            frame = self._make_frame(left, right)
+            if frame is not None:
+                frames.extend(self._hold_for_features(frame))
+        return frames
+
+    def _make_frame(self, left: _Pending, right: _Pending) -> StereoFrame | None:
+        try:
+            left_image = decode_image(left.message)
+        except ValueError as err:
+            self._undecodable(_reason(err), f"{self.config.left_topic} at {left.stamp_ns}: {err}")
+            return None
+        try:
+            right_image = decode_image(right.message)
+        except ValueError as err:
+            self._undecodable(_reason(err), f"{self.config.right_topic} at {right.stamp_ns}: {err}")
+            return None
+        if left_image.shape != right_image.shape or left_image.dtype != right_image.dtype:
+            problem = (
+                f"left image at stamp {left.stamp_ns} is {_describe(left_image)} but right "
+                f"image at stamp {right.stamp_ns} is {_describe(right_image)}; a rectified "
+                "pair needs equal sizes"
+            )
+            if self.config.fail_on_size_mismatch:
+                raise LogReadError(problem)
+            self.stats.size_mismatches += 1
+            self.stats.note(problem)
+            return None
+        height, width = left_image.shape[:2]
+        camera = self._camera(width, height)
+        frame = StereoFrame(
+            index=self._index,
+            stamp_ns=left.stamp_ns,
+            log_time_ns=left.log_time_ns,
+            frame_id=str(left.message.header.frame_id),
+            left=left_image,
+            right=right_image,
+            camera=camera,
+        )
+        self._index += 1
+        self.stats.pairs += 1
+        return frame
+
+    def _camera(self, width: int, height: int) -> StereoCamera:
+        key = (id(self._left_info), id(self._right_info), width, height)
+        camera = self._camera_cache.get(key)
+        if camera is None:
+            camera = camera_from_infos(
+                self._left_info,
+                self._right_info,
+                width=width,
+                height=height,
+                left_topic=self.config.left_info_topic,
+                right_topic=self.config.right_info_topic,
+                baseline=self.config.baseline,
+            )
+            self._camera_cache.clear()  # the infos change rarely; keep one entry
+            self._camera_cache[key] = camera
+        return camera
+
+    def _undecodable(self, reason: str, problem: str) -> None:
+        self.stats.undecodable[reason] = self.stats.undecodable.get(reason, 0) + 1
+        self.stats.note(problem)
+
+    # features -------------------------------------------------------------------------
+    def _hold_for_features(self, frame: StereoFrame) -> list[StereoFrame]:
+        if self.config.features_topic is None:
+            return [frame]
+        self._held.append(frame)
+        return self._release_held()
+
+    def _push_features(self, message: Any, log_time_ns: int) -> list[StereoFrame]:
+        try:
+            features = features_from_pointcloud(message, log_time_ns)
+        except (ValueError, AttributeError) as err:
+            self._undecodable(_reason(err), f"{self.config.features_topic}: {err}")
+            return []
+        latest = self._last_feature_stamp_ns
+        self._last_feature_stamp_ns = (
+            features.stamp_ns if latest is None else max(latest, features.stamp_ns)
+        )
+        self._features.append(features)
+        if len(self._features) > self.config.window:
+            self._features.popleft()
+            self.stats.features_unmatched += 1
+        return self._release_held()
+
+    def _release_held(self) -> list[StereoFrame]:
+        """Release held frames whose features are known, in order."""
+        released: list[StereoFrame] = []
+        tolerance = self.config.tolerance_ns
+        while self._held:
+            frame = self._held[0]
+            match = next(
+                (f for f in self._features if abs(f.stamp_ns - frame.stamp_ns) <= tolerance),
+                None,
+            )
+            latest = self._last_feature_stamp_ns
+            if match is not None:
+                self._features.remove(match)
+                self._frame_features[frame.index] = match
+                self.stats.features_matched += 1
+            elif not (
+                (latest is not None and latest > frame.stamp_ns + tolerance)
+                or len(self._held) > self.config.window
+            ):
+                break
+            released.append(self._held.popleft())
+        # clouds older than every frame still to come match nothing
+        if self._held:
+            horizon = self._held[0].stamp_ns - tolerance
+            stale = [f for f in self._features if f.stamp_ns < horizon]
+            for f in stale:
+                self._features.remove(f)
+            self.stats.features_unmatched += len(stale)
+        return released
+
+
+def _reason(err: BaseException) -> str:
+    """Return the reason of a decoding error, short enough to count by."""
+    text = str(err).split(";")[0]
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _describe(image: Any) -> str:
+    shape = image.shape
+    size = f"{shape[1]}x{shape[0]}"
+    return f"{size}x{shape[2]} {image.dtype}" if len(shape) == 3 else f"{size} {image.dtype}"
+
+
+def iter_stereo_frames(
+    reader: LogReader, config: PairingConfig | None = None, *, pairer: StereoPairer | None = None
+) -> Iterator[StereoFrame]:
+    """Yield the stereo frames of an open log (for callers that want only frames).
+
+    Args:
+        reader: an open log reader.
+        config: topics and matching; the defaults of :class:`PairingConfig` when None.
+        pairer: use this pairer (e.g. to read ``pairer.stats`` afterwards, or
+            ``pairer.features_for(frame)``); ``config`` is then ignored.
+
+    Yields:
+        Frames in the order they complete.
+
+    Raises:
+        TopicNotFoundError: a configured topic is not in the log.
+        CalibrationError: a camera info without fx or baseline.
+    """
+    pairer = pairer or StereoPairer(config)
+    reader.require_topics(pairer.config.required_topics())
+    for raw in reader.messages(pairer.config.topics):
+        yield from pairer.push_raw(raw, reader.decode)
+    yield from pairer.flush()
+    pairer.finish()
