@@ -1,0 +1,437 @@
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
+
+from pcainterp_stream import rosmsg
+from pcainterp_stream.errors import LogReadError, TopicNotFoundError
+from pcainterp_stream.logreader import LogFormat, decode_image, open_log, sniff_format
+from pcainterp_stream.records import StereoCamera
+
+REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+CAMERA = StereoCamera(width=32, height=24, fx=40.0, fy=40.0, cx=16.0, cy=12.0, baseline=0.5)
+LEFT, RIGHT = "/stereo/left/image_rect", "/stereo/right/image_rect"
+LEFT_INFO, RIGHT_INFO = "/stereo/left/camera_info", "/stereo/right/camera_info"
+
+
+def frame_messages(n: int, seed: int = 0) -> list[tuple[str, Any, int]]:
+    """(topic, message, log_time_ns) of n stereo frames at 10 Hz."""
+    rng = np.random.default_rng(seed)
+    out: list[tuple[str, Any, int]] = []
+    for i in range(n):
+        stamp = 1_000_000_000 + i * 100_000_000
+        left = rng.integers(0, 256, (CAMERA.height, CAMERA.width), dtype=np.uint8)
+        right = rng.integers(0, 256, (CAMERA.height, CAMERA.width), dtype=np.uint8)
+        out.append((LEFT, rosmsg.image_message(left, stamp, "left"), stamp))
+        out.append((RIGHT, rosmsg.image_message(right, stamp, "right"), stamp))
+        out.append((LEFT_INFO, rosmsg.camera_info_message(CAMERA, stamp, "left"), stamp))
+        out.append(
+            (RIGHT_INFO, rosmsg.camera_info_message(CAMERA, stamp, "right", right=True), stamp)
+        )
+    return out
+
+
+def write_mcap(
+    path: Path,
+    messages: list[tuple[str, Any, int]],
+    *,
+    chunk_size: int = 1,
+    compression: CompressionType = CompressionType.ZSTD,
+    log_times: list[int] | None = None,
+) -> None:
+    """Write ROS 2 messages with mcap's Writer (chunk_size=1: one message per chunk)."""
+    with path.open("wb") as f:
+        writer = Writer(f, chunk_size=chunk_size, compression=compression)
+        writer.start("ros2", "test")
+        schemas: dict[str, int] = {}
+        channels: dict[str, int] = {}
+        for i, (topic, message, log_time) in enumerate(messages):
+            msgtype = message.__msgtype__
+            if msgtype not in schemas:
+                schemas[msgtype] = writer.register_schema(
+                    msgtype, "ros2msg", rosmsg.schema_text(msgtype).encode()
+                )
+            if topic not in channels:
+                channels[topic] = writer.register_channel(topic, "cdr", schemas[msgtype])
+            time = log_times[i] if log_times is not None else log_time
+            writer.add_message(channels[topic], time, rosmsg.serialize(message), time)
+        writer.finish()
+
+
+@pytest.fixture
+def drive(tmp_path: Path) -> tuple[Path, list[tuple[str, Any, int]]]:
+    messages = frame_messages(5)
+    path = tmp_path / "drive.mcap"
+    write_mcap(path, messages)
+    return path, messages
+
+
+def chunk_ends(path: Path) -> list[int]:
+    with path.open("rb") as f:
+        summary = make_reader(f).get_summary()
+        assert summary is not None
+        return sorted(c.chunk_start_offset + c.chunk_length for c in summary.chunk_indexes)
+
+
+def chunk_starts(path: Path) -> list[int]:
+    with path.open("rb") as f:
+        summary = make_reader(f).get_summary()
+        assert summary is not None
+        return sorted(c.chunk_start_offset for c in summary.chunk_indexes)
+
+
+# --- round trips ----------------------------------------------------------------------------
+
+
+def test_mcap_round_trip(drive: tuple[Path, list[tuple[str, Any, int]]]) -> None:
+    path, messages = drive
+    with open_log(path) as reader:
+        assert reader.format is LogFormat.MCAP
+        topics = reader.topics()
+        assert set(topics) == {LEFT, RIGHT, LEFT_INFO, RIGHT_INFO}
+        assert topics[LEFT].msgtype == "sensor_msgs/msg/Image"
+        assert topics[LEFT].message_count == 5
+        raws = list(reader.messages())
+        assert [r.topic for r in raws] == [t for t, _, _ in messages]
+        assert [r.data for r in raws] == [rosmsg.serialize(m) for _, m, _ in messages]
+        assert [r.log_time_ns for r in raws] == [t for _, _, t in messages]
+        image = decode_image(reader.decode(raws[0]))
+        np.testing.assert_array_equal(image, rosmsg.image_array(messages[0][1]))
+        info = reader.decode(raws[3])
+        np.testing.assert_allclose(rosmsg.projection_matrix(info), CAMERA.projection_right())
+        assert reader.damage == []
+        assert reader.warnings == []
+        assert reader.message_stats() == (20, 1_000_000_000, 1_400_000_000)
+
+
+def test_mcap_topic_filter_reads_only_those(drive: tuple[Path, list[tuple[str, Any, int]]]) -> None:
+    path, _ = drive
+    with open_log(path) as reader:
+        raws = list(reader.messages([RIGHT_INFO]))
+    assert [r.topic for r in raws] == [RIGHT_INFO] * 5
+
+
+def _write_with(tmp_path: Path, name: str, log_format: str) -> tuple[Path, list[Any]]:
+    from pcainterp_stream.logwriter import open_writer
+
+    messages = frame_messages(3)
+    path = tmp_path / name
+    with open_writer(path, log_format) as writer:
+        for topic, message, log_time in messages:
+            writer.add_message(topic, message, log_time)
+    return path, messages
+
+
+@pytest.mark.parametrize(
+    ("log_format", "suffix"), [("rosbag2", ".mcap"), ("rosbag2-sqlite3", ".db3")]
+)
+def test_rosbag2_round_trip_folder_and_storage_file(
+    tmp_path: Path, log_format: str, suffix: str
+) -> None:
+    folder, messages = _write_with(tmp_path, "bag", log_format)
+    storage = next(folder.glob(f"*{suffix}"))
+    for path in (folder, storage):
+        with open_log(path) as reader:
+            expected = (
+                LogFormat.MCAP if suffix == ".mcap" and path == storage else LogFormat.ROSBAG2
+            )
+            assert reader.format is expected
+            assert reader.topics()[LEFT].message_count == 3
+            raws = list(reader.messages())
+            assert sorted(r.topic for r in raws) == sorted(t for t, _, _ in messages)
+            left = [r for r in raws if r.topic == LEFT]
+            np.testing.assert_array_equal(
+                decode_image(reader.decode(left[1])), rosmsg.image_array(messages[4][1])
+            )
+            assert reader.damage == []
+
+
+def test_ros1_round_trip_converts_to_ros2_cdr(tmp_path: Path) -> None:
+    path, messages = _write_with(tmp_path, "drive.bag", "ros1")
+    with open_log(path) as reader:
+        assert reader.format is LogFormat.ROS1
+        assert reader.topics()[RIGHT_INFO].msgtype == "sensor_msgs/msg/CameraInfo"
+        raws = list(reader.messages())
+        assert len(raws) == len(messages)
+        by_topic = {r.topic: r for r in raws}
+        for topic in (LEFT, RIGHT_INFO):
+            raw = by_topic[topic]
+            assert raw.message_encoding == "cdr"
+            assert raw.schema_encoding == "ros2msg"
+            # the ROS 1 type has the Humble layout once Header.seq is dropped
+            assert raw.schema_data == rosmsg.schema_text(raw.msgtype).encode()
+        info = reader.decode(by_topic[RIGHT_INFO])
+        np.testing.assert_allclose(rosmsg.projection_matrix(info), CAMERA.projection_right())
+        assert rosmsg.stamp_ns(info) == messages[-1][2]
+        image = decode_image(reader.decode(by_topic[LEFT]))
+        np.testing.assert_array_equal(image, rosmsg.image_array(messages[-4][1]))
+
+
+# --- damage ---------------------------------------------------------------------------------
+
+
+def test_truncated_mcap_yields_everything_before_the_cut(
+    drive: tuple[Path, list[tuple[str, Any, int]]], tmp_path: Path
+) -> None:
+    path, messages = drive
+    data = path.read_bytes()
+    ends = chunk_ends(path)
+    assert len(ends) == len(messages)  # one message per chunk
+    full = [rosmsg.serialize(m) for _, m, _ in messages]
+    for cut in (20, ends[0] - 5, ends[3], ends[7] + 3, ends[-1] + 2, len(data) - 30, len(data) - 1):
+        cut_path = tmp_path / f"cut{cut}.mcap"
+        cut_path.write_bytes(data[:cut])
+        with open_log(cut_path) as reader:
+            got = [r.data for r in reader.messages()]
+            complete = sum(end <= cut for end in ends)
+            assert got == full[:complete], cut
+            assert reader.damage, cut
+            assert all(note.startswith(f"cut{cut}.mcap: ") for note in reader.damage)
+            topics = reader.topics()  # a scan: must not raise either
+            assert sum(t.message_count or 0 for t in topics.values()) == complete
+
+
+@pytest.mark.parametrize("compression", [CompressionType.ZSTD, CompressionType.NONE])
+def test_corrupt_chunk_is_skipped_and_reported(
+    tmp_path: Path, compression: CompressionType
+) -> None:
+    messages = frame_messages(3)
+    path = tmp_path / "drive.mcap"
+    write_mcap(path, messages, compression=compression)
+    data = bytearray(path.read_bytes())
+    starts, ends = chunk_starts(path), chunk_ends(path)
+    middle = (starts[2] + ends[2]) // 2  # inside chunk 2's (compressed) records
+    data[middle - 8 : middle + 8] = bytes(b ^ 0x5A for b in data[middle - 8 : middle + 8])
+    path.write_bytes(bytes(data))
+    with open_log(path) as reader:
+        got = [r.data for r in reader.messages()]
+    full = [rosmsg.serialize(m) for _, m, _ in messages]
+    assert got == full[:2] + full[3:]
+    assert len(reader.damage) == 1
+    assert f"at byte {starts[2]}" in reader.damage[0]
+    assert "drive.mcap" in reader.damage[0]
+
+
+def test_garbage_record_length_stops_without_allocating(tmp_path: Path) -> None:
+    messages = frame_messages(2)
+    path = tmp_path / "drive.mcap"
+    write_mcap(path, messages)
+    data = bytearray(path.read_bytes())
+    start = chunk_starts(path)[4]
+    data[start + 1 : start + 9] = (2**62).to_bytes(8, "little")
+    path.write_bytes(bytes(data))
+    with open_log(path) as reader:
+        assert len(list(reader.messages())) == 4
+    assert any("claims" in note for note in reader.damage)
+
+
+def test_missing_summary_is_damage_but_all_messages_read(
+    drive: tuple[Path, list[tuple[str, Any, int]]], tmp_path: Path
+) -> None:
+    path, messages = drive
+    data = path.read_bytes()
+    cut = tmp_path / "nosummary.mcap"
+    cut.write_bytes(data[: chunk_ends(path)[-1] + 1 + 8 + 12])  # keep the data-end record
+    with open_log(cut) as reader:
+        assert len(list(reader.messages())) == len(messages)
+        assert reader.message_stats() is None
+        assert any("no MCAP magic at the end" in note for note in reader.damage)
+
+
+def test_non_monotonic_log_times_are_a_warning(tmp_path: Path) -> None:
+    messages = frame_messages(2)
+    times = [5, 6, 7, 8, 1, 2, 9, 10]
+    path = tmp_path / "jumpy.mcap"
+    write_mcap(path, messages, log_times=times)
+    with open_log(path) as reader:
+        got = [r.log_time_ns for r in reader.messages()]
+    assert got == times
+    assert reader.damage == []
+    assert len(reader.warnings) == 1
+    assert reader.warnings[0].startswith("jumpy.mcap: 1 messages have a log time earlier")
+
+
+def test_empty_mcap_has_no_messages_and_no_error(tmp_path: Path) -> None:
+    path = tmp_path / "empty.mcap"
+    write_mcap(path, [])
+    with open_log(path) as reader:
+        assert list(reader.messages()) == []
+        assert reader.topics() == {}
+        assert reader.damage == []
+        assert reader.message_stats() == (0, None, None)
+
+
+# --- errors ---------------------------------------------------------------------------------
+
+
+def test_missing_topic_names_topics_present_and_option(
+    drive: tuple[Path, list[tuple[str, Any, int]]],
+) -> None:
+    path, _ = drive
+    with (
+        open_log(path) as reader,
+        pytest.raises(
+            TopicNotFoundError,
+            match=r"^topic /cam/right not found in drive\.mcap; topics present: "
+            r"/stereo/left/camera_info, .*; pass --right-topic$",
+        ),
+    ):
+        reader.require_topics({LEFT: "--left-topic", "/cam/right": "--right-topic"})
+
+
+def test_missing_file(tmp_path: Path) -> None:
+    with pytest.raises(LogReadError, match=r"nope\.mcap does not exist; pass an MCAP file"):
+        open_log(tmp_path / "nope.mcap")
+
+
+def test_not_a_log(tmp_path: Path) -> None:
+    path = tmp_path / "notes.txt"
+    path.write_text("hello world, not a log at all")
+    with pytest.raises(LogReadError, match=r"notes\.txt is not a log \(no MCAP"):
+        open_log(path)
+    fake = tmp_path / "fake.mcap"
+    fake.write_bytes(b"\x00" * 64)
+    with pytest.raises(LogReadError, match=r"named like an MCAP file but does not start"):
+        open_log(fake)
+    empty = tmp_path / "empty.bag"
+    empty.write_bytes(b"")
+    with pytest.raises(LogReadError, match=r"empty\.bag is empty, not a log"):
+        open_log(empty)
+
+
+def test_folders_that_are_not_bags(tmp_path: Path) -> None:
+    kitti = tmp_path / "2011_09_26_drive_0001_sync"
+    (kitti / "image_00" / "data").mkdir(parents=True)
+    with pytest.raises(
+        LogReadError, match=r"KITTI folder: convert it with `pcainterp import-kitti`"
+    ):
+        sniff_format(kitti)
+    (tmp_path / "loose").mkdir()
+    (tmp_path / "loose" / "x.db3").write_bytes(b"SQLite format 3\x00")
+    with pytest.raises(LogReadError, match=r"pass its storage file .*x\.db3 directly"):
+        sniff_format(tmp_path / "loose")
+
+
+def test_corrupt_ros1_bag_is_a_log_read_error(tmp_path: Path) -> None:
+    path = tmp_path / "bad.bag"
+    path.write_bytes(b"#ROSBAG V2.0\n" + b"\xff" * 100)
+    with pytest.raises(LogReadError, match=r"cannot read ROS 1 bag .*bad\.bag"):
+        open_log(path)
+
+
+def test_closed_reader_refuses(drive: tuple[Path, list[tuple[str, Any, int]]]) -> None:
+    path, _ = drive
+    reader = open_log(path)
+    reader.close()
+    with pytest.raises(LogReadError, match="is closed"):
+        reader.topics()
+
+
+# --- images ---------------------------------------------------------------------------------
+
+
+def test_decode_image_encodings() -> None:
+    rng = np.random.default_rng(1)
+    rgb = rng.integers(0, 256, (4, 5, 3), dtype=np.uint8)
+    bgr_message = rosmsg.image_message(rgb[:, :, ::-1], 0, "f", encoding="bgr8")
+    np.testing.assert_array_equal(decode_image(bgr_message), rgb)
+    deep = rng.integers(0, 65536, (4, 5), dtype=np.uint16)
+    decoded = decode_image(rosmsg.image_message(deep, 0, "f"))
+    assert decoded.dtype == np.uint16
+    np.testing.assert_array_equal(decoded, deep)
+
+
+def test_decode_image_unsupported_encoding() -> None:
+    message = rosmsg.image_message(np.zeros((2, 2), np.uint8), 0, "f")
+    message.encoding = "bayer_rggb8"
+    with pytest.raises(ValueError, match="unsupported image encoding 'bayer_rggb8'"):
+        decode_image(message)
+    tiff = rosmsg.compressed_image_message(b"II*\x00", "tiff", 0, "f")
+    with pytest.raises(ValueError, match="unsupported compressed image format 'tiff'"):
+        decode_image(tiff)
+    broken = rosmsg.compressed_image_message(b"not a png", "png", 0, "f")
+    with pytest.raises(ValueError, match=r"compressed image \(png\) of 9 bytes does not decode"):
+        decode_image(broken)
+
+
+def test_decode_compressed_png_and_jpeg() -> None:
+    rng = np.random.default_rng(2)
+    grey = rng.integers(0, 256, (6, 7), dtype=np.uint8)
+    ok, png = cv2.imencode(".png", grey)
+    assert ok
+    got = decode_image(rosmsg.compressed_image_message(png.tobytes(), "png", 0, "f"))
+    np.testing.assert_array_equal(got, grey)
+    red = np.zeros((16, 16, 3), np.uint8)
+    red[:, :, 0] = 255  # RGB
+    ok, jpeg = cv2.imencode(".jpg", cv2.cvtColor(red, cv2.COLOR_RGB2BGR))
+    assert ok
+    got = decode_image(SimpleNamespace(format="rgb8; jpeg compressed bgr8", data=jpeg))
+    assert got.shape == (16, 16, 3)
+    assert got[8, 8, 0] > 200
+    assert got[8, 8, 2] < 50
+
+
+def test_decode_non_cdr_is_a_log_read_error(tmp_path: Path) -> None:
+    path = tmp_path / "json.mcap"
+    with path.open("wb") as f:
+        writer = Writer(f)
+        writer.start("", "test")
+        schema = writer.register_schema("Thing", "jsonschema", b"{}")
+        channel = writer.register_channel("/thing", "json", schema)
+        writer.add_message(channel, 1, b'{"a": 1}', 1)
+        writer.finish()
+    with open_log(path) as reader:
+        (raw,) = list(reader.messages())
+        assert (raw.msgtype, raw.message_encoding) == ("Thing", "json")
+        with pytest.raises(LogReadError, match=r"cannot decode message on /thing .* not ROS 2 CDR"):
+            reader.decode(raw)
+
+
+# --- real data ------------------------------------------------------------------------------
+
+needs_realdata = pytest.mark.skipif(
+    not REALDATA.is_dir(), reason=f"real data folder {REALDATA} is absent"
+)
+
+
+@pytest.mark.realdata
+@needs_realdata
+def test_realdata_rerun_images_decode() -> None:
+    path = REALDATA / "mcap_ros2" / "supported_ros2_messages.mcap"
+    with open_log(path) as reader:
+        images = {
+            raw.topic: decode_image(reader.decode(raw))
+            for raw in reader.messages(["/image", "/compressed_image"])
+        }
+    assert images["/image"].shape == (480, 640, 3)
+    assert images["/compressed_image"].shape == (480, 640, 3)
+    assert images["/image"].dtype == np.uint8
+
+
+@pytest.mark.realdata
+@needs_realdata
+def test_realdata_rosbag2_traps() -> None:
+    with open_log(REALDATA / "rosbag2" / "mcap" / "talker") as reader:
+        assert len(list(reader.messages())) == 20
+        assert "read talker.mcap directly" in reader.warnings[0]
+    with pytest.raises(LogReadError, match=r"rosbags cannot parse a message definition .* pass"):
+        open_log(REALDATA / "rosbag2" / "mcap" / "bag_with_topics_and_service_events")
+
+
+@pytest.mark.realdata
+@needs_realdata
+def test_realdata_ros1_messages_decode() -> None:
+    with open_log(REALDATA / "ros1" / "example-lz4.bag") as reader:
+        raws = list(reader.messages(["/turtle1/cmd_vel"]))
+        twist = reader.decode(raws[0])
+    assert len(raws) == 357
+    assert raws[0].msgtype == "geometry_msgs/msg/Twist"
+    assert raws[0].schema_data == rosmsg.schema_text("geometry_msgs/msg/Twist").encode()
+    assert np.isfinite(twist.linear.x)
