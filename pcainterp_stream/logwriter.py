@@ -126,7 +126,6 @@ class LogWriter(ABC):
         self._topic_counts: Counter[str] = Counter()
         self._start_ns: int | None = None
         self._end_ns = 0
-        self._summary: WriteSummary | None = None
 
     @property
     def partial_path(self) -> Path:
@@ -194,8 +193,7 @@ class LogWriter(ABC):
         except BaseException:
             self._remove_partial()
             raise
-        self._summary = self.summary()
-        return self._summary
+        return self.summary()
 
     def abort(self) -> None:
         """Drop the partial output; the target is left as it was."""
