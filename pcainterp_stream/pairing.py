@@ -355,7 +355,7 @@ class StereoPairer:
     def _push_image(self, side: str, item: _Pending) -> list[StereoFrame]:
         if item.stamp_ns < self._last_stamp[side]:
             self.stats.non_monotonic_stamps += 1
-        self._last_stamp[side] = max(self._last_stamp[side], item.stamp_ns)
+        self._last_stamp[side] = item.stamp_ns
         own, other = (self._left, self._right) if side == "left" else (self._right, self._left)
         partner = self._closest(other, item.stamp_ns)
         if partner is None:

@@ -1,0 +1,258 @@
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+from mcap.writer import Writer
+
+from pcainterp_stream import rosmsg
+from pcainterp_stream.errors import CalibrationError, LogReadError, TopicNotFoundError
+from pcainterp_stream.logreader import open_log
+from pcainterp_stream.pairing import (
+    PairingConfig,
+    StereoPairer,
+    camera_from_infos,
+    iter_stereo_frames,
+)
+from pcainterp_stream.records import StereoCamera
+
+CAMERA = StereoCamera(width=8, height=6, fx=50.0, fy=51.0, cx=4.0, cy=3.0, baseline=0.25)
+CONFIG = PairingConfig()
+MS = 1_000_000
+
+
+def image(stamp: int, value: int = 0, shape: tuple[int, int] = (6, 8)) -> Any:
+    return rosmsg.image_message(np.full(shape, value, np.uint8), stamp, "left_optical")
+
+
+def left_info(camera: StereoCamera = CAMERA) -> Any:
+    return rosmsg.camera_info_message(camera, 0, "left_optical")
+
+
+def right_info(camera: StereoCamera = CAMERA) -> Any:
+    return rosmsg.camera_info_message(camera, 0, "right_optical", right=True)
+
+
+def push(pairer: StereoPairer, topic: str, stamp: int, message: Any) -> list[Any]:
+    return pairer.push(topic, stamp, stamp + 5, message)
+
+
+def with_infos(pairer: StereoPairer) -> None:
+    assert push(pairer, CONFIG.left_info_topic, 0, left_info()) == []
+    assert push(pairer, CONFIG.right_info_topic, 0, right_info()) == []
+
+
+def test_pairs_by_stamp_and_builds_camera() -> None:
+    pairer = StereoPairer()
+    with_infos(pairer)
+    assert push(pairer, CONFIG.left_topic, 100 * MS, image(100 * MS, 1)) == []
+    (frame,) = push(pairer, CONFIG.right_topic, 100 * MS, image(100 * MS, 2))
+    assert (frame.index, frame.stamp_ns, frame.log_time_ns) == (0, 100 * MS, 100 * MS + 5)
+    assert frame.frame_id == "left_optical"
+    assert int(frame.left[0, 0]) == 1
+    assert int(frame.right[0, 0]) == 2
+    assert frame.camera == CAMERA
+    # the right image can come first, and stamps may differ within the tolerance
+    assert push(pairer, CONFIG.right_topic, 200 * MS, image(200 * MS)) == []
+    (frame,) = push(pairer, CONFIG.left_topic, 200 * MS + 500_000, image(200 * MS + 500_000))
+    assert frame.index == 1
+    stats = pairer.finish()
+    assert (stats.pairs, stats.unpaired_left, stats.unpaired_right) == (2, 0, 0)
+
+
+def test_pairs_wait_for_camera_info() -> None:
+    pairer = StereoPairer()
+    push(pairer, CONFIG.left_topic, 1, image(1))
+    assert push(pairer, CONFIG.right_topic, 1, image(1)) == []
+    assert push(pairer, CONFIG.left_info_topic, 1, left_info()) == []
+    (frame,) = push(pairer, CONFIG.right_info_topic, 1, right_info())
+    assert frame.stamp_ns == 1
+
+
+def test_outside_tolerance_and_missing_side_are_counted() -> None:
+    pairer = StereoPairer(PairingConfig(tolerance_ns=MS))
+    with_infos(pairer)
+    push(pairer, CONFIG.left_topic, 0, image(0))
+    push(pairer, CONFIG.right_topic, 2 * MS, image(2 * MS))  # 2 ms apart: no pair
+    push(pairer, CONFIG.left_topic, 100 * MS, image(100 * MS))
+    (frame,) = push(pairer, CONFIG.right_topic, 100 * MS, image(100 * MS))
+    assert frame.stamp_ns == 100 * MS
+    push(pairer, CONFIG.left_topic, 200 * MS, image(200 * MS))  # right never comes
+    stats = pairer.finish()
+    assert (stats.pairs, stats.unpaired_left, stats.unpaired_right) == (1, 2, 1)
+    assert stats.summary().startswith("1 pairs, 2 unpaired left, 1 unpaired right")
+
+
+def test_buffers_are_bounded() -> None:
+    pairer = StereoPairer(PairingConfig(window=3))
+    with_infos(pairer)
+    for i in range(50):
+        push(pairer, CONFIG.left_topic, i * 100 * MS, image(i * 100 * MS))
+    assert len(pairer._left) == 3
+    stats = pairer.finish()
+    assert stats.unpaired_left == 50
+    assert stats.pairs == 0
+
+
+def test_size_mismatch_counted_or_fatal() -> None:
+    pairer = StereoPairer()
+    with_infos(pairer)
+    push(pairer, CONFIG.left_topic, 7, image(7))
+    assert push(pairer, CONFIG.right_topic, 7, image(7, shape=(6, 9))) == []
+    stats = pairer.finish()
+    assert stats.size_mismatches == 1
+    assert stats.problems == [
+        "left image at stamp 7 is 8x6 uint8 but right image at stamp 7 is 9x6 uint8; "
+        "a rectified pair needs equal sizes"
+    ]
+    strict = StereoPairer(PairingConfig(fail_on_size_mismatch=True))
+    with_infos(strict)
+    push(strict, CONFIG.left_topic, 7, image(7))
+    with pytest.raises(LogReadError, match=r"^left image at stamp 7 is 8x6 uint8 but right"):
+        push(strict, CONFIG.right_topic, 7, image(7, shape=(6, 9)))
+
+
+def test_camera_info_without_baseline() -> None:
+    flat = rosmsg.camera_info_message(CAMERA, 0, "right")  # the left P: P[0, 3] == 0
+    pairer = StereoPairer()
+    push(pairer, CONFIG.left_info_topic, 0, left_info())
+    push(pairer, CONFIG.right_info_topic, 0, flat)
+    push(pairer, CONFIG.left_topic, 1, image(1))
+    with pytest.raises(
+        CalibrationError,
+        match=r"^camera info on /stereo/right/camera_info gives no baseline .*pass --baseline",
+    ):
+        push(pairer, CONFIG.right_topic, 1, image(1))
+    override = StereoPairer(PairingConfig(baseline=0.3))
+    push(override, CONFIG.left_info_topic, 0, left_info())
+    push(override, CONFIG.right_info_topic, 0, flat)
+    push(override, CONFIG.left_topic, 1, image(1))
+    (frame,) = push(override, CONFIG.right_topic, 1, image(1))
+    assert frame.camera.baseline == 0.3
+
+
+def test_camera_info_without_focal_length() -> None:
+    zero = SimpleNamespace(P=np.zeros(12))  # ROS 1 field name
+    with pytest.raises(CalibrationError, match=r"^camera info on /l has P with fx=0\.0"):
+        camera_from_infos(zero, right_info(), width=8, height=6, left_topic="/l")
+
+
+def test_ros1_camera_info_fields() -> None:
+    left = SimpleNamespace(P=CAMERA.projection_left().reshape(-1))
+    right = SimpleNamespace(P=CAMERA.projection_right().reshape(-1))
+    assert camera_from_infos(left, right, width=8, height=6) == CAMERA
+
+
+def test_undecodable_images_are_counted_by_reason() -> None:
+    pairer = StereoPairer()
+    with_infos(pairer)
+    bad = image(3)
+    bad.encoding = "yuv422"
+    push(pairer, CONFIG.left_topic, 3, bad)
+    assert push(pairer, CONFIG.right_topic, 3, image(3)) == []
+    stats = pairer.finish()
+    assert stats.undecodable == {"unsupported image encoding 'yuv422'": 1}
+    assert stats.pairs == 0
+
+
+def test_non_monotonic_stamps_are_counted() -> None:
+    pairer = StereoPairer()
+    with_infos(pairer)
+    for stamp in (300 * MS, 100 * MS, 200 * MS):
+        push(pairer, CONFIG.left_topic, stamp, image(stamp))
+    assert pairer.finish().non_monotonic_stamps == 1
+
+
+def features(stamp: int, n: int) -> Any:
+    xyz = np.arange(3 * n, dtype=np.float32).reshape(n, 3) + 1
+    return rosmsg.pointcloud2_message({"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2]}, stamp, "l")
+
+
+def test_features_before_and_after_the_frame() -> None:
+    pairer = StereoPairer(PairingConfig(features_topic="/features"))
+    with_infos(pairer)
+    # features first
+    push(pairer, "/features", 100 * MS, features(100 * MS, 4))
+    push(pairer, CONFIG.left_topic, 100 * MS, image(100 * MS))
+    (frame,) = push(pairer, CONFIG.right_topic, 100 * MS, image(100 * MS))
+    points = pairer.features_for(frame)
+    assert points is not None
+    assert points.points.shape == (4, 3)
+    assert points.points.dtype == np.float32
+    assert pairer.features_for(frame) is None  # handed out once
+    # frame first: held until its features arrive
+    push(pairer, CONFIG.left_topic, 200 * MS, image(200 * MS))
+    assert push(pairer, CONFIG.right_topic, 200 * MS, image(200 * MS)) == []
+    (frame,) = push(pairer, "/features", 200 * MS, features(200 * MS, 2))
+    got = pairer.features_for(frame)
+    assert got is not None
+    assert got.points.shape == (2, 3)
+    # a frame without features is released once a later cloud shows there is none
+    push(pairer, CONFIG.left_topic, 300 * MS, image(300 * MS))
+    assert push(pairer, CONFIG.right_topic, 300 * MS, image(300 * MS)) == []
+    (frame,) = push(pairer, "/features", 400 * MS, features(400 * MS, 1))
+    assert frame.stamp_ns == 300 * MS
+    assert pairer.features_for(frame) is None
+    assert pairer.flush() == []
+    stats = pairer.finish()
+    assert (stats.features_matched, stats.features_unmatched) == (2, 1)
+
+
+def test_required_topics_name_the_options() -> None:
+    config = PairingConfig(features_topic="/f")
+    assert config.required_topics() == {
+        "/stereo/left/image_rect": "--left-topic",
+        "/stereo/right/image_rect": "--right-topic",
+        "/stereo/left/camera_info": "--left-info-topic",
+        "/stereo/right/camera_info": "--right-info-topic",
+        "/f": "--features-topic",
+    }
+    with pytest.raises(ValueError, match="window must be >= 1"):
+        PairingConfig(window=0)
+
+
+def write_log(path: Path, items: list[tuple[str, Any, int]]) -> None:
+    with path.open("wb") as f:
+        writer = Writer(f)
+        writer.start("ros2", "test")
+        ids: dict[str, int] = {}
+        for topic, message, time in items:
+            if topic not in ids:
+                msgtype = message.__msgtype__
+                schema = writer.register_schema(
+                    msgtype, "ros2msg", rosmsg.schema_text(msgtype).encode()
+                )
+                ids[topic] = writer.register_channel(topic, "cdr", schema)
+            writer.add_message(ids[topic], time, rosmsg.serialize(message), time)
+        writer.finish()
+
+
+def test_iter_stereo_frames_over_a_log(tmp_path: Path) -> None:
+    items: list[tuple[str, Any, int]] = []
+    for i in range(4):
+        stamp = (i + 1) * 100 * MS
+        items += [
+            (CONFIG.left_topic, image(stamp, i), stamp),
+            (CONFIG.right_topic, image(stamp, 10 + i), stamp),
+            (CONFIG.left_info_topic, left_info(), stamp),
+            (CONFIG.right_info_topic, right_info(), stamp),
+            ("/other", rosmsg.header(stamp, "x"), stamp),
+        ]
+    path = tmp_path / "drive.mcap"
+    write_log(path, items)
+    pairer = StereoPairer()
+    with open_log(path) as reader:
+        frames = list(iter_stereo_frames(reader, pairer=pairer))
+    assert [int(f.left[0, 0]) for f in frames] == [0, 1, 2, 3]
+    assert [int(f.right[0, 0]) for f in frames] == [10, 11, 12, 13]
+    assert pairer.stats.pairs == 4
+    with (
+        open_log(path) as reader,
+        pytest.raises(
+            TopicNotFoundError, match=r"topic /features not found in drive\.mcap.*--features-topic"
+        ),
+    ):
+        list(iter_stereo_frames(reader, PairingConfig(features_topic="/features")))
