@@ -1,0 +1,120 @@
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.writer import Writer
+
+from pcainterp_stream import rosmsg
+from pcainterp_stream.errors import LogReadError
+from pcainterp_stream.loginfo import describe, format_info
+from pcainterp_stream.logreader import LogFormat
+
+REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+
+
+def write_small(path: Path, n: int = 3) -> None:
+    with path.open("wb") as f:
+        writer = Writer(f, chunk_size=1)
+        writer.start("ros2", "test")
+        schema = writer.register_schema(
+            "sensor_msgs/msg/Image", "ros2msg", rosmsg.schema_text("sensor_msgs/msg/Image").encode()
+        )
+        channel = writer.register_channel("/cam", "cdr", schema)
+        for i in range(n):
+            stamp = 1_000_000_000 + i * 500_000_000
+            message = rosmsg.image_message(np.zeros((2, 3), np.uint8), stamp, "c")
+            writer.add_message(channel, stamp, rosmsg.serialize(message), stamp)
+        writer.finish()
+
+
+def test_describe_and_format(tmp_path: Path) -> None:
+    path = tmp_path / "small.mcap"
+    write_small(path)
+    info = describe(path)
+    assert info.format is LogFormat.MCAP
+    assert info.message_count == 3
+    assert (info.start_ns, info.end_ns, info.duration_ns) == (1_000_000_000, 2_000_000_000, 10**9)
+    assert info.topics["/cam"].message_count == 3
+    assert info.counted is False
+    assert info.damage == []
+    text = format_info(info)
+    assert "small.mcap: mcap log" in text
+    assert "messages: 3 (from the index)" in text
+    assert "duration: 1.000 s" in text
+    assert "/cam         3  sensor_msgs/msg/Image" in text
+    assert describe(path, count=True).counted is True
+
+
+def test_describe_damaged_counts_what_is_readable(tmp_path: Path) -> None:
+    path = tmp_path / "small.mcap"
+    write_small(path, n=4)
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 4])
+    info = describe(cut)
+    assert info.counted is True
+    assert 0 < info.message_count < 4
+    assert info.topics["/cam"].message_count == info.message_count
+    assert info.damage
+    assert f"DAMAGE ({len(info.damage)}):" in format_info(info)
+    assert len(info.damage) == 2  # no footer, and a chunk cut short
+
+
+def test_describe_empty_log(tmp_path: Path) -> None:
+    path = tmp_path / "empty.mcap"
+    write_small(path, n=0)
+    info = describe(path)
+    assert (info.message_count, info.start_ns, info.duration_ns) == (0, None, 0)
+    assert "messages: 0" in format_info(info)
+
+
+def test_describe_kitti_folder_suggests_import(tmp_path: Path) -> None:
+    drive = tmp_path / "2011_09_26_drive_0001_sync"
+    (drive / "image_00" / "data").mkdir(parents=True)
+    with pytest.raises(
+        LogReadError, match=r"is a KITTI folder, not a log; .*pcainterp import-kitti"
+    ):
+        describe(drive)
+
+
+def _realdata_paths() -> list[Path]:
+    if not REALDATA.is_dir():
+        return []
+    paths = sorted(REALDATA.glob("mcap_conformance/*/*.mcap"))
+    paths += [REALDATA / "mcap_ros2" / "supported_ros2_messages.mcap"]
+    paths += sorted(REALDATA.glob("ros1/*.bag"))
+    paths += sorted(p.parent for p in REALDATA.glob("rosbag2/*/*/metadata.yaml"))
+    paths += sorted(REALDATA.glob("rosbag2/**/*.mcap")) + sorted(REALDATA.glob("rosbag2/**/*.db3"))
+    paths += [REALDATA / "rosbag2" / "standalone", REALDATA / "kitti_raw" / "2011_09_26"]
+    paths += [REALDATA / "kitti_odometry_clip", REALDATA / "stereo_aloe" / "aloe-L.png"]
+    return paths
+
+
+def _expected_messages(path: Path) -> int | None:
+    expected = path.with_suffix(".json")
+    if path.suffix != ".mcap" or not expected.is_file():
+        return None
+    records = json.loads(expected.read_text())["records"]
+    return sum(1 for record in records if record["type"] == "Message")
+
+
+@pytest.mark.realdata
+@pytest.mark.skipif(not REALDATA.is_dir(), reason=f"real data folder {REALDATA} is absent")
+@pytest.mark.parametrize("path", _realdata_paths(), ids=lambda p: str(p.relative_to(REALDATA)))
+def test_every_realdata_file_describes_or_fails_in_one_line(path: Path) -> None:
+    try:
+        info = describe(path)
+    except LogReadError as err:
+        message = str(err)
+        assert "\n" not in message
+        assert str(path) in message
+        return
+    assert format_info(info).startswith(f"{path}: ")
+    assert info.damage == []
+    expected = _expected_messages(path)
+    if expected is not None:  # the conformance suite says how many messages there are
+        assert info.message_count == expected
+        assert sum(t.message_count or 0 for t in info.topics.values()) == expected
