@@ -435,3 +435,30 @@ def test_realdata_ros1_messages_decode() -> None:
     assert raws[0].msgtype == "geometry_msgs/msg/Twist"
     assert raws[0].schema_data == rosmsg.schema_text("geometry_msgs/msg/Twist").encode()
     assert np.isfinite(twist.linear.x)
+
+
+def test_random_damage_never_escapes_as_a_library_exception(tmp_path: Path) -> None:
+    messages = frame_messages(2)
+    path = tmp_path / "drive.mcap"
+    write_mcap(path, messages, chunk_size=600)
+    data = path.read_bytes()
+    rng = np.random.default_rng(7)
+    damaged = tmp_path / "damaged.mcap"
+    for trial in range(300):
+        buffer = bytearray(data)
+        if trial % 3 == 0:
+            buffer = buffer[: int(rng.integers(0, len(buffer)))]
+        else:
+            for position in rng.integers(0, len(buffer), int(rng.integers(1, 6))):
+                buffer[position] = int(rng.integers(0, 256))
+        damaged.write_bytes(bytes(buffer))
+        try:
+            with open_log(damaged) as reader:
+                reader.topics()
+                for raw in reader.messages():
+                    try:
+                        reader.decode(raw)
+                    except LogReadError:
+                        pass
+        except LogReadError as err:
+            assert "\n" not in str(err)
