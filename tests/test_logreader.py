@@ -444,6 +444,7 @@ def test_random_damage_never_escapes_as_a_library_exception(tmp_path: Path) -> N
     data = path.read_bytes()
     rng = np.random.default_rng(7)
     damaged = tmp_path / "damaged.mcap"
+    errors: list[str] = []
     for trial in range(300):
         buffer = bytearray(data)
         if trial % 3 == 0:
@@ -461,4 +462,28 @@ def test_random_damage_never_escapes_as_a_library_exception(tmp_path: Path) -> N
                     except LogReadError:
                         pass
         except LogReadError as err:
-            assert "\n" not in str(err)
+            errors.append(str(err))
+    assert all("\n" not in message for message in errors)
+
+
+def test_mcap_ros1_profile_is_converted_to_cdr(tmp_path: Path) -> None:
+    store = rosmsg.TYPESTORE
+    message = rosmsg.camera_info_message(CAMERA, 1_500_000_000, "right", right=True)
+    msgtype = "sensor_msgs/msg/CameraInfo"
+    ros1_text, _ = store.generate_msgdef(msgtype, ros_version=1)
+    ros1_data = bytes(store.cdr_to_ros1(rosmsg.serialize(message), msgtype))
+    path = tmp_path / "ros1.mcap"
+    with path.open("wb") as f:
+        writer = Writer(f)
+        writer.start("ros1", "test")
+        schema = writer.register_schema("sensor_msgs/CameraInfo", "ros1msg", ros1_text.encode())
+        channel = writer.register_channel(RIGHT_INFO, "ros1", schema)
+        writer.add_message(channel, 5, ros1_data, 5)
+        writer.finish()
+    with open_log(path) as reader:
+        assert reader.topics()[RIGHT_INFO].msgtype == msgtype
+        (raw,) = list(reader.messages())
+        assert (raw.message_encoding, raw.schema_encoding) == ("cdr", "ros2msg")
+        assert raw.data == rosmsg.serialize(message)
+        info = reader.decode(raw)
+    np.testing.assert_allclose(rosmsg.projection_matrix(info), CAMERA.projection_right())
