@@ -338,7 +338,8 @@ class Basis:
         if not path.is_file():
             raise BasisError(f"basis file {path} does not exist; pass the path of a basis .npz")
         try:
-            with np.load(path, allow_pickle=False) as archive:
+            # open the file ourselves: np.load leaks its handle when the archive is damaged
+            with path.open("rb") as stream, np.load(stream, allow_pickle=False) as archive:
                 missing = [key for key in _KEYS if key not in archive.files]
                 if missing:
                     raise BasisError(

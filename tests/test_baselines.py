@@ -1,0 +1,42 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pcainterp_stream.baselines import linear, nearest
+
+
+def test_linear_reproduces_a_plane_inside_hull() -> None:
+    rng = np.random.default_rng(0)
+    pixels = rng.uniform(0, [59, 39], (80, 2))
+    plane = 3.0 + 0.2 * pixels[:, 0] - 0.1 * pixels[:, 1]
+    result = linear(pixels, plane, image_size=(40, 60))
+    ys, xs = np.mgrid[0:40, 0:60]
+    truth = 3.0 + 0.2 * xs - 0.1 * ys
+    assert result.disparity.dtype == np.float32
+    assert result.disparity.shape == (40, 60)
+    assert np.isfinite(result.disparity).all()
+    inside = (xs > 8) & (xs < 50) & (ys > 8) & (ys < 30)
+    np.testing.assert_allclose(result.disparity[inside], truth[inside], atol=1e-3)
+
+
+def test_nearest_takes_closest_measurement() -> None:
+    pixels = np.array([[2.0, 2.0], [17.0, 8.0]])
+    result = nearest(pixels, np.array([5.0, 9.0]), image_size=(10, 20))
+    assert result.disparity[0, 0] == 5.0
+    assert result.disparity[9, 19] == 9.0
+    assert set(np.unique(result.disparity)) == {5.0, 9.0}
+
+
+def test_baselines_drop_bad_measurements_and_handle_empty() -> None:
+    pixels = np.array([[1.0, 1.0], [np.nan, 1.0], [100.0, 1.0]])
+    result = linear(pixels, np.array([4.0, 5.0, 6.0]), image_size=(10, 20))
+    assert result.n_dropped == 2
+    np.testing.assert_array_equal(result.disparity, 4.0)
+    empty = nearest(np.zeros((0, 2)), np.zeros(0), image_size=(3, 4))
+    assert np.isnan(empty.disparity).all()
+
+
+def test_baselines_validate_shapes() -> None:
+    with pytest.raises(ValueError, match=r"`pixels` of shape \(k, 2\)"):
+        nearest(np.zeros((2, 3)), np.zeros(2), image_size=(3, 4))
