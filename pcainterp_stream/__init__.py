@@ -8,4 +8,25 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
-__all__ = ["__version__"]
+from pcainterp_stream.basis import Basis  # noqa: E402
+from pcainterp_stream.estimator import (  # noqa: E402
+    DensifyResult,
+    SolveForm,
+    Uncertainty,
+    densify,
+    densify_batch,
+)
+from pcainterp_stream.learning import LearnMethod, learn_basis, preprocess_disparity  # noqa: E402
+
+__all__ = [
+    "Basis",
+    "DensifyResult",
+    "LearnMethod",
+    "SolveForm",
+    "Uncertainty",
+    "__version__",
+    "densify",
+    "densify_batch",
+    "learn_basis",
+    "preprocess_disparity",
+]

@@ -34,7 +34,6 @@ from enum import StrEnum
 
 import numpy as np
 import numpy.typing as npt
-import scipy.linalg
 
 from pcainterp_stream.basis import (
     Basis,
@@ -51,7 +50,7 @@ DEFAULT_SIGMA = 2.0
 DEFAULT_VARIANCE_GRID_SCALE = 0.125
 """Automatic variance grid: the coarsest stride whose grid is still >= this scale of the image."""
 
-_VARIANCE_ROWS_PER_CHUNK = 2048
+_VARIANCE_ROWS_PER_CHUNK = 512
 """Rows of the stacked exact-variance factor multiplied at once (bounds memory to ~rows*s)."""
 
 
@@ -343,29 +342,48 @@ def _solve(
         form = SolveForm.MEASUREMENT if k < n_components else SolveForm.COEFFICIENT
     variance = sigma**2
     if form is SolveForm.MEASUREMENT:
-        # Woodbury: K = B~ Lambda B~^T + sigma^2 I = L L^T
-        rows_lambda = rows * eigenvalues
-        system = rows_lambda @ rows.T
+        # Woodbury: K = B~ Lambda B~^T + sigma^2 I = L L^T, formed as C C^T (syrk), C = B~ Λ^½
+        scaled = rows * np.sqrt(eigenvalues)
+        system = scaled @ scaled.T
         system.flat[:: k + 1] += variance
-        lower = scipy.linalg.cholesky(system, lower=True)
-        alpha = scipy.linalg.cho_solve((lower, True), residual)
-        coefficients = rows_lambda.T @ alpha  # y = Lambda B~^T K^-1 z~
-        whitened = scipy.linalg.solve_triangular(lower, rows_lambda, lower=True)  # W = L^-1 B~ Λ
-        coefficient_variance = eigenvalues - np.einsum("kl,kl->l", whitened, whitened)
-        factor = whitened.astype(np.float32) if need_factor else None
+        lower_inverse = _cholesky_inverse(system)  # L^-1
+        inverse = lower_inverse.T @ lower_inverse  # K^-1
+        inverse_rows = inverse @ rows  # K^-1 B~ (k, l)
+        coefficients = eigenvalues * (inverse_rows.T @ residual)  # y = Λ B~^T K^-1 z~
+        # kappa_i^2 = lambda_i - lambda_i^2 [B~^T K^-1 B~]_ii, in float64 (large lambda cancel)
+        coefficient_variance = eigenvalues - eigenvalues**2 * np.einsum(
+            "kl,kl->l", inverse_rows, rows
+        )
+        factor = None
+        if need_factor:
+            # W = L^-1 B~ Λ in float32: its rounding is that of the float32 product with the
+            # basis that consumes it
+            factor = lower_inverse.astype(np.float32) @ (rows * eigenvalues).astype(np.float32)
         return _Posterior(coefficients, coefficient_variance, factor, True, form)
-    # coefficient form: A = sigma^2 I + Λ^½ B~^T B~ Λ^½ = R^T R (paper's system, symmetrised)
+    # coefficient form: A = sigma^2 I + Λ^½ B~^T B~ Λ^½ = L_A L_A^T (paper's system, symmetrised)
     root = np.sqrt(eigenvalues)
     scaled = rows * root
     system = scaled.T @ scaled
     system.flat[:: n_components + 1] += variance
-    upper = scipy.linalg.cholesky(system, lower=False)
-    coefficients = root * scipy.linalg.cho_solve((upper, False), scaled.T @ residual)
-    # Sigma_y = V^T V with V = sigma R^-T Λ^½
-    factor64 = scipy.linalg.solve_triangular(upper, np.diag(sigma * root), trans="T")
+    lower_inverse = _cholesky_inverse(system)
+    inverse = lower_inverse.T @ lower_inverse  # A^-1
+    coefficients = root * (inverse @ (scaled.T @ residual))
+    # Sigma_y = V^T V with V = sigma L_A^-1 Λ^½
+    factor64 = sigma * lower_inverse * root
     coefficient_variance = np.einsum("rl,rl->l", factor64, factor64)
     factor = factor64.astype(np.float32) if need_factor else None
     return _Posterior(coefficients, coefficient_variance, factor, False, form)
+
+
+def _cholesky_inverse(system: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Return L^-1 for the Cholesky factor L L^T = system (numpy LAPACK only).
+
+    scipy.linalg would call a second OpenBLAS whose spinning threads halve the speed of the
+    next numpy product on two cores (measured), so the hot path stays in numpy.
+    """
+    lower = np.linalg.cholesky(system)
+    inverse: npt.NDArray[np.float64] = np.linalg.inv(lower)
+    return np.tril(inverse)
 
 
 def _variances(
@@ -390,7 +408,8 @@ def _variances(
             stop += 1
         factors = [_factor(p) for p in posteriors[start:stop]]
         counts = [f.shape[0] for f in factors]
-        projected = np.concatenate(factors, axis=0) @ vgrid.component_rows
+        stacked = factors[0] if len(factors) == 1 else np.concatenate(factors, axis=0)
+        projected = stacked @ vgrid.component_rows
         projected *= projected
         offset = 0
         for index, count in enumerate(counts):
