@@ -8,15 +8,15 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
-from pcainterp_stream.basis import Basis  # noqa: E402
-from pcainterp_stream.estimator import (  # noqa: E402
+from pcainterp_stream.basis import Basis
+from pcainterp_stream.estimator import (
     DensifyResult,
     SolveForm,
     Uncertainty,
     densify,
     densify_batch,
 )
-from pcainterp_stream.learning import LearnMethod, learn_basis, preprocess_disparity  # noqa: E402
+from pcainterp_stream.learning import LearnMethod, learn_basis, preprocess_disparity
 
 __all__ = [
     "Basis",
