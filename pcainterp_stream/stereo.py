@@ -595,8 +595,9 @@ def lookup_disparities(
     3. every pixel of the support patch is valid and no two 4-neighbours in it differ by
        more than ``max_gradient`` px: a corner near a depth discontinuity, where SGBM
        is unreliable, is rejected;
-    4. with ``right_disparity``: the right view's map at (x - d, y) (bilinear) agrees with
-       d within ``lr_max_diff`` px.
+    4. with ``right_disparity``: the right view's map at (x - d, y) (bilinear) does not
+       disagree with d by more than ``lr_max_diff`` px (where the right map has no value
+       there is no evidence against d, and the lookup is kept).
 
     Args:
         disparity: (H, W) float32 left disparity map (px), NaN where invalid.
@@ -679,8 +680,10 @@ def lookup_disparities(
         right_values = _bilinear(
             np.asarray(right_disparity, np.float32), x_safe - np.where(passed, values, 0), y_safe
         )
-        with np.errstate(invalid="ignore"):
-            consistent = np.abs(right_values - values) <= lr_max_diff
+        # Only a disagreement rejects: where the right map has no value (its own right
+        # band x_r >= W - min_disparity - num_disparities, occlusions) there is no evidence
+        # against the left value, which already passed SGBM's disp12MaxDiff check.
+        consistent = ~(np.abs(right_values - values) > lr_max_diff)
     is_inconsistent = passed & ~consistent
     kept = passed & consistent
 

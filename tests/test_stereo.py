@@ -181,12 +181,15 @@ def test_lr_check_rejects_an_injected_inconsistency() -> None:
     left = np.full((100, 200), 12.0, np.float32)
     right = np.full((100, 200), 12.0, np.float32)
     right[:, 100:140] += 3.0  # right pixels 100..139 disagree; they match left x 112..151
-    corners = np.array([[60.0, 50.0], [120.5, 50.0], [140.2, 30.0], [170.0, 20.0]], np.float32)
+    right[:, :20] = np.nan  # no right value: no evidence against the left one
+    corners = np.array(
+        [[60.0, 50.0], [120.5, 50.0], [140.2, 30.0], [170.0, 20.0], [25.0, 40.0]], np.float32
+    )
     without = lookup_disparities(left, corners)
-    assert without.counts.kept == 4
+    assert without.counts.kept == 5
     checked = lookup_disparities(left, corners, right_disparity=right)
     assert checked.counts.inconsistent == 2
-    np.testing.assert_array_equal(checked.indices, [0, 3])
+    np.testing.assert_array_equal(checked.indices, [0, 3, 4])
 
 
 def test_bad_lookup_arguments_raise() -> None:
