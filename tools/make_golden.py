@@ -10,8 +10,10 @@ stated in the JSON itself.
 
 Usage::
 
-    python tools/make_golden.py                 # regenerate tests/data/golden_synth.*
-    python tools/make_golden.py --check         # compare a fresh render with the JSON
+    PYTHONPATH=. python tools/make_golden.py            # regenerate tests/data/golden_synth.*
+    PYTHONPATH=. python tools/make_golden.py --check    # compare a fresh render with the JSON
+
+(from the repository root; or ``pip install -e .`` and drop ``PYTHONPATH=.``).
 """
 
 from __future__ import annotations
@@ -227,7 +229,7 @@ def render_golden(log_path: Path, *, seed: int, frames: int, scale: float) -> di
     return {
         "format": FORMAT,
         "generator": {"seed": seed, "frames": frames, "scale": scale},
-        "command": "python tools/make_golden.py",
+        "command": "PYTHONPATH=. python tools/make_golden.py",
         "tolerance": TOLERANCE,
         **summarize_log(log_path),
     }
