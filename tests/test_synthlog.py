@@ -128,3 +128,19 @@ def test_shape_mismatch_is_refused_and_nothing_written(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match=r"Expected `depth` of frame 0 to have shape \(10, 16\)"):
         write_synthetic_log([bad_depth], tmp_path / "s.mcap")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_renderer_frames_write_and_read_back(tmp_path: Path) -> None:
+    synth = pytest.importorskip("pcainterp_stream.synth", reason="synthetic renderer missing")
+    config = synth.SynthConfig(seed=1, frames=2, scale=0.125)
+    frames = list(synth.generate(config))
+    target = tmp_path / "render.bag"
+    summary = write_synthetic_log(iter(frames), target)
+    assert summary.topic_counts == dict.fromkeys(TOPICS, 2)
+    with AnyReader([target]) as reader:
+        depths = [
+            rosmsg.image_array(reader.deserialize(d, c.msgtype))
+            for c, _, d in reader.messages()
+            if c.topic == DEPTH
+        ]
+    np.testing.assert_array_equal(depths[1], frames[1].depth)
