@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -228,16 +229,21 @@ def generate(config: SynthConfig) -> Iterator[SynthFrame]:
     camera = config.camera
     noise = _NoiseSource(config.seed, camera.width * camera.height) if config.noise else None
     shape = (camera.height, camera.width)
-    for index in range(config.frames):
-        pose = camera_pose(world, config, index)
-        left = render_view(world, camera, pose)
-        right = render_view(world, camera, right_pose(pose, camera.baseline))
-        yield SynthFrame(
-            index=index,
-            stamp_ns=config.start_time_ns + index * FRAME_PERIOD_NS,
-            left=_sensor(left.image, noise.next(shape) if noise else None),
-            right=_sensor(right.image, noise.next(shape) if noise else None),
-            depth=left.depth,
-            camera_to_world=pose,
-            camera=camera,
-        )
+    # The right view renders in a second thread while this one renders the left (numpy
+    # releases the GIL); both are pure functions of the world and pose, so the result does
+    # not depend on the scheduling.
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        for index in range(config.frames):
+            pose = camera_pose(world, config, index)
+            right_job = pool.submit(render_view, world, camera, right_pose(pose, camera.baseline))
+            left = render_view(world, camera, pose)
+            right = right_job.result()
+            yield SynthFrame(
+                index=index,
+                stamp_ns=config.start_time_ns + index * FRAME_PERIOD_NS,
+                left=_sensor(left.image, noise.next(shape) if noise else None),
+                right=_sensor(right.image, noise.next(shape) if noise else None),
+                depth=left.depth,
+                camera_to_world=pose,
+                camera=camera,
+            )

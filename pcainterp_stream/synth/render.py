@@ -38,6 +38,7 @@ from pcainterp_stream.synth.world import (
     MATERIAL_WINDOWS,
     ROAD_HALF_WIDTH,
     SIDEWALK_WIDTH,
+    BlockTable,
     Material,
     World,
 )
@@ -50,9 +51,9 @@ TEXEL = 0.015
 #: Macro-variation tile texel (m): breaks the repetition of the fine tiles.
 MACRO_TEXEL = TEXEL * 19.0
 #: Ground march: first sample depth (m), ratio between samples, number of samples.
-_MARCH_START = 1.0
-_MARCH_RATIO = 1.045
-_MARCH_SAMPLES = 190  # reaches ~4.2 km
+_MARCH_START = 2.5
+_MARCH_RATIO = 1.065
+_MARCH_SAMPLES = 120  # reaches ~4.4 km
 #: Objects are generated up to this far ahead along the road (m).
 OBJECT_RANGE = 350.0
 #: Nearest allowed hit (m).
@@ -95,6 +96,11 @@ def _mip_level(footprint_texels: F32) -> npt.NDArray[np.int32]:
     return np.clip(level, 0, textures.TILE_LOG2).astype(np.int32)
 
 
+def _column_of_pixel(width: int, height: int) -> npt.NDArray[np.intp]:
+    """Return the column index of every pixel of a (W, H) column-major image, flattened."""
+    return np.repeat(np.arange(width, dtype=np.intp), height)
+
+
 def render_view(
     world: World,
     camera: StereoCamera,
@@ -103,6 +109,9 @@ def render_view(
     max_layers: int = 8,
 ) -> View:
     """Ray-cast one view of the world.
+
+    Internally the image is processed column-major, (W, H), so that a column's pixels are
+    contiguous; the result is transposed to (H, W) at the end.
 
     Args:
         world: the procedural world.
@@ -115,7 +124,7 @@ def render_view(
         The view's image and depth.
 
     Raises:
-        ValueError: if the pose is not a level (4, 4) rigid transform.
+        ValueError: if the pose is not a level (4, 4) transform.
     """
     pose = np.asarray(camera_to_world, dtype=np.float64)
     if pose.shape != (4, 4):
@@ -123,6 +132,7 @@ def render_view(
     if abs(pose[2, 1] + 1.0) > 1e-9:
         raise ValueError("camera_to_world must be level: its y axis must be (0, 0, -1)")
     width, height = camera.width, camera.height
+    n_pixels = width * height
     centre = pose[:3, 3]
     right = pose[:3, 0]
     forward = pose[:3, 2]
@@ -138,165 +148,247 @@ def render_view(
     # ------------------------------------------------------------------ ground march
     sample_x = centre[0] + ray_x[:, None] * _DEPTHS  # (W, K)
     sample_y = centre[1] + ray_y[:, None] * _DEPTHS
-    table = world.road_table(float(sample_x.min()) - 2.0, float(sample_x.max()) + 2.0)
-    blocks = world.block_table(float(sample_x.min()) - 2.0, float(sample_x.max()) + 2.0)
+    x_low, x_high = float(sample_x.min()) - 2.0, float(sample_x.max()) + 2.0
+    table = world.road_table(x_low, x_high)
+    blocks = world.block_table(x_low, x_high)
     ground_z, ground_l = world.ground(table, blocks, sample_x, sample_y)
-    sample_row = camera.cy + camera.fy * (cam_z - ground_z) / _DEPTHS
-    envelope = np.minimum.accumulate(sample_row, axis=1)
-    np.clip(envelope, -2.0, height + 1.0, out=envelope)
+    envelope = camera.cy + camera.fy * (cam_z - ground_z) / _DEPTHS
+    np.minimum.accumulate(envelope, axis=1, out=envelope)
     envelope[:, 0] = height + 1.0  # the first sample covers the bottom rows
-    stride = float(height + 8)
     n_samples = _DEPTHS.shape[0]
-    keys = (column * stride)[:, None] - envelope  # (W, K), ascending when flattened
-    # Queries in (W, H) layout: every pixel row of every column.
-    query = (column * stride)[:, None] - row[None, :]
-    upper = np.searchsorted(keys.ravel(), query.ravel(), side="right").reshape(width, height)
-    ground_sky = upper % n_samples == 0
-    upper[ground_sky] -= 1
+    # Sample k (k >= 1) covers the rows ceil(envelope_k) .. ceil(envelope_{k-1}) - 1 of its
+    # column (the envelope is non-increasing in k); rows above the last sample are sky and
+    # get the sentinel index n_samples. One np.repeat lays out every column bottom-up.
+    edges = np.clip(np.ceil(envelope), 0.0, float(height)).astype(np.intp)
+    covered = np.empty((width, n_samples + 1), dtype=np.intp)
+    covered[:, 0] = 0
+    covered[:, 1:n_samples] = edges[:, :-1] - edges[:, 1:]
+    covered[:, n_samples] = edges[:, -1]
+    sample_of_row = np.repeat(
+        np.tile(np.arange(n_samples + 1, dtype=np.intp), width), covered.ravel()
+    ).reshape(width, height)[:, ::-1]
+    ground_sky = sample_of_row == n_samples
+    upper = np.minimum(sample_of_row, n_samples - 1) + (
+        np.arange(width, dtype=np.intp) * n_samples
+    )[:, None]
     lower = upper - 1
-    keys_flat = keys.ravel()
-    key_low = keys_flat[lower]
-    span = np.maximum(keys_flat[upper] - key_low, 1e-9)
-    weight = ((query - key_low) / span).astype(np.float32)
-    inverse_depth = (1.0 / _DEPTHS).astype(np.float32)
-    inv_flat = np.tile(inverse_depth, width)
-    inv_low = inv_flat[lower]
-    depth_ground = 1.0 / (inv_low + weight * (inv_flat[upper] - inv_low))
-    depth_ground[ground_sky] = np.inf
-    lateral_flat = ground_l.astype(np.float32).ravel()
-    lat_low = lateral_flat[lower]
-    lateral = lat_low + weight * (lateral_flat[upper] - lat_low)  # (W, H) float32
+    # One gather of (envelope row, inverse depth, lateral) for both bracketing samples.
+    fields = np.stack(
+        [
+            envelope.ravel(),
+            np.tile(1.0 / _DEPTHS, width),
+            ground_l.ravel(),
+        ],
+        axis=1,
+    ).astype(np.float32)
+    low_fields = np.take(fields, lower.ravel(), axis=0)
+    high_fields = np.take(fields, upper.ravel(), axis=0)
+    span = low_fields[:, 0] - high_fields[:, 0]
+    row_f32 = np.tile(row.astype(np.float32), width)
+    weight = (low_fields[:, 0] - row_f32) / np.maximum(span, np.float32(1e-6))
+    inverse_depth = low_fields[:, 1] + weight * (high_fields[:, 1] - low_fields[:, 1])
+    # +0 (depth +inf) where the column sees no ground; abs turns a -0 into +0.
+    inverse_depth = np.abs(inverse_depth * ~ground_sky.ravel())
+    with np.errstate(divide="ignore"):
+        depth = np.float32(1.0) / inverse_depth
 
     # ------------------------------------------------------------------ vertical objects
     layers = _object_layers(world, camera, centre, forward, ray_x, ray_y, max_layers)
-
-    fy = camera.fy
-    if layers is None:
-        depth = depth_ground
-        is_object = np.zeros((width, height), dtype=bool)
-        flat_index = None
-    else:
+    is_object = np.zeros(n_pixels, dtype=bool)
+    layer_index = np.zeros(n_pixels, dtype=np.intp)
+    if layers is not None:
         n_layers = layers.depth.shape[1] - 1
-        top_row = np.ceil(camera.cy + fy * (cam_z - layers.top) / layers.depth)
-        bottom_row = np.floor(camera.cy + fy * (cam_z - layers.bottom) / layers.depth)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            top_row = np.ceil(camera.cy + camera.fy * (cam_z - layers.top) / layers.depth)
+            bottom_row = np.floor(camera.cy + camera.fy * (cam_z - layers.bottom) / layers.depth)
         finite = np.isfinite(layers.depth)
-        top_row = np.where(finite, top_row, height).astype(np.int32)
-        bottom_row = np.where(finite, bottom_row, -1).astype(np.int32)
-        row_index = np.arange(height, dtype=np.int32)[None, :]
-        paint = np.full((width, height), n_layers, dtype=np.int32)
-        for k in range(n_layers - 1, -1, -1):
+        top_row = np.clip(np.where(finite, top_row, height), -1, height).astype(np.int16)
+        bottom_row = np.clip(np.where(finite, bottom_row, -1), -1, height).astype(np.int16)
+        row_index = np.arange(height, dtype=np.int16)[None, :]
+        # The nearest covering layer k wins: nearest = n_layers - max_k covered_k (n_layers - k).
+        closeness = np.zeros((width, height), dtype=np.uint8)
+        for k in range(n_layers):
             covered = (row_index >= top_row[:, k : k + 1]) & (row_index <= bottom_row[:, k : k + 1])
-            np.copyto(paint, k, where=covered)
-        flat_index = paint + (np.arange(width, dtype=np.int32) * (n_layers + 1))[:, None]
-        depth_object = layers.depth.astype(np.float32).ravel()[flat_index]
-        is_object = depth_object < depth_ground
-        depth = np.where(is_object, depth_object, depth_ground)
+            np.maximum(closeness, covered * np.uint8(n_layers - k), out=closeness)
+        layer_index = (
+            (n_layers - closeness.astype(np.intp))
+            + (np.arange(width, dtype=np.intp) * (n_layers + 1))[:, None]
+        ).ravel()
+        depth_object = np.take(layers.depth.astype(np.float32).ravel(), layer_index)
+        is_object = depth_object < depth
+        np.copyto(depth, depth_object, where=is_object)
     sky = np.isinf(depth)
 
-    # ------------------------------------------------------------------ surface attributes
-    depth_safe = np.where(sky, np.float32(1e4), depth).astype(np.float32)
-    period = textures.TILE_SIZE * TEXEL
-    # Ground texture coordinates: world x, y in texels, camera offset reduced mod the period.
-    origin_x = float(np.fmod(centre[0], period))
-    origin_y = float(np.fmod(centre[1], period))
-    rel_x = depth_safe * ray_x.astype(np.float32)[:, None]
-    rel_y = depth_safe * ray_y.astype(np.float32)[:, None]
-    s_coord = (rel_x + np.float32(origin_x)) * np.float32(1.0 / TEXEL)
-    t_coord = (rel_y + np.float32(origin_y)) * np.float32(1.0 / TEXEL)
-    world_x = rel_x + np.float32(centre[0])  # along-road coordinate u of ground pixels
-    # Ground material from the lateral coordinate.
-    distance = np.abs(lateral)
-    side_street = blocks.in_side_street(world_x)
-    sidewalk_zone = blocks.has_sidewalk(world_x) > 0
-    material = np.where(
-        (distance < ROAD_HALF_WIDTH) | side_street,
-        Material.ASPHALT,
-        np.where(
-            sidewalk_zone & (distance < ROAD_HALF_WIDTH + SIDEWALK_WIDTH),
-            Material.PAVEMENT,
-            Material.GRASS,
-        ),
-    ).astype(np.intp)
+    column_of = _column_of_pixel(width, height)
     illumination = world.illumination
-    ground_shade = illumination.ambient + (1.0 - illumination.ambient) * illumination.sun[2]
-    albedo = np.where(
-        material == Material.ASPHALT,
-        np.float32(95.0),
-        np.where(material == Material.PAVEMENT, np.float32(135.0), np.float32(105.0)),
-    ).astype(np.float32)
-    shade = np.full((width, height), np.float32(ground_shade), dtype=np.float32)
-    footprint = depth_safe * np.float32(1.0 / camera.fx)
-    # Lane markings (anti-aliased by coverage over the pixel footprint across the line).
-    on_road = (distance < ROAD_HALF_WIDTH) & ~side_street
-    inv_foot = np.float32(1.0) / np.maximum(footprint, np.float32(1e-4))
-    centre_line = np.clip((0.06 - distance) * inv_foot + 0.5, 0.0, 1.0)
-    dashes = np.fmod(np.abs(world_x), np.float32(9.0)) < 3.0
-    edge_line = np.clip((0.08 - np.abs(distance - LANE_EDGE)) * inv_foot + 0.5, 0.0, 1.0)
-    paint_amount = np.where(on_road, centre_line * dashes + edge_line, np.float32(0.0))
-    kerb = np.clip((0.18 - np.abs(distance - ROAD_HALF_WIDTH - 0.1)) * inv_foot + 0.5, 0.0, 1.0)
-    paint_amount += np.where(sidewalk_zone & ~side_street, kerb * np.float32(0.35), 0.0)
-
-    if layers is not None and flat_index is not None:
-        n_layers = layers.depth.shape[1] - 1
-        obj_material = layers.material.ravel()[flat_index]
-        material = np.where(is_object, obj_material, material)
-        surface_u = layers.surface_u.astype(np.float32).ravel()[flat_index]
-        height_world = np.float32(cam_z) - depth_safe * slope_y.astype(np.float32)[None, :]
-        s_coord = np.where(is_object, surface_u * np.float32(1.0 / TEXEL), s_coord)
-        t_coord = np.where(is_object, height_world * np.float32(1.0 / TEXEL), t_coord)
-        albedo = np.where(is_object, layers.albedo.astype(np.float32).ravel()[flat_index], albedo)
-        shade = np.where(is_object, layers.shade.astype(np.float32).ravel()[flat_index], shade)
-        foot_scale = layers.foot_scale.astype(np.float32).ravel()[flat_index]
-        footprint = np.where(is_object, depth_safe * foot_scale, footprint)
-        paint_amount = np.where(is_object, np.float32(0.0), paint_amount)
-        windowed = np.flatnonzero(
-            (MATERIAL_WINDOWS[obj_material] + MATERIAL_CAR_WINDOWS[obj_material] > 0).ravel()
-            & is_object.ravel()
-        )
-        window_dark = np.zeros(width * height, dtype=np.float32)
-        if windowed.size:
-            window_dark[windowed] = _windows(
-                obj_material.ravel()[windowed],
-                surface_u.ravel()[windowed],
-                height_world.ravel()[windowed]
-                - layers.bottom.astype(np.float32).ravel()[flat_index.ravel()[windowed]],
-                footprint.ravel()[windowed],
-            )
-        window_dark = window_dark.reshape(width, height)
-    else:
-        window_dark = np.zeros((width, height), dtype=np.float32)
-
-    # ------------------------------------------------------------------ shading
     bank = world.textures
-    footprint_texels = footprint * np.float32(1.0 / TEXEL)
-    level = _mip_level(footprint_texels)
-    tile = MATERIAL_TILE[material]
-    fine = bank.sample(tile.ravel(), s_coord.ravel(), t_coord.ravel(), level.ravel())
-    macro_scale = np.float32(TEXEL / MACRO_TEXEL)
-    macro_level = _mip_level(footprint_texels * macro_scale)
-    macro = bank.sample(
-        np.full(fine.shape, textures.TILE_MACRO, dtype=np.intp),
-        (s_coord * macro_scale).ravel(),
-        (t_coord * macro_scale).ravel(),
-        macro_level.ravel(),
-    )
-    contrast = MATERIAL_CONTRAST[material].ravel()
-    grey = albedo.ravel() + contrast * (fine + np.float32(0.8) * macro)
-    grey += paint_amount.ravel() * (np.float32(215.0) - grey)
-    grey -= window_dark.ravel() * (grey - np.float32(35.0))
-    grey *= shade.ravel() * np.float32(illumination.gain)
-    haze = depth_safe.ravel() / (depth_safe.ravel() + np.float32(_HAZE_HALF_DEPTH))
-    grey += haze * (np.float32(_HAZE_GREY) - grey)
+    image = np.empty(n_pixels, dtype=np.float32)
     sky_row = illumination.sky_top + (illumination.sky_horizon - illumination.sky_top) * np.clip(
         row / max(camera.cy, 1.0), 0.0, 1.0
     )
-    sky_grey = np.broadcast_to(sky_row.astype(np.float32)[None, :], (width, height))
-    image = np.where(sky, sky_grey, grey.reshape(width, height))
-    depth_out = np.where(sky, np.float32(np.nan), depth).astype(np.float32)
+    sky_pixels = np.flatnonzero(sky)
+    image[sky_pixels] = np.tile(sky_row.astype(np.float32), width)[sky_pixels]
+
+    # ------------------------------------------------------------------ ground pixels
+    ground_pixels = np.flatnonzero(~(is_object | sky))
+    if ground_pixels.size:
+        z = np.take(depth, ground_pixels)
+        columns = np.take(column_of, ground_pixels)
+        g_weight = np.take(weight, ground_pixels)
+        lat_low = np.take(low_fields[:, 2], ground_pixels)
+        lateral = lat_low + g_weight * (np.take(high_fields[:, 2], ground_pixels) - lat_low)
+        rel_x = z * np.take(ray_x.astype(np.float32), columns)
+        rel_y = z * np.take(ray_y.astype(np.float32), columns)
+        image[ground_pixels] = _shade_ground(
+            world, blocks, centre, camera, z, rel_x, rel_y, lateral
+        )
+
+    # ------------------------------------------------------------------ object pixels
+    object_pixels = np.flatnonzero(is_object)
+    if layers is not None and object_pixels.size:
+        # One gather of every per-layer attribute the pixels need.
+        attributes = np.take(
+            np.stack(
+                [layers.surface_u, layers.foot_scale, layers.albedo, layers.shade,
+                 layers.bottom, layers.material],
+                axis=2,
+            ).astype(np.float32).reshape(-1, 6),
+            np.take(layer_index, object_pixels),
+            axis=0,
+        )
+        surface_u = attributes[:, 0]
+        material = attributes[:, 5].astype(np.intp)
+        z = np.take(depth, object_pixels)
+        rows = object_pixels - np.take(column_of, object_pixels) * height
+        height_world = np.float32(cam_z) - z * np.take(slope_y.astype(np.float32), rows)
+        footprint = z * attributes[:, 1]
+        level = _mip_level(footprint * np.float32(1.0 / TEXEL))
+        s_coord = surface_u * np.float32(1.0 / TEXEL)
+        t_coord = height_world * np.float32(1.0 / TEXEL)
+        texture = _texture(
+            bank, np.take(MATERIAL_TILE, material), s_coord, t_coord, footprint, level
+        )
+        grey = attributes[:, 2] + np.take(MATERIAL_CONTRAST, material) * texture
+        windowed = np.flatnonzero(
+            np.take(MATERIAL_WINDOWS + MATERIAL_CAR_WINDOWS, material)
+        )
+        if windowed.size:
+            dark = _windows(
+                material[windowed],
+                surface_u[windowed],
+                height_world[windowed] - attributes[windowed, 4],
+                footprint[windowed],
+            )
+            grey[windowed] -= dark * (grey[windowed] - np.float32(35.0))
+        grey *= attributes[:, 3] * np.float32(illumination.gain)
+        image[object_pixels] = _haze(grey, z)
+
+    depth[sky_pixels] = np.nan
     return View(
-        image=np.ascontiguousarray(image.T, dtype=np.float32),
-        depth=np.ascontiguousarray(depth_out.T),
+        image=np.ascontiguousarray(image.reshape(width, height).T),
+        depth=np.ascontiguousarray(depth.reshape(width, height).T),
     )
+
+
+def _haze(grey: F32, depth: F32) -> F32:
+    """Mix distant surfaces towards the haze grey (atmospheric perspective)."""
+    amount = depth / (depth + np.float32(_HAZE_HALF_DEPTH))
+    result: F32 = grey + amount * (np.float32(_HAZE_GREY) - grey)
+    return result
+
+
+def _texture(
+    bank: textures.TextureBank,
+    tile: npt.NDArray[np.intp],
+    s_coord: F32,
+    t_coord: F32,
+    footprint: F32,
+    level: npt.NDArray[np.int32],
+) -> F32:
+    """Fine tile plus the macro-variation tile at the same surface point."""
+    fine = bank.sample(tile, s_coord, t_coord, level)
+    scale = np.float32(TEXEL / MACRO_TEXEL)
+    macro_level = np.maximum(level - 4, 0).astype(np.int32)
+    macro = bank.sample(
+        np.full(tile.shape, textures.TILE_MACRO, dtype=np.intp),
+        s_coord * scale,
+        t_coord * scale,
+        macro_level,
+    )
+    result: F32 = fine + np.float32(0.8) * macro
+    return result
+
+
+def _shade_ground(
+    world: World,
+    blocks: BlockTable,
+    centre: F64,
+    camera: StereoCamera,
+    depth: F32,
+    rel_x: F32,
+    rel_y: F32,
+    lateral: F32,
+) -> F32:
+    """Grey level of ground pixels: asphalt with markings, pavement and kerb, grass.
+
+    Args:
+        world: the world (textures, lighting).
+        blocks: block table covering the pixels.
+        centre: (3,) float64 camera centre (m).
+        camera: intrinsics.
+        depth: (n,) float32 z-depth of the pixels (m).
+        rel_x: (n,) float32 world x of the ground point minus the camera's (m).
+        rel_y: (n,) float32 same for y.
+        lateral: (n,) float32 lateral road coordinate (m).
+
+    Returns:
+        (n,) float32 grey levels.
+    """
+    period = textures.TILE_SIZE * TEXEL
+    origin_x = np.float32(np.fmod(centre[0], period))
+    origin_y = np.float32(np.fmod(centre[1], period))
+    s_coord = (rel_x + origin_x) * np.float32(1.0 / TEXEL)
+    t_coord = (rel_y + origin_y) * np.float32(1.0 / TEXEL)
+    along = rel_x + np.float32(centre[0])  # the along-road coordinate u
+    distance = np.abs(lateral)
+    sidewalk_zone = blocks.has_sidewalk(along) > 0
+    side_street = blocks.in_side_street(along)
+    on_road = distance < ROAD_HALF_WIDTH
+    on_pavement = sidewalk_zone & (distance < ROAD_HALF_WIDTH + SIDEWALK_WIDTH)
+    # ASPHALT = 0, PAVEMENT = 1, GRASS = 2.
+    paved = on_road | side_street
+    material = (~paved) * (2 - on_pavement.astype(np.intp))
+    footprint = depth * np.float32(1.0 / camera.fx)
+    level = _mip_level(footprint * np.float32(1.0 / TEXEL))
+    texture = _texture(
+        world.textures, np.take(MATERIAL_TILE, material), s_coord, t_coord, footprint, level
+    )
+    albedo = np.take(np.array([95.0, 135.0, 105.0], dtype=np.float32), material)
+    grey = albedo + np.take(MATERIAL_CONTRAST, material) * texture
+    # Lane markings and kerb stones, anti-aliased by coverage of the pixel footprint.
+    inv_foot = np.float32(1.0) / footprint
+    centre_line = np.clip((np.float32(0.06) - distance) * inv_foot + np.float32(0.5), 0.0, 1.0)
+    dash_phase = along * np.float32(1.0 / 9.0)
+    dashes = dash_phase - np.floor(dash_phase) < np.float32(1.0 / 3.0)
+    edge_line = np.clip(
+        (np.float32(0.08) - np.abs(distance - np.float32(LANE_EDGE))) * inv_foot
+        + np.float32(0.5),
+        0.0,
+        1.0,
+    )
+    kerb = np.clip(
+        (np.float32(0.18) - np.abs(distance - np.float32(ROAD_HALF_WIDTH + 0.1))) * inv_foot
+        + np.float32(0.5),
+        0.0,
+        1.0,
+    )
+    paint = (on_road & ~side_street) * (centre_line * dashes + edge_line)
+    paint += sidewalk_zone * (kerb * np.float32(0.35))
+    grey += paint * (np.float32(215.0) - grey)
+    illumination = world.illumination
+    ground_shade = illumination.ambient + (1.0 - illumination.ambient) * illumination.sun[2]
+    grey *= np.float32(ground_shade * illumination.gain)
+    return _haze(grey, depth)
 
 
 def _windows(
@@ -357,108 +449,126 @@ def _object_layers(
     ray_y: F64,
     max_layers: int,
 ) -> _Layers | None:
-    """Intersect every column's horizontal ray with the object footprints near the camera."""
+    """Intersect every column's horizontal ray with the object footprints near the camera.
+
+    Only the hit depths are computed for all columns x objects; the surface attributes are
+    computed afterwards for the ``max_layers`` nearest hits of each column.
+    """
     objects = world.objects(float(centre[0]) - 30.0, float(centre[0]) + OBJECT_RANGE)
     sun = world.illumination.sun
     ambient = world.illumination.ambient
-    right_x, right_y = forward[1], -forward[0]
+    right_2d = (float(forward[1]), float(-forward[0]))
     half_fov = (camera.width - camera.cx + 2.0) / camera.fx, (camera.cx + 2.0) / camera.fx
-    ray_norm = np.sqrt(ray_x * ray_x + ray_y * ray_y)[:, None]
     rx = ray_x[:, None]
     ry = ray_y[:, None]
+    ray_norm_sq = ray_x * ray_x + ray_y * ray_y
 
-    # Segments ----------------------------------------------------------------
+    # Segments: solve C + z h = P0 + t E for (z, t) by Cramer's rule.
     start = objects.seg_start - centre[:2]
     end = objects.seg_end - centre[:2]
-    keep = _in_view(start, end, forward, (right_x, right_y), half_fov, margin=0.0)
-    start, end = start[keep], end[keep]
-    edge = end - start
-    length = np.sqrt((edge * edge).sum(axis=1))
-    det = ry * edge[:, 0] - rx * edge[:, 1]  # (W, n)
+    keep = np.flatnonzero(_in_view(start, end, forward, right_2d, half_fov, margin=0.0))
+    start, edge = start[keep], end[keep] - start[keep]
+    numerator = start[:, 1] * edge[:, 0] - start[:, 0] * edge[:, 1]
     with np.errstate(divide="ignore", invalid="ignore"):
-        inv_det = 1.0 / det
-        seg_depth = (start[:, 1] * edge[:, 0] - start[:, 0] * edge[:, 1]) * inv_det
-        along = (rx * start[:, 1] - ry * start[:, 0]) * inv_det
-    hit = (along >= 0.0) & (along <= 1.0) & (seg_depth > _NEAR)
-    seg_depth = np.where(hit, seg_depth, np.inf)
-    seg_u = objects.seg_u0[keep] + along * length
-    normal = np.stack([edge[:, 1], -edge[:, 0]], axis=1) / np.maximum(length, 1e-9)[:, None]
-    facing = np.where((normal * start).sum(axis=1) > 0, -1.0, 1.0)  # towards the camera
-    normal *= facing[:, None]
-    seg_shade = ambient + (1 - ambient) * np.maximum(normal @ sun[:2], 0.0)
-    seg_cos = np.abs(rx * normal[:, 0] + ry * normal[:, 1]) / ray_norm
+        det = ry * edge[:, 0] - rx * edge[:, 1]  # (W, n)
+        seg_depth = numerator / det
+        along = (rx * start[:, 1] - ry * start[:, 0]) / det
+    seg_depth[~((along >= 0.0) & (along <= 1.0) & (seg_depth > _NEAR))] = np.inf
 
-    # Cylinders ---------------------------------------------------------------
+    # Cylinders: nearest root of |C + z h - Q|^2 = rho^2.
     offset = objects.cyl_centre - centre[:2]
-    radius = objects.cyl_radius
-    keep_c = _in_view(offset, offset, forward, (right_x, right_y), half_fov, margin=radius)
-    offset, radius = offset[keep_c], radius[keep_c]
-    along_c = rx * offset[:, 0] + ry * offset[:, 1]  # (W, m)
-    quad_a = ray_norm * ray_norm
-    quad_c = (offset * offset).sum(axis=1) - radius * radius
-    disc = along_c * along_c - quad_a * quad_c
-    cyl_depth = (along_c - np.sqrt(np.maximum(disc, 0.0))) / quad_a
-    cyl_depth = np.where((disc > 0) & (cyl_depth > _NEAR), cyl_depth, np.inf)
-    depth_safe = np.where(np.isfinite(cyl_depth), cyl_depth, 0.0)
-    normal_x = (depth_safe * rx - offset[:, 0]) / radius
-    normal_y = (depth_safe * ry - offset[:, 1]) / radius
-    # Pseudo-angle (exact arithmetic), seam facing +x (away from the approaching camera).
-    away = -normal_x
-    total = np.abs(away) + np.abs(normal_y) + 1e-12
-    pseudo = np.where(
-        away >= 0, normal_y / total, np.sign(normal_y) * (2.0 - np.abs(normal_y) / total)
+    keep_c = np.flatnonzero(
+        _in_view(offset, offset, forward, right_2d, half_fov, margin=objects.cyl_radius)
     )
-    cyl_u = pseudo * radius * (np.pi / 2.0) + objects.cyl_albedo[keep_c] * 3.7
-    cyl_shade = ambient + (1 - ambient) * np.maximum(normal_x * sun[0] + normal_y * sun[1], 0.0)
-    cyl_cos = np.abs(rx * normal_x + ry * normal_y) / ray_norm
+    offset, radius = offset[keep_c], objects.cyl_radius[keep_c]
+    along_c = rx * offset[:, 0] + ry * offset[:, 1]  # (W, m)
+    quad_c = (offset * offset).sum(axis=1) - radius * radius
+    disc = along_c * along_c - ray_norm_sq[:, None] * quad_c
+    cyl_depth = (along_c - np.sqrt(np.maximum(disc, 0.0))) / ray_norm_sq[:, None]
+    cyl_depth[~((disc > 0) & (cyl_depth > _NEAR))] = np.inf
 
     depth = np.concatenate([seg_depth, cyl_depth], axis=1)
-    n_candidates = depth.shape[1]
-    if n_candidates == 0:
+    n_seg = keep.size
+    if depth.shape[1] == 0:
         return None
     n_hits = int(np.isfinite(depth).sum(axis=1).max())
     if n_hits == 0:
         return None
     n_layers = min(max_layers, n_hits)
-    if n_candidates > n_layers:
+    if depth.shape[1] > n_layers:
         chosen = np.argpartition(depth, n_layers - 1, axis=1)[:, :n_layers]
     else:
-        chosen = np.broadcast_to(np.arange(n_candidates), depth.shape).copy()
-    order = np.argsort(np.take_along_axis(depth, chosen, axis=1), axis=1, kind="stable")
-    chosen = np.take_along_axis(chosen, order, axis=1)
+        chosen = np.broadcast_to(np.arange(depth.shape[1]), depth.shape).copy()
+    picked_depth = np.take_along_axis(depth, chosen, axis=1)
+    order = np.argsort(picked_depth, axis=1, kind="stable")
+    chosen = np.take_along_axis(chosen, order, axis=1)  # (W, L) candidate index
+    picked_depth = np.take_along_axis(picked_depth, order, axis=1)
+    valid = np.isfinite(picked_depth)
+    z = np.where(valid, picked_depth, 0.0)
+    is_seg = chosen < n_seg
+    seg_i = np.where(is_seg, chosen, 0)
+    cyl_i = np.where(is_seg, 0, chosen - n_seg)
+    hit_x = z * rx
+    hit_y = z * ry
+    # Per-object parameters of the picked hits (segments and cylinders side by side).
+    object_index = np.concatenate([keep, keep_c])
+    seg_of = keep[seg_i] if keep.size else np.zeros_like(seg_i)
+    cyl_of = keep_c[cyl_i] if keep_c.size else np.zeros_like(cyl_i)
+    del object_index
+    if keep.size:
+        p0 = start[seg_i]
+        e = edge[seg_i]
+        length = np.sqrt((e * e).sum(axis=2))
+        t = ((hit_x - p0[..., 0]) * e[..., 0] + (hit_y - p0[..., 1]) * e[..., 1]) / np.maximum(
+            length * length, 1e-12
+        )
+        seg_u = objects.seg_u0[seg_of] + t * length
+        seg_nx = e[..., 1] / np.maximum(length, 1e-9)
+        seg_ny = -e[..., 0] / np.maximum(length, 1e-9)
+    else:
+        seg_u = seg_nx = seg_ny = np.zeros_like(z)
+    if keep_c.size:
+        rho = radius[cyl_i]
+        cyl_nx = (hit_x - offset[cyl_i, 0]) / rho
+        cyl_ny = (hit_y - offset[cyl_i, 1]) / rho
+        # Pseudo-angle (exact arithmetic), seam facing +x (away from the approaching camera).
+        away = -cyl_nx
+        total = np.abs(away) + np.abs(cyl_ny) + 1e-12
+        pseudo = np.where(
+            away >= 0, cyl_ny / total, np.sign(cyl_ny) * (2.0 - np.abs(cyl_ny) / total)
+        )
+        cyl_u = pseudo * rho * (np.pi / 2.0) + objects.cyl_albedo[cyl_of] * 3.7
+    else:
+        cyl_u = cyl_nx = cyl_ny = np.zeros_like(z)
+    normal_x = np.where(is_seg, seg_nx, cyl_nx)
+    normal_y = np.where(is_seg, seg_ny, cyl_ny)
+    # Turn segment normals towards the camera (the ray comes from the camera: n.h < 0).
+    flip = np.where(normal_x * rx + normal_y * ry > 0, -1.0, 1.0)
+    normal_x *= flip
+    normal_y *= flip
+    cos = np.abs(normal_x * rx + normal_y * ry) / np.sqrt(ray_norm_sq)[:, None]
+    shade = ambient + (1.0 - ambient) * np.maximum(normal_x * sun[0] + normal_y * sun[1], 0.0)
 
-    def gather(per_column: F64, per_object: F64 | None = None) -> F64:
-        values = per_column if per_object is None else np.broadcast_to(per_object, depth.shape)
-        picked = np.take_along_axis(values, chosen, axis=1)
-        return np.concatenate([picked, np.zeros((picked.shape[0], 1))], axis=1)
+    def pick(seg_values: npt.NDArray[np.generic], cyl_values: npt.NDArray[np.generic]) -> F64:
+        values = np.where(is_seg, seg_values[seg_of], cyl_values[cyl_of]) if (
+            keep.size and keep_c.size
+        ) else (seg_values[seg_of] if keep.size else cyl_values[cyl_of])
+        result: F64 = values.astype(np.float64)
+        return result
 
-    def per_object(seg_values: F64, cyl_values: F64) -> F64:
-        return np.concatenate([seg_values, cyl_values])
+    def with_empty(values: F64, fill: float = 0.0) -> F64:
+        values = np.where(valid, values, fill)
+        return np.concatenate([values, np.full((values.shape[0], 1), fill)], axis=1)
 
-    picked_depth = gather(depth)
-    picked_depth[:, -1] = np.inf
-    cos = gather(np.concatenate([seg_cos, cyl_cos], axis=1))
-    shade = gather(
-        np.concatenate([np.broadcast_to(seg_shade, seg_depth.shape), cyl_shade], axis=1)
-    )
-    material = gather(
-        np.zeros(depth.shape),
-        per_object(
-            objects.seg_material[keep].astype(np.float64),
-            objects.cyl_material[keep_c].astype(np.float64),
-        ),
-    ).astype(np.intp)
     return _Layers(
-        depth=picked_depth,
-        top=gather(depth, per_object(objects.seg_top[keep], objects.cyl_top[keep_c])),
-        bottom=gather(depth, per_object(objects.seg_bottom[keep], objects.cyl_bottom[keep_c])),
-        surface_u=gather(np.concatenate([seg_u, cyl_u], axis=1)),
-        material=material,
-        albedo=gather(
-            depth, per_object(objects.seg_albedo[keep], objects.cyl_albedo[keep_c])
-        ),
-        shade=shade,
-        foot_scale=1.0 / (camera.fx * np.maximum(cos, 0.12)),
+        depth=with_empty(picked_depth, np.inf),
+        top=with_empty(pick(objects.seg_top, objects.cyl_top)),
+        bottom=with_empty(pick(objects.seg_bottom, objects.cyl_bottom)),
+        surface_u=with_empty(np.where(is_seg, seg_u, cyl_u)),
+        material=with_empty(pick(objects.seg_material, objects.cyl_material)).astype(np.intp),
+        albedo=with_empty(pick(objects.seg_albedo, objects.cyl_albedo)),
+        shade=with_empty(shade),
+        foot_scale=with_empty(1.0 / (camera.fx * np.maximum(cos, 0.12))),
     )
 
 

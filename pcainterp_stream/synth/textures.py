@@ -23,6 +23,9 @@ from scipy import ndimage
 TILE_SIZE = 512
 #: log2(TILE_SIZE): number of mip levels below level 0.
 TILE_LOG2 = 9
+_SHIFT = float(TILE_SIZE * 1024)
+_SIZE_LOG2 = np.arange(TILE_LOG2, -1, -1, dtype=np.int32)
+_MASK = (np.left_shift(1, _SIZE_LOG2) - 1).astype(np.int32)
 
 
 def _noise_tile(
@@ -99,17 +102,16 @@ class TextureBank:
         Returns:
             (n,) float32 texel values.
         """
-        # floor, then two's-complement masking wraps negative indices like positive ones; the
-        # period is TILE_SIZE level-0 texels at every level, so callers may reduce their
-        # coordinates modulo TILE_SIZE to keep float32 precise.
-        si = np.floor(s).astype(np.int32)
-        ti = np.floor(t).astype(np.int32)
-        size_log2 = TILE_LOG2 - level
-        mask = np.left_shift(1, size_log2) - 1
-        col = np.right_shift(si, level) & mask
-        row = np.right_shift(ti, level) & mask
-        index = self.level_base[tile, level] + np.left_shift(row, size_log2) + col
-        return self.texels[index]
+        # A shift by a multiple of TILE_SIZE (the period at every level) makes coordinates
+        # positive so truncation is floor; float32 keeps 1/16 texel at |s| < 2**19.
+        si = (s + np.float32(_SHIFT)).astype(np.int32)
+        ti = (t + np.float32(_SHIFT)).astype(np.int32)
+        size_log2 = np.take(_SIZE_LOG2, level)
+        mask = np.take(_MASK, level)
+        index = np.take(self.level_base.ravel(), tile * (TILE_LOG2 + 1) + level)
+        index += np.left_shift(np.right_shift(ti, level) & mask, size_log2)
+        index += np.right_shift(si, level) & mask
+        return np.take(self.texels, index)
 
 
 def make_texture_bank(rng: np.random.Generator) -> TextureBank:

@@ -20,6 +20,7 @@ hill grid), which are quantised (1e-6 m) before use; per-sample and per-pixel wo
 
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
 from dataclasses import dataclass
 from enum import IntEnum
@@ -215,6 +216,7 @@ class World:
         grid = ndimage.gaussian_filter(grid, 2.0, mode="wrap")
         grid /= max(float(np.abs(grid).max()), 1e-12)
         self._hill_grid = _quantise(grid)
+        self._hill_flat = np.pad(self._hill_grid, ((0, 1), (0, 1)), mode="wrap").ravel()
         self.hill_amplitude = float(rng.uniform(8.0, 30.0))
         azimuth = rng.uniform(0, 2 * np.pi)
         elevation = rng.uniform(np.radians(25), np.radians(60))
@@ -234,6 +236,10 @@ class World:
             sky_horizon=float(np.round(rng.uniform(215.0, 252.0), 3)),
         )
         self._blocks: OrderedDict[int, Block] = OrderedDict()
+        self._zones: dict[int, Zone] = {}
+        # Views may be rendered in threads (left and right at once): guard the caches.
+        self._lock = threading.RLock()
+        self._streets: dict[int, float] = {}
 
     # ----------------------------------------------------------------- road and ground
     def road_table(self, x_min: float, x_max: float) -> RoadTable:
@@ -288,17 +294,24 @@ class World:
         Returns:
             height z (m) and lateral offset l (m), float64 like ``x``.
         """
-        centre, _, cos_h, road_height = table.lookup(x)
-        lateral = (y - centre) * cos_h
+        position = np.clip(x - table.x0, 0.0, table.centre_y.shape[0] - 1.000001)
+        index = position.astype(np.intp)
+        weight = position - index
+
+        def lerp(values: F64) -> F64:
+            low = values[index]
+            result: F64 = low + weight * (values[index + 1] - low)
+            return result
+
+        lateral = (y - lerp(table.centre_y)) * lerp(table.cos_heading)
         distance = np.abs(lateral)
         # Kerb: a 0.12 m step at the road edge, ramped over 0.15 m, absent in the country
         # and across side streets.
         kerb = np.clip((distance - ROAD_HALF_WIDTH) * (1.0 / 0.15), 0.0, 1.0)
         kerb *= zones.has_sidewalk(x) * KERB_HEIGHT
         # Off-road hills: zero near the road, full amplitude 150 m away.
-        rise = np.clip((distance - 14.0) * (1.0 / 150.0), 0.0, 1.0)
-        hills = self._hills(x, y)
-        return road_height + kerb + rise * (self.hill_amplitude * hills), lateral
+        rise = np.clip((distance - 14.0) * (self.hill_amplitude / 150.0), 0.0, self.hill_amplitude)
+        return lerp(table.height) + kerb + rise * self._hills(x, y), lateral
 
     def _hills(self, x: F64, y: F64) -> F64:
         """Bilinear lookup of the periodic hill grid (values in [-1, 1])."""
@@ -308,13 +321,16 @@ class World:
         fy = np.floor(gy)
         wx = gx - fx
         wy = gy - fy
-        ix = fx.astype(np.intp) & (HILL_CELLS - 1)
-        iy = fy.astype(np.intp) & (HILL_CELLS - 1)
-        ix1 = (ix + 1) & (HILL_CELLS - 1)
-        iy1 = (iy + 1) & (HILL_CELLS - 1)
-        grid = self._hill_grid
-        top = grid[iy, ix] + wx * (grid[iy, ix1] - grid[iy, ix])
-        bottom = grid[iy1, ix] + wx * (grid[iy1, ix1] - grid[iy1, ix])
+        # The grid is stored with one wrapped extra row and column, flattened.
+        stride = HILL_CELLS + 1
+        flat = (fy.astype(np.intp) & (HILL_CELLS - 1)) * stride + (
+            fx.astype(np.intp) & (HILL_CELLS - 1)
+        )
+        grid = self._hill_flat
+        corner = grid[flat]
+        top = corner + wx * (grid[flat + 1] - corner)
+        below = grid[flat + stride]
+        bottom = below + wx * (grid[flat + stride + 1] - below)
         result: F64 = top + wy * (bottom - top)
         return result
 
@@ -322,6 +338,15 @@ class World:
     def zone_of_block(self, index: int) -> Zone:
         """Return the zone of the district that holds block ``index``."""
         district = index // BLOCKS_PER_DISTRICT
+        cached = self._zones.get(district)
+        if cached is None:
+            cached = self._zone_of_district(district)
+            if len(self._zones) > 4096:
+                self._zones.clear()
+            self._zones[district] = cached
+        return cached
+
+    def _zone_of_district(self, district: int) -> Zone:
         rng = np.random.default_rng([self.seed, 2, district + 2**31])
         if -1 <= district <= 0:
             return Zone.URBAN  # every drive starts in town
@@ -329,6 +354,10 @@ class World:
 
     def block(self, index: int) -> Block:
         """Return block ``index`` (cached; at most 24 blocks are kept)."""
+        with self._lock:
+            return self._block(index)
+
+    def _block(self, index: int) -> Block:
         cached = self._blocks.get(index)
         if cached is not None:
             self._blocks.move_to_end(index)
@@ -341,6 +370,10 @@ class World:
 
     def block_table(self, u_min: float, u_max: float) -> BlockTable:
         """Return per-block zone data covering [u_min, u_max] for vectorised lookups."""
+        with self._lock:
+            return self._block_table(u_min, u_max)
+
+    def _block_table(self, u_min: float, u_max: float) -> BlockTable:
         first = int(np.floor(u_min / BLOCK_LENGTH)) - 1
         last = int(np.floor(u_max / BLOCK_LENGTH)) + 1
         zones = []
@@ -348,7 +381,13 @@ class World:
         for index in range(first, last + 1):
             zone = self.zone_of_block(index)
             zones.append(int(zone))
-            streets.append(_side_street_u(self.seed, index, zone))
+            street = self._streets.get(index)
+            if street is None:
+                street = _side_street_u(self.seed, index, zone)
+                if len(self._streets) > 4096:
+                    self._streets.clear()
+                self._streets[index] = street
+            streets.append(street)
         return BlockTable(
             first=first,
             zone=np.array(zones, dtype=np.int64),
@@ -394,8 +433,11 @@ class BlockTable:
 
     def has_sidewalk(self, u: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
         """Return 1.0 where the road has sidewalks (town, not a side street), else 0.0."""
-        town = self.zone[self._index(u)] != Zone.COUNTRY
-        return (town & ~self.in_side_street(u)).astype(np.float64)
+        index = self._index(u)
+        town = self.zone[index] != Zone.COUNTRY
+        with np.errstate(invalid="ignore"):
+            street = np.abs(u - self.side_street_u[index]) < SIDE_STREET_HALF
+        return (town & ~street).astype(u.dtype)
 
 
 def _side_street_u(seed: int, index: int, zone: Zone) -> float:
