@@ -47,7 +47,7 @@ from pcainterp_stream.basis import (
 DEFAULT_SIGMA = 2.0
 """Measurement noise std (px), the paper's value."""
 
-DEFAULT_VARIANCE_GRID_SCALE = 0.125
+DEFAULT_VARIANCE_GRID_SCALE = 0.0625
 """Automatic variance grid: the coarsest stride whose grid is still >= this scale of the image."""
 
 _VARIANCE_ROWS_PER_CHUNK = 512
