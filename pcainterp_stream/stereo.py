@@ -26,7 +26,8 @@ between threads; the matcher cache here is per thread (and per configuration).
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass, field
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field, fields
 from enum import Enum
 from typing import Any, NamedTuple
 
@@ -510,12 +511,15 @@ class LookupConfig:
             )
 
 
-class RejectionCounts(NamedTuple):
+@dataclass(frozen=True)
+class RejectionCounts(Mapping[str, int]):
     """How many corners a lookup kept and why it rejected the others.
 
     Each rejected corner is counted once, under the first failed check in this order:
     outside, invalid, discontinuity, inconsistent. ``corners == kept + outside + invalid +
-    discontinuity + inconsistent``. ``_asdict()`` gives a plain dict.
+    discontinuity + inconsistent``. Read a count as an attribute (``counts.kept``) or by
+    name; ``dict(counts)`` gives a plain ``{name: count}`` dict (e.g. for
+    ``DensifiedFrame.counts``).
 
     Attributes:
         corners: corners given.
@@ -532,6 +536,21 @@ class RejectionCounts(NamedTuple):
     invalid: int
     discontinuity: int
     inconsistent: int
+
+    def __getitem__(self, name: str) -> int:
+        if name not in _COUNT_NAMES:
+            raise KeyError(name)
+        value: int = getattr(self, name)
+        return value
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(_COUNT_NAMES)
+
+    def __len__(self) -> int:
+        return len(_COUNT_NAMES)
+
+
+_COUNT_NAMES = tuple(name.name for name in fields(RejectionCounts))
 
 
 class Lookup(NamedTuple):

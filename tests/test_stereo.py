@@ -221,6 +221,14 @@ def test_sgbm_lookups_recover_the_true_disparity(
     )
     assert nearest_layer.max() < 1.0
     counts = result.counts
+    assert dict(counts) == {
+        "corners": counts.corners,
+        "kept": counts.kept,
+        "outside": counts.outside,
+        "invalid": counts.invalid,
+        "discontinuity": counts.discontinuity,
+        "inconsistent": counts.inconsistent,
+    }
     assert counts.corners == (
         counts.kept + counts.outside + counts.invalid + counts.discontinuity + counts.inconsistent
     )
