@@ -141,7 +141,8 @@ def camera_pose(world: World, config: SynthConfig, index: int) -> npt.NDArray[np
 
     def u_at(time_s: float) -> float:
         wobble = 0.05 * config.speed * 13.0 / (2 * math.pi)
-        return 5.0 + config.speed * time_s + wobble * math.sin(2 * math.pi * time_s / 13.0 + phases[2])
+        angle = 2 * math.pi * time_s / 13.0 + float(phases[2])
+        return 5.0 + config.speed * time_s + wobble * math.sin(angle)
 
     time_s = index * FRAME_PERIOD_NS * 1e-9
     look_ahead = 0.2
@@ -149,7 +150,8 @@ def camera_pose(world: World, config: SynthConfig, index: int) -> npt.NDArray[np
     table = world.road_table(u_now - 20.0, u_next + 20.0)
     blocks = world.block_table(u_now - 20.0, u_next + 20.0)
     x, y = world.road_point(
-        table, np.array([u_now, u_next]),
+        table,
+        np.array([u_now, u_next]),
         np.array([_lateral(phase, time_s), _lateral(phase, time_s + look_ahead)]),
     )
     ground, _ = world.ground(table, blocks, x[:1], y[:1])
@@ -168,7 +170,9 @@ def camera_pose(world: World, config: SynthConfig, index: int) -> npt.NDArray[np
     return quantised
 
 
-def right_pose(camera_to_world: npt.NDArray[np.float64], baseline: float) -> npt.NDArray[np.float64]:
+def right_pose(
+    camera_to_world: npt.NDArray[np.float64], baseline: float
+) -> npt.NDArray[np.float64]:
     """Return the right camera's pose: the left one moved +baseline along its own x axis.
 
     Args:

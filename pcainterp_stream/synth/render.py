@@ -93,7 +93,8 @@ def _mip_level(footprint_texels: F32) -> npt.NDArray[np.int32]:
     mantissa, exponent = np.frexp(footprint_texels * np.float32(2.0**_MIP_BIAS))
     # log2(x) = exponent - 1 + log2(2 * mantissa); round at 2 * mantissa = sqrt(2).
     level = exponent - 1 + (mantissa >= np.float32(0.70710678)).astype(np.int32)
-    return np.clip(level, 0, textures.TILE_LOG2).astype(np.int32)
+    result: npt.NDArray[np.int32] = np.clip(level, 0, textures.TILE_LOG2).astype(np.int32)
+    return result
 
 
 def _column_of_pixel(width: int, height: int) -> npt.NDArray[np.intp]:
@@ -168,9 +169,10 @@ def render_view(
         np.tile(np.arange(n_samples + 1, dtype=np.intp), width), covered.ravel()
     ).reshape(width, height)[:, ::-1]
     ground_sky = sample_of_row == n_samples
-    upper = np.minimum(sample_of_row, n_samples - 1) + (
-        np.arange(width, dtype=np.intp) * n_samples
-    )[:, None]
+    upper = (
+        np.minimum(sample_of_row, n_samples - 1)
+        + (np.arange(width, dtype=np.intp) * n_samples)[:, None]
+    )
     lower = upper - 1
     # One gather of (envelope row, inverse depth, lateral) for both bracketing samples.
     fields = np.stack(
@@ -249,10 +251,18 @@ def render_view(
         # One gather of every per-layer attribute the pixels need.
         attributes = np.take(
             np.stack(
-                [layers.surface_u, layers.foot_scale, layers.albedo, layers.shade,
-                 layers.bottom, layers.material],
+                [
+                    layers.surface_u,
+                    layers.foot_scale,
+                    layers.albedo,
+                    layers.shade,
+                    layers.bottom,
+                    layers.material,
+                ],
                 axis=2,
-            ).astype(np.float32).reshape(-1, 6),
+            )
+            .astype(np.float32)
+            .reshape(-1, 6),
             np.take(layer_index, object_pixels),
             axis=0,
         )
@@ -269,9 +279,7 @@ def render_view(
             bank, np.take(MATERIAL_TILE, material), s_coord, t_coord, footprint, level
         )
         grey = attributes[:, 2] + np.take(MATERIAL_CONTRAST, material) * texture
-        windowed = np.flatnonzero(
-            np.take(MATERIAL_WINDOWS + MATERIAL_CAR_WINDOWS, material)
-        )
+        windowed = np.flatnonzero(np.take(MATERIAL_WINDOWS + MATERIAL_CAR_WINDOWS, material))
         if windowed.size:
             dark = _windows(
                 material[windowed],
@@ -371,8 +379,7 @@ def _shade_ground(
     dash_phase = along * np.float32(1.0 / 9.0)
     dashes = dash_phase - np.floor(dash_phase) < np.float32(1.0 / 3.0)
     edge_line = np.clip(
-        (np.float32(0.08) - np.abs(distance - np.float32(LANE_EDGE))) * inv_foot
-        + np.float32(0.5),
+        (np.float32(0.08) - np.abs(distance - np.float32(LANE_EDGE))) * inv_foot + np.float32(0.5),
         0.0,
         1.0,
     )
@@ -550,9 +557,11 @@ def _object_layers(
     shade = ambient + (1.0 - ambient) * np.maximum(normal_x * sun[0] + normal_y * sun[1], 0.0)
 
     def pick(seg_values: npt.NDArray[np.generic], cyl_values: npt.NDArray[np.generic]) -> F64:
-        values = np.where(is_seg, seg_values[seg_of], cyl_values[cyl_of]) if (
-            keep.size and keep_c.size
-        ) else (seg_values[seg_of] if keep.size else cyl_values[cyl_of])
+        values = (
+            np.where(is_seg, seg_values[seg_of], cyl_values[cyl_of])
+            if (keep.size and keep_c.size)
+            else (seg_values[seg_of] if keep.size else cyl_values[cyl_of])
+        )
         result: F64 = values.astype(np.float64)
         return result
 

@@ -61,8 +61,8 @@ _RECIPES: tuple[tuple[tuple[float, float], ...], ...] = (
     ((0.7, 0.9), (2.0, 0.6), (6.0, 0.4)),  # 6 bark / foliage
     ((8.0, 0.7), (32.0, 0.7), (64.0, 0.5)),  # 7 macro variation (large blotches)
 )
-TILE_ASPHALT, TILE_PAVEMENT, TILE_GRASS, TILE_PLASTER, TILE_BRICK, TILE_METAL, TILE_FOLIAGE = (
-    range(7)
+TILE_ASPHALT, TILE_PAVEMENT, TILE_GRASS, TILE_PLASTER, TILE_BRICK, TILE_METAL, TILE_FOLIAGE = range(
+    7
 )
 TILE_MACRO = 7
 

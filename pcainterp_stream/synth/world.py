@@ -280,9 +280,7 @@ class World:
         centre, sin_h, cos_h, _ = table.lookup(np.asarray(u, dtype=np.float64))
         return u - lateral * sin_h, centre + lateral * cos_h
 
-    def ground(
-        self, table: RoadTable, zones: BlockTable, x: F64, y: F64
-    ) -> tuple[F64, F64]:
+    def ground(self, table: RoadTable, zones: BlockTable, x: F64, y: F64) -> tuple[F64, F64]:
         """Ground height and lateral road coordinate at world points.
 
         Args:
@@ -423,7 +421,8 @@ class BlockTable:
 
     def _index(self, u: npt.NDArray[np.floating]) -> npt.NDArray[np.intp]:
         block = np.floor(u * (1.0 / BLOCK_LENGTH)).astype(np.intp) - self.first
-        return np.clip(block, 0, self.zone.shape[0] - 1)
+        result: npt.NDArray[np.intp] = np.clip(block, 0, self.zone.shape[0] - 1)
+        return result
 
     def in_side_street(self, u: npt.NDArray[np.floating]) -> npt.NDArray[np.bool_]:
         """Return whether u lies on a side street crossing (bool like ``u``)."""
@@ -437,7 +436,8 @@ class BlockTable:
         town = self.zone[index] != Zone.COUNTRY
         with np.errstate(invalid="ignore"):
             street = np.abs(u - self.side_street_u[index]) < SIDE_STREET_HALF
-        return (town & ~street).astype(u.dtype)
+        result: npt.NDArray[np.float64] = (town & ~street).astype(u.dtype)
+        return result
 
 
 def _side_street_u(seed: int, index: int, zone: Zone) -> float:
@@ -526,8 +526,14 @@ def _make_block(world: World, index: int) -> Block:
         return u_b < street_u - SIDE_STREET_HALF - 1.0 or u_a > street_u + SIDE_STREET_HALF + 1.0
 
     def box(
-        u: float, lateral: float, length: float, width: float, height: float, yaw: float,
-        material: Material, albedo: float,
+        u: float,
+        lateral: float,
+        length: float,
+        width: float,
+        height: float,
+        yaw: float,
+        material: Material,
+        albedo: float,
     ) -> None:
         """A box footprint (4 two-sided segments) centred at road coordinates (u, l)."""
         cx, cy = point(u, lateral)
@@ -535,16 +541,23 @@ def _make_block(world: World, index: int) -> Block:
         heading = np.arctan2(uy - cy, ux - cx) + yaw
         dx, dy = np.cos(heading), np.sin(heading)
         corners = [
-            (cx + sx * length / 2 * dx - sy * width / 2 * dy,
-             cy + sx * length / 2 * dy + sy * width / 2 * dx)
+            (
+                cx + sx * length / 2 * dx - sy * width / 2 * dy,
+                cy + sx * length / 2 * dy + sy * width / 2 * dx,
+            )
             for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))
         ]
         bottom = ground_at(u, lateral) - 0.3
         u0 = float(rng.uniform(0, 100))
         for k in range(4):
             builder.segment(
-                corners[k], corners[(k + 1) % 4], bottom, bottom + 0.3 + height,
-                u0 + k * 5.0, material, albedo,
+                corners[k],
+                corners[(k + 1) % 4],
+                bottom,
+                bottom + 0.3 + height,
+                u0 + k * 5.0,
+                material,
+                albedo,
             )
 
     for side in (1.0, -1.0):
@@ -574,9 +587,7 @@ def _make_block(world: World, index: int) -> Block:
                     u0 = float(rng.uniform(0, 1000))
                     builder.segment(front_a, front_b, bottom, top, u0, material, albedo)
                     builder.segment(back_a, front_a, bottom, top, u0 - depth, material, albedo)
-                    builder.segment(
-                        front_b, back_b, bottom, top, u0 + u_b - u, material, albedo
-                    )
+                    builder.segment(front_b, back_b, bottom, top, u0 + u_b - u, material, albedo)
                 u = u_b
             # Parked cars in the parking lane.
             u = start + float(rng.uniform(0.0, 6.0))
@@ -584,9 +595,13 @@ def _make_block(world: World, index: int) -> Block:
                 length = float(rng.uniform(3.9, 4.7))
                 if rng.random() < (0.65 if urban else 0.4) and free(u - 3, u + length + 3):
                     box(
-                        u + length / 2, side * float(rng.uniform(4.3, 4.6)), length,
-                        float(rng.uniform(1.7, 1.85)), float(rng.uniform(1.4, 1.6)),
-                        float(rng.uniform(-0.05, 0.05)), Material.CAR,
+                        u + length / 2,
+                        side * float(rng.uniform(4.3, 4.6)),
+                        length,
+                        float(rng.uniform(1.7, 1.85)),
+                        float(rng.uniform(1.4, 1.6)),
+                        float(rng.uniform(-0.05, 0.05)),
+                        Material.CAR,
                         float(rng.choice([40.0, 70.0, 110.0, 150.0, 190.0, 215.0])),
                     )
                 u += length + float(rng.uniform(0.8, 6.0))
@@ -597,8 +612,11 @@ def _make_block(world: World, index: int) -> Block:
                 if free(u - 1, u + 1):
                     bottom = ground_at(u, lateral) - 0.3
                     builder.cylinder(
-                        point(u, lateral), float(rng.uniform(0.06, 0.12)), bottom,
-                        bottom + float(rng.uniform(3.0, 8.0)), Material.POLE,
+                        point(u, lateral),
+                        float(rng.uniform(0.06, 0.12)),
+                        bottom,
+                        bottom + float(rng.uniform(3.0, 8.0)),
+                        Material.POLE,
                         float(rng.uniform(90, 170)),
                     )
                 u += float(rng.uniform(20.0, 40.0))
@@ -606,9 +624,7 @@ def _make_block(world: World, index: int) -> Block:
             spacing = 14.0 if urban else 11.0
             u = start + float(rng.uniform(0.0, spacing))
             while u < end:
-                lateral = side * (
-                    ROAD_HALF_WIDTH + 1.6 if urban else float(rng.uniform(7.0, 12.0))
-                )
+                lateral = side * (ROAD_HALF_WIDTH + 1.6 if urban else float(rng.uniform(7.0, 12.0)))
                 if rng.random() < (0.35 if urban else 0.55) and free(u - 3, u + 3):
                     _tree(builder, rng, point(u, lateral), ground_at(u, lateral))
                 u += spacing * float(rng.uniform(0.7, 1.3))
@@ -620,9 +636,13 @@ def _make_block(world: World, index: int) -> Block:
                 if free(u_a, u_b):
                     bottom = ground_at(u_a, lateral) - 0.4
                     builder.segment(
-                        point(u_a, lateral), point(u_b, lateral), bottom,
-                        bottom + float(rng.uniform(1.3, 2.0)), float(rng.uniform(0, 500)),
-                        Material.HEDGE, float(rng.uniform(50, 90)),
+                        point(u_a, lateral),
+                        point(u_b, lateral),
+                        bottom,
+                        bottom + float(rng.uniform(1.3, 2.0)),
+                        float(rng.uniform(0, 500)),
+                        Material.HEDGE,
+                        float(rng.uniform(50, 90)),
                     )
         else:
             # Open country: scattered trees and clumps at various distances.
@@ -639,10 +659,18 @@ def _tree(
     """Add a tree: a trunk cylinder and a wider crown cylinder above it."""
     trunk_top = ground + float(rng.uniform(2.0, 3.2))
     builder.cylinder(
-        centre, float(rng.uniform(0.12, 0.3)), ground - 0.3, trunk_top + 0.5, Material.BARK,
+        centre,
+        float(rng.uniform(0.12, 0.3)),
+        ground - 0.3,
+        trunk_top + 0.5,
+        Material.BARK,
         float(rng.uniform(50, 90)),
     )
     builder.cylinder(
-        centre, float(rng.uniform(1.2, 2.8)), trunk_top, trunk_top + float(rng.uniform(3, 6)),
-        Material.FOLIAGE, float(rng.uniform(55, 100)),
+        centre,
+        float(rng.uniform(1.2, 2.8)),
+        trunk_top,
+        trunk_top + float(rng.uniform(3, 6)),
+        Material.FOLIAGE,
+        float(rng.uniform(55, 100)),
     )
