@@ -32,6 +32,13 @@ def _add_topic_options(parser: argparse.ArgumentParser) -> None:
         "--right-info-topic", default="/stereo/right/camera_info", metavar="TOPIC"
     )
     group.add_argument(
+        "--baseline",
+        type=float,
+        default=None,
+        metavar="M",
+        help="stereo baseline (m) when the right camera info has none",
+    )
+    group.add_argument(
         "--stamp-tolerance-ms",
         type=float,
         default=1.0,
@@ -187,6 +194,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="TOPIC",
         help="take measurements from this PointCloud2 stream instead of GFTT + SGBM",
+    )
+    densify.add_argument(
+        "--output-prefix",
+        default="/pcainterp",
+        metavar="PREFIX",
+        help="prefix of the output topics (default: %(default)s)",
     )
     densify.add_argument(
         "--depth-mm", action="store_true", help="also write a 16UC1 millimetre depth (Foxglove)"

@@ -203,15 +203,17 @@ class FrameProcessor:
             for item, estimate in zip(group, estimates, strict=True):
                 counts = dict(item.counts)
                 counts["dropped"] = int(estimate.n_dropped)
+                unknown = np.full(estimate.disparity.shape, np.nan, dtype=np.float32)
                 results.append(
                     DensifiedFrame(
                         frame=item.frame,
                         pixels=item.pixels,
                         disparities=item.disparities,
                         disparity=estimate.disparity,
-                        disparity_std=estimate.disparity_std,
-                        depth=estimate.depth,
-                        depth_std=estimate.depth_std,
+                        # "none" uncertainty has no std: written as NaN (unknown)
+                        disparity_std=_or(estimate.disparity_std, unknown),
+                        depth=_or(estimate.depth, unknown),
+                        depth_std=_or(estimate.depth_std, unknown),
                         measurement_source=self.config.source.value,
                         counts=counts,
                     )
@@ -219,3 +221,9 @@ class FrameProcessor:
             start = stop
         self.frames_done += len(results)
         return results
+
+
+def _or(
+    array: npt.NDArray[np.float32] | None, default: npt.NDArray[np.float32]
+) -> npt.NDArray[np.float32]:
+    return default if array is None else array

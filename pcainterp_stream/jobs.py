@@ -1,0 +1,586 @@
+"""The jobs behind the ``pcainterp`` commands: plain functions over paths and configs.
+
+Each job streams (one frame, or a small look-ahead of frames, in memory), shows a progress
+bar on a terminal, writes its output atomically (temporary file beside the target, renamed
+when complete) and raises only :class:`~pcainterp_stream.errors.PcaInterpError` subclasses
+on bad input, which the command line prints as one line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import sys
+import time
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from tqdm import tqdm
+
+from pcainterp_stream import rosmsg
+from pcainterp_stream.basis import Basis
+from pcainterp_stream.errors import BasisError, LogReadError, PcaInterpError
+from pcainterp_stream.learning import learn_basis
+from pcainterp_stream.logreader import open_log
+from pcainterp_stream.logwriter import LogFormat, WriteSummary, open_writer
+from pcainterp_stream.outputs import OutputTopics, output_messages
+from pcainterp_stream.pairing import PairingConfig, PairingStats, StereoPairer, iter_stereo_frames
+from pcainterp_stream.processor import FrameProcessor, MeasurementSource, ProcessorConfig
+from pcainterp_stream.records import DensifiedFrame
+from pcainterp_stream.rerun_sink import RerunSink
+from pcainterp_stream.stereo import GfttConfig, SgbmConfig, SgbmMode, compute_disparity
+
+
+def _bar(total: int | None, description: str, unit: str = "frame") -> tqdm[Any]:
+    # shown on a terminal only, so logs and tests stay clean
+    return tqdm(
+        total=total, desc=description, unit=unit, disable=None, leave=False, file=sys.stderr
+    )
+
+
+def _echo(text: str) -> None:
+    print(text, flush=True)
+
+
+# ----------------------------------------------------------------------------- synth
+
+
+def synth(out: Path, *, frames: int, seed: int, scale: float, fmt: str | None) -> WriteSummary:
+    """Render a synthetic drive and write it as a log (``pcainterp synth``)."""
+    from pcainterp_stream.synth import SynthConfig, generate
+    from pcainterp_stream.synthlog import write_synthetic_log
+
+    if frames < 1:
+        raise PcaInterpError(f"--frames must be at least 1, got {frames}")
+    if not 0.05 <= scale <= 4.0:
+        raise PcaInterpError(f"--scale must be in [0.05, 4], got {scale}")
+    config = SynthConfig(seed=seed, frames=frames, scale=scale)
+    with _bar(frames, f"synth {out.name}") as bar:
+        return write_synthetic_log(
+            generate(config),
+            out,
+            format=fmt,
+            total=frames,
+            progress=lambda done, total: bar.update(done - bar.n),
+        )
+
+
+def import_kitti(folder: Path, out: Path, *, max_frames: int | None) -> WriteSummary:
+    """Convert a KITTI folder into an MCAP log (``pcainterp import-kitti``)."""
+    from pcainterp_stream.kitti import import_kitti as convert
+
+    with _bar(None, f"import {folder.name}") as bar:
+
+        def progress(done: int, total: int | None) -> None:
+            bar.total = total
+            bar.update(done - bar.n)
+
+        return convert(folder, out, max_frames=max_frames, progress=progress)
+
+
+# ----------------------------------------------------------------------------- learn
+
+
+@dataclass(frozen=True)
+class LearnOptions:
+    """Options of ``pcainterp learn``.
+
+    Attributes:
+        n_components: components to keep (the most, with ``variance``).
+        variance: keep the fewest components reaching this explained-variance ratio.
+        grid_scale: basis grid pixels per image pixel.
+        depth_topic: learn from this depth topic (32FC1, m) instead of SGBM maps.
+        every: use every N-th frame.
+        sgbm: matcher options for SGBM maps.
+    """
+
+    n_components: int = 500
+    variance: float | None = None
+    grid_scale: float = 0.25
+    depth_topic: str | None = None
+    every: int = 1
+    sgbm: SgbmConfig = dataclasses.field(default_factory=SgbmConfig)
+
+
+@dataclass(frozen=True)
+class _MapSource:
+    image_size: tuple[int, int]
+    focal_baseline: float
+
+
+def _depth_maps(
+    log: Path, options: LearnOptions, pairing: PairingConfig, info: list[_MapSource]
+) -> Iterator[npt.NDArray[np.float32]]:
+    """Yield disparity maps f*b/depth of a depth topic; no surface (NaN, inf) is d = 0."""
+    assert options.depth_topic is not None
+    with open_log(log) as reader:
+        reader.require_topics(
+            {
+                options.depth_topic: "--depth-topic",
+                pairing.left_info_topic: "--left-info-topic",
+                pairing.right_info_topic: "--right-info-topic",
+            }
+        )
+        infos: dict[str, Any] = {}
+        index = 0
+        topics = [options.depth_topic, pairing.left_info_topic, pairing.right_info_topic]
+        for raw in reader.messages(topics):
+            message = reader.decode(raw)
+            if raw.topic != options.depth_topic:
+                infos[raw.topic] = message
+                continue
+            index += 1
+            if (index - 1) % options.every:
+                continue
+            if len(infos) < 2:
+                continue  # no calibration yet
+            depth = rosmsg.image_array(message).astype(np.float32)
+            from pcainterp_stream.pairing import camera_from_infos
+
+            camera = camera_from_infos(
+                infos[pairing.left_info_topic],
+                infos[pairing.right_info_topic],
+                width=depth.shape[1],
+                height=depth.shape[0],
+                left_topic=pairing.left_info_topic,
+                right_topic=pairing.right_info_topic,
+                baseline=pairing.baseline,
+            )
+            if not info:
+                info.append(_MapSource(camera.image_size, camera.focal_baseline))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                disparity = camera.focal_baseline / depth
+            yield np.where(np.isfinite(disparity) & (depth > 0), disparity, 0.0).astype(np.float32)
+
+
+def _sgbm_maps(
+    log: Path, options: LearnOptions, pairing: PairingConfig, info: list[_MapSource]
+) -> Iterator[npt.NDArray[np.float32]]:
+    """Yield SGBM maps of every N-th pair, matching the next pair while this one is used."""
+    with open_log(log) as reader, ThreadPoolExecutor(1, thread_name_prefix="sgbm") as pool:
+        reader.require_topics(pairing.required_topics())
+        pending: list[Future[npt.NDArray[np.float32]]] = []
+        for frame in iter_stereo_frames(reader, pairing):
+            if frame.index % options.every:
+                continue
+            if not info:
+                info.append(_MapSource(frame.camera.image_size, frame.camera.focal_baseline))
+            pending.append(pool.submit(compute_disparity, frame.left, frame.right, options.sgbm))
+            if len(pending) > 1:
+                yield pending.pop(0).result()
+        for future in pending:
+            yield future.result()
+
+
+def _expected_frames(log: Path, topic: str, every: int) -> int | None:
+    with contextlib.suppress(PcaInterpError), open_log(log) as reader:
+        count = reader.topics().get(topic)
+        if count is not None and count.message_count is not None:
+            return -(-count.message_count // every)
+    return None
+
+
+def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: PairingConfig) -> Basis:
+    """Learn a basis from the disparity maps of logs (``pcainterp learn``)."""
+    if options.every < 1:
+        raise PcaInterpError(f"--every must be at least 1, got {options.every}")
+    for log in logs:
+        if log.resolve() == output.resolve():
+            raise PcaInterpError(f"output {output} is one of the input logs; choose another -o")
+    source = options.depth_topic or pairing.left_topic
+    totals = [_expected_frames(log, source, options.every) for log in logs]
+    total = None if None in totals else sum(t for t in totals if t is not None)
+    info: list[_MapSource] = []
+
+    def maps() -> Iterator[npt.NDArray[np.float32]]:
+        for log in logs:
+            produce = _depth_maps if options.depth_topic else _sgbm_maps
+            for disparity in produce(log, options, pairing, info):
+                if disparity.shape != info[0].image_size:
+                    raise PcaInterpError(
+                        f"{log} has {disparity.shape[1]}x{disparity.shape[0]} images but the "
+                        f"first log has {info[0].image_size[1]}x{info[0].image_size[0]}; "
+                        "learn one basis per camera"
+                    )
+                yield disparity
+
+    sgbm = dataclasses.asdict(options.sgbm)
+    sgbm["mode"] = options.sgbm.mode.name
+    meta = {
+        "source": {
+            "logs": [str(log) for log in logs],
+            "maps": f"depth topic {options.depth_topic}" if options.depth_topic else "SGBM",
+            "sgbm": None if options.depth_topic else sgbm,
+            "every": options.every,
+        }
+    }
+    with _bar(total, "learn") as bar:
+        stream = maps()
+        first = next(stream, None)
+        if first is None:
+            raise LogReadError(
+                f"no {'depth image' if options.depth_topic else 'stereo pair'} found in "
+                f"{', '.join(map(str, logs))}; check the topic options (pcainterp info LOG)"
+            )
+        import itertools
+
+        try:
+            basis = learn_basis(
+                itertools.chain([first], stream),
+                n_components=options.n_components,
+                variance=options.variance,
+                grid_scale=options.grid_scale,
+                focal_baseline=info[0].focal_baseline,
+                progress=lambda done: bar.update(done - bar.n),
+                meta=meta,
+            )
+        except ValueError as err:
+            raise PcaInterpError(f"cannot learn a basis from {len(logs)} log(s): {err}") from err
+    basis.save(output)
+    return basis
+
+
+# ----------------------------------------------------------------------------- densify
+
+
+@dataclass
+class DensifySummary:
+    """What ``densify`` did.
+
+    Attributes:
+        input: the input log.
+        output: the written log.
+        frames: frames densified.
+        seconds: wall time of the whole run.
+        measurements: sparse measurements used, summed over frames.
+        pairing: the pairer's counts.
+        damage: damage found in the input (one line each).
+        written: the writer's summary.
+    """
+
+    input: Path
+    output: Path
+    frames: int
+    seconds: float
+    measurements: int
+    pairing: PairingStats
+    damage: list[str]
+    written: WriteSummary | None
+
+    @property
+    def frames_per_second(self) -> float:
+        """Return densified frames per wall-clock second."""
+        return self.frames / self.seconds if self.seconds > 0 else 0.0
+
+
+def densify(
+    input_path: Path,
+    output: Path,
+    basis: Basis | Path,
+    *,
+    pairing: PairingConfig | None = None,
+    processor: ProcessorConfig | None = None,
+    topics: OutputTopics | None = None,
+    rrd: Path | None = None,
+    spawn_viewer: bool = False,
+    on_frame: Callable[[DensifiedFrame], None] | None = None,
+) -> DensifySummary:
+    """Densify a stereo log into a copy with the ``/pcainterp/*`` channels (``densify``).
+
+    One pass over the input: every message is copied to the output, stereo pairs are
+    formed by header stamp, stereo-matched ahead in a worker thread and densified in
+    batches, and their outputs written at the left image's log time.
+    """
+    started = time.perf_counter()
+    pairing = pairing or PairingConfig()
+    processor = processor or ProcessorConfig()
+    topics = topics or OutputTopics()
+    if isinstance(basis, Path):
+        basis = Basis.load(basis)
+    if processor.source is MeasurementSource.FEATURES and pairing.features_topic is None:
+        raise PcaInterpError("measurement source 'features' needs --features-topic")
+    measurements = 0
+    frames = 0
+    with contextlib.ExitStack() as stack:
+        reader = stack.enter_context(open_log(input_path))
+        reader.require_topics(pairing.required_topics())
+        clash = sorted(set(topics.all()) & set(reader.topics()))
+        if clash:
+            raise PcaInterpError(
+                f"{input_path} already has {', '.join(clash)}; densify the original log or "
+                "pass --output-prefix to write under another name"
+            )
+        left = reader.topics().get(pairing.left_topic)
+        total = left.message_count if left is not None else None
+        writer = stack.enter_context(open_writer(output, LogFormat.MCAP, inputs=[input_path]))
+        sink = (
+            stack.enter_context(RerunSink(rrd_path=rrd, spawn=spawn_viewer))
+            if rrd is not None or spawn_viewer
+            else None
+        )
+        engine = stack.enter_context(FrameProcessor(basis, processor))
+        pairer = StereoPairer(pairing)
+        bar = stack.enter_context(_bar(total, f"densify {input_path.name}"))
+
+        def emit(results: list[DensifiedFrame]) -> None:
+            nonlocal measurements, frames
+            for result in results:
+                for topic, message in output_messages(result, topics):
+                    writer.add_message(topic, message, result.frame.log_time_ns)
+                if sink is not None:
+                    sink.log(result)
+                if on_frame is not None:
+                    on_frame(result)
+                measurements += int(result.pixels.shape[0])
+                frames += 1
+                bar.update(1)
+
+        for raw in reader.messages():
+            writer.add_raw(raw)
+            if pairer.wants(raw.topic):
+                for frame in pairer.push_raw(raw, reader.decode):
+                    emit(engine.submit(frame, pairer.features_for(frame)))
+        for frame in pairer.flush():
+            emit(engine.submit(frame, pairer.features_for(frame)))
+        emit(engine.finish())
+        stats = pairer.finish()
+        if frames == 0:
+            detail = f" ({'; '.join(stats.problems[:2])})" if stats.problems else ""
+            raise LogReadError(
+                f"no stereo pair found in {input_path}{detail}; left {pairing.left_topic} and "
+                f"right {pairing.right_topic} need images with matching header stamps and "
+                "camera infos on both sides (see pcainterp info, --stamp-tolerance-ms)"
+            )
+    return DensifySummary(
+        input=input_path,
+        output=output,
+        frames=frames,
+        seconds=time.perf_counter() - started,
+        measurements=measurements,
+        pairing=stats,
+        damage=list(reader.damage),
+        written=writer.summary(),
+    )
+
+
+# ----------------------------------------------------------------------------- info
+
+
+def describe_basis(path: Path) -> str:
+    """Return a text description of a basis file."""
+    basis = Basis.load(path)
+    height, width = basis.image_size
+    grid_height, grid_width = basis.grid_size
+    ratio = basis.explained_variance_ratio
+    learning = basis.meta.get("learning", {}) if isinstance(basis.meta, dict) else {}
+    lines = [
+        f"{path}: pcainterp basis",
+        f"  image size       {width}x{height} px",
+        f"  grid             {grid_width}x{grid_height} ({grid_width * grid_height} pixels)",
+        f"  components       {basis.n_components}",
+        f"  variance         {100 * ratio:.2f} % of the training variance explained",
+        f"  first eigenvalue {basis.eigenvalues[0]:.4g} px^2",
+        f"  focal*baseline   {basis.focal_baseline:.4g} px*m",
+        f"  training maps    {basis.n_train}",
+        f"  method           {learning.get('method', '?')}",
+    ]
+    return "\n".join(lines)
+
+
+def info(path: Path) -> str:
+    """Return the ``pcainterp info`` text of a log or a basis file."""
+    from pcainterp_stream.loginfo import describe, format_info
+
+    if path.suffix == ".npz":
+        return describe_basis(path)
+    if path.is_file():
+        with path.open("rb") as handle:
+            if handle.read(4) == b"PK\x03\x04":
+                try:
+                    return describe_basis(path)
+                except BasisError:
+                    pass
+    return format_info(describe(path))
+
+
+# ----------------------------------------------------------------------------- demo
+
+
+def demo(out: Path, *, spawn_viewer: bool = False) -> str:
+    """Run the whole job on generated logs and return a summary (``pcainterp demo``)."""
+    from pcainterp_stream.evaluation import compare_with_ground_truth
+
+    out.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    train_log, test_log = out / "train.mcap", out / "heldout.mcap"
+    basis_path, dense_log, rrd = out / "basis.npz", out / "heldout_dense.mcap", out / "heldout.rrd"
+    _echo(f"1/4 rendering a {DEMO_TRAIN_FRAMES}-frame training drive -> {train_log}")
+    synth(train_log, frames=DEMO_TRAIN_FRAMES, seed=1, scale=DEMO_SCALE, fmt="mcap")
+    _echo(f"2/4 rendering a {DEMO_TEST_FRAMES}-frame held-out drive (another seed) -> {test_log}")
+    synth(test_log, frames=DEMO_TEST_FRAMES, seed=2, scale=DEMO_SCALE, fmt="mcap")
+    _echo(f"3/4 learning a basis from the training drive's SGBM maps -> {basis_path}")
+    basis = learn(
+        [train_log],
+        basis_path,
+        LearnOptions(n_components=DEMO_COMPONENTS, grid_scale=0.25),
+        PairingConfig(),
+    )
+    _echo(f"4/4 densifying the held-out drive -> {dense_log}, {rrd}")
+    summary = densify(test_log, dense_log, basis, rrd=rrd, spawn_viewer=spawn_viewer)
+    comparison = compare_with_ground_truth(dense_log)
+    elapsed = time.perf_counter() - started
+    height, width = basis.image_size
+    return "\n".join(
+        [
+            "",
+            f"demo finished in {elapsed:.0f} s; everything is in {out}/",
+            f"  basis            {basis.n_components} components from {basis.n_train} SGBM maps"
+            f" ({100 * basis.explained_variance_ratio:.1f} % variance), {width}x{height} px",
+            f"  densified        {summary.frames} frames at {summary.frames_per_second:.1f}"
+            f" frames/s, {summary.measurements / max(summary.frames, 1):.0f} points per frame",
+            "  mean |disparity error| against ground truth, same sparse points:",
+            f"    PCA-MAP          {comparison.mean_abs_error('pca_map'):.3f} px",
+            f"    nearest neighbour {comparison.mean_abs_error('nearest'):.3f} px",
+            f"    linear           {comparison.mean_abs_error('linear'):.3f} px",
+            f"  truth inside +-2 sigma (exact posterior): {100 * comparison.coverage_2sigma:.1f} %",
+            f"  view it: rerun {rrd}   (or open {dense_log} in Foxglove)",
+        ]
+    )
+
+
+DEMO_SCALE = 0.5
+DEMO_TRAIN_FRAMES = 300
+DEMO_TEST_FRAMES = 40
+DEMO_COMPONENTS = 200
+
+
+# ----------------------------------------------------------------------------- dispatch
+
+
+def _sgbm_config(args: argparse.Namespace) -> SgbmConfig:
+    changes: dict[str, Any] = {}
+    if args.num_disparities is not None:
+        if args.num_disparities < 16 or args.num_disparities % 16:
+            raise PcaInterpError(
+                f"--num-disparities must be a positive multiple of 16, got {args.num_disparities}"
+            )
+        changes["num_disparities"] = args.num_disparities
+    if args.block_size is not None:
+        if args.block_size < 1 or args.block_size % 2 == 0:
+            raise PcaInterpError(f"--block-size must be odd and positive, got {args.block_size}")
+        changes["block_size"] = args.block_size
+    if args.sgbm_mode is not None:
+        changes["mode"] = SgbmMode[args.sgbm_mode.upper()]
+    return dataclasses.replace(SgbmConfig(), **changes)
+
+
+def _gftt_config(args: argparse.Namespace) -> GfttConfig:
+    changes: dict[str, Any] = {}
+    if args.corners is not None:
+        if args.corners < 1:
+            raise PcaInterpError(f"--corners must be at least 1, got {args.corners}")
+        changes["max_corners"] = args.corners
+    if args.quality is not None:
+        if not 0 < args.quality < 1:
+            raise PcaInterpError(f"--quality must be in (0, 1), got {args.quality}")
+        changes["quality_level"] = args.quality
+    if args.min_distance is not None:
+        changes["min_distance"] = args.min_distance
+    return dataclasses.replace(GfttConfig(), **changes)
+
+
+def _pairing_config(args: argparse.Namespace, features_topic: str | None = None) -> PairingConfig:
+    if args.stamp_tolerance_ms < 0:
+        raise PcaInterpError(f"--stamp-tolerance-ms must be >= 0, got {args.stamp_tolerance_ms}")
+    if args.baseline is not None and not args.baseline > 0:
+        raise PcaInterpError(f"--baseline must be > 0 m, got {args.baseline}")
+    return PairingConfig(
+        left_topic=args.left_topic,
+        right_topic=args.right_topic,
+        left_info_topic=args.left_info_topic,
+        right_info_topic=args.right_info_topic,
+        features_topic=features_topic,
+        tolerance_ns=round(args.stamp_tolerance_ms * 1e6),
+        baseline=args.baseline,
+    )
+
+
+def _print_written(summary: WriteSummary) -> None:
+    duration = ((summary.end_ns or 0) - (summary.start_ns or 0)) / 1e9
+    _echo(f"wrote {summary.path}: {summary.message_count} messages, {duration:.1f} s of log")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the job a parsed command line asks for; return the exit code."""
+    command = args.command
+    if command == "synth":
+        _print_written(
+            synth(args.out, frames=args.frames, seed=args.seed, scale=args.scale, fmt=args.format)
+        )
+    elif command == "import-kitti":
+        _print_written(import_kitti(args.kitti_dir, args.out, max_frames=args.max_frames))
+    elif command == "learn":
+        if args.components is not None and args.components < 1:
+            raise PcaInterpError(f"--components must be at least 1, got {args.components}")
+        if args.variance is not None and not 0 < args.variance <= 1:
+            raise PcaInterpError(f"--variance must be in (0, 1], got {args.variance}")
+        if args.grid_scale is not None and not 0 < args.grid_scale <= 1:
+            raise PcaInterpError(f"--grid-scale must be in (0, 1], got {args.grid_scale}")
+        options = LearnOptions(
+            n_components=args.components or 500,
+            variance=args.variance,
+            grid_scale=args.grid_scale or 0.25,
+            depth_topic=args.depth_topic,
+            every=args.every,
+            sgbm=_sgbm_config(args),
+        )
+        basis = learn(args.logs, args.output, options, _pairing_config(args))
+        _echo(f"wrote {args.output}")
+        _echo(describe_basis(args.output))
+        del basis
+    elif command == "densify":
+        if args.sigma <= 0:
+            raise PcaInterpError(f"--sigma must be > 0 px, got {args.sigma}")
+        source = MeasurementSource.FEATURES if args.features_topic else MeasurementSource.STEREO
+        processor = ProcessorConfig(
+            gftt=_gftt_config(args),
+            sgbm=_sgbm_config(args),
+            sigma=args.sigma,
+            uncertainty=args.uncertainty,
+            source=source,
+        )
+        summary = densify(
+            args.input,
+            args.output,
+            args.basis,
+            pairing=_pairing_config(args, args.features_topic),
+            processor=processor,
+            topics=OutputTopics.with_prefix(args.output_prefix, depth_mm=args.depth_mm),
+            rrd=args.rrd,
+            spawn_viewer=args.rerun,
+        )
+        _echo(
+            f"densified {summary.frames} frames of {summary.input} in {summary.seconds:.1f} s "
+            f"({summary.frames_per_second:.1f} frames/s), "
+            f"{summary.measurements / max(summary.frames, 1):.0f} points per frame"
+        )
+        _echo(f"pairing: {summary.pairing.summary()}")
+        for line in summary.damage:
+            _echo(f"damage: {line}")
+        if summary.written is not None:
+            _print_written(summary.written)
+        if args.rrd is not None:
+            _echo(f"wrote {args.rrd}")
+    elif command == "info":
+        _echo(info(args.file))
+    elif command == "demo":
+        _echo(demo(args.out, spawn_viewer=args.rerun))
+    else:  # pragma: no cover - argparse rejects unknown commands
+        raise PcaInterpError(f"unknown command {command}")
+    return 0
