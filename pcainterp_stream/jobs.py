@@ -454,9 +454,9 @@ def demo(out: Path, *, spawn_viewer: bool = False) -> str:
     )
 
 
-DEMO_SCALE = 0.5
+DEMO_SCALE = 1.0
 DEMO_TRAIN_FRAMES = 300
-DEMO_TEST_FRAMES = 40
+DEMO_TEST_FRAMES = 50
 DEMO_COMPONENTS = 200
 
 
