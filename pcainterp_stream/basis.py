@@ -308,13 +308,25 @@ class Basis:
             "n_train": np.array(self.n_train, dtype=np.int64),
             "meta": np.array(json.dumps(self.meta, sort_keys=True)),
         }
-        handle, temp_name = tempfile.mkstemp(
-            prefix=f".{target.name}.", suffix=".tmp", dir=target.parent
-        )
         try:
+            handle, temp_name = tempfile.mkstemp(
+                prefix=f".{target.name}.", suffix=".tmp", dir=target.parent
+            )
+        except OSError as err:
+            raise BasisError(
+                f"cannot write basis {target}: {err.strerror or err}; choose a writable folder"
+            ) from err
+        try:
+            # mkstemp creates 0600; give the file the permissions of a normally created one
+            umask = os.umask(0)
+            os.umask(umask)
+            os.fchmod(handle, 0o666 & ~umask)
             with os.fdopen(handle, "wb") as stream:
                 np.savez(stream, **arrays)  # type: ignore[arg-type]
             os.replace(temp_name, target)
+        except OSError as err:
+            Path(temp_name).unlink(missing_ok=True)
+            raise BasisError(f"cannot write basis {target}: {err.strerror or err}") from err
         except BaseException:
             Path(temp_name).unlink(missing_ok=True)
             raise

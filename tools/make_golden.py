@@ -1,7 +1,11 @@
 """Regenerate the golden synthetic log and its expected summary.
 
 Writes ``tests/data/golden_synth.mcap`` (a tiny synthetic log: 4 frames, scale 0.25,
-seed 0) and ``tests/data/golden_synth.json`` (what the log must contain). Like the MCAP
+seed 0) and ``tests/data/golden_synth.json`` (what the log must contain), then densifies
+that log with ``tests/data/golden_basis.npz`` (16 components learned from the SGBM maps of
+another 40-frame drive, seed 7; re-learned only when missing or with ``--new-basis``) and
+writes ``tests/data/golden_dense.json``, the expected summary of ``pcainterp densify``'s
+output. Like the MCAP
 conformance suite's ``.json`` beside each ``.mcap``, the JSON records channels, message
 counts, per-message log times and header stamps, and for every array robust statistics
 (mean, std, quantiles, rounded sum, NaN count) rather than a byte hash, so that tiny
@@ -39,6 +43,9 @@ DATA_DIR = Path(__file__).resolve().parents[1] / "tests" / "data"
 GOLDEN_LOG = DATA_DIR / "golden_synth.mcap"
 GOLDEN_JSON = DATA_DIR / "golden_synth.json"
 SEED, FRAMES, SCALE = 0, 4, 0.25
+GOLDEN_BASIS = DATA_DIR / "golden_basis.npz"
+GOLDEN_DENSE_JSON = DATA_DIR / "golden_dense.json"
+BASIS_SEED, BASIS_FRAMES, BASIS_COMPONENTS = 7, 40, 16
 QUANTILES = (0.01, 0.1, 0.25, 0.5, 0.75, 0.9, 0.99)
 
 TOLERANCE: dict[str, Any] = {
@@ -89,6 +96,16 @@ def _message_summary(message: Any) -> dict[str, Any]:
         summary["p"] = [float(v) for v in rosmsg.projection_matrix(message).reshape(-1)]
     elif msgtype == rosmsg.POSE_STAMPED:
         summary["camera_to_world"] = [float(v) for v in rosmsg.pose_matrix(message)[:3].reshape(-1)]
+    elif msgtype == rosmsg.DISPARITY_IMAGE:
+        summary["encoding"] = str(message.image.encoding)
+        summary["image"] = _array_stats(rosmsg.image_array(message.image))
+        summary["f_t"] = [float(message.f), float(message.t)]
+    elif msgtype == rosmsg.POINT_CLOUD2:
+        fields = rosmsg.pointcloud2_arrays(message)
+        summary["fields"] = list(fields)
+        summary["point_stats"] = {
+            name: _array_stats(values.astype(np.float32)) for name, values in fields.items()
+        }
     return summary
 
 
@@ -207,7 +224,14 @@ def compare_summary(expected: dict[str, Any], actual: dict[str, Any]) -> list[st
         for key in ("topic", "log_time_ns", "stamp_ns", "frame_id", "encoding", "size"):
             if want.get(key) != have.get(key):
                 problems.append(f"{where}: {key} {have.get(key)!r} != expected {want.get(key)!r}")
-        for key in ("p", "camera_to_world"):
+        if want.get("fields") != have.get("fields"):
+            problems.append(f"{where}: fields {have.get('fields')} != {want.get('fields')}")
+        for name, stats in want.get("point_stats", {}).items():
+            if name in have.get("point_stats", {}):
+                problems += _compare_stats(
+                    f"{where} field {name}", stats, have["point_stats"][name], tolerance
+                )
+        for key in ("p", "camera_to_world", "f_t"):
             if key in want:
                 a, b = np.asarray(want[key]), np.asarray(have.get(key, []))
                 if a.shape != b.shape or not np.allclose(a, b, rtol=0.0, atol=numbers_abs):
@@ -235,12 +259,42 @@ def render_golden(log_path: Path, *, seed: int, frames: int, scale: float) -> di
     }
 
 
+def learn_golden_basis(basis_path: Path) -> None:
+    """Learn the small basis the dense golden test uses, from a separate synthetic drive."""
+    from pcainterp_stream.jobs import LearnOptions, learn
+    from pcainterp_stream.pairing import PairingConfig
+    from pcainterp_stream.synth import SynthConfig, generate
+
+    with tempfile.TemporaryDirectory() as folder:
+        train = Path(folder) / "train.mcap"
+        config = SynthConfig(seed=BASIS_SEED, frames=BASIS_FRAMES, scale=SCALE)
+        write_synthetic_log(generate(config), train, format=LogFormat.MCAP)
+        learn([train], basis_path, LearnOptions(n_components=BASIS_COMPONENTS), PairingConfig())
+
+
+def densify_golden(log_path: Path, basis_path: Path, out_path: Path) -> dict[str, Any]:
+    """Densify the golden log with the golden basis and return the output's summary (JSON)."""
+    from pcainterp_stream.jobs import densify
+
+    densify(log_path, out_path, basis_path)
+    return {
+        "format": FORMAT,
+        "generator": {"log": log_path.name, "basis": basis_path.name},
+        "command": "PYTHONPATH=. python tools/make_golden.py",
+        "tolerance": TOLERANCE,
+        **summarize_log(out_path),
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     """Regenerate (or, with --check, verify) the golden synthetic log and JSON."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--out-dir", type=Path, default=DATA_DIR, help="default: tests/data")
     parser.add_argument(
         "--check", action="store_true", help="render to a temporary file and compare"
+    )
+    parser.add_argument(
+        "--new-basis", action="store_true", help="re-learn golden_basis.npz too (else kept)"
     )
     args = parser.parse_args(argv)
     if args.check:
@@ -257,6 +311,14 @@ def main(argv: list[str] | None = None) -> int:
     summary = render_golden(log_path, seed=SEED, frames=FRAMES, scale=SCALE)
     (args.out_dir / GOLDEN_JSON.name).write_text(json.dumps(summary, indent=1) + "\n")
     print(f"wrote {log_path} ({log_path.stat().st_size} bytes) and {GOLDEN_JSON.name}")
+    basis_path = args.out_dir / GOLDEN_BASIS.name
+    if args.new_basis or not basis_path.exists():
+        learn_golden_basis(basis_path)
+        print(f"wrote {basis_path} ({basis_path.stat().st_size} bytes)")
+    with tempfile.TemporaryDirectory() as folder:
+        dense = densify_golden(log_path, basis_path, Path(folder) / "dense.mcap")
+    (args.out_dir / GOLDEN_DENSE_JSON.name).write_text(json.dumps(dense, indent=1) + "\n")
+    print(f"wrote {GOLDEN_DENSE_JSON.name}")
     return 0
 
 

@@ -1,0 +1,198 @@
+"""End-to-end jobs on small synthetic logs: learn, densify (stereo and features), Rerun, KITTI."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pcainterp_stream import jobs, rosmsg
+from pcainterp_stream.basis import Basis
+from pcainterp_stream.estimator import densify
+from pcainterp_stream.evaluation import compare_with_ground_truth
+from pcainterp_stream.logreader import open_log
+from pcainterp_stream.logwriter import LogFormat, open_writer
+from pcainterp_stream.pairing import PairingConfig
+from pcainterp_stream.processor import MeasurementSource, ProcessorConfig
+
+REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+KITTI_RAW = REALDATA / "kitti_raw" / "2011_09_26"
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    folder = tmp_path_factory.mktemp("jobs")
+    train, test = folder / "train.mcap", folder / "test.mcap"
+    jobs.synth(train, frames=24, seed=11, scale=0.25, fmt="mcap")
+    jobs.synth(test, frames=5, seed=12, scale=0.25, fmt="mcap")
+    basis = folder / "basis.npz"
+    jobs.learn([train], basis, jobs.LearnOptions(n_components=12), PairingConfig())
+    return {"train": train, "test": test, "basis": basis, "folder": folder}
+
+
+def test_learn_from_sgbm_maps_records_camera_and_source(logs: dict[str, Path]) -> None:
+    basis = Basis.load(logs["basis"])
+    assert basis.image_size == (94, 310)
+    assert basis.n_train == 24
+    assert basis.n_components == 12
+    assert basis.focal_baseline == pytest.approx(718.856 * 0.25 * 0.5372, rel=0.01)
+    assert basis.meta["source"]["maps"] == "SGBM"
+
+
+def test_learn_from_depth_topic_uses_every_nth_frame(logs: dict[str, Path]) -> None:
+    out = logs["folder"] / "gt_basis.npz"
+    options = jobs.LearnOptions(n_components=5, depth_topic="/ground_truth/depth", every=2)
+    basis = jobs.learn([logs["train"]], out, options, PairingConfig())
+    assert basis.n_train == 12
+    # sky (NaN depth) is disparity 0, so the mean map's top rows are small
+    assert float(basis.mean[0].mean()) < float(basis.mean[-1].mean())
+
+
+def test_densify_beats_nearest_neighbour_against_ground_truth(logs: dict[str, Path]) -> None:
+    out = logs["folder"] / "dense.mcap"
+    summary = jobs.densify(logs["test"], out, logs["basis"])
+    assert summary.frames == 5
+    assert summary.measurements > 5 * 20
+    comparison = compare_with_ground_truth(out)
+    assert comparison.frames == 5
+    assert comparison.mean_abs_error("pca_map") < comparison.mean_abs_error("nearest")
+    # the output keeps every input message and adds 6 channels per frame
+    with open_log(out) as reader:
+        counts = {topic: info.message_count for topic, info in reader.topics().items()}
+    assert counts["/stereo/left/image_rect"] == 5
+    assert counts["/ground_truth/pose"] == 5
+    assert counts["/pcainterp/depth"] == counts["/pcainterp/camera_info"] == 5
+
+
+def test_densify_output_messages_carry_left_header_and_log_time(logs: dict[str, Path]) -> None:
+    out = logs["folder"] / "dense_headers.mcap"
+    jobs.densify(logs["test"], out, logs["basis"])
+    left: dict[int, tuple[int, str]] = {}
+    outputs: list[tuple[int, int, str]] = []
+    with open_log(out) as reader:
+        for raw in reader.messages():
+            message = reader.decode(raw)
+            if raw.topic == "/stereo/left/image_rect":
+                left[raw.log_time_ns] = (rosmsg.stamp_ns(message), message.header.frame_id)
+            elif raw.topic.startswith("/pcainterp/"):
+                stamp = rosmsg.stamp_ns(message)
+                outputs.append((raw.log_time_ns, stamp, message.header.frame_id))
+    assert len(outputs) == 6 * 5
+    for log_time, stamp, frame_id in outputs:
+        assert left[log_time] == (stamp, frame_id)
+
+
+def _add_feature_stream(source: Path, target: Path) -> None:
+    """Copy a synthetic log and add /features: true 3-D points at a few hundred pixels."""
+    rng = np.random.default_rng(0)
+    with open_log(source) as reader, open_writer(target, LogFormat.MCAP) as writer:
+        camera_info = None
+        for raw in reader.messages():
+            writer.add_raw(raw)
+            if raw.topic == "/stereo/left/camera_info":
+                camera_info = reader.decode(raw)
+            if raw.topic != "/ground_truth/depth" or camera_info is None:
+                continue
+            message = reader.decode(raw)
+            depth = rosmsg.image_array(message)
+            p = rosmsg.projection_matrix(camera_info)
+            v = rng.integers(0, depth.shape[0], 150)
+            u = rng.integers(0, depth.shape[1], 150)
+            z = depth[v, u]
+            keep = np.isfinite(z)
+            u, v, z = u[keep], v[keep], z[keep]
+            x = (u - p[0, 2]) * z / p[0, 0]
+            y = (v - p[1, 2]) * z / p[1, 1]
+            cloud = rosmsg.pointcloud2_message(
+                {"x": x.astype(np.float32), "y": y.astype(np.float32), "z": z},
+                rosmsg.stamp_ns(message),
+                "stereo_left_optical",
+            )
+            writer.add_message("/features", cloud, raw.log_time_ns)
+
+
+def test_densify_from_a_feature_stream(logs: dict[str, Path]) -> None:
+    with_features = logs["folder"] / "features.mcap"
+    _add_feature_stream(logs["test"], with_features)
+    out = logs["folder"] / "features_dense.mcap"
+    summary = jobs.densify(
+        with_features,
+        out,
+        logs["basis"],
+        pairing=PairingConfig(features_topic="/features"),
+        processor=ProcessorConfig(source=MeasurementSource.FEATURES),
+    )
+    assert summary.frames == 5
+    with open_log(out) as reader:
+        clouds = [reader.decode(raw) for raw in reader.messages(["/pcainterp/features"])]
+        dense = [reader.decode(raw) for raw in reader.messages(["/pcainterp/disparity"])]
+    assert len(clouds) == len(dense) == 5
+    fields = rosmsg.pointcloud2_arrays(clouds[0])
+    # the measurements used are exactly the stream's points (integer pixels, all inside)
+    assert 100 < fields["u"].size <= 150
+    np.testing.assert_allclose(fields["u"], np.round(fields["u"]), atol=1e-3)
+    # their disparities are f*b / z of the points
+    focal_baseline = float(dense[0].f) * float(dense[0].t)
+    np.testing.assert_allclose(fields["disparity"], focal_baseline / fields["z"], rtol=1e-5)
+    # the MAP estimate is pulled from the prior mean towards its measurements
+    rows, cols = np.round(fields["v"]).astype(int), np.round(fields["u"]).astype(int)
+    estimate = rosmsg.image_array(dense[0].image)[rows, cols]
+    prior = densify(Basis.load(logs["basis"]), np.zeros((0, 2)), np.zeros(0)).disparity
+    posterior_misfit = np.median(np.abs(estimate - fields["disparity"]))
+    prior_misfit = np.median(np.abs(prior[rows, cols] - fields["disparity"]))
+    assert posterior_misfit < 0.7 * prior_misfit
+
+
+def test_rerun_recording_has_every_frame(logs: dict[str, Path]) -> None:
+    import rerun.chunk
+
+    rrd = logs["folder"] / "test.rrd"
+    jobs.densify(logs["test"], logs["folder"] / "dense_rrd.mcap", logs["basis"], rrd=rrd)
+    summary = rerun.chunk.RrdReader(rrd).store().summary()
+    rows: dict[str, int] = {}
+    for entity, count in re.findall(r"^(\S+) rows=(\d+) static=False", summary, re.MULTILINE):
+        rows[entity] = rows.get(entity, 0) + int(count)
+    for entity in ("/camera/image", "/camera/depth", "/camera/features", "/depth_std"):
+        assert rows[entity] == 5, summary
+    assert rows["/camera"] == 1  # the pinhole, logged once for an unchanging camera
+    assert not list(logs["folder"].glob(".test.rrd*"))
+
+
+def test_info_describes_basis_and_log(logs: dict[str, Path]) -> None:
+    text = jobs.info(logs["basis"])
+    assert "12" in text
+    assert "310x94" in text
+    text = jobs.info(logs["test"])
+    assert "/stereo/left/image_rect" in text
+
+
+def test_demo_runs_small(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(jobs, "DEMO_SCALE", 0.25)
+    monkeypatch.setattr(jobs, "DEMO_TRAIN_FRAMES", 16)
+    monkeypatch.setattr(jobs, "DEMO_TEST_FRAMES", 3)
+    monkeypatch.setattr(jobs, "DEMO_COMPONENTS", 8)
+    text = jobs.demo(tmp_path / "demo")
+    assert "PCA-MAP" in text
+    assert "nearest neighbour" in text
+    for name in ("train.mcap", "heldout.mcap", "basis.npz", "heldout_dense.mcap", "heldout.rrd"):
+        assert (tmp_path / "demo" / name).is_file()
+
+
+@pytest.mark.skipif(not KITTI_RAW.is_dir(), reason="needs ../shared/realdata/kitti_raw")
+def test_real_kitti_drive_end_to_end(tmp_path: Path) -> None:
+    log = tmp_path / "kitti.mcap"
+    jobs.import_kitti(KITTI_RAW, log, max_frames=6)
+    basis = tmp_path / "kitti_basis.npz"
+    jobs.learn([log], basis, jobs.LearnOptions(n_components=4, grid_scale=0.125), PairingConfig())
+    summary = jobs.densify(log, tmp_path / "kitti_dense.mcap", basis)
+    assert summary.frames == 6
+    assert summary.measurements / summary.frames > 150
+    with open_log(tmp_path / "kitti_dense.mcap") as reader:
+        depth = [reader.decode(raw) for raw in reader.messages(["/pcainterp/depth"])]
+    image = rosmsg.image_array(depth[0])
+    assert image.shape == (375, 1242)
+    finite = image[np.isfinite(image)]
+    assert finite.size > 0.9 * image.size
+    assert 2.0 < float(np.median(finite)) < 80.0
