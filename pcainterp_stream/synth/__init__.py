@@ -23,6 +23,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.records import StereoCamera, SynthFrame
+from pcainterp_stream.synth._alloc import keep_freed_memory
 from pcainterp_stream.synth.render import View, render_view
 from pcainterp_stream.synth.world import World
 
@@ -219,8 +220,26 @@ class _NoiseSource:
         return self._buffer[start : start + self._size].reshape(shape)
 
 
+def _render_image(
+    world: World,
+    camera: StereoCamera,
+    camera_to_world: npt.NDArray[np.float64],
+    noise: npt.NDArray[np.float32] | None,
+) -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.float32]]:
+    """Render one view and pass it through the sensor model.
+
+    Returns:
+        (H, W) uint8 image and (H, W) float32 z-depth (m, NaN for sky).
+    """
+    view = render_view(world, camera, camera_to_world)
+    return _sensor(view.image, noise), view.depth
+
+
 def generate(config: SynthConfig) -> Iterator[SynthFrame]:
     """Render a synthetic stereo drive frame by frame.
+
+    Tunes glibc's malloc on first use (see :func:`._alloc.keep_freed_memory`): freed
+    temporaries are kept for reuse instead of being page-faulted in again for every view.
 
     Args:
         config: the drive's options.
@@ -229,25 +248,30 @@ def generate(config: SynthConfig) -> Iterator[SynthFrame]:
         One :class:`SynthFrame` per 100 ms: left/right (H, W) uint8, depth (H, W) float32 m
         (NaN for sky), camera_to_world (4, 4) float64, and the scaled camera.
     """
+    keep_freed_memory()
     world = World(config.seed)
     camera = config.camera
     noise = _NoiseSource(config.seed, camera.width * camera.height) if config.noise else None
     shape = (camera.height, camera.width)
-    # The right view renders in a second thread while this one renders the left (numpy
-    # releases the GIL); both are pure functions of the world and pose, so the result does
-    # not depend on the scheduling.
+    # The right view (render and sensor) runs in a second thread while this one renders the
+    # left (numpy releases the GIL); both are pure functions of the world, the pose and the
+    # noise drawn here in a fixed order, so the result does not depend on the scheduling.
     with ThreadPoolExecutor(max_workers=1) as pool:
         for index in range(config.frames):
             pose = camera_pose(world, config, index)
-            right_job = pool.submit(render_view, world, camera, right_pose(pose, camera.baseline))
-            left = render_view(world, camera, pose)
-            right = right_job.result()
+            left_noise = noise.next(shape) if noise else None
+            right_noise = noise.next(shape) if noise else None
+            right_job = pool.submit(
+                _render_image, world, camera, right_pose(pose, camera.baseline), right_noise
+            )
+            left, depth = _render_image(world, camera, pose, left_noise)
+            right, _ = right_job.result()
             yield SynthFrame(
                 index=index,
                 stamp_ns=config.start_time_ns + index * FRAME_PERIOD_NS,
-                left=_sensor(left.image, noise.next(shape) if noise else None),
-                right=_sensor(right.image, noise.next(shape) if noise else None),
-                depth=left.depth,
+                left=left,
+                right=right,
+                depth=depth,
                 camera_to_world=pose,
                 camera=camera,
             )
