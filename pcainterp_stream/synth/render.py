@@ -73,6 +73,8 @@ def _march_depths() -> F64:
 
 
 _DEPTHS = _march_depths()
+#: Texel offset of each material's tile in the texture bank.
+_MATERIAL_TILE_BASE = textures.tile_offset(MATERIAL_TILE)
 
 
 @dataclass(frozen=True)
@@ -88,13 +90,27 @@ class View:
     depth: F32
 
 
-def _mip_level(footprint_texels: F32) -> npt.NDArray[np.int32]:
-    """Return round(log2(footprint) + bias) clipped to the mip range, via exact frexp."""
-    mantissa, exponent = np.frexp(footprint_texels * np.float32(2.0**_MIP_BIAS))
-    # log2(x) = exponent - 1 + log2(2 * mantissa); round at 2 * mantissa = sqrt(2).
-    level = exponent - 1 + (mantissa >= np.float32(0.70710678)).astype(np.int32)
-    result: npt.NDArray[np.int32] = np.clip(level, 0, textures.TILE_LOG2).astype(np.int32)
-    return result
+#: Float32 bit pattern arithmetic of :func:`_mip_level`: adding this to the bits carries
+#: into the exponent exactly when the mantissa 1.m >= sqrt(2), i.e. rounds log2 at sqrt(2).
+_LOG2_ROUND = (1 << 23) - 3474676
+_MIP_SCALE = 2.0**_MIP_BIAS / TEXEL
+
+
+def _mip_level(footprint: F32) -> npt.NDArray[np.int32]:
+    """Return the mip level round(log2(footprint / TEXEL) + bias), clipped to the pyramid.
+
+    Args:
+        footprint: (n,) float32 pixel footprint on the surface (m), > 0.
+
+    Returns:
+        (n,) int32 level in 0..TILE_LOG2, from the float32 exponent bits (exact, no log).
+    """
+    bits = (footprint * np.float32(_MIP_SCALE)).view(np.int32)
+    bits += np.int32(_LOG2_ROUND)
+    np.right_shift(bits, np.int32(23), out=bits)
+    bits -= np.int32(127)
+    np.clip(bits, np.int32(0), np.int32(textures.TILE_LOG2), out=bits)
+    return bits
 
 
 def _column_of_pixel(width: int, height: int) -> npt.NDArray[np.intp]:
@@ -272,12 +288,10 @@ def render_view(
         rows = object_pixels - np.take(column_of, object_pixels) * height
         height_world = np.float32(cam_z) - z * np.take(slope_y.astype(np.float32), rows)
         footprint = z * attributes[:, 1]
-        level = _mip_level(footprint * np.float32(1.0 / TEXEL))
+        level = _mip_level(footprint)
         s_coord = surface_u * np.float32(1.0 / TEXEL)
         t_coord = height_world * np.float32(1.0 / TEXEL)
-        texture = _texture(
-            bank, np.take(MATERIAL_TILE, material), s_coord, t_coord, footprint, level
-        )
+        texture = _texture(bank, np.take(_MATERIAL_TILE_BASE, material), s_coord, t_coord, level)
         grey = attributes[:, 2] + np.take(MATERIAL_CONTRAST, material) * texture
         windowed = np.flatnonzero(np.take(MATERIAL_WINDOWS + MATERIAL_CAR_WINDOWS, material))
         if windowed.size:
@@ -305,26 +319,37 @@ def _haze(grey: F32, depth: F32) -> F32:
     return result
 
 
+_MACRO_BASE = int(textures.tile_offset(textures.TILE_MACRO))
+_MACRO_SCALE = TEXEL / MACRO_TEXEL
+
+
 def _texture(
     bank: textures.TextureBank,
-    tile: npt.NDArray[np.intp],
+    tile_base: npt.NDArray[np.int64],
     s_coord: F32,
     t_coord: F32,
-    footprint: F32,
     level: npt.NDArray[np.int32],
 ) -> F32:
-    """Fine tile plus the macro-variation tile at the same surface point."""
-    fine = bank.sample(tile, s_coord, t_coord, level)
-    scale = np.float32(TEXEL / MACRO_TEXEL)
-    macro_level = np.maximum(level - 4, 0).astype(np.int32)
-    macro = bank.sample(
-        np.full(tile.shape, textures.TILE_MACRO, dtype=np.intp),
-        s_coord * scale,
-        t_coord * scale,
-        macro_level,
-    )
-    result: F32 = fine + np.float32(0.8) * macro
-    return result
+    """Fine tile plus the macro-variation tile at the same surface point.
+
+    Args:
+        bank: the world's tiles.
+        tile_base: (n,) int64 ``textures.tile_offset`` of each point's fine tile.
+        s_coord: (n,) float32 first surface coordinate (level-0 texels).
+        t_coord: (n,) float32 second surface coordinate (level-0 texels).
+        level: (n,) int32 mip level of the fine tile.
+
+    Returns:
+        (n,) float32 texture value (about -4..4).
+    """
+    fine = bank.sample(tile_base, s_coord, t_coord, level)
+    scale = np.float32(_MACRO_SCALE)
+    macro_level = level - np.int32(4)
+    np.maximum(macro_level, np.int32(0), out=macro_level)
+    macro = bank.sample(_MACRO_BASE, s_coord * scale, t_coord * scale, macro_level)
+    macro *= np.float32(0.8)
+    fine += macro
+    return fine
 
 
 def _shade_ground(
@@ -367,9 +392,9 @@ def _shade_ground(
     paved = on_road | side_street
     material = (~paved) * (2 - on_pavement.astype(np.intp))
     footprint = depth * np.float32(1.0 / camera.fx)
-    level = _mip_level(footprint * np.float32(1.0 / TEXEL))
+    level = _mip_level(footprint)
     texture = _texture(
-        world.textures, np.take(MATERIAL_TILE, material), s_coord, t_coord, footprint, level
+        world.textures, np.take(_MATERIAL_TILE_BASE, material), s_coord, t_coord, level
     )
     albedo = np.take(np.array([95.0, 135.0, 105.0], dtype=np.float32), material)
     grey = albedo + np.take(MATERIAL_CONTRAST, material) * texture

@@ -24,8 +24,6 @@ TILE_SIZE = 512
 #: log2(TILE_SIZE): number of mip levels below level 0.
 TILE_LOG2 = 9
 _SHIFT = float(TILE_SIZE * 1024)
-_SIZE_LOG2 = np.arange(TILE_LOG2, -1, -1, dtype=np.int32)
-_MASK = (np.left_shift(1, _SIZE_LOG2) - 1).astype(np.int32)
 
 
 def _noise_tile(
@@ -67,26 +65,33 @@ TILE_ASPHALT, TILE_PAVEMENT, TILE_GRASS, TILE_PLASTER, TILE_BRICK, TILE_METAL, T
 TILE_MACRO = 7
 
 
+#: Rows reserved per tile in ``TextureBank.texels``: level l starts at row 1024 - (1024 >> l)
+#: and every row is TILE_SIZE texels long, so an index is pure shift arithmetic.
+_TILE_ROWS = 2 * TILE_SIZE
+_TILE_TEXELS_LOG2 = 2 * TILE_LOG2 + 1
+
+
 @dataclass(frozen=True)
 class TextureBank:
     """All texture tiles of one world with their mip pyramids, flattened for gathers.
 
+    Tile i occupies texels ``[i << 19, (i + 1) << 19)`` as 1024 rows of TILE_SIZE texels:
+    level l (size 512 >> l) starts at row 1024 - (1024 >> l); unused texels are zero.
+
     Attributes:
-        texels: (n,) float32 every level of every tile, row-major, values about in [-3, 3].
-        level_base: (n_tiles, TILE_LOG2 + 1) int32 start of each tile's level in ``texels``.
+        texels: (n_tiles << 19,) float32 texel values, about in [-3, 3].
     """
 
     texels: npt.NDArray[np.float32]
-    level_base: npt.NDArray[np.int32]
 
     @property
     def n_tiles(self) -> int:
         """Return the number of tiles."""
-        return int(self.level_base.shape[0])
+        return int(self.texels.shape[0] >> _TILE_TEXELS_LOG2)
 
     def sample(
         self,
-        tile: npt.NDArray[np.intp],
+        tile_base: npt.NDArray[np.int64] | int,
         s: npt.NDArray[np.float32],
         t: npt.NDArray[np.float32],
         level: npt.NDArray[np.int32],
@@ -94,7 +99,7 @@ class TextureBank:
         """Look up texels (nearest texel of one mip level) for many points at once.
 
         Args:
-            tile: (n,) tile index per point (int).
+            tile_base: (n,) int64 per point, or one int: ``tile_offset(tile)``.
             s: (n,) float32 first surface coordinate in level-0 texels.
             t: (n,) float32 second surface coordinate in level-0 texels.
             level: (n,) int32 mip level per point, 0..TILE_LOG2.
@@ -104,14 +109,26 @@ class TextureBank:
         """
         # A shift by a multiple of TILE_SIZE (the period at every level) makes coordinates
         # positive so truncation is floor; float32 keeps 1/16 texel at |s| < 2**19.
+        mask = np.right_shift(np.int32(TILE_SIZE - 1), level)
         si = (s + np.float32(_SHIFT)).astype(np.int32)
+        np.right_shift(si, level, out=si)
+        si &= mask
         ti = (t + np.float32(_SHIFT)).astype(np.int32)
-        size_log2 = np.take(_SIZE_LOG2, level)
-        mask = np.take(_MASK, level)
-        index = np.take(self.level_base.ravel(), tile * (TILE_LOG2 + 1) + level)
-        index += np.left_shift(np.right_shift(ti, level) & mask, size_log2)
-        index += np.right_shift(si, level) & mask
+        np.right_shift(ti, level, out=ti)
+        ti &= mask
+        # Row within the tile: level start 1024 - (1024 >> l) plus the texel row.
+        ti += np.int32(_TILE_ROWS)
+        ti -= np.right_shift(np.int32(_TILE_ROWS), level)
+        np.left_shift(ti, np.int32(TILE_LOG2), out=ti)
+        ti += si
+        index = ti.astype(np.int64)
+        index += tile_base
         return np.take(self.texels, index)
+
+
+def tile_offset(tile: npt.NDArray[np.integer] | int) -> npt.NDArray[np.int64]:
+    """Return the offset of tile(s) ``tile`` in ``TextureBank.texels`` (int64)."""
+    return np.left_shift(np.asarray(tile, dtype=np.int64), _TILE_TEXELS_LOG2)
 
 
 def make_texture_bank(rng: np.random.Generator) -> TextureBank:
@@ -124,16 +141,14 @@ def make_texture_bank(rng: np.random.Generator) -> TextureBank:
         The bank; tiles are quantised to 1/1024 so results do not depend on the platform's
         floating-point library.
     """
-    pieces: list[npt.NDArray[np.float32]] = []
-    bases = np.zeros((len(_RECIPES), TILE_LOG2 + 1), dtype=np.int32)
-    position = 0
+    texels = np.zeros((len(_RECIPES), _TILE_ROWS, TILE_SIZE), dtype=np.float32)
     for tile_index, recipe in enumerate(_RECIPES):
         level_image = _noise_tile(rng, size=TILE_SIZE, octaves=recipe)
         for level in range(TILE_LOG2 + 1):
             quantised = (np.round(level_image * 1024.0) / 1024.0).astype(np.float32)
-            bases[tile_index, level] = position
-            pieces.append(quantised.ravel())
-            position += quantised.size
+            size = quantised.shape[0]
+            row = _TILE_ROWS - (_TILE_ROWS >> level)
+            texels[tile_index, row : row + size, :size] = quantised
             if level < TILE_LOG2:
                 # 2x2 box average, then a light wrap blur so a level holds no frequency its
                 # texel grid cannot carry (anti-aliasing of the pyramid itself).
@@ -141,4 +156,4 @@ def make_texture_bank(rng: np.random.Generator) -> TextureBank:
                 level_image = level_image.reshape(size, 2, size, 2).mean(axis=(1, 3))
                 if size >= 4:
                     level_image = ndimage.gaussian_filter(level_image, 0.5, mode="wrap")
-    return TextureBank(texels=np.concatenate(pieces), level_base=bases)
+    return TextureBank(texels=texels.ravel())
