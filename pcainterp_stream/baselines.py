@@ -17,6 +17,8 @@ import numpy.typing as npt
 from scipy.interpolate import LinearNDInterpolator
 from scipy.spatial import QhullError
 
+from pcainterp_stream.estimator import clean_measurements
+
 
 @dataclass(frozen=True, eq=False)
 class BaselineResult:
@@ -49,7 +51,7 @@ def nearest(
         The :class:`BaselineResult`; each pixel takes the disparity of the measurement
         whose (rounded) pixel is nearest.
     """
-    points, values, n_dropped = _clean(pixels, disparities, image_size)
+    points, values, n_dropped = clean_measurements(pixels, disparities, image_size)
     return BaselineResult(_nearest_map(points, values, image_size), points, values, n_dropped)
 
 
@@ -67,7 +69,7 @@ def linear(
         The :class:`BaselineResult`; outside the convex hull (or with fewer than three
         non-collinear measurements) the nearest measurement's value.
     """
-    points, values, n_dropped = _clean(pixels, disparities, image_size)
+    points, values, n_dropped = clean_measurements(pixels, disparities, image_size)
     dense = _nearest_map(points, values, image_size)
     if points.shape[0] >= 3:
         height, width = image_size
@@ -98,29 +100,3 @@ def _nearest_map(
     by_label = np.zeros(int(labels.max()) + 1, dtype=np.float32)
     by_label[labels[rows, cols]] = values
     return np.asarray(by_label[labels], dtype=np.float32)
-
-
-def _clean(
-    pixels: npt.ArrayLike, disparities: npt.ArrayLike, image_size: tuple[int, int]
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], int]:
-    points = np.asarray(pixels, dtype=np.float64)
-    values = np.asarray(disparities, dtype=np.float64)
-    if points.size == 0 and points.ndim < 2:
-        points = points.reshape(0, 2)
-    if points.ndim != 2 or points.shape[1] != 2:
-        raise ValueError(f"Expected `pixels` of shape (k, 2) as (x, y), got {points.shape}")
-    if values.shape != (points.shape[0],):
-        raise ValueError(
-            f"Expected `disparities` of shape ({points.shape[0]},) to match `pixels`, "
-            f"got {values.shape}"
-        )
-    height, width = image_size
-    with np.errstate(invalid="ignore"):
-        keep = (
-            np.isfinite(values)
-            & (points[:, 0] >= -0.5)
-            & (points[:, 0] <= width - 0.5)
-            & (points[:, 1] >= -0.5)
-            & (points[:, 1] <= height - 0.5)
-        )
-    return points[keep], values[keep], int(keep.size - np.count_nonzero(keep))

@@ -228,7 +228,7 @@ def densify_batch(
     stride = _variance_stride(basis, variance_stride)
 
     frames = [
-        _clean(pixels, disparities, out_size)
+        clean_measurements(pixels, disparities, out_size)
         for pixels, disparities in zip(pixels_list, disparities_list, strict=True)
     ]
     eigenvalues = basis.eigenvalues
@@ -305,7 +305,7 @@ def posterior_covariance(
         coefficient form (valid for zero eigenvalues too).
     """
     out_size = _image_size(basis, image_size)
-    frame_pixels, _, _ = _clean(pixels, disparities, out_size)
+    frame_pixels, _, _ = clean_measurements(pixels, disparities, out_size)
     indices, weights = bilinear_weights(
         image_to_grid(frame_pixels, out_size, basis.grid_size), basis.grid_size
     )
@@ -449,10 +449,22 @@ def _depth(
     return depth, depth_std
 
 
-def _clean(
+def clean_measurements(
     pixels: npt.ArrayLike, disparities: npt.ArrayLike, image_size: tuple[int, int]
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], int]:
-    """Validate shapes, drop non-finite and out-of-image measurements, count the drops."""
+    """Validate shapes, drop non-finite and out-of-image measurements, count the drops.
+
+    Args:
+        pixels: (k, 2) float, (x, y) in image px.
+        disparities: (k,) float (px).
+        image_size: (height, width); pixel centres span [-0.5, size - 0.5].
+
+    Returns:
+        The kept pixels (m, 2) float64, their disparities (m,) float64, and k - m.
+
+    Raises:
+        ValueError: ``pixels`` is not (k, 2) or ``disparities`` not (k,).
+    """
     pixel_array = np.asarray(pixels, dtype=np.float64)
     disparity_array = np.asarray(disparities, dtype=np.float64)
     if pixel_array.size == 0 and pixel_array.ndim < 2:
