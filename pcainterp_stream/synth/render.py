@@ -23,6 +23,7 @@ is over whole images).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,7 +40,7 @@ from pcainterp_stream.synth.world import (
     ROAD_HALF_WIDTH,
     SIDEWALK_WIDTH,
     BlockTable,
-    Material,
+    RoadTable,
     World,
 )
 
@@ -113,9 +114,83 @@ def _mip_level(footprint: F32) -> npt.NDArray[np.int32]:
     return bits
 
 
-def _column_of_pixel(width: int, height: int) -> npt.NDArray[np.intp]:
-    """Return the column index of every pixel of a (W, H) column-major image, flattened."""
-    return np.repeat(np.arange(width, dtype=np.intp), height)
+@functools.lru_cache(maxsize=4)
+def _pixel_slopes(width: int, height: int, cy: float, fy: float) -> F32:
+    """Return (W * H,) float32 downward ray slope (r - cy) / fy of every pixel, column-major."""
+    slope = ((np.arange(height, dtype=np.float64) - cy) / fy).astype(np.float32)
+    result: F32 = np.tile(slope, width)
+    result.flags.writeable = False
+    return result
+
+
+@dataclass(frozen=True)
+class _Ground:
+    """The marched ground of one view, as straight row segments per column.
+
+    Segment j = c * (K + 1) + k (k = 1..K-1) covers the rows of column c between march
+    samples k - 1 and k; there inverse depth and lateral offset are linear in the row:
+    ``value = value_{k-1} + (envelope_{k-1} - row) * slope``. Segment k = K of each column
+    is the sky above its last sample (inverse depth 0).
+
+    Attributes:
+        segment: (W * H,) intp segment of every pixel, column-major.
+        inverse: (W * (K + 1), 4) float32 per segment: envelope_{k-1} (row), inverse depth
+            at k - 1 (1/m), its slope per row, 0.
+        lateral: (W * (K + 1), 4) float32 per segment: lateral offset at k - 1 (m), its
+            slope per row, and the column's ray direction x, y per unit depth.
+    """
+
+    segment: npt.NDArray[np.intp]
+    inverse: F32
+    lateral: F32
+
+
+def _march_ground(
+    world: World,
+    camera: StereoCamera,
+    centre: F64,
+    ray_x: F64,
+    ray_y: F64,
+    table: RoadTable,
+    blocks: BlockTable,
+) -> _Ground:
+    """March the ground along every column and cut it into straight row segments."""
+    width, height = camera.width, camera.height
+    cam_z = float(centre[2])
+    sample_x = centre[0] + ray_x[:, None] * _DEPTHS  # (W, K)
+    sample_y = centre[1] + ray_y[:, None] * _DEPTHS
+    ground_z, ground_l = world.ground(table, blocks, sample_x, sample_y)
+    envelope = camera.cy + camera.fy * (cam_z - ground_z) / _DEPTHS
+    np.minimum.accumulate(envelope, axis=1, out=envelope)
+    envelope[:, 0] = height + 1.0  # the first sample covers the bottom rows
+    n_samples = _DEPTHS.shape[0]
+    # Segment k (k >= 1) covers the rows ceil(envelope_k) .. ceil(envelope_{k-1}) - 1 of its
+    # column (the envelope is non-increasing in k); the rows above the last sample are sky.
+    # One np.repeat lays out every column top-down: sky, then segments K-1 .. 1.
+    edges = np.clip(np.ceil(envelope), 0.0, float(height)).astype(np.intp)
+    covered = np.empty((width, n_samples + 1), dtype=np.intp)
+    covered[:, 0] = edges[:, -1]
+    covered[:, 1:n_samples] = edges[:, -2::-1] - edges[:, :0:-1]
+    covered[:, n_samples] = 0
+    order = np.arange(width * (n_samples + 1), dtype=np.intp).reshape(width, n_samples + 1)
+    segment = np.repeat(order[:, ::-1].ravel(), covered.ravel())
+
+    span = np.maximum(envelope[:, :-1] - envelope[:, 1:], 1e-6)  # (W, K - 1)
+    inverse_depth = 1.0 / _DEPTHS
+    inverse = np.zeros((width, n_samples + 1, 4), dtype=np.float32)
+    inverse[:, 1:n_samples, 0] = envelope[:, :-1]
+    inverse[:, 1:n_samples, 1] = inverse_depth[:-1]
+    inverse[:, 1:n_samples, 2] = (inverse_depth[1:] - inverse_depth[:-1]) / span
+    lateral = np.zeros((width, n_samples + 1, 4), dtype=np.float32)
+    lateral[:, 1:n_samples, 0] = ground_l[:, :-1]
+    lateral[:, 1:n_samples, 1] = (ground_l[:, 1:] - ground_l[:, :-1]) / span
+    lateral[:, :, 2] = ray_x[:, None]
+    lateral[:, :, 3] = ray_y[:, None]
+    return _Ground(
+        segment=segment,
+        inverse=inverse.reshape(-1, 4),
+        lateral=lateral.reshape(-1, 4),
+    )
 
 
 def render_view(
@@ -149,7 +224,6 @@ def render_view(
     if abs(pose[2, 1] + 1.0) > 1e-9:
         raise ValueError("camera_to_world must be level: its y axis must be (0, 0, -1)")
     width, height = camera.width, camera.height
-    n_pixels = width * height
     centre = pose[:3, 3]
     right = pose[:3, 0]
     forward = pose[:3, 2]
@@ -160,60 +234,27 @@ def render_view(
     ray_x = forward[0] + slope_x * right[0]  # (W,) horizontal direction per unit depth
     ray_y = forward[1] + slope_x * right[1]
     row = np.arange(height, dtype=np.float64)
-    slope_y = (row - camera.cy) / camera.fy  # (H,) downward rise per unit depth
 
-    # ------------------------------------------------------------------ ground march
-    sample_x = centre[0] + ray_x[:, None] * _DEPTHS  # (W, K)
-    sample_y = centre[1] + ray_y[:, None] * _DEPTHS
-    x_low, x_high = float(sample_x.min()) - 2.0, float(sample_x.max()) + 2.0
+    # ------------------------------------------------------------------ ground
+    reach_x = centre[0] + np.concatenate([ray_x * _DEPTHS[0], ray_x * _DEPTHS[-1]])
+    x_low, x_high = float(reach_x.min()) - 2.0, float(reach_x.max()) + 2.0
     table = world.road_table(x_low, x_high)
     blocks = world.block_table(x_low, x_high)
-    ground_z, ground_l = world.ground(table, blocks, sample_x, sample_y)
-    envelope = camera.cy + camera.fy * (cam_z - ground_z) / _DEPTHS
-    np.minimum.accumulate(envelope, axis=1, out=envelope)
-    envelope[:, 0] = height + 1.0  # the first sample covers the bottom rows
-    n_samples = _DEPTHS.shape[0]
-    # Sample k (k >= 1) covers the rows ceil(envelope_k) .. ceil(envelope_{k-1}) - 1 of its
-    # column (the envelope is non-increasing in k); rows above the last sample are sky and
-    # get the sentinel index n_samples. One np.repeat lays out every column bottom-up.
-    edges = np.clip(np.ceil(envelope), 0.0, float(height)).astype(np.intp)
-    covered = np.empty((width, n_samples + 1), dtype=np.intp)
-    covered[:, 0] = 0
-    covered[:, 1:n_samples] = edges[:, :-1] - edges[:, 1:]
-    covered[:, n_samples] = edges[:, -1]
-    sample_of_row = np.repeat(
-        np.tile(np.arange(n_samples + 1, dtype=np.intp), width), covered.ravel()
-    ).reshape(width, height)[:, ::-1]
-    ground_sky = sample_of_row == n_samples
-    upper = (
-        np.minimum(sample_of_row, n_samples - 1)
-        + (np.arange(width, dtype=np.intp) * n_samples)[:, None]
-    )
-    lower = upper - 1
-    # One gather of (envelope row, inverse depth, lateral) for both bracketing samples.
-    fields = np.stack(
-        [
-            envelope.ravel(),
-            np.tile(1.0 / _DEPTHS, width),
-            ground_l.ravel(),
-        ],
-        axis=1,
-    ).astype(np.float32)
-    low_fields = np.take(fields, lower.ravel(), axis=0)
-    high_fields = np.take(fields, upper.ravel(), axis=0)
-    span = low_fields[:, 0] - high_fields[:, 0]
-    row_f32 = np.tile(row.astype(np.float32), width)
-    weight = (low_fields[:, 0] - row_f32) / np.maximum(span, np.float32(1e-6))
-    inverse_depth = low_fields[:, 1] + weight * (high_fields[:, 1] - low_fields[:, 1])
-    # +0 (depth +inf) where the column sees no ground; abs turns a -0 into +0.
-    inverse_depth = np.abs(inverse_depth * ~ground_sky.ravel())
+    ground = _march_ground(world, camera, centre, ray_x, ray_y, table, blocks)
+    fields = np.take(ground.inverse, ground.segment, axis=0)  # (W * H, 4)
+    # Rows below the envelope row of the segment's upper sample, per pixel (>= 0).
+    below = fields[:, 0].reshape(width, height) - row.astype(np.float32)
+    inverse = below * fields[:, 2].reshape(width, height)
+    inverse += fields[:, 1].reshape(width, height)
     with np.errstate(divide="ignore"):
-        depth = np.float32(1.0) / inverse_depth
+        depth = np.reciprocal(inverse).ravel()  # +inf where the column sees sky
+    below = below.ravel()
+    del fields, inverse
 
     # ------------------------------------------------------------------ vertical objects
-    layers = _object_layers(world, camera, centre, forward, ray_x, ray_y, max_layers)
-    is_object = np.zeros(n_pixels, dtype=bool)
-    layer_index = np.zeros(n_pixels, dtype=np.intp)
+    layers = _object_layers(world, camera, centre, right, forward, ray_x, ray_y, max_layers)
+    is_object: npt.NDArray[np.bool_] | None = None
+    layer_index: npt.NDArray[np.intp] | None = None
     if layers is not None:
         n_layers = layers.depth.shape[1] - 1
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -227,89 +268,88 @@ def render_view(
         closeness = np.zeros((width, height), dtype=np.uint8)
         for k in range(n_layers):
             covered = (row_index >= top_row[:, k : k + 1]) & (row_index <= bottom_row[:, k : k + 1])
-            np.maximum(closeness, covered * np.uint8(n_layers - k), out=closeness)
-        layer_index = (
-            (n_layers - closeness.astype(np.intp))
-            + (np.arange(width, dtype=np.intp) * (n_layers + 1))[:, None]
+            rank = covered.view(np.uint8)
+            rank *= np.uint8(n_layers - k)
+            np.maximum(closeness, rank, out=closeness)
+        layer_index = np.subtract(
+            (np.arange(width, dtype=np.intp) * (n_layers + 1) + n_layers)[:, None],
+            closeness,
+            dtype=np.intp,
         ).ravel()
         depth_object = np.take(layers.depth.astype(np.float32).ravel(), layer_index)
         is_object = depth_object < depth
         np.copyto(depth, depth_object, where=is_object)
+        del depth_object, closeness
     sky = np.isinf(depth)
 
-    column_of = _column_of_pixel(width, height)
     illumination = world.illumination
-    bank = world.textures
-    image = np.empty(n_pixels, dtype=np.float32)
+    image = np.empty(width * height, dtype=np.float32)
     sky_row = illumination.sky_top + (illumination.sky_horizon - illumination.sky_top) * np.clip(
         row / max(camera.cy, 1.0), 0.0, 1.0
     )
     sky_pixels = np.flatnonzero(sky)
-    image[sky_pixels] = np.tile(sky_row.astype(np.float32), width)[sky_pixels]
+    image[sky_pixels] = np.take(np.tile(sky_row.astype(np.float32), width), sky_pixels)
 
     # ------------------------------------------------------------------ ground pixels
-    ground_pixels = np.flatnonzero(~(is_object | sky))
+    ground_mask = ~sky if is_object is None else ~(is_object | sky)
+    ground_pixels = np.flatnonzero(ground_mask)
     if ground_pixels.size:
         z = np.take(depth, ground_pixels)
-        columns = np.take(column_of, ground_pixels)
-        g_weight = np.take(weight, ground_pixels)
-        lat_low = np.take(low_fields[:, 2], ground_pixels)
-        lateral = lat_low + g_weight * (np.take(high_fields[:, 2], ground_pixels) - lat_low)
-        rel_x = z * np.take(ray_x.astype(np.float32), columns)
-        rel_y = z * np.take(ray_y.astype(np.float32), columns)
+        g_below = np.take(below, ground_pixels)
+        lateral_fields = np.take(ground.lateral, np.take(ground.segment, ground_pixels), axis=0)
+        lateral = lateral_fields[:, 0] + g_below * lateral_fields[:, 1]
+        rel_x = z * lateral_fields[:, 2]
+        rel_y = z * lateral_fields[:, 3]
         image[ground_pixels] = _shade_ground(
             world, blocks, centre, camera, z, rel_x, rel_y, lateral
         )
 
     # ------------------------------------------------------------------ object pixels
-    object_pixels = np.flatnonzero(is_object)
-    if layers is not None and object_pixels.size:
-        # One gather of every per-layer attribute the pixels need.
-        attributes = np.take(
-            np.stack(
-                [
-                    layers.surface_u,
-                    layers.foot_scale,
-                    layers.albedo,
-                    layers.shade,
-                    layers.bottom,
-                    layers.material,
-                ],
-                axis=2,
-            )
-            .astype(np.float32)
-            .reshape(-1, 6),
-            np.take(layer_index, object_pixels),
-            axis=0,
-        )
-        surface_u = attributes[:, 0]
-        material = attributes[:, 5].astype(np.intp)
-        z = np.take(depth, object_pixels)
-        rows = object_pixels - np.take(column_of, object_pixels) * height
-        height_world = np.float32(cam_z) - z * np.take(slope_y.astype(np.float32), rows)
-        footprint = z * attributes[:, 1]
-        level = _mip_level(footprint)
-        s_coord = surface_u * np.float32(1.0 / TEXEL)
-        t_coord = height_world * np.float32(1.0 / TEXEL)
-        texture = _texture(bank, np.take(_MATERIAL_TILE_BASE, material), s_coord, t_coord, level)
-        grey = attributes[:, 2] + np.take(MATERIAL_CONTRAST, material) * texture
-        windowed = np.flatnonzero(np.take(MATERIAL_WINDOWS + MATERIAL_CAR_WINDOWS, material))
-        if windowed.size:
-            dark = _windows(
-                material[windowed],
-                surface_u[windowed],
-                height_world[windowed] - attributes[windowed, 4],
-                footprint[windowed],
-            )
-            grey[windowed] -= dark * (grey[windowed] - np.float32(35.0))
-        grey *= attributes[:, 3] * np.float32(illumination.gain)
-        image[object_pixels] = _haze(grey, z)
+    if layers is not None and is_object is not None and layer_index is not None:
+        object_pixels = np.flatnonzero(is_object)
+        if object_pixels.size:
+            attributes = np.take(layers.shading, np.take(layer_index, object_pixels), axis=0)
+            z = np.take(depth, object_pixels)
+            slope = np.take(_pixel_slopes(width, height, camera.cy, camera.fy), object_pixels)
+            image[object_pixels] = _shade_objects(world, cam_z, z, slope, attributes)
 
     depth[sky_pixels] = np.nan
     return View(
         image=np.ascontiguousarray(image.reshape(width, height).T),
         depth=np.ascontiguousarray(depth.reshape(width, height).T),
     )
+
+
+def _shade_objects(world: World, cam_z: float, depth: F32, slope: F32, attributes: F32) -> F32:
+    """Grey level of pixels on vertical surfaces: texture, windows, lighting and haze.
+
+    Args:
+        world: the world (textures, lighting).
+        cam_z: camera height in the world (m).
+        depth: (n,) float32 z-depth of the pixels (m).
+        slope: (n,) float32 downward ray slope (row - cy) / fy of the pixels.
+        attributes: (n, 8) float32 ``_Layers.shading`` rows of the pixels' layers.
+
+    Returns:
+        (n,) float32 grey levels.
+    """
+    surface_u = attributes[:, 0]
+    height_world = np.float32(cam_z) - depth * slope
+    footprint = depth * attributes[:, 1]
+    level = _mip_level(footprint)
+    tile_base = attributes[:, 7].astype(np.int64)
+    s_coord = surface_u * np.float32(1.0 / TEXEL)
+    t_coord = height_world * np.float32(1.0 / TEXEL)
+    texture = _texture(world.textures, tile_base, s_coord, t_coord, level)
+    texture *= attributes[:, 5]
+    grey = texture
+    grey += attributes[:, 2]
+    height_world -= attributes[:, 4]
+    dark = _windows(attributes[:, 6], surface_u, height_world, footprint)
+    dark *= grey - np.float32(35.0)
+    grey -= dark
+    grey *= attributes[:, 3]
+    return _haze(grey, depth)
 
 
 def _haze(grey: F32, depth: F32) -> F32:
@@ -384,8 +424,14 @@ def _shade_ground(
     t_coord = (rel_y + origin_y) * np.float32(1.0 / TEXEL)
     along = rel_x + np.float32(centre[0])  # the along-road coordinate u
     distance = np.abs(lateral)
-    sidewalk_zone = blocks.has_sidewalk(along) > 0
-    side_street = blocks.in_side_street(along)
+    # Sidewalk and side-street flags change only at whole metres (block and street edges):
+    # tabulate them per metre of u and look them up once.
+    u_first = float(np.floor(along.min()))
+    metres = u_first + 0.5 + np.arange(int(along.max() - u_first) + 1, dtype=np.float64)
+    flags = (blocks.has_sidewalk(metres) > 0) + 2 * blocks.in_side_street(metres).astype(np.uint8)
+    cell = np.take(flags.astype(np.uint8), (along - np.float32(u_first)).astype(np.intp))
+    sidewalk_zone = (cell & 1).view(np.bool_)
+    side_street = (cell >> 1).view(np.bool_)
     on_road = distance < ROAD_HALF_WIDTH
     on_pavement = sidewalk_zone & (distance < ROAD_HALF_WIDTH + SIDEWALK_WIDTH)
     # ASPHALT = 0, PAVEMENT = 1, GRASS = 2.
@@ -423,16 +469,11 @@ def _shade_ground(
     return _haze(grey, depth)
 
 
-def _windows(
-    material: npt.NDArray[np.intp],
-    surface_u: F32,
-    height_above_bottom: F32,
-    footprint: F32,
-) -> F32:
+def _windows(kind: F32, surface_u: F32, height_above_bottom: F32, footprint: F32) -> F32:
     """Darkness (0..1) of windows on facades and car glass at the given surface points.
 
     Args:
-        material: (n,) material per point.
+        kind: (n,) float32 window pattern per point: 0 none, 1 facade, 2 car.
         surface_u: (n,) float32 m along the surface.
         height_above_bottom: (n,) float32 m above the object's bottom.
         footprint: (n,) float32 pixel footprint along the surface (m), for anti-aliasing.
@@ -440,42 +481,78 @@ def _windows(
     Returns:
         (n,) float32 amount of window (dark glass) per point.
     """
-    inv_foot = np.float32(1.0) / np.maximum(footprint, np.float32(1e-4))
+    inv_foot = np.maximum(footprint, np.float32(1e-4))
+    np.reciprocal(inv_foot, out=inv_foot)
     # Facades: a grid of 1.4 m x 1.5 m windows, 3.2 m apart, floors of 3 m above 3 m.
     phase_u = surface_u * np.float32(1.0 / 3.2)
-    offset_u = np.abs(phase_u - np.floor(phase_u) - np.float32(0.5)) * np.float32(3.2)
-    cover_u = np.clip((np.float32(0.7) - offset_u) * inv_foot + np.float32(0.5), 0.0, 1.0)
+    phase_u -= np.floor(phase_u)
+    phase_u -= np.float32(0.5)
+    offset_u = np.abs(phase_u, out=phase_u)
+    offset_u *= np.float32(-3.2)
+    offset_u += np.float32(0.7)
+    offset_u *= inv_foot
+    offset_u += np.float32(0.5)
+    cover_u: F32 = np.clip(offset_u, np.float32(0.0), np.float32(1.0), out=offset_u)
     phase_v = height_above_bottom * np.float32(1.0 / 3.0)
-    frac_v = phase_v - np.floor(phase_v)
-    in_floor = (frac_v > 0.35) & (frac_v < 0.85) & (height_above_bottom > 3.0)
-    facade = cover_u * in_floor * np.float32(0.75)
+    phase_v -= np.floor(phase_v)
+    in_floor = (phase_v > np.float32(0.35)) & (phase_v < np.float32(0.85))
+    in_floor &= height_above_bottom > np.float32(3.0)
+    in_floor &= kind == np.float32(1.0)
+    cover_u *= in_floor
+    cover_u *= np.float32(0.75)
     # Cars: a glass band in the upper part of the body (bottom is 0.3 m below ground).
-    car = ((height_above_bottom > 1.3) & (height_above_bottom < 1.75)) * np.float32(0.8)
-    is_car = material == Material.CAR
-    return np.where(is_car, car, facade).astype(np.float32)
+    car = (height_above_bottom > np.float32(1.3)) & (height_above_bottom < np.float32(1.75))
+    car &= kind == np.float32(2.0)
+    cover_u += car * np.float32(0.8)
+    result: F32 = cover_u
+    return result
 
 
 @dataclass(frozen=True)
 class _Layers:
     """Per-column nearest object hits, nearest first, plus one empty layer at the end.
 
-    Every attribute is (W, n_layers + 1); the last column of the layer axis is "no hit".
+    Attributes:
+        depth: (W, L + 1) float64 hit depth (m), +inf for no hit (always so in layer L).
+        top: (W, L + 1) float64 object top height (m).
+        bottom: (W, L + 1) float64 object bottom height (m).
+        shading: (W * (L + 1), 8) float32 per layer: metres along the surface, footprint
+            per unit depth (m/m), albedo, lighting (shade x exposure gain), bottom height,
+            texture contrast, window kind (0 none, 1 facade, 2 car), tile offset.
     """
 
     depth: F64
     top: F64
     bottom: F64
-    surface_u: F64
-    material: npt.NDArray[np.intp]
-    albedo: F64
-    shade: F64
-    foot_scale: F64
+    shading: F32
+
+
+#: Window kind per material (0 none, 1 facade, 2 car), see :func:`_windows`.
+_WINDOW_KIND = (MATERIAL_WINDOWS + 2.0 * MATERIAL_CAR_WINDOWS).astype(np.float32)
+
+
+def _column_span(
+    side_a: F64, depth_a: F64, side_b: F64, depth_b: F64, camera: StereoCamera
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """First and last image column (inclusive, one column of margin) between two directions.
+
+    Both directions must be in front of the camera (depth > 0); the span is empty
+    (first > last) when it misses the image.
+    """
+    column_a = camera.cx + camera.fx * side_a / depth_a
+    column_b = camera.cx + camera.fx * side_b / depth_b
+    low = np.clip(np.floor(np.minimum(column_a, column_b)) - 1.0, -1.0, camera.width)
+    high = np.clip(np.ceil(np.maximum(column_a, column_b)) + 1.0, -1.0, camera.width)
+    first = np.maximum(low, 0.0).astype(np.intp)
+    last = np.minimum(high, camera.width - 1.0).astype(np.intp)
+    return first, last
 
 
 def _object_layers(
     world: World,
     camera: StereoCamera,
     centre: F64,
+    right: F64,
     forward: F64,
     ray_x: F64,
     ray_y: F64,
@@ -483,83 +560,127 @@ def _object_layers(
 ) -> _Layers | None:
     """Intersect every column's horizontal ray with the object footprints near the camera.
 
-    Only the hit depths are computed for all columns x objects; the surface attributes are
-    computed afterwards for the ``max_layers`` nearest hits of each column.
+    Each footprint is only tested against the image columns its projection spans (one
+    (column, object) pair per entry, vectorised); the hits are sorted by (column, depth)
+    and the ``max_layers`` nearest of every column get their surface attributes.
     """
     objects = world.objects(float(centre[0]) - 30.0, float(centre[0]) + OBJECT_RANGE)
     sun = world.illumination.sun
     ambient = world.illumination.ambient
-    right_2d = (float(forward[1]), float(-forward[0]))
-    half_fov = (camera.width - camera.cx + 2.0) / camera.fx, (camera.cx + 2.0) / camera.fx
-    rx = ray_x[:, None]
-    ry = ray_y[:, None]
-    ray_norm_sq = ray_x * ray_x + ray_y * ray_y
+    width = camera.width
+    fwd = forward[:2]
+    side_axis = right[:2]
 
-    # Segments: solve C + z h = P0 + t E for (z, t) by Cramer's rule.
+    # Segments: clip to the half plane depth >= _NEAR, then the columns they span.
     start = objects.seg_start - centre[:2]
     end = objects.seg_end - centre[:2]
-    keep = np.flatnonzero(_in_view(start, end, forward, right_2d, half_fov, margin=0.0))
-    start, edge = start[keep], end[keep] - start[keep]
-    numerator = start[:, 1] * edge[:, 0] - start[:, 0] * edge[:, 1]
+    depth_a, depth_b = start @ fwd, end @ fwd
+    side_a, side_b = start @ side_axis, end @ side_axis
+    seen = np.maximum(depth_a, depth_b) > _NEAR
     with np.errstate(divide="ignore", invalid="ignore"):
-        det = ry * edge[:, 0] - rx * edge[:, 1]  # (W, n)
-        seg_depth = numerator / det
-        along = (rx * start[:, 1] - ry * start[:, 0]) / det
-    seg_depth[~((along >= 0.0) & (along <= 1.0) & (seg_depth > _NEAR))] = np.inf
+        cut = (_NEAR - depth_a) / (depth_b - depth_a)
+    clip_a = seen & (depth_a < _NEAR)
+    clip_b = seen & (depth_b < _NEAR)
+    side_a = np.where(clip_a, side_a + cut * (side_b - side_a), side_a)
+    side_b = np.where(clip_b, side_a + cut * (side_b - side_a), side_b)
+    depth_a = np.where(clip_a | ~seen, _NEAR, depth_a)
+    depth_b = np.where(clip_b | ~seen, _NEAR, depth_b)
+    seg_first, seg_last = _column_span(side_a, depth_a, side_b, depth_b, camera)
+    seg_last = np.where(seen, seg_last, -1)
 
-    # Cylinders: nearest root of |C + z h - Q|^2 = rho^2.
+    # Cylinders: columns of the footprint's bounding box (all columns when it is close).
     offset = objects.cyl_centre - centre[:2]
-    keep_c = np.flatnonzero(
-        _in_view(offset, offset, forward, right_2d, half_fov, margin=objects.cyl_radius)
+    radius = objects.cyl_radius
+    cyl_depth_c = offset @ fwd
+    cyl_side = offset @ side_axis
+    near_edge = cyl_depth_c - radius
+    close = near_edge <= _NEAR
+    far_edge = cyl_depth_c + radius
+    safe_near = np.where(close, 1.0, near_edge)
+    low_side, high_side = cyl_side - radius, cyl_side + radius
+    cyl_first, cyl_last = _column_span(
+        low_side,
+        np.where(low_side < 0.0, safe_near, far_edge),
+        high_side,
+        np.where(high_side > 0.0, safe_near, far_edge),
+        camera,
     )
-    offset, radius = offset[keep_c], objects.cyl_radius[keep_c]
-    along_c = rx * offset[:, 0] + ry * offset[:, 1]  # (W, m)
-    quad_c = (offset * offset).sum(axis=1) - radius * radius
-    disc = along_c * along_c - ray_norm_sq[:, None] * quad_c
-    cyl_depth = (along_c - np.sqrt(np.maximum(disc, 0.0))) / ray_norm_sq[:, None]
-    cyl_depth[~((disc > 0) & (cyl_depth > _NEAR))] = np.inf
+    cyl_first = np.where(close, 0, cyl_first)
+    cyl_last = np.where(close, width - 1, cyl_last)
+    cyl_last = np.where(far_edge > _NEAR, cyl_last, -1)
 
-    depth = np.concatenate([seg_depth, cyl_depth], axis=1)
-    n_seg = keep.size
-    if depth.shape[1] == 0:
+    n_seg = start.shape[0]
+    first = np.concatenate([seg_first, cyl_first])
+    counts = np.maximum(np.concatenate([seg_last, cyl_last]) - first + 1, 0)
+    n_pairs = int(counts.sum())
+    if n_pairs == 0:
         return None
-    n_hits = int(np.isfinite(depth).sum(axis=1).max())
-    if n_hits == 0:
+    owner = np.repeat(np.arange(counts.shape[0], dtype=np.intp), counts)
+    pair_column = np.arange(n_pairs, dtype=np.intp)
+    pair_column -= np.repeat(np.cumsum(counts) - counts - first, counts)
+    rx = ray_x[pair_column]
+    ry = ray_y[pair_column]
+    hit_depth = np.full(n_pairs, np.inf)
+    # Segment pairs: solve C + z h = P0 + t E for (z, t) by Cramer's rule.
+    is_seg_pair = owner < n_seg
+    n_seg_pairs = int(np.count_nonzero(is_seg_pair))  # segments come first
+    if n_seg_pairs:
+        j = owner[:n_seg_pairs]
+        sx, sy = start[j, 0], start[j, 1]
+        ex, ey = end[j, 0] - sx, end[j, 1] - sy
+        srx, sry = rx[:n_seg_pairs], ry[:n_seg_pairs]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            det = sry * ex - srx * ey
+            seg_depth = (sy * ex - sx * ey) / det
+            along = (srx * sy - sry * sx) / det
+        ok = (along >= 0.0) & (along <= 1.0) & (seg_depth > _NEAR)
+        hit_depth[:n_seg_pairs] = np.where(ok, seg_depth, np.inf)
+    if n_pairs > n_seg_pairs:
+        j = owner[n_seg_pairs:] - n_seg
+        ox, oy = offset[j, 0], offset[j, 1]
+        crx, cry = rx[n_seg_pairs:], ry[n_seg_pairs:]
+        norm_sq = crx * crx + cry * cry
+        along_c = crx * ox + cry * oy
+        quad_c = (ox * ox + oy * oy) - radius[j] * radius[j]
+        disc = along_c * along_c - norm_sq * quad_c
+        cyl_depth = (along_c - np.sqrt(np.maximum(disc, 0.0))) / norm_sq
+        ok = (disc > 0) & (cyl_depth > _NEAR)
+        hit_depth[n_seg_pairs:] = np.where(ok, cyl_depth, np.inf)
+
+    hits = np.flatnonzero(np.isfinite(hit_depth))
+    if hits.size == 0:
         return None
-    n_layers = min(max_layers, n_hits)
-    if depth.shape[1] > n_layers:
-        chosen = np.argpartition(depth, n_layers - 1, axis=1)[:, :n_layers]
-    else:
-        chosen = np.broadcast_to(np.arange(depth.shape[1]), depth.shape).copy()
-    picked_depth = np.take_along_axis(depth, chosen, axis=1)
-    order = np.argsort(picked_depth, axis=1, kind="stable")
-    chosen = np.take_along_axis(chosen, order, axis=1)  # (W, L) candidate index
-    picked_depth = np.take_along_axis(picked_depth, order, axis=1)
-    valid = np.isfinite(picked_depth)
-    z = np.where(valid, picked_depth, 0.0)
-    is_seg = chosen < n_seg
-    seg_i = np.where(is_seg, chosen, 0)
-    cyl_i = np.where(is_seg, 0, chosen - n_seg)
-    hit_x = z * rx
-    hit_y = z * ry
-    # Per-object parameters of the picked hits (segments and cylinders side by side).
-    object_index = np.concatenate([keep, keep_c])
-    seg_of = keep[seg_i] if keep.size else np.zeros_like(seg_i)
-    cyl_of = keep_c[cyl_i] if keep_c.size else np.zeros_like(cyl_i)
-    del object_index
-    if keep.size:
+    hit_column = pair_column[hits]
+    order = np.lexsort((hit_depth[hits], hit_column))
+    hits = hits[order]
+    hit_column = hit_column[order]
+    per_column = np.bincount(hit_column, minlength=width)
+    n_layers = min(max_layers, int(per_column.max()))
+    rank = np.arange(hits.size, dtype=np.intp) - (np.cumsum(per_column) - per_column)[hit_column]
+    keep = rank < n_layers
+    hits, hit_column, rank = hits[keep], hit_column[keep], rank[keep]
+    slot = hit_column * (n_layers + 1) + rank
+
+    z = hit_depth[hits]
+    hx, hy = rx[hits], ry[hits]
+    hit_x, hit_y = z * hx, z * hy
+    who = owner[hits]
+    is_seg = who < n_seg
+    seg_i = np.where(is_seg, who, 0)
+    cyl_i = np.where(is_seg, 0, who - n_seg)
+    if n_seg:
         p0 = start[seg_i]
-        e = edge[seg_i]
-        length = np.sqrt((e * e).sum(axis=2))
-        t = ((hit_x - p0[..., 0]) * e[..., 0] + (hit_y - p0[..., 1]) * e[..., 1]) / np.maximum(
+        e = end[seg_i] - p0
+        length = np.sqrt((e * e).sum(axis=1))
+        t = ((hit_x - p0[:, 0]) * e[:, 0] + (hit_y - p0[:, 1]) * e[:, 1]) / np.maximum(
             length * length, 1e-12
         )
-        seg_u = objects.seg_u0[seg_of] + t * length
-        seg_nx = e[..., 1] / np.maximum(length, 1e-9)
-        seg_ny = -e[..., 0] / np.maximum(length, 1e-9)
+        seg_u = objects.seg_u0[seg_i] + t * length
+        seg_nx = e[:, 1] / np.maximum(length, 1e-9)
+        seg_ny = -e[:, 0] / np.maximum(length, 1e-9)
     else:
         seg_u = seg_nx = seg_ny = np.zeros_like(z)
-    if keep_c.size:
+    if offset.shape[0]:
         rho = radius[cyl_i]
         cyl_nx = (hit_x - offset[cyl_i, 0]) / rho
         cyl_ny = (hit_y - offset[cyl_i, 1]) / rho
@@ -569,64 +690,49 @@ def _object_layers(
         pseudo = np.where(
             away >= 0, cyl_ny / total, np.sign(cyl_ny) * (2.0 - np.abs(cyl_ny) / total)
         )
-        cyl_u = pseudo * rho * (np.pi / 2.0) + objects.cyl_albedo[cyl_of] * 3.7
+        cyl_u = pseudo * rho * (np.pi / 2.0) + objects.cyl_albedo[cyl_i] * 3.7
     else:
         cyl_u = cyl_nx = cyl_ny = np.zeros_like(z)
     normal_x = np.where(is_seg, seg_nx, cyl_nx)
     normal_y = np.where(is_seg, seg_ny, cyl_ny)
     # Turn segment normals towards the camera (the ray comes from the camera: n.h < 0).
-    flip = np.where(normal_x * rx + normal_y * ry > 0, -1.0, 1.0)
+    flip = np.where(normal_x * hx + normal_y * hy > 0, -1.0, 1.0)
     normal_x *= flip
     normal_y *= flip
-    cos = np.abs(normal_x * rx + normal_y * ry) / np.sqrt(ray_norm_sq)[:, None]
+    cos = np.abs(normal_x * hx + normal_y * hy) / np.sqrt(hx * hx + hy * hy)
     shade = ambient + (1.0 - ambient) * np.maximum(normal_x * sun[0] + normal_y * sun[1], 0.0)
 
     def pick(seg_values: npt.NDArray[np.generic], cyl_values: npt.NDArray[np.generic]) -> F64:
-        values = (
-            np.where(is_seg, seg_values[seg_of], cyl_values[cyl_of])
-            if (keep.size and keep_c.size)
-            else (seg_values[seg_of] if keep.size else cyl_values[cyl_of])
-        )
-        result: F64 = values.astype(np.float64)
+        if not n_seg:
+            return cyl_values[cyl_i].astype(np.float64)
+        if not offset.shape[0]:
+            return seg_values[seg_i].astype(np.float64)
+        result: F64 = np.where(is_seg, seg_values[seg_i], cyl_values[cyl_i]).astype(np.float64)
         return result
 
-    def with_empty(values: F64, fill: float = 0.0) -> F64:
-        values = np.where(valid, values, fill)
-        return np.concatenate([values, np.full((values.shape[0], 1), fill)], axis=1)
+    def layer_table(values: F64, fill: float) -> F64:
+        table = np.full(width * (n_layers + 1), fill)
+        table[slot] = values
+        return table.reshape(width, n_layers + 1)
 
+    material = pick(objects.seg_material, objects.cyl_material).astype(np.intp)
+    shading = np.zeros((width * (n_layers + 1), 8), dtype=np.float32)
+    shading[slot] = np.stack(
+        [
+            np.where(is_seg, seg_u, cyl_u),
+            1.0 / (camera.fx * np.maximum(cos, 0.12)),
+            pick(objects.seg_albedo, objects.cyl_albedo),
+            shade * world.illumination.gain,
+            pick(objects.seg_bottom, objects.cyl_bottom),
+            MATERIAL_CONTRAST[material],
+            _WINDOW_KIND[material],
+            _MATERIAL_TILE_BASE[material],
+        ],
+        axis=1,
+    )
     return _Layers(
-        depth=with_empty(picked_depth, np.inf),
-        top=with_empty(pick(objects.seg_top, objects.cyl_top)),
-        bottom=with_empty(pick(objects.seg_bottom, objects.cyl_bottom)),
-        surface_u=with_empty(np.where(is_seg, seg_u, cyl_u)),
-        material=with_empty(pick(objects.seg_material, objects.cyl_material)).astype(np.intp),
-        albedo=with_empty(pick(objects.seg_albedo, objects.cyl_albedo)),
-        shade=with_empty(shade),
-        foot_scale=with_empty(1.0 / (camera.fx * np.maximum(cos, 0.12))),
+        depth=layer_table(z, np.inf),
+        top=layer_table(pick(objects.seg_top, objects.cyl_top), 0.0),
+        bottom=layer_table(pick(objects.seg_bottom, objects.cyl_bottom), 0.0),
+        shading=shading,
     )
-
-
-def _in_view(
-    start: F64,
-    end: F64,
-    forward: F64,
-    right: tuple[float, float],
-    half_fov: tuple[float, float],
-    *,
-    margin: F64 | float,
-) -> npt.NDArray[np.bool_]:
-    """Keep footprints (camera-relative segments or discs) that may reach the view wedge."""
-    depth_a = start @ forward[:2]
-    depth_b = end @ forward[:2]
-    side_a = start[:, 0] * right[0] + start[:, 1] * right[1]
-    side_b = end[:, 0] * right[0] + end[:, 1] * right[1]
-    ahead = np.maximum(depth_a, depth_b) + margin > _NEAR
-    right_limit, left_limit = half_fov
-    outside_right = (side_a - margin > right_limit * np.maximum(depth_a + margin, 0.0)) & (
-        side_b - margin > right_limit * np.maximum(depth_b + margin, 0.0)
-    )
-    outside_left = (-side_a - margin > left_limit * np.maximum(depth_a + margin, 0.0)) & (
-        -side_b - margin > left_limit * np.maximum(depth_b + margin, 0.0)
-    )
-    result: npt.NDArray[np.bool_] = ahead & ~outside_right & ~outside_left
-    return result
