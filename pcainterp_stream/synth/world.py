@@ -292,21 +292,26 @@ class World:
         Returns:
             height z (m) and lateral offset l (m), float64 like ``x``.
         """
-        position = np.clip(x - table.x0, 0.0, table.centre_y.shape[0] - 1.000001)
+        n = table.centre_y.shape[0]
+        position = np.clip(x - table.x0, 0.0, n - 1.000001)
         index = position.astype(np.intp)
         weight = position - index
-
+        # Value plus weight times the step to the next metre of y_c, cos(theta), H (steps
+        # tabulated once), and the sidewalk flag, which changes only at whole metres (block
+        # and side-street edges).
         def lerp(values: F64) -> F64:
-            low = values[index]
-            result: F64 = low + weight * (values[index + 1] - low)
+            step = np.zeros_like(values)
+            np.subtract(values[1:], values[:-1], out=step[:-1])
+            result: F64 = np.take(values, index) + weight * np.take(step, index)
             return result
 
+        sidewalk = zones.has_sidewalk(table.x0 + 0.5 + np.arange(n, dtype=np.float64))
         lateral = (y - lerp(table.centre_y)) * lerp(table.cos_heading)
         distance = np.abs(lateral)
         # Kerb: a 0.12 m step at the road edge, ramped over 0.15 m, absent in the country
         # and across side streets.
         kerb = np.clip((distance - ROAD_HALF_WIDTH) * (1.0 / 0.15), 0.0, 1.0)
-        kerb *= zones.has_sidewalk(x) * KERB_HEIGHT
+        kerb *= np.take(sidewalk * KERB_HEIGHT, index)
         # Off-road hills: zero near the road, full amplitude 150 m away.
         rise = np.clip((distance - 14.0) * (self.hill_amplitude / 150.0), 0.0, self.hill_amplitude)
         return lerp(table.height) + kerb + rise * self._hills(x, y), lateral
