@@ -25,9 +25,15 @@ from tqdm import tqdm
 
 from pcainterp_stream import rosmsg
 from pcainterp_stream.basis import Basis
-from pcainterp_stream.errors import BasisError, LogReadError, PcaInterpError
+from pcainterp_stream.errors import (
+    BasisError,
+    LogReadError,
+    LogWriteError,
+    PcaInterpError,
+    TopicNotFoundError,
+)
 from pcainterp_stream.learning import learn_basis
-from pcainterp_stream.logreader import open_log
+from pcainterp_stream.logreader import LogReader, open_log
 from pcainterp_stream.logwriter import LogFormat, WriteSummary, open_writer
 from pcainterp_stream.outputs import OutputTopics, output_messages
 from pcainterp_stream.pairing import PairingConfig, PairingStats, StereoPairer, iter_stereo_frames
@@ -48,6 +54,42 @@ def _echo(text: str) -> None:
     print(text, flush=True)
 
 
+def _check_output_folder(output: Path) -> None:
+    """Refuse an output whose folder is missing before any long work is done."""
+    if not output.parent.is_dir():
+        raise LogWriteError(
+            f"cannot write {output}: folder {output.parent} does not exist; create it first"
+        )
+
+
+def _require_topics(reader: LogReader, options: dict[str, str], wanted: str) -> None:
+    """Check the topics a job reads (topic -> option), naming an empty or damaged log as such.
+
+    Raises:
+        LogReadError: the log has no topics at all, or misses a topic and is damaged (then
+            the topic may be in the unreadable part: "pass --left-topic" would mislead).
+        TopicNotFoundError: an intact log misses a topic (names the topics and the option).
+    """
+    try:
+        reader.require_topics(options)
+    except TopicNotFoundError as err:
+        topics = reader.topics()
+        if reader.damage:
+            missing = next(topic for topic in options if topic not in topics)
+            raise LogReadError(
+                f"no {wanted} found in {reader.path}: it is damaged "
+                f"({'; '.join(reader.damage[:2])}) and its readable part has no topic "
+                f"{missing}; repair or re-record the log"
+            ) from err
+        if all(info.message_count == 0 for info in topics.values()):
+            listed = f" on topics {', '.join(topics)}" if topics else ""
+            raise LogReadError(
+                f"no {wanted} found in {reader.path}: it has no messages{listed}; "
+                "pass a log recorded with stereo images"
+            ) from err
+        raise
+
+
 # ----------------------------------------------------------------------------- synth
 
 
@@ -58,7 +100,7 @@ def synth(out: Path, *, frames: int, seed: int, scale: float, fmt: str | None) -
 
     if frames < 1:
         raise PcaInterpError(f"--frames must be at least 1, got {frames}")
-    if not 0.05 <= scale <= 4.0:
+    if not 0.05 <= scale <= 4.0:  # also refuses nan
         raise PcaInterpError(f"--scale must be in [0.05, 4], got {scale}")
     config = SynthConfig(seed=seed, frames=frames, scale=scale)
     with _bar(frames, f"synth {out.name}") as bar:
@@ -75,6 +117,8 @@ def import_kitti(folder: Path, out: Path, *, max_frames: int | None) -> WriteSum
     """Convert a KITTI folder into an MCAP log (``pcainterp import-kitti``)."""
     from pcainterp_stream.kitti import import_kitti as convert
 
+    if max_frames is not None and max_frames < 1:
+        raise PcaInterpError(f"--max-frames must be at least 1, got {max_frames}")
     with _bar(None, f"import {folder.name}") as bar:
 
         def progress(done: int, total: int | None) -> None:
@@ -120,12 +164,14 @@ def _depth_maps(
     """Yield disparity maps f*b/depth of a depth topic; no surface (NaN, inf) is d = 0."""
     assert options.depth_topic is not None
     with open_log(log) as reader:
-        reader.require_topics(
+        _require_topics(
+            reader,
             {
                 options.depth_topic: "--depth-topic",
                 pairing.left_info_topic: "--left-info-topic",
                 pairing.right_info_topic: "--right-info-topic",
-            }
+            },
+            "depth image",
         )
         infos: dict[str, Any] = {}
         index = 0
@@ -164,7 +210,7 @@ def _sgbm_maps(
 ) -> Iterator[npt.NDArray[np.float32]]:
     """Yield SGBM maps of every N-th pair, matching the next pair while this one is used."""
     with open_log(log) as reader, ThreadPoolExecutor(1, thread_name_prefix="sgbm") as pool:
-        reader.require_topics(pairing.required_topics())
+        _require_topics(reader, pairing.required_topics(), "stereo pair")
         pending: list[Future[npt.NDArray[np.float32]]] = []
         for frame in iter_stereo_frames(reader, pairing):
             if frame.index % options.every:
@@ -193,6 +239,7 @@ def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: Pairin
     for log in logs:
         if log.resolve() == output.resolve():
             raise PcaInterpError(f"output {output} is one of the input logs; choose another -o")
+    _check_output_folder(output)
     source = options.depth_topic or pairing.left_topic
     totals = [_expected_frames(log, source, options.every) for log in logs]
     total = None if None in totals else sum(t for t in totals if t is not None)
@@ -262,6 +309,7 @@ class DensifySummary:
         pairing: the pairer's counts.
         damage: damage found in the input (one line each).
         written: the writer's summary.
+        warnings: notes on the input that are not damage (non-monotonic log times).
     """
 
     input: Path
@@ -272,6 +320,7 @@ class DensifySummary:
     pairing: PairingStats
     damage: list[str]
     written: WriteSummary | None
+    warnings: list[str] = dataclasses.field(default_factory=list)
 
     @property
     def frames_per_second(self) -> float:
@@ -309,7 +358,7 @@ def densify(
     frames = 0
     with contextlib.ExitStack() as stack:
         reader = stack.enter_context(open_log(input_path))
-        reader.require_topics(pairing.required_topics())
+        _require_topics(reader, pairing.required_topics(), "stereo pair")
         clash = sorted(set(topics.all()) & set(reader.topics()))
         if clash:
             raise PcaInterpError(
@@ -351,12 +400,7 @@ def densify(
         emit(engine.finish())
         stats = pairer.finish()
         if frames == 0:
-            detail = f" ({'; '.join(stats.problems[:2])})" if stats.problems else ""
-            raise LogReadError(
-                f"no stereo pair found in {input_path}{detail}; left {pairing.left_topic} and "
-                f"right {pairing.right_topic} need images with matching header stamps and "
-                "camera infos on both sides (see pcainterp info, --stamp-tolerance-ms)"
-            )
+            raise LogReadError(_no_pair_message(input_path, pairing, stats, reader.damage))
     return DensifySummary(
         input=input_path,
         output=output,
@@ -366,7 +410,28 @@ def densify(
         pairing=stats,
         damage=list(reader.damage),
         written=writer.summary(),
+        warnings=list(reader.warnings),
     )
+
+
+def _no_pair_message(
+    path: Path, pairing: PairingConfig, stats: PairingStats, damage: list[str]
+) -> str:
+    """Return the one-line error of a log without a single usable stereo pair."""
+    details = "; ".join([stats.summary(), *stats.problems[:1], *damage[:2]])
+    if stats.undecodable:
+        fix = "convert the images to mono8, rgb8 or bgr8 (or png/jpeg CompressedImage)"
+    elif stats.size_mismatches:
+        fix = "left and right images of a rectified pair must have the same size"
+    elif damage:
+        fix = "the readable part of the log has no complete pair; repair or re-record it"
+    else:
+        fix = (
+            f"left {pairing.left_topic} and right {pairing.right_topic} need images with "
+            "matching header stamps and camera infos on both sides (see pcainterp info, "
+            "--stamp-tolerance-ms)"
+        )
+    return f"no stereo pair found in {path} ({details}); {fix}"
 
 
 # ----------------------------------------------------------------------------- info
@@ -491,15 +556,17 @@ def _gftt_config(args: argparse.Namespace) -> GfttConfig:
             raise PcaInterpError(f"--quality must be in (0, 1), got {args.quality}")
         changes["quality_level"] = args.quality
     if args.min_distance is not None:
+        if not args.min_distance >= 0:
+            raise PcaInterpError(f"--min-distance must be >= 0 px, got {args.min_distance}")
         changes["min_distance"] = args.min_distance
     return dataclasses.replace(GfttConfig(), **changes)
 
 
 def _pairing_config(args: argparse.Namespace, features_topic: str | None = None) -> PairingConfig:
-    if args.stamp_tolerance_ms < 0:
+    if not 0 <= args.stamp_tolerance_ms < float("inf"):
         raise PcaInterpError(f"--stamp-tolerance-ms must be >= 0, got {args.stamp_tolerance_ms}")
-    if args.baseline is not None and not args.baseline > 0:
-        raise PcaInterpError(f"--baseline must be > 0 m, got {args.baseline}")
+    if args.baseline is not None and not 0 < args.baseline < float("inf"):
+        raise PcaInterpError(f"--baseline must be a finite number > 0 m, got {args.baseline}")
     return PairingConfig(
         left_topic=args.left_topic,
         right_topic=args.right_topic,
@@ -528,7 +595,7 @@ def run(args: argparse.Namespace) -> int:
     elif command == "learn":
         if args.components is not None and args.components < 1:
             raise PcaInterpError(f"--components must be at least 1, got {args.components}")
-        if args.variance is not None and not 0 < args.variance <= 1:
+        if args.variance is not None and not 0 < args.variance <= 1:  # also refuses nan
             raise PcaInterpError(f"--variance must be in (0, 1], got {args.variance}")
         if args.grid_scale is not None and not 0 < args.grid_scale <= 1:
             raise PcaInterpError(f"--grid-scale must be in (0, 1], got {args.grid_scale}")
@@ -545,7 +612,7 @@ def run(args: argparse.Namespace) -> int:
         _echo(describe_basis(args.output))
         del basis
     elif command == "densify":
-        if args.sigma <= 0:
+        if not 0 < args.sigma < float("inf"):
             raise PcaInterpError(f"--sigma must be > 0 px, got {args.sigma}")
         source = MeasurementSource.FEATURES if args.features_topic else MeasurementSource.STEREO
         processor = ProcessorConfig(
@@ -573,6 +640,8 @@ def run(args: argparse.Namespace) -> int:
         _echo(f"pairing: {summary.pairing.summary()}")
         for line in summary.damage:
             _echo(f"damage: {line}")
+        for line in summary.warnings:
+            _echo(f"warning: {line}")
         if summary.written is not None:
             _print_written(summary.written)
         if args.rrd is not None:

@@ -1,0 +1,1202 @@
+"""The command line on bad input (issue #4): one-line errors, exit codes, no partial output.
+
+Most tests run ``pcainterp`` in-process through :func:`pcainterp_stream.cli.main` and read
+its output with ``capsys``; the signal tests run it as a subprocess. Every failing run must
+print exactly one line ``pcainterp: error: ...`` on stderr (no traceback), return 2 and
+leave nothing at the output target, nor a partial file or folder beside it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import signal
+import subprocess
+import sys
+import time
+import zipfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap.writer import Writer
+
+from pcainterp_stream import cli, logwriter, rosmsg
+from pcainterp_stream.basis import Basis
+from pcainterp_stream.jobs import LearnOptions, learn, synth
+from pcainterp_stream.logreader import open_log
+from pcainterp_stream.logwriter import open_writer
+from pcainterp_stream.pairing import PairingConfig
+
+REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+needs_realdata = pytest.mark.skipif(
+    not REALDATA.is_dir(), reason=f"real data folder {REALDATA} is absent"
+)
+
+LEFT = "/stereo/left/image_rect"
+RIGHT = "/stereo/right/image_rect"
+LEFT_INFO = "/stereo/left/camera_info"
+RIGHT_INFO = "/stereo/right/camera_info"
+SMALL_FRAMES = 8
+SMALL_SIZE = (94, 310)  # (height, width) of a --scale 0.25 synthetic log
+Message = tuple[str, Any, int]  # (topic, decoded message, log time ns)
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+@dataclasses.dataclass
+class Run:
+    """What one ``pcainterp`` run returned and printed."""
+
+    code: int
+    out: str
+    err: str
+
+    def error_line(self) -> str:
+        """Return the one error line, checking the failure contract on the way."""
+        assert self.code == 2, f"expected exit 2, got {self.code}; stderr: {self.err}"
+        assert "Traceback" not in self.err
+        lines = self.err.splitlines()
+        assert len(lines) == 1, f"expected one stderr line, got {lines}"
+        assert lines[0].startswith("pcainterp: error: ")
+        return lines[0]
+
+
+@pytest.fixture
+def pcainterp(capsys: pytest.CaptureFixture[str]) -> Callable[..., Run]:
+    """Return a function that runs ``pcainterp ARGS...`` in-process."""
+
+    def run(*args: str | Path) -> Run:
+        capsys.readouterr()
+        code = cli.main([str(arg) for arg in args])
+        captured = capsys.readouterr()
+        return Run(code, captured.out, captured.err)
+
+    return run
+
+
+def assert_nothing_written(target: Path) -> None:
+    """Check that neither the target nor a temporary beside it exists."""
+    assert not target.exists(), f"{target} was left behind"
+    if target.parent.is_dir():
+        stray = [p.name for p in target.parent.iterdir() if p.name.startswith(f".{target.name}")]
+        assert not stray, f"temporaries left beside {target}: {stray}"
+
+
+def read_messages(log: Path) -> list[Message]:
+    """Return every message of a log, decoded, in file order."""
+    with open_log(log) as reader:
+        return [(raw.topic, reader.decode(raw), raw.log_time_ns) for raw in reader.messages()]
+
+
+def write_messages(path: Path, messages: list[Message]) -> Path:
+    """Write decoded messages as an MCAP log with the project's writer."""
+    with open_writer(path, "mcap") as writer:
+        for topic, message, log_time_ns in messages:
+            writer.add_message(topic, message, log_time_ns)
+    return path
+
+
+def rewrite(source: Path, target: Path, change: Callable[[str, Any, int], Any | None]) -> Path:
+    """Copy a log, passing every message through ``change`` (None drops it)."""
+    changed = []
+    for topic, message, log_time_ns in read_messages(source):
+        new = change(topic, message, log_time_ns)
+        if new is not None:
+            changed.append((topic, new, log_time_ns))
+    return write_messages(target, changed)
+
+
+def chunk_records(data: bytes) -> list[tuple[int, int]]:
+    """Return (offset, length) of the top-level chunk records of an MCAP file."""
+    chunks = []
+    offset = 8
+    while offset + 9 <= len(data):
+        opcode = data[offset]
+        length = int.from_bytes(data[offset + 1 : offset + 9], "little")
+        if opcode == 0x06:
+            chunks.append((offset, length))
+        if opcode in (0x0F, 0x02):  # data end, footer
+            break
+        offset += 9 + length
+    return chunks
+
+
+def assert_valid_mcap(path: Path) -> dict[str, int]:
+    """Read an MCAP file with mcap's own seeking reader; return messages per topic."""
+    counts: dict[str, int] = {}
+    with path.open("rb") as stream:
+        reader = make_reader(stream)
+        summary = reader.get_summary()
+        assert summary is not None
+        assert summary.statistics is not None
+        for _, channel, _ in reader.iter_messages():
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+        assert sum(counts.values()) == summary.statistics.message_count
+    with open_log(path) as ours:
+        assert sum(1 for _ in ours.messages()) == sum(counts.values())
+        assert ours.damage == []
+    return counts
+
+
+def depth_shapes(path: Path) -> list[tuple[int, int]]:
+    """Return the (height, width) of every /pcainterp/depth image of a log."""
+    with open_log(path) as reader:
+        return [
+            rosmsg.image_array(reader.decode(raw)).shape[:2]
+            for raw in reader.messages(["/pcainterp/depth"])
+        ]
+
+
+# ----------------------------------------------------------------------------- fixtures
+
+
+@pytest.fixture(scope="session")
+def small_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """An 8-frame quarter-size synthetic log written in small chunks (several per frame)."""
+    path = tmp_path_factory.mktemp("logs") / "small.mcap"
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(logwriter, "MCAP_CHUNK_SIZE", 16 * 1024)
+        synth(path, frames=SMALL_FRAMES, seed=3, scale=0.25, fmt="mcap")
+    return path
+
+
+@pytest.fixture(scope="session")
+def small_messages(small_log: Path) -> list[Message]:
+    return read_messages(small_log)
+
+
+@pytest.fixture(scope="session")
+def basis_path(small_log: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 5-component basis learned from the small log."""
+    path = tmp_path_factory.mktemp("basis") / "basis.npz"
+    learn([small_log], path, LearnOptions(n_components=5), PairingConfig())
+    return path
+
+
+@pytest.fixture
+def out(tmp_path: Path) -> Path:
+    """An output path in an empty folder of its own."""
+    folder = tmp_path / "out"
+    folder.mkdir()
+    return folder / "dense.mcap"
+
+
+def densify_args(log: Path, target: Path, basis: Path, *extra: str) -> list[str | Path]:
+    return ["densify", log, "-o", target, "--basis", basis, *extra]
+
+
+# ----------------------------------------------------------------------------- --help
+
+
+SUBCOMMANDS = ["synth", "import-kitti", "learn", "densify", "info", "demo"]
+
+
+@pytest.mark.parametrize("command", SUBCOMMANDS)
+def test_help_exits_zero_with_examples(command: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main([command, "--help"])
+    assert exit_info.value.code == 0
+    text = capsys.readouterr().out
+    assert "examples:" in text
+    assert f"pcainterp {command}" in text.split("examples:")[1]
+
+
+def test_top_level_help(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["--help"])
+    assert exit_info.value.code == 0
+    text = capsys.readouterr().out
+    assert "examples:" in text
+    for command in SUBCOMMANDS:
+        assert command in text
+
+
+# ----------------------------------------------------------------------------- the good path
+
+
+def test_densify_succeeds(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path
+) -> None:
+    run = pcainterp(*densify_args(small_log, out, basis_path))
+    assert run.code == 0, run.err
+    assert run.err == ""
+    assert f"densified {SMALL_FRAMES} frames" in run.out
+    assert "damage" not in run.out
+    counts = assert_valid_mcap(out)
+    assert counts["/pcainterp/depth"] == SMALL_FRAMES
+    assert [p.name for p in out.parent.iterdir()] == [out.name]
+
+
+# ----------------------------------------------------------------------------- missing input
+
+
+def test_densify_missing_input(
+    pcainterp: Callable[..., Run], basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    missing = tmp_path / "nope.mcap"
+    line = pcainterp(*densify_args(missing, out, basis_path)).error_line()
+    assert f"{missing} does not exist" in line
+    assert "MCAP" in line
+    assert_nothing_written(out)
+
+
+def test_learn_missing_input(pcainterp: Callable[..., Run], tmp_path: Path) -> None:
+    target = tmp_path / "basis.npz"
+    line = pcainterp("learn", tmp_path / "nope.mcap", "-o", target).error_line()
+    assert "nope.mcap does not exist" in line
+    assert_nothing_written(target)
+
+
+def test_info_missing_input(pcainterp: Callable[..., Run], tmp_path: Path) -> None:
+    line = pcainterp("info", tmp_path / "nope.mcap").error_line()
+    assert "nope.mcap does not exist" in line
+
+
+def test_import_kitti_missing_folder(pcainterp: Callable[..., Run], out: Path) -> None:
+    line = pcainterp("import-kitti", out.parent / "no_such_drive", out).error_line()
+    assert "no_such_drive does not exist" in line
+    assert_nothing_written(out)
+
+
+def test_densify_missing_basis(
+    pcainterp: Callable[..., Run], small_log: Path, out: Path, tmp_path: Path
+) -> None:
+    line = pcainterp(*densify_args(small_log, out, tmp_path / "none.npz")).error_line()
+    assert "none.npz does not exist" in line
+    assert_nothing_written(out)
+
+
+# ----------------------------------------------------------------------------- not a log
+
+
+def _not_a_log(kind: str, folder: Path) -> Path:
+    if kind == "random.mcap":
+        path = folder / kind
+        path.write_bytes(np.random.default_rng(0).bytes(4096))
+    elif kind == "notes.txt":
+        path = folder / kind
+        path.write_text("this is a text file\nnot a log\n")
+    elif kind == "image.png":
+        path = folder / kind
+        ok, data = cv2.imencode(".png", np.zeros((8, 8), np.uint8))
+        assert ok
+        path.write_bytes(data.tobytes())
+    elif kind == "empty.bag":
+        path = folder / kind
+        path.write_bytes(b"")
+    else:  # a folder with arbitrary files
+        path = folder / kind
+        path.mkdir()
+        (path / "readme.txt").write_text("hello")
+    return path
+
+
+NOT_LOGS = ["random.mcap", "notes.txt", "image.png", "empty.bag", "folder"]
+
+
+@pytest.mark.parametrize("kind", NOT_LOGS)
+def test_densify_not_a_log(
+    pcainterp: Callable[..., Run], kind: str, basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    path = _not_a_log(kind, tmp_path)
+    line = pcainterp(*densify_args(path, out, basis_path)).error_line()
+    assert str(path) in line
+    assert "pass an MCAP file" in line
+    assert_nothing_written(out)
+
+
+@pytest.mark.parametrize("kind", NOT_LOGS)
+def test_learn_not_a_log(pcainterp: Callable[..., Run], kind: str, tmp_path: Path) -> None:
+    path = _not_a_log(kind, tmp_path)
+    target = tmp_path / "basis.npz"
+    line = pcainterp("learn", path, "-o", target).error_line()
+    assert str(path) in line
+    assert_nothing_written(target)
+
+
+@pytest.mark.parametrize("kind", ["random.mcap", "notes.txt", "image.png", "folder"])
+def test_info_not_a_log(pcainterp: Callable[..., Run], kind: str, tmp_path: Path) -> None:
+    path = _not_a_log(kind, tmp_path)
+    line = pcainterp("info", path).error_line()
+    assert str(path) in line
+
+
+# ----------------------------------------------------------------------------- KITTI folders
+
+
+def _fake_kitti_drive(root: Path, *, calibration: bool) -> Path:
+    """A tiny KITTI raw drive: two 40x24 grey pairs, timestamps, optional calibration."""
+    drive = root / "2011_09_26" / "2011_09_26_drive_0001_sync"
+    rng = np.random.default_rng(1)
+    for camera in ("image_00", "image_01"):
+        (drive / camera / "data").mkdir(parents=True)
+        for index in range(2):
+            image = rng.integers(0, 255, (24, 40), dtype=np.uint8)
+            cv2.imwrite(str(drive / camera / "data" / f"{index:010d}.png"), image)
+        (drive / camera / "timestamps.txt").write_text(
+            "2011-09-26 13:02:25.964389445\n2011-09-26 13:02:26.067700624\n"
+        )
+    if calibration:
+        (drive.parent / "calib_cam_to_cam.txt").write_text(
+            "P_rect_00: 30.0 0.0 20.0 0.0 0.0 30.0 12.0 0.0 0.0 0.0 1.0 0.0\n"
+            "P_rect_01: 30.0 0.0 20.0 -16.0 0.0 30.0 12.0 0.0 0.0 0.0 1.0 0.0\n"
+        )
+    return drive
+
+
+@pytest.mark.parametrize("level", ["drive", "date"])
+def test_densify_kitti_folder_suggests_import(
+    pcainterp: Callable[..., Run], level: str, basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    drive = _fake_kitti_drive(tmp_path, calibration=True)
+    folder = drive if level == "drive" else drive.parent
+    line = pcainterp(*densify_args(folder, out, basis_path)).error_line()
+    assert str(folder) in line
+    assert "pcainterp import-kitti" in line
+    assert_nothing_written(out)
+
+
+def test_info_and_learn_kitti_folder_suggest_import(
+    pcainterp: Callable[..., Run], tmp_path: Path
+) -> None:
+    drive = _fake_kitti_drive(tmp_path, calibration=True)
+    assert "pcainterp import-kitti" in pcainterp("info", drive).error_line()
+    target = tmp_path / "basis.npz"
+    assert "pcainterp import-kitti" in pcainterp("learn", drive, "-o", target).error_line()
+    assert_nothing_written(target)
+
+
+def test_import_kitti_missing_calibration(
+    pcainterp: Callable[..., Run], out: Path, tmp_path: Path
+) -> None:
+    drive = _fake_kitti_drive(tmp_path, calibration=False)
+    line = pcainterp("import-kitti", drive, out).error_line()
+    assert "calib_cam_to_cam.txt" in line
+    assert str(drive) in line
+    assert_nothing_written(out)
+
+
+def test_import_kitti_odometry_missing_calibration(
+    pcainterp: Callable[..., Run], out: Path, tmp_path: Path
+) -> None:
+    sequence = tmp_path / "sequences" / "00"
+    for camera in ("image_0", "image_1"):
+        (sequence / camera).mkdir(parents=True)
+        cv2.imwrite(str(sequence / camera / "000000.png"), np.zeros((24, 40), np.uint8))
+    line = pcainterp("import-kitti", sequence, out).error_line()
+    assert "calib.txt" in line
+    assert str(sequence) in line
+    assert_nothing_written(out)
+
+
+def test_import_kitti_not_kitti(pcainterp: Callable[..., Run], out: Path, tmp_path: Path) -> None:
+    folder = tmp_path / "holiday_photos"
+    folder.mkdir()
+    line = pcainterp("import-kitti", folder, out).error_line()
+    assert "is not a KITTI folder" in line
+    assert_nothing_written(out)
+
+
+def test_import_kitti_then_densify(
+    pcainterp: Callable[..., Run], basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    drive = _fake_kitti_drive(tmp_path, calibration=True)
+    log = out.parent / "drive.mcap"
+    run = pcainterp("import-kitti", drive, log)
+    assert run.code == 0, run.err
+    run = pcainterp(*densify_args(log, out, basis_path, "--num-disparities", "16"))
+    assert run.code == 0, run.err
+    assert depth_shapes(out) == [(24, 40), (24, 40)]
+
+
+def test_import_kitti_output_missing_folder(pcainterp: Callable[..., Run], tmp_path: Path) -> None:
+    drive = _fake_kitti_drive(tmp_path, calibration=True)
+    target = tmp_path / "missing" / "drive.mcap"
+    line = pcainterp("import-kitti", drive, target).error_line()
+    assert "missing does not exist" in line
+    assert not target.parent.exists()
+
+
+# ----------------------------------------------------------------------------- damaged MCAP
+
+
+@pytest.mark.parametrize("fraction", [0.02, 0.15, 0.5, 0.8, 0.97, 0.9999])
+def test_densify_truncated(
+    pcainterp: Callable[..., Run],
+    fraction: float,
+    small_log: Path,
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+) -> None:
+    data = small_log.read_bytes()
+    cut = int(len(data) * fraction)
+    damaged = tmp_path / "cut.mcap"
+    damaged.write_bytes(data[:cut])
+    run = pcainterp(*densify_args(damaged, out, basis_path))
+    if run.code == 0:
+        assert run.err == ""
+        assert "damage: cut.mcap:" in run.out
+        assert "truncated" in run.out
+        frames = int(run.out.split("densified ")[1].split()[0])
+        assert 0 < frames <= SMALL_FRAMES
+        counts = assert_valid_mcap(out)
+        assert counts["/pcainterp/depth"] == frames
+        assert not [p for p in out.parent.iterdir() if p.name.startswith(".")]
+    else:
+        line = run.error_line()
+        assert "no stereo pair found in" in line
+        assert str(damaged) in line
+        assert "truncated" in line
+        assert_nothing_written(out)
+    if fraction >= 0.5:  # half of the log holds complete frames
+        assert run.code == 0, run.err
+    if fraction <= 0.02:  # not even one image
+        assert run.code == 2
+
+
+def test_densify_corrupt_chunk(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    data = bytearray(small_log.read_bytes())
+    chunks = chunk_records(bytes(data))
+    assert len(chunks) >= 2 * SMALL_FRAMES  # the fixture writes small chunks
+    offset, length = chunks[len(chunks) // 2]
+    middle = offset + 9 + length // 2
+    data[middle : middle + 64] = bytes(64)
+    damaged = tmp_path / "corrupt.mcap"
+    damaged.write_bytes(bytes(data))
+    run = pcainterp(*densify_args(damaged, out, basis_path))
+    assert run.code == 0, run.err
+    assert "damage: corrupt.mcap: corrupt chunk skipped" in run.out
+    assert f"at byte {offset}" in run.out
+    frames = int(run.out.split("densified ")[1].split()[0])
+    assert SMALL_FRAMES - 2 <= frames < SMALL_FRAMES
+    counts = assert_valid_mcap(out)
+    assert counts["/pcainterp/depth"] == frames
+
+
+def test_densify_corrupt_chunks_everywhere(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    data = bytearray(small_log.read_bytes())
+    for offset, length in chunk_records(bytes(data)):
+        middle = offset + 9 + length // 2
+        data[middle : middle + 16] = b"\xff" * 16
+    damaged = tmp_path / "ruined.mcap"
+    damaged.write_bytes(bytes(data))
+    line = pcainterp(*densify_args(damaged, out, basis_path)).error_line()
+    assert "ruined.mcap" in line
+    assert "corrupt chunk" in line
+    assert_nothing_written(out)
+
+
+def test_info_reports_damage(
+    pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path
+) -> None:
+    damaged = tmp_path / "cut.mcap"
+    damaged.write_bytes(small_log.read_bytes()[: small_log.stat().st_size // 2])
+    run = pcainterp("info", damaged)
+    assert run.code == 0, run.err
+    assert "truncated" in run.out
+
+
+# ----------------------------------------------------------------------------- topics
+
+
+def test_densify_missing_topic_option(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path
+) -> None:
+    run = pcainterp(*densify_args(small_log, out, basis_path, "--right-topic", "/cam/right"))
+    line = run.error_line()
+    assert "topic /cam/right not found in small.mcap" in line
+    assert f"topics present: /ground_truth/depth, /ground_truth/pose, {LEFT_INFO}" in line
+    assert line.endswith("pass --right-topic")
+    assert_nothing_written(out)
+
+
+def test_densify_log_without_right_images(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    log = rewrite(small_log, tmp_path / "mono.mcap", lambda t, m, _: None if t == RIGHT else m)
+    line = pcainterp(*densify_args(log, out, basis_path)).error_line()
+    assert f"topic {RIGHT} not found in mono.mcap" in line
+    assert LEFT in line
+    assert "pass --right-topic" in line
+    assert_nothing_written(out)
+
+
+def test_learn_missing_topic(
+    pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path
+) -> None:
+    target = tmp_path / "basis.npz"
+    line = pcainterp("learn", small_log, "-o", target, "--depth-topic", "/depth").error_line()
+    assert "topic /depth not found" in line
+    assert "pass --depth-topic" in line
+    assert_nothing_written(target)
+
+
+# ----------------------------------------------------------------------------- images
+
+
+@pytest.mark.parametrize("encoding", ["yuv422", "64FC1"])
+def test_densify_unsupported_encoding_everywhere(
+    pcainterp: Callable[..., Run],
+    encoding: str,
+    small_log: Path,
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+) -> None:
+    def change(topic: str, message: Any, _: int) -> Any:
+        return dataclasses.replace(message, encoding=encoding) if topic == LEFT else message
+
+    log = rewrite(small_log, tmp_path / "odd.mcap", change)
+    line = pcainterp(*densify_args(log, out, basis_path)).error_line()
+    assert "no stereo pair found in" in line
+    assert f"unsupported image encoding '{encoding}'" in line
+    assert f"{SMALL_FRAMES} undecodable" in line
+    assert_nothing_written(out)
+
+
+def test_densify_unsupported_encoding_some_frames(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    stamps = sorted(
+        {
+            m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+            for t, m, _ in read_messages(small_log)
+            if t == LEFT
+        }
+    )
+    bad = set(stamps[2:4])
+
+    def change(topic: str, message: Any, _: int) -> Any:
+        if topic == LEFT and rosmsg.stamp_ns(message) in bad:
+            return dataclasses.replace(message, encoding="yuv422")
+        return message
+
+    log = rewrite(small_log, tmp_path / "mixed.mcap", change)
+    run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err
+    assert f"densified {SMALL_FRAMES - 2} frames" in run.out
+    assert "2 undecodable (unsupported image encoding 'yuv422')" in run.out
+    assert assert_valid_mcap(out)["/pcainterp/depth"] == SMALL_FRAMES - 2
+
+
+def _resized_right(every: bool) -> Callable[[str, Any, int], Any]:
+    def change(topic: str, message: Any, _: int) -> Any:
+        if topic != RIGHT or (not every and message.header.stamp.nanosec != 0):
+            return message
+        image = rosmsg.image_array(message)
+        smaller = cv2.resize(
+            np.asarray(image, dtype=np.uint8), (image.shape[1] // 2, image.shape[0] // 2)
+        )
+        return rosmsg.image_message(
+            smaller, rosmsg.stamp_ns(message), message.header.frame_id, encoding="mono8"
+        )
+
+    return change
+
+
+def test_densify_size_mismatch(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    log = rewrite(small_log, tmp_path / "sizes.mcap", _resized_right(every=True))
+    line = pcainterp(*densify_args(log, out, basis_path)).error_line()
+    assert "no stereo pair found in" in line
+    height, width = SMALL_SIZE
+    assert f"is {width}x{height} uint8 but right image" in line
+    assert f"is {width // 2}x{height // 2} uint8" in line
+    assert "a rectified pair needs equal sizes" in line
+    assert_nothing_written(out)
+
+
+def test_densify_size_mismatch_some_frames(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    small_log: Path,
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+) -> None:
+    whole_seconds = sum(
+        1 for t, m, _ in small_messages if t == RIGHT and m.header.stamp.nanosec == 0
+    )
+    assert 0 < whole_seconds < SMALL_FRAMES
+    log = rewrite(small_log, tmp_path / "sizes.mcap", _resized_right(every=False))
+    run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err
+    assert f"densified {SMALL_FRAMES - whole_seconds} frames" in run.out
+    assert f"{whole_seconds} size mismatches" in run.out
+
+
+# ----------------------------------------------------------------------------- calibration
+
+
+def test_densify_no_baseline_then_baseline_option(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    def change(topic: str, message: Any, _: int) -> Any:
+        if topic != RIGHT_INFO:
+            return message
+        p = np.array(message.p, dtype=np.float64)
+        p[3] = 0.0
+        return dataclasses.replace(message, p=p)
+
+    log = rewrite(small_log, tmp_path / "nobase.mcap", change)
+    line = pcainterp(*densify_args(log, out, basis_path)).error_line()
+    assert f"camera info on {RIGHT_INFO} gives no baseline" in line
+    assert "P[0,3] = 0.0" in line
+    assert "pass --baseline" in line
+    assert_nothing_written(out)
+    run = pcainterp(*densify_args(log, out, basis_path, "--baseline", "0.54"))
+    assert run.code == 0, run.err
+    assert f"densified {SMALL_FRAMES} frames" in run.out
+    assert assert_valid_mcap(out)["/pcainterp/depth"] == SMALL_FRAMES
+
+
+# ----------------------------------------------------------------------------- basis files
+
+
+def _broken_basis(kind: str, good: Path, folder: Path) -> tuple[Path, str]:
+    """Write a broken basis; return it and a text the error must contain."""
+    path = folder / f"{kind}.npz"
+    if kind == "not_a_zip":
+        path.write_bytes(b"just some bytes, not an npz archive")
+        return path, "not_a_zip.npz"
+    with np.load(good) as archive:
+        arrays = {key: archive[key] for key in archive.files}
+    if kind == "empty_zip":
+        with zipfile.ZipFile(path, "w"):
+            pass
+        return path, "'format'"
+    if kind == "no_components":
+        del arrays["components"]
+        np.savez(path, **arrays)
+        return path, "'components'"
+    if kind == "nan_mean":
+        arrays["mean"] = arrays["mean"].copy()
+        arrays["mean"][0, 0] = np.nan
+        np.savez(path, **arrays)
+        return path, "'mean'"
+    if kind == "inf_eigenvalues":
+        arrays["eigenvalues"] = arrays["eigenvalues"].copy()
+        arrays["eigenvalues"][1] = np.inf
+        np.savez(path, **arrays)
+        return path, "'eigenvalues'"
+    assert kind == "truncated"
+    path.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    return path, "truncated.npz"
+
+
+BROKEN_BASES = [
+    "not_a_zip",
+    "empty_zip",
+    "no_components",
+    "nan_mean",
+    "inf_eigenvalues",
+    "truncated",
+]
+
+
+@pytest.mark.parametrize("kind", BROKEN_BASES)
+def test_densify_broken_basis(
+    pcainterp: Callable[..., Run],
+    kind: str,
+    small_log: Path,
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+) -> None:
+    broken, names = _broken_basis(kind, basis_path, tmp_path)
+    line = pcainterp(*densify_args(small_log, out, broken)).error_line()
+    assert names in line
+    assert str(broken) in line
+    assert_nothing_written(out)
+
+
+@pytest.mark.parametrize("kind", ["no_components", "nan_mean"])
+def test_info_broken_basis(
+    pcainterp: Callable[..., Run], kind: str, basis_path: Path, tmp_path: Path
+) -> None:
+    broken, names = _broken_basis(kind, basis_path, tmp_path)
+    assert names in pcainterp("info", broken).error_line()
+
+
+def test_info_basis(pcainterp: Callable[..., Run], basis_path: Path) -> None:
+    run = pcainterp("info", basis_path)
+    assert run.code == 0, run.err
+    assert "pcainterp basis" in run.out
+    assert "components       5" in run.out
+
+
+def test_densify_basis_of_another_image_size(
+    pcainterp: Callable[..., Run], basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    log = tmp_path / "other.mcap"
+    synth(log, frames=2, seed=4, scale=0.2, fmt="mcap")
+    with open_log(log) as reader:
+        size = next(rosmsg.image_array(reader.decode(raw)).shape for raw in reader.messages([LEFT]))
+    assert size != Basis.load(basis_path).image_size
+    run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err
+    assert "densified 2 frames" in run.out
+    assert depth_shapes(out) == [size, size]
+
+
+# ----------------------------------------------------------------------------- stamps, empty
+
+
+def test_densify_non_monotonic_stamps(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+) -> None:
+    per_frame = len(small_messages) // SMALL_FRAMES
+    frames = [small_messages[i : i + per_frame] for i in range(0, len(small_messages), per_frame)]
+    frames[3], frames[4] = frames[4], frames[3]  # frame 4 is written (and logged) before 3
+    log = write_messages(tmp_path / "swapped.mcap", [m for frame in frames for m in frame])
+    run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err
+    assert f"densified {SMALL_FRAMES} frames" in run.out
+    assert "non-monotonic stamps" in run.out
+    assert "non-monotonic log times" in run.out
+    assert assert_valid_mcap(out)["/pcainterp/depth"] == SMALL_FRAMES
+
+
+def test_densify_log_with_channels_but_no_messages(
+    pcainterp: Callable[..., Run], basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    log = tmp_path / "silent.mcap"
+    with log.open("wb") as stream:
+        writer = Writer(stream)
+        writer.start("ros2", "test")
+        for topic, msgtype in (
+            (LEFT, rosmsg.IMAGE),
+            (RIGHT, rosmsg.IMAGE),
+            (LEFT_INFO, rosmsg.CAMERA_INFO),
+            (RIGHT_INFO, rosmsg.CAMERA_INFO),
+        ):
+            schema = writer.register_schema(
+                msgtype, "ros2msg", rosmsg.schema_text(msgtype).encode()
+            )
+            writer.register_channel(topic, "cdr", schema)
+        writer.finish()  # type: ignore[no-untyped-call]
+    line = pcainterp(*densify_args(log, out, basis_path)).error_line()
+    assert f"no stereo pair found in {log}" in line
+    assert_nothing_written(out)
+
+
+def test_densify_empty_log(
+    pcainterp: Callable[..., Run], basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    log = write_messages(tmp_path / "empty.mcap", [])
+    line = pcainterp(*densify_args(log, out, basis_path)).error_line()
+    assert f"no stereo pair found in {log}" in line
+    assert "no messages" in line
+    assert_nothing_written(out)
+
+
+def test_learn_empty_log(pcainterp: Callable[..., Run], tmp_path: Path) -> None:
+    log = write_messages(tmp_path / "empty.mcap", [])
+    target = tmp_path / "basis.npz"
+    line = pcainterp("learn", log, "-o", target).error_line()
+    assert "no stereo pair found in" in line
+    assert_nothing_written(target)
+
+
+# ----------------------------------------------------------------------------- output paths
+
+
+def test_densify_output_is_input(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, tmp_path: Path
+) -> None:
+    log = tmp_path / "drive.mcap"
+    log.write_bytes(small_log.read_bytes())
+    before = log.read_bytes()
+    for target in (log, tmp_path / "." / "drive.mcap"):
+        line = pcainterp(*densify_args(log, target, basis_path)).error_line()
+        assert "refusing to write the output onto the input" in line
+        assert "drive.mcap" in line
+    assert log.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["drive.mcap"]
+
+
+def test_learn_output_is_input(
+    pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path
+) -> None:
+    log = tmp_path / "drive.mcap"
+    log.write_bytes(small_log.read_bytes())
+    line = pcainterp("learn", log, "-o", log).error_line()
+    assert "is one of the input logs" in line
+    assert log.read_bytes() == small_log.read_bytes()
+
+
+def test_densify_output_folder_missing(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, tmp_path: Path
+) -> None:
+    target = tmp_path / "no" / "such" / "dense.mcap"
+    line = pcainterp(*densify_args(small_log, target, basis_path)).error_line()
+    assert f"folder {target.parent} does not exist" in line
+    assert "create it first" in line
+    assert not (tmp_path / "no").exists()
+
+
+def test_learn_output_folder_missing(
+    pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path
+) -> None:
+    target = tmp_path / "no" / "basis.npz"
+    line = pcainterp("learn", small_log, "-o", target, "--components", "3").error_line()
+    assert f"folder {target.parent} does not exist" in line
+    assert not target.parent.exists()
+
+
+def test_synth_output_folder_missing(pcainterp: Callable[..., Run], tmp_path: Path) -> None:
+    target = tmp_path / "no" / "drive.mcap"
+    line = pcainterp("synth", target, "--frames", "1", "--scale", "0.1").error_line()
+    assert f"folder {target.parent} does not exist" in line
+    assert not target.parent.exists()
+
+
+def test_synth_unknown_suffix(pcainterp: Callable[..., Run], tmp_path: Path) -> None:
+    target = tmp_path / "drive.txt"
+    line = pcainterp("synth", target, "--frames", "1", "--scale", "0.1").error_line()
+    assert "drive.txt" in line
+    assert "name it .mcap or .bag" in line
+    assert_nothing_written(target)
+
+
+def test_densify_output_is_a_folder(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, tmp_path: Path
+) -> None:
+    target = tmp_path / "results.mcap"
+    target.mkdir()
+    line = pcainterp(*densify_args(small_log, target, basis_path)).error_line()
+    assert "is a folder" in line
+    assert list(target.iterdir()) == []
+
+
+# ----------------------------------------------------------------------------- bad options
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "expected"),
+    [
+        ("--sigma", "0", "--sigma must be > 0 px, got 0.0"),
+        ("--sigma", "-1", "--sigma must be > 0 px"),
+        ("--sigma", "nan", "--sigma must be > 0 px, got nan"),
+        ("--num-disparities", "20", "--num-disparities must be a positive multiple of 16, got 20"),
+        ("--num-disparities", "0", "--num-disparities must be a positive multiple of 16"),
+        ("--block-size", "4", "--block-size must be odd and positive, got 4"),
+        ("--corners", "0", "--corners must be at least 1, got 0"),
+        ("--quality", "1.5", "--quality must be in (0, 1), got 1.5"),
+        ("--min-distance", "-2", "--min-distance must be >= 0 px, got -2.0"),
+        ("--baseline", "0", "--baseline must be a finite number > 0 m, got 0.0"),
+        ("--baseline", "inf", "--baseline must be a finite number > 0 m, got inf"),
+        ("--stamp-tolerance-ms", "-1", "--stamp-tolerance-ms must be >= 0, got -1.0"),
+    ],
+)
+def test_densify_bad_option(
+    pcainterp: Callable[..., Run],
+    option: str,
+    value: str,
+    expected: str,
+    small_log: Path,
+    basis_path: Path,
+    out: Path,
+) -> None:
+    line = pcainterp(*densify_args(small_log, out, basis_path, option, value)).error_line()
+    assert expected in line
+    assert_nothing_written(out)
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (["--components", "0"], "--components must be at least 1, got 0"),
+        (["--variance", "1.5"], "--variance must be in (0, 1], got 1.5"),
+        (["--variance", "0"], "--variance must be in (0, 1], got 0.0"),
+        (["--grid-scale", "2"], "--grid-scale must be in (0, 1], got 2.0"),
+        (["--every", "0"], "--every must be at least 1, got 0"),
+        (["--num-disparities", "20"], "--num-disparities must be a positive multiple of 16"),
+        (["--block-size", "-3"], "--block-size must be odd and positive, got -3"),
+    ],
+)
+def test_learn_bad_option(
+    pcainterp: Callable[..., Run], args: list[str], expected: str, small_log: Path, tmp_path: Path
+) -> None:
+    target = tmp_path / "basis.npz"
+    line = pcainterp("learn", small_log, "-o", target, *args).error_line()
+    assert expected in line
+    assert_nothing_written(target)
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (["--frames", "0"], "--frames must be at least 1, got 0"),
+        (["--frames", "-5"], "--frames must be at least 1, got -5"),
+        (["--scale", "0"], "--scale must be in [0.05, 4], got 0.0"),
+        (["--scale", "nan"], "--scale must be in [0.05, 4], got nan"),
+    ],
+)
+def test_synth_bad_option(
+    pcainterp: Callable[..., Run], args: list[str], expected: str, tmp_path: Path
+) -> None:
+    target = tmp_path / "drive.mcap"
+    line = pcainterp("synth", target, *args).error_line()
+    assert expected in line
+    assert_nothing_written(target)
+
+
+def test_import_kitti_bad_max_frames(
+    pcainterp: Callable[..., Run], out: Path, tmp_path: Path
+) -> None:
+    drive = _fake_kitti_drive(tmp_path, calibration=True)
+    line = pcainterp("import-kitti", drive, out, "--max-frames", "0").error_line()
+    assert "--max-frames must be at least 1, got 0" in line
+    assert_nothing_written(out)
+
+
+def test_unparsable_option_value_is_a_usage_error(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["synth", str(tmp_path / "x.mcap"), "--frames", "many"])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "argument --frames: invalid int value: 'many'" in err
+    assert "Traceback" not in err
+
+
+# ----------------------------------------------------------------------------- real data
+
+
+def _realdata(relative: str) -> Path:
+    return REALDATA / relative
+
+
+REALDATA_INFO = [
+    "ros1/example.bag",
+    "ros1/example-lz4.bag",
+    "ros1/example-bz2.bag",
+    "ros1/example-unsorted-chunks.bag",
+    "ros1/no-messages.bag",
+    "rosbag2/mcap/talker",
+    "rosbag2/mcap/wbag",
+    "rosbag2/mcap/bag_with_topics_and_service_events",
+    "rosbag2/mcap/cdr_test/cdr_test_0.mcap",
+    "rosbag2/sqlite3/empty_bag",
+    "rosbag2/sqlite3/cdr_test",
+    "rosbag2/standalone/chatter.db3",
+    "mcap_conformance/NoData/NoData-st-sum.mcap",
+    "mcap_conformance/OneAttachment/OneAttachment-ax-st-sum.mcap",
+    "mcap_conformance/OneMetadata/OneMetadata.mcap",
+    "mcap_conformance/TenMessages/TenMessages-ch-chx-mx-rch-rsh-st-sum.mcap",
+    "mcap_conformance/TenMessages/TenMessages-ch-chx-mx.mcap",
+    "mcap_ros2/supported_ros2_messages.mcap",
+    "kitti_raw/2011_09_26",
+    "kitti_raw/2011_09_26/2011_09_26_drive_0001_sync",
+    "kitti_odometry_clip/sequences/a",
+    "stereo_aloe/aloe-L.png",
+]
+
+
+@needs_realdata
+@pytest.mark.parametrize("relative", REALDATA_INFO)
+def test_info_on_realdata(pcainterp: Callable[..., Run], relative: str) -> None:
+    path = _realdata(relative)
+    if not path.exists():
+        pytest.skip(f"{path} is absent")
+    run = pcainterp("info", path)
+    assert "Traceback" not in run.err
+    if run.code == 0:
+        assert run.err == ""
+        assert run.out.startswith(f"{path}:")
+    else:
+        run.error_line()
+    if relative.startswith("kitti"):
+        assert "pcainterp import-kitti" in run.error_line()
+
+
+REALDATA_DENSIFY = [
+    ("ros1/example.bag", f"topic {LEFT} not found in example.bag"),
+    ("ros1/no-messages.bag", "no stereo pair found"),
+    ("rosbag2/mcap/talker", "not found in talker"),
+    ("rosbag2/sqlite3/empty_bag", "no stereo pair found"),
+    ("mcap_conformance/TenMessages/TenMessages-ch-chx-mx.mcap", "not found in TenMessages"),
+    ("mcap_conformance/NoData/NoData-st-sum.mcap", "no stereo pair found"),
+    ("mcap_ros2/supported_ros2_messages.mcap", "topics present: "),
+    ("kitti_raw/2011_09_26/2011_09_26_drive_0001_sync", "pcainterp import-kitti"),
+]
+
+
+@needs_realdata
+@pytest.mark.parametrize(("relative", "expected"), REALDATA_DENSIFY)
+def test_densify_on_realdata(
+    pcainterp: Callable[..., Run],
+    relative: str,
+    expected: str,
+    basis_path: Path,
+    out: Path,
+) -> None:
+    path = _realdata(relative)
+    if not path.exists():
+        pytest.skip(f"{path} is absent")
+    line = pcainterp(*densify_args(path, out, basis_path)).error_line()
+    assert expected in line
+    assert_nothing_written(out)
+
+
+@needs_realdata
+def test_densify_rerun_recording_names_its_image_topic(
+    pcainterp: Callable[..., Run], basis_path: Path, out: Path
+) -> None:
+    path = _realdata("mcap_ros2/supported_ros2_messages.mcap")
+    line = pcainterp(*densify_args(path, out, basis_path)).error_line()
+    assert f"topic {LEFT} not found in supported_ros2_messages.mcap" in line
+    assert "/image" in line
+    assert "/camera_info" in line
+    assert line.endswith("pass --left-topic")
+    assert_nothing_written(out)
+
+
+@needs_realdata
+def test_import_real_kitti_then_densify(
+    pcainterp: Callable[..., Run], basis_path: Path, out: Path
+) -> None:
+    drive = _realdata("kitti_raw/2011_09_26/2011_09_26_drive_0001_sync")
+    log = out.parent / "kitti.mcap"
+    run = pcainterp("import-kitti", drive, log, "--max-frames", "2")
+    assert run.code == 0, run.err
+    run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err
+    assert "densified 2 frames" in run.out
+    assert depth_shapes(out) == [(375, 1242), (375, 1242)]
+
+
+# ----------------------------------------------------------------------------- signals
+
+
+@pytest.fixture(scope="session")
+def long_log(small_log: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The small log repeated to 400 frames (a few seconds of densify)."""
+    path = tmp_path_factory.mktemp("long") / "long.mcap"
+    with open_log(small_log) as reader:
+        raws = list(reader.messages())
+    span_ns = raws[-1].log_time_ns - raws[0].log_time_ns + 100_000_000
+    repeats = 50
+    with open_writer(path, "mcap") as writer:
+        for repeat in range(repeats):
+            shift = repeat * span_ns
+            for raw in raws:
+                writer.add_raw(_shifted(raw, shift))
+    return path
+
+
+def _shifted(raw: Any, shift_ns: int) -> Any:
+    """Return a raw message with log time and header stamp moved by ``shift_ns``."""
+    message = rosmsg.deserialize(raw.data, raw.msgtype)
+    stamp = rosmsg.stamp_ns(message) + shift_ns
+    message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp, 10**9)
+    return raw._replace(
+        data=rosmsg.serialize(message),
+        log_time_ns=raw.log_time_ns + shift_ns,
+        publish_time_ns=raw.publish_time_ns + shift_ns,
+    )
+
+
+def _interrupt(args: list[str], target: Path, sig: signal.Signals) -> tuple[int, str]:
+    """Start ``pcainterp ARGS``, wait until it writes, send ``sig``; return (code, stderr)."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "pcainterp_stream.cli", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 30
+        while not any(
+            p.name.startswith(f".{target.name}.partial") for p in target.parent.iterdir()
+        ):
+            assert process.poll() is None, process.communicate()
+            assert time.monotonic() < deadline, "the output was never started"
+            time.sleep(0.05)
+        time.sleep(0.5)  # well into the work
+        assert process.poll() is None, "finished before the signal; make the job longer"
+        process.send_signal(sig)
+        _, err = process.communicate(timeout=30)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    return process.returncode, err
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_signal_during_synth(sig: signal.Signals, tmp_path: Path) -> None:
+    target = tmp_path / "big.mcap"
+    args = ["synth", str(target), "--frames", "200", "--scale", "0.5"]
+    code, err = _interrupt(args, target, sig)
+    assert code == 130, err
+    assert err.strip() == "pcainterp: interrupted; no partial output was left at the target"
+    assert_nothing_written(target)
+    rerun = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pcainterp_stream.cli",
+            "synth",
+            str(target),
+            "--frames",
+            "1",
+            "--scale",
+            "0.1",
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert rerun.returncode == 0, rerun.stderr
+    assert target.is_file()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_signal_during_densify(
+    sig: signal.Signals, long_log: Path, small_log: Path, basis_path: Path, out: Path
+) -> None:
+    out.write_bytes(b"an older result")  # an existing target must be left as it was
+    args = ["densify", str(long_log), "-o", str(out), "--basis", str(basis_path)]
+    code, err = _interrupt(args, out, sig)
+    assert code == 130, err
+    assert err.strip() == "pcainterp: interrupted; no partial output was left at the target"
+    assert out.read_bytes() == b"an older result"
+    assert [p.name for p in out.parent.iterdir()] == [out.name]
+    rerun = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pcainterp_stream.cli",
+            "densify",
+            str(small_log),
+            "-o",
+            str(out),
+            "--basis",
+            str(basis_path),
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert rerun.returncode == 0, rerun.stderr
+    assert assert_valid_mcap(out)["/pcainterp/depth"] == SMALL_FRAMES
