@@ -577,12 +577,14 @@ def _object_layers(
     depth_a, depth_b = start @ fwd, end @ fwd
     side_a, side_b = start @ side_axis, end @ side_axis
     seen = np.maximum(depth_a, depth_b) > _NEAR
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cut = (_NEAR - depth_a) / (depth_b - depth_a)
     clip_a = seen & (depth_a < _NEAR)
     clip_b = seen & (depth_b < _NEAR)
-    side_a = np.where(clip_a, side_a + cut * (side_b - side_a), side_a)
-    side_b = np.where(clip_b, side_a + cut * (side_b - side_a), side_b)
+    # Where an end is clipped the depths differ, so the cut is finite; elsewhere unused.
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        cut = (_NEAR - depth_a) / (depth_b - depth_a)
+        side_cut = side_a + cut * (side_b - side_a)
+    side_a = np.where(clip_a, side_cut, side_a)
+    side_b = np.where(clip_b, side_cut, side_b)
     depth_a = np.where(clip_a | ~seen, _NEAR, depth_a)
     depth_b = np.where(clip_b | ~seen, _NEAR, depth_b)
     seg_first, seg_last = _column_span(side_a, depth_a, side_b, depth_b, camera)
@@ -596,13 +598,15 @@ def _object_layers(
     near_edge = cyl_depth_c - radius
     close = near_edge <= _NEAR
     far_edge = cyl_depth_c + radius
+    # Placeholders 1.0 where the span is replaced below (close or behind the camera).
     safe_near = np.where(close, 1.0, near_edge)
+    safe_far = np.where(close, 1.0, far_edge)
     low_side, high_side = cyl_side - radius, cyl_side + radius
     cyl_first, cyl_last = _column_span(
         low_side,
-        np.where(low_side < 0.0, safe_near, far_edge),
+        np.where(low_side < 0.0, safe_near, safe_far),
         high_side,
-        np.where(high_side > 0.0, safe_near, far_edge),
+        np.where(high_side > 0.0, safe_near, safe_far),
         camera,
     )
     cyl_first = np.where(close, 0, cyl_first)
