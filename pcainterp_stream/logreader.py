@@ -61,6 +61,7 @@ _MESSAGE_HEADER = struct.Struct("<HIQQ")  # channel id, sequence, log time, publ
 _RECORD_HEADER = struct.Struct("<BQ")  # opcode, record length
 _CHUNK_HEADER = struct.Struct("<QQQI")  # start time, end time, uncompressed size, crc
 _MAX_CHUNK_BYTES = 1 << 32  # refuse to inflate a chunk that claims more than 4 GiB
+_MAX_SALVAGE_BYTES = 1 << 28  # read at most 256 MiB of a chunk cut short by truncation
 
 ROS2_SCHEMA_ENCODINGS = ("ros2msg", "ros2idl")
 _LOG_KINDS = "an MCAP file, a ROS 1 .bag or a rosbag2 folder"
@@ -662,6 +663,11 @@ class McapLogReader(LogReader):
                     f"{_opcode_name(opcode)} record claims {length} bytes but {remaining} remain "
                     "(truncated or corrupt)",
                 )
+                if opcode == Opcode.CHUNK and length <= _MAX_CHUNK_BYTES:
+                    # a plausible length: the file was cut inside this chunk; keep the
+                    # complete records it still holds
+                    body = f.read(min(remaining, _MAX_SALVAGE_BYTES))
+                    yield from self._chunk_records(body, offset, truncated=True)
                 return
             if opcode in (Opcode.DATA_END, Opcode.FOOTER):
                 return
@@ -684,12 +690,19 @@ class McapLogReader(LogReader):
                 f.seek(length, io.SEEK_CUR)
             offset += _RECORD_HEADER.size + length
 
-    def _chunk_records(self, body: bytes, offset: int) -> Iterator[tuple[str, Any, int]]:
-        """Yield the records of one chunk; damage skips the rest of the chunk."""
+    def _chunk_records(
+        self, body: bytes, offset: int, *, truncated: bool = False
+    ) -> Iterator[tuple[str, Any, int]]:
+        """Yield the records of one chunk; damage skips the rest of the chunk.
+
+        A ``truncated`` chunk (the file ends inside it, already noted as damage) yields the
+        complete records at its start and stops quietly at the cut.
+        """
         try:
-            records = _inflate_chunk(body)
+            records = _inflate_truncated_chunk(body) if truncated else _inflate_chunk(body)
         except Exception as err:  # zstd/lz4 errors, CRC mismatch, struct.error
-            self._damage(offset, f"corrupt chunk skipped ({_one_line(err)})")
+            if not truncated:
+                self._damage(offset, f"corrupt chunk skipped ({_one_line(err)})")
             return
         view = memoryview(records)
         position = 0
@@ -705,10 +718,11 @@ class McapLogReader(LogReader):
                 else:
                     continue
             except Exception as err:  # struct.error, UnicodeDecodeError, ValueError
-                self._damage(
-                    offset,
-                    f"corrupt record inside a chunk, rest of chunk skipped ({_one_line(err)})",
-                )
+                if not truncated:
+                    self._damage(
+                        offset,
+                        f"corrupt record inside a chunk, rest of chunk skipped ({_one_line(err)})",
+                    )
                 return
             yield kind, item, offset
 
@@ -730,6 +744,42 @@ def _parse_record(opcode: int, body: bytes | memoryview) -> tuple[str, Any]:
     if opcode == Opcode.SCHEMA:
         return "schema", Schema.read(stream)
     return "channel", Channel.read(stream)
+
+
+def _chunk_payload(body: bytes) -> tuple[int, int, str, bytes]:
+    """Split a chunk record body into (uncompressed size, crc, compression, records data).
+
+    The data is what the body holds, which is less than its length field for a cut chunk.
+    """
+    _, _, uncompressed_size, crc = _CHUNK_HEADER.unpack_from(body, 0)
+    position = _CHUNK_HEADER.size
+    (name_length,) = struct.unpack_from("<I", body, position)
+    position += 4
+    compression = body[position : position + name_length].decode()
+    position += name_length + 8  # and the records length
+    if position > len(body):
+        raise ValueError("chunk header runs past the record")
+    if uncompressed_size > _MAX_CHUNK_BYTES:
+        raise ValueError(f"chunk claims {uncompressed_size} uncompressed bytes")
+    return uncompressed_size, crc, compression, body[position:]
+
+
+def _inflate_truncated_chunk(body: bytes) -> bytes:
+    """Return the records a chunk cut short still holds (a prefix, not CRC-checked).
+
+    Raises:
+        ValueError: on an unusable header or an unsupported compression.
+    """
+    uncompressed_size, _, compression, data = _chunk_payload(body)
+    if compression == "":
+        records = data
+    elif compression == "zstd":  # a streaming decompressor yields every complete block
+        records = zstandard.ZstdDecompressor().decompressobj().decompress(data)
+    elif compression == "lz4" and lz4_frame is not None:
+        records = lz4_frame.LZ4FrameDecompressor().decompress(data)
+    else:
+        raise ValueError(f"unsupported chunk compression {compression!r}")
+    return bytes(records[:uncompressed_size])
 
 
 def _inflate_chunk(body: bytes) -> bytes:

@@ -460,6 +460,31 @@ def test_densify_truncated(
         assert run.code == 2
 
 
+@pytest.mark.parametrize("fraction", [0.3, 0.6, 0.95])
+def test_densify_truncated_inside_its_only_chunk(
+    pcainterp: Callable[..., Run],
+    fraction: float,
+    small_messages: list[Message],
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+) -> None:
+    whole = write_messages(tmp_path / "whole.mcap", small_messages)  # default chunks
+    data = whole.read_bytes()
+    assert len(chunk_records(data)) == 1
+    damaged = tmp_path / "cut.mcap"
+    damaged.write_bytes(data[: int(len(data) * fraction)])
+    run = pcainterp(*densify_args(damaged, out, basis_path))
+    assert run.code == 0, run.err
+    assert "chunk record claims" in run.out
+    frames = int(run.out.split("densified ")[1].split()[0])
+    assert 0 < frames < SMALL_FRAMES
+    assert abs(frames - fraction * SMALL_FRAMES) <= 2  # the frames before the cut
+    counts = assert_valid_mcap(out)
+    assert counts["/pcainterp/depth"] == frames
+    assert counts[LEFT] >= frames
+
+
 def test_densify_corrupt_chunk(
     pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
 ) -> None:
