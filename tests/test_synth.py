@@ -16,8 +16,10 @@ from pcainterp_stream.synth import (
     World,
     camera_pose,
     generate,
+    render,
     render_view,
     right_pose,
+    textures,
 )
 
 QUARTER = SynthConfig(seed=3, frames=3, scale=0.25)
@@ -129,7 +131,7 @@ def test_sgbm_recovers_disparity() -> None:
     right = render_view(world, camera, right_pose(frame.camera_to_world, camera.baseline))
     visible, truth = _non_occluded(frame.depth, right.depth, camera.focal_baseline)
     block = 5
-    sgbm = cv2.StereoSGBM_create(
+    sgbm = cv2.StereoSGBM_create(  # type: ignore[attr-defined]
         minDisparity=0,
         numDisparities=32,
         blockSize=block,
@@ -145,3 +147,71 @@ def test_sgbm_recovers_disparity() -> None:
     assert valid.sum() > 0.4 * visible.sum()
     share = float((np.abs(estimate[valid] - truth[valid]) <= 1.0).mean())
     assert share > 0.8, share
+
+
+def test_mip_level_rounds_log2_at_sqrt2() -> None:
+    footprint = np.geomspace(1e-4, 40.0, 20_000).astype(np.float32)
+    level = render._mip_level(footprint)
+    exact = np.log2(footprint.astype(np.float64) / render.TEXEL) + render._MIP_BIAS
+    expected = np.clip(np.floor(exact + 0.5), 0, textures.TILE_LOG2)
+    # Away from the rounding boundaries the bit arithmetic equals the float64 reference.
+    clear = np.abs(exact + 0.5 - np.round(exact + 0.5)) > 1e-5
+    np.testing.assert_array_equal(level[clear], expected[clear])
+    assert level.dtype == np.int32
+    assert set(np.unique(level)) == set(range(10))
+
+
+def test_texture_lookup_matches_pyramid_levels() -> None:
+    bank = textures.make_texture_bank(np.random.default_rng(11))
+    rng = np.random.default_rng(12)
+    s = rng.uniform(-3000.0, 3000.0, 5000).astype(np.float32)
+    t = rng.uniform(-3000.0, 3000.0, 5000).astype(np.float32)
+    level = rng.integers(0, textures.TILE_LOG2 + 1, 5000).astype(np.int32)
+    tile = rng.integers(0, bank.n_tiles, 5000)
+    values = bank.sample(textures.tile_offset(tile), s, t, level)
+    planes = bank.texels.reshape(bank.n_tiles, 2 * textures.TILE_SIZE, textures.TILE_SIZE)
+    size = textures.TILE_SIZE >> level
+    row = 2 * textures.TILE_SIZE - (2 * textures.TILE_SIZE >> level)
+    # Coordinates are floored after the float32 shift by 512 * 1024 texels (1/16 texel).
+    shift = np.float32(textures.TILE_SIZE * 1024)
+    texel_s = np.floor((s + shift).astype(np.float64) / 2.0**level).astype(int) % size
+    texel_t = np.floor((t + shift).astype(np.float64) / 2.0**level).astype(int) % size
+    np.testing.assert_array_equal(values, planes[tile, row + texel_t, texel_s])
+    # Level 1 is the (blurred) 2x2 mean of level 0: same mean, less variance.
+    top = planes[0, :512, :512]
+    second = planes[0, 512:768, :256]
+    assert abs(float(top.mean()) - float(second.mean())) < 0.01
+    assert float(second.std()) < float(top.std())
+
+
+@pytest.mark.parametrize("index", [0, 37])
+def test_column_spans_keep_every_nearest_hit(index: int) -> None:
+    """The sparse (column, object) pairs find the same nearest hit as testing all pairs."""
+    world = World(1)
+    camera = QUARTER.camera
+    pose = camera_pose(world, QUARTER, index)
+    centre, right, forward = pose[:3, 3], pose[:3, 0], pose[:3, 2]
+    slope = (np.arange(camera.width) - camera.cx) / camera.fx
+    ray_x = forward[0] + slope * right[0]
+    ray_y = forward[1] + slope * right[1]
+    layers = render._object_layers(world, camera, centre, right, forward, ray_x, ray_y, 8)
+    assert layers is not None
+    # Brute force: every column against every footprint.
+    objects = world.objects(float(centre[0]) - 30.0, float(centre[0]) + render.OBJECT_RANGE)
+    rx, ry = ray_x[:, None], ray_y[:, None]
+    start = objects.seg_start - centre[:2]
+    edge = objects.seg_end - objects.seg_start
+    with np.errstate(divide="ignore", invalid="ignore"):
+        det = ry * edge[:, 0] - rx * edge[:, 1]
+        depth = (start[:, 1] * edge[:, 0] - start[:, 0] * edge[:, 1]) / det
+        along = (rx * start[:, 1] - ry * start[:, 0]) / det
+    depth[~((along >= 0) & (along <= 1) & (depth > 0.3))] = np.inf
+    offset = objects.cyl_centre - centre[:2]
+    norm_sq = rx * rx + ry * ry
+    along_c = rx * offset[:, 0] + ry * offset[:, 1]
+    disc = along_c**2 - norm_sq * ((offset**2).sum(axis=1) - objects.cyl_radius**2)
+    cyl = (along_c - np.sqrt(np.maximum(disc, 0.0))) / norm_sq
+    cyl[~((disc > 0) & (cyl > 0.3))] = np.inf
+    nearest = np.minimum(depth.min(axis=1), cyl.min(axis=1))
+    assert np.isfinite(nearest).mean() > 0.5
+    np.testing.assert_allclose(layers.depth[:, 0], nearest, rtol=1e-12)
