@@ -216,7 +216,14 @@ class World:
         grid = ndimage.gaussian_filter(grid, 2.0, mode="wrap")
         grid /= max(float(np.abs(grid).max()), 1e-12)
         self._hill_grid = _quantise(grid)
-        self._hill_flat = np.pad(self._hill_grid, ((0, 1), (0, 1)), mode="wrap").ravel()
+        # Per cell: corner value and step to the next x corner, for this row and the next.
+        wrapped = np.pad(self._hill_grid, ((0, 1), (0, 1)), mode="wrap")
+        corners = np.empty((HILL_CELLS, HILL_CELLS, 4))
+        corners[:, :, 0] = wrapped[:-1, :-1]
+        corners[:, :, 1] = wrapped[:-1, 1:] - wrapped[:-1, :-1]
+        corners[:, :, 2] = wrapped[1:, :-1]
+        corners[:, :, 3] = wrapped[1:, 1:] - wrapped[1:, :-1]
+        self._hill_cells = corners.reshape(-1, 4)
         self.hill_amplitude = float(rng.uniform(8.0, 30.0))
         azimuth = rng.uniform(0, 2 * np.pi)
         elevation = rng.uniform(np.radians(25), np.radians(60))
@@ -324,16 +331,12 @@ class World:
         fy = np.floor(gy)
         wx = gx - fx
         wy = gy - fy
-        # The grid is stored with one wrapped extra row and column, flattened.
-        stride = HILL_CELLS + 1
-        flat = (fy.astype(np.intp) & (HILL_CELLS - 1)) * stride + (
+        cell = (fy.astype(np.intp) & (HILL_CELLS - 1)) * HILL_CELLS + (
             fx.astype(np.intp) & (HILL_CELLS - 1)
         )
-        grid = self._hill_flat
-        corner = grid[flat]
-        top = corner + wx * (grid[flat + 1] - corner)
-        below = grid[flat + stride]
-        bottom = below + wx * (grid[flat + stride + 1] - below)
+        corners = np.take(self._hill_cells, cell, axis=0)
+        top = corners[..., 0] + wx * corners[..., 1]
+        bottom = corners[..., 2] + wx * corners[..., 3]
         result: F64 = top + wy * (bottom - top)
         return result
 
