@@ -62,6 +62,45 @@ def _check_output_folder(output: Path) -> None:
         )
 
 
+_IMAGE_TYPES = (rosmsg.IMAGE, rosmsg.COMPRESSED_IMAGE)
+
+
+def _check_topic_types(reader: LogReader, checks: list[tuple[str, str, tuple[str, ...]]]) -> None:
+    """Check that topics have a usable message type.
+
+    Args:
+        reader: the open log.
+        checks: (topic, option that names it, accepted types) each; absent topics pass.
+
+    Raises:
+        LogReadError: naming the topic, its type, the accepted types, the topics of those
+            types in the log and the option to pass.
+    """
+    topics = reader.topics()
+    for topic, option, accepted in checks:
+        info = topics.get(topic)
+        if info is None or info.msgtype in accepted:
+            continue
+        candidates = ", ".join(t for t, i in topics.items() if i.msgtype in accepted) or "none"
+        raise LogReadError(
+            f"topic {topic} in {reader.path.name} has type {info.msgtype or 'unknown'}, not "
+            f"{' or '.join(accepted)}; topics of that type: {candidates}; pass {option}"
+        )
+
+
+def _pairing_types(pairing: PairingConfig) -> list[tuple[str, str, tuple[str, ...]]]:
+    """Return the type checks of the topics a stereo pairing reads."""
+    checks = [
+        (pairing.left_topic, "--left-topic", _IMAGE_TYPES),
+        (pairing.right_topic, "--right-topic", _IMAGE_TYPES),
+        (pairing.left_info_topic, "--left-info-topic", (rosmsg.CAMERA_INFO,)),
+        (pairing.right_info_topic, "--right-info-topic", (rosmsg.CAMERA_INFO,)),
+    ]
+    if pairing.features_topic is not None:
+        checks.append((pairing.features_topic, "--features-topic", (rosmsg.POINT_CLOUD2,)))
+    return checks
+
+
 def _require_topics(reader: LogReader, options: dict[str, str], wanted: str) -> None:
     """Check the topics a job reads (topic -> option), naming an empty or damaged log as such.
 
@@ -173,6 +212,13 @@ def _depth_maps(
             },
             "depth image",
         )
+        _check_topic_types(
+            reader,
+            [
+                (options.depth_topic, "--depth-topic", (rosmsg.IMAGE,)),
+                *_pairing_types(dataclasses.replace(pairing, features_topic=None))[2:],
+            ],
+        )
         infos: dict[str, Any] = {}
         index = 0
         topics = [options.depth_topic, pairing.left_info_topic, pairing.right_info_topic]
@@ -186,7 +232,15 @@ def _depth_maps(
                 continue
             if len(infos) < 2:
                 continue  # no calibration yet
-            depth = rosmsg.image_array(message).astype(np.float32)
+            try:
+                depth = rosmsg.image_array(message).astype(np.float32)
+                if depth.ndim != 2:
+                    raise ValueError(f"encoding {message.encoding!r} has {depth.shape[2]} channels")
+            except ValueError as err:
+                raise LogReadError(
+                    f"depth image on {options.depth_topic} at log time {raw.log_time_ns} ns in "
+                    f"{log.name} is unusable ({err}); pass a 32FC1 depth topic (m) as --depth-topic"
+                ) from err
             from pcainterp_stream.pairing import camera_from_infos
 
             camera = camera_from_infos(
@@ -211,6 +265,7 @@ def _sgbm_maps(
     """Yield SGBM maps of every N-th pair, matching the next pair while this one is used."""
     with open_log(log) as reader, ThreadPoolExecutor(1, thread_name_prefix="sgbm") as pool:
         _require_topics(reader, pairing.required_topics(), "stereo pair")
+        _check_topic_types(reader, _pairing_types(pairing))
         pending: list[Future[npt.NDArray[np.float32]]] = []
         for frame in iter_stereo_frames(reader, pairing):
             if frame.index % options.every:
@@ -359,6 +414,7 @@ def densify(
     with contextlib.ExitStack() as stack:
         reader = stack.enter_context(open_log(input_path))
         _require_topics(reader, pairing.required_topics(), "stereo pair")
+        _check_topic_types(reader, _pairing_types(pairing))
         clash = sorted(set(topics.all()) & set(reader.topics()))
         if clash:
             raise PcaInterpError(

@@ -186,7 +186,7 @@ def out(tmp_path: Path) -> Path:
     return folder / "dense.mcap"
 
 
-def densify_args(log: Path, target: Path, basis: Path, *extra: str) -> list[str | Path]:
+def densify_args(log: Path, target: Path, basis: Path, *extra: str | Path) -> list[str | Path]:
     return ["densify", log, "-o", target, "--basis", basis, *extra]
 
 
@@ -564,6 +564,94 @@ def test_learn_missing_topic(
     assert "topic /depth not found" in line
     assert "pass --depth-topic" in line
     assert_nothing_written(target)
+
+
+@pytest.mark.parametrize(
+    ("option", "topic", "expected"),
+    [
+        (
+            "--left-topic",
+            LEFT_INFO,
+            "has type sensor_msgs/msg/CameraInfo, not sensor_msgs/msg/Image",
+        ),
+        (
+            "--right-info-topic",
+            LEFT,
+            "has type sensor_msgs/msg/Image, not sensor_msgs/msg/CameraInfo",
+        ),
+        (
+            "--features-topic",
+            "/ground_truth/pose",
+            "has type geometry_msgs/msg/PoseStamped, not sensor_msgs/msg/PointCloud2",
+        ),
+    ],
+)
+def test_densify_topic_of_wrong_type(
+    pcainterp: Callable[..., Run],
+    option: str,
+    topic: str,
+    expected: str,
+    small_log: Path,
+    basis_path: Path,
+    out: Path,
+) -> None:
+    line = pcainterp(*densify_args(small_log, out, basis_path, option, topic)).error_line()
+    assert f"topic {topic} in small.mcap {expected}" in line
+    assert "topics of that type: " in line
+    assert line.endswith(f"pass {option}")
+    assert_nothing_written(out)
+
+
+def test_learn_depth_topic_of_wrong_type(
+    pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path
+) -> None:
+    target = tmp_path / "basis.npz"
+    args = ["learn", small_log, "-o", target, "--depth-topic", "/ground_truth/pose"]
+    line = pcainterp(*args).error_line()
+    assert "topic /ground_truth/pose in small.mcap has type geometry_msgs/msg/PoseStamped" in line
+    assert "/ground_truth/depth" in line
+    assert line.endswith("pass --depth-topic")
+    assert_nothing_written(target)
+
+
+def test_learn_depth_topic_unusable_encoding(
+    pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path
+) -> None:
+    def change(topic: str, message: Any, _: int) -> Any:
+        if topic == "/ground_truth/depth":
+            return dataclasses.replace(message, encoding="64FC1")
+        return message
+
+    log = rewrite(small_log, tmp_path / "odd_depth.mcap", change)
+    target = tmp_path / "basis.npz"
+    args = ["learn", log, "-o", target, "--depth-topic", "/ground_truth/depth"]
+    line = pcainterp(*args).error_line()
+    assert "depth image on /ground_truth/depth at log time" in line
+    assert "unsupported image encoding '64FC1'" in line
+    assert "pass a 32FC1 depth topic" in line
+    assert_nothing_written(target)
+
+
+def test_learn_without_a_decodable_pair(
+    pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path
+) -> None:
+    def change(topic: str, message: Any, _: int) -> Any:
+        return dataclasses.replace(message, encoding="yuv422") if topic == RIGHT else message
+
+    log = rewrite(small_log, tmp_path / "odd.mcap", change)
+    target = tmp_path / "basis.npz"
+    line = pcainterp("learn", log, "-o", target).error_line()
+    assert f"no stereo pair found in {log}" in line
+    assert_nothing_written(target)
+
+
+def test_densify_rrd_folder_missing(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    rrd = tmp_path / "no" / "view.rrd"
+    line = pcainterp(*densify_args(small_log, out, basis_path, "--rrd", rrd)).error_line()
+    assert f"folder {rrd.parent} does not exist" in line
+    assert_nothing_written(out)
 
 
 # ----------------------------------------------------------------------------- images
