@@ -619,6 +619,11 @@ def _gftt_config(args: argparse.Namespace) -> GfttConfig:
 
 
 def _pairing_config(args: argparse.Namespace, features_topic: str | None = None) -> PairingConfig:
+    if args.left_topic == args.right_topic:
+        raise PcaInterpError(
+            f"--left-topic and --right-topic are both {args.left_topic}; a stereo pair needs the "
+            "images of two cameras: pass the right camera's topic as --right-topic"
+        )
     if not 0 <= args.stamp_tolerance_ms < float("inf"):
         raise PcaInterpError(f"--stamp-tolerance-ms must be >= 0, got {args.stamp_tolerance_ms}")
     if args.baseline is not None and not 0 < args.baseline < float("inf"):

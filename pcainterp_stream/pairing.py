@@ -304,6 +304,8 @@ class StereoPairer:
         config = self.config
         if topic == config.left_info_topic:
             self._left_info = message
+            if topic == config.right_info_topic:  # one info for both sides (with --baseline)
+                self._right_info = message
             return self._release_matched()
         if topic == config.right_info_topic:
             self._right_info = message

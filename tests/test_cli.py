@@ -1183,6 +1183,29 @@ def test_densify_rerun_recording_names_its_image_topic(
 
 
 @needs_realdata
+def test_densify_rerun_recording_with_one_camera(
+    pcainterp: Callable[..., Run], basis_path: Path, out: Path
+) -> None:
+    path = _realdata("mcap_ros2/supported_ros2_messages.mcap")
+    topics = ["--left-info-topic", "/camera_info", "--right-info-topic", "/camera_info"]
+    args = densify_args(path, out, basis_path, "--left-topic", "/image", *topics)
+    line = pcainterp(*args, "--right-topic", "/image").error_line()
+    assert "--left-topic and --right-topic are both /image" in line
+    assert line.endswith("pass the right camera's topic as --right-topic")
+    # the JPEG copy of the image as a (zero-disparity) right view, one camera info for both
+    args += ["--right-topic", "/compressed_image"]
+    line = pcainterp(*args).error_line()
+    assert "camera info on /camera_info gives no baseline" in line
+    assert "pass --baseline" in line
+    assert_nothing_written(out)
+    run = pcainterp(*args, "--baseline", "0.1")
+    assert run.code == 0, run.err
+    assert "densified 1 frames" in run.out
+    assert assert_valid_mcap(out)["/image"] == 1
+    assert depth_shapes(out) == [(480, 640)]
+
+
+@needs_realdata
 def test_import_real_kitti_then_densify(
     pcainterp: Callable[..., Run], basis_path: Path, out: Path
 ) -> None:
