@@ -2,14 +2,26 @@
 
 Per pair: GFTT corners on the left image, SGBM disparity, disparity lookups at the corners
 (or the points of a sparse feature stream instead), then MAP densification with the basis.
-Stereo matching of the next frames runs in a worker thread while the current batch is
-densified (OpenCV and BLAS release the GIL), so both cores stay busy; memory is bounded by
-the look-ahead, whatever the length of the stream.
+Stereo matching of the next frames runs in worker threads while the calling thread densifies
+the current batch and does the caller's I/O (OpenCV and BLAS release the GIL); memory is
+bounded by the look-ahead, whatever the length of the stream.
+
+Threads (measured in docs/benchmarks.md, "End-to-end densify"): on a few cores the pipeline
+is fastest when no library spawns threads of its own, so that every thread is one unit of
+work the OS can place: each stereo worker runs OpenCV on one thread
+(``cv2.setNumThreads(1)``), BLAS runs on one thread (threadpoolctl), and two stereo workers
+keep both cores busy while the calling thread waits for I/O. A two-thread OpenBLAS next to
+running SGBM threads spins and is several times slower. Both settings are process-wide; the
+processor restores the previous values in :meth:`FrameProcessor.close`.
 """
 
 from __future__ import annotations
 
+import contextlib
 import enum
+import functools
+import os
+import threading
 from collections import deque
 from collections.abc import Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -17,6 +29,7 @@ from dataclasses import dataclass, field
 from types import TracebackType
 from typing import NamedTuple
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 
@@ -46,7 +59,13 @@ class ProcessorConfig:
         uncertainty: "exact", "paper" or "none".
         source: measurement source.
         batch_size: frames densified together (matrix-matrix products).
-        lookahead: frames stereo-matched ahead of densification.
+        lookahead: frames queued for stereo matching ahead of densification; at least
+            ``stereo_workers`` keeps every worker busy.
+        stereo_workers: threads running the stereo front end (each has its own matcher).
+        opencv_threads: ``cv2.setNumThreads`` while the processor is open (stereo source
+            only); None leaves OpenCV's setting alone.
+        blas_threads: BLAS threads while the processor is open (stereo source only, via
+            threadpoolctl when installed); None leaves BLAS alone.
     """
 
     gftt: GfttConfig = field(default_factory=GfttConfig)
@@ -55,7 +74,23 @@ class ProcessorConfig:
     uncertainty: str = "exact"
     source: MeasurementSource = MeasurementSource.STEREO
     batch_size: int = 4
-    lookahead: int = 2
+    lookahead: int = 4
+    stereo_workers: int = 2
+    opencv_threads: int | None = 1
+    blas_threads: int | None = 1
+    worker_niceness: int = 0
+
+    def __post_init__(self) -> None:
+        if self.batch_size < 1:
+            raise ValueError(f"batch_size must be >= 1, got {self.batch_size}")
+        if self.lookahead < 0:
+            raise ValueError(f"lookahead must be >= 0, got {self.lookahead}")
+        if self.stereo_workers < 1:
+            raise ValueError(f"stereo_workers must be >= 1, got {self.stereo_workers}")
+        for name in ("opencv_threads", "blas_threads"):
+            value = getattr(self, name)
+            if value is not None and value < 1:
+                raise ValueError(f"{name} must be >= 1 or None, got {value}")
 
 
 class _Measured(NamedTuple):
@@ -101,11 +136,58 @@ def features_to_measurements(
     return pixels, disparity[keep].astype(np.float32), counts
 
 
+class _ThreadLimits:
+    """Process-wide OpenCV and BLAS thread counts, set on entry and restored on ``restore``."""
+
+    _lock = threading.Lock()
+
+    def __init__(self, opencv_threads: int | None, blas_threads: int | None) -> None:
+        self._opencv_previous: int | None = None
+        self._blas_limits: object | None = None
+        with self._lock:
+            if opencv_threads is not None:
+                self._opencv_previous = cv2.getNumThreads()
+                cv2.setNumThreads(opencv_threads)
+            if blas_threads is not None:
+                self._blas_limits = _limit_blas(blas_threads)
+
+    def restore(self) -> None:
+        """Put back the thread counts found on entry (idempotent)."""
+        with self._lock:
+            if self._opencv_previous is not None:
+                cv2.setNumThreads(self._opencv_previous)
+                self._opencv_previous = None
+            if self._blas_limits is not None:
+                self._blas_limits.restore_original_limits()  # type: ignore[attr-defined]
+                self._blas_limits = None
+
+
+def _limit_blas(threads: int) -> object | None:
+    """Limit every loaded BLAS to ``threads``; None when threadpoolctl is not installed."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
+        return None
+    limits: object = threadpool_limits(limits=threads, user_api="blas")
+    return limits
+
+
+def _lower_priority(niceness: int) -> None:
+    """Raise this thread's nice value by ``niceness`` (Linux: per thread; no-op elsewhere)."""
+    if niceness <= 0 or not hasattr(os, "setpriority"):
+        return
+    tid = threading.get_native_id()
+    with contextlib.suppress(OSError):
+        os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + niceness)
+
+
 class FrameProcessor:
     """Densify a stream of stereo pairs, pipelined; use as a context manager.
 
     ``submit`` takes frames in order and returns the frames finished so far, in order;
-    ``finish`` returns the rest. ``process`` wraps both for a plain iterable.
+    ``finish`` returns the rest. ``process`` wraps both for a plain iterable. While open,
+    the processor sets the process-wide OpenCV and BLAS thread counts of its configuration
+    (stereo source only) and restores them in :meth:`close`.
 
     Args:
         basis: the PCA basis.
@@ -115,10 +197,18 @@ class FrameProcessor:
     def __init__(self, basis: Basis, config: ProcessorConfig | None = None) -> None:
         self.basis = basis
         self.config = config or ProcessorConfig()
-        if self.config.batch_size < 1 or self.config.lookahead < 0:
-            raise ValueError("batch_size must be >= 1 and lookahead >= 0")
         self.front_end = StereoFrontEnd(self.config.gftt, self.config.sgbm)
-        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stereo")
+        stereo = self.config.source is MeasurementSource.STEREO
+        self._executor = ThreadPoolExecutor(
+            max_workers=self.config.stereo_workers if stereo else 1,
+            thread_name_prefix="stereo",
+            initializer=_lower_priority,
+            initargs=(self.config.worker_niceness,),
+        )
+        self._limits = _ThreadLimits(
+            self.config.opencv_threads if stereo else None,
+            self.config.blas_threads if stereo else None,
+        )
         self._pending: deque[Future[_Measured]] = deque()
         self._ready: list[_Measured] = []
         self.frames_done = 0
@@ -135,11 +225,13 @@ class FrameProcessor:
         self.close()
 
     def close(self) -> None:
-        """Stop the worker thread, dropping frames still in flight."""
+        """Stop the worker threads, dropping frames still in flight; restore thread counts."""
         for future in self._pending:
             future.cancel()
         self._pending.clear()
+        self._ready.clear()
         self._executor.shutdown(wait=True, cancel_futures=True)
+        self._limits.restore()
 
     def _measure(self, frame: StereoFrame, features: SparseFeatures | None) -> _Measured:
         if self.config.source is MeasurementSource.FEATURES:
@@ -203,7 +295,7 @@ class FrameProcessor:
             for item, estimate in zip(group, estimates, strict=True):
                 counts = dict(item.counts)
                 counts["dropped"] = int(estimate.n_dropped)
-                unknown = np.full(estimate.disparity.shape, np.nan, dtype=np.float32)
+                unknown = _unknown(estimate.disparity.shape)
                 results.append(
                     DensifiedFrame(
                         frame=item.frame,
@@ -221,6 +313,14 @@ class FrameProcessor:
             start = stop
         self.frames_done += len(results)
         return results
+
+
+@functools.lru_cache(maxsize=4)
+def _unknown(shape: tuple[int, ...]) -> npt.NDArray[np.float32]:
+    """Return a shared read-only all-NaN float32 image (the std when uncertainty is "none")."""
+    unknown = np.full(shape, np.nan, dtype=np.float32)
+    unknown.flags.writeable = False
+    return unknown
 
 
 def _or(
