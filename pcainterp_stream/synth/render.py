@@ -263,23 +263,26 @@ def render_view(
         finite = np.isfinite(layers.depth)
         top_row = np.clip(np.where(finite, top_row, height), -1, height).astype(np.int16)
         bottom_row = np.clip(np.where(finite, bottom_row, -1), -1, height).astype(np.int16)
+        # Layer k covers rows top_k .. bottom_k: (row - top_k) as uint16 <= bottom_k - top_k
+        # (empty layers get top = height + 1, so the difference wraps to a large number).
+        empty = bottom_row < top_row
+        top_row[empty] = height + 1
+        extent = np.where(empty, 0, bottom_row - top_row).astype(np.uint16)
         row_index = np.arange(height, dtype=np.int16)[None, :]
-        # The nearest covering layer k wins: nearest = n_layers - max_k covered_k (n_layers - k).
-        closeness = np.zeros((width, height), dtype=np.uint8)
-        for k in range(n_layers):
-            covered = (row_index >= top_row[:, k : k + 1]) & (row_index <= bottom_row[:, k : k + 1])
-            rank = covered.view(np.uint8)
-            rank *= np.uint8(n_layers - k)
-            np.maximum(closeness, rank, out=closeness)
-        layer_index = np.subtract(
-            (np.arange(width, dtype=np.intp) * (n_layers + 1) + n_layers)[:, None],
-            closeness,
-            dtype=np.intp,
+        # Paint far to near: the nearest covering layer wins; n_layers is "no object".
+        nearest = np.full((width, height), n_layers, dtype=np.uint8)
+        offset = np.empty((width, height), dtype=np.int16)
+        for k in range(n_layers - 1, -1, -1):
+            np.subtract(row_index, top_row[:, k : k + 1], out=offset)
+            covered = offset.view(np.uint16) <= extent[:, k : k + 1]
+            np.copyto(nearest, np.uint8(k), where=covered)
+        layer_index = np.add(
+            (np.arange(width, dtype=np.intp) * (n_layers + 1))[:, None], nearest, dtype=np.intp
         ).ravel()
         depth_object = np.take(layers.depth.astype(np.float32).ravel(), layer_index)
         is_object = depth_object < depth
         np.copyto(depth, depth_object, where=is_object)
-        del depth_object, closeness
+        del depth_object, nearest, offset
     sky = np.isinf(depth)
 
     illumination = world.illumination
