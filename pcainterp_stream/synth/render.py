@@ -5,15 +5,16 @@ image column looks along one vertical plane. A pixel (c, r) has the ray
 ``C + z * (forward + a_c * right) + z * b_r * down`` with a_c = (c - cx)/fx and
 b_r = (r - cy)/fy, parametrised by its optical-axis depth z. Hence:
 
-* vertical extrusions are cut per column only (2-D ray against segment/circle footprints,
-  vectorised over columns x objects); a hit at depth z covers the image rows whose height
+* vertical extrusions are cut per column only (2-D ray against segment/circle footprints),
+  each footprint only against the columns its projection spans (vectorised over those
+  (column, object) pairs); a hit at depth z covers the image rows whose height
   ``C_z - z b_r`` lies between the object's bottom and top, an interval of rows. The nearest
   ``max_layers`` hits of each column are painted far to near.
 * the ground is marched per column at geometrically spaced depths (vectorised over columns x
   samples, "voxel space" style); the running minimum of the projected ground rows is the
-  visible envelope, and every pixel row is located in its column's envelope by one global
-  ``searchsorted``; inverse depth is interpolated between the two samples, which is exact for
-  planar ground.
+  visible envelope. Between two samples the ground is taken as planar, so inverse depth and
+  lateral offset are linear in the row: every (column, sample interval) is a segment with
+  its coefficients, and one ``np.repeat`` assigns every pixel its segment.
 
 Textures are looked up at world surface coordinates, so the left and right views (the same
 function, another camera centre) agree. The work is a fixed number of array operations per

@@ -303,6 +303,7 @@ class World:
         position = np.clip(x - table.x0, 0.0, n - 1.000001)
         index = position.astype(np.intp)
         weight = position - index
+
         # Value plus weight times the step to the next metre of y_c, cos(theta), H (steps
         # tabulated once), and the sidewalk flag, which changes only at whole metres (block
         # and side-street edges).
