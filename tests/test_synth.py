@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import itertools
+import platform
+import sys
 
 import cv2
 import numpy as np
@@ -215,3 +217,12 @@ def test_column_spans_keep_every_nearest_hit(index: int) -> None:
     nearest = np.minimum(depth.min(axis=1), cyl.min(axis=1))
     assert np.isfinite(nearest).mean() > 0.5
     np.testing.assert_allclose(layers.depth[:, 0], nearest, rtol=1e-12)
+
+
+def test_allocator_tuning_is_idempotent() -> None:
+    from pcainterp_stream.synth._alloc import keep_freed_memory
+
+    first = keep_freed_memory()
+    assert keep_freed_memory() == first
+    if sys.platform.startswith("linux") and platform.libc_ver()[0] == "glibc":
+        assert first
