@@ -132,6 +132,7 @@ def run_job_here(log: Path, basis: Path, out: Path, settings: dict[str, Any]) ->
         "frames": summary.frames,
         "seconds": seconds,
         "cpu_seconds": usage.ru_utime + usage.ru_stime,
+        "sys_seconds": usage.ru_stime,
         "fps": summary.frames / seconds,
         "peak_rss_mb": peak_kib / 1024.0,
         "output_mb": out.stat().st_size / 1e6,

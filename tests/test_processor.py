@@ -1,0 +1,244 @@
+"""Tests of the pipelined frame processor on small synthetic stereo pairs."""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from pcainterp_stream import processor
+from pcainterp_stream.basis import Basis
+from pcainterp_stream.estimator import densify
+from pcainterp_stream.processor import (
+    FrameProcessor,
+    MeasurementSource,
+    ProcessorConfig,
+    features_to_measurements,
+)
+from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoCamera, StereoFrame
+from pcainterp_stream.stereo import SgbmConfig
+
+HEIGHT, WIDTH = 94, 310  # a quarter of KITTI's 376 x 1241
+CAMERA = StereoCamera(
+    width=WIDTH, height=HEIGHT, fx=180.0, fy=180.0, cx=155.0, cy=47.0, baseline=0.54
+)
+SGBM = SgbmConfig(num_disparities=32)
+
+
+def random_basis(seed: int, n_components: int = 8) -> Basis:
+    """Return a random orthonormal basis on a (24, 78) grid for the quarter-size camera."""
+    rng = np.random.default_rng(seed)
+    grid = (24, 78)
+    q = np.linalg.qr(rng.normal(size=(grid[0] * grid[1], n_components)))[0]
+    return Basis(
+        mean=rng.uniform(8, 20, grid).astype(np.float32),
+        components=q.T.reshape(n_components, *grid).astype(np.float32),
+        eigenvalues=np.sort(rng.uniform(1.0, 400.0, n_components))[::-1].copy(),
+        total_variance=4000.0,
+        image_size=(HEIGHT, WIDTH),
+        focal_baseline=CAMERA.focal_baseline,
+        n_train=50,
+    )
+
+
+def shifted_pair(seed: int, shift: int) -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.uint8]]:
+    """Return a textured pair whose every left pixel has disparity ``shift`` px."""
+    rng = np.random.default_rng(seed)
+    texture = cv2.GaussianBlur(rng.uniform(0, 255, (HEIGHT, WIDTH + shift)), (0, 0), 1.2)
+    texture = np.clip((texture - texture.mean()) * 3 + 128, 0, 255).astype(np.uint8)
+    left = np.ascontiguousarray(texture[:, :WIDTH])  # left x sees right x - shift
+    right = np.ascontiguousarray(texture[:, shift:])
+    return left, right
+
+
+def make_frame(index: int, shift: int, camera: StereoCamera = CAMERA) -> StereoFrame:
+    left, right = shifted_pair(index, shift)
+    return StereoFrame(
+        index=index,
+        stamp_ns=1_000_000_000 + index * 100_000_000,
+        log_time_ns=1_000_000_000 + index * 100_000_000,
+        frame_id="left",
+        left=left,
+        right=right,
+        camera=camera,
+    )
+
+
+SHIFTS = [6, 9, 12, 15, 18, 21, 8]
+
+
+@pytest.fixture(scope="module")
+def basis() -> Basis:
+    return random_basis(0)
+
+
+@pytest.fixture(scope="module")
+def frames() -> list[StereoFrame]:
+    return [make_frame(index, shift) for index, shift in enumerate(SHIFTS)]
+
+
+def run(basis: Basis, frames: list[StereoFrame], **options: Any) -> list[DensifiedFrame]:
+    config = ProcessorConfig(sgbm=SGBM, **options)
+    with FrameProcessor(basis, config) as engine:
+        return list(engine.process(frames))
+
+
+@pytest.mark.parametrize("batch_size", [1, 2, 3, 8])
+@pytest.mark.parametrize(("lookahead", "workers"), [(0, 1), (1, 2), (4, 2), (9, 3)])
+def test_results_come_in_stream_order_one_per_frame(
+    basis: Basis, frames: list[StereoFrame], batch_size: int, lookahead: int, workers: int
+) -> None:
+    results = run(basis, frames, batch_size=batch_size, lookahead=lookahead, stereo_workers=workers)
+    assert [result.frame.index for result in results] == list(range(len(frames)))
+    for result, shift in zip(results, SHIFTS, strict=True):
+        # the lookups measure this frame's own shift, so no frame got another's results
+        assert result.pixels.shape[0] > 20
+        assert np.median(result.disparities) == pytest.approx(shift, abs=0.5)
+        assert result.disparity.shape == (HEIGHT, WIDTH)
+
+
+def test_submit_returns_finished_frames_and_finish_the_rest(
+    basis: Basis, frames: list[StereoFrame]
+) -> None:
+    config = ProcessorConfig(sgbm=SGBM, batch_size=2, lookahead=1, stereo_workers=1)
+    returned: list[list[int]] = []
+    with FrameProcessor(basis, config) as engine:
+        for frame in frames:
+            returned.append([result.frame.index for result in engine.submit(frame)])
+        rest = [result.frame.index for result in engine.finish()]
+        assert engine.frames_done == len(frames)
+    # lookahead 1 holds one frame back, batches of 2 leave as soon as they are measured
+    assert returned == [[], [], [0, 1], [], [2, 3], [], [4, 5]]
+    assert rest == [6]
+
+
+def test_batch_equals_one_by_one(basis: Basis, frames: list[StereoFrame]) -> None:
+    batched = run(basis, frames, batch_size=4, lookahead=4)
+    single = run(basis, frames, batch_size=1, lookahead=0, stereo_workers=1)
+    for one, other in zip(batched, single, strict=True):
+        np.testing.assert_array_equal(one.pixels, other.pixels)
+        np.testing.assert_allclose(one.disparity, other.disparity, rtol=1e-4, atol=1e-4)
+        np.testing.assert_allclose(one.disparity_std, other.disparity_std, rtol=1e-4, atol=1e-4)
+        np.testing.assert_allclose(one.depth, other.depth, rtol=1e-4, atol=1e-5)
+        assert np.isfinite(one.disparity_std).all()
+
+
+def test_results_match_the_estimator(basis: Basis, frames: list[StereoFrame]) -> None:
+    result = run(basis, frames[:1])[0]
+    expected = densify(basis, result.pixels, result.disparities, sigma=2.0)
+    np.testing.assert_allclose(result.disparity, expected.disparity, rtol=1e-4, atol=1e-4)
+    assert result.counts["dropped"] == 0
+    assert result.measurement_source == "stereo"
+
+
+def test_features_project_a_known_point() -> None:
+    camera = StereoCamera(
+        width=320, height=100, fx=500.0, fy=400.0, cx=160.0, cy=50.0, baseline=0.5
+    )
+    points = np.array(
+        [
+            [1.0, 0.5, 10.0],  # u = 500 * 0.1 + 160 = 210, v = 400 * 0.05 + 50 = 70, d = 25
+            [0.0, 0.0, -5.0],  # behind the camera
+            [100.0, 0.0, 10.0],  # u = 5160: right of the image
+            [0.0, 0.0, 0.0],  # at the optical centre
+            [-3.2, -1.25, 10.0],  # u = 0, v = 0: the first pixel centre, kept
+        ],
+        dtype=np.float32,
+    )
+    features = SparseFeatures(stamp_ns=1, log_time_ns=1, frame_id="left", points=points)
+    pixels, disparities, counts = features_to_measurements(features, camera)
+    np.testing.assert_allclose(pixels, [[210.0, 70.0], [0.0, 0.0]], atol=1e-4)
+    np.testing.assert_allclose(disparities, [25.0, 25.0], rtol=1e-6)
+    assert counts == {"features": 5, "features_rejected": 3}
+    assert pixels.dtype == np.float32
+    assert disparities.dtype == np.float32
+
+
+def test_no_features_is_empty_data() -> None:
+    pixels, disparities, counts = features_to_measurements(None, CAMERA)
+    assert pixels.shape == (0, 2)
+    assert disparities.shape == (0,)
+    assert counts == {"features": 0, "features_rejected": 0}
+
+
+def test_features_source_densifies_the_projected_points(basis: Basis) -> None:
+    frame = make_frame(0, 10)
+    z = CAMERA.focal_baseline / 10.0  # disparity 10 px everywhere
+    u = np.array([80.0, 150.0, 250.0])
+    v = np.array([20.0, 47.0, 80.0])
+    points = np.stack([(u - CAMERA.cx) * z / CAMERA.fx, (v - CAMERA.cy) * z / CAMERA.fy], 1)
+    points = np.column_stack([points, np.full(3, z)]).astype(np.float32)
+    features = SparseFeatures(frame.stamp_ns, frame.log_time_ns, "left", points)
+    config = ProcessorConfig(source=MeasurementSource.FEATURES)
+    with FrameProcessor(basis, config) as engine:
+        (result,) = [*engine.submit(frame, features), *engine.finish()]
+    np.testing.assert_allclose(result.pixels, np.stack([u, v], 1), atol=1e-3)
+    np.testing.assert_allclose(result.disparities, 10.0, rtol=1e-5)
+    assert result.measurement_source == "features"
+    assert result.counts["features"] == 3
+
+
+def test_blank_frame_yields_the_prior(basis: Basis) -> None:
+    blank = np.full((HEIGHT, WIDTH), 128, dtype=np.uint8)
+    frame = make_frame(0, 10)._replace(left=blank, right=blank)
+    (result,) = run(basis, [frame])
+    prior = densify(basis, np.zeros((0, 2)), np.zeros(0))
+    assert result.pixels.shape == (0, 2)
+    np.testing.assert_allclose(result.disparity, prior.disparity, rtol=1e-5)
+    assert np.isfinite(result.disparity_std).all()
+    assert float(result.disparity_std.min()) > 0.0
+
+
+def test_camera_change_splits_the_batch(basis: Basis, monkeypatch: pytest.MonkeyPatch) -> None:
+    other = StereoCamera(
+        width=WIDTH, height=HEIGHT, fx=180.0, fy=180.0, cx=155.0, cy=47.0, baseline=1.08
+    )
+    stream = [make_frame(i, 10, CAMERA if i < 3 else other) for i in range(5)]
+    calls: list[tuple[int, float]] = []
+    real = processor.densify_batch
+
+    def spy(basis: Basis, pixels: list[Any], disparities: list[Any], **options: Any) -> Any:
+        calls.append((len(pixels), options["focal_baseline"]))
+        return real(basis, pixels, disparities, **options)
+
+    monkeypatch.setattr(processor, "densify_batch", spy)
+    results = run(basis, stream, batch_size=8, lookahead=8)
+    assert calls == [(3, CAMERA.focal_baseline), (2, other.focal_baseline)]
+    # twice the baseline: the same disparity is twice the depth
+    np.testing.assert_allclose(
+        results[3].depth,
+        2 * results[0].depth * (results[0].disparity / results[3].disparity),
+        rtol=1e-3,
+    )
+
+
+def test_close_mid_stream_does_not_hang_and_restores_threads(
+    basis: Basis, frames: list[StereoFrame]
+) -> None:
+    threads_before = cv2.getNumThreads()
+    config = ProcessorConfig(sgbm=SGBM, batch_size=64, lookahead=64, opencv_threads=1)
+    engine = FrameProcessor(basis, config)
+    assert cv2.getNumThreads() == 1
+    for frame in frames * 3:
+        assert engine.submit(frame) == []
+    started = time.perf_counter()
+    engine.close()
+    assert time.perf_counter() - started < 10.0
+    assert cv2.getNumThreads() == threads_before
+    assert not [t for t in threading.enumerate() if t.name.startswith("stereo")]
+
+
+def test_bad_config_raises() -> None:
+    with pytest.raises(ValueError, match="batch_size must be >= 1, got 0"):
+        ProcessorConfig(batch_size=0)
+    with pytest.raises(ValueError, match="lookahead must be >= 0, got -1"):
+        ProcessorConfig(lookahead=-1)
+    with pytest.raises(ValueError, match="stereo_workers must be >= 1, got 0"):
+        ProcessorConfig(stereo_workers=0)
+    with pytest.raises(ValueError, match="blas_threads must be >= 1 or None, got 0"):
+        ProcessorConfig(blas_threads=0)
