@@ -11,7 +11,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from pcainterp_stream import processor
+from pcainterp_stream import estimator, processor
 from pcainterp_stream.basis import Basis
 from pcainterp_stream.estimator import densify
 from pcainterp_stream.processor import (
@@ -171,8 +171,8 @@ def test_features_source_densifies_the_projected_points(basis: Basis) -> None:
     z = CAMERA.focal_baseline / 10.0  # disparity 10 px everywhere
     u = np.array([80.0, 150.0, 250.0])
     v = np.array([20.0, 47.0, 80.0])
-    points = np.stack([(u - CAMERA.cx) * z / CAMERA.fx, (v - CAMERA.cy) * z / CAMERA.fy], 1)
-    points = np.column_stack([points, np.full(3, z)]).astype(np.float32)
+    xy = np.stack([(u - CAMERA.cx) * z / CAMERA.fx, (v - CAMERA.cy) * z / CAMERA.fy], 1)
+    points = np.asarray(np.column_stack([xy, np.full(3, z)]), dtype=np.float32)
     features = SparseFeatures(frame.stamp_ns, frame.log_time_ns, "left", points)
     config = ProcessorConfig(source=MeasurementSource.FEATURES)
     with FrameProcessor(basis, config) as engine:
@@ -200,7 +200,7 @@ def test_camera_change_splits_the_batch(basis: Basis, monkeypatch: pytest.Monkey
     )
     stream = [make_frame(i, 10, CAMERA if i < 3 else other) for i in range(5)]
     calls: list[tuple[int, float]] = []
-    real = processor.densify_batch
+    real = estimator.densify_batch
 
     def spy(basis: Basis, pixels: list[Any], disparities: list[Any], **options: Any) -> Any:
         calls.append((len(pixels), options["focal_baseline"]))
