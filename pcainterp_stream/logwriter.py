@@ -31,8 +31,6 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO, Any, Self
 
-import mcap.writer
-import zstandard
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 from rosbags.convert.converter import is_same_wireformat
@@ -53,33 +51,6 @@ ProgressCallback = Callable[[int, int | None], None]
 LIBRARY = "pcainterp_stream"
 MCAP_CHUNK_SIZE = 4 * 1024 * 1024
 """Uncompressed MCAP chunk size (bytes): a few KITTI images per zstd chunk."""
-MCAP_ZSTD_LEVEL = 1
-"""zstd level of MCAP chunks. Float32 depth images hardly compress: level 1 is 1.7x faster
-than zstd's default 3 on densify outputs (526 vs 312 MB/s) for 0.4 % more bytes
-(docs/benchmarks.md, "End-to-end densify")."""
-
-
-class _ZstdAtLevel:
-    """Stands in for the ``zstandard`` module inside ``mcap.writer``.
-
-    mcap's ``Writer`` compresses each chunk with ``zstandard.compress(data)`` at the library
-    default level and has no level option, so the writer module is given this object, which
-    compresses at :data:`MCAP_ZSTD_LEVEL` and passes every other name to ``zstandard``.
-    """
-
-    def compress(self, data: bytes, level: int = MCAP_ZSTD_LEVEL) -> bytes:
-        """Compress one chunk at :data:`MCAP_ZSTD_LEVEL`."""
-        compressed: bytes = zstandard.compress(data, level=MCAP_ZSTD_LEVEL)
-        return compressed
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(zstandard, name)
-
-
-def _use_zstd_level() -> None:
-    """Make ``mcap.writer`` compress at :data:`MCAP_ZSTD_LEVEL` (idempotent)."""
-    if getattr(mcap.writer, "zstandard", None) is zstandard:
-        setattr(mcap.writer, "zstandard", _ZstdAtLevel())  # noqa: B010 (a module, typed as such)
 
 
 class LogFormat(Enum):
@@ -331,7 +302,6 @@ class McapLogWriter(LogWriter):
         self._channels: dict[tuple[str, str, int, tuple[tuple[str, str], ...]], int] = {}
 
     def _open_partial(self) -> None:
-        _use_zstd_level()
         self._stream = self.partial_path.open("xb")
         self._writer = McapWriter(
             self._stream, chunk_size=MCAP_CHUNK_SIZE, compression=CompressionType.ZSTD
