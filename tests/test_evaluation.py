@@ -1,0 +1,263 @@
+"""Evaluation maths (paper section IV-B projection errors, calibration, oracle) and the report."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pcainterp_stream import cli, jobs
+from pcainterp_stream.basis import Basis
+from pcainterp_stream.errors import LogReadError
+from pcainterp_stream.evaluation import (
+    CalibrationStats,
+    MethodStats,
+    Mode,
+    calibration_sums,
+    depth_errors,
+    disparity_from_depth,
+    oracle_disparity,
+    projection_errors,
+    reference_view,
+    relative_transform,
+    stereo_transform,
+)
+from pcainterp_stream.learning import preprocess_disparity
+from pcainterp_stream.pairing import PairingConfig
+from pcainterp_stream.records import StereoCamera
+from pcainterp_stream.report import EvaluateOptions, evaluate_log
+
+CAMERA = StereoCamera(width=80, height=40, fx=60.0, fy=60.0, cx=39.5, cy=19.5, baseline=0.5)
+
+
+def _scene(seed: int) -> np.ndarray:
+    """A (40, 80) disparity map: a slanted ground, a box, sky (0) in the top rows."""
+    rng = np.random.default_rng(seed)
+    rows = np.arange(40, dtype=np.float64)[:, None]
+    disparity = np.clip((rows - 12.0) * 0.8, 0.0, None) * np.ones((1, 80))
+    x0 = int(rng.integers(5, 60))
+    disparity[15:30, x0 : x0 + 12] = rng.uniform(5.0, 15.0)
+    return disparity
+
+
+# ----------------------------------------------------------------------------- maths
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 1000), forward=st.floats(0.0, 1.5), yaw=st.floats(-0.05, 0.05))
+def test_delta_2d_is_zero_when_estimate_is_reference(seed: int, forward: float, yaw: float) -> None:
+    reference = _scene(seed)
+    pose_b = np.eye(4)
+    pose_b[:3, :3] = [[np.cos(yaw), 0, np.sin(yaw)], [0, 1, 0], [-np.sin(yaw), 0, np.cos(yaw)]]
+    pose_b[2, 3] = forward
+    for transform in (stereo_transform(CAMERA), relative_transform(np.eye(4), pose_b)):
+        view = reference_view(reference, CAMERA, transform)
+        delta_2d, delta_3d = projection_errors(reference, view, CAMERA, transform)
+        assert view.counted.sum() > 0.5 * reference.size
+        assert np.nanmax(delta_2d) < 1e-9
+        assert np.nanmax(delta_3d) < 1e-9
+        assert np.all(np.isnan(delta_2d) == ~view.counted)
+
+
+@pytest.mark.parametrize("offset", [0.5, 1.0, 3.0])
+def test_constant_disparity_offset_is_its_projection_error_in_stereo_mode(offset: float) -> None:
+    # in the right camera u_R = u - d, so a disparity error of c moves the projection by c
+    reference = _scene(1) + 2.0  # no sky: every point finite
+    transform = stereo_transform(CAMERA)
+    view = reference_view(reference, CAMERA, transform)
+    delta_2d, _ = projection_errors(reference + offset, view, CAMERA, transform)
+    np.testing.assert_allclose(delta_2d[view.counted], offset, atol=1e-9)
+    # pixels whose reference lands left of the right image do not count
+    assert not view.counted[:, 0].any()
+    assert view.counted[:, -1].all()
+
+
+def test_sky_lands_by_rotation_alone_and_has_no_delta_3d() -> None:
+    reference = np.zeros((40, 80))  # all sky
+    pose_b = np.eye(4)
+    pose_b[2, 3] = 5.0  # driving forward does not move points at infinity
+    transform = relative_transform(np.eye(4), pose_b)
+    view = reference_view(reference, CAMERA, transform)
+    assert view.counted.all()
+    np.testing.assert_allclose(view.u, np.arange(80)[None, :] * np.ones((40, 1)), atol=1e-9)
+    delta_2d, delta_3d = projection_errors(np.full((40, 80), 10.0), view, CAMERA, transform)
+    assert np.all(np.isnan(delta_3d))
+    assert np.nanmin(delta_2d) > 0.0
+
+
+def test_delta_3d_is_the_distance_of_the_points() -> None:
+    reference = np.full((40, 80), 10.0)  # depth f*b/d = 3 m
+    transform = stereo_transform(CAMERA)
+    view = reference_view(reference, CAMERA, transform)
+    _, delta_3d = projection_errors(np.full((40, 80), 15.0), view, CAMERA, transform)  # 2 m
+    centre = delta_3d[19:21, 39:41]  # rays almost along the optical axis
+    np.testing.assert_allclose(centre, 1.0, rtol=1e-3)
+
+
+def test_disparity_from_depth_maps_no_surface_to_zero() -> None:
+    depth = np.array([[2.0, np.nan, np.inf, 0.0, -1.0]])
+    np.testing.assert_allclose(disparity_from_depth(depth, 30.0), [[15.0, 0, 0, 0, 0]])
+
+
+def test_calibration_coverage_of_a_gaussian_sample() -> None:
+    rng = np.random.default_rng(0)
+    std = rng.uniform(0.5, 3.0, (200, 200))
+    reference = rng.uniform(0.0, 50.0, (200, 200))
+    estimate = reference + rng.normal(0.0, 1.0, std.shape) * std
+    sums = calibration_sums(estimate, std, reference, np.ones(std.shape, dtype=bool))
+    assert sums["inside_1"] / sums["n"] == pytest.approx(0.683, abs=0.01)
+    assert sums["inside_2"] / sums["n"] == pytest.approx(0.954, abs=0.01)
+    expected_nll = np.mean(0.5 * np.log(2 * np.pi * std**2)) + 0.5
+    assert sums["nll"] / sums["n"] == pytest.approx(expected_nll, abs=0.02)
+    # an overconfident std (half the true one) covers much less
+    narrow = calibration_sums(estimate, std / 2, reference, np.ones(std.shape, dtype=bool))
+    assert narrow["inside_2"] / narrow["n"] == pytest.approx(0.683, abs=0.01)
+
+
+def test_depth_errors_of_a_known_offset() -> None:
+    reference = np.full((4, 4), 10.0)  # 3 m with f*b = 30
+    estimate = np.full((4, 4), 15.0)  # 2 m
+    sums = depth_errors(estimate, reference, np.ones((4, 4), dtype=bool), focal_baseline=30.0)
+    assert sums["n"] == 16
+    assert sums["abs"] / 16 == pytest.approx(1.0)
+    assert np.sqrt(sums["isq"] / 16) == pytest.approx(1000 * (1 / 2 - 1 / 3))
+    # beyond max_depth nothing counts
+    far = depth_errors(estimate, np.full((4, 4), 0.1), np.ones((4, 4), bool), focal_baseline=30.0)
+    assert far["n"] == 0
+
+
+def test_method_stats_means_and_bins() -> None:
+    reference = _scene(3) + 2.0
+    transform = stereo_transform(CAMERA)
+    view = reference_view(reference, CAMERA, transform)
+    stats = MethodStats()
+    stats.add(reference + 1.0, view, CAMERA, transform)
+    stats.add(reference + 3.0, view, CAMERA, transform)
+    summary = stats.summary()
+    assert summary["delta_2d_mean"] == pytest.approx(2.0)
+    assert summary["disparity_mae"] == pytest.approx(2.0)
+    assert sum(stats.delta_2d_hist) == stats.pixels
+    assert sum(stats.by_depth_count) == stats.pixels
+    calibration = CalibrationStats()
+    delta, _ = projection_errors(reference + 1.0, view, CAMERA, transform)
+    calibration.add(reference + 1.0, np.full(reference.shape, 0.75), view, delta)
+    assert calibration.summary()["coverage_1sigma"] == 0.0
+    assert calibration.summary()["coverage_2sigma"] == 1.0
+
+
+def test_oracle_reproduces_a_map_in_the_basis_span() -> None:
+    rng = np.random.default_rng(5)
+    grid_size = (10, 20)
+    q, _ = np.linalg.qr(rng.normal(size=(200, 3)))
+    basis = Basis(
+        mean=np.full(grid_size, 8.0, dtype=np.float32),
+        components=q.T.reshape(3, *grid_size).astype(np.float32),
+        eigenvalues=np.array([30.0, 10.0, 1.0]),
+        total_variance=np.float64(45.0),
+        image_size=(40, 80),
+        focal_baseline=30.0,
+        n_train=10,
+        meta={},
+    )
+    reference = _scene(2)
+    oracle = oracle_disparity(basis, reference)
+    grid = preprocess_disparity(reference, grid_size).reshape(-1)
+    projected = basis.pixel_major @ (basis.component_rows @ (grid - basis.mean_flat))
+    # the oracle is the least-squares fit: its grid residual is orthogonal to the basis
+    residual = grid - basis.mean_flat - projected
+    assert np.abs(basis.component_rows @ residual).max() < 1e-3
+    assert oracle.shape == reference.shape
+
+
+# ----------------------------------------------------------------------------- on logs
+
+
+@pytest.fixture(scope="session")
+def dense_logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    folder = tmp_path_factory.mktemp("evaluation")
+    train, test = folder / "train.mcap", folder / "test.mcap"
+    jobs.synth(train, frames=20, seed=21, scale=0.25, fmt="mcap")
+    jobs.synth(test, frames=4, seed=22, scale=0.25, fmt="mcap")
+    basis = folder / "basis.npz"
+    jobs.learn([train], basis, jobs.LearnOptions(n_components=10), PairingConfig())
+    dense = folder / "dense.mcap"
+    jobs.densify(test, dense, basis)
+    return {"basis": basis, "dense": dense, "test": test, "folder": folder}
+
+
+def test_evaluate_writes_report_with_every_section(dense_logs: dict[str, Path]) -> None:
+    out = dense_logs["folder"] / "report"
+    folder, table = jobs.evaluate(
+        dense_logs["dense"], out, basis=dense_logs["basis"], sweep_every=2
+    )
+    assert folder == out
+    report = json.loads((out / "results.json").read_text())
+    assert report["mode"] == "temporal"
+    assert report["reference"] == "ground truth"
+    assert report["frames"] == 3  # temporal: the last frame has no successor
+    assert set(report["methods"]) == {"pca_map", "nearest", "linear", "oracle"}
+    assert set(report["calibration"]) == {"stored", "paper", "exact"}
+    assert set(report["sweep"]) == {"50", "100", "200", "400", "800"}
+    # the log was densified with exact uncertainty: re-densifying reproduces its calibration
+    stored = report["calibration"]["stored"]["mean"]["coverage_2sigma"]
+    assert report["calibration"]["exact"]["mean"]["coverage_2sigma"] == pytest.approx(
+        stored, abs=0.01
+    )
+    # the oracle is the best the basis can do (on average, with the same reference)
+    means = {name: m["mean"]["delta_2d_mean"] for name, m in report["methods"].items()}
+    assert means["oracle"] < means["pca_map"]
+    for name in ("errors.png", "uncertainty.png", "sweep.png", "examples.png", "basis.png"):
+        assert (out / name).stat().st_size > 1000
+        assert f"({name})" in (out / "results.md").read_text()
+    assert "pca_map" in table
+    assert "Targets" in (out / "results.md").read_text()
+
+
+def test_stereo_mode_with_an_sgbm_reference(
+    dense_logs: dict[str, Path],
+) -> None:
+    result, examples = evaluate_log(
+        dense_logs["dense"], EvaluateOptions(mode=None, sweep_every=0, examples=1)
+    )
+    assert result.mode == "temporal"
+    stereo, _ = evaluate_log(
+        dense_logs["dense"], EvaluateOptions(mode=Mode.STEREO, sgbm_reference=True, sweep_every=0)
+    )
+    assert stereo.mode == "stereo"
+    assert stereo.reference == "SGBM"
+    assert stereo.frames == 4
+    # SGBM leaves holes: fewer pixels count than with the ground truth
+    truth, _ = evaluate_log(dense_logs["dense"], EvaluateOptions(mode=Mode.STEREO, sweep_every=0))
+    assert stereo.methods["pca_map"].pixels < truth.methods["pca_map"].pixels
+    assert stereo.calibration.keys() == {"stored"}
+    assert len(examples) == 1
+
+
+def test_evaluate_cli_prints_table(
+    dense_logs: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = dense_logs["folder"] / "cli_report"
+    code = cli.main(["evaluate", str(dense_logs["dense"]), "-o", str(out), "--sweep-every", "0"])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "nearest" in text
+    assert (out / "results.md").is_file()
+
+
+def test_evaluate_refuses_a_log_without_densified_channels(dense_logs: dict[str, Path]) -> None:
+    with pytest.raises(LogReadError, match=r"has no /pcainterp/disparity.*pcainterp densify"):
+        evaluate_log(dense_logs["test"])
+
+
+def test_evaluate_cli_one_line_errors(
+    dense_logs: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert cli.main(["evaluate", str(dense_logs["dense"]), "--sweep-every", "-1"]) == 2
+    assert "--sweep-every must be >= 0" in capsys.readouterr().err
+    missing = dense_logs["folder"] / "nope.npz"
+    assert cli.main(["evaluate", str(dense_logs["dense"]), "--basis", str(missing)]) == 2
+    assert "does not exist" in capsys.readouterr().err
