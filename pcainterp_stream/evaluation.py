@@ -310,6 +310,8 @@ def projection_errors(
     view: ReferenceView,
     camera: StereoCamera,
     transform: npt.NDArray[np.float64],
+    *,
+    max_depth: float = MAX_DEPTH,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """Return the paper's Delta_2D and Delta_3D of an estimate against a reference.
 
@@ -322,26 +324,32 @@ def projection_errors(
         view: the reference moved into B (:func:`reference_view`).
         camera: the camera of both views.
         transform: (4, 4) float64, camera A to camera B.
+        max_depth: Delta_3D counts reference depths up to this (m) and caps the estimated
+            depth there.
 
     Returns:
         delta_2d: (H, W) float64 (px), NaN where the pixel does not count; capped at the
             image diagonal (an estimated point behind B lands nowhere).
-        delta_3d: (H, W) float64 (m), NaN where the pixel does not count or either point
-            is at infinity (disparity 0).
+        delta_3d: (H, W) float64 (m), NaN where the pixel does not count or the reference
+            is farther than ``max_depth`` (sky included).
     """
     values = np.nan_to_num(np.asarray(estimate, dtype=np.float64), nan=0.0)
     u, v, _ = project_into(values, camera, transform)
     distance = np.hypot(u - view.u, v - view.v)
     delta_2d = np.where(np.isfinite(distance), np.minimum(distance, view.diagonal), view.diagonal)
     delta_2d = np.where(view.counted, delta_2d, np.nan)
+    # Delta_3D: reference depths up to max_depth, estimated depth capped there (as the
+    # depth metrics): a near-zero estimated disparity would otherwise put a point at
+    # kilometres and one pixel would dominate the mean
     x_n, y_n = _rays(camera)
-    positive = np.clip(values, 0.0, None)
-    finite = view.counted & (positive > 0) & (view.disparity > 0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        gap = camera.focal_baseline / np.where(finite, positive, 1.0) - np.where(
-            finite, view.depth, 0.0
-        )
-    delta_3d = np.where(finite, np.abs(gap) * np.sqrt(x_n**2 + y_n**2 + 1.0), np.nan)
+    min_disparity = camera.focal_baseline / max_depth
+    with np.errstate(invalid="ignore"):
+        finite = view.counted & (view.disparity >= min_disparity)
+    estimated_depth = camera.focal_baseline / np.maximum(values, min_disparity)
+    reference_depth = np.where(finite, view.depth, 0.0)
+    delta_3d = np.where(
+        finite, np.abs(estimated_depth - reference_depth) * np.sqrt(x_n**2 + y_n**2 + 1.0), np.nan
+    )
     return delta_2d, delta_3d
 
 

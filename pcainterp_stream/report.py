@@ -542,9 +542,10 @@ def results_markdown(result: Evaluation, figures: list[str]) -> str:
         "```",
         "",
         "D2D: mean Delta_2D (px), /NN: ratio to nearest neighbour; D3D: mean Delta_3D (m, "
-        "finite points only); RMSE/MAE (m) and iRMSE/iMAE (1/km) over reference depths up "
-        "to 80 m; ms/frame: time of the method during evaluation (PCA-MAP: see the "
-        "uncertainty rows, a re-densification with the basis). Coverage: share of reference "
+        "reference depths up to 80 m, estimated depth capped there); RMSE/MAE (m) and "
+        "iRMSE/iMAE (1/km) likewise; ms/frame: time of the method during evaluation "
+        "(PCA-MAP: see the uncertainty rows, a re-densification with the basis). Coverage: "
+        "share of reference "
         "disparities within +-1/+-2 posterior std (Gaussian: 68.3 / 95.4 %).",
         "",
         "## Targets",
