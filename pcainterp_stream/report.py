@@ -344,6 +344,14 @@ class _Evaluator:
             )
             delta, _ = projection_errors(dense.disparity, view, camera, transform)
             stats.add(dense.disparity, dense.disparity_std, view, delta)
+        # the exact posterior knows only the l kept components; the training variance the
+        # basis leaves out, spread evenly over the grid pixels, is a floor it misses
+        residual = max(float(basis.total_variance - basis.eigenvalues.sum()), 0.0)
+        to_log = camera.focal_baseline / basis.focal_baseline  # basis px -> log px
+        residual_std = np.sqrt(
+            dense.disparity_std.astype(np.float64) ** 2 + residual / basis.mean.size * to_log**2
+        )
+        self._calibration("exact+residual").add(dense.disparity, residual_std, view, delta)
         scale = basis.focal_baseline / camera.focal_baseline
         oracle = oracle_disparity(basis, reference * scale) / scale
         self._stats("oracle").add(oracle, view, camera, transform)

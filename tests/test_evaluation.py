@@ -200,7 +200,10 @@ def test_evaluate_writes_report_with_every_section(dense_logs: dict[str, Path]) 
     assert report["reference"] == "ground truth"
     assert report["frames"] == 3  # temporal: the last frame has no successor
     assert set(report["methods"]) == {"pca_map", "nearest", "linear", "oracle"}
-    assert set(report["calibration"]) == {"stored", "paper", "exact"}
+    assert set(report["calibration"]) == {"stored", "paper", "exact", "exact+residual"}
+    # adding the variance the basis leaves out widens the band
+    widened = report["calibration"]["exact+residual"]["mean"]["coverage_2sigma"]
+    assert widened >= report["calibration"]["exact"]["mean"]["coverage_2sigma"]
     assert set(report["sweep"]) == {"50", "100", "200", "400", "800"}
     # the log was densified with exact uncertainty: re-densifying reproduces its calibration
     stored = report["calibration"]["stored"]["mean"]["coverage_2sigma"]
