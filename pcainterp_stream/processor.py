@@ -206,7 +206,7 @@ class FrameProcessor:
         self.front_end = StereoFrontEnd(self.config.gftt, self.config.sgbm)
         if self.config.keep_freed_memory:
             # the synthetic renderer's allocator tuning; same temporaries problem here
-            from pcainterp_stream.synth._alloc import keep_freed_memory
+            from pcainterp_stream.allocator import keep_freed_memory
 
             keep_freed_memory()
         stereo = self.config.source is MeasurementSource.STEREO

@@ -220,7 +220,7 @@ def test_column_spans_keep_every_nearest_hit(index: int) -> None:
 
 
 def test_allocator_tuning_is_idempotent() -> None:
-    from pcainterp_stream.synth._alloc import keep_freed_memory
+    from pcainterp_stream.allocator import keep_freed_memory
 
     first = keep_freed_memory()
     assert keep_freed_memory() == first

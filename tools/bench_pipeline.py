@@ -39,6 +39,7 @@ import cv2
 import numpy as np
 
 from pcainterp_stream import jobs, logreader, logwriter, processor, rosmsg
+from pcainterp_stream.allocator import keep_freed_memory
 from pcainterp_stream.basis import Basis
 from pcainterp_stream.pairing import PairingConfig, StereoPairer
 from pcainterp_stream.records import StereoFrame
@@ -49,7 +50,6 @@ from pcainterp_stream.stereo import (
     detect_corners,
     lookup_disparities,
 )
-from pcainterp_stream.synth._alloc import keep_freed_memory
 
 SECTIONS = ("sgbm", "job", "breakdown", "memory", "lookups")
 

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from pcainterp_stream.allocator import keep_freed_memory
 from pcainterp_stream.records import StereoCamera, SynthFrame
-from pcainterp_stream.synth._alloc import keep_freed_memory
 from pcainterp_stream.synth.render import View, render_view
 from pcainterp_stream.synth.world import World
 
@@ -238,7 +238,7 @@ def _render_image(
 def generate(config: SynthConfig) -> Iterator[SynthFrame]:
     """Render a synthetic stereo drive frame by frame.
 
-    Tunes glibc's malloc on first use (see :func:`._alloc.keep_freed_memory`): freed
+    Tunes glibc's malloc on first use (:func:`~pcainterp_stream.allocator.keep_freed_memory`): freed
     temporaries are kept for reuse instead of being page-faulted in again for every view.
 
     Args:
