@@ -14,8 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import numpy.typing as npt
-from scipy.interpolate import LinearNDInterpolator
-from scipy.spatial import QhullError
+from scipy.spatial import Delaunay, QhullError
 
 from pcainterp_stream.estimator import clean_measurements
 
@@ -72,15 +71,103 @@ def linear(
     points, values, n_dropped = clean_measurements(pixels, disparities, image_size)
     dense = _nearest_map(points, values, image_size)
     if points.shape[0] >= 3:
-        height, width = image_size
         try:
-            interpolator = LinearNDInterpolator(points, values, fill_value=np.nan)
+            triangulation = Delaunay(points)
         except QhullError:
             return BaselineResult(dense, points, values, n_dropped)
-        xs, ys = np.meshgrid(np.arange(width), np.arange(height))
-        inside = interpolator(xs, ys).astype(np.float32)
+        inside = _interpolate_triangles(triangulation, values, image_size)
         dense = np.where(np.isnan(inside), dense, inside)
     return BaselineResult(dense, points, values, n_dropped)
+
+
+_SHIFT = 8  # fractional bits of the rasterised triangle vertices
+
+
+def _interpolate_triangles(
+    triangulation: Delaunay, values: npt.NDArray[np.float64], image_size: tuple[int, int]
+) -> npt.NDArray[np.float32]:
+    """Linear interpolation inside the triangles, NaN outside the convex hull.
+
+    Each triangle is rasterised once with its index (a loop over the few hundred triangles,
+    not over pixels), then every covered pixel takes the barycentric combination of its
+    triangle's three values. (scipy's LinearNDInterpolator needs ``Delaunay.transform``,
+    which took ~5 s per KITTI-size frame here.)
+    """
+    simplices = triangulation.simplices
+    owner = np.full(image_size, -1, dtype=np.int32)
+    corners = np.rint(triangulation.points[simplices] * (1 << _SHIFT)).astype(np.int32)
+    for index, triangle in enumerate(corners):
+        cv2.fillConvexPoly(owner, triangle, index, lineType=cv2.LINE_8, shift=_SHIFT)
+    rows, cols = np.nonzero(owner >= 0)
+    triangles = owner[rows, cols]
+    pixel_points = np.stack([cols, rows], axis=1).astype(np.float64)
+    inverse, origin = _barycentric_transforms(triangulation.points[simplices])
+    weights = _barycentric(inverse, origin, triangles, pixel_points)
+    # Rasterisation rounds edges to the pixel grid, so a pixel near an edge may have been
+    # painted by a triangle that does not contain it (with slivers, not even a neighbour
+    # of the right one): locate those few pixels among all triangles.
+    outside = weights.min(axis=1) < -1e-9
+    for side in range(3):  # most belong to the neighbour across the nearest edge
+        which = np.flatnonzero(outside)
+        neighbour = triangulation.neighbors[triangles[which], side]
+        which, neighbour = which[neighbour >= 0], neighbour[neighbour >= 0]
+        candidate = _barycentric(inverse, origin, neighbour, pixel_points[which])
+        fits = candidate.min(axis=1) >= -1e-9
+        triangles[which[fits]] = neighbour[fits]
+        weights[which[fits]] = candidate[fits]
+        outside[which[fits]] = False
+    outside = np.flatnonzero(outside)
+    everything = np.arange(simplices.shape[0])
+    for start in range(0, outside.size, 1024):
+        which = outside[start : start + 1024]
+        # (pixels, triangles, 3) barycentric coordinates of every pixel in every triangle
+        offset = pixel_points[which, None, :] - origin[None, :, :]
+        first_two = np.einsum("tij,ptj->pti", inverse, offset)
+        all_weights = np.concatenate(
+            [first_two, 1.0 - first_two.sum(axis=2, keepdims=True)], axis=2
+        )
+        slack = all_weights.min(axis=2)
+        best = np.nanargmax(np.where(np.isnan(slack), -np.inf, slack), axis=1)
+        triangles[which] = everything[best]
+        weights[which] = all_weights[np.arange(which.size), best]
+    # pixels left with a negative weight lie within rounding of the hull: clamp them
+    weights = np.clip(weights, 0.0, 1.0)
+    weights /= weights.sum(axis=1, keepdims=True)
+    dense = np.full(image_size, np.nan, dtype=np.float32)
+    dense[rows, cols] = np.einsum("ni,ni->n", weights, values[simplices[triangles]])
+    return dense
+
+
+def _barycentric_transforms(
+    vertices: npt.NDArray[np.float64],
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Per triangle, the inverse of [v0 - v2, v1 - v2] (2 x 2) and the origin v2.
+
+    Computed in closed form: scipy's ``Delaunay.transform`` computes the same with a LAPACK
+    call per triangle, which took seconds here.
+    """
+    origin = vertices[:, 2]
+    a = vertices[:, 0] - origin
+    b = vertices[:, 1] - origin
+    determinant = a[:, 0] * b[:, 1] - b[:, 0] * a[:, 1]
+    determinant = np.where(np.abs(determinant) < 1e-12, np.nan, determinant)
+    inverse = np.empty((vertices.shape[0], 2, 2))
+    inverse[:, 0, 0] = b[:, 1] / determinant
+    inverse[:, 0, 1] = -b[:, 0] / determinant
+    inverse[:, 1, 0] = -a[:, 1] / determinant
+    inverse[:, 1, 1] = a[:, 0] / determinant
+    return inverse, origin
+
+
+def _barycentric(
+    inverse: npt.NDArray[np.float64],
+    origin: npt.NDArray[np.float64],
+    triangles: npt.NDArray[np.int32],
+    points: npt.NDArray[np.float64],
+) -> npt.NDArray[np.float64]:
+    """Barycentric coordinates (n, 3) of points (n, 2) in the given triangles (n,)."""
+    first_two = np.einsum("nij,nj->ni", inverse[triangles], points - origin[triangles])
+    return np.concatenate([first_two, 1.0 - first_two.sum(axis=1, keepdims=True)], axis=1)
 
 
 def _nearest_map(

@@ -40,3 +40,20 @@ def test_baselines_drop_bad_measurements_and_handle_empty() -> None:
 def test_baselines_validate_shapes() -> None:
     with pytest.raises(ValueError, match=r"`pixels` of shape \(k, 2\)"):
         nearest(np.zeros((2, 3)), np.zeros(2), image_size=(3, 4))
+
+
+def test_linear_matches_scipy_linear_nd_interpolator_inside_the_hull() -> None:
+    from scipy.interpolate import LinearNDInterpolator
+
+    from pcainterp_stream.baselines import linear
+
+    rng = np.random.default_rng(3)
+    height, width = 90, 300
+    pixels = np.c_[rng.uniform(0, width - 1, 150), rng.uniform(0, height - 1, 150)]
+    values = rng.uniform(0, 60, 150)
+    dense = linear(pixels, values, image_size=(height, width)).disparity
+    xs, ys = np.meshgrid(np.arange(width), np.arange(height))
+    reference = LinearNDInterpolator(pixels, values)(xs, ys)
+    inside = np.isfinite(reference)
+    assert inside.mean() > 0.8
+    np.testing.assert_allclose(dense[inside], reference[inside], atol=1e-4)
