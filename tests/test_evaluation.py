@@ -264,3 +264,10 @@ def test_evaluate_cli_one_line_errors(
     missing = dense_logs["folder"] / "nope.npz"
     assert cli.main(["evaluate", str(dense_logs["dense"]), "--basis", str(missing)]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_evaluate_help_has_examples(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["evaluate", "--help"])
+    assert exit_info.value.code == 0
+    assert "pcainterp evaluate" in capsys.readouterr().out.split("examples:")[1]
