@@ -667,7 +667,10 @@ def write_figures(
     )
     axes[0].set_title("PCA-MAP Delta_2D by predicted disparity std (px)")
     for name, calibration in result.calibration.items():
-        rms = np.sqrt(_ratio(calibration.by_std_sq, calibration.by_std_count))
+        counts = np.asarray(calibration.by_std_count)
+        rms = np.where(
+            counts > 0, np.sqrt(_ratio(calibration.by_std_sq, calibration.by_std_count)), np.nan
+        )  # empty bins are gaps, not zeros on the log axis
         axes[1].plot(std_labels, rms, marker="o", label=f"{name}: RMS error")
     centres = [0.25, 0.75, 1.5, 3.0, 6.0, 12.0]
     axes[1].plot(std_labels, centres, "k--", label="calibrated (bin centre)")
