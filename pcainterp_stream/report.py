@@ -58,6 +58,8 @@ LEFT_IMAGE = "/stereo/left/image_rect"
 RIGHT_IMAGE = "/stereo/right/image_rect"
 GROUND_TRUTH_DEPTH = "/ground_truth/depth"
 GROUND_TRUTH_POSE = "/ground_truth/pose"
+RIGHT_STAMP_TOLERANCE_NS = 1_000_000
+"""The right image belongs to the frame whose stamp is this close (pairing's default)."""
 
 PAPER_DELTA_2D = {"KITTI": (3.4, 5.4), "Virtual KITTI": (2.0, 3.3)}
 """The paper's mean Delta_2D (px) of PCA-MAP and nearest neighbour (section IV-B)."""
@@ -207,14 +209,23 @@ def _frames(path: Path, topics: OutputTopics, max_frames: int | None) -> Iterato
                 f"{path} has no {', '.join(missing)}; evaluate needs a log written by "
                 "`pcainterp densify` (with the input's stereo images)"
             )
-        optional = [t for t in (RIGHT_IMAGE, GROUND_TRUTH_DEPTH, GROUND_TRUTH_POSE) if t in present]
-        wanted = [*needed, LEFT_IMAGE, *optional]
-        complete = len(wanted)
+        optional = [t for t in (GROUND_TRUTH_DEPTH, GROUND_TRUTH_POSE) if t in present]
+        grouped = [*needed, LEFT_IMAGE, *optional]
+        complete = len(grouped)
+        # the right image may be stamped up to the pairing tolerance apart from the left;
+        # densify copies it before it writes the pair's outputs, so it is read first
+        wanted = [*grouped, *([RIGHT_IMAGE] if RIGHT_IMAGE in present else [])]
+        rights: dict[int, Any] = {}
         pending: dict[int, dict[str, Any]] = {}
         index = 0
         for raw in reader.messages(wanted):
             message = reader.decode(raw)
             stamp = rosmsg.stamp_ns(message.image if raw.topic == topics.disparity else message)
+            if raw.topic == RIGHT_IMAGE:
+                rights[stamp] = message
+                while len(rights) > 16:
+                    rights.pop(min(rights))
+                continue
             parts = pending.setdefault(stamp, {})
             parts[raw.topic] = message
             if len(parts) < complete:
@@ -226,7 +237,13 @@ def _frames(path: Path, topics: OutputTopics, max_frames: int | None) -> Iterato
             features = rosmsg.pointcloud2_arrays(parts[topics.features])
             depth = parts.get(GROUND_TRUTH_DEPTH)
             pose = parts.get(GROUND_TRUTH_POSE)
-            right = parts.get(RIGHT_IMAGE)
+            nearest_right = min(rights, key=lambda other: abs(other - stamp), default=None)
+            right = (
+                rights[nearest_right]
+                if nearest_right is not None
+                and abs(nearest_right - stamp) <= RIGHT_STAMP_TOLERANCE_NS
+                else None
+            )
             yield _Frame(
                 index=index,
                 stamp_ns=stamp,
