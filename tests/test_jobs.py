@@ -170,13 +170,14 @@ def test_info_describes_basis_and_log(logs: dict[str, Path]) -> None:
 
 def test_demo_runs_small(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(jobs, "DEMO_SCALE", 0.25)
-    monkeypatch.setattr(jobs, "DEMO_TRAIN_FRAMES", 16)
+    monkeypatch.setattr(jobs, "DEMO_TRAIN_SEEDS", (1, 3))
+    monkeypatch.setattr(jobs, "DEMO_TRAIN_FRAMES", 8)
     monkeypatch.setattr(jobs, "DEMO_TEST_FRAMES", 3)
     monkeypatch.setattr(jobs, "DEMO_COMPONENTS", 8)
     text = jobs.demo(tmp_path / "demo")
     assert "PCA-MAP" in text
     assert "nearest neighbour" in text
-    for name in ("train.mcap", "heldout.mcap", "basis.npz", "heldout_dense.mcap", "heldout.rrd"):
+    for name in ("train_1.mcap", "train_3.mcap", "heldout.mcap", "basis.npz", "heldout.rrd"):
         assert (tmp_path / "demo" / name).is_file()
 
 
