@@ -8,7 +8,6 @@ import sys
 
 import cv2
 import numpy as np
-import numpy.typing as npt
 import pytest
 
 from pcainterp_stream.records import SynthFrame
@@ -18,6 +17,7 @@ from pcainterp_stream.synth import (
     World,
     camera_pose,
     generate,
+    non_occluded,
     render,
     render_view,
     right_pose,
@@ -98,30 +98,13 @@ def test_camera_height_above_road(frames: list[SynthFrame]) -> None:
     assert height == pytest.approx(CAMERA_HEIGHT, abs=0.3)
 
 
-def _non_occluded(
-    depth_left: npt.NDArray[np.float32], depth_right: npt.NDArray[np.float32], focal_baseline: float
-) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float32]]:
-    """Left pixels whose surface point is visible in the right view, and true disparity."""
-    height, width = depth_left.shape
-    disparity = (focal_baseline / depth_left).astype(np.float32)
-    columns = np.arange(width)[None, :] - disparity
-    target = np.rint(np.nan_to_num(columns, nan=-1)).astype(int)
-    inside = (target >= 0) & (target < width) & np.isfinite(depth_left)
-    rows = np.broadcast_to(np.arange(height)[:, None], depth_left.shape)
-    seen = np.full(depth_left.shape, np.nan, dtype=np.float32)
-    seen[inside] = depth_right[rows[inside], target[inside]]
-    with np.errstate(invalid="ignore"):
-        visible = inside & (np.abs(seen - depth_left) < 0.03 * depth_left + 0.05)
-    return visible, disparity
-
-
 def test_left_right_depth_consistent() -> None:
     world = World(QUARTER.seed)
     camera = QUARTER.camera
     pose = camera_pose(world, QUARTER, 2)
     left = render_view(world, camera, pose)
     right = render_view(world, camera, right_pose(pose, camera.baseline))
-    visible, _ = _non_occluded(left.depth, right.depth, camera.focal_baseline)
+    visible, _ = non_occluded(left.depth, right.depth, camera.focal_baseline)
     valid = np.isfinite(left.depth)
     assert visible.sum() / valid.sum() > 0.9
 
@@ -131,7 +114,7 @@ def test_sgbm_recovers_disparity() -> None:
     camera = QUARTER.camera
     frame = next(iter(generate(QUARTER)))
     right = render_view(world, camera, right_pose(frame.camera_to_world, camera.baseline))
-    visible, truth = _non_occluded(frame.depth, right.depth, camera.focal_baseline)
+    visible, truth = non_occluded(frame.depth, right.depth, camera.focal_baseline)
     block = 5
     sgbm = cv2.StereoSGBM_create(  # type: ignore[attr-defined]
         minDisparity=0,

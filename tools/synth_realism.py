@@ -28,7 +28,14 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.synth import SynthConfig, World, generate, render_view, right_pose
+from pcainterp_stream.synth import (
+    SynthConfig,
+    World,
+    generate,
+    non_occluded,
+    render_view,
+    right_pose,
+)
 
 F32 = npt.NDArray[np.float32]
 CAMERA_HEIGHT = 1.65
@@ -53,22 +60,6 @@ def sgbm(left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8]) -> F32:
     disparity[disparity <= 0] = np.nan
     result: F32 = disparity
     return result
-
-
-def non_occluded(
-    depth_left: F32, depth_right: F32, focal_baseline: float
-) -> tuple[npt.NDArray[np.bool_], F32]:
-    """Return (left pixels visible in the right view, true disparity px)."""
-    height, width = depth_left.shape
-    truth = (focal_baseline / depth_left).astype(np.float32)
-    target = np.rint(np.nan_to_num(np.arange(width)[None, :] - truth, nan=-1)).astype(int)
-    inside = (target >= 0) & (target < width) & np.isfinite(depth_left)
-    rows = np.broadcast_to(np.arange(height)[:, None], depth_left.shape)
-    seen = np.full(depth_left.shape, np.nan, dtype=np.float32)
-    seen[inside] = depth_right[rows[inside], target[inside]]
-    with np.errstate(invalid="ignore"):
-        visible = inside & (np.abs(seen - depth_left) < 0.03 * depth_left + 0.05)
-    return visible, truth
 
 
 def classify(

@@ -35,6 +35,7 @@ __all__ = [
     "World",
     "camera_pose",
     "generate",
+    "non_occluded",
     "render_view",
     "right_pose",
 ]
@@ -275,3 +276,36 @@ def generate(config: SynthConfig) -> Iterator[SynthFrame]:
                 camera_to_world=pose,
                 camera=camera,
             )
+
+
+def non_occluded(
+    depth_left: npt.NDArray[np.float32],
+    depth_right: npt.NDArray[np.float32],
+    focal_baseline: float,
+) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float32]]:
+    """Return the left pixels whose surface point the right camera also sees.
+
+    A left pixel with true disparity d lands on column x - d of the right image; it is
+    visible there when the right view's depth at that pixel matches (within 3 % + 5 cm),
+    i.e. no nearer surface hides it.
+
+    Args:
+        depth_left: (H, W) float32 left ground-truth depth (m), NaN for sky.
+        depth_right: (H, W) float32 right ground-truth depth (m), rendered from the right
+            camera (``render_view`` with ``right_pose``).
+        focal_baseline: f*b (px*m).
+
+    Returns:
+        (H, W) bool visibility mask and (H, W) float32 true disparity (px).
+    """
+    height, width = depth_left.shape
+    disparity = (focal_baseline / depth_left).astype(np.float32)
+    columns = np.arange(width)[None, :] - disparity
+    target = np.rint(np.nan_to_num(columns, nan=-1)).astype(int)
+    inside = (target >= 0) & (target < width) & np.isfinite(depth_left)
+    rows = np.broadcast_to(np.arange(height)[:, None], depth_left.shape)
+    seen = np.full(depth_left.shape, np.nan, dtype=np.float32)
+    seen[inside] = depth_right[rows[inside], target[inside]]
+    with np.errstate(invalid="ignore"):
+        visible = inside & (np.abs(seen - depth_left) < 0.03 * depth_left + 0.05)
+    return visible, disparity
