@@ -67,6 +67,14 @@ def _add_stereo_options(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="SGBM variant",
     )
+    group.add_argument(
+        "--stereo-downscale",
+        type=int,
+        choices=[1, 2],
+        default=None,
+        help="match at 1/N resolution: 2 is ~4x cheaper SGBM for slightly less exact "
+        "lookups (docs/benchmarks.md)",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -668,6 +668,8 @@ def _sgbm_config(args: argparse.Namespace) -> SgbmConfig:
         changes["block_size"] = args.block_size
     if args.sgbm_mode is not None:
         changes["mode"] = SgbmMode[args.sgbm_mode.upper()]
+    if args.stereo_downscale is not None:
+        changes["downscale"] = args.stereo_downscale
     return dataclasses.replace(SgbmConfig(), **changes)
 
 

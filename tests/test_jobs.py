@@ -197,3 +197,13 @@ def test_real_kitti_drive_end_to_end(tmp_path: Path) -> None:
     finite = image[np.isfinite(image)]
     assert finite.size > 0.9 * image.size
     assert 2.0 < float(np.median(finite)) < 80.0
+
+
+def test_cli_half_resolution_stereo_option(logs: dict[str, Path]) -> None:
+    from pcainterp_stream.cli import main
+
+    out = logs["folder"] / "half.mcap"
+    args = ["densify", str(logs["test"]), "-o", str(out), "--basis", str(logs["basis"])]
+    assert main([*args, "--stereo-downscale", "2"]) == 0
+    with open_log(out) as reader:
+        assert reader.topics()["/pcainterp/depth"].message_count == 5
