@@ -215,6 +215,71 @@ def learn_basis(
             fit = _streaming_fit(itertools.chain(kept, stream), keep, batch_size)
             used = LearnMethod.STREAMING
 
+    return basis_from_fit(
+        fit,
+        grid_size=grid_size,
+        image_size=size,
+        n_components=n_components,
+        variance=variance,
+        grid_scale=grid_scale,
+        used=used,
+        requested=learn_method,
+        focal_baseline=focal_baseline,
+        min_disparity=min_disparity,
+        box_size=box_size,
+        preprocessed=preprocessed,
+        batch_size=batch_size,
+        oversampling=oversampling,
+        meta=meta,
+    )
+
+
+def basis_from_fit(
+    fit: PcaFit,
+    *,
+    grid_size: tuple[int, int],
+    image_size: tuple[int, int],
+    n_components: int,
+    variance: float | None,
+    grid_scale: float,
+    used: LearnMethod | str,
+    requested: LearnMethod | str,
+    focal_baseline: float = 0.0,
+    min_disparity: float = 0.0,
+    box_size: int = DEFAULT_BOX_SIZE,
+    preprocessed: bool = False,
+    batch_size: int | None = None,
+    oversampling: int | None = None,
+    meta: dict[str, Any] | None = None,
+) -> Basis:
+    """Build a :class:`Basis` from fitted eigenpairs, as :func:`learn_basis` does.
+
+    Keeps l components (``n_components``, fewer with ``variance``), fixes their signs
+    (largest-magnitude entry positive) and records the preprocessing and learning options.
+
+    Args:
+        fit: mean (s,), components (s, r) and eigenvalues (r,) of the grid maps.
+        grid_size: (gh, gw) of the basis grid, gh * gw = s.
+        image_size: (H, W) of the images (px).
+        n_components: l, the most components to keep.
+        variance: keep the fewest components reaching this variance ratio, or None.
+        grid_scale: basis grid pixels per image pixel (recorded).
+        used: the method that produced ``fit`` (recorded).
+        requested: the method asked for (recorded).
+        focal_baseline: f*b (px*m) of the training camera; 0 unknown.
+        min_disparity: smallest valid disparity (px) (recorded).
+        box_size: box filter side (px) (recorded).
+        preprocessed: maps were preprocessed by the caller (recorded).
+        batch_size: maps per incremental step, for streaming methods (recorded).
+        oversampling: extra columns kept, for streaming methods (recorded).
+        meta: extra entries for the basis's ``meta``.
+
+    Returns:
+        The :class:`Basis`.
+    """
+    used = str(used)
+    streaming = used != str(LearnMethod.EXACT)
+    size = image_size
     eigenvalues = fit.eigenvalues
     n_keep = min(n_components, eigenvalues.shape[0])
     if variance is not None and fit.total_variance > 0:
@@ -240,11 +305,11 @@ def learn_basis(
         },
         "learning": {
             "method": str(used),
-            "requested_method": str(learn_method),
+            "requested_method": str(requested),
             "n_components_requested": n_components,
             "variance_requested": variance,
-            "oversampling": oversampling if used is LearnMethod.STREAMING else None,
-            "batch_size": batch_size if used is LearnMethod.STREAMING else None,
+            "oversampling": oversampling if streaming else None,
+            "batch_size": batch_size if streaming else None,
             "explained_variance_ratio": float(eigenvalues[:n_keep].sum() / fit.total_variance)
             if fit.total_variance > 0
             else 1.0,
@@ -267,7 +332,17 @@ def learn_basis(
 
 
 @dataclass(frozen=True)
-class _Fit:
+class PcaFit:
+    """Eigenpairs of the centred grid maps (float64).
+
+    Attributes:
+        mean: (s,) mean grid map (px).
+        components: (s, r) orthonormal eigenvectors, eigenvalues descending.
+        eigenvalues: (r,) eigenvalues of the covariance (px^2), descending.
+        total_variance: trace of the covariance (px^2).
+        n_maps: number of maps n.
+    """
+
     mean: npt.NDArray[np.float64]  # (s,)
     components: npt.NDArray[np.float64]  # (s, r), orthonormal columns
     eigenvalues: npt.NDArray[np.float64]  # (r,), descending
@@ -275,7 +350,7 @@ class _Fit:
     n_maps: int
 
 
-def _gram_fit(maps: npt.NDArray[np.float32]) -> _Fit:
+def _gram_fit(maps: npt.NDArray[np.float32]) -> PcaFit:
     """Exact eigenpairs via the n x n Gram matrix of the centred maps (n, s)."""
     n_maps, n_pixels = maps.shape
     if n_maps < 2:
@@ -295,7 +370,7 @@ def _gram_fit(maps: npt.NDArray[np.float32]) -> _Fit:
     for start in range(0, n_pixels, _COLUMN_BLOCK):
         block = maps[:, start : start + _COLUMN_BLOCK] - mean[start : start + _COLUMN_BLOCK]
         components[start : start + _COLUMN_BLOCK] = block.T @ scale  # u_i = D v_i / sqrt(e_i)
-    return _Fit(
+    return PcaFit(
         mean=mean,
         components=components,
         eigenvalues=energies / (n_maps - 1),
@@ -304,7 +379,7 @@ def _gram_fit(maps: npt.NDArray[np.float32]) -> _Fit:
     )
 
 
-def _streaming_fit(maps: Iterator[npt.NDArray[np.float32]], keep: int, batch_size: int) -> _Fit:
+def _streaming_fit(maps: Iterator[npt.NDArray[np.float32]], keep: int, batch_size: int) -> PcaFit:
     """Incremental SVD of the centred maps, truncated to ``keep`` columns after each batch."""
     if batch_size < 1:
         raise ValueError(f"Expected `batch_size` >= 1, got {batch_size}")
@@ -333,13 +408,33 @@ def _streaming_fit(maps: Iterator[npt.NDArray[np.float32]], keep: int, batch_siz
             squares = batch_squares
             mean = batch_mean
         n_seen += n_batch
-        basis = _truncated_product(np.concatenate(columns, axis=1), keep)
+        basis = truncated_product(np.concatenate(columns, axis=1), keep)
     if basis is None or mean is None or n_seen < 2:
         raise ValueError(f"learning needs at least two disparity maps, got {n_seen}")
+    return fit_from_factor(mean, basis, squares, n_seen)
+
+
+def fit_from_factor(
+    mean: npt.NDArray[np.float64],
+    basis: npt.NDArray[np.float32],
+    squares: float,
+    n_seen: int,
+) -> PcaFit:
+    """Turn a truncated factor U S of centred maps into eigenpairs.
+
+    Args:
+        mean: (s,) float64 mean of the maps (px).
+        basis: (s, r) float32 U S of the centred maps (columns orthogonal), px.
+        squares: sum of squared centred norms of all maps (px^2).
+        n_seen: number of maps n >= 2.
+
+    Returns:
+        The :class:`PcaFit` (eigenvalues S^2 / (n - 1)).
+    """
     singular = np.sqrt(np.einsum("sr,sr->r", basis, basis, dtype=np.float64))
     nonzero = singular > 0
     components = basis[:, nonzero].astype(np.float64) / singular[nonzero]
-    return _Fit(
+    return PcaFit(
         mean=mean,
         components=components,
         eigenvalues=singular[nonzero] ** 2 / (n_seen - 1),
@@ -348,7 +443,7 @@ def _streaming_fit(maps: Iterator[npt.NDArray[np.float32]], keep: int, batch_siz
     )
 
 
-def _truncated_product(matrix: npt.NDArray[np.float32], keep: int) -> npt.NDArray[np.float32]:
+def truncated_product(matrix: npt.NDArray[np.float32], keep: int) -> npt.NDArray[np.float32]:
     """Return U_r S_r (s, <= keep) float32 of the thin SVD of ``matrix`` (s, c).
 
     The SVD comes from the c x c Gram matrix in float64 (c is small): matrix = U S V^T,

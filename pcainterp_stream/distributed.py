@@ -1,0 +1,433 @@
+"""Scale-out on Dask (dask.distributed): learn a basis from, and densify, fleets of logs.
+
+Learning is a tree-reduced sketch. Each task reads a chunk of frames of one log, matches
+them (SGBM) or converts a depth topic, preprocesses them onto the basis grid and returns a
+small :class:`ChunkSummary`: the count n, the mean m, the sum of squared centred norms and
+U S, the SVD factor of its centred block truncated to r = l + oversampling columns.
+Summaries are merged pairwise, exactly up to the truncation, by the SVD of
+[U1 S1 | U2 S2 | sqrt(n1 n2 / n) (m1 - m2)] (the column corrects for the moved mean; the
+same step as the local streaming learner). A task holds one chunk and a merge two
+(s, r) factors, so worker memory does not grow with the number of frames.
+
+Densifying runs :func:`pcainterp_stream.jobs.densify` on each log in its own task; a
+failing log is reported and does not stop the others.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import itertools
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.basis import Basis, grid_size_for
+from pcainterp_stream.errors import LogReadError, PcaInterpError
+from pcainterp_stream.learning import (
+    DEFAULT_BOX_SIZE,
+    basis_from_fit,
+    fit_from_factor,
+    preprocess_disparity,
+    truncated_product,
+)
+
+DEFAULT_CHUNK_FRAMES = 64
+"""Frames (after ``every``) one learning task reads, matches and summarises."""
+
+DEFAULT_OVERSAMPLING = 20
+"""Columns kept beyond l in every summary (as the local streaming learner)."""
+
+
+@dataclass(frozen=True)
+class ChunkSummary:
+    """Sketch of the centred grid maps of some frames.
+
+    Attributes:
+        n_maps: number of maps n.
+        mean: (s,) float64 mean grid map (px).
+        factor: (s, r) float32 U S of the centred maps, truncated to r columns (px).
+        squares: sum of squared centred norms (px^2), exact.
+        grid_size: (gh, gw) of the grid, gh * gw = s.
+        image_size: (H, W) of the images (px).
+        focal_baseline: f*b (px*m) of the camera of the first map.
+    """
+
+    n_maps: int
+    mean: npt.NDArray[np.float64]
+    factor: npt.NDArray[np.float32]
+    squares: float
+    grid_size: tuple[int, int]
+    image_size: tuple[int, int]
+    focal_baseline: float
+
+
+def summarize(
+    grid_maps: npt.NDArray[np.float32],
+    keep: int,
+    *,
+    grid_size: tuple[int, int],
+    image_size: tuple[int, int],
+    focal_baseline: float,
+) -> ChunkSummary:
+    """Summarise a block of grid maps.
+
+    Args:
+        grid_maps: (n, s) float32 grid maps (px), n >= 1.
+        keep: r, the columns kept of the factor.
+        grid_size: (gh, gw) of the grid.
+        image_size: (H, W) of the images (px).
+        focal_baseline: f*b (px*m) of the camera.
+
+    Returns:
+        The :class:`ChunkSummary`.
+    """
+    mean = grid_maps.mean(axis=0, dtype=np.float64)
+    centred = (grid_maps - mean).astype(np.float32).T  # (s, n)
+    squares = float(np.einsum("sn,sn->", centred, centred, dtype=np.float64))
+    factor = (
+        truncated_product(centred, keep)
+        if np.any(centred)
+        else np.zeros((centred.shape[0], 0), dtype=np.float32)
+    )
+    return ChunkSummary(
+        n_maps=int(grid_maps.shape[0]),
+        mean=mean,
+        factor=factor,
+        squares=squares,
+        grid_size=grid_size,
+        image_size=image_size,
+        focal_baseline=focal_baseline,
+    )
+
+
+def merge(
+    first: ChunkSummary | None, second: ChunkSummary | None, keep: int
+) -> ChunkSummary | None:
+    """Merge two summaries (None is empty); exact up to the truncation to ``keep`` columns.
+
+    Args:
+        first: a summary or None.
+        second: a summary or None.
+        keep: r, the columns kept of the merged factor.
+
+    Returns:
+        The summary of both sets of maps (the camera of ``first`` is kept).
+
+    Raises:
+        PcaInterpError: the two summaries have different image sizes.
+    """
+    if first is None or second is None:
+        return first if second is None else second
+    if first.image_size != second.image_size or first.grid_size != second.grid_size:
+        raise PcaInterpError(
+            f"logs have {first.image_size[1]}x{first.image_size[0]} and "
+            f"{second.image_size[1]}x{second.image_size[0]} images; learn one basis per camera"
+        )
+    total = first.n_maps + second.n_maps
+    shift = first.mean - second.mean
+    correction = (np.sqrt(first.n_maps * second.n_maps / total) * shift).astype(np.float32)
+    stacked = np.concatenate([first.factor, second.factor, correction[:, None]], axis=1)
+    factor = (
+        truncated_product(stacked, keep)
+        if np.any(stacked)
+        else np.zeros((stacked.shape[0], 0), dtype=np.float32)
+    )
+    return ChunkSummary(
+        n_maps=total,
+        mean=(first.n_maps * first.mean + second.n_maps * second.mean) / total,
+        factor=factor,
+        squares=first.squares
+        + second.squares
+        + float(shift @ shift) * first.n_maps * second.n_maps / total,
+        grid_size=first.grid_size,
+        image_size=first.image_size,
+        focal_baseline=first.focal_baseline,
+    )
+
+
+def _chunk_maps(
+    log: Path, start: int, stop: int | None, options: Any, pairing: Any
+) -> Iterator[tuple[npt.NDArray[np.float32], tuple[int, int], float]]:
+    """Yield (disparity (H, W) px, image size, f*b) of maps start..stop-1 of one log."""
+    from pcainterp_stream import jobs
+    from pcainterp_stream.logreader import open_log
+    from pcainterp_stream.pairing import iter_stereo_frames
+    from pcainterp_stream.stereo import compute_disparity
+
+    if options.depth_topic:
+        info: list[Any] = []
+        for disparity in itertools.islice(
+            jobs._depth_maps(log, options, pairing, info), start, stop
+        ):
+            yield disparity, info[0].image_size, info[0].focal_baseline
+        return
+    with open_log(log) as reader:
+        jobs._require_topics(reader, pairing.required_topics(), "stereo pair")
+        jobs._check_topic_types(reader, jobs._pairing_types(pairing))
+        used = 0
+        for frame in iter_stereo_frames(reader, pairing):
+            if frame.index % options.every:
+                continue
+            used += 1
+            if used <= start:
+                continue  # decoded but not matched: the cost of an earlier chunk is small
+            if stop is not None and used > stop:
+                break
+            disparity = compute_disparity(frame.left, frame.right, options.sgbm)
+            yield disparity, frame.camera.image_size, frame.camera.focal_baseline
+
+
+def summarize_chunk(
+    log: Path, start: int, stop: int | None, options: Any, pairing: Any, keep: int
+) -> ChunkSummary | None:
+    """Read, match and preprocess maps start..stop-1 of one log and summarise them (a task).
+
+    Args:
+        log: the log path (readable by the worker).
+        start: index of the first map (after ``options.every``).
+        stop: one past the last map, or None for the end of the log.
+        options: the :class:`pcainterp_stream.jobs.LearnOptions`.
+        pairing: the :class:`pcainterp_stream.pairing.PairingConfig`.
+        keep: r, the columns kept of the factor.
+
+    Returns:
+        The summary, or None when the chunk has no map.
+    """
+    grids: list[npt.NDArray[np.float32]] = []
+    image_size: tuple[int, int] | None = None
+    grid_size = (0, 0)
+    focal_baseline = 0.0
+    for disparity, size, fb in _chunk_maps(log, start, stop, options, pairing):
+        if image_size is None:
+            image_size, focal_baseline = size, fb
+            grid_size = grid_size_for(size, options.grid_scale)
+        if disparity.shape != image_size:
+            raise PcaInterpError(
+                f"{log} has maps of shape {disparity.shape}, expected {image_size}; "
+                "learn one basis per camera"
+            )
+        try:
+            grids.append(preprocess_disparity(disparity, grid_size).reshape(-1))
+        except ValueError as err:
+            raise PcaInterpError(f"cannot learn from a map of {log}: {err}") from err
+    if image_size is None:
+        return None
+    return summarize(
+        np.stack(grids),
+        keep,
+        grid_size=grid_size,
+        image_size=image_size,
+        focal_baseline=focal_baseline,
+    )
+
+
+@contextlib.contextmanager
+def connect(scheduler: str | None = None, workers: int | None = None) -> Iterator[Any]:
+    """Yield a ``dask.distributed.Client``: to ``scheduler``, or to a new local cluster.
+
+    Args:
+        scheduler: address of a running scheduler (``tcp://host:8786``), or None.
+        workers: worker processes of a new ``LocalCluster`` (one thread each) when no
+            scheduler is given; default 2.
+
+    Yields:
+        The connected client (closed, with its local cluster, on exit).
+    """
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        with Client(scheduler) as client:  # type: ignore[no-untyped-call]
+            yield client
+        return
+    with (
+        LocalCluster(  # type: ignore[no-untyped-call]
+            n_workers=workers or 2, threads_per_worker=1, processes=True, dashboard_address=None
+        ) as cluster,
+        Client(cluster) as client,  # type: ignore[no-untyped-call]
+    ):
+        yield client
+
+
+def learn_distributed(
+    logs: list[Path],
+    output: Path,
+    options: Any,
+    pairing: Any,
+    client: Any,
+    *,
+    chunk_frames: int = DEFAULT_CHUNK_FRAMES,
+    oversampling: int = DEFAULT_OVERSAMPLING,
+) -> Basis:
+    """Learn a basis on a Dask cluster (``pcainterp learn --scheduler/--workers``).
+
+    Args:
+        logs: input logs (paths readable by the workers).
+        output: where to save the basis (.npz).
+        options: the :class:`pcainterp_stream.jobs.LearnOptions`.
+        pairing: the :class:`pcainterp_stream.pairing.PairingConfig`.
+        client: a connected ``dask.distributed.Client``.
+        chunk_frames: maps per task.
+        oversampling: columns kept beyond l in every summary.
+
+    Returns:
+        The saved :class:`Basis`.
+
+    Raises:
+        PcaInterpError: bad options, no maps, or a task failed.
+    """
+    from pcainterp_stream import jobs
+
+    if options.every < 1:
+        raise PcaInterpError(f"--every must be at least 1, got {options.every}")
+    if chunk_frames < 1:
+        raise PcaInterpError(f"chunk size must be at least 1 frame, got {chunk_frames}")
+    for log in logs:
+        if log.resolve() == output.resolve():
+            raise PcaInterpError(f"output {output} is one of the input logs; choose another -o")
+    jobs._check_output_folder(output)
+    keep = options.n_components + oversampling
+    source = options.depth_topic or pairing.left_topic
+    futures: list[Any] = []
+    n_tasks = 0
+    for log in logs:
+        expected = jobs._expected_frames(log, source, options.every)
+        bounds: list[tuple[int, int | None]] = (
+            [(start, start + chunk_frames) for start in range(0, max(expected, 1), chunk_frames)]
+            if expected is not None
+            else [(0, None)]
+        )
+        for start, stop in bounds:
+            n_tasks += 1
+            futures.append(
+                client.submit(
+                    summarize_chunk, log, start, stop, options, pairing, keep, pure=False
+                )
+            )
+    while len(futures) > 1:  # pairwise tree reduction on the cluster
+        paired = [
+            client.submit(merge, futures[i], futures[i + 1], keep, pure=False)
+            for i in range(0, len(futures) - 1, 2)
+        ]
+        futures = paired + futures[len(futures) - len(futures) % 2 :]
+    try:
+        total: ChunkSummary | None = futures[0].result()
+    except PcaInterpError:
+        raise
+    except Exception as err:  # a worker's error arrives re-raised here
+        raise PcaInterpError(f"a learning task failed on the cluster: {err}") from err
+    if total is None:
+        raise LogReadError(
+            f"no {'depth image' if options.depth_topic else 'stereo pair'} found in "
+            f"{', '.join(map(str, logs))}; check the topic options (pcainterp info LOG)"
+        )
+    if total.n_maps < 2:
+        raise PcaInterpError(f"learning needs at least two disparity maps, got {total.n_maps}")
+    sgbm = dataclasses.asdict(options.sgbm)
+    sgbm["mode"] = options.sgbm.mode.name
+    meta = {
+        "source": {
+            "logs": [str(log) for log in logs],
+            "maps": f"depth topic {options.depth_topic}" if options.depth_topic else "SGBM",
+            "sgbm": None if options.depth_topic else sgbm,
+            "every": options.every,
+        },
+        "distributed": {"chunk_frames": chunk_frames, "tasks": n_tasks},
+    }
+    basis = basis_from_fit(
+        fit_from_factor(total.mean, total.factor, total.squares, total.n_maps),
+        grid_size=total.grid_size,
+        image_size=total.image_size,
+        n_components=options.n_components,
+        variance=options.variance,
+        grid_scale=options.grid_scale,
+        used="distributed",
+        requested="distributed",
+        focal_baseline=total.focal_baseline,
+        box_size=DEFAULT_BOX_SIZE,
+        batch_size=chunk_frames,
+        oversampling=oversampling,
+        meta=meta,
+    )
+    basis.save(output)
+    return basis
+
+
+@dataclass(frozen=True)
+class DensifyOutcome:
+    """What happened to one log of ``densify --out-dir``.
+
+    Attributes:
+        input: the input log.
+        output: the output log.
+        frames: frames densified (0 on failure).
+        seconds: wall time of the task (s).
+        error: one-line error of a failed log, or None.
+    """
+
+    input: Path
+    output: Path
+    frames: int
+    seconds: float
+    error: str | None
+
+
+def output_path(input_path: Path, out_dir: Path) -> Path:
+    """Return the output of one input of ``densify --out-dir``: ``DIR/<stem>_dense.mcap``."""
+    return out_dir / f"{input_path.stem}_dense.mcap"
+
+
+def _densify_one(input_path: Path, output: Path, basis: Path, kwargs: dict[str, Any]) -> Any:
+    from pcainterp_stream import jobs
+
+    return jobs.densify(input_path, output, basis, **kwargs)
+
+
+def densify_many(
+    inputs: list[Path],
+    out_dir: Path,
+    basis: Path,
+    client: Any,
+    **kwargs: Any,
+) -> list[DensifyOutcome]:
+    """Densify many logs in parallel on a Dask cluster, one output per log.
+
+    Args:
+        inputs: input logs (paths readable by the workers), distinct stems.
+        out_dir: output folder (created); outputs are :func:`output_path`.
+        basis: the basis file (readable by the workers).
+        client: a connected ``dask.distributed.Client``.
+        **kwargs: keyword options of :func:`pcainterp_stream.jobs.densify`
+            (``pairing``, ``processor``, ``topics``).
+
+    Returns:
+        One outcome per input, in input order; failures carry their error.
+
+    Raises:
+        PcaInterpError: two inputs would write the same output.
+    """
+    outputs = [output_path(path, out_dir) for path in inputs]
+    if len(set(outputs)) != len(outputs):
+        raise PcaInterpError(
+            f"inputs share a file name stem, so their outputs in {out_dir} would collide; "
+            "densify them into different --out-dir folders"
+        )
+    out_dir.mkdir(parents=True, exist_ok=True)
+    futures = [
+        client.submit(_densify_one, path, out, basis, kwargs, pure=False)
+        for path, out in zip(inputs, outputs, strict=True)
+    ]
+    outcomes: list[DensifyOutcome] = []
+    for path, out, future in zip(inputs, outputs, futures, strict=True):
+        try:
+            summary = future.result()
+        except Exception as err:  # reported per log; the other logs go on
+            message = str(err).splitlines()[0] if str(err) else type(err).__name__
+            outcomes.append(DensifyOutcome(path, out, 0, 0.0, message))
+        else:
+            outcomes.append(DensifyOutcome(path, out, summary.frames, summary.seconds, None))
+    return outcomes

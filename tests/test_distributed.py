@@ -1,0 +1,118 @@
+"""Scale-out on a real dask.distributed LocalCluster (2 worker processes) on small logs."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from scipy.linalg import subspace_angles
+
+from pcainterp_stream import distributed, jobs
+from pcainterp_stream.basis import Basis
+from pcainterp_stream.logreader import open_log
+from pcainterp_stream.pairing import PairingConfig
+
+pytest.importorskip("dask.distributed")
+
+
+@pytest.fixture(scope="module")
+def client() -> Iterator[Any]:
+    with distributed.connect(workers=2) as connected:
+        yield connected
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    folder = tmp_path_factory.mktemp("distributed")
+    first, second = folder / "a.mcap", folder / "b.mcap"
+    jobs.synth(first, frames=14, seed=21, scale=0.25, fmt="mcap")
+    jobs.synth(second, frames=10, seed=22, scale=0.25, fmt="mcap")
+    return {"a": first, "b": second, "folder": folder}
+
+
+def test_merge_of_summaries_matches_one_summary_of_all_maps() -> None:
+    rng = np.random.default_rng(0)
+    maps = rng.normal(size=(30, 200)).astype(np.float32) + np.linspace(0, 5, 200, dtype=np.float32)
+    kwargs: dict[str, Any] = {"grid_size": (10, 20), "image_size": (40, 80), "focal_baseline": 1.0}
+    whole = distributed.summarize(maps, 40, **kwargs)
+    parts = [distributed.summarize(maps[i : i + 7], 40, **kwargs) for i in range(0, 30, 7)]
+    merged = parts[0]
+    for part in parts[1:]:
+        merged = distributed.merge(merged, part, 40)
+    assert merged is not None
+    assert merged.n_maps == 30
+    np.testing.assert_allclose(merged.mean, whole.mean, atol=1e-6)
+    assert merged.squares == pytest.approx(whole.squares, rel=1e-6)
+    gram_whole = whole.factor.astype(np.float64) @ whole.factor.T
+    gram_merged = merged.factor.astype(np.float64) @ merged.factor.T
+    np.testing.assert_allclose(gram_merged, gram_whole, atol=1e-3 * np.abs(gram_whole).max())
+
+
+def test_learn_on_cluster_matches_local_learner(
+    logs: dict[str, Path], client: Any, tmp_path: Path
+) -> None:
+    options = jobs.LearnOptions(n_components=8)
+    local = jobs.learn([logs["a"], logs["b"]], tmp_path / "local.npz", options, PairingConfig())
+    remote = distributed.learn_distributed(
+        [logs["a"], logs["b"]],
+        tmp_path / "remote.npz",
+        options,
+        PairingConfig(),
+        client,
+        chunk_frames=5,
+    )
+    assert Basis.load(tmp_path / "remote.npz").n_train == local.n_train == 24
+    assert remote.image_size == local.image_size
+    assert remote.focal_baseline == pytest.approx(local.focal_baseline)
+    np.testing.assert_allclose(remote.mean, local.mean, atol=1e-3)
+    # 24 maps, rank <= 23 <= l + oversampling: the sketch is exact up to float32 rounding
+    np.testing.assert_allclose(remote.eigenvalues, local.eigenvalues, rtol=1e-3)
+    assert remote.total_variance == pytest.approx(local.total_variance, rel=1e-4)
+    first = local.components.reshape(local.components.shape[0], -1).T.astype(np.float64)
+    second = remote.components.reshape(remote.components.shape[0], -1).T.astype(np.float64)
+    assert np.degrees(subspace_angles(first[:, :5], second[:, :5])).max() < 0.5
+
+
+def test_learn_on_cluster_with_truncation_keeps_leading_subspace(
+    logs: dict[str, Path], client: Any, tmp_path: Path
+) -> None:
+    options = jobs.LearnOptions(n_components=3)
+    local = jobs.learn([logs["a"]], tmp_path / "local.npz", options, PairingConfig())
+    remote = distributed.learn_distributed(
+        [logs["a"]], tmp_path / "r.npz", options, PairingConfig(), client,
+        chunk_frames=4, oversampling=3,
+    )  # fmt: skip
+    # r = 6 columns kept from 14 maps: the leading eigenpairs stay close, not exact
+    np.testing.assert_allclose(remote.eigenvalues[:2], local.eigenvalues[:2], rtol=0.05)
+    first = local.components[:2].reshape(2, -1).T.astype(np.float64)
+    second = remote.components[:2].reshape(2, -1).T.astype(np.float64)
+    assert np.degrees(subspace_angles(first, second)).max() < 10.0
+
+
+def _messages(path: Path) -> list[tuple[str, int, bytes]]:
+    with open_log(path) as reader:
+        return [(raw.topic, raw.log_time_ns, bytes(raw.data)) for raw in reader.messages()]
+
+
+def test_densify_many_matches_one_by_one_and_reports_a_failing_log(
+    logs: dict[str, Path], client: Any, tmp_path: Path
+) -> None:
+    basis = tmp_path / "basis.npz"
+    jobs.learn([logs["a"]], basis, jobs.LearnOptions(n_components=6), PairingConfig())
+    broken = tmp_path / "broken.mcap"
+    broken.write_bytes(b"not a log at all")
+    out_dir = tmp_path / "out"
+    outcomes = distributed.densify_many(
+        [logs["a"], broken, logs["b"]], out_dir, basis, client, pairing=PairingConfig()
+    )
+    assert [o.error is None for o in outcomes] == [True, False, True]
+    assert "broken.mcap" in str(outcomes[1].error)
+    assert [o.frames for o in outcomes] == [14, 0, 10]
+    for name in ("a", "b"):
+        alone = tmp_path / f"{name}_alone.mcap"
+        jobs.densify(logs[name], alone, basis, pairing=PairingConfig())
+        together = distributed.output_path(logs[name], out_dir)
+        assert _messages(together) == _messages(alone)
