@@ -77,6 +77,17 @@ def _add_stereo_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_cluster_options(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("scale-out on Dask (default: this process only)")
+    where = group.add_mutually_exclusive_group()
+    where.add_argument(
+        "--scheduler", default=None, metavar="ADDRESS", help="a running Dask scheduler"
+    )
+    where.add_argument(
+        "--workers", type=int, default=None, metavar="N", help="a local cluster of N processes"
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Return the argument parser of ``pcainterp``."""
     parser = argparse.ArgumentParser(
@@ -157,6 +168,7 @@ def build_parser() -> argparse.ArgumentParser:
             "  pcainterp learn a.mcap b.mcap -o basis.npz --components 300\n"
             "  pcainterp learn drive.mcap -o basis.npz --variance 0.95 --grid-scale 0.125\n"
             "  pcainterp learn synth.mcap -o basis.npz --depth-topic /ground_truth/depth\n"
+            "  pcainterp learn fleet/*.mcap -o basis.npz --scheduler tcp://10.0.0.5:8786\n"
         ),
     )
     learn.add_argument("logs", type=Path, nargs="+", metavar="LOG")
@@ -172,6 +184,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="learn from this depth image topic (32FC1, m) instead of SGBM maps",
     )
     learn.add_argument("--every", type=int, default=1, metavar="N", help="use every N-th frame")
+    _add_cluster_options(learn)
     _add_topic_options(learn)
     _add_stereo_options(learn)
 
@@ -188,10 +201,22 @@ def build_parser() -> argparse.ArgumentParser:
             "  pcainterp densify drive.mcap -o drive_dense.mcap --basis basis.npz\n"
             "  pcainterp densify drive.bag -o out.mcap --basis basis.npz --rerun\n"
             "  pcainterp densify slam.mcap -o out.mcap --basis b.npz --features-topic /features\n"
+            "  pcainterp densify logs/*.mcap --out-dir dense/ --basis b.npz --workers 2\n"
         ),
     )
-    densify.add_argument("input", type=Path, metavar="INPUT")
-    densify.add_argument("-o", "--output", type=Path, required=True, metavar="OUTPUT")
+    densify.add_argument(
+        "input", type=Path, nargs="+", metavar="INPUT", help="one log, or several with --out-dir"
+    )
+    target = densify.add_mutually_exclusive_group(required=True)
+    target.add_argument("-o", "--output", type=Path, default=None, metavar="OUTPUT")
+    target.add_argument(
+        "--out-dir",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="write DIR/<stem>_dense.mcap per input, the logs densified in parallel on Dask",
+    )
+    _add_cluster_options(densify)
     densify.add_argument("--basis", type=Path, required=True, metavar="BASIS.npz")
     densify.add_argument("--rerun", action="store_true", help="stream to a Rerun viewer")
     densify.add_argument("--rrd", type=Path, default=None, metavar="FILE", help="write .rrd")

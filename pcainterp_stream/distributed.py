@@ -304,9 +304,7 @@ def learn_distributed(
         for start, stop in bounds:
             n_tasks += 1
             futures.append(
-                client.submit(
-                    summarize_chunk, log, start, stop, options, pairing, keep, pure=False
-                )
+                client.submit(summarize_chunk, log, start, stop, options, pairing, keep, pure=False)
             )
     while len(futures) > 1:  # pairwise tree reduction on the cluster
         paired = [

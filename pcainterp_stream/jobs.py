@@ -716,6 +716,45 @@ def _print_written(summary: WriteSummary) -> None:
     _echo(f"wrote {summary.path}: {summary.message_count} messages, {duration:.1f} s of log")
 
 
+def _densify_many(args: argparse.Namespace, processor: ProcessorConfig) -> int:
+    """Densify several logs into ``--out-dir`` on Dask; exit code 1 if any log failed."""
+    from pcainterp_stream import distributed
+
+    if args.rrd is not None or args.rerun:
+        raise PcaInterpError("--rrd/--rerun take one log; use -o OUTPUT without --out-dir")
+    if args.workers is not None and args.workers < 1:
+        raise PcaInterpError(f"--workers must be at least 1, got {args.workers}")
+    for path in args.input:
+        if not path.exists():
+            raise PcaInterpError(f"input {path} does not exist; check the path")
+    if not args.basis.exists():
+        raise PcaInterpError(f"basis {args.basis} does not exist; learn one with pcainterp learn")
+    started = time.perf_counter()
+    with distributed.connect(args.scheduler, args.workers) as client:
+        outcomes = distributed.densify_many(
+            list(args.input),
+            args.out_dir,
+            args.basis.resolve(),
+            client,
+            pairing=_pairing_config(args, args.features_topic),
+            processor=processor,
+            topics=OutputTopics.with_prefix(args.output_prefix, depth_mm=args.depth_mm),
+        )
+    failed = 0
+    for outcome in outcomes:
+        if outcome.error is None:
+            _echo(f"densified {outcome.frames} frames of {outcome.input} -> {outcome.output}")
+        else:
+            failed += 1
+            print(f"pcainterp: error: {outcome.input}: {outcome.error}", file=sys.stderr)
+    frames = sum(outcome.frames for outcome in outcomes)
+    _echo(
+        f"{len(outcomes) - failed} of {len(outcomes)} logs densified, {frames} frames in "
+        f"{time.perf_counter() - started:.1f} s"
+    )
+    return 1 if failed else 0
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the job a parsed command line asks for; return the exit code."""
     command = args.command
@@ -740,7 +779,17 @@ def run(args: argparse.Namespace) -> int:
             every=args.every,
             sgbm=_sgbm_config(args),
         )
-        basis = learn(args.logs, args.output, options, _pairing_config(args))
+        if args.workers is not None and args.workers < 1:
+            raise PcaInterpError(f"--workers must be at least 1, got {args.workers}")
+        if args.scheduler is not None or args.workers is not None:
+            from pcainterp_stream import distributed
+
+            with distributed.connect(args.scheduler, args.workers) as client:
+                basis = distributed.learn_distributed(
+                    args.logs, args.output, options, _pairing_config(args), client
+                )
+        else:
+            basis = learn(args.logs, args.output, options, _pairing_config(args))
         _echo(f"wrote {args.output}")
         _echo(describe_basis(args.output))
         del basis
@@ -755,8 +804,17 @@ def run(args: argparse.Namespace) -> int:
             uncertainty=args.uncertainty,
             source=source,
         )
+        if args.out_dir is not None:
+            return _densify_many(args, processor)
+        if len(args.input) > 1:
+            raise PcaInterpError(
+                f"-o takes one input but {len(args.input)} were given; "
+                "pass --out-dir DIR to densify several logs"
+            )
+        if args.scheduler is not None or args.workers is not None:
+            raise PcaInterpError("--scheduler/--workers need --out-dir DIR instead of -o")
         summary = densify(
-            args.input,
+            args.input[0],
             args.output,
             args.basis,
             pairing=_pairing_config(args, args.features_topic),

@@ -82,9 +82,14 @@ def test_learn_on_cluster_with_truncation_keeps_leading_subspace(
     options = jobs.LearnOptions(n_components=3)
     local = jobs.learn([logs["a"]], tmp_path / "local.npz", options, PairingConfig())
     remote = distributed.learn_distributed(
-        [logs["a"]], tmp_path / "r.npz", options, PairingConfig(), client,
-        chunk_frames=4, oversampling=3,
-    )  # fmt: skip
+        [logs["a"]],
+        tmp_path / "r.npz",
+        options,
+        PairingConfig(),
+        client,
+        chunk_frames=4,
+        oversampling=3,
+    )
     # r = 6 columns kept from 14 maps: the leading eigenpairs stay close, not exact
     np.testing.assert_allclose(remote.eigenvalues[:2], local.eigenvalues[:2], rtol=0.05)
     first = local.components[:2].reshape(2, -1).T.astype(np.float64)
@@ -116,3 +121,66 @@ def test_densify_many_matches_one_by_one_and_reports_a_failing_log(
         jobs.densify(logs[name], alone, basis, pairing=PairingConfig())
         together = distributed.output_path(logs[name], out_dir)
         assert _messages(together) == _messages(alone)
+
+
+def test_cli_learn_and_densify_on_the_cluster(
+    logs: dict[str, Path], client: Any, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from pcainterp_stream import cli
+
+    address = client.scheduler.address
+    basis = tmp_path / "basis.npz"
+    assert (
+        cli.main(
+            ["learn", str(logs["a"]), "-o", str(basis), "--components", "4", "--scheduler", address]
+        )
+        == 0
+    )
+    assert Basis.load(basis).meta["learning"]["method"] == "distributed"
+    broken = tmp_path / "broken.mcap"
+    broken.write_bytes(b"\x89MCAP0\r\n")  # a magic and nothing else
+    code = cli.main(
+        [
+            "densify",
+            str(logs["a"]),
+            str(broken),
+            str(logs["b"]),
+            "--out-dir",
+            str(tmp_path / "out"),
+            "--basis",
+            str(basis),
+            "--scheduler",
+            address,
+        ]
+    )
+    captured = capsys.readouterr()
+    assert code == 1
+    assert "2 of 3 logs densified, 24 frames" in captured.out
+    assert len([line for line in captured.err.splitlines() if "broken.mcap" in line]) == 1
+    assert (tmp_path / "out" / "a_dense.mcap").exists()
+    assert (tmp_path / "out" / "b_dense.mcap").exists()
+
+
+def test_cli_densify_refuses_output_with_several_inputs(
+    logs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from pcainterp_stream import cli
+
+    code = cli.main(
+        [
+            "densify",
+            str(logs["a"]),
+            str(logs["b"]),
+            "-o",
+            str(tmp_path / "x.mcap"),
+            "--basis",
+            str(tmp_path / "b.npz"),
+        ]
+    )
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert err == [
+        "pcainterp: error: -o takes one input but 2 were given; "
+        "pass --out-dir DIR to densify several logs"
+    ]
+    assert not (tmp_path / "x.mcap").exists()
