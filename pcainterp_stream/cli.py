@@ -78,7 +78,9 @@ def _add_stereo_options(parser: argparse.ArgumentParser) -> None:
 
 
 def _add_cluster_options(parser: argparse.ArgumentParser) -> None:
-    group = parser.add_argument_group("scale-out on Dask (default: this process only)")
+    group = parser.add_argument_group(
+        "scale-out on Dask (learn: default this process; densify --out-dir: 2 local workers)"
+    )
     where = group.add_mutually_exclusive_group()
     where.add_argument(
         "--scheduler", default=None, metavar="ADDRESS", help="a running Dask scheduler"

@@ -292,28 +292,19 @@ def learn_distributed(
     jobs._check_output_folder(output)
     keep = options.n_components + oversampling
     source = options.depth_topic or pairing.left_topic
-    futures: list[Any] = []
-    n_tasks = 0
+    specs: list[tuple[Path, int, int | None]] = []
     for log in logs:
         expected = jobs._expected_frames(log, source, options.every)
-        bounds: list[tuple[int, int | None]] = (
-            [(start, start + chunk_frames) for start in range(0, max(expected, 1), chunk_frames)]
-            if expected is not None
-            else [(0, None)]
-        )
-        for start, stop in bounds:
-            n_tasks += 1
-            futures.append(
-                client.submit(summarize_chunk, log, start, stop, options, pairing, keep, pure=False)
+        if expected is None:
+            specs.append((log, 0, None))
+        else:
+            specs.extend(
+                (log, start, start + chunk_frames)
+                for start in range(0, max(expected, 1), chunk_frames)
             )
-    while len(futures) > 1:  # pairwise tree reduction on the cluster
-        paired = [
-            client.submit(merge, futures[i], futures[i + 1], keep, pure=False)
-            for i in range(0, len(futures) - 1, 2)
-        ]
-        futures = paired + futures[len(futures) - len(futures) % 2 :]
+    final = _reduce(client, specs, options, pairing, keep)
     try:
-        total: ChunkSummary | None = futures[0].result()
+        total: ChunkSummary | None = final.result()
     except PcaInterpError:
         raise
     except Exception as err:  # a worker's error arrives re-raised here
@@ -334,7 +325,7 @@ def learn_distributed(
             "sgbm": None if options.depth_topic else sgbm,
             "every": options.every,
         },
-        "distributed": {"chunk_frames": chunk_frames, "tasks": n_tasks},
+        "distributed": {"chunk_frames": chunk_frames, "tasks": len(specs)},
     }
     basis = basis_from_fit(
         fit_from_factor(total.mean, total.factor, total.squares, total.n_maps),
@@ -353,6 +344,49 @@ def learn_distributed(
     )
     basis.save(output)
     return basis
+
+
+def _reduce(
+    client: Any,
+    specs: list[tuple[Path, int, int | None]],
+    options: Any,
+    pairing: Any,
+    keep: int,
+) -> Any:
+    """Run the chunk tasks and merge their summaries as they finish; return the last future.
+
+    At most 2 tasks per worker thread are outstanding (chunks and merges together), so the
+    summaries alive on the cluster, and hence worker memory, do not grow with the number of
+    chunks.
+    """
+    from dask.distributed import as_completed
+
+    window = max(2, 2 * sum(client.nthreads().values()))
+    pending = iter(specs)
+    running: Any = as_completed()  # type: ignore[no-untyped-call]
+
+    def refill() -> None:
+        while running.count() < window:
+            spec = next(pending, None)
+            if spec is None:
+                return
+            log, start, stop = spec
+            running.add(
+                client.submit(
+                    summarize_chunk, log, start, stop, options, pairing, keep, pure=False
+                )
+            )
+
+    refill()
+    ready: Any = None
+    for future in running:
+        if ready is None:
+            ready = future
+        else:
+            running.add(client.submit(merge, ready, future, keep, pure=False))
+            ready = None
+        refill()
+    return ready
 
 
 @dataclass(frozen=True)
