@@ -3,8 +3,8 @@
 For each worker count a fresh ``LocalCluster`` (worker processes, one thread each) runs
 ``distributed.learn_distributed`` over all logs, and another fresh one runs
 ``distributed.densify_many``; the peak RSS of every worker process is read from
-``getrusage`` inside the worker after the job. The local learner (``jobs.learn``, this
-process) is timed once for reference, and one full-size merge of two summaries is timed.
+``/proc/self/status`` (VmHWM) inside the worker after the job. The local learner
+(``jobs.learn``, this process) is timed once for reference, and one merge of two summaries.
 From the measured per-frame costs the tool projects a 23,201-frame basis and 1,000 hours of
 10 Hz logs on N workers (one core per worker assumed). Prints a Markdown report.
 
@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import time
 from pathlib import Path
 from typing import Any
@@ -28,8 +27,15 @@ from pcainterp_stream.pairing import PairingConfig
 
 
 def _peak_rss_mb() -> float:
-    """Peak resident set size of the calling process (MB)."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    """Peak resident set size of the calling process's memory (VmHWM, MB).
+
+    Not ``getrusage``: on Linux its ``ru_maxrss`` survives exec, so a spawned worker would
+    report its parent's peak if that were higher.
+    """
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024.0
+    return float("nan")
 
 
 def _worker_peaks(client: Any) -> list[float]:
