@@ -724,16 +724,13 @@ def _densify_many(args: argparse.Namespace, processor: ProcessorConfig) -> int:
         raise PcaInterpError("--rrd/--rerun take one log; use -o OUTPUT without --out-dir")
     if args.workers is not None and args.workers < 1:
         raise PcaInterpError(f"--workers must be at least 1, got {args.workers}")
-    for path in args.input:
-        if not path.exists():
-            raise PcaInterpError(f"input {path} does not exist; check the path")
     if not args.basis.exists():
         raise PcaInterpError(f"basis {args.basis} does not exist; learn one with pcainterp learn")
     started = time.perf_counter()
     with distributed.connect(args.scheduler, args.workers) as client:
         outcomes = distributed.densify_many(
-            list(args.input),
-            args.out_dir,
+            [path.resolve() for path in args.input],  # workers may run in another folder
+            args.out_dir.resolve(),
             args.basis.resolve(),
             client,
             pairing=_pairing_config(args, args.features_topic),
@@ -746,7 +743,10 @@ def _densify_many(args: argparse.Namespace, processor: ProcessorConfig) -> int:
             _echo(f"densified {outcome.frames} frames of {outcome.input} -> {outcome.output}")
         else:
             failed += 1
-            print(f"pcainterp: error: {outcome.input}: {outcome.error}", file=sys.stderr)
+            error = outcome.error
+            if outcome.input.name not in error:
+                error = f"{outcome.input}: {error}"
+            print(f"pcainterp: error: {error}", file=sys.stderr)
     frames = sum(outcome.frames for outcome in outcomes)
     _echo(
         f"{len(outcomes) - failed} of {len(outcomes)} logs densified, {frames} frames in "
@@ -786,7 +786,11 @@ def run(args: argparse.Namespace) -> int:
 
             with distributed.connect(args.scheduler, args.workers) as client:
                 basis = distributed.learn_distributed(
-                    args.logs, args.output, options, _pairing_config(args), client
+                    [log.resolve() for log in args.logs],
+                    args.output,
+                    options,
+                    _pairing_config(args),
+                    client,
                 )
         else:
             basis = learn(args.logs, args.output, options, _pairing_config(args))
