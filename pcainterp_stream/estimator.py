@@ -43,6 +43,15 @@ from pcainterp_stream.basis import (
     resample_grid,
     sample_rows,
 )
+from pcainterp_stream.prior import (
+    DOWNWEIGHTED_BELOW,
+    LocalPrior,
+    Model,
+    Robust,
+    TemporalPrior,
+    evidence_sigma,
+    robust_weights,
+)
 
 DEFAULT_SIGMA = 2.0
 """Measurement noise std (px), the paper's value."""
@@ -96,6 +105,11 @@ class DensifyResult:
         solve_form: the system that was solved.
         uncertainty: the uncertainty mode.
         focal_baseline: f*b (px*m) used for depth; 0 when unknown.
+        sigma: the measurement noise std used (px, basis units; fitted with ``"evidence"``).
+        weights: (k,) float64 final IRLS weight of each measurement (1 without ``robust``).
+        n_downweighted: measurements whose robust weight ended below 0.5.
+        temporal: "static" (the basis prior), "temporal" (the previous frame's posterior)
+            or "reset" (temporal prior rejected by the innovation test, static used).
     """
 
     disparity: npt.NDArray[np.float32]
@@ -110,11 +124,25 @@ class DensifyResult:
     solve_form: SolveForm
     uncertainty: Uncertainty
     focal_baseline: float
+    sigma: float = DEFAULT_SIGMA
+    weights: npt.NDArray[np.float64] | None = None
+    n_downweighted: int = 0
+    temporal: str = "static"
 
     @property
     def n_measurements(self) -> int:
         """Return k, the number of measurements used."""
         return int(self.disparities.shape[0])
+
+
+@dataclass(frozen=True)
+class _Local:
+    """The local part of a hybrid-prior posterior: d_local(x) = c(x, P) alpha."""
+
+    prior: LocalPrior
+    positions: npt.NDArray[np.float64]  # (k, 2) (x, y) basis image px
+    alpha: npt.NDArray[np.float64]  # (k,) K^-1 innovation
+    lower_inverse: npt.NDArray[np.float32] | None  # (k, k) L^-1, for the exact variance
 
 
 @dataclass(frozen=True)
@@ -125,6 +153,15 @@ class _Posterior:
     factor: npt.NDArray[np.float32] | None
     subtract_from_prior: bool
     solve_form: SolveForm
+    # beyond the paper (prior.py): base(x) = ||prior_factor b(x)||^2 when the prior is not
+    # Lambda (temporal), the local part, the noise used and the robust weights
+    prior_factor: npt.NDArray[np.float32] | None = None
+    local: _Local | None = None
+    sigma: float = DEFAULT_SIGMA
+    weights: npt.NDArray[np.float64] | None = None
+    covariance: npt.NDArray[np.float64] | None = None
+    normalised_innovation: float = 0.0
+    temporal: str = "static"
 
 
 def densify(
@@ -132,12 +169,15 @@ def densify(
     pixels: npt.ArrayLike,
     disparities: npt.ArrayLike,
     *,
-    sigma: float = DEFAULT_SIGMA,
+    sigma: float | str = DEFAULT_SIGMA,
     uncertainty: Uncertainty | str = Uncertainty.EXACT,
     solve_form: SolveForm | str = SolveForm.AUTO,
     focal_baseline: float | None = None,
     image_size: tuple[int, int] | None = None,
     variance_stride: int | None = None,
+    local_prior: LocalPrior | None = None,
+    robust: Robust | str = Robust.NONE,
+    temporal: TemporalPrior | None = None,
 ) -> DensifyResult:
     """Densify one frame's sparse disparities with the MAP estimate.
 
@@ -145,7 +185,8 @@ def densify(
         basis: the PCA basis.
         pixels: (k, 2) float, (x, y) positions in px of the output image (``image_size``).
         disparities: (k,) float, measured disparities (px) of the output camera.
-        sigma: measurement noise std (px), > 0.
+        sigma: measurement noise std (px), > 0, or ``"evidence"``: fitted per frame by
+            maximising the marginal likelihood (:func:`prior.evidence_sigma`).
         uncertainty: ``"exact"``, ``"paper"`` or ``"none"`` (see :class:`Uncertainty`).
         solve_form: ``"auto"``, ``"coefficient"`` or ``"measurement"``.
         focal_baseline: f*b (px*m) of the camera the measurements come from; defaults to
@@ -156,6 +197,11 @@ def densify(
         variance_stride: evaluate the std on a grid this many times coarser than the basis
             grid (exact there, resampled bilinearly); None picks it automatically
             (:data:`DEFAULT_VARIANCE_GRID_SCALE`).
+        local_prior: the hybrid prior's local covariance (:class:`prior.LocalPrior`); None
+            is the paper's prior.
+        robust: ``"none"``, ``"huber"`` or ``"cauchy"``: IRLS on the leave-one-out
+            standardised residuals (:class:`prior.Robust`).
+        temporal: the stream's temporal prior state, updated in place; None: static prior.
 
     Returns:
         The :class:`DensifyResult`. Zero usable measurements give the prior (mean map,
@@ -174,6 +220,9 @@ def densify(
         focal_baseline=focal_baseline,
         image_size=image_size,
         variance_stride=variance_stride,
+        local_prior=local_prior,
+        robust=robust,
+        temporal=temporal,
     )[0]
 
 
@@ -182,12 +231,15 @@ def densify_batch(
     pixels_list: Sequence[npt.ArrayLike],
     disparities_list: Sequence[npt.ArrayLike],
     *,
-    sigma: float = DEFAULT_SIGMA,
+    sigma: float | str = DEFAULT_SIGMA,
     uncertainty: Uncertainty | str = Uncertainty.EXACT,
     solve_form: SolveForm | str = SolveForm.AUTO,
     focal_baseline: float | None = None,
     image_size: tuple[int, int] | None = None,
     variance_stride: int | None = None,
+    local_prior: LocalPrior | None = None,
+    robust: Robust | str = Robust.NONE,
+    temporal: TemporalPrior | None = None,
 ) -> list[DensifyResult]:
     """Densify several frames at once with matrix-matrix products across frames.
 
@@ -205,6 +257,9 @@ def densify_batch(
         focal_baseline: f*b (px*m) of the measurements' camera (default: the basis's).
         image_size: (height, width) of the measurements' camera (default: the basis's).
         variance_stride: std grid coarsening over the basis grid; None: automatic.
+        local_prior: local covariance of the hybrid prior, or None.
+        robust: IRLS loss, ``"none"``, ``"huber"`` or ``"cauchy"``.
+        temporal: temporal prior state carried across calls (frames in stream order).
 
     Returns:
         One :class:`DensifyResult` per frame, in order.
@@ -217,8 +272,7 @@ def densify_batch(
             f"Expected `disparities_list` to have one array per frame of `pixels_list` "
             f"({len(pixels_list)}), got {len(disparities_list)}"
         )
-    if not (np.isfinite(sigma) and sigma > 0):
-        raise ValueError(f"Expected `sigma` > 0 (px), got {sigma}")
+    model = Model(sigma=_sigma(sigma), local=local_prior, robust=Robust(robust))
     mode = Uncertainty(uncertainty)
     form = SolveForm(solve_form)
     out_size = _image_size(basis, image_size)
@@ -232,6 +286,12 @@ def densify_batch(
         for pixels, disparities in zip(pixels_list, disparities_list, strict=True)
     ]
     eigenvalues = basis.eigenvalues
+    need_factor = mode is Uncertainty.EXACT
+    if temporal is not None:
+        key = (out_size, fb_out, basis.n_components)
+        if temporal.key != key:
+            temporal.reset()
+            temporal.key = key
     posteriors = []
     for frame_pixels, frame_disparities, _ in frames:
         grid_positions = image_to_grid(frame_pixels, out_size, basis.grid_size)
@@ -239,8 +299,17 @@ def densify_batch(
         rows = sample_rows(basis.pixel_major, indices, weights).astype(np.float64)
         mean_at = (basis.mean_flat[indices] * weights).sum(axis=1)
         residual = frame_disparities * to_basis - mean_at
+        if model.is_paper and temporal is None:
+            assert model.sigma is not None
+            posteriors.append(
+                _solve(rows, residual, eigenvalues, model.sigma, form, need_factor=need_factor)
+            )
+            continue
+        positions = image_to_grid(frame_pixels, out_size, basis.image_size)
         posteriors.append(
-            _solve(rows, residual, eigenvalues, sigma, form, need_factor=mode is Uncertainty.EXACT)
+            _solve_beyond(
+                rows, residual, positions, eigenvalues, model, temporal, need_factor=need_factor
+            )
         )
 
     # d_hat = B Y + m for all frames at once (s, F)
@@ -252,13 +321,17 @@ def densify_batch(
     variances: npt.NDArray[np.float32] | None = None
     vgrid = basis.variance_grid(stride) if mode is not Uncertainty.NONE else None
     if vgrid is not None:
-        variances = _variances(vgrid, posteriors, mode)
+        variances = _variances(vgrid, posteriors, mode, basis.image_size)
 
     results = []
     for index, (posterior, (frame_pixels, frame_disparities, n_dropped)) in enumerate(
         zip(posteriors, frames, strict=True)
     ):
         disparity = resample_grid(grid_maps[:, index].reshape(basis.grid_size), out_size)
+        if posterior.local is not None:
+            disparity += _local_mean(posterior.local, out_size, basis.image_size) * np.float32(
+                1.0 / to_basis
+            )
         disparity_std = None
         if vgrid is not None and variances is not None:
             grid_std = np.sqrt(np.maximum(variances[index], 0.0)) * np.float32(1.0 / to_basis)
@@ -278,6 +351,10 @@ def densify_batch(
                 solve_form=posterior.solve_form,
                 uncertainty=mode,
                 focal_baseline=fb_out,
+                sigma=posterior.sigma,
+                weights=posterior.weights,
+                n_downweighted=_downweighted(posterior.weights),
+                temporal=posterior.temporal,
             )
         )
     return results
@@ -337,6 +414,7 @@ def _solve(
             factor=np.zeros((0, n_components), dtype=np.float32) if need_factor else None,
             subtract_from_prior=True,
             solve_form=SolveForm.MEASUREMENT,
+            sigma=sigma,
         )
     if form is SolveForm.AUTO:
         form = SolveForm.MEASUREMENT if k < n_components else SolveForm.COEFFICIENT
@@ -359,7 +437,7 @@ def _solve(
             # W = L^-1 B~ Λ in float32: its rounding is that of the float32 product with the
             # basis that consumes it
             factor = lower_inverse.astype(np.float32) @ (rows * eigenvalues).astype(np.float32)
-        return _Posterior(coefficients, coefficient_variance, factor, True, form)
+        return _Posterior(coefficients, coefficient_variance, factor, True, form, sigma=sigma)
     # coefficient form: A = sigma^2 I + Λ^½ B~^T B~ Λ^½ = L_A L_A^T (paper's system, symmetrised)
     root = np.sqrt(eigenvalues)
     scaled = rows * root
@@ -372,7 +450,7 @@ def _solve(
     factor64 = sigma * lower_inverse * root
     coefficient_variance = np.einsum("rl,rl->l", factor64, factor64)
     factor = factor64.astype(np.float32) if need_factor else None
-    return _Posterior(coefficients, coefficient_variance, factor, False, form)
+    return _Posterior(coefficients, coefficient_variance, factor, False, form, sigma=sigma)
 
 
 def _cholesky_inverse(system: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
@@ -386,11 +464,217 @@ def _cholesky_inverse(system: npt.NDArray[np.float64]) -> npt.NDArray[np.float64
     return np.tril(inverse)
 
 
+def _sigma(sigma: float | str) -> float | None:
+    """Validate the ``sigma`` argument: a positive number, or "evidence" (None)."""
+    if isinstance(sigma, str):
+        if sigma == "evidence":
+            return None
+        raise ValueError(f'Expected `sigma` > 0 (px) or "evidence", got {sigma!r}')
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise ValueError(f"Expected `sigma` > 0 (px), got {sigma}")
+    return float(sigma)
+
+
+def _downweighted(weights: npt.NDArray[np.float64] | None) -> int:
+    return 0 if weights is None else int(np.count_nonzero(weights < DOWNWEIGHTED_BELOW))
+
+
+def _solve_beyond(
+    rows: npt.NDArray[np.float64],
+    residual: npt.NDArray[np.float64],
+    positions: npt.NDArray[np.float64],
+    eigenvalues: npt.NDArray[np.float64],
+    model: Model,
+    temporal: TemporalPrior | None,
+    *,
+    need_factor: bool,
+) -> _Posterior:
+    """The estimate with the additions of ``prior.py``, in measurement space.
+
+    Temporal prior first; when its normalised innovation fails the test the frame is solved
+    again with the static prior (and the state restarts from that posterior).
+    """
+    predicted = temporal.predict(eigenvalues) if temporal is not None else None
+    posterior = _solve_measurement(
+        rows, residual, positions, eigenvalues, model, predicted,
+        need_factor=need_factor, need_covariance=temporal is not None,
+    )
+    if predicted is not None and temporal is not None:
+        if posterior.normalised_innovation > temporal.reset_threshold:
+            temporal.resets += 1
+            posterior = _solve_measurement(
+                rows, residual, positions, eigenvalues, model, None,
+                need_factor=need_factor, need_covariance=True, label="reset",
+            )
+    if temporal is not None and posterior.covariance is not None:
+        temporal.update(posterior.coefficients, posterior.covariance)
+    return posterior
+
+
+def _solve_measurement(
+    rows: npt.NDArray[np.float64],
+    residual: npt.NDArray[np.float64],
+    positions: npt.NDArray[np.float64],
+    eigenvalues: npt.NDArray[np.float64],
+    model: Model,
+    predicted: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None,
+    *,
+    need_factor: bool,
+    need_covariance: bool,
+    label: str = "static",
+) -> _Posterior:
+    """MAP estimate and posterior under prior y ~ N(mu, P), local prior, weighted noise.
+
+    See the module docstring of ``prior.py`` for the equations; rows = B~ (k, l),
+    residual = z~ (k,), positions (k, 2) basis image px.
+    """
+    k, n_components = rows.shape
+    if predicted is None:
+        mean = np.zeros(n_components)
+        prior_rows = rows * eigenvalues  # B~ P with P = Lambda
+        prior_diagonal = eigenvalues
+        label = label if label == "reset" else "static"
+    else:
+        mean, prior_covariance = predicted
+        prior_rows = rows @ prior_covariance  # B~ P
+        prior_diagonal = np.diag(prior_covariance).copy()
+        label = "temporal"
+    innovation = residual - rows @ mean
+    signal = prior_rows @ rows.T  # B~ P B~^T
+    if model.local is not None and k:
+        signal += model.local.matrix(positions)  # + C_pp
+    sigma = model.sigma if model.sigma is not None else evidence_sigma(signal, innovation)
+    if not np.isfinite(sigma):  # no measurements: nothing to fit
+        sigma = DEFAULT_SIGMA
+    weights = np.ones(k)
+    iterations = model.robust_iterations if model.robust is not Robust.NONE else 0
+    for iteration in range(iterations + 1):
+        system = signal.copy()
+        system.flat[:: k + 1] += sigma**2 / weights  # + R
+        lower_inverse = _cholesky_inverse(system) if k else np.zeros((0, 0))
+        alpha = lower_inverse.T @ (lower_inverse @ innovation)  # K^-1 (z~ - B~ mu)
+        if iteration == iterations:
+            break
+        # leave-one-out standardised residuals: alpha_j / sqrt([K^-1]_jj)
+        inverse_diagonal = np.einsum("ij,ij->j", lower_inverse, lower_inverse)
+        updated = robust_weights(alpha / np.sqrt(inverse_diagonal), model.robust)
+        converged = bool(np.max(np.abs(updated - weights), initial=0.0) < 1e-3)
+        weights = updated
+        if converged:
+            # one more solve with the final weights
+            iterations = iteration + 1
+    coefficients = mean + prior_rows.T @ alpha  # y = mu + P B~^T alpha
+    gain = lower_inverse @ prior_rows  # W = L^-1 B~ P (k, l)
+    coefficient_variance = prior_diagonal - np.einsum("kl,kl->l", gain, gain)
+    covariance: npt.NDArray[np.float64] | None = None
+    if need_covariance:
+        base = np.diag(eigenvalues) if predicted is None else predicted[1]
+        covariance = base - gain.T @ gain
+        covariance = 0.5 * (covariance + covariance.T)
+    factor = gain.astype(np.float32) if need_factor else None
+    prior_factor = None
+    if need_factor and predicted is not None:
+        # base(x) = b(x)^T P b(x) = ||G^T b(x)||^2, G G^T = P
+        prior_factor = np.linalg.cholesky(predicted[1]).T.astype(np.float32)
+    local = None
+    if model.local is not None:
+        local = _Local(
+            prior=model.local,
+            positions=positions,
+            alpha=alpha,
+            lower_inverse=lower_inverse.astype(np.float32) if need_factor else None,
+        )
+    return _Posterior(
+        coefficients=coefficients,
+        coefficient_variance=coefficient_variance,
+        factor=factor,
+        subtract_from_prior=True,
+        solve_form=SolveForm.MEASUREMENT,
+        prior_factor=prior_factor,
+        local=local,
+        sigma=float(sigma),
+        weights=weights,
+        covariance=covariance,
+        normalised_innovation=float(innovation @ alpha / k) if k else 0.0,
+        temporal=label,
+    )
+
+
+def _image_coordinates(count: int, basis_size: int) -> npt.NDArray[np.float64]:
+    """Centres of ``count`` cells spanning a basis image axis, in its px (pixel-centre)."""
+    cells = np.arange(count, dtype=np.float64)
+    return (cells + 0.5) * (basis_size / count) - 0.5
+
+
+def _local_mean(
+    local: _Local, out_size: tuple[int, int], basis_image: tuple[int, int]
+) -> npt.NDArray[np.float32]:
+    """The local part c(x, P) alpha at every output pixel, (H, W) float32 (basis units).
+
+    Separable kernel: sum_j alpha_j v k_y(y - y_j) k_x(x - x_j) = (K_y^T diag(v alpha)) K_x.
+    """
+    height, width = out_size
+    if local.alpha.size == 0:
+        return np.zeros(out_size, dtype=np.float32)
+    ys = _image_coordinates(height, basis_image[0])
+    xs = _image_coordinates(width, basis_image[1])
+    along_y = local.prior.axis(local.positions[:, 1], ys)  # (k, H)
+    along_x = local.prior.axis(local.positions[:, 0], xs)  # (k, W)
+    weighted = (along_y * (local.prior.variance * local.alpha)[:, None]).astype(np.float32)
+    dense: npt.NDArray[np.float32] = weighted.T @ along_x.astype(np.float32)
+    return dense
+
+
+def _local_covariance(
+    local: _Local, vgrid_size: tuple[int, int], basis_image: tuple[int, int]
+) -> npt.NDArray[np.float32]:
+    """c(P, x) for x on the variance grid, (k, s_v) float32."""
+    ys = _image_coordinates(vgrid_size[0], basis_image[0])
+    xs = _image_coordinates(vgrid_size[1], basis_image[1])
+    along_y = local.prior.axis(local.positions[:, 1], ys).astype(np.float32)
+    along_x = local.prior.axis(local.positions[:, 0], xs).astype(np.float32)
+    product = along_y[:, :, None] * along_x[:, None, :] * np.float32(local.prior.variance)
+    return product.reshape(local.alpha.size, vgrid_size[0] * vgrid_size[1])
+
+
+def _variance_beyond(
+    vgrid: VarianceGrid, posterior: _Posterior, basis_image: tuple[int, int]
+) -> npt.NDArray[np.float32]:
+    """Exact variance of one frame with temporal and/or local prior, (s_v,) float32.
+
+    var(x) = b^T P b + v - ||W b(x) + L^-1 c(P, x)||^2.
+    """
+    projected = _factor(posterior) @ vgrid.component_rows
+    if posterior.local is not None and posterior.local.lower_inverse is not None:
+        covariance = _local_covariance(posterior.local, vgrid.size, basis_image)
+        projected += posterior.local.lower_inverse @ covariance
+    reduction = np.einsum("ks,ks->s", projected, projected)
+    if posterior.prior_factor is not None:
+        prior_part = posterior.prior_factor @ vgrid.component_rows
+        base = np.einsum("ks,ks->s", prior_part, prior_part)
+    else:
+        base = vgrid.prior_variance
+    if posterior.local is not None:
+        base = base + np.float32(posterior.local.prior.variance)
+    result: npt.NDArray[np.float32] = (base - reduction).astype(np.float32)
+    return result
+
+
 def _variances(
-    vgrid: VarianceGrid, posteriors: list[_Posterior], mode: Uncertainty
+    vgrid: VarianceGrid,
+    posteriors: list[_Posterior],
+    mode: Uncertainty,
+    basis_image: tuple[int, int],
 ) -> npt.NDArray[np.float32]:
     """Posterior variance (F, s_v) float32 on the variance grid (basis disparity units)."""
     n_frames = len(posteriors)
+    if any(p.local is not None or p.prior_factor is not None for p in posteriors):
+        if mode is Uncertainty.PAPER:
+            raise ValueError(
+                'uncertainty="paper" is the diagonal approximation of the paper\'s prior; '
+                'use "exact" with a local or temporal prior'
+            )
+        return np.stack([_variance_beyond(vgrid, p, basis_image) for p in posteriors])
     if mode is Uncertainty.PAPER:
         kappa2 = np.stack([p.coefficient_variance for p in posteriors], axis=1)
         # eq. (15/16): sum_i kappa_i^2 u_i(x)^2, one GEMM for all frames

@@ -1,0 +1,271 @@
+"""The additions beyond the paper (prior.py) against brute-force Gaussian algebra."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pcainterp_stream import Basis, densify, densify_batch
+from pcainterp_stream.prior import (
+    Kernel,
+    LocalPrior,
+    Robust,
+    TemporalPrior,
+    evidence_sigma,
+    robust_weights,
+)
+
+
+def _basis(height: int = 12, width: int = 16, n_components: int = 6, seed: int = 0) -> Basis:
+    """A full-resolution (grid = image) random orthonormal basis of smooth fields."""
+    rng = np.random.default_rng(seed)
+    ys, xs = np.mgrid[0:height, 0:width] / max(height, width)
+    fields = [
+        np.cos(np.pi * (a * xs + b * ys) + c)
+        for a, b, c in rng.uniform(0.0, 3.0, size=(n_components, 3))
+    ]
+    matrix = np.stack([f.ravel() for f in fields], axis=1)
+    q, _ = np.linalg.qr(matrix)
+    components = q.T.reshape(n_components, height, width).astype(np.float32)
+    eigenvalues = np.sort(rng.uniform(5.0, 200.0, n_components))[::-1]
+    mean = (20.0 + 10.0 * ys).astype(np.float32)
+    return Basis(
+        mean=mean,
+        components=components,
+        eigenvalues=eigenvalues,
+        total_variance=float(eigenvalues.sum()) * 1.5,
+        image_size=(height, width),
+        focal_baseline=100.0,
+        n_train=50,
+    )
+
+
+def _points(basis: Basis, k: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    height, width = basis.image_size
+    pixels = np.stack(
+        [rng.integers(0, width, k), rng.integers(0, height, k)], axis=1
+    ).astype(np.float64)
+    disparities = rng.uniform(10.0, 40.0, k)
+    return pixels, disparities
+
+
+def _brute_force(
+    basis: Basis,
+    pixels: np.ndarray,
+    disparities: np.ndarray,
+    sigma: float,
+    local: LocalPrior | None,
+    noise_weights: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Dense GP posterior over every pixel: d ~ N(m, B Lambda B^T + C), z = d(p) + n."""
+    height, width = basis.image_size
+    b = basis.pixel_major.astype(np.float64)
+    prior = b @ np.diag(basis.eigenvalues) @ b.T
+    ys, xs = np.mgrid[0:height, 0:width]
+    grid = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64)
+    if local is not None:
+        prior += local.variance * local.axis(grid[:, 0], grid[:, 0]) * local.axis(
+            grid[:, 1], grid[:, 1]
+        )
+    index = (pixels[:, 1].astype(int) * width + pixels[:, 0].astype(int))
+    weights = np.ones(len(index)) if noise_weights is None else noise_weights
+    system = prior[np.ix_(index, index)] + np.diag(sigma**2 / weights)
+    gain = np.linalg.solve(system, prior[index]).T  # (s, k)
+    mean = basis.mean_flat.astype(np.float64)
+    estimate = mean + gain @ (disparities - mean[index])
+    variance = np.diag(prior) - np.einsum("sk,ks->s", gain, prior[index])
+    return estimate.reshape(height, width), np.sqrt(np.maximum(variance, 0)).reshape(
+        height, width
+    )
+
+
+@pytest.mark.parametrize("kernel", [Kernel.LAPLACE, Kernel.GAUSSIAN])
+def test_hybrid_prior_equals_dense_gaussian_posterior(kernel: Kernel) -> None:
+    basis = _basis()
+    pixels, disparities = _points(basis, 9, seed=1)
+    local = LocalPrior(variance=4.0, length_scale=3.0, kernel=kernel)
+    result = densify(
+        basis, pixels, disparities, sigma=1.5, local_prior=local, variance_stride=1
+    )
+    expected, expected_std = _brute_force(basis, pixels, disparities, 1.5, local)
+    np.testing.assert_allclose(result.disparity, expected, atol=2e-3)
+    assert result.disparity_std is not None
+    np.testing.assert_allclose(result.disparity_std, expected_std, atol=2e-3)
+
+
+def test_hybrid_map_passes_closer_to_the_measurements() -> None:
+    basis = _basis()
+    pixels, disparities = _points(basis, 9, seed=2)
+    cols, rows = pixels[:, 0].astype(int), pixels[:, 1].astype(int)
+    plain = densify(basis, pixels, disparities, sigma=0.5)
+    hybrid = densify(
+        basis, pixels, disparities, sigma=0.5,
+        local_prior=LocalPrior(variance=50.0, length_scale=2.0),
+    )
+    plain_gap = np.abs(plain.disparity[rows, cols] - disparities).mean()
+    hybrid_gap = np.abs(hybrid.disparity[rows, cols] - disparities).mean()
+    assert hybrid_gap < 0.5 * plain_gap
+
+
+def test_zero_local_variance_is_the_paper_estimate() -> None:
+    basis = _basis()
+    pixels, disparities = _points(basis, 5, seed=3)
+    plain = densify(basis, pixels, disparities, sigma=2.0, variance_stride=1)
+    hybrid = densify(
+        basis, pixels, disparities, sigma=2.0, variance_stride=1,
+        local_prior=LocalPrior(variance=0.0, length_scale=4.0),
+    )
+    np.testing.assert_allclose(hybrid.disparity, plain.disparity, atol=1e-4)
+    np.testing.assert_allclose(hybrid.coefficients, plain.coefficients, rtol=1e-6, atol=1e-8)
+    assert hybrid.disparity_std is not None and plain.disparity_std is not None
+    np.testing.assert_allclose(hybrid.disparity_std, plain.disparity_std, atol=1e-3)
+
+
+def test_robust_weights_match_a_weighted_gaussian_posterior() -> None:
+    basis = _basis()
+    pixels, disparities = _points(basis, 10, seed=4)
+    disparities[3] += 60.0  # a wrong SGBM lookup
+    local = LocalPrior(variance=4.0, length_scale=3.0)
+    result = densify(
+        basis, pixels, disparities, sigma=1.0, local_prior=local, robust="cauchy",
+        variance_stride=1,
+    )
+    assert result.weights is not None
+    assert result.weights[3] < 0.5 and result.n_downweighted >= 1
+    # at convergence the estimate is the Gaussian posterior with noise sigma^2 / w
+    expected, expected_std = _brute_force(
+        basis, pixels, disparities, 1.0, local, noise_weights=result.weights
+    )
+    np.testing.assert_allclose(result.disparity, expected, atol=2e-3)
+    assert result.disparity_std is not None
+    np.testing.assert_allclose(result.disparity_std, expected_std, atol=2e-3)
+
+
+def test_robust_estimate_resists_an_outlier() -> None:
+    basis = _basis()
+    rng = np.random.default_rng(5)
+    truth = basis.mean + np.tensordot(
+        rng.normal(size=6) * np.sqrt(basis.eigenvalues), basis.components, axes=1
+    )
+    pixels, _ = _points(basis, 30, seed=5)
+    rows, cols = pixels[:, 1].astype(int), pixels[:, 0].astype(int)
+    disparities = truth[rows, cols] + rng.normal(0, 0.3, 30)
+    disparities[:3] += 40.0
+    plain = densify(basis, pixels, disparities, sigma=0.5)
+    robust = densify(basis, pixels, disparities, sigma=0.5, robust=Robust.HUBER)
+    assert np.abs(robust.disparity - truth).mean() < 0.5 * np.abs(plain.disparity - truth).mean()
+    assert robust.n_downweighted >= 3
+
+
+def test_robust_weights_shapes() -> None:
+    t = np.array([0.0, 1.0, 3.0, -10.0])
+    np.testing.assert_allclose(robust_weights(t, Robust.NONE), 1.0)
+    huber = robust_weights(t, Robust.HUBER)
+    assert huber[0] == 1.0 and huber[1] == 1.0 and huber[3] == pytest.approx(0.1345)
+    cauchy = robust_weights(t, Robust.CAUCHY)
+    assert np.all(np.diff(cauchy[:3]) < 0) and cauchy[3] < 0.1
+
+
+def test_evidence_recovers_the_noise_level() -> None:
+    rng = np.random.default_rng(6)
+    k = 400
+    signal_factor = rng.normal(size=(k, 20)) * 3.0
+    signal = signal_factor @ signal_factor.T
+    draws = [
+        signal_factor @ rng.normal(size=20) + rng.normal(0.0, 1.7, k) for _ in range(5)
+    ]
+    fitted = [evidence_sigma(signal, d) for d in draws]
+    assert np.median(fitted) == pytest.approx(1.7, rel=0.08)
+
+
+def test_sigma_evidence_is_reported_per_frame() -> None:
+    basis = _basis()
+    pixels, disparities = _points(basis, 40, seed=7)
+    result = densify(basis, pixels, disparities, sigma="evidence")
+    assert 0.1 <= result.sigma <= 20.0
+    with pytest.raises(ValueError, match="evidence"):
+        densify(basis, pixels, disparities, sigma="auto")
+
+
+def test_temporal_prior_carries_information_and_resets() -> None:
+    basis = _basis()
+    rng = np.random.default_rng(8)
+    coefficients = rng.normal(size=6) * np.sqrt(basis.eigenvalues)
+    truth = basis.mean + np.tensordot(coefficients, basis.components, axes=1)
+    state = TemporalPrior(process_noise=0.01)
+    errors_static, errors_temporal = [], []
+    for frame in range(6):
+        pixels, _ = _points(basis, 3, seed=100 + frame)
+        rows, cols = pixels[:, 1].astype(int), pixels[:, 0].astype(int)
+        disparities = truth[rows, cols] + rng.normal(0, 0.2, 3)
+        static = densify(basis, pixels, disparities, sigma=0.2)
+        temporal = densify(basis, pixels, disparities, sigma=0.2, temporal=state)
+        errors_static.append(np.abs(static.disparity - truth).mean())
+        errors_temporal.append(np.abs(temporal.disparity - truth).mean())
+        assert temporal.temporal == ("static" if frame == 0 else "temporal")
+    assert np.mean(errors_temporal[2:]) < 0.5 * np.mean(errors_static[2:])
+    # a different scene fails the innovation test: the static prior comes back
+    pixels, _ = _points(basis, 8, seed=200)
+    jump = densify(basis, pixels, np.full(8, 300.0), sigma=0.2, temporal=state)
+    assert jump.temporal == "reset" and state.resets == 1
+
+
+def test_temporal_batch_equals_one_by_one() -> None:
+    basis = _basis()
+    frames = [_points(basis, 6, seed=300 + i) for i in range(4)]
+    one_state, batch_state = TemporalPrior(), TemporalPrior()
+    one = [
+        densify(basis, p, d, sigma=1.0, temporal=one_state,
+                local_prior=LocalPrior(2.0, 3.0))
+        for p, d in frames
+    ]
+    batch = densify_batch(
+        basis, [p for p, _ in frames], [d for _, d in frames], sigma=1.0,
+        temporal=batch_state, local_prior=LocalPrior(2.0, 3.0),
+    )
+    for a, b in zip(one, batch, strict=True):
+        np.testing.assert_allclose(a.disparity, b.disparity, atol=1e-4)
+        assert a.disparity_std is not None and b.disparity_std is not None
+        np.testing.assert_allclose(a.disparity_std, b.disparity_std, atol=1e-4)
+
+
+def test_adding_a_measurement_never_raises_the_hybrid_variance() -> None:
+    basis = _basis()
+    pixels, disparities = _points(basis, 8, seed=9)
+    local = LocalPrior(variance=3.0, length_scale=2.5)
+    fewer = densify(basis, pixels[:-1], disparities[:-1], local_prior=local, variance_stride=1)
+    more = densify(basis, pixels, disparities, local_prior=local, variance_stride=1)
+    assert fewer.disparity_std is not None and more.disparity_std is not None
+    assert np.all(more.disparity_std <= fewer.disparity_std + 1e-3)
+
+
+def test_paper_uncertainty_with_a_local_prior_is_refused() -> None:
+    basis = _basis()
+    pixels, disparities = _points(basis, 4, seed=10)
+    with pytest.raises(ValueError, match="exact"):
+        densify(basis, pixels, disparities, uncertainty="paper",
+                local_prior=LocalPrior(1.0, 2.0))
+
+
+def test_local_prior_validates() -> None:
+    with pytest.raises(ValueError, match="length_scale"):
+        LocalPrior(variance=1.0, length_scale=0.0)
+    with pytest.raises(ValueError, match="variance"):
+        LocalPrior(variance=-1.0, length_scale=1.0)
+    assert LocalPrior.from_meta(LocalPrior(2.0, 5.0, Kernel.GAUSSIAN).to_meta()) == LocalPrior(
+        2.0, 5.0, Kernel.GAUSSIAN
+    )
+
+
+def test_empty_frame_with_every_addition_is_the_prior() -> None:
+    basis = _basis()
+    result = densify(
+        basis, np.zeros((0, 2)), np.zeros(0), sigma="evidence", robust="huber",
+        local_prior=LocalPrior(2.0, 3.0), temporal=TemporalPrior(), variance_stride=1,
+    )
+    np.testing.assert_allclose(result.disparity, basis.mean, atol=1e-4)
+    assert result.disparity_std is not None
+    np.testing.assert_allclose(
+        result.disparity_std**2, basis.prior_variance + 2.0, rtol=1e-3
+    )
