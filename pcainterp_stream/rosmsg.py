@@ -205,6 +205,10 @@ def pointcloud2_message(
         fields: name -> (n,) float32 values, all of the same length, in the order given.
         stamp_ns: header stamp (ns).
         frame_id: header frame id.
+
+    Returns:
+        The message, little endian; ``is_dense`` only when every value is finite (PCL and
+        Foxglove skip the NaN checks of a dense cloud).
     """
     names = list(fields)
     n = len(next(iter(fields.values()))) if fields else 0
@@ -224,7 +228,7 @@ def pointcloud2_message(
         point_step=4 * len(names),
         row_step=4 * len(names) * n,
         data=record.view(np.uint8).reshape(-1),
-        is_dense=True,
+        is_dense=all(bool(np.isfinite(values).all()) for values in fields.values()),
     )
 
 
