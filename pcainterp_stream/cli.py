@@ -19,6 +19,12 @@ from pcainterp_stream.errors import PcaInterpError
 
 PROG = "pcainterp"
 
+DEFAULT_ROBUST = "none"
+"""``densify --robust`` default (the measured best, docs/results.md)."""
+
+DEFAULT_TEMPORAL = False
+"""``densify --temporal`` default (the measured best, docs/results.md)."""
+
 
 def _formatter(prog: str) -> argparse.HelpFormatter:
     return argparse.RawDescriptionHelpFormatter(prog, max_help_position=32)
@@ -170,6 +176,7 @@ def build_parser() -> argparse.ArgumentParser:
             "  pcainterp learn a.mcap b.mcap -o basis.npz --components 300\n"
             "  pcainterp learn drive.mcap -o basis.npz --variance 0.95 --grid-scale 0.125\n"
             "  pcainterp learn synth.mcap -o basis.npz --depth-topic /ground_truth/depth\n"
+            "  pcainterp learn a.mcap b.mcap -o basis.npz --fit-prior   # + hybrid prior, sigma\n"
             "  pcainterp learn fleet/*.mcap -o basis.npz --scheduler tcp://10.0.0.5:8786\n"
         ),
     )
@@ -186,6 +193,29 @@ def build_parser() -> argparse.ArgumentParser:
         help="learn from this depth image topic (32FC1, m) instead of SGBM maps",
     )
     learn.add_argument("--every", type=int, default=1, metavar="N", help="use every N-th frame")
+    fit = learn.add_argument_group("fitted prior (docs/results.md, 'Beyond the paper')")
+    fit.add_argument(
+        "--fit-prior",
+        action="store_true",
+        help="fit the hybrid local prior, sigma and the temporal process noise by the evidence "
+        "on frames the basis does not see; densify then uses them by default",
+    )
+    fit.add_argument(
+        "--holdout",
+        type=float,
+        default=0.2,
+        metavar="F",
+        help="share of each log's frames (at its end) kept out of the basis for the fit "
+        "(default: %(default)s)",
+    )
+    fit.add_argument(
+        "--fit-logs",
+        type=Path,
+        nargs="+",
+        default=(),
+        metavar="LOG",
+        help="fit on these logs instead of a held-out share",
+    )
     _add_cluster_options(learn)
     _add_topic_options(learn)
     _add_stereo_options(learn)
@@ -222,9 +252,44 @@ def build_parser() -> argparse.ArgumentParser:
     densify.add_argument("--basis", type=Path, required=True, metavar="BASIS.npz")
     densify.add_argument("--rerun", action="store_true", help="stream to a Rerun viewer")
     densify.add_argument("--rrd", type=Path, default=None, metavar="FILE", help="write .rrd")
-    densify.add_argument("--sigma", type=float, default=2.0, metavar="PX")
-    densify.add_argument(
+    estimate = densify.add_argument_group(
+        "estimate (defaults: the best measured combination, docs/results.md)"
+    )
+    estimate.add_argument(
+        "--sigma",
+        default="auto",
+        metavar="PX|evidence|auto",
+        help="measurement noise std: a number (px), 'evidence' (fitted per frame) or 'auto' "
+        "(the basis's fitted value, else 2 px; default)",
+    )
+    estimate.add_argument(
         "--uncertainty", choices=["exact", "paper", "none"], default="exact"
+    )
+    estimate.add_argument(
+        "--prior",
+        choices=["auto", "paper", "hybrid"],
+        default="auto",
+        help="hybrid = basis + fitted local kernel (learn --fit-prior); auto uses it when the "
+        "basis has one (default)",
+    )
+    estimate.add_argument(
+        "--robust",
+        choices=["none", "huber", "cauchy"],
+        default=DEFAULT_ROBUST,
+        help="IRLS against wrong SGBM lookups (default: %(default)s)",
+    )
+    estimate.add_argument(
+        "--temporal",
+        action=argparse.BooleanOptionalAction,
+        default=DEFAULT_TEMPORAL,
+        help="previous frame's posterior as the prior (default: %(default)s)",
+    )
+    estimate.add_argument(
+        "--process-noise",
+        type=float,
+        default=None,
+        metavar="Q",
+        help="temporal prior's process noise, fraction of the eigenvalues (default: fitted)",
     )
     densify.add_argument(
         "--features-topic",

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import itertools
 import json
 import sys
 import time
@@ -181,7 +182,13 @@ class LearnOptions:
         grid_scale: basis grid pixels per image pixel.
         depth_topic: learn from this depth topic (32FC1, m) instead of SGBM maps.
         every: use every N-th frame.
-        sgbm: matcher options for SGBM maps.
+        sgbm: matcher options for SGBM maps (and the fitting frames' lookups).
+        fit_prior: fit the hybrid prior, the noise level and the temporal process noise by
+            the evidence on frames the basis does not see (``fitting.py``).
+        holdout: with ``fit_prior`` and no ``fit_logs``: the share of each log's frames,
+            at its end, kept out of the basis for the fit.
+        fit_logs: fit on these logs (all frames) instead of a held-out share.
+        gftt: corner options of the fitting frames' measurements.
     """
 
     n_components: int = 500
@@ -190,6 +197,10 @@ class LearnOptions:
     depth_topic: str | None = None
     every: int = 1
     sgbm: SgbmConfig = dataclasses.field(default_factory=SgbmConfig)
+    fit_prior: bool = False
+    holdout: float = 0.2
+    fit_logs: tuple[Path, ...] = ()
+    gftt: GfttConfig = dataclasses.field(default_factory=GfttConfig)
 
 
 @dataclass(frozen=True)
@@ -301,10 +312,24 @@ def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: Pairin
     total = None if None in totals else sum(t for t in totals if t is not None)
     info: list[_MapSource] = []
 
+    holding_out = options.fit_prior and not options.fit_logs
+    if holding_out and not 0 < options.holdout < 1:
+        raise PcaInterpError(f"--holdout must be in (0, 1), got {options.holdout}")
+    kept: list[int | None] = [None] * len(logs)
+    if holding_out:
+        for index, count in enumerate(totals):
+            if count is None:
+                raise PcaInterpError(
+                    f"{logs[index]} does not say how many frames it has, so no share can be held "
+                    "out; pass --fit-logs LOG to fit the prior on other logs"
+                )
+            kept[index] = max(1, int(count * (1.0 - options.holdout)))
+        total = sum(k for k in kept if k is not None)
+
     def maps() -> Iterator[npt.NDArray[np.float32]]:
-        for log in logs:
+        for log, keep in zip(logs, kept, strict=True):
             produce = _depth_maps if options.depth_topic else _sgbm_maps
-            for disparity in produce(log, options, pairing, info):
+            for disparity in itertools.islice(produce(log, options, pairing, info), keep):
                 if disparity.shape != info[0].image_size:
                     raise PcaInterpError(
                         f"{log} has {disparity.shape[1]}x{disparity.shape[0]} images but the "
@@ -331,8 +356,6 @@ def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: Pairin
                 f"no {'depth image' if options.depth_topic else 'stereo pair'} found in "
                 f"{', '.join(map(str, logs))}; check the topic options (pcainterp info LOG)"
             )
-        import itertools
-
         try:
             basis = learn_basis(
                 itertools.chain([first], stream),
@@ -345,8 +368,95 @@ def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: Pairin
             )
         except ValueError as err:
             raise PcaInterpError(f"cannot learn a basis from {len(logs)} log(s): {err}") from err
+    if options.fit_prior:
+        if holding_out:
+            sources = [
+                (log, (keep or 0) * options.every) for log, keep in zip(logs, kept, strict=True)
+            ]
+        else:
+            sources = [(log, 0) for log in options.fit_logs]
+        fitted = fit_prior(basis, sources, options, pairing)
+        basis = dataclasses.replace(basis, meta={**basis.meta, "prior": fitted})
     basis.save(output)
     return basis
+
+
+FIT_MAX_FRAMES = 40
+"""Frames used by the evidence fit of the local prior (evenly spread over the fit frames)."""
+
+FIT_SEQUENCE_FRAMES = 30
+"""Consecutive frames per log used to fit the temporal process noise."""
+
+
+def fit_prior(
+    basis: Basis, sources: list[tuple[Path, int]], options: LearnOptions, pairing: PairingConfig
+) -> dict[str, Any]:
+    """Fit the hybrid prior, sigma and the process noise on frames outside the basis.
+
+    Args:
+        basis: the learned basis.
+        sources: (log, first pair index) to measure: GFTT + SGBM lookups of every pair from
+            that index on, as ``densify`` measures them.
+        options: the learning options (SGBM and GFTT settings).
+        pairing: topics of the stereo pairs.
+
+    Returns:
+        The JSON-ready ``meta["prior"]`` of the basis.
+    """
+    from pcainterp_stream.fitting import fit_frame, fit_local_prior, fit_process_noise
+    from pcainterp_stream.stereo import StereoFrontEnd
+
+    front_end = StereoFrontEnd(options.gftt, options.sgbm)
+    sequences: list[list[Any]] = []
+    started = time.perf_counter()
+    with _bar(None, "fit prior (measure held-out frames)") as bar:
+        for log, first in sources:
+            sequence = []
+            with open_log(log) as reader:
+                _require_topics(reader, pairing.required_topics(), "stereo pair")
+                for frame in iter_stereo_frames(reader, pairing):
+                    if frame.index < first:
+                        continue
+                    measured = front_end.measure(frame.left, frame.right)
+                    sequence.append(
+                        fit_frame(
+                            basis,
+                            measured.pixels,
+                            measured.disparities,
+                            image_size=frame.camera.image_size,
+                            focal_baseline=frame.camera.focal_baseline,
+                        )
+                    )
+                    bar.update(1)
+            sequences.append(sequence)
+    frames = [frame for sequence in sequences for frame in sequence if frame.residual.size]
+    if not frames:
+        raise PcaInterpError(
+            "no held-out stereo pair with measurements to fit the prior on; use more frames, a "
+            "larger --holdout or --fit-logs LOG"
+        )
+    step = max(1, len(frames) // FIT_MAX_FRAMES)
+    _echo(f"fitting the prior by the evidence on {len(frames[::step])} held-out frames")
+    local = fit_local_prior(basis, frames[::step])
+    process_noise, scores = fit_process_noise(
+        basis,
+        [sequence[:FIT_SEQUENCE_FRAMES] for sequence in sequences],
+        local=local.local,
+        sigma=local.sigma,
+    )
+    fitted = local.to_meta()
+    fitted.update(
+        {
+            "process_noise": process_noise,
+            "process_noise_log_evidence": {str(q): v for q, v in scores.items()},
+            "candidates": local.table,
+            "fit_frames": len(frames[::step]),
+            "held_out_frames": len(frames),
+            "fit_logs": [str(log) for log, _ in sources],
+            "seconds": round(time.perf_counter() - started, 1),
+        }
+    )
+    return fitted
 
 
 # ----------------------------------------------------------------------------- densify
@@ -366,6 +476,9 @@ class DensifySummary:
         damage: damage found in the input (one line each).
         written: the writer's summary.
         warnings: notes on the input that are not damage (non-monotonic log times).
+        downweighted: measurements the robust loss down-weighted (weight < 0.5), all frames.
+        most_downweighted: the most down-weighted measurements of one frame.
+        temporal_resets: frames whose temporal prior failed the innovation test.
     """
 
     input: Path
@@ -377,6 +490,9 @@ class DensifySummary:
     damage: list[str]
     written: WriteSummary | None
     warnings: list[str] = dataclasses.field(default_factory=list)
+    downweighted: int = 0
+    most_downweighted: int = 0
+    temporal_resets: int = 0
 
     @property
     def frames_per_second(self) -> float:
@@ -412,6 +528,7 @@ def densify(
         raise PcaInterpError("measurement source 'features' needs --features-topic")
     measurements = 0
     frames = 0
+    robust = {"downweighted": 0, "most": 0, "resets": 0}
     with contextlib.ExitStack() as stack:
         reader = stack.enter_context(open_log(input_path))
         _require_topics(reader, pairing.required_topics(), "stereo pair")
@@ -445,6 +562,9 @@ def densify(
                     on_frame(result)
                 measurements += int(result.pixels.shape[0])
                 frames += 1
+                robust["downweighted"] += result.counts.get("downweighted", 0)
+                robust["most"] = max(robust["most"], result.counts.get("downweighted", 0))
+                robust["resets"] += result.counts.get("temporal_reset", 0)
                 bar.update(1)
 
         for raw in reader.messages():
@@ -468,6 +588,9 @@ def densify(
         damage=list(reader.damage),
         written=writer.summary(),
         warnings=list(reader.warnings),
+        downweighted=robust["downweighted"],
+        most_downweighted=robust["most"],
+        temporal_resets=robust["resets"],
     )
 
 
@@ -711,6 +834,36 @@ def _pairing_config(args: argparse.Namespace, features_topic: str | None = None)
     )
 
 
+def _sigma_option(value: str) -> float | str:
+    if value in ("auto", "evidence"):
+        return value
+    try:
+        sigma = float(value)
+    except ValueError:
+        sigma = float("nan")
+    if not 0 < sigma < float("inf"):
+        raise PcaInterpError(f"--sigma must be a number > 0 px, 'evidence' or 'auto', got {value}")
+    return sigma
+
+
+def _check_estimate(processor: ProcessorConfig, basis_path: Path) -> None:
+    """Refuse estimate options that do not fit the basis, before any work is done."""
+    if processor.prior == "paper" and not processor.temporal:
+        return
+    from pcainterp_stream.processor import resolve_settings
+
+    try:
+        settings = resolve_settings(Basis.load(basis_path), processor)
+    except ValueError as err:
+        raise PcaInterpError(f"--prior {processor.prior} with {basis_path}: {err}") from err
+    if processor.uncertainty == "paper" and (settings.local_prior or processor.temporal):
+        raise PcaInterpError(
+            "--uncertainty paper is the paper's diagonal approximation of its own prior, but "
+            f"{basis_path} has a fitted local prior or --temporal is on; pass --prior paper "
+            "--no-temporal with it, or use --uncertainty exact"
+        )
+
+
 def _print_written(summary: WriteSummary) -> None:
     duration = ((summary.end_ns or 0) - (summary.start_ns or 0)) / 1e9
     _echo(f"wrote {summary.path}: {summary.message_count} messages, {duration:.1f} s of log")
@@ -778,9 +931,17 @@ def run(args: argparse.Namespace) -> int:
             depth_topic=args.depth_topic,
             every=args.every,
             sgbm=_sgbm_config(args),
+            fit_prior=args.fit_prior or bool(args.fit_logs),
+            holdout=args.holdout,
+            fit_logs=tuple(args.fit_logs),
         )
         if args.workers is not None and args.workers < 1:
             raise PcaInterpError(f"--workers must be at least 1, got {args.workers}")
+        if options.fit_prior and (args.scheduler is not None or args.workers is not None):
+            raise PcaInterpError(
+                "--fit-prior runs in this process; learn on the cluster without it, or drop "
+                "--scheduler/--workers"
+            )
         if args.scheduler is not None or args.workers is not None:
             from pcainterp_stream import distributed
 
@@ -798,16 +959,21 @@ def run(args: argparse.Namespace) -> int:
         _echo(describe_basis(args.output))
         del basis
     elif command == "densify":
-        if not 0 < args.sigma < float("inf"):
-            raise PcaInterpError(f"--sigma must be > 0 px, got {args.sigma}")
         source = MeasurementSource.FEATURES if args.features_topic else MeasurementSource.STEREO
+        if args.process_noise is not None and not 0 < args.process_noise < float("inf"):
+            raise PcaInterpError(f"--process-noise must be > 0, got {args.process_noise}")
         processor = ProcessorConfig(
             gftt=_gftt_config(args),
             sgbm=_sgbm_config(args),
-            sigma=args.sigma,
+            sigma=_sigma_option(args.sigma),
             uncertainty=args.uncertainty,
+            prior=args.prior,
+            robust=args.robust,
+            temporal=args.temporal,
+            process_noise=args.process_noise,
             source=source,
         )
+        _check_estimate(processor, args.basis)
         if args.out_dir is not None:
             return _densify_many(args, processor)
         if len(args.input) > 1:
@@ -833,6 +999,14 @@ def run(args: argparse.Namespace) -> int:
             f"{summary.measurements / max(summary.frames, 1):.0f} points per frame"
         )
         _echo(f"pairing: {summary.pairing.summary()}")
+        if processor.robust != "none":
+            _echo(
+                f"robust ({processor.robust}): {summary.downweighted} measurements down-weighted "
+                f"({summary.downweighted / max(summary.frames, 1):.1f} per frame, at most "
+                f"{summary.most_downweighted} in one frame)"
+            )
+        if processor.temporal:
+            _echo(f"temporal prior: reset {summary.temporal_resets} times (scene changes)")
         for line in summary.damage:
             _echo(f"damage: {line}")
         for line in summary.warnings:

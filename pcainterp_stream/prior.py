@@ -255,13 +255,3 @@ def robust_weights(standardised: FloatArray, robust: Robust) -> FloatArray:
     if robust is Robust.HUBER:
         return np.minimum(1.0, scale / np.maximum(magnitude, 1e-12))
     return 1.0 / (1.0 + (magnitude / scale) ** 2)
-
-
-def log_evidence(lower: FloatArray, innovation: FloatArray) -> float:
-    """Return log N(innovation; 0, K) from the Cholesky factor L of K (nats)."""
-    solved = np.linalg.solve(lower, innovation) if innovation.size else innovation
-    return float(
-        -0.5 * solved @ solved
-        - np.log(np.diag(lower)).sum()
-        - 0.5 * innovation.size * math.log(2.0 * math.pi)
-    )

@@ -35,6 +35,7 @@ import numpy.typing as npt
 
 from pcainterp_stream.basis import Basis
 from pcainterp_stream.estimator import densify_batch
+from pcainterp_stream.prior import LocalPrior, TemporalPrior
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoCamera, StereoFrame
 from pcainterp_stream.stereo import GfttConfig, SgbmConfig, StereoFrontEnd
 
@@ -55,8 +56,15 @@ class ProcessorConfig:
     Attributes:
         gftt: corner detector options.
         sgbm: stereo matcher options.
-        sigma: measurement noise std (px) of the MAP estimate.
+        sigma: measurement noise std (px) of the MAP estimate, "evidence" (fitted per
+            frame) or "auto" (the basis's fitted sigma when it has one, else 2 px).
         uncertainty: "exact", "paper" or "none".
+        prior: "auto" (hybrid when the basis has a fitted local prior, else the paper's),
+            "paper" or "hybrid" (needs a basis learned with ``--fit-prior``).
+        robust: IRLS loss on the measurements: "none", "huber" or "cauchy".
+        temporal: carry each frame's posterior into the next frame's prior.
+        process_noise: the temporal prior's process noise (fraction of the eigenvalues);
+            None: the basis's fitted value, else 0.1.
         source: measurement source.
         batch_size: frames densified together (matrix-matrix products).
         lookahead: frames queued for stereo matching ahead of densification; at least
@@ -75,8 +83,12 @@ class ProcessorConfig:
 
     gftt: GfttConfig = field(default_factory=GfttConfig)
     sgbm: SgbmConfig = field(default_factory=SgbmConfig)
-    sigma: float = 2.0
+    sigma: float | str = "auto"
     uncertainty: str = "exact"
+    prior: str = "auto"
+    robust: str = "none"
+    temporal: bool = False
+    process_noise: float | None = None
     source: MeasurementSource = MeasurementSource.STEREO
     batch_size: int = 4
     lookahead: int = 4
@@ -97,6 +109,57 @@ class ProcessorConfig:
             value = getattr(self, name)
             if value is not None and value < 1:
                 raise ValueError(f"{name} must be >= 1 or None, got {value}")
+
+
+@dataclass(frozen=True)
+class EstimateSettings:
+    """The estimate's settings once the basis's fitted values are filled in.
+
+    Attributes:
+        sigma: noise std (px) or "evidence".
+        local_prior: the local kernel of the hybrid prior, or None.
+        process_noise: the temporal prior's process noise.
+    """
+
+    sigma: float | str
+    local_prior: LocalPrior | None
+    process_noise: float
+
+
+def resolve_settings(basis: Basis, config: ProcessorConfig) -> EstimateSettings:
+    """Fill the "auto" settings of a configuration from the basis's fitted prior.
+
+    Args:
+        basis: the basis; ``basis.meta["prior"]`` holds what ``learn --fit-prior`` fitted.
+        config: the processor options.
+
+    Returns:
+        The :class:`EstimateSettings`.
+
+    Raises:
+        ValueError: ``prior="hybrid"`` with a basis that has no fitted local prior, or an
+            unknown option value.
+    """
+    fitted = basis.meta.get("prior") if isinstance(basis.meta, dict) else None
+    fitted = fitted if isinstance(fitted, dict) else {}
+    if config.prior not in ("auto", "paper", "hybrid"):
+        raise ValueError(f'Expected prior "auto", "paper" or "hybrid", got {config.prior!r}')
+    local = None
+    if config.prior != "paper" and fitted.get("local"):
+        local = LocalPrior.from_meta(fitted["local"])
+    if config.prior == "hybrid" and local is None:
+        raise ValueError(
+            "the basis has no fitted local prior; learn it with `pcainterp learn --fit-prior` "
+            "or pass --prior paper"
+        )
+    sigma: float | str = config.sigma
+    if sigma == "auto":
+        key = "sigma" if local is not None else "plain_sigma"
+        sigma = float(fitted[key]) if key in fitted else 2.0
+    process_noise = config.process_noise
+    if process_noise is None:
+        process_noise = float(fitted.get("process_noise", 0.1))
+    return EstimateSettings(sigma=sigma, local_prior=local, process_noise=process_noise)
 
 
 class _Measured(NamedTuple):
@@ -223,6 +286,12 @@ class FrameProcessor:
         self._pending: deque[Future[_Measured]] = deque()
         self._ready: list[_Measured] = []
         self.frames_done = 0
+        self.settings = resolve_settings(basis, self.config)
+        self.temporal = (
+            TemporalPrior(process_noise=self.settings.process_noise)
+            if self.config.temporal
+            else None
+        )
 
     def __enter__(self) -> FrameProcessor:
         return self
@@ -298,14 +367,19 @@ class FrameProcessor:
                 self.basis,
                 [item.pixels for item in group],
                 [item.disparities for item in group],
-                sigma=self.config.sigma,
+                sigma=self.settings.sigma,
                 uncertainty=self.config.uncertainty,
                 image_size=camera.image_size,
                 focal_baseline=camera.focal_baseline,
+                local_prior=self.settings.local_prior,
+                robust=self.config.robust,
+                temporal=self.temporal,
             )
             for item, estimate in zip(group, estimates, strict=True):
                 counts = dict(item.counts)
                 counts["dropped"] = int(estimate.n_dropped)
+                counts["downweighted"] = int(estimate.n_downweighted)
+                counts["temporal_reset"] = int(estimate.temporal == "reset")
                 unknown = _unknown(estimate.disparity.shape)
                 results.append(
                     DensifiedFrame(

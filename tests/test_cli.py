@@ -1003,9 +1003,12 @@ def test_densify_output_is_a_folder(
 @pytest.mark.parametrize(
     ("option", "value", "expected"),
     [
-        ("--sigma", "0", "--sigma must be > 0 px, got 0.0"),
-        ("--sigma", "-1", "--sigma must be > 0 px"),
-        ("--sigma", "nan", "--sigma must be > 0 px, got nan"),
+        ("--sigma", "0", "--sigma must be a number > 0 px, 'evidence' or 'auto', got 0"),
+        ("--sigma", "-1", "--sigma must be a number > 0 px"),
+        ("--sigma", "nan", "--sigma must be a number > 0 px, 'evidence' or 'auto', got nan"),
+        ("--sigma", "fitted", "--sigma must be a number > 0 px, 'evidence' or 'auto', got fitted"),
+        ("--process-noise", "0", "--process-noise must be > 0, got 0.0"),
+        ("--prior", "hybrid", "--prior hybrid with"),
         ("--num-disparities", "20", "--num-disparities must be a positive multiple of 16, got 20"),
         ("--num-disparities", "0", "--num-disparities must be a positive multiple of 16"),
         ("--block-size", "4", "--block-size must be odd and positive, got 4"),

@@ -1,0 +1,606 @@
+"""Experiments of issue 7 (beyond the paper): every addition on held-out synthetic and KITTI.
+
+Stages, each cached in ``--work`` (an interrupted run resumes):
+
+1. ``prepare``: synthetic logs (basis training seeds 101-104, a fitting log of seed 150, a
+   test log of seed 201) and the two real KITTI clips of ``../shared/realdata`` as MCAP;
+   per frame the measurements of the densify front end (GFTT + SGBM lookups, default
+   settings), a dense set of strongest-first lookups for the points sweep, the reference
+   (ground truth for synthetic, SGBM for KITTI), poses, and every map preprocessed onto the
+   basis grid (SGBM and, for synthetic, ground truth).
+2. ``bases``: bases on the synthetic camera's grid (310x94): synthetic ground truth,
+   real-only, and synthetic+real mixes; their hyperparameters (local kernel, sigma,
+   process noise) fitted by the evidence on frames outside each basis.
+3. ``evaluate``: plain PCA-MAP, each addition alone, all together, nearest neighbour and
+   linear on the held-out splits; mean Delta_2D (the paper's, via
+   ``pcainterp_stream.evaluation``), depth RMSE, +-2 sigma coverage, time per frame; the
+   points sweep (50-800); the training-mix table. Writes ``results.json`` and
+   ``results.md``.
+
+    python tools/run_beyond.py --work /tmp/beyond            # all stages
+
+Splits: synthetic: basis from seeds 101-104 (ground truth), hyperparameters fitted on
+seed 150, tested on seed 201 (temporal mode, ground truth). KITTI A: basis from the raw
+drive (first 80 % of its frames; the last 20 % fit the hyperparameters), tested on the
+odometry clip (stereo mode, SGBM reference); KITTI B the reverse.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream import jobs, rosmsg
+from pcainterp_stream.baselines import linear, nearest
+from pcainterp_stream.basis import Basis, grid_size_for
+from pcainterp_stream.estimator import densify_batch
+from pcainterp_stream.evaluation import (
+    calibration_sums,
+    depth_errors,
+    disparity_from_depth,
+    projection_errors,
+    reference_view,
+    relative_transform,
+    stereo_transform,
+)
+from pcainterp_stream.fitting import fit_frame, fit_local_prior, fit_process_noise
+from pcainterp_stream.learning import learn_basis, preprocess_disparity
+from pcainterp_stream.logreader import open_log
+from pcainterp_stream.pairing import PairingConfig, iter_stereo_frames
+from pcainterp_stream.prior import LocalPrior, TemporalPrior
+from pcainterp_stream.records import StereoCamera
+from pcainterp_stream.stereo import (
+    GfttConfig,
+    SgbmConfig,
+    StereoFrontEnd,
+    detect_corners,
+    lookup_disparities,
+    to_grey8,
+)
+
+REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+KITTI = {
+    "raw": REALDATA / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0001_sync",
+    "odometry": REALDATA / "kitti_odometry_clip" / "sequences" / "a",
+}
+TRAIN_SEEDS = (101, 102, 103, 104)
+FIT_SEED = 150
+TEST_SEED = 201
+GRID_SCALE = 0.25
+SWEEP_POINTS = (50, 100, 200, 400, 800)
+FloatArray = npt.NDArray[np.float64]
+
+
+def _log(text: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')}] {text}", flush=True)
+
+
+# ----------------------------------------------------------------------------- prepare
+
+
+@dataclass
+class LogData:
+    """Cached per-frame data of one log."""
+
+    camera: StereoCamera
+    pixels: list[FloatArray]
+    disparities: list[FloatArray]
+    many_pixels: list[FloatArray]
+    many_disparities: list[FloatArray]
+    poses: FloatArray | None  # (F, 4, 4) camera to world
+    reference_path: Path  # (F, H, W) float32 .npy, NaN where invalid
+    grid_sgbm: npt.NDArray[np.float32]  # (F, gh, gw), basis units
+    grid_truth: npt.NDArray[np.float32] | None
+
+    @property
+    def frames(self) -> int:
+        return len(self.pixels)
+
+    def reference(self) -> npt.NDArray[np.float32]:
+        return np.load(self.reference_path, mmap_mode="r")  # type: ignore[no-any-return]
+
+
+def _split(arrays: list[FloatArray]) -> tuple[FloatArray, npt.NDArray[np.int64]]:
+    lengths = np.array([a.shape[0] for a in arrays], dtype=np.int64)
+    joined = np.concatenate(arrays) if arrays else np.zeros(0)
+    return joined, np.concatenate([[0], np.cumsum(lengths)])
+
+
+def _unsplit(joined: FloatArray, offsets: npt.NDArray[np.int64]) -> list[FloatArray]:
+    return [joined[a:b] for a, b in zip(offsets[:-1], offsets[1:], strict=True)]
+
+
+def _truth_and_poses(
+    log: Path, camera_fb: float
+) -> tuple[list[FloatArray], list[FloatArray]]:
+    depths: list[FloatArray] = []
+    poses: list[FloatArray] = []
+    with open_log(log) as reader:
+        for raw in reader.messages(["/ground_truth/depth", "/ground_truth/pose"]):
+            message = reader.decode(raw)
+            if raw.topic == "/ground_truth/depth":
+                depth = rosmsg.image_array(message).astype(np.float32)
+                depths.append(disparity_from_depth(depth, camera_fb))
+            else:
+                poses.append(rosmsg.pose_matrix(message))
+    return depths, poses
+
+
+def prepare_log(
+    log: Path, cache: Path, basis_camera: tuple[tuple[int, int], float], *, truth: bool
+) -> LogData:
+    """Compute (once) and return the cached per-frame data of a log."""
+    npz = cache.with_suffix(".npz")
+    reference_path = cache.with_name(cache.name + "_reference.npy")
+    basis_size, basis_fb = basis_camera
+    grid = grid_size_for(basis_size, GRID_SCALE)
+    if not npz.is_file():
+        front_end = StereoFrontEnd()
+        sweep_gftt = GfttConfig(max_corners=4 * max(SWEEP_POINTS), min_distance=5.0)
+        camera: StereoCamera | None = None
+        pixels, disparities, many_pixels, many_disparities = [], [], [], []
+        grid_sgbm, sgbm_maps = [], []
+        with open_log(log) as reader:
+            for frame in iter_stereo_frames(reader, PairingConfig()):
+                camera = frame.camera
+                measured = front_end.measure(frame.left, frame.right)
+                pixels.append(measured.pixels.astype(np.float64))
+                disparities.append(measured.disparities.astype(np.float64))
+                corners = detect_corners(
+                    to_grey8(frame.left), sweep_gftt, min_x=front_end.sgbm.valid_min_x
+                )
+                found = lookup_disparities(measured.disparity_map, corners)
+                many_pixels.append(found.pixels.astype(np.float64))
+                many_disparities.append(found.disparities.astype(np.float64))
+                scale = np.float32(basis_fb / camera.focal_baseline)
+                grid_sgbm.append(preprocess_disparity(measured.disparity_map * scale, grid))
+                if not truth:
+                    sgbm_maps.append(measured.disparity_map.astype(np.float32))
+        assert camera is not None
+        arrays: dict[str, Any] = {
+            "camera": np.array(
+                [camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy,
+                 camera.baseline]
+            ),
+            "grid_sgbm": np.stack(grid_sgbm),
+        }
+        for name, values in (
+            ("pixels", pixels), ("disparities", disparities),
+            ("many_pixels", many_pixels), ("many_disparities", many_disparities),
+        ):
+            arrays[name], arrays[name + "_offsets"] = _split(values)
+        if truth:
+            references, poses = _truth_and_poses(log, camera.focal_baseline)
+            references = references[: len(pixels)]
+            scale = np.float32(basis_fb / camera.focal_baseline)
+            arrays["grid_truth"] = np.stack(
+                [preprocess_disparity(r.astype(np.float32) * scale, grid) for r in references]
+            )
+            arrays["poses"] = np.stack(poses[: len(pixels)])
+            np.save(reference_path, np.stack(references).astype(np.float32))
+        else:
+            np.save(reference_path, np.stack(sgbm_maps))
+        np.savez(npz, **arrays)
+    data = np.load(npz)
+    c = data["camera"]
+    camera = StereoCamera(int(c[0]), int(c[1]), *map(float, c[2:]))
+    return LogData(
+        camera=camera,
+        pixels=_unsplit(data["pixels"], data["pixels_offsets"]),
+        disparities=_unsplit(data["disparities"], data["disparities_offsets"]),
+        many_pixels=_unsplit(data["many_pixels"], data["many_pixels_offsets"]),
+        many_disparities=_unsplit(data["many_disparities"], data["many_disparities_offsets"]),
+        poses=data["poses"] if "poses" in data.files else None,
+        reference_path=reference_path,
+        grid_sgbm=data["grid_sgbm"],
+        grid_truth=data["grid_truth"] if "grid_truth" in data.files else None,
+    )
+
+
+# ----------------------------------------------------------------------------- bases
+
+
+def _learn(
+    maps: npt.NDArray[np.float32], basis_camera: tuple[tuple[int, int], float], components: int,
+    source: str,
+) -> Basis:
+    size, fb = basis_camera
+    return learn_basis(
+        iter(maps), n_components=min(components, maps.shape[0] - 1), grid_scale=GRID_SCALE,
+        preprocessed=True, image_size=size, focal_baseline=fb, meta={"source": source},
+    )
+
+
+def fit_hyperparameters(
+    basis: Basis, fit_logs: Sequence[tuple[LogData, slice]], max_frames: int = 40
+) -> dict[str, Any]:
+    """Evidence fit of the local prior, sigma and the process noise on held-out frames."""
+    sequences = []
+    for data, frames in fit_logs:
+        indices = list(range(data.frames))[frames]
+        sequences.append(
+            [
+                fit_frame(
+                    basis, data.pixels[i], data.disparities[i],
+                    image_size=data.camera.image_size, focal_baseline=data.camera.focal_baseline,
+                )
+                for i in indices
+            ]
+        )
+    flat = [frame for sequence in sequences for frame in sequence]
+    step = max(1, len(flat) // max_frames)
+    started = time.perf_counter()
+    local = fit_local_prior(basis, flat[::step])
+    q, scores = fit_process_noise(
+        basis, [s[:30] for s in sequences], local=local.local, sigma=local.sigma
+    )
+    meta = local.to_meta()
+    meta["process_noise"] = q
+    meta["process_noise_scores"] = {str(k): v for k, v in scores.items()}
+    meta["table"] = local.table
+    meta["fit_frames"] = len(flat[::step])
+    meta["fit_seconds"] = round(time.perf_counter() - started, 1)
+    return meta
+
+
+# ----------------------------------------------------------------------------- evaluate
+
+
+@dataclass(frozen=True)
+class Method:
+    """One configuration of the estimate (or a baseline)."""
+
+    name: str
+    local: bool = False
+    robust: str = "none"
+    temporal: bool = False
+    evidence_sigma: bool = False
+    fitted_sigma: bool = False
+    baseline: str | None = None
+
+
+METHODS = (
+    Method("plain PCA-MAP (paper, sigma 2 px)"),
+    Method("+ hybrid local prior", local=True, fitted_sigma=True),
+    Method("+ robust (Cauchy)", robust="cauchy"),
+    Method("+ robust (Huber)", robust="huber"),
+    Method("+ temporal prior", temporal=True),
+    Method("+ sigma by evidence (per frame)", evidence_sigma=True),
+    Method("+ sigma by evidence (fitted on training)", fitted_sigma=True),
+    Method(
+        "all: hybrid + Cauchy + temporal + fitted sigma",
+        local=True, robust="cauchy", temporal=True, fitted_sigma=True,
+    ),
+    Method("hybrid + Cauchy + fitted sigma", local=True, robust="cauchy", fitted_sigma=True),
+    Method("hybrid + temporal + fitted sigma", local=True, temporal=True, fitted_sigma=True),
+    Method("nearest neighbour", baseline="nearest"),
+    Method("linear", baseline="linear"),
+)
+
+
+@dataclass
+class Sums:
+    """Accumulated metrics of one method on one split."""
+
+    delta_2d: float = 0.0
+    delta_2d_n: float = 0.0
+    depth_sq: float = 0.0
+    depth_n: float = 0.0
+    inside_2: float = 0.0
+    inside_1: float = 0.0
+    calibration_n: float = 0.0
+    seconds: float = 0.0
+    frames: int = 0
+    downweighted: int = 0
+    resets: int = 0
+    sigma_sum: float = 0.0
+
+    def summary(self) -> dict[str, float]:
+        return {
+            "delta_2d_mean": self.delta_2d / max(self.delta_2d_n, 1.0),
+            "depth_rmse": float(np.sqrt(self.depth_sq / max(self.depth_n, 1.0))),
+            "coverage_1": self.inside_1 / self.calibration_n if self.calibration_n else float("nan"),
+            "coverage_2": self.inside_2 / self.calibration_n if self.calibration_n else float("nan"),
+            "ms_per_frame": 1000.0 * self.seconds / max(self.frames, 1),
+            "downweighted_per_frame": self.downweighted / max(self.frames, 1),
+            "temporal_resets": float(self.resets),
+            "mean_sigma": self.sigma_sum / max(self.frames, 1),
+        }
+
+
+def _transform(data: LogData, index: int, mode: str) -> FloatArray:
+    if mode == "stereo":
+        return stereo_transform(data.camera)
+    assert data.poses is not None
+    return relative_transform(data.poses[index], data.poses[index + 1])
+
+
+def _estimates(
+    method: Method, basis: Basis, hyper: dict[str, Any], data: LogData,
+    points: Callable[[int], tuple[FloatArray, FloatArray]], frames: Sequence[int],
+) -> Iterator[tuple[int, FloatArray, FloatArray | None, float, dict[str, int | float]]]:
+    """Yield (frame, disparity, std, seconds, extras) of a method over frames in order."""
+    camera = data.camera
+    local = None
+    if method.local and hyper.get("local"):
+        local = LocalPrior.from_meta(hyper["local"])
+    sigma: float | str = 2.0
+    if method.evidence_sigma:
+        sigma = "evidence"
+    elif method.fitted_sigma:
+        sigma = float(hyper["sigma"] if method.local else hyper["plain_sigma"])
+    state = (
+        TemporalPrior(process_noise=float(hyper["process_noise"])) if method.temporal else None
+    )
+    for index in frames:
+        pixels, disparities = points(index)
+        started = time.perf_counter()
+        if method.baseline is not None:
+            interpolate = nearest if method.baseline == "nearest" else linear
+            result = interpolate(pixels, disparities, image_size=camera.image_size)
+            seconds = time.perf_counter() - started
+            yield index, result.disparity.astype(np.float64), None, seconds, {}
+            continue
+        estimate = densify_batch(
+            basis, [pixels], [disparities], sigma=sigma, local_prior=local,
+            robust=method.robust, temporal=state, image_size=camera.image_size,
+            focal_baseline=camera.focal_baseline,
+        )[0]
+        seconds = time.perf_counter() - started
+        extras: dict[str, int | float] = {
+            "downweighted": estimate.n_downweighted,
+            "reset": int(estimate.temporal == "reset"),
+            "sigma": estimate.sigma,
+        }
+        assert estimate.disparity_std is not None
+        yield (
+            index, estimate.disparity.astype(np.float64),
+            estimate.disparity_std.astype(np.float64), seconds, extras,
+        )
+
+
+def evaluate_split(
+    basis: Basis, hyper: dict[str, Any], data: LogData, mode: str,
+    methods: Sequence[Method], max_frames: int | None,
+) -> dict[str, dict[str, float]]:
+    """Run every method over a test log; return its metrics."""
+    count = data.frames - (1 if mode == "temporal" else 0)
+    frames = list(range(count if max_frames is None else min(count, max_frames)))
+    references = data.reference()
+    views = {}
+    for index in frames:
+        transform = _transform(data, index, mode)
+        views[index] = reference_view(references[index], data.camera, transform)
+    results: dict[str, dict[str, float]] = {}
+    for method in methods:
+        sums = Sums()
+
+        def points(index: int) -> tuple[FloatArray, FloatArray]:
+            return data.pixels[index], data.disparities[index]
+
+        for index, estimate, std, seconds, extras in _estimates(
+            method, basis, hyper, data, points, frames
+        ):
+            transform = _transform(data, index, mode)
+            view = views[index]
+            delta_2d, _ = projection_errors(estimate, view, data.camera, transform)
+            counted = np.isfinite(delta_2d)
+            sums.delta_2d += float(delta_2d[counted].sum())
+            sums.delta_2d_n += float(counted.sum())
+            depth = depth_errors(
+                estimate, view.disparity, view.counted,
+                focal_baseline=data.camera.focal_baseline,
+            )
+            sums.depth_sq += depth["sq"]
+            sums.depth_n += depth["n"]
+            if std is not None:
+                calibration = calibration_sums(estimate, std, view.disparity, view.counted)
+                sums.inside_1 += calibration["inside_1"]
+                sums.inside_2 += calibration["inside_2"]
+                sums.calibration_n += calibration["n"]
+            sums.seconds += seconds
+            sums.frames += 1
+            sums.downweighted += int(extras.get("downweighted", 0))
+            sums.resets += int(extras.get("reset", 0))
+            sums.sigma_sum += float(extras.get("sigma", 0.0))
+        results[method.name] = sums.summary()
+        _log(f"  {method.name}: {results[method.name]}")
+    return results
+
+
+def sweep_split(
+    basis: Basis, hyper: dict[str, Any], data: LogData, mode: str,
+    methods: Sequence[Method], max_frames: int | None,
+) -> dict[str, dict[str, float]]:
+    """Mean Delta_2D against the number of points (strongest-first lookups)."""
+    count = data.frames - (1 if mode == "temporal" else 0)
+    frames = list(range(count if max_frames is None else min(count, max_frames)))
+    references = data.reference()
+    out: dict[str, dict[str, float]] = {}
+    for n_points in SWEEP_POINTS:
+        row: dict[str, float] = {}
+        for method in methods:
+
+            def points(index: int, n: int = n_points) -> tuple[FloatArray, FloatArray]:
+                return data.many_pixels[index][:n], data.many_disparities[index][:n]
+
+            total, n = 0.0, 0.0
+            for index, estimate, _, _, _ in _estimates(
+                method, basis, hyper, data, points, frames
+            ):
+                transform = _transform(data, index, mode)
+                view = reference_view(references[index], data.camera, transform)
+                delta_2d, _ = projection_errors(estimate, view, data.camera, transform)
+                total += float(np.nansum(delta_2d))
+                n += float(np.isfinite(delta_2d).sum())
+            row[method.name] = total / max(n, 1.0)
+        out[str(n_points)] = row
+        _log(f"  sweep {n_points}: {row}")
+    return out
+
+
+# ----------------------------------------------------------------------------- main
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the experiments; return the exit code."""
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    parser.add_argument("--work", type=Path, required=True, help="cache and output folder")
+    parser.add_argument("--train-frames", type=int, default=300, help="per training seed")
+    parser.add_argument("--fit-frames", type=int, default=60)
+    parser.add_argument("--test-frames", type=int, default=101)
+    parser.add_argument("--components", type=int, default=500)
+    parser.add_argument("--max-test-frames", type=int, default=None)
+    parser.add_argument("--sweep-frames", type=int, default=20)
+    parser.add_argument(
+        "--stages", nargs="+", default=["prepare", "bases", "evaluate", "sweep", "mix"]
+    )
+    parser.add_argument("--methods", nargs="*", default=None, help="names of METHODS to run")
+    args = parser.parse_args(argv)
+    work: Path = args.work
+    work.mkdir(parents=True, exist_ok=True)
+    results_path = work / "results.json"
+    results: dict[str, Any] = (
+        json.loads(results_path.read_text()) if results_path.is_file() else {}
+    )
+
+    def save() -> None:
+        results_path.write_text(json.dumps(results, indent=1) + "\n")
+
+    # synthetic logs
+    logs = {f"train_{s}": (s, args.train_frames) for s in TRAIN_SEEDS}
+    logs[f"fit_{FIT_SEED}"] = (FIT_SEED, args.fit_frames)
+    logs[f"test_{TEST_SEED}"] = (TEST_SEED, args.test_frames)
+    for name, (seed, frames) in logs.items():
+        path = work / f"{name}.mcap"
+        if not path.is_file():
+            _log(f"synth {name}")
+            jobs.synth(path, frames=frames, seed=seed, scale=1.0, fmt="mcap")
+    real = {}
+    for name, folder in KITTI.items():
+        if folder.is_dir():
+            path = work / f"kitti_{name}.mcap"
+            if not path.is_file():
+                jobs.import_kitti(folder, path, max_frames=None)
+            real[name] = path
+    with open_log(work / f"test_{TEST_SEED}.mcap") as reader:
+        first = next(iter_stereo_frames(reader, PairingConfig()))
+    basis_camera = (first.camera.image_size, first.camera.focal_baseline)
+
+    data: dict[str, LogData] = {}
+    for name in logs:
+        _log(f"prepare {name}")
+        data[name] = prepare_log(work / f"{name}.mcap", work / f"cache_{name}", basis_camera,
+                                 truth=True)
+    for name, path in real.items():
+        _log(f"prepare kitti {name}")
+        data[f"kitti_{name}"] = prepare_log(path, work / f"cache_kitti_{name}", basis_camera,
+                                            truth=False)
+    if "prepare" in args.stages and len(args.stages) == 1:
+        return 0
+
+    # bases and their hyperparameters
+    def basis_for(name: str, maps: Callable[[], npt.NDArray[np.float32]], source: str,
+                  fit_logs: Callable[[], Sequence[tuple[LogData, slice]]]) -> tuple[Basis,
+                                                                                  dict[str, Any]]:
+        path = work / f"basis_{name}.npz"
+        if not path.is_file():
+            _log(f"learn {name}")
+            basis = _learn(maps(), basis_camera, args.components, source)
+            _log(f"fit hyperparameters {name}")
+            prior = fit_hyperparameters(basis, fit_logs())
+            basis = dataclasses.replace(basis, meta={**basis.meta, "prior": prior})
+            basis.save(path)
+        basis = Basis.load(path)
+        _log(f"{name}: prior {json.dumps({k: v for k, v in basis.meta['prior'].items() if k != 'table'})}")
+        return basis, basis.meta["prior"]
+
+    synth_truth = np.concatenate(
+        [data[f"train_{s}"].grid_truth for s in TRAIN_SEEDS]  # type: ignore[misc]
+    )
+    synth_sgbm = np.concatenate([data[f"train_{s}"].grid_sgbm for s in TRAIN_SEEDS])
+    splits: list[tuple[str, str, str, Basis, dict[str, Any]]] = []
+    basis, hyper = basis_for(
+        "synthetic", lambda: synth_truth, "synthetic ground truth, seeds 101-104",
+        lambda: [(data[f"fit_{FIT_SEED}"], slice(None))],
+    )
+    splits.append(("synthetic", f"test_{TEST_SEED}", "temporal", basis, hyper))
+    if len(real) == 2:
+        for split, train, test in (("kitti_a", "raw", "odometry"), ("kitti_b", "odometry", "raw")):
+            train_data = data[f"kitti_{train}"]
+            cut = int(round(0.8 * train_data.frames))
+            basis, hyper = basis_for(
+                f"{split}_real", lambda t=train_data, c=cut: t.grid_sgbm[:c],
+                f"SGBM, KITTI {train} frames 0-{cut - 1}",
+                lambda t=train_data, c=cut: [(t, slice(c, None))],
+            )
+            splits.append((split, f"kitti_{test}", "stereo", basis, hyper))
+
+    methods = [m for m in METHODS if args.methods is None or m.name in args.methods]
+    if "evaluate" in args.stages:
+        for split, test, mode, basis, hyper in splits:
+            _log(f"evaluate {split} on {test} ({mode})")
+            results.setdefault("evaluate", {})[split] = evaluate_split(
+                basis, hyper, data[test], mode, methods, args.max_test_frames
+            )
+            save()
+    if "sweep" in args.stages:
+        for split, test, mode, basis, hyper in splits:
+            _log(f"sweep {split}")
+            results.setdefault("sweep", {})[split] = sweep_split(
+                basis, hyper, data[test], mode,
+                [m for m in methods if m.name in {
+                    METHODS[0].name, METHODS[7].name, METHODS[8].name, METHODS[9].name,
+                    "nearest neighbour", "linear"}],
+                args.sweep_frames,
+            )
+            save()
+    if "mix" in args.stages and len(real) == 2:
+        mix_methods = [METHODS[0], METHODS[8], METHODS[10]]
+        for split, train, test in (("kitti_a", "raw", "odometry"), ("kitti_b", "odometry", "raw")):
+            train_data = data[f"kitti_{train}"]
+            cut = int(round(0.8 * train_data.frames))
+            real_maps = train_data.grid_sgbm[:cut]
+            for share in (0, 250, 1000):
+                name = f"{split}_mix{share}"
+                synthetic_part = synth_sgbm[:: max(1, synth_sgbm.shape[0] // share)][:share] if share else synth_sgbm[:0]
+                basis, hyper = basis_for(
+                    name, lambda r=real_maps, s=synthetic_part: np.concatenate([s, r]),
+                    f"SGBM: {synthetic_part.shape[0]} synthetic + {cut} KITTI {train}",
+                    lambda t=train_data, c=cut: [(t, slice(c, None))],
+                )
+                _log(f"mix {name}")
+                results.setdefault("mix", {})[name] = {
+                    "synthetic_maps": int(synthetic_part.shape[0]),
+                    "real_maps": int(real_maps.shape[0]),
+                    **evaluate_split(basis, hyper, data[f"kitti_{test}"], "stereo",
+                                     mix_methods, args.max_test_frames),
+                }
+                save()
+            # synthetic only
+            name = f"{split}_synthonly"
+            basis, hyper = basis_for(
+                name, lambda: synth_sgbm, "SGBM: synthetic only",
+                lambda t=train_data, c=cut: [(t, slice(c, None))],
+            )
+            results.setdefault("mix", {})[name] = {
+                "synthetic_maps": int(synth_sgbm.shape[0]), "real_maps": 0,
+                **evaluate_split(basis, hyper, data[f"kitti_{test}"], "stereo", mix_methods,
+                                 args.max_test_frames),
+            }
+            save()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
