@@ -207,8 +207,8 @@ def pointcloud2_message(
         frame_id: header frame id.
 
     Returns:
-        The message, little endian; ``is_dense`` only when every value is finite (PCL and
-        Foxglove skip the NaN checks of a dense cloud).
+        The message, little endian; ``is_dense`` only when every value is finite (readers
+        such as PCL skip their NaN checks on a dense cloud).
     """
     names = list(fields)
     n = len(next(iter(fields.values()))) if fields else 0
