@@ -295,6 +295,8 @@ def test_js_decodes_every_output_message(js_output: dict[str, Any], outputs: lis
             assert decoded["row_step"] == decoded["point_step"] * decoded["width"]
             assert decoded["data_length"] == decoded["row_step"]
             assert decoded["width"] == message.width > 0
+            assert decoded["is_bigendian"] is False
+            assert decoded["is_dense"] == message.is_dense
             expected = point_values(message)
             for name in POINT_FIELDS:
                 assert_same_values(floats(decoded["points"][name]), expected[name], name)
