@@ -22,13 +22,14 @@ summary); messages, the hot path, are unpacked with :mod:`struct`.
 from __future__ import annotations
 
 import io
+import os
 import sqlite3
 import struct
 import zlib
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from enum import Enum
-from pathlib import Path
+from pathlib import Path, PosixPath
 from types import TracebackType
 from typing import IO, Any
 
@@ -836,7 +837,9 @@ class RosbagsLogReader(LogReader):
 
     def _open_any(self, path: Path) -> AnyReader:
         try:
-            reader = AnyReader([path], default_typestore=rosmsg.TYPESTORE)
+            reader = AnyReader(
+                [_rosbags_path(path, self.format)], default_typestore=rosmsg.TYPESTORE
+            )
             reader.open()
         except Exception as err:  # AnyReaderError, ReaderError, sqlite3, yaml, OSError...
             raise LogReadError(self._open_error(path, err)) from err
@@ -978,6 +981,75 @@ def _connection_metadata(connection: Any) -> dict[str, str]:
     if isinstance(qos, str) and qos:
         return {"offered_qos_profiles": qos}
     return {}
+
+
+class _ClampedReader(io.BufferedReader):
+    """A binary file whose ``read(n)`` never asks for more than the bytes left in the file.
+
+    CPython's ``read(n)`` allocates n bytes before it reads; rosbags reads record lengths
+    from the file and passes them to ``read``, so a damaged length field of 2^31 made a few
+    kB bag allocate 2 GiB (or fail with ``MemoryError`` under a memory limit). Clamping
+    returns the same bytes (a read past the end is short either way).
+    """
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        super().__init__(io.FileIO(path, "rb"))
+        self._size = os.fstat(self.fileno()).st_size
+
+    def read(self, size: int | None = -1, /) -> bytes:
+        """Read up to ``size`` bytes (all that is left when negative or None)."""
+        if size is not None and size > 0:
+            left = self._size - self.tell()
+            if size > left:  # the file may have grown since it was opened
+                self._size = os.fstat(self.fileno()).st_size
+                size = max(0, min(size, self._size - self.tell()))
+        return super().read(size)
+
+
+class _RosbagsPath(PosixPath):
+    """The path handed to rosbags: its binary files clamp reads (see :class:`_ClampedReader`).
+
+    Paths made from it (a rosbag2 folder's storage files) are of this class too. rosbags
+    also picks its reader by suffix (``.bag`` for ROS 1, ``.db3`` / ``.mcap`` for rosbag2
+    storage); a file whose format was sniffed from its magic bytes gets the matching
+    ``suffix`` here, whatever its name, so that ``drive`` (a ROS 1 bag without ``.bag``)
+    reads as what it is.
+    """
+
+    forced_suffix: str | None = None
+
+    @property
+    def suffix(self) -> str:
+        """Return the forced suffix when set, else the name's."""
+        return self.forced_suffix if self.forced_suffix is not None else super().suffix
+
+    def open(  # type: ignore[override]  # only "rb" differs; text and write modes as Path
+        self,
+        mode: str = "r",
+        buffering: int = -1,
+        encoding: str | None = None,
+        errors: str | None = None,
+        newline: str | None = None,
+    ) -> IO[Any]:
+        """Open the file; ``"rb"`` gives a :class:`_ClampedReader`."""
+        if mode == "rb" and buffering == -1:
+            return _ClampedReader(self)
+        return super().open(mode, buffering, encoding, errors, newline)
+
+
+def _rosbags_path(path: Path, log_format: LogFormat) -> Path:
+    """Return ``path`` as a :class:`_RosbagsPath` (unchanged where that class cannot be)."""
+    if not isinstance(path, PosixPath):  # pragma: no cover - Windows: no clamping
+        return path
+    wrapped = _RosbagsPath(path)
+    if path.is_file():
+        if log_format is LogFormat.ROS1:
+            wrapped.forced_suffix = ".bag"
+        elif path.suffix not in (".db3", ".mcap"):
+            with path.open("rb") as f:
+                head = f.read(len(MCAP_MAGIC))
+            wrapped.forced_suffix = ".mcap" if head.startswith(MCAP_MAGIC) else ".db3"
+    return wrapped
 
 
 def _storage_files(folder: Path) -> list[Path]:

@@ -1,0 +1,262 @@
+"""Fuzz the log readers (issue 8): a damaged log reads as far as it can or fails cleanly.
+
+Seeds are tiny synthetic logs written by ``pcainterp synth`` in every input format (and the
+real files of ``../shared/realdata`` when present). Each example damages a copy of a seed
+(bit flips, overwrites, truncation, deleted or duplicated ranges, inflated length fields)
+and runs the whole read path in a forked child with a time and address-space bound
+(``tools/fuzz_readers.py``): open, topics, index stats, every message and its decode, one
+topic alone, stereo pairing, a full count and ``pcainterp info``. The property: success or
+a ``PcaInterpError`` (``pcainterp info``: exit 2 with one line), no other exception, no
+hang, no allocation a length field asked for.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+ROOT = Path(__file__).resolve().parents[1]
+REALDATA = ROOT.parent / "shared" / "realdata"
+TIMEOUT_S = 30.0  # generous: the machine is shared; a hang is minutes, not seconds
+MEMORY_LIMIT = 1 << 30  # address space a child may add; a 2^60 allocation fails far below
+PEAK_GROWTH_LIMIT = 192 << 20  # resident memory a child may add reading a < 1 MB input
+
+
+def _load_tool() -> ModuleType:
+    spec = importlib.util.spec_from_file_location(
+        "fuzz_readers", ROOT / "tools" / "fuzz_readers.py"
+    )
+    assert spec is not None
+    assert spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["fuzz_readers"] = module  # dataclasses look their module up by name
+    spec.loader.exec_module(module)
+    return module
+
+
+FUZZ = _load_tool()
+K = FUZZ.MutationKind
+
+
+@pytest.fixture(scope="session")
+def seeds(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """A tiny synthetic log per format (2 frames at scale 0.1), written once."""
+    folder = tmp_path_factory.mktemp("fuzz_seeds")
+    return {fmt: FUZZ.write_seed(fmt, folder) for fmt in FUZZ.FORMATS}
+
+
+def _target(log: Path, which: str) -> Path:
+    """The file of a log a mutation damages: the log, or a rosbag2 folder's file."""
+    if not log.is_dir():
+        return log
+    return log / "metadata.yaml" if which == "metadata" else FUZZ.storage_file(log)
+
+
+def _copy(log: Path, into: Path) -> Path:
+    copy = into / log.name
+    if log.is_dir():
+        shutil.copytree(log, copy)
+    else:
+        shutil.copyfile(log, copy)
+    return copy
+
+
+def _check(log: Path, what: str) -> Any:
+    verdict = FUZZ.run_isolated(log, timeout_s=TIMEOUT_S, memory_limit_bytes=MEMORY_LIMIT)
+    assert verdict.problem is None, f"{what}\n{verdict.problem}"
+    assert verdict.peak_growth_bytes < PEAK_GROWTH_LIMIT, (
+        f"{what}: reading grew the resident set by {verdict.peak_growth_bytes} bytes"
+    )
+    return verdict
+
+
+def _mutated_check(log: Path, which: str, mutations: list[Any]) -> Any:
+    with tempfile.TemporaryDirectory(prefix="fuzz_") as scratch:
+        copy = _copy(log, Path(scratch))
+        target = _target(copy, which)
+        data = target.read_bytes()
+        target.write_bytes(FUZZ.apply_mutations(data, mutations, FUZZ.length_fields(data)))
+        return _check(copy, f"{log.name} ({target.name}) with {mutations}")
+
+
+# --- strategies ---------------------------------------------------------------------------
+
+POSITIONS = st.integers(min_value=0, max_value=(1 << 31) - 1)
+
+MUTATION = st.one_of(
+    st.builds(FUZZ.Mutation, st.just(K.FLIP), POSITIONS, st.integers(0, 7)),
+    st.builds(
+        FUZZ.Mutation,
+        st.just(K.OVERWRITE),
+        POSITIONS,
+        payload=st.one_of(
+            st.binary(min_size=1, max_size=16),
+            st.sampled_from([b"\xff" * 8, b"\x00" * 8, b"\x7f\xff\xff\xff"]),
+        ),
+    ),
+    st.builds(FUZZ.Mutation, st.just(K.TRUNCATE), POSITIONS),
+    st.builds(FUZZ.Mutation, st.just(K.DELETE), POSITIONS, st.integers(1, 4096)),
+    st.builds(FUZZ.Mutation, st.just(K.DUPLICATE), POSITIONS, st.integers(1, 4096), POSITIONS),
+    st.builds(FUZZ.Mutation, st.just(K.INFLATE), POSITIONS, st.integers(0, 15)),
+)
+MUTATIONS = st.lists(MUTATION, min_size=1, max_size=3)
+# a rosbag2 folder: mostly its storage file, sometimes metadata.yaml
+WHICH = st.sampled_from(["storage"] * 4 + ["metadata"])
+
+FUZZ_SETTINGS = settings(
+    derandomize=True,
+    deadline=None,  # the bound is the child's timeout, not hypothesis's deadline
+    database=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
+
+
+# --- synthetic seeds ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("fmt", FUZZ.FORMATS)
+def test_seed_reads_cleanly(seeds: dict[str, Path], fmt: str) -> None:
+    verdict = _check(seeds[fmt], f"undamaged {fmt} seed")
+    assert verdict.outcome.startswith("read: 12 msgs, 0 undecodable, 0 damage; one topic: 2 msgs;")
+    assert "pairs: 2 pairs" in verdict.outcome
+    assert verdict.outcome.endswith("info: exit 0")
+
+
+@pytest.mark.parametrize(
+    ("fmt", "examples"),
+    # rosbags opens a log in ~0.3 s (it parses every message definition) against 0.05 s
+    # for MCAP: fewer examples for the rosbags formats keep the file under a minute
+    [("mcap", 50), ("ros1", 20), ("rosbag2", 15), ("rosbag2-sqlite3", 12)],
+)
+def test_damaged_synthetic_log_reads_or_fails_cleanly(
+    seeds: dict[str, Path], fmt: str, examples: int
+) -> None:
+    @settings(FUZZ_SETTINGS, max_examples=examples)
+    @given(mutations=MUTATIONS, which=WHICH)
+    def damaged(mutations: list[Any], which: str) -> None:
+        _mutated_check(seeds[fmt], which, mutations)
+
+    damaged()
+
+
+@pytest.mark.parametrize("fmt", ["mcap", "ros1", "rosbag2"])
+def test_huge_length_fields_do_not_allocate(seeds: dict[str, Path], fmt: str) -> None:
+    """Ten length fields spread over the seed each claim 2^60 (u64) or 2^32 - 1 (u32) bytes."""
+    data = _target(seeds[fmt], "storage").read_bytes()
+    fields = FUZZ.length_fields(data)
+    assert len(fields) > 20, "the seed's length fields were not found"
+    for index in range(0, len(fields), len(fields) // 10):
+        _mutated_check(seeds[fmt], "storage", [FUZZ.Mutation(K.INFLATE, index, 0)])
+
+
+# --- regressions: what the fuzzing found ----------------------------------------------------
+
+
+@pytest.mark.parametrize(("fmt", "name"), [("ros1", "drive"), ("rosbag2-sqlite3", "drive_db")])
+def test_log_named_without_its_suffix_reads(
+    seeds: dict[str, Path], tmp_path: Path, fmt: str, name: str
+) -> None:
+    """Finding 1: rosbags picks its reader by suffix; a ROS 1 bag named ``drive`` (as
+    ``pcainterp synth drive --format ros1`` writes it) failed with "Unrecognized storage
+    format ''" although its magic bytes say what it is."""
+    log = tmp_path / name
+    shutil.copyfile(_target(seeds[fmt], "storage"), log)
+    verdict = _check(log, f"{fmt} log named {name}")
+    assert verdict.outcome.startswith("read: 12 msgs, 0 undecodable, 0 damage")
+
+
+def _first_field_at_or_after(fields: list[tuple[int, int]], offset: int, width: int) -> int:
+    return next(i for i, (at, w) in enumerate(fields) if at >= offset and w == width)
+
+
+@pytest.mark.parametrize(
+    ("fmt", "value_index"),
+    [("ros1", 0), ("ros1", 1), ("rosbag2", 0), ("rosbag2", 3)],
+)
+def test_length_field_does_not_make_rosbags_allocate(
+    seeds: dict[str, Path], fmt: str, value_index: int
+) -> None:
+    """Finding 2: rosbags passes length fields to ``file.read(n)``, which allocates n bytes
+    first; a record length of 2^32 - 1 (ROS 1) or 2^60 (rosbag2 MCAP storage) raised
+    MemoryError under a memory limit (or took gigabytes of address space without one). The
+    reader now clamps every read to the bytes left in the file."""
+    data = _target(seeds[fmt], "storage").read_bytes()
+    fields = FUZZ.length_fields(data)
+    width = 4 if fmt == "ros1" else 8
+    # a record header past the file's start (the index or a chunk), and the first one
+    for offset in (0, len(data) // 2):
+        index = _first_field_at_or_after(fields, offset, width)
+        _mutated_check(seeds[fmt], "storage", [FUZZ.Mutation(K.INFLATE, index, value_index)])
+
+
+# --- real files written by others --------------------------------------------------------
+
+needs_realdata = pytest.mark.skipif(
+    not REALDATA.is_dir(), reason=f"real data not found at {REALDATA} (not in a user's checkout)"
+)
+
+
+def _realdata_logs() -> list[str]:
+    conformance = "mcap_conformance/TenMessages/TenMessages-"
+    return [
+        conformance + "ch-chx-mx-rch-rsh-st-sum.mcap",  # chunked, indexed, full summary
+        conformance + "ch-chx-rch.mcap",  # chunked, no message index, partial summary
+        conformance + "rch-rsh-st-sum.mcap",  # unchunked
+        "ros1/example-lz4.bag",
+        "ros1/example-bz2.bag",
+        "ros1/example-unsorted-chunks.bag",
+        "rosbag2/mcap/cdr_test",
+        "rosbag2/sqlite3/talker/talker.db3",
+        "rosbag2/standalone/chatter.db3",
+    ]
+
+
+@pytest.mark.realdata
+@needs_realdata
+@pytest.mark.parametrize("name", _realdata_logs())
+def test_damaged_real_log_reads_or_fails_cleanly(name: str, tmp_path: Path) -> None:
+    log = REALDATA / name
+    if not log.exists():
+        pytest.skip(f"{log} not found")
+    seed = _copy(log, tmp_path)  # never mutate or commit the shared files
+
+    @settings(FUZZ_SETTINGS, max_examples=4)
+    @given(mutations=MUTATIONS, which=WHICH)
+    def damaged(mutations: list[Any], which: str) -> None:
+        _mutated_check(seed, which, mutations)
+
+    damaged()
+
+
+# --- the coverage-guided fuzzer -----------------------------------------------------------
+
+
+def test_fuzz_tool_short_run(tmp_path: Path) -> None:
+    """A few seconds of ``tools/fuzz_readers.py`` (atheris) on MCAP finds nothing."""
+    pytest.importorskip("atheris", reason="atheris not installed: pip install -e '.[fuzz]'")
+    out = tmp_path / "fuzz"
+    result = subprocess.run(
+        [
+            *(sys.executable, str(ROOT / "tools" / "fuzz_readers.py"), "--format", "mcap"),
+            *("--runs", "60", "--seconds", "20", str(out)),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=180,
+        check=False,
+    )
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-4000:]
+    assert "0 findings" in result.stdout
+    assert "Done 60 runs" in result.stderr or "DONE" in result.stderr
+    assert not (out / "work").exists()
+    assert any((out / "corpus").iterdir())
