@@ -6,7 +6,8 @@ the log, and the frame rate does not fall over time. Each run is the real comman
 process; the product code is not changed. The child process only wraps ``jobs.densify`` to
 pass an ``on_frame`` callback that records when each frame was written (CLOCK_MONOTONIC),
 and reports its peak RSS (``VmHWM`` of ``/proc/self/status``) at the end. Meanwhile this
-process samples the child's ``VmRSS`` and the 1-minute load average twice a second.
+process samples the child's ``VmRSS``, its CPU time and the 1-minute load average twice a
+second: on a shared machine CPU ms per frame is the steadier measure of "no slowdown".
 
 Logs (``pcainterp synth --scale 1``, 1241x376, seed 1) and the basis (``pcainterp learn``
 on a separate seed-2 log, l = 200) are cached in ``--work-dir``; densified outputs are
@@ -43,11 +44,13 @@ class Sample:
         monotonic_s: CLOCK_MONOTONIC time (s), the clock of the child's frame times.
         rss_mb: the child's resident set size (MB).
         load_1min: the machine's 1-minute load average.
+        cpu_s: CPU time (user + system, s) the child has used so far.
     """
 
     monotonic_s: float
     rss_mb: float
     load_1min: float
+    cpu_s: float
 
 
 @dataclass
@@ -60,6 +63,7 @@ class Run:
         started_s: CLOCK_MONOTONIC time (s) when the child entered ``cli.main``.
         frame_times_s: CLOCK_MONOTONIC time (s) at which each frame's outputs were written.
         ended_s: CLOCK_MONOTONIC time (s) when ``cli.main`` returned (output renamed).
+        cpu_s: CPU time (user + system, all threads, s) of the child inside ``cli.main``.
         peak_rss_mb: the child's ``VmHWM`` (MB) at the end.
         output_mb: size of the densified log (MB).
         samples: RSS and load samples over the run.
@@ -71,6 +75,7 @@ class Run:
     started_s: float
     frame_times_s: list[float]
     ended_s: float
+    cpu_s: float
     peak_rss_mb: float
     output_mb: float
     samples: list[Sample] = field(default_factory=list)
@@ -107,6 +112,17 @@ def ensure_basis(work_dir: Path, components: int, train_frames: int) -> Path:
 # ----------------------------------------------------------------------------- child
 
 
+def _cpu_seconds(pid: int) -> float | None:
+    """Return user + system CPU time (s) of process ``pid`` and its threads, None once gone."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            # fields after the parenthesised command name; utime and stime are 14 and 15
+            fields = stat.read().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def _status_kib(field_name: str, pid: int | str = "self") -> float | None:
     """Return a ``kB`` field of ``/proc/PID/status`` (e.g. VmRSS), None once gone."""
     try:
@@ -122,8 +138,8 @@ def _status_kib(field_name: str, pid: int | str = "self") -> float | None:
 def child(report: Path, argv: list[str]) -> int:
     """Run ``pcainterp ARGV`` here, recording when each densified frame was written.
 
-    Writes a JSON report: entry and exit times, frame times (CLOCK_MONOTONIC, s), exit
-    code and ``VmHWM`` (kB).
+    Writes a JSON report: entry and exit times, frame times (CLOCK_MONOTONIC, s), CPU time
+    inside ``cli.main`` (s), exit code and ``VmHWM`` (kB).
     """
     from pcainterp_stream import cli, jobs
     from pcainterp_stream.records import DensifiedFrame
@@ -135,15 +151,16 @@ def child(report: Path, argv: list[str]) -> int:
 
     # cli.main -> jobs.run looks ``densify`` up in the jobs module at call time
     jobs.densify = functools.partial(jobs.densify, on_frame=on_frame)
-    started = time.monotonic()
+    started, cpu_started = time.monotonic(), time.process_time()
     code = cli.main(argv)
-    ended = time.monotonic()
+    ended, cpu_ended = time.monotonic(), time.process_time()
     report.write_text(
         json.dumps(
             {
                 "exit_code": code,
                 "started_s": started,
                 "ended_s": ended,
+                "cpu_s": cpu_ended - cpu_started,
                 "frame_times_s": frame_times,
                 "peak_rss_kib": _status_kib("VmHWM"),
             }
@@ -168,8 +185,9 @@ def densify_run(log: Path, basis: Path, out: Path, frames: int, work_dir: Path) 
         process = subprocess.Popen(command, stdout=stdout, stderr=subprocess.STDOUT)
         while process.poll() is None:
             rss = _status_kib("VmRSS", process.pid)
-            if rss is not None:
-                samples.append(Sample(time.monotonic(), rss / 1024.0, os.getloadavg()[0]))
+            cpu = _cpu_seconds(process.pid)
+            if rss is not None and cpu is not None:
+                samples.append(Sample(time.monotonic(), rss / 1024.0, os.getloadavg()[0], cpu))
             time.sleep(SAMPLE_SECONDS)
     text = stdout_path.read_text()
     if process.returncode != 0 or not report.exists():
@@ -181,6 +199,7 @@ def densify_run(log: Path, basis: Path, out: Path, frames: int, work_dir: Path) 
         started_s=float(result["started_s"]),
         frame_times_s=[float(t) for t in result["frame_times_s"]],
         ended_s=float(result["ended_s"]),
+        cpu_s=float(result["cpu_s"]),
         peak_rss_mb=float(result["peak_rss_kib"]) / 1024.0,
         output_mb=out.stat().st_size / 1e6,
         samples=samples,
@@ -189,10 +208,14 @@ def densify_run(log: Path, basis: Path, out: Path, frames: int, work_dir: Path) 
 
 
 def segment_table(run: Run, segment: int) -> str:
-    """Return a Markdown table of throughput, RSS and load per ``segment`` frames."""
+    """Return a Markdown table of throughput, CPU, RSS and load per ``segment`` frames.
+
+    CPU per frame is the child's CPU time between the samples nearest the segment's ends:
+    unlike wall time it hardly depends on what else the machine runs.
+    """
     lines = [
-        "| frames | s | frames/s | max RSS MB (sampled) | load avg 1 min at end |",
-        "| --- | --- | --- | --- | --- |",
+        "| frames | s | frames/s | CPU ms/frame | max RSS MB (sampled) | load avg 1 min at end |",
+        "| --- | --- | --- | --- | --- | --- |",
     ]
     times = run.frame_times_s
     for first in range(0, len(times), segment):
@@ -203,9 +226,15 @@ def segment_table(run: Run, segment: int) -> str:
         inside = [s for s in run.samples if begin <= s.monotonic_s <= end]
         rss = max((s.rss_mb for s in inside), default=float("nan"))
         load = inside[-1].load_1min if inside else float("nan")
+        count = last + 1 - first
+        cpu_ms = float("nan")
+        if run.samples:
+            at_begin = min(run.samples, key=lambda s: abs(s.monotonic_s - begin))
+            at_end = min(run.samples, key=lambda s: abs(s.monotonic_s - end))
+            cpu_ms = 1000 * (at_end.cpu_s - at_begin.cpu_s) / count
         lines.append(
-            f"| {first + 1}-{last + 1} | {end - begin:.1f} | "
-            f"{(last + 1 - first) / (end - begin):.1f} | {rss:.0f} | {load:.2f} |"
+            f"| {first + 1}-{last + 1} | {end - begin:.1f} | {count / (end - begin):.1f} | "
+            f"{cpu_ms:.0f} | {rss:.0f} | {load:.2f} |"
         )
     return "\n".join(lines)
 
@@ -215,8 +244,10 @@ def summary_row(run: Run) -> str:
     seconds = run.ended_s - run.started_s
     loads = [s.load_1min for s in run.samples]
     load = f"{min(loads):.1f}-{max(loads):.1f}" if loads else "n/a"
+    frames = len(run.frame_times_s)
+    cpu = f"{1000 * run.cpu_s / frames:.0f}" if frames else "n/a"
     return (
-        f"| {run.frames} | {seconds:.1f} | {len(run.frame_times_s) / seconds:.1f} | "
+        f"| {run.frames} | {seconds:.1f} | {frames / seconds:.1f} | {cpu} | "
         f"{run.peak_rss_mb:.0f} | {run.output_mb:.0f} | {load} |"
     )
 
@@ -263,8 +294,11 @@ def main(argv: list[str] | None = None) -> int:
         + ", ".join(f"{value:.2f}" for value in load_before)
         + f"; after the last: {', '.join(f'{value:.2f}' for value in os.getloadavg())}"
     )
-    print("\n| log frames | s | frames/s | peak RSS MB (VmHWM) | output MB | load avg 1 min |")
-    print("| --- | --- | --- | --- | --- | --- |")
+    print(
+        "\n| log frames | s | frames/s | CPU ms/frame | peak RSS MB (VmHWM) | output MB | "
+        "load avg 1 min |"
+    )
+    print("| --- | --- | --- | --- | --- | --- | --- |")
     for run in runs:
         print(summary_row(run))
     for run in runs:
