@@ -805,9 +805,9 @@ def _inflate_chunk(body: bytes) -> bytes:
     if compression == "":
         records = data
     elif compression == "zstd":
-        records = zstandard.ZstdDecompressor().decompress(data, max_output_size=uncompressed_size)
+        records = _unzstd(data, uncompressed_size)
     elif compression == "lz4" and lz4_frame is not None:
-        records = lz4_frame.decompress(data)
+        records = _unlz4(data)
     else:
         raise ValueError(f"unsupported chunk compression {compression!r}")
     if len(records) != uncompressed_size:
@@ -815,6 +815,77 @@ def _inflate_chunk(body: bytes) -> bytes:
     if crc != 0 and zlib.crc32(records) != crc:
         raise ValueError("chunk CRC mismatch")
     return bytes(records)
+
+
+def _unzstd(data: bytes, uncompressed_size: int) -> bytes:
+    """Decompress a chunk's zstd frame, allocating no more than it really holds.
+
+    ``ZstdDecompressor.decompress`` allocates the size the frame header states before it
+    decompresses (a header damaged to say 4 GiB allocates 4 GiB, whatever
+    ``max_output_size``), and ``max_output_size`` when the header states none. So it is
+    used only when the frame and the chunk header agree; a frame that states no size is
+    streamed, at most ``uncompressed_size + 1`` bytes.
+
+    Raises:
+        ValueError: the frame states another size than the chunk header.
+        zstandard.ZstdError: the data does not decompress.
+    """
+    content_size = zstandard.frame_content_size(data)  # -1: the frame does not say
+    if content_size == uncompressed_size:
+        return bytes(
+            zstandard.ZstdDecompressor().decompress(data, max_output_size=uncompressed_size)
+        )
+    if content_size != -1:
+        raise ValueError(
+            f"zstd frame claims {content_size} bytes, chunk header says {uncompressed_size}"
+        )
+    parts: list[bytes] = []
+    wanted = uncompressed_size + 1  # one more, to notice a frame longer than the header says
+    with zstandard.ZstdDecompressor().stream_reader(data) as reader:
+        while wanted > 0:
+            part = reader.read(min(wanted, 1 << 20))
+            if not part:
+                break
+            parts.append(part)
+            wanted -= len(part)
+    return b"".join(parts)
+
+
+def _unlz4(data: bytes) -> bytes:
+    """Decompress an lz4 frame, allocating no more than it really holds.
+
+    ``lz4.frame.decompress`` allocates the content size the frame header states before it
+    decompresses (a damaged header of 3 GiB allocates 3 GiB); the streaming decompressor
+    grows its output with the data.
+
+    Raises:
+        ValueError: the frame ends early.
+        RuntimeError: the data does not decompress (python-lz4's error).
+    """
+    assert lz4_frame is not None
+    decompressor = lz4_frame.LZ4FrameDecompressor()
+    records = bytes(decompressor.decompress(data))
+    if not decompressor.eof:
+        raise ValueError("lz4 frame ends early")
+    return records
+
+
+def _bound_rosbags_decompressors() -> None:
+    """Make rosbags inflate lz4 and zstd chunks with :func:`_unlz4` and :func:`_unzstd`.
+
+    rosbags inflates ROS 1 lz4 chunks with ``lz4.frame.decompress`` and rosbag2 MCAP chunks
+    with it or ``zstandard.decompress``, which allocate the size a frame header states: one
+    damaged header made a small bag allocate gigabytes. It looks its decompressors up per
+    chunk in module tables; replacing the entries (idempotent; the same bytes for intact
+    data) is the one place to bound them short of forking rosbags.
+    """
+    from rosbags.rosbag1 import reader as rosbag1_reader
+    from rosbags.rosbag2 import storage_mcap
+
+    if lz4_frame is not None:
+        rosbag1_reader.decompressors["lz4"] = _unlz4
+        storage_mcap.DECOMPRESSORS["lz4"] = lambda data, _size: _unlz4(data)
+    storage_mcap.DECOMPRESSORS["zstd"] = _unzstd
 
 
 # --- ROS 1 bags and rosbag2 (rosbags) ------------------------------------------------------
@@ -836,6 +907,7 @@ class RosbagsLogReader(LogReader):
             self._check_folder_yields()
 
     def _open_any(self, path: Path) -> AnyReader:
+        _bound_rosbags_decompressors()
         try:
             reader = AnyReader(
                 [_rosbags_path(path, self.format)], default_typestore=rosmsg.TYPESTORE

@@ -14,16 +14,23 @@ from __future__ import annotations
 
 import importlib.util
 import shutil
+import struct
 import subprocess
 import sys
 import tempfile
+import tracemalloc
 from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+import lz4.frame
 import pytest
+import zstandard
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+
+from pcainterp_stream import logreader
+from pcainterp_stream.logreader import open_log
 
 ROOT = Path(__file__).resolve().parents[1]
 REALDATA = ROOT.parent / "shared" / "realdata"
@@ -197,6 +204,128 @@ def test_length_field_does_not_make_rosbags_allocate(
     for offset in (0, len(data) // 2):
         index = _first_field_at_or_after(fields, offset, width)
         _mutated_check(seeds[fmt], "storage", [FUZZ.Mutation(K.INFLATE, index, value_index)])
+
+
+def _mcap_records(seed: Path) -> tuple[bytes, bytes]:
+    """Return (header record, the records of the first chunk) of an MCAP seed."""
+    data = seed.read_bytes()
+    position = len(FUZZ._MCAP_MAGIC)
+    header = b""
+    while True:
+        opcode, length = struct.unpack_from("<BQ", data, position)
+        body = data[position + 9 : position + 9 + length]
+        if opcode == 0x01:
+            header = data[position : position + 9 + length]
+        elif opcode == 0x06:
+            (name_length,) = struct.unpack_from("<I", body, 28)
+            compression = body[32 : 32 + name_length].decode()
+            frame = body[32 + name_length + 8 :]
+            assert compression == "zstd"
+            return header, zstandard.ZstdDecompressor().decompress(frame)
+        position += 9 + length
+
+
+def _mcap_with_chunk(
+    header: bytes, frame: bytes, compression: str, uncompressed_size: int
+) -> bytes:
+    """An MCAP file of one chunk (no summary: read linearly); CRC 0 = not checked."""
+    name = compression.encode()
+    chunk = struct.pack("<QQQI", 0, 0, uncompressed_size, 0)
+    chunk += struct.pack("<I", len(name)) + name + struct.pack("<Q", len(frame)) + frame
+    data_end = struct.pack("<BQI", 0x0F, 4, 0)
+    footer = struct.pack("<BQQQI", 0x02, 20, 0, 0, 0)
+    magic = FUZZ._MCAP_MAGIC
+    return magic + header + struct.pack("<BQ", 0x06, len(chunk)) + chunk + data_end + footer + magic
+
+
+def _zstd_frame(records: bytes, *, content_size: int | None) -> bytes:
+    """A zstd frame of ``records`` whose header states ``content_size`` (None: no size)."""
+    frame = zstandard.ZstdCompressor(write_content_size=False).compress(records)
+    assert frame[4] == 0, "expected a frame header with a window descriptor and no size"
+    if content_size is None:
+        return frame
+    # descriptor 0xC0: an 8-byte content size after the window descriptor (RFC 8878 3.1.1.1)
+    return frame[:4] + b"\xc0" + frame[5:6] + struct.pack("<Q", content_size) + frame[6:]
+
+
+def _lz4_frame(records: bytes, *, content_size: int) -> bytes:
+    """An lz4 frame of ``records`` whose header states ``content_size``."""
+    compressor = lz4.frame.LZ4FrameCompressor(content_checksum=False)
+    frame = compressor.begin(source_size=content_size) + compressor.compress(records)
+    return frame + b"\x00\x00\x00\x00"  # end mark (compressor.flush() checks the size)
+
+
+HUGE = 3 << 30  # under the reader's 4 GiB chunk limit, over the children's 1 GiB
+
+
+@pytest.mark.parametrize(
+    ("case", "compression", "stated", "claimed"),
+    [
+        ("zstd frame without size, chunk claims 3 GiB", "zstd", None, HUGE),
+        ("zstd frame claims 3 GiB", "zstd", HUGE, None),
+        ("lz4 frame claims 3 GiB", "lz4", HUGE, None),
+    ],
+)
+def test_mcap_chunk_size_claims_do_not_allocate(
+    seeds: dict[str, Path], tmp_path: Path, case: str, compression: str, stated: Any, claimed: Any
+) -> None:
+    """Finding 3: zstandard's ``decompress`` allocates the size a frame header states, or
+    ``max_output_size`` (the chunk's uncompressed size) when it states none; python-lz4's
+    ``decompress`` allocates the frame's content size. One damaged size made the MCAP reader
+    allocate 3 GiB (MemoryError under a limit, reported as damage). Now a frame size that
+    disagrees with the chunk header is damage before any allocation, and frames without a
+    size are streamed."""
+    header, records = _mcap_records(seeds["mcap"])
+    if compression == "zstd":
+        frame = _zstd_frame(records, content_size=stated)
+    else:
+        frame = _lz4_frame(records, content_size=stated)
+    log = tmp_path / "chunk.mcap"
+    log.write_bytes(_mcap_with_chunk(header, frame, compression, claimed or len(records)))
+    verdict = _check(log, case)
+    assert verdict.outcome.startswith("read: 0 msgs"), verdict.outcome
+
+
+def test_mcap_zstd_frame_without_size_reads(seeds: dict[str, Path], tmp_path: Path) -> None:
+    """The streamed path reads what the one-shot path read (zstd frames without a size are
+    what streaming writers produce)."""
+    header, records = _mcap_records(seeds["mcap"])
+    log = tmp_path / "chunk.mcap"
+    log.write_bytes(
+        _mcap_with_chunk(header, _zstd_frame(records, content_size=None), "zstd", len(records))
+    )
+    with open_log(log) as reader:
+        assert sum(1 for _ in reader.messages()) == 12
+        assert reader.damage == []
+
+
+def test_rosbags_decompressors_do_not_allocate_stated_sizes() -> None:
+    """Finding 3 in rosbags: its ROS 1 lz4 chunks and rosbag2 MCAP chunks were inflated with
+    the same allocating calls; the reader bounds its decompressor tables when it opens a bag."""
+    from rosbags.rosbag1 import reader as rosbag1_reader
+    from rosbags.rosbag2 import storage_mcap
+
+    records = b"x" * 4096
+    logreader._bound_rosbags_decompressors()
+    lz4_claim = _lz4_frame(records, content_size=HUGE)
+    zstd_claim = _zstd_frame(records, content_size=HUGE)
+    tracemalloc.start()
+    try:
+        for inflate in (
+            lambda: rosbag1_reader.decompressors["lz4"](lz4_claim),
+            lambda: storage_mcap.decompress(lz4_claim, "lz4", len(records), 0),
+            lambda: storage_mcap.decompress(zstd_claim, "zstd", len(records), 0),
+        ):
+            with pytest.raises((ValueError, RuntimeError)):
+                inflate()
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 16 << 20
+    intact = lz4.frame.compress(records)
+    assert rosbag1_reader.decompressors["lz4"](intact) == records
+    intact_zstd = zstandard.ZstdCompressor().compress(records)
+    assert storage_mcap.decompress(intact_zstd, "zstd", len(records), 0) == records
 
 
 # --- real files written by others --------------------------------------------------------

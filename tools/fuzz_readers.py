@@ -376,11 +376,12 @@ def apply_mutations(data: bytes, mutations: Sequence[Mutation], fields: Sequence
 def length_fields(data: bytes) -> list[Field]:
     """Return the length fields of an MCAP file or a ROS 1 bag (empty for other data).
 
-    MCAP: every record's length, a chunk's uncompressed size, compression-name length and
-    records length, the string lengths of schema and channel records, the records inside
-    uncompressed chunks, and the first words of each message's payload (CDR string and
-    sequence lengths). ROS 1: every record's header and data length, each header field's
-    length, records inside uncompressed chunks, and the first words of message data.
+    MCAP: every record's length, a chunk's uncompressed size, compression-name length,
+    records length and zstd frame content size, the string lengths of schema and channel
+    records, the records inside uncompressed chunks, and the first words of each message's
+    payload (CDR string and sequence lengths). ROS 1: every record's header and data
+    length, each header field's length, records inside uncompressed chunks, and the first
+    words of message data.
     """
     fields: list[Field] = []
     if data.startswith(_MCAP_MAGIC):
@@ -424,13 +425,27 @@ def _mcap_fields(data: bytes, position: int, end: int, fields: list[Field], *, d
             records_length_at = body + 32 + name_length
             if records_length_at + 8 <= body_end:
                 fields.append((records_length_at, 8))
+                compression = data[body + 32 : records_length_at]
                 if name_length == 0:
                     _mcap_fields(data, records_length_at + 8, body_end, fields, depth=1)
+                elif compression == b"zstd":
+                    fields.extend(_zstd_size_field(data, records_length_at + 8))
         elif opcode == 0x02:  # footer
             break
         if length > end - body:
             break
         position = body + length
+
+
+def _zstd_size_field(data: bytes, start: int) -> list[Field]:
+    """Return the content-size field of the zstd frame at ``start`` if it is 4 or 8 bytes."""
+    if data[start : start + 4] != b"\x28\xb5\x2f\xfd" or start + 5 > len(data):
+        return []
+    descriptor = data[start + 4]  # RFC 8878, 3.1.1.1.1: the frame header descriptor
+    single_segment = (descriptor >> 5) & 1
+    width = (single_segment, 2, 4, 8)[descriptor >> 6]
+    offset = start + 5 + (0 if single_segment else 1) + (0, 1, 2, 4)[descriptor & 3]
+    return [(offset, width)] if width in (4, 8) and offset + width <= len(data) else []
 
 
 def _ros1_fields(data: bytes, position: int, end: int, fields: list[Field], *, depth: int) -> None:
@@ -585,6 +600,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--timeout", type=int, default=20, help="seconds per input (hang)")
     parser.add_argument("--rss-limit-mb", type=int, default=2048, help="memory bound")
     parser.add_argument(
+        "--address-space-mb",
+        type=int,
+        default=2048,
+        help="address space the fuzzer may add once set up (an allocation a length field "
+        "asked for then fails with MemoryError, a finding, instead of taking virtual memory)",
+    )
+    parser.add_argument(
         "--length-rate",
         type=float,
         default=0.2,
@@ -669,6 +691,9 @@ def _fuzz(args: argparse.Namespace) -> int:
     ]
     if args.seconds > 0:
         libfuzzer_args.append(f"-max_total_time={args.seconds}")
+    if args.address_space_mb > 0:
+        limit = _proc_status_kib("VmSize") * 1024 + (args.address_space_mb << 20)
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
     atheris.Setup(
         libfuzzer_args,
         target,
