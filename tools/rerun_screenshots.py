@@ -29,7 +29,10 @@ recording itself is not changed.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -172,7 +175,9 @@ def screenshot_viewer(paths: list[Path], timeline: str, out: Path, stem: str, lo
     command = [shutil.which("rerun") or "rerun", *map(str, paths), "--headless"]
     command += ["--port", str(port), "--bind", "127.0.0.1", "--window-size", WINDOW_SIZE]
     command += ["--hide-welcome-screen"]
-    viewer_process = subprocess.Popen(command, stdout=log, stderr=log)
+    # `rerun` is a Python wrapper that runs the viewer binary as its child: start both in a
+    # session of their own and signal that process group, or the viewer outlives the wrapper
+    viewer_process = subprocess.Popen(command, stdout=log, stderr=log, start_new_session=True)
     try:
         deadline = time.monotonic() + START_TIMEOUT_S
         while True:
@@ -198,13 +203,26 @@ def screenshot_viewer(paths: list[Path], timeline: str, out: Path, stem: str, lo
         path = out / f"{stem}.png"
         path.write_bytes(viewer.take_screenshot(max_size=SCREENSHOT_MAX_SIZE))
     finally:
-        viewer_process.terminate()
-        try:
-            viewer_process.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            viewer_process.kill()
-            viewer_process.wait()
+        stop_process_group(viewer_process)
     return path
+
+
+def stop_process_group(process: subprocess.Popen[bytes]) -> None:
+    """Terminate the process group led by ``process``, kill it after 10 s, reap the leader."""
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(process.pid, signal.SIGTERM)
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline:
+        process.poll()  # reap the leader, or its zombie keeps the group alive
+        try:
+            os.killpg(process.pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.1)
+    else:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGKILL)
+    process.wait()
 
 
 def main(argv: list[str] | None = None) -> int:
