@@ -202,11 +202,13 @@ def camera_from_infos(
                 f"camera info on {right_topic} has P with fx={p_right[0, 0]}; fix the "
                 "calibration or pass --baseline"
             )
-        baseline = float(-p_right[0, 3] / p_right[0, 0])
-        if not baseline > 0:
+        with np.errstate(over="ignore"):  # a damaged tiny fx overflows: caught below
+            baseline = float(-p_right[0, 3] / p_right[0, 0])
+        if not (baseline > 0 and np.isfinite(baseline)):
             raise CalibrationError(
                 f"camera info on {right_topic} gives no baseline (P[0,3] = {p_right[0, 3]}, "
-                "expected -fx * baseline < 0); pass --baseline METRES"
+                f"fx = {p_right[0, 0]}; expected -fx * baseline < 0, finite); pass --baseline "
+                "METRES"
             )
     return StereoCamera(
         width=int(width),

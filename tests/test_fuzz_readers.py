@@ -30,7 +30,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from pcainterp_stream import logreader
+from pcainterp_stream.errors import CalibrationError
 from pcainterp_stream.logreader import open_log
+from pcainterp_stream.pairing import iter_stereo_frames
 
 ROOT = Path(__file__).resolve().parents[1]
 REALDATA = ROOT.parent / "shared" / "realdata"
@@ -326,6 +328,26 @@ def test_rosbags_decompressors_do_not_allocate_stated_sizes() -> None:
     assert rosbag1_reader.decompressors["lz4"](intact) == records
     intact_zstd = zstandard.ZstdCompressor().compress(records)
     assert storage_mcap.decompress(intact_zstd, "zstd", len(records), 0) == records
+
+
+def test_right_camera_info_with_denormal_fx_is_a_calibration_error(
+    seeds: dict[str, Path], tmp_path: Path
+) -> None:
+    """Finding 4: one flipped exponent bit turns the right camera's fx into a denormal
+    (~1e-310); -P[0,3] / fx overflowed with a RuntimeWarning and gave an infinite baseline.
+    Now it is the CalibrationError of a missing baseline."""
+    with open_log(seeds["ros1"]) as reader:
+        raw = next(reader.messages(["/stereo/right/camera_info"]))
+        p = [float(v) for v in reader.decode(raw).p]
+    data = seeds["ros1"].read_bytes()
+    intact = struct.pack("<12d", *p)
+    assert data.count(intact) == 2, "expected the right P of both frames in the bag"
+    log = tmp_path / "denormal_fx.bag"
+    log.write_bytes(data.replace(intact, struct.pack("<12d", 1e-310, *p[1:])))
+    verdict = _check(log, "right fx = 1e-310")
+    assert "pairs: CalibrationError" in verdict.outcome
+    with open_log(log) as reader, pytest.raises(CalibrationError, match=r"gives no baseline"):
+        list(iter_stereo_frames(reader))
 
 
 # --- real files written by others --------------------------------------------------------

@@ -84,7 +84,7 @@ def read_everything(path: Path) -> str:
             reader swallowed a ``MemoryError`` as damage (a length field made it try to
             allocate more than the memory limit).
         Exception: anything that is not a :class:`~errors.PcaInterpError` propagates: that
-            is a finding.
+            is a finding. Warnings are raised as errors here, so they are findings too.
     """
     from pcainterp_stream.errors import PcaInterpError
 
@@ -98,7 +98,9 @@ def read_everything(path: Path) -> str:
     ]
     for name, stage in stages:
         try:
-            outcome = stage(path)
+            with warnings.catch_warnings():  # a warning (numpy overflow...) is a finding too
+                warnings.simplefilter("error")
+                outcome = stage(path)
         except PcaInterpError as err:
             if "MemoryError" in str(err):
                 raise PropertyViolation(f"{name}: a MemoryError was reported as: {err}") from err
