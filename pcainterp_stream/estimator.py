@@ -28,9 +28,11 @@ batched over frames. The variance may be evaluated on a grid coarser than the ba
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -153,13 +155,12 @@ class _Posterior:
     factor: npt.NDArray[np.float32] | None
     subtract_from_prior: bool
     solve_form: SolveForm
-    # beyond the paper (prior.py): base(x) = ||prior_factor b(x)||^2 when the prior is not
-    # Lambda (temporal), the local part, the noise used and the robust weights
-    prior_factor: npt.NDArray[np.float32] | None = None
+    # beyond the paper (prior.py): base(x) = sum_i p_i u_i(x)^2 when the prior variances
+    # p are not Lambda (temporal), the local part, the noise used and the robust weights
+    prior_diagonal: npt.NDArray[np.float64] | None = None
     local: _Local | None = None
     sigma: float = DEFAULT_SIGMA
     weights: npt.NDArray[np.float64] | None = None
-    covariance: npt.NDArray[np.float64] | None = None
     normalised_innovation: float = 0.0
     temporal: str = "static"
 
@@ -495,19 +496,22 @@ def _solve_beyond(
     again with the static prior (and the state restarts from that posterior).
     """
     predicted = temporal.predict(eigenvalues) if temporal is not None else None
+    local_matrix = (
+        model.local.matrix(positions) if model.local is not None and rows.shape[0] else None
+    )
     posterior = _solve_measurement(
-        rows, residual, positions, eigenvalues, model, predicted,
-        need_factor=need_factor, need_covariance=temporal is not None,
+        rows, residual, positions, eigenvalues, model, predicted, local_matrix,
+        need_factor=need_factor,
     )
     if predicted is not None and temporal is not None:
         if posterior.normalised_innovation > temporal.reset_threshold:
             temporal.resets += 1
             posterior = _solve_measurement(
-                rows, residual, positions, eigenvalues, model, None,
-                need_factor=need_factor, need_covariance=True, label="reset",
+                rows, residual, positions, eigenvalues, model, None, local_matrix,
+                need_factor=need_factor, label="reset",
             )
-    if temporal is not None and posterior.covariance is not None:
-        temporal.update(posterior.coefficients, posterior.covariance)
+    if temporal is not None:
+        temporal.update(posterior.coefficients, posterior.coefficient_variance)
     return posterior
 
 
@@ -518,31 +522,30 @@ def _solve_measurement(
     eigenvalues: npt.NDArray[np.float64],
     model: Model,
     predicted: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None,
+    local_matrix: npt.NDArray[np.float64] | None,
     *,
     need_factor: bool,
-    need_covariance: bool,
     label: str = "static",
 ) -> _Posterior:
-    """MAP estimate and posterior under prior y ~ N(mu, P), local prior, weighted noise.
+    """MAP estimate and posterior under prior y ~ N(mu, diag(p)), local prior, weighted noise.
 
     See the module docstring of ``prior.py`` for the equations; rows = B~ (k, l),
-    residual = z~ (k,), positions (k, 2) basis image px.
+    residual = z~ (k,), positions (k, 2) basis image px. ``predicted`` is (mu, p) of the
+    temporal prior, None for the static prior (mu = 0, p = lambda); ``local_matrix`` is
+    C_pp of the local prior (None without one).
     """
     k, n_components = rows.shape
     if predicted is None:
         mean = np.zeros(n_components)
-        prior_rows = rows * eigenvalues  # B~ P with P = Lambda
         prior_diagonal = eigenvalues
-        label = label if label == "reset" else "static"
     else:
-        mean, prior_covariance = predicted
-        prior_rows = rows @ prior_covariance  # B~ P
-        prior_diagonal = np.diag(prior_covariance).copy()
+        mean, prior_diagonal = predicted
         label = "temporal"
+    prior_rows = rows * prior_diagonal  # B~ P
     innovation = residual - rows @ mean
     signal = prior_rows @ rows.T  # B~ P B~^T
-    if model.local is not None and k:
-        signal += model.local.matrix(positions)  # + C_pp
+    if local_matrix is not None:
+        signal += local_matrix  # + C_pp
     sigma = model.sigma if model.sigma is not None else evidence_sigma(signal, innovation)
     if not np.isfinite(sigma):  # no measurements: nothing to fit
         sigma = DEFAULT_SIGMA
@@ -551,7 +554,7 @@ def _solve_measurement(
     for iteration in range(iterations + 1):
         system = signal.copy()
         system.flat[:: k + 1] += sigma**2 / weights  # + R
-        lower_inverse = _cholesky_inverse(system) if k else np.zeros((0, 0))
+        lower_inverse = _cholesky_inverse_fast(system) if k else np.zeros((0, 0))
         alpha = lower_inverse.T @ (lower_inverse @ innovation)  # K^-1 (z~ - B~ mu)
         if iteration == iterations:
             break
@@ -566,16 +569,6 @@ def _solve_measurement(
     coefficients = mean + prior_rows.T @ alpha  # y = mu + P B~^T alpha
     gain = lower_inverse @ prior_rows  # W = L^-1 B~ P (k, l)
     coefficient_variance = prior_diagonal - np.einsum("kl,kl->l", gain, gain)
-    covariance: npt.NDArray[np.float64] | None = None
-    if need_covariance:
-        base = np.diag(eigenvalues) if predicted is None else predicted[1]
-        covariance = base - gain.T @ gain
-        covariance = 0.5 * (covariance + covariance.T)
-    factor = gain.astype(np.float32) if need_factor else None
-    prior_factor = None
-    if need_factor and predicted is not None:
-        # base(x) = b(x)^T P b(x) = ||G^T b(x)||^2, G G^T = P
-        prior_factor = np.linalg.cholesky(predicted[1]).T.astype(np.float32)
     local = None
     if model.local is not None:
         local = _Local(
@@ -587,14 +580,13 @@ def _solve_measurement(
     return _Posterior(
         coefficients=coefficients,
         coefficient_variance=coefficient_variance,
-        factor=factor,
+        factor=gain.astype(np.float32) if need_factor else None,
         subtract_from_prior=True,
         solve_form=SolveForm.MEASUREMENT,
-        prior_factor=prior_factor,
+        prior_diagonal=None if predicted is None else prior_diagonal,
         local=local,
         sigma=float(sigma),
         weights=weights,
-        covariance=covariance,
         normalised_innovation=float(innovation @ alpha / k) if k else 0.0,
         temporal=label,
     )
@@ -649,15 +641,53 @@ def _variance_beyond(
         covariance = _local_covariance(posterior.local, vgrid.size, basis_image)
         projected += posterior.local.lower_inverse @ covariance
     reduction = np.einsum("ks,ks->s", projected, projected)
-    if posterior.prior_factor is not None:
-        prior_part = posterior.prior_factor @ vgrid.component_rows
-        base = np.einsum("ks,ks->s", prior_part, prior_part)
+    if posterior.prior_diagonal is not None:
+        # b(x)^T P b(x) = sum_i p_i u_i(x)^2, one GEMV
+        base = posterior.prior_diagonal.astype(np.float32) @ vgrid.squared_rows
     else:
         base = vgrid.prior_variance
     if posterior.local is not None:
         base = base + np.float32(posterior.local.prior.variance)
     result: npt.NDArray[np.float32] = (base - reduction).astype(np.float32)
     return result
+
+
+@functools.cache
+def _triangular_lapack() -> Any:
+    """Return scipy's LAPACK with its OpenBLAS held at one thread, or None.
+
+    numpy has no triangular inverse: ``np.linalg.inv`` of the Cholesky factor costs ~4x
+    LAPACK's ``dtrtri`` (4.4 vs 1.2 ms at k = 300, measured). scipy ships a second OpenBLAS
+    whose idle threads spin after a call and halved the speed of the next numpy product
+    (docs/estimator.md); a 300 x 300 factorisation gains nothing from threads, so that
+    library (only scipy's, found by its path) is limited to one thread, once per process.
+    """
+    try:
+        from scipy.linalg import lapack
+        from threadpoolctl import ThreadpoolController
+    except ImportError:  # pragma: no cover - both are dependencies
+        return None
+    controller = ThreadpoolController()
+    scipy_blas = [
+        module for module in controller.lib_controllers if "scipy.libs" in module.filepath
+    ]
+    for module in scipy_blas:
+        module.set_num_threads(1)
+    return lapack
+
+
+def _cholesky_inverse_fast(system: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Return L^-1 (lower triangular) of L L^T = system via LAPACK dpotrf + dtrtri."""
+    lapack = _triangular_lapack()
+    if lapack is None:  # pragma: no cover
+        return _cholesky_inverse(system)
+    lower, info = lapack.dpotrf(system, lower=1, clean=1)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"matrix is not positive definite (dpotrf info {info})")
+    inverse, info = lapack.dtrtri(lower, lower=1)
+    if info != 0:  # pragma: no cover - a Cholesky factor has a positive diagonal
+        raise np.linalg.LinAlgError(f"singular Cholesky factor (dtrtri info {info})")
+    return np.asarray(inverse, dtype=np.float64)
 
 
 def _variances(
@@ -668,7 +698,7 @@ def _variances(
 ) -> npt.NDArray[np.float32]:
     """Posterior variance (F, s_v) float32 on the variance grid (basis disparity units)."""
     n_frames = len(posteriors)
-    if any(p.local is not None or p.prior_factor is not None for p in posteriors):
+    if any(p.local is not None or p.prior_diagonal is not None for p in posteriors):
         if mode is Uncertainty.PAPER:
             raise ValueError(
                 'uncertainty="paper" is the diagonal approximation of the paper\'s prior; '

@@ -277,9 +277,9 @@ def fit_process_noise(
             for frame in sequence:
                 predicted = state.predict(eigenvalues)
                 if predicted is not None and frame.residual.size:
-                    mean, covariance = predicted
+                    mean, variance = predicted
                     innovation = frame.residual - frame.rows @ mean
-                    system = frame.rows @ covariance @ frame.rows.T
+                    system = (frame.rows * variance) @ frame.rows.T
                     if local is not None:
                         system += local.matrix(frame.positions)
                     system.flat[:: system.shape[0] + 1] += sigma**2

@@ -848,8 +848,8 @@ def _sigma_option(value: str) -> float | str:
 
 def _check_estimate(processor: ProcessorConfig, basis_path: Path) -> None:
     """Refuse estimate options that do not fit the basis, before any work is done."""
-    if processor.prior == "paper" and not processor.temporal:
-        return
+    if (processor.prior == "paper" and not processor.temporal) or not basis_path.is_file():
+        return  # a missing basis is reported where it is loaded
     from pcainterp_stream.processor import resolve_settings
 
     try:

@@ -19,9 +19,9 @@ pixels. Everything stays closed-form in measurement space (K is k x k):
     d_hat(x) = m(x) + b(x)^T y_hat + c(x, P) alpha
     var(x) = b(x)^T P b(x) + v - || L^-1 (B~ P b(x) + c(P, x)) ||^2,   L L^T = K
 
-The static prior is mu = 0, P = Lambda; the temporal prior takes mu, P from the previous
-frame's posterior plus process noise q * Lambda. Robust weights w_j come from iteratively
-reweighted least squares on the leave-one-out standardised residuals
+The static prior is mu = 0, P = Lambda; the temporal prior takes mu and the diagonal of P
+from the previous frame's posterior plus process noise q * Lambda. Robust weights w_j
+come from iteratively reweighted least squares on the leave-one-out standardised residuals
 t_j = alpha_j / sqrt([K^-1]_jj) (the residual of z_j against the prediction from all other
 points, over its predictive std; N(0, 1) under the model). The noise level sigma can be
 the maximiser of the marginal likelihood log N(z~; B~ mu, K) (the evidence) per frame.
@@ -132,22 +132,27 @@ class LocalPrior:
 class TemporalPrior:
     """State of the temporal coefficient prior of a stream (an accumulator).
 
-    Frame t's prior is N(y_hat_{t-1}, Sigma_{t-1} + q Lambda); the static prior comes back
-    when the normalised innovation squared (z~ - B~ mu)^T K^-1 (z~ - B~ mu) / k exceeds
-    ``reset_threshold`` (the scene changed) or when no state is held.
+    Frame t's prior is N(y_hat_{t-1}, diag(kappa_{t-1}^2) + q Lambda): the previous
+    posterior's mean and marginal variances, with process noise q Lambda. The correlations
+    between coefficients are not carried over (a diagonal prior keeps the per-frame cost at
+    the static prior's: the full l x l covariance would cost an extra l^2 s_v product per
+    frame for the variance); given that prior, the posterior and its variance are exact.
+    The static prior comes back when the normalised innovation squared
+    (z~ - B~ mu)^T K^-1 (z~ - B~ mu) / k exceeds ``reset_threshold`` (the scene changed).
 
     Attributes:
         process_noise: q, process noise as a fraction of the prior eigenvalues.
         reset_threshold: largest normalised innovation squared accepted (1 is its mean).
         mean: (l,) float64 posterior mean of the last frame, None after a reset.
-        covariance: (l, l) float64 posterior covariance of the last frame.
+        variance: (l,) float64 posterior marginal variances of the last frame.
         frames: frames seen; resets: times the static prior was taken back.
+        key: the camera the state belongs to (a change resets it).
     """
 
     process_noise: float = 0.1
     reset_threshold: float = 3.0
     mean: FloatArray | None = None
-    covariance: FloatArray | None = None
+    variance: FloatArray | None = None
     frames: int = 0
     resets: int = 0
     key: Any = field(default=None, repr=False)
@@ -159,25 +164,23 @@ class TemporalPrior:
             raise ValueError(f"Expected `reset_threshold` > 0, got {self.reset_threshold}")
 
     def predict(self, eigenvalues: FloatArray) -> tuple[FloatArray, FloatArray] | None:
-        """Return the prior (mu, P) for the next frame, or None for the static prior."""
-        if self.mean is None or self.covariance is None:
+        """Return the prior (mu, diagonal of P) for the next frame, or None (static)."""
+        if self.mean is None or self.variance is None:
             return None
         if self.mean.shape != eigenvalues.shape:
             return None
-        covariance = self.covariance.copy()
-        covariance.flat[:: eigenvalues.size + 1] += self.process_noise * eigenvalues
-        return self.mean, covariance
+        return self.mean, self.variance + self.process_noise * eigenvalues
 
-    def update(self, mean: FloatArray, covariance: FloatArray) -> None:
-        """Keep a frame's posterior as the state."""
+    def update(self, mean: FloatArray, variance: FloatArray) -> None:
+        """Keep a frame's posterior mean and marginal variances as the state."""
         self.mean = mean
-        self.covariance = covariance
+        self.variance = variance
         self.frames += 1
 
     def reset(self) -> None:
         """Forget the state (scene change, camera change, a gap in the stream)."""
         self.mean = None
-        self.covariance = None
+        self.variance = None
 
 
 @dataclass(frozen=True)
