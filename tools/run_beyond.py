@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import json
 import sys
 import time
@@ -61,7 +62,6 @@ from pcainterp_stream.prior import LocalPrior, TemporalPrior
 from pcainterp_stream.records import StereoCamera
 from pcainterp_stream.stereo import (
     GfttConfig,
-    SgbmConfig,
     StereoFrontEnd,
     detect_corners,
     lookup_disparities,
@@ -104,9 +104,11 @@ class LogData:
 
     @property
     def frames(self) -> int:
+        """Return the number of stereo pairs."""
         return len(self.pixels)
 
     def reference(self) -> npt.NDArray[np.float32]:
+        """Return the (F, H, W) reference disparities, memory-mapped."""
         return np.load(self.reference_path, mmap_mode="r")  # type: ignore[no-any-return]
 
 
@@ -117,7 +119,7 @@ def _split(arrays: list[FloatArray]) -> tuple[FloatArray, npt.NDArray[np.int64]]
 
 
 def _unsplit(joined: FloatArray, offsets: npt.NDArray[np.int64]) -> list[FloatArray]:
-    return [joined[a:b] for a, b in zip(offsets[:-1], offsets[1:], strict=True)]
+    return [joined[a:b] for a, b in itertools.pairwise(offsets)]
 
 
 def _truth_and_poses(
@@ -306,11 +308,13 @@ class Sums:
     sigma_sum: float = 0.0
 
     def summary(self) -> dict[str, float]:
+        """Return the means."""
+        n = self.calibration_n
         return {
             "delta_2d_mean": self.delta_2d / max(self.delta_2d_n, 1.0),
             "depth_rmse": float(np.sqrt(self.depth_sq / max(self.depth_n, 1.0))),
-            "coverage_1": self.inside_1 / self.calibration_n if self.calibration_n else float("nan"),
-            "coverage_2": self.inside_2 / self.calibration_n if self.calibration_n else float("nan"),
+            "coverage_1": self.inside_1 / n if n else float("nan"),
+            "coverage_2": self.inside_2 / n if n else float("nan"),
             "ms_per_frame": 1000.0 * self.seconds / max(self.frames, 1),
             "downweighted_per_frame": self.downweighted / max(self.frames, 1),
             "temporal_resets": float(self.resets),
@@ -510,39 +514,41 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     # bases and their hyperparameters
-    def basis_for(name: str, maps: Callable[[], npt.NDArray[np.float32]], source: str,
-                  fit_logs: Callable[[], Sequence[tuple[LogData, slice]]]) -> tuple[Basis,
-                                                                                  dict[str, Any]]:
+    def basis_for(
+        name: str, maps: npt.NDArray[np.float32], source: str,
+        fit_logs: Sequence[tuple[LogData, slice]],
+    ) -> tuple[Basis, dict[str, Any]]:
         path = work / f"basis_{name}.npz"
         if not path.is_file():
             _log(f"learn {name}")
-            basis = _learn(maps(), basis_camera, args.components, source)
+            basis = _learn(maps, basis_camera, args.components, source)
             _log(f"fit hyperparameters {name}")
-            prior = fit_hyperparameters(basis, fit_logs())
+            prior = fit_hyperparameters(basis, fit_logs)
             basis = dataclasses.replace(basis, meta={**basis.meta, "prior": prior})
             basis.save(path)
         basis = Basis.load(path)
-        _log(f"{name}: prior {json.dumps({k: v for k, v in basis.meta['prior'].items() if k != 'table'})}")
+        shown = {k: v for k, v in basis.meta["prior"].items() if k != "table"}
+        _log(f"{name}: prior {json.dumps(shown)}")
         return basis, basis.meta["prior"]
 
     synth_truth = np.concatenate(
-        [data[f"train_{s}"].grid_truth for s in TRAIN_SEEDS]  # type: ignore[misc]
+        [data[f"train_{s}"].grid_truth for s in TRAIN_SEEDS]
     )
     synth_sgbm = np.concatenate([data[f"train_{s}"].grid_sgbm for s in TRAIN_SEEDS])
     splits: list[tuple[str, str, str, Basis, dict[str, Any]]] = []
     basis, hyper = basis_for(
-        "synthetic", lambda: synth_truth, "synthetic ground truth, seeds 101-104",
-        lambda: [(data[f"fit_{FIT_SEED}"], slice(None))],
+        "synthetic", synth_truth, "synthetic ground truth, seeds 101-104",
+        [(data[f"fit_{FIT_SEED}"], slice(None))],
     )
     splits.append(("synthetic", f"test_{TEST_SEED}", "temporal", basis, hyper))
     if len(real) == 2:
         for split, train, test in (("kitti_a", "raw", "odometry"), ("kitti_b", "odometry", "raw")):
             train_data = data[f"kitti_{train}"]
-            cut = int(round(0.8 * train_data.frames))
+            cut = round(0.8 * train_data.frames)
             basis, hyper = basis_for(
-                f"{split}_real", lambda t=train_data, c=cut: t.grid_sgbm[:c],
+                f"{split}_real", train_data.grid_sgbm[:cut],
                 f"SGBM, KITTI {train} frames 0-{cut - 1}",
-                lambda t=train_data, c=cut: [(t, slice(c, None))],
+                [(train_data, slice(cut, None))],
             )
             splits.append((split, f"kitti_{test}", "stereo", basis, hyper))
 
@@ -569,15 +575,16 @@ def main(argv: list[str] | None = None) -> int:
         mix_methods = [METHODS[0], METHODS[8], METHODS[10]]
         for split, train, test in (("kitti_a", "raw", "odometry"), ("kitti_b", "odometry", "raw")):
             train_data = data[f"kitti_{train}"]
-            cut = int(round(0.8 * train_data.frames))
+            cut = round(0.8 * train_data.frames)
             real_maps = train_data.grid_sgbm[:cut]
             for share in (0, 250, 1000):
                 name = f"{split}_mix{share}"
-                synthetic_part = synth_sgbm[:: max(1, synth_sgbm.shape[0] // share)][:share] if share else synth_sgbm[:0]
+                step = max(1, synth_sgbm.shape[0] // max(share, 1))
+                synthetic_part = synth_sgbm[::step][:share]
                 basis, hyper = basis_for(
-                    name, lambda r=real_maps, s=synthetic_part: np.concatenate([s, r]),
+                    name, np.concatenate([synthetic_part, real_maps]),
                     f"SGBM: {synthetic_part.shape[0]} synthetic + {cut} KITTI {train}",
-                    lambda t=train_data, c=cut: [(t, slice(c, None))],
+                    [(train_data, slice(cut, None))],
                 )
                 _log(f"mix {name}")
                 results.setdefault("mix", {})[name] = {
@@ -590,8 +597,8 @@ def main(argv: list[str] | None = None) -> int:
             # synthetic only
             name = f"{split}_synthonly"
             basis, hyper = basis_for(
-                name, lambda: synth_sgbm, "SGBM: synthetic only",
-                lambda t=train_data, c=cut: [(t, slice(c, None))],
+                name, synth_sgbm, "SGBM: synthetic only",
+                [(train_data, slice(cut, None))],
             )
             results.setdefault("mix", {})[name] = {
                 "synthetic_maps": int(synth_sgbm.shape[0]), "real_maps": 0,
