@@ -903,8 +903,36 @@ class RosbagsLogReader(LogReader):
 
     def _open(self) -> None:
         self._reader = self._open_any(self.path)
-        if self.format is LogFormat.ROSBAG2 and self.path.is_dir():
-            self._check_folder_yields()
+        try:
+            self._check_connections()
+            if self.format is LogFormat.ROSBAG2 and self.path.is_dir():
+                self._check_folder_yields()
+        except BaseException:
+            self._close()
+            raise
+
+    def _check_connections(self) -> None:
+        """Refuse a topic name that is not text; note a message count that is not a count.
+
+        rosbags takes both from a rosbag2 folder's metadata.yaml as YAML gives them; a
+        damaged file (a topic ``name: 12``, ``message_count: abc``) would otherwise fail
+        later with a TypeError or ValueError. A bad count is damage (the messages are in the
+        storage file and still read); :meth:`topics` reports it as unknown.
+        """
+        assert self._reader is not None
+        where = "metadata.yaml" if self.path.is_dir() else "the storage file"
+        for connection in self._reader.connections:
+            topic, count = connection.topic, connection.msgcount
+            if not isinstance(topic, str):
+                raise LogReadError(
+                    f"cannot read rosbag2 log {self.path}: {where} has a topic named {topic!r}, "
+                    f"not text; fix {where}"
+                )
+            if _message_count(count) is None:
+                _add_once(
+                    self.damage,
+                    f"{self.path.name}: {where} gives topic {topic} a message count of {count!r}",
+                )
 
     def _open_any(self, path: Path) -> AnyReader:
         _bound_rosbags_decompressors()
@@ -985,7 +1013,9 @@ class RosbagsLogReader(LogReader):
         for connection in self._reader.connections:
             msgtype = ros2_type_name(str(connection.msgtype))
             previous = topics.get(connection.topic)
-            count = int(connection.msgcount) + (previous.message_count or 0 if previous else 0)
+            count = _message_count(connection.msgcount)
+            if previous is not None:
+                count = None if count is None else _sum_counts(previous.message_count, count)
             topics[connection.topic] = TopicInfo(connection.topic, msgtype, count, "cdr", "ros2msg")
         return topics
 
@@ -1045,6 +1075,17 @@ class RosbagsLogReader(LogReader):
                 sequence=0,
             )
         order.report(self)
+
+
+def _message_count(value: Any) -> int | None:
+    """Return a connection's message count, None when it is not a count (damaged YAML)."""
+    if isinstance(value, int) and not isinstance(value, bool) and value >= 0:
+        return value
+    return None
+
+
+def _sum_counts(first: int | None, second: int) -> int | None:
+    return None if first is None else first + second
 
 
 def _connection_metadata(connection: Any) -> dict[str, str]:

@@ -30,7 +30,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from pcainterp_stream import logreader
-from pcainterp_stream.errors import CalibrationError
+from pcainterp_stream.errors import CalibrationError, LogReadError
 from pcainterp_stream.logreader import open_log
 from pcainterp_stream.pairing import iter_stereo_frames
 
@@ -348,6 +348,43 @@ def test_right_camera_info_with_denormal_fx_is_a_calibration_error(
     assert "pairs: CalibrationError" in verdict.outcome
     with open_log(log) as reader, pytest.raises(CalibrationError, match=r"gives no baseline"):
         list(iter_stereo_frames(reader))
+
+
+def _edit_metadata(seeds: dict[str, Path], tmp_path: Path, old: str, new: str) -> Path:
+    bag = _copy(seeds["rosbag2"], tmp_path)
+    metadata = bag / "metadata.yaml"
+    text = metadata.read_text()
+    assert old in text
+    metadata.write_text(text.replace(old, new, 1))
+    return bag
+
+
+def test_rosbag2_metadata_message_count_not_a_number_is_damage(
+    seeds: dict[str, Path], tmp_path: Path
+) -> None:
+    """Finding 5: rosbags takes a topic's message_count from metadata.yaml as YAML gives it;
+    ``message_count: abc`` made ``topics()`` raise ValueError. Now it is damage and the count
+    unknown; the messages are still read from the storage file."""
+    bag = _edit_metadata(seeds, tmp_path, "message_count: 2", "message_count: abc")
+    verdict = _check(bag, "message_count: abc")
+    assert verdict.outcome.startswith("read: 12 msgs, 0 undecodable, 1 damage")
+    with open_log(bag) as reader:
+        assert reader.topics()["/stereo/left/image_rect"].message_count is None
+        assert reader.damage == [
+            f"{bag.name}: metadata.yaml gives topic /stereo/left/image_rect a message count "
+            "of 'abc'"
+        ]
+
+
+def test_rosbag2_metadata_topic_not_text_is_an_error(
+    seeds: dict[str, Path], tmp_path: Path
+) -> None:
+    """Finding 5: a topic ``name: 12`` gave an int topic, which broke sorting and string
+    formatting downstream (TypeError). Now opening the bag fails with one line."""
+    bag = _edit_metadata(seeds, tmp_path, "name: /stereo/left/image_rect", "name: 12")
+    _check(bag, "topic name: 12")
+    with pytest.raises(LogReadError, match=r"metadata.yaml has a topic named 12, not text"):
+        open_log(bag)
 
 
 # --- real files written by others --------------------------------------------------------
