@@ -653,7 +653,7 @@ def _variance_beyond(
 
 
 @functools.cache
-def _triangular_lapack() -> Any:
+def triangular_lapack() -> Any:
     """Return scipy's LAPACK with its OpenBLAS held at one thread, or None.
 
     numpy has no triangular inverse: ``np.linalg.inv`` of the Cholesky factor costs ~4x
@@ -678,7 +678,7 @@ def _triangular_lapack() -> Any:
 
 def _cholesky_inverse_fast(system: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Return L^-1 (lower triangular) of L L^T = system via LAPACK dpotrf + dtrtri."""
-    lapack = _triangular_lapack()
+    lapack = triangular_lapack()
     if lapack is None:  # pragma: no cover
         return _cholesky_inverse(system)
     lower, info = lapack.dpotrf(system, lower=1, clean=1)

@@ -24,7 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.basis import Basis, bilinear_weights, image_to_grid, sample_rows
-from pcainterp_stream.estimator import clean_measurements
+from pcainterp_stream.estimator import clean_measurements, triangular_lapack
 from pcainterp_stream.prior import Kernel, LocalPrior, TemporalPrior
 
 FloatArray = npt.NDArray[np.float64]
@@ -93,11 +93,11 @@ def fit_frame(
 
 def _log_evidence(system: FloatArray, innovation: FloatArray) -> float:
     """Return log N(innovation; 0, system) via Cholesky; -inf if not positive definite."""
-    try:
-        lower = np.linalg.cholesky(system)
-    except np.linalg.LinAlgError:
+    lapack = triangular_lapack()
+    lower, info = lapack.dpotrf(system, lower=1, clean=1)
+    if info != 0:
         return -math.inf
-    solved = np.linalg.solve(lower, innovation)
+    solved, info = lapack.dtrtrs(lower, innovation, lower=1)
     return float(
         -0.5 * solved @ solved
         - np.log(np.diag(lower)).sum()

@@ -1,0 +1,101 @@
+"""Speed of densification with every addition of issue 7, at KITTI size, exact uncertainty.
+
+Uses the frames and fitted bases cached by ``tools/run_beyond.py`` (real GFTT + SGBM
+measurements of the synthetic test log, 1241x376, and the basis learned from synthetic
+ground truth with its evidence-fitted hyperparameters), and times ``densify_batch`` as the
+stream processor calls it: batches of 4 frames in stream order, BLAS on one thread, the
+temporal state carried across batches. Reports wall and CPU (this thread) time per frame.
+
+    python tools/bench_beyond.py --work /tmp/beyond [--frames 100] [--repeat 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from pcainterp_stream.basis import Basis
+from pcainterp_stream.estimator import densify_batch
+from pcainterp_stream.prior import LocalPrior, TemporalPrior
+
+CONFIGS: dict[str, dict[str, object]] = {
+    "plain (paper)": {},
+    "hybrid": {"local": True},
+    "robust cauchy": {"robust": "cauchy"},
+    "temporal": {"temporal": True},
+    "sigma evidence": {"sigma": "evidence"},
+    "hybrid + cauchy": {"local": True, "robust": "cauchy"},
+    "hybrid + temporal": {"local": True, "temporal": True},
+    "hybrid + cauchy + temporal": {"local": True, "robust": "cauchy", "temporal": True},
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark; print a Markdown table."""
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    parser.add_argument("--work", type=Path, required=True, help="run_beyond.py's folder")
+    parser.add_argument("--frames", type=int, default=100)
+    parser.add_argument("--repeat", type=int, default=3, help="best of N rounds")
+    parser.add_argument("--batch", type=int, default=4)
+    args = parser.parse_args(argv)
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from run_beyond import prepare_log
+
+    basis = Basis.load(args.work / "basis_synthetic.npz")
+    fitted = basis.meta["prior"]
+    camera_of_basis = (basis.image_size, basis.focal_baseline)
+    data = prepare_log(
+        args.work / "test_201.mcap", args.work / "cache_test_201", camera_of_basis, truth=True
+    )
+    frames = list(range(min(args.frames, data.frames)))
+    points = np.mean([data.pixels[i].shape[0] for i in frames])
+    print(
+        f"{len(frames)} frames, {points:.0f} points/frame, l = {basis.n_components}, "
+        f"image {basis.image_size[1]}x{basis.image_size[0]}, grid "
+        f"{basis.grid_size[1]}x{basis.grid_size[0]}, load average {os.getloadavg()[0]:.1f}"
+    )
+    print("| configuration | wall ms/frame | CPU ms/frame | frames/s (wall) |")
+    print("| --- | ---: | ---: | ---: |")
+    with threadpool_limits(1, user_api="blas"):
+        for name, config in CONFIGS.items():
+            local = LocalPrior.from_meta(fitted["local"]) if config.get("local") else None
+            sigma = config.get("sigma", fitted["sigma"] if local else fitted["plain_sigma"])
+            best_wall, best_cpu = float("inf"), float("inf")
+            for _ in range(args.repeat):
+                state = (
+                    TemporalPrior(process_noise=float(fitted["process_noise"]))
+                    if config.get("temporal")
+                    else None
+                )
+                wall, cpu = time.perf_counter(), time.thread_time()
+                for start in range(0, len(frames), args.batch):
+                    batch = frames[start : start + args.batch]
+                    densify_batch(
+                        basis,
+                        [data.pixels[i] for i in batch],
+                        [data.disparities[i] for i in batch],
+                        sigma=sigma,  # type: ignore[arg-type]
+                        local_prior=local,
+                        robust=str(config.get("robust", "none")),
+                        temporal=state,
+                        image_size=data.camera.image_size,
+                        focal_baseline=data.camera.focal_baseline,
+                    )
+                best_wall = min(best_wall, (time.perf_counter() - wall) / len(frames))
+                best_cpu = min(best_cpu, (time.thread_time() - cpu) / len(frames))
+            print(
+                f"| {name} | {1000 * best_wall:.1f} | {1000 * best_cpu:.1f} | "
+                f"{1 / best_wall:.1f} |",
+                flush=True,
+            )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
