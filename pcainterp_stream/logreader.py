@@ -882,10 +882,16 @@ def _bound_rosbags_decompressors() -> None:
     from rosbags.rosbag1 import reader as rosbag1_reader
     from rosbags.rosbag2 import storage_mcap
 
-    if lz4_frame is not None:
-        rosbag1_reader.decompressors["lz4"] = _unlz4
-        storage_mcap.DECOMPRESSORS["lz4"] = lambda data, _size: _unlz4(data)
-    storage_mcap.DECOMPRESSORS["zstd"] = _unzstd
+    # rosbags 0.11 names; if a release renames them, reading works unbounded as before
+    # (and test_rosbags_decompressors_do_not_allocate_stated_sizes fails)
+    ros1_table = getattr(rosbag1_reader, "decompressors", None)
+    mcap_table = getattr(storage_mcap, "DECOMPRESSORS", None)
+    if isinstance(ros1_table, dict) and lz4_frame is not None:
+        ros1_table["lz4"] = _unlz4
+    if isinstance(mcap_table, dict):
+        if lz4_frame is not None:
+            mcap_table["lz4"] = lambda data, _size: _unlz4(data)
+        mcap_table["zstd"] = _unzstd
 
 
 # --- ROS 1 bags and rosbag2 (rosbags) ------------------------------------------------------
