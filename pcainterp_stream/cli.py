@@ -14,16 +14,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from types import FrameType
 
-from pcainterp_stream import __version__
+from pcainterp_stream import __version__, defaults
 from pcainterp_stream.errors import PcaInterpError
 
 PROG = "pcainterp"
-
-DEFAULT_ROBUST = "none"
-"""``densify --robust`` default (the measured best, docs/results.md)."""
-
-DEFAULT_TEMPORAL = False
-"""``densify --temporal`` default (the measured best, docs/results.md)."""
 
 
 def _formatter(prog: str) -> argparse.HelpFormatter:
@@ -275,13 +269,13 @@ def build_parser() -> argparse.ArgumentParser:
     estimate.add_argument(
         "--robust",
         choices=["none", "huber", "cauchy"],
-        default=DEFAULT_ROBUST,
+        default=defaults.ROBUST,
         help="IRLS against wrong SGBM lookups (default: %(default)s)",
     )
     estimate.add_argument(
         "--temporal",
         action=argparse.BooleanOptionalAction,
-        default=DEFAULT_TEMPORAL,
+        default=defaults.TEMPORAL,
         help="previous frame's posterior as the prior (default: %(default)s)",
     )
     estimate.add_argument(

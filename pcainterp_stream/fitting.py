@@ -29,7 +29,7 @@ from pcainterp_stream.prior import Kernel, LocalPrior, TemporalPrior
 
 FloatArray = npt.NDArray[np.float64]
 
-LENGTH_SCALES = (2.0, 4.0, 8.0, 16.0, 32.0, 64.0)
+LENGTH_SCALES = (4.0, 8.0, 16.0, 32.0, 64.0, 128.0)
 """Length scales (basis image px) tried by :func:`fit_local_prior`."""
 
 PROCESS_NOISES = (0.003, 0.01, 0.03, 0.1, 0.3, 1.0)
@@ -136,8 +136,13 @@ class LocalFit:
         }
 
 
+MIN_SIGMA = 0.1
+"""Smallest noise std (px) the fit may choose: SGBM disparities are 1/16 px steps, and
+without a floor the local kernel absorbs the noise and sigma runs to 0 (K singular)."""
+
+
 def _maximise(
-    objective: Any, start: Sequence[float], *, tolerance: float = 1e-3
+    objective: Any, start: Sequence[float], *, tolerance: float = 0.01
 ) -> tuple[FloatArray, float]:
     """Maximise over log-parameters with Nelder-Mead (scipy.optimize)."""
     from scipy.optimize import minimize
@@ -146,7 +151,7 @@ def _maximise(
         lambda x: -objective(x),
         np.asarray(start, dtype=np.float64),
         method="Nelder-Mead",
-        options={"xatol": tolerance, "fatol": 1e-2, "maxiter": 200},
+        options={"xatol": tolerance, "fatol": 0.1, "maxiter": 200},
     )
     return np.asarray(result.x, dtype=np.float64), float(-result.fun)
 
@@ -182,8 +187,10 @@ def fit_local_prior(
     signals = [(f.rows * basis.eigenvalues) @ f.rows.T for f in usable]
     scale = float(np.median([np.median(np.diag(s)) for s in signals]))
 
+    floor = math.log(MIN_SIGMA)
+
     def plain(log_sigma: FloatArray) -> float:
-        variance = math.exp(2.0 * log_sigma[0])
+        variance = math.exp(2.0 * max(log_sigma[0], floor))
         total = 0.0
         for signal, frame in zip(signals, usable, strict=True):
             system = signal.copy()
@@ -192,6 +199,7 @@ def fit_local_prior(
         return total
 
     plain_x, plain_evidence = _maximise(plain, [math.log(2.0)])
+    plain_x[0] = max(plain_x[0], floor)
     table: list[dict[str, Any]] = [
         {
             "kernel": "none",
@@ -208,7 +216,7 @@ def fit_local_prior(
             kernel_matrices = [shape.matrix(f.positions) for f in usable]
 
             def hybrid(x: FloatArray, kernel_matrices: list[FloatArray] = kernel_matrices) -> float:
-                local_variance, noise = math.exp(x[0]), math.exp(2.0 * x[1])
+                local_variance, noise = math.exp(x[0]), math.exp(2.0 * max(x[1], floor))
                 total = 0.0
                 for signal, matrix, frame in zip(signals, kernel_matrices, usable, strict=True):
                     system = signal + local_variance * matrix
@@ -217,6 +225,7 @@ def fit_local_prior(
                 return total
 
             x, evidence = _maximise(hybrid, [math.log(0.1 * scale + 1.0), plain_x[0]])
+            x[1] = max(x[1], floor)
             local = LocalPrior(math.exp(x[0]), length_scale, Kernel(kernel))
             table.append(
                 {

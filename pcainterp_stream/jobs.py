@@ -381,7 +381,7 @@ def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: Pairin
     return basis
 
 
-FIT_MAX_FRAMES = 40
+FIT_MAX_FRAMES = 24
 """Frames used by the evidence fit of the local prior (evenly spread over the fit frames)."""
 
 FIT_SEQUENCE_FRAMES = 30
@@ -723,12 +723,19 @@ def demo(out: Path, *, spawn_viewer: bool = False) -> str:
     synth(test_log, frames=DEMO_TEST_FRAMES, seed=DEMO_TEST_SEED, scale=DEMO_SCALE, fmt="mcap")
     # Like the paper's Virtual KITTI experiment, the synthetic basis is learned from the
     # true depth; on real logs `pcainterp learn` uses SGBM maps (docs/results.md has both).
-    _echo(f"3/5 learning a basis from the training drives' true depth -> {basis_path}")
+    _echo(
+        f"3/5 learning a basis from the training drives' true depth, fitting the hybrid prior "
+        f"on the last {100 * DEMO_HOLDOUT:.0f} % of each drive -> {basis_path}"
+    )
     basis = learn(
         train_logs,
         basis_path,
         LearnOptions(
-            n_components=DEMO_COMPONENTS, grid_scale=0.25, depth_topic="/ground_truth/depth"
+            n_components=DEMO_COMPONENTS,
+            grid_scale=0.25,
+            depth_topic="/ground_truth/depth",
+            fit_prior=True,
+            holdout=DEMO_HOLDOUT,
         ),
         PairingConfig(),
     )
@@ -748,6 +755,7 @@ def demo(out: Path, *, spawn_viewer: bool = False) -> str:
             f"demo finished in {elapsed:.0f} s; everything is in {out}/",
             f"  basis            {basis.n_components} components from {basis.n_train} depth maps"
             f" ({100 * basis.explained_variance_ratio:.1f} % variance), {width}x{height} px",
+            f"  estimate         {_estimate_line(basis)}",
             f"  densified        {summary.frames} frames at {summary.frames_per_second:.1f}"
             f" frames/s, {summary.measurements / max(summary.frames, 1):.0f} points per frame",
             f"  mean Delta_2D ({report['mode']} mode, paper IV-B), same sparse points:",
@@ -765,12 +773,35 @@ def demo(out: Path, *, spawn_viewer: bool = False) -> str:
     )
 
 
+def _estimate_line(basis: Basis) -> str:
+    """Describe the estimate densify uses by default with this basis."""
+    from pcainterp_stream.processor import resolve_settings
+
+    settings = resolve_settings(basis, ProcessorConfig())  # what densify does by default
+    parts = []
+    if settings.local_prior is not None:
+        local = settings.local_prior
+        parts.append(
+            f"hybrid prior ({local.kernel.value} kernel, {local.length_scale:g} px, "
+            f"{local.variance:.2g} px^2, fitted by evidence)"
+        )
+    else:
+        parts.append("paper's prior")
+    sigma = settings.sigma
+    parts.append(f"sigma {sigma:.2f} px" if isinstance(sigma, float) else f"sigma {sigma}")
+    config = ProcessorConfig()
+    parts.append(f"robust {config.robust}")
+    parts.append("temporal prior" if config.temporal else "no temporal prior")
+    return ", ".join(parts)
+
+
 DEMO_SCALE = 1.0
 DEMO_TRAIN_SEEDS = (1, 3, 4, 5)
 DEMO_TRAIN_FRAMES = 200
 DEMO_TEST_SEED = 2
 DEMO_TEST_FRAMES = 50
 DEMO_COMPONENTS = 300
+DEMO_HOLDOUT = 0.2
 DEMO_SWEEP_EVERY = 10
 
 

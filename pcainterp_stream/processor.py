@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from pcainterp_stream import defaults
 from pcainterp_stream.basis import Basis
 from pcainterp_stream.estimator import densify_batch
 from pcainterp_stream.prior import LocalPrior, TemporalPrior
@@ -86,8 +87,8 @@ class ProcessorConfig:
     sigma: float | str = "auto"
     uncertainty: str = "exact"
     prior: str = "auto"
-    robust: str = "none"
-    temporal: bool = False
+    robust: str = defaults.ROBUST
+    temporal: bool = defaults.TEMPORAL
     process_noise: float | None = None
     source: MeasurementSource = MeasurementSource.STEREO
     batch_size: int = 4

@@ -78,6 +78,8 @@ FIT_SEED = 150
 TEST_SEED = 201
 GRID_SCALE = 0.25
 SWEEP_POINTS = (50, 100, 200, 400, 800)
+MAIN_MIX = 1000
+"""Synthetic SGBM maps added to the real training frames of the ``*_mix`` splits."""
 FloatArray = npt.NDArray[np.float64]
 
 
@@ -551,6 +553,16 @@ def main(argv: list[str] | None = None) -> int:
                 [(train_data, slice(cut, None))],
             )
             splits.append((split, f"kitti_{test}", "stereo", basis, hyper))
+            # the same real frames with 1,000 synthetic SGBM maps (see the mix stage)
+            step = max(1, synth_sgbm.shape[0] // MAIN_MIX)
+            synthetic_part = synth_sgbm[::step][:MAIN_MIX]
+            basis, hyper = basis_for(
+                f"{split}_mix{MAIN_MIX}",
+                np.concatenate([synthetic_part, train_data.grid_sgbm[:cut]]),
+                f"SGBM: {synthetic_part.shape[0]} synthetic + {cut} KITTI {train}",
+                [(train_data, slice(cut, None))],
+            )
+            splits.append((f"{split}_mix", f"kitti_{test}", "stereo", basis, hyper))
 
     methods = [m for m in METHODS if args.methods is None or m.name in args.methods]
     if "evaluate" in args.stages:
