@@ -3,7 +3,16 @@
 ``tests/test_cli.py`` sends SIGINT and SIGTERM to ``synth`` and ``densify`` (each with a
 rerun); this file does the same for ``learn``, whose only output is written at the very
 end (``Basis.save``: a temporary beside the target, renamed), so the signal lands while it
-reads the log and runs SGBM. A second test interrupts the save itself.
+reads the log and runs SGBM. Another test interrupts the save itself.
+
+The signals go to the entry point users run, the ``pcainterp`` console script
+(``sys.exit(main())`` in a script; here the same two lines through ``python -c``). Under
+``python -m pcainterp_stream.cli`` a Ctrl-C that lands while rosbags compiles its generated
+(de)serializers (``exec`` of a source string, on the first message of each type) ends the
+process by SIGINT (exit -2) instead of 130 after the message: CPython remembers a
+KeyboardInterrupt that left code run by ``exec(str)`` and, for ``-m`` only, re-raises
+SIGINT at exit even though ``cli.main`` handled it (bpo-41602). The last two tests pin
+that case down deterministically.
 """
 
 from __future__ import annotations
@@ -26,6 +35,13 @@ from pcainterp_stream.logreader import open_log
 from pcainterp_stream.logwriter import open_writer
 
 INTERRUPTED = "pcainterp: interrupted; no partial output was left at the target"
+CONSOLE_SCRIPT = [
+    sys.executable,
+    "-c",
+    "import sys; from pcainterp_stream.cli import main; sys.exit(main())",
+]
+"""What the ``pcainterp`` console script runs."""
+PYTHON_M = [sys.executable, "-m", "pcainterp_stream.cli"]
 SMALL_FRAMES = 8
 REPEATS = 20  # the long log: 160 quarter-size pairs, a few seconds of learning
 
@@ -79,7 +95,7 @@ def _has_open(pid: int, path: Path) -> bool:
 
 def _pcainterp(*args: str | Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "pcainterp_stream.cli", *map(str, args)],
+        [*CONSOLE_SCRIPT, *map(str, args)],
         capture_output=True,
         text=True,
         check=False,
@@ -91,7 +107,7 @@ def _interrupt_while_reading(
 ) -> tuple[int, str]:
     """Start ``pcainterp ARGS``, send ``sig`` once it reads ``log``; return (code, stderr)."""
     process = subprocess.Popen(
-        [sys.executable, "-m", "pcainterp_stream.cli", *map(str, args)],
+        [*CONSOLE_SCRIPT, *map(str, args)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -115,7 +131,9 @@ def _interrupt_while_reading(
 
 @pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_signal_during_learn(sig: signal.Signals, long_log: Path, tmp_path: Path) -> None:
+def test_signal_during_learn(
+    sig: signal.Signals, long_log: Path, small_log: Path, tmp_path: Path
+) -> None:
     target = tmp_path / "basis.npz"
     target.write_bytes(b"an older basis")  # an existing target must be left as it was
     args: list[str | Path] = ["learn", long_log, "-o", target, "--components", "5"]
@@ -124,9 +142,10 @@ def test_signal_during_learn(sig: signal.Signals, long_log: Path, tmp_path: Path
     assert err.strip() == INTERRUPTED
     assert target.read_bytes() == b"an older basis"
     assert [p.name for p in tmp_path.iterdir()] == [target.name]  # no temporary beside it
-    rerun = _pcainterp(*args)
+    # nothing the interrupted run left stops a new one (the short log keeps the test fast)
+    rerun = _pcainterp("learn", small_log, "-o", target, "--components", "5")
     assert rerun.returncode == 0, rerun.stderr
-    assert Basis.load(target).n_train == SMALL_FRAMES * REPEATS
+    assert Basis.load(target).n_train == SMALL_FRAMES
     assert [p.name for p in tmp_path.iterdir()] == [target.name]
 
 
@@ -151,3 +170,75 @@ def test_interrupt_while_learn_saves(
     assert cli.main(["learn", str(small_log), "-o", str(target), "--components", "3"]) == 0
     assert Basis.load(target).n_train == SMALL_FRAMES
     assert [p.name for p in tmp_path.iterdir()] == [target.name]
+
+
+SIGINT_IN_EXEC = """
+import builtins, os, sys
+
+_log = os.environ["PCAINTERP_TEST_SIGINT_AFTER_OPEN"]
+_state = {"armed": False, "fired": False}
+_exec = builtins.exec
+
+
+def _arm(event, args):
+    if event == "open" and args and str(args[0]) == _log:
+        _state["armed"] = True
+
+
+def _exec_then_interrupt(source, globals=None, locals=None, /, **kwargs):
+    if globals is None:
+        frame = sys._getframe(1)
+        globals, locals = frame.f_globals, frame.f_locals
+    if isinstance(source, str) and _state["armed"] and not _state["fired"]:
+        _state["fired"] = True
+        # Ctrl-C arriving while the generated source runs: raise_signal raises it right here
+        source = "import signal as _s; _s.raise_signal(_s.SIGINT)\\n" + source
+    return _exec(source, globals, locals, **kwargs)
+
+
+sys.addaudithook(_arm)
+builtins.exec = _exec_then_interrupt
+"""
+"""sitecustomize: SIGINT inside the first ``exec(str)`` after the log is opened."""
+
+
+def _learn_interrupted_in_exec(entry: list[str], small_log: Path, tmp_path: Path) -> int:
+    """Run learn with SIGINT raised inside generated code; return the exit code."""
+    helper = tmp_path / "helper"
+    helper.mkdir()
+    (helper / "sitecustomize.py").write_text(SIGINT_IN_EXEC)
+    target = tmp_path / "out" / "basis.npz"
+    target.parent.mkdir()
+    path = os.pathsep.join([str(helper), *filter(None, [os.environ.get("PYTHONPATH")])])
+    done = subprocess.run(
+        [*entry, "learn", str(small_log), "-o", str(target), "--components", "3"],
+        capture_output=True,
+        text=True,
+        check=False,
+        env={
+            **os.environ,
+            "PYTHONPATH": path,
+            "PCAINTERP_TEST_SIGINT_AFTER_OPEN": str(small_log),
+        },
+    )
+    assert "sitecustomize" not in done.stderr, done.stderr  # the helper must load
+    if done.returncode == 0:
+        pytest.skip("no exec(str) ran after the log was opened: the modelled race is gone")
+    assert done.stderr.strip() == INTERRUPTED, done.stderr
+    assert list(target.parent.iterdir()) == []
+    return done.returncode
+
+
+def test_interrupt_in_generated_code_console_script(small_log: Path, tmp_path: Path) -> None:
+    assert _learn_interrupted_in_exec(CONSOLE_SCRIPT, small_log, tmp_path) == 130
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="python -m only: CPython (bpo-41602) re-raises SIGINT at exit after a "
+    "KeyboardInterrupt left exec(str) code (rosbags' generated serde), although cli.main "
+    "handled it: exit -2 instead of 130. Fix in cli.main: exec('') after catching it, "
+    "which clears CPython's flag (see the issue 8 report)",
+)
+def test_interrupt_in_generated_code_python_m(small_log: Path, tmp_path: Path) -> None:
+    assert _learn_interrupted_in_exec(PYTHON_M, small_log, tmp_path) == 130
