@@ -141,6 +141,7 @@ def test_seed_reads_cleanly(seeds: dict[str, Path], fmt: str) -> None:
     assert verdict.outcome.endswith("info: exit 0")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("fmt", "examples"),
     # rosbags opens a log in ~0.3 s (it parses every message definition) against 0.05 s
@@ -158,6 +159,7 @@ def test_damaged_synthetic_log_reads_or_fails_cleanly(
     damaged()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmt", ["mcap", "ros1", "rosbag2"])
 def test_huge_length_fields_do_not_allocate(seeds: dict[str, Path], fmt: str) -> None:
     """Ten length fields spread over the seed each claim 2^60 (u64) or 2^32 - 1 (u32) bytes."""
@@ -409,6 +411,7 @@ def _realdata_logs() -> list[str]:
     ]
 
 
+@pytest.mark.slow
 @pytest.mark.realdata
 @needs_realdata
 @pytest.mark.parametrize("name", _realdata_logs())
@@ -429,10 +432,13 @@ def test_damaged_real_log_reads_or_fails_cleanly(name: str, tmp_path: Path) -> N
 # --- the coverage-guided fuzzer -----------------------------------------------------------
 
 
-def test_fuzz_tool_short_run(tmp_path: Path) -> None:
+@pytest.mark.slow
+def test_fuzz_tool_short_run(seeds: dict[str, Path], tmp_path: Path) -> None:
     """A few seconds of ``tools/fuzz_readers.py`` (atheris) on MCAP finds nothing."""
     pytest.importorskip("atheris", reason="atheris not installed: pip install -e '.[fuzz]'")
     out = tmp_path / "fuzz"
+    (out / "corpus").mkdir(parents=True)
+    shutil.copyfile(seeds["mcap"], out / "corpus" / "seed.mcap")  # no second synth run
     result = subprocess.run(
         [
             *(sys.executable, str(ROOT / "tools" / "fuzz_readers.py"), "--format", "mcap"),
