@@ -504,12 +504,14 @@ def _solve_beyond(
         need_factor=need_factor,
     )
     if predicted is not None and temporal is not None:
-        if posterior.normalised_innovation > temporal.reset_threshold:
+        if not temporal.accepts(posterior.normalised_innovation):
             temporal.resets += 1
             posterior = _solve_measurement(
                 rows, residual, positions, eigenvalues, model, None, local_matrix,
                 need_factor=need_factor, label="reset",
             )
+    if temporal is not None and posterior.temporal != "temporal":
+        temporal.static_innovation = posterior.normalised_innovation
     if temporal is not None:
         temporal.update(posterior.coefficients, posterior.coefficient_variance)
     return posterior

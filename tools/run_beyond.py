@@ -568,20 +568,23 @@ def main(argv: list[str] | None = None) -> int:
     if "evaluate" in args.stages:
         for split, test, mode, basis, hyper in splits:
             _log(f"evaluate {split} on {test} ({mode})")
-            results.setdefault("evaluate", {})[split] = evaluate_split(
-                basis, hyper, data[test], mode, methods, args.max_test_frames
+            results.setdefault("evaluate", {}).setdefault(split, {}).update(
+                evaluate_split(basis, hyper, data[test], mode, methods, args.max_test_frames)
             )
             save()
     if "sweep" in args.stages:
         for split, test, mode, basis, hyper in splits:
             _log(f"sweep {split}")
-            results.setdefault("sweep", {})[split] = sweep_split(
+            sweep = results.setdefault("sweep", {}).setdefault(split, {})
+            swept = sweep_split(
                 basis, hyper, data[test], mode,
                 [m for m in methods if m.name in {
                     METHODS[0].name, METHODS[7].name, METHODS[8].name, METHODS[9].name,
                     "nearest neighbour", "linear"}],
                 args.sweep_frames,
             )
+            for points, row in swept.items():
+                sweep.setdefault(points, {}).update(row)
             save()
     if "mix" in args.stages and len(real) == 2:
         mix_methods = [METHODS[0], METHODS[8], METHODS[10]]
