@@ -146,7 +146,7 @@ def test_seed_reads_cleanly(seeds: dict[str, Path], fmt: str) -> None:
     ("fmt", "examples"),
     # rosbags opens a log in ~0.3 s (it parses every message definition) against 0.05 s
     # for MCAP: fewer examples for the rosbags formats keep the file under a minute
-    [("mcap", 50), ("ros1", 20), ("rosbag2", 15), ("rosbag2-sqlite3", 12)],
+    [("mcap", 50), ("mcap-ros1", 15), ("ros1", 20), ("rosbag2", 15), ("rosbag2-sqlite3", 12)],
 )
 def test_damaged_synthetic_log_reads_or_fails_cleanly(
     seeds: dict[str, Path], fmt: str, examples: int
@@ -160,7 +160,7 @@ def test_damaged_synthetic_log_reads_or_fails_cleanly(
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("fmt", ["mcap", "ros1", "rosbag2"])
+@pytest.mark.parametrize("fmt", ["mcap", "mcap-ros1", "ros1", "rosbag2"])
 def test_huge_length_fields_do_not_allocate(seeds: dict[str, Path], fmt: str) -> None:
     """Ten length fields spread over the seed each claim 2^60 (u64) or 2^32 - 1 (u32) bytes."""
     data = _target(seeds[fmt], "storage").read_bytes()

@@ -46,8 +46,10 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-FORMATS = ("mcap", "ros1", "rosbag2", "rosbag2-sqlite3")
-"""Seed kinds: an MCAP file, a ROS 1 bag, and rosbag2 folders with mcap / sqlite3 storage."""
+FORMATS = ("mcap", "mcap-ros1", "ros1", "rosbag2", "rosbag2-sqlite3")
+"""Seed kinds: an MCAP file (ros2 profile, zstd chunks), an MCAP file with the ros1 profile
+(uncompressed chunks, made from the ROS 1 seed), a ROS 1 bag, and rosbag2 folders with
+mcap / sqlite3 storage."""
 
 SEED_FRAMES = 2
 SEED_SCALE = 0.1  # 124x38 px: small inputs, so mutations land on structure, not pixels
@@ -505,6 +507,10 @@ def write_seed(
     """
     from pcainterp_stream.cli import main
 
+    if fmt == "mcap-ros1":
+        bag_folder = folder / "ros1_for_mcap"
+        bag_folder.mkdir(exist_ok=True)
+        return _ros1_mcap(write_seed("ros1", bag_folder, frames=frames, scale=scale), folder)
     name = {"mcap": "seed.mcap", "ros1": "seed.bag"}.get(fmt, f"seed_{fmt.replace('-', '_')}")
     out = folder / name
     argv = ["synth", str(out), "--frames", str(frames), "--scale", str(scale), "--format", fmt]
@@ -512,6 +518,27 @@ def write_seed(
         code = main(argv)
     if code != 0:
         raise RuntimeError(f"pcainterp {' '.join(argv)} exited {code}")
+    return out
+
+
+def _ros1_mcap(bag: Path, folder: Path) -> Path:
+    """Copy a ROS 1 bag into an MCAP file with the ros1 profile (uncompressed chunks)."""
+    from mcap.writer import CompressionType, Writer
+    from rosbags.rosbag1 import Reader
+
+    out = folder / "seed_ros1.mcap"
+    with Reader(bag) as reader, out.open("wb") as stream:
+        writer = Writer(stream, compression=CompressionType.NONE)
+        writer.start("ros1", "fuzz_readers")
+        channels: dict[int, int] = {}
+        for connection in reader.connections:
+            schema = writer.register_schema(
+                connection.msgtype, "ros1msg", connection.msgdef.data.encode()
+            )
+            channels[connection.id] = writer.register_channel(connection.topic, "ros1", schema)
+        for connection, timestamp, data in reader.messages():
+            writer.add_message(channels[connection.id], timestamp, bytes(data), timestamp)
+        writer.finish()  # type: ignore[no-untyped-call]
     return out
 
 
