@@ -455,6 +455,75 @@ def sweep_split(
     return out
 
 
+# ----------------------------------------------------------------------------- report
+
+SPLIT_TITLES = {
+    "synthetic": "synthetic (temporal, ground truth)",
+    "kitti_a": "KITTI A: raw drive -> odometry clip (real-only basis)",
+    "kitti_b": "KITTI B: odometry clip -> raw drive (real-only basis)",
+    "kitti_a_mix": "KITTI A, basis + 1,000 synthetic maps",
+    "kitti_b_mix": "KITTI B, basis + 1,000 synthetic maps",
+}
+
+
+def report(results: dict[str, Any]) -> str:
+    """Return the Markdown tables of a results.json."""
+    lines: list[str] = []
+    for split, methods in results.get("evaluate", {}).items():
+        nearest_mean = methods.get("nearest neighbour", {}).get("delta_2d_mean", float("nan"))
+        lines += [
+            f"**{SPLIT_TITLES.get(split, split)}**",
+            "",
+            "| method | mean Delta_2D px | / nearest | depth RMSE m | +-1 / +-2 sigma % "
+            "| ms/frame | down-weighted/frame | resets |",
+            "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+        ]
+        for name, m in methods.items():
+            coverage = (
+                f"{100 * m['coverage_1']:.1f} / {100 * m['coverage_2']:.1f}"
+                if m["coverage_2"] == m["coverage_2"]
+                else "-"
+            )
+            lines.append(
+                f"| {name} | {m['delta_2d_mean']:.2f} | {m['delta_2d_mean'] / nearest_mean:.2f} "
+                f"| {m['depth_rmse']:.2f} | {coverage} | {m['ms_per_frame']:.0f} "
+                f"| {m['downweighted_per_frame']:.1f} | {m['temporal_resets']:.0f} |"
+            )
+        lines.append("")
+    for split, rows in results.get("sweep", {}).items():
+        names = list(next(iter(rows.values())).keys())
+        lines += [
+            f"**Points sweep, {SPLIT_TITLES.get(split, split)}** (mean Delta_2D px)",
+            "",
+            "| points | " + " | ".join(names) + " |",
+            "| ---: | " + " | ".join("---:" for _ in names) + " |",
+        ]
+        for points, row in rows.items():
+            lines.append(
+                f"| {points} | " + " | ".join(f"{row.get(n, float('nan')):.2f}" for n in names)
+                + " |"
+            )
+        lines.append("")
+    if results.get("mix"):
+        lines += [
+            "**Training mix** (KITTI, SGBM maps; mean Delta_2D px on the other clip)",
+            "",
+            "| basis | synthetic maps | real maps | plain | hybrid + Cauchy | nearest "
+            "| hybrid / nearest |",
+            "| --- | ---: | ---: | ---: | ---: | ---: | ---: |",
+        ]
+        for name, m in results["mix"].items():
+            plain = m[METHODS[0].name]["delta_2d_mean"]
+            hybrid = m[METHODS[8].name]["delta_2d_mean"]
+            nearest_mean = m["nearest neighbour"]["delta_2d_mean"]
+            lines.append(
+                f"| {name} | {m['synthetic_maps']} | {m['real_maps']} | {plain:.2f} "
+                f"| {hybrid:.2f} | {nearest_mean:.2f} | {hybrid / nearest_mean:.2f} |"
+            )
+        lines.append("")
+    return "\n".join(lines)
+
+
 # ----------------------------------------------------------------------------- main
 
 
@@ -474,6 +543,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--methods", nargs="*", default=None, help="names of METHODS to run")
     args = parser.parse_args(argv)
     work: Path = args.work
+    if args.stages == ["report"]:
+        print(report(json.loads((work / "results.json").read_text())))
+        return 0
     work.mkdir(parents=True, exist_ok=True)
     results_path = work / "results.json"
     results: dict[str, Any] = (
