@@ -279,6 +279,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="previous frame's posterior as the prior (default: %(default)s)",
     )
     estimate.add_argument(
+        "--calibrate",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="scale the std by the factor learn --fit-prior calibrated on held-out frames "
+        "(default: %(default)s; --no-calibrate reports the posterior std itself)",
+    )
+    estimate.add_argument(
         "--process-noise",
         type=float,
         default=None,

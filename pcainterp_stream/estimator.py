@@ -179,6 +179,7 @@ def densify(
     local_prior: LocalPrior | None = None,
     robust: Robust | str = Robust.NONE,
     temporal: TemporalPrior | None = None,
+    std_scale: float = 1.0,
 ) -> DensifyResult:
     """Densify one frame's sparse disparities with the MAP estimate.
 
@@ -203,6 +204,8 @@ def densify(
         robust: ``"none"``, ``"huber"`` or ``"cauchy"``: IRLS on the leave-one-out
             standardised residuals (:class:`prior.Robust`).
         temporal: the stream's temporal prior state, updated in place; None: static prior.
+        std_scale: factor on the reported std (a calibration fitted on held-out frames,
+            ``fitting.fit_std_scale``); 1 reports the posterior std itself.
 
     Returns:
         The :class:`DensifyResult`. Zero usable measurements give the prior (mean map,
@@ -224,6 +227,7 @@ def densify(
         local_prior=local_prior,
         robust=robust,
         temporal=temporal,
+        std_scale=std_scale,
     )[0]
 
 
@@ -241,6 +245,7 @@ def densify_batch(
     local_prior: LocalPrior | None = None,
     robust: Robust | str = Robust.NONE,
     temporal: TemporalPrior | None = None,
+    std_scale: float = 1.0,
 ) -> list[DensifyResult]:
     """Densify several frames at once with matrix-matrix products across frames.
 
@@ -261,6 +266,7 @@ def densify_batch(
         local_prior: local covariance of the hybrid prior, or None.
         robust: IRLS loss, ``"none"``, ``"huber"`` or ``"cauchy"``.
         temporal: temporal prior state carried across calls (frames in stream order).
+        std_scale: factor on the reported std (1: the posterior std itself).
 
     Returns:
         One :class:`DensifyResult` per frame, in order.
@@ -274,6 +280,8 @@ def densify_batch(
             f"({len(pixels_list)}), got {len(disparities_list)}"
         )
     model = Model(sigma=_sigma(sigma), local=local_prior, robust=Robust(robust))
+    if not (np.isfinite(std_scale) and std_scale > 0):
+        raise ValueError(f"Expected `std_scale` > 0, got {std_scale}")
     mode = Uncertainty(uncertainty)
     form = SolveForm(solve_form)
     out_size = _image_size(basis, image_size)
@@ -335,7 +343,9 @@ def densify_batch(
             )
         disparity_std = None
         if vgrid is not None and variances is not None:
-            grid_std = np.sqrt(np.maximum(variances[index], 0.0)) * np.float32(1.0 / to_basis)
+            grid_std = np.sqrt(np.maximum(variances[index], 0.0)) * np.float32(
+                std_scale / to_basis
+            )
             disparity_std = resample_grid(grid_std.reshape(vgrid.size), out_size)
         depth, depth_std = _depth(disparity, disparity_std, fb_out)
         results.append(

@@ -300,3 +300,36 @@ def fit_process_noise(
         scores[q] = total
     best = max(scores, key=lambda q: scores[q])
     return best, scores
+
+
+COVERAGE_TARGET = 0.954
+"""Share of reference pixels the calibrated +-2 std band should hold (a Gaussian's)."""
+
+
+def fit_std_scale(
+    estimates: Sequence[FloatArray | npt.NDArray[np.float32]],
+    stds: Sequence[FloatArray | npt.NDArray[np.float32]],
+    references: Sequence[FloatArray | npt.NDArray[np.float32]],
+) -> float:
+    """Return the factor on the posterior std that puts 95.4 % of errors inside +-2 std.
+
+    The posterior only knows the model (basis, kernel, Gaussian noise); what the model gets
+    wrong on real data shows up as errors outside the band. One factor, fitted on held-out
+    frames with a dense reference, calibrates the band there: s = q_0.954(|e| / std) / 2.
+
+    Args:
+        estimates: per frame (H, W) estimated disparity (px).
+        stds: per frame (H, W) posterior std (px).
+        references: per frame (H, W) reference disparity (px), NaN where unknown.
+
+    Returns:
+        The factor s (1 when no pixel is usable).
+    """
+    ratios = []
+    for estimate, std, reference in zip(estimates, stds, references, strict=True):
+        valid = np.isfinite(reference) & np.isfinite(estimate) & (std > 0)
+        ratios.append(np.abs(estimate[valid] - reference[valid]) / std[valid])
+    joined = np.concatenate(ratios) if ratios else np.zeros(0)
+    if joined.size == 0:
+        return 1.0
+    return float(np.quantile(joined, COVERAGE_TARGET) / 2.0)

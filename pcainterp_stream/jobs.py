@@ -384,6 +384,37 @@ def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: Pairin
 FIT_MAX_FRAMES = 24
 """Frames used by the evidence fit of the local prior (evenly spread over the fit frames)."""
 
+CALIBRATION_EVERY = 4
+"""Every N-th held-out frame is densified to calibrate the std (``fitting.fit_std_scale``)."""
+
+
+def _fit_std_scale(
+    basis: Basis, local: Any, sigma: float, frames: list[tuple[Any, Any, Any]]
+) -> float:
+    """Densify held-out frames as densify would and fit the std calibration factor."""
+    from pcainterp_stream.estimator import densify as densify_frame
+    from pcainterp_stream.fitting import fit_std_scale
+
+    config = ProcessorConfig()
+    estimates, stds, references = [], [], []
+    for measured, camera, reference in frames:
+        result = densify_frame(
+            basis,
+            measured.pixels,
+            measured.disparities,
+            sigma=sigma,
+            local_prior=local,
+            robust=config.robust,
+            image_size=camera.image_size,
+            focal_baseline=camera.focal_baseline,
+        )
+        assert result.disparity_std is not None
+        estimates.append(result.disparity)
+        stds.append(result.disparity_std)
+        references.append(reference)
+    return fit_std_scale(estimates, stds, references)
+
+
 FIT_SEQUENCE_FRAMES = 30
 """Consecutive frames per log used to fit the temporal process noise."""
 
@@ -408,6 +439,7 @@ def fit_prior(
 
     front_end = StereoFrontEnd(options.gftt, options.sgbm)
     sequences: list[list[Any]] = []
+    calibration: list[tuple[Any, Any, Any]] = []  # (frame, camera, SGBM map) for the std scale
     started = time.perf_counter()
     with _bar(None, "fit prior (measure held-out frames)") as bar:
         for log, first in sources:
@@ -427,6 +459,8 @@ def fit_prior(
                             focal_baseline=frame.camera.focal_baseline,
                         )
                     )
+                    if (frame.index - first) % CALIBRATION_EVERY == 0:
+                        calibration.append((measured, frame.camera, measured.disparity_map))
                     bar.update(1)
             sequences.append(sequence)
     frames = [frame for sequence in sequences for frame in sequence if frame.residual.size]
@@ -444,9 +478,12 @@ def fit_prior(
         local=local.local,
         sigma=local.sigma,
     )
+    std_scale = _fit_std_scale(basis, local.local, local.sigma, calibration)
     fitted = local.to_meta()
     fitted.update(
         {
+            "std_scale": std_scale,
+            "std_scale_reference": "SGBM maps of the held-out frames",
             "process_noise": process_noise,
             "process_noise_log_evidence": {str(q): v for q, v in scores.items()},
             "candidates": local.table,
@@ -1002,6 +1039,7 @@ def run(args: argparse.Namespace) -> int:
             robust=args.robust,
             temporal=args.temporal,
             process_noise=args.process_noise,
+            calibrate=args.calibrate,
             source=source,
         )
         _check_estimate(processor, args.basis)

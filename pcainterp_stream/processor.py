@@ -66,6 +66,8 @@ class ProcessorConfig:
         temporal: carry each frame's posterior into the next frame's prior.
         process_noise: the temporal prior's process noise (fraction of the eigenvalues);
             None: the basis's fitted value, else 0.1.
+        calibrate: scale the std by the basis's fitted calibration factor (with the
+            hybrid prior it was fitted with); False reports the posterior std itself.
         source: measurement source.
         batch_size: frames densified together (matrix-matrix products).
         lookahead: frames queued for stereo matching ahead of densification; at least
@@ -90,6 +92,7 @@ class ProcessorConfig:
     robust: str = defaults.ROBUST
     temporal: bool = defaults.TEMPORAL
     process_noise: float | None = None
+    calibrate: bool = True
     source: MeasurementSource = MeasurementSource.STEREO
     batch_size: int = 4
     lookahead: int = 4
@@ -120,11 +123,13 @@ class EstimateSettings:
         sigma: noise std (px) or "evidence".
         local_prior: the local kernel of the hybrid prior, or None.
         process_noise: the temporal prior's process noise.
+        std_scale: calibration factor on the reported std (1: the posterior std).
     """
 
     sigma: float | str
     local_prior: LocalPrior | None
     process_noise: float
+    std_scale: float = 1.0
 
 
 def resolve_settings(basis: Basis, config: ProcessorConfig) -> EstimateSettings:
@@ -160,7 +165,12 @@ def resolve_settings(basis: Basis, config: ProcessorConfig) -> EstimateSettings:
     process_noise = config.process_noise
     if process_noise is None:
         process_noise = float(fitted.get("process_noise", 0.1))
-    return EstimateSettings(sigma=sigma, local_prior=local, process_noise=process_noise)
+    std_scale = 1.0
+    if config.calibrate and local is not None:
+        std_scale = float(fitted.get("std_scale", 1.0))
+    return EstimateSettings(
+        sigma=sigma, local_prior=local, process_noise=process_noise, std_scale=std_scale
+    )
 
 
 class _Measured(NamedTuple):
@@ -375,6 +385,7 @@ class FrameProcessor:
                 local_prior=self.settings.local_prior,
                 robust=self.config.robust,
                 temporal=self.temporal,
+                std_scale=self.settings.std_scale,
             )
             for item, estimate in zip(group, estimates, strict=True):
                 counts = dict(item.counts)

@@ -10,7 +10,12 @@ import pytest
 from pcainterp_stream import jobs
 from pcainterp_stream.basis import Basis
 from pcainterp_stream.cli import main
-from pcainterp_stream.fitting import FitFrame, fit_local_prior, fit_process_noise
+from pcainterp_stream.fitting import (
+    FitFrame,
+    fit_local_prior,
+    fit_process_noise,
+    fit_std_scale,
+)
 from pcainterp_stream.pairing import PairingConfig
 from pcainterp_stream.prior import Kernel, LocalPrior
 
@@ -112,14 +117,14 @@ def test_learn_fit_prior_then_densify_uses_it(tmp_path: Path) -> None:
     assert basis.n_train == 15  # 5 of 20 frames held out for the fit
     prior = basis.meta["prior"]
     assert prior["held_out_frames"] == 5
-    assert prior["sigma"] > 0 and prior["process_noise"] > 0
+    assert prior["sigma"] > 0 and prior["process_noise"] > 0 and prior["std_scale"] > 0
     assert {row["kernel"] for row in prior["candidates"]} == {"none", "laplace", "gaussian"}
     out = tmp_path / "dense.mcap"
     assert main(["densify", str(test), "-o", str(out), "--basis", str(basis_path),
                  "--robust", "cauchy", "--temporal"]) == 0
     summary = jobs.densify(
         test, tmp_path / "dense2.mcap", basis_path,
-        processor=jobs.ProcessorConfig(robust="huber", temporal=True, prior="hybrid"),
+        processor=jobs.ProcessorConfig(robust="huber", temporal=True, prior="auto"),
     )
     assert summary.frames == 4
     assert summary.temporal_resets >= 0 and summary.downweighted >= 0
@@ -150,3 +155,30 @@ def test_prior_hybrid_without_a_fitted_basis_is_refused(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "learn --fit-prior" in err[0]
     assert not (tmp_path / "o.mcap").exists()
+
+
+def test_std_scale_puts_95_percent_inside_two_std() -> None:
+    rng = np.random.default_rng(5)
+    reference = rng.normal(size=(50, 60))
+    estimate = np.zeros_like(reference)
+    std = np.full_like(reference, 0.5)  # the true spread is 1: twice too confident
+    reference[0, :5] = np.nan
+    scale = fit_std_scale([estimate], [std], [reference])
+    assert scale == pytest.approx(2.0, rel=0.05)
+    inside = np.abs(reference - estimate) <= 2 * scale * std
+    assert np.nanmean(inside[np.isfinite(reference)]) == pytest.approx(0.954, abs=0.005)
+    assert fit_std_scale([], [], []) == 1.0
+
+
+def test_std_scale_multiplies_the_reported_std() -> None:
+    from pcainterp_stream import densify
+
+    basis = _tiny_basis()
+    pixels = np.array([[3.0, 4.0], [20.0, 10.0]])
+    plain = densify(basis, pixels, [25.0, 30.0])
+    scaled = densify(basis, pixels, [25.0, 30.0], std_scale=1.5)
+    assert plain.disparity_std is not None and scaled.disparity_std is not None
+    np.testing.assert_allclose(scaled.disparity_std, 1.5 * plain.disparity_std, rtol=1e-5)
+    np.testing.assert_array_equal(scaled.disparity, plain.disparity)
+    with pytest.raises(ValueError, match="std_scale"):
+        densify(basis, pixels, [25.0, 30.0], std_scale=0.0)

@@ -54,7 +54,12 @@ from pcainterp_stream.evaluation import (
     relative_transform,
     stereo_transform,
 )
-from pcainterp_stream.fitting import fit_frame, fit_local_prior, fit_process_noise
+from pcainterp_stream.fitting import (
+    fit_frame,
+    fit_local_prior,
+    fit_process_noise,
+    fit_std_scale,
+)
 from pcainterp_stream.learning import learn_basis, preprocess_disparity
 from pcainterp_stream.logreader import open_log
 from pcainterp_stream.pairing import PairingConfig, iter_stereo_frames
@@ -257,6 +262,29 @@ def fit_hyperparameters(
     return meta
 
 
+def calibrate_std(
+    basis: Basis, fit_logs: Sequence[tuple[LogData, slice]], every: int = 4
+) -> float:
+    """The std calibration factor on every N-th fit frame against its reference."""
+    hyper = basis.meta["prior"]
+    local = LocalPrior.from_meta(hyper["local"]) if hyper.get("local") else None
+    estimates, stds, references = [], [], []
+    for data, frames in fit_logs:
+        reference = data.reference()
+        for index in list(range(data.frames))[frames][::every]:
+            result = densify_batch(
+                basis, [data.pixels[index]], [data.disparities[index]],
+                sigma=float(hyper["sigma"] if local else hyper["plain_sigma"]),
+                local_prior=local, robust="cauchy", image_size=data.camera.image_size,
+                focal_baseline=data.camera.focal_baseline,
+            )[0]
+            assert result.disparity_std is not None
+            estimates.append(result.disparity)
+            stds.append(result.disparity_std)
+            references.append(np.asarray(reference[index]))
+    return fit_std_scale(estimates, stds, references)
+
+
 # ----------------------------------------------------------------------------- evaluate
 
 
@@ -361,6 +389,7 @@ def _estimates(
             basis, [pixels], [disparities], sigma=sigma, local_prior=local,
             robust=method.robust, temporal=state, image_size=camera.image_size,
             focal_baseline=camera.focal_baseline,
+            std_scale=float(hyper.get("std_scale", 1.0)) if local is not None else 1.0,
         )[0]
         seconds = time.perf_counter() - started
         extras: dict[str, int | float] = {
@@ -601,6 +630,11 @@ def main(argv: list[str] | None = None) -> int:
             basis = dataclasses.replace(basis, meta={**basis.meta, "prior": prior})
             basis.save(path)
         basis = Basis.load(path)
+        if "std_scale" not in basis.meta["prior"]:
+            _log(f"calibrate the std of {name}")
+            prior = {**basis.meta["prior"], "std_scale": calibrate_std(basis, fit_logs)}
+            basis = dataclasses.replace(basis, meta={**basis.meta, "prior": prior})
+            basis.save(path)
         shown = {k: v for k, v in basis.meta["prior"].items() if k != "table"}
         _log(f"{name}: prior {json.dumps(shown)}")
         return basis, basis.meta["prior"]
