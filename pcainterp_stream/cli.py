@@ -397,6 +397,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted; no partial output was left at the target", file=sys.stderr)
+        # A Ctrl-C that lands inside code run by exec() (rosbags generates its message
+        # decoders that way) sets a flag that makes `python -m` re-raise SIGINT at exit
+        # (CPython bpo-41602) although we handled it; any exec() of a string clears it.
+        exec("")
         return 130
     except BrokenPipeError:
         return 1

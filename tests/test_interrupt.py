@@ -233,12 +233,5 @@ def test_interrupt_in_generated_code_console_script(small_log: Path, tmp_path: P
     assert _learn_interrupted_in_exec(CONSOLE_SCRIPT, small_log, tmp_path) == 130
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="python -m only: CPython (bpo-41602) re-raises SIGINT at exit after a "
-    "KeyboardInterrupt left exec(str) code (rosbags' generated serde), although cli.main "
-    "handled it: exit -2 instead of 130. Fix in cli.main: exec('') after catching it, "
-    "which clears CPython's flag (see the issue 8 report)",
-)
 def test_interrupt_in_generated_code_python_m(small_log: Path, tmp_path: Path) -> None:
     assert _learn_interrupted_in_exec(PYTHON_M, small_log, tmp_path) == 130
