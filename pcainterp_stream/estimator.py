@@ -622,10 +622,10 @@ def _local_mean(
         return np.zeros(out_size, dtype=np.float32)
     ys = _image_coordinates(height, basis_image[0])
     xs = _image_coordinates(width, basis_image[1])
-    along_y = local.prior.axis(local.positions[:, 1], ys)  # (k, H)
-    along_x = local.prior.axis(local.positions[:, 0], xs)  # (k, W)
-    weighted = (along_y * (local.prior.variance * local.alpha)[:, None]).astype(np.float32)
-    dense: npt.NDArray[np.float32] = weighted.T @ along_x.astype(np.float32)
+    along_y = local.prior.axis(local.positions[:, 1], ys, np.float32)  # (k, H)
+    along_x = local.prior.axis(local.positions[:, 0], xs, np.float32)  # (k, W)
+    along_y *= (local.prior.variance * local.alpha).astype(np.float32)[:, None]
+    dense: npt.NDArray[np.float32] = along_y.T @ along_x
     return dense
 
 
@@ -635,10 +635,13 @@ def _local_covariance(
     """c(P, x) for x on the variance grid, (k, s_v) float32."""
     ys = _image_coordinates(vgrid_size[0], basis_image[0])
     xs = _image_coordinates(vgrid_size[1], basis_image[1])
-    along_y = local.prior.axis(local.positions[:, 1], ys).astype(np.float32)
-    along_x = local.prior.axis(local.positions[:, 0], xs).astype(np.float32)
+    along_y = local.prior.axis(local.positions[:, 1], ys, np.float32)
+    along_x = local.prior.axis(local.positions[:, 0], xs, np.float32)
     product = along_y[:, :, None] * along_x[:, None, :] * np.float32(local.prior.variance)
-    return product.reshape(local.alpha.size, vgrid_size[0] * vgrid_size[1])
+    covariance: npt.NDArray[np.float32] = product.reshape(
+        local.alpha.size, vgrid_size[0] * vgrid_size[1]
+    )
+    return covariance
 
 
 def _variance_beyond(
