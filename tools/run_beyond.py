@@ -404,13 +404,18 @@ def _estimates(
         )
 
 
+def _test_frames(data: LogData, mode: str, max_frames: int | None) -> list[int]:
+    """Frames evaluated: temporal mode needs the next frame's pose."""
+    count = data.frames - (1 if mode == "temporal" else 0)
+    return list(range(count if max_frames is None else min(count, max_frames)))
+
+
 def evaluate_split(
     basis: Basis, hyper: dict[str, Any], data: LogData, mode: str,
     methods: Sequence[Method], max_frames: int | None,
 ) -> dict[str, dict[str, float]]:
     """Run every method over a test log; return its metrics."""
-    count = data.frames - (1 if mode == "temporal" else 0)
-    frames = list(range(count if max_frames is None else min(count, max_frames)))
+    frames = _test_frames(data, mode, max_frames)
     references = data.reference()
     views = {}
     for index in frames:
@@ -458,8 +463,7 @@ def sweep_split(
     methods: Sequence[Method], max_frames: int | None,
 ) -> dict[str, dict[str, float]]:
     """Mean Delta_2D against the number of points (strongest-first lookups)."""
-    count = data.frames - (1 if mode == "temporal" else 0)
-    frames = list(range(count if max_frames is None else min(count, max_frames)))
+    frames = _test_frames(data, mode, max_frames)
     references = data.reference()
     out: dict[str, dict[str, float]] = {}
     for n_points in SWEEP_POINTS:
