@@ -142,16 +142,25 @@ without a floor the local kernel absorbs the noise and sigma runs to 0 (K singul
 
 
 def _maximise(
-    objective: Any, start: Sequence[float], *, tolerance: float = 0.01
+    objective: Any, start: Sequence[float], *, tolerance: float = 0.05
 ) -> tuple[FloatArray, float]:
     """Maximise over log-parameters with Nelder-Mead (scipy.optimize)."""
     from scipy.optimize import minimize
 
+    x0 = np.asarray(start, dtype=np.float64)
+    # steps of 1 in log space (a factor e): scipy's default simplex (5 % of each value) can be
+    # smaller than the tolerance and end the search where it started
+    simplex = np.vstack([x0, x0 + np.eye(x0.size)])
     result = minimize(
         lambda x: -objective(x),
-        np.asarray(start, dtype=np.float64),
+        x0,
         method="Nelder-Mead",
-        options={"xatol": tolerance, "fatol": 0.1, "maxiter": 200},
+        options={
+            "xatol": tolerance,
+            "fatol": 0.5,
+            "maxiter": 200,
+            "initial_simplex": simplex,
+        },
     )
     return np.asarray(result.x, dtype=np.float64), float(-result.fun)
 
@@ -211,7 +220,12 @@ def fit_local_prior(
     ]
     best: tuple[float, LocalPrior | None, float] = (plain_evidence, None, math.exp(plain_x[0]))
     for kernel in kernels:
-        for length_scale in length_scales:
+        # every other length scale first, then the neighbours of the best of those
+        coarse = list(length_scales[::2])
+        tried: dict[float, float] = {}
+        queue = list(coarse)
+        while queue:
+            length_scale = queue.pop(0)
             shape = LocalPrior(1.0, length_scale, Kernel(kernel))
             kernel_matrices = [shape.matrix(f.positions) for f in usable]
 
@@ -238,6 +252,14 @@ def fit_local_prior(
             )
             if evidence > best[0]:
                 best = (evidence, local, math.exp(x[1]))
+            tried[length_scale] = evidence
+            if not queue and len(tried) == len(coarse):
+                peak = length_scales.index(max(tried, key=lambda ell: tried[ell]))
+                queue = [
+                    length_scales[i]
+                    for i in (peak - 1, peak + 1)
+                    if 0 <= i < len(length_scales) and length_scales[i] not in tried
+                ]
     return LocalFit(
         local=best[1],
         sigma=best[2],
