@@ -130,7 +130,11 @@ def test_batch_equals_one_by_one(basis: Basis, frames: list[StereoFrame]) -> Non
 
 def test_results_match_the_estimator(basis: Basis, frames: list[StereoFrame]) -> None:
     result = run(basis, frames[:1])[0]
-    expected = densify(basis, result.pixels, result.disparities, sigma=2.0)
+    # the processor's default estimate: the basis has no fitted prior, so the paper's prior
+    # with sigma 2 px, plus the default robust loss
+    expected = densify(
+        basis, result.pixels, result.disparities, sigma=2.0, robust=ProcessorConfig().robust
+    )
     np.testing.assert_allclose(result.disparity, expected.disparity, rtol=1e-4, atol=1e-4)
     assert result.counts["dropped"] == 0
     assert result.measurement_source == "stereo"
