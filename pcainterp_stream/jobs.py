@@ -724,6 +724,19 @@ def describe_basis(path: Path) -> str:
         f"  training maps    {basis.n_train}",
         f"  method           {learning.get('method', '?')}",
     ]
+    fitted = basis.meta.get("prior") if isinstance(basis.meta, dict) else None
+    if isinstance(fitted, dict):
+        local = fitted.get("local")
+        kernel = (
+            f"{local['kernel']} kernel, {local['length_scale']:g} px, {local['variance']:.3g} px^2"
+            if isinstance(local, dict)
+            else "none (the paper's prior had the best evidence)"
+        )
+        lines += [
+            f"  fitted prior     {kernel}; sigma {fitted.get('sigma', float('nan')):.3g} px; "
+            f"process noise {fitted.get('process_noise', float('nan')):g}; "
+            f"std scale {fitted.get('std_scale', 1.0):.3g}",
+        ]
     return "\n".join(lines)
 
 
