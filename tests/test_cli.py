@@ -1253,6 +1253,15 @@ def _shifted(raw: Any, shift_ns: int) -> Any:
     )
 
 
+def _default_sigint() -> None:
+    """Give the child the default SIGINT disposition (runs in the child before exec).
+
+    A shell that starts the test run in the background (``nohup ... &``) leaves SIGINT
+    ignored, Python keeps an inherited SIG_IGN, and the child would never see the signal.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _interrupt(args: list[str], target: Path, sig: signal.Signals) -> tuple[int, str]:
     """Start ``pcainterp ARGS``, wait until it writes, send ``sig``; return (code, stderr)."""
     process = subprocess.Popen(
@@ -1260,6 +1269,7 @@ def _interrupt(args: list[str], target: Path, sig: signal.Signals) -> tuple[int,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        preexec_fn=_default_sigint,
     )
     try:
         deadline = time.monotonic() + 30

@@ -102,6 +102,15 @@ def _pcainterp(*args: str | Path) -> subprocess.CompletedProcess[str]:
     )
 
 
+def _default_sigint() -> None:
+    """Give the child the default SIGINT disposition (runs in the child before exec).
+
+    A shell that starts the test run in the background (``nohup ... &``) leaves SIGINT
+    ignored, Python keeps an inherited SIG_IGN, and the child would never see the signal.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _interrupt_while_reading(
     args: list[str | Path], log: Path, sig: signal.Signals
 ) -> tuple[int, str]:
@@ -111,6 +120,7 @@ def _interrupt_while_reading(
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        preexec_fn=_default_sigint,
     )
     try:
         deadline = time.monotonic() + 30
@@ -215,6 +225,7 @@ def _learn_interrupted_in_exec(entry: list[str], small_log: Path, tmp_path: Path
         capture_output=True,
         text=True,
         check=False,
+        preexec_fn=_default_sigint,
         env={
             **os.environ,
             "PYTHONPATH": path,
