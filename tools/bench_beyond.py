@@ -43,6 +43,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=100)
     parser.add_argument("--repeat", type=int, default=3, help="best of N rounds")
     parser.add_argument("--batch", type=int, default=4)
+    parser.add_argument(
+        "--blas-threads", type=int, default=1, help="1 = as in the stream processor"
+    )
     args = parser.parse_args(argv)
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from run_beyond import prepare_log
@@ -58,11 +61,12 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"{len(frames)} frames, {points:.0f} points/frame, l = {basis.n_components}, "
         f"image {basis.image_size[1]}x{basis.image_size[0]}, grid "
-        f"{basis.grid_size[1]}x{basis.grid_size[0]}, load average {os.getloadavg()[0]:.1f}"
+        f"{basis.grid_size[1]}x{basis.grid_size[0]}, BLAS threads {args.blas_threads}, "
+        f"load average {os.getloadavg()[0]:.1f}"
     )
     print("| configuration | wall ms/frame | CPU ms/frame | frames/s (wall) |")
     print("| --- | ---: | ---: | ---: |")
-    with threadpool_limits(1, user_api="blas"):
+    with threadpool_limits(args.blas_threads, user_api="blas"):
         for name, config in CONFIGS.items():
             local = LocalPrior.from_meta(fitted["local"]) if config.get("local") else None
             sigma = config.get("sigma", fitted["sigma"] if local else fitted["plain_sigma"])
