@@ -464,17 +464,6 @@ def _solve(
     return _Posterior(coefficients, coefficient_variance, factor, False, form, sigma=sigma)
 
 
-def _cholesky_inverse(system: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """Return L^-1 for the Cholesky factor L L^T = system (numpy LAPACK only).
-
-    scipy.linalg would call a second OpenBLAS whose spinning threads halve the speed of the
-    next numpy product on two cores (measured), so the hot path stays in numpy.
-    """
-    lower = np.linalg.cholesky(system)
-    inverse: npt.NDArray[np.float64] = np.linalg.inv(lower)
-    return np.tril(inverse)
-
-
 def _sigma(sigma: float | str) -> float | None:
     """Validate the ``sigma`` argument: a positive number, or "evidence" (None)."""
     if isinstance(sigma, str):
@@ -567,7 +556,7 @@ def _solve_measurement(
     for iteration in range(iterations + 1):
         system = signal.copy()
         system.flat[:: k + 1] += sigma**2 / weights  # + R
-        lower_inverse = _cholesky_inverse_fast(system) if k else np.zeros((0, 0))
+        lower_inverse = _cholesky_inverse(system) if k else np.zeros((0, 0))
         alpha = lower_inverse.T @ (lower_inverse @ innovation)  # K^-1 (z~ - B~ mu)
         if iteration == iterations:
             break
@@ -692,11 +681,19 @@ def triangular_lapack() -> Any:
     return lapack
 
 
-def _cholesky_inverse_fast(system: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """Return L^-1 (lower triangular) of L L^T = system via LAPACK dpotrf + dtrtri."""
+def _cholesky_inverse(system: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Return L^-1 (lower triangular) of the Cholesky factor L L^T = system.
+
+    LAPACK ``dpotrf`` + ``dtrtri`` through scipy (its OpenBLAS held at one thread, see
+    :func:`triangular_lapack`); numpy's general ``inv`` of the factor only when scipy is
+    missing.
+
+    Raises:
+        numpy.linalg.LinAlgError: the system is not positive definite.
+    """
     lapack = triangular_lapack()
-    if lapack is None:  # pragma: no cover
-        return _cholesky_inverse(system)
+    if lapack is None:  # pragma: no cover - scipy is a dependency
+        return np.tril(np.linalg.inv(np.linalg.cholesky(system)))
     lower, info = lapack.dpotrf(system, lower=1, clean=1)
     if info != 0:
         raise np.linalg.LinAlgError(f"matrix is not positive definite (dpotrf info {info})")
