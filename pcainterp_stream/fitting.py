@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -355,3 +355,95 @@ def fit_std_scale(
     if joined.size == 0:
         return 1.0
     return float(np.quantile(joined, COVERAGE_TARGET) / 2.0)
+
+
+class CalibrationFrame(NamedTuple):
+    """A held-out frame with a dense reference, for :func:`fit_std_scale`.
+
+    Attributes:
+        pixels: (k, 2) float, (x, y) px of the frame's camera.
+        disparities: (k,) float, measured disparities (px).
+        image_size: (height, width) of the frame's camera.
+        focal_baseline: f*b of the frame's camera (px*m).
+        reference: (H, W) float reference disparity (px), NaN where unknown.
+    """
+
+    pixels: npt.ArrayLike
+    disparities: npt.ArrayLike
+    image_size: tuple[int, int]
+    focal_baseline: float
+    reference: npt.ArrayLike
+
+
+def fit_prior(
+    basis: Basis,
+    sequences: Sequence[Sequence[FitFrame]],
+    calibration: Sequence[CalibrationFrame],
+    *,
+    max_frames: int,
+    sequence_frames: int,
+    robust: str,
+) -> dict[str, Any]:
+    """Fit everything ``densify`` takes from a basis, on frames the basis did not see.
+
+    The local kernel and sigma by the evidence of up to ``max_frames`` frames spread over
+    the sequences (:func:`fit_local_prior`), the process noise on the first
+    ``sequence_frames`` of each sequence (:func:`fit_process_noise`), and the std scale on
+    the calibration frames densified as ``densify`` would (hybrid prior, fitted sigma,
+    ``robust`` loss; :func:`fit_std_scale`).
+
+    Args:
+        basis: the PCA basis.
+        sequences: per log, consecutive held-out frames (:func:`fit_frame`).
+        calibration: held-out frames with a dense reference.
+        max_frames: frames of the kernel fit.
+        sequence_frames: frames per sequence of the process-noise fit.
+        robust: the robust loss ``densify`` will use.
+
+    Returns:
+        The JSON-ready ``meta["prior"]`` of a basis.
+
+    Raises:
+        ValueError: no frame has a measurement.
+    """
+    from pcainterp_stream.estimator import densify
+
+    frames = [frame for sequence in sequences for frame in sequence if frame.residual.size]
+    if not frames:
+        raise ValueError("Expected at least one held-out frame with measurements")
+    step = max(1, len(frames) // max_frames)
+    local = fit_local_prior(basis, frames[::step])
+    process_noise, scores = fit_process_noise(
+        basis,
+        [sequence[:sequence_frames] for sequence in sequences],
+        local=local.local,
+        sigma=local.sigma,
+    )
+    estimates, stds, references = [], [], []
+    for frame in calibration:
+        result = densify(
+            basis,
+            frame.pixels,
+            frame.disparities,
+            sigma=local.sigma,
+            local_prior=local.local,
+            robust=robust,
+            image_size=frame.image_size,
+            focal_baseline=frame.focal_baseline,
+        )
+        assert result.disparity_std is not None
+        estimates.append(result.disparity)
+        stds.append(result.disparity_std)
+        references.append(np.asarray(frame.reference, dtype=np.float32))
+    fitted = local.to_meta()
+    fitted.update(
+        {
+            "std_scale": fit_std_scale(estimates, stds, references),
+            "process_noise": process_noise,
+            "process_noise_log_evidence": {str(q): v for q, v in scores.items()},
+            "candidates": local.table,
+            "fit_frames": len(frames[::step]),
+            "held_out_frames": len(frames),
+        }
+    )
+    return fitted

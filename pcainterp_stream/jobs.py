@@ -388,33 +388,6 @@ CALIBRATION_EVERY = 4
 """Every N-th held-out frame is densified to calibrate the std (``fitting.fit_std_scale``)."""
 
 
-def _fit_std_scale(
-    basis: Basis, local: Any, sigma: float, frames: list[tuple[Any, Any, Any]]
-) -> float:
-    """Densify held-out frames as densify would and fit the std calibration factor."""
-    from pcainterp_stream.estimator import densify as densify_frame
-    from pcainterp_stream.fitting import fit_std_scale
-
-    config = ProcessorConfig()
-    estimates, stds, references = [], [], []
-    for measured, camera, reference in frames:
-        result = densify_frame(
-            basis,
-            measured.pixels,
-            measured.disparities,
-            sigma=sigma,
-            local_prior=local,
-            robust=config.robust,
-            image_size=camera.image_size,
-            focal_baseline=camera.focal_baseline,
-        )
-        assert result.disparity_std is not None
-        estimates.append(result.disparity)
-        stds.append(result.disparity_std)
-        references.append(reference)
-    return fit_std_scale(estimates, stds, references)
-
-
 FIT_SEQUENCE_FRAMES = 16
 """Consecutive held-out frames measured per log (with --fit-logs: per fit log); they are the
 fit's frames and the sequences of the temporal process-noise fit."""
@@ -435,16 +408,16 @@ def fit_prior(
     Returns:
         The JSON-ready ``meta["prior"]`` of the basis.
     """
-    from pcainterp_stream.fitting import fit_frame, fit_local_prior, fit_process_noise
+    from pcainterp_stream import fitting
     from pcainterp_stream.stereo import StereoFrontEnd
 
     front_end = StereoFrontEnd(options.gftt, options.sgbm)
-    sequences: list[list[Any]] = []
-    calibration: list[tuple[Any, Any, Any]] = []  # (frame, camera, SGBM map) for the std scale
+    sequences: list[list[fitting.FitFrame]] = []
+    calibration: list[fitting.CalibrationFrame] = []
     started = time.perf_counter()
     with _bar(None, "fit prior (measure held-out frames)") as bar:
         for log, first in sources:
-            sequence: list[Any] = []
+            sequence: list[fitting.FitFrame] = []
             with open_log(log) as reader:
                 _require_topics(reader, pairing.required_topics(), "stereo pair")
                 for frame in iter_stereo_frames(reader, pairing):
@@ -453,45 +426,45 @@ def fit_prior(
                     if len(sequence) >= FIT_SEQUENCE_FRAMES:
                         break
                     measured = front_end.measure(frame.left, frame.right)
+                    size, fb = frame.camera.image_size, frame.camera.focal_baseline
                     sequence.append(
-                        fit_frame(
+                        fitting.fit_frame(
                             basis,
                             measured.pixels,
                             measured.disparities,
-                            image_size=frame.camera.image_size,
-                            focal_baseline=frame.camera.focal_baseline,
+                            image_size=size,
+                            focal_baseline=fb,
                         )
                     )
                     if (frame.index - first) % CALIBRATION_EVERY == 0:
-                        calibration.append((measured, frame.camera, measured.disparity_map))
+                        calibration.append(
+                            fitting.CalibrationFrame(
+                                measured.pixels,
+                                measured.disparities,
+                                size,
+                                fb,
+                                measured.disparity_map,
+                            )
+                        )
                     bar.update(1)
             sequences.append(sequence)
-    frames = [frame for sequence in sequences for frame in sequence if frame.residual.size]
-    if not frames:
+    if not any(frame.residual.size for sequence in sequences for frame in sequence):
         raise PcaInterpError(
             "no held-out stereo pair with measurements to fit the prior on; use more frames, a "
             "larger --holdout or --fit-logs LOG"
         )
-    step = max(1, len(frames) // FIT_MAX_FRAMES)
-    _echo(f"fitting the prior by the evidence on {len(frames[::step])} held-out frames")
-    local = fit_local_prior(basis, frames[::step])
-    process_noise, scores = fit_process_noise(
+    _echo("fitting the prior by the evidence on the held-out frames")
+    fitted = fitting.fit_prior(
         basis,
-        [sequence[:FIT_SEQUENCE_FRAMES] for sequence in sequences],
-        local=local.local,
-        sigma=local.sigma,
+        sequences,
+        calibration,
+        max_frames=FIT_MAX_FRAMES,
+        sequence_frames=FIT_SEQUENCE_FRAMES,
+        robust=ProcessorConfig().robust,
     )
-    std_scale = _fit_std_scale(basis, local.local, local.sigma, calibration)
-    fitted = local.to_meta()
     fitted.update(
         {
-            "std_scale": std_scale,
             "std_scale_reference": "SGBM maps of the held-out frames",
-            "process_noise": process_noise,
-            "process_noise_log_evidence": {str(q): v for q, v in scores.items()},
-            "candidates": local.table,
-            "fit_frames": len(frames[::step]),
-            "held_out_frames": len(frames),
             "fit_logs": [str(log) for log, _ in sources],
             "seconds": round(time.perf_counter() - started, 1),
         }

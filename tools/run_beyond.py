@@ -54,12 +54,7 @@ from pcainterp_stream.evaluation import (
     relative_transform,
     stereo_transform,
 )
-from pcainterp_stream.fitting import (
-    fit_frame,
-    fit_local_prior,
-    fit_process_noise,
-    fit_std_scale,
-)
+from pcainterp_stream.fitting import CalibrationFrame, fit_frame, fit_prior
 from pcainterp_stream.learning import learn_basis, preprocess_disparity
 from pcainterp_stream.logreader import open_log
 from pcainterp_stream.pairing import PairingConfig, iter_stereo_frames
@@ -230,59 +225,44 @@ def _learn(
     )
 
 
+FIT_MAX_FRAMES = 40
+FIT_SEQUENCE_FRAMES = 30
+CALIBRATION_EVERY = 4
+
+
 def fit_hyperparameters(
-    basis: Basis, fit_logs: Sequence[tuple[LogData, slice]], max_frames: int = 40
+    basis: Basis, fit_logs: Sequence[tuple[LogData, slice]]
 ) -> dict[str, Any]:
-    """Evidence fit of the local prior, sigma and the process noise on held-out frames."""
-    sequences = []
+    """``fitting.fit_prior`` (as ``learn --fit-prior``) on the cached held-out frames.
+
+    The calibration reference is each fit frame's reference (ground truth on the synthetic
+    fitting log, SGBM on KITTI), every 4th frame.
+    """
+    sequences, calibration = [], []
     for data, frames in fit_logs:
         indices = list(range(data.frames))[frames]
+        size, fb = data.camera.image_size, data.camera.focal_baseline
         sequences.append(
             [
                 fit_frame(
-                    basis, data.pixels[i], data.disparities[i],
-                    image_size=data.camera.image_size, focal_baseline=data.camera.focal_baseline,
+                    basis, data.pixels[i], data.disparities[i], image_size=size,
+                    focal_baseline=fb,
                 )
                 for i in indices
             ]
         )
-    flat = [frame for sequence in sequences for frame in sequence]
-    step = max(1, len(flat) // max_frames)
+        reference = data.reference()
+        calibration += [
+            CalibrationFrame(data.pixels[i], data.disparities[i], size, fb, reference[i])
+            for i in indices[::CALIBRATION_EVERY]
+        ]
     started = time.perf_counter()
-    local = fit_local_prior(basis, flat[::step])
-    q, scores = fit_process_noise(
-        basis, [s[:30] for s in sequences], local=local.local, sigma=local.sigma
+    meta = fit_prior(
+        basis, sequences, calibration, max_frames=FIT_MAX_FRAMES,
+        sequence_frames=FIT_SEQUENCE_FRAMES, robust="cauchy",
     )
-    meta = local.to_meta()
-    meta["process_noise"] = q
-    meta["process_noise_scores"] = {str(k): v for k, v in scores.items()}
-    meta["table"] = local.table
-    meta["fit_frames"] = len(flat[::step])
     meta["fit_seconds"] = round(time.perf_counter() - started, 1)
     return meta
-
-
-def calibrate_std(
-    basis: Basis, fit_logs: Sequence[tuple[LogData, slice]], every: int = 4
-) -> float:
-    """The std calibration factor on every N-th fit frame against its reference."""
-    hyper = basis.meta["prior"]
-    local = LocalPrior.from_meta(hyper["local"]) if hyper.get("local") else None
-    estimates, stds, references = [], [], []
-    for data, frames in fit_logs:
-        reference = data.reference()
-        for index in list(range(data.frames))[frames][::every]:
-            result = densify_batch(
-                basis, [data.pixels[index]], [data.disparities[index]],
-                sigma=float(hyper["sigma"] if local else hyper["plain_sigma"]),
-                local_prior=local, robust="cauchy", image_size=data.camera.image_size,
-                focal_baseline=data.camera.focal_baseline,
-            )[0]
-            assert result.disparity_std is not None
-            estimates.append(result.disparity)
-            stds.append(result.disparity_std)
-            references.append(np.asarray(reference[index]))
-    return fit_std_scale(estimates, stds, references)
 
 
 # ----------------------------------------------------------------------------- evaluate
@@ -634,12 +614,7 @@ def main(argv: list[str] | None = None) -> int:
             basis = dataclasses.replace(basis, meta={**basis.meta, "prior": prior})
             basis.save(path)
         basis = Basis.load(path)
-        if "std_scale" not in basis.meta["prior"]:
-            _log(f"calibrate the std of {name}")
-            prior = {**basis.meta["prior"], "std_scale": calibrate_std(basis, fit_logs)}
-            basis = dataclasses.replace(basis, meta={**basis.meta, "prior": prior})
-            basis.save(path)
-        shown = {k: v for k, v in basis.meta["prior"].items() if k != "table"}
+        shown = {k: v for k, v in basis.meta["prior"].items() if k not in ("table", "candidates")}
         _log(f"{name}: prior {json.dumps(shown)}")
         return basis, basis.meta["prior"]
 
