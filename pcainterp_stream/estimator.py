@@ -338,9 +338,7 @@ def densify_batch(
     ):
         disparity = resample_grid(grid_maps[:, index].reshape(basis.grid_size), out_size)
         if posterior.local is not None:
-            disparity += _local_mean(posterior.local, out_size, basis.image_size) * np.float32(
-                1.0 / to_basis
-            )
+            disparity += _local_mean(posterior.local, out_size, basis.image_size, 1.0 / to_basis)
         disparity_std = None
         if vgrid is not None and variances is not None:
             grid_std = np.sqrt(np.maximum(variances[index], 0.0)) * np.float32(
@@ -601,9 +599,9 @@ def _image_coordinates(count: int, basis_size: int) -> npt.NDArray[np.float64]:
 
 
 def _local_mean(
-    local: _Local, out_size: tuple[int, int], basis_image: tuple[int, int]
+    local: _Local, out_size: tuple[int, int], basis_image: tuple[int, int], scale: float
 ) -> npt.NDArray[np.float32]:
-    """The local part c(x, P) alpha at every output pixel, (H, W) float32 (basis units).
+    """The local part c(x, P) alpha at every output pixel times ``scale``, (H, W) float32.
 
     Separable kernel: sum_j alpha_j v k_y(y - y_j) k_x(x - x_j) = (K_y^T diag(v alpha)) K_x.
     """
@@ -614,7 +612,7 @@ def _local_mean(
     xs = _image_coordinates(width, basis_image[1])
     along_y = local.prior.axis(local.positions[:, 1], ys, np.float32)  # (k, H)
     along_x = local.prior.axis(local.positions[:, 0], xs, np.float32)  # (k, W)
-    along_y *= (local.prior.variance * local.alpha).astype(np.float32)[:, None]
+    along_y *= (scale * local.prior.variance * local.alpha).astype(np.float32)[:, None]
     dense: npt.NDArray[np.float32] = along_y.T @ along_x
     return dense
 
