@@ -180,6 +180,7 @@ def densify(
     robust: Robust | str = Robust.NONE,
     temporal: TemporalPrior | None = None,
     std_scale: float = 1.0,
+    robust_iterations: int = 1,
 ) -> DensifyResult:
     """Densify one frame's sparse disparities with the MAP estimate.
 
@@ -206,6 +207,7 @@ def densify(
         temporal: the stream's temporal prior state, updated in place; None: static prior.
         std_scale: factor on the reported std (a calibration fitted on held-out frames,
             ``fitting.fit_std_scale``); 1 reports the posterior std itself.
+        robust_iterations: IRLS reweightings with ``robust`` (:class:`prior.Model`).
 
     Returns:
         The :class:`DensifyResult`. Zero usable measurements give the prior (mean map,
@@ -228,6 +230,7 @@ def densify(
         robust=robust,
         temporal=temporal,
         std_scale=std_scale,
+        robust_iterations=robust_iterations,
     )[0]
 
 
@@ -246,6 +249,7 @@ def densify_batch(
     robust: Robust | str = Robust.NONE,
     temporal: TemporalPrior | None = None,
     std_scale: float = 1.0,
+    robust_iterations: int = 1,
 ) -> list[DensifyResult]:
     """Densify several frames at once with matrix-matrix products across frames.
 
@@ -267,6 +271,7 @@ def densify_batch(
         robust: IRLS loss, ``"none"``, ``"huber"`` or ``"cauchy"``.
         temporal: temporal prior state carried across calls (frames in stream order).
         std_scale: factor on the reported std (1: the posterior std itself).
+        robust_iterations: IRLS reweightings with ``robust``.
 
     Returns:
         One :class:`DensifyResult` per frame, in order.
@@ -279,7 +284,12 @@ def densify_batch(
             f"Expected `disparities_list` to have one array per frame of `pixels_list` "
             f"({len(pixels_list)}), got {len(disparities_list)}"
         )
-    model = Model(sigma=_sigma(sigma), local=local_prior, robust=Robust(robust))
+    model = Model(
+        sigma=_sigma(sigma),
+        local=local_prior,
+        robust=Robust(robust),
+        robust_iterations=robust_iterations,
+    )
     if not (np.isfinite(std_scale) and std_scale > 0):
         raise ValueError(f"Expected `std_scale` > 0, got {std_scale}")
     mode = Uncertainty(uncertainty)

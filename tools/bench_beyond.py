@@ -12,7 +12,9 @@ temporal state carried across batches. Reports wall and CPU (this thread) time p
 from __future__ import annotations
 
 import argparse
+import cProfile
 import os
+import pstats
 import sys
 import time
 from pathlib import Path
@@ -46,6 +48,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--blas-threads", type=int, default=1, help="1 = as in the stream processor"
     )
+    parser.add_argument(
+        "--profile", default=None, metavar="CONFIG",
+        help="profile one configuration (a row name) instead and print where the time goes",
+    )
     args = parser.parse_args(argv)
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from run_beyond import prepare_log
@@ -68,10 +74,15 @@ def main(argv: list[str] | None = None) -> int:
     print("| --- | ---: | ---: | ---: |")
     with threadpool_limits(args.blas_threads, user_api="blas"):
         for name, config in CONFIGS.items():
+            if args.profile is not None and name != args.profile:
+                continue
             local = LocalPrior.from_meta(fitted["local"]) if config.get("local") else None
             sigma = config.get("sigma", fitted["sigma"] if local else fitted["plain_sigma"])
             best_wall, best_cpu = float("inf"), float("inf")
-            for _ in range(args.repeat):
+            profiler = cProfile.Profile() if args.profile is not None else None
+            for _ in range(1 if profiler else args.repeat):
+                if profiler is not None:
+                    profiler.enable()
                 state = (
                     TemporalPrior(process_noise=float(fitted["process_noise"]))
                     if config.get("temporal")
@@ -91,8 +102,12 @@ def main(argv: list[str] | None = None) -> int:
                         image_size=data.camera.image_size,
                         focal_baseline=data.camera.focal_baseline,
                     )
+                if profiler is not None:
+                    profiler.disable()
                 best_wall = min(best_wall, (time.perf_counter() - wall) / len(frames))
                 best_cpu = min(best_cpu, (time.thread_time() - cpu) / len(frames))
+            if profiler is not None:
+                pstats.Stats(profiler).sort_stats("tottime").print_stats(12)
             print(
                 f"| {name} | {1000 * best_wall:.1f} | {1000 * best_cpu:.1f} | "
                 f"{1 / best_wall:.1f} |",

@@ -18,6 +18,7 @@ Stages, each cached in ``--work`` (an interrupted run resumes):
    ``results.md``.
 
     python tools/run_beyond.py --work /tmp/beyond            # all stages
+    python tools/run_beyond.py --work /tmp/beyond --stages depth-bins irls   # analyses
 
 Splits: synthetic: basis from seeds 101-104 (ground truth), hyperparameters fitted on
 seed 150, tested on seed 201 (temporal mode, ground truth). KITTI A: basis from the raw
@@ -49,6 +50,7 @@ from pcainterp_stream.evaluation import (
     calibration_sums,
     depth_errors,
     disparity_from_depth,
+    oracle_disparity,
     projection_errors,
     reference_view,
     relative_transform,
@@ -78,6 +80,8 @@ FIT_SEED = 150
 TEST_SEED = 201
 GRID_SCALE = 0.25
 SWEEP_POINTS = (50, 100, 200, 400, 800)
+IRLS_SPLITS = ("synthetic", "kitti_a", "kitti_b_mix")
+"""Splits of the reweighting-count check (``--stages irls``)."""
 MAIN_MIX = 1000
 """Synthetic SGBM maps added to the real training frames of the ``*_mix`` splits."""
 FloatArray = npt.NDArray[np.float64]
@@ -468,6 +472,95 @@ def sweep_split(
     return out
 
 
+# ----------------------------------------------------------------------------- analyses
+
+DEPTH_EDGES = (0.0, 5.0, 10.0, 20.0, 40.0, 80.0, float("inf"))
+
+
+def depth_bins(basis: Basis, data: LogData, every: int = 5) -> dict[str, list[float]]:
+    """Mean Delta_2D by reference depth: plain, hybrid, nearest and the oracle (synthetic).
+
+    Returns per method the overall mean, then the mean and the share of the summed error in
+    each bin of :data:`DEPTH_EDGES` (every ``every``-th frame, temporal mode).
+    """
+    hyper = basis.meta["prior"]
+    local = LocalPrior.from_meta(hyper["local"]) if hyper.get("local") else None
+    references = data.reference()
+    fb = data.camera.focal_baseline
+    sums: dict[str, npt.NDArray[np.float64]] = {}
+    for index in _test_frames(data, "temporal", None)[::every]:
+        transform = _transform(data, index, "temporal")
+        view = reference_view(references[index], data.camera, transform)
+        depth = fb / np.maximum(np.nan_to_num(view.disparity), 1e-6)
+        size = data.camera.image_size
+        pixels, disparities = data.pixels[index], data.disparities[index]
+        estimates = {
+            "plain": densify_batch(basis, [pixels], [disparities], uncertainty="none")[0],
+            "hybrid": densify_batch(
+                basis, [pixels], [disparities], uncertainty="none", local_prior=local,
+                sigma=float(hyper["sigma"]),
+            )[0],
+        }
+        maps = {name: e.disparity for name, e in estimates.items()}
+        maps["nearest"] = nearest(pixels, disparities, image_size=size).disparity
+        maps["oracle"] = oracle_disparity(basis, np.nan_to_num(references[index]))
+        for name, estimate in maps.items():
+            delta_2d, _ = projection_errors(estimate, view, data.camera, transform)
+            row = sums.setdefault(name, np.zeros((len(DEPTH_EDGES) - 1, 2)))
+            for b, (low, high) in enumerate(itertools.pairwise(DEPTH_EDGES)):
+                counted = np.isfinite(delta_2d) & (depth >= low) & (depth < high)
+                row[b] += [delta_2d[counted].sum(), counted.sum()]
+    out = {}
+    for name, row in sums.items():
+        total = row[:, 0].sum()
+        out[name] = [
+            total / row[:, 1].sum(),
+            *(row[:, 0] / np.maximum(row[:, 1], 1)),
+            *(row[:, 0] / total),
+        ]
+        _log(f"  {name}: {[round(v, 2) for v in out[name]]}")
+    return out
+
+
+def irls_iterations(
+    splits: Sequence[tuple[str, str, str, Basis, dict[str, Any]]], data: dict[str, LogData],
+    frames: int = 40,
+) -> dict[str, dict[str, list[float]]]:
+    """Hybrid + Cauchy with 1, 2 and 4 reweightings: mean Delta_2D and +-2 sigma coverage."""
+    out: dict[str, dict[str, list[float]]] = {}
+    for split, test, mode, basis, hyper in splits:
+        local = LocalPrior.from_meta(hyper["local"]) if hyper.get("local") else None
+        for iterations in (1, 2, 4):
+            sums = Sums()
+            references = data[test].reference()
+            for index in _test_frames(data[test], mode, frames):
+                item = data[test]
+                result = densify_batch(
+                    basis, [item.pixels[index]], [item.disparities[index]],
+                    sigma=float(hyper["sigma"]), local_prior=local, robust="cauchy",
+                    robust_iterations=iterations, image_size=item.camera.image_size,
+                    focal_baseline=item.camera.focal_baseline,
+                    std_scale=float(hyper.get("std_scale", 1.0)),
+                )[0]
+                transform = _transform(item, index, mode)
+                view = reference_view(references[index], item.camera, transform)
+                delta_2d, _ = projection_errors(result.disparity, view, item.camera, transform)
+                sums.delta_2d += float(np.nansum(delta_2d))
+                sums.delta_2d_n += float(np.isfinite(delta_2d).sum())
+                assert result.disparity_std is not None
+                calibration = calibration_sums(
+                    result.disparity, result.disparity_std, view.disparity, view.counted
+                )
+                sums.inside_2 += calibration["inside_2"]
+                sums.calibration_n += calibration["n"]
+            summary = sums.summary()
+            out.setdefault(split, {})[str(iterations)] = [
+                summary["delta_2d_mean"], summary["coverage_2"]
+            ]
+            _log(f"  {split} {iterations} reweightings: {out[split][str(iterations)]}")
+    return out
+
+
 # ----------------------------------------------------------------------------- report
 
 SPLIT_TITLES = {
@@ -671,6 +764,16 @@ def main(argv: list[str] | None = None) -> int:
             for points, row in swept.items():
                 sweep.setdefault(points, {}).update(row)
             save()
+    if "depth-bins" in args.stages:
+        _log("depth bins (synthetic)")
+        results["depth_bins"] = depth_bins(splits[0][3], data[splits[0][1]])
+        save()
+    if "irls" in args.stages:
+        _log("IRLS reweightings")
+        results["irls"] = irls_iterations(
+            [splits[i] for i in range(len(splits)) if splits[i][0] in IRLS_SPLITS], data
+        )
+        save()
     if "mix" in args.stages and len(real) == 2:
         mix_methods = [METHODS[0], METHODS[8], METHODS[10]]
         for split, train, test in (("kitti_a", "raw", "odometry"), ("kitti_b", "odometry", "raw")):
