@@ -51,6 +51,7 @@ from pcainterp_stream.prior import (
     Model,
     Robust,
     TemporalPrior,
+    covariance_scale,
     evidence_sigma,
     robust_weights,
 )
@@ -112,6 +113,8 @@ class DensifyResult:
         n_downweighted: measurements whose robust weight ended below 0.5.
         temporal: "static" (the basis prior), "temporal" (the previous frame's posterior)
             or "reset" (temporal prior rejected by the innovation test, static used).
+        normalised_innovation: (z~ - B~ mu)^T K^-1 (z~ - B~ mu) / k, the measurements'
+            misfit to the prior; 1 on average when the model holds (0 on the paper's path).
     """
 
     disparity: npt.NDArray[np.float32]
@@ -130,6 +133,7 @@ class DensifyResult:
     weights: npt.NDArray[np.float64] | None = None
     n_downweighted: int = 0
     temporal: str = "static"
+    normalised_innovation: float = 0.0
 
     @property
     def n_measurements(self) -> int:
@@ -181,6 +185,7 @@ def densify(
     temporal: TemporalPrior | None = None,
     std_scale: float = 1.0,
     robust_iterations: int = 1,
+    scale_by_innovation: bool = False,
 ) -> DensifyResult:
     """Densify one frame's sparse disparities with the MAP estimate.
 
@@ -208,6 +213,8 @@ def densify(
         std_scale: factor on the reported std (a calibration fitted on held-out frames,
             ``fitting.fit_std_scale``); 1 reports the posterior std itself.
         robust_iterations: IRLS reweightings with ``robust`` (:class:`prior.Model`).
+        scale_by_innovation: also multiply the std by sqrt(a), the frame's covariance
+            scale fitted from its normalised innovation (:func:`prior.covariance_scale`).
 
     Returns:
         The :class:`DensifyResult`. Zero usable measurements give the prior (mean map,
@@ -231,6 +238,7 @@ def densify(
         temporal=temporal,
         std_scale=std_scale,
         robust_iterations=robust_iterations,
+        scale_by_innovation=scale_by_innovation,
     )[0]
 
 
@@ -250,6 +258,7 @@ def densify_batch(
     temporal: TemporalPrior | None = None,
     std_scale: float = 1.0,
     robust_iterations: int = 1,
+    scale_by_innovation: bool = False,
 ) -> list[DensifyResult]:
     """Densify several frames at once with matrix-matrix products across frames.
 
@@ -272,6 +281,8 @@ def densify_batch(
         temporal: temporal prior state carried across calls (frames in stream order).
         std_scale: factor on the reported std (1: the posterior std itself).
         robust_iterations: IRLS reweightings with ``robust``.
+        scale_by_innovation: multiply each frame's std by sqrt(a) of
+            :func:`prior.covariance_scale` too.
 
     Returns:
         One :class:`DensifyResult` per frame, in order.
@@ -351,8 +362,13 @@ def densify_batch(
             disparity += _local_mean(posterior.local, out_size, basis.image_size, 1.0 / to_basis)
         disparity_std = None
         if vgrid is not None and variances is not None:
+            frame_scale = std_scale
+            if scale_by_innovation:
+                frame_scale *= np.sqrt(
+                    covariance_scale(posterior.normalised_innovation, frame_pixels.shape[0])
+                )
             grid_std = np.sqrt(np.maximum(variances[index], 0.0)) * np.float32(
-                std_scale / to_basis
+                frame_scale / to_basis
             )
             disparity_std = resample_grid(grid_std.reshape(vgrid.size), out_size)
         depth, depth_std = _depth(disparity, disparity_std, fb_out)
@@ -374,6 +390,7 @@ def densify_batch(
                 weights=posterior.weights,
                 n_downweighted=_downweighted(posterior.weights),
                 temporal=posterior.temporal,
+                normalised_innovation=posterior.normalised_innovation,
             )
         )
     return results
@@ -456,7 +473,10 @@ def _solve(
             # W = L^-1 B~ Λ in float32: its rounding is that of the float32 product with the
             # basis that consumes it
             factor = lower_inverse.astype(np.float32) @ (rows * eigenvalues).astype(np.float32)
-        return _Posterior(coefficients, coefficient_variance, factor, True, form, sigma=sigma)
+        return _Posterior(
+            coefficients, coefficient_variance, factor, True, form, sigma=sigma,
+            normalised_innovation=_normalised_innovation(rows, residual, coefficients, sigma),
+        )
     # coefficient form: A = sigma^2 I + Λ^½ B~^T B~ Λ^½ = L_A L_A^T (paper's system, symmetrised)
     root = np.sqrt(eigenvalues)
     scaled = rows * root
@@ -469,7 +489,21 @@ def _solve(
     factor64 = sigma * lower_inverse * root
     coefficient_variance = np.einsum("rl,rl->l", factor64, factor64)
     factor = factor64.astype(np.float32) if need_factor else None
-    return _Posterior(coefficients, coefficient_variance, factor, False, form, sigma=sigma)
+    return _Posterior(
+        coefficients, coefficient_variance, factor, False, form, sigma=sigma,
+        normalised_innovation=_normalised_innovation(rows, residual, coefficients, sigma),
+    )
+
+
+def _normalised_innovation(
+    rows: npt.NDArray[np.float64],
+    residual: npt.NDArray[np.float64],
+    coefficients: npt.NDArray[np.float64],
+    sigma: float,
+) -> float:
+    """z~^T K^-1 z~ / k of the paper's model, from K^-1 z~ = (z~ - B~ y_hat) / sigma^2."""
+    k = residual.shape[0]
+    return float(residual @ (residual - rows @ coefficients)) / (sigma**2 * k) if k else 0.0
 
 
 def _sigma(sigma: float | str) -> float | None:

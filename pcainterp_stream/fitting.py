@@ -25,7 +25,7 @@ import numpy.typing as npt
 
 from pcainterp_stream.basis import Basis, bilinear_weights, image_to_grid, sample_rows
 from pcainterp_stream.estimator import clean_measurements, triangular_lapack
-from pcainterp_stream.prior import Kernel, LocalPrior, TemporalPrior
+from pcainterp_stream.prior import Kernel, LocalPrior, TemporalPrior, covariance_scale
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -390,7 +390,9 @@ def fit_prior(
     the sequences (:func:`fit_local_prior`), the process noise on the first
     ``sequence_frames`` of each sequence (:func:`fit_process_noise`), and the std scale on
     the calibration frames densified as ``densify`` would (hybrid prior, fitted sigma,
-    ``robust`` loss; :func:`fit_std_scale`).
+    ``robust`` loss; :func:`fit_std_scale`), once for the posterior std and once for the
+    std scaled per frame by sqrt(a) of :func:`prior.covariance_scale`
+    (``innovation_std_scale``, what ``densify`` uses by default).
 
     Args:
         basis: the PCA basis.
@@ -419,7 +421,7 @@ def fit_prior(
         local=local.local,
         sigma=local.sigma,
     )
-    estimates, stds, references = [], [], []
+    estimates, stds, scaled_stds, references = [], [], [], []
     for frame in calibration:
         result = densify(
             basis,
@@ -434,11 +436,14 @@ def fit_prior(
         assert result.disparity_std is not None
         estimates.append(result.disparity)
         stds.append(result.disparity_std)
+        scale = covariance_scale(result.normalised_innovation, result.n_measurements)
+        scaled_stds.append(result.disparity_std * np.float32(np.sqrt(scale)))
         references.append(np.asarray(frame.reference, dtype=np.float32))
     fitted = local.to_meta()
     fitted.update(
         {
             "std_scale": fit_std_scale(estimates, stds, references),
+            "innovation_std_scale": fit_std_scale(estimates, scaled_stds, references),
             "process_noise": process_noise,
             "process_noise_log_evidence": {str(q): v for q, v in scores.items()},
             "candidates": local.table,

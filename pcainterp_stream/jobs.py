@@ -708,7 +708,12 @@ def describe_basis(path: Path) -> str:
         lines += [
             f"  fitted prior     {kernel}; sigma {fitted.get('sigma', float('nan')):.3g} px; "
             f"process noise {fitted.get('process_noise', float('nan')):g}; "
-            f"std scale {fitted.get('std_scale', 1.0):.3g}",
+            f"std scale {fitted.get('std_scale', 1.0):.3g}"
+            + (
+                f" ({fitted['innovation_std_scale']:.3g} with the per-frame covariance scale)"
+                if "innovation_std_scale" in fitted
+                else ""
+            ),
         ]
     return "\n".join(lines)
 
@@ -819,6 +824,10 @@ def _estimate_line(basis: Basis) -> str:
     config = ProcessorConfig()
     parts.append(f"robust {config.robust}")
     parts.append("temporal prior" if config.temporal else "no temporal prior")
+    if settings.scale_by_innovation:
+        parts.append(f"std x {settings.std_scale:.3g} x per-frame covariance scale")
+    elif settings.std_scale != 1.0:
+        parts.append(f"std x {settings.std_scale:.3g}")
     return ", ".join(parts)
 
 

@@ -233,6 +233,33 @@ class Model:
         return self.sigma is not None and self.local is None and self.robust is Robust.NONE
 
 
+COVARIANCE_SCALE_PSEUDO = 4.0
+"""Pseudo-measurements at scale 1 in :func:`covariance_scale` (few points stay near 1)."""
+
+
+def covariance_scale(normalised_innovation: float, k: int) -> float:
+    """Return the frame's covariance scale a fitted from its own measurements.
+
+    Scaling the whole model covariance (prior and noise) by a, z~ ~ N(B~ mu, a K), leaves
+    the MAP estimate unchanged and multiplies the posterior variance by a. Its maximum
+    likelihood value is the normalised innovation squared z~^T K^-1 z~ / k; with
+    :data:`COVARIANCE_SCALE_PSEUDO` extra measurements at a = 1, a frame with few points
+    stays close to the model's own scale:
+
+        a = (k * nis + n0) / (k + n0)
+
+    On real logs the measurements of a scene the training data did not cover disagree with
+    the prior more (a > 1), and so do the pixels between them: the std widens with it.
+
+    Args:
+        normalised_innovation: z~^T K^-1 z~ / k of the frame (0 when k = 0).
+        k: the number of measurements.
+    """
+    if not (math.isfinite(normalised_innovation) and normalised_innovation >= 0):
+        return 1.0
+    return (k * normalised_innovation + COVARIANCE_SCALE_PSEUDO) / (k + COVARIANCE_SCALE_PSEUDO)
+
+
 SIGMA_SEARCH = np.geomspace(0.1, 20.0, 160)
 """Candidate noise stds (px) of the evidence search, log-spaced (1.3 % apart)."""
 

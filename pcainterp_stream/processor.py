@@ -66,8 +66,10 @@ class ProcessorConfig:
         temporal: carry each frame's posterior into the next frame's prior.
         process_noise: the temporal prior's process noise (fraction of the eigenvalues);
             None: the basis's fitted value, else 0.1.
-        calibrate: scale the std by the basis's fitted calibration factor (with the
-            hybrid prior it was fitted with); False reports the posterior std itself.
+        calibrate: calibrate the std as the basis's fit did (with the hybrid prior it was
+            fitted with): its factor, and per frame sqrt(a) of the covariance scale fitted
+            from the frame's innovation (``prior.covariance_scale``) when the fit has that
+            factor (``innovation_std_scale``); False reports the posterior std itself.
         source: measurement source.
         batch_size: frames densified together (matrix-matrix products).
         lookahead: frames queued for stereo matching ahead of densification; at least
@@ -124,12 +126,14 @@ class EstimateSettings:
         local_prior: the local kernel of the hybrid prior, or None.
         process_noise: the temporal prior's process noise.
         std_scale: calibration factor on the reported std (1: the posterior std).
+        scale_by_innovation: also scale each frame's std by its covariance scale.
     """
 
     sigma: float | str
     local_prior: LocalPrior | None
     process_noise: float
     std_scale: float = 1.0
+    scale_by_innovation: bool = False
 
 
 def resolve_settings(basis: Basis, config: ProcessorConfig) -> EstimateSettings:
@@ -166,10 +170,18 @@ def resolve_settings(basis: Basis, config: ProcessorConfig) -> EstimateSettings:
     if process_noise is None:
         process_noise = float(fitted.get("process_noise", 0.1))
     std_scale = 1.0
+    scale_by_innovation = False
     if config.calibrate and local is not None:
-        std_scale = float(fitted.get("std_scale", 1.0))
+        # bases fitted before the per-frame scale existed have only the plain factor
+        scale_by_innovation = "innovation_std_scale" in fitted
+        key = "innovation_std_scale" if scale_by_innovation else "std_scale"
+        std_scale = float(fitted.get(key, 1.0))
     return EstimateSettings(
-        sigma=sigma, local_prior=local, process_noise=process_noise, std_scale=std_scale
+        sigma=sigma,
+        local_prior=local,
+        process_noise=process_noise,
+        std_scale=std_scale,
+        scale_by_innovation=scale_by_innovation,
     )
 
 
@@ -386,6 +398,7 @@ class FrameProcessor:
                 robust=self.config.robust,
                 temporal=self.temporal,
                 std_scale=self.settings.std_scale,
+                scale_by_innovation=self.settings.scale_by_innovation,
             )
             for item, estimate in zip(group, estimates, strict=True):
                 counts = dict(item.counts)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -118,6 +119,7 @@ def test_learn_fit_prior_then_densify_uses_it(tmp_path: Path) -> None:
     prior = basis.meta["prior"]
     assert prior["held_out_frames"] == 5
     assert prior["sigma"] > 0 and prior["process_noise"] > 0 and prior["std_scale"] > 0
+    assert prior["innovation_std_scale"] > 0
     assert {row["kernel"] for row in prior["candidates"]} == {"none", "laplace", "gaussian"}
     out = tmp_path / "dense.mcap"
     assert main(["densify", str(test), "-o", str(out), "--basis", str(basis_path),
@@ -182,3 +184,24 @@ def test_std_scale_multiplies_the_reported_std() -> None:
     np.testing.assert_array_equal(scaled.disparity, plain.disparity)
     with pytest.raises(ValueError, match="std_scale"):
         densify(basis, pixels, [25.0, 30.0], std_scale=0.0)
+
+
+def test_resolve_settings_calibrates_as_the_fit_did() -> None:
+    from pcainterp_stream.processor import ProcessorConfig, resolve_settings
+
+    basis = _tiny_basis()
+    fitted = {
+        "local": {"variance": 2.0, "length_scale": 8.0, "kernel": "laplace"},
+        "sigma": 0.5, "std_scale": 1.2, "innovation_std_scale": 0.9,
+    }
+    with_both = dataclasses.replace(basis, meta={"prior": fitted})
+    settings = resolve_settings(with_both, ProcessorConfig())
+    assert settings.scale_by_innovation and settings.std_scale == 0.9
+    # a basis fitted before the per-frame scale existed keeps its plain factor
+    older = {k: v for k, v in fitted.items() if k != "innovation_std_scale"}
+    settings = resolve_settings(dataclasses.replace(basis, meta={"prior": older}), ProcessorConfig())
+    assert not settings.scale_by_innovation and settings.std_scale == 1.2
+    settings = resolve_settings(with_both, ProcessorConfig(calibrate=False))
+    assert not settings.scale_by_innovation and settings.std_scale == 1.0
+    settings = resolve_settings(with_both, ProcessorConfig(prior="paper"))
+    assert not settings.scale_by_innovation and settings.std_scale == 1.0

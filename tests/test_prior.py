@@ -11,6 +11,7 @@ from pcainterp_stream.prior import (
     LocalPrior,
     Robust,
     TemporalPrior,
+    covariance_scale,
     evidence_sigma,
     robust_weights,
 )
@@ -269,3 +270,62 @@ def test_empty_frame_with_every_addition_is_the_prior() -> None:
     np.testing.assert_allclose(
         result.disparity_std**2, basis.prior_variance + 2.0, rtol=1e-3
     )
+
+
+def _innovation_by_hand(
+    basis: Basis, pixels: np.ndarray, disparities: np.ndarray, sigma: float,
+    local: LocalPrior | None,
+) -> float:
+    """z^T K^-1 z / k from the dense prior covariance at the measured pixels."""
+    height, width = basis.image_size
+    b = basis.pixel_major.astype(np.float64)
+    index = pixels[:, 1].astype(int) * width + pixels[:, 0].astype(int)
+    system = b[index] @ np.diag(basis.eigenvalues) @ b[index].T
+    if local is not None:
+        system += local.matrix(pixels)
+    system += sigma**2 * np.eye(len(index))
+    innovation = disparities - basis.mean_flat.astype(np.float64)[index]
+    return float(innovation @ np.linalg.solve(system, innovation)) / len(index)
+
+
+@pytest.mark.parametrize("form", ["measurement", "coefficient"])
+def test_normalised_innovation_of_the_paper_model(form: str) -> None:
+    basis = _basis()
+    pixels, disparities = _points(basis, 9 if form == "measurement" else 20, seed=11)
+    result = densify(basis, pixels, disparities, sigma=1.5, solve_form=form)
+    expected = _innovation_by_hand(basis, pixels, disparities, 1.5, None)
+    assert result.normalised_innovation == pytest.approx(expected, rel=1e-8)
+
+
+def test_normalised_innovation_of_the_hybrid_model() -> None:
+    basis = _basis()
+    pixels, disparities = _points(basis, 9, seed=12)
+    local = LocalPrior(variance=4.0, length_scale=3.0)
+    result = densify(basis, pixels, disparities, sigma=1.5, local_prior=local)
+    expected = _innovation_by_hand(basis, pixels, disparities, 1.5, local)
+    assert result.normalised_innovation == pytest.approx(expected, rel=1e-8)
+
+
+def test_covariance_scale() -> None:
+    assert covariance_scale(0.0, 0) == 1.0  # no measurement: the model's own scale
+    assert covariance_scale(1.0, 300) == pytest.approx(1.0)
+    assert covariance_scale(9.0, 1000) == pytest.approx(9.0, rel=0.01)
+    # few points stay near 1
+    assert 1.0 < covariance_scale(9.0, 2) < 4.0
+    assert covariance_scale(float("nan"), 10) == 1.0
+
+
+def test_scale_by_innovation_widens_the_std_only() -> None:
+    basis = _basis()
+    pixels, disparities = _points(basis, 9, seed=13)
+    local = LocalPrior(variance=4.0, length_scale=3.0)
+    plain = densify(basis, pixels, disparities, sigma=1.5, local_prior=local, std_scale=1.3)
+    scaled = densify(
+        basis, pixels, disparities, sigma=1.5, local_prior=local, std_scale=1.3,
+        scale_by_innovation=True,
+    )
+    np.testing.assert_array_equal(scaled.disparity, plain.disparity)
+    factor = np.sqrt(covariance_scale(plain.normalised_innovation, 9))
+    assert factor != pytest.approx(1.0, abs=0.05)  # the test must see a change
+    assert scaled.disparity_std is not None and plain.disparity_std is not None
+    np.testing.assert_allclose(scaled.disparity_std, plain.disparity_std * factor, rtol=1e-5)

@@ -360,6 +360,11 @@ def _estimates(
     state = (
         TemporalPrior(process_noise=float(hyper["process_noise"])) if method.temporal else None
     )
+    # the std as densify calibrates it (processor.resolve_settings)
+    by_innovation = local is not None and "innovation_std_scale" in hyper
+    std_scale = 1.0
+    if local is not None:
+        std_scale = float(hyper["innovation_std_scale" if by_innovation else "std_scale"])
     for index in frames:
         pixels, disparities = points(index)
         started = time.perf_counter()
@@ -373,7 +378,7 @@ def _estimates(
             basis, [pixels], [disparities], sigma=sigma, local_prior=local,
             robust=method.robust, temporal=state, image_size=camera.image_size,
             focal_baseline=camera.focal_baseline,
-            std_scale=float(hyper.get("std_scale", 1.0)) if local is not None else 1.0,
+            std_scale=std_scale, scale_by_innovation=by_innovation,
         )[0]
         seconds = time.perf_counter() - started
         extras: dict[str, int | float] = {
