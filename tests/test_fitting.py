@@ -199,7 +199,8 @@ def test_resolve_settings_calibrates_as_the_fit_did() -> None:
     assert settings.scale_by_innovation and settings.std_scale == 0.9
     # a basis fitted before the per-frame scale existed keeps its plain factor
     older = {k: v for k, v in fitted.items() if k != "innovation_std_scale"}
-    settings = resolve_settings(dataclasses.replace(basis, meta={"prior": older}), ProcessorConfig())
+    older_basis = dataclasses.replace(basis, meta={"prior": older})
+    settings = resolve_settings(older_basis, ProcessorConfig())
     assert not settings.scale_by_innovation and settings.std_scale == 1.2
     settings = resolve_settings(with_both, ProcessorConfig(calibrate=False))
     assert not settings.scale_by_innovation and settings.std_scale == 1.0
