@@ -346,6 +346,13 @@ def densify_batch(
     coefficients = np.stack([p.coefficients for p in posteriors], axis=1).astype(np.float32)
     grid_maps = basis.pixel_major @ coefficients
     grid_maps += basis.mean_flat[:, None]
+    # the local part of a long kernel on the basis grid, resampled with the basis part
+    spacing = basis.image_size[1] / basis.grid_size[1]  # basis image px per grid px
+    for index, posterior in enumerate(posteriors):
+        if posterior.local is not None and posterior.local.prior.smooth_at(spacing):
+            grid_maps[:, index] += _local_mean(
+                posterior.local, basis.grid_size, basis.image_size, 1.0
+            ).reshape(-1)
     grid_maps *= np.float32(1.0 / to_basis)
 
     variances: npt.NDArray[np.float32] | None = None
@@ -358,7 +365,7 @@ def densify_batch(
         zip(posteriors, frames, strict=True)
     ):
         disparity = resample_grid(grid_maps[:, index].reshape(basis.grid_size), out_size)
-        if posterior.local is not None:
+        if posterior.local is not None and not posterior.local.prior.smooth_at(spacing):
             disparity += _local_mean(posterior.local, out_size, basis.image_size, 1.0 / to_basis)
         disparity_std = None
         if vgrid is not None and variances is not None:

@@ -200,7 +200,7 @@ def learn_basis(
     keep = n_components + oversampling
     stream = grid_maps()
     if learn_method is LearnMethod.EXACT:
-        fit = _gram_fit(np.stack(list(stream)))
+        fit = _gram_fit(np.stack(list(stream)), n_components)
         used = LearnMethod.EXACT
     elif learn_method is LearnMethod.STREAMING:
         fit = _streaming_fit(stream, keep, batch_size)
@@ -209,7 +209,7 @@ def learn_basis(
         budget = min(exact_max_maps, max(2, exact_max_bytes // (4 * n_pixels)))
         kept = list(itertools.islice(stream, budget + 1))
         if len(kept) <= budget:
-            fit = _gram_fit(np.stack(kept))
+            fit = _gram_fit(np.stack(kept), n_components)
             used = LearnMethod.EXACT
         else:
             fit = _streaming_fit(itertools.chain(kept, stream), keep, batch_size)
@@ -350,8 +350,12 @@ class PcaFit:
     n_maps: int
 
 
-def _gram_fit(maps: npt.NDArray[np.float32]) -> PcaFit:
-    """Exact eigenpairs via the n x n Gram matrix of the centred maps (n, s)."""
+def _gram_fit(maps: npt.NDArray[np.float32], keep: int | None = None) -> PcaFit:
+    """Exact eigenpairs via the n x n Gram matrix of the centred maps (n, s).
+
+    Only the leading ``keep`` eigenpairs are returned (None: all): forming every
+    component costs s * n * rank products, 2.9e12 for 10,000 maps on a 310 x 94 grid.
+    """
     n_maps, n_pixels = maps.shape
     if n_maps < 2:
         raise ValueError(f"learning needs at least two disparity maps, got {n_maps}")
@@ -364,6 +368,8 @@ def _gram_fit(maps: npt.NDArray[np.float32]) -> PcaFit:
     order = np.argsort(energies)[::-1]
     energies, vectors = energies[order], vectors[:, order]
     rank = int(np.count_nonzero(energies > max(energies[0], 0.0) * 1e-10))
+    if keep is not None:
+        rank = min(rank, keep)
     energies, vectors = energies[:rank], vectors[:, :rank]
     components = np.empty((n_pixels, rank))
     scale = vectors / np.sqrt(energies)

@@ -82,10 +82,12 @@ def _brute_force(
 
 
 @pytest.mark.parametrize("kernel", [Kernel.LAPLACE, Kernel.GAUSSIAN])
-def test_hybrid_prior_equals_dense_gaussian_posterior(kernel: Kernel) -> None:
+@pytest.mark.parametrize("length_scale", [3.0, 20.0])  # full-size and grid local part
+def test_hybrid_prior_equals_dense_gaussian_posterior(kernel: Kernel, length_scale: float) -> None:
     basis = _basis()
     pixels, disparities = _points(basis, 9, seed=1)
-    local = LocalPrior(variance=4.0, length_scale=3.0, kernel=kernel)
+    local = LocalPrior(variance=4.0, length_scale=length_scale, kernel=kernel)
+    assert local.smooth_at(1.0) == (length_scale == 20.0)
     result = densify(
         basis, pixels, disparities, sigma=1.5, local_prior=local, variance_stride=1
     )
@@ -329,3 +331,31 @@ def test_scale_by_innovation_widens_the_std_only() -> None:
     assert factor != pytest.approx(1.0, abs=0.05)  # the test must see a change
     assert scaled.disparity_std is not None and plain.disparity_std is not None
     np.testing.assert_allclose(scaled.disparity_std, plain.disparity_std * factor, rtol=1e-5)
+
+
+def test_long_local_kernel_on_the_grid_matches_full_size() -> None:
+    """The local part of a long kernel, computed on a 4x coarser grid, stays close."""
+    small = _basis(height=12, width=16, n_components=6, seed=4)
+    # a 12 x 16 grid over a 48 x 64 image; a constant mean and (almost) no basis
+    # variance leave the local part alone in the estimate
+    basis = Basis(
+        mean=np.full((12, 16), 20.0, dtype=np.float32), components=small.components,
+        eigenvalues=np.full(6, 1e-9), total_variance=1.0, image_size=(48, 64),
+        focal_baseline=100.0, n_train=50,
+    )
+    rng = np.random.default_rng(5)
+    pixels = np.stack([rng.uniform(0, 63, 12), rng.uniform(0, 47, 12)], axis=1)
+    disparities = rng.uniform(10.0, 40.0, 12)
+    local = LocalPrior(variance=25.0, length_scale=64.0)
+    assert local.smooth_at(4.0)
+    result = densify(basis, pixels, disparities, sigma=0.5, local_prior=local)
+    alpha = np.linalg.solve(local.matrix(pixels) + 0.25 * np.eye(12), disparities - 20.0)
+    ys, xs = np.arange(48.0), np.arange(64.0)
+    full = (local.axis(pixels[:, 1], ys).T * (local.variance * alpha)) @ local.axis(
+        pixels[:, 0], xs
+    )
+    error = np.abs(result.disparity - 20.0 - full)
+    # the interpolation rounds off each measurement's cusp v alpha_j by <= spacing / ell
+    cusp = np.abs(local.variance * alpha).max()
+    assert error.max() <= 4.0 / 64.0 * cusp
+    assert error.mean() < 0.05 * np.abs(full).max()
