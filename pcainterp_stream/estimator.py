@@ -32,7 +32,7 @@ import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -55,6 +55,8 @@ from pcainterp_stream.prior import (
     evidence_sigma,
     robust_weights,
 )
+
+_Float = TypeVar("_Float", np.float32, np.float64)
 
 DEFAULT_SIGMA = 2.0
 """Measurement noise std (px), the paper's value."""
@@ -149,6 +151,7 @@ class _Local:
     positions: npt.NDArray[np.float64]  # (k, 2) (x, y) basis image px
     alpha: npt.NDArray[np.float64]  # (k,) K^-1 innovation
     lower_inverse: npt.NDArray[np.float32] | None  # (k, k) L^-1, for the exact variance
+    prior_rows: npt.NDArray[np.float32] | None  # (k, l) B~ P, for the exact variance
 
 
 @dataclass(frozen=True)
@@ -618,7 +621,7 @@ def _solve_measurement(
             # one more solve with the final weights
             iterations = iteration + 1
     coefficients = mean + prior_rows.T @ alpha  # y = mu + P B~^T alpha
-    gain = lower_inverse @ prior_rows  # W = L^-1 B~ P (k, l)
+    gain = _lower_times(lower_inverse, prior_rows)  # W = L^-1 B~ P (k, l)
     coefficient_variance = prior_diagonal - np.einsum("kl,kl->l", gain, gain)
     local = None
     if model.local is not None:
@@ -627,11 +630,13 @@ def _solve_measurement(
             positions=positions,
             alpha=alpha,
             lower_inverse=lower_inverse.astype(np.float32) if need_factor else None,
+            prior_rows=prior_rows.astype(np.float32) if need_factor else None,
         )
     return _Posterior(
         coefficients=coefficients,
         coefficient_variance=coefficient_variance,
-        factor=gain.astype(np.float32) if need_factor else None,
+        # with a local part the variance takes L^-1 (B~ P b(x) + c(P, x)) instead
+        factor=gain.astype(np.float32) if need_factor and local is None else None,
         subtract_from_prior=True,
         solve_form=SolveForm.MEASUREMENT,
         prior_diagonal=None if predicted is None else prior_diagonal,
@@ -688,12 +693,19 @@ def _variance_beyond(
 ) -> npt.NDArray[np.float32]:
     """Exact variance of one frame with temporal and/or local prior, (s_v,) float32.
 
-    var(x) = b^T P b + v - ||W b(x) + L^-1 c(P, x)||^2.
+    var(x) = b^T P b + v - ||L^-1 (B~ P b(x) + c(P, x))||^2, with W = L^-1 B~ P (the
+    factor) when there is no local part.
     """
-    projected = _factor(posterior) @ vgrid.component_rows
-    if posterior.local is not None and posterior.local.lower_inverse is not None:
-        covariance = _local_covariance(posterior.local, vgrid.size, basis_image)
-        projected += posterior.local.lower_inverse @ covariance
+    local = posterior.local
+    if local is not None:
+        if local.lower_inverse is None or local.prior_rows is None:
+            raise AssertionError("exact variance needs the posterior factor")
+        # L^-1 (B~ P U + C): one triangular product (half a GEMM) instead of two GEMMs
+        joint = local.prior_rows @ vgrid.component_rows
+        joint += _local_covariance(local, vgrid.size, basis_image)
+        projected = _lower_times(local.lower_inverse, joint)
+    else:
+        projected = _factor(posterior) @ vgrid.component_rows
     reduction = np.einsum("ks,ks->s", projected, projected)
     if posterior.prior_diagonal is not None:
         # b(x)^T P b(x) = sum_i p_i u_i(x)^2, one GEMV
@@ -750,6 +762,23 @@ def _cholesky_inverse(system: npt.NDArray[np.float64]) -> npt.NDArray[np.float64
     if info != 0:  # pragma: no cover - a Cholesky factor has a positive diagonal
         raise np.linalg.LinAlgError(f"singular Cholesky factor (dtrtri info {info})")
     return np.asarray(inverse, dtype=np.float64)
+
+
+def _lower_times(lower: npt.NDArray[_Float], matrix: npt.NDArray[_Float]) -> npt.NDArray[_Float]:
+    """Return lower @ matrix for a lower-triangular ``lower`` (BLAS ``?trmm``, half a GEMM).
+
+    BLAS is column-major: the C-ordered ``matrix`` is its transpose there, so the call
+    computes matrix^T lower^T (right side, transposed triangle) with no copy of ``matrix``.
+    """
+    if lower.shape[0] == 0:
+        return lower @ matrix
+    if triangular_lapack() is None:  # pragma: no cover - scipy is a dependency
+        return lower @ matrix
+    from scipy.linalg import blas
+
+    trmm = blas.strmm if matrix.dtype == np.float32 else blas.dtrmm
+    product = trmm(1.0, lower, np.ascontiguousarray(matrix).T, lower=1, side=1, trans_a=1)
+    return np.ascontiguousarray(product.T)
 
 
 def _variances(
