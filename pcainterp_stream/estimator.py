@@ -352,7 +352,7 @@ def densify_batch(
     # the local part of a long kernel on the basis grid, resampled with the basis part
     spacing = basis.image_size[1] / basis.grid_size[1]  # basis image px per grid px
     for index, posterior in enumerate(posteriors):
-        if posterior.local is not None and posterior.local.prior.smooth_at(spacing):
+        if posterior.local is not None and posterior.local.prior.sample_spacing(spacing) == spacing:
             grid_maps[:, index] += _local_mean(
                 posterior.local, basis.grid_size, basis.image_size, 1.0
             ).reshape(-1)
@@ -368,8 +368,17 @@ def densify_batch(
         zip(posteriors, frames, strict=True)
     ):
         disparity = resample_grid(grid_maps[:, index].reshape(basis.grid_size), out_size)
-        if posterior.local is not None and not posterior.local.prior.smooth_at(spacing):
-            disparity += _local_mean(posterior.local, out_size, basis.image_size, 1.0 / to_basis)
+        local_spacing = (
+            posterior.local.prior.sample_spacing(spacing) if posterior.local is not None else 0
+        )
+        if posterior.local is not None and local_spacing < spacing:
+            # at full size, or 2x, 4x... coarser and resampled (prior.LocalPrior.smooth_at)
+            coarse = (
+                max(1, round(out_size[0] / local_spacing)),
+                max(1, round(out_size[1] / local_spacing)),
+            )
+            local_map = _local_mean(posterior.local, coarse, basis.image_size, 1.0 / to_basis)
+            disparity += resample_grid(local_map, out_size)
         disparity_std = None
         if vgrid is not None and variances is not None:
             frame_scale = std_scale
@@ -840,17 +849,21 @@ def _depth(
     disparity_std: npt.NDArray[np.float32] | None,
     focal_baseline: float,
 ) -> tuple[npt.NDArray[np.float32] | None, npt.NDArray[np.float32] | None]:
-    """Depth w = f*b / d and its delta-method std f*b / d^2 * std_d; NaN where d <= 0."""
+    """Depth w = f*b / d and its delta-method std f*b / d^2 * std_d; NaN where d <= 0.
+
+    inf where d > 0 is so small that the depth or its std exceeds float32.
+    """
     if focal_baseline <= 0:
         return None, None
-    positive = disparity > 0
-    inverse = np.full(disparity.shape, np.nan, dtype=np.float32)
-    np.divide(np.float32(1.0), disparity, out=inverse, where=positive)
-    depth = inverse * np.float32(focal_baseline)
-    if disparity_std is None:
-        return depth, None
-    depth_std = depth * inverse
-    depth_std *= disparity_std
+    with np.errstate(over="ignore"):
+        positive = disparity > 0
+        inverse = np.full(disparity.shape, np.nan, dtype=np.float32)
+        np.divide(np.float32(1.0), disparity, out=inverse, where=positive)
+        depth = inverse * np.float32(focal_baseline)
+        if disparity_std is None:
+            return depth, None
+        depth_std = depth * inverse
+        depth_std *= disparity_std
     return depth, depth_std
 
 

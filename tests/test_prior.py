@@ -333,8 +333,14 @@ def test_scale_by_innovation_widens_the_std_only() -> None:
     np.testing.assert_allclose(scaled.disparity_std, plain.disparity_std * factor, rtol=1e-5)
 
 
-def test_long_local_kernel_on_the_grid_matches_full_size() -> None:
-    """The local part of a long kernel, computed on a 4x coarser grid, stays close."""
+@pytest.mark.parametrize(
+    ("kernel", "length_scale", "spacing"),
+    [(Kernel.LAPLACE, 64.0, 4.0), (Kernel.LAPLACE, 40.0, 2.0), (Kernel.GAUSSIAN, 10.0, 2.0)],
+)
+def test_long_local_kernel_on_a_coarser_grid_matches_full_size(
+    kernel: Kernel, length_scale: float, spacing: float
+) -> None:
+    """The local part of a long kernel, computed on a 4x or 2x coarser grid, stays close."""
     small = _basis(height=12, width=16, n_components=6, seed=4)
     # a 12 x 16 grid over a 48 x 64 image; a constant mean and (almost) no basis
     # variance leave the local part alone in the estimate
@@ -346,8 +352,8 @@ def test_long_local_kernel_on_the_grid_matches_full_size() -> None:
     rng = np.random.default_rng(5)
     pixels = np.stack([rng.uniform(0, 63, 12), rng.uniform(0, 47, 12)], axis=1)
     disparities = rng.uniform(10.0, 40.0, 12)
-    local = LocalPrior(variance=25.0, length_scale=64.0)
-    assert local.smooth_at(4.0)
+    local = LocalPrior(variance=25.0, length_scale=length_scale, kernel=kernel)
+    assert local.sample_spacing(4.0) == spacing  # 4 image px per grid px
     result = densify(basis, pixels, disparities, sigma=0.5, local_prior=local)
     alpha = np.linalg.solve(local.matrix(pixels) + 0.25 * np.eye(12), disparities - 20.0)
     ys, xs = np.arange(48.0), np.arange(64.0)
@@ -355,7 +361,7 @@ def test_long_local_kernel_on_the_grid_matches_full_size() -> None:
         pixels[:, 0], xs
     )
     error = np.abs(result.disparity - 20.0 - full)
-    # the interpolation rounds off each measurement's cusp v alpha_j by <= spacing / ell
+    # the interpolation rounds off each measurement's peak v alpha_j by <= spacing / ell
     cusp = np.abs(local.variance * alpha).max()
-    assert error.max() <= 4.0 / 64.0 * cusp
+    assert error.max() <= spacing / length_scale * cusp
     assert error.mean() < 0.05 * np.abs(full).max()

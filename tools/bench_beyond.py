@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from pcainterp_stream.allocator import keep_freed_memory
 from pcainterp_stream.basis import Basis
 from pcainterp_stream.estimator import densify_batch
 from pcainterp_stream.prior import LocalPrior, TemporalPrior
@@ -49,6 +50,14 @@ def main(argv: list[str] | None = None) -> int:
         "--blas-threads", type=int, default=1, help="1 = as in the stream processor"
     )
     parser.add_argument(
+        "--basis", type=Path, default=None,
+        help="basis with a fitted prior (default: WORK/basis_synthetic.npz)",
+    )
+    parser.add_argument(
+        "--system-malloc", action="store_true",
+        help="leave glibc's malloc untuned (densify tunes it, ProcessorConfig.keep_freed_memory)",
+    )
+    parser.add_argument(
         "--profile", default=None, metavar="CONFIG",
         help="profile one configuration (a row name) instead and print where the time goes",
     )
@@ -56,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from run_beyond import prepare_log
 
-    basis = Basis.load(args.work / "basis_synthetic.npz")
+    basis = Basis.load(args.basis or args.work / "basis_synthetic.npz")
     fitted = basis.meta["prior"]
     camera_of_basis = (basis.image_size, basis.focal_baseline)
     data = prepare_log(
@@ -72,6 +81,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     print("| configuration | wall ms/frame | CPU ms/frame | frames/s (wall) |")
     print("| --- | ---: | ---: | ---: |")
+    if not args.system_malloc:
+        keep_freed_memory()  # as the stream processor does (ProcessorConfig.keep_freed_memory)
     with threadpool_limits(args.blas_threads, user_api="blas"):
         for name, config in CONFIGS.items():
             if args.profile is not None and name != args.profile:
@@ -101,6 +112,10 @@ def main(argv: list[str] | None = None) -> int:
                         temporal=state,
                         image_size=data.camera.image_size,
                         focal_baseline=data.camera.focal_baseline,
+                        # the std as densify calibrates it (processor.resolve_settings)
+                        std_scale=float(fitted.get("innovation_std_scale", 1.0)) if local else 1.0,
+                        scale_by_innovation=local is not None
+                        and "innovation_std_scale" in fitted,
                     )
                 if profiler is not None:
                     profiler.disable()
