@@ -32,9 +32,11 @@ import argparse
 import dataclasses
 import itertools
 import json
+import os
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -69,6 +71,9 @@ from pcainterp_stream.stereo import (
     lookup_disparities,
     to_grey8,
 )
+from pcainterp_stream.synth import SynthConfig, camera_pose
+from pcainterp_stream.synth.render import render_view
+from pcainterp_stream.synth.world import World
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 KITTI = {
@@ -82,6 +87,8 @@ GRID_SCALE = 0.25
 SWEEP_POINTS = (50, 100, 200, 400, 800)
 IRLS_SPLITS = ("synthetic", "kitti_a", "kitti_b_mix")
 """Splits of the reweighting-count check (``--stages irls``)."""
+DRIVE_SEED = 1000
+"""First seed of the synthetic drives rendered for the synthetic basis (``--drives``)."""
 MAIN_MIX = 1000
 """Synthetic SGBM maps added to the real training frames of the ``*_mix`` splits."""
 FloatArray = npt.NDArray[np.float64]
@@ -218,6 +225,43 @@ def prepare_log(
 # ----------------------------------------------------------------------------- bases
 
 
+def _drive_maps(job: tuple[int, int, int, tuple[int, int]]) -> npt.NDArray[np.float32]:
+    """Ground-truth grid maps of one synthetic drive: every ``step``-th of ``frames``."""
+    seed, frames, step, grid = job
+    config = SynthConfig(seed=seed, frames=frames)
+    camera = config.camera
+    world = World(seed)
+    maps = []
+    for index in range(0, frames, step):
+        view = render_view(world, camera, camera_pose(world, config, index))
+        disparity = disparity_from_depth(view.depth, camera.focal_baseline).astype(np.float32)
+        maps.append(preprocess_disparity(disparity, grid))
+    return np.stack(maps)
+
+
+def render_drives(work: Path, drives: int, frames: int, step: int) -> npt.NDArray[np.float32]:
+    """Ground-truth grid maps of ``drives`` synthetic drives (seeds from DRIVE_SEED), cached.
+
+    Only the left depth is rendered (no images, no stereo): the basis needs nothing else,
+    and distinct drives give far more varied scenes than consecutive frames of a few.
+    """
+    path = work / f"drives_{DRIVE_SEED}_{drives}x{frames}_step{step}.npy"
+    if path.is_file():
+        return np.load(path)  # type: ignore[no-any-return]
+    camera = SynthConfig().camera
+    grid = grid_size_for(camera.image_size, GRID_SCALE)
+    jobs_ = [(DRIVE_SEED + i, frames, step, grid) for i in range(drives)]
+    parts = []
+    with ProcessPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        for done, part in enumerate(pool.map(_drive_maps, jobs_), start=1):
+            parts.append(part)
+            if done % 20 == 0 or done == drives:
+                _log(f"  rendered {done}/{drives} drives")
+    maps = np.concatenate(parts)
+    np.save(path, maps)
+    return maps
+
+
 def _learn(
     maps: npt.NDArray[np.float32], basis_camera: tuple[tuple[int, int], float], components: int,
     source: str,
@@ -226,6 +270,8 @@ def _learn(
     return learn_basis(
         iter(maps), n_components=min(components, maps.shape[0] - 1), grid_scale=GRID_SCALE,
         preprocessed=True, image_size=size, focal_baseline=fb, meta={"source": source},
+        # the exact Gram path up to 20,000 maps (~3 GB float64 Gram matrix)
+        exact_max_maps=20_000, exact_max_bytes=8 << 30,
     )
 
 
@@ -643,6 +689,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     parser.add_argument("--work", type=Path, required=True, help="cache and output folder")
     parser.add_argument("--train-frames", type=int, default=300, help="per training seed")
+    parser.add_argument(
+        "--drives", type=int, default=400,
+        help="synthetic drives rendered for the synthetic basis (0: seeds 101-104 only)",
+    )
+    parser.add_argument("--drive-frames", type=int, default=300, help="frames per drive")
+    parser.add_argument("--drive-step", type=int, default=6, help="every N-th frame kept")
     parser.add_argument("--fit-frames", type=int, default=60)
     parser.add_argument("--test-frames", type=int, default=101)
     parser.add_argument("--components", type=int, default=500)
@@ -716,14 +768,22 @@ def main(argv: list[str] | None = None) -> int:
         _log(f"{name}: prior {json.dumps(shown)}")
         return basis, basis.meta["prior"]
 
-    synth_truth = np.concatenate(
-        [data[f"train_{s}"].grid_truth for s in TRAIN_SEEDS]
-    )
     synth_sgbm = np.concatenate([data[f"train_{s}"].grid_sgbm for s in TRAIN_SEEDS])
     splits: list[tuple[str, str, str, Basis, dict[str, Any]]] = []
+    if args.drives:
+        _log(f"render {args.drives} drives")
+        synth_truth = render_drives(work, args.drives, args.drive_frames, args.drive_step)
+        basis_name = f"synthetic_drives{args.drives}"
+        source = (
+            f"synthetic ground truth, {args.drives} drives (seeds {DRIVE_SEED}-"
+            f"{DRIVE_SEED + args.drives - 1}), every {args.drive_step}th of "
+            f"{args.drive_frames} frames"
+        )
+    else:
+        synth_truth = np.concatenate([data[f"train_{s}"].grid_truth for s in TRAIN_SEEDS])
+        basis_name, source = "synthetic", "synthetic ground truth, seeds 101-104"
     basis, hyper = basis_for(
-        "synthetic", synth_truth, "synthetic ground truth, seeds 101-104",
-        [(data[f"fit_{FIT_SEED}"], slice(None))],
+        basis_name, synth_truth, source, [(data[f"fit_{FIT_SEED}"], slice(None))]
     )
     splits.append(("synthetic", f"test_{TEST_SEED}", "temporal", basis, hyper))
     if len(real) == 2:
