@@ -282,7 +282,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--calibrate",
         action=argparse.BooleanOptionalAction,
         default=True,
-        help="scale the std by the factor learn --fit-prior calibrated on held-out frames "
+        help="scale the std by the factor learn --fit-prior calibrated on held-out frames, "
+        "and per frame by the covariance scale its measurements' innovation gives "
         "(default: %(default)s; --no-calibrate reports the posterior std itself)",
     )
     estimate.add_argument(
