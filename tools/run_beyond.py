@@ -624,9 +624,37 @@ SPLIT_TITLES = {
 }
 
 
-def report(results: dict[str, Any]) -> str:
-    """Return the Markdown tables of a results.json."""
-    lines: list[str] = []
+def hyperparameter_table(work: Path) -> list[str]:
+    """The fitted hyperparameters of every basis in ``work`` (from their ``meta["prior"]``)."""
+    lines = [
+        "**Fitted hyperparameters** (`meta[\"prior\"]` of each basis)",
+        "",
+        "| basis | maps | kernel, ell, v | sigma (plain sigma) px | evidence gain, nats "
+        "| q | std scale (with covariance scale) |",
+        "| --- | ---: | --- | --- | ---: | ---: | --- |",
+    ]
+    for path in sorted(work.glob("basis_*.npz")):
+        basis = Basis.load(path)
+        prior = basis.meta.get("prior", {})
+        local = prior.get("local")
+        kernel = (
+            f"{local['kernel']}, {local['length_scale']:g} px, {local['variance']:.2g} px^2"
+            if local else "none"
+        )
+        gain = prior.get("log_evidence", 0.0) - prior.get("plain_log_evidence", 0.0)
+        nan = float("nan")
+        lines.append(
+            f"| {path.stem.removeprefix('basis_')} | {basis.n_train} | {kernel} "
+            f"| {prior.get('sigma', nan):.2f} ({prior.get('plain_sigma', nan):.2f}) "
+            f"| {gain:+.0f} | {prior.get('process_noise', nan):g} "
+            f"| {prior.get('std_scale', nan):.2f} ({prior.get('innovation_std_scale', nan):.2f}) |"
+        )
+    return [*lines, ""]
+
+
+def report(results: dict[str, Any], work: Path | None = None) -> str:
+    """Return the Markdown tables of a results.json (and of the bases in ``work``)."""
+    lines: list[str] = [] if work is None else hyperparameter_table(work)
     for split, methods in results.get("evaluate", {}).items():
         nearest_mean = methods.get("nearest neighbour", {}).get("delta_2d_mean", float("nan"))
         lines += [
@@ -705,10 +733,15 @@ def main(argv: list[str] | None = None) -> int:
         "--stages", nargs="+", default=["prepare", "bases", "evaluate", "sweep", "mix"]
     )
     parser.add_argument("--methods", nargs="*", default=None, help="names of METHODS to run")
+    parser.add_argument(
+        "--splits", nargs="+", default=None,
+        help="only these splits: synthetic, kitti_a, kitti_a_mix, kitti_b, kitti_b_mix "
+        "(default: all)",
+    )
     args = parser.parse_args(argv)
     work: Path = args.work
     if args.stages == ["report"]:
-        print(report(json.loads((work / "results.json").read_text())))
+        print(report(json.loads((work / "results.json").read_text()), work))
         return 0
     work.mkdir(parents=True, exist_ok=True)
     results_path = work / "results.json"
@@ -771,7 +804,13 @@ def main(argv: list[str] | None = None) -> int:
 
     synth_sgbm = np.concatenate([data[f"train_{s}"].grid_sgbm for s in TRAIN_SEEDS])
     splits: list[tuple[str, str, str, Basis, dict[str, Any]]] = []
-    if args.drives:
+
+    def wanted(split: str) -> bool:
+        return args.splits is None or split in args.splits
+
+    if not wanted("synthetic"):
+        pass
+    elif args.drives:
         _log(f"render {args.drives} drives")
         synth_truth = render_drives(work, args.drives, args.drive_frames, args.drive_step)
         basis_name = f"synthetic_drives{args.drives}"
@@ -783,10 +822,11 @@ def main(argv: list[str] | None = None) -> int:
     else:
         synth_truth = np.concatenate([data[f"train_{s}"].grid_truth for s in TRAIN_SEEDS])
         basis_name, source = "synthetic", "synthetic ground truth, seeds 101-104"
-    basis, hyper = basis_for(
-        basis_name, synth_truth, source, [(data[f"fit_{FIT_SEED}"], slice(None))]
-    )
-    splits.append(("synthetic", f"test_{TEST_SEED}", "temporal", basis, hyper))
+    if wanted("synthetic"):
+        basis, hyper = basis_for(
+            basis_name, synth_truth, source, [(data[f"fit_{FIT_SEED}"], slice(None))]
+        )
+        splits.append(("synthetic", f"test_{TEST_SEED}", "temporal", basis, hyper))
     if len(real) == 2:
         for split, train, test in (("kitti_a", "raw", "odometry"), ("kitti_b", "odometry", "raw")):
             train_data = data[f"kitti_{train}"]
@@ -808,6 +848,7 @@ def main(argv: list[str] | None = None) -> int:
             )
             splits.append((f"{split}_mix", f"kitti_{test}", "stereo", basis, hyper))
 
+    splits = [split for split in splits if wanted(split[0])]
     methods = [m for m in METHODS if args.methods is None or m.name in args.methods]
     if "evaluate" in args.stages:
         for split, test, mode, basis, hyper in splits:
@@ -830,9 +871,10 @@ def main(argv: list[str] | None = None) -> int:
             for points, row in swept.items():
                 sweep.setdefault(points, {}).update(row)
             save()
-    if "depth-bins" in args.stages:
+    synthetic = [split for split in splits if split[0] == "synthetic"]
+    if "depth-bins" in args.stages and synthetic:
         _log("depth bins (synthetic)")
-        results["depth_bins"] = depth_bins(splits[0][3], data[splits[0][1]])
+        results["depth_bins"] = depth_bins(synthetic[0][3], data[synthetic[0][1]])
         save()
     if "irls" in args.stages:
         _log("IRLS reweightings")
@@ -840,7 +882,7 @@ def main(argv: list[str] | None = None) -> int:
             [splits[i] for i in range(len(splits)) if splits[i][0] in IRLS_SPLITS], data
         )
         save()
-    if "mix" in args.stages and len(real) == 2:
+    if "mix" in args.stages and len(real) == 2 and (wanted("kitti_a") or wanted("kitti_b")):
         mix_methods = [METHODS[0], METHODS[8], METHODS[10]]
         for split, train, test in (("kitti_a", "raw", "odometry"), ("kitti_b", "odometry", "raw")):
             train_data = data[f"kitti_{train}"]
