@@ -245,21 +245,19 @@ def render_drives(work: Path, drives: int, frames: int, step: int) -> npt.NDArra
     Only the left depth is rendered (no images, no stereo): the basis needs nothing else,
     and distinct drives give far more varied scenes than consecutive frames of a few.
     """
-    path = work / f"drives_{DRIVE_SEED}_{drives}x{frames}_step{step}.npy"
-    if path.is_file():
-        return np.load(path)  # type: ignore[no-any-return]
+    folder = work / "drives"
+    folder.mkdir(exist_ok=True)
+    paths = [folder / f"seed{DRIVE_SEED + i}_{frames}_step{step}.npy" for i in range(drives)]
     camera = SynthConfig().camera
     grid = grid_size_for(camera.image_size, GRID_SCALE)
-    jobs_ = [(DRIVE_SEED + i, frames, step, grid) for i in range(drives)]
-    parts = []
+    missing = [i for i, path in enumerate(paths) if not path.is_file()]
+    jobs_ = [(DRIVE_SEED + i, frames, step, grid) for i in missing]
     with ProcessPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-        for done, part in enumerate(pool.map(_drive_maps, jobs_), start=1):
-            parts.append(part)
-            if done % 20 == 0 or done == drives:
-                _log(f"  rendered {done}/{drives} drives")
-    maps = np.concatenate(parts)
-    np.save(path, maps)
-    return maps
+        for done, (i, part) in enumerate(zip(missing, pool.map(_drive_maps, jobs_)), start=1):
+            np.save(paths[i], part)  # one file per drive: a larger --drives reuses them
+            if done % 20 == 0 or done == len(missing):
+                _log(f"  rendered {done}/{len(missing)} drives")
+    return np.concatenate([np.load(path) for path in paths])
 
 
 def _learn(
