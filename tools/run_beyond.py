@@ -253,7 +253,8 @@ def render_drives(work: Path, drives: int, frames: int, step: int) -> npt.NDArra
     missing = [i for i, path in enumerate(paths) if not path.is_file()]
     jobs_ = [(DRIVE_SEED + i, frames, step, grid) for i in missing]
     with ProcessPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-        for done, (i, part) in enumerate(zip(missing, pool.map(_drive_maps, jobs_)), start=1):
+        rendered = zip(missing, pool.map(_drive_maps, jobs_), strict=True)
+        for done, (i, part) in enumerate(rendered, start=1):
             np.save(paths[i], part)  # one file per drive: a larger --drives reuses them
             if done % 20 == 0 or done == len(missing):
                 _log(f"  rendered {done}/{len(missing)} drives")
