@@ -733,6 +733,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--methods", nargs="*", default=None, help="names of METHODS to run")
     parser.add_argument(
+        "--results", nargs="+", default=["results.json"],
+        help="results file(s) in WORK: a run writes the first; the report merges them all "
+        "(runs of different --splits side by side)",
+    )
+    parser.add_argument(
         "--splits", nargs="+", default=None,
         help="only these splits: synthetic, kitti_a, kitti_a_mix, kitti_b, kitti_b_mix "
         "(default: all)",
@@ -740,10 +745,17 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     work: Path = args.work
     if args.stages == ["report"]:
-        print(report(json.loads((work / "results.json").read_text()), work))
+        merged: dict[str, Any] = {}
+        for name in args.results:  # runs of different splits, merged by split
+            for key, value in json.loads((work / name).read_text()).items():
+                if isinstance(value, dict):
+                    merged.setdefault(key, {}).update(value)
+                else:
+                    merged[key] = value
+        print(report(merged, work))
         return 0
     work.mkdir(parents=True, exist_ok=True)
-    results_path = work / "results.json"
+    results_path = work / args.results[0]
     results: dict[str, Any] = (
         json.loads(results_path.read_text()) if results_path.is_file() else {}
     )
