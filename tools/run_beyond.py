@@ -269,9 +269,9 @@ def _learn(
     return learn_basis(
         iter(maps), n_components=min(components, maps.shape[0] - 1), grid_scale=GRID_SCALE,
         preprocessed=True, image_size=size, focal_baseline=fb, meta={"source": source},
-        # the exact Gram path up to 10,000 maps (peak ~9.4 GB; 20,000 ran out of 24 GB in
-        # the eigendecomposition), the streaming SVD beyond
-        exact_max_maps=10_000, exact_max_bytes=8 << 30,
+        # the exact Gram path up to 15,000 maps (10,000 peaked at ~9.4 GB; 20,000 ran out
+        # of 24 GB in the eigendecomposition), the streaming SVD beyond
+        exact_max_maps=15_000, exact_max_bytes=8 << 30,
     )
 
 
