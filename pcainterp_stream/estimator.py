@@ -349,10 +349,14 @@ def densify_batch(
     coefficients = np.stack([p.coefficients for p in posteriors], axis=1).astype(np.float32)
     grid_maps = basis.pixel_major @ coefficients
     grid_maps += basis.mean_flat[:, None]
-    # the local part of a long kernel on the basis grid, resampled with the basis part
+    # the local part at the coarsest spacing its kernel is smooth at (prior.LocalPrior.
+    # smooth_at): on the basis grid with the basis part, else finer and resampled below
     spacing = basis.image_size[1] / basis.grid_size[1]  # basis image px per grid px
+    local_spacings = [
+        None if p.local is None else p.local.prior.sample_spacing(spacing) for p in posteriors
+    ]
     for index, posterior in enumerate(posteriors):
-        if posterior.local is not None and posterior.local.prior.sample_spacing(spacing) == spacing:
+        if posterior.local is not None and local_spacings[index] == spacing:
             grid_maps[:, index] += _local_mean(
                 posterior.local, basis.grid_size, basis.image_size, 1.0
             ).reshape(-1)
@@ -368,11 +372,8 @@ def densify_batch(
         zip(posteriors, frames, strict=True)
     ):
         disparity = resample_grid(grid_maps[:, index].reshape(basis.grid_size), out_size)
-        local_spacing = (
-            posterior.local.prior.sample_spacing(spacing) if posterior.local is not None else 0
-        )
-        if posterior.local is not None and local_spacing < spacing:
-            # at full size, or 2x, 4x... coarser and resampled (prior.LocalPrior.smooth_at)
+        local_spacing = local_spacings[index]
+        if posterior.local is not None and local_spacing is not None and local_spacing < spacing:
             coarse = (
                 max(1, round(out_size[0] / local_spacing)),
                 max(1, round(out_size[1] / local_spacing)),
@@ -480,18 +481,16 @@ def _solve(
         system = scaled @ scaled.T
         system.flat[:: k + 1] += variance
         lower_inverse = _cholesky_inverse(system)  # L^-1
-        inverse = lower_inverse.T @ lower_inverse  # K^-1
-        inverse_rows = inverse @ rows  # K^-1 B~ (k, l)
-        coefficients = eigenvalues * (inverse_rows.T @ residual)  # y = Λ B~^T K^-1 z~
-        # kappa_i^2 = lambda_i - lambda_i^2 [B~^T K^-1 B~]_ii, in float64 (large lambda cancel)
+        # M = L^-1 B~ (one triangular product); K^-1 = L^-T L^-1 is never formed
+        whitened_rows = _lower_times(lower_inverse, rows)
+        coefficients = eigenvalues * (whitened_rows.T @ (lower_inverse @ residual))
+        # kappa_i^2 = lambda_i - lambda_i^2 ||M_i||^2, in float64 (large lambda cancel)
         coefficient_variance = eigenvalues - eigenvalues**2 * np.einsum(
-            "kl,kl->l", inverse_rows, rows
+            "kl,kl->l", whitened_rows, whitened_rows
         )
         factor = None
         if need_factor:
-            # W = L^-1 B~ Λ in float32: its rounding is that of the float32 product with the
-            # basis that consumes it
-            factor = lower_inverse.astype(np.float32) @ (rows * eigenvalues).astype(np.float32)
+            factor = (whitened_rows * eigenvalues).astype(np.float32)  # W = L^-1 B~ Λ
         return _Posterior(
             coefficients, coefficient_variance, factor, True, form, sigma=sigma,
             normalised_innovation=_normalised_innovation(rows, residual, coefficients, sigma),

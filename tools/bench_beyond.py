@@ -26,6 +26,7 @@ from pcainterp_stream.allocator import keep_freed_memory
 from pcainterp_stream.basis import Basis
 from pcainterp_stream.estimator import densify_batch
 from pcainterp_stream.prior import LocalPrior, TemporalPrior
+from pcainterp_stream.processor import ProcessorConfig, resolve_settings
 
 CONFIGS: dict[str, dict[str, object]] = {
     "plain (paper)": {},
@@ -88,6 +89,9 @@ def main(argv: list[str] | None = None) -> int:
             if args.profile is not None and name != args.profile:
                 continue
             local = LocalPrior.from_meta(fitted["local"]) if config.get("local") else None
+            calibration = resolve_settings(
+                basis, ProcessorConfig(prior="hybrid" if local is not None else "paper")
+            )
             sigma = config.get("sigma", fitted["sigma"] if local else fitted["plain_sigma"])
             best_wall, best_cpu = float("inf"), float("inf")
             profiler = cProfile.Profile() if args.profile is not None else None
@@ -112,10 +116,9 @@ def main(argv: list[str] | None = None) -> int:
                         temporal=state,
                         image_size=data.camera.image_size,
                         focal_baseline=data.camera.focal_baseline,
-                        # the std as densify calibrates it (processor.resolve_settings)
-                        std_scale=float(fitted.get("innovation_std_scale", 1.0)) if local else 1.0,
-                        scale_by_innovation=local is not None
-                        and "innovation_std_scale" in fitted,
+                        # the std as densify calibrates it
+                        std_scale=calibration.std_scale,
+                        scale_by_innovation=calibration.scale_by_innovation,
                     )
                 if profiler is not None:
                     profiler.disable()

@@ -63,6 +63,7 @@ from pcainterp_stream.learning import learn_basis, preprocess_disparity
 from pcainterp_stream.logreader import open_log
 from pcainterp_stream.pairing import PairingConfig, iter_stereo_frames
 from pcainterp_stream.prior import LocalPrior, TemporalPrior
+from pcainterp_stream.processor import EstimateSettings, ProcessorConfig, resolve_settings
 from pcainterp_stream.records import StereoCamera
 from pcainterp_stream.stereo import (
     GfttConfig,
@@ -389,6 +390,11 @@ def _transform(data: LogData, index: int, mode: str) -> FloatArray:
     return relative_transform(data.poses[index], data.poses[index + 1])
 
 
+def _calibration(basis: Basis, hybrid: bool) -> EstimateSettings:
+    """The std calibration ``densify`` applies by default with this basis."""
+    return resolve_settings(basis, ProcessorConfig(prior="hybrid" if hybrid else "paper"))
+
+
 def _estimates(
     method: Method, basis: Basis, hyper: dict[str, Any], data: LogData,
     points: Callable[[int], tuple[FloatArray, FloatArray]], frames: Sequence[int],
@@ -406,11 +412,7 @@ def _estimates(
     state = (
         TemporalPrior(process_noise=float(hyper["process_noise"])) if method.temporal else None
     )
-    # the std as densify calibrates it (processor.resolve_settings)
-    by_innovation = local is not None and "innovation_std_scale" in hyper
-    std_scale = 1.0
-    if local is not None:
-        std_scale = float(hyper["innovation_std_scale" if by_innovation else "std_scale"])
+    calibration = _calibration(basis, local is not None)
     for index in frames:
         pixels, disparities = points(index)
         started = time.perf_counter()
@@ -424,7 +426,8 @@ def _estimates(
             basis, [pixels], [disparities], sigma=sigma, local_prior=local,
             robust=method.robust, temporal=state, image_size=camera.image_size,
             focal_baseline=camera.focal_baseline,
-            std_scale=std_scale, scale_by_innovation=by_innovation,
+            std_scale=calibration.std_scale,
+            scale_by_innovation=calibration.scale_by_innovation,
         )[0]
         seconds = time.perf_counter() - started
         extras: dict[str, int | float] = {
@@ -581,6 +584,7 @@ def irls_iterations(
     out: dict[str, dict[str, list[float]]] = {}
     for split, test, mode, basis, hyper in splits:
         local = LocalPrior.from_meta(hyper["local"]) if hyper.get("local") else None
+        settings = _calibration(basis, local is not None)
         for iterations in (1, 2, 4):
             sums = Sums()
             references = data[test].reference()
@@ -591,7 +595,8 @@ def irls_iterations(
                     sigma=float(hyper["sigma"]), local_prior=local, robust="cauchy",
                     robust_iterations=iterations, image_size=item.camera.image_size,
                     focal_baseline=item.camera.focal_baseline,
-                    std_scale=float(hyper.get("std_scale", 1.0)),
+                    std_scale=settings.std_scale,
+                    scale_by_innovation=settings.scale_by_innovation,
                 )[0]
                 transform = _transform(item, index, mode)
                 view = reference_view(references[index], item.camera, transform)
