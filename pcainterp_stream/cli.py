@@ -279,6 +279,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="previous frame's posterior as the prior (default: %(default)s)",
     )
     estimate.add_argument(
+        "--carry-frames",
+        type=int,
+        default=defaults.CARRY_FRAMES,
+        metavar="N",
+        help="add the measurements of the N previous frames, moved by the ego-motion tracked "
+        "between the left images, with noise growing with their age (default: %(default)s; "
+        "0: off)",
+    )
+    estimate.add_argument(
         "--calibrate",
         action=argparse.BooleanOptionalAction,
         default=True,

@@ -11,3 +11,13 @@ ROBUST = "cauchy"
 
 TEMPORAL = False
 """Whether ``densify`` carries each frame's posterior into the next frame's prior."""
+
+CARRY_FRAMES = 4
+"""Earlier frames whose measurements ``densify`` carries into each frame (``--carry-frames``;
+0: off), moved by the visual odometry of :mod:`pcainterp_stream.motion`."""
+
+CARRY_GAP = 20.0
+"""A carried measurement within this distance (px) of one already used is dropped."""
+
+CARRY_AGE_STD = 1.0
+"""Extra noise std (px) per frame of a carried measurement's age."""

@@ -189,6 +189,7 @@ def densify(
     std_scale: float = 1.0,
     robust_iterations: int = 1,
     scale_by_innovation: bool = False,
+    noise_std: npt.ArrayLike | None = None,
 ) -> DensifyResult:
     """Densify one frame's sparse disparities with the MAP estimate.
 
@@ -218,6 +219,9 @@ def densify(
         robust_iterations: IRLS reweightings with ``robust`` (:class:`prior.Model`).
         scale_by_innovation: also multiply the std by sqrt(a), the frame's covariance
             scale fitted from its normalised innovation (:func:`prior.covariance_scale`).
+        noise_std: (k,) float, extra noise std (px of the output camera) of each
+            measurement, added in quadrature to ``sigma``: R_j = (sigma^2 + s_j^2) / w_j
+            (e.g. points carried over from earlier frames, :mod:`motion`). None: all 0.
 
     Returns:
         The :class:`DensifyResult`. Zero usable measurements give the prior (mean map,
@@ -242,6 +246,7 @@ def densify(
         std_scale=std_scale,
         robust_iterations=robust_iterations,
         scale_by_innovation=scale_by_innovation,
+        noise_stds=None if noise_std is None else [noise_std],
     )[0]
 
 
@@ -262,6 +267,7 @@ def densify_batch(
     std_scale: float = 1.0,
     robust_iterations: int = 1,
     scale_by_innovation: bool = False,
+    noise_stds: Sequence[npt.ArrayLike | None] | None = None,
 ) -> list[DensifyResult]:
     """Densify several frames at once with matrix-matrix products across frames.
 
@@ -286,6 +292,8 @@ def densify_batch(
         robust_iterations: IRLS reweightings with ``robust``.
         scale_by_innovation: multiply each frame's std by sqrt(a) of
             :func:`prior.covariance_scale` too.
+        noise_stds: F arrays (k_f,) (or None) of extra per-measurement noise std (px),
+            see :func:`densify`; None: none.
 
     Returns:
         One :class:`DensifyResult` per frame, in order.
@@ -314,10 +322,36 @@ def densify_batch(
     to_basis = basis.focal_baseline / fb_out if basis.focal_baseline > 0 and fb_out > 0 else 1.0
     stride = _variance_stride(basis, variance_stride)
 
-    frames = [
-        clean_measurements(pixels, disparities, out_size)
-        for pixels, disparities in zip(pixels_list, disparities_list, strict=True)
-    ]
+    if noise_stds is not None and len(noise_stds) != len(pixels_list):
+        raise ValueError(
+            f"Expected `noise_stds` to have one entry per frame ({len(pixels_list)}), "
+            f"got {len(noise_stds)}"
+        )
+    frames = []
+    extra_variances: list[npt.NDArray[np.float64] | None] = []
+    for index, (pixels, disparities) in enumerate(
+        zip(pixels_list, disparities_list, strict=True)
+    ):
+        noise = None if noise_stds is None else noise_stds[index]
+        if noise is None:
+            frames.append(clean_measurements(pixels, disparities, out_size))
+            extra_variances.append(None)
+            continue
+        noise_array = np.asarray(noise, dtype=np.float64)
+        if noise_array.shape != np.shape(disparities):
+            raise ValueError(
+                f"Expected `noise_std` of shape {np.shape(disparities)} to match "
+                f"`disparities`, got {noise_array.shape}"
+            )
+        if not bool(np.all(np.isfinite(noise_array) & (noise_array >= 0))):
+            raise ValueError("Expected every `noise_std` finite and >= 0 (px)")
+        frames.append(clean_measurements(pixels, disparities, out_size))
+        keep = _kept(
+            np.asarray(pixels, dtype=np.float64).reshape(-1, 2),
+            np.asarray(disparities, dtype=np.float64),
+            out_size,
+        )
+        extra_variances.append((noise_array[keep] * to_basis) ** 2)
     eigenvalues = basis.eigenvalues
     need_factor = mode is Uncertainty.EXACT
     if temporal is not None:
@@ -326,13 +360,15 @@ def densify_batch(
             temporal.reset()
             temporal.key = key
     posteriors = []
-    for frame_pixels, frame_disparities, _ in frames:
+    for (frame_pixels, frame_disparities, _), extra_variance in zip(
+        frames, extra_variances, strict=True
+    ):
         grid_positions = image_to_grid(frame_pixels, out_size, basis.grid_size)
         indices, weights = bilinear_weights(grid_positions, basis.grid_size)
         rows = sample_rows(basis.pixel_major, indices, weights).astype(np.float64)
         mean_at = (basis.mean_flat[indices] * weights).sum(axis=1)
         residual = frame_disparities * to_basis - mean_at
-        if model.is_paper and temporal is None:
+        if model.is_paper and temporal is None and extra_variance is None:
             assert model.sigma is not None
             posteriors.append(
                 _solve(rows, residual, eigenvalues, model.sigma, form, need_factor=need_factor)
@@ -341,7 +377,8 @@ def densify_batch(
         positions = image_to_grid(frame_pixels, out_size, basis.image_size)
         posteriors.append(
             _solve_beyond(
-                rows, residual, positions, eigenvalues, model, temporal, need_factor=need_factor
+                rows, residual, positions, eigenvalues, model, temporal,
+                need_factor=need_factor, extra_variance=extra_variance,
             )
         )
 
@@ -548,6 +585,7 @@ def _solve_beyond(
     temporal: TemporalPrior | None,
     *,
     need_factor: bool,
+    extra_variance: npt.NDArray[np.float64] | None = None,
 ) -> _Posterior:
     """The estimate with the additions of ``prior.py``, in measurement space.
 
@@ -560,14 +598,14 @@ def _solve_beyond(
     )
     posterior = _solve_measurement(
         rows, residual, positions, eigenvalues, model, predicted, local_matrix,
-        need_factor=need_factor,
+        need_factor=need_factor, extra_variance=extra_variance,
     )
     if predicted is not None and temporal is not None:
         if not temporal.accepts(posterior.normalised_innovation):
             temporal.resets += 1
             posterior = _solve_measurement(
                 rows, residual, positions, eigenvalues, model, None, local_matrix,
-                need_factor=need_factor, label="reset",
+                need_factor=need_factor, label="reset", extra_variance=extra_variance,
             )
     if temporal is not None and posterior.temporal != "temporal":
         temporal.static_innovation = posterior.normalised_innovation
@@ -587,13 +625,15 @@ def _solve_measurement(
     *,
     need_factor: bool,
     label: str = "static",
+    extra_variance: npt.NDArray[np.float64] | None = None,
 ) -> _Posterior:
     """MAP estimate and posterior under prior y ~ N(mu, diag(p)), local prior, weighted noise.
 
     See the module docstring of ``prior.py`` for the equations; rows = B~ (k, l),
     residual = z~ (k,), positions (k, 2) basis image px. ``predicted`` is (mu, p) of the
     temporal prior, None for the static prior (mu = 0, p = lambda); ``local_matrix`` is
-    C_pp of the local prior (None without one).
+    C_pp of the local prior (None without one); ``extra_variance`` (k,) is added to
+    sigma^2 per measurement (basis units^2).
     """
     k, n_components = rows.shape
     if predicted is None:
@@ -608,14 +648,20 @@ def _solve_measurement(
     signal = scaled @ scaled.T  # B~ P B~^T as C C^T (numpy uses syrk: half the flops)
     if local_matrix is not None:
         signal += local_matrix  # + C_pp
-    sigma = model.sigma if model.sigma is not None else evidence_sigma(signal, innovation)
+    if model.sigma is not None:
+        sigma = model.sigma
+    elif extra_variance is not None:  # fit sigma^2 on top of the known extra noise
+        sigma = evidence_sigma(signal + np.diag(extra_variance), innovation)
+    else:
+        sigma = evidence_sigma(signal, innovation)
     if not np.isfinite(sigma):  # no measurements: nothing to fit
         sigma = DEFAULT_SIGMA
     weights = np.ones(k)
     iterations = model.robust_iterations if model.robust is not Robust.NONE else 0
     for iteration in range(iterations + 1):
         system = signal.copy()
-        system.flat[:: k + 1] += sigma**2 / weights  # + R
+        noise = sigma**2 if extra_variance is None else sigma**2 + extra_variance
+        system.flat[:: k + 1] += noise / weights  # + R
         lower_inverse = _cholesky_inverse(system) if k else np.zeros((0, 0))
         alpha = lower_inverse.T @ (lower_inverse @ innovation)  # K^-1 (z~ - B~ mu)
         if iteration == iterations:
@@ -893,18 +939,28 @@ def clean_measurements(
             f"Expected `disparities` of shape ({pixel_array.shape[0]},) to match `pixels`, "
             f"got {disparity_array.shape}"
         )
+    keep = _kept(pixel_array, disparity_array, image_size)
+    n_dropped = int(keep.size - np.count_nonzero(keep))
+    return pixel_array[keep], disparity_array[keep], n_dropped
+
+
+def _kept(
+    pixels: npt.NDArray[np.float64],
+    disparities: npt.NDArray[np.float64],
+    image_size: tuple[int, int],
+) -> npt.NDArray[np.bool_]:
+    """Mask of the finite, in-image measurements (pixel centres span [-0.5, size - 0.5])."""
     height, width = image_size
-    x, y = pixel_array[:, 0], pixel_array[:, 1]
+    x, y = pixels[:, 0], pixels[:, 1]
     with np.errstate(invalid="ignore"):
-        keep = (
-            np.isfinite(disparity_array)
+        keep: npt.NDArray[np.bool_] = (
+            np.isfinite(disparities)
             & (x >= -0.5)
             & (x <= width - 0.5)
             & (y >= -0.5)
             & (y <= height - 0.5)
         )
-    n_dropped = int(keep.size - np.count_nonzero(keep))
-    return pixel_array[keep], disparity_array[keep], n_dropped
+    return keep
 
 
 def _image_size(basis: Basis, image_size: tuple[int, int] | None) -> tuple[int, int]:

@@ -492,6 +492,8 @@ class DensifySummary:
         downweighted: measurements the robust loss down-weighted (weight < 0.5), all frames.
         most_downweighted: the most down-weighted measurements of one frame.
         temporal_resets: frames whose temporal prior failed the innovation test.
+        carried: measurements carried over from earlier frames, summed over frames.
+        carry_resets: frames where the ego-motion was lost (carrying started over).
     """
 
     input: Path
@@ -506,6 +508,8 @@ class DensifySummary:
     downweighted: int = 0
     most_downweighted: int = 0
     temporal_resets: int = 0
+    carried: int = 0
+    carry_resets: int = 0
 
     @property
     def frames_per_second(self) -> float:
@@ -541,7 +545,7 @@ def densify(
         raise PcaInterpError("measurement source 'features' needs --features-topic")
     measurements = 0
     frames = 0
-    robust = {"downweighted": 0, "most": 0, "resets": 0}
+    robust = {"downweighted": 0, "most": 0, "resets": 0, "carried": 0, "carry_resets": 0}
     with contextlib.ExitStack() as stack:
         reader = stack.enter_context(open_log(input_path))
         _require_topics(reader, pairing.required_topics(), "stereo pair")
@@ -578,6 +582,8 @@ def densify(
                 robust["downweighted"] += result.counts.get("downweighted", 0)
                 robust["most"] = max(robust["most"], result.counts.get("downweighted", 0))
                 robust["resets"] += result.counts.get("temporal_reset", 0)
+                robust["carried"] += result.counts.get("carried", 0)
+                robust["carry_resets"] += result.counts.get("carry_reset", 0)
                 bar.update(1)
 
         for raw in reader.messages():
@@ -604,6 +610,8 @@ def densify(
         downweighted=robust["downweighted"],
         most_downweighted=robust["most"],
         temporal_resets=robust["resets"],
+        carried=robust["carried"],
+        carry_resets=robust["carry_resets"],
     )
 
 
@@ -1029,6 +1037,8 @@ def run(args: argparse.Namespace) -> int:
         source = MeasurementSource.FEATURES if args.features_topic else MeasurementSource.STEREO
         if args.process_noise is not None and not 0 < args.process_noise < float("inf"):
             raise PcaInterpError(f"--process-noise must be > 0, got {args.process_noise}")
+        if args.carry_frames < 0:
+            raise PcaInterpError(f"--carry-frames must be >= 0, got {args.carry_frames}")
         processor = ProcessorConfig(
             gftt=_gftt_config(args),
             sgbm=_sgbm_config(args),
@@ -1038,6 +1048,7 @@ def run(args: argparse.Namespace) -> int:
             robust=args.robust,
             temporal=args.temporal,
             process_noise=args.process_noise,
+            carry=dataclasses.replace(ProcessorConfig().carry, frames=args.carry_frames),
             calibrate=args.calibrate,
             source=source,
         )
@@ -1075,6 +1086,12 @@ def run(args: argparse.Namespace) -> int:
             )
         if processor.temporal:
             _echo(f"temporal prior: reset {summary.temporal_resets} times (scene changes)")
+        if processor.carry.frames:
+            _echo(
+                f"carried from the {processor.carry.frames} previous frames: "
+                f"{summary.carried / max(summary.frames, 1):.0f} points per frame; "
+                f"ego-motion lost {summary.carry_resets} times"
+            )
         for line in summary.damage:
             _echo(f"damage: {line}")
         for line in summary.warnings:

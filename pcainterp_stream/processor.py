@@ -27,7 +27,7 @@ from collections.abc import Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from types import TracebackType
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -36,9 +36,10 @@ import numpy.typing as npt
 from pcainterp_stream import defaults
 from pcainterp_stream.basis import Basis
 from pcainterp_stream.estimator import densify_batch
+from pcainterp_stream.motion import CarriedPoints, CarryConfig
 from pcainterp_stream.prior import LocalPrior, TemporalPrior
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoCamera, StereoFrame
-from pcainterp_stream.stereo import GfttConfig, SgbmConfig, StereoFrontEnd
+from pcainterp_stream.stereo import GfttConfig, SgbmConfig, StereoFrontEnd, to_grey8
 
 
 class MeasurementSource(enum.Enum):
@@ -66,6 +67,8 @@ class ProcessorConfig:
         temporal: carry each frame's posterior into the next frame's prior.
         process_noise: the temporal prior's process noise (fraction of the eigenvalues);
             None: the basis's fitted value, else 0.1.
+        carry: carrying the measurements of earlier frames into each frame, moved by the
+            estimated ego-motion (:mod:`motion`); ``frames=0`` is off.
         calibrate: calibrate the std as the basis's fit did (with the hybrid prior it was
             fitted with): its factor, and per frame sqrt(a) of the covariance scale fitted
             from the frame's innovation (``prior.covariance_scale``) when the fit has that
@@ -94,6 +97,13 @@ class ProcessorConfig:
     robust: str = defaults.ROBUST
     temporal: bool = defaults.TEMPORAL
     process_noise: float | None = None
+    carry: CarryConfig = field(
+        default_factory=lambda: CarryConfig(
+            frames=defaults.CARRY_FRAMES,
+            gap=defaults.CARRY_GAP,
+            age_std=defaults.CARRY_AGE_STD,
+        )
+    )
     calibrate: bool = True
     source: MeasurementSource = MeasurementSource.STEREO
     batch_size: int = 4
@@ -315,6 +325,7 @@ class FrameProcessor:
             if self.config.temporal
             else None
         )
+        self.carried = CarriedPoints(self.config.carry) if self.config.carry.frames else None
 
     def __enter__(self) -> FrameProcessor:
         return self
@@ -386,10 +397,25 @@ class FrameProcessor:
             while stop < len(ready) and ready[stop].frame.camera == camera:
                 stop += 1
             group = ready[start:stop]
+            pixels: list[npt.NDArray[Any]] = [item.pixels for item in group]
+            disparities: list[npt.NDArray[Any]] = [item.disparities for item in group]
+            noise_stds: list[npt.NDArray[Any] | None] | None = None
+            carried = [0] * len(group)
+            if self.carried is not None:
+                noise_stds = []
+                for index, item in enumerate(group):  # in stream order: one motion each
+                    resets = self.carried.resets
+                    pixels[index], disparities[index], noise, carried[index] = (
+                        self.carried.carry(
+                            to_grey8(item.frame.left), item.pixels, item.disparities, camera
+                        )
+                    )
+                    noise_stds.append(noise)
+                    item.counts["carry_reset"] = self.carried.resets - resets
             estimates = densify_batch(
                 self.basis,
-                [item.pixels for item in group],
-                [item.disparities for item in group],
+                pixels,
+                disparities,
                 sigma=self.settings.sigma,
                 uncertainty=self.config.uncertainty,
                 image_size=camera.image_size,
@@ -399,9 +425,11 @@ class FrameProcessor:
                 temporal=self.temporal,
                 std_scale=self.settings.std_scale,
                 scale_by_innovation=self.settings.scale_by_innovation,
+                noise_stds=noise_stds,
             )
-            for item, estimate in zip(group, estimates, strict=True):
+            for item, estimate, n_carried in zip(group, estimates, carried, strict=True):
                 counts = dict(item.counts)
+                counts["carried"] = n_carried
                 counts["dropped"] = int(estimate.n_dropped)
                 counts["downweighted"] = int(estimate.n_downweighted)
                 counts["temporal_reset"] = int(estimate.temporal == "reset")

@@ -61,6 +61,7 @@ from pcainterp_stream.evaluation import (
 from pcainterp_stream.fitting import CalibrationFrame, fit_frame, fit_prior
 from pcainterp_stream.learning import learn_basis, preprocess_disparity
 from pcainterp_stream.logreader import open_log
+from pcainterp_stream.motion import CarriedPoints, Motion, estimate_motion
 from pcainterp_stream.pairing import PairingConfig, iter_stereo_frames
 from pcainterp_stream.prior import LocalPrior, TemporalPrior
 from pcainterp_stream.processor import EstimateSettings, ProcessorConfig, resolve_settings
@@ -93,6 +94,8 @@ DRIVE_SEED = 1000
 MAIN_MIX = 1000
 """Synthetic SGBM maps added to the real training frames of the ``*_mix`` splits."""
 FloatArray = npt.NDArray[np.float64]
+CARRY = ProcessorConfig().carry
+"""Carried points as ``densify`` carries them by default."""
 
 
 def _log(text: str) -> None:
@@ -115,6 +118,9 @@ class LogData:
     reference_path: Path  # (F, H, W) float32 .npy, NaN where invalid
     grid_sgbm: npt.NDArray[np.float32]  # (F, gh, gw), basis units
     grid_truth: npt.NDArray[np.float32] | None
+    # (F, 4, 4) visual odometry from frame i-1 to i (NaN: none), and its seconds per frame
+    motions: FloatArray | None = None
+    motion_seconds: FloatArray | None = None
 
     @property
     def frames(self) -> int:
@@ -221,6 +227,32 @@ def prepare_log(
         grid_sgbm=data["grid_sgbm"],
         grid_truth=data["grid_truth"] if "grid_truth" in data.files else None,
     )
+
+
+def prepare_motions(log: Path, cache: Path, data: LogData) -> LogData:
+    """Add (computed once) the visual odometry ``densify`` runs to carry points over."""
+    path = cache.with_name(cache.name + "_motion.npz")
+    if not path.is_file():
+        motions = np.full((data.frames, 4, 4), np.nan)
+        seconds = np.zeros(data.frames)
+        previous = None
+        with open_log(log) as reader:
+            frames = iter_stereo_frames(reader, PairingConfig())
+            for index, frame in zip(range(data.frames), frames, strict=False):
+                image = to_grey8(frame.left)
+                started = time.perf_counter()
+                if previous is not None:
+                    motion = estimate_motion(
+                        previous, image, data.pixels[index - 1], data.disparities[index - 1],
+                        data.camera, config=CARRY,
+                    )
+                    if motion is not None:
+                        motions[index] = motion.transform
+                seconds[index] = time.perf_counter() - started
+                previous = image
+        np.savez(path, motions=motions, seconds=seconds)
+    cached = np.load(path)
+    return dataclasses.replace(data, motions=cached["motions"], motion_seconds=cached["seconds"])
 
 
 # ----------------------------------------------------------------------------- bases
@@ -330,6 +362,7 @@ class Method:
     evidence_sigma: bool = False
     fitted_sigma: bool = False
     baseline: str | None = None
+    carry: bool = False
 
 
 METHODS = (
@@ -346,6 +379,11 @@ METHODS = (
     ),
     Method("hybrid + Cauchy + fitted sigma", local=True, robust="cauchy", fitted_sigma=True),
     Method("hybrid + temporal + fitted sigma", local=True, temporal=True, fitted_sigma=True),
+    Method(f"+ carried points ({CARRY.frames} frames)", carry=True),
+    Method(
+        f"hybrid + Cauchy + carried ({CARRY.frames} frames) + fitted sigma",
+        local=True, robust="cauchy", fitted_sigma=True, carry=True,
+    ),
     Method("nearest neighbour", baseline="nearest"),
     Method("linear", baseline="linear"),
 )
@@ -413,9 +451,20 @@ def _estimates(
         TemporalPrior(process_noise=float(hyper["process_noise"])) if method.temporal else None
     )
     calibration = _calibration(basis, local is not None)
+    carrier = CarriedPoints(CARRY) if method.carry else None
     for index in frames:
         pixels, disparities = points(index)
         started = time.perf_counter()
+        noise = None
+        if carrier is not None:
+            assert data.motions is not None
+            assert data.motion_seconds is not None
+            known = index > 0 and bool(np.all(np.isfinite(data.motions[index])))
+            motion = Motion(data.motions[index], 0, 0) if known else None
+            pixels, disparities, noise, _ = carrier.carry(
+                None, pixels, disparities, camera, motion=motion
+            )
+            started -= float(data.motion_seconds[index])  # the odometry is part of the cost
         if method.baseline is not None:
             interpolate = nearest if method.baseline == "nearest" else linear
             result = interpolate(pixels, disparities, image_size=camera.image_size)
@@ -428,6 +477,7 @@ def _estimates(
             focal_baseline=camera.focal_baseline,
             std_scale=calibration.std_scale,
             scale_by_innovation=calibration.scale_by_innovation,
+            noise_stds=[noise],
         )[0]
         seconds = time.perf_counter() - started
         extras: dict[str, int | float] = {
@@ -793,10 +843,14 @@ def main(argv: list[str] | None = None) -> int:
         _log(f"prepare {name}")
         data[name] = prepare_log(work / f"{name}.mcap", work / f"cache_{name}", basis_camera,
                                  truth=True)
+        if name.startswith("test"):
+            data[name] = prepare_motions(work / f"{name}.mcap", work / f"cache_{name}", data[name])
     for name, path in real.items():
         _log(f"prepare kitti {name}")
-        data[f"kitti_{name}"] = prepare_log(path, work / f"cache_kitti_{name}", basis_camera,
-                                            truth=False)
+        data[f"kitti_{name}"] = prepare_motions(
+            path, work / f"cache_kitti_{name}",
+            prepare_log(path, work / f"cache_kitti_{name}", basis_camera, truth=False),
+        )
     if "prepare" in args.stages and len(args.stages) == 1:
         return 0
 
@@ -881,7 +935,7 @@ def main(argv: list[str] | None = None) -> int:
                 basis, hyper, data[test], mode,
                 [m for m in methods if m.name in {
                     METHODS[0].name, METHODS[7].name, METHODS[8].name, METHODS[9].name,
-                    "nearest neighbour", "linear"}],
+                    METHODS[11].name, "nearest neighbour", "linear"}],
                 args.sweep_frames,
             )
             for points, row in swept.items():
