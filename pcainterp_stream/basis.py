@@ -161,6 +161,10 @@ def resample_grid(
     return np.asarray(resized, dtype=np.float32)
 
 
+PRIOR_COVARIANCE_MAX_BYTES = 512 << 20
+"""Largest :meth:`Basis.prior_covariance` kept (the KITTI-size basis's takes 218 MB)."""
+
+
 @dataclass(frozen=True, eq=False)
 class VarianceGrid:
     """The basis sampled on a (possibly coarser) grid where the posterior std is evaluated.
@@ -286,6 +290,32 @@ class Basis:
         grid = VarianceGrid(size=size, component_rows=rows, prior_variance=prior)
         self._variance_grids[stride] = grid
         return grid
+
+    @cached_property
+    def _prior_covariances(self) -> dict[int, npt.NDArray[np.float32] | None]:
+        return {}
+
+    def prior_covariance(self, stride: int) -> npt.NDArray[np.float32] | None:
+        """Return U Lambda U_v^T, the prior covariance of basis grid and variance grid.
+
+        (s, s_v) float32: row j is the covariance of grid pixel j with every point of
+        :meth:`variance_grid` (stride). A measurement's row B~_j is a bilinear mix of grid
+        rows, so B~ Lambda U_v^T is the same mix of rows of this matrix: 4 k s_v products
+        instead of the k l s_v of a GEMM. Computed once per stride (l s s_v products,
+        about a second for the KITTI-size basis); None when it would exceed
+        :data:`PRIOR_COVARIANCE_MAX_BYTES`.
+        """
+        if stride in self._prior_covariances:
+            return self._prior_covariances[stride]
+        grid = self.variance_grid(stride)
+        covariance = None
+        if self.pixel_major.shape[0] * grid.prior_variance.shape[0] * 4 <= (
+            PRIOR_COVARIANCE_MAX_BYTES
+        ):
+            scaled = grid.component_rows * self.eigenvalues.astype(np.float32)[:, None]
+            covariance = self.pixel_major @ scaled
+        self._prior_covariances[stride] = covariance
+        return covariance
 
     def save(self, path: str | os.PathLike[str]) -> None:
         """Write the basis as a ``pcainterp-basis/1`` .npz file, atomically.

@@ -16,7 +16,7 @@ CARRY_FRAMES = 4
 """Earlier frames whose measurements ``densify`` carries into each frame (``--carry-frames``;
 0: off), moved by the visual odometry of :mod:`pcainterp_stream.motion`."""
 
-CARRY_GAP = 20.0
+CARRY_GAP = 30.0
 """A carried measurement within this distance (px) of one already used is dropped."""
 
 CARRY_AGE_STD = 1.0

@@ -143,7 +143,7 @@ class DensifyResult:
         return int(self.disparities.shape[0])
 
 
-@dataclass(frozen=True)
+@dataclass
 class _Local:
     """The local part of a hybrid-prior posterior: d_local(x) = c(x, P) alpha."""
 
@@ -152,6 +152,9 @@ class _Local:
     alpha: npt.NDArray[np.float64]  # (k,) K^-1 innovation
     lower_inverse: npt.NDArray[np.float32] | None  # (k, k) L^-1, for the exact variance
     prior_rows: npt.NDArray[np.float32] | None  # (k, l) B~ P, for the exact variance
+    # bilinear grid indices and weights (k, 4) of the measurements: B~ = their mix of rows
+    indices: npt.NDArray[np.intp] | None = None
+    weights: npt.NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True)
@@ -375,12 +378,13 @@ def densify_batch(
             )
             continue
         positions = image_to_grid(frame_pixels, out_size, basis.image_size)
-        posteriors.append(
-            _solve_beyond(
-                rows, residual, positions, eigenvalues, model, temporal,
-                need_factor=need_factor, extra_variance=extra_variance,
-            )
+        posterior = _solve_beyond(
+            rows, residual, positions, eigenvalues, model, temporal,
+            need_factor=need_factor, extra_variance=extra_variance,
         )
+        if posterior.local is not None:
+            posterior.local.indices, posterior.local.weights = indices, weights
+        posteriors.append(posterior)
 
     # d_hat = B Y + m for all frames at once (s, F)
     coefficients = np.stack([p.coefficients for p in posteriors], axis=1).astype(np.float32)
@@ -402,7 +406,12 @@ def densify_batch(
     variances: npt.NDArray[np.float32] | None = None
     vgrid = basis.variance_grid(stride) if mode is not Uncertainty.NONE else None
     if vgrid is not None:
-        variances = _variances(vgrid, posteriors, mode, basis.image_size)
+        covariance = None
+        if mode is Uncertainty.EXACT and any(
+            p.local is not None and p.prior_diagonal is None for p in posteriors
+        ):
+            covariance = basis.prior_covariance(stride)
+        variances = _variances(vgrid, posteriors, mode, basis.image_size, covariance)
 
     results = []
     for index, (posterior, (frame_pixels, frame_disparities, n_dropped)) in enumerate(
@@ -743,7 +752,10 @@ def _local_covariance(
 
 
 def _variance_beyond(
-    vgrid: VarianceGrid, posterior: _Posterior, basis_image: tuple[int, int]
+    vgrid: VarianceGrid,
+    posterior: _Posterior,
+    basis_image: tuple[int, int],
+    covariance: npt.NDArray[np.float32] | None = None,
 ) -> npt.NDArray[np.float32]:
     """Exact variance of one frame with temporal and/or local prior, (s_v,) float32.
 
@@ -755,7 +767,13 @@ def _variance_beyond(
         if local.lower_inverse is None or local.prior_rows is None:
             raise AssertionError("exact variance needs the posterior factor")
         # L^-1 (B~ P U + C): one triangular product (half a GEMM) instead of two GEMMs
-        joint = local.prior_rows @ vgrid.component_rows
+        if covariance is not None and posterior.prior_diagonal is None and (
+            local.indices is not None and local.weights is not None
+        ):
+            # static prior P = Lambda: B~ Lambda U = the bilinear mix of U Lambda U_v^T rows
+            joint = sample_rows(covariance, local.indices, local.weights)
+        else:
+            joint = local.prior_rows @ vgrid.component_rows
         joint += _local_covariance(local, vgrid.size, basis_image)
         projected = _lower_times(local.lower_inverse, joint)
     else:
@@ -840,8 +858,12 @@ def _variances(
     posteriors: list[_Posterior],
     mode: Uncertainty,
     basis_image: tuple[int, int],
+    covariance: npt.NDArray[np.float32] | None = None,
 ) -> npt.NDArray[np.float32]:
-    """Posterior variance (F, s_v) float32 on the variance grid (basis disparity units)."""
+    """Posterior variance (F, s_v) float32 on the variance grid (basis disparity units).
+
+    ``covariance`` is the basis's :meth:`~Basis.prior_covariance` (or None).
+    """
     n_frames = len(posteriors)
     if any(p.local is not None or p.prior_diagonal is not None for p in posteriors):
         if mode is Uncertainty.PAPER:
@@ -849,7 +871,9 @@ def _variances(
                 'uncertainty="paper" is the diagonal approximation of the paper\'s prior; '
                 'use "exact" with a local or temporal prior'
             )
-        return np.stack([_variance_beyond(vgrid, p, basis_image) for p in posteriors])
+        return np.stack(
+            [_variance_beyond(vgrid, p, basis_image, covariance) for p in posteriors]
+        )
     if mode is Uncertainty.PAPER:
         kappa2 = np.stack([p.coefficient_variance for p in posteriors], axis=1)
         # eq. (15/16): sum_i kappa_i^2 u_i(x)^2, one GEMM for all frames

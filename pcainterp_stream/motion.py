@@ -5,11 +5,13 @@ test log two thirds of the mean error lies more than 40 px from the nearest poin
 large textureless surfaces (docs/results.md). The frames before saw other parts of the
 scene. This module carries their measurements into the current frame:
 
-* :func:`estimate_motion` -- stereo visual odometry from one frame to the next: the previous
-  frame's measured corners (3-D from their disparities) are tracked into the new left image
-  with pyramidal Lucas-Kanade (``cv2.calcOpticalFlowPyrLK``, forward-backward checked) and
-  the rigid motion is ``cv2.solvePnPRansac`` on those 3-D/2-D pairs, refined on the inliers
-  (``cv2.solvePnPRefineLM``);
+* :func:`estimate_motion` -- stereo visual odometry from one frame to the next: the frame's
+  measured corners (3-D from their disparities) are tracked back into the previous left
+  image with pyramidal Lucas-Kanade (``cv2.calcOpticalFlowPyrLK`` on half-size images,
+  forward-backward checked) and the rigid motion is ``cv2.solvePnPRansac`` on those 3-D/2-D
+  pairs, refined on the inliers (``cv2.solvePnPRefineLM``). It needs only the frame's own
+  measurements and the previous image, so the stream processor runs it in the stereo
+  worker threads, beside SGBM;
 * :class:`CarriedPoints` -- the measurements of the last N frames as 3-D points, moved by
   the estimated motions into the current camera and projected; a carried point closer than
   ``gap`` px to a point already used is dropped (it adds little but costs a row of the k x k
@@ -41,9 +43,9 @@ __all__ = ["CarriedPoints", "CarryConfig", "Motion", "estimate_motion"]
 FloatArray = npt.NDArray[np.float64]
 
 TRACK_WINDOW = 11
-"""Lucas-Kanade window (px): 11 tracked as well as 21 on the synthetic test log, 2.7x faster."""
+"""Lucas-Kanade window (px of the half-size image)."""
 TRACK_LEVELS = 3
-"""Pyramid levels above full size: 8x, enough for ~1 m steps of a car at 10 Hz."""
+"""Pyramid levels above half size: 16x, enough for ~1 m steps of a car at 10 Hz."""
 MIN_DEPTH_M = 0.5
 """Carried points nearer than this (m) to the current camera are dropped."""
 
@@ -62,7 +64,7 @@ class CarryConfig:
     """
 
     frames: int = 4
-    gap: float = 20.0
+    gap: float = 30.0
     age_std: float = 1.0
     min_inliers: int = 20
     track_error: float = 1.0
@@ -141,8 +143,8 @@ def _intrinsics(camera: StereoCamera) -> FloatArray:
 def estimate_motion(
     previous_image: npt.NDArray[np.uint8],
     image: npt.NDArray[np.uint8],
-    previous_pixels: npt.ArrayLike,
-    previous_disparities: npt.ArrayLike,
+    pixels: npt.ArrayLike,
+    disparities: npt.ArrayLike,
     camera: StereoCamera,
     *,
     config: CarryConfig | None = None,
@@ -152,8 +154,8 @@ def estimate_motion(
     Args:
         previous_image: (H, W) uint8, the previous left image.
         image: (H, W) uint8, this frame's left image.
-        previous_pixels: (k, 2) float, (x, y) px of the previous frame's measurements.
-        previous_disparities: (k,) float, their disparities (px).
+        pixels: (k, 2) float, (x, y) px of this frame's measurements.
+        disparities: (k,) float, their disparities (px).
         camera: the rectified stereo camera (both frames).
         config: thresholds (:class:`CarryConfig`).
 
@@ -161,29 +163,32 @@ def estimate_motion(
         The :class:`Motion`, or None when too few corners track or agree on one motion.
     """
     options = config or CarryConfig()
-    pixels = np.asarray(previous_pixels, dtype=np.float64).reshape(-1, 2)
-    disparities = np.asarray(previous_disparities, dtype=np.float64)
-    usable = np.isfinite(disparities) & (disparities > 0)
-    if np.count_nonzero(usable) < options.min_inliers:
+    pixel_array = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    disparity_array = np.asarray(disparities, dtype=np.float64).reshape(-1)
+    usable = np.isfinite(disparity_array) & (disparity_array > 0)
+    if np.count_nonzero(usable) < options.min_inliers or previous_image.shape != image.shape:
         return None
-    pixels, disparities = pixels[usable], disparities[usable]
-    start = pixels.astype(np.float32).reshape(-1, 1, 2)
+    pixel_array, disparity_array = pixel_array[usable], disparity_array[usable]
+    # tracked on the half-size images: 4x fewer pixels per window, ~0.1 px accuracy
+    half, previous_half = cv2.pyrDown(image), cv2.pyrDown(previous_image)
+    start = ((pixel_array + 0.5) / 2.0 - 0.5).astype(np.float32).reshape(-1, 1, 2)
     window = (TRACK_WINDOW, TRACK_WINDOW)
-    ahead, status, _ = cv2.calcOpticalFlowPyrLK(
-        previous_image, image, start, start.copy(), winSize=window, maxLevel=TRACK_LEVELS
+    behind, status, _ = cv2.calcOpticalFlowPyrLK(
+        half, previous_half, start, start.copy(), winSize=window, maxLevel=TRACK_LEVELS
     )
     tracked = status.ravel() == 1
     if options.track_error > 0:
         back, status_back, _ = cv2.calcOpticalFlowPyrLK(
-            image, previous_image, ahead, ahead.copy(), winSize=window, maxLevel=TRACK_LEVELS
+            previous_half, half, behind, behind.copy(), winSize=window, maxLevel=TRACK_LEVELS
         )
-        round_trip = np.linalg.norm((back - start).reshape(-1, 2), axis=1)
+        round_trip = 2.0 * np.linalg.norm((back - start).reshape(-1, 2), axis=1)
         tracked &= (status_back.ravel() == 1) & (round_trip < options.track_error)
     if np.count_nonzero(tracked) < options.min_inliers:
         return None
-    object_points = back_project(pixels[tracked], disparities[tracked], camera)
-    image_points = ahead.reshape(-1, 2)[tracked].astype(np.float64)
+    object_points = back_project(pixel_array[tracked], disparity_array[tracked], camera)
+    image_points = (behind.reshape(-1, 2)[tracked].astype(np.float64) + 0.5) * 2.0 - 0.5
     intrinsics = _intrinsics(camera)
+    # PnP: this camera's points seen in the previous image give X_prev = R X + t
     found, rotation, translation, inliers = cv2.solvePnPRansac(
         object_points, image_points, intrinsics, None,
         reprojectionError=options.reprojection_error, iterationsCount=100,
@@ -195,11 +200,15 @@ def estimate_motion(
     rotation, translation = cv2.solvePnPRefineLM(
         object_points[chosen], image_points[chosen], intrinsics, None, rotation, translation
     )
-    transform = np.eye(4)
-    transform[:3, :3] = cv2.Rodrigues(rotation)[0]
-    transform[:3, 3] = translation.ravel()
-    if not np.all(np.isfinite(transform)):
+    to_previous = np.eye(4)
+    to_previous[:3, :3] = cv2.Rodrigues(rotation)[0]
+    to_previous[:3, 3] = translation.ravel()
+    if not np.all(np.isfinite(to_previous)):
         return None
+    # previous -> this camera: X = R^T (X_prev - t)
+    transform = np.eye(4)
+    transform[:3, :3] = to_previous[:3, :3].T
+    transform[:3, 3] = -to_previous[:3, :3].T @ to_previous[:3, 3]
     return Motion(transform, int(chosen.size), int(np.count_nonzero(tracked)))
 
 
@@ -223,8 +232,8 @@ class CarriedPoints:
     config: CarryConfig = field(default_factory=CarryConfig)
     resets: int = 0
     _history: deque[_Past] = field(default_factory=deque, repr=False)
-    _previous: tuple[npt.NDArray[np.uint8] | None, FloatArray, FloatArray, StereoCamera] | None = (
-        field(default=None, repr=False)
+    _previous: tuple[npt.NDArray[np.uint8] | None, StereoCamera] | None = field(
+        default=None, repr=False
     )
 
     def reset(self) -> None:
@@ -259,18 +268,18 @@ class CarriedPoints:
         own_pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
         own_disparities = np.asarray(disparities, dtype=np.float64).reshape(-1)
         options = self.config
-        previous, self._previous = self._previous, (image, own_pixels, own_disparities, camera)
+        previous, self._previous = self._previous, (image, camera)
         if isinstance(motion, str):
             motion = None
             if (
                 previous is not None and previous[0] is not None and image is not None
-                and previous[3] == camera and options.frames
+                and previous[1] == camera and options.frames
             ):
                 motion = estimate_motion(
-                    previous[0], image, previous[1], previous[2], camera, config=options
+                    previous[0], image, own_pixels, own_disparities, camera, config=options
                 )
         if previous is not None:
-            if motion is None or previous[3] != camera:
+            if motion is None or previous[1] != camera:
                 if self._history:
                     self.resets += 1
                 self._history.clear()

@@ -36,7 +36,7 @@ import numpy.typing as npt
 from pcainterp_stream import defaults
 from pcainterp_stream.basis import Basis
 from pcainterp_stream.estimator import densify_batch
-from pcainterp_stream.motion import CarriedPoints, CarryConfig
+from pcainterp_stream.motion import CarriedPoints, CarryConfig, Motion, estimate_motion
 from pcainterp_stream.prior import LocalPrior, TemporalPrior
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoCamera, StereoFrame
 from pcainterp_stream.stereo import GfttConfig, SgbmConfig, StereoFrontEnd, to_grey8
@@ -200,6 +200,7 @@ class _Measured(NamedTuple):
     pixels: npt.NDArray[np.float32]
     disparities: npt.NDArray[np.float32]
     counts: dict[str, int]
+    motion: Motion | None = None  # from the previous frame (carried points only)
 
 
 def features_to_measurements(
@@ -326,6 +327,7 @@ class FrameProcessor:
             else None
         )
         self.carried = CarriedPoints(self.config.carry) if self.config.carry.frames else None
+        self._previous_frame: StereoFrame | None = None
 
     def __enter__(self) -> FrameProcessor:
         return self
@@ -347,20 +349,34 @@ class FrameProcessor:
         self._executor.shutdown(wait=True, cancel_futures=True)
         self._limits.restore()
 
-    def _measure(self, frame: StereoFrame, features: SparseFeatures | None) -> _Measured:
+    def _measure(
+        self,
+        frame: StereoFrame,
+        features: SparseFeatures | None,
+        previous: StereoFrame | None = None,
+    ) -> _Measured:
         if self.config.source is MeasurementSource.FEATURES:
             pixels, disparities, counts = features_to_measurements(features, frame.camera)
-            return _Measured(frame, pixels, disparities, counts)
-        measurements = self.front_end.measure(frame.left, frame.right)
-        return _Measured(
-            frame, measurements.pixels, measurements.disparities, dict(measurements.counts)
-        )
+        else:
+            measurements = self.front_end.measure(frame.left, frame.right)
+            pixels, disparities = measurements.pixels, measurements.disparities
+            counts = dict(measurements.counts)
+        motion = None
+        if previous is not None and previous.camera == frame.camera:
+            # visual odometry beside SGBM in the worker: needs only this frame's points
+            motion = estimate_motion(
+                to_grey8(previous.left), to_grey8(frame.left), pixels, disparities,
+                frame.camera, config=self.config.carry,
+            )
+        return _Measured(frame, pixels, disparities, counts, motion)
 
     def submit(
         self, frame: StereoFrame, features: SparseFeatures | None = None
     ) -> list[DensifiedFrame]:
         """Queue one frame; return the frames finished meanwhile, in stream order."""
-        self._pending.append(self._executor.submit(self._measure, frame, features))
+        previous = self._previous_frame if self.carried is not None else None
+        self._previous_frame = frame
+        self._pending.append(self._executor.submit(self._measure, frame, features, previous))
         while len(self._pending) > self.config.lookahead:
             self._ready.append(self._pending.popleft().result())
         if len(self._ready) >= self.config.batch_size:
@@ -407,7 +423,7 @@ class FrameProcessor:
                     resets = self.carried.resets
                     pixels[index], disparities[index], noise, carried[index] = (
                         self.carried.carry(
-                            to_grey8(item.frame.left), item.pixels, item.disparities, camera
+                            None, item.pixels, item.disparities, camera, motion=item.motion
                         )
                     )
                     noise_stds.append(noise)

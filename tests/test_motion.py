@@ -40,7 +40,7 @@ def test_back_project_and_project_are_inverse() -> None:
 def test_motion_of_a_synthetic_drive_matches_its_poses() -> None:
     frames = list(generate(SynthConfig(seed=3, frames=2, scale=0.5)))
     camera = frames[0].camera
-    measured = StereoFrontEnd().measure(frames[0].left, frames[0].right)
+    measured = StereoFrontEnd().measure(frames[1].left, frames[1].right)
     motion = estimate_motion(
         frames[0].left, frames[1].left, measured.pixels, measured.disparities, camera
     )

@@ -4,7 +4,10 @@ Uses the frames and fitted bases cached by ``tools/run_beyond.py`` (real GFTT + 
 measurements of the synthetic test log, 1241x376, and the basis learned from synthetic
 ground truth with its evidence-fitted hyperparameters), and times ``densify_batch`` as the
 stream processor calls it: batches of 4 frames in stream order, BLAS on one thread, the
-temporal state carried across batches. Reports wall and CPU (this thread) time per frame.
+temporal state carried across batches. Carried points use the visual odometry of the log's
+left images (``motion.estimate_motion``); ``densify`` runs it in the stereo worker threads
+beside SGBM, so it is timed apart, on its own row. Reports wall and CPU (this thread) time
+per frame.
 
     python tools/bench_beyond.py --work /tmp/beyond [--frames 100] [--repeat 3]
 """
@@ -25,8 +28,12 @@ from threadpoolctl import threadpool_limits
 from pcainterp_stream.allocator import keep_freed_memory
 from pcainterp_stream.basis import Basis
 from pcainterp_stream.estimator import densify_batch
+from pcainterp_stream.logreader import open_log
+from pcainterp_stream.motion import CarriedPoints, Motion, estimate_motion
+from pcainterp_stream.pairing import PairingConfig, iter_stereo_frames
 from pcainterp_stream.prior import LocalPrior, TemporalPrior
 from pcainterp_stream.processor import ProcessorConfig, resolve_settings
+from pcainterp_stream.stereo import to_grey8
 
 CONFIGS: dict[str, dict[str, object]] = {
     "plain (paper)": {},
@@ -37,6 +44,8 @@ CONFIGS: dict[str, dict[str, object]] = {
     "hybrid + cauchy": {"local": True, "robust": "cauchy"},
     "hybrid + temporal": {"local": True, "temporal": True},
     "hybrid + cauchy + temporal": {"local": True, "robust": "cauchy", "temporal": True},
+    # the default: + the measurements of the 4 previous frames, odometry included
+    "hybrid + cauchy + carried": {"local": True, "robust": "cauchy", "carry": True},
 }
 
 
@@ -59,6 +68,10 @@ def main(argv: list[str] | None = None) -> int:
         help="leave glibc's malloc untuned (densify tunes it, ProcessorConfig.keep_freed_memory)",
     )
     parser.add_argument(
+        "--configs", nargs="+", default=None, metavar="CONFIG",
+        help="only these rows (configuration names; default: all)",
+    )
+    parser.add_argument(
         "--profile", default=None, metavar="CONFIG",
         help="profile one configuration (a row name) instead and print where the time goes",
     )
@@ -73,6 +86,10 @@ def main(argv: list[str] | None = None) -> int:
         args.work / "test_201.mcap", args.work / "cache_test_201", camera_of_basis, truth=True
     )
     frames = list(range(min(args.frames, data.frames)))
+    images = []  # left images for the odometry of the carried points
+    with open_log(args.work / "test_201.mcap") as reader:
+        for _, frame in zip(frames, iter_stereo_frames(reader, PairingConfig()), strict=False):
+            images.append(to_grey8(frame.left))
     points = np.mean([data.pixels[i].shape[0] for i in frames])
     print(
         f"{len(frames)} frames, {points:.0f} points/frame, l = {basis.n_components}, "
@@ -85,8 +102,26 @@ def main(argv: list[str] | None = None) -> int:
     if not args.system_malloc:
         keep_freed_memory()  # as the stream processor does (ProcessorConfig.keep_freed_memory)
     with threadpool_limits(args.blas_threads, user_api="blas"):
+        motions: list[Motion | None] = []
+        best = float("inf")
+        for _ in range(args.repeat):
+            started = time.perf_counter()
+            motions = [None]
+            motions += [
+                estimate_motion(
+                    images[i - 1], images[i], data.pixels[i], data.disparities[i], data.camera
+                )
+                for i in frames[1:]
+            ]
+            best = min(best, (time.perf_counter() - started) / max(len(frames) - 1, 1))
+        print(
+            f"| odometry for carried points (in the stereo workers) | {1000 * best:.1f} | "
+            f"| {1 / best:.1f} |"
+        )
         for name, config in CONFIGS.items():
             if args.profile is not None and name != args.profile:
+                continue
+            if args.configs is not None and name not in args.configs:
                 continue
             local = LocalPrior.from_meta(fitted["local"]) if config.get("local") else None
             calibration = resolve_settings(
@@ -103,13 +138,25 @@ def main(argv: list[str] | None = None) -> int:
                     if config.get("temporal")
                     else None
                 )
+                carrier = CarriedPoints(ProcessorConfig().carry) if config.get("carry") else None
                 wall, cpu = time.perf_counter(), time.thread_time()
                 for start in range(0, len(frames), args.batch):
                     batch = frames[start : start + args.batch]
+                    pixels = [data.pixels[i] for i in batch]
+                    disparities = [data.disparities[i] for i in batch]
+                    noise_stds = None
+                    if carrier is not None:
+                        noise_stds = []
+                        for slot, i in enumerate(batch):
+                            pixels[slot], disparities[slot], noise, _ = carrier.carry(
+                                None, pixels[slot], disparities[slot], data.camera,
+                                motion=motions[i],
+                            )
+                            noise_stds.append(noise)
                     densify_batch(
                         basis,
-                        [data.pixels[i] for i in batch],
-                        [data.disparities[i] for i in batch],
+                        pixels,
+                        disparities,
                         sigma=sigma,  # type: ignore[arg-type]
                         local_prior=local,
                         robust=str(config.get("robust", "none")),
@@ -119,6 +166,7 @@ def main(argv: list[str] | None = None) -> int:
                         # the std as densify calibrates it
                         std_scale=calibration.std_scale,
                         scale_by_innovation=calibration.scale_by_innovation,
+                        noise_stds=noise_stds,
                     )
                 if profiler is not None:
                     profiler.disable()

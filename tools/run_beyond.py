@@ -243,7 +243,7 @@ def prepare_motions(log: Path, cache: Path, data: LogData) -> LogData:
                 started = time.perf_counter()
                 if previous is not None:
                     motion = estimate_motion(
-                        previous, image, data.pixels[index - 1], data.disparities[index - 1],
+                        previous, image, data.pixels[index], data.disparities[index],
                         data.camera, config=CARRY,
                     )
                     if motion is not None:
