@@ -230,6 +230,16 @@ def test_densify_succeeds(
     counts = assert_valid_mcap(out)
     assert counts["/pcainterp/depth"] == SMALL_FRAMES
     assert [p.name for p in out.parent.iterdir()] == [out.name]
+    assert "carried from the 4 previous frames" in run.out
+
+
+def test_densify_rejects_negative_carry_frames(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path
+) -> None:
+    run = pcainterp(*densify_args(small_log, out, basis_path), "--carry-frames", "-1")
+    assert run.code != 0
+    assert "--carry-frames must be >= 0, got -1" in run.err
+    assert not out.exists()
 
 
 # ----------------------------------------------------------------------------- missing input

@@ -365,3 +365,57 @@ def test_long_local_kernel_on_a_coarser_grid_matches_full_size(
     cusp = np.abs(local.variance * alpha).max()
     assert error.max() <= spacing / length_scale * cusp
     assert error.mean() < 0.05 * np.abs(full).max()
+
+
+@pytest.mark.parametrize("local", [None, LocalPrior(variance=4.0, length_scale=3.0)])
+def test_per_measurement_noise_equals_dense_gaussian_posterior(local: LocalPrior | None) -> None:
+    basis = _basis()
+    pixels, disparities = _points(basis, 9, seed=5)
+    noise_std = np.linspace(0.0, 3.0, 9)
+    result = densify(
+        basis, pixels, disparities, sigma=1.5, local_prior=local, variance_stride=1,
+        noise_std=noise_std,
+    )
+    # R_j = sigma^2 + s_j^2 = sigma^2 / w_j
+    weights = 1.5**2 / (1.5**2 + noise_std**2)
+    expected, expected_std = _brute_force(basis, pixels, disparities, 1.5, local, weights)
+    np.testing.assert_allclose(result.disparity, expected, atol=2e-3)
+    assert result.disparity_std is not None
+    np.testing.assert_allclose(result.disparity_std, expected_std, atol=2e-3)
+
+
+def test_zero_per_measurement_noise_is_the_plain_estimate() -> None:
+    basis = _basis()
+    pixels, disparities = _points(basis, 9, seed=6)
+    plain = densify(basis, pixels, disparities, sigma=1.5)
+    noisy = densify(basis, pixels, disparities, sigma=1.5, noise_std=np.zeros(9))
+    np.testing.assert_allclose(noisy.disparity, plain.disparity, atol=1e-4)
+    assert noisy.disparity_std is not None
+    assert plain.disparity_std is not None
+    np.testing.assert_allclose(noisy.disparity_std, plain.disparity_std, atol=1e-4)
+
+
+def test_per_measurement_noise_follows_dropped_measurements() -> None:
+    basis = _basis()
+    pixels, disparities = _points(basis, 9, seed=7)
+    disparities[2] = np.nan
+    noise_std = np.full(9, 1.0)
+    noise_std[2] = 0.0
+    result = densify(basis, pixels, disparities, sigma=1.0, noise_std=noise_std)
+    kept = np.delete(np.arange(9), 2)
+    expected = densify(
+        basis, pixels[kept], disparities[kept], sigma=1.0, noise_std=noise_std[kept]
+    )
+    assert result.n_dropped == 1
+    np.testing.assert_allclose(result.disparity, expected.disparity, atol=1e-5)
+
+
+@pytest.mark.parametrize(
+    ("noise_std", "match"),
+    [(np.ones(3), "`noise_std` of shape"), (np.full(9, -1.0), "finite and >= 0")],
+)
+def test_per_measurement_noise_validates(noise_std: np.ndarray, match: str) -> None:
+    basis = _basis()
+    pixels, disparities = _points(basis, 9, seed=8)
+    with pytest.raises(ValueError, match=match):
+        densify(basis, pixels, disparities, noise_std=noise_std)

@@ -14,6 +14,7 @@ import pytest
 from pcainterp_stream import estimator, processor
 from pcainterp_stream.basis import Basis
 from pcainterp_stream.estimator import densify
+from pcainterp_stream.motion import CarryConfig
 from pcainterp_stream.processor import (
     FrameProcessor,
     MeasurementSource,
@@ -246,3 +247,41 @@ def test_bad_config_raises() -> None:
         ProcessorConfig(stereo_workers=0)
     with pytest.raises(ValueError, match="blas_threads must be >= 1 or None, got 0"):
         ProcessorConfig(blas_threads=0)
+
+
+def _drive(frames: int) -> list[StereoFrame]:
+    from pcainterp_stream.synth import SynthConfig, generate
+
+    return [
+        StereoFrame(
+            index=frame.index,
+            stamp_ns=frame.stamp_ns,
+            log_time_ns=frame.stamp_ns,
+            frame_id="left",
+            left=frame.left,
+            right=frame.right,
+            camera=frame.camera,
+        )
+        for frame in generate(SynthConfig(seed=3, frames=frames, scale=0.5))
+    ]
+
+
+def test_carried_points_come_from_the_previous_frames(basis: Basis) -> None:
+    frames = _drive(3)
+    carried = run(basis, frames, batch_size=2, lookahead=2)
+    assert carried[0].counts["carried"] == 0  # nothing before the first frame
+    assert carried[1].counts["carried"] > 0
+    assert carried[2].counts["carried"] >= carried[1].counts["carried"]
+    assert all(result.counts["carry_reset"] == 0 for result in carried)
+    alone = run(basis, frames, carry=CarryConfig(frames=0))
+    assert all(result.counts["carried"] == 0 for result in alone)
+    np.testing.assert_array_equal(carried[0].disparity, alone[0].disparity)
+    assert not np.allclose(carried[2].disparity, alone[2].disparity)
+    # the frame's own measurements are what the results report
+    np.testing.assert_array_equal(carried[2].pixels, alone[2].pixels)
+
+
+def test_unrelated_frames_carry_nothing(basis: Basis, frames: list[StereoFrame]) -> None:
+    # the shifted random-texture pairs are different scenes: no motion links them
+    results = run(basis, frames)
+    assert sum(result.counts["carried"] for result in results) == 0
