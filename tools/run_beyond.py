@@ -49,6 +49,7 @@ from pcainterp_stream.baselines import linear, nearest
 from pcainterp_stream.basis import Basis, grid_size_for
 from pcainterp_stream.estimator import densify_batch
 from pcainterp_stream.evaluation import (
+    ReferenceView,
     calibration_sums,
     depth_errors,
     disparity_from_depth,
@@ -61,7 +62,7 @@ from pcainterp_stream.evaluation import (
 from pcainterp_stream.fitting import CalibrationFrame, fit_frame, fit_prior
 from pcainterp_stream.learning import learn_basis, preprocess_disparity
 from pcainterp_stream.logreader import open_log
-from pcainterp_stream.motion import CarriedPoints, Motion, estimate_motion
+from pcainterp_stream.motion import CarriedPoints, CarryConfig, Motion, estimate_motion
 from pcainterp_stream.pairing import PairingConfig, iter_stereo_frames
 from pcainterp_stream.prior import LocalPrior, TemporalPrior
 from pcainterp_stream.processor import EstimateSettings, ProcessorConfig, resolve_settings
@@ -421,6 +422,24 @@ class Sums:
         }
 
 
+def _add_frame(
+    sums: Sums, data: LogData, index: int, mode: str, reference: npt.NDArray[Any],
+    estimate: npt.NDArray[Any], std: npt.NDArray[Any] | None, view: ReferenceView | None = None,
+) -> None:
+    """Add one frame's mean Delta_2D and (with a std) +-sigma coverage terms to ``sums``."""
+    transform = _transform(data, index, mode)
+    if view is None:
+        view = reference_view(reference, data.camera, transform)
+    delta_2d, _ = projection_errors(estimate, view, data.camera, transform)
+    sums.delta_2d += float(np.nansum(delta_2d))
+    sums.delta_2d_n += float(np.isfinite(delta_2d).sum())
+    if std is not None:
+        calibration = calibration_sums(estimate, std, view.disparity, view.counted)
+        sums.inside_1 += calibration["inside_1"]
+        sums.inside_2 += calibration["inside_2"]
+        sums.calibration_n += calibration["n"]
+
+
 def _transform(data: LogData, index: int, mode: str) -> FloatArray:
     if mode == "stereo":
         return stereo_transform(data.camera)
@@ -436,6 +455,7 @@ def _calibration(basis: Basis, hybrid: bool) -> EstimateSettings:
 def _estimates(
     method: Method, basis: Basis, hyper: dict[str, Any], data: LogData,
     points: Callable[[int], tuple[FloatArray, FloatArray]], frames: Sequence[int],
+    carry: CarryConfig = CARRY,
 ) -> Iterator[tuple[int, FloatArray, FloatArray | None, float, dict[str, int | float]]]:
     """Yield (frame, disparity, std, seconds, extras) of a method over frames in order."""
     camera = data.camera
@@ -451,17 +471,18 @@ def _estimates(
         TemporalPrior(process_noise=float(hyper["process_noise"])) if method.temporal else None
     )
     calibration = _calibration(basis, local is not None)
-    carrier = CarriedPoints(CARRY) if method.carry else None
+    carrier = CarriedPoints(carry) if method.carry else None
     for index in frames:
         pixels, disparities = points(index)
         started = time.perf_counter()
         noise = None
+        n_carried = 0
         if carrier is not None:
             assert data.motions is not None
             assert data.motion_seconds is not None
             known = index > 0 and bool(np.all(np.isfinite(data.motions[index])))
             motion = Motion(data.motions[index], 0, 0) if known else None
-            pixels, disparities, noise, _ = carrier.carry(
+            pixels, disparities, noise, n_carried = carrier.carry(
                 None, pixels, disparities, camera, motion=motion
             )
             started -= float(data.motion_seconds[index])  # the odometry is part of the cost
@@ -484,6 +505,7 @@ def _estimates(
             "downweighted": estimate.n_downweighted,
             "reset": int(estimate.temporal == "reset"),
             "sigma": estimate.sigma,
+            "carried": n_carried,
         }
         assert estimate.disparity_std is not None
         yield (
@@ -519,23 +541,14 @@ def evaluate_split(
         for index, estimate, std, seconds, extras in _estimates(
             method, basis, hyper, data, points, frames
         ):
-            transform = _transform(data, index, mode)
             view = views[index]
-            delta_2d, _ = projection_errors(estimate, view, data.camera, transform)
-            counted = np.isfinite(delta_2d)
-            sums.delta_2d += float(delta_2d[counted].sum())
-            sums.delta_2d_n += float(counted.sum())
+            _add_frame(sums, data, index, mode, references[index], estimate, std, view)
             depth = depth_errors(
                 estimate, view.disparity, view.counted,
                 focal_baseline=data.camera.focal_baseline,
             )
             sums.depth_sq += depth["sq"]
             sums.depth_n += depth["n"]
-            if std is not None:
-                calibration = calibration_sums(estimate, std, view.disparity, view.counted)
-                sums.inside_1 += calibration["inside_1"]
-                sums.inside_2 += calibration["inside_2"]
-                sums.calibration_n += calibration["n"]
             sums.seconds += seconds
             sums.frames += 1
             sums.downweighted += int(extras.get("downweighted", 0))
@@ -648,22 +661,56 @@ def irls_iterations(
                     std_scale=settings.std_scale,
                     scale_by_innovation=settings.scale_by_innovation,
                 )[0]
-                transform = _transform(item, index, mode)
-                view = reference_view(references[index], item.camera, transform)
-                delta_2d, _ = projection_errors(result.disparity, view, item.camera, transform)
-                sums.delta_2d += float(np.nansum(delta_2d))
-                sums.delta_2d_n += float(np.isfinite(delta_2d).sum())
-                assert result.disparity_std is not None
-                calibration = calibration_sums(
-                    result.disparity, result.disparity_std, view.disparity, view.counted
+                _add_frame(
+                    sums, item, index, mode, references[index], result.disparity,
+                    result.disparity_std,
                 )
-                sums.inside_2 += calibration["inside_2"]
-                sums.calibration_n += calibration["n"]
             summary = sums.summary()
             out.setdefault(split, {})[str(iterations)] = [
                 summary["delta_2d_mean"], summary["coverage_2"]
             ]
             _log(f"  {split} {iterations} reweightings: {out[split][str(iterations)]}")
+    return out
+
+
+CARRY_SWEEP = (
+    (0, 30.0, 1.0), (2, 30.0, 1.0), (4, 30.0, 1.0), (8, 30.0, 1.0),
+    (4, 20.0, 1.0), (4, 40.0, 1.0), (4, 30.0, 0.5), (4, 30.0, 2.0),
+)
+"""(frames, gap px, age_std px) of the carried points tried on the fitting frames."""
+
+
+def carry_sweep(
+    fits: Sequence[tuple[str, Basis, dict[str, Any], LogData, str, list[int]]],
+) -> dict[str, dict[str, list[float]]]:
+    """Hybrid + Cauchy + carried points on each split's fitting frames (not the test log).
+
+    Returns per split and "frames/gap/age_std" the mean Delta_2D, +-2 sigma coverage and
+    carried points per frame.
+    """
+    method = Method("carried", local=True, robust="cauchy", fitted_sigma=True, carry=True)
+    out: dict[str, dict[str, list[float]]] = {}
+    for split, basis, hyper, data, mode, frames in fits:
+        references = data.reference()
+        for n_frames, gap, age_std in CARRY_SWEEP:
+            options = CarryConfig(frames=n_frames, gap=gap, age_std=age_std)
+            sums = Sums()
+            carried = 0
+
+            def points(index: int, data: LogData = data) -> tuple[FloatArray, FloatArray]:
+                return data.pixels[index], data.disparities[index]
+
+            for index, estimate, std, _, extras in _estimates(
+                method, basis, hyper, data, points, frames, carry=options
+            ):
+                carried += int(extras["carried"])
+                _add_frame(sums, data, index, mode, references[index], estimate, std)
+            summary = sums.summary()
+            key = f"{n_frames}/{gap:g}/{age_std:g}"
+            out.setdefault(split, {})[key] = [
+                summary["delta_2d_mean"], summary["coverage_2"], carried / max(len(frames), 1)
+            ]
+            _log(f"  {split} carry {key}: {out[split][key]}")
     return out
 
 
@@ -760,6 +807,25 @@ def report(results: dict[str, Any], work: Path | None = None) -> str:
                 f"| {name} | {m['synthetic_maps']} | {m['real_maps']} | {plain:.2f} "
                 f"| {hybrid:.2f} | {nearest_mean:.2f} | {hybrid / nearest_mean:.2f} |"
             )
+        lines.append("")
+    if results.get("carry"):
+        splits = list(results["carry"])
+        lines += [
+            "**Carried points on the fitting frames** (hybrid + Cauchy; mean Delta_2D px, "
+            "+-2 sigma %, carried points/frame)",
+            "",
+            "| frames / gap px / age std px | " + " | ".join(splits) + " |",
+            "| --- |" + " ---: |" * len(splits),
+        ]
+        for key in results["carry"][splits[0]]:
+            cells = [
+                "{:.3f} ({:.1f} %, {:.0f})".format(
+                    results["carry"][split][key][0], 100 * results["carry"][split][key][1],
+                    results["carry"][split][key][2],
+                )
+                for split in splits
+            ]
+            lines.append(f"| {key} | " + " | ".join(cells) + " |")
         lines.append("")
     return "\n".join(lines)
 
@@ -945,6 +1011,24 @@ def main(argv: list[str] | None = None) -> int:
     if "depth-bins" in args.stages and synthetic:
         _log("depth bins (synthetic)")
         results["depth_bins"] = depth_bins(synthetic[0][3], data[synthetic[0][1]])
+        save()
+    if "carry" in args.stages:
+        _log("carried points on the fitting frames")
+        fits = []
+        for split, _, mode, basis, hyper in splits:
+            if split == "synthetic":
+                fit_name = f"fit_{FIT_SEED}"
+                data[fit_name] = prepare_motions(
+                    work / f"{fit_name}.mcap", work / f"cache_{fit_name}", data[fit_name]
+                )
+                fit_data = data[fit_name]
+                frames = _test_frames(fit_data, mode, None)
+            else:
+                # the held-out 20 % of the training clip the hyperparameters were fitted on
+                fit_data = data["kitti_raw" if split.startswith("kitti_a") else "kitti_odometry"]
+                frames = list(range(round(0.8 * fit_data.frames), fit_data.frames))
+            fits.append((split, basis, hyper, fit_data, mode, frames))
+        results["carry"] = carry_sweep(fits)
         save()
     if "irls" in args.stages:
         _log("IRLS reweightings")
