@@ -69,6 +69,9 @@ DOWNWEIGHTED_BELOW = 0.5
 """A measurement counts as down-weighted when its final IRLS weight is below this."""
 
 
+_FLUSH_BELOW = -40.0
+"""Kernel exponents below this give a factor of exactly 0 (see :meth:`LocalPrior.axis`)."""
+
 SAMPLES_PER_LENGTH = {Kernel.LAPLACE: 16.0, Kernel.GAUSSIAN: 4.0}
 """Samples per length scale for which :meth:`LocalPrior.smooth_at` holds."""
 
@@ -115,7 +118,13 @@ class LocalPrior:
             gap *= dtype(1.0 / self.length_scale)
             gap *= gap
             gap *= dtype(-0.5)
-        return np.exp(gap, out=gap)
+        # factors below e^-60 (~1e-26 of the peak) become 0: left alone, their products
+        # with alpha land in float32's subnormal range, where every multiply and the
+        # GEMM with them run ~100x slower (the local map took 6.4 instead of 2.5 ms)
+        np.maximum(gap, dtype(_FLUSH_BELOW), out=gap)
+        factor = np.exp(gap, out=gap)
+        factor[gap <= dtype(math.exp(_FLUSH_BELOW))] = 0.0
+        return factor
 
     def smooth_at(self, spacing: float) -> bool:
         """Return whether samples ``spacing`` px apart, interpolated bilinearly, follow it.

@@ -387,6 +387,8 @@ METHODS = (
     ),
     Method("nearest neighbour", baseline="nearest"),
     Method("linear", baseline="linear"),
+    # the baseline given the same carried points as the default estimate
+    Method(f"nearest neighbour + carried ({CARRY.frames} frames)", baseline="nearest", carry=True),
 )
 
 
@@ -1001,7 +1003,7 @@ def main(argv: list[str] | None = None) -> int:
                 basis, hyper, data[test], mode,
                 [m for m in methods if m.name in {
                     METHODS[0].name, METHODS[7].name, METHODS[8].name, METHODS[9].name,
-                    METHODS[11].name, "nearest neighbour", "linear"}],
+                    METHODS[11].name, METHODS[14].name, "nearest neighbour", "linear"}],
                 args.sweep_frames,
             )
             for points, row in swept.items():
