@@ -124,6 +124,16 @@ class LocalPrior:
         np.maximum(gap, dtype(_CLAMP_BELOW), out=gap)
         return np.exp(gap, out=gap)
 
+    def support(self) -> float:
+        """Return the distance (px) beyond which a 1-D factor is at its clamp e^-40.
+
+        Past it the factor is 4e-18 of its peak; a sum over measurements may leave such
+        terms out (:func:`estimator._local_mean` does, for short kernels).
+        """
+        if self.kernel is Kernel.LAPLACE:
+            return -_CLAMP_BELOW * self.length_scale
+        return math.sqrt(-2.0 * _CLAMP_BELOW) * self.length_scale
+
     def smooth_at(self, spacing: float) -> bool:
         """Return whether samples ``spacing`` px apart, interpolated bilinearly, follow it.
 
