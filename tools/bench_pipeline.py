@@ -66,13 +66,21 @@ def ensure_log(work_dir: Path, frames: int, seed: int) -> Path:
     return path
 
 
-def ensure_basis(work_dir: Path, components: int, train_frames: int) -> Path:
-    """Return a cached basis learned from SGBM maps of a synthetic log (seed 2)."""
-    path = work_dir / f"basis_l{components}_n{train_frames}.npz"
+def ensure_basis(
+    work_dir: Path, components: int, train_frames: int, *, fit_prior: bool = False
+) -> Path:
+    """Return a cached basis learned from SGBM maps of a synthetic log (seed 2).
+
+    With ``fit_prior`` as ``learn --fit-prior`` learns it (the hybrid prior, which
+    ``densify`` then uses by default).
+    """
+    suffix = "_prior" if fit_prior else ""
+    path = work_dir / f"basis_l{components}_n{train_frames}{suffix}.npz"
     if not path.exists():
         train = ensure_log(work_dir, train_frames, seed=2)
         print(f"learning {path} from {train} ...", file=sys.stderr)
-        jobs.learn([train], path, jobs.LearnOptions(n_components=components), PairingConfig())
+        options = jobs.LearnOptions(n_components=components, fit_prior=fit_prior)
+        jobs.learn([train], path, options, PairingConfig())
     return path
 
 
@@ -142,9 +150,16 @@ def run_job_here(log: Path, basis: Path, out: Path, settings: dict[str, Any]) ->
 
 
 def processor_config(settings: dict[str, Any]) -> processor.ProcessorConfig:
-    """Build a processor configuration from plain settings (``downscale`` goes to SGBM)."""
+    """Build a processor configuration from plain settings.
+
+    ``downscale`` goes to SGBM, ``carry_frames`` to the carried points (0: off).
+    """
     settings = dict(settings)
     sgbm = SgbmConfig(downscale=int(settings.pop("downscale", 1)))
+    if "carry_frames" in settings:
+        settings["carry"] = dataclasses.replace(
+            processor.ProcessorConfig().carry, frames=int(settings.pop("carry_frames"))
+        )
     return processor.ProcessorConfig(sgbm=sgbm, **settings)
 
 
@@ -361,6 +376,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--memory-frames", type=int, nargs=2, default=[100, 1000])
     parser.add_argument("--train-frames", type=int, default=250)
     parser.add_argument("--components", type=int, default=200)
+    parser.add_argument(
+        "--fit-prior", action="store_true",
+        help="learn the basis with --fit-prior (densify then uses the hybrid prior)",
+    )
     parser.add_argument("--sections", nargs="+", choices=SECTIONS, default=list(SECTIONS))
     parser.add_argument(
         "--settings",
@@ -391,7 +410,9 @@ def main(argv: list[str] | None = None) -> int:
     work: Path = args.work_dir
     work.mkdir(parents=True, exist_ok=True)
     log = ensure_log(work, args.frames, seed=1)
-    basis_path = ensure_basis(work, args.components, args.train_frames)
+    basis_path = ensure_basis(
+        work, args.components, args.train_frames, fit_prior=args.fit_prior
+    )
     out = work / "densified.mcap"
     all_settings = [json.loads(text) for text in args.settings]
     print(f"log {log} ({args.frames} frames 1241x376), basis {basis_path}")
