@@ -65,10 +65,10 @@ DEFAULT_VARIANCE_GRID_SCALE = 0.0625
 """Automatic variance grid: the coarsest stride whose grid is still >= this scale of the image."""
 
 _VARIANCE_ROWS_PER_CHUNK = 512
+"""Rows of the stacked exact-variance factor multiplied at once (bounds memory to ~rows*s)."""
 
 _LOCAL_BLOCKS = 8
 """Column blocks of the local map when the kernel's support is short (``_local_mean``)."""
-"""Rows of the stacked exact-variance factor multiplied at once (bounds memory to ~rows*s)."""
 
 
 class Uncertainty(StrEnum):

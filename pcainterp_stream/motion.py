@@ -169,9 +169,10 @@ def estimate_motion(
     if np.count_nonzero(usable) < options.min_inliers or previous_image.shape != image.shape:
         return None
     pixel_array, disparity_array = pixel_array[usable], disparity_array[usable]
-    # tracked on the half-size images: 4x fewer pixels per window, ~0.1 px accuracy
+    # tracked on the half-size images: 4x fewer pixels per window, ~0.1 px accuracy;
+    # cv2.pyrDown centres half-size pixel i on full-size pixel 2 i
     half, previous_half = cv2.pyrDown(image), cv2.pyrDown(previous_image)
-    start = ((pixel_array + 0.5) / 2.0 - 0.5).astype(np.float32).reshape(-1, 1, 2)
+    start = (pixel_array / 2.0).astype(np.float32).reshape(-1, 1, 2)
     window = (TRACK_WINDOW, TRACK_WINDOW)
     behind, status, _ = cv2.calcOpticalFlowPyrLK(
         half, previous_half, start, start.copy(), winSize=window, maxLevel=TRACK_LEVELS
@@ -186,7 +187,7 @@ def estimate_motion(
     if np.count_nonzero(tracked) < options.min_inliers:
         return None
     object_points = back_project(pixel_array[tracked], disparity_array[tracked], camera)
-    image_points = (behind.reshape(-1, 2)[tracked].astype(np.float64) + 0.5) * 2.0 - 0.5
+    image_points = behind.reshape(-1, 2)[tracked].astype(np.float64) * 2.0
     intrinsics = _intrinsics(camera)
     # PnP: this camera's points seen in the previous image give X_prev = R X + t
     found, rotation, translation, inliers = cv2.solvePnPRansac(
