@@ -28,6 +28,7 @@ batched over frames. The variance may be evaluated on a grid coarser than the ba
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -146,7 +147,7 @@ class DensifyResult:
         return int(self.disparities.shape[0])
 
 
-@dataclass
+@dataclass(frozen=True)
 class _Local:
     """The local part of a hybrid-prior posterior: d_local(x) = c(x, P) alpha."""
 
@@ -338,26 +339,12 @@ def densify_batch(
     for index, (pixels, disparities) in enumerate(
         zip(pixels_list, disparities_list, strict=True)
     ):
+        kept_pixels, kept_disparities, keep = _clean(pixels, disparities, out_size)
+        frames.append((kept_pixels, kept_disparities, int(keep.size - np.count_nonzero(keep))))
         noise = None if noise_stds is None else noise_stds[index]
-        if noise is None:
-            frames.append(clean_measurements(pixels, disparities, out_size))
-            extra_variances.append(None)
-            continue
-        noise_array = np.asarray(noise, dtype=np.float64)
-        if noise_array.shape != np.shape(disparities):
-            raise ValueError(
-                f"Expected `noise_std` of shape {np.shape(disparities)} to match "
-                f"`disparities`, got {noise_array.shape}"
-            )
-        if not bool(np.all(np.isfinite(noise_array) & (noise_array >= 0))):
-            raise ValueError("Expected every `noise_std` finite and >= 0 (px)")
-        frames.append(clean_measurements(pixels, disparities, out_size))
-        keep = _kept(
-            np.asarray(pixels, dtype=np.float64).reshape(-1, 2),
-            np.asarray(disparities, dtype=np.float64),
-            out_size,
+        extra_variances.append(
+            None if noise is None else (_noise_std(noise, keep) * to_basis) ** 2
         )
-        extra_variances.append((noise_array[keep] * to_basis) ** 2)
     eigenvalues = basis.eigenvalues
     need_factor = mode is Uncertainty.EXACT
     if temporal is not None:
@@ -386,7 +373,8 @@ def densify_batch(
             need_factor=need_factor, extra_variance=extra_variance,
         )
         if posterior.local is not None:
-            posterior.local.indices, posterior.local.weights = indices, weights
+            local = dataclasses.replace(posterior.local, indices=indices, weights=weights)
+            posterior = dataclasses.replace(posterior, local=local)
         posteriors.append(posterior)
 
     # d_hat = B Y + m for all frames at once (s, F)
@@ -669,10 +657,10 @@ def _solve_measurement(
     if not np.isfinite(sigma):  # no measurements: nothing to fit
         sigma = DEFAULT_SIGMA
     weights = np.ones(k)
+    noise = sigma**2 if extra_variance is None else sigma**2 + extra_variance
     iterations = model.robust_iterations if model.robust is not Robust.NONE else 0
     for iteration in range(iterations + 1):
         system = signal.copy()
-        noise = sigma**2 if extra_variance is None else sigma**2 + extra_variance
         system.flat[:: k + 1] += noise / weights  # + R
         lower_inverse = _cholesky_inverse(system) if k else np.zeros((0, 0))
         alpha = lower_inverse.T @ (lower_inverse @ innovation)  # K^-1 (z~ - B~ mu)
@@ -968,6 +956,14 @@ def clean_measurements(
     Raises:
         ValueError: ``pixels`` is not (k, 2) or ``disparities`` not (k,).
     """
+    kept_pixels, kept_disparities, keep = _clean(pixels, disparities, image_size)
+    return kept_pixels, kept_disparities, int(keep.size - np.count_nonzero(keep))
+
+
+def _clean(
+    pixels: npt.ArrayLike, disparities: npt.ArrayLike, image_size: tuple[int, int]
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
+    """:func:`clean_measurements`, returning the (k,) mask of what it kept instead of a count."""
     pixel_array = np.asarray(pixels, dtype=np.float64)
     disparity_array = np.asarray(disparities, dtype=np.float64)
     if pixel_array.size == 0 and pixel_array.ndim < 2:
@@ -979,28 +975,30 @@ def clean_measurements(
             f"Expected `disparities` of shape ({pixel_array.shape[0]},) to match `pixels`, "
             f"got {disparity_array.shape}"
         )
-    keep = _kept(pixel_array, disparity_array, image_size)
-    n_dropped = int(keep.size - np.count_nonzero(keep))
-    return pixel_array[keep], disparity_array[keep], n_dropped
-
-
-def _kept(
-    pixels: npt.NDArray[np.float64],
-    disparities: npt.NDArray[np.float64],
-    image_size: tuple[int, int],
-) -> npt.NDArray[np.bool_]:
-    """Mask of the finite, in-image measurements (pixel centres span [-0.5, size - 0.5])."""
     height, width = image_size
-    x, y = pixels[:, 0], pixels[:, 1]
+    x, y = pixel_array[:, 0], pixel_array[:, 1]
     with np.errstate(invalid="ignore"):
         keep: npt.NDArray[np.bool_] = (
-            np.isfinite(disparities)
+            np.isfinite(disparity_array)
             & (x >= -0.5)
             & (x <= width - 0.5)
             & (y >= -0.5)
             & (y <= height - 0.5)
         )
-    return keep
+    return pixel_array[keep], disparity_array[keep], keep
+
+
+def _noise_std(noise_std: npt.ArrayLike, keep: npt.NDArray[np.bool_]) -> npt.NDArray[np.float64]:
+    """Validate a frame's per-measurement ``noise_std`` and keep the entries ``keep`` keeps."""
+    noise_array = np.asarray(noise_std, dtype=np.float64)
+    if noise_array.shape != keep.shape:
+        raise ValueError(
+            f"Expected `noise_std` of shape {keep.shape} to match `disparities`, "
+            f"got {noise_array.shape}"
+        )
+    if not bool(np.all(np.isfinite(noise_array) & (noise_array >= 0))):
+        raise ValueError("Expected every `noise_std` finite and >= 0 (px)")
+    return noise_array[keep]
 
 
 def _image_size(basis: Basis, image_size: tuple[int, int] | None) -> tuple[int, int]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pcainterp_stream import Basis, densify, densify_batch
+from pcainterp_stream import Basis, DensifyResult, densify, densify_batch
 from pcainterp_stream.prior import (
     Kernel,
     LocalPrior,
@@ -81,6 +81,13 @@ def _brute_force(
     )
 
 
+def _assert_matches(result: DensifyResult, expected: tuple[np.ndarray, np.ndarray]) -> None:
+    """The result's map and std equal ``expected`` (:func:`_brute_force`)."""
+    np.testing.assert_allclose(result.disparity, expected[0], atol=2e-3)
+    assert result.disparity_std is not None
+    np.testing.assert_allclose(result.disparity_std, expected[1], atol=2e-3)
+
+
 @pytest.mark.parametrize("kernel", [Kernel.LAPLACE, Kernel.GAUSSIAN])
 @pytest.mark.parametrize("length_scale", [3.0, 20.0])  # full-size and grid local part
 def test_hybrid_prior_equals_dense_gaussian_posterior(kernel: Kernel, length_scale: float) -> None:
@@ -91,10 +98,7 @@ def test_hybrid_prior_equals_dense_gaussian_posterior(kernel: Kernel, length_sca
     result = densify(
         basis, pixels, disparities, sigma=1.5, local_prior=local, variance_stride=1
     )
-    expected, expected_std = _brute_force(basis, pixels, disparities, 1.5, local)
-    np.testing.assert_allclose(result.disparity, expected, atol=2e-3)
-    assert result.disparity_std is not None
-    np.testing.assert_allclose(result.disparity_std, expected_std, atol=2e-3)
+    _assert_matches(result, _brute_force(basis, pixels, disparities, 1.5, local))
 
 
 def test_hybrid_map_passes_closer_to_the_measurements() -> None:
@@ -137,12 +141,7 @@ def test_robust_weights_match_a_weighted_gaussian_posterior() -> None:
     assert result.weights is not None
     assert result.weights[3] < 0.5 and result.n_downweighted >= 1
     # at convergence the estimate is the Gaussian posterior with noise sigma^2 / w
-    expected, expected_std = _brute_force(
-        basis, pixels, disparities, 1.0, local, noise_weights=result.weights
-    )
-    np.testing.assert_allclose(result.disparity, expected, atol=2e-3)
-    assert result.disparity_std is not None
-    np.testing.assert_allclose(result.disparity_std, expected_std, atol=2e-3)
+    _assert_matches(result, _brute_force(basis, pixels, disparities, 1.0, local, result.weights))
 
 
 def test_robust_estimate_resists_an_outlier() -> None:
@@ -378,10 +377,7 @@ def test_per_measurement_noise_equals_dense_gaussian_posterior(local: LocalPrior
     )
     # R_j = sigma^2 + s_j^2 = sigma^2 / w_j
     weights = 1.5**2 / (1.5**2 + noise_std**2)
-    expected, expected_std = _brute_force(basis, pixels, disparities, 1.5, local, weights)
-    np.testing.assert_allclose(result.disparity, expected, atol=2e-3)
-    assert result.disparity_std is not None
-    np.testing.assert_allclose(result.disparity_std, expected_std, atol=2e-3)
+    _assert_matches(result, _brute_force(basis, pixels, disparities, 1.5, local, weights))
 
 
 def test_zero_per_measurement_noise_is_the_plain_estimate() -> None:
