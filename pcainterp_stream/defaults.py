@@ -21,3 +21,12 @@ CARRY_GAP = 30.0
 
 CARRY_AGE_STD = 1.0
 """Extra noise std (px) per frame of a carried measurement's age."""
+
+DISPLAY_MAX_DEPTH = 60.0
+"""Far end (m) of the fixed depth colour range of the Rerun recording and of the ``16UC1``
+``--depth-mm`` image (0 to 60 m: KITTI's useful stereo range at f*b ~ 390 px*m is d >= 6.5
+px; 16UC1 holds at most 65.535 m). Farther depths, ``+inf`` ("too far") included, take the
+far colour; NaN (no estimate) is 0, which viewers leave blank."""
+
+DISPLAY_MAX_DEPTH_STD = 10.0
+"""Far end (m) of the fixed colour range of the depth std in the Rerun recording."""

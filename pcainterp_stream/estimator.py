@@ -102,10 +102,11 @@ class DensifyResult:
         disparity: (H, W) float32, MAP disparity (px) at the output image size.
         disparity_std: (H, W) float32, posterior std of disparity (px); None when the
             uncertainty mode is ``none``.
-        depth: (H, W) float32, f*b / disparity (m), NaN where disparity <= 0; None when no
-            focal_baseline is known.
-        depth_std: (H, W) float32, f*b / d^2 * disparity_std (m) (delta method), NaN where
-            disparity <= 0; None when depth or disparity_std is None.
+        depth: (H, W) float32, f*b / disparity (m) with REP 118 ranges: ``+inf`` (farther
+            than measurable) where disparity < ``min_disparity``, NaN only where there is
+            no estimate; None when no focal_baseline is known.
+        depth_std: (H, W) float32, f*b / d^2 * disparity_std (m) (delta method), ``+inf``
+            where depth is; None when depth or disparity_std is None.
         coefficients: (l,) float64, the MAP estimate y_hat (basis units).
         coefficient_variance: (l,) float64, kappa_i^2 = [Sigma_y]_ii.
         pixels: (k, 2) float64, the measurements used, (x, y) in output image px.
@@ -114,6 +115,10 @@ class DensifyResult:
         solve_form: the system that was solved.
         uncertainty: the uncertainty mode.
         focal_baseline: f*b (px*m) used for depth; 0 when unknown.
+        min_disparity: the smallest disparity the estimate resolves (px, output camera):
+            the noise std ``sigma`` mapped to the output camera. A disparity below it
+            cannot be told from 0 by one measurement, so its depth is ``+inf``; no
+            finite depth exceeds f*b / min_disparity (:func:`depth_from_disparity`).
         sigma: the measurement noise std used (px, basis units; fitted with ``"evidence"``).
         weights: (k,) float64 final IRLS weight of each measurement (1 without ``robust``).
         n_downweighted: measurements whose robust weight ended below 0.5.
@@ -135,6 +140,7 @@ class DensifyResult:
     solve_form: SolveForm
     uncertainty: Uncertainty
     focal_baseline: float
+    min_disparity: float = DEFAULT_SIGMA
     sigma: float = DEFAULT_SIGMA
     weights: npt.NDArray[np.float64] | None = None
     n_downweighted: int = 0
@@ -428,7 +434,9 @@ def densify_batch(
                 frame_scale / to_basis
             )
             disparity_std = resample_grid(grid_std.reshape(vgrid.size), out_size)
-        depth, depth_std = _depth(disparity, disparity_std, fb_out)
+        # REP 118: a disparity below one noise std cannot be told from 0 (infinity)
+        min_disparity = posterior.sigma / to_basis
+        depth, depth_std = _depth(disparity, disparity_std, fb_out, min_disparity)
         results.append(
             DensifyResult(
                 disparity=disparity,
@@ -443,6 +451,7 @@ def densify_batch(
                 solve_form=posterior.solve_form,
                 uncertainty=mode,
                 focal_baseline=fb_out,
+                min_disparity=min_disparity,
                 sigma=posterior.sigma,
                 weights=posterior.weights,
                 n_downweighted=_downweighted(posterior.weights),
@@ -917,27 +926,63 @@ def _factor(posterior: _Posterior) -> npt.NDArray[np.float32]:
     return posterior.factor
 
 
+def depth_from_disparity(
+    disparity: npt.NDArray[np.float32],
+    disparity_std: npt.NDArray[np.float32] | None,
+    focal_baseline: float,
+    min_disparity: float,
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32] | None]:
+    """Depth w = f*b / d and its delta-method std f*b / d^2 * std_d, with REP 118 ranges.
+
+    A disparity below ``min_disparity`` (the smallest one the estimate resolves, zero and
+    negative ones included) is "farther than measurable": depth and depth std ``+inf``.
+    A NaN disparity (no estimate) gives NaN. No finite depth ever comes from a disparity
+    below ``min_disparity``, so no depth exceeds f*b / ``min_disparity``.
+
+    Args:
+        disparity: (H, W) float32 disparity (px).
+        disparity_std: (H, W) float32 std of the disparity (px), or None.
+        focal_baseline: f*b (px*m), > 0.
+        min_disparity: smallest resolvable disparity (px), > 0.
+
+    Returns:
+        depth: (H, W) float32 (m); depth_std: (H, W) float32 (m), None when
+        ``disparity_std`` is None.
+
+    Raises:
+        ValueError: ``focal_baseline`` or ``min_disparity`` is not positive.
+    """
+    if not focal_baseline > 0:
+        raise ValueError(f"Expected `focal_baseline` > 0, got {focal_baseline}")
+    if not min_disparity > 0:
+        raise ValueError(f"Expected `min_disparity` > 0, got {min_disparity}")
+    with np.errstate(invalid="ignore"):
+        resolved = disparity >= np.float32(min_disparity)
+    too_far = ~resolved & ~np.isnan(disparity)
+    inverse = np.where(too_far, np.float32(0.0), np.float32(np.nan))
+    np.divide(np.float32(1.0), disparity, out=inverse, where=resolved)
+    with np.errstate(over="ignore"):  # a tiny min_disparity may overflow float32: inf
+        depth = inverse * np.float32(focal_baseline)
+        depth[too_far] = np.inf
+        if disparity_std is None:
+            return depth, None
+        depth_std = inverse * inverse
+        depth_std *= np.float32(focal_baseline)
+        depth_std *= disparity_std
+    depth_std[too_far] = np.inf
+    return depth, depth_std
+
+
 def _depth(
     disparity: npt.NDArray[np.float32],
     disparity_std: npt.NDArray[np.float32] | None,
     focal_baseline: float,
+    min_disparity: float,
 ) -> tuple[npt.NDArray[np.float32] | None, npt.NDArray[np.float32] | None]:
-    """Depth w = f*b / d and its delta-method std f*b / d^2 * std_d; NaN where d <= 0.
-
-    inf where d > 0 is so small that the depth or its std exceeds float32.
-    """
+    """:func:`depth_from_disparity`, or no depth at all when f*b is unknown (<= 0)."""
     if focal_baseline <= 0:
         return None, None
-    with np.errstate(over="ignore"):
-        positive = disparity > 0
-        inverse = np.full(disparity.shape, np.nan, dtype=np.float32)
-        np.divide(np.float32(1.0), disparity, out=inverse, where=positive)
-        depth = inverse * np.float32(focal_baseline)
-        if disparity_std is None:
-            return depth, None
-        depth_std = depth * inverse
-        depth_std *= disparity_std
-    return depth, depth_std
+    return depth_from_disparity(disparity, disparity_std, focal_baseline, min_disparity)
 
 
 def clean_measurements(

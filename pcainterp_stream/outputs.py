@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from pcainterp_stream import rosmsg
+from pcainterp_stream.defaults import DISPLAY_MAX_DEPTH
 from pcainterp_stream.records import DensifiedFrame
 
 
@@ -26,8 +27,9 @@ class OutputTopics:
     features: str = "/pcainterp/features"
     camera_info: str = "/pcainterp/camera_info"
     depth_mm: str | None = None
-    """When set, also a ``16UC1`` millimetre copy of the depth (0 = invalid), which
-    Foxglove's image panel colour-maps (it draws ``32FC1`` as grey)."""
+    """When set, also a ``16UC1`` millimetre copy of the depth, which Foxglove's image panel
+    colour-maps (it draws ``32FC1`` as grey): 0 = no estimate, depths clipped to the fixed
+    range 0 to :data:`~pcainterp_stream.defaults.DISPLAY_MAX_DEPTH` (too far: its end)."""
 
     @classmethod
     def with_prefix(cls, prefix: str, *, depth_mm: bool = False) -> OutputTopics:
@@ -75,7 +77,11 @@ def output_messages(result: DensifiedFrame, topics: OutputTopics) -> list[tuple[
         z = np.where(disparities > 0, camera.focal_baseline / disparities, np.nan)
     x = (pixels[:, 0] - camera.cx) * z / camera.fx
     y = (pixels[:, 1] - camera.cy) * z / camera.fy
-    finite = np.isfinite(result.disparity)
+    # DisparityImage's valid window starts at the smallest resolvable disparity, so no value
+    # <= 0 (nor any below it, "farther than measurable") is a valid disparity (REP 118)
+    with np.errstate(invalid="ignore"):
+        finite = np.isfinite(result.disparity) & (result.disparity >= result.min_disparity)
+    min_disparity = result.min_disparity if result.min_disparity > 0 else 0.0
     messages: list[tuple[str, Any]] = [
         (topics.depth, rosmsg.image_message(result.depth, stamp, frame_id, encoding="32FC1")),
         (
@@ -90,8 +96,10 @@ def output_messages(result: DensifiedFrame, topics: OutputTopics) -> list[tuple[
                 frame_id,
                 focal=camera.fx,
                 baseline=camera.baseline,
-                min_disparity=float(np.min(result.disparity[finite])) if finite.any() else 0.0,
-                max_disparity=float(np.max(result.disparity[finite])) if finite.any() else 0.0,
+                min_disparity=min_disparity,
+                max_disparity=(
+                    float(np.max(result.disparity[finite])) if finite.any() else min_disparity
+                ),
             ),
         ),
         (
@@ -116,8 +124,10 @@ def output_messages(result: DensifiedFrame, topics: OutputTopics) -> list[tuple[
         (topics.camera_info, rosmsg.camera_info_message(camera, stamp, frame_id)),
     ]
     if topics.depth_mm:
-        millimetres = np.nan_to_num(result.depth * 1000.0, nan=0.0, posinf=0.0, neginf=0.0)
-        depth_mm = np.clip(np.rint(millimetres), 0, 65535).astype(np.uint16)
+        # fixed range: 0 = no estimate, DISPLAY_MAX_DEPTH for it and beyond (+inf: too far)
+        far_mm = 1000.0 * DISPLAY_MAX_DEPTH
+        millimetres = np.nan_to_num(result.depth * 1000.0, nan=0.0, posinf=far_mm, neginf=0.0)
+        depth_mm = np.clip(np.rint(millimetres), 0, far_mm).astype(np.uint16)
         messages.append(
             (topics.depth_mm, rosmsg.image_message(depth_mm, stamp, frame_id, encoding="16UC1"))
         )

@@ -462,6 +462,7 @@ class FrameProcessor:
                         depth_std=_or(estimate.depth_std, unknown),
                         measurement_source=self.config.source.value,
                         counts=counts,
+                        min_disparity=estimate.min_disparity,
                     )
                 )
             start = stop

@@ -165,10 +165,14 @@ class DensifiedFrame(NamedTuple):
         disparities: (k,) float32 measured disparities (px).
         disparity: (H, W) float32 dense MAP disparity (px).
         disparity_std: (H, W) float32 posterior std of the disparity (px).
-        depth: (H, W) float32 depth (m), NaN where the disparity is not positive.
-        depth_std: (H, W) float32 posterior std of the depth (m), NaN where depth is.
+        depth: (H, W) float32 depth (m) with REP 118 ranges: ``+inf`` (farther than
+            measurable) where the disparity is below ``min_disparity``, NaN where there is
+            no estimate.
+        depth_std: (H, W) float32 posterior std of the depth (m), ``+inf`` where depth is.
         measurement_source: "stereo" (GFTT + SGBM) or "features" (a sparse stream).
         counts: named counts of the frame (corners, lookups rejected by reason, dropped).
+        min_disparity: the smallest disparity the estimate resolves (px); below it the
+            disparity is kept as estimated but is not valid (``DisparityImage``'s window).
     """
 
     frame: StereoFrame
@@ -180,3 +184,4 @@ class DensifiedFrame(NamedTuple):
     depth_std: npt.NDArray[np.float32]
     measurement_source: str
     counts: dict[str, int]
+    min_disparity: float = 0.0

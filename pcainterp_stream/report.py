@@ -114,6 +114,47 @@ class _Frame:
     right: npt.NDArray[Any] | None
     depth: npt.NDArray[np.float32] | None
     pose: npt.NDArray[np.float64] | None
+    min_disparity: float = 0.0
+
+
+@dataclass
+class RangeStats:
+    """How the REP 118 "farther than measurable" rule splits the counted pixels.
+
+    A pixel is too far for the estimate where its disparity is below the frame's
+    resolvable minimum (the ``DisparityImage``'s ``min_disparity``: depth ``+inf``), and
+    too far for the reference where the reference disparity is (sky included).
+    """
+
+    counted: int = 0
+    estimate_far: int = 0
+    reference_far: int = 0
+    both_far: int = 0
+
+    def add(
+        self,
+        estimate: npt.NDArray[np.float32],
+        reference: npt.NDArray[np.float64],
+        counted: npt.NDArray[np.bool_],
+        min_disparity: float,
+    ) -> None:
+        """Count one frame's pixels (``counted`` only)."""
+        with np.errstate(invalid="ignore"):
+            estimate_far = counted & (estimate < min_disparity)
+            reference_far = counted & (reference < min_disparity)
+        self.counted += int(counted.sum())
+        self.estimate_far += int(estimate_far.sum())
+        self.reference_far += int(reference_far.sum())
+        self.both_far += int((estimate_far & reference_far).sum())
+
+    def summary(self) -> dict[str, float]:
+        """Return the shares too far of the counted pixels, and the agreement of each side."""
+        return {
+            "estimate_far": self.estimate_far / max(self.counted, 1),
+            "reference_far": self.reference_far / max(self.counted, 1),
+            "estimate_far_reference_agrees": self.both_far / max(self.estimate_far, 1),
+            "reference_far_estimate_agrees": self.both_far / max(self.reference_far, 1),
+        }
 
 
 @dataclass
@@ -133,6 +174,7 @@ class Evaluation:
         points_per_frame: mean sparse points per frame.
         basis: description of the basis (None without one).
         seconds: wall time of the evaluation (s).
+        ranges: the REP 118 "too far" split of the estimate against the reference.
     """
 
     log: str
@@ -147,6 +189,7 @@ class Evaluation:
     points_per_frame: float = 0.0
     basis: dict[str, Any] | None = None
     seconds: float = 0.0
+    ranges: RangeStats = field(default_factory=RangeStats)
 
     def summary(self) -> dict[str, Any]:
         """Return every number as plain JSON-able data (means and the accumulated bins)."""
@@ -171,6 +214,10 @@ class Evaluation:
             "calibration": {
                 name: {"mean": stats.summary(), "accumulated": dataclasses.asdict(stats)}
                 for name, stats in self.calibration.items()
+            },
+            "ranges": {
+                "mean": self.ranges.summary(),
+                "accumulated": dataclasses.asdict(self.ranges),
             },
             "sweep_frames": self.sweep_frames,
             "sweep": {
@@ -260,6 +307,7 @@ def _frames(path: Path, topics: OutputTopics, max_frames: int | None) -> Iterato
                 right=None if right is None else rosmsg.image_array(right),
                 depth=None if depth is None else rosmsg.image_array(depth).astype(np.float32),
                 pose=None if pose is None else rosmsg.pose_matrix(pose),
+                min_disparity=float(parts[topics.disparity].min_disparity),
             )
             index += 1
             if max_frames is not None and index >= max_frames:
@@ -317,6 +365,10 @@ class _Evaluator:
         view = reference_view(reference, camera, transform)
         delta = self._stats("pca_map").add(frame.estimate, view, camera, transform)
         self._calibration("stored").add(frame.estimate, frame.std, view, delta)
+        if frame.min_disparity > 0:
+            self.result.ranges.add(
+                frame.estimate, view.disparity, view.counted, frame.min_disparity
+            )
         nn_stats, linear_stats = self._stats("nearest"), self._stats("linear")
         nn = _timed(nn_stats, lambda: nearest(frame.pixels, frame.disparities, image_size=size))
         nn_stats.add(nn.disparity, view, camera, transform)
@@ -525,6 +577,14 @@ def summary_table(result: Evaluation) -> str:
         lines.append(
             f"uncertainty {name:<7} inside +-1 sigma {_percent(c['coverage_1sigma'])}, "
             f"+-2 sigma {_percent(c['coverage_2sigma'])}, NLL {c['nll']:.2f}{timing}"
+        )
+    if result.ranges.counted:
+        r = result.ranges.summary()
+        lines.append(
+            f"too far (depth +inf): estimate {_percent(r['estimate_far'])} of pixels "
+            f"({_percent(r['estimate_far_reference_agrees'])} far in the reference too), "
+            f"reference {_percent(r['reference_far'])} "
+            f"({_percent(r['reference_far_estimate_agrees'])} found)"
         )
     return "\n".join(lines)
 

@@ -5,8 +5,10 @@ Entity layout (one time line, ``stamp``, the left image's header stamp):
 - ``camera``: the left camera's ``Pinhole`` (image plane, focal length, principal point);
 - ``camera/image``: the left image;
 - ``camera/features``: the sparse measurements, coloured by disparity;
-- ``camera/depth``: the dense depth (``DepthImage``, metres, turbo colour map);
-- ``depth_std``: the posterior depth std (m) as a second depth image, so it gets its own view.
+- ``camera/depth``: the dense depth (``DepthImage``, metres, turbo colour map over the fixed
+  range 0 to :data:`~pcainterp_stream.defaults.DISPLAY_MAX_DEPTH`; ``+inf`` = too far);
+- ``depth_std``: the posterior depth std (m) as a second depth image, so it gets its own view
+  (viridis, 0 to :data:`~pcainterp_stream.defaults.DISPLAY_MAX_DEPTH_STD`).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from types import TracebackType
 import numpy as np
 import rerun as rr
 
+from pcainterp_stream.defaults import DISPLAY_MAX_DEPTH, DISPLAY_MAX_DEPTH_STD
 from pcainterp_stream.errors import LogWriteError
 from pcainterp_stream.records import DensifiedFrame
 
@@ -101,7 +104,12 @@ class RerunSink:
             )
             self._camera_logged = key
         recording.log("camera/image", rr.Image(frame.left))
-        recording.log("camera/depth", rr.DepthImage(result.depth, meter=1.0, colormap="turbo"))
+        recording.log(
+            "camera/depth",
+            rr.DepthImage(
+                result.depth, meter=1.0, colormap="turbo", depth_range=(0.0, DISPLAY_MAX_DEPTH)
+            ),
+        )
         disparities = result.disparities
         if disparities.size:
             span = float(np.ptp(disparities)) or 1.0
@@ -112,4 +120,12 @@ class RerunSink:
         else:
             colors = np.zeros((0, 3), dtype=np.uint8)
         recording.log("camera/features", rr.Points2D(result.pixels, radii=2.0, colors=colors))
-        recording.log("depth_std", rr.DepthImage(result.depth_std, meter=1.0, colormap="viridis"))
+        recording.log(
+            "depth_std",
+            rr.DepthImage(
+                result.depth_std,
+                meter=1.0,
+                colormap="viridis",
+                depth_range=(0.0, DISPLAY_MAX_DEPTH_STD),
+            ),
+        )

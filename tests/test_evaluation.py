@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from hypothesis_profiles import examples
 
 from pcainterp_stream import cli, jobs
 from pcainterp_stream.basis import Basis
@@ -47,7 +48,7 @@ def _scene(seed: int) -> np.ndarray:
 # ----------------------------------------------------------------------------- maths
 
 
-@settings(max_examples=20, deadline=None)
+@settings(max_examples=examples(20), deadline=None)
 @given(seed=st.integers(0, 1000), forward=st.floats(0.0, 1.5), yaw=st.floats(-0.05, 0.05))
 def test_delta_2d_is_zero_when_estimate_is_reference(seed: int, forward: float, yaw: float) -> None:
     reference = _scene(seed)

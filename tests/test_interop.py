@@ -36,6 +36,7 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 
 from pcainterp_stream import cli
+from pcainterp_stream.defaults import DISPLAY_MAX_DEPTH
 
 JS_DIR = Path(__file__).parent / "js"
 FRAMES = 3
@@ -311,7 +312,11 @@ def test_js_decodes_every_output_message(js_output: dict[str, Any], outputs: lis
 
 @pytest.mark.slow  # npm ci on the first run, then node
 def test_js_values_are_consistent_across_channels(js_output: dict[str, Any]) -> None:
-    """Depth = f*t / disparity, NaN where disparity <= 0; the 16UC1 copy is rounded mm."""
+    """Depth = f*t / disparity, +inf below the resolvable disparity (REP 118 "too far").
+
+    The disparity image's valid window starts at that disparity (> 0); the 16UC1 copy is
+    rounded mm over the fixed display range, too far at its end.
+    """
     by_topic: dict[str, list[dict[str, Any]]] = defaultdict(list)
     for item in js_output["indexed"]["messages"]:
         by_topic[item["topic"]].append(item["message"])
@@ -321,15 +326,24 @@ def test_js_values_are_consistent_across_channels(js_output: dict[str, Any]) -> 
         depth = floats(by_topic["/pcainterp/depth"][frame]["values"])
         depth_std = floats(by_topic["/pcainterp/depth_std"][frame]["values"])
         depth_mm = floats(by_topic["/pcainterp/depth_mm"][frame]["values"])
-        invalid = np.isnan(depth)
-        assert invalid.any(), "the synthetic sky should leave some depth NaN"
-        np.testing.assert_array_equal(invalid, ~(disparity > 0))
-        np.testing.assert_array_equal(np.isnan(depth_std), invalid)
+        min_disparity = disparity_message["min_disparity"]
+        assert min_disparity > 0
+        assert disparity_message["max_disparity"] >= min_disparity
+        too_far = np.isposinf(depth)
+        assert too_far.any(), "the synthetic sky should be farther than measurable"
+        assert (~too_far).any()
+        assert not np.isnan(depth).any(), "every pixel has an estimate"
+        np.testing.assert_array_equal(too_far, ~(disparity >= min_disparity))
+        np.testing.assert_array_equal(np.isposinf(depth_std), too_far)
+        assert np.isfinite(depth_std[~too_far]).all()
         focal_baseline = disparity_message["f"] * disparity_message["t"]
-        np.testing.assert_allclose(depth[~invalid], focal_baseline / disparity[~invalid], rtol=1e-5)
-        assert np.all(depth_mm[invalid] == 0)
-        expected_mm = np.clip(np.rint(depth[~invalid] * 1000), 0, 65535)
-        np.testing.assert_allclose(depth_mm[~invalid], expected_mm, atol=1)
+        resolved = depth[~too_far]
+        np.testing.assert_allclose(resolved, focal_baseline / disparity[~too_far], rtol=1e-5)
+        assert resolved.max() <= focal_baseline / min_disparity * (1 + 1e-6)
+        far_mm = 1000 * DISPLAY_MAX_DEPTH
+        assert np.all(depth_mm[too_far] == far_mm)
+        expected_mm = np.minimum(np.rint(resolved * 1000), far_mm)
+        np.testing.assert_allclose(depth_mm[~too_far], expected_mm, atol=1)
         camera = by_topic["/pcainterp/camera_info"][frame]
         assert disparity_message["f"] == pytest.approx(camera["k"][0], rel=1e-6)
         points = {

@@ -54,7 +54,7 @@ TOLERANCE: dict[str, Any] = {
         "mean_std_abs grey levels, quantiles within quantile_abs levels, rounded sum within "
         "sum_rel of the expected sum. Float images (32FC1, metres): mean, std, quantiles "
         "and rounded sum within rel (relative) or abs (absolute), whichever is larger; "
-        "NaN counts within nan_fraction of the pixel count. Camera infos and poses: "
+        "NaN and inf counts within nan_fraction of the pixel count. Camera infos and poses: "
         "every number within numbers_abs. Times, counts, topics, types and encodings: exact."
     ),
     "uint8": {"mean_std_abs": 0.5, "quantile_abs": 2.0, "sum_rel": 0.005},
@@ -64,13 +64,14 @@ TOLERANCE: dict[str, Any] = {
 
 
 def _array_stats(values: npt.NDArray[np.generic]) -> dict[str, Any]:
-    """Statistics of an image: dtype, shape, NaN count, and over finite values mean etc."""
+    """Statistics of an image: dtype, shape, NaN and inf counts, over finite values mean etc."""
     data = np.asarray(values, dtype=np.float64)
     finite = data[np.isfinite(data)]
     stats: dict[str, Any] = {
         "dtype": str(values.dtype),
         "shape": list(values.shape),
         "nan_count": int(np.isnan(data).sum()),
+        "inf_count": int(np.isinf(data).sum()),
     }
     if finite.size:
         stats.update(
@@ -185,11 +186,12 @@ def _compare_stats(
             )
         ]
         nan_limit = limits["nan_fraction"] * pixels
-    if abs(expected["nan_count"] - actual["nan_count"]) > nan_limit:
-        problems.append(
-            f"{where}: {actual['nan_count']} NaN pixels, expected {expected['nan_count']} "
-            f"+- {nan_limit:.0f}"
-        )
+    for count, name in (("nan_count", "NaN"), ("inf_count", "inf")):
+        if count in expected and abs(expected[count] - actual.get(count, 0)) > nan_limit:
+            problems.append(
+                f"{where}: {actual.get(count, 0)} {name} pixels, expected {expected[count]} "
+                f"+- {nan_limit:.0f}"
+            )
     for name, want, have, rel, abs_ in checks:
         if want is None or have is None:
             if want != have:
