@@ -6,17 +6,16 @@ Component Analysis" (IEEE IV 2017); see ``DESIGN.md`` for the maths and the cont
 
 from __future__ import annotations
 
-__version__ = "0.1.0"
-
-from pcainterp_stream.basis import Basis
-from pcainterp_stream.estimator import (
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.estimator import (
     DensifyResult,
     SolveForm,
     Uncertainty,
     densify,
     densify_batch,
 )
-from pcainterp_stream.learning import LearnMethod, learn_basis, preprocess_disparity
+from pcainterp_stream.estimate.learning import LearnMethod, learn_basis, preprocess_disparity
+from pcainterp_stream.version import __version__
 
 __all__ = [
     "Basis",

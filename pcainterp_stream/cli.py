@@ -1,20 +1,30 @@
 """The ``pcainterp`` command line.
 
-Parsing and error reporting only; the work is done by :mod:`pcainterp_stream.jobs`, which
+Parsing and error reporting only; the work is done by :mod:`pcainterp_stream.pipeline.jobs`, which
 is imported lazily so that ``--help`` stays fast.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import signal
 import sys
 import threading
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from types import FrameType
+from typing import TYPE_CHECKING, Any
 
-from pcainterp_stream import __version__, defaults
+from pcainterp_stream import defaults
+from pcainterp_stream.version import __version__
+
+if TYPE_CHECKING:
+    from pcainterp_stream.frontend.pairing import PairingConfig
+    from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig
+    from pcainterp_stream.io.logwriter import WriteSummary
+    from pcainterp_stream.pipeline.processor import ProcessorConfig
 from pcainterp_stream.errors import PcaInterpError
 
 PROG = "pcainterp"
@@ -29,9 +39,7 @@ def _add_topic_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--left-topic", default="/stereo/left/image_rect", metavar="TOPIC")
     group.add_argument("--right-topic", default="/stereo/right/image_rect", metavar="TOPIC")
     group.add_argument("--left-info-topic", default="/stereo/left/camera_info", metavar="TOPIC")
-    group.add_argument(
-        "--right-info-topic", default="/stereo/right/camera_info", metavar="TOPIC"
-    )
+    group.add_argument("--right-info-topic", default="/stereo/right/camera_info", metavar="TOPIC")
     group.add_argument(
         "--baseline",
         type=float,
@@ -257,7 +265,12 @@ def build_parser() -> argparse.ArgumentParser:
         "(the basis's fitted value, else 2 px; default)",
     )
     estimate.add_argument(
-        "--uncertainty", choices=["exact", "paper", "none"], default="exact"
+        "--uncertainty",
+        choices=["exact-coarse", "exact", "paper", "none"],
+        default="exact-coarse",
+        help="posterior std: 'exact-coarse' = exact on a grid 1/16 of the image, resampled "
+        "(default); 'exact' = exact at every pixel (seconds per KITTI-size frame); 'paper' = "
+        "the paper's diagonal approximation; 'none' (docs/estimator.md)",
     )
     estimate.add_argument(
         "--prior",
@@ -340,26 +353,40 @@ def build_parser() -> argparse.ArgumentParser:
     )
     evaluate.add_argument("input", type=Path, metavar="DENSIFIED.mcap")
     evaluate.add_argument(
-        "-o", "--output", type=Path, default=None, metavar="REPORT_DIR",
+        "-o",
+        "--output",
+        type=Path,
+        default=None,
+        metavar="REPORT_DIR",
         help="report folder (default: DENSIFIED_report beside the log)",
     )
     evaluate.add_argument(
-        "--basis", type=Path, default=None, metavar="BASIS.npz",
+        "--basis",
+        type=Path,
+        default=None,
+        metavar="BASIS.npz",
         help="the basis the log was densified with (oracle, uncertainty kinds, points sweep)",
     )
     evaluate.add_argument(
-        "--mode", choices=["stereo", "temporal"], default=None,
+        "--mode",
+        choices=["stereo", "temporal"],
+        default=None,
         help="view B: right camera (stereo) or next frame (temporal; needs poses); "
         "default temporal when the log has ground truth and poses",
     )
     evaluate.add_argument("--sigma", type=float, default=2.0, metavar="PX")
     evaluate.add_argument(
-        "--sweep-every", type=int, default=10, metavar="N",
+        "--sweep-every",
+        type=int,
+        default=10,
+        metavar="N",
         help="points sweep on every N-th frame, 0 = off (default: %(default)s)",
     )
     evaluate.add_argument("--max-frames", type=int, default=None, metavar="N")
     evaluate.add_argument(
-        "--output-prefix", default="/pcainterp", metavar="PREFIX",
+        "--output-prefix",
+        default="/pcainterp",
+        metavar="PREFIX",
         help="prefix of the densified topics (default: %(default)s)",
     )
 
@@ -386,6 +413,307 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# ----------------------------------------------------------------------------- dispatch
+# Configs are built and jobs called here; the heavy modules load only when a command runs,
+# so --help stays fast.
+
+
+def _sgbm_config(args: argparse.Namespace) -> SgbmConfig:
+    from pcainterp_stream.frontend.stereo import SgbmConfig, SgbmMode
+
+    changes: dict[str, Any] = {}
+    if args.num_disparities is not None:
+        if args.num_disparities < 16 or args.num_disparities % 16:
+            raise PcaInterpError(
+                f"--num-disparities must be a positive multiple of 16, got {args.num_disparities}"
+            )
+        changes["num_disparities"] = args.num_disparities
+    if args.block_size is not None:
+        if args.block_size < 1 or args.block_size % 2 == 0:
+            raise PcaInterpError(f"--block-size must be odd and positive, got {args.block_size}")
+        changes["block_size"] = args.block_size
+    if args.sgbm_mode is not None:
+        changes["mode"] = SgbmMode[args.sgbm_mode.upper()]
+    if args.stereo_downscale is not None:
+        changes["downscale"] = args.stereo_downscale
+    return dataclasses.replace(SgbmConfig(), **changes)
+
+
+def _gftt_config(args: argparse.Namespace) -> GfttConfig:
+    from pcainterp_stream.frontend.stereo import GfttConfig
+
+    changes: dict[str, Any] = {}
+    if args.corners is not None:
+        if args.corners < 1:
+            raise PcaInterpError(f"--corners must be at least 1, got {args.corners}")
+        changes["max_corners"] = args.corners
+    if args.quality is not None:
+        if not 0 < args.quality < 1:
+            raise PcaInterpError(f"--quality must be in (0, 1), got {args.quality}")
+        changes["quality_level"] = args.quality
+    if args.min_distance is not None:
+        if not args.min_distance >= 0:
+            raise PcaInterpError(f"--min-distance must be >= 0 px, got {args.min_distance}")
+        changes["min_distance"] = args.min_distance
+    return dataclasses.replace(GfttConfig(), **changes)
+
+
+def _pairing_config(args: argparse.Namespace, features_topic: str | None = None) -> PairingConfig:
+    from pcainterp_stream.frontend.pairing import PairingConfig
+
+    if args.left_topic == args.right_topic:
+        raise PcaInterpError(
+            f"--left-topic and --right-topic are both {args.left_topic}; a stereo pair needs the "
+            "images of two cameras: pass the right camera's topic as --right-topic"
+        )
+    if not 0 <= args.stamp_tolerance_ms < float("inf"):
+        raise PcaInterpError(f"--stamp-tolerance-ms must be >= 0, got {args.stamp_tolerance_ms}")
+    if args.baseline is not None and not 0 < args.baseline < float("inf"):
+        raise PcaInterpError(f"--baseline must be a finite number > 0 m, got {args.baseline}")
+    return PairingConfig(
+        left_topic=args.left_topic,
+        right_topic=args.right_topic,
+        left_info_topic=args.left_info_topic,
+        right_info_topic=args.right_info_topic,
+        features_topic=features_topic,
+        tolerance_ns=round(args.stamp_tolerance_ms * 1e6),
+        baseline=args.baseline,
+    )
+
+
+def _sigma_option(value: str) -> float | str:
+    if value in ("auto", "evidence"):
+        return value
+    try:
+        sigma = float(value)
+    except ValueError:
+        sigma = float("nan")
+    if not 0 < sigma < float("inf"):
+        raise PcaInterpError(f"--sigma must be a number > 0 px, 'evidence' or 'auto', got {value}")
+    return sigma
+
+
+def _check_estimate(processor: ProcessorConfig, basis_path: Path) -> None:
+    """Refuse estimate options that do not fit the basis, before any work is done."""
+    from pcainterp_stream.estimate.basis import Basis
+
+    if (processor.prior == "paper" and not processor.temporal) or not basis_path.is_file():
+        return  # a missing basis is reported where it is loaded
+    from pcainterp_stream.pipeline.processor import resolve_settings
+
+    try:
+        settings = resolve_settings(Basis.load(basis_path), processor)
+    except ValueError as err:
+        raise PcaInterpError(f"--prior {processor.prior} with {basis_path}: {err}") from err
+    if processor.uncertainty == "paper" and (settings.local_prior or processor.temporal):
+        raise PcaInterpError(
+            "--uncertainty paper is the paper's diagonal approximation of its own prior, but "
+            f"{basis_path} has a fitted local prior or --temporal is on; pass --prior paper "
+            "--no-temporal with it, or use --uncertainty exact"
+        )
+
+
+def _print_written(summary: WriteSummary) -> None:
+    from pcainterp_stream.pipeline.common import _echo
+
+    duration = ((summary.end_ns or 0) - (summary.start_ns or 0)) / 1e9
+    _echo(f"wrote {summary.path}: {summary.message_count} messages, {duration:.1f} s of log")
+
+
+def _densify_many(args: argparse.Namespace, processor: ProcessorConfig) -> int:
+    """Densify several logs into ``--out-dir`` on Dask; exit code 1 if any log failed."""
+    from pcainterp_stream.io.outputs import OutputTopics
+    from pcainterp_stream.pipeline import distributed
+    from pcainterp_stream.pipeline.common import _echo
+
+    if args.rrd is not None or args.rerun:
+        raise PcaInterpError("--rrd/--rerun take one log; use -o OUTPUT without --out-dir")
+    if args.workers is not None and args.workers < 1:
+        raise PcaInterpError(f"--workers must be at least 1, got {args.workers}")
+    if not args.basis.exists():
+        raise PcaInterpError(f"basis {args.basis} does not exist; learn one with pcainterp learn")
+    started = time.perf_counter()
+    with distributed.connect(args.scheduler, args.workers) as client:
+        outcomes = distributed.densify_many(
+            [path.resolve() for path in args.input],  # workers may run in another folder
+            args.out_dir.resolve(),
+            args.basis.resolve(),
+            client,
+            pairing=_pairing_config(args, args.features_topic),
+            processor=processor,
+            topics=OutputTopics.with_prefix(args.output_prefix, depth_mm=args.depth_mm),
+        )
+    failed = 0
+    for outcome in outcomes:
+        if outcome.error is None:
+            _echo(f"densified {outcome.frames} frames of {outcome.input} -> {outcome.output}")
+        else:
+            failed += 1
+            error = outcome.error
+            if outcome.input.name not in error:
+                error = f"{outcome.input}: {error}"
+            print(f"pcainterp: error: {error}", file=sys.stderr)
+    frames = sum(outcome.frames for outcome in outcomes)
+    _echo(
+        f"{len(outcomes) - failed} of {len(outcomes)} logs densified, {frames} frames in "
+        f"{time.perf_counter() - started:.1f} s"
+    )
+    return 1 if failed else 0
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the job a parsed command line asks for; return the exit code."""
+    from pcainterp_stream.io.outputs import OutputTopics
+    from pcainterp_stream.pipeline.common import _echo
+    from pcainterp_stream.pipeline.densify import densify
+    from pcainterp_stream.pipeline.jobs import (
+        demo,
+        describe_basis,
+        evaluate,
+        import_kitti,
+        info,
+        synth,
+    )
+    from pcainterp_stream.pipeline.learn import LearnOptions, learn
+    from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
+
+    command = args.command
+    if command == "synth":
+        _print_written(
+            synth(args.out, frames=args.frames, seed=args.seed, scale=args.scale, fmt=args.format)
+        )
+    elif command == "import-kitti":
+        _print_written(import_kitti(args.kitti_dir, args.out, max_frames=args.max_frames))
+    elif command == "learn":
+        if args.components is not None and args.components < 1:
+            raise PcaInterpError(f"--components must be at least 1, got {args.components}")
+        if args.variance is not None and not 0 < args.variance <= 1:  # also refuses nan
+            raise PcaInterpError(f"--variance must be in (0, 1], got {args.variance}")
+        if args.grid_scale is not None and not 0 < args.grid_scale <= 1:
+            raise PcaInterpError(f"--grid-scale must be in (0, 1], got {args.grid_scale}")
+        options = LearnOptions(
+            n_components=args.components or 500,
+            variance=args.variance,
+            grid_scale=args.grid_scale or 0.25,
+            depth_topic=args.depth_topic,
+            every=args.every,
+            sgbm=_sgbm_config(args),
+            fit_prior=args.fit_prior or bool(args.fit_logs),
+            holdout=args.holdout,
+            fit_logs=tuple(args.fit_logs),
+        )
+        if args.workers is not None and args.workers < 1:
+            raise PcaInterpError(f"--workers must be at least 1, got {args.workers}")
+        if options.fit_prior and (args.scheduler is not None or args.workers is not None):
+            raise PcaInterpError(
+                "--fit-prior runs in this process; learn on the cluster without it, or drop "
+                "--scheduler/--workers"
+            )
+        if args.scheduler is not None or args.workers is not None:
+            from pcainterp_stream.pipeline import distributed
+
+            with distributed.connect(args.scheduler, args.workers) as client:
+                basis = distributed.learn_distributed(
+                    [log.resolve() for log in args.logs],
+                    args.output,
+                    options,
+                    _pairing_config(args),
+                    client,
+                )
+        else:
+            basis = learn(args.logs, args.output, options, _pairing_config(args))
+        _echo(f"wrote {args.output}")
+        _echo(describe_basis(args.output))
+        del basis
+    elif command == "densify":
+        source = MeasurementSource.FEATURES if args.features_topic else MeasurementSource.STEREO
+        if args.process_noise is not None and not 0 < args.process_noise < float("inf"):
+            raise PcaInterpError(f"--process-noise must be > 0, got {args.process_noise}")
+        if args.carry_frames < 0:
+            raise PcaInterpError(f"--carry-frames must be >= 0, got {args.carry_frames}")
+        processor = ProcessorConfig(
+            gftt=_gftt_config(args),
+            sgbm=_sgbm_config(args),
+            sigma=_sigma_option(args.sigma),
+            uncertainty=args.uncertainty,
+            prior=args.prior,
+            robust=args.robust,
+            temporal=args.temporal,
+            process_noise=args.process_noise,
+            carry=dataclasses.replace(ProcessorConfig().carry, frames=args.carry_frames),
+            calibrate=args.calibrate,
+            source=source,
+        )
+        _check_estimate(processor, args.basis)
+        if args.out_dir is not None:
+            return _densify_many(args, processor)
+        if len(args.input) > 1:
+            raise PcaInterpError(
+                f"-o takes one input but {len(args.input)} were given; "
+                "pass --out-dir DIR to densify several logs"
+            )
+        if args.scheduler is not None or args.workers is not None:
+            raise PcaInterpError("--scheduler/--workers need --out-dir DIR instead of -o")
+        summary = densify(
+            args.input[0],
+            args.output,
+            args.basis,
+            pairing=_pairing_config(args, args.features_topic),
+            processor=processor,
+            topics=OutputTopics.with_prefix(args.output_prefix, depth_mm=args.depth_mm),
+            rrd=args.rrd,
+            spawn_viewer=args.rerun,
+        )
+        _echo(
+            f"densified {summary.frames} frames of {summary.input} in {summary.seconds:.1f} s "
+            f"({summary.frames_per_second:.1f} frames/s), "
+            f"{summary.measurements / max(summary.frames, 1):.0f} points per frame"
+        )
+        _echo(f"pairing: {summary.pairing.summary()}")
+        if processor.robust != "none":
+            _echo(
+                f"robust ({processor.robust}): {summary.downweighted} measurements down-weighted "
+                f"({summary.downweighted / max(summary.frames, 1):.1f} per frame, at most "
+                f"{summary.most_downweighted} in one frame)"
+            )
+        if processor.temporal:
+            _echo(f"temporal prior: reset {summary.temporal_resets} times (scene changes)")
+        if processor.carry.frames:
+            _echo(
+                f"carried from the {processor.carry.frames} previous frames: "
+                f"{summary.carried / max(summary.frames, 1):.0f} points per frame; "
+                f"ego-motion lost {summary.carry_resets} times"
+            )
+        for line in summary.damage:
+            _echo(f"damage: {line}")
+        for line in summary.warnings:
+            _echo(f"warning: {line}")
+        if summary.written is not None:
+            _print_written(summary.written)
+        if args.rrd is not None:
+            _echo(f"wrote {args.rrd}")
+    elif command == "evaluate":
+        folder, table = evaluate(
+            args.input,
+            args.output,
+            basis=args.basis,
+            mode=args.mode,
+            sigma=args.sigma,
+            sweep_every=args.sweep_every,
+            max_frames=args.max_frames,
+            topics=OutputTopics.with_prefix(args.output_prefix),
+        )
+        _echo(table)
+        _echo(f"wrote {folder}/results.md, results.json and figures")
+    elif command == "info":
+        _echo(info(args.file))
+    elif command == "demo":
+        _echo(demo(args.out, spawn_viewer=args.rerun))
+    else:  # pragma: no cover - argparse rejects unknown commands
+        raise PcaInterpError(f"unknown command {command}")
+    return 0
+
+
 def _raise_keyboard_interrupt(signum: int, frame: FrameType | None) -> None:
     raise KeyboardInterrupt
 
@@ -399,9 +727,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     in_main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _raise_keyboard_interrupt) if in_main_thread else None
     try:
-        from pcainterp_stream import jobs
-
-        return jobs.run(args)
+        return run(args)
     except PcaInterpError as err:
         print(f"{PROG}: error: {err}", file=sys.stderr)
         return 2

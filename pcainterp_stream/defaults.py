@@ -14,7 +14,7 @@ TEMPORAL = False
 
 CARRY_FRAMES = 4
 """Earlier frames whose measurements ``densify`` carries into each frame (``--carry-frames``;
-0: off), moved by the visual odometry of :mod:`pcainterp_stream.motion`."""
+0: off), moved by the visual odometry of :mod:`pcainterp_stream.frontend.motion`."""
 
 CARRY_GAP = 30.0
 """A carried measurement within this distance (px) of one already used is dropped."""

@@ -3,7 +3,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pcainterp_stream.baselines import linear, nearest
+from pcainterp_stream.estimate.baselines import linear, nearest
 
 
 def test_linear_reproduces_a_plane_inside_hull() -> None:
@@ -45,7 +45,7 @@ def test_baselines_validate_shapes() -> None:
 def test_linear_matches_scipy_linear_nd_interpolator_inside_the_hull() -> None:
     from scipy.interpolate import LinearNDInterpolator
 
-    from pcainterp_stream.baselines import linear
+    from pcainterp_stream.estimate.baselines import linear
 
     rng = np.random.default_rng(3)
     height, width = 90, 300

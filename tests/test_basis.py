@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from pcainterp_stream.basis import (
+from pcainterp_stream.estimate.basis import (
     FORMAT,
     Basis,
     bilinear_weights,

@@ -24,12 +24,16 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from pcainterp_stream import cli, logwriter, rosmsg
-from pcainterp_stream.basis import Basis
-from pcainterp_stream.jobs import LearnOptions, learn, synth
-from pcainterp_stream.logreader import open_log
-from pcainterp_stream.logwriter import open_writer
-from pcainterp_stream.pairing import PairingConfig
+from pcainterp_stream import cli
+
+from pcainterp_stream.io import logwriter
+
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.pipeline.jobs import LearnOptions, learn, synth
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.logwriter import open_writer
+from pcainterp_stream.frontend.pairing import PairingConfig
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 needs_realdata = pytest.mark.skipif(

@@ -11,10 +11,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis_profiles import examples
 
-from pcainterp_stream import cli, jobs
-from pcainterp_stream.basis import Basis
+from pcainterp_stream import cli
+
+from pcainterp_stream.pipeline import jobs
+from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.errors import LogReadError
-from pcainterp_stream.evaluation import (
+from pcainterp_stream.evaluate.metrics import (
     CalibrationStats,
     MethodStats,
     Mode,
@@ -27,10 +29,10 @@ from pcainterp_stream.evaluation import (
     relative_transform,
     stereo_transform,
 )
-from pcainterp_stream.learning import preprocess_disparity
-from pcainterp_stream.pairing import PairingConfig
+from pcainterp_stream.estimate.learning import preprocess_disparity
+from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.records import StereoCamera
-from pcainterp_stream.report import EvaluateOptions, evaluate_log
+from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log
 
 CAMERA = StereoCamera(width=80, height=40, fx=60.0, fy=60.0, cx=39.5, cy=19.5, baseline=0.5)
 

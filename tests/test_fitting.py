@@ -8,17 +8,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pcainterp_stream import jobs
-from pcainterp_stream.basis import Basis
+from pcainterp_stream.pipeline import jobs
+from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.cli import main
-from pcainterp_stream.fitting import (
+from pcainterp_stream.estimate.fitting import (
     FitFrame,
     fit_local_prior,
     fit_process_noise,
     fit_std_scale,
 )
-from pcainterp_stream.pairing import PairingConfig
-from pcainterp_stream.prior import Kernel, LocalPrior
+from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.estimate.prior import Kernel, LocalPrior
 
 
 def _tiny_basis(n_components: int = 3) -> Basis:
@@ -187,7 +187,7 @@ def test_std_scale_multiplies_the_reported_std() -> None:
 
 
 def test_resolve_settings_calibrates_as_the_fit_did() -> None:
-    from pcainterp_stream.processor import ProcessorConfig, resolve_settings
+    from pcainterp_stream.pipeline.processor import ProcessorConfig, resolve_settings
 
     basis = _tiny_basis()
     fitted = {

@@ -29,10 +29,10 @@ import zstandard
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pcainterp_stream import logreader
+from pcainterp_stream.io import logreader, rosbags_reader
 from pcainterp_stream.errors import CalibrationError, LogReadError
-from pcainterp_stream.logreader import open_log
-from pcainterp_stream.pairing import iter_stereo_frames
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.frontend.pairing import iter_stereo_frames
 
 ROOT = Path(__file__).resolve().parents[1]
 REALDATA = ROOT.parent / "shared" / "realdata"
@@ -310,7 +310,7 @@ def test_rosbags_decompressors_do_not_allocate_stated_sizes() -> None:
     from rosbags.rosbag2 import storage_mcap
 
     records = b"x" * 4096
-    logreader._bound_rosbags_decompressors()
+    rosbags_reader._bound_rosbags_decompressors()
     lz4_claim = _lz4_frame(records, content_size=HUGE)
     zstd_claim = _zstd_frame(records, content_size=HUGE)
     tracemalloc.start()

@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 from types import ModuleType
 
-from pcainterp_stream.jobs import densify
+from pcainterp_stream.pipeline.jobs import densify
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data"

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from pcainterp_stream.records import StereoCamera, SynthFrame
-from pcainterp_stream.synthlog import write_synthetic_log
+from pcainterp_stream.synth.log import write_synthetic_log
 
 ROOT = Path(__file__).resolve().parents[1]
 GOLDEN_LOG = ROOT / "tests" / "data" / "golden_synth.mcap"

@@ -8,14 +8,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pcainterp_stream import jobs, rosmsg
-from pcainterp_stream.basis import Basis
-from pcainterp_stream.estimator import densify
-from pcainterp_stream.evaluation import compare_with_ground_truth
-from pcainterp_stream.logreader import open_log
-from pcainterp_stream.logwriter import LogFormat, open_writer
-from pcainterp_stream.pairing import PairingConfig
-from pcainterp_stream.processor import MeasurementSource, ProcessorConfig
+from pcainterp_stream.pipeline import jobs
+
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.estimator import densify
+from pcainterp_stream.evaluate.metrics import compare_with_ground_truth
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.logwriter import LogFormat, open_writer
+from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 KITTI_RAW = REALDATA / "kitti_raw" / "2011_09_26"

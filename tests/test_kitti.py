@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 
-from pcainterp_stream import rosmsg
+from pcainterp_stream.io import rosmsg
 from pcainterp_stream.errors import DatasetImportError
-from pcainterp_stream.kitti import KittiLayout, import_kitti, iter_frames, open_kitti
-from pcainterp_stream.logwriter import LogFormat
+from pcainterp_stream.io.kitti import KittiLayout, import_kitti, iter_frames, open_kitti
+from pcainterp_stream.io.logwriter import LogFormat
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 RAW_DRIVE = REALDATA / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0001_sync"

@@ -7,7 +7,7 @@ import pytest
 import scipy.linalg
 from scipy import ndimage
 
-from pcainterp_stream.learning import learn_basis, preprocess_disparity
+from pcainterp_stream.estimate.learning import learn_basis, preprocess_disparity
 
 
 def planted(

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from mcap.writer import Writer
 
-from pcainterp_stream import rosmsg
+from pcainterp_stream.io import rosmsg
 from pcainterp_stream.errors import LogReadError
-from pcainterp_stream.loginfo import describe, format_info
-from pcainterp_stream.logreader import LogFormat
+from pcainterp_stream.io.loginfo import describe, format_info
+from pcainterp_stream.io.logreader import LogFormat
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 

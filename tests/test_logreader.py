@@ -10,9 +10,9 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from pcainterp_stream import rosmsg
+from pcainterp_stream.io import rosmsg
 from pcainterp_stream.errors import LogReadError, TopicNotFoundError
-from pcainterp_stream.logreader import LogFormat, decode_image, open_log, sniff_format
+from pcainterp_stream.io.logreader import LogFormat, decode_image, open_log, sniff_format
 from pcainterp_stream.records import StereoCamera
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
@@ -119,7 +119,7 @@ def test_mcap_topic_filter_reads_only_those(drive: tuple[Path, list[tuple[str, A
 
 
 def _write_with(tmp_path: Path, name: str, log_format: str) -> tuple[Path, list[Any]]:
-    from pcainterp_stream.logwriter import open_writer
+    from pcainterp_stream.io.logwriter import open_writer
 
     messages = frame_messages(3)
     path = tmp_path / name

@@ -9,9 +9,9 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 
-from pcainterp_stream import rosmsg
+from pcainterp_stream.io import rosmsg
 from pcainterp_stream.errors import LogWriteError
-from pcainterp_stream.logwriter import (
+from pcainterp_stream.io.logwriter import (
     LogFormat,
     format_from_path,
     open_writer,

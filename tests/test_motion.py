@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pcainterp_stream.motion import (
+from pcainterp_stream.frontend.motion import (
     CarriedPoints,
     CarryConfig,
     Motion,
@@ -14,7 +14,7 @@ from pcainterp_stream.motion import (
     project,
 )
 from pcainterp_stream.records import StereoCamera
-from pcainterp_stream.stereo import StereoFrontEnd
+from pcainterp_stream.frontend.stereo import StereoFrontEnd
 from pcainterp_stream.synth import SynthConfig, generate
 
 CAMERA = StereoCamera(width=200, height=100, fx=150.0, fy=150.0, cx=99.5, cy=49.5, baseline=0.5)

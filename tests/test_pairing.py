@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from mcap.writer import Writer
 
-from pcainterp_stream import rosmsg
+from pcainterp_stream.io import rosmsg
 from pcainterp_stream.errors import CalibrationError, LogReadError, TopicNotFoundError
-from pcainterp_stream.logreader import open_log
-from pcainterp_stream.pairing import (
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.frontend.pairing import (
     PairingConfig,
     StereoPairer,
     camera_from_infos,

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pcainterp_stream import Basis, DensifyResult, densify, densify_batch
-from pcainterp_stream.prior import (
+from pcainterp_stream.estimate.prior import (
     Kernel,
     LocalPrior,
     Robust,
@@ -420,18 +420,18 @@ def test_per_measurement_noise_validates(noise_std: np.ndarray, match: str) -> N
 def test_short_kernel_local_map_in_blocks_equals_the_full_product(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    from pcainterp_stream import estimator
+    from pcainterp_stream.estimate import solve
 
     rng = np.random.default_rng(9)
-    local = estimator._Local(
+    local = solve._Local(
         prior=LocalPrior(variance=2.0, length_scale=4.0, kernel=Kernel.GAUSSIAN),
         positions=rng.uniform([0.0, 0.0], [600.0, 200.0], (150, 2)),
         alpha=rng.normal(size=150),
         lower_inverse=None,
         prior_rows=None,
     )
-    blocked = estimator._local_mean(local, (100, 300), (200, 600), 1.0)
-    monkeypatch.setattr(estimator, "_LOCAL_BLOCKS", 1)
-    full = estimator._local_mean(local, (100, 300), (200, 600), 1.0)
+    blocked = solve._local_mean(local, (100, 300), (200, 600), 1.0)
+    monkeypatch.setattr(solve, "_LOCAL_BLOCKS", 1)
+    full = solve._local_mean(local, (100, 300), (200, 600), 1.0)
     assert np.abs(full).max() > 0.5
     np.testing.assert_allclose(blocked, full, atol=1e-6)

@@ -11,18 +11,20 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from pcainterp_stream import estimator, processor
-from pcainterp_stream.basis import Basis
-from pcainterp_stream.estimator import densify
-from pcainterp_stream.motion import CarryConfig
-from pcainterp_stream.processor import (
+from pcainterp_stream.estimate import estimator
+
+from pcainterp_stream.pipeline import processor
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.estimator import densify
+from pcainterp_stream.frontend.motion import CarryConfig
+from pcainterp_stream.pipeline.processor import (
     FrameProcessor,
     MeasurementSource,
     ProcessorConfig,
     features_to_measurements,
 )
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoCamera, StereoFrame
-from pcainterp_stream.stereo import SgbmConfig
+from pcainterp_stream.frontend.stereo import SgbmConfig
 
 HEIGHT, WIDTH = 94, 310  # a quarter of KITTI's 376 x 1241
 CAMERA = StereoCamera(

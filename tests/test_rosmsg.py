@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pcainterp_stream import rosmsg
+from pcainterp_stream.io import rosmsg
 
 
 def test_pointcloud2_is_dense_only_without_non_finite_values() -> None:

@@ -11,7 +11,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from pcainterp_stream.stereo import (
+from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     LookupMethod,
     SgbmConfig,

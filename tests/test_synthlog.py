@@ -8,10 +8,10 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 
-from pcainterp_stream import rosmsg
-from pcainterp_stream.logwriter import LogFormat
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.logwriter import LogFormat
 from pcainterp_stream.records import StereoCamera, SynthFrame
-from pcainterp_stream.synthlog import (
+from pcainterp_stream.synth.log import (
     DEPTH,
     LEFT_IMAGE,
     LEFT_INFO,

@@ -26,14 +26,14 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from pcainterp_stream.allocator import keep_freed_memory
-from pcainterp_stream.basis import Basis
-from pcainterp_stream.estimator import densify_batch
-from pcainterp_stream.logreader import open_log
-from pcainterp_stream.motion import CarriedPoints, Motion, estimate_motion
-from pcainterp_stream.pairing import PairingConfig, iter_stereo_frames
-from pcainterp_stream.prior import LocalPrior, TemporalPrior
-from pcainterp_stream.processor import ProcessorConfig, resolve_settings
-from pcainterp_stream.stereo import to_grey8
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.prior import LocalPrior, TemporalPrior
+from pcainterp_stream.estimate.estimator import densify_batch
+from pcainterp_stream.frontend.motion import CarriedPoints, Motion, estimate_motion
+from pcainterp_stream.frontend.pairing import PairingConfig, iter_stereo_frames
+from pcainterp_stream.frontend.stereo import to_grey8
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.pipeline.processor import ProcessorConfig, resolve_settings
 
 CONFIGS: dict[str, dict[str, object]] = {
     "plain (paper)": {},

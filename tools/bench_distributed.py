@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 from scipy.linalg import subspace_angles
 
-from pcainterp_stream import distributed, jobs
-from pcainterp_stream.pairing import PairingConfig
+from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.pipeline import distributed, jobs
 
 
 def _peak_rss_mb() -> float:

@@ -22,10 +22,10 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.baselines import linear, nearest
-from pcainterp_stream.basis import Basis, grid_size_for
-from pcainterp_stream.estimator import densify, densify_batch
-from pcainterp_stream.learning import learn_basis
+from pcainterp_stream.estimate.baselines import linear, nearest
+from pcainterp_stream.estimate.basis import Basis, grid_size_for
+from pcainterp_stream.estimate.learning import learn_basis
+from pcainterp_stream.estimate.estimator import densify, densify_batch
 
 FOCAL = 720.0
 BASELINE = 0.54

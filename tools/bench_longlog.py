@@ -141,7 +141,8 @@ def child(report: Path, argv: list[str]) -> int:
     Writes a JSON report: entry and exit times, frame times (CLOCK_MONOTONIC, s), CPU time
     inside ``cli.main`` (s), exit code and ``VmHWM`` (kB).
     """
-    from pcainterp_stream import cli, jobs
+    from pcainterp_stream import cli
+    from pcainterp_stream.pipeline import jobs
     from pcainterp_stream.records import DensifiedFrame
 
     frame_times: list[float] = []

@@ -38,18 +38,19 @@ from typing import Any
 import cv2
 import numpy as np
 
-from pcainterp_stream import jobs, logreader, logwriter, processor, rosmsg
 from pcainterp_stream.allocator import keep_freed_memory
-from pcainterp_stream.basis import Basis
-from pcainterp_stream.pairing import PairingConfig, StereoPairer
-from pcainterp_stream.records import StereoFrame
-from pcainterp_stream.stereo import (
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.frontend.pairing import PairingConfig, StereoPairer
+from pcainterp_stream.frontend.stereo import (
     SgbmConfig,
     StereoFrontEnd,
     compute_disparity,
     detect_corners,
     lookup_disparities,
 )
+from pcainterp_stream.io import logreader, logwriter, rosmsg
+from pcainterp_stream.pipeline import jobs, processor
+from pcainterp_stream.records import StereoFrame
 
 SECTIONS = ("sgbm", "job", "breakdown", "memory", "lookups")
 

@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.stereo import (
+from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     LookupConfig,
     LookupMethod,

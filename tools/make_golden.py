@@ -34,9 +34,9 @@ import numpy as np
 import numpy.typing as npt
 from mcap.reader import make_reader
 
-from pcainterp_stream import rosmsg
-from pcainterp_stream.logwriter import LogFormat
-from pcainterp_stream.synthlog import write_synthetic_log
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.logwriter import LogFormat
+from pcainterp_stream.synth.log import write_synthetic_log
 
 FORMAT = "pcainterp-golden/1"
 DATA_DIR = Path(__file__).resolve().parents[1] / "tests" / "data"
@@ -263,8 +263,8 @@ def render_golden(log_path: Path, *, seed: int, frames: int, scale: float) -> di
 
 def learn_golden_basis(basis_path: Path) -> None:
     """Learn the small basis the dense golden test uses, from a separate synthetic drive."""
-    from pcainterp_stream.jobs import LearnOptions, learn
-    from pcainterp_stream.pairing import PairingConfig
+    from pcainterp_stream.frontend.pairing import PairingConfig
+    from pcainterp_stream.pipeline.jobs import LearnOptions, learn
     from pcainterp_stream.synth import SynthConfig, generate
 
     with tempfile.TemporaryDirectory() as folder:
@@ -276,7 +276,7 @@ def learn_golden_basis(basis_path: Path) -> None:
 
 def densify_golden(log_path: Path, basis_path: Path, out_path: Path) -> dict[str, Any]:
     """Densify the golden log with the golden basis and return the output's summary (JSON)."""
-    from pcainterp_stream.jobs import densify
+    from pcainterp_stream.pipeline.jobs import densify
 
     densify(log_path, out_path, basis_path)
     return {

@@ -13,7 +13,7 @@ Stages, each cached in ``--work`` (an interrupted run resumes):
    process noise) fitted by the evidence on frames outside each basis.
 3. ``evaluate``: plain PCA-MAP, each addition alone, all together, nearest neighbour and
    linear on the held-out splits; mean Delta_2D (the paper's, via
-   ``pcainterp_stream.evaluation``), depth RMSE, +-2 sigma coverage, time per frame; the
+   ``pcainterp_stream.evaluate.metrics``), depth RMSE, +-2 sigma coverage, time per frame; the
    points sweep (50-800); the training-mix table. Writes ``results.json`` and
    ``results.md``.
 
@@ -44,11 +44,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream import jobs, rosmsg
-from pcainterp_stream.baselines import linear, nearest
-from pcainterp_stream.basis import Basis, grid_size_for
-from pcainterp_stream.estimator import densify_batch
-from pcainterp_stream.evaluation import (
+from pcainterp_stream.estimate.baselines import linear, nearest
+from pcainterp_stream.estimate.basis import Basis, grid_size_for
+from pcainterp_stream.estimate.fitting import CalibrationFrame, fit_frame, fit_prior
+from pcainterp_stream.estimate.learning import learn_basis, preprocess_disparity
+from pcainterp_stream.estimate.prior import LocalPrior, TemporalPrior
+from pcainterp_stream.estimate.estimator import densify_batch
+from pcainterp_stream.evaluate.metrics import (
     ReferenceView,
     calibration_sums,
     depth_errors,
@@ -59,21 +61,20 @@ from pcainterp_stream.evaluation import (
     relative_transform,
     stereo_transform,
 )
-from pcainterp_stream.fitting import CalibrationFrame, fit_frame, fit_prior
-from pcainterp_stream.learning import learn_basis, preprocess_disparity
-from pcainterp_stream.logreader import open_log
-from pcainterp_stream.motion import CarriedPoints, CarryConfig, Motion, estimate_motion
-from pcainterp_stream.pairing import PairingConfig, iter_stereo_frames
-from pcainterp_stream.prior import LocalPrior, TemporalPrior
-from pcainterp_stream.processor import EstimateSettings, ProcessorConfig, resolve_settings
-from pcainterp_stream.records import StereoCamera
-from pcainterp_stream.stereo import (
+from pcainterp_stream.frontend.motion import CarriedPoints, CarryConfig, Motion, estimate_motion
+from pcainterp_stream.frontend.pairing import PairingConfig, iter_stereo_frames
+from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     StereoFrontEnd,
     detect_corners,
     lookup_disparities,
     to_grey8,
 )
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.pipeline import jobs
+from pcainterp_stream.pipeline.processor import EstimateSettings, ProcessorConfig, resolve_settings
+from pcainterp_stream.records import StereoCamera
 from pcainterp_stream.synth import SynthConfig, camera_pose
 from pcainterp_stream.synth.render import render_view
 from pcainterp_stream.synth.world import World

@@ -30,12 +30,12 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream import jobs
-from pcainterp_stream.basis import grid_size_for
-from pcainterp_stream.learning import learn_basis, preprocess_disparity
-from pcainterp_stream.logreader import open_log
-from pcainterp_stream.pairing import PairingConfig, iter_stereo_frames
-from pcainterp_stream.stereo import SgbmConfig, compute_disparity
+from pcainterp_stream.estimate.basis import grid_size_for
+from pcainterp_stream.estimate.learning import learn_basis, preprocess_disparity
+from pcainterp_stream.frontend.pairing import PairingConfig, iter_stereo_frames
+from pcainterp_stream.frontend.stereo import SgbmConfig, compute_disparity
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.pipeline import jobs
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 KITTI_RAW = REALDATA / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0001_sync"
@@ -148,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
         if not kitti[name].is_file():
             jobs.import_kitti(folder, kitti[name], max_frames=None)
     if len(kitti) == 2:
-        from pcainterp_stream.basis import Basis
+        from pcainterp_stream.estimate.basis import Basis
 
         reference = Basis.load(basis_synth)
         grid_size = grid_size_for(reference.image_size, GRID_SCALE)

@@ -128,7 +128,7 @@ class LocalPrior:
         """Return the distance (px) beyond which a 1-D factor is at its clamp e^-40.
 
         Past it the factor is 4e-18 of its peak; a sum over measurements may leave such
-        terms out (:func:`estimator._local_mean` does, for short kernels).
+        terms out (:func:`solve._local_mean` does, for short kernels).
         """
         if self.kernel is Kernel.LAPLACE:
             return -_CLAMP_BELOW * self.length_scale

@@ -22,76 +22,62 @@ posterior variance of d_hat(x) is b(x)^T Sigma_y b(x):
     paper (eq. 15/16):       sum_i kappa_i^2 u_i(x)^2,  kappa_i^2 = [Sigma_y]_ii
 
 The small solves run in float64; the products with the basis (s rows) run in float32 BLAS,
-batched over frames. The variance may be evaluated on a grid coarser than the basis grid
-(``variance_stride``): it is exact at that grid's points and resampled bilinearly.
+batched over frames. Where the variance is evaluated (:class:`Uncertainty`): ``"exact"`` at
+every output pixel (the model's posterior variance there); ``"exact-coarse"`` (the default)
+and ``"paper"`` on a grid coarser than the basis grid (``variance_stride``), exact only at
+that grid's points, resampled bilinearly.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
-from enum import StrEnum
-from typing import Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.basis import (
+from pcainterp_stream.estimate.basis import (
     Basis,
-    VarianceGrid,
     bilinear_weights,
     image_to_grid,
     resample_grid,
     sample_rows,
 )
-from pcainterp_stream.prior import (
-    DOWNWEIGHTED_BELOW,
+from pcainterp_stream.estimate.prior import (
     LocalPrior,
     Model,
     Robust,
     TemporalPrior,
     covariance_scale,
-    evidence_sigma,
-    robust_weights,
+)
+from pcainterp_stream.estimate.solve import (
+    DEFAULT_SIGMA,
+    SolveForm,
+    _downweighted,
+    _local_mean,
+    _sigma,
+    _solve,
+    _solve_beyond,
+)
+from pcainterp_stream.estimate.variance import (
+    Uncertainty,
+    _pixel_variances,
+    _variance_stride,
+    _variances,
 )
 
-_Float = TypeVar("_Float", np.float32, np.float64)
-
-DEFAULT_SIGMA = 2.0
-"""Measurement noise std (px), the paper's value."""
-
-DEFAULT_VARIANCE_GRID_SCALE = 0.0625
-"""Automatic variance grid: the coarsest stride whose grid is still >= this scale of the image."""
-
-_VARIANCE_ROWS_PER_CHUNK = 512
-"""Rows of the stacked exact-variance factor multiplied at once (bounds memory to ~rows*s)."""
-
-_LOCAL_BLOCKS = 8
-"""Column blocks of the local map when the kernel's support is short (``_local_mean``)."""
-
-
-class Uncertainty(StrEnum):
-    """How the per-pixel posterior std is computed."""
-
-    NONE = "none"
-    """No uncertainty: ``disparity_std`` and ``depth_std`` are None."""
-    PAPER = "paper"
-    """The paper's diagonal approximation sum_i kappa_i^2 u_i(x)^2."""
-    EXACT = "exact"
-    """The true posterior variance diag(B Sigma_y B^T)."""
-
-
-class SolveForm(StrEnum):
-    """Which linear system computes the MAP estimate."""
-
-    AUTO = "auto"
-    """Measurement form when k < l, otherwise coefficient form."""
-    COEFFICIENT = "coefficient"
-    """l x l system (paper's form)."""
-    MEASUREMENT = "measurement"
-    """k x k system (Woodbury)."""
+__all__ = [
+    "DEFAULT_SIGMA",
+    "DensifyResult",
+    "SolveForm",
+    "Uncertainty",
+    "clean_measurements",
+    "densify",
+    "densify_batch",
+    "depth_from_disparity",
+    "posterior_covariance",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -153,45 +139,13 @@ class DensifyResult:
         return int(self.disparities.shape[0])
 
 
-@dataclass(frozen=True)
-class _Local:
-    """The local part of a hybrid-prior posterior: d_local(x) = c(x, P) alpha."""
-
-    prior: LocalPrior
-    positions: npt.NDArray[np.float64]  # (k, 2) (x, y) basis image px
-    alpha: npt.NDArray[np.float64]  # (k,) K^-1 innovation
-    lower_inverse: npt.NDArray[np.float32] | None  # (k, k) L^-1, for the exact variance
-    prior_rows: npt.NDArray[np.float32] | None  # (k, l) B~ P, for the exact variance
-    # bilinear grid indices and weights (k, 4) of the measurements: B~ = their mix of rows
-    indices: npt.NDArray[np.intp] | None = None
-    weights: npt.NDArray[np.float64] | None = None
-
-
-@dataclass(frozen=True)
-class _Posterior:
-    coefficients: npt.NDArray[np.float64]
-    coefficient_variance: npt.NDArray[np.float64]
-    # rows r with variance(x) = base(x) + sign * ||factor b(x)||^2; None unless exact
-    factor: npt.NDArray[np.float32] | None
-    subtract_from_prior: bool
-    solve_form: SolveForm
-    # beyond the paper (prior.py): base(x) = sum_i p_i u_i(x)^2 when the prior variances
-    # p are not Lambda (temporal), the local part, the noise used and the robust weights
-    prior_diagonal: npt.NDArray[np.float64] | None = None
-    local: _Local | None = None
-    sigma: float = DEFAULT_SIGMA
-    weights: npt.NDArray[np.float64] | None = None
-    normalised_innovation: float = 0.0
-    temporal: str = "static"
-
-
 def densify(
     basis: Basis,
     pixels: npt.ArrayLike,
     disparities: npt.ArrayLike,
     *,
     sigma: float | str = DEFAULT_SIGMA,
-    uncertainty: Uncertainty | str = Uncertainty.EXACT,
+    uncertainty: Uncertainty | str = Uncertainty.EXACT_COARSE,
     solve_form: SolveForm | str = SolveForm.AUTO,
     focal_baseline: float | None = None,
     image_size: tuple[int, int] | None = None,
@@ -212,16 +166,19 @@ def densify(
         disparities: (k,) float, measured disparities (px) of the output camera.
         sigma: measurement noise std (px), > 0, or ``"evidence"``: fitted per frame by
             maximising the marginal likelihood (:func:`prior.evidence_sigma`).
-        uncertainty: ``"exact"``, ``"paper"`` or ``"none"`` (see :class:`Uncertainty`).
+        uncertainty: ``"exact-coarse"`` (exact on the variance grid, resampled; the
+            default), ``"exact"`` (exact at every output pixel, seconds per KITTI-size
+            frame), ``"paper"`` or ``"none"`` (see :class:`Uncertainty`).
         solve_form: ``"auto"``, ``"coefficient"`` or ``"measurement"``.
         focal_baseline: f*b (px*m) of the camera the measurements come from; defaults to
             the basis's. Disparities are scaled by basis.focal_baseline / focal_baseline
             onto the basis and back, and depth = focal_baseline / disparity.
         image_size: (height, width) of the camera the measurements come from and of the
             result; defaults to the basis's. Pixels are mapped pixel-centre aligned.
-        variance_stride: evaluate the std on a grid this many times coarser than the basis
-            grid (exact there, resampled bilinearly); None picks it automatically
-            (:data:`DEFAULT_VARIANCE_GRID_SCALE`).
+        variance_stride: ``"exact-coarse"`` and ``"paper"`` evaluate the std on a grid
+            this many times coarser than the basis grid (resampled bilinearly); None picks
+            it automatically (:data:`variance.DEFAULT_VARIANCE_GRID_SCALE`). ``"exact"``
+            evaluates every output pixel and ignores it.
         local_prior: the hybrid prior's local covariance (:class:`prior.LocalPrior`); None
             is the paper's prior.
         robust: ``"none"``, ``"huber"`` or ``"cauchy"``: IRLS on the leave-one-out
@@ -269,7 +226,7 @@ def densify_batch(
     disparities_list: Sequence[npt.ArrayLike],
     *,
     sigma: float | str = DEFAULT_SIGMA,
-    uncertainty: Uncertainty | str = Uncertainty.EXACT,
+    uncertainty: Uncertainty | str = Uncertainty.EXACT_COARSE,
     solve_form: SolveForm | str = SolveForm.AUTO,
     focal_baseline: float | None = None,
     image_size: tuple[int, int] | None = None,
@@ -293,11 +250,12 @@ def densify_batch(
         pixels_list: F arrays (k_f, 2) float, (x, y) in output image px.
         disparities_list: F arrays (k_f,) float, disparities (px).
         sigma: measurement noise std (px), > 0.
-        uncertainty: ``"exact"``, ``"paper"`` or ``"none"``.
+        uncertainty: ``"exact-coarse"`` (default), ``"exact"``, ``"paper"`` or ``"none"``.
         solve_form: ``"auto"``, ``"coefficient"`` or ``"measurement"``.
         focal_baseline: f*b (px*m) of the measurements' camera (default: the basis's).
         image_size: (height, width) of the measurements' camera (default: the basis's).
-        variance_stride: std grid coarsening over the basis grid; None: automatic.
+        variance_stride: std grid coarsening over the basis grid (``"exact-coarse"``,
+            ``"paper"``); None: automatic.
         local_prior: local covariance of the hybrid prior, or None.
         robust: IRLS loss, ``"none"``, ``"huber"`` or ``"cauchy"``.
         temporal: temporal prior state carried across calls (frames in stream order).
@@ -342,17 +300,13 @@ def densify_batch(
         )
     frames = []
     extra_variances: list[npt.NDArray[np.float64] | None] = []
-    for index, (pixels, disparities) in enumerate(
-        zip(pixels_list, disparities_list, strict=True)
-    ):
+    for index, (pixels, disparities) in enumerate(zip(pixels_list, disparities_list, strict=True)):
         kept_pixels, kept_disparities, keep = _clean(pixels, disparities, out_size)
         frames.append((kept_pixels, kept_disparities, int(keep.size - np.count_nonzero(keep))))
         noise = None if noise_stds is None else noise_stds[index]
-        extra_variances.append(
-            None if noise is None else (_noise_std(noise, keep) * to_basis) ** 2
-        )
+        extra_variances.append(None if noise is None else (_noise_std(noise, keep) * to_basis) ** 2)
     eigenvalues = basis.eigenvalues
-    need_factor = mode is Uncertainty.EXACT
+    need_factor = mode in (Uncertainty.EXACT, Uncertainty.EXACT_COARSE)
     if temporal is not None:
         key = (out_size, fb_out, basis.n_components)
         if temporal.key != key:
@@ -375,8 +329,14 @@ def densify_batch(
             continue
         positions = image_to_grid(frame_pixels, out_size, basis.image_size)
         posterior = _solve_beyond(
-            rows, residual, positions, eigenvalues, model, temporal,
-            need_factor=need_factor, extra_variance=extra_variance,
+            rows,
+            residual,
+            positions,
+            eigenvalues,
+            model,
+            temporal,
+            need_factor=need_factor,
+            extra_variance=extra_variance,
         )
         if posterior.local is not None:
             local = dataclasses.replace(posterior.local, indices=indices, weights=weights)
@@ -401,10 +361,14 @@ def densify_batch(
     grid_maps *= np.float32(1.0 / to_basis)
 
     variances: npt.NDArray[np.float32] | None = None
-    vgrid = basis.variance_grid(stride) if mode is not Uncertainty.NONE else None
-    if vgrid is not None:
+    variance_size = out_size  # where the variances are: every output pixel ("exact")
+    if mode is Uncertainty.EXACT:
+        variances = _pixel_variances(basis, posteriors, out_size)
+    elif mode is not Uncertainty.NONE:
+        vgrid = basis.variance_grid(stride)
+        variance_size = vgrid.size
         covariance = None
-        if mode is Uncertainty.EXACT and any(
+        if mode is Uncertainty.EXACT_COARSE and any(
             p.local is not None and p.prior_diagonal is None for p in posteriors
         ):
             covariance = basis.prior_covariance(stride)
@@ -424,7 +388,7 @@ def densify_batch(
             local_map = _local_mean(posterior.local, coarse, basis.image_size, 1.0 / to_basis)
             disparity += resample_grid(local_map, out_size)
         disparity_std = None
-        if vgrid is not None and variances is not None:
+        if variances is not None:
             frame_scale = std_scale
             if scale_by_innovation:
                 frame_scale *= np.sqrt(
@@ -433,7 +397,7 @@ def densify_batch(
             grid_std = np.sqrt(np.maximum(variances[index], 0.0)) * np.float32(
                 frame_scale / to_basis
             )
-            disparity_std = resample_grid(grid_std.reshape(vgrid.size), out_size)
+            disparity_std = resample_grid(grid_std.reshape(variance_size), out_size)
         # REP 118: a disparity below one noise std cannot be told from 0 (infinity)
         min_disparity = posterior.sigma / to_basis
         depth, depth_std = _depth(disparity, disparity_std, fb_out, min_disparity)
@@ -496,434 +460,6 @@ def posterior_covariance(
         root[:, None] * np.linalg.inv(system) * root[None, :]
     )
     return covariance
-
-
-def _solve(
-    rows: npt.NDArray[np.float64],
-    residual: npt.NDArray[np.float64],
-    eigenvalues: npt.NDArray[np.float64],
-    sigma: float,
-    form: SolveForm,
-    *,
-    need_factor: bool,
-) -> _Posterior:
-    """MAP estimate and posterior of one frame; rows = B~ (k, l), residual = z~ (k,)."""
-    k, n_components = rows.shape
-    if k == 0:
-        return _Posterior(
-            coefficients=np.zeros(n_components),
-            coefficient_variance=eigenvalues.copy(),
-            factor=np.zeros((0, n_components), dtype=np.float32) if need_factor else None,
-            subtract_from_prior=True,
-            solve_form=SolveForm.MEASUREMENT,
-            sigma=sigma,
-        )
-    if form is SolveForm.AUTO:
-        form = SolveForm.MEASUREMENT if k < n_components else SolveForm.COEFFICIENT
-    variance = sigma**2
-    if form is SolveForm.MEASUREMENT:
-        # Woodbury: K = B~ Lambda B~^T + sigma^2 I = L L^T, formed as C C^T (syrk), C = B~ Λ^½
-        scaled = rows * np.sqrt(eigenvalues)
-        system = scaled @ scaled.T
-        system.flat[:: k + 1] += variance
-        lower_inverse = _cholesky_inverse(system)  # L^-1
-        # M = L^-1 B~ (one triangular product); K^-1 = L^-T L^-1 is never formed
-        whitened_rows = _lower_times(lower_inverse, rows)
-        coefficients = eigenvalues * (whitened_rows.T @ (lower_inverse @ residual))
-        # kappa_i^2 = lambda_i - lambda_i^2 ||M_i||^2, in float64 (large lambda cancel)
-        coefficient_variance = eigenvalues - eigenvalues**2 * np.einsum(
-            "kl,kl->l", whitened_rows, whitened_rows
-        )
-        factor = None
-        if need_factor:
-            factor = (whitened_rows * eigenvalues).astype(np.float32)  # W = L^-1 B~ Λ
-        return _Posterior(
-            coefficients, coefficient_variance, factor, True, form, sigma=sigma,
-            normalised_innovation=_normalised_innovation(rows, residual, coefficients, sigma),
-        )
-    # coefficient form: A = sigma^2 I + Λ^½ B~^T B~ Λ^½ = L_A L_A^T (paper's system, symmetrised)
-    root = np.sqrt(eigenvalues)
-    scaled = rows * root
-    system = scaled.T @ scaled
-    system.flat[:: n_components + 1] += variance
-    lower_inverse = _cholesky_inverse(system)
-    inverse = lower_inverse.T @ lower_inverse  # A^-1
-    coefficients = root * (inverse @ (scaled.T @ residual))
-    # Sigma_y = V^T V with V = sigma L_A^-1 Λ^½
-    factor64 = sigma * lower_inverse * root
-    coefficient_variance = np.einsum("rl,rl->l", factor64, factor64)
-    factor = factor64.astype(np.float32) if need_factor else None
-    return _Posterior(
-        coefficients, coefficient_variance, factor, False, form, sigma=sigma,
-        normalised_innovation=_normalised_innovation(rows, residual, coefficients, sigma),
-    )
-
-
-def _normalised_innovation(
-    rows: npt.NDArray[np.float64],
-    residual: npt.NDArray[np.float64],
-    coefficients: npt.NDArray[np.float64],
-    sigma: float,
-) -> float:
-    """z~^T K^-1 z~ / k of the paper's model, from K^-1 z~ = (z~ - B~ y_hat) / sigma^2."""
-    k = residual.shape[0]
-    return float(residual @ (residual - rows @ coefficients)) / (sigma**2 * k) if k else 0.0
-
-
-def _sigma(sigma: float | str) -> float | None:
-    """Validate the ``sigma`` argument: a positive number, or "evidence" (None)."""
-    if isinstance(sigma, str):
-        if sigma == "evidence":
-            return None
-        raise ValueError(f'Expected `sigma` > 0 (px) or "evidence", got {sigma!r}')
-    if not (np.isfinite(sigma) and sigma > 0):
-        raise ValueError(f"Expected `sigma` > 0 (px), got {sigma}")
-    return float(sigma)
-
-
-def _downweighted(weights: npt.NDArray[np.float64] | None) -> int:
-    return 0 if weights is None else int(np.count_nonzero(weights < DOWNWEIGHTED_BELOW))
-
-
-def _solve_beyond(
-    rows: npt.NDArray[np.float64],
-    residual: npt.NDArray[np.float64],
-    positions: npt.NDArray[np.float64],
-    eigenvalues: npt.NDArray[np.float64],
-    model: Model,
-    temporal: TemporalPrior | None,
-    *,
-    need_factor: bool,
-    extra_variance: npt.NDArray[np.float64] | None = None,
-) -> _Posterior:
-    """The estimate with the additions of ``prior.py``, in measurement space.
-
-    Temporal prior first; when its normalised innovation fails the test the frame is solved
-    again with the static prior (and the state restarts from that posterior).
-    """
-    predicted = temporal.predict(eigenvalues) if temporal is not None else None
-    local_matrix = (
-        model.local.matrix(positions) if model.local is not None and rows.shape[0] else None
-    )
-    posterior = _solve_measurement(
-        rows, residual, positions, eigenvalues, model, predicted, local_matrix,
-        need_factor=need_factor, extra_variance=extra_variance,
-    )
-    if predicted is not None and temporal is not None:
-        if not temporal.accepts(posterior.normalised_innovation):
-            temporal.resets += 1
-            posterior = _solve_measurement(
-                rows, residual, positions, eigenvalues, model, None, local_matrix,
-                need_factor=need_factor, label="reset", extra_variance=extra_variance,
-            )
-    if temporal is not None and posterior.temporal != "temporal":
-        temporal.static_innovation = posterior.normalised_innovation
-    if temporal is not None:
-        temporal.update(posterior.coefficients, posterior.coefficient_variance)
-    return posterior
-
-
-def _solve_measurement(
-    rows: npt.NDArray[np.float64],
-    residual: npt.NDArray[np.float64],
-    positions: npt.NDArray[np.float64],
-    eigenvalues: npt.NDArray[np.float64],
-    model: Model,
-    predicted: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None,
-    local_matrix: npt.NDArray[np.float64] | None,
-    *,
-    need_factor: bool,
-    label: str = "static",
-    extra_variance: npt.NDArray[np.float64] | None = None,
-) -> _Posterior:
-    """MAP estimate and posterior under prior y ~ N(mu, diag(p)), local prior, weighted noise.
-
-    See the module docstring of ``prior.py`` for the equations; rows = B~ (k, l),
-    residual = z~ (k,), positions (k, 2) basis image px. ``predicted`` is (mu, p) of the
-    temporal prior, None for the static prior (mu = 0, p = lambda); ``local_matrix`` is
-    C_pp of the local prior (None without one); ``extra_variance`` (k,) is added to
-    sigma^2 per measurement (basis units^2).
-    """
-    k, n_components = rows.shape
-    if predicted is None:
-        mean = np.zeros(n_components)
-        prior_diagonal = eigenvalues
-    else:
-        mean, prior_diagonal = predicted
-        label = "temporal"
-    prior_rows = rows * prior_diagonal  # B~ P
-    innovation = residual - rows @ mean
-    scaled = rows * np.sqrt(prior_diagonal)
-    signal = scaled @ scaled.T  # B~ P B~^T as C C^T (numpy uses syrk: half the flops)
-    if local_matrix is not None:
-        signal += local_matrix  # + C_pp
-    if model.sigma is not None:
-        sigma = model.sigma
-    elif extra_variance is not None:  # fit sigma^2 on top of the known extra noise
-        sigma = evidence_sigma(signal + np.diag(extra_variance), innovation)
-    else:
-        sigma = evidence_sigma(signal, innovation)
-    if not np.isfinite(sigma):  # no measurements: nothing to fit
-        sigma = DEFAULT_SIGMA
-    weights = np.ones(k)
-    noise = sigma**2 if extra_variance is None else sigma**2 + extra_variance
-    iterations = model.robust_iterations if model.robust is not Robust.NONE else 0
-    for iteration in range(iterations + 1):
-        system = signal.copy()
-        system.flat[:: k + 1] += noise / weights  # + R
-        lower_inverse = _cholesky_inverse(system) if k else np.zeros((0, 0))
-        alpha = lower_inverse.T @ (lower_inverse @ innovation)  # K^-1 (z~ - B~ mu)
-        if iteration == iterations:
-            break
-        # leave-one-out standardised residuals: alpha_j / sqrt([K^-1]_jj)
-        inverse_diagonal = np.einsum("ij,ij->j", lower_inverse, lower_inverse)
-        updated = robust_weights(alpha / np.sqrt(inverse_diagonal), model.robust)
-        converged = bool(np.max(np.abs(updated - weights), initial=0.0) < 1e-3)
-        weights = updated
-        if converged:
-            # one more solve with the final weights
-            iterations = iteration + 1
-    coefficients = mean + prior_rows.T @ alpha  # y = mu + P B~^T alpha
-    gain = _lower_times(lower_inverse, prior_rows)  # W = L^-1 B~ P (k, l)
-    coefficient_variance = prior_diagonal - np.einsum("kl,kl->l", gain, gain)
-    local = None
-    if model.local is not None:
-        local = _Local(
-            prior=model.local,
-            positions=positions,
-            alpha=alpha,
-            lower_inverse=lower_inverse.astype(np.float32) if need_factor else None,
-            prior_rows=prior_rows.astype(np.float32) if need_factor else None,
-        )
-    return _Posterior(
-        coefficients=coefficients,
-        coefficient_variance=coefficient_variance,
-        # with a local part the variance takes L^-1 (B~ P b(x) + c(P, x)) instead
-        factor=gain.astype(np.float32) if need_factor and local is None else None,
-        subtract_from_prior=True,
-        solve_form=SolveForm.MEASUREMENT,
-        prior_diagonal=None if predicted is None else prior_diagonal,
-        local=local,
-        sigma=float(sigma),
-        weights=weights,
-        normalised_innovation=float(innovation @ alpha / k) if k else 0.0,
-        temporal=label,
-    )
-
-
-def _image_coordinates(count: int, basis_size: int) -> npt.NDArray[np.float64]:
-    """Centres of ``count`` cells spanning a basis image axis, in its px (pixel-centre)."""
-    cells = np.arange(count, dtype=np.float64)
-    return (cells + 0.5) * (basis_size / count) - 0.5
-
-
-def _local_mean(
-    local: _Local, out_size: tuple[int, int], basis_image: tuple[int, int], scale: float
-) -> npt.NDArray[np.float32]:
-    """The local part c(x, P) alpha at every output pixel times ``scale``, (H, W) float32.
-
-    Separable kernel: sum_j alpha_j v k_y(y - y_j) k_x(x - x_j) = (K_y^T diag(v alpha)) K_x.
-    """
-    height, width = out_size
-    if local.alpha.size == 0:
-        return np.zeros(out_size, dtype=np.float32)
-    ys = _image_coordinates(height, basis_image[0])
-    xs = _image_coordinates(width, basis_image[1])
-    support = local.prior.support()
-    blocks = _LOCAL_BLOCKS if _LOCAL_BLOCKS * 2.0 * support < basis_image[1] else 1
-    # short kernels: columns in blocks, each with only the measurements within the
-    # kernel's support of it (sorted by x); the terms left out are < 4e-18 of the peak
-    order = np.argsort(local.positions[:, 0], kind="stable")
-    position_x = local.positions[order, 0]
-    along_y = local.prior.axis(local.positions[order, 1], ys, np.float32)  # (k, H)
-    along_y *= (scale * local.prior.variance * local.alpha[order]).astype(np.float32)[:, None]
-    dense = np.zeros(out_size, dtype=np.float32)
-    step = -(-width // blocks)
-    for start in range(0, width, step):
-        columns = xs[start : start + step]
-        first = int(np.searchsorted(position_x, columns[0] - support, side="left"))
-        last = int(np.searchsorted(position_x, columns[-1] + support, side="right"))
-        if first < last:
-            along_x = local.prior.axis(position_x[first:last], columns, np.float32)
-            dense[:, start : start + step] = along_y[first:last].T @ along_x
-    return dense
-
-
-def _local_covariance(
-    local: _Local, vgrid_size: tuple[int, int], basis_image: tuple[int, int]
-) -> npt.NDArray[np.float32]:
-    """c(P, x) for x on the variance grid, (k, s_v) float32."""
-    ys = _image_coordinates(vgrid_size[0], basis_image[0])
-    xs = _image_coordinates(vgrid_size[1], basis_image[1])
-    along_y = local.prior.axis(local.positions[:, 1], ys, np.float32)
-    along_x = local.prior.axis(local.positions[:, 0], xs, np.float32)
-    product = along_y[:, :, None] * along_x[:, None, :] * np.float32(local.prior.variance)
-    covariance: npt.NDArray[np.float32] = product.reshape(
-        local.alpha.size, vgrid_size[0] * vgrid_size[1]
-    )
-    return covariance
-
-
-def _variance_beyond(
-    vgrid: VarianceGrid,
-    posterior: _Posterior,
-    basis_image: tuple[int, int],
-    covariance: npt.NDArray[np.float32] | None = None,
-) -> npt.NDArray[np.float32]:
-    """Exact variance of one frame with temporal and/or local prior, (s_v,) float32.
-
-    var(x) = b^T P b + v - ||L^-1 (B~ P b(x) + c(P, x))||^2, with W = L^-1 B~ P (the
-    factor) when there is no local part.
-    """
-    local = posterior.local
-    if local is not None:
-        if local.lower_inverse is None or local.prior_rows is None:
-            raise AssertionError("exact variance needs the posterior factor")
-        # L^-1 (B~ P U + C): one triangular product (half a GEMM) instead of two GEMMs
-        if covariance is not None and posterior.prior_diagonal is None and (
-            local.indices is not None and local.weights is not None
-        ):
-            # static prior P = Lambda: B~ Lambda U = the bilinear mix of U Lambda U_v^T rows
-            joint = sample_rows(covariance, local.indices, local.weights)
-        else:
-            joint = local.prior_rows @ vgrid.component_rows
-        joint += _local_covariance(local, vgrid.size, basis_image)
-        projected = _lower_times(local.lower_inverse, joint)
-    else:
-        projected = _factor(posterior) @ vgrid.component_rows
-    reduction = np.einsum("ks,ks->s", projected, projected)
-    if posterior.prior_diagonal is not None:
-        # b(x)^T P b(x) = sum_i p_i u_i(x)^2, one GEMV
-        base = posterior.prior_diagonal.astype(np.float32) @ vgrid.squared_rows
-    else:
-        base = vgrid.prior_variance
-    if posterior.local is not None:
-        base = base + np.float32(posterior.local.prior.variance)
-    result: npt.NDArray[np.float32] = (base - reduction).astype(np.float32)
-    return result
-
-
-@functools.cache
-def triangular_lapack() -> Any:
-    """Return scipy's LAPACK with its OpenBLAS held at one thread, or None.
-
-    numpy has no triangular inverse: ``np.linalg.inv`` of the Cholesky factor costs ~4x
-    LAPACK's ``dtrtri`` (4.4 vs 1.2 ms at k = 300, measured). scipy ships a second OpenBLAS
-    whose idle threads spin after a call and halved the speed of the next numpy product
-    (docs/estimator.md); a 300 x 300 factorisation gains nothing from threads, so that
-    library (only scipy's, found by its path) is limited to one thread, once per process.
-    """
-    try:
-        from scipy.linalg import lapack
-        from threadpoolctl import ThreadpoolController
-    except ImportError:  # pragma: no cover - both are dependencies
-        return None
-    controller = ThreadpoolController()
-    scipy_blas = [
-        module for module in controller.lib_controllers if "scipy.libs" in module.filepath
-    ]
-    for module in scipy_blas:
-        module.set_num_threads(1)
-    return lapack
-
-
-def _cholesky_inverse(system: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """Return L^-1 (lower triangular) of the Cholesky factor L L^T = system.
-
-    LAPACK ``dpotrf`` + ``dtrtri`` through scipy (its OpenBLAS held at one thread, see
-    :func:`triangular_lapack`); numpy's general ``inv`` of the factor only when scipy is
-    missing.
-
-    Raises:
-        numpy.linalg.LinAlgError: the system is not positive definite.
-    """
-    lapack = triangular_lapack()
-    if lapack is None:  # pragma: no cover - scipy is a dependency
-        return np.tril(np.linalg.inv(np.linalg.cholesky(system)))
-    lower, info = lapack.dpotrf(system, lower=1, clean=1)
-    if info != 0:
-        raise np.linalg.LinAlgError(f"matrix is not positive definite (dpotrf info {info})")
-    inverse, info = lapack.dtrtri(lower, lower=1)
-    if info != 0:  # pragma: no cover - a Cholesky factor has a positive diagonal
-        raise np.linalg.LinAlgError(f"singular Cholesky factor (dtrtri info {info})")
-    return np.asarray(inverse, dtype=np.float64)
-
-
-def _lower_times(lower: npt.NDArray[_Float], matrix: npt.NDArray[_Float]) -> npt.NDArray[_Float]:
-    """Return lower @ matrix for a lower-triangular ``lower`` (BLAS ``?trmm``, half a GEMM).
-
-    BLAS is column-major: the C-ordered ``matrix`` is its transpose there, so the call
-    computes matrix^T lower^T (right side, transposed triangle) with no copy of ``matrix``.
-    """
-    if lower.shape[0] == 0:
-        return lower @ matrix
-    if triangular_lapack() is None:  # pragma: no cover - scipy is a dependency
-        return lower @ matrix
-    from scipy.linalg import blas
-
-    trmm = blas.strmm if matrix.dtype == np.float32 else blas.dtrmm
-    product = trmm(1.0, lower, np.ascontiguousarray(matrix).T, lower=1, side=1, trans_a=1)
-    return np.ascontiguousarray(product.T)
-
-
-def _variances(
-    vgrid: VarianceGrid,
-    posteriors: list[_Posterior],
-    mode: Uncertainty,
-    basis_image: tuple[int, int],
-    covariance: npt.NDArray[np.float32] | None = None,
-) -> npt.NDArray[np.float32]:
-    """Posterior variance (F, s_v) float32 on the variance grid (basis disparity units).
-
-    ``covariance`` is the basis's :meth:`~Basis.prior_covariance` (or None).
-    """
-    n_frames = len(posteriors)
-    if any(p.local is not None or p.prior_diagonal is not None for p in posteriors):
-        if mode is Uncertainty.PAPER:
-            raise ValueError(
-                'uncertainty="paper" is the diagonal approximation of the paper\'s prior; '
-                'use "exact" with a local or temporal prior'
-            )
-        return np.stack(
-            [_variance_beyond(vgrid, p, basis_image, covariance) for p in posteriors]
-        )
-    if mode is Uncertainty.PAPER:
-        kappa2 = np.stack([p.coefficient_variance for p in posteriors], axis=1)
-        # eq. (15/16): sum_i kappa_i^2 u_i(x)^2, one GEMM for all frames
-        paper: npt.NDArray[np.float32] = (vgrid.squared_rows.T @ kappa2.astype(np.float32)).T
-        return np.ascontiguousarray(paper)
-    out = np.empty((n_frames, vgrid.prior_variance.shape[0]), dtype=np.float32)
-    # stack frames' factors and multiply in chunks of rows: (sum r_f, l) @ (l, s_v)
-    start = 0
-    while start < n_frames:
-        stop = start
-        n_rows = 0
-        while stop < n_frames and (stop == start or n_rows < _VARIANCE_ROWS_PER_CHUNK):
-            factor = posteriors[stop].factor
-            n_rows += 0 if factor is None else factor.shape[0]
-            stop += 1
-        factors = [_factor(p) for p in posteriors[start:stop]]
-        counts = [f.shape[0] for f in factors]
-        stacked = factors[0] if len(factors) == 1 else np.concatenate(factors, axis=0)
-        projected = stacked @ vgrid.component_rows
-        projected *= projected
-        offset = 0
-        for index, count in enumerate(counts):
-            reduction = projected[offset : offset + count].sum(axis=0)
-            offset += count
-            posterior = posteriors[start + index]
-            if posterior.subtract_from_prior:
-                out[start + index] = vgrid.prior_variance - reduction
-            else:
-                out[start + index] = reduction
-        start = stop
-    return out
-
-
-def _factor(posterior: _Posterior) -> npt.NDArray[np.float32]:
-    if posterior.factor is None:
-        raise AssertionError("exact variance needs the posterior factor")
-    return posterior.factor
 
 
 def depth_from_disparity(
@@ -1061,12 +597,3 @@ def _focal_baseline(basis: Basis, focal_baseline: float | None) -> float:
     if not (np.isfinite(focal_baseline) and focal_baseline > 0):
         raise ValueError(f"Expected `focal_baseline` > 0 (px*m), got {focal_baseline}")
     return float(focal_baseline)
-
-
-def _variance_stride(basis: Basis, variance_stride: int | None) -> int:
-    if variance_stride is not None:
-        if variance_stride < 1:
-            raise ValueError(f"Expected `variance_stride` >= 1, got {variance_stride}")
-        return int(variance_stride)
-    grid_scale = basis.grid_size[0] / basis.image_size[0]
-    return max(1, int(np.floor(grid_scale / DEFAULT_VARIANCE_GRID_SCALE + 1e-9)))

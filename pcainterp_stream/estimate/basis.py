@@ -81,9 +81,7 @@ def image_to_grid(
     Returns:
         (k, 2) float64, (x, y) in grid px: g = (p + 0.5) * (grid / image) - 0.5.
     """
-    scale = np.array(
-        [grid_size[1] / image_size[1], grid_size[0] / image_size[0]], dtype=np.float64
-    )
+    scale = np.array([grid_size[1] / image_size[1], grid_size[0] / image_size[0]], dtype=np.float64)
     return (np.asarray(pixels, dtype=np.float64) + 0.5) * scale - 0.5
 
 
@@ -112,9 +110,7 @@ def bilinear_weights(
     fx = x - x0
     fy = y - y0
     indices = np.stack([y0 * gw + x0, y0 * gw + x1, y1 * gw + x0, y1 * gw + x1], axis=1)
-    weights = np.stack(
-        [(1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx], axis=1
-    )
+    weights = np.stack([(1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx], axis=1)
     return indices, weights
 
 

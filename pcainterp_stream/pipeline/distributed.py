@@ -9,7 +9,7 @@ Summaries are merged pairwise, exactly up to the truncation, by the SVD of
 same step as the local streaming learner). A task holds one chunk and a merge two
 (s, r) factors, so worker memory does not grow with the number of frames.
 
-Densifying runs :func:`pcainterp_stream.jobs.densify` on each log in its own task; a
+Densifying runs :func:`pcainterp_stream.pipeline.densify.densify` on each log in its own task; a
 failing log is reported and does not stop the others.
 """
 
@@ -26,15 +26,24 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.basis import Basis, grid_size_for
 from pcainterp_stream.errors import LogReadError, PcaInterpError
-from pcainterp_stream.learning import (
+from pcainterp_stream.estimate.basis import Basis, grid_size_for
+from pcainterp_stream.estimate.learning import (
     DEFAULT_BOX_SIZE,
     basis_from_fit,
     fit_from_factor,
     preprocess_disparity,
     truncated_product,
 )
+from pcainterp_stream.pipeline.common import (
+    _check_output_folder,
+    _check_topic_types,
+    _expected_frames,
+    _pairing_types,
+    _require_topics,
+)
+from pcainterp_stream.pipeline.densify import densify
+from pcainterp_stream.pipeline.learn import _depth_maps
 
 DEFAULT_CHUNK_FRAMES = 64
 """Frames (after ``every``) one learning task reads, matches and summarises."""
@@ -154,21 +163,18 @@ def _chunk_maps(
     log: Path, start: int, stop: int | None, options: Any, pairing: Any
 ) -> Iterator[tuple[npt.NDArray[np.float32], tuple[int, int], float]]:
     """Yield (disparity (H, W) px, image size, f*b) of maps start..stop-1 of one log."""
-    from pcainterp_stream import jobs
-    from pcainterp_stream.logreader import open_log
-    from pcainterp_stream.pairing import iter_stereo_frames
-    from pcainterp_stream.stereo import compute_disparity
+    from pcainterp_stream.frontend.pairing import iter_stereo_frames
+    from pcainterp_stream.frontend.stereo import compute_disparity
+    from pcainterp_stream.io.logreader import open_log
 
     if options.depth_topic:
         info: list[Any] = []
-        for disparity in itertools.islice(
-            jobs._depth_maps(log, options, pairing, info), start, stop
-        ):
+        for disparity in itertools.islice(_depth_maps(log, options, pairing, info), start, stop):
             yield disparity, info[0].image_size, info[0].focal_baseline
         return
     with open_log(log) as reader:
-        jobs._require_topics(reader, pairing.required_topics(), "stereo pair")
-        jobs._check_topic_types(reader, jobs._pairing_types(pairing))
+        _require_topics(reader, pairing.required_topics(), "stereo pair")
+        _check_topic_types(reader, _pairing_types(pairing))
         used = 0
         for frame in iter_stereo_frames(reader, pairing):
             if frame.index % options.every:
@@ -191,8 +197,8 @@ def summarize_chunk(
         log: the log path (readable by the worker).
         start: index of the first map (after ``options.every``).
         stop: one past the last map, or None for the end of the log.
-        options: the :class:`pcainterp_stream.jobs.LearnOptions`.
-        pairing: the :class:`pcainterp_stream.pairing.PairingConfig`.
+        options: the :class:`pcainterp_stream.pipeline.learn.LearnOptions`.
+        pairing: the :class:`pcainterp_stream.frontend.pairing.PairingConfig`.
         keep: r, the columns kept of the factor.
 
     Returns:
@@ -268,8 +274,8 @@ def learn_distributed(
     Args:
         logs: input logs (paths readable by the workers).
         output: where to save the basis (.npz).
-        options: the :class:`pcainterp_stream.jobs.LearnOptions`.
-        pairing: the :class:`pcainterp_stream.pairing.PairingConfig`.
+        options: the :class:`pcainterp_stream.pipeline.learn.LearnOptions`.
+        pairing: the :class:`pcainterp_stream.frontend.pairing.PairingConfig`.
         client: a connected ``dask.distributed.Client``.
         chunk_frames: maps per task.
         oversampling: columns kept beyond l in every summary.
@@ -280,8 +286,6 @@ def learn_distributed(
     Raises:
         PcaInterpError: bad options, no maps, or a task failed.
     """
-    from pcainterp_stream import jobs
-
     if options.every < 1:
         raise PcaInterpError(f"--every must be at least 1, got {options.every}")
     if chunk_frames < 1:
@@ -289,12 +293,12 @@ def learn_distributed(
     for log in logs:
         if log.resolve() == output.resolve():
             raise PcaInterpError(f"output {output} is one of the input logs; choose another -o")
-    jobs._check_output_folder(output)
+    _check_output_folder(output)
     keep = options.n_components + oversampling
     source = options.depth_topic or pairing.left_topic
     specs: list[tuple[Path, int, int | None]] = []
     for log in logs:
-        expected = jobs._expected_frames(log, source, options.every)
+        expected = _expected_frames(log, source, options.every)
         if expected is None:
             specs.append((log, 0, None))
         else:
@@ -372,9 +376,7 @@ def _reduce(
                 return
             log, start, stop = spec
             running.add(
-                client.submit(
-                    summarize_chunk, log, start, stop, options, pairing, keep, pure=False
-                )
+                client.submit(summarize_chunk, log, start, stop, options, pairing, keep, pure=False)
             )
 
     refill()
@@ -414,9 +416,7 @@ def output_path(input_path: Path, out_dir: Path) -> Path:
 
 
 def _densify_one(input_path: Path, output: Path, basis: Path, kwargs: dict[str, Any]) -> Any:
-    from pcainterp_stream import jobs
-
-    return jobs.densify(input_path, output, basis, **kwargs)
+    return densify(input_path, output, basis, **kwargs)
 
 
 def densify_many(
@@ -433,7 +433,7 @@ def densify_many(
         out_dir: output folder (created); outputs are :func:`output_path`.
         basis: the basis file (readable by the workers).
         client: a connected ``dask.distributed.Client``.
-        **kwargs: keyword options of :func:`pcainterp_stream.jobs.densify`
+        **kwargs: keyword options of :func:`pcainterp_stream.pipeline.densify.densify`
             (``pairing``, ``processor``, ``topics``).
 
     Returns:

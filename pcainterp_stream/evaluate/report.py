@@ -3,7 +3,7 @@
 The log is streamed (frame t and, in temporal mode, frame t+1 in memory). Per frame the
 reference is the ground-truth depth when the log has it (synthetic logs) and otherwise a
 dense SGBM map of the same pair (the paper's KITTI setup); never the sparse points. The
-maths is in :mod:`pcainterp_stream.evaluation`; this module does the reading, the
+maths is in :mod:`pcainterp_stream.evaluate.metrics`; this module does the reading, the
 re-densification with the basis (uncertainty kinds, oracle, points sweep), the figures
 (matplotlib, Agg), ``results.md`` and ``results.json``.
 """
@@ -22,12 +22,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream import rosmsg
-from pcainterp_stream.baselines import linear, nearest
-from pcainterp_stream.basis import Basis
 from pcainterp_stream.errors import LogReadError, PcaInterpError
-from pcainterp_stream.estimator import densify
-from pcainterp_stream.evaluation import (
+from pcainterp_stream.estimate.baselines import linear, nearest
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.estimator import densify
+from pcainterp_stream.evaluate.metrics import (
     DELTA_2D_EDGES,
     DEPTH_EDGES,
     STD_EDGES,
@@ -42,10 +41,7 @@ from pcainterp_stream.evaluation import (
     relative_transform,
     stereo_transform,
 )
-from pcainterp_stream.logreader import open_log
-from pcainterp_stream.outputs import OutputTopics
-from pcainterp_stream.records import StereoCamera
-from pcainterp_stream.stereo import (
+from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     SgbmConfig,
     compute_disparity,
@@ -53,6 +49,10 @@ from pcainterp_stream.stereo import (
     lookup_disparities,
     to_grey8,
 )
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.outputs import OutputTopics
+from pcainterp_stream.records import StereoCamera
 
 LEFT_IMAGE = "/stereo/left/image_rect"
 RIGHT_IMAGE = "/stereo/right/image_rect"

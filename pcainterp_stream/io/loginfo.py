@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from pcainterp_stream.errors import LogReadError
-from pcainterp_stream.logreader import LogFormat, TopicInfo, looks_like_kitti, open_log
+from pcainterp_stream.io.logreader import LogFormat, TopicInfo, looks_like_kitti, open_log
 
 
 @dataclass(frozen=True)

@@ -23,9 +23,10 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.basis import Basis, bilinear_weights, image_to_grid, sample_rows
-from pcainterp_stream.estimator import clean_measurements, triangular_lapack
-from pcainterp_stream.prior import Kernel, LocalPrior, TemporalPrior, covariance_scale
+from pcainterp_stream.estimate.basis import Basis, bilinear_weights, image_to_grid, sample_rows
+from pcainterp_stream.estimate.estimator import clean_measurements
+from pcainterp_stream.estimate.prior import Kernel, LocalPrior, TemporalPrior, covariance_scale
+from pcainterp_stream.estimate.solve import triangular_lapack
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -295,8 +296,8 @@ def fit_process_noise(
     Returns:
         The best q and the summed log evidence of every candidate.
     """
-    from pcainterp_stream.estimator import _solve_beyond
-    from pcainterp_stream.prior import Model
+    from pcainterp_stream.estimate.prior import Model
+    from pcainterp_stream.estimate.solve import _solve_beyond
 
     model = Model(sigma=sigma, local=local)
     eigenvalues = basis.eigenvalues
@@ -316,7 +317,12 @@ def fit_process_noise(
                     system.flat[:: system.shape[0] + 1] += sigma**2
                     total += _log_evidence(system, innovation)
                 _solve_beyond(
-                    frame.rows, frame.residual, frame.positions, eigenvalues, model, state,
+                    frame.rows,
+                    frame.residual,
+                    frame.positions,
+                    eigenvalues,
+                    model,
+                    state,
                     need_factor=False,
                 )
         scores[q] = total
@@ -408,7 +414,7 @@ def fit_prior(
     Raises:
         ValueError: no frame has a measurement.
     """
-    from pcainterp_stream.estimator import densify
+    from pcainterp_stream.estimate.estimator import densify
 
     frames = [frame for sequence in sequences for frame in sequence if frame.residual.size]
     if not frames:

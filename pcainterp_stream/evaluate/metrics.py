@@ -17,12 +17,12 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream import rosmsg
-from pcainterp_stream.baselines import linear, nearest
-from pcainterp_stream.basis import Basis, resample_grid
 from pcainterp_stream.errors import LogReadError
-from pcainterp_stream.logreader import open_log
-from pcainterp_stream.outputs import OutputTopics
+from pcainterp_stream.estimate.baselines import linear, nearest
+from pcainterp_stream.estimate.basis import Basis, resample_grid
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.outputs import OutputTopics
 from pcainterp_stream.records import StereoCamera
 
 GROUND_TRUTH_DEPTH = "/ground_truth/depth"
@@ -136,7 +136,7 @@ def _accumulate(
 #
 # Everything below is pure maths over arrays (no I/O): the projection errors of the paper
 # (section IV-B), depth-completion metrics, uncertainty calibration and the oracle. The log
-# reading and the figures are in :mod:`pcainterp_stream.report`.
+# reading and the figures are in :mod:`pcainterp_stream.evaluate.report`.
 
 DELTA_2D_EDGES: tuple[float, ...] = (0.0, 0.5, 1.0, 2.0, 3.0, 5.0, 10.0, 20.0, 50.0, np.inf)
 """Bin edges (px) of the Delta_2D error distribution."""
@@ -447,7 +447,7 @@ def oracle_disparity(basis: Basis, reference: npt.ArrayLike) -> npt.NDArray[np.f
     Returns:
         (H, W) float32 oracle disparity (px).
     """
-    from pcainterp_stream.learning import preprocess_disparity
+    from pcainterp_stream.estimate.learning import preprocess_disparity
 
     values = np.asarray(reference, dtype=np.float32)
     grid = preprocess_disparity(values, basis.grid_size).reshape(-1)

@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from pcainterp_stream import rosmsg
 from pcainterp_stream.defaults import DISPLAY_MAX_DEPTH
+from pcainterp_stream.io import rosmsg
 from pcainterp_stream.records import DensifiedFrame
 
 

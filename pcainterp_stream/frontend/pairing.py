@@ -30,9 +30,9 @@ from typing import Any
 
 import numpy as np
 
-from pcainterp_stream import rosmsg
 from pcainterp_stream.errors import CalibrationError, LogReadError
-from pcainterp_stream.logreader import LogReader, decode_image
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.logreader import LogReader, decode_image
 from pcainterp_stream.records import RawMessage, SparseFeatures, StereoCamera, StereoFrame
 
 MAX_PROBLEMS = 20

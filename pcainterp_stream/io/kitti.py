@@ -33,9 +33,9 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.errors import DatasetImportError
-from pcainterp_stream.logwriter import LogFormat, ProgressCallback, WriteSummary, open_writer
+from pcainterp_stream.io.logwriter import LogFormat, ProgressCallback, WriteSummary, open_writer
+from pcainterp_stream.io.stereo_log import POSE, pose_message, stereo_messages
 from pcainterp_stream.records import StereoCamera
-from pcainterp_stream.synthlog import POSE, pose_message, stereo_messages
 
 FRAME_PERIOD_NS = 100_000_000
 """KITTI records at 10 Hz."""

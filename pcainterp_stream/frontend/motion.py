@@ -135,9 +135,7 @@ def project(
 
 
 def _intrinsics(camera: StereoCamera) -> FloatArray:
-    return np.array(
-        [[camera.fx, 0.0, camera.cx], [0.0, camera.fy, camera.cy], [0.0, 0.0, 1.0]]
-    )
+    return np.array([[camera.fx, 0.0, camera.cx], [0.0, camera.fy, camera.cy], [0.0, 0.0, 1.0]])
 
 
 def estimate_motion(
@@ -191,9 +189,14 @@ def estimate_motion(
     intrinsics = _intrinsics(camera)
     # PnP: this camera's points seen in the previous image give X_prev = R X + t
     found, rotation, translation, inliers = cv2.solvePnPRansac(
-        object_points, image_points, intrinsics, None,
-        reprojectionError=options.reprojection_error, iterationsCount=100,
-        confidence=0.999, flags=cv2.SOLVEPNP_EPNP,
+        object_points,
+        image_points,
+        intrinsics,
+        None,
+        reprojectionError=options.reprojection_error,
+        iterationsCount=100,
+        confidence=0.999,
+        flags=cv2.SOLVEPNP_EPNP,
     )
     if not found or inliers is None or len(inliers) < options.min_inliers:
         return None
@@ -273,8 +276,11 @@ class CarriedPoints:
         if isinstance(motion, str):
             motion = None
             if (
-                previous is not None and previous[0] is not None and image is not None
-                and previous[1] == camera and options.frames
+                previous is not None
+                and previous[0] is not None
+                and image is not None
+                and previous[1] == camera
+                and options.frames
             ):
                 motion = estimate_motion(
                     previous[0], image, own_pixels, own_disparities, camera, config=options
@@ -295,7 +301,8 @@ class CarriedPoints:
             moved = past.points @ past.to_current[:3, :3].T + past.to_current[:3, 3]
             carried_pixels, carried_disparities, visible = project(moved, camera)
             carried_pixels, carried_disparities = (
-                carried_pixels[visible], carried_disparities[visible]
+                carried_pixels[visible],
+                carried_disparities[visible],
             )
             if used.shape[0] and carried_pixels.shape[0] and options.gap > 0:
                 distance, _ = cKDTree(used).query(carried_pixels)

@@ -34,12 +34,12 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream import defaults
-from pcainterp_stream.basis import Basis
-from pcainterp_stream.estimator import densify_batch
-from pcainterp_stream.motion import CarriedPoints, CarryConfig, Motion, estimate_motion
-from pcainterp_stream.prior import LocalPrior, TemporalPrior
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.estimator import densify_batch
+from pcainterp_stream.estimate.prior import LocalPrior, TemporalPrior
+from pcainterp_stream.frontend.motion import CarriedPoints, CarryConfig, Motion, estimate_motion
+from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig, StereoFrontEnd, to_grey8
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoCamera, StereoFrame
-from pcainterp_stream.stereo import GfttConfig, SgbmConfig, StereoFrontEnd, to_grey8
 
 
 class MeasurementSource(enum.Enum):
@@ -365,8 +365,12 @@ class FrameProcessor:
         if previous is not None and previous.camera == frame.camera:
             # visual odometry beside SGBM in the worker: needs only this frame's points
             motion = estimate_motion(
-                to_grey8(previous.left), to_grey8(frame.left), pixels, disparities,
-                frame.camera, config=self.config.carry,
+                to_grey8(previous.left),
+                to_grey8(frame.left),
+                pixels,
+                disparities,
+                frame.camera,
+                config=self.config.carry,
             )
         return _Measured(frame, pixels, disparities, counts, motion)
 
@@ -421,10 +425,8 @@ class FrameProcessor:
                 noise_stds = []
                 for index, item in enumerate(group):  # in stream order: one motion each
                     resets = self.carried.resets
-                    pixels[index], disparities[index], noise, carried[index] = (
-                        self.carried.carry(
-                            None, item.pixels, item.disparities, camera, motion=item.motion
-                        )
+                    pixels[index], disparities[index], noise, carried[index] = self.carried.carry(
+                        None, item.pixels, item.disparities, camera, motion=item.motion
                     )
                     noise_stds.append(noise)
                     item.counts["carry_reset"] = self.carried.resets - resets

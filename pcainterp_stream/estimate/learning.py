@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.basis import Basis, grid_size_for
+from pcainterp_stream.estimate.basis import Basis, grid_size_for
 
 DEFAULT_BOX_SIZE = 5
 """Side (px) of the box filter applied after filling invalid pixels (paper: 5x5)."""
@@ -291,7 +291,7 @@ def basis_from_fit(
     # deterministic signs: the largest-magnitude entry of each component is positive
     peak = components[np.abs(components).argmax(axis=0), np.arange(n_keep)]
     components = components * np.where(peak < 0, -1.0, 1.0)
-    from pcainterp_stream import __version__  # here: the package imports this module
+    from pcainterp_stream.version import __version__
 
     info: dict[str, Any] = {
         "software": f"pcainterp_stream {__version__}",
@@ -319,9 +319,7 @@ def basis_from_fit(
         info.update(meta)
     return Basis(
         mean=fit.mean.reshape(grid_size).astype(np.float32),
-        components=np.ascontiguousarray(components.T, dtype=np.float32).reshape(
-            n_keep, *grid_size
-        ),
+        components=np.ascontiguousarray(components.T, dtype=np.float32).reshape(n_keep, *grid_size),
         eigenvalues=np.ascontiguousarray(eigenvalues[:n_keep], dtype=np.float64),
         total_variance=float(fit.total_variance),
         image_size=size,

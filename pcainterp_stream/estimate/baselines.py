@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import Delaunay, QhullError
 
-from pcainterp_stream.estimator import clean_measurements
+from pcainterp_stream.estimate.estimator import clean_measurements
 
 
 @dataclass(frozen=True, eq=False)

@@ -41,8 +41,8 @@ from rosbags.rosbag2 import Writer as Rosbag2Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
-from pcainterp_stream import rosmsg
 from pcainterp_stream.errors import LogWriteError
+from pcainterp_stream.io import rosmsg
 from pcainterp_stream.records import RawMessage
 
 ProgressCallback = Callable[[int, int | None], None]

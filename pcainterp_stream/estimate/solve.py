@@ -1,0 +1,436 @@
+"""The MAP solve of one frame (paper section III-B).
+
+Coefficient or measurement form, the hybrid prior's local part, robust IRLS, and the
+triangular-BLAS helpers they share.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Any, TypeVar
+
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.estimate.prior import (
+    DOWNWEIGHTED_BELOW,
+    LocalPrior,
+    Model,
+    Robust,
+    TemporalPrior,
+    evidence_sigma,
+    robust_weights,
+)
+
+_Float = TypeVar("_Float", np.float32, np.float64)
+
+
+DEFAULT_SIGMA = 2.0
+
+
+"""Measurement noise std (px), the paper's value."""
+
+
+_LOCAL_BLOCKS = 8
+
+
+"""Column blocks of the local map when the kernel's support is short (``_local_mean``)."""
+
+
+class SolveForm(StrEnum):
+    """Which linear system computes the MAP estimate."""
+
+    AUTO = "auto"
+    """Measurement form when k < l, otherwise coefficient form."""
+    COEFFICIENT = "coefficient"
+    """l x l system (paper's form)."""
+    MEASUREMENT = "measurement"
+    """k x k system (Woodbury)."""
+
+
+@dataclass(frozen=True)
+class _Local:
+    """The local part of a hybrid-prior posterior: d_local(x) = c(x, P) alpha."""
+
+    prior: LocalPrior
+    positions: npt.NDArray[np.float64]  # (k, 2) (x, y) basis image px
+    alpha: npt.NDArray[np.float64]  # (k,) K^-1 innovation
+    lower_inverse: npt.NDArray[np.float32] | None  # (k, k) L^-1, for the exact variance
+    prior_rows: npt.NDArray[np.float32] | None  # (k, l) B~ P, for the exact variance
+    # bilinear grid indices and weights (k, 4) of the measurements: B~ = their mix of rows
+    indices: npt.NDArray[np.intp] | None = None
+    weights: npt.NDArray[np.float64] | None = None
+
+
+@dataclass(frozen=True)
+class _Posterior:
+    coefficients: npt.NDArray[np.float64]
+    coefficient_variance: npt.NDArray[np.float64]
+    # rows r with variance(x) = base(x) + sign * ||factor b(x)||^2; None unless exact
+    factor: npt.NDArray[np.float32] | None
+    subtract_from_prior: bool
+    solve_form: SolveForm
+    # beyond the paper (prior.py): base(x) = sum_i p_i u_i(x)^2 when the prior variances
+    # p are not Lambda (temporal), the local part, the noise used and the robust weights
+    prior_diagonal: npt.NDArray[np.float64] | None = None
+    local: _Local | None = None
+    sigma: float = DEFAULT_SIGMA
+    weights: npt.NDArray[np.float64] | None = None
+    normalised_innovation: float = 0.0
+    temporal: str = "static"
+
+
+def _solve(
+    rows: npt.NDArray[np.float64],
+    residual: npt.NDArray[np.float64],
+    eigenvalues: npt.NDArray[np.float64],
+    sigma: float,
+    form: SolveForm,
+    *,
+    need_factor: bool,
+) -> _Posterior:
+    """MAP estimate and posterior of one frame; rows = B~ (k, l), residual = z~ (k,)."""
+    k, n_components = rows.shape
+    if k == 0:
+        return _Posterior(
+            coefficients=np.zeros(n_components),
+            coefficient_variance=eigenvalues.copy(),
+            factor=np.zeros((0, n_components), dtype=np.float32) if need_factor else None,
+            subtract_from_prior=True,
+            solve_form=SolveForm.MEASUREMENT,
+            sigma=sigma,
+        )
+    if form is SolveForm.AUTO:
+        form = SolveForm.MEASUREMENT if k < n_components else SolveForm.COEFFICIENT
+    variance = sigma**2
+    if form is SolveForm.MEASUREMENT:
+        # Woodbury: K = B~ Lambda B~^T + sigma^2 I = L L^T, formed as C C^T (syrk), C = B~ Λ^½
+        scaled = rows * np.sqrt(eigenvalues)
+        system = scaled @ scaled.T
+        system.flat[:: k + 1] += variance
+        lower_inverse = _cholesky_inverse(system)  # L^-1
+        # M = L^-1 B~ (one triangular product); K^-1 = L^-T L^-1 is never formed
+        whitened_rows = _lower_times(lower_inverse, rows)
+        coefficients = eigenvalues * (whitened_rows.T @ (lower_inverse @ residual))
+        # kappa_i^2 = lambda_i - lambda_i^2 ||M_i||^2, in float64 (large lambda cancel)
+        coefficient_variance = eigenvalues - eigenvalues**2 * np.einsum(
+            "kl,kl->l", whitened_rows, whitened_rows
+        )
+        factor = None
+        if need_factor:
+            factor = (whitened_rows * eigenvalues).astype(np.float32)  # W = L^-1 B~ Λ
+        return _Posterior(
+            coefficients,
+            coefficient_variance,
+            factor,
+            True,
+            form,
+            sigma=sigma,
+            normalised_innovation=_normalised_innovation(rows, residual, coefficients, sigma),
+        )
+    # coefficient form: A = sigma^2 I + Λ^½ B~^T B~ Λ^½ = L_A L_A^T (paper's system, symmetrised)
+    root = np.sqrt(eigenvalues)
+    scaled = rows * root
+    system = scaled.T @ scaled
+    system.flat[:: n_components + 1] += variance
+    lower_inverse = _cholesky_inverse(system)
+    inverse = lower_inverse.T @ lower_inverse  # A^-1
+    coefficients = root * (inverse @ (scaled.T @ residual))
+    # Sigma_y = V^T V with V = sigma L_A^-1 Λ^½
+    factor64 = sigma * lower_inverse * root
+    coefficient_variance = np.einsum("rl,rl->l", factor64, factor64)
+    factor = factor64.astype(np.float32) if need_factor else None
+    return _Posterior(
+        coefficients,
+        coefficient_variance,
+        factor,
+        False,
+        form,
+        sigma=sigma,
+        normalised_innovation=_normalised_innovation(rows, residual, coefficients, sigma),
+    )
+
+
+def _normalised_innovation(
+    rows: npt.NDArray[np.float64],
+    residual: npt.NDArray[np.float64],
+    coefficients: npt.NDArray[np.float64],
+    sigma: float,
+) -> float:
+    """z~^T K^-1 z~ / k of the paper's model, from K^-1 z~ = (z~ - B~ y_hat) / sigma^2."""
+    k = residual.shape[0]
+    return float(residual @ (residual - rows @ coefficients)) / (sigma**2 * k) if k else 0.0
+
+
+def _sigma(sigma: float | str) -> float | None:
+    """Validate the ``sigma`` argument: a positive number, or "evidence" (None)."""
+    if isinstance(sigma, str):
+        if sigma == "evidence":
+            return None
+        raise ValueError(f'Expected `sigma` > 0 (px) or "evidence", got {sigma!r}')
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise ValueError(f"Expected `sigma` > 0 (px), got {sigma}")
+    return float(sigma)
+
+
+def _downweighted(weights: npt.NDArray[np.float64] | None) -> int:
+    return 0 if weights is None else int(np.count_nonzero(weights < DOWNWEIGHTED_BELOW))
+
+
+def _solve_beyond(
+    rows: npt.NDArray[np.float64],
+    residual: npt.NDArray[np.float64],
+    positions: npt.NDArray[np.float64],
+    eigenvalues: npt.NDArray[np.float64],
+    model: Model,
+    temporal: TemporalPrior | None,
+    *,
+    need_factor: bool,
+    extra_variance: npt.NDArray[np.float64] | None = None,
+) -> _Posterior:
+    """The estimate with the additions of ``prior.py``, in measurement space.
+
+    Temporal prior first; when its normalised innovation fails the test the frame is solved
+    again with the static prior (and the state restarts from that posterior).
+    """
+    predicted = temporal.predict(eigenvalues) if temporal is not None else None
+    local_matrix = (
+        model.local.matrix(positions) if model.local is not None and rows.shape[0] else None
+    )
+    posterior = _solve_measurement(
+        rows,
+        residual,
+        positions,
+        eigenvalues,
+        model,
+        predicted,
+        local_matrix,
+        need_factor=need_factor,
+        extra_variance=extra_variance,
+    )
+    if predicted is not None and temporal is not None:
+        if not temporal.accepts(posterior.normalised_innovation):
+            temporal.resets += 1
+            posterior = _solve_measurement(
+                rows,
+                residual,
+                positions,
+                eigenvalues,
+                model,
+                None,
+                local_matrix,
+                need_factor=need_factor,
+                label="reset",
+                extra_variance=extra_variance,
+            )
+    if temporal is not None and posterior.temporal != "temporal":
+        temporal.static_innovation = posterior.normalised_innovation
+    if temporal is not None:
+        temporal.update(posterior.coefficients, posterior.coefficient_variance)
+    return posterior
+
+
+def _solve_measurement(
+    rows: npt.NDArray[np.float64],
+    residual: npt.NDArray[np.float64],
+    positions: npt.NDArray[np.float64],
+    eigenvalues: npt.NDArray[np.float64],
+    model: Model,
+    predicted: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None,
+    local_matrix: npt.NDArray[np.float64] | None,
+    *,
+    need_factor: bool,
+    label: str = "static",
+    extra_variance: npt.NDArray[np.float64] | None = None,
+) -> _Posterior:
+    """MAP estimate and posterior under prior y ~ N(mu, diag(p)), local prior, weighted noise.
+
+    See the module docstring of ``prior.py`` for the equations; rows = B~ (k, l),
+    residual = z~ (k,), positions (k, 2) basis image px. ``predicted`` is (mu, p) of the
+    temporal prior, None for the static prior (mu = 0, p = lambda); ``local_matrix`` is
+    C_pp of the local prior (None without one); ``extra_variance`` (k,) is added to
+    sigma^2 per measurement (basis units^2).
+    """
+    k, n_components = rows.shape
+    if predicted is None:
+        mean = np.zeros(n_components)
+        prior_diagonal = eigenvalues
+    else:
+        mean, prior_diagonal = predicted
+        label = "temporal"
+    prior_rows = rows * prior_diagonal  # B~ P
+    innovation = residual - rows @ mean
+    scaled = rows * np.sqrt(prior_diagonal)
+    signal = scaled @ scaled.T  # B~ P B~^T as C C^T (numpy uses syrk: half the flops)
+    if local_matrix is not None:
+        signal += local_matrix  # + C_pp
+    if model.sigma is not None:
+        sigma = model.sigma
+    elif extra_variance is not None:  # fit sigma^2 on top of the known extra noise
+        sigma = evidence_sigma(signal + np.diag(extra_variance), innovation)
+    else:
+        sigma = evidence_sigma(signal, innovation)
+    if not np.isfinite(sigma):  # no measurements: nothing to fit
+        sigma = DEFAULT_SIGMA
+    weights = np.ones(k)
+    noise = sigma**2 if extra_variance is None else sigma**2 + extra_variance
+    iterations = model.robust_iterations if model.robust is not Robust.NONE else 0
+    for iteration in range(iterations + 1):
+        system = signal.copy()
+        system.flat[:: k + 1] += noise / weights  # + R
+        lower_inverse = _cholesky_inverse(system) if k else np.zeros((0, 0))
+        alpha = lower_inverse.T @ (lower_inverse @ innovation)  # K^-1 (z~ - B~ mu)
+        if iteration == iterations:
+            break
+        # leave-one-out standardised residuals: alpha_j / sqrt([K^-1]_jj)
+        inverse_diagonal = np.einsum("ij,ij->j", lower_inverse, lower_inverse)
+        updated = robust_weights(alpha / np.sqrt(inverse_diagonal), model.robust)
+        converged = bool(np.max(np.abs(updated - weights), initial=0.0) < 1e-3)
+        weights = updated
+        if converged:
+            # one more solve with the final weights
+            iterations = iteration + 1
+    coefficients = mean + prior_rows.T @ alpha  # y = mu + P B~^T alpha
+    gain = _lower_times(lower_inverse, prior_rows)  # W = L^-1 B~ P (k, l)
+    coefficient_variance = prior_diagonal - np.einsum("kl,kl->l", gain, gain)
+    local = None
+    if model.local is not None:
+        local = _Local(
+            prior=model.local,
+            positions=positions,
+            alpha=alpha,
+            lower_inverse=lower_inverse.astype(np.float32) if need_factor else None,
+            prior_rows=prior_rows.astype(np.float32) if need_factor else None,
+        )
+    return _Posterior(
+        coefficients=coefficients,
+        coefficient_variance=coefficient_variance,
+        # with a local part the variance takes L^-1 (B~ P b(x) + c(P, x)) instead
+        factor=gain.astype(np.float32) if need_factor and local is None else None,
+        subtract_from_prior=True,
+        solve_form=SolveForm.MEASUREMENT,
+        prior_diagonal=None if predicted is None else prior_diagonal,
+        local=local,
+        sigma=float(sigma),
+        weights=weights,
+        normalised_innovation=float(innovation @ alpha / k) if k else 0.0,
+        temporal=label,
+    )
+
+
+def _image_coordinates(count: int, basis_size: int) -> npt.NDArray[np.float64]:
+    """Centres of ``count`` cells spanning a basis image axis, in its px (pixel-centre)."""
+    cells = np.arange(count, dtype=np.float64)
+    return (cells + 0.5) * (basis_size / count) - 0.5
+
+
+def _local_mean(
+    local: _Local, out_size: tuple[int, int], basis_image: tuple[int, int], scale: float
+) -> npt.NDArray[np.float32]:
+    """The local part c(x, P) alpha at every output pixel times ``scale``, (H, W) float32.
+
+    Separable kernel: sum_j alpha_j v k_y(y - y_j) k_x(x - x_j) = (K_y^T diag(v alpha)) K_x.
+    """
+    height, width = out_size
+    if local.alpha.size == 0:
+        return np.zeros(out_size, dtype=np.float32)
+    ys = _image_coordinates(height, basis_image[0])
+    xs = _image_coordinates(width, basis_image[1])
+    support = local.prior.support()
+    blocks = _LOCAL_BLOCKS if _LOCAL_BLOCKS * 2.0 * support < basis_image[1] else 1
+    # short kernels: columns in blocks, each with only the measurements within the
+    # kernel's support of it (sorted by x); the terms left out are < 4e-18 of the peak
+    order = np.argsort(local.positions[:, 0], kind="stable")
+    position_x = local.positions[order, 0]
+    along_y = local.prior.axis(local.positions[order, 1], ys, np.float32)  # (k, H)
+    along_y *= (scale * local.prior.variance * local.alpha[order]).astype(np.float32)[:, None]
+    dense = np.zeros(out_size, dtype=np.float32)
+    step = -(-width // blocks)
+    for start in range(0, width, step):
+        columns = xs[start : start + step]
+        first = int(np.searchsorted(position_x, columns[0] - support, side="left"))
+        last = int(np.searchsorted(position_x, columns[-1] + support, side="right"))
+        if first < last:
+            along_x = local.prior.axis(position_x[first:last], columns, np.float32)
+            dense[:, start : start + step] = along_y[first:last].T @ along_x
+    return dense
+
+
+def _local_covariance(
+    local: _Local, vgrid_size: tuple[int, int], basis_image: tuple[int, int]
+) -> npt.NDArray[np.float32]:
+    """c(P, x) for x on the variance grid, (k, s_v) float32."""
+    ys = _image_coordinates(vgrid_size[0], basis_image[0])
+    xs = _image_coordinates(vgrid_size[1], basis_image[1])
+    along_y = local.prior.axis(local.positions[:, 1], ys, np.float32)
+    along_x = local.prior.axis(local.positions[:, 0], xs, np.float32)
+    product = along_y[:, :, None] * along_x[:, None, :] * np.float32(local.prior.variance)
+    covariance: npt.NDArray[np.float32] = product.reshape(
+        local.alpha.size, vgrid_size[0] * vgrid_size[1]
+    )
+    return covariance
+
+
+@functools.cache
+def triangular_lapack() -> Any:
+    """Return scipy's LAPACK with its OpenBLAS held at one thread, or None.
+
+    numpy has no triangular inverse: ``np.linalg.inv`` of the Cholesky factor costs ~4x
+    LAPACK's ``dtrtri`` (4.4 vs 1.2 ms at k = 300, measured). scipy ships a second OpenBLAS
+    whose idle threads spin after a call and halved the speed of the next numpy product
+    (docs/estimator.md); a 300 x 300 factorisation gains nothing from threads, so that
+    library (only scipy's, found by its path) is limited to one thread, once per process.
+    """
+    try:
+        from scipy.linalg import lapack
+        from threadpoolctl import ThreadpoolController
+    except ImportError:  # pragma: no cover - both are dependencies
+        return None
+    controller = ThreadpoolController()
+    scipy_blas = [
+        module for module in controller.lib_controllers if "scipy.libs" in module.filepath
+    ]
+    for module in scipy_blas:
+        module.set_num_threads(1)
+    return lapack
+
+
+def _cholesky_inverse(system: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Return L^-1 (lower triangular) of the Cholesky factor L L^T = system.
+
+    LAPACK ``dpotrf`` + ``dtrtri`` through scipy (its OpenBLAS held at one thread, see
+    :func:`triangular_lapack`); numpy's general ``inv`` of the factor only when scipy is
+    missing.
+
+    Raises:
+        numpy.linalg.LinAlgError: the system is not positive definite.
+    """
+    lapack = triangular_lapack()
+    if lapack is None:  # pragma: no cover - scipy is a dependency
+        return np.tril(np.linalg.inv(np.linalg.cholesky(system)))
+    lower, info = lapack.dpotrf(system, lower=1, clean=1)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"matrix is not positive definite (dpotrf info {info})")
+    inverse, info = lapack.dtrtri(lower, lower=1)
+    if info != 0:  # pragma: no cover - a Cholesky factor has a positive diagonal
+        raise np.linalg.LinAlgError(f"singular Cholesky factor (dtrtri info {info})")
+    return np.asarray(inverse, dtype=np.float64)
+
+
+def _lower_times(lower: npt.NDArray[_Float], matrix: npt.NDArray[_Float]) -> npt.NDArray[_Float]:
+    """Return lower @ matrix for a lower-triangular ``lower`` (BLAS ``?trmm``, half a GEMM).
+
+    BLAS is column-major: the C-ordered ``matrix`` is its transpose there, so the call
+    computes matrix^T lower^T (right side, transposed triangle) with no copy of ``matrix``.
+    """
+    if lower.shape[0] == 0:
+        return lower @ matrix
+    if triangular_lapack() is None:  # pragma: no cover - scipy is a dependency
+        return lower @ matrix
+    from scipy.linalg import blas
+
+    trmm = blas.strmm if matrix.dtype == np.float32 else blas.dtrmm
+    product = trmm(1.0, lower, np.ascontiguousarray(matrix).T, lower=1, side=1, trans_a=1)
+    return np.ascontiguousarray(product.T)

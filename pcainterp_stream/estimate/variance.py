@@ -1,0 +1,241 @@
+"""The per-pixel posterior variance (paper section III-C).
+
+Exact diag(B Sigma_y B^T), the paper's diagonal approximation, and where they are
+evaluated (:class:`Uncertainty`): ``"exact"`` at every output pixel, ``"exact-coarse"`` and
+``"paper"`` on a variance grid coarser than the basis grid, resampled bilinearly.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.estimate.basis import (
+    Basis,
+    VarianceGrid,
+    bilinear_weights,
+    sample_rows,
+)
+from pcainterp_stream.estimate.solve import (
+    _image_coordinates,
+    _Local,
+    _local_covariance,
+    _lower_times,
+    _Posterior,
+)
+
+DEFAULT_VARIANCE_GRID_SCALE = 0.0625
+"""Automatic variance grid of ``"exact-coarse"`` and ``"paper"``: the coarsest stride whose
+grid is still >= this scale of the image. Finer grids cost 2-5x as much and were still not
+within 2 % of the exact std (docs/benchmarks.md, "Exact posterior std: variance grid")."""
+
+_EXACT_PIXELS_PER_CHUNK = 1 << 14
+"""Output pixels whose ``"exact"`` variance is evaluated at once (memory ~(l + k) x this)."""
+
+
+_VARIANCE_ROWS_PER_CHUNK = 512
+
+
+"""Rows of the stacked exact-variance factor multiplied at once (bounds memory to ~rows*s)."""
+
+
+class Uncertainty(StrEnum):
+    """How the per-pixel posterior std is computed."""
+
+    NONE = "none"
+    """No uncertainty: ``disparity_std`` and ``depth_std`` are None."""
+    PAPER = "paper"
+    """The paper's diagonal approximation sum_i kappa_i^2 u_i(x)^2, on the variance grid."""
+    EXACT = "exact"
+    """The exact posterior variance at every output pixel x: b(x)^T Sigma_y b(x), b(x) the
+    bilinear row of the basis at x (as for a measurement), plus the local part of a hybrid
+    prior with its kernel evaluated at x itself. k*l (+ k^2 with a local prior) products per
+    output pixel: seconds per KITTI-size frame (docs/benchmarks.md)."""
+    EXACT_COARSE = "exact-coarse"
+    """The exact posterior variance at the points of the variance grid (``variance_stride``;
+    by default 1/16 of the image resolution), resampled bilinearly: exact at those points
+    only. It misses the posterior's fine structure between them: the components'
+    roughness at the basis grid's scale, and the dips of the std towards sigma at and near
+    the measurements (deep with a hybrid prior). The default: on learned bases it had the
+    +-2 sigma coverage and NLL of ``EXACT`` at ~1/100 of its cost (docs/benchmarks.md,
+    "Exact posterior std: variance grid")."""
+
+
+def _variance_beyond(
+    vgrid: VarianceGrid,
+    posterior: _Posterior,
+    basis_image: tuple[int, int],
+    covariance: npt.NDArray[np.float32] | None = None,
+    coordinates: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None = None,
+) -> npt.NDArray[np.float32]:
+    """Exact variance of one frame with temporal and/or local prior, (s_v,) float32.
+
+    var(x) = b^T P b + v - ||L^-1 (B~ P b(x) + c(P, x))||^2, with W = L^-1 B~ P (the
+    factor) when there is no local part. ``coordinates`` (ys, xs) are the basis-image px
+    of the points' rows and columns when ``vgrid`` does not span the whole image.
+    """
+    local = posterior.local
+    if local is not None:
+        if local.lower_inverse is None or local.prior_rows is None:
+            raise AssertionError("exact variance needs the posterior factor")
+        # L^-1 (B~ P U + C): one triangular product (half a GEMM) instead of two GEMMs
+        if (
+            covariance is not None
+            and posterior.prior_diagonal is None
+            and (local.indices is not None and local.weights is not None)
+        ):
+            # static prior P = Lambda: B~ Lambda U = the bilinear mix of U Lambda U_v^T rows
+            joint = sample_rows(covariance, local.indices, local.weights)
+        else:
+            joint = local.prior_rows @ vgrid.component_rows
+        if coordinates is None:
+            joint += _local_covariance(local, vgrid.size, basis_image)
+        else:
+            joint += _local_covariance_at(local, *coordinates)
+        projected = _lower_times(local.lower_inverse, joint)
+    else:
+        projected = _factor(posterior) @ vgrid.component_rows
+    reduction = np.einsum("ks,ks->s", projected, projected)
+    if posterior.prior_diagonal is not None:
+        # b(x)^T P b(x) = sum_i p_i u_i(x)^2, one GEMV
+        base = posterior.prior_diagonal.astype(np.float32) @ vgrid.squared_rows
+    else:
+        base = vgrid.prior_variance
+    if posterior.local is not None:
+        base = base + np.float32(posterior.local.prior.variance)
+    result: npt.NDArray[np.float32] = (base - reduction).astype(np.float32)
+    return result
+
+
+def _variances(
+    vgrid: VarianceGrid,
+    posteriors: list[_Posterior],
+    mode: Uncertainty,
+    basis_image: tuple[int, int],
+    covariance: npt.NDArray[np.float32] | None = None,
+    coordinates: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None = None,
+) -> npt.NDArray[np.float32]:
+    """Posterior variance (F, s_v) float32 at the points of ``vgrid`` (basis disparity units).
+
+    ``covariance`` is the basis's :meth:`~Basis.prior_covariance` (or None); ``coordinates``
+    as in :func:`_variance_beyond`. Any mode but ``"paper"`` is the exact variance there.
+    """
+    n_frames = len(posteriors)
+    if any(p.local is not None or p.prior_diagonal is not None for p in posteriors):
+        if mode is Uncertainty.PAPER:
+            raise ValueError(
+                'uncertainty="paper" is the diagonal approximation of the paper\'s prior; '
+                'use "exact-coarse" or "exact" with a local or temporal prior'
+            )
+        return np.stack(
+            [_variance_beyond(vgrid, p, basis_image, covariance, coordinates) for p in posteriors]
+        )
+    if mode is Uncertainty.PAPER:
+        kappa2 = np.stack([p.coefficient_variance for p in posteriors], axis=1)
+        # eq. (15/16): sum_i kappa_i^2 u_i(x)^2, one GEMM for all frames
+        paper: npt.NDArray[np.float32] = (vgrid.squared_rows.T @ kappa2.astype(np.float32)).T
+        return np.ascontiguousarray(paper)
+    out = np.empty((n_frames, vgrid.prior_variance.shape[0]), dtype=np.float32)
+    # stack frames' factors and multiply in chunks of rows: (sum r_f, l) @ (l, s_v)
+    start = 0
+    while start < n_frames:
+        stop = start
+        n_rows = 0
+        while stop < n_frames and (stop == start or n_rows < _VARIANCE_ROWS_PER_CHUNK):
+            factor = posteriors[stop].factor
+            n_rows += 0 if factor is None else factor.shape[0]
+            stop += 1
+        factors = [_factor(p) for p in posteriors[start:stop]]
+        counts = [f.shape[0] for f in factors]
+        stacked = factors[0] if len(factors) == 1 else np.concatenate(factors, axis=0)
+        projected = stacked @ vgrid.component_rows
+        projected *= projected
+        offset = 0
+        for index, count in enumerate(counts):
+            reduction = projected[offset : offset + count].sum(axis=0)
+            offset += count
+            posterior = posteriors[start + index]
+            if posterior.subtract_from_prior:
+                out[start + index] = vgrid.prior_variance - reduction
+            else:
+                out[start + index] = reduction
+        start = stop
+    return out
+
+
+def _factor(posterior: _Posterior) -> npt.NDArray[np.float32]:
+    if posterior.factor is None:
+        raise AssertionError("exact variance needs the posterior factor")
+    return posterior.factor
+
+
+def _variance_stride(basis: Basis, variance_stride: int | None) -> int:
+    if variance_stride is not None:
+        if variance_stride < 1:
+            raise ValueError(f"Expected `variance_stride` >= 1, got {variance_stride}")
+        return int(variance_stride)
+    grid_scale = basis.grid_size[0] / basis.image_size[0]
+    return max(1, int(np.floor(grid_scale / DEFAULT_VARIANCE_GRID_SCALE + 1e-9)))
+
+
+def _local_covariance_at(
+    local: _Local, ys: npt.NDArray[np.float64], xs: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float32]:
+    """c(P, x) (k, len(ys) * len(xs)) float32 at the points (x, y) of rows ys x columns xs.
+
+    ``ys`` and ``xs`` are basis-image px; the separable kernel is one outer product per
+    measurement, as :func:`solve._local_covariance` on a whole grid.
+    """
+    along_y = local.prior.axis(local.positions[:, 1], ys, np.float32)
+    along_x = local.prior.axis(local.positions[:, 0], xs, np.float32)
+    product = along_y[:, :, None] * along_x[:, None, :] * np.float32(local.prior.variance)
+    covariance: npt.NDArray[np.float32] = product.reshape(local.alpha.size, ys.size * xs.size)
+    return covariance
+
+
+def _pixel_variances(
+    basis: Basis, posteriors: list[_Posterior], out_size: tuple[int, int]
+) -> npt.NDArray[np.float32]:
+    """Exact posterior variance (F, H * W) float32 at every output pixel (basis units).
+
+    The ``"exact"`` mode. The basis row at output pixel x is its bilinear sample b(x) (the
+    row a measurement at x has, and the dense map's own resampling), so the variance is the
+    model's b(x)^T Sigma_y b(x) there, not a resampling of grid values: with components
+    that are rough at the grid's scale the variance of the bilinear mix is below the mix of
+    the variances. A hybrid prior's kernel is evaluated at x itself, so the std dips to
+    about sigma at each measurement as the posterior does. The output pixels are taken in
+    chunks of rows (:data:`_EXACT_PIXELS_PER_CHUNK` pixels) as a :class:`VarianceGrid`, with
+    the same products as the variance grid of ``"exact-coarse"``.
+    """
+    height, width = out_size
+    # output pixel centres on the basis grid (image_to_grid) and in basis-image px
+    grid_x = _image_coordinates(width, basis.grid_size[1])
+    grid_y = _image_coordinates(height, basis.grid_size[0])
+    basis_x = _image_coordinates(width, basis.image_size[1])
+    basis_y = _image_coordinates(height, basis.image_size[0])
+    rows_per_chunk = max(1, _EXACT_PIXELS_PER_CHUNK // width)
+    out = np.empty((len(posteriors), height * width), dtype=np.float32)
+    for top in range(0, height, rows_per_chunk):
+        bottom = min(top + rows_per_chunk, height)
+        ys, xs = np.meshgrid(grid_y[top:bottom], grid_x, indexing="ij")
+        indices, weights = bilinear_weights(
+            np.stack([xs.ravel(), ys.ravel()], axis=1), basis.grid_size
+        )
+        rows = sample_rows(basis.pixel_major, indices, weights)  # (n, l): b(x) of each pixel
+        squared = rows.astype(np.float64)
+        squared *= squared
+        chunk = VarianceGrid(
+            size=(bottom - top, width),
+            component_rows=np.ascontiguousarray(rows.T),
+            prior_variance=(squared @ basis.eigenvalues).astype(np.float32),
+        )
+        out[:, top * width : bottom * width] = _variances(
+            chunk,
+            posteriors,
+            Uncertainty.EXACT,
+            basis.image_size,
+            coordinates=(basis_y[top:bottom], basis_x),
+        )
+    return out

@@ -1,0 +1,175 @@
+"""Read recorded logs (MCAP, ROS 1 bags, rosbag2 folders) as a stream of raw messages.
+
+:func:`open_log` looks at a path and returns an opened :class:`LogReader`, a context manager
+in the manner of rosbags' ``AnyReader``. Every reader yields :class:`~records.RawMessage`
+records in file order with bounded memory, and normalises what it yields so that the rest
+of the pipeline sees one kind of log: ROS messages are CDR with a ``ros2msg`` schema and
+type names in ROS 2 spelling (``sensor_msgs/msg/Image``), whatever the input format.
+
+Damaged input is read as far as it can be: the reader yields every message before the
+damage, then stops (or skips a damaged chunk whose framing is intact) and records a
+one-line description in :attr:`LogReader.damage`. Only a path that is not a log at all, or
+one that cannot be read from its start, raises :class:`~errors.LogReadError`. No library
+exception escapes as such.
+
+The MCAP reader walks the records itself (one record, at most one chunk, in memory at a
+time) rather than through ``mcap.reader``: that reader raises ``KeyError`` on files whose
+summary does not repeat schemas and channels, and cannot resume after a corrupt chunk.
+The record classes of the ``mcap`` package still parse the rare records (schemas, channels,
+summary); messages, the hot path, are unpacked with :mod:`struct`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.errors import LogReadError
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.mcap_reader import McapLogReader
+from pcainterp_stream.io.reader_base import (
+    _LOG_KINDS,
+    MCAP_MAGIC,
+    SQLITE_MAGIC,
+    LogFormat,
+    LogReader,
+    TopicInfo,
+    _one_line,
+)
+from pcainterp_stream.io.rosbags_reader import RosbagsLogReader, _storage_files
+
+__all__ = [
+    "LogFormat",
+    "LogReader",
+    "McapLogReader",
+    "RosbagsLogReader",
+    "TopicInfo",
+    "decode_image",
+    "looks_like_kitti",
+    "open_log",
+    "sniff_format",
+]
+
+
+ROS1_MAGIC = b"#ROSBAG V2.0"
+
+
+def sniff_format(path: str | Path) -> LogFormat:
+    """Return the format of a log path, by its kind and magic bytes.
+
+    Raises:
+        LogReadError: the path does not exist or is not a log (with a hint for a KITTI folder).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise LogReadError(f"{path} does not exist; pass {_LOG_KINDS}")
+    if path.is_dir():
+        if (path / "metadata.yaml").is_file():
+            return LogFormat.ROSBAG2
+        storage = _storage_files(path)
+        if looks_like_kitti(path):
+            hint = "; it looks like a KITTI folder: convert it with `pcainterp import-kitti`"
+        elif storage:
+            hint = f"; pass its storage file {storage[0]} directly"
+        else:
+            hint = "; pass an MCAP file, a ROS 1 .bag or a rosbag2 folder (with metadata.yaml)"
+        raise LogReadError(f"{path} is a folder but not a rosbag2 bag (no metadata.yaml){hint}")
+    try:
+        with path.open("rb") as f:
+            head = f.read(16)
+    except OSError as err:
+        raise LogReadError(f"cannot open {path}: {_one_line(err)}") from err
+    if head.startswith(MCAP_MAGIC):
+        return LogFormat.MCAP
+    if head.startswith(ROS1_MAGIC):
+        return LogFormat.ROS1
+    if head.startswith(SQLITE_MAGIC):
+        return LogFormat.ROSBAG2
+    if not head:
+        raise LogReadError(f"{path} is empty, not a log; pass {_LOG_KINDS}")
+    suffix = {".mcap": "an MCAP file", ".bag": "a ROS 1 bag", ".db3": "a rosbag2 sqlite3 file"}
+    expected = suffix.get(path.suffix.lower())
+    what = (
+        f"named like {expected} but does not start with its magic bytes"
+        if expected
+        else ("not a log (no MCAP, ROS 1 bag or SQLite magic bytes)")
+    )
+    raise LogReadError(f"{path} is {what}; pass an MCAP file, a ROS 1 .bag or a rosbag2 folder")
+
+
+def looks_like_kitti(path: str | Path) -> bool:
+    """Return True for a KITTI raw drive (``image_00/data``) or odometry sequence folder."""
+    path = Path(path)
+    if not path.is_dir():
+        return False
+    markers = [
+        path / "image_00" / "data",
+        path / "image_0",
+        path / "sequences",
+        path / "calib_cam_to_cam.txt",
+    ]
+    if any(p.exists() for p in markers):
+        return True
+    return any(child.is_dir() and child.name.endswith("_sync") for child in path.iterdir())
+
+
+def open_log(path: str | Path) -> LogReader:
+    """Open a log for reading: an MCAP file, a ROS 1 ``.bag``, or a rosbag2 folder / ``.db3``.
+
+    The reader is returned open; use it as a context manager to close it::
+
+        with open_log("drive.mcap") as reader:
+            for raw in reader.messages(["/stereo/left/image_rect"]):
+                image = decode_image(reader.decode(raw))
+
+    Raises:
+        LogReadError: the path is missing, not a log, or unreadable from its start.
+    """
+    path = Path(path)
+    log_format = sniff_format(path)
+    reader: LogReader
+    if log_format is LogFormat.MCAP:
+        reader = McapLogReader(path)
+    else:
+        reader = RosbagsLogReader(path, log_format)
+    reader.open()
+    return reader
+
+
+def decode_image(message: Any) -> npt.NDArray[np.generic]:
+    """Decode a ``sensor_msgs/Image`` or ``sensor_msgs/CompressedImage`` into an array.
+
+    Args:
+        message: a typestore ``Image`` (mono8, rgb8, bgr8, mono16 and the other encodings of
+            :data:`rosmsg.IMAGE_ENCODINGS`) or ``CompressedImage`` (png, jpeg).
+
+    Returns:
+        (H, W) grey or (H, W, 3) RGB array: uint8 for 8-bit encodings, uint16 for 16-bit
+        ones (mono16 stays uint16), float32 for 32FC1.
+
+    Raises:
+        ValueError: for an unsupported encoding or format (named), or data that does not
+            decode.
+    """
+    if hasattr(message, "encoding"):
+        return rosmsg.image_array(message)
+    image_format = str(getattr(message, "format", ""))
+    kind = image_format.lower().replace(";", " ").split()
+    known = {"png", "jpeg", "jpg"}
+    if not known.intersection(kind) or "compresseddepth" in kind:
+        raise ValueError(
+            f"unsupported compressed image format {image_format!r}; supported: png, jpeg"
+        )
+    data = np.asarray(message.data, dtype=np.uint8)
+    image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise ValueError(f"compressed image ({image_format}) of {data.size} bytes does not decode")
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGB)
+    elif image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    return np.asarray(image)

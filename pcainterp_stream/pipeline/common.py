@@ -1,0 +1,116 @@
+"""Helpers the jobs share: progress bars, messages, checks of output folders and topics."""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from pcainterp_stream.errors import (
+    LogReadError,
+    LogWriteError,
+    PcaInterpError,
+    TopicNotFoundError,
+)
+from pcainterp_stream.frontend.pairing import (
+    PairingConfig,
+)
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.logreader import LogReader, open_log
+
+
+def _bar(total: int | None, description: str, unit: str = "frame") -> tqdm[Any]:
+    # shown on a terminal only, so logs and tests stay clean
+    return tqdm(
+        total=total, desc=description, unit=unit, disable=None, leave=False, file=sys.stderr
+    )
+
+
+def _echo(text: str) -> None:
+    print(text, flush=True)
+
+
+def _check_output_folder(output: Path) -> None:
+    """Refuse an output whose folder is missing before any long work is done."""
+    if not output.parent.is_dir():
+        raise LogWriteError(
+            f"cannot write {output}: folder {output.parent} does not exist; create it first"
+        )
+
+
+_IMAGE_TYPES = (rosmsg.IMAGE, rosmsg.COMPRESSED_IMAGE)
+
+
+def _check_topic_types(reader: LogReader, checks: list[tuple[str, str, tuple[str, ...]]]) -> None:
+    """Check that topics have a usable message type.
+
+    Args:
+        reader: the open log.
+        checks: (topic, option that names it, accepted types) each; absent topics pass.
+
+    Raises:
+        LogReadError: naming the topic, its type, the accepted types, the topics of those
+            types in the log and the option to pass.
+    """
+    topics = reader.topics()
+    for topic, option, accepted in checks:
+        info = topics.get(topic)
+        if info is None or info.msgtype in accepted:
+            continue
+        candidates = ", ".join(t for t, i in topics.items() if i.msgtype in accepted) or "none"
+        raise LogReadError(
+            f"topic {topic} in {reader.path.name} has type {info.msgtype or 'unknown'}, not "
+            f"{' or '.join(accepted)}; topics of that type: {candidates}; pass {option}"
+        )
+
+
+def _pairing_types(pairing: PairingConfig) -> list[tuple[str, str, tuple[str, ...]]]:
+    """Return the type checks of the topics a stereo pairing reads."""
+    checks = [
+        (pairing.left_topic, "--left-topic", _IMAGE_TYPES),
+        (pairing.right_topic, "--right-topic", _IMAGE_TYPES),
+        (pairing.left_info_topic, "--left-info-topic", (rosmsg.CAMERA_INFO,)),
+        (pairing.right_info_topic, "--right-info-topic", (rosmsg.CAMERA_INFO,)),
+    ]
+    if pairing.features_topic is not None:
+        checks.append((pairing.features_topic, "--features-topic", (rosmsg.POINT_CLOUD2,)))
+    return checks
+
+
+def _require_topics(reader: LogReader, options: dict[str, str], wanted: str) -> None:
+    """Check the topics a job reads (topic -> option), naming an empty or damaged log as such.
+
+    Raises:
+        LogReadError: the log has no topics at all, or misses a topic and is damaged (then
+            the topic may be in the unreadable part: "pass --left-topic" would mislead).
+        TopicNotFoundError: an intact log misses a topic (names the topics and the option).
+    """
+    try:
+        reader.require_topics(options)
+    except TopicNotFoundError as err:
+        topics = reader.topics()
+        if reader.damage:
+            missing = next(topic for topic in options if topic not in topics)
+            raise LogReadError(
+                f"no {wanted} found in {reader.path}: it is damaged "
+                f"({'; '.join(reader.damage[:2])}) and its readable part has no topic "
+                f"{missing}; repair or re-record the log"
+            ) from err
+        if all(info.message_count == 0 for info in topics.values()):
+            listed = f" on topics {', '.join(topics)}" if topics else ""
+            raise LogReadError(
+                f"no {wanted} found in {reader.path}: it has no messages{listed}; "
+                "pass a log recorded with stereo images"
+            ) from err
+        raise
+
+
+def _expected_frames(log: Path, topic: str, every: int) -> int | None:
+    with contextlib.suppress(PcaInterpError), open_log(log) as reader:
+        count = reader.topics().get(topic)
+        if count is not None and count.message_count is not None:
+            return -(-count.message_count // every)
+    return None

@@ -1,0 +1,193 @@
+"""The ``densify`` job: a log in, the same log with the dense depth channels out."""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from pcainterp_stream.errors import (
+    LogReadError,
+    PcaInterpError,
+)
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.frontend.pairing import (
+    PairingConfig,
+    PairingStats,
+    StereoPairer,
+)
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.logwriter import LogFormat, WriteSummary, open_writer
+from pcainterp_stream.io.outputs import OutputTopics, output_messages
+from pcainterp_stream.io.rerun_sink import RerunSink
+from pcainterp_stream.pipeline.common import (
+    _bar,
+    _check_topic_types,
+    _pairing_types,
+    _require_topics,
+)
+from pcainterp_stream.pipeline.processor import FrameProcessor, MeasurementSource, ProcessorConfig
+from pcainterp_stream.records import DensifiedFrame
+
+
+@dataclass
+class DensifySummary:
+    """What ``densify`` did.
+
+    Attributes:
+        input: the input log.
+        output: the written log.
+        frames: frames densified.
+        seconds: wall time of the whole run.
+        measurements: sparse measurements used, summed over frames.
+        pairing: the pairer's counts.
+        damage: damage found in the input (one line each).
+        written: the writer's summary.
+        warnings: notes on the input that are not damage (non-monotonic log times).
+        downweighted: measurements the robust loss down-weighted (weight < 0.5), all frames.
+        most_downweighted: the most down-weighted measurements of one frame.
+        temporal_resets: frames whose temporal prior failed the innovation test.
+        carried: measurements carried over from earlier frames, summed over frames.
+        carry_resets: frames where the ego-motion was lost (carrying started over).
+    """
+
+    input: Path
+    output: Path
+    frames: int
+    seconds: float
+    measurements: int
+    pairing: PairingStats
+    damage: list[str]
+    written: WriteSummary | None
+    warnings: list[str] = dataclasses.field(default_factory=list)
+    downweighted: int = 0
+    most_downweighted: int = 0
+    temporal_resets: int = 0
+    carried: int = 0
+    carry_resets: int = 0
+
+    @property
+    def frames_per_second(self) -> float:
+        """Return densified frames per wall-clock second."""
+        return self.frames / self.seconds if self.seconds > 0 else 0.0
+
+
+def densify(
+    input_path: Path,
+    output: Path,
+    basis: Basis | Path,
+    *,
+    pairing: PairingConfig | None = None,
+    processor: ProcessorConfig | None = None,
+    topics: OutputTopics | None = None,
+    rrd: Path | None = None,
+    spawn_viewer: bool = False,
+    on_frame: Callable[[DensifiedFrame], None] | None = None,
+) -> DensifySummary:
+    """Densify a stereo log into a copy with the ``/pcainterp/*`` channels (``densify``).
+
+    One pass over the input: every message is copied to the output, stereo pairs are
+    formed by header stamp, stereo-matched ahead in a worker thread and densified in
+    batches, and their outputs written at the left image's log time.
+    """
+    started = time.perf_counter()
+    pairing = pairing or PairingConfig()
+    processor = processor or ProcessorConfig()
+    topics = topics or OutputTopics()
+    if isinstance(basis, Path):
+        basis = Basis.load(basis)
+    if processor.source is MeasurementSource.FEATURES and pairing.features_topic is None:
+        raise PcaInterpError("measurement source 'features' needs --features-topic")
+    measurements = 0
+    frames = 0
+    robust = {"downweighted": 0, "most": 0, "resets": 0, "carried": 0, "carry_resets": 0}
+    with contextlib.ExitStack() as stack:
+        reader = stack.enter_context(open_log(input_path))
+        _require_topics(reader, pairing.required_topics(), "stereo pair")
+        _check_topic_types(reader, _pairing_types(pairing))
+        clash = sorted(set(topics.all()) & set(reader.topics()))
+        if clash:
+            raise PcaInterpError(
+                f"{input_path} already has {', '.join(clash)}; densify the original log or "
+                "pass --output-prefix to write under another name"
+            )
+        left = reader.topics().get(pairing.left_topic)
+        total = left.message_count if left is not None else None
+        writer = stack.enter_context(open_writer(output, LogFormat.MCAP, inputs=[input_path]))
+        sink = (
+            stack.enter_context(RerunSink(rrd_path=rrd, spawn=spawn_viewer))
+            if rrd is not None or spawn_viewer
+            else None
+        )
+        engine = stack.enter_context(FrameProcessor(basis, processor))
+        pairer = StereoPairer(pairing)
+        bar = stack.enter_context(_bar(total, f"densify {input_path.name}"))
+
+        def emit(results: list[DensifiedFrame]) -> None:
+            nonlocal measurements, frames
+            for result in results:
+                for topic, message in output_messages(result, topics):
+                    writer.add_message(topic, message, result.frame.log_time_ns)
+                if sink is not None:
+                    sink.log(result)
+                if on_frame is not None:
+                    on_frame(result)
+                measurements += int(result.pixels.shape[0])
+                frames += 1
+                robust["downweighted"] += result.counts.get("downweighted", 0)
+                robust["most"] = max(robust["most"], result.counts.get("downweighted", 0))
+                robust["resets"] += result.counts.get("temporal_reset", 0)
+                robust["carried"] += result.counts.get("carried", 0)
+                robust["carry_resets"] += result.counts.get("carry_reset", 0)
+                bar.update(1)
+
+        for raw in reader.messages():
+            writer.add_raw(raw)
+            if pairer.wants(raw.topic):
+                for frame in pairer.push_raw(raw, reader.decode):
+                    emit(engine.submit(frame, pairer.features_for(frame)))
+        for frame in pairer.flush():
+            emit(engine.submit(frame, pairer.features_for(frame)))
+        emit(engine.finish())
+        stats = pairer.finish()
+        if frames == 0:
+            raise LogReadError(_no_pair_message(input_path, pairing, stats, reader.damage))
+    return DensifySummary(
+        input=input_path,
+        output=output,
+        frames=frames,
+        seconds=time.perf_counter() - started,
+        measurements=measurements,
+        pairing=stats,
+        damage=list(reader.damage),
+        written=writer.summary(),
+        warnings=list(reader.warnings),
+        downweighted=robust["downweighted"],
+        most_downweighted=robust["most"],
+        temporal_resets=robust["resets"],
+        carried=robust["carried"],
+        carry_resets=robust["carry_resets"],
+    )
+
+
+def _no_pair_message(
+    path: Path, pairing: PairingConfig, stats: PairingStats, damage: list[str]
+) -> str:
+    """Return the one-line error of a log without a single usable stereo pair."""
+    details = "; ".join([stats.summary(), *stats.problems[:1], *damage[:2]])
+    if stats.undecodable:
+        fix = "convert the images to mono8, rgb8 or bgr8 (or png/jpeg CompressedImage)"
+    elif stats.size_mismatches:
+        fix = "left and right images of a rectified pair must have the same size"
+    elif damage:
+        fix = "the readable part of the log has no complete pair; repair or re-record it"
+    else:
+        fix = (
+            f"left {pairing.left_topic} and right {pairing.right_topic} need images with "
+            "matching header stamps and camera infos on both sides (see pcainterp info, "
+            "--stamp-tolerance-ms)"
+        )
+    return f"no stereo pair found in {path} ({details}); {fix}"

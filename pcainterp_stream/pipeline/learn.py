@@ -1,0 +1,338 @@
+"""The ``learn`` job: a PCA basis from the depth or SGBM maps of logs, and the fitted prior."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import time
+from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.errors import (
+    LogReadError,
+    PcaInterpError,
+)
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.learning import learn_basis
+from pcainterp_stream.frontend.pairing import (
+    PairingConfig,
+    iter_stereo_frames,
+)
+from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig, compute_disparity
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.pipeline.common import (
+    _bar,
+    _check_output_folder,
+    _check_topic_types,
+    _echo,
+    _expected_frames,
+    _pairing_types,
+    _require_topics,
+)
+from pcainterp_stream.pipeline.processor import ProcessorConfig
+
+
+@dataclass(frozen=True)
+class LearnOptions:
+    """Options of ``pcainterp learn``.
+
+    Attributes:
+        n_components: components to keep (the most, with ``variance``).
+        variance: keep the fewest components reaching this explained-variance ratio.
+        grid_scale: basis grid pixels per image pixel.
+        depth_topic: learn from this depth topic (32FC1, m) instead of SGBM maps.
+        every: use every N-th frame.
+        sgbm: matcher options for SGBM maps (and the fitting frames' lookups).
+        fit_prior: fit the hybrid prior, the noise level and the temporal process noise by
+            the evidence on frames the basis does not see (``fitting.py``).
+        holdout: with ``fit_prior`` and no ``fit_logs``: the share of each log's frames,
+            at its end, kept out of the basis for the fit.
+        fit_logs: fit on these logs (all frames) instead of a held-out share.
+        gftt: corner options of the fitting frames' measurements.
+    """
+
+    n_components: int = 500
+    variance: float | None = None
+    grid_scale: float = 0.25
+    depth_topic: str | None = None
+    every: int = 1
+    sgbm: SgbmConfig = dataclasses.field(default_factory=SgbmConfig)
+    fit_prior: bool = False
+    holdout: float = 0.2
+    fit_logs: tuple[Path, ...] = ()
+    gftt: GfttConfig = dataclasses.field(default_factory=GfttConfig)
+
+
+@dataclass(frozen=True)
+class _MapSource:
+    image_size: tuple[int, int]
+    focal_baseline: float
+
+
+def _depth_maps(
+    log: Path, options: LearnOptions, pairing: PairingConfig, info: list[_MapSource]
+) -> Iterator[npt.NDArray[np.float32]]:
+    """Yield disparity maps f*b/depth of a depth topic; no surface (NaN, inf) is d = 0."""
+    assert options.depth_topic is not None
+    with open_log(log) as reader:
+        _require_topics(
+            reader,
+            {
+                options.depth_topic: "--depth-topic",
+                pairing.left_info_topic: "--left-info-topic",
+                pairing.right_info_topic: "--right-info-topic",
+            },
+            "depth image",
+        )
+        _check_topic_types(
+            reader,
+            [
+                (options.depth_topic, "--depth-topic", (rosmsg.IMAGE,)),
+                *_pairing_types(dataclasses.replace(pairing, features_topic=None))[2:],
+            ],
+        )
+        infos: dict[str, Any] = {}
+        index = 0
+        topics = [options.depth_topic, pairing.left_info_topic, pairing.right_info_topic]
+        for raw in reader.messages(topics):
+            message = reader.decode(raw)
+            if raw.topic != options.depth_topic:
+                infos[raw.topic] = message
+                continue
+            index += 1
+            if (index - 1) % options.every:
+                continue
+            if len(infos) < 2:
+                continue  # no calibration yet
+            try:
+                depth = rosmsg.image_array(message).astype(np.float32)
+                if depth.ndim != 2:
+                    raise ValueError(f"encoding {message.encoding!r} has {depth.shape[2]} channels")
+            except ValueError as err:
+                raise LogReadError(
+                    f"depth image on {options.depth_topic} at log time {raw.log_time_ns} ns in "
+                    f"{log.name} is unusable ({err}); pass a 32FC1 depth topic (m) as --depth-topic"
+                ) from err
+            from pcainterp_stream.frontend.pairing import camera_from_infos
+
+            camera = camera_from_infos(
+                infos[pairing.left_info_topic],
+                infos[pairing.right_info_topic],
+                width=depth.shape[1],
+                height=depth.shape[0],
+                left_topic=pairing.left_info_topic,
+                right_topic=pairing.right_info_topic,
+                baseline=pairing.baseline,
+            )
+            if not info:
+                info.append(_MapSource(camera.image_size, camera.focal_baseline))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                disparity = camera.focal_baseline / depth
+            yield np.where(np.isfinite(disparity) & (depth > 0), disparity, 0.0).astype(np.float32)
+
+
+def _sgbm_maps(
+    log: Path, options: LearnOptions, pairing: PairingConfig, info: list[_MapSource]
+) -> Iterator[npt.NDArray[np.float32]]:
+    """Yield SGBM maps of every N-th pair, matching the next pair while this one is used."""
+    with open_log(log) as reader, ThreadPoolExecutor(1, thread_name_prefix="sgbm") as pool:
+        _require_topics(reader, pairing.required_topics(), "stereo pair")
+        _check_topic_types(reader, _pairing_types(pairing))
+        pending: list[Future[npt.NDArray[np.float32]]] = []
+        for frame in iter_stereo_frames(reader, pairing):
+            if frame.index % options.every:
+                continue
+            if not info:
+                info.append(_MapSource(frame.camera.image_size, frame.camera.focal_baseline))
+            pending.append(pool.submit(compute_disparity, frame.left, frame.right, options.sgbm))
+            if len(pending) > 1:
+                yield pending.pop(0).result()
+        for future in pending:
+            yield future.result()
+
+
+def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: PairingConfig) -> Basis:
+    """Learn a basis from the disparity maps of logs (``pcainterp learn``)."""
+    if options.every < 1:
+        raise PcaInterpError(f"--every must be at least 1, got {options.every}")
+    for log in logs:
+        if log.resolve() == output.resolve():
+            raise PcaInterpError(f"output {output} is one of the input logs; choose another -o")
+    _check_output_folder(output)
+    source = options.depth_topic or pairing.left_topic
+    totals = [_expected_frames(log, source, options.every) for log in logs]
+    total = None if None in totals else sum(t for t in totals if t is not None)
+    info: list[_MapSource] = []
+
+    holding_out = options.fit_prior and not options.fit_logs
+    if holding_out and not 0 < options.holdout < 1:
+        raise PcaInterpError(f"--holdout must be in (0, 1), got {options.holdout}")
+    kept: list[int | None] = [None] * len(logs)
+    if holding_out:
+        for index, count in enumerate(totals):
+            if count is None:
+                raise PcaInterpError(
+                    f"{logs[index]} does not say how many frames it has, so no share can be held "
+                    "out; pass --fit-logs LOG to fit the prior on other logs"
+                )
+            kept[index] = max(1, int(count * (1.0 - options.holdout)))
+        total = sum(k for k in kept if k is not None)
+
+    def maps() -> Iterator[npt.NDArray[np.float32]]:
+        for log, keep in zip(logs, kept, strict=True):
+            produce = _depth_maps if options.depth_topic else _sgbm_maps
+            for disparity in itertools.islice(produce(log, options, pairing, info), keep):
+                if disparity.shape != info[0].image_size:
+                    raise PcaInterpError(
+                        f"{log} has {disparity.shape[1]}x{disparity.shape[0]} images but the "
+                        f"first log has {info[0].image_size[1]}x{info[0].image_size[0]}; "
+                        "learn one basis per camera"
+                    )
+                yield disparity
+
+    sgbm = dataclasses.asdict(options.sgbm)
+    sgbm["mode"] = options.sgbm.mode.name
+    meta = {
+        "source": {
+            "logs": [str(log) for log in logs],
+            "maps": f"depth topic {options.depth_topic}" if options.depth_topic else "SGBM",
+            "sgbm": None if options.depth_topic else sgbm,
+            "every": options.every,
+        }
+    }
+    with _bar(total, "learn") as bar:
+        stream = maps()
+        first = next(stream, None)
+        if first is None:
+            raise LogReadError(
+                f"no {'depth image' if options.depth_topic else 'stereo pair'} found in "
+                f"{', '.join(map(str, logs))}; check the topic options (pcainterp info LOG)"
+            )
+        try:
+            basis = learn_basis(
+                itertools.chain([first], stream),
+                n_components=options.n_components,
+                variance=options.variance,
+                grid_scale=options.grid_scale,
+                focal_baseline=info[0].focal_baseline,
+                progress=lambda done: bar.update(done - bar.n),
+                meta=meta,
+            )
+        except ValueError as err:
+            raise PcaInterpError(f"cannot learn a basis from {len(logs)} log(s): {err}") from err
+    if options.fit_prior:
+        if holding_out:
+            sources = [
+                (log, (keep or 0) * options.every) for log, keep in zip(logs, kept, strict=True)
+            ]
+        else:
+            sources = [(log, 0) for log in options.fit_logs]
+        fitted = fit_prior(basis, sources, options, pairing)
+        basis = dataclasses.replace(basis, meta={**basis.meta, "prior": fitted})
+    basis.save(output)
+    return basis
+
+
+FIT_MAX_FRAMES = 16
+
+
+"""Frames used by the evidence fit of the local prior (evenly spread over the fit frames)."""
+
+
+CALIBRATION_EVERY = 4
+
+
+"""Every N-th held-out frame is densified to calibrate the std (``fitting.fit_std_scale``)."""
+
+
+FIT_SEQUENCE_FRAMES = 16
+
+
+"""Consecutive held-out frames measured per log (with --fit-logs: per fit log); they are the
+fit's frames and the sequences of the temporal process-noise fit."""
+
+
+def fit_prior(
+    basis: Basis, sources: list[tuple[Path, int]], options: LearnOptions, pairing: PairingConfig
+) -> dict[str, Any]:
+    """Fit the hybrid prior, sigma and the process noise on frames outside the basis.
+
+    Args:
+        basis: the learned basis.
+        sources: (log, first pair index) to measure: GFTT + SGBM lookups of every pair from
+            that index on, as ``densify`` measures them.
+        options: the learning options (SGBM and GFTT settings).
+        pairing: topics of the stereo pairs.
+
+    Returns:
+        The JSON-ready ``meta["prior"]`` of the basis.
+    """
+    from pcainterp_stream.estimate import fitting
+    from pcainterp_stream.frontend.stereo import StereoFrontEnd
+
+    front_end = StereoFrontEnd(options.gftt, options.sgbm)
+    sequences: list[list[fitting.FitFrame]] = []
+    calibration: list[fitting.CalibrationFrame] = []
+    started = time.perf_counter()
+    with _bar(None, "fit prior (measure held-out frames)") as bar:
+        for log, first in sources:
+            sequence: list[fitting.FitFrame] = []
+            with open_log(log) as reader:
+                _require_topics(reader, pairing.required_topics(), "stereo pair")
+                for frame in iter_stereo_frames(reader, pairing):
+                    if frame.index < first:
+                        continue
+                    if len(sequence) >= FIT_SEQUENCE_FRAMES:
+                        break
+                    measured = front_end.measure(frame.left, frame.right)
+                    size, fb = frame.camera.image_size, frame.camera.focal_baseline
+                    sequence.append(
+                        fitting.fit_frame(
+                            basis,
+                            measured.pixels,
+                            measured.disparities,
+                            image_size=size,
+                            focal_baseline=fb,
+                        )
+                    )
+                    if (frame.index - first) % CALIBRATION_EVERY == 0:
+                        calibration.append(
+                            fitting.CalibrationFrame(
+                                measured.pixels,
+                                measured.disparities,
+                                size,
+                                fb,
+                                measured.disparity_map,
+                            )
+                        )
+                    bar.update(1)
+            sequences.append(sequence)
+    if not any(frame.residual.size for sequence in sequences for frame in sequence):
+        raise PcaInterpError(
+            "no held-out stereo pair with measurements to fit the prior on; use more frames, a "
+            "larger --holdout or --fit-logs LOG"
+        )
+    _echo("fitting the prior by the evidence on the held-out frames")
+    fitted = fitting.fit_prior(
+        basis,
+        sequences,
+        calibration,
+        max_frames=FIT_MAX_FRAMES,
+        sequence_frames=FIT_SEQUENCE_FRAMES,
+        robust=ProcessorConfig().robust,
+    )
+    fitted.update(
+        {
+            "std_scale_reference": "SGBM maps of the held-out frames",
+            "fit_logs": [str(log) for log, _ in sources],
+            "seconds": round(time.perf_counter() - started, 1),
+        }
+    )
+    return fitted
