@@ -27,8 +27,8 @@ from threadpoolctl import threadpool_limits
 
 from pcainterp_stream.allocator import keep_freed_memory
 from pcainterp_stream.estimate.basis import Basis
-from pcainterp_stream.estimate.prior import LocalPrior, TemporalPrior
 from pcainterp_stream.estimate.estimator import densify_batch
+from pcainterp_stream.estimate.prior import LocalPrior, TemporalPrior
 from pcainterp_stream.frontend.motion import CarriedPoints, Motion, estimate_motion
 from pcainterp_stream.frontend.pairing import PairingConfig, iter_stereo_frames
 from pcainterp_stream.frontend.stereo import to_grey8

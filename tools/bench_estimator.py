@@ -24,8 +24,8 @@ import numpy.typing as npt
 
 from pcainterp_stream.estimate.baselines import linear, nearest
 from pcainterp_stream.estimate.basis import Basis, grid_size_for
-from pcainterp_stream.estimate.learning import learn_basis
 from pcainterp_stream.estimate.estimator import densify, densify_batch
+from pcainterp_stream.estimate.learning import learn_basis
 
 FOCAL = 720.0
 BASELINE = 0.54

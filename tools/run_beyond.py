@@ -46,10 +46,10 @@ import numpy.typing as npt
 
 from pcainterp_stream.estimate.baselines import linear, nearest
 from pcainterp_stream.estimate.basis import Basis, grid_size_for
+from pcainterp_stream.estimate.estimator import densify_batch
 from pcainterp_stream.estimate.fitting import CalibrationFrame, fit_frame, fit_prior
 from pcainterp_stream.estimate.learning import learn_basis, preprocess_disparity
 from pcainterp_stream.estimate.prior import LocalPrior, TemporalPrior
-from pcainterp_stream.estimate.estimator import densify_batch
 from pcainterp_stream.evaluate.metrics import (
     ReferenceView,
     calibration_sums,
