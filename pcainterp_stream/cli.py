@@ -269,7 +269,7 @@ def build_parser() -> argparse.ArgumentParser:
         choices=["exact-coarse", "exact", "paper", "none"],
         default="exact-coarse",
         help="posterior std: 'exact-coarse' = exact on a grid 1/16 of the image, resampled "
-        "(default); 'exact' = exact at every pixel (seconds per KITTI-size frame); 'paper' = "
+        "(default); 'exact' = exact at every pixel (0.06-2.4 s per KITTI-size frame); 'paper' = "
         "the paper's diagonal approximation; 'none' (docs/estimator.md)",
     )
     estimate.add_argument(

@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from hypothesis_profiles import examples
 
 from pcainterp_stream.estimate.basis import Basis, bilinear_weights, image_to_grid, sample_rows
+from pcainterp_stream.estimate import variance
 from pcainterp_stream.estimate.estimator import (
     SolveForm,
     Uncertainty,
@@ -18,6 +19,8 @@ from pcainterp_stream.estimate.estimator import (
     depth_from_disparity,
     posterior_covariance,
 )
+from pcainterp_stream.estimate.learning import learn_basis
+from pcainterp_stream.estimate.prior import Kernel, LocalPrior, TemporalPrior
 
 
 def random_basis(
@@ -331,3 +334,185 @@ def test_bad_options_named() -> None:
         densify(basis, np.zeros((0, 2)), np.zeros(0), uncertainty="bogus")
     with pytest.raises(ValueError, match="`disparities_list`"):
         densify_batch(basis, [np.zeros((0, 2))], [])
+
+
+# ----------------------------------------------------------------------------- exact std
+# "exact" is the posterior std at every output pixel; "exact-coarse" (the default) is exact
+# only at the points of the variance grid (docs/benchmarks.md, "Exact posterior std").
+
+
+def _learned_like_basis(image_size: tuple[int, int] = (48, 64)) -> Basis:
+    """A basis learned from piecewise-planar maps (road, boxes with sharp edges).
+
+    Like a basis learned from real SGBM maps, its components are not smooth at the scale of
+    the basis grid (1/4 of the image), so the std is not bilinear between grid points.
+    """
+    rng = np.random.default_rng(17)
+    height, width = image_size
+    ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
+    maps = []
+    for _ in range(60):
+        horizon = rng.uniform(0.3, 0.6) * height
+        disparity = np.where(ys > horizon, (ys - horizon) * rng.uniform(0.3, 0.8), 0.0)
+        for _ in range(int(rng.integers(1, 4))):
+            left, size = rng.uniform(0, width - 8), rng.uniform(6, width / 2)
+            top, bottom = rng.uniform(0, horizon), rng.uniform(horizon, height)
+            box = (xs >= left) & (xs < left + size) & (ys >= top) & (ys < bottom)
+            disparity = np.where(box, np.maximum(disparity, rng.uniform(5, 30)), disparity)
+        maps.append(disparity.astype(np.float32))
+    return learn_basis(maps, n_components=20, grid_scale=0.25, focal_baseline=100.0)
+
+
+def _dense_posterior_std(
+    basis: Basis,
+    pixels: np.ndarray,
+    sigma: float,
+    local: LocalPrior | None,
+    prior_variances: np.ndarray | None = None,
+) -> np.ndarray:
+    """Posterior std of the Gaussian model at every image pixel, from its dense covariance.
+
+    d = m + B y (+ local part), B the bilinear rows of the basis at every pixel,
+    y ~ N(., diag(prior_variances or eigenvalues)); measurements at integer ``pixels``.
+    """
+    height, width = basis.image_size
+    ys, xs = np.mgrid[0:height, 0:width]
+    grid = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64)
+    rows = rows_at(basis, grid)
+    variances = basis.eigenvalues if prior_variances is None else prior_variances
+    prior = (rows * variances) @ rows.T
+    if local is not None:
+        prior += local.variance * local.axis(grid[:, 0], grid[:, 0]) * local.axis(
+            grid[:, 1], grid[:, 1]
+        )
+    index = pixels[:, 1].astype(int) * width + pixels[:, 0].astype(int)
+    system = prior[np.ix_(index, index)] + sigma**2 * np.eye(index.size)
+    gain = np.linalg.solve(system, prior[index])
+    variance = np.diag(prior) - np.einsum("ks,ks->s", prior[index], gain)
+    return np.sqrt(np.maximum(variance, 0.0)).reshape(height, width)
+
+
+def _measured(basis: Basis, k: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """k distinct integer pixels and disparities near the basis mean there."""
+    rng = np.random.default_rng(seed)
+    height, width = basis.image_size
+    flat = rng.choice(height * width, size=k, replace=False)
+    pixels = np.stack([flat % width, flat // width], axis=1).astype(np.float64)
+    mean = cv2.resize(basis.mean, (width, height), interpolation=cv2.INTER_LINEAR)
+    values = mean[flat // width, flat % width] + rng.normal(0.0, 2.0, k)
+    return pixels, values
+
+
+LOCAL_PRIORS = [
+    None,
+    LocalPrior(variance=4.0, length_scale=12.0, kernel=Kernel.LAPLACE),
+    LocalPrior(variance=4.0, length_scale=8.0, kernel=Kernel.GAUSSIAN),
+]
+
+
+@pytest.mark.parametrize("local", LOCAL_PRIORS, ids=["paper", "laplace", "gaussian"])
+def test_exact_is_the_posterior_std_at_every_pixel(local: LocalPrior | None) -> None:
+    basis = _learned_like_basis()
+    assert basis.grid_size == (12, 16)
+    pixels, values = _measured(basis, 30, seed=1)
+    expected = _dense_posterior_std(basis, pixels, 0.3, local)
+    exact = densify(basis, pixels, values, sigma=0.3, local_prior=local, uncertainty="exact")
+    assert exact.uncertainty is Uncertainty.EXACT
+    assert exact.disparity_std is not None
+    relative = np.abs(exact.disparity_std - expected) / expected
+    assert relative.max() < 2e-3
+    # at the measurements too, where the hybrid prior's std dips towards sigma
+    rows, cols = pixels[:, 1].astype(int), pixels[:, 0].astype(int)
+    np.testing.assert_allclose(exact.disparity_std[rows, cols], expected[rows, cols], rtol=2e-3)
+
+
+def test_exact_coarse_is_the_default_and_only_exact_on_its_grid() -> None:
+    basis = _learned_like_basis()
+    local = LOCAL_PRIORS[1]
+    pixels, values = _measured(basis, 30, seed=2)
+    expected = _dense_posterior_std(basis, pixels, 0.3, local)
+    coarse = densify(basis, pixels, values, sigma=0.3, local_prior=local)
+    assert coarse.uncertainty is Uncertainty.EXACT_COARSE
+    assert Uncertainty("exact-coarse") is Uncertainty.EXACT_COARSE
+    assert coarse.disparity_std is not None
+    # resampled from a grid of 3 x 4 points, it cannot hold the dips at the measurements
+    rows, cols = pixels[:, 1].astype(int), pixels[:, 0].astype(int)
+    assert np.median(coarse.disparity_std[rows, cols] / expected[rows, cols]) > 1.5
+    # with a full-resolution basis grid and stride 1, every pixel is a grid point
+    full = random_basis(3, n_components=8, grid_size=(10, 14))
+    pixels, values = _measured(full, 12, seed=3)
+    on_grid = densify(full, pixels, values, local_prior=local, variance_stride=1)
+    everywhere = densify(full, pixels, values, local_prior=local, uncertainty="exact")
+    assert on_grid.disparity_std is not None and everywhere.disparity_std is not None
+    np.testing.assert_allclose(on_grid.disparity_std, everywhere.disparity_std, rtol=1e-4)
+
+
+def test_exact_in_chunks_batched_and_temporal(monkeypatch: pytest.MonkeyPatch) -> None:
+    basis = _learned_like_basis()
+    local = LOCAL_PRIORS[1]
+    frames = [_measured(basis, 20 + 5 * i, seed=10 + i) for i in range(3)]
+    whole = densify_batch(
+        basis,
+        [p for p, _ in frames],
+        [v for _, v in frames],
+        sigma=0.5,
+        local_prior=local,
+        temporal=TemporalPrior(),
+        uncertainty="exact",
+    )
+    # 3 output rows per chunk: 16 chunks per frame, each a partial VarianceGrid
+    monkeypatch.setattr(variance, "_EXACT_PIXELS_PER_CHUNK", 3 * basis.image_size[1])
+    state = TemporalPrior()
+    predicted = None
+    for index, ((pixels, values), batched) in enumerate(zip(frames, whole, strict=True)):
+        if index == 2:
+            predicted = state.predict(basis.eigenvalues)
+        single = densify(
+            basis, pixels, values, sigma=0.5, local_prior=local, temporal=state,
+            uncertainty="exact", variance_stride=3,  # ignored by "exact"
+        )
+        assert single.disparity_std is not None and batched.disparity_std is not None
+        np.testing.assert_allclose(single.disparity_std, batched.disparity_std, rtol=1e-4)
+    # the third frame's prior is the temporal one: N(mu, diag(p)) + the local part
+    assert whole[2].temporal == "temporal" and predicted is not None
+    expected = _dense_posterior_std(basis, frames[2][0], 0.5, local, predicted[1])
+    assert whole[2].disparity_std is not None
+    np.testing.assert_allclose(whole[2].disparity_std, expected, rtol=2e-3)
+
+
+@pytest.mark.parametrize(
+    ("grid_size", "out_size", "k"),
+    [
+        ((7, 9), (20, 31), 0),
+        ((7, 9), (20, 31), 4),  # measurement form
+        ((7, 9), (23, 29), 14),  # coefficient form (k >= l), another camera's size
+        ((1, 9), (3, 40), 5),  # one grid row
+        ((6, 1), (25, 2), 3),  # one grid column
+    ],
+)
+def test_exact_without_a_local_part_is_its_bilinear_form(
+    grid_size: tuple[int, int], out_size: tuple[int, int], k: int
+) -> None:
+    # the bilinear quadratic form from grid neighbours (no local part) against the pixel by
+    # pixel evaluation (a local part of variance 0), for the static and the temporal prior
+    basis = random_basis(5, grid_size=grid_size, image_size=(20, 31))
+    rng = np.random.default_rng(5)
+    frames = [(random_pixels(rng, k, out_size), rng.uniform(5, 30, k)) for _ in range(2)]
+    states = [TemporalPrior(), TemporalPrior()]
+    for pixels, values in frames:
+        results = [
+            densify(
+                basis, pixels, values, uncertainty="exact", image_size=out_size,
+                focal_baseline=300.0, local_prior=local, temporal=state,
+            )
+            for local, state in zip([None, LocalPrior(0.0, 5.0)], states, strict=True)
+        ]
+        static = densify(basis, pixels, values, uncertainty="exact", image_size=out_size)
+        pixelwise = densify(
+            basis, pixels, values, uncertainty="exact", image_size=out_size,
+            local_prior=LocalPrior(0.0, 5.0),
+        )
+        for a, b in (results, (static, pixelwise)):
+            assert a.disparity_std is not None and b.disparity_std is not None
+            assert a.disparity_std.shape == out_size
+            np.testing.assert_allclose(a.disparity_std, b.disparity_std, rtol=1e-4, atol=1e-5)

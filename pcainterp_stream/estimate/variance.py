@@ -28,7 +28,7 @@ from pcainterp_stream.estimate.solve import (
 
 DEFAULT_VARIANCE_GRID_SCALE = 0.0625
 """Automatic variance grid of ``"exact-coarse"`` and ``"paper"``: the coarsest stride whose
-grid is still >= this scale of the image. Finer grids cost 2-5x as much and were still not
+grid is still >= this scale of the image. Finer grids cost 2-8x as much and were still not
 within 2 % of the exact std (docs/benchmarks.md, "Exact posterior std: variance grid")."""
 
 _EXACT_PIXELS_PER_CHUNK = 1 << 14
@@ -51,16 +51,19 @@ class Uncertainty(StrEnum):
     EXACT = "exact"
     """The exact posterior variance at every output pixel x: b(x)^T Sigma_y b(x), b(x) the
     bilinear row of the basis at x (as for a measurement), plus the local part of a hybrid
-    prior with its kernel evaluated at x itself. k*l (+ k^2 with a local prior) products per
-    output pixel: seconds per KITTI-size frame (docs/benchmarks.md)."""
+    prior with its kernel evaluated at x itself. Without a local part about the cost of
+    the variance on the basis grid itself (0.06-0.11 s per KITTI-size frame, l = 60-200,
+    one BLAS thread); with one, k*l + k^2 products per output pixel (1.6-2.4 s)
+    (docs/benchmarks.md, "Exact posterior std: variance grid")."""
     EXACT_COARSE = "exact-coarse"
     """The exact posterior variance at the points of the variance grid (``variance_stride``;
     by default 1/16 of the image resolution), resampled bilinearly: exact at those points
     only. It misses the posterior's fine structure between them: the components'
     roughness at the basis grid's scale, and the dips of the std towards sigma at and near
-    the measurements (deep with a hybrid prior). The default: on learned bases it had the
-    +-2 sigma coverage and NLL of ``EXACT`` at ~1/100 of its cost (docs/benchmarks.md,
-    "Exact posterior std: variance grid")."""
+    the measurements (deep with a hybrid prior). The default: on learned bases its +-2
+    sigma coverage was within 0.6 points of ``EXACT``'s and its NLL within 0.7 %, at 1/6
+    (the paper's prior) to 1/100 (hybrid prior) of the cost (docs/benchmarks.md, "Exact
+    posterior std: variance grid")."""
 
 
 def _variance_beyond(
@@ -200,15 +203,36 @@ def _pixel_variances(
 ) -> npt.NDArray[np.float32]:
     """Exact posterior variance (F, H * W) float32 at every output pixel (basis units).
 
-    The ``"exact"`` mode. The basis row at output pixel x is its bilinear sample b(x) (the
-    row a measurement at x has, and the dense map's own resampling), so the variance is the
-    model's b(x)^T Sigma_y b(x) there, not a resampling of grid values: with components
-    that are rough at the grid's scale the variance of the bilinear mix is below the mix of
-    the variances. A hybrid prior's kernel is evaluated at x itself, so the std dips to
-    about sigma at each measurement as the posterior does. The output pixels are taken in
-    chunks of rows (:data:`_EXACT_PIXELS_PER_CHUNK` pixels) as a :class:`VarianceGrid`, with
-    the same products as the variance grid of ``"exact-coarse"``.
+    The ``"exact"`` mode. The basis row at output pixel x is its bilinear sample
+    b(x) = sum_c w_c(x) u(g_c) over the 4 grid points g_c around it (the row a measurement
+    at x has, and the dense map's own resampling), so the variance is the model's
+    b(x)^T Sigma_y b(x) there, not a resampling of grid values: where the components are
+    rough at the grid's scale, the variance of the bilinear mix is below the mix of the
+    variances. Without a local part that quadratic form is exact from grid quantities
+    (:func:`_bilinear_variance`, about the cost of the variance on the basis grid itself).
+    A hybrid prior's kernel is evaluated at x itself, so the std dips to about sigma at
+    each measurement as the posterior does; those frames are evaluated pixel by pixel, in
+    chunks of rows (:data:`_EXACT_PIXELS_PER_CHUNK` pixels) taken as a
+    :class:`VarianceGrid`, with the products of the variance grid.
     """
+    out = np.empty((len(posteriors), out_size[0] * out_size[1]), dtype=np.float32)
+    pixelwise = [i for i, p in enumerate(posteriors) if p.local is not None]
+    static_base: npt.NDArray[np.float64] | None = None
+    for index, posterior in enumerate(posteriors):
+        if posterior.local is not None:
+            continue
+        base = None
+        if posterior.subtract_from_prior:
+            if posterior.prior_diagonal is not None:
+                base = _neighbour_prior(basis, posterior.prior_diagonal)
+            else:
+                if static_base is None:
+                    static_base = _neighbour_prior(basis, basis.eigenvalues)
+                base = static_base
+        out[index] = _bilinear_variance(basis, posterior, base, out_size).reshape(-1)
+    if not pixelwise:
+        return out
+    chosen = [posteriors[i] for i in pixelwise]
     height, width = out_size
     # output pixel centres on the basis grid (image_to_grid) and in basis-image px
     grid_x = _image_coordinates(width, basis.grid_size[1])
@@ -216,7 +240,6 @@ def _pixel_variances(
     basis_x = _image_coordinates(width, basis.image_size[1])
     basis_y = _image_coordinates(height, basis.image_size[0])
     rows_per_chunk = max(1, _EXACT_PIXELS_PER_CHUNK // width)
-    out = np.empty((len(posteriors), height * width), dtype=np.float32)
     for top in range(0, height, rows_per_chunk):
         bottom = min(top + rows_per_chunk, height)
         ys, xs = np.meshgrid(grid_y[top:bottom], grid_x, indexing="ij")
@@ -231,11 +254,93 @@ def _pixel_variances(
             component_rows=np.ascontiguousarray(rows.T),
             prior_variance=(squared @ basis.eigenvalues).astype(np.float32),
         )
-        out[:, top * width : bottom * width] = _variances(
+        out[pixelwise, top * width : bottom * width] = _variances(
             chunk,
-            posteriors,
+            chosen,
             Uncertainty.EXACT,
             basis.image_size,
             coordinates=(basis_y[top:bottom], basis_x),
         )
     return out
+
+
+def _neighbour_products(fields: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
+    """Inner products over axis 0 of neighbouring grid points of (r, gh, gw) ``fields``.
+
+    Returns (5, gh, gw) float64 G, at grid point (y, x): G[0] = <f(y, x), f(y, x)>,
+    G[1] = <f(y, x), f(y, x+1)>, G[2] = <f(y, x), f(y+1, x)>, G[3] = <f(y, x), f(y+1, x+1)>,
+    G[4] = <f(y, x+1), f(y+1, x)>; 0 where the neighbour is outside the grid.
+    """
+    _, gh, gw = fields.shape
+    products = np.zeros((5, gh, gw), dtype=np.float64)
+    products[0] = np.einsum("rij,rij->ij", fields, fields)
+    products[1, :, :-1] = np.einsum("rij,rij->ij", fields[:, :, :-1], fields[:, :, 1:])
+    products[2, :-1] = np.einsum("rij,rij->ij", fields[:, :-1], fields[:, 1:])
+    products[3, :-1, :-1] = np.einsum("rij,rij->ij", fields[:, :-1, :-1], fields[:, 1:, 1:])
+    products[4, :-1, :-1] = np.einsum("rij,rij->ij", fields[:, :-1, 1:], fields[:, 1:, :-1])
+    return products
+
+
+def _neighbour_prior(
+    basis: Basis, prior_variances: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """:func:`_neighbour_products` of the prior, u(g)^T diag(p) u(g') (float64 sums)."""
+    scaled = (
+        basis.components.astype(np.float64)
+        * np.sqrt(np.maximum(prior_variances, 0.0))[:, None, None]
+    )
+    return _neighbour_products(scaled)
+
+
+def _bilinear_variance(
+    basis: Basis,
+    posterior: _Posterior,
+    base: npt.NDArray[np.float64] | None,
+    out_size: tuple[int, int],
+) -> npt.NDArray[np.float64]:
+    """Exact variance (H, W) at every output pixel of a frame without a local part.
+
+    With b(x) = sum_c w_c u(g_c), ||F b(x)||^2 = sum_c,c' w_c w_c' <F u(g_c), F u(g_c')>
+    for the frame's factor F, and likewise b(x)^T P b(x): the inner products of each grid
+    point with its right, lower and two diagonal neighbours (``base`` for the prior, None
+    in the coefficient form) make the bilinear quadratic form exact at every pixel. The
+    bilinear weights are separable: first along x for each grid row, then along y.
+    """
+    gh, gw = basis.grid_size
+    factor = _factor(posterior)
+    projected = (factor @ basis.component_rows).reshape(factor.shape[0], gh, gw)
+    products = _neighbour_products(projected)
+    if base is not None:
+        products = base - products
+    x0, x1, fx = _axis_weights(out_size[1], gw)
+    y0, y1, fy = _axis_weights(out_size[0], gh)
+    # along x: the same-row form and the form with the next grid row, (gh, W) each
+    same = (
+        (1 - fx) ** 2 * products[0][:, x0]
+        + fx**2 * products[0][:, x1]
+        + 2 * fx * (1 - fx) * products[1][:, x0]
+    )
+    below = (
+        (1 - fx) ** 2 * products[2][:, x0]
+        + fx**2 * products[2][:, x1]
+        + fx * (1 - fx) * (products[3][:, x0] + products[4][:, x0])
+    )
+    fy = fy[:, None]
+    variance: npt.NDArray[np.float64] = (
+        (1 - fy) ** 2 * same[y0] + fy**2 * same[y1] + 2 * fy * (1 - fy) * below[y0]
+    )
+    return variance
+
+
+def _axis_weights(
+    count: int, grid_count: int
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.float64]]:
+    """Grid cells (i0, i1) and weights of i1 of ``count`` pixel centres along one axis.
+
+    The one-axis factor of :func:`basis.bilinear_weights` (pixel-centre aligned, clamped
+    to the border).
+    """
+    position = np.clip(_image_coordinates(count, grid_count), 0.0, grid_count - 1)
+    first = np.minimum(np.floor(position).astype(np.intp), max(grid_count - 2, 0))
+    second = np.minimum(first + 1, grid_count - 1)
+    return first, second, position - first

@@ -60,7 +60,8 @@ class ProcessorConfig:
         sgbm: stereo matcher options.
         sigma: measurement noise std (px) of the MAP estimate, "evidence" (fitted per
             frame) or "auto" (the basis's fitted sigma when it has one, else 2 px).
-        uncertainty: "exact", "paper" or "none".
+        uncertainty: "exact-coarse" (default: the exact std on the variance grid, resampled),
+            "exact" (exact at every pixel), "paper" or "none".
         prior: "auto" (hybrid when the basis has a fitted local prior, else the paper's),
             "paper" or "hybrid" (needs a basis learned with ``--fit-prior``).
         robust: IRLS loss on the measurements: "none", "huber" or "cauchy".
@@ -92,7 +93,7 @@ class ProcessorConfig:
     gftt: GfttConfig = field(default_factory=GfttConfig)
     sgbm: SgbmConfig = field(default_factory=SgbmConfig)
     sigma: float | str = "auto"
-    uncertainty: str = "exact"
+    uncertainty: str = "exact-coarse"
     prior: str = "auto"
     robust: str = defaults.ROBUST
     temporal: bool = defaults.TEMPORAL
