@@ -397,16 +397,17 @@ class _Evaluator:
     ) -> None:
         assert self.basis is not None
         basis, camera = self.basis, frame.camera
-        for kind in ("paper", "exact"):
+        # "exact" here is what densify writes by default (exact on the variance grid)
+        for kind, uncertainty in (("paper", "paper"), ("exact", "exact-coarse")):
             stats = self._calibration(kind)
             dense = _timed(
                 stats,
-                lambda kind=kind: densify(  # type: ignore[misc]
+                lambda uncertainty=uncertainty: densify(  # type: ignore[misc]
                     basis,
                     frame.pixels,
                     frame.disparities,
                     sigma=self.options.sigma,
-                    uncertainty=kind,
+                    uncertainty=uncertainty,
                     focal_baseline=camera.focal_baseline,
                     image_size=camera.image_size,
                 ),
