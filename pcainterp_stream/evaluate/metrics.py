@@ -398,6 +398,10 @@ def depth_errors(
     }
 
 
+CERTAIN_STD = 1e-3
+"""A predicted disparity std (px) below this is counted as "certain" by calibration_sums."""
+
+
 def calibration_sums(
     estimate: npt.ArrayLike,
     std: npt.ArrayLike,
@@ -417,18 +421,26 @@ def calibration_sums(
         mask: (H, W) bool, pixels that count.
 
     Returns:
-        ``n``, ``inside_1`` and ``inside_2`` (counts within +-1 and +-2 std), ``nll`` (sum).
+        ``n``, ``inside_1`` and ``inside_2`` (counts within +-1 and +-2 std), ``nll`` (sum);
+        ``certain`` counts the pixels whose std is below :data:`CERTAIN_STD` (a model that
+        never varies there, e.g. a basis whose training maps were all sky at a pixel: one
+        wrong pixel there dominates the NLL) and ``nll_uncertain`` the NLL sum without them.
     """
     ref = np.asarray(reference, dtype=np.float64)
     counted = mask & np.isfinite(ref)
     error = np.asarray(estimate, dtype=np.float64)[counted] - ref[counted]
-    sigma = np.maximum(np.asarray(std, dtype=np.float64)[counted], 1e-6)
+    raw = np.asarray(std, dtype=np.float64)[counted]
+    sigma = np.maximum(raw, 1e-6)
     z = np.abs(error) / sigma
+    nll = 0.5 * np.log(2.0 * np.pi * sigma**2) + 0.5 * z**2
+    certain = raw < CERTAIN_STD
     return {
         "n": float(z.size),
         "inside_1": float(np.count_nonzero(z <= 1.0)),
         "inside_2": float(np.count_nonzero(z <= 2.0)),
-        "nll": float(np.sum(0.5 * np.log(2.0 * np.pi * sigma**2) + 0.5 * z**2)),
+        "nll": float(np.sum(nll)),
+        "certain": float(np.count_nonzero(certain)),
+        "nll_uncertain": float(np.sum(nll[~certain])),
     }
 
 
@@ -574,7 +586,9 @@ class CalibrationStats:
     """
 
     sums: dict[str, float] = field(
-        default_factory=lambda: {"n": 0.0, "inside_1": 0.0, "inside_2": 0.0, "nll": 0.0}
+        default_factory=lambda: dict.fromkeys(
+            ("n", "inside_1", "inside_2", "nll", "certain", "nll_uncertain"), 0.0
+        )
     )
     by_std_count: list[float] = field(default_factory=lambda: _zeros(STD_EDGES))
     by_std_2d: list[float] = field(default_factory=lambda: _zeros(STD_EDGES))
@@ -616,5 +630,7 @@ class CalibrationStats:
             "coverage_1sigma": self.sums["inside_1"] / n,
             "coverage_2sigma": self.sums["inside_2"] / n,
             "nll": self.sums["nll"] / n,
+            "certain": self.sums["certain"] / n,
+            "nll_uncertain": self.sums["nll_uncertain"] / max(n - self.sums["certain"], 1.0),
             "ms_per_frame": 1000.0 * self.seconds / max(self.frames, 1),
         }

@@ -575,9 +575,15 @@ def summary_table(result: Evaluation) -> str:
     for name, calibration in result.calibration.items():
         c = calibration.summary()
         timing = f", {c['ms_per_frame']:.0f} ms/frame" if calibration.seconds > 0 else ""
+        certain = ""
+        if c["certain"] > 0:  # a basis that never varies at some pixels claims std 0 there
+            certain = (
+                f" (std 0 at {100 * c['certain']:.2g} % of pixels; "
+                f"NLL {c['nll_uncertain']:.2f} without them)"
+            )
         lines.append(
             f"uncertainty {name:<7} inside +-1 sigma {_percent(c['coverage_1sigma'])}, "
-            f"+-2 sigma {_percent(c['coverage_2sigma'])}, NLL {c['nll']:.2f}{timing}"
+            f"+-2 sigma {_percent(c['coverage_2sigma'])}, NLL {c['nll']:.2f}{certain}{timing}"
         )
     if result.ranges.counted:
         r = result.ranges.summary()

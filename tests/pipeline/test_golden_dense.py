@@ -10,7 +10,7 @@ from types import ModuleType
 
 from pcainterp_stream.pipeline.jobs import densify
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "tests" / "data"
 
 

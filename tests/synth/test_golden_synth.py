@@ -15,7 +15,7 @@ import pytest
 from pcainterp_stream.records import StereoCamera, SynthFrame
 from pcainterp_stream.synth.log import write_synthetic_log
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 GOLDEN_LOG = ROOT / "tests" / "data" / "golden_synth.mcap"
 GOLDEN_JSON = ROOT / "tests" / "data" / "golden_synth.json"
 

@@ -12,7 +12,7 @@ from pcainterp_stream.errors import DatasetImportError
 from pcainterp_stream.io.kitti import KittiLayout, import_kitti, iter_frames, open_kitti
 from pcainterp_stream.io.logwriter import LogFormat
 
-REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata"
 RAW_DRIVE = REALDATA / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0001_sync"
 ODOMETRY = REALDATA / "kitti_odometry_clip" / "sequences" / "a"
 needs_realdata = pytest.mark.skipif(

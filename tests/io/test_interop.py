@@ -38,7 +38,7 @@ from rosbags.highlevel import AnyReader
 from pcainterp_stream import cli
 from pcainterp_stream.defaults import DISPLAY_MAX_DEPTH
 
-JS_DIR = Path(__file__).parent / "js"
+JS_DIR = Path(__file__).resolve().parents[1] / "js"
 FRAMES = 3
 HEIGHT, WIDTH = 94, 310  # a --scale 0.25 synthetic log
 PREFIX = "/pcainterp/"

@@ -34,7 +34,7 @@ from pcainterp_stream.errors import CalibrationError, LogReadError
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.frontend.pairing import iter_stereo_frames
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 REALDATA = ROOT.parent / "shared" / "realdata"
 TIMEOUT_S = 30.0  # generous: the machine is shared; a hang is minutes, not seconds
 MEMORY_LIMIT = 1 << 30  # address space a child may add; a 2^60 allocation fails far below

@@ -19,7 +19,7 @@ from pcainterp_stream.io.logwriter import LogFormat, open_writer
 from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
 
-REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata"
 KITTI_RAW = REALDATA / "kitti_raw" / "2011_09_26"
 
 

@@ -121,6 +121,19 @@ def test_calibration_coverage_of_a_gaussian_sample() -> None:
     assert narrow["inside_2"] / narrow["n"] == pytest.approx(0.683, abs=0.01)
 
 
+def test_calibration_counts_certain_pixels_apart() -> None:
+    """A std of 0 where the basis never varies is counted, and the NLL is given without it."""
+    std = np.full((10, 10), 1.0)
+    std[0, :5] = 0.0  # e.g. pixels that were sky in every training map
+    reference = np.zeros((10, 10))
+    estimate = np.full((10, 10), 0.5)
+    sums = calibration_sums(estimate, std, reference, np.ones(std.shape, dtype=bool))
+    assert sums["certain"] == 5
+    per_pixel = 0.5 * np.log(2 * np.pi) + 0.5 * 0.25
+    assert sums["nll_uncertain"] == pytest.approx(95 * per_pixel)
+    assert sums["nll"] > 1e10  # 0.5 px off with a std of 1e-6 px
+
+
 def test_depth_errors_of_a_known_offset() -> None:
     reference = np.full((4, 4), 10.0)  # 3 m with f*b = 30
     estimate = np.full((4, 4), 15.0)  # 2 m

@@ -12,7 +12,7 @@ from pcainterp_stream.errors import LogReadError
 from pcainterp_stream.io.loginfo import describe, format_info
 from pcainterp_stream.io.logreader import LogFormat
 
-REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata"
 
 
 def write_small(path: Path, n: int = 3) -> None:

@@ -384,7 +384,7 @@ def test_format_from_path(tmp_path: Path) -> None:
 
 
 REAL_ROS2_MCAP = (
-    Path(__file__).resolve().parents[2]
+    Path(__file__).resolve().parents[3]
     / "shared"
     / "realdata"
     / "mcap_ros2"

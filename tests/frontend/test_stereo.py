@@ -23,7 +23,7 @@ from pcainterp_stream.frontend.stereo import (
     to_grey8_pair,
 )
 
-REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata"
 KITTI_DRIVE = REALDATA / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0001_sync"
 
 HEIGHT, WIDTH = 160, 320

@@ -15,7 +15,7 @@ from pcainterp_stream.errors import LogReadError, TopicNotFoundError
 from pcainterp_stream.io.logreader import LogFormat, decode_image, open_log, sniff_format
 from pcainterp_stream.records import StereoCamera
 
-REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata"
 CAMERA = StereoCamera(width=32, height=24, fx=40.0, fy=40.0, cx=16.0, cy=12.0, baseline=0.5)
 LEFT, RIGHT = "/stereo/left/image_rect", "/stereo/right/image_rect"
 LEFT_INFO, RIGHT_INFO = "/stereo/left/camera_info", "/stereo/right/camera_info"
