@@ -14,15 +14,18 @@ per frame.
 
 from __future__ import annotations
 
-import argparse
 import cProfile
 import os
 import pstats
 import sys
 import time
+from functools import partial
 from pathlib import Path
+from typing import Any
 
+import harness
 import numpy as np
+from beyond_data import LogData, prepare_log
 from threadpoolctl import threadpool_limits
 
 from pcainterp_stream.allocator import keep_freed_memory
@@ -35,6 +38,7 @@ from pcainterp_stream.frontend.stereo import to_grey8
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.pipeline.processor import ProcessorConfig, resolve_settings
 
+COLUMNS = ("configuration", "wall ms/frame", "CPU ms/frame", "frames/s (wall)")
 CONFIGS: dict[str, dict[str, object]] = {
     "plain (paper)": {},
     "hybrid": {"local": True},
@@ -49,36 +53,70 @@ CONFIGS: dict[str, dict[str, object]] = {
 }
 
 
+def densify_stream(
+    basis: Basis,
+    data: LogData,
+    frames: list[int],
+    motions: list[Motion | None],
+    config: dict[str, object],
+    options: dict[str, Any],
+    process_noise: float,
+    batch: int,
+) -> None:
+    """Densify ``frames`` as the stream processor does: in batches, in stream order.
+
+    A fresh temporal state (``config["temporal"]``) and carrier of points
+    (``config["carry"]``, moved by ``motions``) per call; ``options`` are the other keywords
+    of ``densify_batch``.
+    """
+    state = TemporalPrior(process_noise=process_noise) if config.get("temporal") else None
+    carrier = CarriedPoints(ProcessorConfig().carry) if config.get("carry") else None
+    for start in range(0, len(frames), batch):
+        indices = frames[start : start + batch]
+        pixels = [data.pixels[i] for i in indices]
+        disparities = [data.disparities[i] for i in indices]
+        noise_stds = None
+        if carrier is not None:
+            noise_stds = []
+            for slot, i in enumerate(indices):
+                pixels[slot], disparities[slot], noise, _ = carrier.carry(
+                    None, pixels[slot], disparities[slot], data.camera, motion=motions[i]
+                )
+                noise_stds.append(noise)
+        densify_batch(basis, pixels, disparities, temporal=state, noise_stds=noise_stds, **options)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark; print a Markdown table."""
-    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
-    parser.add_argument("--work", type=Path, required=True, help="run_beyond.py's folder")
+    parser = harness.argument_parser(__doc__)
+    harness.add_work_dir(parser, flag="--work", description="run_beyond.py's folder")
     parser.add_argument("--frames", type=int, default=100)
-    parser.add_argument("--repeat", type=int, default=3, help="best of N rounds")
-    parser.add_argument("--batch", type=int, default=4)
+    harness.add_batch_timing(parser, repeat=3)
     parser.add_argument(
-        "--blas-threads", type=int, default=1, help="1 = as in the stream processor"
-    )
-    parser.add_argument(
-        "--basis", type=Path, default=None,
+        "--basis",
+        type=Path,
+        default=None,
         help="basis with a fitted prior (default: WORK/basis_synthetic.npz)",
     )
     parser.add_argument(
-        "--system-malloc", action="store_true",
+        "--system-malloc",
+        action="store_true",
         help="leave glibc's malloc untuned (densify tunes it, ProcessorConfig.keep_freed_memory)",
     )
     parser.add_argument(
-        "--configs", nargs="+", default=None, metavar="CONFIG",
+        "--configs",
+        nargs="+",
+        default=None,
+        metavar="CONFIG",
         help="only these rows (configuration names; default: all)",
     )
     parser.add_argument(
-        "--profile", default=None, metavar="CONFIG",
+        "--profile",
+        default=None,
+        metavar="CONFIG",
         help="profile one configuration (a row name) instead and print where the time goes",
     )
     args = parser.parse_args(argv)
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from run_beyond import prepare_log
-
     basis = Basis.load(args.basis or args.work / "basis_synthetic.npz")
     fitted = basis.meta["prior"]
     camera_of_basis = (basis.image_size, basis.focal_baseline)
@@ -97,27 +135,23 @@ def main(argv: list[str] | None = None) -> int:
         f"{basis.grid_size[1]}x{basis.grid_size[0]}, BLAS threads {args.blas_threads}, "
         f"load average {os.getloadavg()[0]:.1f}"
     )
-    print("| configuration | wall ms/frame | CPU ms/frame | frames/s (wall) |")
-    print("| --- | ---: | ---: | ---: |")
+    print(harness.table_header(COLUMNS, "lrrr"))
     if not args.system_malloc:
         keep_freed_memory()  # as the stream processor does (ProcessorConfig.keep_freed_memory)
     with threadpool_limits(args.blas_threads, user_api="blas"):
-        motions: list[Motion | None] = []
-        best = float("inf")
-        for _ in range(args.repeat):
-            started = time.perf_counter()
-            motions = [None]
-            motions += [
+        motions: list[Motion | None] = [None]
+
+        def odometry() -> None:
+            motions[1:] = [
                 estimate_motion(
                     images[i - 1], images[i], data.pixels[i], data.disparities[i], data.camera
                 )
                 for i in frames[1:]
             ]
-            best = min(best, (time.perf_counter() - started) / max(len(frames) - 1, 1))
-        print(
-            f"| odometry for carried points (in the stereo workers) | {1000 * best:.1f} | "
-            f"| {1 / best:.1f} |"
-        )
+
+        best = harness.timed(odometry, args.repeat, warmup=False).best / max(len(frames) - 1, 1)
+        label = "odometry for carried points (in the stereo workers)"
+        print(harness.table_row([label, f"{1000 * best:.1f}", "", f"{1 / best:.1f}"]))
         for name, config in CONFIGS.items():
             if args.profile is not None and name != args.profile:
                 continue
@@ -128,57 +162,30 @@ def main(argv: list[str] | None = None) -> int:
                 basis, ProcessorConfig(prior="hybrid" if local is not None else "paper")
             )
             sigma = config.get("sigma", fitted["sigma"] if local else fitted["plain_sigma"])
-            best_wall, best_cpu = float("inf"), float("inf")
+            options: dict[str, Any] = {
+                "sigma": sigma,
+                "local_prior": local,
+                "robust": str(config.get("robust", "none")),
+                "image_size": data.camera.image_size,
+                "focal_baseline": data.camera.focal_baseline,
+                # the std as densify calibrates it
+                "std_scale": calibration.std_scale,
+                "scale_by_innovation": calibration.scale_by_innovation,
+            }
+            noise = float(fitted["process_noise"])
+            run = partial(
+                densify_stream, basis, data, frames, motions, config, options, noise, args.batch
+            )
             profiler = cProfile.Profile() if args.profile is not None else None
-            for _ in range(1 if profiler else args.repeat):
-                if profiler is not None:
-                    profiler.enable()
-                state = (
-                    TemporalPrior(process_noise=float(fitted["process_noise"]))
-                    if config.get("temporal")
-                    else None
-                )
-                carrier = CarriedPoints(ProcessorConfig().carry) if config.get("carry") else None
-                wall, cpu = time.perf_counter(), time.thread_time()
-                for start in range(0, len(frames), args.batch):
-                    batch = frames[start : start + args.batch]
-                    pixels = [data.pixels[i] for i in batch]
-                    disparities = [data.disparities[i] for i in batch]
-                    noise_stds = None
-                    if carrier is not None:
-                        noise_stds = []
-                        for slot, i in enumerate(batch):
-                            pixels[slot], disparities[slot], noise, _ = carrier.carry(
-                                None, pixels[slot], disparities[slot], data.camera,
-                                motion=motions[i],
-                            )
-                            noise_stds.append(noise)
-                    densify_batch(
-                        basis,
-                        pixels,
-                        disparities,
-                        sigma=sigma,  # type: ignore[arg-type]
-                        local_prior=local,
-                        robust=str(config.get("robust", "none")),
-                        temporal=state,
-                        image_size=data.camera.image_size,
-                        focal_baseline=data.camera.focal_baseline,
-                        # the std as densify calibrates it
-                        std_scale=calibration.std_scale,
-                        scale_by_innovation=calibration.scale_by_innovation,
-                        noise_stds=noise_stds,
-                    )
-                if profiler is not None:
-                    profiler.disable()
-                best_wall = min(best_wall, (time.perf_counter() - wall) / len(frames))
-                best_cpu = min(best_cpu, (time.thread_time() - cpu) / len(frames))
+            if profiler is not None:
+                run = partial(profiler.runcall, run)
+            rounds = 1 if profiler else args.repeat
+            timing = harness.timed(run, rounds, warmup=False, cpu_clock=time.thread_time)
             if profiler is not None:
                 pstats.Stats(profiler).sort_stats("tottime").print_stats(12)
-            print(
-                f"| {name} | {1000 * best_wall:.1f} | {1000 * best_cpu:.1f} | "
-                f"{1 / best_wall:.1f} |",
-                flush=True,
-            )
+            wall, cpu = timing.best / len(frames), timing.best_cpu / len(frames)
+            cells = [f"{1000 * wall:.1f}", f"{1000 * cpu:.1f}", f"{1 / wall:.1f}"]
+            print(harness.table_row([name, *cells]), flush=True)
     return 0
 
 

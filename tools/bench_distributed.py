@@ -13,50 +13,47 @@ From the measured per-frame costs the tool projects a 23,201-frame basis and 1,0
 
 from __future__ import annotations
 
-import argparse
 import json
-import time
 from pathlib import Path
 from typing import Any
 
+import harness
 import numpy as np
 from scipy.linalg import subspace_angles
 
 from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.pipeline import distributed, jobs
 
-
-def _peak_rss_mb() -> float:
-    """Peak resident set size of the calling process's memory (VmHWM, MB).
-
-    Not ``getrusage``: on Linux its ``ru_maxrss`` survives exec, so a spawned worker would
-    report its parent's peak if that were higher.
-    """
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
-            return int(line.split()[1]) / 1024.0
-    return float("nan")
+JOB_COLUMNS = (
+    "job",
+    "workers",
+    "frames",
+    "wall s",
+    "frames/s",
+    "worker peak RSS MB",
+    "vs local learner",
+)
 
 
 def _worker_peaks(client: Any) -> list[float]:
-    peaks = client.run(_peak_rss_mb)
+    peaks = client.run(harness.peak_rss_mb)
     return sorted(float(value) for value in peaks.values())
 
 
 def _make_logs(work: Path, count: int, frames: int, scale: float) -> list[Path]:
-    logs = []
-    for index in range(count):
-        path = work / f"drive{index}_{frames}f_s{scale}.mcap"
-        if not path.exists():
-            jobs.synth(path, frames=frames, seed=100 + index, scale=scale, fmt="mcap")
-        logs.append(path)
-    return logs
+    return [
+        harness.cached(
+            work / f"drive{index}_{frames}f_s{scale}.mcap",
+            harness.build_synth(frames=frames, seed=100 + index, scale=scale),
+        )
+        for index in range(count)
+    ]
 
 
 def main() -> None:
     """Run the benchmark and print a Markdown report."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--work-dir", type=Path, default=Path("/tmp/pcd"))
+    parser = harness.argument_parser(__doc__)
+    harness.add_work_dir(parser, Path("/tmp/pcd"))
     parser.add_argument("--logs", type=int, default=4)
     parser.add_argument("--frames", type=int, default=40, help="frames per log")
     parser.add_argument("--scale", type=float, default=1.0, help="synthetic image scale")
@@ -64,30 +61,29 @@ def main() -> None:
     parser.add_argument("--chunk-frames", type=int, default=distributed.DEFAULT_CHUNK_FRAMES)
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     args = parser.parse_args()
-    args.work_dir.mkdir(parents=True, exist_ok=True)
+    harness.work_dir(args.work_dir)
     logs = _make_logs(args.work_dir, args.logs, args.frames, args.scale)
     n_frames = args.logs * args.frames
     options = jobs.LearnOptions(n_components=args.components)
     pairing = PairingConfig()
     rows: list[dict[str, Any]] = []
 
-    started = time.perf_counter()
-    local = jobs.learn(logs, args.work_dir / "basis_local.npz", options, pairing)
-    local_seconds = time.perf_counter() - started
+    with harness.Stopwatch() as watch:
+        local = jobs.learn(logs, args.work_dir / "basis_local.npz", options, pairing)
+    local_seconds = watch.wall
     basis_path = args.work_dir / "basis_local.npz"
 
     for workers in args.workers:
         with distributed.connect(workers=workers) as client:
-            started = time.perf_counter()
-            remote = distributed.learn_distributed(
-                logs,
-                args.work_dir / f"basis_{workers}w.npz",
-                options,
-                pairing,
-                client,
-                chunk_frames=args.chunk_frames,
-            )
-            seconds = time.perf_counter() - started
+            with harness.Stopwatch() as watch:
+                remote = distributed.learn_distributed(
+                    logs,
+                    args.work_dir / f"basis_{workers}w.npz",
+                    options,
+                    pairing,
+                    client,
+                    chunk_frames=args.chunk_frames,
+                )
             peaks = _worker_peaks(client)
         top = min(10, local.n_components, remote.n_components)
         angle = float(
@@ -103,7 +99,7 @@ def main() -> None:
             {
                 "job": "learn",
                 "workers": workers,
-                "seconds": seconds,
+                "seconds": watch.wall,
                 "frames": n_frames,
                 "peaks": peaks,
                 "angle10": angle,
@@ -111,11 +107,10 @@ def main() -> None:
             }
         )
         with distributed.connect(workers=workers) as client:
-            started = time.perf_counter()
-            outcomes = distributed.densify_many(
-                logs, args.work_dir / f"dense_{workers}w", basis_path, client, pairing=pairing
-            )
-            seconds = time.perf_counter() - started
+            with harness.Stopwatch() as watch:
+                outcomes = distributed.densify_many(
+                    logs, args.work_dir / f"dense_{workers}w", basis_path, client, pairing=pairing
+                )
             peaks = _worker_peaks(client)
         failed = [o.error for o in outcomes if o.error is not None]
         if failed:
@@ -124,7 +119,7 @@ def main() -> None:
             {
                 "job": "densify",
                 "workers": workers,
-                "seconds": seconds,
+                "seconds": watch.wall,
                 "frames": sum(o.frames for o in outcomes),
                 "peaks": peaks,
             }
@@ -141,28 +136,29 @@ def main() -> None:
     }
     a = distributed.summarize(rng.normal(size=(keep, s)).astype(np.float32), keep, **kwargs)
     b = distributed.summarize(rng.normal(size=(keep, s)).astype(np.float32), keep, **kwargs)
-    started = time.perf_counter()
-    distributed.merge(a, b, keep)
-    merge_seconds = time.perf_counter() - started
+    with harness.Stopwatch() as watch:
+        distributed.merge(a, b, keep)
+    merge_seconds = watch.wall
 
     print(f"logs: {args.logs} x {args.frames} frames, scale {args.scale}, image {local.image_size}")
     print(f"grid {local.mean.shape} (s = {s}), l = {args.components}, r = {keep}")
-    print(f"local jobs.learn (this process): {local_seconds:.1f} s, "
-          f"{n_frames / local_seconds:.2f} frames/s")
+    print(
+        f"local jobs.learn (this process): {local_seconds:.1f} s, "
+        f"{n_frames / local_seconds:.2f} frames/s"
+    )
     print(f"one merge of two (s x {keep}) summaries: {merge_seconds * 1000:.0f} ms\n")
-    print("| job | workers | frames | wall s | frames/s | worker peak RSS MB | vs local learner |")
-    print("| --- | --- | --- | --- | --- | --- | --- |")
+    print(harness.table_header(JOB_COLUMNS))
     for row in rows:
         check = (
             f"max angle top 10 {row['angle10']:.3f} deg, eig rel {row['eig_rel10']:.1e}"
             if row["job"] == "learn"
             else ""
         )
-        print(
-            f"| {row['job']} | {row['workers']} | {row['frames']} | {row['seconds']:.1f} | "
-            f"{row['frames'] / row['seconds']:.2f} | "
-            f"{', '.join(f'{p:.0f}' for p in row['peaks'])} | {check} |"
-        )
+        rate = f"{row['frames'] / row['seconds']:.2f}"
+        worker_peaks = ", ".join(f"{p:.0f}" for p in row["peaks"])
+        seconds = f"{row['seconds']:.1f}"
+        cells = [row["job"], row["workers"], row["frames"], seconds, rate, worker_peaks, check]
+        print(harness.table_row(cells))
     print()
     one = {row["job"]: row for row in rows if row["workers"] == 1}
     if "learn" in one and "densify" in one:
@@ -170,22 +166,26 @@ def main() -> None:
         densify_frame = one["densify"]["seconds"] / one["densify"]["frames"]
         chunks = -(-23201 // args.chunk_frames)
         hours_frames = 1000 * 3600 * 10
-        print(f"per frame on 1 worker: learn {learn_frame * 1000:.0f} ms, "
-              f"densify {densify_frame * 1000:.0f} ms")
-        print("\n| workers N | 23,201-frame basis (h) | 1,000 h of 10 Hz logs (days) |")
-        print("| --- | --- | --- |")
+        print(
+            f"per frame on 1 worker: learn {learn_frame * 1000:.0f} ms, "
+            f"densify {densify_frame * 1000:.0f} ms"
+        )
+        columns = ["workers N", "23,201-frame basis (h)", "1,000 h of 10 Hz logs (days)"]
+        print("\n" + harness.table_header(columns))
         for n in (1, 2, 8, 32, 128):
             learn_h = (23201 * learn_frame + (chunks - 1) * merge_seconds) / n / 3600
             densify_d = hours_frames * densify_frame / n / 86400
-            print(f"| {n} | {learn_h:.2f} | {densify_d:.1f} |")
+            print(harness.table_row([n, f"{learn_h:.2f}", f"{densify_d:.1f}"]))
         # memory of a merge task at l = 500 on this grid, from the array sizes it holds: two
         # input factors (s x r float32), the stacked (s x 2r+1) float32 and its float64
         # copy inside truncated_product, and the output factor
         r500 = 500 + distributed.DEFAULT_OVERSAMPLING
         merge_mb = s * (2 * r500 * 4 + (2 * r500 + 1) * 12 + r500 * 4) / 1e6
         chunk_mb = args.chunk_frames * s * 4 * 2 / 1e6
-        print(f"\nmerge task arrays at l = 500 (r = {r500}) on this grid: {merge_mb:.0f} MB; "
-              f"chunk task grid maps ({args.chunk_frames} frames): {chunk_mb:.0f} MB")
+        print(
+            f"\nmerge task arrays at l = 500 (r = {r500}) on this grid: {merge_mb:.0f} MB; "
+            f"chunk task grid maps ({args.chunk_frames} frames): {chunk_mb:.0f} MB"
+        )
     print("\nraw:", json.dumps(rows))
 
 

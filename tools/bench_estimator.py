@@ -13,12 +13,13 @@ the exact variance on every pixel. Prints Markdown tables.
 from __future__ import annotations
 
 import argparse
-import time
-import tracemalloc
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from functools import partial
+from typing import Any
 
 import cv2
+import harness
 import numpy as np
 import numpy.typing as npt
 
@@ -32,6 +33,21 @@ BASELINE = 0.54
 CAMERA_HEIGHT = 1.65
 
 Array = npt.NDArray[np.float32]
+TIMING_COLUMNS = (
+    "configuration",
+    "uncertainty",
+    "single frames/s",
+    "batched frames/s",
+    "peak MB (batch)",
+)
+ACCURACY_COLUMNS = (
+    "configuration",
+    "learn s",
+    "MAE vs truth (px)",
+    "RMS disparity vs full-res (px)",
+    "RMS std vs full-res (px)",
+    "mean std (px)",
+)
 
 
 def street_map(seed: int, image_size: tuple[int, int]) -> Array:
@@ -122,26 +138,27 @@ def random_basis(
 
 
 @dataclass(frozen=True)
-class Timing:
+class Cost:
     """Seconds per frame and the peak traced allocation (MB) of a run."""
 
     seconds: float
     peak_mb: float
 
 
-def timed(run: Callable[[], object], n_frames: int, repeat: int = 2) -> Timing:
+def cost(run: Callable[[], object], n_frames: int, repeat: int = 2) -> Cost:
     """Best of ``repeat`` runs (after a warm-up) of ``run``, per frame; traced peak memory."""
-    run()
-    best = np.inf
-    for _ in range(repeat):
-        start = time.perf_counter()
-        run()
-        best = min(best, time.perf_counter() - start)
-    tracemalloc.start()
-    run()
-    _, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
-    return Timing(best / n_frames, peak / 1e6)
+    return Cost(harness.timed(run, repeat).best / n_frames, harness.traced_peak_mb(run))
+
+
+def densify_each(
+    basis: Basis,
+    pixels: list[npt.NDArray[np.float64]],
+    values: list[npt.NDArray[np.float64]],
+    **options: Any,
+) -> None:
+    """Densify frame by frame (``densify``), for timing against ``densify_batch``."""
+    for frame_pixels, frame_values in zip(pixels, values, strict=True):
+        densify(basis, frame_pixels, frame_values, **options)
 
 
 def naive_reference(
@@ -177,17 +194,13 @@ def timing_table(args: argparse.Namespace, image_size: tuple[int, int]) -> None:
     ]
     values = [rng.uniform(1, 80, k) for _ in range(n_frames)]
     print(f"\n### Timing (random orthonormal basis, l = {args.components}, k = {k})\n")
-    print("| configuration | uncertainty | single frames/s | batched frames/s | peak MB (batch) |")
-    print("| --- | --- | ---: | ---: | ---: |")
+    print(harness.table_header(TIMING_COLUMNS, "llrrr"))
     full = random_basis(image_size, 1.0, args.components, 0)
     few = 2
-    start = time.perf_counter()
-    naive_reference(full, pixels[0], values[0], 2.0)
-    naive = time.perf_counter() - start
-    print(
-        "| naive full-res reference (numpy, l-space, paper + plain exact) | both "
-        f"| {1 / naive:.2f} | - | - |"
-    )
+    with harness.Stopwatch() as naive:
+        naive_reference(full, pixels[0], values[0], 2.0)
+    label = "naive full-res reference (numpy, l-space, paper + plain exact)"
+    print(harness.table_row([label, "both", f"{1 / naive.wall:.2f}", "-", "-"]))
     for scale in args.scales:
         basis = full if scale == 1.0 else random_basis(image_size, scale, args.components, 0)
         strides: list[int | None] = [None]
@@ -200,40 +213,22 @@ def timing_table(args: argparse.Namespace, image_size: tuple[int, int]) -> None:
                     continue
                 frames = few if scale >= 0.5 else n_frames
 
-                def single(
-                    mode: str = mode,
-                    stride: int | None = stride,
-                    n: int = frames,
-                    basis: Basis = basis,
-                ) -> None:
-                    for i in range(n):
-                        densify(
-                            basis, pixels[i], values[i], uncertainty=mode, variance_stride=stride
-                        )
-
-                def batch(
-                    mode: str = mode,
-                    stride: int | None = stride,
-                    n: int = frames,
-                    basis: Basis = basis,
-                ) -> None:
-                    densify_batch(
-                        basis, pixels[:n], values[:n], uncertainty=mode, variance_stride=stride
-                    )
-
-                one = timed(single, frames, repeat=1 if scale >= 0.5 else 2)
-                many = timed(batch, frames, repeat=1 if scale >= 0.5 else 2)
-                print(
-                    f"| {label} | {mode} | {1 / one.seconds:.1f} | {1 / many.seconds:.1f} "
-                    f"| {many.peak_mb:.0f} |"
-                )
+                options: dict[str, Any] = {"uncertainty": mode, "variance_stride": stride}
+                some = (basis, pixels[:frames], values[:frames])
+                single = partial(densify_each, *some, **options)
+                batch = partial(densify_batch, *some, **options)
+                one = cost(single, frames, repeat=1 if scale >= 0.5 else 2)
+                many = cost(batch, frames, repeat=1 if scale >= 0.5 else 2)
+                rates = [f"{1 / one.seconds:.1f}", f"{1 / many.seconds:.1f}"]
+                print(harness.table_row([label, mode, *rates, f"{many.peak_mb:.0f}"]))
     for name, baseline in (("nearest", nearest), ("linear", linear)):
 
         def call(function: Callable[..., object] = baseline) -> object:
             return function(pixels[0], values[0], image_size=image_size)
 
-        run = timed(call, 1)
-        print(f"| baseline {name} | none | {1 / run.seconds:.1f} | - | {run.peak_mb:.0f} |")
+        run = cost(call, 1)
+        cells = [f"baseline {name}", "none", f"{1 / run.seconds:.1f}", "-", f"{run.peak_mb:.0f}"]
+        print(harness.table_row(cells))
 
 
 def accuracy_table(args: argparse.Namespace, image_size: tuple[int, int]) -> None:
@@ -261,11 +256,11 @@ def accuracy_table(args: argparse.Namespace, image_size: tuple[int, int]) -> Non
     configs.append((0.25, 4))
     bases: dict[float, Basis] = {}
     for scale in sorted({c[0] for c in configs}, reverse=True):
-        start = time.perf_counter()
-        bases[scale] = learn_basis(
-            training(), n_components=n_comp, grid_scale=scale, focal_baseline=FOCAL * BASELINE
-        )
-        learn_seconds[scale] = time.perf_counter() - start
+        with harness.Stopwatch() as learning:
+            bases[scale] = learn_basis(
+                training(), n_components=n_comp, grid_scale=scale, focal_baseline=FOCAL * BASELINE
+            )
+        learn_seconds[scale] = learning.wall
     for scale, stride in configs:
         out = densify_batch(bases[scale], points, values, variance_stride=stride)
         key = f"grid 1/{round(1 / scale)}, std stride {stride or 'auto'}"
@@ -278,21 +273,15 @@ def accuracy_table(args: argparse.Namespace, image_size: tuple[int, int]) -> Non
         f"\n### Accuracy (learned bases: {n_train} training maps, l = {n_comp}, "
         f"{n_test} held-out maps, k <= {args.k} GFTT points, noise 0.5 px)\n"
     )
-    print(
-        "| configuration | learn s | MAE vs truth (px) | RMS disparity vs full-res (px) "
-        "| RMS std vs full-res (px) | mean std (px) |"
-    )
-    print("| --- | ---: | ---: | ---: | ---: | ---: |")
+    print(harness.table_header(ACCURACY_COLUMNS, "lrrrrr"))
     for key, maps in results.items():
         scale = 1.0 / float(key.split("/")[1].split(",")[0])
         mae = np.mean([np.abs(d - t).mean() for (d, _), t in zip(maps, tests, strict=True)])
         disp = np.mean([rms(d, r[0]) for (d, _), r in zip(maps, reference, strict=True)])
         std = np.mean([rms(s, r[1]) for (_, s), r in zip(maps, reference, strict=True)])
         mean_std = np.mean([s.mean() for _, s in maps])
-        print(
-            f"| {key} | {learn_seconds[scale]:.1f} | {mae:.3f} | {disp:.3f} | {std:.3f} "
-            f"| {mean_std:.2f} |"
-        )
+        numbers = [f"{learn_seconds[scale]:.1f}", f"{mae:.3f}", f"{disp:.3f}", f"{std:.3f}"]
+        print(harness.table_row([key, *numbers, f"{mean_std:.2f}"]))
     for name, baseline in (("nearest", nearest), ("linear", linear)):
         mae = np.mean(
             [
@@ -300,12 +289,12 @@ def accuracy_table(args: argparse.Namespace, image_size: tuple[int, int]) -> Non
                 for p, v, t in zip(points, values, tests, strict=True)
             ]
         )
-        print(f"| baseline {name} | - | {mae:.3f} | - | - | - |")
+        print(harness.table_row([f"baseline {name}", "-", f"{mae:.3f}", "-", "-", "-"]))
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark and print Markdown tables."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
+    parser = harness.argument_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="small sizes, for a smoke run")
     parser.add_argument("--components", type=int, default=500, help="l for timing rows")
     parser.add_argument("--learned-components", type=int, default=150, help="l for accuracy rows")

@@ -3,7 +3,7 @@
 Checks the two long-log promises of ``densify``: memory does not grow with the length of
 the log, and the frame rate does not fall over time. Each run is the real command line
 (``pcainterp densify LOG -o OUT --basis BASIS``, parsed by ``cli.main``) in a fresh Python
-process; the product code is not changed. The child process only wraps ``jobs.densify`` to
+process; the product code is not changed. The child process only wraps ``densify`` to
 pass an ``on_frame`` callback that records when each frame was written (CLOCK_MONOTONIC),
 and reports its peak RSS (``VmHWM`` of ``/proc/self/status``) at the end. Meanwhile this
 process samples the child's ``VmRSS``, its CPU time and the 1-minute load average twice a
@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import json
 import os
 import shutil
 import subprocess
@@ -32,8 +31,27 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import harness
+
 SAMPLE_SECONDS = 0.5
 """How often this process samples the child's RSS and the load average."""
+SUMMARY_COLUMNS = (
+    "log frames",
+    "s",
+    "frames/s",
+    "CPU ms/frame",
+    "peak RSS MB (VmHWM)",
+    "output MB",
+    "load avg 1 min",
+)
+SEGMENT_COLUMNS = (
+    "frames",
+    "s",
+    "frames/s",
+    "CPU ms/frame",
+    "max RSS MB (sampled)",
+    "load avg 1 min at end",
+)
 
 
 @dataclass
@@ -82,33 +100,6 @@ class Run:
     stdout: str = ""
 
 
-# ----------------------------------------------------------------------------- inputs
-
-
-def pcainterp(*args: str | int | Path) -> None:
-    """Run ``pcainterp ARGS`` in a subprocess (same interpreter and environment)."""
-    command = [sys.executable, "-m", "pcainterp_stream.cli", *map(str, args)]
-    print("$ pcainterp " + " ".join(map(str, args)), file=sys.stderr, flush=True)
-    subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
-
-
-def ensure_log(work_dir: Path, frames: int, seed: int) -> Path:
-    """Return a cached full-size synthetic log, written by ``pcainterp synth`` once."""
-    path = work_dir / f"synth_{frames}_s{seed}.mcap"
-    if not path.exists():
-        pcainterp("synth", path, "--frames", frames, "--scale", 1, "--seed", seed)
-    return path
-
-
-def ensure_basis(work_dir: Path, components: int, train_frames: int) -> Path:
-    """Return a cached basis learned by ``pcainterp learn`` from a seed-2 log's SGBM maps."""
-    path = work_dir / f"basis_l{components}_n{train_frames}.npz"
-    if not path.exists():
-        train = ensure_log(work_dir, train_frames, seed=2)
-        pcainterp("learn", train, "-o", path, "--components", components)
-    return path
-
-
 # ----------------------------------------------------------------------------- child
 
 
@@ -123,18 +114,6 @@ def _cpu_seconds(pid: int) -> float | None:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def _status_kib(field_name: str, pid: int | str = "self") -> float | None:
-    """Return a ``kB`` field of ``/proc/PID/status`` (e.g. VmRSS), None once gone."""
-    try:
-        with open(f"/proc/{pid}/status") as status:
-            for line in status:
-                if line.startswith(field_name + ":"):
-                    return float(line.split()[1])
-    except OSError:
-        return None
-    return None
-
-
 def child(report: Path, argv: list[str]) -> int:
     """Run ``pcainterp ARGV`` here, recording when each densified frame was written.
 
@@ -142,7 +121,7 @@ def child(report: Path, argv: list[str]) -> int:
     inside ``cli.main`` (s), exit code and ``VmHWM`` (kB).
     """
     from pcainterp_stream import cli
-    from pcainterp_stream.pipeline import jobs
+    from pcainterp_stream.pipeline import densify
     from pcainterp_stream.records import DensifiedFrame
 
     frame_times: list[float] = []
@@ -150,23 +129,20 @@ def child(report: Path, argv: list[str]) -> int:
     def on_frame(result: DensifiedFrame) -> None:
         frame_times.append(time.monotonic())
 
-    # cli.main -> jobs.run looks ``densify`` up in the jobs module at call time
-    jobs.densify = functools.partial(jobs.densify, on_frame=on_frame)
+    # cli.main imports ``densify`` from pipeline/densify.py when the command runs
+    densify.densify = functools.partial(densify.densify, on_frame=on_frame)
     started, cpu_started = time.monotonic(), time.process_time()
     code = cli.main(argv)
     ended, cpu_ended = time.monotonic(), time.process_time()
-    report.write_text(
-        json.dumps(
-            {
-                "exit_code": code,
-                "started_s": started,
-                "ended_s": ended,
-                "cpu_s": cpu_ended - cpu_started,
-                "frame_times_s": frame_times,
-                "peak_rss_kib": _status_kib("VmHWM"),
-            }
-        )
-    )
+    result = {
+        "exit_code": code,
+        "started_s": started,
+        "ended_s": ended,
+        "cpu_s": cpu_ended - cpu_started,
+        "frame_times_s": frame_times,
+        "peak_rss_kib": harness.proc_status_kib("VmHWM"),
+    }
+    harness.write_json(report, result, indent=None)
     return code
 
 
@@ -185,7 +161,7 @@ def densify_run(log: Path, basis: Path, out: Path, frames: int, work_dir: Path) 
     with stdout_path.open("w") as stdout:
         process = subprocess.Popen(command, stdout=stdout, stderr=subprocess.STDOUT)
         while process.poll() is None:
-            rss = _status_kib("VmRSS", process.pid)
+            rss = harness.proc_status_kib("VmRSS", process.pid)
             cpu = _cpu_seconds(process.pid)
             if rss is not None and cpu is not None:
                 samples.append(Sample(time.monotonic(), rss / 1024.0, os.getloadavg()[0], cpu))
@@ -193,7 +169,7 @@ def densify_run(log: Path, basis: Path, out: Path, frames: int, work_dir: Path) 
     text = stdout_path.read_text()
     if process.returncode != 0 or not report.exists():
         raise RuntimeError(f"densify of {log} failed (exit {process.returncode}): {text[-2000:]}")
-    result: dict[str, Any] = json.loads(report.read_text())
+    result: dict[str, Any] = harness.read_json(report)
     return Run(
         frames=frames,
         exit_code=int(result["exit_code"]),
@@ -214,10 +190,7 @@ def segment_table(run: Run, segment: int) -> str:
     CPU per frame is the child's CPU time between the samples nearest the segment's ends:
     unlike wall time it hardly depends on what else the machine runs.
     """
-    lines = [
-        "| frames | s | frames/s | CPU ms/frame | max RSS MB (sampled) | load avg 1 min at end |",
-        "| --- | --- | --- | --- | --- | --- |",
-    ]
+    lines = [harness.table_header(SEGMENT_COLUMNS)]
     times = run.frame_times_s
     for first in range(0, len(times), segment):
         last = min(first + segment, len(times)) - 1
@@ -233,9 +206,9 @@ def segment_table(run: Run, segment: int) -> str:
             at_begin = min(run.samples, key=lambda s: abs(s.monotonic_s - begin))
             at_end = min(run.samples, key=lambda s: abs(s.monotonic_s - end))
             cpu_ms = 1000 * (at_end.cpu_s - at_begin.cpu_s) / count
+        numbers = [f"{end - begin:.1f}", f"{count / (end - begin):.1f}", f"{cpu_ms:.0f}"]
         lines.append(
-            f"| {first + 1}-{last + 1} | {end - begin:.1f} | {count / (end - begin):.1f} | "
-            f"{cpu_ms:.0f} | {rss:.0f} | {load:.2f} |"
+            harness.table_row([f"{first + 1}-{last + 1}", *numbers, f"{rss:.0f}", f"{load:.2f}"])
         )
     return "\n".join(lines)
 
@@ -247,20 +220,18 @@ def summary_row(run: Run) -> str:
     load = f"{min(loads):.1f}-{max(loads):.1f}" if loads else "n/a"
     frames = len(run.frame_times_s)
     cpu = f"{1000 * run.cpu_s / frames:.0f}" if frames else "n/a"
-    return (
-        f"| {run.frames} | {seconds:.1f} | {frames / seconds:.1f} | {cpu} | "
-        f"{run.peak_rss_mb:.0f} | {run.output_mb:.0f} | {load} |"
-    )
+    rate = f"{frames / seconds:.1f}"
+    sizes = [f"{run.peak_rss_mb:.0f}", f"{run.output_mb:.0f}"]
+    return harness.table_row([run.frames, f"{seconds:.1f}", rate, cpu, *sizes, load])
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the long-log benchmark and print Markdown tables."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--work-dir", type=Path, default=Path("/tmp/pcainterp_longlog"))
+    parser = harness.argument_parser(__doc__)
+    harness.add_work_dir(parser, Path("/tmp/pcainterp_longlog"))
     parser.add_argument("--frames", type=int, nargs="+", default=[100, 1000])
     parser.add_argument("--segment", type=int, default=100, help="frames per throughput row")
-    parser.add_argument("--train-frames", type=int, default=250)
-    parser.add_argument("--components", type=int, default=200)
+    harness.add_basis_arguments(parser)
     parser.add_argument("--keep-output", action="store_true", help="keep the densified logs")
     parser.add_argument("--child", type=Path, default=None, help=argparse.SUPPRESS)
     parser.add_argument("command", nargs="*", help=argparse.SUPPRESS)
@@ -268,10 +239,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.child is not None:
         return child(args.child, list(args.command))
 
-    work: Path = args.work_dir
-    work.mkdir(parents=True, exist_ok=True)
-    basis = ensure_basis(work, args.components, args.train_frames)
-    logs = {frames: ensure_log(work, frames, seed=1) for frames in args.frames}
+    work = harness.work_dir(args.work_dir)
+    basis = harness.synth_basis(work, args.components, args.train_frames)
+    logs = {frames: harness.synth_log(work, frames, seed=1) for frames in args.frames}
     runs: list[Run] = []
     load_before = os.getloadavg()
     for frames, log in logs.items():
@@ -295,11 +265,7 @@ def main(argv: list[str] | None = None) -> int:
         + ", ".join(f"{value:.2f}" for value in load_before)
         + f"; after the last: {', '.join(f'{value:.2f}' for value in os.getloadavg())}"
     )
-    print(
-        "\n| log frames | s | frames/s | CPU ms/frame | peak RSS MB (VmHWM) | output MB | "
-        "load avg 1 min |"
-    )
-    print("| --- | --- | --- | --- | --- | --- | --- |")
+    print("\n" + harness.table_header(SUMMARY_COLUMNS))
     for run in runs:
         print(summary_row(run))
     for run in runs:

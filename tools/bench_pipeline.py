@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+import harness
 import numpy as np
 
 from pcainterp_stream.allocator import keep_freed_memory
@@ -49,40 +50,31 @@ from pcainterp_stream.frontend.stereo import (
     lookup_disparities,
 )
 from pcainterp_stream.io import logreader, logwriter, rosmsg
-from pcainterp_stream.pipeline import jobs, processor
+from pcainterp_stream.pipeline import densify, jobs, processor
 from pcainterp_stream.records import StereoFrame
 
 SECTIONS = ("sgbm", "job", "breakdown", "memory", "lookups")
+JOB_COLUMNS = (
+    "frames/s",
+    "ms/frame",
+    "CPU ms/frame",
+    "SGBM alone same round s",
+    "ratio",
+    "peak RSS MB",
+    "out MB",
+)
+JOB_SECONDS = ("seconds", "cpu_seconds", "sys_seconds")
+LOOKUP_COLUMNS = (
+    "SGBM resolution",
+    "lookups/frame",
+    "within 0.5 px",
+    "within 1 px",
+    "within 3 px",
+    "median error px",
+)
 
 
 # ----------------------------------------------------------------------------- inputs
-
-
-def ensure_log(work_dir: Path, frames: int, seed: int) -> Path:
-    """Return a cached full-size synthetic log of ``frames`` frames, generating it once."""
-    path = work_dir / f"synth_{frames}_s{seed}.mcap"
-    if not path.exists():
-        print(f"generating {path} ...", file=sys.stderr)
-        jobs.synth(path, frames=frames, seed=seed, scale=1.0, fmt=None)
-    return path
-
-
-def ensure_basis(
-    work_dir: Path, components: int, train_frames: int, *, fit_prior: bool = False
-) -> Path:
-    """Return a cached basis learned from SGBM maps of a synthetic log (seed 2).
-
-    With ``fit_prior`` as ``learn --fit-prior`` learns it (the hybrid prior, which
-    ``densify`` then uses by default).
-    """
-    suffix = "_prior" if fit_prior else ""
-    path = work_dir / f"basis_l{components}_n{train_frames}{suffix}.npz"
-    if not path.exists():
-        train = ensure_log(work_dir, train_frames, seed=2)
-        print(f"learning {path} from {train} ...", file=sys.stderr)
-        options = jobs.LearnOptions(n_components=components, fit_prior=fit_prior)
-        jobs.learn([train], path, options, PairingConfig())
-    return path
 
 
 def stereo_frames(log: Path) -> Iterator[StereoFrame]:
@@ -109,23 +101,25 @@ def sgbm_alone(log: Path, config: SgbmConfig, *, workers: int, opencv_threads: i
     """
     previous = cv2.getNumThreads()
     cv2.setNumThreads(opencv_threads)
-    started = time.perf_counter()
     try:
-        if workers == 0:
-            for frame in stereo_frames(log):
-                compute_disparity(frame.left, frame.right, config)
-        else:
-            with ThreadPoolExecutor(max_workers=workers) as pool:
-                pending: list[Future[Any]] = []
+        with harness.Stopwatch() as watch:
+            if workers == 0:
                 for frame in stereo_frames(log):
-                    pending.append(pool.submit(compute_disparity, frame.left, frame.right, config))
-                    if len(pending) > 2 * workers:
-                        pending.pop(0).result()
-                for future in pending:
-                    future.result()
+                    compute_disparity(frame.left, frame.right, config)
+            else:
+                with ThreadPoolExecutor(max_workers=workers) as pool:
+                    pending: list[Future[Any]] = []
+                    for frame in stereo_frames(log):
+                        pending.append(
+                            pool.submit(compute_disparity, frame.left, frame.right, config)
+                        )
+                        if len(pending) > 2 * workers:
+                            pending.pop(0).result()
+                    for future in pending:
+                        future.result()
     finally:
         cv2.setNumThreads(previous)
-    return time.perf_counter() - started
+    return watch.wall
 
 
 # ----------------------------------------------------------------------------- the job
@@ -134,9 +128,9 @@ def sgbm_alone(log: Path, config: SgbmConfig, *, workers: int, opencv_threads: i
 def run_job_here(log: Path, basis: Path, out: Path, settings: dict[str, Any]) -> dict[str, Any]:
     """Run ``jobs.densify`` in this process; return time, frames and peak RSS."""
     config = processor_config(settings)
-    started = time.perf_counter()
-    summary = jobs.densify(log, out, Basis.load(basis), processor=config)
-    seconds = time.perf_counter() - started
+    with harness.Stopwatch() as watch:
+        summary = jobs.densify(log, out, Basis.load(basis), processor=config)
+    seconds = watch.wall
     usage = resource.getrusage(resource.RUSAGE_SELF)
     peak_kib = usage.ru_maxrss
     return {
@@ -213,14 +207,14 @@ class Timers:
     @contextlib.contextmanager
     def stage(self, name: str) -> Iterator[None]:
         """Time the enclosed block under ``name``."""
-        wall, cpu = time.perf_counter(), time.thread_time()
+        watch = harness.Stopwatch(time.thread_time)
         try:
-            yield
+            with watch:
+                yield
         finally:
-            wall, cpu = time.perf_counter() - wall, time.thread_time() - cpu
             with self._lock:
-                self.wall[name] += wall
-                self.cpu[name] += cpu
+                self.wall[name] += watch.wall
+                self.cpu[name] += watch.cpu
                 self.calls[name] += 1
 
 
@@ -261,7 +255,7 @@ def instrumented(timers: Timers) -> Iterator[None]:
         (logwriter.LogWriter, "close", "write: close (last chunk, summary)"),
         (rosmsg, "serialize", "  of which CDR serialize"),
         (zstandard, "compress", "  of which zstd compress"),
-        (jobs, "output_messages", "build output messages"),
+        (densify, "output_messages", "build output messages"),
         (processor.FrameProcessor, "submit", "processor submit (wait + densify)"),
         (processor.FrameProcessor, "finish", "processor finish (wait + densify)"),
         (processor, "densify_batch", "  of which densify_batch"),
@@ -291,15 +285,12 @@ def breakdown(log: Path, basis: Path, out: Path, settings: dict[str, Any]) -> st
         f"{frames} frames in {result['seconds']:.2f} s ({result['fps']:.1f} frames/s), "
         f"settings {settings}",
         "",
-        "| stage | thread | wall ms/frame | CPU ms/frame |",
-        "| --- | --- | --- | --- |",
+        harness.table_header(["stage", "thread", "wall ms/frame", "CPU ms/frame"]),
     ]
     for name in timers.wall:
         thread = "workers" if "worker" in name else "main"
-        lines.append(
-            f"| {name} | {thread} | {1000 * timers.wall[name] / frames:.1f} | "
-            f"{1000 * timers.cpu[name] / frames:.1f} |"
-        )
+        wall, cpu = 1000 * timers.wall[name] / frames, 1000 * timers.cpu[name] / frames
+        lines.append(harness.table_row([name, thread, f"{wall:.1f}", f"{cpu:.1f}"]))
     return "\n".join(lines)
 
 
@@ -344,17 +335,13 @@ def lookup_loss(log: Path, frames: int) -> str:
         f"{frames} frames, same GFTT corners; error = |lookup - f*b/true depth| at the "
         "nearest pixel",
         "",
-        "| SGBM resolution | lookups/frame | within 0.5 px | within 1 px | within 3 px | "
-        "median error px |",
-        "| --- | --- | --- | --- | --- | --- |",
+        harness.table_header(LOOKUP_COLUMNS),
     ]
     for name, errors in rows.items():
         every = np.concatenate(errors) if errors else np.zeros(0)
-        lines.append(
-            f"| {name} | {every.size / max(len(errors), 1):.0f} | {np.mean(every <= 0.5):.3f} | "
-            f"{np.mean(every <= 1.0):.3f} | {np.mean(every <= 3.0):.3f} | "
-            f"{np.median(every):.3f} |"
-        )
+        within = [f"{np.mean(every <= limit):.3f}" for limit in (0.5, 1.0, 3.0)]
+        per_frame = f"{every.size / max(len(errors), 1):.0f}"
+        lines.append(harness.table_row([name, per_frame, *within, f"{np.median(every):.3f}"]))
     return "\n".join(lines)
 
 
@@ -371,14 +358,14 @@ def _set_zstd_level(level: int) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark sections asked for and print Markdown tables."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--work-dir", type=Path, default=Path("/tmp/pcainterp_bench"))
+    parser = harness.argument_parser(__doc__)
+    harness.add_work_dir(parser, Path("/tmp/pcainterp_bench"))
     parser.add_argument("--frames", type=int, default=100, help="frames of the timed log")
     parser.add_argument("--memory-frames", type=int, nargs=2, default=[100, 1000])
-    parser.add_argument("--train-frames", type=int, default=250)
-    parser.add_argument("--components", type=int, default=200)
+    harness.add_basis_arguments(parser)
     parser.add_argument(
-        "--fit-prior", action="store_true",
+        "--fit-prior",
+        action="store_true",
         help="learn the basis with --fit-prior (densify then uses the hybrid prior)",
     )
     parser.add_argument("--sections", nargs="+", choices=SECTIONS, default=list(SECTIONS))
@@ -408,10 +395,9 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(result))
         return 0
 
-    work: Path = args.work_dir
-    work.mkdir(parents=True, exist_ok=True)
-    log = ensure_log(work, args.frames, seed=1)
-    basis_path = ensure_basis(
+    work = harness.work_dir(args.work_dir)
+    log = harness.synth_log(work, args.frames, seed=1)
+    basis_path = harness.synth_basis(
         work, args.components, args.train_frames, fit_prior=args.fit_prior
     )
     out = work / "densified.mcap"
@@ -426,8 +412,8 @@ def main(argv: list[str] | None = None) -> int:
     # the job tunes malloc (ProcessorConfig.keep_freed_memory): so does the SGBM reference
     keep_freed_memory()
     if "sgbm" in args.sections:
-        print("\n| SGBM alone (read + decode + pair + SGBM) | s | ms/frame | frames/s |")
-        print("| --- | --- | --- | --- |")
+        columns = ["SGBM alone (read + decode + pair + SGBM)", "s", "ms/frame", "frames/s"]
+        print("\n" + harness.table_header(columns))
         for downscale in (1, 2):
             config = SgbmConfig(downscale=downscale)
             for workers, threads in ((0, 2), (0, 1), (2, 1)):
@@ -439,10 +425,8 @@ def main(argv: list[str] | None = None) -> int:
                     + ("main thread" if workers == 0 else f"{workers} workers")
                     + f", {threads} OpenCV thread(s)"
                 )
-                print(
-                    f"| {label} | {seconds:.2f} | {1000 * seconds / args.frames:.1f} | "
-                    f"{args.frames / seconds:.1f} |"
-                )
+                per_frame = [f"{1000 * seconds / args.frames:.1f}", f"{args.frames / seconds:.1f}"]
+                print(harness.table_row([label, f"{seconds:.2f}", *per_frame]))
     if "job" in args.sections:
         # Noisy shared machine: every round times SGBM alone (its fastest way: 2 workers of
         # one OpenCV thread) right before each job; the table keeps each job's best round.
@@ -462,38 +446,39 @@ def main(argv: list[str] | None = None) -> int:
                 result["sgbm_seconds"] = sgbm_seconds
                 if index not in best or result["seconds"] < best[index]["seconds"]:
                     best[index] = result
-        print(
-            f"\n| densify job settings | zstd | best of {args.repeat} s | frames/s | "
-            "ms/frame | CPU ms/frame | SGBM alone same round s | ratio | peak RSS MB | out MB |"
-        )
-        print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+        columns = ["densify job settings", "zstd", f"best of {args.repeat} s", *JOB_COLUMNS]
+        print("\n" + harness.table_header(columns))
         for index, settings in enumerate(all_settings):
             result = best[index]
+            ms = {key: 1000 * result[key] / result["frames"] for key in JOB_SECONDS}
             print(
-                f"| {json.dumps(settings)} | {args.zstd_level or 'default'} | "
-                f"{result['seconds']:.2f} | {result['fps']:.1f} | "
-                f"{1000 * result['seconds'] / result['frames']:.1f} | "
-                f"{1000 * result['cpu_seconds'] / result['frames']:.1f} "
-                f"({1000 * result['sys_seconds'] / result['frames']:.0f} sys) | "
-                f"{result['sgbm_seconds']:.2f} | "
-                f"{result['seconds'] / result['sgbm_seconds']:.2f} | "
-                f"{result['peak_rss_mb']:.0f} | {result['output_mb']:.0f} |"
+                harness.table_row(
+                    [
+                        json.dumps(settings),
+                        args.zstd_level or "default",
+                        f"{result['seconds']:.2f}",
+                        f"{result['fps']:.1f}",
+                        f"{ms['seconds']:.1f}",
+                        f"{ms['cpu_seconds']:.1f} ({ms['sys_seconds']:.0f} sys)",
+                        f"{result['sgbm_seconds']:.2f}",
+                        f"{result['seconds'] / result['sgbm_seconds']:.2f}",
+                        f"{result['peak_rss_mb']:.0f}",
+                        f"{result['output_mb']:.0f}",
+                    ]
+                )
             )
     if "breakdown" in args.sections:
         for settings in all_settings:
             print("\n" + breakdown(log, basis_path, out, settings))
     if "memory" in args.sections:
-        print("\n| log frames | s | frames/s | peak RSS MB |")
-        print("| --- | --- | --- | --- |")
+        print("\n" + harness.table_header(["log frames", "s", "frames/s", "peak RSS MB"]))
         for frames in args.memory_frames:
-            memory_log = ensure_log(work, frames, seed=1)
+            memory_log = harness.synth_log(work, frames, seed=1)
             result = run_job_subprocess(
                 memory_log, basis_path, out, all_settings[0], args.zstd_level
             )
-            print(
-                f"| {frames} | {result['seconds']:.1f} | {result['fps']:.1f} | "
-                f"{result['peak_rss_mb']:.0f} |"
-            )
+            numbers = [f"{result['seconds']:.1f}", f"{result['fps']:.1f}"]
+            print(harness.table_row([frames, *numbers, f"{result['peak_rss_mb']:.0f}"]))
     if "lookups" in args.sections:
         print("\n" + lookup_loss(log, args.lookup_frames))
     out.unlink(missing_ok=True)

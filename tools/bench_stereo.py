@@ -13,9 +13,7 @@ Example:
 
 from __future__ import annotations
 
-import argparse
 import threading
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from functools import partial
@@ -23,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+import harness
 import numpy as np
 import numpy.typing as npt
 
@@ -40,16 +39,29 @@ from pcainterp_stream.frontend.stereo import (
     to_grey8_pair,
 )
 
-DEFAULT_DRIVE = (
-    Path(__file__).resolve().parents[2]
-    / "shared"
-    / "realdata"
-    / "kitti_raw"
-    / "2011_09_26"
-    / "2011_09_26_drive_0001_sync"
-)
+DEFAULT_DRIVE = harness.REALDATA / harness.KITTI_RAW_0001
 SECTIONS = ("sgbm", "threads", "overlap", "lr", "synthetic", "gftt", "front")
 REFERENCE = SgbmConfig(mode=SgbmMode.SGBM, num_disparities=128, block_size=5)
+
+SGBM_COLUMNS = (
+    "mode",
+    "num_disp",
+    "block",
+    "scale",
+    "threads",
+    "ms/frame median (min)",
+    "valid/frame",
+    "within 1 px of ref",
+    "mean abs diff (px)",
+)
+GFTT_COLUMNS = (
+    "GFTT max_corners",
+    "subpixel",
+    "ms",
+    "valid lookups/frame",
+    "rejected/frame (invalid, discontinuity)",
+    "grid cells used of 24",
+)
 
 Image = npt.NDArray[np.uint8]
 Pair = tuple[Image, Image]
@@ -72,13 +84,7 @@ def load_pairs(drive: Path, count: int) -> list[Pair]:
 
 def time_ms(function: Callable[[], Any], repeats: int) -> float:
     """Return the median wall time (ms) of ``repeats`` calls, after one warm-up call."""
-    function()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - start)
-    return 1000.0 * float(np.median(times))
+    return 1000.0 * harness.timed(function, repeats).median
 
 
 def sgbm_ms(config: SgbmConfig, pairs: Sequence[Pair]) -> tuple[float, float, list[Any]]:
@@ -89,10 +95,11 @@ def sgbm_ms(config: SgbmConfig, pairs: Sequence[Pair]) -> tuple[float, float, li
     compute_disparity(pairs[0][0], pairs[0][1], config)  # warm-up, builds the matcher
     times, maps = [], []
     for left, right in pairs:
-        start = time.perf_counter()
-        maps.append(compute_disparity(left, right, config))
-        times.append(time.perf_counter() - start)
-    return 1000.0 * float(np.median(times)), 1000.0 * float(np.min(times)), maps
+        with harness.Stopwatch() as watch:
+            maps.append(compute_disparity(left, right, config))
+        times.append(watch.wall)
+    timing = harness.Timing(tuple(times))
+    return 1000.0 * timing.median, 1000.0 * timing.best, maps
 
 
 def compare(
@@ -124,11 +131,7 @@ def section_sgbm(pairs: Sequence[Pair], default_threads: int) -> None:
     ref_ms, _, reference = sgbm_ms(REFERENCE, pairs)
     print(f"\nReference: {REFERENCE.mode.name} block 5, 128 disparities, full resolution")
     print(f"({ref_ms:.0f} ms/frame at {default_threads} threads).\n")
-    print(
-        "| mode | num_disp | block | scale | threads | ms/frame median (min) | valid/frame "
-        "| within 1 px of ref | mean abs diff (px) |"
-    )
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    print(harness.table_header(SGBM_COLUMNS))
     for downscale in (1, 2):
         for mode in (SgbmMode.SGBM, SgbmMode.SGBM_3WAY, SgbmMode.HH4):
             for num in (64, 96, 128):
@@ -144,12 +147,10 @@ def section_sgbm(pairs: Sequence[Pair], default_threads: int) -> None:
                         ms, fastest, maps = sgbm_ms(config, pairs)
                         valid, share, mean_diff = compare(maps, reference, corners)
                         scale = "full" if downscale == 1 else "half"
-                        print(
-                            f"| {mode.name} | {num} | {block} | {scale} | {threads} "
-                            f"| {ms:.0f} ({fastest:.0f}) | {valid:.0f} | {share:.3f} "
-                            f"| {mean_diff:.3f} |",
-                            flush=True,
-                        )
+                        setting = [mode.name, num, block, scale, threads]
+                        found = [f"{valid:.0f}", f"{share:.3f}", f"{mean_diff:.3f}"]
+                        row = [*setting, f"{ms:.0f} ({fastest:.0f})", *found]
+                        print(harness.table_row(row), flush=True)
     cv2.setNumThreads(default_threads)
 
 
@@ -161,18 +162,18 @@ def two_threads(work: Sequence[Pair], config: SgbmConfig) -> float:
             compute_disparity(left, right, config)
 
     workers = [threading.Thread(target=run, args=(work[k::2],)) for k in range(2)]
-    start = time.perf_counter()
-    for worker in workers:
-        worker.start()
-    for worker in workers:
-        worker.join()
-    return (time.perf_counter() - start) / len(work)
+    with harness.Stopwatch() as watch:
+        for worker in workers:
+            worker.start()
+        for worker in workers:
+            worker.join()
+    return watch.wall / len(work)
 
 
 def section_threads(pairs: Sequence[Pair], default_threads: int) -> None:
     """Check whether two Python threads calling SGBM at once scale (best of 3 rounds)."""
-    print("\n| mode | cv2 threads | 1 Python thread ms/frame | 2 Python threads ms/frame |")
-    print("| --- | --- | --- | --- |")
+    columns = ["mode", "cv2 threads", "1 Python thread ms/frame", "2 Python threads ms/frame"]
+    print("\n" + harness.table_header(columns))
     work = list(pairs) * 2
     for mode in (SgbmMode.SGBM_3WAY, SgbmMode.SGBM):
         config = SgbmConfig(mode=mode)
@@ -181,16 +182,13 @@ def section_threads(pairs: Sequence[Pair], default_threads: int) -> None:
             compute_disparity(work[0][0], work[0][1], config)
             sequential, parallel = np.inf, np.inf
             for _ in range(3):  # best of 3 rounds: the machine is shared
-                start = time.perf_counter()
-                for left, right in work:
-                    compute_disparity(left, right, config)
-                sequential = min(sequential, (time.perf_counter() - start) / len(work))
+                with harness.Stopwatch() as watch:
+                    for left, right in work:
+                        compute_disparity(left, right, config)
+                sequential = min(sequential, watch.wall / len(work))
                 parallel = min(parallel, two_threads(work, config))
-
-            print(
-                f"| {mode.name} | {threads} | {1000 * sequential:.0f} | {1000 * parallel:.0f} |",
-                flush=True,
-            )
+            row = [mode.name, threads, f"{1000 * sequential:.0f}", f"{1000 * parallel:.0f}"]
+            print(harness.table_row(row), flush=True)
     cv2.setNumThreads(default_threads)
 
 
@@ -203,8 +201,14 @@ def section_overlap(pairs: Sequence[Pair], default_threads: int) -> None:
     basis = rng.standard_normal((20000, 500)).astype(np.float32)
     coefficients = rng.standard_normal((500, 400)).astype(np.float32)
     front_end = StereoFrontEnd()
-    print("\n| cv2 threads | front end alone ms | BLAS alone ms | both, overlapped ms | sum ms |")
-    print("| --- | --- | --- | --- | --- |")
+    columns = [
+        "cv2 threads",
+        "front end alone ms",
+        "BLAS alone ms",
+        "both, overlapped ms",
+        "sum ms",
+    ]
+    print("\n" + harness.table_header(columns))
     for threads in (1, default_threads):
         cv2.setNumThreads(threads)
         front_ms, blas_ms, both_ms = np.inf, np.inf, np.inf
@@ -213,16 +217,13 @@ def section_overlap(pairs: Sequence[Pair], default_threads: int) -> None:
                 front_ms = min(front_ms, time_ms(partial(front_end.measure, left, right), 1))
                 blas_ms = min(blas_ms, time_ms(partial(np.matmul, basis, coefficients), 1))
                 worker = threading.Thread(target=front_end.measure, args=(left, right))
-                start = time.perf_counter()
-                worker.start()
-                np.matmul(basis, coefficients)
-                worker.join()
-                both_ms = min(both_ms, 1000.0 * (time.perf_counter() - start))
-        print(
-            f"| {threads} | {front_ms:.0f} | {blas_ms:.0f} | {both_ms:.0f} "
-            f"| {front_ms + blas_ms:.0f} |",
-            flush=True,
-        )
+                with harness.Stopwatch() as watch:
+                    worker.start()
+                    np.matmul(basis, coefficients)
+                    worker.join()
+                both_ms = min(both_ms, 1000.0 * watch.wall)
+        times = [front_ms, blas_ms, both_ms, front_ms + blas_ms]
+        print(harness.table_row([threads, *(f"{ms:.0f}" for ms in times)]), flush=True)
     cv2.setNumThreads(default_threads)
 
 
@@ -336,28 +337,22 @@ def section_synthetic(frames: int) -> None:
             totals[name][1] += int((error > 1.0).sum())
     print(f"\nSynthetic KITTI-size scenes ({frames}, ground plane + 12 rectangles, some weakly")
     print("textured), lookups > 1 px from every true disparity within 1 px of the corner:\n")
-    print("| setting | lookups/frame | wrong/frame | wrong share |")
-    print("| --- | --- | --- | --- |")
+    print(harness.table_header(["setting", "lookups/frame", "wrong/frame", "wrong share"]))
     for name, label in (
         ("plain", "defaults (SGBM_3WAY, disp12MaxDiff=1)"),
         ("lr", "defaults + explicit LR check"),
         ("ref", "SGBM mode (reference), no LR check"),
     ):
         kept, wrong = totals[name]
-        print(
-            f"| {label} | {kept / frames:.0f} | {wrong / frames:.1f} | {wrong / max(kept, 1):.2%} |"
-        )
+        counts = [f"{kept / frames:.0f}", f"{wrong / frames:.1f}", f"{wrong / max(kept, 1):.2%}"]
+        print(harness.table_row([label, *counts]))
 
 
 def section_gftt(pairs: Sequence[Pair]) -> None:
     """Time corner detection and lookups; count valid lookups by setting."""
     left, right = pairs[0]
     disparity = compute_disparity(left, right)
-    print(
-        "\n| GFTT max_corners | subpixel | ms | valid lookups/frame | rejected/frame "
-        "(invalid, discontinuity) | grid cells used of 24 |"
-    )
-    print("| --- | --- | --- | --- | --- | --- |")
+    print("\n" + harness.table_header(GFTT_COLUMNS))
     maps = [compute_disparity(lft, rgt) for lft, rgt in pairs]
     for max_corners in (200, 300, 400, 500):
         for subpixel in (False, True):
@@ -372,25 +367,23 @@ def section_gftt(pairs: Sequence[Pair]) -> None:
                 col = ((found.pixels[:, 0] - 128) / (lft.shape[1] - 128) * 6).astype(int)
                 row = (found.pixels[:, 1] / lft.shape[0] * 4).astype(int)
                 cells.append(len(set(zip(col.tolist(), row.tolist(), strict=True))))
-            print(
-                f"| {max_corners} | {subpixel} | {ms:.1f} | {np.mean(kept):.0f} | "
-                f"{np.mean(invalid):.0f}, {np.mean(jump):.0f} | {np.mean(cells):.1f} |"
-            )
+            rejected = f"{np.mean(invalid):.0f}, {np.mean(jump):.0f}"
+            row = [max_corners, subpixel, f"{ms:.1f}", f"{np.mean(kept):.0f}", rejected]
+            print(harness.table_row([*row, f"{np.mean(cells):.1f}"]))
     corners = detect_corners(left, GfttConfig(), min_x=128)
-    print("\n| lookup | ms (400 corners) |")
-    print("| --- | --- |")
+    print("\n" + harness.table_header(["lookup", "ms (400 corners)"]))
     for method in LookupMethod:
         ms = time_ms(partial(lookup_disparities, disparity, corners, method=method), 20)
-        print(f"| {method.value} | {ms:.2f} |")
+        print(harness.table_row([method.value, f"{ms:.2f}"]))
     right_map = compute_right_disparity(left, right)
     ms = time_ms(lambda: lookup_disparities(disparity, corners, right_disparity=right_map), 20)
-    print(f"| bilinear + LR check | {ms:.2f} |")
+    print(harness.table_row(["bilinear + LR check", f"{ms:.2f}"]))
     left16 = left.astype(np.uint16) * 16
     right16 = right.astype(np.uint16) * 16
     ms = time_ms(lambda: to_grey8_pair(left16, right16), 10)
-    print(f"| uint16 pair -> 8 bit (percentile scaling) | {ms:.2f} |")
-    print("\n| max_gradient | radius | valid lookups/frame (400 corners) |")
-    print("| --- | --- | --- |")
+    print(harness.table_row(["uint16 pair -> 8 bit (percentile scaling)", f"{ms:.2f}"]))
+    columns = ["max_gradient", "radius", "valid lookups/frame (400 corners)"]
+    print("\n" + harness.table_header(columns))
     corners_all = [detect_corners(lft, GfttConfig(), min_x=128) for lft, _ in pairs]
     for radius in (0, 1, 2):
         for gradient in (0.5, 1.0, 2.0):
@@ -400,13 +393,12 @@ def section_gftt(pairs: Sequence[Pair]) -> None:
                 ).counts.kept
                 for dmap, pts in zip(maps, corners_all, strict=True)
             ]
-            print(f"| {gradient} | {radius} | {np.mean(kept):.0f} |")
+            print(harness.table_row([gradient, radius, f"{np.mean(kept):.0f}"]))
 
 
 def section_front(pairs: Sequence[Pair]) -> None:
     """Time the whole front end per frame with the defaults, with and without LR check."""
-    print("\n| front end | ms/frame | valid/frame |")
-    print("| --- | --- | --- |")
+    print("\n" + harness.table_header(["front end", "ms/frame", "valid/frame"]))
     for name, front_end in (
         ("defaults", StereoFrontEnd()),
         ("defaults + LR check", StereoFrontEnd(lr_check=True)),
@@ -416,16 +408,17 @@ def section_front(pairs: Sequence[Pair]) -> None:
         front_end.measure(*pairs[0])
         times, kept = [], []
         for left, right in pairs:
-            start = time.perf_counter()
-            result = front_end.measure(left, right)
-            times.append(time.perf_counter() - start)
+            with harness.Stopwatch() as watch:
+                result = front_end.measure(left, right)
+            times.append(watch.wall)
             kept.append(result.counts.kept)
-        print(f"| {name} | {1000 * np.median(times):.0f} | {np.mean(kept):.0f} |")
+        median = harness.Timing(tuple(times)).median
+        print(harness.table_row([name, f"{1000 * median:.0f}", f"{np.mean(kept):.0f}"]))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the chosen benchmark sections and print Markdown tables."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = harness.argument_parser(__doc__)
     parser.add_argument(
         "--kitti",
         type=Path,

@@ -12,53 +12,44 @@ the left and right render threads); the traced peak comes from a separate run of
 
 from __future__ import annotations
 
-import argparse
 import resource
-import time
-import tracemalloc
+
+import harness
 
 from pcainterp_stream.synth import SynthConfig, World, generate
+
+COLUMNS = ("scale", "size", "world setup (s)", "frames/s (wall)", "CPU s/frame", "peak traced MB")
 
 
 def _measure(
     scale: float, frames: int, memory_frames: int, seed: int
 ) -> tuple[float, float, float, float]:
     """Return (world setup s, frames/s wall, CPU s per frame, traced peak MB)."""
-    start = time.perf_counter()
-    World(seed)
-    setup = time.perf_counter() - start
+    with harness.Stopwatch() as setup:
+        World(seed)
     iterator = generate(SynthConfig(seed=seed, frames=frames + 1, scale=scale))
     next(iterator)  # world creation and the first blocks
-    wall = time.perf_counter()
-    cpu = time.process_time()
-    count = sum(1 for _ in iterator)
-    wall = time.perf_counter() - wall
-    cpu = time.process_time() - cpu
+    with harness.Stopwatch() as rendering:
+        count = sum(1 for _ in iterator)
     iterator = generate(SynthConfig(seed=seed, frames=memory_frames + 1, scale=scale))
     next(iterator)
-    tracemalloc.start()
-    sum(1 for _ in iterator)
-    _, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
-    return setup, count / wall, cpu / count, peak / 1e6
+    peak = harness.traced_peak_mb(lambda: sum(1 for _ in iterator))
+    return setup.wall, count / rendering.wall, rendering.cpu / count, peak
 
 
 def main() -> None:
     """Run the benchmark and print the table."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = harness.argument_parser(__doc__)
     parser.add_argument("--frames", type=int, default=30)
     parser.add_argument("--memory-frames", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    print("| scale | size | world setup (s) | frames/s (wall) | CPU s/frame | peak traced MB |")
-    print("| --- | --- | --- | --- | --- | --- |")
+    print(harness.table_header(COLUMNS))
     for scale in (1.0, 0.25):
         camera = SynthConfig(scale=scale).camera
         setup, rate, cpu, peak = _measure(scale, args.frames, args.memory_frames, args.seed)
-        print(
-            f"| {scale} | {camera.width}x{camera.height} | {setup:.2f} | {rate:.1f} | "
-            f"{cpu:.3f} | {peak:.0f} |"
-        )
+        cells = [f"{camera.width}x{camera.height}", f"{setup:.2f}", f"{rate:.1f}", f"{cpu:.3f}"]
+        print(harness.table_row([scale, *cells, f"{peak:.0f}"]))
     max_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"\nprocess max RSS: {max_rss:.0f} MB")
 

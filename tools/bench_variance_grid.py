@@ -14,7 +14,7 @@ no c without it) and K = L L^T rebuilt from the frame's measurements, noise and 
 weights. Errors are also given against stride 1 (the exact std on the basis grid itself,
 resampled), the finest grid setting.
 
-Cases (logs and bases made with the command line, cached in ``--work-dir``):
+Cases (logs and bases made by the jobs of the command line, cached in ``--work-dir``):
 
 - synthetic: ``pcainterp synth`` (training log, seed 2; test log, seed 7; full size), bases
   learned by ``pcainterp learn`` from the training log's SGBM maps with ``--fit-prior``
@@ -24,7 +24,7 @@ Cases (logs and bases made with the command line, cached in ``--work-dir``):
   ``--kitti-train`` frames, tested on frames after them.
 
 Measurements: the GFTT + SGBM lookups of each test frame as ``densify`` measures them
-(``run_beyond.prepare_log``, cached); the estimate as ``densify`` resolves it from the basis
+(``beyond_data.prepare_log``, cached); the estimate as ``densify`` resolves it from the basis
 (fitted sigma, local prior and std calibration; Cauchy IRLS), without temporal prior or
 carried points. Reference disparity of the +-2 sigma coverage and the Gaussian NLL: the
 ground truth (synthetic) or the SGBM map of the pair (KITTI; as ``pcainterp evaluate`` does
@@ -42,15 +42,17 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import cv2
+import harness
 import numpy as np
 import numpy.typing as npt
+from beyond_data import LogData, prepare_log
 from scipy.linalg import solve_triangular
 from threadpoolctl import threadpool_limits
 
@@ -66,14 +68,22 @@ from pcainterp_stream.pipeline.processor import (
     resolve_settings,
 )
 
-TOOLS = Path(__file__).resolve().parent
-REPO = TOOLS.parent
-KITTI_DRIVE = Path("kitti_raw") / "2011_09_26" / "2011_09_26_drive_0001_sync"
 KITTI_FRAMES = 108
 REFERENCE = "reference (float64, tool)"
 FINEST = "finest grid"
 FloatArray = npt.NDArray[np.float64]
 StdMap = npt.NDArray[np.float32]
+COLUMNS = (
+    "case",
+    "std",
+    "RMS at points",
+    "p99 at points",
+    "RMS away",
+    "p99 away",
+    "+-2 sigma coverage %",
+    "NLL nats/px",
+    "ms/frame",
+)
 
 
 @dataclass(frozen=True)
@@ -106,14 +116,16 @@ class Pooled:
     at_points: list[FloatArray] = field(default_factory=list)
     far: list[FloatArray] = field(default_factory=list)
 
-    def cells(self) -> str:
+    def cells(self) -> list[str]:
         """Markdown cells: RMS and p99 of |relative error| (%), at points and away."""
         at = np.abs(np.concatenate(self.at_points))
         far = np.abs(np.concatenate(self.far))
-        return (
-            f"{100 * np.sqrt(np.mean(at**2)):.1f} | {100 * np.percentile(at, 99):.1f} | "
-            f"{100 * np.sqrt(np.mean(far**2)):.2f} | {100 * np.percentile(far, 99):.2f}"
-        )
+        return [
+            f"{100 * np.sqrt(np.mean(at**2)):.1f}",
+            f"{100 * np.percentile(at, 99):.1f}",
+            f"{100 * np.sqrt(np.mean(far**2)):.2f}",
+            f"{100 * np.percentile(far, 99):.2f}",
+        ]
 
 
 @dataclass
@@ -134,53 +146,52 @@ class Outcome:
 
 
 def prepare(args: argparse.Namespace) -> list[Case]:
-    """Make (once) the logs and bases of every case with the command line; return the cases."""
-    sys.path.insert(0, str(TOOLS))
-    from bench_longlog import pcainterp
-
-    work: Path = args.work_dir
-    work.mkdir(parents=True, exist_ok=True)
+    """Make (once) the logs and bases of every case; return the cases."""
+    work = harness.work_dir(args.work_dir)
     cases: list[Case] = []
-    train = work / f"synth_train_s2_{args.synth_train}.mcap"
-    test = work / f"synth_test_s7_{args.synth_test}.mcap"
-    if not train.is_file():
-        pcainterp("synth", train, "--frames", args.synth_train, "--seed", 2, "--scale", 1)
-    if not test.is_file():
-        pcainterp("synth", test, "--frames", args.synth_test, "--seed", 7, "--scale", 1)
+    train = _log(work / f"synth_train_s2_{args.synth_train}.mcap", args.synth_train, seed=2)
+    test = _log(work / f"synth_test_s7_{args.synth_test}.mcap", args.synth_test, seed=7)
     frames = tuple(range(min(args.frames, args.synth_test)))
     for prior in ("hybrid", "paper"):
-        basis = work / f"basis_synth_{prior}_l{args.synth_components}.npz"
-        if not basis.is_file():
-            extra = ["--fit-prior"] if prior == "hybrid" else []
-            pcainterp("learn", train, "-o", basis, "--components", args.synth_components, *extra)
+        path = work / f"basis_synth_{prior}_l{args.synth_components}.npz"
+        basis = _basis(path, train, prior, args.synth_components)
         cache = work / "cache_synth_test"
         cases.append(Case(f"synthetic, {prior}", basis, prior, test, cache, True, frames))
-    drive = args.realdata / KITTI_DRIVE
+    drive = args.realdata / harness.KITTI_RAW_0001
     if args.skip_kitti:
         return cases
     if not drive.is_dir():
         print(f"no KITTI drive at {drive}: KITTI cases skipped", file=sys.stderr)
         return cases
-    kitti_all = work / "kitti_0001.mcap"
-    kitti_train = work / f"kitti_0001_first{args.kitti_train}.mcap"
-    if not kitti_all.is_file():
-        pcainterp("import-kitti", drive, kitti_all)
-    if not kitti_train.is_file():
-        pcainterp("import-kitti", drive, kitti_train, "--max-frames", args.kitti_train)
+    kitti_all = harness.cached(
+        work / "kitti_0001.mcap", harness.build_kitti(drive), f"import-kitti {drive}"
+    )
+    kitti_train = harness.cached(
+        work / f"kitti_0001_first{args.kitti_train}.mcap",
+        harness.build_kitti(drive, max_frames=args.kitti_train),
+        f"import-kitti {drive}, the first {args.kitti_train} frames",
+    )
     # test frames after the training frames, spread over the rest of the drive
     rest = np.arange(args.kitti_train, KITTI_FRAMES)
     picked = rest[np.linspace(0, rest.size - 1, min(args.frames, rest.size)).astype(int)]
     frames = tuple(int(i) for i in picked)
     for prior in ("hybrid", "paper"):
-        basis = work / f"basis_kitti_{prior}_l{args.kitti_components}.npz"
-        if not basis.is_file():
-            extra = ["--fit-prior"] if prior == "hybrid" else []
-            pcainterp(
-                "learn", kitti_train, "-o", basis, "--components", args.kitti_components, *extra
-            )
+        path = work / f"basis_kitti_{prior}_l{args.kitti_components}.npz"
+        basis = _basis(path, kitti_train, prior, args.kitti_components)
         cache = work / "cache_kitti_0001"
         cases.append(Case(f"KITTI, {prior}", basis, prior, kitti_all, cache, False, frames))
     return cases
+
+
+def _log(path: Path, frames: int, seed: int) -> Path:
+    """A full-size synthetic log, rendered once (``pcainterp synth``)."""
+    return harness.cached(path, harness.build_synth(frames=frames, seed=seed), f"synth {path}")
+
+
+def _basis(path: Path, train: Path, prior: str, components: int) -> Path:
+    """A basis learned once from ``train`` (``pcainterp learn``, ``--fit-prior`` for hybrid)."""
+    build = harness.build_basis([train], components=components, fit_prior=prior == "hybrid")
+    return harness.cached(path, build, f"learn {path} from {train}")
 
 
 # ----------------------------------------------------------------------------- reference
@@ -268,13 +279,30 @@ def masks(
     return at, distance > far
 
 
+def densify_frames(
+    basis: Basis,
+    data: LogData,
+    frames: list[int],
+    batch: int,
+    options: dict[str, Any],
+    results: list[DensifyResult],
+) -> None:
+    """Densify ``frames`` in batches as the stream processor does; replace ``results``."""
+    results.clear()
+    for start in range(0, len(frames), batch):
+        indices = frames[start : start + batch]
+        results += densify_batch(
+            basis,
+            [data.pixels[i] for i in indices],
+            [data.disparities[i] for i in indices],
+            **options,
+        )
+
+
 def run_case(
     case: Case, settings_list: Sequence[Setting], args: argparse.Namespace
 ) -> dict[str, Outcome]:
     """Measure every setting on one case; return the outcomes by setting label."""
-    sys.path.insert(0, str(TOOLS))
-    from run_beyond import prepare_log
-
     basis = Basis.load(case.basis)
     data = prepare_log(
         case.log, case.cache, (basis.image_size, basis.focal_baseline), truth=case.truth
@@ -298,30 +326,20 @@ def run_case(
     with threadpool_limits(args.blas_threads, user_api="blas"):
         for setting in settings_list:
             rounds = args.repeat + 1 if setting.rounds is None else setting.rounds
-            best = float("inf")
-            for round_index in range(rounds):
-                results: list[DensifyResult] = []
-                started = time.perf_counter()
-                for start in range(0, len(frames), args.batch):
-                    batch = frames[start : start + args.batch]
-                    results += densify_batch(
-                        basis,
-                        [data.pixels[i] for i in batch],
-                        [data.disparities[i] for i in batch],
-                        **common,
-                        **setting.options,
-                    )
-                if round_index or rounds == 1:  # round 0 warms the caches up
-                    best = min(best, (time.perf_counter() - started) / len(frames))
-            outcomes[setting.label].seconds = best
+            results: list[DensifyResult] = []
+            options = {**common, **setting.options}
+            run = partial(densify_frames, basis, data, frames, args.batch, options, results)
+            # the first of several rounds warms the caches up
+            timing = harness.timed(run, max(rounds - 1, 1), warmup=rounds > 1)
+            outcomes[setting.label].seconds = timing.best / len(frames)
             stds[setting.label] = [
                 np.zeros(0, np.float32) if r.disparity_std is None else r.disparity_std
                 for r in results
             ]
             first = first or results
-    started = time.perf_counter()
-    stds[REFERENCE] = [exact_std(basis, r, settings, camera.image_size) for r in first]
-    outcomes[REFERENCE] = Outcome(seconds=(time.perf_counter() - started) / len(frames))
+    with harness.Stopwatch() as watch:
+        stds[REFERENCE] = [exact_std(basis, r, settings, camera.image_size) for r in first]
+    outcomes[REFERENCE] = Outcome(seconds=watch.wall / len(frames))
     finest = min((s for s in settings_list if s.stride is not None), key=lambda s: s.stride or 0)
     stds[FINEST] = stds[finest.label]
     for index, frame in enumerate(frames):
@@ -342,17 +360,11 @@ def run_case(
 
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark; print Markdown tables."""
-    parser = argparse.ArgumentParser(
-        description=(__doc__ or "").split("\n\n")[0],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    parser = harness.argument_parser(
+        __doc__, formatter_class=argparse.ArgumentDefaultsHelpFormatter
     )
-    parser.add_argument("--work-dir", type=Path, required=True, help="cache folder")
-    parser.add_argument(
-        "--realdata",
-        type=Path,
-        default=REPO.parent / "shared" / "realdata",
-        help="folder holding kitti_raw/2011_09_26/2011_09_26_drive_0001_sync",
-    )
+    harness.add_work_dir(parser, description="cache folder")
+    harness.add_realdata(parser)
     parser.add_argument("--skip-kitti", action="store_true", help="synthetic cases only")
     parser.add_argument("--synth-train", type=int, default=300, help="training log frames")
     parser.add_argument("--synth-test", type=int, default=12, help="test log frames")
@@ -364,9 +376,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--strides", type=int, nargs="+", default=[2, 1], help="exact-coarse strides to add"
     )
-    parser.add_argument("--repeat", type=int, default=2, help="timing: best of N rounds")
-    parser.add_argument("--batch", type=int, default=4, help="frames per densify_batch")
-    parser.add_argument("--blas-threads", type=int, default=1, help="1: as the processor")
+    harness.add_batch_timing(parser, repeat=2, repeat_help="timing: best of N rounds")
     args = parser.parse_args(argv)
     keep_freed_memory()  # as the stream processor does
     cases = prepare(args)
@@ -383,13 +393,13 @@ def main(argv: list[str] | None = None) -> int:
         ]
         settings.append(Setting("exact", {"uncertainty": "exact"}, rounds=1))
         strides.update(s.stride for s in settings if s.stride is not None)
-        started = time.perf_counter()
-        outcomes = run_case(case, settings, args)
+        with harness.Stopwatch() as watch:
+            outcomes = run_case(case, settings, args)
         frames = len(case.frames)
         results.append((case, basis, outcomes))
         print(
             f"{case.name}: l = {basis.n_components}, grid {basis.grid_size[1]}x"
-            f"{basis.grid_size[0]}, {frames} frames, {time.perf_counter() - started:.0f} s",
+            f"{basis.grid_size[0]}, {frames} frames, {watch.wall:.0f} s",
             file=sys.stderr,
             flush=True,
         )
@@ -399,19 +409,16 @@ def main(argv: list[str] | None = None) -> int:
             f"\nRelative std error against {title} (%; 'points' = the measurement pixels, "
             f"'away' = > {args.far:g} px from all)\n"
         )
-        print(
-            "| case | std | RMS at points | p99 at points | RMS away | p99 away "
-            "| +-2 sigma coverage % | NLL nats/px | ms/frame |"
-        )
-        print("| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+        print(harness.table_header(COLUMNS, "ll" + "r" * (len(COLUMNS) - 2)))
         for case, _, outcomes in results:
             for label, outcome in outcomes.items():
                 n = max(outcome.sums.get("n", 0.0), 1.0)
-                print(
-                    f"| {case.name} | {label} | {outcome.errors[against].cells()} | "
-                    f"{100 * outcome.sums['inside_2'] / n:.2f} | {outcome.sums['nll'] / n:.4f} "
-                    f"| {1000 * outcome.seconds:.0f} |"
-                )
+                sums = [
+                    f"{100 * outcome.sums['inside_2'] / n:.2f}",
+                    f"{outcome.sums['nll'] / n:.4f}",
+                ]
+                cells = [case.name, label, *outcome.errors[against].cells(), *sums]
+                print(harness.table_row([*cells, f"{1000 * outcome.seconds:.0f}"]))
     return 0
 
 

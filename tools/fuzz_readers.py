@@ -1,7 +1,7 @@
 """Fuzz the log readers: damaged logs must read as far as they can or fail cleanly.
 
 The property checked for every input, by the hypothesis tests in
-``tests/test_fuzz_readers.py`` and by the coverage-guided fuzzer this script runs (atheris,
+``tests/io/test_fuzz_readers.py`` and by the coverage-guided fuzzer this script runs (atheris,
 libFuzzer's mutation engine): the whole read path -- :func:`~logreader.open_log`,
 ``topics()``, ``message_stats()``, ``messages()`` of all topics and of one, ``decode()`` of
 every message, stereo pairing, :func:`~loginfo.describe` with a full count and ``pcainterp
@@ -45,6 +45,12 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
+
+try:
+    import harness
+except ModuleNotFoundError:  # loaded by its path (the fuzz tests): tools/ is not on sys.path
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import harness
 
 FORMATS = ("mcap", "mcap-ros1", "ros1", "rosbag2", "rosbag2-sqlite3")
 """Seed kinds: an MCAP file (ros2 profile, zstd chunks), an MCAP file with the ros1 profile
@@ -215,25 +221,20 @@ class Verdict:
     peak_growth_bytes: int
 
 
-def _proc_status_kib(field: str) -> int:
-    try:
-        text = Path("/proc/self/status").read_text()
-    except OSError:
-        return -1
-    for line in text.splitlines():
-        if line.startswith(field + ":"):
-            return int(line.split()[1])
-    return -1
+def _status_bytes(field: str) -> int:
+    """A size field of ``/proc/self/status`` (``VmRSS``...) in bytes; -1 where it is absent."""
+    kib = harness.proc_status_kib(field)
+    return -1 if kib is None else int(kib) * 1024
 
 
 def _child(path: Path, memory_limit_bytes: int, conn: Connection) -> None:
     """Run :func:`read_everything` under an address-space limit and send back the result."""
     try:  # reset the peak RSS inherited from the parent (Linux >= 4.0)
         Path("/proc/self/clear_refs").write_text("5")
-        rss_start = _proc_status_kib("VmRSS")
+        rss_start = _status_bytes("VmRSS")
     except OSError:
         rss_start = -1
-    address_space = _proc_status_kib("VmSize") * 1024
+    address_space = _status_bytes("VmSize")
     if address_space > 0:
         limit = address_space + memory_limit_bytes
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
@@ -244,8 +245,8 @@ def _child(path: Path, memory_limit_bytes: int, conn: Connection) -> None:
         outcome = read_everything(path)
     except BaseException:  # everything is a finding here, and must reach the parent
         problem = traceback.format_exc()
-    peak = _proc_status_kib("VmHWM")
-    growth = (peak - rss_start) * 1024 if rss_start >= 0 and peak >= 0 else -1
+    peak = _status_bytes("VmHWM")
+    growth = peak - rss_start if rss_start >= 0 and peak >= 0 else -1
     conn.send((problem, outcome, time.perf_counter() - start, growth))
     conn.close()
 
@@ -505,19 +506,13 @@ def write_seed(
         frames: frames to render.
         scale: image scale.
     """
-    from pcainterp_stream.cli import main
-
     if fmt == "mcap-ros1":
         bag_folder = folder / "ros1_for_mcap"
         bag_folder.mkdir(exist_ok=True)
         return _ros1_mcap(write_seed("ros1", bag_folder, frames=frames, scale=scale), folder)
     name = {"mcap": "seed.mcap", "ros1": "seed.bag"}.get(fmt, f"seed_{fmt.replace('-', '_')}")
     out = folder / name
-    argv = ["synth", str(out), "--frames", str(frames), "--scale", str(scale), "--format", fmt]
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-        code = main(argv)
-    if code != 0:
-        raise RuntimeError(f"pcainterp {' '.join(argv)} exited {code}")
+    harness.run_cli("synth", out, "--frames", frames, "--scale", scale, "--format", fmt, quiet=True)
     return out
 
 
@@ -615,8 +610,8 @@ def _custom_mutator(atheris: Any, rate: float) -> Callable[[bytes, int, int], by
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
-    parser = argparse.ArgumentParser(
-        description=__doc__.split("\n\n")[0] if __doc__ else None,
+    parser = harness.argument_parser(
+        __doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=(
             "examples:\n"
@@ -641,9 +636,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--address-space-mb",
         type=int,
-        default=2048,
+        default=8192,
         help="address space the fuzzer may add once set up (an allocation a length field "
-        "asked for then fails with MemoryError, a finding, instead of taking virtual memory)",
+        "asked for then fails with MemoryError, a finding, instead of taking virtual memory; "
+        "atheris 3's allocator needs more than 2048 to start its threads)",
     )
     parser.add_argument(
         "--length-rate",
@@ -739,7 +735,7 @@ def _fuzz(args: argparse.Namespace) -> int:
     if args.seconds > 0:
         libfuzzer_args.append(f"-max_total_time={args.seconds}")
     if args.address_space_mb > 0:
-        limit = _proc_status_kib("VmSize") * 1024 + (args.address_space_mb << 20)
+        limit = _status_bytes("VmSize") + (args.address_space_mb << 20)
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
     atheris.Setup(
         libfuzzer_args,

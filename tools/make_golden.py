@@ -22,8 +22,6 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import sys
 import tempfile
@@ -37,6 +35,12 @@ from mcap.reader import make_reader
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logwriter import LogFormat
 from pcainterp_stream.synth.log import write_synthetic_log
+
+try:
+    import harness
+except ModuleNotFoundError:  # loaded by its path (the golden tests): tools/ is not on sys.path
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import harness
 
 FORMAT = "pcainterp-golden/1"
 DATA_DIR = Path(__file__).resolve().parents[1] / "tests" / "data"
@@ -290,7 +294,7 @@ def densify_golden(log_path: Path, basis_path: Path, out_path: Path) -> dict[str
 
 def main(argv: list[str] | None = None) -> int:
     """Regenerate (or, with --check, verify) the golden synthetic log and JSON."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
+    parser = harness.argument_parser(__doc__)
     parser.add_argument("--out-dir", type=Path, default=DATA_DIR, help="default: tests/data")
     parser.add_argument(
         "--check", action="store_true", help="render to a temporary file and compare"
@@ -300,7 +304,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     if args.check:
-        expected = json.loads((args.out_dir / GOLDEN_JSON.name).read_text())
+        expected = harness.read_json(args.out_dir / GOLDEN_JSON.name)
         with tempfile.TemporaryDirectory() as folder:
             actual = render_golden(Path(folder) / "golden.mcap", **expected["generator"])
         problems = compare_summary(expected, actual)
@@ -308,10 +312,10 @@ def main(argv: list[str] | None = None) -> int:
             print(line)
         print("golden log matches" if not problems else f"{len(problems)} differences")
         return 1 if problems else 0
-    args.out_dir.mkdir(parents=True, exist_ok=True)
+    harness.work_dir(args.out_dir)
     log_path = args.out_dir / GOLDEN_LOG.name
     summary = render_golden(log_path, seed=SEED, frames=FRAMES, scale=SCALE)
-    (args.out_dir / GOLDEN_JSON.name).write_text(json.dumps(summary, indent=1) + "\n")
+    harness.write_json(args.out_dir / GOLDEN_JSON.name, summary)
     print(f"wrote {log_path} ({log_path.stat().st_size} bytes) and {GOLDEN_JSON.name}")
     basis_path = args.out_dir / GOLDEN_BASIS.name
     if args.new_basis or not basis_path.exists():
@@ -319,7 +323,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"wrote {basis_path} ({basis_path.stat().st_size} bytes)")
     with tempfile.TemporaryDirectory() as folder:
         dense = densify_golden(log_path, basis_path, Path(folder) / "dense.mcap")
-    (args.out_dir / GOLDEN_DENSE_JSON.name).write_text(json.dumps(dense, indent=1) + "\n")
+    harness.write_json(args.out_dir / GOLDEN_DENSE_JSON.name, dense)
     print(f"wrote {GOLDEN_DENSE_JSON.name}")
     return 0
 

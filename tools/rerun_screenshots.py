@@ -28,7 +28,6 @@ recording itself is not changed.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import os
 import shutil
@@ -40,14 +39,12 @@ import time
 from pathlib import Path
 from typing import IO
 
+import harness
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 from rerun.experimental import ViewerClient
 
-from pcainterp_stream import cli
-
-ROOT = Path(__file__).resolve().parents[1]
 APPLICATION_ID = "pcainterp"
 MCAP_APPLICATION_ID = "pcainterp_mcap"
 TIMELINE = "stamp"
@@ -90,9 +87,15 @@ def build_case(folder: Path) -> tuple[Path, Path]:
         ],
     ]
     for command in commands:
-        if cli.main(command) != 0:
-            raise RuntimeError(f"pcainterp {' '.join(command)} failed")
+        harness.run_cli(*command)
     return dense, rrd
+
+
+def _eye_controls() -> rrb.EyeControls3D:
+    """The 3-D views' camera: behind, left of and above the car, looking ahead."""
+    return rrb.EyeControls3D(
+        position=(-25.0, -15.0, -12.0), look_target=(0.0, 0.0, 20.0), eye_up=(0, -1, 0)
+    )
 
 
 def recording_blueprint() -> rrb.Blueprint:
@@ -121,9 +124,7 @@ def recording_blueprint() -> rrb.Blueprint:
                 origin="/",
                 contents=["/camera/**", "- /camera/image"],
                 overrides={"/camera/depth": depth},
-                eye_controls=rrb.EyeControls3D(
-                    position=(-25.0, -15.0, -12.0), look_target=(0.0, 0.0, 20.0), eye_up=(0, -1, 0)
-                ),
+                eye_controls=_eye_controls(),
             ),
         ),
         collapse_panels=True,
@@ -148,9 +149,7 @@ def mcap_blueprint() -> rrb.Blueprint:
                 origin="/",
                 contents=["/pcainterp/**"],
                 overrides={"/pcainterp/depth": depth},
-                eye_controls=rrb.EyeControls3D(
-                    position=(-25.0, -15.0, -12.0), look_target=(0.0, 0.0, 20.0), eye_up=(0, -1, 0)
-                ),
+                eye_controls=_eye_controls(),
             ),
         ),
         collapse_panels=True,
@@ -227,14 +226,12 @@ def stop_process_group(process: subprocess.Popen[bytes]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Build the case, take the screenshots, print what was written."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--work-dir", type=Path, default=Path("/tmp/pcainterp_screenshots"))
-    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "img")
+    parser = harness.argument_parser(__doc__)
+    harness.add_work_dir(parser, Path("/tmp/pcainterp_screenshots"))
+    parser.add_argument("--out", type=Path, default=harness.REPO / "docs" / "img")
     args = parser.parse_args(argv)
-    work: Path = args.work_dir
-    out: Path = args.out
-    work.mkdir(parents=True, exist_ok=True)
-    out.mkdir(parents=True, exist_ok=True)
+    work = harness.work_dir(args.work_dir)
+    out = harness.work_dir(args.out)
     if shutil.which("rerun") is None:
         print("rerun_screenshots: the rerun CLI (rerun-sdk) is not on PATH", file=sys.stderr)
         return 1

@@ -19,14 +19,12 @@ Every stage is skipped when its output exists, so an interrupted run resumes. Ou
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
-import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import harness
 import numpy as np
 import numpy.typing as npt
 
@@ -37,23 +35,19 @@ from pcainterp_stream.frontend.stereo import SgbmConfig, compute_disparity
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.pipeline import jobs
 
-REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
-KITTI_RAW = REALDATA / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0001_sync"
-KITTI_ODOMETRY = REALDATA / "kitti_odometry_clip" / "sequences" / "a"
+KITTI_RAW = harness.REALDATA / harness.KITTI_RAW_0001
+KITTI_ODOMETRY = harness.REALDATA / harness.KITTI_ODOMETRY_CLIP
 TRAIN_SEEDS_FROM = 101
 TEST_SEED = 201
 GRID_SCALE = 0.25
 
 
-def _log(text: str) -> None:
-    print(f"[{time.strftime('%H:%M:%S')}] {text}", flush=True)
-
-
-def _timed(summary: dict[str, Any], key: str, work: Any) -> Any:
-    started = time.perf_counter()
-    result = work()
-    summary.setdefault("seconds", {})[key] = round(time.perf_counter() - started, 1)
-    _log(f"{key}: {summary['seconds'][key]} s")
+def _timed(summary: dict[str, Any], key: str, work: Callable[..., Any]) -> Any:
+    """Run ``work``; record its wall seconds in ``summary["seconds"][key]`` and log them."""
+    with harness.Stopwatch() as watch:
+        result = work()
+    summary.setdefault("seconds", {})[key] = round(watch.wall, 1)
+    harness.log(f"{key}: {summary['seconds'][key]} s")
     return result
 
 
@@ -72,18 +66,18 @@ def _cached_maps(
     logs: list[Path], cache: Path, grid_size: tuple[int, int], focal_baseline: float
 ) -> npt.NDArray[np.float32]:
     """Return the stacked grid maps of logs, computing them once into ``cache`` (.npy)."""
-    if cache.is_file():
-        return np.asarray(np.load(cache), dtype=np.float32)
-    maps = [m for log in logs for m in _sgbm_grid_maps(log, grid_size, focal_baseline)]
-    stacked = np.stack(maps).astype(np.float32)
-    np.save(cache, stacked)
-    return stacked
+
+    def build(path: Path) -> None:
+        maps = [m for log in logs for m in _sgbm_grid_maps(log, grid_size, focal_baseline)]
+        np.save(path, np.stack(maps).astype(np.float32))
+
+    return np.asarray(np.load(harness.cached(cache, build)), dtype=np.float32)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the experiments; return the exit code."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--work", type=Path, required=True, help="output folder")
+    parser = harness.argument_parser(__doc__)
+    harness.add_work_dir(parser, flag="--work", description="output folder")
     parser.add_argument("--scale", type=float, default=1.0, help="synthetic image scale")
     parser.add_argument("--train-frames", type=int, default=2000)
     parser.add_argument("--train-logs", type=int, default=4)
@@ -91,62 +85,56 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--components", type=int, default=500)
     parser.add_argument("--sweep-every", type=int, default=10)
     args = parser.parse_args(argv)
-    work: Path = args.work
-    work.mkdir(parents=True, exist_ok=True)
+    work = harness.work_dir(args.work)
     summary_path = work / "summary.json"
-    summary: dict[str, Any] = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
+    summary: dict[str, Any] = harness.read_json(summary_path, {})
     summary["args"] = {k: str(v) for k, v in vars(args).items()}
 
     def save() -> None:
-        summary_path.write_text(json.dumps(summary, indent=1) + "\n")
+        harness.write_json(summary_path, summary)
+
+    def once(path: Path, key: str, build: harness.Builder) -> Path:
+        """Build ``path`` unless it exists, timed as ``key`` in the summary."""
+
+        def timed_build(target: Path) -> None:
+            _timed(summary, key, lambda: build(target))
+            save()
+
+        return harness.cached(path, timed_build)
 
     # ------------------------------------------------------------------ synthetic logs
     per_log = -(-args.train_frames // args.train_logs)
     train_logs = [work / f"train_{TRAIN_SEEDS_FROM + i}.mcap" for i in range(args.train_logs)]
     for i, log in enumerate(train_logs):
-        if not log.is_file():
-            _timed(
-                summary,
-                f"synth {log.name}",
-                lambda log=log, i=i: jobs.synth(
-                    log, frames=per_log, seed=TRAIN_SEEDS_FROM + i, scale=args.scale, fmt="mcap"
-                ),
-            )
-            save()
-    test_log = work / f"test_{TEST_SEED}.mcap"
-    if not test_log.is_file():
-        _timed(
-            summary,
-            f"synth {test_log.name}",
-            lambda: jobs.synth(
-                test_log, frames=args.test_frames, seed=TEST_SEED, scale=args.scale, fmt="mcap"
-            ),
+        seed = TRAIN_SEEDS_FROM + i
+        once(
+            log,
+            f"synth {log.name}",
+            harness.build_synth(frames=per_log, seed=seed, scale=args.scale),
         )
-        save()
+    test_log = work / f"test_{TEST_SEED}.mcap"
+    build = harness.build_synth(frames=args.test_frames, seed=TEST_SEED, scale=args.scale)
+    once(test_log, f"synth {test_log.name}", build)
 
     # ------------------------------------------------------------------ 1. synthetic
     basis_synth = work / "basis_synth_gt.npz"
-    if not basis_synth.is_file():
-        options = jobs.LearnOptions(
-            n_components=args.components, grid_scale=GRID_SCALE, depth_topic="/ground_truth/depth"
-        )
-        _timed(
-            summary,
-            "learn synthetic (ground-truth depth)",
-            lambda: jobs.learn(train_logs, basis_synth, options, PairingConfig()),
-        )
-        save()
+    options = jobs.LearnOptions(
+        n_components=args.components, grid_scale=GRID_SCALE, depth_topic="/ground_truth/depth"
+    )
+    once(
+        basis_synth,
+        "learn synthetic (ground-truth depth)",
+        lambda path: jobs.learn(train_logs, path, options, PairingConfig()),
+    )
     runs: list[tuple[str, Path, Path, str | None]] = [("synthetic", test_log, basis_synth, None)]
 
     # ------------------------------------------------------------------ 2. KITTI
     kitti: dict[str, Path] = {}
     for name, folder in (("raw", KITTI_RAW), ("odometry", KITTI_ODOMETRY)):
         if not folder.is_dir():
-            _log(f"{folder} missing: KITTI experiments skipped")
+            harness.log(f"{folder} missing: KITTI experiments skipped")
             break
-        kitti[name] = work / f"kitti_{name}.mcap"
-        if not kitti[name].is_file():
-            jobs.import_kitti(folder, kitti[name], max_frames=None)
+        kitti[name] = harness.cached(work / f"kitti_{name}.mcap", harness.build_kitti(folder))
     if len(kitti) == 2:
         from pcainterp_stream.estimate.basis import Basis
 
@@ -217,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
                 dense, report, basis=b, mode=mode, sweep_every=args.sweep_every
             ),
         )
-        _log(f"{name}:\n{table}")
+        harness.log(f"{name}:\n{table}")
         summary.setdefault("reports", {})[name] = str(report)
         save()
     return 0

@@ -20,11 +20,11 @@ Usage:
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 from typing import Any
 
 import cv2
+import harness
 import numpy as np
 import numpy.typing as npt
 
@@ -89,7 +89,7 @@ def _shares(classes: npt.NDArray[np.int8]) -> list[float]:
 def _kitti_pairs(realdata: Path) -> dict[str, tuple[list[Path], float, float, float]]:
     """Real KITTI pair lists with (fx, cy, baseline) from their calibrations."""
     found: dict[str, tuple[list[Path], float, float, float]] = {}
-    raw = realdata / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0001_sync"
+    raw = realdata / harness.KITTI_RAW_0001
     if raw.is_dir():
         found["KITTI raw 0001"] = (
             sorted((raw / "image_00" / "data").glob("*.png")),
@@ -97,7 +97,7 @@ def _kitti_pairs(realdata: Path) -> dict[str, tuple[list[Path], float, float, fl
             172.854,
             0.5372,
         )
-    odo = realdata / "kitti_odometry_clip" / "sequences" / "a"
+    odo = realdata / harness.KITTI_ODOMETRY_CLIP
     if odo.is_dir():
         found["KITTI odometry clip"] = (
             sorted((odo / "image_0").glob("*.png")),
@@ -124,16 +124,12 @@ def _colour(disparity: F32, maximum: float) -> npt.NDArray[np.uint8]:
 
 
 def main() -> None:  # noqa: D103 - documented by the module docstring
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = harness.argument_parser(__doc__)
     parser.add_argument("--frames", type=int, default=40)
     parser.add_argument("--stride", type=int, default=10)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     parser.add_argument("--out", type=Path, default=Path("docs/img"))
-    parser.add_argument(
-        "--realdata",
-        type=Path,
-        default=Path(__file__).resolve().parents[2] / "shared" / "realdata",
-    )
+    harness.add_realdata(parser)
     args = parser.parse_args()
     import matplotlib
 
@@ -189,12 +185,12 @@ def main() -> None:  # noqa: D103 - documented by the module docstring
             histograms[name] = histograms.get(name, 0) + hist
             if name not in real_example:
                 real_example[name] = (left, estimate)
-    print("\n| frames | sky | road | vertical | unknown |\n| --- | --- | --- | --- | --- |")
+    print("\n" + harness.table_header(["frames", "sky", "road", "vertical", "unknown"]))
     for name, rows in shares.items():
         mean = np.mean(rows, axis=0)
-        print(f"| {name} ({len(rows)}) | " + " | ".join(f"{v:.1%}" for v in mean) + " |")
+        print(harness.table_row([f"{name} ({len(rows)})", *(f"{v:.1%}" for v in mean)]))
 
-    args.out.mkdir(parents=True, exist_ok=True)
+    harness.work_dir(args.out)
     figure, axis = plt.subplots(figsize=(7, 3.2), dpi=90)
     for name, hist in histograms.items():
         axis.plot(bins[:-1] + 1, hist / hist.sum(), label=name)
