@@ -1,0 +1,256 @@
+"""Regenerate the built-in default basis (``pcainterp_stream/data/default_basis.npz``) from seeds.
+
+The basis is learned only from the project's own synthetic world, so its licence is the
+project's: the true depth of many distinct synthetic drives (seeds ``first_seed`` on), every
+``step``-th of ``frames`` frames, rendered for the KITTI grey camera. Each training map gets
+its own camera placement (the ``variety`` of the recipe): the horizon moved by up to
+``pitch_px`` px (a camera pitched by up to ~1.6 degrees; a vertical shift of the principal
+point, which the level-only renderer can draw), a roll of up to ``roll_deg`` degrees (the
+depth image rotated about the principal point), the camera height and its place across the
+road varied. Real cars pitch and roll, and a log's principal point differs from the basis
+camera's (the basis is mapped onto other cameras by scaling pixel coordinates); without
+that variety the basis learns one horizon row. The hybrid prior, sigma, the temporal process
+noise and the std calibration are then fitted as ``pcainterp learn`` fits them, on the front
+end's measurements of a separate synthetic drive (``fit_seed``).
+
+    python tools/make_default_basis.py                 # the shipped file (minutes)
+    python tools/make_default_basis.py --small --out /tmp/small   # the test's small recipe
+
+Writes ``default_basis.npz`` and ``default_basis.json`` (the recipe, the file's sha256 and
+size, the command and the run time) into ``--out``. The same recipe gives the same bytes on
+the same platform and library versions (``content_sha256`` in the sidecar: the arrays and the
+metadata; the zip's own bytes carry write times): rendering is quantised, BLAS runs on one
+thread.
+``--work-dir`` caches the rendered maps of each drive between runs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import harness
+import numpy as np
+import numpy.typing as npt
+
+DEFAULT_OUT = harness.REPO / "pcainterp_stream" / "data"
+NAME = "default_basis"
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """Everything the default basis is made from (stored in its metadata and sidecar)."""
+
+    first_seed: int = 1000
+    drives: int = 200
+    frames: int = 300
+    step: int = 10
+    components: int = 150
+    grid_scale: float = 0.25
+    pitch_px: float = 20.0
+    roll_deg: float = 1.5
+    height_m: tuple[float, float] = (-0.15, 0.2)
+    lateral_m: tuple[float, float] = (-1.2, 1.5)
+    fit_seed: int = 150
+    fit_frames: int = 40
+
+    @property
+    def maps(self) -> int:
+        """Training maps: ``drives`` x ceil(frames / step)."""
+        return self.drives * len(range(0, self.frames, self.step))
+
+
+SMALL = Recipe(drives=6, frames=60, step=10, components=20, fit_frames=12)
+"""A small recipe for the regeneration test (seconds, not minutes)."""
+
+
+# ----------------------------------------------------------------------------- rendering
+
+
+def drive_maps(job: tuple[Recipe, int, tuple[int, int]]) -> npt.NDArray[np.float32]:
+    """The preprocessed grid maps (n, gh, gw) of one drive, each with its own camera placement."""
+    import cv2
+
+    from pcainterp_stream.estimate.learning import preprocess_disparity
+    from pcainterp_stream.evaluate.metrics import disparity_from_depth
+    from pcainterp_stream.synth import SynthConfig, camera_pose
+    from pcainterp_stream.synth.render import render_view
+    from pcainterp_stream.synth.world import World
+
+    recipe, seed, grid = job
+    config = SynthConfig(seed=seed, frames=recipe.frames)
+    camera = config.camera
+    world = World(seed)
+    rng = np.random.default_rng([seed, 77])
+    maps = []
+    for index in range(0, recipe.frames, recipe.step):
+        pose = camera_pose(world, config, index).copy()
+        shift = float(rng.uniform(-recipe.pitch_px, recipe.pitch_px))
+        roll = float(rng.uniform(-recipe.roll_deg, recipe.roll_deg))
+        pose[2, 3] += float(rng.uniform(*recipe.height_m))
+        pose[:3, 3] += float(rng.uniform(*recipe.lateral_m)) * pose[:3, 0]
+        placed = dataclasses.replace(camera, cy=camera.cy + shift)
+        depth = render_view(world, placed, pose).depth.astype(np.float32)
+        if roll:
+            rotation = cv2.getRotationMatrix2D((placed.cx, placed.cy), roll, 1.0)
+            depth = cv2.warpAffine(  # nearest: never a depth between two surfaces
+                depth,
+                rotation,
+                (camera.width, camera.height),
+                flags=cv2.INTER_NEAREST,
+                borderMode=cv2.BORDER_REPLICATE,
+            ).astype(np.float32)
+        disparity = disparity_from_depth(depth, camera.focal_baseline).astype(np.float32)
+        maps.append(preprocess_disparity(disparity, grid))
+    return np.stack(maps)
+
+
+def render_maps(recipe: Recipe, cache: Path | None) -> npt.NDArray[np.float32]:
+    """All training maps of the recipe, in seed order (cached per drive in ``cache``)."""
+    from pcainterp_stream.estimate.basis import grid_size_for
+    from pcainterp_stream.synth import SynthConfig
+
+    camera = SynthConfig().camera
+    grid = grid_size_for((camera.height, camera.width), recipe.grid_scale)
+    seeds = range(recipe.first_seed, recipe.first_seed + recipe.drives)
+    variety = (recipe.pitch_px, recipe.roll_deg, recipe.height_m, recipe.lateral_m)
+    key = hashlib.sha256(repr((recipe.frames, recipe.step, grid, variety)).encode()).hexdigest()
+    parts: dict[int, npt.NDArray[np.float32]] = {}
+    paths = {seed: None if cache is None else cache / f"{key[:12]}_{seed}.npy" for seed in seeds}
+    for seed, path in paths.items():
+        if path is not None and path.is_file():
+            parts[seed] = np.load(path)
+    missing = [seed for seed in seeds if seed not in parts]
+    started = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        jobs = [(recipe, seed, grid) for seed in missing]
+        for done, (seed, maps) in enumerate(
+            zip(missing, pool.map(drive_maps, jobs), strict=True), start=1
+        ):
+            parts[seed] = maps
+            path = paths[seed]
+            if path is not None:
+                np.save(path, maps)
+            if done % 20 == 0 or done == len(missing):
+                seconds = time.perf_counter() - started
+                harness.log(f"rendered {done}/{len(missing)} drives ({seconds:.0f} s)")
+    return np.concatenate([parts[seed] for seed in seeds])
+
+
+# ----------------------------------------------------------------------------- learning
+
+
+def content_sha256(path: Path) -> str:
+    """The sha256 of a basis file's arrays and metadata (names, dtypes, shapes, bytes).
+
+    What a regeneration reproduces: the file's own bytes also hold the zip entries' write
+    times, which differ on every run.
+    """
+    digest = hashlib.sha256()
+    with np.load(path) as arrays:
+        for name in sorted(arrays.files):
+            value = np.ascontiguousarray(arrays[name])
+            digest.update(f"{name}:{value.dtype.str}:{value.shape}:".encode())
+            digest.update(value.tobytes())
+    return digest.hexdigest()
+
+
+def make(recipe: Recipe, out: Path, cache: Path | None, command: str) -> dict[str, Any]:
+    """Render, learn, fit and write the basis and its sidecar into ``out``; return the sidecar."""
+    from threadpoolctl import threadpool_limits
+
+    from pcainterp_stream.estimate.learning import learn_basis
+    from pcainterp_stream.frontend.pairing import PairingConfig
+    from pcainterp_stream.pipeline.jobs import synth
+    from pcainterp_stream.pipeline.learn import LearnOptions, fit_prior
+    from pcainterp_stream.synth import SynthConfig
+
+    started = time.perf_counter()
+    maps = render_maps(recipe, cache)
+    harness.log(f"{maps.shape[0]} maps of {recipe.drives} drives")
+    camera = SynthConfig().camera
+    recipe_meta = dataclasses.asdict(recipe)
+    meta = {
+        "source": {
+            "maps": "synthetic ground-truth depth (true disparity), per-map camera placement",
+            "drives": recipe.drives,
+            "seeds": [recipe.first_seed, recipe.first_seed + recipe.drives - 1],
+            "frames_per_drive": len(range(0, recipe.frames, recipe.step)),
+        },
+        "recipe": recipe_meta,
+        "command": command,
+        "license": "the project's own (learned only from its synthetic world)",
+    }
+    with threadpool_limits(1, user_api="blas"):  # one thread: the same bytes every run
+        basis = learn_basis(
+            iter(maps),
+            n_components=min(recipe.components, maps.shape[0] - 1),
+            grid_scale=recipe.grid_scale,
+            preprocessed=True,
+            image_size=(camera.height, camera.width),
+            focal_baseline=camera.focal_baseline,
+            meta=meta,
+            exact_max_maps=15_000,
+            exact_max_bytes=8 << 30,
+        )
+    harness.log(f"learned {basis.n_components} components ({time.perf_counter() - started:.0f} s)")
+    del maps
+    with tempfile.TemporaryDirectory() as scratch:
+        fit_log = Path(scratch) / f"fit_s{recipe.fit_seed}.mcap"
+        synth(fit_log, frames=recipe.fit_frames, seed=recipe.fit_seed, scale=1.0, fmt=None)
+        with threadpool_limits(1, user_api="blas"):
+            fitted = fit_prior(basis, [(fit_log, 0)], LearnOptions(), PairingConfig())
+    fitted.pop("seconds", None)  # keep the file's bytes independent of the machine's speed
+    fitted["fit_logs"] = [f"pcainterp synth --frames {recipe.fit_frames} --seed {recipe.fit_seed}"]
+    meta = {**basis.meta, "prior": fitted}
+    basis = dataclasses.replace(basis, meta=meta)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{NAME}.npz"
+    basis.save(path)
+    data = path.read_bytes()
+    sidecar = {
+        "file": path.name,
+        "sha256": hashlib.sha256(data).hexdigest(),
+        "content_sha256": content_sha256(path),
+        "bytes": len(data),
+        "recipe": recipe_meta,
+        "command": command,
+        "seconds": round(time.perf_counter() - started, 1),
+    }
+    harness.write_json(out / f"{NAME}.json", sidecar, indent=2)
+    return sidecar
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Make the default basis; print its sidecar."""
+    parser = harness.argument_parser(__doc__)
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder")
+    parser.add_argument("--work-dir", type=Path, help="cache the rendered maps here")
+    parser.add_argument("--small", action="store_true", help="the small test recipe")
+    for field in ("drives", "frames", "step", "components"):
+        parser.add_argument(f"--{field}", type=int, help=f"override the recipe's {field}")
+    args = parser.parse_args(argv)
+    recipe = SMALL if args.small else Recipe()
+    overrides = {f: getattr(args, f) for f in ("drives", "frames", "step", "components")}
+    recipe = dataclasses.replace(recipe, **{k: v for k, v in overrides.items() if v is not None})
+    # the recipe's options only: where the files go does not change what they hold
+    command = "python tools/make_default_basis.py" + (" --small" if args.small else "")
+    command += "".join(f" --{key} {value}" for key, value in overrides.items() if value is not None)
+    cache = None if args.work_dir is None else harness.work_dir(args.work_dir)
+    sidecar = make(recipe, args.out, cache, command)
+    print(json.dumps(sidecar, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
