@@ -14,6 +14,7 @@ from pcainterp_stream.estimate.estimator import (
     densify,
     densify_batch,
 )
+from pcainterp_stream.estimate.finetune import finetune_basis
 from pcainterp_stream.estimate.learning import LearnMethod, learn_basis, preprocess_disparity
 from pcainterp_stream.version import __version__
 
@@ -26,6 +27,7 @@ __all__ = [
     "__version__",
     "densify",
     "densify_batch",
+    "finetune_basis",
     "learn_basis",
     "preprocess_disparity",
 ]

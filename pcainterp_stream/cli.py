@@ -110,11 +110,12 @@ def build_parser() -> argparse.ArgumentParser:
         ),
         epilog=(
             "examples:\n"
-            "  pcainterp demo                  # the whole job on a generated log\n"
+            "  pcainterp demo                  # a generated drive densified, in about a minute\n"
+            "  pcainterp densify drive.mcap -o drive_dense.mcap          # the built-in basis\n"
+            "  pcainterp evaluate drive_dense.mcap -o report\n"
             "  pcainterp synth train.mcap --frames 200 --seed 1\n"
-            "  pcainterp learn train.mcap -o basis.npz --components 200\n"
+            "  pcainterp learn train.mcap -o basis.npz --components 200  # a basis of your own\n"
             "  pcainterp densify drive.mcap -o drive_dense.mcap --basis basis.npz --rrd drive.rrd\n"
-            "  pcainterp evaluate drive_dense.mcap -o report --basis basis.npz\n"
             "  pcainterp info drive_dense.mcap\n"
         ),
     )
@@ -171,14 +172,18 @@ def build_parser() -> argparse.ArgumentParser:
         help="learn a PCA basis from the disparity maps of logs",
         description=(
             "Learn a PCA basis of dense disparity maps from stereo logs: SGBM on every pair\n"
-            "(or a ground-truth depth topic), the paper's preprocessing, streaming PCA."
+            "(or a ground-truth depth topic), the paper's preprocessing, streaming PCA; then\n"
+            "fit the hybrid prior, sigma and the std calibration on held-out frames\n"
+            "(--no-fit-prior: the paper's model alone). With few frames of your own,\n"
+            "--with-synthetic N fine-tunes the built-in basis with them instead."
         ),
         epilog=(
             "examples:\n"
             "  pcainterp learn a.mcap b.mcap -o basis.npz --components 300\n"
             "  pcainterp learn drive.mcap -o basis.npz --variance 0.95 --grid-scale 0.125\n"
             "  pcainterp learn synth.mcap -o basis.npz --depth-topic /ground_truth/depth\n"
-            "  pcainterp learn a.mcap b.mcap -o basis.npz --fit-prior   # + hybrid prior, sigma\n"
+            "  pcainterp learn a.mcap -o basis.npz --no-fit-prior     # the paper's model\n"
+            "  pcainterp learn short.mcap -o basis.npz --with-synthetic 500  # fine-tune built-in\n"
             "  pcainterp learn fleet/*.mcap -o basis.npz --scheduler tcp://10.0.0.5:8786\n"
         ),
     )
@@ -195,12 +200,23 @@ def build_parser() -> argparse.ArgumentParser:
         help="learn from this depth image topic (32FC1, m) instead of SGBM maps",
     )
     learn.add_argument("--every", type=int, default=1, metavar="N", help="use every N-th frame")
+    learn.add_argument(
+        "--with-synthetic",
+        type=int,
+        default=None,
+        metavar="N",
+        help="fine-tune the built-in basis (learned from the synthetic world) with these logs' "
+        "maps, counting it as N maps: for few frames of your own; the result is on the "
+        "built-in basis's grid and camera and applies to yours as any basis does",
+    )
     fit = learn.add_argument_group("fitted prior (docs/results.md, 'Beyond the paper')")
     fit.add_argument(
         "--fit-prior",
-        action="store_true",
-        help="fit the hybrid local prior, sigma and the temporal process noise by the evidence "
-        "on frames the basis does not see; densify then uses them by default",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="fit the hybrid local prior, sigma, the temporal process noise and the std "
+        "calibration by the evidence on frames the basis does not see (default; densify then "
+        "uses them); --no-fit-prior learns the paper's model (basis and eigenvalues) only",
     )
     fit.add_argument(
         "--holdout",
@@ -232,9 +248,10 @@ def build_parser() -> argparse.ArgumentParser:
         ),
         epilog=(
             "examples:\n"
+            "  pcainterp densify drive.mcap -o drive_dense.mcap      # the built-in basis\n"
             "  pcainterp densify drive.mcap -o drive_dense.mcap --basis basis.npz\n"
-            "  pcainterp densify drive.bag -o out.mcap --basis basis.npz --rerun\n"
-            "  pcainterp densify slam.mcap -o out.mcap --basis b.npz --features-topic /features\n"
+            "  pcainterp densify drive.bag -o out.mcap --rerun\n"
+            "  pcainterp densify slam.mcap -o out.mcap --features-topic /features\n"
             "  pcainterp densify logs/*.mcap --out-dir dense/ --basis b.npz --workers 2\n"
         ),
     )
@@ -251,7 +268,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="write DIR/<stem>_dense.mcap per input, the logs densified in parallel on Dask",
     )
     _add_cluster_options(densify)
-    densify.add_argument("--basis", type=Path, required=True, metavar="BASIS.npz")
+    densify.add_argument(
+        "--basis",
+        type=Path,
+        default=None,
+        metavar="BASIS.npz",
+        help="the basis (default: the built-in one, learned from the synthetic world; "
+        "pcainterp info describes it)",
+    )
     densify.add_argument("--rerun", action="store_true", help="stream to a Rerun viewer")
     densify.add_argument("--rrd", type=Path, default=None, metavar="FILE", help="write .rrd")
     estimate = densify.add_argument_group(
@@ -276,7 +300,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--prior",
         choices=["auto", "paper", "hybrid"],
         default="auto",
-        help="hybrid = basis + fitted local kernel (learn --fit-prior); auto uses it when the "
+        help="hybrid = basis + fitted local kernel (fitted by learn); auto uses it when the "
         "basis has one (default)",
     )
     estimate.add_argument(
@@ -304,7 +328,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--calibrate",
         action=argparse.BooleanOptionalAction,
         default=True,
-        help="scale the std by the factor learn --fit-prior calibrated on held-out frames, "
+        help="scale the std by the factor learn calibrated on held-out frames, "
         "and per frame by the covariance scale its measurements' innovation gives "
         "(default: %(default)s; --no-calibrate reports the posterior std itself)",
     )
@@ -342,13 +366,15 @@ def build_parser() -> argparse.ArgumentParser:
             "Delta_2D and Delta_3D against a dense reference (ground-truth depth when the log\n"
             "has it, else SGBM of the same pair), PCA-MAP against nearest-neighbour and\n"
             "linear interpolation on the same points, depth-completion metrics, uncertainty\n"
-            "calibration; with --basis also the oracle, paper vs exact uncertainty and the\n"
-            "error against the number of points. Writes results.md, results.json and PNGs."
+            "calibration; with the basis the log was densified with (it records which)\n"
+            "also the oracle, paper vs exact uncertainty and the error against the number\n"
+            "of points. Writes results.md, results.json and PNGs."
         ),
         epilog=(
             "examples:\n"
+            "  pcainterp evaluate drive_dense.mcap -o report/\n"
             "  pcainterp evaluate drive_dense.mcap -o report/ --basis basis.npz\n"
-            "  pcainterp evaluate kitti_dense.mcap --mode stereo --max-frames 20\n"
+            "  pcainterp evaluate kitti_dense.mcap --mode stereo --max-frames 20 --no-basis\n"
         ),
     )
     evaluate.add_argument("input", type=Path, metavar="DENSIFIED.mcap")
@@ -365,7 +391,18 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         default=None,
         metavar="BASIS.npz",
-        help="the basis the log was densified with (oracle, uncertainty kinds, points sweep)",
+        help="the basis for the oracle, uncertainty kinds and points sweep (default: the one "
+        "the log records it was densified with; the built-in one for older logs)",
+    )
+    evaluate.add_argument(
+        "--no-basis",
+        action="store_true",
+        help="skip the rows that re-densify with a basis (faster)",
+    )
+    evaluate.add_argument(
+        "--no-linear",
+        action="store_true",
+        help="skip linear interpolation (~0.5 s per KITTI-size frame)",
     )
     evaluate.add_argument(
         "--mode",
@@ -394,22 +431,35 @@ def build_parser() -> argparse.ArgumentParser:
         "info",
         formatter_class=_formatter,
         help="describe a log (topics, counts, duration) or a basis file",
-        epilog="examples:\n  pcainterp info drive.mcap\n  pcainterp info basis.npz\n",
+        epilog=(
+            "examples:\n  pcainterp info drive.mcap\n  pcainterp info basis.npz\n"
+            "  pcainterp info                  # the built-in basis\n"
+        ),
     )
-    info.add_argument("file", type=Path, metavar="FILE")
+    info.add_argument(
+        "file", type=Path, nargs="?", default=None, metavar="FILE", help="default: built-in basis"
+    )
 
     demo = commands.add_parser(
         "demo",
         formatter_class=_formatter,
-        help="run the whole job on generated logs and print a summary",
+        help="densify a generated drive with the built-in basis and print a summary",
         description=(
-            "Generate a synthetic training log and a held-out log, learn a basis, densify the\n"
-            "held-out log and compare with ground truth (PCA-MAP against nearest neighbour)."
+            "Render a synthetic drive the built-in basis never saw, densify it with the\n"
+            "built-in basis and compare with ground truth (PCA-MAP against nearest neighbour,\n"
+            "coverage of the std): about a minute. --learn runs the whole job instead:\n"
+            "render training drives, learn a basis and fit its prior, then the same (~3 min)."
         ),
-        epilog="examples:\n  pcainterp demo\n  pcainterp demo --out /tmp/demo --rerun\n",
+        epilog=(
+            "examples:\n  pcainterp demo\n  pcainterp demo --out /tmp/demo --rerun\n"
+            "  pcainterp demo --learn\n"
+        ),
     )
     demo.add_argument("--out", type=Path, default=Path("demo_out"), metavar="DIR")
     demo.add_argument("--rerun", action="store_true", help="watch the densified log in Rerun")
+    demo.add_argument(
+        "--learn", action="store_true", help="learn a basis from rendered drives first (~3 min)"
+    )
     return parser
 
 
@@ -493,22 +543,28 @@ def _sigma_option(value: str) -> float | str:
     return sigma
 
 
-def _check_estimate(processor: ProcessorConfig, basis_path: Path) -> None:
+def _check_estimate(processor: ProcessorConfig, basis_path: Path | None) -> None:
     """Refuse estimate options that do not fit the basis, before any work is done."""
     from pcainterp_stream.estimate.basis import Basis
 
-    if (processor.prior == "paper" and not processor.temporal) or not basis_path.is_file():
+    if processor.prior == "paper" and not processor.temporal:
+        return
+    if basis_path is None:
+        basis, name = Basis.default(), "the built-in basis"  # raises if it is missing
+    elif not basis_path.is_file():
         return  # a missing basis is reported where it is loaded
+    else:
+        basis, name = Basis.load(basis_path), str(basis_path)
     from pcainterp_stream.pipeline.processor import resolve_settings
 
     try:
-        settings = resolve_settings(Basis.load(basis_path), processor)
+        settings = resolve_settings(basis, processor)
     except ValueError as err:
-        raise PcaInterpError(f"--prior {processor.prior} with {basis_path}: {err}") from err
+        raise PcaInterpError(f"--prior {processor.prior} with {name}: {err}") from err
     if processor.uncertainty == "paper" and (settings.local_prior or processor.temporal):
         raise PcaInterpError(
             "--uncertainty paper is the paper's diagonal approximation of its own prior, but "
-            f"{basis_path} has a fitted local prior or --temporal is on; pass --prior paper "
+            f"{name} has a fitted local prior or --temporal is on; pass --prior paper "
             "--no-temporal with it, or use --uncertainty exact"
         )
 
@@ -530,14 +586,14 @@ def _densify_many(args: argparse.Namespace, processor: ProcessorConfig) -> int:
         raise PcaInterpError("--rrd/--rerun take one log; use -o OUTPUT without --out-dir")
     if args.workers is not None and args.workers < 1:
         raise PcaInterpError(f"--workers must be at least 1, got {args.workers}")
-    if not args.basis.exists():
+    if args.basis is not None and not args.basis.exists():
         raise PcaInterpError(f"basis {args.basis} does not exist; learn one with pcainterp learn")
     started = time.perf_counter()
     with distributed.connect(args.scheduler, args.workers) as client:
         outcomes = distributed.densify_many(
             [path.resolve() for path in args.input],  # workers may run in another folder
             args.out_dir.resolve(),
-            args.basis.resolve(),
+            args.basis.resolve() if args.basis is not None else None,
             client,
             pairing=_pairing_config(args, args.features_topic),
             processor=processor,
@@ -591,6 +647,25 @@ def run(args: argparse.Namespace) -> int:
             raise PcaInterpError(f"--variance must be in (0, 1], got {args.variance}")
         if args.grid_scale is not None and not 0 < args.grid_scale <= 1:
             raise PcaInterpError(f"--grid-scale must be in (0, 1], got {args.grid_scale}")
+        on_cluster = args.scheduler is not None or args.workers is not None
+        if args.fit_prior is False and args.fit_logs:
+            raise PcaInterpError("--fit-logs are for fitting the prior; drop --no-fit-prior")
+        if args.with_synthetic is not None:
+            if args.with_synthetic < 2:
+                raise PcaInterpError(
+                    f"--with-synthetic must be at least 2 maps, got {args.with_synthetic}"
+                )
+            if args.grid_scale is not None:
+                raise PcaInterpError(
+                    "--with-synthetic fine-tunes the built-in basis on its own grid; "
+                    "drop --grid-scale"
+                )
+            if on_cluster:
+                raise PcaInterpError(
+                    "--with-synthetic runs in this process; drop --scheduler/--workers"
+                )
+        # the prior is fitted by default; on a cluster only on --fit-logs (no held-out share)
+        fit_prior = args.fit_prior is not False and (not on_cluster or bool(args.fit_logs))
         options = LearnOptions(
             n_components=args.components or 500,
             variance=args.variance,
@@ -598,19 +673,22 @@ def run(args: argparse.Namespace) -> int:
             depth_topic=args.depth_topic,
             every=args.every,
             sgbm=_sgbm_config(args),
-            fit_prior=args.fit_prior or bool(args.fit_logs),
+            fit_prior=fit_prior,
             holdout=args.holdout,
             fit_logs=tuple(args.fit_logs),
+            with_synthetic=args.with_synthetic,
         )
         if args.workers is not None and args.workers < 1:
             raise PcaInterpError(f"--workers must be at least 1, got {args.workers}")
-        if options.fit_prior and (args.scheduler is not None or args.workers is not None):
+        if args.fit_prior and on_cluster and not args.fit_logs:
             raise PcaInterpError(
-                "--fit-prior runs in this process; learn on the cluster without it, or drop "
-                "--scheduler/--workers"
+                "--fit-prior holds out a share of each log, which runs in this process; on a "
+                "cluster pass --fit-logs LOG (fitted here after learning there), or "
+                "--no-fit-prior, or drop --scheduler/--workers"
             )
-        if args.scheduler is not None or args.workers is not None:
+        if on_cluster:
             from pcainterp_stream.pipeline import distributed
+            from pcainterp_stream.pipeline.learn import fit_prior as fit
 
             with distributed.connect(args.scheduler, args.workers) as client:
                 basis = distributed.learn_distributed(
@@ -619,6 +697,16 @@ def run(args: argparse.Namespace) -> int:
                     options,
                     _pairing_config(args),
                     client,
+                )
+            if fit_prior:
+                sources = [(log, 0) for log in options.fit_logs]
+                fitted = fit(basis, sources, options, _pairing_config(args))
+                basis = dataclasses.replace(basis, meta={**basis.meta, "prior": fitted})
+                basis.save(args.output)
+            elif args.fit_prior is None:
+                _echo(
+                    "note: the prior was not fitted (on a cluster it is fitted on --fit-logs "
+                    "LOG only); densify uses the paper's model with this basis"
                 )
         else:
             basis = learn(args.logs, args.output, options, _pairing_config(args))
@@ -693,6 +781,8 @@ def run(args: argparse.Namespace) -> int:
         if args.rrd is not None:
             _echo(f"wrote {args.rrd}")
     elif command == "evaluate":
+        if args.no_basis and args.basis is not None:
+            raise PcaInterpError("--no-basis and --basis contradict each other; pass one")
         folder, table = evaluate(
             args.input,
             args.output,
@@ -702,13 +792,15 @@ def run(args: argparse.Namespace) -> int:
             sweep_every=args.sweep_every,
             max_frames=args.max_frames,
             topics=OutputTopics.with_prefix(args.output_prefix),
+            linear=not args.no_linear,
+            basis_rows=not args.no_basis,
         )
         _echo(table)
         _echo(f"wrote {folder}/results.md, results.json and figures")
     elif command == "info":
         _echo(info(args.file))
     elif command == "demo":
-        _echo(demo(args.out, spawn_viewer=args.rerun))
+        _echo(demo(args.out, spawn_viewer=args.rerun, learn_basis=args.learn))
     else:  # pragma: no cover - argparse rejects unknown commands
         raise PcaInterpError(f"unknown command {command}")
     return 0

@@ -178,7 +178,7 @@ def small_messages(small_log: Path) -> list[Message]:
 def basis_path(small_log: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A 5-component basis learned from the small log."""
     path = tmp_path_factory.mktemp("basis") / "basis.npz"
-    learn([small_log], path, LearnOptions(n_components=5), PairingConfig())
+    learn([small_log], path, LearnOptions(n_components=5, fit_prior=False), PairingConfig())
     return path
 
 

@@ -14,6 +14,8 @@ variance sum_i lambda_i u_i(x)^2, coarser variance grids) is computed once per
 
 from __future__ import annotations
 
+import hashlib
+import importlib.resources
 import json
 import os
 import tempfile
@@ -26,6 +28,7 @@ from typing import Any
 import cv2
 import numpy as np
 import numpy.typing as npt
+from threadpoolctl import threadpool_limits
 
 from pcainterp_stream.errors import BasisError
 
@@ -34,6 +37,18 @@ FORMAT = "pcainterp-basis/1"
 
 ORTHONORMALITY_TOLERANCE = 1e-3
 """Largest allowed |B^T B - I| entry when loading a basis (float32 storage rounding)."""
+
+DEFAULT_BASIS_FILE = "default_basis.npz"
+"""The built-in basis, package data in ``pcainterp_stream/data/`` (:meth:`Basis.default`)."""
+
+DEFAULT_BASIS_SIDECAR = "default_basis.json"
+"""Beside it: its sha256 and the recipe that made it (``tools/make_default_basis.py``)."""
+
+BUILT_IN = "built-in"
+"""How a densified log and a report name the built-in basis."""
+
+IN_MEMORY = "in-memory"
+"""How they name a basis passed as an object that is not the built-in one (no file)."""
 
 _KEYS = (
     "format",
@@ -394,6 +409,92 @@ class Basis:
             ) from err
         return _from_arrays(data, path)
 
+    @classmethod
+    def default(cls) -> Basis:
+        """Return the built-in basis, learned from the synthetic world only.
+
+        It is package data (``pcainterp_stream/data/default_basis.npz``), for the KITTI grey
+        camera (1241 x 376 px, f*b ~ 386 px*m); ``densify`` maps it onto any other camera
+        (DESIGN.md section 2, "Camera and resolution"). Loaded and validated once per
+        process and cached; what is slow to derive (the prior covariance, variance grids)
+        stays lazy, as for any basis.
+
+        Returns:
+            The built-in :class:`Basis` (the same object on every call).
+
+        Raises:
+            BasisError: the file is missing from this installation or damaged.
+        """
+        return _load_default(str(default_basis_path()))
+
+    @cached_property
+    def fingerprint(self) -> str:
+        """Return a short content hash (16 hex digits) that tells bases apart.
+
+        sha256 over every array and the camera, not the ``meta`` text: the same basis saved
+        twice has the same fingerprint. A densified log records it, so that ``evaluate``
+        can check it re-densifies with the basis the log was made with.
+        """
+        digest = hashlib.sha256()
+        for array in (self.mean, self.components, self.eigenvalues):
+            digest.update(np.ascontiguousarray(array).tobytes())
+        digest.update(
+            np.array(
+                [*self.image_size, self.focal_baseline, self.total_variance, self.n_train],
+                dtype=np.float64,
+            ).tobytes()
+        )
+        return digest.hexdigest()[:16]
+
+
+def default_basis_path() -> Path:
+    """Return where the built-in basis file is installed (it may be missing).
+
+    Returns:
+        The path of ``pcainterp_stream/data/default_basis.npz`` in this installation.
+    """
+    package = importlib.resources.files("pcainterp_stream")
+    return Path(str(package.joinpath("data", DEFAULT_BASIS_FILE)))
+
+
+def default_basis_recipe() -> dict[str, Any]:
+    """Return the built-in basis's sidecar JSON (its sha256 and recipe); {} when absent.
+
+    Returns:
+        The parsed ``pcainterp_stream/data/default_basis.json``, or {} when it is missing or
+        not a JSON object.
+    """
+    sidecar = default_basis_path().with_name(DEFAULT_BASIS_SIDECAR)
+    try:
+        recipe = json.loads(sidecar.read_text())
+    except (OSError, ValueError):
+        return {}
+    return recipe if isinstance(recipe, dict) else {}
+
+
+_DEFAULTS: dict[str, Basis] = {}
+"""The built-in basis once loaded, by path (a test may point the package data elsewhere)."""
+
+
+def _load_default(path: str) -> Basis:
+    """Load the built-in basis at ``path`` once and keep it."""
+    cached = _DEFAULTS.get(path)
+    if cached is not None:
+        return cached
+    if not Path(path).is_file():
+        raise BasisError(
+            f"the built-in basis {path} is missing from this installation of pcainterp-stream; "
+            "reinstall it (pip install .), or pass --basis BASIS.npz (learn one with "
+            "`pcainterp learn`)"
+        )
+    basis = _DEFAULTS[path] = Basis.load(path)
+    return basis
+
+
+def is_default(basis: Basis) -> bool:
+    """Return True if ``basis`` is the built-in basis object :meth:`Basis.default` returned."""
+    return any(basis is loaded for loaded in _DEFAULTS.values())
+
 
 def _expect(
     data: dict[str, npt.NDArray[Any]],
@@ -491,9 +592,13 @@ def _check_arrays(basis: Basis, where: str) -> None:
     if basis.n_train < 0:
         raise ValueError(f"key 'n_train' must be >= 0, got {basis.n_train}")
     if n_components:
-        # float32 Gram (s * l^2 flops): its rounding, ~sqrt(s) * 6e-8, is far below the tolerance
+        # float32 Gram (s * l^2 flops): its rounding, ~sqrt(s) * 6e-8, is far below the tolerance.
+        # One BLAS thread: on a busy 2-core machine a two-thread OpenBLAS spun 0.7 s on the
+        # 150-component KITTI-size Gram that one thread does in 0.02 s.
         rows = basis.components.reshape(n_components, -1).astype(np.float32, copy=False)
-        error = float(np.abs(rows @ rows.T - np.eye(n_components, dtype=np.float32)).max())
+        with threadpool_limits(1, user_api="blas"):
+            gram = rows @ rows.T
+        error = float(np.abs(gram - np.eye(n_components, dtype=np.float32)).max())
         if error > ORTHONORMALITY_TOLERANCE:
             raise ValueError(
                 f"key 'components' is not orthonormal over grid pixels (max |B^T B - I| = "

@@ -140,7 +140,7 @@ class DensifyResult:
 
 
 def densify(
-    basis: Basis,
+    basis: Basis | None,
     pixels: npt.ArrayLike,
     disparities: npt.ArrayLike,
     *,
@@ -161,7 +161,7 @@ def densify(
     """Densify one frame's sparse disparities with the MAP estimate.
 
     Args:
-        basis: the PCA basis.
+        basis: the PCA basis; None: the built-in one (:meth:`Basis.default`).
         pixels: (k, 2) float, (x, y) positions in px of the output image (``image_size``).
         disparities: (k,) float, measured disparities (px) of the output camera.
         sigma: measurement noise std (px), > 0, or ``"evidence"``: fitted per frame by
@@ -221,7 +221,7 @@ def densify(
 
 
 def densify_batch(
-    basis: Basis,
+    basis: Basis | None,
     pixels_list: Sequence[npt.ArrayLike],
     disparities_list: Sequence[npt.ArrayLike],
     *,
@@ -246,7 +246,7 @@ def densify_batch(
     product for all frames' exact-variance factors.
 
     Args:
-        basis: the PCA basis.
+        basis: the PCA basis; None: the built-in one (:meth:`Basis.default`).
         pixels_list: F arrays (k_f, 2) float, (x, y) in output image px.
         disparities_list: F arrays (k_f,) float, disparities (px).
         sigma: measurement noise std (px), > 0.
@@ -271,7 +271,10 @@ def densify_batch(
 
     Raises:
         ValueError: an argument has the wrong shape or value.
+        BasisError: ``basis`` is None and the built-in basis is missing.
     """
+    if basis is None:
+        basis = Basis.default()
     if len(pixels_list) != len(disparities_list):
         raise ValueError(
             f"Expected `disparities_list` to have one array per frame of `pixels_list` "

@@ -203,7 +203,7 @@ def learn_basis(
         fit = _gram_fit(np.stack(list(stream)), n_components)
         used = LearnMethod.EXACT
     elif learn_method is LearnMethod.STREAMING:
-        fit = _streaming_fit(stream, keep, batch_size)
+        fit = streaming_fit(stream, keep, batch_size)
         used = LearnMethod.STREAMING
     else:
         budget = min(exact_max_maps, max(2, exact_max_bytes // (4 * n_pixels)))
@@ -212,7 +212,7 @@ def learn_basis(
             fit = _gram_fit(np.stack(kept), n_components)
             used = LearnMethod.EXACT
         else:
-            fit = _streaming_fit(itertools.chain(kept, stream), keep, batch_size)
+            fit = streaming_fit(itertools.chain(kept, stream), keep, batch_size)
             used = LearnMethod.STREAMING
 
     return basis_from_fit(
@@ -383,14 +383,49 @@ def _gram_fit(maps: npt.NDArray[np.float32], keep: int | None = None) -> PcaFit:
     )
 
 
-def _streaming_fit(maps: Iterator[npt.NDArray[np.float32]], keep: int, batch_size: int) -> PcaFit:
-    """Incremental SVD of the centred maps, truncated to ``keep`` columns after each batch."""
+@dataclass(frozen=True)
+class Sketch:
+    """The state of the incremental SVD: what it keeps of n centred maps.
+
+    Attributes:
+        mean: (s,) float64 mean of the maps (px).
+        factor: (s, r) float32 U S of the centred maps, columns orthogonal (px).
+        squares: sum of squared centred norms of the maps (px^2), the scatter's trace.
+        n_maps: number of maps n.
+    """
+
+    mean: npt.NDArray[np.float64]
+    factor: npt.NDArray[np.float32]
+    squares: float
+    n_maps: int
+
+
+def streaming_fit(
+    maps: Iterator[npt.NDArray[np.float32]],
+    keep: int,
+    batch_size: int,
+    start: Sketch | None = None,
+) -> PcaFit:
+    """Incremental SVD of the centred maps, truncated to ``keep`` columns after each batch.
+
+    Args:
+        maps: (s,) float32 grid maps, flattened.
+        keep: columns kept after each batch (l + oversampling).
+        batch_size: maps merged per step.
+        start: the state of maps seen before (a basis's, :func:`finetune.basis_sketch`);
+            None starts empty.
+
+    Returns:
+        The :class:`PcaFit` of all maps (those of ``start`` included).
+    """
     if batch_size < 1:
         raise ValueError(f"Expected `batch_size` >= 1, got {batch_size}")
     basis: npt.NDArray[np.float32] | None = None  # (s, r) U * S of the centred data so far
     mean: npt.NDArray[np.float64] | None = None
     n_seen = 0
     squares = 0.0  # sum of squared centred norms, merged with Chan's formula
+    if start is not None:
+        basis, mean, squares, n_seen = start.factor, start.mean, start.squares, start.n_maps
     while True:
         batch_list = list(itertools.islice(maps, batch_size))
         if not batch_list:

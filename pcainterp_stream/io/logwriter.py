@@ -126,6 +126,9 @@ class LogWriter(ABC):
         self._topic_counts: Counter[str] = Counter()
         self._start_ns: int | None = None
         self._end_ns = 0
+        self.channel_metadata: dict[str, dict[str, str]] = {}
+        """Metadata of the channels :meth:`add_message` registers, by topic (MCAP only: the
+        bag formats have no channel metadata). Set it before a topic's first message."""
 
     @property
     def partial_path(self) -> Path:
@@ -332,7 +335,8 @@ class McapLogWriter(LogWriter):
         self, topic: str, msgtype: str, data: bytes, log_time_ns: int, publish_time_ns: int
     ) -> None:
         schema_id = self._schema_id(msgtype, "ros2msg", rosmsg.schema_text(msgtype).encode())
-        channel_id = self._channel_id(topic, "cdr", schema_id, {})
+        metadata = self.channel_metadata.get(topic, {})
+        channel_id = self._channel_id(topic, "cdr", schema_id, metadata)
         assert self._writer is not None
         self._writer.add_message(channel_id, log_time_ns, data, publish_time_ns)
 

@@ -1,12 +1,15 @@
 """The ``/pcainterp/*`` output messages of one densified frame (DESIGN.md section 3).
 
 Every output message carries the left image's header (stamp, frame_id); the caller writes
-them at the left image's log time.
+them at the left image's log time. The output channels' MCAP metadata
+(:func:`channel_metadata`) names the basis the log was densified with, so that
+``evaluate`` can use the same one.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -56,6 +59,49 @@ class OutputTopics:
             self.camera_info,
         ]
         return topics + ([self.depth_mm] if self.depth_mm else [])
+
+
+BASIS_KEY = "pcainterp.basis"
+"""Channel metadata key: the basis densify used, ``built-in`` or the path of its file as given
+(or ``in-memory`` for a basis passed as an object)."""
+
+BASIS_FINGERPRINT_KEY = "pcainterp.basis_fingerprint"
+"""Channel metadata key: the basis's content fingerprint (``Basis.fingerprint``)."""
+
+
+def channel_metadata(basis: str, fingerprint: str) -> dict[str, str]:
+    """Return the metadata of the output channels of a densified log.
+
+    Args:
+        basis: the basis used: ``built-in``, a file path or ``in-memory``.
+        fingerprint: its content fingerprint.
+
+    Returns:
+        {:data:`BASIS_KEY`: basis, :data:`BASIS_FINGERPRINT_KEY`: fingerprint}.
+    """
+    return {BASIS_KEY: basis, BASIS_FINGERPRINT_KEY: fingerprint}
+
+
+def recorded_metadata(path: Path, topics: OutputTopics | None = None) -> dict[str, str]:
+    """Return the channel metadata of a densified log's disparity channel ({} if none).
+
+    Args:
+        path: a log written by ``pcainterp densify``.
+        topics: its output topics (default DESIGN.md's).
+
+    Returns:
+        The metadata of the first message's channel on ``topics.disparity``; {} when the
+        log has no such message or its format keeps no channel metadata.
+    """
+    from pcainterp_stream.io.logreader import open_log
+
+    topic = (topics or OutputTopics()).disparity
+    with open_log(path) as reader:
+        if topic not in reader.topics():
+            return {}
+        for raw in reader.messages([topic]):
+            return dict(raw.channel_metadata)
+    return {}
 
 
 def output_messages(result: DensifiedFrame, topics: OutputTopics) -> list[tuple[str, Any]]:

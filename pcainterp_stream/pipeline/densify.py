@@ -13,7 +13,7 @@ from pcainterp_stream.errors import (
     LogReadError,
     PcaInterpError,
 )
-from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.basis import BUILT_IN, IN_MEMORY, Basis, is_default
 from pcainterp_stream.frontend.pairing import (
     PairingConfig,
     PairingStats,
@@ -21,7 +21,7 @@ from pcainterp_stream.frontend.pairing import (
 )
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import LogFormat, WriteSummary, open_writer
-from pcainterp_stream.io.outputs import OutputTopics, output_messages
+from pcainterp_stream.io.outputs import OutputTopics, channel_metadata, output_messages
 from pcainterp_stream.io.rerun_sink import RerunSink
 from pcainterp_stream.pipeline.common import (
     _bar,
@@ -78,7 +78,7 @@ class DensifySummary:
 def densify(
     input_path: Path,
     output: Path,
-    basis: Basis | Path,
+    basis: Basis | Path | None = None,
     *,
     pairing: PairingConfig | None = None,
     processor: ProcessorConfig | None = None,
@@ -91,14 +91,15 @@ def densify(
 
     One pass over the input: every message is copied to the output, stereo pairs are
     formed by header stamp, stereo-matched ahead in a worker thread and densified in
-    batches, and their outputs written at the left image's log time.
+    batches, and their outputs written at the left image's log time. The output channels'
+    metadata names the basis (``io/outputs.channel_metadata``): ``built-in`` when ``basis``
+    is None (:meth:`Basis.default`), else its file.
     """
     started = time.perf_counter()
     pairing = pairing or PairingConfig()
     processor = processor or ProcessorConfig()
     topics = topics or OutputTopics()
-    if isinstance(basis, Path):
-        basis = Basis.load(basis)
+    basis, label = resolve_basis(basis)
     if processor.source is MeasurementSource.FEATURES and pairing.features_topic is None:
         raise PcaInterpError("measurement source 'features' needs --features-topic")
     measurements = 0
@@ -117,6 +118,8 @@ def densify(
         left = reader.topics().get(pairing.left_topic)
         total = left.message_count if left is not None else None
         writer = stack.enter_context(open_writer(output, LogFormat.MCAP, inputs=[input_path]))
+        metadata = channel_metadata(label, basis.fingerprint)
+        writer.channel_metadata = {topic: metadata for topic in topics.all()}
         sink = (
             stack.enter_context(RerunSink(rrd_path=rrd, spawn=spawn_viewer))
             if rrd is not None or spawn_viewer
@@ -171,6 +174,27 @@ def densify(
         carried=robust["carried"],
         carry_resets=robust["carry_resets"],
     )
+
+
+def resolve_basis(basis: Basis | Path | None) -> tuple[Basis, str]:
+    """Return the basis a job uses and how a densified log names it.
+
+    Args:
+        basis: a basis, its file, or None for the built-in one.
+
+    Returns:
+        The loaded :class:`Basis` and its label: ``built-in``, the file's path as given
+        (an output records no folder of the machine it was made on), or ``in-memory`` for a
+        basis object that is not the built-in one.
+
+    Raises:
+        BasisError: the file (or the built-in basis) is missing or invalid.
+    """
+    if basis is None:
+        return Basis.default(), BUILT_IN
+    if isinstance(basis, Path):
+        return Basis.load(basis), str(basis)
+    return basis, BUILT_IN if is_default(basis) else IN_MEMORY
 
 
 def _no_pair_message(

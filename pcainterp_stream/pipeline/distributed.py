@@ -415,14 +415,14 @@ def output_path(input_path: Path, out_dir: Path) -> Path:
     return out_dir / f"{input_path.stem}_dense.mcap"
 
 
-def _densify_one(input_path: Path, output: Path, basis: Path, kwargs: dict[str, Any]) -> Any:
+def _densify_one(input_path: Path, output: Path, basis: Path | None, kwargs: dict[str, Any]) -> Any:
     return densify(input_path, output, basis, **kwargs)
 
 
 def densify_many(
     inputs: list[Path],
     out_dir: Path,
-    basis: Path,
+    basis: Path | None,
     client: Any,
     **kwargs: Any,
 ) -> list[DensifyOutcome]:
@@ -431,7 +431,7 @@ def densify_many(
     Args:
         inputs: input logs (paths readable by the workers), distinct stems.
         out_dir: output folder (created); outputs are :func:`output_path`.
-        basis: the basis file (readable by the workers).
+        basis: the basis file (readable by the workers); None: the built-in basis.
         client: a connected ``dask.distributed.Client``.
         **kwargs: keyword options of :func:`pcainterp_stream.pipeline.densify.densify`
             (``pairing``, ``processor``, ``topics``).

@@ -11,6 +11,7 @@ on bad input, which the command line prints as one line.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 from pathlib import Path
@@ -19,12 +20,24 @@ from pcainterp_stream.errors import (
     BasisError,
     PcaInterpError,
 )
-from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.basis import (
+    BUILT_IN,
+    IN_MEMORY,
+    Basis,
+    default_basis_path,
+    default_basis_recipe,
+    is_default,
+)
 from pcainterp_stream.frontend.pairing import (
     PairingConfig,
 )
 from pcainterp_stream.io.logwriter import WriteSummary
-from pcainterp_stream.io.outputs import OutputTopics
+from pcainterp_stream.io.outputs import (
+    BASIS_FINGERPRINT_KEY,
+    BASIS_KEY,
+    OutputTopics,
+    recorded_metadata,
+)
 from pcainterp_stream.pipeline.common import _bar, _echo
 from pcainterp_stream.pipeline.densify import DensifySummary, densify
 from pcainterp_stream.pipeline.learn import LearnOptions, fit_prior, learn
@@ -84,14 +97,29 @@ def evaluate(
     input_path: Path,
     output: Path | None,
     *,
-    basis: Path | None = None,
+    basis: Path | Basis | None = None,
     mode: str | None = None,
     sigma: float = 2.0,
     sweep_every: int = 10,
     max_frames: int | None = None,
     topics: OutputTopics | None = None,
+    linear: bool = True,
+    basis_rows: bool = True,
 ) -> tuple[Path, str]:
     """Evaluate a densified log into a report folder (``pcainterp evaluate``).
+
+    Args:
+        input_path: a log written by ``pcainterp densify``.
+        output: the report folder; None: ``<log stem>_report`` beside the log.
+        basis: the basis for the rows that re-densify (oracle, uncertainty kinds, points
+            sweep); None: the one the log records (:func:`evaluation_basis`).
+        mode: ``stereo``, ``temporal`` or None (automatic).
+        sigma: noise std (px) of the re-densification.
+        sweep_every: points sweep on every N-th frame, 0 = off.
+        max_frames: evaluate at most this many frames.
+        topics: the log's output topics.
+        linear: also evaluate linear interpolation (~0.5 s per KITTI-size frame).
+        basis_rows: False skips the rows that re-densify with a basis.
 
     Returns:
         The report folder and the summary table text.
@@ -105,11 +133,19 @@ def evaluate(
         raise PcaInterpError(f"--sweep-every must be >= 0, got {sweep_every}")
     if max_frames is not None and max_frames < 1:
         raise PcaInterpError(f"--max-frames must be at least 1, got {max_frames}")
-    if basis is not None and not basis.is_file():
+    if isinstance(basis, Path) and not basis.is_file():
         raise PcaInterpError(f"basis {basis} does not exist; pass the basis used by densify")
     folder = output or input_path.with_name(input_path.stem + "_report")
+    if not basis_rows:
+        chosen, note = None, "none, those rows are skipped"
+    elif basis is None:
+        chosen, note = evaluation_basis(input_path, topics)
+    else:
+        chosen, note = basis, f"{_basis_name(basis)} (given)"
     options = EvaluateOptions(
-        basis=basis,
+        basis=chosen,
+        basis_note=note,
+        linear=linear,
         mode=Mode(mode) if mode is not None else None,
         sigma=sigma,
         sweep_every=sweep_every,
@@ -126,25 +162,98 @@ def evaluate(
     return folder, summary_table(result)
 
 
-def describe_basis(path: Path) -> str:
-    """Return a text description of a basis file."""
-    basis = Basis.load(path)
+def _basis_name(basis: Path | Basis) -> str:
+    if isinstance(basis, Path):
+        return str(basis)
+    return BUILT_IN if is_default(basis) else IN_MEMORY
+
+
+def evaluation_basis(
+    input_path: Path, topics: OutputTopics | None = None
+) -> tuple[Basis | Path | None, str]:
+    """Choose the basis ``evaluate`` re-densifies with when none is given.
+
+    The one the densified log records in its channel metadata (``io/outputs``), if it is
+    still there with the same content (fingerprint); for a log that records none (densified
+    by an older version), the built-in basis. Otherwise none: the rows that need a basis
+    are skipped, and the note says why.
+
+    Args:
+        input_path: a log written by ``pcainterp densify``.
+        topics: its output topics.
+
+    Returns:
+        The basis (or None) and a note on how it was chosen.
+    """
+    try:
+        recorded = recorded_metadata(input_path, topics)
+    except PcaInterpError:
+        return None, "none (the log cannot be read; the error follows)"
+    label = recorded.get(BASIS_KEY)
+    fingerprint = recorded.get(BASIS_FINGERPRINT_KEY)
+    skipped = "the rows that re-densify with a basis are skipped; pass --basis BASIS.npz"
+    if label is None or label == BUILT_IN:
+        why = "recorded in the log" if label else "the log records no basis"
+        try:
+            basis = Basis.default()
+        except BasisError:
+            return None, f"none (the built-in basis is not installed; {skipped})"
+        if fingerprint is not None and fingerprint != basis.fingerprint:
+            return None, (
+                f"none (the log was densified with another built-in basis, fingerprint "
+                f"{fingerprint}, not this installation's {basis.fingerprint}; {skipped})"
+            )
+        return basis, f"{BUILT_IN} ({why})"
+    if label == IN_MEMORY:
+        return None, f"none (the log was densified with a basis object, no file; {skipped})"
+    # the path as densify was given it: relative to this folder, else to the log's
+    path = next((p for p in (Path(label), input_path.parent / label) if p.is_file()), Path(label))
+    if not path.is_file():
+        return None, f"none (the log was densified with {label}, not found; {skipped})"
+    try:
+        basis = Basis.load(path)
+    except BasisError as err:
+        return None, f"none ({err}; {skipped})"
+    if fingerprint is not None and fingerprint != basis.fingerprint:
+        return None, f"none ({label} changed since the log was densified; {skipped})"
+    return basis, f"{path} (recorded in the log)"
+
+
+def describe_basis(path: Path | None = None) -> str:
+    """Return a text description of a basis file (None: the built-in basis)."""
+    basis = Basis.load(path) if path is not None else Basis.default()
     height, width = basis.image_size
     grid_height, grid_width = basis.grid_size
     ratio = basis.explained_variance_ratio
-    learning = basis.meta.get("learning", {}) if isinstance(basis.meta, dict) else {}
+    meta = basis.meta if isinstance(basis.meta, dict) else {}
+    learning = meta.get("learning", {}) if isinstance(meta.get("learning"), dict) else {}
+    source = meta.get("source", {}) if isinstance(meta.get("source"), dict) else {}
+    title = f"{path}: pcainterp basis" if path is not None else _built_in_title()
     lines = [
-        f"{path}: pcainterp basis",
+        title,
         f"  image size       {width}x{height} px",
         f"  grid             {grid_width}x{grid_height} ({grid_width * grid_height} pixels)",
         f"  components       {basis.n_components}",
         f"  variance         {100 * ratio:.2f} % of the training variance explained",
         f"  first eigenvalue {basis.eigenvalues[0]:.4g} px^2",
         f"  focal*baseline   {basis.focal_baseline:.4g} px*m",
-        f"  training maps    {basis.n_train}",
-        f"  method           {learning.get('method', '?')}",
+        f"  training maps    {basis.n_train}"
+        + (f" ({source['maps']})" if isinstance(source.get("maps"), str) else ""),
     ]
-    fitted = basis.meta.get("prior") if isinstance(basis.meta, dict) else None
+    logs, drives, seeds = source.get("logs"), source.get("drives"), source.get("seeds")
+    if isinstance(logs, list) and logs:
+        lines.append(f"  drives           {len(logs)} log(s): {', '.join(map(str, logs[:4]))}")
+    elif isinstance(drives, int):
+        span = f" (seeds {seeds[0]}-{seeds[-1]})" if isinstance(seeds, list) and seeds else ""
+        lines.append(f"  drives           {drives} synthetic drives{span}")
+    lines.append(f"  method           {learning.get('method', '?')}")
+    tuned = meta.get("finetune")
+    if isinstance(tuned, dict):
+        lines.append(
+            f"  fine-tuned       {tuned.get('n_maps', '?')} maps merged into a basis counted "
+            f"as {tuned.get('n_prior', '?')} maps (learn --with-synthetic)"
+        )
+    fitted = meta.get("prior")
     if isinstance(fitted, dict):
         local = fitted.get("local")
         kernel = (
@@ -162,13 +271,44 @@ def describe_basis(path: Path) -> str:
                 else ""
             ),
         ]
+    else:
+        lines.append("  fitted prior     none (the paper's model; learn fits one by default)")
+    if path is None:
+        lines += _recipe_lines()
     return "\n".join(lines)
 
 
-def info(path: Path) -> str:
-    """Return the ``pcainterp info`` text of a log or a basis file."""
+def _built_in_title() -> str:
+    return f"built-in basis ({default_basis_path()}): pcainterp basis"
+
+
+def _recipe_lines() -> list[str]:
+    """Describe the built-in basis's sidecar: its checksum and the recipe that made it."""
+    sidecar = default_basis_recipe()
+    if not sidecar:
+        return ["  recipe           unknown (no default_basis.json beside the basis)"]
+    lines = []
+    expected = sidecar.get("sha256")
+    if isinstance(expected, str):
+        actual = hashlib.sha256(default_basis_path().read_bytes()).hexdigest()
+        state = "matches the file" if actual == expected else f"MISMATCH: the file is {actual}"
+        lines.append(f"  sha256           {expected} ({state})")
+    recipe = sidecar.get("recipe")
+    if isinstance(recipe, dict) and recipe:
+        pairs = [f"{key}={json.dumps(value)}" for key, value in recipe.items()]
+        lines.append(f"  recipe           {', '.join(pairs)}")
+    command = sidecar.get("command")
+    if isinstance(command, str):
+        lines.append(f"  made by          {command}")
+    return lines
+
+
+def info(path: Path | None) -> str:
+    """Return the ``pcainterp info`` text of a log or a basis file (None: the built-in)."""
     from pcainterp_stream.io.loginfo import describe, format_info
 
+    if path is None:
+        return describe_basis(None)
     if path.suffix == ".npz":
         return describe_basis(path)
     if path.is_file():
@@ -181,9 +321,60 @@ def info(path: Path) -> str:
     return format_info(describe(path))
 
 
-def demo(out: Path, *, spawn_viewer: bool = False) -> str:
-    """Run the whole job on generated logs and return a summary (``pcainterp demo``)."""
+def demo(out: Path, *, spawn_viewer: bool = False, learn_basis: bool = False) -> str:
+    """Show the product on a generated drive and return a summary (``pcainterp demo``).
+
+    By default (about a minute on 2 cores): render a held-out synthetic drive (seed
+    :data:`DEMO_SEED`, which the built-in basis never saw), densify it with the built-in
+    basis, evaluate it against the ground truth (PCA-MAP against nearest neighbour and the
+    coverage of the std densify wrote; the slower rows of ``pcainterp evaluate`` are
+    skipped). With ``learn_basis`` the whole job instead (about 3 minutes): render training
+    drives, learn a basis and fit its prior, densify and evaluate a held-out drive.
+
+    Args:
+        out: the folder for the logs, the report and the Rerun recording (created).
+        spawn_viewer: stream the densified drive to a Rerun viewer.
+        learn_basis: learn a basis from rendered training drives first.
+
+    Returns:
+        The summary text.
+    """
     out.mkdir(parents=True, exist_ok=True)
+    if learn_basis:
+        return _demo_learn(out, spawn_viewer=spawn_viewer)
+    started = time.perf_counter()
+    test_log, dense_log = out / "heldout.mcap", out / "heldout_dense.mcap"
+    rrd, report_dir = out / "heldout.rrd", out / "report"
+    basis = Basis.default()
+    _echo(
+        f"1/3 rendering a {DEMO_FRAMES}-frame synthetic drive (seed {DEMO_SEED}, never seen by "
+        f"the built-in basis) -> {test_log}"
+    )
+    synth(test_log, frames=DEMO_FRAMES, seed=DEMO_SEED, scale=DEMO_SCALE, fmt="mcap")
+    _echo(f"2/3 densifying it with the built-in basis -> {dense_log}, {rrd}")
+    summary = densify(test_log, dense_log, None, rrd=rrd, spawn_viewer=spawn_viewer)
+    _echo(f"3/3 evaluating the densified drive against ground truth -> {report_dir}/results.md")
+    _, table = evaluate(dense_log, report_dir, linear=False, basis_rows=False)
+    height, width = basis.image_size
+    recipe = default_basis_recipe().get("recipe")
+    maps = basis.meta.get("source", {}).get("maps", "") if isinstance(basis.meta, dict) else ""
+    described = (
+        f"built-in: {basis.n_components} components from {basis.n_train} synthetic "
+        f"{'depth ' if 'depth' in str(maps) else ''}maps "
+        f"({100 * basis.explained_variance_ratio:.1f} % variance), {width}x{height} px"
+        + (" (pcainterp info describes it)" if recipe else "")
+    )
+    return _demo_summary(
+        out, started, described, basis, summary, report_dir, table, dense_log, rrd
+    ) + (
+        f"\n\nlinear interpolation and the rows that re-densify are left out for speed: "
+        f"pcainterp evaluate {dense_log} has them all; pcainterp demo --learn learns a "
+        "basis of its own first."
+    )
+
+
+def _demo_learn(out: Path, *, spawn_viewer: bool) -> str:
+    """``pcainterp demo --learn``: learn a basis from rendered drives, then as the demo."""
     started = time.perf_counter()
     train_logs = [out / f"train_{seed}.mcap" for seed in DEMO_TRAIN_SEEDS]
     test_log = out / "heldout.mcap"
@@ -219,34 +410,54 @@ def demo(out: Path, *, spawn_viewer: bool = False) -> str:
     report_dir = out / "report"
     _echo(f"5/5 evaluating the densified drive against ground truth -> {report_dir}/results.md")
     _, table = evaluate(dense_log, report_dir, basis=basis_path, sweep_every=DEMO_SWEEP_EVERY)
+    height, width = basis.image_size
+    described = (
+        f"{basis_path}: {basis.n_components} components from {basis.n_train} depth maps"
+        f" ({100 * basis.explained_variance_ratio:.1f} % variance), {width}x{height} px"
+    )
+    return _demo_summary(out, started, described, basis, summary, report_dir, table, dense_log, rrd)
+
+
+def _demo_summary(
+    out: Path,
+    started: float,
+    described: str,
+    basis: Basis,
+    summary: DensifySummary,
+    report_dir: Path,
+    table: str,
+    dense_log: Path,
+    rrd: Path,
+) -> str:
+    """Return the demo's closing summary, read from the report's ``results.json``."""
     report = json.loads((report_dir / "results.json").read_text())
     means = {name: m["mean"]["delta_2d_mean"] for name, m in report["methods"].items()}
     # "stored": the std densify wrote (the default estimate's calibrated posterior std)
     coverage = report["calibration"].get("stored", {}).get("mean", {}).get("coverage_2sigma")
     elapsed = time.perf_counter() - started
-    height, width = basis.image_size
-    return "\n".join(
-        [
-            "",
-            f"demo finished in {elapsed:.0f} s; everything is in {out}/",
-            f"  basis            {basis.n_components} components from {basis.n_train} depth maps"
-            f" ({100 * basis.explained_variance_ratio:.1f} % variance), {width}x{height} px",
-            f"  estimate         {_estimate_line(basis)}",
-            f"  densified        {summary.frames} frames at {summary.frames_per_second:.1f}"
-            f" frames/s, {summary.measurements / max(summary.frames, 1):.0f} points per frame",
-            f"  mean Delta_2D ({report['mode']} mode, paper IV-B), same sparse points:",
-            f"    PCA-MAP           {means['pca_map']:.3f} px",
-            f"    nearest neighbour {means['nearest']:.3f} px  (PCA-MAP / NN ="
-            f" {means['pca_map'] / max(means['nearest'], 1e-12):.2f}; paper 0.61-0.63)",
-            f"    linear            {means['linear']:.3f} px",
-            "  truth inside +-2 sigma (the std densify wrote): "
-            + (f"{100 * coverage:.1f} %" if coverage is not None else "n/a"),
-            f"  report           {report_dir}/results.md (figures, results.json)",
-            f"  view it: rerun {rrd}   (or open {dense_log} in Foxglove)",
-            "",
-            table,
-        ]
-    )
+    lines = [
+        "",
+        f"demo finished in {elapsed:.0f} s; everything is in {out}/",
+        f"  basis            {described}",
+        f"  estimate         {_estimate_line(basis)}",
+        f"  densified        {summary.frames} frames at {summary.frames_per_second:.1f}"
+        f" frames/s, {summary.measurements / max(summary.frames, 1):.0f} points per frame",
+        f"  mean Delta_2D ({report['mode']} mode, paper IV-B), same sparse points:",
+        f"    PCA-MAP           {means['pca_map']:.3f} px",
+        f"    nearest neighbour {means['nearest']:.3f} px  (PCA-MAP / NN ="
+        f" {means['pca_map'] / max(means['nearest'], 1e-12):.2f}; paper 0.61-0.63)",
+    ]
+    if "linear" in means:
+        lines.append(f"    linear            {means['linear']:.3f} px")
+    lines += [
+        "  truth inside +-2 sigma (the std densify wrote): "
+        + (f"{100 * coverage:.1f} %" if coverage is not None else "n/a"),
+        f"  report           {report_dir}/results.md (figures, results.json)",
+        f"  view it: rerun {rrd}   (or open {dense_log} in Foxglove)",
+        "",
+        table,
+    ]
+    return "\n".join(lines)
 
 
 def _estimate_line(basis: Basis) -> str:
@@ -278,6 +489,14 @@ def _estimate_line(basis: Basis) -> str:
 
 
 DEMO_SCALE = 1.0
+
+
+DEMO_SEED = 9001
+"""Seed of the default demo's drive: a world the built-in basis's recipe does not use."""
+
+
+DEMO_FRAMES = 40
+"""Frames of the default demo's drive (sized so the demo takes about a minute)."""
 
 
 DEMO_TRAIN_SEEDS = (1, 3, 4, 5)

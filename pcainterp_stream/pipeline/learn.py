@@ -19,6 +19,7 @@ from pcainterp_stream.errors import (
     PcaInterpError,
 )
 from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.finetune import finetune_basis
 from pcainterp_stream.estimate.learning import learn_basis
 from pcainterp_stream.frontend.pairing import (
     PairingConfig,
@@ -51,11 +52,16 @@ class LearnOptions:
         every: use every N-th frame.
         sgbm: matcher options for SGBM maps (and the fitting frames' lookups).
         fit_prior: fit the hybrid prior, the noise level and the temporal process noise by
-            the evidence on frames the basis does not see (``fitting.py``).
+            the evidence on frames the basis does not see (``fitting.py``); the default.
+            False learns the paper's model (basis and eigenvalues only).
         holdout: with ``fit_prior`` and no ``fit_logs``: the share of each log's frames,
             at its end, kept out of the basis for the fit.
         fit_logs: fit on these logs (all frames) instead of a held-out share.
         gftt: corner options of the fitting frames' measurements.
+        with_synthetic: fine-tune instead of learning from scratch: merge the maps into
+            ``prior_basis`` counted as this many maps (``estimate/finetune.py``); the
+            result lives on that basis's grid and camera. None: learn from the maps alone.
+        prior_basis: the basis fine-tuned with ``with_synthetic``; None: the built-in one.
     """
 
     n_components: int = 500
@@ -64,10 +70,12 @@ class LearnOptions:
     depth_topic: str | None = None
     every: int = 1
     sgbm: SgbmConfig = dataclasses.field(default_factory=SgbmConfig)
-    fit_prior: bool = False
+    fit_prior: bool = True
     holdout: float = 0.2
     fit_logs: tuple[Path, ...] = ()
     gftt: GfttConfig = dataclasses.field(default_factory=GfttConfig)
+    with_synthetic: int | None = None
+    prior_basis: Basis | None = None
 
 
 @dataclass(frozen=True)
@@ -158,10 +166,27 @@ def _sgbm_maps(
             yield future.result()
 
 
+def _count_frames(log: Path, topic: str, every: int) -> int:
+    """Count the messages of a topic by reading them (a log whose summary has no counts)."""
+    with open_log(log) as reader:
+        count = sum(1 for _ in reader.messages([topic]))
+    return -(-count // every)
+
+
 def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: PairingConfig) -> Basis:
-    """Learn a basis from the disparity maps of logs (``pcainterp learn``)."""
+    """Learn a basis from the disparity maps of logs (``pcainterp learn``).
+
+    The basis from the maps alone, or with ``options.with_synthetic`` the built-in basis
+    (``options.prior_basis``) fine-tuned with them; then, by default, the prior fitted on
+    the held-out share of each log (or on ``options.fit_logs``). The basis is saved to
+    ``output`` and returned.
+    """
     if options.every < 1:
         raise PcaInterpError(f"--every must be at least 1, got {options.every}")
+    if options.with_synthetic is not None and options.with_synthetic < 2:
+        raise PcaInterpError(
+            f"--with-synthetic must be at least 2 maps, got {options.with_synthetic}"
+        )
     for log in logs:
         if log.resolve() == output.resolve():
             raise PcaInterpError(f"output {output} is one of the input logs; choose another -o")
@@ -177,11 +202,8 @@ def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: Pairin
     kept: list[int | None] = [None] * len(logs)
     if holding_out:
         for index, count in enumerate(totals):
-            if count is None:
-                raise PcaInterpError(
-                    f"{logs[index]} does not say how many frames it has, so no share can be held "
-                    "out; pass --fit-logs LOG to fit the prior on other logs"
-                )
+            if count is None:  # the log keeps no counts (or cannot be read: that error now)
+                count = _count_frames(logs[index], source, options.every)
             kept[index] = max(1, int(count * (1.0 - options.holdout)))
         total = sum(k for k in kept if k is not None)
 
@@ -207,6 +229,10 @@ def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: Pairin
             "every": options.every,
         }
     }
+    prior_basis = None
+    if options.with_synthetic is not None:
+        prior_basis = options.prior_basis or Basis.default()
+        meta["source"]["with_synthetic"] = options.with_synthetic
     with _bar(total, "learn") as bar:
         stream = maps()
         first = next(stream, None)
@@ -216,15 +242,27 @@ def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: Pairin
                 f"{', '.join(map(str, logs))}; check the topic options (pcainterp info LOG)"
             )
         try:
-            basis = learn_basis(
-                itertools.chain([first], stream),
-                n_components=options.n_components,
-                variance=options.variance,
-                grid_scale=options.grid_scale,
-                focal_baseline=info[0].focal_baseline,
-                progress=lambda done: bar.update(done - bar.n),
-                meta=meta,
-            )
+            if prior_basis is not None and options.with_synthetic is not None:
+                basis = finetune_basis(
+                    prior_basis,
+                    itertools.chain([first], stream),
+                    n_prior=options.with_synthetic,
+                    n_components=options.n_components,
+                    variance=options.variance,
+                    focal_baseline=info[0].focal_baseline,
+                    progress=lambda done: bar.update(done - bar.n),
+                    meta=meta,
+                )
+            else:
+                basis = learn_basis(
+                    itertools.chain([first], stream),
+                    n_components=options.n_components,
+                    variance=options.variance,
+                    grid_scale=options.grid_scale,
+                    focal_baseline=info[0].focal_baseline,
+                    progress=lambda done: bar.update(done - bar.n),
+                    meta=meta,
+                )
         except ValueError as err:
             raise PcaInterpError(f"cannot learn a basis from {len(logs)} log(s): {err}") from err
     if options.fit_prior:
@@ -328,11 +366,12 @@ def fit_prior(
         sequence_frames=FIT_SEQUENCE_FRAMES,
         robust=ProcessorConfig().robust,
     )
+    # no wall time in the basis: the same inputs give the same file, byte for byte
     fitted.update(
         {
             "std_scale_reference": "SGBM maps of the held-out frames",
             "fit_logs": [str(log) for log, _ in sources],
-            "seconds": round(time.perf_counter() - started, 1),
         }
     )
+    _echo(f"fitted the prior in {time.perf_counter() - started:.1f} s")
     return fitted

@@ -63,7 +63,7 @@ class ProcessorConfig:
         uncertainty: "exact-coarse" (default: the exact std on the variance grid, resampled),
             "exact" (exact at every pixel), "paper" or "none".
         prior: "auto" (hybrid when the basis has a fitted local prior, else the paper's),
-            "paper" or "hybrid" (needs a basis learned with ``--fit-prior``).
+            "paper" or "hybrid" (needs a basis whose prior ``learn`` fitted, its default).
         robust: IRLS loss on the measurements: "none", "huber" or "cauchy".
         temporal: carry each frame's posterior into the next frame's prior.
         process_noise: the temporal prior's process noise (fraction of the eigenvalues);
@@ -151,7 +151,7 @@ def resolve_settings(basis: Basis, config: ProcessorConfig) -> EstimateSettings:
     """Fill the "auto" settings of a configuration from the basis's fitted prior.
 
     Args:
-        basis: the basis; ``basis.meta["prior"]`` holds what ``learn --fit-prior`` fitted.
+        basis: the basis; ``basis.meta["prior"]`` holds what ``learn`` fitted (by default).
         config: the processor options.
 
     Returns:
@@ -170,8 +170,9 @@ def resolve_settings(basis: Basis, config: ProcessorConfig) -> EstimateSettings:
         local = LocalPrior.from_meta(fitted["local"])
     if config.prior == "hybrid" and local is None:
         raise ValueError(
-            "the basis has no fitted local prior; learn it with `pcainterp learn --fit-prior` "
-            "or pass --prior paper"
+            "the basis has no fitted local prior (learned with --no-fit-prior, or the fit "
+            "preferred the paper's prior); learn one with `pcainterp learn` (it fits the prior "
+            "by default) or pass --prior paper"
         )
     sigma: float | str = config.sigma
     if sigma == "auto":
@@ -294,11 +295,12 @@ class FrameProcessor:
     (stereo source only) and restores them in :meth:`close`.
 
     Args:
-        basis: the PCA basis.
+        basis: the PCA basis; None: the built-in one (:meth:`Basis.default`).
         config: processor options.
     """
 
-    def __init__(self, basis: Basis, config: ProcessorConfig | None = None) -> None:
+    def __init__(self, basis: Basis | None = None, config: ProcessorConfig | None = None) -> None:
+        basis = Basis.default() if basis is None else basis
         self.basis = basis
         self.config = config or ProcessorConfig()
         self.front_end = StereoFrontEnd(self.config.gftt, self.config.sgbm)

@@ -150,12 +150,13 @@ def test_prior_hybrid_without_a_fitted_basis_is_refused(
     log = tmp_path / "log.mcap"
     jobs.synth(log, frames=3, seed=41, scale=0.25, fmt="mcap")
     basis_path = tmp_path / "basis.npz"
-    jobs.learn([log], basis_path, jobs.LearnOptions(n_components=2), PairingConfig())
+    options = jobs.LearnOptions(n_components=2, fit_prior=False)
+    jobs.learn([log], basis_path, options, PairingConfig())
     code = main(["densify", str(log), "-o", str(tmp_path / "o.mcap"), "--basis",
                  str(basis_path), "--prior", "hybrid"])
     assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "learn --fit-prior" in err[0]
+    assert len(err) == 1 and "--no-fit-prior" in err[0] and "pcainterp learn" in err[0]
     assert not (tmp_path / "o.mcap").exists()
 
 

@@ -199,7 +199,8 @@ def dense_logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     jobs.synth(train, frames=20, seed=21, scale=0.25, fmt="mcap")
     jobs.synth(test, frames=4, seed=22, scale=0.25, fmt="mcap")
     basis = folder / "basis.npz"
-    jobs.learn([train], basis, jobs.LearnOptions(n_components=10), PairingConfig())
+    options = jobs.LearnOptions(n_components=10, fit_prior=False)
+    jobs.learn([train], basis, options, PairingConfig())
     dense = folder / "dense.mcap"
     jobs.densify(test, dense, basis)
     return {"basis": basis, "dense": dense, "test": test, "folder": folder}

@@ -85,7 +85,10 @@ def dense_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     commands: list[list[str | Path]] = [
         ["synth", log, "--frames", str(FRAMES), "--scale", "0.25", "--seed", "5"],
         # the true depth makes a basis without SGBM; 3 maps give at most 2 components
-        ["learn", log, "-o", basis, "--components", "5", "--depth-topic", "/ground_truth/depth"],
+        [
+            "learn", log, "-o", basis, "--components", "5", "--depth-topic",
+            "/ground_truth/depth", "--no-fit-prior",
+        ],
         ["densify", log, "-o", dense, "--basis", basis, "--depth-mm"],
     ]
     for command in commands:

@@ -56,7 +56,7 @@ def test_merge_of_summaries_matches_one_summary_of_all_maps() -> None:
 def test_learn_on_cluster_matches_local_learner(
     logs: dict[str, Path], client: Any, tmp_path: Path
 ) -> None:
-    options = jobs.LearnOptions(n_components=8)
+    options = jobs.LearnOptions(n_components=8, fit_prior=False)
     local = jobs.learn([logs["a"], logs["b"]], tmp_path / "local.npz", options, PairingConfig())
     remote = distributed.learn_distributed(
         [logs["a"], logs["b"]],
@@ -81,7 +81,7 @@ def test_learn_on_cluster_matches_local_learner(
 def test_learn_on_cluster_with_truncation_keeps_leading_subspace(
     logs: dict[str, Path], client: Any, tmp_path: Path
 ) -> None:
-    options = jobs.LearnOptions(n_components=3)
+    options = jobs.LearnOptions(n_components=3, fit_prior=False)
     local = jobs.learn([logs["a"]], tmp_path / "local.npz", options, PairingConfig())
     remote = distributed.learn_distributed(
         [logs["a"]],
@@ -108,7 +108,9 @@ def test_densify_many_matches_one_by_one_and_reports_a_failing_log(
     logs: dict[str, Path], client: Any, tmp_path: Path
 ) -> None:
     basis = tmp_path / "basis.npz"
-    jobs.learn([logs["a"]], basis, jobs.LearnOptions(n_components=6), PairingConfig())
+    jobs.learn(
+        [logs["a"]], basis, jobs.LearnOptions(n_components=6, fit_prior=False), PairingConfig()
+    )
     broken = tmp_path / "broken.mcap"
     broken.write_bytes(b"not a log at all")
     out_dir = tmp_path / "out"
@@ -139,6 +141,9 @@ def test_cli_learn_and_densify_on_the_cluster(
         == 0
     )
     assert Basis.load(basis).meta["learning"]["method"] == "distributed"
+    # no held-out share on a cluster: the prior is fitted on --fit-logs only, said so
+    assert "the prior was not fitted" in capsys.readouterr().out
+    assert "prior" not in Basis.load(basis).meta
     broken = tmp_path / "broken.mcap"
     broken.write_bytes(b"\x89MCAP0\r\n")  # a magic and nothing else
     code = cli.main(
@@ -161,6 +166,35 @@ def test_cli_learn_and_densify_on_the_cluster(
     assert len([line for line in captured.err.splitlines() if "broken.mcap" in line]) == 1
     assert (tmp_path / "out" / "a_dense.mcap").exists()
     assert (tmp_path / "out" / "b_dense.mcap").exists()
+
+
+def test_cli_learn_on_the_cluster_fits_the_prior_on_fit_logs_here(
+    logs: dict[str, Path], client: Any, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from pcainterp_stream import cli
+
+    address = client.scheduler.address
+    basis = tmp_path / "basis.npz"
+    args = ["learn", str(logs["a"]), "-o", str(basis), "--components", "4"]
+    assert cli.main([*args, "--scheduler", address, "--fit-logs", str(logs["b"])]) == 0
+    learned = Basis.load(basis)
+    assert learned.meta["learning"]["method"] == "distributed"
+    assert learned.n_train == 14
+    assert learned.meta["prior"]["fit_logs"] == [str(logs["b"])]
+    # an explicit --fit-prior without --fit-logs cannot hold out a share there
+    assert cli.main([*args, "--scheduler", address, "--fit-prior"]) == 2
+    assert "pass --fit-logs LOG" in capsys.readouterr().err
+
+
+def test_densify_many_without_a_basis_uses_the_built_in_one(
+    logs: dict[str, Path], client: Any, tmp_path: Path
+) -> None:
+    from pcainterp_stream.io.outputs import BASIS_KEY, recorded_metadata
+
+    outcomes = distributed.densify_many([logs["b"]], tmp_path / "out", None, client)
+    assert [outcome.error for outcome in outcomes] == [None]
+    assert outcomes[0].frames == 10
+    assert recorded_metadata(outcomes[0].output)[BASIS_KEY] == "built-in"
 
 
 def test_cli_densify_refuses_output_with_several_inputs(

@@ -30,7 +30,8 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     jobs.synth(train, frames=24, seed=11, scale=0.25, fmt="mcap")
     jobs.synth(test, frames=5, seed=12, scale=0.25, fmt="mcap")
     basis = folder / "basis.npz"
-    jobs.learn([train], basis, jobs.LearnOptions(n_components=12), PairingConfig())
+    options = jobs.LearnOptions(n_components=12, fit_prior=False)
+    jobs.learn([train], basis, options, PairingConfig())
     return {"train": train, "test": test, "basis": basis, "folder": folder}
 
 
@@ -45,7 +46,9 @@ def test_learn_from_sgbm_maps_records_camera_and_source(logs: dict[str, Path]) -
 
 def test_learn_from_depth_topic_uses_every_nth_frame(logs: dict[str, Path]) -> None:
     out = logs["folder"] / "gt_basis.npz"
-    options = jobs.LearnOptions(n_components=5, depth_topic="/ground_truth/depth", every=2)
+    options = jobs.LearnOptions(
+        n_components=5, depth_topic="/ground_truth/depth", every=2, fit_prior=False
+    )
     basis = jobs.learn([logs["train"]], out, options, PairingConfig())
     assert basis.n_train == 12
     # sky (NaN depth) is disparity 0, so the mean map's top rows are small
@@ -170,17 +173,51 @@ def test_info_describes_basis_and_log(logs: dict[str, Path]) -> None:
     assert "/stereo/left/image_rect" in text
 
 
-def test_demo_runs_small(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_demo_learn_runs_small(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(jobs, "DEMO_SCALE", 0.25)
     monkeypatch.setattr(jobs, "DEMO_TRAIN_SEEDS", (1, 3))
     monkeypatch.setattr(jobs, "DEMO_TRAIN_FRAMES", 8)
     monkeypatch.setattr(jobs, "DEMO_TEST_FRAMES", 3)
     monkeypatch.setattr(jobs, "DEMO_COMPONENTS", 8)
-    text = jobs.demo(tmp_path / "demo")
+    text = jobs.demo(tmp_path / "demo", learn_basis=True)
     assert "PCA-MAP" in text
     assert "nearest neighbour" in text
+    assert "linear  " in text
     for name in ("train_1.mcap", "train_3.mcap", "heldout.mcap", "basis.npz", "heldout.rrd"):
         assert (tmp_path / "demo" / name).is_file()
+
+
+def test_demo_with_the_built_in_basis_runs_small(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(jobs, "DEMO_SCALE", 0.25)  # the basis maps onto the smaller camera
+    monkeypatch.setattr(jobs, "DEMO_FRAMES", 3)
+    text = jobs.demo(tmp_path / "demo")
+    assert "basis            built-in:" in text
+    assert "PCA-MAP" in text
+    assert "nearest neighbour" in text
+    assert "truth inside +-2 sigma" in text
+    for name in ("heldout.mcap", "heldout_dense.mcap", "heldout.rrd", "report/results.json"):
+        assert (tmp_path / "demo" / name).is_file()
+    assert not (tmp_path / "demo" / "basis.npz").exists()  # nothing learned
+
+
+def test_demo_drive_is_not_in_the_built_in_recipe() -> None:
+    from pcainterp_stream.estimate.basis import default_basis_recipe
+
+    def seeds(value: object, named: bool = False) -> set[int]:
+        """Every integer under a key that names seeds, at any depth of the recipe."""
+        if isinstance(value, dict):
+            return set().union(*(seeds(v, named or "seed" in str(k)) for k, v in value.items()))
+        if isinstance(value, list | tuple):
+            return set().union(*(seeds(v, named) for v in value))
+        return {value} if named and isinstance(value, int) else set()
+
+    recipe = default_basis_recipe().get("recipe", {})
+    used = seeds(recipe)
+    if isinstance(recipe.get("first_seed"), int) and isinstance(recipe.get("drives"), int):
+        used |= set(range(recipe["first_seed"], recipe["first_seed"] + recipe["drives"]))
+    assert jobs.DEMO_SEED not in used
 
 
 @pytest.mark.skipif(not KITTI_RAW.is_dir(), reason="needs ../shared/realdata/kitti_raw")
@@ -188,7 +225,8 @@ def test_real_kitti_drive_end_to_end(tmp_path: Path) -> None:
     log = tmp_path / "kitti.mcap"
     jobs.import_kitti(KITTI_RAW, log, max_frames=6)
     basis = tmp_path / "kitti_basis.npz"
-    jobs.learn([log], basis, jobs.LearnOptions(n_components=4, grid_scale=0.125), PairingConfig())
+    options = jobs.LearnOptions(n_components=4, grid_scale=0.125, fit_prior=False)
+    jobs.learn([log], basis, options, PairingConfig())
     summary = jobs.densify(log, tmp_path / "kitti_dense.mcap", basis)
     assert summary.frames == 6
     assert summary.measurements / summary.frames > 150

@@ -1,0 +1,195 @@
+"""Fine-tuning a basis with a user's maps: a learned basis as the prior sample of a PCA.
+
+A user with few real frames cannot learn a good basis from them alone (n maps span at most
+n - 1 directions), and a basis learned elsewhere (the built-in one, from the synthetic
+world) misses what is particular to their scenes. :func:`finetune_basis` pools the two.
+The basis stands for ``n_prior`` maps with its mean m_s and its low-rank covariance
+C_s = U_s Lambda_s U_s^T; the user's n_r maps have mean m_r and covariance C_r. The
+covariance of all n = n_s + n_r maps together is exact (the pooled scatter of two groups):
+
+    (n - 1) C = (n_s - 1) C_s + (n_r - 1) C_r + (n_s n_r / n) (m_s - m_r)(m_s - m_r)^T,
+
+whose factor is [U_s sqrt((n_s - 1) Lambda_s) | D_r | sqrt(n_s n_r / n) (m_s - m_r)] with
+D_r the centred user maps: the thin SVD of that stack (:func:`learning.truncated_product`,
+its c x c Gram matrix, cheap) gives the top eigenpairs. It is the incremental SVD of
+:mod:`learning` seeded with the basis's factor, so the user's maps stream in batches and
+memory does not grow with their number. When the basis kept every component of its
+training maps and n_prior is their number, the result is the basis those maps and the
+user's would have given together (up to the ``keep`` truncation of each batch).
+
+The user's maps are mapped onto the basis's camera first, as ``densify`` maps a camera
+(DESIGN.md section 2, "Camera and resolution"): disparities scaled by
+(f*b)_basis / (f*b)_maps, then the usual preprocessing, its area resampling going straight
+to the basis grid. The result is for the basis's image size and f*b, and ``densify`` maps
+it onto the user's camera like any basis.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.learning import (
+    DEFAULT_BOX_SIZE,
+    Sketch,
+    basis_from_fit,
+    preprocess_disparity,
+    streaming_fit,
+)
+
+
+def basis_sketch(basis: Basis, n_prior: int) -> Sketch:
+    """Return the incremental-SVD state of ``n_prior`` maps with the basis's statistics.
+
+    Args:
+        basis: the basis (its mean, components and eigenvalues).
+        n_prior: the number of maps n_s it stands for, >= 2.
+
+    Returns:
+        The :class:`learning.Sketch`: mean m_s, factor U_s sqrt((n_s - 1) Lambda_s) and
+        scatter trace (n_s - 1) * total_variance.
+    """
+    if n_prior < 2:
+        raise ValueError(f"Expected `n_prior` >= 2 maps, got {n_prior}")
+    # C_s = scatter / (n_s - 1) as learning normalises it, so scatter = (n_s - 1) C_s
+    weights = np.sqrt((n_prior - 1) * basis.eigenvalues)
+    factor = basis.pixel_major.astype(np.float64) * weights[None, :]
+    return Sketch(
+        mean=basis.mean_flat.astype(np.float64),
+        factor=np.ascontiguousarray(factor, dtype=np.float32),
+        squares=float((n_prior - 1) * basis.total_variance),
+        n_maps=n_prior,
+    )
+
+
+def finetune_basis(
+    basis: Basis,
+    maps: Iterable[npt.ArrayLike],
+    *,
+    n_prior: int,
+    n_components: int | None = None,
+    variance: float | None = None,
+    focal_baseline: float | None = None,
+    min_disparity: float = 0.0,
+    preprocessed: bool = False,
+    batch_size: int = 64,
+    oversampling: int = 20,
+    progress: Callable[[int], None] | None = None,
+    meta: dict[str, Any] | None = None,
+) -> Basis:
+    """Merge a basis, standing for ``n_prior`` maps, with more maps into a new basis.
+
+    Args:
+        basis: the basis to start from (e.g. :meth:`Basis.default`).
+        maps: iterable of (H, W) float disparity maps (px) of one camera (any size: they
+            are resampled onto the basis grid; NaN or < ``min_disparity`` invalid),
+            consumed once. With ``preprocessed=True``, (gh, gw) float32 maps already on the
+            basis grid and in the basis's disparity units.
+        n_prior: n_s, how many maps the basis counts for, >= 2 (its ``n_train`` gives it
+            the weight of its own training set).
+        n_components: l of the result, at most; None: the basis's.
+        variance: keep the fewest components reaching this variance ratio, or None.
+        focal_baseline: f*b (px*m) of the maps' camera; their disparities are scaled by
+            basis.focal_baseline / focal_baseline. None (or either 0): not scaled.
+        min_disparity: smallest valid disparity of the maps (px).
+        preprocessed: the maps are on the basis grid already.
+        batch_size: maps merged per incremental-SVD step.
+        oversampling: columns kept beyond l between batches.
+        progress: called with the number of maps consumed so far, after each map.
+        meta: extra entries for the result's ``meta``.
+
+    Returns:
+        The merged :class:`Basis`, for the basis's image size, grid and f*b; ``n_train``
+        is n_s + n_r and ``meta["finetune"]`` records what was merged.
+
+    Raises:
+        ValueError: no maps, a map of the wrong shape or bad options.
+    """
+    l_out = basis.n_components if n_components is None else n_components
+    if l_out < 1:
+        raise ValueError(f"Expected `n_components` >= 1, got {l_out}")
+    if variance is not None and not 0.0 < variance <= 1.0:
+        raise ValueError(f"Expected `variance` in (0, 1], got {variance}")
+    scale = 1.0
+    if focal_baseline is not None:
+        if not (np.isfinite(focal_baseline) and focal_baseline >= 0):
+            raise ValueError(f"Expected `focal_baseline` >= 0 (px*m), got {focal_baseline}")
+        if focal_baseline > 0 and basis.focal_baseline > 0:
+            scale = basis.focal_baseline / focal_baseline
+    preprocessing = basis.meta.get("preprocessing", {})
+    box_size = int(preprocessing.get("box_size", DEFAULT_BOX_SIZE))
+    grid_size = basis.grid_size
+    counted = [0]
+    sizes: list[tuple[int, int]] = []
+
+    def grid_maps() -> Iterator[npt.NDArray[np.float32]]:
+        for index, raw in enumerate(maps):
+            array = np.asarray(raw, dtype=np.float32)
+            if array.ndim != 2 or (preprocessed and array.shape != grid_size):
+                expected = grid_size if preprocessed else "(H, W)"
+                raise ValueError(f"map {index} has shape {array.shape}, expected {expected}")
+            if preprocessed:
+                grid = np.ascontiguousarray(array)
+            else:
+                if not sizes:
+                    sizes.append((int(array.shape[0]), int(array.shape[1])))
+                # disparities in basis units; invalid (NaN, < min) stays invalid
+                with np.errstate(invalid="ignore"):
+                    valid = np.isfinite(array) & (array >= min_disparity)
+                scaled = np.where(valid, array * np.float32(scale), np.nan).astype(np.float32)
+                grid = preprocess_disparity(scaled, grid_size, box_size=box_size)
+            counted[0] = index + 1
+            yield grid.reshape(-1)
+            if progress is not None:
+                progress(index + 1)
+
+    stream = grid_maps()
+    first = next(stream, None)
+    if first is None:
+        raise ValueError("`maps` is empty; fine-tuning needs at least one disparity map")
+    start = basis_sketch(basis, n_prior)
+    fit = streaming_fit(
+        itertools.chain([first], stream), l_out + oversampling, batch_size, start=start
+    )
+    n_maps = counted[0]
+    height, width = basis.image_size
+    merged: dict[str, Any] = {
+        "finetune": {
+            "prior_basis": {
+                "fingerprint": basis.fingerprint,
+                "n_train": basis.n_train,
+                "n_components": basis.n_components,
+                "explained_variance_ratio": basis.explained_variance_ratio,
+                "source": basis.meta.get("source"),
+            },
+            "n_prior": n_prior,
+            "n_maps": n_maps,
+            "maps_image_size": list(sizes[0]) if sizes else [height, width],
+            "maps_focal_baseline": focal_baseline,
+            "disparity_scale": scale,
+        }
+    }
+    if meta:
+        merged.update(meta)
+    return basis_from_fit(
+        fit,
+        grid_size=grid_size,
+        image_size=basis.image_size,
+        n_components=l_out,
+        variance=variance,
+        grid_scale=float(preprocessing.get("grid_scale", grid_size[1] / width)),
+        used="finetune",
+        requested="finetune",
+        focal_baseline=basis.focal_baseline,
+        min_disparity=min_disparity,
+        box_size=box_size,
+        preprocessed=preprocessed,
+        batch_size=batch_size,
+        oversampling=oversampling,
+        meta=merged,
+    )

@@ -1,0 +1,94 @@
+"""The built-in basis (package data, ``Basis.default()``) and basis fingerprints.
+
+The shipped file is replaced when the built-in basis is re-made, so these tests check only
+what any built-in basis must be: present, valid, for the KITTI grey camera, consistent with
+its sidecar JSON, quick to load and used wherever no basis is given.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pcainterp_stream import densify
+from pcainterp_stream.errors import BasisError
+from pcainterp_stream.estimate import basis as basis_module
+from pcainterp_stream.estimate.basis import (
+    Basis,
+    default_basis_path,
+    default_basis_recipe,
+    is_default,
+)
+from pcainterp_stream.synth import SynthConfig
+
+
+def test_built_in_basis_is_for_the_kitti_grey_camera() -> None:
+    basis = Basis.default()
+    camera = SynthConfig().camera
+    assert basis.image_size == (376, 1241) == camera.image_size
+    assert basis.focal_baseline == pytest.approx(camera.focal_baseline, rel=0.01)  # ~386 px*m
+    assert basis.n_components >= 1
+    assert basis.n_train > basis.n_components
+    assert 0 < basis.explained_variance_ratio <= 1
+
+
+def test_built_in_basis_is_loaded_once() -> None:
+    first = Basis.default()
+    assert Basis.default() is first
+    assert is_default(first)
+    assert not is_default(Basis.load(default_basis_path()))  # an equal copy is not it
+
+
+def test_built_in_basis_loads_quickly_and_keeps_slow_parts_lazy() -> None:
+    started = time.perf_counter()
+    basis = Basis.load(default_basis_path())
+    elapsed = time.perf_counter() - started
+    # < 1 s on an idle core; the bound leaves room for a busy shared machine
+    assert elapsed < 3.0, f"loading the built-in basis took {elapsed:.2f} s"
+    assert "_prior_covariances" not in vars(basis)
+    assert "_variance_grids" not in vars(basis)
+
+
+def test_built_in_basis_matches_its_sidecar() -> None:
+    sidecar = default_basis_recipe()
+    assert sidecar, "pcainterp_stream/data/default_basis.json is missing or not an object"
+    digest = hashlib.sha256(default_basis_path().read_bytes()).hexdigest()
+    assert sidecar["sha256"] == digest
+    assert isinstance(sidecar.get("recipe"), dict)
+
+
+def test_missing_built_in_basis_says_how_to_go_on(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    missing = tmp_path / "data" / "default_basis.npz"
+    monkeypatch.setattr(basis_module, "default_basis_path", lambda: missing)
+    with pytest.raises(BasisError, match=r"built-in basis .* is missing .*pass --basis"):
+        Basis.default()
+    assert default_basis_recipe() == {}
+
+
+def test_densify_without_a_basis_uses_the_built_in_one() -> None:
+    rng = np.random.default_rng(0)
+    pixels = rng.uniform([0, 0], [1240, 375], size=(50, 2))
+    disparities = rng.uniform(5, 40, size=50)
+    implicit = densify(None, pixels, disparities)
+    explicit = densify(Basis.default(), pixels, disparities)
+    np.testing.assert_array_equal(implicit.disparity, explicit.disparity)
+    assert implicit.disparity.shape == (376, 1241)
+
+
+def test_fingerprint_tells_bases_apart_and_survives_a_round_trip(tmp_path: Path) -> None:
+    basis = Basis.default()
+    path = tmp_path / "copy.npz"
+    dataclasses.replace(basis, meta={"note": "another meta"}).save(path)
+    assert Basis.load(path).fingerprint == basis.fingerprint  # meta is not content
+    eigenvalues = basis.eigenvalues.copy()
+    eigenvalues[-1] *= 0.5
+    other = dataclasses.replace(basis, eigenvalues=eigenvalues)
+    assert other.fingerprint != basis.fingerprint
+    assert len(basis.fingerprint) == 16

@@ -1,0 +1,115 @@
+"""Fine-tuning a basis with more maps (``learn --with-synthetic``): the pooled covariance."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.linalg import subspace_angles
+
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.finetune import basis_sketch, finetune_basis
+from pcainterp_stream.estimate.learning import learn_basis
+
+GRID = (12, 20)
+
+
+def grid_maps(count: int, offset: float, seed: int) -> list[np.ndarray]:
+    """Smooth random disparity maps on GRID: a few modes and a little noise."""
+    rng = np.random.default_rng(seed)
+    rows, cols = np.mgrid[0 : GRID[0], 0 : GRID[1]]
+    maps = []
+    for _ in range(count):
+        a = rng.normal(size=4)
+        value = (
+            offset
+            + a[0] * rows
+            + a[1] * cols / 3
+            + a[2] * np.sin(cols / 3)
+            + a[3] * np.cos(rows / 2)
+            + 0.3 * rng.normal(size=GRID)
+        )
+        maps.append(value.astype(np.float32))
+    return maps
+
+
+def learn(maps: list[np.ndarray]) -> Basis:
+    return learn_basis(
+        maps, n_components=100, grid_scale=1.0, preprocessed=True, image_size=GRID, method="exact"
+    )
+
+
+def test_merging_a_complete_basis_equals_learning_from_all_maps() -> None:
+    first, second = grid_maps(15, 10.0, seed=1), grid_maps(8, 14.0, seed=2)
+    start = learn(first)
+    assert start.n_components == 14  # every component of 15 maps: nothing truncated
+    merged = finetune_basis(start, second, n_prior=15, n_components=100, preprocessed=True)
+    together = learn(first + second)
+    assert merged.n_train == together.n_train == 23
+    assert merged.n_components == together.n_components == 22
+    np.testing.assert_allclose(merged.mean, together.mean, atol=1e-4)
+    np.testing.assert_allclose(
+        merged.eigenvalues, together.eigenvalues, rtol=1e-4, atol=1e-6 * together.eigenvalues[0]
+    )
+    assert merged.total_variance == pytest.approx(together.total_variance, rel=1e-6)
+    leading = slice(0, 10)
+    a = merged.components[leading].reshape(10, -1).T.astype(np.float64)
+    b = together.components[leading].reshape(10, -1).T.astype(np.float64)
+    assert np.degrees(subspace_angles(a, b)).max() < 0.1
+    assert merged.meta["finetune"]["n_prior"] == 15
+    assert merged.meta["finetune"]["n_maps"] == 8
+    assert merged.meta["finetune"]["prior_basis"]["fingerprint"] == start.fingerprint
+    assert merged.meta["learning"]["method"] == "finetune"
+
+
+def test_sketch_reproduces_the_basis_scatter() -> None:
+    start = learn(grid_maps(10, 5.0, seed=3))
+    sketch = basis_sketch(start, 40)
+    factor = sketch.factor.astype(np.float64)
+    # U sqrt((n - 1) Lambda): its Gram is diag((n - 1) lambda)
+    np.testing.assert_allclose(
+        np.diag(factor.T @ factor), 39 * start.eigenvalues, rtol=1e-4
+    )
+    assert sketch.squares == pytest.approx(39 * start.total_variance)
+    assert sketch.n_maps == 40
+
+
+def test_weight_of_the_basis_sets_how_far_the_mean_moves() -> None:
+    start = learn(grid_maps(10, 5.0, seed=4))
+    constant = np.full(GRID, 50.0, dtype=np.float32)
+    for n_prior in (2, 10, 1000):
+        merged = finetune_basis(start, [constant], n_prior=n_prior, preprocessed=True)
+        expected = (n_prior * start.mean + constant) / (n_prior + 1)
+        np.testing.assert_allclose(merged.mean, expected, rtol=1e-5)
+
+
+def test_maps_of_another_camera_are_mapped_onto_the_basis() -> None:
+    start = learn_basis(
+        grid_maps(10, 5.0, seed=5),
+        n_components=5,
+        grid_scale=0.5,
+        preprocessed=True,
+        image_size=(24, 40),
+        focal_baseline=300.0,
+    )
+    # a twice larger camera with twice the f*b: a constant disparity of 60 px there is 30 px
+    # in the basis's camera, whatever the resampling
+    other_camera = np.full((48, 80), 60.0, dtype=np.float32)
+    other_camera[0, 0] = np.nan  # invalid pixels are filled, not averaged in
+    merged = finetune_basis(start, [other_camera], n_prior=4, focal_baseline=600.0)
+    expected = (4 * start.mean + 30.0) / 5
+    np.testing.assert_allclose(merged.mean, expected, rtol=1e-5)
+    assert merged.image_size == (24, 40)
+    assert merged.grid_size == start.grid_size
+    assert merged.focal_baseline == 300.0
+    assert merged.meta["finetune"]["disparity_scale"] == pytest.approx(0.5)
+    assert merged.meta["finetune"]["maps_image_size"] == [48, 80]
+
+
+def test_bad_arguments_are_named() -> None:
+    start = learn(grid_maps(5, 5.0, seed=6))
+    with pytest.raises(ValueError, match="n_prior"):
+        finetune_basis(start, grid_maps(2, 5.0, seed=7), n_prior=1, preprocessed=True)
+    with pytest.raises(ValueError, match="empty"):
+        finetune_basis(start, [], n_prior=5, preprocessed=True)
+    with pytest.raises(ValueError, match=r"map 0 has shape \(3, 3\)"):
+        finetune_basis(start, [np.zeros((3, 3))], n_prior=5, preprocessed=True)
