@@ -172,6 +172,7 @@ def fit_local_prior(
     *,
     kernels: Sequence[Kernel | str] = (Kernel.LAPLACE, Kernel.GAUSSIAN),
     length_scales: Sequence[float] = LENGTH_SCALES,
+    fixed: LocalPrior | None = None,
 ) -> LocalFit:
     """Fit the hybrid prior's local kernel and the noise level by maximising the evidence.
 
@@ -184,6 +185,9 @@ def fit_local_prior(
         frames: training frames that are **not** among the basis's training maps.
         kernels: kernel shapes to try.
         length_scales: length scales to try (basis image px).
+        fixed: use this kernel (shape, length scale and v) as it is and fit only sigma
+            under it: for a basis whose fit frames are not like the data it will meet
+            (the built-in basis: synthetic frames, used on real streets).
 
     Returns:
         The :class:`LocalFit`.
@@ -220,6 +224,23 @@ def fit_local_prior(
         }
     ]
     best: tuple[float, LocalPrior | None, float] = (plain_evidence, None, math.exp(plain_x[0]))
+    if fixed is not None:
+        matrices = [fixed.matrix(f.positions) for f in usable]
+
+        def with_fixed(x: FloatArray) -> float:
+            noise = math.exp(2.0 * max(x[0], floor))
+            total = 0.0
+            for signal, matrix, frame in zip(signals, matrices, usable, strict=True):
+                system = signal + matrix  # C_pp with v included
+                system.flat[:: signal.shape[0] + 1] += noise
+                total += _log_evidence(system, frame.residual)
+            return total
+
+        x, evidence = _maximise(with_fixed, [plain_x[0]])
+        sigma = math.exp(max(x[0], floor))
+        table.append({**fixed.to_meta(), "sigma": sigma, "log_evidence": evidence})
+        best = (evidence, fixed, sigma)
+        kernels = ()  # nothing else to try
     for kernel in kernels:
         # every other length scale first, then the neighbours of the best of those
         coarse = list(length_scales[::2])
@@ -389,6 +410,7 @@ def fit_prior(
     max_frames: int,
     sequence_frames: int,
     robust: str,
+    local: LocalPrior | None = None,
 ) -> dict[str, Any]:
     """Fit everything ``densify`` takes from a basis, on frames the basis did not see.
 
@@ -407,6 +429,8 @@ def fit_prior(
         max_frames: frames of the kernel fit.
         sequence_frames: frames per sequence of the process-noise fit.
         robust: the robust loss ``densify`` will use.
+        local: a fixed local kernel (``fit_local_prior``'s ``fixed``): only sigma, the
+            process noise and the std scale are fitted.
 
     Returns:
         The JSON-ready ``meta["prior"]`` of a basis.
@@ -420,12 +444,12 @@ def fit_prior(
     if not frames:
         raise ValueError("Expected at least one held-out frame with measurements")
     step = max(1, len(frames) // max_frames)
-    local = fit_local_prior(basis, frames[::step])
+    local_fit = fit_local_prior(basis, frames[::step], fixed=local)
     process_noise, scores = fit_process_noise(
         basis,
         [sequence[:sequence_frames] for sequence in sequences],
-        local=local.local,
-        sigma=local.sigma,
+        local=local_fit.local,
+        sigma=local_fit.sigma,
     )
     estimates, stds, scaled_stds, references = [], [], [], []
     for frame in calibration:
@@ -433,8 +457,8 @@ def fit_prior(
             basis,
             frame.pixels,
             frame.disparities,
-            sigma=local.sigma,
-            local_prior=local.local,
+            sigma=local_fit.sigma,
+            local_prior=local_fit.local,
             robust=robust,
             image_size=frame.image_size,
             focal_baseline=frame.focal_baseline,
@@ -445,16 +469,17 @@ def fit_prior(
         scale = covariance_scale(result.normalised_innovation, result.n_measurements)
         scaled_stds.append(result.disparity_std * np.float32(np.sqrt(scale)))
         references.append(np.asarray(frame.reference, dtype=np.float32))
-    fitted = local.to_meta()
+    fitted = local_fit.to_meta()
     fitted.update(
         {
             "std_scale": fit_std_scale(estimates, stds, references),
             "innovation_std_scale": fit_std_scale(estimates, scaled_stds, references),
             "process_noise": process_noise,
             "process_noise_log_evidence": {str(q): v for q, v in scores.items()},
-            "candidates": local.table,
+            "candidates": local_fit.table,
             "fit_frames": len(frames[::step]),
             "held_out_frames": len(frames),
+            "local_fixed": local is not None,
         }
     )
     return fitted

@@ -21,6 +21,7 @@ from pcainterp_stream.errors import (
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.finetune import finetune_basis
 from pcainterp_stream.estimate.learning import learn_basis
+from pcainterp_stream.estimate.prior import LocalPrior
 from pcainterp_stream.frontend.pairing import (
     PairingConfig,
     iter_stereo_frames,
@@ -298,7 +299,11 @@ fit's frames and the sequences of the temporal process-noise fit."""
 
 
 def fit_prior(
-    basis: Basis, sources: list[tuple[Path, int]], options: LearnOptions, pairing: PairingConfig
+    basis: Basis,
+    sources: list[tuple[Path, int]],
+    options: LearnOptions,
+    pairing: PairingConfig,
+    local: LocalPrior | None = None,
 ) -> dict[str, Any]:
     """Fit the hybrid prior, sigma and the process noise on frames outside the basis.
 
@@ -308,6 +313,8 @@ def fit_prior(
             that index on, as ``densify`` measures them.
         options: the learning options (SGBM and GFTT settings).
         pairing: topics of the stereo pairs.
+        local: a fixed local kernel: only sigma, the process noise and the std scale are
+            fitted (:func:`estimate.fitting.fit_prior`).
 
     Returns:
         The JSON-ready ``meta["prior"]`` of the basis.
@@ -365,6 +372,7 @@ def fit_prior(
         max_frames=FIT_MAX_FRAMES,
         sequence_frames=FIT_SEQUENCE_FRAMES,
         robust=ProcessorConfig().robust,
+        local=local,
     )
     # no wall time in the basis: the same inputs give the same file, byte for byte
     fitted.update(
