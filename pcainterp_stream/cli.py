@@ -17,13 +17,14 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
-from pcainterp_stream import defaults
+from pcainterp_stream.pipeline.densify_cli import add_densify_arguments, live_options, run_densify
 from pcainterp_stream.version import __version__
 
 if TYPE_CHECKING:
     from pcainterp_stream.frontend.pairing import PairingConfig
     from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig
     from pcainterp_stream.io.logwriter import WriteSummary
+    from pcainterp_stream.io.outputs import OutputTopics
     from pcainterp_stream.pipeline.processor import ProcessorConfig
 from pcainterp_stream.errors import PcaInterpError
 
@@ -81,7 +82,7 @@ def _add_stereo_options(parser: argparse.ArgumentParser) -> None:
         choices=[1, 2],
         default=None,
         help="match at 1/N resolution: 2 is ~4x cheaper SGBM for slightly less exact "
-        "lookups (docs/benchmarks.md)",
+        "lookups, as good a dense map (default: densify 2, learn 1; docs/benchmarks.md)",
     )
 
 
@@ -253,107 +254,12 @@ def build_parser() -> argparse.ArgumentParser:
             "  pcainterp densify drive.bag -o out.mcap --rerun\n"
             "  pcainterp densify slam.mcap -o out.mcap --features-topic /features\n"
             "  pcainterp densify logs/*.mcap --out-dir dense/ --basis b.npz --workers 2\n"
+            "  pcainterp densify drive.mcap --foxglove      # live in Foxglove: ws://127.0.0.1:8765\n"
+            "  cat drive.mcap | pcainterp densify - -o - > drive_dense.mcap\n"
         ),
     )
-    densify.add_argument(
-        "input", type=Path, nargs="+", metavar="INPUT", help="one log, or several with --out-dir"
-    )
-    target = densify.add_mutually_exclusive_group(required=True)
-    target.add_argument("-o", "--output", type=Path, default=None, metavar="OUTPUT")
-    target.add_argument(
-        "--out-dir",
-        type=Path,
-        default=None,
-        metavar="DIR",
-        help="write DIR/<stem>_dense.mcap per input, the logs densified in parallel on Dask",
-    )
+    add_densify_arguments(densify)
     _add_cluster_options(densify)
-    densify.add_argument(
-        "--basis",
-        type=Path,
-        default=None,
-        metavar="BASIS.npz",
-        help="the basis (default: the built-in one, learned from the synthetic world; "
-        "pcainterp info describes it)",
-    )
-    densify.add_argument("--rerun", action="store_true", help="stream to a Rerun viewer")
-    densify.add_argument("--rrd", type=Path, default=None, metavar="FILE", help="write .rrd")
-    estimate = densify.add_argument_group(
-        "estimate (defaults: the best measured combination, docs/results.md)"
-    )
-    estimate.add_argument(
-        "--sigma",
-        default="auto",
-        metavar="PX|evidence|auto",
-        help="measurement noise std: a number (px), 'evidence' (fitted per frame) or 'auto' "
-        "(the basis's fitted value, else 2 px; default)",
-    )
-    estimate.add_argument(
-        "--uncertainty",
-        choices=["exact-coarse", "exact", "paper", "none"],
-        default="exact-coarse",
-        help="posterior std: 'exact-coarse' = exact on a grid 1/16 of the image, resampled "
-        "(default); 'exact' = exact at every pixel (0.06-2.4 s per KITTI-size frame); 'paper' = "
-        "the paper's diagonal approximation; 'none' (docs/estimator.md)",
-    )
-    estimate.add_argument(
-        "--prior",
-        choices=["auto", "paper", "hybrid"],
-        default="auto",
-        help="hybrid = basis + fitted local kernel (fitted by learn); auto uses it when the "
-        "basis has one (default)",
-    )
-    estimate.add_argument(
-        "--robust",
-        choices=["none", "huber", "cauchy"],
-        default=defaults.ROBUST,
-        help="IRLS against wrong SGBM lookups (default: %(default)s)",
-    )
-    estimate.add_argument(
-        "--temporal",
-        action=argparse.BooleanOptionalAction,
-        default=defaults.TEMPORAL,
-        help="previous frame's posterior as the prior (default: %(default)s)",
-    )
-    estimate.add_argument(
-        "--carry-frames",
-        type=int,
-        default=defaults.CARRY_FRAMES,
-        metavar="N",
-        help="add the measurements of the N previous frames, moved by the ego-motion tracked "
-        "between the left images, with noise growing with their age (default: %(default)s; "
-        "0: off)",
-    )
-    estimate.add_argument(
-        "--calibrate",
-        action=argparse.BooleanOptionalAction,
-        default=True,
-        help="scale the std by the factor learn calibrated on held-out frames, "
-        "and per frame by the covariance scale its measurements' innovation gives "
-        "(default: %(default)s; --no-calibrate reports the posterior std itself)",
-    )
-    estimate.add_argument(
-        "--process-noise",
-        type=float,
-        default=None,
-        metavar="Q",
-        help="temporal prior's process noise, fraction of the eigenvalues (default: fitted)",
-    )
-    densify.add_argument(
-        "--features-topic",
-        default=None,
-        metavar="TOPIC",
-        help="take measurements from this PointCloud2 stream instead of GFTT + SGBM",
-    )
-    densify.add_argument(
-        "--output-prefix",
-        default="/pcainterp",
-        metavar="PREFIX",
-        help="prefix of the output topics (default: %(default)s)",
-    )
-    densify.add_argument(
-        "--depth-mm", action="store_true", help="also write a 16UC1 millimetre depth (Foxglove)"
-    )
     _add_topic_options(densify)
     _add_stereo_options(densify)
 
@@ -468,7 +374,8 @@ def build_parser() -> argparse.ArgumentParser:
 # so --help stays fast.
 
 
-def _sgbm_config(args: argparse.Namespace) -> SgbmConfig:
+def _sgbm_config(args: argparse.Namespace, base: SgbmConfig | None = None) -> SgbmConfig:
+    """Return ``base`` (default: ``SgbmConfig()``) with the stereo options given changed."""
     from pcainterp_stream.frontend.stereo import SgbmConfig, SgbmMode
 
     changes: dict[str, Any] = {}
@@ -486,7 +393,7 @@ def _sgbm_config(args: argparse.Namespace) -> SgbmConfig:
         changes["mode"] = SgbmMode[args.sgbm_mode.upper()]
     if args.stereo_downscale is not None:
         changes["downscale"] = args.stereo_downscale
-    return dataclasses.replace(SgbmConfig(), **changes)
+    return dataclasses.replace(SgbmConfig() if base is None else base, **changes)
 
 
 def _gftt_config(args: argparse.Namespace) -> GfttConfig:
@@ -576,9 +483,21 @@ def _print_written(summary: WriteSummary) -> None:
     _echo(f"wrote {summary.path}: {summary.message_count} messages, {duration:.1f} s of log")
 
 
+def _output_topics(args: argparse.Namespace) -> OutputTopics:
+    """Return the output topics of ``densify``: --output-prefix, --depth-mm, --outputs."""
+    from pcainterp_stream.io.outputs import OutputTopics
+
+    topics = OutputTopics.with_prefix(args.output_prefix, depth_mm=args.depth_mm)
+    if args.outputs is None:
+        return topics
+    try:
+        return topics.only(name.strip() for name in args.outputs.split(",") if name.strip())
+    except ValueError as err:
+        raise PcaInterpError(f"--outputs: {err}") from None
+
+
 def _densify_many(args: argparse.Namespace, processor: ProcessorConfig) -> int:
     """Densify several logs into ``--out-dir`` on Dask; exit code 1 if any log failed."""
-    from pcainterp_stream.io.outputs import OutputTopics
     from pcainterp_stream.pipeline import distributed
     from pcainterp_stream.pipeline.common import _echo
 
@@ -597,7 +516,7 @@ def _densify_many(args: argparse.Namespace, processor: ProcessorConfig) -> int:
             client,
             pairing=_pairing_config(args, args.features_topic),
             processor=processor,
-            topics=OutputTopics.with_prefix(args.output_prefix, depth_mm=args.depth_mm),
+            topics=_output_topics(args),
         )
     failed = 0
     for outcome in outcomes:
@@ -621,7 +540,6 @@ def run(args: argparse.Namespace) -> int:
     """Run the job a parsed command line asks for; return the exit code."""
     from pcainterp_stream.io.outputs import OutputTopics
     from pcainterp_stream.pipeline.common import _echo
-    from pcainterp_stream.pipeline.densify import densify
     from pcainterp_stream.pipeline.jobs import (
         demo,
         describe_basis,
@@ -719,9 +637,12 @@ def run(args: argparse.Namespace) -> int:
             raise PcaInterpError(f"--process-noise must be > 0, got {args.process_noise}")
         if args.carry_frames < 0:
             raise PcaInterpError(f"--carry-frames must be >= 0, got {args.carry_frames}")
+        live = live_options(args)
+        if args.out_dir is not None and Path("-") in args.input:
+            raise PcaInterpError("standard input (-) is one log; pass -o OUTPUT, not --out-dir")
         processor = ProcessorConfig(
             gftt=_gftt_config(args),
-            sgbm=_sgbm_config(args),
+            sgbm=_sgbm_config(args, ProcessorConfig().sgbm),
             sigma=_sigma_option(args.sigma),
             uncertainty=args.uncertainty,
             prior=args.prior,
@@ -742,44 +663,13 @@ def run(args: argparse.Namespace) -> int:
             )
         if args.scheduler is not None or args.workers is not None:
             raise PcaInterpError("--scheduler/--workers need --out-dir DIR instead of -o")
-        summary = densify(
-            args.input[0],
-            args.output,
-            args.basis,
-            pairing=_pairing_config(args, args.features_topic),
+        return run_densify(
+            args,
             processor=processor,
-            topics=OutputTopics.with_prefix(args.output_prefix, depth_mm=args.depth_mm),
-            rrd=args.rrd,
-            spawn_viewer=args.rerun,
+            pairing=_pairing_config(args, args.features_topic),
+            topics=_output_topics(args),
+            live=live,
         )
-        _echo(
-            f"densified {summary.frames} frames of {summary.input} in {summary.seconds:.1f} s "
-            f"({summary.frames_per_second:.1f} frames/s), "
-            f"{summary.measurements / max(summary.frames, 1):.0f} points per frame"
-        )
-        _echo(f"pairing: {summary.pairing.summary()}")
-        if processor.robust != "none":
-            _echo(
-                f"robust ({processor.robust}): {summary.downweighted} measurements down-weighted "
-                f"({summary.downweighted / max(summary.frames, 1):.1f} per frame, at most "
-                f"{summary.most_downweighted} in one frame)"
-            )
-        if processor.temporal:
-            _echo(f"temporal prior: reset {summary.temporal_resets} times (scene changes)")
-        if processor.carry.frames:
-            _echo(
-                f"carried from the {processor.carry.frames} previous frames: "
-                f"{summary.carried / max(summary.frames, 1):.0f} points per frame; "
-                f"ego-motion lost {summary.carry_resets} times"
-            )
-        for line in summary.damage:
-            _echo(f"damage: {line}")
-        for line in summary.warnings:
-            _echo(f"warning: {line}")
-        if summary.written is not None:
-            _print_written(summary.written)
-        if args.rrd is not None:
-            _echo(f"wrote {args.rrd}")
     elif command == "evaluate":
         if args.no_basis and args.basis is not None:
             raise PcaInterpError("--no-basis and --basis contradict each other; pass one")

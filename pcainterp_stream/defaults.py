@@ -22,6 +22,13 @@ CARRY_GAP = 30.0
 CARRY_AGE_STD = 1.0
 """Extra noise std (px) per frame of a carried measurement's age."""
 
+STEREO_DOWNSCALE = 2
+"""SGBM resolution of ``densify`` (``--stereo-downscale``; ``learn`` matches at full
+resolution, 1): half resolution is ~4x cheaper and the dense map as good (mean Delta_2D and
++-2 sigma coverage within 1 % of full resolution on the synthetic log and both KITTI clips,
+docs/results.md "Throughput defaults (issue 17)"): the dense map's error is set by the
+interpolation, not by the lookups' ~0.1 px."""
+
 DISPLAY_MAX_DEPTH = 60.0
 """Far end (m) of the fixed depth colour range of the Rerun recording and of the ``16UC1``
 ``--depth-mm`` image (0 to 60 m: KITTI's useful stereo range at f*b ~ 390 px*m is d >= 6.5

@@ -36,3 +36,7 @@ class LogWriteError(PcaInterpError):
 
 class DatasetImportError(PcaInterpError):
     """A dataset folder (KITTI) is missing files or has malformed ones."""
+
+
+class StreamError(PcaInterpError):
+    """A live stream cannot be served (a bad address, a port in use, a bad rate)."""

@@ -10,8 +10,9 @@ process samples the child's ``VmRSS``, its CPU time and the 1-minute load averag
 second: on a shared machine CPU ms per frame is the steadier measure of "no slowdown".
 
 Logs (``pcainterp synth --scale 1``, 1241x376, seed 1) and the basis (``pcainterp learn``
-on a separate seed-2 log, l = 200) are cached in ``--work-dir``; densified outputs are
-deleted after each run (a 1,000-frame output is ~7 GB).
+on a separate seed-2 log, l = 200, prior fitted as ``learn`` does by default) are cached
+in ``--work-dir``; densified outputs are deleted after each run (a 1,000-frame output is
+~7 GB).
 
 Example::
 
@@ -233,6 +234,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--segment", type=int, default=100, help="frames per throughput row")
     harness.add_basis_arguments(parser)
     parser.add_argument("--keep-output", action="store_true", help="keep the densified logs")
+    parser.add_argument(
+        "--fit-prior",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="learn the basis fitting the prior, as `learn` does by default (densify then "
+        "uses the hybrid prior; default: %(default)s)",
+    )
     parser.add_argument("--child", type=Path, default=None, help=argparse.SUPPRESS)
     parser.add_argument("command", nargs="*", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -240,7 +248,7 @@ def main(argv: list[str] | None = None) -> int:
         return child(args.child, list(args.command))
 
     work = harness.work_dir(args.work_dir)
-    basis = harness.synth_basis(work, args.components, args.train_frames)
+    basis = harness.synth_basis(work, args.components, args.train_frames, fit_prior=args.fit_prior)
     logs = {frames: harness.synth_log(work, frames, seed=1) for frames in args.frames}
     runs: list[Run] = []
     load_before = os.getloadavg()

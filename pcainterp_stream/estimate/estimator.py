@@ -370,12 +370,11 @@ def densify_batch(
     elif mode is not Uncertainty.NONE:
         vgrid = basis.variance_grid(stride)
         variance_size = vgrid.size
-        covariance = None
-        if mode is Uncertainty.EXACT_COARSE and any(
-            p.local is not None and p.prior_diagonal is None for p in posteriors
-        ):
-            covariance = basis.prior_covariance(stride)
-        variances = _variances(vgrid, posteriors, mode, basis.image_size, covariance)
+        # B~ Lambda U_v^T as a GEMM (k l s_v products, ~4.5 ms per KITTI-size frame on one
+        # core), not gathered from the cached U Lambda U_v^T (Basis.prior_covariance): that
+        # matrix takes 218 MB and 1-3 s to build, and gathering 4k of its rows from memory
+        # was no faster than the GEMM (docs/benchmarks.md, issue 17)
+        variances = _variances(vgrid, posteriors, mode, basis.image_size)
 
     results = []
     for index, (posterior, (frame_pixels, frame_disparities, n_dropped)) in enumerate(

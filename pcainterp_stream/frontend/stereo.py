@@ -272,7 +272,9 @@ class SgbmConfig:
     one), 2-3x less than ``SGBM`` (~130-180 ms) and ``HH4`` (~200-400 ms), and its lookups
     at the corners are all within 1 px of ``SGBM`` mode's (mean difference 0.03 px).
     ``downscale=2`` takes ~15-25 ms; 98 % of its lookups are within 1 px of full
-    resolution (mean difference 0.32 px): the lever if SGBM is too slow.
+    resolution (mean difference 0.32 px), and the dense maps densified from them are as
+    good: ``densify`` matches at half resolution by default (``ProcessorConfig``, issue 17),
+    while this default (full resolution) stays for ``learn`` and for ``evaluate``'s reference.
 
     Attributes:
         min_disparity: smallest disparity searched (px).

@@ -14,23 +14,36 @@ Output is atomic: everything is written into a hidden folder beside the target
 exception or KeyboardInterrupt inside the ``with`` block removes the partial output and
 leaves an existing target untouched. The writer refuses to write onto one of its inputs.
 
+``open_writer(..., threaded=True)`` serializes, compresses and writes in one thread of its
+own behind a bounded queue (:data:`WRITE_QUEUE_ITEMS` messages), so the caller's thread only
+hands messages over; zstd and file writes release the GIL. An error in that thread is
+raised, as a :class:`LogWriteError` naming the output, by the next ``add_*`` call or by
+``close``, and the partial output is removed as for any other error. MCAP chunks are
+compressed with zstd at ``zstd_level`` (:data:`MCAP_ZSTD_LEVEL` by default).
+
 This module knows message layouts only through :mod:`rosmsg`; it never reads a log.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
+import queue
 import shutil
 import tempfile
+import threading
 from abc import ABC, abstractmethod
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
 from types import TracebackType
 from typing import IO, Any, Self
 
+import mcap.writer
+import zstandard
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 from rosbags.convert.converter import is_same_wireformat
@@ -51,6 +64,54 @@ ProgressCallback = Callable[[int, int | None], None]
 LIBRARY = "pcainterp_stream"
 MCAP_CHUNK_SIZE = 4 * 1024 * 1024
 """Uncompressed MCAP chunk size (bytes): a few KITTI images per zstd chunk."""
+MCAP_ZSTD_LEVEL = 1
+"""zstd level of MCAP chunks. Float32 images hardly compress: level 1 writes 0.4 % more
+bytes than zstd's default 3 at ~1.7x its speed (docs/benchmarks.md, issue 17)."""
+WRITE_QUEUE_ITEMS = 32
+"""Messages a threaded writer holds before ``add_*`` blocks (bounds its memory: ~60 MB of
+KITTI-size float32 images)."""
+
+
+class _ZstdAtLevel:
+    """Stand-in for ``mcap.writer``'s ``zstandard`` module: compress at a per-thread level.
+
+    mcap's ``Writer`` compresses chunks with ``zstandard.compress(data)`` (level 3) and has
+    no level option. This object replaces that module name once; a thread that has not
+    chosen a level (:func:`_zstd_level`) gets zstd's default as before, so other users of
+    mcap in the process are unaffected.
+    """
+
+    def __init__(self) -> None:
+        self._local = threading.local()
+
+    def set_level(self, level: int | None) -> None:
+        """Compress this thread's chunks at ``level`` (None: zstd's default).
+
+        A compressor is not safe to share between threads: each thread keeps its own.
+        """
+        if level is None:
+            self._local.compressor = None
+            return
+        cache: dict[int, zstandard.ZstdCompressor] | None = getattr(self._local, "cache", None)
+        if cache is None:
+            cache = self._local.cache = {}
+        if level not in cache:
+            cache[level] = zstandard.ZstdCompressor(level=level)
+        self._local.compressor = cache[level]
+
+    def compress(self, data: bytes, level: int = 3) -> bytes:
+        """Compress one chunk (the signature of ``zstandard.compress``)."""
+        compressor: zstandard.ZstdCompressor | None = getattr(self._local, "compressor", None)
+        if compressor is None:
+            return zstandard.compress(data, level)
+        return compressor.compress(data)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(zstandard, name)
+
+
+_ZSTD = _ZstdAtLevel()
+mcap.writer.zstandard = _ZSTD  # type: ignore[attr-defined,assignment]
 
 
 class LogFormat(Enum):
@@ -123,6 +184,9 @@ class LogWriter(ABC):
     def __init__(self, path: Path) -> None:
         self.path = path
         self._partial_dir: Path | None = None
+        self._thread: _WriteThread | None = None
+        self.threaded = False
+        """Write in a thread of its own (set before :meth:`open`; :func:`open_writer`)."""
         self._topic_counts: Counter[str] = Counter()
         self._start_ns: int | None = None
         self._end_ns = 0
@@ -153,10 +217,37 @@ class LogWriter(ABC):
                 f"cannot write {self.path}: {err.strerror}; choose a writable folder"
             ) from err
         try:
-            self._open_partial()
+            if self.threaded:
+                self._thread = _WriteThread(self.path)
+            self._call(self._open_partial)
         except BaseException:
+            self._stop_thread()
             self._remove_partial()
             raise
+
+    def _run(self, work: Callable[[], None]) -> None:
+        """Run ``work`` now, or hand it to the writer thread (in order) when threaded."""
+        if self._thread is None:
+            work()
+        else:
+            self._thread.submit(work)
+
+    def _call(self, work: Callable[[], None]) -> None:
+        """Run ``work`` now, in the writer thread when threaded (after what is queued).
+
+        The format's writer is opened, closed and aborted in the thread that writes: SQLite
+        connections (rosbag2 ``.db3``) must stay in the thread that made them.
+        """
+        if self._thread is None:
+            work()
+        else:
+            self._thread.call(work)
+
+    def _stop_thread(self) -> None:
+        """Drop the writer thread's queued work and stop it (no-op when not threaded)."""
+        if self._thread is not None:
+            thread, self._thread = self._thread, None
+            thread.stop(cancel=True)
 
     def add_message(
         self, topic: str, message: Any, log_time_ns: int, publish_time_ns: int | None = None
@@ -170,14 +261,15 @@ class LogWriter(ABC):
             publish_time_ns: publish time (ns); the log time when None (MCAP only; the bag
                 formats store one time).
         """
-        self._add_message(
-            topic,
-            str(message.__msgtype__),
-            rosmsg.serialize(message),
-            int(log_time_ns),
-            int(log_time_ns if publish_time_ns is None else publish_time_ns),
+        msgtype = str(message.__msgtype__)
+        log_time = int(log_time_ns)
+        publish_time = int(log_time_ns if publish_time_ns is None else publish_time_ns)
+        self._run(
+            lambda: self._add_message(
+                topic, msgtype, rosmsg.serialize(message), log_time, publish_time
+            )
         )
-        self._count(topic, int(log_time_ns))
+        self._count(topic, log_time)
 
     def add_raw(self, raw: RawMessage) -> None:
         """Copy a message of an input log unchanged (schema, encoding, metadata, times).
@@ -185,24 +277,36 @@ class LogWriter(ABC):
         MCAP keeps everything; the bag formats keep topic, type, data and log time, and
         accept CDR (``ros2msg``) messages only.
         """
-        self._add_raw(raw)
+        self._run(lambda: self._add_raw(raw))
         self._count(raw.topic, int(raw.log_time_ns))
 
     def close(self) -> WriteSummary:
         """Finish the output and move it onto the target; return what was written."""
         try:
-            self._close_partial()
+            if self._thread is not None:
+                self._thread.check()  # once everything queued ran: its error, if any
+            self._call(self._close_partial)
+            if self._thread is not None:
+                thread, self._thread = self._thread, None
+                thread.stop()
             self._commit()
         except BaseException:
-            self._remove_partial()
+            try:
+                self._call(self._abort_partial)  # closes what a failed thread left open
+            finally:
+                self._stop_thread()
+                self._remove_partial()
             raise
         return self.summary()
 
     def abort(self) -> None:
         """Drop the partial output; the target is left as it was."""
         try:
-            self._abort_partial()
+            if self._thread is not None:
+                self._thread.cancel()
+            self._call(self._abort_partial)
         finally:
+            self._stop_thread()
             self._remove_partial()
 
     def summary(self) -> WriteSummary:
@@ -279,6 +383,80 @@ class LogWriter(ABC):
     def _abort_partial(self) -> None: ...
 
 
+class _WriteThread:
+    """One thread running a writer's work items in order, behind a bounded queue.
+
+    After an error the thread keeps taking items (so the caller never blocks on a full
+    queue) but runs none; :meth:`submit` and :meth:`check` raise it as a
+    :class:`LogWriteError` naming the output. :meth:`call` runs one item synchronously.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self._path = path
+        self._queue: queue.Queue[tuple[Callable[[], None], Future[None] | None] | None] = (
+            queue.Queue(WRITE_QUEUE_ITEMS)
+        )
+        self._error: BaseException | None = None
+        self._cancelled = False
+        self._thread = threading.Thread(target=self._loop, name="log-writer", daemon=True)
+        self._thread.start()
+
+    def _loop(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            work, done = item
+            if done is not None:  # a synchronous call runs whatever happened before
+                try:
+                    work()
+                except BaseException as err:  # raised in the caller by call()
+                    done.set_exception(err)
+                else:
+                    done.set_result(None)
+                continue
+            if self._error is not None or self._cancelled:
+                continue
+            try:
+                work()
+            except BaseException as err:  # raised in the caller by submit / check
+                self._error = err
+
+    def _raise(self) -> None:
+        if self._error is not None:
+            error = self._error
+            raise LogWriteError(
+                f"writing {self._path} failed: {type(error).__name__}: {error}; "
+                "nothing was written there"
+            ) from error
+
+    def submit(self, work: Callable[[], None]) -> None:
+        """Queue ``work`` (blocks while the queue is full); raise an earlier error."""
+        self._raise()
+        self._queue.put((work, None))
+
+    def call(self, work: Callable[[], None]) -> None:
+        """Run ``work`` in the thread after everything queued; raise its exception."""
+        done: Future[None] = Future()
+        self._queue.put((work, done))
+        done.result()
+
+    def check(self) -> None:
+        """Wait until everything queued has run; raise the first error, if any."""
+        self.call(lambda: None)
+        self._raise()
+
+    def cancel(self) -> None:
+        """Skip the work still queued (synchronous calls still run)."""
+        self._cancelled = True
+
+    def stop(self, *, cancel: bool = False) -> None:
+        """Stop the thread once it has run (or, with ``cancel``, skipped) what is queued."""
+        self._cancelled = self._cancelled or cancel
+        self._queue.put(None)
+        self._thread.join()
+
+
 def _check_replaceable_folder(target: Path) -> None:
     """Refuse to replace a folder that is not a rosbag2 bag (it may hold anything)."""
     if not (target / "metadata.yaml").is_file():
@@ -297,8 +475,10 @@ class McapLogWriter(LogWriter):
 
     format = LogFormat.MCAP
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, *, zstd_level: int | None = None) -> None:
         super().__init__(path)
+        self.zstd_level = MCAP_ZSTD_LEVEL if zstd_level is None else zstd_level
+        """zstd level of the chunks (None at construction: :data:`MCAP_ZSTD_LEVEL`)."""
         self._stream: IO[bytes] | None = None
         self._writer: McapWriter | None = None
         self._schemas: dict[tuple[str, str, bytes], int] = {}
@@ -338,7 +518,17 @@ class McapLogWriter(LogWriter):
         metadata = self.channel_metadata.get(topic, {})
         channel_id = self._channel_id(topic, "cdr", schema_id, metadata)
         assert self._writer is not None
-        self._writer.add_message(channel_id, log_time_ns, data, publish_time_ns)
+        with self._zstd_level():
+            self._writer.add_message(channel_id, log_time_ns, data, publish_time_ns)
+
+    @contextlib.contextmanager
+    def _zstd_level(self) -> Iterator[None]:
+        """Compress the chunks mcap finishes inside the block at :attr:`zstd_level`."""
+        _ZSTD.set_level(self.zstd_level)
+        try:
+            yield
+        finally:
+            _ZSTD.set_level(None)
 
     def _add_raw(self, raw: RawMessage) -> None:
         schema_id = self._schema_id(raw.schema_name, raw.schema_encoding, bytes(raw.schema_data))
@@ -346,19 +536,21 @@ class McapLogWriter(LogWriter):
             raw.topic, raw.message_encoding, schema_id, raw.channel_metadata
         )
         assert self._writer is not None
-        self._writer.add_message(
-            channel_id,
-            int(raw.log_time_ns),
-            bytes(raw.data),
-            int(raw.publish_time_ns),
-            sequence=int(raw.sequence),
-        )
+        with self._zstd_level():
+            self._writer.add_message(
+                channel_id,
+                int(raw.log_time_ns),
+                bytes(raw.data),
+                int(raw.publish_time_ns),
+                sequence=int(raw.sequence),
+            )
 
     def _close_partial(self) -> None:
         assert self._writer is not None
         assert self._stream is not None
         try:
-            self._writer.finish()  # type: ignore[no-untyped-call]
+            with self._zstd_level():
+                self._writer.finish()  # type: ignore[no-untyped-call]
         finally:
             self._stream.close()
             self._writer = None
@@ -544,6 +736,7 @@ def open_writer(
     format: LogFormat | str | None = None,
     *,
     inputs: Iterable[str | os.PathLike[str]] = (),
+    threaded: bool = False,
 ) -> LogWriter:
     """Return a writer for ``path``; use it as a context manager.
 
@@ -552,6 +745,8 @@ def open_writer(
         format: a :class:`LogFormat` or its value (``"mcap"``, ``"rosbag2"``,
             ``"rosbag2-sqlite3"``, ``"ros1"``); chosen by :func:`format_from_path` if None.
         inputs: the input logs of this run; writing onto one of them is refused.
+        threaded: serialize, compress and write in a thread of the writer's own (see the
+            module docstring); messages must not be changed after ``add_*``.
 
     Raises:
         LogWriteError: bad format name, the output is an input, its folder is missing, or
@@ -578,10 +773,14 @@ def open_writer(
                 "choose a file path"
             )
         _check_replaceable_folder(target)
+    writer: LogWriter
     if chosen == LogFormat.MCAP:
-        return McapLogWriter(target)
-    if chosen == LogFormat.ROS1:
-        return Ros1LogWriter(target)
-    if chosen == LogFormat.ROSBAG2:
-        return Rosbag2LogWriter(target, StoragePlugin.MCAP)
-    return Rosbag2LogWriter(target, StoragePlugin.SQLITE3)
+        writer = McapLogWriter(target)
+    elif chosen == LogFormat.ROS1:
+        writer = Ros1LogWriter(target)
+    elif chosen == LogFormat.ROSBAG2:
+        writer = Rosbag2LogWriter(target, StoragePlugin.MCAP)
+    else:
+        writer = Rosbag2LogWriter(target, StoragePlugin.SQLITE3)
+    writer.threaded = threaded
+    return writer

@@ -8,7 +8,8 @@ them at the left image's log time. The output channels' MCAP metadata
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Iterable
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -18,10 +19,20 @@ from pcainterp_stream.defaults import DISPLAY_MAX_DEPTH
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.records import DensifiedFrame
 
+CHANNELS = ("depth", "depth_std", "disparity", "disparity_std", "features", "camera_info")
+"""The output channels DESIGN.md section 3 lists, by the :class:`OutputTopics` field naming
+each; ``densify --outputs`` writes a subset (all by default)."""
+
 
 @dataclass(frozen=True)
 class OutputTopics:
-    """Names of the output channels; the defaults are DESIGN.md's."""
+    """Names of the output channels; the defaults are DESIGN.md's.
+
+    Depth and disparity (and their stds) are each other's reciprocal given f*b, and the
+    float32 images dominate what ``densify`` writes and compresses: :meth:`only` keeps a
+    subset of :data:`CHANNELS` (``--outputs``); ``evaluate`` needs disparity, disparity_std,
+    features and camera_info.
+    """
 
     depth: str = "/pcainterp/depth"
     depth_std: str = "/pcainterp/depth_std"
@@ -33,6 +44,28 @@ class OutputTopics:
     """When set, also a ``16UC1`` millimetre copy of the depth, which Foxglove's image panel
     colour-maps (it draws ``32FC1`` as grey): 0 = no estimate, depths clipped to the fixed
     range 0 to :data:`~pcainterp_stream.defaults.DISPLAY_MAX_DEPTH` (too far: its end)."""
+    skipped: frozenset[str] = frozenset()
+    """Channels of :data:`CHANNELS` not written (see :meth:`only`)."""
+
+    def only(self, channels: Iterable[str]) -> OutputTopics:
+        """Return these topics writing only ``channels`` (names of :data:`CHANNELS`).
+
+        Raises:
+            ValueError: an unknown channel name, or no channel at all.
+        """
+        chosen = set(channels)
+        unknown = sorted(chosen - set(CHANNELS))
+        if unknown:
+            raise ValueError(
+                f"unknown output channel {', '.join(unknown)}; choose from {', '.join(CHANNELS)}"
+            )
+        if not chosen:
+            raise ValueError(f"no output channel chosen; choose from {', '.join(CHANNELS)}")
+        return replace(self, skipped=frozenset(set(CHANNELS) - chosen))
+
+    def writes(self, channel: str) -> bool:
+        """Return whether the channel (a name of :data:`CHANNELS`) is written."""
+        return channel not in self.skipped
 
     @classmethod
     def with_prefix(cls, prefix: str, *, depth_mm: bool = False) -> OutputTopics:
@@ -50,14 +83,7 @@ class OutputTopics:
 
     def all(self) -> list[str]:
         """Return every output topic in use."""
-        topics = [
-            self.depth,
-            self.depth_std,
-            self.disparity,
-            self.disparity_std,
-            self.features,
-            self.camera_info,
-        ]
+        topics = [str(getattr(self, name)) for name in CHANNELS if self.writes(name)]
         return topics + ([self.depth_mm] if self.depth_mm else [])
 
 
@@ -117,58 +143,40 @@ def output_messages(result: DensifiedFrame, topics: OutputTopics) -> list[tuple[
     frame = result.frame
     camera = frame.camera
     stamp, frame_id = frame.stamp_ns, frame.frame_id
-    pixels = result.pixels.astype(np.float32, copy=False)
-    disparities = result.disparities.astype(np.float32, copy=False)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z = np.where(disparities > 0, camera.focal_baseline / disparities, np.nan)
-    x = (pixels[:, 0] - camera.cx) * z / camera.fx
-    y = (pixels[:, 1] - camera.cy) * z / camera.fy
-    # DisparityImage's valid window starts at the smallest resolvable disparity, so no value
-    # <= 0 (nor any below it, "farther than measurable") is a valid disparity (REP 118)
-    with np.errstate(invalid="ignore"):
-        finite = np.isfinite(result.disparity) & (result.disparity >= result.min_disparity)
-    min_disparity = result.min_disparity if result.min_disparity > 0 else 0.0
-    messages: list[tuple[str, Any]] = [
-        (topics.depth, rosmsg.image_message(result.depth, stamp, frame_id, encoding="32FC1")),
-        (
-            topics.depth_std,
-            rosmsg.image_message(result.depth_std, stamp, frame_id, encoding="32FC1"),
-        ),
-        (
-            topics.disparity,
-            rosmsg.disparity_image_message(
-                result.disparity,
-                stamp,
-                frame_id,
-                focal=camera.fx,
-                baseline=camera.baseline,
-                min_disparity=min_disparity,
-                max_disparity=(
-                    float(np.max(result.disparity[finite])) if finite.any() else min_disparity
-                ),
+    messages: list[tuple[str, Any]] = []
+    if topics.writes("depth"):
+        depth = rosmsg.image_message(result.depth, stamp, frame_id, encoding="32FC1")
+        messages.append((topics.depth, depth))
+    if topics.writes("depth_std"):
+        depth_std = rosmsg.image_message(result.depth_std, stamp, frame_id, encoding="32FC1")
+        messages.append((topics.depth_std, depth_std))
+    if topics.writes("disparity"):
+        # DisparityImage's valid window starts at the smallest resolvable disparity, so no
+        # value <= 0 (nor any below it, "farther than measurable") is valid (REP 118)
+        with np.errstate(invalid="ignore"):
+            finite = np.isfinite(result.disparity) & (result.disparity >= result.min_disparity)
+        min_disparity = result.min_disparity if result.min_disparity > 0 else 0.0
+        disparity = rosmsg.disparity_image_message(
+            result.disparity,
+            stamp,
+            frame_id,
+            focal=camera.fx,
+            baseline=camera.baseline,
+            min_disparity=min_disparity,
+            max_disparity=(
+                float(np.max(result.disparity[finite])) if finite.any() else min_disparity
             ),
-        ),
-        (
-            topics.disparity_std,
-            rosmsg.image_message(result.disparity_std, stamp, frame_id, encoding="32FC1"),
-        ),
-        (
-            topics.features,
-            rosmsg.pointcloud2_message(
-                {
-                    "x": x.astype(np.float32),
-                    "y": y.astype(np.float32),
-                    "z": z.astype(np.float32),
-                    "u": pixels[:, 0],
-                    "v": pixels[:, 1],
-                    "disparity": disparities,
-                },
-                stamp,
-                frame_id,
-            ),
-        ),
-        (topics.camera_info, rosmsg.camera_info_message(camera, stamp, frame_id)),
-    ]
+        )
+        messages.append((topics.disparity, disparity))
+    if topics.writes("disparity_std"):
+        disparity_std = rosmsg.image_message(
+            result.disparity_std, stamp, frame_id, encoding="32FC1"
+        )
+        messages.append((topics.disparity_std, disparity_std))
+    if topics.writes("features"):
+        messages.append((topics.features, _features_message(result)))
+    if topics.writes("camera_info"):
+        messages.append((topics.camera_info, rosmsg.camera_info_message(camera, stamp, frame_id)))
     if topics.depth_mm:
         # fixed range: 0 = no estimate, DISPLAY_MAX_DEPTH for it and beyond (+inf: too far)
         far_mm = 1000.0 * DISPLAY_MAX_DEPTH
@@ -178,3 +186,26 @@ def output_messages(result: DensifiedFrame, topics: OutputTopics) -> list[tuple[
             (topics.depth_mm, rosmsg.image_message(depth_mm, stamp, frame_id, encoding="16UC1"))
         )
     return messages
+
+
+def _features_message(result: DensifiedFrame) -> Any:
+    """Return the PointCloud2 of the measurements used (x y z in the left optical frame)."""
+    camera = result.frame.camera
+    pixels = result.pixels.astype(np.float32, copy=False)
+    disparities = result.disparities.astype(np.float32, copy=False)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(disparities > 0, camera.focal_baseline / disparities, np.nan)
+    x = (pixels[:, 0] - camera.cx) * z / camera.fx
+    y = (pixels[:, 1] - camera.cy) * z / camera.fy
+    return rosmsg.pointcloud2_message(
+        {
+            "x": x.astype(np.float32),
+            "y": y.astype(np.float32),
+            "z": z.astype(np.float32),
+            "u": pixels[:, 0],
+            "v": pixels[:, 1],
+            "disparity": disparities,
+        },
+        result.frame.stamp_ns,
+        result.frame.frame_id,
+    )

@@ -8,6 +8,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import IO
 
 from pcainterp_stream.errors import (
     LogReadError,
@@ -19,9 +20,12 @@ from pcainterp_stream.frontend.pairing import (
     PairingStats,
     StereoPairer,
 )
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.foxglove import FoxgloveLive, LiveMessage
 from pcainterp_stream.io.logreader import open_log
-from pcainterp_stream.io.logwriter import LogFormat, WriteSummary, open_writer
+from pcainterp_stream.io.logwriter import LogFormat, LogWriter, WriteSummary, open_writer
 from pcainterp_stream.io.outputs import OutputTopics, channel_metadata, output_messages
+from pcainterp_stream.io.pipes import STDIN_NAME, McapStreamWriter, spool
 from pcainterp_stream.io.rerun_sink import RerunSink
 from pcainterp_stream.pipeline.common import (
     _bar,
@@ -38,8 +42,8 @@ class DensifySummary:
     """What ``densify`` did.
 
     Attributes:
-        input: the input log.
-        output: the written log.
+        input: the input log (``stdin`` for standard input).
+        output: the written log (``<stdout>`` for standard output), None when only served.
         frames: frames densified.
         seconds: wall time of the whole run.
         measurements: sparse measurements used, summed over frames.
@@ -55,7 +59,7 @@ class DensifySummary:
     """
 
     input: Path
-    output: Path
+    output: Path | None
     frames: int
     seconds: float
     measurements: int
@@ -76,8 +80,8 @@ class DensifySummary:
 
 
 def densify(
-    input_path: Path,
-    output: Path,
+    input_path: Path | IO[bytes],
+    output: Path | IO[bytes] | None,
     basis: Basis | Path | None = None,
     *,
     pairing: PairingConfig | None = None,
@@ -86,6 +90,7 @@ def densify(
     rrd: Path | None = None,
     spawn_viewer: bool = False,
     on_frame: Callable[[DensifiedFrame], None] | None = None,
+    live: FoxgloveLive | None = None,
 ) -> DensifySummary:
     """Densify a stereo log into a copy with the ``/pcainterp/*`` channels (``densify``).
 
@@ -94,6 +99,12 @@ def densify(
     batches, and their outputs written at the left image's log time. The output channels'
     metadata names the basis (``io/outputs.channel_metadata``): ``built-in`` when ``basis``
     is None (:meth:`Basis.default`), else its file.
+
+    ``input_path`` and ``output`` may be open binary streams (standard input and output,
+    ``pcainterp densify - -o -``): the input is spooled to a temporary file first
+    (:func:`io.pipes.spool`), the output written as it goes (:class:`io.pipes.McapStreamWriter`).
+    With ``live`` (an open :class:`io.foxglove.FoxgloveLive`) the same messages are served
+    to Foxglove clients as they are made; ``output`` may then be None.
     """
     started = time.perf_counter()
     pairing = pairing or PairingConfig()
@@ -102,11 +113,17 @@ def densify(
     basis, label = resolve_basis(basis)
     if processor.source is MeasurementSource.FEATURES and pairing.features_topic is None:
         raise PcaInterpError("measurement source 'features' needs --features-topic")
+    if output is None and live is None:
+        raise PcaInterpError("densify needs an output: pass -o OUTPUT, --foxglove, or both")
     measurements = 0
     frames = 0
     robust = {"downweighted": 0, "most": 0, "resets": 0, "carried": 0, "carry_resets": 0}
     with contextlib.ExitStack() as stack:
-        reader = stack.enter_context(open_log(input_path))
+        if isinstance(input_path, Path):
+            reader = stack.enter_context(open_log(input_path))
+        else:  # standard input: spooled, then named as such, not by the temporary file
+            reader = stack.enter_context(open_log(stack.enter_context(spool(input_path))))
+            input_path = Path(STDIN_NAME)
         _require_topics(reader, pairing.required_topics(), "stereo pair")
         _check_topic_types(reader, _pairing_types(pairing))
         clash = sorted(set(topics.all()) & set(reader.topics()))
@@ -117,9 +134,19 @@ def densify(
             )
         left = reader.topics().get(pairing.left_topic)
         total = left.message_count if left is not None else None
-        writer = stack.enter_context(open_writer(output, LogFormat.MCAP, inputs=[input_path]))
         metadata = channel_metadata(label, basis.fingerprint)
-        writer.channel_metadata = {topic: metadata for topic in topics.all()}
+        writer: LogWriter | None = None
+        if isinstance(output, Path):
+            writer = stack.enter_context(
+                open_writer(output, LogFormat.MCAP, inputs=[input_path], threaded=True)
+            )
+        elif output is not None:
+            writer = stack.enter_context(McapStreamWriter(output))
+        if writer is not None:
+            writer.channel_metadata = {topic: metadata for topic in topics.all()}
+        if live is not None:
+            for topic, msgtype in output_types(topics).items():  # subscribable before frame 1
+                live.advertise(topic, msgtype, metadata=metadata)
         sink = (
             stack.enter_context(RerunSink(rrd_path=rrd, spawn=spawn_viewer))
             if rrd is not None or spawn_viewer
@@ -132,8 +159,20 @@ def densify(
         def emit(results: list[DensifiedFrame]) -> None:
             nonlocal measurements, frames
             for result in results:
-                for topic, message in output_messages(result, topics):
-                    writer.add_message(topic, message, result.frame.log_time_ns)
+                messages = output_messages(result, topics)
+                if writer is not None:
+                    for topic, message in messages:
+                        writer.add_message(topic, message, result.frame.log_time_ns)
+                if live is not None:
+                    live.add_frame(
+                        result.frame.log_time_ns,
+                        [
+                            LiveMessage(
+                                topic, str(message.__msgtype__), rosmsg.serialize(message), metadata
+                            )
+                            for topic, message in messages
+                        ],
+                    )
                 if sink is not None:
                     sink.log(result)
                 if on_frame is not None:
@@ -148,25 +187,30 @@ def densify(
                 bar.update(1)
 
         for raw in reader.messages():
-            writer.add_raw(raw)
+            if writer is not None:
+                writer.add_raw(raw)
+            if live is not None:
+                live.add_raw(raw)
             if pairer.wants(raw.topic):
                 for frame in pairer.push_raw(raw, reader.decode):
                     emit(engine.submit(frame, pairer.features_for(frame)))
         for frame in pairer.flush():
             emit(engine.submit(frame, pairer.features_for(frame)))
         emit(engine.finish())
+        if live is not None:
+            live.flush()
         stats = pairer.finish()
         if frames == 0:
             raise LogReadError(_no_pair_message(input_path, pairing, stats, reader.damage))
     return DensifySummary(
         input=input_path,
-        output=output,
+        output=writer.path if writer is not None else None,
         frames=frames,
         seconds=time.perf_counter() - started,
         measurements=measurements,
         pairing=stats,
         damage=list(reader.damage),
-        written=writer.summary(),
+        written=writer.summary() if writer is not None else None,
         warnings=list(reader.warnings),
         downweighted=robust["downweighted"],
         most_downweighted=robust["most"],
@@ -174,6 +218,22 @@ def densify(
         carried=robust["carried"],
         carry_resets=robust["carry_resets"],
     )
+
+
+def output_types(topics: OutputTopics) -> dict[str, str]:
+    """Return output topic -> ROS 2 message type, as ``io/outputs.output_messages`` builds them."""
+    types = {
+        topics.depth: rosmsg.IMAGE,
+        topics.depth_std: rosmsg.IMAGE,
+        topics.disparity: rosmsg.DISPARITY_IMAGE,
+        topics.disparity_std: rosmsg.IMAGE,
+        topics.features: rosmsg.POINT_CLOUD2,
+        topics.camera_info: rosmsg.CAMERA_INFO,
+    }
+    if topics.depth_mm:
+        types[topics.depth_mm] = rosmsg.IMAGE
+    written = set(topics.all())  # --outputs may leave some out
+    return {topic: msgtype for topic, msgtype in types.items() if topic in written}
 
 
 def resolve_basis(basis: Basis | Path | None) -> tuple[Basis, str]:

@@ -13,6 +13,13 @@ work the OS can place: each stereo worker runs OpenCV on one thread
 keep both cores busy while the calling thread waits for I/O. A two-thread OpenBLAS next to
 running SGBM threads spins and is several times slower. Both settings are process-wide; the
 processor restores the previous values in :meth:`FrameProcessor.close`.
+
+The threads of a ``densify`` job, all of them (issue 17, docs/benchmarks.md "Throughput"):
+the calling thread (read, pair, densify the batch, build the output messages); the one pool
+of this processor, ``stereo_workers`` threads running GFTT, SGBM, the lookups and the
+odometry of the carried points; and the log writer's own thread (``open_writer(...,
+threaded=True)``: CDR serialization, MCAP chunks, zstd, file writes), fed through a bounded
+queue. Memory is bounded by the look-ahead here and by that queue there.
 """
 
 from __future__ import annotations
@@ -57,7 +64,8 @@ class ProcessorConfig:
 
     Attributes:
         gftt: corner detector options.
-        sgbm: stereo matcher options.
+        sgbm: stereo matcher options (by default at half resolution,
+            :data:`~pcainterp_stream.defaults.STEREO_DOWNSCALE`).
         sigma: measurement noise std (px) of the MAP estimate, "evidence" (fitted per
             frame) or "auto" (the basis's fitted sigma when it has one, else 2 px).
         uncertainty: "exact-coarse" (default: the exact std on the variance grid, resampled),
@@ -91,7 +99,9 @@ class ProcessorConfig:
     """
 
     gftt: GfttConfig = field(default_factory=GfttConfig)
-    sgbm: SgbmConfig = field(default_factory=SgbmConfig)
+    sgbm: SgbmConfig = field(
+        default_factory=lambda: SgbmConfig(downscale=defaults.STEREO_DOWNSCALE)
+    )
     sigma: float | str = "auto"
     uncertainty: str = "exact-coarse"
     prior: str = "auto"

@@ -353,7 +353,14 @@ def test_js_values_are_consistent_across_channels(js_output: dict[str, Any]) -> 
             name: floats(values)
             for name, values in by_topic["/pcainterp/features"][frame]["points"].items()
         }
-        np.testing.assert_allclose(points["z"], focal_baseline / points["disparity"], rtol=1e-5)
+        # a measured disparity of 0 (sky: at infinity) has no finite z; it is written as NaN
+        at_infinity = points["disparity"] <= 0
+        assert np.isnan(points["z"][at_infinity]).all()
+        np.testing.assert_allclose(
+            points["z"][~at_infinity],
+            focal_baseline / points["disparity"][~at_infinity],
+            rtol=1e-5,
+        )
 
 
 # ----------------------------------------------------------------------------- rosbags

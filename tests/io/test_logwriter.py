@@ -3,16 +3,20 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import mcap.writer
 import numpy as np
 import pytest
+import zstandard
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 
-from pcainterp_stream.io import rosmsg
 from pcainterp_stream.errors import LogWriteError
+from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logwriter import (
+    MCAP_ZSTD_LEVEL,
     LogFormat,
+    McapLogWriter,
     format_from_path,
     open_writer,
 )
@@ -444,3 +448,99 @@ def test_copy_real_ros2_recording(tmp_path: Path, fmt: LogFormat) -> None:
                 raw.publish_time_ns,
                 raw.sequence,
             )
+
+
+# ----------------------------------------------------------------------------- threaded writing
+
+
+@pytest.mark.parametrize("fmt", list(LogFormat))
+def test_threaded_writer_writes_what_the_plain_one_does(tmp_path: Path, fmt: LogFormat) -> None:
+    messages = _messages()
+    written = {}
+    for threaded in (False, True):
+        target = tmp_path / str(threaded) / OUTPUT_NAMES[fmt]
+        target.parent.mkdir()
+        with open_writer(target, fmt, threaded=threaded) as writer:
+            for topic, message, log_time in messages:
+                writer.add_message(topic, message, log_time)
+        assert writer.summary().message_count == len(messages)
+        assert [p.name for p in target.parent.iterdir()] == [target.name]
+        written[threaded] = _read_anyreader(target)
+    assert len(written[True]) == len(messages)
+    for (topic, msgtype, time, plain), (topic2, msgtype2, time2, threaded_message) in zip(
+        written[False], written[True], strict=True
+    ):
+        assert (topic, msgtype, time) == (topic2, msgtype2, time2)
+        _check_same(plain, threaded_message)
+
+
+@pytest.mark.parametrize("fail_at", [1, 7, 18])
+def test_threaded_writer_error_is_raised_and_nothing_is_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, fail_at: int
+) -> None:
+    """A failure in the writer thread surfaces in the caller; the old target survives."""
+    calls = 0
+    original = McapLogWriter._add_message
+
+    def failing(self: McapLogWriter, *args: Any) -> None:
+        nonlocal calls
+        calls += 1
+        if calls == fail_at:
+            raise OSError(28, "No space left on device")
+        original(self, *args)
+
+    monkeypatch.setattr(McapLogWriter, "_add_message", failing)
+    target = tmp_path / "out.mcap"
+    target.write_bytes(b"the old output")
+    messages = _messages(3)  # 18 messages: the last one fails at close at the latest
+    match = r"writing .*out\.mcap failed: OSError: .*No space left on device; nothing was written"
+
+    def write() -> None:
+        with open_writer(target, LogFormat.MCAP, threaded=True) as writer:
+            for topic, message, log_time in messages:
+                writer.add_message(topic, message, log_time)
+
+    with pytest.raises(LogWriteError, match=match):
+        write()
+    assert target.read_bytes() == b"the old output"
+    assert [p.name for p in tmp_path.iterdir()] == ["out.mcap"]  # no partial folder left
+    assert calls <= len(messages)  # work queued after the failure is not run
+
+
+def test_threaded_writer_drops_queued_work_on_caller_error(tmp_path: Path) -> None:
+    target = tmp_path / "out.mcap"
+
+    def interrupted() -> None:
+        with open_writer(target, threaded=True) as writer:
+            for topic, message, log_time in _messages(3):
+                writer.add_message(topic, message, log_time)
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        interrupted()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_mcap_chunks_are_zstd_at_the_writer_level(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    levels: list[int] = []
+    real = zstandard.ZstdCompressor
+
+    def recording(level: int) -> zstandard.ZstdCompressor:
+        levels.append(level)
+        return real(level=level)
+
+    monkeypatch.setattr(zstandard, "ZstdCompressor", recording)
+    target = tmp_path / "out.mcap"
+    with open_writer(target, threaded=True) as writer:  # a fresh thread: no cached compressor
+        for topic, message, log_time in _messages(2):
+            writer.add_message(topic, message, log_time)
+    assert levels == [MCAP_ZSTD_LEVEL]
+    with target.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    assert {index.compression for index in summary.chunk_indexes} == {"zstd"}
+    # other users of mcap's writer in the process keep zstd's default level
+    data = bytes(range(256)) * 64
+    assert mcap.writer.zstandard.compress(data) == zstandard.compress(data, 3)

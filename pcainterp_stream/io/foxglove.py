@@ -1,0 +1,496 @@
+"""Serve a stream of ROS 2 messages live to Foxglove over its WebSocket protocol.
+
+The server is the maintained ``foxglove-sdk`` (Rust, with Python bindings); nothing of the
+protocol is written here. Channels carry the same ``ros2msg`` schema texts and CDR bytes as
+the MCAP output (:mod:`.rosmsg`, and the input's own schemas for copied channels), so a
+Foxglove layout made on a densified file works on the live stream. Each message is sent
+with its log time, and the log time is broadcast as the server's time.
+
+Order and pace: the densified frames come out of the pipeline a few frames after their
+input messages were read (stereo matching runs ahead). Input messages are therefore held
+back until the frame of the same log time is published (at most :data:`MAX_HELD` of them),
+so a client sees the stream in log-time order, as a player of the file would. With
+``rate > 0`` publishing waits until ``(log time - first log time) / rate`` has passed on
+the wall clock; ``rate = 0`` publishes as fast as frames are processed.
+
+Slow clients never block the caller: ``Channel.log`` only queues. The SDK keeps one bounded
+outbox per client (``message_backlog_size`` messages, here :data:`CLIENT_BACKLOG`) and drops
+that client's oldest message when it is full. The SDK reports that as a log record
+("outbox for client ADDRESS full") and keeps no count it exposes, so :class:`FoxgloveLive`
+counts those reports per client (:attr:`LiveStats.overflows`); nothing is dropped before
+the SDK.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import socket
+import sys
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from types import TracebackType
+from typing import TYPE_CHECKING, Any, NamedTuple, Self, cast
+
+from pcainterp_stream.errors import StreamError
+
+if TYPE_CHECKING:  # imported when used: the command line's parser imports this module
+    from pcainterp_stream.records import RawMessage
+
+DEFAULT_HOST = "127.0.0.1"
+"""Loopback: the server is reachable from this machine only unless an address is given."""
+
+DEFAULT_PORT = 8765
+"""Foxglove's default WebSocket port."""
+
+SUBPROTOCOL = "foxglove.sdk.v1"
+"""The WebSocket subprotocol foxglove-sdk 0.30 accepts (the same messages as the older
+``foxglove.websocket.v1``, which it no longer accepts in the handshake)."""
+
+CLIENT_BACKLOG = 256
+"""Messages the SDK queues per client before it drops that client's oldest."""
+
+MAX_HELD = 1024
+"""Input messages held back for ordering; beyond this the oldest is published anyway."""
+
+_OVERFLOW = re.compile(r"outbox for client (?P<client>\S+) full")
+
+
+class LiveMessage(NamedTuple):
+    """One serialized message to publish.
+
+    Attributes:
+        topic: channel topic.
+        schema_name: ROS 2 type name (``sensor_msgs/msg/Image``).
+        data: CDR bytes, as written to the MCAP output.
+        metadata: channel metadata (the MCAP output channel's), None for none.
+    """
+
+    topic: str
+    schema_name: str
+    data: bytes
+    metadata: dict[str, str] | None = None
+
+
+@dataclass(frozen=True)
+class ServeAddress:
+    """Where the server listens.
+
+    Attributes:
+        host: an address or host name to bind (loopback by default).
+        port: TCP port; 0 picks a free one.
+    """
+
+    host: str = DEFAULT_HOST
+    port: int = DEFAULT_PORT
+
+    @classmethod
+    def parse(cls, text: str) -> ServeAddress:
+        """Parse ``HOST:PORT``, ``[IPV6]:PORT``, ``:PORT`` or ``PORT`` (loopback).
+
+        Raises:
+            StreamError: for anything else, or a port outside 0-65535.
+        """
+        match = re.fullmatch(
+            r"(?:(?:\[(?P<v6>[0-9A-Fa-f:.]+)\]|(?P<host>[^:\[\]\s]*)):)?"
+            r"(?P<port>\d{1,5})",
+            text.strip(),
+        )
+        if match is None or int(match["port"]) > 65535:
+            raise StreamError(
+                f"bad --foxglove address {text!r}; pass HOST:PORT (e.g. 127.0.0.1:8765, "
+                "0.0.0.0:8765 for every interface, [::1]:8765) or a port alone (loopback)"
+            )
+        host = match["v6"] or match["host"] or DEFAULT_HOST
+        return cls(host=host, port=int(match["port"]))
+
+    def url(self, port: int | None = None) -> str:
+        """Return the ``ws://`` URL a client opens (``port`` overrides, for port 0)."""
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        if self.host in ("0.0.0.0", "::"):
+            host = "127.0.0.1" if self.host == "0.0.0.0" else "[::1]"
+        return f"ws://{host}:{self.port if port is None else port}"
+
+
+@dataclass
+class LiveStats:
+    """What the server published.
+
+    Attributes:
+        frames: frames published (:meth:`FoxgloveLive.add_frame` calls).
+        messages: messages published, inputs included.
+        released_early: input messages published before their frame because
+            :data:`MAX_HELD` were waiting (their order is then not guaranteed).
+        clients: distinct clients that subscribed to a channel.
+        overflows: client address -> outbox overflows the SDK reported (each one drops that
+            client's oldest queued messages).
+    """
+
+    frames: int = 0
+    messages: int = 0
+    released_early: int = 0
+    clients: int = 0
+    overflows: Counter[str] = field(default_factory=Counter)
+
+
+class _SdkLog(logging.Handler):
+    """Counts the SDK's "outbox full" reports per client and passes its warnings on."""
+
+    def __init__(self) -> None:
+        super().__init__(level=logging.INFO)
+        self.sinks: list[FoxgloveLive] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        text = record.getMessage()
+        found = _OVERFLOW.search(text)
+        if found is not None:
+            for sink in list(self.sinks):
+                sink.stats.overflows[found["client"]] += 1
+        elif record.levelno >= logging.WARNING:
+            print(f"foxglove: {text}", file=sys.stderr, flush=True)
+
+
+_SDK_LOG = _SdkLog()
+_SDK_LOG_LOCK = threading.Lock()
+_sdk_logging_on = False
+
+
+def _enable_sdk_logging() -> None:
+    """Route the SDK's log records (INFO and up) to :data:`_SDK_LOG`, once per process.
+
+    ``foxglove.set_log_level`` calls ``logging.basicConfig`` when the root logger has no
+    handler; a placeholder handler during the call keeps the root logger as it was.
+    """
+    global _sdk_logging_on
+    with _SDK_LOG_LOCK:
+        if _sdk_logging_on:
+            return
+        import foxglove
+
+        logger = logging.getLogger("foxglove")
+        logger.setLevel(logging.INFO)
+        logger.addHandler(_SDK_LOG)
+        logger.propagate = False  # its INFO lines would otherwise reach the root handlers
+        root = logging.getLogger()
+        placeholder = logging.NullHandler()
+        root.addHandler(placeholder)
+        try:
+            foxglove.set_log_level("INFO")
+        finally:
+            root.removeHandler(placeholder)
+        _sdk_logging_on = True
+
+
+class FoxgloveLive:
+    """A Foxglove WebSocket server for one stream; use as a context manager.
+
+    Example::
+
+        with FoxgloveLive(ServeAddress(), rate=1.0) as live:
+            print("open", live.url)
+            live.advertise("/pcainterp/depth", rosmsg.IMAGE)
+            live.add_raw(raw)                                    # an input message
+            live.add_frame(log_time_ns, [LiveMessage(topic, schema_name, cdr), ...])
+            live.flush()
+
+    Args:
+        address: where to listen.
+        rate: pace at this multiple of the log's rate; 0 = as fast as frames come.
+        wait_for: hold the first message until a client subscribed to one of these topics
+            (empty: do not wait).
+        name: the server name clients show.
+        backlog: messages queued per client before its oldest are dropped.
+    """
+
+    def __init__(
+        self,
+        address: ServeAddress | None = None,
+        *,
+        rate: float = 1.0,
+        wait_for: Iterable[str] = (),
+        name: str = "pcainterp",
+        backlog: int = CLIENT_BACKLOG,
+    ) -> None:
+        if not rate >= 0 or rate == float("inf"):
+            raise StreamError(f"--rate must be a finite number >= 0, got {rate}")
+        self.address = address or ServeAddress()
+        self.rate = rate
+        self.wait_for = frozenset(wait_for)
+        self.name = name
+        self.backlog = backlog
+        self.stats = LiveStats()
+        self._server: Any = None
+        self._port: int | None = None
+        self._context: Any = None
+        self._channels: dict[
+            tuple[str, str, str, str, bytes, tuple[tuple[str, str], ...]], Any
+        ] = {}
+        self._held: deque[RawMessage] = deque()
+        self._subscribed = threading.Event()
+        self._clients: set[int] = set()
+        self._clock: tuple[int, float] | None = None  # (first log time ns, its wall time)
+        self._time_ns = -1
+        self._waited = not self.wait_for
+
+    # lifetime ---------------------------------------------------------------------------
+    @property
+    def port(self) -> int:
+        """The port the server listens on (the chosen one for port 0)."""
+        if self._port is None:
+            raise StreamError("the Foxglove server is not open; use it in a with block")
+        return self._port
+
+    @property
+    def url(self) -> str:
+        """The ``ws://`` URL to open in Foxglove."""
+        return self.address.url(self.port)
+
+    def open(self) -> None:
+        """Check the address (bind it once) and prepare the channels' context.
+
+        The server itself starts with the first message (:meth:`start`): foxglove-sdk 0.30
+        sometimes refuses a subscription to a channel added while the client is connected
+        ("Unknown channel ID"), so the channels known by then (every output and the inputs
+        read so far) go out in the first advertisement a client gets. Until then a client
+        is refused and retries (as Foxglove does).
+
+        Raises:
+            StreamError: the address cannot be bound (in use, unknown host), in one line.
+        """
+        import foxglove
+
+        _enable_sdk_logging()
+        self._context = foxglove.Context()
+        self._port = self._check_bind()
+
+    def _check_bind(self) -> int:
+        """Bind and release the address; return the port (a free one for port 0)."""
+        try:
+            infos = socket.getaddrinfo(
+                self.address.host, self.address.port, type=socket.SOCK_STREAM
+            )
+            family, kind, proto, _, where = infos[0]
+            with socket.socket(family, kind, proto) as probe:
+                probe.bind(where)
+                return int(probe.getsockname()[1])
+        except OSError as err:
+            self._raise_bind_error(err.strerror or str(err), err)
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    def _raise_bind_error(self, reason: str, err: BaseException) -> None:
+        hint = (
+            "stop the other server or pass another port (--foxglove HOST:PORT)"
+            if "in use" in reason
+            else "pass an address of this machine, e.g. 127.0.0.1:8765"
+        )
+        raise StreamError(
+            f"cannot serve Foxglove on {self.address.host}:{self.address.port}: {reason}; {hint}"
+        ) from err
+
+    def start(self) -> None:
+        """Start accepting clients (idempotent; the first message does it).
+
+        Raises:
+            StreamError: the port was taken since :meth:`open`.
+        """
+        if self._server is not None or self._context is None:
+            return
+        import foxglove
+        from foxglove.websocket import Capability
+
+        try:
+            self._server = foxglove.start_server(
+                name=self.name,
+                host=self.address.host,
+                port=self.port,
+                capabilities=[Capability.Time],
+                # implements the two calls of the ServerListener protocol it needs
+                server_listener=cast(Any, _Listener(self)),
+                context=self._context,
+                message_backlog_size=self.backlog,
+            )
+        except RuntimeError as err:
+            self._raise_bind_error(str(err).removeprefix("FoxgloveError: "), err)
+        _SDK_LOG.sinks.append(self)
+
+    def close(self, drain_s: float = 1.0) -> None:
+        """Stop the server (idempotent); clients see the connection close.
+
+        With subscribers, first wait ``drain_s`` so their queued messages go out (the SDK
+        closes connections without sending what is queued).
+        """
+        if self._server is not None:
+            if self.stats.clients:
+                time.sleep(drain_s)
+            server, self._server = self._server, None
+            if self in _SDK_LOG.sinks:
+                _SDK_LOG.sinks.remove(self)
+            server.stop()
+        self._channels.clear()
+        self._context = None
+
+    def __enter__(self) -> Self:
+        self.open()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    # channels ---------------------------------------------------------------------------
+    def advertise(
+        self,
+        topic: str,
+        schema_name: str,
+        *,
+        schema_encoding: str = "ros2msg",
+        schema_data: bytes | None = None,
+        message_encoding: str = "cdr",
+        metadata: dict[str, str] | None = None,
+    ) -> Any:
+        """Return the channel of a topic, advertising it to clients on first use.
+
+        Args:
+            topic: channel topic.
+            schema_name: ROS 2 type name, or the input's schema name.
+            schema_encoding: ``ros2msg`` for ROS 2 types.
+            schema_data: the schema text; the :mod:`.rosmsg` text of ``schema_name`` if None.
+            message_encoding: ``cdr`` for ROS 2 messages.
+            metadata: channel metadata (the MCAP channel's).
+        """
+        import foxglove
+
+        from pcainterp_stream.io import rosmsg
+
+        if schema_data is None:
+            schema_data = rosmsg.schema_text(schema_name).encode()
+        meta = tuple(sorted((metadata or {}).items()))
+        key = (topic, schema_name, schema_encoding, message_encoding, schema_data, meta)
+        channel = self._channels.get(key)
+        if channel is None:
+            schema = (
+                foxglove.Schema(name=schema_name, encoding=schema_encoding, data=schema_data)
+                if schema_name or schema_data
+                else None
+            )
+            channel = foxglove.Channel(
+                topic,
+                schema=schema,
+                message_encoding=message_encoding,
+                context=self._context,
+                metadata=dict(meta),
+            )
+            self._channels[key] = channel
+        return channel
+
+    # messages ---------------------------------------------------------------------------
+    def add_raw(self, raw: RawMessage) -> None:
+        """Queue a message of the input log; it is published before the next frame after it.
+
+        Its channel is advertised now, so clients can subscribe before it is published. At
+        most :data:`MAX_HELD` messages wait; beyond that the oldest is published now.
+        """
+        self._raw_channel(raw)
+        self._held.append(raw)
+        while len(self._held) > MAX_HELD:
+            self.stats.released_early += 1
+            self._publish_raw(self._held.popleft())
+
+    def add_frame(self, log_time_ns: int, messages: Iterable[LiveMessage]) -> None:
+        """Publish one densified frame, after the held input messages up to its log time.
+
+        Paced by ``rate``; with ``wait_for`` the first message waits for a subscriber.
+        Returns once the messages are queued for the clients (never waits for a client).
+        """
+        while self._held and self._held[0].log_time_ns <= log_time_ns:
+            self._publish_raw(self._held.popleft())
+        for message in messages:
+            channel = self.advertise(message.topic, message.schema_name, metadata=message.metadata)
+            self._log(channel, message.data, log_time_ns)
+        self.stats.frames += 1
+
+    def flush(self) -> None:
+        """Publish every held input message (at the end of the stream)."""
+        while self._held:
+            self._publish_raw(self._held.popleft())
+
+    def wait_for_client(self, poll_s: float = 0.2, settle_s: float = 0.2) -> None:
+        """Block until a client subscribed to one of ``wait_for`` (Ctrl-C interrupts).
+
+        A client subscribes to the topics of its panels at once: ``settle_s`` more lets its
+        other subscriptions land before the first message goes out.
+        """
+        while not self._subscribed.wait(poll_s):
+            pass
+        time.sleep(settle_s)
+        self._waited = True
+
+    def serve_forever(self, poll_s: float = 0.5) -> None:
+        """Keep serving (clients may still connect and look) until Ctrl-C or SIGTERM."""
+        self.start()
+        while self._server is not None:
+            time.sleep(poll_s)
+
+    def _publish_raw(self, raw: RawMessage) -> None:
+        self._log(self._raw_channel(raw), bytes(raw.data), int(raw.log_time_ns))
+
+    def _raw_channel(self, raw: RawMessage) -> Any:
+        return self.advertise(
+            raw.topic,
+            raw.schema_name,
+            schema_encoding=raw.schema_encoding,
+            schema_data=bytes(raw.schema_data),
+            message_encoding=raw.message_encoding,
+            metadata=raw.channel_metadata,
+        )
+
+    def _log(self, channel: Any, data: bytes, log_time_ns: int) -> None:
+        self.start()
+        if not self._waited:
+            self.wait_for_client()
+        self._pace(log_time_ns)
+        channel.log(data, log_time=log_time_ns)
+        self.stats.messages += 1
+        if log_time_ns > self._time_ns and self._server is not None:
+            self._time_ns = log_time_ns
+            self._server.broadcast_time(log_time_ns)
+
+    def _pace(self, log_time_ns: int) -> None:
+        """Sleep until this log time is due at ``rate`` x the log's rate."""
+        if self.rate <= 0:
+            return
+        now = time.monotonic()
+        if self._clock is None:
+            self._clock = (log_time_ns, now)
+            return
+        first_ns, started = self._clock
+        delay = started + (log_time_ns - first_ns) / 1e9 / self.rate - now
+        if delay > 0:
+            time.sleep(delay)
+
+    def _on_subscribe(self, client_id: int, topic: str) -> None:
+        if client_id not in self._clients:
+            self._clients.add(client_id)
+            self.stats.clients = len(self._clients)
+        if topic in self.wait_for:
+            self._subscribed.set()
+
+
+class _Listener:
+    """The SDK's ``ServerListener``: notes subscriptions (called on the SDK's threads)."""
+
+    def __init__(self, live: FoxgloveLive) -> None:
+        self._live = live
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        self._live._on_subscribe(int(client.id), str(channel.topic))
+
+    def on_unsubscribe(self, client: Any, channel: Any) -> None:
+        return None

@@ -1,0 +1,122 @@
+"""Logs through Unix pipes: an MCAP output written to a stream, an input read from one.
+
+Output (``-o -``): :class:`McapStreamWriter` writes the same MCAP as the file writer (``ros2``
+profile, zstd chunks, summary and chunk index) straight to a stream that cannot seek, such
+as standard output. The mcap library only ever appends, and asks the stream for its
+position, which :class:`_CountingStream` answers by counting bytes. A reader of the pipe
+needs none of the summary offsets: mcap's stream reader and rosbags read it front to back.
+
+Input (``-``): the log readers need a seekable file (the summary at the end names the
+topics and message counts that densify checks before it starts, and chunks are skipped by
+seeking), so :func:`spool` copies the stream into a temporary file first, 1 MiB at a time:
+memory stays bounded whatever the log's length, the disk holds one copy of the input (in
+``TMPDIR``) until the job ends, and densifying starts once the input is complete.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import shutil
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO
+
+from mcap.writer import CompressionType
+from mcap.writer import Writer as McapWriter
+
+from pcainterp_stream.errors import LogReadError, LogWriteError
+from pcainterp_stream.io.logwriter import LIBRARY, MCAP_CHUNK_SIZE, McapLogWriter
+
+STDIN_NAME = "stdin"
+"""The name a spooled standard input goes by in messages."""
+
+STDOUT_PATH = Path("<stdout>")
+"""The path a :class:`McapStreamWriter`'s summary names."""
+
+_SPOOL_BLOCK = 1 << 20
+
+
+class _CountingStream:
+    """Wrap a binary stream that cannot seek: count bytes for ``tell``, never close it."""
+
+    def __init__(self, stream: IO[bytes]) -> None:
+        self._stream = stream
+        self._position = 0
+
+    def write(self, data: bytes | bytearray | memoryview) -> int:
+        self._stream.write(data)
+        self._position += len(data)
+        return len(data)
+
+    def tell(self) -> int:
+        return self._position
+
+    def flush(self) -> None:
+        self._stream.flush()
+
+    def close(self) -> None:
+        """Flush only: the stream belongs to the caller (mcap's ``finish`` does the same)."""
+        self._stream.flush()
+
+
+class McapStreamWriter(McapLogWriter):
+    """An MCAP writer onto an open binary stream (standard output); no atomic rename.
+
+    The stream is flushed, not closed, at the end. An exception in the ``with`` block
+    leaves what was written so far on the stream (a truncated MCAP a reader reports as
+    such): a pipe cannot take bytes back.
+    """
+
+    def __init__(self, stream: IO[bytes], name: Path = STDOUT_PATH) -> None:
+        super().__init__(name)
+        self._target = stream
+
+    def open(self) -> None:
+        """Start the MCAP on the stream."""
+        self._open_partial()
+
+    def _open_partial(self) -> None:
+        stream = _CountingStream(self._target)
+        self._stream = stream  # type: ignore[assignment]
+        self._writer = McapWriter(
+            stream,  # type: ignore[arg-type]
+            chunk_size=MCAP_CHUNK_SIZE,
+            compression=CompressionType.ZSTD,
+        )
+        try:
+            self._writer.start(profile="ros2", library=LIBRARY)
+        except OSError as err:
+            raise LogWriteError(f"cannot write the MCAP output to {self.path}: {err}") from err
+
+    def _commit(self) -> None:
+        """Nothing to move: the bytes are already on the stream."""
+
+
+@contextlib.contextmanager
+def spool(stream: IO[bytes], name: str = STDIN_NAME) -> Iterator[Path]:
+    """Copy a stream into a temporary file; yield its path, remove it afterwards.
+
+    Args:
+        stream: the binary input (standard input).
+        name: the file's name (what messages about the log call it).
+
+    Raises:
+        LogReadError: the stream is empty or cannot be read, or the disk is full.
+    """
+    with tempfile.TemporaryDirectory(prefix="pcainterp-stdin-") as folder:
+        path = Path(folder) / name
+        try:
+            with path.open("xb") as spooled:
+                shutil.copyfileobj(stream, spooled, _SPOOL_BLOCK)
+        except OSError as err:
+            raise LogReadError(
+                f"cannot copy standard input to {path} (needed: the readers seek): "
+                f"{err.strerror or err}; set TMPDIR to a folder with room for the log"
+            ) from err
+        if path.stat().st_size == 0:
+            raise LogReadError(
+                "standard input is empty, not a log; pipe an MCAP file (or a ROS 1 bag) into "
+                "`pcainterp densify -`"
+            )
+        yield path

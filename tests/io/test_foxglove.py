@@ -1,0 +1,401 @@
+"""``pcainterp densify --foxglove``: a real WebSocket client against the live server (issue 19).
+
+The client is the ``websockets`` library speaking the Foxglove WebSocket protocol by its
+spec (JSON ``serverInfo`` / ``advertise`` / ``subscribe``, binary ``messageData`` frames:
+opcode 1, subscription id u32, log time u64, payload). It receives every /pcainterp/*
+message of a small synthetic log and must match the MCAP output of the same run byte for
+byte (so pixel for pixel). The server runs in a subprocess, as a user runs it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import hashlib
+import json
+import os
+import re
+import shutil
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import threading
+import time
+from collections import defaultdict
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pytest
+from mcap.reader import make_reader
+
+from pcainterp_stream import cli
+from pcainterp_stream.errors import StreamError
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.foxglove import SUBPROTOCOL, FoxgloveLive, LiveMessage, ServeAddress
+from pcainterp_stream.records import RawMessage
+
+websockets = pytest.importorskip("websockets")
+
+FRAMES = 4
+URL = re.compile(r"serving on (ws://\S+)")
+OUTPUTS = ("/pcainterp/depth", "/pcainterp/features")
+
+
+@dataclass
+class Received:
+    """What a client saw: channels by topic, and (log time, payload) per topic."""
+
+    channels: dict[str, dict[str, Any]] = field(default_factory=dict)
+    messages: dict[str, list[tuple[int, bytes]]] = field(default_factory=lambda: defaultdict(list))
+    times: list[int] = field(default_factory=list)
+
+
+async def _client(url: str, topics: set[str] | None, until: dict[str, int]) -> Received:
+    """Subscribe to ``topics`` (every channel when None) until ``until`` counts are reached."""
+    got = Received()
+    by_subscription: dict[int, str] = {}
+    async with await _connect(url) as ws:
+        assert ws.subprotocol == SUBPROTOCOL
+        while any(len(got.messages[topic]) < count for topic, count in until.items()) or (
+            topics is not None and not topics <= set(got.channels)
+        ):
+            try:
+                frame = await asyncio.wait_for(ws.recv(), timeout=60)
+            except websockets.ConnectionClosed as closed:
+                counts = {topic: len(items) for topic, items in got.messages.items()}
+                raise AssertionError(f"closed with {counts} of {until}") from closed
+            if isinstance(frame, str):
+                op = json.loads(frame)
+                if op["op"] != "advertise":
+                    continue
+                subscriptions = []
+                for channel in op["channels"]:
+                    got.channels[channel["topic"]] = channel
+                    if topics is None or channel["topic"] in topics:
+                        subscription = len(by_subscription) + 1
+                        by_subscription[subscription] = channel["topic"]
+                        subscriptions.append({"id": subscription, "channelId": channel["id"]})
+                if subscriptions:
+                    await ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
+            elif frame[0] == 1:  # messageData
+                subscription, log_time = struct.unpack_from("<IQ", frame, 1)
+                got.messages[by_subscription[subscription]].append((log_time, bytes(frame[13:])))
+            elif frame[0] == 2:  # time
+                got.times.append(struct.unpack_from("<Q", frame, 1)[0])
+    return got
+
+
+async def _connect(url: str, timeout_s: float = 60.0) -> Any:
+    """Connect, retrying while refused: the server accepts clients from its first message."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            return await websockets.connect(url, subprotocols=[SUBPROTOCOL], max_size=None)
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            await asyncio.sleep(0.05)
+
+
+def _mcap_messages(path: Path) -> dict[str, list[tuple[int, bytes, str, str]]]:
+    """topic -> (log time, CDR bytes, schema name, schema text) in file order."""
+    found: dict[str, list[tuple[int, bytes, str, str]]] = defaultdict(list)
+    with path.open("rb") as stream:
+        for schema, channel, message in make_reader(stream).iter_messages(log_time_order=False):
+            assert schema is not None
+            found[channel.topic].append(
+                (message.log_time, bytes(message.data), schema.name, schema.data.decode())
+            )
+    return found
+
+
+@pytest.fixture(scope="module")
+def synthetic_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    log = tmp_path_factory.mktemp("foxglove") / "x.mcap"
+    assert cli.main(["synth", str(log), "--frames", str(FRAMES), "--scale", "0.25"]) == 0
+    return log
+
+
+@contextlib.contextmanager
+def serving(*args: str) -> Iterator[tuple[subprocess.Popen[str], str]]:
+    """Run ``pcainterp densify ARGS`` in a subprocess; yield it and the URL it prints."""
+    command = [sys.executable, "-m", "pcainterp_stream.cli", "densify", *args]
+    process = subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env()
+    )
+    try:
+        assert process.stdout is not None
+        line = process.stdout.readline()
+        found = URL.search(line)
+        if found is None:
+            process.kill()
+            _, err = process.communicate()
+            pytest.fail(f"no URL printed: {line!r}\n{err}")
+        yield process, found[1]
+    finally:
+        if process.poll() is None:
+            process.kill()
+        process.communicate()
+
+
+def _env() -> dict[str, str]:
+    return {**os.environ, "PYTHONUNBUFFERED": "1"}
+
+
+def _collect(url: str, topics: set[str] | None, until: dict[str, int]) -> Received:
+    return asyncio.run(_client(url, topics, until))
+
+
+# ----------------------------------------------------------------------------- the bar
+
+
+def test_a_client_receives_every_frame_equal_to_the_mcap_output(
+    synthetic_log: Path, tmp_path: Path
+) -> None:
+    output = tmp_path / "dense.mcap"
+    args = [str(synthetic_log), "-o", str(output), "--foxglove", "127.0.0.1:0", "--depth-mm"]
+    with serving(*args, "--wait-for-client") as (process, url):
+        assert url.startswith("ws://127.0.0.1:")
+        counts = {topic: len(items) for topic, items in _mcap_messages(synthetic_log).items()}
+        outputs = [f"/pcainterp/{name}" for name in ("depth", "depth_std", "disparity")]
+        outputs += [f"/pcainterp/{name}" for name in ("disparity_std", "features", "camera_info")]
+        counts.update(dict.fromkeys([*outputs, "/pcainterp/depth_mm"], FRAMES))
+        received = _collect(url, None, counts)
+        out, err = process.communicate(timeout=120)
+    assert process.returncode == 0, err
+    assert "foxglove: published 4 frames" in out
+    written = _mcap_messages(output)
+    assert len(written["/pcainterp/depth"]) == FRAMES
+    for topic, messages in written.items():
+        channel = received.channels[topic]
+        _, _, schema_name, schema_text = messages[0]
+        assert (channel["encoding"], channel["schemaEncoding"]) == ("cdr", "ros2msg"), topic
+        assert (channel["schemaName"], channel["schema"]) == (schema_name, schema_text), topic
+        # every message, inputs included, the same bytes at the same log time
+        assert received.messages[topic] == [(t, data) for t, data, _, _ in messages], topic
+    depth_times = [t for t, _ in received.messages["/pcainterp/depth"]]
+    assert set(depth_times) <= set(received.times)  # the log's time is the server's time
+    assert received.times == sorted(received.times)
+
+
+def test_the_depth_decodes_to_the_image_of_the_file(synthetic_log: Path, tmp_path: Path) -> None:
+    output = tmp_path / "dense.mcap"
+    args = [str(synthetic_log), "-o", str(output), "--foxglove", "0", "--wait-for-client"]
+    with serving(*args) as (process, url):
+        received = _collect(url, {"/pcainterp/depth"}, {"/pcainterp/depth": FRAMES})
+        process.communicate(timeout=120)
+    written = _mcap_messages(output)["/pcainterp/depth"]
+    for (_, live), (_, data, _, _) in zip(
+        received.messages["/pcainterp/depth"], written, strict=True
+    ):
+        live_image = rosmsg.image_array(rosmsg.deserialize(live, rosmsg.IMAGE))
+        file_image = rosmsg.image_array(rosmsg.deserialize(data, rosmsg.IMAGE))
+        assert live_image.dtype == file_image.dtype == "float32"
+        assert live_image.tobytes() == file_image.tobytes()  # pixel for pixel, NaN included
+
+
+def test_without_output_it_serves_until_interrupted(synthetic_log: Path) -> None:
+    args = [str(synthetic_log), "--foxglove", "127.0.0.1:0", "--wait-for-client"]
+    with serving(*args) as (process, url):
+        received = _collect(url, set(OUTPUTS), {topic: FRAMES for topic in OUTPUTS})
+        assert process.stdout is not None
+        lines = []
+        while "still serving" not in (line := process.stdout.readline()):
+            assert line, f"the server stopped: {lines}"
+            lines.append(line)
+        assert process.poll() is None  # after the last frame, still serving
+        again = _collect(url, set(OUTPUTS), {})  # a late client connects and sees channels
+        assert set(OUTPUTS) <= set(again.channels)
+        process.send_signal(signal.SIGINT)
+        out, err = process.communicate(timeout=30)
+    assert process.returncode == 0, err
+    assert "foxglove: stopped" in out
+    assert "Traceback" not in err
+    assert {topic: len(received.messages[topic]) for topic in OUTPUTS} == dict.fromkeys(
+        OUTPUTS, FRAMES
+    )
+
+
+def test_exit_when_done_with_no_client(synthetic_log: Path) -> None:
+    args = [str(synthetic_log), "--foxglove", "127.0.0.1:0", "--exit-when-done", "--rate", "0"]
+    with serving(*args) as (process, _):
+        out, err = process.communicate(timeout=120)
+    assert process.returncode == 0, err
+    assert "published 4 frames" in out
+    assert "to 0 client(s)" in out
+
+
+# ----------------------------------------------------------------------------- TypeScript
+
+
+@pytest.fixture(scope="session")
+def js_live_client(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> Path:
+    """tests/js/live_client.mjs beside its installed node_modules (as test_interop does)."""
+    from test_interop import JS_DIR, _install_js
+
+    if shutil.which("node") is None or shutil.which("npm") is None:
+        pytest.skip("node and npm are needed for @foxglove/ws-protocol; install Node.js")
+    cache = getattr(request.config, "cache", None)  # None with -p no:cacheprovider
+    folder = cache.mkdir("pcainterp-js") if cache is not None else tmp_path_factory.mktemp("js")
+    _install_js(Path(folder))
+    script = Path(folder) / "live_client.mjs"
+    shutil.copyfile(JS_DIR / "live_client.mjs", script)
+    return script
+
+
+@pytest.mark.slow  # npm ci on the first run, then node
+def test_the_reference_client_receives_every_frame(
+    js_live_client: Path, synthetic_log: Path, tmp_path: Path
+) -> None:
+    output = tmp_path / "dense.mcap"
+    args = [str(synthetic_log), "-o", str(output), "--foxglove", "127.0.0.1:0"]
+    with serving(*args, "--wait-for-client") as (process, url):
+        done = subprocess.run(
+            ["node", js_live_client.name, url, ",".join(OUTPUTS), str(FRAMES)],
+            cwd=js_live_client.parent,
+            capture_output=True,
+            text=True,
+            timeout=180,
+            check=False,
+        )
+        assert done.returncode == 0, f"live_client.mjs failed:\n{done.stderr}"
+        process.communicate(timeout=120)
+    assert process.returncode == 0
+    received = json.loads(done.stdout)
+    written = _mcap_messages(output)
+    for topic in OUTPUTS:
+        channel = received[topic]
+        assert (channel["encoding"], channel["schemaEncoding"]) == ("cdr", "ros2msg")
+        assert channel["schemaName"] == written[topic][0][2]
+        assert len(channel["messages"]) == FRAMES == len(written[topic])
+        for live, (log_time, data, schema_name, _) in zip(
+            channel["messages"], written[topic], strict=True
+        ):
+            message = rosmsg.deserialize(data, schema_name)
+            assert int(live["timestamp"]) == log_time, topic
+            assert live["sha256"] == hashlib.sha256(data).hexdigest(), topic
+            # decoded by rosmsg2-serialization: the image's / cloud's bytes, so every pixel
+            assert live["data_sha256"] == hashlib.sha256(bytes(message.data)).hexdigest()
+            assert (live["width"], live["height"]) == (message.width, message.height)
+            assert live["header"]["frame_id"] == message.header.frame_id
+    assert received["/pcainterp/depth"]["messages"][0]["encoding"] == "32FC1"
+    assert received["/pcainterp/features"]["messages"][0]["fields"] == [
+        "x",
+        "y",
+        "z",
+        "u",
+        "v",
+        "disparity",
+    ]
+
+
+# ----------------------------------------------------------------------------- the server
+
+
+def _raw(topic: str, log_time_ns: int) -> RawMessage:
+    text = rosmsg.schema_text(rosmsg.POSE_STAMPED)
+    return RawMessage(
+        topic=topic,
+        msgtype=rosmsg.POSE_STAMPED,
+        schema_name=rosmsg.POSE_STAMPED,
+        schema_encoding="ros2msg",
+        schema_data=text.encode(),
+        message_encoding="cdr",
+        channel_metadata={"origin": "input"},
+        data=struct.pack("<Q", log_time_ns),
+        log_time_ns=log_time_ns,
+        publish_time_ns=log_time_ns,
+        sequence=0,
+    )
+
+
+def test_inputs_are_held_until_their_frame_and_paced(tmp_path: Path) -> None:
+    step = 100_000_000  # 0.1 s of log between frames
+    with FoxgloveLive(ServeAddress(port=0), rate=1.0, wait_for={"/out"}) as live:
+        live.advertise("/out", rosmsg.IMAGE)
+        live.add_raw(_raw("/in", 0))  # advertised now, published with frame 0
+        result: list[Received] = []
+        thread = threading.Thread(
+            target=lambda: result.append(_collect(live.url, None, {"/in": 3, "/out": 3}))
+        )
+        thread.start()
+        started = time.monotonic()
+        for index in range(3):
+            if index:
+                live.add_raw(_raw("/in", index * step))
+            live.add_frame(index * step, [LiveMessage("/out", rosmsg.IMAGE, b"frame%d" % index)])
+        live.flush()
+        thread.join(timeout=30)
+        elapsed = time.monotonic() - started
+    assert elapsed >= 2 * step / 1e9 - 0.01  # rate 1: 0.2 s of log took 0.2 s or more
+    got = result[0]
+    assert [t for t, _ in got.messages["/in"]] == [0, step, 2 * step]
+    assert [data for _, data in got.messages["/out"]] == [b"frame0", b"frame1", b"frame2"]
+    assert got.channels["/in"]["schemaName"] == rosmsg.POSE_STAMPED
+    assert live.stats.frames == 3
+    assert live.stats.messages == 6
+    assert live.stats.clients == 1
+
+
+@pytest.mark.parametrize(
+    ("text", "host", "port"),
+    [
+        ("127.0.0.1:8765", "127.0.0.1", 8765),
+        ("0.0.0.0:9000", "0.0.0.0", 9000),
+        ("[::1]:8765", "::1", 8765),
+        (":9001", "127.0.0.1", 9001),
+        ("9002", "127.0.0.1", 9002),
+        ("localhost:0", "localhost", 0),
+    ],
+)
+def test_addresses(text: str, host: str, port: int) -> None:
+    assert ServeAddress.parse(text) == ServeAddress(host, port)
+
+
+@pytest.mark.parametrize("text", ["", "host:", "host:port", "1.2.3.4:70000", "a:b:1", "[::1]"])
+def test_bad_addresses(text: str) -> None:
+    with pytest.raises(StreamError, match="bad --foxglove address"):
+        ServeAddress.parse(text)
+
+
+def test_urls_name_a_reachable_host() -> None:
+    assert ServeAddress("0.0.0.0", 8765).url() == "ws://127.0.0.1:8765"
+    assert ServeAddress("::1", 1).url() == "ws://[::1]:1"
+
+
+def test_a_port_in_use_is_one_line(synthetic_log: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        code = cli.main(["densify", str(synthetic_log), "--foxglove", f"127.0.0.1:{port}"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.count("\n") == 1
+    assert f"cannot serve Foxglove on 127.0.0.1:{port}" in err
+    assert "Address already in use" in err
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--foxglove", "127.0.0.1:99999"], "bad --foxglove address '127.0.0.1:99999'"),
+        (["--foxglove", "--rate", "-1"], "--rate must be a finite number >= 0"),
+        (["--rate", "2", "-o", "x.mcap"], "--rate needs --foxglove"),
+        ([], "densify needs an output"),
+    ],
+)
+def test_option_errors(
+    synthetic_log: Path, capsys: pytest.CaptureFixture[str], args: list[str], message: str
+) -> None:
+    code = cli.main(["densify", str(synthetic_log), *args])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert message in err
+    assert err.count("\n") == 1
