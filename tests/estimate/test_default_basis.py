@@ -92,3 +92,40 @@ def test_fingerprint_tells_bases_apart_and_survives_a_round_trip(tmp_path: Path)
     other = dataclasses.replace(basis, eigenvalues=eigenvalues)
     assert other.fingerprint != basis.fingerprint
     assert len(basis.fingerprint) == 16
+
+
+TOOL = Path(__file__).resolve().parents[2] / "tools" / "make_default_basis.py"
+
+
+def _make_small(out: Path) -> dict[str, object]:
+    import json
+    import subprocess
+    import sys
+
+    subprocess.run(
+        [sys.executable, str(TOOL), "--small", "--out", str(out)],
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    sidecar: dict[str, object] = json.loads((out / "default_basis.json").read_text())
+    return sidecar
+
+
+@pytest.mark.slow
+def test_make_default_basis_regenerates_a_small_basis_bit_for_bit(tmp_path: Path) -> None:
+    """tools/make_default_basis.py --small, twice: the same arrays and metadata each time."""
+    if not TOOL.is_file():
+        pytest.skip(f"{TOOL} not found (an installed package without the repository's tools)")
+    first = _make_small(tmp_path / "a")
+    second = _make_small(tmp_path / "b")
+    assert first["content_sha256"] == second["content_sha256"]
+    path = tmp_path / "a" / "default_basis.npz"
+    assert first["sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
+    basis = Basis.load(path)
+    recipe = first["recipe"]
+    assert isinstance(recipe, dict)
+    assert basis.meta["recipe"] == recipe
+    assert basis.n_train == recipe["drives"] * len(range(0, recipe["frames"], recipe["step"]))
+    assert basis.meta["prior"]["local"]["length_scale"] == recipe["local_kernel"][1]
