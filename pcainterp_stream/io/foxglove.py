@@ -56,6 +56,9 @@ CLIENT_BACKLOG = 256
 MAX_HELD = 1024
 """Input messages held back for ordering; beyond this the oldest is published anyway."""
 
+STOP_TIMEOUT_S = 5.0
+"""Longest wait (s) for the server to stop on close; past it the process goes on (and ends)."""
+
 _OVERFLOW = re.compile(r"outbox for client (?P<client>\S+) full")
 
 
@@ -328,7 +331,11 @@ class FoxgloveLive:
             server, self._server = self._server, None
             if self in _SDK_LOG.sinks:
                 _SDK_LOG.sinks.remove(self)
-            server.stop()
+            # the SDK's stop waits for its connections to close; a client that never
+            # answers must not keep Ctrl-C from ending the process
+            stopper = threading.Thread(target=server.stop, name="foxglove-stop", daemon=True)
+            stopper.start()
+            stopper.join(STOP_TIMEOUT_S)
         self._channels.clear()
         self._context = None
 

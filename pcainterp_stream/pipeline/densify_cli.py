@@ -301,8 +301,8 @@ def run_densify(
                     "time(s), its oldest messages were dropped"
                 )
             if live is not None and live.keep_serving:
-                _echo(f"foxglove: still serving on {server.url}; Ctrl-C to stop")
-                try:
+                try:  # a Ctrl-C right after the line below is caught too
+                    _echo(f"foxglove: still serving on {server.url}; Ctrl-C to stop")
                     server.serve_forever()
                 except KeyboardInterrupt:
                     _echo("foxglove: stopped")
