@@ -234,13 +234,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--segment", type=int, default=100, help="frames per throughput row")
     harness.add_basis_arguments(parser)
     parser.add_argument("--keep-output", action="store_true", help="keep the densified logs")
-    parser.add_argument(
-        "--fit-prior",
-        action=argparse.BooleanOptionalAction,
-        default=True,
-        help="learn the basis fitting the prior, as `learn` does by default (densify then "
-        "uses the hybrid prior; default: %(default)s)",
-    )
     parser.add_argument("--child", type=Path, default=None, help=argparse.SUPPRESS)
     parser.add_argument("command", nargs="*", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)

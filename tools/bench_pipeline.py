@@ -373,13 +373,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=100, help="frames of the timed log")
     parser.add_argument("--memory-frames", type=int, nargs=2, default=[100, 1000])
     harness.add_basis_arguments(parser)
-    parser.add_argument(
-        "--fit-prior",
-        action=argparse.BooleanOptionalAction,
-        default=True,
-        help="learn the basis fitting the prior, as `learn` does by default (densify then "
-        "uses the hybrid prior; default: %(default)s)",
-    )
     parser.add_argument("--sections", nargs="+", choices=SECTIONS, default=list(SECTIONS))
     parser.add_argument(
         "--settings",

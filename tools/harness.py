@@ -84,11 +84,18 @@ def add_realdata(parser: argparse.ArgumentParser) -> None:
 
 
 def add_basis_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add ``--train-frames`` and ``--components``, the basis of :func:`synth_basis`."""
+    """Add ``--train-frames``, ``--components``, ``--fit-prior`` (see :func:`synth_basis`)."""
     parser.add_argument(
         "--train-frames", type=int, default=250, help="frames of the basis's training log"
     )
     parser.add_argument("--components", type=int, default=200, help="basis components (l)")
+    parser.add_argument(
+        "--fit-prior",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="learn the basis fitting the prior, as `learn` does by default (densify then "
+        "uses the hybrid prior; default: %(default)s)",
+    )
 
 
 def add_batch_timing(

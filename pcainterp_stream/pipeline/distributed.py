@@ -16,7 +16,6 @@ failing log is reported and does not stop the others.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import itertools
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -43,7 +42,7 @@ from pcainterp_stream.pipeline.common import (
     _require_topics,
 )
 from pcainterp_stream.pipeline.densify import densify
-from pcainterp_stream.pipeline.learn import _depth_maps
+from pcainterp_stream.pipeline.learn import _depth_maps, source_meta
 
 DEFAULT_CHUNK_FRAMES = 64
 """Frames (after ``every``) one learning task reads, matches and summarises."""
@@ -320,15 +319,8 @@ def learn_distributed(
         )
     if total.n_maps < 2:
         raise PcaInterpError(f"learning needs at least two disparity maps, got {total.n_maps}")
-    sgbm = dataclasses.asdict(options.sgbm)
-    sgbm["mode"] = options.sgbm.mode.name
     meta = {
-        "source": {
-            "logs": [str(log) for log in logs],
-            "maps": f"depth topic {options.depth_topic}" if options.depth_topic else "SGBM",
-            "sgbm": None if options.depth_topic else sgbm,
-            "every": options.every,
-        },
+        "source": source_meta(logs, options),
         "distributed": {"chunk_frames": chunk_frames, "tasks": len(specs)},
     }
     basis = basis_from_fit(

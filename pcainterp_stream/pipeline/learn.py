@@ -174,6 +174,18 @@ def _count_frames(log: Path, topic: str, every: int) -> int:
     return -(-count // every)
 
 
+def source_meta(logs: list[Path], options: LearnOptions) -> dict[str, Any]:
+    """``meta["source"]`` of a learned basis: the logs, what maps, SGBM settings, ``every``."""
+    sgbm = dataclasses.asdict(options.sgbm)
+    sgbm["mode"] = options.sgbm.mode.name
+    return {
+        "logs": [str(log) for log in logs],
+        "maps": f"depth topic {options.depth_topic}" if options.depth_topic else "SGBM",
+        "sgbm": None if options.depth_topic else sgbm,
+        "every": options.every,
+    }
+
+
 def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: PairingConfig) -> Basis:
     """Learn a basis from the disparity maps of logs (``pcainterp learn``).
 
@@ -220,16 +232,7 @@ def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: Pairin
                     )
                 yield disparity
 
-    sgbm = dataclasses.asdict(options.sgbm)
-    sgbm["mode"] = options.sgbm.mode.name
-    meta = {
-        "source": {
-            "logs": [str(log) for log in logs],
-            "maps": f"depth topic {options.depth_topic}" if options.depth_topic else "SGBM",
-            "sgbm": None if options.depth_topic else sgbm,
-            "every": options.every,
-        }
-    }
+    meta: dict[str, Any] = {"source": source_meta(logs, options)}
     prior_basis = None
     if options.with_synthetic is not None:
         prior_basis = options.prior_basis or Basis.default()
