@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -306,6 +307,13 @@ def run_densify(
                     server.serve_forever()
                 except KeyboardInterrupt:
                     _echo("foxglove: stopped")
+                    server.close()
+                    # Nothing is left to write in this mode (no -o), and the SDK's threads
+                    # can still be calling back into Python while the interpreter shuts
+                    # down: end here, so that Ctrl-C always ends the process.
+                    sys.stdout.flush()
+                    sys.stderr.flush()
+                    os._exit(0)
     return 0
 
 
