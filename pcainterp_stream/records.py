@@ -169,7 +169,8 @@ class DensifiedFrame(NamedTuple):
             measurable) where the disparity is below ``min_disparity``, NaN where there is
             no estimate.
         depth_std: (H, W) float32 posterior std of the depth (m), ``+inf`` where depth is.
-        measurement_source: "stereo" (GFTT + SGBM) or "features" (a sparse stream).
+        measurement_source: "stereo" (GFTT + SGBM), "features" (a sparse stream) or "dense"
+            (the whole SGBM map, ``--measurements dense``).
         counts: named counts of the frame (corners, lookups rejected by reason, dropped).
         min_disparity: the smallest disparity the estimate resolves (px); below it the
             disparity is kept as estimated but is not valid (``DisparityImage``'s window).

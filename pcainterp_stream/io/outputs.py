@@ -95,17 +95,24 @@ BASIS_FINGERPRINT_KEY = "pcainterp.basis_fingerprint"
 """Channel metadata key: the basis's content fingerprint (``Basis.fingerprint``)."""
 
 
-def channel_metadata(basis: str, fingerprint: str) -> dict[str, str]:
+MEASUREMENTS_KEY = "pcainterp.measurements"
+"""Channel metadata key: ``sparse`` (the paper's GFTT lookups or a feature stream) or
+``dense`` (the whole SGBM map; ``/pcainterp/features`` then holds the cells used)."""
+
+
+def channel_metadata(basis: str, fingerprint: str, measurements: str = "sparse") -> dict[str, str]:
     """Return the metadata of the output channels of a densified log.
 
     Args:
         basis: the basis used: ``built-in``, a file path or ``in-memory``.
         fingerprint: its content fingerprint.
+        measurements: ``sparse`` or ``dense`` (``densify --measurements``).
 
     Returns:
-        {:data:`BASIS_KEY`: basis, :data:`BASIS_FINGERPRINT_KEY`: fingerprint}.
+        {:data:`BASIS_KEY`: basis, :data:`BASIS_FINGERPRINT_KEY`: fingerprint,
+        :data:`MEASUREMENTS_KEY`: measurements}.
     """
-    return {BASIS_KEY: basis, BASIS_FINGERPRINT_KEY: fingerprint}
+    return {BASIS_KEY: basis, BASIS_FINGERPRINT_KEY: fingerprint, MEASUREMENTS_KEY: measurements}
 
 
 def recorded_metadata(path: Path, topics: OutputTopics | None = None) -> dict[str, str]:

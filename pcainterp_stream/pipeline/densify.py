@@ -134,7 +134,7 @@ def densify(
             )
         left = reader.topics().get(pairing.left_topic)
         total = left.message_count if left is not None else None
-        metadata = channel_metadata(label, basis.fingerprint)
+        metadata = channel_metadata(label, basis.fingerprint, processor.measurements)
         writer: LogWriter | None = None
         if isinstance(output, Path):
             writer = stack.enter_context(

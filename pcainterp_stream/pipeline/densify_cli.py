@@ -123,6 +123,14 @@ def _add_estimate_arguments(densify: argparse.ArgumentParser) -> None:
         "estimate (defaults: the best measured combination, docs/results.md)"
     )
     estimate.add_argument(
+        "--measurements",
+        choices=["sparse", "dense"],
+        default="sparse",
+        help="sparse = the paper's: GFTT corners looked up in the SGBM map (default); dense = "
+        "every valid SGBM pixel, fused with the prior: SGBM's accuracy where it matched, the "
+        "prior's fill in its holes, at full SGBM resolution (docs/estimator.md)",
+    )
+    estimate.add_argument(
         "--sigma",
         default="auto",
         metavar="PX|evidence|auto",

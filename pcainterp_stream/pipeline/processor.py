@@ -42,10 +42,17 @@ import numpy.typing as npt
 
 from pcainterp_stream import defaults
 from pcainterp_stream.estimate.basis import Basis
-from pcainterp_stream.estimate.estimator import densify_batch
+from pcainterp_stream.estimate.dense import DenseModel, densify_dense
+from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
 from pcainterp_stream.estimate.prior import LocalPrior, TemporalPrior
 from pcainterp_stream.frontend.motion import CarriedPoints, CarryConfig, Motion, estimate_motion
-from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig, StereoFrontEnd, to_grey8
+from pcainterp_stream.frontend.stereo import (
+    GfttConfig,
+    SgbmConfig,
+    StereoFrontEnd,
+    compute_disparity,
+    to_grey8,
+)
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoCamera, StereoFrame
 
 
@@ -83,6 +90,11 @@ class ProcessorConfig:
             from the frame's innovation (``prior.covariance_scale``) when the fit has that
             factor (``innovation_std_scale``); False reports the posterior std itself.
         source: measurement source.
+        measurements: ``"sparse"`` (the paper's: a few hundred GFTT corners looked up in the
+            SGBM map, the default) or ``"dense"`` (the whole SGBM map fused with the prior,
+            :mod:`~pcainterp_stream.estimate.dense`; stereo source only, no carried points
+            or temporal prior; each stereo worker fuses its own frames).
+        dense: the noise model of dense mode.
         batch_size: frames densified together (matrix-matrix products).
         lookahead: frames queued for stereo matching ahead of densification; at least
             ``stereo_workers`` keeps every worker busy.
@@ -117,6 +129,8 @@ class ProcessorConfig:
     )
     calibrate: bool = True
     source: MeasurementSource = MeasurementSource.STEREO
+    measurements: str = "sparse"
+    dense: DenseModel = field(default_factory=DenseModel)
     batch_size: int = 4
     lookahead: int = 4
     stereo_workers: int = 2
@@ -126,6 +140,12 @@ class ProcessorConfig:
     keep_freed_memory: bool = True
 
     def __post_init__(self) -> None:
+        if self.measurements not in ("sparse", "dense"):
+            raise ValueError(
+                f'Expected measurements "sparse" or "dense", got {self.measurements!r}'
+            )
+        if self.measurements == "dense" and self.source is not MeasurementSource.STEREO:
+            raise ValueError("dense measurements come from the stereo pair, not a feature stream")
         if self.batch_size < 1:
             raise ValueError(f"batch_size must be >= 1, got {self.batch_size}")
         if self.lookahead < 0:
@@ -213,6 +233,7 @@ class _Measured(NamedTuple):
     disparities: npt.NDArray[np.float32]
     counts: dict[str, int]
     motion: Motion | None = None  # from the previous frame (carried points only)
+    dense: DensifyResult | None = None  # the whole estimate (dense mode, made in the worker)
 
 
 def features_to_measurements(
@@ -336,10 +357,15 @@ class FrameProcessor:
         self.settings = resolve_settings(basis, self.config)
         self.temporal = (
             TemporalPrior(process_noise=self.settings.process_noise)
-            if self.config.temporal
+            if self.config.temporal and self.config.measurements == "sparse"
             else None
         )
-        self.carried = CarriedPoints(self.config.carry) if self.config.carry.frames else None
+        self.dense = self.config.measurements == "dense"
+        self.carried = (
+            CarriedPoints(self.config.carry)
+            if self.config.carry.frames and not self.dense
+            else None
+        )
         self._previous_frame: StereoFrame | None = None
 
     def __enter__(self) -> FrameProcessor:
@@ -368,6 +394,20 @@ class FrameProcessor:
         features: SparseFeatures | None,
         previous: StereoFrame | None = None,
     ) -> _Measured:
+        if self.dense:
+            # SGBM and the fusion both in the worker: the frames run in parallel
+            disparity_map = compute_disparity(frame.left, frame.right, self.config.sgbm)
+            estimate = densify_dense(
+                self.basis,
+                disparity_map,
+                focal_baseline=frame.camera.focal_baseline,
+                uncertainty=self.config.uncertainty,
+                model=self.config.dense,
+            )
+            counts = {"cells": estimate.n_measurements, "cells_left_out": estimate.n_dropped}
+            pixels = estimate.pixels.astype(np.float32)
+            disparities = estimate.disparities.astype(np.float32)
+            return _Measured(frame, pixels, disparities, counts, dense=estimate)
         if self.config.source is MeasurementSource.FEATURES:
             pixels, disparities, counts = features_to_measurements(features, frame.camera)
         else:
@@ -430,6 +470,10 @@ class FrameProcessor:
             while stop < len(ready) and ready[stop].frame.camera == camera:
                 stop += 1
             group = ready[start:stop]
+            if self.dense:
+                results.extend(self._result(item, item.dense, 0) for item in group if item.dense)
+                start = stop
+                continue
             pixels: list[npt.NDArray[Any]] = [item.pixels for item in group]
             disparities: list[npt.NDArray[Any]] = [item.disparities for item in group]
             noise_stds: list[npt.NDArray[Any] | None] | None = None
@@ -459,30 +503,32 @@ class FrameProcessor:
                 noise_stds=noise_stds,
             )
             for item, estimate, n_carried in zip(group, estimates, carried, strict=True):
-                counts = dict(item.counts)
-                counts["carried"] = n_carried
-                counts["dropped"] = int(estimate.n_dropped)
-                counts["downweighted"] = int(estimate.n_downweighted)
-                counts["temporal_reset"] = int(estimate.temporal == "reset")
-                unknown = _unknown(estimate.disparity.shape)
-                results.append(
-                    DensifiedFrame(
-                        frame=item.frame,
-                        pixels=item.pixels,
-                        disparities=item.disparities,
-                        disparity=estimate.disparity,
-                        # "none" uncertainty has no std: written as NaN (unknown)
-                        disparity_std=_or(estimate.disparity_std, unknown),
-                        depth=_or(estimate.depth, unknown),
-                        depth_std=_or(estimate.depth_std, unknown),
-                        measurement_source=self.config.source.value,
-                        counts=counts,
-                        min_disparity=estimate.min_disparity,
-                    )
-                )
+                results.append(self._result(item, estimate, n_carried))
             start = stop
         self.frames_done += len(results)
         return results
+
+    def _result(self, item: _Measured, estimate: DensifyResult, n_carried: int) -> DensifiedFrame:
+        counts = dict(item.counts)
+        if not self.dense:
+            counts["carried"] = n_carried
+            counts["dropped"] = int(estimate.n_dropped)
+            counts["temporal_reset"] = int(estimate.temporal == "reset")
+        counts["downweighted"] = int(estimate.n_downweighted)
+        unknown = _unknown(estimate.disparity.shape)
+        return DensifiedFrame(
+            frame=item.frame,
+            pixels=item.pixels,
+            disparities=item.disparities,
+            disparity=estimate.disparity,
+            # "none" uncertainty has no std: written as NaN (unknown)
+            disparity_std=_or(estimate.disparity_std, unknown),
+            depth=_or(estimate.depth, unknown),
+            depth_std=_or(estimate.depth_std, unknown),
+            measurement_source="dense" if self.dense else self.config.source.value,
+            counts=counts,
+            min_disparity=estimate.min_disparity,
+        )
 
 
 @functools.lru_cache(maxsize=4)

@@ -12,11 +12,11 @@ import numpy.typing as npt
 import pytest
 
 from pcainterp_stream.estimate import estimator
-
-from pcainterp_stream.pipeline import processor
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.frontend.motion import CarryConfig
+from pcainterp_stream.frontend.stereo import SgbmConfig
+from pcainterp_stream.pipeline import processor
 from pcainterp_stream.pipeline.processor import (
     FrameProcessor,
     MeasurementSource,
@@ -24,7 +24,6 @@ from pcainterp_stream.pipeline.processor import (
     features_to_measurements,
 )
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoCamera, StereoFrame
-from pcainterp_stream.frontend.stereo import SgbmConfig
 
 HEIGHT, WIDTH = 94, 310  # a quarter of KITTI's 376 x 1241
 CAMERA = StereoCamera(
@@ -287,3 +286,31 @@ def test_unrelated_frames_carry_nothing(basis: Basis, frames: list[StereoFrame])
     # the shifted random-texture pairs are different scenes: no motion links them
     results = run(basis, frames)
     assert sum(result.counts["carried"] for result in results) == 0
+
+
+def test_dense_measurements_fill_every_pixel_and_keep_sgbm() -> None:
+    from pcainterp_stream.estimate.dense import densify_dense
+    from pcainterp_stream.frontend.stereo import SgbmConfig, compute_disparity
+    from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
+    from pcainterp_stream.records import StereoFrame
+    from pcainterp_stream.synth import SynthConfig, generate
+
+    frames = [
+        StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
+        for f in generate(SynthConfig(seed=3, frames=2, scale=0.5))
+    ]
+    config = ProcessorConfig(measurements="dense", sgbm=SgbmConfig(num_disparities=64))
+    with FrameProcessor(config=config) as processor:
+        results = list(processor.process(frames))
+    assert [r.frame.index for r in results] == [0, 1]
+    for result, frame in zip(results, frames, strict=True):
+        assert result.measurement_source == "dense"
+        assert np.isfinite(result.disparity).all()
+        assert np.isfinite(result.disparity_std).all()
+        sgbm = compute_disparity(frame.left, frame.right, config.sgbm)
+        expected = densify_dense(None, sgbm, focal_baseline=frame.camera.focal_baseline)
+        # the processor holds BLAS at one thread: the same to float32 rounding
+        np.testing.assert_allclose(result.disparity, expected.disparity, atol=1e-3)
+        assert result.pixels.shape[0] == result.counts["cells"] > 0
+    with pytest.raises(ValueError, match="sparse"):
+        ProcessorConfig(measurements="both")
