@@ -82,11 +82,11 @@ class DenseModel:
 
     cell: int = 2
     min_fraction: float = 0.5
-    pixel_std: float = 0.7
-    cell_std: float = 0.5
-    detail_std: float = 6.0
-    nearest_std: float = 1.0
-    nearest_rate: float = 0.25
+    pixel_std: float = 1.0
+    cell_std: float = 2.0
+    detail_std: float = 8.0
+    nearest_std: float = 2.0
+    nearest_rate: float = 1.0
     robust: Robust = Robust.CAUCHY
     robust_iterations: int = 1
 

@@ -136,7 +136,7 @@ def _accumulate(
 #
 # Everything below is pure maths over arrays (no I/O): the projection errors of the paper
 # (section IV-B), depth-completion metrics, uncertainty calibration and the oracle. The log
-# reading and the figures are in :mod:`pcainterp_stream.evaluate.report`.
+# reading is in :mod:`pcainterp_stream.evaluate.report`, the figures in ``figures``.
 
 DELTA_2D_EDGES: tuple[float, ...] = (0.0, 0.5, 1.0, 2.0, 3.0, 5.0, 10.0, 20.0, 50.0, np.inf)
 """Bin edges (px) of the Delta_2D error distribution."""
@@ -149,6 +149,9 @@ STD_EDGES: tuple[float, ...] = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0, np.inf)
 
 SWEEP_POINTS: tuple[int, ...] = (50, 100, 200, 400, 800)
 """Numbers of sparse points of the error-against-points sweep."""
+
+SGBM_PARTS: tuple[str, str] = ("holes", "valid")
+"""The two parts of the counted pixels a calibration is split into: SGBM's holes, the rest."""
 
 MAX_DEPTH = 80.0
 """Depth metrics count reference depths up to this (m), KITTI's depth-completion cap."""
@@ -177,6 +180,76 @@ def disparity_from_depth(depth: npt.ArrayLike, focal_baseline: float) -> npt.NDA
     with np.errstate(divide="ignore", invalid="ignore"):
         disparity = focal_baseline / values
     return np.where(np.isfinite(disparity) & (values > 0), disparity, 0.0)
+
+
+class ReferenceKind(StrEnum):
+    """What the values of a reference image are (``--reference-kind``)."""
+
+    AUTO = "auto"
+    """A ``stereo_msgs/msg/DisparityImage`` holds disparity, an Image depth."""
+    DEPTH = "depth"
+    """Depth (m; 16UC1 in mm, REP 118)."""
+    DISPARITY = "disparity"
+    """Disparity (px) of the densified log's camera."""
+
+
+def disparity_from_reference(
+    values: npt.ArrayLike, *, kind: ReferenceKind, focal_baseline: float
+) -> npt.NDArray[np.float64]:
+    """Convert a ground-truth reference image to disparity, NaN where it holds no truth.
+
+    Unlike :func:`disparity_from_depth` (the synthetic ``/ground_truth/depth``, whose NaN is
+    sky), NaN, 0 and negative values mean "no truth at this pixel", as in projected LiDAR
+    or KITTI's sparse ground truth. A depth of +inf (REP 118: farther than measurable) is
+    disparity 0 and counts, as sky does.
+
+    Args:
+        values: (H, W) float, depth (m) or disparity (px) per ``kind``.
+        kind: :attr:`ReferenceKind.DEPTH` or :attr:`ReferenceKind.DISPARITY`.
+        focal_baseline: f*b (px*m) of the densified log's camera.
+
+    Returns:
+        (H, W) float64 disparity (px): > 0 or 0 (infinitely far) where there is truth,
+        NaN elsewhere.
+    """
+    array = np.asarray(values, dtype=np.float64)
+    if kind is ReferenceKind.DISPARITY:
+        with np.errstate(invalid="ignore"):
+            return np.where(np.isfinite(array) & (array > 0), array, np.nan)
+    if kind is not ReferenceKind.DEPTH:
+        raise ValueError(f"Expected `kind` depth or disparity, got {kind}")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        disparity = focal_baseline / array
+        finite = np.isfinite(array) & (array > 0)
+    return np.where(finite, disparity, np.where(array == np.inf, 0.0, np.nan))
+
+
+def fill_nearest(
+    disparity: npt.ArrayLike,
+) -> npt.NDArray[np.float32] | None:
+    """Fill the holes of a disparity map with the nearest valid pixel's value.
+
+    The nearest valid pixel in the Euclidean sense (``scipy.ndimage.distance_transform_edt``
+    with ``return_indices``); the baseline "SGBM's own map, holes filled" of issue 18.
+
+    Args:
+        disparity: (H, W) float, disparity (px), NaN where invalid.
+
+    Returns:
+        (H, W) float32 disparity (px) finite everywhere, or None when no pixel is valid.
+    """
+    from scipy.ndimage import distance_transform_edt
+
+    values = np.asarray(disparity, dtype=np.float32)
+    valid = np.isfinite(values)
+    if not valid.any():
+        return None
+    if valid.all():
+        return values.copy()
+    # zero elements of the input are the "features": every pixel gets its nearest valid one
+    _, (rows, columns) = distance_transform_edt(~valid, return_indices=True)
+    filled: npt.NDArray[np.float32] = values[rows, columns]
+    return filled
 
 
 def stereo_transform(camera: StereoCamera) -> npt.NDArray[np.float64]:
@@ -581,6 +654,9 @@ class CalibrationStats:
         by_std_2d: sum of Delta_2D per std bin (px).
         by_std_abs: sum of |disparity error| per std bin (px).
         by_std_sq: sum of squared disparity error per std bin (px^2).
+        by_sgbm: the sums ``n``, ``inside_1``, ``inside_2`` of :func:`calibration_sums` apart
+            for the counted pixels in SGBM's holes (``holes``) and where SGBM is valid
+            (``valid``), for frames given an SGBM map; the two add up to :attr:`sums` then.
         seconds: time spent densifying with this kind (s).
         frames: frames accumulated.
     """
@@ -594,6 +670,11 @@ class CalibrationStats:
     by_std_2d: list[float] = field(default_factory=lambda: _zeros(STD_EDGES))
     by_std_abs: list[float] = field(default_factory=lambda: _zeros(STD_EDGES))
     by_std_sq: list[float] = field(default_factory=lambda: _zeros(STD_EDGES))
+    by_sgbm: dict[str, dict[str, float]] = field(
+        default_factory=lambda: {
+            part: dict.fromkeys(("n", "inside_1", "inside_2"), 0.0) for part in SGBM_PARTS
+        }
+    )
     seconds: float = 0.0
     frames: int = 0
 
@@ -603,12 +684,28 @@ class CalibrationStats:
         std: npt.ArrayLike,
         view: ReferenceView,
         delta_2d: npt.NDArray[np.float64],
+        *,
+        sgbm_valid: npt.NDArray[np.bool_] | None = None,
     ) -> None:
-        """Accumulate one frame (``delta_2d`` of the same estimate, NaN where not counted)."""
+        """Accumulate one frame (``delta_2d`` of the same estimate, NaN where not counted).
+
+        Args:
+            estimate: (H, W) float, estimated disparity (px).
+            std: (H, W) float, its posterior std (px).
+            view: the reference moved into view B.
+            delta_2d: (H, W) float64 Delta_2D of ``estimate`` (px).
+            sgbm_valid: (H, W) bool, where SGBM of the pair has a value; given, the
+                coverage is also split into SGBM's holes and the rest (:attr:`by_sgbm`).
+        """
         values = np.asarray(estimate, dtype=np.float64)
         sigma = np.asarray(std, dtype=np.float64)
         sums = calibration_sums(values, sigma, view.disparity, view.counted)
         self.sums = {key: self.sums[key] + sums[key] for key in self.sums}
+        if sgbm_valid is not None:
+            for part, mask in zip(SGBM_PARTS, (~sgbm_valid, sgbm_valid), strict=True):
+                part_sums = calibration_sums(values, sigma, view.disparity, view.counted & mask)
+                totals = self.by_sgbm[part]
+                self.by_sgbm[part] = {key: totals[key] + part_sums[key] for key in totals}
         counted = view.counted
         stds = sigma[counted]
         error = values[counted] - view.disparity[counted]
@@ -625,7 +722,7 @@ class CalibrationStats:
     def summary(self) -> dict[str, float]:
         """Return coverage of +-1 and +-2 std (fractions), mean NLL (nats) and ms per frame."""
         n = max(self.sums["n"], 1.0)
-        return {
+        summary = {
             "pixels": self.sums["n"],
             "coverage_1sigma": self.sums["inside_1"] / n,
             "coverage_2sigma": self.sums["inside_2"] / n,
@@ -634,3 +731,13 @@ class CalibrationStats:
             "nll_uncertain": self.sums["nll_uncertain"] / max(n - self.sums["certain"], 1.0),
             "ms_per_frame": 1000.0 * self.seconds / max(self.frames, 1),
         }
+        if self.has_sgbm_split:
+            for part, sums in self.by_sgbm.items():
+                summary[f"pixels_sgbm_{part}"] = sums["n"]
+                summary[f"coverage_2sigma_sgbm_{part}"] = sums["inside_2"] / max(sums["n"], 1.0)
+        return summary
+
+    @property
+    def has_sgbm_split(self) -> bool:
+        """Return whether any frame was split by an SGBM map."""
+        return any(sums["n"] > 0 for sums in self.by_sgbm.values())

@@ -1,19 +1,25 @@
 """``pcainterp evaluate``: read a densified log, measure it, write a report folder.
 
-The log is streamed (frame t and, in temporal mode, frame t+1 in memory). Per frame the
-reference is the ground-truth depth when the log has it (synthetic logs) and otherwise a
-dense SGBM map of the same pair (the paper's KITTI setup); never the sparse points. The
-maths is in :mod:`pcainterp_stream.evaluate.metrics`; this module does the reading, the
-re-densification with the basis (uncertainty kinds, oracle, points sweep), the figures
-(matplotlib, Agg), ``results.md`` and ``results.json``.
+The log is streamed (frame t and, in temporal mode, frame t+1 in memory, plus the few frames
+that wait for a late reference message). Per frame the reference is the log's
+``--reference-topic`` when one is given (any depth or disparity image, dense or sparse:
+:mod:`~pcainterp_stream.evaluate.reference`), else the ground-truth depth when the log has
+it (synthetic logs), else a dense SGBM map of the same pair (the paper's KITTI setup); never
+the sparse points. Beside PCA-MAP, nearest neighbour and linear interpolation, SGBM's own
+map of the pair is scored as a stereo baseline, as is that map with its holes filled.
+
+The maths is in :mod:`pcainterp_stream.evaluate.metrics`; this module does the reading and
+the re-densification with the basis (uncertainty kinds, oracle, points sweep);
+:mod:`~pcainterp_stream.evaluate.tables` writes the text and
+:mod:`~pcainterp_stream.evaluate.figures` the figures.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import json
 import time
+from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,21 +32,39 @@ from pcainterp_stream.errors import LogReadError, PcaInterpError
 from pcainterp_stream.estimate.baselines import linear, nearest
 from pcainterp_stream.estimate.basis import BUILT_IN, IN_MEMORY, Basis, is_default
 from pcainterp_stream.estimate.estimator import densify
+from pcainterp_stream.evaluate.figures import write_figures
 from pcainterp_stream.evaluate.metrics import (
-    DELTA_2D_EDGES,
-    DEPTH_EDGES,
-    STD_EDGES,
     SWEEP_POINTS,
     CalibrationStats,
     MethodStats,
     Mode,
+    ReferenceKind,
+    ReferenceView,
     disparity_from_depth,
+    fill_nearest,
     oracle_disparity,
     projection_errors,
     reference_view,
     relative_transform,
     stereo_transform,
 )
+from pcainterp_stream.evaluate.reference import (
+    SPARSE_BELOW,
+    ReferenceTopic,
+    reference_disparity,
+    resolve_reference,
+)
+from pcainterp_stream.evaluate.results import (
+    PCA_ON_SGBM,
+    SGBM,
+    SGBM_NN,
+    TARGET_COVERAGE,
+    TARGET_RATIO,
+    Evaluation,
+    Example,
+    RangeStats,
+)
+from pcainterp_stream.evaluate.tables import results_markdown, summary_table
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     SgbmConfig,
@@ -54,21 +78,36 @@ from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.outputs import OutputTopics
 from pcainterp_stream.records import StereoCamera
 
+__all__ = [
+    "GROUND_TRUTH_DEPTH",
+    "GROUND_TRUTH_POSE",
+    "LEFT_IMAGE",
+    "MEASUREMENTS_KEY",
+    "RIGHT_IMAGE",
+    "TARGET_COVERAGE",
+    "TARGET_RATIO",
+    "EvaluateOptions",
+    "Evaluation",
+    "RangeStats",
+    "evaluate_log",
+    "results_markdown",
+    "summary_table",
+    "write_figures",
+    "write_report",
+]
+
 LEFT_IMAGE = "/stereo/left/image_rect"
 RIGHT_IMAGE = "/stereo/right/image_rect"
 GROUND_TRUTH_DEPTH = "/ground_truth/depth"
 GROUND_TRUTH_POSE = "/ground_truth/pose"
 RIGHT_STAMP_TOLERANCE_NS = 1_000_000
 """The right image belongs to the frame whose stamp is this close (pairing's default)."""
-
-PAPER_DELTA_2D = {"KITTI": (3.4, 5.4), "Virtual KITTI": (2.0, 3.3)}
-"""The paper's mean Delta_2D (px) of PCA-MAP and nearest neighbour (section IV-B)."""
-
-TARGET_RATIO = 0.65
-"""Target: PCA-MAP's mean Delta_2D at most this times nearest neighbour's."""
-
-TARGET_COVERAGE = (0.90, 0.98)
-"""Target: the exact uncertainty's +-2 sigma coverage lies in this range."""
+MEASUREMENTS_KEY = "pcainterp.measurements"
+"""Channel metadata key of the output channels: the measurement mode, dense or sparse."""
+REFERENCE_WAIT_FRAMES = 4
+"""A complete frame waits for its reference message until this many frames are waiting."""
+REFERENCE_BUFFER = 16
+"""Reference messages kept (by stamp) for frames not yet complete."""
 
 
 @dataclass(frozen=True)
@@ -89,7 +128,13 @@ class EvaluateOptions:
         max_frames: evaluate at most this many frames (None: all).
         sgbm_reference: use SGBM of the pair as the reference even when the log has ground
             truth (the KITTI setup on a synthetic log).
-        sgbm: matcher settings of the SGBM reference and of the sweep's measurements.
+        sgbm: matcher settings of the SGBM reference, of the stereo baselines and of the
+            sweep's measurements.
+        reference_topic: score against this depth or disparity image topic of the log
+            (dense or sparse; NaN, 0 or < 0 = no truth) instead of ``/ground_truth/depth``
+            or SGBM; frames without a message of their stamp are skipped and counted.
+        reference_kind: what ``reference_topic`` holds; auto: a DisparityImage holds
+            disparity, an Image depth (32FC1 m, 16UC1 mm).
     """
 
     basis: Path | Basis | None = None
@@ -102,6 +147,8 @@ class EvaluateOptions:
     max_frames: int | None = None
     sgbm_reference: bool = False
     sgbm: SgbmConfig = field(default_factory=SgbmConfig)
+    reference_topic: str | None = None
+    reference_kind: ReferenceKind = ReferenceKind.AUTO
 
 
 @dataclass(frozen=True, eq=False)
@@ -120,124 +167,26 @@ class _Frame:
     depth: npt.NDArray[np.float32] | None
     pose: npt.NDArray[np.float64] | None
     min_disparity: float = 0.0
+    reference: Any = None
+    """The reference topic's message of this stamp (None: none, or no reference topic)."""
+
+
+@dataclass(frozen=True, eq=False)
+class _Stereo:
+    """SGBM's map of a frame's pair (the stereo baselines, the sweep, the SGBM reference)."""
+
+    disparity: npt.NDArray[np.float32]
+    """(H, W) float32 disparity (px), NaN in SGBM's holes."""
+    seconds: float
+    """Time SGBM took (s)."""
 
 
 @dataclass
-class RangeStats:
-    """How the REP 118 "farther than measurable" rule splits the counted pixels.
+class _ReadState:
+    """What reading the log found besides the frames."""
 
-    A pixel is too far for the estimate where its disparity is below the frame's
-    resolvable minimum (the ``DisparityImage``'s ``min_disparity``: depth ``+inf``), and
-    too far for the reference where the reference disparity is (sky included).
-    """
-
-    counted: int = 0
-    estimate_far: int = 0
-    reference_far: int = 0
-    both_far: int = 0
-
-    def add(
-        self,
-        estimate: npt.NDArray[np.float32],
-        reference: npt.NDArray[np.float64],
-        counted: npt.NDArray[np.bool_],
-        min_disparity: float,
-    ) -> None:
-        """Count one frame's pixels (``counted`` only)."""
-        with np.errstate(invalid="ignore"):
-            estimate_far = counted & (estimate < min_disparity)
-            reference_far = counted & (reference < min_disparity)
-        self.counted += int(counted.sum())
-        self.estimate_far += int(estimate_far.sum())
-        self.reference_far += int(reference_far.sum())
-        self.both_far += int((estimate_far & reference_far).sum())
-
-    def summary(self) -> dict[str, float]:
-        """Return the shares too far of the counted pixels, and the agreement of each side."""
-        return {
-            "estimate_far": self.estimate_far / max(self.counted, 1),
-            "reference_far": self.reference_far / max(self.counted, 1),
-            "estimate_far_reference_agrees": self.both_far / max(self.estimate_far, 1),
-            "reference_far_estimate_agrees": self.both_far / max(self.reference_far, 1),
-        }
-
-
-@dataclass
-class Evaluation:
-    """Everything ``evaluate`` measured (the JSON of the report).
-
-    Attributes:
-        log: the evaluated log.
-        mode: stereo or temporal.
-        reference: "ground truth" or "SGBM".
-        frames: frames evaluated.
-        image_size: (height, width) px.
-        methods: per method (pca_map, nearest, linear, oracle) its accumulated errors.
-        calibration: per uncertainty kind (stored, paper, exact) its calibration.
-        sweep: per number of points, per method, its accumulated errors.
-        sweep_frames: frames in the sweep.
-        points_per_frame: mean sparse points per frame.
-        basis: description of the basis (None without one).
-        basis_note: how the basis was chosen, or why there is none.
-        seconds: wall time of the evaluation (s).
-        ranges: the REP 118 "too far" split of the estimate against the reference.
-    """
-
-    log: str
-    mode: str
-    reference: str
-    frames: int = 0
-    image_size: tuple[int, int] = (0, 0)
-    methods: dict[str, MethodStats] = field(default_factory=dict)
-    calibration: dict[str, CalibrationStats] = field(default_factory=dict)
-    sweep: dict[int, dict[str, MethodStats]] = field(default_factory=dict)
-    sweep_frames: int = 0
-    points_per_frame: float = 0.0
-    basis: dict[str, Any] | None = None
-    basis_note: str = ""
-    seconds: float = 0.0
-    ranges: RangeStats = field(default_factory=RangeStats)
-
-    def summary(self) -> dict[str, Any]:
-        """Return every number as plain JSON-able data (means and the accumulated bins)."""
-        return {
-            "log": self.log,
-            "mode": self.mode,
-            "reference": self.reference,
-            "frames": self.frames,
-            "image_size": list(self.image_size),
-            "points_per_frame": self.points_per_frame,
-            "seconds": self.seconds,
-            "basis": self.basis,
-            "basis_note": self.basis_note,
-            "bins": {
-                "delta_2d_px": list(DELTA_2D_EDGES),
-                "depth_m": list(DEPTH_EDGES),
-                "std_px": list(STD_EDGES),
-            },
-            "methods": {
-                name: {"mean": stats.summary(), "accumulated": dataclasses.asdict(stats)}
-                for name, stats in self.methods.items()
-            },
-            "calibration": {
-                name: {"mean": stats.summary(), "accumulated": dataclasses.asdict(stats)}
-                for name, stats in self.calibration.items()
-            },
-            "ranges": {
-                "mean": self.ranges.summary(),
-                "accumulated": dataclasses.asdict(self.ranges),
-            },
-            "sweep_frames": self.sweep_frames,
-            "sweep": {
-                str(points): {name: stats.summary() for name, stats in methods.items()}
-                for points, methods in self.sweep.items()
-            },
-        }
-
-    def ratio(self) -> float:
-        """Return PCA-MAP's mean Delta_2D divided by nearest neighbour's."""
-        pca = self.methods["pca_map"].summary()["delta_2d_mean"]
-        return pca / max(self.methods["nearest"].summary()["delta_2d_mean"], 1e-12)
+    measurements: str | None = None
+    seen_disparity: bool = False
 
 
 def _camera(info: Any, disparity_message: Any, size: tuple[int, int]) -> StereoCamera:
@@ -253,8 +202,20 @@ def _camera(info: Any, disparity_message: Any, size: tuple[int, int]) -> StereoC
     )
 
 
-def _frames(path: Path, topics: OutputTopics, max_frames: int | None) -> Iterator[_Frame]:
-    """Yield the densified frames of a log in order, grouping channels by header stamp."""
+def _frames(
+    path: Path,
+    topics: OutputTopics,
+    max_frames: int | None,
+    reference: ReferenceTopic | None = None,
+    state: _ReadState | None = None,
+) -> Iterator[_Frame]:
+    """Yield the densified frames of a log in order, grouping channels by header stamp.
+
+    With a reference topic, each frame carries the reference message of its stamp. A
+    complete frame waits (at most :data:`REFERENCE_WAIT_FRAMES` frames, so memory stays
+    bounded) for a reference logged after it; then it is yielded without one.
+    """
+    state = state or _ReadState()
     with open_log(path) as reader:
         present = reader.topics()
         needed = [topics.disparity, topics.disparity_std, topics.features, topics.camera_info]
@@ -264,73 +225,127 @@ def _frames(path: Path, topics: OutputTopics, max_frames: int | None) -> Iterato
                 f"{path} has no {', '.join(missing)}; evaluate needs a log written by "
                 "`pcainterp densify` (with the input's stereo images)"
             )
-        optional = [t for t in (GROUND_TRUTH_DEPTH, GROUND_TRUTH_POSE) if t in present]
+        truth = [] if reference is not None else [GROUND_TRUTH_DEPTH]
+        optional = [t for t in (*truth, GROUND_TRUTH_POSE) if t in present]
         grouped = [*needed, LEFT_IMAGE, *optional]
         complete = len(grouped)
         # the right image may be stamped up to the pairing tolerance apart from the left;
         # densify copies it before it writes the pair's outputs, so it is read first
         wanted = [*grouped, *([RIGHT_IMAGE] if RIGHT_IMAGE in present else [])]
+        if reference is not None and reference.topic not in wanted:
+            wanted.append(reference.topic)
         rights: dict[int, Any] = {}
+        references: dict[int, Any] = {}
         pending: dict[int, dict[str, Any]] = {}
-        index = 0
+        waiting: deque[_Frame] = deque()
+        index = yielded = 0
         for raw in reader.messages(wanted):
+            if raw.topic == topics.disparity and not state.seen_disparity:
+                state.seen_disparity = True
+                state.measurements = dict(raw.channel_metadata).get(MEASUREMENTS_KEY)
             message = reader.decode(raw)
+            if reference is not None and raw.topic == reference.topic:
+                references[rosmsg.stamp_ns(message)] = message
+                while len(references) > REFERENCE_BUFFER:
+                    references.pop(min(references))
             stamp = rosmsg.stamp_ns(message.image if raw.topic == topics.disparity else message)
             if raw.topic == RIGHT_IMAGE:
                 rights[stamp] = message
                 while len(rights) > 16:
                     rights.pop(min(rights))
-                continue
-            parts = pending.setdefault(stamp, {})
-            parts[raw.topic] = message
-            if len(parts) < complete:
+            elif raw.topic in grouped:
+                parts = pending.setdefault(stamp, {})
+                parts[raw.topic] = message
+                if len(parts) == complete:
+                    del pending[stamp]
+                    waiting.append(
+                        _frame(index, stamp, pending_parts=parts, rights=rights, topics=topics)
+                    )
+                    index += 1
                 while len(pending) > 8:  # frames are written close together
                     pending.pop(min(pending))
-                continue
-            del pending[stamp]
-            estimate = rosmsg.image_array(parts[topics.disparity].image).astype(np.float32)
-            features = rosmsg.pointcloud2_arrays(parts[topics.features])
-            depth = parts.get(GROUND_TRUTH_DEPTH)
-            pose = parts.get(GROUND_TRUTH_POSE)
-            nearest_right = min(rights, key=lambda other: abs(other - stamp), default=None)
-            right = (
-                rights[nearest_right]
-                if nearest_right is not None
-                and abs(nearest_right - stamp) <= RIGHT_STAMP_TOLERANCE_NS
-                else None
-            )
-            yield _Frame(
-                index=index,
-                stamp_ns=stamp,
-                camera=_camera(
-                    parts[topics.camera_info],
-                    parts[topics.disparity],
-                    (int(estimate.shape[0]), int(estimate.shape[1])),
-                ),
-                estimate=estimate,
-                std=rosmsg.image_array(parts[topics.disparity_std]).astype(np.float32),
-                pixels=np.stack([features["u"], features["v"]], axis=1),
-                disparities=features["disparity"],
-                left=rosmsg.image_array(parts[LEFT_IMAGE]),
-                right=None if right is None else rosmsg.image_array(right),
-                depth=None if depth is None else rosmsg.image_array(depth).astype(np.float32),
-                pose=None if pose is None else rosmsg.pose_matrix(pose),
-                min_disparity=float(parts[topics.disparity].min_disparity),
-            )
-            index += 1
-            if max_frames is not None and index >= max_frames:
+            while waiting and (
+                reference is None
+                or waiting[0].stamp_ns in references
+                or len(waiting) > REFERENCE_WAIT_FRAMES
+            ):
+                frame = waiting.popleft()
+                yield dataclasses.replace(frame, reference=references.pop(frame.stamp_ns, None))
+                yielded += 1
+                if max_frames is not None and yielded >= max_frames:
+                    return
+        while waiting:  # the end of the log: no reference can come any more
+            frame = waiting.popleft()
+            yield dataclasses.replace(frame, reference=references.pop(frame.stamp_ns, None))
+            yielded += 1
+            if max_frames is not None and yielded >= max_frames:
                 return
 
 
-def _reference(frame: _Frame, sgbm: SgbmConfig, use_truth: bool) -> npt.NDArray[np.float64]:
+def _frame(
+    index: int,
+    stamp: int,
+    *,
+    pending_parts: dict[str, Any],
+    rights: dict[int, Any],
+    topics: OutputTopics,
+) -> _Frame:
+    """Build a frame from its complete messages and the right image nearest its stamp."""
+    parts = pending_parts
+    estimate = rosmsg.image_array(parts[topics.disparity].image).astype(np.float32)
+    features = rosmsg.pointcloud2_arrays(parts[topics.features])
+    depth = parts.get(GROUND_TRUTH_DEPTH)
+    pose = parts.get(GROUND_TRUTH_POSE)
+    nearest_right = min(rights, key=lambda other: abs(other - stamp), default=None)
+    right = (
+        rights[nearest_right]
+        if nearest_right is not None and abs(nearest_right - stamp) <= RIGHT_STAMP_TOLERANCE_NS
+        else None
+    )
+    return _Frame(
+        index=index,
+        stamp_ns=stamp,
+        camera=_camera(
+            parts[topics.camera_info],
+            parts[topics.disparity],
+            (int(estimate.shape[0]), int(estimate.shape[1])),
+        ),
+        estimate=estimate,
+        std=rosmsg.image_array(parts[topics.disparity_std]).astype(np.float32),
+        pixels=np.stack([features["u"], features["v"]], axis=1),
+        disparities=features["disparity"],
+        left=rosmsg.image_array(parts[LEFT_IMAGE]),
+        right=None if right is None else rosmsg.image_array(right),
+        depth=None if depth is None else rosmsg.image_array(depth).astype(np.float32),
+        pose=None if pose is None else rosmsg.pose_matrix(pose),
+        min_disparity=float(parts[topics.disparity].min_disparity),
+    )
+
+
+def _truth(
+    frame: _Frame, reference: ReferenceTopic | None, use_truth: bool
+) -> npt.NDArray[np.float64] | None:
+    """Return the frame's ground-truth disparity (px, NaN = no truth), None without one."""
+    if reference is not None:
+        if frame.reference is None:
+            return None
+        return reference_disparity(
+            frame.reference,
+            reference,
+            focal_baseline=frame.camera.focal_baseline,
+            image_size=frame.camera.image_size,
+        )
     if frame.depth is not None and use_truth:
         return disparity_from_depth(frame.depth, frame.camera.focal_baseline)
+    return None
+
+
+def _stereo(frame: _Frame, sgbm: SgbmConfig) -> _Stereo | None:
     if frame.right is None:
-        raise LogReadError(
-            f"frame {frame.index} has neither {GROUND_TRUTH_DEPTH} nor {RIGHT_IMAGE}; "
-            "evaluate needs ground truth or the right image for an SGBM reference"
-        )
-    return compute_disparity(frame.left, frame.right, sgbm).astype(np.float64)
+        return None
+    started = time.perf_counter()
+    disparity = compute_disparity(frame.left, frame.right, sgbm)
+    return _Stereo(disparity, time.perf_counter() - started)
 
 
 def _timed(stats: MethodStats | CalibrationStats, work: Callable[[], Any]) -> Any:
@@ -340,17 +355,6 @@ def _timed(stats: MethodStats | CalibrationStats, work: Callable[[], Any]) -> An
     return result
 
 
-@dataclass
-class _Example:
-    index: int
-    left: npt.NDArray[Any]
-    pixels: npt.NDArray[np.float64]
-    reference: npt.NDArray[np.float64]
-    estimate: npt.NDArray[np.float32]
-    std: npt.NDArray[np.float32]
-    nearest: npt.NDArray[np.float32]
-
-
 class _Evaluator:
     """Accumulates the metrics frame by frame."""
 
@@ -358,9 +362,10 @@ class _Evaluator:
         self.result = result
         self.options = options
         self.basis = basis
-        self.examples: list[_Example] = []
+        self.examples: list[Example] = []
         self.example_at: set[int] = set()
         self.points = 0
+        self.sgbm_empty = 0
 
     def _stats(self, name: str) -> MethodStats:
         return self.result.methods.setdefault(name, MethodStats())
@@ -368,11 +373,23 @@ class _Evaluator:
     def _calibration(self, name: str) -> CalibrationStats:
         return self.result.calibration.setdefault(name, CalibrationStats())
 
-    def add(self, frame: _Frame, reference: npt.NDArray[np.float64], transform: Any) -> None:
+    def add(
+        self,
+        frame: _Frame,
+        reference: npt.NDArray[np.float64],
+        transform: Any,
+        stereo: _Stereo | None = None,
+        *,
+        baselines: bool = False,
+    ) -> None:
+        """Score one frame against its reference (``baselines``: with the stereo ones)."""
         camera, size = frame.camera, frame.camera.image_size
         view = reference_view(reference, camera, transform)
+        sgbm_valid = np.isfinite(stereo.disparity) if baselines and stereo else None
         delta = self._stats("pca_map").add(frame.estimate, view, camera, transform)
-        self._calibration("stored").add(frame.estimate, frame.std, view, delta)
+        self._calibration("stored").add(
+            frame.estimate, frame.std, view, delta, sgbm_valid=sgbm_valid
+        )
         if frame.min_disparity > 0:
             self.result.ranges.add(
                 frame.estimate, view.disparity, view.counted, frame.min_disparity
@@ -385,11 +402,13 @@ class _Evaluator:
             pixels, values = frame.pixels, frame.disparities
             lin = _timed(linear_stats, lambda: linear(pixels, values, image_size=size))
             linear_stats.add(lin.disparity, view, camera, transform)
+        if stereo is not None and sgbm_valid is not None:
+            self._stereo_baselines(frame, stereo, sgbm_valid, view, transform)
         if self.basis is not None:
-            self._with_basis(frame, reference, view, transform)
+            self._with_basis(frame, reference, view, transform, stereo, sgbm_valid)
         if frame.index in self.example_at:
             self.examples.append(
-                _Example(
+                Example(
                     frame.index,
                     frame.left,
                     frame.pixels,
@@ -400,11 +419,44 @@ class _Evaluator:
                 )
             )
         self.points += frame.pixels.shape[0]
+        self.result.reference_pixels += int(np.count_nonzero(np.isfinite(reference)))
+        self.result.reference_area += reference.size
         self.result.frames += 1
         self.result.image_size = size
 
+    def _stereo_baselines(
+        self,
+        frame: _Frame,
+        stereo: _Stereo,
+        sgbm_valid: npt.NDArray[np.bool_],
+        view: ReferenceView,
+        transform: Any,
+    ) -> None:
+        """SGBM's own map where it has a value, and with its holes filled, on all pixels."""
+        camera, methods = frame.camera, self.result.stereo
+        on_sgbm = dataclasses.replace(view, counted=view.counted & sgbm_valid)
+        sgbm_stats = methods.setdefault(SGBM, MethodStats())
+        filled_stats = methods.setdefault(SGBM_NN, MethodStats())
+        pca_stats = methods.setdefault(PCA_ON_SGBM, MethodStats())
+        sgbm_stats.seconds += stereo.seconds
+        sgbm_stats.add(stereo.disparity, on_sgbm, camera, transform)
+        pca_stats.add(frame.estimate, on_sgbm, camera, transform)
+        self.result.stereo_counted += float(np.count_nonzero(view.counted))
+        filled_stats.seconds += stereo.seconds
+        filled = _timed(filled_stats, lambda: fill_nearest(stereo.disparity))
+        if filled is None:  # SGBM found nothing in this pair: there is nothing to fill from
+            self.sgbm_empty += 1
+            return
+        filled_stats.add(filled, view, camera, transform)
+
     def _with_basis(
-        self, frame: _Frame, reference: npt.NDArray[np.float64], view: Any, transform: Any
+        self,
+        frame: _Frame,
+        reference: npt.NDArray[np.float64],
+        view: ReferenceView,
+        transform: Any,
+        stereo: _Stereo | None,
+        sgbm_valid: npt.NDArray[np.bool_] | None,
     ) -> None:
         assert self.basis is not None
         basis, camera = self.basis, frame.camera
@@ -424,7 +476,7 @@ class _Evaluator:
                 ),
             )
             delta, _ = projection_errors(dense.disparity, view, camera, transform)
-            stats.add(dense.disparity, dense.disparity_std, view, delta)
+            stats.add(dense.disparity, dense.disparity_std, view, delta, sgbm_valid=sgbm_valid)
         # the exact posterior knows only the l kept components; the training variance the
         # basis leaves out, spread evenly over the grid pixels, is a floor it misses
         residual = max(float(basis.total_variance - basis.eigenvalues.sum()), 0.0)
@@ -432,28 +484,29 @@ class _Evaluator:
         residual_std = np.sqrt(
             dense.disparity_std.astype(np.float64) ** 2 + residual / basis.mean.size * to_log**2
         )
-        self._calibration("exact+residual").add(dense.disparity, residual_std, view, delta)
-        scale = basis.focal_baseline / camera.focal_baseline
-        oracle = oracle_disparity(basis, reference * scale) / scale
-        self._stats("oracle").add(oracle, view, camera, transform)
+        self._calibration("exact+residual").add(
+            dense.disparity, residual_std, view, delta, sgbm_valid=sgbm_valid
+        )
+        # the oracle fits the basis to the whole reference map: from a sparse one it would
+        # fit a nearest-neighbour fill of it, no bound on any estimate, so it is left out
+        if np.count_nonzero(np.isfinite(reference)) >= SPARSE_BELOW * reference.size:
+            scale = basis.focal_baseline / camera.focal_baseline
+            oracle = oracle_disparity(basis, reference * scale) / scale
+            self._stats("oracle").add(oracle, view, camera, transform)
         every = self.options.sweep_every
-        if every > 0 and self.result.frames % every == 0:
-            self._sweep(frame, view, transform)
+        if every > 0 and self.result.frames % every == 0 and stereo is not None:
+            self._sweep(frame, stereo, view, transform)
 
-    def _sweep(self, frame: _Frame, view: Any, transform: Any) -> None:
+    def _sweep(self, frame: _Frame, stereo: _Stereo, view: ReferenceView, transform: Any) -> None:
         """Error against the number of points: GFTT + SGBM lookups, strongest N corners."""
         assert self.basis is not None
-        if frame.right is None:
-            return
         camera, size = frame.camera, frame.camera.image_size
-        sgbm = self.options.sgbm
-        disparity_map = compute_disparity(frame.left, frame.right, sgbm)
         corners = detect_corners(
             to_grey8(frame.left),
             GfttConfig(max_corners=4 * max(SWEEP_POINTS), min_distance=5.0),
-            min_x=sgbm.valid_min_x,
+            min_x=self.options.sgbm.valid_min_x,
         )
-        found = lookup_disparities(disparity_map, corners)
+        found = lookup_disparities(stereo.disparity, corners)
         for points in SWEEP_POINTS:
             pixels = found.pixels[:points].astype(np.float64)
             values = found.disparities[:points].astype(np.float64)
@@ -493,7 +546,7 @@ def evaluate_log(
     *,
     topics: OutputTopics | None = None,
     progress: Callable[[int], None] | None = None,
-) -> tuple[Evaluation, list[_Example]]:
+) -> tuple[Evaluation, list[Example]]:
     """Evaluate a densified log (streaming).
 
     Args:
@@ -506,16 +559,28 @@ def evaluate_log(
         The :class:`Evaluation` and the example frames kept for the figures.
 
     Raises:
-        LogReadError: the log lacks densified channels, a reference or (temporal) poses.
-        PcaInterpError: the basis does not fit the log.
+        LogReadError: the log lacks densified channels, a reference or (temporal) poses; the
+            reference topic is missing, not an image or of another size than the estimate.
+        PcaInterpError: the basis does not fit the log; a reference topic with the SGBM
+            reference.
     """
     started = time.perf_counter()
     options = options or EvaluateOptions()
     topics = topics or OutputTopics()
+    if options.reference_topic is not None and options.sgbm_reference:
+        raise PcaInterpError(
+            "a reference topic and the SGBM reference contradict each other; choose one"
+        )
     with open_log(path) as reader:
         present = reader.topics()
-        has_truth = GROUND_TRUTH_DEPTH in present
+        reference = (
+            None
+            if options.reference_topic is None
+            else resolve_reference(options.reference_topic, options.reference_kind, present, path)
+        )
+        has_truth = reference is not None or GROUND_TRUTH_DEPTH in present
         has_pose = GROUND_TRUTH_POSE in present
+        has_right = RIGHT_IMAGE in present
         count = present[topics.disparity].message_count if topics.disparity in present else None
     has_truth = has_truth and not options.sgbm_reference
     mode = Mode(options.mode) if options.mode else None
@@ -528,9 +593,16 @@ def evaluate_log(
     result = Evaluation(
         log=str(path),
         mode=str(mode),
-        reference="ground truth" if has_truth else "SGBM",
+        reference=(reference.topic if reference else "ground truth" if has_truth else "SGBM"),
         basis_note=options.basis_note,
+        reference_kind=str(reference.kind) if reference else "",
     )
+    if not has_right:
+        result.stereo_note = f"skipped, the log has no {RIGHT_IMAGE}"
+    elif not has_truth:
+        result.stereo_note = (
+            "skipped, the reference is SGBM of the pair itself (they would be trivially perfect)"
+        )
     if basis is not None:
         result.basis = {
             "path": str(options.basis) if isinstance(options.basis, Path) else _name(basis),
@@ -546,310 +618,67 @@ def evaluate_log(
         last = total - 2 if mode is Mode.TEMPORAL else total - 1
         picks = np.linspace(0, max(last, 0), options.examples + 2)[1:-1]
         evaluator.example_at = {round(float(i)) for i in picks}
-    previous: tuple[_Frame, npt.NDArray[np.float64]] | None = None
+    previous: tuple[_Frame, npt.NDArray[np.float64], _Stereo | None] | None = None
     read = 0
-    for frame in _frames(path, topics, options.max_frames):
+    state = _ReadState()
+    for frame in _frames(path, topics, options.max_frames, reference, state):
         read += 1
         if progress is not None:
             progress(read)
-        reference = _reference(frame, options.sgbm, has_truth)
+        truth = _truth(frame, reference, has_truth)
+        if truth is None and reference is not None:  # no reference message of this stamp
+            result.skipped += 1
+            stereo = None
+        else:
+            stereo = _stereo(frame, options.sgbm)
+        if truth is not None:
+            frame_reference: npt.NDArray[np.float64] | None = truth
+        elif reference is not None:
+            frame_reference = None
+        elif stereo is None:
+            raise LogReadError(
+                f"frame {frame.index} has neither {GROUND_TRUTH_DEPTH} nor {RIGHT_IMAGE}; "
+                "evaluate needs ground truth or the right image for an SGBM reference"
+            )
+        else:
+            frame_reference = stereo.disparity.astype(np.float64)
+        baselines = truth is not None and stereo is not None
         if mode is Mode.STEREO:
-            evaluator.add(frame, reference, stereo_transform(frame.camera))
+            if frame_reference is not None:
+                evaluator.add(
+                    frame,
+                    frame_reference,
+                    stereo_transform(frame.camera),
+                    stereo,
+                    baselines=baselines,
+                )
             continue
         if previous is not None:
-            before, before_reference = previous
+            before, before_reference, before_stereo = previous
             assert before.pose is not None
             assert frame.pose is not None
-            evaluator.add(before, before_reference, relative_transform(before.pose, frame.pose))
-        previous = (frame, reference)
+            evaluator.add(
+                before,
+                before_reference,
+                relative_transform(before.pose, frame.pose),
+                before_stereo,
+                baselines=before_stereo is not None and has_truth,
+            )
+        previous = None if frame_reference is None else (frame, frame_reference, stereo)
+    result.measurements = state.measurements
+    if evaluator.sgbm_empty:
+        result.stereo_note = (
+            f"{SGBM_NN} left out on {evaluator.sgbm_empty} frames where SGBM found no pixel"
+        )
     if result.frames == 0:
+        without = f", {result.skipped} without a {reference.topic} message" if reference else ""
         raise LogReadError(
-            f"no frame of {path} could be evaluated ({read} densified frames read; temporal "
-            "mode needs two)"
+            f"no frame of {path} could be evaluated ({read} densified frames read{without}; "
+            "temporal mode needs two)"
         )
     result.points_per_frame = evaluator.points / result.frames
     result.seconds = time.perf_counter() - started
     return result, evaluator.examples
-
-
-# ----------------------------------------------------------------------------- report
-
-
-def _percent(value: float) -> str:
-    return f"{100 * value:.1f} %"
-
-
-def summary_table(result: Evaluation) -> str:
-    """Return the plain-text summary table ``evaluate`` prints."""
-    lines = [
-        f"{result.frames} frames of {result.log}, {result.mode} mode, reference: "
-        f"{result.reference}, {result.points_per_frame:.0f} points per frame",
-        *([f"basis of the re-densified rows: {result.basis_note}"] if result.basis_note else []),
-        f"{'method':<10} {'D2D px':>8} {'/NN':>6} {'D3D m':>8} {'RMSE m':>8} {'MAE m':>7} "
-        f"{'iRMSE':>7} {'iMAE':>7} {'ms/frame':>9}",
-    ]
-    nn_mean = result.methods["nearest"].summary()["delta_2d_mean"]
-    for name, stats in result.methods.items():
-        s = stats.summary()
-        timing = f"{s['ms_per_frame']:.0f}" if stats.seconds > 0 else "-"
-        lines.append(
-            f"{name:<10} {s['delta_2d_mean']:>8.3f} {s['delta_2d_mean'] / nn_mean:>6.2f} "
-            f"{s['delta_3d_mean']:>8.2f} {s['rmse_m']:>8.2f} {s['mae_m']:>7.2f} "
-            f"{s['irmse_per_km']:>7.1f} {s['imae_per_km']:>7.1f} {timing:>9}"
-        )
-    for name, calibration in result.calibration.items():
-        c = calibration.summary()
-        timing = f", {c['ms_per_frame']:.0f} ms/frame" if calibration.seconds > 0 else ""
-        certain = ""
-        if c["certain"] > 0:  # a basis that never varies at some pixels claims std 0 there
-            certain = (
-                f" (std 0 at {100 * c['certain']:.2g} % of pixels; "
-                f"NLL {c['nll_uncertain']:.2f} without them)"
-            )
-        lines.append(
-            f"uncertainty {name:<7} inside +-1 sigma {_percent(c['coverage_1sigma'])}, "
-            f"+-2 sigma {_percent(c['coverage_2sigma'])}, NLL {c['nll']:.2f}{certain}{timing}"
-        )
-    if result.ranges.counted:
-        r = result.ranges.summary()
-        lines.append(
-            f"too far (depth +inf): estimate {_percent(r['estimate_far'])} of pixels "
-            f"({_percent(r['estimate_far_reference_agrees'])} far in the reference too), "
-            f"reference {_percent(r['reference_far'])} "
-            f"({_percent(r['reference_far_estimate_agrees'])} found)"
-        )
-    return "\n".join(lines)
-
-
-def _targets(result: Evaluation) -> list[str]:
-    lines = []
-    ratio = result.ratio()
-    verdict = "met" if ratio <= TARGET_RATIO else f"missed by {ratio - TARGET_RATIO:.2f}"
-    lines.append(
-        f"- PCA-MAP / nearest neighbour mean Delta_2D = {ratio:.2f} (target <= "
-        f"{TARGET_RATIO}; paper 0.63 KITTI, 0.61 Virtual KITTI): {verdict}."
-    )
-    if "exact" in result.calibration:
-        coverage = result.calibration["exact"].summary()["coverage_2sigma"]
-        low, high = TARGET_COVERAGE
-        if low <= coverage <= high:
-            verdict = "met"
-        else:
-            gap = low - coverage if coverage < low else coverage - high
-            verdict = f"missed by {100 * gap:.1f} points"
-        lines.append(
-            f"- exact uncertainty +-2 sigma coverage = {_percent(coverage)} (target "
-            f"{100 * low:.0f}-{100 * high:.0f} %): {verdict}."
-        )
-    return lines
-
-
-def results_markdown(result: Evaluation, figures: list[str]) -> str:
-    """Return ``results.md`` of a report folder."""
-    lines = [
-        f"# Evaluation of `{Path(result.log).name}`",
-        "",
-        f"{result.frames} frames, {result.image_size[1]}x{result.image_size[0]} px, "
-        f"{result.mode} mode (Delta_2D/Delta_3D of paper section IV-B), reference: "
-        f"{result.reference}; {result.points_per_frame:.0f} sparse points per frame; "
-        f"evaluation took {result.seconds:.0f} s.",
-        "",
-        "```",
-        summary_table(result),
-        "```",
-        "",
-        "D2D: mean Delta_2D (px), /NN: ratio to nearest neighbour; D3D: mean Delta_3D (m, "
-        "reference depths up to 80 m, estimated depth capped there); RMSE/MAE (m) and "
-        "iRMSE/iMAE (1/km) likewise; ms/frame: time of the method during evaluation "
-        "(PCA-MAP: see the uncertainty rows, a re-densification with the basis). Coverage: "
-        "share of reference "
-        "disparities within +-1/+-2 posterior std (Gaussian: 68.3 / 95.4 %).",
-        "",
-        "## Targets",
-        "",
-        *_targets(result),
-        "",
-    ]
-    if result.sweep:
-        lines += [
-            f"## Error against the number of points ({result.sweep_frames} frames)",
-            "",
-            "| points | PCA-MAP D2D px | nearest D2D px | linear D2D px | PCA/NN |",
-            "| --- | --- | --- | --- | --- |",
-        ]
-        for points, methods in sorted(result.sweep.items()):
-            means = {name: stats.summary()["delta_2d_mean"] for name, stats in methods.items()}
-            lines.append(
-                f"| {points} | {means['pca_map']:.3f} | {means['nearest']:.3f} | "
-                f"{means['linear']:.3f} | {means['pca_map'] / means['nearest']:.2f} |"
-            )
-        lines.append("")
-    if result.basis is not None:
-        b = result.basis
-        lines += [
-            f"Basis: `{b['path']}`, {b['components']} components on a {b['grid'][1]}x"
-            f"{b['grid'][0]} grid from {b['n_train']} maps "
-            f"({_percent(b['explained_variance'])} of the training variance).",
-            "",
-        ]
-    lines += ["## Figures", ""] + [f"![{name}]({name})" for name in figures]
-    lines += ["", "All numbers, with the accumulated histograms: `results.json`.", ""]
-    return "\n".join(lines)
-
-
-def _bar_chart(axis: Any, labels: list[str], series: dict[str, list[float]], ylabel: str) -> None:
-    width = 0.8 / max(len(series), 1)
-    positions = np.arange(len(labels))
-    for i, (name, values) in enumerate(series.items()):
-        axis.bar(positions + i * width - 0.4 + width / 2, values, width, label=name)
-    axis.set_xticks(positions, labels, rotation=30, fontsize=7)
-    axis.set_ylabel(ylabel)
-    axis.legend(fontsize=7)
-
-
-def _bin_labels(edges: tuple[float, ...], unit: str) -> list[str]:
-    labels = []
-    for low, high in itertools.pairwise(edges):
-        labels.append(f">{low:g}{unit}" if np.isinf(high) else f"{low:g}-{high:g}")
-    return labels
-
-
-def _ratio(sums: list[float], counts: list[float]) -> list[float]:
-    return [s / c if c > 0 else 0.0 for s, c in zip(sums, counts, strict=True)]
-
-
-def write_figures(
-    result: Evaluation, examples: list[_Example], folder: Path, basis: Basis | None
-) -> list[str]:
-    """Write the report's PNG figures; return their file names."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    names: list[str] = []
-
-    def save(figure: Any, name: str) -> None:
-        figure.tight_layout()
-        figure.savefig(folder / name, dpi=90)
-        plt.close(figure)
-        names.append(name)
-
-    # error distribution, PCA-MAP against nearest neighbour (and the others)
-    figure, axes = plt.subplots(1, 3, figsize=(15, 4))
-    labels = _bin_labels(DELTA_2D_EDGES, " px")
-    _bar_chart(
-        axes[0],
-        labels,
-        {
-            name: list(np.asarray(s.delta_2d_hist) / max(s.pixels, 1))
-            for name, s in result.methods.items()
-        },
-        "share of pixels",
-    )
-    axes[0].set_title("Delta_2D distribution")
-    _bar_chart(
-        axes[1],
-        _bin_labels(DEPTH_EDGES, " m"),
-        {n: _ratio(s.by_depth_2d, s.by_depth_count) for n, s in result.methods.items()},
-        "mean Delta_2D (px)",
-    )
-    axes[1].set_title("Delta_2D by reference depth (m)")
-    _bar_chart(
-        axes[2],
-        _bin_labels(DEPTH_EDGES, " m"),
-        {n: _ratio(s.by_depth_3d, s.by_depth_3d_count) for n, s in result.methods.items()},
-        "mean Delta_3D (m)",
-    )
-    axes[2].set_yscale("log")
-    axes[2].set_title("Delta_3D by reference depth (m)")
-    save(figure, "errors.png")
-
-    # uncertainty: Delta_2D and |error| by predicted std, coverage
-    figure, axes = plt.subplots(1, 2, figsize=(11, 4))
-    std_labels = _bin_labels(STD_EDGES, " px")
-    _bar_chart(
-        axes[0],
-        std_labels,
-        {n: _ratio(c.by_std_2d, c.by_std_count) for n, c in result.calibration.items()},
-        "mean Delta_2D (px)",
-    )
-    axes[0].set_title("PCA-MAP Delta_2D by predicted disparity std (px)")
-    for name, calibration in result.calibration.items():
-        counts = np.asarray(calibration.by_std_count)
-        rms = np.where(
-            counts > 0, np.sqrt(_ratio(calibration.by_std_sq, calibration.by_std_count)), np.nan
-        )  # empty bins are gaps, not zeros on the log axis
-        axes[1].plot(std_labels, rms, marker="o", label=f"{name}: RMS error")
-    centres = [0.25, 0.75, 1.5, 3.0, 6.0, 12.0]
-    axes[1].plot(std_labels, centres, "k--", label="calibrated (bin centre)")
-    axes[1].set_yscale("log")
-    axes[1].set_ylabel("RMS disparity error (px)")
-    axes[1].set_title("calibration by predicted std")
-    axes[1].legend(fontsize=7)
-    axes[1].tick_params(axis="x", rotation=30, labelsize=7)
-    save(figure, "uncertainty.png")
-
-    if result.sweep:
-        figure, axis = plt.subplots(figsize=(6, 4))
-        points = sorted(result.sweep)
-        for name in ("pca_map", "nearest", "linear"):
-            axis.plot(
-                points,
-                [result.sweep[p][name].summary()["delta_2d_mean"] for p in points],
-                marker="o",
-                label=name,
-            )
-        axis.set_xscale("log")
-        axis.set_xticks(points, [str(p) for p in points])
-        axis.set_xlabel("sparse points per frame")
-        axis.set_ylabel("mean Delta_2D (px)")
-        axis.legend()
-        save(figure, "sweep.png")
-
-    if examples:
-        figure, axes = plt.subplots(len(examples), 5, figsize=(22, 1.9 * len(examples) + 0.4))
-        axes = np.atleast_2d(axes)
-        for row, example in zip(axes, examples, strict=True):
-            high = float(np.nanpercentile(example.reference, 99)) or 1.0
-            row[0].imshow(example.left, cmap="gray")
-            row[0].plot(example.pixels[:, 0], example.pixels[:, 1], "r.", markersize=2)
-            row[0].set_title(f"frame {example.index}: input, {len(example.pixels)} points")
-            for axis, image, title in (
-                (row[1], example.reference, "reference"),
-                (row[2], example.estimate, "PCA-MAP"),
-                (row[4], example.nearest, "nearest neighbour"),
-            ):
-                axis.imshow(image, cmap="turbo", vmin=0, vmax=high)
-                axis.set_title(f"{title} (disparity 0-{high:.0f} px)", fontsize=8)
-            shown = row[3].imshow(example.std, cmap="magma")
-            row[3].set_title("posterior std (px)", fontsize=8)
-            figure.colorbar(shown, ax=row[3], fraction=0.02)
-            for axis in row:
-                axis.set_axis_off()
-        save(figure, "examples.png")
-
-    if basis is not None:
-        count = min(5, basis.n_components)
-        figure, axes = plt.subplots(2, 3, figsize=(15, 3.2))
-        axes = axes.ravel()
-        axes[0].imshow(basis.mean, cmap="turbo")
-        axes[0].set_title("basis mean (px)")
-        for i in range(count):
-            axes[i + 1].imshow(basis.components[i], cmap="RdBu")
-            axes[i + 1].set_title(f"component {i} (lambda {basis.eigenvalues[i]:.3g})")
-        for axis in axes:
-            axis.set_axis_off()
-        save(figure, "basis.png")
-        figure, axis = plt.subplots(figsize=(6, 4))
-        cumulative = np.cumsum(basis.eigenvalues) / basis.total_variance
-        axis.plot(np.arange(1, basis.n_components + 1), cumulative)
-        axis.set_xlabel("components")
-        axis.set_ylabel("cumulative explained variance")
-        axis.set_ylim(0, 1)
-        axis.grid(alpha=0.3)
-        save(figure, "variance.png")
-    return names
 
 
 def write_report(
@@ -877,8 +706,8 @@ def write_report(
         raise PcaInterpError(
             f"cannot write the report to {folder}: folder {folder.parent} does not exist"
         )
-    folder.mkdir(exist_ok=True)
     result, examples = evaluate_log(path, options, topics=topics, progress=progress)
+    folder.mkdir(exist_ok=True)  # only now: a log that cannot be evaluated leaves nothing
     figures = write_figures(result, examples, folder, _load_basis(options))
     (folder / "results.json").write_text(json.dumps(result.summary(), indent=1) + "\n")
     (folder / "results.md").write_text(results_markdown(result, figures))

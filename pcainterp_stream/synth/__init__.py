@@ -24,17 +24,21 @@ import numpy.typing as npt
 
 from pcainterp_stream.allocator import keep_freed_memory
 from pcainterp_stream.records import StereoCamera, SynthFrame
+from pcainterp_stream.synth.lidar import LIDAR_DEPTH, LidarConfig, lidar_depth
 from pcainterp_stream.synth.render import View, render_view
 from pcainterp_stream.synth.world import World
 
 __all__ = [
     "CAMERA_HEIGHT",
     "FRAME_PERIOD_NS",
+    "LIDAR_DEPTH",
+    "LidarConfig",
     "SynthConfig",
     "View",
     "World",
     "camera_pose",
     "generate",
+    "lidar_depth",
     "non_occluded",
     "render_view",
     "right_pose",

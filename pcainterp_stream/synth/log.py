@@ -11,11 +11,15 @@ topic                           type                             content
 ``/stereo/left/camera_info``    sensor_msgs/msg/CameraInfo       P = [fx 0 cx 0; ...]
 ``/stereo/right/camera_info``   sensor_msgs/msg/CameraInfo       P[0, 3] = -fx * b
 ``/ground_truth/depth``         sensor_msgs/msg/Image 32FC1      metres, NaN for sky
+``/ground_truth/lidar_depth``   sensor_msgs/msg/Image 32FC1      optional, see below
 ``/ground_truth/pose``          geometry_msgs/msg/PoseStamped    left camera in "world"
 ==============================  ===============================  =======================
 
 The ground-truth topics are optional per frame (:func:`frame_messages` with
-``ground_truth=False``), which the KITTI importer uses.
+``ground_truth=False``), which the KITTI importer uses. ``/ground_truth/lidar_depth`` is
+written only when asked for (``lidar=LidarConfig(...)``, ``pcainterp synth --lidar``): the
+same depth at the few percent of the pixels a 64-beam scanner would hit, NaN elsewhere
+(:mod:`pcainterp_stream.synth.lidar`).
 """
 
 from __future__ import annotations
@@ -48,12 +52,14 @@ from pcainterp_stream.io.stereo_log import (
     stereo_messages,
 )
 from pcainterp_stream.records import SynthFrame
+from pcainterp_stream.synth.lidar import LIDAR_DEPTH, LidarConfig, lidar_depth
 
 __all__ = [
     "DEPTH",
     "LEFT_FRAME",
     "LEFT_IMAGE",
     "LEFT_INFO",
+    "LIDAR_DEPTH",
     "POSE",
     "RIGHT_FRAME",
     "RIGHT_IMAGE",
@@ -67,12 +73,16 @@ __all__ = [
 ]
 
 
-def frame_messages(frame: SynthFrame, *, ground_truth: bool = True) -> Iterator[tuple[str, Any]]:
+def frame_messages(
+    frame: SynthFrame, *, ground_truth: bool = True, lidar: LidarConfig | None = None
+) -> Iterator[tuple[str, Any]]:
     """Yield (topic, message) of one synthetic frame in the order of the module table.
 
     Args:
         frame: the frame; ``depth`` (H, W) float32 metres, NaN for sky.
         ground_truth: also yield ``/ground_truth/depth`` and ``/ground_truth/pose``.
+        lidar: with ``ground_truth``, also yield ``/ground_truth/lidar_depth`` from this
+            scanner (None: not).
 
     Raises:
         ValueError: if an array's shape does not match the frame's camera.
@@ -87,12 +97,24 @@ def frame_messages(frame: SynthFrame, *, ground_truth: bool = True) -> Iterator[
         )
     depth = np.asarray(frame.depth, dtype=np.float32)
     yield DEPTH, rosmsg.image_message(depth, frame.stamp_ns, LEFT_FRAME, encoding="32FC1")
+    if lidar is not None:
+        sparse = lidar_depth(depth, frame.camera, frame_index=frame.index, config=lidar)
+        yield (
+            LIDAR_DEPTH,
+            rosmsg.image_message(sparse, frame.stamp_ns, LEFT_FRAME, encoding="32FC1"),
+        )
     yield POSE, pose_message(frame.camera_to_world, frame.stamp_ns)
 
 
-def write_frame(writer: LogWriter, frame: SynthFrame, *, ground_truth: bool = True) -> None:
+def write_frame(
+    writer: LogWriter,
+    frame: SynthFrame,
+    *,
+    ground_truth: bool = True,
+    lidar: LidarConfig | None = None,
+) -> None:
     """Add one frame's messages to an open writer (log time = header stamp)."""
-    for topic, message in frame_messages(frame, ground_truth=ground_truth):
+    for topic, message in frame_messages(frame, ground_truth=ground_truth, lidar=lidar):
         writer.add_message(topic, message, frame.stamp_ns)
 
 
@@ -103,6 +125,7 @@ def write_synthetic_log(
     format: LogFormat | str | None = None,
     progress: ProgressCallback | None = None,
     total: int | None = None,
+    lidar: LidarConfig | None = None,
 ) -> WriteSummary:
     """Write frames with their ground truth as a log, one frame in memory at a time.
 
@@ -112,6 +135,7 @@ def write_synthetic_log(
         format: output format; chosen from the path's name when None.
         progress: called as ``progress(frames_done, total)`` after every frame.
         total: number of frames, passed on to ``progress`` (None if unknown).
+        lidar: also write ``/ground_truth/lidar_depth`` from this scanner (None: not).
 
     Returns:
         What was written (path, counts per topic, first and last log time).
@@ -122,7 +146,7 @@ def write_synthetic_log(
     """
     with open_writer(path, format) as writer:
         for done, frame in enumerate(frames, start=1):
-            write_frame(writer, frame)
+            write_frame(writer, frame, lidar=lidar)
             if progress is not None:
                 progress(done, total)
     return writer.summary()

@@ -12,10 +12,9 @@ from hypothesis import strategies as st
 from hypothesis_profiles import examples
 
 from pcainterp_stream import cli
-
-from pcainterp_stream.pipeline import jobs
-from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.errors import LogReadError
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.learning import preprocess_disparity
 from pcainterp_stream.evaluate.metrics import (
     CalibrationStats,
     MethodStats,
@@ -29,10 +28,10 @@ from pcainterp_stream.evaluate.metrics import (
     relative_transform,
     stereo_transform,
 )
-from pcainterp_stream.estimate.learning import preprocess_disparity
-from pcainterp_stream.frontend.pairing import PairingConfig
-from pcainterp_stream.records import StereoCamera
 from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log
+from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.pipeline import jobs
+from pcainterp_stream.records import StereoCamera
 
 CAMERA = StereoCamera(width=80, height=40, fx=60.0, fy=60.0, cx=39.5, cy=19.5, baseline=0.5)
 
@@ -217,6 +216,12 @@ def test_evaluate_writes_report_with_every_section(dense_logs: dict[str, Path]) 
     assert report["reference"] == "ground truth"
     assert report["frames"] == 3  # temporal: the last frame has no successor
     assert set(report["methods"]) == {"pca_map", "nearest", "linear", "oracle"}
+    # the stereo baselines beside them, and the coverage split by SGBM's holes
+    assert set(report["stereo_baselines"]) == {"sgbm", "sgbm_nn", "pca_map@sgbm"}
+    stored_split = report["calibration"]["stored"]["mean"]
+    parts = stored_split["pixels_sgbm_holes"] + stored_split["pixels_sgbm_valid"]
+    assert parts == stored_split["pixels"]
+    assert report["reference_label"] == "ground truth (dense, 100.0 % of pixels)"
     assert set(report["calibration"]) == {"stored", "paper", "exact", "exact+residual"}
     # adding the variance the basis leaves out widens the band
     widened = report["calibration"]["exact+residual"]["mean"]["coverage_2sigma"]
@@ -254,6 +259,7 @@ def test_stereo_mode_with_an_sgbm_reference(
     truth, _ = evaluate_log(dense_logs["dense"], EvaluateOptions(mode=Mode.STEREO, sweep_every=0))
     assert stereo.methods["pca_map"].pixels < truth.methods["pca_map"].pixels
     assert stereo.calibration.keys() == {"stored"}
+    assert stereo.stereo == {}  # SGBM against itself would be trivially perfect
     assert len(examples) == 1
 
 

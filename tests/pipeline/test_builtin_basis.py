@@ -14,7 +14,12 @@ from pcainterp_stream import cli
 from pcainterp_stream.estimate import basis as basis_module
 from pcainterp_stream.estimate.basis import BUILT_IN, Basis
 from pcainterp_stream.frontend.pairing import PairingConfig
-from pcainterp_stream.io.outputs import BASIS_FINGERPRINT_KEY, BASIS_KEY, recorded_metadata
+from pcainterp_stream.io.outputs import (
+    BASIS_FINGERPRINT_KEY,
+    BASIS_KEY,
+    MEASUREMENTS_KEY,
+    recorded_metadata,
+)
 from pcainterp_stream.pipeline import jobs
 from pcainterp_stream.pipeline.processor import FrameProcessor
 
@@ -51,6 +56,7 @@ def test_densify_without_basis_records_the_built_in_one(folder: Path) -> None:
     assert recorded == {
         BASIS_KEY: BUILT_IN,
         BASIS_FINGERPRINT_KEY: Basis.default().fingerprint,
+        MEASUREMENTS_KEY: "sparse",
     }
     recorded = recorded_metadata(folder / "own_dense.mcap")
     assert recorded[BASIS_KEY] == str(folder / "own.npz")

@@ -1,0 +1,156 @@
+"""A ground-truth reference topic of the user's log (``pcainterp evaluate --reference-topic``).
+
+Any depth or disparity image topic can be the reference, dense or sparse (projected LiDAR,
+KITTI's annotated depth):
+
+=====================================  ==========  ==========================================
+message type and encoding              kind        values
+=====================================  ==========  ==========================================
+sensor_msgs/msg/Image 32FC1            depth       metres; NaN, 0, < 0: no truth; +inf: far
+sensor_msgs/msg/Image 16UC1 / mono16   depth       millimetres (REP 118); 0: no truth
+sensor_msgs/msg/Image 32FC1            disparity   px (``--reference-kind disparity``)
+stereo_msgs/msg/DisparityImage         disparity   px, rescaled by the log's f*b / its f*t
+=====================================  ==========  ==========================================
+
+This module checks the topic against the log and turns one message into a disparity map of
+the densified log's camera, NaN where the reference holds no truth
+(:func:`~pcainterp_stream.evaluate.metrics.disparity_from_reference`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.errors import LogReadError, TopicNotFoundError
+from pcainterp_stream.evaluate.metrics import ReferenceKind, disparity_from_reference
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.reader_base import TopicInfo
+
+IMAGE_TYPES = (rosmsg.IMAGE, rosmsg.DISPARITY_IMAGE)
+"""Message types a reference topic may have."""
+
+DEPTH_ENCODINGS = {"32FC1": 1.0, "16UC1": 1e-3, "mono16": 1e-3}
+"""Image encodings a depth reference may have, with their unit in metres."""
+
+SPARSE_BELOW = 0.5
+"""A reference with truth at fewer than this share of the pixels is called sparse."""
+
+
+@dataclass(frozen=True)
+class ReferenceTopic:
+    """A reference topic checked against a log.
+
+    Attributes:
+        topic: the topic name.
+        msgtype: ``sensor_msgs/msg/Image`` or ``stereo_msgs/msg/DisparityImage``.
+        kind: depth or disparity (never auto).
+    """
+
+    topic: str
+    msgtype: str
+    kind: ReferenceKind
+
+
+def resolve_reference(
+    topic: str, kind: ReferenceKind | str, present: Mapping[str, TopicInfo], log: object
+) -> ReferenceTopic:
+    """Check a reference topic against a log's topics and settle its kind.
+
+    Args:
+        topic: the ``--reference-topic``.
+        kind: the ``--reference-kind``; auto: disparity for a DisparityImage, else depth.
+        present: the log's topics (``LogReader.topics()``).
+        log: the log, for the messages.
+
+    Returns:
+        The checked :class:`ReferenceTopic`.
+
+    Raises:
+        TopicNotFoundError: the topic is not in the log (the message lists its image topics).
+        LogReadError: the topic is not an image, or a DisparityImage called depth.
+    """
+    kind = ReferenceKind(kind)
+    info = present.get(topic)
+    if info is None:
+        images = sorted(name for name, other in present.items() if other.msgtype in IMAGE_TYPES)
+        raise TopicNotFoundError(
+            f"reference topic {topic} not found in {log}; image topics present: "
+            f"{', '.join(images) or 'none'}; pass one of them to --reference-topic"
+        )
+    if info.msgtype not in IMAGE_TYPES:
+        raise LogReadError(
+            f"reference topic {topic} in {log} is a {info.msgtype or 'non-ROS channel'}, not a "
+            f"depth or disparity image ({' or '.join(IMAGE_TYPES)}); project it into the left "
+            "camera first"
+        )
+    if info.msgtype == rosmsg.DISPARITY_IMAGE:
+        if kind is ReferenceKind.DEPTH:
+            raise LogReadError(
+                f"reference topic {topic} is a {rosmsg.DISPARITY_IMAGE}, which holds disparity; "
+                "drop --reference-kind depth"
+            )
+        kind = ReferenceKind.DISPARITY
+    elif kind is ReferenceKind.AUTO:
+        kind = ReferenceKind.DEPTH
+    return ReferenceTopic(topic=topic, msgtype=info.msgtype, kind=kind)
+
+
+def reference_disparity(
+    message: Any,
+    reference: ReferenceTopic,
+    *,
+    focal_baseline: float,
+    image_size: tuple[int, int],
+) -> npt.NDArray[np.float64]:
+    """Decode one reference message into disparity of the densified log's camera.
+
+    Args:
+        message: a decoded message of ``reference.topic``.
+        reference: the checked topic.
+        focal_baseline: f*b (px*m) of the densified log's camera.
+        image_size: (height, width) of the estimate (px).
+
+    Returns:
+        (H, W) float64 disparity (px), NaN where the reference holds no truth, 0 where a
+        depth reference says +inf (farther than measurable).
+
+    Raises:
+        LogReadError: the image is of another size than the estimate, or of an encoding
+            that does not hold depth or disparity.
+    """
+    topic = reference.topic
+    image = message.image if reference.msgtype == rosmsg.DISPARITY_IMAGE else message
+    encoding = str(image.encoding)
+    if reference.kind is ReferenceKind.DEPTH:
+        allowed = DEPTH_ENCODINGS
+        what = f"a depth reference must be {', '.join(DEPTH_ENCODINGS)} (REP 118)"
+    else:
+        allowed = {"32FC1": 1.0}
+        what = "a disparity reference must be 32FC1 (px)"
+    unit = allowed.get(encoding)
+    if unit is None:
+        raise LogReadError(f"reference topic {topic} has {encoding} images; {what}")
+    height, width = int(image.height), int(image.width)
+    if (height, width) != image_size:
+        raise LogReadError(
+            f"reference topic {topic} has {width}x{height} images but the estimate is "
+            f"{image_size[1]}x{image_size[0]}; pass a reference at the densified size"
+        )
+    try:
+        raw = rosmsg.image_array(image)
+    except ValueError as err:
+        raise LogReadError(f"reference topic {topic}: {err}") from err
+    values = raw.astype(np.float64) * unit
+    if np.issubdtype(raw.dtype, np.integer):  # 0 mm is "no return" (REP 118)
+        values[raw == 0] = np.nan
+    if reference.msgtype == rosmsg.DISPARITY_IMAGE:
+        # d = f t / Z: a disparity of another focal length or baseline than the log's
+        focal_t = float(message.f) * float(message.t)
+        if focal_t > 0 and np.isfinite(focal_t):
+            values *= focal_baseline / focal_t
+    return disparity_from_reference(values, kind=reference.kind, focal_baseline=focal_baseline)

@@ -1,0 +1,218 @@
+"""What ``pcainterp evaluate`` measured: the records the report's tables and figures read.
+
+:class:`Evaluation` is filled frame by frame by :mod:`pcainterp_stream.evaluate.report` and
+read by :mod:`~pcainterp_stream.evaluate.tables` (text, ``results.json``) and
+:mod:`~pcainterp_stream.evaluate.figures` (PNGs).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.evaluate.metrics import (
+    DELTA_2D_EDGES,
+    DEPTH_EDGES,
+    STD_EDGES,
+    CalibrationStats,
+    MethodStats,
+)
+from pcainterp_stream.evaluate.reference import SPARSE_BELOW
+
+PAPER_DELTA_2D = {"KITTI": (3.4, 5.4), "Virtual KITTI": (2.0, 3.3)}
+"""The paper's mean Delta_2D (px) of PCA-MAP and nearest neighbour (section IV-B)."""
+
+TARGET_RATIO = 0.65
+"""Target: PCA-MAP's mean Delta_2D at most this times nearest neighbour's."""
+
+TARGET_COVERAGE = (0.90, 0.98)
+"""Target: the exact uncertainty's +-2 sigma coverage lies in this range."""
+
+TARGET_SGBM_NN_RATIO = 0.85
+"""Dense-mode target (issue 18): PCA-MAP's mean Delta_2D at most this times ``sgbm_nn``'s."""
+
+SGBM = "sgbm"
+"""Stereo baseline: SGBM's own full-resolution map, scored where it has a value."""
+SGBM_NN = "sgbm_nn"
+"""Stereo baseline: SGBM's map with its holes filled by the nearest valid pixel."""
+PCA_ON_SGBM = "pca_map@sgbm"
+"""PCA-MAP scored on the same pixels as :data:`SGBM` (where SGBM has a value)."""
+
+
+@dataclass
+class RangeStats:
+    """How the REP 118 "farther than measurable" rule splits the counted pixels.
+
+    A pixel is too far for the estimate where its disparity is below the frame's
+    resolvable minimum (the ``DisparityImage``'s ``min_disparity``: depth ``+inf``), and
+    too far for the reference where the reference disparity is (sky included).
+    """
+
+    counted: int = 0
+    estimate_far: int = 0
+    reference_far: int = 0
+    both_far: int = 0
+
+    def add(
+        self,
+        estimate: npt.NDArray[np.float32],
+        reference: npt.NDArray[np.float64],
+        counted: npt.NDArray[np.bool_],
+        min_disparity: float,
+    ) -> None:
+        """Count one frame's pixels (``counted`` only)."""
+        with np.errstate(invalid="ignore"):
+            estimate_far = counted & (estimate < min_disparity)
+            reference_far = counted & (reference < min_disparity)
+        self.counted += int(counted.sum())
+        self.estimate_far += int(estimate_far.sum())
+        self.reference_far += int(reference_far.sum())
+        self.both_far += int((estimate_far & reference_far).sum())
+
+    def summary(self) -> dict[str, float]:
+        """Return the shares too far of the counted pixels, and the agreement of each side."""
+        return {
+            "estimate_far": self.estimate_far / max(self.counted, 1),
+            "reference_far": self.reference_far / max(self.counted, 1),
+            "estimate_far_reference_agrees": self.both_far / max(self.estimate_far, 1),
+            "reference_far_estimate_agrees": self.both_far / max(self.reference_far, 1),
+        }
+
+
+@dataclass
+class Example:
+    """One frame kept for the examples figure (arrays (H, W), disparity in px)."""
+
+    index: int
+    left: npt.NDArray[Any]
+    pixels: npt.NDArray[np.float64]
+    reference: npt.NDArray[np.float64]
+    estimate: npt.NDArray[np.float32]
+    std: npt.NDArray[np.float32]
+    nearest: npt.NDArray[np.float32]
+
+
+def _stats_json(stats: MethodStats | CalibrationStats) -> dict[str, Any]:
+    return {"mean": stats.summary(), "accumulated": dataclasses.asdict(stats)}
+
+
+@dataclass
+class Evaluation:
+    """Everything ``evaluate`` measured (the JSON of the report).
+
+    Attributes:
+        log: the evaluated log.
+        mode: stereo or temporal.
+        reference: "ground truth" (the log's ``/ground_truth/depth``), "SGBM" (of the pair),
+            or the ``--reference-topic`` scored against.
+        frames: frames evaluated.
+        image_size: (height, width) px.
+        methods: per method (pca_map, nearest, linear, oracle) its accumulated errors.
+        calibration: per uncertainty kind (stored, paper, exact) its calibration.
+        sweep: per number of points, per method, its accumulated errors.
+        sweep_frames: frames in the sweep.
+        points_per_frame: mean sparse points per frame.
+        basis: description of the basis (None without one).
+        basis_note: how the basis was chosen, or why there is none.
+        seconds: wall time of the evaluation (s).
+        ranges: the REP 118 "too far" split of the estimate against the reference.
+        reference_kind: "depth" or "disparity" for a reference topic, "" otherwise.
+        reference_pixels: pixels with truth in the evaluated frames' references.
+        reference_area: all pixels of the evaluated frames' references.
+        skipped: frames skipped because no reference message had their stamp.
+        stereo: the stereo baselines (:data:`SGBM`, :data:`SGBM_NN`, :data:`PCA_ON_SGBM`),
+            apart from ``methods`` as they are not all scored on the same pixels.
+        stereo_note: why the stereo baselines are missing ("" when they are there).
+        stereo_counted: counted pixels of the frames the stereo baselines ran on.
+        measurements: the ``pcainterp.measurements`` channel metadata of the densified log
+            (``dense`` or ``sparse``), None when the log records none.
+    """
+
+    log: str
+    mode: str
+    reference: str
+    frames: int = 0
+    image_size: tuple[int, int] = (0, 0)
+    methods: dict[str, MethodStats] = field(default_factory=dict)
+    calibration: dict[str, CalibrationStats] = field(default_factory=dict)
+    sweep: dict[int, dict[str, MethodStats]] = field(default_factory=dict)
+    sweep_frames: int = 0
+    points_per_frame: float = 0.0
+    basis: dict[str, Any] | None = None
+    basis_note: str = ""
+    seconds: float = 0.0
+    ranges: RangeStats = field(default_factory=RangeStats)
+    reference_kind: str = ""
+    reference_pixels: int = 0
+    reference_area: int = 0
+    skipped: int = 0
+    stereo: dict[str, MethodStats] = field(default_factory=dict)
+    stereo_note: str = ""
+    stereo_counted: float = 0.0
+    measurements: str | None = None
+
+    @property
+    def reference_fraction(self) -> float:
+        """Return the share of the references' pixels that hold truth."""
+        return self.reference_pixels / max(self.reference_area, 1)
+
+    @property
+    def reference_label(self) -> str:
+        """Return the reference with its density, e.g. ``/lidar (sparse, 5.1 % of pixels)``."""
+        fraction = self.reference_fraction
+        density = "sparse" if fraction < SPARSE_BELOW else "dense"
+        return f"{self.reference} ({density}, {100 * fraction:.1f} % of pixels)"
+
+    @property
+    def sgbm_fill(self) -> float:
+        """Return the share of the counted pixels where SGBM has a value (0 without it)."""
+        if SGBM not in self.stereo:
+            return 0.0
+        return self.stereo[SGBM].pixels / max(self.stereo_counted, 1.0)
+
+    def summary(self) -> dict[str, Any]:
+        """Return every number as plain JSON-able data (means and the accumulated bins)."""
+        return {
+            "log": self.log,
+            "mode": self.mode,
+            "reference": self.reference,
+            "reference_label": self.reference_label,
+            "reference_kind": self.reference_kind,
+            "reference_fraction": self.reference_fraction,
+            "skipped_no_reference": self.skipped,
+            "measurements": self.measurements,
+            "frames": self.frames,
+            "image_size": list(self.image_size),
+            "points_per_frame": self.points_per_frame,
+            "seconds": self.seconds,
+            "basis": self.basis,
+            "basis_note": self.basis_note,
+            "bins": {
+                "delta_2d_px": list(DELTA_2D_EDGES),
+                "depth_m": list(DEPTH_EDGES),
+                "std_px": list(STD_EDGES),
+            },
+            "methods": {name: _stats_json(stats) for name, stats in self.methods.items()},
+            "stereo_baselines": {name: _stats_json(stats) for name, stats in self.stereo.items()},
+            "stereo_baselines_note": self.stereo_note,
+            "sgbm_fill": self.sgbm_fill,
+            "calibration": {name: _stats_json(stats) for name, stats in self.calibration.items()},
+            "ranges": {
+                "mean": self.ranges.summary(),
+                "accumulated": dataclasses.asdict(self.ranges),
+            },
+            "sweep_frames": self.sweep_frames,
+            "sweep": {
+                str(points): {name: stats.summary() for name, stats in methods.items()}
+                for points, methods in self.sweep.items()
+            },
+        }
+
+    def ratio(self) -> float:
+        """Return PCA-MAP's mean Delta_2D divided by nearest neighbour's."""
+        pca = self.methods["pca_map"].summary()["delta_2d_mean"]
+        return pca / max(self.methods["nearest"].summary()["delta_2d_mean"], 1e-12)

@@ -1,0 +1,448 @@
+"""``evaluate --reference-topic``: any depth or disparity image as the truth, dense or sparse;
+the stereo baselines (sgbm, sgbm_nn) and the coverage split by SGBM's holes."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+from hypothesis_profiles import examples
+
+from pcainterp_stream import cli
+from pcainterp_stream.evaluate.metrics import (
+    CalibrationStats,
+    MethodStats,
+    Mode,
+    ReferenceKind,
+    ReferenceView,
+    disparity_from_depth,
+    disparity_from_reference,
+    fill_nearest,
+    reference_view,
+    relative_transform,
+    stereo_transform,
+)
+from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log, summary_table
+from pcainterp_stream.evaluate.results import PCA_ON_SGBM, SGBM, SGBM_NN, Evaluation
+from pcainterp_stream.frontend.stereo import SgbmConfig, compute_disparity
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.logwriter import open_writer
+from pcainterp_stream.pipeline import jobs
+from pcainterp_stream.records import StereoCamera
+from pcainterp_stream.synth import SynthConfig, generate
+from pcainterp_stream.synth.lidar import LIDAR_DEPTH, LidarConfig
+from pcainterp_stream.synth.log import (
+    DEPTH,
+    LEFT_FRAME,
+    LEFT_IMAGE,
+    POSE,
+    RIGHT_IMAGE,
+    write_synthetic_log,
+)
+
+CONFIG = SynthConfig(seed=31, frames=4, scale=0.25)
+CAMERA = CONFIG.camera
+FOCAL_BASELINE = CAMERA.focal_baseline
+DISPARITY, STD, INFO = "/pcainterp/disparity", "/pcainterp/disparity_std", "/pcainterp/camera_info"
+
+
+# ----------------------------------------------------------------------------- maths
+
+
+def test_reference_values_without_truth_are_nan() -> None:
+    depth = np.array([[2.0, np.nan, np.inf, 0.0, -1.0, -np.inf]])
+    np.testing.assert_array_equal(
+        disparity_from_reference(depth, kind=ReferenceKind.DEPTH, focal_baseline=30.0),
+        [[15.0, np.nan, 0.0, np.nan, np.nan, np.nan]],  # +inf depth: farther than measurable
+    )
+    disparity = np.array([[3.0, np.nan, np.inf, 0.0, -1.0]])
+    np.testing.assert_array_equal(
+        disparity_from_reference(disparity, kind=ReferenceKind.DISPARITY, focal_baseline=30.0),
+        [[3.0, np.nan, np.nan, np.nan, np.nan]],
+    )
+    with pytest.raises(ValueError, match="Expected `kind` depth or disparity"):
+        disparity_from_reference(depth, kind=ReferenceKind.AUTO, focal_baseline=30.0)
+
+
+@settings(max_examples=examples(40), deadline=None)
+@given(
+    values=hnp.arrays(np.float64, (5, 6), elements=st.floats(0.5, 60.0)),
+    holes=hnp.arrays(np.bool_, (5, 6)),
+)
+def test_fill_nearest_takes_a_nearest_valid_value(values: np.ndarray, holes: np.ndarray) -> None:
+    disparity = np.where(holes, np.nan, values)
+    filled = fill_nearest(disparity)
+    if holes.all():
+        assert filled is None
+        return
+    assert filled is not None
+    np.testing.assert_array_equal(filled[~holes], disparity[~holes].astype(np.float32))
+    valid_rows, valid_columns = np.nonzero(~holes)
+    for row, column in zip(*np.nonzero(holes), strict=True):
+        distance = np.hypot(valid_rows - row, valid_columns - column)
+        nearest = distance == distance.min()  # any of equally near valid pixels will do
+        candidates = disparity[valid_rows[nearest], valid_columns[nearest]].astype(np.float32)
+        assert filled[row, column] in candidates
+
+
+@settings(max_examples=examples(30), deadline=None)
+@given(seed=st.integers(0, 10_000))
+def test_coverage_split_adds_up(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    shape = (12, 16)
+    reference = rng.uniform(0.0, 30.0, shape)
+    reference[rng.random(shape) < 0.3] = np.nan  # sparse truth
+    view = ReferenceView(
+        counted=np.isfinite(reference),
+        u=np.zeros(shape),
+        v=np.zeros(shape),
+        disparity=reference,
+        depth=30.0 / reference,
+        diagonal=20.0,
+    )
+    estimate = np.nan_to_num(reference) + rng.normal(0.0, 2.0, shape)
+    std = rng.uniform(0.5, 3.0, shape)
+    sgbm_valid = rng.random(shape) < 0.7
+    stats = CalibrationStats()
+    for _ in range(2):
+        stats.add(estimate, std, view, np.zeros(shape), sgbm_valid=sgbm_valid)
+    holes, valid = stats.by_sgbm["holes"], stats.by_sgbm["valid"]
+    for key in ("n", "inside_1", "inside_2"):
+        assert holes[key] + valid[key] == stats.sums[key]
+    assert holes["n"] == 2 * np.count_nonzero(view.counted & ~sgbm_valid)
+    summary = stats.summary()
+    with np.errstate(invalid="ignore"):
+        inside = (np.abs(estimate - reference) / std <= 2.0) & view.counted
+    expected = np.count_nonzero(inside & sgbm_valid) / max(
+        np.count_nonzero(view.counted & sgbm_valid), 1
+    )
+    assert summary["coverage_2sigma_sgbm_valid"] == pytest.approx(expected)
+
+
+def test_coverage_split_separates_holes_from_the_rest() -> None:
+    reference = np.full((4, 6), 0.4)  # every pixel lands inside the right image
+    view = reference_view(reference, CAMERA_SMALL, stereo_transform(CAMERA_SMALL))
+    assert view.counted.all()
+    sgbm_valid = np.zeros((4, 6), dtype=bool)
+    sgbm_valid[:, 3:] = True
+    estimate = np.where(sgbm_valid, 0.9, 10.0)  # good where SGBM is valid, bad in the holes
+    stats = CalibrationStats()
+    stats.add(estimate, np.ones((4, 6)), view, np.zeros((4, 6)), sgbm_valid=sgbm_valid)
+    summary = stats.summary()
+    assert summary["coverage_2sigma_sgbm_valid"] == 1.0
+    assert summary["coverage_2sigma_sgbm_holes"] == 0.0
+    assert not CalibrationStats().has_sgbm_split
+    assert "coverage_2sigma_sgbm_holes" not in CalibrationStats().summary()
+
+
+CAMERA_SMALL = StereoCamera(width=6, height=4, fx=5.0, fy=5.0, cx=2.5, cy=1.5, baseline=0.5)
+
+
+# ----------------------------------------------------------------------------- logs
+
+
+def _image(array: np.ndarray, stamp: int, encoding: str) -> Any:
+    return rosmsg.image_message(array, stamp, LEFT_FRAME, encoding=encoding)
+
+
+def _references(depth: np.ndarray, stamp: int, index: int) -> list[tuple[str, Any, int]]:
+    """The extra reference topics of one frame: (topic, message, log time offset ns)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        disparity = (FOCAL_BASELINE / depth).astype(np.float32)  # NaN for sky
+    millimetres = np.where(np.isfinite(depth) & (depth < 65.0), np.rint(depth * 1000), 0)
+    millimetres = millimetres.astype(np.uint16)
+    metres_of_mm = np.where(millimetres > 0, millimetres / 1000.0, np.nan).astype(np.float32)
+    doubled = rosmsg.disparity_image_message(
+        2 * disparity,  # a camera of twice the focal length: f t = 2 f b
+        stamp,
+        LEFT_FRAME,
+        focal=2 * CAMERA.fx,
+        baseline=CAMERA.baseline,
+        min_disparity=0.0,
+        max_disparity=200.0,
+    )
+    extra = [
+        ("/ref/depth_mm", _image(millimetres, stamp, "16UC1"), 0),
+        ("/ref/depth_m_of_mm", _image(metres_of_mm, stamp, "32FC1"), 0),
+        ("/ref/disparity_image", doubled, 0),
+        ("/ref/disparity_32f", _image(disparity, stamp, "32FC1"), 0),
+        ("/ref/small", _image(depth[:-1], stamp, "32FC1"), 0),
+        # logged 1.5 frames late: a frame waits for it
+        ("/ref/late", _image(depth, stamp, "32FC1"), 150_000_000),
+    ]
+    if index % 2 == 0:
+        extra.append(("/ref/every_other", _image(depth, stamp, "32FC1"), 0))
+    return extra
+
+
+def _with_references(source: Path, target: Path) -> None:
+    """Copy a densified log, adding reference topics made from its ground-truth depth."""
+    late: list[tuple[str, Any, int]] = []
+    index = 0
+    with open_log(source) as reader, open_writer(target) as writer:
+        for raw in reader.messages():
+            for topic, message, log_time in [item for item in late if item[2] <= raw.log_time_ns]:
+                writer.add_message(topic, message, log_time)
+            late = [item for item in late if item[2] > raw.log_time_ns]
+            if raw.topic == DISPARITY:
+                raw = raw._replace(channel_metadata={"pcainterp.measurements": "dense"})
+            writer.add_raw(raw)
+            if raw.topic != DEPTH:
+                continue
+            message = reader.decode(raw)
+            depth = rosmsg.image_array(message).astype(np.float32)
+            stamp = rosmsg.stamp_ns(message)
+            for topic, extra, offset in _references(depth, stamp, index):
+                if offset:
+                    late.append((topic, extra, raw.log_time_ns + offset))
+                else:
+                    writer.add_message(topic, extra, raw.log_time_ns)
+            index += 1
+        for topic, message, log_time in late:
+            writer.add_message(topic, message, log_time)
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    folder = tmp_path_factory.mktemp("reference")
+    drive = folder / "drive.mcap"
+    write_synthetic_log(generate(CONFIG), drive, lidar=LidarConfig(seed=CONFIG.seed))
+    dense = folder / "dense.mcap"
+    jobs.densify(drive, dense)  # the built-in basis
+    references = folder / "references.mcap"
+    _with_references(dense, references)
+    return {"dense": dense, "references": references, "folder": folder}
+
+
+def _evaluate(path: Path, topic: str | None, **options: Any) -> Evaluation:
+    options.setdefault("mode", Mode.STEREO)
+    result, _ = evaluate_log(
+        path, EvaluateOptions(reference_topic=topic, sweep_every=0, linear=False, **options)
+    )
+    return result
+
+
+def _frames(path: Path) -> list[dict[str, Any]]:
+    """Every message of the log, grouped by header stamp, in stamp order."""
+    grouped: dict[int, dict[str, Any]] = {}
+    topics = [DISPARITY, STD, INFO, DEPTH, LIDAR_DEPTH, POSE, LEFT_IMAGE, RIGHT_IMAGE]
+    with open_log(path) as reader:
+        for raw in reader.messages(topics):
+            message = reader.decode(raw)
+            stamp = rosmsg.stamp_ns(message.image if raw.topic == DISPARITY else message)
+            grouped.setdefault(stamp, {})[raw.topic] = message
+    return [grouped[stamp] for stamp in sorted(grouped)]
+
+
+def _camera(parts: dict[str, Any]) -> StereoCamera:
+    p = rosmsg.projection_matrix(parts[INFO])
+    height, width = CAMERA.image_size
+    return StereoCamera(width, height, p[0, 0], p[1, 1], p[0, 2], p[1, 2], parts[DISPARITY].t)
+
+
+@pytest.mark.parametrize("mode", [Mode.STEREO, Mode.TEMPORAL])
+def test_sparse_reference_scores_the_dense_truth_on_its_pixels(
+    logs: dict[str, Path], mode: Mode
+) -> None:
+    result = _evaluate(logs["dense"], LIDAR_DEPTH, mode=mode)
+    # by hand: the dense /ground_truth/depth, counted only where the LiDAR topic has a value
+    pca, stored, sgbm, filled = MethodStats(), CalibrationStats(), MethodStats(), MethodStats()
+    frames = _frames(logs["dense"])
+    pairs = (
+        [(parts, stereo_transform(_camera(parts))) for parts in frames]
+        if mode is Mode.STEREO
+        else [
+            (a, relative_transform(rosmsg.pose_matrix(a[POSE]), rosmsg.pose_matrix(b[POSE])))
+            for a, b in itertools.pairwise(frames)
+        ]
+    )
+    dense_pixels = 0
+    for parts, transform in pairs:
+        camera = _camera(parts)
+        estimate = rosmsg.image_array(parts[DISPARITY].image)
+        truth = disparity_from_depth(rosmsg.image_array(parts[DEPTH]), camera.focal_baseline)
+        view = reference_view(truth, camera, transform)
+        dense_pixels += int(view.counted.sum())
+        lidar = np.isfinite(rosmsg.image_array(parts[LIDAR_DEPTH]))
+        on_lidar = dataclasses.replace(view, counted=view.counted & lidar)
+        delta = pca.add(estimate, on_lidar, camera, transform)
+        split = compute_disparity(
+            rosmsg.image_array(parts[LEFT_IMAGE]),
+            rosmsg.image_array(parts[RIGHT_IMAGE]),
+            SgbmConfig(),
+        )
+        stored.add(
+            estimate, rosmsg.image_array(parts[STD]), on_lidar, delta, sgbm_valid=np.isfinite(split)
+        )
+        on_sgbm = dataclasses.replace(on_lidar, counted=on_lidar.counted & np.isfinite(split))
+        sgbm.add(split, on_sgbm, camera, transform)
+        nearest_filled = fill_nearest(split)
+        assert nearest_filled is not None
+        filled.add(nearest_filled, on_lidar, camera, transform)
+    assert result.frames == len(pairs)
+    assert result.methods["pca_map"].pixels == pca.pixels
+    assert 0.02 * dense_pixels < pca.pixels < 0.06 * dense_pixels
+    for name in ("delta_2d_mean", "delta_3d_mean", "rmse_m", "imae_per_km"):
+        assert result.methods["pca_map"].summary()[name] == pytest.approx(pca.summary()[name])
+        assert result.stereo[SGBM].summary()[name] == pytest.approx(sgbm.summary()[name])
+        assert result.stereo[SGBM_NN].summary()[name] == pytest.approx(filled.summary()[name])
+    computed = result.calibration["stored"].summary()
+    for name, value in stored.summary().items():
+        if name != "ms_per_frame":
+            assert computed[name] == pytest.approx(value), name
+    assert result.reference == LIDAR_DEPTH
+    assert result.reference_kind == "depth"
+    assert result.reference_label.startswith(f"{LIDAR_DEPTH} (sparse, ")
+    assert 0.03 < result.reference_fraction < 0.05
+    assert "oracle" not in result.methods
+
+
+def test_stereo_baselines_count_their_pixels(logs: dict[str, Path]) -> None:
+    result = _evaluate(logs["dense"], None)
+    assert result.reference == "ground truth"
+    assert result.reference_label == "ground truth (dense, 100.0 % of pixels)"
+    assert set(result.stereo) == {SGBM, SGBM_NN, PCA_ON_SGBM}
+    pca = result.methods["pca_map"]
+    assert result.stereo[SGBM_NN].pixels == pca.pixels  # holes filled: every counted pixel
+    assert result.stereo[PCA_ON_SGBM].pixels == result.stereo[SGBM].pixels < pca.pixels
+    assert result.sgbm_fill == pytest.approx(result.stereo[SGBM].pixels / pca.pixels)
+    assert 0.4 < result.sgbm_fill < 0.95  # the left band of 128 px is a hole at this size
+    assert result.stereo[SGBM].seconds > 0
+    # SGBM is far better where it has a value than PCA-MAP from a few hundred points
+    means = {name: stats.summary()["delta_2d_mean"] for name, stats in result.stereo.items()}
+    assert means[SGBM] < means[PCA_ON_SGBM]
+    stored = result.calibration["stored"]
+    assert stored.by_sgbm["holes"]["n"] + stored.by_sgbm["valid"]["n"] == stored.sums["n"]
+    assert stored.by_sgbm["valid"]["n"] == result.stereo[SGBM].pixels
+    table = summary_table(result)
+    assert "pca_map@sgbm" in table
+    assert "in SGBM holes" in table
+    # with SGBM as the reference they would be trivially perfect
+    sgbm_reference = _evaluate(logs["dense"], None, sgbm_reference=True)
+    assert sgbm_reference.stereo == {}
+    assert "trivially perfect" in sgbm_reference.stereo_note
+    assert "trivially perfect" in summary_table(sgbm_reference)
+    assert not sgbm_reference.calibration["stored"].has_sgbm_split
+    assert sgbm_reference.reference_label.startswith("SGBM (dense, ")
+
+
+def test_reference_encodings_give_the_same_scores(logs: dict[str, Path]) -> None:
+    path = logs["references"]
+    base = _evaluate(path, DEPTH)  # 32FC1 m; its NaN sky is "no truth" here
+    default = _evaluate(path, None)  # the synthetic ground truth counts the sky as disparity 0
+    assert base.methods["pca_map"].pixels < default.methods["pca_map"].pixels
+    assert base.measurements == "dense"
+    assert "measurements of the densified log: dense" in summary_table(base)
+
+    def means(result: Evaluation) -> dict[str, float]:
+        return result.methods["pca_map"].summary() | {
+            "stored": result.calibration["stored"].summary()["coverage_2sigma"]
+        }
+
+    for topic, kind in (
+        ("/ref/disparity_image", ReferenceKind.AUTO),  # rescaled by the log's f*b / its f*t
+        ("/ref/disparity_32f", ReferenceKind.DISPARITY),
+        ("/ref/late", ReferenceKind.DEPTH),  # logged after its frame: the frame waits
+    ):
+        result = _evaluate(path, topic, reference_kind=kind)
+        assert result.skipped == 0
+        assert result.methods["pca_map"].pixels == base.methods["pca_map"].pixels, topic
+        assert means(result) == pytest.approx(means(base), rel=1e-5), topic
+    assert _evaluate(path, "/ref/disparity_image").reference_kind == "disparity"
+    millimetres = _evaluate(path, "/ref/depth_mm")
+    metres = _evaluate(path, "/ref/depth_m_of_mm")
+    assert millimetres.methods["pca_map"].pixels == metres.methods["pca_map"].pixels
+    assert means(millimetres) == pytest.approx(means(metres), rel=1e-6)
+    assert means(millimetres)["delta_2d_mean"] == pytest.approx(
+        means(base)["delta_2d_mean"], rel=0.05
+    )
+
+
+@pytest.mark.parametrize(("mode", "frames"), [(Mode.STEREO, 2), (Mode.TEMPORAL, 2)])
+def test_frames_without_a_reference_message_are_skipped(
+    logs: dict[str, Path], mode: Mode, frames: int
+) -> None:
+    result = _evaluate(logs["references"], "/ref/every_other", mode=mode)
+    assert result.skipped == 2
+    assert result.frames == frames
+    assert "2 frames skipped: no /ref/every_other message with their stamp" in summary_table(result)
+
+
+def _error(capsys: pytest.CaptureFixture[str], *args: str | Path) -> str:
+    assert cli.main(["evaluate", *map(str, args), "--no-basis", "--sweep-every", "0"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "Traceback" not in err
+    return err
+
+
+def test_reference_errors_are_one_line(
+    logs: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    path, out = logs["references"], logs["folder"] / "no_report"
+    err = _error(capsys, path, "-o", out, "--reference-topic", "/lidar/points")
+    assert "reference topic /lidar/points not found" in err
+    assert f"image topics present: {DEPTH}, {LIDAR_DEPTH}, " in err
+    assert "/ref/disparity_image" in err
+    err = _error(capsys, path, "-o", out, "--reference-topic", "/ref/small")
+    assert "reference topic /ref/small has 310x93 images but the estimate is 310x94" in err
+    err = _error(capsys, path, "-o", out, "--reference-topic", POSE)
+    assert f"{POSE} in {path} is a geometry_msgs/msg/PoseStamped, not a depth" in err
+    err = _error(
+        capsys,
+        path,
+        "-o",
+        out,
+        "--reference-topic",
+        "/ref/disparity_image",
+        "--reference-kind",
+        "depth",
+    )
+    assert "holds disparity; drop --reference-kind depth" in err
+    err = _error(
+        capsys,
+        path,
+        "-o",
+        out,
+        "--reference-topic",
+        "/ref/depth_mm",
+        "--reference-kind",
+        "disparity",
+    )
+    assert "has 16UC1 images; a disparity reference must be 32FC1" in err
+    err = _error(capsys, path, "-o", out, "--reference-kind", "depth")
+    assert "--reference-kind needs --reference-topic" in err
+    assert not out.exists()
+
+
+def test_cli_report_names_a_sparse_reference(
+    logs: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = logs["folder"] / "lidar_report"
+    args = ["evaluate", str(logs["dense"]), "-o", str(out), "--reference-topic", LIDAR_DEPTH]
+    assert cli.main([*args, "--sweep-every", "2"]) == 0  # temporal, the built-in basis
+    printed = capsys.readouterr().out
+    assert f"reference: {LIDAR_DEPTH} (sparse, " in printed
+    markdown = (out / "results.md").read_text()
+    assert f"reference: {LIDAR_DEPTH} (sparse, " in markdown
+    assert "dense mode (issue 18)" in markdown
+    report = json.loads((out / "results.json").read_text())
+    assert report["reference"] == LIDAR_DEPTH
+    assert report["mode"] == "temporal"
+    assert 0.03 < report["reference_fraction"] < 0.05
+    assert set(report["stereo_baselines"]) == {SGBM, SGBM_NN, PCA_ON_SGBM}
+    assert "oracle" not in report["methods"]  # a sparse reference is no map to fit the basis to
+    assert set(report["sweep"]) == {"50", "100", "200", "400", "800"}
+    split = report["calibration"]["exact"]["mean"]
+    assert split["pixels_sgbm_holes"] + split["pixels_sgbm_valid"] == split["pixels"]
+    for name in ("errors.png", "uncertainty.png", "sweep.png", "examples.png"):
+        assert (out / name).stat().st_size > 1000
