@@ -25,6 +25,7 @@ queue. Memory is bounded by the look-ahead here and by that queue there.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import enum
 import functools
 import os
@@ -44,7 +45,7 @@ from pcainterp_stream import defaults
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.dense import DenseModel, densify_dense
 from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
-from pcainterp_stream.estimate.prior import LocalPrior, TemporalPrior
+from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
 from pcainterp_stream.frontend.motion import CarriedPoints, CarryConfig, Motion, estimate_motion
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
@@ -361,6 +362,10 @@ class FrameProcessor:
             else None
         )
         self.dense = self.config.measurements == "dense"
+        # --robust applies to the cells and pixels of dense mode too
+        self._dense_model = dataclasses.replace(
+            self.config.dense, robust=Robust(self.config.robust)
+        )
         self.carried = (
             CarriedPoints(self.config.carry)
             if self.config.carry.frames and not self.dense
@@ -402,7 +407,7 @@ class FrameProcessor:
                 disparity_map,
                 focal_baseline=frame.camera.focal_baseline,
                 uncertainty=self.config.uncertainty,
-                model=self.config.dense,
+                model=self._dense_model,
             )
             counts = {"cells": estimate.n_measurements, "cells_left_out": estimate.n_dropped}
             pixels = estimate.pixels.astype(np.float32)
