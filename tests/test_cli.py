@@ -32,6 +32,7 @@ from pcainterp_stream.io import rosmsg
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.pipeline.jobs import LearnOptions, learn, synth
 from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.outputs import MEASUREMENTS_KEY, recorded_metadata
 from pcainterp_stream.io.logwriter import open_writer
 from pcainterp_stream.frontend.pairing import PairingConfig
 
@@ -235,6 +236,30 @@ def test_densify_succeeds(
     assert counts["/pcainterp/depth"] == SMALL_FRAMES
     assert [p.name for p in out.parent.iterdir()] == [out.name]
     assert "carried from the 4 previous frames" in run.out
+
+
+def test_densify_dense_measurements(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path
+) -> None:
+    run = pcainterp(*densify_args(small_log, out, basis_path, "--measurements", "dense"))
+    assert run.code == 0, run.err
+    assert "SGBM cells per frame (dense)" in run.out
+    assert "carried from" not in run.out
+    counts = assert_valid_mcap(out)
+    assert counts["/pcainterp/depth"] == SMALL_FRAMES
+    assert recorded_metadata(out)[MEASUREMENTS_KEY] == "dense"
+    disparity = next(m for t, m, _ in read_messages(out) if t == "/pcainterp/disparity")
+    assert np.isfinite(rosmsg.image_array(disparity.image)).all()
+    # a feature stream is sparse: dense mode refuses it in one line
+    other = out.parent / "other.mcap"
+    run = pcainterp(
+        *densify_args(small_log, other, basis_path, "--measurements", "dense"),
+        "--features-topic",
+        "/features",
+    )
+    assert run.code == 2
+    assert "drop --features-topic" in run.err
+    assert not other.exists()
 
 
 def test_densify_outputs_chooses_the_channels(
