@@ -565,83 +565,6 @@ def _densify_many(args: argparse.Namespace, processor: ProcessorConfig) -> int:
     return 1 if failed else 0
 
 
-def _synth_with_lidar(args: argparse.Namespace) -> WriteSummary:
-    """``pcainterp synth --lidar``: :func:`pipeline.jobs.synth` plus the LiDAR-like truth.
-
-    ``jobs.synth`` takes no LiDAR option yet (pipeline/ was outside the change that added
-    it), so this mirrors it, checks included; fold it into ``jobs.synth`` when convenient.
-    """
-    from pcainterp_stream.pipeline.common import _bar
-    from pcainterp_stream.synth import LidarConfig, SynthConfig, generate
-    from pcainterp_stream.synth.log import write_synthetic_log
-
-    if args.frames < 1:
-        raise PcaInterpError(f"--frames must be at least 1, got {args.frames}")
-    if not 0.05 <= args.scale <= 4.0:  # also refuses nan
-        raise PcaInterpError(f"--scale must be in [0.05, 4], got {args.scale}")
-    config = SynthConfig(seed=args.seed, frames=args.frames, scale=args.scale)
-    with _bar(args.frames, f"synth {args.out.name}") as bar:
-        return write_synthetic_log(
-            generate(config),
-            args.out,
-            format=args.format,
-            total=args.frames,
-            progress=lambda done, total: bar.update(done - bar.n),
-            lidar=LidarConfig(seed=args.seed),
-        )
-
-
-def _evaluate_against_topic(args: argparse.Namespace) -> tuple[Path, str]:
-    """``pcainterp evaluate --reference-topic``: :func:`pipeline.jobs.evaluate` with a reference.
-
-    ``jobs.evaluate`` takes no reference options yet (pipeline/ was outside the change that
-    added them), so this mirrors it, checks and basis choice included; fold it into
-    ``jobs.evaluate`` when convenient.
-    """
-    from pcainterp_stream.evaluate.metrics import Mode, ReferenceKind
-    from pcainterp_stream.evaluate.report import EvaluateOptions, summary_table, write_report
-    from pcainterp_stream.io.outputs import OutputTopics
-    from pcainterp_stream.pipeline.common import _bar
-    from pcainterp_stream.pipeline.jobs import evaluation_basis
-
-    if not 0 < args.sigma < float("inf"):
-        raise PcaInterpError(f"--sigma must be > 0 px, got {args.sigma}")
-    if args.sweep_every < 0:
-        raise PcaInterpError(f"--sweep-every must be >= 0, got {args.sweep_every}")
-    if args.max_frames is not None and args.max_frames < 1:
-        raise PcaInterpError(f"--max-frames must be at least 1, got {args.max_frames}")
-    if args.basis is not None and not args.basis.is_file():
-        raise PcaInterpError(f"basis {args.basis} does not exist; pass the basis used by densify")
-    topics = OutputTopics.with_prefix(args.output_prefix)
-    folder: Path = args.output or args.input.with_name(args.input.stem + "_report")
-    if args.no_basis:
-        chosen, note = None, "none, those rows are skipped"
-    elif args.basis is None:
-        chosen, note = evaluation_basis(args.input, topics)
-    else:
-        chosen, note = args.basis, f"{args.basis} (given)"
-    options = EvaluateOptions(
-        basis=chosen,
-        basis_note=note,
-        linear=not args.no_linear,
-        mode=Mode(args.mode) if args.mode is not None else None,
-        sigma=args.sigma,
-        sweep_every=args.sweep_every,
-        max_frames=args.max_frames,
-        reference_topic=args.reference_topic,
-        reference_kind=ReferenceKind(args.reference_kind),
-    )
-    with _bar(None, f"evaluate {args.input.name}") as bar:
-        result = write_report(
-            args.input,
-            folder,
-            options,
-            topics=topics,
-            progress=lambda done: bar.update(done - bar.n),
-        )
-    return folder, summary_table(result)
-
-
 def run(args: argparse.Namespace) -> int:
     """Run the job a parsed command line asks for; return the exit code."""
     from pcainterp_stream.io.outputs import OutputTopics
@@ -660,10 +583,13 @@ def run(args: argparse.Namespace) -> int:
     command = args.command
     if command == "synth":
         _print_written(
-            _synth_with_lidar(args)
-            if args.lidar
-            else synth(
-                args.out, frames=args.frames, seed=args.seed, scale=args.scale, fmt=args.format
+            synth(
+                args.out,
+                frames=args.frames,
+                seed=args.seed,
+                scale=args.scale,
+                fmt=args.format,
+                lidar=args.lidar,
             )
         )
     elif command == "import-kitti":
@@ -793,21 +719,19 @@ def run(args: argparse.Namespace) -> int:
             raise PcaInterpError("--no-basis and --basis contradict each other; pass one")
         if args.reference_topic is None and args.reference_kind != "auto":
             raise PcaInterpError("--reference-kind needs --reference-topic TOPIC")
-        folder, table = (
-            _evaluate_against_topic(args)
-            if args.reference_topic is not None
-            else evaluate(
-                args.input,
-                args.output,
-                basis=args.basis,
-                mode=args.mode,
-                sigma=args.sigma,
-                sweep_every=args.sweep_every,
-                max_frames=args.max_frames,
-                topics=OutputTopics.with_prefix(args.output_prefix),
-                linear=not args.no_linear,
-                basis_rows=not args.no_basis,
-            )
+        folder, table = evaluate(
+            args.input,
+            args.output,
+            basis=args.basis,
+            mode=args.mode,
+            sigma=args.sigma,
+            sweep_every=args.sweep_every,
+            max_frames=args.max_frames,
+            topics=OutputTopics.with_prefix(args.output_prefix),
+            linear=not args.no_linear,
+            basis_rows=not args.no_basis,
+            reference_topic=args.reference_topic,
+            reference_kind=args.reference_kind,
         )
         _echo(table)
         _echo(f"wrote {folder}/results.md, results.json and figures")

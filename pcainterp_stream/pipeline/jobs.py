@@ -58,9 +58,14 @@ __all__ = [
 ]
 
 
-def synth(out: Path, *, frames: int, seed: int, scale: float, fmt: str | None) -> WriteSummary:
-    """Render a synthetic drive and write it as a log (``pcainterp synth``)."""
-    from pcainterp_stream.synth import SynthConfig, generate
+def synth(
+    out: Path, *, frames: int, seed: int, scale: float, fmt: str | None, lidar: bool = False
+) -> WriteSummary:
+    """Render a synthetic drive and write it as a log (``pcainterp synth``).
+
+    ``lidar`` also writes the LiDAR-like sparse truth ``/ground_truth/lidar_depth``.
+    """
+    from pcainterp_stream.synth import LidarConfig, SynthConfig, generate
     from pcainterp_stream.synth.log import write_synthetic_log
 
     if frames < 1:
@@ -75,6 +80,7 @@ def synth(out: Path, *, frames: int, seed: int, scale: float, fmt: str | None) -
             format=fmt,
             total=frames,
             progress=lambda done, total: bar.update(done - bar.n),
+            lidar=LidarConfig(seed=seed) if lidar else None,
         )
 
 
@@ -105,6 +111,8 @@ def evaluate(
     topics: OutputTopics | None = None,
     linear: bool = True,
     basis_rows: bool = True,
+    reference_topic: str | None = None,
+    reference_kind: str = "auto",
 ) -> tuple[Path, str]:
     """Evaluate a densified log into a report folder (``pcainterp evaluate``).
 
@@ -120,11 +128,13 @@ def evaluate(
         topics: the log's output topics.
         linear: also evaluate linear interpolation (~0.5 s per KITTI-size frame).
         basis_rows: False skips the rows that re-densify with a basis.
+        reference_topic: score against this ground-truth image topic of the log.
+        reference_kind: ``auto``, ``depth`` or ``disparity`` (what the topic holds).
 
     Returns:
         The report folder and the summary table text.
     """
-    from pcainterp_stream.evaluate.metrics import Mode
+    from pcainterp_stream.evaluate.metrics import Mode, ReferenceKind
     from pcainterp_stream.evaluate.report import EvaluateOptions, summary_table, write_report
 
     if not 0 < sigma < float("inf"):
@@ -150,6 +160,8 @@ def evaluate(
         sigma=sigma,
         sweep_every=sweep_every,
         max_frames=max_frames,
+        reference_topic=reference_topic,
+        reference_kind=ReferenceKind(reference_kind),
     )
     with _bar(None, f"evaluate {input_path.name}") as bar:
         result = write_report(
