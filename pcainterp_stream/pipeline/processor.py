@@ -43,7 +43,7 @@ import numpy.typing as npt
 
 from pcainterp_stream import defaults
 from pcainterp_stream.estimate.basis import Basis
-from pcainterp_stream.estimate.dense import DenseModel, densify_dense
+from pcainterp_stream.estimate.dense import DenseModel, fuse_dense
 from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
 from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
 from pcainterp_stream.frontend.motion import CarriedPoints, CarryConfig, Motion, estimate_motion
@@ -51,7 +51,6 @@ from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     SgbmConfig,
     StereoFrontEnd,
-    compute_disparity,
     to_grey8,
 )
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoCamera, StereoFrame
@@ -92,9 +91,9 @@ class ProcessorConfig:
             factor (``innovation_std_scale``); False reports the posterior std itself.
         source: measurement source.
         measurements: ``"sparse"`` (the paper's: a few hundred GFTT corners looked up in the
-            SGBM map, the default) or ``"dense"`` (the whole SGBM map fused with the prior,
-            :mod:`~pcainterp_stream.estimate.dense`; stereo source only, no carried points
-            or temporal prior; each stereo worker fuses its own frames).
+            SGBM map, the default) or ``"dense"`` (that estimate then fused, pixel by pixel,
+            with the whole SGBM map: :mod:`~pcainterp_stream.estimate.dense`; stereo
+            source only).
         dense: the noise model of dense mode.
         batch_size: frames densified together (matrix-matrix products).
         lookahead: frames queued for stereo matching ahead of densification; at least
@@ -234,7 +233,7 @@ class _Measured(NamedTuple):
     disparities: npt.NDArray[np.float32]
     counts: dict[str, int]
     motion: Motion | None = None  # from the previous frame (carried points only)
-    dense: DensifyResult | None = None  # the whole estimate (dense mode, made in the worker)
+    disparity_map: npt.NDArray[np.float32] | None = None  # SGBM's (dense mode only)
 
 
 def features_to_measurements(
@@ -358,19 +357,15 @@ class FrameProcessor:
         self.settings = resolve_settings(basis, self.config)
         self.temporal = (
             TemporalPrior(process_noise=self.settings.process_noise)
-            if self.config.temporal and self.config.measurements == "sparse"
+            if self.config.temporal
             else None
         )
         self.dense = self.config.measurements == "dense"
-        # --robust applies to the cells and pixels of dense mode too
+        # --robust applies to the SGBM pixels of dense mode too
         self._dense_model = dataclasses.replace(
             self.config.dense, robust=Robust(self.config.robust)
         )
-        self.carried = (
-            CarriedPoints(self.config.carry)
-            if self.config.carry.frames and not self.dense
-            else None
-        )
+        self.carried = CarriedPoints(self.config.carry) if self.config.carry.frames else None
         self._previous_frame: StereoFrame | None = None
 
     def __enter__(self) -> FrameProcessor:
@@ -399,26 +394,15 @@ class FrameProcessor:
         features: SparseFeatures | None,
         previous: StereoFrame | None = None,
     ) -> _Measured:
-        if self.dense:
-            # SGBM and the fusion both in the worker: the frames run in parallel
-            disparity_map = compute_disparity(frame.left, frame.right, self.config.sgbm)
-            estimate = densify_dense(
-                self.basis,
-                disparity_map,
-                focal_baseline=frame.camera.focal_baseline,
-                uncertainty=self.config.uncertainty,
-                model=self._dense_model,
-            )
-            counts = {"cells": estimate.n_measurements, "cells_left_out": estimate.n_dropped}
-            pixels = estimate.pixels.astype(np.float32)
-            disparities = estimate.disparities.astype(np.float32)
-            return _Measured(frame, pixels, disparities, counts, dense=estimate)
+        disparity_map = None
         if self.config.source is MeasurementSource.FEATURES:
             pixels, disparities, counts = features_to_measurements(features, frame.camera)
         else:
             measurements = self.front_end.measure(frame.left, frame.right)
             pixels, disparities = measurements.pixels, measurements.disparities
             counts = dict(measurements.counts)
+            if self.dense:
+                disparity_map = measurements.disparity_map
         motion = None
         if previous is not None and previous.camera == frame.camera:
             # visual odometry beside SGBM in the worker: needs only this frame's points
@@ -430,7 +414,7 @@ class FrameProcessor:
                 frame.camera,
                 config=self.config.carry,
             )
-        return _Measured(frame, pixels, disparities, counts, motion)
+        return _Measured(frame, pixels, disparities, counts, motion, disparity_map)
 
     def submit(
         self, frame: StereoFrame, features: SparseFeatures | None = None
@@ -475,10 +459,6 @@ class FrameProcessor:
             while stop < len(ready) and ready[stop].frame.camera == camera:
                 stop += 1
             group = ready[start:stop]
-            if self.dense:
-                results.extend(self._result(item, item.dense, 0) for item in group if item.dense)
-                start = stop
-                continue
             pixels: list[npt.NDArray[Any]] = [item.pixels for item in group]
             disparities: list[npt.NDArray[Any]] = [item.disparities for item in group]
             noise_stds: list[npt.NDArray[Any] | None] | None = None
@@ -515,11 +495,12 @@ class FrameProcessor:
 
     def _result(self, item: _Measured, estimate: DensifyResult, n_carried: int) -> DensifiedFrame:
         counts = dict(item.counts)
-        if not self.dense:
-            counts["carried"] = n_carried
-            counts["dropped"] = int(estimate.n_dropped)
-            counts["temporal_reset"] = int(estimate.temporal == "reset")
+        counts["carried"] = n_carried
+        counts["dropped"] = int(estimate.n_dropped)
+        counts["temporal_reset"] = int(estimate.temporal == "reset")
         counts["downweighted"] = int(estimate.n_downweighted)
+        if item.disparity_map is not None:  # dense mode: the SGBM map, pixel by pixel
+            estimate = fuse_dense(estimate, item.disparity_map, self._dense_model)
         unknown = _unknown(estimate.disparity.shape)
         return DensifiedFrame(
             frame=item.frame,

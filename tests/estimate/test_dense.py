@@ -1,146 +1,123 @@
-"""Dense fusion (issue 18): the cells, the exact field posterior, the pixel layer."""
+"""Dense fusion (issue 18): the sparse estimate fused with the whole SGBM map."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
-from scipy import ndimage
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis_profiles import examples
 
-from pcainterp_stream.estimate.basis import Basis, resample_grid
-from pcainterp_stream.estimate.dense import (
-    DenseModel,
-    _cell_rows,
-    _nearest_valid,
-    aggregate_cells,
-    densify_dense,
-)
+from pcainterp_stream.estimate.dense import DenseModel, directional_neighbours, fuse_dense
+from pcainterp_stream.estimate.estimator import DensifyResult, Uncertainty
 from pcainterp_stream.estimate.prior import Robust
+from pcainterp_stream.estimate.solve import SolveForm
 
 
-def random_basis(seed: int = 0, grid: tuple[int, int] = (6, 8), n_components: int = 5) -> Basis:
-    rng = np.random.default_rng(seed)
-    s = grid[0] * grid[1]
-    q = np.linalg.qr(rng.normal(size=(s, n_components)))[0]
-    return Basis(
-        mean=rng.uniform(5, 30, grid).astype(np.float32),
-        components=q.T.reshape(n_components, *grid).astype(np.float32),
-        eigenvalues=np.sort(rng.uniform(1.0, 300, n_components))[::-1].copy(),
-        total_variance=2000.0,
-        image_size=(grid[0] * 4, grid[1] * 4),
-        focal_baseline=380.0,
-        n_train=40,
+def field_estimate(
+    disparity: np.ndarray, std: float | None = 2.0, focal_baseline: float = 380.0
+) -> DensifyResult:
+    """A DensifyResult holding a given field (the sparse estimate) and a constant std."""
+    field = np.asarray(disparity, np.float32)
+    return DensifyResult(
+        disparity=field,
+        disparity_std=None if std is None else np.full(field.shape, std, np.float32),
+        depth=None,
+        depth_std=None,
+        coefficients=np.zeros(3),
+        coefficient_variance=np.ones(3),
+        pixels=np.zeros((0, 2)),
+        disparities=np.zeros(0),
+        n_dropped=0,
+        solve_form=SolveForm.MEASUREMENT,
+        uncertainty=Uncertainty.EXACT_COARSE,
+        focal_baseline=focal_baseline,
+        min_disparity=0.5,
     )
 
 
-def test_cells_average_the_valid_pixels_only() -> None:
-    disparity = np.full((8, 12), 7.0, dtype=np.float32)
-    disparity[:4, :4] = np.nan  # one whole cell of the 2 x 3 grid missing
-    disparity[4:, 8:10] = np.nan  # half of another
-    disparity[4:, 10:] = 9.0
-    cells = aggregate_cells(disparity, (2, 3))
-    np.testing.assert_allclose(cells.fraction, [[0, 1, 1], [1, 1, 0.5]])
-    assert np.isnan(cells.mean[0, 0])
-    np.testing.assert_allclose(cells.mean[1, 2], 9.0)
-    np.testing.assert_allclose(cells.mean[0, 1], 7.0)
-    np.testing.assert_allclose(cells.spread[1, 1], 0.0, atol=1e-9)
-    assert cells.pixels_per_cell == 16
+@settings(max_examples=examples(40), deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    height=st.integers(1, 12),
+    width=st.integers(1, 12),
+    share=st.floats(0.0, 1.0),
+)
+def test_directional_neighbours_match_a_scan(
+    seed: int, height: int, width: int, share: float
+) -> None:
+    rng = np.random.default_rng(seed)
+    values = rng.uniform(0, 50, (height, width)).astype(np.float32)
+    valid = rng.random((height, width)) < share
+    found = directional_neighbours(values, valid)
+    steps = [(0, -1), (0, 1), (-1, 0), (1, 0)]  # left, right, up, down
+    for (value, distance), (dy, dx) in zip(found, steps, strict=True):
+        for y in range(height):
+            for x in range(width):
+                r, yy, xx = 0, y, x
+                while 0 <= yy < height and 0 <= xx < width and not valid[yy, xx]:
+                    r, yy, xx = r + 1, yy + dy, xx + dx
+                if 0 <= yy < height and 0 <= xx < width:
+                    assert distance[y, x] == r
+                    assert value[y, x] == values[yy, xx]
+                else:
+                    assert np.isinf(distance[y, x])
 
 
-def test_field_posterior_is_exact_gaussian_conditioning() -> None:
-    basis = random_basis(3)
-    rng = np.random.default_rng(1)
-    size = basis.grid_size
-    disparity = (basis.mean + rng.normal(0, 2.0, size)).astype(np.float32)
-    disparity[rng.random(size) < 0.3] = np.nan
-    model = DenseModel(cell=1, min_fraction=0.5, robust=Robust.NONE, cell_std=0.8)
-    result = densify_dense(basis, disparity, uncertainty="exact", model=model)
-    # brute force: zbar = A y + m + e, e ~ N(0, R), y ~ N(0, Lambda)
-    cells = aggregate_cells(disparity, size)
-    used = (cells.fraction >= 0.5).reshape(-1)
-    rows, mean = _cell_rows(basis, size)
-    a = rows[used].astype(np.float64)
-    r = cells.mean.reshape(-1)[used] - mean[used]
-    noise = (cells.spread.reshape(-1)[used] + 1.0**2) / (
-        cells.fraction.reshape(-1)[used] * cells.pixels_per_cell
-    ) + 0.8**2
-    information = np.diag(1 / basis.eigenvalues) + a.T @ (a / noise[:, None])
-    covariance = np.linalg.inv(information)
-    expected = covariance @ (a.T @ (r / noise))
-    np.testing.assert_allclose(result.coefficients, expected, rtol=1e-4, atol=1e-5)
-    np.testing.assert_allclose(result.coefficient_variance, np.diag(covariance), rtol=1e-4)
-    assert result.n_measurements == int(used.sum())
-    # the std at a hole pixel: 1 / (1 / (b^T Sigma b + tau^2) + 1 / (a^2 + b^2 r))
-    b = basis.pixel_major.astype(np.float64)
-    field_variance = np.einsum("sl,lm,sm->s", b, covariance, b).reshape(size)
-    distance = ndimage.distance_transform_edt(np.isnan(disparity))
-    hole = np.isnan(disparity)
-    nearest = model.nearest_std**2 + model.nearest_rate * distance
-    expected_std = np.sqrt(1 / (1 / (field_variance + model.detail_std**2) + 1 / nearest))
-    assert result.disparity_std is not None
-    np.testing.assert_allclose(result.disparity_std[hole], expected_std[hole], rtol=2e-2)
-
-
-def test_valid_pixels_keep_sgbm_and_holes_are_filled() -> None:
-    basis = random_basis(5)
+def test_valid_pixels_keep_sgbm_and_a_wrong_match_is_pulled_back() -> None:
     rng = np.random.default_rng(2)
-    truth = np.repeat(np.repeat(basis.mean, 4, axis=0), 4, axis=1)
-    disparity = (truth + rng.normal(0, 0.3, truth.shape)).astype(np.float32)
-    disparity[5:12, 3:20] = np.nan
-    disparity[20, 25] = truth[20, 25] + 60.0  # a wrong match
-    result = densify_dense(basis, disparity)
-    valid = np.isfinite(disparity)
-    valid[20, 25] = False
-    assert np.isfinite(result.disparity).all()
-    assert result.disparity_std is not None
-    assert np.isfinite(result.disparity_std).all()
-    # where SGBM is valid the estimate is SGBM's, moved by at most ~1.4 % of its distance
-    # to the field (sigma_px^2 / tau^2)
-    moved = np.abs(result.disparity - disparity)[valid]
-    assert moved.mean() < 0.05
-    assert moved.max() < 0.5
-    # the wrong match is down-weighted (Cauchy) and pulled towards the field, more than
-    # without the robust weight
-    plain = densify_dense(basis, disparity, model=DenseModel(robust=Robust.NONE))
-    error = abs(result.disparity[20, 25] - truth[20, 25])
-    assert error < abs(plain.disparity[20, 25] - truth[20, 25]) - 5.0
-    hole = np.isnan(disparity)
-    assert result.disparity_std[hole].min() > result.disparity_std[valid].max()
-    # deeper in the hole, less certain
-    assert result.disparity_std[8, 11] > result.disparity_std[5, 11]
+    field = rng.uniform(10, 40, (20, 30)).astype(np.float32)
+    sgbm = field + rng.normal(0, 3.0, field.shape).astype(np.float32)
+    sgbm[5, 7] = field[5, 7] + 80.0  # a wrong match
+    model = DenseModel()
+    fused = fuse_dense(field_estimate(field), sgbm, model)
+    ok = np.ones(field.shape, bool)
+    ok[5, 7] = False
+    # moved towards the field by sigma_px^2 / (sigma_px^2 + w v_f) of the gap: under 3 %
+    # for these gaps (< 12 px, Cauchy weight > 0.6, v_f = 68 px^2)
+    gap = np.abs(field - sgbm)[ok]
+    assert gap.max() < 12
+    moved = np.abs(fused.disparity - sgbm)[ok]
+    assert (moved <= 0.03 * gap + 1e-4).all()
+    plain = fuse_dense(field_estimate(field), sgbm, dataclasses.replace(model, robust=Robust.NONE))
+    assert abs(fused.disparity[5, 7] - field[5, 7]) < abs(plain.disparity[5, 7] - field[5, 7]) - 10
+    assert fused.disparity_std is not None
+    assert (fused.disparity_std[ok] < 1.1 * model.pixel_std).all()  # w < 1 where they differ
 
 
-def test_empty_map_gives_the_prior_and_paper_is_refused() -> None:
-    basis = random_basis(7)
-    empty = np.full(basis.image_size, np.nan, dtype=np.float32)
-    result = densify_dense(basis, empty)
-    assert result.n_measurements == 0
-    np.testing.assert_allclose(result.disparity, resample_grid(basis.mean, basis.image_size))
-    with pytest.raises(ValueError, match="paper"):
-        densify_dense(basis, empty, uncertainty="paper")
+def test_a_hole_takes_the_side_the_field_supports() -> None:
+    # an occlusion: background (10 px) left of the hole, foreground (40 px) right of it;
+    # the field says background; a second row has a "sky" hole the field puts at 1 px
+    field = np.full((2, 21), 10.0, np.float32)
+    sgbm = np.full((2, 21), np.nan, np.float32)
+    sgbm[0, :6] = 10.0
+    sgbm[0, 15:] = 40.0
+    field[0, 15:] = 40.0
+    field[1] = 1.0
+    sgbm[1, :3] = 30.0
+    sgbm[1, 18:] = 30.0
+    fused = fuse_dense(field_estimate(field, std=1.0), sgbm)
+    assert np.abs(fused.disparity[0, 6:15] - 10.0).max() < 1.0
+    assert np.abs(fused.disparity[1, 6:15] - 1.0).max() < 2.0
+    assert fused.disparity_std is not None
+    hole_std = fused.disparity_std[np.isnan(sgbm)]
+    assert hole_std.min() > fused.disparity_std[np.isfinite(sgbm)].max()
+    assert np.isfinite(fused.disparity).all()
+
+
+def test_depth_std_and_shapes() -> None:
+    field = np.full((4, 5), 19.0, np.float32)
+    sgbm = field.copy()
+    sgbm[1, 1] = np.nan
+    fused = fuse_dense(field_estimate(field, focal_baseline=190.0), sgbm)
+    assert fused.depth is not None
+    np.testing.assert_allclose(fused.depth, 190.0 / fused.disparity, rtol=1e-5)
+    no_std = fuse_dense(field_estimate(field, std=None), sgbm)
+    assert no_std.disparity_std is None
+    assert no_std.depth_std is None
     with pytest.raises(ValueError, match="shape"):
-        densify_dense(basis, np.zeros(5))
-
-
-def test_depth_follows_the_camera() -> None:
-    basis = random_basis(9)
-    disparity = np.repeat(np.repeat(basis.mean, 4, axis=0), 4, axis=1).astype(np.float32)
-    result = densify_dense(basis, disparity, focal_baseline=190.0)
-    assert result.depth is not None
-    np.testing.assert_allclose(result.depth, 190.0 / result.disparity, rtol=1e-5)
-
-
-def test_nearest_valid_matches_exact_distance_transform() -> None:
-    rng = np.random.default_rng(4)
-    values = rng.uniform(1, 50, (40, 60)).astype(np.float32)
-    valid = rng.random((40, 60)) < 0.1
-    nearest, distance = _nearest_valid(values, valid)
-    exact, (_rows, _cols) = ndimage.distance_transform_edt(~valid, return_indices=True)
-    np.testing.assert_allclose(distance, exact, atol=0.1 * exact.max() + 0.05)
-    assert (distance[valid] == 0).all()
-    np.testing.assert_array_equal(nearest[valid], values[valid])
-    # each hole pixel takes the value of a valid pixel about as near as the nearest one
-    ys, xs = np.nonzero(~valid)
-    for y, x in zip(ys[::37], xs[::37], strict=True):
-        candidates = np.argwhere(valid & np.isclose(values, nearest[y, x]))
-        gap = np.hypot(candidates[:, 0] - y, candidates[:, 1] - x).min()
-        assert gap <= exact[y, x] * 1.1 + 0.5
+        fuse_dense(field_estimate(field), sgbm[:, :3])
+    with pytest.raises(ValueError, match="pixel_std"):
+        DenseModel(pixel_std=0.0)

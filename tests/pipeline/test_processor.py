@@ -289,28 +289,34 @@ def test_unrelated_frames_carry_nothing(basis: Basis, frames: list[StereoFrame])
 
 
 def test_dense_measurements_fill_every_pixel_and_keep_sgbm() -> None:
-    from pcainterp_stream.estimate.dense import densify_dense
-    from pcainterp_stream.frontend.stereo import SgbmConfig, compute_disparity
-    from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
-    from pcainterp_stream.records import StereoFrame
+    from pcainterp_stream.frontend.stereo import compute_disparity
     from pcainterp_stream.synth import SynthConfig, generate
 
     frames = [
         StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
-        for f in generate(SynthConfig(seed=3, frames=2, scale=0.5))
+        for f in generate(SynthConfig(seed=3, frames=3, scale=0.5))
     ]
-    config = ProcessorConfig(measurements="dense", sgbm=SgbmConfig(num_disparities=64))
-    with FrameProcessor(config=config) as processor:
-        results = list(processor.process(frames))
-    assert [r.frame.index for r in results] == [0, 1]
-    for result, frame in zip(results, frames, strict=True):
+    sgbm = SgbmConfig(num_disparities=64)
+    sparse_config = ProcessorConfig(sgbm=sgbm)
+    with FrameProcessor(config=sparse_config) as sparse_processor:
+        sparse = list(sparse_processor.process(frames))
+    config = ProcessorConfig(measurements="dense", sgbm=sgbm)
+    with FrameProcessor(config=config) as dense_processor:
+        dense = list(dense_processor.process(frames))
+    assert [r.frame.index for r in dense] == [0, 1, 2]
+    for result, field, frame in zip(dense, sparse, frames, strict=True):
         assert result.measurement_source == "dense"
         assert np.isfinite(result.disparity).all()
         assert np.isfinite(result.disparity_std).all()
-        sgbm = compute_disparity(frame.left, frame.right, config.sgbm)
-        expected = densify_dense(None, sgbm, focal_baseline=frame.camera.focal_baseline)
-        # the processor holds BLAS at one thread: the same to float32 rounding
-        np.testing.assert_allclose(result.disparity, expected.disparity, atol=1e-3)
-        assert result.pixels.shape[0] == result.counts["cells"] > 0
+        # the same sparse points shaped the field; SGBM's pixels are kept to ~3 %
+        np.testing.assert_array_equal(result.pixels, field.pixels)
+        matched = compute_disparity(frame.left, frame.right, sgbm)
+        valid = np.isfinite(matched)
+        gap = np.abs(field.disparity - matched)[valid]
+        moved = np.abs(result.disparity - matched)[valid]
+        assert np.median(moved) <= 0.03 * np.median(gap) + 1e-3
+        assert result.disparity_std[valid].mean() < field.disparity_std[valid].mean()
     with pytest.raises(ValueError, match="sparse"):
         ProcessorConfig(measurements="both")
+    with pytest.raises(ValueError, match="feature stream"):
+        ProcessorConfig(measurements="dense", source=MeasurementSource.FEATURES)
