@@ -48,7 +48,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.estimate.estimator import DensifyResult, depth_from_disparity
-from pcainterp_stream.estimate.prior import Robust, robust_weights
+from pcainterp_stream.estimate.prior import ROBUST_SCALES, Robust, robust_weights
 
 __all__ = ["DenseModel", "directional_neighbours", "fuse_dense"]
 
@@ -130,17 +130,19 @@ def fuse_dense(
         else estimate.disparity_std * estimate.disparity_std + detail
     )
     hole_mean, hole_variance = _holes(values, valid, field, prior_variance, model)
+    holes = ~valid
     pixel_variance = np.float32(model.pixel_std**2)
     measured = np.where(valid, values, field)
     disagreement = (measured - field) / np.sqrt(prior_variance + pixel_variance)
-    weight = robust_weights(disagreement.astype(np.float64), model.robust).astype(np.float32)
+    weight = _robust_weights(disagreement, model.robust)
     precision = np.float32(1.0) / prior_variance + weight / pixel_variance
     fused = (field / prior_variance + weight * measured / pixel_variance) / precision
-    disparity = np.where(valid, fused, hole_mean).astype(np.float32)
+    disparity = fused.astype(np.float32)
+    disparity[holes] = hole_mean
     std = None
     if estimate.disparity_std is not None:
-        hole_std = np.sqrt(hole_variance) * np.float32(model.hole_std_scale)
-        std = np.where(valid, np.sqrt(np.float32(1.0) / precision), hole_std).astype(np.float32)
+        std = np.sqrt(np.float32(1.0) / precision).astype(np.float32)
+        std[holes] = np.sqrt(hole_variance) * np.float32(model.hole_std_scale)
     depth, depth_std = None, None
     if estimate.focal_baseline > 0:
         depth, depth_std = depth_from_disparity(
@@ -151,6 +153,18 @@ def fuse_dense(
     )
 
 
+def _robust_weights(standardised: F32, robust: Robust) -> F32:
+    """:func:`prior.robust_weights` in float32, in place on ``standardised``."""
+    if robust is Robust.NONE:
+        return np.ones_like(standardised)
+    if robust is Robust.HUBER:
+        return robust_weights(standardised.astype(np.float64), robust).astype(np.float32)
+    standardised *= np.float32(1.0 / ROBUST_SCALES[Robust.CAUCHY])
+    standardised *= standardised
+    standardised += np.float32(1.0)
+    return np.reciprocal(standardised, out=standardised)
+
+
 def _holes(
     values: F32,
     valid: npt.NDArray[np.bool_],
@@ -158,27 +172,62 @@ def _holes(
     prior_variance: F32,
     model: DenseModel,
 ) -> tuple[F32, F32]:
-    """The mixture posterior (mean, variance) of every pixel as if it were a hole."""
-    total = np.full(field.shape, np.float32(model.no_neighbour))
-    mean_sum = total * field
-    second_sum = total * (prior_variance + field * field)
-    for value, distance in directional_neighbours(values, valid):
+    """The mixture posterior (mean, variance) at the hole pixels, row-major order."""
+    rows, cols = np.nonzero(~valid)
+    f = field[rows, cols]
+    v_f = prior_variance[rows, cols]
+    total = np.full(f.shape, np.float32(model.no_neighbour))
+    mean_sum = total * f
+    second_sum = total * (v_f + f * f)
+    for value, distance in _neighbours_at(values, valid, rows, cols):
         found = np.isfinite(distance)
         reach = np.where(found, distance, np.float32(0.0))
         spread = np.float32(model.neighbour_std**2) + np.float32(model.neighbour_rate) * reach
-        both = prior_variance + spread
-        gap = value - field
-        weight = np.exp(np.float32(-0.5) * gap * gap / both) * np.sqrt(prior_variance / both)
+        both = v_f + spread
+        gap = value - f
+        weight = np.exp(np.float32(-0.5) * gap * gap / both) * np.sqrt(v_f / both)
         weight /= np.float32(1.0) + reach / np.float32(model.neighbour_reach)
         weight[~found] = 0.0
-        variance = np.float32(1.0) / (np.float32(1.0) / prior_variance + np.float32(1.0) / spread)
-        mean = (field / prior_variance + value / spread) * variance
+        variance = np.float32(1.0) / (np.float32(1.0) / v_f + np.float32(1.0) / spread)
+        mean = (f / v_f + value / spread) * variance
         total += weight
         mean_sum += weight * mean
         second_sum += weight * (variance + mean * mean)
     estimate = (mean_sum / total).astype(np.float32)
     spread_out = np.maximum(second_sum / total - estimate * estimate, np.float32(1e-6))
     return estimate, spread_out.astype(np.float32)
+
+
+def _neighbours_at(
+    values: F32,
+    valid: npt.NDArray[np.bool_],
+    rows: npt.NDArray[np.intp],
+    cols: npt.NDArray[np.intp],
+) -> list[tuple[F32, F32]]:
+    """(value, distance) of the four directional nearest valid pixels at (rows, cols).
+
+    One running maximum of valid positions per direction over the whole image (int32,
+    along rows for left/right, down the columns for up/down), read at the given pixels.
+    """
+    found: list[tuple[F32, F32]] = []
+    for axis, reverse in ((1, False), (1, True), (0, False), (0, True)):
+        length = valid.shape[axis]
+        shape = (1, length) if axis == 1 else (length, 1)
+        positions = np.arange(length, dtype=np.int32).reshape(shape)
+        mask = valid
+        if reverse:  # positions counted from the far end, so the maximum is the nearest
+            mask = valid[:, ::-1] if axis == 1 else valid[::-1, :]
+        last = np.where(mask, positions, np.int32(-1))
+        np.maximum.accumulate(last, axis=axis, out=last)
+        along = cols if axis == 1 else rows
+        flipped_along = length - 1 - along if reverse else along
+        at = last[rows, flipped_along] if axis == 1 else last[flipped_along, cols]
+        has = at >= 0
+        source = np.where(has, (length - 1 - at) if reverse else at, 0)
+        distance = np.where(has, np.abs(source - along), np.inf).astype(np.float32)
+        value = values[rows, source] if axis == 1 else values[source, cols]
+        found.append((np.where(has, value, np.float32(0.0)).astype(np.float32), distance))
+    return found
 
 
 def directional_neighbours(
@@ -199,21 +248,8 @@ def directional_neighbours(
     array = np.asarray(values, dtype=np.float32)
     if array.shape != valid.shape or array.ndim != 2:
         raise ValueError(f"Expected values and valid of one (H, W) shape, got {array.shape}")
-    found: list[tuple[F32, F32]] = []
-    for transpose, reverse in ((False, False), (False, True), (True, False), (True, True)):
-        mask, data = (valid.T, array.T) if transpose else (valid, array)
-        if reverse:
-            mask, data = mask[:, ::-1], data[:, ::-1]
-        positions = np.arange(mask.shape[1])
-        last = np.maximum.accumulate(np.where(mask, positions[None, :], -1), axis=1)
-        has = last >= 0
-        value = np.where(has, np.take_along_axis(data, np.maximum(last, 0), axis=1), 0.0)
-        distance = np.where(has, positions[None, :] - last, np.inf)
-        if reverse:
-            value, distance = value[:, ::-1], distance[:, ::-1]
-        if transpose:
-            value, distance = value.T, distance.T
-        found.append(
-            (np.ascontiguousarray(value, np.float32), np.ascontiguousarray(distance, np.float32))
-        )
-    return found
+    rows, cols = np.indices(array.shape).reshape(2, -1)
+    return [
+        (value.reshape(array.shape), distance.reshape(array.shape))
+        for value, distance in _neighbours_at(array, valid, rows, cols)
+    ]
