@@ -77,7 +77,7 @@ class DenseModel:
     neighbour_rate: float = 0.1
     neighbour_reach: float = 1.0
     no_neighbour: float = 0.02
-    hole_std_scale: float = 1.8
+    hole_std_scale: float = 2.0
     robust: Robust = Robust.CAUCHY
 
     def __post_init__(self) -> None:
