@@ -75,7 +75,7 @@ from pcainterp_stream.frontend.stereo import (
 )
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
-from pcainterp_stream.io.outputs import OutputTopics
+from pcainterp_stream.io.outputs import MEASUREMENTS_KEY, OutputTopics
 from pcainterp_stream.records import StereoCamera
 
 __all__ = [
@@ -102,7 +102,6 @@ GROUND_TRUTH_DEPTH = "/ground_truth/depth"
 GROUND_TRUTH_POSE = "/ground_truth/pose"
 RIGHT_STAMP_TOLERANCE_NS = 1_000_000
 """The right image belongs to the frame whose stamp is this close (pairing's default)."""
-MEASUREMENTS_KEY = "pcainterp.measurements"
 """Channel metadata key of the output channels: the measurement mode, dense or sparse."""
 REFERENCE_WAIT_FRAMES = 4
 """A complete frame waits for its reference message until this many frames are waiting."""

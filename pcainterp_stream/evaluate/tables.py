@@ -118,7 +118,7 @@ def _targets(result: Evaluation) -> list[str]:
             f"- exact uncertainty +-2 sigma coverage = {_percent(coverage)} (target "
             f"{100 * low:.0f}-{100 * high:.0f} %): {_verdict(coverage, low, high)}."
         )
-    if SGBM_NN in result.stereo:
+    if SGBM_NN in result.stereo and result.measurements == "dense":
         pca = result.methods["pca_map"].summary()["delta_2d_mean"]
         filled = pca / max(result.stereo[SGBM_NN].summary()["delta_2d_mean"], 1e-12)
         on_sgbm = result.stereo[PCA_ON_SGBM].summary()["delta_2d_mean"] / max(
