@@ -7,6 +7,7 @@ Component Analysis" (IEEE IV 2017); see ``DESIGN.md`` for the maths and the cont
 from __future__ import annotations
 
 from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.dense import DenseModel, fuse_dense
 from pcainterp_stream.estimate.estimator import (
     DensifyResult,
     SolveForm,
@@ -20,6 +21,7 @@ from pcainterp_stream.version import __version__
 
 __all__ = [
     "Basis",
+    "DenseModel",
     "DensifyResult",
     "LearnMethod",
     "SolveForm",
@@ -28,6 +30,7 @@ __all__ = [
     "densify",
     "densify_batch",
     "finetune_basis",
+    "fuse_dense",
     "learn_basis",
     "preprocess_disparity",
 ]
