@@ -334,20 +334,19 @@ def _print_summary(summary: DensifySummary, processor: ProcessorConfig) -> None:
     _echo(
         f"densified {summary.frames} frames of {summary.input} in {summary.seconds:.1f} s "
         f"({summary.frames_per_second:.1f} frames/s), "
-        f"{summary.measurements / max(summary.frames, 1):.0f} "
-        + ("SGBM cells per frame (dense)" if dense else "points per frame")
+        f"{summary.measurements / max(summary.frames, 1):.0f} points per frame"
+        + (", fused with the whole SGBM map (dense)" if dense else "")
     )
     _echo(f"pairing: {summary.pairing.summary()}")
     if processor.robust != "none":
         _echo(
-            f"robust ({processor.robust}): {summary.downweighted} "
-            f"{'cells' if dense else 'measurements'} down-weighted "
+            f"robust ({processor.robust}): {summary.downweighted} measurements down-weighted "
             f"({summary.downweighted / max(summary.frames, 1):.1f} per frame, at most "
             f"{summary.most_downweighted} in one frame)"
         )
-    if processor.temporal and not dense:
+    if processor.temporal:
         _echo(f"temporal prior: reset {summary.temporal_resets} times (scene changes)")
-    if processor.carry.frames and not dense:
+    if processor.carry.frames:
         _echo(
             f"carried from the {processor.carry.frames} previous frames: "
             f"{summary.carried / max(summary.frames, 1):.0f} points per frame; "
