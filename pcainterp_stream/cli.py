@@ -15,7 +15,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 from pcainterp_stream.pipeline.densify_cli import add_densify_arguments, live_options, run_densify
 from pcainterp_stream.version import __version__
@@ -182,8 +182,9 @@ def build_parser() -> argparse.ArgumentParser:
             "Learn a PCA basis of dense disparity maps from stereo logs: SGBM on every pair\n"
             "(or a ground-truth depth topic), the paper's preprocessing, streaming PCA; then\n"
             "fit the hybrid prior, sigma and the std calibration on held-out frames\n"
-            "(--no-fit-prior: the paper's model alone). With few frames of your own,\n"
-            "--with-synthetic N fine-tunes the built-in basis with them instead."
+            "(--no-fit-prior: the paper's model alone). With few maps of your own (fewer\n"
+            "than 1000) from a camera like KITTI's, it fine-tunes the built-in basis with\n"
+            "them instead, and says so (--with-synthetic auto, the default; 0 turns it off)."
         ),
         epilog=(
             "examples:\n"
@@ -191,7 +192,7 @@ def build_parser() -> argparse.ArgumentParser:
             "  pcainterp learn drive.mcap -o basis.npz --variance 0.95 --grid-scale 0.125\n"
             "  pcainterp learn synth.mcap -o basis.npz --depth-topic /ground_truth/depth\n"
             "  pcainterp learn a.mcap -o basis.npz --no-fit-prior     # the paper's model\n"
-            "  pcainterp learn short.mcap -o basis.npz --with-synthetic 500  # fine-tune built-in\n"
+            "  pcainterp learn short.mcap -o basis.npz --with-synthetic 0  # your maps alone\n"
             "  pcainterp learn fleet/*.mcap -o basis.npz --scheduler tcp://10.0.0.5:8786\n"
         ),
     )
@@ -210,12 +211,14 @@ def build_parser() -> argparse.ArgumentParser:
     learn.add_argument("--every", type=int, default=1, metavar="N", help="use every N-th frame")
     learn.add_argument(
         "--with-synthetic",
-        type=int,
-        default=None,
-        metavar="N",
+        default="auto",
+        metavar="N|auto",
         help="fine-tune the built-in basis (learned from the synthetic world) with these logs' "
-        "maps, counting it as N maps: for few frames of your own; the result is on the "
-        "built-in basis's grid and camera and applies to yours as any basis does",
+        "maps, counting it as N maps, and keep its local kernel; the result is on the "
+        "built-in basis's grid and camera and applies to yours as any basis does. auto "
+        "(default): N = 1000 when the logs give fewer than 1000 maps and their camera is "
+        "like the built-in basis's (aspect ratio within 10 %%, f*b per image width within "
+        "1.5x), else the maps alone; 0: the maps alone",
     )
     fit = learn.add_argument_group("fitted prior (docs/results.md, 'Beyond the paper')")
     fit.add_argument(
@@ -479,6 +482,21 @@ def _sigma_option(value: str) -> float | str:
     return sigma
 
 
+def _with_synthetic(value: str) -> int | Literal["auto"]:
+    """``learn --with-synthetic``: "auto", 0 (off) or a number of maps >= 2."""
+    if value == "auto":
+        return "auto"
+    try:
+        count = int(value)
+    except ValueError:
+        count = -1
+    if count < 0 or count == 1:
+        raise PcaInterpError(
+            f"--with-synthetic must be at least 2 maps (0: off; or auto), got {value}"
+        )
+    return count
+
+
 def _check_estimate(processor: ProcessorConfig, basis_path: Path | None) -> None:
     """Refuse estimate options that do not fit the basis, before any work is done."""
     from pcainterp_stream.estimate.basis import Basis
@@ -604,11 +622,8 @@ def run(args: argparse.Namespace) -> int:
         on_cluster = args.scheduler is not None or args.workers is not None
         if args.fit_prior is False and args.fit_logs:
             raise PcaInterpError("--fit-logs are for fitting the prior; drop --no-fit-prior")
-        if args.with_synthetic is not None:
-            if args.with_synthetic < 2:
-                raise PcaInterpError(
-                    f"--with-synthetic must be at least 2 maps, got {args.with_synthetic}"
-                )
+        with_synthetic = _with_synthetic(args.with_synthetic)
+        if with_synthetic not in ("auto", 0):
             if args.grid_scale is not None:
                 raise PcaInterpError(
                     "--with-synthetic fine-tunes the built-in basis on its own grid; "
@@ -618,6 +633,8 @@ def run(args: argparse.Namespace) -> int:
                 raise PcaInterpError(
                     "--with-synthetic runs in this process; drop --scheduler/--workers"
                 )
+        elif with_synthetic == "auto" and on_cluster:
+            with_synthetic = 0  # fine-tuning runs in this process only: the maps alone
         # the prior is fitted by default; on a cluster only on --fit-logs (no held-out share)
         fit_prior = args.fit_prior is not False and (not on_cluster or bool(args.fit_logs))
         options = LearnOptions(
@@ -630,7 +647,7 @@ def run(args: argparse.Namespace) -> int:
             fit_prior=fit_prior,
             holdout=args.holdout,
             fit_logs=tuple(args.fit_logs),
-            with_synthetic=args.with_synthetic,
+            with_synthetic=with_synthetic,
         )
         if args.workers is not None and args.workers < 1:
             raise PcaInterpError(f"--workers must be at least 1, got {args.workers}")
@@ -642,8 +659,19 @@ def run(args: argparse.Namespace) -> int:
             )
         if on_cluster:
             from pcainterp_stream.pipeline import distributed
+            from pcainterp_stream.pipeline.learn import AUTO_MAX_MAPS, expected_maps
             from pcainterp_stream.pipeline.learn import fit_prior as fit
 
+            rule = "off: --with-synthetic 0"
+            if args.with_synthetic == "auto":  # else 0: N was refused above
+                rule = "auto: not on a cluster (fine-tuning runs in this process only)"
+                count = expected_maps(args.logs, options, _pairing_config(args))
+                if count is None or count < AUTO_MAX_MAPS:
+                    _echo(
+                        "note: the built-in basis's synthetic maps are not merged into these "
+                        f"{'' if count is None else f'{count} '}maps on a cluster (fine-tuning "
+                        "runs in this process only); drop --scheduler/--workers to merge them"
+                    )
             with distributed.connect(args.scheduler, args.workers) as client:
                 basis = distributed.learn_distributed(
                     [log.resolve() for log in args.logs],
@@ -652,12 +680,14 @@ def run(args: argparse.Namespace) -> int:
                     _pairing_config(args),
                     client,
                 )
+            learned_from = {**basis.meta.get("source", {}), "with_synthetic": 0}
+            meta = {**basis.meta, "source": {**learned_from, "with_synthetic_rule": rule}}
             if fit_prior:
                 sources = [(log, 0) for log in options.fit_logs]
-                fitted = fit(basis, sources, options, _pairing_config(args))
-                basis = dataclasses.replace(basis, meta={**basis.meta, "prior": fitted})
-                basis.save(args.output)
-            elif args.fit_prior is None:
+                meta["prior"] = fit(basis, sources, options, _pairing_config(args))
+            basis = dataclasses.replace(basis, meta=meta)
+            basis.save(args.output)
+            if not fit_prior and args.fit_prior is None:
                 _echo(
                     "note: the prior was not fitted (on a cluster it is fitted on --fit-logs "
                     "LOG only); densify uses the paper's model with this basis"

@@ -25,16 +25,13 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 
 from pcainterp_stream import cli
-
-from pcainterp_stream.io import logwriter
-
-from pcainterp_stream.io import rosmsg
 from pcainterp_stream.estimate.basis import Basis
-from pcainterp_stream.pipeline.jobs import LearnOptions, learn, synth
-from pcainterp_stream.io.logreader import open_log
-from pcainterp_stream.io.outputs import MEASUREMENTS_KEY, recorded_metadata
-from pcainterp_stream.io.logwriter import open_writer
 from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.io import logwriter, rosmsg
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.logwriter import open_writer
+from pcainterp_stream.io.outputs import MEASUREMENTS_KEY, recorded_metadata
+from pcainterp_stream.pipeline.jobs import LearnOptions, learn, synth
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 needs_realdata = pytest.mark.skipif(
@@ -1149,6 +1146,9 @@ def test_densify_bad_option(
         (["--every", "0"], "--every must be at least 1, got 0"),
         (["--num-disparities", "20"], "--num-disparities must be a positive multiple of 16"),
         (["--block-size", "-3"], "--block-size must be odd and positive, got -3"),
+        (["--with-synthetic", "1"], "--with-synthetic must be at least 2 maps (0: off; or auto)"),
+        (["--with-synthetic", "-4"], "got -4"),
+        (["--with-synthetic", "often"], "--with-synthetic must be at least 2 maps"),
     ],
 )
 def test_learn_bad_option(
@@ -1158,6 +1158,19 @@ def test_learn_bad_option(
     line = pcainterp("learn", small_log, "-o", target, *args).error_line()
     assert expected in line
     assert_nothing_written(target)
+
+
+def test_learn_help_states_the_auto_rule(capsys: pytest.CaptureFixture[str]) -> None:
+    from pcainterp_stream.estimate.finetune import ASPECT_TOLERANCE, DISPARITY_TOLERANCE
+    from pcainterp_stream.pipeline.learn import AUTO_MAX_MAPS, AUTO_PRIOR_MAPS
+
+    with pytest.raises(SystemExit):
+        cli.main(["learn", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert f"N = {AUTO_PRIOR_MAPS} when the logs give fewer than {AUTO_MAX_MAPS} maps" in text
+    assert f"aspect ratio within {100 * ASPECT_TOLERANCE:g} %" in text
+    assert f"within {DISPARITY_TOLERANCE:g}x" in text
+    assert "0: the maps alone" in text
 
 
 @pytest.mark.parametrize(

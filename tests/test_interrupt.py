@@ -148,14 +148,19 @@ def test_signal_during_learn(
 ) -> None:
     target = tmp_path / "basis.npz"
     target.write_bytes(b"an older basis")  # an existing target must be left as it was
-    args: list[str | Path] = ["learn", long_log, "-o", target, "--components", "5"]
+    args: list[str | Path] = [
+        "learn", long_log, "-o", target, "--components", "5", "--with-synthetic", "0"
+    ]
     code, err = _interrupt_while_reading(args, long_log, sig)
     assert code == 130, err
     assert err.strip() == INTERRUPTED
     assert target.read_bytes() == b"an older basis"
     assert [p.name for p in tmp_path.iterdir()] == [target.name]  # no temporary beside it
     # nothing the interrupted run left stops a new one (the short log keeps the test fast)
-    rerun = _pcainterp("learn", small_log, "-o", target, "--components", "5", "--no-fit-prior")
+    rerun = _pcainterp(
+        "learn", small_log, "-o", target, "--components", "5", "--no-fit-prior",
+        "--with-synthetic", "0",
+    )
     assert rerun.returncode == 0, rerun.stderr
     assert Basis.load(target).n_train == SMALL_FRAMES
     assert [p.name for p in tmp_path.iterdir()] == [target.name]
@@ -174,7 +179,10 @@ def test_interrupt_while_learn_saves(
         raise KeyboardInterrupt
 
     monkeypatch.setattr(np, "savez", interrupted_savez)
-    args = ["learn", str(small_log), "-o", str(target), "--components", "3", "--no-fit-prior"]
+    args = [
+        "learn", str(small_log), "-o", str(target), "--components", "3", "--no-fit-prior",
+        "--with-synthetic", "0",
+    ]
     code = cli.main(args)
     assert code == 130
     assert capsys.readouterr().err.strip() == INTERRUPTED

@@ -42,6 +42,54 @@ from pcainterp_stream.estimate.learning import (
     streaming_fit,
 )
 
+ASPECT_TOLERANCE = 0.10
+"""``camera_mismatch``: largest relative difference of the width/height ratio."""
+
+DISPARITY_TOLERANCE = 1.5
+"""``camera_mismatch``: largest factor between the disparity ranges (f*b per image width)."""
+
+
+def camera_mismatch(basis: Basis, image_size: tuple[int, int], focal_baseline: float) -> str | None:
+    """Say why a camera's maps should not be merged into a basis's statistics, or None.
+
+    The maps are mapped onto the basis's camera as ``densify`` maps a log (DESIGN.md
+    section 2): pixels scaled to its image size, disparities by the f*b ratio. That keeps
+    the street's depths but not its look, so the two cameras must agree on:
+
+    - the **aspect ratio** (width / height) within :data:`ASPECT_TOLERANCE`: otherwise the
+      horizon, the road and the sky land on other grid rows than in the basis;
+    - the **disparity range**, f*b per image width (the disparity of one depth as a share
+      of the image width; it is the field of view times the baseline), within a factor
+      :data:`DISPARITY_TOLERANCE`: otherwise the same scene has another disparity range
+      and the basis's statistics (and the SGBM search range of the maps) do not carry over.
+
+    The camera's mounting (height, pitch) and the kind of scene cannot be checked here;
+    ``--with-synthetic 0`` turns the merge off.
+
+    Args:
+        basis: the basis to merge into (its ``image_size`` and ``focal_baseline``).
+        image_size: (height, width) of the maps' camera (px).
+        focal_baseline: f*b of the maps' camera (px*m); <= 0: unknown.
+
+    Returns:
+        None when the cameras agree, else a short reason ("aspect ratio 1.78 against 3.30",
+        the camera's first).
+    """
+    height, width = image_size
+    basis_height, basis_width = basis.image_size
+    aspect, basis_aspect = width / height, basis_width / basis_height
+    if abs(aspect / basis_aspect - 1.0) > ASPECT_TOLERANCE:
+        return f"aspect ratio {aspect:.2f} against {basis_aspect:.2f}"
+    if not (np.isfinite(focal_baseline) and focal_baseline > 0) or basis.focal_baseline <= 0:
+        return "f*b unknown"
+    ratio = (focal_baseline / width) / (basis.focal_baseline / basis_width)
+    if not 1.0 / DISPARITY_TOLERANCE <= ratio <= DISPARITY_TOLERANCE:
+        return (
+            f"disparity range (f*b / image width) {focal_baseline / width:.3g} m against "
+            f"{basis.focal_baseline / basis_width:.3g} m"
+        )
+    return None
+
 
 def basis_sketch(basis: Basis, n_prior: int) -> Sketch:
     """Return the incremental-SVD state of ``n_prior`` maps with the basis's statistics.

@@ -259,12 +259,15 @@ def describe_basis(path: Path | None = None) -> str:
         span = f" (seeds {seeds[0]}-{seeds[-1]})" if isinstance(seeds, list) and seeds else ""
         lines.append(f"  drives           {drives} synthetic drives{span}")
     lines.append(f"  method           {learning.get('method', '?')}")
-    tuned = meta.get("finetune")
+    tuned, rule = meta.get("finetune"), source.get("with_synthetic_rule")
     if isinstance(tuned, dict):
         lines.append(
             f"  fine-tuned       {tuned.get('n_maps', '?')} maps merged into a basis counted "
-            f"as {tuned.get('n_prior', '?')} maps (learn --with-synthetic)"
+            f"as {tuned.get('n_prior', '?')} maps (learn --with-synthetic"
+            + (f"; {rule})" if isinstance(rule, str) else ")")
         )
+    elif isinstance(rule, str) and rule != "off":
+        lines.append(f"  synthetic maps   not merged ({rule})")
     fitted = meta.get("prior")
     if isinstance(fitted, dict):
         local = fitted.get("local")
@@ -274,7 +277,9 @@ def describe_basis(path: Path | None = None) -> str:
             else "none (the paper's prior had the best evidence)"
         )
         lines += [
-            f"  fitted prior     {kernel}; sigma {fitted.get('sigma', float('nan')):.3g} px; "
+            f"  fitted prior     {kernel}"
+            + (" (kept)" if "local_kept_from" in fitted else "")
+            + f"; sigma {fitted.get('sigma', float('nan')):.3g} px; "
             f"process noise {fitted.get('process_noise', float('nan')):g}; "
             f"std scale {fitted.get('std_scale', 1.0):.3g}"
             + (

@@ -9,19 +9,20 @@ from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.errors import (
+    BasisError,
     LogReadError,
     PcaInterpError,
 )
 from pcainterp_stream.estimate.basis import Basis
-from pcainterp_stream.estimate.finetune import finetune_basis
+from pcainterp_stream.estimate.finetune import camera_mismatch, finetune_basis
 from pcainterp_stream.estimate.learning import learn_basis
-from pcainterp_stream.estimate.prior import LocalPrior
+from pcainterp_stream.estimate.prior import Kernel, LocalPrior
 from pcainterp_stream.frontend.pairing import (
     PairingConfig,
     iter_stereo_frames,
@@ -61,7 +62,11 @@ class LearnOptions:
         gftt: corner options of the fitting frames' measurements.
         with_synthetic: fine-tune instead of learning from scratch: merge the maps into
             ``prior_basis`` counted as this many maps (``estimate/finetune.py``); the
-            result lives on that basis's grid and camera. None: learn from the maps alone.
+            result lives on that basis's grid and camera, and the fit keeps its local
+            kernel. ``"auto"`` (the command line's default): as :func:`plan_synthetic`
+            decides (:data:`AUTO_PRIOR_MAPS` when the logs give fewer than
+            :data:`AUTO_MAX_MAPS` maps of a camera like the basis's). None or 0: learn
+            from the maps alone (None is this API's default).
         prior_basis: the basis fine-tuned with ``with_synthetic``; None: the built-in one.
     """
 
@@ -75,8 +80,22 @@ class LearnOptions:
     holdout: float = 0.2
     fit_logs: tuple[Path, ...] = ()
     gftt: GfttConfig = dataclasses.field(default_factory=GfttConfig)
-    with_synthetic: int | None = None
+    with_synthetic: int | Literal["auto"] | None = None
     prior_basis: Basis | None = None
+
+
+AUTO = "auto"
+"""``LearnOptions.with_synthetic`` (``learn --with-synthetic auto``): decide by the logs."""
+
+AUTO_MAX_MAPS = 1000
+"""``auto`` fine-tunes when the logs give fewer training maps than this: measured better at
+40 and 86 real maps and 240 and 800 synthetic ones (docs/results.md, "How `learn`'s default
+was chosen"); from AUTO_PRIOR_MAPS maps on, the user's maps carry most of the weight."""
+
+AUTO_PRIOR_MAPS = 1000
+"""The maps ``auto`` counts the built-in basis for: of 250, 1000, 4000 and 6000, the best
+mean over the two real KITTI clips, each learned and the other densified (docs/results.md,
+"How `learn`'s default was chosen")."""
 
 
 @dataclass(frozen=True)
@@ -186,19 +205,121 @@ def source_meta(logs: list[Path], options: LearnOptions) -> dict[str, Any]:
     }
 
 
+@dataclass(frozen=True)
+class SyntheticPlan:
+    """What ``learn`` does with the built-in basis's synthetic maps.
+
+    Attributes:
+        prior_basis: the basis to fine-tune, or None to learn from the maps alone.
+        n_prior: the maps it counts for (0 with no prior basis).
+        rule: why, as ``meta["source"]["with_synthetic_rule"]`` records it.
+        note: the line printed for the user, or None.
+    """
+
+    prior_basis: Basis | None
+    n_prior: int
+    rule: str
+    note: str | None = None
+
+
+def plan_synthetic(
+    options: LearnOptions, n_maps: int | None, camera: tuple[tuple[int, int], float]
+) -> SyntheticPlan:
+    """Decide whether ``learn`` fine-tunes the built-in basis (``--with-synthetic``).
+
+    Args:
+        options: the learning options (``with_synthetic``, ``prior_basis``).
+        n_maps: the training maps the logs give (after the held-out share), None: unknown.
+        camera: ((height, width) px, f*b px*m) of the logs' camera.
+
+    Returns:
+        The :class:`SyntheticPlan`. ``auto`` fine-tunes with :data:`AUTO_PRIOR_MAPS` when
+        ``n_maps`` < :data:`AUTO_MAX_MAPS` and :func:`camera_mismatch` finds nothing; it
+        learns from the maps alone, with a note, when the camera differs, ``grid_scale``
+        asks for another grid than the basis's, or the built-in basis is not installed.
+    """
+    requested = options.with_synthetic
+    if requested is None or requested == 0:
+        return SyntheticPlan(None, 0, "off: --with-synthetic 0" if requested == 0 else "off")
+    if requested != AUTO:
+        prior_basis = options.prior_basis or Basis.default()
+        return SyntheticPlan(prior_basis, int(requested), f"--with-synthetic {requested}")
+    count = "an unknown number of" if n_maps is None else str(n_maps)
+    if n_maps is not None and n_maps >= AUTO_MAX_MAPS:
+        return SyntheticPlan(None, 0, f"auto: {n_maps} maps, not fewer than {AUTO_MAX_MAPS}")
+    try:
+        prior_basis = options.prior_basis or Basis.default()
+    except BasisError as err:
+        rule = f"auto: the built-in basis is not installed ({err})"
+        return SyntheticPlan(None, 0, rule, f"note: {rule}; learning from your {count} maps alone")
+    image_size, focal_baseline = camera
+    mismatch = camera_mismatch(prior_basis, image_size, focal_baseline)
+    if mismatch is not None:
+        rule = f"auto: the camera differs from the built-in basis's ({mismatch})"
+        return SyntheticPlan(
+            None,
+            0,
+            rule,
+            f"note: not merging the built-in basis's synthetic maps into your {count} maps: "
+            f"your camera is not like its KITTI-like one ({mismatch}); --with-synthetic N "
+            "merges them anyway",
+        )
+    preprocessing = prior_basis.meta.get("preprocessing", {})
+    grid_scale = float(
+        preprocessing.get("grid_scale", prior_basis.grid_size[1] / prior_basis.image_size[1])
+    )
+    if not np.isclose(options.grid_scale, grid_scale, rtol=0.01):
+        rule = (
+            f"auto: --grid-scale {options.grid_scale:g} asks for another grid than the "
+            f"built-in basis's {grid_scale:g}"
+        )
+        return SyntheticPlan(None, 0, rule, f"note: {rule}; learning from your {count} maps alone")
+    rule = f"auto: {count} maps, fewer than {AUTO_MAX_MAPS}, and a camera like the basis's"
+    return SyntheticPlan(
+        prior_basis,
+        AUTO_PRIOR_MAPS,
+        rule,
+        f"note: {count} maps of your own are few (< {AUTO_MAX_MAPS}): merging them with the "
+        f"built-in basis's synthetic statistics (counted as {AUTO_PRIOR_MAPS} maps) and "
+        "keeping its local kernel; --with-synthetic 0 learns from your maps alone",
+    )
+
+
+def kept_kernel(basis: Basis) -> LocalPrior | None:
+    """Return the local kernel of a basis's fitted prior (kept when fine-tuning), or None."""
+    fitted = basis.meta.get("prior")
+    local = fitted.get("local") if isinstance(fitted, dict) else None
+    if not isinstance(local, dict):
+        return None
+    return LocalPrior(
+        float(local["variance"]), float(local["length_scale"]), Kernel(local["kernel"])
+    )
+
+
+def expected_maps(logs: list[Path], options: LearnOptions, pairing: PairingConfig) -> int | None:
+    """Return the maps the logs' summaries promise (every N-th frame); None: unknown."""
+    source = options.depth_topic or pairing.left_topic
+    totals = [_expected_frames(log, source, options.every) for log in logs]
+    return None if None in totals else sum(total for total in totals if total is not None)
+
+
 def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: PairingConfig) -> Basis:
     """Learn a basis from the disparity maps of logs (``pcainterp learn``).
 
-    The basis from the maps alone, or with ``options.with_synthetic`` the built-in basis
-    (``options.prior_basis``) fine-tuned with them; then, by default, the prior fitted on
-    the held-out share of each log (or on ``options.fit_logs``). The basis is saved to
-    ``output`` and returned.
+    The basis from the maps alone, or, as :func:`plan_synthetic` decides from
+    ``options.with_synthetic``, the built-in basis (``options.prior_basis``) fine-tuned
+    with them; then, by default, the prior fitted on the held-out share of each log (or on
+    ``options.fit_logs``), a fine-tuned basis keeping the built-in basis's local kernel.
+    The basis is saved to ``output`` and returned.
     """
     if options.every < 1:
         raise PcaInterpError(f"--every must be at least 1, got {options.every}")
-    if options.with_synthetic is not None and options.with_synthetic < 2:
+    requested = options.with_synthetic
+    if (isinstance(requested, str) and requested != AUTO) or (
+        isinstance(requested, int) and (requested < 0 or requested == 1)
+    ):
         raise PcaInterpError(
-            f"--with-synthetic must be at least 2 maps, got {options.with_synthetic}"
+            f"--with-synthetic must be at least 2 maps (0: off; or auto), got {requested}"
         )
     for log in logs:
         if log.resolve() == output.resolve():
@@ -219,6 +340,8 @@ def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: Pairin
                 count = _count_frames(logs[index], source, options.every)
             kept[index] = max(1, int(count * (1.0 - options.holdout)))
         total = sum(k for k in kept if k is not None)
+    elif requested == AUTO and total is None:
+        total = sum(_count_frames(log, source, options.every) for log in logs)
 
     def maps() -> Iterator[npt.NDArray[np.float32]]:
         for log, keep in zip(logs, kept, strict=True):
@@ -233,10 +356,6 @@ def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: Pairin
                 yield disparity
 
     meta: dict[str, Any] = {"source": source_meta(logs, options)}
-    prior_basis = None
-    if options.with_synthetic is not None:
-        prior_basis = options.prior_basis or Basis.default()
-        meta["source"]["with_synthetic"] = options.with_synthetic
     with _bar(total, "learn") as bar:
         stream = maps()
         first = next(stream, None)
@@ -245,12 +364,17 @@ def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: Pairin
                 f"no {'depth image' if options.depth_topic else 'stereo pair'} found in "
                 f"{', '.join(map(str, logs))}; check the topic options (pcainterp info LOG)"
             )
+        plan = plan_synthetic(options, total, (info[0].image_size, info[0].focal_baseline))
+        if plan.note is not None:
+            _echo(plan.note)
+        meta["source"]["with_synthetic"] = plan.n_prior
+        meta["source"]["with_synthetic_rule"] = plan.rule
         try:
-            if prior_basis is not None and options.with_synthetic is not None:
+            if plan.prior_basis is not None:
                 basis = finetune_basis(
-                    prior_basis,
+                    plan.prior_basis,
                     itertools.chain([first], stream),
-                    n_prior=options.with_synthetic,
+                    n_prior=plan.n_prior,
                     n_components=options.n_components,
                     variance=options.variance,
                     focal_baseline=info[0].focal_baseline,
@@ -276,7 +400,12 @@ def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: Pairin
             ]
         else:
             sources = [(log, 0) for log in options.fit_logs]
-        fitted = fit_prior(basis, sources, options, pairing)
+        # a fine-tuned basis keeps the built-in basis's kernel (chosen on real streets; the
+        # evidence of a few held-out frames picks a worse one: docs/results.md, issue 16)
+        local = None if plan.prior_basis is None else kept_kernel(plan.prior_basis)
+        fitted = fit_prior(basis, sources, options, pairing, local)
+        if local is not None:
+            fitted["local_kept_from"] = "the fine-tuned basis (learn --with-synthetic)"
         basis = dataclasses.replace(basis, meta={**basis.meta, "prior": fitted})
     basis.save(output)
     return basis

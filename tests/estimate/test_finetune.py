@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.linalg import subspace_angles
 
 from pcainterp_stream.estimate.basis import Basis
-from pcainterp_stream.estimate.finetune import basis_sketch, finetune_basis
+from pcainterp_stream.estimate.finetune import basis_sketch, camera_mismatch, finetune_basis
 from pcainterp_stream.estimate.learning import learn_basis
 
 GRID = (12, 20)
@@ -66,9 +68,7 @@ def test_sketch_reproduces_the_basis_scatter() -> None:
     sketch = basis_sketch(start, 40)
     factor = sketch.factor.astype(np.float64)
     # U sqrt((n - 1) Lambda): its Gram is diag((n - 1) lambda)
-    np.testing.assert_allclose(
-        np.diag(factor.T @ factor), 39 * start.eigenvalues, rtol=1e-4
-    )
+    np.testing.assert_allclose(np.diag(factor.T @ factor), 39 * start.eigenvalues, rtol=1e-4)
     assert sketch.squares == pytest.approx(39 * start.total_variance)
     assert sketch.n_maps == 40
 
@@ -113,3 +113,39 @@ def test_bad_arguments_are_named() -> None:
         finetune_basis(start, [], n_prior=5, preprocessed=True)
     with pytest.raises(ValueError, match=r"map 0 has shape \(3, 3\)"):
         finetune_basis(start, [np.zeros((3, 3))], n_prior=5, preprocessed=True)
+
+
+def kitti_like() -> Basis:
+    """A basis for the built-in basis's camera: 1241 x 376 px, f*b 386 px*m."""
+    basis = learn(grid_maps(4, 20.0, seed=8))
+    return dataclasses.replace(basis, image_size=(376, 1241), focal_baseline=386.17)
+
+
+@pytest.mark.parametrize(
+    ("image_size", "focal_baseline"),
+    [
+        ((370, 1226), 379.8),  # the KITTI odometry clip
+        ((375, 1242), 387.2),  # the KITTI raw drive
+        ((94, 310), 96.5),  # a quarter-size synthetic log: same look, smaller pixels
+        ((376, 1241), 386.17 * 1.4),  # a 1.4x wider baseline: within 1.5x
+    ],
+)
+def test_a_kitti_like_camera_matches(image_size: tuple[int, int], focal_baseline: float) -> None:
+    assert camera_mismatch(kitti_like(), image_size, focal_baseline) is None
+
+
+@pytest.mark.parametrize(
+    ("image_size", "focal_baseline", "reason"),
+    [
+        ((480, 640), 300.0, "aspect ratio 1.33 against 3.30"),
+        ((720, 1280), 300.0, "aspect ratio 1.78 against 3.30"),
+        ((376, 1100), 386.17, "aspect ratio 2.93 against 3.30"),  # 11 % narrower
+        ((376, 1241), 386.17 / 1.6, "disparity range (f*b / image width) 0.194 m against 0.311 m"),
+        ((188, 620), 386.17, "disparity range (f*b / image width) 0.623 m against 0.311 m"),
+        ((376, 1241), 0.0, "f*b unknown"),
+    ],
+)
+def test_another_camera_is_named(
+    image_size: tuple[int, int], focal_baseline: float, reason: str
+) -> None:
+    assert camera_mismatch(kitti_like(), image_size, focal_baseline) == reason

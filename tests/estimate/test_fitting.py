@@ -128,7 +128,7 @@ def test_learn_fit_prior_then_densify_uses_it(tmp_path: Path) -> None:
     jobs.synth(test, frames=4, seed=22, scale=0.25, fmt="mcap")
     basis_path = tmp_path / "basis.npz"
     assert main(["learn", str(train), "-o", str(basis_path), "--components", "10",
-                 "--fit-prior", "--holdout", "0.25"]) == 0
+                 "--fit-prior", "--holdout", "0.25", "--with-synthetic", "0"]) == 0
     basis = Basis.load(basis_path)
     assert basis.n_train == 15  # 5 of 20 frames held out for the fit
     prior = basis.meta["prior"]

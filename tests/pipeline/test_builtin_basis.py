@@ -1,18 +1,22 @@
 """Issue 16 through the jobs and the command line: the built-in basis where no basis is
 given (densify, evaluate, info, the processor), the prior fitted by default, and
-``learn --with-synthetic``."""
+``learn --with-synthetic`` (``auto`` by default: merged into few maps of a KITTI-like
+camera)."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from pcainterp_stream import cli
 from pcainterp_stream.estimate import basis as basis_module
 from pcainterp_stream.estimate.basis import BUILT_IN, Basis
+from pcainterp_stream.estimate.learning import learn_basis
 from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.io.outputs import (
     BASIS_FINGERPRINT_KEY,
@@ -21,6 +25,8 @@ from pcainterp_stream.io.outputs import (
     recorded_metadata,
 )
 from pcainterp_stream.pipeline import jobs
+from pcainterp_stream.pipeline import learn as learn_module
+from pcainterp_stream.pipeline.learn import AUTO_MAX_MAPS, AUTO_PRIOR_MAPS
 from pcainterp_stream.pipeline.processor import FrameProcessor
 
 FRAMES = 6
@@ -79,7 +85,8 @@ def test_densify_without_an_installed_basis_is_one_line(
     code, _, err = run(capsys, "densify", folder / "drive.mcap", "-o", target)
     assert code == 2
     assert err.count("\n") == 1
-    assert "built-in basis" in err and "--basis" in err
+    assert "built-in basis" in err
+    assert "--basis" in err
     assert not target.exists()
 
 
@@ -95,7 +102,13 @@ def test_evaluate_uses_the_basis_the_log_records(
     folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     code, out, _ = run(
-        capsys, "evaluate", folder / "builtin_dense.mcap", "-o", tmp_path / "a", "--sweep-every", "0"
+        capsys,
+        "evaluate",
+        folder / "builtin_dense.mcap",
+        "-o",
+        tmp_path / "a",
+        "--sweep-every",
+        "0",
     )
     assert code == 0
     assert "basis of the re-densified rows: built-in (recorded in the log)" in out
@@ -132,8 +145,15 @@ def test_evaluate_skips_the_basis_rows_when_the_recorded_basis_is_gone(
     assert "oracle" not in report["methods"]  # type: ignore[operator]
     # --basis names it explicitly
     code, out, _ = run(
-        capsys, "evaluate", log, "-o", tmp_path / "s", "--sweep-every", "0",
-        "--basis", tmp_path / "own_elsewhere.npz",
+        capsys,
+        "evaluate",
+        log,
+        "-o",
+        tmp_path / "s",
+        "--sweep-every",
+        "0",
+        "--basis",
+        tmp_path / "own_elsewhere.npz",
     )
     assert code == 0
     assert "(given)" in out
@@ -143,7 +163,7 @@ def test_evaluate_no_basis_and_no_linear_skip_rows(
     folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     args = ["evaluate", folder / "builtin_dense.mcap", "-o", tmp_path / "q"]
-    code, out, _ = run(capsys, *args, "--no-basis", "--no-linear")
+    code, _out, _ = run(capsys, *args, "--no-basis", "--no-linear")
     assert code == 0
     methods = _report(tmp_path / "q")["methods"]
     assert set(methods) == {"pca_map", "nearest"}  # type: ignore[arg-type]
@@ -175,24 +195,182 @@ def test_learn_fits_the_prior_by_default_and_no_fit_prior_is_the_paper(
 ) -> None:
     log = folder / "drive.mcap"
     fitted, paper, alias = tmp_path / "fitted.npz", tmp_path / "paper.npz", tmp_path / "a.npz"
-    assert run(capsys, "learn", log, "-o", fitted, "--components", "3")[0] == 0
+    alone = ["--components", "3", "--with-synthetic", "0"]  # the maps alone, as the paper
+    assert run(capsys, "learn", log, "-o", fitted, *alone)[0] == 0
     assert "prior" in Basis.load(fitted).meta
     assert Basis.load(fitted).n_train == 4  # the last 20 % held out for the fit
-    args = ["learn", log, "-o", paper, "--components", "3", "--no-fit-prior"]
-    assert run(capsys, *args)[0] == 0
+    assert Basis.load(fitted).meta["source"]["with_synthetic_rule"] == "off: --with-synthetic 0"
+    assert run(capsys, "learn", log, "-o", paper, *alone, "--no-fit-prior")[0] == 0
     assert "prior" not in Basis.load(paper).meta
     assert Basis.load(paper).n_train == FRAMES
-    assert run(capsys, "learn", log, "-o", alias, "--components", "3", "--fit-prior")[0] == 0
+    assert run(capsys, "learn", log, "-o", alias, *alone, "--fit-prior")[0] == 0
     assert "prior" in Basis.load(alias).meta
     parser = cli.build_parser()
-    assert parser.parse_args(["learn", "x.mcap", "-o", "b.npz"]).fit_prior is None
+    defaults = parser.parse_args(["learn", "x.mcap", "-o", "b.npz"])
+    assert defaults.fit_prior is None
+    assert defaults.with_synthetic == "auto"
+
+
+def test_learn_with_no_flags_merges_the_built_in_basis_into_few_maps(
+    folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "auto.npz"
+    code, text, err = run(capsys, "learn", folder / "drive.mcap", "-o", out, "--components", "20")
+    assert code == 0, err
+    notes = [line for line in text.splitlines() if line.startswith("note:")]
+    assert len(notes) == 1  # one line: what it did and how to turn it off
+    assert f"4 maps of your own are few (< {AUTO_MAX_MAPS})" in notes[0]
+    assert f"counted as {AUTO_PRIOR_MAPS} maps" in notes[0]
+    assert "--with-synthetic 0" in notes[0]
+    tuned, built_in = Basis.load(out), Basis.default()
+    assert tuned.n_train == AUTO_PRIOR_MAPS + 4  # 2 of the 6 frames held out for the fit
+    assert tuned.image_size == built_in.image_size
+    record = tuned.meta["finetune"]
+    assert record["n_prior"] == AUTO_PRIOR_MAPS
+    assert record["n_maps"] == 4
+    assert record["prior_basis"]["fingerprint"] == built_in.fingerprint
+    source = tuned.meta["source"]
+    assert source["with_synthetic"] == AUTO_PRIOR_MAPS
+    assert source["with_synthetic_rule"].startswith(f"auto: 4 maps, fewer than {AUTO_MAX_MAPS}")
+    # the fit keeps the built-in basis's kernel (sigma, process noise, std scale fitted)
+    prior = tuned.meta["prior"]
+    assert prior["local"] == built_in.meta["prior"]["local"]
+    assert prior["local_fixed"] is True
+    assert "local_kept_from" in prior
+    assert "fine-tuned       4 maps merged" in text  # learn describes what it wrote
+    code, text, _ = run(capsys, "info", out)
+    assert code == 0
+    assert f"auto: 4 maps, fewer than {AUTO_MAX_MAPS}" in text
+    assert "64 px, 40 px^2 (kept)" in text
+
+
+@pytest.mark.parametrize(("max_maps", "merged"), [(FRAMES, False), (FRAMES + 1, True)])
+def test_auto_merges_below_the_threshold_only(
+    max_maps: int,
+    merged: bool,
+    folder: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    monkeypatch.setattr(learn_module, "AUTO_MAX_MAPS", max_maps)
+    options = jobs.LearnOptions(n_components=3, fit_prior=False, with_synthetic="auto")
+    capsys.readouterr()
+    basis = jobs.learn([folder / "drive.mcap"], tmp_path / "b.npz", options, PairingConfig())
+    printed = capsys.readouterr().out
+    assert ("finetune" in basis.meta) is merged
+    assert basis.n_train == FRAMES + (AUTO_PRIOR_MAPS if merged else 0)
+    assert basis.meta["source"]["with_synthetic"] == (AUTO_PRIOR_MAPS if merged else 0)
+    assert ("note:" in printed) is merged  # a long log: nothing to say
+    if not merged:
+        rule = f"auto: {FRAMES} maps, not fewer than {max_maps}"
+        assert basis.meta["source"]["with_synthetic_rule"] == rule
+        assert basis.image_size == (94, 310)  # the log's own camera
+        assert f"synthetic maps   not merged ({rule})" in jobs.describe_basis(tmp_path / "b.npz")
+
+
+def _square_basis() -> Basis:
+    """A basis of a 40x40 px camera: aspect ratio 1, unlike the logs' 3.3."""
+    rng = np.random.default_rng(3)
+    maps = [rng.normal(20.0, 1.0, size=(10, 10)).astype(np.float32) for _ in range(5)]
+    return learn_basis(
+        maps, n_components=3, preprocessed=True, image_size=(40, 40), focal_baseline=12.0
+    )
+
+
+def test_auto_does_not_merge_into_the_maps_of_another_camera(
+    folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    options = jobs.LearnOptions(
+        n_components=3, fit_prior=False, with_synthetic="auto", prior_basis=_square_basis()
+    )
+    capsys.readouterr()
+    basis = jobs.learn([folder / "drive.mcap"], tmp_path / "b.npz", options, PairingConfig())
+    notes = [line for line in capsys.readouterr().out.splitlines() if line.startswith("note:")]
+    assert len(notes) == 1
+    assert "not merging" in notes[0]
+    assert "aspect ratio 3.30 against 1.00" in notes[0]
+    assert "--with-synthetic N merges them anyway" in notes[0]
+    assert "finetune" not in basis.meta
+    assert basis.n_train == FRAMES
+    assert basis.image_size == (94, 310)
+    assert basis.meta["source"]["with_synthetic"] == 0
+    assert "the camera differs" in basis.meta["source"]["with_synthetic_rule"]
+
+
+def test_auto_learns_alone_when_the_built_in_basis_is_missing(
+    folder: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    monkeypatch.setattr(basis_module, "default_basis_path", lambda: tmp_path / "gone.npz")
+    options = jobs.LearnOptions(n_components=3, fit_prior=False, with_synthetic="auto")
+    capsys.readouterr()
+    basis = jobs.learn([folder / "drive.mcap"], tmp_path / "b.npz", options, PairingConfig())
+    assert "note: auto: the built-in basis is not installed" in capsys.readouterr().out
+    assert "finetune" not in basis.meta
+    assert basis.n_train == FRAMES
+
+
+@pytest.mark.parametrize(("grid_scale", "merged"), [("0.5", False), ("0.25", True)])
+def test_auto_keeps_an_explicit_grid_scale_of_another_grid(
+    grid_scale: str,
+    merged: bool,
+    folder: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    out = tmp_path / "b.npz"
+    args = ["learn", folder / "drive.mcap", "-o", out, "--components", "3", "--no-fit-prior"]
+    code, text, err = run(capsys, *args, "--grid-scale", grid_scale)
+    assert code == 0, err
+    assert ("finetune" in Basis.load(out).meta) is merged
+    if not merged:
+        assert "note: auto: --grid-scale 0.5 asks for another grid" in text
+        assert Basis.load(out).grid_size == (47, 155)
+
+
+def test_auto_on_a_cluster_learns_the_maps_alone_with_a_note(
+    folder: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from pcainterp_stream.pipeline import distributed
+
+    seen: list[object] = []
+
+    def learn_here(
+        logs: list[Path],
+        output: Path,
+        options: jobs.LearnOptions,
+        pairing: PairingConfig,
+        _: object,
+    ) -> Basis:
+        seen.append(options.with_synthetic)
+        return jobs.learn(logs, output, options, pairing)
+
+    monkeypatch.setattr(distributed, "connect", lambda *_: contextlib.nullcontext())
+    monkeypatch.setattr(distributed, "learn_distributed", learn_here)
+    out = tmp_path / "b.npz"
+    args = ["learn", folder / "drive.mcap", "-o", out, "--components", "3", "--workers", "1"]
+    code, text, err = run(capsys, *args)
+    assert code == 0, err
+    assert seen == [0]
+    notes = [line for line in text.splitlines() if line.startswith("note: the built-in")]
+    assert len(notes) == 1
+    assert f"these {FRAMES} maps on a cluster" in notes[0]
+    assert "drop --scheduler/--workers" in notes[0]
+    basis = Basis.load(out)
+    assert "finetune" not in basis.meta
+    assert basis.meta["source"]["with_synthetic"] == 0
+    assert basis.meta["source"]["with_synthetic_rule"].startswith("auto: not on a cluster")
 
 
 def test_learn_holds_out_a_share_of_a_log_that_keeps_no_counts(
     folder: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from pcainterp_stream.pipeline import learn as learn_module
-
     monkeypatch.setattr(learn_module, "_expected_frames", lambda *args: None)
     options = jobs.LearnOptions(n_components=3)  # the prior fitted: the default
     basis = jobs.learn([folder / "drive.mcap"], tmp_path / "b.npz", options, PairingConfig())
@@ -215,10 +393,12 @@ def test_learn_with_synthetic_fine_tunes_the_built_in_basis(
     assert tuned.n_train == 200 + FRAMES
     assert tuned.n_components == min(20, built_in.n_components + FRAMES)
     record = tuned.meta["finetune"]
-    assert record["n_prior"] == 200 and record["n_maps"] == FRAMES
+    assert record["n_prior"] == 200
+    assert record["n_maps"] == FRAMES
     assert record["prior_basis"]["fingerprint"] == built_in.fingerprint
     assert record["maps_image_size"] == [94, 310]
     assert tuned.meta["source"]["with_synthetic"] == 200
+    assert tuned.meta["source"]["with_synthetic_rule"] == "--with-synthetic 200"
     # the tuned basis densifies the log it was tuned on (mapped onto its camera)
     dense = tmp_path / "dense.mcap"
     assert run(capsys, "densify", folder / "drive.mcap", "-o", dense, "--basis", out)[0] == 0
@@ -227,7 +407,8 @@ def test_learn_with_synthetic_fine_tunes_the_built_in_basis(
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        (["--with-synthetic", "1"], "--with-synthetic must be at least 2 maps, got 1"),
+        (["--with-synthetic", "1"], "--with-synthetic must be at least 2 maps (0: off; or auto)"),
+        (["--with-synthetic", "some"], "--with-synthetic must be at least 2 maps"),
         (["--with-synthetic", "50", "--grid-scale", "0.5"], "drop --grid-scale"),
         (["--with-synthetic", "50", "--workers", "1"], "drop --scheduler/--workers"),
         (["--no-fit-prior", "--fit-logs", "x.mcap"], "drop --no-fit-prior"),

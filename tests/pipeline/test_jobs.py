@@ -8,15 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pcainterp_stream.pipeline import jobs
-
-from pcainterp_stream.io import rosmsg
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.evaluate.metrics import compare_with_ground_truth
+from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import LogFormat, open_writer
-from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.pipeline import jobs
 from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
 
 REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata"
@@ -42,6 +41,11 @@ def test_learn_from_sgbm_maps_records_camera_and_source(logs: dict[str, Path]) -
     assert basis.n_components == 12
     assert basis.focal_baseline == pytest.approx(718.856 * 0.25 * 0.5372, rel=0.01)
     assert basis.meta["source"]["maps"] == "SGBM"
+    # the Python API learns from the maps alone unless asked (the command line: auto)
+    assert jobs.LearnOptions().with_synthetic is None
+    assert basis.meta["source"]["with_synthetic"] == 0
+    assert basis.meta["source"]["with_synthetic_rule"] == "off"
+    assert "finetune" not in basis.meta
 
 
 def test_learn_from_depth_topic_uses_every_nth_frame(logs: dict[str, Path]) -> None:
