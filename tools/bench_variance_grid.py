@@ -311,13 +311,10 @@ def run_case(
     camera = data.camera
     settings = resolve_settings(basis, ProcessorConfig(prior=case.prior))
     common: dict[str, Any] = {
-        "sigma": settings.sigma,
-        "local_prior": settings.local_prior,
         "robust": ProcessorConfig().robust,
         "image_size": camera.image_size,
         "focal_baseline": camera.focal_baseline,
-        "std_scale": settings.std_scale,
-        "scale_by_innovation": settings.scale_by_innovation,
+        **settings.densify_options(),
     }
     frames = [i for i in case.frames if i < data.frames]
     outcomes = {s.label: Outcome() for s in settings_list}

@@ -176,6 +176,19 @@ class EstimateSettings:
     std_scale: float = 1.0
     scale_by_innovation: bool = False
 
+    def densify_options(self) -> dict[str, Any]:
+        """Return the keyword arguments of :func:`~estimator.densify` these settings fill.
+
+        ``sigma``, ``local_prior``, ``std_scale`` and ``scale_by_innovation``: the
+        processor's estimate, for tools that call ``densify`` as ``densify`` the command does.
+        """
+        return {
+            "sigma": self.sigma,
+            "local_prior": self.local_prior,
+            "std_scale": self.std_scale,
+            "scale_by_innovation": self.scale_by_innovation,
+        }
+
 
 def resolve_settings(basis: Basis, config: ProcessorConfig) -> EstimateSettings:
     """Fill the "auto" settings of a configuration from the basis's fitted prior.
@@ -476,16 +489,13 @@ class FrameProcessor:
                 self.basis,
                 pixels,
                 disparities,
-                sigma=self.settings.sigma,
                 uncertainty=self.config.uncertainty,
                 image_size=camera.image_size,
                 focal_baseline=camera.focal_baseline,
-                local_prior=self.settings.local_prior,
                 robust=self.config.robust,
                 temporal=self.temporal,
-                std_scale=self.settings.std_scale,
-                scale_by_innovation=self.settings.scale_by_innovation,
                 noise_stds=noise_stds,
+                **self.settings.densify_options(),
             )
             for item, estimate, n_carried in zip(group, estimates, carried, strict=True):
                 results.append(self._result(item, estimate, n_carried))
