@@ -1,0 +1,223 @@
+"""Dense mode's measurements in docs/results.md, "Dense fusion (issue 18)".
+
+Two sections:
+
+- ``calibration``: the frames ``DenseModel``'s constants were chosen on (seeds 9001-9003,
+  every 10th of 31 full-size frames), SGBM at full and at half resolution, scored against
+  the ground truth: dense mode against SGBM with nearest-filled holes, on SGBM's pixels,
+  the +-2 sigma coverage in and out of the holes, and where the holes are (left band, sky,
+  close objects, the rest) with each filler's error there.
+- ``cli``: the real command line on a held-out synthetic drive (seed 9100, with the LiDAR
+  topic) and on both KITTI clips: ``densify`` sparse and dense, then ``evaluate`` (its
+  printed tables are the results).
+
+    python tools/dense_results.py --work-dir /tmp/dense_results
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import harness
+import numpy as np
+
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.dense import fuse_dense
+from pcainterp_stream.estimate.estimator import densify
+from pcainterp_stream.evaluate.metrics import disparity_from_depth, fill_nearest
+from pcainterp_stream.frontend.stereo import (
+    GfttConfig,
+    SgbmConfig,
+    compute_disparity,
+    detect_corners,
+    lookup_disparities,
+    to_grey8,
+)
+from pcainterp_stream.pipeline.processor import ProcessorConfig, resolve_settings
+from pcainterp_stream.synth import SynthConfig, generate
+
+CALIBRATION_SEEDS = (9001, 9002, 9003)
+HELD_OUT_SEED = 9100
+REGIONS = ("left band", "sky", "close (> 90 px)", "other")
+
+
+def calibration(downscale: int) -> tuple[dict[str, float], dict[str, list[float]]]:
+    """Score dense mode on the calibration frames with SGBM at 1/``downscale`` resolution."""
+    basis = Basis.default()
+    options = resolve_settings(basis, ProcessorConfig()).densify_options()
+    sgbm = SgbmConfig(downscale=downscale)
+    sums = dict.fromkeys(
+        ("pixels", "valid", "holes", "dense", "nearest", "dense valid", "sgbm valid"), 0.0
+    )
+    sums.update({"inside valid": 0.0, "inside holes": 0.0})
+    regions = {name: [0.0, 0.0, 0.0, 0.0] for name in REGIONS}  # pixels, nearest, sparse, dense
+    for seed in CALIBRATION_SEEDS:
+        for frame in generate(SynthConfig(seed=seed, frames=31)):
+            if frame.index % 10:
+                continue
+            truth = disparity_from_depth(frame.depth, frame.camera.focal_baseline)
+            matched = compute_disparity(frame.left, frame.right, sgbm)
+            corners = detect_corners(to_grey8(frame.left), GfttConfig(), min_x=sgbm.valid_min_x)
+            found = lookup_disparities(matched, corners)
+            estimate = densify(
+                basis,
+                found.pixels,
+                found.disparities,
+                robust=ProcessorConfig().robust,
+                image_size=matched.shape,
+                focal_baseline=frame.camera.focal_baseline,
+                **options,
+            )
+            fused = fuse_dense(estimate, matched)
+            filled = fill_nearest(matched)
+            assert fused.disparity_std is not None
+            assert filled is not None
+            valid = np.isfinite(matched)
+            error = np.abs(fused.disparity - truth)
+            nearest = np.abs(filled - truth)
+            inside = error <= 2 * fused.disparity_std
+            sums["pixels"] += truth.size
+            sums["valid"] += valid.sum()
+            sums["holes"] += (~valid).sum()
+            sums["dense"] += error.sum()
+            sums["nearest"] += nearest.sum()
+            sums["dense valid"] += error[valid].sum()
+            sums["sgbm valid"] += np.abs(matched - truth)[valid].sum()
+            sums["inside valid"] += inside[valid].sum()
+            sums["inside holes"] += inside[~valid].sum()
+            columns = np.arange(truth.shape[1])[None, :]
+            band = ~valid & (columns < SgbmConfig().valid_min_x)
+            rest = ~valid & ~band
+            masks = {
+                "left band": band,
+                "sky": rest & (truth == 0),
+                "close (> 90 px)": rest & (truth > 90),
+                "other": rest & (truth > 0) & (truth <= 90),
+            }
+            sparse = np.abs(estimate.disparity - truth)
+            for name, mask in masks.items():
+                row = regions[name]
+                row[0] += mask.sum()
+                row[1] += nearest[mask].sum()
+                row[2] += sparse[mask].sum()
+                row[3] += error[mask].sum()
+            harness.log(f"downscale {downscale}: seed {seed} frame {frame.index}")
+    scores = {
+        "dense all": sums["dense"] / sums["pixels"],
+        "nearest all": sums["nearest"] / sums["pixels"],
+        "dense valid": sums["dense valid"] / sums["valid"],
+        "sgbm valid": sums["sgbm valid"] / sums["valid"],
+        "coverage valid": sums["inside valid"] / sums["valid"],
+        "coverage holes": sums["inside holes"] / max(sums["holes"], 1.0),
+        "fill": sums["valid"] / sums["pixels"],
+    }
+    return scores, {
+        name: [row[0] / sums["pixels"], *(value / max(row[0], 1.0) for value in row[1:])]
+        for name, row in regions.items()
+    }
+
+
+def print_calibration() -> None:
+    """Print the calibration-frame tables."""
+    print("\n## Calibration frames (seeds 9001-9003, frames 0, 10, 20, 30; ground truth)\n")
+    headers = [
+        "SGBM",
+        "dense all px",
+        "SGBM nearest-filled px",
+        "ratio",
+        "dense on SGBM px",
+        "SGBM on its px",
+        "+-2 sigma holes",
+        "+-2 sigma valid",
+    ]
+    print(harness.table_header(headers))
+    breakdowns = {}
+    for downscale in (1, 2):
+        scores, breakdowns[downscale] = calibration(downscale)
+        print(
+            harness.table_row(
+                [
+                    "full" if downscale == 1 else "half",
+                    f"{scores['dense all']:.3f}",
+                    f"{scores['nearest all']:.3f}",
+                    f"{scores['dense all'] / scores['nearest all']:.3f}",
+                    f"{scores['dense valid']:.3f}",
+                    f"{scores['sgbm valid']:.3f}",
+                    f"{100 * scores['coverage holes']:.1f} %",
+                    f"{100 * scores['coverage valid']:.1f} %",
+                ]
+            )
+        )
+    print("\nWhere the holes of full-resolution SGBM are (mean abs. error px there):\n")
+    print(harness.table_header(["region", "share of pixels", "nearest fill", "sparse", "dense"]))
+    for name, (share, nearest, sparse, dense) in breakdowns[1].items():
+        print(
+            harness.table_row(
+                [name, f"{100 * share:.1f} %", f"{nearest:.2f}", f"{sparse:.2f}", f"{dense:.2f}"]
+            )
+        )
+
+
+def run_commands(work: Path, realdata: Path) -> None:
+    """Run the real command line of the held-out table (evaluate prints the results)."""
+    syn = work / "syn.mcap"
+    if not syn.exists():
+        harness.run_cli(
+            "synth", syn, "--seed", HELD_OUT_SEED, "--frames", 40, "--lidar", quiet=True
+        )
+    logs = {"syn": syn}
+    for name, folder in (
+        ("raw", realdata / harness.KITTI_RAW_0001),
+        ("odo", realdata / harness.KITTI_ODOMETRY_CLIP),
+    ):
+        logs[name] = work / f"{name}.mcap"
+        if not logs[name].exists():
+            harness.run_cli("import-kitti", folder, logs[name], quiet=True)
+    evaluate = ("--mode", "stereo", "--no-basis", "--no-linear")
+    for name, log in logs.items():
+        runs: dict[str, tuple[str | int, ...]] = {
+            "sparse": (),
+            "dense": ("--measurements", "dense"),
+        }
+        if name != "syn":  # against full-resolution SGBM: dense matches at half resolution
+            runs = {"sparse": (), "dense2": ("--measurements", "dense", "--stereo-downscale", 2)}
+        for label, extra in runs.items():
+            out = work / f"{name}_{label}.mcap"
+            out.unlink(missing_ok=True)
+            print(f"\n## {name}, {label}\n")
+            harness.run_cli("densify", log, "-o", out, *extra)
+            harness.run_cli("evaluate", out, "-o", work / f"report_{name}_{label}", *evaluate)
+            if name == "syn":
+                harness.run_cli(
+                    "evaluate",
+                    out,
+                    "-o",
+                    work / f"report_{name}_{label}_lidar",
+                    *evaluate,
+                    "--reference-topic",
+                    "/ground_truth/lidar_depth",
+                )
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Print the tables of docs/results.md, "Dense fusion (issue 18)"."""
+    parser = harness.argument_parser(__doc__)
+    harness.add_work_dir(parser)
+    harness.add_realdata(parser)
+    parser.add_argument(
+        "--sections", nargs="+", choices=["calibration", "cli"], default=["calibration", "cli"]
+    )
+    args = parser.parse_args(argv)
+    work = harness.work_dir(args.work_dir)
+    if "calibration" in args.sections:
+        print_calibration()
+    if "cli" in args.sections:
+        if not (args.realdata / harness.KITTI_RAW_0001).is_dir():
+            parser.error(f"{args.realdata / harness.KITTI_RAW_0001} not found; pass --realdata")
+        run_commands(work, args.realdata)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
