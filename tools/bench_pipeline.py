@@ -183,7 +183,12 @@ def run_job_subprocess(
     *,
     malloc_tuned: bool = False,
 ) -> dict[str, Any]:
-    """Run the job in a fresh Python process (clean peak RSS); return its JSON result."""
+    """Run the job in a fresh Python process (clean peak RSS); return its JSON result.
+
+    A ``zstd_level`` key in ``settings`` overrides ``zstd_level`` for this job.
+    """
+    settings = dict(settings)
+    zstd_level = settings.pop("zstd_level", zstd_level)
     command = [
         sys.executable,
         __file__,
@@ -287,8 +292,16 @@ def instrumented(timers: Timers) -> Iterator[None]:
 def breakdown(log: Path, basis: Path, out: Path, settings: dict[str, Any]) -> str:
     """Run one instrumented job; return a Markdown table of the stages."""
     timers = Timers()
-    with instrumented(timers):
-        result = run_job_here(log, basis, out, settings)
+    job_settings = dict(settings)
+    level = job_settings.pop("zstd_level", None)
+    saved_level = logwriter.MCAP_ZSTD_LEVEL
+    if level is not None:
+        _set_zstd_level(int(level))
+    try:
+        with instrumented(timers):
+            result = run_job_here(log, basis, out, job_settings)
+    finally:
+        _set_zstd_level(saved_level)
     frames = result["frames"]
     lines = [
         f"{frames} frames in {result['seconds']:.2f} s ({result['fps']:.1f} frames/s), "
@@ -457,7 +470,7 @@ def main(argv: list[str] | None = None) -> int:
                 harness.table_row(
                     [
                         json.dumps(settings),
-                        args.zstd_level or "default",
+                        settings.get("zstd_level", args.zstd_level) or "default",
                         f"{result['seconds']:.2f}",
                         f"{result['fps']:.1f}",
                         f"{ms['seconds']:.1f}",

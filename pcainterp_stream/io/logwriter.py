@@ -53,6 +53,7 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Rosbag2Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
+from zlib_ng import zlib_ng
 
 from pcainterp_stream.errors import LogWriteError
 from pcainterp_stream.io import rosmsg
@@ -112,6 +113,9 @@ class _ZstdAtLevel:
 
 _ZSTD = _ZstdAtLevel()
 mcap.writer.zstandard = _ZSTD  # type: ignore[attr-defined,assignment]
+# mcap's Writer checksums every chunk with ``zlib.crc32``: zlib-ng's is the same CRC-32 at
+# ~4.5x the speed (6 CPU ms per KITTI frame of output less; docs/benchmarks.md, issue 17)
+mcap.writer.zlib = zlib_ng  # type: ignore[attr-defined]
 
 
 class LogFormat(Enum):

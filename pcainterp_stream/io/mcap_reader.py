@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import io
 import struct
-import zlib
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
@@ -19,6 +18,7 @@ import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import Channel, ChunkIndex, Footer, Schema, Statistics
+from zlib_ng.zlib_ng import crc32
 
 from pcainterp_stream.errors import LogReadError
 from pcainterp_stream.io.reader_base import (
@@ -484,7 +484,7 @@ def _inflate_chunk(body: bytes) -> bytes:
         raise ValueError(f"unsupported chunk compression {compression!r}")
     if len(records) != uncompressed_size:
         raise ValueError(f"chunk inflates to {len(records)} bytes, header says {uncompressed_size}")
-    if crc != 0 and zlib.crc32(records) != crc:
+    if crc != 0 and crc32(records) != crc:
         raise ValueError("chunk CRC mismatch")
     return bytes(records)
 
