@@ -65,9 +65,11 @@ ProgressCallback = Callable[[int, int | None], None]
 LIBRARY = "pcainterp_stream"
 MCAP_CHUNK_SIZE = 4 * 1024 * 1024
 """Uncompressed MCAP chunk size (bytes): a few KITTI images per zstd chunk."""
-MCAP_ZSTD_LEVEL = 1
-"""zstd level of MCAP chunks. Float32 images hardly compress: level 1 writes 0.4 % more
-bytes than zstd's default 3 at ~1.7x its speed (docs/benchmarks.md, issue 17)."""
+MCAP_ZSTD_LEVEL = -1
+"""zstd level of MCAP chunks: -1, zstd's first fast level. The float32 output images hardly
+compress at any level (level 1 keeps 87 % of their bytes at ~5 ms per KITTI image, -1 keeps
+all of them at ~1 ms); on a densified log -1 writes 14 % more bytes than level 1 for ~16
+CPU ms per frame less (docs/benchmarks.md, issue 17)."""
 WRITE_QUEUE_ITEMS = 32
 """Messages a threaded writer holds before ``add_*`` blocks (bounds its memory: ~60 MB of
 KITTI-size float32 images)."""
