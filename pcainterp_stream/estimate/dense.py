@@ -131,17 +131,24 @@ def fuse_dense(
     )
     hole_mean, hole_variance = _holes(values, valid, field, prior_variance, model)
     holes = ~valid
-    pixel_variance = np.float32(model.pixel_std**2)
+    pixel_precision = np.float32(1.0 / model.pixel_std**2)
     measured = np.where(valid, values, field)
-    disagreement = (measured - field) / np.sqrt(prior_variance + pixel_variance)
-    weight = _robust_weights(disagreement, model.robust)
-    precision = np.float32(1.0) / prior_variance + weight / pixel_variance
-    fused = (field / prior_variance + weight * measured / pixel_variance) / precision
-    disparity = fused.astype(np.float32)
+    # the disagreement (z - f) / sqrt(v_f + sigma_px^2), then its robust weight, in place
+    weight = measured - field
+    spread = prior_variance + np.float32(model.pixel_std**2)
+    weight /= np.sqrt(spread, out=spread)
+    weight = _robust_weights(weight, model.robust)
+    weight *= pixel_precision  # w / sigma_px^2
+    field_precision = np.reciprocal(prior_variance, out=prior_variance)  # 1 / v_f
+    precision = field_precision + weight
+    disparity = field * field_precision
+    measured *= weight
+    disparity += measured
+    disparity /= precision
     disparity[holes] = hole_mean
     std = None
     if estimate.disparity_std is not None:
-        std = np.sqrt(np.float32(1.0) / precision).astype(np.float32)
+        std = np.sqrt(np.reciprocal(precision, out=precision), out=precision)
         std[holes] = np.sqrt(hole_variance) * np.float32(model.hole_std_scale)
     depth, depth_std = None, None
     if estimate.focal_baseline > 0:
@@ -173,13 +180,13 @@ def _holes(
     model: DenseModel,
 ) -> tuple[F32, F32]:
     """The mixture posterior (mean, variance) at the hole pixels, row-major order."""
-    rows, cols = np.nonzero(~valid)
+    rows, cols, neighbours = _hole_neighbours(values, valid)
     f = field[rows, cols]
     v_f = prior_variance[rows, cols]
     total = np.full(f.shape, np.float32(model.no_neighbour))
     mean_sum = total * f
     second_sum = total * (v_f + f * f)
-    for value, distance in _neighbours_at(values, valid, rows, cols):
+    for value, distance in neighbours:
         found = np.isfinite(distance)
         reach = np.where(found, distance, np.float32(0.0))
         spread = np.float32(model.neighbour_std**2) + np.float32(model.neighbour_rate) * reach
@@ -198,36 +205,72 @@ def _holes(
     return estimate, spread_out.astype(np.float32)
 
 
-def _neighbours_at(
-    values: F32,
-    valid: npt.NDArray[np.bool_],
-    rows: npt.NDArray[np.intp],
-    cols: npt.NDArray[np.intp],
-) -> list[tuple[F32, F32]]:
-    """(value, distance) of the four directional nearest valid pixels at (rows, cols).
+def _hole_neighbours(
+    values: F32, valid: npt.NDArray[np.bool_]
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp], list[tuple[F32, F32]]]:
+    """The hole pixels (rows, cols; row-major) and their four directional nearest valid pixels.
 
-    One running maximum of valid positions per direction over the whole image (int32,
-    along rows for left/right, down the columns for up/down), read at the given pixels.
+    Returns (value, distance) at the holes for left, right, up and down; distance ``inf``
+    (value 0) where the row or column has no valid pixel on that side. The holes of a row
+    form runs; every pixel of a run shares the valid pixel just before it and just after
+    it, so the work is one pass over the mask per axis and then per hole pixel, not per
+    image pixel. Up and down are the same on the transposed mask, reordered to row-major.
     """
-    found: list[tuple[F32, F32]] = []
-    for axis, reverse in ((1, False), (1, True), (0, False), (0, True)):
-        length = valid.shape[axis]
-        shape = (1, length) if axis == 1 else (length, 1)
-        positions = np.arange(length, dtype=np.int32).reshape(shape)
-        mask = valid
-        if reverse:  # positions counted from the far end, so the maximum is the nearest
-            mask = valid[:, ::-1] if axis == 1 else valid[::-1, :]
-        last = np.where(mask, positions, np.int32(-1))
-        np.maximum.accumulate(last, axis=axis, out=last)
-        along = cols if axis == 1 else rows
-        flipped_along = length - 1 - along if reverse else along
-        at = last[rows, flipped_along] if axis == 1 else last[flipped_along, cols]
-        has = at >= 0
-        source = np.where(has, (length - 1 - at) if reverse else at, 0)
-        distance = np.where(has, np.abs(source - along), np.inf).astype(np.float32)
-        value = values[rows, source] if axis == 1 else values[source, cols]
-        found.append((np.where(has, value, np.float32(0.0)).astype(np.float32), distance))
-    return found
+    hole = ~valid
+    rows, cols = _nonzero(hole)
+    found = [
+        _found(exists, values[rows, source], source - cols) for source, exists in _run_ends(hole)
+    ]
+    hole_t = np.ascontiguousarray(hole.T)
+    cols_first, rows_first = _nonzero(hole_t)  # the holes in column-major order
+    # hole i of the column-major listing is hole order[i] of the row-major one
+    index = np.empty(hole.shape, np.int32)
+    index[rows, cols] = np.arange(rows.size, dtype=np.int32)
+    order = index[rows_first, cols_first]
+    for source, exists in _run_ends(hole_t):
+        value, distance = _found(exists, values[source, cols_first], source - rows_first)
+        value_out = np.empty_like(value)
+        distance_out = np.empty_like(distance)
+        value_out[order] = value
+        distance_out[order] = distance
+        found.append((value_out, distance_out))
+    return rows, cols, found
+
+
+def _found(
+    exists: npt.NDArray[np.bool_], value: F32, offset: npt.NDArray[np.intp]
+) -> tuple[F32, F32]:
+    """(value, distance) of a neighbour: value 0 and distance ``inf`` where none exists."""
+    value_out = np.where(exists, value, np.float32(0.0)).astype(np.float32, copy=False)
+    distance = np.abs(offset).astype(np.float32)
+    distance[~exists] = np.inf
+    return value_out, distance
+
+
+def _run_ends(
+    hole: npt.NDArray[np.bool_],
+) -> list[tuple[npt.NDArray[np.intp], npt.NDArray[np.bool_]]]:
+    """The nearest valid column left and right of each hole pixel, and whether it exists.
+
+    Hole pixels in row-major order; the column is 0 where there is none.
+    """
+    width = hole.shape[1]
+    padded = np.zeros((hole.shape[0], width + 2), np.int8)
+    padded[:, 1:-1] = hole
+    change = np.diff(padded, axis=1)  # +1 where a run starts, -1 one past its end
+    run_starts = _nonzero(change == 1)[1]
+    run_ends = _nonzero(change == -1)[1]
+    run = np.repeat(np.arange(run_starts.size), run_ends - run_starts)
+    return [
+        (np.where(has, source, 0)[run], has[run])
+        for source, has in ((run_starts - 1, run_starts > 0), (run_ends, run_ends < width))
+    ]
+
+
+def _nonzero(mask: npt.NDArray[np.bool_]) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """``np.nonzero`` of a 2-D mask (row-major), via the flat indices: ~4x faster."""
+    rows, cols = np.divmod(np.flatnonzero(mask), mask.shape[1])
+    return rows, cols
 
 
 def directional_neighbours(
@@ -248,8 +291,12 @@ def directional_neighbours(
     array = np.asarray(values, dtype=np.float32)
     if array.shape != valid.shape or array.ndim != 2:
         raise ValueError(f"Expected values and valid of one (H, W) shape, got {array.shape}")
-    rows, cols = np.indices(array.shape).reshape(2, -1)
-    return [
-        (value.reshape(array.shape), distance.reshape(array.shape))
-        for value, distance in _neighbours_at(array, valid, rows, cols)
-    ]
+    rows, cols, at_holes = _hole_neighbours(array, valid)
+    found: list[tuple[F32, F32]] = []
+    for hole_value, hole_distance in at_holes:
+        value = np.where(valid, array, np.float32(0.0)).astype(np.float32)
+        distance = np.zeros(array.shape, np.float32)
+        value[rows, cols] = hole_value
+        distance[rows, cols] = hole_distance
+        found.append((value, distance))
+    return found

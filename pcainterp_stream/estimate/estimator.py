@@ -494,21 +494,20 @@ def depth_from_disparity(
         raise ValueError(f"Expected `focal_baseline` > 0, got {focal_baseline}")
     if not min_disparity > 0:
         raise ValueError(f"Expected `min_disparity` > 0, got {min_disparity}")
-    with np.errstate(invalid="ignore"):
-        resolved = disparity >= np.float32(min_disparity)
-    too_far = ~resolved & ~np.isnan(disparity)
-    inverse = np.where(too_far, np.float32(0.0), np.float32(np.nan))
-    np.divide(np.float32(1.0), disparity, out=inverse, where=resolved)
-    with np.errstate(over="ignore"):  # a tiny min_disparity may overflow float32: inf
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        too_far = disparity < np.float32(min_disparity)  # NaN (no estimate) is not
+        inverse = np.divide(np.float32(1.0), disparity)
+        inverse[too_far] = 0.0
+        # a tiny min_disparity may overflow float32: inf
         depth = inverse * np.float32(focal_baseline)
         depth[too_far] = np.inf
         if disparity_std is None:
             return depth, None
-        depth_std = inverse * inverse
-        depth_std *= np.float32(focal_baseline)
-        depth_std *= disparity_std
-    depth_std[too_far] = np.inf
-    return depth, depth_std
+        inverse *= inverse
+        inverse *= np.float32(focal_baseline)
+        inverse *= disparity_std
+    inverse[too_far] = np.inf
+    return depth, inverse
 
 
 def _depth(
