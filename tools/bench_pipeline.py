@@ -12,7 +12,10 @@ from SGBM maps of another synthetic log, then measures:
   and thread: main, stereo workers, the writer thread);
 - ``memory``: peak RSS of the job for two log lengths (fresh subprocess each);
 - ``lookups``: how much sparse lookups in a half-resolution SGBM map lose against full
-  resolution, against the synthetic ground-truth depth.
+  resolution, against the synthetic ground-truth depth;
+- ``compression``: per topic of a densified log, what zstd at each level asked for keeps of
+  the messages' bytes and its CPU time per message, and the chunk CRC-32 of zlib against
+  zlib-ng (densifies the log first with the defaults).
 
 Example::
 
@@ -31,6 +34,7 @@ import subprocess
 import sys
 import threading
 import time
+import zlib
 from collections import defaultdict
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -40,6 +44,8 @@ from typing import Any
 import cv2
 import harness
 import numpy as np
+import zstandard
+from zlib_ng import zlib_ng
 
 from pcainterp_stream.allocator import keep_freed_memory
 from pcainterp_stream.estimate.basis import Basis
@@ -55,7 +61,7 @@ from pcainterp_stream.io import logreader, logwriter, rosmsg
 from pcainterp_stream.pipeline import densify, jobs, processor
 from pcainterp_stream.records import StereoFrame
 
-SECTIONS = ("sgbm", "job", "breakdown", "memory", "lookups")
+SECTIONS = ("sgbm", "job", "breakdown", "memory", "lookups", "compression")
 JOB_COLUMNS = (
     "frames/s",
     "ms/frame",
@@ -371,6 +377,48 @@ def lookup_loss(log: Path, frames: int) -> str:
     return "\n".join(lines)
 
 
+# ----------------------------------------------------------------------------- compression
+
+
+def compression(densified: Path, levels: list[int], messages: int = 10) -> str:
+    """Return a Markdown table: zstd of ``messages`` messages per topic at each level.
+
+    Each topic's messages are joined (as in a chunk) and compressed once per level; the
+    CPU time is per message. The last row is the CRC-32 of all of it, zlib and zlib-ng.
+    """
+    by_topic: dict[str, list[bytes]] = defaultdict(list)
+    with logreader.open_log(densified) as reader:
+        for raw in reader.messages():
+            if len(by_topic[raw.topic]) < messages:
+                by_topic[raw.topic].append(bytes(raw.data))
+    columns = ["topic", "MB/message"]
+    for level in levels:
+        columns += [f"level {level}: kept", f"level {level}: CPU ms/message"]
+    lines = [harness.table_header(columns)]
+    for topic, datas in by_topic.items():
+        data = b"".join(datas)
+        row = [topic, f"{len(data) / len(datas) / 1e6:.3f}"]
+        for level in levels:
+            compressor = zstandard.ZstdCompressor(level=level)
+            started = time.thread_time()
+            size = len(compressor.compress(data))
+            cpu = time.thread_time() - started
+            row += [f"{size / len(data):.3f}", f"{1000 * cpu / len(datas):.2f}"]
+        lines.append(harness.table_row(row))
+    everything = b"".join(b"".join(datas) for datas in by_topic.values())
+    timings = []
+    for crc in (zlib.crc32, zlib_ng.crc32):
+        started = time.thread_time()
+        for _ in range(5):
+            crc(everything)
+        timings.append(1000 * (time.thread_time() - started) / 5 / (len(everything) / 1e6))
+    lines.append(
+        f"\nCRC-32 of {len(everything) / 1e6:.0f} MB: zlib {timings[0]:.3f} ms/MB, "
+        f"zlib-ng {timings[1]:.3f} ms/MB"
+    )
+    return "\n".join(lines)
+
+
 # ----------------------------------------------------------------------------- main
 
 
@@ -401,6 +449,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--repeat", type=int, default=3, help="rounds of the job section")
     parser.add_argument("--lookup-frames", type=int, default=20)
+    parser.add_argument(
+        "--levels",
+        type=int,
+        nargs="+",
+        default=[1, -1],
+        help="zstd levels of the compression section",
+    )
     parser.add_argument("--child-job", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.zstd_level is not None:
@@ -495,6 +550,9 @@ def main(argv: list[str] | None = None) -> int:
             )
             numbers = [f"{result['seconds']:.1f}", f"{result['fps']:.1f}"]
             print(harness.table_row([frames, *numbers, f"{result['peak_rss_mb']:.0f}"]))
+    if "compression" in args.sections:
+        run_job_here(log, basis_path, out, {})
+        print("\n" + compression(out, args.levels))
     if "lookups" in args.sections:
         print("\n" + lookup_loss(log, args.lookup_frames))
     out.unlink(missing_ok=True)
