@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -8,6 +9,8 @@ import numpy as np
 import pytest
 import zstandard
 from mcap.reader import make_reader
+from mcap.records import Chunk
+from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 
@@ -544,3 +547,25 @@ def test_mcap_chunks_are_zstd_at_the_writer_level(
     # other users of mcap's writer in the process keep zstd's default level
     data = bytes(range(256)) * 64
     assert mcap.writer.zstandard.compress(data) == zstandard.compress(data, 3)
+
+
+def test_mcap_chunk_crcs_check_out_with_zlib(tmp_path: Path) -> None:
+    # the writer checksums with zlib-ng; mcap's reader validates with the standard zlib
+    target = tmp_path / "out.mcap"
+    messages = _messages(40)
+    with open_writer(target, threaded=True) as writer:
+        for topic, message, log_time in messages:
+            writer.add_message(topic, message, log_time)
+    with target.open("rb") as stream:
+        reader = make_reader(stream, validate_crcs=True)
+        summary = reader.get_summary()
+        assert summary is not None
+        assert all(index.compression == "zstd" for index in summary.chunk_indexes)
+        assert sum(1 for _ in reader.iter_messages()) == len(messages)
+    with target.open("rb") as stream:  # the chunks' CRCs, recomputed here
+        records = list(StreamReader(stream, skip_magic=False, emit_chunks=True).records)
+    chunks = [record for record in records if isinstance(record, Chunk)]
+    assert chunks
+    for chunk in chunks:
+        data = zstandard.decompress(chunk.data, max_output_size=chunk.uncompressed_size)
+        assert chunk.uncompressed_crc == zlib.crc32(data) != 0
