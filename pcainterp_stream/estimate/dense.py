@@ -116,7 +116,7 @@ def fuse_dense(
     """
     model = model or DenseModel()
     values = np.asarray(disparity_map, dtype=np.float32)
-    field = estimate.disparity
+    field = np.asarray(estimate.disparity, dtype=np.float32)
     if values.shape != field.shape:
         raise ValueError(
             f"Expected a disparity map of the estimate's shape {field.shape}, got {values.shape}"
@@ -127,7 +127,7 @@ def fuse_dense(
     prior_variance: F32 = (
         np.full(field.shape, detail, np.float32)
         if estimate.disparity_std is None
-        else estimate.disparity_std * estimate.disparity_std + detail
+        else np.square(estimate.disparity_std, dtype=np.float32) + detail
     )
     hole_mean, hole_variance = _holes(values, valid, field, prior_variance, model)
     holes = ~valid
@@ -289,6 +289,7 @@ def directional_neighbours(
         there is none.
     """
     array = np.asarray(values, dtype=np.float32)
+    valid = np.asarray(valid, dtype=bool)
     if array.shape != valid.shape or array.ndim != 2:
         raise ValueError(f"Expected values and valid of one (H, W) shape, got {array.shape}")
     rows, cols, at_holes = _hole_neighbours(array, valid)

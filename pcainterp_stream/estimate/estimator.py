@@ -496,7 +496,7 @@ def depth_from_disparity(
         raise ValueError(f"Expected `min_disparity` > 0, got {min_disparity}")
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         too_far = disparity < np.float32(min_disparity)  # NaN (no estimate) is not
-        inverse = np.divide(np.float32(1.0), disparity)
+        inverse = np.divide(np.float32(1.0), disparity, dtype=np.float32)
         inverse[too_far] = 0.0
         # a tiny min_disparity may overflow float32: inf
         depth = inverse * np.float32(focal_baseline)

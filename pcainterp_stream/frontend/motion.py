@@ -296,17 +296,7 @@ class CarriedPoints:
         all_pixels = [own_pixels]
         all_disparities = [own_disparities]
         noise = [np.zeros(own_disparities.shape)]
-        own_used = own_pixels[np.isfinite(own_disparities)]
-        # one tree of this frame's points for every age; the few carried points kept from
-        # younger ages are checked directly. The search stops at the gap: only "is any
-        # point that close" matters.
-        tree = (
-            cKDTree(own_used, balanced_tree=False, compact_nodes=False)
-            if own_used.shape[0] and options.gap > 0
-            else None
-        )
-        reach = float(np.nextafter(options.gap, np.inf))
-        kept = np.zeros((0, 2))
+        used = own_pixels[np.isfinite(own_disparities)]
         for age, past in enumerate(reversed(self._history), start=1):
             moved = past.points @ past.to_current[:3, :3].T + past.to_current[:3, 3]
             carried_pixels, carried_disparities, visible = project(moved, camera)
@@ -314,19 +304,14 @@ class CarriedPoints:
                 carried_pixels[visible],
                 carried_disparities[visible],
             )
-            if carried_pixels.shape[0] and options.gap > 0:
-                far = np.ones(carried_pixels.shape[0], dtype=bool)
-                if tree is not None:
-                    far = tree.query(carried_pixels, distance_upper_bound=reach)[0] > options.gap
-                if kept.shape[0]:
-                    offsets = carried_pixels[:, None, :] - kept[None, :, :]
-                    nearest = np.sqrt(np.min(np.einsum("mkc,mkc->mk", offsets, offsets), axis=1))
-                    far &= nearest > options.gap
+            if used.shape[0] and carried_pixels.shape[0] and options.gap > 0:
+                distance, _ = cKDTree(used).query(carried_pixels)
+                far = distance > options.gap
                 carried_pixels, carried_disparities = carried_pixels[far], carried_disparities[far]
             all_pixels.append(carried_pixels)
             all_disparities.append(carried_disparities)
             noise.append(np.full(carried_disparities.shape, options.age_std * age))
-            kept = np.concatenate([kept, carried_pixels])
+            used = np.concatenate([used, carried_pixels])
         valid = np.isfinite(own_disparities) & (own_disparities > 0)
         self._history.append(
             _Past(back_project(own_pixels[valid], own_disparities[valid], camera), np.eye(4))
