@@ -121,3 +121,25 @@ def test_depth_std_and_shapes() -> None:
         fuse_dense(field_estimate(field), sgbm[:, :3])
     with pytest.raises(ValueError, match="pixel_std"):
         DenseModel(pixel_std=0.0)
+
+
+def test_inputs_are_left_alone_and_outputs_are_float32() -> None:
+    rng = np.random.default_rng(3)
+    field = rng.uniform(5, 40, (12, 16))
+    estimate = dataclasses.replace(
+        field_estimate(field),
+        disparity=field,  # float64, as a caller may pass
+        disparity_std=np.full(field.shape, 2.0),
+    )
+    sgbm = field + rng.normal(0, 1, field.shape)
+    sgbm[:, :3] = np.nan
+    sgbm[5, 6:9] = -1.0
+    before = (estimate.disparity.copy(), estimate.disparity_std.copy(), sgbm.copy())
+    fused = fuse_dense(estimate, sgbm)
+    after = (estimate.disparity, estimate.disparity_std, sgbm)
+    for old, new in zip(before, after, strict=True):
+        np.testing.assert_array_equal(old, new)
+    for array in (fused.disparity, fused.disparity_std, fused.depth, fused.depth_std):
+        assert array is not None
+        assert array.dtype == np.float32
+        assert not any(np.shares_memory(array, given) for given in after)
