@@ -129,8 +129,8 @@ def fuse_dense(
         if estimate.disparity_std is None
         else np.square(estimate.disparity_std, dtype=np.float32) + detail
     )
-    hole_mean, hole_variance = _holes(values, valid, field, prior_variance, model)
     holes = ~valid
+    hole_mean, hole_variance = _holes(values, holes, field, prior_variance, model)
     pixel_precision = np.float32(1.0 / model.pixel_std**2)
     measured = np.where(valid, values, field)
     # the disagreement (z - f) / sqrt(v_f + sigma_px^2), then its robust weight, in place
@@ -174,13 +174,13 @@ def _robust_weights(standardised: F32, robust: Robust) -> F32:
 
 def _holes(
     values: F32,
-    valid: npt.NDArray[np.bool_],
+    hole: npt.NDArray[np.bool_],
     field: F32,
     prior_variance: F32,
     model: DenseModel,
 ) -> tuple[F32, F32]:
     """The mixture posterior (mean, variance) at the hole pixels, row-major order."""
-    rows, cols, neighbours = _hole_neighbours(values, valid)
+    rows, cols, neighbours = _hole_neighbours(values, hole)
     f = field[rows, cols]
     v_f = prior_variance[rows, cols]
     total = np.full(f.shape, np.float32(model.no_neighbour))
@@ -206,7 +206,7 @@ def _holes(
 
 
 def _hole_neighbours(
-    values: F32, valid: npt.NDArray[np.bool_]
+    values: F32, hole: npt.NDArray[np.bool_]
 ) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp], list[tuple[F32, F32]]]:
     """The hole pixels (rows, cols; row-major) and their four directional nearest valid pixels.
 
@@ -216,7 +216,6 @@ def _hole_neighbours(
     it, so the work is one pass over the mask per axis and then per hole pixel, not per
     image pixel. Up and down are the same on the transposed mask, reordered to row-major.
     """
-    hole = ~valid
     rows, cols = _nonzero(hole)
     found = [
         _found(exists, values[rows, source], source - cols) for source, exists in _run_ends(hole)
@@ -292,7 +291,7 @@ def directional_neighbours(
     valid = np.asarray(valid, dtype=bool)
     if array.shape != valid.shape or array.ndim != 2:
         raise ValueError(f"Expected values and valid of one (H, W) shape, got {array.shape}")
-    rows, cols, at_holes = _hole_neighbours(array, valid)
+    rows, cols, at_holes = _hole_neighbours(array, ~valid)
     found: list[tuple[F32, F32]] = []
     for hole_value, hole_distance in at_holes:
         value = np.where(valid, array, np.float32(0.0)).astype(np.float32)

@@ -238,6 +238,7 @@ def densify_batch(
     robust_iterations: int = 1,
     scale_by_innovation: bool = False,
     noise_stds: Sequence[npt.ArrayLike | None] | None = None,
+    with_depth: bool = True,
 ) -> list[DensifyResult]:
     """Densify several frames at once with matrix-matrix products across frames.
 
@@ -265,6 +266,9 @@ def densify_batch(
             :func:`prior.covariance_scale` too.
         noise_stds: F arrays (k_f,) (or None) of extra per-measurement noise std (px),
             see :func:`densify`; None: none.
+        with_depth: also convert to depth and its std; False leaves ``depth`` and
+            ``depth_std`` None (for a caller that changes the disparity first, as dense
+            fusion does, and converts then).
 
     Returns:
         One :class:`DensifyResult` per frame, in order.
@@ -402,7 +406,9 @@ def densify_batch(
             disparity_std = resample_grid(grid_std.reshape(variance_size), out_size)
         # REP 118: a disparity below one noise std cannot be told from 0 (infinity)
         min_disparity = posterior.sigma / to_basis
-        depth, depth_std = _depth(disparity, disparity_std, fb_out, min_disparity)
+        depth, depth_std = (
+            _depth(disparity, disparity_std, fb_out, min_disparity) if with_depth else (None, None)
+        )
         results.append(
             DensifyResult(
                 disparity=disparity,

@@ -22,7 +22,7 @@ from pcainterp_stream.errors import (
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.finetune import camera_mismatch, finetune_basis
 from pcainterp_stream.estimate.learning import learn_basis
-from pcainterp_stream.estimate.prior import Kernel, LocalPrior
+from pcainterp_stream.estimate.prior import LocalPrior
 from pcainterp_stream.frontend.pairing import (
     PairingConfig,
     iter_stereo_frames,
@@ -289,11 +289,7 @@ def kept_kernel(basis: Basis) -> LocalPrior | None:
     """Return the local kernel of a basis's fitted prior (kept when fine-tuning), or None."""
     fitted = basis.meta.get("prior")
     local = fitted.get("local") if isinstance(fitted, dict) else None
-    if not isinstance(local, dict):
-        return None
-    return LocalPrior(
-        float(local["variance"]), float(local["length_scale"]), Kernel(local["kernel"])
-    )
+    return LocalPrior.from_meta(local) if isinstance(local, dict) else None
 
 
 def expected_maps(logs: list[Path], options: LearnOptions, pairing: PairingConfig) -> int | None:

@@ -495,6 +495,7 @@ class FrameProcessor:
                 robust=self.config.robust,
                 temporal=self.temporal,
                 noise_stds=noise_stds,
+                with_depth=not self.dense,  # dense mode converts the fused disparity
                 **self.settings.densify_options(),
             )
             for item, estimate, n_carried in zip(group, estimates, carried, strict=True):
