@@ -97,7 +97,8 @@ BASIS_FINGERPRINT_KEY = "pcainterp.basis_fingerprint"
 
 MEASUREMENTS_KEY = "pcainterp.measurements"
 """Channel metadata key: ``sparse`` (the paper's GFTT lookups or a feature stream) or
-``dense`` (the whole SGBM map; ``/pcainterp/features`` then holds the cells used)."""
+``dense`` (the whole SGBM map too; ``/pcainterp/features`` still holds the sparse points
+that shaped the estimate)."""
 
 
 def channel_metadata(basis: str, fingerprint: str, measurements: str = "sparse") -> dict[str, str]:
