@@ -450,6 +450,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=3, help="rounds of the job section")
     parser.add_argument("--lookup-frames", type=int, default=20)
     parser.add_argument(
+        "--densified",
+        type=Path,
+        default=None,
+        help="compression section: measure this densified log (e.g. a KITTI clip's) instead "
+        "of densifying the synthetic one",
+    )
+    parser.add_argument(
         "--levels",
         type=int,
         nargs="+",
@@ -551,8 +558,11 @@ def main(argv: list[str] | None = None) -> int:
             numbers = [f"{result['seconds']:.1f}", f"{result['fps']:.1f}"]
             print(harness.table_row([frames, *numbers, f"{result['peak_rss_mb']:.0f}"]))
     if "compression" in args.sections:
-        run_job_here(log, basis_path, out, {})
-        print("\n" + compression(out, args.levels))
+        densified = args.densified
+        if densified is None:
+            run_job_here(log, basis_path, out, {})
+            densified = out
+        print(f"\n{densified}:\n" + compression(densified, args.levels))
     if "lookups" in args.sections:
         print("\n" + lookup_loss(log, args.lookup_frames))
     out.unlink(missing_ok=True)
