@@ -215,21 +215,22 @@ def message_content(msgtype: str, message: Any) -> MessageContent:
         byte count (``data.length``) instead of an array.
     """
     content = MessageContent()
-    skip: frozenset[str] = frozenset()
+    skip = {
+        rosmsg.IMAGE: frozenset({"data"}),
+        rosmsg.COMPRESSED_IMAGE: frozenset({"data"}),
+        rosmsg.DISPARITY_IMAGE: frozenset({"image.data"}),
+        rosmsg.POINT_CLOUD2: frozenset({"data"}),
+    }.get(msgtype, frozenset())
     try:
         if msgtype == rosmsg.IMAGE:
             content.arrays["image"] = rosmsg.image_array(message)
-            skip = frozenset({"data"})
         elif msgtype == rosmsg.COMPRESSED_IMAGE:
             content.arrays["image"] = _compressed_image(message)
-            skip = frozenset({"data"})
         elif msgtype == rosmsg.DISPARITY_IMAGE:
             content.arrays["image.image"] = rosmsg.image_array(message.image)
-            skip = frozenset({"image.data"})
         elif msgtype == rosmsg.POINT_CLOUD2:
             for field_name, values in rosmsg.pointcloud2_arrays(message).items():
                 content.arrays[f"points.{field_name}"] = values
-            skip = frozenset({"data"})
     except ValueError as err:
         content.notes.append(str(err))
         content.values["decode_error"] = str(err)

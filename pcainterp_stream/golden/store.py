@@ -30,6 +30,7 @@ __all__ = [
     "CheckResult",
     "arrays_path",
     "check_log",
+    "compare_documents",
     "load_golden",
     "save_golden",
 ]
@@ -215,6 +216,25 @@ def _load_arrays(golden: Path, document: Mapping[str, Any]) -> dict[str, npt.NDA
         ) from err
     except (OSError, ValueError) as err:
         raise GoldenError(f"arrays file {path} does not load ({err})") from err
+
+
+def compare_documents(
+    golden: Mapping[str, Any], golden_path: Path, actual: Mapping[str, Any], actual_path: Path
+) -> list[Difference]:
+    """Compare two golden documents (as :func:`load_golden` returns them), arrays included.
+
+    The element-wise check runs when both store their arrays.
+
+    Raises:
+        GoldenError: a stored arrays file is missing or does not load.
+    """
+    with_arrays = bool(golden.get("arrays_file")) and bool(actual.get("arrays_file"))
+    return compare(
+        golden,
+        actual,
+        golden_arrays=_load_arrays(golden_path, golden) if with_arrays else None,
+        actual_arrays=_load_arrays(actual_path, actual) if with_arrays else None,
+    )
 
 
 def check_log(
