@@ -43,7 +43,9 @@ SEED, FRAMES, SCALE = 0, 4, 0.25
 BASIS_SEED, BASIS_FRAMES, BASIS_COMPONENTS = 7, 40, 16
 
 
-def render_log(log_path: Path, *, seed: int = SEED, frames: int = FRAMES, scale: float = SCALE) -> None:
+def render_log(
+    log_path: Path, *, seed: int = SEED, frames: int = FRAMES, scale: float = SCALE
+) -> None:
     """Render the golden synthetic log to ``log_path``."""
     from pcainterp_stream.synth import SynthConfig, generate
 

@@ -101,9 +101,7 @@ def run_golden(args: argparse.Namespace) -> int:
         summary = save_golden(args.log, args.output, topics=args.topics, arrays=args.arrays)
         messages = sum(c["message_count"] for c in summary.channels.values())
         extra = f" and {arrays_path(args.output).name}" if args.arrays else ""
-        print(
-            f"wrote {args.output}{extra}: {len(summary.channels)} channels, {messages} messages"
-        )
+        print(f"wrote {args.output}{extra}: {len(summary.channels)} channels, {messages} messages")
         for note in summary.notes[:5]:
             print(f"note: {note}")
         return 0

@@ -66,7 +66,7 @@ class Difference(NamedTuple):
     """
 
     topic: str
-    index: int | None
+    index: int | None  # type: ignore[assignment]  # shadows tuple.index: the message number
     stamp_ns: int | None
     what: str
     text: str
@@ -166,10 +166,10 @@ class _Comparer:
         have: Mapping[str, Any],
         golden: Mapping[str, Any],
     ) -> None:
-        for key in ("schema", "schema_encoding", "message_encoding", "message_count"):
-            if want[key] != have[key]:
+        for name in ("schema", "schema_encoding", "message_encoding", "message_count"):
+            if want[name] != have[name]:
                 self.out.append(
-                    Difference(topic, None, None, key, f"{have[key]!r}, golden {want[key]!r}")
+                    Difference(topic, None, None, name, f"{have[name]!r}, golden {want[name]!r}")
                 )
         tolerance = self.tolerance(topic)
         # the posterior std published beside a channel (depth and depth_std) sets the
@@ -178,14 +178,11 @@ class _Comparer:
         std_messages = _by_stamp(golden[std_topic]["messages"]) if std_topic in golden else {}
         matched = _by_stamp(have["messages"])
         seen: set[tuple[int, int]] = set()
-        for index, message in enumerate(want["messages"]):
-            key = _key(message, want["messages"], index)
+        for index, (key, message) in enumerate(_by_stamp(want["messages"]).items()):
             stamp = message.get("stamp_ns", message["log_time_ns"])
             other = matched.get(key)
             if other is None:
-                self.out.append(
-                    Difference(topic, index, stamp, "message", "missing from the log")
-                )
+                self.out.append(Difference(topic, index, stamp, "message", "missing from the log"))
                 continue
             seen.add(key)
             std = std_messages.get(key)
@@ -234,7 +231,9 @@ class _Comparer:
         if self.golden_arrays is not None and self.actual_arrays is not None:
             self.elements(add, want, have, tolerance, std_message)
 
-    def value(self, add: Any, name: str, want: Any, have: Any, tolerance: Mapping[str, Any]) -> None:
+    def value(
+        self, add: Any, name: str, want: Any, have: Any, tolerance: Mapping[str, Any]
+    ) -> None:
         leaf = name.rsplit(".", 1)[-1]
         if leaf in _POINT_COUNT_VALUES and isinstance(want, int) and isinstance(have, int):
             limits = tolerance["point_count"]
@@ -361,21 +360,12 @@ class _Comparer:
 
 def _moved(actual: float, expected: float, allowed: float) -> str:
     return (
-        f"{_g(expected)} -> {_g(actual)} (moved {_g(actual - expected)}, "
-        f"tolerance {_g(allowed)})"
+        f"{_g(expected)} -> {_g(actual)} (moved {_g(actual - expected)}, tolerance {_g(allowed)})"
     )
-
-
-def _key(message: Mapping[str, Any], messages: list[Any], index: int) -> tuple[int, int]:
-    """Return (stamp or log time, occurrence of that stamp so far) of a message."""
-    stamp = message.get("stamp_ns", message["log_time_ns"])
-    occurrence = sum(
-        1 for m in messages[:index] if m.get("stamp_ns", m["log_time_ns"]) == stamp
-    )
-    return (int(stamp), occurrence)
 
 
 def _by_stamp(messages: list[Any]) -> dict[tuple[int, int], Any]:
+    """Return (stamp or log time, occurrence of that stamp so far) -> message, in order."""
     keyed: dict[tuple[int, int], Any] = {}
     counts: dict[int, int] = {}
     for message in messages:

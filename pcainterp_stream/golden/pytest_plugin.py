@@ -103,7 +103,7 @@ class LogGolden:
             if path.exists() and not path.name.endswith(".obtained" + EXTENSION):
                 try:
                     kept = load_golden(path).get("tolerance", tolerance)
-                except Exception:  # an unreadable old file is simply replaced
+                except GoldenError:  # an unreadable or old file is simply replaced
                     kept = tolerance
             save_golden(log, path, topics=selected, arrays=arrays, tolerance=kept)
 
@@ -116,7 +116,9 @@ class LogGolden:
                     shutil.copy2(arrays_path(source), arrays_path(expected))
                 differences = compare_documents(golden, expected, load_golden(obtained), obtained)
             except GoldenError as err:  # an old format: --force-regen rewrites it
-                raise AssertionError(f"{err}\n(rerun with --force-regen or --update-golden)") from err
+                raise AssertionError(
+                    f"{err}\n(rerun with --force-regen or --update-golden)"
+                ) from err
             if differences:
                 count = len(differences)
                 raise AssertionError(

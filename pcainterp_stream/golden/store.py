@@ -64,7 +64,7 @@ class CheckResult:
 
 
 def arrays_path(golden: str | Path) -> Path:
-    """Return the path of the ``.npz`` beside a golden JSON (``a.golden.json`` -> ``a.golden.npz``)."""
+    """Return the ``.npz`` beside a golden JSON (``a.golden.json`` -> ``a.golden.npz``)."""
     golden = Path(golden)
     return golden.with_suffix(".npz")
 
@@ -87,7 +87,11 @@ def _replacing(target: Path) -> Iterator[Path]:
 
 
 def _document(
-    log: Path, summary: LogSummary, *, topics: list[str] | None, tolerance: Mapping[str, Any],
+    log: Path,
+    summary: LogSummary,
+    *,
+    topics: list[str] | None,
+    tolerance: Mapping[str, Any],
     arrays_file: str | None,
 ) -> dict[str, Any]:
     return {
@@ -160,9 +164,7 @@ def save_golden(
     merged = dict(DEFAULT_TOLERANCE)
     merged.update(tolerance or {})
     arrays_file = arrays_path(golden).name if arrays else None
-    document = _document(
-        log, summary, topics=selected, tolerance=merged, arrays_file=arrays_file
-    )
+    document = _document(log, summary, topics=selected, tolerance=merged, arrays_file=arrays_file)
     _write(golden, document, summary.arrays)
     return summary
 
@@ -186,9 +188,7 @@ def load_golden(golden: str | Path) -> dict[str, Any]:
     fmt = document.get("format") if isinstance(document, dict) else None
     name, _, version = str(fmt).partition("/")
     if name != FORMAT_NAME or not version.isdigit():
-        raise GoldenError(
-            f"{golden} is not a golden file (format {fmt!r}, expected {FORMAT!r})"
-        )
+        raise GoldenError(f"{golden} is not a golden file (format {fmt!r}, expected {FORMAT!r})")
     if int(version) > FORMAT_VERSION:
         raise GoldenError(
             f"{golden} has format {fmt}, newer than this pcainterp-stream {__version__} "

@@ -74,7 +74,9 @@ def test_a_rerun_passes_and_the_cli_says_so(
     assert (drive["golden"].with_suffix(".npz")).is_file()
     depth = document["channels"]["/pcainterp/depth"]
     assert depth["message_count"] == 4
-    assert {"log_time_ns", "stamp_ns", "values", "arrays", "array_keys"} <= set(depth["messages"][0])
+    assert {"log_time_ns", "stamp_ns", "values", "arrays", "array_keys"} <= set(
+        depth["messages"][0]
+    )
     assert set(depth["messages"][0]["arrays"]["image"]) >= {"median", "mad", "quantiles", "nan"}
 
 
@@ -110,7 +112,8 @@ def test_a_dropped_frame_and_a_renamed_channel_fail(drive: dict[str, Path], tmp_
     with open_log(drive["dense"]) as reader:
         times = sorted({raw.log_time_ns for raw in reader.messages(["/pcainterp/depth"])})
     dropped = _copy(
-        drive["dense"], tmp_path / "dropped.mcap",
+        drive["dense"],
+        tmp_path / "dropped.mcap",
         lambda raw: None if raw.log_time_ns == times[2] else raw,
     )
     differences = check_log(dropped, drive["golden"]).differences
@@ -121,8 +124,11 @@ def test_a_dropped_frame_and_a_renamed_channel_fail(drive: dict[str, Path], tmp_
     assert "#3" not in text  # later frames are matched by stamp, not shifted
 
     renamed = _copy(
-        drive["dense"], tmp_path / "renamed.mcap",
-        lambda raw: raw._replace(topic="/pcainterp/range") if raw.topic == "/pcainterp/depth" else raw,
+        drive["dense"],
+        tmp_path / "renamed.mcap",
+        lambda raw: (
+            raw._replace(topic="/pcainterp/range") if raw.topic == "/pcainterp/depth" else raw
+        ),
     )
     text = format_differences(check_log(renamed, drive["golden"]).differences, None)
     assert "/pcainterp/depth: channel missing from the log (golden: 4 messages" in text
@@ -149,7 +155,9 @@ def test_other_log_formats(drive: dict[str, Path], tmp_path: Path) -> None:
     save_golden(drive["log"], golden)
     for fmt in ("ros1", "rosbag2"):
         other = tmp_path / f"drive_{fmt}"
-        assert _run("synth", other, "--frames", 4, "--scale", 0.25, "--seed", 0, "--format", fmt) == 0
+        assert (
+            _run("synth", other, "--frames", 4, "--scale", 0.25, "--seed", 0, "--format", fmt) == 0
+        )
         written = next(p for p in tmp_path.glob(f"drive_{fmt}*"))
         result = check_log(written, golden)
         assert result.passed, format_differences(result.differences)

@@ -96,7 +96,9 @@ def test_compressed_depth_32fc1_png() -> None:
     inverse = _inverse_depth(depth, quant_a, quant_b)
     ok, png = cv2.imencode(".png", inverse)
     assert ok
-    decoded = decode_compressed_depth("32FC1; compressedDepth png", _header(quant_a, quant_b) + png.tobytes())
+    decoded = decode_compressed_depth(
+        "32FC1; compressedDepth png", _header(quant_a, quant_b) + png.tobytes()
+    )
     assert decoded.dtype == np.float32
     assert np.isnan(decoded[0, 0])
     expected = np.float32(quant_a) / (inverse.astype(np.float32) - np.float32(quant_b))
@@ -120,7 +122,9 @@ def test_compressed_depth_32fc1_rvl() -> None:
     quant_a, quant_b = 10100.0, -201.0
     inverse = _inverse_depth(_depth(), quant_a, quant_b)
     payload = struct.pack("<ii", 9, 6) + rvl_encode(inverse)
-    decoded = decode_compressed_depth("32FC1; compressedDepth rvl", _header(quant_a, quant_b) + payload)
+    decoded = decode_compressed_depth(
+        "32FC1; compressedDepth rvl", _header(quant_a, quant_b) + payload
+    )
     expected = np.float32(quant_a) / (inverse.astype(np.float32) - np.float32(quant_b))
     expected[inverse == 0] = np.nan
     np.testing.assert_allclose(decoded, expected, rtol=1e-6)
@@ -133,7 +137,9 @@ def test_compressed_depth_refuses_other_formats() -> None:
         decode_compressed_depth("32FC1; compressedDepth png", b"\x00")
 
 
-@pytest.mark.parametrize("encoding", ["mono8", "8UC1", "rgb8", "bgr8", "8UC3", "mono16", "16UC1", "32FC1"])
+@pytest.mark.parametrize(
+    "encoding", ["mono8", "8UC1", "rgb8", "bgr8", "8UC3", "mono16", "16UC1", "32FC1"]
+)
 def test_every_image_encoding_is_summarised(encoding: str) -> None:
     dtype, channels = rosmsg.IMAGE_ENCODINGS[encoding]
     shape = (5, 7, channels) if channels > 1 else (5, 7)
@@ -154,7 +160,9 @@ def test_compressed_png_point_cloud_camera_info_and_disparity() -> None:
     ok, png = cv2.imencode(".png", grey)
     assert ok
     compressed = rosmsg.compressed_image_message(png.tobytes(), "png", 5, "cam")
-    np.testing.assert_array_equal(message_content(rosmsg.COMPRESSED_IMAGE, compressed).arrays["image"], grey)
+    np.testing.assert_array_equal(
+        message_content(rosmsg.COMPRESSED_IMAGE, compressed).arrays["image"], grey
+    )
 
     cloud = rosmsg.pointcloud2_message(
         {"x": np.arange(100, dtype=np.float32), "y": np.ones(100, dtype=np.float32)}, 5, "cam"
@@ -165,13 +173,20 @@ def test_compressed_png_point_cloud_camera_info_and_disparity() -> None:
     assert content.values["fields[0].name"] == "x"
 
     camera = StereoCamera(width=7, height=5, fx=30.0, fy=30.0, cx=3.0, cy=2.0, baseline=0.5)
-    info = message_content(rosmsg.CAMERA_INFO, rosmsg.camera_info_message(camera, 5, "cam", right=True))
+    info = message_content(
+        rosmsg.CAMERA_INFO, rosmsg.camera_info_message(camera, 5, "cam", right=True)
+    )
     assert info.values["p"][3] == pytest.approx(-15.0)
     assert info.values["distortion_model"] == "plumb_bob"
 
     disparity = rosmsg.disparity_image_message(
-        np.full((40, 40), 3.0, np.float32), 5, "cam", focal=30.0, baseline=0.5,
-        min_disparity=0.0, max_disparity=64.0,
+        np.full((40, 40), 3.0, np.float32),
+        5,
+        "cam",
+        focal=30.0,
+        baseline=0.5,
+        min_disparity=0.0,
+        max_disparity=64.0,
     )
     content = message_content(rosmsg.DISPARITY_IMAGE, disparity)
     assert content.arrays["image.image"].shape == (40, 40)

@@ -8,7 +8,7 @@ import pytest
 
 pytest_plugins = ["pytester"]
 
-TEST = '''
+TEST = """
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +34,7 @@ def write_log(path):
 
 def test_log(tmp_path, log_golden):
     log_golden.check(write_log(tmp_path / "a.mcap"), arrays={arrays})
-'''
+"""
 
 
 def _write(pytester: pytest.Pytester, *, scale: float, arrays: bool = False) -> None:

@@ -13,7 +13,9 @@ ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "tests" / "data"
 
 
-def test_densified_golden_log_matches_its_golden_file(tmp_path: Path, log_golden: LogGolden) -> None:
+def test_densified_golden_log_matches_its_golden_file(
+    tmp_path: Path, log_golden: LogGolden
+) -> None:
     out = tmp_path / "dense.mcap"
     summary = densify(DATA / "golden_synth.mcap", out, DATA / "golden_basis.npz")
     assert summary.frames == 4

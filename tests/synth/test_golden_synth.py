@@ -104,7 +104,9 @@ def test_tolerances_accept_tiny_and_reject_real_differences(tmp_path: Path) -> N
     changed[1] = frames[1]._replace(depth=frames[1].depth * np.float32(1.05))
     problems = _check(tmp_path, golden, changed, "c.mcap")
     assert problems
-    assert all(p.startswith("/ground_truth/depth #1 (stamp 1.100000000 s): image") for p in problems)
+    assert all(
+        p.startswith("/ground_truth/depth #1 (stamp 1.100000000 s): image") for p in problems
+    )
 
     late = [f._replace(stamp_ns=f.stamp_ns + 1) for f in frames]
     problems = _check(tmp_path, golden, late, "d.mcap")
