@@ -196,3 +196,27 @@ def test_bad_input_is_one_line_and_exit_2(
     assert _run("golden", "save", drive["dense"], "-o", target, "--topics", "/nope") == 2
     assert "topic /nope not found in dense.mcap" in capsys.readouterr().err
     assert not target.exists()
+
+
+REALDATA = ROOT.parent / "shared" / "realdata"
+
+
+@pytest.mark.realdata
+@pytest.mark.skipif(not REALDATA.is_dir(), reason="../shared/realdata is absent")
+def test_logs_written_by_others(tmp_path: Path) -> None:
+    """A real ROS 2 recording of every sensor_msgs type, and ROS 1 bags in three codecs."""
+    recording = REALDATA / "mcap_ros2" / "supported_ros2_messages.mcap"
+    golden = tmp_path / "ros2.golden.json"
+    summary = save_golden(recording, golden, arrays=True)
+    first = {topic: c["messages"][0] for topic, c in summary.channels.items() if c["messages"]}
+    assert set(first["/image"]["arrays"]) == {"image"}
+    assert set(first["/compressed_image"]["arrays"]) == {"image"}  # jpeg, by OpenCV
+    assert {"points.x", "points.intensity"} <= set(first["/point_cloud2"]["arrays"])
+    assert len(first["/camera_info"]["values"]["p"]) == 12
+    assert check_log(recording, golden).passed
+
+    golden = tmp_path / "ros1.golden.json"
+    save_golden(REALDATA / "ros1" / "example.bag", golden)
+    for name in ("example-lz4.bag", "example-bz2.bag"):
+        result = check_log(REALDATA / "ros1" / name, golden)
+        assert result.passed, format_differences(result.differences)
