@@ -50,6 +50,7 @@ DEFAULT_TOLERANCE: dict[str, Any] = {
 
 # PointCloud2 fields that count points: the front end may find a corner more or less
 _POINT_COUNT_VALUES = frozenset({"width", "row_step"})
+_POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
 _STAT_NAMES = ("mean", "std", "median", "mad")
 
 
@@ -125,6 +126,7 @@ class _Comparer:
         self.golden_arrays = golden_arrays
         self.actual_arrays = actual_arrays
         self.out: list[Difference] = []
+        self.cloud = False  # the channel being compared holds point clouds
 
     def tolerance(self, topic: str) -> dict[str, Any]:
         return _merge(self.base, self.base.get("channels", {}).get(topic, {}))
@@ -172,6 +174,7 @@ class _Comparer:
                     Difference(topic, None, None, name, f"{have[name]!r}, golden {want[name]!r}")
                 )
         tolerance = self.tolerance(topic)
+        self.cloud = want["schema"] == _POINT_CLOUD
         # the posterior std published beside a channel (depth and depth_std) sets the
         # element-wise tolerance of that channel in units of the golden std
         std_topic = f"{topic}_std"
@@ -215,6 +218,9 @@ class _Comparer:
             if name not in have_values:
                 add(name, "missing")
                 continue
+            if self.cloud and name in _POINT_COUNT_VALUES:
+                self.count(add, name, value, have_values[name], tolerance)
+                continue
             self.value(add, name, value, have_values[name], tolerance)
         for name in have_values:
             if name not in want_values:
@@ -231,16 +237,20 @@ class _Comparer:
         if self.golden_arrays is not None and self.actual_arrays is not None:
             self.elements(add, want, have, tolerance, std_message)
 
+    def count(
+        self, add: Any, name: str, want: Any, have: Any, tolerance: Mapping[str, Any]
+    ) -> None:
+        if not (isinstance(want, int) and isinstance(have, int)):
+            self.value(add, name, want, have, tolerance)
+            return
+        limits = tolerance["point_count"]
+        allowed = limits["rel"] * abs(want) + limits["abs"]
+        if abs(have - want) > allowed:
+            add(name, f"{want} -> {have} (moved {have - want}, tolerance {allowed:g})")
+
     def value(
         self, add: Any, name: str, want: Any, have: Any, tolerance: Mapping[str, Any]
     ) -> None:
-        leaf = name.rsplit(".", 1)[-1]
-        if leaf in _POINT_COUNT_VALUES and isinstance(want, int) and isinstance(have, int):
-            limits = tolerance["point_count"]
-            allowed = limits["rel"] * abs(want) + limits["abs"]
-            if abs(have - want) > allowed:
-                add(name, f"{have} -> golden {want} (moved {have - want}, tolerance {allowed:g})")
-            return
         if isinstance(want, list) and isinstance(have, list):
             if len(want) != len(have):
                 add(name, f"has {len(have)} elements, golden {len(want)}")
