@@ -8,8 +8,13 @@ differs (the differences are printed), 2 bad input (printed by the caller as one
 from __future__ import annotations
 
 import argparse
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
+
+from tqdm import tqdm
 
 from pcainterp_stream.errors import PcaInterpError
 
@@ -85,6 +90,31 @@ def add_golden_parser(commands: Any, formatter: Any) -> None:
     )
 
 
+@contextmanager
+def _progress(description: str) -> Iterator[Any]:
+    """Yield a progress callback drawing a bar on a terminal (nothing in logs and tests)."""
+    bar: tqdm[Any] | None = None
+
+    def update(done: int, total: int | None) -> None:
+        nonlocal bar
+        if bar is None:
+            bar = tqdm(
+                total=total,
+                desc=description,
+                unit="msg",
+                disable=None,
+                leave=False,
+                file=sys.stderr,
+            )
+        bar.update(done - bar.n)
+
+    try:
+        yield update
+    finally:
+        if bar is not None:
+            bar.close()
+
+
 def run_golden(args: argparse.Namespace) -> int:
     """Run ``pcainterp golden save|check``; return the exit code (0, 1, or raise for 2).
 
@@ -98,7 +128,10 @@ def run_golden(args: argparse.Namespace) -> int:
     if args.golden_command == "save":
         if args.output.resolve() == args.log.resolve():
             raise PcaInterpError(f"-o {args.output} is the log itself; name another file")
-        summary = save_golden(args.log, args.output, topics=args.topics, arrays=args.arrays)
+        with _progress(f"summarising {args.log.name}") as progress:
+            summary = save_golden(
+                args.log, args.output, topics=args.topics, arrays=args.arrays, progress=progress
+            )
         messages = sum(c["message_count"] for c in summary.channels.values())
         extra = f" and {arrays_path(args.output).name}" if args.arrays else ""
         print(f"wrote {args.output}{extra}: {len(summary.channels)} channels, {messages} messages")
@@ -107,7 +140,10 @@ def run_golden(args: argparse.Namespace) -> int:
         return 0
     if args.max_lines < 0:
         raise PcaInterpError(f"--max-lines must be >= 0, got {args.max_lines}")
-    result = check_log(args.log, args.golden, topics=args.topics, update=args.update)
+    with _progress(f"checking {args.log.name}") as progress:
+        result = check_log(
+            args.log, args.golden, topics=args.topics, update=args.update, progress=progress
+        )
     if result.passed:
         print(f"{args.log.name} matches {args.golden.name}")
         return 0

@@ -22,7 +22,7 @@ import numpy.typing as npt
 
 from pcainterp_stream.errors import GoldenError
 from pcainterp_stream.golden.compare import DEFAULT_TOLERANCE, Difference, compare
-from pcainterp_stream.golden.summary import LogSummary, summarize_log
+from pcainterp_stream.golden.summary import LogSummary, Progress, summarize_log
 from pcainterp_stream.version import __version__
 
 __all__ = [
@@ -133,6 +133,7 @@ def save_golden(
     topics: Iterable[str] | None = None,
     arrays: bool = False,
     tolerance: Mapping[str, Any] | None = None,
+    progress: Progress | None = None,
 ) -> LogSummary:
     """Summarise a log and write it as a golden file.
 
@@ -143,7 +144,8 @@ def save_golden(
         arrays: also store every array in a compressed ``.npz`` beside the JSON, for an
             element-wise check (see :func:`arrays_path`).
         tolerance: the tolerances to write (default :data:`~.compare.DEFAULT_TOLERANCE`);
-            the keys given replace the defaults' (nested dictionaries merge).
+            the keys given replace the defaults'.
+        progress: called after each message with (messages done, total or None).
 
     Returns:
         The summary written.
@@ -160,7 +162,7 @@ def save_golden(
     """
     log, golden = Path(log), Path(golden)
     selected = None if topics is None else list(topics)
-    summary = summarize_log(log, topics=selected, keep_arrays=arrays)
+    summary = summarize_log(log, topics=selected, keep_arrays=arrays, progress=progress)
     merged = dict(DEFAULT_TOLERANCE)
     merged.update(tolerance or {})
     arrays_file = arrays_path(golden).name if arrays else None
@@ -243,6 +245,7 @@ def check_log(
     *,
     topics: Iterable[str] | None = None,
     update: bool = False,
+    progress: Progress | None = None,
 ) -> CheckResult:
     """Check a log against a golden file, within the tolerances the file states.
 
@@ -252,6 +255,7 @@ def check_log(
         topics: check only these channels (default: those the golden file records).
         update: rewrite the golden file from this log when they differ (same channel
             selection, tolerances and arrays option); the differences are still returned.
+        progress: called after each message with (messages done, total or None).
 
     Returns:
         The differences (none when the log matches) and whether the file was rewritten.
@@ -277,7 +281,11 @@ def check_log(
     with_arrays = bool(document.get("arrays_file"))
     golden_arrays = _load_arrays(golden, document) if with_arrays else None
     summary = summarize_log(
-        log, topics=selected, keep_arrays=with_arrays, skip_missing=topics is None
+        log,
+        topics=selected,
+        keep_arrays=with_arrays,
+        skip_missing=topics is None,
+        progress=progress,
     )
     expected = document
     if topics is not None:

@@ -10,7 +10,7 @@ count and log time only.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,7 +23,10 @@ from pcainterp_stream.golden.decode import message_content
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.reader_base import ROS2_SCHEMA_ENCODINGS
 
-__all__ = ["QUANTILES", "LogSummary", "array_statistics", "summarize_log"]
+__all__ = ["QUANTILES", "LogSummary", "Progress", "array_statistics", "summarize_log"]
+
+Progress = Callable[[int, int | None], None]
+"""A progress callback: (messages done, total messages or None when the log has no index)."""
 
 QUANTILES = (0.01, 0.1, 0.25, 0.5, 0.75, 0.9, 0.99)
 """The quantiles every array summary records (of its finite values)."""
@@ -94,6 +97,7 @@ def summarize_log(
     topics: Iterable[str] | None = None,
     keep_arrays: bool = False,
     skip_missing: bool = False,
+    progress: Progress | None = None,
 ) -> LogSummary:
     """Summarise a log for a golden file.
 
@@ -103,6 +107,7 @@ def summarize_log(
         keep_arrays: also return every array itself (for a per-pixel check).
         skip_missing: leave out topics of ``topics`` that the log lacks instead of raising
             (a check then reports them as missing channels).
+        progress: called after each message with (messages done, total or None).
 
     Returns:
         The summary; message indices count within each channel from 0.
@@ -135,7 +140,11 @@ def summarize_log(
             for topic in wanted
         }
         summary = LogSummary(channels=channels)
-        for raw in reader.messages(wanted):
+        counts = [present[topic].message_count for topic in wanted]
+        total = None if None in counts else sum(c or 0 for c in counts)
+        for done, raw in enumerate(reader.messages(wanted), start=1):
+            if progress is not None:
+                progress(done, total)
             channel = channels[raw.topic]
             index = channel["message_count"]
             channel["message_count"] += 1
