@@ -206,11 +206,17 @@ def load_golden(golden: str | Path) -> dict[str, Any]:
     return dict(document)
 
 
-def _load_arrays(golden: Path, document: Mapping[str, Any]) -> dict[str, npt.NDArray[Any]]:
+@contextmanager
+def _open_arrays(
+    golden: Path, document: Mapping[str, Any]
+) -> Iterator[Mapping[str, npt.NDArray[Any]] | None]:
+    """Yield a golden file's stored arrays, read one by one on access (None without any)."""
+    if not document.get("arrays_file"):
+        yield None
+        return
     path = golden.parent / str(document["arrays_file"])
     try:
-        with np.load(path) as data:
-            return {key: data[key] for key in data.files}
+        data = np.load(path)
     except FileNotFoundError as err:
         raise GoldenError(
             f"{golden.name} stores its arrays in {path.name}, which is missing; copy it "
@@ -218,6 +224,8 @@ def _load_arrays(golden: Path, document: Mapping[str, Any]) -> dict[str, npt.NDA
         ) from err
     except (OSError, ValueError) as err:
         raise GoldenError(f"arrays file {path} does not load ({err})") from err
+    with data:
+        yield data
 
 
 def compare_documents(
@@ -230,13 +238,14 @@ def compare_documents(
     Raises:
         GoldenError: a stored arrays file is missing or does not load.
     """
-    with_arrays = bool(golden.get("arrays_file")) and bool(actual.get("arrays_file"))
-    return compare(
-        golden,
-        actual,
-        golden_arrays=_load_arrays(golden_path, golden) if with_arrays else None,
-        actual_arrays=_load_arrays(actual_path, actual) if with_arrays else None,
-    )
+    with _open_arrays(golden_path, golden) as expected, _open_arrays(actual_path, actual) as got:
+        both = expected is not None and got is not None
+        return compare(
+            golden,
+            actual,
+            golden_arrays=expected if both else None,
+            actual_arrays=got if both else None,
+        )
 
 
 def check_log(
@@ -279,23 +288,24 @@ def check_log(
                 f"recorded: {listed}"
             )
     with_arrays = bool(document.get("arrays_file"))
-    golden_arrays = _load_arrays(golden, document) if with_arrays else None
-    summary = summarize_log(
-        log,
-        topics=selected,
-        keep_arrays=with_arrays,
-        skip_missing=topics is None,
-        progress=progress,
-    )
-    expected = document
-    if topics is not None:
-        expected = dict(document, channels={t: document["channels"][t] for t in selected or []})
-    differences = compare(
-        expected,
-        {"channels": summary.channels},
-        golden_arrays=golden_arrays,
-        actual_arrays=summary.arrays if with_arrays else None,
-    )
+    with _open_arrays(golden, document) as golden_arrays:
+        summary = summarize_log(
+            log,
+            topics=selected,
+            keep_arrays=with_arrays,
+            skip_missing=topics is None,
+            progress=progress,
+        )
+        expected = document
+        if topics is not None:
+            channels = {t: document["channels"][t] for t in selected or []}
+            expected = dict(document, channels=channels)
+        differences = compare(
+            expected,
+            {"channels": summary.channels},
+            golden_arrays=golden_arrays,
+            actual_arrays=summary.arrays if with_arrays else None,
+        )
     result = CheckResult(golden=golden, differences=differences, notes=summary.notes)
     if update and differences:
         save_golden(
