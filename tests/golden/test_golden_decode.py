@@ -7,6 +7,9 @@ import struct
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 from pcainterp_stream.golden import decode_compressed_depth, message_content
 from pcainterp_stream.golden.decode import rvl_decode
@@ -63,6 +66,13 @@ def test_rvl_round_trip(seed: int) -> None:
     values[-1, -3:] = 65535
     decoded = rvl_decode(rvl_encode(values), values.size)
     np.testing.assert_array_equal(decoded.reshape(values.shape), values)
+
+
+@given(
+    arrays(np.uint16, st.integers(1, 300), elements=st.sampled_from([0, 1, 2, 7, 8, 300, 65535]))
+)
+def test_rvl_round_trip_property(values: np.ndarray) -> None:
+    np.testing.assert_array_equal(rvl_decode(rvl_encode(values), values.size), values)
 
 
 def test_rvl_short_stream_is_an_error() -> None:
