@@ -12,9 +12,10 @@ import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from tqdm import tqdm
+if TYPE_CHECKING:
+    from tqdm import tqdm
 
 from pcainterp_stream.errors import PcaInterpError
 
@@ -93,6 +94,8 @@ def add_golden_parser(commands: Any, formatter: Any) -> None:
 @contextmanager
 def _progress(description: str) -> Iterator[Any]:
     """Yield a progress callback drawing a bar on a terminal (nothing in logs and tests)."""
+    from tqdm import tqdm  # here: `pcainterp --help` does not load it
+
     bar: tqdm[Any] | None = None
 
     def update(done: int, total: int | None) -> None:
