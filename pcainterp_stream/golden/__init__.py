@@ -17,22 +17,54 @@ with the package) in a test::
 
 from __future__ import annotations
 
-from pcainterp_stream.golden.compare import (
-    DEFAULT_TOLERANCE,
-    Difference,
-    compare,
-    format_differences,
-)
-from pcainterp_stream.golden.decode import decode_compressed_depth, message_content
-from pcainterp_stream.golden.store import (
-    FORMAT,
-    CheckResult,
-    arrays_path,
-    check_log,
-    load_golden,
-    save_golden,
-)
-from pcainterp_stream.golden.summary import LogSummary, array_statistics, summarize_log
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from pcainterp_stream.golden.compare import (
+        DEFAULT_TOLERANCE,
+        Difference,
+        compare,
+        format_differences,
+    )
+    from pcainterp_stream.golden.decode import decode_compressed_depth, message_content
+    from pcainterp_stream.golden.store import (
+        FORMAT,
+        CheckResult,
+        arrays_path,
+        check_log,
+        load_golden,
+        save_golden,
+    )
+    from pcainterp_stream.golden.summary import LogSummary, array_statistics, summarize_log
+
+# the public names load their modules on first use (PEP 562), so that the command line's
+# parser, which imports `golden.commands`, does not load OpenCV and the ROS type store
+_MODULES = {
+    "DEFAULT_TOLERANCE": "compare",
+    "Difference": "compare",
+    "compare": "compare",
+    "format_differences": "compare",
+    "decode_compressed_depth": "decode",
+    "message_content": "decode",
+    "FORMAT": "store",
+    "CheckResult": "store",
+    "arrays_path": "store",
+    "check_log": "store",
+    "load_golden": "store",
+    "save_golden": "store",
+    "LogSummary": "summary",
+    "array_statistics": "summary",
+    "summarize_log": "summary",
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _MODULES.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{module}"), name)
+
 
 __all__ = [
     "DEFAULT_TOLERANCE",
