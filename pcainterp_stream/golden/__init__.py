@@ -21,7 +21,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from pcainterp_stream.golden.compare import (
+    from pcainterp_stream.golden.comparison import (
         DEFAULT_TOLERANCE,
         Difference,
         compare,
@@ -41,10 +41,10 @@ if TYPE_CHECKING:
 # the public names load their modules on first use (PEP 562), so that the command line's
 # parser, which imports `golden.commands`, does not load OpenCV and the ROS type store
 _MODULES = {
-    "DEFAULT_TOLERANCE": "compare",
-    "Difference": "compare",
-    "compare": "compare",
-    "format_differences": "compare",
+    "DEFAULT_TOLERANCE": "comparison",
+    "Difference": "comparison",
+    "compare": "comparison",
+    "format_differences": "comparison",
     "decode_compressed_depth": "decode",
     "message_content": "decode",
     "FORMAT": "store",

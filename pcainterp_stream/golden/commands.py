@@ -125,7 +125,7 @@ def run_golden(args: argparse.Namespace) -> int:
         PcaInterpError: bad input (a missing or damaged log, a golden file of another
             format version, a missing channel, a bad option); the caller prints it.
     """
-    from pcainterp_stream.golden.compare import format_differences
+    from pcainterp_stream.golden.comparison import format_differences
     from pcainterp_stream.golden.store import arrays_path, check_log, save_golden
 
     if args.golden_command == "save":

@@ -87,7 +87,7 @@ class LogGolden:
         from pytest_regressions.common import perform_regression_check
 
         from pcainterp_stream.errors import GoldenError
-        from pcainterp_stream.golden.compare import format_differences
+        from pcainterp_stream.golden.comparison import format_differences
         from pcainterp_stream.golden.store import (
             arrays_path,
             compare_documents,

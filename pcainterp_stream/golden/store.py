@@ -21,7 +21,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.errors import GoldenError
-from pcainterp_stream.golden.compare import DEFAULT_TOLERANCE, Difference, compare
+from pcainterp_stream.golden.comparison import DEFAULT_TOLERANCE, Difference, compare
 from pcainterp_stream.golden.summary import LogSummary, Progress, summarize_log
 from pcainterp_stream.version import __version__
 
@@ -143,7 +143,7 @@ def save_golden(
         topics: record only these channels (all when None).
         arrays: also store every array in a compressed ``.npz`` beside the JSON, for an
             element-wise check (see :func:`arrays_path`).
-        tolerance: the tolerances to write (default :data:`~.compare.DEFAULT_TOLERANCE`);
+        tolerance: the tolerances to write (default :data:`~.comparison.DEFAULT_TOLERANCE`);
             the keys given replace the defaults'.
         progress: called after each message with (messages done, total or None).
 
