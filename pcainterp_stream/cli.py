@@ -17,6 +17,7 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any, Literal
 
+from pcainterp_stream.golden.commands import add_golden_parser, run_golden
 from pcainterp_stream.pipeline.densify_cli import add_densify_arguments, live_options, run_densify
 from pcainterp_stream.version import __version__
 
@@ -118,6 +119,7 @@ def build_parser() -> argparse.ArgumentParser:
             "  pcainterp learn train.mcap -o basis.npz --components 200  # a basis of your own\n"
             "  pcainterp densify drive.mcap -o drive_dense.mcap --basis basis.npz --rrd drive.rrd\n"
             "  pcainterp info drive_dense.mcap\n"
+            "  pcainterp golden save drive_dense.mcap -o drive.golden.json  # then golden check\n"
         ),
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
@@ -398,6 +400,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument(
         "--learn", action="store_true", help="learn a basis from rendered drives first (~3 min)"
     )
+    add_golden_parser(commands, _formatter)
     return parser
 
 
@@ -599,6 +602,8 @@ def run(args: argparse.Namespace) -> int:
     from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
 
     command = args.command
+    if command == "golden":
+        return run_golden(args)
     if command == "synth":
         _print_written(
             synth(
