@@ -36,11 +36,41 @@ def _formatter(prog: str) -> argparse.HelpFormatter:
 
 
 def _add_topic_options(parser: argparse.ArgumentParser) -> None:
-    group = parser.add_argument_group("topics (DESIGN.md defaults)")
-    group.add_argument("--left-topic", default="/stereo/left/image_rect", metavar="TOPIC")
-    group.add_argument("--right-topic", default="/stereo/right/image_rect", metavar="TOPIC")
-    group.add_argument("--left-info-topic", default="/stereo/left/camera_info", metavar="TOPIC")
-    group.add_argument("--right-info-topic", default="/stereo/right/camera_info", metavar="TOPIC")
+    group = parser.add_argument_group(
+        "topics and calibration (default: the stereo pair found in the log, printed)"
+    )
+    group.add_argument("--left-topic", default=None, metavar="TOPIC", help="left image topic")
+    group.add_argument("--right-topic", default=None, metavar="TOPIC", help="right image topic")
+    group.add_argument(
+        "--left-info-topic",
+        default=None,
+        metavar="TOPIC",
+        help="left CameraInfo (default: the left image's sibling camera_info)",
+    )
+    group.add_argument(
+        "--right-info-topic",
+        default=None,
+        metavar="TOPIC",
+        help="right CameraInfo (default: the right image's sibling camera_info)",
+    )
+    group.add_argument(
+        "--rectify",
+        choices=["auto", "always", "never"],
+        default="auto",
+        help="auto (default): remap raw images from their CameraInfo (D, R, P) as image_proc "
+        "does, and use images named image_rect or with D = 0, R = I, K = P as they are; "
+        "the decision is printed; always: remap from the calibration in any case; never: use "
+        "the images as recorded and skip the check that the pair is rectified",
+    )
+    group.add_argument(
+        "--calibration",
+        type=Path,
+        nargs="+",
+        default=None,
+        metavar="YAML",
+        help="for logs without CameraInfo: LEFT.yaml RIGHT.yaml (camera_info_manager or "
+        "EuRoC sensor.yaml) or one Kalibr camchain.yaml",
+    )
     group.add_argument(
         "--baseline",
         type=float,
@@ -450,9 +480,19 @@ def _gftt_config(args: argparse.Namespace) -> GfttConfig:
 def _pairing_config(args: argparse.Namespace, features_topic: str | None = None) -> PairingConfig:
     from pcainterp_stream.frontend.pairing import PairingConfig
 
-    if args.left_topic == args.right_topic:
+    calibration, named = None, None
+    if args.calibration is not None:
+        from pcainterp_stream.io.calibration import load_calibration
+
+        calibration, named = load_calibration(list(args.calibration))
+    flags = (args.left_topic, args.right_topic, args.left_info_topic, args.right_info_topic)
+    discover = all(flag is None for flag in flags) and named is None
+    defaults = PairingConfig()
+    left_topic = args.left_topic or (named[0] if named else defaults.left_topic)
+    right_topic = args.right_topic or (named[1] if named else defaults.right_topic)
+    if left_topic == right_topic:
         raise PcaInterpError(
-            f"--left-topic and --right-topic are both {args.left_topic}; a stereo pair needs the "
+            f"--left-topic and --right-topic are both {left_topic}; a stereo pair needs the "
             "images of two cameras: pass the right camera's topic as --right-topic"
         )
     if not 0 <= args.stamp_tolerance_ms < float("inf"):
@@ -460,14 +500,36 @@ def _pairing_config(args: argparse.Namespace, features_topic: str | None = None)
     if args.baseline is not None and not 0 < args.baseline < float("inf"):
         raise PcaInterpError(f"--baseline must be a finite number > 0 m, got {args.baseline}")
     return PairingConfig(
-        left_topic=args.left_topic,
-        right_topic=args.right_topic,
-        left_info_topic=args.left_info_topic,
-        right_info_topic=args.right_info_topic,
+        left_topic=left_topic,
+        right_topic=right_topic,
+        left_info_topic=args.left_info_topic or defaults.left_info_topic,
+        right_info_topic=args.right_info_topic or defaults.right_info_topic,
         features_topic=features_topic,
         tolerance_ns=round(args.stamp_tolerance_ms * 1e6),
         baseline=args.baseline,
+        rectify=args.rectify,
+        calibration=calibration,
+        discover=discover,
+        check_rows=args.rectify != "never",
     )
+
+
+def _learn_pairing(args: argparse.Namespace) -> PairingConfig:
+    """Return learn's pairing: the topics found in its first log (all logs share them)."""
+    from pcainterp_stream.errors import TopicNotFoundError
+    from pcainterp_stream.frontend.discovery import resolve_pairing
+    from pcainterp_stream.io.logreader import open_log
+    from pcainterp_stream.pipeline.common import _echo
+
+    pairing = _pairing_config(args)
+    if args.logs and (pairing.discover or args.depth_topic is not None):
+        with open_log(args.logs[0]) as reader:
+            try:
+                pairing = resolve_pairing(reader, pairing, _echo)
+            except TopicNotFoundError:
+                if args.depth_topic is None:
+                    raise  # a depth topic needs only the camera infos: the defaults may do
+    return pairing
 
 
 def _sigma_option(value: str) -> float | str:
@@ -649,6 +711,7 @@ def run(args: argparse.Namespace) -> int:
             fit_logs=tuple(args.fit_logs),
             with_synthetic=with_synthetic,
         )
+        pairing = _learn_pairing(args)
         if args.workers is not None and args.workers < 1:
             raise PcaInterpError(f"--workers must be at least 1, got {args.workers}")
         if args.fit_prior and on_cluster and not args.fit_logs:
@@ -665,7 +728,7 @@ def run(args: argparse.Namespace) -> int:
             rule = "off: --with-synthetic 0"
             if args.with_synthetic == "auto":  # else 0: N was refused above
                 rule = "auto: not on a cluster (fine-tuning runs in this process only)"
-                count = expected_maps(args.logs, options, _pairing_config(args))
+                count = expected_maps(args.logs, options, pairing)
                 if count is None or count < AUTO_MAX_MAPS:
                     _echo(
                         "note: the built-in basis's synthetic maps are not merged into these "
@@ -677,14 +740,14 @@ def run(args: argparse.Namespace) -> int:
                     [log.resolve() for log in args.logs],
                     args.output,
                     options,
-                    _pairing_config(args),
+                    pairing,
                     client,
                 )
             learned_from = {**basis.meta.get("source", {}), "with_synthetic": 0}
             meta = {**basis.meta, "source": {**learned_from, "with_synthetic_rule": rule}}
             if fit_prior:
                 sources = [(log, 0) for log in options.fit_logs]
-                meta["prior"] = fit(basis, sources, options, _pairing_config(args))
+                meta["prior"] = fit(basis, sources, options, pairing)
             basis = dataclasses.replace(basis, meta=meta)
             basis.save(args.output)
             if not fit_prior and args.fit_prior is None:
@@ -693,7 +756,7 @@ def run(args: argparse.Namespace) -> int:
                     "LOG only); densify uses the paper's model with this basis"
                 )
         else:
-            basis = learn(args.logs, args.output, options, _pairing_config(args))
+            basis = learn(args.logs, args.output, options, pairing)
         _echo(f"wrote {args.output}")
         _echo(describe_basis(args.output))
         del basis
