@@ -86,7 +86,9 @@ def check(folder: Path, raw_log: Path, max_frames: int | None) -> dict[str, floa
     raw_seconds = time.perf_counter() - started
     sequence = open_kitti(folder)
     diffs, err_rect, err_raw = [], [], []
-    for frame, rect, raw in zip(iter_frames(sequence, max_frames=max_frames), rect_maps, raw_maps, strict=False):
+    for frame, rect, raw in zip(
+        iter_frames(sequence, max_frames=max_frames), rect_maps, raw_maps, strict=False
+    ):
         h, w = rect.shape
         raw_part = raw[:h, :w]
         both = np.isfinite(rect) & np.isfinite(raw_part)
@@ -109,9 +111,16 @@ def check(folder: Path, raw_log: Path, max_frames: int | None) -> dict[str, floa
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("kitti_dir", type=Path, help="a KITTI raw drive *_sync folder (or its date folder)")
-    parser.add_argument("out", type=Path, help="the raw log to write (.mcap, .bag or rosbag2 folder)")
+    """Write the raw log (and with --check compare the two runs); return the exit code."""
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "kitti_dir", type=Path, help="a KITTI raw drive *_sync folder (or its date folder)"
+    )
+    parser.add_argument(
+        "out", type=Path, help="the raw log to write (.mcap, .bag or rosbag2 folder)"
+    )
     parser.add_argument("--max-frames", type=int, default=None, metavar="N")
     parser.add_argument("--check", action="store_true", help="densify both logs and compare")
     args = parser.parse_args(argv)

@@ -18,7 +18,7 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from pcainterp_stream.errors import TopicNotFoundError
+from pcainterp_stream.errors import PcaInterpError, TopicNotFoundError
 from pcainterp_stream.frontend.pairing import PairingConfig, is_rectified_name
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.reader_base import LogReader, TopicInfo
@@ -39,7 +39,7 @@ class Camera:
 
     @property
     def stream(self) -> str:
-        """Return the stream's name below the namespace (``image_raw``, ``image_rect/compressed``)."""
+        """Return the stream's name below the namespace (``image_raw``, ``image/compressed``)."""
         return self.topic[len(self.namespace) :].lstrip("/")
 
     def score(self) -> tuple[int, int, int]:
@@ -61,9 +61,7 @@ class StereoTopics:
         """Return the pair as the options that would choose it."""
         text = f"--left-topic {self.left.topic} --right-topic {self.right.topic}"
         if self.left.info is not None and self.right.info is not None:
-            text += (
-                f" --left-info-topic {self.left.info} --right-info-topic {self.right.info}"
-            )
+            text += f" --left-info-topic {self.left.info} --right-info-topic {self.right.info}"
         return text
 
 
@@ -174,7 +172,7 @@ def _first_tx(reader: LogReader) -> Callable[[str], float | None]:
             for raw in reader.messages([topic]):
                 try:
                     cache[topic] = float(rosmsg.projection_matrix(reader.decode(raw))[0, 3])
-                except Exception:  # noqa: BLE001 - a damaged info says nothing about sides
+                except (PcaInterpError, AttributeError, ValueError):  # a damaged info: no side
                     cache[topic] = None
                 break
         return cache[topic]
@@ -196,21 +194,25 @@ def resolve_pairing(
     """
     topics = reader.topics()
     if not config.discover:
-        changes = {}
+        siblings: dict[str, str] = {}
         for field, image, default in (
             ("left_info_topic", config.left_topic, DEFAULT_LEFT_INFO),
             ("right_info_topic", config.right_topic, DEFAULT_RIGHT_INFO),
         ):
             sibling = f"{namespace(image)}/camera_info"
             if getattr(config, field) == default and default not in topics and sibling in topics:
-                changes[field] = sibling
-        return dataclasses.replace(config, **changes) if changes else config
+                siblings[field] = sibling
+        if not siblings:
+            return config
+        return dataclasses.replace(
+            config,
+            left_info_topic=siblings.get("left_info_topic", config.left_info_topic),
+            right_info_topic=siblings.get("right_info_topic", config.right_info_topic),
+        )
     need_info = config.calibration is None
     pairs = find_pairs(topics, need_info=need_info, tx_of=_first_tx(reader))
     name = str(reader.path)
-    if not pairs and (
-        reader.damage or all(info.message_count == 0 for info in topics.values())
-    ):
+    if not pairs and (reader.damage or all(info.message_count == 0 for info in topics.values())):
         return dataclasses.replace(config, discover=False)  # the defaults: reported as damaged
     if not pairs:
         images = [t for t, i in sorted(topics.items()) if i.msgtype in _IMAGE_TYPES]
@@ -221,7 +223,11 @@ def resolve_pairing(
             f"right (or cam0/cam1, ...); image topics: {', '.join(images) or 'none'}; camera "
             f"infos: {', '.join(infos) or 'none'}; pass "
             "--left-topic and --right-topic"
-            + (" (and --calibration LEFT.yaml RIGHT.yaml without camera infos)" if need_info else "")
+            + (
+                " (and --calibration LEFT.yaml RIGHT.yaml without camera infos)"
+                if need_info
+                else ""
+            )
         )
     best = pairs[0]
     ties = [p for p in pairs if p.left.score() == best.left.score()]
@@ -231,20 +237,21 @@ def resolve_pairing(
             f"{len(ties)} stereo pairs in {name} are equally good: {listed}; pass the options "
             "of the one to densify"
         )
-    changes: dict[str, object] = {
-        "left_topic": best.left.topic,
-        "right_topic": best.right.topic,
-    }
+    left_info, right_info = config.left_info_topic, config.right_info_topic
     if best.left.info is not None and best.right.info is not None:
-        changes["left_info_topic"] = best.left.info
-        changes["right_info_topic"] = best.right.info
+        left_info, right_info = best.left.info, best.right.info
     if echo is not None:
-        infos = (
-            f" with {best.left.info} and {best.right.info}" if best.left.info else ""
-        )
+        with_infos = f" with {best.left.info} and {best.right.info}" if best.left.info else ""
         others = f" ({len(pairs) - 1} other pair(s) less preferred)" if len(pairs) > 1 else ""
         echo(
-            f"topics: left {best.left.topic}, right {best.right.topic}{infos} (found {best.how}"
-            f"{others}; --left-topic/--right-topic choose others)"
+            f"topics: left {best.left.topic}, right {best.right.topic}{with_infos} "
+            f"(found {best.how}{others}; --left-topic/--right-topic choose others)"
         )
-    return dataclasses.replace(config, discover=False, **changes)  # type: ignore[arg-type]
+    return dataclasses.replace(
+        config,
+        discover=False,
+        left_topic=best.left.topic,
+        right_topic=best.right.topic,
+        left_info_topic=left_info,
+        right_info_topic=right_info,
+    )

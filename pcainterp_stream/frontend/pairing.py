@@ -284,7 +284,11 @@ class StereoPairer:
         self._rect_infos: tuple[Any, Any] | None = None
         self._said: str | None = None
         self._frame_rectifier: dict[int, rect.StereoRectifier] = {}
-        self._rows = _RowCheck(self.config) if self.config.check_rows and self.config.rectify != "never" else None
+        self._rows = (
+            _RowCheck(self.config)
+            if self.config.check_rows and self.config.rectify != "never"
+            else None
+        )
         self.stats = PairingStats()
         self._left: deque[_Pending] = deque()
         self._right: deque[_Pending] = deque()
@@ -441,7 +445,9 @@ class StereoPairer:
         return best
 
     def _release_matched(self) -> list[StereoFrame]:
-        if self.config.calibration is None and (self._left_info is None or self._right_info is None):
+        if self.config.calibration is None and (
+            self._left_info is None or self._right_info is None
+        ):
             return []
         frames: list[StereoFrame] = []
         while self._matched:
@@ -682,7 +688,7 @@ MIN_MEDIAN_DISPARITY_PX = -1.0
 
 
 def is_rectified_name(topic: str) -> bool:
-    """Return True for an image topic named as rectified (``image_rect``, ``image_rect_color``...)."""
+    """Return True for an image topic named as rectified (``image_rect``, ``image_rect_color``)."""
     parts = [p for p in topic.split("/") if p and p not in ("compressed", "compressedDepth")]
     return bool(parts) and "rect" in parts[-1].lower()
 
@@ -720,14 +726,11 @@ class _RowCheck:
         offset = rect.row_offset(points)
         config = self.config
         pair = f"{config.left_topic} / {config.right_topic}"
-        where = (
-            f"median over {offset.matches} matched corners of the first {self.frames} frame(s)"
-        )
+        where = f"median over {offset.matches} matched corners of the first {self.frames} frame(s)"
         if offset.median_abs_dy > MAX_ROW_OFFSET_PX:
             if rectified:
-                fix = (
-                    "the calibration does not fit these images: check the camera infos"
-                    + (" (or the --calibration files)" if config.calibration else "")
+                fix = "the calibration does not fit these images: check the camera infos" + (
+                    " (or the --calibration files)" if config.calibration else ""
                 )
             else:
                 fix = (

@@ -84,7 +84,11 @@ class CameraCalibration:
                 f"{', '.join(MODELS)}: rectify the images yourself and pass --rectify never"
             )
         object.__setattr__(self, "model", model)
-        for label, value, shape in (("K", self.k, (3, 3)), ("R", self.r, (3, 3)), ("P", self.p, (3, 4))):
+        for label, value, shape in (
+            ("K", self.k, (3, 3)),
+            ("R", self.r, (3, 3)),
+            ("P", self.p, (3, 4)),
+        ):
             if value.shape != shape or not np.isfinite(value).all():
                 raise CalibrationError(
                     f"{self.name} has {label} of shape {value.shape} or with non-finite values; "
@@ -152,7 +156,11 @@ class CameraCalibration:
         """Return the full-resolution ROI (x, y, width, height); the whole image when unset."""
         x, y, w, h = self.roi
         if w == 0 or h == 0:
-            return (0, 0, self.width, self.height) if (x, y) == (0, 0) else (x, y, self.width - x, self.height - y)
+            return (
+                (0, 0, self.width, self.height)
+                if (x, y) == (0, 0)
+                else (x, y, self.width - x, self.height - y)
+            )
         return (x, y, w, h)
 
     def image_size(self) -> tuple[int, int]:
@@ -211,7 +219,9 @@ class CameraCalibration:
         """Return the rectified positions of raw full-resolution pixels (n, 2)."""
         points = np.asarray(pixels, np.float64).reshape(-1, 1, 2)
         if self.model == "equidistant":
-            out = cv2.fisheye.undistortPoints(points, self.k, self.d[:4].reshape(4, 1), R=self.r, P=self.p[:, :3])
+            out = cv2.fisheye.undistortPoints(
+                points, self.k, self.d[:4].reshape(4, 1), R=self.r, P=self.p[:, :3]
+            )
         else:
             out = cv2.undistortPoints(points, self.k, self.d, R=self.r, P=self.p[:, :3])
         return np.asarray(out, np.float64).reshape(-1, 2)
@@ -284,8 +294,13 @@ class StereoRectifier:
         self.box = valid_box(self._maps, left.image_size(), right.image_size())
         x, y, w, h = self.box
         self.inner = StereoCamera(
-            width=w, height=h, fx=self.camera.fx, fy=self.camera.fy, cx=self.camera.cx - x,
-            cy=self.camera.cy - y, baseline=self.camera.baseline,
+            width=w,
+            height=h,
+            fx=self.camera.fx,
+            fy=self.camera.fy,
+            cx=self.camera.cx - x,
+            cy=self.camera.cy - y,
+            baseline=self.camera.baseline,
         )
 
     def check_size(self, shape: tuple[int, ...], side: str) -> None:
@@ -308,13 +323,16 @@ class StereoRectifier:
         """Return the rectified (left, right) images (bilinear, zero outside the raw image)."""
         self.check_size(left.shape, "left")
         self.check_size(right.shape, "right")
-        out = []
+        out: list[npt.NDArray[np.generic]] = []
         for image, (map_x, map_y) in zip((left, right), self._maps, strict=True):
-            out.append(
-                cv2.remap(
-                    image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT
-                )
+            remapped = cv2.remap(
+                np.asarray(image, dtype=image.dtype),
+                map_x,
+                map_y,
+                cv2.INTER_LINEAR,
+                borderMode=cv2.BORDER_CONSTANT,
             )
+            out.append(np.asarray(remapped))
         return out[0], out[1]
 
     def rotate_points(self, points: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
@@ -322,7 +340,9 @@ class StereoRectifier:
         return (np.asarray(points, np.float64) @ self.rotation.T).astype(np.float32)
 
 
-def stereo_from_infos(left_info: Any, right_info: Any, left_name: str, right_name: str) -> StereoCalibration:
+def stereo_from_infos(
+    left_info: Any, right_info: Any, left_name: str, right_name: str
+) -> StereoCalibration:
     """Return the calibration of a pair from its two ``CameraInfo`` messages."""
     return StereoCalibration(
         CameraCalibration.from_camera_info(left_info, left_name),
@@ -362,7 +382,7 @@ def correspondences(
     Cross-checked descriptor matches are kept when a RANSAC fundamental matrix has them as
     inliers: a correct correspondence, whether or not the pair is rectified.
     """
-    orb = cv2.ORB_create(nfeatures=features)
+    orb = cv2.ORB.create(nfeatures=features)
     a, b = _grey8(left), _grey8(right)
     kp_l, des_l = orb.detectAndCompute(a, None)
     kp_r, des_r = orb.detectAndCompute(b, None)
@@ -377,7 +397,7 @@ def correspondences(
     _, mask = cv2.findFundamentalMat(pts[:, :2], pts[:, 2:], cv2.FM_RANSAC, 1.0, 0.999)
     if mask is None:
         return np.zeros((0, 4))
-    return pts[mask.ravel().astype(bool)]
+    return np.asarray(pts[mask.ravel().astype(bool)], dtype=np.float64)
 
 
 def row_offset(points: npt.NDArray[np.float64]) -> RowOffset:
@@ -400,7 +420,8 @@ def unrectify_maps(
     calibration would have taken of the rectified view (used to make raw test logs).
     """
     xs, ys = np.meshgrid(
-        np.arange(calibration.width, dtype=np.float64), np.arange(calibration.height, dtype=np.float64)
+        np.arange(calibration.width, dtype=np.float64),
+        np.arange(calibration.height, dtype=np.float64),
     )
     rect = calibration.raw_to_rectified(np.stack([xs.ravel(), ys.ravel()], axis=1))
     shape = (calibration.height, calibration.width)
@@ -420,10 +441,11 @@ def valid_box(
     is found by shaving off, one at a time, the border row or column with the most invalid
     pixels (per pixel of its length) until none is left.
     """
-    valid = np.ones(maps[0][0].shape, dtype=bool)
+    height0, width0 = maps[0][0].shape[:2]
+    valid: npt.NDArray[np.bool_] = np.ones((height0, width0), dtype=bool)
     for (map_x, map_y), (width, height) in zip(maps, sizes, strict=True):
         valid &= (map_x >= 0) & (map_x <= width - 1) & (map_y >= 0) & (map_y <= height - 1)
-    top, left, bottom, right = 0, 0, valid.shape[0], valid.shape[1]
+    top, left, bottom, right = 0, 0, height0, width0
     bad = ~valid
     while top < bottom and left < right:
         box = bad[top:bottom, left:right]

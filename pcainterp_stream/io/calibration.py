@@ -56,7 +56,9 @@ def _read_yaml(path: Path) -> dict[str, Any]:
     return data
 
 
-def _numbers(path: Path, data: dict[str, Any], key: str, count: int | None) -> npt.NDArray[np.float64]:
+def _numbers(
+    path: Path, data: dict[str, Any], key: str, count: int | None
+) -> npt.NDArray[np.float64]:
     value = data.get(key)
     if isinstance(value, dict):
         value = value.get("data")
@@ -99,7 +101,9 @@ def camera_info_yaml(path: Path, data: dict[str, Any]) -> CameraCalibration:
     )
 
 
-def _intrinsics(path: Path, data: dict[str, Any]) -> tuple[str, npt.NDArray[np.float64], npt.NDArray[np.float64], tuple[int, int]]:
+def _intrinsics(
+    path: Path, data: dict[str, Any]
+) -> tuple[str, npt.NDArray[np.float64], npt.NDArray[np.float64], tuple[int, int]]:
     model = str(data.get("camera_model", "pinhole")).lower()
     if model != "pinhole":
         raise CalibrationError(
@@ -114,7 +118,8 @@ def _intrinsics(path: Path, data: dict[str, Any]) -> tuple[str, npt.NDArray[np.f
     if distortion in _FISHEYE:
         if d.size != 4:
             raise CalibrationError(
-                f"calibration file {path}: equidistant distortion needs 4 coefficients, got {d.size}"
+                f"calibration file {path}: equidistant distortion needs 4 coefficients, got "
+                f"{d.size}"
             )
         model_name = "equidistant"
     elif distortion in ("radtan", "radial-tangential", "plumb_bob"):
@@ -165,8 +170,16 @@ def rectify_pair(
         raise CalibrationError(f"{names[1]}: the cameras are 0 m apart; fix the extrinsics")
     if model == "equidistant":
         r1, r2, p1, p2, _ = cv2.fisheye.stereoRectify(
-            k1, d1.reshape(4, 1), k2, d2.reshape(4, 1), size, rot, trans.reshape(3, 1),
-            flags=cv2.CALIB_ZERO_DISPARITY, balance=0.0, fov_scale=1.0,
+            k1,
+            d1.reshape(4, 1),
+            k2,
+            d2.reshape(4, 1),
+            size,
+            rot,
+            trans.reshape(3, 1),
+            flags=cv2.CALIB_ZERO_DISPARITY,
+            balance=0.0,
+            fov_scale=1.0,
         )
     else:
         r1, r2, p1, p2, *_ = cv2.stereoRectify(
@@ -216,7 +229,8 @@ def load_calibration(paths: list[Path]) -> tuple[StereoCalibration, tuple[str, s
         return calibration, named
     if len(paths) != 2:
         raise CalibrationError(
-            f"--calibration takes a Kalibr camchain.yaml or LEFT.yaml RIGHT.yaml, got {len(paths)} files"
+            "--calibration takes a Kalibr camchain.yaml or LEFT.yaml RIGHT.yaml, got "
+            f"{len(paths)} files"
         )
     left_data, right_data = _read_yaml(paths[0]), _read_yaml(paths[1])
     if "T_BS" in left_data and "T_BS" in right_data:  # EuRoC sensor.yaml

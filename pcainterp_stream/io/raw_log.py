@@ -42,7 +42,10 @@ class Unrectifier:
     ) -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.uint8]]:
         """Return the raw (left, right) images: zero where the rectified view has no pixel."""
         out = [
-            cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+            np.asarray(
+                cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT),
+                dtype=np.uint8,
+            )
             for image, (mx, my) in zip((left, right), self._maps, strict=True)
         ]
         return out[0], out[1]
