@@ -165,6 +165,7 @@ def build_parser() -> argparse.ArgumentParser:
             "  pcainterp synth drive_bag --format rosbag2 --seed 3\n"
             "  pcainterp synth drive.bag --format ros1\n"
             "  pcainterp synth lidar.mcap --frames 10 --scale 0.5 --lidar  # + sparse LiDAR truth\n"
+            "  pcainterp synth raw.mcap --frames 10 --scale 0.5 --raw      # as a driver records\n"
         ),
     )
     synth.add_argument("out", type=Path, metavar="OUT", help="output log path")
@@ -184,6 +185,17 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="also write /ground_truth/lidar_depth: the true depth where a 64-beam scanner "
         "would return (scan lines, ~4 %% of the pixels at any --scale; NaN elsewhere)",
+    )
+    synth.add_argument(
+        "--raw",
+        nargs="?",
+        const="plumb_bob",
+        default=None,
+        choices=["plumb_bob", "equidistant"],
+        help="record it as a stereo driver does: raw images through a distorting lens "
+        "(default plumb_bob) slightly rotated from the rectified pair, on "
+        "/camera/{left,right}/image_raw with their CameraInfo; the truth is the rectified "
+        "left camera's",
     )
 
     kitti = commands.add_parser(
@@ -661,7 +673,22 @@ def run(args: argparse.Namespace) -> int:
     from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
 
     command = args.command
-    if command == "synth":
+    if command == "synth" and args.raw is not None:
+        from pcainterp_stream.synth.raw import synth_raw
+
+        if args.lidar:
+            raise PcaInterpError("--lidar is not written with --raw; drop one of them")
+        _print_written(
+            synth_raw(
+                args.out,
+                frames=args.frames,
+                seed=args.seed,
+                scale=args.scale,
+                fmt=args.format,
+                model=args.raw,
+            )
+        )
+    elif command == "synth":
         _print_written(
             synth(
                 args.out,

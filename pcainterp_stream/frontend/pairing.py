@@ -553,16 +553,16 @@ class StereoPairer:
         rectifier: rect.StereoRectifier | None = None
         if config.rectify == "auto" and config.calibration is None:
             named = [t for t in (config.left_topic, config.right_topic) if is_rectified_name(t)]
-            if len(named) == 2:
+            if calibration.is_rectified:
+                self._say(
+                    f"rectify auto: {source} say the images are rectified (D = 0, R = I, "
+                    "K = P): used as they are"
+                )
+            elif len(named) == 2:
                 self._say(
                     f"rectify auto: {config.left_topic} and {config.right_topic} are named "
                     "rectified: used as they are, with P of their camera infos (ROS publishes "
                     "image_rect with the raw camera's D and R); --rectify always remaps them"
-                )
-            elif calibration.is_rectified:
-                self._say(
-                    f"rectify auto: {source} say the images are rectified (D = 0, R = I, "
-                    "K = P): used as they are"
                 )
             else:
                 rectifier = self._build(calibration)

@@ -329,7 +329,7 @@ class StereoRectifier:
                 np.asarray(image, dtype=image.dtype),
                 map_x,
                 map_y,
-                cv2.INTER_LINEAR,
+                cv2.INTER_CUBIC,
                 borderMode=cv2.BORDER_CONSTANT,
             )
             out.append(np.asarray(remapped))
