@@ -36,7 +36,10 @@ RAW_MODELS = ("plumb_bob", "equidistant")
 # Lens and mounting of the simulated raw cameras: a moderate barrel distortion (about
 # KITTI's grey cameras' at the image corners, less at the edges), and rotations of a few
 # tenths of a degree between each camera and the rectified pair.
-_PLUMB_BOB = {"left": [-0.12, 0.02, 0.0008, -0.0005, 0.0], "right": [-0.11, 0.018, -0.0006, 0.0004, 0.0]}
+_PLUMB_BOB = {
+    "left": [-0.12, 0.02, 0.0008, -0.0005, 0.0],
+    "right": [-0.11, 0.018, -0.0006, 0.0004, 0.0],
+}
 # a lens between equidistant (r = f theta) and pinhole (r = f tan theta = f (theta + theta^3/3
 # + ...)): a pure equidistant lens of the same focal length would spread the rectified view's
 # edges over few raw pixels
@@ -175,7 +178,9 @@ def write_raw_log(
             messages.append(
                 (DEPTH, rosmsg.image_message(depth, frame.stamp_ns, LEFT_FRAME, encoding="32FC1"))
             )
-            messages.append(("/ground_truth/pose", pose_message(frame.camera_to_world, frame.stamp_ns)))
+            messages.append(
+                ("/ground_truth/pose", pose_message(frame.camera_to_world, frame.stamp_ns))
+            )
             for topic, message in messages:
                 writer.add_message(topic, message, frame.stamp_ns)
             if progress is not None:

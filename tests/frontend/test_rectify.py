@@ -62,8 +62,13 @@ def test_plumb_bob_maps_are_opencvs() -> None:
 def test_rational_polynomial_is_understood() -> None:
     cal = raw_calibration(CAMERA, "plumb_bob").left
     eight = rect.CameraCalibration(
-        cal.width, cal.height, "rational_polynomial", cal.k,
-        np.array([*cal.d[:5], 0.01, 0.0, 0.0]), cal.r, cal.p,
+        cal.width,
+        cal.height,
+        "rational_polynomial",
+        cal.k,
+        np.array([*cal.d[:5], 0.01, 0.0, 0.0]),
+        cal.r,
+        cal.p,
     )
     map_x, _ = eight.rectification_maps()
     ref_x, _ = cv2.initUndistortRectifyMap(
@@ -76,8 +81,15 @@ def test_binning_and_roi_as_image_proc() -> None:
     """Reduced maps: the full maps' ROI, every binning-th pixel, in binned raw pixels."""
     full = raw_calibration(CAMERA, "plumb_bob").left
     reduced = rect.CameraCalibration(
-        full.width, full.height, full.model, full.k, full.d, full.r, full.p,
-        binning=(2, 2), roi=(40, 20, 200, 80),
+        full.width,
+        full.height,
+        full.model,
+        full.k,
+        full.d,
+        full.r,
+        full.p,
+        binning=(2, 2),
+        roi=(40, 20, 200, 80),
     )
     assert reduced.image_size() == (100, 40)
     fx, fy = full.rectification_maps()
@@ -133,6 +145,17 @@ def _push_pair(
     return frames
 
 
+def _push_frames(
+    pairer: StereoPairer,
+    count: int,
+    left: np.ndarray,
+    right: np.ndarray,
+    calibration: rect.StereoCalibration,
+) -> None:
+    for i in range(count):
+        _push_pair(pairer, 1000 + i, left, right, calibration)
+
+
 def test_pairer_rectifies_raw_pairs_and_builds_maps_once() -> None:
     calibration = raw_calibration(CAMERA, "plumb_bob")
     raw = Unrectifier(calibration)(*_stereo_views())
@@ -145,12 +168,10 @@ def test_pairer_rectifies_raw_pairs_and_builds_maps_once() -> None:
     assert first is not None
     frames += _push_pair(pairer, 2000, *raw, calibration)  # the same values re-sent
     assert pairer.rectification() is first
-    x, y, w, h = first.box
+    x, _, w, h = first.box
     assert frames[0].left.shape == (h, w)
     assert frames[0].camera.cx == pytest.approx(CAMERA.cx - x)
-    changed = raw_calibration(
-        StereoCamera(320, 120, 181.0, 181.0, 158.0, 60.0, 0.5), "plumb_bob"
-    )
+    changed = raw_calibration(StereoCamera(320, 120, 181.0, 181.0, 158.0, 60.0, 0.5), "plumb_bob")
     _push_pair(pairer, 3000, *raw, changed)
     assert pairer.rectification() is not first
 
@@ -173,14 +194,15 @@ def test_guard_refuses_a_raw_pair_declared_rectified() -> None:
     raw = Unrectifier(calibration)(*_stereo_views())
     ideal = rect.StereoCalibration(
         *(
-            rect.CameraCalibration(c.width, c.height, "plumb_bob", c.p[:, :3], np.zeros(5), np.eye(3), c.p)
+            rect.CameraCalibration(
+                c.width, c.height, "plumb_bob", c.p[:, :3], np.zeros(5), np.eye(3), c.p
+            )
             for c in (calibration.left, calibration.right)
         )
     )
     pairer = _pairer()
     with pytest.raises(CalibrationError, match="does not look rectified") as err:
-        for i in range(6):
-            _push_pair(pairer, 1000 + i, *raw, ideal)
+        _push_frames(pairer, 6, *raw, ideal)  # the guard decides by the fifth frame
     assert "--rectify always" in str(err.value)
     never = _pairer(rectify="never", check_rows=False)
     assert len(_push_pair(never, 1000, *raw, ideal)) == 1
@@ -198,8 +220,7 @@ def test_guard_refuses_swapped_cameras() -> None:
     left, right = _stereo_views()
     pairer = _pairer()
     with pytest.raises(CalibrationError, match="negative disparities"):
-        for i in range(6):
-            _push_pair(pairer, 1000 + i, right, left, calibration)
+        _push_frames(pairer, 6, right, left, calibration)
     ok = _pairer()
     for i in range(6):
         assert len(_push_pair(ok, 1000 + i, left, right, calibration)) == 1

@@ -53,7 +53,12 @@ def write_camchain(calibration: StereoCalibration, path: Path, model: str = "rad
     for name, cal in (("cam0", left), ("cam1", right)):
         data[name] = {
             "camera_model": "pinhole",
-            "intrinsics": [float(cal.k[0, 0]), float(cal.k[1, 1]), float(cal.k[0, 2]), float(cal.k[1, 2])],
+            "intrinsics": [
+                float(cal.k[0, 0]),
+                float(cal.k[1, 1]),
+                float(cal.k[0, 2]),
+                float(cal.k[1, 2]),
+            ],
             "distortion_model": model,
             "distortion_coeffs": [float(v) for v in cal.d[:4]],
             "resolution": [cal.width, cal.height],
@@ -75,7 +80,9 @@ def test_camera_info_manager_pair_round_trips(tmp_path: Path) -> None:
         np.testing.assert_allclose(a.p, b.p)
 
 
-@pytest.mark.parametrize(("model", "distortion"), [("plumb_bob", "radtan"), ("equidistant", "equidistant")])
+@pytest.mark.parametrize(
+    ("model", "distortion"), [("plumb_bob", "radtan"), ("equidistant", "equidistant")]
+)
 def test_kalibr_camchain_is_stereo_rectified(tmp_path: Path, model: str, distortion: str) -> None:
     calibration = raw_calibration(CAMERA, model)
     path = write_camchain(calibration, tmp_path / "camchain.yaml", distortion)
@@ -99,7 +106,9 @@ def test_kalibr_camchain_is_stereo_rectified(tmp_path: Path, model: str, distort
         ("mynteye_fisheye", "left_sensor_fisheye.yaml", "right_sensor_fisheye.yaml", "equidistant"),
     ],
 )
-def test_euroc_sensor_yaml_rectifies_real_pairs(folder: str, left: str, right: str, model: str) -> None:
+def test_euroc_sensor_yaml_rectifies_real_pairs(
+    folder: str, left: str, right: str, model: str
+) -> None:
     import cv2
 
     from pcainterp_stream.frontend.rectify import correspondences, row_offset
@@ -153,11 +162,16 @@ def test_bad_files_are_refused_in_one_line(tmp_path: Path, make: object, expecte
     [
         (("camera_matrix", {"rows": 3, "cols": 3, "data": [1, 2]}), "'camera_matrix'"),
         (("distortion_model", "kb4"), "distortion model 'kb4'"),
-        (("projection_matrix", {"rows": 3, "cols": 4, "data": [float("nan")] * 12}), "'projection_matrix'"),
+        (
+            ("projection_matrix", {"rows": 3, "cols": 4, "data": [float("nan")] * 12}),
+            "'projection_matrix'",
+        ),
         (("image_width", -3), "is not a size"),
     ],
 )
-def test_bad_camera_info_yaml_values(tmp_path: Path, change: tuple[str, object], expected: str) -> None:
+def test_bad_camera_info_yaml_values(
+    tmp_path: Path, change: tuple[str, object], expected: str
+) -> None:
     left, right = write_camera_info_yaml(raw_calibration(CAMERA, "plumb_bob"), tmp_path)
     data = yaml.safe_load(right.read_text())
     data[change[0]] = change[1]
@@ -170,5 +184,5 @@ def test_bad_camera_info_yaml_values(tmp_path: Path, change: tuple[str, object],
 
 def test_left_and_right_files_swapped_are_refused(tmp_path: Path) -> None:
     left, right = write_camera_info_yaml(raw_calibration(CAMERA, "plumb_bob"), tmp_path)
-    with pytest.raises(CalibrationError, match="pass LEFT.yaml first"):
+    with pytest.raises(CalibrationError, match=r"pass LEFT\.yaml first"):
         load_calibration([right, left])
