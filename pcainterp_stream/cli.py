@@ -87,6 +87,30 @@ def _add_topic_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_input_pair_options(parser: argparse.ArgumentParser) -> None:
+    """Add evaluate's options naming the input pair and its rectification (as densify's)."""
+    group = parser.add_argument_group(
+        "the input stereo pair, as densify read it (default: found in the log)"
+    )
+    for side in ("left", "right"):
+        group.add_argument(f"--{side}-topic", default=None, metavar="TOPIC")
+        group.add_argument(f"--{side}-info-topic", default=None, metavar="TOPIC")
+    group.add_argument(
+        "--rectify",
+        choices=["auto", "always", "never"],
+        default="auto",
+        help="rectify raw input images as densify did (default: auto, as densify decides)",
+    )
+    group.add_argument(
+        "--calibration",
+        type=Path,
+        nargs="+",
+        default=None,
+        metavar="YAML",
+        help="the calibration files densify was given, for logs without CameraInfo",
+    )
+
+
 def _add_stereo_options(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("stereo front end (GFTT corners, SGBM lookups)")
     group.add_argument("--corners", type=int, default=None, metavar="N", help="max GFTT corners")
@@ -406,6 +430,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="PREFIX",
         help="prefix of the densified topics (default: %(default)s)",
     )
+    _add_input_pair_options(evaluate)
 
     info = commands.add_parser(
         "info",
@@ -507,18 +532,20 @@ def _pairing_config(args: argparse.Namespace, features_topic: str | None = None)
             f"--left-topic and --right-topic are both {left_topic}; a stereo pair needs the "
             "images of two cameras: pass the right camera's topic as --right-topic"
         )
-    if not 0 <= args.stamp_tolerance_ms < float("inf"):
-        raise PcaInterpError(f"--stamp-tolerance-ms must be >= 0, got {args.stamp_tolerance_ms}")
-    if args.baseline is not None and not 0 < args.baseline < float("inf"):
-        raise PcaInterpError(f"--baseline must be a finite number > 0 m, got {args.baseline}")
+    tolerance_ms = getattr(args, "stamp_tolerance_ms", 1.0)  # evaluate has neither
+    baseline = getattr(args, "baseline", None)
+    if not 0 <= tolerance_ms < float("inf"):
+        raise PcaInterpError(f"--stamp-tolerance-ms must be >= 0, got {tolerance_ms}")
+    if baseline is not None and not 0 < baseline < float("inf"):
+        raise PcaInterpError(f"--baseline must be a finite number > 0 m, got {baseline}")
     return PairingConfig(
         left_topic=left_topic,
         right_topic=right_topic,
         left_info_topic=args.left_info_topic or defaults.left_info_topic,
         right_info_topic=args.right_info_topic or defaults.right_info_topic,
         features_topic=features_topic,
-        tolerance_ns=round(args.stamp_tolerance_ms * 1e6),
-        baseline=args.baseline,
+        tolerance_ns=round(tolerance_ms * 1e6),
+        baseline=baseline,
         rectify=args.rectify,
         calibration=calibration,
         discover=discover,
@@ -852,6 +879,7 @@ def run(args: argparse.Namespace) -> int:
             basis_rows=not args.no_basis,
             reference_topic=args.reference_topic,
             reference_kind=args.reference_kind,
+            pairing=_pairing_config(args),
         )
         _echo(table)
         _echo(f"wrote {folder}/results.md, results.json and figures")

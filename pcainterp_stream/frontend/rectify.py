@@ -320,20 +320,21 @@ class StereoRectifier:
     def rectify(
         self, left: npt.NDArray[np.generic], right: npt.NDArray[np.generic]
     ) -> tuple[npt.NDArray[np.generic], npt.NDArray[np.generic]]:
-        """Return the rectified (left, right) images (bilinear, zero outside the raw image)."""
-        self.check_size(left.shape, "left")
-        self.check_size(right.shape, "right")
-        out: list[npt.NDArray[np.generic]] = []
-        for image, (map_x, map_y) in zip((left, right), self._maps, strict=True):
-            remapped = cv2.remap(
-                np.asarray(image, dtype=image.dtype),
-                map_x,
-                map_y,
-                cv2.INTER_CUBIC,
-                borderMode=cv2.BORDER_CONSTANT,
-            )
-            out.append(np.asarray(remapped))
-        return out[0], out[1]
+        """Return the rectified (left, right) images (bicubic, zero outside the raw image)."""
+        return self.rectify_one(left, "left"), self.rectify_one(right, "right")
+
+    def rectify_one(self, image: npt.NDArray[np.generic], side: str) -> npt.NDArray[np.generic]:
+        """Return one rectified image of the pair (``side``: ``left`` or ``right``)."""
+        self.check_size(image.shape, side)
+        map_x, map_y = self._maps[0 if side == "left" else 1]
+        remapped = cv2.remap(
+            np.asarray(image, dtype=image.dtype),
+            map_x,
+            map_y,
+            cv2.INTER_CUBIC,
+            borderMode=cv2.BORDER_CONSTANT,
+        )
+        return np.asarray(remapped)
 
     def rotate_points(self, points: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
         """Move (n, 3) points from the raw left camera's frame into the rectified one."""

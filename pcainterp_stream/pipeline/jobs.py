@@ -113,6 +113,7 @@ def evaluate(
     basis_rows: bool = True,
     reference_topic: str | None = None,
     reference_kind: str = "auto",
+    pairing: PairingConfig | None = None,
 ) -> tuple[Path, str]:
     """Evaluate a densified log into a report folder (``pcainterp evaluate``).
 
@@ -130,6 +131,8 @@ def evaluate(
         basis_rows: False skips the rows that re-densify with a basis.
         reference_topic: score against this ground-truth image topic of the log.
         reference_kind: ``auto``, ``depth`` or ``disparity`` (what the topic holds).
+        pairing: the input pair's topics and rectification (raw images are rectified as
+            densify did); None: the synthetic logs' topics.
 
     Returns:
         The report folder and the summary table text.
@@ -162,6 +165,7 @@ def evaluate(
         max_frames=max_frames,
         reference_topic=reference_topic,
         reference_kind=ReferenceKind(reference_kind),
+        pairing=pairing,
     )
     with _bar(None, f"evaluate {input_path.name}") as bar:
         result = write_report(
