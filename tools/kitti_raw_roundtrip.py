@@ -26,10 +26,12 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from pcainterp_stream.frontend.rectify import CameraCalibration, StereoCalibration, StereoRectifier
 from pcainterp_stream.io.calibration import kitti_calibration
 from pcainterp_stream.io.kitti import import_kitti, iter_frames, open_kitti
 from pcainterp_stream.io.logwriter import open_writer
 from pcainterp_stream.io.raw_log import Unrectifier, raw_stereo_messages
+from pcainterp_stream.records import StereoCamera
 
 
 def calibration_file(folder: Path) -> Path:
@@ -110,6 +112,118 @@ def check(folder: Path, raw_log: Path, max_frames: int | None) -> dict[str, floa
     return figures
 
 
+def _fitted_lens(lens: StereoCalibration, camera: StereoCamera) -> StereoCalibration:
+    """Return ``lens`` with K moved and scaled until its valid box is ``camera``'s image."""
+    zoom = camera.fx / lens.left.p[0, 0]
+    scale = np.array([1.0, 1.0])  # focal length factors x, y
+    shift = np.array([0.0, 0.0])  # principal point offsets (px)
+    calibration = _scaled_lens(lens, camera, zoom)
+    for _ in range(12):
+        x, y, w, h = StereoRectifier(calibration).box
+        if abs(x) + abs(y) + abs(w - camera.width) + abs(h - camera.height) <= 3:
+            break
+        scale *= np.array([w / camera.width, h / camera.height])
+        # the box sits off centre by this much (rectified px): move the raw principal point
+        # the other way, in raw px
+        off = np.array([x + (w - camera.width) / 2, y + (h - camera.height) / 2])
+        ratio = calibration.left.k[0, 0] / camera.fx
+        shift -= off * ratio
+        calibration = _scaled_lens(lens, camera, zoom, scale, shift)
+    return calibration
+
+
+def _scaled_lens(
+    lens: StereoCalibration,
+    camera: StereoCamera,
+    zoom: float,
+    narrow: npt.NDArray[np.float64] | None = None,
+    shift: npt.NDArray[np.float64] | None = None,
+) -> StereoCalibration:
+    """Return ``lens`` scaled by ``zoom`` into ``camera`` (K's focal lengths by ``narrow``
+    more, its principal point moved by ``shift``)."""
+    narrow = np.ones(2) if narrow is None else narrow
+    shift = np.zeros(2) if shift is None else shift
+    cams = []
+    for cal, p in ((lens.left, camera.projection_left()), (lens.right, camera.projection_right())):
+        k = cal.k.copy()
+        k[0, 0] *= zoom * narrow[0]
+        k[1, 1] *= zoom * narrow[1]
+        k[0, 2] = (cal.k[0, 2] - cal.p[0, 2]) * zoom + p[0, 2] - shift[0]
+        k[1, 2] = (cal.k[1, 2] - cal.p[1, 2]) * zoom + p[1, 2] - shift[1]
+        size = (round(cal.width * zoom), round(cal.height * zoom))
+        cams.append(CameraCalibration(*size, cal.model, k, cal.d, cal.r, p, name=cal.name))
+    return StereoCalibration(cams[0], cams[1])
+
+
+def lidar_check(annotated: Path, calib_cam_to_cam: Path, tmp: Path) -> dict[str, float]:
+    """The bar against real LiDAR truth, on KITTI's depth-annotated colour frames.
+
+    The rectified colour pair (``image_2``/``image_3``, P2/P3 of ``calib.txt``) is written as a
+    rectified log and, through the raw lens of cameras 02/03 of ``calib_cam_to_cam`` (K, D,
+    R_rect at S's size, with the sequence's own P), as a raw log; both are densified with no
+    options and scored against ``image_depth_annotated`` (depth = value / 256 m).
+    """
+    import cv2
+
+    from pcainterp_stream.io.stereo_log import stereo_messages
+
+    values: dict[str, npt.NDArray[np.float64]] = {}
+    for line in (annotated / "calib.txt").read_text().splitlines():
+        key, _, text = line.partition(":")
+        values[key.strip()] = np.array([float(v) for v in text.split()])
+    p2, p3 = values["P2"].reshape(3, 4), values["P3"].reshape(3, 4)
+    names = sorted(p.name for p in (annotated / "image_2").glob("*.png"))
+    lefts = [cv2.imread(str(annotated / "image_2" / n), cv2.IMREAD_GRAYSCALE) for n in names]
+    rights = [cv2.imread(str(annotated / "image_3" / n), cv2.IMREAD_GRAYSCALE) for n in names]
+    height, width = lefts[0].shape
+    fx = float(p2[0, 0])
+    camera = StereoCamera(
+        width,
+        height,
+        fx,
+        float(p2[1, 1]),
+        float(p2[0, 2]),
+        float(p2[1, 2]),
+        float((p2[0, 3] - p3[0, 3]) / fx),
+    )
+    # The drive's lens (its distortion and rectifying rotations), with K fitted so that the
+    # view both raw cameras share is this sequence's rectified image, as KITTI cut its
+    # rectified images from that view: the raw images then hold what the rectified ones show.
+    lens = kitti_calibration(calib_cam_to_cam, "02", "03")
+    calibration = _fitted_lens(lens, camera)
+    unrectify = Unrectifier(calibration)
+    rect_log, raw_log = tmp / "annotated_rect.mcap", tmp / "annotated_raw.mcap"
+    with open_writer(rect_log, None) as rect_writer, open_writer(raw_log, None) as raw_writer:
+        for i, (left, right) in enumerate(zip(lefts, rights, strict=True)):
+            stamp = 1_000_000_000 + i * 100_000_000
+            for topic, message in stereo_messages(stamp, left, right, camera):
+                rect_writer.add_message(topic, message, stamp)
+            raw_left, raw_right = unrectify(left, right)
+            for topic, message in raw_stereo_messages(stamp, raw_left, raw_right, calibration):
+                raw_writer.add_message(topic, message, stamp)
+    errors: dict[str, list[npt.NDArray[np.float64]]] = {"rect": [], "raw": []}
+    rect_maps, raw_maps = _maps(rect_log), _maps(raw_log)
+    for name, rect, raw in zip(names, rect_maps, raw_maps, strict=True):
+        png = cv2.imread(str(annotated / "image_depth_annotated" / name), cv2.IMREAD_UNCHANGED)
+        depth = png.astype(np.float64) / 256.0
+        with np.errstate(divide="ignore"):
+            truth = np.where(depth > 0, camera.focal_baseline / depth, np.nan)
+        raw_part = raw[:height, :width]
+        ok = np.isfinite(truth) & np.isfinite(rect) & np.isfinite(raw_part)
+        errors["rect"].append(np.abs(rect - truth)[ok])
+        errors["raw"].append(np.abs(raw_part - truth)[ok])
+    figures = {
+        "lidar_frames": float(len(names)),
+        "lidar_pixels": float(sum(e.size for e in errors["rect"])),
+        "lidar_error_rectified_px": float(np.mean(np.concatenate(errors["rect"]))),
+        "lidar_error_raw_px": float(np.mean(np.concatenate(errors["raw"]))),
+    }
+    figures["lidar_error_ratio"] = (
+        figures["lidar_error_raw_px"] / figures["lidar_error_rectified_px"]
+    )
+    return figures
+
+
 def main(argv: list[str] | None = None) -> int:
     """Write the raw log (and with --check compare the two runs); return the exit code."""
     parser = argparse.ArgumentParser(
@@ -123,11 +237,25 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--max-frames", type=int, default=None, metavar="N")
     parser.add_argument("--check", action="store_true", help="densify both logs and compare")
+    parser.add_argument(
+        "--lidar",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="also the bar against real LiDAR truth: a KITTI depth-annotated sequence folder "
+        "(image_2, image_3, image_depth_annotated, calib.txt), recorded raw through the lens "
+        "of cameras 02/03 of KITTI_DIR's calib_cam_to_cam.txt",
+    )
     args = parser.parse_args(argv)
     frames = write_raw_log(args.kitti_dir, args.out, args.max_frames)
     print(f"wrote {args.out}: {frames} raw pairs")
     if args.check:
         figures = check(args.kitti_dir, args.out, args.max_frames)
+        for key, value in figures.items():
+            print(f"{key}: {value:.4g}")
+    if args.lidar is not None:
+        with tempfile.TemporaryDirectory() as tmp:
+            figures = lidar_check(args.lidar, calibration_file(args.kitti_dir), Path(tmp))
         for key, value in figures.items():
             print(f"{key}: {value:.4g}")
     return 0
