@@ -230,6 +230,10 @@ def test_kitti_recorded_raw_gives_the_rectified_drives_result(tmp_path: Path) ->
     figures = tool.check(drive, raw_log, 5)
     assert figures["map_difference_px"] < 1.0
     assert abs(figures["error_ratio"] - 1) < 0.05
+    annotated = KITTI.parent.parent / "kitti_depth_annotated_07"
+    if annotated.is_dir():  # the bar against real LiDAR truth (three frames)
+        lidar = tool.lidar_check(annotated, KITTI / "calib_cam_to_cam.txt", tmp_path)
+        assert lidar["lidar_error_ratio"] < 1.15
 
 
 def test_evaluate_rectifies_the_input_pair_as_densify_did(

@@ -28,7 +28,7 @@ import numpy.typing as npt
 
 from pcainterp_stream.frontend.rectify import CameraCalibration, StereoCalibration, StereoRectifier
 from pcainterp_stream.io.calibration import kitti_calibration
-from pcainterp_stream.io.kitti import import_kitti, iter_frames, open_kitti
+from pcainterp_stream.io.kitti import import_kitti, iter_frames, open_kitti, read_grey
 from pcainterp_stream.io.logwriter import open_writer
 from pcainterp_stream.io.raw_log import Unrectifier, raw_stereo_messages
 from pcainterp_stream.records import StereoCamera
@@ -139,8 +139,10 @@ def _scaled_lens(
     narrow: npt.NDArray[np.float64] | None = None,
     shift: npt.NDArray[np.float64] | None = None,
 ) -> StereoCalibration:
-    """Return ``lens`` scaled by ``zoom`` into ``camera`` (K's focal lengths by ``narrow``
-    more, its principal point moved by ``shift``)."""
+    """Return ``lens`` scaled by ``zoom`` into ``camera``.
+
+    K's focal lengths are scaled by ``narrow`` more, its principal point moved by ``shift``.
+    """
     narrow = np.ones(2) if narrow is None else narrow
     shift = np.zeros(2) if shift is None else shift
     cams = []
@@ -173,8 +175,8 @@ def lidar_check(annotated: Path, calib_cam_to_cam: Path, tmp: Path) -> dict[str,
         values[key.strip()] = np.array([float(v) for v in text.split()])
     p2, p3 = values["P2"].reshape(3, 4), values["P3"].reshape(3, 4)
     names = sorted(p.name for p in (annotated / "image_2").glob("*.png"))
-    lefts = [cv2.imread(str(annotated / "image_2" / n), cv2.IMREAD_GRAYSCALE) for n in names]
-    rights = [cv2.imread(str(annotated / "image_3" / n), cv2.IMREAD_GRAYSCALE) for n in names]
+    lefts = [read_grey(annotated / "image_2" / n) for n in names]
+    rights = [read_grey(annotated / "image_3" / n) for n in names]
     height, width = lefts[0].shape
     fx = float(p2[0, 0])
     camera = StereoCamera(
@@ -205,7 +207,9 @@ def lidar_check(annotated: Path, calib_cam_to_cam: Path, tmp: Path) -> dict[str,
     rect_maps, raw_maps = _maps(rect_log), _maps(raw_log)
     for name, rect, raw in zip(names, rect_maps, raw_maps, strict=True):
         png = cv2.imread(str(annotated / "image_depth_annotated" / name), cv2.IMREAD_UNCHANGED)
-        depth = png.astype(np.float64) / 256.0
+        if png is None:
+            raise SystemExit(f"error: cannot read {annotated / 'image_depth_annotated' / name}")
+        depth = np.asarray(png, dtype=np.float64) / 256.0
         with np.errstate(divide="ignore"):
             truth = np.where(depth > 0, camera.focal_baseline / depth, np.nan)
         raw_part = raw[:height, :width]
