@@ -18,10 +18,15 @@ from types import FrameType
 from typing import TYPE_CHECKING, Any, Literal
 
 from pcainterp_stream.pipeline.densify_cli import add_densify_arguments, live_options, run_densify
+from pcainterp_stream.pipeline.pair_options import (
+    add_input_pair_options,
+    add_topic_options,
+    learn_pairing,
+    pairing_config,
+)
 from pcainterp_stream.version import __version__
 
 if TYPE_CHECKING:
-    from pcainterp_stream.frontend.pairing import PairingConfig
     from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig
     from pcainterp_stream.io.logwriter import WriteSummary
     from pcainterp_stream.io.outputs import OutputTopics
@@ -33,82 +38,6 @@ PROG = "pcainterp"
 
 def _formatter(prog: str) -> argparse.HelpFormatter:
     return argparse.RawDescriptionHelpFormatter(prog, max_help_position=32)
-
-
-def _add_topic_options(parser: argparse.ArgumentParser) -> None:
-    group = parser.add_argument_group(
-        "topics and calibration (default: the stereo pair found in the log, printed)"
-    )
-    group.add_argument("--left-topic", default=None, metavar="TOPIC", help="left image topic")
-    group.add_argument("--right-topic", default=None, metavar="TOPIC", help="right image topic")
-    group.add_argument(
-        "--left-info-topic",
-        default=None,
-        metavar="TOPIC",
-        help="left CameraInfo (default: the left image's sibling camera_info)",
-    )
-    group.add_argument(
-        "--right-info-topic",
-        default=None,
-        metavar="TOPIC",
-        help="right CameraInfo (default: the right image's sibling camera_info)",
-    )
-    group.add_argument(
-        "--rectify",
-        choices=["auto", "always", "never"],
-        default="auto",
-        help="auto (default): remap raw images from their CameraInfo (D, R, P) as image_proc "
-        "does, and use images named image_rect or with D = 0, R = I, K = P as they are; "
-        "the decision is printed; always: remap from the calibration in any case; never: use "
-        "the images as recorded and skip the check that the pair is rectified",
-    )
-    group.add_argument(
-        "--calibration",
-        type=Path,
-        nargs="+",
-        default=None,
-        metavar="YAML",
-        help="for logs without CameraInfo: LEFT.yaml RIGHT.yaml (camera_info_manager or "
-        "EuRoC sensor.yaml) or one Kalibr camchain.yaml",
-    )
-    group.add_argument(
-        "--baseline",
-        type=float,
-        default=None,
-        metavar="M",
-        help="stereo baseline (m) when the right camera info has none",
-    )
-    group.add_argument(
-        "--stamp-tolerance-ms",
-        type=float,
-        default=1.0,
-        metavar="MS",
-        help="left/right header stamps closer than this form a pair (default: %(default)s)",
-    )
-
-
-def _add_input_pair_options(parser: argparse.ArgumentParser) -> None:
-    """Add evaluate's options naming the input pair and its rectification (as densify's)."""
-    group = parser.add_argument_group(
-        "the input stereo pair, as densify read it (default: found in the log)"
-    )
-    for side in ("left", "right"):
-        group.add_argument(f"--{side}-topic", default=None, metavar="TOPIC")
-        group.add_argument(f"--{side}-info-topic", default=None, metavar="TOPIC")
-    group.add_argument(
-        "--rectify",
-        choices=["auto", "always", "never"],
-        default="auto",
-        help="rectify raw input images as densify did (default: auto, as densify decides)",
-    )
-    group.add_argument(
-        "--calibration",
-        type=Path,
-        nargs="+",
-        default=None,
-        metavar="YAML",
-        help="the calibration files densify was given, for logs without CameraInfo",
-    )
 
 
 def _add_stereo_options(parser: argparse.ArgumentParser) -> None:
@@ -312,7 +241,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="fit on these logs instead of a held-out share",
     )
     _add_cluster_options(learn)
-    _add_topic_options(learn)
+    add_topic_options(learn)
     _add_stereo_options(learn)
 
     densify = commands.add_parser(
@@ -336,7 +265,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_densify_arguments(densify)
     _add_cluster_options(densify)
-    _add_topic_options(densify)
+    add_topic_options(densify)
     _add_stereo_options(densify)
 
     evaluate = commands.add_parser(
@@ -430,7 +359,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="PREFIX",
         help="prefix of the densified topics (default: %(default)s)",
     )
-    _add_input_pair_options(evaluate)
+    add_input_pair_options(evaluate)
 
     info = commands.add_parser(
         "info",
@@ -512,63 +441,6 @@ def _gftt_config(args: argparse.Namespace) -> GfttConfig:
             raise PcaInterpError(f"--min-distance must be >= 0 px, got {args.min_distance}")
         changes["min_distance"] = args.min_distance
     return dataclasses.replace(GfttConfig(), **changes)
-
-
-def _pairing_config(args: argparse.Namespace, features_topic: str | None = None) -> PairingConfig:
-    from pcainterp_stream.frontend.pairing import PairingConfig
-
-    calibration, named = None, None
-    if args.calibration is not None:
-        from pcainterp_stream.io.calibration import load_calibration
-
-        calibration, named = load_calibration(list(args.calibration))
-    flags = (args.left_topic, args.right_topic, args.left_info_topic, args.right_info_topic)
-    discover = all(flag is None for flag in flags) and named is None
-    defaults = PairingConfig()
-    left_topic = args.left_topic or (named[0] if named else defaults.left_topic)
-    right_topic = args.right_topic or (named[1] if named else defaults.right_topic)
-    if left_topic == right_topic:
-        raise PcaInterpError(
-            f"--left-topic and --right-topic are both {left_topic}; a stereo pair needs the "
-            "images of two cameras: pass the right camera's topic as --right-topic"
-        )
-    tolerance_ms = getattr(args, "stamp_tolerance_ms", 1.0)  # evaluate has neither
-    baseline = getattr(args, "baseline", None)
-    if not 0 <= tolerance_ms < float("inf"):
-        raise PcaInterpError(f"--stamp-tolerance-ms must be >= 0, got {tolerance_ms}")
-    if baseline is not None and not 0 < baseline < float("inf"):
-        raise PcaInterpError(f"--baseline must be a finite number > 0 m, got {baseline}")
-    return PairingConfig(
-        left_topic=left_topic,
-        right_topic=right_topic,
-        left_info_topic=args.left_info_topic or defaults.left_info_topic,
-        right_info_topic=args.right_info_topic or defaults.right_info_topic,
-        features_topic=features_topic,
-        tolerance_ns=round(tolerance_ms * 1e6),
-        baseline=baseline,
-        rectify=args.rectify,
-        calibration=calibration,
-        discover=discover,
-        check_rows=args.rectify != "never",
-    )
-
-
-def _learn_pairing(args: argparse.Namespace) -> PairingConfig:
-    """Return learn's pairing: the topics found in its first log (all logs share them)."""
-    from pcainterp_stream.errors import TopicNotFoundError
-    from pcainterp_stream.frontend.discovery import resolve_pairing
-    from pcainterp_stream.io.logreader import open_log
-    from pcainterp_stream.pipeline.common import _echo
-
-    pairing = _pairing_config(args)
-    if args.logs and (pairing.discover or args.depth_topic is not None):
-        with open_log(args.logs[0]) as reader:
-            try:
-                pairing = resolve_pairing(reader, pairing, _echo)
-            except TopicNotFoundError:
-                if args.depth_topic is None:
-                    raise  # a depth topic needs only the camera infos: the defaults may do
-    return pairing
 
 
 def _sigma_option(value: str) -> float | str:
@@ -662,7 +534,7 @@ def _densify_many(args: argparse.Namespace, processor: ProcessorConfig) -> int:
             args.out_dir.resolve(),
             args.basis.resolve() if args.basis is not None else None,
             client,
-            pairing=_pairing_config(args, args.features_topic),
+            pairing=pairing_config(args, args.features_topic),
             processor=processor,
             topics=_output_topics(args),
         )
@@ -701,7 +573,7 @@ def run(args: argparse.Namespace) -> int:
 
     command = args.command
     if command == "synth" and args.raw is not None:
-        from pcainterp_stream.synth.raw import synth_raw
+        from pcainterp_stream.pipeline.jobs import synth_raw
 
         if args.lidar:
             raise PcaInterpError("--lidar is not written with --raw; drop one of them")
@@ -765,7 +637,7 @@ def run(args: argparse.Namespace) -> int:
             fit_logs=tuple(args.fit_logs),
             with_synthetic=with_synthetic,
         )
-        pairing = _learn_pairing(args)
+        pairing = learn_pairing(args)
         if args.workers is not None and args.workers < 1:
             raise PcaInterpError(f"--workers must be at least 1, got {args.workers}")
         if args.fit_prior and on_cluster and not args.fit_logs:
@@ -857,7 +729,7 @@ def run(args: argparse.Namespace) -> int:
         return run_densify(
             args,
             processor=processor,
-            pairing=_pairing_config(args, args.features_topic),
+            pairing=pairing_config(args, args.features_topic),
             topics=_output_topics(args),
             live=live,
         )
@@ -879,7 +751,7 @@ def run(args: argparse.Namespace) -> int:
             basis_rows=not args.no_basis,
             reference_topic=args.reference_topic,
             reference_kind=args.reference_kind,
-            pairing=_pairing_config(args),
+            pairing=pairing_config(args),
         )
         _echo(table)
         _echo(f"wrote {folder}/results.md, results.json and figures")

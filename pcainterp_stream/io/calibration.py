@@ -28,7 +28,7 @@ import numpy.typing as npt
 import yaml
 
 from pcainterp_stream.errors import CalibrationError
-from pcainterp_stream.frontend.rectify import CameraCalibration, StereoCalibration
+from pcainterp_stream.io.camera_model import CameraCalibration, StereoCalibration
 
 _FISHEYE = ("equidistant", "fisheye", "kannala_brandt")
 

@@ -18,9 +18,9 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.frontend.rectify import StereoCalibration, unrectify_maps
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.calibration import camera_info_message
+from pcainterp_stream.io.camera_model import StereoCalibration, unrectify_maps
 
 LEFT_IMAGE = "/camera/left/image_raw"
 RIGHT_IMAGE = "/camera/right/image_raw"

@@ -84,6 +84,28 @@ def synth(
         )
 
 
+def synth_raw(
+    out: Path, *, frames: int, seed: int, scale: float, fmt: str | None, model: str
+) -> WriteSummary:
+    """Render a synthetic drive recorded raw, as a driver does (``pcainterp synth --raw``)."""
+    from pcainterp_stream.synth import SynthConfig
+    from pcainterp_stream.synth.raw import write_raw_log
+
+    if frames < 1:
+        raise PcaInterpError(f"--frames must be at least 1, got {frames}")
+    if not 0.05 <= scale <= 4.0:  # also refuses nan
+        raise PcaInterpError(f"--scale must be in [0.05, 4], got {scale}")
+    config = SynthConfig(seed=seed, frames=frames, scale=scale)
+    with _bar(frames, f"synth --raw {out.name}") as bar:
+        return write_raw_log(
+            config,
+            out,
+            model=model,
+            format=fmt,
+            progress=lambda done, total: bar.update(done - bar.n),
+        )
+
+
 def import_kitti(folder: Path, out: Path, *, max_frames: int | None) -> WriteSummary:
     """Convert a KITTI folder into an MCAP log (``pcainterp import-kitti``)."""
     from pcainterp_stream.io.kitti import import_kitti as convert

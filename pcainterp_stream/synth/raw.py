@@ -22,8 +22,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
-from pcainterp_stream.frontend.rectify import CameraCalibration, StereoCalibration, unrectify_maps
 from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.camera_model import CameraCalibration, StereoCalibration, unrectify_maps
 from pcainterp_stream.io.logwriter import LogFormat, ProgressCallback, WriteSummary, open_writer
 from pcainterp_stream.io.raw_log import LEFT_FRAME, raw_stereo_messages
 from pcainterp_stream.io.stereo_log import DEPTH, pose_message
@@ -186,35 +186,3 @@ def write_raw_log(
             if progress is not None:
                 progress(done, config.frames)
     return writer.summary()
-
-
-def synth_raw(
-    out: os.PathLike[str] | str,
-    *,
-    frames: int,
-    seed: int,
-    scale: float,
-    fmt: str | None,
-    model: str,
-) -> WriteSummary:
-    """Render a raw synthetic drive and write it (``pcainterp synth --raw``), with a progress bar.
-
-    Raises:
-        PcaInterpError: a bad option.
-    """
-    from pcainterp_stream.errors import PcaInterpError
-    from pcainterp_stream.pipeline.common import _bar
-
-    if frames < 1:
-        raise PcaInterpError(f"--frames must be at least 1, got {frames}")
-    if not 0.05 <= scale <= 4.0:  # also refuses nan
-        raise PcaInterpError(f"--scale must be in [0.05, 4], got {scale}")
-    config = SynthConfig(seed=seed, frames=frames, scale=scale)
-    with _bar(frames, f"synth --raw {os.path.basename(out)}") as bar:
-        return write_raw_log(
-            config,
-            out,
-            model=model,
-            format=fmt,
-            progress=lambda done, total: bar.update(done - bar.n),
-        )
