@@ -546,9 +546,26 @@ class StereoPairer:
             held = self._rect_infos
             if held is not None and held[0] is self._left_info and held[1] is self._right_info:
                 return self._rectifier
-            calibration = rect.stereo_from_infos(
-                self._left_info, self._right_info, config.left_info_topic, config.right_info_topic
-            )
+            try:
+                calibration = rect.stereo_from_infos(
+                    self._left_info,
+                    self._right_info,
+                    config.left_info_topic,
+                    config.right_info_topic,
+                )
+            except CalibrationError:
+                names = (config.left_topic, config.right_topic)
+                if config.rectify == "always" or not all(map(is_rectified_name, names)):
+                    raise
+                # rectified streams whose infos carry no usable raw calibration (size 0, an
+                # unknown model): P alone is what they need
+                self._say(
+                    f"rectify auto: {config.left_topic} and {config.right_topic} are named "
+                    "rectified: used as they are, with P of their camera infos"
+                )
+                self._rect_infos = (self._left_info, self._right_info)
+                self._rectifier = None
+                return None
             source = f"{config.left_info_topic} and {config.right_info_topic}"
         rectifier: rect.StereoRectifier | None = None
         if config.rectify == "auto" and config.calibration is None:

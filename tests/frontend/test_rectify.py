@@ -224,3 +224,31 @@ def test_guard_refuses_swapped_cameras() -> None:
     ok = _pairer()
     for i in range(6):
         assert len(_push_pair(ok, 1000 + i, left, right, calibration)) == 1
+
+
+def test_rectified_streams_need_no_raw_calibration() -> None:
+    """image_rect topics whose infos have no usable K, D (size 0, unknown model) use P."""
+    from pcainterp_stream.io import rosmsg
+
+    config = PairingConfig(
+        left_topic="/cam/left/image_rect",
+        right_topic="/cam/right/image_rect",
+        left_info_topic="/cam/left/camera_info",
+        right_info_topic="/cam/right/camera_info",
+    )
+    said: list[str] = []
+    pairer = StereoPairer(config, echo=said.append)
+    left, right = _stereo_views()
+    frames = []
+    for topic, right_side in (("/cam/left/camera_info", False), ("/cam/right/camera_info", True)):
+        info = rosmsg.camera_info_message(CAMERA, 1000, "c", right=right_side)
+        info.width = info.height = 0
+        info.distortion_model = "unknown_model"
+        frames += pairer.push(topic, 1000, 1000, info)
+    for topic, image in (("/cam/left/image_rect", left), ("/cam/right/image_rect", right)):
+        frames += pairer.push(
+            topic, 1000, 1000, rosmsg.image_message(image, 1000, "c", encoding="mono8")
+        )
+    assert len(frames) == 1
+    assert frames[0].camera.fx == CAMERA.fx
+    assert said[0].startswith("rectify auto: /cam/left/image_rect and /cam/right/image_rect")
