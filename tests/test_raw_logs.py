@@ -254,3 +254,37 @@ def test_evaluate_rectifies_the_input_pair_as_densify_did(
         sgbm[rectify] = results["stereo_baselines"]["sgbm"]["mean"]["delta_2d_mean"]
     # SGBM of the raw pair, scored in the rectified frame, is far off: evaluate rectified it
     assert sgbm["auto"] < 0.5 * sgbm["never"]
+
+
+def test_compressed_raw_images_are_found_and_rectified(
+    capsys: pytest.CaptureFixture[str], raw_bag: Path, tmp_path: Path
+) -> None:
+    """``/camera/left/image_raw/compressed`` (png) with ``/camera/left/camera_info``."""
+    import cv2
+
+    compressed = tmp_path / "compressed.mcap"
+    with open_log(raw_bag) as reader, open_writer(compressed, None) as writer:
+        for raw in reader.messages():
+            if not raw.topic.endswith("image_raw"):
+                writer.add_raw(raw)
+                continue
+            message = reader.decode(raw)
+            ok, png = cv2.imencode(".png", rosmsg.image_array(message))
+            assert ok
+            stamp = rosmsg.stamp_ns(message)
+            writer.add_message(
+                raw.topic + "/compressed",
+                rosmsg.compressed_image_message(png.tobytes(), "png", stamp, "cam"),
+                raw.log_time_ns,
+            )
+    maps: dict[str, list[np.ndarray]] = {"raw": [], "compressed": []}
+    for name, log in (("raw", raw_bag), ("compressed", compressed)):
+        densify(
+            log,
+            tmp_path / f"{name}_dense.mcap",
+            pairing=PairingConfig(discover=True),
+            on_frame=lambda r, n=name: maps[n].append(r.disparity),
+        )
+    assert len(maps["compressed"]) == 3
+    for a, b in zip(maps["raw"], maps["compressed"], strict=True):
+        np.testing.assert_array_equal(a, b)
