@@ -23,6 +23,9 @@ from pcainterp_stream.frontend.pairing import PairingConfig, is_rectified_name
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.reader_base import LogReader, TopicInfo
 
+DEFAULT_LEFT_IMAGE = PairingConfig.left_topic
+DEFAULT_RIGHT_IMAGE = PairingConfig.right_topic
+_DEFAULT_IMAGES = (DEFAULT_LEFT_IMAGE, DEFAULT_RIGHT_IMAGE)
 DEFAULT_LEFT_INFO = PairingConfig.left_info_topic
 DEFAULT_RIGHT_INFO = PairingConfig.right_info_topic
 _IMAGE_TYPES = (rosmsg.IMAGE, rosmsg.COMPRESSED_IMAGE)
@@ -185,9 +188,10 @@ def resolve_pairing(
 ) -> PairingConfig:
     """Return ``config`` with the topics of the log's stereo pair when none were named.
 
-    With ``config.discover`` unset, the named topics are kept; only info topics left at
-    their defaults become the image topics' sibling ``camera_info`` when the log has those
-    and not the defaults.
+    With ``config.discover`` set, an image topic other than the default one (one side named
+    on the command line) keeps only the pairs with it. With ``config.discover`` unset, the
+    named topics are kept; only info topics left at their defaults become the image topics'
+    sibling ``camera_info`` when the log has those and not the defaults.
 
     Raises:
         TopicNotFoundError: no pair, or two equally good pairs (listing them and the options).
@@ -210,7 +214,15 @@ def resolve_pairing(
             right_info_topic=siblings.get("right_info_topic", config.right_info_topic),
         )
     need_info = config.calibration is None
+    named = [t for t in (config.left_topic, config.right_topic) if t not in _DEFAULT_IMAGES]
     pairs = find_pairs(topics, need_info=need_info, tx_of=_first_tx(reader))
+    # a topic other than the default was named: only the pairs with it
+    if config.left_topic != DEFAULT_LEFT_IMAGE:
+        pairs = [p for p in pairs if p.left.topic == config.left_topic]
+    if config.right_topic != DEFAULT_RIGHT_IMAGE:
+        pairs = [p for p in pairs if p.right.topic == config.right_topic]
+    if named and not pairs:  # the named topic is missing, of another type, or has no partner
+        return resolve_pairing(reader, dataclasses.replace(config, discover=False), echo)
     name = str(reader.path)
     if not pairs and (reader.damage or all(info.message_count == 0 for info in topics.values())):
         return dataclasses.replace(config, discover=False)  # the defaults: reported as damaged

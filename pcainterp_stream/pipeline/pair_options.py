@@ -111,7 +111,12 @@ def pairing_config(args: argparse.Namespace, features_topic: str | None = None) 
 
         calibration, named = load_calibration(list(args.calibration))
     flags = (args.left_topic, args.right_topic, args.left_info_topic, args.right_info_topic)
-    discover = all(flag is None for flag in flags) and named is None
+    # one image topic named: the other side comes from the pair found in the log
+    one_side = (args.left_topic is None) != (args.right_topic is None)
+    infos_named = args.left_info_topic is not None or args.right_info_topic is not None
+    discover = named is None and (
+        all(flag is None for flag in flags) or (one_side and not infos_named)
+    )
     defaults = PairingConfig()
     left_topic = args.left_topic or (named[0] if named else defaults.left_topic)
     right_topic = args.right_topic or (named[1] if named else defaults.right_topic)

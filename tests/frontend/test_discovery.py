@@ -116,3 +116,18 @@ def test_resolve_prints_one_line_and_named_topics_win() -> None:
     named = PairingConfig(left_topic="/cam/left/image_raw", right_topic="/cam/right/image_raw")
     config = resolve_pairing(_Reader(topics), named)  # type: ignore[arg-type]
     assert config.left_info_topic == "/cam/left/camera_info"  # the sibling, not the default
+
+
+def test_one_named_side_takes_the_other_from_its_pair() -> None:
+    topics = _topics(
+        *_camera("/front/left", "image_raw"),
+        *_camera("/front/right", "image_raw"),
+        *_camera("/rear/left", "image_raw"),
+        *_camera("/rear/right", "image_raw"),
+    )
+    config = PairingConfig(discover=True, left_topic="/rear/left/image_raw")
+    config = resolve_pairing(_Reader(topics), config)  # type: ignore[arg-type]
+    assert (config.right_topic, config.left_info_topic) == (
+        "/rear/right/image_raw",
+        "/rear/left/camera_info",
+    )
