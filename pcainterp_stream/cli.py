@@ -712,7 +712,12 @@ def run(args: argparse.Namespace) -> int:
                 "drop --features-topic (a feature stream is sparse)"
             )
         dense = args.measurements == "dense"
+        # --basis builtin: the built-in basis as it is (checked, never replaced)
+        builtin = args.basis is not None and str(args.basis) == "builtin"
+        if builtin:
+            args.basis = None
         processor = ProcessorConfig(
+            adapt="check" if builtin else "auto",
             gftt=_gftt_config(args),
             # dense mode outputs the SGBM map itself where it is valid: full resolution
             sgbm=_sgbm_config(args, None if dense else ProcessorConfig().sgbm),

@@ -42,11 +42,13 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream import defaults
-from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate import adapt
+from pcainterp_stream.estimate.basis import Basis, is_default
 from pcainterp_stream.estimate.dense import DenseModel, fuse_dense
 from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
 from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
 from pcainterp_stream.frontend.motion import CarriedPoints, CarryConfig, Motion, estimate_motion
+from pcainterp_stream.pipeline.adaptation import AdaptFrame, Adaptation
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     SgbmConfig,
@@ -108,6 +110,13 @@ class ProcessorConfig:
         keep_freed_memory: tune glibc's malloc (process-wide, for the rest of the process)
             so the many full-size temporaries per frame reuse freed heap memory instead of
             page-faulting fresh ``mmap`` regions: ~15 % less CPU per frame end to end.
+        adapt: the fit check and self-supervised adaptation (stereo source, sparse
+            measurements): ``"auto"`` checks the basis on the first frames against linear
+            interpolation on held-out SGBM pixels and, when the basis is the built-in one
+            and a basis learned from the log's own SGBM maps does better (or the built-in
+            one loses to linear interpolation), switches to that basis and keeps learning
+            it as frames come; ``"check"`` only checks and reports; ``"off"``.
+        warmup_frames: frames of the check (and of the first self-supervised basis).
     """
 
     gftt: GfttConfig = field(default_factory=GfttConfig)
@@ -138,8 +147,14 @@ class ProcessorConfig:
     blas_threads: int | None = 1
     worker_niceness: int = 0
     keep_freed_memory: bool = True
+    adapt: str = "auto"
+    warmup_frames: int = 8
 
     def __post_init__(self) -> None:
+        if self.adapt not in ("auto", "check", "off"):
+            raise ValueError(f'Expected adapt "auto", "check" or "off", got {self.adapt!r}')
+        if self.warmup_frames < 1:
+            raise ValueError(f"warmup_frames must be >= 1, got {self.warmup_frames}")
         if self.measurements not in ("sparse", "dense"):
             raise ValueError(
                 f'Expected measurements "sparse" or "dense", got {self.measurements!r}'
@@ -247,6 +262,8 @@ class _Measured(NamedTuple):
     counts: dict[str, int]
     motion: Motion | None = None  # from the previous frame (carried points only)
     disparity_map: npt.NDArray[np.float32] | None = None  # SGBM's (dense mode only)
+    sgbm_map: npt.NDArray[np.float32] | None = None  # SGBM's, NaN = invalid (fit check)
+    grid_map: npt.NDArray[np.float32] | None = None  # preprocessed for the log's own basis
 
 
 def features_to_measurements(
@@ -380,6 +397,14 @@ class FrameProcessor:
         )
         self.carried = CarriedPoints(self.config.carry) if self.config.carry.frames else None
         self._previous_frame: StereoFrame | None = None
+        checkable = stereo and not self.dense
+        self.adaptation = Adaptation(
+            mode=self.config.adapt if checkable else "off",
+            may_replace=is_default(basis),
+            warmup_frames=self.config.warmup_frames,
+            robust=self.config.robust,
+            calibrate=self.config.calibrate,
+        )
 
     def __enter__(self) -> FrameProcessor:
         return self
@@ -408,6 +433,7 @@ class FrameProcessor:
         previous: StereoFrame | None = None,
     ) -> _Measured:
         disparity_map = None
+        sgbm_map = grid = None
         if self.config.source is MeasurementSource.FEATURES:
             pixels, disparities, counts = features_to_measurements(features, frame.camera)
         else:
@@ -416,6 +442,11 @@ class FrameProcessor:
             counts = dict(measurements.counts)
             if self.dense:
                 disparity_map = measurements.disparity_map
+            if self.adaptation.wants_maps():
+                sgbm_map = np.where(
+                    measurements.disparity_map > 0, measurements.disparity_map, np.nan
+                ).astype(np.float32)
+                grid = adapt.grid_map(sgbm_map, frame.camera.image_size)
         motion = None
         if previous is not None and previous.camera == frame.camera:
             # visual odometry beside SGBM in the worker: needs only this frame's points
@@ -427,7 +458,9 @@ class FrameProcessor:
                 frame.camera,
                 config=self.config.carry,
             )
-        return _Measured(frame, pixels, disparities, counts, motion, disparity_map)
+        return _Measured(
+            frame, pixels, disparities, counts, motion, disparity_map, sgbm_map, grid
+        )
 
     def submit(
         self, frame: StereoFrame, features: SparseFeatures | None = None
@@ -438,6 +471,10 @@ class FrameProcessor:
         self._pending.append(self._executor.submit(self._measure, frame, features, previous))
         while len(self._pending) > self.config.lookahead:
             self._ready.append(self._pending.popleft().result())
+        if self.adaptation.warming:
+            if len(self._ready) < self.adaptation.warmup_frames:
+                return []
+            self._warm_up()
         if len(self._ready) >= self.config.batch_size:
             return self._densify_ready()
         return []
@@ -446,7 +483,25 @@ class FrameProcessor:
         """Finish every queued frame and return them in stream order."""
         while self._pending:
             self._ready.append(self._pending.popleft().result())
+        if self.adaptation.warming and self._ready:
+            self._warm_up()
         return self._densify_ready()
+
+    def _warm_up(self) -> None:
+        """Check the basis on the held-back frames; switch to the log's own when it wins."""
+        frames = [_adapt_frame(item) for item in self._ready]
+        own = self.adaptation.warm_up(self.basis, frames, self.settings.densify_options())
+        # the warm-up maps are in the log's basis now (or not wanted): not added again
+        self._ready = [item._replace(sgbm_map=None, grid_map=None) for item in self._ready]
+        if own is not None:
+            self._use(own)
+
+    def _use(self, basis: Basis) -> None:
+        """Densify from now on with ``basis`` (its fitted prior; the temporal prior restarts)."""
+        self.basis = basis
+        self.settings = resolve_settings(basis, self.config)
+        if self.temporal is not None:
+            self.temporal = TemporalPrior(process_noise=self.settings.process_noise)
 
     def process(
         self, frames: Iterable[StereoFrame | tuple[StereoFrame, SparseFeatures | None]]
@@ -463,6 +518,10 @@ class FrameProcessor:
         ready, self._ready = self._ready, []
         if not ready:
             return []
+        if self.adaptation.adapted:
+            relearned = self.adaptation.update([_adapt_frame(item) for item in ready])
+            if relearned is not None:
+                self._use(relearned)
         results: list[DensifiedFrame] = []
         # Frames of one camera are densified together; a camera change splits the batch.
         start = 0
@@ -526,6 +585,18 @@ class FrameProcessor:
             counts=counts,
             min_disparity=estimate.min_disparity,
         )
+
+
+def _adapt_frame(item: _Measured) -> AdaptFrame:
+    camera = item.frame.camera
+    return AdaptFrame(
+        item.pixels,
+        item.disparities,
+        item.sgbm_map,
+        item.grid_map,
+        camera.image_size,
+        camera.focal_baseline,
+    )
 
 
 @functools.lru_cache(maxsize=4)
