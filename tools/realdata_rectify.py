@@ -18,10 +18,10 @@ import argparse
 import re
 import sys
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
-import numpy.typing as npt
 
 from pcainterp_stream.io.logwriter import open_writer
 from pcainterp_stream.io.stereo_log import stereo_messages
@@ -31,7 +31,7 @@ FRAME_NS = 50_000_000
 """Stamp step between the pairs (20 Hz)."""
 
 
-def read_sensor(path: Path) -> dict[str, object]:
+def read_sensor(path: Path) -> dict[str, Any]:
     """Return K, D, model, T_BS and size of one EuRoC ``sensor*.yaml``."""
     text = path.read_text()
     block = re.search(r"T_BS:.*?data:\s*\[([^\]]*)\]", text, re.DOTALL)
@@ -57,19 +57,25 @@ def read_sensor(path: Path) -> dict[str, object]:
     }
 
 
-def rectifier(
-    left: dict[str, object], right: dict[str, object]
-) -> tuple[list[tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]], StereoCamera]:
+def rectifier(left: dict[str, Any], right: dict[str, Any]) -> tuple[list[Any], StereoCamera]:
     """Return the remap tables of both cameras and the rectified stereo camera."""
-    relative = np.linalg.inv(right["T_BS"]) @ left["T_BS"]  # type: ignore[operator]
+    relative = np.linalg.inv(right["T_BS"]) @ left["T_BS"]
     rotation = np.ascontiguousarray(relative[:3, :3])
     translation = np.ascontiguousarray(relative[:3, 3]).reshape(3, 1)
     size = left["size"]
     k1, d1, k2, d2 = left["K"], left["D"], right["K"], right["D"]
     if left["model"] == "equidistant":
         r1, r2, p1, p2, _ = cv2.fisheye.stereoRectify(
-            k1, d1, k2, d2, size, rotation, translation, flags=cv2.CALIB_ZERO_DISPARITY,
-            balance=0.0, fov_scale=1.0,
+            k1,
+            d1,
+            k2,
+            d2,
+            size,
+            rotation,
+            translation,
+            flags=cv2.CALIB_ZERO_DISPARITY,
+            balance=0.0,
+            fov_scale=1.0,
         )
         maps = [
             cv2.fisheye.initUndistortRectifyMap(k, d, r, p, size, cv2.CV_32FC1)
@@ -85,13 +91,19 @@ def rectifier(
         ]
     baseline = float(-p2[0, 3] / p2[0, 0])
     camera = StereoCamera(
-        width=size[0], height=size[1], fx=float(p1[0, 0]), fy=float(p1[1, 1]),
-        cx=float(p1[0, 2]), cy=float(p1[1, 2]), baseline=baseline,
+        width=size[0],
+        height=size[1],
+        fx=float(p1[0, 0]),
+        fy=float(p1[1, 1]),
+        cx=float(p1[0, 2]),
+        cy=float(p1[1, 2]),
+        baseline=baseline,
     )
     return maps, camera
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Rectify the pairs of one folder into a log; return the exit code."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("folder", type=Path, help="euroc_machine_hall or mynteye_fisheye folder")
     parser.add_argument("out", type=Path, help="the rectified log (.mcap)")
@@ -109,8 +121,10 @@ def main(argv: list[str] | None = None) -> int:
             for left_path, right_path in pairs:
                 images = []
                 for path, (map_x, map_y) in zip((left_path, right_path), maps, strict=True):
-                    raw = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-                    images.append(cv2.remap(raw, map_x, map_y, cv2.INTER_LINEAR))
+                    raw: Any = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+                    images.append(
+                        np.asarray(cv2.remap(raw, map_x, map_y, cv2.INTER_LINEAR), np.uint8)
+                    )
                 for topic, message in stereo_messages(stamp, images[0], images[1], camera):
                     writer.add_message(topic, message, stamp)
                 stamp += FRAME_NS

@@ -114,7 +114,7 @@ class FitCheck:
             return cls(0, 0, math.nan, math.nan, math.nan)
 
         def mean(name: str) -> float:
-            return sum(getattr(check, name) * check.pixels for check in used) / total
+            return float(sum(getattr(check, name) * check.pixels for check in used)) / total
 
         return cls(len(used), total, mean("prior"), mean("linear"), mean("nearest"))
 
@@ -299,7 +299,9 @@ def refit_prior(
     used = list(frames[::step])
     size, fb = basis.image_size, basis.focal_baseline
     fit_frames = [
-        fitting.fit_frame(basis, frame.pixels, frame.disparities, image_size=size, focal_baseline=fb)
+        fitting.fit_frame(
+            basis, frame.pixels, frame.disparities, image_size=size, focal_baseline=fb
+        )
         for frame in used
     ]
     if not any(frame.residual.size for frame in fit_frames):
@@ -377,5 +379,7 @@ def leave_one_out(
             robust=robust,
             uncertainty="none",
         )
-        checks.append(check_frame(result.disparity, frame.reference, frame.pixels, frame.disparities))
+        checks.append(
+            check_frame(result.disparity, frame.reference, frame.pixels, frame.disparities)
+        )
     return FitCheck.combine(checks)

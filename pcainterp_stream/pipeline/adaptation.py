@@ -77,7 +77,9 @@ class Adaptation:
         """Return whether the stereo workers should keep each frame's SGBM map."""
         return self.warming or self.adapted
 
-    def warm_up(self, basis: Basis, frames: list[AdaptFrame], settings: dict[str, object]) -> Basis | None:
+    def warm_up(
+        self, basis: Basis, frames: list[AdaptFrame], settings: dict[str, object]
+    ) -> Basis | None:
         """Check ``basis`` on the warm-up frames; return the log's own basis to use, or None.
 
         Args:
@@ -222,4 +224,3 @@ class AdaptFrame:
         """Return the frame as :func:`adapt.refit_prior` and the check take it."""
         assert self.sgbm_map is not None
         return adapt.Measured(self.pixels, self.disparities, self.sgbm_map)
-

@@ -48,13 +48,13 @@ from pcainterp_stream.estimate.dense import DenseModel, fuse_dense
 from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
 from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
 from pcainterp_stream.frontend.motion import CarriedPoints, CarryConfig, Motion, estimate_motion
-from pcainterp_stream.pipeline.adaptation import AdaptFrame, Adaptation
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     SgbmConfig,
     StereoFrontEnd,
     to_grey8,
 )
+from pcainterp_stream.pipeline.adaptation import Adaptation, AdaptFrame
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoCamera, StereoFrame
 
 
@@ -446,7 +446,8 @@ class FrameProcessor:
                 sgbm_map = np.where(
                     measurements.disparity_map > 0, measurements.disparity_map, np.nan
                 ).astype(np.float32)
-                grid = adapt.grid_map(sgbm_map, frame.camera.image_size)
+                if np.isfinite(sgbm_map).any():  # a blank pair has no map to learn from
+                    grid = adapt.grid_map(sgbm_map, frame.camera.image_size)
         motion = None
         if previous is not None and previous.camera == frame.camera:
             # visual odometry beside SGBM in the worker: needs only this frame's points
