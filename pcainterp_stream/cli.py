@@ -155,6 +155,27 @@ def build_parser() -> argparse.ArgumentParser:
         help="also write /ground_truth/lidar_depth: the true depth where a 64-beam scanner "
         "would return (scan lines, ~4 %% of the pixels at any --scale; NaN elsewhere)",
     )
+    synth.add_argument(
+        "--scene",
+        choices=["street", "indoor", "room", "corridor", "hall"],
+        default="street",
+        help="street (default) or indoor: a room, corridor or hall with clutter (indoor picks "
+        "one by --seed), 20 Hz",
+    )
+    synth.add_argument(
+        "--camera",
+        choices=["kitti", "752x480", "640x480", "1280x720", "fisheye-752x480"],
+        default="kitti",
+        help="stereo camera: KITTI's grey pair (default, 1241x376, b 0.54 m), a VI-sensor "
+        "(752x480, b 0.11 m), a depth camera (640x480, b 0.05 m), a wide pair (1280x720, "
+        "b 0.12 m), a rectified fisheye (752x480, wide field of view)",
+    )
+    synth.add_argument(
+        "--platform",
+        choices=["auto", "handheld", "drone", "robot"],
+        default="auto",
+        help="indoor: what carries the camera, its height and pitch (default: by --seed)",
+    )
 
     kitti = commands.add_parser(
         "import-kitti",
@@ -608,6 +629,9 @@ def run(args: argparse.Namespace) -> int:
                 scale=args.scale,
                 fmt=args.format,
                 lidar=args.lidar,
+                scene=args.scene,
+                camera=args.camera,
+                platform=args.platform,
             )
         )
     elif command == "import-kitti":

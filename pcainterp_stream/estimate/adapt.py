@@ -224,7 +224,12 @@ def own_grid_size(image_size: tuple[int, int]) -> tuple[int, int]:
 
 
 def grid_map(disparity_map: npt.ArrayLike, image_size: tuple[int, int]) -> npt.NDArray[np.float32]:
-    """Preprocess one SGBM map for :func:`own_basis` (holes filled, blurred, on the grid)."""
+    """Preprocess one SGBM map for :func:`own_basis` (holes filled, blurred, on the grid).
+
+    Filling SGBM's holes along rows (interpolated, or the farther side at occlusions)
+    instead of by the nearest valid pixel was tried and measured no better (EuRoC held out
+    1.31 against 1.21 px; synthetic indoor against ground truth 1.753 against 1.755 px).
+    """
     return preprocess_disparity(disparity_map, own_grid_size(image_size))
 
 

@@ -59,20 +59,38 @@ __all__ = [
 
 
 def synth(
-    out: Path, *, frames: int, seed: int, scale: float, fmt: str | None, lidar: bool = False
+    out: Path,
+    *,
+    frames: int,
+    seed: int,
+    scale: float,
+    fmt: str | None,
+    lidar: bool = False,
+    scene: str = "street",
+    camera: str = "kitti",
+    platform: str = "auto",
 ) -> WriteSummary:
     """Render a synthetic drive and write it as a log (``pcainterp synth``).
 
-    ``lidar`` also writes the LiDAR-like sparse truth ``/ground_truth/lidar_depth``.
+    ``lidar`` also writes the LiDAR-like sparse truth ``/ground_truth/lidar_depth``;
+    ``scene``, ``camera`` and ``platform`` choose the world (:mod:`~pcainterp_stream.synth.indoor`).
     """
     from pcainterp_stream.synth import LidarConfig, SynthConfig, generate
+    from pcainterp_stream.synth.indoor import camera_options
     from pcainterp_stream.synth.log import write_synthetic_log
 
     if frames < 1:
         raise PcaInterpError(f"--frames must be at least 1, got {frames}")
     if not 0.05 <= scale <= 4.0:  # also refuses nan
         raise PcaInterpError(f"--scale must be in [0.05, 4], got {scale}")
-    config = SynthConfig(seed=seed, frames=frames, scale=scale)
+    config = SynthConfig(
+        seed=seed,
+        frames=frames,
+        scale=scale,
+        scene=scene,
+        platform=platform,
+        **camera_options(camera),  # type: ignore[arg-type]
+    )
     with _bar(frames, f"synth {out.name}") as bar:
         return write_synthetic_log(
             generate(config),

@@ -459,9 +459,7 @@ class FrameProcessor:
                 frame.camera,
                 config=self.config.carry,
             )
-        return _Measured(
-            frame, pixels, disparities, counts, motion, disparity_map, sgbm_map, grid
-        )
+        return _Measured(frame, pixels, disparities, counts, motion, disparity_map, sgbm_map, grid)
 
     def submit(
         self, frame: StereoFrame, features: SparseFeatures | None = None
