@@ -94,13 +94,13 @@ class FitCheck:
         """Return whether the prior beats linear interpolation by the check's standard."""
         return self.frames > 0 and self.ratio < ADAPT_ABOVE
 
-    def describe(self) -> str:
-        """Return "0.41x linear, 0.35x nearest (1.21 px; 3 frames)"."""
+    def describe(self, where: str = "held-out SGBM pixels") -> str:
+        """Return "0.41x linear, 0.35x nearest on held-out SGBM pixels (1.21 px ...)"."""
         if self.frames == 0:
-            return "not checked (no frame had held-out SGBM pixels)"
+            return f"not checked (no frame had {where})"
         nearest = self.prior / self.nearest if self.nearest > 0 else math.inf
         return (
-            f"{self.ratio:.2f}x linear, {nearest:.2f}x nearest on held-out SGBM pixels "
+            f"{self.ratio:.2f}x linear, {nearest:.2f}x nearest on {where} "
             f"({self.prior:.2f} px against {self.linear:.2f} and {self.nearest:.2f}; "
             f"{self.frames} frame{'s' if self.frames != 1 else ''})"
         )
@@ -208,6 +208,58 @@ def check_frame(
     linear, nearest = interpolation_at(pixels, disparities, reference.shape[:2], flat)
     prior = estimate.ravel()[flat].astype(np.float64)
     ok = np.isfinite(prior) & np.isfinite(linear)
+    if not ok.any():
+        return FrameCheck(0, 0.0, 0.0, 0.0)
+    return FrameCheck(
+        int(ok.sum()),
+        float(np.abs(prior[ok] - truth[ok]).mean()),
+        float(np.abs(linear[ok] - truth[ok]).mean()),
+        float(np.abs(nearest[ok] - truth[ok]).mean()),
+    )
+
+
+LEFT_OUT_EVERY = 5
+"""The left-out check (:func:`left_out_split`) holds out every 5th measurement."""
+
+
+def left_out_split(count: int) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """Return (kept, left out) indices of ``count`` measurements: every 5th one left out.
+
+    For logs without a dense stereo map to hold pixels out of (a sparse feature stream):
+    the estimate from the kept points is scored at the left-out ones.
+    """
+    indices = np.arange(count)
+    left_out = indices % LEFT_OUT_EVERY == LEFT_OUT_EVERY - 1
+    return indices[~left_out], indices[left_out]
+
+
+def check_left_out(
+    estimate: npt.NDArray[np.floating[Any]],
+    pixels: npt.NDArray[np.floating[Any]],
+    disparities: npt.NDArray[np.floating[Any]],
+    kept: npt.NDArray[np.intp],
+    left_out: npt.NDArray[np.intp],
+) -> FrameCheck:
+    """Score a map estimated from the ``kept`` measurements at the ``left_out`` ones.
+
+    Args:
+        estimate: (H, W) disparity densified from ``pixels[kept]`` (px).
+        pixels: (k, 2) all measurements (x, y) px.
+        disparities: (k,) their disparities (px).
+        kept: indices the estimate used.
+        left_out: indices it did not see.
+    """
+    height, width = estimate.shape[:2]
+    at = pixels[left_out]
+    cols = np.clip(np.rint(at[:, 0]).astype(np.intp), 0, width - 1)
+    rows = np.clip(np.rint(at[:, 1]).astype(np.intp), 0, height - 1)
+    flat = rows * width + cols
+    if flat.size == 0 or kept.size == 0:
+        return FrameCheck(0, 0.0, 0.0, 0.0)
+    truth = disparities[left_out].astype(np.float64)
+    linear, nearest = interpolation_at(pixels[kept], disparities[kept], (height, width), flat)
+    prior = estimate.ravel()[flat].astype(np.float64)
+    ok = np.isfinite(prior) & np.isfinite(linear) & np.isfinite(truth)
     if not ok.any():
         return FrameCheck(0, 0.0, 0.0, 0.0)
     return FrameCheck(

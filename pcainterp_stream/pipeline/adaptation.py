@@ -89,8 +89,8 @@ class Adaptation:
         """
         self.checked = True
         usable = [f for f in frames if f.sgbm_map is not None and f.grid_map is not None]
-        if not usable:
-            self.lines.append("prior: not checked (no SGBM map on the first frames)")
+        if not usable:  # a feature stream: no dense map to hold pixels out of
+            self._check_left_out(basis, frames, settings)
             return None
         size, fb = usable[0].image_size, usable[0].focal_baseline
         usable = [f for f in usable if f.image_size == size and f.focal_baseline == fb]
@@ -170,6 +170,40 @@ class Adaptation:
             f"{how}); --basis builtin keeps the built-in one"
         )
         return own
+
+    def _check_left_out(
+        self, basis: Basis, frames: list[AdaptFrame], settings: dict[str, object]
+    ) -> None:
+        """Check ``basis`` by leaving every 5th measurement out (logs without SGBM maps)."""
+        checks = []
+        for frame in frames:
+            kept, left_out = adapt.left_out_split(frame.pixels.shape[0])
+            if left_out.size == 0 or kept.size < 3:
+                continue
+            (estimate,) = densify_batch(
+                basis,
+                [frame.pixels[kept]],
+                [frame.disparities[kept]],
+                uncertainty="none",
+                image_size=frame.image_size,
+                focal_baseline=frame.focal_baseline,
+                robust=self.robust,
+                **settings,  # type: ignore[arg-type]
+            )
+            checks.append(
+                adapt.check_left_out(
+                    estimate.disparity, frame.pixels, frame.disparities, kept, left_out
+                )
+            )
+        self.check = adapt.FitCheck.combine(checks)
+        name = "the built-in basis" if self.may_replace else "the basis"
+        self.lines.append(f"prior: {name} {self.check.describe('left-out measurements')}")
+        if self.check.frames and not self.check.fits:
+            self.lines.append(
+                f"warning: the prior is worse than linear interpolation on this log "
+                f"({self.check.ratio:.2f}x); learn a basis for this camera and scene: "
+                "pcainterp learn LOG -o BASIS.npz, then densify --basis BASIS.npz"
+            )
 
     def update(self, frames: list[AdaptFrame]) -> Basis | None:
         """Add the frames' maps to the log's own basis; return a relearned basis, or None.

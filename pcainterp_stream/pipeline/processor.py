@@ -110,12 +110,13 @@ class ProcessorConfig:
         keep_freed_memory: tune glibc's malloc (process-wide, for the rest of the process)
             so the many full-size temporaries per frame reuse freed heap memory instead of
             page-faulting fresh ``mmap`` regions: ~15 % less CPU per frame end to end.
-        adapt: the fit check and self-supervised adaptation (stereo source, sparse
-            measurements): ``"auto"`` checks the basis on the first frames against linear
-            interpolation on held-out SGBM pixels and, when the basis is the built-in one
-            and a basis learned from the log's own SGBM maps does better (or the built-in
-            one loses to linear interpolation), switches to that basis and keeps learning
-            it as frames come; ``"check"`` only checks and reports; ``"off"``.
+        adapt: the fit check and self-supervised adaptation (sparse measurements):
+            ``"auto"`` checks the basis on the first frames against linear interpolation on
+            held-out SGBM pixels and, when the basis is the built-in one and a basis learned
+            from the log's own SGBM maps does better (or the built-in one loses to linear
+            interpolation), switches to that basis and keeps learning it as frames come;
+            ``"check"`` only checks and reports; ``"off"``. A feature stream (no SGBM maps)
+            is checked on left-out measurements (every 5th) and never adapted.
         warmup_frames: frames of the check (and of the first self-supervised basis).
     """
 
@@ -397,9 +398,10 @@ class FrameProcessor:
         )
         self.carried = CarriedPoints(self.config.carry) if self.config.carry.frames else None
         self._previous_frame: StereoFrame | None = None
-        checkable = stereo and not self.dense
+        # a feature stream has no SGBM maps: checked by left-out points, never adapted
+        mode = self.config.adapt if not self.dense else "off"
         self.adaptation = Adaptation(
-            mode=self.config.adapt if checkable else "off",
+            mode="check" if mode == "auto" and not stereo else mode,
             may_replace=is_default(basis),
             warmup_frames=self.config.warmup_frames,
             robust=self.config.robust,
