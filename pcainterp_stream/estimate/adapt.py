@@ -65,6 +65,9 @@ SINGLE_MAP_VARIANCE = 1e-3
 FIT_FRAMES = 8
 """Most frames the prior is refitted on."""
 
+PROCESS_NOISE = 0.1
+"""The temporal prior's process noise when it cannot be fitted (frames not consecutive)."""
+
 
 @dataclass(frozen=True)
 class FitCheck:
@@ -366,6 +369,11 @@ def refit_prior(
     local_fit = fitting.fit_local_prior(basis, fit_frames)
     prior: dict[str, Any] = local_fit.to_meta()
     prior["source"] = "self-supervised"
+    prior["process_noise"] = PROCESS_NOISE
+    if len(fit_frames) >= 2 and step == 1:  # consecutive frames: the temporal prior too
+        prior["process_noise"], _ = fitting.fit_process_noise(
+            basis, [fit_frames], local=local_fit.local, sigma=local_fit.sigma
+        )
     if calibrate:
         estimates, stds, references = [], [], []
         for frame in used:

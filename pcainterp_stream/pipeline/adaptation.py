@@ -87,7 +87,17 @@ class Adaptation:
             frames: the held-back frames (those with an SGBM map count).
             settings: the estimate's keyword options (sigma, local prior, std scale...).
         """
-        self.checked = True
+        # ``checked`` turns True only once the decision is made (``adapted`` set first): the
+        # stereo workers measuring ahead keep every map until then (:meth:`wants_maps`),
+        # whatever the timing, so the maps a relearned basis sees never depend on it
+        try:
+            return self._decide(basis, frames, settings)
+        finally:
+            self.checked = True
+
+    def _decide(
+        self, basis: Basis, frames: list[AdaptFrame], settings: dict[str, object]
+    ) -> Basis | None:
         usable = [f for f in frames if f.sgbm_map is not None and f.grid_map is not None]
         if not usable:  # a feature stream: no dense map to hold pixels out of
             self._check_left_out(basis, frames, settings)

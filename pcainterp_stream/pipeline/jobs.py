@@ -309,7 +309,14 @@ def describe_basis(path: Path | None = None) -> str:
     else:
         lines.append("  fitted prior     none (the paper's model; learn fits one by default)")
     if path is None:
+        lines.append(
+            "  learned from     synthetic streets only: a forward-looking camera at car height "
+            "(densify checks it on the first frames of every log and learns one from the log's "
+            "own stereo when it does not fit)"
+        )
         lines += _recipe_lines()
+    elif isinstance(meta.get("source"), str):
+        lines.append(f"  learned from     {meta['source']}")
     return "\n".join(lines)
 
 

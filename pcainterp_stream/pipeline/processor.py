@@ -519,10 +519,24 @@ class FrameProcessor:
         ready, self._ready = self._ready, []
         if not ready:
             return []
-        if self.adaptation.adapted:
-            relearned = self.adaptation.update([_adapt_frame(item) for item in ready])
+        if not self.adaptation.adapted:
+            return self._densify(ready)
+        # the log's own basis: a frame whose map completes a relearning is densified with the
+        # basis of the frames before it, the next frames with the relearned one, so what a
+        # frame gets never depends on how frames were batched
+        results: list[DensifiedFrame] = []
+        start = 0
+        for index, item in enumerate(ready):
+            relearned = self.adaptation.update([_adapt_frame(item)])
             if relearned is not None:
+                results += self._densify(ready[start : index + 1])
+                start = index + 1
                 self._use(relearned)
+        return results + self._densify(ready[start:])
+
+    def _densify(self, ready: list[_Measured]) -> list[DensifiedFrame]:
+        if not ready:
+            return []
         results: list[DensifiedFrame] = []
         # Frames of one camera are densified together; a camera change splits the batch.
         start = 0

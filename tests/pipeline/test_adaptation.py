@@ -15,6 +15,9 @@ from pcainterp_stream.frontend.stereo import StereoFrontEnd
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.pipeline.densify import densify, own_basis_path
 from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
+from pcainterp_stream.records import StereoFrame
+from pcainterp_stream.synth import SynthConfig, generate
+from pcainterp_stream.synth.indoor import camera_options
 
 ROOT = Path(__file__).resolve().parents[2]
 REALDATA = ROOT.parent / "shared" / "realdata"
@@ -84,3 +87,30 @@ def test_fisheye_pair_adapts_and_the_basis_is_written_beside_the_output(tmp_path
     adapted, _ = _errors(log, ProcessorConfig())
     assert adapted.prior < adapted.linear
     assert adapted.prior <= 0.5 * adapted.nearest
+
+
+def _indoor_frames(frames: int) -> list[StereoFrame]:
+    config = SynthConfig(
+        seed=4, frames=frames, scale=0.25, scene="indoor", **camera_options("752x480")
+    )
+    return [
+        StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
+        for f in generate(config)
+    ]
+
+
+def test_the_log_basis_keeps_learning_and_never_depends_on_thread_timing() -> None:
+    frames = _indoor_frames(10)
+    outputs = []
+    for workers, lookahead in ((1, 0), (2, 4), (2, 4)):
+        config = ProcessorConfig(warmup_frames=2, stereo_workers=workers, lookahead=lookahead)
+        with FrameProcessor(None, config) as engine:
+            results = list(engine.process(frames))
+            assert engine.adaptation.adapted
+            assert engine.adaptation.updates >= 1  # relearned as the maps doubled
+            assert engine.basis.n_train > 2
+            assert engine.adaptation.final_line(engine.basis) is not None
+        outputs.append(np.stack([result.disparity for result in results]))
+    # the same maps and decisions whatever the threads and the look-ahead
+    np.testing.assert_array_equal(outputs[0], outputs[1])
+    np.testing.assert_array_equal(outputs[1], outputs[2])
