@@ -126,8 +126,9 @@ def build_parser() -> argparse.ArgumentParser:
     synth = commands.add_parser(
         "synth",
         formatter_class=_formatter,
-        help="write a synthetic KITTI-like stereo driving log with ground truth",
-        description="Render a procedural street world and write a stereo log with ground truth.",
+        help="write a synthetic stereo log with ground truth (a street drive or indoors)",
+        description="Render a procedural street world (or an indoor scene, --scene) and write "
+        "a stereo log with ground truth.",
         epilog=(
             "examples:\n"
             "  pcainterp synth drive.mcap                       # 100 frames at KITTI size\n"
@@ -135,6 +136,7 @@ def build_parser() -> argparse.ArgumentParser:
             "  pcainterp synth drive_bag --format rosbag2 --seed 3\n"
             "  pcainterp synth drive.bag --format ros1\n"
             "  pcainterp synth lidar.mcap --frames 10 --scale 0.5 --lidar  # + sparse LiDAR truth\n"
+            "  pcainterp synth room.mcap --scene indoor --camera 752x480 --frames 50  # indoor\n"
         ),
     )
     synth.add_argument("out", type=Path, metavar="OUT", help="output log path")
