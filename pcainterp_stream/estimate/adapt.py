@@ -39,6 +39,7 @@ from pcainterp_stream.estimate import fitting
 from pcainterp_stream.estimate.basis import Basis, grid_size_for
 from pcainterp_stream.estimate.estimator import clean_measurements, densify
 from pcainterp_stream.estimate.learning import learn_basis, preprocess_disparity
+from pcainterp_stream.estimate.prior import LocalPrior
 
 HELDOUT_SAMPLES = 20_000
 """Held-out SGBM pixels scored per checked frame (evenly spaced over the valid ones)."""
@@ -64,6 +65,9 @@ SINGLE_MAP_VARIANCE = 1e-3
 
 FIT_FRAMES = 8
 """Most frames the prior is refitted on."""
+
+FIT_POINTS = 200
+"""Measurements per frame the evidence fit uses (the first ones)."""
 
 PROCESS_NOISE = 0.1
 """The temporal prior's process noise when it cannot be fitted (frames not consecutive)."""
@@ -346,31 +350,50 @@ class Measured:
 
 
 def refit_prior(
-    basis: Basis, frames: Sequence[Measured], *, robust: str, calibrate: bool = True
+    basis: Basis,
+    frames: Sequence[Measured],
+    *,
+    robust: str,
+    calibrate: bool = True,
+    keep: Basis | None = None,
 ) -> Basis:
     """Return ``basis`` with its prior fitted on ``frames`` (``meta["prior"]``).
 
     The local kernel and sigma by the evidence of the frames' measurements
     (:func:`fitting.fit_local_prior`); with ``calibrate``, the std scale that makes the
     posterior std match the error against the frames' SGBM maps (:func:`fitting.fit_std_scale`).
-    Uses at most :data:`FIT_FRAMES` frames, evenly spaced.
+    Uses at most :data:`FIT_FRAMES` frames, evenly spaced, and the first
+    :data:`FIT_POINTS` measurements of each (the evidence's k x k Cholesky per candidate
+    dominates: 14 s per fit on 8 full frames of a 752x480 log, measured). With ``keep``
+    (the basis this one relearns), its kernel is kept and only sigma refitted, and its
+    process noise kept: the cost of a streaming update stays small.
     """
     step = max(1, math.ceil(len(frames) / FIT_FRAMES))
     used = list(frames[::step])
     size, fb = basis.image_size, basis.focal_baseline
     fit_frames = [
         fitting.fit_frame(
-            basis, frame.pixels, frame.disparities, image_size=size, focal_baseline=fb
+            basis,
+            frame.pixels,
+            frame.disparities,
+            image_size=size,
+            focal_baseline=fb,
+            max_points=FIT_POINTS,
         )
         for frame in used
     ]
     if not any(frame.residual.size for frame in fit_frames):
         return basis
-    local_fit = fitting.fit_local_prior(basis, fit_frames)
+    kept = keep.meta.get("prior", {}) if keep is not None else {}
+    fixed = LocalPrior.from_meta(kept["local"]) if kept.get("local") else None
+    if fixed is not None:
+        local_fit = fitting.fit_local_prior(basis, fit_frames, fixed=fixed)
+    else:
+        local_fit = fitting.fit_local_prior(basis, fit_frames)
     prior: dict[str, Any] = local_fit.to_meta()
     prior["source"] = "self-supervised"
-    prior["process_noise"] = PROCESS_NOISE
-    if len(fit_frames) >= 2 and step == 1:  # consecutive frames: the temporal prior too
+    prior["process_noise"] = float(kept.get("process_noise", PROCESS_NOISE))
+    if keep is None and len(fit_frames) >= 2 and step == 1:  # consecutive: temporal prior too
         prior["process_noise"], _ = fitting.fit_process_noise(
             basis, [fit_frames], local=local_fit.local, sigma=local_fit.sigma
         )
@@ -425,8 +448,6 @@ def leave_one_out(
     """
     if len(grid_maps) < 2:
         return None
-    from pcainterp_stream.estimate.prior import LocalPrior
-
     local = LocalPrior.from_meta(prior["local"]) if prior.get("local") else None
     sigma = float(prior.get("sigma" if local is not None else "plain_sigma", 2.0))
     chosen = np.unique(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round())

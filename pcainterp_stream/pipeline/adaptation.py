@@ -176,7 +176,8 @@ class Adaptation:
         )
         self.lines.append(
             f"adapted: the built-in basis does not fit this camera or scene; learned one from "
-            f"this log's own SGBM maps ({len(maps)} frames, {own.n_components} components; "
+            f"this log's own SGBM maps ({_count(len(maps), 'frame')}, "
+            f"{_count(own.n_components, 'component')}; "
             f"{how}); --basis builtin keeps the built-in one"
         )
         return own
@@ -215,10 +216,11 @@ class Adaptation:
                 "pcainterp learn LOG -o BASIS.npz, then densify --basis BASIS.npz"
             )
 
-    def update(self, frames: list[AdaptFrame]) -> Basis | None:
+    def update(self, frames: list[AdaptFrame], current: Basis | None = None) -> Basis | None:
         """Add the frames' maps to the log's own basis; return a relearned basis, or None.
 
-        Relearned (and its prior refitted) each time the number of maps seen doubles.
+        Relearned each time the number of maps seen doubles; its prior refitted, keeping
+        the kernel and process noise of ``current`` (the basis in use) when given.
         """
         if not self.adapted or self._camera is None:
             return None
@@ -241,6 +243,7 @@ class Adaptation:
             self._recent,
             robust=self.robust,
             calibrate=self.calibrate,
+            keep=current,
         )
 
     def final_line(self, basis: Basis) -> str | None:
@@ -248,9 +251,15 @@ class Adaptation:
         if not self.adapted:
             return None
         return (
-            f"adapted basis: {basis.n_train} maps, {basis.n_components} components at the end "
+            f"adapted basis: {_count(basis.n_train, 'map')}, "
+            f"{_count(basis.n_components, 'component')} at the end "
             f"({self.updates} update{'s' if self.updates != 1 else ''} while streaming)"
         )
+
+
+def _count(number: int, noun: str) -> str:
+    """Return "1 frame", "2 frames"."""
+    return f"{number} {noun}{'' if number == 1 else 's'}"
 
 
 @dataclass(frozen=True)

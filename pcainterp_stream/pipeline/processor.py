@@ -527,7 +527,7 @@ class FrameProcessor:
         results: list[DensifiedFrame] = []
         start = 0
         for index, item in enumerate(ready):
-            relearned = self.adaptation.update([_adapt_frame(item)])
+            relearned = self.adaptation.update([_adapt_frame(item)], self.basis)
             if relearned is not None:
                 results += self._densify(ready[start : index + 1])
                 start = index + 1
