@@ -89,7 +89,7 @@ def synth(
         scale=scale,
         scene=scene,
         platform=platform,
-        **camera_options(camera),  # type: ignore[arg-type]
+        **camera_options(camera),
     )
     with _bar(frames, f"synth {out.name}") as bar:
         return write_synthetic_log(

@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -335,7 +336,7 @@ CAMERAS: dict[str, dict[str, float]] = {
 RealSense-like depth camera, a ZED-like wide pair, a rectified fisheye (wide field of view)."""
 
 
-def camera_options(name: str) -> dict[str, float]:
+def camera_options(name: str) -> dict[str, Any]:
     """Return the :class:`~pcainterp_stream.synth.SynthConfig` camera fields of a preset.
 
     Raises:
@@ -343,7 +344,7 @@ def camera_options(name: str) -> dict[str, float]:
     """
     if name not in CAMERAS:
         raise ValueError(f"unknown camera {name!r}; one of {', '.join(CAMERAS)}")
-    preset = dict(CAMERAS[name])
+    preset: dict[str, Any] = dict(CAMERAS[name])
     preset["fy"] = preset["fx"]
     return preset
 
