@@ -44,6 +44,7 @@ class Adaptation:
         lines: what to print in the run's summary.
         check: the given basis's held-out figure, once checked.
         own_check: the log's own basis's held-out (leave-one-out) figure, when tried.
+        first_basis: the log's own basis chosen at the warm-up (the output names it).
     """
 
     mode: str
@@ -56,6 +57,7 @@ class Adaptation:
     lines: list[str] = field(default_factory=list)
     check: adapt.FitCheck | None = None
     own_check: adapt.FitCheck | None = None
+    first_basis: Basis | None = None
     updates: int = 0
     _maps: list[npt.NDArray[np.float32]] = field(default_factory=list)
     _recent: list[adapt.Measured] = field(default_factory=list)
@@ -164,6 +166,7 @@ class Adaptation:
             )
             return None
         self.adapted = True
+        self.first_basis = own
         self._camera = (size, fb)
         self._maps = list(maps)
         self._recent = measured[-adapt.FIT_FRAMES :]

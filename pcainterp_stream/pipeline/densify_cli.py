@@ -358,9 +358,16 @@ def _print_summary(summary: DensifySummary, processor: ProcessorConfig) -> None:
         _echo(line)
     if summary.basis_written is not None:
         _echo(
-            f"wrote {summary.basis_written}: the basis learned from this log "
-            "(densify --basis with it to reuse it)"
+            f"wrote {summary.basis_written}: the basis learned from this log's first frames "
+            "(the output names it; evaluate re-densifies with it)"
         )
+    if summary.final_basis_written is not None:
+        _echo(
+            f"wrote {summary.final_basis_written}: the basis relearned from all of this "
+            "log's maps (densify --basis with it for other logs of this camera)"
+        )
+    elif summary.basis_written is not None:
+        _echo("  (densify --basis with it for other logs of this camera)")
     for line in summary.damage:
         _echo(f"damage: {line}")
     for line in summary.warnings:

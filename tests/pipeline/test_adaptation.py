@@ -84,6 +84,7 @@ def test_fisheye_pair_adapts_and_the_basis_is_written_beside_the_output(tmp_path
     assert any(line.startswith("adapted:") for line in summary.prior_lines)
     assert summary.basis_written == own_basis_path(out)
     assert own_basis_path(out).is_file()
+    assert summary.final_basis_written is None  # one pair: never relearned
     adapted, _ = _errors(log, ProcessorConfig())
     assert adapted.prior < adapted.linear
     assert adapted.prior <= 0.5 * adapted.nearest
