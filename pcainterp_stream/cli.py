@@ -111,8 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
     synth = commands.add_parser(
         "synth",
         formatter_class=_formatter,
-        help="write a synthetic KITTI-like stereo driving log with ground truth",
-        description="Render a procedural street world and write a stereo log with ground truth.",
+        help="write a synthetic stereo log with ground truth (a street drive or indoors)",
+        description="Render a procedural street world (or an indoor scene, --scene) and write "
+        "a stereo log with ground truth.",
         epilog=(
             "examples:\n"
             "  pcainterp synth drive.mcap                       # 100 frames at KITTI size\n"
@@ -121,6 +122,7 @@ def build_parser() -> argparse.ArgumentParser:
             "  pcainterp synth drive.bag --format ros1\n"
             "  pcainterp synth lidar.mcap --frames 10 --scale 0.5 --lidar  # + sparse LiDAR truth\n"
             "  pcainterp synth raw.mcap --frames 10 --scale 0.5 --raw      # as a driver records\n"
+            "  pcainterp synth room.mcap --scene indoor --camera 752x480 --frames 50  # indoor\n"
         ),
     )
     synth.add_argument("out", type=Path, metavar="OUT", help="output log path")
@@ -151,6 +153,27 @@ def build_parser() -> argparse.ArgumentParser:
         "(default plumb_bob) slightly rotated from the rectified pair, on "
         "/camera/{left,right}/image_raw with their CameraInfo; the truth is the rectified "
         "left camera's",
+    )
+    synth.add_argument(
+        "--scene",
+        choices=["street", "indoor", "room", "corridor", "hall"],
+        default="street",
+        help="street (default) or indoor: a room, corridor or hall with clutter (indoor picks "
+        "one by --seed), 20 Hz",
+    )
+    synth.add_argument(
+        "--camera",
+        choices=["kitti", "752x480", "640x480", "1280x720", "fisheye-752x480"],
+        default="kitti",
+        help="stereo camera: KITTI's grey pair (default, 1241x376, b 0.54 m), a VI-sensor "
+        "(752x480, b 0.11 m), a depth camera (640x480, b 0.05 m), a wide pair (1280x720, "
+        "b 0.12 m), a rectified fisheye (752x480, wide field of view)",
+    )
+    synth.add_argument(
+        "--platform",
+        choices=["auto", "handheld", "drone", "robot"],
+        default="auto",
+        help="indoor: what carries the camera, its height and pitch (default: by --seed)",
     )
 
     kitti = commands.add_parser(
@@ -582,6 +605,11 @@ def run(args: argparse.Namespace) -> int:
 
         if args.lidar:
             raise PcaInterpError("--lidar is not written with --raw; drop one of them")
+        if (args.scene, args.camera, args.platform) != ("street", "kitti", "auto"):
+            raise PcaInterpError(
+                "--raw records the street drive through the KITTI-like camera; "
+                "drop --scene, --camera and --platform, or --raw"
+            )
         _print_written(
             synth_raw(
                 args.out,
@@ -601,6 +629,9 @@ def run(args: argparse.Namespace) -> int:
                 scale=args.scale,
                 fmt=args.format,
                 lidar=args.lidar,
+                scene=args.scene,
+                camera=args.camera,
+                platform=args.platform,
             )
         )
     elif command == "import-kitti":
@@ -706,7 +737,12 @@ def run(args: argparse.Namespace) -> int:
                 "drop --features-topic (a feature stream is sparse)"
             )
         dense = args.measurements == "dense"
+        # --basis builtin: the built-in basis as it is (checked, never replaced)
+        builtin = args.basis is not None and str(args.basis) == "builtin"
+        if builtin:
+            args.basis = None
         processor = ProcessorConfig(
+            adapt="check" if builtin else "auto",
             gftt=_gftt_config(args),
             # dense mode outputs the SGBM map itself where it is valid: full resolution
             sgbm=_sgbm_config(args, None if dense else ProcessorConfig().sgbm),

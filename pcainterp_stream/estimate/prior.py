@@ -349,6 +349,61 @@ def evidence_sigma(signal: FloatArray, innovation: FloatArray) -> float:
     return float(SIGMA_SEARCH[best])
 
 
+SCALE_SEARCH = np.geomspace(1.0 / 64.0, 4096.0, 49)
+"""Candidate covariance scales of :func:`evidence_noise` (x1.41 apart)."""
+
+
+def evidence_noise(
+    signal: FloatArray, innovation: FloatArray, extra_variance: FloatArray | None = None
+) -> tuple[float, float]:
+    """Return (sigma, a) maximising the evidence log N(innovation; 0, a signal + s^2 I + E).
+
+    :func:`evidence_sigma` fits the noise alone. When the prior does not fit the frame
+    (another camera or kind of scene: measurements far outside the range the basis was
+    learned on), the innovation is far larger than the signal covariance says, and the only
+    way the noise-only evidence can explain it is a huge sigma: the estimate then ignores
+    its measurements and returns the prior mean (3-4x worse than nearest-neighbour
+    interpolation on an indoor log with the street basis). Fitting the scale a of the prior
+    too lets the evidence say "the prior is too narrow" instead of "the points are noise".
+
+    The MAP estimate depends on the prior only through the ratio of noise to signal, so the
+    caller solves with the unit prior and the noise (s^2 + E) / a; the posterior variance of
+    that solve is 1/a of the scaled model's (the per-frame covariance scale of
+    :func:`covariance_scale` recovers it, its normalised innovation being ~a).
+
+    Args:
+        signal: (k, k) float64, B~ P B~^T + C_pp (without noise).
+        innovation: (k,) float64, z~ - B~ mu.
+        extra_variance: (k,) known extra noise variance per measurement (carried points);
+            the fit uses the measurements without any (None: all).
+
+    Returns:
+        (s, a): the noise std (px) and the covariance scale, the best pair of
+        :data:`SIGMA_SEARCH` x :data:`SCALE_SEARCH`; (nan, 1) without measurements.
+    """
+    if innovation.size == 0:
+        return float("nan"), 1.0
+    if extra_variance is not None:
+        # fitted on the measurements without extra noise (this frame's own): the carried
+        # ones' known noise breaks the common eigenbasis that makes the search cheap
+        own = extra_variance <= 0
+        if own.sum() >= 3:
+            signal, innovation = signal[np.ix_(own, own)], innovation[own]
+        else:  # all carried: their mean extra noise as a common floor
+            signal = signal + np.diag(np.full(innovation.size, float(extra_variance.mean())))
+    eigenvalues, vectors = np.linalg.eigh(signal)
+    eigenvalues = np.maximum(eigenvalues, 0.0)
+    projected = (vectors.T @ innovation) ** 2
+    best = (-math.inf, float(SIGMA_SEARCH[0]), 1.0)
+    for scale in SCALE_SEARCH:
+        total = scale * eigenvalues[None, :] + SIGMA_SEARCH[:, None] ** 2
+        objective = -0.5 * (projected[None, :] / total + np.log(total)).sum(axis=1)
+        index = int(np.argmax(objective))
+        if objective[index] > best[0]:
+            best = (float(objective[index]), float(SIGMA_SEARCH[index]), float(scale))
+    return best[1], best[2]
+
+
 def robust_weights(standardised: FloatArray, robust: Robust) -> FloatArray:
     """Return IRLS weights (k,) float64 in (0, 1] for standardised residuals."""
     if robust is Robust.NONE:

@@ -20,7 +20,7 @@ from pcainterp_stream.estimate.prior import (
     Model,
     Robust,
     TemporalPrior,
-    evidence_sigma,
+    evidence_noise,
     robust_weights,
 )
 
@@ -266,16 +266,16 @@ def _solve_measurement(
     signal = scaled @ scaled.T  # B~ P B~^T as C C^T (numpy uses syrk: half the flops)
     if local_matrix is not None:
         signal += local_matrix  # + C_pp
+    scale = 1.0
     if model.sigma is not None:
         sigma = model.sigma
-    elif extra_variance is not None:  # fit sigma^2 on top of the known extra noise
-        sigma = evidence_sigma(signal + np.diag(extra_variance), innovation)
-    else:
-        sigma = evidence_sigma(signal, innovation)
+    else:  # sigma and the prior's scale by the evidence (on top of known extra noise)
+        sigma, scale = evidence_noise(signal, innovation, extra_variance)
     if not np.isfinite(sigma):  # no measurements: nothing to fit
-        sigma = DEFAULT_SIGMA
+        sigma, scale = DEFAULT_SIGMA, 1.0
     weights = np.ones(k)
     noise = sigma**2 if extra_variance is None else sigma**2 + extra_variance
+    noise = noise / scale  # the unit prior with the fit's noise-to-signal ratio; sigma is s
     iterations = model.robust_iterations if model.robust is not Robust.NONE else 0
     for iteration in range(iterations + 1):
         system = signal.copy()

@@ -57,6 +57,12 @@ class DensifySummary:
         temporal_resets: frames whose temporal prior failed the innovation test.
         carried: measurements carried over from earlier frames, summed over frames.
         carry_resets: frames where the ego-motion was lost (carrying started over).
+        prior_lines: the fit check of the prior and the self-supervised adaptation, one
+            line each (:mod:`~pcainterp_stream.pipeline.adaptation`).
+        basis_written: where the basis learned from the log's first frames was saved
+            (beside the output; the output channels name it), None when the run did not adapt.
+        final_basis_written: where the basis relearned from all the log's maps was saved,
+            None when it was never relearned.
     """
 
     input: Path
@@ -73,6 +79,9 @@ class DensifySummary:
     temporal_resets: int = 0
     carried: int = 0
     carry_resets: int = 0
+    prior_lines: list[str] = dataclasses.field(default_factory=list)
+    basis_written: Path | None = None
+    final_basis_written: Path | None = None
 
     @property
     def frames_per_second(self) -> float:
@@ -166,6 +175,16 @@ def densify(
 
         def emit(results: list[DensifiedFrame]) -> None:
             nonlocal measurements, frames
+            if results and frames == 0 and engine.adaptation.adapted and writer is not None:
+                # the first outputs follow the warm-up: name the basis learned from the log
+                adapted = channel_metadata(
+                    own_basis_label(output),
+                    engine.adaptation.first_basis.fingerprint
+                    if engine.adaptation.first_basis is not None
+                    else engine.basis.fingerprint,
+                    processor.measurements,
+                )
+                writer.channel_metadata = {topic: adapted for topic in topics.all()}
             for result in map(pairer.full_result, results):
                 messages = output_messages(result, topics)
                 if writer is not None:
@@ -210,6 +229,18 @@ def densify(
         stats = pairer.finish()
         if frames == 0:
             raise LogReadError(_no_pair_message(input_path, pairing, stats, reader.damage))
+        prior_lines = list(engine.adaptation.lines)
+        basis_written = final_written = None
+        final = engine.adaptation.final_line(engine.basis)
+        first = engine.adaptation.first_basis
+        if final is not None and first is not None:
+            prior_lines.append(final)
+            if isinstance(output, Path):
+                basis_written = own_basis_path(output)  # the one the output channels name
+                first.save(basis_written)
+                if engine.basis is not first:  # relearned while streaming
+                    final_written = final_basis_path(output)
+                    engine.basis.save(final_written)
     return DensifySummary(
         input=input_path,
         output=writer.path if writer is not None else None,
@@ -225,7 +256,27 @@ def densify(
         temporal_resets=robust["resets"],
         carried=robust["carried"],
         carry_resets=robust["carry_resets"],
+        prior_lines=prior_lines,
+        basis_written=basis_written,
+        final_basis_written=final_written,
     )
+
+
+def own_basis_path(output: Path) -> Path:
+    """Return where a run that adapted saves its basis: ``OUTPUT.basis.npz`` beside it."""
+    return output.with_name(output.stem + ".basis.npz")
+
+
+def final_basis_path(output: Path) -> Path:
+    """Return where a run that relearned its basis saves the last: ``OUTPUT.final.basis.npz``."""
+    return output.with_name(output.stem + ".final.basis.npz")
+
+
+def own_basis_label(output: Path | IO[bytes] | None) -> str:
+    """Return how the output's channels name a basis learned from the log itself."""
+    if isinstance(output, Path):
+        return own_basis_path(output).name
+    return "self-supervised"
 
 
 def output_types(topics: OutputTopics) -> dict[str, str]:

@@ -87,8 +87,10 @@ def add_densify_arguments(densify: argparse.ArgumentParser) -> None:
         type=Path,
         default=None,
         metavar="BASIS.npz",
-        help="the basis (default: the built-in one, learned from the synthetic world; "
-        "pcainterp info describes it)",
+        help="the basis: a file, or 'builtin' for the built-in one as it is (default: the "
+        "built-in one, checked on the first frames against linear interpolation and replaced "
+        "by a basis learned from the log's own stereo when it does not fit; pcainterp info "
+        "describes it)",
     )
     densify.add_argument("--rerun", action="store_true", help="stream to a Rerun viewer")
     densify.add_argument("--rrd", type=Path, default=None, metavar="FILE", help="write .rrd")
@@ -353,6 +355,20 @@ def _print_summary(summary: DensifySummary, processor: ProcessorConfig) -> None:
             f"{summary.carried / max(summary.frames, 1):.0f} points per frame; "
             f"ego-motion lost {summary.carry_resets} times"
         )
+    for line in summary.prior_lines:
+        _echo(line)
+    if summary.basis_written is not None:
+        _echo(
+            f"wrote {summary.basis_written}: the basis learned from this log's first frames "
+            "(the output names it; evaluate re-densifies with it)"
+        )
+    if summary.final_basis_written is not None:
+        _echo(
+            f"wrote {summary.final_basis_written}: the basis relearned from all of this "
+            "log's maps (densify --basis with it for other logs of this camera)"
+        )
+    elif summary.basis_written is not None:
+        _echo("  (densify --basis with it for other logs of this camera)")
     for line in summary.damage:
         _echo(f"damage: {line}")
     for line in summary.warnings:

@@ -59,20 +59,38 @@ __all__ = [
 
 
 def synth(
-    out: Path, *, frames: int, seed: int, scale: float, fmt: str | None, lidar: bool = False
+    out: Path,
+    *,
+    frames: int,
+    seed: int,
+    scale: float,
+    fmt: str | None,
+    lidar: bool = False,
+    scene: str = "street",
+    camera: str = "kitti",
+    platform: str = "auto",
 ) -> WriteSummary:
     """Render a synthetic drive and write it as a log (``pcainterp synth``).
 
-    ``lidar`` also writes the LiDAR-like sparse truth ``/ground_truth/lidar_depth``.
+    ``lidar`` also writes the LiDAR-like sparse truth ``/ground_truth/lidar_depth``;
+    ``scene``, ``camera`` and ``platform`` choose the world (:mod:`~pcainterp_stream.synth.indoor`).
     """
     from pcainterp_stream.synth import LidarConfig, SynthConfig, generate
+    from pcainterp_stream.synth.indoor import camera_options
     from pcainterp_stream.synth.log import write_synthetic_log
 
     if frames < 1:
         raise PcaInterpError(f"--frames must be at least 1, got {frames}")
     if not 0.05 <= scale <= 4.0:  # also refuses nan
         raise PcaInterpError(f"--scale must be in [0.05, 4], got {scale}")
-    config = SynthConfig(seed=seed, frames=frames, scale=scale)
+    config = SynthConfig(
+        seed=seed,
+        frames=frames,
+        scale=scale,
+        scene=scene,
+        platform=platform,
+        **camera_options(camera),
+    )
     with _bar(frames, f"synth {out.name}") as bar:
         return write_synthetic_log(
             generate(config),
@@ -317,7 +335,14 @@ def describe_basis(path: Path | None = None) -> str:
     else:
         lines.append("  fitted prior     none (the paper's model; learn fits one by default)")
     if path is None:
+        lines.append(
+            "  learned from     synthetic streets only: a forward-looking camera at car height "
+            "(densify checks it on the first frames of every log and learns one from the log's "
+            "own stereo when it does not fit)"
+        )
         lines += _recipe_lines()
+    elif isinstance(meta.get("source"), str):
+        lines.append(f"  learned from     {meta['source']}")
     return "\n".join(lines)
 
 

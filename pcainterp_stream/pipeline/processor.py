@@ -42,7 +42,8 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream import defaults
-from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate import adapt
+from pcainterp_stream.estimate.basis import Basis, is_default
 from pcainterp_stream.estimate.dense import DenseModel, fuse_dense
 from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
 from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
@@ -53,6 +54,7 @@ from pcainterp_stream.frontend.stereo import (
     StereoFrontEnd,
     to_grey8,
 )
+from pcainterp_stream.pipeline.adaptation import Adaptation, AdaptFrame
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoCamera, StereoFrame
 
 
@@ -108,6 +110,14 @@ class ProcessorConfig:
         keep_freed_memory: tune glibc's malloc (process-wide, for the rest of the process)
             so the many full-size temporaries per frame reuse freed heap memory instead of
             page-faulting fresh ``mmap`` regions: ~15 % less CPU per frame end to end.
+        adapt: the fit check and self-supervised adaptation (sparse measurements):
+            ``"auto"`` checks the basis on the first frames against linear interpolation on
+            held-out SGBM pixels and, when the basis is the built-in one and a basis learned
+            from the log's own SGBM maps does better (or the built-in one loses to linear
+            interpolation), switches to that basis and keeps learning it as frames come;
+            ``"check"`` only checks and reports; ``"off"``. A feature stream (no SGBM maps)
+            is checked on left-out measurements (every 5th) and never adapted.
+        warmup_frames: frames of the check (and of the first self-supervised basis).
     """
 
     gftt: GfttConfig = field(default_factory=GfttConfig)
@@ -138,8 +148,14 @@ class ProcessorConfig:
     blas_threads: int | None = 1
     worker_niceness: int = 0
     keep_freed_memory: bool = True
+    adapt: str = "auto"
+    warmup_frames: int = 8
 
     def __post_init__(self) -> None:
+        if self.adapt not in ("auto", "check", "off"):
+            raise ValueError(f'Expected adapt "auto", "check" or "off", got {self.adapt!r}')
+        if self.warmup_frames < 1:
+            raise ValueError(f"warmup_frames must be >= 1, got {self.warmup_frames}")
         if self.measurements not in ("sparse", "dense"):
             raise ValueError(
                 f'Expected measurements "sparse" or "dense", got {self.measurements!r}'
@@ -247,6 +263,8 @@ class _Measured(NamedTuple):
     counts: dict[str, int]
     motion: Motion | None = None  # from the previous frame (carried points only)
     disparity_map: npt.NDArray[np.float32] | None = None  # SGBM's (dense mode only)
+    sgbm_map: npt.NDArray[np.float32] | None = None  # SGBM's, NaN = invalid (fit check)
+    grid_map: npt.NDArray[np.float32] | None = None  # preprocessed for the log's own basis
 
 
 def features_to_measurements(
@@ -380,6 +398,15 @@ class FrameProcessor:
         )
         self.carried = CarriedPoints(self.config.carry) if self.config.carry.frames else None
         self._previous_frame: StereoFrame | None = None
+        # a feature stream has no SGBM maps: checked by left-out points, never adapted
+        mode = self.config.adapt if not self.dense else "off"
+        self.adaptation = Adaptation(
+            mode="check" if mode == "auto" and not stereo else mode,
+            may_replace=is_default(basis),
+            warmup_frames=self.config.warmup_frames,
+            robust=self.config.robust,
+            calibrate=self.config.calibrate,
+        )
 
     def __enter__(self) -> FrameProcessor:
         return self
@@ -408,6 +435,7 @@ class FrameProcessor:
         previous: StereoFrame | None = None,
     ) -> _Measured:
         disparity_map = None
+        sgbm_map = grid = None
         if self.config.source is MeasurementSource.FEATURES:
             pixels, disparities, counts = features_to_measurements(features, frame.camera)
         else:
@@ -416,6 +444,12 @@ class FrameProcessor:
             counts = dict(measurements.counts)
             if self.dense:
                 disparity_map = measurements.disparity_map
+            if self.adaptation.wants_maps():
+                sgbm_map = np.where(
+                    measurements.disparity_map > 0, measurements.disparity_map, np.nan
+                ).astype(np.float32)
+                if np.isfinite(sgbm_map).any():  # a blank pair has no map to learn from
+                    grid = adapt.grid_map(sgbm_map, frame.camera.image_size)
         motion = None
         if previous is not None and previous.camera == frame.camera:
             # visual odometry beside SGBM in the worker: needs only this frame's points
@@ -427,7 +461,7 @@ class FrameProcessor:
                 frame.camera,
                 config=self.config.carry,
             )
-        return _Measured(frame, pixels, disparities, counts, motion, disparity_map)
+        return _Measured(frame, pixels, disparities, counts, motion, disparity_map, sgbm_map, grid)
 
     def submit(
         self, frame: StereoFrame, features: SparseFeatures | None = None
@@ -438,6 +472,10 @@ class FrameProcessor:
         self._pending.append(self._executor.submit(self._measure, frame, features, previous))
         while len(self._pending) > self.config.lookahead:
             self._ready.append(self._pending.popleft().result())
+        if self.adaptation.warming:
+            if len(self._ready) < self.adaptation.warmup_frames:
+                return []
+            self._warm_up()
         if len(self._ready) >= self.config.batch_size:
             return self._densify_ready()
         return []
@@ -446,7 +484,25 @@ class FrameProcessor:
         """Finish every queued frame and return them in stream order."""
         while self._pending:
             self._ready.append(self._pending.popleft().result())
+        if self.adaptation.warming and self._ready:
+            self._warm_up()
         return self._densify_ready()
+
+    def _warm_up(self) -> None:
+        """Check the basis on the held-back frames; switch to the log's own when it wins."""
+        frames = [_adapt_frame(item) for item in self._ready]
+        own = self.adaptation.warm_up(self.basis, frames, self.settings.densify_options())
+        # the warm-up maps are in the log's basis now (or not wanted): not added again
+        self._ready = [item._replace(sgbm_map=None, grid_map=None) for item in self._ready]
+        if own is not None:
+            self._use(own)
+
+    def _use(self, basis: Basis) -> None:
+        """Densify from now on with ``basis`` (its fitted prior; the temporal prior restarts)."""
+        self.basis = basis
+        self.settings = resolve_settings(basis, self.config)
+        if self.temporal is not None:
+            self.temporal = TemporalPrior(process_noise=self.settings.process_noise)
 
     def process(
         self, frames: Iterable[StereoFrame | tuple[StereoFrame, SparseFeatures | None]]
@@ -461,6 +517,24 @@ class FrameProcessor:
 
     def _densify_ready(self) -> list[DensifiedFrame]:
         ready, self._ready = self._ready, []
+        if not ready:
+            return []
+        if not self.adaptation.adapted:
+            return self._densify(ready)
+        # the log's own basis: a frame whose map completes a relearning is densified with the
+        # basis of the frames before it, the next frames with the relearned one, so what a
+        # frame gets never depends on how frames were batched
+        results: list[DensifiedFrame] = []
+        start = 0
+        for index, item in enumerate(ready):
+            relearned = self.adaptation.update([_adapt_frame(item)], self.basis)
+            if relearned is not None:
+                results += self._densify(ready[start : index + 1])
+                start = index + 1
+                self._use(relearned)
+        return results + self._densify(ready[start:])
+
+    def _densify(self, ready: list[_Measured]) -> list[DensifiedFrame]:
         if not ready:
             return []
         results: list[DensifiedFrame] = []
@@ -526,6 +600,18 @@ class FrameProcessor:
             counts=counts,
             min_disparity=estimate.min_disparity,
         )
+
+
+def _adapt_frame(item: _Measured) -> AdaptFrame:
+    camera = item.frame.camera
+    return AdaptFrame(
+        item.pixels,
+        item.disparities,
+        item.sgbm_map,
+        item.grid_map,
+        camera.image_size,
+        camera.focal_baseline,
+    )
 
 
 @functools.lru_cache(maxsize=4)

@@ -74,6 +74,11 @@ class SynthConfig:
         start_time_ns: stamp of frame 0 (ns).
         speed: mean driving speed (m/s).
         noise: sensor noise on (True) or off.
+        scene: ``"street"`` (the street world), ``"indoor"`` (a room, corridor or hall chosen
+            by the seed) or one of ``"room"``, ``"corridor"``, ``"hall"`` (:mod:`.indoor`;
+            20 Hz, the camera carried by ``platform``).
+        platform: indoor only: ``"handheld"``, ``"drone"``, ``"robot"`` or ``"auto"`` (by
+            the seed).
     """
 
     seed: int = 0
@@ -89,8 +94,18 @@ class SynthConfig:
     start_time_ns: int = 1_317_046_453_000_000_000
     speed: float = 10.0
     noise: bool = True
+    scene: str = "street"
+    platform: str = "auto"
 
     def __post_init__(self) -> None:
+        scenes = ("street", "indoor", "room", "corridor", "hall")
+        if self.scene not in scenes:
+            raise ValueError(f"scene must be one of {', '.join(scenes)}, got {self.scene!r}")
+        platforms = ("auto", "handheld", "drone", "robot")
+        if self.platform not in platforms:
+            raise ValueError(
+                f"platform must be one of {', '.join(platforms)}, got {self.platform!r}"
+            )
         if self.seed < 0:
             raise ValueError(f"seed must be >= 0, got {self.seed}")
         if self.frames < 0:
@@ -254,6 +269,9 @@ def generate(config: SynthConfig) -> Iterator[SynthFrame]:
         (NaN for sky), camera_to_world (4, 4) float64, and the scaled camera.
     """
     keep_freed_memory()
+    if config.scene != "street":
+        yield from _generate_indoor(config)
+        return
     world = World(config.seed)
     camera = config.camera
     noise = _NoiseSource(config.seed, camera.width * camera.height) if config.noise else None
@@ -280,6 +298,35 @@ def generate(config: SynthConfig) -> Iterator[SynthFrame]:
                 camera_to_world=pose,
                 camera=camera,
             )
+
+
+def _generate_indoor(config: SynthConfig) -> Iterator[SynthFrame]:
+    """Render an indoor log (:mod:`.indoor`) frame by frame, 20 Hz, same sensor model."""
+    from pcainterp_stream.synth import indoor
+
+    scene = indoor.make_scene(config.seed, indoor.scene_for(config.scene, config.seed))
+    trajectory = indoor.make_trajectory(
+        config.seed, scene, indoor.platform_for(config.platform, config.seed)
+    )
+    tile = indoor.texture_tile(config.seed)
+    camera = config.camera
+    noise = _NoiseSource(config.seed, camera.width * camera.height) if config.noise else None
+    shape = (camera.height, camera.width)
+    for index in range(config.frames):
+        pose = indoor.indoor_pose(scene, trajectory, index, config.frames)
+        left_noise = noise.next(shape) if noise else None
+        right_noise = noise.next(shape) if noise else None
+        left, depth = indoor.render_indoor(scene, camera, pose, tile)
+        right, _ = indoor.render_indoor(scene, camera, right_pose(pose, camera.baseline), tile)
+        yield SynthFrame(
+            index=index,
+            stamp_ns=config.start_time_ns + index * indoor.INDOOR_FRAME_PERIOD_NS,
+            left=_sensor(left, left_noise),
+            right=_sensor(right, right_noise),
+            depth=depth,
+            camera_to_world=pose,
+            camera=camera,
+        )
 
 
 def non_occluded(

@@ -134,6 +134,10 @@ def test_densify_from_a_feature_stream(logs: dict[str, Path]) -> None:
         processor=ProcessorConfig(source=MeasurementSource.FEATURES),
     )
     assert summary.frames == 5
+    # no SGBM map: the basis is checked on left-out points, never replaced
+    assert summary.prior_lines[0].startswith("prior: the basis ")
+    assert "left-out measurements" in summary.prior_lines[0]
+    assert summary.basis_written is None
     with open_log(out) as reader:
         clouds = [reader.decode(raw) for raw in reader.messages(["/pcainterp/features"])]
         dense = [reader.decode(raw) for raw in reader.messages(["/pcainterp/disparity"])]

@@ -107,7 +107,7 @@ def test_results_come_in_stream_order_one_per_frame(
 def test_submit_returns_finished_frames_and_finish_the_rest(
     basis: Basis, frames: list[StereoFrame]
 ) -> None:
-    config = ProcessorConfig(sgbm=SGBM, batch_size=2, lookahead=1, stereo_workers=1)
+    config = ProcessorConfig(sgbm=SGBM, batch_size=2, lookahead=1, stereo_workers=1, adapt="off")
     returned: list[list[int]] = []
     with FrameProcessor(basis, config) as engine:
         for frame in frames:
@@ -117,6 +117,32 @@ def test_submit_returns_finished_frames_and_finish_the_rest(
     # lookahead 1 holds one frame back, batches of 2 leave as soon as they are measured
     assert returned == [[], [], [0, 1], [], [2, 3], [], [4, 5]]
     assert rest == [6]
+
+
+def test_the_fit_check_holds_the_warm_up_frames_and_reports(
+    basis: Basis, frames: list[StereoFrame]
+) -> None:
+    config = ProcessorConfig(
+        sgbm=SGBM, batch_size=2, lookahead=1, stereo_workers=1, warmup_frames=3
+    )
+    returned: list[list[int]] = []
+    with FrameProcessor(basis, config) as engine:
+        for frame in frames:
+            returned.append([result.frame.index for result in engine.submit(frame)])
+        rest = [result.frame.index for result in engine.finish()]
+        check = engine.adaptation.check
+        lines = engine.adaptation.lines
+    # nothing leaves before the three warm-up frames are measured and checked
+    assert returned[:3] == [[], [], []]
+    assert [i for batch in [*returned, rest] for i in batch] == list(range(len(frames)))
+    assert check is not None
+    assert check.frames == 3
+    assert check.prior > 0
+    assert check.linear > 0
+    assert lines[0].startswith("prior: the basis ")
+    assert "x linear" in lines[0]
+    # a basis the user gave is never replaced
+    assert not engine.adaptation.adapted
 
 
 def test_batch_equals_one_by_one(basis: Basis, frames: list[StereoFrame]) -> None:

@@ -1,0 +1,282 @@
+"""The fit check and the self-supervised basis of one densify stream.
+
+:class:`Adaptation` is the frame processor's state for it (:mod:`~pcainterp_stream.estimate.adapt`
+has the maths): the first ``warmup_frames`` frames are held back, the basis is checked on
+them against linear interpolation on held-out SGBM pixels, and, when it is the built-in
+basis and it does not fit the log, a basis learned from the log's own SGBM maps replaces it
+(refitted prior; the warm-up frames are densified with it too). The log's basis is then
+relearned from all its maps so far each time their number doubles. Every decision depends
+only on the frames and their order: a log gives the same output however it is read
+(file, pipe, live).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.estimate import adapt
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.estimator import densify_batch
+
+FITS_BELOW = 0.8
+"""A basis at most this times linear interpolation's error is kept without trying the log's
+own (checking the alternative costs a few seconds)."""
+
+MAX_MAPS = 256
+"""Most SGBM maps kept for the log's own basis; past it, every other one is dropped."""
+
+
+@dataclass
+class Adaptation:
+    """Fit check and self-supervised basis state of one stream.
+
+    Attributes:
+        mode: "auto", "check" or "off" (:class:`~.processor.ProcessorConfig` ``adapt``).
+        may_replace: the basis may be replaced (it is the built-in one).
+        warmup_frames: frames held back for the check.
+        robust: the robust loss densify uses.
+        calibrate: calibrate the std of a learned basis.
+        checked: the warm-up check is done.
+        adapted: the log's own basis replaced the given one.
+        lines: what to print in the run's summary.
+        check: the given basis's held-out figure, once checked.
+        own_check: the log's own basis's held-out (leave-one-out) figure, when tried.
+        first_basis: the log's own basis chosen at the warm-up (the output names it).
+    """
+
+    mode: str
+    may_replace: bool
+    warmup_frames: int
+    robust: str
+    calibrate: bool
+    checked: bool = False
+    adapted: bool = False
+    lines: list[str] = field(default_factory=list)
+    check: adapt.FitCheck | None = None
+    own_check: adapt.FitCheck | None = None
+    first_basis: Basis | None = None
+    updates: int = 0
+    _maps: list[npt.NDArray[np.float32]] = field(default_factory=list)
+    _recent: list[adapt.Measured] = field(default_factory=list)
+    _seen: int = 0
+    _next_update: int = 0
+    _camera: tuple[tuple[int, int], float] | None = None
+
+    @property
+    def active(self) -> bool:
+        """Return whether frames are checked at all."""
+        return self.mode != "off"
+
+    @property
+    def warming(self) -> bool:
+        """Return whether frames are still held back for the check."""
+        return self.active and not self.checked
+
+    def wants_maps(self) -> bool:
+        """Return whether the stereo workers should keep each frame's SGBM map."""
+        return self.warming or self.adapted
+
+    def warm_up(
+        self, basis: Basis, frames: list[AdaptFrame], settings: dict[str, object]
+    ) -> Basis | None:
+        """Check ``basis`` on the warm-up frames; return the log's own basis to use, or None.
+
+        Args:
+            basis: the basis in use.
+            frames: the held-back frames (those with an SGBM map count).
+            settings: the estimate's keyword options (sigma, local prior, std scale...).
+        """
+        # ``checked`` turns True only once the decision is made (``adapted`` set first): the
+        # stereo workers measuring ahead keep every map until then (:meth:`wants_maps`),
+        # whatever the timing, so the maps a relearned basis sees never depend on it
+        try:
+            return self._decide(basis, frames, settings)
+        finally:
+            self.checked = True
+
+    def _decide(
+        self, basis: Basis, frames: list[AdaptFrame], settings: dict[str, object]
+    ) -> Basis | None:
+        usable = [f for f in frames if f.sgbm_map is not None and f.grid_map is not None]
+        if not usable:  # a feature stream: no dense map to hold pixels out of
+            self._check_left_out(basis, frames, settings)
+            return None
+        size, fb = usable[0].image_size, usable[0].focal_baseline
+        usable = [f for f in usable if f.image_size == size and f.focal_baseline == fb]
+        estimates = densify_batch(
+            basis,
+            [f.pixels for f in usable],
+            [f.disparities for f in usable],
+            uncertainty="none",
+            image_size=size,
+            focal_baseline=fb,
+            robust=self.robust,
+            **settings,  # type: ignore[arg-type]
+        )
+        measured = [f.measured() for f in usable]
+        self.check = adapt.FitCheck.combine(
+            [
+                adapt.check_frame(e.disparity, m.reference, m.pixels, m.disparities)
+                for e, m in zip(estimates, measured, strict=True)
+            ]
+        )
+        name = "the built-in basis" if self.may_replace else "the basis"
+        self.lines.append(f"prior: {name} {self.check.describe()}")
+        try_own = (
+            self.mode == "auto"
+            and self.may_replace
+            and self.check.frames > 0
+            and self.check.ratio >= FITS_BELOW
+        )
+        if not try_own:
+            if self.check.frames and not self.check.fits:
+                fix = (
+                    "densify without --basis builtin to adapt to this log"
+                    if self.may_replace
+                    else "learn a basis for this camera: pcainterp learn LOG -o BASIS.npz"
+                )
+                self.lines.append(
+                    f"warning: the prior is worse than linear interpolation on this log "
+                    f"({self.check.ratio:.2f}x); {fix}"
+                )
+            return None
+        maps = [f.grid_map for f in usable if f.grid_map is not None]
+        own = adapt.refit_prior(
+            adapt.own_basis(maps, size, fb), measured, robust=self.robust, calibrate=self.calibrate
+        )
+        prior = own.meta.get("prior", {})
+        self.own_check = adapt.leave_one_out(
+            maps, measured, prior, image_size=size, focal_baseline=fb, robust=self.robust
+        )
+        own_error = self.own_check.prior if self.own_check is not None else None
+        if own_error is None:  # one frame: no held-out figure for its own basis
+            better = not self.check.fits
+        else:
+            better = own_error < self.check.prior * (
+                1.0 if not self.check.fits else adapt.ADAPT_GAIN
+            )
+        if not better:
+            self.lines.append(
+                f"prior: kept; this log's own basis did no better ({self.own_check.describe()})"
+                if self.own_check is not None
+                else "prior: kept"
+            )
+            return None
+        self.adapted = True
+        self.first_basis = own
+        self._camera = (size, fb)
+        self._maps = list(maps)
+        self._recent = measured[-adapt.FIT_FRAMES :]
+        self._seen = len(maps)
+        self._next_update = 2 * len(maps)
+        how = (
+            f"held out: {self.own_check.describe()}"
+            if self.own_check is not None
+            else "one frame: its own stereo, smoothed, corrected by its points"
+        )
+        self.lines.append(
+            f"adapted: the built-in basis does not fit this camera or scene; learned one from "
+            f"this log's own SGBM maps ({_count(len(maps), 'frame')}, "
+            f"{_count(own.n_components, 'component')}; "
+            f"{how}); --basis builtin keeps the built-in one"
+        )
+        return own
+
+    def _check_left_out(
+        self, basis: Basis, frames: list[AdaptFrame], settings: dict[str, object]
+    ) -> None:
+        """Check ``basis`` by leaving every 5th measurement out (logs without SGBM maps)."""
+        checks = []
+        for frame in frames:
+            kept, left_out = adapt.left_out_split(frame.pixels.shape[0])
+            if left_out.size == 0 or kept.size < 3:
+                continue
+            (estimate,) = densify_batch(
+                basis,
+                [frame.pixels[kept]],
+                [frame.disparities[kept]],
+                uncertainty="none",
+                image_size=frame.image_size,
+                focal_baseline=frame.focal_baseline,
+                robust=self.robust,
+                **settings,  # type: ignore[arg-type]
+            )
+            checks.append(
+                adapt.check_left_out(
+                    estimate.disparity, frame.pixels, frame.disparities, kept, left_out
+                )
+            )
+        self.check = adapt.FitCheck.combine(checks)
+        name = "the built-in basis" if self.may_replace else "the basis"
+        self.lines.append(f"prior: {name} {self.check.describe('left-out measurements')}")
+        if self.check.frames and not self.check.fits:
+            self.lines.append(
+                f"warning: the prior is worse than linear interpolation on this log "
+                f"({self.check.ratio:.2f}x); learn a basis for this camera and scene: "
+                "pcainterp learn LOG -o BASIS.npz, then densify --basis BASIS.npz"
+            )
+
+    def update(self, frames: list[AdaptFrame], current: Basis | None = None) -> Basis | None:
+        """Add the frames' maps to the log's own basis; return a relearned basis, or None.
+
+        Relearned each time the number of maps seen doubles; its prior refitted, keeping
+        the kernel and process noise of ``current`` (the basis in use) when given.
+        """
+        if not self.adapted or self._camera is None:
+            return None
+        for frame in frames:
+            if frame.grid_map is None or (frame.image_size, frame.focal_baseline) != self._camera:
+                continue
+            self._maps.append(frame.grid_map)
+            self._recent.append(frame.measured())
+            self._seen += 1
+        self._recent = self._recent[-adapt.FIT_FRAMES :]
+        if len(self._maps) > MAX_MAPS:
+            self._maps = self._maps[::2]
+        if self._seen < self._next_update:
+            return None
+        self._next_update = 2 * self._seen
+        self.updates += 1
+        size, fb = self._camera
+        return adapt.refit_prior(
+            adapt.own_basis(self._maps, size, fb),
+            self._recent,
+            robust=self.robust,
+            calibrate=self.calibrate,
+            keep=current,
+        )
+
+    def final_line(self, basis: Basis) -> str | None:
+        """Return the summary line on the streaming updates, or None when not adapted."""
+        if not self.adapted:
+            return None
+        return (
+            f"adapted basis: {_count(basis.n_train, 'map')}, "
+            f"{_count(basis.n_components, 'component')} at the end "
+            f"({self.updates} update{'s' if self.updates != 1 else ''} while streaming)"
+        )
+
+
+def _count(number: int, noun: str) -> str:
+    """Return "1 frame", "2 frames"."""
+    return f"{number} {noun}{'' if number == 1 else 's'}"
+
+
+@dataclass(frozen=True)
+class AdaptFrame:
+    """What the adaptation needs of one measured frame (SGBM maps from the stereo workers)."""
+
+    pixels: npt.NDArray[np.float32]
+    disparities: npt.NDArray[np.float32]
+    sgbm_map: npt.NDArray[np.float32] | None
+    grid_map: npt.NDArray[np.float32] | None
+    image_size: tuple[int, int]
+    focal_baseline: float
+
+    def measured(self) -> adapt.Measured:
+        """Return the frame as :func:`adapt.refit_prior` and the check take it."""
+        assert self.sgbm_map is not None
+        return adapt.Measured(self.pixels, self.disparities, self.sgbm_map)

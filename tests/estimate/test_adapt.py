@@ -1,0 +1,106 @@
+"""The fit check and the basis learned from a log's own SGBM maps (estimate/adapt.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pcainterp_stream.estimate import adapt
+from pcainterp_stream.estimate.prior import evidence_noise, evidence_sigma
+
+SIZE = (48, 64)
+
+
+def _scene(shift: float) -> np.ndarray:
+    """A smooth disparity map with a step: what a basis of such maps reproduces exactly."""
+    rows, cols = np.mgrid[0 : SIZE[0], 0 : SIZE[1]].astype(np.float32)
+    return (10.0 + 0.1 * rows + shift * (cols > 30)).astype(np.float32)
+
+
+def _points(count: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.stack(
+        [rng.uniform(2, SIZE[1] - 3, count), rng.uniform(2, SIZE[0] - 3, count)], axis=1
+    ).astype(np.float32)
+
+
+def _measure(reference: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    return reference[pixels[:, 1].round().astype(int), pixels[:, 0].round().astype(int)]
+
+
+def test_held_out_pixels_are_valid_and_away_from_the_measurements() -> None:
+    reference = _scene(4.0)
+    reference[:5] = np.nan
+    pixels = np.array([[20.0, 20.0]], dtype=np.float32)
+    flat = adapt.heldout_pixels(reference, pixels, samples=100_000)
+    rows, cols = np.divmod(flat, SIZE[1])
+    assert np.all(rows >= 5)
+    assert not np.any((np.abs(rows - 20) <= 2) & (np.abs(cols - 20) <= 2))
+    assert flat.size == np.isfinite(reference).sum() - 25
+    assert adapt.heldout_pixels(reference, pixels, samples=50).size == 50
+
+
+def test_check_scores_the_prior_against_linear_and_nearest() -> None:
+    reference = _scene(4.0)
+    pixels = _points(40, seed=1)
+    disparities = _measure(reference, pixels)
+    perfect = adapt.check_frame(reference, reference, pixels, disparities)
+    assert perfect.prior == 0.0
+    assert perfect.linear > 0.0
+    assert perfect.nearest > perfect.linear * 0.5
+    flat_map = np.full(SIZE, 10.0, dtype=np.float32)
+    poor = adapt.FitCheck.combine([adapt.check_frame(flat_map, reference, pixels, disparities)])
+    assert poor.frames == 1
+    assert poor.ratio > 1.0
+    assert not poor.fits
+    assert "x linear" in poor.describe()
+
+
+def test_own_basis_from_the_log_reproduces_its_scenes() -> None:
+    maps = [adapt.grid_map(_scene(shift), SIZE) for shift in (0.0, 2.0, 4.0, 6.0)]
+    basis = adapt.own_basis(maps, SIZE, 50.0)
+    assert basis.image_size == SIZE
+    assert basis.focal_baseline == 50.0
+    assert basis.n_components == 1  # the scenes differ by one scaled step: one direction
+    single = adapt.own_basis(maps[:1], SIZE, 50.0)
+    assert single.n_components == 1
+    np.testing.assert_array_equal(single.mean, maps[0])
+    with pytest.raises(ValueError, match="at least one map"):
+        adapt.own_basis([], SIZE, 50.0)
+
+
+def test_leave_one_out_beats_linear_on_scenes_like_the_others() -> None:
+    shifts = (0.0, 2.0, 4.0, 6.0, 8.0)
+    references = [_scene(shift) for shift in shifts]
+    frames = []
+    for index, reference in enumerate(references):
+        pixels = _points(30, seed=10 + index)
+        frames.append(adapt.Measured(pixels, _measure(reference, pixels), reference))
+    maps = [adapt.grid_map(reference, SIZE) for reference in references]
+    basis = adapt.refit_prior(adapt.own_basis(maps, SIZE, 50.0), frames, robust="cauchy")
+    assert "sigma" in basis.meta["prior"]
+    check = adapt.leave_one_out(
+        maps, frames, basis.meta["prior"], image_size=SIZE, focal_baseline=50.0, robust="cauchy"
+    )
+    assert check is not None
+    assert check.frames == 4
+    assert check.ratio < 1.0
+
+
+def test_evidence_fits_the_prior_scale_instead_of_a_huge_noise() -> None:
+    # measurements drawn from a prior 400x wider than the model's: noise-only evidence
+    # can only call them noise; with the scale free the fit finds the prior too narrow
+    rng = np.random.default_rng(3)
+    factor = rng.normal(size=(60, 6))
+    signal = factor @ factor.T + 0.5 * np.eye(60)
+    draw = np.linalg.cholesky(400.0 * signal + 0.25 * np.eye(60)) @ rng.normal(size=60)
+    assert evidence_sigma(signal, draw) > 5.0
+    sigma, scale = evidence_noise(signal, draw)
+    assert 100.0 <= scale <= 1600.0
+    assert sigma < 5.0
+    # the carried points' known noise: fitted on the others
+    extra = np.zeros(60)
+    extra[:10] = 4.0
+    sigma_extra, scale_extra = evidence_noise(signal, draw, extra)
+    assert 100.0 <= scale_extra <= 1600.0
+    assert np.isfinite(sigma_extra)

@@ -1,0 +1,117 @@
+"""The fit check and self-supervised basis on real indoor stereo (EuRoC, MyntEye fisheye)."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+
+from pcainterp_stream.estimate import adapt
+from pcainterp_stream.frontend.pairing import PairingConfig, iter_stereo_frames
+from pcainterp_stream.frontend.stereo import StereoFrontEnd
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.pipeline.densify import densify, own_basis_path
+from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
+from pcainterp_stream.records import StereoFrame
+from pcainterp_stream.synth import SynthConfig, generate
+from pcainterp_stream.synth.indoor import camera_options
+
+ROOT = Path(__file__).resolve().parents[2]
+REALDATA = ROOT.parent / "shared" / "realdata"
+EUROC = REALDATA / "euroc_machine_hall"
+FISHEYE = REALDATA / "mynteye_fisheye"
+
+
+def _rectify_tool() -> ModuleType:
+    spec = importlib.util.spec_from_file_location(
+        "realdata_rectify", ROOT / "tools" / "realdata_rectify.py"
+    )
+    assert spec is not None
+    assert spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _rectified(folder: Path, out: Path) -> Path:
+    if not folder.is_dir():
+        pytest.skip(f"real indoor stereo not found at {folder}")
+    assert _rectify_tool().main([str(folder), str(out)]) == 0
+    return out
+
+
+def _errors(log: Path, config: ProcessorConfig) -> tuple[adapt.FitCheck, FrameProcessor]:
+    """Densify every pair of ``log``; score the maps against SGBM of the same pairs."""
+    with open_log(log) as reader:
+        frames = list(iter_stereo_frames(reader, PairingConfig()))
+    front_end = StereoFrontEnd(config.gftt, config.sgbm)
+    checks = []
+    with FrameProcessor(None, config) as engine:
+        for result in engine.process(frames):
+            sgbm = front_end.measure(result.frame.left, result.frame.right).disparity_map
+            reference = np.where(sgbm > 0, sgbm, np.nan).astype(np.float32)
+            checks.append(
+                adapt.check_frame(result.disparity, reference, result.pixels, result.disparities)
+            )
+    return adapt.FitCheck.combine(checks), engine
+
+
+@pytest.mark.realdata
+def test_euroc_machine_hall_beats_nearest_and_linear_with_no_options(tmp_path: Path) -> None:
+    log = _rectified(EUROC, tmp_path / "euroc.mcap")
+    built_in, engine = _errors(log, ProcessorConfig(adapt="check"))
+    assert not built_in.fits  # the street basis loses to linear interpolation indoors
+    assert "worse than linear" in engine.adaptation.lines[-1]
+    adapted, engine = _errors(log, ProcessorConfig())
+    assert engine.adaptation.adapted
+    assert adapted.prior <= 0.5 * adapted.nearest
+    assert adapted.prior < adapted.linear
+    # held out: each pair densified with a basis learned from the other pair only
+    own = engine.adaptation.own_check
+    assert own is not None
+    assert own.prior <= 0.5 * own.nearest
+    assert own.prior < own.linear
+
+
+@pytest.mark.realdata
+def test_fisheye_pair_adapts_and_the_basis_is_written_beside_the_output(tmp_path: Path) -> None:
+    log = _rectified(FISHEYE, tmp_path / "fisheye.mcap")
+    out = tmp_path / "fisheye_dense.mcap"
+    summary = densify(log, out)
+    assert any(line.startswith("adapted:") for line in summary.prior_lines)
+    assert summary.basis_written == own_basis_path(out)
+    assert own_basis_path(out).is_file()
+    assert summary.final_basis_written is None  # one pair: never relearned
+    adapted, _ = _errors(log, ProcessorConfig())
+    assert adapted.prior < adapted.linear
+    assert adapted.prior <= 0.5 * adapted.nearest
+
+
+def _indoor_frames(frames: int) -> list[StereoFrame]:
+    config = SynthConfig(
+        seed=4, frames=frames, scale=0.25, scene="indoor", **camera_options("752x480")
+    )
+    return [
+        StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
+        for f in generate(config)
+    ]
+
+
+def test_the_log_basis_keeps_learning_and_never_depends_on_thread_timing() -> None:
+    frames = _indoor_frames(10)
+    outputs = []
+    for workers, lookahead in ((1, 0), (2, 4), (2, 4)):
+        config = ProcessorConfig(warmup_frames=2, stereo_workers=workers, lookahead=lookahead)
+        with FrameProcessor(None, config) as engine:
+            results = list(engine.process(frames))
+            assert engine.adaptation.adapted
+            assert engine.adaptation.updates >= 1  # relearned as the maps doubled
+            assert engine.basis.n_train > 2
+            assert engine.adaptation.final_line(engine.basis) is not None
+        outputs.append(np.stack([result.disparity for result in results]))
+    # the same maps and decisions whatever the threads and the look-ahead
+    np.testing.assert_array_equal(outputs[0], outputs[1])
+    np.testing.assert_array_equal(outputs[1], outputs[2])
