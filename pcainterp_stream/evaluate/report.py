@@ -75,7 +75,13 @@ from pcainterp_stream.frontend.stereo import (
 )
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
-from pcainterp_stream.io.outputs import MEASUREMENTS_KEY, OutputTopics
+from pcainterp_stream.io.outputs import (
+    MEASUREMENTS_KEY,
+    EstimateTopics,
+    OutputTopics,
+    decode_estimate,
+    estimate_topics,
+)
 from pcainterp_stream.records import StereoCamera
 
 __all__ = [
@@ -186,9 +192,11 @@ class _ReadState:
 
     measurements: str | None = None
     seen_disparity: bool = False
+    metadata: dict[str, str] = field(default_factory=dict)
+    """The estimate channel's metadata (a compact log's f*b and min disparity)."""
 
 
-def _camera(info: Any, disparity_message: Any, size: tuple[int, int]) -> StereoCamera:
+def _camera(info: Any, baseline: float, size: tuple[int, int]) -> StereoCamera:
     p = rosmsg.projection_matrix(info)
     return StereoCamera(
         width=size[1],
@@ -197,7 +205,7 @@ def _camera(info: Any, disparity_message: Any, size: tuple[int, int]) -> StereoC
         fy=float(p[1, 1]),
         cx=float(p[0, 2]),
         cy=float(p[1, 2]),
-        baseline=float(disparity_message.t),
+        baseline=baseline,
     )
 
 
@@ -217,7 +225,8 @@ def _frames(
     state = state or _ReadState()
     with open_log(path) as reader:
         present = reader.topics()
-        needed = [topics.disparity, topics.disparity_std, topics.features, topics.camera_info]
+        where = estimate_topics(present, topics)
+        needed = [where.estimate, where.std, topics.features, topics.camera_info]
         missing = [topic for topic in [*needed, LEFT_IMAGE] if topic not in present]
         if missing:
             raise LogReadError(
@@ -239,15 +248,17 @@ def _frames(
         waiting: deque[_Frame] = deque()
         index = yielded = 0
         for raw in reader.messages(wanted):
-            if raw.topic == topics.disparity and not state.seen_disparity:
+            if raw.topic == where.estimate and not state.seen_disparity:
                 state.seen_disparity = True
-                state.measurements = dict(raw.channel_metadata).get(MEASUREMENTS_KEY)
+                state.metadata = dict(raw.channel_metadata)
+                state.measurements = state.metadata.get(MEASUREMENTS_KEY)
             message = reader.decode(raw)
             if reference is not None and raw.topic == reference.topic:
                 references[rosmsg.stamp_ns(message)] = message
                 while len(references) > REFERENCE_BUFFER:
                     references.pop(min(references))
-            stamp = rosmsg.stamp_ns(message.image if raw.topic == topics.disparity else message)
+            full_estimate = raw.topic == where.estimate and not where.compact
+            stamp = rosmsg.stamp_ns(message.image if full_estimate else message)
             if raw.topic == RIGHT_IMAGE:
                 rights[stamp] = message
                 while len(rights) > 16:
@@ -258,7 +269,15 @@ def _frames(
                 if len(parts) == complete:
                     del pending[stamp]
                     waiting.append(
-                        _frame(index, stamp, pending_parts=parts, rights=rights, topics=topics)
+                        _frame(
+                            index,
+                            stamp,
+                            pending_parts=parts,
+                            rights=rights,
+                            topics=topics,
+                            where=where,
+                            metadata=state.metadata,
+                        )
                     )
                     index += 1
                 while len(pending) > 8:  # frames are written close together
@@ -288,10 +307,18 @@ def _frame(
     pending_parts: dict[str, Any],
     rights: dict[int, Any],
     topics: OutputTopics,
+    where: EstimateTopics,
+    metadata: dict[str, str],
 ) -> _Frame:
     """Build a frame from its complete messages and the right image nearest its stamp."""
     parts = pending_parts
-    estimate = rosmsg.image_array(parts[topics.disparity].image).astype(np.float32)
+    try:
+        decoded = decode_estimate(
+            parts[where.estimate], parts[where.std], parts[topics.camera_info], metadata
+        )
+    except ValueError as err:
+        raise LogReadError(f"frame {index} of the densified log: {err}") from None
+    estimate = decoded.disparity
     features = rosmsg.pointcloud2_arrays(parts[topics.features])
     depth = parts.get(GROUND_TRUTH_DEPTH)
     pose = parts.get(GROUND_TRUTH_POSE)
@@ -306,18 +333,18 @@ def _frame(
         stamp_ns=stamp,
         camera=_camera(
             parts[topics.camera_info],
-            parts[topics.disparity],
+            decoded.baseline,
             (int(estimate.shape[0]), int(estimate.shape[1])),
         ),
         estimate=estimate,
-        std=rosmsg.image_array(parts[topics.disparity_std]).astype(np.float32),
+        std=decoded.disparity_std,
         pixels=np.stack([features["u"], features["v"]], axis=1),
         disparities=features["disparity"],
         left=rosmsg.image_array(parts[LEFT_IMAGE]),
         right=None if right is None else rosmsg.image_array(right),
         depth=None if depth is None else rosmsg.image_array(depth).astype(np.float32),
         pose=None if pose is None else rosmsg.pose_matrix(pose),
-        min_disparity=float(parts[topics.disparity].min_disparity),
+        min_disparity=decoded.min_disparity,
     )
 
 
@@ -580,7 +607,8 @@ def evaluate_log(
         has_truth = reference is not None or GROUND_TRUTH_DEPTH in present
         has_pose = GROUND_TRUTH_POSE in present
         has_right = RIGHT_IMAGE in present
-        count = present[topics.disparity].message_count if topics.disparity in present else None
+        estimate_topic = estimate_topics(present, topics).estimate
+        count = present[estimate_topic].message_count if estimate_topic in present else None
     has_truth = has_truth and not options.sgbm_reference
     mode = Mode(options.mode) if options.mode else None
     mode = mode or (Mode.TEMPORAL if has_truth and has_pose else Mode.STEREO)
