@@ -42,6 +42,10 @@ ENCODINGS = ("32FC1", "16UC1")
 MAX_CODE = 65535
 DEFAULT_PNG_LEVEL = 1
 """zlib level of the PNG codec: 1 is ROS's default and the fastest (docs/benchmarks.md)."""
+PNG_FILTER_UP = getattr(cv2, "IMWRITE_PNG_FILTER_UP", None)
+"""PNG row filter "Up" (each row minus the one above): on dense depth and std images ~20 %
+smaller and ~25 % faster than OpenCV's default filter choice (docs/benchmarks.md). None on
+an OpenCV without the option (its default is used)."""
 
 
 class DepthCodecError(ValueError):
@@ -213,7 +217,10 @@ def _encode_16(code: npt.NDArray[np.uint16], codec: str, png_level: int) -> byte
     if code.ndim != 2:
         raise ValueError(f"expected an (H, W) image, got shape {code.shape}")
     if codec == "png":
-        ok, buffer = cv2.imencode(".png", code, [cv2.IMWRITE_PNG_COMPRESSION, int(png_level)])
+        params = [cv2.IMWRITE_PNG_COMPRESSION, int(png_level)]
+        if PNG_FILTER_UP is not None:
+            params += [cv2.IMWRITE_PNG_FILTER, PNG_FILTER_UP]
+        ok, buffer = cv2.imencode(".png", code, params)
         if not ok:
             raise ValueError("OpenCV could not encode the 16-bit PNG")
         return bytes(buffer)
@@ -288,6 +295,8 @@ def rvl_decode(data: npt.NDArray[np.uint8] | bytes, n_pixels: int) -> npt.NDArra
         DepthCodecError: the code ends before ``n_pixels`` pixels or its runs overflow them.
     """
     raw = np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes) else data
+    if n_pixels == 0:
+        return np.zeros(0, dtype=np.uint16)
     usable = raw.size // 4 * 4
     words = raw[:usable].view("<u4").astype(np.uint32)
     shifts = np.arange(28, -1, -4, dtype=np.uint32)
