@@ -109,13 +109,13 @@ def quantise_inverse_depth(
     """Return the 16-bit codes ``rint(A / z + B)`` of a depth image (m), REP 118 kept.
 
     NaN -> 0, ``+inf`` -> ``B`` (``A / 0`` when decoded), a finite depth never to 0 nor ``B``
-    (so never to NaN or infinity), codes clipped to 16 bits (the nearest storable depth).
-    Depths <= 0 (not depths by REP 118) are stored as NaN.
+    (so never to NaN or infinity), codes clipped to 16 bits (the nearest storable value: 0
+    becomes the smallest, ``A / 65534``). Negative values (no depth) are stored as NaN.
     """
     depth = np.asarray(depth, dtype=np.float32)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         code = np.float32(quant_a) / depth + np.float32(quant_b)
-    finite = np.isfinite(depth) & (depth > 0)
+    finite = np.isfinite(depth) & (depth >= 0)
     floor = quant_b + 1.0  # the smallest code of a finite depth
     code = np.where(finite, np.clip(np.rint(code), floor, MAX_CODE), 0.0)
     code[np.isposinf(depth)] = quant_b

@@ -345,17 +345,15 @@ def depth_step(disparity_std: npt.NDArray[np.float32]) -> float:
 def std_scale(std: npt.NDArray[np.float32]) -> float:
     """Return the depthQuantA storing a std image with <= :data:`STD_RELATIVE_ERROR` error.
 
-    Stored as ``A / s + 1``: the relative rounding error is ``s / (2 A)``, largest at the
-    largest std; the smallest std must still fit in 16 bits, so when a frame's stds span
-    more than ~1300x the largest ones get a relative error above it (never seen on KITTI
-    or synthetic logs: their stds span < 30x).
+    Stored as ``A / s + 1``, the relative rounding error is ``s / (2 A)``, largest at the
+    largest std: ``A = max(s) / (2 * error)``. A std below ``A / 65534`` (1/1300 of the
+    largest) is stored as that value (absolute error <= max(s) / 1300); KITTI's and the
+    synthetic drives' stds span < 30x, so this never happens there.
     """
     finite = std[np.isfinite(std) & (std > 0)]
     if finite.size == 0:
         return 1.0
-    wanted = float(np.max(finite)) / (2.0 * STD_RELATIVE_ERROR)
-    fits = (depth_codec.MAX_CODE - 1.5) * float(np.min(finite))
-    return min(wanted, fits) if fits > 0 else wanted
+    return float(np.max(finite)) / (2.0 * STD_RELATIVE_ERROR)
 
 
 def _compressed(encoded: depth_codec.CompressedDepth, stamp: int, frame_id: str) -> Any:

@@ -19,7 +19,7 @@ FOCAL_BASELINE = 387.0
 def _depth_image(seed: int = 0, shape: tuple[int, int] = (60, 90)) -> np.ndarray:
     """A smooth disparity field turned into REP 118 depth with NaN and +inf patches."""
     rng = np.random.default_rng(seed)
-    rows, cols = np.mgrid[0 : shape[0], 0 : shape[1]]
+    rows, _ = np.mgrid[0 : shape[0], 0 : shape[1]]
     disparity = 2.0 + 60.0 * rows / shape[0] + rng.normal(0.0, 0.3, shape)
     depth = (FOCAL_BASELINE / disparity).astype(np.float32)
     depth[:5, :20] = np.nan
@@ -49,7 +49,8 @@ def test_png_depth_read_by_opencv_and_the_ros_formula() -> None:
     assert (kind, header_b) == (0, 1.0)
     assert header_a == pytest.approx(quant_a, rel=1e-6)
     codes = cv2.imdecode(np.frombuffer(encoded.data[12:], np.uint8), cv2.IMREAD_UNCHANGED)
-    assert codes.dtype == np.uint16 and codes.shape == depth.shape
+    assert codes.dtype == np.uint16
+    assert codes.shape == depth.shape
     independent = _ros_decode_inverse_depth(codes, header_a, header_b)
     ours = depth_codec.decode(encoded.format, encoded.data)
     np.testing.assert_array_equal(ours, independent)
@@ -130,9 +131,7 @@ def test_rvl_message_layout() -> None:
     hnp.arrays(
         np.float32,
         st.tuples(st.integers(1, 12), st.integers(1, 12)),
-        elements=st.one_of(
-            st.floats(0.25, 4096.0, width=32), st.just(np.nan), st.just(np.inf)
-        ),
+        elements=st.one_of(st.floats(0.25, 4096.0, width=32), st.just(np.nan), st.just(np.inf)),
     )
 )
 def test_inverse_depth_keeps_rep118_and_the_step(depth: np.ndarray) -> None:
