@@ -32,7 +32,7 @@ import numpy as np
 import numpy.typing as npt
 from mcap.reader import make_reader
 
-from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io import depth_codec, rosmsg
 from pcainterp_stream.io.logwriter import LogFormat
 from pcainterp_stream.synth.log import write_synthetic_log
 
@@ -96,6 +96,11 @@ def _message_summary(message: Any) -> dict[str, Any]:
     if msgtype == rosmsg.IMAGE:
         summary["encoding"] = str(message.encoding)
         summary["image"] = _array_stats(rosmsg.image_array(message))
+    elif msgtype == rosmsg.COMPRESSED_IMAGE and depth_codec.is_compressed_depth(message.format):
+        summary["encoding"] = str(message.format)
+        summary["image"] = _array_stats(
+            depth_codec.decode(message.format, np.asarray(message.data, dtype=np.uint8))
+        )
     elif msgtype == rosmsg.CAMERA_INFO:
         summary["size"] = [int(message.width), int(message.height)]
         summary["p"] = [float(v) for v in rosmsg.projection_matrix(message).reshape(-1)]

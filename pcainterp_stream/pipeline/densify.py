@@ -46,7 +46,7 @@ from pcainterp_stream.records import DensifiedFrame
 
 ENCODE_WORKERS = 2
 """Threads building (and PNG-encoding) the output messages of densified frames."""
-ENCODE_AHEAD = 8
+ENCODE_AHEAD = 4
 """Frames whose output messages may be in the making at once (bounds their memory)."""
 
 
