@@ -84,7 +84,7 @@ def compressed(encoded: depth_codec.CompressedDepth) -> tuple[bytes, Callable[[]
 
 
 def depth_quant_a(frame: dict[str, Any]) -> float:
-    """densify's compact depth scale for a frame (outputs.depth_step)."""
+    """Return the compact depth's depthQuantA of a frame, as densify chooses it."""
     finite = np.isfinite(frame["depth"])
     max_disparity = frame["focal_baseline"] / float(np.min(frame["depth"][finite]))
     step = outputs.depth_step(frame["disparity_std"])
@@ -92,6 +92,7 @@ def depth_quant_a(frame: dict[str, Any]) -> float:
 
 
 def millimetres(depth: Floats, step_mm: int = 1, far_mm: float = 65535.0) -> Any:
+    """Return depth (m) as 16UC1 millimetres: 0 = NaN, far_mm for +inf and beyond."""
     values = np.nan_to_num(depth * 1000.0, nan=0.0, posinf=far_mm, neginf=0.0)
     values = np.rint(values / step_mm) * step_mm
     return np.clip(values, 0, far_mm).astype(np.uint16)
