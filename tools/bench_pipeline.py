@@ -255,7 +255,7 @@ def cli_rounds(log: Path, out: Path, variants: list[str], repeat: int) -> str:
     frames = count_frames(log)
     sgbm_command = [sys.executable, __file__, "--child-sgbm", str(log)]
     header = ["round", "densify args", "SGBM alone s", "job s", "job / SGBM", "frames/s"]
-    header += ["CPU ms/frame", "peak RSS MB", "output MB/frame"]
+    header += ["CPU ms/frame (SGBM alone)", "CPU job / SGBM", "peak RSS MB", "output MB/frame"]
     lines = [f"{log}: {frames} frames", harness.table_header(header)]
     ratios: dict[str, list[float]] = defaultdict(list)
     for round_index in range(repeat):
@@ -275,7 +275,9 @@ def cli_rounds(log: Path, out: Path, variants: list[str], repeat: int) -> str:
                         f"{job['seconds']:.2f}",
                         f"{ratio:.2f}",
                         f"{frames / job['seconds']:.1f}",
-                        f"{1000 * job['cpu_seconds'] / frames:.0f}",
+                        f"{1000 * job['cpu_seconds'] / frames:.0f} "
+                        f"({1000 * sgbm['cpu_seconds'] / frames:.0f})",
+                        f"{job['cpu_seconds'] / sgbm['cpu_seconds']:.2f}",
                         f"{job['peak_rss_mb']:.0f}",
                         f"{out.stat().st_size / 1e6 / frames:.2f}",
                     ]

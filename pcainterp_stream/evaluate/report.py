@@ -156,6 +156,11 @@ class EvaluateOptions:
     reference_kind: ReferenceKind = ReferenceKind.AUTO
 
 
+PENDING_FRAMES = 32
+"""Stamps whose channels are gathered at once: densify writes a frame's outputs up to its
+look-ahead, batch and output-encoding frames (~12) after the frame's input images."""
+
+
 @dataclass(frozen=True, eq=False)
 class _Frame:
     """One densified frame as read from the log."""
@@ -280,7 +285,7 @@ def _frames(
                         )
                     )
                     index += 1
-                while len(pending) > 8:  # frames are written close together
+                while len(pending) > PENDING_FRAMES:  # frames are written close together
                     pending.pop(min(pending))
             while waiting and (
                 reference is None

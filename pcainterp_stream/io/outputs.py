@@ -130,7 +130,10 @@ class OutputTopics:
             )
         if not chosen:
             raise ValueError(f"no output channel chosen; choose from {', '.join(CHANNELS)}")
-        return replace(self, skipped=frozenset(set(CHANNELS) - chosen))
+        topics = replace(self, skipped=frozenset(set(CHANNELS) - chosen))
+        if self.precision == "compact" and "depth" not in chosen:
+            topics = replace(topics, depth_mm=None)  # the viewers' copy of the depth
+        return topics
 
     def topic(self, channel: str) -> str:
         """Return the topic of a channel of :data:`CHANNELS` (or ``depth_mm``)."""

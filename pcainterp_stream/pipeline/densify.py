@@ -181,7 +181,8 @@ def densify(
                         topics, {**metadata, **frame_metadata(result)}
                     )
                 encoding.append((result, encoder.submit(output_messages, result, topics)))
-            while len(encoding) > ENCODE_AHEAD or (encoding and encoding[0][1].done()):
+            # by count, never by which future is done: the output's order is deterministic
+            while len(encoding) > ENCODE_AHEAD:
                 write(*encoding.popleft())
 
         def write(result: DensifiedFrame, built: Future[list[tuple[str, Any]]]) -> None:

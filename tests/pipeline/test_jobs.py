@@ -15,6 +15,7 @@ from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import LogFormat, open_writer
+from pcainterp_stream.io.outputs import image_of
 from pcainterp_stream.pipeline import jobs
 from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
 
@@ -88,7 +89,7 @@ def test_densify_output_messages_carry_left_header_and_log_time(logs: dict[str, 
             elif raw.topic.startswith("/pcainterp/"):
                 stamp = rosmsg.stamp_ns(message)
                 outputs.append((raw.log_time_ns, stamp, message.header.frame_id))
-    assert len(outputs) == 6 * 5
+    assert len(outputs) == 5 * 5  # the compact default: depth, std, features, info, depth_mm
     for log_time, stamp, frame_id in outputs:
         assert left[log_time] == (stamp, frame_id)
 
@@ -136,7 +137,7 @@ def test_densify_from_a_feature_stream(logs: dict[str, Path]) -> None:
     assert summary.frames == 5
     with open_log(out) as reader:
         clouds = [reader.decode(raw) for raw in reader.messages(["/pcainterp/features"])]
-        dense = [reader.decode(raw) for raw in reader.messages(["/pcainterp/disparity"])]
+        dense = [reader.decode(raw) for raw in reader.messages(["/pcainterp/depth"])]
     assert len(clouds) == len(dense) == 5
     fields = rosmsg.pointcloud2_arrays(clouds[0])
     # the measurements used are exactly the stream's points (integer pixels, all inside)
@@ -236,7 +237,7 @@ def test_real_kitti_drive_end_to_end(tmp_path: Path) -> None:
     assert summary.measurements / summary.frames > 150
     with open_log(tmp_path / "kitti_dense.mcap") as reader:
         depth = [reader.decode(raw) for raw in reader.messages(["/pcainterp/depth"])]
-    image = rosmsg.image_array(depth[0])
+    image = image_of(depth[0])
     assert image.shape == (375, 1242)
     finite = image[np.isfinite(image)]
     assert finite.size > 0.9 * image.size
