@@ -34,7 +34,7 @@ def test_densified_golden_log_matches_expected_summary(tmp_path: Path) -> None:
     actual = tool.summarize_log(out)
     assert tool.compare_summary(expected, actual) == []
     topics = {channel["topic"] for channel in actual["channels"]}
-    assert {"/pcainterp/depth", "/pcainterp/disparity", "/stereo/left/image_rect"} <= topics
+    assert {"/pcainterp/depth", "/pcainterp/disparity_std", "/stereo/left/image_rect"} <= topics
 
 
 def test_golden_comparison_catches_a_changed_depth() -> None:

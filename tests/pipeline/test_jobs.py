@@ -15,7 +15,7 @@ from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import LogFormat, open_writer
-from pcainterp_stream.io.outputs import image_of
+from pcainterp_stream.io.outputs import OutputTopics, image_of
 from pcainterp_stream.pipeline import jobs
 from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
 
@@ -131,13 +131,14 @@ def test_densify_from_a_feature_stream(logs: dict[str, Path]) -> None:
         with_features,
         out,
         logs["basis"],
+        topics=OutputTopics(),  # float32 channels: the by-hand checks read the disparity
         pairing=PairingConfig(features_topic="/features"),
         processor=ProcessorConfig(source=MeasurementSource.FEATURES),
     )
     assert summary.frames == 5
     with open_log(out) as reader:
         clouds = [reader.decode(raw) for raw in reader.messages(["/pcainterp/features"])]
-        dense = [reader.decode(raw) for raw in reader.messages(["/pcainterp/depth"])]
+        dense = [reader.decode(raw) for raw in reader.messages(["/pcainterp/disparity"])]
     assert len(clouds) == len(dense) == 5
     fields = rosmsg.pointcloud2_arrays(clouds[0])
     # the measurements used are exactly the stream's points (integer pixels, all inside)
