@@ -29,11 +29,12 @@ import numpy as np
 import pytest
 
 from pcainterp_stream import cli
-from pcainterp_stream.estimate.basis import Basis
+
 from pcainterp_stream.io import rosmsg
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.pipeline.jobs import synth
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import open_writer
-from pcainterp_stream.pipeline.jobs import synth
 
 INTERRUPTED = "pcainterp: interrupted; no partial output was left at the target"
 CONSOLE_SCRIPT = [

@@ -9,8 +9,8 @@ from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 from hypothesis_profiles import examples
 
-from pcainterp_stream.estimate import variance
 from pcainterp_stream.estimate.basis import Basis, bilinear_weights, image_to_grid, sample_rows
+from pcainterp_stream.estimate import variance
 from pcainterp_stream.estimate.estimator import (
     SolveForm,
     Uncertainty,

@@ -8,17 +8,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pcainterp_stream.cli import main
+from pcainterp_stream.pipeline import jobs
 from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.cli import main
 from pcainterp_stream.estimate.fitting import (
     FitFrame,
     fit_local_prior,
     fit_process_noise,
     fit_std_scale,
 )
-from pcainterp_stream.estimate.prior import Kernel, LocalPrior
 from pcainterp_stream.frontend.pairing import PairingConfig
-from pcainterp_stream.pipeline import jobs
+from pcainterp_stream.estimate.prior import Kernel, LocalPrior
 
 
 def _tiny_basis(n_components: int = 3) -> Basis:

@@ -13,8 +13,8 @@ from pcainterp_stream.frontend.motion import (
     estimate_motion,
     project,
 )
-from pcainterp_stream.frontend.stereo import StereoFrontEnd
 from pcainterp_stream.records import StereoCamera
+from pcainterp_stream.frontend.stereo import StereoFrontEnd
 from pcainterp_stream.synth import SynthConfig, generate
 
 CAMERA = StereoCamera(width=200, height=100, fx=150.0, fy=150.0, cx=99.5, cy=49.5, baseline=0.5)

@@ -10,10 +10,12 @@ import numpy as np
 import pytest
 from scipy.linalg import subspace_angles
 
+from pcainterp_stream.pipeline import distributed
+
+from pcainterp_stream.pipeline import jobs
 from pcainterp_stream.estimate.basis import Basis
-from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.io.logreader import open_log
-from pcainterp_stream.pipeline import distributed, jobs
+from pcainterp_stream.frontend.pairing import PairingConfig
 
 pytest.importorskip("dask.distributed")
 
