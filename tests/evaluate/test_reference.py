@@ -34,9 +34,9 @@ from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log, summ
 from pcainterp_stream.evaluate.results import PCA_ON_SGBM, SGBM, SGBM_NN, Evaluation
 from pcainterp_stream.frontend.stereo import SgbmConfig, compute_disparity
 from pcainterp_stream.io import rosmsg
-from pcainterp_stream.io.outputs import OutputTopics
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import open_writer
+from pcainterp_stream.io.outputs import OutputTopics
 from pcainterp_stream.pipeline import jobs
 from pcainterp_stream.records import StereoCamera
 from pcainterp_stream.synth import SynthConfig, generate
