@@ -635,3 +635,15 @@ def test_rosbags_reads_the_compact_log(compact_log: Path) -> None:
             depth = decode(message.format, message.data)
             assert depth.shape == (HEIGHT, WIDTH)
             assert depth.dtype == np.float32
+
+
+def test_rerun_draws_the_compact_logs_depth_mm(compact_log: Path) -> None:
+    """Rerun's importer draws the default log's viewer copy as depth (the compressedDepth
+    channels stay encoded blobs: the reason the copy is written)."""
+    _, columns = _rerun_import(compact_log)
+    entity = columns["/pcainterp/depth_mm"]
+    assert len(entity["DepthImage:buffer"]) == FRAMES
+    for (image_format,) in entity["DepthImage:format"]:
+        assert (image_format["width"], image_format["height"]) == (WIDTH, HEIGHT)
+        assert image_format["channel_datatype"] == 8  # U16
+    assert not any(key.startswith("DepthImage") for key in columns["/pcainterp/depth"])
