@@ -161,3 +161,16 @@ def test_decode_refuses_what_it_cannot_read() -> None:
     with pytest.raises(depth_codec.DepthCodecError, match="ends after"):
         depth_codec.rvl_decode(depth_codec.rvl_encode(np.ones(10, np.uint16)), 20)
     assert depth_codec.parse_format("32FC1; compressedDepth") == ("32FC1", "png")
+
+
+@given(
+    hnp.arrays(
+        np.uint16,
+        st.tuples(st.integers(1, 9), st.integers(1, 9)),
+        elements=st.integers(0, 65535),
+    )
+)
+def test_our_png_is_read_by_opencv(image: np.ndarray) -> None:
+    decoded = cv2.imdecode(np.frombuffer(depth_codec.png16(image), np.uint8), -1)
+    assert decoded.dtype == np.uint16
+    np.testing.assert_array_equal(decoded.reshape(image.shape), image)
