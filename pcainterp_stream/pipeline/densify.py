@@ -160,8 +160,9 @@ def densify(
         if live is not None:
             for topic, msgtype in output_types(topics).items():  # subscribable before frame 1
                 live.advertise(topic, msgtype, metadata=metadata)
-        # the output messages (PNG encoding: OpenCV releases the GIL) are built in a pool
-        # of their own, in order, so the calling thread only reads, pairs and densifies
+        # the output messages (quantising and PNG-deflating: numpy and zlib-ng release the
+        # GIL) are built in a pool of their own, so the calling thread only reads, pairs and
+        # densifies; they are written in frame order, ENCODE_AHEAD frames behind
         encoder = stack.enter_context(ThreadPoolExecutor(ENCODE_WORKERS, "encode-outputs"))
         encoding: deque[tuple[DensifiedFrame, Future[list[tuple[str, Any]]]]] = deque()
         sink = (
