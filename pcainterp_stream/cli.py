@@ -533,7 +533,9 @@ def _output_topics(args: argparse.Namespace) -> OutputTopics:
     """Return the output topics of ``densify``: --output-prefix, --depth-mm, --outputs."""
     from pcainterp_stream.io.outputs import OutputTopics
 
-    topics = OutputTopics.with_prefix(args.output_prefix, depth_mm=args.depth_mm)
+    topics = OutputTopics.with_prefix(
+        args.output_prefix, depth_mm=args.depth_mm, precision=getattr(args, "precision", "full")
+    )
     if args.outputs is None:
         return topics
     try:

@@ -30,7 +30,7 @@ from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.io import logwriter, rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import open_writer
-from pcainterp_stream.io.outputs import MEASUREMENTS_KEY, recorded_metadata
+from pcainterp_stream.io.outputs import MEASUREMENTS_KEY, image_of, recorded_metadata
 from pcainterp_stream.pipeline.jobs import LearnOptions, learn, synth
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
@@ -149,8 +149,7 @@ def depth_shapes(path: Path) -> list[tuple[int, int]]:
     """Return the (height, width) of every /pcainterp/depth image of a log."""
     with open_log(path) as reader:
         return [
-            rosmsg.image_array(reader.decode(raw)).shape[:2]
-            for raw in reader.messages(["/pcainterp/depth"])
+            image_of(reader.decode(raw)).shape[:2] for raw in reader.messages(["/pcainterp/depth"])
         ]
 
 
@@ -238,7 +237,9 @@ def test_densify_succeeds(
 def test_densify_dense_measurements(
     pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path
 ) -> None:
-    run = pcainterp(*densify_args(small_log, out, basis_path, "--measurements", "dense"))
+    run = pcainterp(
+        *densify_args(small_log, out, basis_path, "--measurements", "dense", "--precision", "full")
+    )
     assert run.code == 0, run.err
     assert "fused with the whole SGBM map (dense)" in run.out
     counts = assert_valid_mcap(out)

@@ -15,11 +15,18 @@ from SGBM maps of another synthetic log, then measures:
   resolution, against the synthetic ground-truth depth;
 - ``compression``: per topic of a densified log, what zstd at each level asked for keeps of
   the messages' bytes and its CPU time per message, and the chunk CRC-32 of zlib against
-  zlib-ng (densifies the log first with the defaults).
+  zlib-ng (densifies the log first with the defaults);
+- ``cli``: what a user runs, start-up included: ``pcainterp densify LOG -o OUT`` (no flags,
+  or each ``--cli-args`` variant) in a fresh process against full-resolution SGBM alone in a
+  fresh process (import, read, decode, pair, SGBM on 2 workers), alternating, every round:
+  wall time, the ratio, CPU, peak RSS and output MB per frame of each round. ``--log`` takes
+  a real log (e.g. a KITTI clip imported with ``pcainterp import-kitti``).
 
-Example::
+Examples::
 
     python tools/bench_pipeline.py --work-dir /tmp/pcb --frames 100 --sections sgbm job breakdown
+    python tools/bench_pipeline.py --sections cli --log kitti_odometry.mcap --repeat 3 \
+        --cli-args "" "--precision full"
 """
 
 from __future__ import annotations
@@ -61,7 +68,7 @@ from pcainterp_stream.io import logreader, logwriter, rosmsg
 from pcainterp_stream.pipeline import densify, jobs, processor
 from pcainterp_stream.records import StereoFrame
 
-SECTIONS = ("sgbm", "job", "breakdown", "memory", "lookups", "compression")
+SECTIONS = ("sgbm", "job", "breakdown", "memory", "lookups", "compression", "cli")
 JOB_COLUMNS = (
     "frames/s",
     "ms/frame",
@@ -209,6 +216,85 @@ def run_job_subprocess(
         raise RuntimeError(f"job subprocess failed: {done.stderr[-2000:]}")
     result: dict[str, Any] = json.loads(done.stdout.strip().splitlines()[-1])
     return result
+
+
+# ----------------------------------------------------------------------------- cli
+
+
+def run_measured(command: list[str]) -> dict[str, float]:
+    """Run a command to its end; return its wall, CPU (s) and peak RSS (MB), start-up included.
+
+    Raises:
+        RuntimeError: the command failed (its last output lines).
+    """
+    started = time.perf_counter()
+    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    assert child.stderr is not None
+    errors = child.stderr.read()
+    _, status, usage = os.wait4(child.pid, 0)
+    wall = time.perf_counter() - started
+    child.returncode = os.waitstatus_to_exitcode(status)
+    if child.returncode != 0:
+        raise RuntimeError(f"{' '.join(command)} failed: {errors.decode()[-2000:]}")
+    return {
+        "seconds": wall,
+        "cpu_seconds": usage.ru_utime + usage.ru_stime,
+        "peak_rss_mb": usage.ru_maxrss / 1024.0,
+    }
+
+
+def count_frames(log: Path) -> int:
+    """Return the number of left images of a log (the frames densify makes)."""
+    with logreader.open_log(log) as reader:
+        info = reader.topics().get(PairingConfig().left_topic)
+    return int(info.message_count) if info is not None and info.message_count else 0
+
+
+def cli_rounds(log: Path, out: Path, variants: list[str], repeat: int) -> str:
+    """Time ``pcainterp densify`` (each variant) against SGBM alone, in fresh processes."""
+    frames = count_frames(log)
+    sgbm_command = [sys.executable, __file__, "--child-sgbm", str(log)]
+    header = ["round", "densify args", "SGBM alone s", "job s", "job / SGBM", "frames/s"]
+    header += ["CPU ms/frame (SGBM alone)", "CPU job / SGBM", "peak RSS MB", "output MB/frame"]
+    lines = [f"{log}: {frames} frames", harness.table_header(header)]
+    ratios: dict[str, list[float]] = defaultdict(list)
+    for round_index in range(repeat):
+        for variant in variants:
+            sgbm = run_measured(sgbm_command)
+            command = [sys.executable, "-m", "pcainterp_stream.cli", "densify", str(log)]
+            command += ["-o", str(out), *variant.split()]
+            job = run_measured(command)
+            ratio = job["seconds"] / sgbm["seconds"]
+            ratios[variant].append(ratio)
+            lines.append(
+                harness.table_row(
+                    [
+                        round_index + 1,
+                        variant or "(none)",
+                        f"{sgbm['seconds']:.2f}",
+                        f"{job['seconds']:.2f}",
+                        f"{ratio:.2f}",
+                        f"{frames / job['seconds']:.1f}",
+                        f"{1000 * job['cpu_seconds'] / frames:.0f} "
+                        f"({1000 * sgbm['cpu_seconds'] / frames:.0f})",
+                        f"{job['cpu_seconds'] / sgbm['cpu_seconds']:.2f}",
+                        f"{job['peak_rss_mb']:.0f}",
+                        f"{out.stat().st_size / 1e6 / frames:.2f}",
+                    ]
+                )
+            )
+    for variant, values in ratios.items():
+        lines.append(
+            f"\n{variant or '(no flags)'}: job / SGBM alone median {np.median(values):.2f}, "
+            f"best {min(values):.2f} over {len(values)} rounds"
+        )
+    return "\n".join(lines)
+
+
+def child_sgbm(log: Path) -> None:
+    """SGBM alone as a program: full resolution, 2 workers of one OpenCV thread."""
+    keep_freed_memory()
+    sgbm_alone(log, SgbmConfig(), workers=2, opencv_threads=1)
 
 
 # ----------------------------------------------------------------------------- breakdown
@@ -463,10 +549,23 @@ def main(argv: list[str] | None = None) -> int:
         default=[1, -1],
         help="zstd levels of the compression section",
     )
+    parser.add_argument(
+        "--log", type=Path, default=None, help="cli section: densify this log (default synthetic)"
+    )
+    parser.add_argument(
+        "--cli-args",
+        nargs="+",
+        default=[""],
+        help="cli section: densify's extra arguments, one variant per item ('' = no flags)",
+    )
     parser.add_argument("--child-job", help=argparse.SUPPRESS)
+    parser.add_argument("--child-sgbm", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.zstd_level is not None:
         _set_zstd_level(args.zstd_level)
+    if args.child_sgbm:
+        child_sgbm(args.child_sgbm)
+        return 0
     if args.child_job:
         job = json.loads(args.child_job)
         result = run_job_here(
@@ -476,6 +575,11 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     work = harness.work_dir(args.work_dir)
+    if args.sections == ["cli"]:  # what a user runs: no basis to learn first
+        log = args.log or harness.synth_log(work, args.frames, seed=1)
+        print(cli_rounds(log, work / "densified_cli.mcap", args.cli_args, args.repeat))
+        (work / "densified_cli.mcap").unlink(missing_ok=True)
+        return 0
     log = harness.synth_log(work, args.frames, seed=1)
     basis_path = harness.synth_basis(
         work, args.components, args.train_frames, fit_prior=args.fit_prior
@@ -565,6 +669,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\n{densified}:\n" + compression(densified, args.levels))
     if "lookups" in args.sections:
         print("\n" + lookup_loss(log, args.lookup_frames))
+    if "cli" in args.sections:
+        print("\n" + cli_rounds(args.log or log, out, args.cli_args, args.repeat))
     out.unlink(missing_ok=True)
     return 0
 

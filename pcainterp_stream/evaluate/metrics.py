@@ -22,7 +22,12 @@ from pcainterp_stream.estimate.baselines import linear, nearest
 from pcainterp_stream.estimate.basis import Basis, resample_grid
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
-from pcainterp_stream.io.outputs import OutputTopics
+from pcainterp_stream.io.outputs import (
+    EstimateTopics,
+    OutputTopics,
+    decode_estimate,
+    estimate_topics,
+)
 from pcainterp_stream.records import StereoCamera
 
 GROUND_TRUTH_DEPTH = "/ground_truth/depth"
@@ -74,10 +79,14 @@ def compare_with_ground_truth(
         LogReadError: the log has no densified or no ground-truth channel.
     """
     topics = topics or OutputTopics()
-    wanted = [topics.disparity, topics.disparity_std, topics.features, depth_topic]
     comparison = GroundTruthComparison()
     with open_log(path) as reader:
         present = reader.topics()
+        where = estimate_topics(present, topics)
+        wanted = [where.estimate, where.std, topics.features, depth_topic]
+        if where.compact:
+            wanted.append(topics.camera_info)
+        metadata: dict[str, str] = {}
         missing = [topic for topic in wanted if topic not in present]
         if missing:
             raise LogReadError(
@@ -87,13 +96,16 @@ def compare_with_ground_truth(
         pending: dict[int, dict[str, Any]] = {}
         for raw in reader.messages(wanted):
             message = reader.decode(raw)
-            stamp = rosmsg.stamp_ns(message)
+            if raw.topic == where.estimate and not metadata:
+                metadata = dict(raw.channel_metadata)
+            full_estimate = raw.topic == where.estimate and not where.compact
+            stamp = rosmsg.stamp_ns(message.image if full_estimate else message)
             parts = pending.setdefault(stamp, {})
             parts[raw.topic] = message
             if len(parts) == len(wanted):
-                _accumulate(comparison, pending.pop(stamp), topics, depth_topic)
+                _accumulate(comparison, pending.pop(stamp), topics, depth_topic, where, metadata)
             # frames are written close together: keep only a few stamps waiting
-            while len(pending) > 8:
+            while len(pending) > 32:  # densify writes outputs ~12 frames after inputs
                 pending.pop(min(pending))
     return comparison
 
@@ -103,11 +115,15 @@ def _accumulate(
     parts: dict[str, Any],
     topics: OutputTopics,
     depth_topic: str,
+    where: EstimateTopics,
+    metadata: dict[str, str],
 ) -> None:
-    disparity_message = parts[topics.disparity]
-    estimate = rosmsg.image_array(disparity_message.image).astype(np.float64)
-    std = rosmsg.image_array(parts[topics.disparity_std]).astype(np.float64)
-    focal_baseline = float(disparity_message.f) * float(disparity_message.t)
+    decoded = decode_estimate(
+        parts[where.estimate], parts[where.std], parts.get(topics.camera_info), metadata
+    )
+    estimate = decoded.disparity.astype(np.float64)
+    std = decoded.disparity_std.astype(np.float64)
+    focal_baseline = decoded.focal * decoded.baseline
     depth = rosmsg.image_array(parts[depth_topic]).astype(np.float64)
     with np.errstate(divide="ignore"):
         truth = np.where(np.isnan(depth) | np.isinf(depth), 0.0, focal_baseline / depth)

@@ -77,7 +77,13 @@ from pcainterp_stream.frontend.stereo import (
 )
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import decode_image, open_log
-from pcainterp_stream.io.outputs import MEASUREMENTS_KEY, OutputTopics
+from pcainterp_stream.io.outputs import (
+    MEASUREMENTS_KEY,
+    EstimateTopics,
+    OutputTopics,
+    decode_estimate,
+    estimate_topics,
+)
 from pcainterp_stream.records import StereoCamera
 
 __all__ = [
@@ -155,6 +161,11 @@ class EvaluateOptions:
     recorded); raw images are rectified as densify did, for the baselines and figures."""
 
 
+PENDING_FRAMES = 32
+"""Stamps whose channels are gathered at once: densify writes a frame's outputs up to its
+look-ahead, batch and output-encoding frames (~12) after the frame's input images."""
+
+
 @dataclass(frozen=True, eq=False)
 class _Frame:
     """One densified frame as read from the log."""
@@ -191,9 +202,11 @@ class _ReadState:
 
     measurements: str | None = None
     seen_disparity: bool = False
+    metadata: dict[str, str] = field(default_factory=dict)
+    """The estimate channel's metadata (a compact log's f*b and min disparity)."""
 
 
-def _camera(info: Any, disparity_message: Any, size: tuple[int, int]) -> StereoCamera:
+def _camera(info: Any, baseline: float, size: tuple[int, int]) -> StereoCamera:
     p = rosmsg.projection_matrix(info)
     return StereoCamera(
         width=size[1],
@@ -202,7 +215,7 @@ def _camera(info: Any, disparity_message: Any, size: tuple[int, int]) -> StereoC
         fy=float(p[1, 1]),
         cx=float(p[0, 2]),
         cy=float(p[1, 2]),
-        baseline=float(disparity_message.t),
+        baseline=baseline,
     )
 
 
@@ -225,7 +238,8 @@ def _frames(
     left_image, right_image = images.left_topic, images.right_topic
     with open_log(path) as reader:
         present = reader.topics()
-        needed = [topics.disparity, topics.disparity_std, topics.features, topics.camera_info]
+        where = estimate_topics(present, topics)
+        needed = [where.estimate, where.std, topics.features, topics.camera_info]
         missing = [topic for topic in [*needed, left_image] if topic not in present]
         if missing:
             raise LogReadError(
@@ -249,9 +263,10 @@ def _frames(
         waiting: deque[_Frame] = deque()
         index = yielded = 0
         for raw in reader.messages(wanted):
-            if raw.topic == topics.disparity and not state.seen_disparity:
+            if raw.topic == where.estimate and not state.seen_disparity:
                 state.seen_disparity = True
-                state.measurements = dict(raw.channel_metadata).get(MEASUREMENTS_KEY)
+                state.metadata = dict(raw.channel_metadata)
+                state.measurements = state.metadata.get(MEASUREMENTS_KEY)
             message = reader.decode(raw)
             if raw.topic in infos:
                 images.see_info(raw.topic, message)
@@ -260,7 +275,8 @@ def _frames(
                 references[rosmsg.stamp_ns(message)] = message
                 while len(references) > REFERENCE_BUFFER:
                     references.pop(min(references))
-            stamp = rosmsg.stamp_ns(message.image if raw.topic == topics.disparity else message)
+            full_estimate = raw.topic == where.estimate and not where.compact
+            stamp = rosmsg.stamp_ns(message.image if full_estimate else message)
             if raw.topic == right_image:
                 rights[stamp] = message
                 while len(rights) > 16:
@@ -278,10 +294,12 @@ def _frames(
                             rights=rights,
                             topics=topics,
                             images=images,
+                            where=where,
+                            metadata=state.metadata,
                         )
                     )
                     index += 1
-                while len(pending) > 8:  # frames are written close together
+                while len(pending) > PENDING_FRAMES:  # frames are written close together
                     pending.pop(min(pending))
             while waiting and (
                 reference is None
@@ -309,10 +327,18 @@ def _frame(
     rights: dict[int, Any],
     topics: OutputTopics,
     images: PairImages,
+    where: EstimateTopics,
+    metadata: dict[str, str],
 ) -> _Frame:
     """Build a frame from its complete messages and the right image nearest its stamp."""
     parts = pending_parts
-    estimate = rosmsg.image_array(parts[topics.disparity].image).astype(np.float32)
+    try:
+        decoded = decode_estimate(
+            parts[where.estimate], parts[where.std], parts[topics.camera_info], metadata
+        )
+    except ValueError as err:
+        raise LogReadError(f"frame {index} of the densified log: {err}") from None
+    estimate = decoded.disparity
     features = rosmsg.pointcloud2_arrays(parts[topics.features])
     depth = parts.get(GROUND_TRUTH_DEPTH)
     pose = parts.get(GROUND_TRUTH_POSE)
@@ -327,18 +353,18 @@ def _frame(
         stamp_ns=stamp,
         camera=_camera(
             parts[topics.camera_info],
-            parts[topics.disparity],
+            decoded.baseline,
             (int(estimate.shape[0]), int(estimate.shape[1])),
         ),
         estimate=estimate,
-        std=rosmsg.image_array(parts[topics.disparity_std]).astype(np.float32),
+        std=decoded.disparity_std,
         pixels=np.stack([features["u"], features["v"]], axis=1),
         disparities=features["disparity"],
         left=images.rectified(decode_image(parts[images.left_topic]), "left"),
         right=None if right is None else images.rectified(decode_image(right), "right"),
         depth=None if depth is None else rosmsg.image_array(depth).astype(np.float32),
         pose=None if pose is None else rosmsg.pose_matrix(pose),
-        min_disparity=float(parts[topics.disparity].min_disparity),
+        min_disparity=decoded.min_disparity,
     )
 
 
@@ -604,7 +630,8 @@ def evaluate_log(
         has_truth = reference is not None or GROUND_TRUTH_DEPTH in present
         has_pose = GROUND_TRUTH_POSE in present
         has_right = images.right_topic in present
-        count = present[topics.disparity].message_count if topics.disparity in present else None
+        estimate_topic = estimate_topics(present, topics).estimate
+        count = present[estimate_topic].message_count if estimate_topic in present else None
     has_truth = has_truth and not options.sgbm_reference
     mode = Mode(options.mode) if options.mode else None
     mode = mode or (Mode.TEMPORAL if has_truth and has_pose else Mode.STEREO)

@@ -1,9 +1,24 @@
-"""The ``/pcainterp/*`` output messages of one densified frame (DESIGN.md section 3).
+"""The ``/pcainterp/*`` output messages of one densified frame.
 
 Every output message carries the left image's header (stamp, frame_id); the caller writes
 them at the left image's log time. The output channels' MCAP metadata
 (:func:`channel_metadata`) names the basis the log was densified with, so that
-``evaluate`` can use the same one.
+``evaluate`` can use the same one, and each channel's encoding (:data:`ENCODING_KEY`).
+
+Two precisions (``densify --precision``), chosen by measurement (docs/benchmarks.md,
+"Output encodings"):
+
+- ``compact`` (default): ``depth`` as ``sensor_msgs/CompressedImage`` ``32FC1;
+  compressedDepth png`` (quantised inverse depth, i.e. the disparity rounded to a multiple
+  of a power-of-two step <= 1/32 of the frame's smallest disparity std, so the error is at
+  most 1/64 of the posterior std; REP 118's NaN and ``+inf`` kept), ``disparity_std`` the
+  same way (its reciprocal quantised: relative error <= :data:`STD_RELATIVE_ERROR`), a
+  ``16UC1`` millimetre ``depth_mm`` copy for viewers (to the nearest
+  :data:`DISPLAY_DEPTH_STEP_MM` mm, 0 to the display range), ``features`` and
+  ``camera_info``. ``depth_std`` (= f*b / d^2 * disparity_std) and ``disparity``
+  (= f*b / depth) follow from those and are written, as float32, only when asked for.
+- ``full``: every channel float32 (``depth``, ``depth_std``, ``disparity_std`` as ``32FC1``
+  Images, ``disparity`` as a ``stereo_msgs/DisparityImage``), as before.
 """
 
 from __future__ import annotations
@@ -14,14 +29,32 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from pcainterp_stream.defaults import DISPLAY_MAX_DEPTH
-from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io import depth_codec, rosmsg
 from pcainterp_stream.records import DensifiedFrame
 
 CHANNELS = ("depth", "depth_std", "disparity", "disparity_std", "features", "camera_info")
-"""The output channels DESIGN.md section 3 lists, by the :class:`OutputTopics` field naming
-each; ``densify --outputs`` writes a subset (all by default)."""
+"""The output channels, by the :class:`OutputTopics` field naming each; ``densify
+--outputs`` writes a subset."""
+
+PRECISIONS = ("compact", "full")
+"""``densify --precision``: compact standard ROS encodings (default) or float32 channels."""
+
+COMPACT_CHANNELS = ("depth", "disparity_std", "features", "camera_info")
+"""The channels written by default at ``compact`` precision (plus the ``depth_mm`` copy)."""
+
+STD_RELATIVE_ERROR = 0.01
+"""Largest relative quantisation error of the compact ``disparity_std``."""
+DEPTH_STEP_OF_STD = 32.0
+"""The compact depth's disparity step is the largest power of two <= the frame's smallest
+disparity std / this (error <= step / 2 <= 1/64 of any pixel's std)."""
+DEPTH_STEP_RANGE = (1.0 / 1024.0, 1.0 / 16.0)
+"""Bounds (px) of that step; the finest one when the frame has no std."""
+DISPLAY_DEPTH_STEP_MM = 50
+"""The compact ``depth_mm`` viewer copy's rounding (mm): a fifth of one colour of a
+256-colour map over 0 to :data:`~pcainterp_stream.defaults.DISPLAY_MAX_DEPTH` m."""
 
 
 @dataclass(frozen=True)
@@ -46,6 +79,42 @@ class OutputTopics:
     range 0 to :data:`~pcainterp_stream.defaults.DISPLAY_MAX_DEPTH` (too far: its end)."""
     skipped: frozenset[str] = frozenset()
     """Channels of :data:`CHANNELS` not written (see :meth:`only`)."""
+    precision: str = "full"
+    """``full`` (float32 channels) or ``compact`` (compressedDepth; :meth:`compact`)."""
+
+    def compact(self) -> OutputTopics:
+        """Return these topics at compact precision with the compact default channels.
+
+        Writes :data:`COMPACT_CHANNELS` and a ``depth_mm`` viewer copy (``<prefix>/depth_mm``
+        beside ``depth`` unless one is named already); :meth:`only` may change the set.
+        """
+        depth_mm = self.depth_mm or self.depth.rsplit("/", 1)[0] + "/depth_mm"
+        return replace(
+            self,
+            precision="compact",
+            depth_mm=depth_mm,
+            skipped=frozenset(set(CHANNELS) - set(COMPACT_CHANNELS)),
+        )
+
+    def encoding(self, channel: str) -> str:
+        """Return how a channel of :data:`CHANNELS` (or ``depth_mm``) is encoded."""
+        compressed = depth_codec.compressed_format("32FC1", "png")
+        if channel == "depth_mm":
+            return "sensor_msgs/Image 16UC1 mm"
+        if self.precision == "compact" and channel in ("depth", "disparity_std"):
+            return f"sensor_msgs/CompressedImage {compressed}"
+        return {
+            "depth": "sensor_msgs/Image 32FC1",
+            "depth_std": "sensor_msgs/Image 32FC1",
+            "disparity": "stereo_msgs/DisparityImage 32FC1",
+            "disparity_std": "sensor_msgs/Image 32FC1",
+            "features": "sensor_msgs/PointCloud2",
+            "camera_info": "sensor_msgs/CameraInfo",
+        }[channel]
+
+    def msgtype(self, channel: str) -> str:
+        """Return the ROS 2 message type of a channel (or ``depth_mm``)."""
+        return self.encoding(channel).split(" ", 1)[0].replace("/", "/msg/", 1)
 
     def only(self, channels: Iterable[str]) -> OutputTopics:
         """Return these topics writing only ``channels`` (names of :data:`CHANNELS`).
@@ -61,17 +130,31 @@ class OutputTopics:
             )
         if not chosen:
             raise ValueError(f"no output channel chosen; choose from {', '.join(CHANNELS)}")
-        return replace(self, skipped=frozenset(set(CHANNELS) - chosen))
+        topics = replace(self, skipped=frozenset(set(CHANNELS) - chosen))
+        if self.precision == "compact" and "depth" not in chosen:
+            topics = replace(topics, depth_mm=None)  # the viewers' copy of the depth
+        return topics
+
+    def topic(self, channel: str) -> str:
+        """Return the topic of a channel of :data:`CHANNELS` (or ``depth_mm``)."""
+        return str(getattr(self, channel))
 
     def writes(self, channel: str) -> bool:
         """Return whether the channel (a name of :data:`CHANNELS`) is written."""
         return channel not in self.skipped
 
     @classmethod
-    def with_prefix(cls, prefix: str, *, depth_mm: bool = False) -> OutputTopics:
-        """Return the default topics under another prefix (``/pcainterp`` by default)."""
+    def with_prefix(
+        cls, prefix: str, *, depth_mm: bool = False, precision: str = "full"
+    ) -> OutputTopics:
+        """Return the default topics under another prefix (``/pcainterp`` by default).
+
+        ``precision="compact"`` returns :meth:`compact` of them.
+        """
+        if precision not in PRECISIONS:
+            raise ValueError(f"unknown precision {precision!r}; choose {' or '.join(PRECISIONS)}")
         prefix = "/" + prefix.strip("/")
-        return cls(
+        topics = cls(
             depth=f"{prefix}/depth",
             depth_std=f"{prefix}/depth_std",
             disparity=f"{prefix}/disparity",
@@ -80,6 +163,7 @@ class OutputTopics:
             camera_info=f"{prefix}/camera_info",
             depth_mm=f"{prefix}/depth_mm" if depth_mm else None,
         )
+        return topics.compact() if precision == "compact" else topics
 
     def all(self) -> list[str]:
         """Return every output topic in use."""
@@ -101,6 +185,36 @@ MEASUREMENTS_KEY = "pcainterp.measurements"
 that shaped the estimate)."""
 
 
+ENCODING_KEY = "pcainterp.encoding"
+"""Channel metadata key: how the channel is encoded (:meth:`OutputTopics.encoding`)."""
+
+FOCAL_BASELINE_KEY = "pcainterp.focal_baseline"
+"""Channel metadata key of compact logs: f*b (px*m), to turn the depth into disparity."""
+
+MIN_DISPARITY_KEY = "pcainterp.min_disparity"
+"""Channel metadata key of compact logs: the smallest resolvable disparity (px) of the
+first frame (the ``DisparityImage``'s ``min_disparity``; constant unless ``--sigma
+evidence``)."""
+
+
+def frame_metadata(result: DensifiedFrame) -> dict[str, str]:
+    """Return the per-log values a compact log's channels record (f*b, min disparity)."""
+    return {
+        FOCAL_BASELINE_KEY: repr(float(result.frame.camera.focal_baseline)),
+        MIN_DISPARITY_KEY: repr(float(result.min_disparity)),
+    }
+
+
+def topic_metadata(topics: OutputTopics, metadata: dict[str, str]) -> dict[str, dict[str, str]]:
+    """Return each written output topic's channel metadata: ``metadata`` and its encoding."""
+    channels = [name for name in CHANNELS if topics.writes(name)]
+    if topics.depth_mm:
+        channels.append("depth_mm")
+    return {
+        topics.topic(name): {**metadata, ENCODING_KEY: topics.encoding(name)} for name in channels
+    }
+
+
 def channel_metadata(basis: str, fingerprint: str, measurements: str = "sparse") -> dict[str, str]:
     """Return the metadata of the output channels of a densified log.
 
@@ -117,24 +231,27 @@ def channel_metadata(basis: str, fingerprint: str, measurements: str = "sparse")
 
 
 def recorded_metadata(path: Path, topics: OutputTopics | None = None) -> dict[str, str]:
-    """Return the channel metadata of a densified log's disparity channel ({} if none).
+    """Return the channel metadata of a densified log's disparity (or depth) channel.
 
     Args:
         path: a log written by ``pcainterp densify``.
-        topics: its output topics (default DESIGN.md's).
+        topics: its output topics (default the standard ones).
 
     Returns:
-        The metadata of the first message's channel on ``topics.disparity``; {} when the
-        log has no such message or its format keeps no channel metadata.
+        The metadata of the first message's channel on ``topics.disparity``, else on
+        ``topics.depth`` (compact logs); {} when the log has neither or its format keeps
+        no channel metadata.
     """
     from pcainterp_stream.io.logreader import open_log
 
-    topic = (topics or OutputTopics()).disparity
+    topics = topics or OutputTopics()
     with open_log(path) as reader:
-        if topic not in reader.topics():
-            return {}
-        for raw in reader.messages([topic]):
-            return dict(raw.channel_metadata)
+        present = reader.topics()
+        for topic in (topics.disparity, topics.depth):
+            if topic not in present:
+                continue
+            for raw in reader.messages([topic]):
+                return dict(raw.channel_metadata)
     return {}
 
 
@@ -152,7 +269,18 @@ def output_messages(result: DensifiedFrame, topics: OutputTopics) -> list[tuple[
     camera = frame.camera
     stamp, frame_id = frame.stamp_ns, frame.frame_id
     messages: list[tuple[str, Any]] = []
-    if topics.writes("depth"):
+    compact = topics.precision == "compact"
+    if topics.writes("depth") and compact:
+        step = depth_step(result.disparity_std)
+        finite = np.isfinite(result.depth)
+        quant_a = depth_codec.inverse_depth_scale(
+            camera.focal_baseline,
+            step,
+            float(camera.focal_baseline / np.min(result.depth[finite])) if finite.any() else 1.0,
+        )
+        encoded = depth_codec.encode_depth(result.depth, quant_a=quant_a)
+        messages.append((topics.depth, _compressed(encoded, stamp, frame_id)))
+    elif topics.writes("depth"):
         depth = rosmsg.image_message(result.depth, stamp, frame_id, encoding="32FC1")
         messages.append((topics.depth, depth))
     if topics.writes("depth_std"):
@@ -176,7 +304,12 @@ def output_messages(result: DensifiedFrame, topics: OutputTopics) -> list[tuple[
             ),
         )
         messages.append((topics.disparity, disparity))
-    if topics.writes("disparity_std"):
+    if topics.writes("disparity_std") and compact:
+        encoded = depth_codec.encode_depth(
+            result.disparity_std, quant_a=std_scale(result.disparity_std)
+        )
+        messages.append((topics.disparity_std, _compressed(encoded, stamp, frame_id)))
+    elif topics.writes("disparity_std"):
         disparity_std = rosmsg.image_message(
             result.disparity_std, stamp, frame_id, encoding="32FC1"
         )
@@ -189,11 +322,45 @@ def output_messages(result: DensifiedFrame, topics: OutputTopics) -> list[tuple[
         # fixed range: 0 = no estimate, DISPLAY_MAX_DEPTH for it and beyond (+inf: too far)
         far_mm = 1000.0 * DISPLAY_MAX_DEPTH
         millimetres = np.nan_to_num(result.depth * 1000.0, nan=0.0, posinf=far_mm, neginf=0.0)
+        if compact:  # to the display step: the copy is for viewers (a third of the bytes)
+            millimetres = np.rint(millimetres / DISPLAY_DEPTH_STEP_MM) * DISPLAY_DEPTH_STEP_MM
         depth_mm = np.clip(np.rint(millimetres), 0, far_mm).astype(np.uint16)
         messages.append(
             (topics.depth_mm, rosmsg.image_message(depth_mm, stamp, frame_id, encoding="16UC1"))
         )
     return messages
+
+
+def depth_step(disparity_std: npt.NDArray[np.float32]) -> float:
+    """Return the compact depth's disparity step (px) for a frame's disparity std.
+
+    The largest power of two <= the smallest finite std / :data:`DEPTH_STEP_OF_STD`, within
+    :data:`DEPTH_STEP_RANGE` (its fine end when no std is known).
+    """
+    finite = disparity_std[np.isfinite(disparity_std) & (disparity_std > 0)]
+    low, high = DEPTH_STEP_RANGE
+    if finite.size == 0:
+        return low
+    target = float(np.min(finite)) / DEPTH_STEP_OF_STD
+    return float(np.clip(2.0 ** np.floor(np.log2(max(target, low))), low, high))
+
+
+def std_scale(std: npt.NDArray[np.float32]) -> float:
+    """Return the depthQuantA storing a std image with <= :data:`STD_RELATIVE_ERROR` error.
+
+    Stored as ``A / s + 1``, the relative rounding error is ``s / (2 A)``, largest at the
+    largest std: ``A = max(s) / (2 * error)``. A std below ``A / 65534`` (1/1300 of the
+    largest) is stored as that value (absolute error <= max(s) / 1300); KITTI's and the
+    synthetic drives' stds span < 30x, so this never happens there.
+    """
+    finite = std[np.isfinite(std) & (std > 0)]
+    if finite.size == 0:
+        return 1.0
+    return float(np.max(finite)) / (2.0 * STD_RELATIVE_ERROR)
+
+
+def _compressed(encoded: depth_codec.CompressedDepth, stamp: int, frame_id: str) -> Any:
+    return rosmsg.compressed_image_message(encoded.data, encoded.format, stamp, frame_id)
 
 
 def _features_message(result: DensifiedFrame) -> Any:
@@ -216,4 +383,95 @@ def _features_message(result: DensifiedFrame) -> Any:
         },
         result.frame.stamp_ns,
         result.frame.frame_id,
+    )
+
+
+@dataclass(frozen=True)
+class EstimateTopics:
+    """Where a densified log keeps its estimate: the topics evaluate reads, by form."""
+
+    estimate: str
+    """``disparity`` (a full log's DisparityImage) or ``depth`` (a compact log's)."""
+    std: str
+    """``disparity_std`` (Image 32FC1 or compressedDepth)."""
+    compact: bool
+    """The estimate is the compressedDepth depth (disparity = f*b / depth)."""
+
+
+def estimate_topics(present: Iterable[str], topics: OutputTopics) -> EstimateTopics:
+    """Return the estimate topics of a log with these topics: disparity if it has it, else depth.
+
+    A log without either gets the full form's names (the caller reports them missing).
+    """
+    names = set(present)
+    if topics.disparity in names or topics.depth not in names:
+        return EstimateTopics(topics.disparity, topics.disparity_std, compact=False)
+    return EstimateTopics(topics.depth, topics.disparity_std, compact=True)
+
+
+@dataclass(frozen=True)
+class DecodedEstimate:
+    """A densified frame's estimate as evaluate uses it, whatever its encoding.
+
+    Attributes:
+        disparity: (H, W) float32 (px); a compact log's ``+inf`` depth (too far) reads 0.
+        disparity_std: (H, W) float32 (px).
+        focal: f (px).
+        baseline: b (m).
+        min_disparity: the smallest resolvable disparity (px).
+    """
+
+    disparity: npt.NDArray[np.float32]
+    disparity_std: npt.NDArray[np.float32]
+    focal: float
+    baseline: float
+    min_disparity: float
+
+
+def image_of(message: Any) -> npt.NDArray[np.generic]:
+    """Decode an Image or a compressedDepth CompressedImage into its array."""
+    if str(message.__msgtype__) == rosmsg.COMPRESSED_IMAGE:
+        return depth_codec.decode(str(message.format), np.asarray(message.data, dtype=np.uint8))
+    return rosmsg.image_array(message)
+
+
+def decode_estimate(
+    estimate: Any, std: Any, camera_info: Any, metadata: dict[str, str]
+) -> DecodedEstimate:
+    """Decode a frame's estimate and std messages (full or compact form).
+
+    Args:
+        estimate: the DisparityImage (full) or the compressedDepth depth (compact).
+        std: the disparity std (Image or compressedDepth).
+        camera_info: the ``camera_info`` output (f of a compact log).
+        metadata: the estimate channel's metadata (f*b and min disparity of a compact log).
+
+    Raises:
+        ValueError: a compact log whose metadata lacks f*b (not written by this version).
+    """
+    disparity_std = image_of(std).astype(np.float32, copy=False)
+    if str(estimate.__msgtype__) == rosmsg.DISPARITY_IMAGE:
+        return DecodedEstimate(
+            disparity=rosmsg.image_array(estimate.image).astype(np.float32, copy=False),
+            disparity_std=disparity_std,
+            focal=float(estimate.f),
+            baseline=float(estimate.t),
+            min_disparity=float(estimate.min_disparity),
+        )
+    if FOCAL_BASELINE_KEY not in metadata:
+        raise ValueError(
+            f"the depth channel has no {FOCAL_BASELINE_KEY} metadata, so its disparity is "
+            "unknown; densify the log again (or with --precision full)"
+        )
+    focal_baseline = float(metadata[FOCAL_BASELINE_KEY])
+    depth = image_of(estimate).astype(np.float32, copy=False)
+    with np.errstate(divide="ignore"):
+        disparity = np.float32(focal_baseline) / depth  # +inf -> 0, NaN stays
+    focal = float(rosmsg.projection_matrix(camera_info)[0, 0])
+    return DecodedEstimate(
+        disparity=disparity.astype(np.float32, copy=False),
+        disparity_std=disparity_std,
+        focal=focal,
+        baseline=focal_baseline / focal,
+        min_disparity=float(metadata.get(MIN_DISPARITY_KEY, 0.0)),
     )

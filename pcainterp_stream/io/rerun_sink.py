@@ -15,13 +15,16 @@ from __future__ import annotations
 
 from pathlib import Path
 from types import TracebackType
+from typing import TYPE_CHECKING
 
 import numpy as np
-import rerun as rr
 
 from pcainterp_stream.defaults import DISPLAY_MAX_DEPTH, DISPLAY_MAX_DEPTH_STD
 from pcainterp_stream.errors import LogWriteError
 from pcainterp_stream.records import DensifiedFrame
+
+if TYPE_CHECKING:
+    import rerun as rr
 
 TIMELINE = "stamp"
 
@@ -53,6 +56,8 @@ class RerunSink:
         self._camera_logged: tuple[int, int, float, float, float, float] | None = None
 
     def __enter__(self) -> RerunSink:
+        import rerun as rr  # imported when used: ~0.3 s of every densify start-up otherwise
+
         recording = rr.RecordingStream(self.application_id)
         if self.rrd_path is not None:
             if not self.rrd_path.parent.is_dir():
@@ -86,6 +91,8 @@ class RerunSink:
 
     def log(self, result: DensifiedFrame) -> None:
         """Log one densified frame at its left-image stamp."""
+        import rerun as rr
+
         recording = self._recording
         if recording is None:
             raise RuntimeError("RerunSink.log called outside its with-block")

@@ -13,7 +13,6 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 from rosbags.typesys import Stores, get_typestore
-from scipy.spatial.transform import Rotation
 
 from pcainterp_stream.records import StereoCamera
 
@@ -297,6 +296,8 @@ def pose_stamped_message(
     camera_to_world: npt.NDArray[np.float64], stamp_ns: int, frame_id: str
 ) -> Any:
     """Build a ``geometry_msgs/msg/PoseStamped`` from a 4x4 (or 3x4) camera-to-world matrix."""
+    from scipy.spatial.transform import Rotation  # imported when used: ~0.3 s of start-up
+
     rotation = np.asarray(camera_to_world, dtype=np.float64)[:3, :3]
     translation = np.asarray(camera_to_world, dtype=np.float64)[:3, 3]
     qx, qy, qz, qw = Rotation.from_matrix(rotation).as_quat()
@@ -315,6 +316,8 @@ def pose_stamped_message(
 
 def pose_matrix(message: Any) -> npt.NDArray[np.float64]:
     """Return the 4x4 matrix of a ``PoseStamped`` (or ``Pose``) message."""
+    from scipy.spatial.transform import Rotation
+
     pose = getattr(message, "pose", message)
     q = pose.orientation
     matrix = np.eye(4)

@@ -5,10 +5,12 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import time
+from collections import deque
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 from pcainterp_stream.errors import (
     LogReadError,
@@ -25,7 +27,13 @@ from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.foxglove import FoxgloveLive, LiveMessage
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import LogFormat, LogWriter, WriteSummary, open_writer
-from pcainterp_stream.io.outputs import OutputTopics, channel_metadata, output_messages
+from pcainterp_stream.io.outputs import (
+    OutputTopics,
+    channel_metadata,
+    frame_metadata,
+    output_messages,
+    topic_metadata,
+)
 from pcainterp_stream.io.pipes import STDIN_NAME, McapStreamWriter, spool
 from pcainterp_stream.io.rerun_sink import RerunSink
 from pcainterp_stream.pipeline.common import (
@@ -36,6 +44,11 @@ from pcainterp_stream.pipeline.common import (
 )
 from pcainterp_stream.pipeline.processor import FrameProcessor, MeasurementSource, ProcessorConfig
 from pcainterp_stream.records import DensifiedFrame
+
+ENCODE_WORKERS = 2
+"""Threads building (and PNG-encoding) the output messages of densified frames."""
+ENCODE_AHEAD = 4
+"""Frames whose output messages may be in the making at once (bounds their memory)."""
 
 
 @dataclass
@@ -125,7 +138,7 @@ def densify(
     started = time.perf_counter()
     pairing = pairing or PairingConfig()
     processor = processor or ProcessorConfig()
-    topics = topics or OutputTopics()
+    topics = topics or OutputTopics().compact()
     basis, label = resolve_basis(basis)
     if processor.source is MeasurementSource.FEATURES and pairing.features_topic is None:
         raise PcaInterpError("measurement source 'features' needs --features-topic")
@@ -160,10 +173,15 @@ def densify(
         elif output is not None:
             writer = stack.enter_context(McapStreamWriter(output))
         if writer is not None:
-            writer.channel_metadata = {topic: metadata for topic in topics.all()}
+            writer.channel_metadata = topic_metadata(topics, metadata)
         if live is not None:
             for topic, msgtype in output_types(topics).items():  # subscribable before frame 1
                 live.advertise(topic, msgtype, metadata=metadata)
+        # the output messages (quantising and PNG-deflating: numpy and zlib-ng release the
+        # GIL) are built in a pool of their own, so the calling thread only reads, pairs and
+        # densifies; they are written in frame order, ENCODE_AHEAD frames behind
+        encoder = stack.enter_context(ThreadPoolExecutor(ENCODE_WORKERS, "encode-outputs"))
+        encoding: deque[tuple[DensifiedFrame, Future[list[tuple[str, Any]]]]] = deque()
         sink = (
             stack.enter_context(RerunSink(rrd_path=rrd, spawn=spawn_viewer))
             if rrd is not None or spawn_viewer
@@ -174,44 +192,54 @@ def densify(
         bar = stack.enter_context(_bar(total, f"densify {input_path.name}"))
 
         def emit(results: list[DensifiedFrame]) -> None:
-            nonlocal measurements, frames
-            if results and frames == 0 and engine.adaptation.adapted and writer is not None:
-                # the first outputs follow the warm-up: name the basis learned from the log
-                adapted = channel_metadata(
-                    own_basis_label(output),
-                    engine.adaptation.first_basis.fingerprint
-                    if engine.adaptation.first_basis is not None
-                    else engine.basis.fingerprint,
-                    processor.measurements,
-                )
-                writer.channel_metadata = {topic: adapted for topic in topics.all()}
             for result in map(pairer.full_result, results):
-                messages = output_messages(result, topics)
-                if writer is not None:
-                    for topic, message in messages:
-                        writer.add_message(topic, message, result.frame.log_time_ns)
-                if live is not None:
-                    live.add_frame(
-                        result.frame.log_time_ns,
-                        [
-                            LiveMessage(
-                                topic, str(message.__msgtype__), rosmsg.serialize(message), metadata
+                if frames == 0 and not encoding and writer is not None:
+                    # f*b and the first min disparity: what evaluate needs of a compact log
+                    first = {**metadata, **frame_metadata(result)}
+                    if engine.adaptation.adapted:
+                        # the first outputs follow the warm-up: name the basis learned from it
+                        own = engine.adaptation.first_basis
+                        first.update(
+                            channel_metadata(
+                                own_basis_label(output),
+                                (own if own is not None else engine.basis).fingerprint,
+                                processor.measurements,
                             )
-                            for topic, message in messages
-                        ],
-                    )
-                if sink is not None:
-                    sink.log(result)
-                if on_frame is not None:
-                    on_frame(result)
-                measurements += int(result.pixels.shape[0])
-                frames += 1
-                robust["downweighted"] += result.counts.get("downweighted", 0)
-                robust["most"] = max(robust["most"], result.counts.get("downweighted", 0))
-                robust["resets"] += result.counts.get("temporal_reset", 0)
-                robust["carried"] += result.counts.get("carried", 0)
-                robust["carry_resets"] += result.counts.get("carry_reset", 0)
-                bar.update(1)
+                        )
+                    writer.channel_metadata = topic_metadata(topics, first)
+                encoding.append((result, encoder.submit(output_messages, result, topics)))
+            # by count, never by which future is done: the output's order is deterministic
+            while len(encoding) > ENCODE_AHEAD:
+                write(*encoding.popleft())
+
+        def write(result: DensifiedFrame, built: Future[list[tuple[str, Any]]]) -> None:
+            nonlocal measurements, frames
+            messages = built.result()
+            if writer is not None:
+                for topic, message in messages:
+                    writer.add_message(topic, message, result.frame.log_time_ns)
+            if live is not None:
+                live.add_frame(
+                    result.frame.log_time_ns,
+                    [
+                        LiveMessage(
+                            topic, str(message.__msgtype__), rosmsg.serialize(message), metadata
+                        )
+                        for topic, message in messages
+                    ],
+                )
+            if sink is not None:
+                sink.log(result)
+            if on_frame is not None:
+                on_frame(result)
+            measurements += int(result.pixels.shape[0])
+            frames += 1
+            robust["downweighted"] += result.counts.get("downweighted", 0)
+            robust["most"] = max(robust["most"], result.counts.get("downweighted", 0))
+            robust["resets"] += result.counts.get("temporal_reset", 0)
+            robust["carried"] += result.counts.get("carried", 0)
+            robust["carry_resets"] += result.counts.get("carry_reset", 0)
+            bar.update(1)
 
         for raw in reader.messages():
             if writer is not None:
@@ -224,6 +252,8 @@ def densify(
         for frame in pairer.flush():
             emit(engine.submit(frame, pairer.features_for(frame)))
         emit(engine.finish())
+        while encoding:
+            write(*encoding.popleft())
         if live is not None:
             live.flush()
         stats = pairer.finish()
@@ -281,14 +311,8 @@ def own_basis_label(output: Path | IO[bytes] | None) -> str:
 
 def output_types(topics: OutputTopics) -> dict[str, str]:
     """Return output topic -> ROS 2 message type, as ``io/outputs.output_messages`` builds them."""
-    types = {
-        topics.depth: rosmsg.IMAGE,
-        topics.depth_std: rosmsg.IMAGE,
-        topics.disparity: rosmsg.DISPARITY_IMAGE,
-        topics.disparity_std: rosmsg.IMAGE,
-        topics.features: rosmsg.POINT_CLOUD2,
-        topics.camera_info: rosmsg.CAMERA_INFO,
-    }
+    channels = ["depth", "depth_std", "disparity", "disparity_std", "features", "camera_info"]
+    types = {topics.topic(name): topics.msgtype(name) for name in channels}
     if topics.depth_mm:
         types[topics.depth_mm] = rosmsg.IMAGE
     written = set(topics.all())  # --outputs may leave some out

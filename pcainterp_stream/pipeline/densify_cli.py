@@ -108,14 +108,27 @@ def add_densify_arguments(densify: argparse.ArgumentParser) -> None:
         help="prefix of the output topics (default: %(default)s)",
     )
     densify.add_argument(
-        "--depth-mm", action="store_true", help="also write a 16UC1 millimetre depth (Foxglove)"
+        "--depth-mm",
+        action="store_true",
+        help="also write a 16UC1 millimetre depth for viewers (always written at compact "
+        "precision)",
+    )
+    densify.add_argument(
+        "--precision",
+        choices=["compact", "full"],
+        default="compact",
+        help="compact (default): depth and disparity_std as compressedDepth PNG within 1/64 "
+        "of the posterior std, a 16UC1 mm depth for viewers: ~0.7 MB of output per KITTI "
+        "frame. full: every channel float32, ~7.3 MB per KITTI frame (docs/benchmarks.md, "
+        "'Output encodings')",
     )
     densify.add_argument(
         "--outputs",
         default=None,
         metavar="CHANNELS",
         help="comma-separated output channels to write, of depth, depth_std, disparity, "
-        "disparity_std, features, camera_info (default: all; evaluate needs disparity, "
+        "disparity_std, features, camera_info (default: depth, disparity_std, features, "
+        "camera_info at compact precision, all at full; evaluate needs depth or disparity, "
         "disparity_std, features, camera_info; depth and disparity are reciprocal)",
     )
 

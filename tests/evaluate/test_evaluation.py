@@ -30,6 +30,7 @@ from pcainterp_stream.evaluate.metrics import (
 )
 from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log
 from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.io.outputs import OutputTopics
 from pcainterp_stream.pipeline import jobs
 from pcainterp_stream.records import StereoCamera
 
@@ -201,8 +202,12 @@ def dense_logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     options = jobs.LearnOptions(n_components=10, fit_prior=False)
     jobs.learn([train], basis, options, PairingConfig())
     dense = folder / "dense.mcap"
-    jobs.densify(test, dense, basis)
-    return {"basis": basis, "dense": dense, "test": test, "folder": folder}
+    # float32 channels: re-densifying must reproduce the stored estimate at every pixel (a
+    # compact log reads disparities below min_disparity as 0, REP 118's +inf depth)
+    jobs.densify(test, dense, basis, topics=OutputTopics())
+    compact = folder / "compact.mcap"
+    jobs.densify(test, compact, basis)
+    return {"basis": basis, "dense": dense, "test": test, "folder": folder, "compact": compact}
 
 
 def test_evaluate_writes_report_with_every_section(dense_logs: dict[str, Path]) -> None:
@@ -294,3 +299,29 @@ def test_evaluate_help_has_examples(capsys: pytest.CaptureFixture[str]) -> None:
         cli.main(["evaluate", "--help"])
     assert exit_info.value.code == 0
     assert "pcainterp evaluate" in capsys.readouterr().out.split("examples:")[1]
+
+
+def test_evaluate_reads_a_compact_log(dense_logs: dict[str, Path]) -> None:
+    """The default (compressedDepth) log gives the report of the float32 one.
+
+    Away from REP 118's "too far" pixels (read as disparity 0 from a compact log) the
+    estimate is the same to 1/64 of its std and the std to 1 %.
+    """
+    reports = {}
+    for name in ("dense", "compact"):
+        out = dense_logs["folder"] / f"report_{name}"
+        jobs.evaluate(dense_logs[name], out, basis=dense_logs["basis"], sweep_every=0)
+        reports[name] = json.loads((out / "results.json").read_text())
+    full, compact = reports["dense"], reports["compact"]
+    assert compact["frames"] == full["frames"]
+    assert set(compact["methods"]) == set(full["methods"])
+    assert compact["measurements"] == full["measurements"]
+    # the baselines read the features only: the same but for f*b's last digits
+    for method in ("nearest", "linear"):
+        means = {
+            name: {
+                k: v for k, v in reports[name]["methods"][method]["mean"].items() if "ms" not in k
+            }
+            for name in reports
+        }
+        assert means["compact"] == pytest.approx(means["dense"], rel=1e-6)

@@ -36,6 +36,7 @@ from pcainterp_stream.frontend.stereo import SgbmConfig, compute_disparity
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import open_writer
+from pcainterp_stream.io.outputs import OutputTopics
 from pcainterp_stream.pipeline import jobs
 from pcainterp_stream.records import StereoCamera
 from pcainterp_stream.synth import SynthConfig, generate
@@ -217,7 +218,8 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     drive = folder / "drive.mcap"
     write_synthetic_log(generate(CONFIG), drive, lidar=LidarConfig(seed=CONFIG.seed))
     dense = folder / "dense.mcap"
-    jobs.densify(drive, dense)  # the built-in basis
+    # the built-in basis; float32 channels, which the by-hand checks read
+    jobs.densify(drive, dense, topics=OutputTopics())
     references = folder / "references.mcap"
     _with_references(dense, references)
     return {"dense": dense, "references": references, "folder": folder}

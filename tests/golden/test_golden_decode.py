@@ -76,7 +76,7 @@ def test_rvl_round_trip_property(values: np.ndarray) -> None:
 
 
 def test_rvl_short_stream_is_an_error() -> None:
-    with pytest.raises(ValueError, match="RVL stream ends after"):
+    with pytest.raises(ValueError, match="RVL data"):
         rvl_decode(b"", 10)
 
 
@@ -143,7 +143,7 @@ def test_compressed_depth_32fc1_rvl() -> None:
 def test_compressed_depth_refuses_other_formats() -> None:
     with pytest.raises(ValueError, match="not a compressedDepth format"):
         decode_compressed_depth("png", b"")
-    with pytest.raises(ValueError, match="no 12-byte header"):
+    with pytest.raises(ValueError, match="no image after the header"):
         decode_compressed_depth("32FC1; compressedDepth png", b"\x00")
 
 

@@ -36,13 +36,14 @@ from pcainterp_stream import cli
 from pcainterp_stream.errors import StreamError
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.foxglove import SUBPROTOCOL, FoxgloveLive, LiveMessage, ServeAddress
+from pcainterp_stream.io.outputs import image_of
 from pcainterp_stream.records import RawMessage
 
 websockets = pytest.importorskip("websockets")
 
 FRAMES = 4
 URL = re.compile(r"serving on (ws://\S+)")
-OUTPUTS = ("/pcainterp/depth", "/pcainterp/features")
+OUTPUTS = ("/pcainterp/depth_mm", "/pcainterp/features")
 
 
 @dataclass
@@ -161,8 +162,9 @@ def test_a_client_receives_every_frame_equal_to_the_mcap_output(
     with serving(*args, "--wait-for-client") as (process, url):
         assert url.startswith("ws://127.0.0.1:")
         counts = {topic: len(items) for topic, items in _mcap_messages(synthetic_log).items()}
-        outputs = [f"/pcainterp/{name}" for name in ("depth", "depth_std", "disparity")]
-        outputs += [f"/pcainterp/{name}" for name in ("disparity_std", "features", "camera_info")]
+        # the default (compact) channels
+        outputs = [f"/pcainterp/{name}" for name in ("depth", "disparity_std")]
+        outputs += [f"/pcainterp/{name}" for name in ("features", "camera_info")]
         counts.update(dict.fromkeys([*outputs, "/pcainterp/depth_mm"], FRAMES))
         received = _collect(url, None, counts)
         out, err = process.communicate(timeout=120)
@@ -192,8 +194,8 @@ def test_the_depth_decodes_to_the_image_of_the_file(synthetic_log: Path, tmp_pat
     for (_, live), (_, data, _, _) in zip(
         received.messages["/pcainterp/depth"], written, strict=True
     ):
-        live_image = rosmsg.image_array(rosmsg.deserialize(live, rosmsg.IMAGE))
-        file_image = rosmsg.image_array(rosmsg.deserialize(data, rosmsg.IMAGE))
+        live_image = image_of(rosmsg.deserialize(live, rosmsg.COMPRESSED_IMAGE))
+        file_image = image_of(rosmsg.deserialize(data, rosmsg.COMPRESSED_IMAGE))
         assert live_image.dtype == file_image.dtype == "float32"
         assert live_image.tobytes() == file_image.tobytes()  # pixel for pixel, NaN included
 
@@ -284,7 +286,7 @@ def test_the_reference_client_receives_every_frame(
             assert live["data_sha256"] == hashlib.sha256(bytes(message.data)).hexdigest()
             assert (live["width"], live["height"]) == (message.width, message.height)
             assert live["header"]["frame_id"] == message.header.frame_id
-    assert received["/pcainterp/depth"]["messages"][0]["encoding"] == "32FC1"
+    assert received["/pcainterp/depth_mm"]["messages"][0]["encoding"] == "16UC1"
     assert received["/pcainterp/features"]["messages"][0]["fields"] == [
         "x",
         "y",

@@ -37,6 +37,7 @@ from rosbags.highlevel import AnyReader
 
 from pcainterp_stream import cli
 from pcainterp_stream.defaults import DISPLAY_MAX_DEPTH
+from pcainterp_stream.io import rosmsg
 
 JS_DIR = Path(__file__).resolve().parents[1] / "js"
 FRAMES = 3
@@ -86,14 +87,28 @@ def dense_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
         ["synth", log, "--frames", str(FRAMES), "--scale", "0.25", "--seed", "5"],
         # the true depth makes a basis without SGBM; 3 maps give at most 2 components
         [
-            "learn", log, "-o", basis, "--components", "5", "--depth-topic",
-            "/ground_truth/depth", "--no-fit-prior",
+            "learn",
+            log,
+            "-o",
+            basis,
+            "--components",
+            "5",
+            "--depth-topic",
+            "/ground_truth/depth",
+            "--no-fit-prior",
         ],
-        ["densify", log, "-o", dense, "--basis", basis, "--depth-mm"],
+        ["densify", log, "-o", dense, "--basis", basis, "--depth-mm", "--precision", "full"],
+        ["densify", log, "-o", folder / "compact.mcap", "--basis", basis],
     ]
     for command in commands:
         assert cli.main([str(arg) for arg in command]) == 0, command
     return dense
+
+
+@pytest.fixture(scope="module")
+def compact_log(dense_log: Path) -> Path:
+    """The same drive densified with the defaults (compact precision)."""
+    return dense_log.parent / "compact.mcap"
 
 
 @pytest.fixture(scope="module")
@@ -517,3 +532,118 @@ def test_rerun_understands_images_camera_and_points(
     for (message,), ours in zip(decoded, by_topic["/pcainterp/disparity"], strict=True):
         assert (message["image"]["width"], message["image"]["height"]) == (WIDTH, HEIGHT)
         assert bytes(message["image"]["data"]) == bytes(ours.image.data)
+
+
+# ----------------------------------------------------------------------------- compact
+
+
+def _ros_inverse_depth(data: bytes) -> npt.NDArray[np.float32]:
+    """compressedDepth png decoded independently: OpenCV's PNG reader and ROS's formula."""
+    import struct
+
+    import cv2
+
+    _, quant_a, quant_b = struct.unpack("<iff", data[:12])
+    codes = cv2.imdecode(np.frombuffer(data[12:], np.uint8), cv2.IMREAD_UNCHANGED)
+    assert codes.dtype == np.uint16
+    with np.errstate(divide="ignore"):
+        values = np.float32(quant_a) / (codes.astype(np.float32) - np.float32(quant_b))
+    values[codes == 0] = np.nan
+    return values
+
+
+def test_js_reads_the_compact_log_and_opencv_decodes_its_depth(
+    js_reader: Path, compact_log: Path, dense_log: Path
+) -> None:
+    import base64
+    import struct
+
+    done = subprocess.run(
+        ["node", js_reader.name, str(compact_log), PREFIX],
+        cwd=js_reader.parent,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    read = json.loads(done.stdout)["indexed"]
+    assert read["channels"]["/pcainterp/depth"]["schema_name"] == "sensor_msgs/msg/CompressedImage"
+    full = {
+        (item.topic, rosmsg.stamp_ns(item.message)): item.message
+        for item in _decoded(dense_log)
+        if item.topic in ("/pcainterp/depth", "/pcainterp/disparity_std")
+    }
+    disparity = _decoded(dense_log, "/pcainterp/disparity")[0].message
+    focal_baseline = float(disparity.f) * float(disparity.t)
+    seen = 0
+    for item in read["messages"]:
+        if item["topic"] not in ("/pcainterp/depth", "/pcainterp/disparity_std"):
+            continue
+        message = item["message"]
+        assert message["format"] == "32FC1; compressedDepth png"
+        values = _ros_inverse_depth(base64.b64decode(message["data_base64"]))
+        stamp = message["header"]["stamp"]
+        stamp_ns = int(stamp["sec"]) * 1_000_000_000 + int(stamp["nanosec"])
+        exact = _float_image(full[item["topic"], stamp_ns])
+        std = _float_image(full["/pcainterp/disparity_std", stamp_ns])
+        np.testing.assert_array_equal(np.isnan(values), np.isnan(exact))
+        np.testing.assert_array_equal(np.isposinf(values), np.isposinf(exact))
+        finite = np.isfinite(exact)
+        quant_a = struct.unpack("<iff", base64.b64decode(message["data_base64"])[:12])[1]
+        if item["topic"] == "/pcainterp/depth":  # error in disparity, in units of the std
+            # <= 1/64 of the std, or half the finest step 16 bits hold over the disparities
+            step = focal_baseline / quant_a
+            bound = np.maximum(std[finite] / 64.0, step / 2.0) * 1.001 + 1e-6
+            disparity_error = focal_baseline * np.abs(1.0 / values[finite] - 1.0 / exact[finite])
+            assert np.all(disparity_error <= bound)
+        else:  # the std itself: relative error, where 16 bits can hold it
+            storable = finite & (exact >= quant_a / 65534.0)
+            assert np.max(np.abs(values[storable] / exact[storable] - 1.0)) <= 0.0101
+        seen += 1
+    assert seen == 2 * FRAMES
+
+
+def _float_image(message: Any) -> npt.NDArray[np.float32]:
+    """A 32FC1 Image as mcap_ros2 decodes it (data as bytes)."""
+    values = np.frombuffer(bytes(message.data), dtype="<f4")
+    return values.reshape(int(message.height), int(message.width))
+
+
+def _decoded(path: Path, topic: str | None = None) -> list[Decoded]:
+    with path.open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        return [
+            Decoded(channel.topic, schema.name, message.log_time, message.publish_time, decoded)
+            for schema, channel, message, decoded in reader.iter_decoded_messages(
+                topics=None if topic is None else [topic], log_time_order=False
+            )
+        ]
+
+
+def test_rosbags_reads_the_compact_log(compact_log: Path) -> None:
+    from pcainterp_stream.io.depth_codec import decode
+
+    with AnyReader([compact_log]) as reader:
+        topics = {connection.topic: connection.msgtype for connection in reader.connections}
+        assert topics["/pcainterp/depth"] == "sensor_msgs/msg/CompressedImage"
+        assert topics["/pcainterp/depth_mm"] == "sensor_msgs/msg/Image"
+        for connection, _, data in reader.messages(
+            [c for c in reader.connections if c.topic == "/pcainterp/depth"]
+        ):
+            message = reader.deserialize(data, connection.msgtype)
+            depth = decode(message.format, message.data)
+            assert depth.shape == (HEIGHT, WIDTH)
+            assert depth.dtype == np.float32
+
+
+def test_rerun_draws_the_compact_logs_depth_mm(compact_log: Path) -> None:
+    """Rerun's importer draws the default log's viewer copy as depth (the compressedDepth
+    channels stay encoded blobs: the reason the copy is written)."""
+    _, columns = _rerun_import(compact_log)
+    entity = columns["/pcainterp/depth_mm"]
+    assert len(entity["DepthImage:buffer"]) == FRAMES
+    for (image_format,) in entity["DepthImage:format"]:
+        assert (image_format["width"], image_format["height"]) == (WIDTH, HEIGHT)
+        assert image_format["channel_datatype"] == 8  # U16
+    assert not any(key.startswith("DepthImage") for key in columns["/pcainterp/depth"])

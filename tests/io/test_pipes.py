@@ -71,7 +71,7 @@ def test_a_log_piped_through_cat(logs: tuple[Path, Path], tmp_path: Path) -> Non
         depth = [c for c in reader.connections if c.topic == "/pcainterp/depth"]
         images = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(depth)]
     assert len(images) == FRAMES
-    assert images[0].encoding == "32FC1"
+    assert images[0].format == "32FC1; compressedDepth png"  # the default, compact
 
 
 def test_the_stream_writer_never_seeks_nor_closes(tmp_path: Path) -> None:

@@ -133,6 +133,13 @@ function summarize(schemaName, message) {
       };
     case "sensor_msgs/msg/PointCloud2":
       return pointCloudSummary(message);
+    case "sensor_msgs/msg/CompressedImage":
+      // compressedDepth: the caller decodes the bytes (header + PNG / RVL) independently
+      return {
+        header: message.header,
+        format: message.format,
+        data_base64: Buffer.from(message.data).toString("base64"),
+      };
     case "sensor_msgs/msg/CameraInfo":
       return {
         ...message,

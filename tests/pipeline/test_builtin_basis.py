@@ -59,7 +59,7 @@ def run(capsys: pytest.CaptureFixture[str], *args: str | Path) -> tuple[int, str
 
 def test_densify_without_basis_records_the_built_in_one(folder: Path) -> None:
     recorded = recorded_metadata(folder / "builtin_dense.mcap")
-    assert recorded == {
+    assert {key: recorded[key] for key in (BASIS_KEY, BASIS_FINGERPRINT_KEY, MEASUREMENTS_KEY)} == {
         BASIS_KEY: BUILT_IN,
         BASIS_FINGERPRINT_KEY: Basis.default().fingerprint,
         MEASUREMENTS_KEY: "sparse",

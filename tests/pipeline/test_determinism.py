@@ -107,7 +107,7 @@ def test_densify_is_deterministic(runs: tuple[Path, Path]) -> None:
     _assert_same_messages(a, b)
     topics = {record[0] for record in _records(a)}
     assert "/pcainterp/depth" in topics
-    assert "/pcainterp/depth_std" in topics
+    assert "/pcainterp/disparity_std" in topics
 
 
 @pytest.mark.parametrize("name", ["drive.mcap", "basis.npz", "dense.mcap"])

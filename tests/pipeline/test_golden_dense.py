@@ -21,7 +21,7 @@ def test_densified_golden_log_matches_its_golden_file(
     assert summary.frames == 4
     log_golden.check(out, fullpath=DATA / "golden_dense.json")
     topics = set(load_golden(DATA / "golden_dense.json")["channels"])
-    assert {"/pcainterp/depth", "/pcainterp/disparity", "/stereo/left/image_rect"} <= topics
+    assert {"/pcainterp/depth", "/pcainterp/disparity_std", "/stereo/left/image_rect"} <= topics
 
 
 def test_golden_comparison_catches_a_changed_depth() -> None:

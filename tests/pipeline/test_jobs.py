@@ -15,6 +15,7 @@ from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import LogFormat, open_writer
+from pcainterp_stream.io.outputs import OutputTopics, image_of
 from pcainterp_stream.pipeline import jobs
 from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
 
@@ -88,7 +89,7 @@ def test_densify_output_messages_carry_left_header_and_log_time(logs: dict[str, 
             elif raw.topic.startswith("/pcainterp/"):
                 stamp = rosmsg.stamp_ns(message)
                 outputs.append((raw.log_time_ns, stamp, message.header.frame_id))
-    assert len(outputs) == 6 * 5
+    assert len(outputs) == 5 * 5  # the compact default: depth, std, features, info, depth_mm
     for log_time, stamp, frame_id in outputs:
         assert left[log_time] == (stamp, frame_id)
 
@@ -130,6 +131,7 @@ def test_densify_from_a_feature_stream(logs: dict[str, Path]) -> None:
         with_features,
         out,
         logs["basis"],
+        topics=OutputTopics(),  # float32 channels: the by-hand checks read the disparity
         pairing=PairingConfig(features_topic="/features"),
         processor=ProcessorConfig(source=MeasurementSource.FEATURES),
     )
@@ -240,7 +242,7 @@ def test_real_kitti_drive_end_to_end(tmp_path: Path) -> None:
     assert summary.measurements / summary.frames > 150
     with open_log(tmp_path / "kitti_dense.mcap") as reader:
         depth = [reader.decode(raw) for raw in reader.messages(["/pcainterp/depth"])]
-    image = rosmsg.image_array(depth[0])
+    image = image_of(depth[0])
     assert image.shape == (375, 1242)
     finite = image[np.isfinite(image)]
     assert finite.size > 0.9 * image.size
