@@ -266,7 +266,11 @@ def connect(scheduler: str | None = None, workers: int | None = None) -> Iterato
         return
     with (
         LocalCluster(  # type: ignore[no-untyped-call]
-            n_workers=workers or 2, threads_per_worker=1, processes=True, dashboard_address=None
+            n_workers=workers or 2,
+            threads_per_worker=1,
+            processes=True,
+            # any free port for its HTTP server: ":8787" may be taken by another cluster
+            dashboard_address=":0",
         ) as cluster,
         Client(cluster) as client,  # type: ignore[no-untyped-call]
     ):
