@@ -464,7 +464,7 @@ def learn(
     *,
     client: Any = None,
     chunk_frames: int | None = None,
-    oversampling: int = 20,
+    oversampling: int | None = None,
 ) -> Basis:
     """Learn a basis from the disparity maps of logs (``pcainterp learn``).
 
@@ -479,7 +479,8 @@ def learn(
     basis) runs on the cluster: the workers match and summarise chunks of maps, merged as
     they finish (:mod:`~pcainterp_stream.pipeline.distributed`), and measure the held-out
     frames; the result is this function's without a client, up to the truncation of the
-    summaries to l + ``oversampling`` columns.
+    summaries to l + ``oversampling`` columns (a sketch keeps the leading eigenpairs, the
+    last ones near l less exactly: docs/estimator.md, "On a cluster").
 
     Args:
         logs: the input logs (on a cluster: paths the workers can read).
@@ -488,7 +489,8 @@ def learn(
         pairing: the topics of the stereo pairs.
         client: a connected ``dask.distributed.Client``, or None: this process.
         chunk_frames: maps per task on a cluster (None: the module's default).
-        oversampling: columns kept beyond l by the streaming and distributed learners.
+        oversampling: columns kept beyond l by the streaming learner (None: 20) and by the
+            cluster's summaries (None: :func:`distributed.cluster_oversampling`).
     """
     plan = plan_maps(logs, output, options, pairing)
     source = source_meta(logs, options)
@@ -497,7 +499,9 @@ def learn(
     meta: dict[str, Any] = {"source": source}
     try:
         if client is None:
-            basis = _learn_here(plan, options, pairing, meta, oversampling)
+            basis = _learn_here(
+                plan, options, pairing, meta, 20 if oversampling is None else oversampling
+            )
         else:
             from pcainterp_stream.pipeline import distributed
 
@@ -508,7 +512,9 @@ def learn(
                 client,
                 meta,
                 chunk_frames=chunk_frames or distributed.DEFAULT_CHUNK_FRAMES,
-                oversampling=oversampling,
+                oversampling=distributed.cluster_oversampling(options.n_components)
+                if oversampling is None
+                else oversampling,
             )
     except ValueError as err:
         raise PcaInterpError(f"cannot learn a basis from {len(logs)} log(s): {err}") from err
