@@ -645,7 +645,10 @@ def run(args: argparse.Namespace) -> int:
             from pcainterp_stream.pipeline import distributed
 
             with distributed.connect(args.scheduler, args.workers) as client:
-                basis = learn(args.logs, args.output, options, _pairing_config(args), client=client)
+                pairing = _pairing_config(args)
+                basis = distributed.learn_distributed(
+                    args.logs, args.output, options, pairing, client
+                )
         else:
             basis = learn(args.logs, args.output, options, _pairing_config(args))
         _echo(f"wrote {args.output}")

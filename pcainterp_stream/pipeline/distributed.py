@@ -10,7 +10,7 @@ same step as the local streaming learner). A task holds one chunk and a merge tw
 (s, r) factors, so worker memory does not grow with the number of frames.
 
 What is learned is decided as on one machine (:func:`pcainterp_stream.pipeline.learn.learn`
-with a client calls :func:`learn_on_cluster`): the same maps of each log (the same
+with a :class:`DaskLearner` calls :func:`learn_on_cluster`): the same maps of each log (the same
 held-out share), the same grid and units (the built-in basis's when its statistics are
 merged, the merge done here on the reduced summary), and the held-out frames measured on
 the workers, one task per log, for the same fit of the prior.
@@ -53,6 +53,8 @@ from pcainterp_stream.pipeline.learn import (
     HeldOutFrame,
     MapPlan,
     _depth_maps,
+    learn,
+    measure_held_out,
     to_grid,
 )
 
@@ -302,8 +304,8 @@ def learn_distributed(
 ) -> Basis:
     """Learn a basis on a Dask cluster (``pcainterp learn --scheduler/--workers``).
 
-    :func:`pcainterp_stream.pipeline.learn.learn` with a client: the same plan, hold-out,
-    merge with the built-in basis and fitted prior as in one process.
+    :func:`pcainterp_stream.pipeline.learn.learn` with a :class:`DaskLearner`: the same
+    plan, hold-out, merge with the built-in basis and fitted prior as in one process.
 
     Args:
         logs: input logs (paths readable by the workers).
@@ -321,17 +323,45 @@ def learn_distributed(
     Raises:
         PcaInterpError: bad options, no maps, or a task failed.
     """
-    from pcainterp_stream.pipeline.learn import learn
+    cluster = DaskLearner(client, chunk_frames=chunk_frames, oversampling=oversampling)
+    return learn(logs, output, options, pairing, cluster=cluster)
 
-    return learn(
-        logs,
-        output,
-        options,
-        pairing,
-        client=client,
-        chunk_frames=chunk_frames,
-        oversampling=oversampling,
-    )
+
+@dataclass(frozen=True)
+class DaskLearner:
+    """``learn``'s statistics and held-out measurements gathered on a Dask cluster.
+
+    Attributes:
+        client: a connected ``dask.distributed.Client``.
+        chunk_frames: maps per task.
+        oversampling: columns kept beyond l in every summary; None:
+            :func:`cluster_oversampling`.
+    """
+
+    client: Any
+    chunk_frames: int = DEFAULT_CHUNK_FRAMES
+    oversampling: int | None = None
+
+    def learn_basis(self, plan: MapPlan, options: Any, pairing: Any, meta: dict[str, Any]) -> Basis:
+        """Return the basis of a plan's maps: :func:`learn_on_cluster`."""
+        oversampling = self.oversampling
+        if oversampling is None:
+            oversampling = cluster_oversampling(options.n_components)
+        return learn_on_cluster(
+            plan,
+            options,
+            pairing,
+            self.client,
+            meta,
+            chunk_frames=self.chunk_frames,
+            oversampling=oversampling,
+        )
+
+    def measure_held_out(
+        self, sources: list[tuple[Path, int]], options: Any, pairing: Any
+    ) -> list[list[HeldOutFrame]]:
+        """Measure held-out frames on the workers: :func:`measure_on_cluster`."""
+        return measure_on_cluster(self.client, sources, options, pairing)
 
 
 def chunk_specs(plan: MapPlan, chunk_frames: int) -> list[tuple[Path, int, int | None]]:
@@ -445,8 +475,6 @@ def measure_on_cluster(
     Raises:
         PcaInterpError: a task failed.
     """
-    from pcainterp_stream.pipeline.learn import measure_held_out
-
     futures = [
         client.submit(measure_held_out, log.resolve(), first, options, pairing, pure=False)
         for log, first in sources

@@ -9,7 +9,7 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -456,15 +456,32 @@ def plan_maps(
     return MapPlan(tuple(logs), tuple(counts), tuple(kept), total, camera, plan, target)
 
 
+class Cluster(Protocol):
+    """Where ``learn`` gathers the maps' statistics instead of this process.
+
+    A Dask cluster: :class:`pcainterp_stream.pipeline.distributed.DaskLearner`.
+    """
+
+    def learn_basis(
+        self, plan: MapPlan, options: LearnOptions, pairing: PairingConfig, meta: dict[str, Any]
+    ) -> Basis:
+        """Return the basis of a plan's maps (not saved), ``meta`` in its ``meta``."""
+        ...
+
+    def measure_held_out(
+        self, sources: list[tuple[Path, int]], options: LearnOptions, pairing: PairingConfig
+    ) -> list[list[HeldOutFrame]]:
+        """Return :func:`measure_held_out` of each (log, first pair index), in order."""
+        ...
+
+
 def learn(
     logs: list[Path],
     output: Path,
     options: LearnOptions,
     pairing: PairingConfig,
     *,
-    client: Any = None,
-    chunk_frames: int | None = None,
-    oversampling: int | None = None,
+    cluster: Cluster | None = None,
 ) -> Basis:
     """Learn a basis from the disparity maps of logs (``pcainterp learn``).
 
@@ -474,23 +491,20 @@ def learn(
     ``options.fit_logs``), a fine-tuned basis keeping the built-in basis's local kernel.
     The basis is saved to ``output`` and returned.
 
-    With a Dask ``client`` (``learn --workers/--scheduler``) the same plan
+    With a ``cluster`` (``learn --workers/--scheduler``:
+    :func:`pcainterp_stream.pipeline.distributed.learn_distributed`) the same plan
     (:func:`plan_maps`: the same maps, the same hold-out, the same merge with the built-in
-    basis) runs on the cluster: the workers match and summarise chunks of maps, merged as
-    they finish (:mod:`~pcainterp_stream.pipeline.distributed`), and measure the held-out
-    frames; the result is this function's without a client, up to the truncation of the
-    summaries to l + ``oversampling`` columns (a sketch keeps the leading eigenpairs, the
-    last ones near l less exactly: docs/estimator.md, "On a cluster").
+    basis) runs there: the workers match and summarise chunks of maps, merged as they
+    finish, and measure the held-out frames; the result is this function's without a
+    cluster up to the truncation of the summaries (a sketch keeps the leading eigenpairs,
+    the last ones near l less exactly: docs/estimator.md, "On a cluster").
 
     Args:
         logs: the input logs (on a cluster: paths the workers can read).
         output: the basis file (.npz).
         options: the learning options.
         pairing: the topics of the stereo pairs.
-        client: a connected ``dask.distributed.Client``, or None: this process.
-        chunk_frames: maps per task on a cluster (None: the module's default).
-        oversampling: columns kept beyond l by the streaming learner (None: 20) and by the
-            cluster's summaries (None: :func:`distributed.cluster_oversampling`).
+        cluster: where to gather the maps' statistics; None: this process.
     """
     plan = plan_maps(logs, output, options, pairing)
     source = source_meta(logs, options)
@@ -498,24 +512,10 @@ def learn(
     source["with_synthetic_rule"] = plan.synthetic.rule
     meta: dict[str, Any] = {"source": source}
     try:
-        if client is None:
-            basis = _learn_here(
-                plan, options, pairing, meta, 20 if oversampling is None else oversampling
-            )
+        if cluster is None:
+            basis = _learn_here(plan, options, pairing, meta)
         else:
-            from pcainterp_stream.pipeline import distributed
-
-            basis = distributed.learn_on_cluster(
-                plan,
-                options,
-                pairing,
-                client,
-                meta,
-                chunk_frames=chunk_frames or distributed.DEFAULT_CHUNK_FRAMES,
-                oversampling=distributed.cluster_oversampling(options.n_components)
-                if oversampling is None
-                else oversampling,
-            )
+            basis = cluster.learn_basis(plan, options, pairing, meta)
     except ValueError as err:
         raise PcaInterpError(f"cannot learn a basis from {len(logs)} log(s): {err}") from err
     if options.fit_prior:
@@ -523,7 +523,8 @@ def learn(
         # evidence of a few held-out frames picks a worse one: docs/results.md, issue 16)
         prior_basis = plan.synthetic.prior_basis
         local = None if prior_basis is None else kept_kernel(prior_basis)
-        fitted = fit_prior(basis, plan.held_out(options), options, pairing, local, client=client)
+        sources = plan.held_out(options)
+        fitted = fit_prior(basis, sources, options, pairing, local, cluster=cluster)
         if local is not None:
             fitted["local_kept_from"] = "the fine-tuned basis (learn --with-synthetic)"
         basis = dataclasses.replace(basis, meta={**basis.meta, "prior": fitted})
@@ -541,7 +542,6 @@ def _learn_here(
     options: LearnOptions,
     pairing: PairingConfig,
     meta: dict[str, Any],
-    oversampling: int,
 ) -> Basis:
     """Learn the basis of a plan in this process, streaming the maps."""
     image_size = plan.camera.image_size
@@ -563,7 +563,7 @@ def _learn_here(
         progress = lambda done: bar.update(done - bar.n)  # noqa: E731
         if plan.synthetic.prior_basis is not None:
             # maps that fit the budget are merged in one step: the pooled scatter exactly,
-            # then its top l + oversampling (in batches of 64 the last eigenvalues near l
+            # then its top l + 20 (in batches of 64 the last eigenvalues near l
             # came out up to 4.6 % low at l = 100 on 480 maps: docs/benchmarks.md)
             n_pixels = plan.target.grid_size[0] * plan.target.grid_size[1]
             one_step = plan.total is not None and plan.total * n_pixels * 12 <= ONE_STEP_BYTES
@@ -575,7 +575,6 @@ def _learn_here(
                 variance=options.variance,
                 focal_baseline=plan.camera.focal_baseline,
                 batch_size=max(plan.total or 0, 1) if one_step else 64,
-                oversampling=oversampling,
                 progress=progress,
                 meta=meta,
             )
@@ -585,7 +584,6 @@ def _learn_here(
             variance=options.variance,
             grid_scale=options.grid_scale,
             focal_baseline=plan.camera.focal_baseline,
-            oversampling=oversampling,
             progress=progress,
             meta=meta,
         )
@@ -686,7 +684,7 @@ def fit_prior(
     pairing: PairingConfig,
     local: LocalPrior | None = None,
     *,
-    client: Any = None,
+    cluster: Cluster | None = None,
 ) -> dict[str, Any]:
     """Fit the hybrid prior, sigma and the process noise on frames outside the basis.
 
@@ -698,8 +696,8 @@ def fit_prior(
         pairing: topics of the stereo pairs.
         local: a fixed local kernel: only sigma, the process noise and the std scale are
             fitted (:func:`estimate.fitting.fit_prior`).
-        client: a ``dask.distributed.Client``: the logs are measured on its workers, one
-            task per log (the same frames, the same measurements); None: here.
+        cluster: measure the logs there (a Dask cluster: one task per log, the same
+            frames, the same measurements); None: here.
 
     Returns:
         The JSON-ready ``meta["prior"]`` of the basis.
@@ -707,16 +705,14 @@ def fit_prior(
     from pcainterp_stream.estimate import fitting
 
     started = time.perf_counter()
-    if client is None:
+    if cluster is None:
         with _bar(None, "fit prior (measure held-out frames)") as bar:
             measured = [
                 measure_held_out(log, first, options, pairing, lambda: bar.update(1))
                 for log, first in sources
             ]
     else:
-        from pcainterp_stream.pipeline import distributed
-
-        measured = distributed.measure_on_cluster(client, sources, options, pairing)
+        measured = cluster.measure_held_out(sources, options, pairing)
     sequences: list[list[fitting.FitFrame]] = []
     calibration: list[fitting.CalibrationFrame] = []
     for frames in measured:
