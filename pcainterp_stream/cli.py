@@ -17,11 +17,17 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any, Literal
 
+from pcainterp_stream.golden.commands import add_golden_parser, run_golden
 from pcainterp_stream.pipeline.densify_cli import add_densify_arguments, live_options, run_densify
+from pcainterp_stream.pipeline.pair_options import (
+    add_input_pair_options,
+    add_topic_options,
+    learn_pairing,
+    pairing_config,
+)
 from pcainterp_stream.version import __version__
 
 if TYPE_CHECKING:
-    from pcainterp_stream.frontend.pairing import PairingConfig
     from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig
     from pcainterp_stream.io.logwriter import WriteSummary
     from pcainterp_stream.io.outputs import OutputTopics
@@ -33,28 +39,6 @@ PROG = "pcainterp"
 
 def _formatter(prog: str) -> argparse.HelpFormatter:
     return argparse.RawDescriptionHelpFormatter(prog, max_help_position=32)
-
-
-def _add_topic_options(parser: argparse.ArgumentParser) -> None:
-    group = parser.add_argument_group("topics (DESIGN.md defaults)")
-    group.add_argument("--left-topic", default="/stereo/left/image_rect", metavar="TOPIC")
-    group.add_argument("--right-topic", default="/stereo/right/image_rect", metavar="TOPIC")
-    group.add_argument("--left-info-topic", default="/stereo/left/camera_info", metavar="TOPIC")
-    group.add_argument("--right-info-topic", default="/stereo/right/camera_info", metavar="TOPIC")
-    group.add_argument(
-        "--baseline",
-        type=float,
-        default=None,
-        metavar="M",
-        help="stereo baseline (m) when the right camera info has none",
-    )
-    group.add_argument(
-        "--stamp-tolerance-ms",
-        type=float,
-        default=1.0,
-        metavar="MS",
-        help="left/right header stamps closer than this form a pair (default: %(default)s)",
-    )
 
 
 def _add_stereo_options(parser: argparse.ArgumentParser) -> None:
@@ -118,6 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
             "  pcainterp learn train.mcap -o basis.npz --components 200  # a basis of your own\n"
             "  pcainterp densify drive.mcap -o drive_dense.mcap --basis basis.npz --rrd drive.rrd\n"
             "  pcainterp info drive_dense.mcap\n"
+            "  pcainterp golden save drive_dense.mcap -o drive.golden.json  # then golden check\n"
         ),
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
@@ -135,6 +120,7 @@ def build_parser() -> argparse.ArgumentParser:
             "  pcainterp synth drive_bag --format rosbag2 --seed 3\n"
             "  pcainterp synth drive.bag --format ros1\n"
             "  pcainterp synth lidar.mcap --frames 10 --scale 0.5 --lidar  # + sparse LiDAR truth\n"
+            "  pcainterp synth raw.mcap --frames 10 --scale 0.5 --raw      # as a driver records\n"
         ),
     )
     synth.add_argument("out", type=Path, metavar="OUT", help="output log path")
@@ -154,6 +140,17 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="also write /ground_truth/lidar_depth: the true depth where a 64-beam scanner "
         "would return (scan lines, ~4 %% of the pixels at any --scale; NaN elsewhere)",
+    )
+    synth.add_argument(
+        "--raw",
+        nargs="?",
+        const="plumb_bob",
+        default=None,
+        choices=["plumb_bob", "equidistant"],
+        help="record it as a stereo driver does: raw images through a distorting lens "
+        "(default plumb_bob) slightly rotated from the rectified pair, on "
+        "/camera/{left,right}/image_raw with their CameraInfo; the truth is the rectified "
+        "left camera's",
     )
 
     kitti = commands.add_parser(
@@ -246,7 +243,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="fit on these logs instead of a held-out share",
     )
     _add_cluster_options(learn)
-    _add_topic_options(learn)
+    add_topic_options(learn)
     _add_stereo_options(learn)
 
     densify = commands.add_parser(
@@ -270,7 +267,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_densify_arguments(densify)
     _add_cluster_options(densify)
-    _add_topic_options(densify)
+    add_topic_options(densify)
     _add_stereo_options(densify)
 
     evaluate = commands.add_parser(
@@ -364,6 +361,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="PREFIX",
         help="prefix of the densified topics (default: %(default)s)",
     )
+    add_input_pair_options(evaluate)
 
     info = commands.add_parser(
         "info",
@@ -398,6 +396,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument(
         "--learn", action="store_true", help="learn a basis from rendered drives first (~3 min)"
     )
+    add_golden_parser(commands, _formatter)
     return parser
 
 
@@ -445,29 +444,6 @@ def _gftt_config(args: argparse.Namespace) -> GfttConfig:
             raise PcaInterpError(f"--min-distance must be >= 0 px, got {args.min_distance}")
         changes["min_distance"] = args.min_distance
     return dataclasses.replace(GfttConfig(), **changes)
-
-
-def _pairing_config(args: argparse.Namespace, features_topic: str | None = None) -> PairingConfig:
-    from pcainterp_stream.frontend.pairing import PairingConfig
-
-    if args.left_topic == args.right_topic:
-        raise PcaInterpError(
-            f"--left-topic and --right-topic are both {args.left_topic}; a stereo pair needs the "
-            "images of two cameras: pass the right camera's topic as --right-topic"
-        )
-    if not 0 <= args.stamp_tolerance_ms < float("inf"):
-        raise PcaInterpError(f"--stamp-tolerance-ms must be >= 0, got {args.stamp_tolerance_ms}")
-    if args.baseline is not None and not 0 < args.baseline < float("inf"):
-        raise PcaInterpError(f"--baseline must be a finite number > 0 m, got {args.baseline}")
-    return PairingConfig(
-        left_topic=args.left_topic,
-        right_topic=args.right_topic,
-        left_info_topic=args.left_info_topic,
-        right_info_topic=args.right_info_topic,
-        features_topic=features_topic,
-        tolerance_ns=round(args.stamp_tolerance_ms * 1e6),
-        baseline=args.baseline,
-    )
 
 
 def _sigma_option(value: str) -> float | str:
@@ -561,7 +537,7 @@ def _densify_many(args: argparse.Namespace, processor: ProcessorConfig) -> int:
             args.out_dir.resolve(),
             args.basis.resolve() if args.basis is not None else None,
             client,
-            pairing=_pairing_config(args, args.features_topic),
+            pairing=pairing_config(args, args.features_topic),
             processor=processor,
             topics=_output_topics(args),
         )
@@ -599,7 +575,24 @@ def run(args: argparse.Namespace) -> int:
     from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
 
     command = args.command
-    if command == "synth":
+    if command == "golden":
+        return run_golden(args)
+    if command == "synth" and args.raw is not None:
+        from pcainterp_stream.pipeline.jobs import synth_raw
+
+        if args.lidar:
+            raise PcaInterpError("--lidar is not written with --raw; drop one of them")
+        _print_written(
+            synth_raw(
+                args.out,
+                frames=args.frames,
+                seed=args.seed,
+                scale=args.scale,
+                fmt=args.format,
+                model=args.raw,
+            )
+        )
+    elif command == "synth":
         _print_written(
             synth(
                 args.out,
@@ -639,18 +632,18 @@ def run(args: argparse.Namespace) -> int:
             fit_logs=tuple(args.fit_logs),
             with_synthetic=with_synthetic,
         )
+        pairing = learn_pairing(args)
         if args.workers is not None and args.workers < 1:
             raise PcaInterpError(f"--workers must be at least 1, got {args.workers}")
         if on_cluster:  # the same learn, the maps' statistics gathered by the workers
             from pcainterp_stream.pipeline import distributed
 
             with distributed.connect(args.scheduler, args.workers) as client:
-                pairing = _pairing_config(args)
                 basis = distributed.learn_distributed(
                     args.logs, args.output, options, pairing, client
                 )
         else:
-            basis = learn(args.logs, args.output, options, _pairing_config(args))
+            basis = learn(args.logs, args.output, options, pairing)
         _echo(f"wrote {args.output}")
         _echo(describe_basis(args.output))
         del basis
@@ -697,7 +690,7 @@ def run(args: argparse.Namespace) -> int:
         return run_densify(
             args,
             processor=processor,
-            pairing=_pairing_config(args, args.features_topic),
+            pairing=pairing_config(args, args.features_topic),
             topics=_output_topics(args),
             live=live,
         )
@@ -719,6 +712,7 @@ def run(args: argparse.Namespace) -> int:
             basis_rows=not args.no_basis,
             reference_topic=args.reference_topic,
             reference_kind=args.reference_kind,
+            pairing=pairing_config(args),
         )
         _echo(table)
         _echo(f"wrote {folder}/results.md, results.json and figures")

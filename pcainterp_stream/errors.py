@@ -40,3 +40,7 @@ class DatasetImportError(PcaInterpError):
 
 class StreamError(PcaInterpError):
     """A live stream cannot be served (a bad address, a port in use, a bad rate)."""
+
+
+class GoldenError(PcaInterpError):
+    """A golden file is missing, malformed, or of a format version this package does not read."""

@@ -28,6 +28,7 @@ LAYERS: dict[str, int] = {
     "estimate": 1,
     "frontend": 2,
     "synth": 2,
+    "golden": 2,
     "evaluate": 3,
     "pipeline": 4,
     "cli": 5,

@@ -65,6 +65,8 @@ from pcainterp_stream.evaluate.results import (
     RangeStats,
 )
 from pcainterp_stream.evaluate.tables import results_markdown, summary_table
+from pcainterp_stream.frontend.images import PairImages
+from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     SgbmConfig,
@@ -74,7 +76,7 @@ from pcainterp_stream.frontend.stereo import (
     to_grey8,
 )
 from pcainterp_stream.io import rosmsg
-from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.logreader import decode_image, open_log
 from pcainterp_stream.io.outputs import MEASUREMENTS_KEY, OutputTopics
 from pcainterp_stream.records import StereoCamera
 
@@ -148,6 +150,9 @@ class EvaluateOptions:
     sgbm: SgbmConfig = field(default_factory=SgbmConfig)
     reference_topic: str | None = None
     reference_kind: ReferenceKind = ReferenceKind.AUTO
+    pairing: PairingConfig | None = None
+    """The input pair's topics and rectification (default: the synthetic logs' topics as
+    recorded); raw images are rectified as densify did, for the baselines and figures."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -207,6 +212,7 @@ def _frames(
     max_frames: int | None,
     reference: ReferenceTopic | None = None,
     state: _ReadState | None = None,
+    images: PairImages | None = None,
 ) -> Iterator[_Frame]:
     """Yield the densified frames of a log in order, grouping channels by header stamp.
 
@@ -215,10 +221,12 @@ def _frames(
     bounded) for a reference logged after it; then it is yielded without one.
     """
     state = state or _ReadState()
+    images = images or PairImages()
+    left_image, right_image = images.left_topic, images.right_topic
     with open_log(path) as reader:
         present = reader.topics()
         needed = [topics.disparity, topics.disparity_std, topics.features, topics.camera_info]
-        missing = [topic for topic in [*needed, LEFT_IMAGE] if topic not in present]
+        missing = [topic for topic in [*needed, left_image] if topic not in present]
         if missing:
             raise LogReadError(
                 f"{path} has no {', '.join(missing)}; evaluate needs a log written by "
@@ -226,11 +234,13 @@ def _frames(
             )
         truth = [] if reference is not None else [GROUND_TRUTH_DEPTH]
         optional = [t for t in (*truth, GROUND_TRUTH_POSE) if t in present]
-        grouped = [*needed, LEFT_IMAGE, *optional]
+        grouped = [*needed, left_image, *optional]
         complete = len(grouped)
         # the right image may be stamped up to the pairing tolerance apart from the left;
         # densify copies it before it writes the pair's outputs, so it is read first
-        wanted = [*grouped, *([RIGHT_IMAGE] if RIGHT_IMAGE in present else [])]
+        wanted = [*grouped, *([right_image] if right_image in present else [])]
+        infos = [t for t in images.info_topics if t in present and t not in wanted]
+        wanted += infos
         if reference is not None and reference.topic not in wanted:
             wanted.append(reference.topic)
         rights: dict[int, Any] = {}
@@ -243,12 +253,15 @@ def _frames(
                 state.seen_disparity = True
                 state.measurements = dict(raw.channel_metadata).get(MEASUREMENTS_KEY)
             message = reader.decode(raw)
+            if raw.topic in infos:
+                images.see_info(raw.topic, message)
+                continue
             if reference is not None and raw.topic == reference.topic:
                 references[rosmsg.stamp_ns(message)] = message
                 while len(references) > REFERENCE_BUFFER:
                     references.pop(min(references))
             stamp = rosmsg.stamp_ns(message.image if raw.topic == topics.disparity else message)
-            if raw.topic == RIGHT_IMAGE:
+            if raw.topic == right_image:
                 rights[stamp] = message
                 while len(rights) > 16:
                     rights.pop(min(rights))
@@ -258,7 +271,14 @@ def _frames(
                 if len(parts) == complete:
                     del pending[stamp]
                     waiting.append(
-                        _frame(index, stamp, pending_parts=parts, rights=rights, topics=topics)
+                        _frame(
+                            index,
+                            stamp,
+                            pending_parts=parts,
+                            rights=rights,
+                            topics=topics,
+                            images=images,
+                        )
                     )
                     index += 1
                 while len(pending) > 8:  # frames are written close together
@@ -288,6 +308,7 @@ def _frame(
     pending_parts: dict[str, Any],
     rights: dict[int, Any],
     topics: OutputTopics,
+    images: PairImages,
 ) -> _Frame:
     """Build a frame from its complete messages and the right image nearest its stamp."""
     parts = pending_parts
@@ -313,8 +334,8 @@ def _frame(
         std=rosmsg.image_array(parts[topics.disparity_std]).astype(np.float32),
         pixels=np.stack([features["u"], features["v"]], axis=1),
         disparities=features["disparity"],
-        left=rosmsg.image_array(parts[LEFT_IMAGE]),
-        right=None if right is None else rosmsg.image_array(right),
+        left=images.rectified(decode_image(parts[images.left_topic]), "left"),
+        right=None if right is None else images.rectified(decode_image(right), "right"),
         depth=None if depth is None else rosmsg.image_array(depth).astype(np.float32),
         pose=None if pose is None else rosmsg.pose_matrix(pose),
         min_disparity=float(parts[topics.disparity].min_disparity),
@@ -570,7 +591,10 @@ def evaluate_log(
         raise PcaInterpError(
             "a reference topic and the SGBM reference contradict each other; choose one"
         )
+    images = PairImages(options.pairing)
     with open_log(path) as reader:
+        if options.pairing is not None:
+            images.resolve(reader, exclude_prefix=topics.depth.rsplit("/", 1)[0])
         present = reader.topics()
         reference = (
             None
@@ -579,7 +603,7 @@ def evaluate_log(
         )
         has_truth = reference is not None or GROUND_TRUTH_DEPTH in present
         has_pose = GROUND_TRUTH_POSE in present
-        has_right = RIGHT_IMAGE in present
+        has_right = images.right_topic in present
         count = present[topics.disparity].message_count if topics.disparity in present else None
     has_truth = has_truth and not options.sgbm_reference
     mode = Mode(options.mode) if options.mode else None
@@ -597,7 +621,7 @@ def evaluate_log(
         reference_kind=str(reference.kind) if reference else "",
     )
     if not has_right:
-        result.stereo_note = f"skipped, the log has no {RIGHT_IMAGE}"
+        result.stereo_note = f"skipped, the log has no {images.right_topic}"
     elif not has_truth:
         result.stereo_note = (
             "skipped, the reference is SGBM of the pair itself (they would be trivially perfect)"
@@ -620,7 +644,7 @@ def evaluate_log(
     previous: tuple[_Frame, npt.NDArray[np.float64], _Stereo | None] | None = None
     read = 0
     state = _ReadState()
-    for frame in _frames(path, topics, options.max_frames, reference, state):
+    for frame in _frames(path, topics, options.max_frames, reference, state, images):
         read += 1
         if progress is not None:
             progress(read)
@@ -636,7 +660,7 @@ def evaluate_log(
             frame_reference = None
         elif stereo is None:
             raise LogReadError(
-                f"frame {frame.index} has neither {GROUND_TRUTH_DEPTH} nor {RIGHT_IMAGE}; "
+                f"frame {frame.index} has neither {GROUND_TRUTH_DEPTH} nor {images.right_topic}; "
                 "evaluate needs ground truth or the right image for an SGBM reference"
             )
         else:

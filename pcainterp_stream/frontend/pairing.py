@@ -31,11 +31,21 @@ from typing import Any
 import numpy as np
 
 from pcainterp_stream.errors import CalibrationError, LogReadError
+from pcainterp_stream.frontend import rectify as rect
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import LogReader, decode_image
-from pcainterp_stream.records import RawMessage, SparseFeatures, StereoCamera, StereoFrame
+from pcainterp_stream.records import (
+    DensifiedFrame,
+    RawMessage,
+    SparseFeatures,
+    StereoCamera,
+    StereoFrame,
+)
 
 MAX_PROBLEMS = 20
+
+MAX_HELD_RECTIFIERS = 256
+"""Frames whose rectifier is kept for :meth:`StereoPairer.full_result` when nobody asks."""
 """How many one-line problem descriptions :class:`PairingStats` keeps (counts are exact)."""
 
 
@@ -57,6 +67,15 @@ class PairingConfig:
             used and may be 0.
         fail_on_size_mismatch: raise :class:`~errors.LogReadError` on a left/right size
             mismatch instead of counting it and skipping the pair.
+        rectify: ``auto`` (remap when the calibration says the images are raw, see
+            :meth:`StereoPairer.rectification`), ``always`` (remap from the calibration) or
+            ``never`` (use the images as recorded and P of the camera infos, unchecked).
+        calibration: the pair's calibration from files, for logs without camera infos
+            (the info topics are then not read).
+        discover: the topics were not named: find the pair in the log
+            (:func:`frontend.discovery.resolve_pairing`).
+        check_rows: on the first frames, refuse a pair whose matched corners are not on the
+            same rows (or have negative disparities); off with ``rectify="never"``.
     """
 
     left_topic: str = "/stereo/left/image_rect"
@@ -68,8 +87,14 @@ class PairingConfig:
     window: int = 8
     baseline: float | None = None
     fail_on_size_mismatch: bool = False
+    rectify: str = "auto"
+    calibration: rect.StereoCalibration | None = None
+    discover: bool = False
+    check_rows: bool = True
 
     def __post_init__(self) -> None:
+        if self.rectify not in ("auto", "always", "never"):
+            raise ValueError(f"rectify must be auto, always or never, got {self.rectify!r}")
         if self.tolerance_ns < 0:
             raise ValueError(f"tolerance_ns must be >= 0, got {self.tolerance_ns}")
         if self.window < 1:
@@ -79,12 +104,10 @@ class PairingConfig:
 
     def required_topics(self) -> dict[str, str]:
         """Return topic -> command-line option, for :meth:`LogReader.require_topics`."""
-        topics = {
-            self.left_topic: "--left-topic",
-            self.right_topic: "--right-topic",
-            self.left_info_topic: "--left-info-topic",
-            self.right_info_topic: "--right-info-topic",
-        }
+        topics = {self.left_topic: "--left-topic", self.right_topic: "--right-topic"}
+        if self.calibration is None:
+            topics[self.left_info_topic] = "--left-info-topic"
+            topics[self.right_info_topic] = "--right-info-topic"
         if self.features_topic is not None:
             topics[self.features_topic] = "--features-topic"
         return topics
@@ -252,8 +275,20 @@ class StereoPairer:
         config: topics, stamp tolerance, window and options.
     """
 
-    def __init__(self, config: PairingConfig | None = None) -> None:
+    def __init__(
+        self, config: PairingConfig | None = None, echo: Callable[[str], None] | None = None
+    ) -> None:
         self.config = config or PairingConfig()
+        self._echo = echo
+        self._rectifier: rect.StereoRectifier | None = None
+        self._rect_infos: tuple[Any, Any] | None = None
+        self._said: str | None = None
+        self._frame_rectifier: dict[int, rect.StereoRectifier] = {}
+        self._rows = (
+            _RowCheck(self.config)
+            if self.config.check_rows and self.config.rectify != "never"
+            else None
+        )
         self.stats = PairingStats()
         self._left: deque[_Pending] = deque()
         self._right: deque[_Pending] = deque()
@@ -304,6 +339,11 @@ class StereoPairer:
             LogReadError: a size mismatch when ``fail_on_size_mismatch`` is set.
         """
         config = self.config
+        if config.calibration is not None and topic in (
+            config.left_info_topic,
+            config.right_info_topic,
+        ):
+            return []  # the calibration files stand for the camera infos
         if topic == config.left_info_topic:
             self._left_info = message
             if topic == config.right_info_topic:  # one info for both sides (with --baseline)
@@ -326,7 +366,11 @@ class StereoPairer:
         With a features topic configured, frames are released only once their features are
         known (they arrived, a later cloud arrived, or the window overflowed).
         """
-        return self._frame_features.pop(frame.index, None)
+        features = self._frame_features.pop(frame.index, None)
+        rectifier = self._frame_rectifier.get(frame.index)
+        if features is not None and rectifier is not None:  # raw left frame -> rectified
+            features = features._replace(points=rectifier.rotate_points(features.points))
+        return features
 
     def flush(self) -> list[StereoFrame]:
         """Release frames still held waiting for features (call at the end of the stream)."""
@@ -401,7 +445,9 @@ class StereoPairer:
         return best
 
     def _release_matched(self) -> list[StereoFrame]:
-        if self._left_info is None or self._right_info is None:
+        if self.config.calibration is None and (
+            self._left_info is None or self._right_info is None
+        ):
             return []
         frames: list[StereoFrame] = []
         while self._matched:
@@ -422,6 +468,12 @@ class StereoPairer:
         except ValueError as err:
             self._undecodable(_reason(err), f"{self.config.right_topic} at {right.stamp_ns}: {err}")
             return None
+        rectifier = self.rectification()
+        if rectifier is not None:  # estimated in the box valid in both cameras, see full_result
+            left_image, right_image = rectifier.rectify(left_image, right_image)
+            x, y, w, h = rectifier.box
+            left_image = left_image[y : y + h, x : x + w]
+            right_image = right_image[y : y + h, x : x + w]
         if left_image.shape != right_image.shape or left_image.dtype != right_image.dtype:
             problem = (
                 f"left image at stamp {left.stamp_ns} is {_describe(left_image)} but right "
@@ -434,7 +486,7 @@ class StereoPairer:
             self.stats.note(problem)
             return None
         height, width = left_image.shape[:2]
-        camera = self._camera(width, height)
+        camera = rectifier.inner if rectifier is not None else self._camera(width, height)
         frame = StereoFrame(
             index=self._index,
             stamp_ns=left.stamp_ns,
@@ -444,9 +496,122 @@ class StereoPairer:
             right=right_image,
             camera=camera,
         )
+        if self._rows is not None:
+            self._rows.see(left_image, right_image, rectified=rectifier is not None)
+        if rectifier is not None:
+            self._frame_rectifier[self._index] = rectifier
+            if len(self._frame_rectifier) > 4 * MAX_HELD_RECTIFIERS:  # nobody asks (learn)
+                for index in sorted(self._frame_rectifier)[:-MAX_HELD_RECTIFIERS]:
+                    del self._frame_rectifier[index]
         self._index += 1
         self.stats.pairs += 1
         return frame
+
+    def full_result(self, result: DensifiedFrame) -> DensifiedFrame:
+        """Return a densified frame at the rectified size ``image_proc`` gives (``image_rect``).
+
+        A remapped pair is estimated in the box of the rectified image that both raw images
+        cover (:attr:`frontend.rectify.StereoRectifier.box`: the view a camera with this
+        calibration has); outside it the outputs have no estimate (NaN). Frames that were not
+        remapped are returned as they are.
+        """
+        rectifier = self._frame_rectifier.pop(result.frame.index, None)
+        if rectifier is None:
+            return result
+        return rect.pad_result(result, rectifier)
+
+    def rectification(self) -> rect.StereoRectifier | None:
+        """Return the rectifier of the current calibration, or None when no remap is needed.
+
+        ``auto`` remaps when the calibration files are given, or when the camera infos say
+        the images are raw (D != 0, R != I or K != P[:3, :3]), except on topics named as
+        rectified (``image_rect``...): ROS publishes those with the raw camera's info.
+        ``always`` remaps from the calibration in any case, ``never`` never. The decision is
+        printed (through ``echo``) when it is first made and whenever it changes.
+
+        Raises:
+            CalibrationError: an unknown distortion model, unusable matrices, or no baseline.
+        """
+        config = self.config
+        if config.rectify == "never":
+            self._say(
+                "rectify never: the images are used as recorded, with P of "
+                f"{config.left_info_topic} and {config.right_info_topic} (not checked)"
+            )
+            return None
+        if config.calibration is not None:
+            calibration = config.calibration
+            source = f"the calibration files ({calibration.left.name}, {calibration.right.name})"
+        else:
+            held = self._rect_infos
+            if held is not None and held[0] is self._left_info and held[1] is self._right_info:
+                return self._rectifier
+            try:
+                calibration = rect.stereo_from_infos(
+                    self._left_info,
+                    self._right_info,
+                    config.left_info_topic,
+                    config.right_info_topic,
+                )
+            except CalibrationError:
+                names = (config.left_topic, config.right_topic)
+                if config.rectify == "always" or not all(map(is_rectified_name, names)):
+                    raise
+                # rectified streams whose infos carry no usable raw calibration (size 0, an
+                # unknown model): P alone is what they need
+                self._say(
+                    f"rectify auto: {config.left_topic} and {config.right_topic} are named "
+                    "rectified: used as they are, with P of their camera infos"
+                )
+                self._rect_infos = (self._left_info, self._right_info)
+                self._rectifier = None
+                return None
+            source = f"{config.left_info_topic} and {config.right_info_topic}"
+        rectifier: rect.StereoRectifier | None = None
+        if config.rectify == "auto" and config.calibration is None:
+            named = [t for t in (config.left_topic, config.right_topic) if is_rectified_name(t)]
+            if calibration.is_rectified:
+                self._say(
+                    f"rectify auto: {source} say the images are rectified (D = 0, R = I, "
+                    "K = P): used as they are"
+                )
+            elif len(named) == 2:
+                self._say(
+                    f"rectify auto: {config.left_topic} and {config.right_topic} are named "
+                    "rectified: used as they are, with P of their camera infos (ROS publishes "
+                    "image_rect with the raw camera's D and R); --rectify always remaps them"
+                )
+            else:
+                rectifier = self._build(calibration)
+                self._say(
+                    f"rectify auto: remapping the raw images with {source} "
+                    f"({calibration.why_raw()}; {calibration.left.model}), as image_proc does: "
+                    f"{_size(rectifier.camera)} rectified, fx={rectifier.camera.fx:g}, "
+                    f"baseline {rectifier.camera.baseline:.4g} m"
+                )
+        else:
+            rectifier = self._build(calibration)
+            self._say(
+                f"rectify {config.rectify}: remapping the images with {source} "
+                f"({calibration.left.model}): {_size(rectifier.camera)} rectified, "
+                f"fx={rectifier.camera.fx:g}, baseline {rectifier.camera.baseline:.4g} m"
+            )
+        if config.calibration is None:
+            self._rect_infos = (self._left_info, self._right_info)
+        self._rectifier = rectifier
+        return rectifier
+
+    def _build(self, calibration: rect.StereoCalibration) -> rect.StereoRectifier:
+        """Return the rectifier of a calibration: the current one when no value changed."""
+        current = self._rectifier
+        if current is not None and current.calibration.key() == calibration.key():
+            return current
+        return rect.StereoRectifier(calibration, baseline=self.config.baseline)
+
+    def _say(self, line: str) -> None:
+        if line != self._said and self._echo is not None:
+            self._echo(line)
+        self._said = line
 
     def _camera(self, width: int, height: int) -> StereoCamera:
         key = (id(self._left_info), id(self._right_info), width, height)
@@ -521,6 +686,86 @@ class StereoPairer:
                 self._features.remove(f)
             self.stats.features_unmatched += len(stale)
         return released
+
+
+ROW_CHECK_FRAMES = 5
+"""How many first frames the row check looks at (it decides earlier with enough matches)."""
+
+ROW_CHECK_MATCHES = 150
+"""Matches after which the row check decides."""
+
+ROW_CHECK_MIN_MATCHES = 30
+"""Fewer matches than this over the first frames: no verdict (textureless, unrelated images)."""
+
+MAX_ROW_OFFSET_PX = 1.0
+"""Largest median vertical offset (px) of matched corners a rectified pair may have."""
+
+MIN_MEDIAN_DISPARITY_PX = -1.0
+"""A median disparity of matched corners below this says left and right are swapped."""
+
+
+def is_rectified_name(topic: str) -> bool:
+    """Return True for an image topic named as rectified (``image_rect``, ``image_rect_color``)."""
+    parts = [p for p in topic.split("/") if p and p not in ("compressed", "compressedDepth")]
+    return bool(parts) and "rect" in parts[-1].lower()
+
+
+def _size(camera: StereoCamera) -> str:
+    return f"{camera.width}x{camera.height}"
+
+
+class _RowCheck:
+    """The guard against an unrectified or swapped pair: see :attr:`PairingConfig.check_rows`."""
+
+    def __init__(self, config: PairingConfig) -> None:
+        self.config = config
+        self.frames = 0
+        self.points: list[Any] = []
+        self.done = False
+
+    def see(self, left: Any, right: Any, *, rectified: bool) -> None:
+        """Add one frame's correspondences; decide once there are enough.
+
+        Raises:
+            CalibrationError: the pair does not look rectified, or looks swapped.
+        """
+        if self.done:
+            return
+        self.frames += 1
+        self.points.append(rect.correspondences(left, right))
+        points = np.concatenate(self.points)
+        if points.shape[0] < ROW_CHECK_MATCHES and self.frames < ROW_CHECK_FRAMES:
+            return
+        self.done = True
+        self.points = []
+        if points.shape[0] < ROW_CHECK_MIN_MATCHES:
+            return
+        offset = rect.row_offset(points)
+        config = self.config
+        pair = f"{config.left_topic} / {config.right_topic}"
+        where = f"median over {offset.matches} matched corners of the first {self.frames} frame(s)"
+        if offset.median_abs_dy > MAX_ROW_OFFSET_PX:
+            if rectified:
+                fix = "the calibration does not fit these images: check the camera infos" + (
+                    " (or the --calibration files)" if config.calibration else ""
+                )
+            else:
+                fix = (
+                    "pass --rectify always to remap them with their CameraInfo (or "
+                    "--calibration files), or check the CameraInfo"
+                )
+            raise CalibrationError(
+                f"the stereo pair {pair} does not look rectified: matched corners are "
+                f"{offset.median_abs_dy:.2f} px apart vertically ({where}; rectified < "
+                f"{MAX_ROW_OFFSET_PX:g} px); {fix}; --rectify never densifies them anyway"
+            )
+        if offset.median_dx < MIN_MEDIAN_DISPARITY_PX:
+            raise CalibrationError(
+                f"the stereo pair {pair} has negative disparities: x_left - x_right = "
+                f"{offset.median_dx:.1f} px ({where}): left and right look swapped; swap "
+                "--left-topic and --right-topic (or fix the baseline sign of the right camera's "
+                "P); --rectify never densifies them anyway"
+            )
 
 
 def _reason(err: BaseException) -> str:

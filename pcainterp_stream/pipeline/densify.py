@@ -15,6 +15,7 @@ from pcainterp_stream.errors import (
     PcaInterpError,
 )
 from pcainterp_stream.estimate.basis import BUILT_IN, IN_MEMORY, Basis, is_default
+from pcainterp_stream.frontend.discovery import resolve_pairing
 from pcainterp_stream.frontend.pairing import (
     PairingConfig,
     PairingStats,
@@ -91,6 +92,7 @@ def densify(
     spawn_viewer: bool = False,
     on_frame: Callable[[DensifiedFrame], None] | None = None,
     live: FoxgloveLive | None = None,
+    echo: Callable[[str], None] | None = None,
 ) -> DensifySummary:
     """Densify a stereo log into a copy with the ``/pcainterp/*`` channels (``densify``).
 
@@ -105,6 +107,11 @@ def densify(
     (:func:`io.pipes.spool`), the output written as it goes (:class:`io.pipes.McapStreamWriter`).
     With ``live`` (an open :class:`io.foxglove.FoxgloveLive`) the same messages are served
     to Foxglove clients as they are made; ``output`` may then be None.
+
+    A ``pairing`` with ``discover`` set takes the stereo pair found in the log
+    (:func:`frontend.discovery.resolve_pairing`); raw images are rectified from their
+    calibration (:meth:`frontend.pairing.StereoPairer.rectification`). ``echo`` is given the
+    one-line notes of those decisions (the command line prints them).
     """
     started = time.perf_counter()
     pairing = pairing or PairingConfig()
@@ -124,6 +131,7 @@ def densify(
         else:  # standard input: spooled, then named as such, not by the temporary file
             reader = stack.enter_context(open_log(stack.enter_context(spool(input_path))))
             input_path = Path(STDIN_NAME)
+        pairing = resolve_pairing(reader, pairing, echo)
         _require_topics(reader, pairing.required_topics(), "stereo pair")
         _check_topic_types(reader, _pairing_types(pairing))
         clash = sorted(set(topics.all()) & set(reader.topics()))
@@ -153,12 +161,12 @@ def densify(
             else None
         )
         engine = stack.enter_context(FrameProcessor(basis, processor))
-        pairer = StereoPairer(pairing)
+        pairer = StereoPairer(pairing, echo=echo)
         bar = stack.enter_context(_bar(total, f"densify {input_path.name}"))
 
         def emit(results: list[DensifiedFrame]) -> None:
             nonlocal measurements, frames
-            for result in results:
+            for result in map(pairer.full_result, results):
                 messages = output_messages(result, topics)
                 if writer is not None:
                     for topic, message in messages:

@@ -294,6 +294,7 @@ def run_densify(
             rrd=args.rrd,
             spawn_viewer=args.rerun,
             live=server,
+            echo=_echo,
         )
         _print_summary(summary, processor)
         if args.rrd is not None:

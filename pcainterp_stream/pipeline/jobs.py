@@ -84,6 +84,28 @@ def synth(
         )
 
 
+def synth_raw(
+    out: Path, *, frames: int, seed: int, scale: float, fmt: str | None, model: str
+) -> WriteSummary:
+    """Render a synthetic drive recorded raw, as a driver does (``pcainterp synth --raw``)."""
+    from pcainterp_stream.synth import SynthConfig
+    from pcainterp_stream.synth.raw import write_raw_log
+
+    if frames < 1:
+        raise PcaInterpError(f"--frames must be at least 1, got {frames}")
+    if not 0.05 <= scale <= 4.0:  # also refuses nan
+        raise PcaInterpError(f"--scale must be in [0.05, 4], got {scale}")
+    config = SynthConfig(seed=seed, frames=frames, scale=scale)
+    with _bar(frames, f"synth --raw {out.name}") as bar:
+        return write_raw_log(
+            config,
+            out,
+            model=model,
+            format=fmt,
+            progress=lambda done, total: bar.update(done - bar.n),
+        )
+
+
 def import_kitti(folder: Path, out: Path, *, max_frames: int | None) -> WriteSummary:
     """Convert a KITTI folder into an MCAP log (``pcainterp import-kitti``)."""
     from pcainterp_stream.io.kitti import import_kitti as convert
@@ -113,6 +135,7 @@ def evaluate(
     basis_rows: bool = True,
     reference_topic: str | None = None,
     reference_kind: str = "auto",
+    pairing: PairingConfig | None = None,
 ) -> tuple[Path, str]:
     """Evaluate a densified log into a report folder (``pcainterp evaluate``).
 
@@ -130,6 +153,8 @@ def evaluate(
         basis_rows: False skips the rows that re-densify with a basis.
         reference_topic: score against this ground-truth image topic of the log.
         reference_kind: ``auto``, ``depth`` or ``disparity`` (what the topic holds).
+        pairing: the input pair's topics and rectification (raw images are rectified as
+            densify did); None: the synthetic logs' topics.
 
     Returns:
         The report folder and the summary table text.
@@ -162,6 +187,7 @@ def evaluate(
         max_frames=max_frames,
         reference_topic=reference_topic,
         reference_kind=ReferenceKind(reference_kind),
+        pairing=pairing,
     )
     with _bar(None, f"evaluate {input_path.name}") as bar:
         result = write_report(

@@ -1,49 +1,34 @@
-"""Golden densify: the committed tiny log densified with the committed basis matches the JSON."""
+"""Golden densify: the committed tiny log densified with the committed basis matches."""
 
 from __future__ import annotations
 
-import copy
-import importlib.util
 import json
 from pathlib import Path
-from types import ModuleType
 
+from pcainterp_stream.golden import compare, load_golden
+from pcainterp_stream.golden.pytest_plugin import LogGolden
 from pcainterp_stream.pipeline.jobs import densify
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "tests" / "data"
 
 
-def _load_tool() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("make_golden", ROOT / "tools" / "make_golden.py")
-    assert spec is not None
-    assert spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-tool = _load_tool()
-
-
-def test_densified_golden_log_matches_expected_summary(tmp_path: Path) -> None:
-    expected = json.loads((DATA / "golden_dense.json").read_text())
+def test_densified_golden_log_matches_its_golden_file(
+    tmp_path: Path, log_golden: LogGolden
+) -> None:
     out = tmp_path / "dense.mcap"
     summary = densify(DATA / "golden_synth.mcap", out, DATA / "golden_basis.npz")
     assert summary.frames == 4
-    actual = tool.summarize_log(out)
-    assert tool.compare_summary(expected, actual) == []
-    topics = {channel["topic"] for channel in actual["channels"]}
+    log_golden.check(out, fullpath=DATA / "golden_dense.json")
+    topics = set(load_golden(DATA / "golden_dense.json")["channels"])
     assert {"/pcainterp/depth", "/pcainterp/disparity", "/stereo/left/image_rect"} <= topics
 
 
 def test_golden_comparison_catches_a_changed_depth() -> None:
-    expected = json.loads((DATA / "golden_dense.json").read_text())
-    changed = copy.deepcopy(expected)
-    index = next(
-        i for i, m in enumerate(changed["messages"]) if m["topic"] == "/pcainterp/depth"
-    )
-    changed["messages"][index]["image"]["mean"] *= 1.05
-    problems = tool.compare_summary(expected, changed)
-    assert problems
-    assert "/pcainterp/depth" in problems[0]
+    golden = load_golden(DATA / "golden_dense.json")
+    changed = json.loads(json.dumps(golden))
+    changed["channels"]["/pcainterp/depth"]["messages"][1]["arrays"]["image"]["median"] *= 1.05
+    differences = compare(golden, changed)
+    assert [(d.topic, d.index, d.what) for d in differences] == [
+        ("/pcainterp/depth", 1, "image median")
+    ]

@@ -1,17 +1,16 @@
-"""The golden synthetic log: the committed file and a fresh render match the expected JSON."""
+"""The golden synthetic log: the committed file and a fresh render match its golden file."""
 
 from __future__ import annotations
 
-import copy
 import importlib.util
-import json
 from pathlib import Path
 from types import ModuleType
-from typing import Any
 
 import numpy as np
 import pytest
 
+from pcainterp_stream.golden import check_log, format_differences, load_golden, save_golden
+from pcainterp_stream.golden.pytest_plugin import LogGolden
 from pcainterp_stream.records import StereoCamera, SynthFrame
 from pcainterp_stream.synth.log import write_synthetic_log
 
@@ -31,15 +30,6 @@ def _load_tool() -> ModuleType:
 
 tool = _load_tool()
 
-
-def _renderer_available() -> bool:
-    try:
-        from pcainterp_stream.synth import SynthConfig, generate  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
 needs_golden = pytest.mark.skipif(
     not GOLDEN_JSON.is_file() or not GOLDEN_LOG.is_file(),
     reason="tests/data/golden_synth.* missing; run python tools/make_golden.py",
@@ -47,26 +37,23 @@ needs_golden = pytest.mark.skipif(
 
 
 @needs_golden
-def test_committed_log_matches_json() -> None:
-    expected = json.loads(GOLDEN_JSON.read_text())
-    assert expected["format"] == "pcainterp-golden/1"
+def test_committed_log_matches_its_golden_file(log_golden: LogGolden) -> None:
+    log_golden.check(GOLDEN_LOG, fullpath=GOLDEN_JSON)
+    golden = load_golden(GOLDEN_JSON)
     assert GOLDEN_LOG.stat().st_size < 1_000_000
-    actual = tool.summarize_log(GOLDEN_LOG)
-    assert tool.compare_summary(expected, actual) == []
-    frames = expected["generator"]["frames"]
-    assert {c["message_count"] for c in expected["channels"]} == {frames}
-    assert len(expected["channels"]) == 6
+    assert {c["message_count"] for c in golden["channels"].values()} == {4}
+    assert len(golden["channels"]) == 6
 
 
 @needs_golden
-@pytest.mark.skipif(not _renderer_available(), reason="pcainterp_stream.synth not available")
-def test_fresh_render_matches_json(tmp_path: Path) -> None:
-    expected = json.loads(GOLDEN_JSON.read_text())
-    actual = tool.render_golden(tmp_path / "golden.mcap", **expected["generator"])
-    assert tool.compare_summary(expected, actual) == []
+def test_fresh_render_matches_the_golden_file(tmp_path: Path) -> None:
+    fresh = tmp_path / "golden.mcap"
+    tool.render_log(fresh)
+    result = check_log(fresh, GOLDEN_JSON)
+    assert result.passed, format_differences(result.differences)
 
 
-# --- the comparison itself, on a fabricated log (independent of the renderer) -----------
+# --- tolerances on a fabricated log (independent of the renderer) -----------------------
 
 CAMERA = StereoCamera(width=40, height=30, fx=30.0, fy=30.0, cx=19.5, cy=14.5, baseline=0.5)
 
@@ -91,49 +78,37 @@ def _frames() -> list[SynthFrame]:
     return frames
 
 
-def _summary(path: Path, frames: list[SynthFrame]) -> dict[str, Any]:
+def _check(tmp_path: Path, golden: Path, frames: list[SynthFrame], name: str) -> list[str]:
+    path = tmp_path / name
     write_synthetic_log(frames, path)
-    return {"tolerance": tool.TOLERANCE, **tool.summarize_log(path)}
+    return [str(d) for d in check_log(path, golden).differences]
 
 
-def test_summary_records_times_stamps_and_statistics(tmp_path: Path) -> None:
+def test_tolerances_accept_tiny_and_reject_real_differences(tmp_path: Path) -> None:
     frames = _frames()
-    summary = _summary(tmp_path / "a.mcap", frames)
-    assert summary["profile"] == "ros2"
-    assert [c["topic"] for c in summary["channels"]][:2] == [
-        "/stereo/left/image_rect",
-        "/stereo/right/image_rect",
-    ]
-    depth = summary["messages"][4]
-    assert depth["topic"] == "/ground_truth/depth"
+    write_synthetic_log(frames, tmp_path / "a.mcap")
+    golden = tmp_path / "a.golden.json"
+    summary = save_golden(tmp_path / "a.mcap", golden)
+    depth = summary.channels["/ground_truth/depth"]["messages"][0]
     assert depth["log_time_ns"] == depth["stamp_ns"] == 10**9
-    assert depth["image"]["nan_count"] == 5 * 40
-    assert depth["image"]["mean"] == pytest.approx(float(np.nanmean(frames[0].depth)), rel=1e-9)
-    json.dumps(summary)  # serialisable
-
-
-def test_compare_accepts_tiny_and_rejects_real_differences(tmp_path: Path) -> None:
-    frames = _frames()
-    expected = _summary(tmp_path / "a.mcap", frames)
-    assert tool.compare_summary(expected, expected) == []
+    assert depth["arrays"]["image"]["nan"] == 5 * 40
+    assert depth["arrays"]["image"]["mean"] == pytest.approx(float(np.nanmean(frames[0].depth)))
 
     nudged = list(frames)
     left = frames[0].left.copy()
     left[0, :3] = np.clip(left[0, :3].astype(int) + 1, 0, 255)  # 3 pixels one grey level up
-    depth = frames[0].depth * np.float32(1 + 1e-6)  # float noise
-    nudged[0] = frames[0]._replace(left=left, depth=depth)
-    assert tool.compare_summary(expected, _summary(tmp_path / "b.mcap", nudged)) == []
+    nudged[0] = frames[0]._replace(left=left, depth=frames[0].depth * np.float32(1 + 1e-6))
+    assert _check(tmp_path, golden, nudged, "b.mcap") == []
 
     changed = list(frames)
     changed[1] = frames[1]._replace(depth=frames[1].depth * np.float32(1.05))
-    problems = tool.compare_summary(expected, _summary(tmp_path / "c.mcap", changed))
+    problems = _check(tmp_path, golden, changed, "c.mcap")
     assert problems
-    assert all("message 10 (/ground_truth/depth)" in p for p in problems)
+    assert all(
+        p.startswith("/ground_truth/depth #1 (stamp 1.100000000 s): image") for p in problems
+    )
 
     late = [f._replace(stamp_ns=f.stamp_ns + 1) for f in frames]
-    problems = tool.compare_summary(expected, _summary(tmp_path / "d.mcap", late))
-    assert any("log_time_ns" in p for p in problems)
-
-    fewer = copy.deepcopy(expected)
-    fewer["messages"].pop()
-    assert tool.compare_summary(fewer, expected) == ["12 messages, expected 11"]
+    problems = _check(tmp_path, golden, late, "d.mcap")
+    assert any("message missing from the log" in p for p in problems)
+    assert any("with stamp 1.000000001 s not in the golden file" in p for p in problems)

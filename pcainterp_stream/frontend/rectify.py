@@ -1,0 +1,277 @@
+"""Rectify a raw stereo pair from its calibration, as ROS ``image_proc`` does (no I/O).
+
+A camera's calibration is what a ``sensor_msgs/CameraInfo`` carries: the raw intrinsics K and
+distortion D (``plumb_bob``, ``rational_polynomial`` or ``equidistant``), the rectifying
+rotation R and the rectified projection P, plus the binning and region of interest the
+images were taken with. Each image is remapped with ``cv2.initUndistortRectifyMap(K, D, R,
+P[:3, :3])`` (``cv2.fisheye`` for ``equidistant``; the records and maps are
+:mod:`io.camera_model`'s), bicubically (``image_proc`` offers it; its default is bilinear,
+measurably worse for matching), at the size ``image_proc``'s ``image_rect`` has: the raw
+image's size (its ROI divided by its binning). The rectified left camera is then P's
+(divided by the binning, moved by the ROI) with D = 0 and R = I; points in the raw left
+camera's frame move into the rectified one by R. The estimate is made in the box of the
+rectified image both raw cameras see (:func:`valid_box`) and padded back to the full size
+(:func:`pad_result`). The first frames are checked for rows that do not match
+(:func:`correspondences`, :func:`row_offset`).
+
+The maps are built once per calibration: :class:`StereoRectifier` keeps the last one and
+builds new maps only when a calibration differs in a value (a driver re-sends the same
+``CameraInfo`` with every image).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.errors import CalibrationError
+from pcainterp_stream.io.camera_model import (
+    MODELS,
+    CameraCalibration,
+    StereoCalibration,
+    unrectify_maps,
+)
+from pcainterp_stream.records import DensifiedFrame, StereoCamera
+
+__all__ = [
+    "MODELS",
+    "CameraCalibration",
+    "RowOffset",
+    "StereoCalibration",
+    "StereoRectifier",
+    "correspondences",
+    "pad_result",
+    "row_offset",
+    "stereo_from_infos",
+    "unrectify_maps",
+    "valid_box",
+]
+
+
+class StereoRectifier:
+    """Remap raw stereo pairs into the rectified pair their calibration defines.
+
+    Args:
+        calibration: the pair's calibration.
+        baseline: baseline override (m); else -P_right[0, 3] / P_right[0, 0].
+
+    Raises:
+        CalibrationError: the right P gives no positive baseline and none is given.
+    """
+
+    def __init__(self, calibration: StereoCalibration, baseline: float | None = None) -> None:
+        self.calibration = calibration
+        left, right = calibration.left, calibration.right
+        self._maps = [cal.rectification_maps() for cal in (left, right)]
+        p = left.rectified_projection()
+        width, height = left.image_size()
+        if baseline is None:
+            p_right = right.p
+            with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+                baseline = float(-p_right[0, 3] / p_right[0, 0])
+            if not (baseline > 0 and np.isfinite(baseline)):
+                sign = "swapped left/right?" if baseline < 0 else "no Tx"
+                raise CalibrationError(
+                    f"{right.name} gives no baseline (P[0,3] = {p_right[0, 3]}, fx = "
+                    f"{p_right[0, 0]}; expected -fx * baseline < 0: {sign}); fix the "
+                    "calibration or pass --baseline METRES"
+                )
+        self.camera = StereoCamera(
+            width=int(width),
+            height=int(height),
+            fx=float(p[0, 0]),
+            fy=float(p[1, 1]),
+            cx=float(p[0, 2]),
+            cy=float(p[1, 2]),
+            baseline=float(baseline),
+        )
+        self.rotation = left.r.copy()
+        self.box = valid_box(self._maps, left.image_size(), right.image_size())
+        x, y, w, h = self.box
+        self.inner = StereoCamera(
+            width=w,
+            height=h,
+            fx=self.camera.fx,
+            fy=self.camera.fy,
+            cx=self.camera.cx - x,
+            cy=self.camera.cy - y,
+            baseline=self.camera.baseline,
+        )
+
+    def check_size(self, shape: tuple[int, ...], side: str) -> None:
+        """Refuse an image whose size is not the calibration's (ROI / binning).
+
+        Raises:
+            CalibrationError: naming both sizes and the calibration.
+        """
+        cal = self.calibration.left if side == "left" else self.calibration.right
+        width, height = cal.image_size()
+        if (shape[1], shape[0]) != (width, height):
+            raise CalibrationError(
+                f"the {side} image is {shape[1]}x{shape[0]} but its calibration ({cal.name}) is "
+                f"for {width}x{height}: pass the calibration of this camera and resolution"
+            )
+
+    def rectify(
+        self, left: npt.NDArray[np.generic], right: npt.NDArray[np.generic]
+    ) -> tuple[npt.NDArray[np.generic], npt.NDArray[np.generic]]:
+        """Return the rectified (left, right) images (bicubic, zero outside the raw image)."""
+        return self.rectify_one(left, "left"), self.rectify_one(right, "right")
+
+    def rectify_one(self, image: npt.NDArray[np.generic], side: str) -> npt.NDArray[np.generic]:
+        """Return one rectified image of the pair (``side``: ``left`` or ``right``)."""
+        self.check_size(image.shape, side)
+        map_x, map_y = self._maps[0 if side == "left" else 1]
+        remapped = cv2.remap(
+            np.asarray(image, dtype=image.dtype),
+            map_x,
+            map_y,
+            cv2.INTER_CUBIC,
+            borderMode=cv2.BORDER_CONSTANT,
+        )
+        return np.asarray(remapped)
+
+    def rotate_points(self, points: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
+        """Move (n, 3) points from the raw left camera's frame into the rectified one."""
+        return (np.asarray(points, np.float64) @ self.rotation.T).astype(np.float32)
+
+
+def stereo_from_infos(
+    left_info: Any, right_info: Any, left_name: str, right_name: str
+) -> StereoCalibration:
+    """Return the calibration of a pair from its two ``CameraInfo`` messages."""
+    return StereoCalibration(
+        CameraCalibration.from_camera_info(left_info, left_name),
+        CameraCalibration.from_camera_info(right_info, right_name),
+    )
+
+
+@dataclass(frozen=True)
+class RowOffset:
+    """How far a stereo pair is from rectified, from matched corners.
+
+    Attributes:
+        matches: correspondences used (inliers of a RANSAC fundamental matrix).
+        median_abs_dy: median |y_left - y_right| (px): about 0 on a rectified pair.
+        median_dx: median x_left - x_right (px): a disparity, positive on a correct pair.
+    """
+
+    matches: int
+    median_abs_dy: float
+    median_dx: float
+
+
+def _grey8(image: npt.NDArray[np.generic]) -> npt.NDArray[np.uint8]:
+    if image.ndim == 3:
+        image = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
+    if image.dtype != np.uint8:
+        scale = 255.0 / max(float(np.max(image)), 1.0)
+        image = np.clip(image.astype(np.float32) * scale, 0, 255).astype(np.uint8)
+    return np.ascontiguousarray(image, dtype=np.uint8)
+
+
+def correspondences(
+    left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], features: int = 1500
+) -> npt.NDArray[np.float64]:
+    """Return (n, 4) x_l, y_l, x_r, y_r of ORB matches consistent with one epipolar geometry.
+
+    Cross-checked descriptor matches are kept when a RANSAC fundamental matrix has them as
+    inliers: a correct correspondence, whether or not the pair is rectified.
+    """
+    orb = cv2.ORB.create(nfeatures=features)
+    a, b = _grey8(left), _grey8(right)
+    kp_l, des_l = orb.detectAndCompute(a, None)
+    kp_r, des_r = orb.detectAndCompute(b, None)
+    if des_l is None or des_r is None or len(kp_l) < 8 or len(kp_r) < 8:
+        return np.zeros((0, 4))
+    matches = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(des_l, des_r)
+    if len(matches) < 15:
+        return np.zeros((0, 4))
+    pts = np.array(
+        [[*kp_l[m.queryIdx].pt, *kp_r[m.trainIdx].pt] for m in matches], dtype=np.float64
+    )
+    _, mask = cv2.findFundamentalMat(pts[:, :2], pts[:, 2:], cv2.FM_RANSAC, 1.0, 0.999)
+    if mask is None:
+        return np.zeros((0, 4))
+    return np.asarray(pts[mask.ravel().astype(bool)], dtype=np.float64)
+
+
+def row_offset(points: npt.NDArray[np.float64]) -> RowOffset:
+    """Summarise correspondences (n, 4) as a :class:`RowOffset`."""
+    if points.shape[0] == 0:
+        return RowOffset(0, float("nan"), float("nan"))
+    return RowOffset(
+        matches=int(points.shape[0]),
+        median_abs_dy=float(np.median(np.abs(points[:, 1] - points[:, 3]))),
+        median_dx=float(np.median(points[:, 0] - points[:, 2])),
+    )
+
+
+def valid_box(
+    maps: list[tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]],
+    *sizes: tuple[int, int],
+) -> tuple[int, int, int, int]:
+    """Return (x, y, width, height): a large box of the rectified image valid in both cameras.
+
+    A rectified pixel is valid when both its raw positions fall inside the raw images. The box
+    is found by shaving off, one at a time, the border row or column with the most invalid
+    pixels (per pixel of its length) until none is left.
+    """
+    height0, width0 = maps[0][0].shape[:2]
+    valid: npt.NDArray[np.bool_] = np.ones((height0, width0), dtype=bool)
+    for (map_x, map_y), (width, height) in zip(maps, sizes, strict=True):
+        valid &= (map_x >= 0) & (map_x <= width - 1) & (map_y >= 0) & (map_y <= height - 1)
+    top, left, bottom, right = 0, 0, height0, width0
+    bad = ~valid
+    while top < bottom and left < right:
+        box = bad[top:bottom, left:right]
+        edges = {
+            "top": box[0].mean(),
+            "bottom": box[-1].mean(),
+            "left": box[:, 0].mean(),
+            "right": box[:, -1].mean(),
+        }
+        side = max(edges, key=lambda k: edges[k])
+        if edges[side] == 0:
+            break
+        if side == "top":
+            top += 1
+        elif side == "bottom":
+            bottom -= 1
+        elif side == "left":
+            left += 1
+        else:
+            right -= 1
+    return (left, top, max(right - left, 0), max(bottom - top, 0))
+
+
+def pad_result(result: DensifiedFrame, rectifier: StereoRectifier) -> DensifiedFrame:
+    """Return a frame estimated in ``rectifier.box`` at the full rectified size (NaN outside)."""
+    x, y, w, h = rectifier.box
+    full = rectifier.camera
+    if (x, y, w, h) == (0, 0, full.width, full.height):
+        return result._replace(frame=result.frame._replace(camera=full))
+
+    def pad(array: npt.NDArray[Any], fill: float) -> npt.NDArray[Any]:
+        out = np.full((full.height, full.width, *array.shape[2:]), fill, dtype=array.dtype)
+        out[y : y + h, x : x + w] = array
+        return out
+
+    frame = result.frame._replace(
+        camera=full, left=pad(result.frame.left, 0), right=pad(result.frame.right, 0)
+    )
+    pixels = (result.pixels + np.array([x, y], dtype=result.pixels.dtype)).astype(
+        result.pixels.dtype
+    )
+    return result._replace(
+        frame=frame,
+        pixels=pixels,
+        disparity=pad(result.disparity, np.nan),
+        disparity_std=pad(result.disparity_std, np.nan),
+        depth=pad(result.depth, np.nan),
+        depth_std=pad(result.depth_std, np.nan),
+    )

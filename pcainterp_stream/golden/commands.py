@@ -1,0 +1,163 @@
+"""The ``pcainterp golden save`` and ``pcainterp golden check`` commands.
+
+Options are declared beside the function that runs them; the work is one call into
+:mod:`pcainterp_stream.golden.store`. Exit codes: 0 the log matches (or was saved), 1 it
+differs (the differences are printed), 2 bad input (printed by the caller as one line).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from tqdm import tqdm
+
+from pcainterp_stream.errors import PcaInterpError
+
+__all__ = ["add_golden_parser", "run_golden"]
+
+DEFAULT_MAX_LINES = 20
+
+
+def add_golden_parser(commands: Any, formatter: Any) -> None:
+    """Add ``golden save`` and ``golden check`` to the ``pcainterp`` sub-commands."""
+    golden = commands.add_parser(
+        "golden",
+        formatter_class=formatter,
+        help="snapshot a log in a golden file, or check a log against one",
+        description=(
+            "Golden-file tests of logs. `save` records what a log contains (channels,\n"
+            "schemas, message counts, log times, header stamps, values, and robust\n"
+            "statistics of every image, point cloud and numeric array) with the\n"
+            "tolerances it is checked within; `check` compares a later log with it.\n"
+            "Any MCAP, ROS 1 .bag or rosbag2 works."
+        ),
+        epilog=(
+            "examples:\n"
+            "  pcainterp golden save drive_dense.mcap -o drive.golden.json\n"
+            "  pcainterp golden save drive_dense.mcap -o drive.golden.json --arrays\n"
+            "  pcainterp golden check drive_dense.mcap drive.golden.json\n"
+            "  pcainterp golden check drive_dense.mcap drive.golden.json "
+            "--topics /pcainterp/depth\n"
+            "  pcainterp golden check drive_dense.mcap drive.golden.json --update\n"
+            "exit codes: 0 matches, 1 differs (differences printed), 2 bad input"
+        ),
+    )
+    actions = golden.add_subparsers(dest="golden_command", metavar="ACTION", required=True)
+    save = actions.add_parser(
+        "save",
+        formatter_class=formatter,
+        help="write the golden file of a log",
+        epilog="example:\n  pcainterp golden save drive_dense.mcap -o drive.golden.json --arrays",
+    )
+    save.add_argument("log", type=Path, metavar="LOG", help="MCAP file, ROS 1 .bag or rosbag2")
+    save.add_argument(
+        "-o", "--output", type=Path, required=True, metavar="GOLDEN.json", help="file to write"
+    )
+    save.add_argument(
+        "--arrays",
+        action="store_true",
+        help="also store every array (compressed .npz beside the JSON) for an element-wise "
+        "check with atol/rtol (depth: in units of its published std)",
+    )
+    save.add_argument(
+        "--topics", nargs="+", default=None, metavar="TOPIC", help="record only these channels"
+    )
+    check = actions.add_parser(
+        "check",
+        formatter_class=formatter,
+        help="check a log against its golden file (exit 1 and the differences when it differs)",
+        epilog="example:\n  pcainterp golden check drive_dense.mcap drive.golden.json",
+    )
+    check.add_argument("log", type=Path, metavar="LOG", help="MCAP file, ROS 1 .bag or rosbag2")
+    check.add_argument("golden", type=Path, metavar="GOLDEN.json", help="a golden file")
+    check.add_argument(
+        "--topics", nargs="+", default=None, metavar="TOPIC", help="check only these channels"
+    )
+    check.add_argument(
+        "--update", action="store_true", help="rewrite the golden file from LOG when they differ"
+    )
+    check.add_argument(
+        "--max-lines",
+        type=int,
+        default=DEFAULT_MAX_LINES,
+        metavar="N",
+        help="print at most N differences, then their count (default: %(default)s)",
+    )
+
+
+@contextmanager
+def _progress(description: str) -> Iterator[Any]:
+    """Yield a progress callback drawing a bar on a terminal (nothing in logs and tests)."""
+    from tqdm import tqdm  # here: `pcainterp --help` does not load it
+
+    bar: tqdm[Any] | None = None
+
+    def update(done: int, total: int | None) -> None:
+        nonlocal bar
+        if bar is None:
+            bar = tqdm(
+                total=total,
+                desc=description,
+                unit="msg",
+                disable=None,
+                leave=False,
+                file=sys.stderr,
+            )
+        bar.update(done - bar.n)
+
+    try:
+        yield update
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def run_golden(args: argparse.Namespace) -> int:
+    """Run ``pcainterp golden save|check``; return the exit code (0, 1, or raise for 2).
+
+    Raises:
+        PcaInterpError: bad input (a missing or damaged log, a golden file of another
+            format version, a missing channel, a bad option); the caller prints it.
+    """
+    from pcainterp_stream.golden.comparison import format_differences
+    from pcainterp_stream.golden.store import arrays_path, check_log, save_golden
+
+    if args.golden_command == "save":
+        if args.output.resolve() == args.log.resolve():
+            raise PcaInterpError(f"-o {args.output} is the log itself; name another file")
+        with _progress(f"summarising {args.log.name}") as progress:
+            summary = save_golden(
+                args.log, args.output, topics=args.topics, arrays=args.arrays, progress=progress
+            )
+        messages = sum(c["message_count"] for c in summary.channels.values())
+        extra = f" and {arrays_path(args.output).name}" if args.arrays else ""
+        print(f"wrote {args.output}{extra}: {len(summary.channels)} channels, {messages} messages")
+        for note in summary.notes[:5]:
+            print(f"note: {note}")
+        return 0
+    if args.max_lines < 0:
+        raise PcaInterpError(f"--max-lines must be >= 0, got {args.max_lines}")
+    with _progress(f"checking {args.log.name}") as progress:
+        result = check_log(
+            args.log, args.golden, topics=args.topics, update=args.update, progress=progress
+        )
+    if result.passed:
+        print(f"{args.log.name} matches {args.golden.name}")
+        return 0
+    print(format_differences(result.differences, args.max_lines))
+    count = len(result.differences)
+    plural = "s" if count > 1 else ""
+    if result.updated:
+        print(f"{count} difference{plural}; rewrote {args.golden} from {args.log.name}")
+        return 0
+    print(
+        f"{args.log.name} differs from {args.golden.name} in {count} place{plural} beyond "
+        "tolerance (pass --update to accept the log as the new golden)"
+    )
+    return 1

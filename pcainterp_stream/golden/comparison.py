@@ -1,0 +1,409 @@
+"""Compare a log's summary with a golden one, within the tolerances the golden file states.
+
+Exact: the set of channels, their schemas and encodings, message counts, log times, header
+stamps, strings and integers. Within tolerance: floating-point values, the statistics of
+every array, the counts of non-finite elements, the number of points of a point cloud and,
+when the golden file stores the arrays, every element. :data:`DEFAULT_TOLERANCE` is written
+into each golden file, where it can be edited; :func:`compare` reads it from there.
+
+Messages are matched by header stamp (by log time for messages without a header), so a
+dropped message shows as one missing message rather than as every later message changed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any, NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.golden.summary import QUANTILES
+
+__all__ = ["DEFAULT_TOLERANCE", "Difference", "compare", "format_differences", "format_stamp"]
+
+DEFAULT_TOLERANCE: dict[str, Any] = {
+    "note": (
+        "Exact: channels, schemas, encodings, message counts, log times, header stamps, "
+        "strings and integers. uint8 arrays (grey levels): mean, std, median and mad within "
+        "uint8.stat_abs, quantiles within uint8.quantile_abs. Other arrays: each statistic "
+        "within float.rel of its value plus float.spread of the golden 1%-99% quantile "
+        "spread plus float.abs. NaN/inf counts within nonfinite_fraction of the element "
+        "count. Float values (CameraInfo K, P...): within values.rel plus values.abs. "
+        "Point-cloud sizes (width, row_step): within point_count.rel plus point_count.abs "
+        "points. Stored arrays (--arrays): |actual - golden| <= pixels.atol + pixels.rtol * "
+        "|golden|, or where a channel <topic>_std is in the log (depth and its posterior std) "
+        "<= pixels.std_atol * that std; at most pixels.bad_fraction of the elements may "
+        "exceed it (NaN/inf where the golden has a number, or the reverse, count as beyond). "
+        "channels: per-topic overrides of any of these, e.g. "
+        '{"/pcainterp/depth": {"float": {"rel": 0.01}}}.'
+    ),
+    "uint8": {"stat_abs": 0.5, "quantile_abs": 2.0},
+    "float": {"rel": 0.002, "spread": 0.002, "abs": 1e-6},
+    "nonfinite_fraction": 0.002,
+    "values": {"rel": 1e-6, "abs": 1e-9},
+    "point_count": {"rel": 0.05, "abs": 1},
+    "pixels": {"atol": 1e-4, "rtol": 1e-3, "std_atol": 0.05, "bad_fraction": 0.002},
+    "channels": {},
+}
+
+# PointCloud2 fields that count points: the front end may find a corner more or less
+_POINT_COUNT_VALUES = frozenset({"width", "row_step"})
+_POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
+_STAT_NAMES = ("mean", "std", "median", "mad")
+
+
+class Difference(NamedTuple):
+    """One way a log differs from its golden file beyond tolerance.
+
+    Attributes:
+        topic: the channel.
+        index: message index within the channel (golden numbering), None for the channel.
+        stamp_ns: the message's header stamp (or log time), None for the channel.
+        what: the quantity, e.g. ``"image median"``, ``"message_count"``, ``"p[2]"``.
+        text: the difference as a sentence fragment ("24.91 -> 26.13 (moved 1.22,
+            tolerance 0.05)").
+    """
+
+    topic: str
+    index: int | None  # type: ignore[assignment]  # shadows tuple.index: the message number
+    stamp_ns: int | None
+    what: str
+    text: str
+
+    def __str__(self) -> str:
+        where = self.topic
+        if self.index is not None:
+            where += f" #{self.index}"
+            if self.stamp_ns is not None:
+                where += f" (stamp {format_stamp(self.stamp_ns)})"
+        return f"{where}: {self.what} {self.text}"
+
+
+def format_stamp(stamp_ns: int) -> str:
+    """Return a stamp in ns as seconds with nine decimals (``1.200000000 s``)."""
+    sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
+    return f"{sec}.{nsec:09d} s"
+
+
+def format_differences(differences: list[Difference], max_lines: int | None = 20) -> str:
+    """Return the differences one per line, at most ``max_lines`` then a count of the rest."""
+    shown = differences if max_lines is None else differences[: max(max_lines, 0)]
+    lines = [str(d) for d in shown]
+    hidden = len(differences) - len(shown)
+    if hidden:
+        lines.append(f"... and {hidden} more difference{'s' if hidden > 1 else ''}")
+    return "\n".join(lines)
+
+
+def _merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
+    merged = dict(base)
+    for key, value in override.items():
+        if isinstance(value, Mapping) and isinstance(merged.get(key), Mapping):
+            merged[key] = _merge(merged[key], value)
+        else:
+            merged[key] = value
+    return merged
+
+
+def _number(value: Any) -> float:
+    return float(value)  # "nan", "inf" strings of the JSON come back as floats too
+
+
+def _g(value: float) -> str:
+    return f"{value:.6g}"
+
+
+class _Comparer:
+    def __init__(
+        self,
+        tolerance: Mapping[str, Any],
+        golden_arrays: Mapping[str, npt.NDArray[Any]] | None,
+        actual_arrays: Mapping[str, npt.NDArray[Any]] | None,
+    ) -> None:
+        self.base = _merge(DEFAULT_TOLERANCE, tolerance)
+        self.golden_arrays = golden_arrays
+        self.actual_arrays = actual_arrays
+        self.out: list[Difference] = []
+        self.cloud = False  # the channel being compared holds point clouds
+
+    def tolerance(self, topic: str) -> dict[str, Any]:
+        return _merge(self.base, self.base.get("channels", {}).get(topic, {}))
+
+    # channels ---------------------------------------------------------------------------
+    def channels(self, golden: Mapping[str, Any], actual: Mapping[str, Any]) -> None:
+        for topic, want in golden.items():
+            have = actual.get(topic)
+            if have is None:
+                self.out.append(
+                    Difference(
+                        topic,
+                        None,
+                        None,
+                        "channel",
+                        f"missing from the log (golden: {want['message_count']} messages "
+                        f"of {want['schema'] or 'no schema'})",
+                    )
+                )
+                continue
+            self.channel(topic, want, have, golden)
+        for topic, have in actual.items():
+            if topic not in golden:
+                self.out.append(
+                    Difference(
+                        topic,
+                        None,
+                        None,
+                        "channel",
+                        f"not in the golden file ({have['message_count']} messages of "
+                        f"{have['schema'] or 'no schema'})",
+                    )
+                )
+
+    def channel(
+        self,
+        topic: str,
+        want: Mapping[str, Any],
+        have: Mapping[str, Any],
+        golden: Mapping[str, Any],
+    ) -> None:
+        for name in ("schema", "schema_encoding", "message_encoding", "message_count"):
+            if want[name] != have[name]:
+                self.out.append(
+                    Difference(topic, None, None, name, f"{have[name]!r}, golden {want[name]!r}")
+                )
+        tolerance = self.tolerance(topic)
+        self.cloud = want["schema"] == _POINT_CLOUD
+        # the posterior std published beside a channel (depth and depth_std) sets the
+        # element-wise tolerance of that channel in units of the golden std
+        std_topic = f"{topic}_std"
+        std_messages = _by_stamp(golden[std_topic]["messages"]) if std_topic in golden else {}
+        matched = _by_stamp(have["messages"])
+        seen: set[tuple[int, int]] = set()
+        for index, (key, message) in enumerate(_by_stamp(want["messages"]).items()):
+            stamp = message.get("stamp_ns", message["log_time_ns"])
+            other = matched.get(key)
+            if other is None:
+                self.out.append(Difference(topic, index, stamp, "message", "missing from the log"))
+                continue
+            seen.add(key)
+            std = std_messages.get(key)
+            self.message(topic, index, stamp, message, other, tolerance, std)
+        for key, message in matched.items():
+            if key not in seen:
+                stamp = message.get("stamp_ns", message["log_time_ns"])
+                text = f"with stamp {format_stamp(stamp)} not in the golden file"
+                self.out.append(Difference(topic, None, None, "message", text))
+
+    # messages ---------------------------------------------------------------------------
+    def message(
+        self,
+        topic: str,
+        index: int,
+        stamp: int,
+        want: Mapping[str, Any],
+        have: Mapping[str, Any],
+        tolerance: Mapping[str, Any],
+        std_message: Mapping[str, Any] | None,
+    ) -> None:
+        def add(what: str, text: str) -> None:
+            self.out.append(Difference(topic, index, stamp, what, text))
+
+        for key in ("log_time_ns", "stamp_ns"):
+            if want.get(key) != have.get(key):
+                add(key, f"{have.get(key)}, golden {want.get(key)}")
+        want_values, have_values = want.get("values", {}), have.get("values", {})
+        for name, value in want_values.items():
+            if name not in have_values:
+                add(name, "missing")
+                continue
+            if self.cloud and name in _POINT_COUNT_VALUES:
+                self.count(add, name, value, have_values[name], tolerance)
+                continue
+            self.value(add, name, value, have_values[name], tolerance)
+        for name in have_values:
+            if name not in want_values:
+                add(name, "not in the golden file")
+        want_arrays, have_arrays = want.get("arrays", {}), have.get("arrays", {})
+        for name, stats in want_arrays.items():
+            if name not in have_arrays:
+                add(name, "missing")
+                continue
+            self.statistics(add, name, stats, have_arrays[name], tolerance)
+        for name in have_arrays:
+            if name not in want_arrays:
+                add(name, "not in the golden file")
+        if self.golden_arrays is not None and self.actual_arrays is not None:
+            self.elements(add, want, have, tolerance, std_message)
+
+    def count(
+        self, add: Any, name: str, want: Any, have: Any, tolerance: Mapping[str, Any]
+    ) -> None:
+        if not (isinstance(want, int) and isinstance(have, int)):
+            self.value(add, name, want, have, tolerance)
+            return
+        limits = tolerance["point_count"]
+        allowed = limits["rel"] * abs(want) + limits["abs"]
+        if abs(have - want) > allowed:
+            add(name, f"{want} -> {have} (moved {have - want}, tolerance {allowed:g})")
+
+    def value(
+        self, add: Any, name: str, want: Any, have: Any, tolerance: Mapping[str, Any]
+    ) -> None:
+        if isinstance(want, list) and isinstance(have, list):
+            if len(want) != len(have):
+                add(name, f"has {len(have)} elements, golden {len(want)}")
+                return
+            for i, (a, b) in enumerate(zip(want, have, strict=True)):
+                self.value(add, f"{name}[{i}]", a, b, tolerance)
+            return
+        if isinstance(want, float) or isinstance(have, float):
+            if isinstance(want, str | bool) or isinstance(have, str | bool):
+                add(name, f"{have!r}, golden {want!r}")
+                return
+            expected, actual = _number(want), _number(have)
+            limits = tolerance["values"]
+            allowed = limits["rel"] * abs(expected) + limits["abs"]
+            if math.isnan(expected) and math.isnan(actual):
+                return
+            if not abs(actual - expected) <= allowed and actual != expected:
+                add(name, _moved(actual, expected, allowed))
+            return
+        if want != have:
+            add(name, f"{have!r}, golden {want!r}")
+
+    def statistics(
+        self,
+        add: Any,
+        name: str,
+        want: Mapping[str, Any],
+        have: Mapping[str, Any],
+        tolerance: Mapping[str, Any],
+    ) -> None:
+        for key in ("dtype", "shape"):
+            if want[key] != have[key]:
+                add(f"{name} {key}", f"{have[key]}, golden {want[key]}")
+                return
+        size = math.prod(want["shape"])
+        allowed_count = tolerance["nonfinite_fraction"] * size
+        for key in ("nan", "posinf", "neginf"):
+            moved = abs(have[key] - want[key])
+            if moved > allowed_count:
+                add(
+                    f"{name} {key} count",
+                    f"{want[key]} -> {have[key]} (moved {moved}, tolerance {allowed_count:.0f})",
+                )
+        if ("mean" in want) != ("mean" in have):
+            add(name, "has no finite element" if "mean" not in have else "golden had none finite")
+            return
+        if "mean" not in want:
+            return
+        quantiles = dict(zip(QUANTILES, want["quantiles"], strict=True))
+        if want["dtype"] == "uint8":
+            limits = tolerance["uint8"]
+            allowed_stat, allowed_quantile = limits["stat_abs"], limits["quantile_abs"]
+            stat_limit = {key: allowed_stat for key in _STAT_NAMES}
+            quantile_limit = dict.fromkeys(QUANTILES, allowed_quantile)
+        else:
+            limits = tolerance["float"]
+            spread = quantiles[0.99] - quantiles[0.01]
+            floor = limits["spread"] * spread + limits["abs"]
+            stat_limit = {key: limits["rel"] * abs(want[key]) + floor for key in _STAT_NAMES}
+            quantile_limit = {q: limits["rel"] * abs(v) + floor for q, v in quantiles.items()}
+        for key in _STAT_NAMES:
+            if abs(have[key] - want[key]) > stat_limit[key]:
+                add(f"{name} {key}", _moved(have[key], want[key], stat_limit[key]))
+        for q, value, actual in zip(QUANTILES, want["quantiles"], have["quantiles"], strict=True):
+            if abs(actual - value) > quantile_limit[q]:
+                add(f"{name} quantile {q:g}", _moved(actual, value, quantile_limit[q]))
+
+    def elements(
+        self,
+        add: Any,
+        want: Mapping[str, Any],
+        have: Mapping[str, Any],
+        tolerance: Mapping[str, Any],
+        std_message: Mapping[str, Any] | None,
+    ) -> None:
+        assert self.golden_arrays is not None
+        assert self.actual_arrays is not None
+        limits = tolerance["pixels"]
+        std_arrays = (std_message or {}).get("array_keys", {})
+        for name, key in want.get("array_keys", {}).items():
+            have_key = have.get("array_keys", {}).get(name)
+            if key not in self.golden_arrays or have_key is None:
+                continue
+            golden = np.asarray(self.golden_arrays[key], dtype=np.float64)
+            actual = np.asarray(self.actual_arrays[have_key], dtype=np.float64)
+            if golden.shape != actual.shape:
+                continue  # the statistics already name the shape
+            std_key = std_arrays.get(name)
+            if std_key in self.golden_arrays and self.golden_arrays[std_key].shape == golden.shape:
+                std = np.asarray(self.golden_arrays[std_key], dtype=np.float64)
+                allowed = np.where(np.isfinite(std), limits["std_atol"] * std, np.inf)
+                unit = f"{limits['std_atol']:g} std"
+            else:
+                allowed = limits["atol"] + limits["rtol"] * np.abs(golden)
+                unit = f"atol {limits['atol']:g} + rtol {limits['rtol']:g}"
+            both_finite = np.isfinite(golden) & np.isfinite(actual)
+            same_special = (np.isnan(golden) & np.isnan(actual)) | (
+                np.isinf(golden) & (golden == actual)
+            )
+            with np.errstate(invalid="ignore"):  # inf - inf where both are +inf
+                error = np.where(both_finite, np.abs(actual - golden), 0.0)
+            beyond = (both_finite & (error > allowed)) | ~(both_finite | same_special)
+            count = int(beyond.sum())
+            limit = limits["bad_fraction"] * golden.size
+            if count > limit:
+                worst = np.unravel_index(
+                    int(np.argmax(np.where(beyond, np.where(both_finite, error, np.inf), -1.0))),
+                    golden.shape,
+                )
+                add(
+                    f"{name} elements",
+                    f"{count} of {golden.size} beyond {unit} (allowed {limit:.0f}); e.g. at "
+                    f"{tuple(int(i) for i in worst)}: {_g(actual[worst])}, golden "
+                    f"{_g(golden[worst])}",
+                )
+
+
+def _moved(actual: float, expected: float, allowed: float) -> str:
+    return (
+        f"{_g(expected)} -> {_g(actual)} (moved {_g(actual - expected)}, tolerance {_g(allowed)})"
+    )
+
+
+def _by_stamp(messages: list[Any]) -> dict[tuple[int, int], Any]:
+    """Return (stamp or log time, occurrence of that stamp so far) -> message, in order."""
+    keyed: dict[tuple[int, int], Any] = {}
+    counts: dict[int, int] = {}
+    for message in messages:
+        stamp = int(message.get("stamp_ns", message["log_time_ns"]))
+        occurrence = counts.get(stamp, 0)
+        counts[stamp] = occurrence + 1
+        keyed[(stamp, occurrence)] = message
+    return keyed
+
+
+def compare(
+    golden: Mapping[str, Any],
+    actual: Mapping[str, Any],
+    *,
+    golden_arrays: Mapping[str, npt.NDArray[Any]] | None = None,
+    actual_arrays: Mapping[str, npt.NDArray[Any]] | None = None,
+) -> list[Difference]:
+    """Return every difference between a log's summary and a golden one beyond tolerance.
+
+    Args:
+        golden: the golden file's content (its ``"tolerance"`` and ``"channels"``).
+        actual: the same form, of the log under test (``"channels"``).
+        golden_arrays: the golden file's stored arrays, for an element-wise check.
+        actual_arrays: the log's arrays (keys named by its messages' ``array_keys``).
+
+    Returns:
+        The differences, channel by channel in golden order; empty when the log matches.
+    """
+    comparer = _Comparer(golden.get("tolerance", {}), golden_arrays, actual_arrays)
+    comparer.channels(golden["channels"], actual["channels"])
+    return comparer.out

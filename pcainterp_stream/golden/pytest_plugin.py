@@ -1,0 +1,161 @@
+"""The ``log_golden`` pytest fixture, registered through the ``pytest11`` entry point.
+
+Installing pcainterp-stream is enough to use it::
+
+    def test_my_pipeline(tmp_path, log_golden):
+        out = run_my_pipeline(tmp_path)       # writes a log
+        log_golden.check(out)
+
+The first run writes the golden file beside the test, in pytest-regressions' layout
+(``test_module/test_name.golden.json``), and fails so that it is reviewed; later runs
+check the log against it and fail with the list of differences. ``--force-regen`` (the
+pytest-regressions flag) rewrites the golden files that differ and fails those tests;
+``--update-golden`` rewrites every golden file the run checks and passes.
+
+The snapshot machinery (naming, the data directory beside the test, the first-run and
+``--force-regen`` flow) is pytest-regressions' ``perform_regression_check``; this module
+supplies only how a log is dumped (:func:`~.store.save_golden`) and compared
+(:func:`~.store.check_log`).
+"""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+__all__ = ["LogGolden", "log_golden"]
+
+EXTENSION = ".golden.json"
+MAX_LINES = 40
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    """Add ``--update-golden``."""
+    group = parser.getgroup("log_golden", "golden-file tests of logs (pcainterp-stream)")
+    group.addoption(
+        "--update-golden",
+        action="store_true",
+        default=False,
+        help="rewrite every log_golden golden file the run checks, and pass",
+    )
+
+
+class LogGolden:
+    """Check logs against golden files stored beside the test (the ``log_golden`` fixture).
+
+    Attributes:
+        max_lines: how many differences a failure lists before their count.
+    """
+
+    def __init__(self, request: pytest.FixtureRequest, datadir: Any, original_datadir: Path):
+        self._request = request
+        self._datadir = datadir
+        self._original_datadir = Path(original_datadir)
+        self.max_lines = MAX_LINES
+
+    def check(
+        self,
+        log: str | Path,
+        *,
+        basename: str | None = None,
+        fullpath: str | Path | None = None,
+        topics: Iterable[str] | None = None,
+        arrays: bool = False,
+        tolerance: Mapping[str, Any] | None = None,
+    ) -> None:
+        """Check a log against its golden file; write the file on the first run.
+
+        Args:
+            log: the log to check (MCAP, ROS 1 ``.bag``, rosbag2).
+            basename: golden file name without extension (default: the test's name).
+            fullpath: an explicit golden file path instead (e.g. in a shared data folder).
+            topics: record and check only these channels.
+            arrays: also store and check every array element-wise.
+            tolerance: tolerances written into a new golden file (an existing file keeps
+                its own).
+
+        Raises:
+            AssertionError: (a test failure) the log differs; the message lists the
+                differences, each with channel, message index, stamp, what moved and by
+                how much against its tolerance.
+        """
+        __tracebackhide__ = True
+        from pytest_regressions.common import perform_regression_check
+
+        from pcainterp_stream.errors import GoldenError
+        from pcainterp_stream.golden.comparison import format_differences
+        from pcainterp_stream.golden.store import (
+            arrays_path,
+            compare_documents,
+            load_golden,
+            save_golden,
+        )
+
+        log = Path(log)
+        selected = None if topics is None else list(topics)
+
+        def dump(path: Path) -> None:
+            kept = tolerance
+            if path.exists() and not path.name.endswith(".obtained" + EXTENSION):
+                try:
+                    kept = load_golden(path).get("tolerance", tolerance)
+                except GoldenError:  # an unreadable or old file is simply replaced
+                    kept = tolerance
+            save_golden(log, path, topics=selected, arrays=arrays, tolerance=kept)
+
+        def compare(obtained: Path, expected: Path) -> None:
+            __tracebackhide__ = True
+            try:
+                golden = load_golden(expected)
+                if golden.get("arrays_file") and not arrays_path(expected).exists():
+                    # the lazy data directory copied the JSON only
+                    shutil.copy2(arrays_path(source), arrays_path(expected))
+                differences = compare_documents(golden, expected, load_golden(obtained), obtained)
+            except GoldenError as err:  # an old format: --force-regen rewrites it
+                raise AssertionError(
+                    f"{err}\n(rerun with --force-regen or --update-golden)"
+                ) from err
+            if differences:
+                count = len(differences)
+                raise AssertionError(
+                    f"{log.name} differs from the golden file {source} in {count} "
+                    f"place{'s' if count > 1 else ''} beyond tolerance:\n"
+                    + format_differences(differences, self.max_lines)
+                    + "\n(rerun with --force-regen or --update-golden to accept the log)"
+                )
+
+        paths_basename = basename
+        if fullpath is None and basename is None:
+            import re
+
+            paths_basename = re.sub(r"[\W]", "_", self._request.node.name)
+        source = (
+            Path(fullpath)
+            if fullpath is not None
+            else self._original_datadir / f"{paths_basename}{EXTENSION}"
+        )
+        if self._request.config.getoption("update_golden"):
+            dump(source)
+            return
+        perform_regression_check(
+            datadir=self._datadir,
+            original_datadir=self._original_datadir,
+            request=self._request,
+            check_fn=compare,
+            dump_fn=dump,
+            extension=EXTENSION,
+            basename=paths_basename if fullpath is None else None,
+            fullpath=fullpath,
+        )
+
+
+@pytest.fixture
+def log_golden(
+    request: pytest.FixtureRequest, lazy_datadir: Any, original_datadir: Path
+) -> LogGolden:
+    """Check a log against a golden file beside the test: ``log_golden.check(path)``."""
+    return LogGolden(request, lazy_datadir, original_datadir)

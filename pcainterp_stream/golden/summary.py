@@ -1,0 +1,175 @@
+"""Summarise a log for a golden file: channels, times, values and robust array statistics.
+
+:func:`summarize_log` reads any log :func:`~pcainterp_stream.io.logreader.open_log` opens,
+decodes every ROS message generically (:mod:`.decode`) and returns a JSON-ready summary:
+per channel its schema, encodings and message count, and per message its log time, header
+stamp, flattened values and for every numeric array the statistics of
+:func:`array_statistics`. Messages that are not ROS CDR (JSON, protobuf...) are recorded by
+count and log time only.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.errors import LogReadError, TopicNotFoundError
+from pcainterp_stream.golden.decode import message_content
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.reader_base import ROS2_SCHEMA_ENCODINGS
+
+__all__ = ["QUANTILES", "LogSummary", "Progress", "array_statistics", "summarize_log"]
+
+Progress = Callable[[int, int | None], None]
+"""A progress callback: (messages done, total messages or None when the log has no index)."""
+
+QUANTILES = (0.01, 0.1, 0.25, 0.5, 0.75, 0.9, 0.99)
+"""The quantiles every array summary records (of its finite values)."""
+
+
+@dataclass
+class LogSummary:
+    """A log as a golden file records it.
+
+    Attributes:
+        channels: topic -> {"schema", "schema_encoding", "message_encoding",
+            "message_count", "messages": [per-message dicts]}, in the log's topic order.
+        arrays: array key -> the array itself, filled only when asked for (``keep_arrays``);
+            each message dict names its keys under ``"array_keys"``.
+        notes: one-line notes on parts that did not decode.
+    """
+
+    channels: dict[str, dict[str, Any]]
+    arrays: dict[str, npt.NDArray[Any]] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+
+def array_statistics(values: npt.NDArray[Any]) -> dict[str, Any]:
+    """Return robust statistics of an array, JSON-ready.
+
+    Args:
+        values: any numeric array (image, point field, sequence).
+
+    Returns:
+        ``dtype``, ``shape``, counts of ``nan``, ``posinf`` and ``neginf`` elements, and over
+        the finite elements ``mean``, ``std``, ``median``, ``mad`` (median absolute
+        deviation) and ``quantiles`` (at :data:`QUANTILES`); the last five only when some
+        element is finite.
+    """
+    data = np.asarray(values, dtype=np.float64)
+    finite = data[np.isfinite(data)]
+    stats: dict[str, Any] = {
+        "dtype": str(values.dtype),
+        "shape": list(values.shape),
+        "nan": int(np.isnan(data).sum()),
+        "posinf": int(np.isposinf(data).sum()),
+        "neginf": int(np.isneginf(data).sum()),
+    }
+    if finite.size:
+        median = float(np.median(finite))
+        stats.update(
+            mean=float(finite.mean()),
+            std=float(finite.std()),
+            median=median,
+            mad=float(np.median(np.abs(finite - median))),
+            quantiles=[float(q) for q in np.quantile(finite, QUANTILES)],
+        )
+    return stats
+
+
+def _json_value(value: Any) -> Any:
+    """Return a value JSON can hold exactly (non-finite floats as strings)."""
+    if isinstance(value, float) and not np.isfinite(value):
+        return str(value)
+    if isinstance(value, list):
+        return [_json_value(v) for v in value]
+    return value
+
+
+def summarize_log(
+    path: str | Path,
+    *,
+    topics: Iterable[str] | None = None,
+    keep_arrays: bool = False,
+    skip_missing: bool = False,
+    progress: Progress | None = None,
+) -> LogSummary:
+    """Summarise a log for a golden file.
+
+    Args:
+        path: an MCAP file, a ROS 1 ``.bag``, or a rosbag2 folder or storage file.
+        topics: summarise only these channels (all when None).
+        keep_arrays: also return every array itself (for a per-pixel check).
+        skip_missing: leave out topics of ``topics`` that the log lacks instead of raising
+            (a check then reports them as missing channels).
+        progress: called after each message with (messages done, total or None).
+
+    Returns:
+        The summary; message indices count within each channel from 0.
+
+    Raises:
+        LogReadError: the log is missing, not a log, or damaged (truncated, a corrupt
+            chunk): a golden summary of part of a log would be wrong.
+        TopicNotFoundError: a topic asked for is not in the log.
+    """
+    path = Path(path)
+    with open_log(path) as reader:
+        present = reader.topics()
+        wanted = list(present) if topics is None else list(topics)
+        missing = [topic for topic in wanted if topic not in present]
+        if skip_missing:
+            wanted = [topic for topic in wanted if topic in present]
+        elif missing:
+            listed = ", ".join(present) or "none"
+            raise TopicNotFoundError(
+                f"topic {missing[0]} not found in {path.name}; topics present: {listed}"
+            )
+        channels: dict[str, dict[str, Any]] = {
+            topic: {
+                "schema": present[topic].msgtype,
+                "schema_encoding": present[topic].schema_encoding,
+                "message_encoding": present[topic].message_encoding,
+                "message_count": 0,
+                "messages": [],
+            }
+            for topic in wanted
+        }
+        summary = LogSummary(channels=channels)
+        counts = [present[topic].message_count for topic in wanted]
+        total = None if None in counts else sum(c or 0 for c in counts)
+        for done, raw in enumerate(reader.messages(wanted), start=1):
+            if progress is not None:
+                progress(done, total)
+            channel = channels[raw.topic]
+            index = channel["message_count"]
+            channel["message_count"] += 1
+            entry: dict[str, Any] = {"log_time_ns": raw.log_time_ns}
+            channel["messages"].append(entry)
+            if raw.message_encoding != "cdr" or raw.schema_encoding not in ROS2_SCHEMA_ENCODINGS:
+                continue
+            content = message_content(raw.msgtype, reader.decode(raw))
+            stamp = content.values.pop("header.stamp", None)
+            if stamp is not None:
+                entry["stamp_ns"] = stamp
+            entry["values"] = {k: _json_value(v) for k, v in content.values.items()}
+            entry["arrays"] = {k: array_statistics(v) for k, v in content.arrays.items()}
+            summary.notes += [f"{raw.topic} #{index}: {note}" for note in content.notes]
+            if keep_arrays and content.arrays:
+                keys = {}
+                for name, values in content.arrays.items():
+                    key = f"a{len(summary.arrays)}"
+                    summary.arrays[key] = np.asarray(values)
+                    keys[name] = key
+                entry["array_keys"] = keys
+        if reader.damage:
+            damage = reader.damage[0].removeprefix(f"{path.name}: ")
+            raise LogReadError(
+                f"{path.name} is damaged: {damage}; a golden summary needs the whole log "
+                "(record or copy it again)"
+            )
+    return summary

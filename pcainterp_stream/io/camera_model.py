@@ -1,0 +1,266 @@
+"""A camera's calibration as ``sensor_msgs/CameraInfo`` holds it, and its rectification maps.
+
+K and D (``plumb_bob``, ``rational_polynomial`` or ``equidistant``) describe the raw camera,
+R rotates it onto the rectified pair and P projects into the rectified image; binning and a
+region of interest describe how the images were taken. The maps follow ROS ``image_proc``
+(``image_geometry``): ``cv2.initUndistortRectifyMap(K, D, R, P[:3, :3])``, or
+``cv2.fisheye`` for ``equidistant``. No I/O: camera infos, calibration files and the
+rectifier of a stereo pair (``frontend/rectify.py``) build on these records.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.errors import CalibrationError
+
+MODELS = ("plumb_bob", "rational_polynomial", "equidistant")
+"""The distortion models understood (ROS ``sensor_msgs/distortion_models`` names)."""
+
+_ALIASES = {
+    "radtan": "plumb_bob",
+    "radial-tangential": "plumb_bob",
+    "pinhole-radtan": "plumb_bob",
+    "fisheye": "equidistant",
+    "kannala_brandt": "equidistant",
+}
+
+
+def _field(message: Any, name: str) -> Any:
+    """Return a CameraInfo field by its ROS 2 (lower case) or ROS 1 (upper case) name."""
+    value = getattr(message, name, None)
+    if value is None:
+        value = getattr(message, name.upper(), None)
+    return value
+
+
+@dataclass(frozen=True)
+class CameraCalibration:
+    """One camera's calibration as a ``CameraInfo`` holds it (full-resolution values).
+
+    Attributes:
+        width: full-resolution image width (px) the calibration is for.
+        height: full-resolution image height (px).
+        model: distortion model, one of :data:`MODELS`.
+        k: (3, 3) raw intrinsics.
+        d: (n,) distortion coefficients (may be empty).
+        r: (3, 3) rectifying rotation (raw camera frame -> rectified frame).
+        p: (3, 4) rectified projection; P[0, 3] = -fx * baseline on the right camera.
+        binning: (x, y) binning of the images (1 = none).
+        roi: (x, y, width, height) of the images in the full-resolution frame.
+        name: where the calibration comes from (a topic or file), for messages.
+    """
+
+    width: int
+    height: int
+    model: str
+    k: npt.NDArray[np.float64]
+    d: npt.NDArray[np.float64]
+    r: npt.NDArray[np.float64]
+    p: npt.NDArray[np.float64]
+    binning: tuple[int, int] = (1, 1)
+    roi: tuple[int, int, int, int] = (0, 0, 0, 0)
+    name: str = "camera_info"
+
+    def __post_init__(self) -> None:
+        model = _ALIASES.get(self.model.strip().lower(), self.model.strip().lower())
+        if model == "" and not np.any(self.d):
+            model = "plumb_bob"  # no model and no distortion: a pinhole camera
+        if model not in MODELS:
+            raise CalibrationError(
+                f"{self.name} has distortion model {self.model!r}; supported: "
+                f"{', '.join(MODELS)}: rectify the images yourself and pass --rectify never"
+            )
+        object.__setattr__(self, "model", model)
+        for label, value, shape in (
+            ("K", self.k, (3, 3)),
+            ("R", self.r, (3, 3)),
+            ("P", self.p, (3, 4)),
+        ):
+            if value.shape != shape or not np.isfinite(value).all():
+                raise CalibrationError(
+                    f"{self.name} has {label} of shape {value.shape} or with non-finite values; "
+                    f"expected a finite {shape[0]}x{shape[1]} matrix: fix the calibration"
+                )
+        if not np.isfinite(self.d).all():
+            raise CalibrationError(f"{self.name} has non-finite distortion coefficients")
+        if not (self.k[0, 0] > 0 and self.k[1, 1] > 0 and self.p[0, 0] > 0 and self.p[1, 1] > 0):
+            raise CalibrationError(
+                f"{self.name} has K or P without positive focal lengths (K fx={self.k[0, 0]}, "
+                f"P fx={self.p[0, 0]}): a camera that can be rectified needs them; fix the "
+                "calibration"
+            )
+        if self.width <= 0 or self.height <= 0:
+            raise CalibrationError(
+                f"{self.name} has image size {self.width}x{self.height}: fix the calibration"
+            )
+
+    @classmethod
+    def from_camera_info(cls, message: Any, name: str) -> CameraCalibration:
+        """Read a ROS 1 or ROS 2 ``CameraInfo`` message.
+
+        Raises:
+            CalibrationError: an unknown model, missing or non-finite matrices.
+        """
+        roi = _field(message, "roi")
+        binning = (int(_field(message, "binning_x") or 0), int(_field(message, "binning_y") or 0))
+        region = (0, 0, 0, 0)
+        if roi is not None:
+            region = (int(roi.x_offset), int(roi.y_offset), int(roi.width), int(roi.height))
+        return cls(
+            width=int(message.width),
+            height=int(message.height),
+            model=str(message.distortion_model),
+            k=np.asarray(_field(message, "k"), dtype=np.float64).reshape(3, 3),
+            d=np.asarray(_field(message, "d"), dtype=np.float64).reshape(-1),
+            r=np.asarray(_field(message, "r"), dtype=np.float64).reshape(3, 3),
+            p=np.asarray(_field(message, "p"), dtype=np.float64).reshape(3, 4),
+            binning=(max(binning[0], 1), max(binning[1], 1)),
+            roi=region,
+            name=name,
+        )
+
+    @property
+    def is_rectified(self) -> bool:
+        """Return True when the images need no remap: D = 0, R = I and K = P[:3, :3]."""
+        return (
+            not np.any(self.d)
+            and np.allclose(self.r, np.eye(3), atol=1e-9)
+            and np.allclose(self.k, self.p[:, :3], rtol=1e-9, atol=1e-9)
+        )
+
+    def why_raw(self) -> str:
+        """Return what makes this calibration unrectified (e.g. ``D != 0, R != I``)."""
+        reasons = []
+        if np.any(self.d):
+            reasons.append("D != 0")
+        if not np.allclose(self.r, np.eye(3), atol=1e-9):
+            reasons.append("R != I")
+        if not np.allclose(self.k, self.p[:, :3], rtol=1e-9, atol=1e-9):
+            reasons.append("K != P[:3,:3]")
+        return ", ".join(reasons) or "nothing"
+
+    def region(self) -> tuple[int, int, int, int]:
+        """Return the full-resolution ROI (x, y, width, height); the whole image when unset."""
+        x, y, w, h = self.roi
+        if w == 0 or h == 0:
+            return (
+                (0, 0, self.width, self.height)
+                if (x, y) == (0, 0)
+                else (x, y, self.width - x, self.height - y)
+            )
+        return (x, y, w, h)
+
+    def image_size(self) -> tuple[int, int]:
+        """Return (width, height) of the images (and of ``image_rect``): ROI / binning."""
+        _, _, w, h = self.region()
+        return (w // self.binning[0], h // self.binning[1])
+
+    def key(self) -> bytes:
+        """Return bytes that differ when any value of the calibration differs."""
+        parts = [
+            np.array([self.width, self.height, *self.binning, *self.roi], dtype=np.int64).tobytes(),
+            self.model.encode(),
+            self.k.tobytes(),
+            self.d.tobytes(),
+            self.r.tobytes(),
+            self.p.tobytes(),
+        ]
+        return b"|".join(parts)
+
+    def rectification_maps(self) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+        """Return (map_x, map_y): for each ``image_rect`` pixel, its position in the raw image."""
+        new_k = self.p[:, :3]
+        size = (self.width, self.height)
+        if self.model == "equidistant":
+            d = np.zeros(4) if self.d.size == 0 else self.d[:4]
+            if d.size < 4:
+                raise CalibrationError(
+                    f"{self.name}: the equidistant model needs 4 coefficients, got {self.d.size}"
+                )
+            map_x, map_y = cv2.fisheye.initUndistortRectifyMap(
+                self.k, d.reshape(4, 1), self.r, new_k, size, cv2.CV_32FC1
+            )
+        else:
+            d = self.d if self.d.size else np.zeros(5)
+            map_x, map_y = cv2.initUndistortRectifyMap(self.k, d, self.r, new_k, size, cv2.CV_32FC1)
+        x, y, w, h = self.region()
+        bx, by = self.binning
+        if (x, y, w, h) != (0, 0, self.width, self.height) or (bx, by) != (1, 1):
+            # image_proc's reduced maps: the ROI of the full maps, shifted, sampled every
+            # binning-th pixel and scaled into the binned raw image
+            map_x = (map_x[y : y + h : by, x : x + w : bx][: h // by, : w // bx] - x) / bx
+            map_y = (map_y[y : y + h : by, x : x + w : bx][: h // by, : w // bx] - y) / by
+        return np.ascontiguousarray(map_x, np.float32), np.ascontiguousarray(map_y, np.float32)
+
+    def rectified_projection(self) -> npt.NDArray[np.float64]:
+        """Return P of the ``image_rect`` images: moved by the ROI, divided by the binning."""
+        x, y, _, _ = self.region()
+        p = self.p.copy()
+        p[0, 2] -= x * p[2, 2]
+        p[1, 2] -= y * p[2, 2]
+        p[0] /= self.binning[0]
+        p[1] /= self.binning[1]
+        return p
+
+    def raw_to_rectified(self, pixels: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """Return the rectified positions of raw full-resolution pixels (n, 2)."""
+        points = np.asarray(pixels, np.float64).reshape(-1, 1, 2)
+        if self.model == "equidistant":
+            out = cv2.fisheye.undistortPoints(
+                points, self.k, self.d[:4].reshape(4, 1), R=self.r, P=self.p[:, :3]
+            )
+        else:
+            out = cv2.undistortPoints(points, self.k, self.d, R=self.r, P=self.p[:, :3])
+        return np.asarray(out, np.float64).reshape(-1, 2)
+
+
+@dataclass(frozen=True)
+class StereoCalibration:
+    """The two calibrations of a stereo pair (from camera infos or calibration files)."""
+
+    left: CameraCalibration
+    right: CameraCalibration
+
+    @property
+    def is_rectified(self) -> bool:
+        """Return True when neither camera needs a remap."""
+        return self.left.is_rectified and self.right.is_rectified
+
+    def why_raw(self) -> str:
+        """Return what makes the pair unrectified, per side."""
+        sides = [
+            f"{side} {cal.why_raw()}"
+            for side, cal in (("left", self.left), ("right", self.right))
+            if not cal.is_rectified
+        ]
+        return "; ".join(sides)
+
+    def key(self) -> bytes:
+        """Return bytes that differ when a value of either calibration differs."""
+        return self.left.key() + b"||" + self.right.key()
+
+
+def unrectify_maps(
+    calibration: CameraCalibration,
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+    """Return (map_x, map_y): for each raw full-resolution pixel, its rectified position.
+
+    ``cv2.remap(rectified, map_x, map_y, ...)`` then renders the raw image a camera with this
+    calibration would have taken of the rectified view (used to make raw test logs).
+    """
+    xs, ys = np.meshgrid(
+        np.arange(calibration.width, dtype=np.float64),
+        np.arange(calibration.height, dtype=np.float64),
+    )
+    rect = calibration.raw_to_rectified(np.stack([xs.ravel(), ys.ravel()], axis=1))
+    shape = (calibration.height, calibration.width)
+    return (
+        rect[:, 0].reshape(shape).astype(np.float32),
+        rect[:, 1].reshape(shape).astype(np.float32),
+    )

@@ -1,0 +1,164 @@
+"""The options that name a log's stereo pair and its calibration, shared by several commands.
+
+``densify`` and ``learn`` take the topics, ``--baseline``, ``--stamp-tolerance-ms``,
+``--rectify`` and ``--calibration``; ``evaluate`` takes the topics, ``--rectify`` and
+``--calibration`` to read the input pair of a densified log as ``densify`` did. Without topic
+options the pair is found in the log (:mod:`frontend.discovery`). Heavy modules load only when
+a command runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from pcainterp_stream.errors import PcaInterpError
+
+if TYPE_CHECKING:
+    from pcainterp_stream.frontend.pairing import PairingConfig
+
+
+def add_topic_options(parser: argparse.ArgumentParser) -> None:
+    """Add the topic, rectification and calibration options of ``densify`` and ``learn``."""
+    group = parser.add_argument_group(
+        "topics and calibration (default: the stereo pair found in the log, printed)"
+    )
+    group.add_argument("--left-topic", default=None, metavar="TOPIC", help="left image topic")
+    group.add_argument("--right-topic", default=None, metavar="TOPIC", help="right image topic")
+    group.add_argument(
+        "--left-info-topic",
+        default=None,
+        metavar="TOPIC",
+        help="left CameraInfo (default: the left image's sibling camera_info)",
+    )
+    group.add_argument(
+        "--right-info-topic",
+        default=None,
+        metavar="TOPIC",
+        help="right CameraInfo (default: the right image's sibling camera_info)",
+    )
+    group.add_argument(
+        "--rectify",
+        choices=["auto", "always", "never"],
+        default="auto",
+        help="auto (default): remap raw images from their CameraInfo (D, R, P) as image_proc "
+        "does, and use images named image_rect or with D = 0, R = I, K = P as they are; "
+        "the decision is printed; always: remap from the calibration in any case; never: use "
+        "the images as recorded and skip the check that the pair is rectified",
+    )
+    group.add_argument(
+        "--calibration",
+        type=Path,
+        nargs="+",
+        default=None,
+        metavar="YAML",
+        help="for logs without CameraInfo: LEFT.yaml RIGHT.yaml (camera_info_manager or "
+        "EuRoC sensor.yaml) or one Kalibr camchain.yaml",
+    )
+    group.add_argument(
+        "--baseline",
+        type=float,
+        default=None,
+        metavar="M",
+        help="stereo baseline (m) when the right camera info has none",
+    )
+    group.add_argument(
+        "--stamp-tolerance-ms",
+        type=float,
+        default=1.0,
+        metavar="MS",
+        help="left/right header stamps closer than this form a pair (default: %(default)s)",
+    )
+
+
+def add_input_pair_options(parser: argparse.ArgumentParser) -> None:
+    """Add evaluate's options naming the input pair and its rectification (as densify's)."""
+    group = parser.add_argument_group(
+        "the input stereo pair, as densify read it (default: found in the log)"
+    )
+    for side in ("left", "right"):
+        group.add_argument(f"--{side}-topic", default=None, metavar="TOPIC")
+        group.add_argument(f"--{side}-info-topic", default=None, metavar="TOPIC")
+    group.add_argument(
+        "--rectify",
+        choices=["auto", "always", "never"],
+        default="auto",
+        help="rectify raw input images as densify did (default: auto, as densify decides)",
+    )
+    group.add_argument(
+        "--calibration",
+        type=Path,
+        nargs="+",
+        default=None,
+        metavar="YAML",
+        help="the calibration files densify was given, for logs without CameraInfo",
+    )
+
+
+def pairing_config(args: argparse.Namespace, features_topic: str | None = None) -> PairingConfig:
+    """Return the pairing a parsed command line asks for (``discover`` without topic options).
+
+    Raises:
+        PcaInterpError: equal left and right topics, a bad tolerance or baseline, or a
+            calibration file that cannot be used (:class:`~errors.CalibrationError`).
+    """
+    from pcainterp_stream.frontend.pairing import PairingConfig
+
+    calibration, named = None, None
+    if args.calibration is not None:
+        from pcainterp_stream.io.calibration import load_calibration
+
+        calibration, named = load_calibration(list(args.calibration))
+    flags = (args.left_topic, args.right_topic, args.left_info_topic, args.right_info_topic)
+    # one image topic named: the other side comes from the pair found in the log
+    one_side = (args.left_topic is None) != (args.right_topic is None)
+    infos_named = args.left_info_topic is not None or args.right_info_topic is not None
+    discover = named is None and (
+        all(flag is None for flag in flags) or (one_side and not infos_named)
+    )
+    defaults = PairingConfig()
+    left_topic = args.left_topic or (named[0] if named else defaults.left_topic)
+    right_topic = args.right_topic or (named[1] if named else defaults.right_topic)
+    if left_topic == right_topic:
+        raise PcaInterpError(
+            f"--left-topic and --right-topic are both {left_topic}; a stereo pair needs the "
+            "images of two cameras: pass the right camera's topic as --right-topic"
+        )
+    tolerance_ms = getattr(args, "stamp_tolerance_ms", 1.0)  # evaluate has neither
+    baseline = getattr(args, "baseline", None)
+    if not 0 <= tolerance_ms < float("inf"):
+        raise PcaInterpError(f"--stamp-tolerance-ms must be >= 0, got {tolerance_ms}")
+    if baseline is not None and not 0 < baseline < float("inf"):
+        raise PcaInterpError(f"--baseline must be a finite number > 0 m, got {baseline}")
+    return PairingConfig(
+        left_topic=left_topic,
+        right_topic=right_topic,
+        left_info_topic=args.left_info_topic or defaults.left_info_topic,
+        right_info_topic=args.right_info_topic or defaults.right_info_topic,
+        features_topic=features_topic,
+        tolerance_ns=round(tolerance_ms * 1e6),
+        baseline=baseline,
+        rectify=args.rectify,
+        calibration=calibration,
+        discover=discover,
+        check_rows=args.rectify != "never",
+    )
+
+
+def learn_pairing(args: argparse.Namespace) -> PairingConfig:
+    """Return learn's pairing: the topics found in its first log (all logs share them)."""
+    from pcainterp_stream.errors import TopicNotFoundError
+    from pcainterp_stream.frontend.discovery import resolve_pairing
+    from pcainterp_stream.io.logreader import open_log
+    from pcainterp_stream.pipeline.common import _echo
+
+    pairing = pairing_config(args)
+    if args.logs and (pairing.discover or args.depth_topic is not None):
+        with open_log(args.logs[0]) as reader:
+            try:
+                pairing = resolve_pairing(reader, pairing, _echo)
+            except TopicNotFoundError:
+                if args.depth_topic is None:
+                    raise  # a depth topic needs only the camera infos: the defaults may do
+    return pairing

@@ -1,0 +1,254 @@
+"""Rectification from camera calibrations (image_proc's), the row guard, the maps' cache."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+
+from pcainterp_stream.errors import CalibrationError
+from pcainterp_stream.frontend import rectify as rect
+from pcainterp_stream.frontend.pairing import PairingConfig, StereoPairer
+from pcainterp_stream.io.calibration import camera_info_message
+from pcainterp_stream.io.raw_log import Unrectifier
+from pcainterp_stream.records import SparseFeatures, StereoCamera
+from pcainterp_stream.synth.raw import raw_calibration
+
+CAMERA = StereoCamera(width=320, height=120, fx=180.0, fy=180.0, cx=158.0, cy=60.0, baseline=0.5)
+
+
+def _texture(shape: tuple[int, int], seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    small = rng.integers(0, 256, (shape[0] // 4 + 1, shape[1] // 4 + 1), dtype=np.uint8)
+    return cv2.resize(small, (shape[1], shape[0]), interpolation=cv2.INTER_CUBIC)
+
+
+def _stereo_views(shift: float = 12.0) -> tuple[np.ndarray, np.ndarray]:
+    """A rectified pair: the right view is the left shifted by a constant disparity."""
+    left = _texture((CAMERA.height, CAMERA.width), seed=1)
+    m = np.float32([[1, 0, -shift], [0, 1, 0]])  # right sees the scene shift to its left
+    right = cv2.warpAffine(left, m, (CAMERA.width, CAMERA.height), borderMode=cv2.BORDER_REFLECT)
+    return left, right
+
+
+@pytest.mark.parametrize("model", ["plumb_bob", "equidistant"])
+def test_rectify_undoes_the_raw_camera(model: str) -> None:
+    calibration = raw_calibration(CAMERA, model)
+    left, right = _stereo_views()
+    raw_left, raw_right = Unrectifier(calibration)(left, right)
+    assert not calibration.is_rectified
+    rectifier = rect.StereoRectifier(calibration)
+    back, _ = rectifier.rectify(raw_left, raw_right)
+    x, y, w, h = rectifier.box
+    inner = (slice(y + 4, y + h - 4), slice(x + 4, x + w - 4))
+    error = np.abs(back[inner].astype(float) - left[inner].astype(float))
+    assert np.median(error) < 4
+    assert rectifier.camera.fx == CAMERA.fx
+    assert rectifier.camera.baseline == pytest.approx(CAMERA.baseline)
+
+
+def test_plumb_bob_maps_are_opencvs() -> None:
+    cal = raw_calibration(CAMERA, "plumb_bob").left
+    map_x, map_y = cal.rectification_maps()
+    ref_x, ref_y = cv2.initUndistortRectifyMap(
+        cal.k, cal.d, cal.r, cal.p[:, :3], (cal.width, cal.height), cv2.CV_32FC1
+    )
+    np.testing.assert_array_equal(map_x, ref_x)
+    np.testing.assert_array_equal(map_y, ref_y)
+
+
+def test_rational_polynomial_is_understood() -> None:
+    cal = raw_calibration(CAMERA, "plumb_bob").left
+    eight = rect.CameraCalibration(
+        cal.width,
+        cal.height,
+        "rational_polynomial",
+        cal.k,
+        np.array([*cal.d[:5], 0.01, 0.0, 0.0]),
+        cal.r,
+        cal.p,
+    )
+    map_x, _ = eight.rectification_maps()
+    ref_x, _ = cv2.initUndistortRectifyMap(
+        eight.k, eight.d, eight.r, eight.p[:, :3], (cal.width, cal.height), cv2.CV_32FC1
+    )
+    np.testing.assert_array_equal(map_x, ref_x)
+
+
+def test_binning_and_roi_as_image_proc() -> None:
+    """Reduced maps: the full maps' ROI, every binning-th pixel, in binned raw pixels."""
+    full = raw_calibration(CAMERA, "plumb_bob").left
+    reduced = rect.CameraCalibration(
+        full.width,
+        full.height,
+        full.model,
+        full.k,
+        full.d,
+        full.r,
+        full.p,
+        binning=(2, 2),
+        roi=(40, 20, 200, 80),
+    )
+    assert reduced.image_size() == (100, 40)
+    fx, fy = full.rectification_maps()
+    rx, ry = reduced.rectification_maps()
+    assert rx.shape == (40, 100)
+    np.testing.assert_allclose(rx[7, 9], (fx[20 + 14, 40 + 18] - 40) / 2, rtol=1e-6)
+    np.testing.assert_allclose(ry[7, 9], (fy[20 + 14, 40 + 18] - 20) / 2, rtol=1e-6)
+    p = reduced.rectified_projection()
+    assert p[0, 0] == full.p[0, 0] / 2
+    assert p[0, 2] == (full.p[0, 2] - 40) / 2
+
+
+def test_unknown_model_is_one_line() -> None:
+    cal = raw_calibration(CAMERA, "plumb_bob").left
+    with pytest.raises(CalibrationError, match="distortion model 'kb4'") as err:
+        rect.CameraCalibration(cal.width, cal.height, "kb4", cal.k, cal.d, cal.r, cal.p)
+    assert "\n" not in str(err.value)
+
+
+def _messages(calibration: rect.StereoCalibration, stamp: int) -> dict[str, Any]:
+    return {
+        "/cam/left/camera_info": camera_info_message(calibration.left, stamp, "l"),
+        "/cam/right/camera_info": camera_info_message(calibration.right, stamp, "r"),
+    }
+
+
+def _pairer(**options: Any) -> StereoPairer:
+    config = PairingConfig(
+        left_topic="/cam/left/image_raw",
+        right_topic="/cam/right/image_raw",
+        left_info_topic="/cam/left/camera_info",
+        right_info_topic="/cam/right/camera_info",
+        **options,
+    )
+    return StereoPairer(config, echo=None)
+
+
+def _push_pair(
+    pairer: StereoPairer,
+    stamp: int,
+    left: np.ndarray,
+    right: np.ndarray,
+    calibration: rect.StereoCalibration,
+) -> list[Any]:
+    from pcainterp_stream.io import rosmsg
+
+    frames = []
+    for topic, message in _messages(calibration, stamp).items():
+        frames += pairer.push(topic, stamp, stamp, message)
+    for topic, image in (("/cam/left/image_raw", left), ("/cam/right/image_raw", right)):
+        message = rosmsg.image_message(image, stamp, "l", encoding="mono8")
+        frames += pairer.push(topic, stamp, stamp, message)
+    return frames
+
+
+def _push_frames(
+    pairer: StereoPairer,
+    count: int,
+    left: np.ndarray,
+    right: np.ndarray,
+    calibration: rect.StereoCalibration,
+) -> None:
+    for i in range(count):
+        _push_pair(pairer, 1000 + i, left, right, calibration)
+
+
+def test_pairer_rectifies_raw_pairs_and_builds_maps_once() -> None:
+    calibration = raw_calibration(CAMERA, "plumb_bob")
+    raw = Unrectifier(calibration)(*_stereo_views())
+    pairer = _pairer()
+    frames = []
+    for i in range(3):
+        frames += _push_pair(pairer, 1000 + i, *raw, calibration)
+    assert len(frames) == 3
+    first = pairer.rectification()
+    assert first is not None
+    frames += _push_pair(pairer, 2000, *raw, calibration)  # the same values re-sent
+    assert pairer.rectification() is first
+    x, _, w, h = first.box
+    assert frames[0].left.shape == (h, w)
+    assert frames[0].camera.cx == pytest.approx(CAMERA.cx - x)
+    changed = raw_calibration(StereoCamera(320, 120, 181.0, 181.0, 158.0, 60.0, 0.5), "plumb_bob")
+    _push_pair(pairer, 3000, *raw, changed)
+    assert pairer.rectification() is not first
+
+
+def test_features_move_into_the_rectified_frame() -> None:
+    calibration = raw_calibration(CAMERA, "plumb_bob")
+    raw = Unrectifier(calibration)(*_stereo_views())
+    pairer = _pairer(check_rows=False)
+    (frame,) = _push_pair(pairer, 1000, *raw, calibration)
+    pairer._frame_features[frame.index] = SparseFeatures(
+        1000, 1000, "l", np.array([[0.0, 0.0, 10.0]], dtype=np.float32)
+    )
+    features = pairer.features_for(frame)
+    assert features is not None
+    np.testing.assert_allclose(features.points[0], calibration.left.r @ [0, 0, 10], rtol=1e-5)
+
+
+def test_guard_refuses_a_raw_pair_declared_rectified() -> None:
+    calibration = raw_calibration(CAMERA, "plumb_bob")
+    raw = Unrectifier(calibration)(*_stereo_views())
+    ideal = rect.StereoCalibration(
+        *(
+            rect.CameraCalibration(
+                c.width, c.height, "plumb_bob", c.p[:, :3], np.zeros(5), np.eye(3), c.p
+            )
+            for c in (calibration.left, calibration.right)
+        )
+    )
+    pairer = _pairer()
+    with pytest.raises(CalibrationError, match="does not look rectified") as err:
+        _push_frames(pairer, 6, *raw, ideal)  # the guard decides by the fifth frame
+    assert "--rectify always" in str(err.value)
+    never = _pairer(rectify="never", check_rows=False)
+    assert len(_push_pair(never, 1000, *raw, ideal)) == 1
+
+
+def test_guard_refuses_swapped_cameras() -> None:
+    calibration = rect.StereoCalibration(
+        *(
+            rect.CameraCalibration(
+                CAMERA.width, CAMERA.height, "plumb_bob", p[:, :3], np.zeros(5), np.eye(3), p
+            )
+            for p in (CAMERA.projection_left(), CAMERA.projection_right())
+        )
+    )
+    left, right = _stereo_views()
+    pairer = _pairer()
+    with pytest.raises(CalibrationError, match="negative disparities"):
+        _push_frames(pairer, 6, right, left, calibration)
+    ok = _pairer()
+    for i in range(6):
+        assert len(_push_pair(ok, 1000 + i, left, right, calibration)) == 1
+
+
+def test_rectified_streams_need_no_raw_calibration() -> None:
+    """image_rect topics whose infos have no usable K, D (size 0, unknown model) use P."""
+    from pcainterp_stream.io import rosmsg
+
+    config = PairingConfig(
+        left_topic="/cam/left/image_rect",
+        right_topic="/cam/right/image_rect",
+        left_info_topic="/cam/left/camera_info",
+        right_info_topic="/cam/right/camera_info",
+    )
+    said: list[str] = []
+    pairer = StereoPairer(config, echo=said.append)
+    left, right = _stereo_views()
+    frames = []
+    for topic, right_side in (("/cam/left/camera_info", False), ("/cam/right/camera_info", True)):
+        info = rosmsg.camera_info_message(CAMERA, 1000, "c", right=right_side)
+        info.width = info.height = 0
+        info.distortion_model = "unknown_model"
+        frames += pairer.push(topic, 1000, 1000, info)
+    for topic, image in (("/cam/left/image_rect", left), ("/cam/right/image_rect", right)):
+        frames += pairer.push(
+            topic, 1000, 1000, rosmsg.image_message(image, 1000, "c", encoding="mono8")
+        )
+    assert len(frames) == 1
+    assert frames[0].camera.fx == CAMERA.fx
+    assert said[0].startswith("rectify auto: /cam/left/image_rect and /cam/right/image_rect")

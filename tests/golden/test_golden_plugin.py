@@ -1,0 +1,96 @@
+"""The log_golden fixture on a tiny fabricated log: first run, pass, fail, regenerate."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+pytest_plugins = ["pytester"]
+
+TEST = """
+from pathlib import Path
+
+import numpy as np
+
+from pcainterp_stream.records import StereoCamera, SynthFrame
+from pcainterp_stream.synth.log import write_synthetic_log
+
+SCALE = {scale}
+CAMERA = StereoCamera(width=40, height=30, fx=30.0, fy=30.0, cx=19.5, cy=14.5, baseline=0.5)
+
+
+def write_log(path):
+    rng = np.random.default_rng(0)
+    frames = []
+    for i in range(2):
+        depth = rng.uniform(3.0, 60.0, size=CAMERA.image_size).astype(np.float32) * SCALE
+        depth[:5] = np.nan
+        grey = rng.integers(0, 256, size=CAMERA.image_size, dtype=np.uint8)
+        frames.append(SynthFrame(i, 10**9 + i * 10**8, grey, grey, depth, np.eye(4), CAMERA))
+    write_synthetic_log(frames, path)
+    return path
+
+
+def test_log(tmp_path, log_golden):
+    log_golden.check(write_log(tmp_path / "a.mcap"), arrays={arrays})
+"""
+
+
+def _write(pytester: pytest.Pytester, *, scale: float, arrays: bool = False) -> None:
+    pytester.makepyfile(test_tiny=TEST.format(scale=scale, arrays=arrays))
+
+
+def _run(pytester: pytest.Pytester, *args: str) -> pytest.RunResult:
+    return pytester.runpytest("-q", "-p", "no:cacheprovider", *args)
+
+
+@pytest.mark.parametrize("arrays", [False, True])
+def test_first_run_pass_fail_and_force_regen(pytester: pytest.Pytester, arrays: bool) -> None:
+    _write(pytester, scale=1.0, arrays=arrays)
+    golden = pytester.path / "test_tiny" / "test_log.golden.json"
+    _run(pytester).assert_outcomes(failed=1)
+    assert golden.is_file()
+    assert golden.with_suffix(".npz").is_file() == arrays
+    _run(pytester).assert_outcomes(passed=1)
+
+    _write(pytester, scale=1.0 + 1e-7, arrays=arrays)  # last bits: within tolerance
+    _run(pytester).assert_outcomes(passed=1)
+
+    _write(pytester, scale=1.05, arrays=arrays)
+    failed = _run(pytester)
+    failed.assert_outcomes(failed=1)
+    failed.stdout.fnmatch_lines(
+        [
+            "*a.mcap differs from the golden file*",
+            "*/ground_truth/depth #0 (stamp 1.000000000 s): image mean * (moved *, tolerance *)",
+        ]
+    )
+    if arrays:
+        failed.stdout.fnmatch_lines(["*image elements * beyond atol*"])
+    before = golden.read_text()
+    _run(pytester, "--force-regen").assert_outcomes(failed=1)  # rewritten, for review
+    assert golden.read_text() != before
+    _run(pytester).assert_outcomes(passed=1)
+
+    _write(pytester, scale=1.0, arrays=arrays)
+    _run(pytester, "--update-golden").assert_outcomes(passed=1)
+    _run(pytester).assert_outcomes(passed=1)
+
+
+def test_old_format_is_a_failure_that_force_regen_fixes(pytester: pytest.Pytester) -> None:
+    _write(pytester, scale=1.0)
+    golden = pytester.path / "test_tiny" / "test_log.golden.json"
+    golden.parent.mkdir()
+    golden.write_text('{"format": "pcainterp-golden/1", "channels": []}')
+    result = _run(pytester)
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines(["*old format pcainterp-golden/1*"])
+    _run(pytester, "--force-regen").assert_outcomes(failed=1)
+    _run(pytester).assert_outcomes(passed=1)
+
+
+def test_fixture_is_registered_by_the_entry_point(pytester: pytest.Pytester) -> None:
+    result = _run(pytester, "--fixtures")
+    result.stdout.fnmatch_lines(["*log_golden*", "*Check a log against a golden file beside*"])
+    assert Path(__file__).exists()

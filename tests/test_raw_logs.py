@@ -1,0 +1,290 @@
+"""Logs recorded the way a robot records them: raw images, driver topic names, no flags."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pcainterp_stream import cli
+from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.logwriter import open_writer
+from pcainterp_stream.pipeline.densify import densify
+from pcainterp_stream.synth import SynthConfig, generate
+from pcainterp_stream.synth.log import write_synthetic_log
+from pcainterp_stream.synth.raw import RawDrive, write_raw_log
+
+KITTI = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "kitti_raw" / "2011_09_26"
+
+
+def _run(capsys: pytest.CaptureFixture[str], *args: object) -> tuple[int, str, str]:
+    capsys.readouterr()
+    code = cli.main([str(a) for a in args])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+@pytest.fixture(scope="module")
+def raw_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("raw") / "raw.bag"
+    write_raw_log(SynthConfig(seed=2, frames=3, scale=0.25), path, model="plumb_bob")
+    return path
+
+
+@pytest.mark.parametrize("suffix", ["bag", "mcap", "rosbag2"])
+def test_densify_finds_and_rectifies_a_raw_log(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, suffix: str
+) -> None:
+    log = tmp_path / ("raw" if suffix == "rosbag2" else f"raw.{suffix}")
+    fmt = {"bag": "ros1", "mcap": "mcap", "rosbag2": "rosbag2"}[suffix]
+    code, _, err = _run(
+        capsys,
+        "synth",
+        log,
+        "--frames",
+        3,
+        "--scale",
+        0.25,
+        "--raw",
+        "equidistant",
+        "--format",
+        fmt,
+    )
+    assert code == 0, err
+    out = tmp_path / "dense.mcap"
+    code, printed, err = _run(capsys, "densify", log, "-o", out)
+    assert code == 0, err
+    lines = printed.splitlines()
+    assert lines[0].startswith("topics: left /camera/left/image_raw, right /camera/right/image_raw")
+    assert lines[1].startswith(
+        "rectify auto: remapping the raw images with /camera/left/camera_info"
+    )
+    assert "equidistant" in lines[1]
+    with open_log(out) as reader:
+        infos = [reader.decode(raw) for raw in reader.messages(["/pcainterp/camera_info"])]
+    camera = RawDrive(SynthConfig(seed=2, frames=3, scale=0.25), "equidistant").camera
+    assert len(infos) == 3
+    info = infos[0]
+    assert (info.width, info.height) == (camera.width, camera.height)
+    assert not np.any(info.d)
+    np.testing.assert_allclose(np.asarray(info.k).reshape(3, 3), camera.projection_left()[:, :3])
+
+
+def test_rectify_never_and_always_say_so(
+    capsys: pytest.CaptureFixture[str], raw_bag: Path, tmp_path: Path
+) -> None:
+    code, printed, err = _run(
+        capsys, "densify", raw_bag, "-o", tmp_path / "a.mcap", "--rectify", "always"
+    )
+    assert code == 0, err
+    assert "rectify always: remapping the images with" in printed
+    code, printed, err = _run(
+        capsys, "densify", raw_bag, "-o", tmp_path / "n.mcap", "--rectify", "never"
+    )
+    assert code == 0, err
+    assert "rectify never: the images are used as recorded" in printed
+
+
+def test_swapped_topics_are_one_line(
+    capsys: pytest.CaptureFixture[str], raw_bag: Path, tmp_path: Path
+) -> None:
+    code, _, err = _run(
+        capsys,
+        "densify",
+        raw_bag,
+        "-o",
+        tmp_path / "s.mcap",
+        "--left-topic",
+        "/camera/right/image_raw",
+        "--right-topic",
+        "/camera/left/image_raw",
+    )
+    assert code == 2
+    (line,) = err.splitlines()
+    assert "gives no baseline" in line
+    assert not (tmp_path / "s.mcap").exists()
+
+
+def test_calibration_files_stand_for_missing_camera_infos(
+    capsys: pytest.CaptureFixture[str], raw_bag: Path, tmp_path: Path
+) -> None:
+    from tests.io.test_calibration import write_camera_info_yaml
+
+    bare = tmp_path / "bare.mcap"
+    with open_log(raw_bag) as reader, open_writer(bare, None) as writer:
+        for raw in reader.messages():
+            if not raw.topic.endswith("camera_info"):
+                writer.add_raw(raw)
+    code, _, err = _run(capsys, "densify", bare, "-o", tmp_path / "x.mcap")
+    assert code == 2
+    assert "--calibration LEFT.yaml RIGHT.yaml" in err
+    drive = RawDrive(SynthConfig(seed=2, frames=3, scale=0.25), "plumb_bob")
+    left, right = write_camera_info_yaml(drive.calibration, tmp_path)
+    frames: dict[str, list[np.ndarray]] = {"infos": [], "files": []}
+    code, printed, err = _run(
+        capsys, "densify", bare, "-o", tmp_path / "f.mcap", "--calibration", left, right
+    )
+    assert code == 0, err
+    assert "the calibration files" in printed
+    for name, log in (("infos", raw_bag), ("files", bare)):
+        densify(
+            log,
+            tmp_path / f"{name}.mcap",
+            pairing=PairingConfig(
+                discover=True,
+                calibration=drive.calibration if name == "files" else None,
+            ),
+            on_frame=lambda r, n=name: frames[n].append(r.disparity),
+        )
+    for a, b in zip(frames["infos"], frames["files"], strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_learn_and_dense_measurements_on_a_raw_log(
+    capsys: pytest.CaptureFixture[str], raw_bag: Path, tmp_path: Path
+) -> None:
+    code, printed, err = _run(
+        capsys, "densify", raw_bag, "-o", tmp_path / "d.mcap", "--measurements", "dense"
+    )
+    assert code == 0, err
+    assert "rectify auto: remapping" in printed
+    code, printed, err = _run(
+        capsys,
+        "learn",
+        raw_bag,
+        "-o",
+        tmp_path / "b.npz",
+        "--components",
+        2,
+        "--no-fit-prior",
+        "--with-synthetic",
+        0,
+    )
+    assert code == 0, err
+    assert printed.startswith("topics: left /camera/left/image_raw")
+
+
+def _errors(log: Path, tmp: Path, scale: float) -> float:
+    maps: list[np.ndarray] = []
+    densify(
+        log,
+        tmp / f"{log.stem}_dense.mcap",
+        pairing=PairingConfig(discover=True),
+        on_frame=lambda r: maps.append(r.disparity.copy()),
+    )
+    truths = []
+    with open_log(log) as reader:
+        truths = [
+            rosmsg.image_array(reader.decode(raw))
+            for raw in reader.messages(["/ground_truth/depth"])
+        ]
+    fb = SynthConfig(scale=scale).camera.focal_baseline
+    errors = []
+    for estimate, depth in zip(maps, truths, strict=True):
+        with np.errstate(divide="ignore"):
+            truth = fb / depth
+        ok = np.isfinite(truth) & np.isfinite(estimate)
+        errors.append(np.abs(estimate - truth)[ok])
+    return float(np.mean(np.concatenate(errors)))
+
+
+@pytest.mark.parametrize("model", ["plumb_bob", "equidistant"])
+def test_raw_drive_is_as_accurate_as_the_rectified_one(tmp_path: Path, model: str) -> None:
+    """Densified with no options, within 5 % of the rectified drive's error against the truth."""
+    config = SynthConfig(seed=3, frames=10, scale=0.5)
+    write_raw_log(config, tmp_path / "raw.mcap", model=model)
+    write_synthetic_log(generate(config), tmp_path / "rect.mcap")
+    raw = _errors(tmp_path / "raw.mcap", tmp_path, config.scale)
+    rectified = _errors(tmp_path / "rect.mcap", tmp_path, config.scale)
+    assert raw <= 1.05 * rectified, (raw, rectified)
+
+
+@pytest.mark.skipif(not KITTI.is_dir(), reason="../shared/realdata/kitti_raw is absent")
+def test_kitti_recorded_raw_gives_the_rectified_drives_result(tmp_path: Path) -> None:
+    """KITTI's rectified drive turned back into raw images with its own calibration."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "kitti_raw_roundtrip",
+        Path(__file__).resolve().parents[1] / "tools" / "kitti_raw_roundtrip.py",
+    )
+    assert spec is not None
+    assert spec.loader is not None
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    drive = KITTI / "2011_09_26_drive_0001_sync"
+    raw_log = tmp_path / "kitti_raw.mcap"
+    assert tool.write_raw_log(drive, raw_log, max_frames=5) == 5
+    with open_log(raw_log) as reader:
+        assert set(reader.topics()) == {
+            "/camera/left/image_raw",
+            "/camera/right/image_raw",
+            "/camera/left/camera_info",
+            "/camera/right/camera_info",
+        }
+        info = reader.decode(next(iter(reader.messages(["/camera/left/camera_info"]))))
+        assert (info.width, info.height) == (1392, 512)
+    figures = tool.check(drive, raw_log, 5)
+    assert figures["map_difference_px"] < 1.0
+    assert abs(figures["error_ratio"] - 1) < 0.05
+    annotated = KITTI.parent.parent / "kitti_depth_annotated_07"
+    if annotated.is_dir():  # the bar against real LiDAR truth (three frames)
+        lidar = tool.lidar_check(annotated, KITTI / "calib_cam_to_cam.txt", tmp_path)
+        assert lidar["lidar_error_ratio"] < 1.15
+
+
+def test_evaluate_rectifies_the_input_pair_as_densify_did(
+    capsys: pytest.CaptureFixture[str], raw_bag: Path, tmp_path: Path
+) -> None:
+    import json
+
+    dense = tmp_path / "dense.mcap"
+    assert _run(capsys, "densify", raw_bag, "-o", dense)[0] == 0
+    sgbm = {}
+    for rectify in ("auto", "never"):
+        report = tmp_path / rectify
+        code, _, err = _run(
+            capsys, "evaluate", dense, "-o", report, "--mode", "stereo", "--rectify", rectify
+        )
+        assert code == 0, err
+        results = json.loads((report / "results.json").read_text())
+        sgbm[rectify] = results["stereo_baselines"]["sgbm"]["mean"]["delta_2d_mean"]
+    # SGBM of the raw pair, scored in the rectified frame, is far off: evaluate rectified it
+    assert sgbm["auto"] < 0.5 * sgbm["never"]
+
+
+def test_compressed_raw_images_are_found_and_rectified(
+    capsys: pytest.CaptureFixture[str], raw_bag: Path, tmp_path: Path
+) -> None:
+    """``/camera/left/image_raw/compressed`` (png) with ``/camera/left/camera_info``."""
+    import cv2
+
+    compressed = tmp_path / "compressed.mcap"
+    with open_log(raw_bag) as reader, open_writer(compressed, None) as writer:
+        for raw in reader.messages():
+            if not raw.topic.endswith("image_raw"):
+                writer.add_raw(raw)
+                continue
+            message = reader.decode(raw)
+            ok, png = cv2.imencode(".png", rosmsg.image_array(message))
+            assert ok
+            stamp = rosmsg.stamp_ns(message)
+            writer.add_message(
+                raw.topic + "/compressed",
+                rosmsg.compressed_image_message(png.tobytes(), "png", stamp, "cam"),
+                raw.log_time_ns,
+            )
+    maps: dict[str, list[np.ndarray]] = {"raw": [], "compressed": []}
+    for name, log in (("raw", raw_bag), ("compressed", compressed)):
+        densify(
+            log,
+            tmp_path / f"{name}_dense.mcap",
+            pairing=PairingConfig(discover=True),
+            on_frame=lambda r, n=name: maps[n].append(r.disparity),
+        )
+    assert len(maps["compressed"]) == 3
+    for a, b in zip(maps["raw"], maps["compressed"], strict=True):
+        np.testing.assert_array_equal(a, b)
