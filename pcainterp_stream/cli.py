@@ -649,20 +649,10 @@ def run(args: argparse.Namespace) -> int:
         if args.fit_prior is False and args.fit_logs:
             raise PcaInterpError("--fit-logs are for fitting the prior; drop --no-fit-prior")
         with_synthetic = _with_synthetic(args.with_synthetic)
-        if with_synthetic not in ("auto", 0):
-            if args.grid_scale is not None:
-                raise PcaInterpError(
-                    "--with-synthetic fine-tunes the built-in basis on its own grid; "
-                    "drop --grid-scale"
-                )
-            if on_cluster:
-                raise PcaInterpError(
-                    "--with-synthetic runs in this process; drop --scheduler/--workers"
-                )
-        elif with_synthetic == "auto" and on_cluster:
-            with_synthetic = 0  # fine-tuning runs in this process only: the maps alone
-        # the prior is fitted by default; on a cluster only on --fit-logs (no held-out share)
-        fit_prior = args.fit_prior is not False and (not on_cluster or bool(args.fit_logs))
+        if with_synthetic not in ("auto", 0) and args.grid_scale is not None:
+            raise PcaInterpError(
+                "--with-synthetic fine-tunes the built-in basis on its own grid; drop --grid-scale"
+            )
         options = LearnOptions(
             n_components=args.components or 500,
             variance=args.variance,
@@ -670,7 +660,7 @@ def run(args: argparse.Namespace) -> int:
             depth_topic=args.depth_topic,
             every=args.every,
             sgbm=_sgbm_config(args),
-            fit_prior=fit_prior,
+            fit_prior=args.fit_prior is not False,
             holdout=args.holdout,
             fit_logs=tuple(args.fit_logs),
             with_synthetic=with_synthetic,
@@ -678,46 +668,12 @@ def run(args: argparse.Namespace) -> int:
         pairing = learn_pairing(args)
         if args.workers is not None and args.workers < 1:
             raise PcaInterpError(f"--workers must be at least 1, got {args.workers}")
-        if args.fit_prior and on_cluster and not args.fit_logs:
-            raise PcaInterpError(
-                "--fit-prior holds out a share of each log, which runs in this process; on a "
-                "cluster pass --fit-logs LOG (fitted here after learning there), or "
-                "--no-fit-prior, or drop --scheduler/--workers"
-            )
-        if on_cluster:
+        if on_cluster:  # the same learn, the maps' statistics gathered by the workers
             from pcainterp_stream.pipeline import distributed
-            from pcainterp_stream.pipeline.learn import AUTO_MAX_MAPS, expected_maps
-            from pcainterp_stream.pipeline.learn import fit_prior as fit
 
-            rule = "off: --with-synthetic 0"
-            if args.with_synthetic == "auto":  # else 0: N was refused above
-                rule = "auto: not on a cluster (fine-tuning runs in this process only)"
-                count = expected_maps(args.logs, options, pairing)
-                if count is None or count < AUTO_MAX_MAPS:
-                    _echo(
-                        "note: the built-in basis's synthetic maps are not merged into these "
-                        f"{'' if count is None else f'{count} '}maps on a cluster (fine-tuning "
-                        "runs in this process only); drop --scheduler/--workers to merge them"
-                    )
             with distributed.connect(args.scheduler, args.workers) as client:
                 basis = distributed.learn_distributed(
-                    [log.resolve() for log in args.logs],
-                    args.output,
-                    options,
-                    pairing,
-                    client,
-                )
-            learned_from = {**basis.meta.get("source", {}), "with_synthetic": 0}
-            meta = {**basis.meta, "source": {**learned_from, "with_synthetic_rule": rule}}
-            if fit_prior:
-                sources = [(log, 0) for log in options.fit_logs]
-                meta["prior"] = fit(basis, sources, options, pairing)
-            basis = dataclasses.replace(basis, meta=meta)
-            basis.save(args.output)
-            if not fit_prior and args.fit_prior is None:
-                _echo(
-                    "note: the prior was not fitted (on a cluster it is fitted on --fit-logs "
-                    "LOG only); densify uses the paper's model with this basis"
+                    args.logs, args.output, options, pairing, client
                 )
         else:
             basis = learn(args.logs, args.output, options, pairing)

@@ -1,14 +1,14 @@
-"""Benchmark scale-out on Dask: learn and densify throughput with 1 and 2 worker processes.
+"""Benchmark scale-out on Dask: ``learn`` on a cluster against ``learn`` in one process.
 
-For each worker count a fresh ``LocalCluster`` (worker processes, one thread each) runs
-``distributed.learn_distributed`` over all logs, and another fresh one runs
-``distributed.densify_many``; the peak RSS of every worker process is read from
-``/proc/self/status`` (VmHWM) inside the worker after the job. The local learner
-(``jobs.learn``, this process) is timed once for reference, and one merge of two summaries.
-From the measured per-frame costs the tool projects a 23,201-frame basis and 1,000 hours of
-10 Hz logs on N workers (one core per worker assumed). Prints a Markdown report.
+Runs the same ``learn`` (the command line's defaults: the prior fitted on the held-out 20 %
+of each log, ``--with-synthetic auto``) once in this process and once per worker count on
+a fresh ``LocalCluster`` (worker processes, one thread each), and says how far the models
+are apart (top-10 principal angle, eigenvalues, the fitted prior). Cluster start-up is
+timed apart from the job. Optionally (``--densify``) ``densify --out-dir`` throughput too.
+The peak RSS of every worker process is read from ``/proc/self/status`` (VmHWM) inside the
+worker after the job. Prints a Markdown report.
 
-    python tools/bench_distributed.py --work-dir /tmp/pcd --logs 4 --frames 40
+    python tools/bench_distributed.py --work-dir /tmp/pcd --logs 4 --frames 500 --scale 1
 """
 
 from __future__ import annotations
@@ -21,17 +21,20 @@ import harness
 import numpy as np
 from scipy.linalg import subspace_angles
 
+from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.pipeline import distributed, jobs
 
 JOB_COLUMNS = (
     "job",
-    "workers",
+    "where",
     "frames",
-    "wall s",
+    "cluster start s",
+    "job wall s",
     "frames/s",
+    "one process's time / (start + job)",
     "worker peak RSS MB",
-    "vs local learner",
+    "model against one process",
 )
 
 
@@ -50,6 +53,31 @@ def _make_logs(work: Path, count: int, frames: int, scale: float) -> list[Path]:
     ]
 
 
+def _difference(here: Basis, there: Basis) -> str:
+    """Say how far two bases are apart: shape, maps, top-10 angle, eigenvalues, prior."""
+    if there.components.shape != here.components.shape or there.n_train != here.n_train:
+        return f"DIFFERENT: {there.components.shape} vs {here.components.shape}"
+    top = min(10, here.n_components)
+    angle = subspace_angles(
+        here.components[:top].reshape(top, -1).T.astype(np.float64),
+        there.components[:top].reshape(top, -1).T.astype(np.float64),
+    ).max()
+    ratio = np.abs(there.eigenvalues / here.eigenvalues - 1)
+    text = (
+        f"angle top {top} {angle:.1e} rad, eigenvalues top {top} {ratio[:top].max():.1e} "
+        f"rel, all {here.n_components} {ratio.max():.1e} rel"
+    )
+    prior_here, prior_there = here.meta.get("prior"), there.meta.get("prior")
+    if prior_here and prior_there:
+        local_here, local_there = prior_here["local"] or {}, prior_there["local"] or {}
+        same_kernel = local_here.get("kernel") == local_there.get("kernel") and local_here.get(
+            "length_scale"
+        ) == local_there.get("length_scale")
+        sigma = abs(prior_there["sigma"] / prior_here["sigma"] - 1)
+        text += f", kernel {'same' if same_kernel else 'DIFFERENT'}, sigma {sigma:.1e} rel"
+    return text
+
+
 def main() -> None:
     """Run the benchmark and print a Markdown report."""
     parser = harness.argument_parser(__doc__)
@@ -59,24 +87,38 @@ def main() -> None:
     parser.add_argument("--scale", type=float, default=1.0, help="synthetic image scale")
     parser.add_argument("--components", type=int, default=200)
     parser.add_argument("--chunk-frames", type=int, default=distributed.DEFAULT_CHUNK_FRAMES)
-    parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--workers", type=int, nargs="+", default=[2])
+    parser.add_argument("--densify", action="store_true", help="also time densify --out-dir")
     args = parser.parse_args()
     harness.work_dir(args.work_dir)
     logs = _make_logs(args.work_dir, args.logs, args.frames, args.scale)
     n_frames = args.logs * args.frames
-    options = jobs.LearnOptions(n_components=args.components)
+    # the command line's defaults: prior fitted on the held-out share, --with-synthetic auto
+    options = jobs.LearnOptions(n_components=args.components, with_synthetic="auto")
     pairing = PairingConfig()
     rows: list[dict[str, Any]] = []
 
     with harness.Stopwatch() as watch:
-        local = jobs.learn(logs, args.work_dir / "basis_local.npz", options, pairing)
+        here = jobs.learn(logs, args.work_dir / "basis_here.npz", options, pairing)
     local_seconds = watch.wall
-    basis_path = args.work_dir / "basis_local.npz"
-
+    rows.append(
+        {
+            "job": "learn",
+            "where": "one process",
+            "frames": n_frames,
+            "start": 0.0,
+            "seconds": local_seconds,
+            "peaks": [harness.peak_rss_mb()],
+            "model": "reference",
+        }
+    )
     for workers in args.workers:
-        with distributed.connect(workers=workers) as client:
+        with harness.Stopwatch() as start:
+            connection = distributed.connect(workers=workers)
+            client = connection.__enter__()
+        try:
             with harness.Stopwatch() as watch:
-                remote = distributed.learn_distributed(
+                there = distributed.learn_distributed(
                     logs,
                     args.work_dir / f"basis_{workers}w.npz",
                     options,
@@ -85,107 +127,61 @@ def main() -> None:
                     chunk_frames=args.chunk_frames,
                 )
             peaks = _worker_peaks(client)
-        top = min(10, local.n_components, remote.n_components)
-        angle = float(
-            np.degrees(
-                subspace_angles(
-                    local.components[:top].reshape(top, -1).T.astype(np.float64),
-                    remote.components[:top].reshape(top, -1).T.astype(np.float64),
-                ).max()
+            rows.append(
+                {
+                    "job": "learn",
+                    "where": f"{workers} workers",
+                    "frames": n_frames,
+                    "start": start.wall,
+                    "seconds": watch.wall,
+                    "peaks": peaks,
+                    "model": _difference(here, there),
+                }
             )
-        )
-        rel = float(np.max(np.abs(remote.eigenvalues[:top] / local.eigenvalues[:top] - 1)))
-        rows.append(
-            {
-                "job": "learn",
-                "workers": workers,
-                "seconds": watch.wall,
-                "frames": n_frames,
-                "peaks": peaks,
-                "angle10": angle,
-                "eig_rel10": rel,
-            }
-        )
-        with distributed.connect(workers=workers) as client:
-            with harness.Stopwatch() as watch:
-                outcomes = distributed.densify_many(
-                    logs, args.work_dir / f"dense_{workers}w", basis_path, client, pairing=pairing
+            if args.densify:
+                with harness.Stopwatch() as watch:
+                    outcomes = distributed.densify_many(
+                        logs, args.work_dir / f"dense_{workers}w", None, client
+                    )
+                failed = [o.error for o in outcomes if o.error is not None]
+                if failed:
+                    raise SystemExit(f"densify failed: {failed}")
+                rows.append(
+                    {
+                        "job": "densify --out-dir",
+                        "where": f"{workers} workers",
+                        "frames": sum(o.frames for o in outcomes),
+                        "start": 0.0,
+                        "seconds": watch.wall,
+                        "peaks": _worker_peaks(client),
+                        "model": "",
+                    }
                 )
-            peaks = _worker_peaks(client)
-        failed = [o.error for o in outcomes if o.error is not None]
-        if failed:
-            raise SystemExit(f"densify failed: {failed}")
-        rows.append(
-            {
-                "job": "densify",
-                "workers": workers,
-                "seconds": watch.wall,
-                "frames": sum(o.frames for o in outcomes),
-                "peaks": peaks,
-            }
-        )
+        finally:
+            connection.__exit__(None, None, None)
 
-    # one full-size merge: two summaries of r = l + oversampling columns on the grid
-    s = int(np.prod(local.mean.shape))
-    keep = args.components + distributed.DEFAULT_OVERSAMPLING
-    rng = np.random.default_rng(0)
-    kwargs: dict[str, Any] = {
-        "grid_size": local.mean.shape,
-        "image_size": local.image_size,
-        "focal_baseline": 1.0,
-    }
-    a = distributed.summarize(rng.normal(size=(keep, s)).astype(np.float32), keep, **kwargs)
-    b = distributed.summarize(rng.normal(size=(keep, s)).astype(np.float32), keep, **kwargs)
-    with harness.Stopwatch() as watch:
-        distributed.merge(a, b, keep)
-    merge_seconds = watch.wall
-
-    print(f"logs: {args.logs} x {args.frames} frames, scale {args.scale}, image {local.image_size}")
-    print(f"grid {local.mean.shape} (s = {s}), l = {args.components}, r = {keep}")
     print(
-        f"local jobs.learn (this process): {local_seconds:.1f} s, "
-        f"{n_frames / local_seconds:.2f} frames/s"
+        f"logs: {args.logs} x {args.frames} frames, scale {args.scale}, image {here.image_size}, "
+        f"grid {here.grid_size}, l = {args.components}, chunks of {args.chunk_frames} maps; "
+        f"basis: {here.n_train} maps ({here.meta['learning']['method']}), "
+        f"{here.meta['source']['with_synthetic_rule']}"
     )
-    print(f"one merge of two (s x {keep}) summaries: {merge_seconds * 1000:.0f} ms\n")
     print(harness.table_header(JOB_COLUMNS))
     for row in rows:
-        check = (
-            f"max angle top 10 {row['angle10']:.3f} deg, eig rel {row['eig_rel10']:.1e}"
-            if row["job"] == "learn"
-            else ""
-        )
-        rate = f"{row['frames'] / row['seconds']:.2f}"
-        worker_peaks = ", ".join(f"{p:.0f}" for p in row["peaks"])
-        seconds = f"{row['seconds']:.1f}"
-        cells = [row["job"], row["workers"], row["frames"], seconds, rate, worker_peaks, check]
+        # start-up included: the cluster's against the one process's (which has none apart)
+        ratio = local_seconds / (row["start"] + row["seconds"]) if row["job"] == "learn" else None
+        cells = [
+            row["job"],
+            row["where"],
+            row["frames"],
+            f"{row['start']:.1f}" if row["start"] else "-",
+            f"{row['seconds']:.1f}",
+            f"{row['frames'] / row['seconds']:.2f}",
+            "-" if ratio is None else f"{ratio:.2f}x",
+            ", ".join(f"{p:.0f}" for p in row["peaks"]),
+            row["model"],
+        ]
         print(harness.table_row(cells))
-    print()
-    one = {row["job"]: row for row in rows if row["workers"] == 1}
-    if "learn" in one and "densify" in one:
-        learn_frame = one["learn"]["seconds"] / one["learn"]["frames"]
-        densify_frame = one["densify"]["seconds"] / one["densify"]["frames"]
-        chunks = -(-23201 // args.chunk_frames)
-        hours_frames = 1000 * 3600 * 10
-        print(
-            f"per frame on 1 worker: learn {learn_frame * 1000:.0f} ms, "
-            f"densify {densify_frame * 1000:.0f} ms"
-        )
-        columns = ["workers N", "23,201-frame basis (h)", "1,000 h of 10 Hz logs (days)"]
-        print("\n" + harness.table_header(columns))
-        for n in (1, 2, 8, 32, 128):
-            learn_h = (23201 * learn_frame + (chunks - 1) * merge_seconds) / n / 3600
-            densify_d = hours_frames * densify_frame / n / 86400
-            print(harness.table_row([n, f"{learn_h:.2f}", f"{densify_d:.1f}"]))
-        # memory of a merge task at l = 500 on this grid, from the array sizes it holds: two
-        # input factors (s x r float32), the stacked (s x 2r+1) float32 and its float64
-        # copy inside truncated_product, and the output factor
-        r500 = 500 + distributed.DEFAULT_OVERSAMPLING
-        merge_mb = s * (2 * r500 * 4 + (2 * r500 + 1) * 12 + r500 * 4) / 1e6
-        chunk_mb = args.chunk_frames * s * 4 * 2 / 1e6
-        print(
-            f"\nmerge task arrays at l = 500 (r = {r500}) on this grid: {merge_mb:.0f} MB; "
-            f"chunk task grid maps ({args.chunk_frames} frames): {chunk_mb:.0f} MB"
-        )
     print("\nraw:", json.dumps(rows))
 
 

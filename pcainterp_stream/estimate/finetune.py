@@ -36,8 +36,11 @@ import numpy.typing as npt
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.learning import (
     DEFAULT_BOX_SIZE,
+    PcaFit,
     Sketch,
     basis_from_fit,
+    fit_from_factor,
+    merge_sketches,
     preprocess_disparity,
     streaming_fit,
 )
@@ -163,12 +166,7 @@ def finetune_basis(
         raise ValueError(f"Expected `n_components` >= 1, got {l_out}")
     if variance is not None and not 0.0 < variance <= 1.0:
         raise ValueError(f"Expected `variance` in (0, 1], got {variance}")
-    scale = 1.0
-    if focal_baseline is not None:
-        if not (np.isfinite(focal_baseline) and focal_baseline >= 0):
-            raise ValueError(f"Expected `focal_baseline` >= 0 (px*m), got {focal_baseline}")
-        if focal_baseline > 0 and basis.focal_baseline > 0:
-            scale = basis.focal_baseline / focal_baseline
+    scale = disparity_scale(basis, focal_baseline)
     preprocessing = basis.meta.get("preprocessing", {})
     box_size = int(preprocessing.get("box_size", DEFAULT_BOX_SIZE))
     grid_size = basis.grid_size
@@ -204,8 +202,125 @@ def finetune_basis(
     fit = streaming_fit(
         itertools.chain([first], stream), l_out + oversampling, batch_size, start=start
     )
-    n_maps = counted[0]
-    height, width = basis.image_size
+    return _finetuned(
+        basis,
+        fit,
+        n_prior=n_prior,
+        n_maps=counted[0],
+        maps_image_size=sizes[0] if sizes else basis.image_size,
+        focal_baseline=focal_baseline,
+        n_components=l_out,
+        variance=variance,
+        used="finetune",
+        min_disparity=min_disparity,
+        preprocessed=preprocessed,
+        batch_size=batch_size,
+        oversampling=oversampling,
+        meta=meta,
+    )
+
+
+def disparity_scale(basis: Basis, focal_baseline: float | None) -> float:
+    """Return the factor taking a camera's disparities into the basis's: (f*b)_basis / f*b.
+
+    Args:
+        basis: the basis.
+        focal_baseline: f*b of the maps' camera (px*m); None or 0 (or the basis's 0): 1.
+
+    Raises:
+        ValueError: ``focal_baseline`` is negative or not finite.
+    """
+    if focal_baseline is None:
+        return 1.0
+    if not (np.isfinite(focal_baseline) and focal_baseline >= 0):
+        raise ValueError(f"Expected `focal_baseline` >= 0 (px*m), got {focal_baseline}")
+    if focal_baseline > 0 and basis.focal_baseline > 0:
+        return float(basis.focal_baseline / focal_baseline)
+    return 1.0
+
+
+def finetune_from_sketch(
+    basis: Basis,
+    sketch: Sketch,
+    *,
+    n_prior: int,
+    maps_image_size: tuple[int, int],
+    n_components: int | None = None,
+    variance: float | None = None,
+    focal_baseline: float | None = None,
+    oversampling: int = 20,
+    used: str = "finetune",
+    meta: dict[str, Any] | None = None,
+) -> Basis:
+    """Merge a basis, standing for ``n_prior`` maps, with the sketch of more maps.
+
+    What :func:`finetune_basis` does with a stream of maps, for maps whose statistics were
+    gathered elsewhere (on a cluster): ``sketch`` holds them on the basis grid, in the
+    basis's disparity units (scaled by :func:`disparity_scale`).
+
+    Args:
+        basis: the basis to start from.
+        sketch: the maps' :class:`learning.Sketch` on the basis grid.
+        n_prior: n_s, how many maps the basis counts for, >= 2.
+        maps_image_size: (height, width) of the maps' camera (recorded).
+        n_components: l of the result, at most; None: the basis's.
+        variance: keep the fewest components reaching this variance ratio, or None.
+        focal_baseline: f*b of the maps' camera (recorded).
+        oversampling: columns kept beyond l in the merge.
+        used: the learning method recorded.
+        meta: extra entries for the result's ``meta``.
+
+    Returns:
+        The merged :class:`Basis`, as :func:`finetune_basis` returns it.
+    """
+    l_out = basis.n_components if n_components is None else n_components
+    if l_out < 1:
+        raise ValueError(f"Expected `n_components` >= 1, got {l_out}")
+    if sketch.factor.shape[0] != basis.grid_size[0] * basis.grid_size[1]:
+        raise ValueError(
+            f"the sketch has {sketch.factor.shape[0]} grid pixels, the basis "
+            f"{basis.grid_size[0] * basis.grid_size[1]}"
+        )
+    merged = merge_sketches(basis_sketch(basis, n_prior), sketch, l_out + oversampling)
+    fit = fit_from_factor(merged.mean, merged.factor, merged.squares, merged.n_maps)
+    return _finetuned(
+        basis,
+        fit,
+        n_prior=n_prior,
+        n_maps=sketch.n_maps,
+        maps_image_size=maps_image_size,
+        focal_baseline=focal_baseline,
+        n_components=l_out,
+        variance=variance,
+        used=used,
+        min_disparity=0.0,
+        preprocessed=False,
+        batch_size=None,
+        oversampling=oversampling,
+        meta=meta,
+    )
+
+
+def _finetuned(
+    basis: Basis,
+    fit: PcaFit,
+    *,
+    n_prior: int,
+    n_maps: int,
+    maps_image_size: tuple[int, int],
+    focal_baseline: float | None,
+    n_components: int,
+    variance: float | None,
+    used: str,
+    min_disparity: float,
+    preprocessed: bool,
+    batch_size: int | None,
+    oversampling: int,
+    meta: dict[str, Any] | None,
+) -> Basis:
+    """Build the fine-tuned basis from the merged eigenpairs, recording what was merged."""
+    preprocessing = basis.meta.get("preprocessing", {})
+    grid_size = basis.grid_size
     merged: dict[str, Any] = {
         "finetune": {
             "prior_basis": {
@@ -217,9 +332,9 @@ def finetune_basis(
             },
             "n_prior": n_prior,
             "n_maps": n_maps,
-            "maps_image_size": list(sizes[0]) if sizes else [height, width],
+            "maps_image_size": list(maps_image_size),
             "maps_focal_baseline": focal_baseline,
-            "disparity_scale": scale,
+            "disparity_scale": disparity_scale(basis, focal_baseline),
         }
     }
     if meta:
@@ -228,14 +343,14 @@ def finetune_basis(
         fit,
         grid_size=grid_size,
         image_size=basis.image_size,
-        n_components=l_out,
+        n_components=n_components,
         variance=variance,
-        grid_scale=float(preprocessing.get("grid_scale", grid_size[1] / width)),
-        used="finetune",
-        requested="finetune",
+        grid_scale=float(preprocessing.get("grid_scale", grid_size[1] / basis.image_size[1])),
+        used=used,
+        requested=used,
         focal_baseline=basis.focal_baseline,
         min_disparity=min_disparity,
-        box_size=box_size,
+        box_size=int(preprocessing.get("box_size", DEFAULT_BOX_SIZE)),
         preprocessed=preprocessed,
         batch_size=batch_size,
         oversampling=oversampling,

@@ -453,6 +453,40 @@ def streaming_fit(
     return fit_from_factor(mean, basis, squares, n_seen)
 
 
+def merge_sketches(first: Sketch, second: Sketch, keep: int) -> Sketch:
+    """Merge the sketches of two sets of maps; exact up to the truncation to ``keep`` columns.
+
+    The factor is the thin SVD of [U1 S1 | U2 S2 | sqrt(n1 n2 / n) (m1 - m2)] (the last
+    column corrects for the moved mean), the step of :func:`streaming_fit` between two
+    groups of maps of any size.
+
+    Args:
+        first: the sketch of n1 maps.
+        second: the sketch of n2 maps on the same grid.
+        keep: r, the columns kept of the merged factor.
+
+    Returns:
+        The sketch of the n1 + n2 maps.
+    """
+    total = first.n_maps + second.n_maps
+    shift = first.mean - second.mean
+    correction = (np.sqrt(first.n_maps * second.n_maps / total) * shift).astype(np.float32)
+    stacked = np.concatenate([first.factor, second.factor, correction[:, None]], axis=1)
+    factor = (
+        truncated_product(stacked, keep)
+        if np.any(stacked)
+        else np.zeros((stacked.shape[0], 0), dtype=np.float32)
+    )
+    return Sketch(
+        mean=(first.n_maps * first.mean + second.n_maps * second.mean) / total,
+        factor=factor,
+        squares=first.squares
+        + second.squares
+        + float(shift @ shift) * first.n_maps * second.n_maps / total,
+        n_maps=total,
+    )
+
+
 def fit_from_factor(
     mean: npt.NDArray[np.float64],
     basis: npt.NDArray[np.float32],

@@ -9,6 +9,12 @@ Summaries are merged pairwise, exactly up to the truncation, by the SVD of
 same step as the local streaming learner). A task holds one chunk and a merge two
 (s, r) factors, so worker memory does not grow with the number of frames.
 
+What is learned is decided as on one machine (:func:`pcainterp_stream.pipeline.learn.learn`
+with a :class:`DaskLearner` calls :func:`learn_on_cluster`): the same maps of each log (the same
+held-out share), the same grid and units (the built-in basis's when its statistics are
+merged, the merge done here on the reduced summary), and the held-out frames measured on
+the workers, one task per log, for the same fit of the prior.
+
 Densifying runs :func:`pcainterp_stream.pipeline.densify.densify` on each log in its own task; a
 failing log is reported and does not stop the others.
 """
@@ -17,7 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,28 +33,49 @@ import numpy.typing as npt
 
 from pcainterp_stream.errors import LogReadError, PcaInterpError
 from pcainterp_stream.estimate.basis import Basis, grid_size_for
+from pcainterp_stream.estimate.finetune import finetune_from_sketch
 from pcainterp_stream.estimate.learning import (
-    DEFAULT_BOX_SIZE,
+    Sketch,
     basis_from_fit,
     fit_from_factor,
-    preprocess_disparity,
+    merge_sketches,
     truncated_product,
 )
 from pcainterp_stream.pipeline.common import (
-    _check_output_folder,
+    _bar,
     _check_topic_types,
-    _expected_frames,
     _pairing_types,
     _require_topics,
 )
 from pcainterp_stream.pipeline.densify import densify
-from pcainterp_stream.pipeline.learn import _depth_maps, source_meta
+from pcainterp_stream.pipeline.learn import (
+    GridTarget,
+    HeldOutFrame,
+    MapPlan,
+    _depth_maps,
+    learn,
+    measure_held_out,
+    to_grid,
+)
 
 DEFAULT_CHUNK_FRAMES = 64
 """Frames (after ``every``) one learning task reads, matches and summarises."""
 
 DEFAULT_OVERSAMPLING = 20
-"""Columns kept beyond l in every summary (as the local streaming learner)."""
+"""The fewest columns kept beyond l in every summary (the local streaming learner's)."""
+
+
+def cluster_oversampling(n_components: int) -> int:
+    """Return the columns a cluster's summaries keep beyond l: max(20, l / 2).
+
+    A chunk's summary is merged log2(chunks) times, each merge truncating to r columns, and
+    the eigenvalues near l come out low. On 480 maps (0.5-scale synthetic logs, chunks of
+    64) the largest error of the l = 100 eigenvalues against the exact ones was 1.8 % at
+    r = l + 20, 0.6 % at r = 1.5 l and 0.1 % at r = 2 l (the top 10: < 5e-5 for all), and a
+    merge costs about (2 r)^2 s: r = 1.5 l keeps the learned model within 1 % of one
+    process's at about twice the merge cost of r = l + 20 (docs/benchmarks.md).
+    """
+    return max(DEFAULT_OVERSAMPLING, n_components // 2)
 
 
 @dataclass(frozen=True)
@@ -136,26 +163,20 @@ def merge(
             f"logs have {first.image_size[1]}x{first.image_size[0]} and "
             f"{second.image_size[1]}x{second.image_size[0]} images; learn one basis per camera"
         )
-    total = first.n_maps + second.n_maps
-    shift = first.mean - second.mean
-    correction = (np.sqrt(first.n_maps * second.n_maps / total) * shift).astype(np.float32)
-    stacked = np.concatenate([first.factor, second.factor, correction[:, None]], axis=1)
-    factor = (
-        truncated_product(stacked, keep)
-        if np.any(stacked)
-        else np.zeros((stacked.shape[0], 0), dtype=np.float32)
-    )
+    merged = merge_sketches(_sketch(first), _sketch(second), keep)
     return ChunkSummary(
-        n_maps=total,
-        mean=(first.n_maps * first.mean + second.n_maps * second.mean) / total,
-        factor=factor,
-        squares=first.squares
-        + second.squares
-        + float(shift @ shift) * first.n_maps * second.n_maps / total,
+        n_maps=merged.n_maps,
+        mean=merged.mean,
+        factor=merged.factor,
+        squares=merged.squares,
         grid_size=first.grid_size,
         image_size=first.image_size,
         focal_baseline=first.focal_baseline,
     )
+
+
+def _sketch(summary: ChunkSummary) -> Sketch:
+    return Sketch(summary.mean, summary.factor, summary.squares, summary.n_maps)
 
 
 def _chunk_maps(
@@ -188,7 +209,13 @@ def _chunk_maps(
 
 
 def summarize_chunk(
-    log: Path, start: int, stop: int | None, options: Any, pairing: Any, keep: int
+    log: Path,
+    start: int,
+    stop: int | None,
+    options: Any,
+    pairing: Any,
+    keep: int,
+    target: GridTarget | None = None,
 ) -> ChunkSummary | None:
     """Read, match and preprocess maps start..stop-1 of one log and summarise them (a task).
 
@@ -199,33 +226,36 @@ def summarize_chunk(
         options: the :class:`pcainterp_stream.pipeline.learn.LearnOptions`.
         pairing: the :class:`pcainterp_stream.frontend.pairing.PairingConfig`.
         keep: r, the columns kept of the factor.
+        target: the grid and units of the maps (:func:`learn.to_grid`); None: the grid of
+            ``options.grid_scale``, the maps' own units.
 
     Returns:
         The summary, or None when the chunk has no map.
     """
     grids: list[npt.NDArray[np.float32]] = []
     image_size: tuple[int, int] | None = None
-    grid_size = (0, 0)
     focal_baseline = 0.0
     for disparity, size, fb in _chunk_maps(log, start, stop, options, pairing):
         if image_size is None:
             image_size, focal_baseline = size, fb
-            grid_size = grid_size_for(size, options.grid_scale)
+            if target is None:
+                target = GridTarget(grid_size_for(size, options.grid_scale))
         if disparity.shape != image_size:
             raise PcaInterpError(
                 f"{log} has maps of shape {disparity.shape}, expected {image_size}; "
                 "learn one basis per camera"
             )
+        assert target is not None
         try:
-            grids.append(preprocess_disparity(disparity, grid_size).reshape(-1))
+            grids.append(to_grid(disparity, target))
         except ValueError as err:
             raise PcaInterpError(f"cannot learn from a map of {log}: {err}") from err
-    if image_size is None:
+    if image_size is None or target is None:
         return None
     return summarize(
         np.stack(grids),
         keep,
-        grid_size=grid_size,
+        grid_size=target.grid_size,
         image_size=image_size,
         focal_baseline=focal_baseline,
     )
@@ -251,7 +281,11 @@ def connect(scheduler: str | None = None, workers: int | None = None) -> Iterato
         return
     with (
         LocalCluster(  # type: ignore[no-untyped-call]
-            n_workers=workers or 2, threads_per_worker=1, processes=True, dashboard_address=None
+            n_workers=workers or 2,
+            threads_per_worker=1,
+            processes=True,
+            # any free port for its HTTP server: ":8787" may be taken by another cluster
+            dashboard_address=":0",
         ) as cluster,
         Client(cluster) as client,  # type: ignore[no-untyped-call]
     ):
@@ -266,9 +300,12 @@ def learn_distributed(
     client: Any,
     *,
     chunk_frames: int = DEFAULT_CHUNK_FRAMES,
-    oversampling: int = DEFAULT_OVERSAMPLING,
+    oversampling: int | None = None,
 ) -> Basis:
     """Learn a basis on a Dask cluster (``pcainterp learn --scheduler/--workers``).
+
+    :func:`pcainterp_stream.pipeline.learn.learn` with a :class:`DaskLearner`: the same
+    plan, hold-out, merge with the built-in basis and fitted prior as in one process.
 
     Args:
         logs: input logs (paths readable by the workers).
@@ -277,7 +314,8 @@ def learn_distributed(
         pairing: the :class:`pcainterp_stream.frontend.pairing.PairingConfig`.
         client: a connected ``dask.distributed.Client``.
         chunk_frames: maps per task.
-        oversampling: columns kept beyond l in every summary.
+        oversampling: columns kept beyond l in every summary; None:
+            :func:`cluster_oversampling`.
 
     Returns:
         The saved :class:`Basis`.
@@ -285,45 +323,131 @@ def learn_distributed(
     Raises:
         PcaInterpError: bad options, no maps, or a task failed.
     """
-    if options.every < 1:
-        raise PcaInterpError(f"--every must be at least 1, got {options.every}")
+    cluster = DaskLearner(client, chunk_frames=chunk_frames, oversampling=oversampling)
+    return learn(logs, output, options, pairing, cluster=cluster)
+
+
+@dataclass(frozen=True)
+class DaskLearner:
+    """``learn``'s statistics and held-out measurements gathered on a Dask cluster.
+
+    Attributes:
+        client: a connected ``dask.distributed.Client``.
+        chunk_frames: maps per task.
+        oversampling: columns kept beyond l in every summary; None:
+            :func:`cluster_oversampling`.
+    """
+
+    client: Any
+    chunk_frames: int = DEFAULT_CHUNK_FRAMES
+    oversampling: int | None = None
+
+    def learn_basis(self, plan: MapPlan, options: Any, pairing: Any, meta: dict[str, Any]) -> Basis:
+        """Return the basis of a plan's maps: :func:`learn_on_cluster`."""
+        oversampling = self.oversampling
+        if oversampling is None:
+            oversampling = cluster_oversampling(options.n_components)
+        return learn_on_cluster(
+            plan,
+            options,
+            pairing,
+            self.client,
+            meta,
+            chunk_frames=self.chunk_frames,
+            oversampling=oversampling,
+        )
+
+    def measure_held_out(
+        self, sources: list[tuple[Path, int]], options: Any, pairing: Any
+    ) -> list[list[HeldOutFrame]]:
+        """Measure held-out frames on the workers: :func:`measure_on_cluster`."""
+        return measure_on_cluster(self.client, sources, options, pairing)
+
+
+def chunk_specs(plan: MapPlan, chunk_frames: int) -> list[tuple[Path, int, int | None]]:
+    """Split a plan's maps into tasks: (log, first map, one past the last or None: the end).
+
+    A log's last chunk ends where the plan's maps of it end (its held-out share starts), or
+    at the end of the log when none is held out, so a log holding more maps than its summary
+    promised loses none.
+    """
+    specs: list[tuple[Path, int, int | None]] = []
+    for log, count, keep in zip(plan.logs, plan.counts, plan.kept, strict=True):
+        limit = count if keep is None else keep
+        if limit is None:
+            specs.append((log, 0, None))
+            continue
+        starts = range(0, max(limit, 1), chunk_frames)
+        for start in starts:
+            last = start == starts[-1]
+            stop = keep if last else start + chunk_frames
+            specs.append((log, start, stop))
+    return specs
+
+
+def learn_on_cluster(
+    plan: MapPlan,
+    options: Any,
+    pairing: Any,
+    client: Any,
+    meta: dict[str, Any],
+    *,
+    chunk_frames: int = DEFAULT_CHUNK_FRAMES,
+    oversampling: int = DEFAULT_OVERSAMPLING,
+) -> Basis:
+    """Learn the basis of a plan from summaries of its maps computed on the cluster.
+
+    Args:
+        plan: what to learn from (:func:`pcainterp_stream.pipeline.learn.plan_maps`).
+        options: the :class:`pcainterp_stream.pipeline.learn.LearnOptions`.
+        pairing: the :class:`pcainterp_stream.frontend.pairing.PairingConfig`.
+        client: a connected ``dask.distributed.Client``.
+        meta: entries for the basis's ``meta`` (``source``).
+        chunk_frames: maps per task.
+        oversampling: columns kept beyond l in every summary.
+
+    Returns:
+        The basis (not saved), fine-tuned from the built-in one when the plan says so.
+
+    Raises:
+        PcaInterpError: no maps, or a task failed.
+    """
     if chunk_frames < 1:
         raise PcaInterpError(f"chunk size must be at least 1 frame, got {chunk_frames}")
-    for log in logs:
-        if log.resolve() == output.resolve():
-            raise PcaInterpError(f"output {output} is one of the input logs; choose another -o")
-    _check_output_folder(output)
     keep = options.n_components + oversampling
-    source = options.depth_topic or pairing.left_topic
-    specs: list[tuple[Path, int, int | None]] = []
-    for log in logs:
-        expected = _expected_frames(log, source, options.every)
-        if expected is None:
-            specs.append((log, 0, None))
-        else:
-            specs.extend(
-                (log, start, start + chunk_frames)
-                for start in range(0, max(expected, 1), chunk_frames)
-            )
-    final = _reduce(client, specs, options, pairing, keep)
-    try:
-        total: ChunkSummary | None = final.result()
-    except PcaInterpError:
-        raise
-    except Exception as err:  # a worker's error arrives re-raised here
-        raise PcaInterpError(f"a learning task failed on the cluster: {err}") from err
+    # workers may run in another folder: they get absolute paths, the basis records the given
+    specs = [(log.resolve(), start, stop) for log, start, stop in chunk_specs(plan, chunk_frames)]
+    with _bar(len(specs), "learn on the cluster", unit="chunk") as bar:
+        final = _reduce(client, specs, options, pairing, keep, plan.target, bar.update)
+        try:
+            total: ChunkSummary | None = final.result()
+        except PcaInterpError:
+            raise
+        except Exception as err:  # a worker's error arrives re-raised here
+            raise PcaInterpError(f"a learning task failed on the cluster: {err}") from err
     if total is None:
         raise LogReadError(
             f"no {'depth image' if options.depth_topic else 'stereo pair'} found in "
-            f"{', '.join(map(str, logs))}; check the topic options (pcainterp info LOG)"
+            f"{', '.join(map(str, plan.logs))}; check the topic options (pcainterp info LOG)"
+        )
+    meta = {**meta, "distributed": {"chunk_frames": chunk_frames, "tasks": len(specs)}}
+    prior_basis = plan.synthetic.prior_basis
+    if prior_basis is not None:
+        return finetune_from_sketch(
+            prior_basis,
+            _sketch(total),
+            n_prior=plan.synthetic.n_prior,
+            maps_image_size=total.image_size,
+            n_components=options.n_components,
+            variance=options.variance,
+            focal_baseline=total.focal_baseline,
+            oversampling=oversampling,
+            used="finetune, distributed",
+            meta=meta,
         )
     if total.n_maps < 2:
         raise PcaInterpError(f"learning needs at least two disparity maps, got {total.n_maps}")
-    meta = {
-        "source": source_meta(logs, options),
-        "distributed": {"chunk_frames": chunk_frames, "tasks": len(specs)},
-    }
-    basis = basis_from_fit(
+    return basis_from_fit(
         fit_from_factor(total.mean, total.factor, total.squares, total.n_maps),
         grid_size=total.grid_size,
         image_size=total.image_size,
@@ -333,13 +457,39 @@ def learn_distributed(
         used="distributed",
         requested="distributed",
         focal_baseline=total.focal_baseline,
-        box_size=DEFAULT_BOX_SIZE,
+        box_size=plan.target.box_size,
         batch_size=chunk_frames,
         oversampling=oversampling,
         meta=meta,
     )
-    basis.save(output)
-    return basis
+
+
+def measure_on_cluster(
+    client: Any, sources: list[tuple[Path, int]], options: Any, pairing: Any
+) -> list[list[HeldOutFrame]]:
+    """Measure the held-out frames of each (log, first pair) on the cluster, one task a log.
+
+    Returns:
+        Per source, what :func:`pcainterp_stream.pipeline.learn.measure_held_out` returns.
+
+    Raises:
+        PcaInterpError: a task failed.
+    """
+    futures = [
+        client.submit(measure_held_out, log.resolve(), first, options, pairing, pure=False)
+        for log, first in sources
+    ]
+    measured: list[list[HeldOutFrame]] = []
+    with _bar(len(futures), "fit prior (measure held-out frames on the cluster)", "log") as bar:
+        for future in futures:
+            try:
+                measured.append(future.result())
+            except PcaInterpError:
+                raise
+            except Exception as err:  # a worker's error arrives re-raised here
+                raise PcaInterpError(f"a measuring task failed on the cluster: {err}") from err
+            bar.update(1)
+    return measured
 
 
 def _reduce(
@@ -348,6 +498,8 @@ def _reduce(
     options: Any,
     pairing: Any,
     keep: int,
+    target: GridTarget | None = None,
+    chunk_done: Callable[[], object] | None = None,
 ) -> Any:
     """Run the chunk tasks and merge their summaries as they finish; return the last future.
 
@@ -360,6 +512,7 @@ def _reduce(
     window = max(2, 2 * sum(client.nthreads().values()))
     pending = iter(specs)
     running: Any = as_completed()  # type: ignore[no-untyped-call]
+    chunks: set[Any] = set()
 
     def refill() -> None:
         while running.count() < window:
@@ -367,13 +520,17 @@ def _reduce(
             if spec is None:
                 return
             log, start, stop = spec
-            running.add(
-                client.submit(summarize_chunk, log, start, stop, options, pairing, keep, pure=False)
+            future = client.submit(
+                summarize_chunk, log, start, stop, options, pairing, keep, target, pure=False
             )
+            chunks.add(future.key)
+            running.add(future)
 
     refill()
     ready: Any = None
     for future in running:
+        if chunk_done is not None and future.key in chunks:
+            chunk_done()
         if ready is None:
             ready = future
         else:

@@ -5,11 +5,11 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -19,9 +19,9 @@ from pcainterp_stream.errors import (
     LogReadError,
     PcaInterpError,
 )
-from pcainterp_stream.estimate.basis import Basis
-from pcainterp_stream.estimate.finetune import camera_mismatch, finetune_basis
-from pcainterp_stream.estimate.learning import learn_basis
+from pcainterp_stream.estimate.basis import Basis, grid_size_for
+from pcainterp_stream.estimate.finetune import camera_mismatch, disparity_scale, finetune_basis
+from pcainterp_stream.estimate.learning import DEFAULT_BOX_SIZE, learn_basis, preprocess_disparity
 from pcainterp_stream.estimate.prior import LocalPrior
 from pcainterp_stream.frontend.pairing import (
     PairingConfig,
@@ -299,14 +299,108 @@ def expected_maps(logs: list[Path], options: LearnOptions, pairing: PairingConfi
     return None if None in totals else sum(total for total in totals if total is not None)
 
 
-def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: PairingConfig) -> Basis:
-    """Learn a basis from the disparity maps of logs (``pcainterp learn``).
+@dataclass(frozen=True)
+class GridTarget:
+    """Where ``learn`` puts every map before its statistics are taken.
 
-    The basis from the maps alone, or, as :func:`plan_synthetic` decides from
-    ``options.with_synthetic``, the built-in basis (``options.prior_basis``) fine-tuned
-    with them; then, by default, the prior fitted on the held-out share of each log (or on
-    ``options.fit_logs``), a fine-tuned basis keeping the built-in basis's local kernel.
-    The basis is saved to ``output`` and returned.
+    Attributes:
+        grid_size: (gh, gw) of the basis grid.
+        disparity_scale: factor on the maps' disparities (the built-in basis's f*b over the
+            logs' when fine-tuning, else 1).
+        box_size: side of the box filter (px).
+        finetune: the maps go into a fine-tuned basis (invalid pixels are made NaN before
+            the scale, as :func:`~pcainterp_stream.estimate.finetune.finetune_basis` does).
+    """
+
+    grid_size: tuple[int, int]
+    disparity_scale: float = 1.0
+    box_size: int = DEFAULT_BOX_SIZE
+    finetune: bool = False
+
+
+def to_grid(disparity: npt.NDArray[np.float32], target: GridTarget) -> npt.NDArray[np.float32]:
+    """Preprocess one map onto the grid as the local learner does; (s,) float32 (px).
+
+    Raises:
+        ValueError: the map has no valid pixel.
+    """
+    if target.finetune:
+        with np.errstate(invalid="ignore"):
+            valid = np.isfinite(disparity) & (disparity >= 0.0)
+        scaled = np.where(valid, disparity * np.float32(target.disparity_scale), np.nan)
+        grid = preprocess_disparity(
+            scaled.astype(np.float32), target.grid_size, box_size=target.box_size
+        )
+    else:
+        grid = preprocess_disparity(disparity, target.grid_size, box_size=target.box_size)
+    return grid.reshape(-1)
+
+
+@dataclass(frozen=True)
+class MapPlan:
+    """Which maps ``learn`` takes from which log and what it does with them.
+
+    The same on one machine and on a cluster: only the way the maps' statistics are
+    gathered differs (:func:`learn`).
+
+    Attributes:
+        logs: the input logs, as given.
+        counts: maps each log promises (every N-th frame), None: unknown.
+        kept: maps of each log that go into the basis (the rest is held out for the
+            prior's fit), None: all.
+        total: maps the basis is learned from, None: unknown.
+        camera: image size and f*b of the first log's camera.
+        synthetic: what happens with the built-in basis's statistics.
+        target: the grid and the units of the maps.
+    """
+
+    logs: tuple[Path, ...]
+    counts: tuple[int | None, ...]
+    kept: tuple[int | None, ...]
+    total: int | None
+    camera: _MapSource
+    synthetic: SyntheticPlan
+    target: GridTarget
+
+    def held_out(self, options: LearnOptions) -> list[tuple[Path, int]]:
+        """Return (log, first pair index) of the frames the prior is fitted on."""
+        if options.fit_logs:
+            return [(log, 0) for log in options.fit_logs]
+        kept = zip(self.logs, self.kept, strict=True)
+        return [(log, (keep or 0) * options.every) for log, keep in kept]
+
+
+def _first_camera(
+    logs: list[Path], options: LearnOptions, pairing: PairingConfig
+) -> _MapSource | None:
+    """Return the camera of the first map the logs give (reads one frame), or None."""
+    for log in logs:
+        if options.depth_topic:
+            info: list[_MapSource] = []
+            if next(_depth_maps(log, options, pairing, info), None) is not None:
+                return info[0]
+            continue
+        with open_log(log) as reader:
+            _require_topics(reader, pairing.required_topics(), "stereo pair")
+            _check_topic_types(reader, _pairing_types(pairing))
+            for frame in iter_stereo_frames(reader, pairing):
+                return _MapSource(frame.camera.image_size, frame.camera.focal_baseline)
+    return None
+
+
+def plan_maps(
+    logs: list[Path], output: Path, options: LearnOptions, pairing: PairingConfig
+) -> MapPlan:
+    """Check the options and decide what ``learn`` does with the logs' maps.
+
+    Counts the maps (from the logs' summaries, else by reading them), holds the last
+    ``options.holdout`` share of each log out for the prior's fit, reads the camera of the
+    first frame and decides about the built-in basis (:func:`plan_synthetic`, its note
+    printed).
+
+    Raises:
+        PcaInterpError: bad options, an output that is an input or in a missing folder, or
+            no map in the logs.
     """
     if options.every < 1:
         raise PcaInterpError(f"--every must be at least 1, got {options.every}")
@@ -322,89 +416,177 @@ def learn(logs: list[Path], output: Path, options: LearnOptions, pairing: Pairin
             raise PcaInterpError(f"output {output} is one of the input logs; choose another -o")
     _check_output_folder(output)
     source = options.depth_topic or pairing.left_topic
-    totals = [_expected_frames(log, source, options.every) for log in logs]
-    total = None if None in totals else sum(t for t in totals if t is not None)
-    info: list[_MapSource] = []
-
+    counts = [_expected_frames(log, source, options.every) for log in logs]
+    total = None if None in counts else sum(t for t in counts if t is not None)
     holding_out = options.fit_prior and not options.fit_logs
     if holding_out and not 0 < options.holdout < 1:
         raise PcaInterpError(f"--holdout must be in (0, 1), got {options.holdout}")
     kept: list[int | None] = [None] * len(logs)
     if holding_out:
-        for index, count in enumerate(totals):
+        for index, count in enumerate(counts):
             if count is None:  # the log keeps no counts (or cannot be read: that error now)
-                count = _count_frames(logs[index], source, options.every)
+                count = counts[index] = _count_frames(logs[index], source, options.every)
             kept[index] = max(1, int(count * (1.0 - options.holdout)))
         total = sum(k for k in kept if k is not None)
     elif requested == AUTO and total is None:
-        total = sum(_count_frames(log, source, options.every) for log in logs)
+        counts = [
+            _count_frames(log, source, options.every) if count is None else count
+            for log, count in zip(logs, counts, strict=True)
+        ]
+        total = sum(c for c in counts if c is not None)
+    camera = _first_camera(logs, options, pairing)
+    if camera is None:
+        raise LogReadError(
+            f"no {'depth image' if options.depth_topic else 'stereo pair'} found in "
+            f"{', '.join(map(str, logs))}; check the topic options (pcainterp info LOG)"
+        )
+    plan = plan_synthetic(options, total, (camera.image_size, camera.focal_baseline))
+    if plan.note is not None:
+        _echo(plan.note)
+    if plan.prior_basis is None:
+        target = GridTarget(grid_size_for(camera.image_size, options.grid_scale))
+    else:
+        preprocessing = plan.prior_basis.meta.get("preprocessing", {})
+        target = GridTarget(
+            plan.prior_basis.grid_size,
+            disparity_scale(plan.prior_basis, camera.focal_baseline),
+            int(preprocessing.get("box_size", DEFAULT_BOX_SIZE)),
+            finetune=True,
+        )
+    return MapPlan(tuple(logs), tuple(counts), tuple(kept), total, camera, plan, target)
 
-    def maps() -> Iterator[npt.NDArray[np.float32]]:
-        for log, keep in zip(logs, kept, strict=True):
-            produce = _depth_maps if options.depth_topic else _sgbm_maps
-            for disparity in itertools.islice(produce(log, options, pairing, info), keep):
-                if disparity.shape != info[0].image_size:
-                    raise PcaInterpError(
-                        f"{log} has {disparity.shape[1]}x{disparity.shape[0]} images but the "
-                        f"first log has {info[0].image_size[1]}x{info[0].image_size[0]}; "
-                        "learn one basis per camera"
-                    )
-                yield disparity
 
-    meta: dict[str, Any] = {"source": source_meta(logs, options)}
-    with _bar(total, "learn") as bar:
-        stream = maps()
-        first = next(stream, None)
-        if first is None:
-            raise LogReadError(
-                f"no {'depth image' if options.depth_topic else 'stereo pair'} found in "
-                f"{', '.join(map(str, logs))}; check the topic options (pcainterp info LOG)"
-            )
-        plan = plan_synthetic(options, total, (info[0].image_size, info[0].focal_baseline))
-        if plan.note is not None:
-            _echo(plan.note)
-        meta["source"]["with_synthetic"] = plan.n_prior
-        meta["source"]["with_synthetic_rule"] = plan.rule
-        try:
-            if plan.prior_basis is not None:
-                basis = finetune_basis(
-                    plan.prior_basis,
-                    itertools.chain([first], stream),
-                    n_prior=plan.n_prior,
-                    n_components=options.n_components,
-                    variance=options.variance,
-                    focal_baseline=info[0].focal_baseline,
-                    progress=lambda done: bar.update(done - bar.n),
-                    meta=meta,
-                )
-            else:
-                basis = learn_basis(
-                    itertools.chain([first], stream),
-                    n_components=options.n_components,
-                    variance=options.variance,
-                    grid_scale=options.grid_scale,
-                    focal_baseline=info[0].focal_baseline,
-                    progress=lambda done: bar.update(done - bar.n),
-                    meta=meta,
-                )
-        except ValueError as err:
-            raise PcaInterpError(f"cannot learn a basis from {len(logs)} log(s): {err}") from err
-    if options.fit_prior:
-        if holding_out:
-            sources = [
-                (log, (keep or 0) * options.every) for log, keep in zip(logs, kept, strict=True)
-            ]
+class Cluster(Protocol):
+    """Where ``learn`` gathers the maps' statistics instead of this process.
+
+    A Dask cluster: :class:`pcainterp_stream.pipeline.distributed.DaskLearner`.
+    """
+
+    def learn_basis(
+        self, plan: MapPlan, options: LearnOptions, pairing: PairingConfig, meta: dict[str, Any]
+    ) -> Basis:
+        """Return the basis of a plan's maps (not saved), ``meta`` in its ``meta``."""
+        ...
+
+    def measure_held_out(
+        self, sources: list[tuple[Path, int]], options: LearnOptions, pairing: PairingConfig
+    ) -> list[list[HeldOutFrame]]:
+        """Return :func:`measure_held_out` of each (log, first pair index), in order."""
+        ...
+
+
+def learn(
+    logs: list[Path],
+    output: Path,
+    options: LearnOptions,
+    pairing: PairingConfig,
+    *,
+    cluster: Cluster | None = None,
+) -> Basis:
+    """Learn a basis from the disparity maps of logs (``pcainterp learn``).
+
+    The basis from the maps alone, or, as :func:`plan_synthetic` decides from
+    ``options.with_synthetic``, the built-in basis (``options.prior_basis``) fine-tuned
+    with them; then, by default, the prior fitted on the held-out share of each log (or on
+    ``options.fit_logs``), a fine-tuned basis keeping the built-in basis's local kernel.
+    The basis is saved to ``output`` and returned.
+
+    With a ``cluster`` (``learn --workers/--scheduler``:
+    :func:`pcainterp_stream.pipeline.distributed.learn_distributed`) the same plan
+    (:func:`plan_maps`: the same maps, the same hold-out, the same merge with the built-in
+    basis) runs there: the workers match and summarise chunks of maps, merged as they
+    finish, and measure the held-out frames; the result is this function's without a
+    cluster up to the truncation of the summaries (a sketch keeps the leading eigenpairs,
+    the last ones near l less exactly: docs/estimator.md, "On a cluster").
+
+    Args:
+        logs: the input logs (on a cluster: paths the workers can read).
+        output: the basis file (.npz).
+        options: the learning options.
+        pairing: the topics of the stereo pairs.
+        cluster: where to gather the maps' statistics; None: this process.
+    """
+    plan = plan_maps(logs, output, options, pairing)
+    source = source_meta(logs, options)
+    source["with_synthetic"] = plan.synthetic.n_prior
+    source["with_synthetic_rule"] = plan.synthetic.rule
+    meta: dict[str, Any] = {"source": source}
+    try:
+        if cluster is None:
+            basis = _learn_here(plan, options, pairing, meta)
         else:
-            sources = [(log, 0) for log in options.fit_logs]
+            basis = cluster.learn_basis(plan, options, pairing, meta)
+    except ValueError as err:
+        raise PcaInterpError(f"cannot learn a basis from {len(logs)} log(s): {err}") from err
+    if options.fit_prior:
         # a fine-tuned basis keeps the built-in basis's kernel (chosen on real streets; the
         # evidence of a few held-out frames picks a worse one: docs/results.md, issue 16)
-        local = None if plan.prior_basis is None else kept_kernel(plan.prior_basis)
-        fitted = fit_prior(basis, sources, options, pairing, local)
+        prior_basis = plan.synthetic.prior_basis
+        local = None if prior_basis is None else kept_kernel(prior_basis)
+        sources = plan.held_out(options)
+        fitted = fit_prior(basis, sources, options, pairing, local, cluster=cluster)
         if local is not None:
             fitted["local_kept_from"] = "the fine-tuned basis (learn --with-synthetic)"
         basis = dataclasses.replace(basis, meta={**basis.meta, "prior": fitted})
     basis.save(output)
     return basis
+
+
+ONE_STEP_BYTES = 1 << 30
+"""A fine-tune merges the maps in one step while they (float32, with the float64 copy of the
+merge) take at most this many bytes on the grid: 1,000 maps on the 1/4 KITTI grid take 0.35 GB."""
+
+
+def _learn_here(
+    plan: MapPlan,
+    options: LearnOptions,
+    pairing: PairingConfig,
+    meta: dict[str, Any],
+) -> Basis:
+    """Learn the basis of a plan in this process, streaming the maps."""
+    image_size = plan.camera.image_size
+    info: list[_MapSource] = []
+
+    def maps() -> Iterator[npt.NDArray[np.float32]]:
+        for log, keep in zip(plan.logs, plan.kept, strict=True):
+            produce = _depth_maps if options.depth_topic else _sgbm_maps
+            for disparity in itertools.islice(produce(log, options, pairing, info), keep):
+                if disparity.shape != image_size:
+                    raise PcaInterpError(
+                        f"{log} has {disparity.shape[1]}x{disparity.shape[0]} images but the "
+                        f"first log has {image_size[1]}x{image_size[0]}; "
+                        "learn one basis per camera"
+                    )
+                yield disparity
+
+    with _bar(plan.total, "learn") as bar:
+        progress = lambda done: bar.update(done - bar.n)  # noqa: E731
+        if plan.synthetic.prior_basis is not None:
+            # maps that fit the budget are merged in one step: the pooled scatter exactly,
+            # then its top l + 20 (in batches of 64 the last eigenvalues near l
+            # came out up to 4.6 % low at l = 100 on 480 maps: docs/benchmarks.md)
+            n_pixels = plan.target.grid_size[0] * plan.target.grid_size[1]
+            one_step = plan.total is not None and plan.total * n_pixels * 12 <= ONE_STEP_BYTES
+            return finetune_basis(
+                plan.synthetic.prior_basis,
+                maps(),
+                n_prior=plan.synthetic.n_prior,
+                n_components=options.n_components,
+                variance=options.variance,
+                focal_baseline=plan.camera.focal_baseline,
+                batch_size=max(plan.total or 0, 1) if one_step else 64,
+                progress=progress,
+                meta=meta,
+            )
+        return learn_basis(
+            maps(),
+            n_components=options.n_components,
+            variance=options.variance,
+            grid_scale=options.grid_scale,
+            focal_baseline=plan.camera.focal_baseline,
+            progress=progress,
+            meta=meta,
+        )
 
 
 FIT_MAX_FRAMES = 16
@@ -426,67 +608,137 @@ FIT_SEQUENCE_FRAMES = 16
 fit's frames and the sequences of the temporal process-noise fit."""
 
 
+@dataclass(frozen=True)
+class HeldOutFrame:
+    """One held-out frame measured as ``densify`` measures it.
+
+    Attributes:
+        pixels: (k, 2) float, (x, y) of the measurements (px).
+        disparities: (k,) float, their disparities (px).
+        image_size: (height, width) of the camera (px).
+        focal_baseline: f*b of the camera (px*m).
+        reference: (H, W) float32 SGBM map of a calibration frame (every
+            :data:`CALIBRATION_EVERY`-th), else None.
+    """
+
+    pixels: npt.NDArray[Any]
+    disparities: npt.NDArray[Any]
+    image_size: tuple[int, int]
+    focal_baseline: float
+    reference: npt.NDArray[Any] | None
+
+
+def measure_held_out(
+    log: Path,
+    first: int,
+    options: LearnOptions,
+    pairing: PairingConfig,
+    progress: Callable[[], None] | None = None,
+) -> list[HeldOutFrame]:
+    """Measure up to :data:`FIT_SEQUENCE_FRAMES` consecutive pairs of a log from ``first`` on.
+
+    GFTT corners looked up in the SGBM map, as ``densify`` measures; a function of the log
+    alone, so a cluster's worker runs it as well as this process.
+
+    Args:
+        log: the log.
+        first: index of the first stereo pair to measure.
+        options: the learning options (SGBM and GFTT settings).
+        pairing: topics of the stereo pairs.
+        progress: called after each frame.
+
+    Returns:
+        The frames, in log order.
+    """
+    from pcainterp_stream.frontend.stereo import StereoFrontEnd
+
+    front_end = StereoFrontEnd(options.gftt, options.sgbm)
+    frames: list[HeldOutFrame] = []
+    with open_log(log) as reader:
+        _require_topics(reader, pairing.required_topics(), "stereo pair")
+        for frame in iter_stereo_frames(reader, pairing):
+            if frame.index < first:
+                continue
+            if len(frames) >= FIT_SEQUENCE_FRAMES:
+                break
+            measured = front_end.measure(frame.left, frame.right)
+            calibrates = (frame.index - first) % CALIBRATION_EVERY == 0
+            frames.append(
+                HeldOutFrame(
+                    measured.pixels,
+                    measured.disparities,
+                    frame.camera.image_size,
+                    frame.camera.focal_baseline,
+                    measured.disparity_map if calibrates else None,
+                )
+            )
+            if progress is not None:
+                progress()
+    return frames
+
+
 def fit_prior(
     basis: Basis,
     sources: list[tuple[Path, int]],
     options: LearnOptions,
     pairing: PairingConfig,
     local: LocalPrior | None = None,
+    *,
+    cluster: Cluster | None = None,
 ) -> dict[str, Any]:
     """Fit the hybrid prior, sigma and the process noise on frames outside the basis.
 
     Args:
         basis: the learned basis.
         sources: (log, first pair index) to measure: GFTT + SGBM lookups of every pair from
-            that index on, as ``densify`` measures them.
+            that index on, as ``densify`` measures them (:func:`measure_held_out`).
         options: the learning options (SGBM and GFTT settings).
         pairing: topics of the stereo pairs.
         local: a fixed local kernel: only sigma, the process noise and the std scale are
             fitted (:func:`estimate.fitting.fit_prior`).
+        cluster: measure the logs there (a Dask cluster: one task per log, the same
+            frames, the same measurements); None: here.
 
     Returns:
         The JSON-ready ``meta["prior"]`` of the basis.
     """
     from pcainterp_stream.estimate import fitting
-    from pcainterp_stream.frontend.stereo import StereoFrontEnd
 
-    front_end = StereoFrontEnd(options.gftt, options.sgbm)
+    started = time.perf_counter()
+    if cluster is None:
+        with _bar(None, "fit prior (measure held-out frames)") as bar:
+            measured = [
+                measure_held_out(log, first, options, pairing, lambda: bar.update(1))
+                for log, first in sources
+            ]
+    else:
+        measured = cluster.measure_held_out(sources, options, pairing)
     sequences: list[list[fitting.FitFrame]] = []
     calibration: list[fitting.CalibrationFrame] = []
-    started = time.perf_counter()
-    with _bar(None, "fit prior (measure held-out frames)") as bar:
-        for log, first in sources:
-            sequence: list[fitting.FitFrame] = []
-            with open_log(log) as reader:
-                _require_topics(reader, pairing.required_topics(), "stereo pair")
-                for frame in iter_stereo_frames(reader, pairing):
-                    if frame.index < first:
-                        continue
-                    if len(sequence) >= FIT_SEQUENCE_FRAMES:
-                        break
-                    measured = front_end.measure(frame.left, frame.right)
-                    size, fb = frame.camera.image_size, frame.camera.focal_baseline
-                    sequence.append(
-                        fitting.fit_frame(
-                            basis,
-                            measured.pixels,
-                            measured.disparities,
-                            image_size=size,
-                            focal_baseline=fb,
-                        )
-                    )
-                    if (frame.index - first) % CALIBRATION_EVERY == 0:
-                        calibration.append(
-                            fitting.CalibrationFrame(
-                                measured.pixels,
-                                measured.disparities,
-                                size,
-                                fb,
-                                measured.disparity_map,
-                            )
-                        )
-                    bar.update(1)
-            sequences.append(sequence)
+    for frames in measured:
+        sequences.append(
+            [
+                fitting.fit_frame(
+                    basis,
+                    frame.pixels,
+                    frame.disparities,
+                    image_size=frame.image_size,
+                    focal_baseline=frame.focal_baseline,
+                )
+                for frame in frames
+            ]
+        )
+        calibration.extend(
+            fitting.CalibrationFrame(
+                frame.pixels,
+                frame.disparities,
+                frame.image_size,
+                frame.focal_baseline,
+                frame.reference,
+            )
+            for frame in frames
+            if frame.reference is not None
+        )
     if not any(frame.residual.size for sequence in sequences for frame in sequence):
         raise PcaInterpError(
             "no held-out stereo pair with measurements to fit the prior on; use more frames, a "

@@ -5,7 +5,6 @@ camera)."""
 
 from __future__ import annotations
 
-import contextlib
 import json
 import shutil
 from pathlib import Path
@@ -331,43 +330,6 @@ def test_auto_keeps_an_explicit_grid_scale_of_another_grid(
         assert Basis.load(out).grid_size == (47, 155)
 
 
-def test_auto_on_a_cluster_learns_the_maps_alone_with_a_note(
-    folder: Path,
-    tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
-) -> None:
-    from pcainterp_stream.pipeline import distributed
-
-    seen: list[object] = []
-
-    def learn_here(
-        logs: list[Path],
-        output: Path,
-        options: jobs.LearnOptions,
-        pairing: PairingConfig,
-        _: object,
-    ) -> Basis:
-        seen.append(options.with_synthetic)
-        return jobs.learn(logs, output, options, pairing)
-
-    monkeypatch.setattr(distributed, "connect", lambda *_: contextlib.nullcontext())
-    monkeypatch.setattr(distributed, "learn_distributed", learn_here)
-    out = tmp_path / "b.npz"
-    args = ["learn", folder / "drive.mcap", "-o", out, "--components", "3", "--workers", "1"]
-    code, text, err = run(capsys, *args)
-    assert code == 0, err
-    assert seen == [0]
-    notes = [line for line in text.splitlines() if line.startswith("note: the built-in")]
-    assert len(notes) == 1
-    assert f"these {FRAMES} maps on a cluster" in notes[0]
-    assert "drop --scheduler/--workers" in notes[0]
-    basis = Basis.load(out)
-    assert "finetune" not in basis.meta
-    assert basis.meta["source"]["with_synthetic"] == 0
-    assert basis.meta["source"]["with_synthetic_rule"].startswith("auto: not on a cluster")
-
-
 def test_learn_holds_out_a_share_of_a_log_that_keeps_no_counts(
     folder: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -410,7 +372,6 @@ def test_learn_with_synthetic_fine_tunes_the_built_in_basis(
         (["--with-synthetic", "1"], "--with-synthetic must be at least 2 maps (0: off; or auto)"),
         (["--with-synthetic", "some"], "--with-synthetic must be at least 2 maps"),
         (["--with-synthetic", "50", "--grid-scale", "0.5"], "drop --grid-scale"),
-        (["--with-synthetic", "50", "--workers", "1"], "drop --scheduler/--workers"),
         (["--no-fit-prior", "--fit-logs", "x.mcap"], "drop --no-fit-prior"),
     ],
 )

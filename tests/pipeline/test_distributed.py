@@ -10,12 +10,11 @@ import numpy as np
 import pytest
 from scipy.linalg import subspace_angles
 
-from pcainterp_stream.pipeline import distributed
-
-from pcainterp_stream.pipeline import jobs
 from pcainterp_stream.estimate.basis import Basis
-from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.pipeline import distributed, jobs
+from pcainterp_stream.pipeline.learn import AUTO_PRIOR_MAPS
 
 pytest.importorskip("dask.distributed")
 
@@ -127,23 +126,93 @@ def test_densify_many_matches_one_by_one_and_reports_a_failing_log(
         assert _messages(together) == _messages(alone)
 
 
-def test_cli_learn_and_densify_on_the_cluster(
+def _assert_same_model(here: Basis, there: Basis) -> None:
+    """The bar of a cluster's learn: the local learner's model up to the sketch's truncation."""
+    assert there.components.shape == here.components.shape
+    assert there.n_train == here.n_train
+    assert there.image_size == here.image_size
+    assert there.focal_baseline == pytest.approx(here.focal_baseline)
+    top = min(5, here.n_components)
+    first = here.components[:top].reshape(top, -1).T.astype(np.float64)
+    second = there.components[:top].reshape(top, -1).T.astype(np.float64)
+    assert subspace_angles(first, second).max() < 0.05  # rad
+    np.testing.assert_allclose(there.eigenvalues, here.eigenvalues, rtol=0.02)
+    assert there.meta["source"] == here.meta["source"]
+    assert ("finetune" in there.meta) == ("finetune" in here.meta)
+    if "finetune" in here.meta:
+        assert there.meta["finetune"] == here.meta["finetune"]
+    prior_here, prior_there = here.meta["prior"], there.meta["prior"]
+    assert prior_there["held_out_frames"] == prior_here["held_out_frames"]
+    assert prior_there["fit_logs"] == prior_here["fit_logs"]
+    local_here, local_there = prior_here["local"], prior_there["local"]
+    assert (local_there is None) == (local_here is None)
+    if local_here is not None:
+        assert local_there["kernel"] == local_here["kernel"]
+        assert local_there["length_scale"] == pytest.approx(local_here["length_scale"], rel=0.05)
+    assert prior_there["sigma"] == pytest.approx(prior_here["sigma"], rel=0.05)
+    assert prior_there["process_noise"] == pytest.approx(prior_here["process_noise"], rel=0.05)
+    assert prior_there["std_scale"] == pytest.approx(prior_here["std_scale"], rel=0.05)
+
+
+@pytest.mark.parametrize(
+    ("flags", "cluster"),
+    [
+        pytest.param([], ["--workers", "2"], id="defaults-workers-2"),
+        pytest.param(["--with-synthetic", "0"], None, id="synthetic-0-scheduler"),
+    ],
+)
+def test_cli_learn_on_the_cluster_learns_the_model_learn_learns_here(
+    logs: dict[str, Path],
+    client: Any,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    flags: list[str],
+    cluster: list[str] | None,
+) -> None:
+    from pcainterp_stream import cli
+
+    args = ["learn", str(logs["a"]), str(logs["b"]), "--components", "6", *flags]
+    here, there = tmp_path / "here.npz", tmp_path / "there.npz"
+    assert cli.main([*args, "-o", str(here)]) == 0
+    notes_here = [line for line in capsys.readouterr().out.splitlines() if "note" in line]
+    where = cluster if cluster is not None else ["--scheduler", client.scheduler.address]
+    assert cli.main([*args, "-o", str(there), *where]) == 0
+    notes_there = [line for line in capsys.readouterr().out.splitlines() if "note" in line]
+    assert notes_there == notes_here
+    local, remote = Basis.load(here), Basis.load(there)
+    _assert_same_model(local, remote)
+    # 20 % of each log held out for the fit: 11 of 14 and 8 of 10 maps learned
+    merged = 0 if flags else AUTO_PRIOR_MAPS
+    assert remote.n_train == 11 + 8 + merged
+    assert ("finetune" in remote.meta) is (not flags)
+    assert remote.meta["learning"]["method"] == (
+        "distributed" if flags else "finetune, distributed"
+    )
+    assert remote.meta["distributed"]["tasks"] >= 2
+
+
+def test_cli_learn_on_the_cluster_fits_the_prior_on_fit_logs(
+    logs: dict[str, Path], client: Any, tmp_path: Path
+) -> None:
+    from pcainterp_stream import cli
+
+    args = ["learn", str(logs["a"]), "--components", "4", "--with-synthetic", "0"]
+    args += ["--fit-logs", str(logs["b"])]
+    here, there = tmp_path / "here.npz", tmp_path / "there.npz"
+    assert cli.main([*args, "-o", str(here)]) == 0
+    assert cli.main([*args, "-o", str(there), "--scheduler", client.scheduler.address]) == 0
+    local, remote = Basis.load(here), Basis.load(there)
+    assert remote.n_train == local.n_train == 14  # no share held out: all of a's maps
+    assert remote.meta["prior"]["fit_logs"] == [str(logs["b"])]
+    _assert_same_model(local, remote)
+
+
+def test_cli_densify_out_dir_on_the_cluster_uses_densify_s_defaults(
     logs: dict[str, Path], client: Any, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     from pcainterp_stream import cli
 
     address = client.scheduler.address
-    basis = tmp_path / "basis.npz"
-    assert (
-        cli.main(
-            ["learn", str(logs["a"]), "-o", str(basis), "--components", "4", "--scheduler", address]
-        )
-        == 0
-    )
-    assert Basis.load(basis).meta["learning"]["method"] == "distributed"
-    # no held-out share on a cluster: the prior is fitted on --fit-logs only, said so
-    assert "the prior was not fitted" in capsys.readouterr().out
-    assert "prior" not in Basis.load(basis).meta
     broken = tmp_path / "broken.mcap"
     broken.write_bytes(b"\x89MCAP0\r\n")  # a magic and nothing else
     code = cli.main(
@@ -154,8 +223,6 @@ def test_cli_learn_and_densify_on_the_cluster(
             str(logs["b"]),
             "--out-dir",
             str(tmp_path / "out"),
-            "--basis",
-            str(basis),
             "--scheduler",
             address,
         ]
@@ -165,25 +232,10 @@ def test_cli_learn_and_densify_on_the_cluster(
     assert "2 of 3 logs densified, 24 frames" in captured.out
     assert len([line for line in captured.err.splitlines() if "broken.mcap" in line]) == 1
     assert (tmp_path / "out" / "a_dense.mcap").exists()
-    assert (tmp_path / "out" / "b_dense.mcap").exists()
-
-
-def test_cli_learn_on_the_cluster_fits_the_prior_on_fit_logs_here(
-    logs: dict[str, Path], client: Any, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    from pcainterp_stream import cli
-
-    address = client.scheduler.address
-    basis = tmp_path / "basis.npz"
-    args = ["learn", str(logs["a"]), "-o", str(basis), "--components", "4"]
-    assert cli.main([*args, "--scheduler", address, "--fit-logs", str(logs["b"])]) == 0
-    learned = Basis.load(basis)
-    assert learned.meta["learning"]["method"] == "distributed"
-    assert learned.n_train == 14
-    assert learned.meta["prior"]["fit_logs"] == [str(logs["b"])]
-    # an explicit --fit-prior without --fit-logs cannot hold out a share there
-    assert cli.main([*args, "--scheduler", address, "--fit-prior"]) == 2
-    assert "pass --fit-logs LOG" in capsys.readouterr().err
+    # the same command's defaults as densify -o (the built-in basis, every estimate default)
+    alone = tmp_path / "b_alone.mcap"
+    assert cli.main(["densify", str(logs["b"]), "-o", str(alone)]) == 0
+    assert _messages(tmp_path / "out" / "b_dense.mcap") == _messages(alone)
 
 
 def test_densify_many_without_a_basis_uses_the_built_in_one(
