@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
+from pcainterp_stream.errors import BasisError
 from pcainterp_stream.estimate.basis import (
     FORMAT,
     Basis,
@@ -17,7 +18,6 @@ from pcainterp_stream.estimate.basis import (
     resample_grid,
     sample_rows,
 )
-from pcainterp_stream.errors import BasisError
 
 
 def make_basis(

@@ -9,8 +9,8 @@ from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 from hypothesis_profiles import examples
 
-from pcainterp_stream.estimate.basis import Basis, bilinear_weights, image_to_grid, sample_rows
 from pcainterp_stream.estimate import variance
+from pcainterp_stream.estimate.basis import Basis, bilinear_weights, image_to_grid, sample_rows
 from pcainterp_stream.estimate.estimator import (
     SolveForm,
     Uncertainty,
@@ -443,7 +443,8 @@ def test_exact_coarse_is_the_default_and_only_exact_on_its_grid() -> None:
     pixels, values = _measured(full, 12, seed=3)
     on_grid = densify(full, pixels, values, local_prior=local, variance_stride=1)
     everywhere = densify(full, pixels, values, local_prior=local, uncertainty="exact")
-    assert on_grid.disparity_std is not None and everywhere.disparity_std is not None
+    assert on_grid.disparity_std is not None
+    assert everywhere.disparity_std is not None
     np.testing.assert_allclose(on_grid.disparity_std, everywhere.disparity_std, rtol=1e-4)
 
 
@@ -471,10 +472,12 @@ def test_exact_in_chunks_batched_and_temporal(monkeypatch: pytest.MonkeyPatch) -
             basis, pixels, values, sigma=0.5, local_prior=local, temporal=state,
             uncertainty="exact", variance_stride=3,  # ignored by "exact"
         )
-        assert single.disparity_std is not None and batched.disparity_std is not None
+        assert single.disparity_std is not None
+        assert batched.disparity_std is not None
         np.testing.assert_allclose(single.disparity_std, batched.disparity_std, rtol=1e-4)
     # the third frame's prior is the temporal one: N(mu, diag(p)) + the local part
-    assert whole[2].temporal == "temporal" and predicted is not None
+    assert whole[2].temporal == "temporal"
+    assert predicted is not None
     expected = _dense_posterior_std(basis, frames[2][0], 0.5, local, predicted[1])
     assert whole[2].disparity_std is not None
     np.testing.assert_allclose(whole[2].disparity_std, expected, rtol=2e-3)
@@ -513,6 +516,7 @@ def test_exact_without_a_local_part_is_its_bilinear_form(
             local_prior=LocalPrior(0.0, 5.0),
         )
         for a, b in (results, (static, pixelwise)):
-            assert a.disparity_std is not None and b.disparity_std is not None
+            assert a.disparity_std is not None
+            assert b.disparity_std is not None
             assert a.disparity_std.shape == out_size
             np.testing.assert_allclose(a.disparity_std, b.disparity_std, rtol=1e-4, atol=1e-5)

@@ -8,17 +8,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pcainterp_stream.pipeline import jobs
-from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.cli import main
+from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.fitting import (
     FitFrame,
     fit_local_prior,
     fit_process_noise,
     fit_std_scale,
 )
-from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.estimate.prior import Kernel, LocalPrior
+from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.pipeline import jobs
 
 
 def _tiny_basis(n_components: int = 3) -> Basis:
@@ -133,7 +133,9 @@ def test_learn_fit_prior_then_densify_uses_it(tmp_path: Path) -> None:
     assert basis.n_train == 15  # 5 of 20 frames held out for the fit
     prior = basis.meta["prior"]
     assert prior["held_out_frames"] == 5
-    assert prior["sigma"] > 0 and prior["process_noise"] > 0 and prior["std_scale"] > 0
+    assert prior["sigma"] > 0
+    assert prior["process_noise"] > 0
+    assert prior["std_scale"] > 0
     assert prior["innovation_std_scale"] > 0
     assert {row["kernel"] for row in prior["candidates"]} == {"none", "laplace", "gaussian"}
     out = tmp_path / "dense.mcap"
@@ -144,7 +146,8 @@ def test_learn_fit_prior_then_densify_uses_it(tmp_path: Path) -> None:
         processor=jobs.ProcessorConfig(robust="huber", temporal=True, prior="auto"),
     )
     assert summary.frames == 4
-    assert summary.temporal_resets >= 0 and summary.downweighted >= 0
+    assert summary.temporal_resets >= 0
+    assert summary.downweighted >= 0
 
 
 def test_fit_prior_with_fit_logs_uses_every_frame_of_them(tmp_path: Path) -> None:
@@ -171,7 +174,9 @@ def test_prior_hybrid_without_a_fitted_basis_is_refused(
                  str(basis_path), "--prior", "hybrid"])
     assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "--no-fit-prior" in err[0] and "pcainterp learn" in err[0]
+    assert len(err) == 1
+    assert "--no-fit-prior" in err[0]
+    assert "pcainterp learn" in err[0]
     assert not (tmp_path / "o.mcap").exists()
 
 
@@ -195,7 +200,8 @@ def test_std_scale_multiplies_the_reported_std() -> None:
     pixels = np.array([[3.0, 4.0], [20.0, 10.0]])
     plain = densify(basis, pixels, [25.0, 30.0])
     scaled = densify(basis, pixels, [25.0, 30.0], std_scale=1.5)
-    assert plain.disparity_std is not None and scaled.disparity_std is not None
+    assert plain.disparity_std is not None
+    assert scaled.disparity_std is not None
     np.testing.assert_allclose(scaled.disparity_std, 1.5 * plain.disparity_std, rtol=1e-5)
     np.testing.assert_array_equal(scaled.disparity, plain.disparity)
     with pytest.raises(ValueError, match="std_scale"):
@@ -212,13 +218,17 @@ def test_resolve_settings_calibrates_as_the_fit_did() -> None:
     }
     with_both = dataclasses.replace(basis, meta={"prior": fitted})
     settings = resolve_settings(with_both, ProcessorConfig())
-    assert settings.scale_by_innovation and settings.std_scale == 0.9
+    assert settings.scale_by_innovation
+    assert settings.std_scale == 0.9
     # a basis fitted before the per-frame scale existed keeps its plain factor
     older = {k: v for k, v in fitted.items() if k != "innovation_std_scale"}
     older_basis = dataclasses.replace(basis, meta={"prior": older})
     settings = resolve_settings(older_basis, ProcessorConfig())
-    assert not settings.scale_by_innovation and settings.std_scale == 1.2
+    assert not settings.scale_by_innovation
+    assert settings.std_scale == 1.2
     settings = resolve_settings(with_both, ProcessorConfig(calibrate=False))
-    assert not settings.scale_by_innovation and settings.std_scale == 1.0
+    assert not settings.scale_by_innovation
+    assert settings.std_scale == 1.0
     settings = resolve_settings(with_both, ProcessorConfig(prior="paper"))
-    assert not settings.scale_by_innovation and settings.std_scale == 1.0
+    assert not settings.scale_by_innovation
+    assert settings.std_scale == 1.0

@@ -125,7 +125,8 @@ def test_zero_local_variance_is_the_paper_estimate() -> None:
     )
     np.testing.assert_allclose(hybrid.disparity, plain.disparity, atol=1e-4)
     np.testing.assert_allclose(hybrid.coefficients, plain.coefficients, rtol=1e-6, atol=1e-8)
-    assert hybrid.disparity_std is not None and plain.disparity_std is not None
+    assert hybrid.disparity_std is not None
+    assert plain.disparity_std is not None
     np.testing.assert_allclose(hybrid.disparity_std, plain.disparity_std, atol=1e-3)
 
 
@@ -139,7 +140,8 @@ def test_robust_weights_match_a_weighted_gaussian_posterior() -> None:
         variance_stride=1,
     )
     assert result.weights is not None
-    assert result.weights[3] < 0.5 and result.n_downweighted >= 1
+    assert result.weights[3] < 0.5
+    assert result.n_downweighted >= 1
     # at convergence the estimate is the Gaussian posterior with noise sigma^2 / w
     _assert_matches(result, _brute_force(basis, pixels, disparities, 1.0, local, result.weights))
 
@@ -164,9 +166,12 @@ def test_robust_weights_shapes() -> None:
     t = np.array([0.0, 1.0, 3.0, -10.0])
     np.testing.assert_allclose(robust_weights(t, Robust.NONE), 1.0)
     huber = robust_weights(t, Robust.HUBER)
-    assert huber[0] == 1.0 and huber[1] == 1.0 and huber[3] == pytest.approx(0.1345)
+    assert huber[0] == 1.0
+    assert huber[1] == 1.0
+    assert huber[3] == pytest.approx(0.1345)
     cauchy = robust_weights(t, Robust.CAUCHY)
-    assert np.all(np.diff(cauchy[:3]) < 0) and cauchy[3] < 0.1
+    assert np.all(np.diff(cauchy[:3]) < 0)
+    assert cauchy[3] < 0.1
 
 
 def test_evidence_recovers_the_noise_level() -> None:
@@ -210,7 +215,8 @@ def test_temporal_prior_carries_information_and_resets() -> None:
     # a different scene fails the innovation test: the static prior comes back
     pixels, _ = _points(basis, 8, seed=200)
     jump = densify(basis, pixels, np.full(8, 300.0), sigma=0.2, temporal=state)
-    assert jump.temporal == "reset" and state.resets == 1
+    assert jump.temporal == "reset"
+    assert state.resets == 1
 
 
 def test_temporal_batch_equals_one_by_one() -> None:
@@ -228,7 +234,8 @@ def test_temporal_batch_equals_one_by_one() -> None:
     )
     for a, b in zip(one, batch, strict=True):
         np.testing.assert_allclose(a.disparity, b.disparity, atol=1e-4)
-        assert a.disparity_std is not None and b.disparity_std is not None
+        assert a.disparity_std is not None
+        assert b.disparity_std is not None
         np.testing.assert_allclose(a.disparity_std, b.disparity_std, atol=1e-4)
 
 
@@ -238,7 +245,8 @@ def test_adding_a_measurement_never_raises_the_hybrid_variance() -> None:
     local = LocalPrior(variance=3.0, length_scale=2.5)
     fewer = densify(basis, pixels[:-1], disparities[:-1], local_prior=local, variance_stride=1)
     more = densify(basis, pixels, disparities, local_prior=local, variance_stride=1)
-    assert fewer.disparity_std is not None and more.disparity_std is not None
+    assert fewer.disparity_std is not None
+    assert more.disparity_std is not None
     assert np.all(more.disparity_std <= fewer.disparity_std + 1e-3)
 
 
@@ -278,7 +286,7 @@ def _innovation_by_hand(
     local: LocalPrior | None,
 ) -> float:
     """z^T K^-1 z / k from the dense prior covariance at the measured pixels."""
-    height, width = basis.image_size
+    _height, width = basis.image_size
     b = basis.pixel_major.astype(np.float64)
     index = pixels[:, 1].astype(int) * width + pixels[:, 0].astype(int)
     system = b[index] @ np.diag(basis.eigenvalues) @ b[index].T
@@ -328,7 +336,8 @@ def test_scale_by_innovation_widens_the_std_only() -> None:
     np.testing.assert_array_equal(scaled.disparity, plain.disparity)
     factor = np.sqrt(covariance_scale(plain.normalised_innovation, 9))
     assert factor != pytest.approx(1.0, abs=0.05)  # the test must see a change
-    assert scaled.disparity_std is not None and plain.disparity_std is not None
+    assert scaled.disparity_std is not None
+    assert plain.disparity_std is not None
     np.testing.assert_allclose(scaled.disparity_std, plain.disparity_std * factor, rtol=1e-5)
 
 

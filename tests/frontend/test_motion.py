@@ -13,8 +13,8 @@ from pcainterp_stream.frontend.motion import (
     estimate_motion,
     project,
 )
-from pcainterp_stream.records import StereoCamera
 from pcainterp_stream.frontend.stereo import StereoFrontEnd
+from pcainterp_stream.records import StereoCamera
 from pcainterp_stream.synth import SynthConfig, generate
 
 CAMERA = StereoCamera(width=200, height=100, fx=150.0, fy=150.0, cx=99.5, cy=49.5, baseline=0.5)
@@ -49,7 +49,8 @@ def test_motion_of_a_synthetic_drive_matches_its_poses() -> None:
     step = np.linalg.norm(truth[:3, 3])
     assert step > 0.5  # the car moved ~1 m
     assert np.linalg.norm(motion.transform[:3, 3] - truth[:3, 3]) < 0.05 * step
-    angle = np.arccos(np.clip((np.trace(motion.transform[:3, :3].T @ truth[:3, :3]) - 1) / 2, -1, 1))
+    cosine = (np.trace(motion.transform[:3, :3].T @ truth[:3, :3]) - 1) / 2
+    angle = np.arccos(np.clip(cosine, -1, 1))
     assert np.degrees(angle) < 0.2
     assert motion.inliers >= CarryConfig().min_inliers
 

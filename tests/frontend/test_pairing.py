@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 from mcap.writer import Writer
 
-from pcainterp_stream.io import rosmsg
 from pcainterp_stream.errors import CalibrationError, LogReadError, TopicNotFoundError
-from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.frontend.pairing import (
     PairingConfig,
     StereoPairer,
     camera_from_infos,
     iter_stereo_frames,
 )
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.records import StereoCamera
 
 CAMERA = StereoCamera(width=8, height=6, fx=50.0, fy=51.0, cx=4.0, cy=3.0, baseline=0.25)

@@ -29,10 +29,10 @@ import zstandard
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pcainterp_stream.io import logreader, rosbags_reader
 from pcainterp_stream.errors import CalibrationError, LogReadError
-from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.frontend.pairing import iter_stereo_frames
+from pcainterp_stream.io import rosbags_reader
+from pcainterp_stream.io.logreader import open_log
 
 ROOT = Path(__file__).resolve().parents[2]
 REALDATA = ROOT.parent / "shared" / "realdata"

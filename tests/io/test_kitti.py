@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 
-from pcainterp_stream.io import rosmsg
 from pcainterp_stream.errors import DatasetImportError
+from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.kitti import KittiLayout, import_kitti, iter_frames, open_kitti
 from pcainterp_stream.io.logwriter import LogFormat
 

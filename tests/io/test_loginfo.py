@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from mcap.writer import Writer
 
-from pcainterp_stream.io import rosmsg
 from pcainterp_stream.errors import LogReadError
+from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.loginfo import describe, format_info
 from pcainterp_stream.io.logreader import LogFormat
 

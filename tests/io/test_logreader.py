@@ -10,8 +10,8 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from pcainterp_stream.io import rosmsg
 from pcainterp_stream.errors import LogReadError, TopicNotFoundError
+from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import LogFormat, decode_image, open_log, sniff_format
 from pcainterp_stream.records import StereoCamera
 
