@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
-from pcainterp_stream.interrupt import stop_on_signals
+from pcainterp_stream.interrupt import end_if_signalled, stop_on_signals
 from pcainterp_stream.pipeline.densify_cli import add_densify_arguments, live_options, run_densify
 from pcainterp_stream.version import __version__
 
@@ -793,6 +793,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         # decoders that way) sets a flag that makes `python -m` re-raise SIGINT at exit
         # (CPython bpo-41602) although we handled it; any exec() of a string clears it.
         exec("")
+        end_if_signalled(130)  # a real signal: no interpreter shutdown to wait for
         return 130
     except BrokenPipeError:
         return 1
