@@ -8,16 +8,14 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import signal
 import sys
-import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from types import FrameType
 from typing import TYPE_CHECKING, Any, Literal
 
 from pcainterp_stream.golden.commands import add_golden_parser, run_golden
+from pcainterp_stream.interrupt import end_if_signalled, stop_on_signals
 from pcainterp_stream.pipeline.densify_cli import add_densify_arguments, live_options, run_densify
 from pcainterp_stream.pipeline.pair_options import (
     add_input_pair_options,
@@ -763,20 +761,18 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _raise_keyboard_interrupt(signum: int, frame: FrameType | None) -> None:
-    raise KeyboardInterrupt
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``pcainterp``; return the exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    # SIGTERM takes the same clean-up path as Ctrl-C: temporaries removed, target untouched.
-    # The previous handler comes back afterwards, for callers that run main() in-process.
-    in_main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, _raise_keyboard_interrupt) if in_main_thread else None
+    # SIGTERM takes the same clean-up path as Ctrl-C: temporaries removed, target untouched;
+    # a second signal ends at once, and densify (native threads: the Foxglove server, the
+    # writer, SGBM) has a watchdog that ends it within a few seconds whatever blocks
+    # (pcainterp_stream/interrupt.py). The previous handlers come back afterwards, for
+    # callers that run main() in-process.
     try:
-        return run(args)
+        with stop_on_signals(watchdog=args.command == "densify"):
+            return run(args)
     except PcaInterpError as err:
         print(f"{PROG}: error: {err}", file=sys.stderr)
         return 2
@@ -786,12 +782,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         # decoders that way) sets a flag that makes `python -m` re-raise SIGINT at exit
         # (CPython bpo-41602) although we handled it; any exec() of a string clears it.
         exec("")
+        end_if_signalled(130)  # a real signal: no interpreter shutdown to wait for
         return 130
     except BrokenPipeError:
         return 1
-    finally:
-        if in_main_thread:
-            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

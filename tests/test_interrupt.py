@@ -29,12 +29,11 @@ import numpy as np
 import pytest
 
 from pcainterp_stream import cli
-
-from pcainterp_stream.io import rosmsg
 from pcainterp_stream.estimate.basis import Basis
-from pcainterp_stream.pipeline.jobs import synth
+from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import open_writer
+from pcainterp_stream.pipeline.jobs import synth
 
 INTERRUPTED = "pcainterp: interrupted; no partial output was left at the target"
 CONSOLE_SCRIPT = [
@@ -149,7 +148,14 @@ def test_signal_during_learn(
     target = tmp_path / "basis.npz"
     target.write_bytes(b"an older basis")  # an existing target must be left as it was
     args: list[str | Path] = [
-        "learn", long_log, "-o", target, "--components", "5", "--with-synthetic", "0"
+        "learn",
+        long_log,
+        "-o",
+        target,
+        "--components",
+        "5",
+        "--with-synthetic",
+        "0",
     ]
     code, err = _interrupt_while_reading(args, long_log, sig)
     assert code == 130, err
@@ -158,8 +164,15 @@ def test_signal_during_learn(
     assert [p.name for p in tmp_path.iterdir()] == [target.name]  # no temporary beside it
     # nothing the interrupted run left stops a new one (the short log keeps the test fast)
     rerun = _pcainterp(
-        "learn", small_log, "-o", target, "--components", "5", "--no-fit-prior",
-        "--with-synthetic", "0",
+        "learn",
+        small_log,
+        "-o",
+        target,
+        "--components",
+        "5",
+        "--no-fit-prior",
+        "--with-synthetic",
+        "0",
     )
     assert rerun.returncode == 0, rerun.stderr
     assert Basis.load(target).n_train == SMALL_FRAMES
@@ -180,8 +193,15 @@ def test_interrupt_while_learn_saves(
 
     monkeypatch.setattr(np, "savez", interrupted_savez)
     args = [
-        "learn", str(small_log), "-o", str(target), "--components", "3", "--no-fit-prior",
-        "--with-synthetic", "0",
+        "learn",
+        str(small_log),
+        "-o",
+        str(target),
+        "--components",
+        "3",
+        "--no-fit-prior",
+        "--with-synthetic",
+        "0",
     ]
     code = cli.main(args)
     assert code == 130
@@ -257,3 +277,125 @@ def test_interrupt_in_generated_code_console_script(small_log: Path, tmp_path: P
 
 def test_interrupt_in_generated_code_python_m(small_log: Path, tmp_path: Path) -> None:
     assert _learn_interrupted_in_exec(PYTHON_M, small_log, tmp_path) == 130
+
+
+# ------------------------------------------------------------- bounded stop (any mode)
+
+EXIT_S = 10
+"""Bound on the exit after a signal in these tests: the promise is 2 s; generous for a
+loaded machine (the assertion is only "it ended", never how fast)."""
+
+STUCK = """
+import ctypes, sys, time
+from pathlib import Path
+from pcainterp_stream.interrupt import stop_on_signals, track_partial
+
+partial = Path(sys.argv[1])
+partial.write_text("half an output")
+with stop_on_signals(watchdog=sys.argv[2] == "watchdog"):
+    track_partial(partial)
+    if sys.argv[3] == "native":
+        libc = ctypes.PyDLL(None)  # PyDLL: the call keeps the interpreter lock
+        mutex = ctypes.create_string_buffer(64)  # zeros: a default mutex (glibc, musl)
+        libc.pthread_mutex_lock(mutex)
+        try:
+            print("ready", flush=True)
+            libc.pthread_mutex_lock(mutex)  # waits forever, in native code, holding the lock
+        except KeyboardInterrupt:  # the signal came just before: stuck in the clean-up
+            libc.pthread_mutex_lock(mutex)
+    try:
+        print("ready", flush=True)
+        time.sleep(60)
+    except KeyboardInterrupt:
+        print("cleaning up", flush=True)
+        time.sleep(60)  # a clean-up that does not end
+"""
+"""A command stuck in native code (``native``) or in a clean-up that never ends."""
+
+
+def _stuck(tmp_path: Path, watchdog: str, mode: str) -> tuple[subprocess.Popen[str], Path]:
+    partial = tmp_path / ".out.mcap.partial"
+    process = subprocess.Popen(
+        [sys.executable, "-c", STUCK, str(partial), watchdog, mode],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=_default_sigint,
+    )
+    assert process.stdout is not None
+    assert process.stdout.readline() == "ready\n", process.communicate()
+    return process, partial
+
+
+def _ended(process: subprocess.Popen[str]) -> tuple[str, str]:
+    try:
+        return process.communicate(timeout=EXIT_S)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        out, err = process.communicate()
+        pytest.fail(f"still running {EXIT_S} s after the signal\n{out}\n{err}")
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a glibc/musl mutex")
+def test_the_watchdog_ends_a_command_stuck_in_native_code(tmp_path: Path) -> None:
+    """No Python code can run (the main thread holds the interpreter lock in a deadlock):
+    the watchdog process removes the partial output and kills the command."""
+    process, partial = _stuck(tmp_path, "watchdog", "native")
+    process.send_signal(signal.SIGINT)
+    _, err = _ended(process)
+    assert process.returncode == -signal.SIGKILL
+    assert "partial output removed" in err
+    assert not partial.exists()
+
+
+def test_a_second_signal_ends_a_slow_clean_up_at_once(tmp_path: Path) -> None:
+    process, partial = _stuck(tmp_path, "no-watchdog", "python")
+    process.send_signal(signal.SIGINT)
+    assert process.stdout is not None
+    assert process.stdout.readline() == "cleaning up\n"
+    process.send_signal(signal.SIGINT)
+    _, err = _ended(process)
+    assert process.returncode == 130
+    assert "stopped at once (second signal)" in err
+    assert not partial.exists()
+
+
+def test_signal_handling_is_restored_after_an_in_process_command() -> None:
+    from pcainterp_stream.interrupt import stop_on_signals
+
+    before = (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM))
+    with stop_on_signals():
+        assert signal.getsignal(signal.SIGINT) is not before[0]
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
+    assert signal.set_wakeup_fd(-1) == -1  # no wake-up descriptor left behind
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_stops_a_piped_densify(
+    long_log: Path, tmp_path: Path, sig: signal.Signals
+) -> None:
+    """``densify - -o -``: standard input spooled to TMPDIR, the MCAP written to stdout."""
+    spool = tmp_path / "tmp"
+    spool.mkdir()
+    with long_log.open("rb") as stdin:
+        process = subprocess.Popen(
+            [*CONSOLE_SCRIPT, "densify", "-", "-o", "-"],
+            stdin=stdin,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            preexec_fn=_default_sigint,
+            env={**os.environ, "TMPDIR": str(spool)},
+        )
+        try:
+            assert process.stdout is not None
+            assert process.stdout.read(8) == b"\x89MCAP0\r\n"  # the output has started
+            time.sleep(0.3)  # into the frames
+            assert process.poll() is None, "finished before the signal; make the log longer"
+            process.send_signal(sig)
+            _, err = process.communicate(timeout=EXIT_S)
+        finally:
+            if process.poll() is None:
+                process.kill()
+                process.wait()
+    assert process.returncode == 130, err
+    assert list(spool.iterdir()) == []  # the spooled input is removed

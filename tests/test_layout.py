@@ -24,6 +24,7 @@ LAYERS: dict[str, int] = {
     "defaults": 0,
     "allocator": 0,
     "version": 0,
+    "interrupt": 0,
     "io": 1,
     "estimate": 1,
     "frontend": 2,

@@ -59,6 +59,9 @@ MAX_HELD = 1024
 STOP_TIMEOUT_S = 5.0
 """Longest wait (s) for the server to stop on close; past it the process goes on (and ends)."""
 
+INTERRUPTED_STOP_TIMEOUT_S = 0.5
+"""The same wait when closing because of Ctrl-C, SIGTERM or an error."""
+
 _OVERFLOW = re.compile(r"outbox for client (?P<client>\S+) full")
 
 
@@ -319,25 +322,30 @@ class FoxgloveLive:
             self._raise_bind_error(str(err).removeprefix("FoxgloveError: "), err)
         _SDK_LOG.sinks.append(self)
 
-    def close(self, drain_s: float = 1.0) -> None:
+    def close(self, drain_s: float = 1.0, stop_timeout_s: float = STOP_TIMEOUT_S) -> None:
         """Stop the server (idempotent); clients see the connection close.
 
         With subscribers, first wait ``drain_s`` so their queued messages go out (the SDK
-        closes connections without sending what is queued).
+        closes connections without sending what is queued). The SDK's stop runs in a thread
+        joined for at most ``stop_timeout_s``: it waits for the connections to close, and a
+        client that never answers must not keep the process from ending. If it has not
+        finished by then the channels and context are left to the process's end: dropping
+        them calls into the SDK while it is still stopping.
         """
+        stopped = True
         if self._server is not None:
-            if self.stats.clients:
+            if self.stats.clients and drain_s > 0:
                 time.sleep(drain_s)
             server, self._server = self._server, None
             if self in _SDK_LOG.sinks:
                 _SDK_LOG.sinks.remove(self)
-            # the SDK's stop waits for its connections to close; a client that never
-            # answers must not keep Ctrl-C from ending the process
             stopper = threading.Thread(target=server.stop, name="foxglove-stop", daemon=True)
             stopper.start()
-            stopper.join(STOP_TIMEOUT_S)
-        self._channels.clear()
-        self._context = None
+            stopper.join(stop_timeout_s)
+            stopped = not stopper.is_alive()
+        if stopped:
+            self._channels.clear()
+            self._context = None
 
     def __enter__(self) -> Self:
         self.open()
@@ -349,7 +357,10 @@ class FoxgloveLive:
         exc: BaseException | None,
         traceback: TracebackType | None,
     ) -> None:
-        self.close()
+        if exc_type is None:
+            self.close()
+        else:  # interrupted or failed: nothing to drain, and the process is about to end
+            self.close(drain_s=0.0, stop_timeout_s=INTERRUPTED_STOP_TIMEOUT_S)
 
     # channels ---------------------------------------------------------------------------
     def advertise(

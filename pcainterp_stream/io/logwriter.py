@@ -56,6 +56,7 @@ from rosbags.typesys.store import Typestore
 from zlib_ng import zlib_ng
 
 from pcainterp_stream.errors import LogWriteError
+from pcainterp_stream.interrupt import track_partial, untrack_partial
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.records import RawMessage
 
@@ -218,6 +219,7 @@ class LogWriter(ABC):
             self._partial_dir = Path(
                 tempfile.mkdtemp(prefix=f".{self.path.name}.partial-", dir=parent)
             )
+            track_partial(self._partial_dir)  # removed even if a signal forces the end
         except OSError as err:
             raise LogWriteError(
                 f"cannot write {self.path}: {err.strerror}; choose a writable folder"
@@ -369,6 +371,7 @@ class LogWriter(ABC):
     def _remove_partial(self) -> None:
         if self._partial_dir is not None:
             shutil.rmtree(self._partial_dir, ignore_errors=True)
+            untrack_partial(self._partial_dir)
             self._partial_dir = None
 
     @abstractmethod

@@ -26,6 +26,7 @@ from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 
 from pcainterp_stream.errors import LogReadError, LogWriteError
+from pcainterp_stream.interrupt import track_partial, untrack_partial
 from pcainterp_stream.io.logwriter import LIBRARY, MCAP_CHUNK_SIZE, McapLogWriter
 
 STDIN_NAME = "stdin"
@@ -105,18 +106,22 @@ def spool(stream: IO[bytes], name: str = STDIN_NAME) -> Iterator[Path]:
         LogReadError: the stream is empty or cannot be read, or the disk is full.
     """
     with tempfile.TemporaryDirectory(prefix="pcainterp-stdin-") as folder:
-        path = Path(folder) / name
+        track_partial(Path(folder))  # removed even if a signal forces the end
         try:
-            with path.open("xb") as spooled:
-                shutil.copyfileobj(stream, spooled, _SPOOL_BLOCK)
-        except OSError as err:
-            raise LogReadError(
-                f"cannot copy standard input to {path} (needed: the readers seek): "
-                f"{err.strerror or err}; set TMPDIR to a folder with room for the log"
-            ) from err
-        if path.stat().st_size == 0:
-            raise LogReadError(
-                "standard input is empty, not a log; pipe an MCAP file (or a ROS 1 bag) into "
-                "`pcainterp densify -`"
-            )
-        yield path
+            path = Path(folder) / name
+            try:
+                with path.open("xb") as spooled:
+                    shutil.copyfileobj(stream, spooled, _SPOOL_BLOCK)
+            except OSError as err:
+                raise LogReadError(
+                    f"cannot copy standard input to {path} (needed: the readers seek): "
+                    f"{err.strerror or err}; set TMPDIR to a folder with room for the log"
+                ) from err
+            if path.stat().st_size == 0:
+                raise LogReadError(
+                    "standard input is empty, not a log; pipe an MCAP file (or a ROS 1 bag) into "
+                    "`pcainterp densify -`"
+                )
+            yield path
+        finally:
+            untrack_partial(Path(folder))

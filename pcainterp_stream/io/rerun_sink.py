@@ -21,6 +21,7 @@ import numpy as np
 
 from pcainterp_stream.defaults import DISPLAY_MAX_DEPTH, DISPLAY_MAX_DEPTH_STD
 from pcainterp_stream.errors import LogWriteError
+from pcainterp_stream.interrupt import track_partial, untrack_partial
 from pcainterp_stream.records import DensifiedFrame
 
 if TYPE_CHECKING:
@@ -65,6 +66,7 @@ class RerunSink:
                     f"cannot write {self.rrd_path}: folder {self.rrd_path.parent} does not exist"
                 )
             self._partial = self.rrd_path.with_name(f".{self.rrd_path.name}.partial")
+            track_partial(self._partial)  # removed even if a signal forces the end
             recording.save(self._partial)
         if self.spawn:
             recording.spawn(connect=self.rrd_path is None)
@@ -88,6 +90,7 @@ class RerunSink:
                 self._partial.replace(self.rrd_path)
             else:
                 self._partial.unlink(missing_ok=True)
+            untrack_partial(self._partial)
 
     def log(self, result: DensifiedFrame) -> None:
         """Log one densified frame at its left-image stamp."""

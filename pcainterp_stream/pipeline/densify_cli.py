@@ -17,7 +17,13 @@ from typing import IO, TYPE_CHECKING
 
 from pcainterp_stream import defaults
 from pcainterp_stream.errors import PcaInterpError, StreamError
-from pcainterp_stream.io.foxglove import DEFAULT_HOST, DEFAULT_PORT, FoxgloveLive, ServeAddress
+from pcainterp_stream.io.foxglove import (
+    DEFAULT_HOST,
+    DEFAULT_PORT,
+    INTERRUPTED_STOP_TIMEOUT_S,
+    FoxgloveLive,
+    ServeAddress,
+)
 
 if TYPE_CHECKING:
     from pcainterp_stream.frontend.pairing import PairingConfig
@@ -331,7 +337,7 @@ def run_densify(
                     server.serve_forever()
                 except KeyboardInterrupt:
                     _echo("foxglove: stopped")
-                    server.close()
+                    server.close(drain_s=0.0, stop_timeout_s=INTERRUPTED_STOP_TIMEOUT_S)
                     # Nothing is left to write in this mode (no -o), and the SDK's threads
                     # can still be calling back into Python while the interpreter shuts
                     # down: end here, so that Ctrl-C always ends the process.

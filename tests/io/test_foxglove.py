@@ -42,6 +42,10 @@ from pcainterp_stream.records import RawMessage
 websockets = pytest.importorskip("websockets")
 
 FRAMES = 4
+LONG_FRAMES = 40  # 3.9 s of log: at --rate 1 it streams that long
+EXIT_S = 10
+INTERRUPTED = "pcainterp: interrupted; no partial output was left at the target"
+"""Bound on the exit after a signal: the promise is 2 s; generous for a loaded machine."""
 URL = re.compile(r"serving on (ws://\S+)")
 OUTPUTS = ("/pcainterp/depth_mm", "/pcainterp/features")
 
@@ -126,7 +130,12 @@ def serving(*args: str) -> Iterator[tuple[subprocess.Popen[str], str]]:
     """Run ``pcainterp densify ARGS`` in a subprocess; yield it and the URL it prints."""
     command = [sys.executable, "-m", "pcainterp_stream.cli", "densify", *args]
     process = subprocess.Popen(
-        command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env()
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=_env(),
+        preexec_fn=_default_sigint,
     )
     try:
         assert process.stdout is not None
@@ -145,6 +154,36 @@ def serving(*args: str) -> Iterator[tuple[subprocess.Popen[str], str]]:
 
 def _env() -> dict[str, str]:
     return {**os.environ, "PYTHONUNBUFFERED": "1"}
+
+
+def _default_sigint() -> None:
+    """Give the child the default SIGINT disposition (runs in the child before exec).
+
+    A shell that starts the test run in the background leaves SIGINT ignored, Python keeps
+    an inherited SIG_IGN, and the child would never see the signal.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def _stopped(process: subprocess.Popen[str], sig: signal.Signals) -> tuple[str, str]:
+    """Send ``sig``; return (stdout, stderr) once the process ended, within EXIT_S."""
+    process.send_signal(sig)
+    try:
+        return process.communicate(timeout=EXIT_S)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        out, err = process.communicate()
+        pytest.fail(f"still running {EXIT_S} s after {sig.name}\n{out}\n{err}")
+
+
+def _read_until(process: subprocess.Popen[str], text: str) -> list[str]:
+    """Read standard output until a line holding ``text``; return the lines read."""
+    assert process.stdout is not None
+    lines = []
+    while text not in (line := process.stdout.readline()):
+        assert line, f"the server stopped before {text!r}: {lines}"
+        lines.append(line)
+    return lines
 
 
 def _collect(url: str, topics: set[str] | None, until: dict[str, int]) -> Received:
@@ -200,26 +239,70 @@ def test_the_depth_decodes_to_the_image_of_the_file(synthetic_log: Path, tmp_pat
         assert live_image.tobytes() == file_image.tobytes()  # pixel for pixel, NaN included
 
 
+@pytest.fixture(scope="module")
+def long_synthetic_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    log = tmp_path_factory.mktemp("foxglove") / "long.mcap"
+    assert cli.main(["synth", str(log), "--frames", str(LONG_FRAMES), "--scale", "0.25"]) == 0
+    return log
+
+
 def test_without_output_it_serves_until_interrupted(synthetic_log: Path) -> None:
     args = [str(synthetic_log), "--foxglove", "127.0.0.1:0", "--wait-for-client"]
     with serving(*args) as (process, url):
         received = _collect(url, set(OUTPUTS), {topic: FRAMES for topic in OUTPUTS})
-        assert process.stdout is not None
-        lines = []
-        while "still serving" not in (line := process.stdout.readline()):
-            assert line, f"the server stopped: {lines}"
-            lines.append(line)
+        _read_until(process, "still serving")
         assert process.poll() is None  # after the last frame, still serving
         again = _collect(url, set(OUTPUTS), {})  # a late client connects and sees channels
         assert set(OUTPUTS) <= set(again.channels)
-        process.send_signal(signal.SIGINT)
-        out, err = process.communicate(timeout=30)
+        out, err = _stopped(process, signal.SIGINT)
     assert process.returncode == 0, err
     assert "foxglove: stopped" in out
     assert "Traceback" not in err
     assert {topic: len(received.messages[topic]) for topic in OUTPUTS} == dict.fromkeys(
         OUTPUTS, FRAMES
     )
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_before_the_first_client_stops_it(
+    synthetic_log: Path, sig: signal.Signals
+) -> None:
+    args = [str(synthetic_log), "--foxglove", "127.0.0.1:0", "--wait-for-client"]
+    with serving(*args) as (process, _):
+        _read_until(process, "waiting for a client")
+        _, err = _stopped(process, sig)
+    assert process.returncode == 130, err
+    assert (
+        err.splitlines()[-1] == "pcainterp: interrupted; no partial output was left at the target"
+    )
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_while_streaming_stops_it(
+    long_synthetic_log: Path, tmp_path: Path, sig: signal.Signals
+) -> None:
+    output = tmp_path / "dense.mcap"
+    args = [str(long_synthetic_log), "-o", str(output), "--foxglove", "127.0.0.1:0"]
+    with serving(*args, "--rate", "1", "--wait-for-client") as (process, url):
+        # one frame received: at rate 1 the rest of the log takes 3.8 s more
+        _collect(url, {"/pcainterp/depth"}, {"/pcainterp/depth": 1})
+        assert process.poll() is None
+        out, err = _stopped(process, sig)
+    assert process.returncode == 130, err
+    assert "Traceback" not in err
+    assert "published" not in out  # stopped mid-stream
+    assert list(tmp_path.iterdir()) == []  # what -o was writing is removed
+
+
+def test_two_signals_in_a_row_stop_it_cleanly(synthetic_log: Path) -> None:
+    args = [str(synthetic_log), "--foxglove", "127.0.0.1:0", "--wait-for-client"]
+    with serving(*args) as (process, url):
+        _collect(url, set(OUTPUTS), {topic: FRAMES for topic in OUTPUTS})
+        _read_until(process, "still serving")
+        process.send_signal(signal.SIGINT)
+        _, err = _stopped(process, signal.SIGINT)
+    assert process.returncode in (0, 130), err  # 0 when the first had already ended it
+    assert "Traceback" not in err
 
 
 def test_exit_when_done_with_no_client(synthetic_log: Path) -> None:

@@ -1,0 +1,265 @@
+"""Ctrl-C and SIGTERM end a command within a bounded time, whatever its threads are doing.
+
+A Python signal handler runs only when the main thread returns to the interpreter. While
+the main thread waits in native code (a lock, a join, a call into a native library such
+as the Foxglove server, or a native call that holds the interpreter lock and waits for a
+thread that needs it), the handler, and so ``KeyboardInterrupt``, never comes. The clean
+path stays the usual one: the first signal raises ``KeyboardInterrupt`` in the main thread,
+the ``with`` blocks remove what they were writing, the command prints one line. Two
+mechanisms bound it:
+
+- the **watchdog**, a small separate process started by :func:`stop_on_signals`. The
+  interpreter's C-level handler writes the number of every signal it catches to a pipe
+  (:func:`signal.set_wakeup_fd`) from whichever thread the signal interrupted, without the
+  interpreter lock; the watchdog reads that pipe. When the command has not ended
+  :data:`GRACE_S` after the first signal (or at once after a second one), it removes the
+  partial outputs the command registered (:func:`track_partial`), prints one line and
+  kills the command. Being a process of its own it works even when every thread of the
+  command is stuck;
+- a **second signal** handled in the main thread ends the process at once (after removing
+  the partial outputs), without waiting for the clean-up of the first.
+
+Outside :func:`stop_on_signals` (library use) :func:`track_partial` only records paths.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+from types import FrameType
+from typing import IO, Any
+
+GRACE_S = 1.5
+"""Time (s) the command gets after the first signal to clean up and end by itself."""
+
+SECOND_SIGNAL_GRACE_S = 0.2
+"""After a second signal the watchdog waits this long for the command to end itself."""
+
+EXIT_INTERRUPTED = 130
+"""Exit code of an interrupted command (128 + SIGINT, as shells report it)."""
+
+_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+_WATCHDOG = r"""
+import os, select, shutil, signal, sys, time
+signal.signal(signal.SIGINT, signal.SIG_IGN)
+signal.signal(signal.SIGTERM, signal.SIG_IGN)
+parent, grace, second, wake, control = (int(sys.argv[1]), float(sys.argv[2]),
+    float(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5]))
+watched = {int(n) for n in sys.argv[6].split(",")}
+inputs, partials, pending, deadline, seen = [wake, control], set(), b"", None, 0
+while True:
+    timeout = None if deadline is None else max(0.0, deadline - time.monotonic())
+    ready, _, _ = select.select(inputs, [], [], timeout)
+    if wake in ready:
+        data = os.read(wake, 64)
+        if not data:
+            inputs.remove(wake)
+        for number in data:
+            if number in watched:
+                seen += 1
+                limit = time.monotonic() + (grace if seen == 1 else second)
+                deadline = limit if deadline is None else min(deadline, limit)
+    if control in ready:
+        data = os.read(control, 65536)
+        if not data:
+            sys.exit(0)  # the command ended: its end of the pipe closed
+        pending += data
+        *lines, pending = pending.split(b"\n")
+        for line in lines:
+            path = os.fsdecode(line[1:])
+            (partials.add if line[:1] == b"+" else partials.discard)(path)
+    if deadline is not None and time.monotonic() >= deadline:
+        for path in partials:
+            if os.path.isdir(path) and not os.path.islink(path):
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                try:
+                    os.unlink(path)
+                except OSError:
+                    pass
+        os.write(2, b"pcainterp: stopped: the clean-up after the signal did not end in time; "
+                 b"partial output removed\n")
+        try:
+            os.kill(parent, signal.SIGKILL)
+        except OSError:
+            pass
+        sys.exit(0)
+"""
+"""The watchdog process's program (``python -I -S -c``): no imports beyond the standard
+library's core, so it starts in a few milliseconds and never touches the command's files
+other than the registered partial outputs."""
+
+_lock = threading.Lock()
+_partials: set[Path] = set()
+_control: IO[bytes] | None = None
+_signals_seen = 0
+
+
+def track_partial(path: Path) -> None:
+    """Register a partial output (a file or folder): removed if the command is stopped."""
+    with _lock:
+        _partials.add(path)
+        _send(b"+", path)
+
+
+def untrack_partial(path: Path) -> None:
+    """Forget a partial output (renamed onto its target, or removed)."""
+    with _lock:
+        _partials.discard(path)
+        _send(b"-", path)
+
+
+def _send(kind: bytes, path: Path) -> None:
+    if _control is None:
+        return
+    try:
+        _control.write(kind + os.fsencode(path) + b"\n")
+        _control.flush()
+    except (OSError, ValueError):  # the watchdog is gone: nothing to tell it
+        pass
+
+
+def remove_partials() -> None:
+    """Remove every registered partial output now (a forced stop)."""
+    with _lock:
+        paths = list(_partials)
+    for path in paths:
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+
+
+def _on_signal(signum: int, frame: FrameType | None) -> None:
+    """First signal: KeyboardInterrupt (the clean path); a second one: end at once."""
+    global _signals_seen
+    _signals_seen += 1
+    if _signals_seen == 1:
+        raise KeyboardInterrupt
+    remove_partials()
+    with contextlib.suppress(Exception):
+        print(
+            "pcainterp: stopped at once (second signal); partial output removed",
+            file=sys.stderr,
+            flush=True,
+        )
+    os._exit(EXIT_INTERRUPTED)
+
+
+def end_if_signalled(code: int) -> None:
+    """End the process now with ``code`` if a signal was handled (after the clean-up).
+
+    Once the ``with`` blocks have closed or removed what they wrote, nothing is left to do
+    but the interpreter's own shutdown, which takes a few tenths of a second of CPU
+    (longer on a loaded machine) and can meet native threads still calling back into
+    Python (the Foxglove SDK's): the process ends here instead, streams flushed. Without
+    a signal (an in-process caller whose code raised ``KeyboardInterrupt``) it returns.
+    """
+    if not _signals_seen:
+        return
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(code)
+
+
+@contextlib.contextmanager
+def stop_on_signals(*, watchdog: bool = True) -> Iterator[None]:
+    """Handle SIGINT and SIGTERM as above for the ``with`` block (main thread only).
+
+    Elsewhere (another thread, or signals not available) the block runs unchanged. The
+    previous handlers, wake-up descriptor and partial-output registry come back afterwards,
+    so callers that run a command in-process (tests) are left as they were.
+
+    Args:
+        watchdog: start the watchdog process (False: only the second-signal rule).
+    """
+    global _control, _signals_seen
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {sig: signal.getsignal(sig) for sig in _SIGNALS}
+    _signals_seen = 0
+    process, wake_write, previous_wakeup = _start_watchdog() if watchdog else (None, -1, -1)
+    try:
+        for sig in _SIGNALS:
+            signal.signal(sig, _on_signal)
+        yield
+    finally:
+        # After a signal the process is ending: the handlers and the watchdog stay until it
+        # has ended (the watchdog sees end of file when the process's descriptors close).
+        if not _signals_seen:
+            _restore(previous, process, wake_write, previous_wakeup)
+
+
+def _restore(
+    previous: dict[signal.Signals, Any],
+    process: subprocess.Popen[bytes] | None,
+    wake_write: int,
+    previous_wakeup: int,
+) -> None:
+    """Put back the handlers and wake-up descriptor; let the watchdog exit."""
+    global _control
+    for sig, handler in previous.items():
+        signal.signal(sig, handler)
+    if process is not None:
+        signal.set_wakeup_fd(previous_wakeup)
+        os.close(wake_write)
+        with _lock:
+            control, _control = _control, None
+        if control is not None:
+            with contextlib.suppress(OSError):
+                control.close()  # end of file: the watchdog exits
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            process.wait(timeout=5)
+    with _lock:
+        _partials.clear()
+
+
+def _start_watchdog() -> tuple[subprocess.Popen[bytes] | None, int, int]:
+    """Start the watchdog; return it, the wake-up pipe's write end and the previous fd."""
+    global _control
+    wake_read, wake_write = os.pipe()
+    control_read, control_write = os.pipe()
+    os.set_blocking(wake_write, False)  # the C handler must never block on it
+    try:
+        process = subprocess.Popen(
+            [
+                sys.executable,
+                "-I",
+                "-S",
+                "-c",
+                _WATCHDOG,
+                str(os.getpid()),
+                str(GRACE_S),
+                str(SECOND_SIGNAL_GRACE_S),
+                str(wake_read),
+                str(control_read),
+                ",".join(str(int(s)) for s in _SIGNALS),
+            ],
+            pass_fds=(wake_read, control_read),
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            start_new_session=True,  # a terminal's Ctrl-C goes to the command only
+        )
+    except OSError:  # no watchdog: the command still stops on a signal, unbounded
+        os.close(wake_write)
+        os.close(control_write)
+        return None, -1, -1
+    finally:
+        os.close(wake_read)
+        os.close(control_read)
+    with _lock:
+        _control = os.fdopen(control_write, "wb")
+        for path in _partials:
+            _send(b"+", path)
+    previous = signal.set_wakeup_fd(wake_write, warn_on_full_buffer=False)
+    return process, wake_write, previous
