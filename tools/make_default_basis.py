@@ -157,8 +157,8 @@ def indoor_maps(job: tuple[Recipe, int, tuple[int, int]]) -> npt.NDArray[np.floa
     for index in range(0, recipe.indoor_frames, recipe.indoor_step):
         pose = indoor.indoor_pose(scene, trajectory, index, recipe.indoor_frames)
         _, depth = indoor.render_indoor(scene, camera, pose, tile)
-        depth = cv2.resize(depth, (full.width, full.height), interpolation=cv2.INTER_NEAREST)
-        disparity = disparity_from_depth(depth, full.focal_baseline).astype(np.float32)
+        enlarged = cv2.resize(depth, (full.width, full.height), interpolation=cv2.INTER_NEAREST)
+        disparity = disparity_from_depth(enlarged, full.focal_baseline).astype(np.float32)
         maps.append(preprocess_disparity(disparity, grid))
     return np.stack(maps)
 
