@@ -9,8 +9,8 @@ level-only renderer can draw; ``roll_deg``: the depth image rotated about the pr
 point; camera height and place across the road): measured on the real KITTI clips, that made
 the basis worse (docs/results.md, "Built-in basis"), so the shipped recipe has none.
 ``--indoor-seeds N`` adds N synthetic indoor walks (rooms, corridors, halls; hand-held, drone
-and ground-robot placements), seen by the same camera: measured, even 2 % of indoor maps
-cost the real KITTI odometry clip ~5 % while much improving indoor logs (docs/estimator.md,
+and ground-robot placements), seen by the same camera: measured, even 0.8-2 % of indoor
+maps cost the real KITTI clips 4-5 % while much improving indoor logs (docs/estimator.md,
 "A built-in basis for streets and rooms?"), so the shipped recipe has none either.
 
 The hybrid prior's local kernel is fixed by the recipe (``local_kernel``): the evidence on
