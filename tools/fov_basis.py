@@ -28,6 +28,7 @@ import harness
 import numpy as np
 import numpy.typing as npt
 
+from pcainterp_stream.errors import PcaInterpError
 from pcainterp_stream.estimate.basis import Basis, grid_size_for
 from pcainterp_stream.records import StereoCamera
 
@@ -118,10 +119,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     values = tuple(float(v) for v in args.basis_camera.split(","))
     if len(values) != 4:
         parser.error(f"--basis-camera needs fx,fy,cx,cy, got {args.basis_camera!r}")
-    basis = Basis.default() if args.basis is None else Basis.load(args.basis)
-    camera = log_camera(args.log)
-    mapped = fov_map(basis, (values[0], values[1], values[2], values[3]), camera)
-    mapped.save(args.out)
+    try:
+        basis = Basis.default() if args.basis is None else Basis.load(args.basis)
+        camera = log_camera(args.log)
+        mapped = fov_map(basis, (values[0], values[1], values[2], values[3]), camera)
+        mapped.save(args.out)
+    except (PcaInterpError, OSError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 1
     print(f"wrote {args.out}: {camera.width}x{camera.height}, grid {mapped.grid_size}")
     return 0
 
