@@ -302,6 +302,17 @@ def describe_basis(path: Path | None = None) -> str:
     elif isinstance(drives, int):
         span = f" (seeds {seeds[0]}-{seeds[-1]})" if isinstance(seeds, list) and seeds else ""
         lines.append(f"  drives           {drives} synthetic drives{span}")
+    walks, walk_seeds = source.get("indoor_walks"), source.get("indoor_seeds")
+    if isinstance(walks, int) and walks > 0:
+        span = (
+            f" (seeds {walk_seeds[0]}-{walk_seeds[-1]})"
+            if isinstance(walk_seeds, list) and walk_seeds
+            else ""
+        )
+        lines.append(
+            f"  indoor walks     {walks} synthetic rooms, corridors and halls{span}: "
+            "hand-held, drone and ground-robot heights and pitches"
+        )
     lines.append(f"  method           {learning.get('method', '?')}")
     tuned, rule = meta.get("finetune"), source.get("with_synthetic_rule")
     if isinstance(tuned, dict):

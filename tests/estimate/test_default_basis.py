@@ -129,3 +129,35 @@ def test_make_default_basis_regenerates_a_small_basis_bit_for_bit(tmp_path: Path
     assert basis.meta["recipe"] == recipe
     assert basis.n_train == recipe["drives"] * len(range(0, recipe["frames"], recipe["step"]))
     assert basis.meta["prior"]["local"]["length_scale"] == recipe["local_kernel"][1]
+
+
+@pytest.mark.slow
+def test_make_default_basis_learns_from_indoor_walks_and_info_lists_them(tmp_path: Path) -> None:
+    """--indoor-seeds adds the walks' maps; the recipe, the source and `info` say so."""
+    import subprocess
+    import sys
+
+    from pcainterp_stream.pipeline.jobs import describe_basis
+
+    if not TOOL.is_file():
+        pytest.skip(f"{TOOL} not found (an installed package without the repository's tools)")
+    out = tmp_path / "indoor"
+    subprocess.run(
+        [sys.executable, str(TOOL), "--small", "--indoor-seeds", "1", "--out", str(out)],
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    basis = Basis.load(out / "default_basis.npz")
+    recipe = basis.meta["recipe"]
+    walk = len(range(0, recipe["indoor_frames"], recipe["indoor_step"]))
+    street = recipe["drives"] * len(range(0, recipe["frames"], recipe["step"]))
+    assert recipe["indoor_seeds"] == 1
+    assert basis.n_train == street + walk
+    assert basis.meta["source"]["indoor_walks"] == 1
+    assert "--indoor-seeds 1" in basis.meta["command"]
+    text = describe_basis(out / "default_basis.npz")
+    assert "indoor walks     1 synthetic rooms, corridors and halls" in text
+    # the street-only recipe says nothing of rooms
+    assert "indoor" not in describe_basis()
