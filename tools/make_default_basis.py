@@ -41,7 +41,7 @@ import os
 import sys
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -167,6 +167,38 @@ def indoor_maps(job: tuple[Recipe, int, tuple[int, int]]) -> npt.NDArray[np.floa
     return np.stack(maps)
 
 
+def _cached_maps(
+    render: Callable[[tuple[Recipe, int, tuple[int, int]]], npt.NDArray[np.float32]],
+    jobs: tuple[Recipe, range, tuple[int, int]],
+    key: str,
+    cache: Path | None,
+    what: str,
+    every: int,
+) -> npt.NDArray[np.float32]:
+    """Render ``render`` for every seed (in a process pool), cached per seed; in seed order."""
+    recipe, seeds, grid = jobs
+    parts: dict[int, npt.NDArray[np.float32]] = {}
+    paths = {seed: None if cache is None else cache / f"{key[:12]}_{seed}.npy" for seed in seeds}
+    for seed, path in paths.items():
+        if path is not None and path.is_file():
+            parts[seed] = np.load(path)
+    missing = [seed for seed in seeds if seed not in parts]
+    started = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        arguments = [(recipe, seed, grid) for seed in missing]
+        for done, (seed, maps) in enumerate(
+            zip(missing, pool.map(render, arguments), strict=True), start=1
+        ):
+            parts[seed] = maps
+            path = paths[seed]
+            if path is not None:
+                np.save(path, maps)
+            if done % every == 0 or done == len(missing):
+                seconds = time.perf_counter() - started
+                harness.log(f"rendered {done}/{len(missing)} {what} ({seconds:.0f} s)")
+    return np.concatenate([parts[seed] for seed in seeds])
+
+
 def render_maps(recipe: Recipe, cache: Path | None) -> npt.NDArray[np.float32]:
     """All training maps of the recipe, in seed order (cached per drive in ``cache``)."""
     from pcainterp_stream.estimate.basis import grid_size_for
@@ -177,51 +209,14 @@ def render_maps(recipe: Recipe, cache: Path | None) -> npt.NDArray[np.float32]:
     seeds = range(recipe.first_seed, recipe.first_seed + recipe.drives)
     variety = (recipe.pitch_px, recipe.roll_deg, recipe.height_m, recipe.lateral_m)
     key = hashlib.sha256(repr((recipe.frames, recipe.step, grid, variety)).encode()).hexdigest()
-    parts: dict[int, npt.NDArray[np.float32]] = {}
-    paths = {seed: None if cache is None else cache / f"{key[:12]}_{seed}.npy" for seed in seeds}
-    for seed, path in paths.items():
-        if path is not None and path.is_file():
-            parts[seed] = np.load(path)
-    missing = [seed for seed in seeds if seed not in parts]
-    started = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-        jobs = [(recipe, seed, grid) for seed in missing]
-        for done, (seed, maps) in enumerate(
-            zip(missing, pool.map(drive_maps, jobs), strict=True), start=1
-        ):
-            parts[seed] = maps
-            path = paths[seed]
-            if path is not None:
-                np.save(path, maps)
-            if done % 20 == 0 or done == len(missing):
-                seconds = time.perf_counter() - started
-                harness.log(f"rendered {done}/{len(missing)} drives ({seconds:.0f} s)")
-    street = np.concatenate([parts[seed] for seed in seeds])
+    street = _cached_maps(drive_maps, (recipe, seeds, grid), key, cache, "drives", 20)
     if recipe.indoor_seeds <= 0:
         return street
     walks = range(recipe.indoor_first_seed, recipe.indoor_first_seed + recipe.indoor_seeds)
     view = (recipe.indoor_frames, recipe.indoor_step, recipe.indoor_render_scale, grid)
     key = hashlib.sha256(repr(("indoor", view)).encode()).hexdigest()
-    rooms: dict[int, npt.NDArray[np.float32]] = {}
-    where = {seed: None if cache is None else cache / f"{key[:12]}_{seed}.npy" for seed in walks}
-    for seed, path in where.items():
-        if path is not None and path.is_file():
-            rooms[seed] = np.load(path)
-    missing = [seed for seed in walks if seed not in rooms]
-    started = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-        jobs = [(recipe, seed, grid) for seed in missing]
-        for done, (seed, maps) in enumerate(
-            zip(missing, pool.map(indoor_maps, jobs), strict=True), start=1
-        ):
-            rooms[seed] = maps
-            path = where[seed]
-            if path is not None:
-                np.save(path, maps)
-            if done % 10 == 0 or done == len(missing):
-                seconds = time.perf_counter() - started
-                harness.log(f"rendered {done}/{len(missing)} indoor walks ({seconds:.0f} s)")
-    return np.concatenate([street, *(rooms[seed] for seed in walks)])
+    rooms = _cached_maps(indoor_maps, (recipe, walks, grid), key, cache, "indoor walks", 10)
+    return np.concatenate([street, rooms])
 
 
 # ----------------------------------------------------------------------------- learning
