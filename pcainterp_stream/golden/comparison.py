@@ -34,8 +34,11 @@ DEFAULT_TOLERANCE: dict[str, Any] = {
         "Point-cloud sizes (width, row_step): within point_count.rel plus point_count.abs "
         "points. Stored arrays (--arrays): |actual - golden| <= pixels.atol + pixels.rtol * "
         "|golden|, or where a channel <topic>_std is in the log (depth and its posterior std) "
-        "<= pixels.std_atol * that std; at most pixels.bad_fraction of the elements may "
-        "exceed it (NaN/inf where the golden has a number, or the reverse, count as beyond). "
+        "<= pixels.std_atol * that std (for a depth beside a disparity std, /ns/depth with "
+        "/ns/disparity_std: depth^2 / (f*b) * the disparity std, f*b from the depth "
+        "channel's metadata as recorded under focal_baseline); at most pixels.bad_fraction "
+        "of the elements may exceed it (NaN/inf where the golden has a number, or the "
+        "reverse, count as beyond). "
         "channels: per-topic overrides of any of these, e.g. "
         '{"/pcainterp/depth": {"float": {"rel": 0.01}}}.'
     ),
@@ -126,6 +129,8 @@ class _Comparer:
         self.golden_arrays = golden_arrays
         self.actual_arrays = actual_arrays
         self.out: list[Difference] = []
+        self.actual_channels: Mapping[str, Any] = {}
+        self.golden_channels: Mapping[str, Any] = {}
         self.cloud = False  # the channel being compared holds point clouds
 
     def tolerance(self, topic: str) -> dict[str, Any]:
@@ -175,10 +180,10 @@ class _Comparer:
                 )
         tolerance = self.tolerance(topic)
         self.cloud = want["schema"] == _POINT_CLOUD
-        # the posterior std published beside a channel (depth and depth_std) sets the
-        # element-wise tolerance of that channel in units of the golden std
-        std_topic = f"{topic}_std"
-        std_messages = _by_stamp(golden[std_topic]["messages"]) if std_topic in golden else {}
+        # the posterior std published beside a channel (depth and depth_std, or the
+        # disparity std of a compact depth) sets its element-wise tolerance in std units
+        source = _std_source(topic, self.golden_channels, self.actual_channels)
+        std_messages = _by_stamp(self.golden_channels[source.topic]["messages"]) if source else {}
         matched = _by_stamp(have["messages"])
         seen: set[tuple[int, int]] = set()
         for index, (key, message) in enumerate(_by_stamp(want["messages"]).items()):
@@ -189,7 +194,7 @@ class _Comparer:
                 continue
             seen.add(key)
             std = std_messages.get(key)
-            self.message(topic, index, stamp, message, other, tolerance, std)
+            self.message(topic, index, stamp, message, other, tolerance, std, source)
         for key, message in matched.items():
             if key not in seen:
                 stamp = message.get("stamp_ns", message["log_time_ns"])
@@ -206,6 +211,7 @@ class _Comparer:
         have: Mapping[str, Any],
         tolerance: Mapping[str, Any],
         std_message: Mapping[str, Any] | None,
+        source: _StdSource | None,
     ) -> None:
         def add(what: str, text: str) -> None:
             self.out.append(Difference(topic, index, stamp, what, text))
@@ -235,7 +241,7 @@ class _Comparer:
             if name not in want_arrays:
                 add(name, "not in the golden file")
         if self.golden_arrays is not None and self.actual_arrays is not None:
-            self.elements(add, want, have, tolerance, std_message)
+            self.elements(add, want, have, tolerance, std_message, source)
 
     def count(
         self, add: Any, name: str, want: Any, have: Any, tolerance: Mapping[str, Any]
@@ -325,6 +331,7 @@ class _Comparer:
         have: Mapping[str, Any],
         tolerance: Mapping[str, Any],
         std_message: Mapping[str, Any] | None,
+        source: _StdSource | None,
     ) -> None:
         assert self.golden_arrays is not None
         assert self.actual_arrays is not None
@@ -339,10 +346,20 @@ class _Comparer:
             if golden.shape != actual.shape:
                 continue  # the statistics already name the shape
             std_key = std_arrays.get(name)
-            if std_key in self.golden_arrays and self.golden_arrays[std_key].shape == golden.shape:
+            std: npt.NDArray[np.float64] | None = None
+            if (
+                source is not None
+                and std_key in self.golden_arrays
+                and self.golden_arrays[std_key].shape == golden.shape
+            ):
                 std = np.asarray(self.golden_arrays[std_key], dtype=np.float64)
+                if source.focal_baseline is not None:
+                    # delta method: z = f*b / d, so std_z = z^2 / (f*b) * std_d
+                    with np.errstate(invalid="ignore", over="ignore"):
+                        std = golden * golden / source.focal_baseline * std
+            if std is not None and source is not None:
                 allowed = np.where(np.isfinite(std), limits["std_atol"] * std, np.inf)
-                unit = f"{limits['std_atol']:g} std"
+                unit = f"{limits['std_atol']:g} std ({source.describe()})"
             else:
                 allowed = limits["atol"] + limits["rtol"] * np.abs(golden)
                 unit = f"atol {limits['atol']:g} + rtol {limits['rtol']:g}"
@@ -356,16 +373,86 @@ class _Comparer:
             count = int(beyond.sum())
             limit = limits["bad_fraction"] * golden.size
             if count > limit:
+                score = error
+                if std is not None:  # the element that moved most in units of its std
+                    with np.errstate(divide="ignore", invalid="ignore"):
+                        score = np.where(std > 0, error / std, np.inf)
                 worst = np.unravel_index(
-                    int(np.argmax(np.where(beyond, np.where(both_finite, error, np.inf), -1.0))),
+                    int(np.argmax(np.where(beyond, np.where(both_finite, score, np.inf), -1.0))),
                     golden.shape,
                 )
+                moved = ""
+                if std is not None and both_finite[worst] and std[worst] > 0:
+                    moved = f" ({_g(float(error[worst] / std[worst]))} std)"
                 add(
                     f"{name} elements",
                     f"{count} of {golden.size} beyond {unit} (allowed {limit:.0f}); e.g. at "
                     f"{tuple(int(i) for i in worst)}: {_g(actual[worst])}, golden "
-                    f"{_g(golden[worst])}",
+                    f"{_g(golden[worst])}{moved}",
                 )
+
+
+class _StdSource(NamedTuple):
+    """Where a channel's element-wise std comes from.
+
+    ``topic`` publishes the std of the channel itself, or (``focal_baseline`` set) the std
+    of the disparity d behind a depth z = f*b / d.
+    """
+
+    topic: str
+    focal_baseline: float | None = None
+
+    def describe(self) -> str:
+        if self.focal_baseline is None:
+            return self.topic
+        return f"depth^2 / f*b * {self.topic}, f*b {self.focal_baseline:g}"
+
+
+def _std_source(
+    topic: str, golden: Mapping[str, Any], actual: Mapping[str, Any]
+) -> _StdSource | None:
+    """Return the std published for ``topic``'s elements, or None when the log has none.
+
+    ``<topic>_std`` when the golden file has it; else, for a depth channel, the disparity
+    std beside it (``/ns/depth`` -> ``/ns/disparity_std``) with f*b from the channel
+    metadata recorded in the golden file (else in the log under test, for golden files
+    saved before it was recorded), else from a sibling ``camera_info`` whose projection
+    states it (P[3] = -f*b, a right camera's).
+    """
+    direct = f"{topic}_std"
+    if direct in golden:
+        return _StdSource(direct)
+    namespace, _, leaf = topic.rpartition("/")
+    if "depth" not in leaf:
+        return None
+    head, _, tail = leaf.rpartition("depth")
+    disparity_std = f"{namespace}/{head}disparity{tail}_std"
+    if disparity_std not in golden:
+        return None
+    focal_baseline = _focal_baseline(topic, disparity_std, namespace, golden, actual)
+    return None if focal_baseline is None else _StdSource(disparity_std, focal_baseline)
+
+
+def _focal_baseline(
+    topic: str,
+    disparity_std: str,
+    namespace: str,
+    golden: Mapping[str, Any],
+    actual: Mapping[str, Any],
+) -> float | None:
+    for channels in (golden, actual):
+        for name in (topic, disparity_std):
+            value = channels.get(name, {}).get("focal_baseline")
+            if value is not None and math.isfinite(float(value)) and float(value) > 0:
+                return float(value)
+    info = golden.get(f"{namespace}/camera_info", {})
+    for message in info.get("messages", [])[:1]:
+        projection = message.get("values", {}).get("p")
+        if isinstance(projection, list) and len(projection) == 12:
+            tx = _number(projection[3])
+            if math.isfinite(tx) and tx < 0:
+                return -tx
+    return None
 
 
 def _moved(actual: float, expected: float, allowed: float) -> str:
@@ -392,6 +479,7 @@ def compare(
     *,
     golden_arrays: Mapping[str, npt.NDArray[Any]] | None = None,
     actual_arrays: Mapping[str, npt.NDArray[Any]] | None = None,
+    std_channels: Mapping[str, Any] | None = None,
 ) -> list[Difference]:
     """Return every difference between a log's summary and a golden one beyond tolerance.
 
@@ -400,10 +488,14 @@ def compare(
         actual: the same form, of the log under test (``"channels"``).
         golden_arrays: the golden file's stored arrays, for an element-wise check.
         actual_arrays: the log's arrays (keys named by its messages' ``array_keys``).
+        std_channels: the golden channels to find the stds published beside a channel in
+            (default ``golden["channels"]``; all of them when only some are compared).
 
     Returns:
         The differences, channel by channel in golden order; empty when the log matches.
     """
     comparer = _Comparer(golden.get("tolerance", {}), golden_arrays, actual_arrays)
+    comparer.actual_channels = actual["channels"]
+    comparer.golden_channels = golden["channels"] if std_channels is None else std_channels
     comparer.channels(golden["channels"], actual["channels"])
     return comparer.out

@@ -305,6 +305,7 @@ def check_log(
             {"channels": summary.channels},
             golden_arrays=golden_arrays,
             actual_arrays=summary.arrays if with_arrays else None,
+            std_channels=document["channels"],
         )
     result = CheckResult(golden=golden, differences=differences, notes=summary.notes)
     if update and differences:

@@ -21,6 +21,7 @@ import numpy.typing as npt
 from pcainterp_stream.errors import LogReadError, TopicNotFoundError
 from pcainterp_stream.golden.decode import message_content
 from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.outputs import FOCAL_BASELINE_KEY
 from pcainterp_stream.io.reader_base import ROS2_SCHEMA_ENCODINGS
 
 __all__ = ["QUANTILES", "LogSummary", "Progress", "array_statistics", "summarize_log"]
@@ -38,7 +39,9 @@ class LogSummary:
 
     Attributes:
         channels: topic -> {"schema", "schema_encoding", "message_encoding",
-            "message_count", "messages": [per-message dicts]}, in the log's topic order.
+            "message_count", "messages": [per-message dicts]}, in the log's topic order;
+            plus ``"focal_baseline"`` (f*b, px*m) where the channel's metadata states it
+            (the depth of a densified log), to turn a disparity std into a depth std.
         arrays: array key -> the array itself, filled only when asked for (``keep_arrays``);
             each message dict names its keys under ``"array_keys"``.
         notes: one-line notes on parts that did not decode.
@@ -89,6 +92,14 @@ def _json_value(value: Any) -> Any:
     if isinstance(value, list):
         return [_json_value(v) for v in value]
     return value
+
+
+def _float_or_none(text: str) -> float | None:
+    try:
+        value = float(text)
+    except ValueError:
+        return None
+    return value if np.isfinite(value) and value > 0 else None
 
 
 def summarize_log(
@@ -148,6 +159,10 @@ def summarize_log(
             channel = channels[raw.topic]
             index = channel["message_count"]
             channel["message_count"] += 1
+            if index == 0 and FOCAL_BASELINE_KEY in raw.channel_metadata:
+                focal_baseline = _float_or_none(raw.channel_metadata[FOCAL_BASELINE_KEY])
+                if focal_baseline is not None:
+                    channel["focal_baseline"] = focal_baseline
             entry: dict[str, Any] = {"log_time_ns": raw.log_time_ns}
             channel["messages"].append(entry)
             if raw.message_encoding != "cdr" or raw.schema_encoding not in ROS2_SCHEMA_ENCODINGS:

@@ -6,13 +6,16 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 from mcap.writer import Writer
 
 from pcainterp_stream.cli import main
 from pcainterp_stream.errors import GoldenError
 from pcainterp_stream.golden import check_log, format_differences, load_golden, save_golden
+from pcainterp_stream.io import depth_codec, rosmsg
 from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.outputs import FOCAL_BASELINE_KEY
 from pcainterp_stream.records import RawMessage
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -52,7 +55,10 @@ def _copy(source: Path, target: Path, change: Callable[[RawMessage], RawMessage 
                 )
             if changed.topic not in channels:
                 channels[changed.topic] = writer.register_channel(
-                    changed.topic, changed.message_encoding, schemas[changed.schema_name]
+                    changed.topic,
+                    changed.message_encoding,
+                    schemas[changed.schema_name],
+                    dict(changed.channel_metadata),
                 )
             writer.add_message(
                 channels[changed.topic], changed.log_time_ns, changed.data, changed.publish_time_ns
@@ -133,6 +139,101 @@ def test_a_dropped_frame_and_a_renamed_channel_fail(drive: dict[str, Path], tmp_
     text = format_differences(check_log(renamed, drive["golden"]).differences, None)
     assert "/pcainterp/depth: channel missing from the log (golden: 4 messages" in text
     assert "/pcainterp/range: channel not in the golden file" in text
+
+
+def _moved_depth(dense: Path, target: Path, stds: float, keep_metadata: bool = True) -> Path:
+    """Copy a compact densified log with every depth moved by ``stds`` of its posterior std.
+
+    The depth std is the delta method's depth^2 / (f*b) * disparity std; the depth is
+    re-encoded with its own depthQuantA, so only the move changes it.
+    """
+    disparity_std: dict[int, np.ndarray] = {}
+    with open_log(dense) as reader:
+        for raw in reader.messages(["/pcainterp/disparity_std"]):
+            message = reader.decode(raw)
+            disparity_std[raw.log_time_ns] = np.asarray(
+                depth_codec.decode(message.format, message.data), dtype=np.float64
+            )
+
+    def move(raw: RawMessage) -> RawMessage:
+        if raw.topic != "/pcainterp/depth":
+            return raw if keep_metadata else raw._replace(channel_metadata={})
+        focal_baseline = float(raw.channel_metadata[FOCAL_BASELINE_KEY])
+        message = rosmsg.deserialize(raw.data, raw.msgtype)
+        depth = np.asarray(depth_codec.decode(message.format, message.data), dtype=np.float64)
+        with np.errstate(invalid="ignore"):  # +inf depth (too far) keeps its value
+            std = depth * depth / focal_baseline * disparity_std[raw.log_time_ns]
+            depth = np.where(np.isfinite(std), depth + stds * std, depth)
+        quant_a = depth_codec.HEADER.unpack(bytes(message.data[: depth_codec.HEADER.size]))[1]
+        encoded = depth_codec.encode_depth(depth, quant_a=quant_a)
+        moved = rosmsg.compressed_image_message(
+            encoded.data, encoded.format, rosmsg.stamp_ns(message), message.header.frame_id
+        )
+        metadata = raw.channel_metadata if keep_metadata else {}
+        return raw._replace(data=rosmsg.serialize(moved), channel_metadata=metadata)
+
+    return _copy(dense, target, move)
+
+
+def test_a_compact_depth_is_checked_in_units_of_its_std(
+    drive: dict[str, Path], tmp_path: Path
+) -> None:
+    # the default (compact) log has no depth_std: the depth std comes from the disparity std
+    document = load_golden(drive["golden"])
+    assert "/pcainterp/depth_std" not in document["channels"]
+    assert "/pcainterp/disparity" not in document["channels"]
+    focal_baseline = document["channels"]["/pcainterp/depth"]["focal_baseline"]
+    assert focal_baseline > 0
+
+    copied = _moved_depth(drive["dense"], tmp_path / "copied.mcap", 0.0)
+    assert check_log(copied, drive["golden"]).passed  # the copy itself changes nothing
+
+    moved = _moved_depth(drive["dense"], tmp_path / "moved.mcap", 3.0)
+    differences = check_log(moved, drive["golden"], topics=["/pcainterp/depth"]).differences
+    elements = [d for d in differences if d.what == "image elements"]
+    assert [d.index for d in elements] == [0, 1, 2, 3]
+    text = elements[0].text
+    assert "beyond 0.05 std (depth^2 / f*b * /pcainterp/disparity_std" in text
+    assert f"f*b {focal_baseline:g}" in text
+    worst = float(text.rsplit("(", 1)[1].removesuffix(" std)"))
+    # the worst moved by at least the three stds applied (more where the inverse-depth
+    # code is small and re-rounding it is a larger step in depth)
+    assert worst > 2.5
+
+
+def test_a_compact_depth_within_its_std_passes_elementwise(
+    drive: dict[str, Path], tmp_path: Path
+) -> None:
+    # a move far below the tolerance of 0.05 std, but above atol/rtol's 1e-4 + 1e-3 |z|
+    # wherever the std exceeds 0.1 % of the depth
+    golden = tmp_path / "g.json"
+    loose = json.loads(json.dumps(load_golden(drive["golden"])["tolerance"]))
+    loose["float"] = {"rel": 1.0, "spread": 1.0, "abs": 1.0}  # statistics: only elements
+    save_golden(
+        drive["dense"],
+        golden,
+        topics=["/pcainterp/depth", "/pcainterp/disparity_std"],
+        arrays=True,
+        tolerance=loose,
+    )
+    # a golden file saved before f*b was recorded: f*b is read from the log under test
+    document = json.loads(golden.read_text())
+    for channel in document["channels"].values():
+        del channel["focal_baseline"]
+    old = tmp_path / "old.json"
+    golden.with_suffix(".npz").rename(old.with_suffix(".npz"))
+    document["arrays_file"] = "old.npz"
+    old.write_text(json.dumps(document))
+
+    nudged = _moved_depth(drive["dense"], tmp_path / "nudged.mcap", 0.02)
+    assert check_log(nudged, old).passed
+    moved = _moved_depth(drive["dense"], tmp_path / "moved.mcap", 3.0)
+    assert any(d.what == "image elements" for d in check_log(moved, old).differences)
+    # neither f*b recorded nor in the log: the element check falls back to atol/rtol
+    bare = _moved_depth(drive["dense"], tmp_path / "bare.mcap", 0.02, keep_metadata=False)
+    texts = [d.text for d in check_log(bare, old).differences if d.what == "image elements"]
+    assert texts
+    assert all("beyond atol" in t for t in texts)
 
 
 def test_update_rewrites_the_golden(drive: dict[str, Path], tmp_path: Path) -> None:
