@@ -32,7 +32,6 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from scipy.interpolate import LinearNDInterpolator
 from scipy.spatial import QhullError, cKDTree
 
 from pcainterp_stream.estimate import fitting
@@ -185,6 +184,10 @@ def interpolation_at(
     nearest = values[nearest_index]
     linear = nearest.copy()
     if values.size >= 3:
+        # imported here: scipy.interpolate takes ~0.3 s to import, which a job's start-up
+        # would wait for; here it overlaps the stereo workers' first frames
+        from scipy.interpolate import LinearNDInterpolator
+
         try:
             inside = LinearNDInterpolator(points, values)(at)
         except QhullError:  # collinear points: nearest everywhere
