@@ -482,23 +482,11 @@ class FrameProcessor:
 
     def finish(self) -> list[DensifiedFrame]:
         """Finish every queued frame and return them in stream order."""
-        return [result for batch in self.finish_batches() for result in batch]
-
-    def finish_batches(self) -> Iterator[list[DensifiedFrame]]:
-        """Finish every queued frame, yielding the results batch by batch in stream order.
-
-        A batch is densified as soon as its frames are matched, while the stereo workers
-        still match the last frames, so the caller can hand each batch on (to its encoders)
-        before the stream's end is measured. The warm-up of the fit check still waits for
-        every frame of a stream shorter than it (it checks on all of them).
-        """
         while self._pending:
             self._ready.append(self._pending.popleft().result())
-            if not self.adaptation.warming and len(self._ready) >= self.config.batch_size:
-                yield self._densify_ready()
         if self.adaptation.warming and self._ready:
             self._warm_up()
-        yield self._densify_ready()
+        return self._densify_ready()
 
     def _warm_up(self) -> None:
         """Check the basis on the held-back frames; switch to the log's own when it wins."""
@@ -525,8 +513,7 @@ class FrameProcessor:
                 yield from self.submit(item)
             else:
                 yield from self.submit(*item)
-        for batch in self.finish_batches():
-            yield from batch
+        yield from self.finish()
 
     def _densify_ready(self) -> list[DensifiedFrame]:
         ready, self._ready = self._ready, []
