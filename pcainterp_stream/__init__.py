@@ -1,7 +1,8 @@
 """pcainterp_stream: densify sparse depth in stereo-camera logs with a learned PCA basis.
 
 The method is Ochs, Bradler & Mester, "Learning Rank Reduced Interpolation with Principal
-Component Analysis" (IEEE IV 2017); see ``DESIGN.md`` for the maths and the contracts.
+Component Analysis" (IEEE IV 2017); see ``docs/estimator.md`` for the maths and the README
+for the contracts.
 """
 
 from __future__ import annotations

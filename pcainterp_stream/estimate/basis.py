@@ -1,7 +1,7 @@
 """The PCA basis of disparity maps: the ``pcainterp-basis/1`` file and the grid it lives on.
 
 A basis is learned for one image size and one f*b, on a grid that may be coarser than the
-image. Grid and image are related by pixel-centre-aligned scaling (DESIGN.md section 2),
+image. Grid and image are related by pixel-centre-aligned scaling (docs/estimator.md, "Grid"),
 
     g = (p + 0.5) * (grid_size / image_size) - 0.5,
 
@@ -415,7 +415,7 @@ class Basis:
 
         It is package data (``pcainterp_stream/data/default_basis.npz``), for the KITTI grey
         camera (1241 x 376 px, f*b ~ 386 px*m); ``densify`` maps it onto any other camera
-        (DESIGN.md section 2, "Camera and resolution"). Loaded and validated once per
+        (docs/estimator.md, "Camera mapping"). Loaded and validated once per
         process and cached; what is slow to derive (the prior covariance, variance grids)
         stays lazy, as for any basis.
 

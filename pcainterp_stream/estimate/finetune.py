@@ -18,7 +18,7 @@ training maps and n_prior is their number, the result is the basis those maps an
 user's would have given together (up to the ``keep`` truncation of each batch).
 
 The user's maps are mapped onto the basis's camera first, as ``densify`` maps a camera
-(DESIGN.md section 2, "Camera and resolution"): disparities scaled by
+(docs/estimator.md, "Camera mapping"): disparities scaled by
 (f*b)_basis / (f*b)_maps, then the usual preprocessing, its area resampling going straight
 to the basis grid. The result is for the basis's image size and f*b, and ``densify`` maps
 it onto the user's camera like any basis.
@@ -55,8 +55,9 @@ DISPARITY_TOLERANCE = 1.5
 def camera_mismatch(basis: Basis, image_size: tuple[int, int], focal_baseline: float) -> str | None:
     """Say why a camera's maps should not be merged into a basis's statistics, or None.
 
-    The maps are mapped onto the basis's camera as ``densify`` maps a log (DESIGN.md
-    section 2): pixels scaled to its image size, disparities by the f*b ratio. That keeps
+    The maps are mapped onto the basis's camera as ``densify`` maps a log
+    (docs/estimator.md, "Camera mapping"): pixels scaled to its image size, disparities by
+    the f*b ratio. That keeps
     the street's depths but not its look, so the two cameras must agree on:
 
     - the **aspect ratio** (width / height) within :data:`ASPECT_TOLERANCE`: otherwise the

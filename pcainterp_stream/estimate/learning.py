@@ -1,6 +1,6 @@
 """Learning a PCA basis of disparity maps (paper section III-A), streamed.
 
-Each map is preprocessed in the order DESIGN.md fixes (:func:`preprocess_disparity`):
+Each map is preprocessed in a fixed order (:func:`preprocess_disparity`):
 invalid pixels take the nearest valid pixel's value, a 5x5 box filter, area resampling to
 the basis grid. Then the mean m and the leading eigenpairs of C = D D^T / (n - 1) (D the
 centred grid maps) are found without ever forming the s x s matrix C:
@@ -56,7 +56,7 @@ def preprocess_disparity(
     min_disparity: float = 0.0,
     box_size: int = DEFAULT_BOX_SIZE,
 ) -> npt.NDArray[np.float32]:
-    """Prepare one disparity map for learning (DESIGN.md section 2, in that order).
+    """Prepare one disparity map for learning (in this order; docs/estimator.md, "Learning").
 
     1. invalid pixels (NaN or < ``min_disparity``) take the value of the nearest valid
        pixel (``cv2.distanceTransformWithLabels``, ``DIST_LABEL_PIXEL``);

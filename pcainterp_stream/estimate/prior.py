@@ -1,4 +1,4 @@
-"""Prior and noise models beyond the paper's (DESIGN.md section 5).
+"""Prior and noise models beyond the paper's (docs/estimator.md, "Beyond the paper").
 
 A hybrid local prior, robust weights, noise by evidence and a temporal coefficient prior.
 

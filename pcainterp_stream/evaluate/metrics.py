@@ -69,7 +69,7 @@ def compare_with_ground_truth(
 
     Args:
         path: a log written by ``pcainterp densify`` from a log with ground truth.
-        topics: output topic names (default DESIGN.md's).
+        topics: output topic names (default the standard ``/pcainterp/*`` names).
         depth_topic: the ground-truth depth topic (32FC1, m).
 
     Returns:

@@ -598,7 +598,7 @@ def evaluate_log(
     Args:
         path: a log written by ``pcainterp densify``.
         options: evaluation options.
-        topics: output topic names (default DESIGN.md's).
+        topics: output topic names (default the standard ``/pcainterp/*`` names).
         progress: called with the number of frames read so far.
 
     Returns:

@@ -59,7 +59,7 @@ DISPLAY_DEPTH_STEP_MM = 50
 
 @dataclass(frozen=True)
 class OutputTopics:
-    """Names of the output channels; the defaults are DESIGN.md's.
+    """Names of the output channels; the defaults are the standard ``/pcainterp/*`` names.
 
     Depth and disparity (and their stds) are each other's reciprocal given f*b, and the
     float32 images dominate what ``densify`` writes and compresses: :meth:`only` keeps a

@@ -1,4 +1,6 @@
-"""The input topics and messages of a stereo log as this project writes it (DESIGN.md section 3).
+"""The input topics and messages of a stereo log as this project writes it.
+
+The topics are the README's input topics.
 
 Shared by the synthetic log writer (:mod:`pcainterp_stream.synth.log`) and the KITTI
 importer (:mod:`pcainterp_stream.io.kitti`).

@@ -1,7 +1,7 @@
 """Write synthetic (or imported) stereo frames as a log with the project's input topics.
 
 Per frame, all stamped with the frame's capture time (header stamp = log time), in this
-order (DESIGN.md section 3):
+order (the README's input topics):
 
 ==============================  ===============================  =======================
 topic                           type                             content
