@@ -216,13 +216,23 @@ def check_frame(
         return FrameCheck(0, 0.0, 0.0, 0.0)
     truth = reference.ravel()[flat].astype(np.float64)
     linear, nearest = interpolation_at(pixels, disparities, reference.shape[:2], flat)
-    prior = estimate.ravel()[flat].astype(np.float64)
-    ok = np.isfinite(prior) & np.isfinite(linear)
+    return _score(estimate.ravel()[flat], truth, linear, nearest)
+
+
+def _score(
+    prior: npt.NDArray[np.floating[Any]],
+    truth: npt.NDArray[np.float64],
+    linear: npt.NDArray[np.float64],
+    nearest: npt.NDArray[np.float64],
+) -> FrameCheck:
+    """Mean |error| of the prior's map, linear and nearest where all three and the truth exist."""
+    estimate = prior.astype(np.float64)
+    ok = np.isfinite(estimate) & np.isfinite(linear) & np.isfinite(truth)
     if not ok.any():
         return FrameCheck(0, 0.0, 0.0, 0.0)
     return FrameCheck(
         int(ok.sum()),
-        float(np.abs(prior[ok] - truth[ok]).mean()),
+        float(np.abs(estimate[ok] - truth[ok]).mean()),
         float(np.abs(linear[ok] - truth[ok]).mean()),
         float(np.abs(nearest[ok] - truth[ok]).mean()),
     )
@@ -268,16 +278,7 @@ def check_left_out(
         return FrameCheck(0, 0.0, 0.0, 0.0)
     truth = disparities[left_out].astype(np.float64)
     linear, nearest = interpolation_at(pixels[kept], disparities[kept], (height, width), flat)
-    prior = estimate.ravel()[flat].astype(np.float64)
-    ok = np.isfinite(prior) & np.isfinite(linear) & np.isfinite(truth)
-    if not ok.any():
-        return FrameCheck(0, 0.0, 0.0, 0.0)
-    return FrameCheck(
-        int(ok.sum()),
-        float(np.abs(prior[ok] - truth[ok]).mean()),
-        float(np.abs(linear[ok] - truth[ok]).mean()),
-        float(np.abs(nearest[ok] - truth[ok]).mean()),
-    )
+    return _score(estimate.ravel()[flat], truth, linear, nearest)
 
 
 def own_grid_size(image_size: tuple[int, int]) -> tuple[int, int]:
