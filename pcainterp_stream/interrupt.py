@@ -25,6 +25,7 @@ Outside :func:`stop_on_signals` (library use) :func:`track_partial` only records
 from __future__ import annotations
 
 import contextlib
+import faulthandler
 import os
 import shutil
 import signal
@@ -54,6 +55,7 @@ signal.signal(signal.SIGTERM, signal.SIG_IGN)
 parent, grace, second, wake, control = (int(sys.argv[1]), float(sys.argv[2]),
     float(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5]))
 watched = {int(n) for n in sys.argv[6].split(",")}
+dump = sys.argv[7] == "1"
 inputs, partials, pending, deadline, seen = [wake, control], set(), b"", None, 0
 while True:
     timeout = None if deadline is None else max(0.0, deadline - time.monotonic())
@@ -87,6 +89,12 @@ while True:
                     pass
         os.write(2, b"pcainterp: stopped: the clean-up after the signal did not end in time; "
                  b"partial output removed\n")
+        if dump:
+            try:
+                os.kill(parent, signal.SIGUSR1)  # faulthandler writes every thread's stack
+                time.sleep(0.3)
+            except OSError:
+                pass
         try:
             os.kill(parent, signal.SIGKILL)
         except OSError:
@@ -97,7 +105,13 @@ while True:
 library's core, so it starts in a few milliseconds and never touches the command's files
 other than the registered partial outputs."""
 
+STALL_DUMP_VARIABLE = "PCAINTERP_STALL_DUMP"
+"""Environment variable naming a folder: when the watchdog has to kill a command, the
+command first writes the Python stack of every thread there (``faulthandler``), into
+``stall-PID.txt``. For finding out where a command hung; unset, nothing is written."""
+
 _lock = threading.Lock()
+_stall_dump: IO[str] | None = None
 _partials: set[Path] = set()
 _control: IO[bytes] | None = None
 _signals_seen = 0
@@ -222,6 +236,37 @@ def _restore(
             process.wait(timeout=5)
     with _lock:
         _partials.clear()
+    _disarm_stall_dump()
+
+
+def _disarm_stall_dump() -> None:
+    """The command ended by itself: no stall to record, its empty dump file goes."""
+    global _stall_dump
+    if _stall_dump is None:
+        return
+    faulthandler.unregister(signal.SIGUSR1)
+    with contextlib.suppress(OSError):
+        _stall_dump.close()
+        Path(_stall_dump.name).unlink(missing_ok=True)
+    _stall_dump = None
+
+
+def _stall_dump_opened() -> bool:
+    """Arm ``faulthandler`` on SIGUSR1 into the stall-dump folder, if one is named."""
+    global _stall_dump
+    folder = os.environ.get(STALL_DUMP_VARIABLE)
+    if not folder or not hasattr(signal, "SIGUSR1"):
+        return False
+    if _stall_dump is None:
+        try:
+            Path(folder).mkdir(parents=True, exist_ok=True)
+            _stall_dump = (Path(folder) / f"stall-{os.getpid()}.txt").open("w")
+        except OSError:
+            return False
+        _stall_dump.write(f"pcainterp {' '.join(sys.argv[1:])}\n")
+        _stall_dump.flush()
+        faulthandler.register(signal.SIGUSR1, file=_stall_dump, all_threads=True)
+    return True
 
 
 def _start_watchdog() -> tuple[subprocess.Popen[bytes] | None, int, int]:
@@ -244,6 +289,7 @@ def _start_watchdog() -> tuple[subprocess.Popen[bytes] | None, int, int]:
                 str(wake_read),
                 str(control_read),
                 ",".join(str(int(s)) for s in _SIGNALS),
+                "1" if _stall_dump_opened() else "0",
             ],
             pass_fds=(wake_read, control_read),
             stdin=subprocess.DEVNULL,

@@ -15,12 +15,41 @@
 from __future__ import annotations
 
 import os
+import tempfile
+from pathlib import Path
 
+import pytest
 from hypothesis import settings
 from hypothesis_profiles import PROFILE_VARIABLE, THOROUGH
+
+from pcainterp_stream.interrupt import STALL_DUMP_VARIABLE
 
 settings.register_profile("ci", derandomize=True, deadline=None, print_blob=True)
 settings.register_profile(THOROUGH, deadline=None, print_blob=True)
 
 _profile = os.environ.get(PROFILE_VARIABLE) or ("ci" if os.environ.get("CI") else "default")
 settings.load_profile(_profile)
+
+
+# ------------------------------------------------------------------ stalled commands
+# Every command a test starts writes the stack of its threads into one folder when the
+# watchdog has to kill it after a signal (see pcainterp_stream.interrupt); the run's summary
+# shows any such dump, so a hang seen once in a whole-suite run leaves its evidence.
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    if not os.environ.get(STALL_DUMP_VARIABLE):
+        os.environ[STALL_DUMP_VARIABLE] = tempfile.mkdtemp(prefix="pcainterp-stalls-")
+
+
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
+    folder = Path(os.environ.get(STALL_DUMP_VARIABLE, ""))
+    dumps = sorted(folder.glob("stall-*.txt")) if folder.name else []
+    stalled = [(path, path.read_text(errors="replace")) for path in dumps]
+    stalled = [(path, text) for path, text in stalled if "hread" in text]
+    if not stalled:
+        return
+    terminalreporter.section("commands the watchdog had to kill after a signal")
+    for path, text in stalled:
+        terminalreporter.write_line(f"{path}:")
+        terminalreporter.write_line(text)

@@ -313,7 +313,9 @@ with stop_on_signals(watchdog=sys.argv[2] == "watchdog"):
 """A command stuck in native code (``native``) or in a clean-up that never ends."""
 
 
-def _stuck(tmp_path: Path, watchdog: str, mode: str) -> tuple[subprocess.Popen[str], Path]:
+def _stuck(
+    tmp_path: Path, watchdog: str, mode: str, env: dict[str, str] | None = None
+) -> tuple[subprocess.Popen[str], Path]:
     partial = tmp_path / ".out.mcap.partial"
     process = subprocess.Popen(
         [sys.executable, "-c", STUCK, str(partial), watchdog, mode],
@@ -321,6 +323,7 @@ def _stuck(tmp_path: Path, watchdog: str, mode: str) -> tuple[subprocess.Popen[s
         stderr=subprocess.PIPE,
         text=True,
         preexec_fn=_default_sigint,
+        env=env,
     )
     assert process.stdout is not None
     assert process.stdout.readline() == "ready\n", process.communicate()
@@ -346,6 +349,45 @@ def test_the_watchdog_ends_a_command_stuck_in_native_code(tmp_path: Path) -> Non
     assert process.returncode == -signal.SIGKILL
     assert "partial output removed" in err
     assert not partial.exists()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a glibc/musl mutex")
+def test_a_stall_dump_names_where_every_thread_was(tmp_path: Path) -> None:
+    """With the stall-dump folder named, a command the watchdog has to kill first writes the
+    Python stack of its threads there: the evidence of where it hung."""
+    from pcainterp_stream.interrupt import STALL_DUMP_VARIABLE
+
+    folder = tmp_path / "stalls"
+    env = {**os.environ, STALL_DUMP_VARIABLE: str(folder)}
+    process, _ = _stuck(tmp_path, "watchdog", "native", env)
+    process.send_signal(signal.SIGINT)
+    _ended(process)
+    assert process.returncode == -signal.SIGKILL
+    (dump,) = folder.glob("stall-*.txt")
+    text = dump.read_text()
+    assert "Current thread" in text or "Thread 0x" in text, text
+    assert "<string>" in text, text  # the stuck line of the command's own code
+
+
+def test_no_stall_dump_when_the_command_ends_by_itself(tmp_path: Path) -> None:
+    from pcainterp_stream.interrupt import STALL_DUMP_VARIABLE
+
+    folder = tmp_path / "stalls"
+    process = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "from pcainterp_stream.interrupt import stop_on_signals\n"
+            "with stop_on_signals():\n    pass\n",
+        ],
+        env={**os.environ, STALL_DUMP_VARIABLE: str(folder)},
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert process.returncode == 0, process.stderr
+    assert list(folder.glob("stall-*.txt")) == []
 
 
 def test_a_second_signal_ends_a_slow_clean_up_at_once(tmp_path: Path) -> None:
