@@ -182,6 +182,7 @@ def end_if_signalled(code: int) -> None:
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):
             stream.flush()
+    _disarm_stall_dump()
     os._exit(code)
 
 

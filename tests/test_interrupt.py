@@ -313,6 +313,13 @@ with stop_on_signals(watchdog=sys.argv[2] == "watchdog"):
 """A command stuck in native code (``native``) or in a clean-up that never ends."""
 
 
+def _without_stall_dump() -> dict[str, str]:
+    """The environment, minus the suite's stall-dump folder: these commands stall on purpose."""
+    from pcainterp_stream.interrupt import STALL_DUMP_VARIABLE
+
+    return {k: v for k, v in os.environ.items() if k != STALL_DUMP_VARIABLE}
+
+
 def _stuck(
     tmp_path: Path, watchdog: str, mode: str, env: dict[str, str] | None = None
 ) -> tuple[subprocess.Popen[str], Path]:
@@ -323,7 +330,7 @@ def _stuck(
         stderr=subprocess.PIPE,
         text=True,
         preexec_fn=_default_sigint,
-        env=env,
+        env=env if env is not None else _without_stall_dump(),
     )
     assert process.stdout is not None
     assert process.stdout.readline() == "ready\n", process.communicate()
