@@ -149,7 +149,7 @@ class LogGolden:
             dump_fn=dump,
             extension=EXTENSION,
             basename=paths_basename if fullpath is None else None,
-            fullpath=fullpath,
+            fullpath=Path(fullpath) if fullpath is not None else None,
         )
 
 

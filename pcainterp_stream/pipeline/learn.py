@@ -18,11 +18,13 @@ from pcainterp_stream.errors import (
     BasisError,
     LogReadError,
     PcaInterpError,
+    TopicNotFoundError,
 )
 from pcainterp_stream.estimate.basis import Basis, grid_size_for
 from pcainterp_stream.estimate.finetune import camera_mismatch, disparity_scale, finetune_basis
 from pcainterp_stream.estimate.learning import DEFAULT_BOX_SIZE, learn_basis, preprocess_disparity
 from pcainterp_stream.estimate.prior import LocalPrior
+from pcainterp_stream.frontend.discovery import resolve_pairing
 from pcainterp_stream.frontend.pairing import (
     PairingConfig,
     iter_stereo_frames,
@@ -184,6 +186,33 @@ def _sgbm_maps(
                 yield pending.pop(0).result()
         for future in pending:
             yield future.result()
+
+
+def learn_pairing(
+    logs: list[Path], pairing: PairingConfig, depth_topic: str | None = None
+) -> PairingConfig:
+    r"""Return the pairing ``learn`` reads every log with: the topics found in the first one.
+
+    All the logs of one ``learn`` share their topics. With a ``depth_topic`` only the camera
+    infos are needed, so a log whose images cannot be paired keeps the defaults.
+
+    Args:
+        logs: the logs to learn from (the first is read for its topics).
+        pairing: the pairing the options ask for; returned as it is unless it ``discover``\s
+            or a ``depth_topic`` is given.
+        depth_topic: the depth topic learned from instead of SGBM maps, if any.
+
+    Raises:
+        TopicNotFoundError: no stereo pair in the first log (and no ``depth_topic``).
+    """
+    if logs and (pairing.discover or depth_topic is not None):
+        with open_log(logs[0]) as reader:
+            try:
+                pairing = resolve_pairing(reader, pairing, _echo)
+            except TopicNotFoundError:
+                if depth_topic is None:
+                    raise  # a depth topic needs only the camera infos: the defaults may do
+    return pairing
 
 
 def _count_frames(log: Path, topic: str, every: int) -> int:
