@@ -117,7 +117,8 @@ class _ZstdAtLevel:
 _ZSTD = _ZstdAtLevel()
 mcap.writer.zstandard = _ZSTD  # type: ignore[attr-defined,assignment]
 # mcap's Writer checksums every chunk with ``zlib.crc32``: zlib-ng's is the same CRC-32 at
-# ~4.5x the speed (6 CPU ms per KITTI frame of output less; docs/benchmarks.md, "CRC-32 and zstd level -1")
+# ~4.5x the speed (6 CPU ms per KITTI frame of output less; docs/benchmarks.md, "CRC-32
+# and zstd level -1")
 mcap.writer.zlib = zlib_ng  # type: ignore[attr-defined]
 
 
