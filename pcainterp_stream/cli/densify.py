@@ -235,14 +235,11 @@ def _add_estimate_options(densify: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Check the options, build the estimate's config and densify; return the exit code."""
-    from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
-
-    source = MeasurementSource.FEATURES if args.features_topic else MeasurementSource.STEREO
     if args.process_noise is not None and not 0 < args.process_noise < float("inf"):
         raise PcaInterpError(f"--process-noise must be > 0, got {args.process_noise}")
     if args.carry_frames < 0:
         raise PcaInterpError(f"--carry-frames must be >= 0, got {args.carry_frames}")
-    live = live_options(args)
+    live = _live_options(args)
     if args.out_dir is not None and Path("-") in args.input:
         raise PcaInterpError("standard input (-) is one log; pass -o OUTPUT, not --out-dir")
     if args.measurements == "dense" and args.features_topic:
@@ -250,27 +247,11 @@ def run(args: argparse.Namespace) -> int:
             "--measurements dense fuses the whole SGBM map of the stereo pair; "
             "drop --features-topic (a feature stream is sparse)"
         )
-    dense = args.measurements == "dense"
     # --basis builtin: the built-in basis as it is (checked, never replaced)
     builtin = args.basis is not None and str(args.basis) == "builtin"
     if builtin:
         args.basis = None
-    processor = ProcessorConfig(
-        adapt="check" if builtin else "auto",
-        gftt=gftt_config(args),
-        # dense mode outputs the SGBM map itself where it is valid: full resolution
-        sgbm=sgbm_config(args, None if dense else ProcessorConfig().sgbm),
-        measurements=args.measurements,
-        sigma=sigma_option(args.sigma),
-        uncertainty=args.uncertainty,
-        prior=args.prior,
-        robust=args.robust,
-        temporal=args.temporal,
-        process_noise=args.process_noise,
-        carry=dataclasses.replace(ProcessorConfig().carry, frames=args.carry_frames),
-        calibrate=args.calibrate,
-        source=source,
-    )
+    processor = _processor_config(args, adapt="check" if builtin else "auto")
     _check_estimate(processor, args.basis)
     if args.out_dir is not None:
         return _densify_many(args, processor)
@@ -287,14 +268,38 @@ def run(args: argparse.Namespace) -> int:
         args.basis,
         processor=processor,
         pairing=pairing_config(args, args.features_topic),
-        topics=output_topics(args),
+        topics=_output_topics(args),
         live=live,
         rrd=args.rrd,
         spawn_viewer=args.rerun,
     )
 
 
-def live_options(args: argparse.Namespace) -> LiveOptions | None:
+def _processor_config(args: argparse.Namespace, *, adapt: str) -> ProcessorConfig:
+    """Return the estimate's config the options ask for (``adapt``: see ``ProcessorConfig``)."""
+    from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
+
+    source = MeasurementSource.FEATURES if args.features_topic else MeasurementSource.STEREO
+    dense = args.measurements == "dense"
+    return ProcessorConfig(
+        adapt=adapt,
+        gftt=gftt_config(args),
+        # dense mode outputs the SGBM map itself where it is valid: full resolution
+        sgbm=sgbm_config(args, None if dense else ProcessorConfig().sgbm),
+        measurements=args.measurements,
+        sigma=_sigma_option(args.sigma),
+        uncertainty=args.uncertainty,
+        prior=args.prior,
+        robust=args.robust,
+        temporal=args.temporal,
+        process_noise=args.process_noise,
+        carry=dataclasses.replace(ProcessorConfig().carry, frames=args.carry_frames),
+        calibrate=args.calibrate,
+        source=source,
+    )
+
+
+def _live_options(args: argparse.Namespace) -> LiveOptions | None:
     """Check the live-view options of a parsed command line; None without ``--foxglove``.
 
     Raises:
@@ -334,7 +339,7 @@ def live_options(args: argparse.Namespace) -> LiveOptions | None:
     )
 
 
-def sigma_option(value: str) -> float | str:
+def _sigma_option(value: str) -> float | str:
     """``densify --sigma``: a number of px > 0, "evidence" or "auto"."""
     if value in ("auto", "evidence"):
         return value
@@ -373,7 +378,7 @@ def _check_estimate(processor: ProcessorConfig, basis_path: Path | None) -> None
         )
 
 
-def output_topics(args: argparse.Namespace) -> OutputTopics:
+def _output_topics(args: argparse.Namespace) -> OutputTopics:
     """Return the output topics of ``densify``: --output-prefix, --depth-mm, --outputs."""
     from pcainterp_stream.io.outputs import OutputTopics
 
@@ -407,7 +412,7 @@ def _densify_many(args: argparse.Namespace, processor: ProcessorConfig) -> int:
             client,
             pairing=pairing_config(args, args.features_topic),
             processor=processor,
-            topics=output_topics(args),
+            topics=_output_topics(args),
         )
     failed = 0
     for outcome in outcomes:
