@@ -207,3 +207,21 @@ def test_top_level_is_small() -> None:
 def test_cycle_finder_finds_a_cycle() -> None:
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert _cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_every_command_module_is_alike_and_listed() -> None:
+    from pcainterp_stream.cli import COMMANDS, build_parser
+
+    for name, module in COMMANDS.items():
+        assert callable(module.add_parser), name
+        assert callable(module.run), name
+    commands = [
+        path.stem
+        for path in (PACKAGE / "cli").glob("*.py")
+        if "def add_parser(" in path.read_text()
+    ]
+    assert sorted(commands) == sorted(
+        module.__name__.rsplit(".", 1)[1] for module in COMMANDS.values()
+    )
+    choices = build_parser()._subparsers._group_actions[0].choices  # type: ignore[union-attr]
+    assert list(choices) == list(COMMANDS)
