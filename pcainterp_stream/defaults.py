@@ -26,7 +26,7 @@ STEREO_DOWNSCALE = 2
 """SGBM resolution of ``densify`` (``--stereo-downscale``; ``learn`` matches at full
 resolution, 1): half resolution is ~4x cheaper and the dense map as good (mean Delta_2D and
 +-2 sigma coverage within 1 % of full resolution on the synthetic log and both KITTI clips,
-docs/results.md "Throughput defaults (issue 17)"): the dense map's error is set by the
+docs/results.md "Half-resolution SGBM and the dense map"): the dense map's error is set by the
 interpolation, not by the lookups' ~0.1 px."""
 
 DISPLAY_MAX_DEPTH = 60.0

@@ -2,7 +2,8 @@
 
 Each layer imports only the layers below it; no module or subpackage import cycles; the
 maths (``estimate``) never imports I/O, the front end or the pipeline; ``io`` knows nothing
-of PCA; no module over 900 lines; at most 8 modules at the top level.
+of PCA; only the command line (``cli``) speaks of flags (imports argparse); no module over
+900 lines; at most 8 modules at the top level.
 """
 
 from __future__ import annotations
@@ -168,6 +169,25 @@ def test_io_knows_nothing_of_pca() -> None:
     assert offending == []
 
 
+def _imports_argparse(path: Path) -> bool:
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import) and any(a.name == "argparse" for a in node.names):
+            return True
+        if isinstance(node, ast.ImportFrom) and node.module == "argparse":
+            return True
+    return False
+
+
+def test_only_the_command_line_imports_argparse() -> None:
+    outside = [
+        name
+        for name, path in _modules().items()
+        if _unit(name) != "cli" and _imports_argparse(path)
+    ]
+    assert outside == [], "parse options in pcainterp_stream/cli/ and pass typed configs"
+    assert _imports_argparse(PACKAGE / "cli" / "app.py")  # the check sees an import
+
+
 def test_modules_are_short() -> None:
     long = {
         name: count
@@ -187,3 +207,21 @@ def test_top_level_is_small() -> None:
 def test_cycle_finder_finds_a_cycle() -> None:
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert _cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_every_command_module_is_alike_and_listed() -> None:
+    from pcainterp_stream.cli import COMMANDS, build_parser
+
+    for name, module in COMMANDS.items():
+        assert callable(module.add_parser), name
+        assert callable(module.run), name
+    commands = [
+        path.stem
+        for path in (PACKAGE / "cli").glob("*.py")
+        if "def add_parser(" in path.read_text()
+    ]
+    assert sorted(commands) == sorted(
+        module.__name__.rsplit(".", 1)[1] for module in COMMANDS.values()
+    )
+    choices = build_parser()._subparsers._group_actions[0].choices  # type: ignore[union-attr]
+    assert list(choices) == list(COMMANDS)

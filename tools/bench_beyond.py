@@ -1,4 +1,4 @@
-"""Speed of densification with every addition of issue 7, at KITTI size, exact uncertainty.
+"""Speed of densification with every estimate option beyond the paper, KITTI size, exact std.
 
 Uses the frames and fitted bases cached by ``tools/run_beyond.py`` (real GFTT + SGBM
 measurements of the synthetic test log, 1241x376, and the basis learned from synthetic

@@ -1,4 +1,4 @@
-"""Long-log benchmark (issue 8): ``pcainterp densify`` on a 1,000-frame full-size log.
+"""Long-log benchmark: ``pcainterp densify`` on a 1,000-frame full-size log (memory, speed).
 
 Checks the two long-log promises of ``densify``: memory does not grow with the length of
 the log, and the frame rate does not fall over time. Each run is the real command line

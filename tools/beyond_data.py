@@ -356,3 +356,7 @@ def fit_hyperparameters(basis: Basis, fit_logs: Sequence[tuple[LogData, slice]])
         )
     meta["fit_seconds"] = round(watch.wall, 1)
     return meta
+
+
+if __name__ == "__main__":
+    harness.module_main(__doc__, "run_beyond.py, bench_beyond.py and bench_variance_grid.py")

@@ -457,3 +457,7 @@ def carry_sweep(
             ]
             harness.log(f"  {split} carry {key}: {out[split][key]}")
     return out
+
+
+if __name__ == "__main__":
+    harness.module_main(__doc__, "run_beyond.py")

@@ -93,7 +93,7 @@ def score_clip(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Print the table of docs/results.md, "Dense fusion" (real clips, hidden blocks)."""
+    """Print the table of docs/results.md, "Dense mode" (real clips, hidden blocks)."""
     parser = harness.argument_parser(__doc__)
     harness.add_realdata(parser)
     parser.add_argument("--frames", type=int, default=12, help="frames per clip")

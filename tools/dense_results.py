@@ -1,4 +1,4 @@
-"""Dense mode's measurements in docs/results.md, "Dense fusion (issue 18)".
+"""Dense mode's measurements in docs/results.md, "Dense mode".
 
 Two sections:
 
@@ -201,7 +201,7 @@ def run_commands(work: Path, realdata: Path) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Print the tables of docs/results.md, "Dense fusion (issue 18)"."""
+    """Print the tables of docs/results.md, "Dense mode"."""
     parser = harness.argument_parser(__doc__)
     harness.add_work_dir(parser)
     harness.add_realdata(parser)

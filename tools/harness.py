@@ -386,3 +386,23 @@ def read_json(path: Path, default: Any = None) -> Any:
 def write_json(path: Path, data: object, indent: int | None = 1) -> None:
     """Write ``data`` to ``path`` as JSON with a final newline."""
     path.write_text(json.dumps(data, indent=indent) + "\n")
+
+
+def module_main(doc: str | None, used_by: str) -> None:
+    """Answer ``--help`` for a module of helpers that other tools import; refuse to run.
+
+    Args:
+        doc: the module's docstring, shown as the description.
+        used_by: the scripts that import it, named in the help and the error.
+    """
+    parser = argparse.ArgumentParser(
+        description=doc,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=f"imported by {used_by}; it has nothing to run on its own",
+    )
+    parser.parse_args()
+    parser.error(f"nothing to run: this module is imported by {used_by}; run one of those")
+
+
+if __name__ == "__main__":
+    module_main(__doc__, "every script in tools/")

@@ -7,17 +7,17 @@ synthetic drives sees them. The recipe can also give each map its own camera pla
 (``pitch_px``: the horizon moved, a vertical shift of the principal point that the
 level-only renderer can draw; ``roll_deg``: the depth image rotated about the principal
 point; camera height and place across the road): measured on the real KITTI clips, that made
-the basis worse (docs/results.md, "Built-in basis"), so the shipped recipe has none.
+the basis worse (docs/bases.md, "The built-in basis"), so the shipped recipe has none.
 ``--indoor-seeds N`` adds N synthetic indoor walks (rooms, corridors, halls; hand-held, drone
 and ground-robot placements), seen by the same camera: measured, even 0.8-2 % of indoor
-maps cost the real KITTI clips 4-5 % while much improving indoor logs (docs/estimator.md,
+maps cost the real KITTI clips 4-5 % while much improving indoor logs (docs/bases.md,
 "A built-in basis for streets and rooms?"), so the shipped recipe has none either.
 
 The hybrid prior's local kernel is fixed by the recipe (``local_kernel``): the evidence on
 synthetic frames, which the basis explains well, picks a weak short kernel (Gaussian 8-16 px,
 v ~2 px^2) that leaves the basis alone on real streets, which it explains less well; the
 kernel was chosen among a few on the two real KITTI clips, each choice made on one clip and
-checked on the other (docs/results.md). sigma, the temporal process noise and the std
+checked on the other (docs/bases.md). sigma, the temporal process noise and the std
 calibration are then fitted as ``pcainterp learn`` fits them, on the front end's
 measurements of a separate synthetic drive (``fit_seed``): no real map is in the basis.
 

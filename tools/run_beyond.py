@@ -1,4 +1,4 @@
-"""Experiments of issue 7 (beyond the paper): every addition on held-out synthetic and KITTI.
+"""Experiments beyond the paper (docs/options.md): every addition on held-out synthetic and KITTI.
 
 Stages, each cached in ``--work`` (an interrupted run resumes):
 

@@ -1,4 +1,4 @@
-"""Run the evaluation experiments of ``docs/results.md`` (issue #5) end to end.
+"""Run the evaluation experiments of ``docs/results.md`` (the paper's setup) end to end.
 
 1. Synthetic (the Virtual-KITTI analogue): a basis learned from the ground-truth depth of
    ``--train-frames`` synthetic frames (seeds 101..), densify and evaluate ``--test-frames``

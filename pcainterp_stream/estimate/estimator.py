@@ -377,7 +377,7 @@ def densify_batch(
         # B~ Lambda U_v^T as a GEMM (k l s_v products, ~4.5 ms per KITTI-size frame on one
         # core), not gathered from the cached U Lambda U_v^T (Basis.prior_covariance): that
         # matrix takes 218 MB and 1-3 s to build, and gathering 4k of its rows from memory
-        # was no faster than the GEMM (docs/benchmarks.md, issue 17)
+        # was no faster than the GEMM (docs/benchmarks.md, "Throughput")
         variances = _variances(vgrid, posteriors, mode, basis.image_size)
 
     results = []

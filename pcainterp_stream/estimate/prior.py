@@ -264,7 +264,7 @@ class Model:
         robust: the IRLS loss.
         robust_iterations: reweightings after the first (unweighted) solve. One is the
             default: on the synthetic and KITTI splits 2 or 4 changed mean Delta_2D by
-            less than 0.03 px and cost a k x k factorisation each (docs/results.md).
+            less than 0.03 px and cost a k x k factorisation each (docs/options.md).
     """
 
     sigma: float | None = 2.0

@@ -29,7 +29,7 @@ from pcainterp_stream.estimate.solve import (
 DEFAULT_VARIANCE_GRID_SCALE = 0.0625
 """Automatic variance grid of ``"exact-coarse"`` and ``"paper"``: the coarsest stride whose
 grid is still >= this scale of the image. Finer grids cost 2-8x as much and were still not
-within 2 % of the exact std (docs/benchmarks.md, "Exact posterior std: variance grid")."""
+within 2 % of the exact std (docs/stages.md, "Exact posterior std: variance grid")."""
 
 _EXACT_PIXELS_PER_CHUNK = 1 << 14
 """Output pixels whose ``"exact"`` variance is evaluated at once (memory ~(l + k) x this)."""
@@ -54,7 +54,7 @@ class Uncertainty(StrEnum):
     prior with its kernel evaluated at x itself. Without a local part about the cost of
     the variance on the basis grid itself (0.06-0.11 s per KITTI-size frame, l = 60-200,
     one BLAS thread); with one, k*l + k^2 products per output pixel (1.6-2.4 s)
-    (docs/benchmarks.md, "Exact posterior std: variance grid")."""
+    (docs/stages.md, "Exact posterior std: variance grid")."""
     EXACT_COARSE = "exact-coarse"
     """The exact posterior variance at the points of the variance grid (``variance_stride``;
     by default 1/16 of the image resolution), resampled bilinearly: exact at those points
@@ -62,7 +62,7 @@ class Uncertainty(StrEnum):
     roughness at the basis grid's scale, and the dips of the std towards sigma at and near
     the measurements (deep with a hybrid prior). The default: on learned bases its +-2
     sigma coverage was within 0.6 points of ``EXACT``'s and its NLL within 0.7 %, at 1/6
-    (the paper's prior) to 1/100 (hybrid prior) of the cost (docs/benchmarks.md, "Exact
+    (the paper's prior) to 1/100 (hybrid prior) of the cost (docs/stages.md, "Exact
     posterior std: variance grid")."""
 
 

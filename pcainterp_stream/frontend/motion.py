@@ -2,7 +2,7 @@
 
 A frame's ~360 corners leave most of the image far from any measurement: on the synthetic
 test log two thirds of the mean error lies more than 40 px from the nearest point, on
-large textureless surfaces (docs/results.md). The frames before saw other parts of the
+large textureless surfaces (docs/options.md). The frames before saw other parts of the
 scene. This module carries their measurements into the current frame:
 
 * :func:`estimate_motion` -- stereo visual odometry from one frame to the next: the frame's

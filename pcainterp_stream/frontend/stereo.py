@@ -16,7 +16,7 @@ the disparity map is valid and smooth around the corner, and, optionally, when t
 view's map agrees with it.
 
 Defaults were chosen from measurements on real KITTI raw frames (1242x375, 2 cores); see
-``docs/benchmarks.md``, section "Stereo front end (issue 4)", and ``tools/bench_stereo.py``.
+``docs/stages.md``, section "Stereo front end", and ``tools/bench_stereo.py``.
 
 Threading: OpenCV releases the GIL inside SGBM, so a worker thread can compute frame t+1
 while the main thread densifies frame t. A ``cv2.StereoSGBM`` object is not safe to share
@@ -149,7 +149,7 @@ class GfttConfig:
     The defaults give ~340 valid lookups per KITTI frame (1242x375, 8 frames of drive
     2011_09_26_0001) after the checks of :func:`lookup_disparities`, spread over 22 of 24
     cells of a 6x4 grid; 300 corners give ~255. Detection takes ~5-7 ms, of which
-    ``cornerSubPix`` ~1.5 ms (``docs/benchmarks.md``).
+    ``cornerSubPix`` ~1.5 ms (``docs/stages.md``).
 
     Attributes:
         max_corners: most corners returned (strongest first).
@@ -267,7 +267,7 @@ class SgbmConfig:
     """``cv2.StereoSGBM`` settings (see the OpenCV documentation of ``StereoSGBM_create``).
 
     The defaults are for KITTI size (1242x375, disparities up to ~100 px for objects at
-    4 m) and were chosen from the measurements in ``docs/benchmarks.md``: ``SGBM_3WAY``
+    4 m) and were chosen from the measurements in ``docs/stages.md``: ``SGBM_3WAY``
     with 128 disparities and 5 px blocks takes ~55-65 ms per frame on 2 cores (~100 ms on
     one), 2-3x less than ``SGBM`` (~130-180 ms) and ``HH4`` (~200-400 ms), and its lookups
     at the corners are all within 1 px of ``SGBM`` mode's (mean difference 0.03 px).

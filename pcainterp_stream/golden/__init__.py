@@ -39,7 +39,7 @@ if TYPE_CHECKING:
     from pcainterp_stream.golden.summary import LogSummary, array_statistics, summarize_log
 
 # the public names load their modules on first use (PEP 562), so that the command line's
-# parser, which imports `golden.commands`, does not load OpenCV and the ROS type store
+# parser (`cli/golden.py`) does not load OpenCV and the ROS type store
 _MODULES = {
     "DEFAULT_TOLERANCE": "comparison",
     "Difference": "comparison",

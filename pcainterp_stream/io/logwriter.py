@@ -70,7 +70,7 @@ MCAP_ZSTD_LEVEL = -1
 """zstd level of MCAP chunks: -1, zstd's first fast level. The float32 output images hardly
 compress at any level (level 1 keeps 87 % of their bytes at ~5 ms per KITTI image, -1 keeps
 all of them at ~1 ms); on a densified log -1 writes 14 % more bytes than level 1 for ~16
-CPU ms per frame less (docs/benchmarks.md, issue 17)."""
+CPU ms per frame less (docs/benchmarks.md, "CRC-32 and zstd level -1")."""
 WRITE_QUEUE_ITEMS = 32
 """Messages a threaded writer holds before ``add_*`` blocks (bounds its memory: ~60 MB of
 KITTI-size float32 images)."""
@@ -117,7 +117,8 @@ class _ZstdAtLevel:
 _ZSTD = _ZstdAtLevel()
 mcap.writer.zstandard = _ZSTD  # type: ignore[attr-defined,assignment]
 # mcap's Writer checksums every chunk with ``zlib.crc32``: zlib-ng's is the same CRC-32 at
-# ~4.5x the speed (6 CPU ms per KITTI frame of output less; docs/benchmarks.md, issue 17)
+# ~4.5x the speed (6 CPU ms per KITTI frame of output less; docs/benchmarks.md, "CRC-32
+# and zstd level -1")
 mcap.writer.zlib = zlib_ng  # type: ignore[attr-defined]
 
 

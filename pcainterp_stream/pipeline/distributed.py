@@ -73,7 +73,7 @@ def cluster_oversampling(n_components: int) -> int:
     64) the largest error of the l = 100 eigenvalues against the exact ones was 1.8 % at
     r = l + 20, 0.6 % at r = 1.5 l and 0.1 % at r = 2 l (the top 10: < 5e-5 for all), and a
     merge costs about (2 r)^2 s: r = 1.5 l keeps the learned model within 1 % of one
-    process's at about twice the merge cost of r = l + 20 (docs/benchmarks.md).
+    process's at about twice the merge cost of r = l + 20 (docs/cluster.md).
     """
     return max(DEFAULT_OVERSAMPLING, n_components // 2)
 

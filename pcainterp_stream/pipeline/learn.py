@@ -18,11 +18,13 @@ from pcainterp_stream.errors import (
     BasisError,
     LogReadError,
     PcaInterpError,
+    TopicNotFoundError,
 )
 from pcainterp_stream.estimate.basis import Basis, grid_size_for
 from pcainterp_stream.estimate.finetune import camera_mismatch, disparity_scale, finetune_basis
 from pcainterp_stream.estimate.learning import DEFAULT_BOX_SIZE, learn_basis, preprocess_disparity
 from pcainterp_stream.estimate.prior import LocalPrior
+from pcainterp_stream.frontend.discovery import resolve_pairing
 from pcainterp_stream.frontend.pairing import (
     PairingConfig,
     iter_stereo_frames,
@@ -89,12 +91,12 @@ AUTO = "auto"
 
 AUTO_MAX_MAPS = 1000
 """``auto`` fine-tunes when the logs give fewer training maps than this: measured better at
-40 and 86 real maps and 240 and 800 synthetic ones (docs/results.md, "How `learn`'s default
+40 and 86 real maps and 240 and 800 synthetic ones (docs/bases.md, "How `learn`'s default
 was chosen"); from AUTO_PRIOR_MAPS maps on, the user's maps carry most of the weight."""
 
 AUTO_PRIOR_MAPS = 1000
 """The maps ``auto`` counts the built-in basis for: of 250, 1000, 4000 and 6000, the best
-mean over the two real KITTI clips, each learned and the other densified (docs/results.md,
+mean over the two real KITTI clips, each learned and the other densified (docs/bases.md,
 "How `learn`'s default was chosen")."""
 
 
@@ -184,6 +186,33 @@ def _sgbm_maps(
                 yield pending.pop(0).result()
         for future in pending:
             yield future.result()
+
+
+def learn_pairing(
+    logs: list[Path], pairing: PairingConfig, depth_topic: str | None = None
+) -> PairingConfig:
+    r"""Return the pairing ``learn`` reads every log with: the topics found in the first one.
+
+    All the logs of one ``learn`` share their topics. With a ``depth_topic`` only the camera
+    infos are needed, so a log whose images cannot be paired keeps the defaults.
+
+    Args:
+        logs: the logs to learn from (the first is read for its topics).
+        pairing: the pairing the options ask for; returned as it is unless it ``discover``\s
+            or a ``depth_topic`` is given.
+        depth_topic: the depth topic learned from instead of SGBM maps, if any.
+
+    Raises:
+        TopicNotFoundError: no stereo pair in the first log (and no ``depth_topic``).
+    """
+    if logs and (pairing.discover or depth_topic is not None):
+        with open_log(logs[0]) as reader:
+            try:
+                pairing = resolve_pairing(reader, pairing, _echo)
+            except TopicNotFoundError:
+                if depth_topic is None:
+                    raise  # a depth topic needs only the camera infos: the defaults may do
+    return pairing
 
 
 def _count_frames(log: Path, topic: str, every: int) -> int:
@@ -520,7 +549,7 @@ def learn(
         raise PcaInterpError(f"cannot learn a basis from {len(logs)} log(s): {err}") from err
     if options.fit_prior:
         # a fine-tuned basis keeps the built-in basis's kernel (chosen on real streets; the
-        # evidence of a few held-out frames picks a worse one: docs/results.md, issue 16)
+        # evidence of a few held-out frames picks a worse one: docs/bases.md)
         prior_basis = plan.synthetic.prior_basis
         local = None if prior_basis is None else kept_kernel(prior_basis)
         sources = plan.held_out(options)
@@ -564,7 +593,7 @@ def _learn_here(
         if plan.synthetic.prior_basis is not None:
             # maps that fit the budget are merged in one step: the pooled scatter exactly,
             # then its top l + 20 (in batches of 64 the last eigenvalues near l
-            # came out up to 4.6 % low at l = 100 on 480 maps: docs/benchmarks.md)
+            # came out up to 4.6 % low at l = 100 on 480 maps: docs/cluster.md)
             n_pixels = plan.target.grid_size[0] * plan.target.grid_size[1]
             one_step = plan.total is not None and plan.total * n_pixels * 12 <= ONE_STEP_BYTES
             return finetune_basis(

@@ -6,7 +6,7 @@ Stereo matching of the next frames runs in worker threads while the calling thre
 the current batch and does the caller's I/O (OpenCV and BLAS release the GIL); memory is
 bounded by the look-ahead, whatever the length of the stream.
 
-Threads (measured in docs/benchmarks.md, "End-to-end densify"): on a few cores the pipeline
+Threads (measured in docs/stages.md, "Stereo front end", "Threads"): on a few cores the pipeline
 is fastest when no library spawns threads of its own, so that every thread is one unit of
 work the OS can place: each stereo worker runs OpenCV on one thread
 (``cv2.setNumThreads(1)``), BLAS runs on one thread (threadpoolctl), and two stereo workers
@@ -14,7 +14,7 @@ keep both cores busy while the calling thread waits for I/O. A two-thread OpenBL
 running SGBM threads spins and is several times slower. Both settings are process-wide; the
 processor restores the previous values in :meth:`FrameProcessor.close`.
 
-The threads of a ``densify`` job, all of them (issue 17, docs/benchmarks.md "Throughput"):
+The threads of a ``densify`` job, all of them (docs/benchmarks.md, "Throughput"):
 the calling thread (read, pair, densify the batch, build the output messages); the one pool
 of this processor, ``stereo_workers`` threads running GFTT, SGBM, the lookups and the
 odometry of the carried points; and the log writer's own thread (``open_writer(...,

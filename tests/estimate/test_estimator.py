@@ -338,7 +338,7 @@ def test_bad_options_named() -> None:
 
 # ----------------------------------------------------------------------------- exact std
 # "exact" is the posterior std at every output pixel; "exact-coarse" (the default) is exact
-# only at the points of the variance grid (docs/benchmarks.md, "Exact posterior std").
+# only at the points of the variance grid (docs/stages.md, "Exact posterior std").
 
 
 def _learned_like_basis(image_size: tuple[int, int] = (48, 64)) -> Basis:

@@ -6,7 +6,7 @@ threads interleave differently, each in its own folder with the same relative fi
 (the basis records the paths of its logs). Every message of the logs is compared (topic,
 schema, encoding, log time, publish time, bytes) and every array of the bases. Across
 machines expect differences at float rounding level instead (BLAS kernels and thread
-counts; see docs/benchmarks.md, "Long logs (issue 8)").
+counts; see docs/cluster.md, "Determinism").
 """
 
 from __future__ import annotations

@@ -144,21 +144,3 @@ def pairing_config(args: argparse.Namespace, features_topic: str | None = None) 
         discover=discover,
         check_rows=args.rectify != "never",
     )
-
-
-def learn_pairing(args: argparse.Namespace) -> PairingConfig:
-    """Return learn's pairing: the topics found in its first log (all logs share them)."""
-    from pcainterp_stream.errors import TopicNotFoundError
-    from pcainterp_stream.frontend.discovery import resolve_pairing
-    from pcainterp_stream.io.logreader import open_log
-    from pcainterp_stream.pipeline.common import _echo
-
-    pairing = pairing_config(args)
-    if args.logs and (pairing.discover or args.depth_topic is not None):
-        with open_log(args.logs[0]) as reader:
-            try:
-                pairing = resolve_pairing(reader, pairing, _echo)
-            except TopicNotFoundError:
-                if args.depth_topic is None:
-                    raise  # a depth topic needs only the camera infos: the defaults may do
-    return pairing

@@ -1,4 +1,4 @@
-"""The ``pcainterp golden save`` and ``pcainterp golden check`` commands.
+"""``pcainterp golden save`` and ``pcainterp golden check``: golden-file tests of logs.
 
 Options are declared beside the function that runs them; the work is one call into
 :mod:`pcainterp_stream.golden.store`. Exit codes: 0 the log matches (or was saved), 1 it
@@ -14,18 +14,17 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-if TYPE_CHECKING:
-    from tqdm import tqdm
-
+from pcainterp_stream.cli.common import Commands, formatter
 from pcainterp_stream.errors import PcaInterpError
 
-__all__ = ["add_golden_parser", "run_golden"]
+if TYPE_CHECKING:
+    from tqdm import tqdm
 
 DEFAULT_MAX_LINES = 20
 
 
-def add_golden_parser(commands: Any, formatter: Any) -> None:
-    """Add ``golden save`` and ``golden check`` to the ``pcainterp`` sub-commands."""
+def add_parser(commands: Commands) -> None:
+    """Add ``golden`` and its actions ``save`` and ``check`` to the commands."""
     golden = commands.add_parser(
         "golden",
         formatter_class=formatter,
@@ -118,7 +117,7 @@ def _progress(description: str) -> Iterator[Any]:
             bar.close()
 
 
-def run_golden(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     """Run ``pcainterp golden save|check``; return the exit code (0, 1, or raise for 2).
 
     Raises:

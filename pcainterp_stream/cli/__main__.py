@@ -1,0 +1,7 @@
+"""``python -m pcainterp_stream.cli``: the ``pcainterp`` command."""
+
+import sys
+
+from pcainterp_stream.cli.app import main
+
+sys.exit(main())

@@ -1,0 +1,95 @@
+"""The ``pcainterp`` parser and the run of a parsed command line.
+
+One module per command (``synth``, ``import_kitti``, ``learn``, ``densify``, ``evaluate``,
+``info``, ``demo``, ``golden``), each with ``add_parser(commands)`` and ``run(args)``;
+:data:`COMMANDS` lists them in the order ``pcainterp --help`` shows them. The work is done
+by :mod:`pcainterp_stream.pipeline`, imported when a command runs so that ``--help`` stays
+fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable, Sequence
+from types import ModuleType
+
+from pcainterp_stream.cli import demo, densify, evaluate, golden, import_kitti, info, learn, synth
+from pcainterp_stream.cli.common import PROG, formatter
+from pcainterp_stream.errors import PcaInterpError
+from pcainterp_stream.interrupt import end_if_signalled, stop_on_signals
+from pcainterp_stream.version import __version__
+
+COMMANDS: dict[str, ModuleType] = {
+    "synth": synth,
+    "import-kitti": import_kitti,
+    "learn": learn,
+    "densify": densify,
+    "evaluate": evaluate,
+    "info": info,
+    "demo": demo,
+    "golden": golden,
+}
+"""Command name -> its module (``add_parser``, ``run``), in the order of ``--help``."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the argument parser of ``pcainterp``."""
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        formatter_class=formatter,
+        description=(
+            "Densify sparse depth in stereo-camera logs (MCAP, ROS 1 .bag, rosbag2) with a\n"
+            "learned PCA basis and a MAP estimate with per-pixel uncertainty\n"
+            "(Ochs, Bradler & Mester, IEEE IV 2017)."
+        ),
+        epilog=(
+            "examples:\n"
+            "  pcainterp demo                  # a generated drive densified, in about a minute\n"
+            "  pcainterp densify drive.mcap -o drive_dense.mcap          # the built-in basis\n"
+            "  pcainterp evaluate drive_dense.mcap -o report\n"
+            "  pcainterp synth train.mcap --frames 200 --seed 1\n"
+            "  pcainterp learn train.mcap -o basis.npz --components 200  # a basis of your own\n"
+            "  pcainterp densify drive.mcap -o drive_dense.mcap --basis basis.npz --rrd drive.rrd\n"
+            "  pcainterp info drive_dense.mcap\n"
+            "  pcainterp golden save drive_dense.mcap -o drive.golden.json  # then golden check\n"
+        ),
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for module in COMMANDS.values():
+        module.add_parser(commands)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the job a parsed command line asks for; return the exit code."""
+    command: Callable[[argparse.Namespace], int] = COMMANDS[args.command].run
+    return command(args)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``pcainterp``; return the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    # SIGTERM takes the same clean-up path as Ctrl-C: temporaries removed, target untouched;
+    # a second signal ends at once, and densify (native threads: the Foxglove server, the
+    # writer, SGBM) has a watchdog that ends it within a few seconds whatever blocks
+    # (pcainterp_stream/interrupt.py). The previous handlers come back afterwards, for
+    # callers that run main() in-process.
+    try:
+        with stop_on_signals(watchdog=args.command == "densify"):
+            return run(args)
+    except PcaInterpError as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; no partial output was left at the target", file=sys.stderr)
+        # A Ctrl-C that lands inside code run by exec() (rosbags generates its message
+        # decoders that way) sets a flag that makes `python -m` re-raise SIGINT at exit
+        # (CPython bpo-41602) although we handled it; any exec() of a string clears it.
+        exec("")
+        end_if_signalled(130)  # a real signal: no interpreter shutdown to wait for
+        return 130
+    except BrokenPipeError:
+        return 1

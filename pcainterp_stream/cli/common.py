@@ -1,0 +1,139 @@
+"""What the commands share: the help layout, printing, and the stereo and cluster options.
+
+Each option group is added by one function and read back into a typed config by another
+beside it, so that a command which takes the group gets the same flags, help and checks.
+Heavy modules load only when a command runs, so ``--help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from typing import TYPE_CHECKING, Any, TypeAlias
+
+from pcainterp_stream.errors import PcaInterpError
+
+if TYPE_CHECKING:
+    from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig
+    from pcainterp_stream.io.logwriter import WriteSummary
+
+PROG = "pcainterp"
+
+Commands: TypeAlias = "argparse._SubParsersAction[argparse.ArgumentParser]"
+"""What ``ArgumentParser.add_subparsers`` returns: each command module adds its parser to it."""
+
+
+def formatter(prog: str) -> argparse.HelpFormatter:
+    """Return the help layout of every command: descriptions and examples as written."""
+    return argparse.RawDescriptionHelpFormatter(prog, max_help_position=32)
+
+
+def echo(text: str) -> None:
+    """Print one line of a command's report at once (standard error with ``-o -``)."""
+    print(text, flush=True)  # sys.stdout at the time of the call
+
+
+def print_written(summary: WriteSummary) -> None:
+    """Print the line that closes a command which wrote a log."""
+    duration = ((summary.end_ns or 0) - (summary.start_ns or 0)) / 1e9
+    echo(f"wrote {summary.path}: {summary.message_count} messages, {duration:.1f} s of log")
+
+
+# ----------------------------------------------------------------------------- stereo front end
+
+
+def add_stereo_options(parser: argparse.ArgumentParser) -> None:
+    """Add the GFTT and SGBM options of ``learn`` and ``densify``."""
+    group = parser.add_argument_group("stereo front end (GFTT corners, SGBM lookups)")
+    group.add_argument("--corners", type=int, default=None, metavar="N", help="max GFTT corners")
+    group.add_argument(
+        "--quality", type=float, default=None, metavar="Q", help="GFTT quality level"
+    )
+    group.add_argument(
+        "--min-distance", type=float, default=None, metavar="PX", help="GFTT min corner distance"
+    )
+    group.add_argument(
+        "--num-disparities", type=int, default=None, metavar="N", help="SGBM disparity range"
+    )
+    group.add_argument("--block-size", type=int, default=None, metavar="N", help="SGBM block")
+    group.add_argument(
+        "--sgbm-mode",
+        choices=["sgbm", "hh", "sgbm_3way", "hh4"],
+        default=None,
+        help="SGBM variant",
+    )
+    group.add_argument(
+        "--stereo-downscale",
+        type=int,
+        choices=[1, 2],
+        default=None,
+        help="match at 1/N resolution: 2 is ~4x cheaper SGBM for slightly less exact "
+        "lookups, as good a dense map (default: densify 2, learn 1; docs/benchmarks.md)",
+    )
+
+
+def sgbm_config(args: argparse.Namespace, base: SgbmConfig | None = None) -> SgbmConfig:
+    """Return ``base`` (default: ``SgbmConfig()``) with the SGBM options given changed.
+
+    Raises:
+        PcaInterpError: a disparity range or block size SGBM does not take.
+    """
+    from pcainterp_stream.frontend.stereo import SgbmConfig, SgbmMode
+
+    changes: dict[str, Any] = {}
+    if args.num_disparities is not None:
+        if args.num_disparities < 16 or args.num_disparities % 16:
+            raise PcaInterpError(
+                f"--num-disparities must be a positive multiple of 16, got {args.num_disparities}"
+            )
+        changes["num_disparities"] = args.num_disparities
+    if args.block_size is not None:
+        if args.block_size < 1 or args.block_size % 2 == 0:
+            raise PcaInterpError(f"--block-size must be odd and positive, got {args.block_size}")
+        changes["block_size"] = args.block_size
+    if args.sgbm_mode is not None:
+        changes["mode"] = SgbmMode[args.sgbm_mode.upper()]
+    if args.stereo_downscale is not None:
+        changes["downscale"] = args.stereo_downscale
+    return dataclasses.replace(SgbmConfig() if base is None else base, **changes)
+
+
+def gftt_config(args: argparse.Namespace) -> GfttConfig:
+    """Return ``GfttConfig()`` with the corner options given changed.
+
+    Raises:
+        PcaInterpError: a corner count, quality or distance out of its range.
+    """
+    from pcainterp_stream.frontend.stereo import GfttConfig
+
+    changes: dict[str, Any] = {}
+    if args.corners is not None:
+        if args.corners < 1:
+            raise PcaInterpError(f"--corners must be at least 1, got {args.corners}")
+        changes["max_corners"] = args.corners
+    if args.quality is not None:
+        if not 0 < args.quality < 1:
+            raise PcaInterpError(f"--quality must be in (0, 1), got {args.quality}")
+        changes["quality_level"] = args.quality
+    if args.min_distance is not None:
+        if not args.min_distance >= 0:
+            raise PcaInterpError(f"--min-distance must be >= 0 px, got {args.min_distance}")
+        changes["min_distance"] = args.min_distance
+    return dataclasses.replace(GfttConfig(), **changes)
+
+
+# ----------------------------------------------------------------------------- Dask
+
+
+def add_cluster_options(parser: argparse.ArgumentParser) -> None:
+    """Add ``--scheduler`` and ``--workers`` (``learn``, ``densify --out-dir``)."""
+    group = parser.add_argument_group(
+        "scale-out on Dask (learn: default this process; densify --out-dir: 2 local workers)"
+    )
+    where = group.add_mutually_exclusive_group()
+    where.add_argument(
+        "--scheduler", default=None, metavar="ADDRESS", help="a running Dask scheduler"
+    )
+    where.add_argument(
+        "--workers", type=int, default=None, metavar="N", help="a local cluster of N processes"
+    )

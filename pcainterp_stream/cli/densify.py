@@ -1,0 +1,432 @@
+"""``pcainterp densify``: a stereo log densified, with depth and uncertainty channels added.
+
+The options, their checks and the estimate's config are here; one log's ways in and out
+(a file or standard input; a file, standard output or a live Foxglove server) are in
+:mod:`pcainterp_stream.cli.densify_one`, several logs go to Dask
+(:mod:`pcainterp_stream.pipeline.distributed`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from pcainterp_stream import defaults
+from pcainterp_stream.cli.common import (
+    Commands,
+    add_cluster_options,
+    add_stereo_options,
+    echo,
+    formatter,
+    gftt_config,
+    sgbm_config,
+)
+from pcainterp_stream.cli.densify_one import LiveOptions, densify_one
+from pcainterp_stream.cli.pairing import add_topic_options, pairing_config
+from pcainterp_stream.errors import PcaInterpError, StreamError
+from pcainterp_stream.io.foxglove import DEFAULT_HOST, DEFAULT_PORT, ServeAddress
+
+if TYPE_CHECKING:
+    from pcainterp_stream.io.outputs import OutputTopics
+    from pcainterp_stream.pipeline.processor import ProcessorConfig
+
+
+def add_parser(commands: Commands) -> None:
+    """Add ``densify`` to the commands."""
+    densify = commands.add_parser(
+        "densify",
+        formatter_class=formatter,
+        help="densify a stereo log: add depth and uncertainty channels",
+        description=(
+            "Read a stereo log, densify every pair (GFTT + SGBM lookups + MAP), and write a\n"
+            "copy of the log with /pcainterp/* depth and uncertainty channels added."
+        ),
+        epilog=(
+            "examples:\n"
+            "  pcainterp densify drive.mcap -o drive_dense.mcap      # the built-in basis\n"
+            "  pcainterp densify drive.mcap -o drive_dense.mcap --basis basis.npz\n"
+            "  pcainterp densify drive.bag -o out.mcap --rerun\n"
+            "  pcainterp densify slam.mcap -o out.mcap --features-topic /features\n"
+            "  pcainterp densify logs/*.mcap --out-dir dense/ --basis b.npz --workers 2\n"
+            "  pcainterp densify drive.mcap --foxglove      # live in Foxglove: ws://127.0.0.1:8765\n"
+            "  cat drive.mcap | pcainterp densify - -o - > drive_dense.mcap\n"
+        ),
+    )
+    densify.add_argument(
+        "input",
+        type=Path,
+        nargs="+",
+        metavar="INPUT",
+        help="one log ('-': an MCAP stream on standard input), or several with --out-dir",
+    )
+    target = densify.add_mutually_exclusive_group()
+    target.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        default=None,
+        metavar="OUTPUT",
+        help="the densified .mcap ('-': standard output); optional with --foxglove",
+    )
+    target.add_argument(
+        "--out-dir",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="write DIR/<stem>_dense.mcap per input, the logs densified in parallel on Dask",
+    )
+    live = densify.add_argument_group("live view in Foxglove (docs/viewing.md)")
+    live.add_argument(
+        "--foxglove",
+        nargs="?",
+        const=f"{DEFAULT_HOST}:{DEFAULT_PORT}",
+        default=None,
+        metavar="HOST:PORT",
+        help="serve the stream over the Foxglove WebSocket protocol (default address "
+        f"{DEFAULT_HOST}:{DEFAULT_PORT}, this machine only; 0.0.0.0:PORT for every interface)",
+    )
+    live.add_argument(
+        "--rate",
+        type=float,
+        default=None,
+        metavar="R",
+        help="pace at R x the log's rate: 1 = as recorded, 0 = as fast as processed "
+        "(default: 0 with -o, else 1)",
+    )
+    live.add_argument(
+        "--wait-for-client",
+        action="store_true",
+        help="hold the first frame until a client subscribed to an output channel",
+    )
+    live.add_argument(
+        "--exit-when-done",
+        action="store_true",
+        help="stop serving after the last frame (default without -o: serve until Ctrl-C)",
+    )
+    densify.add_argument(
+        "--basis",
+        type=Path,
+        default=None,
+        metavar="BASIS.npz",
+        help="the basis: a file, or 'builtin' for the built-in one as it is (default: the "
+        "built-in one, checked on the first frames against linear interpolation and replaced "
+        "by a basis learned from the log's own stereo when it does not fit; pcainterp info "
+        "describes it)",
+    )
+    densify.add_argument("--rerun", action="store_true", help="stream to a Rerun viewer")
+    densify.add_argument("--rrd", type=Path, default=None, metavar="FILE", help="write .rrd")
+    _add_estimate_options(densify)
+    densify.add_argument(
+        "--features-topic",
+        default=None,
+        metavar="TOPIC",
+        help="take measurements from this PointCloud2 stream instead of GFTT + SGBM",
+    )
+    densify.add_argument(
+        "--output-prefix",
+        default="/pcainterp",
+        metavar="PREFIX",
+        help="prefix of the output topics (default: %(default)s)",
+    )
+    densify.add_argument(
+        "--depth-mm",
+        action="store_true",
+        help="also write a 16UC1 millimetre depth for viewers (always written at compact "
+        "precision)",
+    )
+    densify.add_argument(
+        "--precision",
+        choices=["compact", "full"],
+        default="compact",
+        help="compact (default): depth and disparity_std as compressedDepth PNG within 1/64 "
+        "of the posterior std, a 16UC1 mm depth for viewers: ~0.7 MB of output per KITTI "
+        "frame. full: every channel float32, ~7.3 MB per KITTI frame (docs/benchmarks.md, "
+        "'Output encodings')",
+    )
+    densify.add_argument(
+        "--outputs",
+        default=None,
+        metavar="CHANNELS",
+        help="comma-separated output channels to write, of depth, depth_std, disparity, "
+        "disparity_std, features, camera_info (default: depth, disparity_std, features, "
+        "camera_info at compact precision, all at full; evaluate needs depth or disparity, "
+        "disparity_std, features, camera_info; depth and disparity are reciprocal)",
+    )
+    add_cluster_options(densify)
+    add_topic_options(densify)
+    add_stereo_options(densify)
+
+
+def _add_estimate_options(densify: argparse.ArgumentParser) -> None:
+    estimate = densify.add_argument_group(
+        "estimate (defaults: the best measured combination, docs/results.md)"
+    )
+    estimate.add_argument(
+        "--measurements",
+        choices=["sparse", "dense"],
+        default="sparse",
+        help="sparse = the paper's: GFTT corners looked up in the SGBM map (default); dense = "
+        "every valid SGBM pixel, fused with the prior: SGBM's accuracy where it matched, the "
+        "prior's fill in its holes, at full SGBM resolution (docs/estimator.md)",
+    )
+    estimate.add_argument(
+        "--sigma",
+        default="auto",
+        metavar="PX|evidence|auto",
+        help="measurement noise std: a number (px), 'evidence' (fitted per frame) or 'auto' "
+        "(the basis's fitted value, else 2 px; default)",
+    )
+    estimate.add_argument(
+        "--uncertainty",
+        choices=["exact-coarse", "exact", "paper", "none"],
+        default="exact-coarse",
+        help="posterior std: 'exact-coarse' = exact on a grid 1/16 of the image, resampled "
+        "(default); 'exact' = exact at every pixel (0.06-2.4 s per KITTI-size frame); 'paper' = "
+        "the paper's diagonal approximation; 'none' (docs/estimator.md)",
+    )
+    estimate.add_argument(
+        "--prior",
+        choices=["auto", "paper", "hybrid"],
+        default="auto",
+        help="hybrid = basis + fitted local kernel (fitted by learn); auto uses it when the "
+        "basis has one (default)",
+    )
+    estimate.add_argument(
+        "--robust",
+        choices=["none", "huber", "cauchy"],
+        default=defaults.ROBUST,
+        help="IRLS against wrong SGBM lookups (default: %(default)s)",
+    )
+    estimate.add_argument(
+        "--temporal",
+        action=argparse.BooleanOptionalAction,
+        default=defaults.TEMPORAL,
+        help="previous frame's posterior as the prior (default: %(default)s)",
+    )
+    estimate.add_argument(
+        "--carry-frames",
+        type=int,
+        default=defaults.CARRY_FRAMES,
+        metavar="N",
+        help="add the measurements of the N previous frames, moved by the ego-motion tracked "
+        "between the left images, with noise growing with their age (default: %(default)s; "
+        "0: off)",
+    )
+    estimate.add_argument(
+        "--calibrate",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="scale the std by the factor learn calibrated on held-out frames, "
+        "and per frame by the covariance scale its measurements' innovation gives "
+        "(default: %(default)s; --no-calibrate reports the posterior std itself)",
+    )
+    estimate.add_argument(
+        "--process-noise",
+        type=float,
+        default=None,
+        metavar="Q",
+        help="temporal prior's process noise, fraction of the eigenvalues (default: fitted)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Check the options, build the estimate's config and densify; return the exit code."""
+    if args.process_noise is not None and not 0 < args.process_noise < float("inf"):
+        raise PcaInterpError(f"--process-noise must be > 0, got {args.process_noise}")
+    if args.carry_frames < 0:
+        raise PcaInterpError(f"--carry-frames must be >= 0, got {args.carry_frames}")
+    live = _live_options(args)
+    if args.out_dir is not None and Path("-") in args.input:
+        raise PcaInterpError("standard input (-) is one log; pass -o OUTPUT, not --out-dir")
+    if args.measurements == "dense" and args.features_topic:
+        raise PcaInterpError(
+            "--measurements dense fuses the whole SGBM map of the stereo pair; "
+            "drop --features-topic (a feature stream is sparse)"
+        )
+    # --basis builtin: the built-in basis as it is (checked, never replaced)
+    builtin = args.basis is not None and str(args.basis) == "builtin"
+    if builtin:
+        args.basis = None
+    processor = _processor_config(args, adapt="check" if builtin else "auto")
+    _check_estimate(processor, args.basis)
+    if args.out_dir is not None:
+        return _densify_many(args, processor)
+    if len(args.input) > 1:
+        raise PcaInterpError(
+            f"-o takes one input but {len(args.input)} were given; "
+            "pass --out-dir DIR to densify several logs"
+        )
+    if args.scheduler is not None or args.workers is not None:
+        raise PcaInterpError("--scheduler/--workers need --out-dir DIR instead of -o")
+    return densify_one(
+        args.input[0],
+        args.output,
+        args.basis,
+        processor=processor,
+        pairing=pairing_config(args, args.features_topic),
+        topics=_output_topics(args),
+        live=live,
+        rrd=args.rrd,
+        spawn_viewer=args.rerun,
+    )
+
+
+def _processor_config(args: argparse.Namespace, *, adapt: str) -> ProcessorConfig:
+    """Return the estimate's config the options ask for (``adapt``: see ``ProcessorConfig``)."""
+    from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
+
+    source = MeasurementSource.FEATURES if args.features_topic else MeasurementSource.STEREO
+    dense = args.measurements == "dense"
+    return ProcessorConfig(
+        adapt=adapt,
+        gftt=gftt_config(args),
+        # dense mode outputs the SGBM map itself where it is valid: full resolution
+        sgbm=sgbm_config(args, None if dense else ProcessorConfig().sgbm),
+        measurements=args.measurements,
+        sigma=_sigma_option(args.sigma),
+        uncertainty=args.uncertainty,
+        prior=args.prior,
+        robust=args.robust,
+        temporal=args.temporal,
+        process_noise=args.process_noise,
+        carry=dataclasses.replace(ProcessorConfig().carry, frames=args.carry_frames),
+        calibrate=args.calibrate,
+        source=source,
+    )
+
+
+def _live_options(args: argparse.Namespace) -> LiveOptions | None:
+    """Check the live-view options of a parsed command line; None without ``--foxglove``.
+
+    Raises:
+        PcaInterpError: a live option without ``--foxglove``, no output at all, or a bad
+            address or rate (:class:`StreamError`).
+    """
+    if args.foxglove is None:
+        others = [
+            name
+            for name, given in (
+                ("--rate", args.rate is not None),
+                ("--wait-for-client", args.wait_for_client),
+                ("--exit-when-done", args.exit_when_done),
+            )
+            if given
+        ]
+        if others:
+            verb = "needs" if len(others) == 1 else "need"
+            raise PcaInterpError(f"{', '.join(others)} {verb} --foxglove [HOST:PORT]")
+        if args.output is None and args.out_dir is None:
+            raise PcaInterpError(
+                "densify needs an output: pass -o OUTPUT (a .mcap, or - for standard output), "
+                "--out-dir DIR, or --foxglove to serve it live"
+            )
+        return None
+    if args.out_dir is not None:
+        raise PcaInterpError("--foxglove serves one log; use -o OUTPUT instead of --out-dir")
+    address = ServeAddress.parse(args.foxglove)
+    rate = args.rate if args.rate is not None else (0.0 if args.output is not None else 1.0)
+    if not 0 <= rate < float("inf"):  # also refuses nan
+        raise StreamError(f"--rate must be a finite number >= 0, got {args.rate}")
+    return LiveOptions(
+        address=address,
+        rate=rate,
+        wait_for_client=args.wait_for_client,
+        keep_serving=args.output is None and not args.exit_when_done,
+    )
+
+
+def _sigma_option(value: str) -> float | str:
+    """``densify --sigma``: a number of px > 0, "evidence" or "auto"."""
+    if value in ("auto", "evidence"):
+        return value
+    try:
+        sigma = float(value)
+    except ValueError:
+        sigma = float("nan")
+    if not 0 < sigma < float("inf"):
+        raise PcaInterpError(f"--sigma must be a number > 0 px, 'evidence' or 'auto', got {value}")
+    return sigma
+
+
+def _check_estimate(processor: ProcessorConfig, basis_path: Path | None) -> None:
+    """Refuse estimate options that do not fit the basis, before any work is done."""
+    from pcainterp_stream.estimate.basis import Basis
+
+    if processor.prior == "paper" and not processor.temporal:
+        return
+    if basis_path is None:
+        basis, name = Basis.default(), "the built-in basis"  # raises if it is missing
+    elif not basis_path.is_file():
+        return  # a missing basis is reported where it is loaded
+    else:
+        basis, name = Basis.load(basis_path), str(basis_path)
+    from pcainterp_stream.pipeline.processor import resolve_settings
+
+    try:
+        settings = resolve_settings(basis, processor)
+    except ValueError as err:
+        raise PcaInterpError(f"--prior {processor.prior} with {name}: {err}") from err
+    if processor.uncertainty == "paper" and (settings.local_prior or processor.temporal):
+        raise PcaInterpError(
+            "--uncertainty paper is the paper's diagonal approximation of its own prior, but "
+            f"{name} has a fitted local prior or --temporal is on; pass --prior paper "
+            "--no-temporal with it, or use --uncertainty exact"
+        )
+
+
+def _output_topics(args: argparse.Namespace) -> OutputTopics:
+    """Return the output topics of ``densify``: --output-prefix, --depth-mm, --outputs."""
+    from pcainterp_stream.io.outputs import OutputTopics
+
+    topics = OutputTopics.with_prefix(
+        args.output_prefix, depth_mm=args.depth_mm, precision=getattr(args, "precision", "full")
+    )
+    if args.outputs is None:
+        return topics
+    try:
+        return topics.only(name.strip() for name in args.outputs.split(",") if name.strip())
+    except ValueError as err:
+        raise PcaInterpError(f"--outputs: {err}") from None
+
+
+def _densify_many(args: argparse.Namespace, processor: ProcessorConfig) -> int:
+    """Densify several logs into ``--out-dir`` on Dask; exit code 1 if any log failed."""
+    from pcainterp_stream.pipeline import distributed
+
+    if args.rrd is not None or args.rerun:
+        raise PcaInterpError("--rrd/--rerun take one log; use -o OUTPUT without --out-dir")
+    if args.workers is not None and args.workers < 1:
+        raise PcaInterpError(f"--workers must be at least 1, got {args.workers}")
+    if args.basis is not None and not args.basis.exists():
+        raise PcaInterpError(f"basis {args.basis} does not exist; learn one with pcainterp learn")
+    started = time.perf_counter()
+    with distributed.connect(args.scheduler, args.workers) as client:
+        outcomes = distributed.densify_many(
+            [path.resolve() for path in args.input],  # workers may run in another folder
+            args.out_dir.resolve(),
+            args.basis.resolve() if args.basis is not None else None,
+            client,
+            pairing=pairing_config(args, args.features_topic),
+            processor=processor,
+            topics=_output_topics(args),
+        )
+    failed = 0
+    for outcome in outcomes:
+        if outcome.error is None:
+            echo(f"densified {outcome.frames} frames of {outcome.input} -> {outcome.output}")
+        else:
+            failed += 1
+            error = outcome.error
+            if outcome.input.name not in error:
+                error = f"{outcome.input}: {error}"
+            print(f"pcainterp: error: {error}", file=sys.stderr)
+    frames = sum(outcome.frames for outcome in outcomes)
+    echo(
+        f"{len(outcomes) - failed} of {len(outcomes)} logs densified, {frames} frames in "
+        f"{time.perf_counter() - started:.1f} s"
+    )
+    return 1 if failed else 0

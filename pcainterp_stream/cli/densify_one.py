@@ -1,0 +1,180 @@
+"""``pcainterp densify`` on one log: its ways in and out, and the summary it prints.
+
+Kept apart from the options (:mod:`pcainterp_stream.cli.densify`) because one log has
+several ways in and out: a file or standard input (``-``); an MCAP file, standard output
+(``-o -``) or none; and a live Foxglove WebSocket server (``--foxglove``), paced
+(``--rate``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, TYPE_CHECKING
+
+from pcainterp_stream.cli.common import echo
+from pcainterp_stream.io.foxglove import (
+    INTERRUPTED_STOP_TIMEOUT_S,
+    FoxgloveLive,
+    ServeAddress,
+)
+
+if TYPE_CHECKING:
+    from pcainterp_stream.frontend.pairing import PairingConfig
+    from pcainterp_stream.io.outputs import OutputTopics
+    from pcainterp_stream.pipeline.densify import DensifySummary
+    from pcainterp_stream.pipeline.processor import ProcessorConfig
+
+STREAM = Path("-")
+"""INPUT ``-``: standard input; ``-o -``: standard output."""
+
+
+@dataclass(frozen=True)
+class LiveOptions:
+    """The live-view options of one densify run.
+
+    Attributes:
+        address: where the server listens.
+        rate: pace (x the log's rate; 0 = as fast as processed).
+        wait_for_client: hold the first frame until a client subscribed to an output.
+        keep_serving: serve after the last frame until Ctrl-C.
+    """
+
+    address: ServeAddress
+    rate: float
+    wait_for_client: bool
+    keep_serving: bool
+
+
+def densify_one(
+    source: Path,
+    output: Path | None,
+    basis: Path | None,
+    *,
+    processor: ProcessorConfig,
+    pairing: PairingConfig,
+    topics: OutputTopics,
+    live: LiveOptions | None,
+    rrd: Path | None = None,
+    spawn_viewer: bool = False,
+) -> int:
+    """Densify one log as the command line asks; print the summary; return the exit code.
+
+    ``source`` and ``output`` may be ``-`` (:data:`STREAM`): standard input and output.
+    With ``-o -`` everything printed goes to standard error: standard output carries the
+    MCAP. With ``live`` (``--foxglove``) the server starts first (its URL is printed), and
+    without an output it serves after the last frame until Ctrl-C (exit code 0) unless
+    ``--exit-when-done``.
+    """
+    from pcainterp_stream.pipeline.densify import densify
+
+    to_stdout = output == STREAM
+    target: Path | IO[bytes] | None = sys.stdout.buffer if to_stdout else output
+    reading: Path | IO[bytes] = sys.stdin.buffer if source == STREAM else source
+    with contextlib.ExitStack() as stack:
+        if to_stdout:
+            stack.enter_context(contextlib.redirect_stdout(sys.stderr))
+        server = None
+        if live is not None:
+            server = stack.enter_context(
+                FoxgloveLive(
+                    live.address,
+                    rate=live.rate,
+                    wait_for=topics.all() if live.wait_for_client else (),
+                )
+            )
+            pace = f"{live.rate:g}x the log's rate" if live.rate > 0 else "as fast as processed"
+            echo(f"foxglove: serving on {server.url} ({pace}); in Foxglove: Open connection")
+            if live.wait_for_client:
+                prefix = topics.depth.rsplit("/", 1)[0]
+                echo(f"foxglove: waiting for a client to subscribe to a {prefix}/* channel")
+        summary = densify(
+            reading,
+            target,
+            basis,
+            pairing=pairing,
+            processor=processor,
+            topics=topics,
+            rrd=rrd,
+            spawn_viewer=spawn_viewer,
+            live=server,
+            echo=echo,
+        )
+        _print_summary(summary, processor)
+        if rrd is not None:
+            echo(f"wrote {rrd}")
+        if server is not None:
+            stats = server.stats
+            echo(
+                f"foxglove: published {stats.frames} frames ({stats.messages} messages) to "
+                f"{stats.clients} client(s)"
+            )
+            for client, count in sorted(stats.overflows.items()):
+                echo(
+                    f"foxglove: client {client} fell behind: its queue overflowed {count} "
+                    "time(s), its oldest messages were dropped"
+                )
+            if live is not None and live.keep_serving:
+                try:  # a Ctrl-C right after the line below is caught too
+                    echo(f"foxglove: still serving on {server.url}; Ctrl-C to stop")
+                    server.serve_forever()
+                except KeyboardInterrupt:
+                    echo("foxglove: stopped")
+                    server.close(drain_s=0.0, stop_timeout_s=INTERRUPTED_STOP_TIMEOUT_S)
+                    # Nothing is left to write in this mode (no -o), and the SDK's threads
+                    # can still be calling back into Python while the interpreter shuts
+                    # down: end here, so that Ctrl-C always ends the process.
+                    sys.stdout.flush()
+                    sys.stderr.flush()
+                    os._exit(0)
+    return 0
+
+
+def _print_summary(summary: DensifySummary, processor: ProcessorConfig) -> None:
+    dense = processor.measurements == "dense"
+    echo(
+        f"densified {summary.frames} frames of {summary.input} in {summary.seconds:.1f} s "
+        f"({summary.frames_per_second:.1f} frames/s), "
+        f"{summary.measurements / max(summary.frames, 1):.0f} points per frame"
+        + (", fused with the whole SGBM map (dense)" if dense else "")
+    )
+    echo(f"pairing: {summary.pairing.summary()}")
+    if processor.robust != "none":
+        echo(
+            f"robust ({processor.robust}): {summary.downweighted} measurements down-weighted "
+            f"({summary.downweighted / max(summary.frames, 1):.1f} per frame, at most "
+            f"{summary.most_downweighted} in one frame)"
+        )
+    if processor.temporal:
+        echo(f"temporal prior: reset {summary.temporal_resets} times (scene changes)")
+    if processor.carry.frames:
+        echo(
+            f"carried from the {processor.carry.frames} previous frames: "
+            f"{summary.carried / max(summary.frames, 1):.0f} points per frame; "
+            f"ego-motion lost {summary.carry_resets} times"
+        )
+    for line in summary.prior_lines:
+        echo(line)
+    if summary.basis_written is not None:
+        echo(
+            f"wrote {summary.basis_written}: the basis learned from this log's first frames "
+            "(the output names it; evaluate re-densifies with it)"
+        )
+    if summary.final_basis_written is not None:
+        echo(
+            f"wrote {summary.final_basis_written}: the basis relearned from all of this "
+            "log's maps (densify --basis with it for other logs of this camera)"
+        )
+    elif summary.basis_written is not None:
+        echo("  (densify --basis with it for other logs of this camera)")
+    for line in summary.damage:
+        echo(f"damage: {line}")
+    for line in summary.warnings:
+        echo(f"warning: {line}")
+    written = summary.written
+    if written is not None:
+        duration = ((written.end_ns or 0) - (written.start_ns or 0)) / 1e9
+        echo(f"wrote {written.path}: {written.message_count} messages, {duration:.1f} s of log")

@@ -1,0 +1,158 @@
+"""``pcainterp learn``: a PCA basis (and its fitted prior) from the disparity maps of logs."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Literal
+
+from pcainterp_stream.cli.common import (
+    Commands,
+    add_cluster_options,
+    add_stereo_options,
+    echo,
+    formatter,
+    sgbm_config,
+)
+from pcainterp_stream.cli.pairing import add_topic_options, pairing_config
+from pcainterp_stream.errors import PcaInterpError
+
+
+def add_parser(commands: Commands) -> None:
+    """Add ``learn`` to the commands."""
+    learn = commands.add_parser(
+        "learn",
+        formatter_class=formatter,
+        help="learn a PCA basis from the disparity maps of logs",
+        description=(
+            "Learn a PCA basis of dense disparity maps from stereo logs: SGBM on every pair\n"
+            "(or a ground-truth depth topic), the paper's preprocessing, streaming PCA; then\n"
+            "fit the hybrid prior, sigma and the std calibration on held-out frames\n"
+            "(--no-fit-prior: the paper's model alone). With few maps of your own (fewer\n"
+            "than 1000) from a camera like KITTI's, it fine-tunes the built-in basis with\n"
+            "them instead, and says so (--with-synthetic auto, the default; 0 turns it off)."
+        ),
+        epilog=(
+            "examples:\n"
+            "  pcainterp learn a.mcap b.mcap -o basis.npz --components 300\n"
+            "  pcainterp learn drive.mcap -o basis.npz --variance 0.95 --grid-scale 0.125\n"
+            "  pcainterp learn synth.mcap -o basis.npz --depth-topic /ground_truth/depth\n"
+            "  pcainterp learn a.mcap -o basis.npz --no-fit-prior     # the paper's model\n"
+            "  pcainterp learn short.mcap -o basis.npz --with-synthetic 0  # your maps alone\n"
+            "  pcainterp learn fleet/*.mcap -o basis.npz --scheduler tcp://10.0.0.5:8786\n"
+        ),
+    )
+    learn.add_argument("logs", type=Path, nargs="+", metavar="LOG")
+    learn.add_argument("-o", "--output", type=Path, required=True, metavar="BASIS.npz")
+    size = learn.add_mutually_exclusive_group()
+    size.add_argument("--components", type=int, default=None, metavar="L")
+    size.add_argument("--variance", type=float, default=None, metavar="R")
+    learn.add_argument("--grid-scale", type=float, default=None, metavar="G")
+    learn.add_argument(
+        "--depth-topic",
+        default=None,
+        metavar="TOPIC",
+        help="learn from this depth image topic (32FC1, m) instead of SGBM maps",
+    )
+    learn.add_argument("--every", type=int, default=1, metavar="N", help="use every N-th frame")
+    learn.add_argument(
+        "--with-synthetic",
+        default="auto",
+        metavar="N|auto",
+        help="fine-tune the built-in basis (learned from the synthetic world) with these logs' "
+        "maps, counting it as N maps, and keep its local kernel; the result is on the "
+        "built-in basis's grid and camera and applies to yours as any basis does. auto "
+        "(default): N = 1000 when the logs give fewer than 1000 maps and their camera is "
+        "like the built-in basis's (aspect ratio within 10 %%, f*b per image width within "
+        "1.5x), else the maps alone; 0: the maps alone",
+    )
+    fit = learn.add_argument_group("fitted prior (docs/results.md, 'Beyond the paper')")
+    fit.add_argument(
+        "--fit-prior",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="fit the hybrid local prior, sigma, the temporal process noise and the std "
+        "calibration by the evidence on frames the basis does not see (default; densify then "
+        "uses them); --no-fit-prior learns the paper's model (basis and eigenvalues) only",
+    )
+    fit.add_argument(
+        "--holdout",
+        type=float,
+        default=0.2,
+        metavar="F",
+        help="share of each log's frames (at its end) kept out of the basis for the fit "
+        "(default: %(default)s)",
+    )
+    fit.add_argument(
+        "--fit-logs",
+        type=Path,
+        nargs="+",
+        default=(),
+        metavar="LOG",
+        help="fit on these logs instead of a held-out share",
+    )
+    add_cluster_options(learn)
+    add_topic_options(learn)
+    add_stereo_options(learn)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Learn the basis (here or on Dask), save it and describe it; return the exit code."""
+    from pcainterp_stream.pipeline.jobs import describe_basis
+    from pcainterp_stream.pipeline.learn import LearnOptions, learn, learn_pairing
+
+    if args.components is not None and args.components < 1:
+        raise PcaInterpError(f"--components must be at least 1, got {args.components}")
+    if args.variance is not None and not 0 < args.variance <= 1:  # also refuses nan
+        raise PcaInterpError(f"--variance must be in (0, 1], got {args.variance}")
+    if args.grid_scale is not None and not 0 < args.grid_scale <= 1:
+        raise PcaInterpError(f"--grid-scale must be in (0, 1], got {args.grid_scale}")
+    on_cluster = args.scheduler is not None or args.workers is not None
+    if args.fit_prior is False and args.fit_logs:
+        raise PcaInterpError("--fit-logs are for fitting the prior; drop --no-fit-prior")
+    with_synthetic = _with_synthetic(args.with_synthetic)
+    if with_synthetic not in ("auto", 0) and args.grid_scale is not None:
+        raise PcaInterpError(
+            "--with-synthetic fine-tunes the built-in basis on its own grid; drop --grid-scale"
+        )
+    options = LearnOptions(
+        n_components=args.components or 500,
+        variance=args.variance,
+        grid_scale=args.grid_scale or 0.25,
+        depth_topic=args.depth_topic,
+        every=args.every,
+        sgbm=sgbm_config(args),
+        fit_prior=args.fit_prior is not False,
+        holdout=args.holdout,
+        fit_logs=tuple(args.fit_logs),
+        with_synthetic=with_synthetic,
+    )
+    pairing = learn_pairing(args.logs, pairing_config(args), args.depth_topic)
+    if args.workers is not None and args.workers < 1:
+        raise PcaInterpError(f"--workers must be at least 1, got {args.workers}")
+    if on_cluster:  # the same learn, the maps' statistics gathered by the workers
+        from pcainterp_stream.pipeline import distributed
+
+        with distributed.connect(args.scheduler, args.workers) as client:
+            basis = distributed.learn_distributed(args.logs, args.output, options, pairing, client)
+    else:
+        basis = learn(args.logs, args.output, options, pairing)
+    echo(f"wrote {args.output}")
+    echo(describe_basis(args.output))
+    del basis
+    return 0
+
+
+def _with_synthetic(value: str) -> int | Literal["auto"]:
+    """``learn --with-synthetic``: "auto", 0 (off) or a number of maps >= 2."""
+    if value == "auto":
+        return "auto"
+    try:
+        count = int(value)
+    except ValueError:
+        count = -1
+    if count < 0 or count == 1:
+        raise PcaInterpError(
+            f"--with-synthetic must be at least 2 maps (0: off; or auto), got {value}"
+        )
+    return count
