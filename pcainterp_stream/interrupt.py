@@ -168,6 +168,11 @@ def _on_signal(signum: int, frame: FrameType | None) -> None:
     os._exit(EXIT_INTERRUPTED)
 
 
+def signalled() -> bool:
+    """Whether SIGINT or SIGTERM was handled inside :func:`stop_on_signals` (this command)."""
+    return _signals_seen > 0
+
+
 def end_if_signalled(code: int) -> None:
     """End the process now with ``code`` if a signal was handled (after the clean-up).
 

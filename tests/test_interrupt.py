@@ -448,3 +448,36 @@ def test_a_signal_stops_a_piped_densify(
                 process.wait()
     assert process.returncode == 130, err
     assert list(spool.iterdir()) == []  # the spooled input is removed
+
+
+SIGNAL_IN_AN_IMPORT = """
+import os, signal, sys
+from pcainterp_stream.cli import app
+
+def run(args):
+    try:
+        os.kill(os.getpid(), signal.SIGTERM)  # lands while a compiled module initialises
+        signal.pause()
+    except KeyboardInterrupt:
+        raise ImportError("initialization failed") from None
+    return 0
+
+app.run = run
+sys.exit(app.main(["info", sys.argv[1]]))
+"""
+
+
+def test_a_signal_inside_an_import_is_an_interruption(small_log: Path) -> None:
+    """A signal landing in a module's import raises ImportError, not KeyboardInterrupt (seen
+    once in a whole-suite run): the command still ends as interrupted, without a traceback."""
+    process = subprocess.run(
+        [sys.executable, "-c", SIGNAL_IN_AN_IMPORT, str(small_log)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+        preexec_fn=_default_sigint,
+    )
+    assert process.returncode == 130, process.stderr
+    assert "interrupted" in process.stderr
+    assert "Traceback" not in process.stderr

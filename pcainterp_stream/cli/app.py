@@ -17,7 +17,12 @@ from types import ModuleType
 from pcainterp_stream.cli import demo, densify, evaluate, golden, import_kitti, info, learn, synth
 from pcainterp_stream.cli.common import PROG, formatter
 from pcainterp_stream.errors import PcaInterpError
-from pcainterp_stream.interrupt import end_if_signalled, stop_on_signals
+from pcainterp_stream.interrupt import (
+    EXIT_INTERRUPTED,
+    end_if_signalled,
+    signalled,
+    stop_on_signals,
+)
 from pcainterp_stream.version import __version__
 
 COMMANDS: dict[str, ModuleType] = {
@@ -80,16 +85,28 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with stop_on_signals(watchdog=args.command == "densify"):
             return run(args)
-    except PcaInterpError as err:
-        print(f"{PROG}: error: {err}", file=sys.stderr)
-        return 2
     except KeyboardInterrupt:
-        print(f"{PROG}: interrupted; no partial output was left at the target", file=sys.stderr)
-        # A Ctrl-C that lands inside code run by exec() (rosbags generates its message
-        # decoders that way) sets a flag that makes `python -m` re-raise SIGINT at exit
-        # (CPython bpo-41602) although we handled it; any exec() of a string clears it.
-        exec("")
-        end_if_signalled(130)  # a real signal: no interpreter shutdown to wait for
-        return 130
-    except BrokenPipeError:
-        return 1
+        return _interrupted()
+    except Exception as err:
+        # A signal that lands inside an import of a compiled module surfaces as
+        # "ImportError: initialization failed", inside other native code as whatever it
+        # raises: once a signal was handled, every error is the interruption's.
+        if signalled():
+            return _interrupted()
+        if isinstance(err, PcaInterpError):
+            print(f"{PROG}: error: {err}", file=sys.stderr)
+            return 2
+        if isinstance(err, BrokenPipeError):
+            return 1
+        raise
+
+
+def _interrupted() -> int:
+    """Say the command was interrupted; end at once after a real signal; return 130."""
+    print(f"{PROG}: interrupted; no partial output was left at the target", file=sys.stderr)
+    # A Ctrl-C that lands inside code run by exec() (rosbags generates its message
+    # decoders that way) sets a flag that makes `python -m` re-raise SIGINT at exit
+    # (CPython bpo-41602) although we handled it; any exec() of a string clears it.
+    exec("")
+    end_if_signalled(EXIT_INTERRUPTED)  # a real signal: no interpreter shutdown to wait for
+    return EXIT_INTERRUPTED
