@@ -496,12 +496,13 @@ def _with_synthetic(value: str) -> int | Literal["auto"]:
 
 def _check_estimate(processor: ProcessorConfig, basis_path: Path | None) -> None:
     """Refuse estimate options that do not fit the basis, before any work is done."""
-    from pcainterp_stream.estimate.basis import Basis
+    from pcainterp_stream.estimate.basis import Basis, builtin_basis
 
     if processor.prior == "paper" and not processor.temporal:
         return
     if basis_path is None:
-        basis, name = Basis.default(), "the built-in basis"  # raises if it is missing
+        kind = "street" if processor.builtin == "auto" else processor.builtin
+        basis, name = builtin_basis(kind), f"the built-in {kind} basis"  # raises if missing
     elif not basis_path.is_file():
         return  # a missing basis is reported where it is loaded
     else:
@@ -693,11 +694,16 @@ def run(args: argparse.Namespace) -> int:
                 "drop --features-topic (a feature stream is sparse)"
             )
         dense = args.measurements == "dense"
-        # --basis builtin: the built-in basis as it is (checked, never replaced)
-        builtin = args.basis is not None and str(args.basis) == "builtin"
+        # --basis builtin: the built-in bases as they are (checked, the street or the indoor
+        # one chosen, never replaced by the log's own); builtin-street/-indoor: that one
+        kind = {"builtin": "auto", "builtin-street": "street", "builtin-indoor": "indoor"}.get(
+            str(args.basis) if args.basis is not None else ""
+        )
+        builtin = kind is not None
         if builtin:
             args.basis = None
         processor = ProcessorConfig(
+            builtin=kind or "auto",
             adapt="check" if builtin else "auto",
             gftt=_gftt_config(args),
             # dense mode outputs the SGBM map itself where it is valid: full resolution

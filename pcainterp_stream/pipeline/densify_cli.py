@@ -93,10 +93,12 @@ def add_densify_arguments(densify: argparse.ArgumentParser) -> None:
         type=Path,
         default=None,
         metavar="BASIS.npz",
-        help="the basis: a file, or 'builtin' for the built-in one as it is (default: the "
-        "built-in one, checked on the first frames against linear interpolation and replaced "
-        "by a basis learned from the log's own stereo when it does not fit; pcainterp info "
-        "describes it)",
+        help="the basis: a file; 'builtin' for the built-in ones as they are (the street or "
+        "the indoor one, whichever fits the first frames better), 'builtin-street' or "
+        "'builtin-indoor' for that one (default: the built-in street basis, checked on the "
+        "first frames against linear interpolation; when it does not fit, the indoor one and "
+        "a basis learned from the log's own stereo are tried and the best is used; pcainterp "
+        "info describes them)",
     )
     densify.add_argument("--rerun", action="store_true", help="stream to a Rerun viewer")
     densify.add_argument("--rrd", type=Path, default=None, metavar="FILE", help="write .rrd")

@@ -43,7 +43,13 @@ import numpy.typing as npt
 
 from pcainterp_stream import defaults
 from pcainterp_stream.estimate import adapt
-from pcainterp_stream.estimate.basis import Basis, is_default
+from pcainterp_stream.estimate.basis import (
+    BUILTIN_KINDS,
+    Basis,
+    builtin_basis,
+    builtin_basis_installed,
+    builtin_kind,
+)
 from pcainterp_stream.estimate.dense import DenseModel, fuse_dense
 from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
 from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
@@ -54,7 +60,7 @@ from pcainterp_stream.frontend.stereo import (
     StereoFrontEnd,
     to_grey8,
 )
-from pcainterp_stream.pipeline.adaptation import Adaptation, AdaptFrame
+from pcainterp_stream.pipeline.adaptation import Adaptation, AdaptFrame, Candidate
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoCamera, StereoFrame
 
 
@@ -118,6 +124,10 @@ class ProcessorConfig:
             ``"check"`` only checks and reports; ``"off"``. A feature stream (no SGBM maps)
             is checked on left-out measurements (every 5th) and never adapted.
         warmup_frames: frames of the check (and of the first self-supervised basis).
+        builtin: which built-in basis a processor given a built-in one (or None) uses:
+            ``"auto"`` starts with the street basis and, when it does not fit the first
+            frames well (``adapt`` not ``"off"``), checks the indoor one on the same held-out
+            pixels and uses whichever fits better; ``"street"`` or ``"indoor"``: that one.
     """
 
     gftt: GfttConfig = field(default_factory=GfttConfig)
@@ -150,10 +160,13 @@ class ProcessorConfig:
     keep_freed_memory: bool = True
     adapt: str = "auto"
     warmup_frames: int = 8
+    builtin: str = "auto"
 
     def __post_init__(self) -> None:
         if self.adapt not in ("auto", "check", "off"):
             raise ValueError(f'Expected adapt "auto", "check" or "off", got {self.adapt!r}')
+        if self.builtin not in ("auto", *BUILTIN_KINDS):
+            raise ValueError(f'Expected builtin "auto", "street" or "indoor", got {self.builtin!r}')
         if self.warmup_frames < 1:
             raise ValueError(f"warmup_frames must be >= 1, got {self.warmup_frames}")
         if self.measurements not in ("sparse", "dense"):
@@ -362,9 +375,9 @@ class FrameProcessor:
     """
 
     def __init__(self, basis: Basis | None = None, config: ProcessorConfig | None = None) -> None:
-        basis = Basis.default() if basis is None else basis
-        self.basis = basis
         self.config = config or ProcessorConfig()
+        basis = self._builtin(basis)
+        self.basis = basis
         self.front_end = StereoFrontEnd(self.config.gftt, self.config.sgbm)
         if self.config.keep_freed_memory:
             # the synthetic renderer's allocator tuning; same temporaries problem here
@@ -400,13 +413,37 @@ class FrameProcessor:
         self._previous_frame: StereoFrame | None = None
         # a feature stream has no SGBM maps: checked by left-out points, never adapted
         mode = self.config.adapt if not self.dense else "off"
+        kind = builtin_kind(basis)
         self.adaptation = Adaptation(
             mode="check" if mode == "auto" and not stereo else mode,
-            may_replace=is_default(basis),
+            may_replace=kind is not None,
             warmup_frames=self.config.warmup_frames,
             robust=self.config.robust,
             calibrate=self.config.calibrate,
+            name=f"the built-in {kind} basis" if kind is not None else "the basis",
+            alternatives=self._alternatives(kind),
         )
+
+    def _builtin(self, basis: Basis | None) -> Basis:
+        """Return the basis to start with: ``config.builtin``'s for None or a built-in one."""
+        if basis is not None and builtin_kind(basis) is None:
+            return basis
+        if self.config.builtin != "auto":
+            return builtin_basis(self.config.builtin)
+        return Basis.default() if basis is None else basis
+
+    def _alternatives(self, kind: str | None) -> list[Candidate]:
+        """Return the other built-in bases the check may choose (``builtin="auto"`` only)."""
+        if kind is None or self.config.builtin != "auto":
+            return []
+        candidates = []
+        for other in BUILTIN_KINDS:
+            if other == kind or not builtin_basis_installed(other):
+                continue
+            alternative = builtin_basis(other)
+            settings = resolve_settings(alternative, self.config).densify_options()
+            candidates.append(Candidate(f"the built-in {other} basis", alternative, settings))
+        return candidates
 
     def __enter__(self) -> FrameProcessor:
         return self
