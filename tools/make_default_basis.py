@@ -121,7 +121,7 @@ class IndoorRecipe:
     frames: int = 120
     step: int = 10
     render_scale: float = 0.5
-    components: int = 60
+    components: int = 30
     grid_scale: float = 0.25
     fit_seed: int = 9000
     fit_frames: int = 40

@@ -150,7 +150,6 @@ class Adaptation:
 
         self.check = check(basis, settings)
         self.lines.append(f"prior: {self.name} {self.check.describe()}")
-        given = self.check
         if self.may_replace and self.check.frames > 0 and self.check.ratio >= FITS_BELOW:
             # the given built-in basis does not fit well: the other built-in ones, on the
             # same held-out pixels; the lowest error is kept
@@ -159,11 +158,14 @@ class Adaptation:
                 self.lines.append(f"prior: {candidate.name} {other.describe()}")
                 if other.frames and other.prior < self.check.prior:
                     self.check, self.switched = other, candidate
+        # a built-in basis that fits well is used as it is: the log's own basis is tried
+        # only when none does (its leave-one-out figure on consecutive frames, scored
+        # against the SGBM maps it learns from, flatters it against the truth)
         try_own = (
             self.mode == "auto"
             and self.may_replace
             and self.check.frames > 0
-            and given.ratio >= FITS_BELOW
+            and self.check.ratio >= FITS_BELOW
         )
         if not try_own:
             if self.switched is not None:

@@ -10,10 +10,13 @@ import numpy as np
 import pytest
 
 from pcainterp_stream.estimate import adapt
+from pcainterp_stream.estimate.basis import BUILT_IN, BUILT_IN_INDOOR, Basis
 from pcainterp_stream.frontend.pairing import PairingConfig, iter_stereo_frames
 from pcainterp_stream.frontend.stereo import StereoFrontEnd
 from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.outputs import BASIS_KEY, recorded_metadata
 from pcainterp_stream.pipeline.densify import densify, own_basis_path
+from pcainterp_stream.pipeline.jobs import evaluation_basis, synth
 from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
 from pcainterp_stream.records import StereoFrame
 from pcainterp_stream.synth import SynthConfig, generate
@@ -104,7 +107,10 @@ def test_the_log_basis_keeps_learning_and_never_depends_on_thread_timing() -> No
     frames = _indoor_frames(10)
     outputs = []
     for workers, lookahead in ((1, 0), (2, 4), (2, 4)):
-        config = ProcessorConfig(warmup_frames=2, stereo_workers=workers, lookahead=lookahead)
+        # the street basis alone (no indoor alternative): the log's own basis is learned
+        config = ProcessorConfig(
+            warmup_frames=2, stereo_workers=workers, lookahead=lookahead, builtin="street"
+        )
         with FrameProcessor(None, config) as engine:
             results = list(engine.process(frames))
             assert engine.adaptation.adapted
@@ -115,3 +121,41 @@ def test_the_log_basis_keeps_learning_and_never_depends_on_thread_timing() -> No
     # the same maps and decisions whatever the threads and the look-ahead
     np.testing.assert_array_equal(outputs[0], outputs[1])
     np.testing.assert_array_equal(outputs[1], outputs[2])
+
+
+def test_a_street_log_keeps_the_street_basis() -> None:
+    """The street basis fits a street: kept, the indoor one not even tried."""
+    config = SynthConfig(seed=9001, frames=8, scale=0.5)
+    frames = [
+        StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
+        for f in generate(config)
+    ]
+    with FrameProcessor(None, ProcessorConfig()) as engine:
+        list(engine.process(frames))
+        assert engine.adaptation.check is not None
+        assert engine.adaptation.check.ratio < 0.8
+        assert engine.adaptation.switched is None
+        assert not engine.adaptation.adapted
+        assert engine.basis is Basis.default()
+        assert not any("indoor" in line for line in engine.adaptation.lines)
+
+
+def test_builtin_indoor_is_recorded_and_evaluate_finds_it(tmp_path: Path) -> None:
+    """--basis builtin-indoor (ProcessorConfig.builtin): the output names the indoor basis and
+    evaluate re-densifies with it; --basis builtin-street keeps the street one."""
+    log = tmp_path / "room.mcap"
+    synth(log, frames=3, seed=2, scale=0.25, fmt=None, scene="indoor", camera="752x480")
+    out = tmp_path / "room_dense.mcap"
+    summary = densify(log, out, processor=ProcessorConfig(builtin="indoor", adapt="check"))
+    assert summary.prior_lines[0].startswith("prior: the built-in indoor basis ")
+    assert recorded_metadata(out)[BASIS_KEY] == BUILT_IN_INDOOR
+    basis, note = evaluation_basis(out)
+    assert basis is Basis.indoor()
+    assert note.startswith(BUILT_IN_INDOOR)
+    street = tmp_path / "room_street.mcap"
+    summary = densify(log, street, processor=ProcessorConfig(builtin="street", adapt="check"))
+    assert summary.prior_lines[0].startswith("prior: the built-in street basis ")
+    assert not any("indoor" in line for line in summary.prior_lines)
+    assert recorded_metadata(street)[BASIS_KEY] == BUILT_IN
+    with pytest.raises(ValueError, match="builtin"):
+        ProcessorConfig(builtin="forest")
