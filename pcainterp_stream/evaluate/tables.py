@@ -36,7 +36,7 @@ def _calibration_row(name: str, calibration: CalibrationStats) -> str:
     timing = f", {c['ms_per_frame']:.0f} ms/frame" if calibration.seconds > 0 else ""
     certain = ""
     if c["certain"] > 0:  # a basis that never varies at some pixels claims std 0 there
-        certain = f" (std 0 or none at {100 * c['certain']:.2g} % of pixels, left out of the NLL)"
+        certain = f" (std 0 or none at {100 * c['certain']:.3g} % of pixels, left out of the NLL)"
     nll = f"{c['nll']:.2f}" if math.isfinite(c["nll"]) else "- (no pixel has a std)"
     split = ""
     if calibration.has_sgbm_split:

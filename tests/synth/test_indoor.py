@@ -65,7 +65,8 @@ def test_indoor_frames_are_deterministic_and_platforms_set_height_and_pitch() ->
 
 def test_indoor_log_picks_the_indoor_basis_and_beats_linear_against_the_truth() -> None:
     """The built-in street basis does not fit an indoor camera; the fit check picks the
-    built-in indoor basis (it fits well: no basis of the log's own is learned) and wins.
+    built-in indoor basis (a basis learned from the log's own maps does not do better
+    enough to replace it) and wins.
 
     Scored against the true disparity right of the stereo matcher's left margin (where no
     method has a measurement and every one extrapolates the same way).
@@ -98,9 +99,7 @@ def test_indoor_log_picks_the_indoor_basis_and_beats_linear_against_the_truth() 
         assert engine.adaptation.switched is not None
         assert engine.adaptation.switched.basis is Basis.indoor()
         assert engine.basis is Basis.indoor()
-        assert not engine.adaptation.adapted
-        assert engine.adaptation.check is not None
-        assert engine.adaptation.check.ratio < 0.8
+        assert not engine.adaptation.adapted  # the log's own basis did no better
     prior, linear = np.mean(errors["prior"]), np.mean(errors["linear"])
     assert prior < linear
     assert prior < np.mean(errors["nearest"])
