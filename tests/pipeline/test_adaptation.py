@@ -13,11 +13,17 @@ from pcainterp_stream.estimate import adapt
 from pcainterp_stream.estimate.basis import BUILT_IN, BUILT_IN_INDOOR, Basis
 from pcainterp_stream.frontend.pairing import PairingConfig, iter_stereo_frames
 from pcainterp_stream.frontend.stereo import StereoFrontEnd
+from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.logwriter import LogFormat, open_writer
 from pcainterp_stream.io.outputs import BASIS_KEY, recorded_metadata
 from pcainterp_stream.pipeline.densify import densify, own_basis_path
 from pcainterp_stream.pipeline.jobs import evaluation_basis, synth
-from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
+from pcainterp_stream.pipeline.processor import (
+    FrameProcessor,
+    MeasurementSource,
+    ProcessorConfig,
+)
 from pcainterp_stream.records import StereoFrame
 from pcainterp_stream.synth import SynthConfig, generate
 from pcainterp_stream.synth.indoor import camera_options
@@ -165,3 +171,47 @@ def test_builtin_indoor_is_recorded_and_evaluate_finds_it(tmp_path: Path) -> Non
     assert recorded_metadata(street)[BASIS_KEY] == BUILT_IN
     with pytest.raises(ValueError, match="builtin"):
         ProcessorConfig(builtin="forest")
+
+
+def test_an_indoor_feature_stream_picks_the_indoor_basis_on_left_out_points(
+    tmp_path: Path,
+) -> None:
+    """No SGBM maps to learn from: the check scores both built-in bases on left-out points."""
+    log = tmp_path / "room.mcap"
+    synth(log, frames=8, seed=4, scale=0.5, fmt=None, scene="indoor", camera="752x480")
+    with_features = tmp_path / "room_features.mcap"
+    rng = np.random.default_rng(0)
+    with open_log(log) as reader, open_writer(with_features, LogFormat.MCAP) as writer:
+        camera_info = None
+        for raw in reader.messages():
+            writer.add_raw(raw)
+            if raw.topic == "/stereo/left/camera_info":
+                camera_info = reader.decode(raw)
+            if raw.topic != "/ground_truth/depth" or camera_info is None:
+                continue
+            message = reader.decode(raw)
+            depth = rosmsg.image_array(message)
+            p = rosmsg.projection_matrix(camera_info)
+            v = rng.integers(0, depth.shape[0], 300)
+            u = rng.integers(0, depth.shape[1], 300)
+            z = depth[v, u]
+            x = (u - p[0, 2]) * z / p[0, 0]
+            y = (v - p[1, 2]) * z / p[1, 1]
+            cloud = rosmsg.pointcloud2_message(
+                {"x": x.astype(np.float32), "y": y.astype(np.float32), "z": z},
+                rosmsg.stamp_ns(message),
+                "stereo_left_optical",
+            )
+            writer.add_message("/features", cloud, raw.log_time_ns)
+    summary = densify(
+        with_features,
+        tmp_path / "room_dense.mcap",
+        pairing=PairingConfig(features_topic="/features"),
+        processor=ProcessorConfig(source=MeasurementSource.FEATURES),
+    )
+    lines = summary.prior_lines
+    assert lines[0].startswith("prior: the built-in street basis ")
+    assert "left-out measurements" in lines[1]
+    assert "the built-in indoor basis chosen" in lines[2]
+    assert summary.basis_written is None  # nothing learned
+    assert recorded_metadata(tmp_path / "room_dense.mcap")[BASIS_KEY] == BUILT_IN_INDOOR
