@@ -14,6 +14,7 @@ only on the frames and their order: a log gives the same output however it is re
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -63,7 +64,8 @@ class Adaptation:
         own_check: the log's own basis's held-out (leave-one-out) figure, when tried.
         first_basis: the log's own basis chosen at the warm-up (the output names it).
         name: how the summary names the given basis.
-        alternatives: other built-in bases checked when the given one does not fit well.
+        alternatives: loaders of the other built-in bases, checked (and loaded) only when
+            the given one does not fit well.
         switched: the alternative chosen instead of the given basis, if any.
     """
 
@@ -73,7 +75,7 @@ class Adaptation:
     robust: str
     calibrate: bool
     name: str = "the basis"
-    alternatives: list[Candidate] = field(default_factory=list)
+    alternatives: list[Callable[[], Candidate]] = field(default_factory=list)
     switched: Candidate | None = None
     checked: bool = False
     adapted: bool = False
@@ -153,7 +155,8 @@ class Adaptation:
         if self.may_replace and self.check.frames > 0 and self.check.ratio >= FITS_BELOW:
             # the given built-in basis does not fit well: the other built-in ones, on the
             # same held-out pixels; the lowest error is kept
-            for candidate in self.alternatives:
+            for load in self.alternatives:
+                candidate = load()
                 other = check(candidate.basis, candidate.settings)
                 self.lines.append(f"prior: {candidate.name} {other.describe()}")
                 if other.frames and other.prior < self.check.prior:
@@ -264,7 +267,8 @@ class Adaptation:
         self.check = check(basis, settings)
         self.lines.append(f"prior: {self.name} {self.check.describe(where)}")
         if self.may_replace and self.check.frames > 0 and self.check.ratio >= FITS_BELOW:
-            for candidate in self.alternatives:
+            for load in self.alternatives:
+                candidate = load()
                 other = check(candidate.basis, candidate.settings)
                 self.lines.append(f"prior: {candidate.name} {other.describe(where)}")
                 if other.frames and other.prior < self.check.prior:

@@ -31,7 +31,7 @@ import functools
 import os
 import threading
 from collections import deque
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from types import TracebackType
@@ -432,18 +432,19 @@ class FrameProcessor:
             return builtin_basis(self.config.builtin)
         return Basis.default() if basis is None else basis
 
-    def _alternatives(self, kind: str | None) -> list[Candidate]:
-        """Return the other built-in bases the check may choose (``builtin="auto"`` only)."""
+    def _alternatives(self, kind: str | None) -> list[Callable[[], Candidate]]:
+        """Return loaders of the other built-in bases the check may choose.
+
+        Only with ``builtin="auto"``; each is loaded when the check first needs it, never
+        on logs the given basis fits.
+        """
         if kind is None or self.config.builtin != "auto":
             return []
-        candidates = []
-        for other in BUILTIN_KINDS:
-            if other == kind or not builtin_basis_installed(other):
-                continue
-            alternative = builtin_basis(other)
-            settings = resolve_settings(alternative, self.config).densify_options()
-            candidates.append(Candidate(f"the built-in {other} basis", alternative, settings))
-        return candidates
+        return [
+            functools.partial(_candidate, other, self.config)
+            for other in BUILTIN_KINDS
+            if other != kind and builtin_basis_installed(other)
+        ]
 
     def __enter__(self) -> FrameProcessor:
         return self
@@ -637,6 +638,13 @@ class FrameProcessor:
             counts=counts,
             min_disparity=estimate.min_disparity,
         )
+
+
+def _candidate(kind: str, config: ProcessorConfig) -> Candidate:
+    """Load the built-in basis ``kind`` with its settings under ``config``."""
+    basis = builtin_basis(kind)
+    settings = resolve_settings(basis, config).densify_options()
+    return Candidate(f"the built-in {kind} basis", basis, settings)
 
 
 def _adapt_frame(item: _Measured) -> AdaptFrame:
