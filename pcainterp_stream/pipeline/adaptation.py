@@ -224,7 +224,8 @@ class Adaptation:
             else "one frame: its own stereo, smoothed, corrected by its points"
         )
         self.lines.append(
-            f"adapted: the built-in bases do not fit this camera or scene; learned one from "
+            f"adapted: {'the built-in bases do' if self.alternatives else self.name + ' does'} "
+            f"not fit this camera or scene; learned one from "
             f"this log's own SGBM maps ({_count(len(maps), 'frame')}, "
             f"{_count(own.n_components, 'component')}; "
             f"{how}); --basis builtin keeps a built-in one"
