@@ -118,11 +118,12 @@ class ProcessorConfig:
             page-faulting fresh ``mmap`` regions: ~15 % less CPU per frame end to end.
         adapt: the fit check and self-supervised adaptation (sparse measurements):
             ``"auto"`` checks the basis on the first frames against linear interpolation on
-            held-out SGBM pixels and, when the basis is the built-in one and a basis learned
-            from the log's own SGBM maps does better (or the built-in one loses to linear
-            interpolation), switches to that basis and keeps learning it as frames come;
-            ``"check"`` only checks and reports; ``"off"``. A feature stream (no SGBM maps)
-            is checked on left-out measurements (every 5th) and never adapted.
+            held-out SGBM pixels; when it is a built-in one that does not fit well, the
+            other built-in one is checked too (``builtin``) and, when neither fits well, a
+            basis learned from the log's own SGBM maps replaces it if it does better, and
+            keeps learning as frames come; ``"check"`` checks (and may pick between the
+            built-in bases) but never learns; ``"off"``. A feature stream (no SGBM maps) is
+            checked on left-out measurements (every 5th) and never adapted.
         warmup_frames: frames of the check (and of the first self-supervised basis).
         builtin: which built-in basis a processor given a built-in one (or None) uses:
             ``"auto"`` starts with the street basis and, when it does not fit the first
