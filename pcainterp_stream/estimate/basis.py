@@ -398,7 +398,14 @@ class Basis:
         """
         path = Path(path)
         if not path.is_file():
-            raise BasisError(f"basis file {path} does not exist; pass the path of a basis .npz")
+            raise BasisError(
+                f"basis file {path} does not exist; pass the path of a basis .npz"
+                + (
+                    " (the built-in ones are builtin, builtin-street and builtin-indoor)"
+                    if Path(path).name.startswith("builtin")
+                    else ""
+                )
+            )
         try:
             # open the file ourselves: np.load leaks its handle when the archive is damaged
             with path.open("rb") as stream, np.load(stream, allow_pickle=False) as archive:

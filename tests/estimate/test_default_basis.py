@@ -80,6 +80,11 @@ def test_built_in_indoor_basis_is_small_loaded_once_and_matches_its_sidecar() ->
     assert indoor.meta["source"]["indoor_walks"] == sidecar["recipe"]["walks"]
 
 
+def test_a_misspelt_built_in_name_lists_the_built_in_ones(tmp_path: Path) -> None:
+    with pytest.raises(BasisError, match="builtin, builtin-street and builtin-indoor"):
+        Basis.load(tmp_path / "builtin-indor")
+
+
 def test_missing_built_in_basis_says_how_to_go_on(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
