@@ -21,11 +21,21 @@ checked on the other (docs/bases.md). sigma, the temporal process noise and the 
 calibration are then fitted as ``pcainterp learn`` fits them, on the front end's
 measurements of a separate synthetic drive (``fit_seed``): no real map is in the basis.
 
-    python tools/make_default_basis.py                 # the shipped file (minutes)
-    python tools/make_default_basis.py --small --out /tmp/small   # the test's small recipe
+``--indoor`` makes the second built-in basis, ``indoor_basis.npz`` (:class:`IndoorRecipe`):
+150 synthetic indoor walks (rooms, corridors, halls with clutter; hand-held, drone and
+ground-robot heights and pitches; each seen by one of four cameras, 68-102 degrees across,
+stretched onto a 752x480 image with disparity in that camera's f*b), 30 components, the
+prior fitted by the evidence on a separate synthetic indoor log. ``densify`` checks it
+against the street basis on the first frames of a log and uses the one that fits.
 
-Writes ``default_basis.npz`` and ``default_basis.json`` (the recipe, the file's sha256 and
-size, the command and the run time) into ``--out``. The same recipe gives the same bytes on
+    python tools/make_default_basis.py                 # the shipped street basis (minutes)
+    python tools/make_default_basis.py --indoor        # the shipped indoor basis (~10 min)
+    python tools/make_default_basis.py --small --out /tmp/small   # the test's small recipe
+    python tools/make_default_basis.py --indoor --small --out /tmp/small
+
+Writes ``default_basis.npz`` and ``default_basis.json`` (``indoor_basis.*`` with
+``--indoor``: the recipe, the file's sha256 and size, the command and the run time) into
+``--out``. The same recipe gives the same bytes on
 the same platform and library versions (``content_sha256`` in the sidecar: the arrays and the
 metadata; the zip's own bytes carry write times): rendering is quantised, BLAS runs on one
 thread.
@@ -92,6 +102,49 @@ class Recipe:
 
 SMALL = Recipe(drives=4, frames=40, step=10, components=12, fit_frames=8)
 """A small recipe for the regeneration test (seconds, not minutes)."""
+
+INDOOR_NAME = "indoor_basis"
+
+INDOOR_CAMERAS = ("752x480", "640x480", "1280x720", "fisheye-752x480")
+"""The ``synth --camera`` presets the indoor walks are seen by (one per walk, by its seed):
+several fields of view (68-102 degrees across)."""
+
+
+@dataclass(frozen=True)
+class IndoorRecipe:
+    """Everything the built-in indoor basis is made from (metadata and sidecar).
+
+    ``walks`` synthetic indoor walks (seeds ``first_seed`` on): a room, corridor or hall
+    with clutter, a hand-held, drone or ground-robot placement, and a camera among
+    :data:`INDOOR_CAMERAS`, all drawn from the seed as ``pcainterp synth --scene indoor``
+    draws them; every ``step``-th of ``frames`` frames, ray cast at ``render_scale`` of that
+    camera's size. Each view is stretched onto the basis camera's image (``camera``), the
+    way ``densify`` maps a log onto a basis, and stored as disparity in the basis camera's
+    units (its f*b over the true depth). The prior (sigma, local kernel, process noise,
+    std calibration) is fitted on the front end's measurements of a separate indoor log
+    (``fit_seed``, ``fit_camera``) by the evidence, as ``pcainterp learn`` fits it.
+    """
+
+    camera: str = "752x480"
+    first_seed: int = 5000
+    walks: int = 150
+    frames: int = 120
+    step: int = 10
+    render_scale: float = 0.5
+    components: int = 30
+    grid_scale: float = 0.25
+    fit_seed: int = 9000
+    fit_frames: int = 40
+    fit_camera: str = "752x480"
+
+    @property
+    def maps(self) -> int:
+        """Training maps: ``walks`` x ceil(frames / step)."""
+        return self.walks * len(range(0, self.frames, self.step))
+
+
+INDOOR_SMALL = IndoorRecipe(walks=3, frames=40, components=8, fit_frames=6)
+"""A small indoor recipe for the regeneration test."""
 
 
 # ----------------------------------------------------------------------------- rendering
@@ -167,9 +220,41 @@ def indoor_maps(job: tuple[Recipe, int, tuple[int, int]]) -> npt.NDArray[np.floa
     return np.stack(maps)
 
 
+def indoor_walk_maps(job: tuple[IndoorRecipe, int, tuple[int, int]]) -> npt.NDArray[np.float32]:
+    """The preprocessed grid maps (n, gh, gw) of one walk of the indoor basis's recipe.
+
+    The walk's camera (:data:`INDOOR_CAMERAS`, by the seed) is ray cast at
+    ``render_scale`` of its size, enlarged by nearest neighbour to the basis camera's image
+    (a stretch, as densify maps any camera onto the basis), turned into disparity in the
+    basis camera's units, box-filtered and area-resampled to the grid.
+    """
+    import cv2
+
+    from pcainterp_stream.estimate.learning import preprocess_disparity
+    from pcainterp_stream.evaluate.metrics import disparity_from_depth
+    from pcainterp_stream.synth import SynthConfig, indoor
+
+    recipe, seed, grid = job
+    basis_camera = SynthConfig(**indoor.camera_options(recipe.camera)).camera
+    preset = INDOOR_CAMERAS[(seed // 9) % len(INDOOR_CAMERAS)]  # 9 scene x platform pairs
+    camera = SynthConfig(scale=recipe.render_scale, **indoor.camera_options(preset)).camera
+    scene = indoor.make_scene(seed, indoor.scene_for("indoor", seed))
+    trajectory = indoor.make_trajectory(seed, scene, indoor.platform_for("auto", seed))
+    tile = indoor.texture_tile(seed)
+    size = (basis_camera.width, basis_camera.height)
+    maps = []
+    for index in range(0, recipe.frames, recipe.step):
+        pose = indoor.indoor_pose(scene, trajectory, index, recipe.frames)
+        _, depth = indoor.render_indoor(scene, camera, pose, tile)
+        enlarged = cv2.resize(depth, size, interpolation=cv2.INTER_NEAREST)
+        disparity = disparity_from_depth(enlarged, basis_camera.focal_baseline)
+        maps.append(preprocess_disparity(disparity.astype(np.float32), grid))
+    return np.stack(maps)
+
+
 def _cached_maps(
-    render: Callable[[tuple[Recipe, int, tuple[int, int]]], npt.NDArray[np.float32]],
-    jobs: tuple[Recipe, range, tuple[int, int]],
+    render: Callable[[tuple[Any, int, tuple[int, int]]], npt.NDArray[np.float32]],
+    jobs: tuple[Any, range, tuple[int, int]],
     key: str,
     cache: Path | None,
     what: str,
@@ -309,8 +394,92 @@ def make(recipe: Recipe, out: Path, cache: Path | None, command: str) -> dict[st
     fitted["fit_logs"] = [f"pcainterp synth --frames {recipe.fit_frames} --seed {recipe.fit_seed}"]
     meta = {**basis.meta, "prior": fitted}
     basis = dataclasses.replace(basis, meta=meta)
+    return _write(basis, out, NAME, recipe_meta, command, started)
+
+
+def make_indoor(
+    recipe: IndoorRecipe, out: Path, cache: Path | None, command: str
+) -> dict[str, Any]:
+    """Render, learn, fit and write the built-in indoor basis and its sidecar into ``out``."""
+    import cv2
+    from threadpoolctl import threadpool_limits
+
+    from pcainterp_stream.estimate.basis import grid_size_for
+    from pcainterp_stream.estimate.learning import learn_basis
+    from pcainterp_stream.frontend.pairing import PairingConfig
+    from pcainterp_stream.pipeline.jobs import synth
+    from pcainterp_stream.pipeline.learn import LearnOptions, fit_prior
+    from pcainterp_stream.synth import SynthConfig, indoor
+
+    cv2.setNumThreads(1)
+    started = time.perf_counter()
+    camera = SynthConfig(**indoor.camera_options(recipe.camera)).camera
+    size = (camera.height, camera.width)
+    grid = grid_size_for(size, recipe.grid_scale)
+    seeds = range(recipe.first_seed, recipe.first_seed + recipe.walks)
+    view = (recipe.camera, recipe.frames, recipe.step, recipe.render_scale, grid, INDOOR_CAMERAS)
+    key = hashlib.sha256(repr(("indoor-basis", view)).encode()).hexdigest()
+    maps = _cached_maps(indoor_walk_maps, (recipe, seeds, grid), key, cache, "indoor walks", 20)
+    harness.log(f"{maps.shape[0]} maps of {recipe.walks} indoor walks")
+    recipe_meta = dataclasses.asdict(recipe)
+    meta = {
+        "source": {
+            "maps": "synthetic ground-truth depth (true disparity) of indoor walks",
+            "indoor_walks": recipe.walks,
+            "indoor_seeds": [recipe.first_seed, recipe.first_seed + recipe.walks - 1],
+            "indoor_maps_per_walk": len(range(0, recipe.frames, recipe.step)),
+            "indoor": "rooms, corridors, halls with clutter; hand-held, drone and ground-robot "
+            "heights and pitches (as synth --scene indoor draws them)",
+            "cameras": list(INDOOR_CAMERAS),
+            "camera_mapping": "each camera's view stretched onto the basis image, disparity = "
+            "the basis camera's f*b / depth",
+        },
+        "recipe": recipe_meta,
+        "command": command,
+        "license": "the project's own (learned only from its synthetic world)",
+    }
+    with threadpool_limits(1, user_api="blas"):  # one thread: the same bytes every run
+        basis = learn_basis(
+            iter(maps),
+            n_components=min(recipe.components, maps.shape[0] - 1),
+            grid_scale=recipe.grid_scale,
+            preprocessed=True,
+            image_size=size,
+            focal_baseline=camera.focal_baseline,
+            meta=meta,
+            exact_max_maps=15_000,
+            exact_max_bytes=8 << 30,
+        )
+    harness.log(f"learned {basis.n_components} components ({time.perf_counter() - started:.0f} s)")
+    del maps
+    with tempfile.TemporaryDirectory() as scratch:
+        fit_log = Path(scratch) / f"fit_indoor_s{recipe.fit_seed}.mcap"
+        synth(
+            fit_log,
+            frames=recipe.fit_frames,
+            seed=recipe.fit_seed,
+            scale=1.0,
+            fmt=None,
+            scene="indoor",
+            camera=recipe.fit_camera,
+        )
+        with threadpool_limits(1, user_api="blas"):
+            fitted = fit_prior(basis, [(fit_log, 0)], LearnOptions(), PairingConfig())
+    fitted.pop("seconds", None)
+    fitted["fit_logs"] = [
+        f"pcainterp synth --scene indoor --camera {recipe.fit_camera} "
+        f"--frames {recipe.fit_frames} --seed {recipe.fit_seed}"
+    ]
+    basis = dataclasses.replace(basis, meta={**basis.meta, "prior": fitted})
+    return _write(basis, out, INDOOR_NAME, recipe_meta, command, started)
+
+
+def _write(
+    basis: Any, out: Path, name: str, recipe_meta: dict[str, Any], command: str, started: float
+) -> dict[str, Any]:
+    """Save ``basis`` as ``out/name.npz`` with its sidecar ``out/name.json``; return the sidecar."""
     out.mkdir(parents=True, exist_ok=True)
-    path = out / f"{NAME}.npz"
+    path = out / f"{name}.npz"
     basis.save(path)
     data = path.read_bytes()
     sidecar = {
@@ -322,7 +491,7 @@ def make(recipe: Recipe, out: Path, cache: Path | None, command: str) -> dict[st
         "command": command,
         "seconds": round(time.perf_counter() - started, 1),
     }
-    harness.write_json(out / f"{NAME}.json", sidecar, indent=2)
+    harness.write_json(out / f"{name}.json", sidecar, indent=2)
     return sidecar
 
 
@@ -332,12 +501,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder")
     parser.add_argument("--work-dir", type=Path, help="cache the rendered maps here")
     parser.add_argument("--small", action="store_true", help="the small test recipe")
+    parser.add_argument(
+        "--indoor",
+        action="store_true",
+        help="make the built-in indoor basis (indoor_basis.npz) instead of the street one",
+    )
+    parser.add_argument(
+        "--walks", type=int, help="with --indoor: override the recipe's number of walks"
+    )
     for field in ("drives", "frames", "step", "components", "indoor_seeds"):
         flag = field.replace("_", "-")
         parser.add_argument(
             f"--{flag}", type=int, dest=field, help=f"override the recipe's {field}"
         )
     args = parser.parse_args(argv)
+    cache = None if args.work_dir is None else harness.work_dir(args.work_dir)
+    if args.indoor:
+        return _main_indoor(args, cache)
     recipe = SMALL if args.small else Recipe()
     fields = ("drives", "frames", "step", "components", "indoor_seeds")
     overrides = {f: getattr(args, f) for f in fields}
@@ -349,8 +529,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         for key, value in overrides.items()
         if value is not None
     )
-    cache = None if args.work_dir is None else harness.work_dir(args.work_dir)
     sidecar = make(recipe, args.out, cache, command)
+    print(json.dumps(sidecar, indent=2))
+    return 0
+
+
+def _main_indoor(args: Any, cache: Path | None) -> int:
+    """``--indoor``: make the built-in indoor basis; print its sidecar."""
+    if args.drives is not None or args.indoor_seeds is not None:
+        print("error: --drives and --indoor-seeds are street options; with --indoor use --walks")
+        return 2
+    recipe = INDOOR_SMALL if args.small else IndoorRecipe()
+    overrides = {
+        "walks": args.walks,
+        "frames": args.frames,
+        "step": args.step,
+        "components": args.components,
+    }
+    recipe = dataclasses.replace(recipe, **{k: v for k, v in overrides.items() if v is not None})
+    command = "python tools/make_default_basis.py --indoor" + (" --small" if args.small else "")
+    command += "".join(f" --{key} {value}" for key, value in overrides.items() if value is not None)
+    sidecar = make_indoor(recipe, args.out, cache, command)
     print(json.dumps(sidecar, indent=2))
     return 0
 

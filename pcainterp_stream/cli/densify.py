@@ -112,10 +112,12 @@ def add_parser(commands: Commands) -> None:
         type=Path,
         default=None,
         metavar="BASIS.npz",
-        help="the basis: a file, or 'builtin' for the built-in one as it is (default: the "
-        "built-in one, checked on the first frames against linear interpolation and replaced "
-        "by a basis learned from the log's own stereo when it does not fit; pcainterp info "
-        "describes it)",
+        help="the basis: a file; 'builtin' for the built-in ones as they are (the street or "
+        "the indoor one, whichever fits the first frames better), 'builtin-street' or "
+        "'builtin-indoor' for that one (default: the built-in street basis, checked on the "
+        "first frames against linear interpolation; when it does not fit, the indoor one and "
+        "a basis learned from the log's own stereo are tried and the best is used; pcainterp "
+        "info describes them)",
     )
     densify.add_argument("--rerun", action="store_true", help="stream to a Rerun viewer")
     densify.add_argument("--rrd", type=Path, default=None, metavar="FILE", help="write .rrd")
@@ -247,11 +249,17 @@ def run(args: argparse.Namespace) -> int:
             "--measurements dense fuses the whole SGBM map of the stereo pair; "
             "drop --features-topic (a feature stream is sparse)"
         )
-    # --basis builtin: the built-in basis as it is (checked, never replaced)
-    builtin = args.basis is not None and str(args.basis) == "builtin"
+    # --basis builtin: the built-in bases as they are (checked, the street or the indoor
+    # one chosen, never replaced by the log's own); builtin-street/-indoor: that one
+    kind = {"builtin": "auto", "builtin-street": "street", "builtin-indoor": "indoor"}.get(
+        str(args.basis) if args.basis is not None else ""
+    )
+    builtin = kind is not None
     if builtin:
         args.basis = None
-    processor = _processor_config(args, adapt="check" if builtin else "auto")
+    processor = _processor_config(
+        args, adapt="check" if builtin else "auto", builtin=kind or "auto"
+    )
     _check_estimate(processor, args.basis)
     if args.out_dir is not None:
         return _densify_many(args, processor)
@@ -275,13 +283,16 @@ def run(args: argparse.Namespace) -> int:
     )
 
 
-def _processor_config(args: argparse.Namespace, *, adapt: str) -> ProcessorConfig:
+def _processor_config(
+    args: argparse.Namespace, *, adapt: str, builtin: str = "auto"
+) -> ProcessorConfig:
     """Return the estimate's config the options ask for (``adapt``: see ``ProcessorConfig``)."""
     from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
 
     source = MeasurementSource.FEATURES if args.features_topic else MeasurementSource.STEREO
     dense = args.measurements == "dense"
     return ProcessorConfig(
+        builtin=builtin,
         adapt=adapt,
         gftt=gftt_config(args),
         # dense mode outputs the SGBM map itself where it is valid: full resolution
@@ -354,12 +365,13 @@ def _sigma_option(value: str) -> float | str:
 
 def _check_estimate(processor: ProcessorConfig, basis_path: Path | None) -> None:
     """Refuse estimate options that do not fit the basis, before any work is done."""
-    from pcainterp_stream.estimate.basis import Basis
+    from pcainterp_stream.estimate.basis import Basis, builtin_basis
 
     if processor.prior == "paper" and not processor.temporal:
         return
     if basis_path is None:
-        basis, name = Basis.default(), "the built-in basis"  # raises if it is missing
+        kind = "street" if processor.builtin == "auto" else processor.builtin
+        basis, name = builtin_basis(kind), f"the built-in {kind} basis"  # raises if missing
     elif not basis_path.is_file():
         return  # a missing basis is reported where it is loaded
     else:

@@ -44,8 +44,17 @@ DEFAULT_BASIS_FILE = "default_basis.npz"
 DEFAULT_BASIS_SIDECAR = "default_basis.json"
 """Beside it: its sha256 and the recipe that made it (``tools/make_default_basis.py``)."""
 
+INDOOR_BASIS_FILE = "indoor_basis.npz"
+"""The built-in indoor basis, package data beside the street one (:meth:`Basis.indoor`)."""
+
+INDOOR_BASIS_SIDECAR = "indoor_basis.json"
+"""Beside it: its sha256 and the recipe that made it (``make_default_basis.py --indoor``)."""
+
 BUILT_IN = "built-in"
-"""How a densified log and a report name the built-in basis."""
+"""How a densified log and a report name the built-in (street) basis."""
+
+BUILT_IN_INDOOR = "built-in-indoor"
+"""How they name the built-in indoor basis."""
 
 IN_MEMORY = "in-memory"
 """How they name a basis passed as an object that is not the built-in one (no file)."""
@@ -389,7 +398,14 @@ class Basis:
         """
         path = Path(path)
         if not path.is_file():
-            raise BasisError(f"basis file {path} does not exist; pass the path of a basis .npz")
+            raise BasisError(
+                f"basis file {path} does not exist; pass the path of a basis .npz"
+                + (
+                    " (the built-in ones are builtin, builtin-street and builtin-indoor)"
+                    if Path(path).name.startswith("builtin")
+                    else ""
+                )
+            )
         try:
             # open the file ourselves: np.load leaks its handle when the archive is damaged
             with path.open("rb") as stream, np.load(stream, allow_pickle=False) as archive:
@@ -427,6 +443,24 @@ class Basis:
         """
         return _load_default(str(default_basis_path()))
 
+    @classmethod
+    def indoor(cls) -> Basis:
+        """Return the built-in indoor basis, learned from synthetic rooms, corridors and halls.
+
+        Package data (``pcainterp_stream/data/indoor_basis.npz``) for a 752 x 480 camera
+        with f*b ~ 48 px*m (a VI-sensor), learned from walks seen at hand-held, drone and
+        ground-robot heights by several cameras (68-102 degrees across), each view stretched
+        onto that image as ``densify`` maps a log onto a basis. ``densify`` checks it
+        against the street basis on the first frames of a log and uses the one that fits.
+
+        Returns:
+            The built-in indoor :class:`Basis` (the same object on every call).
+
+        Raises:
+            BasisError: the file is missing from this installation or damaged.
+        """
+        return _load_default(str(indoor_basis_path()))
+
     @cached_property
     def fingerprint(self) -> str:
         """Return a short content hash (16 hex digits) that tells bases apart.
@@ -457,14 +491,30 @@ def default_basis_path() -> Path:
     return Path(str(package.joinpath("data", DEFAULT_BASIS_FILE)))
 
 
-def default_basis_recipe() -> dict[str, Any]:
-    """Return the built-in basis's sidecar JSON (its sha256 and recipe); {} when absent.
+def indoor_basis_path() -> Path:
+    """Return where the built-in indoor basis file is installed (it may be missing).
 
     Returns:
-        The parsed ``pcainterp_stream/data/default_basis.json``, or {} when it is missing or
-        not a JSON object.
+        The path of ``pcainterp_stream/data/indoor_basis.npz`` in this installation.
     """
-    sidecar = default_basis_path().with_name(DEFAULT_BASIS_SIDECAR)
+    return default_basis_path().with_name(INDOOR_BASIS_FILE)
+
+
+def default_basis_recipe(indoor: bool = False) -> dict[str, Any]:
+    """Return a built-in basis's sidecar JSON (its sha256 and recipe); {} when absent.
+
+    Args:
+        indoor: the indoor basis's sidecar instead of the street one's.
+
+    Returns:
+        The parsed ``pcainterp_stream/data/default_basis.json`` (``indoor_basis.json``), or
+        {} when it is missing or not a JSON object.
+    """
+    sidecar = (
+        indoor_basis_path().with_name(INDOOR_BASIS_SIDECAR)
+        if indoor
+        else default_basis_path().with_name(DEFAULT_BASIS_SIDECAR)
+    )
     try:
         recipe = json.loads(sidecar.read_text())
     except (OSError, ValueError):
@@ -492,8 +542,43 @@ def _load_default(path: str) -> Basis:
 
 
 def is_default(basis: Basis) -> bool:
-    """Return True if ``basis`` is the built-in basis object :meth:`Basis.default` returned."""
+    """Return True if ``basis`` is a built-in basis object (street or indoor)."""
     return any(basis is loaded for loaded in _DEFAULTS.values())
+
+
+BUILTIN_KINDS = ("street", "indoor")
+"""The built-in bases: :meth:`Basis.default` (street) and :meth:`Basis.indoor`."""
+
+BUILTIN_LABELS = {"street": BUILT_IN, "indoor": BUILT_IN_INDOOR}
+"""How a densified log names each built-in basis."""
+
+
+def builtin_basis(kind: str) -> Basis:
+    """Return the built-in basis of a kind ("street" or "indoor").
+
+    Raises:
+        ValueError: an unknown kind.
+        BasisError: its file is missing from this installation or damaged.
+    """
+    if kind == "street":
+        return Basis.default()
+    if kind == "indoor":
+        return Basis.indoor()
+    raise ValueError(f"Expected a built-in basis kind in {BUILTIN_KINDS}, got {kind!r}")
+
+
+def builtin_basis_installed(kind: str) -> bool:
+    """Return whether the built-in basis of a kind is installed ("street" or "indoor")."""
+    path = indoor_basis_path() if kind == "indoor" else default_basis_path()
+    return path.is_file()
+
+
+def builtin_kind(basis: Basis) -> str | None:
+    """Return "street" or "indoor" if ``basis`` is that built-in basis object, else None."""
+    for path, loaded in _DEFAULTS.items():
+        if basis is loaded:
+            return "indoor" if Path(path).name == INDOOR_BASIS_FILE else "street"
+    return None
 
 
 def _expect(

@@ -8,6 +8,7 @@ log, REP 118) has true disparity 0 and counts.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -509,27 +510,33 @@ def calibration_sums(
         reference: (H, W) float, reference disparity (px), NaN where invalid.
         mask: (H, W) bool, pixels that count.
 
+    Pixels whose std is below :data:`CERTAIN_STD` or missing (NaN: a std of 0 stored in a
+    compact log decodes as "no value") claim a certainty no Gaussian likelihood can score:
+    a model that never varies there (a basis whose training maps were all sky at a pixel, a
+    tiny basis learned from one or two of a log's own maps) would give an NLL of 1e10 per
+    wrong pixel, or NaN. They are **left out of the NLL** (not floored) and counted apart
+    as ``certain``; the coverage counts them inside +-k std only where the error is exactly
+    0 (a std of 0 claims exactly that).
+
     Returns:
-        ``n``, ``inside_1`` and ``inside_2`` (counts within +-1 and +-2 std), ``nll`` (sum);
-        ``certain`` counts the pixels whose std is below :data:`CERTAIN_STD` (a model that
-        never varies there, e.g. a basis whose training maps were all sky at a pixel: one
-        wrong pixel there dominates the NLL) and ``nll_uncertain`` the NLL sum without them.
+        ``n``, ``inside_1`` and ``inside_2`` (counts within +-1 and +-2 std, all counted
+        pixels), ``certain`` (pixels with a std below :data:`CERTAIN_STD` or missing) and
+        ``nll`` (sum over the other pixels).
     """
     ref = np.asarray(reference, dtype=np.float64)
     counted = mask & np.isfinite(ref)
-    error = np.asarray(estimate, dtype=np.float64)[counted] - ref[counted]
+    error = np.abs(np.asarray(estimate, dtype=np.float64)[counted] - ref[counted])
     raw = np.asarray(std, dtype=np.float64)[counted]
-    sigma = np.maximum(raw, 1e-6)
-    z = np.abs(error) / sigma
-    nll = 0.5 * np.log(2.0 * np.pi * sigma**2) + 0.5 * z**2
-    certain = raw < CERTAIN_STD
+    certain = ~(raw >= CERTAIN_STD)  # also NaN
+    sigma = np.where(certain, 1.0, raw)
+    z = np.where(certain, np.where(error == 0.0, 0.0, np.inf), error / sigma)
+    nll = 0.5 * np.log(2.0 * np.pi * sigma[~certain] ** 2) + 0.5 * z[~certain] ** 2
     return {
         "n": float(z.size),
         "inside_1": float(np.count_nonzero(z <= 1.0)),
         "inside_2": float(np.count_nonzero(z <= 2.0)),
         "nll": float(np.sum(nll)),
         "certain": float(np.count_nonzero(certain)),
-        "nll_uncertain": float(np.sum(nll[~certain])),
     }
 
 
@@ -679,7 +686,7 @@ class CalibrationStats:
 
     sums: dict[str, float] = field(
         default_factory=lambda: dict.fromkeys(
-            ("n", "inside_1", "inside_2", "nll", "certain", "nll_uncertain"), 0.0
+            ("n", "inside_1", "inside_2", "nll", "certain"), 0.0
         )
     )
     by_std_count: list[float] = field(default_factory=lambda: _zeros(STD_EDGES))
@@ -736,15 +743,19 @@ class CalibrationStats:
         self.frames += 1
 
     def summary(self) -> dict[str, float]:
-        """Return coverage of +-1 and +-2 std (fractions), mean NLL (nats) and ms per frame."""
+        """Return coverage of +-1 and +-2 std (fractions), mean NLL (nats) and ms per frame.
+
+        The NLL is the mean over the pixels with a std (:func:`calibration_sums`); NaN when
+        none has one. ``certain`` is the share of pixels left out of it.
+        """
         n = max(self.sums["n"], 1.0)
+        scored = self.sums["n"] - self.sums["certain"]
         summary = {
             "pixels": self.sums["n"],
             "coverage_1sigma": self.sums["inside_1"] / n,
             "coverage_2sigma": self.sums["inside_2"] / n,
-            "nll": self.sums["nll"] / n,
+            "nll": self.sums["nll"] / scored if scored > 0 else math.nan,
             "certain": self.sums["certain"] / n,
-            "nll_uncertain": self.sums["nll_uncertain"] / max(n - self.sums["certain"], 1.0),
             "ms_per_frame": 1000.0 * self.seconds / max(self.frames, 1),
         }
         if self.has_sgbm_split:

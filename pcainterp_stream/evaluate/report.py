@@ -30,7 +30,7 @@ import numpy.typing as npt
 
 from pcainterp_stream.errors import LogReadError, PcaInterpError
 from pcainterp_stream.estimate.baselines import linear, nearest
-from pcainterp_stream.estimate.basis import BUILT_IN, IN_MEMORY, Basis, is_default
+from pcainterp_stream.estimate.basis import BUILTIN_LABELS, IN_MEMORY, Basis, builtin_kind
 from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.evaluate.figures import write_figures
 from pcainterp_stream.evaluate.metrics import (
@@ -583,7 +583,8 @@ def _load_basis(options: EvaluateOptions) -> Basis | None:
 
 
 def _name(basis: Basis) -> str:
-    return BUILT_IN if is_default(basis) else IN_MEMORY
+    kind = builtin_kind(basis)
+    return BUILTIN_LABELS[kind] if kind is not None else IN_MEMORY
 
 
 def evaluate_log(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from pcainterp_stream.evaluate.metrics import CalibrationStats, MethodStats
@@ -35,10 +36,8 @@ def _calibration_row(name: str, calibration: CalibrationStats) -> str:
     timing = f", {c['ms_per_frame']:.0f} ms/frame" if calibration.seconds > 0 else ""
     certain = ""
     if c["certain"] > 0:  # a basis that never varies at some pixels claims std 0 there
-        certain = (
-            f" (std 0 at {100 * c['certain']:.2g} % of pixels; "
-            f"NLL {c['nll_uncertain']:.2f} without them)"
-        )
+        certain = f" (std 0 or none at {100 * c['certain']:.3g} % of pixels, left out of the NLL)"
+    nll = f"{c['nll']:.2f}" if math.isfinite(c["nll"]) else "- (no pixel has a std)"
     split = ""
     if calibration.has_sgbm_split:
         split = (
@@ -47,7 +46,7 @@ def _calibration_row(name: str, calibration: CalibrationStats) -> str:
         )
     return (
         f"uncertainty {name:<7} inside +-1 sigma {_percent(c['coverage_1sigma'])}, "
-        f"+-2 sigma {_percent(c['coverage_2sigma'])}, NLL {c['nll']:.2f}{certain}{split}{timing}"
+        f"+-2 sigma {_percent(c['coverage_2sigma'])}, NLL {nll}{certain}{split}{timing}"
     )
 
 

@@ -2,9 +2,11 @@
 
 :class:`Adaptation` is the frame processor's state for it (:mod:`~pcainterp_stream.estimate.adapt`
 has the maths): the first ``warmup_frames`` frames are held back, the basis is checked on
-them against linear interpolation on held-out SGBM pixels, and, when it is the built-in
-basis and it does not fit the log, a basis learned from the log's own SGBM maps replaces it
-(refitted prior; the warm-up frames are densified with it too). The log's basis is then
+them against linear interpolation on held-out SGBM pixels. When it is the built-in street
+basis and it does not fit the log well, the other built-in bases (the indoor one) are
+checked on the same pixels, and, in ``auto`` mode, a basis learned from the log's own SGBM
+maps is tried too (leave-one-out); the one with the lowest held-out error is used from the
+first frame on (the warm-up frames are densified with it too). A log's own basis is then
 relearned from all its maps so far each time their number doubles. Every decision depends
 only on the frames and their order: a log gives the same output however it is read
 (file, pipe, live).
@@ -12,6 +14,7 @@ only on the frames and their order: a log gives the same output however it is re
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,6 +30,21 @@ own (checking the alternative costs a few seconds)."""
 
 MAX_MAPS = 256
 """Most SGBM maps kept for the log's own basis; past it, every other one is dropped."""
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """Another built-in basis the check may choose instead of the given one.
+
+    Attributes:
+        name: how the summary names it ("the built-in indoor basis").
+        basis: the basis.
+        settings: the estimate's keyword options with it (its own fitted prior).
+    """
+
+    name: str
+    basis: Basis
+    settings: dict[str, object]
 
 
 @dataclass
@@ -45,6 +63,10 @@ class Adaptation:
         check: the given basis's held-out figure, once checked.
         own_check: the log's own basis's held-out (leave-one-out) figure, when tried.
         first_basis: the log's own basis chosen at the warm-up (the output names it).
+        name: how the summary names the given basis.
+        alternatives: loaders of the other built-in bases, checked (and loaded) only when
+            the given one does not fit well.
+        switched: the alternative chosen instead of the given basis, if any.
     """
 
     mode: str
@@ -52,6 +74,9 @@ class Adaptation:
     warmup_frames: int
     robust: str
     calibrate: bool
+    name: str = "the basis"
+    alternatives: list[Callable[[], Candidate]] = field(default_factory=list)
+    switched: Candidate | None = None
     checked: bool = False
     adapted: bool = False
     lines: list[str] = field(default_factory=list)
@@ -102,29 +127,43 @@ class Adaptation:
     ) -> Basis | None:
         usable = [f for f in frames if f.sgbm_map is not None and f.grid_map is not None]
         if not usable:  # a feature stream: no dense map to hold pixels out of
-            self._check_left_out(basis, frames, settings)
-            return None
+            return self._check_left_out(basis, frames, settings)
         size, fb = usable[0].image_size, usable[0].focal_baseline
         usable = [f for f in usable if f.image_size == size and f.focal_baseline == fb]
-        estimates = densify_batch(
-            basis,
-            [f.pixels for f in usable],
-            [f.disparities for f in usable],
-            uncertainty="none",
-            image_size=size,
-            focal_baseline=fb,
-            robust=self.robust,
-            **settings,  # type: ignore[arg-type]
-        )
         measured = [f.measured() for f in usable]
-        self.check = adapt.FitCheck.combine(
-            [
-                adapt.check_frame(e.disparity, m.reference, m.pixels, m.disparities)
-                for e, m in zip(estimates, measured, strict=True)
-            ]
-        )
-        name = "the built-in basis" if self.may_replace else "the basis"
-        self.lines.append(f"prior: {name} {self.check.describe()}")
+
+        def check(candidate: Basis, options: dict[str, object]) -> adapt.FitCheck:
+            estimates = densify_batch(
+                candidate,
+                [f.pixels for f in usable],
+                [f.disparities for f in usable],
+                uncertainty="none",
+                image_size=size,
+                focal_baseline=fb,
+                robust=self.robust,
+                **options,  # type: ignore[arg-type]
+            )
+            return adapt.FitCheck.combine(
+                [
+                    adapt.check_frame(e.disparity, m.reference, m.pixels, m.disparities)
+                    for e, m in zip(estimates, measured, strict=True)
+                ]
+            )
+
+        self.check = check(basis, settings)
+        self.lines.append(f"prior: {self.name} {self.check.describe()}")
+        if self.may_replace and self.check.frames > 0 and self.check.ratio >= FITS_BELOW:
+            # the given built-in basis does not fit well: the other built-in ones, on the
+            # same held-out pixels; the lowest error is kept
+            for load in self.alternatives:
+                candidate = load()
+                other = check(candidate.basis, candidate.settings)
+                self.lines.append(f"prior: {candidate.name} {other.describe()}")
+                if other.frames and other.prior < self.check.prior:
+                    self.check, self.switched = other, candidate
+        # a built-in basis that fits well is used as it is: the log's own basis is tried
+        # only when none does (its leave-one-out figure on consecutive frames, scored
+        # against the SGBM maps it learns from, flatters it against the truth)
         try_own = (
             self.mode == "auto"
             and self.may_replace
@@ -132,6 +171,8 @@ class Adaptation:
             and self.check.ratio >= FITS_BELOW
         )
         if not try_own:
+            if self.switched is not None:
+                self.lines.append(f"prior: {self.switched.name} chosen (fits this log better)")
             if self.check.frames and not self.check.fits:
                 fix = (
                     "densify without --basis builtin to adapt to this log"
@@ -142,7 +183,7 @@ class Adaptation:
                     f"warning: the prior is worse than linear interpolation on this log "
                     f"({self.check.ratio:.2f}x); {fix}"
                 )
-            return None
+            return None if self.switched is None else self.switched.basis
         maps = [f.grid_map for f in usable if f.grid_map is not None]
         own = adapt.refit_prior(
             adapt.own_basis(maps, size, fb), measured, robust=self.robust, calibrate=self.calibrate
@@ -158,13 +199,18 @@ class Adaptation:
             better = own_error < self.check.prior * (
                 1.0 if not self.check.fits else adapt.ADAPT_GAIN
             )
+        if own_error is None and self.switched is not None:
+            # one frame and a built-in basis that fits: no held-out figure to prefer its own
+            better = self.check.ratio >= FITS_BELOW
         if not better:
+            kept = "kept" if self.switched is None else f"{self.switched.name} chosen"
             self.lines.append(
-                f"prior: kept; this log's own basis did no better ({self.own_check.describe()})"
+                f"prior: {kept}; this log's own basis did no better ({self.own_check.describe()})"
                 if self.own_check is not None
-                else "prior: kept"
+                else f"prior: {kept}"
             )
-            return None
+            return None if self.switched is None else self.switched.basis
+        self.switched = None
         self.adapted = True
         self.first_basis = own
         self._camera = (size, fb)
@@ -178,46 +224,65 @@ class Adaptation:
             else "one frame: its own stereo, smoothed, corrected by its points"
         )
         self.lines.append(
-            f"adapted: the built-in basis does not fit this camera or scene; learned one from "
+            f"adapted: {'the built-in bases do' if self.alternatives else self.name + ' does'} "
+            f"not fit this camera or scene; learned one from "
             f"this log's own SGBM maps ({_count(len(maps), 'frame')}, "
             f"{_count(own.n_components, 'component')}; "
-            f"{how}); --basis builtin keeps the built-in one"
+            f"{how}); --basis builtin keeps a built-in one"
         )
         return own
 
     def _check_left_out(
         self, basis: Basis, frames: list[AdaptFrame], settings: dict[str, object]
-    ) -> None:
-        """Check ``basis`` by leaving every 5th measurement out (logs without SGBM maps)."""
-        checks = []
-        for frame in frames:
-            kept, left_out = adapt.left_out_split(frame.pixels.shape[0])
-            if left_out.size == 0 or kept.size < 3:
-                continue
-            (estimate,) = densify_batch(
-                basis,
-                [frame.pixels[kept]],
-                [frame.disparities[kept]],
-                uncertainty="none",
-                image_size=frame.image_size,
-                focal_baseline=frame.focal_baseline,
-                robust=self.robust,
-                **settings,  # type: ignore[arg-type]
-            )
-            checks.append(
-                adapt.check_left_out(
-                    estimate.disparity, frame.pixels, frame.disparities, kept, left_out
+    ) -> Basis | None:
+        """Check ``basis`` by leaving every 5th measurement out (logs without SGBM maps).
+
+        Returns the other built-in basis to use when the given built-in one does not fit
+        well and that one does better on the same left-out measurements, else None.
+        """
+
+        def check(candidate: Basis, options: dict[str, object]) -> adapt.FitCheck:
+            checks = []
+            for frame in frames:
+                kept, left_out = adapt.left_out_split(frame.pixels.shape[0])
+                if left_out.size == 0 or kept.size < 3:
+                    continue
+                (estimate,) = densify_batch(
+                    candidate,
+                    [frame.pixels[kept]],
+                    [frame.disparities[kept]],
+                    uncertainty="none",
+                    image_size=frame.image_size,
+                    focal_baseline=frame.focal_baseline,
+                    robust=self.robust,
+                    **options,  # type: ignore[arg-type]
                 )
-            )
-        self.check = adapt.FitCheck.combine(checks)
-        name = "the built-in basis" if self.may_replace else "the basis"
-        self.lines.append(f"prior: {name} {self.check.describe('left-out measurements')}")
+                checks.append(
+                    adapt.check_left_out(
+                        estimate.disparity, frame.pixels, frame.disparities, kept, left_out
+                    )
+                )
+            return adapt.FitCheck.combine(checks)
+
+        where = "left-out measurements"
+        self.check = check(basis, settings)
+        self.lines.append(f"prior: {self.name} {self.check.describe(where)}")
+        if self.may_replace and self.check.frames > 0 and self.check.ratio >= FITS_BELOW:
+            for load in self.alternatives:
+                candidate = load()
+                other = check(candidate.basis, candidate.settings)
+                self.lines.append(f"prior: {candidate.name} {other.describe(where)}")
+                if other.frames and other.prior < self.check.prior:
+                    self.check, self.switched = other, candidate
+        if self.switched is not None:
+            self.lines.append(f"prior: {self.switched.name} chosen (fits this log better)")
         if self.check.frames and not self.check.fits:
             self.lines.append(
                 f"warning: the prior is worse than linear interpolation on this log "
                 f"({self.check.ratio:.2f}x); learn a basis for this camera and scene: "
                 "pcainterp learn LOG -o BASIS.npz, then densify --basis BASIS.npz"
             )
+        return None if self.switched is None else self.switched.basis
 
     def update(self, frames: list[AdaptFrame], current: Basis | None = None) -> Basis | None:
         """Add the frames' maps to the log's own basis; return a relearned basis, or None.

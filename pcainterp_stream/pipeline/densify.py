@@ -16,7 +16,14 @@ from pcainterp_stream.errors import (
     LogReadError,
     PcaInterpError,
 )
-from pcainterp_stream.estimate.basis import BUILT_IN, IN_MEMORY, Basis, is_default
+from pcainterp_stream.estimate.basis import (
+    BUILT_IN,
+    BUILTIN_LABELS,
+    IN_MEMORY,
+    Basis,
+    builtin_basis,
+    builtin_kind,
+)
 from pcainterp_stream.frontend.discovery import resolve_pairing
 from pcainterp_stream.frontend.pairing import (
     PairingConfig,
@@ -122,7 +129,9 @@ def densify(
     formed by header stamp, stereo-matched ahead in a worker thread and densified in
     batches, and their outputs written at the left image's log time. The output channels'
     metadata names the basis (``io/outputs.channel_metadata``): ``built-in`` when ``basis``
-    is None (:meth:`Basis.default`), else its file.
+    is None (:meth:`Basis.default`), ``built-in-indoor`` when the fit check chose the
+    built-in indoor basis (or ``processor.builtin`` is ``"indoor"``), the log's own basis
+    file when it adapted, else the given file.
 
     ``input_path`` and ``output`` may be open binary streams (standard input and output,
     ``pcainterp densify - -o -``): the input is spooled to a temporary file first
@@ -140,6 +149,10 @@ def densify(
     processor = processor or ProcessorConfig()
     topics = topics or OutputTopics().compact()
     basis, label = resolve_basis(basis)
+    kind = builtin_kind(basis)
+    if kind is not None and processor.builtin not in ("auto", kind):
+        basis = builtin_basis(processor.builtin)
+        label = BUILTIN_LABELS[processor.builtin]
     if processor.source is MeasurementSource.FEATURES and pairing.features_topic is None:
         raise PcaInterpError("measurement source 'features' needs --features-topic")
     if output is None and live is None:
@@ -196,6 +209,15 @@ def densify(
                 if frames == 0 and not encoding and writer is not None:
                     # f*b and the first min disparity: what evaluate needs of a compact log
                     first = {**metadata, **frame_metadata(result)}
+                    switched = engine.adaptation.switched
+                    if switched is not None:  # the check chose another built-in basis
+                        first.update(
+                            channel_metadata(
+                                BUILTIN_LABELS[builtin_kind(switched.basis) or "street"],
+                                switched.basis.fingerprint,
+                                processor.measurements,
+                            )
+                        )
                     if engine.adaptation.adapted:
                         # the first outputs follow the warm-up: name the basis learned from it
                         own = engine.adaptation.first_basis
@@ -337,7 +359,8 @@ def resolve_basis(basis: Basis | Path | None) -> tuple[Basis, str]:
         return Basis.default(), BUILT_IN
     if isinstance(basis, Path):
         return Basis.load(basis), str(basis)
-    return basis, BUILT_IN if is_default(basis) else IN_MEMORY
+    kind = builtin_kind(basis)
+    return basis, BUILTIN_LABELS[kind] if kind is not None else IN_MEMORY
 
 
 def _no_pair_message(

@@ -22,11 +22,17 @@ from pcainterp_stream.errors import (
 )
 from pcainterp_stream.estimate.basis import (
     BUILT_IN,
+    BUILT_IN_INDOOR,
+    BUILTIN_KINDS,
+    BUILTIN_LABELS,
     IN_MEMORY,
     Basis,
+    builtin_basis,
+    builtin_basis_installed,
+    builtin_kind,
     default_basis_path,
     default_basis_recipe,
-    is_default,
+    indoor_basis_path,
 )
 from pcainterp_stream.frontend.pairing import (
     PairingConfig,
@@ -221,7 +227,8 @@ def evaluate(
 def _basis_name(basis: Path | Basis) -> str:
     if isinstance(basis, Path):
         return str(basis)
-    return BUILT_IN if is_default(basis) else IN_MEMORY
+    kind = builtin_kind(basis)
+    return BUILTIN_LABELS[kind] if kind is not None else IN_MEMORY
 
 
 def evaluation_basis(
@@ -248,18 +255,19 @@ def evaluation_basis(
     label = recorded.get(BASIS_KEY)
     fingerprint = recorded.get(BASIS_FINGERPRINT_KEY)
     skipped = "the rows that re-densify with a basis are skipped; pass --basis BASIS.npz"
-    if label is None or label == BUILT_IN:
+    if label is None or label in (BUILT_IN, BUILT_IN_INDOOR):
         why = "recorded in the log" if label else "the log records no basis"
+        label = label or BUILT_IN
         try:
-            basis = Basis.default()
+            basis = builtin_basis("indoor" if label == BUILT_IN_INDOOR else "street")
         except BasisError:
-            return None, f"none (the built-in basis is not installed; {skipped})"
+            return None, f"none (the {label} basis is not installed; {skipped})"
         if fingerprint is not None and fingerprint != basis.fingerprint:
             return None, (
-                f"none (the log was densified with another built-in basis, fingerprint "
+                f"none (the log was densified with another {label} basis, fingerprint "
                 f"{fingerprint}, not this installation's {basis.fingerprint}; {skipped})"
             )
-        return basis, f"{BUILT_IN} ({why})"
+        return basis, f"{label} ({why})"
     if label == IN_MEMORY:
         return None, f"none (the log was densified with a basis object, no file; {skipped})"
     # the path as densify was given it: relative to this folder, else to the log's
@@ -275,16 +283,16 @@ def evaluation_basis(
     return basis, f"{path} (recorded in the log)"
 
 
-def describe_basis(path: Path | None = None) -> str:
-    """Return a text description of a basis file (None: the built-in basis)."""
-    basis = Basis.load(path) if path is not None else Basis.default()
+def describe_basis(path: Path | None = None, *, builtin: str = "street") -> str:
+    """Return a text description of a basis file (None: the built-in ``builtin`` basis)."""
+    basis = Basis.load(path) if path is not None else builtin_basis(builtin)
     height, width = basis.image_size
     grid_height, grid_width = basis.grid_size
     ratio = basis.explained_variance_ratio
     meta = basis.meta if isinstance(basis.meta, dict) else {}
     learning = meta.get("learning", {}) if isinstance(meta.get("learning"), dict) else {}
     source = meta.get("source", {}) if isinstance(meta.get("source"), dict) else {}
-    title = f"{path}: pcainterp basis" if path is not None else _built_in_title()
+    title = f"{path}: pcainterp basis" if path is not None else _built_in_title(builtin)
     lines = [
         title,
         f"  image size       {width}x{height} px",
@@ -312,6 +320,12 @@ def describe_basis(path: Path | None = None) -> str:
         lines.append(
             f"  indoor walks     {walks} synthetic rooms, corridors and halls{span}: "
             "hand-held, drone and ground-robot heights and pitches"
+        )
+    cameras = source.get("cameras")
+    if isinstance(cameras, list) and cameras:
+        lines.append(
+            f"  cameras          {', '.join(map(str, cameras))} (each view stretched onto "
+            f"{width}x{height}, disparity in its f*b)"
         )
     lines.append(f"  method           {learning.get('method', '?')}")
     tuned, rule = meta.get("finetune"), source.get("with_synthetic_rule")
@@ -345,31 +359,43 @@ def describe_basis(path: Path | None = None) -> str:
         ]
     else:
         lines.append("  fitted prior     none (the paper's model; learn fits one by default)")
-    if path is None:
+    if path is None and builtin == "indoor":
+        lines.append(
+            "  learned from     synthetic indoor walks only: rooms, corridors and halls seen "
+            "hand-held, from a drone and from a ground robot, by several cameras (densify "
+            "chooses it when it fits the first frames of a log better than the street basis; "
+            "--basis builtin-indoor forces it)"
+        )
+        lines += _recipe_lines(builtin)
+    elif path is None:
         lines.append(
             "  learned from     synthetic streets only: a forward-looking camera at car height "
-            "(densify checks it on the first frames of every log and learns one from the log's "
-            "own stereo when it does not fit)"
+            "(densify checks it on the first frames of every log, tries the built-in indoor "
+            "basis when it does not fit, and learns one from the log's own stereo when neither "
+            "does; --basis builtin-street forces it)"
         )
-        lines += _recipe_lines()
+        lines += _recipe_lines(builtin)
     elif isinstance(meta.get("source"), str):
         lines.append(f"  learned from     {meta['source']}")
     return "\n".join(lines)
 
 
-def _built_in_title() -> str:
-    return f"built-in basis ({default_basis_path()}): pcainterp basis"
+def _built_in_title(builtin: str) -> str:
+    path = indoor_basis_path() if builtin == "indoor" else default_basis_path()
+    return f"built-in {builtin} basis ({path}): pcainterp basis"
 
 
-def _recipe_lines() -> list[str]:
-    """Describe the built-in basis's sidecar: its checksum and the recipe that made it."""
-    sidecar = default_basis_recipe()
+def _recipe_lines(builtin: str) -> list[str]:
+    """Describe a built-in basis's sidecar: its checksum and the recipe that made it."""
+    indoor = builtin == "indoor"
+    sidecar = default_basis_recipe(indoor)
+    path = indoor_basis_path() if indoor else default_basis_path()
     if not sidecar:
-        return ["  recipe           unknown (no default_basis.json beside the basis)"]
+        return [f"  recipe           unknown (no {path.stem}.json beside the basis)"]
     lines = []
     expected = sidecar.get("sha256")
     if isinstance(expected, str):
-        actual = hashlib.sha256(default_basis_path().read_bytes()).hexdigest()
+        actual = hashlib.sha256(path.read_bytes()).hexdigest()
         state = "matches the file" if actual == expected else f"MISMATCH: the file is {actual}"
         lines.append(f"  sha256           {expected} ({state})")
     recipe = sidecar.get("recipe")
@@ -386,8 +412,9 @@ def info(path: Path | None) -> str:
     """Return the ``pcainterp info`` text of a log or a basis file (None: the built-in)."""
     from pcainterp_stream.io.loginfo import describe, format_info
 
-    if path is None:
-        return describe_basis(None)
+    if path is None:  # the built-in bases, each with what it was learned from
+        kinds = [k for k in BUILTIN_KINDS if k == "street" or builtin_basis_installed(k)]
+        return "\n\n".join(describe_basis(None, builtin=kind) for kind in kinds)
     if path.suffix == ".npz":
         return describe_basis(path)
     if path.is_file():

@@ -31,7 +31,7 @@ import functools
 import os
 import threading
 from collections import deque
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from types import TracebackType
@@ -43,7 +43,13 @@ import numpy.typing as npt
 
 from pcainterp_stream import defaults
 from pcainterp_stream.estimate import adapt
-from pcainterp_stream.estimate.basis import Basis, is_default
+from pcainterp_stream.estimate.basis import (
+    BUILTIN_KINDS,
+    Basis,
+    builtin_basis,
+    builtin_basis_installed,
+    builtin_kind,
+)
 from pcainterp_stream.estimate.dense import DenseModel, fuse_dense
 from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
 from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
@@ -54,7 +60,7 @@ from pcainterp_stream.frontend.stereo import (
     StereoFrontEnd,
     to_grey8,
 )
-from pcainterp_stream.pipeline.adaptation import Adaptation, AdaptFrame
+from pcainterp_stream.pipeline.adaptation import Adaptation, AdaptFrame, Candidate
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoCamera, StereoFrame
 
 
@@ -112,12 +118,17 @@ class ProcessorConfig:
             page-faulting fresh ``mmap`` regions: ~15 % less CPU per frame end to end.
         adapt: the fit check and self-supervised adaptation (sparse measurements):
             ``"auto"`` checks the basis on the first frames against linear interpolation on
-            held-out SGBM pixels and, when the basis is the built-in one and a basis learned
-            from the log's own SGBM maps does better (or the built-in one loses to linear
-            interpolation), switches to that basis and keeps learning it as frames come;
-            ``"check"`` only checks and reports; ``"off"``. A feature stream (no SGBM maps)
-            is checked on left-out measurements (every 5th) and never adapted.
+            held-out SGBM pixels; when it is a built-in one that does not fit well, the
+            other built-in one is checked too (``builtin``) and, when neither fits well, a
+            basis learned from the log's own SGBM maps replaces it if it does better, and
+            keeps learning as frames come; ``"check"`` checks (and may pick between the
+            built-in bases) but never learns; ``"off"``. A feature stream (no SGBM maps) is
+            checked on left-out measurements (every 5th) and never adapted.
         warmup_frames: frames of the check (and of the first self-supervised basis).
+        builtin: which built-in basis a processor given a built-in one (or None) uses:
+            ``"auto"`` starts with the street basis and, when it does not fit the first
+            frames well (``adapt`` not ``"off"``), checks the indoor one on the same held-out
+            pixels and uses whichever fits better; ``"street"`` or ``"indoor"``: that one.
     """
 
     gftt: GfttConfig = field(default_factory=GfttConfig)
@@ -150,10 +161,13 @@ class ProcessorConfig:
     keep_freed_memory: bool = True
     adapt: str = "auto"
     warmup_frames: int = 8
+    builtin: str = "auto"
 
     def __post_init__(self) -> None:
         if self.adapt not in ("auto", "check", "off"):
             raise ValueError(f'Expected adapt "auto", "check" or "off", got {self.adapt!r}')
+        if self.builtin not in ("auto", *BUILTIN_KINDS):
+            raise ValueError(f'Expected builtin "auto", "street" or "indoor", got {self.builtin!r}')
         if self.warmup_frames < 1:
             raise ValueError(f"warmup_frames must be >= 1, got {self.warmup_frames}")
         if self.measurements not in ("sparse", "dense"):
@@ -362,9 +376,9 @@ class FrameProcessor:
     """
 
     def __init__(self, basis: Basis | None = None, config: ProcessorConfig | None = None) -> None:
-        basis = Basis.default() if basis is None else basis
-        self.basis = basis
         self.config = config or ProcessorConfig()
+        basis = self._builtin(basis)
+        self.basis = basis
         self.front_end = StereoFrontEnd(self.config.gftt, self.config.sgbm)
         if self.config.keep_freed_memory:
             # the synthetic renderer's allocator tuning; same temporaries problem here
@@ -400,13 +414,38 @@ class FrameProcessor:
         self._previous_frame: StereoFrame | None = None
         # a feature stream has no SGBM maps: checked by left-out points, never adapted
         mode = self.config.adapt if not self.dense else "off"
+        kind = builtin_kind(basis)
         self.adaptation = Adaptation(
             mode="check" if mode == "auto" and not stereo else mode,
-            may_replace=is_default(basis),
+            may_replace=kind is not None,
             warmup_frames=self.config.warmup_frames,
             robust=self.config.robust,
             calibrate=self.config.calibrate,
+            name=f"the built-in {kind} basis" if kind is not None else "the basis",
+            alternatives=self._alternatives(kind),
         )
+
+    def _builtin(self, basis: Basis | None) -> Basis:
+        """Return the basis to start with: ``config.builtin``'s for None or a built-in one."""
+        if basis is not None and builtin_kind(basis) is None:
+            return basis
+        if self.config.builtin != "auto":
+            return builtin_basis(self.config.builtin)
+        return Basis.default() if basis is None else basis
+
+    def _alternatives(self, kind: str | None) -> list[Callable[[], Candidate]]:
+        """Return loaders of the other built-in bases the check may choose.
+
+        Only with ``builtin="auto"``; each is loaded when the check first needs it, never
+        on logs the given basis fits.
+        """
+        if kind is None or self.config.builtin != "auto":
+            return []
+        return [
+            functools.partial(_candidate, other, self.config)
+            for other in BUILTIN_KINDS
+            if other != kind and builtin_basis_installed(other)
+        ]
 
     def __enter__(self) -> FrameProcessor:
         return self
@@ -600,6 +639,13 @@ class FrameProcessor:
             counts=counts,
             min_disparity=estimate.min_disparity,
         )
+
+
+def _candidate(kind: str, config: ProcessorConfig) -> Candidate:
+    """Load the built-in basis ``kind`` with its settings under ``config``."""
+    basis = builtin_basis(kind)
+    settings = resolve_settings(basis, config).densify_options()
+    return Candidate(f"the built-in {kind} basis", basis, settings)
 
 
 def _adapt_frame(item: _Measured) -> AdaptFrame:

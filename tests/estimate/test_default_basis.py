@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
 import time
 from pathlib import Path
 
@@ -20,8 +21,10 @@ from pcainterp_stream.errors import BasisError
 from pcainterp_stream.estimate import basis as basis_module
 from pcainterp_stream.estimate.basis import (
     Basis,
+    builtin_kind,
     default_basis_path,
     default_basis_recipe,
+    indoor_basis_path,
     is_default,
 )
 from pcainterp_stream.synth import SynthConfig
@@ -60,6 +63,26 @@ def test_built_in_basis_matches_its_sidecar() -> None:
     digest = hashlib.sha256(default_basis_path().read_bytes()).hexdigest()
     assert sidecar["sha256"] == digest
     assert isinstance(sidecar.get("recipe"), dict)
+
+
+def test_built_in_indoor_basis_is_small_loaded_once_and_matches_its_sidecar() -> None:
+    indoor = Basis.indoor()
+    assert Basis.indoor() is indoor
+    assert builtin_kind(indoor) == "indoor"
+    assert builtin_kind(Basis.default()) == "street"
+    assert builtin_kind(Basis.load(indoor_basis_path())) is None  # an equal copy is not it
+    assert indoor.image_size == (480, 752)
+    assert indoor.n_components <= 100
+    assert indoor_basis_path().stat().st_size < 8 << 20  # it ships in the wheel
+    sidecar = default_basis_recipe(indoor=True)
+    assert sidecar["sha256"] == hashlib.sha256(indoor_basis_path().read_bytes()).hexdigest()
+    assert sidecar["command"] == "python tools/make_default_basis.py --indoor"
+    assert indoor.meta["source"]["indoor_walks"] == sidecar["recipe"]["walks"]
+
+
+def test_a_misspelt_built_in_name_lists_the_built_in_ones(tmp_path: Path) -> None:
+    with pytest.raises(BasisError, match="builtin, builtin-street and builtin-indoor"):
+        Basis.load(tmp_path / "builtin-indor")
 
 
 def test_missing_built_in_basis_says_how_to_go_on(
@@ -160,4 +183,32 @@ def test_make_default_basis_learns_from_indoor_walks_and_info_lists_them(tmp_pat
     text = describe_basis(out / "default_basis.npz")
     assert "indoor walks     1 synthetic rooms, corridors and halls" in text
     # the street-only recipe says nothing of rooms
-    assert "indoor" not in describe_basis()
+    assert "indoor walks" not in describe_basis()
+
+
+@pytest.mark.slow
+def test_make_default_basis_indoor_regenerates_bit_for_bit(tmp_path: Path) -> None:
+    """--indoor --small, twice: the same arrays and metadata; a basis for the 752x480 camera."""
+    import subprocess
+    import sys
+
+    if not TOOL.is_file():
+        pytest.skip(f"{TOOL} not found (an installed package without the repository's tools)")
+    sidecars = []
+    for name in ("a", "b"):
+        out = tmp_path / name
+        subprocess.run(
+            [sys.executable, str(TOOL), "--indoor", "--small", "--out", str(out)],
+            check=True,
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
+        sidecars.append(json.loads((out / "indoor_basis.json").read_text()))
+    assert sidecars[0]["content_sha256"] == sidecars[1]["content_sha256"]
+    basis = Basis.load(tmp_path / "a" / "indoor_basis.npz")
+    recipe = sidecars[0]["recipe"]
+    assert basis.image_size == (480, 752)
+    assert basis.n_train == recipe["walks"] * len(range(0, recipe["frames"], recipe["step"]))
+    assert basis.meta["source"]["cameras"] == ["752x480", "640x480", "1280x720", "fisheye-752x480"]
+    assert "prior" in basis.meta

@@ -121,17 +121,27 @@ def test_calibration_coverage_of_a_gaussian_sample() -> None:
     assert narrow["inside_2"] / narrow["n"] == pytest.approx(0.683, abs=0.01)
 
 
-def test_calibration_counts_certain_pixels_apart() -> None:
-    """A std of 0 where the basis never varies is counted, and the NLL is given without it."""
+def test_calibration_leaves_pixels_without_a_std_out_of_the_nll() -> None:
+    """A std of 0 (a basis that never varies there) or NaN (a 0 stored in a compact log) is
+    counted apart and left out of the NLL, which stays finite; coverage counts it outside."""
     std = np.full((10, 10), 1.0)
     std[0, :5] = 0.0  # e.g. pixels that were sky in every training map
+    std[1, :3] = np.nan
     reference = np.zeros((10, 10))
     estimate = np.full((10, 10), 0.5)
+    estimate[0, 0] = 0.0  # exactly right where the std is 0: inside
     sums = calibration_sums(estimate, std, reference, np.ones(std.shape, dtype=bool))
-    assert sums["certain"] == 5
+    assert sums["certain"] == 8
     per_pixel = 0.5 * np.log(2 * np.pi) + 0.5 * 0.25
-    assert sums["nll_uncertain"] == pytest.approx(95 * per_pixel)
-    assert sums["nll"] > 1e10  # 0.5 px off with a std of 1e-6 px
+    assert sums["nll"] == pytest.approx(92 * per_pixel)
+    assert sums["inside_1"] == 93
+    stats = CalibrationStats()
+    stats.sums = {key: stats.sums[key] + sums[key] for key in stats.sums}
+    assert stats.summary()["nll"] == pytest.approx(per_pixel)
+    assert stats.summary()["certain"] == pytest.approx(0.08)
+    nothing = calibration_sums(estimate, np.zeros((10, 10)), reference, np.ones((10, 10), bool))
+    assert nothing["nll"] == 0.0
+    assert nothing["certain"] == 100
 
 
 def test_depth_errors_of_a_known_offset() -> None:

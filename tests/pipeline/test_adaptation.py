@@ -10,11 +10,20 @@ import numpy as np
 import pytest
 
 from pcainterp_stream.estimate import adapt
+from pcainterp_stream.estimate.basis import BUILT_IN, BUILT_IN_INDOOR, Basis
 from pcainterp_stream.frontend.pairing import PairingConfig, iter_stereo_frames
 from pcainterp_stream.frontend.stereo import StereoFrontEnd
+from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.logwriter import LogFormat, open_writer
+from pcainterp_stream.io.outputs import BASIS_KEY, recorded_metadata
 from pcainterp_stream.pipeline.densify import densify, own_basis_path
-from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
+from pcainterp_stream.pipeline.jobs import evaluation_basis, synth
+from pcainterp_stream.pipeline.processor import (
+    FrameProcessor,
+    MeasurementSource,
+    ProcessorConfig,
+)
 from pcainterp_stream.records import StereoFrame
 from pcainterp_stream.synth import SynthConfig, generate
 from pcainterp_stream.synth.indoor import camera_options
@@ -62,9 +71,15 @@ def _errors(log: Path, config: ProcessorConfig) -> tuple[adapt.FitCheck, FramePr
 @pytest.mark.realdata
 def test_euroc_machine_hall_beats_nearest_and_linear_with_no_options(tmp_path: Path) -> None:
     log = _rectified(EUROC, tmp_path / "euroc.mcap")
-    built_in, engine = _errors(log, ProcessorConfig(adapt="check"))
-    assert not built_in.fits  # the street basis loses to linear interpolation indoors
+    street, engine = _errors(log, ProcessorConfig(adapt="check", builtin="street"))
+    assert not street.fits  # the street basis loses to linear interpolation indoors
     assert "worse than linear" in engine.adaptation.lines[-1]
+    # the built-in bases only: the check picks the indoor one, better than nearest here
+    indoor, engine = _errors(log, ProcessorConfig(adapt="check"))
+    assert engine.basis is Basis.indoor()
+    assert indoor.prior < street.prior
+    assert indoor.prior < indoor.nearest
+    # the default: neither fits well, the log's own basis does much better
     adapted, engine = _errors(log, ProcessorConfig())
     assert engine.adaptation.adapted
     assert adapted.prior <= 0.5 * adapted.nearest
@@ -90,9 +105,9 @@ def test_fisheye_pair_adapts_and_the_basis_is_written_beside_the_output(tmp_path
     assert adapted.prior <= 0.5 * adapted.nearest
 
 
-def _indoor_frames(frames: int) -> list[StereoFrame]:
+def _indoor_frames(frames: int, seed: int = 4) -> list[StereoFrame]:
     config = SynthConfig(
-        seed=4, frames=frames, scale=0.25, scene="indoor", **camera_options("752x480")
+        seed=seed, frames=frames, scale=0.25, scene="indoor", **camera_options("752x480")
     )
     return [
         StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
@@ -101,10 +116,13 @@ def _indoor_frames(frames: int) -> list[StereoFrame]:
 
 
 def test_the_log_basis_keeps_learning_and_never_depends_on_thread_timing() -> None:
-    frames = _indoor_frames(10)
+    frames = _indoor_frames(10, seed=1)  # a room the street basis does not fit
     outputs = []
     for workers, lookahead in ((1, 0), (2, 4), (2, 4)):
-        config = ProcessorConfig(warmup_frames=2, stereo_workers=workers, lookahead=lookahead)
+        # the street basis alone (no indoor alternative): the log's own basis is learned
+        config = ProcessorConfig(
+            warmup_frames=2, stereo_workers=workers, lookahead=lookahead, builtin="street"
+        )
         with FrameProcessor(None, config) as engine:
             results = list(engine.process(frames))
             assert engine.adaptation.adapted
@@ -115,3 +133,85 @@ def test_the_log_basis_keeps_learning_and_never_depends_on_thread_timing() -> No
     # the same maps and decisions whatever the threads and the look-ahead
     np.testing.assert_array_equal(outputs[0], outputs[1])
     np.testing.assert_array_equal(outputs[1], outputs[2])
+
+
+def test_a_street_log_keeps_the_street_basis() -> None:
+    """The street basis fits a street: kept, the indoor one not even tried."""
+    config = SynthConfig(seed=9001, frames=8, scale=0.5)
+    frames = [
+        StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
+        for f in generate(config)
+    ]
+    with FrameProcessor(None, ProcessorConfig()) as engine:
+        list(engine.process(frames))
+        assert engine.adaptation.check is not None
+        assert engine.adaptation.check.ratio < 0.8
+        assert engine.adaptation.switched is None
+        assert not engine.adaptation.adapted
+        assert engine.basis is Basis.default()
+        assert not any("indoor" in line for line in engine.adaptation.lines)
+
+
+def test_builtin_indoor_is_recorded_and_evaluate_finds_it(tmp_path: Path) -> None:
+    """--basis builtin-indoor (ProcessorConfig.builtin): the output names the indoor basis and
+    evaluate re-densifies with it; --basis builtin-street keeps the street one."""
+    log = tmp_path / "room.mcap"
+    synth(log, frames=3, seed=2, scale=0.25, fmt=None, scene="indoor", camera="752x480")
+    out = tmp_path / "room_dense.mcap"
+    summary = densify(log, out, processor=ProcessorConfig(builtin="indoor", adapt="check"))
+    assert summary.prior_lines[0].startswith("prior: the built-in indoor basis ")
+    assert recorded_metadata(out)[BASIS_KEY] == BUILT_IN_INDOOR
+    basis, note = evaluation_basis(out)
+    assert basis is Basis.indoor()
+    assert note.startswith(BUILT_IN_INDOOR)
+    street = tmp_path / "room_street.mcap"
+    summary = densify(log, street, processor=ProcessorConfig(builtin="street", adapt="check"))
+    assert summary.prior_lines[0].startswith("prior: the built-in street basis ")
+    assert not any("indoor" in line for line in summary.prior_lines)
+    assert recorded_metadata(street)[BASIS_KEY] == BUILT_IN
+    with pytest.raises(ValueError, match="builtin"):
+        ProcessorConfig(builtin="forest")
+
+
+def test_an_indoor_feature_stream_picks_the_indoor_basis_on_left_out_points(
+    tmp_path: Path,
+) -> None:
+    """No SGBM maps to learn from: the check scores both built-in bases on left-out points."""
+    log = tmp_path / "room.mcap"
+    synth(log, frames=8, seed=4, scale=0.5, fmt=None, scene="indoor", camera="752x480")
+    with_features = tmp_path / "room_features.mcap"
+    rng = np.random.default_rng(0)
+    with open_log(log) as reader, open_writer(with_features, LogFormat.MCAP) as writer:
+        camera_info = None
+        for raw in reader.messages():
+            writer.add_raw(raw)
+            if raw.topic == "/stereo/left/camera_info":
+                camera_info = reader.decode(raw)
+            if raw.topic != "/ground_truth/depth" or camera_info is None:
+                continue
+            message = reader.decode(raw)
+            depth = rosmsg.image_array(message)
+            p = rosmsg.projection_matrix(camera_info)
+            v = rng.integers(0, depth.shape[0], 300)
+            u = rng.integers(0, depth.shape[1], 300)
+            z = depth[v, u]
+            x = (u - p[0, 2]) * z / p[0, 0]
+            y = (v - p[1, 2]) * z / p[1, 1]
+            cloud = rosmsg.pointcloud2_message(
+                {"x": x.astype(np.float32), "y": y.astype(np.float32), "z": z},
+                rosmsg.stamp_ns(message),
+                "stereo_left_optical",
+            )
+            writer.add_message("/features", cloud, raw.log_time_ns)
+    summary = densify(
+        with_features,
+        tmp_path / "room_dense.mcap",
+        pairing=PairingConfig(features_topic="/features"),
+        processor=ProcessorConfig(source=MeasurementSource.FEATURES),
+    )
+    lines = summary.prior_lines
+    assert lines[0].startswith("prior: the built-in street basis ")
+    assert "left-out measurements" in lines[1]
+    assert "the built-in indoor basis chosen" in lines[2]
+    assert summary.basis_written is None  # nothing learned
+    assert recorded_metadata(tmp_path / "room_dense.mcap")[BASIS_KEY] == BUILT_IN_INDOOR

@@ -174,16 +174,23 @@ def test_evaluate_no_basis_and_no_linear_skip_rows(
 # ----------------------------------------------------------------------------- info
 
 
-def test_info_without_a_file_describes_the_built_in_basis(
+def test_info_without_a_file_describes_the_built_in_bases(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     code, out, _ = run(capsys, "info")
     assert code == 0
-    basis = Basis.default()
-    assert out.startswith("built-in basis (")
-    assert f"components       {basis.n_components}" in out
-    assert "1241x376 px" in out
-    assert "matches the file" in out  # the sidecar's sha256
+    street, indoor = out.split("\n\nbuilt-in indoor basis (")
+    assert street.startswith("built-in street basis (")
+    assert f"components       {Basis.default().n_components}" in street
+    assert "1241x376 px" in street
+    assert "synthetic streets only" in street
+    assert "matches the file" in street  # the sidecar's sha256
+    assert f"components       {Basis.indoor().n_components}" in indoor
+    assert "752x480 px" in indoor
+    assert "synthetic indoor walks only" in indoor
+    assert "hand-held, drone and ground-robot" in indoor
+    assert "fisheye-752x480" in indoor  # the cameras it was seen by
+    assert "matches the file" in indoor
 
 
 # ----------------------------------------------------------------------------- learn

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from pcainterp_stream.estimate import baselines
+from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
 from pcainterp_stream.records import StereoFrame
 from pcainterp_stream.synth import SynthConfig, generate
@@ -62,8 +63,10 @@ def test_indoor_frames_are_deterministic_and_platforms_set_height_and_pitch() ->
     assert set(CAMERAS) >= {"kitti", "752x480"}
 
 
-def test_indoor_log_densified_with_no_options_beats_linear_against_the_truth() -> None:
-    """The built-in street basis does not fit an indoor camera; the default adapts and wins.
+def test_indoor_log_picks_the_indoor_basis_and_beats_linear_against_the_truth() -> None:
+    """The built-in street basis does not fit an indoor camera; the fit check picks the
+    built-in indoor basis (a basis learned from the log's own maps does not do better
+    enough to replace it) and wins.
 
     Scored against the true disparity right of the stereo matcher's left margin (where no
     method has a measurement and every one extrapolates the same way).
@@ -93,7 +96,10 @@ def test_indoor_log_densified_with_no_options_beats_linear_against_the_truth() -
             }
             for name, estimate in estimates.items():
                 errors[name].append(float(np.abs(estimate - truth)[:, margin:].mean()))
-        assert engine.adaptation.adapted
+        assert engine.adaptation.switched is not None
+        assert engine.adaptation.switched.basis is Basis.indoor()
+        assert engine.basis is Basis.indoor()
+        assert not engine.adaptation.adapted  # the log's own basis did no better
     prior, linear = np.mean(errors["prior"]), np.mean(errors["linear"])
     assert prior < linear
     assert prior < np.mean(errors["nearest"])
