@@ -595,7 +595,7 @@ def run(args: argparse.Namespace) -> int:
         synth,
     )
     from pcainterp_stream.pipeline.learn import LearnOptions, learn
-    from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
+    from pcainterp_stream.pipeline.processor import DENSE_SGBM, MeasurementSource, ProcessorConfig
 
     command = args.command
     if command == "golden":
@@ -701,7 +701,7 @@ def run(args: argparse.Namespace) -> int:
             adapt="check" if builtin else "auto",
             gftt=_gftt_config(args),
             # dense mode outputs the SGBM map itself where it is valid: full resolution
-            sgbm=_sgbm_config(args, None if dense else ProcessorConfig().sgbm),
+            sgbm=_sgbm_config(args, DENSE_SGBM if dense else ProcessorConfig().sgbm),
             measurements=args.measurements,
             sigma=_sigma_option(args.sigma),
             uncertainty=args.uncertainty,

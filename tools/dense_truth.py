@@ -162,16 +162,15 @@ def run_job(log: Path, processor: object, work: Path) -> JobMaps:
 
 
 def dense_config(model: object = None) -> object:
-    """The processor of ``densify --measurements dense`` (full-resolution SGBM).
+    """The processor of ``densify --measurements dense`` (its matcher ``DENSE_SGBM``).
 
     ``model``: a ``DenseModel`` in place of the default one.
     """
     from pcainterp_stream.estimate.dense import DenseModel
-    from pcainterp_stream.frontend.stereo import SgbmConfig
-    from pcainterp_stream.pipeline.processor import ProcessorConfig
+    from pcainterp_stream.pipeline.processor import DENSE_SGBM, ProcessorConfig
 
     assert model is None or isinstance(model, DenseModel)
-    return ProcessorConfig(measurements="dense", sgbm=SgbmConfig(), dense=model or DenseModel())
+    return ProcessorConfig(measurements="dense", sgbm=DENSE_SGBM, dense=model or DenseModel())
 
 
 @dataclass
