@@ -302,8 +302,8 @@ class SgbmConfig:
             matching and the padding is cut off again, so every pixel gets the whole search
             range. A band pixel whose match lies inside the right image is then found as
             anywhere else; one whose match would lie left of it (out of the right camera's
-            view) can only match the padding, which the uniqueness and left-right checks
-            mostly reject. Costs (W + band) / W of the matching time.
+            view) can only match the padding: a disparity d > x is removed. Costs
+            (W + band) / W of the matching time.
     """
 
     min_disparity: int = 0
@@ -426,6 +426,10 @@ def _sgbm_grey(left: UInt8Array, right: UInt8Array, config: SgbmConfig) -> Float
     disparity = fixed.astype(np.float32)
     disparity *= np.float32(1.0 / 16.0)
     disparity[fixed < matched.min_disparity * 16] = np.nan
+    if pad:
+        # a match left of the right image's first column is a match into the padding
+        columns = np.arange(disparity.shape[1], dtype=np.float32)
+        disparity[disparity > columns] = np.nan
     if config.downscale != 1:
         # Pixel-centre aligned upsampling; a NaN spreads to every output it touches.
         scale = np.float32(width / left.shape[1])
