@@ -101,7 +101,8 @@ class ProcessorConfig:
         measurements: ``"sparse"`` (the paper's: a few hundred GFTT corners looked up in the
             SGBM map, the default) or ``"dense"`` (that estimate then fused, pixel by pixel,
             with the whole SGBM map: :mod:`~pcainterp_stream.estimate.dense`; stereo
-            source only).
+            source only; ``densify --measurements dense`` pairs it with
+            ``sgbm=DENSE_SGBM``).
         dense: the noise model of dense mode.
         batch_size: frames densified together (matrix-matrix products).
         lookahead: frames queued for stereo matching ahead of densification; at least
