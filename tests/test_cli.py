@@ -27,11 +27,13 @@ from mcap.writer import Writer
 from pcainterp_stream import cli
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.frontend.stereo import compute_disparity
 from pcainterp_stream.io import logwriter, rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import open_writer
 from pcainterp_stream.io.outputs import MEASUREMENTS_KEY, image_of, recorded_metadata
 from pcainterp_stream.pipeline.jobs import LearnOptions, learn, synth
+from pcainterp_stream.pipeline.processor import DENSE_SGBM
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 needs_realdata = pytest.mark.skipif(
@@ -245,8 +247,21 @@ def test_densify_dense_measurements(
     counts = assert_valid_mcap(out)
     assert counts["/pcainterp/depth"] == SMALL_FRAMES
     assert recorded_metadata(out)[MEASUREMENTS_KEY] == "dense"
-    disparity = next(m for t, m, _ in read_messages(out) if t == "/pcainterp/disparity")
-    assert np.isfinite(rosmsg.image_array(disparity.image)).all()
+    messages = read_messages(out)
+    disparity = next(m for t, m, _ in messages if t == "/pcainterp/disparity")
+    fused = rosmsg.image_array(disparity.image)
+    assert np.isfinite(fused).all()
+    # the left band is matched too (DENSE_SGBM): where SGBM finds a value there, it is kept
+    left, right = (
+        rosmsg.image_array(next(m for t, m, _ in messages if t == f"/stereo/{side}/image_rect"))
+        for side in ("left", "right")
+    )
+    matched = compute_disparity(left, right, DENSE_SGBM)
+    band = np.zeros(matched.shape, bool)
+    band[:, : DENSE_SGBM.band] = True
+    found = band & np.isfinite(matched)
+    assert found.sum() > 0.3 * band.sum()
+    assert np.median(np.abs(fused - matched)[found]) < 0.1
     # a feature stream is sparse: dense mode refuses it in one line
     other = out.parent / "other.mcap"
     run = pcainterp(

@@ -163,8 +163,8 @@ def run_job_here(log: Path, basis: Path, out: Path, settings: dict[str, Any]) ->
 def processor_config(settings: dict[str, Any]) -> processor.ProcessorConfig:
     """Build a processor configuration from plain settings (the defaults for the rest).
 
-    ``downscale`` and ``num_disparities`` go to SGBM, ``carry_frames`` to the carried
-    points (0: off).
+    ``downscale``, ``num_disparities`` and ``full_width`` go to SGBM, ``carry_frames`` to
+    the carried points (0: off).
     """
     settings = dict(settings)
     sgbm = processor.ProcessorConfig().sgbm
@@ -172,6 +172,8 @@ def processor_config(settings: dict[str, Any]) -> processor.ProcessorConfig:
         sgbm = dataclasses.replace(sgbm, downscale=int(settings.pop("downscale")))
     if "num_disparities" in settings:
         sgbm = dataclasses.replace(sgbm, num_disparities=int(settings.pop("num_disparities")))
+    if "full_width" in settings:
+        sgbm = dataclasses.replace(sgbm, full_width=bool(settings.pop("full_width")))
     if "carry_frames" in settings:
         settings["carry"] = dataclasses.replace(
             processor.ProcessorConfig().carry, frames=int(settings.pop("carry_frames"))

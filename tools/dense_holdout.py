@@ -1,12 +1,13 @@
 """Score dense mode's hole filling on real KITTI frames by hiding blocks of SGBM's own map.
 
 Real clips have no ground truth, and SGBM's real holes have no reference. This hides
-square blocks of the full-resolution SGBM map where it is valid (seeded, away from the
-left band), so the hidden values are a reference for what fills them: nearest-neighbour
-fill (evaluate's ``sgbm_nn``), the sparse estimate (PCA-MAP from the GFTT lookups of the
-masked map, densify's defaults with the built-in basis) and dense mode's fusion. The
-blocks are textured surfaces SGBM matched, not the sky or occlusions real holes often are,
-so this measures the fill of holes in matched surfaces only (docs/results.md).
+square blocks of dense mode's SGBM map (full resolution, the left band matched too) where it
+is valid (seeded, right of the left band), so the hidden values are a reference for what
+fills them: nearest-neighbour fill (evaluate's ``sgbm_nn``), the sparse estimate (PCA-MAP
+from the GFTT lookups of the masked map, densify's defaults with the built-in basis) and
+dense mode's fusion. The blocks are textured surfaces SGBM matched, not the sky or
+occlusions real holes often are, so this measures the fill of holes in matched surfaces
+only (docs/results.md).
 
     python tools/dense_holdout.py --frames 12 --blocks 40 --block-size 32
 """
@@ -25,14 +26,13 @@ from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.evaluate.metrics import fill_nearest
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
-    SgbmConfig,
     compute_disparity,
     detect_corners,
     lookup_disparities,
     to_grey8,
 )
 from pcainterp_stream.io.kitti import iter_frames, open_kitti
-from pcainterp_stream.pipeline.processor import ProcessorConfig, resolve_settings
+from pcainterp_stream.pipeline.processor import DENSE_SGBM, ProcessorConfig, resolve_settings
 
 
 def score_clip(
@@ -41,7 +41,7 @@ def score_clip(
     """Mean abs. error (px) on the hidden pixels of each filler, and dense mode's coverage."""
     basis = Basis.default()
     settings = resolve_settings(basis, ProcessorConfig())
-    sgbm = SgbmConfig()
+    sgbm = DENSE_SGBM
     rng = np.random.default_rng(seed)
     sums = {"hidden px": 0.0, "nearest": 0.0, "sparse": 0.0, "dense": 0.0, "inside": 0.0}
     sequence = open_kitti(folder)
@@ -53,7 +53,7 @@ def score_clip(
         mask = np.zeros(full.shape, bool)
         for _ in range(blocks):
             y = int(rng.integers(0, height - size))
-            x = int(rng.integers(sgbm.valid_min_x, width - size))
+            x = int(rng.integers(sgbm.band, width - size))
             mask[y : y + size, x : x + size] = True
         hidden = mask & np.isfinite(full)
         masked = np.where(mask, np.float32(np.nan), full)

@@ -16,6 +16,7 @@ Two sections:
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -34,7 +35,7 @@ from pcainterp_stream.frontend.stereo import (
     lookup_disparities,
     to_grey8,
 )
-from pcainterp_stream.pipeline.processor import ProcessorConfig, resolve_settings
+from pcainterp_stream.pipeline.processor import DENSE_SGBM, ProcessorConfig, resolve_settings
 from pcainterp_stream.synth import SynthConfig, generate
 
 CALIBRATION_SEEDS = (9001, 9002, 9003)
@@ -47,6 +48,7 @@ def calibration(downscale: int) -> tuple[dict[str, float], dict[str, list[float]
     basis = Basis.default()
     options = resolve_settings(basis, ProcessorConfig()).densify_options()
     sgbm = SgbmConfig(downscale=downscale)
+    dense_sgbm = dataclasses.replace(DENSE_SGBM, downscale=downscale)
     sums = dict.fromkeys(
         ("pixels", "valid", "holes", "dense", "nearest", "dense valid", "sgbm valid"), 0.0
     )
@@ -57,8 +59,12 @@ def calibration(downscale: int) -> tuple[dict[str, float], dict[str, list[float]
             if frame.index % 10:
                 continue
             truth = disparity_from_depth(frame.depth, frame.camera.focal_baseline)
-            matched = compute_disparity(frame.left, frame.right, sgbm)
-            corners = detect_corners(to_grey8(frame.left), GfttConfig(), min_x=sgbm.valid_min_x)
+            # dense mode matches the left band too; SGBM's holes are the plain matcher's
+            matched = compute_disparity(frame.left, frame.right, dense_sgbm)
+            plain = compute_disparity(frame.left, frame.right, sgbm)
+            corners = detect_corners(
+                to_grey8(frame.left), GfttConfig(), min_x=dense_sgbm.valid_min_x
+            )
             found = lookup_disparities(matched, corners)
             estimate = densify(
                 basis,
@@ -70,10 +76,10 @@ def calibration(downscale: int) -> tuple[dict[str, float], dict[str, list[float]
                 **options,
             )
             fused = fuse_dense(estimate, matched)
-            filled = fill_nearest(matched)
+            filled = fill_nearest(plain)
             assert fused.disparity_std is not None
             assert filled is not None
-            valid = np.isfinite(matched)
+            valid = np.isfinite(plain)
             error = np.abs(fused.disparity - truth)
             nearest = np.abs(filled - truth)
             inside = error <= 2 * fused.disparity_std
@@ -83,11 +89,11 @@ def calibration(downscale: int) -> tuple[dict[str, float], dict[str, list[float]
             sums["dense"] += error.sum()
             sums["nearest"] += nearest.sum()
             sums["dense valid"] += error[valid].sum()
-            sums["sgbm valid"] += np.abs(matched - truth)[valid].sum()
+            sums["sgbm valid"] += np.abs(plain - truth)[valid].sum()
             sums["inside valid"] += inside[valid].sum()
             sums["inside holes"] += inside[~valid].sum()
             columns = np.arange(truth.shape[1])[None, :]
-            band = ~valid & (columns < SgbmConfig().valid_min_x)
+            band = ~valid & (columns < SgbmConfig().band)
             rest = ~valid & ~band
             masks = {
                 "left band": band,

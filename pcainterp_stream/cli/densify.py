@@ -287,7 +287,7 @@ def _processor_config(
     args: argparse.Namespace, *, adapt: str, builtin: str = "auto"
 ) -> ProcessorConfig:
     """Return the estimate's config the options ask for (``adapt``: see ``ProcessorConfig``)."""
-    from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
+    from pcainterp_stream.pipeline.processor import DENSE_SGBM, MeasurementSource, ProcessorConfig
 
     source = MeasurementSource.FEATURES if args.features_topic else MeasurementSource.STEREO
     dense = args.measurements == "dense"
@@ -296,7 +296,7 @@ def _processor_config(
         adapt=adapt,
         gftt=gftt_config(args),
         # dense mode outputs the SGBM map itself where it is valid: full resolution
-        sgbm=sgbm_config(args, None if dense else ProcessorConfig().sgbm),
+        sgbm=sgbm_config(args, DENSE_SGBM if dense else ProcessorConfig().sgbm),
         measurements=args.measurements,
         sigma=_sigma_option(args.sigma),
         uncertainty=args.uncertainty,

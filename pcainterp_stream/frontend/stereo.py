@@ -297,6 +297,13 @@ class SgbmConfig:
         downscale: 1 matches at full resolution; 2 matches at half resolution (INTER_AREA)
             with half the disparity range and upsamples the map (INTER_LINEAR, values x2),
             ~4x cheaper and coarser.
+        full_width: also match the left band x < min_disparity + num_disparities: both
+            images are padded on the left by that many px (edge pixels repeated) before
+            matching and the padding is cut off again, so every pixel gets the whole search
+            range. A band pixel whose match lies inside the right image is then found as
+            anywhere else; one whose match would lie left of it (out of the right camera's
+            view) can only match the padding: a disparity d > x is removed. Costs
+            (W + band) / W of the matching time.
     """
 
     min_disparity: int = 0
@@ -311,6 +318,7 @@ class SgbmConfig:
     pre_filter_cap: int = 63
     mode: SgbmMode = SgbmMode.SGBM_3WAY
     downscale: int = 1
+    full_width: bool = False
 
     def __post_init__(self) -> None:
         if self.num_disparities <= 0 or self.num_disparities % 16:
@@ -335,6 +343,11 @@ class SgbmConfig:
     @property
     def valid_min_x(self) -> int:
         """Return the first column (px) where the full disparity range can be searched."""
+        return 0 if self.full_width else self.band
+
+    @property
+    def band(self) -> int:
+        """Return the width (px) of the left band SGBM cannot search fully without padding."""
         return self.min_disparity + self.num_disparities
 
     def matched(self) -> SgbmConfig:
@@ -356,6 +369,7 @@ class SgbmConfig:
             pre_filter_cap=self.pre_filter_cap,
             mode=self.mode,
             downscale=1,
+            full_width=self.full_width,
         )
 
 
@@ -400,11 +414,22 @@ def _sgbm_grey(left: UInt8Array, right: UInt8Array, config: SgbmConfig) -> Float
         size = (-(-width // config.downscale), -(-height // config.downscale))
         left = np.asarray(cv2.resize(left, size, interpolation=cv2.INTER_AREA), np.uint8)
         right = np.asarray(cv2.resize(right, size, interpolation=cv2.INTER_AREA), np.uint8)
+    pad = max(matched.band, 0) if config.full_width else 0
+    if pad:
+        left = np.asarray(cv2.copyMakeBorder(left, 0, 0, pad, 0, cv2.BORDER_REPLICATE), np.uint8)
+        right = np.asarray(cv2.copyMakeBorder(right, 0, 0, pad, 0, cv2.BORDER_REPLICATE), np.uint8)
     fixed = _matcher(matched).compute(left, right)
+    if pad:
+        fixed = fixed[:, pad:]
+        left = left[:, pad:]
     # SGBM returns 16 * disparity as int16; invalid pixels are (min_disparity - 1) * 16.
     disparity = fixed.astype(np.float32)
     disparity *= np.float32(1.0 / 16.0)
     disparity[fixed < matched.min_disparity * 16] = np.nan
+    if pad:
+        # a match left of the right image's first column is a match into the padding
+        columns = np.arange(disparity.shape[1], dtype=np.float32)
+        disparity[disparity > columns] = np.nan
     if config.downscale != 1:
         # Pixel-centre aligned upsampling; a NaN spreads to every output it touches.
         scale = np.float32(width / left.shape[1])
@@ -431,8 +456,8 @@ def compute_disparity(
 
     Returns:
         (H, W) float32 disparity (px) of each left pixel; NaN where SGBM found none
-        (occlusions, failed uniqueness or left-right checks, speckles, and most of the
-        left band x < min_disparity + num_disparities).
+        (occlusions, failed uniqueness or left-right checks, speckles, and, unless
+        ``config.full_width``, most of the left band x < min_disparity + num_disparities).
 
     Raises:
         ValueError: if the images differ in shape or dtype or are not images.

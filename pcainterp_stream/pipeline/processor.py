@@ -73,6 +73,12 @@ class MeasurementSource(enum.Enum):
     """The points of a sparse feature stream (``/features``) with the frame's stamp."""
 
 
+DENSE_SGBM = SgbmConfig(full_width=True)
+"""The matcher of ``densify --measurements dense``: full resolution (the output is SGBM's own
+value where it matched) and the left band matched too (``SgbmConfig.full_width``): the band
+is SGBM's largest hole, and most of it is in the right camera's view."""
+
+
 @dataclass(frozen=True)
 class ProcessorConfig:
     """Options of the frame processor.
@@ -101,7 +107,8 @@ class ProcessorConfig:
         measurements: ``"sparse"`` (the paper's: a few hundred GFTT corners looked up in the
             SGBM map, the default) or ``"dense"`` (that estimate then fused, pixel by pixel,
             with the whole SGBM map: :mod:`~pcainterp_stream.estimate.dense`; stereo
-            source only).
+            source only; ``densify --measurements dense`` pairs it with
+            ``sgbm=DENSE_SGBM``).
         dense: the noise model of dense mode.
         batch_size: frames densified together (matrix-matrix products).
         lookahead: frames queued for stereo matching ahead of densification; at least

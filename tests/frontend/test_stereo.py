@@ -282,6 +282,30 @@ def test_half_resolution_matching(pair: tuple[npt.NDArray[Any], ...]) -> None:
     assert np.median(error) < 0.3
 
 
+def test_full_width_matching_fills_the_left_band(pair: tuple[npt.NDArray[Any], ...]) -> None:
+    left, right, _ = pair
+    wide = SgbmConfig(num_disparities=32, full_width=True)
+    assert (wide.valid_min_x, wide.band, SGBM.valid_min_x) == (0, 32, 32)
+    plain = compute_disparity(left, right, SGBM)
+    padded = compute_disparity(left, right, wide)
+    assert padded.shape == (HEIGHT, WIDTH)
+    # the band: the plain matcher leaves it empty; padded, the pixels whose match is in
+    # the right image (x >= d, with a margin for the block) get the true disparity
+    assert np.isnan(plain[:, : SGBM.band - 1]).mean() > 0.9
+    seen = padded[8:-8, int(D_BACK) + 4 : SGBM.band]
+    assert np.isfinite(seen).mean() > 0.9
+    assert np.nanmedian(np.abs(seen - D_BACK)) < 0.3
+    # right of the band the two matchers agree
+    both = np.isfinite(plain) & np.isfinite(padded)
+    both[:, : SGBM.band] = False
+    assert np.mean(np.abs(plain - padded)[both] < 0.5) > 0.99
+    # and it runs at half resolution too
+    half = compute_disparity(
+        left, right, SgbmConfig(num_disparities=32, downscale=2, full_width=True)
+    )
+    assert np.isfinite(half[8:-8, int(D_BACK) + 8 : SGBM.band]).mean() > 0.8
+
+
 # --- inputs --------------------------------------------------------------------------------
 
 
