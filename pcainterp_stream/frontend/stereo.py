@@ -161,6 +161,13 @@ class GfttConfig:
         harris_k: Harris detector free parameter (only with ``use_harris``).
         subpixel: refine positions with ``cv2.cornerSubPix``.
         subpixel_window: half size of the ``cornerSubPix`` search window (px).
+        buckets: (columns, rows) of a grid over the searched area: the corners are taken
+            in turns from its cells (the strongest left in each cell first), so textured
+            cells cannot take every corner; ``(1, 1)`` is plain strongest-first.
+        fill_spacing: side (px) of a lattice of extra points (:func:`lattice_points`): a
+            lattice point farther than half a side from every kept corner lookup is looked
+            up too (same checks), so the surfaces between the corners get measurements;
+            0 adds none.
     """
 
     max_corners: int = 400
@@ -172,8 +179,15 @@ class GfttConfig:
     harris_k: float = 0.04
     subpixel: bool = True
     subpixel_window: int = 3
+    buckets: tuple[int, int] = (1, 1)
+    fill_spacing: float = 0.0
 
     def __post_init__(self) -> None:
+        if min(self.buckets) < 1 or self.fill_spacing < 0.0:
+            raise ValueError(
+                f"buckets ({self.buckets}) must be >= 1 each and fill_spacing "
+                f"({self.fill_spacing}) >= 0"
+            )
         if self.max_corners < 1:
             raise ValueError(f"max_corners must be >= 1, got {self.max_corners}")
         if not 0.0 < self.quality_level < 1.0:
@@ -223,9 +237,11 @@ def detect_corners(
         return np.zeros((0, 2), np.float32)
     mask = np.zeros((height, width), np.uint8)
     mask[config.border : height - config.border, x_start : width - config.border] = 255
+    columns, rows = config.buckets
+    bucketed = columns * rows > 1
     found = cv2.goodFeaturesToTrack(
         left_grey,
-        maxCorners=config.max_corners,
+        maxCorners=config.max_corners * (4 if bucketed else 1),
         qualityLevel=config.quality_level,
         minDistance=config.min_distance,
         mask=mask,
@@ -236,11 +252,69 @@ def detect_corners(
     if found is None or len(found) == 0:
         return np.zeros((0, 2), np.float32)
     corners = np.ascontiguousarray(found.reshape(-1, 2), dtype=np.float32)
+    if bucketed:
+        area = (x_start, config.border, width - config.border, height - config.border)
+        corners = _take_in_turns(corners, area, config.buckets, config.max_corners)
     if config.subpixel:
         window = (config.subpixel_window, config.subpixel_window)
         refined = cv2.cornerSubPix(left_grey, corners, window, (-1, -1), _SUBPIX_CRITERIA)
         corners = np.asarray(refined, np.float32).reshape(-1, 2)
     return corners
+
+
+def _take_in_turns(
+    corners: FloatArray,
+    area: tuple[int, int, int, int],
+    buckets: tuple[int, int],
+    count: int,
+) -> FloatArray:
+    """Take ``count`` corners (strongest first) in turns from the cells of a grid.
+
+    Round r takes the r-th strongest corner of every cell that has one; the result keeps
+    the strongest-first order within each round.
+    """
+    x0, y0, x1, y1 = area
+    columns, rows = buckets
+    col = np.clip(((corners[:, 0] - x0) * columns / max(x1 - x0, 1)).astype(np.int64), 0, columns - 1)
+    row = np.clip(((corners[:, 1] - y0) * rows / max(y1 - y0, 1)).astype(np.int64), 0, rows - 1)
+    cell = row * columns + col
+    # rank of each corner within its cell (corners arrive strongest first)
+    order = np.argsort(cell, kind="stable")
+    sorted_cells = cell[order]
+    starts = np.searchsorted(sorted_cells, sorted_cells, side="left")
+    rank = np.empty_like(cell)
+    rank[order] = np.arange(cell.size) - starts
+    chosen = np.lexsort((np.arange(cell.size), rank))[:count]
+    return np.ascontiguousarray(corners[chosen])
+
+
+def lattice_points(
+    kept: FloatArray, spacing: float, area: tuple[int, int, int, int]
+) -> FloatArray:
+    """Return the points of a square lattice farther than ``spacing / 2`` from every kept point.
+
+    Args:
+        kept: (k, 2) float32 (x, y) px of the measurements already made.
+        spacing: lattice side (px), > 0.
+        area: (x0, y0, x1, y1) px; the lattice is centred in it.
+
+    Returns:
+        (m, 2) float32 (x, y) px, row by row.
+    """
+    x0, y0, x1, y1 = area
+    if spacing <= 0.0 or x1 - x0 < spacing or y1 - y0 < spacing:
+        return np.zeros((0, 2), np.float32)
+    xs = np.arange(x0, x1 - spacing / 2, spacing, dtype=np.float64)
+    ys = np.arange(y0, y1 - spacing / 2, spacing, dtype=np.float64)
+    xs += (x1 - 1 - xs[-1] - x0) / 2  # centred in the area
+    ys += (y1 - 1 - ys[-1] - y0) / 2
+    grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2).astype(np.float32)
+    if kept.shape[0]:
+        gap = np.min(
+            np.sum((grid[:, None, :] - kept[None, :, :].astype(np.float32)) ** 2, axis=2), axis=1
+        )
+        grid = grid[gap > (spacing / 2) ** 2]
+    return np.ascontiguousarray(grid)
 
 
 # ---------------------------------------------------------------------------------------
@@ -805,4 +879,36 @@ class StereoFrontEnd:
             median_window=self.lookup.median_window,
             lr_max_diff=self.lookup.lr_max_diff,
         )
+        if self.gftt.fill_spacing > 0.0:
+            found = self._fill(found, disparity_map, right_map, grey_left.shape)
         return Measurements(found.pixels, found.disparities, disparity_map, found.counts)
+
+    def _fill(
+        self,
+        found: Lookup,
+        disparity_map: FloatArray,
+        right_map: FloatArray | None,
+        shape: tuple[int, ...],
+    ) -> Lookup:
+        """Add the lookups of the lattice points in the gaps between the corner lookups."""
+        border = self.gftt.border
+        area = (max(border, self.sgbm.valid_min_x), border, shape[1] - border, shape[0] - border)
+        points = lattice_points(found.pixels, self.gftt.fill_spacing, area)
+        extra = lookup_disparities(
+            disparity_map,
+            points,
+            right_disparity=right_map,
+            method=self.lookup.method,
+            max_gradient=self.lookup.max_gradient,
+            discontinuity_radius=self.lookup.discontinuity_radius,
+            median_window=self.lookup.median_window,
+            lr_max_diff=self.lookup.lr_max_diff,
+        )
+        a, b = found.counts, extra.counts
+        counts = RejectionCounts(*(getattr(a, n) + getattr(b, n) for n in _COUNT_NAMES))
+        return Lookup(
+            np.concatenate([found.pixels, extra.pixels]),
+            np.concatenate([found.disparities, extra.disparities]),
+            np.concatenate([found.indices, extra.indices + a.corners]),
+            counts,
+        )

@@ -1,0 +1,274 @@
+"""Score sparse mode (densify's defaults, built-in basis) on real truth, synthetic truth and SGBM.
+
+Three sources, each densified by the frame processor exactly as ``pcainterp densify`` does
+(fit check, carried points, hybrid prior, Cauchy IRLS, calibrated std), one variant of the
+measurement options at a time:
+
+- ``lidar``: the three KITTI depth-completion frames (``kitti_depth_annotated_07``), against
+  their accumulated-LiDAR truth (disparity = f*b / depth);
+- ``synth``: synthetic street drives of held-out seeds (the built-in basis learned seeds
+  1000-1199), full size, against the renderer's depth;
+- ``odometry`` and ``raw``: the two KITTI clips, against the full-resolution SGBM map of the
+  same pair (the reference ``evaluate`` uses for a stereo log without truth).
+
+Figures per source: mean |disparity error| (px) over the reference's pixels, the same for
+nearest-neighbour interpolation of the frame's own points (ratio), the share of reference
+pixels within +-2 sigma, the points per frame, depth RMSE (m, depths capped at 80 m; LiDAR
+only), and the processor's wall time relative to the first variant in the same run.
+
+    python tools/sparse_sharpness.py --variants default fill40 --sources lidar synth odometry raw
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import harness
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.estimate.baselines import nearest
+from pcainterp_stream.frontend.stereo import SgbmConfig, compute_disparity
+from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
+from pcainterp_stream.records import StereoCamera, StereoFrame
+
+Array = npt.NDArray[np.float32]
+DEPTH_CAP_M = 80.0
+
+# variant name -> changes to ProcessorConfig's corner options
+VARIANTS: dict[str, dict[str, Any]] = {
+    "default": {},
+    "corners600": {"gftt": {"max_corners": 600}},
+    "buckets12x4": {"gftt": {"buckets": (12, 4)}},
+    "buckets24x6": {"gftt": {"buckets": (24, 6)}},
+    "fill30": {"gftt": {"fill_spacing": 30.0}},
+    "fill40": {"gftt": {"fill_spacing": 40.0}},
+    "fill60": {"gftt": {"fill_spacing": 60.0}},
+    "buckets12x4_fill40": {"gftt": {"buckets": (12, 4), "fill_spacing": 40.0}},
+    "corners300_fill40": {"gftt": {"max_corners": 300, "fill_spacing": 40.0}},
+    "corners300_fill50": {"gftt": {"max_corners": 300, "fill_spacing": 50.0}},
+    "fill50": {"gftt": {"fill_spacing": 50.0}},
+    "buckets24x6_fill50": {"gftt": {"buckets": (24, 6), "fill_spacing": 50.0}},
+}
+
+
+def _variant_config(name: str) -> ProcessorConfig:
+    """Return the processor options of variant ``name`` (see :data:`VARIANTS`)."""
+    base = ProcessorConfig()
+    changes = dict(VARIANTS[name])
+    gftt = dataclasses.replace(base.gftt, **changes.pop("gftt", {}))
+    return dataclasses.replace(base, gftt=gftt, **changes)
+
+
+def _lidar_frames(realdata: Path) -> Iterator[tuple[StereoFrame, Array]]:
+    import cv2
+
+    from pcainterp_stream.io.kitti import read_grey
+
+    folder = realdata / "kitti_depth_annotated_07"
+    values: dict[str, npt.NDArray[np.float64]] = {}
+    for line in (folder / "calib.txt").read_text().splitlines():
+        key, _, text = line.partition(":")
+        values[key.strip()] = np.array([float(v) for v in text.split()])
+    p2, p3 = values["P2"].reshape(3, 4), values["P3"].reshape(3, 4)
+    names = sorted(p.name for p in (folder / "image_2").glob("*.png"))
+    for index, name in enumerate(names):
+        left = read_grey(folder / "image_2" / name)
+        right = read_grey(folder / "image_3" / name)
+        height, width = left.shape
+        fx = float(p2[0, 0])
+        camera = StereoCamera(
+            width, height, fx, float(p2[1, 1]), float(p2[0, 2]), float(p2[1, 2]),
+            float((p2[0, 3] - p3[0, 3]) / fx),
+        )
+        png = cv2.imread(str(folder / "image_depth_annotated" / name), cv2.IMREAD_UNCHANGED)
+        depth = np.asarray(png, np.float64) / 256.0
+        with np.errstate(divide="ignore"):
+            truth = np.where(depth > 0, camera.focal_baseline / depth, np.nan)
+        stamp = 1_000_000_000 + index * 100_000_000
+        yield _frame(index, stamp, left, right, camera), truth.astype(np.float32)
+
+
+def _frame(index: int, stamp: int, left: Any, right: Any, camera: StereoCamera) -> StereoFrame:
+    return StereoFrame(index, stamp, stamp, "left", left, right, camera)
+
+
+def _synth_frames(seeds: list[int], frames: int) -> Iterator[tuple[StereoFrame, Array]]:
+    from pcainterp_stream.synth import SynthConfig, generate
+
+    for seed in seeds:
+        for item in generate(SynthConfig(seed=seed, frames=frames)):
+            camera = item.camera
+            with np.errstate(divide="ignore", invalid="ignore"):
+                truth = (camera.focal_baseline / item.depth).astype(np.float32)
+            yield _frame(item.index, item.stamp_ns, item.left, item.right, camera), truth
+
+
+def _kitti_frames(folder: Path, frames: int) -> Iterator[tuple[StereoFrame, Array]]:
+    from pcainterp_stream.io.kitti import iter_frames, open_kitti
+
+    sequence = open_kitti(folder)
+    for index, item in enumerate(iter_frames(sequence, max_frames=frames)):
+        reference = compute_disparity(item.left, item.right, SgbmConfig())
+        yield _frame(index, item.stamp_ns, item.left, item.right, sequence.camera), reference
+
+
+def _cached(work: Path, name: str, make: Callable[[], Iterator[tuple[StereoFrame, Array]]]) -> list[
+    tuple[StereoFrame, Array]
+]:
+    """Frames and references of a source, kept in ``work`` after the first run."""
+    path = work / f"{name}.npz"
+    if path.exists():
+        data = np.load(path, allow_pickle=True)
+        cameras = data["cameras"]
+        return [
+            (
+                _frame(i, int(data["stamps"][i]), data["lefts"][i], data["rights"][i],
+                       StereoCamera(*cameras[i])),
+                data["truths"][i],
+            )
+            for i in range(len(data["stamps"]))
+        ]
+    items = list(make())
+    np.savez(
+        path,
+        stamps=np.array([f.stamp_ns for f, _ in items]),
+        lefts=np.stack([f.left for f, _ in items]),
+        rights=np.stack([f.right for f, _ in items]),
+        truths=np.stack([t for _, t in items]),
+        cameras=np.array([dataclasses.astuple(f.camera) for f, _ in items]),
+    )
+    return items
+
+
+def score(items: list[tuple[StereoFrame, Array]], config: ProcessorConfig) -> dict[str, float]:
+    """Densify the frames with ``config``; return the figures against their references."""
+    started = time.perf_counter()
+    with FrameProcessor(None, config) as processor:
+        results = list(processor.process([frame for frame, _ in items]))
+    seconds = time.perf_counter() - started
+    sums = dict.fromkeys(("px", "err", "nn", "inside", "inside_far", "px_far", "sq_depth"), 0.0)
+    points = 0
+    for (frame, truth), result in zip(items, results, strict=True):
+        valid = np.isfinite(truth) & (truth > 0)
+        estimate = result.disparity
+        error = np.abs(estimate - truth)[valid]
+        near = nearest(result.pixels, result.disparities, image_size=truth.shape).disparity
+        std = result.disparity_std[valid]
+        inside = error <= 2.0 * std
+        sums["px"] += valid.sum()
+        sums["err"] += error.sum()
+        sums["nn"] += np.abs(near - truth)[valid].sum()
+        sums["inside"] += inside.sum()
+        depth_true = np.minimum(frame.camera.focal_baseline / truth[valid], DEPTH_CAP_M)
+        with np.errstate(divide="ignore"):
+            depth_est = np.minimum(frame.camera.focal_baseline / np.maximum(estimate[valid], 0), DEPTH_CAP_M)
+        sums["sq_depth"] += ((depth_est - depth_true) ** 2).sum()
+        points += len(result.pixels)
+    return {
+        "error_px": sums["err"] / sums["px"],
+        "nearest_px": sums["nn"] / sums["px"],
+        "ratio_nn": sums["err"] / sums["nn"],
+        "coverage_2sigma": 100.0 * sums["inside"] / sums["px"],
+        "depth_rmse_m": float(np.sqrt(sums["sq_depth"] / sums["px"])),
+        "points": points / len(items),
+        "seconds": seconds,
+        "frames": float(len(items)),
+    }
+
+
+def estimate_seconds(
+    items: list[tuple[StereoFrame, Array]], configs: list[ProcessorConfig], repeats: int = 3
+) -> list[float]:
+    """CPU seconds per frame of the estimate alone (``densify_batch`` of 4 frames, one BLAS
+    thread, the processor's settings, no carried points) for each configuration's points;
+    the configurations are timed in turns, the best of ``repeats`` kept."""
+    from threadpoolctl import threadpool_limits
+
+    from pcainterp_stream.estimate.basis import Basis
+    from pcainterp_stream.estimate.estimator import densify_batch
+    from pcainterp_stream.frontend.stereo import StereoFrontEnd
+    from pcainterp_stream.pipeline.processor import resolve_settings
+
+    basis = Basis.default()
+    measured = []
+    for config in configs:
+        front_end = StereoFrontEnd(config.gftt, config.sgbm)
+        measured.append([front_end.measure(frame.left, frame.right) for frame, _ in items])
+    best = [np.inf] * len(configs)
+    camera = items[0][0].camera
+    with threadpool_limits(1):
+        for _ in range(repeats):
+            for index, config in enumerate(configs):
+                options = resolve_settings(basis, config).densify_options()
+                started = time.process_time()
+                for start in range(0, len(items), 4):
+                    batch = measured[index][start : start + 4]
+                    densify_batch(
+                        basis,
+                        [m.pixels for m in batch],
+                        [m.disparities for m in batch],
+                        image_size=camera.image_size,
+                        focal_baseline=camera.focal_baseline,
+                        robust=config.robust,
+                        **options,
+                    )
+                best[index] = min(best[index], (time.process_time() - started) / len(items))
+    return best
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the variants on the sources; print one Markdown table per source."""
+    parser = harness.argument_parser(__doc__)
+    harness.add_work_dir(parser, Path("/tmp/sparse_sharpness"))
+    harness.add_realdata(parser)
+    parser.add_argument("--variants", nargs="+", default=["default"], choices=sorted(VARIANTS))
+    parser.add_argument(
+        "--sources", nargs="+", default=["lidar", "synth", "odometry", "raw"],
+        choices=["lidar", "synth", "odometry", "raw"],
+    )
+    parser.add_argument("--synth-seeds", type=int, nargs="+", default=[9001, 9002])
+    parser.add_argument("--synth-frames", type=int, default=20)
+    parser.add_argument("--kitti-frames", type=int, default=40)
+    parser.add_argument(
+        "--timing", action="store_true", help="also time the estimate alone per variant"
+    )
+    args = parser.parse_args(argv)
+    work = harness.work_dir(args.work_dir)
+    realdata: Path = args.realdata
+    makers: dict[str, Callable[[], Iterator[tuple[StereoFrame, Array]]]] = {
+        "lidar": lambda: _lidar_frames(realdata),
+        "synth": lambda: _synth_frames(args.synth_seeds, args.synth_frames),
+        "odometry": lambda: _kitti_frames(realdata / harness.KITTI_ODOMETRY_CLIP, args.kitti_frames),
+        "raw": lambda: _kitti_frames(realdata / harness.KITTI_RAW_0001, args.kitti_frames),
+    }
+    keys = ("error_px", "nearest_px", "ratio_nn", "coverage_2sigma", "depth_rmse_m", "points", "seconds")
+    for source in args.sources:
+        tag = source if source != "synth" else f"synth_{'_'.join(map(str, args.synth_seeds))}_{args.synth_frames}"
+        if source in ("odometry", "raw"):
+            tag = f"{source}_{args.kitti_frames}"
+        items = _cached(work, tag, makers[source])
+        print(f"\n{source}: {len(items)} frames")
+        print("| variant | " + " | ".join(keys) + " | time ratio |")
+        print("| --- |" + " ---: |" * (len(keys) + 1))
+        first = None
+        for variant in args.variants:
+            figures = score(items, _variant_config(variant))
+            first = first or figures["seconds"]
+            cells = " | ".join(f"{figures[k]:.3f}" for k in keys)
+            print(f"| {variant} | {cells} | {figures['seconds'] / first:.2f} |", flush=True)
+        if args.timing:
+            configs = [_variant_config(v) for v in args.variants]
+            seconds = estimate_seconds(items, configs)
+            print("estimate CPU ms/frame: " + ", ".join(
+                f"{v} {1000 * t:.1f} ({t / seconds[0]:.2f}x)" for v, t in zip(args.variants, seconds, strict=True)
+            ), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
