@@ -16,7 +16,7 @@ nearest-neighbour interpolation of the frame's own points (ratio), the share of 
 pixels within +-2 sigma, the points per frame, depth RMSE (m, depths capped at 80 m; LiDAR
 only), and the processor's wall time relative to the first variant in the same run.
 
-    python tools/sparse_sharpness.py --variants default fill40 --sources lidar synth odometry raw
+    python tools/sparse_sharpness.py --variants corners400 default --timing
 """
 
 from __future__ import annotations
@@ -42,17 +42,21 @@ DEPTH_CAP_M = 80.0
 # variant name -> changes to ProcessorConfig's corner options
 VARIANTS: dict[str, dict[str, Any]] = {
     "default": {},
-    "corners600": {"gftt": {"max_corners": 600}},
-    "buckets12x4": {"gftt": {"buckets": (12, 4)}},
-    "buckets24x6": {"gftt": {"buckets": (24, 6)}},
-    "fill30": {"gftt": {"fill_spacing": 30.0}},
-    "fill40": {"gftt": {"fill_spacing": 40.0}},
-    "fill60": {"gftt": {"fill_spacing": 60.0}},
-    "buckets12x4_fill40": {"gftt": {"buckets": (12, 4), "fill_spacing": 40.0}},
-    "corners300_fill40": {"gftt": {"max_corners": 300, "fill_spacing": 40.0}},
+    # the previous default: 400 strongest corners, no lattice
+    "corners400": {"gftt": {"max_corners": 400, "fill_spacing": 0.0}},
+    "corners600": {"gftt": {"max_corners": 600, "fill_spacing": 0.0}},
+    "buckets12x4": {"gftt": {"max_corners": 400, "fill_spacing": 0.0, "buckets": (12, 4)}},
+    "buckets24x6": {"gftt": {"max_corners": 400, "fill_spacing": 0.0, "buckets": (24, 6)}},
+    "corners400_fill30": {"gftt": {"max_corners": 400, "fill_spacing": 30.0}},
+    "corners400_fill40": {"gftt": {"max_corners": 400, "fill_spacing": 40.0}},
+    "corners400_fill50": {"gftt": {"max_corners": 400, "fill_spacing": 50.0}},
+    "corners400_fill60": {"gftt": {"max_corners": 400, "fill_spacing": 60.0}},
+    "corners300_fill40_any_contrast": {"gftt": {"max_corners": 300, "fill_min_contrast": 0.0}},
+    "corners300_fill40_contrast2.5": {"gftt": {"max_corners": 300, "fill_min_contrast": 2.5}},
     "corners300_fill50": {"gftt": {"max_corners": 300, "fill_spacing": 50.0}},
-    "fill50": {"gftt": {"fill_spacing": 50.0}},
-    "buckets24x6_fill50": {"gftt": {"buckets": (24, 6), "fill_spacing": 50.0}},
+    "corners300_fill40": {"gftt": {"max_corners": 300}},
+    "corners300_fill45": {"gftt": {"max_corners": 300, "fill_spacing": 45.0}},
+    "buckets24x6_fill50": {"gftt": {"max_corners": 400, "buckets": (24, 6), "fill_spacing": 50.0}},
 }
 
 

@@ -144,12 +144,15 @@ def to_grey8(image: npt.NDArray[Any]) -> UInt8Array:
 
 @dataclass(frozen=True)
 class GfttConfig:
-    """Shi-Tomasi corner detection (``cv2.goodFeaturesToTrack``) settings.
+    """Shi-Tomasi corner detection (``cv2.goodFeaturesToTrack``) and the lattice fill.
 
-    The defaults give ~340 valid lookups per KITTI frame (1242x375, 8 frames of drive
-    2011_09_26_0001) after the checks of :func:`lookup_disparities`, spread over 22 of 24
-    cells of a 6x4 grid; 300 corners give ~255. Detection takes ~5-7 ms, of which
-    ``cornerSubPix`` ~1.5 ms (``docs/benchmarks.md``).
+    The defaults give ~340-390 valid lookups per KITTI frame (1242x375): 250 corners, of
+    which ~215 pass the checks of :func:`lookup_disparities`, plus the lattice points,
+    40 px apart, that no corner lookup is within 20 px of (~120-170 pass). Corners
+    cluster on texture (trees, lane marks, outlines); the lattice points measure the
+    surfaces between them, where the map erred most (``docs/results.md``, "Where the
+    points are"). Detection takes ~5-7 ms, of which ``cornerSubPix`` ~1.5 ms
+    (``docs/benchmarks.md``); the lattice's lookups well under 1 ms.
 
     Attributes:
         max_corners: most corners returned (strongest first).
@@ -168,9 +171,13 @@ class GfttConfig:
             lattice point farther than half a side from every kept corner lookup is looked
             up too (same checks), so the surfaces between the corners get measurements;
             0 adds none.
+        fill_min_contrast: a lattice point is looked up only where the grey levels of the
+            7x7 px around it have at least this std: on a blank surface (saturated sky, a
+            blank wall) SGBM's costs tie and it returns its smallest disparity (0, i.e.
+            infinitely far) as if sure; a camera's noise alone gives ~1-2 grey levels.
     """
 
-    max_corners: int = 400
+    max_corners: int = 250
     quality_level: float = 0.01
     min_distance: float = 10.0
     block_size: int = 3
@@ -180,7 +187,8 @@ class GfttConfig:
     subpixel: bool = True
     subpixel_window: int = 3
     buckets: tuple[int, int] = (1, 1)
-    fill_spacing: float = 0.0
+    fill_spacing: float = 40.0
+    fill_min_contrast: float = 1.0
 
     def __post_init__(self) -> None:
         if min(self.buckets) < 1 or self.fill_spacing < 0.0:
@@ -241,7 +249,7 @@ def detect_corners(
     bucketed = columns * rows > 1
     found = cv2.goodFeaturesToTrack(
         left_grey,
-        maxCorners=config.max_corners * (4 if bucketed else 1),
+        maxCorners=0 if bucketed else config.max_corners,  # 0: every corner
         qualityLevel=config.quality_level,
         minDistance=config.min_distance,
         mask=mask,
@@ -306,8 +314,8 @@ def lattice_points(
         return np.zeros((0, 2), np.float32)
     xs = np.arange(x0, x1 - spacing / 2, spacing, dtype=np.float64)
     ys = np.arange(y0, y1 - spacing / 2, spacing, dtype=np.float64)
-    xs += (x1 - 1 - xs[-1] - x0) / 2  # centred in the area
-    ys += (y1 - 1 - ys[-1] - y0) / 2
+    xs += (x1 - 1 - xs[-1]) / 2  # centred in the area (xs[0] = x0)
+    ys += (y1 - 1 - ys[-1]) / 2
     grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2).astype(np.float32)
     if kept.shape[0]:
         gap = np.min(
@@ -315,6 +323,18 @@ def lattice_points(
         )
         grid = grid[gap > (spacing / 2) ** 2]
     return np.ascontiguousarray(grid)
+
+
+def _contrast(grey: UInt8Array, points: FloatArray, half: int = 3) -> FloatArray:
+    """Std of the grey levels in the (2 half + 1)^2 px around each point (nearest pixel)."""
+    if points.shape[0] == 0:
+        return np.zeros(0, np.float32)
+    height, width = grey.shape
+    size = 2 * half + 1
+    x = np.clip(np.rint(points[:, 0]).astype(np.int64) - half, 0, width - size)
+    y = np.clip(np.rint(points[:, 1]).astype(np.int64) - half, 0, height - size)
+    patches = _patches(grey.astype(np.float32), y, x, size)
+    return np.asarray(patches.reshape(points.shape[0], -1).std(axis=1), np.float32)
 
 
 # ---------------------------------------------------------------------------------------
@@ -880,7 +900,7 @@ class StereoFrontEnd:
             lr_max_diff=self.lookup.lr_max_diff,
         )
         if self.gftt.fill_spacing > 0.0:
-            found = self._fill(found, disparity_map, right_map, grey_left.shape)
+            found = self._fill(found, disparity_map, right_map, grey_left)
         return Measurements(found.pixels, found.disparities, disparity_map, found.counts)
 
     def _fill(
@@ -888,12 +908,14 @@ class StereoFrontEnd:
         found: Lookup,
         disparity_map: FloatArray,
         right_map: FloatArray | None,
-        shape: tuple[int, ...],
+        grey: UInt8Array,
     ) -> Lookup:
         """Add the lookups of the lattice points in the gaps between the corner lookups."""
+        shape = grey.shape
         border = self.gftt.border
         area = (max(border, self.sgbm.valid_min_x), border, shape[1] - border, shape[0] - border)
         points = lattice_points(found.pixels, self.gftt.fill_spacing, area)
+        points = points[_contrast(grey, points) >= self.gftt.fill_min_contrast]
         extra = lookup_disparities(
             disparity_map,
             points,
