@@ -86,7 +86,12 @@ def _lidar_frames(realdata: Path) -> Iterator[tuple[StereoFrame, Array]]:
         height, width = left.shape
         fx = float(p2[0, 0])
         camera = StereoCamera(
-            width, height, fx, float(p2[1, 1]), float(p2[0, 2]), float(p2[1, 2]),
+            width,
+            height,
+            fx,
+            float(p2[1, 1]),
+            float(p2[0, 2]),
+            float(p2[1, 2]),
             float((p2[0, 3] - p3[0, 3]) / fx),
         )
         png = cv2.imread(str(folder / "image_depth_annotated" / name), cv2.IMREAD_UNCHANGED)
@@ -121,9 +126,9 @@ def _kitti_frames(folder: Path, frames: int) -> Iterator[tuple[StereoFrame, Arra
         yield _frame(index, item.stamp_ns, item.left, item.right, sequence.camera), reference
 
 
-def _cached(work: Path, name: str, make: Callable[[], Iterator[tuple[StereoFrame, Array]]]) -> list[
-    tuple[StereoFrame, Array]
-]:
+def _cached(
+    work: Path, name: str, make: Callable[[], Iterator[tuple[StereoFrame, Array]]]
+) -> list[tuple[StereoFrame, Array]]:
     """Frames and references of a source, kept in ``work`` after the first run."""
     path = work / f"{name}.npz"
     if path.exists():
@@ -131,8 +136,13 @@ def _cached(work: Path, name: str, make: Callable[[], Iterator[tuple[StereoFrame
         cameras = data["cameras"]
         return [
             (
-                _frame(i, int(data["stamps"][i]), data["lefts"][i], data["rights"][i],
-                       StereoCamera(*cameras[i])),
+                _frame(
+                    i,
+                    int(data["stamps"][i]),
+                    data["lefts"][i],
+                    data["rights"][i],
+                    StereoCamera(*cameras[i]),
+                ),
                 data["truths"][i],
             )
             for i in range(len(data["stamps"]))
@@ -170,7 +180,9 @@ def score(items: list[tuple[StereoFrame, Array]], config: ProcessorConfig) -> di
         sums["inside"] += inside.sum()
         depth_true = np.minimum(frame.camera.focal_baseline / truth[valid], DEPTH_CAP_M)
         with np.errstate(divide="ignore"):
-            depth_est = np.minimum(frame.camera.focal_baseline / np.maximum(estimate[valid], 0), DEPTH_CAP_M)
+            depth_est = np.minimum(
+                frame.camera.focal_baseline / np.maximum(estimate[valid], 0), DEPTH_CAP_M
+            )
         sums["sq_depth"] += ((depth_est - depth_true) ** 2).sum()
         points += len(result.pixels)
     return {
@@ -188,9 +200,11 @@ def score(items: list[tuple[StereoFrame, Array]], config: ProcessorConfig) -> di
 def estimate_seconds(
     items: list[tuple[StereoFrame, Array]], configs: list[ProcessorConfig], repeats: int = 3
 ) -> list[float]:
-    """CPU seconds per frame of the estimate alone (``densify_batch`` of 4 frames, one BLAS
-    thread, the processor's settings, no carried points) for each configuration's points;
-    the configurations are timed in turns, the best of ``repeats`` kept."""
+    """CPU seconds per frame of the estimate alone, for each configuration's points.
+
+    ``densify_batch`` of 4 frames at a time, one BLAS thread, the processor's settings, no
+    carried points; the configurations are timed in turns, the best of ``repeats`` kept.
+    """
     from threadpoolctl import threadpool_limits
 
     from pcainterp_stream.estimate.basis import Basis
@@ -232,7 +246,9 @@ def main(argv: list[str] | None = None) -> int:
     harness.add_realdata(parser)
     parser.add_argument("--variants", nargs="+", default=["default"], choices=sorted(VARIANTS))
     parser.add_argument(
-        "--sources", nargs="+", default=["lidar", "synth", "odometry", "raw"],
+        "--sources",
+        nargs="+",
+        default=["lidar", "synth", "odometry", "raw"],
         choices=["lidar", "synth", "odometry", "raw"],
     )
     parser.add_argument("--synth-seeds", type=int, nargs="+", default=[9001, 9002])
@@ -247,12 +263,26 @@ def main(argv: list[str] | None = None) -> int:
     makers: dict[str, Callable[[], Iterator[tuple[StereoFrame, Array]]]] = {
         "lidar": lambda: _lidar_frames(realdata),
         "synth": lambda: _synth_frames(args.synth_seeds, args.synth_frames),
-        "odometry": lambda: _kitti_frames(realdata / harness.KITTI_ODOMETRY_CLIP, args.kitti_frames),
+        "odometry": lambda: _kitti_frames(
+            realdata / harness.KITTI_ODOMETRY_CLIP, args.kitti_frames
+        ),
         "raw": lambda: _kitti_frames(realdata / harness.KITTI_RAW_0001, args.kitti_frames),
     }
-    keys = ("error_px", "nearest_px", "ratio_nn", "coverage_2sigma", "depth_rmse_m", "points", "seconds")
+    keys = (
+        "error_px",
+        "nearest_px",
+        "ratio_nn",
+        "coverage_2sigma",
+        "depth_rmse_m",
+        "points",
+        "seconds",
+    )
     for source in args.sources:
-        tag = source if source != "synth" else f"synth_{'_'.join(map(str, args.synth_seeds))}_{args.synth_frames}"
+        tag = (
+            source
+            if source != "synth"
+            else f"synth_{'_'.join(map(str, args.synth_seeds))}_{args.synth_frames}"
+        )
         if source in ("odometry", "raw"):
             tag = f"{source}_{args.kitti_frames}"
         items = _cached(work, tag, makers[source])
@@ -268,9 +298,14 @@ def main(argv: list[str] | None = None) -> int:
         if args.timing:
             configs = [_variant_config(v) for v in args.variants]
             seconds = estimate_seconds(items, configs)
-            print("estimate CPU ms/frame: " + ", ".join(
-                f"{v} {1000 * t:.1f} ({t / seconds[0]:.2f}x)" for v, t in zip(args.variants, seconds, strict=True)
-            ), flush=True)
+            print(
+                "estimate CPU ms/frame: "
+                + ", ".join(
+                    f"{v} {1000 * t:.1f} ({t / seconds[0]:.2f}x)"
+                    for v, t in zip(args.variants, seconds, strict=True)
+                ),
+                flush=True,
+            )
     return 0
 
 

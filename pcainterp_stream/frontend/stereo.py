@@ -283,8 +283,9 @@ def _take_in_turns(
     """
     x0, y0, x1, y1 = area
     columns, rows = buckets
-    col = np.clip(((corners[:, 0] - x0) * columns / max(x1 - x0, 1)).astype(np.int64), 0, columns - 1)
-    row = np.clip(((corners[:, 1] - y0) * rows / max(y1 - y0, 1)).astype(np.int64), 0, rows - 1)
+    col = ((corners[:, 0] - x0) * columns / max(x1 - x0, 1)).astype(np.int64)
+    row = ((corners[:, 1] - y0) * rows / max(y1 - y0, 1)).astype(np.int64)
+    col, row = np.clip(col, 0, columns - 1), np.clip(row, 0, rows - 1)
     cell = row * columns + col
     # rank of each corner within its cell (corners arrive strongest first)
     order = np.argsort(cell, kind="stable")

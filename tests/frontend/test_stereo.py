@@ -138,7 +138,8 @@ def test_buckets_spread_the_corners_over_the_cells() -> None:
     in_turns = detect_corners(grey, bucketed)
     assert len(in_turns) == 80
     assert np.mean(strongest[:, 0] < 40) > 0.9
-    cells = (in_turns[:, 0] * 4 // WIDTH).astype(int) * 2 + (in_turns[:, 1] * 2 // HEIGHT).astype(int)
+    columns = (in_turns[:, 0] * 4 // WIDTH).astype(int)
+    cells = columns * 2 + (in_turns[:, 1] * 2 // HEIGHT).astype(int)
     assert np.bincount(cells, minlength=8).min() >= 5
 
 
