@@ -297,9 +297,7 @@ def _take_in_turns(
     return np.ascontiguousarray(corners[chosen])
 
 
-def lattice_points(
-    kept: FloatArray, spacing: float, area: tuple[int, int, int, int]
-) -> FloatArray:
+def lattice_points(kept: FloatArray, spacing: float, area: tuple[int, int, int, int]) -> FloatArray:
     """Return the points of a square lattice farther than ``spacing / 2`` from every kept point.
 
     Args:
@@ -823,6 +821,73 @@ def lookup_disparities(
     return Lookup(pixels.reshape(-1, 2), values[indices], indices, counts)
 
 
+def sparse_lookups(
+    left_grey: UInt8Array,
+    disparity: FloatArray,
+    gftt: GfttConfig = GfttConfig(),  # frozen, so a shared default is safe
+    lookup: LookupConfig = LookupConfig(),
+    *,
+    min_x: int = 0,
+    right_disparity: FloatArray | None = None,
+) -> Lookup:
+    """The sparse measurements of a pair as ``densify`` makes them: corners, then the lattice.
+
+    The corners of :func:`detect_corners` are looked up (:func:`lookup_disparities`); with
+    ``gftt.fill_spacing`` > 0 the points of :func:`lattice_points` in their gaps (farther
+    than half a side from every kept corner lookup, with a 7x7 grey-level std of at least
+    ``gftt.fill_min_contrast``) are looked up with the same checks and appended.
+
+    Args:
+        left_grey: (H, W) uint8 grey left image.
+        disparity: (H, W) float32 left disparity map (px), NaN where invalid.
+        gftt: corner and lattice settings.
+        lookup: the lookup checks.
+        min_x: first column SGBM can match (px); nothing left of it is looked up.
+        right_disparity: optional right map for the explicit left-right check.
+
+    Returns:
+        The kept pixels (corners first), disparities, indices into the corners followed by
+        the lattice points looked up, and the counts of both together (``corners`` counts
+        every point looked up).
+    """
+    corners = detect_corners(left_grey, gftt, min_x=min_x)
+    found = _lookup(disparity, corners, lookup, right_disparity)
+    if gftt.fill_spacing <= 0.0:
+        return found
+    height, width = left_grey.shape
+    border = gftt.border
+    area = (max(border, min_x), border, width - border, height - border)
+    points = lattice_points(found.pixels, gftt.fill_spacing, area)
+    points = points[_contrast(left_grey, points) >= gftt.fill_min_contrast]
+    extra = _lookup(disparity, points, lookup, right_disparity)
+    a, b = found.counts, extra.counts
+    counts = RejectionCounts(*(getattr(a, n) + getattr(b, n) for n in _COUNT_NAMES))
+    return Lookup(
+        np.concatenate([found.pixels, extra.pixels]),
+        np.concatenate([found.disparities, extra.disparities]),
+        np.concatenate([found.indices, extra.indices + a.corners]),
+        counts,
+    )
+
+
+def _lookup(
+    disparity: FloatArray,
+    points: FloatArray,
+    config: LookupConfig,
+    right_disparity: FloatArray | None,
+) -> Lookup:
+    return lookup_disparities(
+        disparity,
+        points,
+        right_disparity=right_disparity,
+        method=config.method,
+        max_gradient=config.max_gradient,
+        discontinuity_radius=config.discontinuity_radius,
+        median_window=config.median_window,
+        lr_max_diff=config.lr_max_diff,
+    )
+
+
 # ---------------------------------------------------------------------------------------
 # Front end
 # ---------------------------------------------------------------------------------------
@@ -889,49 +954,12 @@ class StereoFrontEnd:
         if self.lr_check:
             flipped = _sgbm_grey(_flip(grey_right), _flip(grey_left), self.sgbm)
             right_map = np.ascontiguousarray(flipped[:, ::-1])
-        corners = detect_corners(grey_left, self.gftt, min_x=self.sgbm.valid_min_x)
-        found = lookup_disparities(
+        found = sparse_lookups(
+            grey_left,
             disparity_map,
-            corners,
+            self.gftt,
+            self.lookup,
+            min_x=self.sgbm.valid_min_x,
             right_disparity=right_map,
-            method=self.lookup.method,
-            max_gradient=self.lookup.max_gradient,
-            discontinuity_radius=self.lookup.discontinuity_radius,
-            median_window=self.lookup.median_window,
-            lr_max_diff=self.lookup.lr_max_diff,
         )
-        if self.gftt.fill_spacing > 0.0:
-            found = self._fill(found, disparity_map, right_map, grey_left)
         return Measurements(found.pixels, found.disparities, disparity_map, found.counts)
-
-    def _fill(
-        self,
-        found: Lookup,
-        disparity_map: FloatArray,
-        right_map: FloatArray | None,
-        grey: UInt8Array,
-    ) -> Lookup:
-        """Add the lookups of the lattice points in the gaps between the corner lookups."""
-        shape = grey.shape
-        border = self.gftt.border
-        area = (max(border, self.sgbm.valid_min_x), border, shape[1] - border, shape[0] - border)
-        points = lattice_points(found.pixels, self.gftt.fill_spacing, area)
-        points = points[_contrast(grey, points) >= self.gftt.fill_min_contrast]
-        extra = lookup_disparities(
-            disparity_map,
-            points,
-            right_disparity=right_map,
-            method=self.lookup.method,
-            max_gradient=self.lookup.max_gradient,
-            discontinuity_radius=self.lookup.discontinuity_radius,
-            median_window=self.lookup.median_window,
-            lr_max_diff=self.lookup.lr_max_diff,
-        )
-        a, b = found.counts, extra.counts
-        counts = RejectionCounts(*(getattr(a, n) + getattr(b, n) for n in _COUNT_NAMES))
-        return Lookup(
-            np.concatenate([found.pixels, extra.pixels]),
-            np.concatenate([found.disparities, extra.disparities]),
-            np.concatenate([found.indices, extra.indices + a.corners]),
-            counts,
-        )
