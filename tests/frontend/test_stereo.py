@@ -21,6 +21,7 @@ from pcainterp_stream.frontend.stereo import (
     detect_corners,
     lattice_points,
     lookup_disparities,
+    sparse_lookups,
     to_grey8_pair,
 )
 
@@ -172,6 +173,16 @@ def test_lattice_lookups_measure_the_gaps(pair: tuple[npt.NDArray[Any], ...]) ->
     assert counts.corners == (
         counts.kept + counts.outside + counts.invalid + counts.discontinuity + counts.inconsistent
     )
+
+
+def test_sparse_lookups_are_the_front_ends(pair: tuple[npt.NDArray[Any], ...]) -> None:
+    left, right, _ = pair
+    filled = GfttConfig(max_corners=20, min_distance=5.0, fill_spacing=24.0)
+    measured = StereoFrontEnd(gftt=filled, sgbm=SGBM).measure(left, right)
+    found = sparse_lookups(left, measured.disparity_map, filled, min_x=SGBM.valid_min_x)
+    np.testing.assert_array_equal(found.pixels, measured.pixels)
+    np.testing.assert_array_equal(found.disparities, measured.disparities)
+    assert found.counts == measured.counts
 
 
 def test_no_lattice_lookups_on_a_blank_surface() -> None:
