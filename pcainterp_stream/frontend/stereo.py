@@ -8,7 +8,9 @@ SGBM disparity map. Everything here is a pure function over arrays (no log I/O, 
 * :func:`compute_disparity` -- ``cv2.StereoSGBM`` as float32 px, NaN where invalid;
 * :func:`compute_right_disparity` -- the right view's map, for an explicit left-right check;
 * :func:`lookup_disparities` -- sub-pixel disparity at the corners, with validity checks;
-* :class:`StereoFrontEnd` -- the three bundled for one stereo pair.
+* :func:`lattice_points` and :func:`sparse_lookups` -- the corners' lookups plus those of a
+  lattice in their gaps (the surfaces between textured spots), as ``densify`` measures;
+* :class:`StereoFrontEnd` -- the whole front end for one stereo pair.
 
 Corners like to sit on object outlines, exactly where a disparity map jumps and where SGBM
 is least reliable (foreground fattening, occlusions). A lookup is therefore kept only when
@@ -48,7 +50,9 @@ __all__ = [
     "compute_disparity",
     "compute_right_disparity",
     "detect_corners",
+    "lattice_points",
     "lookup_disparities",
+    "sparse_lookups",
     "to_grey8",
     "to_grey8_pair",
 ]
