@@ -197,6 +197,58 @@ def score(items: list[tuple[StereoFrame, Array]], config: ProcessorConfig) -> di
     }
 
 
+def guided_filter(guide: Array, image: Array, radius: int, eps: float) -> Array:
+    """He et al.'s guided filter of ``image`` with ``guide`` (box windows of side 2r + 1)."""
+    import cv2
+
+    size = (2 * radius + 1, 2 * radius + 1)
+
+    def box(x: Array) -> Array:
+        return np.asarray(cv2.boxFilter(x, -1, size, borderType=cv2.BORDER_REFLECT), np.float32)
+
+    mean_i, mean_p = box(guide), box(image)
+    slope = (box(guide * image) - mean_i * mean_p) / (box(guide * guide) - mean_i**2 + eps)
+    offset = mean_p - slope * mean_i
+    return np.asarray(box(slope) * guide + box(offset), np.float32)
+
+
+GUIDED = [(4, 1e-3), (8, 1e-3), (8, 1e-2), (16, 1e-3), (16, 1e-2), (32, 1e-2)]
+"""(radius px, eps) of the guided-filter rows (``--guided``)."""
+
+
+def guided_rows(items: list[tuple[StereoFrame, Array]], config: ProcessorConfig) -> list[str]:
+    """Mean error and +-2 sigma coverage of the estimate refined by a guided filter.
+
+    The left image (0-1) guides; the refined map q is blended by the posterior std s,
+    f + w (q - f) with w = s^2 / (s^2 + s0^2) (s0 = 1, 3 px) or w = 1; the std is kept.
+    """
+    with FrameProcessor(None, config) as processor:
+        results = list(processor.process([frame for frame, _ in items]))
+    sums: dict[str, list[float]] = {}
+    for (frame, truth), result in zip(items, results, strict=True):
+        valid = np.isfinite(truth) & (truth > 0)
+        guide = np.asarray(frame.left, np.float32) / 255.0
+        estimate = np.asarray(result.disparity, np.float32)
+        std = result.disparity_std
+
+        rows: dict[str, Array] = {"none": estimate}
+        for radius, eps in GUIDED:
+            refined = guided_filter(guide, estimate, radius, eps)
+            rows[f"r {radius}, eps {eps:g}, w = 1"] = refined
+            for s0 in (1.0, 3.0):
+                weight = std * std / (std * std + s0 * s0)
+                rows[f"r {radius}, eps {eps:g}, s0 {s0:g}"] = estimate + weight * (
+                    refined - estimate
+                )
+        for name, refined in rows.items():
+            error = np.abs(refined - truth)[valid]
+            row = sums.setdefault(name, [0.0, 0.0, 0.0])
+            row[0] += error.sum()
+            row[1] += valid.sum()
+            row[2] += (error <= 2.0 * std[valid]).sum()
+    return [f"| {k} | {e / n:.3f} | {100 * c / n:.1f} |" for k, (e, n, c) in sums.items()]
+
+
 def estimate_seconds(
     items: list[tuple[StereoFrame, Array]], configs: list[ProcessorConfig], repeats: int = 3
 ) -> list[float]:
@@ -257,6 +309,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--timing", action="store_true", help="also time the estimate alone per variant"
     )
+    parser.add_argument(
+        "--guided",
+        action="store_true",
+        help="also score a guided filter of the first variant's maps with the left image",
+    )
     args = parser.parse_args(argv)
     work = harness.work_dir(args.work_dir)
     realdata: Path = args.realdata
@@ -295,6 +352,10 @@ def main(argv: list[str] | None = None) -> int:
             first = first or figures["seconds"]
             cells = " | ".join(f"{figures[k]:.3f}" for k in keys)
             print(f"| {variant} | {cells} | {figures['seconds'] / first:.2f} |", flush=True)
+        if args.guided:
+            print("\n| guided filter (first variant) | error_px | coverage_2sigma |")
+            print("| --- | ---: | ---: |")
+            print("\n".join(guided_rows(items, _variant_config(args.variants[0]))), flush=True)
         if args.timing:
             configs = [_variant_config(v) for v in args.variants]
             seconds = estimate_seconds(items, configs)
