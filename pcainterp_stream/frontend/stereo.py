@@ -150,9 +150,9 @@ def to_grey8(image: npt.NDArray[Any]) -> UInt8Array:
 class GfttConfig:
     """Shi-Tomasi corner detection (``cv2.goodFeaturesToTrack``) and the lattice fill.
 
-    The defaults give ~340-390 valid lookups per KITTI frame (1242x375): 250 corners, of
-    which ~215 pass the checks of :func:`lookup_disparities`, plus the lattice points,
-    40 px apart, that no corner lookup is within 20 px of (~120-170 pass). Corners
+    The defaults give ~330-390 valid lookups per KITTI frame (1242x375): 250 corners, of
+    which ~200-240 pass the checks of :func:`lookup_disparities`, plus the lattice points,
+    40 px apart, that no corner lookup is within 20 px of (~130-145 pass). Corners
     cluster on texture (trees, lane marks, outlines); the lattice points measure the
     surfaces between them, where the map erred most (``docs/results.md``, "Where the
     points are"). Detection takes ~5-7 ms, of which ``cornerSubPix`` ~1.5 ms
