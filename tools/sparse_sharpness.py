@@ -1,6 +1,6 @@
 """Score sparse mode (densify's defaults, built-in basis) on real truth, synthetic truth and SGBM.
 
-Three sources, each densified by the frame processor exactly as ``pcainterp densify`` does
+Four sources, each densified by the frame processor exactly as ``pcainterp densify`` does
 (fit check, carried points, hybrid prior, Cauchy IRLS, calibrated std), one variant of the
 measurement options at a time:
 
@@ -11,10 +11,12 @@ measurement options at a time:
 - ``odometry`` and ``raw``: the two KITTI clips, against the full-resolution SGBM map of the
   same pair (the reference ``evaluate`` uses for a stereo log without truth).
 
-Figures per source: mean |disparity error| (px) over the reference's pixels, the same for
-nearest-neighbour interpolation of the frame's own points (ratio), the share of reference
-pixels within +-2 sigma, the points per frame, depth RMSE (m, depths capped at 80 m; LiDAR
-only), and the processor's wall time relative to the first variant in the same run.
+Figures per source: mean |disparity error| (px) over the reference's pixels, at its depth
+discontinuities (> 3 px disparity range in the 9x9 window) and the +-2 sigma coverage there
+and away from them, the same error for nearest-neighbour interpolation of the frame's own
+points (ratio), the share of reference pixels within +-2 sigma, depth RMSE (m, depths capped
+at 80 m), the frame's own points, and the processor's wall time relative to the first
+variant in the same run.
 
     python tools/sparse_sharpness.py --variants corners400 default --timing
 """
@@ -159,13 +161,28 @@ def _cached(
     return items
 
 
+def _depth_edges(truth: Array, valid: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
+    """Reference pixels at a depth discontinuity (> 3 px range in their 9x9 window).
+
+    The range is taken over the valid reference pixels of the window only.
+    """
+    import cv2
+
+    kernel = np.ones((9, 9), np.uint8)
+    high = cv2.dilate(np.where(valid, truth, 0.0).astype(np.float32), kernel)
+    low = cv2.erode(np.where(valid, truth, 1e6).astype(np.float32), kernel)
+    return np.asarray(valid & (high - low > 3.0))
+
+
 def score(items: list[tuple[StereoFrame, Array]], config: ProcessorConfig) -> dict[str, float]:
     """Densify the frames with ``config``; return the figures against their references."""
     started = time.perf_counter()
     with FrameProcessor(None, config) as processor:
         results = list(processor.process([frame for frame, _ in items]))
     seconds = time.perf_counter() - started
-    sums = dict.fromkeys(("px", "err", "nn", "inside", "inside_far", "px_far", "sq_depth"), 0.0)
+    sums = dict.fromkeys(
+        ("px", "err", "nn", "inside", "sq_depth", "edge_px", "edge_err", "edge_inside"), 0.0
+    )
     points = 0
     for (frame, truth), result in zip(items, results, strict=True):
         valid = np.isfinite(truth) & (truth > 0)
@@ -178,6 +195,10 @@ def score(items: list[tuple[StereoFrame, Array]], config: ProcessorConfig) -> di
         sums["err"] += error.sum()
         sums["nn"] += np.abs(near - truth)[valid].sum()
         sums["inside"] += inside.sum()
+        edge = _depth_edges(truth, valid)[valid]
+        sums["edge_px"] += edge.sum()
+        sums["edge_err"] += error[edge].sum()
+        sums["edge_inside"] += inside[edge].sum()
         depth_true = np.minimum(frame.camera.focal_baseline / truth[valid], DEPTH_CAP_M)
         with np.errstate(divide="ignore"):
             depth_est = np.minimum(
@@ -190,6 +211,11 @@ def score(items: list[tuple[StereoFrame, Array]], config: ProcessorConfig) -> di
         "nearest_px": sums["nn"] / sums["px"],
         "ratio_nn": sums["err"] / sums["nn"],
         "coverage_2sigma": 100.0 * sums["inside"] / sums["px"],
+        "edge_error_px": sums["edge_err"] / max(sums["edge_px"], 1.0),
+        "edge_coverage": 100.0 * sums["edge_inside"] / max(sums["edge_px"], 1.0),
+        "away_coverage": 100.0
+        * (sums["inside"] - sums["edge_inside"])
+        / max(sums["px"] - sums["edge_px"], 1.0),
         "depth_rmse_m": float(np.sqrt(sums["sq_depth"] / sums["px"])),
         "points": points / len(items),
         "seconds": seconds,
@@ -327,6 +353,9 @@ def main(argv: list[str] | None = None) -> int:
     }
     keys = (
         "error_px",
+        "edge_error_px",
+        "edge_coverage",
+        "away_coverage",
         "nearest_px",
         "ratio_nn",
         "coverage_2sigma",
