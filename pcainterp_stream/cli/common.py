@@ -53,6 +53,13 @@ def add_stereo_options(parser: argparse.ArgumentParser) -> None:
         "--min-distance", type=float, default=None, metavar="PX", help="GFTT min corner distance"
     )
     group.add_argument(
+        "--fill-spacing",
+        type=float,
+        default=None,
+        metavar="PX",
+        help="lattice of extra lookups in the corners' gaps, side in px (default 40; 0 = off)",
+    )
+    group.add_argument(
         "--num-disparities", type=int, default=None, metavar="N", help="SGBM disparity range"
     )
     group.add_argument("--block-size", type=int, default=None, metavar="N", help="SGBM block")
@@ -119,6 +126,10 @@ def gftt_config(args: argparse.Namespace) -> GfttConfig:
         if not args.min_distance >= 0:
             raise PcaInterpError(f"--min-distance must be >= 0 px, got {args.min_distance}")
         changes["min_distance"] = args.min_distance
+    if args.fill_spacing is not None:
+        if not args.fill_spacing >= 0:
+            raise PcaInterpError(f"--fill-spacing must be >= 0 px, got {args.fill_spacing}")
+        changes["fill_spacing"] = args.fill_spacing
     return dataclasses.replace(GfttConfig(), **changes)
 
 

@@ -4,11 +4,14 @@ This is the paper's KITTI measurement setup (Ochs, Bradler & Mester 2017, sectio
 "good features to track" corners on the left image whose disparities are read from an
 SGBM disparity map. Everything here is a pure function over arrays (no log I/O, no PCA):
 
-* :func:`detect_corners` -- ``cv2.goodFeaturesToTrack`` (+ ``cv2.cornerSubPix``);
+* :func:`detect_corners` -- ``cv2.goodFeaturesToTrack`` (+ ``cv2.cornerSubPix``; from
+  :mod:`.corners`, with :class:`GfttConfig` and :func:`lattice_points`);
 * :func:`compute_disparity` -- ``cv2.StereoSGBM`` as float32 px, NaN where invalid;
 * :func:`compute_right_disparity` -- the right view's map, for an explicit left-right check;
 * :func:`lookup_disparities` -- sub-pixel disparity at the corners, with validity checks;
-* :class:`StereoFrontEnd` -- the three bundled for one stereo pair.
+* :func:`lattice_points` and :func:`sparse_lookups` -- the corners' lookups plus those of a
+  lattice in their gaps (the surfaces between textured spots), as ``densify`` measures;
+* :class:`StereoFrontEnd` -- the whole front end for one stereo pair.
 
 Corners like to sit on object outlines, exactly where a disparity map jumps and where SGBM
 is least reliable (foreground fattening, occlusions). A lookup is therefore kept only when
@@ -35,6 +38,13 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from pcainterp_stream.frontend.corners import (
+    GfttConfig,
+    detect_corners,
+    lattice_points,
+    patch_contrast,
+)
+
 __all__ = [
     "GfttConfig",
     "Lookup",
@@ -48,7 +58,9 @@ __all__ = [
     "compute_disparity",
     "compute_right_disparity",
     "detect_corners",
+    "lattice_points",
     "lookup_disparities",
+    "sparse_lookups",
     "to_grey8",
     "to_grey8_pair",
 ]
@@ -135,112 +147,6 @@ def to_grey8(image: npt.NDArray[Any]) -> UInt8Array:
         (H, W) uint8 grey image.
     """
     return to_grey8_pair(image, image)[0]
-
-
-# ---------------------------------------------------------------------------------------
-# Corners
-# ---------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class GfttConfig:
-    """Shi-Tomasi corner detection (``cv2.goodFeaturesToTrack``) settings.
-
-    The defaults give ~340 valid lookups per KITTI frame (1242x375, 8 frames of drive
-    2011_09_26_0001) after the checks of :func:`lookup_disparities`, spread over 22 of 24
-    cells of a 6x4 grid; 300 corners give ~255. Detection takes ~5-7 ms, of which
-    ``cornerSubPix`` ~1.5 ms (``docs/stages.md``).
-
-    Attributes:
-        max_corners: most corners returned (strongest first).
-        quality_level: minimum accepted corner response as a fraction of the strongest.
-        min_distance: minimum distance between corners (px).
-        block_size: size of the averaging block of the structure tensor (px).
-        border: corners closer than this to any image edge are dropped (px).
-        use_harris: use the Harris response instead of the Shi-Tomasi minimum eigenvalue.
-        harris_k: Harris detector free parameter (only with ``use_harris``).
-        subpixel: refine positions with ``cv2.cornerSubPix``.
-        subpixel_window: half size of the ``cornerSubPix`` search window (px).
-    """
-
-    max_corners: int = 400
-    quality_level: float = 0.01
-    min_distance: float = 10.0
-    block_size: int = 3
-    border: int = 8
-    use_harris: bool = False
-    harris_k: float = 0.04
-    subpixel: bool = True
-    subpixel_window: int = 3
-
-    def __post_init__(self) -> None:
-        if self.max_corners < 1:
-            raise ValueError(f"max_corners must be >= 1, got {self.max_corners}")
-        if not 0.0 < self.quality_level < 1.0:
-            raise ValueError(f"quality_level must be in (0, 1), got {self.quality_level}")
-        if self.border < 0 or self.block_size < 1 or self.subpixel_window < 1:
-            raise ValueError(
-                f"border ({self.border}) must be >= 0, block_size ({self.block_size}) and "
-                f"subpixel_window ({self.subpixel_window}) >= 1"
-            )
-
-
-_SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 20, 0.03)
-
-
-def detect_corners(
-    left_grey: npt.NDArray[np.uint8],
-    config: GfttConfig = GfttConfig(),  # frozen, so a shared default is safe
-    *,
-    min_x: int = 0,
-) -> FloatArray:
-    """Find Shi-Tomasi corners in the left image.
-
-    Corners are searched only inside the image minus ``config.border`` px on every side and
-    right of ``min_x`` (pass ``min_disparity + num_disparities`` of the matcher: left of it
-    SGBM has no disparity, so corners there would be wasted).
-
-    Args:
-        left_grey: (H, W) uint8 grey left image.
-        config: detector settings.
-        min_x: corners with x < min_x are not searched for (px).
-
-    Returns:
-        (k, 2) float32 corner positions (x, y) in image px, strongest first; (0, 2) when the
-        image has no corners (e.g. a blank image).
-
-    Raises:
-        ValueError: if ``left_grey`` is not a 2-D uint8 array.
-    """
-    if left_grey.ndim != 2 or left_grey.dtype != np.uint8:
-        raise ValueError(
-            f"left_grey must be (H, W) uint8, got {left_grey.shape} {left_grey.dtype}; "
-            "convert with to_grey8"
-        )
-    height, width = left_grey.shape
-    x_start = max(config.border, min_x)
-    if x_start >= width - config.border or 2 * config.border >= height:
-        return np.zeros((0, 2), np.float32)
-    mask = np.zeros((height, width), np.uint8)
-    mask[config.border : height - config.border, x_start : width - config.border] = 255
-    found = cv2.goodFeaturesToTrack(
-        left_grey,
-        maxCorners=config.max_corners,
-        qualityLevel=config.quality_level,
-        minDistance=config.min_distance,
-        mask=mask,
-        blockSize=config.block_size,
-        useHarrisDetector=config.use_harris,
-        k=config.harris_k,
-    )
-    if found is None or len(found) == 0:
-        return np.zeros((0, 2), np.float32)
-    corners = np.ascontiguousarray(found.reshape(-1, 2), dtype=np.float32)
-    if config.subpixel:
-        window = (config.subpixel_window, config.subpixel_window)
-        refined = cv2.cornerSubPix(left_grey, corners, window, (-1, -1), _SUBPIX_CRITERIA)
-        corners = np.asarray(refined, np.float32).reshape(-1, 2)
-    return corners
 
 
 # ---------------------------------------------------------------------------------------
@@ -753,6 +659,76 @@ def lookup_disparities(
     return Lookup(pixels.reshape(-1, 2), values[indices], indices, counts)
 
 
+_DEFAULT_GFTT = GfttConfig()  # frozen, so a shared default is safe
+
+
+def sparse_lookups(
+    left_grey: UInt8Array,
+    disparity: FloatArray,
+    gftt: GfttConfig = _DEFAULT_GFTT,
+    lookup: LookupConfig = LookupConfig(),  # frozen, so a shared default is safe
+    *,
+    min_x: int = 0,
+    right_disparity: FloatArray | None = None,
+) -> Lookup:
+    """The sparse measurements of a pair as ``densify`` makes them: corners, then the lattice.
+
+    The corners of :func:`detect_corners` are looked up (:func:`lookup_disparities`); with
+    ``gftt.fill_spacing`` > 0 the points of :func:`lattice_points` in their gaps (farther
+    than half a side from every kept corner lookup, with a 7x7 grey-level std of at least
+    ``gftt.fill_min_contrast``) are looked up with the same checks and appended.
+
+    Args:
+        left_grey: (H, W) uint8 grey left image.
+        disparity: (H, W) float32 left disparity map (px), NaN where invalid.
+        gftt: corner and lattice settings.
+        lookup: the lookup checks.
+        min_x: first column SGBM can match (px); nothing left of it is looked up.
+        right_disparity: optional right map for the explicit left-right check.
+
+    Returns:
+        The kept pixels (corners first), disparities, indices into the corners followed by
+        the lattice points looked up, and the counts of both together (``corners`` counts
+        every point looked up).
+    """
+    corners = detect_corners(left_grey, gftt, min_x=min_x)
+    found = _lookup(disparity, corners, lookup, right_disparity)
+    if gftt.fill_spacing <= 0.0:
+        return found
+    height, width = left_grey.shape
+    border = gftt.border
+    area = (max(border, min_x), border, width - border, height - border)
+    points = lattice_points(found.pixels, gftt.fill_spacing, area)
+    points = points[patch_contrast(left_grey, points) >= gftt.fill_min_contrast]
+    extra = _lookup(disparity, points, lookup, right_disparity)
+    a, b = found.counts, extra.counts
+    counts = RejectionCounts(*(getattr(a, n) + getattr(b, n) for n in _COUNT_NAMES))
+    return Lookup(
+        np.concatenate([found.pixels, extra.pixels]),
+        np.concatenate([found.disparities, extra.disparities]),
+        np.concatenate([found.indices, extra.indices + a.corners]),
+        counts,
+    )
+
+
+def _lookup(
+    disparity: FloatArray,
+    points: FloatArray,
+    config: LookupConfig,
+    right_disparity: FloatArray | None,
+) -> Lookup:
+    return lookup_disparities(
+        disparity,
+        points,
+        right_disparity=right_disparity,
+        method=config.method,
+        max_gradient=config.max_gradient,
+        discontinuity_radius=config.discontinuity_radius,
+        median_window=config.median_window,
+        lr_max_diff=config.lr_max_diff,
+    )
+
+
 # ---------------------------------------------------------------------------------------
 # Front end
 # ---------------------------------------------------------------------------------------
@@ -819,15 +795,12 @@ class StereoFrontEnd:
         if self.lr_check:
             flipped = _sgbm_grey(_flip(grey_right), _flip(grey_left), self.sgbm)
             right_map = np.ascontiguousarray(flipped[:, ::-1])
-        corners = detect_corners(grey_left, self.gftt, min_x=self.sgbm.valid_min_x)
-        found = lookup_disparities(
+        found = sparse_lookups(
+            grey_left,
             disparity_map,
-            corners,
+            self.gftt,
+            self.lookup,
+            min_x=self.sgbm.valid_min_x,
             right_disparity=right_map,
-            method=self.lookup.method,
-            max_gradient=self.lookup.max_gradient,
-            discontinuity_radius=self.lookup.discontinuity_radius,
-            median_window=self.lookup.median_window,
-            lr_max_diff=self.lookup.lr_max_diff,
         )
         return Measurements(found.pixels, found.disparities, disparity_map, found.counts)

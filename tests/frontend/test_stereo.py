@@ -19,7 +19,9 @@ from pcainterp_stream.frontend.stereo import (
     compute_disparity,
     compute_right_disparity,
     detect_corners,
+    lattice_points,
     lookup_disparities,
+    sparse_lookups,
     to_grey8_pair,
 )
 
@@ -122,6 +124,73 @@ def test_blank_image_gives_empty_corners_and_measurements() -> None:
 def test_left_band_is_not_searched(pair: tuple[npt.NDArray[Any], ...]) -> None:
     corners = detect_corners(pair[0], GFTT, min_x=WIDTH)
     assert corners.shape == (0, 2)
+
+
+def test_buckets_spread_the_corners_over_the_cells() -> None:
+    # strong texture on the left tenth, faint texture elsewhere: strongest-first takes the
+    # strong tenth, in turns every cell gets its share
+    rng = np.random.default_rng(3)
+    image = rng.normal(128, 15, (HEIGHT, WIDTH))
+    image[:, :32] = rng.normal(128, 60, (HEIGHT, 32))
+    grey = np.asarray(np.clip(image, 0, 255), np.uint8)
+    plain = GfttConfig(max_corners=80, min_distance=3.0)
+    bucketed = GfttConfig(max_corners=80, min_distance=3.0, buckets=(4, 2))
+    strongest = detect_corners(grey, plain)
+    in_turns = detect_corners(grey, bucketed)
+    assert len(in_turns) == 80
+    assert np.mean(strongest[:, 0] < 40) > 0.9
+    columns = (in_turns[:, 0] * 4 // WIDTH).astype(int)
+    cells = columns * 2 + (in_turns[:, 1] * 2 // HEIGHT).astype(int)
+    assert np.bincount(cells, minlength=8).min() >= 5
+
+
+def test_lattice_points_fill_only_the_gaps() -> None:
+    area = (10, 10, 210, 110)
+    assert lattice_points(np.zeros((0, 2), np.float32), 0.0, area).shape == (0, 2)
+    full = lattice_points(np.zeros((0, 2), np.float32), 20.0, area)
+    assert full.shape == (10 * 5, 2)
+    # centred in the area, 20 px apart
+    assert np.allclose(np.diff(np.unique(full[:, 0])), 20.0)
+    assert full[:, 0].min() - 10 == pytest.approx(209 - full[:, 0].max())
+    kept = full[:7] + np.float32(3.0)
+    gaps = lattice_points(kept, 20.0, area)
+    distance = np.sqrt(((gaps[:, None, :] - kept[None, :, :]) ** 2).sum(axis=2)).min(axis=1)
+    assert distance.min() > 10.0
+    assert len(gaps) == 50 - 7
+
+
+def test_lattice_lookups_measure_the_gaps(pair: tuple[npt.NDArray[Any], ...]) -> None:
+    left, right, truth = pair
+    corners_only = GfttConfig(max_corners=20, min_distance=5.0, fill_spacing=0.0)
+    filled = GfttConfig(max_corners=20, min_distance=5.0, fill_spacing=24.0)
+    sparse = StereoFrontEnd(gftt=corners_only, sgbm=SGBM).measure(left, right)
+    dense = StereoFrontEnd(gftt=filled, sgbm=SGBM).measure(left, right)
+    assert dense.counts.kept >= sparse.counts.kept + 40
+    np.testing.assert_array_equal(dense.pixels[: sparse.counts.kept], sparse.pixels)
+    error = np.abs(dense.disparities - _truth_at(truth, dense.pixels))
+    assert np.median(error) < 0.15
+    counts = dense.counts
+    assert counts.corners == (
+        counts.kept + counts.outside + counts.invalid + counts.discontinuity + counts.inconsistent
+    )
+
+
+def test_sparse_lookups_are_the_front_ends(pair: tuple[npt.NDArray[Any], ...]) -> None:
+    left, right, _ = pair
+    filled = GfttConfig(max_corners=20, min_distance=5.0, fill_spacing=24.0)
+    measured = StereoFrontEnd(gftt=filled, sgbm=SGBM).measure(left, right)
+    found = sparse_lookups(left, measured.disparity_map, filled, min_x=SGBM.valid_min_x)
+    np.testing.assert_array_equal(found.pixels, measured.pixels)
+    np.testing.assert_array_equal(found.disparities, measured.disparities)
+    assert found.counts == measured.counts
+
+
+def test_no_lattice_lookups_on_a_blank_surface() -> None:
+    # SGBM's costs tie on a blank image and it returns disparity 0 everywhere
+    blank = np.full((HEIGHT, WIDTH), 128, np.uint8)
+    assert np.nanmax(compute_disparity(blank, blank, SGBM)) == 0.0
+    filled = GfttConfig(fill_spacing=20.0)
+    assert StereoFrontEnd(gftt=filled, sgbm=SGBM).measure(blank, blank).counts.corners == 0
 
 
 # --- lookup on analytic maps ---------------------------------------------------------------

@@ -1,0 +1,226 @@
+"""Where sparse mode measures: Shi-Tomasi corners and a lattice in the gaps between them.
+
+* :class:`GfttConfig` -- the corner detector's settings and the lattice's;
+* :func:`detect_corners` -- ``cv2.goodFeaturesToTrack`` (+ ``cv2.cornerSubPix``), strongest
+  first or taken in turns from the cells of a grid;
+* :func:`lattice_points` -- the points of a square lattice that no measurement is near;
+* :func:`patch_contrast` -- the grey-level std around points (a blank surface has none).
+
+:func:`.stereo.sparse_lookups` looks both up in an SGBM map (docs/estimator.md, "Where the
+measurements are").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+__all__ = ["GfttConfig", "detect_corners", "lattice_points", "patch_contrast"]
+
+FloatArray = npt.NDArray[np.float32]
+UInt8Array = npt.NDArray[np.uint8]
+
+
+# ---------------------------------------------------------------------------------------
+# Corners
+# ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class GfttConfig:
+    """Shi-Tomasi corner detection (``cv2.goodFeaturesToTrack``) and the lattice fill.
+
+    The defaults give ~330-390 valid lookups per KITTI frame (1242x375): 250 corners, of
+    which ~200-240 pass the checks of :func:`lookup_disparities`, plus the lattice points,
+    40 px apart, that no corner lookup is within 20 px of (~130-145 pass). Corners
+    cluster on texture (trees, lane marks, outlines); the lattice points measure the
+    surfaces between them, where the map erred most (``docs/options.md``, "Where the
+    points are"). Detection takes ~5-7 ms, of which ``cornerSubPix`` ~1.5 ms
+    (``docs/stages.md``); the lattice's lookups well under 1 ms.
+
+    Attributes:
+        max_corners: most corners returned (strongest first).
+        quality_level: minimum accepted corner response as a fraction of the strongest.
+        min_distance: minimum distance between corners (px).
+        block_size: size of the averaging block of the structure tensor (px).
+        border: corners closer than this to any image edge are dropped (px).
+        use_harris: use the Harris response instead of the Shi-Tomasi minimum eigenvalue.
+        harris_k: Harris detector free parameter (only with ``use_harris``).
+        subpixel: refine positions with ``cv2.cornerSubPix``.
+        subpixel_window: half size of the ``cornerSubPix`` search window (px).
+        buckets: (columns, rows) of a grid over the searched area: the corners are taken
+            in turns from its cells (the strongest left in each cell first), so textured
+            cells cannot take every corner; ``(1, 1)`` is plain strongest-first.
+        fill_spacing: side (px) of a lattice of extra points (:func:`lattice_points`): a
+            lattice point farther than half a side from every kept corner lookup is looked
+            up too (same checks), so the surfaces between the corners get measurements;
+            0 adds none.
+        fill_min_contrast: a lattice point is looked up only where the grey levels of the
+            7x7 px around it have at least this std: on a blank surface (saturated sky, a
+            blank wall) SGBM's costs tie and it returns its smallest disparity (0, i.e.
+            infinitely far) as if sure; a camera's noise alone gives ~1-2 grey levels.
+    """
+
+    max_corners: int = 250
+    quality_level: float = 0.01
+    min_distance: float = 10.0
+    block_size: int = 3
+    border: int = 8
+    use_harris: bool = False
+    harris_k: float = 0.04
+    subpixel: bool = True
+    subpixel_window: int = 3
+    buckets: tuple[int, int] = (1, 1)
+    fill_spacing: float = 40.0
+    fill_min_contrast: float = 1.0
+
+    def __post_init__(self) -> None:
+        if min(self.buckets) < 1 or self.fill_spacing < 0.0:
+            raise ValueError(
+                f"buckets ({self.buckets}) must be >= 1 each and fill_spacing "
+                f"({self.fill_spacing}) >= 0"
+            )
+        if self.max_corners < 1:
+            raise ValueError(f"max_corners must be >= 1, got {self.max_corners}")
+        if not 0.0 < self.quality_level < 1.0:
+            raise ValueError(f"quality_level must be in (0, 1), got {self.quality_level}")
+        if self.border < 0 or self.block_size < 1 or self.subpixel_window < 1:
+            raise ValueError(
+                f"border ({self.border}) must be >= 0, block_size ({self.block_size}) and "
+                f"subpixel_window ({self.subpixel_window}) >= 1"
+            )
+
+
+_SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 20, 0.03)
+
+
+def detect_corners(
+    left_grey: npt.NDArray[np.uint8],
+    config: GfttConfig = GfttConfig(),  # frozen, so a shared default is safe
+    *,
+    min_x: int = 0,
+) -> FloatArray:
+    """Find Shi-Tomasi corners in the left image.
+
+    Corners are searched only inside the image minus ``config.border`` px on every side and
+    right of ``min_x`` (pass ``min_disparity + num_disparities`` of the matcher: left of it
+    SGBM has no disparity, so corners there would be wasted).
+
+    Args:
+        left_grey: (H, W) uint8 grey left image.
+        config: detector settings.
+        min_x: corners with x < min_x are not searched for (px).
+
+    Returns:
+        (k, 2) float32 corner positions (x, y) in image px, strongest first; (0, 2) when the
+        image has no corners (e.g. a blank image).
+
+    Raises:
+        ValueError: if ``left_grey`` is not a 2-D uint8 array.
+    """
+    if left_grey.ndim != 2 or left_grey.dtype != np.uint8:
+        raise ValueError(
+            f"left_grey must be (H, W) uint8, got {left_grey.shape} {left_grey.dtype}; "
+            "convert with to_grey8"
+        )
+    height, width = left_grey.shape
+    x_start = max(config.border, min_x)
+    if x_start >= width - config.border or 2 * config.border >= height:
+        return np.zeros((0, 2), np.float32)
+    mask = np.zeros((height, width), np.uint8)
+    mask[config.border : height - config.border, x_start : width - config.border] = 255
+    columns, rows = config.buckets
+    bucketed = columns * rows > 1
+    found = cv2.goodFeaturesToTrack(
+        left_grey,
+        maxCorners=0 if bucketed else config.max_corners,  # 0: every corner
+        qualityLevel=config.quality_level,
+        minDistance=config.min_distance,
+        mask=mask,
+        blockSize=config.block_size,
+        useHarrisDetector=config.use_harris,
+        k=config.harris_k,
+    )
+    if found is None or len(found) == 0:
+        return np.zeros((0, 2), np.float32)
+    corners = np.ascontiguousarray(found.reshape(-1, 2), dtype=np.float32)
+    if bucketed:
+        area = (x_start, config.border, width - config.border, height - config.border)
+        corners = _take_in_turns(corners, area, config.buckets, config.max_corners)
+    if config.subpixel:
+        window = (config.subpixel_window, config.subpixel_window)
+        refined = cv2.cornerSubPix(left_grey, corners, window, (-1, -1), _SUBPIX_CRITERIA)
+        corners = np.asarray(refined, np.float32).reshape(-1, 2)
+    return corners
+
+
+def _take_in_turns(
+    corners: FloatArray,
+    area: tuple[int, int, int, int],
+    buckets: tuple[int, int],
+    count: int,
+) -> FloatArray:
+    """Take ``count`` corners (strongest first) in turns from the cells of a grid.
+
+    Round r takes the r-th strongest corner of every cell that has one; the result keeps
+    the strongest-first order within each round.
+    """
+    x0, y0, x1, y1 = area
+    columns, rows = buckets
+    col = ((corners[:, 0] - x0) * columns / max(x1 - x0, 1)).astype(np.int64)
+    row = ((corners[:, 1] - y0) * rows / max(y1 - y0, 1)).astype(np.int64)
+    col, row = np.clip(col, 0, columns - 1), np.clip(row, 0, rows - 1)
+    cell = row * columns + col
+    # rank of each corner within its cell (corners arrive strongest first)
+    order = np.argsort(cell, kind="stable")
+    sorted_cells = cell[order]
+    starts = np.searchsorted(sorted_cells, sorted_cells, side="left")
+    rank = np.empty_like(cell)
+    rank[order] = np.arange(cell.size) - starts
+    chosen = np.lexsort((np.arange(cell.size), rank))[:count]
+    return np.ascontiguousarray(corners[chosen])
+
+
+def lattice_points(kept: FloatArray, spacing: float, area: tuple[int, int, int, int]) -> FloatArray:
+    """Return the points of a square lattice farther than ``spacing / 2`` from every kept point.
+
+    Args:
+        kept: (k, 2) float32 (x, y) px of the measurements already made.
+        spacing: lattice side (px), > 0.
+        area: (x0, y0, x1, y1) px; the lattice is centred in it.
+
+    Returns:
+        (m, 2) float32 (x, y) px, row by row.
+    """
+    x0, y0, x1, y1 = area
+    if spacing <= 0.0 or x1 - x0 < spacing or y1 - y0 < spacing:
+        return np.zeros((0, 2), np.float32)
+    xs = np.arange(x0, x1 - spacing / 2, spacing, dtype=np.float64)
+    ys = np.arange(y0, y1 - spacing / 2, spacing, dtype=np.float64)
+    xs += (x1 - 1 - xs[-1]) / 2  # centred in the area (xs[0] = x0)
+    ys += (y1 - 1 - ys[-1]) / 2
+    grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2).astype(np.float32)
+    if kept.shape[0]:
+        gap = np.min(
+            np.sum((grid[:, None, :] - kept[None, :, :].astype(np.float32)) ** 2, axis=2), axis=1
+        )
+        grid = grid[gap > (spacing / 2) ** 2]
+    return np.ascontiguousarray(grid)
+
+
+def patch_contrast(grey: UInt8Array, points: FloatArray, half: int = 3) -> FloatArray:
+    """Std of the grey levels in the (2 half + 1)^2 px around each point (nearest pixel)."""
+    if points.shape[0] == 0:
+        return np.zeros(0, np.float32)
+    height, width = grey.shape
+    size = 2 * half + 1
+    x = np.clip(np.rint(points[:, 0]).astype(np.int64) - half, 0, width - size)
+    y = np.clip(np.rint(points[:, 1]).astype(np.int64) - half, 0, height - size)
+    offsets = np.arange(size)
+    rows = (y[:, None] + offsets)[:, :, None]
+    cols = (x[:, None] + offsets)[:, None, :]
+    patches = grey[rows, cols].astype(np.float32)
+    return np.asarray(patches.reshape(points.shape[0], -1).std(axis=1), np.float32)
