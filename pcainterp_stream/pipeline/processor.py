@@ -60,7 +60,13 @@ from pcainterp_stream.frontend.stereo import (
     StereoFrontEnd,
     to_grey8,
 )
-from pcainterp_stream.pipeline.adaptation import Adaptation, AdaptFrame, Candidate
+from pcainterp_stream.pipeline.adaptation import (
+    FITS_BELOW,
+    OWN_ABOVE_STREET,
+    Adaptation,
+    AdaptFrame,
+    Candidate,
+)
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoCamera, StereoFrame
 
 
@@ -430,6 +436,7 @@ class FrameProcessor:
             calibrate=self.config.calibrate,
             name=f"the built-in {kind} basis" if kind is not None else "the basis",
             alternatives=self._alternatives(kind),
+            own_above=OWN_ABOVE_STREET if kind == "street" else FITS_BELOW,
         )
 
     def _builtin(self, basis: Basis | None) -> Basis:

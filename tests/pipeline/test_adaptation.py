@@ -215,3 +215,32 @@ def test_an_indoor_feature_stream_picks_the_indoor_basis_on_left_out_points(
     assert "the built-in indoor basis chosen" in lines[2]
     assert summary.basis_written is None  # nothing learned
     assert recorded_metadata(tmp_path / "room_dense.mcap")[BASIS_KEY] == BUILT_IN_INDOOR
+
+
+def test_a_real_street_log_that_linear_comes_close_to_keeps_the_street_basis(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """With the lattice of lookups linear interpolation comes close to the street basis on
+    real KITTI (0.9-0.95x): the street basis still fits (below 1.0x), so the log's own basis
+    is not even learned (it never won on a street, and costs seconds per log)."""
+    from pcainterp_stream.io.kitti import iter_frames, open_kitti
+
+    sequence_folder = REALDATA / "kitti_odometry_clip" / "sequences" / "a"
+    if not sequence_folder.is_dir():
+        pytest.skip(f"the real KITTI odometry clip not found at {sequence_folder}")
+
+    def never(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the log's own basis was learned on a street the street basis fits")
+
+    monkeypatch.setattr(adapt, "own_basis", never)
+    sequence = open_kitti(sequence_folder)
+    frames = [
+        StereoFrame(f.frame_index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, sequence.camera)
+        for f in iter_frames(sequence, max_frames=10)
+    ]
+    with FrameProcessor(None, ProcessorConfig()) as engine:
+        list(engine.process(frames))
+        assert engine.adaptation.check is not None
+        assert engine.adaptation.check.ratio < 1.0
+        assert not engine.adaptation.adapted
+        assert engine.basis is Basis.default()
