@@ -47,6 +47,8 @@ from pcainterp_stream.estimate.basis import Basis, is_default
 from pcainterp_stream.estimate.dense import DenseModel, fuse_dense
 from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
 from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
+from pcainterp_stream.estimate.solve import triangular_lapack
+from pcainterp_stream.estimate.variance import _variance_stride
 from pcainterp_stream.frontend.motion import CarriedPoints, CarryConfig, Motion, estimate_motion
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
@@ -384,6 +386,11 @@ class FrameProcessor:
         )
         self._pending: deque[Future[_Measured]] = deque()
         self._ready: list[_Measured] = []
+        # the densification (the fit check, the solves, the images), sequential by nature
+        # (temporal prior, carried points, adaptation), runs batch after batch in a thread
+        # of its own, so the calling thread keeps reading and feeding the stereo workers
+        self._lane = ThreadPoolExecutor(max_workers=1, thread_name_prefix="densify")
+        self._densifying: deque[tuple[int, Future[list[DensifiedFrame]]]] = deque()
         self.frames_done = 0
         self.settings = resolve_settings(basis, self.config)
         self.temporal = (
@@ -407,6 +414,9 @@ class FrameProcessor:
             robust=self.config.robust,
             calibrate=self.config.calibrate,
         )
+        # decided here, not from the lane's state: the first batch is the check's frames
+        self._warming = self.adaptation.warming
+        self._lane.submit(_prepare, basis, self.config.uncertainty, self._warming)
 
     def __enter__(self) -> FrameProcessor:
         return self
@@ -423,9 +433,13 @@ class FrameProcessor:
         """Stop the worker threads, dropping frames still in flight; restore thread counts."""
         for future in self._pending:
             future.cancel()
+        for _, densifying in self._densifying:
+            densifying.cancel()
         self._pending.clear()
         self._ready.clear()
+        self._densifying.clear()
         self._executor.shutdown(wait=True, cancel_futures=True)
+        self._lane.shutdown(wait=True, cancel_futures=True)
         self._limits.restore()
 
     def _measure(
@@ -472,30 +486,64 @@ class FrameProcessor:
         self._pending.append(self._executor.submit(self._measure, frame, features, previous))
         while len(self._pending) > self.config.lookahead:
             self._ready.append(self._pending.popleft().result())
-        if self.adaptation.warming:
-            if len(self._ready) < self.adaptation.warmup_frames:
-                return []
-            self._warm_up()
-        if len(self._ready) >= self.config.batch_size:
-            return self._densify_ready()
-        return []
+        wanted = self.adaptation.warmup_frames if self._warming else self.config.batch_size
+        if len(self._ready) >= wanted:
+            self._hand_over()
+        return self._collect(keep=self._lane_frames())
 
     def finish(self) -> list[DensifiedFrame]:
         """Finish every queued frame and return them in stream order."""
         while self._pending:
             self._ready.append(self._pending.popleft().result())
-        if self.adaptation.warming and self._ready:
-            self._warm_up()
-        return self._densify_ready()
+        self._hand_over()
+        return self._collect(keep=0)
 
-    def _warm_up(self) -> None:
+    def _lane_frames(self) -> int:
+        """Frames the densify thread may hold beyond the batch it works on.
+
+        Enough to keep both stereo workers matching while the densify thread runs the fit
+        check (the first, largest batch); each frame held is its pair and measurements.
+        """
+        return self.adaptation.warmup_frames + self.config.batch_size
+
+    def _hand_over(self) -> None:
+        """Queue the ready frames, as one batch, on the densify thread."""
+        ready, self._ready = self._ready, []
+        if not ready:
+            return
+        warming, self._warming = self._warming, False
+        self._densifying.append(
+            (len(ready), self._lane.submit(self._densify_batch, ready, warming))
+        )
+
+    def _collect(self, keep: int) -> list[DensifiedFrame]:
+        """Return the densified batches that are done, in order.
+
+        Waits (for the oldest batch) while more than ``keep`` frames are queued on the
+        densify thread.
+        """
+        results: list[DensifiedFrame] = []
+        queued = sum(count for count, _ in self._densifying)
+        while self._densifying and (queued > keep or self._densifying[0][1].done()):
+            count, future = self._densifying.popleft()
+            results += future.result()
+            queued -= count
+        return results
+
+    def _densify_batch(self, ready: list[_Measured], warming: bool) -> list[DensifiedFrame]:
+        """Densify one batch in the densify thread (after the fit check on the first)."""
+        if warming and self.adaptation.warming:
+            ready = self._warm_up(ready)
+        return self._densify_ready(ready)
+
+    def _warm_up(self, ready: list[_Measured]) -> list[_Measured]:
         """Check the basis on the held-back frames; switch to the log's own when it wins."""
-        frames = [_adapt_frame(item) for item in self._ready]
+        frames = [_adapt_frame(item) for item in ready]
         own = self.adaptation.warm_up(self.basis, frames, self.settings.densify_options())
-        # the warm-up maps are in the log's basis now (or not wanted): not added again
-        self._ready = [item._replace(sgbm_map=None, grid_map=None) for item in self._ready]
         if own is not None:
             self._use(own)
+        # the warm-up maps are in the log's basis now (or not wanted): not added again
+        return [item._replace(sgbm_map=None, grid_map=None) for item in ready]
 
     def _use(self, basis: Basis) -> None:
         """Densify from now on with ``basis`` (its fitted prior; the temporal prior restarts)."""
@@ -515,8 +563,7 @@ class FrameProcessor:
                 yield from self.submit(*item)
         yield from self.finish()
 
-    def _densify_ready(self) -> list[DensifiedFrame]:
-        ready, self._ready = self._ready, []
+    def _densify_ready(self, ready: list[_Measured]) -> list[DensifiedFrame]:
         if not ready:
             return []
         if not self.adaptation.adapted:
@@ -600,6 +647,22 @@ class FrameProcessor:
             counts=counts,
             min_disparity=estimate.min_disparity,
         )
+
+
+def _prepare(basis: Basis, uncertainty: str, check: bool) -> None:
+    """Build what the first densification needs once (run in the densify thread at start).
+
+    The basis's pixel-major copy and variance grid, the LAPACK set-up, and (when the fit
+    check will run) scipy's interpolation module: done while the first pairs are read and
+    matched, not while the stereo workers wait for the first batch.
+    """
+    basis.pixel_major  # noqa: B018 - a cached property: built here
+    basis.mean_flat  # noqa: B018
+    if uncertainty not in ("none", "exact"):
+        basis.variance_grid(_variance_stride(basis, None))
+    triangular_lapack()
+    if check:
+        import scipy.interpolate  # noqa: F401 - ~0.3 s to import: here, not in the check
 
 
 def _adapt_frame(item: _Measured) -> AdaptFrame:
