@@ -391,6 +391,7 @@ class FrameProcessor:
         # of its own, so the calling thread keeps reading and feeding the stereo workers
         self._lane = ThreadPoolExecutor(max_workers=1, thread_name_prefix="densify")
         self._densifying: deque[tuple[int, Future[list[DensifiedFrame]]]] = deque()
+        self._densified_any = False
         self.frames_done = 0
         self.settings = resolve_settings(basis, self.config)
         self.temporal = (
@@ -493,17 +494,33 @@ class FrameProcessor:
 
     def finish(self) -> list[DensifiedFrame]:
         """Finish every queued frame and return them in stream order."""
+        return [result for batch in self.finish_batches() for result in batch]
+
+    def finish_batches(self) -> Iterator[list[DensifiedFrame]]:
+        """Finish every queued frame, yielding the results batch by batch in stream order.
+
+        The last frames are handed to the densify thread in batches as their matching
+        ends, and each batch is yielded as soon as it is densified: the caller can pass it
+        on while the next is densified, and never holds the images of all of them at once.
+        """
         while self._pending:
             self._ready.append(self._pending.popleft().result())
+            if not self._warming and len(self._ready) >= self.config.batch_size:
+                self._hand_over()
+            yield self._collect(keep=self._lane_frames())
         self._hand_over()
-        return self._collect(keep=0)
+        while self._densifying:
+            yield self._collect(keep=sum(count for count, _ in self._densifying) - 1)
 
     def _lane_frames(self) -> int:
-        """Frames the densify thread may hold beyond the batch it works on.
+        """Frames queued on the densify thread before ``submit`` waits for it.
 
-        Enough to keep both stereo workers matching while the densify thread runs the fit
-        check (the first, largest batch); each frame held is its pair and measurements.
+        While the fit check runs (on the first, largest batch) the stereo workers go on
+        matching up to a batch more; after it, one batch waits while one is densified.
+        Each frame held is its pair and measurements.
         """
+        if self._densified_any:
+            return 2 * self.config.batch_size
         return self.adaptation.warmup_frames + self.config.batch_size
 
     def _hand_over(self) -> None:
@@ -528,6 +545,7 @@ class FrameProcessor:
             count, future = self._densifying.popleft()
             results += future.result()
             queued -= count
+            self._densified_any = True
         return results
 
     def _densify_batch(self, ready: list[_Measured], warming: bool) -> list[DensifiedFrame]:
@@ -561,7 +579,8 @@ class FrameProcessor:
                 yield from self.submit(item)
             else:
                 yield from self.submit(*item)
-        yield from self.finish()
+        for batch in self.finish_batches():
+            yield from batch
 
     def _densify_ready(self, ready: list[_Measured]) -> list[DensifiedFrame]:
         if not ready:
