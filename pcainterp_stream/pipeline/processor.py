@@ -111,7 +111,8 @@ class ProcessorConfig:
             calling thread, the pipeline's serial part, wins a contended core; 0 = off.
         keep_freed_memory: tune glibc's malloc (process-wide, for the rest of the process)
             so the many full-size temporaries per frame reuse freed heap memory instead of
-            page-faulting fresh ``mmap`` regions: ~15 % less CPU per frame end to end.
+            page-faulting fresh ``mmap`` regions: ~15 % less CPU per frame end to end; and
+            cap its arenas at one per core (each keeps its high-water mark).
         adapt: the fit check and self-supervised adaptation (sparse measurements):
             ``"auto"`` checks the basis on the first frames against linear interpolation on
             held-out SGBM pixels and, when the basis is the built-in one and a basis learned
@@ -370,9 +371,11 @@ class FrameProcessor:
         self.front_end = StereoFrontEnd(self.config.gftt, self.config.sgbm)
         if self.config.keep_freed_memory:
             # the synthetic renderer's allocator tuning; same temporaries problem here
-            from pcainterp_stream.allocator import keep_freed_memory
+            from pcainterp_stream.allocator import keep_freed_memory, limit_arenas
 
             keep_freed_memory()
+            # one arena per core: each keeps its threads' high-water mark (allocator.py)
+            limit_arenas(os.cpu_count() or 2)
         stereo = self.config.source is MeasurementSource.STEREO
         self._executor = ThreadPoolExecutor(
             max_workers=self.config.stereo_workers if stereo else 1,
