@@ -674,15 +674,19 @@ class FrameProcessor:
 def _prepare(basis: Basis, uncertainty: str, check: bool) -> None:
     """Build what the first densification needs once (run in the densify thread at start).
 
-    The basis's pixel-major copy and variance grid, the LAPACK set-up, and (when the fit
-    check will run) scipy's interpolation module: done while the first pairs are read and
-    matched, not while the stereo workers wait for the first batch.
+    The basis's pixel-major copy and variance grid, the LAPACK set-up, scipy's spatial
+    module and (when the fit check will run) its interpolation module: done while the
+    first pairs are read and matched, not in the job's start-up nor while the stereo
+    workers wait for the first batch.
     """
     basis.pixel_major  # noqa: B018 - a cached property: built here
     basis.mean_flat  # noqa: B018
     if uncertainty not in ("none", "exact"):
         basis.variance_grid(_variance_stride(basis, None))
     triangular_lapack()
+    # the carried points' and the check's nearest-neighbour trees (~0.3 s to import)
+    import scipy.spatial
+
     if check:
         import scipy.interpolate  # noqa: F401 - ~0.3 s to import: here, not in the check
 
