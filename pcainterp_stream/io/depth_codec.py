@@ -248,7 +248,7 @@ def png16(image: npt.NDArray[np.uint16], level: int = DEFAULT_PNG_LEVEL) -> byte
         (
             PNG_SIGNATURE,
             _png_chunk(b"IHDR", header),
-            _png_chunk(b"IDAT", zlib_ng.compress(filtered.tobytes(), level)),
+            _png_chunk(b"IDAT", zlib_ng.compress(filtered.data, level)),
             _png_chunk(b"IEND", b""),
         )
     )

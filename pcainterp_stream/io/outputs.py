@@ -378,6 +378,15 @@ def _finite_extreme(
     image: npt.NDArray[np.floating], reduce: Any, *, positive: bool = False
 ) -> float | None:
     """Return ``reduce`` (np.min or np.max) of an image's finite (and > 0) values, or None."""
+    if image.size == 0:
+        return None
+    # NaN-skipping reduction first (one pass, no mask): when it is finite (and > 0) no
+    # infinity (nor value <= 0) can have been the extreme, so it is the answer
+    quick = float(
+        np.fmin.reduce(image, axis=None) if reduce is np.min else np.fmax.reduce(image, axis=None)
+    )
+    if np.isfinite(quick) and (quick > 0 or not positive):
+        return quick
     with np.errstate(invalid="ignore"):
         keep = (image > 0) if positive else (image > -np.inf)
         keep &= image < np.inf
