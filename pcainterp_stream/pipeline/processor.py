@@ -383,6 +383,10 @@ class FrameProcessor:
             initializer=_lower_priority,
             initargs=(self.config.worker_niceness,),
         )
+        if stereo and self.config.blas_threads is not None:
+            # scipy's own OpenBLAS (the solve's LAPACK) loaded now, so the limit below holds
+            # it too: set from the densify thread it went back to two threads (measured)
+            triangular_lapack()
         self._limits = _ThreadLimits(
             self.config.opencv_threads if stereo else None,
             self.config.blas_threads if stereo else None,
