@@ -2,9 +2,10 @@
 
 Per pair: GFTT corners on the left image, SGBM disparity, disparity lookups at the corners
 (or the points of a sparse feature stream instead), then MAP densification with the basis.
-Stereo matching of the next frames runs in worker threads while the calling thread densifies
-the current batch and does the caller's I/O (OpenCV and BLAS release the GIL); memory is
-bounded by the look-ahead, whatever the length of the stream.
+Stereo matching of the next frames runs in worker threads, the densification of the
+matched frames batch after batch in a thread of its own, and the calling thread does the
+caller's I/O (OpenCV, BLAS, zlib and zstd release the GIL); memory is bounded by the
+look-ahead and the densify thread's queue, whatever the length of the stream.
 
 Threads (measured in docs/benchmarks.md, "End-to-end densify"): on a few cores the pipeline
 is fastest when no library spawns threads of its own, so that every thread is one unit of
@@ -14,12 +15,16 @@ keep both cores busy while the calling thread waits for I/O. A two-thread OpenBL
 running SGBM threads spins and is several times slower. Both settings are process-wide; the
 processor restores the previous values in :meth:`FrameProcessor.close`.
 
-The threads of a ``densify`` job, all of them (issue 17, docs/benchmarks.md "Throughput"):
-the calling thread (read, pair, densify the batch, build the output messages); the one pool
-of this processor, ``stereo_workers`` threads running GFTT, SGBM, the lookups and the
-odometry of the carried points; and the log writer's own thread (``open_writer(...,
-threaded=True)``: CDR serialization, MCAP chunks, zstd, file writes), fed through a bounded
-queue. Memory is bounded by the look-ahead here and by that queue there.
+The threads of a ``densify`` job, all of them (docs/benchmarks.md "Throughput" and "The
+whole default job against SGBM alone"): the calling thread (read, pair, hand frames on);
+this processor's ``stereo_workers`` threads running GFTT, SGBM, the lookups and the
+odometry of the carried points; its ``densify`` thread (the fit check, the sequential
+solves, the images, in stream order: the temporal prior, the carried points and the
+adaptation are state that moves frame by frame); the job's two encoder threads building
+the output messages; and the log writer's own thread (``open_writer(..., threaded=True)``:
+CDR serialization, MCAP chunks, zstd, file writes), fed through a bounded queue. Memory is
+bounded by the look-ahead and the densify queue here and by the encoders' and writer's
+queues there.
 """
 
 from __future__ import annotations
