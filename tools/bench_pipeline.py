@@ -18,7 +18,8 @@ from SGBM maps of another synthetic log, then measures:
   zlib-ng (densifies the log first with the defaults);
 - ``cli``: what a user runs, start-up included: ``pcainterp densify LOG -o OUT`` (no flags,
   or each ``--cli-args`` variant) in a fresh process against full-resolution SGBM alone in a
-  fresh process (import, read, decode, pair, SGBM on 2 workers), alternating, every round:
+  fresh process (``tools/sgbm_alone.py``: import only what it needs, read, decode, pair,
+  SGBM on 2 workers of one OpenCV thread), alternating, every round:
   wall time, the ratio, CPU, peak RSS and output MB per frame of each round. ``--log`` takes
   a real log (e.g. a KITTI clip imported with ``pcainterp import-kitti``).
 
@@ -255,7 +256,8 @@ def count_frames(log: Path) -> int:
 def cli_rounds(log: Path, out: Path, variants: list[str], repeat: int) -> str:
     """Time ``pcainterp densify`` (each variant) against SGBM alone, in fresh processes."""
     frames = count_frames(log)
-    sgbm_command = [sys.executable, __file__, "--child-sgbm", str(log)]
+    # the reference program imports only what SGBM alone needs (tools/sgbm_alone.py)
+    sgbm_command = [sys.executable, str(Path(__file__).with_name("sgbm_alone.py")), str(log)]
     header = ["round", "densify args", "SGBM alone s", "job s", "job / SGBM", "frames/s"]
     header += ["CPU ms/frame (SGBM alone)", "CPU job / SGBM", "peak RSS MB", "output MB/frame"]
     lines = [f"{log}: {frames} frames", harness.table_header(header)]
@@ -363,8 +365,8 @@ def instrumented(timers: Timers) -> Iterator[None]:
         (rosmsg, "serialize", "writer: CDR serialize"),
         (logwriter._ZstdAtLevel, "compress", "writer:   of which zstd compress"),
         (densify, "output_messages", "build output messages"),
-        (processor.FrameProcessor, "submit", "processor submit (wait + densify)"),
-        (processor.FrameProcessor, "finish", "processor finish (wait + densify)"),
+        (processor.FrameProcessor, "submit", "processor submit (waits for workers, densify)"),
+        (processor.FrameProcessor, "_densify_batch", "densify thread: fit check + batches"),
         (processor, "densify_batch", "  of which densify_batch"),
         (StereoFrontEnd, "measure", "front end: GFTT + SGBM + lookups (stereo workers)"),
         (processor, "estimate_motion", "odometry of the carried points (stereo workers)"),

@@ -32,7 +32,6 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial import QhullError, cKDTree
 
 from pcainterp_stream.estimate import fitting
 from pcainterp_stream.estimate.basis import Basis, grid_size_for
@@ -183,12 +182,14 @@ def interpolation_at(
     if values.size == 0:
         empty = np.full(flat.size, np.nan)
         return empty, empty
+    # imported here: scipy.spatial and scipy.interpolate take ~0.3-0.6 s to import, which a
+    # job's start-up would wait for; densify imports them beside the first stereo frames
+    from scipy.spatial import QhullError, cKDTree
+
     _, nearest_index = cKDTree(points).query(at)
     nearest = values[nearest_index]
     linear = nearest.copy()
     if values.size >= 3:
-        # imported here: scipy.interpolate takes ~0.3 s to import, which a job's start-up
-        # would wait for; here it overlaps the stereo workers' first frames
         from scipy.interpolate import LinearNDInterpolator
 
         try:

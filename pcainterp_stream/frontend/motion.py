@@ -34,7 +34,6 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial import cKDTree
 
 from pcainterp_stream.records import StereoCamera
 
@@ -305,6 +304,8 @@ class CarriedPoints:
                 carried_disparities[visible],
             )
             if used.shape[0] and carried_pixels.shape[0] and options.gap > 0:
+                from scipy.spatial import cKDTree  # ~0.3 s to import: when first needed
+
                 distance, _ = cKDTree(used).query(carried_pixels)
                 far = distance > options.gap
                 carried_pixels, carried_disparities = carried_pixels[far], carried_disparities[far]

@@ -113,12 +113,16 @@ def quantise_inverse_depth(
     becomes the smallest, ``A / 65534``). Negative values (no depth) are stored as NaN.
     """
     depth = np.asarray(depth, dtype=np.float32)
+    # in place on one float32 buffer (a few passes over the image, no temporaries)
+    code = np.empty_like(depth)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        code = np.float32(quant_a) / depth + np.float32(quant_b)
-    finite = np.isfinite(depth) & (depth >= 0)
-    floor = quant_b + 1.0  # the smallest code of a finite depth
-    code = np.where(finite, np.clip(np.rint(code), floor, MAX_CODE), 0.0)
-    code[np.isposinf(depth)] = quant_b
+        np.divide(np.float32(quant_a), depth, out=code)
+        code += np.float32(quant_b)
+        np.rint(code, out=code)
+        np.clip(code, quant_b + 1.0, MAX_CODE, out=code)  # a finite depth: never 0 nor B
+        no_depth = ~(depth >= 0)  # NaN, negative, -inf
+    code[no_depth] = 0.0
+    code[depth == np.inf] = quant_b
     return code.astype(np.uint16)
 
 
@@ -244,7 +248,7 @@ def png16(image: npt.NDArray[np.uint16], level: int = DEFAULT_PNG_LEVEL) -> byte
         (
             PNG_SIGNATURE,
             _png_chunk(b"IHDR", header),
-            _png_chunk(b"IDAT", zlib_ng.compress(filtered.tobytes(), level)),
+            _png_chunk(b"IDAT", zlib_ng.compress(filtered.data, level)),
             _png_chunk(b"IEND", b""),
         )
     )

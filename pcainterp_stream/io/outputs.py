@@ -272,11 +272,11 @@ def output_messages(result: DensifiedFrame, topics: OutputTopics) -> list[tuple[
     compact = topics.precision == "compact"
     if topics.writes("depth") and compact:
         step = depth_step(result.disparity_std)
-        finite = np.isfinite(result.depth)
+        nearest = _finite_extreme(result.depth, np.min)
         quant_a = depth_codec.inverse_depth_scale(
             camera.focal_baseline,
             step,
-            float(camera.focal_baseline / np.min(result.depth[finite])) if finite.any() else 1.0,
+            float(camera.focal_baseline / nearest) if nearest is not None else 1.0,
         )
         encoded = depth_codec.encode_depth(result.depth, quant_a=quant_a)
         messages.append((topics.depth, _compressed(encoded, stamp, frame_id)))
@@ -319,12 +319,9 @@ def output_messages(result: DensifiedFrame, topics: OutputTopics) -> list[tuple[
     if topics.writes("camera_info"):
         messages.append((topics.camera_info, rosmsg.camera_info_message(camera, stamp, frame_id)))
     if topics.depth_mm:
-        # fixed range: 0 = no estimate, DISPLAY_MAX_DEPTH for it and beyond (+inf: too far)
-        far_mm = 1000.0 * DISPLAY_MAX_DEPTH
-        millimetres = np.nan_to_num(result.depth * 1000.0, nan=0.0, posinf=far_mm, neginf=0.0)
-        if compact:  # to the display step: the copy is for viewers (a third of the bytes)
-            millimetres = np.rint(millimetres / DISPLAY_DEPTH_STEP_MM) * DISPLAY_DEPTH_STEP_MM
-        depth_mm = np.clip(np.rint(millimetres), 0, far_mm).astype(np.uint16)
+        depth_mm = display_millimetres(
+            result.depth, step_mm=DISPLAY_DEPTH_STEP_MM if compact else 1
+        )
         messages.append(
             (topics.depth_mm, rosmsg.image_message(depth_mm, stamp, frame_id, encoding="16UC1"))
         )
@@ -337,11 +334,11 @@ def depth_step(disparity_std: npt.NDArray[np.float32]) -> float:
     The largest power of two <= the smallest finite std / :data:`DEPTH_STEP_OF_STD`, within
     :data:`DEPTH_STEP_RANGE` (its fine end when no std is known).
     """
-    finite = disparity_std[np.isfinite(disparity_std) & (disparity_std > 0)]
+    smallest = _finite_extreme(disparity_std, np.min, positive=True)
     low, high = DEPTH_STEP_RANGE
-    if finite.size == 0:
+    if smallest is None:
         return low
-    target = float(np.min(finite)) / DEPTH_STEP_OF_STD
+    target = smallest / DEPTH_STEP_OF_STD
     return float(np.clip(2.0 ** np.floor(np.log2(max(target, low))), low, high))
 
 
@@ -353,10 +350,50 @@ def std_scale(std: npt.NDArray[np.float32]) -> float:
     largest) is stored as that value (absolute error <= max(s) / 1300); KITTI's and the
     synthetic drives' stds span < 30x, so this never happens there.
     """
-    finite = std[np.isfinite(std) & (std > 0)]
-    if finite.size == 0:
+    largest = _finite_extreme(std, np.max, positive=True)
+    if largest is None:
         return 1.0
-    return float(np.max(finite)) / (2.0 * STD_RELATIVE_ERROR)
+    return largest / (2.0 * STD_RELATIVE_ERROR)
+
+
+def display_millimetres(depth: npt.NDArray[np.float32], step_mm: int = 1) -> npt.NDArray[np.uint16]:
+    """Return the ``16UC1`` viewer copy of a depth image (m): millimetres to ``step_mm``.
+
+    Fixed range: 0 = no estimate (NaN), :data:`~pcainterp_stream.defaults.DISPLAY_MAX_DEPTH`
+    for it and beyond (``+inf``: too far). In place on one float32 buffer.
+    """
+    far_mm = 1000.0 * DISPLAY_MAX_DEPTH
+    millimetres = np.multiply(depth, np.float32(1000.0), dtype=np.float32)
+    if step_mm != 1:  # to the display step: the copy is for viewers (a third of the bytes)
+        millimetres /= np.float32(step_mm)
+        np.rint(millimetres, out=millimetres)
+        millimetres *= np.float32(step_mm)
+    np.rint(millimetres, out=millimetres)
+    np.clip(millimetres, 0, far_mm, out=millimetres)  # +inf -> far, -inf -> 0
+    millimetres[np.isnan(millimetres)] = 0.0
+    return millimetres.astype(np.uint16)
+
+
+def _finite_extreme(
+    image: npt.NDArray[np.floating], reduce: Any, *, positive: bool = False
+) -> float | None:
+    """Return ``reduce`` (np.min or np.max) of an image's finite (and > 0) values, or None."""
+    if image.size == 0:
+        return None
+    # NaN-skipping reduction first (one pass, no mask): when it is finite (and > 0) no
+    # infinity (nor value <= 0) can have been the extreme, so it is the answer
+    quick = float(
+        np.fmin.reduce(image, axis=None) if reduce is np.min else np.fmax.reduce(image, axis=None)
+    )
+    if np.isfinite(quick) and (quick > 0 or not positive):
+        return quick
+    with np.errstate(invalid="ignore"):
+        keep = (image > 0) if positive else (image > -np.inf)
+        keep &= image < np.inf
+    if not keep.any():
+        return None
+    initial = np.inf if reduce is np.min else -np.inf
+    return float(reduce(image, where=keep, initial=initial))
 
 
 def _compressed(encoded: depth_codec.CompressedDepth, stamp: int, frame_id: str) -> Any:

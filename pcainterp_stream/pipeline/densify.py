@@ -273,7 +273,8 @@ def densify(
                     emit(engine.submit(frame, pairer.features_for(frame)))
         for frame in pairer.flush():
             emit(engine.submit(frame, pairer.features_for(frame)))
-        emit(engine.finish())
+        for batch in engine.finish_batches():  # each batch to the encoders as it is done
+            emit(batch)
         while encoding:
             write(*encoding.popleft())
         if live is not None:

@@ -2,9 +2,10 @@
 
 Per pair: GFTT corners on the left image, SGBM disparity, disparity lookups at the corners
 (or the points of a sparse feature stream instead), then MAP densification with the basis.
-Stereo matching of the next frames runs in worker threads while the calling thread densifies
-the current batch and does the caller's I/O (OpenCV and BLAS release the GIL); memory is
-bounded by the look-ahead, whatever the length of the stream.
+Stereo matching of the next frames runs in worker threads, the densification of the
+matched frames batch after batch in a thread of its own, and the calling thread does the
+caller's I/O (OpenCV, BLAS, zlib and zstd release the GIL); memory is bounded by the
+look-ahead and the densify thread's queue, whatever the length of the stream.
 
 Threads (measured in docs/stages.md, "Stereo front end", "Threads"): on a few cores the pipeline
 is fastest when no library spawns threads of its own, so that every thread is one unit of
@@ -14,12 +15,16 @@ keep both cores busy while the calling thread waits for I/O. A two-thread OpenBL
 running SGBM threads spins and is several times slower. Both settings are process-wide; the
 processor restores the previous values in :meth:`FrameProcessor.close`.
 
-The threads of a ``densify`` job, all of them (docs/benchmarks.md, "Throughput"):
-the calling thread (read, pair, densify the batch, build the output messages); the one pool
-of this processor, ``stereo_workers`` threads running GFTT, SGBM, the lookups and the
-odometry of the carried points; and the log writer's own thread (``open_writer(...,
-threaded=True)``: CDR serialization, MCAP chunks, zstd, file writes), fed through a bounded
-queue. Memory is bounded by the look-ahead here and by that queue there.
+The threads of a ``densify`` job, all of them (docs/benchmarks.md "Throughput" and "The
+whole default job against SGBM alone"): the calling thread (read, pair, hand frames on);
+this processor's ``stereo_workers`` threads running GFTT, SGBM, the lookups and the
+odometry of the carried points; its ``densify`` thread (the fit check, the sequential
+solves, the images, in stream order: the temporal prior, the carried points and the
+adaptation are state that moves frame by frame); the job's two encoder threads building
+the output messages; and the log writer's own thread (``open_writer(..., threaded=True)``:
+CDR serialization, MCAP chunks, zstd, file writes), fed through a bounded queue. Memory is
+bounded by the look-ahead and the densify queue here and by the encoders' and writer's
+queues there.
 """
 
 from __future__ import annotations
@@ -53,6 +58,8 @@ from pcainterp_stream.estimate.basis import (
 from pcainterp_stream.estimate.dense import DenseModel, fuse_dense
 from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
 from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
+from pcainterp_stream.estimate.solve import triangular_lapack
+from pcainterp_stream.estimate.variance import _variance_stride
 from pcainterp_stream.frontend.motion import CarriedPoints, CarryConfig, Motion, estimate_motion
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
@@ -128,7 +135,8 @@ class ProcessorConfig:
             calling thread, the pipeline's serial part, wins a contended core; 0 = off.
         keep_freed_memory: tune glibc's malloc (process-wide, for the rest of the process)
             so the many full-size temporaries per frame reuse freed heap memory instead of
-            page-faulting fresh ``mmap`` regions: ~15 % less CPU per frame end to end.
+            page-faulting fresh ``mmap`` regions: ~15 % less CPU per frame end to end; and
+            cap its arenas at one per core (each keeps its high-water mark).
         adapt: the fit check and self-supervised adaptation (sparse measurements):
             ``"auto"`` checks the basis on the first frames against linear interpolation on
             held-out SGBM pixels; when it is a built-in one that does not fit well, the
@@ -395,9 +403,11 @@ class FrameProcessor:
         self.front_end = StereoFrontEnd(self.config.gftt, self.config.sgbm)
         if self.config.keep_freed_memory:
             # the synthetic renderer's allocator tuning; same temporaries problem here
-            from pcainterp_stream.allocator import keep_freed_memory
+            from pcainterp_stream.allocator import keep_freed_memory, limit_arenas
 
             keep_freed_memory()
+            # one arena per core: each keeps its threads' high-water mark (allocator.py)
+            limit_arenas(os.cpu_count() or 2)
         stereo = self.config.source is MeasurementSource.STEREO
         self._executor = ThreadPoolExecutor(
             max_workers=self.config.stereo_workers if stereo else 1,
@@ -405,12 +415,22 @@ class FrameProcessor:
             initializer=_lower_priority,
             initargs=(self.config.worker_niceness,),
         )
+        if stereo and self.config.blas_threads is not None:
+            # scipy's own OpenBLAS (the solve's LAPACK) loaded now, so the limit below holds
+            # it too: set from the densify thread it went back to two threads (measured)
+            triangular_lapack()
         self._limits = _ThreadLimits(
             self.config.opencv_threads if stereo else None,
             self.config.blas_threads if stereo else None,
         )
         self._pending: deque[Future[_Measured]] = deque()
         self._ready: list[_Measured] = []
+        # the densification (the fit check, the solves, the images), sequential by nature
+        # (temporal prior, carried points, adaptation), runs batch after batch in a thread
+        # of its own, so the calling thread keeps reading and feeding the stereo workers
+        self._lane = ThreadPoolExecutor(max_workers=1, thread_name_prefix="densify")
+        self._densifying: deque[tuple[int, Future[list[DensifiedFrame]]]] = deque()
+        self._densified_any = False
         self.frames_done = 0
         self.settings = resolve_settings(basis, self.config)
         self.temporal = (
@@ -438,6 +458,9 @@ class FrameProcessor:
             alternatives=self._alternatives(kind),
             own_above=OWN_ABOVE_STREET if kind == "street" else FITS_BELOW,
         )
+        # decided here, not from the lane's state: the first batch is the check's frames
+        self._warming = self.adaptation.warming
+        self._lane.submit(_prepare, basis, self.config.uncertainty, self._warming)
 
     def _builtin(self, basis: Basis | None) -> Basis:
         """Return the basis to start with: ``config.builtin``'s for None or a built-in one."""
@@ -476,9 +499,13 @@ class FrameProcessor:
         """Stop the worker threads, dropping frames still in flight; restore thread counts."""
         for future in self._pending:
             future.cancel()
+        for _, densifying in self._densifying:
+            densifying.cancel()
         self._pending.clear()
         self._ready.clear()
+        self._densifying.clear()
         self._executor.shutdown(wait=True, cancel_futures=True)
+        self._lane.shutdown(wait=True, cancel_futures=True)
         self._limits.restore()
 
     def _measure(
@@ -525,30 +552,81 @@ class FrameProcessor:
         self._pending.append(self._executor.submit(self._measure, frame, features, previous))
         while len(self._pending) > self.config.lookahead:
             self._ready.append(self._pending.popleft().result())
-        if self.adaptation.warming:
-            if len(self._ready) < self.adaptation.warmup_frames:
-                return []
-            self._warm_up()
-        if len(self._ready) >= self.config.batch_size:
-            return self._densify_ready()
-        return []
+        wanted = self.adaptation.warmup_frames if self._warming else self.config.batch_size
+        if len(self._ready) >= wanted:
+            self._hand_over()
+        return self._collect(keep=self._lane_frames())
 
     def finish(self) -> list[DensifiedFrame]:
         """Finish every queued frame and return them in stream order."""
+        return [result for batch in self.finish_batches() for result in batch]
+
+    def finish_batches(self) -> Iterator[list[DensifiedFrame]]:
+        """Finish every queued frame, yielding the results batch by batch in stream order.
+
+        The last frames are handed to the densify thread in batches as their matching
+        ends, and each batch is yielded as soon as it is densified: the caller can pass it
+        on while the next is densified, and never holds the images of all of them at once.
+        """
         while self._pending:
             self._ready.append(self._pending.popleft().result())
-        if self.adaptation.warming and self._ready:
-            self._warm_up()
-        return self._densify_ready()
+            if not self._warming and len(self._ready) >= self.config.batch_size:
+                self._hand_over()
+            yield self._collect(keep=self._lane_frames())
+        self._hand_over()
+        while self._densifying:
+            yield self._collect(keep=sum(count for count, _ in self._densifying) - 1)
 
-    def _warm_up(self) -> None:
+    def _lane_frames(self) -> int:
+        """Frames queued on the densify thread before ``submit`` waits for it.
+
+        While the fit check runs (on the first, largest batch) the stereo workers go on
+        matching up to a batch more; after it, one batch waits while one is densified.
+        Each frame held is its pair and measurements.
+        """
+        if self._densified_any:
+            return 2 * self.config.batch_size
+        return self.adaptation.warmup_frames + self.config.batch_size
+
+    def _hand_over(self) -> None:
+        """Queue the ready frames, as one batch, on the densify thread."""
+        ready, self._ready = self._ready, []
+        if not ready:
+            return
+        warming, self._warming = self._warming, False
+        self._densifying.append(
+            (len(ready), self._lane.submit(self._densify_batch, ready, warming))
+        )
+
+    def _collect(self, keep: int) -> list[DensifiedFrame]:
+        """Return the densified batches that are done, in order.
+
+        Waits (for the oldest batch) while more than ``keep`` frames are queued on the
+        densify thread.
+        """
+        results: list[DensifiedFrame] = []
+        queued = sum(count for count, _ in self._densifying)
+        while self._densifying and (queued > keep or self._densifying[0][1].done()):
+            count, future = self._densifying.popleft()
+            results += future.result()
+            queued -= count
+            self._densified_any = True
+        return results
+
+    def _densify_batch(self, ready: list[_Measured], warming: bool) -> list[DensifiedFrame]:
+        """Densify one batch in the densify thread (after the fit check on the first)."""
+        if warming and self.adaptation.warming:
+            ready = self._warm_up(ready)
+        return self._densify_ready(ready)
+
+    def _warm_up(self, ready: list[_Measured]) -> list[_Measured]:
         """Check the basis on the held-back frames; switch to the log's own when it wins."""
-        frames = [_adapt_frame(item) for item in self._ready]
+        frames = [_adapt_frame(item) for item in ready]
         own = self.adaptation.warm_up(self.basis, frames, self.settings.densify_options())
-        # the warm-up maps are in the log's basis now (or not wanted): not added again
-        self._ready = [item._replace(sgbm_map=None, grid_map=None) for item in self._ready]
         if own is not None:
             self._use(own)
+        # the warm-up maps are in the log's basis now (or not wanted): not added again
+        return [item._replace(sgbm_map=None, grid_map=None) for item in ready]
 
     def _use(self, basis: Basis) -> None:
         """Densify from now on with ``basis`` (its fitted prior; the temporal prior restarts)."""
@@ -566,10 +644,10 @@ class FrameProcessor:
                 yield from self.submit(item)
             else:
                 yield from self.submit(*item)
-        yield from self.finish()
+        for batch in self.finish_batches():
+            yield from batch
 
-    def _densify_ready(self) -> list[DensifiedFrame]:
-        ready, self._ready = self._ready, []
+    def _densify_ready(self, ready: list[_Measured]) -> list[DensifiedFrame]:
         if not ready:
             return []
         if not self.adaptation.adapted:
@@ -660,6 +738,26 @@ def _candidate(kind: str, config: ProcessorConfig) -> Candidate:
     basis = builtin_basis(kind)
     settings = resolve_settings(basis, config).densify_options()
     return Candidate(f"the built-in {kind} basis", basis, settings)
+
+
+def _prepare(basis: Basis, uncertainty: str, check: bool) -> None:
+    """Build what the first densification needs once (run in the densify thread at start).
+
+    The basis's pixel-major copy and variance grid, the LAPACK set-up, scipy's spatial
+    module and (when the fit check will run) its interpolation module: done while the
+    first pairs are read and matched, not in the job's start-up nor while the stereo
+    workers wait for the first batch.
+    """
+    basis.pixel_major  # noqa: B018 - a cached property: built here
+    basis.mean_flat  # noqa: B018
+    if uncertainty not in ("none", "exact"):
+        basis.variance_grid(_variance_stride(basis, None))
+    triangular_lapack()
+    # the carried points' and the check's nearest-neighbour trees (~0.3 s to import)
+    import scipy.spatial
+
+    if check:
+        import scipy.interpolate  # noqa: F401 - ~0.3 s to import: here, not in the check
 
 
 def _adapt_frame(item: _Measured) -> AdaptFrame:

@@ -114,9 +114,16 @@ def test_submit_returns_finished_frames_and_finish_the_rest(
             returned.append([result.frame.index for result in engine.submit(frame)])
         rest = [result.frame.index for result in engine.finish()]
         assert engine.frames_done == len(frames)
-    # lookahead 1 holds one frame back, batches of 2 leave as soon as they are measured
-    assert returned == [[], [], [0, 1], [], [2, 3], [], [4, 5]]
-    assert rest == [6]
+    # batches are densified in a thread of their own: submit hands back those done so far,
+    # in order, and never lets more than the look-ahead, a batch and the densify thread's
+    # queue (warm-up + one batch) wait; finish returns the rest
+    assert [index for batch in returned for index in batch] + rest == list(range(len(frames)))
+    held = config.lookahead + config.batch_size + config.warmup_frames + config.batch_size
+    done = 0
+    for submitted, batch in enumerate(returned, start=1):
+        done += len(batch)
+        assert submitted - done <= held
+    assert rest
 
 
 def test_the_fit_check_holds_the_warm_up_frames_and_reports(
