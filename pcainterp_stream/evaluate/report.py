@@ -113,7 +113,12 @@ RIGHT_STAMP_TOLERANCE_NS = 1_000_000
 """Channel metadata key of the output channels: the measurement mode, dense or sparse."""
 REFERENCE_WAIT_FRAMES = 4
 """A complete frame waits for its reference message until this many frames are waiting."""
-REFERENCE_BUFFER = 16
+PENDING_FRAMES = 32
+"""Stamps whose channels are gathered at once (and right images and reference messages
+kept): densify writes a frame's outputs up to its look-ahead, the densify thread's queue and
+the output encoders' frames (~20 at the fit check's warm-up) after the frame's input images."""
+
+REFERENCE_BUFFER = PENDING_FRAMES
 """Reference messages kept (by stamp) for frames not yet complete."""
 
 
@@ -159,11 +164,6 @@ class EvaluateOptions:
     pairing: PairingConfig | None = None
     """The input pair's topics and rectification (default: the synthetic logs' topics as
     recorded); raw images are rectified as densify did, for the baselines and figures."""
-
-
-PENDING_FRAMES = 32
-"""Stamps whose channels are gathered at once: densify writes a frame's outputs up to its
-look-ahead, batch and output-encoding frames (~12) after the frame's input images."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -279,7 +279,7 @@ def _frames(
             stamp = rosmsg.stamp_ns(message.image if full_estimate else message)
             if raw.topic == right_image:
                 rights[stamp] = message
-                while len(rights) > 16:
+                while len(rights) > PENDING_FRAMES:
                     rights.pop(min(rights))
             elif raw.topic in grouped:
                 parts = pending.setdefault(stamp, {})

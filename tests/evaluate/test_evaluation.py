@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -335,3 +336,61 @@ def test_evaluate_reads_a_compact_log(dense_logs: dict[str, Path]) -> None:
             for name in reports
         }
         assert means["compact"] == pytest.approx(means["dense"], rel=1e-6)
+
+
+def _outputs_delayed(source: Path, target: Path, frames: int) -> None:
+    """Copy an MCAP with every ``/pcainterp/*`` message written ``frames`` frames later."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    held: list[tuple[int, Any, Any]] = []
+    with source.open("rb") as stream, target.open("wb") as out:
+        writer = Writer(out)
+        writer.start()
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        lefts = 0
+        for schema, channel, message in make_reader(stream).iter_messages(log_time_order=False):
+            if channel.id not in channels:
+                if schema is not None and schema.id not in schemas:
+                    schemas[schema.id] = writer.register_schema(
+                        schema.name, schema.encoding, schema.data
+                    )
+                channels[channel.id] = writer.register_channel(
+                    channel.topic,
+                    channel.message_encoding,
+                    schemas.get(schema.id, 0) if schema is not None else 0,
+                    dict(channel.metadata),
+                )
+            if channel.topic.startswith("/pcainterp/"):
+                held.append((lefts + frames, channels[channel.id], message))
+                continue
+            if channel.topic == "/stereo/left/image_rect":
+                lefts += 1
+            while held and held[0][0] <= lefts:
+                _, channel_id, late = held.pop(0)
+                writer.add_message(channel_id, late.log_time, late.data, late.publish_time)
+            writer.add_message(
+                channels[channel.id], message.log_time, message.data, message.publish_time
+            )
+        for _, channel_id, late in held:
+            writer.add_message(channel_id, late.log_time, late.data, late.publish_time)
+        writer.finish()
+
+
+def test_outputs_written_well_after_their_input_are_still_found(tmp_path: Path) -> None:
+    """densify writes a frame's outputs up to ~20 frames after its input images (look-ahead,
+    the fit check's warm-up, the encoders): evaluate pairs every frame with its right image."""
+    log = tmp_path / "in.mcap"
+    jobs.synth(log, frames=30, seed=23, scale=0.25, fmt="mcap")
+    dense = tmp_path / "dense.mcap"
+    jobs.densify(log, dense)
+    late = tmp_path / "late.mcap"
+    _outputs_delayed(dense, late, 24)
+    options = EvaluateOptions(mode=Mode.STEREO, sgbm_reference=True, sweep_every=0)
+    on_time, _ = evaluate_log(dense, options)
+    delayed, _ = evaluate_log(late, options)
+    assert delayed.frames == on_time.frames == 30
+    for method in ("pca_map", "nearest"):
+        assert delayed.methods[method].pixels == on_time.methods[method].pixels
+        assert delayed.methods[method].delta_2d_sum == on_time.methods[method].delta_2d_sum
