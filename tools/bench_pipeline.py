@@ -1,4 +1,4 @@
-"""End-to-end densify benchmark (issue 4): read MCAP, GFTT, SGBM, MAP + exact std, write MCAP.
+"""End-to-end densify benchmark: read MCAP, GFTT, SGBM, MAP + exact std, write MCAP.
 
 Generates (or reuses, cached in ``--work-dir``) full-size synthetic logs and a basis learned
 from SGBM maps of another synthetic log, then measures:
