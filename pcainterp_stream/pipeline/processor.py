@@ -16,7 +16,7 @@ running SGBM threads spins and is several times slower. Both settings are proces
 processor restores the previous values in :meth:`FrameProcessor.close`.
 
 The threads of a ``densify`` job, all of them (docs/benchmarks.md "Throughput" and "The
-whole default job against SGBM alone"): the calling thread (read, pair, hand frames on);
+densify thread and a lean SGBM-alone reference"): the calling thread (read, pair, hand frames on);
 this processor's ``stereo_workers`` threads running GFTT, SGBM, the lookups and the
 odometry of the carried points; its ``densify`` thread (the fit check, the sequential
 solves, the images, in stream order: the temporal prior, the carried points and the
