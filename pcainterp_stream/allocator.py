@@ -14,6 +14,8 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import sys
+from collections.abc import Callable
+from typing import cast
 
 #: mallopt parameters (glibc's malloc.h).
 _M_TRIM_THRESHOLD = -1
@@ -39,16 +41,9 @@ def keep_freed_memory() -> bool:
     """
     if _state["done"]:
         return True
-    if not sys.platform.startswith("linux"):
+    mallopt = _mallopt()
+    if mallopt is None:
         return False
-    name = ctypes.util.find_library("c")
-    try:
-        libc = ctypes.CDLL(name or "libc.so.6")
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):
-        return False
-    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
-    mallopt.restype = ctypes.c_int
     ok = (
         mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD) == 1
         and mallopt(_M_TRIM_THRESHOLD, _TRIM_THRESHOLD) == 1
@@ -68,14 +63,19 @@ def limit_arenas(arenas: int) -> bool:
     and 330 MB with two arenas, at the same CPU time (KITTI clip, docs/benchmarks.md).
     Arenas made before the call stay. A no-op (False) where the C library is not glibc.
     """
+    mallopt = _mallopt()
+    return mallopt is not None and mallopt(_M_ARENA_MAX, max(1, int(arenas))) == 1
+
+
+def _mallopt() -> Callable[[int, int], int] | None:
+    """Return glibc's ``mallopt``, or None where the C library is not glibc."""
     if not sys.platform.startswith("linux"):
-        return False
+        return None
     name = ctypes.util.find_library("c")
     try:
-        libc = ctypes.CDLL(name or "libc.so.6")
-        mallopt = libc.mallopt
+        mallopt = ctypes.CDLL(name or "libc.so.6").mallopt
     except (OSError, AttributeError):
-        return False
+        return None
     mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
     mallopt.restype = ctypes.c_int
-    return bool(mallopt(_M_ARENA_MAX, max(1, int(arenas))) == 1)
+    return cast("Callable[[int, int], int]", mallopt)

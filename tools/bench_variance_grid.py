@@ -9,7 +9,7 @@ estimator's variance code: the exact posterior std at **every output pixel**,
     var(x) = b(x)^T Lambda b(x) + v - ||L^-1 (B~ Lambda b(x) + c(P, x))||^2   (float64)
 
 with b(x) the bilinear row of the basis at pixel x (the model the measurements are sampled
-with, DESIGN.md section 2), c(P, x) the hybrid prior's local kernel at x itself (v = 0 and
+with, docs/estimator.md "Grid"), c(P, x) the hybrid prior's local kernel at x itself (v = 0 and
 no c without it) and K = L L^T rebuilt from the frame's measurements, noise and IRLS
 weights. Errors are also given against stride 1 (the exact std on the basis grid itself,
 resampled), the finest grid setting.

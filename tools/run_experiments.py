@@ -9,7 +9,7 @@
    b) (the reverse split) basis synthetic + odometry clip, evaluated on the raw drive.
    The KITTI logs have other image sizes and f*b than the synthetic camera: each map is
    preprocessed straight onto the basis grid and its disparities scaled by
-   (f*b)_basis / (f*b)_log (DESIGN.md section 2, "Camera and resolution").
+   (f*b)_basis / (f*b)_log (docs/estimator.md, "Camera mapping").
 
 Every stage is skipped when its output exists, so an interrupted run resumes. Outputs
 (logs, bases, reports, ``summary.json``) go to ``--work`` (keep it out of the repository).
