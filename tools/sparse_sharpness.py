@@ -71,35 +71,14 @@ def _variant_config(name: str) -> ProcessorConfig:
 
 
 def _lidar_frames(realdata: Path) -> Iterator[tuple[StereoFrame, Array]]:
-    import cv2
+    from dense_truth import read_annotated
 
-    from pcainterp_stream.io.kitti import read_grey
-
-    folder = realdata / "kitti_depth_annotated_07"
-    values: dict[str, npt.NDArray[np.float64]] = {}
-    for line in (folder / "calib.txt").read_text().splitlines():
-        key, _, text = line.partition(":")
-        values[key.strip()] = np.array([float(v) for v in text.split()])
-    p2, p3 = values["P2"].reshape(3, 4), values["P3"].reshape(3, 4)
-    names = sorted(p.name for p in (folder / "image_2").glob("*.png"))
-    for index, name in enumerate(names):
-        left = read_grey(folder / "image_2" / name)
-        right = read_grey(folder / "image_3" / name)
-        height, width = left.shape
-        fx = float(p2[0, 0])
-        camera = StereoCamera(
-            width,
-            height,
-            fx,
-            float(p2[1, 1]),
-            float(p2[0, 2]),
-            float(p2[1, 2]),
-            float((p2[0, 3] - p3[0, 3]) / fx),
-        )
-        png = cv2.imread(str(folder / "image_depth_annotated" / name), cv2.IMREAD_UNCHANGED)
-        depth = np.asarray(png, np.float64) / 256.0
-        with np.errstate(divide="ignore"):
-            truth = np.where(depth > 0, camera.focal_baseline / depth, np.nan)
+    frames = read_annotated(realdata / "kitti_depth_annotated_07")
+    camera = frames.camera
+    assert isinstance(camera, StereoCamera)
+    for index, (left, right, truth) in enumerate(
+        zip(frames.lefts, frames.rights, frames.truths, strict=True)
+    ):
         stamp = 1_000_000_000 + index * 100_000_000
         yield _frame(index, stamp, left, right, camera), truth.astype(np.float32)
 
