@@ -327,7 +327,6 @@ def make(recipe: Recipe, out: Path, cache: Path | None, command: str) -> dict[st
     import cv2
     from threadpoolctl import threadpool_limits
 
-    from pcainterp_stream.estimate.learning import learn_basis
     from pcainterp_stream.estimate.prior import Kernel, LocalPrior
     from pcainterp_stream.frontend.pairing import PairingConfig
     from pcainterp_stream.pipeline.jobs import synth
@@ -367,18 +366,14 @@ def make(recipe: Recipe, out: Path, cache: Path | None, command: str) -> dict[st
         "command": command,
         "license": "the project's own (learned only from its synthetic world)",
     }
-    with threadpool_limits(1, user_api="blas"):  # one thread: the same bytes every run
-        basis = learn_basis(
-            iter(maps),
-            n_components=min(recipe.components, maps.shape[0] - 1),
-            grid_scale=recipe.grid_scale,
-            preprocessed=True,
-            image_size=(camera.height, camera.width),
-            focal_baseline=camera.focal_baseline,
-            meta=meta,
-            exact_max_maps=15_000,
-            exact_max_bytes=8 << 30,
-        )
+    basis = _learn(
+        maps,
+        recipe.components,
+        recipe.grid_scale,
+        (camera.height, camera.width),
+        camera.focal_baseline,
+        meta,
+    )
     harness.log(f"learned {basis.n_components} components ({time.perf_counter() - started:.0f} s)")
     del maps
     with tempfile.TemporaryDirectory() as scratch:
@@ -405,7 +400,6 @@ def make_indoor(
     from threadpoolctl import threadpool_limits
 
     from pcainterp_stream.estimate.basis import grid_size_for
-    from pcainterp_stream.estimate.learning import learn_basis
     from pcainterp_stream.frontend.pairing import PairingConfig
     from pcainterp_stream.pipeline.jobs import synth
     from pcainterp_stream.pipeline.learn import LearnOptions, fit_prior
@@ -438,18 +432,7 @@ def make_indoor(
         "command": command,
         "license": "the project's own (learned only from its synthetic world)",
     }
-    with threadpool_limits(1, user_api="blas"):  # one thread: the same bytes every run
-        basis = learn_basis(
-            iter(maps),
-            n_components=min(recipe.components, maps.shape[0] - 1),
-            grid_scale=recipe.grid_scale,
-            preprocessed=True,
-            image_size=size,
-            focal_baseline=camera.focal_baseline,
-            meta=meta,
-            exact_max_maps=15_000,
-            exact_max_bytes=8 << 30,
-        )
+    basis = _learn(maps, recipe.components, recipe.grid_scale, size, camera.focal_baseline, meta)
     harness.log(f"learned {basis.n_components} components ({time.perf_counter() - started:.0f} s)")
     del maps
     with tempfile.TemporaryDirectory() as scratch:
@@ -494,6 +477,33 @@ def _write(
     harness.write_json(out / f"{name}.json", sidecar, indent=2)
     return sidecar
 
+
+
+def _learn(
+    maps: Any,
+    components: int,
+    grid_scale: float,
+    size: tuple[int, int],
+    focal_baseline: float,
+    meta: dict[str, Any],
+) -> Any:
+    """Learn a basis from preprocessed maps on one BLAS thread (the same bytes every run)."""
+    from threadpoolctl import threadpool_limits
+
+    from pcainterp_stream.estimate.learning import learn_basis
+
+    with threadpool_limits(1, user_api="blas"):
+        return learn_basis(
+            iter(maps),
+            n_components=min(components, maps.shape[0] - 1),
+            grid_scale=grid_scale,
+            preprocessed=True,
+            image_size=size,
+            focal_baseline=focal_baseline,
+            meta=meta,
+            exact_max_maps=15_000,
+            exact_max_bytes=8 << 30,
+        )
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Make the default basis; print its sidecar."""
