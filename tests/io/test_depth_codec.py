@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import struct
+import zlib
 
 import cv2
 import numpy as np
@@ -174,3 +175,23 @@ def test_our_png_is_read_by_opencv(image: np.ndarray) -> None:
     decoded = cv2.imdecode(np.frombuffer(depth_codec.png16(image), np.uint8), -1)
     assert decoded.dtype == np.uint16
     np.testing.assert_array_equal(decoded.reshape(image.shape), image)
+
+
+@pytest.mark.parametrize("level", depth_codec.PNG_LEVELS)
+def test_every_png_level_is_a_standard_zlib_stream(level: int) -> None:
+    """ISA-L's deflate at each level: zlib (not our deflater) inflates the IDAT to the rows."""
+    image = depth_codec.quantise_inverse_depth(_depth_image(), 500.0)
+    png = depth_codec.png16(image, level)
+    (length,) = struct.unpack(">I", png[33:37])
+    assert png[37:41] == b"IDAT"
+    rows = zlib.decompress(png[41 : 41 + length])
+    height, width = image.shape
+    assert len(rows) == height * (2 * width + 1)
+    assert set(rows[:: 2 * width + 1]) == {2}  # every row filtered "Up"
+    decoded = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_array_equal(decoded, image)
+
+
+def test_png_level_outside_isal_levels_is_refused() -> None:
+    with pytest.raises(ValueError, match="ISA-L"):
+        depth_codec.png16(np.zeros((2, 2), np.uint16), 6)
