@@ -1,0 +1,115 @@
+"""The default densify job before and after a change, against SGBM alone, in the same rounds.
+
+Each round runs, in fresh processes and in this order: full-resolution SGBM alone
+(``tools/sgbm_alone.py``), ``pcainterp densify LOG -o OUT`` from a checkout of the code
+before the change (``--before``: a folder holding its ``pcainterp_stream`` package, put
+first on ``PYTHONPATH``), and the same command with the code installed here. Per round it
+prints the wall time and the CPU (user + system, start-up included) of each, CPU per frame,
+the job's CPU against SGBM alone's, and the output's MB per frame; then the medians.
+
+On a shared machine the wall times are the load's; the CPU figures, paired within a round,
+are the measure.
+
+Example (a checkout of the parent commit, without touching the work tree)::
+
+    git archive HEAD~1 | tar -x -C /tmp/before
+    python tools/bench_before_after.py kitti_odometry.mcap --before /tmp/before \
+        --work-dir /tmp/before_after --rounds 4
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import harness
+
+from pcainterp_stream.io.logreader import open_log
+
+
+def run(command: list[str], env: dict[str, str] | None = None) -> tuple[float, float]:
+    """Run a command to its end; return its wall and CPU seconds.
+
+    Raises:
+        SystemExit: the command failed (its last error lines).
+    """
+    started = time.perf_counter()
+    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    assert child.stderr is not None
+    errors = child.stderr.read()
+    _, status, usage = os.wait4(child.pid, 0)
+    if os.waitstatus_to_exitcode(status) != 0:
+        raise SystemExit(f"{' '.join(command)} failed: {errors.decode()[-2000:]}")
+    return time.perf_counter() - started, usage.ru_utime + usage.ru_stime
+
+
+def frame_count(log: Path) -> int:
+    """Return the number of left images of a log (the frames densify makes)."""
+    with open_log(log) as reader:
+        info = reader.topics().get("/stereo/left/image_rect")
+    if info is None or not info.message_count:
+        raise SystemExit(f"{log} has no /stereo/left/image_rect messages to densify")
+    return int(info.message_count)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the rounds; print a Markdown table."""
+    parser = harness.argument_parser(__doc__)
+    parser.add_argument("log", type=Path, help="the input log")
+    parser.add_argument(
+        "--before", type=Path, required=True, help="folder holding the old pcainterp_stream"
+    )
+    harness.add_work_dir(parser, description="folder of the outputs (overwritten)")
+    parser.add_argument("--rounds", type=int, default=3)
+    args = parser.parse_args(argv)
+    if not (args.before / "pcainterp_stream").is_dir():
+        parser.error(f"--before {args.before} holds no pcainterp_stream package")
+    work = harness.work_dir(args.work_dir)
+    frames = frame_count(args.log)
+    sgbm = [sys.executable, str(Path(__file__).with_name("sgbm_alone.py")), str(args.log)]
+    output = work / "before_after.mcap"
+    densify = [sys.executable, "-m", "pcainterp_stream.cli", "densify", str(args.log)]
+    densify += ["-o", str(output)]
+    old_env = {**os.environ, "PYTHONPATH": str(args.before.resolve())}
+    print(f"{args.log}: {frames} frames\n")
+    print(
+        harness.table_header(
+            [
+                "round",
+                "SGBM alone s (CPU ms/frame)",
+                "before s (CPU ms/frame)",
+                "after s (CPU ms/frame)",
+                "CPU before / SGBM",
+                "CPU after / SGBM",
+                "MB/frame before",
+                "after",
+            ]
+        )
+    )
+    ratios: dict[str, list[float]] = {"before": [], "after": []}
+    for round_index in range(args.rounds):
+        alone = run(sgbm)
+        before = run(densify, old_env)
+        before_mb = output.stat().st_size / 1e6 / frames
+        after = run(densify)
+        after_mb = output.stat().st_size / 1e6 / frames
+        ratios["before"].append(before[1] / alone[1])
+        ratios["after"].append(after[1] / alone[1])
+        cells: list[object] = [round_index + 1]
+        cells += [f"{wall:.1f} ({1000 * cpu / frames:.0f})" for wall, cpu in (alone, before, after)]
+        cells += [f"{ratios['before'][-1]:.2f}", f"{ratios['after'][-1]:.2f}"]
+        cells += [f"{before_mb:.3f}", f"{after_mb:.3f}"]
+        print(harness.table_row(cells), flush=True)
+    print(
+        f"\nCPU against SGBM alone, median: before {statistics.median(ratios['before']):.2f}, "
+        f"after {statistics.median(ratios['after']):.2f} over {args.rounds} rounds"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
