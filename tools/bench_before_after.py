@@ -31,14 +31,16 @@ import harness
 from pcainterp_stream.io.logreader import open_log
 
 
-def run(command: list[str], env: dict[str, str] | None = None) -> tuple[float, float]:
-    """Run a command to its end; return its wall and CPU seconds.
+def run(command: list[str], cwd: Path, env: dict[str, str] | None = None) -> tuple[float, float]:
+    """Run a command to its end in ``cwd``; return its wall and CPU seconds.
 
     Raises:
         SystemExit: the command failed (its last error lines).
     """
     started = time.perf_counter()
-    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    child = subprocess.Popen(
+        command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=cwd, env=env
+    )
     assert child.stderr is not None
     errors = child.stderr.read()
     _, status, usage = os.wait4(child.pid, 0)
@@ -68,11 +70,14 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not (args.before / "pcainterp_stream").is_dir():
         parser.error(f"--before {args.before} holds no pcainterp_stream package")
-    work = harness.work_dir(args.work_dir)
-    frames = frame_count(args.log)
-    sgbm = [sys.executable, str(Path(__file__).with_name("sgbm_alone.py")), str(args.log)]
+    # every command runs in the work folder: ``python -m`` puts the current folder first on
+    # sys.path, so a run from a checkout would import that checkout's code for "before" too
+    work = harness.work_dir(args.work_dir).resolve()
+    log = args.log.resolve()
+    frames = frame_count(log)
+    sgbm = [sys.executable, str(Path(__file__).resolve().with_name("sgbm_alone.py")), str(log)]
     output = work / "before_after.mcap"
-    densify = [sys.executable, "-m", "pcainterp_stream.cli", "densify", str(args.log)]
+    densify = [sys.executable, "-m", "pcainterp_stream.cli", "densify", str(log)]
     densify += ["-o", str(output)]
     old_env = {**os.environ, "PYTHONPATH": str(args.before.resolve())}
     print(f"{args.log}: {frames} frames\n")
@@ -92,10 +97,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     ratios: dict[str, list[float]] = {"before": [], "after": []}
     for round_index in range(args.rounds):
-        alone = run(sgbm)
-        before = run(densify, old_env)
+        alone = run(sgbm, work)
+        before = run(densify, work, old_env)
         before_mb = output.stat().st_size / 1e6 / frames
-        after = run(densify)
+        after = run(densify, work)
         after_mb = output.stat().st_size / 1e6 / frames
         ratios["before"].append(before[1] / alone[1])
         ratios["after"].append(after[1] / alone[1])
