@@ -14,7 +14,9 @@ kernel time counts):
   the input's compressed chunks would save of the input copy's cost).
 
 Each figure is the best of ``--repeat`` runs per frame, then the median over frames; the
-machine may be loaded, so read them as relative.
+machine may be loaded, so read them as relative. Before them, the CPU (user and system) of
+each thread of the densify run itself, per frame, sampled from ``/proc/self/task`` (Linux;
+threads grouped by their Python name: the encoder pool, the writer, the stereo workers...).
 
 Example::
 
@@ -23,7 +25,10 @@ Example::
 
 from __future__ import annotations
 
+import os
+import re
 import tempfile
+import threading
 import time
 from collections import defaultdict
 from collections.abc import Callable
@@ -206,6 +211,60 @@ def writer(log: Path, work: Path, results: list[DensifiedFrame], total: int, rep
     return "\n".join(lines)
 
 
+class ThreadCpu:
+    """Samples each thread's CPU (user, system) in this process while a block runs (Linux).
+
+    A sample every ``period`` seconds and one at the end; a thread that ends between two
+    samples loses what it used since the last one.
+    """
+
+    def __init__(self, period: float = 0.1) -> None:
+        self.period = period
+        self.seconds: dict[int, tuple[float, float]] = {}
+        self.names: dict[int, str] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="cpu-sampler", daemon=True)
+        self._tick = os.sysconf("SC_CLK_TCK")
+
+    def _sample(self) -> None:
+        for thread in threading.enumerate():
+            if thread.native_id is not None:
+                self.names[thread.native_id] = thread.name
+        for tid in os.listdir("/proc/self/task"):
+            try:
+                stat = Path(f"/proc/self/task/{tid}/stat").read_text()
+            except OSError:  # the thread ended
+                continue
+            fields = stat.rsplit(")", 1)[1].split()
+            self.seconds[int(tid)] = (int(fields[11]) / self._tick, int(fields[12]) / self._tick)
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period):
+            self._sample()
+
+    def __enter__(self) -> ThreadCpu:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+        self._sample()
+
+    def table(self, frames: int) -> str:
+        """Return a Markdown table of user and system CPU ms per frame, by thread group."""
+        groups: dict[str, list[float]] = defaultdict(lambda: [0.0, 0.0])
+        for tid, (user, system) in self.seconds.items():
+            name = re.sub(r"[-_]?\d+$", "", self.names.get(tid, "unnamed (native)"))
+            groups[name][0] += user
+            groups[name][1] += system
+        lines = [harness.table_header(["thread(s)", "user ms/frame", "system ms/frame"])]
+        for name, (user, system) in sorted(groups.items(), key=lambda item: -sum(item[1])):
+            cells = [name, f"{1000 * user / frames:.1f}", f"{1000 * system / frames:.1f}"]
+            lines.append(harness.table_row(cells))
+        return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark; print Markdown tables."""
     parser = harness.argument_parser(__doc__)
@@ -223,9 +282,12 @@ def main(argv: list[str] | None = None) -> int:
             results.append(result)
         count[0] += 1
 
-    with tempfile.TemporaryDirectory(dir=work) as scratch:
+    with tempfile.TemporaryDirectory(dir=work) as scratch, ThreadCpu() as threads:
         densify(args.log, Path(scratch) / "densified.mcap", on_frame=keep)
     print(f"{args.log}: {len(results)} of {count[0]} frames (every {args.every}-th)\n")
+    print("The densify run's threads (per frame):\n")
+    print(threads.table(count[0]))
+    print()
     print("Encoder pool (per frame):\n")
     print(encoders(results, args.repeat))
     print("\nWriter thread (per frame):\n")
