@@ -47,7 +47,7 @@ PNG_LEVELS = (0, 1, 2, 3)
 """Deflate levels of the PNG codec: ISA-L's (``isal.isal_zlib``), any zlib inflater reads them."""
 DEFAULT_PNG_LEVEL = 1
 """ISA-L level of the PNG codec: on KITTI depth the size of zlib-ng's level 2 (the default
-before) at 2.7x its speed, ~1.7 ms per 1241x376 image (docs/output_speed.md)."""
+before) in ~2/5 of its time, ~1.8 ms per 1241x376 image (docs/output_speed.md)."""
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
@@ -239,7 +239,7 @@ def png16(image: npt.NDArray[np.uint16], level: int = DEFAULT_PNG_LEVEL) -> byte
 
     The "Up" filter (each row's bytes minus the row above's, the first row as it is) suits
     smooth depth: ~20 % smaller than OpenCV's filter choice. ISA-L's deflate (level 1: the
-    size of zlib's level 2 here, at a third of the time; its level 3 is bigger on depth)
+    size of zlib's level 2 here in ~2/5 of the time; its level 3 is bigger on depth)
     writes a standard zlib stream: any PNG reader decodes it.
     """
     if level not in PNG_LEVELS:
