@@ -86,7 +86,7 @@ class MeasurementSource(enum.Enum):
     """The points of a sparse feature stream (``/features``) with the frame's stamp."""
 
 
-DENSE_SGBM = SgbmConfig(full_width=True, near_at_half=True)
+DENSE_SGBM = SgbmConfig(full_width=True)
 """The matcher of ``densify --measurements dense``: full resolution (the output is SGBM's own
 value where it matched) and the left band matched too (``SgbmConfig.full_width``): the band
 is SGBM's largest hole, and most of it is in the right camera's view."""
