@@ -280,7 +280,7 @@ def _figure(value: float, form: str) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Print the table of docs/results.md (real ground truth, split at SGBM's holes)."""
+    """Print the table of docs/dense.md (real ground truth, split at SGBM's holes)."""
     from pcainterp_stream.pipeline.processor import ProcessorConfig
 
     parser = harness.argument_parser(__doc__)
