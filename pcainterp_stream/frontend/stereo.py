@@ -213,7 +213,7 @@ class SgbmConfig:
         near_at_half: match the far half of the disparity range at full resolution and the
             whole range at half resolution, and take the half-resolution value where it
             lies in the near half (from :data:`NEAR_MARGIN` px below the far range's end):
-            ~0.77x the matching time of the whole range at full resolution. Measured for
+            ~0.75x the matching time of the whole range at full resolution. Measured for
             dense mode and not its default (docs/dense.md): better on KITTI's real truth,
             worse on scenes with many close surfaces (synthetic drives). With
             ``downscale=1`` and at least 32 disparities only.
