@@ -7,7 +7,7 @@ fills them: nearest-neighbour fill (evaluate's ``sgbm_nn``), the sparse estimate
 from the GFTT lookups of the masked map, densify's defaults with the built-in basis) and
 dense mode's fusion. The blocks are textured surfaces SGBM matched, not the sky or
 occlusions real holes often are, so this measures the fill of holes in matched surfaces
-only (docs/results.md).
+only (docs/dense.md).
 
     python tools/dense_holdout.py --frames 12 --blocks 40 --block-size 32
 """
@@ -93,7 +93,7 @@ def score_clip(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Print the table of docs/results.md, "Dense mode" (real clips, hidden blocks)."""
+    """Print the table of docs/dense.md (real clips, hidden blocks)."""
     parser = harness.argument_parser(__doc__)
     harness.add_realdata(parser)
     parser.add_argument("--frames", type=int, default=12, help="frames per clip")

@@ -1,4 +1,4 @@
-"""Dense mode's measurements in docs/results.md, "Dense mode".
+"""Dense mode's measurements in docs/results.md, "Dense mode", and docs/dense.md.
 
 Two sections:
 
@@ -207,7 +207,7 @@ def run_commands(work: Path, realdata: Path) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Print the tables of docs/results.md, "Dense mode"."""
+    """Print the tables of docs/results.md, "Dense mode", and docs/dense.md."""
     parser = harness.argument_parser(__doc__)
     harness.add_work_dir(parser)
     harness.add_realdata(parser)

@@ -36,8 +36,8 @@ of the SGBM pixel it is fused with (the pixel entered the field only if it was o
 few hundred lookups); g is independent between pixels; in holes the hypotheses' weights
 are the relative densities above, not the full evidence of a joint model of the
 neighbours (which would couple every hole pixel). The values of
-:class:`DenseModel` were chosen by measurement (docs/results.md, "Dense mode" and "Dense
-mode on real ground truth").
+:class:`DenseModel` were chosen by measurement (docs/results.md, "Dense mode", and
+docs/dense.md).
 """
 
 from __future__ import annotations

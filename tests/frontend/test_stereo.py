@@ -375,6 +375,40 @@ def test_full_width_matching_fills_the_left_band(pair: tuple[npt.NDArray[Any], .
     assert np.isfinite(half[8:-8, int(D_BACK) + 8 : SGBM.band]).mean() > 0.8
 
 
+def test_near_half_of_the_range_comes_from_half_resolution(
+    pair: tuple[npt.NDArray[Any], ...],
+) -> None:
+    left, right, truth = pair
+    split = SgbmConfig(num_disparities=32, full_width=True, near_at_half=True)
+    assert split.split() == (
+        SgbmConfig(num_disparities=16, full_width=True),
+        SgbmConfig(num_disparities=32, full_width=True, downscale=2),
+    )
+    for whole in (SgbmConfig(num_disparities=16, near_at_half=True), SGBM):
+        assert whole.split() is None
+    assert SgbmConfig(num_disparities=32, downscale=2, near_at_half=True).split() is None
+    # the far matcher searches [0, 16): the front rectangle (20.6 px) lies beyond it, and
+    # both surfaces lie at or beyond 16 - NEAR_MARGIN = 8, so they come from the half
+    # resolution match of the whole range
+    far = compute_disparity(left, right, SgbmConfig(num_disparities=16, full_width=True))
+    mixed = compute_disparity(left, right, split)
+    half = compute_disparity(left, right, split.split()[1])  # type: ignore[index]
+    inner = np.zeros(truth.shape, bool)
+    inner[8:-8, 40:-8] = True
+    front = inner & (truth == np.float32(D_FRONT)) & np.isfinite(mixed)
+    assert front.sum() > 1000
+    assert np.median(np.abs(mixed[front] - D_FRONT)) < 0.5
+    assert np.nanmedian(np.abs(far[front] - D_FRONT)) > 3  # the far matcher alone cannot
+    near = np.isfinite(half) & (half >= 8)
+    np.testing.assert_array_equal(mixed[near], half[near])
+    # where the half-resolution value is farther, the full-resolution one is kept
+    wide = SgbmConfig(num_disparities=64, full_width=True, near_at_half=True)
+    far_wide = compute_disparity(left, right, SgbmConfig(num_disparities=32, full_width=True))
+    half_wide = compute_disparity(left, right, wide.split()[1])  # type: ignore[index]
+    kept = ~(half_wide >= 24)
+    np.testing.assert_array_equal(compute_disparity(left, right, wide)[kept], far_wide[kept])
+
+
 # --- inputs --------------------------------------------------------------------------------
 
 
