@@ -215,12 +215,43 @@ def check_frame(
         pixels: (k, 2) the measurements the estimate used, (x, y) px.
         disparities: (k,) their disparities (px).
     """
-    flat = heldout_pixels(reference, pixels)
-    if flat.size == 0 or disparities.size == 0:
-        return FrameCheck(0, 0.0, 0.0, 0.0)
-    truth = reference.ravel()[flat].astype(np.float64)
-    linear, nearest = interpolation_at(pixels, disparities, reference.shape[:2], flat)
-    return _score(estimate.ravel()[flat], truth, linear, nearest)
+    return HeldOut.of(reference, pixels, disparities).score(estimate)
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """One frame's held-out pixels, their SGBM values and plain interpolation there.
+
+    What :func:`check_frame` scores a densified map against; built once per frame, it
+    scores the maps of several bases (the built-in ones checked in turn) at the cost of one.
+    """
+
+    flat: npt.NDArray[np.intp]
+    truth: npt.NDArray[np.float64]
+    linear: npt.NDArray[np.float64]
+    nearest: npt.NDArray[np.float64]
+
+    @classmethod
+    def of(
+        cls,
+        reference: npt.NDArray[np.floating[Any]],
+        pixels: npt.NDArray[np.floating[Any]],
+        disparities: npt.NDArray[np.floating[Any]],
+    ) -> HeldOut:
+        """Hold pixels out of ``reference`` away from ``pixels`` and interpolate there."""
+        flat = heldout_pixels(reference, pixels)
+        if flat.size == 0 or disparities.size == 0:
+            empty = np.zeros(0)
+            return cls(np.zeros(0, np.intp), empty, empty, empty)
+        truth = reference.ravel()[flat].astype(np.float64)
+        linear, nearest = interpolation_at(pixels, disparities, reference.shape[:2], flat)
+        return cls(flat, truth, linear, nearest)
+
+    def score(self, estimate: npt.NDArray[np.floating[Any]]) -> FrameCheck:
+        """Score a densified (H, W) map and the interpolation at the held-out pixels."""
+        if self.flat.size == 0:
+            return FrameCheck(0, 0.0, 0.0, 0.0)
+        return _score(estimate.ravel()[self.flat], self.truth, self.linear, self.nearest)
 
 
 def _score(
