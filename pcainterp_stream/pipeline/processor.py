@@ -92,6 +92,15 @@ value where it matched) and the left band matched too (``SgbmConfig.full_width``
 is SGBM's largest hole, and most of it is in the right camera's view."""
 
 
+CHECK_LEAD_BATCHES = 3
+"""Batches the stereo workers match ahead while the densify thread runs the fit check.
+
+The check and the first batch take the densify thread ~0.4-0.6 s on a KITTI log (two
+built-in bases checked), as long as matching ~12-18 frames on the other core: with one
+batch ahead the workers stopped and a core sat idle (measured in docs/speed_levers.md).
+Each frame held costs its pair and SGBM map (~3-5 MB at KITTI size)."""
+
+
 @dataclass(frozen=True)
 class ProcessorConfig:
     """Options of the frame processor.
@@ -581,12 +590,13 @@ class FrameProcessor:
         """Frames queued on the densify thread before ``submit`` waits for it.
 
         While the fit check runs (on the first, largest batch) the stereo workers go on
-        matching up to a batch more; after it, one batch waits while one is densified.
-        Each frame held is its pair and measurements.
+        matching up to :data:`CHECK_LEAD_BATCHES` batches more, so neither core waits for
+        the check; after it, one batch waits while one is densified. Each frame held is
+        its pair and measurements.
         """
         if self._densified_any:
             return 2 * self.config.batch_size
-        return self.adaptation.warmup_frames + self.config.batch_size
+        return self.adaptation.warmup_frames + CHECK_LEAD_BATCHES * self.config.batch_size
 
     def _hand_over(self) -> None:
         """Queue the ready frames, as one batch, on the densify thread."""
