@@ -469,7 +469,7 @@ class FrameProcessor:
         )
         # decided here, not from the lane's state: the first batch is the check's frames
         self._warming = self.adaptation.warming
-        self._lane.submit(_prepare, basis, self.config.uncertainty, self._warming)
+        self._lane.submit(_prepare, basis, self.config.uncertainty)
 
     def _builtin(self, basis: Basis | None) -> Basis:
         """Return the basis to start with: ``config.builtin``'s for None or a built-in one."""
@@ -750,24 +750,21 @@ def _candidate(kind: str, config: ProcessorConfig) -> Candidate:
     return Candidate(f"the built-in {kind} basis", basis, settings)
 
 
-def _prepare(basis: Basis, uncertainty: str, check: bool) -> None:
+def _prepare(basis: Basis, uncertainty: str) -> None:
     """Build what the first densification needs once (run in the densify thread at start).
 
-    The basis's pixel-major copy and variance grid, the LAPACK set-up, scipy's spatial
-    module and (when the fit check will run) its interpolation module: done while the
-    first pairs are read and matched, not in the job's start-up nor while the stereo
-    workers wait for the first batch.
+    The basis's pixel-major copy and variance grid, the LAPACK set-up and scipy's spatial
+    module: done while the first pairs are read and matched, not in the job's start-up
+    nor while the stereo workers wait for the first batch.
     """
     basis.pixel_major  # noqa: B018 - a cached property: built here
     basis.mean_flat  # noqa: B018
     if uncertainty not in ("none", "exact"):
         basis.variance_grid(_variance_stride(basis, None))
     triangular_lapack()
-    # the carried points' and the check's nearest-neighbour trees (~0.3 s to import)
-    import scipy.spatial
-
-    if check:
-        import scipy.interpolate  # noqa: F401 - ~0.3 s to import: here, not in the check
+    # the carried points' and the check's nearest-neighbour trees and the check's
+    # triangulation (~0.1 s of CPU to import after scipy.linalg)
+    import scipy.spatial  # noqa: F401
 
 
 def _adapt_frame(item: _Measured) -> AdaptFrame:
