@@ -309,6 +309,9 @@ class _Measured(NamedTuple):
     disparity_map: npt.NDArray[np.float32] | None = None  # SGBM's (dense mode only)
     sgbm_map: npt.NDArray[np.float32] | None = None  # SGBM's, NaN = invalid (fit check)
     grid_map: npt.NDArray[np.float32] | None = None  # preprocessed for the log's own basis
+    # SGBM's map as matched, for the two above when a frame matched while the check ran
+    # turns out to need them (the log's own basis): made then, or never
+    raw_map: npt.NDArray[np.float32] | None = None
 
 
 def features_to_measurements(
@@ -454,6 +457,7 @@ class FrameProcessor:
         )
         self.carried = CarriedPoints(self.config.carry) if self.config.carry.frames else None
         self._previous_frame: StereoFrame | None = None
+        self._submitted = 0
         # a feature stream has no SGBM maps: checked by left-out points, never adapted
         mode = self.config.adapt if not self.dense else "off"
         kind = builtin_kind(basis)
@@ -522,8 +526,9 @@ class FrameProcessor:
         frame: StereoFrame,
         features: SparseFeatures | None,
         previous: StereoFrame | None = None,
+        check_frame: bool = True,
     ) -> _Measured:
-        disparity_map = None
+        disparity_map = raw_map = None
         sgbm_map = grid = None
         if self.config.source is MeasurementSource.FEATURES:
             pixels, disparities, counts = features_to_measurements(features, frame.camera)
@@ -534,11 +539,10 @@ class FrameProcessor:
             if self.dense:
                 disparity_map = measurements.disparity_map
             if self.adaptation.wants_maps():
-                sgbm_map = np.where(
-                    measurements.disparity_map > 0, measurements.disparity_map, np.nan
-                ).astype(np.float32)
-                if np.isfinite(sgbm_map).any():  # a blank pair has no map to learn from
-                    grid = adapt.grid_map(sgbm_map, frame.camera.image_size)
+                if check_frame or self.adaptation.adapted:
+                    sgbm_map, grid = _maps(measurements.disparity_map, frame.camera)
+                else:  # matched ahead while the check runs: needed only if it adapts
+                    raw_map = measurements.disparity_map
         motion = None
         if previous is not None and previous.camera == frame.camera:
             # visual odometry beside SGBM in the worker: needs only this frame's points
@@ -550,7 +554,9 @@ class FrameProcessor:
                 frame.camera,
                 config=self.config.carry,
             )
-        return _Measured(frame, pixels, disparities, counts, motion, disparity_map, sgbm_map, grid)
+        return _Measured(
+            frame, pixels, disparities, counts, motion, disparity_map, sgbm_map, grid, raw_map
+        )
 
     def submit(
         self, frame: StereoFrame, features: SparseFeatures | None = None
@@ -558,7 +564,11 @@ class FrameProcessor:
         """Queue one frame; return the frames finished meanwhile, in stream order."""
         previous = self._previous_frame if self.carried is not None else None
         self._previous_frame = frame
-        self._pending.append(self._executor.submit(self._measure, frame, features, previous))
+        check_frame = self._submitted < self.adaptation.warmup_frames
+        self._submitted += 1
+        self._pending.append(
+            self._executor.submit(self._measure, frame, features, previous, check_frame)
+        )
         while len(self._pending) > self.config.lookahead:
             self._ready.append(self._pending.popleft().result())
         wanted = self.adaptation.warmup_frames if self._warming else self.config.batch_size
@@ -636,7 +646,7 @@ class FrameProcessor:
         if own is not None:
             self._use(own)
         # the warm-up maps are in the log's basis now (or not wanted): not added again
-        return [item._replace(sgbm_map=None, grid_map=None) for item in ready]
+        return [item._replace(sgbm_map=None, grid_map=None, raw_map=None) for item in ready]
 
     def _use(self, basis: Basis) -> None:
         """Densify from now on with ``basis`` (its fitted prior; the temporal prior restarts)."""
@@ -769,14 +779,30 @@ def _prepare(basis: Basis, uncertainty: str) -> None:
 
 def _adapt_frame(item: _Measured) -> AdaptFrame:
     camera = item.frame.camera
+    sgbm_map, grid = item.sgbm_map, item.grid_map
+    if item.raw_map is not None:
+        sgbm_map, grid = _maps(item.raw_map, camera)
     return AdaptFrame(
         item.pixels,
         item.disparities,
-        item.sgbm_map,
-        item.grid_map,
+        sgbm_map,
+        grid,
         camera.image_size,
         camera.focal_baseline,
     )
+
+
+def _maps(
+    disparity_map: npt.NDArray[np.float32], camera: StereoCamera
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32] | None]:
+    """Return a frame's SGBM map (NaN where invalid) and its grid map for the log's basis.
+
+    The grid map is None for a blank pair (no valid pixel: no map to learn from).
+    """
+    sgbm_map = np.where(disparity_map > 0, disparity_map, np.nan).astype(np.float32)
+    if not np.isfinite(sgbm_map).any():
+        return sgbm_map, None
+    return sgbm_map, adapt.grid_map(sgbm_map, camera.image_size)
 
 
 @functools.lru_cache(maxsize=4)
