@@ -154,6 +154,7 @@ class Adaptation:
                 image_size=size,
                 focal_baseline=fb,
                 robust=self.robust,
+                with_depth=False,  # scored on the disparity only
                 **options,  # type: ignore[arg-type]
             )
             return adapt.FitCheck.combine(
@@ -265,6 +266,7 @@ class Adaptation:
                     image_size=frame.image_size,
                     focal_baseline=frame.focal_baseline,
                     robust=self.robust,
+                    with_depth=False,  # scored on the disparity only
                     **options,  # type: ignore[arg-type]
                 )
                 checks.append(
