@@ -182,23 +182,48 @@ def interpolation_at(
     if values.size == 0:
         empty = np.full(flat.size, np.nan)
         return empty, empty
-    # imported here: scipy.spatial and scipy.interpolate take ~0.3-0.6 s to import, which a
-    # job's start-up would wait for; densify imports them beside the first stereo frames
+    # imported here: scipy.spatial takes ~0.3 s to import, which a job's start-up would
+    # wait for; densify imports it beside the first stereo frames
     from scipy.spatial import QhullError, cKDTree
 
     _, nearest_index = cKDTree(points).query(at)
     nearest = values[nearest_index]
     linear = nearest.copy()
     if values.size >= 3:
-        from scipy.interpolate import LinearNDInterpolator
-
         try:
-            inside = LinearNDInterpolator(points, values)(at)
+            inside = _linear_at(points, values, at)
         except QhullError:  # collinear points: nearest everywhere
             inside = np.full(flat.size, np.nan)
         found = np.isfinite(inside)
         linear[found] = inside[found]
     return linear, nearest
+
+
+def _linear_at(
+    points: npt.NDArray[np.float64], values: npt.NDArray[np.float64], at: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """Linear interpolation on the Delaunay triangulation at ``at`` (m, 2); NaN outside it.
+
+    scipy's ``LinearNDInterpolator`` in two dimensions, value for value (the same
+    triangulation, triangle search and barycentric sums in the same order), without
+    importing ``scipy.interpolate`` (~0.15 s of CPU, most of it ``scipy.optimize``).
+    """
+    from scipy.spatial import Delaunay
+
+    triangulation = Delaunay(points)
+    simplex = triangulation.find_simplex(at)
+    found = simplex >= 0
+    which = simplex[found]
+    transform = triangulation.transform[which]  # (m, 3, 2): inverse rows, then the origin
+    dx = at[found, 0] - transform[:, 2, 0]
+    dy = at[found, 1] - transform[:, 2, 1]
+    first = transform[:, 0, 0] * dx + transform[:, 0, 1] * dy
+    second = transform[:, 1, 0] * dx + transform[:, 1, 1] * dy
+    third = (1.0 - first) - second
+    corner = values[triangulation.simplices[which]]
+    inside = np.full(at.shape[0], np.nan)
+    inside[found] = (first * corner[:, 0] + second * corner[:, 1]) + third * corner[:, 2]
+    return inside
 
 
 def check_frame(
@@ -215,12 +240,43 @@ def check_frame(
         pixels: (k, 2) the measurements the estimate used, (x, y) px.
         disparities: (k,) their disparities (px).
     """
-    flat = heldout_pixels(reference, pixels)
-    if flat.size == 0 or disparities.size == 0:
-        return FrameCheck(0, 0.0, 0.0, 0.0)
-    truth = reference.ravel()[flat].astype(np.float64)
-    linear, nearest = interpolation_at(pixels, disparities, reference.shape[:2], flat)
-    return _score(estimate.ravel()[flat], truth, linear, nearest)
+    return HeldOut.of(reference, pixels, disparities).score(estimate)
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """One frame's held-out pixels, their SGBM values and plain interpolation there.
+
+    What :func:`check_frame` scores a densified map against; built once per frame, it
+    scores the maps of several bases (the built-in ones checked in turn) at the cost of one.
+    """
+
+    flat: npt.NDArray[np.intp]
+    truth: npt.NDArray[np.float64]
+    linear: npt.NDArray[np.float64]
+    nearest: npt.NDArray[np.float64]
+
+    @classmethod
+    def of(
+        cls,
+        reference: npt.NDArray[np.floating[Any]],
+        pixels: npt.NDArray[np.floating[Any]],
+        disparities: npt.NDArray[np.floating[Any]],
+    ) -> HeldOut:
+        """Hold pixels out of ``reference`` away from ``pixels`` and interpolate there."""
+        flat = heldout_pixels(reference, pixels)
+        if flat.size == 0 or disparities.size == 0:
+            empty = np.zeros(0)
+            return cls(np.zeros(0, np.intp), empty, empty, empty)
+        truth = reference.ravel()[flat].astype(np.float64)
+        linear, nearest = interpolation_at(pixels, disparities, reference.shape[:2], flat)
+        return cls(flat, truth, linear, nearest)
+
+    def score(self, estimate: npt.NDArray[np.floating[Any]]) -> FrameCheck:
+        """Score a densified (H, W) map and the interpolation at the held-out pixels."""
+        if self.flat.size == 0:
+            return FrameCheck(0, 0.0, 0.0, 0.0)
+        return _score(estimate.ravel()[self.flat], self.truth, self.linear, self.nearest)
 
 
 def _score(

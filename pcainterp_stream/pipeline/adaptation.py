@@ -142,6 +142,8 @@ class Adaptation:
         size, fb = usable[0].image_size, usable[0].focal_baseline
         usable = [f for f in usable if f.image_size == size and f.focal_baseline == fb]
         measured = [f.measured() for f in usable]
+        # the held-out pixels and plain interpolation there: once per frame, for every basis
+        held_out = [adapt.HeldOut.of(m.reference, m.pixels, m.disparities) for m in measured]
 
         def check(candidate: Basis, options: dict[str, object]) -> adapt.FitCheck:
             estimates = densify_batch(
@@ -152,13 +154,11 @@ class Adaptation:
                 image_size=size,
                 focal_baseline=fb,
                 robust=self.robust,
+                with_depth=False,  # scored on the disparity only
                 **options,  # type: ignore[arg-type]
             )
             return adapt.FitCheck.combine(
-                [
-                    adapt.check_frame(e.disparity, m.reference, m.pixels, m.disparities)
-                    for e, m in zip(estimates, measured, strict=True)
-                ]
+                [h.score(e.disparity) for e, h in zip(estimates, held_out, strict=True)]
             )
 
         self.check = check(basis, settings)
@@ -266,6 +266,7 @@ class Adaptation:
                     image_size=frame.image_size,
                     focal_baseline=frame.focal_baseline,
                     robust=self.robust,
+                    with_depth=False,  # scored on the disparity only
                     **options,  # type: ignore[arg-type]
                 )
                 checks.append(

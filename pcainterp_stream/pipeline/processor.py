@@ -92,6 +92,15 @@ value where it matched) and the left band matched too (``SgbmConfig.full_width``
 is SGBM's largest hole, and most of it is in the right camera's view."""
 
 
+CHECK_LEAD_BATCHES = 3
+"""Batches the stereo workers match ahead while the densify thread runs the fit check.
+
+The check and the first batch take the densify thread ~0.4-0.6 s on a KITTI log (two
+built-in bases checked), as long as matching ~12-18 frames on the other core: with one
+batch ahead the workers stopped and a core sat idle (measured in docs/speed_levers.md).
+Each frame held costs its pair and SGBM map (~3-5 MB at KITTI size)."""
+
+
 @dataclass(frozen=True)
 class ProcessorConfig:
     """Options of the frame processor.
@@ -300,6 +309,9 @@ class _Measured(NamedTuple):
     disparity_map: npt.NDArray[np.float32] | None = None  # SGBM's (dense mode only)
     sgbm_map: npt.NDArray[np.float32] | None = None  # SGBM's, NaN = invalid (fit check)
     grid_map: npt.NDArray[np.float32] | None = None  # preprocessed for the log's own basis
+    # SGBM's map as matched, for the two above when a frame matched while the check ran
+    # turns out to need them (the log's own basis): made then, or never
+    raw_map: npt.NDArray[np.float32] | None = None
 
 
 def features_to_measurements(
@@ -445,6 +457,7 @@ class FrameProcessor:
         )
         self.carried = CarriedPoints(self.config.carry) if self.config.carry.frames else None
         self._previous_frame: StereoFrame | None = None
+        self._submitted = 0
         # a feature stream has no SGBM maps: checked by left-out points, never adapted
         mode = self.config.adapt if not self.dense else "off"
         kind = builtin_kind(basis)
@@ -460,7 +473,7 @@ class FrameProcessor:
         )
         # decided here, not from the lane's state: the first batch is the check's frames
         self._warming = self.adaptation.warming
-        self._lane.submit(_prepare, basis, self.config.uncertainty, self._warming)
+        self._lane.submit(_prepare, basis, self.config.uncertainty)
 
     def _builtin(self, basis: Basis | None) -> Basis:
         """Return the basis to start with: ``config.builtin``'s for None or a built-in one."""
@@ -513,8 +526,9 @@ class FrameProcessor:
         frame: StereoFrame,
         features: SparseFeatures | None,
         previous: StereoFrame | None = None,
+        check_frame: bool = True,
     ) -> _Measured:
-        disparity_map = None
+        disparity_map = raw_map = None
         sgbm_map = grid = None
         if self.config.source is MeasurementSource.FEATURES:
             pixels, disparities, counts = features_to_measurements(features, frame.camera)
@@ -525,11 +539,10 @@ class FrameProcessor:
             if self.dense:
                 disparity_map = measurements.disparity_map
             if self.adaptation.wants_maps():
-                sgbm_map = np.where(
-                    measurements.disparity_map > 0, measurements.disparity_map, np.nan
-                ).astype(np.float32)
-                if np.isfinite(sgbm_map).any():  # a blank pair has no map to learn from
-                    grid = adapt.grid_map(sgbm_map, frame.camera.image_size)
+                if check_frame or self.adaptation.adapted:
+                    sgbm_map, grid = _maps(measurements.disparity_map, frame.camera)
+                else:  # matched ahead while the check runs: needed only if it adapts
+                    raw_map = measurements.disparity_map
         motion = None
         if previous is not None and previous.camera == frame.camera:
             # visual odometry beside SGBM in the worker: needs only this frame's points
@@ -541,7 +554,9 @@ class FrameProcessor:
                 frame.camera,
                 config=self.config.carry,
             )
-        return _Measured(frame, pixels, disparities, counts, motion, disparity_map, sgbm_map, grid)
+        return _Measured(
+            frame, pixels, disparities, counts, motion, disparity_map, sgbm_map, grid, raw_map
+        )
 
     def submit(
         self, frame: StereoFrame, features: SparseFeatures | None = None
@@ -549,7 +564,11 @@ class FrameProcessor:
         """Queue one frame; return the frames finished meanwhile, in stream order."""
         previous = self._previous_frame if self.carried is not None else None
         self._previous_frame = frame
-        self._pending.append(self._executor.submit(self._measure, frame, features, previous))
+        check_frame = self._submitted < self.adaptation.warmup_frames
+        self._submitted += 1
+        self._pending.append(
+            self._executor.submit(self._measure, frame, features, previous, check_frame)
+        )
         while len(self._pending) > self.config.lookahead:
             self._ready.append(self._pending.popleft().result())
         wanted = self.adaptation.warmup_frames if self._warming else self.config.batch_size
@@ -581,12 +600,13 @@ class FrameProcessor:
         """Frames queued on the densify thread before ``submit`` waits for it.
 
         While the fit check runs (on the first, largest batch) the stereo workers go on
-        matching up to a batch more; after it, one batch waits while one is densified.
-        Each frame held is its pair and measurements.
+        matching up to :data:`CHECK_LEAD_BATCHES` batches more, so neither core waits for
+        the check; after it, one batch waits while one is densified. Each frame held is
+        its pair and measurements.
         """
         if self._densified_any:
             return 2 * self.config.batch_size
-        return self.adaptation.warmup_frames + self.config.batch_size
+        return self.adaptation.warmup_frames + CHECK_LEAD_BATCHES * self.config.batch_size
 
     def _hand_over(self) -> None:
         """Queue the ready frames, as one batch, on the densify thread."""
@@ -626,7 +646,7 @@ class FrameProcessor:
         if own is not None:
             self._use(own)
         # the warm-up maps are in the log's basis now (or not wanted): not added again
-        return [item._replace(sgbm_map=None, grid_map=None) for item in ready]
+        return [item._replace(sgbm_map=None, grid_map=None, raw_map=None) for item in ready]
 
     def _use(self, basis: Basis) -> None:
         """Densify from now on with ``basis`` (its fitted prior; the temporal prior restarts)."""
@@ -740,36 +760,49 @@ def _candidate(kind: str, config: ProcessorConfig) -> Candidate:
     return Candidate(f"the built-in {kind} basis", basis, settings)
 
 
-def _prepare(basis: Basis, uncertainty: str, check: bool) -> None:
+def _prepare(basis: Basis, uncertainty: str) -> None:
     """Build what the first densification needs once (run in the densify thread at start).
 
-    The basis's pixel-major copy and variance grid, the LAPACK set-up, scipy's spatial
-    module and (when the fit check will run) its interpolation module: done while the
-    first pairs are read and matched, not in the job's start-up nor while the stereo
-    workers wait for the first batch.
+    The basis's pixel-major copy and variance grid, the LAPACK set-up and scipy's spatial
+    module: done while the first pairs are read and matched, not in the job's start-up
+    nor while the stereo workers wait for the first batch.
     """
     basis.pixel_major  # noqa: B018 - a cached property: built here
     basis.mean_flat  # noqa: B018
     if uncertainty not in ("none", "exact"):
         basis.variance_grid(_variance_stride(basis, None))
     triangular_lapack()
-    # the carried points' and the check's nearest-neighbour trees (~0.3 s to import)
-    import scipy.spatial
-
-    if check:
-        import scipy.interpolate  # noqa: F401 - ~0.3 s to import: here, not in the check
+    # the carried points' and the check's nearest-neighbour trees and the check's
+    # triangulation (~0.1 s of CPU to import after scipy.linalg)
+    import scipy.spatial  # noqa: F401
 
 
 def _adapt_frame(item: _Measured) -> AdaptFrame:
     camera = item.frame.camera
+    sgbm_map, grid = item.sgbm_map, item.grid_map
+    if item.raw_map is not None:
+        sgbm_map, grid = _maps(item.raw_map, camera)
     return AdaptFrame(
         item.pixels,
         item.disparities,
-        item.sgbm_map,
-        item.grid_map,
+        sgbm_map,
+        grid,
         camera.image_size,
         camera.focal_baseline,
     )
+
+
+def _maps(
+    disparity_map: npt.NDArray[np.float32], camera: StereoCamera
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32] | None]:
+    """Return a frame's SGBM map (NaN where invalid) and its grid map for the log's basis.
+
+    The grid map is None for a blank pair (no valid pixel: no map to learn from).
+    """
+    sgbm_map = np.where(disparity_map > 0, disparity_map, np.nan).astype(np.float32)
+    if not np.isfinite(sgbm_map).any():
+        return sgbm_map, None
+    return sgbm_map, adapt.grid_map(sgbm_map, camera.image_size)
 
 
 @functools.lru_cache(maxsize=4)

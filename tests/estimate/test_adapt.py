@@ -56,6 +56,35 @@ def test_check_scores_the_prior_against_linear_and_nearest() -> None:
     assert "x linear" in poor.describe()
 
 
+def test_linear_interpolation_is_scipys_value_for_value() -> None:
+    from scipy.interpolate import LinearNDInterpolator
+
+    rng = np.random.default_rng(3)
+    lattice = np.stack(np.meshgrid(np.arange(0, 400, 40.0), np.arange(0, 200, 40.0)), -1)
+    for trial in range(40):
+        points = rng.random((int(rng.integers(3, 300)), 2)) * [400, 200]
+        if trial % 2:  # lattice points: co-circular fours, ties in the triangulation
+            grid = lattice.reshape(-1, 2)
+            points = np.concatenate([grid[rng.random(len(grid)) < 0.6], points[:20]])
+        points = points.astype(np.float32).astype(np.float64)
+        values = rng.random(len(points)) * 50
+        at = np.stack([rng.integers(-5, 405, 2000), rng.integers(-5, 205, 2000)], 1)
+        at = at.astype(np.float64)
+        expected = LinearNDInterpolator(points, values)(at)
+        np.testing.assert_array_equal(adapt._linear_at(points, values, at), expected)
+
+
+def test_held_out_pixels_score_every_map_as_the_check_does() -> None:
+    reference = _scene(4.0)
+    pixels = _points(40, seed=2)
+    disparities = _measure(reference, pixels)
+    held_out = adapt.HeldOut.of(reference, pixels, disparities)
+    for estimate in (reference, np.full(SIZE, 10.0, dtype=np.float32)):
+        assert held_out.score(estimate) == adapt.check_frame(
+            estimate, reference, pixels, disparities
+        )
+
+
 def test_own_basis_from_the_log_reproduces_its_scenes() -> None:
     maps = [adapt.grid_map(_scene(shift), SIZE) for shift in (0.0, 2.0, 4.0, 6.0)]
     basis = adapt.own_basis(maps, SIZE, 50.0)

@@ -109,6 +109,29 @@ def test_corners_found_inside_usable_area(pair: tuple[npt.NDArray[Any], ...]) ->
     assert np.mean(corners != np.round(corners)) > 0.5
 
 
+def test_corners_are_those_of_the_whole_image_with_the_mask(
+    pair: tuple[npt.NDArray[Any], ...],
+) -> None:
+    # detect_corners searches a crop around the usable area: the corners must be the same
+    grey = to_grey8_pair(pair[0], pair[1])[0]
+    height, width = grey.shape
+    config = GfttConfig(subpixel=False)
+    for min_x in (0, 3, 40):
+        mask = np.zeros((height, width), np.uint8)
+        x_start = max(config.border, min_x)
+        mask[config.border : height - config.border, x_start : width - config.border] = 255
+        whole = cv2.goodFeaturesToTrack(
+            grey,
+            config.max_corners,
+            config.quality_level,
+            config.min_distance,
+            mask=mask,
+            blockSize=config.block_size,
+        )
+        found = detect_corners(grey, config, min_x=min_x)
+        np.testing.assert_array_equal(found, whole.reshape(-1, 2))
+
+
 def test_blank_image_gives_empty_corners_and_measurements() -> None:
     blank = np.full((HEIGHT, WIDTH), 128, np.uint8)
     corners = detect_corners(blank, GFTT)
