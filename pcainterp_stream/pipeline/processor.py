@@ -67,6 +67,7 @@ from pcainterp_stream.frontend.stereo import (
     StereoFrontEnd,
     to_grey8,
 )
+from pcainterp_stream.interrupt import signalled
 from pcainterp_stream.pipeline.adaptation import (
     FITS_BELOW,
     OWN_ABOVE_STREET,
@@ -506,10 +507,19 @@ class FrameProcessor:
         exc: BaseException | None,
         traceback: TracebackType | None,
     ) -> None:
-        self.close()
+        interrupted = exc_type is not None and (
+            issubclass(exc_type, KeyboardInterrupt) or signalled()
+        )
+        self.close(wait=not interrupted)
 
-    def close(self) -> None:
-        """Stop the worker threads, dropping frames still in flight; restore thread counts."""
+    def close(self, *, wait: bool = True) -> None:
+        """Stop the worker threads, dropping frames still in flight; restore thread counts.
+
+        Args:
+            wait: wait for the task each thread is running (an SGBM match, a batch, the
+                one-off set-up with its imports) to end. An interrupted command does not:
+                its clean-up must not wait seconds for a loaded machine to finish an import.
+        """
         for future in self._pending:
             future.cancel()
         for _, densifying in self._densifying:
@@ -517,8 +527,8 @@ class FrameProcessor:
         self._pending.clear()
         self._ready.clear()
         self._densifying.clear()
-        self._executor.shutdown(wait=True, cancel_futures=True)
-        self._lane.shutdown(wait=True, cancel_futures=True)
+        self._executor.shutdown(wait=wait, cancel_futures=True)
+        self._lane.shutdown(wait=wait, cancel_futures=True)
         self._limits.restore()
 
     def _measure(

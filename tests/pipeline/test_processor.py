@@ -353,3 +353,52 @@ def test_dense_measurements_fill_every_pixel_and_keep_sgbm() -> None:
         ProcessorConfig(measurements="both")
     with pytest.raises(ValueError, match="feature stream"):
         ProcessorConfig(measurements="dense", source=MeasurementSource.FEATURES)
+
+
+def test_an_interrupted_processor_does_not_wait_for_its_threads(basis: Basis) -> None:
+    # A Ctrl-C that lands while the densify thread is busy (e.g. importing scipy on a loaded
+    # machine) must not wait for that task: the command has seconds to clean up.
+    release = threading.Event()
+    closed = threading.Event()
+    started = threading.Event()
+    engine = FrameProcessor(basis, ProcessorConfig(sgbm=SGBM))
+
+    def busy() -> None:
+        started.set()
+        release.wait()
+
+    engine._lane.submit(busy)  # the densify thread is busy until released
+    assert started.wait(60)
+
+    def interrupt() -> None:
+        try:
+            with engine:
+                raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            closed.set()
+
+    thread = threading.Thread(target=interrupt, daemon=True)
+    thread.start()
+    try:
+        assert closed.wait(60), "closing waited for the busy densify thread"
+        assert not release.is_set()
+    finally:
+        release.set()
+        thread.join(60)
+
+
+def test_a_processor_closed_normally_finishes_its_running_task(basis: Basis) -> None:
+    done: list[int] = []
+    engine = FrameProcessor(basis, ProcessorConfig(sgbm=SGBM))
+    started = threading.Event()
+
+    def task() -> None:
+        started.set()
+        time.sleep(0.2)
+        done.append(1)
+
+    engine._lane.submit(task)
+    assert started.wait(60)
+    with engine:
+        pass
+    assert done == [1]
