@@ -17,9 +17,10 @@ and away from them, the same error for nearest-neighbour and linear (Delaunay)
 interpolation of the points the estimate used (ratios) and of the frame's GFTT corners alone
 (no lattice, no carried points), the share of reference pixels within +-2 sigma, depth RMSE
 (m, depths capped at 80 m), the points used per frame, and the processor's wall time
-relative to the first variant in the same run. ``--geodesic`` adds an image-geodesic
-nearest neighbour of the same points (each pixel takes the value of the point nearest
-along the left image, a step costing 1 + beta |grey difference| on the basis grid).
+relative to the first variant in the same run. ``--geodesic`` adds two geodesic nearest
+neighbours of the same points: each pixel takes the value of the point nearest along the
+left image (a step on the basis grid costing 1 + 0.2 |grey difference|), or along the
+front end's own SGBM map (1 + min(|disparity difference|, 20 px)).
 
 Variants change the corner options (``gftt``), the matcher's (``sgbm``) or the built-in
 basis's fitted prior (``prior``: its local kernel, its noise sigma).
@@ -191,36 +192,46 @@ def _depth_edges(truth: Array, valid: npt.NDArray[np.bool_]) -> npt.NDArray[np.b
 
 
 def geodesic_nearest(
-    grey: npt.NDArray[Any],
+    field: npt.NDArray[Any],
     pixels: Array,
     values: Array,
     *,
+    beta: float,
+    cap: float = np.inf,
     scale: float = 0.25,
-    beta: float = 0.2,
 ) -> Array:
-    """Each pixel takes the value of the point nearest along the image (not across edges).
+    """Each pixel takes the value of the point nearest along ``field`` (not across its edges).
 
-    On the image resized by ``scale`` (the basis grid's), a step between 4-neighbours
-    costs 1 + beta |grey difference|; multi-source Dijkstra finds each node's nearest
-    point; the labels are resized back (nearest). beta = 0 is a city-block nearest
-    neighbour.
+    On ``field`` resized by ``scale`` (the basis grid's; nearest, so no edge is blurred), a
+    step between 4-neighbours costs 1 + beta min(|field difference|, cap), 1 where either
+    value is not finite; multi-source Dijkstra finds each node's nearest point; the labels
+    are resized back (nearest). beta = 0 is a city-block nearest neighbour.
     """
     import cv2
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import dijkstra
 
-    height, width = grey.shape
+    height, width = field.shape
     rows, cols = round(height * scale), round(width * scale)
-    small = cv2.resize(grey, (cols, rows), interpolation=cv2.INTER_AREA).astype(np.float32)
+    resized = cv2.resize(
+        np.asarray(field, np.float32), (cols, rows), interpolation=cv2.INTER_NEAREST
+    )
+    small: Array = np.asarray(resized, np.float32)
     index = np.arange(rows * cols).reshape(rows, cols)
+
+    def cost(a: Array, b: Array) -> Array:
+        step = np.abs(a - b)
+        step[~np.isfinite(step)] = 0.0
+        return np.asarray(1.0 + beta * np.minimum(step, cap), np.float32)
+
     pairs = [
-        (index[:, :-1], index[:, 1:], np.abs(small[:, :-1] - small[:, 1:])),
-        (index[:-1], index[1:], np.abs(small[:-1] - small[1:])),
+        (index[:, :-1], index[:, 1:], cost(small[:, :-1], small[:, 1:])),
+        (index[:-1], index[1:], cost(small[:-1], small[1:])),
     ]
     start = np.concatenate([a.ravel() for a, _, _ in pairs])
     end = np.concatenate([b.ravel() for _, b, _ in pairs])
-    cost = np.concatenate([(1.0 + beta * d).ravel() for _, _, d in pairs])
-    graph = coo_matrix((cost, (start, end)), shape=(rows * cols, rows * cols)).tocsr()
+    weight = np.concatenate([c.ravel() for _, _, c in pairs])
+    graph = coo_matrix((weight, (start, end)), shape=(rows * cols, rows * cols)).tocsr()
     grid = np.round((pixels.astype(np.float64) + 0.5) * scale - 0.5).astype(np.int64)
     grid = np.clip(grid, 0, [cols - 1, rows - 1])
     nodes, first = np.unique(index[grid[:, 1], grid[:, 0]], return_index=True)
@@ -255,6 +266,7 @@ def score(
             "corners_nn",
             "corners_linear",
             "geodesic",
+            "geodesic_sgbm",
             "inside",
             "sq_depth",
             "edge_px",
@@ -278,8 +290,14 @@ def score(
         for key, baseline in baselines.items():
             sums[key] += np.abs(baseline.disparity - truth)[valid].sum()
         if geodesic:
-            geo = geodesic_nearest(frame.left, result.pixels, result.disparities)
-            sums["geodesic"] += np.abs(geo - truth)[valid].sum()
+            # along the grey image, and along the front end's own SGBM map (its holes free)
+            grey = geodesic_nearest(frame.left, result.pixels, result.disparities, beta=0.2)
+            sums["geodesic"] += np.abs(grey - truth)[valid].sum()
+            sgbm = corners.disparity_map
+            assert sgbm is not None
+            sgbm = np.where(sgbm > 0, sgbm, np.nan)
+            along = geodesic_nearest(sgbm, result.pixels, result.disparities, beta=1.0, cap=20.0)
+            sums["geodesic_sgbm"] += np.abs(along - truth)[valid].sum()
         std = result.disparity_std[valid]
         inside = error <= 2.0 * std
         sums["px"] += valid.sum()
@@ -305,6 +323,7 @@ def score(
         "corners_nn_px": sums["corners_nn"] / sums["px"],
         "corners_linear_px": sums["corners_linear"] / sums["px"],
         "geodesic_nn_px": sums["geodesic"] / sums["px"],
+        "geodesic_sgbm_nn_px": sums["geodesic_sgbm"] / sums["px"],
         "coverage_2sigma": 100.0 * sums["inside"] / sums["px"],
         "edge_error_px": sums["edge_err"] / max(sums["edge_px"], 1.0),
         "edge_coverage": 100.0 * sums["edge_inside"] / max(sums["edge_px"], 1.0),
@@ -464,7 +483,7 @@ def main(argv: list[str] | None = None) -> int:
         "ratio_linear",
         "corners_nn_px",
         "corners_linear_px",
-        *(("geodesic_nn_px",) if args.geodesic else ()),
+        *(("geodesic_nn_px", "geodesic_sgbm_nn_px") if args.geodesic else ()),
         "coverage_2sigma",
         "depth_rmse_m",
         "points",
