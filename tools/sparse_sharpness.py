@@ -13,10 +13,17 @@ measurement options at a time:
 
 Figures per source: mean |disparity error| (px) over the reference's pixels, at its depth
 discontinuities (> 3 px disparity range in the 9x9 window) and the +-2 sigma coverage there
-and away from them, the same error for nearest-neighbour interpolation of the frame's own
-points (ratio), the share of reference pixels within +-2 sigma, depth RMSE (m, depths capped
-at 80 m), the frame's own points, and the processor's wall time relative to the first
-variant in the same run.
+and away from them, the same error for nearest-neighbour and linear (Delaunay)
+interpolation of the points the estimate used (ratios) and of the frame's GFTT corners alone
+(no lattice, no carried points), the share of reference pixels within +-2 sigma, depth RMSE
+(m, depths capped at 80 m), the points used per frame, and the processor's wall time
+relative to the first variant in the same run. ``--geodesic`` adds two geodesic nearest
+neighbours of the same points: each pixel takes the value of the point nearest along the
+left image (a step on the basis grid costing 1 + 0.2 |grey difference|), or along the
+front end's own SGBM map (1 + min(|disparity difference|, 20 px)).
+
+Variants change the corner options (``gftt``), the matcher's (``sgbm``) or the built-in
+basis's fitted prior (``prior``: its local kernel, its noise sigma).
 
     python tools/sparse_sharpness.py --variants corners400 default --timing
 """
@@ -33,8 +40,9 @@ import harness
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.estimate.baselines import nearest
-from pcainterp_stream.frontend.stereo import SgbmConfig, compute_disparity
+from pcainterp_stream.estimate.baselines import linear, nearest
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.frontend.stereo import SgbmConfig, StereoFrontEnd, compute_disparity
 from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
 from pcainterp_stream.records import StereoCamera, StereoFrame
 
@@ -59,6 +67,17 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "corners300_fill40": {"gftt": {"max_corners": 300}},
     "corners300_fill45": {"gftt": {"max_corners": 300, "fill_spacing": 45.0}},
     "buckets24x6_fill50": {"gftt": {"max_corners": 400, "buckets": (24, 6), "fill_spacing": 50.0}},
+    # the left band x < 128 px matched too (SGBM on padded images, as dense mode does)
+    "left_band": {"sgbm": {"full_width": True}},
+    # the built-in prior's local kernel and noise (shipped: Laplace, 64 px, 40 px^2, 0.1 px)
+    "laplace16": {"prior": {"local": {"kernel": "laplace", "length_scale": 16.0}}},
+    "laplace32": {"prior": {"local": {"kernel": "laplace", "length_scale": 32.0}}},
+    "laplace128": {"prior": {"local": {"kernel": "laplace", "length_scale": 128.0}}},
+    "gaussian12": {"prior": {"local": {"kernel": "gaussian", "length_scale": 12.0}}},
+    "gaussian24": {"prior": {"local": {"kernel": "gaussian", "length_scale": 24.0}}},
+    "gaussian40": {"prior": {"local": {"kernel": "gaussian", "length_scale": 40.0}}},
+    "sigma0.5": {"prior": {"sigma": 0.5}},
+    "sigma1": {"prior": {"sigma": 1.0}},
 }
 
 
@@ -66,8 +85,27 @@ def _variant_config(name: str) -> ProcessorConfig:
     """Return the processor options of variant ``name`` (see :data:`VARIANTS`)."""
     base = ProcessorConfig()
     changes = dict(VARIANTS[name])
+    changes.pop("prior", None)
     gftt = dataclasses.replace(base.gftt, **changes.pop("gftt", {}))
-    return dataclasses.replace(base, gftt=gftt, **changes)
+    sgbm = dataclasses.replace(base.sgbm, **changes.pop("sgbm", {}))
+    return dataclasses.replace(base, gftt=gftt, sgbm=sgbm, **changes)
+
+
+def _variant_basis(name: str) -> Basis | None:
+    """Return the built-in basis with variant ``name``'s prior (None: the shipped one).
+
+    Only ``meta["prior"]`` differs, so the processor still treats it as the built-in basis.
+    """
+    changes = VARIANTS[name].get("prior")
+    if not changes:
+        return None
+    basis = Basis.default()
+    prior = dict(basis.meta["prior"])
+    if "local" in changes:
+        prior["local"] = {**prior["local"], **changes["local"]}
+    if "sigma" in changes:
+        prior["sigma"] = changes["sigma"]
+    return dataclasses.replace(basis, meta={**basis.meta, "prior": prior})
 
 
 def _lidar_frames(realdata: Path) -> Iterator[tuple[StereoFrame, Array]]:
@@ -153,26 +191,117 @@ def _depth_edges(truth: Array, valid: npt.NDArray[np.bool_]) -> npt.NDArray[np.b
     return np.asarray(valid & (high - low > 3.0))
 
 
-def score(items: list[tuple[StereoFrame, Array]], config: ProcessorConfig) -> dict[str, float]:
+def geodesic_nearest(
+    field: npt.NDArray[Any],
+    pixels: Array,
+    values: Array,
+    *,
+    beta: float,
+    cap: float = np.inf,
+    scale: float = 0.25,
+) -> Array:
+    """Each pixel takes the value of the point nearest along ``field`` (not across its edges).
+
+    On ``field`` resized by ``scale`` (the basis grid's; nearest, so no edge is blurred), a
+    step between 4-neighbours costs 1 + beta min(|field difference|, cap), 1 where either
+    value is not finite; multi-source Dijkstra finds each node's nearest point; the labels
+    are resized back (nearest). beta = 0 is a city-block nearest neighbour.
+    """
+    import cv2
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    height, width = field.shape
+    rows, cols = round(height * scale), round(width * scale)
+    resized = cv2.resize(
+        np.asarray(field, np.float32), (cols, rows), interpolation=cv2.INTER_NEAREST
+    )
+    small: Array = np.asarray(resized, np.float32)
+    index = np.arange(rows * cols).reshape(rows, cols)
+
+    def cost(a: Array, b: Array) -> Array:
+        step = np.abs(a - b)
+        step[~np.isfinite(step)] = 0.0
+        return np.asarray(1.0 + beta * np.minimum(step, cap), np.float32)
+
+    pairs = [
+        (index[:, :-1], index[:, 1:], cost(small[:, :-1], small[:, 1:])),
+        (index[:-1], index[1:], cost(small[:-1], small[1:])),
+    ]
+    start = np.concatenate([a.ravel() for a, _, _ in pairs])
+    end = np.concatenate([b.ravel() for _, b, _ in pairs])
+    weight = np.concatenate([c.ravel() for _, _, c in pairs])
+    graph = coo_matrix((weight, (start, end)), shape=(rows * cols, rows * cols)).tocsr()
+    grid = np.round((pixels.astype(np.float64) + 0.5) * scale - 0.5).astype(np.int64)
+    grid = np.clip(grid, 0, [cols - 1, rows - 1])
+    nodes, first = np.unique(index[grid[:, 1], grid[:, 0]], return_index=True)
+    _, _, sources = dijkstra(
+        graph, directed=False, indices=nodes, min_only=True, return_predecessors=True
+    )
+    owner = np.full(rows * cols, -1, np.int64)
+    owner[nodes] = first
+    labels = owner[sources].reshape(rows, cols).astype(np.float32)
+    labels = cv2.resize(labels, (width, height), interpolation=cv2.INTER_NEAREST)
+    return np.asarray(values[labels.astype(np.int64)], np.float32)
+
+
+def score(
+    items: list[tuple[StereoFrame, Array]],
+    config: ProcessorConfig,
+    basis: Basis | None = None,
+    geodesic: bool = False,
+) -> dict[str, float]:
     """Densify the frames with ``config``; return the figures against their references."""
     started = time.perf_counter()
-    with FrameProcessor(None, config) as processor:
+    with FrameProcessor(basis, config) as processor:
         results = list(processor.process([frame for frame, _ in items]))
     seconds = time.perf_counter() - started
+    corners_only = StereoFrontEnd(dataclasses.replace(config.gftt, fill_spacing=0.0), config.sgbm)
     sums = dict.fromkeys(
-        ("px", "err", "nn", "inside", "sq_depth", "edge_px", "edge_err", "edge_inside"), 0.0
+        (
+            "px",
+            "err",
+            "nn",
+            "linear",
+            "corners_nn",
+            "corners_linear",
+            "geodesic",
+            "geodesic_sgbm",
+            "inside",
+            "sq_depth",
+            "edge_px",
+            "edge_err",
+            "edge_inside",
+        ),
+        0.0,
     )
     points = 0
     for (frame, truth), result in zip(items, results, strict=True):
         valid = np.isfinite(truth) & (truth > 0)
         estimate = result.disparity
         error = np.abs(estimate - truth)[valid]
-        near = nearest(result.pixels, result.disparities, image_size=truth.shape).disparity
+        corners = corners_only.measure(frame.left, frame.right)
+        baselines = {
+            "nn": nearest(result.pixels, result.disparities, image_size=truth.shape),
+            "linear": linear(result.pixels, result.disparities, image_size=truth.shape),
+            "corners_nn": nearest(corners.pixels, corners.disparities, image_size=truth.shape),
+            "corners_linear": linear(corners.pixels, corners.disparities, image_size=truth.shape),
+        }
+        for key, baseline in baselines.items():
+            sums[key] += np.abs(baseline.disparity - truth)[valid].sum()
+        if geodesic:
+            # along the grey image, and along the front end's own SGBM map (its holes free)
+            grey = geodesic_nearest(frame.left, result.pixels, result.disparities, beta=0.2)
+            sums["geodesic"] += np.abs(grey - truth)[valid].sum()
+            sgbm = corners.disparity_map
+            assert sgbm is not None
+            sgbm = np.where(sgbm > 0, sgbm, np.nan)
+            along = geodesic_nearest(sgbm, result.pixels, result.disparities, beta=1.0, cap=20.0)
+            sums["geodesic_sgbm"] += np.abs(along - truth)[valid].sum()
         std = result.disparity_std[valid]
         inside = error <= 2.0 * std
         sums["px"] += valid.sum()
         sums["err"] += error.sum()
-        sums["nn"] += np.abs(near - truth)[valid].sum()
         sums["inside"] += inside.sum()
         edge = _depth_edges(truth, valid)[valid]
         sums["edge_px"] += edge.sum()
@@ -189,6 +318,12 @@ def score(items: list[tuple[StereoFrame, Array]], config: ProcessorConfig) -> di
         "error_px": sums["err"] / sums["px"],
         "nearest_px": sums["nn"] / sums["px"],
         "ratio_nn": sums["err"] / sums["nn"],
+        "linear_px": sums["linear"] / sums["px"],
+        "ratio_linear": sums["err"] / sums["linear"],
+        "corners_nn_px": sums["corners_nn"] / sums["px"],
+        "corners_linear_px": sums["corners_linear"] / sums["px"],
+        "geodesic_nn_px": sums["geodesic"] / sums["px"],
+        "geodesic_sgbm_nn_px": sums["geodesic_sgbm"] / sums["px"],
         "coverage_2sigma": 100.0 * sums["inside"] / sums["px"],
         "edge_error_px": sums["edge_err"] / max(sums["edge_px"], 1.0),
         "edge_coverage": 100.0 * sums["edge_inside"] / max(sums["edge_px"], 1.0),
@@ -255,7 +390,10 @@ def guided_rows(items: list[tuple[StereoFrame, Array]], config: ProcessorConfig)
 
 
 def estimate_seconds(
-    items: list[tuple[StereoFrame, Array]], configs: list[ProcessorConfig], repeats: int = 3
+    items: list[tuple[StereoFrame, Array]],
+    configs: list[ProcessorConfig],
+    bases: list[Basis | None],
+    repeats: int = 3,
 ) -> list[float]:
     """CPU seconds per frame of the estimate alone, for each configuration's points.
 
@@ -264,12 +402,10 @@ def estimate_seconds(
     """
     from threadpoolctl import threadpool_limits
 
-    from pcainterp_stream.estimate.basis import Basis
     from pcainterp_stream.estimate.estimator import densify_batch
     from pcainterp_stream.frontend.stereo import StereoFrontEnd
     from pcainterp_stream.pipeline.processor import resolve_settings
 
-    basis = Basis.default()
     measured = []
     for config in configs:
         front_end = StereoFrontEnd(config.gftt, config.sgbm)
@@ -279,6 +415,7 @@ def estimate_seconds(
     with threadpool_limits(1):
         for _ in range(repeats):
             for index, config in enumerate(configs):
+                basis = bases[index] or Basis.default()
                 options = resolve_settings(basis, config).densify_options()
                 started = time.process_time()
                 for start in range(0, len(items), 4):
@@ -315,6 +452,11 @@ def main(argv: list[str] | None = None) -> int:
         "--timing", action="store_true", help="also time the estimate alone per variant"
     )
     parser.add_argument(
+        "--geodesic",
+        action="store_true",
+        help="also score an image-geodesic nearest neighbour of the same points",
+    )
+    parser.add_argument(
         "--guided",
         action="store_true",
         help="also score a guided filter of the first variant's maps with the left image",
@@ -337,6 +479,11 @@ def main(argv: list[str] | None = None) -> int:
         "away_coverage",
         "nearest_px",
         "ratio_nn",
+        "linear_px",
+        "ratio_linear",
+        "corners_nn_px",
+        "corners_linear_px",
+        *(("geodesic_nn_px", "geodesic_sgbm_nn_px") if args.geodesic else ()),
         "coverage_2sigma",
         "depth_rmse_m",
         "points",
@@ -356,7 +503,7 @@ def main(argv: list[str] | None = None) -> int:
         print("| --- |" + " ---: |" * (len(keys) + 1))
         first = None
         for variant in args.variants:
-            figures = score(items, _variant_config(variant))
+            figures = score(items, _variant_config(variant), _variant_basis(variant), args.geodesic)
             first = first or figures["seconds"]
             cells = " | ".join(f"{figures[k]:.3f}" for k in keys)
             print(f"| {variant} | {cells} | {figures['seconds'] / first:.2f} |", flush=True)
@@ -366,7 +513,8 @@ def main(argv: list[str] | None = None) -> int:
             print("\n".join(guided_rows(items, _variant_config(args.variants[0]))), flush=True)
         if args.timing:
             configs = [_variant_config(v) for v in args.variants]
-            seconds = estimate_seconds(items, configs)
+            bases = [_variant_basis(v) for v in args.variants]
+            seconds = estimate_seconds(items, configs, bases)
             print(
                 "estimate CPU ms/frame: "
                 + ", ".join(
