@@ -40,17 +40,12 @@ from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any, Self
+from typing import IO, TYPE_CHECKING, Any, Self
 
 import mcap.writer
 import zstandard
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
-from rosbags.convert.converter import is_same_wireformat
-from rosbags.interfaces import Connection
-from rosbags.rosbag1 import Writer as Rosbag1Writer
-from rosbags.rosbag2 import StoragePlugin
-from rosbags.rosbag2 import Writer as Rosbag2Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 from zlib_ng import zlib_ng
@@ -59,6 +54,12 @@ from pcainterp_stream.errors import LogWriteError
 from pcainterp_stream.interrupt import track_partial, untrack_partial
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.records import RawMessage
+
+if TYPE_CHECKING:  # rosbags' bag writers are imported when used (~65 ms with its readers)
+    from rosbags.interfaces import Connection
+    from rosbags.rosbag1 import Writer as Rosbag1Writer
+    from rosbags.rosbag2 import StoragePlugin
+    from rosbags.rosbag2 import Writer as Rosbag2Writer
 
 ProgressCallback = Callable[[int, int | None], None]
 """Called as ``progress(done, total)`` after each unit of work; ``total`` None if unknown."""
@@ -599,6 +600,8 @@ class Rosbag2LogWriter(LogWriter):
     """A rosbag2 folder (version 9) with MCAP or SQLite 3 storage, CDR messages."""
 
     def __init__(self, path: Path, storage: StoragePlugin) -> None:
+        from rosbags.rosbag2 import StoragePlugin
+
         super().__init__(path)
         self.format = (
             LogFormat.ROSBAG2 if storage == StoragePlugin.MCAP else LogFormat.ROSBAG2_SQLITE3
@@ -608,6 +611,8 @@ class Rosbag2LogWriter(LogWriter):
         self._connections: dict[tuple[str, str], Connection] = {}
 
     def _open_partial(self) -> None:
+        from rosbags.rosbag2 import Writer as Rosbag2Writer
+
         self._writer = Rosbag2Writer(
             self.partial_path, version=Rosbag2Writer.VERSION_LATEST, storage_plugin=self._storage
         )
@@ -665,10 +670,14 @@ class Ros1LogWriter(LogWriter):
         self._noetic = get_typestore(Stores.ROS1_NOETIC)
 
     def _open_partial(self) -> None:
+        from rosbags.rosbag1 import Writer as Rosbag1Writer
+
         self._writer = Rosbag1Writer(self.partial_path)
         self._writer.open()
 
     def _ros1_store(self, msgtype: str, source: Typestore) -> Typestore:
+        from rosbags.convert.converter import is_same_wireformat
+
         if msgtype in self._noetic.fielddefs and is_same_wireformat(
             source, self._noetic, msgtype, msgtype
         ):
@@ -788,9 +797,10 @@ def open_writer(
         writer = McapLogWriter(target)
     elif chosen == LogFormat.ROS1:
         writer = Ros1LogWriter(target)
-    elif chosen == LogFormat.ROSBAG2:
-        writer = Rosbag2LogWriter(target, StoragePlugin.MCAP)
     else:
-        writer = Rosbag2LogWriter(target, StoragePlugin.SQLITE3)
+        from rosbags.rosbag2 import StoragePlugin
+
+        storage = StoragePlugin.MCAP if chosen == LogFormat.ROSBAG2 else StoragePlugin.SQLITE3
+        writer = Rosbag2LogWriter(target, storage)
     writer.threaded = threaded
     return writer
