@@ -1,0 +1,60 @@
+"""What the default densify job imports: start-up time is part of its speed.
+
+scipy.linalg costs ~0.3 s of start-up and rosbags' bag readers and writers ~65 ms; an MCAP
+job needs neither on its main thread. Each case runs in a fresh interpreter (this one has
+imported everything already).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+LOG = ROOT / "tests" / "data" / "golden_synth.mcap"
+
+ROSBAGS_BAGS = ("rosbags.highlevel", "rosbags.rosbag1", "rosbags.rosbag2", "rosbags.convert")
+
+
+def _modules_after(code: str) -> list[str]:
+    """Run ``code`` in a fresh interpreter; return the modules loaded at its end."""
+    script = f"{code}\nimport json, sys\nprint(json.dumps(sorted(sys.modules)))\n"
+    result = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, check=True, cwd=ROOT
+    )
+    modules: list[str] = json.loads(result.stdout.strip().splitlines()[-1])
+    return modules
+
+
+def _loaded(modules: list[str], prefixes: tuple[str, ...]) -> list[str]:
+    return [m for m in modules if any(m == p or m.startswith(p + ".") for p in prefixes)]
+
+
+def test_the_jobs_modules_import_no_scipy_nor_rosbags_bags() -> None:
+    modules = _modules_after(
+        "import pcainterp_stream.cli.app, pcainterp_stream.cli.densify, "
+        "pcainterp_stream.pipeline.densify, pcainterp_stream.pipeline.processor, "
+        "pcainterp_stream.estimate.solve"
+    )
+    assert "pcainterp_stream.pipeline.processor" in modules
+    assert _loaded(modules, ("scipy",)) == []
+    assert _loaded(modules, ROSBAGS_BAGS) == []
+
+
+def test_default_densify_of_an_mcap_imports_no_rosbags_bags(tmp_path: Path) -> None:
+    """The whole default job on an MCAP: no bag reader or writer, no scipy.interpolate.
+
+    (The fit check's triangulation still imports scipy.spatial, and with it scipy.linalg,
+    in the densify thread; the solve's LAPACK does not need it.)
+    """
+    out = tmp_path / "out.mcap"
+    modules = _modules_after(
+        "from pcainterp_stream.cli.app import main\n"
+        f"code = main(['densify', {str(LOG)!r}, '-o', {str(out)!r}])\n"
+        "assert code == 0, code\n"
+    )
+    assert out.is_file()
+    assert _loaded(modules, ROSBAGS_BAGS) == []
+    assert _loaded(modules, ("scipy.interpolate", "scipy.optimize")) == []
