@@ -247,7 +247,7 @@ def fill_nearest(
     """Fill the holes of a disparity map with the nearest valid pixel's value.
 
     The nearest valid pixel in the Euclidean sense (``scipy.ndimage.distance_transform_edt``
-    with ``return_indices``); the baseline "SGBM's own map, holes filled" of issue 18.
+    with ``return_indices``); the baseline "SGBM's own map, holes filled".
 
     Args:
         disparity: (H, W) float, disparity (px), NaN where invalid.

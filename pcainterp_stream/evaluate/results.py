@@ -33,7 +33,7 @@ TARGET_COVERAGE = (0.90, 0.98)
 """Target: the exact uncertainty's +-2 sigma coverage lies in this range."""
 
 TARGET_SGBM_NN_RATIO = 0.85
-"""Dense-mode target (issue 18): PCA-MAP's mean Delta_2D at most this times ``sgbm_nn``'s."""
+"""Dense-mode target: PCA-MAP's mean Delta_2D at most this times ``sgbm_nn``'s."""
 
 SGBM = "sgbm"
 """Stereo baseline: SGBM's own full-resolution map, scored where it has a value."""

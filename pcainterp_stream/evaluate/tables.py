@@ -124,7 +124,7 @@ def _targets(result: Evaluation) -> list[str]:
             result.stereo[SGBM].summary()["delta_2d_mean"], 1e-12
         )
         lines += [
-            f"- dense mode (issue 18): PCA-MAP / {SGBM_NN} mean Delta_2D = {filled:.2f} "
+            f"- dense mode: PCA-MAP / {SGBM_NN} mean Delta_2D = {filled:.2f} "
             f"(target <= {TARGET_SGBM_NN_RATIO}): "
             + ("met" if filled <= TARGET_SGBM_NN_RATIO else "missed")
             + f"; on SGBM's pixels PCA-MAP / {SGBM} = {on_sgbm:.2f} (target <= 1): "
@@ -135,7 +135,7 @@ def _targets(result: Evaluation) -> list[str]:
             c = stored.summary()
             holes, valid = c["coverage_2sigma_sgbm_holes"], c["coverage_2sigma_sgbm_valid"]
             lines.append(
-                f"- dense mode (issue 18): stored +-2 sigma coverage in SGBM holes "
+                f"- dense mode: stored +-2 sigma coverage in SGBM holes "
                 f"{_percent(holes)} ({_verdict(holes, low, high)}), where SGBM is valid "
                 f"{_percent(valid)} ({_verdict(valid, low, high)}); target "
                 f"{100 * low:.0f}-{100 * high:.0f} % each."

@@ -179,7 +179,7 @@ class SgbmConfig:
     at the corners are all within 1 px of ``SGBM`` mode's (mean difference 0.03 px).
     ``downscale=2`` takes ~15-25 ms; 98 % of its lookups are within 1 px of full
     resolution (mean difference 0.32 px), and the dense maps densified from them are as
-    good: ``densify`` matches at half resolution by default (``ProcessorConfig``, issue 17),
+    good: ``densify`` matches at half resolution by default (``ProcessorConfig``),
     while this default (full resolution) stays for ``learn`` and for ``evaluate``'s reference.
 
     Attributes:

@@ -1,4 +1,4 @@
-"""Synthetic KITTI-like stereo driving logs with ground truth (issue 3).
+"""Synthetic KITTI-like stereo driving logs with ground truth.
 
 A procedural street world (:mod:`.world`) is ray-cast (:mod:`.render`) from a stereo camera
 driving through it at 10 Hz. Each frame is a :class:`~pcainterp_stream.records.SynthFrame`:
