@@ -25,10 +25,8 @@ Example::
 
 from __future__ import annotations
 
-import os
 import re
 import tempfile
-import threading
 import time
 from collections import defaultdict
 from collections.abc import Callable
@@ -211,50 +209,15 @@ def writer(log: Path, work: Path, results: list[DensifiedFrame], total: int, rep
     return "\n".join(lines)
 
 
-class ThreadCpu:
-    """Samples each thread's CPU (user, system) in this process while a block runs (Linux).
-
-    A sample every ``period`` seconds and one at the end; a thread that ends between two
-    samples loses what it used since the last one.
-    """
-
-    def __init__(self, period: float = 0.1) -> None:
-        self.period = period
-        self.seconds: dict[int, tuple[float, float]] = {}
-        self.names: dict[int, str] = {}
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="cpu-sampler", daemon=True)
-        self._tick = os.sysconf("SC_CLK_TCK")
-
-    def _sample(self) -> None:
-        for thread in threading.enumerate():
-            if thread.native_id is not None:
-                self.names[thread.native_id] = thread.name
-        for tid in os.listdir("/proc/self/task"):
-            try:
-                stat = Path(f"/proc/self/task/{tid}/stat").read_text()
-            except OSError:  # the thread ended
-                continue
-            fields = stat.rsplit(")", 1)[1].split()
-            self.seconds[int(tid)] = (int(fields[11]) / self._tick, int(fields[12]) / self._tick)
-
-    def _run(self) -> None:
-        while not self._stop.wait(self.period):
-            self._sample()
-
-    def __enter__(self) -> ThreadCpu:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join()
-        self._sample()
+class ThreadCpu(harness.ThreadCpu):
+    """Each thread's CPU while the densify run runs, reported per frame by thread group."""
 
     def table(self, frames: int) -> str:
         """Return a Markdown table of user and system CPU ms per frame, by thread group."""
         groups: dict[str, list[float]] = defaultdict(lambda: [0.0, 0.0])
         for tid, (user, system) in self.seconds.items():
+            if self.own_thread(tid):
+                continue
             name = re.sub(r"[-_]?\d+$", "", self.names.get(tid, "unnamed (native)"))
             groups[name][0] += user
             groups[name][1] += system

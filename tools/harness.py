@@ -24,14 +24,16 @@ import argparse
 import contextlib
 import io
 import json
+import os
 import statistics
 import sys
+import threading
 import time
 import tracemalloc
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 REPO = Path(__file__).resolve().parents[1]
 """The repository's root folder."""
@@ -357,6 +359,53 @@ def peak_rss_mb() -> float:
 
 
 # ----------------------------------------------------------------------------- output
+
+
+class ThreadCpu:
+    """Samples each thread's CPU seconds (user, system) in this process while a block runs.
+
+    Read from ``/proc/self/task`` (Linux) every ``period`` seconds and once at the end, with
+    the Python name of each thread (``names``; native threads have none). A thread that ends
+    between two samples keeps its last sample. Subclasses extend :meth:`_sample` to record
+    the samples over time.
+    """
+
+    def __init__(self, period: float = 0.1) -> None:
+        self.period = period
+        self.seconds: dict[int, tuple[float, float]] = {}
+        self.names: dict[int, str] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="cpu-sampler", daemon=True)
+        self._tick = os.sysconf("SC_CLK_TCK")
+
+    def own_thread(self, native_id: int) -> bool:
+        """Whether ``native_id`` is the sampler's own thread (left out of reports)."""
+        return native_id == self._thread.native_id
+
+    def _sample(self) -> None:
+        for thread in threading.enumerate():
+            if thread.native_id is not None:
+                self.names.setdefault(thread.native_id, thread.name)
+        for tid in os.listdir("/proc/self/task"):
+            try:
+                stat = Path(f"/proc/self/task/{tid}/stat").read_text()
+            except OSError:  # the thread ended meanwhile: its last sample stands
+                continue
+            fields = stat.rsplit(")", 1)[1].split()
+            self.seconds[int(tid)] = (int(fields[11]) / self._tick, int(fields[12]) / self._tick)
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period):
+            self._sample()
+
+    def __enter__(self) -> Self:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+        self._sample()
 
 
 def table_row(cells: Iterable[object]) -> str:

@@ -26,7 +26,6 @@ import argparse
 import contextlib
 import cProfile
 import io
-import os
 import pstats
 import sys
 import tempfile
@@ -37,6 +36,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import harness
+
 from pcainterp_stream.cli import app
 from pcainterp_stream.frontend import stereo
 from pcainterp_stream.pipeline import processor
@@ -45,47 +46,19 @@ GROUPS = ("MainThread", "stereo", "densify", "encode", "log-writer")
 """Thread-name prefixes reported as one column each; other threads go to "other"."""
 
 
-class Sampler:
-    """Samples the CPU seconds of every thread of this process, in a thread of its own."""
+class Sampler(harness.ThreadCpu):
+    """The CPU seconds of each group of threads, sampled over time in a thread of its own."""
 
     def __init__(self, interval: float) -> None:
-        self.interval = interval
+        super().__init__(interval)
         self.samples: list[tuple[float, dict[str, float]]] = []
-        self._names: dict[int, str] = {}
-        self._seconds: dict[int, float] = {}
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="sampler", daemon=True)
-        self._tick = os.sysconf("SC_CLK_TCK")
-
-    def __enter__(self) -> Sampler:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join()
-        self._sample()
-
-    def _run(self) -> None:
-        while not self._stop.wait(self.interval):
-            self._sample()
 
     def _sample(self) -> None:
-        for thread in threading.enumerate():
-            if thread.native_id is not None:
-                self._names.setdefault(thread.native_id, thread.name)
-        for tid in os.listdir("/proc/self/task"):
-            try:
-                with open(f"/proc/self/task/{tid}/stat") as stat:
-                    fields = stat.read().rsplit(")", 1)[1].split()
-            except OSError:  # the thread ended meanwhile: its last sample stands
-                continue
-            self._seconds[int(tid)] = (int(fields[11]) + int(fields[12])) / self._tick
+        super()._sample()
         cpu: dict[str, float] = defaultdict(float)
-        for native_id, seconds in self._seconds.items():  # ended threads included
-            name = self._names.get(native_id, "other")
-            if name != "sampler":
-                cpu[_group(name)] += seconds
+        for native_id, (user, system) in self.seconds.items():  # ended threads included
+            if not self.own_thread(native_id):
+                cpu[_group(self.names.get(native_id, "other"))] += user + system
         self.samples.append((time.perf_counter(), dict(cpu)))
 
     def table(self, start: float) -> str:
