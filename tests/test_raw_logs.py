@@ -203,13 +203,16 @@ def test_raw_drive_is_as_accurate_as_the_rectified_one(tmp_path: Path, model: st
 
 
 @pytest.mark.skipif(not KITTI.is_dir(), reason="../shared/realdata/kitti_raw is absent")
-def test_kitti_recorded_raw_gives_the_rectified_drives_result(tmp_path: Path) -> None:
+def test_kitti_recorded_raw_gives_the_rectified_drives_result(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """KITTI's rectified drive turned back into raw images with its own calibration."""
     import importlib.util
 
+    tools = Path(__file__).resolve().parents[1] / "tools"
+    monkeypatch.syspath_prepend(str(tools))  # the tool imports its neighbours, as tools/ does
     spec = importlib.util.spec_from_file_location(
-        "kitti_raw_roundtrip",
-        Path(__file__).resolve().parents[1] / "tools" / "kitti_raw_roundtrip.py",
+        "kitti_raw_roundtrip", tools / "kitti_raw_roundtrip.py"
     )
     assert spec is not None
     assert spec.loader is not None

@@ -28,7 +28,7 @@ import numpy.typing as npt
 
 from pcainterp_stream.frontend.rectify import CameraCalibration, StereoCalibration, StereoRectifier
 from pcainterp_stream.io.calibration import kitti_calibration
-from pcainterp_stream.io.kitti import import_kitti, iter_frames, open_kitti, read_grey
+from pcainterp_stream.io.kitti import import_kitti, iter_frames, open_kitti
 from pcainterp_stream.io.logwriter import open_writer
 from pcainterp_stream.io.raw_log import Unrectifier, raw_stereo_messages
 from pcainterp_stream.records import StereoCamera
@@ -165,29 +165,14 @@ def lidar_check(annotated: Path, calib_cam_to_cam: Path, tmp: Path) -> dict[str,
     R_rect at S's size, with the sequence's own P), as a raw log; both are densified with no
     options and scored against ``image_depth_annotated`` (depth = value / 256 m).
     """
-    import cv2
+    from dense_truth import read_annotated
 
     from pcainterp_stream.io.stereo_log import stereo_messages
 
-    values: dict[str, npt.NDArray[np.float64]] = {}
-    for line in (annotated / "calib.txt").read_text().splitlines():
-        key, _, text = line.partition(":")
-        values[key.strip()] = np.array([float(v) for v in text.split()])
-    p2, p3 = values["P2"].reshape(3, 4), values["P3"].reshape(3, 4)
-    names = sorted(p.name for p in (annotated / "image_2").glob("*.png"))
-    lefts = [read_grey(annotated / "image_2" / n) for n in names]
-    rights = [read_grey(annotated / "image_3" / n) for n in names]
-    height, width = lefts[0].shape
-    fx = float(p2[0, 0])
-    camera = StereoCamera(
-        width,
-        height,
-        fx,
-        float(p2[1, 1]),
-        float(p2[0, 2]),
-        float(p2[1, 2]),
-        float((p2[0, 3] - p3[0, 3]) / fx),
-    )
+    frames = read_annotated(annotated)
+    camera = frames.camera
+    assert isinstance(camera, StereoCamera)
+    height, width = camera.height, camera.width
     # The drive's lens (its distortion and rectifying rotations), with K fitted so that the
     # view both raw cameras share is this sequence's rectified image, as KITTI cut its
     # rectified images from that view: the raw images then hold what the rectified ones show.
@@ -196,7 +181,7 @@ def lidar_check(annotated: Path, calib_cam_to_cam: Path, tmp: Path) -> dict[str,
     unrectify = Unrectifier(calibration)
     rect_log, raw_log = tmp / "annotated_rect.mcap", tmp / "annotated_raw.mcap"
     with open_writer(rect_log, None) as rect_writer, open_writer(raw_log, None) as raw_writer:
-        for i, (left, right) in enumerate(zip(lefts, rights, strict=True)):
+        for i, (left, right) in enumerate(zip(frames.lefts, frames.rights, strict=True)):
             stamp = 1_000_000_000 + i * 100_000_000
             for topic, message in stereo_messages(stamp, left, right, camera):
                 rect_writer.add_message(topic, message, stamp)
@@ -205,19 +190,13 @@ def lidar_check(annotated: Path, calib_cam_to_cam: Path, tmp: Path) -> dict[str,
                 raw_writer.add_message(topic, message, stamp)
     errors: dict[str, list[npt.NDArray[np.float64]]] = {"rect": [], "raw": []}
     rect_maps, raw_maps = _maps(rect_log), _maps(raw_log)
-    for name, rect, raw in zip(names, rect_maps, raw_maps, strict=True):
-        png = cv2.imread(str(annotated / "image_depth_annotated" / name), cv2.IMREAD_UNCHANGED)
-        if png is None:
-            raise SystemExit(f"error: cannot read {annotated / 'image_depth_annotated' / name}")
-        depth = np.asarray(png, dtype=np.float64) / 256.0
-        with np.errstate(divide="ignore"):
-            truth = np.where(depth > 0, camera.focal_baseline / depth, np.nan)
+    for truth, rect, raw in zip(frames.truths, rect_maps, raw_maps, strict=True):
         raw_part = raw[:height, :width]
         ok = np.isfinite(truth) & np.isfinite(rect) & np.isfinite(raw_part)
         errors["rect"].append(np.abs(rect - truth)[ok])
         errors["raw"].append(np.abs(raw_part - truth)[ok])
     figures = {
-        "lidar_frames": float(len(names)),
+        "lidar_frames": float(len(frames.names)),
         "lidar_pixels": float(sum(e.size for e in errors["rect"])),
         "lidar_error_rectified_px": float(np.mean(np.concatenate(errors["rect"]))),
         "lidar_error_raw_px": float(np.mean(np.concatenate(errors["raw"]))),
