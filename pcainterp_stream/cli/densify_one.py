@@ -9,13 +9,13 @@ several ways in and out: a file or standard input (``-``); an MCAP file, standar
 from __future__ import annotations
 
 import contextlib
-import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
 from pcainterp_stream.cli.common import echo
+from pcainterp_stream.interrupt import end_if_signalled
 from pcainterp_stream.io.foxglove import (
     INTERRUPTED_STOP_TIMEOUT_S,
     FoxgloveLive,
@@ -127,9 +127,7 @@ def densify_one(
                     # Nothing is left to write in this mode (no -o), and the SDK's threads
                     # can still be calling back into Python while the interpreter shuts
                     # down: end here, so that Ctrl-C always ends the process.
-                    sys.stdout.flush()
-                    sys.stderr.flush()
-                    os._exit(0)
+                    end_if_signalled(0)
     return 0
 
 

@@ -34,6 +34,7 @@ from mcap.reader import make_reader
 
 from pcainterp_stream import cli
 from pcainterp_stream.errors import StreamError
+from pcainterp_stream.interrupt import STALL_DUMP_VARIABLE
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.foxglove import SUBPROTOCOL, FoxgloveLive, LiveMessage, ServeAddress
 from pcainterp_stream.io.outputs import image_of
@@ -258,6 +259,8 @@ def test_without_output_it_serves_until_interrupted(synthetic_log: Path) -> None
     assert process.returncode == 0, err
     assert "foxglove: stopped" in out
     assert "Traceback" not in err
+    # it ended by itself: the stall-dump file armed for the watchdog is gone too
+    assert not (Path(os.environ[STALL_DUMP_VARIABLE]) / f"stall-{process.pid}.txt").exists()
     assert {topic: len(received.messages[topic]) for topic in OUTPUTS} == dict.fromkeys(
         OUTPUTS, FRAMES
     )
