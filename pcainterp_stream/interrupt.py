@@ -24,6 +24,7 @@ Outside :func:`stop_on_signals` (library use) :func:`track_partial` only records
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import faulthandler
 import os
@@ -165,6 +166,7 @@ def _on_signal(signum: int, frame: FrameType | None) -> None:
             file=sys.stderr,
             flush=True,
         )
+    _disarm_stall_dump()
     os._exit(EXIT_INTERRUPTED)
 
 
@@ -272,6 +274,9 @@ def _stall_dump_opened() -> bool:
         _stall_dump.write(f"pcainterp {' '.join(sys.argv[1:])}\n")
         _stall_dump.flush()
         faulthandler.register(signal.SIGUSR1, file=_stall_dump, all_threads=True)
+        # however the command ends by itself (a return after a signal included), the file
+        # goes; only a kill after the dump leaves it
+        atexit.register(_disarm_stall_dump)
     return True
 
 
