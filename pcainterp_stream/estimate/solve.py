@@ -6,7 +6,11 @@ triangular-BLAS helpers they share.
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import os
+import threading
+from collections.abc import Iterator
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any, TypeVar
@@ -373,6 +377,10 @@ def _local_covariance(
     return covariance
 
 
+_LOADING = threading.Lock()
+"""Held while scipy.linalg loads (the environment variable is the process's)."""
+
+
 @functools.cache
 def triangular_lapack() -> Any:
     """Return scipy's LAPACK with its OpenBLAS held at one thread, or None.
@@ -384,7 +392,8 @@ def triangular_lapack() -> Any:
     library (only scipy's, found by its path) is limited to one thread, once per process.
     """
     try:
-        from scipy.linalg import lapack
+        with _LOADING, _one_thread_when_loaded():
+            from scipy.linalg import lapack
         from threadpoolctl import ThreadpoolController
     except ImportError:  # pragma: no cover - both are dependencies
         return None
@@ -395,6 +404,27 @@ def triangular_lapack() -> Any:
     for module in scipy_blas:
         module.set_num_threads(1)
     return lapack
+
+
+@contextlib.contextmanager
+def _one_thread_when_loaded() -> Iterator[None]:
+    """Let an OpenBLAS loaded inside come up with one thread (``OPENBLAS_NUM_THREADS=1``).
+
+    OpenBLAS reads the variable when it is loaded, so a library first loaded here never
+    starts a second thread. Limiting it after loading (threadpoolctl) held only when done
+    from the main thread: from the densify thread, where the job imports scipy.linalg
+    while the first pairs are matched, the solves ran on two spinning threads at ~5x the
+    CPU (measured). The variable is put back as it was.
+    """
+    previous = os.environ.get("OPENBLAS_NUM_THREADS")
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"
+    try:
+        yield
+    finally:
+        if previous is None:
+            os.environ.pop("OPENBLAS_NUM_THREADS", None)
+        else:
+            os.environ["OPENBLAS_NUM_THREADS"] = previous
 
 
 def _cholesky_inverse(system: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:

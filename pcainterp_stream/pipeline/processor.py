@@ -428,10 +428,6 @@ class FrameProcessor:
             initializer=_lower_priority,
             initargs=(self.config.worker_niceness,),
         )
-        if stereo and self.config.blas_threads is not None:
-            # scipy's own OpenBLAS (the solve's LAPACK) loaded now, so the limit below holds
-            # it too: set from the densify thread it went back to two threads (measured)
-            triangular_lapack()
         self._limits = _ThreadLimits(
             self.config.opencv_threads if stereo else None,
             self.config.blas_threads if stereo else None,
@@ -781,6 +777,8 @@ def _prepare(basis: Basis, uncertainty: str) -> None:
     basis.mean_flat  # noqa: B018
     if uncertainty not in ("none", "exact"):
         basis.variance_grid(_variance_stride(basis, None))
+    # scipy.linalg (~0.3 s to import) loads here, while the stereo workers match the first
+    # pairs, not in the job's start-up; its OpenBLAS comes up with one thread
     triangular_lapack()
     # the carried points' and the check's nearest-neighbour trees and the check's
     # triangulation (~0.1 s of CPU to import after scipy.linalg)

@@ -1,8 +1,8 @@
 """What the default densify job imports: start-up time is part of its speed.
 
-scipy.linalg costs ~0.3 s of start-up and rosbags' bag readers and writers ~65 ms; an MCAP
-job needs neither on its main thread. Each case runs in a fresh interpreter (this one has
-imported everything already).
+scipy.linalg costs ~0.3 s of start-up (it loads on the densify thread) and rosbags' bag
+readers and writers ~65 ms; an MCAP job needs neither on its main thread. Each case runs
+in a fresh interpreter (this one has imported everything already).
 """
 
 from __future__ import annotations
@@ -58,3 +58,39 @@ def test_default_densify_of_an_mcap_imports_no_rosbags_bags(tmp_path: Path) -> N
     assert out.is_file()
     assert _loaded(modules, ROSBAGS_BAGS) == []
     assert _loaded(modules, ("scipy.interpolate", "scipy.optimize")) == []
+
+
+def test_scipy_linalg_loads_on_the_densify_thread_with_one_blas_thread(tmp_path: Path) -> None:
+    """The main thread starts matching without waiting for scipy.linalg (~0.3 s).
+
+    The densify thread imports it while the first pairs are matched; its OpenBLAS comes up
+    with one thread (a second, spinning one cost ~5x the solve's CPU), and the process's
+    environment is left as it was.
+    """
+    out = tmp_path / "out.mcap"
+    code = (
+        "import importlib.abc, os, sys, threading\n"
+        "first = {}\n"
+        "class Spy(importlib.abc.MetaPathFinder):\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name == 'scipy.linalg':\n"
+        "            first.setdefault(name, threading.current_thread().name)\n"
+        "        return None\n"
+        "sys.meta_path.insert(0, Spy())\n"
+        "from pcainterp_stream.cli.app import main\n"
+        f"code = main(['densify', {str(LOG)!r}, '-o', {str(out)!r}])\n"
+        "assert code == 0, code\n"
+        "from threadpoolctl import threadpool_info\n"
+        "scipy_blas = [i for i in threadpool_info() if 'scipy.libs' in i['filepath']]\n"
+        "import json\n"
+        "print(json.dumps([first.get('scipy.linalg'), [i['num_threads'] for i in scipy_blas],"
+        " os.environ.get('OPENBLAS_NUM_THREADS')]))\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    )
+    thread, blas_threads, variable = json.loads(result.stdout.strip().splitlines()[-1])
+    assert thread.startswith("densify"), thread
+    assert blas_threads
+    assert set(blas_threads) == {1}
+    assert variable is None
