@@ -18,6 +18,7 @@ from typing import Any, TypeVar
 import numpy as np
 import numpy.typing as npt
 
+from pcainterp_stream.estimate.lapack import routines
 from pcainterp_stream.estimate.prior import (
     DOWNWEIGHTED_BELOW,
     LocalPrior,
@@ -440,6 +441,12 @@ def _cholesky_inverse(system: npt.NDArray[np.float64]) -> npt.NDArray[np.float64
     lapack = triangular_lapack()
     if lapack is None:  # pragma: no cover - scipy is a dependency
         return np.tril(np.linalg.inv(np.linalg.cholesky(system)))
+    unlocked = routines()
+    if unlocked is not None:  # the same routines with the GIL released
+        inverse, info = unlocked.cholesky_inverse(system)
+        if info != 0:
+            raise np.linalg.LinAlgError(f"matrix is not positive definite (dpotrf info {info})")
+        return inverse
     lower, info = lapack.dpotrf(system, lower=1, clean=1)
     if info != 0:
         raise np.linalg.LinAlgError(f"matrix is not positive definite (dpotrf info {info})")
@@ -459,6 +466,9 @@ def _lower_times(lower: npt.NDArray[_Float], matrix: npt.NDArray[_Float]) -> npt
         return lower @ matrix
     if triangular_lapack() is None:  # pragma: no cover - scipy is a dependency
         return lower @ matrix
+    unlocked = routines()
+    if unlocked is not None:  # the same routine with the GIL released
+        return unlocked.lower_times(lower, matrix)
     from scipy.linalg import blas
 
     trmm = blas.strmm if matrix.dtype == np.float32 else blas.dtrmm

@@ -272,6 +272,29 @@ def test_close_mid_stream_does_not_hang_and_restores_threads(
     assert not [t for t in threading.enumerate() if t.name.startswith("stereo")]
 
 
+def test_thread_limits_hold_until_the_last_open_processor_closes(basis: Basis) -> None:
+    """Jobs in the threads of one process share the limits: the first closing keeps them."""
+    from threadpoolctl import threadpool_info
+
+    def numpy_blas() -> set[int]:
+        return {i["num_threads"] for i in threadpool_info() if "numpy" in i["filepath"]}
+
+    cv_before, blas_before = cv2.getNumThreads(), numpy_blas()
+    config = ProcessorConfig(sgbm=SGBM, opencv_threads=1, blas_threads=1)
+    first = FrameProcessor(basis, config)
+    second = FrameProcessor(basis, config)
+    assert cv2.getNumThreads() == 1
+    assert numpy_blas() == {1}
+    first.close()
+    assert cv2.getNumThreads() == 1
+    assert numpy_blas() == {1}
+    first.close()  # twice: still counted once
+    assert numpy_blas() == {1}
+    second.close()
+    assert cv2.getNumThreads() == cv_before
+    assert numpy_blas() == blas_before
+
+
 def test_bad_config_raises() -> None:
     with pytest.raises(ValueError, match="batch_size must be >= 1, got 0"):
         ProcessorConfig(batch_size=0)

@@ -8,6 +8,7 @@ in a fresh interpreter (this one has imported everything already).
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -86,8 +87,15 @@ def test_scipy_linalg_loads_on_the_densify_thread_with_one_blas_thread(tmp_path:
         "print(json.dumps([first.get('scipy.linalg'), [i['num_threads'] for i in scipy_blas],"
         " os.environ.get('OPENBLAS_NUM_THREADS')]))\n"
     )
+    # as a shell starts it: dask.distributed, imported by other tests, sets the variable
+    environment = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
     result = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=ROOT,
+        env=environment,
     )
     thread, blas_threads, variable = json.loads(result.stdout.strip().splitlines()[-1])
     assert thread.startswith("densify"), thread

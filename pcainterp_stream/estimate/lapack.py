@@ -1,0 +1,148 @@
+"""The solve's few LAPACK/BLAS routines, called through scipy's Cython interfaces.
+
+The estimator factorises with ``dpotrf``, inverts the factor with ``dtrtri`` and multiplies
+by it with ``?trmm``: routines numpy does not expose. ``scipy.linalg.lapack`` and
+``scipy.linalg.blas`` wrap them for Python, converting and copying their arguments while
+holding the GIL; sampled with ``py-spy --gil``, a ``densify`` job's densify thread held the
+GIL at those calls for ~0.6 s of its ~3 s (the reading thread, the log writer and the
+encoders wait for it). Here the same routines are reached through the function pointers
+scipy publishes for Cython (``scipy.linalg.cython_lapack`` and ``cython_blas``) and called
+with :mod:`ctypes`, which releases the GIL around each call: the job's CPU fell ~4 % and
+its wall time ~5 % (docs/speed_levers.md). They are the very functions the Python wrappers
+call, in the same library, so the results are the same to the bit
+(``tests/estimate/test_lapack.py``).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+from typing import Any, TypeVar
+
+import numpy as np
+import numpy.typing as npt
+
+_Float = TypeVar("_Float", np.float32, np.float64)
+
+_P = ctypes.c_void_p
+
+
+def _pointer(capsules: dict[str, Any], name: str, arguments: int) -> Any:
+    """Return a ctypes function for the Cython-exported routine ``name`` (all by pointer)."""
+    capsule = capsules[name]
+    get_name = ctypes.pythonapi.PyCapsule_GetName
+    get_name.restype = ctypes.c_char_p
+    get_name.argtypes = [ctypes.py_object]
+    get_pointer = ctypes.pythonapi.PyCapsule_GetPointer
+    get_pointer.restype = ctypes.c_void_p
+    get_pointer.argtypes = [ctypes.py_object, ctypes.c_char_p]
+    address = get_pointer(capsule, get_name(capsule))
+    return ctypes.CFUNCTYPE(None, *([_P] * arguments))(address)
+
+
+class Routines:
+    """``dpotrf``, ``dtrtri``, ``dlaset`` and ``?trmm``, called with the GIL released."""
+
+    def __init__(self, lapack: dict[str, Any], blas: dict[str, Any]) -> None:
+        self._dpotrf = _pointer(lapack, "dpotrf", 5)
+        self._dtrtri = _pointer(lapack, "dtrtri", 6)
+        self._dlaset = _pointer(lapack, "dlaset", 7)
+        self._dtrmm = _pointer(blas, "dtrmm", 11)
+        self._strmm = _pointer(blas, "strmm", 11)
+
+    def cholesky_inverse(
+        self, system: npt.NDArray[np.float64]
+    ) -> tuple[npt.NDArray[np.float64], int]:
+        """Return (L^-1, info) for L L^T = ``system``; L^-1 lower, Fortran-ordered, 0 above.
+
+        ``info`` is ``dpotrf``'s (> 0: not positive definite; L^-1 is then meaningless).
+        The same values and memory order as ``scipy.linalg.lapack``'s ``dpotrf(system,
+        lower=1, clean=1)`` followed by ``dtrtri(lower, lower=1)``.
+        """
+        # symmetric: the C-ordered system read in Fortran order is the same matrix
+        work = np.array(system, dtype=np.float64, order="F", copy=True)
+        size = work.shape[0]
+        if size == 0:
+            return work, 0
+        n = ctypes.c_int(size)
+        info = ctypes.c_int(0)
+        data = _P(work.ctypes.data)
+        self._dpotrf(b"L", ctypes.byref(n), data, ctypes.byref(n), ctypes.byref(info))
+        if info.value != 0:
+            return work, int(info.value)
+        # dtrtri reads and writes the lower triangle only; the system's upper half is still
+        # above it, cleared afterwards as scipy's clean=1 clears it after dpotrf
+        self._dtrtri(b"L", b"N", ctypes.byref(n), data, ctypes.byref(n), ctypes.byref(info))
+        if size > 1:
+            # dlaset "U" on the block from column 1: its diagonal and above are exactly the
+            # strict upper triangle of the whole matrix
+            zero = ctypes.c_double(0.0)
+            block = ctypes.c_int(size - 1)
+            self._dlaset(
+                b"U",
+                ctypes.byref(block),
+                ctypes.byref(block),
+                ctypes.byref(zero),
+                ctypes.byref(zero),
+                _P(work.ctypes.data + size * work.itemsize),
+                ctypes.byref(n),
+            )
+        return work, int(info.value)
+
+    def lower_times(
+        self, lower: npt.NDArray[_Float], matrix: npt.NDArray[_Float]
+    ) -> npt.NDArray[_Float]:
+        """Return ``lower @ matrix`` (C-ordered) for a lower-triangular ``lower`` (``?trmm``).
+
+        BLAS is column-major: the C-ordered ``matrix`` is its transpose there, so the call
+        computes matrix^T lower^T (right side, transposed triangle) in a copy of it, as
+        ``scipy.linalg.blas``'s ``trmm(1, lower, matrix.T, lower=1, side=1, trans_a=1)``.
+        """
+        single = matrix.dtype == np.float32
+        dtype = np.float32 if single else np.float64
+        triangle = np.asarray(lower, dtype=dtype, order="F")
+        # the product's transpose, column-major: a C-ordered copy of matrix is exactly that
+        product: npt.NDArray[_Float] = np.array(matrix, dtype=dtype, order="C", copy=True)
+        rows, inner = product.shape
+        if rows == 0 or inner == 0:
+            return product
+        m = ctypes.c_int(inner)  # rows of matrix^T
+        n = ctypes.c_int(rows)  # its columns
+        lda = ctypes.c_int(triangle.shape[0])
+        alpha: ctypes.c_float | ctypes.c_double = (
+            ctypes.c_float(1.0) if single else ctypes.c_double(1.0)
+        )
+        function = self._strmm if single else self._dtrmm
+        function(
+            b"R",
+            b"L",
+            b"T",
+            b"N",
+            ctypes.byref(m),
+            ctypes.byref(n),
+            ctypes.byref(alpha),
+            _P(triangle.ctypes.data),
+            ctypes.byref(lda),
+            _P(product.ctypes.data),
+            ctypes.byref(m),
+        )
+        return product
+
+
+@functools.cache
+def routines() -> Routines | None:
+    """Return the routines of scipy's LAPACK and BLAS; None when they cannot be reached.
+
+    Imports ``scipy.linalg`` (its Cython interfaces). None for a scipy whose Cython
+    interfaces lack one of them or a Python without ``ctypes.pythonapi``: the callers then
+    use ``scipy.linalg.lapack`` and ``scipy.linalg.blas`` as they are.
+    """
+    try:
+        from scipy.linalg import cython_blas, cython_lapack
+
+        return Routines(
+            cython_lapack.__pyx_capi__,
+            cython_blas.__pyx_capi__,
+        )
+    except (ImportError, AttributeError, KeyError, ValueError):  # pragma: no cover
+        return None
