@@ -5,7 +5,9 @@ Each round runs, in fresh processes and in this order: full-resolution SGBM alon
 before the change (``--before``: a folder holding its ``pcainterp_stream`` package, put
 first on ``PYTHONPATH``), and the same command with the code installed here. Per round it
 prints the wall time and the CPU (user + system, start-up included) of each, CPU per frame,
-the job's CPU against SGBM alone's, and the output's MB per frame; then the medians.
+the job's CPU against SGBM alone's, and the output's MB per frame; then the medians. Both
+packages are compiled to bytecode first, as an installed copy is
+(:func:`harness.compile_bytecode`).
 
 On a shared machine the wall times are the load's; the CPU figures, paired within a round,
 are the measure.
@@ -28,6 +30,7 @@ from pathlib import Path
 
 import harness
 
+import pcainterp_stream
 from pcainterp_stream.io.logreader import open_log
 
 
@@ -80,6 +83,9 @@ def main(argv: list[str] | None = None) -> int:
     densify = [sys.executable, "-m", "pcainterp_stream.cli", "densify", str(log)]
     densify += ["-o", str(output)]
     old_env = {**os.environ, "PYTHONPATH": str(args.before.resolve())}
+    harness.compile_bytecode(
+        args.before.resolve() / "pcainterp_stream", Path(pcainterp_stream.__file__).parent
+    )
     print(f"{args.log}: {frames} frames\n")
     print(
         harness.table_header(

@@ -5,12 +5,15 @@ Runs ``pcainterp densify LOG -o OUT`` (the command's own code, any extra argumen
 
 - **threads over time**: every ``--interval`` seconds the CPU each group of threads used
   (cores: 1.00 is one core busy), read from ``/proc/self/task`` (Linux), grouped by the
-  Python thread names (main, stereo workers, densify, encoders, log writer): a core left
-  idle, or one thread holding the others up, shows as a row whose total is below 2;
+  Python thread names (main, stereo workers, densify, estimate pool, encoders, log
+  writer): a core left idle, or one thread holding the others up, shows as a row whose
+  total is below 2;
 - **stages**: thread CPU ms per frame of the front end's stages (SGBM, GFTT, the lattice,
-  the lookups, the odometry) and of the densify thread (the fit check, the batches);
-- with ``--profile N``: the densify thread's N most expensive functions (cProfile on thread
-  CPU time, not wall time, so a loaded machine does not inflate them).
+  the lookups, the odometry), of the densify thread (the fit check, the carried points)
+  and of the estimate pool (the batches);
+- with ``--profile N``: the densify thread's and estimate pool's N most expensive functions
+  (one batch at a time while profiled; cProfile on thread CPU time, not wall time, so a
+  loaded machine does not inflate them).
 
 Timings on a loaded machine are CPU, not wall: they add up per frame whatever the load.
 
@@ -42,7 +45,7 @@ from pcainterp_stream.cli import app
 from pcainterp_stream.frontend import stereo
 from pcainterp_stream.pipeline import processor
 
-GROUPS = ("MainThread", "stereo", "densify", "encode", "log-writer")
+GROUPS = ("MainThread", "stereo", "densify", "estimate", "encode", "log-writer")
 """Thread-name prefixes reported as one column each; other threads go to "other"."""
 
 
@@ -119,7 +122,8 @@ STAGES: list[tuple[Any, str, str]] = [
     (processor, "estimate_motion", "  odometry"),
     (processor, "_prepare", "densify thread: set-up"),
     (processor.FrameProcessor, "_warm_up", "densify thread: fit check"),
-    (processor.FrameProcessor, "_densify", "densify thread: batches"),
+    (processor.FrameProcessor, "_measurements", "densify thread: carried points"),
+    (processor.FrameProcessor, "_estimate", "estimate pool: batches"),
     (processor, "densify_batch", "  of which densify_batch"),
 ]
 """(owner, attribute, label) of each function timed."""
@@ -130,22 +134,32 @@ def instrumented(timers: StageTimers, profile: cProfile.Profile | None) -> Itera
     """Wrap the stages' timers (and the densify thread's profiler) around the job."""
     saved = [(owner, name, getattr(owner, name)) for owner, name, _ in STAGES]
     batch = processor.FrameProcessor._densify_batch
+    estimate = processor.FrameProcessor._estimate
+    one_at_a_time = threading.Lock()  # one profiler: the estimate pool runs one batch at once
     try:
         for owner, name, label in STAGES:
             setattr(owner, name, timers.wrap(label, getattr(owner, name)))
         if profile is not None:
 
-            def profiled(self: processor.FrameProcessor, *args: Any) -> Any:
-                profile.enable()
-                try:
-                    return batch(self, *args)
-                finally:
-                    profile.disable()
+            def profiled(function: Any) -> Any:
+                def run(self: processor.FrameProcessor, *args: Any) -> Any:
+                    with one_at_a_time:
+                        profile.enable()
+                        try:
+                            return function(self, *args)
+                        finally:
+                            profile.disable()
 
-            setattr(processor.FrameProcessor, "_densify_batch", profiled)  # noqa: B010
+                return run
+
+            setattr(processor.FrameProcessor, "_densify_batch", profiled(batch))  # noqa: B010
+            setattr(  # noqa: B010
+                processor.FrameProcessor, "_estimate", profiled(processor.FrameProcessor._estimate)
+            )
         yield
     finally:
         setattr(processor.FrameProcessor, "_densify_batch", batch)  # noqa: B010
+        setattr(processor.FrameProcessor, "_estimate", estimate)  # noqa: B010
         for owner, name, original in saved:
             setattr(owner, name, original)
 
@@ -180,7 +194,8 @@ def main(argv: list[str] | None = None) -> int:
     if profile is not None:
         text = io.StringIO()
         pstats.Stats(profile, stream=text).sort_stats("tottime").print_stats(args.profile)
-        print("\nThe densify thread, by function (thread CPU s):\n" + text.getvalue())
+        title = "The densify thread and estimate pool, by function (thread CPU s)"
+        print(f"\n{title}:\n" + text.getvalue())
     return status
 
 

@@ -16,13 +16,16 @@ running SGBM threads spins and is several times slower. Both settings are proces
 processor restores the previous values in :meth:`FrameProcessor.close`.
 
 The threads of a ``densify`` job, all of them (docs/benchmarks.md "Throughput" and "The
-densify thread and a lean SGBM-alone reference"): the calling thread (read, pair, hand frames on);
-this processor's ``stereo_workers`` threads running GFTT, SGBM, the lookups and the
-odometry of the carried points; its ``densify`` thread (the fit check, the sequential
-solves, the images, in stream order: the temporal prior, the carried points and the
-adaptation are state that moves frame by frame); the job's two encoder threads building
-the output messages; and the log writer's own thread (``open_writer(..., threaded=True)``:
-CDR serialization, MCAP chunks, zstd, file writes), fed through a bounded queue. Memory is
+densify thread and a lean SGBM-alone reference"; docs/speed_levers.md): the calling thread
+(read, pair, hand frames on); this processor's ``stereo_workers`` threads running GFTT,
+SGBM, the lookups and the odometry of the carried points; its ``densify`` thread, in
+stream order (the set-up with scipy's imports, the fit check, the carried points and the
+adaptation: state that moves frame by frame), handing each batch with its final
+measurements to the ``estimate_workers`` threads (the solves, the std, the images; several
+batches at once, unless the temporal prior carries a state from frame to frame, when the
+densify thread estimates in turn); the job's two encoder threads building the output
+messages; and the log writer's own thread (``open_writer(..., threaded=True)``: CDR
+serialization, MCAP chunks, zstd, file writes), fed through a bounded queue. Memory is
 bounded by the look-ahead and the densify queue here and by the encoders' and writer's
 queues there.
 """
@@ -137,6 +140,10 @@ class ProcessorConfig:
         lookahead: frames queued for stereo matching ahead of densification; at least
             ``stereo_workers`` keeps every worker busy.
         stereo_workers: threads running the stereo front end (each has its own matcher).
+        estimate_workers: threads estimating batches whose measurements are final (the
+            solves, the std, the images), several batches at once; without the temporal
+            prior no state runs from one batch's estimate to the next, so the results do
+            not depend on it.
         opencv_threads: ``cv2.setNumThreads`` while the processor is open (stereo source
             only); None leaves OpenCV's setting alone.
         blas_threads: BLAS threads while the processor is open (stereo source only, via
@@ -186,6 +193,7 @@ class ProcessorConfig:
     batch_size: int = 4
     lookahead: int = 4
     stereo_workers: int = 2
+    estimate_workers: int = 2
     opencv_threads: int | None = 1
     blas_threads: int | None = 1
     worker_niceness: int = 0
@@ -213,6 +221,8 @@ class ProcessorConfig:
             raise ValueError(f"lookahead must be >= 0, got {self.lookahead}")
         if self.stereo_workers < 1:
             raise ValueError(f"stereo_workers must be >= 1, got {self.stereo_workers}")
+        if self.estimate_workers < 1:
+            raise ValueError(f"estimate_workers must be >= 1, got {self.estimate_workers}")
         for name in ("opencv_threads", "blas_threads"):
             value = getattr(self, name)
             if value is not None and value < 1:
@@ -460,7 +470,12 @@ class FrameProcessor:
         # (temporal prior, carried points, adaptation), runs batch after batch in a thread
         # of its own, so the calling thread keeps reading and feeding the stereo workers
         self._lane = ThreadPoolExecutor(max_workers=1, thread_name_prefix="densify")
-        self._densifying: deque[tuple[int, Future[list[DensifiedFrame]]]] = deque()
+        # each batch's estimate (solves, std, images) once its measurements are final: in
+        # a pool, several batches at once, when no state runs from frame to frame
+        self._estimators = ThreadPoolExecutor(
+            max_workers=self.config.estimate_workers, thread_name_prefix="estimate"
+        )
+        self._densifying: deque[tuple[int, Future[Future[list[DensifiedFrame]]]]] = deque()
         self._densified_any = False
         self.frames_done = 0
         self.settings = resolve_settings(basis, self.config)
@@ -547,6 +562,7 @@ class FrameProcessor:
         self._densifying.clear()
         self._executor.shutdown(wait=wait, cancel_futures=True)
         self._lane.shutdown(wait=wait, cancel_futures=True)
+        self._estimators.shutdown(wait=wait, cancel_futures=True)
         self._limits.restore()
 
     def _measure(
@@ -654,15 +670,23 @@ class FrameProcessor:
         """
         results: list[DensifiedFrame] = []
         queued = sum(count for count, _ in self._densifying)
-        while self._densifying and (queued > keep or self._densifying[0][1].done()):
+        while self._densifying and (queued > keep or _done(self._densifying[0][1])):
             count, future = self._densifying.popleft()
-            results += future.result()
+            batch = future.result().result()
+            results += batch
+            self.frames_done += len(batch)
             queued -= count
             self._densified_any = True
         return results
 
-    def _densify_batch(self, ready: list[_Measured], warming: bool) -> list[DensifiedFrame]:
-        """Densify one batch in the densify thread (after the fit check on the first)."""
+    def _densify_batch(
+        self, ready: list[_Measured], warming: bool
+    ) -> Future[list[DensifiedFrame]]:
+        """Densify one batch from the densify thread (after the fit check on the first).
+
+        Returns the future of its frames: the estimate runs in the estimate pool when no
+        state runs from frame to frame, else here.
+        """
         if warming and self.adaptation.warming:
             ready = self._warm_up(ready)
         return self._densify_ready(ready)
@@ -695,11 +719,14 @@ class FrameProcessor:
         for batch in self.finish_batches():
             yield from batch
 
-    def _densify_ready(self, ready: list[_Measured]) -> list[DensifiedFrame]:
+    def _densify_ready(self, ready: list[_Measured]) -> Future[list[DensifiedFrame]]:
         if not ready:
-            return []
+            return _finished([])
         if not self.adaptation.adapted:
-            return self._densify(ready)
+            jobs = self._measurements(ready)
+            if self.temporal is None:  # frames independent once carried: in the pool
+                return self._estimators.submit(self._estimate_all, jobs)
+            return _finished(self._estimate_all(jobs))
         # the log's own basis: a frame whose map completes a relearning is densified with the
         # basis of the frames before it, the next frames with the relearned one, so what a
         # frame gets never depends on how frames were batched
@@ -708,15 +735,19 @@ class FrameProcessor:
         for index, item in enumerate(ready):
             relearned = self.adaptation.update([_adapt_frame(item)], self.basis)
             if relearned is not None:
-                results += self._densify(ready[start : index + 1])
+                results += self._estimate_all(self._measurements(ready[start : index + 1]))
                 start = index + 1
                 self._use(relearned)
-        return results + self._densify(ready[start:])
+        return _finished(results + self._estimate_all(self._measurements(ready[start:])))
 
-    def _densify(self, ready: list[_Measured]) -> list[DensifiedFrame]:
-        if not ready:
-            return []
-        results: list[DensifiedFrame] = []
+    def _measurements(self, ready: list[_Measured]) -> list[_Estimate]:
+        """Return each camera's group of ``ready`` with its final measurements (in order).
+
+        The carried points move from frame to frame, so they are added here, in stream
+        order, with the basis and settings of this moment; what is left of each group
+        (:meth:`_estimate`) depends on nothing else.
+        """
+        jobs: list[_Estimate] = []
         # Frames of one camera are densified together; a camera change splits the batch.
         start = 0
         while start < len(ready):
@@ -738,24 +769,44 @@ class FrameProcessor:
                     )
                     noise_stds.append(noise)
                     item.counts["carry_reset"] = self.carried.resets - resets
-            estimates = densify_batch(
-                self.basis,
-                pixels,
-                disparities,
-                uncertainty=self.config.uncertainty,
-                image_size=camera.image_size,
-                focal_baseline=camera.focal_baseline,
-                robust=self.config.robust,
-                temporal=self.temporal,
-                noise_stds=noise_stds,
-                with_depth=not self.dense,  # dense mode converts the fused disparity
-                **self.settings.densify_options(),
+            jobs.append(
+                _Estimate(
+                    group,
+                    pixels,
+                    disparities,
+                    noise_stds,
+                    carried,
+                    self.basis,
+                    self.settings.densify_options(),
+                    self.temporal,
+                )
             )
-            for item, estimate, n_carried in zip(group, estimates, carried, strict=True):
-                results.append(self._result(item, estimate, n_carried))
             start = stop
-        self.frames_done += len(results)
-        return results
+        return jobs
+
+    def _estimate_all(self, jobs: list[_Estimate]) -> list[DensifiedFrame]:
+        return [result for job in jobs for result in self._estimate(job)]
+
+    def _estimate(self, job: _Estimate) -> list[DensifiedFrame]:
+        """Estimate one camera's group of frames from its final measurements."""
+        camera = job.group[0].frame.camera
+        estimates = densify_batch(
+            job.basis,
+            job.pixels,
+            job.disparities,
+            uncertainty=self.config.uncertainty,
+            image_size=camera.image_size,
+            focal_baseline=camera.focal_baseline,
+            robust=self.config.robust,
+            temporal=job.temporal,
+            noise_stds=job.noise_stds,
+            with_depth=not self.dense,  # dense mode converts the fused disparity
+            **job.options,
+        )
+        return [
+            self._result(item, estimate, n_carried)
+            for item, estimate, n_carried in zip(job.group, estimates, job.carried, strict=True)
+        ]
 
     def _result(self, item: _Measured, estimate: DensifyResult, n_carried: int) -> DensifiedFrame:
         counts = dict(item.counts)
@@ -779,6 +830,31 @@ class FrameProcessor:
             counts=counts,
             min_disparity=estimate.min_disparity,
         )
+
+
+class _Estimate(NamedTuple):
+    """One camera's group of a batch with its final measurements, ready to estimate."""
+
+    group: list[_Measured]
+    pixels: list[npt.NDArray[Any]]
+    disparities: list[npt.NDArray[Any]]
+    noise_stds: list[npt.NDArray[Any] | None] | None
+    carried: list[int]
+    basis: Basis
+    options: dict[str, Any]
+    temporal: TemporalPrior | None
+
+
+def _finished(results: list[DensifiedFrame]) -> Future[list[DensifiedFrame]]:
+    """Return a future already holding ``results`` (an estimate made on the densify thread)."""
+    future: Future[list[DensifiedFrame]] = Future()
+    future.set_result(results)
+    return future
+
+
+def _done(future: Future[Future[list[DensifiedFrame]]]) -> bool:
+    """Tell whether a batch handed to the densify thread is estimated (both steps done)."""
+    return future.done() and (future.exception() is not None or future.result().done())
 
 
 def _candidate(kind: str, config: ProcessorConfig) -> Candidate:

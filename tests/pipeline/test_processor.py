@@ -163,6 +163,23 @@ def test_batch_equals_one_by_one(basis: Basis, frames: list[StereoFrame]) -> Non
         assert np.isfinite(one.disparity_std).all()
 
 
+@pytest.mark.parametrize("temporal", [False, True])
+def test_the_estimate_pool_changes_no_bit(
+    basis: Basis, frames: list[StereoFrame], temporal: bool
+) -> None:
+    """Batches estimated several at once (or, with the temporal prior, in turn) come out
+    in order and bit for bit as from one estimating thread."""
+    options: dict[str, Any] = {"batch_size": 1, "lookahead": 4, "temporal": temporal}
+    pooled = run(basis, frames * 2, estimate_workers=3, **options)
+    alone = run(basis, frames * 2, estimate_workers=1, **options)
+    assert [r.frame.index for r in pooled] == [f.index for f in frames * 2]
+    for one, other in zip(pooled, alone, strict=True):
+        np.testing.assert_array_equal(one.disparity, other.disparity)
+        np.testing.assert_array_equal(one.disparity_std, other.disparity_std)
+        np.testing.assert_array_equal(one.depth, other.depth)
+        assert one.counts == other.counts
+
+
 def test_results_match_the_estimator(basis: Basis, frames: list[StereoFrame]) -> None:
     result = run(basis, frames[:1])[0]
     # the processor's default estimate: the basis has no fitted prior, so the paper's prior
@@ -302,6 +319,8 @@ def test_bad_config_raises() -> None:
         ProcessorConfig(lookahead=-1)
     with pytest.raises(ValueError, match="stereo_workers must be >= 1, got 0"):
         ProcessorConfig(stereo_workers=0)
+    with pytest.raises(ValueError, match="estimate_workers must be >= 1, got 0"):
+        ProcessorConfig(estimate_workers=0)
     with pytest.raises(ValueError, match="blas_threads must be >= 1 or None, got 0"):
         ProcessorConfig(blas_threads=0)
 
