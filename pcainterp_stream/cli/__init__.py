@@ -8,6 +8,6 @@ Dask) and ``pairing`` (topics, rectification, calibration). This is the only lay
 speaks of flags: the jobs in :mod:`pcainterp_stream.pipeline` take typed configs.
 """
 
-from pcainterp_stream.cli.app import COMMANDS, build_parser, main, run
+from pcainterp_stream.cli.app import COMMANDS, build_parser, console, main, run
 
-__all__ = ["COMMANDS", "build_parser", "main", "run"]
+__all__ = ["COMMANDS", "build_parser", "console", "main", "run"]

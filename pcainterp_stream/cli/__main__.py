@@ -2,6 +2,6 @@
 
 import sys
 
-from pcainterp_stream.cli.app import main
+from pcainterp_stream.cli.app import console
 
-sys.exit(main())
+sys.exit(console())

@@ -14,7 +14,17 @@ import sys
 from collections.abc import Callable, Sequence
 from types import ModuleType
 
-from pcainterp_stream.cli import demo, densify, evaluate, golden, import_kitti, info, learn, synth
+from pcainterp_stream.cli import (
+    common,
+    demo,
+    densify,
+    evaluate,
+    golden,
+    import_kitti,
+    info,
+    learn,
+    synth,
+)
 from pcainterp_stream.cli.common import PROG, formatter
 from pcainterp_stream.errors import PcaInterpError
 from pcainterp_stream.interrupt import (
@@ -99,6 +109,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         if isinstance(err, BrokenPipeError):
             return 1
         raise
+
+
+def console() -> int:
+    """Run the ``pcainterp`` program (its console script and ``python -m``).
+
+    :func:`main` for a process of its own: settings that are the process's, like freezing
+    the garbage collector's view of the imports (:func:`common.settle_heap`), apply only here.
+    """
+    common.OWN_PROCESS = True
+    return main()
 
 
 def _interrupted() -> int:

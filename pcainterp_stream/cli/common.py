@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import gc
 from typing import TYPE_CHECKING, Any, TypeAlias
 
 from pcainterp_stream.errors import PcaInterpError
@@ -21,6 +22,23 @@ PROG = "pcainterp"
 
 Commands: TypeAlias = "argparse._SubParsersAction[argparse.ArgumentParser]"
 """What ``ArgumentParser.add_subparsers`` returns: each command module adds its parser to it."""
+
+
+OWN_PROCESS = False
+"""True when the process is the ``pcainterp`` program itself (:func:`app.console`), not a
+caller running :func:`app.main` in its own program."""
+
+
+def settle_heap() -> None:
+    """Move what the imports made out of the garbage collector's sight (own process only).
+
+    The collector traverses every tracked object in its full collections and once more at
+    exit; the modules' tens of thousands of objects live as long as the program. Frozen
+    (:func:`gc.freeze`) after a job's imports, they are never traversed: ~0.05 s of a
+    KITTI densify job's collections and exit (measured). A caller's program is left as it is.
+    """
+    if OWN_PROCESS:
+        gc.freeze()
 
 
 def formatter(prog: str) -> argparse.HelpFormatter:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
-from pcainterp_stream.cli.common import echo
+from pcainterp_stream.cli.common import echo, settle_heap
 from pcainterp_stream.interrupt import end_if_signalled
 from pcainterp_stream.io.foxglove import (
     INTERRUPTED_STOP_TIMEOUT_S,
@@ -71,6 +71,7 @@ def densify_one(
     """
     from pcainterp_stream.pipeline.densify import densify
 
+    settle_heap()
     to_stdout = output == STREAM
     target: Path | IO[bytes] | None = sys.stdout.buffer if to_stdout else output
     reading: Path | IO[bytes] = sys.stdin.buffer if source == STREAM else source

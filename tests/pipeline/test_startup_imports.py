@@ -102,3 +102,28 @@ def test_scipy_linalg_loads_on_the_densify_thread_with_one_blas_thread(tmp_path:
     assert blas_threads
     assert set(blas_threads) == {1}
     assert variable is None
+
+
+def test_the_program_freezes_the_imports_for_the_collector_and_main_does_not(
+    tmp_path: Path,
+) -> None:
+    """``pcainterp`` (its own process) freezes the garbage collector's view of the imports;
+    :func:`cli.main` run inside a caller's program leaves the caller's collector alone."""
+    out = tmp_path / "out.mcap"
+    code = (
+        "import gc, sys\n"
+        "from pcainterp_stream.cli import app\n"
+        f"sys.argv = ['pcainterp', 'densify', {str(LOG)!r}, '-o', {str(out)!r}]\n"
+        "before = gc.get_freeze_count()\n"
+        "assert app.main(sys.argv[1:]) == 0\n"
+        "in_process = gc.get_freeze_count()\n"
+        f"sys.argv[-1] = {str(tmp_path / 'again.mcap')!r}\n"
+        "assert app.console() == 0\n"
+        "print(before, in_process, gc.get_freeze_count())\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    )
+    before, in_process, program = map(int, result.stdout.split()[-3:])
+    assert in_process == before == 0
+    assert program > 0
