@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from pcainterp_stream import compiled
 from pcainterp_stream.estimate import fitting
 from pcainterp_stream.estimate.basis import Basis, grid_size_for
 from pcainterp_stream.estimate.estimator import clean_measurements, densify
@@ -182,17 +183,16 @@ def interpolation_at(
     if values.size == 0:
         empty = np.full(flat.size, np.nan)
         return empty, empty
-    # imported here: scipy.spatial takes ~0.3 s to import, which a job's start-up would
-    # wait for; densify imports it beside the first stereo frames
-    from scipy.spatial import QhullError, cKDTree
-
-    _, nearest_index = cKDTree(points).query(at)
+    # scipy's k-d tree and Qhull without the rest of scipy.spatial (~0.2 s of imports),
+    # loaded on first use; densify loads them beside the first stereo frames
+    qhull = compiled.module("spatial._qhull")
+    _, nearest_index = compiled.module("spatial._ckdtree").cKDTree(points).query(at)
     nearest = values[nearest_index]
     linear = nearest.copy()
     if values.size >= 3:
         try:
             inside = _linear_at(points, values, at)
-        except QhullError:  # collinear points: nearest everywhere
+        except qhull.QhullError:  # collinear points: nearest everywhere
             inside = np.full(flat.size, np.nan)
         found = np.isfinite(inside)
         linear[found] = inside[found]
@@ -208,9 +208,7 @@ def _linear_at(
     triangulation, triangle search and barycentric sums in the same order), without
     importing ``scipy.interpolate`` (~0.15 s of CPU, most of it ``scipy.optimize``).
     """
-    from scipy.spatial import Delaunay
-
-    triangulation = Delaunay(points)
+    triangulation = compiled.module("spatial._qhull").Delaunay(points)
     simplex = triangulation.find_simplex(at)
     found = simplex >= 0
     which = simplex[found]

@@ -22,6 +22,8 @@ from typing import Any, TypeVar
 import numpy as np
 import numpy.typing as npt
 
+from pcainterp_stream import compiled
+
 _Float = TypeVar("_Float", np.float32, np.float64)
 
 _P = ctypes.c_void_p
@@ -133,16 +135,17 @@ class Routines:
 def routines() -> Routines | None:
     """Return the routines of scipy's LAPACK and BLAS; None when they cannot be reached.
 
-    Imports ``scipy.linalg`` (its Cython interfaces). None for a scipy whose Cython
-    interfaces lack one of them or a Python without ``ctypes.pythonapi``: the callers then
-    use ``scipy.linalg.lapack`` and ``scipy.linalg.blas`` as they are.
+    Loads scipy's Cython interfaces to them (:func:`pcainterp_stream.compiled.module`,
+    without the rest of ``scipy.linalg``), its OpenBLAS held at one thread. None for a
+    scipy whose interfaces lack one of them or a Python without ``ctypes.pythonapi``: the
+    callers then use ``scipy.linalg.lapack`` and ``scipy.linalg.blas`` as they are.
     """
     try:
-        from scipy.linalg import cython_blas, cython_lapack
-
-        return Routines(
-            cython_lapack.__pyx_capi__,
-            cython_blas.__pyx_capi__,
+        found = Routines(
+            compiled.module("linalg.cython_lapack").__pyx_capi__,
+            compiled.module("linalg.cython_blas").__pyx_capi__,
         )
     except (ImportError, AttributeError, KeyError, ValueError):  # pragma: no cover
         return None
+    compiled.hold_scipy_blas_at_one_thread()
+    return found

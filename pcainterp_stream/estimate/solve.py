@@ -6,11 +6,7 @@ triangular-BLAS helpers they share.
 
 from __future__ import annotations
 
-import contextlib
 import functools
-import os
-import threading
-from collections.abc import Iterator
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any, TypeVar
@@ -18,6 +14,7 @@ from typing import Any, TypeVar
 import numpy as np
 import numpy.typing as npt
 
+from pcainterp_stream.compiled import hold_scipy_blas_at_one_thread, one_blas_thread_when_loaded
 from pcainterp_stream.estimate.lapack import routines
 from pcainterp_stream.estimate.prior import (
     DOWNWEIGHTED_BELOW,
@@ -378,10 +375,6 @@ def _local_covariance(
     return covariance
 
 
-_LOADING = threading.Lock()
-"""Held while scipy.linalg loads (the environment variable is the process's)."""
-
-
 @functools.cache
 def triangular_lapack() -> Any:
     """Return scipy's LAPACK with its OpenBLAS held at one thread, or None.
@@ -393,39 +386,12 @@ def triangular_lapack() -> Any:
     library (only scipy's, found by its path) is limited to one thread, once per process.
     """
     try:
-        with _LOADING, _one_thread_when_loaded():
+        with one_blas_thread_when_loaded():
             from scipy.linalg import lapack
-        from threadpoolctl import ThreadpoolController
-    except ImportError:  # pragma: no cover - both are dependencies
+    except ImportError:  # pragma: no cover - scipy is a dependency
         return None
-    controller = ThreadpoolController()
-    scipy_blas = [
-        module for module in controller.lib_controllers if "scipy.libs" in module.filepath
-    ]
-    for module in scipy_blas:
-        module.set_num_threads(1)
+    hold_scipy_blas_at_one_thread()
     return lapack
-
-
-@contextlib.contextmanager
-def _one_thread_when_loaded() -> Iterator[None]:
-    """Let an OpenBLAS loaded inside come up with one thread (``OPENBLAS_NUM_THREADS=1``).
-
-    OpenBLAS reads the variable when it is loaded, so a library first loaded here never
-    starts a second thread. Limiting it after loading (threadpoolctl) held only when done
-    from the main thread: from the densify thread, where the job imports scipy.linalg
-    while the first pairs are matched, the solves ran on two spinning threads at ~5x the
-    CPU (measured). The variable is put back as it was.
-    """
-    previous = os.environ.get("OPENBLAS_NUM_THREADS")
-    os.environ["OPENBLAS_NUM_THREADS"] = "1"
-    try:
-        yield
-    finally:
-        if previous is None:
-            os.environ.pop("OPENBLAS_NUM_THREADS", None)
-        else:
-            os.environ["OPENBLAS_NUM_THREADS"] = previous
 
 
 def _cholesky_inverse(system: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
@@ -438,15 +404,15 @@ def _cholesky_inverse(system: npt.NDArray[np.float64]) -> npt.NDArray[np.float64
     Raises:
         numpy.linalg.LinAlgError: the system is not positive definite.
     """
-    lapack = triangular_lapack()
-    if lapack is None:  # pragma: no cover - scipy is a dependency
-        return np.tril(np.linalg.inv(np.linalg.cholesky(system)))
     unlocked = routines()
-    if unlocked is not None:  # the same routines with the GIL released
+    if unlocked is not None:  # scipy's routines, the GIL released
         inverse, info = unlocked.cholesky_inverse(system)
         if info != 0:
             raise np.linalg.LinAlgError(f"matrix is not positive definite (dpotrf info {info})")
         return inverse
+    lapack = triangular_lapack()  # pragma: no cover - scipy's wheels have the routines
+    if lapack is None:  # pragma: no cover - scipy is a dependency
+        return np.tril(np.linalg.inv(np.linalg.cholesky(system)))
     lower, info = lapack.dpotrf(system, lower=1, clean=1)
     if info != 0:
         raise np.linalg.LinAlgError(f"matrix is not positive definite (dpotrf info {info})")
@@ -464,11 +430,11 @@ def _lower_times(lower: npt.NDArray[_Float], matrix: npt.NDArray[_Float]) -> npt
     """
     if lower.shape[0] == 0:
         return lower @ matrix
+    unlocked = routines()
+    if unlocked is not None:  # scipy's routine, the GIL released
+        return unlocked.lower_times(lower, matrix)
     if triangular_lapack() is None:  # pragma: no cover - scipy is a dependency
         return lower @ matrix
-    unlocked = routines()
-    if unlocked is not None:  # the same routine with the GIL released
-        return unlocked.lower_times(lower, matrix)
     from scipy.linalg import blas
 
     trmm = blas.strmm if matrix.dtype == np.float32 else blas.dtrmm

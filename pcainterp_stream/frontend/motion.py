@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from pcainterp_stream import compiled
 from pcainterp_stream.records import StereoCamera
 
 __all__ = ["CarriedPoints", "CarryConfig", "Motion", "estimate_motion"]
@@ -304,9 +305,9 @@ class CarriedPoints:
                 carried_disparities[visible],
             )
             if used.shape[0] and carried_pixels.shape[0] and options.gap > 0:
-                from scipy.spatial import cKDTree  # ~0.3 s to import: when first needed
-
-                distance, _ = cKDTree(used).query(carried_pixels)
+                # scipy's k-d tree alone, loaded when first needed (scipy.spatial: ~0.3 s)
+                tree = compiled.module("spatial._ckdtree").cKDTree(used)
+                distance, _ = tree.query(carried_pixels)
                 far = distance > options.gap
                 carried_pixels, carried_disparities = carried_pixels[far], carried_disparities[far]
             all_pixels.append(carried_pixels)

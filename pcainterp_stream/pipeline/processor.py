@@ -49,7 +49,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream import defaults
+from pcainterp_stream import compiled, defaults
 from pcainterp_stream.estimate import adapt
 from pcainterp_stream.estimate.basis import (
     BUILTIN_KINDS,
@@ -60,8 +60,8 @@ from pcainterp_stream.estimate.basis import (
 )
 from pcainterp_stream.estimate.dense import DenseModel, fuse_dense
 from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
+from pcainterp_stream.estimate.lapack import routines
 from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
-from pcainterp_stream.estimate.solve import triangular_lapack
 from pcainterp_stream.estimate.variance import _variance_stride
 from pcainterp_stream.frontend.motion import CarriedPoints, CarryConfig, Motion, estimate_motion
 from pcainterp_stream.frontend.stereo import (
@@ -875,12 +875,12 @@ def _prepare(basis: Basis, uncertainty: str) -> None:
     basis.mean_flat  # noqa: B018
     if uncertainty not in ("none", "exact"):
         basis.variance_grid(_variance_stride(basis, None))
-    # scipy.linalg (~0.3 s to import) loads here, while the stereo workers match the first
-    # pairs, not in the job's start-up; its OpenBLAS comes up with one thread
-    triangular_lapack()
-    # the carried points' and the check's nearest-neighbour trees and the check's
-    # triangulation (~0.1 s of CPU to import after scipy.linalg)
-    import scipy.spatial  # noqa: F401
+    # scipy's LAPACK (its OpenBLAS with one thread), Qhull and k-d tree load here, while the
+    # stereo workers match the first pairs, not in the job's start-up: the solve's
+    # routines, the check's triangulation and nearest neighbours, the carried points' gaps
+    routines()
+    compiled.module("spatial._qhull")
+    compiled.module("spatial._ckdtree")
 
 
 def _adapt_frame(item: _Measured) -> AdaptFrame:

@@ -1,8 +1,9 @@
 """What the default densify job imports: start-up time is part of its speed.
 
-scipy.linalg costs ~0.3 s of start-up (it loads on the densify thread) and rosbags' bag
-readers and writers ~65 ms; an MCAP job needs neither on its main thread. Each case runs
-in a fresh interpreter (this one has imported everything already).
+scipy costs ~0.3 s of start-up (its few compiled modules the job calls load on the
+densify thread) and rosbags' bag readers and writers ~65 ms; an MCAP job needs neither on
+its main thread. Each case runs in a fresh interpreter (this one has imported everything
+already).
 """
 
 from __future__ import annotations
@@ -61,12 +62,13 @@ def test_default_densify_of_an_mcap_imports_no_rosbags_bags(tmp_path: Path) -> N
     assert _loaded(modules, ("scipy.interpolate", "scipy.optimize")) == []
 
 
-def test_scipy_linalg_loads_on_the_densify_thread_with_one_blas_thread(tmp_path: Path) -> None:
-    """The main thread starts matching without waiting for scipy.linalg (~0.3 s).
+def test_scipy_loads_on_the_densify_thread_with_one_blas_thread(tmp_path: Path) -> None:
+    """The main thread starts matching without waiting for scipy (~0.3 s of imports).
 
-    The densify thread imports it while the first pairs are matched; its OpenBLAS comes up
-    with one thread (a second, spinning one cost ~5x the solve's CPU), and the process's
-    environment is left as it was.
+    The densify thread loads scipy's LAPACK, Qhull and k-d tree while the first pairs are
+    matched, without the ``__init__`` of scipy.linalg and scipy.spatial (the rest of those
+    subpackages: ~0.2 s more); scipy's OpenBLAS comes up with one thread (a second,
+    spinning one cost ~5x the solve's CPU), and the process's environment is left as it was.
     """
     out = tmp_path / "out.mcap"
     code = (
@@ -74,8 +76,8 @@ def test_scipy_linalg_loads_on_the_densify_thread_with_one_blas_thread(tmp_path:
         "first = {}\n"
         "class Spy(importlib.abc.MetaPathFinder):\n"
         "    def find_spec(self, name, path=None, target=None):\n"
-        "        if name == 'scipy.linalg':\n"
-        "            first.setdefault(name, threading.current_thread().name)\n"
+        "        if name.split('.')[0] == 'scipy':\n"
+        "            first.setdefault('scipy', threading.current_thread().name)\n"
         "        return None\n"
         "sys.meta_path.insert(0, Spy())\n"
         "from pcainterp_stream.cli.app import main\n"
@@ -84,8 +86,9 @@ def test_scipy_linalg_loads_on_the_densify_thread_with_one_blas_thread(tmp_path:
         "from threadpoolctl import threadpool_info\n"
         "scipy_blas = [i for i in threadpool_info() if 'scipy.libs' in i['filepath']]\n"
         "import json\n"
-        "print(json.dumps([first.get('scipy.linalg'), [i['num_threads'] for i in scipy_blas],"
-        " os.environ.get('OPENBLAS_NUM_THREADS')]))\n"
+        "print(json.dumps([first.get('scipy'), [i['num_threads'] for i in scipy_blas],"
+        " os.environ.get('OPENBLAS_NUM_THREADS'),"
+        " [m for m in ('scipy.linalg', 'scipy.spatial') if m in sys.modules]]))\n"
     )
     # as a shell starts it: dask.distributed, imported by other tests, sets the variable
     environment = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
@@ -97,11 +100,12 @@ def test_scipy_linalg_loads_on_the_densify_thread_with_one_blas_thread(tmp_path:
         cwd=ROOT,
         env=environment,
     )
-    thread, blas_threads, variable = json.loads(result.stdout.strip().splitlines()[-1])
+    thread, blas_threads, variable, packages = json.loads(result.stdout.strip().splitlines()[-1])
     assert thread.startswith("densify"), thread
     assert blas_threads
     assert set(blas_threads) == {1}
     assert variable is None
+    assert packages == []
 
 
 def test_the_program_freezes_the_imports_for_the_collector_and_main_does_not(

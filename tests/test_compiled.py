@@ -1,0 +1,76 @@
+"""scipy's compiled modules loaded without their subpackages: the same modules as scipy's.
+
+Each case runs in a fresh interpreter: this one has imported scipy's subpackages already.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _run(code: str) -> list[object]:
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    )
+    out: list[object] = json.loads(result.stdout.strip().splitlines()[-1])
+    return out
+
+
+def test_loaded_alone_then_imported_as_usual_they_are_one_module() -> None:
+    out = _run(
+        "import json, sys\n"
+        "import numpy as np\n"
+        "from pcainterp_stream import compiled\n"
+        "qhull = compiled.module('spatial._qhull')\n"
+        "tree = compiled.module('spatial._ckdtree')\n"
+        "lapack = compiled.module('linalg.cython_lapack')\n"
+        "alone = sorted(m for m in ('scipy.linalg', 'scipy.spatial') if m in sys.modules)\n"
+        "rng = np.random.default_rng(1)\n"
+        "points = rng.uniform(0, 100, (200, 2))\n"
+        "at = rng.uniform(0, 100, (500, 2))\n"
+        "ours = qhull.Delaunay(points)\n"
+        "found = tree.cKDTree(points).query(at)\n"
+        "import scipy.spatial, scipy.linalg.cython_lapack\n"
+        "theirs = scipy.spatial.Delaunay(points)\n"
+        "same = [scipy.spatial.Delaunay is qhull.Delaunay,\n"
+        "        scipy.spatial.cKDTree is tree.cKDTree,\n"
+        "        scipy.linalg.cython_lapack is lapack,\n"
+        "        bool((ours.simplices == theirs.simplices).all()),\n"
+        "        bool((ours.transform == theirs.transform).all()),\n"
+        "        bool((found[1] == scipy.spatial.cKDTree(points).query(at)[1]).all())]\n"
+        "print(json.dumps([alone, same]))\n"
+    )
+    alone, same = out
+    assert alone == []
+    assert same == [True] * 6
+
+
+def test_a_module_not_found_as_a_file_is_imported_as_usual() -> None:
+    out = _run(
+        "import json, sys\n"
+        "from pcainterp_stream import compiled\n"
+        "def missing(full):\n"
+        "    raise ImportError('not here')\n"
+        "compiled._load_file = missing\n"
+        "qhull = compiled.module('spatial._qhull')\n"
+        "import scipy.spatial\n"
+        "print(json.dumps([qhull.Delaunay is scipy.spatial.Delaunay,\n"
+        "                  'scipy.spatial' in sys.modules]))\n"
+    )
+    assert out == [True, True]
+
+
+def test_loading_leaves_the_blas_variable_as_it_was() -> None:
+    out = _run(
+        "import json, os\n"
+        "os.environ['OPENBLAS_NUM_THREADS'] = '3'\n"
+        "from pcainterp_stream import compiled\n"
+        "compiled.module('linalg.cython_blas')\n"
+        "print(json.dumps([os.environ.get('OPENBLAS_NUM_THREADS')]))\n"
+    )
+    assert out == ["3"]
