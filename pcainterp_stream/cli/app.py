@@ -10,7 +10,11 @@ fast.
 from __future__ import annotations
 
 import argparse
+import atexit
+import contextlib
+import os
 import sys
+import threading
 from collections.abc import Callable, Sequence
 from types import ModuleType
 
@@ -118,7 +122,31 @@ def console() -> int:
     the garbage collector's view of the imports (:func:`common.settle_heap`), apply only here.
     """
     common.OWN_PROCESS = True
-    return main()
+    code = main()
+    _end_without_teardown(code)
+    return code  # pragma: no cover - only when a thread of the job is still running
+
+
+def _end_without_teardown(code: int) -> None:
+    """End the program now, skipping the interpreter's teardown of every module.
+
+    The command is done: its outputs are closed and its threads have ended. The exit
+    handlers still run (``atexit``: removing temporaries, flushing viewers' streams) and
+    the standard streams are flushed; what is skipped is freeing the imported modules
+    one by one, ~0.1 s of a KITTI densify job (measured). A non-daemon thread still
+    running leaves the normal exit to wait for it.
+    """
+    if any(
+        t.is_alive() and not t.daemon
+        for t in threading.enumerate()
+        if t is not threading.main_thread()
+    ):
+        return
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(code)
 
 
 def _interrupted() -> int:
