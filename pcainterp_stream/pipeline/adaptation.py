@@ -143,7 +143,12 @@ class Adaptation:
         usable = [f for f in usable if f.image_size == size and f.focal_baseline == fb]
         measured = [f.measured() for f in usable]
         # the held-out pixels and plain interpolation there: once per frame, for every basis
-        held_out = [adapt.HeldOut.of(m.reference, m.pixels, m.disparities) for m in measured]
+        held_out = [
+            f.held_out
+            if f.held_out is not None
+            else adapt.HeldOut.of(m.reference, m.pixels, m.disparities)
+            for f, m in zip(usable, measured, strict=True)
+        ]
 
         def check(candidate: Basis, options: dict[str, object]) -> adapt.FitCheck:
             estimates = densify_batch(
@@ -352,6 +357,9 @@ class AdaptFrame:
     grid_map: npt.NDArray[np.float32] | None
     image_size: tuple[int, int]
     focal_baseline: float
+    # the check's held-out pixels and plain interpolation of this frame, when the stereo
+    # worker made them beside SGBM (else the check makes them)
+    held_out: adapt.HeldOut | None = None
 
     def measured(self) -> adapt.Measured:
         """Return the frame as :func:`adapt.refit_prior` and the check take it."""

@@ -323,6 +323,9 @@ class _Measured(NamedTuple):
     # SGBM's map as matched, for the two above when a frame matched while the check ran
     # turns out to need them (the log's own basis): made then, or never
     raw_map: npt.NDArray[np.float32] | None = None
+    # the fit check's held-out pixels and plain interpolation (check frames), made here
+    # beside SGBM rather than in the check on the sequential densify thread
+    held_out: adapt.HeldOut | None = None
 
 
 def features_to_measurements(
@@ -574,6 +577,7 @@ class FrameProcessor:
     ) -> _Measured:
         disparity_map = raw_map = None
         sgbm_map = grid = None
+        held_out = None
         if self.config.source is MeasurementSource.FEATURES:
             pixels, disparities, counts = features_to_measurements(features, frame.camera)
         else:
@@ -585,6 +589,8 @@ class FrameProcessor:
             if self.adaptation.wants_maps():
                 if check_frame or self.adaptation.adapted:
                     sgbm_map, grid = _maps(measurements.disparity_map, frame.camera)
+                if check_frame and sgbm_map is not None and grid is not None:
+                    held_out = adapt.HeldOut.of(sgbm_map, pixels, disparities)
                 else:  # matched ahead while the check runs: needed only if it adapts
                     raw_map = measurements.disparity_map
         motion = None
@@ -599,7 +605,16 @@ class FrameProcessor:
                 config=self.config.carry,
             )
         return _Measured(
-            frame, pixels, disparities, counts, motion, disparity_map, sgbm_map, grid, raw_map
+            frame,
+            pixels,
+            disparities,
+            counts,
+            motion,
+            disparity_map,
+            sgbm_map,
+            grid,
+            raw_map,
+            held_out,
         )
 
     def submit(
@@ -698,7 +713,10 @@ class FrameProcessor:
         if own is not None:
             self._use(own)
         # the warm-up maps are in the log's basis now (or not wanted): not added again
-        return [item._replace(sgbm_map=None, grid_map=None, raw_map=None) for item in ready]
+        return [
+            item._replace(sgbm_map=None, grid_map=None, raw_map=None, held_out=None)
+            for item in ready
+        ]
 
     def _use(self, basis: Basis) -> None:
         """Densify from now on with ``basis`` (its fitted prior; the temporal prior restarts)."""
@@ -895,6 +913,7 @@ def _adapt_frame(item: _Measured) -> AdaptFrame:
         grid,
         camera.image_size,
         camera.focal_baseline,
+        item.held_out,
     )
 
 

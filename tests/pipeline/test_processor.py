@@ -152,6 +152,49 @@ def test_the_fit_check_holds_the_warm_up_frames_and_reports(
     assert not engine.adaptation.adapted
 
 
+def test_the_checks_held_out_pixels_are_made_beside_sgbm(
+    basis: Basis, frames: list[StereoFrame], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The stereo workers hold out the check's pixels and interpolate there; the check on
+    the densify thread scores with them and makes none itself, and its figures are the
+    same as when it makes them."""
+    from pcainterp_stream.estimate import adapt
+
+    config = ProcessorConfig(sgbm=SGBM, batch_size=2, warmup_frames=3)
+    with FrameProcessor(basis, config) as engine:
+        list(engine.process(frames))
+        by_workers = engine.adaptation.check
+    made_on: list[str] = []
+    original = adapt.HeldOut.of
+
+    def recorded(*args: Any) -> adapt.HeldOut:
+        made_on.append(threading.current_thread().name)
+        return original(*args)
+
+    monkeypatch.setattr(adapt.HeldOut, "of", recorded)
+    with FrameProcessor(basis, config) as engine:
+        list(engine.process(frames))
+    assert len(made_on) == 3
+    assert all(name.startswith("stereo") for name in made_on)
+    # made by the check itself when the workers did not (frames measured elsewhere)
+    monkeypatch.setattr(processor, "_adapt_frame", _without_held_out(processor._adapt_frame))
+    with FrameProcessor(basis, config) as engine:
+        list(engine.process(frames))
+        by_check = engine.adaptation.check
+    assert by_check == by_workers
+    assert by_check is not None
+    assert by_check.frames == 3
+
+
+def _without_held_out(function: Any) -> Any:
+    def adapt_frame(item: Any) -> Any:
+        import dataclasses
+
+        return dataclasses.replace(function(item), held_out=None)
+
+    return adapt_frame
+
+
 def test_batch_equals_one_by_one(basis: Basis, frames: list[StereoFrame]) -> None:
     batched = run(basis, frames, batch_size=4, lookahead=4)
     single = run(basis, frames, batch_size=1, lookahead=0, stereo_workers=1)
