@@ -24,6 +24,7 @@ LAYERS: dict[str, int] = {
     "records": 0,
     "defaults": 0,
     "allocator": 0,
+    "compiled": 0,
     "version": 0,
     "interrupt": 0,
     "io": 1,
