@@ -471,7 +471,7 @@ class Basis:
         """
         digest = hashlib.sha256()
         for array in (self.mean, self.components, self.eigenvalues):
-            digest.update(memoryview(np.ascontiguousarray(array)).cast("B"))  # no copy
+            digest.update(np.ascontiguousarray(array).data.cast("B"))  # no copy
         digest.update(
             np.array(
                 [*self.image_size, self.focal_baseline, self.total_variance, self.n_train],

@@ -32,12 +32,10 @@ queues there.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import enum
 import functools
 import os
-import threading
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -45,7 +43,6 @@ from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any, NamedTuple
 
-import cv2
 import numpy as np
 import numpy.typing as npt
 
@@ -78,6 +75,7 @@ from pcainterp_stream.pipeline.adaptation import (
     AdaptFrame,
     Candidate,
 )
+from pcainterp_stream.pipeline.threads import ThreadLimits, lower_priority
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoCamera, StereoFrame
 
 
@@ -364,73 +362,6 @@ def features_to_measurements(
     return pixels, disparity[keep].astype(np.float32), counts
 
 
-class _ThreadLimits:
-    """Process-wide OpenCV and BLAS thread counts, set on entry and restored on ``restore``.
-
-    Shared by the processors open at once (several jobs in the threads of one process, as
-    a Dask worker runs them): the first to ask sets a count and the last to leave puts the
-    count found before back, so no job's BLAS goes back to several threads while another
-    still runs (its products and factorisations would round differently).
-    """
-
-    _lock = threading.Lock()
-    _opencv_users = 0
-    _opencv_previous: int | None = None
-    _blas_users = 0
-    _blas_limits: object | None = None
-
-    def __init__(self, opencv_threads: int | None, blas_threads: int | None) -> None:
-        self._opencv = opencv_threads is not None
-        self._blas = blas_threads is not None
-        cls = type(self)
-        with cls._lock:
-            if opencv_threads is not None:
-                if cls._opencv_users == 0:
-                    cls._opencv_previous = cv2.getNumThreads()
-                    cv2.setNumThreads(opencv_threads)
-                cls._opencv_users += 1
-            if blas_threads is not None:
-                if cls._blas_users == 0:
-                    cls._blas_limits = _limit_blas(blas_threads)
-                cls._blas_users += 1
-
-    def restore(self) -> None:
-        """Leave; the last to leave puts back the counts found on entry (idempotent)."""
-        cls = type(self)
-        with cls._lock:
-            if self._opencv:
-                self._opencv = False
-                cls._opencv_users -= 1
-                if cls._opencv_users == 0 and cls._opencv_previous is not None:
-                    cv2.setNumThreads(cls._opencv_previous)
-                    cls._opencv_previous = None
-            if self._blas:
-                self._blas = False
-                cls._blas_users -= 1
-                if cls._blas_users == 0 and cls._blas_limits is not None:
-                    cls._blas_limits.restore_original_limits()  # type: ignore[attr-defined]
-                    cls._blas_limits = None
-
-
-def _limit_blas(threads: int) -> object | None:
-    """Limit every loaded BLAS to ``threads``; None when threadpoolctl is not installed."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
-        return None
-    limits: object = threadpool_limits(limits=threads, user_api="blas")
-    return limits
-
-
-def _lower_priority(niceness: int) -> None:
-    """Raise this thread's nice value by ``niceness`` (Linux: per thread; no-op elsewhere)."""
-    if niceness <= 0 or not hasattr(os, "setpriority"):
-        return
-    tid = threading.get_native_id()
-    with contextlib.suppress(OSError):
-        os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + niceness)
-
-
 class FrameProcessor:
     """Densify a stream of stereo pairs, pipelined; use as a context manager.
 
@@ -460,10 +391,10 @@ class FrameProcessor:
         self._executor = ThreadPoolExecutor(
             max_workers=self.config.stereo_workers if stereo else 1,
             thread_name_prefix="stereo",
-            initializer=_lower_priority,
+            initializer=lower_priority,
             initargs=(self.config.worker_niceness,),
         )
-        self._limits = _ThreadLimits(
+        self._limits = ThreadLimits(
             self.config.opencv_threads if stereo else None,
             self.config.blas_threads if stereo else None,
         )

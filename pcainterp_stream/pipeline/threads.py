@@ -1,0 +1,80 @@
+"""The frame processor's process-wide thread settings.
+
+OpenCV's and BLAS's thread counts, shared by the processors open at once, and the stereo
+workers' lower priority.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import threading
+
+import cv2
+
+
+class ThreadLimits:
+    """Process-wide OpenCV and BLAS thread counts, set on entry and restored on ``restore``.
+
+    Shared by the processors open at once (several jobs in the threads of one process, as
+    a Dask worker runs them): the first to ask sets a count and the last to leave puts the
+    count found before back, so no job's BLAS goes back to several threads while another
+    still runs (its products and factorisations would round differently).
+    """
+
+    _lock = threading.Lock()
+    _opencv_users = 0
+    _opencv_previous: int | None = None
+    _blas_users = 0
+    _blas_limits: object | None = None
+
+    def __init__(self, opencv_threads: int | None, blas_threads: int | None) -> None:
+        self._opencv = opencv_threads is not None
+        self._blas = blas_threads is not None
+        cls = type(self)
+        with cls._lock:
+            if opencv_threads is not None:
+                if cls._opencv_users == 0:
+                    cls._opencv_previous = cv2.getNumThreads()
+                    cv2.setNumThreads(opencv_threads)
+                cls._opencv_users += 1
+            if blas_threads is not None:
+                if cls._blas_users == 0:
+                    cls._blas_limits = _limit_blas(blas_threads)
+                cls._blas_users += 1
+
+    def restore(self) -> None:
+        """Leave; the last to leave puts back the counts found on entry (idempotent)."""
+        cls = type(self)
+        with cls._lock:
+            if self._opencv:
+                self._opencv = False
+                cls._opencv_users -= 1
+                if cls._opencv_users == 0 and cls._opencv_previous is not None:
+                    cv2.setNumThreads(cls._opencv_previous)
+                    cls._opencv_previous = None
+            if self._blas:
+                self._blas = False
+                cls._blas_users -= 1
+                if cls._blas_users == 0 and cls._blas_limits is not None:
+                    cls._blas_limits.restore_original_limits()  # type: ignore[attr-defined]
+                    cls._blas_limits = None
+
+
+def _limit_blas(threads: int) -> object | None:
+    """Limit every loaded BLAS to ``threads``; None when threadpoolctl is not installed."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
+        return None
+    limits: object = threadpool_limits(limits=threads, user_api="blas")
+    return limits
+
+
+def lower_priority(niceness: int) -> None:
+    """Raise this thread's nice value by ``niceness`` (Linux: per thread; no-op elsewhere)."""
+    if niceness <= 0 or not hasattr(os, "setpriority"):
+        return
+    tid = threading.get_native_id()
+    with contextlib.suppress(OSError):
+        os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + niceness)
