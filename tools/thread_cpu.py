@@ -111,7 +111,7 @@ class StageTimers:
 
 STAGES: list[tuple[Any, str, str]] = [
     (processor.FrameProcessor, "_measure", "stereo worker, all"),
-    (stereo, "_sgbm_grey", "  SGBM (half resolution)"),
+    (stereo, "_sgbm_grey", "  SGBM (half resolution; dense mode: full)"),
     (stereo, "detect_corners", "  GFTT corners"),
     (stereo, "lattice_points", "  lattice points"),
     (stereo, "patch_contrast", "  lattice contrast"),
@@ -121,6 +121,7 @@ STAGES: list[tuple[Any, str, str]] = [
     (processor.FrameProcessor, "_warm_up", "densify thread: fit check"),
     (processor.FrameProcessor, "_densify", "densify thread: batches"),
     (processor, "densify_batch", "  of which densify_batch"),
+    (processor, "fuse_dense", "  of which dense fusion (dense mode)"),
 ]
 """(owner, attribute, label) of each function timed."""
 
@@ -158,7 +159,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--interval", type=float, default=0.25, help="seconds per row")
     parser.add_argument("--profile", type=int, default=0, metavar="N", help="top N functions")
     parser.add_argument("extra", nargs="*", help="densify's own arguments (after --)")
-    args = parser.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    # densify's arguments after "--" are split off here: argparse gives the positional
+    # ``log`` its (empty) share of ``extra`` first and then rejects the rest
+    cut = argv.index("--") if "--" in argv else len(argv)
+    args = parser.parse_args(argv[:cut])
+    args.extra = [*args.extra, *argv[cut + 1 :]]
     if not args.log.exists():
         print(f"error: {args.log} does not exist", file=sys.stderr)
         return 2

@@ -51,7 +51,7 @@ import numpy.typing as npt
 from pcainterp_stream.estimate.estimator import DensifyResult, depth_from_disparity
 from pcainterp_stream.estimate.prior import ROBUST_SCALES, Robust, robust_weights
 
-__all__ = ["DenseModel", "directional_neighbours", "fuse_dense"]
+__all__ = ["DenseModel", "MapHoles", "directional_neighbours", "find_holes", "fuse_dense"]
 
 F32 = npt.NDArray[np.float32]
 
@@ -95,10 +95,56 @@ class DenseModel:
         object.__setattr__(self, "robust", Robust(self.robust))
 
 
+@dataclass(frozen=True)
+class MapHoles:
+    """A disparity map's holes and their four directional nearest valid pixels.
+
+    What of the fusion depends on the map alone, not on the estimate: ``densify`` finds it
+    in the stereo workers beside SGBM (:func:`find_holes`), so the sequential densify
+    thread is left with the per-pixel arithmetic against the field.
+
+    Attributes:
+        shape: (H, W) of the map.
+        index: (n,) int32 flat (row-major) indices of the hole pixels (NaN, infinite or
+            negative values), ascending.
+        neighbours: four (value, distance) pairs of (n,) float32 arrays, left, right, up,
+            down: the nearest valid pixel in that direction along the hole's row or
+            column; distance ``inf`` (value 0) where there is none.
+    """
+
+    shape: tuple[int, int]
+    index: npt.NDArray[np.int32]
+    neighbours: tuple[tuple[F32, F32], ...]
+
+
+def find_holes(disparity_map: npt.ArrayLike) -> MapHoles:
+    """Find a disparity map's holes and their directional neighbours (:class:`MapHoles`).
+
+    Args:
+        disparity_map: (H, W) float disparity (px), NaN (or negative) where there is none.
+
+    Returns:
+        The holes, for :func:`fuse_dense`'s ``holes``.
+
+    Raises:
+        ValueError: the map is not 2-D.
+    """
+    values = np.asarray(disparity_map, dtype=np.float32)
+    if values.ndim != 2:
+        raise ValueError(f"Expected an (H, W) disparity map, got shape {values.shape}")
+    with np.errstate(invalid="ignore"):
+        hole = ~(np.isfinite(values) & (values >= 0))
+    rows, cols, neighbours = _hole_neighbours(values, hole)
+    index = (rows * values.shape[1] + cols).astype(np.int32)
+    height, width = values.shape
+    return MapHoles((height, width), index, tuple(neighbours))
+
+
 def fuse_dense(
     estimate: DensifyResult,
     disparity_map: npt.ArrayLike,
     model: DenseModel | None = None,
+    holes: MapHoles | None = None,
 ) -> DensifyResult:
     """Fuse a frame's sparse estimate with its whole SGBM disparity map, pixel by pixel.
 
@@ -107,13 +153,15 @@ def fuse_dense(
         disparity_map: (H, W) float SGBM disparity (px) of the same camera and size, NaN
             (or negative) where the matcher found none.
         model: the noise model; None: the measured defaults.
+        holes: :func:`find_holes` of ``disparity_map``, when already found (``densify``
+            finds them in its stereo workers); None: found here. The result is the same.
 
     Returns:
         A :class:`DensifyResult` like ``estimate`` (same coefficients, points and weights)
         with the fused disparity, its std and the depth from them.
 
     Raises:
-        ValueError: the map's shape differs from the estimate's.
+        ValueError: the map's (or the holes') shape differs from the estimate's.
     """
     model = model or DenseModel()
     values = np.asarray(disparity_map, dtype=np.float32)
@@ -122,18 +170,22 @@ def fuse_dense(
         raise ValueError(
             f"Expected a disparity map of the estimate's shape {field.shape}, got {values.shape}"
         )
-    with np.errstate(invalid="ignore"):
-        valid = np.isfinite(values) & (values >= 0)
+    holes = find_holes(values) if holes is None else holes
+    if holes.shape != field.shape:
+        raise ValueError(f"Expected the holes of a {field.shape} map, got {holes.shape}")
     detail = np.float32(model.detail_std**2)
     prior_variance: F32 = (
         np.full(field.shape, detail, np.float32)
         if estimate.disparity_std is None
         else np.square(estimate.disparity_std, dtype=np.float32) + detail
     )
-    holes = ~valid
-    hole_mean, hole_variance = _holes(values, holes, field, prior_variance, model)
+    index = holes.index
+    hole_field = field.ravel().take(index)
+    hole_mean, hole_variance = _holes(holes, hole_field, prior_variance.ravel().take(index), model)
     pixel_precision = np.float32(1.0 / model.pixel_std**2)
-    measured = np.where(valid, values, field)
+    # SGBM's value where it matched, the field in the holes (their weight is set below)
+    measured = values.copy()
+    measured.ravel()[index] = hole_field
     # the disagreement (z - f) / sqrt(v_f + sigma_px^2), then its robust weight, in place
     weight = measured - field
     spread = prior_variance + np.float32(model.pixel_std**2)
@@ -146,11 +198,11 @@ def fuse_dense(
     measured *= weight
     disparity += measured
     disparity /= precision
-    disparity[holes] = hole_mean
+    disparity.ravel()[index] = hole_mean
     std = None
     if estimate.disparity_std is not None:
         std = np.sqrt(np.reciprocal(precision, out=precision), out=precision)
-        std[holes] = np.sqrt(hole_variance) * np.float32(model.hole_std_scale)
+        std.ravel()[index] = np.sqrt(hole_variance) * np.float32(model.hole_std_scale)
     depth, depth_std = None, None
     if estimate.focal_baseline > 0:
         depth, depth_std = depth_from_disparity(
@@ -173,31 +225,28 @@ def _robust_weights(standardised: F32, robust: Robust) -> F32:
     return np.reciprocal(standardised, out=standardised)
 
 
-def _holes(
-    values: F32,
-    hole: npt.NDArray[np.bool_],
-    field: F32,
-    prior_variance: F32,
-    model: DenseModel,
-) -> tuple[F32, F32]:
-    """The mixture posterior (mean, variance) at the hole pixels, row-major order."""
-    rows, cols, neighbours = _hole_neighbours(values, hole)
-    f = field[rows, cols]
-    v_f = prior_variance[rows, cols]
+def _holes(holes: MapHoles, f: F32, v_f: F32, model: DenseModel) -> tuple[F32, F32]:
+    """The mixture posterior (mean, variance) at the hole pixels, in ``holes.index`` order.
+
+    ``f`` and ``v_f`` are the field and its variance at the holes.
+    """
+    one = np.float32(1.0)
+    field_precision = one / v_f
+    field_term = f / v_f
     total = np.full(f.shape, np.float32(model.no_neighbour))
     mean_sum = total * f
     second_sum = total * (v_f + f * f)
-    for value, distance in neighbours:
+    for value, distance in holes.neighbours:
         found = np.isfinite(distance)
         reach = np.where(found, distance, np.float32(0.0))
         spread = np.float32(model.neighbour_std**2) + np.float32(model.neighbour_rate) * reach
         both = v_f + spread
         gap = value - f
         weight = np.exp(np.float32(-0.5) * gap * gap / both) * np.sqrt(v_f / both)
-        weight /= np.float32(1.0) + reach / np.float32(model.neighbour_reach)
+        weight /= one + reach / np.float32(model.neighbour_reach)
         weight[~found] = 0.0
-        variance = np.float32(1.0) / (np.float32(1.0) / v_f + np.float32(1.0) / spread)
-        mean = (f / v_f + value / spread) * variance
+        variance = one / (field_precision + one / spread)
+        mean = (field_term + value / spread) * variance
         total += weight
         mean_sum += weight * mean
         second_sum += weight * (variance + mean * mean)

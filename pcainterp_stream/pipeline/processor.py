@@ -55,7 +55,7 @@ from pcainterp_stream.estimate.basis import (
     builtin_basis_installed,
     builtin_kind,
 )
-from pcainterp_stream.estimate.dense import DenseModel, fuse_dense
+from pcainterp_stream.estimate.dense import DenseModel, MapHoles, find_holes, fuse_dense
 from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
 from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
 from pcainterp_stream.estimate.solve import triangular_lapack
@@ -313,6 +313,7 @@ class _Measured(NamedTuple):
     # SGBM's map as matched, for the two above when a frame matched while the check ran
     # turns out to need them (the log's own basis): made then, or never
     raw_map: npt.NDArray[np.float32] | None = None
+    holes: MapHoles | None = None  # the map's holes and their neighbours (dense mode only)
 
 
 def features_to_measurements(
@@ -540,6 +541,7 @@ class FrameProcessor:
     ) -> _Measured:
         disparity_map = raw_map = None
         sgbm_map = grid = None
+        holes = None
         if self.config.source is MeasurementSource.FEATURES:
             pixels, disparities, counts = features_to_measurements(features, frame.camera)
         else:
@@ -548,6 +550,9 @@ class FrameProcessor:
             counts = dict(measurements.counts)
             if self.dense:
                 disparity_map = measurements.disparity_map
+                # the fusion's part that needs no estimate, here in parallel, not in the
+                # sequential densify thread
+                holes = find_holes(disparity_map)
             if self.adaptation.wants_maps():
                 if check_frame or self.adaptation.adapted:
                     sgbm_map, grid = _maps(measurements.disparity_map, frame.camera)
@@ -566,7 +571,7 @@ class FrameProcessor:
             )
         return _Measured(
             frame, pixels, disparities, counts, motion, disparity_map, sgbm_map, grid, raw_map
-        )
+        )._replace(holes=holes)
 
     def submit(
         self, frame: StereoFrame, features: SparseFeatures | None = None
@@ -746,7 +751,7 @@ class FrameProcessor:
         counts["temporal_reset"] = int(estimate.temporal == "reset")
         counts["downweighted"] = int(estimate.n_downweighted)
         if item.disparity_map is not None:  # dense mode: the SGBM map, pixel by pixel
-            estimate = fuse_dense(estimate, item.disparity_map, self._dense_model)
+            estimate = fuse_dense(estimate, item.disparity_map, self._dense_model, item.holes)
         unknown = _unknown(estimate.disparity.shape)
         return DensifiedFrame(
             frame=item.frame,

@@ -355,6 +355,38 @@ def test_dense_measurements_fill_every_pixel_and_keep_sgbm() -> None:
         ProcessorConfig(measurements="dense", source=MeasurementSource.FEATURES)
 
 
+def test_dense_holes_found_in_the_stereo_workers_change_nothing(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # dense mode finds the SGBM map's holes beside SGBM, in the stereo workers; fused on
+    # the densify thread from scratch instead, every output is the same to the bit
+    from pcainterp_stream.pipeline import processor as processor_module
+    from pcainterp_stream.synth import SynthConfig, generate
+
+    frames = [
+        StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
+        for f in generate(SynthConfig(seed=4, frames=3, scale=0.5))
+    ]
+    config = ProcessorConfig(measurements="dense", sgbm=SgbmConfig(num_disparities=64))
+    find_holes = processor_module.find_holes
+    found: list[int] = []
+
+    def counted(disparity_map: np.ndarray) -> object:
+        found.append(1)
+        return find_holes(disparity_map)
+
+    monkeypatch.setattr(processor_module, "find_holes", counted)
+    with FrameProcessor(config=config) as dense_processor:
+        ahead = list(dense_processor.process(frames))
+    assert len(found) == len(frames)
+    monkeypatch.setattr(processor_module, "find_holes", lambda disparity_map: None)
+    with FrameProcessor(config=config) as dense_processor:
+        alone = list(dense_processor.process(frames))
+    for one, other in zip(ahead, alone, strict=True):
+        for name in ("disparity", "disparity_std", "depth", "depth_std"):
+            np.testing.assert_array_equal(getattr(one, name), getattr(other, name))
+
+
 def test_an_interrupted_processor_does_not_wait_for_its_threads(basis: Basis) -> None:
     # A Ctrl-C that lands while the densify thread is busy (e.g. importing scipy on a loaded
     # machine) must not wait for that task: the command has seconds to clean up.
