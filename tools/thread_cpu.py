@@ -114,7 +114,7 @@ class StageTimers:
 
 STAGES: list[tuple[Any, str, str]] = [
     (processor.FrameProcessor, "_measure", "stereo worker, all"),
-    (stereo, "_sgbm_grey", "  SGBM (half resolution)"),
+    (stereo, "_sgbm_grey", "  SGBM (half resolution; dense mode: full)"),
     (stereo, "detect_corners", "  GFTT corners"),
     (stereo, "lattice_points", "  lattice points"),
     (stereo, "patch_contrast", "  lattice contrast"),
@@ -125,6 +125,7 @@ STAGES: list[tuple[Any, str, str]] = [
     (processor.FrameProcessor, "_measurements", "densify thread: carried points"),
     (processor.FrameProcessor, "_estimate", "estimate pool: batches"),
     (processor, "densify_batch", "  of which densify_batch"),
+    (processor, "fuse_dense", "  of which dense fusion (dense mode)"),
 ]
 """(owner, attribute, label) of each function timed."""
 
@@ -164,6 +165,18 @@ def instrumented(timers: StageTimers, profile: cProfile.Profile | None) -> Itera
             setattr(owner, name, original)
 
 
+def split_arguments(argv: list[str]) -> tuple[list[str], list[str]]:
+    """Split the command line at the first ``--``: (this tool's, densify's own arguments).
+
+    argparse alone gives the positional ``log`` its (empty) share of ``extra`` first and
+    then rejects every densify option after ``--`` as unknown.
+    """
+    if "--" not in argv:
+        return list(argv), []
+    cut = argv.index("--")
+    return list(argv[:cut]), list(argv[cut + 1 :])
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one densify job with the samplers; print the tables; return the exit status."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -172,7 +185,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--interval", type=float, default=0.25, help="seconds per row")
     parser.add_argument("--profile", type=int, default=0, metavar="N", help="top N functions")
     parser.add_argument("extra", nargs="*", help="densify's own arguments (after --)")
-    args = parser.parse_args(argv)
+    own, densify_args = split_arguments(sys.argv[1:] if argv is None else argv)
+    args = parser.parse_args(own)
+    args.extra = [*args.extra, *densify_args]
     if not args.log.exists():
         print(f"error: {args.log} does not exist", file=sys.stderr)
         return 2

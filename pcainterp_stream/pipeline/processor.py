@@ -55,7 +55,7 @@ from pcainterp_stream.estimate.basis import (
     builtin_basis_installed,
     builtin_kind,
 )
-from pcainterp_stream.estimate.dense import DenseModel, fuse_dense
+from pcainterp_stream.estimate.dense import DenseModel, MapHoles, find_holes, fuse_dense
 from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
 from pcainterp_stream.estimate.lapack import routines
 from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
@@ -88,10 +88,12 @@ class MeasurementSource(enum.Enum):
     """The points of a sparse feature stream (``/features``) with the frame's stamp."""
 
 
-DENSE_SGBM = SgbmConfig(full_width=True)
+DENSE_SGBM = SgbmConfig(full_width=True, speckle_window_size=300)
 """The matcher of ``densify --measurements dense``: full resolution (the output is SGBM's own
 value where it matched) and the left band matched too (``SgbmConfig.full_width``): the band
-is SGBM's largest hole, and most of it is in the right camera's view."""
+is SGBM's largest hole, and most of it is in the right camera's view. Isolated regions of
+up to 300 px are removed as speckles (the default matcher: 100): the fusion fills them
+better than SGBM matched them, on real and synthetic truth alike (docs/dense.md)."""
 
 
 CHECK_LEAD_BATCHES = 3
@@ -324,6 +326,7 @@ class _Measured(NamedTuple):
     # the fit check's held-out pixels and plain interpolation (check frames), made here
     # beside SGBM rather than in the check on the sequential densify thread
     held_out: adapt.HeldOut | None = None
+    holes: MapHoles | None = None  # the map's holes and their neighbours (dense mode only)
 
 
 def features_to_measurements(
@@ -509,6 +512,7 @@ class FrameProcessor:
         disparity_map = raw_map = None
         sgbm_map = grid = None
         held_out = None
+        holes = None
         if self.config.source is MeasurementSource.FEATURES:
             pixels, disparities, counts = features_to_measurements(features, frame.camera)
         else:
@@ -517,11 +521,14 @@ class FrameProcessor:
             counts = dict(measurements.counts)
             if self.dense:
                 disparity_map = measurements.disparity_map
+                # the fusion's part that needs no estimate, here in parallel, not in the
+                # sequential densify thread
+                holes = find_holes(disparity_map)
             if self.adaptation.wants_maps():
                 if check_frame or self.adaptation.adapted:
                     sgbm_map, grid = _maps(measurements.disparity_map, frame.camera)
-                if check_frame and sgbm_map is not None and grid is not None:
-                    held_out = adapt.HeldOut.of(sgbm_map, pixels, disparities)
+                    if check_frame and grid is not None:
+                        held_out = adapt.HeldOut.of(sgbm_map, pixels, disparities)
                 else:  # matched ahead while the check runs: needed only if it adapts
                     raw_map = measurements.disparity_map
         motion = None
@@ -546,6 +553,7 @@ class FrameProcessor:
             grid,
             raw_map,
             held_out,
+            holes,
         )
 
     def submit(
@@ -764,7 +772,7 @@ class FrameProcessor:
         counts["temporal_reset"] = int(estimate.temporal == "reset")
         counts["downweighted"] = int(estimate.n_downweighted)
         if item.disparity_map is not None:  # dense mode: the SGBM map, pixel by pixel
-            estimate = fuse_dense(estimate, item.disparity_map, self._dense_model)
+            estimate = fuse_dense(estimate, item.disparity_map, self._dense_model, item.holes)
         unknown = _unknown(estimate.disparity.shape)
         return DensifiedFrame(
             frame=item.frame,

@@ -10,7 +10,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis_profiles import examples
 
-from pcainterp_stream.estimate.dense import DenseModel, directional_neighbours, fuse_dense
+from pcainterp_stream.estimate.dense import (
+    DenseModel,
+    directional_neighbours,
+    find_holes,
+    fuse_dense,
+)
 from pcainterp_stream.estimate.estimator import DensifyResult, Uncertainty
 from pcainterp_stream.estimate.prior import Robust
 from pcainterp_stream.estimate.solve import SolveForm
@@ -143,3 +148,44 @@ def test_inputs_are_left_alone_and_outputs_are_float32() -> None:
         assert array is not None
         assert array.dtype == np.float32
         assert not any(np.shares_memory(array, given) for given in after)
+
+
+@settings(max_examples=examples(40), deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    height=st.integers(1, 12),
+    width=st.integers(1, 12),
+    share=st.floats(0.0, 1.0),
+)
+def test_holes_found_ahead_fuse_to_the_same_values(
+    seed: int, height: int, width: int, share: float
+) -> None:
+    # densify finds the holes in its stereo workers and fuses on the densify thread: the
+    # result must be the one fuse_dense finds on its own, to the bit
+    rng = np.random.default_rng(seed)
+    field = rng.uniform(3, 60, (height, width)).astype(np.float32)
+    sgbm = (field + rng.uniform(-2, 2, field.shape)).astype(np.float32)
+    missing = rng.random(field.shape) >= share
+    kinds = rng.integers(0, 3, field.shape)
+    sgbm[missing & (kinds == 0)] = np.nan
+    sgbm[missing & (kinds == 1)] = -1.0
+    sgbm[missing & (kinds == 2)] = np.inf
+    holes = find_holes(sgbm)
+    np.testing.assert_array_equal(holes.index, np.flatnonzero(missing))
+    alone = fuse_dense(field_estimate(field), sgbm)
+    ahead = fuse_dense(field_estimate(field), sgbm, holes=holes)
+    for name in ("disparity", "disparity_std", "depth", "depth_std"):
+        np.testing.assert_array_equal(getattr(ahead, name), getattr(alone, name))
+    left = directional_neighbours(sgbm, ~missing)[0]
+    np.testing.assert_array_equal(holes.neighbours[0][0], left[0].ravel()[holes.index])
+    np.testing.assert_array_equal(holes.neighbours[0][1], left[1].ravel()[holes.index])
+
+
+def test_holes_of_another_map_are_refused() -> None:
+    field = np.full((4, 5), 19.0, np.float32)
+    sgbm = field.copy()
+    sgbm[1, 1] = np.nan
+    with pytest.raises(ValueError, match="holes"):
+        fuse_dense(field_estimate(field), sgbm, holes=find_holes(sgbm[:, :4]))
+    with pytest.raises(ValueError, match="map"):
+        find_holes(sgbm[0])
