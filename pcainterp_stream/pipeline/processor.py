@@ -143,7 +143,8 @@ class ProcessorConfig:
         estimate_workers: threads estimating batches whose measurements are final (the
             solves, the std, the images), several batches at once; without the temporal
             prior no state runs from one batch's estimate to the next, so the results do
-            not depend on it.
+            not depend on it. None: 2, and 1 in dense mode (its full-resolution matching
+            keeps both cores busy alone; a second thread only held ~30 MB more frames).
         opencv_threads: ``cv2.setNumThreads`` while the processor is open (stereo source
             only); None leaves OpenCV's setting alone.
         blas_threads: BLAS threads while the processor is open (stereo source only, via
@@ -193,7 +194,7 @@ class ProcessorConfig:
     batch_size: int = 4
     lookahead: int = 4
     stereo_workers: int = 2
-    estimate_workers: int = 2
+    estimate_workers: int | None = None
     opencv_threads: int | None = 1
     blas_threads: int | None = 1
     worker_niceness: int = 0
@@ -221,7 +222,7 @@ class ProcessorConfig:
             raise ValueError(f"lookahead must be >= 0, got {self.lookahead}")
         if self.stereo_workers < 1:
             raise ValueError(f"stereo_workers must be >= 1, got {self.stereo_workers}")
-        if self.estimate_workers < 1:
+        if self.estimate_workers is not None and self.estimate_workers < 1:
             raise ValueError(f"estimate_workers must be >= 1, got {self.estimate_workers}")
         for name in ("opencv_threads", "blas_threads"):
             value = getattr(self, name)
@@ -410,7 +411,9 @@ class FrameProcessor:
         # each batch's estimate (solves, std, images) once its measurements are final: in
         # a pool, several batches at once, when no state runs from frame to frame
         self._estimators = ThreadPoolExecutor(
-            max_workers=self.config.estimate_workers, thread_name_prefix="estimate"
+            max_workers=self.config.estimate_workers
+            or (1 if self.config.measurements == "dense" else 2),
+            thread_name_prefix="estimate",
         )
         self._densifying: deque[tuple[int, Future[Future[list[DensifiedFrame]]]]] = deque()
         self._densified_any = False
