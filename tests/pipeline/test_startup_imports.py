@@ -62,13 +62,14 @@ def test_default_densify_of_an_mcap_imports_no_rosbags_bags(tmp_path: Path) -> N
     assert _loaded(modules, ("scipy.interpolate", "scipy.optimize")) == []
 
 
-def test_scipy_loads_on_the_densify_thread_with_one_blas_thread(tmp_path: Path) -> None:
+def test_scipy_loads_off_the_main_thread_with_one_blas_thread(tmp_path: Path) -> None:
     """The main thread starts matching without waiting for scipy (~0.3 s of imports).
 
-    The densify thread loads scipy's LAPACK, Qhull and k-d tree while the first pairs are
-    matched, without the ``__init__`` of scipy.linalg and scipy.spatial (the rest of those
-    subpackages: ~0.2 s more); scipy's OpenBLAS comes up with one thread (a second,
-    spinning one cost ~5x the solve's CPU), and the process's environment is left as it was.
+    The densify thread (or a stereo worker, for a check frame's held-out pixels) loads
+    scipy's LAPACK, Qhull and k-d tree while the first pairs are matched, without the
+    ``__init__`` of scipy.linalg and scipy.spatial (the rest of those subpackages: ~0.2 s
+    more); scipy's OpenBLAS comes up with one thread (a second, spinning one cost ~5x the
+    solve's CPU), and the process's environment is left as it was.
     """
     out = tmp_path / "out.mcap"
     code = (
@@ -101,7 +102,9 @@ def test_scipy_loads_on_the_densify_thread_with_one_blas_thread(tmp_path: Path) 
         env=environment,
     )
     thread, blas_threads, variable, packages = json.loads(result.stdout.strip().splitlines()[-1])
-    assert thread.startswith("densify"), thread
+    # the densify thread's set-up loads it, or a stereo worker making a check frame's
+    # held-out pixels gets there first on a loaded machine: never the main thread
+    assert thread.startswith(("densify", "stereo")), thread
     assert blas_threads
     assert set(blas_threads) == {1}
     assert variable is None
