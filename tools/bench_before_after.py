@@ -1,11 +1,12 @@
 """The default densify job before and after a change, against SGBM alone, in the same rounds.
 
-Each round runs, in fresh processes and in this order: full-resolution SGBM alone
+Each round runs, in fresh processes: full-resolution SGBM alone
 (``tools/sgbm_alone.py``), ``pcainterp densify LOG -o OUT`` from a checkout of the code
 before the change (``--before``: a folder holding its ``pcainterp_stream`` package, put
 first on ``PYTHONPATH``), and the same command with the code installed here. Per round it
 prints the wall time and the CPU (user + system, start-up included) of each, CPU per frame,
-the job's CPU against SGBM alone's, and the output's MB per frame; then the medians. Both
+the job's wall time and CPU against SGBM alone's, and the output's MB per frame; then the
+medians. "before" and "after" swap places every round. Both
 packages are compiled to bytecode first, as an installed copy is
 (:func:`harness.compile_bytecode`).
 
@@ -94,6 +95,8 @@ def main(argv: list[str] | None = None) -> int:
                 "SGBM alone s (CPU ms/frame)",
                 "before s (CPU ms/frame)",
                 "after s (CPU ms/frame)",
+                "wall before / SGBM",
+                "wall after / SGBM",
                 "CPU before / SGBM",
                 "CPU after / SGBM",
                 "MB/frame before",
@@ -101,23 +104,32 @@ def main(argv: list[str] | None = None) -> int:
             ]
         )
     )
-    ratios: dict[str, list[float]] = {"before": [], "after": []}
+    walls: dict[str, list[float]] = {"before": [], "after": []}
+    cpus: dict[str, list[float]] = {"before": [], "after": []}
     for round_index in range(args.rounds):
         alone = run(sgbm, work)
-        before = run(densify, work, old_env)
-        before_mb = output.stat().st_size / 1e6 / frames
-        after = run(densify, work)
-        after_mb = output.stat().st_size / 1e6 / frames
-        ratios["before"].append(before[1] / alone[1])
-        ratios["after"].append(after[1] / alone[1])
+        # the order alternates from round to round, so neither gains from going second
+        timed: dict[str, tuple[float, float]] = {}
+        sizes: dict[str, float] = {}
+        for name in ("before", "after") if round_index % 2 == 0 else ("after", "before"):
+            timed[name] = run(densify, work, old_env if name == "before" else None)
+            sizes[name] = output.stat().st_size / 1e6 / frames
+            walls[name].append(timed[name][0] / alone[0])
+            cpus[name].append(timed[name][1] / alone[1])
         cells: list[object] = [round_index + 1]
-        cells += [f"{wall:.1f} ({1000 * cpu / frames:.0f})" for wall, cpu in (alone, before, after)]
-        cells += [f"{ratios['before'][-1]:.2f}", f"{ratios['after'][-1]:.2f}"]
-        cells += [f"{before_mb:.3f}", f"{after_mb:.3f}"]
+        cells += [
+            f"{wall:.2f} ({1000 * cpu / frames:.0f})"
+            for wall, cpu in (alone, timed["before"], timed["after"])
+        ]
+        cells += [f"{walls[name][-1]:.3f}" for name in ("before", "after")]
+        cells += [f"{cpus[name][-1]:.2f}" for name in ("before", "after")]
+        cells += [f"{sizes['before']:.3f}", f"{sizes['after']:.3f}"]
         print(harness.table_row(cells), flush=True)
     print(
-        f"\nCPU against SGBM alone, median: before {statistics.median(ratios['before']):.2f}, "
-        f"after {statistics.median(ratios['after']):.2f} over {args.rounds} rounds"
+        f"\nagainst SGBM alone over {args.rounds} rounds, median wall: before "
+        f"{statistics.median(walls['before']):.3f}, after {statistics.median(walls['after']):.3f}"
+        f"; median CPU: before {statistics.median(cpus['before']):.2f}, after "
+        f"{statistics.median(cpus['after']):.2f}"
     )
     return 0
 

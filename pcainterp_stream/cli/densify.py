@@ -257,6 +257,10 @@ def run(args: argparse.Namespace) -> int:
     builtin = kind is not None
     if builtin:
         args.basis = None
+    if args.basis is None:  # read while the log is opened and its first pair read
+        from pcainterp_stream.estimate.basis import preload_builtin
+
+        preload_builtin("street" if kind in (None, "auto") else kind)
     processor = _processor_config(
         args, adapt="check" if builtin else "auto", builtin=kind or "auto"
     )
@@ -365,9 +369,16 @@ def _sigma_option(value: str) -> float | str:
 
 def _check_estimate(processor: ProcessorConfig, basis_path: Path | None) -> None:
     """Refuse estimate options that do not fit the basis, before any work is done."""
-    from pcainterp_stream.estimate.basis import Basis, builtin_basis
+    from pcainterp_stream.estimate.basis import Basis, builtin_basis, builtin_basis_installed
 
     if processor.prior == "paper" and not processor.temporal:
+        return
+    if processor.prior == "auto" and processor.uncertainty != "paper":
+        # "auto" takes the prior the basis has: nothing to refuse (the basis is read
+        # later, and a missing built-in file is reported now)
+        kind = "street" if processor.builtin == "auto" else processor.builtin
+        if basis_path is None and not builtin_basis_installed(kind):
+            builtin_basis(kind)  # raises, naming the file and the fix
         return
     if basis_path is None:
         kind = "street" if processor.builtin == "auto" else processor.builtin

@@ -14,11 +14,13 @@ variance sum_i lambda_i u_i(x)^2, coarser variance grids) is computed once per
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib.resources
 import json
 import os
 import tempfile
+import threading
 import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -526,19 +528,44 @@ _DEFAULTS: dict[str, Basis] = {}
 """The built-in basis once loaded, by path (a test may point the package data elsewhere)."""
 
 
+_DEFAULTS_LOCK = threading.Lock()
+"""Held while a built-in basis loads: a load already under way (:func:`preload_builtin`) is
+waited for, never repeated."""
+
+
 def _load_default(path: str) -> Basis:
     """Load the built-in basis at ``path`` once and keep it."""
     cached = _DEFAULTS.get(path)
     if cached is not None:
         return cached
-    if not Path(path).is_file():
-        raise BasisError(
-            f"the built-in basis {path} is missing from this installation of pcainterp-stream; "
-            "reinstall it (pip install .), or pass --basis BASIS.npz (learn one with "
-            "`pcainterp learn`)"
-        )
-    basis = _DEFAULTS[path] = Basis.load(path)
-    return basis
+    with _DEFAULTS_LOCK:
+        cached = _DEFAULTS.get(path)
+        if cached is not None:
+            return cached
+        if not Path(path).is_file():
+            raise BasisError(
+                f"the built-in basis {path} is missing from this installation of "
+                "pcainterp-stream; reinstall it (pip install .), or pass --basis BASIS.npz "
+                "(learn one with `pcainterp learn`)"
+            )
+        basis = _DEFAULTS[path] = Basis.load(path)
+        return basis
+
+
+def preload_builtin(kind: str) -> None:
+    """Start loading the built-in basis of a kind in a thread of its own, and return.
+
+    Reading and checking the street basis (17 MB) takes ~0.03-0.08 s: a command that will
+    need it starts the load first and does its other start-up work meanwhile; the first
+    :func:`builtin_basis` call then waits for this load instead of making its own. An
+    error (a missing or damaged file) is left for that call to raise.
+    """
+
+    def load() -> None:
+        with contextlib.suppress(BasisError, ValueError, OSError):
+            builtin_basis(kind)
+
+    threading.Thread(target=load, name="basis-load", daemon=True).start()
 
 
 def is_default(basis: Basis) -> bool:

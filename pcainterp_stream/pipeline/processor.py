@@ -36,6 +36,7 @@ import dataclasses
 import enum
 import functools
 import os
+import threading
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -410,11 +411,10 @@ class FrameProcessor:
         self._lane = ThreadPoolExecutor(max_workers=1, thread_name_prefix="densify")
         # each batch's estimate (solves, std, images) once its measurements are final: in
         # a pool, several batches at once, when no state runs from frame to frame
-        self._estimators = ThreadPoolExecutor(
-            max_workers=self.config.estimate_workers
-            or (1 if self.config.measurements == "dense" else 2),
-            thread_name_prefix="estimate",
+        estimate_workers = self.config.estimate_workers or (
+            1 if self.config.measurements == "dense" else 2
         )
+        self._estimators = ThreadPoolExecutor(estimate_workers, thread_name_prefix="estimate")
         self._densifying: deque[tuple[int, Future[Future[list[DensifiedFrame]]]]] = deque()
         self._densified_any = False
         self.frames_done = 0
@@ -444,9 +444,17 @@ class FrameProcessor:
             name=f"the built-in {kind} basis" if kind is not None else "the basis",
             alternatives=self._alternatives(kind),
             own_above=OWN_ABOVE_STREET if kind == "street" else FITS_BELOW,
+            # the estimate pool is idle while the check runs, before the first estimate;
+            # its frames are solved in batches as the estimate's are
+            pool=self._estimators,
+            part_frames=self.config.batch_size,
         )
         # decided here, not from the lane's state: the first batch is the check's frames
         self._warming = self.adaptation.warming
+        # frames queued on the densify thread before ``submit`` waits (:meth:`_lane_frames`)
+        self._lane_allowance = (
+            self.adaptation.warmup_frames + CHECK_LEAD_BATCHES * self.config.batch_size
+        )
         self._lane.submit(_prepare, basis, self.config.uncertainty)
 
     def _builtin(self, basis: Basis | None) -> Basis:
@@ -605,9 +613,13 @@ class FrameProcessor:
         the check; after it, one batch waits while one is densified. Each frame held is
         its pair and measurements.
         """
+        steady = 2 * self.config.batch_size
         if self._densified_any:
-            return 2 * self.config.batch_size
-        return self.adaptation.warmup_frames + CHECK_LEAD_BATCHES * self.config.batch_size
+            # the lead built up during the check drains as the estimate catches up, never
+            # all at once: a forced drain would stop the stereo workers for a while
+            queued = sum(count for count, _ in self._densifying)
+            self._lane_allowance = max(steady, min(self._lane_allowance, queued))
+        return self._lane_allowance
 
     def _hand_over(self) -> None:
         """Queue the ready frames, as one batch, on the densify thread."""
@@ -685,7 +697,14 @@ class FrameProcessor:
         if not self.adaptation.adapted:
             jobs = self._measurements(ready)
             if self.temporal is None:  # frames independent once carried: in the pool
-                return self._estimators.submit(self._estimate_all, jobs)
+                # the warm-up's large batch in batch-size parts, one per estimate thread
+                return _gathered(
+                    [
+                        self._estimators.submit(self._estimate, part)
+                        for job in jobs
+                        for part in job.parts(self.config.batch_size)
+                    ]
+                )
             return _finished(self._estimate_all(jobs))
         # the log's own basis: a frame whose map completes a relearning is densified with the
         # basis of the frames before it, the next frames with the relearned one, so what a
@@ -804,12 +823,54 @@ class _Estimate(NamedTuple):
     options: dict[str, Any]
     temporal: TemporalPrior | None
 
+    def parts(self, size: int) -> list[_Estimate]:
+        """Split the group into parts of at most ``size`` frames, estimated on their own."""
+        return [
+            self._replace(
+                group=self.group[start : start + size],
+                pixels=self.pixels[start : start + size],
+                disparities=self.disparities[start : start + size],
+                noise_stds=(
+                    None if self.noise_stds is None else self.noise_stds[start : start + size]
+                ),
+                carried=self.carried[start : start + size],
+            )
+            for start in range(0, len(self.group), size)
+        ]
+
 
 def _finished(results: list[DensifiedFrame]) -> Future[list[DensifiedFrame]]:
     """Return a future already holding ``results`` (an estimate made on the densify thread)."""
     future: Future[list[DensifiedFrame]] = Future()
     future.set_result(results)
     return future
+
+
+def _gathered(parts: list[Future[list[DensifiedFrame]]]) -> Future[list[DensifiedFrame]]:
+    """Return a future of the parts' frames in order, done when every part is."""
+    if len(parts) == 1:
+        return parts[0]
+    whole: Future[list[DensifiedFrame]] = Future()
+    left = [len(parts)]
+    lock = threading.Lock()
+
+    def part_done(_: Future[list[DensifiedFrame]]) -> None:
+        with lock:
+            left[0] -= 1
+            if left[0]:
+                return
+        if any(part.cancelled() for part in parts):  # the processor closed
+            whole.cancel()
+            return
+        failed = next((part.exception() for part in parts if part.exception()), None)
+        if failed is not None:
+            whole.set_exception(failed)
+        else:
+            whole.set_result([frame for part in parts for frame in part.result()])
+
+    for part in parts:
+        part.add_done_callback(part_done)
+    return whole
 
 
 def _done(future: Future[Future[list[DensifiedFrame]]]) -> bool:

@@ -12,6 +12,7 @@ import hashlib
 import json
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -212,3 +213,39 @@ def test_make_default_basis_indoor_regenerates_bit_for_bit(tmp_path: Path) -> No
     assert basis.n_train == recipe["walks"] * len(range(0, recipe["frames"], recipe["step"]))
     assert basis.meta["source"]["cameras"] == ["752x480", "640x480", "1280x720", "fisheye-752x480"]
     assert "prior" in basis.meta
+
+
+def test_a_preloaded_built_in_basis_is_read_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A load started ahead (``preload_builtin``) is waited for by the first caller, never
+    repeated, and hands every caller the same object; a missing file is left to that
+    caller to report."""
+    import shutil
+    import threading
+
+    copy = tmp_path / "data" / "default_basis.npz"
+    copy.parent.mkdir()
+    shutil.copy(default_basis_path(), copy)
+    monkeypatch.setattr(basis_module, "default_basis_path", lambda: copy)
+    loads: list[str] = []
+    original = Basis.load
+    started = threading.Event()
+
+    def slow_load(path: Any) -> Basis:
+        loads.append(threading.current_thread().name)
+        started.set()
+        time.sleep(0.2)  # the caller below arrives while this load is under way
+        return original(path)
+
+    monkeypatch.setattr(Basis, "load", staticmethod(slow_load))
+    basis_module.preload_builtin("street")
+    assert started.wait(10)
+    first = Basis.default()
+    assert loads == ["basis-load"]
+    assert Basis.default() is first
+    # nothing to load: the preload says nothing, the caller raises
+    monkeypatch.setattr(basis_module, "default_basis_path", lambda: tmp_path / "gone.npz")
+    basis_module.preload_builtin("street")
+    with pytest.raises(BasisError, match="is missing"):
+        Basis.default()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
+from collections import deque
 from typing import Any
 
 import cv2
@@ -542,3 +543,53 @@ def test_a_processor_closed_normally_finishes_its_running_task(basis: Basis) -> 
     with engine:
         pass
     assert done == [1]
+
+
+def test_the_warm_up_batch_is_estimated_in_batch_size_parts(
+    basis: Basis, frames: list[StereoFrame], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The check's large first batch goes to the estimate pool in parts of ``batch_size``
+    frames (one per thread), and the check's own solves in the same parts; results and
+    figures do not depend on how many threads solve them."""
+    sizes: list[int] = []
+    original = FrameProcessor._estimate
+
+    def recorded(self: FrameProcessor, job: Any) -> Any:
+        sizes.append(len(job.group))
+        return original(self, job)
+
+    monkeypatch.setattr(FrameProcessor, "_estimate", recorded)
+    options: dict[str, Any] = {"sgbm": SGBM, "batch_size": 2, "warmup_frames": 5}
+    checks = []
+    results = []
+    for workers in (1, 2, 3):
+        sizes.clear()
+        with FrameProcessor(basis, ProcessorConfig(estimate_workers=workers, **options)) as engine:
+            results.append(list(engine.process(frames * 2)))
+            checks.append(engine.adaptation.check)
+        assert max(sizes) <= 2
+        assert sum(sizes) == len(frames) * 2
+    assert checks[0] is not None
+    assert checks[0].frames == 5
+    assert checks[1] == checks[0]
+    assert checks[2] == checks[0]
+    for one, other in zip(results[0], results[2], strict=True):
+        np.testing.assert_array_equal(one.disparity, other.disparity)
+        np.testing.assert_array_equal(one.disparity_std, other.disparity_std)
+
+
+def test_the_lead_built_during_the_check_drains_gradually(basis: Basis) -> None:
+    """After the first batch, the frames allowed on the densify thread follow the queue
+    down as it drains, to two batches and never below, and never grow back: the lead
+    built during the check is not drained all at once (which would stop the workers)."""
+    config = ProcessorConfig(sgbm=SGBM, batch_size=2, warmup_frames=3)
+    with FrameProcessor(basis, config) as engine:
+        start = engine._lane_frames()
+        assert start == 3 + processor.CHECK_LEAD_BATCHES * 2
+        engine._densified_any = True
+        allowed = []
+        for queued in (9, 7, 8, 5, 6, 2, 7):
+            engine._densifying = deque([(queued, processor._finished([]))])  # type: ignore[list-item]
+            allowed.append(engine._lane_frames())
+        engine._densifying.clear()
+    assert allowed == [9, 7, 7, 5, 5, 4, 4]
