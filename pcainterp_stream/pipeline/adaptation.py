@@ -24,6 +24,7 @@ import numpy.typing as npt
 from pcainterp_stream.estimate import adapt
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
+from pcainterp_stream.records import StereoCamera
 
 FITS_BELOW = 0.8
 """A basis at most this times linear interpolation's error is kept without trying the other
@@ -386,3 +387,16 @@ class AdaptFrame:
         """Return the frame as :func:`adapt.refit_prior` and the check take it."""
         assert self.sgbm_map is not None
         return adapt.Measured(self.pixels, self.disparities, self.sgbm_map)
+
+
+def sgbm_maps(
+    disparity_map: npt.NDArray[np.float32], camera: StereoCamera
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32] | None]:
+    """Return a frame's SGBM map (NaN where invalid) and its grid map for the log's basis.
+
+    The grid map is None for a blank pair (no valid pixel: no map to learn from).
+    """
+    sgbm_map = np.where(disparity_map > 0, disparity_map, np.nan).astype(np.float32)
+    if not np.isfinite(sgbm_map).any():
+        return sgbm_map, None
+    return sgbm_map, adapt.grid_map(sgbm_map, camera.image_size)

@@ -36,7 +36,6 @@ import dataclasses
 import enum
 import functools
 import os
-import threading
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -75,8 +74,9 @@ from pcainterp_stream.pipeline.adaptation import (
     Adaptation,
     AdaptFrame,
     Candidate,
+    sgbm_maps,
 )
-from pcainterp_stream.pipeline.threads import ThreadLimits, lower_priority
+from pcainterp_stream.pipeline.threads import ThreadLimits, finished, gathered, lower_priority
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoCamera, StereoFrame
 
 
@@ -537,7 +537,7 @@ class FrameProcessor:
                 holes = find_holes(disparity_map)
             if self.adaptation.wants_maps():
                 if check_frame or self.adaptation.adapted:
-                    sgbm_map, grid = _maps(measurements.disparity_map, frame.camera)
+                    sgbm_map, grid = sgbm_maps(measurements.disparity_map, frame.camera)
                     if check_frame and grid is not None:
                         held_out = adapt.HeldOut.of(sgbm_map, pixels, disparities)
                 else:  # matched ahead while the check runs: needed only if it adapts
@@ -648,9 +648,7 @@ class FrameProcessor:
             self._densified_any = True
         return results
 
-    def _densify_batch(
-        self, ready: list[_Measured], warming: bool
-    ) -> Future[list[DensifiedFrame]]:
+    def _densify_batch(self, ready: list[_Measured], warming: bool) -> Future[list[DensifiedFrame]]:
         """Densify one batch from the densify thread (after the fit check on the first).
 
         Returns the future of its frames: the estimate runs in the estimate pool when no
@@ -693,19 +691,19 @@ class FrameProcessor:
 
     def _densify_ready(self, ready: list[_Measured]) -> Future[list[DensifiedFrame]]:
         if not ready:
-            return _finished([])
+            return finished([])
         if not self.adaptation.adapted:
             jobs = self._measurements(ready)
             if self.temporal is None:  # frames independent once carried: in the pool
                 # the warm-up's large batch in batch-size parts, one per estimate thread
-                return _gathered(
+                return gathered(
                     [
                         self._estimators.submit(self._estimate, part)
                         for job in jobs
                         for part in job.parts(self.config.batch_size)
                     ]
                 )
-            return _finished(self._estimate_all(jobs))
+            return finished(self._estimate_all(jobs))
         # the log's own basis: a frame whose map completes a relearning is densified with the
         # basis of the frames before it, the next frames with the relearned one, so what a
         # frame gets never depends on how frames were batched
@@ -717,7 +715,7 @@ class FrameProcessor:
                 results += self._estimate_all(self._measurements(ready[start : index + 1]))
                 start = index + 1
                 self._use(relearned)
-        return _finished(results + self._estimate_all(self._measurements(ready[start:])))
+        return finished(results + self._estimate_all(self._measurements(ready[start:])))
 
     def _measurements(self, ready: list[_Measured]) -> list[_Estimate]:
         """Return each camera's group of ``ready`` with its final measurements (in order).
@@ -839,40 +837,6 @@ class _Estimate(NamedTuple):
         ]
 
 
-def _finished(results: list[DensifiedFrame]) -> Future[list[DensifiedFrame]]:
-    """Return a future already holding ``results`` (an estimate made on the densify thread)."""
-    future: Future[list[DensifiedFrame]] = Future()
-    future.set_result(results)
-    return future
-
-
-def _gathered(parts: list[Future[list[DensifiedFrame]]]) -> Future[list[DensifiedFrame]]:
-    """Return a future of the parts' frames in order, done when every part is."""
-    if len(parts) == 1:
-        return parts[0]
-    whole: Future[list[DensifiedFrame]] = Future()
-    left = [len(parts)]
-    lock = threading.Lock()
-
-    def part_done(_: Future[list[DensifiedFrame]]) -> None:
-        with lock:
-            left[0] -= 1
-            if left[0]:
-                return
-        if any(part.cancelled() for part in parts):  # the processor closed
-            whole.cancel()
-            return
-        failed = next((part.exception() for part in parts if part.exception()), None)
-        if failed is not None:
-            whole.set_exception(failed)
-        else:
-            whole.set_result([frame for part in parts for frame in part.result()])
-
-    for part in parts:
-        part.add_done_callback(part_done)
-    return whole
-
-
 def _done(future: Future[Future[list[DensifiedFrame]]]) -> bool:
     """Tell whether a batch handed to the densify thread is estimated (both steps done)."""
     return future.done() and (future.exception() is not None or future.result().done())
@@ -908,7 +872,7 @@ def _adapt_frame(item: _Measured) -> AdaptFrame:
     camera = item.frame.camera
     sgbm_map, grid = item.sgbm_map, item.grid_map
     if item.raw_map is not None:
-        sgbm_map, grid = _maps(item.raw_map, camera)
+        sgbm_map, grid = sgbm_maps(item.raw_map, camera)
     return AdaptFrame(
         item.pixels,
         item.disparities,
@@ -918,19 +882,6 @@ def _adapt_frame(item: _Measured) -> AdaptFrame:
         camera.focal_baseline,
         item.held_out,
     )
-
-
-def _maps(
-    disparity_map: npt.NDArray[np.float32], camera: StereoCamera
-) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32] | None]:
-    """Return a frame's SGBM map (NaN where invalid) and its grid map for the log's basis.
-
-    The grid map is None for a blank pair (no valid pixel: no map to learn from).
-    """
-    sgbm_map = np.where(disparity_map > 0, disparity_map, np.nan).astype(np.float32)
-    if not np.isfinite(sgbm_map).any():
-        return sgbm_map, None
-    return sgbm_map, adapt.grid_map(sgbm_map, camera.image_size)
 
 
 @functools.lru_cache(maxsize=4)

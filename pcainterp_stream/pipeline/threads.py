@@ -1,7 +1,7 @@
-"""The frame processor's process-wide thread settings.
+"""The frame processor's process-wide thread settings, and futures of work in parts.
 
-OpenCV's and BLAS's thread counts, shared by the processors open at once, and the stereo
-workers' lower priority.
+OpenCV's and BLAS's thread counts, shared by the processors open at once, the stereo
+workers' lower priority, and futures joining work split across a pool.
 """
 
 from __future__ import annotations
@@ -9,8 +9,12 @@ from __future__ import annotations
 import contextlib
 import os
 import threading
+from concurrent.futures import Future
+from typing import TypeVar
 
 import cv2
+
+T = TypeVar("T")
 
 
 class ThreadLimits:
@@ -78,3 +82,40 @@ def lower_priority(niceness: int) -> None:
     tid = threading.get_native_id()
     with contextlib.suppress(OSError):
         os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + niceness)
+
+
+def finished(results: list[T]) -> Future[list[T]]:
+    """Return a future already holding ``results`` (work done on the calling thread)."""
+    future: Future[list[T]] = Future()
+    future.set_result(results)
+    return future
+
+
+def gathered(parts: list[Future[list[T]]]) -> Future[list[T]]:
+    """Return a future of the parts' items in order, done when every part is.
+
+    Cancelled when a part is (its pool shut down); failed with the first part's error.
+    """
+    if len(parts) == 1:
+        return parts[0]
+    whole: Future[list[T]] = Future()
+    left = [len(parts)]
+    lock = threading.Lock()
+
+    def part_done(_: Future[list[T]]) -> None:
+        with lock:
+            left[0] -= 1
+            if left[0]:
+                return
+        if any(part.cancelled() for part in parts):
+            whole.cancel()
+            return
+        failed = next((part.exception() for part in parts if part.exception()), None)
+        if failed is not None:
+            whole.set_exception(failed)
+        else:
+            whole.set_result([item for part in parts for item in part.result()])
+
+    for part in parts:
+        part.add_done_callback(part_done)
+    return whole

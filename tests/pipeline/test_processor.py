@@ -18,7 +18,7 @@ from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.frontend.motion import CarryConfig
 from pcainterp_stream.frontend.stereo import SgbmConfig
-from pcainterp_stream.pipeline import processor
+from pcainterp_stream.pipeline import processor, threads
 from pcainterp_stream.pipeline.processor import (
     FrameProcessor,
     MeasurementSource,
@@ -589,7 +589,7 @@ def test_the_lead_built_during_the_check_drains_gradually(basis: Basis) -> None:
         engine._densified_any = True
         allowed = []
         for queued in (9, 7, 8, 5, 6, 2, 7):
-            engine._densifying = deque([(queued, processor._finished([]))])  # type: ignore[list-item]
+            engine._densifying = deque([(queued, threads.finished([]))])  # type: ignore[list-item]
             allowed.append(engine._lane_frames())
         engine._densifying.clear()
     assert allowed == [9, 7, 7, 5, 5, 4, 4]
