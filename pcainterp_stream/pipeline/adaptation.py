@@ -15,7 +15,6 @@ only on the frames and their order: a log gives the same output however it is re
 from __future__ import annotations
 
 from collections.abc import Callable
-from concurrent.futures import Executor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -23,7 +22,7 @@ import numpy.typing as npt
 
 from pcainterp_stream.estimate import adapt
 from pcainterp_stream.estimate.basis import Basis
-from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
+from pcainterp_stream.estimate.estimator import densify_batch
 from pcainterp_stream.records import StereoCamera
 
 FITS_BELOW = 0.8
@@ -79,9 +78,6 @@ class Adaptation:
         switched: the alternative chosen instead of the given basis, if any.
         own_above: the log's own basis is tried when the given basis (if it stays chosen)
             scores at least this times linear interpolation's error.
-        pool: threads the check's parts are solved in, several at once; None: the calling
-            thread, one after the other.
-        part_frames: frames solved together in the check (0: all of them at once).
     """
 
     mode: str
@@ -100,8 +96,6 @@ class Adaptation:
     own_check: adapt.FitCheck | None = None
     first_basis: Basis | None = None
     updates: int = 0
-    pool: Executor | None = None
-    part_frames: int = 0
     _maps: list[npt.NDArray[np.float32]] = field(default_factory=list)
     _recent: list[adapt.Measured] = field(default_factory=list)
     _seen: int = 0
@@ -157,13 +151,11 @@ class Adaptation:
             for f, m in zip(usable, measured, strict=True)
         ]
 
-        def solve(
-            candidate: Basis, options: dict[str, object], part: list[AdaptFrame]
-        ) -> list[DensifyResult]:
-            return densify_batch(
+        def check(candidate: Basis, options: dict[str, object]) -> adapt.FitCheck:
+            estimates = densify_batch(
                 candidate,
-                [f.pixels for f in part],
-                [f.disparities for f in part],
+                [f.pixels for f in usable],
+                [f.disparities for f in usable],
                 uncertainty="none",
                 image_size=size,
                 focal_baseline=fb,
@@ -171,19 +163,6 @@ class Adaptation:
                 with_depth=False,  # scored on the disparity only
                 **options,  # type: ignore[arg-type]
             )
-
-        def check(candidate: Basis, options: dict[str, object]) -> adapt.FitCheck:
-            # in parts of ``part_frames`` frames, however many threads solve them: the
-            # figures depend on the frames and that size only
-            step = self.part_frames or len(usable)
-            parts = [usable[start : start + step] for start in range(0, len(usable), step)]
-            if self.pool is None:
-                estimates = [
-                    estimate for part in parts for estimate in solve(candidate, options, part)
-                ]
-            else:
-                solving = [self.pool.submit(solve, candidate, options, part) for part in parts]
-                estimates = [estimate for part in solving for estimate in part.result()]
             return adapt.FitCheck.combine(
                 [h.score(e.disparity) for e, h in zip(estimates, held_out, strict=True)]
             )

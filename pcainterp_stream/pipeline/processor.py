@@ -444,17 +444,9 @@ class FrameProcessor:
             name=f"the built-in {kind} basis" if kind is not None else "the basis",
             alternatives=self._alternatives(kind),
             own_above=OWN_ABOVE_STREET if kind == "street" else FITS_BELOW,
-            # the estimate pool is idle while the check runs, before the first estimate;
-            # its frames are solved in batches as the estimate's are
-            pool=self._estimators,
-            part_frames=self.config.batch_size,
         )
         # decided here, not from the lane's state: the first batch is the check's frames
         self._warming = self.adaptation.warming
-        # frames queued on the densify thread before ``submit`` waits (:meth:`_lane_frames`)
-        self._lane_allowance = (
-            self.adaptation.warmup_frames + CHECK_LEAD_BATCHES * self.config.batch_size
-        )
         self._lane.submit(_prepare, basis, self.config.uncertainty)
 
     def _builtin(self, basis: Basis | None) -> Basis:
@@ -613,13 +605,9 @@ class FrameProcessor:
         the check; after it, one batch waits while one is densified. Each frame held is
         its pair and measurements.
         """
-        steady = 2 * self.config.batch_size
         if self._densified_any:
-            # the lead built up during the check drains as the estimate catches up, never
-            # all at once: a forced drain would stop the stereo workers for a while
-            queued = sum(count for count, _ in self._densifying)
-            self._lane_allowance = max(steady, min(self._lane_allowance, queued))
-        return self._lane_allowance
+            return 2 * self.config.batch_size
+        return self.adaptation.warmup_frames + CHECK_LEAD_BATCHES * self.config.batch_size
 
     def _hand_over(self) -> None:
         """Queue the ready frames, as one batch, on the densify thread."""

@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
-from collections import deque
 from typing import Any
 
 import cv2
@@ -18,7 +17,7 @@ from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.frontend.motion import CarryConfig
 from pcainterp_stream.frontend.stereo import SgbmConfig
-from pcainterp_stream.pipeline import processor, threads
+from pcainterp_stream.pipeline import processor
 from pcainterp_stream.pipeline.processor import (
     FrameProcessor,
     MeasurementSource,
@@ -549,8 +548,7 @@ def test_the_warm_up_batch_is_estimated_in_batch_size_parts(
     basis: Basis, frames: list[StereoFrame], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """The check's large first batch goes to the estimate pool in parts of ``batch_size``
-    frames (one per thread), and the check's own solves in the same parts; results and
-    figures do not depend on how many threads solve them."""
+    frames, several at once; the results do not depend on how many threads solve them."""
     sizes: list[int] = []
     original = FrameProcessor._estimate
 
@@ -576,20 +574,3 @@ def test_the_warm_up_batch_is_estimated_in_batch_size_parts(
     for one, other in zip(results[0], results[2], strict=True):
         np.testing.assert_array_equal(one.disparity, other.disparity)
         np.testing.assert_array_equal(one.disparity_std, other.disparity_std)
-
-
-def test_the_lead_built_during_the_check_drains_gradually(basis: Basis) -> None:
-    """After the first batch, the frames allowed on the densify thread follow the queue
-    down as it drains, to two batches and never below, and never grow back: the lead
-    built during the check is not drained all at once (which would stop the workers)."""
-    config = ProcessorConfig(sgbm=SGBM, batch_size=2, warmup_frames=3)
-    with FrameProcessor(basis, config) as engine:
-        start = engine._lane_frames()
-        assert start == 3 + processor.CHECK_LEAD_BATCHES * 2
-        engine._densified_any = True
-        allowed = []
-        for queued in (9, 7, 8, 5, 6, 2, 7):
-            engine._densifying = deque([(queued, threads.finished([]))])  # type: ignore[list-item]
-            allowed.append(engine._lane_frames())
-        engine._densifying.clear()
-    assert allowed == [9, 7, 7, 5, 5, 4, 4]
