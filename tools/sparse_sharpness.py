@@ -78,6 +78,12 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "gaussian40": {"prior": {"local": {"kernel": "gaussian", "length_scale": 40.0}}},
     "sigma0.5": {"prior": {"sigma": 0.5}},
     "sigma1": {"prior": {"sigma": 1.0}},
+    # the edge-aware local prior's cell weight w (1: the stationary kernel; estimate/cells.py)
+    "cells0": {"prior": {"local": {"cell_weight": 0.0}}},
+    "cells0.25": {"prior": {"local": {"cell_weight": 0.25}}},
+    "cells0.5": {"prior": {"local": {"cell_weight": 0.5}}},
+    "cells0.75": {"prior": {"local": {"cell_weight": 0.75}}},
+    "stationary": {"prior": {"local": {"cell_weight": 1.0}}},
 }
 
 
@@ -402,6 +408,7 @@ def estimate_seconds(
     """
     from threadpoolctl import threadpool_limits
 
+    from pcainterp_stream.estimate.cells import cell_map
     from pcainterp_stream.estimate.estimator import densify_batch
     from pcainterp_stream.frontend.stereo import StereoFrontEnd
     from pcainterp_stream.pipeline.processor import resolve_settings
@@ -424,6 +431,7 @@ def estimate_seconds(
                         basis,
                         [m.pixels for m in batch],
                         [m.disparities for m in batch],
+                        edge_maps=[cell_map(m.disparity_map, basis.grid_size) for m in batch],
                         image_size=camera.image_size,
                         focal_baseline=camera.focal_baseline,
                         robust=config.robust,

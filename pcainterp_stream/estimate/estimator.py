@@ -44,6 +44,7 @@ from pcainterp_stream.estimate.basis import (
     resample_grid,
     sample_rows,
 )
+from pcainterp_stream.estimate.cells import Cells, cell_grid_size, geodesic_cells, to_cell_grid
 from pcainterp_stream.estimate.prior import (
     LocalPrior,
     Model,
@@ -157,6 +158,7 @@ def densify(
     robust_iterations: int = 1,
     scale_by_innovation: bool = False,
     noise_std: npt.ArrayLike | None = None,
+    edge_map: npt.ArrayLike | None = None,
 ) -> DensifyResult:
     """Densify one frame's sparse disparities with the MAP estimate.
 
@@ -192,6 +194,10 @@ def densify(
         noise_std: (k,) float, extra noise std (px of the output camera) of each
             measurement, added in quadrature to ``sigma``: R_j = (sigma^2 + s_j^2) / w_j
             (e.g. points carried over from earlier frames, :mod:`motion`). None: all 0.
+        edge_map: (h, w) float, a disparity map of the frame spanning the image at any
+            resolution (px, <= 0 or NaN unknown; e.g. the front end's SGBM map), along which
+            an edge-aware ``local_prior`` (``cell_weight`` < 1) makes its cells
+            (:mod:`cells`); None: the stationary kernel.
 
     Returns:
         The :class:`DensifyResult`. Zero usable measurements give the prior (mean map,
@@ -217,6 +223,7 @@ def densify(
         robust_iterations=robust_iterations,
         scale_by_innovation=scale_by_innovation,
         noise_stds=None if noise_std is None else [noise_std],
+        edge_maps=None if edge_map is None else [edge_map],
     )[0]
 
 
@@ -239,6 +246,7 @@ def densify_batch(
     scale_by_innovation: bool = False,
     noise_stds: Sequence[npt.ArrayLike | None] | None = None,
     with_depth: bool = True,
+    edge_maps: Sequence[npt.ArrayLike | None] | None = None,
 ) -> list[DensifyResult]:
     """Densify several frames at once with matrix-matrix products across frames.
 
@@ -269,6 +277,8 @@ def densify_batch(
         with_depth: also convert to depth and its std; False leaves ``depth`` and
             ``depth_std`` None (for a caller that changes the disparity first, as dense
             fusion does, and converts then).
+        edge_maps: F disparity maps (or None) for an edge-aware ``local_prior``, see
+            :func:`densify`; None: none.
 
     Returns:
         One :class:`DensifyResult` per frame, in order.
@@ -305,6 +315,11 @@ def densify_batch(
             f"Expected `noise_stds` to have one entry per frame ({len(pixels_list)}), "
             f"got {len(noise_stds)}"
         )
+    if edge_maps is not None and len(edge_maps) != len(pixels_list):
+        raise ValueError(
+            f"Expected `edge_maps` to have one entry per frame ({len(pixels_list)}), "
+            f"got {len(edge_maps)}"
+        )
     frames = []
     extra_variances: list[npt.NDArray[np.float64] | None] = []
     for index, (pixels, disparities) in enumerate(zip(pixels_list, disparities_list, strict=True)):
@@ -320,8 +335,9 @@ def densify_batch(
             temporal.reset()
             temporal.key = key
     posteriors = []
-    for (frame_pixels, frame_disparities, _), extra_variance in zip(
-        frames, extra_variances, strict=True
+    edge_aware = model.local is not None and model.local.edge_aware and edge_maps is not None
+    for index, ((frame_pixels, frame_disparities, _), extra_variance) in enumerate(
+        zip(frames, extra_variances, strict=True)
     ):
         grid_positions = image_to_grid(frame_pixels, out_size, basis.grid_size)
         indices, weights = bilinear_weights(grid_positions, basis.grid_size)
@@ -335,6 +351,9 @@ def densify_batch(
             )
             continue
         positions = image_to_grid(frame_pixels, out_size, basis.image_size)
+        cells = None
+        if edge_aware and edge_maps is not None:
+            cells = _frame_cells(edge_maps[index], frame_pixels, out_size, basis.grid_size)
         posterior = _solve_beyond(
             rows,
             residual,
@@ -344,6 +363,7 @@ def densify_batch(
             temporal,
             need_factor=need_factor,
             extra_variance=extra_variance,
+            cells=cells,
         )
         if posterior.local is not None:
             local = dataclasses.replace(posterior.local, indices=indices, weights=weights)
@@ -432,6 +452,22 @@ def densify_batch(
             )
         )
     return results
+
+
+def _frame_cells(
+    edge_map: npt.ArrayLike | None,
+    pixels: npt.NDArray[np.float64],
+    image_size: tuple[int, int],
+    basis_grid: tuple[int, int],
+) -> Cells | None:
+    """The measurements' cells along a frame's disparity map (None without map or points)."""
+    if edge_map is None or pixels.shape[0] == 0:
+        return None
+    values = np.asarray(edge_map, dtype=np.float32)
+    if values.ndim != 2 or values.size == 0:
+        raise ValueError(f"Expected each `edge_maps` entry of shape (h, w), got {values.shape}")
+    size = cell_grid_size(basis_grid)
+    return geodesic_cells(to_cell_grid(values, size), image_to_grid(pixels, image_size, size))
 
 
 def posterior_covariance(
