@@ -124,6 +124,39 @@ def _grid_graph(
     return order, indices, indptr
 
 
+def measurement_cells(
+    disparity_map: npt.ArrayLike | None,
+    pixels: npt.NDArray[np.float64],
+    image_size: tuple[int, int],
+    basis_grid: tuple[int, int],
+) -> Cells | None:
+    """Return the cells of a frame's measurements along its disparity map, on the cell grid.
+
+    Args:
+        disparity_map: (h, w) float disparity (px) spanning the image at any resolution,
+            <= 0 or NaN unknown (the front end's SGBM map, or :func:`cell_map` of it).
+        pixels: (k, 2) float64, (x, y) of the measurements in px of ``image_size``.
+        image_size: (height, width) of the image.
+        basis_grid: the basis grid (rows, cols); the cells are on :func:`cell_grid_size`.
+
+    Returns:
+        The :class:`Cells`, or None without a map or measurements.
+
+    Raises:
+        ValueError: the map is not 2-D.
+    """
+    if disparity_map is None or pixels.shape[0] == 0:
+        return None
+    values = np.asarray(disparity_map, dtype=np.float32)
+    if values.ndim != 2 or values.size == 0:
+        raise ValueError(f"Expected a disparity map of shape (h, w), got {values.shape}")
+    rows, cols = size = cell_grid_size(basis_grid)
+    # pixel-centre aligned, as basis.image_to_grid: node centres at integers
+    grid_x = (pixels[:, 0] + 0.5) * (cols / image_size[1]) - 0.5
+    grid_y = (pixels[:, 1] + 0.5) * (rows / image_size[0]) - 0.5
+    return geodesic_cells(to_cell_grid(values, size), np.column_stack([grid_x, grid_y]))
+
+
 def geodesic_cells(
     field: npt.NDArray[np.float32],
     grid_positions: npt.NDArray[np.float64],

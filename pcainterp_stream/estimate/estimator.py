@@ -44,7 +44,7 @@ from pcainterp_stream.estimate.basis import (
     resample_grid,
     sample_rows,
 )
-from pcainterp_stream.estimate.cells import Cells, cell_grid_size, geodesic_cells, to_cell_grid
+from pcainterp_stream.estimate.cells import measurement_cells
 from pcainterp_stream.estimate.prior import (
     LocalPrior,
     Model,
@@ -353,7 +353,7 @@ def densify_batch(
         positions = image_to_grid(frame_pixels, out_size, basis.image_size)
         cells = None
         if edge_aware and edge_maps is not None:
-            cells = _frame_cells(edge_maps[index], frame_pixels, out_size, basis.grid_size)
+            cells = measurement_cells(edge_maps[index], frame_pixels, out_size, basis.grid_size)
         posterior = _solve_beyond(
             rows,
             residual,
@@ -452,22 +452,6 @@ def densify_batch(
             )
         )
     return results
-
-
-def _frame_cells(
-    edge_map: npt.ArrayLike | None,
-    pixels: npt.NDArray[np.float64],
-    image_size: tuple[int, int],
-    basis_grid: tuple[int, int],
-) -> Cells | None:
-    """The measurements' cells along a frame's disparity map (None without map or points)."""
-    if edge_map is None or pixels.shape[0] == 0:
-        return None
-    values = np.asarray(edge_map, dtype=np.float32)
-    if values.ndim != 2 or values.size == 0:
-        raise ValueError(f"Expected each `edge_maps` entry of shape (h, w), got {values.shape}")
-    size = cell_grid_size(basis_grid)
-    return geodesic_cells(to_cell_grid(values, size), image_to_grid(pixels, image_size, size))
 
 
 def posterior_covariance(

@@ -201,9 +201,8 @@ class LocalPrior:
         fy = self.axis(positions[:, 1], positions[:, 1], np.float32)
         fx *= fy
         if point_cells is not None and self.edge_aware:
-            fx *= np.where(point_cells[:, None] == point_cells, 1.0, self.cell_weight).astype(
-                np.float32
-            )
+            same = point_cells[:, None] == point_cells
+            fx *= np.where(same, np.float32(1.0), np.float32(self.cell_weight))
         matrix: FloatArray = fx.astype(np.float64)
         matrix *= self.variance
         return matrix

@@ -1,0 +1,143 @@
+"""Fit the built-in basis's edge-aware cell weight w by the evidence, on synthetic and real frames.
+
+The edge-aware local prior (``pcainterp_stream/estimate/cells.py``) scales the local kernel
+between measurements of different cells of the SGBM-geodesic partition by w. This script
+measures frames as ``densify`` does (GFTT corners and lattice looked up in half-resolution
+SGBM, no carried points), makes each frame's cells along that SGBM map, and prints the
+summed log evidence of every candidate w (:func:`fitting.fit_cell_weight`) with the
+built-in basis's kernel and sigma kept, per source:
+
+- ``synth``: the basis's own fit drive (``pcainterp synth --frames 40 --seed 150``, the
+  frames sigma and the std calibration were fitted on);
+- ``odometry`` and ``raw``: the two KITTI clips from pair ``--kitti-first`` on (the first
+  40 pairs are the ones ``sparse_sharpness.py`` scores).
+
+``--write`` stores the w of ``--write-source`` in the built-in basis's ``meta["prior"]``
+(``local.cell_weight`` and the table of ``cell_weight_log_evidence``); its arrays are kept.
+
+    python tools/fit_cell_weight.py
+    python tools/fit_cell_weight.py --write --write-source synth
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import harness
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.estimate import fitting
+from pcainterp_stream.estimate.basis import Basis, default_basis_path
+from pcainterp_stream.estimate.cells import measurement_cells
+from pcainterp_stream.estimate.estimator import clean_measurements
+from pcainterp_stream.estimate.prior import LocalPrior
+from pcainterp_stream.frontend.stereo import StereoFrontEnd
+from pcainterp_stream.pipeline.processor import ProcessorConfig
+
+Pair = tuple[npt.NDArray[Any], npt.NDArray[Any], tuple[int, int], float]
+"""left, right, (height, width), f*b."""
+
+
+def _synth_pairs(seed: int, frames: int) -> Iterator[Pair]:
+    from pcainterp_stream.synth import SynthConfig, generate
+
+    for item in generate(SynthConfig(seed=seed, frames=frames)):
+        camera = item.camera
+        yield item.left, item.right, camera.image_size, camera.focal_baseline
+
+
+def _kitti_pairs(folder: Path, first: int, frames: int) -> Iterator[Pair]:
+    from pcainterp_stream.io.kitti import iter_frames, open_kitti
+
+    sequence = open_kitti(folder)
+    camera = sequence.camera
+    for index, item in enumerate(iter_frames(sequence, max_frames=first + frames)):
+        if index >= first:
+            yield item.left, item.right, camera.image_size, camera.focal_baseline
+
+
+def evidence_table(basis: Basis, pairs: Iterator[Pair]) -> tuple[float, dict[float, float], int]:
+    """Return (best w, log evidence per w, frames) of the pairs, measured as densify does."""
+    config = ProcessorConfig()
+    front_end = StereoFrontEnd(config.gftt, config.sgbm)
+    frames: list[fitting.FitFrame] = []
+    cells: list[npt.NDArray[np.int64]] = []
+    for left, right, image_size, focal_baseline in pairs:
+        measured = front_end.measure(left, right)
+        pixels, disparities, _ = clean_measurements(
+            measured.pixels, measured.disparities, image_size
+        )
+        frame = fitting.fit_frame(
+            basis, pixels, disparities, image_size=image_size, focal_baseline=focal_baseline
+        )
+        found = measurement_cells(measured.disparity_map, pixels, image_size, basis.grid_size)
+        frames.append(frame)
+        cells.append(np.zeros(0, np.int64) if found is None else found.point_cells)
+    prior = basis.meta["prior"]
+    local = LocalPrior.from_meta(prior["local"])
+    best, scores = fitting.fit_cell_weight(
+        basis, frames, cells, local=local, sigma=float(prior["sigma"])
+    )
+    return best, scores, len(frames)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the evidence of each cell weight per source; optionally store the fitted one."""
+    parser = harness.argument_parser(__doc__)
+    harness.add_realdata(parser)
+    parser.add_argument(
+        "--sources",
+        nargs="+",
+        default=["synth", "odometry", "raw"],
+        choices=["synth", "odometry", "raw"],
+    )
+    parser.add_argument("--synth-seed", type=int, default=150)
+    parser.add_argument("--synth-frames", type=int, default=40)
+    parser.add_argument("--kitti-first", type=int, default=40, help="first pair of the clips")
+    parser.add_argument("--kitti-frames", type=int, default=40)
+    parser.add_argument("--write", action="store_true", help="store w in the built-in basis")
+    parser.add_argument("--write-source", default="synth", choices=["synth", "odometry", "raw"])
+    args = parser.parse_args(argv)
+    realdata: Path = args.realdata
+    basis = Basis.default()
+    makers = {
+        "synth": lambda: _synth_pairs(args.synth_seed, args.synth_frames),
+        "odometry": lambda: _kitti_pairs(
+            realdata / harness.KITTI_ODOMETRY_CLIP, args.kitti_first, args.kitti_frames
+        ),
+        "raw": lambda: _kitti_pairs(
+            realdata / harness.KITTI_RAW_0001, args.kitti_first, args.kitti_frames
+        ),
+    }
+    fitted: dict[str, tuple[float, dict[float, float]]] = {}
+    for source in args.sources:
+        best, scores, count = evidence_table(basis, makers[source]())
+        fitted[source] = (best, scores)
+        top = max(scores.values())
+        print(f"\n{source}: {count} frames, best w {best:g}")
+        print(harness.table_header(["w", "log evidence - best (nats)"], "lr"))
+        for weight, score in scores.items():
+            print(harness.table_row([f"{weight:g}", f"{score - top:.1f}"]), flush=True)
+    if args.write:
+        if args.write_source not in fitted:
+            parser.error(f"--write-source {args.write_source} is not among --sources")
+        best, scores = fitted[args.write_source]
+        prior = dict(basis.meta["prior"])
+        prior["local"] = {**prior["local"], "cell_weight": best}
+        prior["cell_weight_log_evidence"] = {f"{w:g}": s for w, s in scores.items()}
+        prior["cell_weight_fit"] = (
+            f"{args.write_source}: tools/fit_cell_weight.py --write --write-source "
+            f"{args.write_source}"
+        )
+        updated = dataclasses.replace(basis, meta={**basis.meta, "prior": prior})
+        updated.save(default_basis_path())
+        print(f"\nwrote cell_weight {best:g} into {default_basis_path()}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
