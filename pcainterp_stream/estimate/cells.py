@@ -65,7 +65,7 @@ class Cells:
         rows, cols = self.labels.shape
         column = _node(xs, image_size[1], cols)
         row = _node(ys, image_size[0], rows)
-        cells: npt.NDArray[np.int64] = self.labels[row[:, None], column[None, :]]
+        cells: npt.NDArray[np.int64] = self.labels.take(row, axis=0).take(column, axis=1)
         return cells
 
 

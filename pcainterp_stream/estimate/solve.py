@@ -381,8 +381,11 @@ def _local_mean(
         )
         flat = dense.reshape(-1)
         for at, j, values in _cell_pairs(local, ys, xs, basis_image):
-            values *= coefficient[j]
-            flat[at] += values
+            values *= coefficient.take(j)
+            if at.size == flat.size:  # rank 0 over the whole grid: at is every point
+                flat += values
+            else:
+                flat[at] += values
     return dense
 
 
@@ -397,23 +400,31 @@ def _cell_pairs(
     Yields, per rank r, (at, j, k(x - p_j)): the flat indices (row-major) of the points
     whose cell has an r-th measurement, that measurement j, and the kernel between them;
     ys and xs in basis-image px. A cell holds one measurement but where several share a
-    cell-grid node, so after rank 0 only a few points are left.
+    cell-grid node, so after rank 0 (every point, when every cell is reached) few are left.
     """
     cells = local.cells
     assert cells is not None
-    cell = cells.at(xs, ys, basis_image).reshape(-1)
-    at = np.flatnonzero(cell >= 0)
-    cell = cell[at]
-    for members in cells.members:
-        j = members[cell]
-        has = j >= 0
-        if not has.all():
-            at, cell, j = at[has], cell[has], j[has]
+    cell = cells.at(xs, ys, basis_image)
+    position_x = np.ascontiguousarray(local.positions[:, 0])
+    position_y = np.ascontiguousarray(local.positions[:, 1])
+    for rank, members in enumerate(cells.members):
+        if rank == 0 and cell.min() >= 0:  # the whole grid: no index arithmetic
+            j = members.take(cell)
+            values = local.prior.pointwise(
+                xs[None, :] - position_x.take(j), ys[:, None] - position_y.take(j)
+            )
+            yield np.arange(cell.size), j.reshape(-1), values.reshape(-1)
+            continue
+        j = np.where(cell >= 0, members.take(np.maximum(cell, 0)), -1)
+        at = np.flatnonzero(j >= 0)
         if not at.size:
             return
-        dx = xs[at % xs.size] - local.positions[j, 0]
-        dy = ys[at // xs.size] - local.positions[j, 1]
-        yield at, j, local.prior.pointwise(dx, dy)
+        j = j.reshape(-1)[at]
+        row, column = np.divmod(at, xs.size)
+        values = local.prior.pointwise(
+            xs.take(column) - position_x.take(j), ys.take(row) - position_y.take(j)
+        )
+        yield at, j, values
 
 
 def _keep_own_cells(
