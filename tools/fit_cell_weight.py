@@ -32,7 +32,7 @@ import numpy.typing as npt
 
 from pcainterp_stream.estimate import fitting
 from pcainterp_stream.estimate.basis import Basis, default_basis_path
-from pcainterp_stream.estimate.cells import measurement_cells
+from pcainterp_stream.estimate.cells import Partition
 from pcainterp_stream.estimate.estimator import clean_measurements
 from pcainterp_stream.estimate.prior import LocalPrior
 from pcainterp_stream.frontend.stereo import StereoFrontEnd
@@ -74,9 +74,10 @@ def evidence_table(basis: Basis, pairs: Iterator[Pair]) -> tuple[float, dict[flo
         frame = fitting.fit_frame(
             basis, pixels, disparities, image_size=image_size, focal_baseline=focal_baseline
         )
-        found = measurement_cells(measured.disparity_map, pixels, image_size, basis.grid_size)
+        # seeded by the frame's own measurements, as densify's stereo workers do
+        found = Partition.along(measured.disparity_map, pixels, image_size, basis.grid_size)
         frames.append(frame)
-        cells.append(np.zeros(0, np.int64) if found is None else found.point_cells)
+        cells.append(np.zeros(0, np.int64) if found is None else found.cells(pixels).point_cells)
     prior = basis.meta["prior"]
     local = LocalPrior.from_meta(prior["local"])
     best, scores = fitting.fit_cell_weight(

@@ -6,11 +6,13 @@ multiplies it by a partition term,
 
     C(x, x') = v k(x - x') [w + (1 - w) 1{cell(x) = cell(x')}],
 
-where cell(x) is the measurement nearest to x along the front end's own disparity map (a
-geodesic Voronoi partition): on a grid spanning the image, a step between 4-neighbours
-costs 1 + min(|disparity difference|, cap), 1 where either value is unknown, so a path
-across a depth edge is long. Each grid node takes the cell of its nearest measurement node
-(multi-source Dijkstra); measurements on one node share its cell. The term is positive
+where cell(x) is the seed measurement nearest to x along the front end's own disparity map
+(a geodesic Voronoi partition, :class:`Partition`): on a grid spanning the image, a step
+between 4-neighbours costs 1 + min(|disparity difference|, cap), 1 where either value is
+unknown, so a path across a depth edge is long. Each grid node takes the cell of its
+nearest seed node (multi-source Dijkstra). The seeds are the frame's own measurements;
+any other measurement (e.g. one carried over from earlier frames) and any pixel belongs to
+the cell of the node it falls on (:meth:`Partition.cells`). The term is positive
 semi-definite for any partition (a constant plus a block indicator, times a kernel), so C
 is a valid covariance; w = 1 is the stationary kernel itself.
 
@@ -38,14 +40,15 @@ about the same maps)."""
 
 @dataclass(frozen=True, eq=False)
 class Cells:
-    """A geodesic partition of the image among a frame's measurements.
+    """A frame's measurements in the cells of a :class:`Partition`.
 
     Attributes:
-        labels: (rows, cols) int64, the cell of each node of the cell grid (the index of
-            the measurement that names it), spanning the image pixel-centre aligned.
+        labels: (rows, cols) int64, the cell of each node of the cell grid (the flat index
+            of its seed node), spanning the image pixel-centre aligned.
         point_cells: (k,) int64, the cell of each measurement.
-        members: (m, n_cells) int64, row r holds each cell's r-th measurement, -1 past the
-            last; column c is cell c's (cell ids are measurement indices, so n_cells = k).
+        members: (m, rows * cols) int64, row r holds each cell's r-th measurement (column:
+            the cell's id), -1 past the last. A cell holds one measurement but where several
+            share a node.
     """
 
     labels: npt.NDArray[np.int64]
@@ -60,7 +63,7 @@ class Cells:
         Args:
             xs: (n,) float64, x in px of an image of ``image_size`` (height, width).
             ys: (m,) float64, y in px of that image.
-            image_size: the image the cell grid spans.
+            image_size: the image the cell grid spans (at any resolution).
         """
         rows, cols = self.labels.shape
         column = _node(xs, image_size[1], cols)
@@ -69,10 +72,86 @@ class Cells:
         return cells
 
 
+@dataclass(frozen=True, eq=False)
+class Partition:
+    """A geodesic partition of the image among seed measurements, on the cell grid.
+
+    Attributes:
+        labels: (rows, cols) int64, each node's cell: the flat index (row * cols + col) of
+            its nearest seed node along the disparity map.
+        image_size: (height, width) of the image the grid spans, pixel-centre aligned.
+    """
+
+    labels: npt.NDArray[np.int64]
+    image_size: tuple[int, int]
+
+    @classmethod
+    def along(
+        cls,
+        disparity_map: npt.ArrayLike,
+        pixels: npt.ArrayLike,
+        image_size: tuple[int, int],
+        basis_grid: tuple[int, int],
+        *,
+        step_cap: float = STEP_CAP,
+    ) -> Partition | None:
+        """Partition the image among measurements by their distance along a disparity map.
+
+        Args:
+            disparity_map: (h, w) float disparity (px) spanning the image at any
+                resolution, <= 0 or NaN unknown (the front end's SGBM map, or
+                :func:`cell_map` of it).
+            pixels: (k, 2) float, (x, y) of the seed measurements in px of ``image_size``.
+            image_size: (height, width) of the image.
+            basis_grid: the basis grid (rows, cols); the partition is on
+                :func:`cell_grid_size` of it.
+            step_cap: largest disparity difference charged per step (px).
+
+        Returns:
+            The :class:`Partition`, or None without seeds.
+
+        Raises:
+            ValueError: the map is not 2-D or the pixels not (k, 2).
+        """
+        values = np.asarray(disparity_map, dtype=np.float32)
+        if values.ndim != 2 or values.size == 0:
+            raise ValueError(f"Expected a disparity map of shape (h, w), got {values.shape}")
+        seeds = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+        if seeds.shape[0] == 0:
+            return None
+        size = cell_grid_size(basis_grid)
+        field = to_cell_grid(values, size)
+        nodes = _flat_nodes(seeds, image_size, size)
+        return cls(geodesic_labels(field, nodes, step_cap=step_cap), image_size)
+
+    def cells(self, pixels: npt.NDArray[np.float64]) -> Cells:
+        """Return the cells of measurements (k, 2) (x, y) in px of the partition's image."""
+        rows, cols = self.labels.shape
+        point_cells = self.labels.reshape(-1)[_flat_nodes(pixels, self.image_size, (rows, cols))]
+        k = point_cells.size
+        # each cell's measurements, row r = its r-th one
+        by_cell = np.argsort(point_cells, kind="stable")
+        sorted_cells = point_cells[by_cell]
+        rank = np.arange(k) - np.searchsorted(sorted_cells, sorted_cells, side="left")
+        members = np.full((int(rank.max(initial=-1)) + 1, rows * cols), -1, np.int64)
+        members[rank, sorted_cells] = by_cell
+        return Cells(self.labels, point_cells, members)
+
+
 def _node(coordinates: npt.NDArray[np.float64], size: int, count: int) -> npt.NDArray[np.intp]:
     """The node (0 .. count - 1) of a grid of ``count`` cells over ``size`` px holding px."""
     node = np.floor((coordinates + 0.5) * (count / size)).astype(np.intp)
     return np.clip(node, 0, count - 1)
+
+
+def _flat_nodes(
+    pixels: npt.NDArray[np.float64], image_size: tuple[int, int], grid: tuple[int, int]
+) -> npt.NDArray[np.intp]:
+    """The flat node index (row * cols + col) of the grid node holding each pixel (x, y)."""
+    column = _node(pixels[:, 0], image_size[1], grid[1])
+    row = _node(pixels[:, 1], image_size[0], grid[0])
+    flat: npt.NDArray[np.intp] = row * grid[1] + column
+    return flat
 
 
 def cell_grid_size(basis_grid: tuple[int, int], scale: float = CELL_GRID_SCALE) -> tuple[int, int]:
@@ -124,94 +203,39 @@ def _grid_graph(
     return order, indices, indptr
 
 
-def measurement_cells(
-    disparity_map: npt.ArrayLike | None,
-    pixels: npt.NDArray[np.float64],
-    image_size: tuple[int, int],
-    basis_grid: tuple[int, int],
-) -> Cells | None:
-    """Return the cells of a frame's measurements along its disparity map, on the cell grid.
-
-    Args:
-        disparity_map: (h, w) float disparity (px) spanning the image at any resolution,
-            <= 0 or NaN unknown (the front end's SGBM map, or :func:`cell_map` of it).
-        pixels: (k, 2) float64, (x, y) of the measurements in px of ``image_size``.
-        image_size: (height, width) of the image.
-        basis_grid: the basis grid (rows, cols); the cells are on :func:`cell_grid_size`.
-
-    Returns:
-        The :class:`Cells`, or None without a map or measurements.
-
-    Raises:
-        ValueError: the map is not 2-D.
-    """
-    if disparity_map is None or pixels.shape[0] == 0:
-        return None
-    values = np.asarray(disparity_map, dtype=np.float32)
-    if values.ndim != 2 or values.size == 0:
-        raise ValueError(f"Expected a disparity map of shape (h, w), got {values.shape}")
-    rows, cols = size = cell_grid_size(basis_grid)
-    # pixel-centre aligned, as basis.image_to_grid: node centres at integers
-    grid_x = (pixels[:, 0] + 0.5) * (cols / image_size[1]) - 0.5
-    grid_y = (pixels[:, 1] + 0.5) * (rows / image_size[0]) - 0.5
-    return geodesic_cells(to_cell_grid(values, size), np.column_stack([grid_x, grid_y]))
-
-
-def geodesic_cells(
+def geodesic_labels(
     field: npt.NDArray[np.float32],
-    grid_positions: npt.NDArray[np.float64],
+    seeds: npt.NDArray[np.intp],
     *,
     step_cap: float = STEP_CAP,
-) -> Cells:
-    """Partition a grid among measurements by their distance along a disparity map.
+) -> npt.NDArray[np.int64]:
+    """Label each node of a grid with its nearest seed node along a disparity map.
 
     Args:
-        field: (rows, cols) float32 disparity (px) on the cell grid, NaN = unknown.
-        grid_positions: (k, 2) float64, (x, y) of the measurements in cell-grid nodes
-            (node centres at integers); clamped to the grid.
+        field: (rows, cols) float32 disparity (px) on the grid, NaN = unknown.
+        seeds: (k,) flat indices of the seed nodes (repeats allowed), k >= 1.
         step_cap: largest disparity difference charged per step (px).
 
     Returns:
-        The :class:`Cells`; with no measurement, one empty partition (every label -1).
+        (rows, cols) int64, the flat index of each node's nearest seed node (ties: any).
     """
     from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import dijkstra
 
     rows, cols = field.shape
-    k = grid_positions.shape[0]
-    if k == 0:
-        return Cells(
-            np.full((rows, cols), -1, np.int64), np.zeros(0, np.int64), np.zeros((0, 0), np.int64)
-        )
-    node_x = np.clip(np.floor(grid_positions[:, 0] + 0.5), 0, cols - 1).astype(np.int64)
-    node_y = np.clip(np.floor(grid_positions[:, 1] + 0.5), 0, rows - 1).astype(np.int64)
-    node = node_y * cols + node_x
-    seeds, first = np.unique(node, return_index=True)
-    owner = np.full(rows * cols, -1, np.int64)
-    owner[seeds] = first
+    unique = np.unique(seeds)
     if rows * cols == 1:
-        labels = owner.reshape(rows, cols)
-    else:
-        order, indices, indptr = _grid_graph(rows, cols)
-        step = np.concatenate(
-            [np.abs(field[:, 1:] - field[:, :-1]).ravel(), np.abs(field[1:] - field[:-1]).ravel()]
-        )
-        step = np.where(np.isfinite(step), np.minimum(step, step_cap), 0.0) + 1.0
-        costs = np.concatenate([step, step])[order]
-        graph = csr_matrix((costs, indices, indptr), shape=(rows * cols, rows * cols))
-        _, _, sources = dijkstra(
-            graph, directed=True, indices=seeds, min_only=True, return_predecessors=True
-        )
-        reached = sources >= 0
-        labels = np.full(rows * cols, -1, np.int64)
-        labels[reached] = owner[sources[reached]]
-        labels = labels.reshape(rows, cols)
-    point_cells = owner[node]
-    # each cell's measurements, row r = its r-th one (cells hold one point but for shared nodes)
-    by_cell = np.argsort(point_cells, kind="stable")
-    sorted_cells = point_cells[by_cell]
-    starts = np.searchsorted(sorted_cells, sorted_cells, side="left")
-    rank = np.arange(k) - starts
-    members = np.full((int(rank.max()) + 1, k), -1, np.int64)
-    members[rank, sorted_cells] = by_cell
-    return Cells(labels, point_cells, members)
+        return np.zeros((1, 1), np.int64)
+    order, indices, indptr = _grid_graph(rows, cols)
+    step = np.concatenate(
+        [np.abs(field[:, 1:] - field[:, :-1]).ravel(), np.abs(field[1:] - field[:-1]).ravel()]
+    )
+    step = np.where(np.isfinite(step), np.minimum(step, step_cap), 0.0) + 1.0
+    costs = np.concatenate([step, step])[order]
+    graph = csr_matrix((costs, indices, indptr), shape=(rows * cols, rows * cols))
+    _, _, sources = dijkstra(
+        graph, directed=True, indices=unique, min_only=True, return_predecessors=True
+    )
+    # the 4-neighbour grid is connected: every node is reached from some seed
+    labels: npt.NDArray[np.int64] = sources.astype(np.int64).reshape(rows, cols)
+    return labels

@@ -44,7 +44,7 @@ from pcainterp_stream.estimate.basis import (
     resample_grid,
     sample_rows,
 )
-from pcainterp_stream.estimate.cells import measurement_cells
+from pcainterp_stream.estimate.cells import Partition
 from pcainterp_stream.estimate.prior import (
     LocalPrior,
     Model,
@@ -196,8 +196,8 @@ def densify(
             (e.g. points carried over from earlier frames, :mod:`motion`). None: all 0.
         edge_map: (h, w) float, a disparity map of the frame spanning the image at any
             resolution (px, <= 0 or NaN unknown; e.g. the front end's SGBM map), along which
-            an edge-aware ``local_prior`` (``cell_weight`` < 1) makes its cells
-            (:mod:`cells`); None: the stationary kernel.
+            an edge-aware ``local_prior`` (``cell_weight`` < 1) partitions the image among
+            the kept measurements (:class:`cells.Partition`); None: the stationary kernel.
 
     Returns:
         The :class:`DensifyResult`. Zero usable measurements give the prior (mean map,
@@ -206,6 +206,12 @@ def densify(
     Raises:
         ValueError: an argument has the wrong shape or value.
     """
+    partition = None
+    if edge_map is not None and local_prior is not None and local_prior.edge_aware:
+        resolved = basis if basis is not None else Basis.default()
+        size = _image_size(resolved, image_size)
+        seeds, _, _ = clean_measurements(pixels, disparities, size)
+        partition = Partition.along(edge_map, seeds, size, resolved.grid_size)
     return densify_batch(
         basis,
         [pixels],
@@ -223,7 +229,7 @@ def densify(
         robust_iterations=robust_iterations,
         scale_by_innovation=scale_by_innovation,
         noise_stds=None if noise_std is None else [noise_std],
-        edge_maps=None if edge_map is None else [edge_map],
+        partitions=None if partition is None else [partition],
     )[0]
 
 
@@ -246,7 +252,7 @@ def densify_batch(
     scale_by_innovation: bool = False,
     noise_stds: Sequence[npt.ArrayLike | None] | None = None,
     with_depth: bool = True,
-    edge_maps: Sequence[npt.ArrayLike | None] | None = None,
+    partitions: Sequence[Partition | None] | None = None,
 ) -> list[DensifyResult]:
     """Densify several frames at once with matrix-matrix products across frames.
 
@@ -277,8 +283,10 @@ def densify_batch(
         with_depth: also convert to depth and its std; False leaves ``depth`` and
             ``depth_std`` None (for a caller that changes the disparity first, as dense
             fusion does, and converts then).
-        edge_maps: F disparity maps (or None) for an edge-aware ``local_prior``, see
-            :func:`densify`; None: none.
+        partitions: F partitions of the images (or None) along their disparity maps, for
+            an edge-aware ``local_prior`` (:meth:`cells.Partition.along`, e.g. seeded by
+            each frame's own measurements; a measurement is in the cell of the grid node it
+            falls on); None: the stationary kernel.
 
     Returns:
         One :class:`DensifyResult` per frame, in order.
@@ -315,10 +323,10 @@ def densify_batch(
             f"Expected `noise_stds` to have one entry per frame ({len(pixels_list)}), "
             f"got {len(noise_stds)}"
         )
-    if edge_maps is not None and len(edge_maps) != len(pixels_list):
+    if partitions is not None and len(partitions) != len(pixels_list):
         raise ValueError(
-            f"Expected `edge_maps` to have one entry per frame ({len(pixels_list)}), "
-            f"got {len(edge_maps)}"
+            f"Expected `partitions` to have one entry per frame ({len(pixels_list)}), "
+            f"got {len(partitions)}"
         )
     frames = []
     extra_variances: list[npt.NDArray[np.float64] | None] = []
@@ -335,7 +343,7 @@ def densify_batch(
             temporal.reset()
             temporal.key = key
     posteriors = []
-    edge_aware = model.local is not None and model.local.edge_aware and edge_maps is not None
+    edge_aware = model.local is not None and model.local.edge_aware
     for index, ((frame_pixels, frame_disparities, _), extra_variance) in enumerate(
         zip(frames, extra_variances, strict=True)
     ):
@@ -352,8 +360,9 @@ def densify_batch(
             continue
         positions = image_to_grid(frame_pixels, out_size, basis.image_size)
         cells = None
-        if edge_aware and edge_maps is not None:
-            cells = measurement_cells(edge_maps[index], frame_pixels, out_size, basis.grid_size)
+        partition = None if partitions is None else partitions[index]
+        if edge_aware and partition is not None and frame_pixels.shape[0]:
+            cells = partition.cells(frame_pixels)
         posterior = _solve_beyond(
             rows,
             residual,

@@ -55,7 +55,7 @@ from pcainterp_stream.estimate.basis import (
     builtin_basis_installed,
     builtin_kind,
 )
-from pcainterp_stream.estimate.cells import cell_map
+from pcainterp_stream.estimate.cells import Partition
 from pcainterp_stream.estimate.dense import DenseModel, MapHoles, find_holes, fuse_dense
 from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
 from pcainterp_stream.estimate.lapack import routines
@@ -169,8 +169,8 @@ class ProcessorConfig:
             ``"auto"`` starts with the street basis and, when it does not fit the first
             frames well (``adapt`` not ``"off"``), checks the indoor one on the same held-out
             pixels and uses whichever fits better; ``"street"`` or ``"indoor"``: that one.
-        edge_aware: sparse stereo mode gives the estimate each frame's SGBM map for an
-            edge-aware local prior (:mod:`~pcainterp_stream.estimate.cells`); False: none.
+        edge_aware: sparse stereo mode partitions each frame along its SGBM map (beside
+            SGBM) for an edge-aware local prior (:mod:`~pcainterp_stream.estimate.cells`).
     """
 
     gftt: GfttConfig = field(default_factory=GfttConfig)
@@ -332,7 +332,7 @@ class _Measured(NamedTuple):
     # beside SGBM rather than in the check on the sequential densify thread
     held_out: adapt.HeldOut | None = None
     holes: MapHoles | None = None  # the map's holes and their neighbours (dense mode only)
-    edge_map: npt.NDArray[np.float32] | None = None  # SGBM's on the cell grid (edge_aware)
+    partition: Partition | None = None  # along SGBM's map, for an edge-aware prior
 
 
 def features_to_measurements(
@@ -521,7 +521,7 @@ class FrameProcessor:
         sgbm_map = grid = None
         held_out = None
         holes = None
-        edge_map = None
+        partition = None
         if self.config.source is MeasurementSource.FEATURES:
             pixels, disparities, counts = features_to_measurements(features, frame.camera)
         else:
@@ -533,8 +533,9 @@ class FrameProcessor:
                 # the fusion's part that needs no estimate, here in parallel, not in the
                 # sequential densify thread
                 holes = find_holes(disparity_map)
-            elif self.config.edge_aware:  # for an edge-aware local prior (cells.py)
-                edge_map = cell_map(measurements.disparity_map, self.basis.grid_size)
+            elif self.config.edge_aware:  # an edge-aware local prior's cells, beside SGBM
+                size, basis_grid = frame.camera.image_size, self.basis.grid_size
+                partition = Partition.along(measurements.disparity_map, pixels, size, basis_grid)
             if self.adaptation.wants_maps():
                 if check_frame or self.adaptation.adapted:
                     sgbm_map, grid = _maps(measurements.disparity_map, frame.camera)
@@ -565,7 +566,7 @@ class FrameProcessor:
             raw_map,
             held_out,
             holes,
-            edge_map,
+            partition,
         )
 
     def submit(
@@ -748,7 +749,7 @@ class FrameProcessor:
                     self.basis,
                     self.settings.densify_options(),
                     self.temporal,
-                    [item.edge_map for item in group] if self.config.edge_aware else None,
+                    [item.partition for item in group] if self.config.edge_aware else None,
                 )
             )
             start = stop
@@ -771,7 +772,7 @@ class FrameProcessor:
             temporal=job.temporal,
             noise_stds=job.noise_stds,
             with_depth=not self.dense,  # dense mode converts the fused disparity
-            edge_maps=job.edge_maps,
+            partitions=job.partitions,
             **job.options,
         )
         return [
@@ -814,7 +815,7 @@ class _Estimate(NamedTuple):
     basis: Basis
     options: dict[str, Any]
     temporal: TemporalPrior | None
-    edge_maps: list[npt.NDArray[np.float32] | None] | None = None
+    partitions: list[Partition | None] | None = None
 
 
 def _finished(results: list[DensifiedFrame]) -> Future[list[DensifiedFrame]]:

@@ -9,10 +9,10 @@ import pytest
 
 from pcainterp_stream import Basis, densify, densify_batch
 from pcainterp_stream.estimate.cells import (
+    Partition,
     cell_grid_size,
     cell_map,
-    geodesic_cells,
-    measurement_cells,
+    geodesic_labels,
     to_cell_grid,
 )
 from pcainterp_stream.estimate.fitting import fit_cell_weight, fit_frame
@@ -70,48 +70,55 @@ def _distances(field: np.ndarray, seed: tuple[int, int], cap: float = 20.0) -> n
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_every_node_takes_a_geodesically_nearest_measurement(seed: int) -> None:
+def test_every_node_takes_a_geodesically_nearest_seed(seed: int) -> None:
     rng = np.random.default_rng(seed)
     field = rng.choice([10.0, 12.0, 40.0, np.nan], size=(9, 13), p=[0.4, 0.3, 0.2, 0.1])
     field = field.astype(np.float32)
-    positions = np.column_stack([rng.uniform(0, 12, 7), rng.uniform(0, 8, 7)])
-    cells = geodesic_cells(field, positions)
-    nodes = [(int(np.floor(y + 0.5)), int(np.floor(x + 0.5))) for x, y in positions]
-    distances = np.stack([_distances(field, node) for node in nodes])
-    taken = np.take_along_axis(distances, cells.labels[None], axis=0)[0]
-    np.testing.assert_allclose(taken, distances.min(axis=0))
-    # each measurement's cell is its own node's, named by the first measurement there
-    for j, node in enumerate(nodes):
-        assert cells.point_cells[j] == cells.labels[node]
-        assert cells.point_cells[j] == nodes.index(node)
+    seeds = rng.choice(9 * 13, size=7, replace=False)
+    labels = geodesic_labels(field, seeds)
+    assert set(np.unique(labels).tolist()) <= set(seeds.tolist())
+    distances = {int(s): _distances(field, (int(s) // 13, int(s) % 13)) for s in seeds}
+    nearest = np.min(np.stack(list(distances.values())), axis=0)
+    taken = np.choose(
+        np.searchsorted(np.sort(seeds), labels), [distances[int(s)] for s in np.sort(seeds)]
+    )
+    np.testing.assert_allclose(taken, nearest)
+    for s in seeds:
+        assert labels.flat[s] == s  # a seed is its own cell
 
 
 def test_a_depth_edge_keeps_a_cell_on_its_own_surface() -> None:
     field = np.full((6, 20), 10.0, np.float32)
     field[:, 10:] = 50.0  # a depth edge between columns 9 and 10
-    positions = np.array([[2.0, 3.0], [11.0, 3.0]])  # far on the left, near on the right
-    cells = geodesic_cells(field, positions)
-    assert (cells.labels[:, :10] == 0).all()  # column 9 is nearer point 1 in the plane
-    assert (cells.labels[:, 10:] == 1).all()
+    seeds = np.array([3 * 20 + 2, 3 * 20 + 11])  # far on the left, near on the right
+    labels = geodesic_labels(field, seeds)
+    assert (labels[:, :10] == seeds[0]).all()  # column 9 is nearer the right one in the plane
+    assert (labels[:, 10:] == seeds[1]).all()
 
 
-def test_measurements_on_one_node_share_a_cell() -> None:
-    field = np.zeros((4, 4), np.float32)
-    positions = np.array([[1.0, 1.0], [1.2, 0.9], [3.0, 3.0]])
-    cells = geodesic_cells(field, positions)
-    assert cells.point_cells.tolist() == [0, 0, 2]
-    assert cells.members.shape == (2, 3)
-    assert sorted(cells.members[:, 0].tolist()) == [0, 1]
-    assert cells.members[:, 2].tolist() == [2, -1]
+def test_measurements_join_the_cell_of_their_node() -> None:
+    # a 4 x 4 image on a 2 x 2 cell grid (a 4 x 4 basis grid): 2 px per node
+    partition = Partition.along(np.ones((4, 4)), [[0.0, 0.0], [3.0, 3.0]], (4, 4), (4, 4))
+    assert partition is not None
+    assert partition.labels[0, 0] == 0
+    assert partition.labels[1, 1] == 3
+    # the seeds, a second one on the first's node, and one (carried) on a seedless node
+    cells = partition.cells(np.array([[0.0, 0.0], [3.0, 3.0], [1.0, 0.4], [3.0, 0.0]]))
+    assert cells.point_cells[:3].tolist() == [0, 3, 0]
+    assert cells.point_cells[3] == partition.labels[0, 1]
+    assert cells.members.shape[1] == 4
+    for cell in (0, 3):
+        members = cells.members[:, cell]
+        assert (
+            sorted(members[members >= 0].tolist())
+            == np.flatnonzero(cells.point_cells == cell).tolist()
+        )
 
 
-def test_no_measurement_no_cells() -> None:
-    cells = geodesic_cells(np.zeros((3, 4), np.float32), np.zeros((0, 2)))
-    assert (cells.labels == -1).all()
-    assert measurement_cells(np.zeros((3, 4)), np.zeros((0, 2)), (3, 4), (3, 4)) is None
-    assert measurement_cells(None, np.ones((1, 2)), (3, 4), (3, 4)) is None
+def test_no_seed_no_partition() -> None:
+    assert Partition.along(np.zeros((3, 4)), np.zeros((0, 2)), (3, 4), (3, 4)) is None
     with pytest.raises(ValueError, match="shape"):
-        measurement_cells(np.zeros(5), np.ones((1, 2)), (3, 4), (3, 4))
+        Partition.along(np.zeros(5), np.ones((1, 2)), (3, 4), (3, 4))
 
 
 def test_cell_grid_map_is_nearest_and_unknown_is_nan() -> None:
@@ -138,8 +145,9 @@ def _brute_force_cells(
     height, width = basis.image_size
     b = basis.pixel_major.astype(np.float64)
     prior = b @ np.diag(basis.eigenvalues) @ b.T
-    cells = measurement_cells(_edge_map(height, width), pixels, basis.image_size, basis.grid_size)
-    assert cells is not None
+    partition = Partition.along(_edge_map(height, width), pixels, basis.image_size, basis.grid_size)
+    assert partition is not None
+    cells = partition.cells(pixels)
     labels = cells.at(
         np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64), (height, width)
     ).ravel()
@@ -214,15 +222,15 @@ def test_edge_aware_batch_equals_one_by_one() -> None:
         [d for _, d in frames],
         sigma=1.0,
         local_prior=local,
-        edge_maps=[edge, None],
+        partitions=[Partition.along(edge, frames[0][0], basis.image_size, basis.grid_size), None],
     )
     for (pixels, disparities), result, edge_map in zip(frames, batch, [edge, None], strict=True):
         single = densify(
             basis, pixels, disparities, sigma=1.0, local_prior=local, edge_map=edge_map
         )
         np.testing.assert_allclose(result.disparity, single.disparity, atol=1e-5)
-    with pytest.raises(ValueError, match="edge_maps"):
-        densify_batch(basis, [frames[0][0]], [frames[0][1]], edge_maps=[edge, edge])
+    with pytest.raises(ValueError, match="partitions"):
+        densify_batch(basis, [frames[0][0]], [frames[0][1]], partitions=[None, None])
 
 
 @pytest.mark.parametrize("weight", [0.0, 0.5, 1.0])
@@ -255,10 +263,10 @@ def test_fit_cell_weight_prefers_the_cells_the_data_came_from() -> None:
         pixels, _ = _points(basis, 12, seed=int(rng.integers(1 << 30)))
         # each side of the edge at its own level: independent surfaces
         disparities = np.where(pixels[:, 0] < width // 2, 15.0, 45.0) + rng.normal(0, 0.3, 12)
-        found = measurement_cells(edge, pixels, basis.image_size, basis.grid_size)
+        found = Partition.along(edge, pixels, basis.image_size, basis.grid_size)
         assert found is not None
         frames.append(fit_frame(basis, pixels, disparities))
-        cells.append(found.point_cells)
+        cells.append(found.cells(pixels).point_cells)
     local = LocalPrior(100.0, 30.0)
     best, scores = fit_cell_weight(basis, frames, cells, local=local, sigma=0.5)
     assert set(scores) == {0.0, 0.1, 0.25, 0.4, 0.5, 0.6, 0.75, 0.9, 1.0}
