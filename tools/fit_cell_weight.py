@@ -12,16 +12,24 @@ built-in basis's kernel and sigma kept, per source:
 - ``odometry`` and ``raw``: the two KITTI clips from pair ``--kitti-first`` on (the first
   40 pairs are the ones ``sparse_sharpness.py`` scores).
 
-``--write`` stores the w of ``--write-source`` in the built-in basis's ``meta["prior"]``
-(``local.cell_weight`` and the table of ``cell_weight_log_evidence``); its arrays are kept.
+``--cell-weight W`` stores W (chosen by hand, e.g. on the real clips) instead of the
+evidence's choice. The std calibration fitted for the stationary kernel does not hold for
+another model: the std factor is refitted as the basis's fit does (``fit_std_scale``: 95.4 %
+of the SGBM reference within +-2 std on the fit drive, densified as ``densify`` does, with
+and without the per-frame covariance scale), once with w and once with the stationary
+kernel in the same run; the shipped factors are multiplied by their ratio.
+
+``--write`` stores w, the table of ``cell_weight_log_evidence`` and the rescaled std
+factors in the built-in basis's ``meta["prior"]``; its arrays are kept.
 
     python tools/fit_cell_weight.py
-    python tools/fit_cell_weight.py --write --write-source synth
+    python tools/fit_cell_weight.py --sources synth --cell-weight 0.75 --write
 """
 
 from __future__ import annotations
 
 import dataclasses
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -86,6 +94,52 @@ def evidence_table(basis: Basis, pairs: Iterator[Pair]) -> tuple[float, dict[flo
     return best, scores, len(frames)
 
 
+def std_scales(basis: Basis, pairs: Iterator[Pair], weight: float) -> tuple[float, float]:
+    """Return (std_scale, innovation_std_scale) fitted with cell weight ``weight`` and with 1.
+
+    Each returned factor is the one fitted with ``weight`` over the one fitted with the
+    stationary kernel on the same frames (``fitting.fit_std_scale``).
+    """
+    from pcainterp_stream.estimate.estimator import densify
+    from pcainterp_stream.estimate.prior import covariance_scale
+
+    config = ProcessorConfig()
+    front_end = StereoFrontEnd(config.gftt, config.sgbm)
+    prior = basis.meta["prior"]
+    shipped = LocalPrior.from_meta(prior["local"])
+    fitted: dict[float, tuple[float, float]] = {}
+    measured = [(front_end.measure(left, right), size, fb) for left, right, size, fb in pairs]
+    for cell_weight in (weight, 1.0):
+        local = dataclasses.replace(shipped, cell_weight=cell_weight)
+        estimates, stds, scaled, references = [], [], [], []
+        for one, image_size, focal_baseline in measured:
+            result = densify(
+                basis,
+                one.pixels,
+                one.disparities,
+                sigma=float(prior["sigma"]),
+                local_prior=local,
+                robust=config.robust,
+                image_size=image_size,
+                focal_baseline=focal_baseline,
+                edge_map=one.disparity_map,
+            )
+            assert result.disparity_std is not None
+            estimates.append(result.disparity)
+            stds.append(result.disparity_std)
+            factor = covariance_scale(result.normalised_innovation, result.n_measurements)
+            scaled.append(result.disparity_std * np.float32(np.sqrt(factor)))
+            references.append(np.where(one.disparity_map > 0, one.disparity_map, np.nan))
+        fitted[cell_weight] = (
+            fitting.fit_std_scale(estimates, stds, references),
+            fitting.fit_std_scale(estimates, scaled, references),
+        )
+    return (
+        fitted[weight][0] / fitted[1.0][0],
+        fitted[weight][1] / fitted[1.0][1],
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     """Print the evidence of each cell weight per source; optionally store the fitted one."""
     parser = harness.argument_parser(__doc__)
@@ -100,6 +154,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--synth-frames", type=int, default=40)
     parser.add_argument("--kitti-first", type=int, default=40, help="first pair of the clips")
     parser.add_argument("--kitti-frames", type=int, default=40)
+    parser.add_argument(
+        "--cell-weight", type=float, help="store this w instead of the evidence's choice"
+    )
     parser.add_argument("--write", action="store_true", help="store w in the built-in basis")
     parser.add_argument("--write-source", default="synth", choices=["synth", "odometry", "raw"])
     args = parser.parse_args(argv)
@@ -123,20 +180,28 @@ def main(argv: list[str] | None = None) -> int:
         print(harness.table_header(["w", "log evidence - best (nats)"], "lr"))
         for weight, score in scores.items():
             print(harness.table_row([f"{weight:g}", f"{score - top:.1f}"]), flush=True)
-    if args.write:
-        if args.write_source not in fitted:
-            parser.error(f"--write-source {args.write_source} is not among --sources")
+    if args.write and args.write_source not in fitted:
+        parser.error(f"--write-source {args.write_source} is not among --sources")
+    if args.cell_weight is not None or args.write:
         best, scores = fitted[args.write_source]
+        weight = best if args.cell_weight is None else args.cell_weight
+        ratio, innovation_ratio = std_scales(basis, makers[args.write_source](), weight)
         prior = dict(basis.meta["prior"])
-        prior["local"] = {**prior["local"], "cell_weight": best}
-        prior["cell_weight_log_evidence"] = {f"{w:g}": s for w, s in scores.items()}
-        prior["cell_weight_fit"] = (
-            f"{args.write_source}: tools/fit_cell_weight.py --write --write-source "
-            f"{args.write_source}"
+        print(
+            f"\nstd factor with w {weight:g} / stationary ({args.write_source}): {ratio:.4f}, "
+            f"with the per-frame scale {innovation_ratio:.4f}"
         )
+        if not args.write:
+            return 0
+        prior["local"] = {**prior["local"], "cell_weight": weight}
+        prior["cell_weight_log_evidence"] = {f"{w:g}": s for w, s in scores.items()}
+        prior["cell_weight_fit"] = " ".join(["tools/fit_cell_weight.py", *(argv or sys.argv[1:])])
+        for key, factor in (("std_scale", ratio), ("innovation_std_scale", innovation_ratio)):
+            prior[f"{key}_stationary"] = prior[key]
+            prior[key] = prior[key] * factor
         updated = dataclasses.replace(basis, meta={**basis.meta, "prior": prior})
         updated.save(default_basis_path())
-        print(f"\nwrote cell_weight {best:g} into {default_basis_path()}")
+        print(f"wrote cell_weight {weight:g} into {default_basis_path()}")
     return 0
 
 

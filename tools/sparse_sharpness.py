@@ -82,7 +82,9 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "cells0": {"prior": {"local": {"cell_weight": 0.0}}},
     "cells0.25": {"prior": {"local": {"cell_weight": 0.25}}},
     "cells0.5": {"prior": {"local": {"cell_weight": 0.5}}},
+    "cells0.6": {"prior": {"local": {"cell_weight": 0.6}}},
     "cells0.75": {"prior": {"local": {"cell_weight": 0.75}}},
+    "cells0.9": {"prior": {"local": {"cell_weight": 0.9}}},
     "stationary": {"prior": {"local": {"cell_weight": 1.0}}},
 }
 
