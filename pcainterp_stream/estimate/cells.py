@@ -10,18 +10,18 @@ where cell(x) is the seed measurement nearest to x along the front end's own dis
 (a geodesic Voronoi partition, :class:`Partition`): on a grid spanning the image, a step
 between 4-neighbours costs 1 + min(|disparity difference|, cap), 1 where either value is
 unknown, so a path across a depth edge is long. Each grid node takes the cell of its
-nearest seed node (multi-source Dijkstra). The seeds are the frame's own measurements;
+nearest seed node (:func:`geodesic_labels`: two rounds of raster passes, a close
+approximation of multi-source Dijkstra). The seeds are the frame's own measurements;
 any other measurement (e.g. one carried over from earlier frames) and any pixel belongs to
 the cell of the node it falls on (:meth:`Partition.cells`). The term is positive
 semi-definite for any partition (a constant plus a block indicator, times a kernel), so C
 is a valid covariance; w = 1 is the stationary kernel itself.
 
-Pure maths over arrays (docs/estimator.md, "An edge-aware local prior").
+Pure maths over arrays (docs/estimator.md, "Beyond the paper"; docs/sharper_sparse.md).
 """
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import cv2
@@ -33,9 +33,9 @@ STEP_CAP = 20.0
 most 21 steps, so a far measurement on the pixel's own surface can still win."""
 
 CELL_GRID_SCALE = 0.5
-"""Cell grid of the estimate, as a fraction of the basis grid per axis (docs/sharper_sparse.md,
-"The edge-aware local prior": on the basis grid itself the search cost ~4x as much for
-about the same maps)."""
+"""Cell grid of the estimate, as a fraction of the basis grid per axis: 8 image px per node at
+the default grid scale. On a grid half as fine again the error gained half as much on the
+LiDAR frames and nothing on the odometry clip (docs/sharper_sparse.md)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -183,24 +183,11 @@ def cell_map(
     return to_cell_grid(disparity_map, cell_grid_size(basis_grid))
 
 
-@functools.lru_cache(maxsize=8)
-def _grid_graph(
-    rows: int, cols: int
-) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.int32], npt.NDArray[np.int32]]:
-    """The 4-neighbour grid's edges in CSR order: (order, indices, indptr).
-
-    Both directions of each edge are stored (a directed search on a symmetric graph needs
-    no transpose); ``order`` puts [horizontal costs, vertical costs] twice into CSR order.
-    """
-    index = np.arange(rows * cols).reshape(rows, cols)
-    start = np.concatenate([index[:, :-1].ravel(), index[:-1].ravel()])
-    end = np.concatenate([index[:, 1:].ravel(), index[1:].ravel()])
-    both_start = np.concatenate([start, end])
-    both_end = np.concatenate([end, start])
-    order = np.lexsort((both_end, both_start))
-    indices = both_end[order].astype(np.int32)
-    indptr = np.searchsorted(both_start[order], np.arange(rows * cols + 1)).astype(np.int32)
-    return order, indices, indptr
+SWEEPS = 2
+"""Rounds of the label search (:func:`geodesic_labels`), each a pass along every row and
+column both ways. On the KITTI frames, the three LiDAR frames and synthetic drives two rounds
+label 99.1-99.5 % of the nodes as exact multi-source Dijkstra does, and the nearest-seed
+interpolation along them is within 0.004 px of Dijkstra's (docs/sharper_sparse.md)."""
 
 
 def geodesic_labels(
@@ -208,34 +195,75 @@ def geodesic_labels(
     seeds: npt.NDArray[np.intp],
     *,
     step_cap: float = STEP_CAP,
+    sweeps: int = SWEEPS,
 ) -> npt.NDArray[np.int64]:
     """Label each node of a grid with its nearest seed node along a disparity map.
 
+    The distance between 4-neighbours is 1 + min(|field difference|, step_cap) (1 where
+    either is NaN). Raster passes relax it: along a row from the left, with P the running
+    sum of the steps, d(j) <- min over i <= j of d(i) + P(j) - P(i) = P(j) + cummin(d - P)(j)
+    (one ``minimum.accumulate``; the argmin's label comes along), then from the right, then
+    along the columns. A shortest path with r turns between rows and columns is exact after
+    about r / 4 rounds; ``sweeps`` rounds are an approximation of multi-source Dijkstra,
+    exact where the paths turn few times (always on a field without edges). After one
+    round every node has a label.
+
     Args:
         field: (rows, cols) float32 disparity (px) on the grid, NaN = unknown.
-        seeds: (k,) flat indices of the seed nodes (repeats allowed), k >= 1.
+        seeds: (k,) flat indices (row * cols + col) of the seed nodes (repeats allowed),
+            k >= 1.
         step_cap: largest disparity difference charged per step (px).
+        sweeps: rounds of passes.
 
     Returns:
-        (rows, cols) int64, the flat index of each node's nearest seed node (ties: any).
+        (rows, cols) int64, the flat index of each node's nearest seed node.
     """
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.csgraph import dijkstra
-
     rows, cols = field.shape
-    unique = np.unique(seeds)
-    if rows * cols == 1:
-        return np.zeros((1, 1), np.int64)
-    order, indices, indptr = _grid_graph(rows, cols)
-    step = np.concatenate(
-        [np.abs(field[:, 1:] - field[:, :-1]).ravel(), np.abs(field[1:] - field[:-1]).ravel()]
-    )
-    step = np.where(np.isfinite(step), np.minimum(step, step_cap), 0.0) + 1.0
-    costs = np.concatenate([step, step])[order]
-    graph = csr_matrix((costs, indices, indptr), shape=(rows * cols, rows * cols))
-    _, _, sources = dijkstra(
-        graph, directed=True, indices=unique, min_only=True, return_predecessors=True
-    )
-    # the 4-neighbour grid is connected: every node is reached from some seed
-    labels: npt.NDArray[np.int64] = sources.astype(np.int64).reshape(rows, cols)
+    values = field.astype(np.float64)
+    along_x = np.zeros((rows, cols))
+    np.cumsum(_steps(values[:, 1:], values[:, :-1], step_cap), axis=1, out=along_x[:, 1:])
+    along_y = np.zeros((rows, cols))
+    np.cumsum(_steps(values[1:], values[:-1], step_cap), axis=0, out=along_y[1:])
+    distance = np.full((rows, cols), np.inf)
+    labels = np.full((rows, cols), -1, np.int64)
+    distance.flat[seeds] = 0.0
+    labels.flat[seeds] = seeds
+    for _ in range(sweeps):
+        for position, rotate in ((along_x, False), (along_y, True)):
+            d, lab, pos = (
+                (distance.T, labels.T, position.T) if rotate else (distance, labels, position)
+            )
+            _relax(d, lab, pos)  # forward
+            _relax(d[:, ::-1], lab[:, ::-1], -pos[:, ::-1])  # backward: distances from the end
     return labels
+
+
+def _steps(
+    a: npt.NDArray[np.float64], b: npt.NDArray[np.float64], cap: float
+) -> npt.NDArray[np.float64]:
+    """Step costs 1 + min(|a - b|, cap), 1 where either is NaN."""
+    with np.errstate(invalid="ignore"):
+        step = np.minimum(np.abs(a - b), cap)
+    step[np.isnan(step)] = 0.0
+    step += 1.0
+    return step
+
+
+def _relax(
+    distance: npt.NDArray[np.float64],
+    labels: npt.NDArray[np.int64],
+    position: npt.NDArray[np.float64],
+) -> None:
+    """One pass along axis 1 (in place; the arrays may be flipped or transposed views).
+
+    d(j) <- min(d(j), min over i <= j of d(i) + position(j) - position(i)), the label of
+    the minimising i coming along (the last one on ties: a node keeps its own on a tie).
+    """
+    shifted = distance - position
+    running = np.minimum.accumulate(shifted, axis=1)
+    source = np.where(shifted <= running, np.arange(shifted.shape[1]), 0)
+    np.maximum.accumulate(source, axis=1, out=source)
+    candidate = running + position
+    better = candidate < distance
+    np.copyto(distance, candidate, where=better)
+    np.copyto(labels, np.take_along_axis(labels, source, axis=1), where=better)

@@ -75,7 +75,7 @@ def test_every_node_takes_a_geodesically_nearest_seed(seed: int) -> None:
     field = rng.choice([10.0, 12.0, 40.0, np.nan], size=(9, 13), p=[0.4, 0.3, 0.2, 0.1])
     field = field.astype(np.float32)
     seeds = rng.choice(9 * 13, size=7, replace=False)
-    labels = geodesic_labels(field, seeds)
+    labels = geodesic_labels(field, seeds, sweeps=9 * 13)  # enough rounds to converge
     assert set(np.unique(labels).tolist()) <= set(seeds.tolist())
     distances = {int(s): _distances(field, (int(s) // 13, int(s) % 13)) for s in seeds}
     nearest = np.min(np.stack(list(distances.values())), axis=0)
@@ -85,6 +85,18 @@ def test_every_node_takes_a_geodesically_nearest_seed(seed: int) -> None:
     np.testing.assert_allclose(taken, nearest)
     for s in seeds:
         assert labels.flat[s] == s  # a seed is its own cell
+
+
+@pytest.mark.parametrize("sweeps", [1, 2])
+def test_without_edges_the_cells_are_city_block_nearest(sweeps: int) -> None:
+    rng = np.random.default_rng(sweeps)
+    seeds = rng.choice(10 * 16, size=9, replace=False)
+    labels = geodesic_labels(np.full((10, 16), 5.0, np.float32), seeds, sweeps=sweeps)
+    rows, cols = np.divmod(np.arange(10 * 16), 16)
+    city = np.abs(rows[:, None] - seeds // 16) + np.abs(cols[:, None] - seeds % 16)
+    which = [seeds.tolist().index(label) for label in labels.ravel()]
+    taken = city[np.arange(10 * 16), which]
+    np.testing.assert_array_equal(taken, city.min(axis=1))
 
 
 def test_a_depth_edge_keeps_a_cell_on_its_own_surface() -> None:
