@@ -34,8 +34,8 @@ most 21 steps, so a far measurement on the pixel's own surface can still win."""
 
 CELL_GRID_SCALE = 0.5
 """Cell grid of the estimate, as a fraction of the basis grid per axis: 8 image px per node at
-the default grid scale. On a grid half as fine again the error gained half as much on the
-LiDAR frames and nothing on the odometry clip (docs/sharper_sparse.md)."""
+the default grid scale. On a grid half as fine again (16 px per node) the gain in error was
+40-60 % smaller on the LiDAR frames and the odometry clip (docs/sharper_sparse.md)."""
 
 
 @dataclass(frozen=True, eq=False)
