@@ -400,7 +400,8 @@ def _cell_pairs(
     Yields, per rank r, (at, j, k(x - p_j)): the flat indices (row-major) of the points
     whose cell has an r-th measurement, that measurement j, and the kernel between them;
     ys and xs in basis-image px. A cell holds one measurement but where several share a
-    cell-grid node, so after rank 0 (every point, when every cell is reached) few are left.
+    cell-grid node (none where its seed is not among the measurements), so after rank 0
+    (usually every point) few are left.
     """
     cells = local.cells
     assert cells is not None
@@ -408,14 +409,13 @@ def _cell_pairs(
     position_x = np.ascontiguousarray(local.positions[:, 0])
     position_y = np.ascontiguousarray(local.positions[:, 1])
     for rank, members in enumerate(cells.members):
-        if rank == 0 and cell.min() >= 0:  # the whole grid: no index arithmetic
-            j = members.take(cell)
+        j = np.where(cell >= 0, members.take(np.maximum(cell, 0)), -1)
+        if rank == 0 and j.min() >= 0:  # every point's cell has one: no index arithmetic
             values = local.prior.pointwise(
                 xs[None, :] - position_x.take(j), ys[:, None] - position_y.take(j)
             )
             yield np.arange(cell.size), j.reshape(-1), values.reshape(-1)
             continue
-        j = np.where(cell >= 0, members.take(np.maximum(cell, 0)), -1)
         at = np.flatnonzero(j >= 0)
         if not at.size:
             return

@@ -151,13 +151,21 @@ def _edge_map(height: int, width: int) -> np.ndarray:
 
 
 def _brute_force_cells(
-    basis: Basis, pixels: np.ndarray, disparities: np.ndarray, sigma: float, local: LocalPrior
+    basis: Basis,
+    pixels: np.ndarray,
+    disparities: np.ndarray,
+    sigma: float,
+    local: LocalPrior,
+    partition: Partition | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Dense GP posterior with C(x, x') = v k(x - x') [w + (1 - w) 1{same cell}]."""
     height, width = basis.image_size
     b = basis.pixel_major.astype(np.float64)
     prior = b @ np.diag(basis.eigenvalues) @ b.T
-    partition = Partition.along(_edge_map(height, width), pixels, basis.image_size, basis.grid_size)
+    if partition is None:
+        partition = Partition.along(
+            _edge_map(height, width), pixels, basis.image_size, basis.grid_size
+        )
     assert partition is not None
     cells = partition.cells(pixels)
     labels = cells.at(
@@ -286,3 +294,28 @@ def test_fit_cell_weight_prefers_the_cells_the_data_came_from() -> None:
     assert scores[best] > scores[1.0]
     with pytest.raises(ValueError, match="point_cells"):
         fit_cell_weight(basis, frames, cells[:-1], local=local, sigma=0.5)
+
+
+def test_a_cell_without_measurements_gets_the_stationary_part_alone() -> None:
+    """A partition seeded by a point that is not measured: its cell's pixels are
+    correlated with every measurement by w only, as the dense posterior says."""
+    basis = _basis()
+    pixels, disparities = _points(basis, 8, seed=9)
+    local = LocalPrior(4.0, 20.0, cell_weight=0.3)
+    edge = _edge_map(*basis.image_size)
+    seeds = np.vstack([pixels, [[15.0, 11.0], [0.0, 11.0]]])
+    partition = Partition.along(edge, seeds, basis.image_size, basis.grid_size)
+    assert partition is not None
+    result = densify_batch(
+        basis,
+        [pixels],
+        [disparities],
+        sigma=1.5,
+        local_prior=local,
+        variance_stride=1,
+        partitions=[partition],
+    )[0]
+    expected = _brute_force_cells(basis, pixels, disparities, 1.5, local, partition)
+    np.testing.assert_allclose(result.disparity, expected[0], atol=2e-3)
+    assert result.disparity_std is not None
+    np.testing.assert_allclose(result.disparity_std, expected[1], atol=2e-3)
