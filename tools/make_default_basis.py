@@ -82,6 +82,9 @@ class Recipe:
     fit_seed: int = 150
     fit_frames: int = 40
     local_kernel: tuple[str, float, float] | None = ("laplace", 64.0, 40.0)
+    # the edge-aware kernel's weight between cells (1: stationary), chosen on the real clips
+    # (docs/sharper_sparse.md); the fit does not use it (no SGBM partitions there)
+    cell_weight: float = 0.75
     indoor_seeds: int = 0
     indoor_first_seed: int = 5000
     indoor_frames: int = 120
@@ -382,7 +385,7 @@ def make(recipe: Recipe, out: Path, cache: Path | None, command: str) -> dict[st
         local = None
         if recipe.local_kernel is not None:
             kernel, length_scale, variance = recipe.local_kernel
-            local = LocalPrior(variance, length_scale, Kernel(kernel))
+            local = LocalPrior(variance, length_scale, Kernel(kernel), recipe.cell_weight)
         with threadpool_limits(1, user_api="blas"):
             fitted = fit_prior(basis, [(fit_log, 0)], LearnOptions(), PairingConfig(), local)
     fitted.pop("seconds", None)  # keep the file's bytes independent of the machine's speed
@@ -390,6 +393,52 @@ def make(recipe: Recipe, out: Path, cache: Path | None, command: str) -> dict[st
     meta = {**basis.meta, "prior": fitted}
     basis = dataclasses.replace(basis, meta=meta)
     return _write(basis, out, NAME, recipe_meta, command, started)
+
+
+def update_cell_weight(recipe: Recipe, out: Path) -> dict[str, Any]:
+    """Write ``recipe.cell_weight`` into the basis in ``out`` as `make` would; return its sidecar.
+
+    The weight changes nothing :func:`make` computes (the fit runs without SGBM partitions),
+    so the arrays and every fitted number stay; only the metadata (the kernel, its row of
+    the fit's candidates, the recipe) and the sidecar's hashes change.
+    """
+    from pcainterp_stream.estimate.basis import Basis
+    from pcainterp_stream.estimate.prior import LocalPrior
+
+    path = out / f"{NAME}.npz"
+    basis = Basis.load(path)
+    stored = dict(basis.meta["recipe"])
+    wanted = json.loads(json.dumps(dataclasses.asdict(recipe)))
+    changed = sorted(k for k in stored if k != "cell_weight" and stored[k] != wanted.get(k))
+    if changed:
+        raise SystemExit(f"error: the recipe changed {changed} as well; regenerate the basis")
+    prior = dict(basis.meta["prior"])
+    local = dataclasses.replace(
+        LocalPrior.from_meta(prior["local"]), cell_weight=recipe.cell_weight
+    )
+    kernel = local.to_meta()
+    prior["local"] = kernel
+    prior["candidates"] = [
+        {**row, **kernel}
+        if (row.get("kernel"), row.get("length_scale"))
+        == (kernel["kernel"], kernel["length_scale"])
+        else row
+        for row in prior["candidates"]
+    ]
+    stored["cell_weight"] = recipe.cell_weight
+    basis = dataclasses.replace(basis, meta={**basis.meta, "prior": prior, "recipe": stored})
+    basis.save(path)
+    sidecar_path = out / f"{NAME}.json"
+    sidecar = json.loads(sidecar_path.read_text())
+    data = path.read_bytes()
+    sidecar.update(
+        sha256=hashlib.sha256(data).hexdigest(),
+        content_sha256=content_sha256(path),
+        bytes=len(data),
+        recipe={**sidecar["recipe"], "cell_weight": recipe.cell_weight},
+    )
+    harness.write_json(sidecar_path, sidecar, indent=2)
+    return dict(sidecar)
 
 
 def make_indoor(
@@ -478,7 +527,6 @@ def _write(
     return sidecar
 
 
-
 def _learn(
     maps: Any,
     components: int,
@@ -505,6 +553,7 @@ def _learn(
             exact_max_bytes=8 << 30,
         )
 
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Make the default basis; print its sidecar."""
     parser = harness.argument_parser(__doc__)
@@ -519,6 +568,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--walks", type=int, help="with --indoor: override the recipe's number of walks"
     )
+    parser.add_argument(
+        "--cell-weight-only",
+        action="store_true",
+        help="write the recipe's cell_weight into the basis in --out (no re-rendering)",
+    )
     for field in ("drives", "frames", "step", "components", "indoor_seeds"):
         flag = field.replace("_", "-")
         parser.add_argument(
@@ -532,6 +586,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     fields = ("drives", "frames", "step", "components", "indoor_seeds")
     overrides = {f: getattr(args, f) for f in fields}
     recipe = dataclasses.replace(recipe, **{k: v for k, v in overrides.items() if v is not None})
+    if args.cell_weight_only:
+        print(json.dumps(update_cell_weight(recipe, args.out), indent=2))
+        return 0
     # the recipe's options only: where the files go does not change what they hold
     command = "python tools/make_default_basis.py" + (" --small" if args.small else "")
     command += "".join(

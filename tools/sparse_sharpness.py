@@ -78,6 +78,14 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "gaussian40": {"prior": {"local": {"kernel": "gaussian", "length_scale": 40.0}}},
     "sigma0.5": {"prior": {"sigma": 0.5}},
     "sigma1": {"prior": {"sigma": 1.0}},
+    # the edge-aware local prior's cell weight w (1: the stationary kernel; estimate/cells.py)
+    "cells0": {"prior": {"local": {"cell_weight": 0.0}}},
+    "cells0.25": {"prior": {"local": {"cell_weight": 0.25}}},
+    "cells0.5": {"prior": {"local": {"cell_weight": 0.5}}},
+    "cells0.6": {"prior": {"local": {"cell_weight": 0.6}}},
+    "cells0.75": {"prior": {"local": {"cell_weight": 0.75}}},
+    "cells0.9": {"prior": {"local": {"cell_weight": 0.9}}},
+    "stationary": {"prior": {"local": {"cell_weight": 1.0}}},
 }
 
 
@@ -399,6 +407,8 @@ def estimate_seconds(
 
     ``densify_batch`` of 4 frames at a time, one BLAS thread, the processor's settings, no
     carried points; the configurations are timed in turns, the best of ``repeats`` kept.
+    An edge-aware prior's partitions are made beforehand, as the stereo workers make them
+    (:func:`partition_seconds` times that).
     """
     from threadpoolctl import threadpool_limits
 
@@ -412,6 +422,11 @@ def estimate_seconds(
         measured.append([front_end.measure(frame.left, frame.right) for frame, _ in items])
     best = [np.inf] * len(configs)
     camera = items[0][0].camera
+    grid = Basis.default().grid_size
+    partitions = [
+        [_partition(m, camera.image_size, grid) if config.edge_aware else None for m in frames]
+        for config, frames in zip(configs, measured, strict=True)
+    ]
     with threadpool_limits(1):
         for _ in range(repeats):
             for index, config in enumerate(configs):
@@ -424,12 +439,35 @@ def estimate_seconds(
                         basis,
                         [m.pixels for m in batch],
                         [m.disparities for m in batch],
+                        partitions=partitions[index][start : start + 4],
                         image_size=camera.image_size,
                         focal_baseline=camera.focal_baseline,
                         robust=config.robust,
                         **options,
                     )
                 best[index] = min(best[index], (time.process_time() - started) / len(items))
+    return best
+
+
+def _partition(measured: Any, image_size: tuple[int, int], grid: tuple[int, int]) -> Any:
+    """The partition a stereo worker makes of a frame along its SGBM map (cells.Partition)."""
+    from pcainterp_stream.estimate.cells import Partition
+
+    return Partition.along(measured.disparity_map, measured.pixels, image_size, grid)
+
+
+def partition_seconds(items: list[tuple[StereoFrame, Array]], repeats: int = 3) -> float:
+    """CPU seconds per frame of the stereo workers' partitions (the best of ``repeats``)."""
+    config = ProcessorConfig()
+    front_end = StereoFrontEnd(config.gftt, config.sgbm)
+    measured = [front_end.measure(frame.left, frame.right) for frame, _ in items]
+    camera, grid = items[0][0].camera, Basis.default().grid_size
+    best = np.inf
+    for _ in range(repeats):
+        started = time.process_time()
+        for one in measured:
+            _partition(one, camera.image_size, grid)
+        best = min(best, (time.process_time() - started) / len(items))
     return best
 
 
@@ -520,7 +558,8 @@ def main(argv: list[str] | None = None) -> int:
                 + ", ".join(
                     f"{v} {1000 * t:.1f} ({t / seconds[0]:.2f}x)"
                     for v, t in zip(args.variants, seconds, strict=True)
-                ),
+                )
+                + f"; partition (stereo worker) {1000 * partition_seconds(items):.2f}",
                 flush=True,
             )
     return 0

@@ -198,6 +198,13 @@ def _add_estimate_options(densify: argparse.ArgumentParser) -> None:
         "basis has one (default)",
     )
     estimate.add_argument(
+        "--edge-aware",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="cut the local kernel along SGBM's depth edges when the basis's prior has a cell "
+        "weight (the built-in street basis; default: %(default)s; docs/sharper_sparse.md)",
+    )
+    estimate.add_argument(
         "--robust",
         choices=["none", "huber", "cauchy"],
         default=defaults.ROBUST,
@@ -311,6 +318,7 @@ def _processor_config(
         carry=dataclasses.replace(ProcessorConfig().carry, frames=args.carry_frames),
         calibrate=args.calibrate,
         source=source,
+        edge_aware=args.edge_aware,
     )
 
 

@@ -44,6 +44,7 @@ from pcainterp_stream.estimate.basis import (
     resample_grid,
     sample_rows,
 )
+from pcainterp_stream.estimate.cells import Partition
 from pcainterp_stream.estimate.prior import (
     LocalPrior,
     Model,
@@ -157,6 +158,7 @@ def densify(
     robust_iterations: int = 1,
     scale_by_innovation: bool = False,
     noise_std: npt.ArrayLike | None = None,
+    edge_map: npt.ArrayLike | None = None,
 ) -> DensifyResult:
     """Densify one frame's sparse disparities with the MAP estimate.
 
@@ -192,6 +194,10 @@ def densify(
         noise_std: (k,) float, extra noise std (px of the output camera) of each
             measurement, added in quadrature to ``sigma``: R_j = (sigma^2 + s_j^2) / w_j
             (e.g. points carried over from earlier frames, :mod:`motion`). None: all 0.
+        edge_map: (h, w) float, a disparity map of the frame spanning the image at any
+            resolution (px, <= 0 or NaN unknown; e.g. the front end's SGBM map), along which
+            an edge-aware ``local_prior`` (``cell_weight`` < 1) partitions the image among
+            the kept measurements (:class:`cells.Partition`); None: the stationary kernel.
 
     Returns:
         The :class:`DensifyResult`. Zero usable measurements give the prior (mean map,
@@ -200,6 +206,12 @@ def densify(
     Raises:
         ValueError: an argument has the wrong shape or value.
     """
+    partition = None
+    if edge_map is not None and local_prior is not None and local_prior.edge_aware:
+        resolved = basis if basis is not None else Basis.default()
+        size = _image_size(resolved, image_size)
+        seeds, _, _ = clean_measurements(pixels, disparities, size)
+        partition = Partition.along(edge_map, seeds, size, resolved.grid_size)
     return densify_batch(
         basis,
         [pixels],
@@ -217,6 +229,7 @@ def densify(
         robust_iterations=robust_iterations,
         scale_by_innovation=scale_by_innovation,
         noise_stds=None if noise_std is None else [noise_std],
+        partitions=None if partition is None else [partition],
     )[0]
 
 
@@ -239,6 +252,7 @@ def densify_batch(
     scale_by_innovation: bool = False,
     noise_stds: Sequence[npt.ArrayLike | None] | None = None,
     with_depth: bool = True,
+    partitions: Sequence[Partition | None] | None = None,
 ) -> list[DensifyResult]:
     """Densify several frames at once with matrix-matrix products across frames.
 
@@ -269,6 +283,10 @@ def densify_batch(
         with_depth: also convert to depth and its std; False leaves ``depth`` and
             ``depth_std`` None (for a caller that changes the disparity first, as dense
             fusion does, and converts then).
+        partitions: F partitions of the images (or None) along their disparity maps, for
+            an edge-aware ``local_prior`` (:meth:`cells.Partition.along`, e.g. seeded by
+            each frame's own measurements; a measurement is in the cell of the grid node it
+            falls on); None: the stationary kernel.
 
     Returns:
         One :class:`DensifyResult` per frame, in order.
@@ -305,6 +323,11 @@ def densify_batch(
             f"Expected `noise_stds` to have one entry per frame ({len(pixels_list)}), "
             f"got {len(noise_stds)}"
         )
+    if partitions is not None and len(partitions) != len(pixels_list):
+        raise ValueError(
+            f"Expected `partitions` to have one entry per frame ({len(pixels_list)}), "
+            f"got {len(partitions)}"
+        )
     frames = []
     extra_variances: list[npt.NDArray[np.float64] | None] = []
     for index, (pixels, disparities) in enumerate(zip(pixels_list, disparities_list, strict=True)):
@@ -320,8 +343,9 @@ def densify_batch(
             temporal.reset()
             temporal.key = key
     posteriors = []
-    for (frame_pixels, frame_disparities, _), extra_variance in zip(
-        frames, extra_variances, strict=True
+    edge_aware = model.local is not None and model.local.edge_aware
+    for index, ((frame_pixels, frame_disparities, _), extra_variance) in enumerate(
+        zip(frames, extra_variances, strict=True)
     ):
         grid_positions = image_to_grid(frame_pixels, out_size, basis.grid_size)
         indices, weights = bilinear_weights(grid_positions, basis.grid_size)
@@ -335,6 +359,10 @@ def densify_batch(
             )
             continue
         positions = image_to_grid(frame_pixels, out_size, basis.image_size)
+        cells = None
+        partition = None if partitions is None else partitions[index]
+        if edge_aware and partition is not None and frame_pixels.shape[0]:
+            cells = partition.cells(frame_pixels)
         posterior = _solve_beyond(
             rows,
             residual,
@@ -344,6 +372,7 @@ def densify_batch(
             temporal,
             need_factor=need_factor,
             extra_variance=extra_variance,
+            cells=cells,
         )
         if posterior.local is not None:
             local = dataclasses.replace(posterior.local, indices=indices, weights=weights)

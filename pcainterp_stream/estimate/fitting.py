@@ -292,6 +292,67 @@ def fit_local_prior(
     )
 
 
+CELL_WEIGHTS = (0.0, 0.1, 0.25, 0.4, 0.5, 0.6, 0.75, 0.9, 1.0)
+"""Cell weights w tried by :func:`fit_cell_weight` (1: the stationary kernel)."""
+
+
+def fit_cell_weight(
+    basis: Basis,
+    frames: Sequence[FitFrame],
+    point_cells: Sequence[npt.NDArray[np.int64]],
+    *,
+    local: LocalPrior,
+    sigma: float,
+    candidates: Sequence[float] = CELL_WEIGHTS,
+) -> tuple[float, dict[float, float]]:
+    """Fit the edge-aware kernel's cell weight w by the evidence, the kernel and sigma kept.
+
+    Each candidate's summed log evidence log N(z~; 0, B~ Lambda B~^T + C_pp(w) + sigma^2 I)
+    over the frames, C_pp(w) = v k(p_i - p_j) [w + (1 - w) 1{same cell}] (:mod:`cells`).
+
+    Args:
+        basis: the PCA basis.
+        frames: frames that are not among the basis's training maps (:func:`fit_frame`).
+        point_cells: (k_f,) the cells of each frame's measurements, in the same order.
+        local: the local kernel (its shape, length scale and v are kept).
+        sigma: the noise std (px).
+        candidates: cell weights in [0, 1] to try.
+
+    Returns:
+        The best w and the summed log evidence (nats) of every candidate.
+
+    Raises:
+        ValueError: no frame has a measurement, or the cells do not match the frames.
+    """
+    if len(point_cells) != len(frames):
+        raise ValueError(
+            f"Expected one `point_cells` array per frame ({len(frames)}), got {len(point_cells)}"
+        )
+    usable = [
+        (frame, cells)
+        for frame, cells in zip(frames, point_cells, strict=True)
+        if frame.residual.size
+    ]
+    if not usable:
+        raise ValueError("Expected at least one frame with measurements to fit the cell weight")
+    signals = [(frame.rows * basis.eigenvalues) @ frame.rows.T for frame, _ in usable]
+    scores: dict[float, float] = {}
+    for weight in candidates:
+        prior = LocalPrior(local.variance, local.length_scale, local.kernel, cell_weight=weight)
+        total = 0.0
+        for signal, (frame, cells) in zip(signals, usable, strict=True):
+            if cells.shape != frame.residual.shape:
+                raise ValueError(
+                    f"Expected `point_cells` of shape {frame.residual.shape}, got {cells.shape}"
+                )
+            system = signal + prior.matrix(frame.positions, cells)
+            system.flat[:: system.shape[0] + 1] += sigma**2
+            total += _log_evidence(system, frame.residual)
+        scores[float(weight)] = total
+    best = max(scores, key=lambda weight: scores[weight])
+    return best, scores
+
+
 def fit_process_noise(
     basis: Basis,
     sequences: Sequence[Sequence[FitFrame]],

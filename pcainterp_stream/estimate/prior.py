@@ -84,11 +84,15 @@ class LocalPrior:
         variance: v, prior variance of the local part (px^2, basis disparity units).
         length_scale: ell, in px of the basis image.
         kernel: the kernel shape.
+        cell_weight: w of the edge-aware prior, v k(x - x') [w + (1 - w) 1{same cell}],
+            cells following the front end's disparity map (:mod:`cells`); 1 (the default)
+            is the stationary kernel alone, and so is any w without a map.
     """
 
     variance: float
     length_scale: float
     kernel: Kernel = Kernel.LAPLACE
+    cell_weight: float = 1.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.variance) and self.variance >= 0):
@@ -97,7 +101,16 @@ class LocalPrior:
             raise ValueError(
                 f"Expected local prior `length_scale` > 0 (px), got {self.length_scale}"
             )
+        if not (math.isfinite(self.cell_weight) and 0 <= self.cell_weight <= 1):
+            raise ValueError(
+                f"Expected local prior `cell_weight` in [0, 1], got {self.cell_weight}"
+            )
         object.__setattr__(self, "kernel", Kernel(self.kernel))
+
+    @property
+    def edge_aware(self) -> bool:
+        """True when the kernel has a cell term (``cell_weight`` < 1)."""
+        return self.cell_weight < 1.0
 
     def axis(
         self, positions: FloatArray, at: FloatArray, dtype: type[np.floating[Any]] = np.float64
@@ -123,6 +136,20 @@ class LocalPrior:
         # subnormal range, where multiplies and the GEMM with them run many times slower
         np.maximum(gap, dtype(_CLAMP_BELOW), out=gap)
         return np.exp(gap, out=gap)
+
+    def pointwise(self, dx: npt.NDArray[Any], dy: npt.NDArray[Any]) -> npt.NDArray[np.float32]:
+        """Return k(dx) k(dy) elementwise (float32), the product of two :meth:`axis` factors."""
+        scale = np.float32(1.0 / self.length_scale)
+        x = np.asarray(dx, np.float32) * scale
+        y = np.asarray(dy, np.float32) * scale
+        if self.kernel is Kernel.LAPLACE:
+            exponent = -(np.abs(x) + np.abs(y))
+        else:
+            exponent = np.float32(-0.5) * (x * x + y * y)
+        # each factor's clamp at -40, as in axis(): the product's at -80
+        np.maximum(exponent, np.float32(2.0 * _CLAMP_BELOW), out=exponent)
+        values: npt.NDArray[np.float32] = np.exp(exponent, out=exponent)
+        return values
 
     def support(self) -> float:
         """Return the distance (px) beyond which a 1-D factor is at its clamp e^-40.
@@ -158,8 +185,13 @@ class LocalPrior:
             spacing /= 2.0
         return max(spacing, 1.0)
 
-    def matrix(self, positions: FloatArray) -> FloatArray:
+    def matrix(
+        self, positions: FloatArray, point_cells: npt.NDArray[np.int64] | None = None
+    ) -> FloatArray:
         """Return C_pp (k, k) float64 between measurement positions (x, y) basis px.
+
+        With ``point_cells`` (k,) (the measurements' cells, :mod:`cells`) and
+        ``cell_weight`` w < 1, entries between different cells are scaled by w.
 
         The kernel factors are evaluated in float32 (relative error ~1e-7 of v, far below
         the noise sigma^2 >= 0.01 px^2 it is added to): numpy's float64 exp is ~10x slower
@@ -168,17 +200,23 @@ class LocalPrior:
         fx = self.axis(positions[:, 0], positions[:, 0], np.float32)
         fy = self.axis(positions[:, 1], positions[:, 1], np.float32)
         fx *= fy
+        if point_cells is not None and self.edge_aware:
+            same = point_cells[:, None] == point_cells
+            fx *= np.where(same, np.float32(1.0), np.float32(self.cell_weight))
         matrix: FloatArray = fx.astype(np.float64)
         matrix *= self.variance
         return matrix
 
     def to_meta(self) -> dict[str, Any]:
         """Return the JSON form stored in a basis's ``meta["prior"]``."""
-        return {
+        meta: dict[str, Any] = {
             "variance": self.variance,
             "length_scale": self.length_scale,
             "kernel": self.kernel.value,
         }
+        if self.edge_aware:
+            meta["cell_weight"] = self.cell_weight
+        return meta
 
     @classmethod
     def from_meta(cls, meta: dict[str, Any]) -> LocalPrior:
@@ -187,6 +225,7 @@ class LocalPrior:
             variance=float(meta["variance"]),
             length_scale=float(meta["length_scale"]),
             kernel=Kernel(str(meta.get("kernel", Kernel.LAPLACE.value))),
+            cell_weight=float(meta.get("cell_weight", 1.0)),
         )
 
 

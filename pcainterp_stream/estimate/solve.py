@@ -7,6 +7,7 @@ triangular-BLAS helpers they share.
 from __future__ import annotations
 
 import functools
+from collections.abc import Iterator
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any, TypeVar
@@ -15,6 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.compiled import hold_scipy_blas_at_one_thread, one_blas_thread_when_loaded
+from pcainterp_stream.estimate.cells import Cells
 from pcainterp_stream.estimate.lapack import routines
 from pcainterp_stream.estimate.prior import (
     DOWNWEIGHTED_BELOW,
@@ -64,6 +66,8 @@ class _Local:
     # bilinear grid indices and weights (k, 4) of the measurements: B~ = their mix of rows
     indices: npt.NDArray[np.intp] | None = None
     weights: npt.NDArray[np.float64] | None = None
+    # the edge-aware kernel's partition (prior.LocalPrior.cell_weight < 1), or None
+    cells: Cells | None = None
 
 
 @dataclass(frozen=True)
@@ -191,15 +195,21 @@ def _solve_beyond(
     *,
     need_factor: bool,
     extra_variance: npt.NDArray[np.float64] | None = None,
+    cells: Cells | None = None,
 ) -> _Posterior:
     """The estimate with the additions of ``prior.py``, in measurement space.
 
     Temporal prior first; when its normalised innovation fails the test the frame is solved
-    again with the static prior (and the state restarts from that posterior).
+    again with the static prior (and the state restarts from that posterior). ``cells``:
+    the measurements' partition for an edge-aware local prior (:mod:`cells`), or None.
     """
     predicted = temporal.predict(eigenvalues) if temporal is not None else None
+    if cells is not None and (model.local is None or not model.local.edge_aware):
+        cells = None
     local_matrix = (
-        model.local.matrix(positions) if model.local is not None and rows.shape[0] else None
+        model.local.matrix(positions, None if cells is None else cells.point_cells)
+        if model.local is not None and rows.shape[0]
+        else None
     )
     posterior = _solve_measurement(
         rows,
@@ -211,6 +221,7 @@ def _solve_beyond(
         local_matrix,
         need_factor=need_factor,
         extra_variance=extra_variance,
+        cells=cells,
     )
     if predicted is not None and temporal is not None:
         if not temporal.accepts(posterior.normalised_innovation):
@@ -226,6 +237,7 @@ def _solve_beyond(
                 need_factor=need_factor,
                 label="reset",
                 extra_variance=extra_variance,
+                cells=cells,
             )
     if temporal is not None and posterior.temporal != "temporal":
         temporal.static_innovation = posterior.normalised_innovation
@@ -246,6 +258,7 @@ def _solve_measurement(
     need_factor: bool,
     label: str = "static",
     extra_variance: npt.NDArray[np.float64] | None = None,
+    cells: Cells | None = None,
 ) -> _Posterior:
     """MAP estimate and posterior under prior y ~ N(mu, diag(p)), local prior, weighted noise.
 
@@ -305,6 +318,7 @@ def _solve_measurement(
             alpha=alpha,
             lower_inverse=lower_inverse.astype(np.float32) if need_factor else None,
             prior_rows=prior_rows.astype(np.float32) if need_factor else None,
+            cells=cells,
         )
     return _Posterior(
         coefficients=coefficients,
@@ -357,7 +371,80 @@ def _local_mean(
         if first < last:
             along_x = local.prior.axis(position_x[first:last], columns, np.float32)
             dense[:, start : start + step] = along_y[first:last].T @ along_x
+    if local.cells is not None:
+        # edge-aware kernel: w times the stationary part plus (1 - w) times each pixel's
+        # own cell's, sum over j in cell(x) of v alpha_j k(x - p_j)
+        weight = local.prior.cell_weight
+        dense *= np.float32(weight)
+        coefficient = (scale * local.prior.variance * (1.0 - weight) * local.alpha).astype(
+            np.float32
+        )
+        flat = dense.reshape(-1)
+        for at, j, values in _cell_pairs(local, ys, xs, basis_image):
+            values *= coefficient.take(j)
+            if at.size == flat.size:  # rank 0 over the whole grid: at is every point
+                flat += values
+            else:
+                flat[at] += values
     return dense
+
+
+def _cell_pairs(
+    local: _Local,
+    ys: npt.NDArray[np.float64],
+    xs: npt.NDArray[np.float64],
+    basis_image: tuple[int, int],
+) -> Iterator[tuple[npt.NDArray[np.intp], npt.NDArray[np.int64], npt.NDArray[np.float32]]]:
+    """The points x of rows ys x columns xs paired with the measurements of their own cell.
+
+    Yields, per rank r, (at, j, k(x - p_j)): the flat indices (row-major) of the points
+    whose cell has an r-th measurement, that measurement j, and the kernel between them;
+    ys and xs in basis-image px. A cell holds one measurement but where several share a
+    cell-grid node (none where its seed is not among the measurements), so after rank 0
+    (usually every point) few are left.
+    """
+    cells = local.cells
+    assert cells is not None
+    cell = cells.at(xs, ys, basis_image)
+    position_x = np.ascontiguousarray(local.positions[:, 0])
+    position_y = np.ascontiguousarray(local.positions[:, 1])
+    for rank, members in enumerate(cells.members):
+        j = np.where(cell >= 0, members.take(np.maximum(cell, 0)), -1)
+        if rank == 0 and j.min() >= 0:  # every point's cell has one: no index arithmetic
+            values = local.prior.pointwise(
+                xs[None, :] - position_x.take(j), ys[:, None] - position_y.take(j)
+            )
+            yield np.arange(cell.size), j.reshape(-1), values.reshape(-1)
+            continue
+        at = np.flatnonzero(j >= 0)
+        if not at.size:
+            return
+        j = j.reshape(-1)[at]
+        row, column = np.divmod(at, xs.size)
+        values = local.prior.pointwise(
+            xs.take(column) - position_x.take(j), ys.take(row) - position_y.take(j)
+        )
+        yield at, j, values
+
+
+def _keep_own_cells(
+    local: _Local,
+    covariance: npt.NDArray[np.float32],
+    ys: npt.NDArray[np.float64],
+    xs: npt.NDArray[np.float64],
+    basis_image: tuple[int, int],
+) -> None:
+    """Scale c(P, x) (k, len(ys) * len(xs)) in place by w except within each x's own cell.
+
+    C(p_j, x) = v k(p_j - x) [w + (1 - w) 1{same cell}]: v k itself where j is in x's cell.
+    """
+    if local.cells is None:
+        return
+    own = [(j, at) for at, j, _ in _cell_pairs(local, ys, xs, basis_image)]
+    kept = [covariance[rows, columns] for rows, columns in own]
+    covariance *= np.float32(local.prior.cell_weight)
+    for (rows, columns), values in zip(own, kept, strict=True):
+        covariance[rows, columns] = values
 
 
 def _local_covariance(
@@ -372,6 +459,7 @@ def _local_covariance(
     covariance: npt.NDArray[np.float32] = product.reshape(
         local.alpha.size, vgrid_size[0] * vgrid_size[1]
     )
+    _keep_own_cells(local, covariance, ys, xs, basis_image)
     return covariance
 
 

@@ -20,6 +20,7 @@ from pcainterp_stream.estimate.basis import (
 )
 from pcainterp_stream.estimate.solve import (
     _image_coordinates,
+    _keep_own_cells,
     _Local,
     _local_covariance,
     _lower_times,
@@ -96,7 +97,7 @@ def _variance_beyond(
         if coordinates is None:
             joint += _local_covariance(local, vgrid.size, basis_image)
         else:
-            joint += _local_covariance_at(local, *coordinates)
+            joint += _local_covariance_at(local, *coordinates, basis_image)
         projected = _lower_times(local.lower_inverse, joint)
     else:
         projected = _factor(posterior) @ vgrid.component_rows
@@ -184,7 +185,10 @@ def _variance_stride(basis: Basis, variance_stride: int | None) -> int:
 
 
 def _local_covariance_at(
-    local: _Local, ys: npt.NDArray[np.float64], xs: npt.NDArray[np.float64]
+    local: _Local,
+    ys: npt.NDArray[np.float64],
+    xs: npt.NDArray[np.float64],
+    basis_image: tuple[int, int],
 ) -> npt.NDArray[np.float32]:
     """c(P, x) (k, len(ys) * len(xs)) float32 at the points (x, y) of rows ys x columns xs.
 
@@ -195,6 +199,7 @@ def _local_covariance_at(
     along_x = local.prior.axis(local.positions[:, 0], xs, np.float32)
     product = along_y[:, :, None] * along_x[:, None, :] * np.float32(local.prior.variance)
     covariance: npt.NDArray[np.float32] = product.reshape(local.alpha.size, ys.size * xs.size)
+    _keep_own_cells(local, covariance, ys, xs, basis_image)
     return covariance
 
 

@@ -55,6 +55,7 @@ from pcainterp_stream.estimate.basis import (
     builtin_basis_installed,
     builtin_kind,
 )
+from pcainterp_stream.estimate.cells import Partition
 from pcainterp_stream.estimate.dense import DenseModel, MapHoles, find_holes, fuse_dense
 from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
 from pcainterp_stream.estimate.lapack import routines
@@ -169,6 +170,8 @@ class ProcessorConfig:
             ``"auto"`` starts with the street basis and, when it does not fit the first
             frames well (``adapt`` not ``"off"``), checks the indoor one on the same held-out
             pixels and uses whichever fits better; ``"street"`` or ``"indoor"``: that one.
+        edge_aware: sparse stereo mode partitions each frame along its SGBM map (beside
+            SGBM) for an edge-aware local prior (:mod:`~pcainterp_stream.estimate.cells`).
     """
 
     gftt: GfttConfig = field(default_factory=GfttConfig)
@@ -203,6 +206,7 @@ class ProcessorConfig:
     adapt: str = "auto"
     warmup_frames: int = 8
     builtin: str = "auto"
+    edge_aware: bool = True
 
     def __post_init__(self) -> None:
         if self.adapt not in ("auto", "check", "off"):
@@ -329,6 +333,7 @@ class _Measured(NamedTuple):
     # beside SGBM rather than in the check on the sequential densify thread
     held_out: adapt.HeldOut | None = None
     holes: MapHoles | None = None  # the map's holes and their neighbours (dense mode only)
+    partition: Partition | None = None  # along SGBM's map, for an edge-aware prior
 
 
 def features_to_measurements(
@@ -516,6 +521,7 @@ class FrameProcessor:
         sgbm_map = grid = None
         held_out = None
         holes = None
+        partition = None
         if self.config.source is MeasurementSource.FEATURES:
             pixels, disparities, counts = features_to_measurements(features, frame.camera)
         else:
@@ -527,6 +533,9 @@ class FrameProcessor:
                 # the fusion's part that needs no estimate, here in parallel, not in the
                 # sequential densify thread
                 holes = find_holes(disparity_map)
+            elif self.config.edge_aware:  # an edge-aware local prior's cells, beside SGBM
+                size, basis_grid = frame.camera.image_size, self.basis.grid_size
+                partition = Partition.along(measurements.disparity_map, pixels, size, basis_grid)
             if self.adaptation.wants_maps():
                 if check_frame or self.adaptation.adapted:
                     sgbm_map, grid = sgbm_maps(measurements.disparity_map, frame.camera)
@@ -557,6 +566,7 @@ class FrameProcessor:
             raw_map,
             held_out,
             holes,
+            partition,
         )
 
     def submit(
@@ -744,6 +754,7 @@ class FrameProcessor:
                     self.basis,
                     self.settings.densify_options(),
                     self.temporal,
+                    [item.partition for item in group] if self.config.edge_aware else None,
                 )
             )
             start = stop
@@ -766,6 +777,7 @@ class FrameProcessor:
             temporal=job.temporal,
             noise_stds=job.noise_stds,
             with_depth=not self.dense,  # dense mode converts the fused disparity
+            partitions=job.partitions,
             **job.options,
         )
         return [
@@ -808,6 +820,7 @@ class _Estimate(NamedTuple):
     basis: Basis
     options: dict[str, Any]
     temporal: TemporalPrior | None
+    partitions: list[Partition | None] | None = None
 
     def parts(self, size: int) -> list[_Estimate]:
         """Split the group into parts of at most ``size`` frames, estimated on their own."""

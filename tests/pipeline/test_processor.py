@@ -15,8 +15,9 @@ import pytest
 from pcainterp_stream.estimate import estimator
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.estimator import densify
+from pcainterp_stream.estimate.prior import LocalPrior
 from pcainterp_stream.frontend.motion import CarryConfig
-from pcainterp_stream.frontend.stereo import SgbmConfig
+from pcainterp_stream.frontend.stereo import SgbmConfig, StereoFrontEnd
 from pcainterp_stream.pipeline import processor
 from pcainterp_stream.pipeline.processor import (
     FrameProcessor,
@@ -574,3 +575,35 @@ def test_the_warm_up_batch_is_estimated_in_batch_size_parts(
     for one, other in zip(results[0], results[2], strict=True):
         np.testing.assert_array_equal(one.disparity, other.disparity)
         np.testing.assert_array_equal(one.disparity_std, other.disparity_std)
+
+
+def test_an_edge_aware_prior_gets_each_frames_sgbm_map(frames: list[StereoFrame]) -> None:
+    """A basis whose local prior has a cell weight densifies along each frame's SGBM map;
+    ``edge_aware=False`` gives the stationary kernel bit for bit."""
+    local = {"variance": 20.0, "length_scale": 40.0, "kernel": "laplace"}
+    stationary = dataclasses.replace(
+        random_basis(0), meta={"prior": {"local": local, "sigma": 0.5}}
+    )
+    edge_aware = dataclasses.replace(
+        stationary, meta={"prior": {"local": {**local, "cell_weight": 0.3}, "sigma": 0.5}}
+    )
+    options: dict[str, Any] = {"adapt": "off", "carry": CarryConfig(frames=0)}
+    aware = run(edge_aware, frames[:3], **options)
+    off = run(edge_aware, frames[:3], edge_aware=False, **options)
+    plain = run(stationary, frames[:3], **options)
+    for one, other in zip(off, plain, strict=True):
+        np.testing.assert_array_equal(one.disparity, other.disparity)
+        np.testing.assert_array_equal(one.disparity_std, other.disparity_std)
+    assert not np.array_equal(aware[0].disparity, off[0].disparity)
+    front_end = StereoFrontEnd(ProcessorConfig().gftt, SGBM)
+    measured = front_end.measure(frames[0].left, frames[0].right)
+    expected = densify(
+        edge_aware,
+        aware[0].pixels,
+        aware[0].disparities,
+        sigma=0.5,
+        local_prior=LocalPrior(20.0, 40.0, cell_weight=0.3),
+        robust=ProcessorConfig().robust,
+        edge_map=measured.disparity_map,
+    )
+    np.testing.assert_allclose(aware[0].disparity, expected.disparity, rtol=1e-4, atol=1e-4)

@@ -1,0 +1,269 @@
+"""Cells of the edge-aware local prior: the measurements' nearest regions along a disparity map.
+
+The stationary local kernel lets a measurement inform every pixel within its length scale,
+across depth edges too. The edge-aware prior (``prior.LocalPrior.cell_weight`` w < 1)
+multiplies it by a partition term,
+
+    C(x, x') = v k(x - x') [w + (1 - w) 1{cell(x) = cell(x')}],
+
+where cell(x) is the seed measurement nearest to x along the front end's own disparity map
+(a geodesic Voronoi partition, :class:`Partition`): on a grid spanning the image, a step
+between 4-neighbours costs 1 + min(|disparity difference|, cap), 1 where either value is
+unknown, so a path across a depth edge is long. Each grid node takes the cell of its
+nearest seed node (:func:`geodesic_labels`: two rounds of raster passes, a close
+approximation of multi-source Dijkstra). The seeds are the frame's own measurements;
+any other measurement (e.g. one carried over from earlier frames) and any pixel belongs to
+the cell of the node it falls on (:meth:`Partition.cells`). The term is positive
+semi-definite for any partition (a constant plus a block indicator, times a kernel), so C
+is a valid covariance; w = 1 is the stationary kernel itself.
+
+Pure maths over arrays (docs/estimator.md, "Beyond the paper"; docs/sharper_sparse.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+STEP_CAP = 20.0
+"""Largest disparity difference (px) a grid step is charged for: one depth edge costs at
+most 21 steps, so a far measurement on the pixel's own surface can still win."""
+
+CELL_GRID_SCALE = 0.5
+"""Cell grid of the estimate, as a fraction of the basis grid per axis: 8 image px per node at
+the default grid scale. On a grid half as fine again (16 px per node) the gain in error was
+40-60 % smaller on the LiDAR frames and the odometry clip (docs/sharper_sparse.md)."""
+
+
+@dataclass(frozen=True, eq=False)
+class Cells:
+    """A frame's measurements in the cells of a :class:`Partition`.
+
+    Attributes:
+        labels: (rows, cols) int64, the cell of each node of the cell grid (the flat index
+            of its seed node), spanning the image pixel-centre aligned.
+        point_cells: (k,) int64, the cell of each measurement.
+        members: (m, rows * cols) int64, row r holds each cell's r-th measurement (column:
+            the cell's id), -1 past the last. A cell holds one measurement but where several
+            share a node.
+    """
+
+    labels: npt.NDArray[np.int64]
+    point_cells: npt.NDArray[np.int64]
+    members: npt.NDArray[np.int64]
+
+    def at(
+        self, xs: npt.NDArray[np.float64], ys: npt.NDArray[np.float64], image_size: tuple[int, int]
+    ) -> npt.NDArray[np.int64]:
+        """Return the cells (len(ys), len(xs)) of the points at columns xs x rows ys.
+
+        Args:
+            xs: (n,) float64, x in px of an image of ``image_size`` (height, width).
+            ys: (m,) float64, y in px of that image.
+            image_size: the image the cell grid spans (at any resolution).
+        """
+        rows, cols = self.labels.shape
+        column = _node(xs, image_size[1], cols)
+        row = _node(ys, image_size[0], rows)
+        cells: npt.NDArray[np.int64] = self.labels.take(row, axis=0).take(column, axis=1)
+        return cells
+
+
+@dataclass(frozen=True, eq=False)
+class Partition:
+    """A geodesic partition of the image among seed measurements, on the cell grid.
+
+    Attributes:
+        labels: (rows, cols) int64, each node's cell: the flat index (row * cols + col) of
+            its nearest seed node along the disparity map.
+        image_size: (height, width) of the image the grid spans, pixel-centre aligned.
+    """
+
+    labels: npt.NDArray[np.int64]
+    image_size: tuple[int, int]
+
+    @classmethod
+    def along(
+        cls,
+        disparity_map: npt.ArrayLike,
+        pixels: npt.ArrayLike,
+        image_size: tuple[int, int],
+        basis_grid: tuple[int, int],
+        *,
+        step_cap: float = STEP_CAP,
+    ) -> Partition | None:
+        """Partition the image among measurements by their distance along a disparity map.
+
+        Args:
+            disparity_map: (h, w) float disparity (px) spanning the image at any
+                resolution, <= 0 or NaN unknown (the front end's SGBM map, or
+                :func:`cell_map` of it).
+            pixels: (k, 2) float, (x, y) of the seed measurements in px of ``image_size``.
+            image_size: (height, width) of the image.
+            basis_grid: the basis grid (rows, cols); the partition is on
+                :func:`cell_grid_size` of it.
+            step_cap: largest disparity difference charged per step (px).
+
+        Returns:
+            The :class:`Partition`, or None without seeds.
+
+        Raises:
+            ValueError: the map is not 2-D or the pixels not (k, 2).
+        """
+        values = np.asarray(disparity_map, dtype=np.float32)
+        if values.ndim != 2 or values.size == 0:
+            raise ValueError(f"Expected a disparity map of shape (h, w), got {values.shape}")
+        seeds = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+        if seeds.shape[0] == 0:
+            return None
+        size = cell_grid_size(basis_grid)
+        field = to_cell_grid(values, size)
+        nodes = _flat_nodes(seeds, image_size, size)
+        return cls(geodesic_labels(field, nodes, step_cap=step_cap), image_size)
+
+    def cells(self, pixels: npt.NDArray[np.float64]) -> Cells:
+        """Return the cells of measurements (k, 2) (x, y) in px of the partition's image."""
+        rows, cols = self.labels.shape
+        point_cells = self.labels.reshape(-1)[_flat_nodes(pixels, self.image_size, (rows, cols))]
+        k = point_cells.size
+        # each cell's measurements, row r = its r-th one
+        by_cell = np.argsort(point_cells, kind="stable")
+        sorted_cells = point_cells[by_cell]
+        rank = np.arange(k) - np.searchsorted(sorted_cells, sorted_cells, side="left")
+        members = np.full((int(rank.max(initial=-1)) + 1, rows * cols), -1, np.int64)
+        members[rank, sorted_cells] = by_cell
+        return Cells(self.labels, point_cells, members)
+
+
+def _node(coordinates: npt.NDArray[np.float64], size: int, count: int) -> npt.NDArray[np.intp]:
+    """The node (0 .. count - 1) of a grid of ``count`` cells over ``size`` px holding px."""
+    node = np.floor((coordinates + 0.5) * (count / size)).astype(np.intp)
+    return np.clip(node, 0, count - 1)
+
+
+def _flat_nodes(
+    pixels: npt.NDArray[np.float64], image_size: tuple[int, int], grid: tuple[int, int]
+) -> npt.NDArray[np.intp]:
+    """The flat node index (row * cols + col) of the grid node holding each pixel (x, y)."""
+    column = _node(pixels[:, 0], image_size[1], grid[1])
+    row = _node(pixels[:, 1], image_size[0], grid[0])
+    flat: npt.NDArray[np.intp] = row * grid[1] + column
+    return flat
+
+
+def cell_grid_size(basis_grid: tuple[int, int], scale: float = CELL_GRID_SCALE) -> tuple[int, int]:
+    """Return (rows, cols) of the cell grid for a basis grid (``scale`` of it per axis)."""
+    return max(1, round(basis_grid[0] * scale)), max(1, round(basis_grid[1] * scale))
+
+
+def to_cell_grid(
+    disparity_map: npt.NDArray[np.floating], size: tuple[int, int]
+) -> npt.NDArray[np.float32]:
+    """Return a disparity map (H, W) on the cell grid (rows, cols), float32, NaN = unknown.
+
+    Nearest-neighbour resampling (an average would blur the depth edges the cells follow);
+    values <= 0 (SGBM's invalid) become NaN.
+    """
+    values = np.asarray(disparity_map, dtype=np.float32)
+    if values.shape != size:
+        values = np.asarray(
+            cv2.resize(values, (size[1], size[0]), interpolation=cv2.INTER_NEAREST), np.float32
+        )
+    with np.errstate(invalid="ignore"):
+        return np.where(values > 0, values, np.float32(np.nan)).astype(np.float32)
+
+
+def cell_map(
+    disparity_map: npt.NDArray[np.floating], basis_grid: tuple[int, int]
+) -> npt.NDArray[np.float32]:
+    """Return a frame's disparity map on the cell grid of a basis grid (:func:`to_cell_grid`)."""
+    return to_cell_grid(disparity_map, cell_grid_size(basis_grid))
+
+
+SWEEPS = 2
+"""Rounds of the label search (:func:`geodesic_labels`), each a pass along every row and
+column both ways. On the KITTI frames, the three LiDAR frames and synthetic drives two rounds
+label 99.1-99.5 % of the nodes as exact multi-source Dijkstra does, and the nearest-seed
+interpolation along them is within 0.004 px of Dijkstra's (docs/sharper_sparse.md)."""
+
+
+def geodesic_labels(
+    field: npt.NDArray[np.float32],
+    seeds: npt.NDArray[np.intp],
+    *,
+    step_cap: float = STEP_CAP,
+    sweeps: int = SWEEPS,
+) -> npt.NDArray[np.int64]:
+    """Label each node of a grid with its nearest seed node along a disparity map.
+
+    The distance between 4-neighbours is 1 + min(|field difference|, step_cap) (1 where
+    either is NaN). Raster passes relax it: along a row from the left, with P the running
+    sum of the steps, d(j) <- min over i <= j of d(i) + P(j) - P(i) = P(j) + cummin(d - P)(j)
+    (one ``minimum.accumulate``; the argmin's label comes along), then from the right, then
+    along the columns. A shortest path with r turns between rows and columns is exact after
+    about r / 4 rounds; ``sweeps`` rounds are an approximation of multi-source Dijkstra,
+    exact where the paths turn few times (always on a field without edges). After one
+    round every node has a label.
+
+    Args:
+        field: (rows, cols) float32 disparity (px) on the grid, NaN = unknown.
+        seeds: (k,) flat indices (row * cols + col) of the seed nodes (repeats allowed),
+            k >= 1.
+        step_cap: largest disparity difference charged per step (px).
+        sweeps: rounds of passes.
+
+    Returns:
+        (rows, cols) int64, the flat index of each node's nearest seed node.
+    """
+    rows, cols = field.shape
+    values = field.astype(np.float64)
+    along_x = np.zeros((rows, cols))
+    np.cumsum(_steps(values[:, 1:], values[:, :-1], step_cap), axis=1, out=along_x[:, 1:])
+    along_y = np.zeros((rows, cols))
+    np.cumsum(_steps(values[1:], values[:-1], step_cap), axis=0, out=along_y[1:])
+    distance = np.full((rows, cols), np.inf)
+    labels = np.full((rows, cols), -1, np.int64)
+    distance.flat[seeds] = 0.0
+    labels.flat[seeds] = seeds
+    for _ in range(sweeps):
+        for position, rotate in ((along_x, False), (along_y, True)):
+            d, lab, pos = (
+                (distance.T, labels.T, position.T) if rotate else (distance, labels, position)
+            )
+            _relax(d, lab, pos)  # forward
+            _relax(d[:, ::-1], lab[:, ::-1], -pos[:, ::-1])  # backward: distances from the end
+    return labels
+
+
+def _steps(
+    a: npt.NDArray[np.float64], b: npt.NDArray[np.float64], cap: float
+) -> npt.NDArray[np.float64]:
+    """Step costs 1 + min(|a - b|, cap), 1 where either is NaN."""
+    with np.errstate(invalid="ignore"):
+        step = np.minimum(np.abs(a - b), cap)
+    step[np.isnan(step)] = 0.0
+    step += 1.0
+    return step
+
+
+def _relax(
+    distance: npt.NDArray[np.float64],
+    labels: npt.NDArray[np.int64],
+    position: npt.NDArray[np.float64],
+) -> None:
+    """One pass along axis 1 (in place; the arrays may be flipped or transposed views).
+
+    d(j) <- min(d(j), min over i <= j of d(i) + position(j) - position(i)), the label of
+    the minimising i coming along (the last one on ties: a node keeps its own on a tie).
+    """
+    shifted = distance - position
+    running = np.minimum.accumulate(shifted, axis=1)
+    source = np.where(shifted <= running, np.arange(shifted.shape[1]), 0)
+    np.maximum.accumulate(source, axis=1, out=source)
+    candidate = running + position
+    better = candidate < distance
+    np.copyto(distance, candidate, where=better)
+    np.copyto(labels, np.take_along_axis(labels, source, axis=1), where=better)
