@@ -826,16 +826,17 @@ class _Estimate(NamedTuple):
         """Split the group into parts of at most ``size`` frames, estimated on their own."""
         return [
             self._replace(
-                group=self.group[start : start + size],
-                pixels=self.pixels[start : start + size],
-                disparities=self.disparities[start : start + size],
-                noise_stds=(
-                    None if self.noise_stds is None else self.noise_stds[start : start + size]
-                ),
-                carried=self.carried[start : start + size],
+                **{  # type: ignore[arg-type]
+                    name: None if (value := getattr(self, name)) is None else value[at : at + size]
+                    for name in PER_FRAME
+                }
             )
-            for start in range(0, len(self.group), size)
+            for at in range(0, len(self.group), size)
         ]
+
+
+PER_FRAME = ("group", "pixels", "disparities", "noise_stds", "carried", "partitions")
+"""The fields of :class:`_Estimate` holding one entry per frame."""
 
 
 def _done(future: Future[Future[list[DensifiedFrame]]]) -> bool:
