@@ -78,13 +78,15 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "gaussian40": {"prior": {"local": {"kernel": "gaussian", "length_scale": 40.0}}},
     "sigma0.5": {"prior": {"sigma": 0.5}},
     "sigma1": {"prior": {"sigma": 1.0}},
-    # the edge-aware local prior's cell weight w (1: the stationary kernel; estimate/cells.py)
-    "cells0": {"prior": {"local": {"cell_weight": 0.0}}},
-    "cells0.25": {"prior": {"local": {"cell_weight": 0.25}}},
-    "cells0.5": {"prior": {"local": {"cell_weight": 0.5}}},
-    "cells0.6": {"prior": {"local": {"cell_weight": 0.6}}},
-    "cells0.75": {"prior": {"local": {"cell_weight": 0.75}}},
-    "cells0.9": {"prior": {"local": {"cell_weight": 0.9}}},
+    # the edge-aware local prior (densify --edge-aware) with the built-in basis's cell weight
+    # 0.75, or another w (1: the stationary kernel; estimate/cells.py)
+    "edge_aware": {"edge_aware": True},
+    "cells0": {"edge_aware": True, "prior": {"local": {"cell_weight": 0.0}}},
+    "cells0.25": {"edge_aware": True, "prior": {"local": {"cell_weight": 0.25}}},
+    "cells0.5": {"edge_aware": True, "prior": {"local": {"cell_weight": 0.5}}},
+    "cells0.6": {"edge_aware": True, "prior": {"local": {"cell_weight": 0.6}}},
+    "cells0.75": {"edge_aware": True, "prior": {"local": {"cell_weight": 0.75}}},
+    "cells0.9": {"edge_aware": True, "prior": {"local": {"cell_weight": 0.9}}},
     "stationary": {"prior": {"local": {"cell_weight": 1.0}}},
 }
 

@@ -206,7 +206,7 @@ class ProcessorConfig:
     adapt: str = "auto"
     warmup_frames: int = 8
     builtin: str = "auto"
-    edge_aware: bool = True
+    edge_aware: bool = False
 
     def __post_init__(self) -> None:
         if self.adapt not in ("auto", "check", "off"):
