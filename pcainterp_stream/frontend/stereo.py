@@ -217,6 +217,16 @@ class SgbmConfig:
             dense mode and not its default (docs/dense.md): better on KITTI's real truth,
             worse on scenes with many close surfaces (synthetic drives). With
             ``downscale=1`` and at least 32 disparities only.
+        refine_range: 0 matches the whole range at the matching resolution. A positive
+            multiple of 8 (px) matches the whole range at half resolution first (as
+            ``downscale=2``), warps the right image by that map (smoothed, its holes filled
+            along the row) and matches again at full resolution within +-``refine_range``
+            px of it: the map is that map plus the residual, with the half-resolution map's
+            holes, the residuals at the ends of the small range, values d > x and speckles
+            (``speckle_window_size``, ``speckle_range``, on the whole map) removed. ~0.5x
+            the matching time of the whole range at full resolution with 8 px; dense
+            mode's matcher (docs/dense.md). With ``downscale=1`` only (ignored at half
+            resolution).
     """
 
     min_disparity: int = 0
@@ -233,6 +243,7 @@ class SgbmConfig:
     downscale: int = 1
     full_width: bool = False
     near_at_half: bool = False
+    refine_range: int = 0
 
     def __post_init__(self) -> None:
         if self.num_disparities <= 0 or self.num_disparities % 16:
@@ -243,6 +254,12 @@ class SgbmConfig:
             raise ValueError(f"block_size must be odd and >= 1, got {self.block_size}")
         if self.downscale not in (1, 2):
             raise ValueError(f"downscale must be 1 or 2, got {self.downscale}")
+        if self.refine_range < 0 or self.refine_range % 8:
+            raise ValueError(
+                f"refine_range must be 0 or a positive multiple of 8, got {self.refine_range}"
+            )
+        if self.refine_range and self.near_at_half:
+            raise ValueError("near_at_half and refine_range are alternatives; set one")
 
     @property
     def penalty_small(self) -> int:
@@ -333,6 +350,121 @@ def _flip(image: UInt8Array) -> UInt8Array:
     return np.asarray(cv2.flip(image, 1), np.uint8)
 
 
+def _match(
+    left: UInt8Array, right: UInt8Array, matched: SgbmConfig, full_width: bool
+) -> FloatArray:
+    """Run SGBM at the images' own resolution: float32 px, NaN where invalid.
+
+    ``matched`` is the configuration at that resolution (:meth:`SgbmConfig.matched`);
+    ``full_width`` pads the left band (a match into the padding, d > x, is removed).
+    """
+    pad = max(matched.band, 0) if full_width else 0
+    if pad:
+        left = np.asarray(cv2.copyMakeBorder(left, 0, 0, pad, 0, cv2.BORDER_REPLICATE), np.uint8)
+        right = np.asarray(cv2.copyMakeBorder(right, 0, 0, pad, 0, cv2.BORDER_REPLICATE), np.uint8)
+    fixed = _matcher(matched).compute(left, right)
+    if pad:
+        fixed = fixed[:, pad:]
+    # SGBM returns 16 * disparity as int16; invalid pixels are (min_disparity - 1) * 16.
+    disparity = fixed.astype(np.float32)
+    disparity *= np.float32(1.0 / 16.0)
+    disparity[fixed < matched.min_disparity * 16] = np.nan
+    if pad:
+        # a match left of the right image's first column is a match into the padding
+        columns = np.arange(disparity.shape[1], dtype=np.float32)
+        disparity[disparity > columns] = np.nan
+    return disparity
+
+
+def _halved(image: UInt8Array) -> UInt8Array:
+    """Return ``image`` at half resolution (INTER_AREA, odd sizes rounded up)."""
+    height, width = image.shape
+    size = (-(-width // 2), -(-height // 2))
+    return np.asarray(cv2.resize(image, size, interpolation=cv2.INTER_AREA), np.uint8)
+
+
+def _upsampled(disparity: FloatArray, height: int, width: int) -> FloatArray:
+    """Upsample a map to (height, width), values scaled by the width ratio (NaN spreads)."""
+    # Pixel-centre aligned upsampling; a NaN spreads to every output it touches.
+    scale = np.float32(width / disparity.shape[1])
+    upsampled = cv2.resize(disparity, (width, height), interpolation=cv2.INTER_LINEAR)
+    return np.asarray(upsampled, np.float32) * scale
+
+
+def _fill_rows(disparity: FloatArray) -> FloatArray:
+    """Fill NaN with the nearest valid value to the left in the row (right where none).
+
+    In the left view, the pixels SGBM leaves beside a nearer surface are mostly the
+    background it hides from the right camera, which continues on their left. A row
+    without any valid value becomes 0.
+    """
+    height, width = disparity.shape
+    valid = np.isfinite(disparity)
+    columns = np.arange(width)
+    # nearest valid column at or left of each pixel, and at or right of it (width: none)
+    seen = np.where(valid, columns, -1)
+    np.maximum.accumulate(seen, axis=1, out=seen)
+    left = np.where(seen < 0, width, seen)
+    right = np.where(valid, columns, width)
+    right = np.minimum.accumulate(right[:, ::-1], axis=1)[:, ::-1]
+    padded = np.full((height, width + 1), np.nan, np.float32)
+    padded[:, :width] = disparity
+    filled = np.take_along_axis(padded, left, 1)
+    missing = np.isnan(filled)
+    filled[missing] = np.take_along_axis(padded, right, 1)[missing]
+    filled[np.isnan(filled)] = 0.0
+    return filled
+
+
+REFINE_SMOOTHING = 5
+"""``SgbmConfig.refine_range``: side (px, at half resolution) of the box filter that smooths
+the half-resolution map before it warps the right image (measured against 3, 7 and 9 px:
+docs/dense.md)."""
+
+
+def _sgbm_refined(left: UInt8Array, right: UInt8Array, config: SgbmConfig) -> FloatArray:
+    """``SgbmConfig.refine_range``: half resolution, refined at full resolution near it."""
+    height, width = left.shape
+    coarse_config = replace(config, downscale=2, refine_range=0, near_at_half=False)
+    coarse = _match(_halved(left), _halved(right), coarse_config.matched(), config.full_width)
+    guide = cv2.blur(_fill_rows(coarse), (REFINE_SMOOTHING, REFINE_SMOOTHING))
+    shift = _upsampled(np.asarray(guide, np.float32), height, width)
+    # the half-resolution map's holes, each hole pixel its own 2x2 full-resolution pixels
+    holes = np.isnan(coarse).repeat(2, axis=0).repeat(2, axis=1)[:height, :width]
+    # right image warped by the guide: pixel x of the warped image is right pixel x - shift
+    map_x = np.arange(width, dtype=np.float32)[None, :] - shift
+    map_y = np.repeat(np.arange(height, dtype=np.float32)[:, None], width, axis=1)
+    warped = cv2.remap(right, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    reach = config.refine_range
+    residual_config = replace(
+        config,
+        min_disparity=-reach,
+        num_disparities=2 * reach,
+        speckle_window_size=0,
+        full_width=False,
+        near_at_half=False,
+        refine_range=0,
+    )
+    fixed = _matcher(residual_config).compute(left, np.asarray(warped, np.uint8))
+    disparity = fixed.astype(np.float32)
+    disparity *= np.float32(1.0 / 16.0)
+    disparity += shift
+    # invalid residuals, and those at the small range's ends (the match may lie beyond)
+    removed = holes | (fixed < (1 - reach) * 16) | (fixed > (reach - 2) * 16)
+    columns = np.arange(width, dtype=np.float32)
+    removed |= (disparity > columns) | (disparity < config.min_disparity)
+    if config.speckle_window_size > 0:
+        marker = (config.min_disparity - 1) * 16
+        sixteenths = np.rint(disparity * 16.0).astype(np.int16)
+        sixteenths[removed] = marker
+        cv2.filterSpeckles(
+            sixteenths, marker, config.speckle_window_size, config.speckle_range * 16
+        )
+        removed |= sixteenths == marker
+    disparity[removed] = np.nan
+    return disparity
+
+
 def _sgbm_grey(left: UInt8Array, right: UInt8Array, config: SgbmConfig) -> FloatArray:
     """Run SGBM on an 8-bit pair, returning float32 px with NaN where invalid."""
     split = config.split()
@@ -345,34 +477,15 @@ def _sgbm_grey(left: UInt8Array, right: UInt8Array, config: SgbmConfig) -> Float
             near = whole >= np.float32(start)
         far[near] = whole[near]
         return far
+    if config.refine_range and config.downscale == 1:
+        return _sgbm_refined(left, right, config)
     height, width = left.shape
-    matched = config.matched()
-    if config.downscale != 1:
-        size = (-(-width // config.downscale), -(-height // config.downscale))
-        left = np.asarray(cv2.resize(left, size, interpolation=cv2.INTER_AREA), np.uint8)
-        right = np.asarray(cv2.resize(right, size, interpolation=cv2.INTER_AREA), np.uint8)
-    pad = max(matched.band, 0) if config.full_width else 0
-    if pad:
-        left = np.asarray(cv2.copyMakeBorder(left, 0, 0, pad, 0, cv2.BORDER_REPLICATE), np.uint8)
-        right = np.asarray(cv2.copyMakeBorder(right, 0, 0, pad, 0, cv2.BORDER_REPLICATE), np.uint8)
-    fixed = _matcher(matched).compute(left, right)
-    if pad:
-        fixed = fixed[:, pad:]
-        left = left[:, pad:]
-    # SGBM returns 16 * disparity as int16; invalid pixels are (min_disparity - 1) * 16.
-    disparity = fixed.astype(np.float32)
-    disparity *= np.float32(1.0 / 16.0)
-    disparity[fixed < matched.min_disparity * 16] = np.nan
-    if pad:
-        # a match left of the right image's first column is a match into the padding
-        columns = np.arange(disparity.shape[1], dtype=np.float32)
-        disparity[disparity > columns] = np.nan
-    if config.downscale != 1:
-        # Pixel-centre aligned upsampling; a NaN spreads to every output it touches.
-        scale = np.float32(width / left.shape[1])
-        upsampled = cv2.resize(disparity, (width, height), interpolation=cv2.INTER_LINEAR)
-        disparity = np.asarray(upsampled, np.float32) * scale
-    return disparity
+    if config.downscale == 1:
+        return _match(left, right, config, config.full_width)
+    size = (-(-width // config.downscale), -(-height // config.downscale))
+    left = np.asarray(cv2.resize(left, size, interpolation=cv2.INTER_AREA), np.uint8)
+    right = np.asarray(cv2.resize(right, size, interpolation=cv2.INTER_AREA), np.uint8)
+    return _upsampled(_match(left, right, config.matched(), config.full_width), height, width)
 
 
 def compute_disparity(
