@@ -460,8 +460,16 @@ def test_half_resolution_refined_at_full_resolution(
     for value in (D_BACK, D_FRONT):
         surface = both & (truth == np.float32(value))
         assert np.median(np.abs(refined[surface] - value)) < 0.25
-    # the half-resolution map's holes stay holes; no match left of the right image
-    assert not np.isfinite(refined[np.isnan(half)]).any()
+    # the half-resolution map's holes stay holes (each hole pixel its 2x2 pixels); no match
+    # left of the right image
+    size = (truth.shape[1] // 2, truth.shape[0] // 2)
+    coarse = compute_disparity(
+        *(cv2.resize(image, size, interpolation=cv2.INTER_AREA) for image in (left, right)),
+        SgbmConfig(num_disparities=32, full_width=True, downscale=2).matched(),
+    )
+    coarse_holes = np.isnan(coarse).repeat(2, axis=0).repeat(2, axis=1)
+    assert coarse_holes.any()
+    assert not np.isfinite(refined[coarse_holes]).any()
     columns = np.arange(truth.shape[1], dtype=np.float32)[None, :]
     assert not (refined > columns).any()
     # at half resolution the refinement is off
@@ -487,7 +495,7 @@ def test_refine_range_is_checked(changes: dict[str, Any]) -> None:
         elements=st.one_of(st.just(np.float32(np.nan)), st.floats(0, 100, width=32)),
     )
 )
-def test_row_fill_takes_the_farther_nearest_neighbour(values: npt.NDArray[np.float32]) -> None:
+def test_row_fill_takes_the_nearest_value_on_the_left(values: npt.NDArray[np.float32]) -> None:
     filled = _fill_rows(values)
     for row, out in zip(values, filled, strict=True):
         valid = np.flatnonzero(np.isfinite(row))
@@ -497,9 +505,12 @@ def test_row_fill_takes_the_farther_nearest_neighbour(values: npt.NDArray[np.flo
                 continue
             left = valid[valid < x]
             right = valid[valid > x]
-            sides = [row[left[-1]]] if left.size else []
-            sides += [row[right[0]]] if right.size else []
-            assert value == (min(sides) if sides else 0.0)
+            if left.size:
+                assert value == row[left[-1]]
+            elif right.size:
+                assert value == row[right[0]]
+            else:
+                assert value == 0.0
 
 
 # --- inputs --------------------------------------------------------------------------------
