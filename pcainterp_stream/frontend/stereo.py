@@ -44,6 +44,7 @@ from pcainterp_stream.frontend.corners import (
     lattice_points,
     patch_contrast,
 )
+from pcainterp_stream.frontend.refine import refine_disparity
 
 __all__ = [
     "GfttConfig",
@@ -217,16 +218,10 @@ class SgbmConfig:
             dense mode and not its default (docs/dense.md): better on KITTI's real truth,
             worse on scenes with many close surfaces (synthetic drives). With
             ``downscale=1`` and at least 32 disparities only.
-        refine_range: 0 matches the whole range at the matching resolution. A positive
-            multiple of 8 (px) matches the whole range at half resolution first (as
-            ``downscale=2``), warps the right image by that map (smoothed, its holes filled
-            along the row) and matches again at full resolution within +-``refine_range``
-            px of it: the map is that map plus the residual, with the half-resolution map's
-            holes, the residuals at the ends of the small range, values d > x and speckles
-            (``speckle_window_size``, ``speckle_range``, on the whole map) removed. ~0.5x
-            the matching time of the whole range at full resolution with 8 px; dense
-            mode's matcher (docs/dense.md). With ``downscale=1`` only (ignored at half
-            resolution).
+        refine_range: 0, or a positive multiple of 8 (px): match the whole range at half
+            resolution, warp the right image by that map and match again at full
+            resolution within +-``refine_range`` px of it (:mod:`.refine`): ~0.55x the
+            time of the whole range at full resolution with 8 px; ``downscale=1`` only.
     """
 
     min_disparity: int = 0
@@ -391,50 +386,10 @@ def _upsampled(disparity: FloatArray, height: int, width: int) -> FloatArray:
     return np.asarray(upsampled, np.float32) * scale
 
 
-def _fill_rows(disparity: FloatArray) -> FloatArray:
-    """Fill NaN with the nearest valid value to the left in the row (right where none).
-
-    In the left view, the pixels SGBM leaves beside a nearer surface are mostly the
-    background it hides from the right camera, which continues on their left. A row
-    without any valid value becomes 0.
-    """
-    height, width = disparity.shape
-    valid = np.isfinite(disparity)
-    columns = np.arange(width)
-    # nearest valid column at or left of each pixel, and at or right of it (width: none)
-    seen = np.where(valid, columns, -1)
-    np.maximum.accumulate(seen, axis=1, out=seen)
-    left = np.where(seen < 0, width, seen)
-    right = np.where(valid, columns, width)
-    right = np.minimum.accumulate(right[:, ::-1], axis=1)[:, ::-1]
-    padded = np.full((height, width + 1), np.nan, np.float32)
-    padded[:, :width] = disparity
-    filled = np.take_along_axis(padded, left, 1)
-    missing = np.isnan(filled)
-    filled[missing] = np.take_along_axis(padded, right, 1)[missing]
-    filled[np.isnan(filled)] = 0.0
-    return filled
-
-
-REFINE_SMOOTHING = 5
-"""``SgbmConfig.refine_range``: side (px, at half resolution) of the box filter that smooths
-the half-resolution map before it warps the right image (measured against 3, 7 and 9 px:
-docs/dense.md)."""
-
-
 def _sgbm_refined(left: UInt8Array, right: UInt8Array, config: SgbmConfig) -> FloatArray:
     """``SgbmConfig.refine_range``: half resolution, refined at full resolution near it."""
-    height, width = left.shape
     coarse_config = replace(config, downscale=2, refine_range=0, near_at_half=False)
     coarse = _match(_halved(left), _halved(right), coarse_config.matched(), config.full_width)
-    guide = cv2.blur(_fill_rows(coarse), (REFINE_SMOOTHING, REFINE_SMOOTHING))
-    shift = _upsampled(np.asarray(guide, np.float32), height, width)
-    # the half-resolution map's holes, each hole pixel its own 2x2 full-resolution pixels
-    holes = np.isnan(coarse).repeat(2, axis=0).repeat(2, axis=1)[:height, :width]
-    # right image warped by the guide: pixel x of the warped image is right pixel x - shift
-    map_x = np.arange(width, dtype=np.float32)[None, :] - shift
-    map_y = np.repeat(np.arange(height, dtype=np.float32)[:, None], width, axis=1)
-    warped = cv2.remap(right, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     reach = config.refine_range
     residual_config = replace(
         config,
@@ -445,24 +400,20 @@ def _sgbm_refined(left: UInt8Array, right: UInt8Array, config: SgbmConfig) -> Fl
         near_at_half=False,
         refine_range=0,
     )
-    fixed = _matcher(residual_config).compute(left, np.asarray(warped, np.uint8))
-    disparity = fixed.astype(np.float32)
-    disparity *= np.float32(1.0 / 16.0)
-    disparity += shift
-    # invalid residuals, and those at the small range's ends (the match may lie beyond)
-    removed = holes | (fixed < (1 - reach) * 16) | (fixed > (reach - 2) * 16)
-    columns = np.arange(width, dtype=np.float32)
-    removed |= (disparity > columns) | (disparity < config.min_disparity)
-    if config.speckle_window_size > 0:
-        marker = (config.min_disparity - 1) * 16
-        sixteenths = np.rint(disparity * 16.0).astype(np.int16)
-        sixteenths[removed] = marker
-        cv2.filterSpeckles(
-            sixteenths, marker, config.speckle_window_size, config.speckle_range * 16
-        )
-        removed |= sixteenths == marker
-    disparity[removed] = np.nan
-    return disparity
+
+    def residual(image: UInt8Array, warped: UInt8Array) -> npt.NDArray[np.int16]:
+        return np.asarray(_matcher(residual_config).compute(image, warped), np.int16)
+
+    return refine_disparity(
+        left,
+        right,
+        coarse,
+        residual,
+        reach=reach,
+        min_disparity=config.min_disparity,
+        speckle_window_size=config.speckle_window_size,
+        speckle_range=config.speckle_range,
+    )
 
 
 def _sgbm_grey(left: UInt8Array, right: UInt8Array, config: SgbmConfig) -> FloatArray:
@@ -479,13 +430,10 @@ def _sgbm_grey(left: UInt8Array, right: UInt8Array, config: SgbmConfig) -> Float
         return far
     if config.refine_range and config.downscale == 1:
         return _sgbm_refined(left, right, config)
-    height, width = left.shape
     if config.downscale == 1:
         return _match(left, right, config, config.full_width)
-    size = (-(-width // config.downscale), -(-height // config.downscale))
-    left = np.asarray(cv2.resize(left, size, interpolation=cv2.INTER_AREA), np.uint8)
-    right = np.asarray(cv2.resize(right, size, interpolation=cv2.INTER_AREA), np.uint8)
-    return _upsampled(_match(left, right, config.matched(), config.full_width), height, width)
+    coarse = _match(_halved(left), _halved(right), config.matched(), config.full_width)
+    return _upsampled(coarse, *left.shape)
 
 
 def compute_disparity(

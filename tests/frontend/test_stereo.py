@@ -15,12 +15,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from pcainterp_stream.frontend.refine import fill_rows
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     LookupMethod,
     SgbmConfig,
     StereoFrontEnd,
-    _fill_rows,
     compute_disparity,
     compute_right_disparity,
     detect_corners,
@@ -496,7 +496,7 @@ def test_refine_range_is_checked(changes: dict[str, Any]) -> None:
     )
 )
 def test_row_fill_takes_the_nearest_value_on_the_left(values: npt.NDArray[np.float32]) -> None:
-    filled = _fill_rows(values)
+    filled = fill_rows(values)
     for row, out in zip(values, filled, strict=True):
         valid = np.flatnonzero(np.isfinite(row))
         for x, value in enumerate(out):
