@@ -33,7 +33,7 @@ from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import open_writer
 from pcainterp_stream.io.outputs import MEASUREMENTS_KEY, image_of, recorded_metadata
 from pcainterp_stream.pipeline.jobs import LearnOptions, learn, synth
-from pcainterp_stream.pipeline.processor import DENSE_SGBM
+from pcainterp_stream.pipeline.processor import DENSE_SGBM, REFINED_DENSE_SGBM
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 needs_realdata = pytest.mark.skipif(
@@ -271,6 +271,36 @@ def test_densify_dense_measurements(
     )
     assert run.code == 2
     assert "drop --features-topic" in run.err
+    assert not other.exists()
+
+
+def test_densify_dense_refined_matcher(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path
+) -> None:
+    run = pcainterp(
+        *densify_args(small_log, out, basis_path, "--measurements", "dense", "--precision", "full"),
+        "--dense-matcher",
+        "refined",
+    )
+    assert run.code == 0, run.err
+    messages = read_messages(out)
+    fused = rosmsg.image_array(next(m for t, m, _ in messages if t == "/pcainterp/disparity").image)
+    assert np.isfinite(fused).all()
+    # where the refined matcher matched, dense mode keeps its value
+    left, right = (
+        rosmsg.image_array(next(m for t, m, _ in messages if t == f"/stereo/{side}/image_rect"))
+        for side in ("left", "right")
+    )
+    matched = compute_disparity(left, right, REFINED_DENSE_SGBM)
+    found = np.isfinite(matched)
+    assert found.mean() > 0.5
+    assert np.median(np.abs(fused - matched)[found]) < 0.1
+    # the matcher of dense mode only: without it, one line naming the fix
+    other = out.parent / "other.mcap"
+    run = pcainterp(*densify_args(small_log, other, basis_path), "--dense-matcher", "refined")
+    assert run.code == 2
+    assert "add --measurements dense" in run.err
+    assert len(run.err.strip().splitlines()) == 1
     assert not other.exists()
 
 

@@ -26,22 +26,34 @@ from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.evaluate.metrics import fill_nearest
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
+    SgbmConfig,
     compute_disparity,
     detect_corners,
     lookup_disparities,
     to_grey8,
 )
 from pcainterp_stream.io.kitti import iter_frames, open_kitti
-from pcainterp_stream.pipeline.processor import DENSE_SGBM, ProcessorConfig, resolve_settings
+from pcainterp_stream.pipeline.processor import DENSE_MATCHERS, ProcessorConfig, resolve_settings
 
 
 def score_clip(
-    folder: Path, *, frames: int, every: int, blocks: int, size: int, seed: int
+    folder: Path,
+    *,
+    frames: int,
+    every: int,
+    blocks: int,
+    size: int,
+    seed: int,
+    matcher: str = "full",
 ) -> dict[str, float]:
-    """Mean abs. error (px) on the hidden pixels of each filler, and dense mode's coverage."""
+    """Mean abs. error (px) on the hidden pixels of each filler, and dense mode's coverage.
+
+    ``matcher``: dense mode's matcher by ``--dense-matcher`` name (``DENSE_MATCHERS``).
+    """
     basis = Basis.default()
     settings = resolve_settings(basis, ProcessorConfig())
-    sgbm = DENSE_SGBM
+    sgbm = DENSE_MATCHERS[matcher]
+    left_band = SgbmConfig().band  # the blocks lie where any matcher has the whole range
     rng = np.random.default_rng(seed)
     sums = {"hidden px": 0.0, "nearest": 0.0, "sparse": 0.0, "dense": 0.0, "inside": 0.0}
     sequence = open_kitti(folder)
@@ -53,7 +65,7 @@ def score_clip(
         mask = np.zeros(full.shape, bool)
         for _ in range(blocks):
             y = int(rng.integers(0, height - size))
-            x = int(rng.integers(sgbm.band, width - size))
+            x = int(rng.integers(left_band, width - size))
             mask[y : y + size, x : x + size] = True
         hidden = mask & np.isfinite(full)
         masked = np.where(mask, np.float32(np.nan), full)
@@ -101,6 +113,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--blocks", type=int, default=40, help="hidden blocks per frame")
     parser.add_argument("--block-size", type=int, default=32, help="block side (px)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--matcher",
+        choices=sorted(DENSE_MATCHERS),
+        default="full",
+        help="dense mode's matcher (densify --dense-matcher; default full)",
+    )
     args = parser.parse_args(argv)
     clips = {
         "KITTI raw drive 0001": args.realdata / harness.KITTI_RAW_0001,
@@ -122,6 +140,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             blocks=args.blocks,
             size=args.block_size,
             seed=args.seed,
+            matcher=args.matcher,
         )
         print(
             harness.table_row(

@@ -35,7 +35,7 @@ from pcainterp_stream.frontend.stereo import (
     lookup_disparities,
     to_grey8,
 )
-from pcainterp_stream.pipeline.processor import DENSE_SGBM, ProcessorConfig, resolve_settings
+from pcainterp_stream.pipeline.processor import DENSE_MATCHERS, ProcessorConfig, resolve_settings
 from pcainterp_stream.synth import SynthConfig, generate
 
 CALIBRATION_SEEDS = (9001, 9002, 9003)
@@ -43,12 +43,17 @@ HELD_OUT_SEED = 9100
 REGIONS = ("left band", "sky", "close (> 90 px)", "other")
 
 
-def calibration(downscale: int) -> tuple[dict[str, float], dict[str, list[float]]]:
-    """Score dense mode on the calibration frames with SGBM at 1/``downscale`` resolution."""
+def calibration(
+    downscale: int, matcher: str = "full"
+) -> tuple[dict[str, float], dict[str, list[float]]]:
+    """Score dense mode on the calibration frames with SGBM at 1/``downscale`` resolution.
+
+    ``matcher``: dense mode's matcher by ``--dense-matcher`` name (``DENSE_MATCHERS``).
+    """
     basis = Basis.default()
     options = resolve_settings(basis, ProcessorConfig()).densify_options()
     sgbm = SgbmConfig(downscale=downscale)
-    dense_sgbm = dataclasses.replace(DENSE_SGBM, downscale=downscale)
+    dense_sgbm = dataclasses.replace(DENSE_MATCHERS[matcher], downscale=downscale)
     sums = dict.fromkeys(
         ("pixels", "valid", "holes", "dense", "nearest", "dense valid", "sgbm valid"), 0.0
     )
@@ -124,8 +129,8 @@ def calibration(downscale: int) -> tuple[dict[str, float], dict[str, list[float]
     }
 
 
-def print_calibration() -> None:
-    """Print the calibration-frame tables."""
+def print_calibration(matcher: str = "full") -> None:
+    """Print the calibration-frame tables (dense mode with the ``matcher`` named)."""
     print("\n## Calibration frames (seeds 9001-9003, frames 0, 10, 20, 30; ground truth)\n")
     headers = [
         "SGBM",
@@ -140,7 +145,7 @@ def print_calibration() -> None:
     print(harness.table_header(headers))
     breakdowns = {}
     for downscale in (1, 2):
-        scores, breakdowns[downscale] = calibration(downscale)
+        scores, breakdowns[downscale] = calibration(downscale, matcher)
         print(
             harness.table_row(
                 [
@@ -165,8 +170,11 @@ def print_calibration() -> None:
         )
 
 
-def run_commands(work: Path, realdata: Path) -> None:
-    """Run the real command line of the held-out table (evaluate prints the results)."""
+def run_commands(work: Path, realdata: Path, matcher: str = "full") -> None:
+    """Run the real command line of the held-out table (evaluate prints the results).
+
+    ``matcher``: ``--dense-matcher`` of the dense runs.
+    """
     syn = work / "syn.mcap"
     if not syn.exists():
         harness.run_cli(
@@ -189,6 +197,8 @@ def run_commands(work: Path, realdata: Path) -> None:
         if name != "syn":  # against full-resolution SGBM: dense matches at half resolution
             runs = {"sparse": (), "dense2": ("--measurements", "dense", "--stereo-downscale", 2)}
         for label, extra in runs.items():
+            if label != "sparse" and matcher != "full":
+                extra = (*extra, "--dense-matcher", matcher)
             out = work / f"{name}_{label}.mcap"
             out.unlink(missing_ok=True)
             print(f"\n## {name}, {label}\n")
@@ -214,14 +224,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--sections", nargs="+", choices=["calibration", "cli"], default=["calibration", "cli"]
     )
+    parser.add_argument(
+        "--matcher",
+        choices=sorted(DENSE_MATCHERS),
+        default="full",
+        help="dense mode's matcher (densify --dense-matcher; default full)",
+    )
     args = parser.parse_args(argv)
     work = harness.work_dir(args.work_dir)
     if "calibration" in args.sections:
-        print_calibration()
+        print_calibration(args.matcher)
     if "cli" in args.sections:
         if not (args.realdata / harness.KITTI_RAW_0001).is_dir():
             parser.error(f"{args.realdata / harness.KITTI_RAW_0001} not found; pass --realdata")
-        run_commands(work, args.realdata)
+        run_commands(work, args.realdata, args.matcher)
     return 0
 
 

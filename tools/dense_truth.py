@@ -161,19 +161,39 @@ def run_job(log: Path, processor: object, work: Path) -> JobMaps:
     return maps
 
 
-def dense_config(model: object = None, *, near_at_half: bool = False) -> object:
-    """The processor of ``densify --measurements dense`` (its matcher ``DENSE_SGBM``).
+MATCHERS = ("full", "refined", "split")
+"""Dense mode's matchers ``--matcher`` chooses: ``full`` (``DENSE_SGBM``, the default: the
+whole range at full resolution), ``refined`` (``REFINED_DENSE_SGBM``: half resolution
+refined at full resolution near it) and ``split`` (the near half of the range at half
+resolution, ``SgbmConfig.near_at_half``)."""
 
-    ``model``: a ``DenseModel`` in place of the default one; ``near_at_half``: the matcher
-    with ``SgbmConfig.near_at_half`` (the near half of the range at half resolution).
-    """
+
+def dense_matcher(name: str = "full") -> object:
+    """Return the ``SgbmConfig`` of dense mode's matcher ``name`` (one of :data:`MATCHERS`)."""
     import dataclasses
 
+    from pcainterp_stream.pipeline.processor import DENSE_MATCHERS, DENSE_SGBM
+
+    if name in DENSE_MATCHERS:
+        return DENSE_MATCHERS[name]
+    if name == "split":
+        return dataclasses.replace(DENSE_SGBM, near_at_half=True)
+    raise ValueError(f"unknown matcher {name!r}; one of {', '.join(MATCHERS)}")
+
+
+def dense_config(model: object = None, *, matcher: str = "full") -> object:
+    """The processor of ``densify --measurements dense`` (by default its matcher ``DENSE_SGBM``).
+
+    ``model``: a ``DenseModel`` in place of the default one; ``matcher``: one of
+    :data:`MATCHERS`.
+    """
     from pcainterp_stream.estimate.dense import DenseModel
-    from pcainterp_stream.pipeline.processor import DENSE_SGBM, ProcessorConfig
+    from pcainterp_stream.frontend.stereo import SgbmConfig
+    from pcainterp_stream.pipeline.processor import ProcessorConfig
 
     assert model is None or isinstance(model, DenseModel)
-    sgbm = dataclasses.replace(DENSE_SGBM, near_at_half=near_at_half)
+    sgbm = dense_matcher(matcher)
+    assert isinstance(sgbm, SgbmConfig)
     return ProcessorConfig(measurements="dense", sgbm=sgbm, dense=model or DenseModel())
 
 
@@ -291,10 +311,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         "image_depth_annotated)",
     )
     parser.add_argument(
-        "--near-at-half",
-        action="store_true",
-        help="dense mode with the near half of the disparity range matched at half "
-        "resolution (SgbmConfig.near_at_half; measured, not the default)",
+        "--matcher",
+        choices=MATCHERS,
+        default="full",
+        help="dense mode's matcher: full (the whole range at full resolution, the default), "
+        "refined (half resolution refined at full resolution near it, --dense-matcher "
+        "refined), split (the near half of the range at half resolution; measured only)",
     )
     args = parser.parse_args(argv)
     if not args.folder.is_dir():
@@ -305,7 +327,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         log = work / "annotated.mcap"
         write_log(frames, log)
         jobs = {
-            "dense": run_job(log, dense_config(near_at_half=args.near_at_half), work),
+            "dense": run_job(log, dense_config(matcher=args.matcher), work),
             "sparse": run_job(log, ProcessorConfig(), work),
         }
     print(f"{len(frames.names)} frames of {args.folder}\n")
@@ -315,29 +337,27 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def matching_cost(frames: AnnotatedFrames, rounds: int = 5) -> str:
-    """Time dense mode's matcher and the split one against plain SGBM, rounds interleaved."""
-    import dataclasses
-
+    """Time dense mode's matchers against plain SGBM, rounds interleaved (CPU per frame)."""
     from pcainterp_stream.frontend.stereo import SgbmConfig, compute_disparity
-    from pcainterp_stream.pipeline.processor import DENSE_SGBM
 
-    configs = {
-        "plain": SgbmConfig(),
-        "dense": DENSE_SGBM,
-        "split": dataclasses.replace(DENSE_SGBM, near_at_half=True),
-    }
+    configs = {"plain": SgbmConfig(), **{name: dense_matcher(name) for name in MATCHERS}}
     seconds: dict[str, list[float]] = {name: [] for name in configs}
     for _ in range(rounds):
         for name, config in configs.items():
+            assert isinstance(config, SgbmConfig)
             started = time.process_time()
             for left, right in zip(frames.lefts, frames.rights, strict=True):
                 compute_disparity(left, right, config)
             seconds[name].append(time.process_time() - started)
-    plain, dense, split = (min(seconds[name]) / len(frames.lefts) for name in configs)
+    per_frame = {name: min(values) / len(frames.lefts) for name, values in seconds.items()}
+    plain = per_frame["plain"]
     return (
-        f"matching CPU per frame, best of {rounds}: plain SGBM {1000 * plain:.0f} ms, dense "
-        f"mode's matcher (left band too) {1000 * dense:.0f} ms ({dense / plain:.2f}x), with "
-        f"the near half at half resolution {1000 * split:.0f} ms ({split / plain:.2f}x)"
+        f"matching CPU per frame, best of {rounds}: plain SGBM {1000 * plain:.0f} ms; dense "
+        f"mode's matchers (left band too): full {1000 * per_frame['full']:.0f} ms "
+        f"({per_frame['full'] / plain:.2f}x), refined from half resolution "
+        f"{1000 * per_frame['refined']:.0f} ms ({per_frame['refined'] / plain:.2f}x), near "
+        f"half at half resolution {1000 * per_frame['split']:.0f} ms "
+        f"({per_frame['split'] / plain:.2f}x)"
     )
 
 

@@ -72,7 +72,7 @@ class DenseModel:
         robust: loss on the SGBM pixels' disagreement with the field.
     """
 
-    pixel_std: float = 0.8
+    pixel_std: float = 0.75
     detail_std: float = 8.0
     neighbour_std: float = 1.0
     neighbour_rate: float = 0.1

@@ -44,6 +44,7 @@ from pcainterp_stream.frontend.corners import (
     lattice_points,
     patch_contrast,
 )
+from pcainterp_stream.frontend.refine import refine_disparity
 
 __all__ = [
     "GfttConfig",
@@ -217,6 +218,10 @@ class SgbmConfig:
             dense mode and not its default (docs/dense.md): better on KITTI's real truth,
             worse on scenes with many close surfaces (synthetic drives). With
             ``downscale=1`` and at least 32 disparities only.
+        refine_range: 0, or a positive multiple of 8 (px): match the whole range at half
+            resolution, warp the right image by that map and match again at full
+            resolution within +-``refine_range`` px of it (:mod:`.refine`): ~0.55x the
+            time of the whole range at full resolution with 8 px; ``downscale=1`` only.
     """
 
     min_disparity: int = 0
@@ -233,6 +238,7 @@ class SgbmConfig:
     downscale: int = 1
     full_width: bool = False
     near_at_half: bool = False
+    refine_range: int = 0
 
     def __post_init__(self) -> None:
         if self.num_disparities <= 0 or self.num_disparities % 16:
@@ -243,6 +249,12 @@ class SgbmConfig:
             raise ValueError(f"block_size must be odd and >= 1, got {self.block_size}")
         if self.downscale not in (1, 2):
             raise ValueError(f"downscale must be 1 or 2, got {self.downscale}")
+        if self.refine_range < 0 or self.refine_range % 8:
+            raise ValueError(
+                f"refine_range must be 0 or a positive multiple of 8, got {self.refine_range}"
+            )
+        if self.refine_range and self.near_at_half:
+            raise ValueError("near_at_half and refine_range are alternatives; set one")
 
     @property
     def penalty_small(self) -> int:
@@ -333,6 +345,77 @@ def _flip(image: UInt8Array) -> UInt8Array:
     return np.asarray(cv2.flip(image, 1), np.uint8)
 
 
+def _match(
+    left: UInt8Array, right: UInt8Array, matched: SgbmConfig, full_width: bool
+) -> FloatArray:
+    """Run SGBM at the images' own resolution: float32 px, NaN where invalid.
+
+    ``matched`` is the configuration at that resolution (:meth:`SgbmConfig.matched`);
+    ``full_width`` pads the left band (a match into the padding, d > x, is removed).
+    """
+    pad = max(matched.band, 0) if full_width else 0
+    if pad:
+        left = np.asarray(cv2.copyMakeBorder(left, 0, 0, pad, 0, cv2.BORDER_REPLICATE), np.uint8)
+        right = np.asarray(cv2.copyMakeBorder(right, 0, 0, pad, 0, cv2.BORDER_REPLICATE), np.uint8)
+    fixed = _matcher(matched).compute(left, right)
+    if pad:
+        fixed = fixed[:, pad:]
+    # SGBM returns 16 * disparity as int16; invalid pixels are (min_disparity - 1) * 16.
+    disparity = fixed.astype(np.float32)
+    disparity *= np.float32(1.0 / 16.0)
+    disparity[fixed < matched.min_disparity * 16] = np.nan
+    if pad:
+        # a match left of the right image's first column is a match into the padding
+        columns = np.arange(disparity.shape[1], dtype=np.float32)
+        disparity[disparity > columns] = np.nan
+    return disparity
+
+
+def _halved(image: UInt8Array) -> UInt8Array:
+    """Return ``image`` at half resolution (INTER_AREA, odd sizes rounded up)."""
+    height, width = image.shape
+    size = (-(-width // 2), -(-height // 2))
+    return np.asarray(cv2.resize(image, size, interpolation=cv2.INTER_AREA), np.uint8)
+
+
+def _upsampled(disparity: FloatArray, height: int, width: int) -> FloatArray:
+    """Upsample a map to (height, width), values scaled by the width ratio (NaN spreads)."""
+    # Pixel-centre aligned upsampling; a NaN spreads to every output it touches.
+    scale = np.float32(width / disparity.shape[1])
+    upsampled = cv2.resize(disparity, (width, height), interpolation=cv2.INTER_LINEAR)
+    return np.asarray(upsampled, np.float32) * scale
+
+
+def _sgbm_refined(left: UInt8Array, right: UInt8Array, config: SgbmConfig) -> FloatArray:
+    """``SgbmConfig.refine_range``: half resolution, refined at full resolution near it."""
+    coarse_config = replace(config, downscale=2, refine_range=0, near_at_half=False)
+    coarse = _match(_halved(left), _halved(right), coarse_config.matched(), config.full_width)
+    reach = config.refine_range
+    residual_config = replace(
+        config,
+        min_disparity=-reach,
+        num_disparities=2 * reach,
+        speckle_window_size=0,
+        full_width=False,
+        near_at_half=False,
+        refine_range=0,
+    )
+
+    def residual(image: UInt8Array, warped: UInt8Array) -> npt.NDArray[np.int16]:
+        return np.asarray(_matcher(residual_config).compute(image, warped), np.int16)
+
+    return refine_disparity(
+        left,
+        right,
+        coarse,
+        residual,
+        reach=reach,
+        min_disparity=config.min_disparity,
+        speckle_window_size=config.speckle_window_size,
+        speckle_range=config.speckle_range,
+    )
+
+
 def _sgbm_grey(left: UInt8Array, right: UInt8Array, config: SgbmConfig) -> FloatArray:
     """Run SGBM on an 8-bit pair, returning float32 px with NaN where invalid."""
     split = config.split()
@@ -345,34 +428,12 @@ def _sgbm_grey(left: UInt8Array, right: UInt8Array, config: SgbmConfig) -> Float
             near = whole >= np.float32(start)
         far[near] = whole[near]
         return far
-    height, width = left.shape
-    matched = config.matched()
-    if config.downscale != 1:
-        size = (-(-width // config.downscale), -(-height // config.downscale))
-        left = np.asarray(cv2.resize(left, size, interpolation=cv2.INTER_AREA), np.uint8)
-        right = np.asarray(cv2.resize(right, size, interpolation=cv2.INTER_AREA), np.uint8)
-    pad = max(matched.band, 0) if config.full_width else 0
-    if pad:
-        left = np.asarray(cv2.copyMakeBorder(left, 0, 0, pad, 0, cv2.BORDER_REPLICATE), np.uint8)
-        right = np.asarray(cv2.copyMakeBorder(right, 0, 0, pad, 0, cv2.BORDER_REPLICATE), np.uint8)
-    fixed = _matcher(matched).compute(left, right)
-    if pad:
-        fixed = fixed[:, pad:]
-        left = left[:, pad:]
-    # SGBM returns 16 * disparity as int16; invalid pixels are (min_disparity - 1) * 16.
-    disparity = fixed.astype(np.float32)
-    disparity *= np.float32(1.0 / 16.0)
-    disparity[fixed < matched.min_disparity * 16] = np.nan
-    if pad:
-        # a match left of the right image's first column is a match into the padding
-        columns = np.arange(disparity.shape[1], dtype=np.float32)
-        disparity[disparity > columns] = np.nan
-    if config.downscale != 1:
-        # Pixel-centre aligned upsampling; a NaN spreads to every output it touches.
-        scale = np.float32(width / left.shape[1])
-        upsampled = cv2.resize(disparity, (width, height), interpolation=cv2.INTER_LINEAR)
-        disparity = np.asarray(upsampled, np.float32) * scale
-    return disparity
+    if config.refine_range and config.downscale == 1:
+        return _sgbm_refined(left, right, config)
+    if config.downscale == 1:
+        return _match(left, right, config, config.full_width)
+    coarse = _match(_halved(left), _halved(right), config.matched(), config.full_width)
+    return _upsampled(coarse, *left.shape)
 
 
 def compute_disparity(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -10,7 +11,11 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
+from pcainterp_stream.frontend.refine import fill_rows
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     LookupMethod,
@@ -430,6 +435,82 @@ def test_near_half_of_the_range_comes_from_half_resolution(
     half_wide = compute_disparity(left, right, wide.split()[1])  # type: ignore[index]
     kept = ~(half_wide >= 24)
     np.testing.assert_array_equal(compute_disparity(left, right, wide)[kept], far_wide[kept])
+
+
+def test_half_resolution_refined_at_full_resolution(
+    pair: tuple[npt.NDArray[Any], ...],
+) -> None:
+    left, right, truth = pair
+    full = SgbmConfig(num_disparities=32, full_width=True)
+    refined_config = SgbmConfig(num_disparities=32, full_width=True, refine_range=8)
+    refined = compute_disparity(left, right, refined_config)
+    whole = compute_disparity(left, right, full)
+    half = compute_disparity(
+        left, right, SgbmConfig(num_disparities=32, full_width=True, downscale=2)
+    )
+    inner = np.zeros(truth.shape, bool)
+    inner[8:-8, 8:-8] = True
+    both = inner & np.isfinite(refined) & np.isfinite(whole)
+    assert both.sum() > 0.8 * inner.sum()
+    # as accurate as the whole range at full resolution, and finer than half resolution
+    refined_error = np.abs(refined[both] - truth[both])
+    assert np.mean(refined_error) < np.mean(np.abs(whole[both] - truth[both])) + 0.05
+    assert np.mean(refined_error) < 0.8 * np.nanmean(np.abs(half[both] - truth[both]))
+    # both surfaces, the nearer one too
+    for value in (D_BACK, D_FRONT):
+        surface = both & (truth == np.float32(value))
+        assert np.median(np.abs(refined[surface] - value)) < 0.25
+    # the half-resolution map's holes stay holes (each hole pixel its 2x2 pixels); no match
+    # left of the right image
+    size = (truth.shape[1] // 2, truth.shape[0] // 2)
+    coarse = compute_disparity(
+        *(cv2.resize(image, size, interpolation=cv2.INTER_AREA) for image in (left, right)),
+        SgbmConfig(num_disparities=32, full_width=True, downscale=2).matched(),
+    )
+    coarse_holes = np.isnan(coarse).repeat(2, axis=0).repeat(2, axis=1)
+    assert coarse_holes.any()
+    assert not np.isfinite(refined[coarse_holes]).any()
+    columns = np.arange(truth.shape[1], dtype=np.float32)[None, :]
+    assert not (refined > columns).any()
+    # at half resolution the refinement is off
+    np.testing.assert_array_equal(
+        compute_disparity(left, right, replace(refined_config, downscale=2)), half
+    )
+
+
+@pytest.mark.parametrize(
+    "changes",
+    [{"refine_range": -8}, {"refine_range": 12}, {"refine_range": 8, "near_at_half": True}],
+)
+def test_refine_range_is_checked(changes: dict[str, Any]) -> None:
+    with pytest.raises(ValueError, match="refine_range"):
+        SgbmConfig(**changes)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    values=arrays(
+        np.float32,
+        st.tuples(st.integers(1, 4), st.integers(1, 12)),
+        elements=st.one_of(st.just(np.float32(np.nan)), st.floats(0, 100, width=32)),
+    )
+)
+def test_row_fill_takes_the_nearest_value_on_the_left(values: npt.NDArray[np.float32]) -> None:
+    filled = fill_rows(values)
+    for row, out in zip(values, filled, strict=True):
+        valid = np.flatnonzero(np.isfinite(row))
+        for x, value in enumerate(out):
+            if np.isfinite(row[x]):
+                assert value == row[x]
+                continue
+            left = valid[valid < x]
+            right = valid[valid > x]
+            if left.size:
+                assert value == row[left[-1]]
+            elif right.size:
+                assert value == row[right[0]]
+            else:
+                assert value == 0.0
 
 
 # --- inputs --------------------------------------------------------------------------------
