@@ -26,6 +26,7 @@ from mcap.writer import Writer
 
 from pcainterp_stream import cli
 from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.frontend.matchers import DENSE_SGBM, REFINED_DENSE_SGBM
 from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.frontend.stereo import compute_disparity
 from pcainterp_stream.io import logwriter, rosmsg
@@ -33,7 +34,6 @@ from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import open_writer
 from pcainterp_stream.io.outputs import MEASUREMENTS_KEY, image_of, recorded_metadata
 from pcainterp_stream.pipeline.jobs import LearnOptions, learn, synth
-from pcainterp_stream.pipeline.processor import DENSE_SGBM, REFINED_DENSE_SGBM
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 needs_realdata = pytest.mark.skipif(

@@ -24,6 +24,7 @@ from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.dense import fuse_dense
 from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.evaluate.metrics import fill_nearest
+from pcainterp_stream.frontend.matchers import DENSE_MATCHERS
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     SgbmConfig,
@@ -33,7 +34,7 @@ from pcainterp_stream.frontend.stereo import (
     to_grey8,
 )
 from pcainterp_stream.io.kitti import iter_frames, open_kitti
-from pcainterp_stream.pipeline.processor import DENSE_MATCHERS, ProcessorConfig, resolve_settings
+from pcainterp_stream.pipeline.processor import ProcessorConfig, resolve_settings
 
 
 def score_clip(

@@ -27,6 +27,7 @@ from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.dense import fuse_dense
 from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.evaluate.metrics import disparity_from_depth, fill_nearest
+from pcainterp_stream.frontend.matchers import DENSE_MATCHERS
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     SgbmConfig,
@@ -35,7 +36,7 @@ from pcainterp_stream.frontend.stereo import (
     lookup_disparities,
     to_grey8,
 )
-from pcainterp_stream.pipeline.processor import DENSE_MATCHERS, ProcessorConfig, resolve_settings
+from pcainterp_stream.pipeline.processor import ProcessorConfig, resolve_settings
 from pcainterp_stream.synth import SynthConfig, generate
 
 CALIBRATION_SEEDS = (9001, 9002, 9003)

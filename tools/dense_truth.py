@@ -172,7 +172,7 @@ def dense_matcher(name: str = "full") -> object:
     """Return the ``SgbmConfig`` of dense mode's matcher ``name`` (one of :data:`MATCHERS`)."""
     import dataclasses
 
-    from pcainterp_stream.pipeline.processor import DENSE_MATCHERS, DENSE_SGBM
+    from pcainterp_stream.frontend.matchers import DENSE_MATCHERS, DENSE_SGBM
 
     if name in DENSE_MATCHERS:
         return DENSE_MATCHERS[name]

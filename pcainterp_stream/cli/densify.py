@@ -313,11 +313,8 @@ def _processor_config(
     args: argparse.Namespace, *, adapt: str, builtin: str = "auto"
 ) -> ProcessorConfig:
     """Return the estimate's config the options ask for (``adapt``: see ``ProcessorConfig``)."""
-    from pcainterp_stream.pipeline.processor import (
-        DENSE_MATCHERS,
-        MeasurementSource,
-        ProcessorConfig,
-    )
+    from pcainterp_stream.frontend.matchers import DENSE_MATCHERS
+    from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
 
     source = MeasurementSource.FEATURES if args.features_topic else MeasurementSource.STEREO
     dense = args.measurements == "dense"

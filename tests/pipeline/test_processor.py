@@ -445,8 +445,8 @@ def test_dense_measurements_fill_every_pixel_and_keep_sgbm() -> None:
 def test_dense_matcher_only_removes_more_speckles() -> None:
     # dense mode's matcher takes out larger isolated regions than the default matcher
     # (measured better on every source, docs/dense.md); it must change no other value
+    from pcainterp_stream.frontend.matchers import DENSE_SGBM
     from pcainterp_stream.frontend.stereo import compute_disparity
-    from pcainterp_stream.pipeline.processor import DENSE_SGBM
     from pcainterp_stream.synth import SynthConfig, generate
 
     assert DENSE_SGBM.speckle_window_size > SgbmConfig().speckle_window_size
