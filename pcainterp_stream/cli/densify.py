@@ -399,15 +399,14 @@ def _check_estimate(processor: ProcessorConfig, basis_path: Path | None) -> None
 
     if processor.prior == "paper" and not processor.temporal:
         return
+    kind = "street" if processor.builtin == "auto" else processor.builtin
     if processor.prior == "auto" and processor.uncertainty != "paper":
         # "auto" takes the prior the basis has: nothing to refuse (the basis is read
         # later, and a missing built-in file is reported now)
-        kind = "street" if processor.builtin == "auto" else processor.builtin
         if basis_path is None and not builtin_basis_installed(kind):
             builtin_basis(kind)  # raises, naming the file and the fix
         return
     if basis_path is None:
-        kind = "street" if processor.builtin == "auto" else processor.builtin
         basis, name = builtin_basis(kind), f"the built-in {kind} basis"  # raises if missing
     elif not basis_path.is_file():
         return  # a missing basis is reported where it is loaded

@@ -683,17 +683,18 @@ class FrameProcessor:
         if not ready:
             return finished([])
         if not self.adaptation.adapted:
-            jobs = self._measurements(ready)
-            if self.temporal is None:  # frames independent once carried: in the pool
-                # the warm-up's large batch in batch-size parts, one per estimate thread
+            if self.temporal is None:  # frames independent once carried: in the pool,
+                # the warm-up's large batch in batch-size parts (measured in stream order)
+                size = self.config.batch_size
                 return gathered(
                     [
-                        self._estimators.submit(self._estimate, part)
-                        for job in jobs
-                        for part in job.parts(self.config.batch_size)
+                        self._estimators.submit(
+                            self._estimate_all, self._measurements(ready[at : at + size])
+                        )
+                        for at in range(0, len(ready), size)
                     ]
                 )
-            return finished(self._estimate_all(jobs))
+            return finished(self._estimate_all(self._measurements(ready)))
         # the log's own basis: a frame whose map completes a relearning is densified with the
         # basis of the frames before it, the next frames with the relearned one, so what a
         # frame gets never depends on how frames were batched
@@ -813,22 +814,6 @@ class _Estimate(NamedTuple):
     options: dict[str, Any]
     temporal: TemporalPrior | None
     partitions: list[Partition | None] | None = None
-
-    def parts(self, size: int) -> list[_Estimate]:
-        """Split the group into parts of at most ``size`` frames, estimated on their own."""
-        return [
-            self._replace(
-                **{  # type: ignore[arg-type]
-                    name: None if (value := getattr(self, name)) is None else value[at : at + size]
-                    for name in PER_FRAME
-                }
-            )
-            for at in range(0, len(self.group), size)
-        ]
-
-
-PER_FRAME = ("group", "pixels", "disparities", "noise_stds", "carried", "partitions")
-"""The fields of :class:`_Estimate` holding one entry per frame."""
 
 
 def _done(future: Future[Future[list[DensifiedFrame]]]) -> bool:
