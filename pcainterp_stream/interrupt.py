@@ -179,6 +179,21 @@ def signalled() -> bool:
     return _signals_seen > 0
 
 
+def raise_if_signalled() -> None:
+    """Raise ``KeyboardInterrupt`` if a signal was handled in this command.
+
+    The handler's ``KeyboardInterrupt`` can be lost on its way: raised while the
+    interpreter runs code whose errors it only reports or drops (a finaliser, a weak
+    reference's callback inside an import, native code that clears errors), it never
+    reaches the command, which would go on and finish. Writers call this for every
+    message and before an output is committed, and :func:`stop_on_signals` at the end of
+    its block, so a handled signal always ends the command as an interruption with
+    nothing written at the target.
+    """
+    if _signals_seen:
+        raise KeyboardInterrupt
+
+
 def end_if_signalled(code: int) -> None:
     """End the process now with ``code`` if a signal was handled (after the clean-up).
 
@@ -219,6 +234,7 @@ def stop_on_signals(*, watchdog: bool = True) -> Iterator[None]:
         for sig in _SIGNALS:
             signal.signal(sig, _on_signal)
         yield
+        raise_if_signalled()  # the block ended normally: its KeyboardInterrupt was lost
     finally:
         # After a signal the process is ending: the handlers and the watchdog stay until it
         # has ended (the watchdog sees end of file when the process's descriptors close).

@@ -481,3 +481,50 @@ def test_a_signal_inside_an_import_is_an_interruption(small_log: Path) -> None:
     assert process.returncode == 130, process.stderr
     assert "interrupted" in process.stderr
     assert "Traceback" not in process.stderr
+
+
+SIGNAL_SWALLOWED = """
+import signal, sys
+import pcainterp_stream.synth as synth_module
+from pcainterp_stream.cli import app
+
+sys.unraisablehook = lambda unraisable: None  # not even the interpreter's report of it
+
+
+class Swallows:
+    def __del__(self):
+        signal.raise_signal(signal.SIGINT)  # the handler runs, and raises, in here
+
+
+generate = synth_module.generate
+
+
+def swallowing(config):
+    for index, frame in enumerate(generate(config)):
+        if index == 1:
+            Swallows()  # deleted at once: the interpreter ignores errors of __del__
+        yield frame
+
+
+synth_module.generate = swallowing
+sys.exit(app.main(sys.argv[1:]))
+"""
+
+
+def test_a_swallowed_interrupt_still_ends_the_command(tmp_path: Path) -> None:
+    """The handler's KeyboardInterrupt can be lost on its way (raised in a finaliser, a
+    weak-reference callback inside an import, native code that clears errors): the signal
+    still ends the command as an interruption, and nothing is written at the target."""
+    target = tmp_path / "drive.mcap"
+    args = ["synth", str(target), "--frames", "4", "--scale", "0.1"]
+    process = subprocess.run(
+        [sys.executable, "-c", SIGNAL_SWALLOWED, *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+        preexec_fn=_default_sigint,
+    )
+    assert process.returncode == 130, process.stderr
+    assert process.stderr.strip() == INTERRUPTED
+    assert list(tmp_path.iterdir()) == []

@@ -33,6 +33,7 @@ import numpy.typing as npt
 from threadpoolctl import threadpool_limits
 
 from pcainterp_stream.errors import BasisError
+from pcainterp_stream.interrupt import raise_if_signalled
 
 FORMAT = "pcainterp-basis/1"
 """The format string stored under the ``format`` key of a basis file."""
@@ -375,6 +376,7 @@ class Basis:
             os.fchmod(handle, 0o666 & ~umask)
             with os.fdopen(handle, "wb") as stream:
                 np.savez(stream, **arrays)  # type: ignore[arg-type]
+            raise_if_signalled()  # never committed after a signal
             os.replace(temp_name, target)
         except OSError as err:
             Path(temp_name).unlink(missing_ok=True)

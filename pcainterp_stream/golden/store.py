@@ -23,6 +23,7 @@ import numpy.typing as npt
 from pcainterp_stream.errors import GoldenError
 from pcainterp_stream.golden.comparison import DEFAULT_TOLERANCE, Difference, compare
 from pcainterp_stream.golden.summary import LogSummary, Progress, summarize_log
+from pcainterp_stream.interrupt import raise_if_signalled
 from pcainterp_stream.version import __version__
 
 __all__ = [
@@ -81,6 +82,7 @@ def _replacing(target: Path) -> Iterator[Path]:
     temporary.chmod(0o666 & ~umask)  # mkstemp makes it private; a golden file is shared
     try:
         yield temporary
+        raise_if_signalled()  # never committed after a signal
         temporary.replace(target)
     finally:
         temporary.unlink(missing_ok=True)

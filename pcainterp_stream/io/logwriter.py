@@ -51,7 +51,7 @@ from rosbags.typesys.store import Typestore
 from zlib_ng import zlib_ng
 
 from pcainterp_stream.errors import LogWriteError
-from pcainterp_stream.interrupt import track_partial, untrack_partial
+from pcainterp_stream.interrupt import raise_if_signalled, track_partial, untrack_partial
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.records import RawMessage
 
@@ -299,6 +299,7 @@ class LogWriter(ABC):
             if self._thread is not None:
                 thread, self._thread = self._thread, None
                 thread.stop()
+            raise_if_signalled()  # never commit an output after a signal
             self._commit()
         except BaseException:
             try:
@@ -346,6 +347,7 @@ class LogWriter(ABC):
             self.abort()
 
     def _count(self, topic: str, log_time_ns: int) -> None:
+        raise_if_signalled()  # a signal whose KeyboardInterrupt was lost still stops the job
         self._topic_counts[topic] += 1
         self._start_ns = log_time_ns if self._start_ns is None else min(self._start_ns, log_time_ns)
         self._end_ns = max(self._end_ns, log_time_ns)

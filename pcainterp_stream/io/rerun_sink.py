@@ -21,7 +21,7 @@ import numpy as np
 
 from pcainterp_stream.defaults import DISPLAY_MAX_DEPTH, DISPLAY_MAX_DEPTH_STD
 from pcainterp_stream.errors import LogWriteError
-from pcainterp_stream.interrupt import track_partial, untrack_partial
+from pcainterp_stream.interrupt import signalled, track_partial, untrack_partial
 from pcainterp_stream.records import DensifiedFrame
 
 if TYPE_CHECKING:
@@ -86,7 +86,7 @@ class RerunSink:
         recording.flush()
         recording.disconnect()
         if self._partial is not None and self.rrd_path is not None:
-            if exc_type is None:
+            if exc_type is None and not signalled():  # never committed after a signal
                 self._partial.replace(self.rrd_path)
             else:
                 self._partial.unlink(missing_ok=True)
