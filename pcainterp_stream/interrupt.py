@@ -185,12 +185,12 @@ def raise_if_signalled() -> None:
     The handler's ``KeyboardInterrupt`` can be lost on its way: raised while the
     interpreter runs code whose errors it only reports or drops (a finaliser, a weak
     reference's callback inside an import, native code that clears errors), it never
-    reaches the command, which would go on and finish. Writers call this for every
-    message and before an output is committed, and :func:`stop_on_signals` at the end of
+    reaches the command, which would go on and finish. Readers and writers call this
+    for every message, outputs before they are committed, and :func:`stop_on_signals` at the end of
     its block, so a handled signal always ends the command as an interruption with
-    nothing written at the target.
+    nothing written at the target. Other threads go on: the main thread stops the command.
     """
-    if _signals_seen:
+    if _signals_seen and threading.current_thread() is threading.main_thread():
         raise KeyboardInterrupt
 
 

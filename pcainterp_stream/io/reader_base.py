@@ -17,6 +17,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from pcainterp_stream.errors import LogReadError, TopicNotFoundError
+from pcainterp_stream.interrupt import raise_if_signalled
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.records import RawMessage
 
@@ -262,6 +263,7 @@ class LogReader:
             LogReadError: for a non-CDR message, a schema that cannot be parsed, or data that
                 does not deserialize with its schema.
         """
+        raise_if_signalled()  # a signal whose KeyboardInterrupt was lost still stops the job
         where = f"message on {raw.topic} at log time {raw.log_time_ns} ns in {self.path.name}"
         if raw.message_encoding != "cdr" or raw.schema_encoding not in ROS2_SCHEMA_ENCODINGS:
             raise LogReadError(
