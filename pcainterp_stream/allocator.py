@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import functools
 import sys
 from collections.abc import Callable
 from typing import cast
@@ -67,15 +68,46 @@ def limit_arenas(arenas: int) -> bool:
     return mallopt is not None and mallopt(_M_ARENA_MAX, max(1, int(arenas))) == 1
 
 
+def release_free_memory() -> bool:
+    """Give the free pages inside the heap back to the OS now (glibc's ``malloc_trim``).
+
+    With :func:`keep_freed_memory` freed memory stays resident for reuse; over thousands of
+    frames a heap fragments and the resident size creeps up by the holes it keeps (a KITTI
+    densify: 350 -> 378 MB over 3,000 frames). Called now and then (every few hundred
+    frames), it keeps the resident size at the pipeline's working set for the price of
+    faulting the reused pages in once again. A no-op (False) where the C library is not
+    glibc.
+    """
+    libc = _glibc()
+    if libc is None:
+        return False
+    trim = libc.malloc_trim
+    trim.argtypes = [ctypes.c_size_t]
+    trim.restype = ctypes.c_int
+    trim(0)
+    return True
+
+
 def _mallopt() -> Callable[[int, int], int] | None:
     """Return glibc's ``mallopt``, or None where the C library is not glibc."""
+    libc = _glibc()
+    if libc is None:
+        return None
+    mallopt = libc.mallopt
+    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
+    mallopt.restype = ctypes.c_int
+    return cast("Callable[[int, int], int]", mallopt)
+
+
+@functools.cache
+def _glibc() -> ctypes.CDLL | None:
+    """Return the C library if it is glibc's (it has ``mallopt`` and ``malloc_trim``)."""
     if not sys.platform.startswith("linux"):
         return None
     name = ctypes.util.find_library("c")
     try:
-        mallopt = ctypes.CDLL(name or "libc.so.6").mallopt
+        libc = ctypes.CDLL(name or "libc.so.6")
+        libc.mallopt, libc.malloc_trim  # noqa: B018 - both or neither
     except (OSError, AttributeError):
         return None
-    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
-    mallopt.restype = ctypes.c_int
-    return cast("Callable[[int, int], int]", mallopt)
+    return libc

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import itertools
+import os
 import platform
 import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -209,3 +211,22 @@ def test_allocator_tuning_is_idempotent() -> None:
     assert keep_freed_memory() == first
     if sys.platform.startswith("linux") and platform.libc_ver()[0] == "glibc":
         assert first
+
+
+@pytest.mark.skipif(
+    not sys.platform.startswith("linux") or platform.libc_ver()[0] != "glibc",
+    reason="glibc's allocator and /proc",
+)
+def test_released_memory_leaves_the_resident_set() -> None:
+    from pcainterp_stream.allocator import keep_freed_memory, release_free_memory
+
+    def resident_mb() -> float:
+        pages = int(Path("/proc/self/statm").read_text().split()[1])
+        return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+    assert keep_freed_memory()  # freed memory is kept resident from here on
+    blocks = [np.ones(2**19) for _ in range(64)]  # 64 x 4 MiB from the heap, touched
+    del blocks
+    kept = resident_mb()
+    assert release_free_memory()
+    assert resident_mb() < kept - 128  # most of the 256 MiB left the resident set
