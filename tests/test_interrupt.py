@@ -467,17 +467,22 @@ sys.exit(app.main(["info", sys.argv[1]]))
 """
 
 
-def test_a_signal_inside_an_import_is_an_interruption(small_log: Path) -> None:
-    """A signal landing in a module's import raises ImportError, not KeyboardInterrupt (seen
-    once in a whole-suite run): the command still ends as interrupted, without a traceback."""
-    process = subprocess.run(
-        [sys.executable, "-c", SIGNAL_IN_AN_IMPORT, str(small_log)],
+def _run_script(script: str, *args: str) -> subprocess.CompletedProcess[str]:
+    """Run ``python -c SCRIPT ARGS`` with the default SIGINT disposition; wait for it."""
+    return subprocess.run(
+        [sys.executable, "-c", script, *args],
         capture_output=True,
         text=True,
         timeout=120,
         check=False,
         preexec_fn=_default_sigint,
     )
+
+
+def test_a_signal_inside_an_import_is_an_interruption(small_log: Path) -> None:
+    """A signal landing in a module's import raises ImportError, not KeyboardInterrupt (seen
+    once in a whole-suite run): the command still ends as interrupted, without a traceback."""
+    process = _run_script(SIGNAL_IN_AN_IMPORT, str(small_log))
     assert process.returncode == 130, process.stderr
     assert "interrupted" in process.stderr
     assert "Traceback" not in process.stderr
@@ -516,15 +521,7 @@ def test_a_swallowed_interrupt_still_ends_the_command(tmp_path: Path) -> None:
     weak-reference callback inside an import, native code that clears errors): the signal
     still ends the command as an interruption, and nothing is written at the target."""
     target = tmp_path / "drive.mcap"
-    args = ["synth", str(target), "--frames", "4", "--scale", "0.1"]
-    process = subprocess.run(
-        [sys.executable, "-c", SIGNAL_SWALLOWED, *args],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-        preexec_fn=_default_sigint,
-    )
+    process = _run_script(SIGNAL_SWALLOWED, "synth", str(target), "--frames", "4", "--scale", "0.1")
     assert process.returncode == 130, process.stderr
     assert process.stderr.strip() == INTERRUPTED
     assert list(tmp_path.iterdir()) == []
