@@ -24,7 +24,7 @@ import harness
 import numpy as np
 
 from pcainterp_stream.estimate.basis import Basis
-from pcainterp_stream.estimate.dense import fuse_dense
+from pcainterp_stream.estimate.dense import find_holes, fuse_dense
 from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.evaluate.metrics import disparity_from_depth, fill_nearest
 from pcainterp_stream.frontend.matchers import DENSE_MATCHERS
@@ -32,6 +32,7 @@ from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     SgbmConfig,
     compute_disparity,
+    compute_weak_disparity,
     detect_corners,
     lookup_disparities,
     to_grey8,
@@ -66,7 +67,7 @@ def calibration(
                 continue
             truth = disparity_from_depth(frame.depth, frame.camera.focal_baseline)
             # dense mode matches the left band too; SGBM's holes are the plain matcher's
-            matched = compute_disparity(frame.left, frame.right, dense_sgbm)
+            matched, weak = compute_weak_disparity(frame.left, frame.right, dense_sgbm)
             plain = compute_disparity(frame.left, frame.right, sgbm)
             corners = detect_corners(
                 to_grey8(frame.left), GfttConfig(), min_x=dense_sgbm.valid_min_x
@@ -81,7 +82,7 @@ def calibration(
                 focal_baseline=frame.camera.focal_baseline,
                 **options,
             )
-            fused = fuse_dense(estimate, matched)
+            fused = fuse_dense(estimate, matched, holes=find_holes(matched, weak))
             filled = fill_nearest(plain)
             assert fused.disparity_std is not None
             assert filled is not None

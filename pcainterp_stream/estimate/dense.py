@@ -14,6 +14,9 @@ product of the two Gaussians:
 
     P = 1 / v_f + w / sigma_px^2,   d_hat = (f / v_f + w z / sigma_px^2) / P,   var = 1 / P.
 
+A matcher may mark some of its values as weak (:class:`MapHoles`): there sigma_px^2 is
+sigma_px^2 + weak_std^2, in the weight and in the product alike.
+
 **In a hole** (no SGBM value: the left band, occlusions, sky, textureless road, speckles)
 the pixel may continue the surface of one of its four directional nearest valid SGBM pixels
 (left, right, up, down in its row and column; c_j at distance r_j px), or none of them. A
@@ -70,6 +73,9 @@ class DenseModel:
         no_neighbour: pi_0, prior weight of "no neighbour continues" (the field alone).
         hole_std_scale: factor on the std in holes (a calibration on held-out frames).
         robust: loss on the SGBM pixels' disagreement with the field.
+        weak_std: std (px) added (in quadrature) to sigma_px at a map's weak pixels
+            (:class:`MapHoles`: matched, but less surely, e.g. next to the holes of a
+            half-resolution guide).
     """
 
     pixel_std: float = 0.75
@@ -80,13 +86,14 @@ class DenseModel:
     no_neighbour: float = 0.02
     hole_std_scale: float = 2.0
     robust: Robust = Robust.CAUCHY
+    weak_std: float = 4.0
 
     def __post_init__(self) -> None:
         for name in ("pixel_std", "detail_std", "neighbour_std", "neighbour_reach"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"Expected `{name}` > 0, got {value}")
-        for name in ("neighbour_rate", "no_neighbour", "hole_std_scale"):
+        for name in ("neighbour_rate", "no_neighbour", "hole_std_scale", "weak_std"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"Expected `{name}` >= 0, got {value}")
@@ -110,33 +117,44 @@ class MapHoles:
         neighbours: four (value, distance) pairs of (n,) float32 arrays, left, right, up,
             down: the nearest valid pixel in that direction along the hole's row or
             column; distance ``inf`` (value 0) where there is none.
+        weak: flat indices of valid pixels whose value the matcher is less sure of
+            (``DenseModel.weak_std``), ascending; empty for most matchers.
     """
 
     shape: tuple[int, int]
     index: npt.NDArray[np.intp]
     neighbours: tuple[tuple[F32, F32], ...]
+    weak: npt.NDArray[np.intp] = dataclasses.field(default_factory=lambda: np.zeros(0, np.intp))
 
 
-def find_holes(disparity_map: npt.ArrayLike) -> MapHoles:
+def find_holes(disparity_map: npt.ArrayLike, weak: npt.NDArray[np.bool_] | None = None) -> MapHoles:
     """Find a disparity map's holes and their directional neighbours (:class:`MapHoles`).
 
     Args:
         disparity_map: (H, W) float disparity (px), NaN (or negative) where there is none.
+        weak: (H, W) bool, the matcher's weak pixels (``Measurements.weak``), or None.
 
     Returns:
         The holes, for :func:`fuse_dense`'s ``holes``.
 
     Raises:
-        ValueError: the map is not 2-D.
+        ValueError: the map is not 2-D, or ``weak`` is not of its shape.
     """
     values = np.asarray(disparity_map, dtype=np.float32)
     if values.ndim != 2:
         raise ValueError(f"Expected an (H, W) disparity map, got shape {values.shape}")
+    if weak is not None and weak.shape != values.shape:
+        raise ValueError(
+            f"Expected weak pixels of the map's shape {values.shape}, got {weak.shape}"
+        )
     with np.errstate(invalid="ignore"):
         hole = ~(np.isfinite(values) & (values >= 0))
     index, neighbours = _hole_neighbours(values, hole)
     height, width = values.shape
-    return MapHoles((height, width), index, tuple(neighbours))
+    holes = MapHoles((height, width), index, tuple(neighbours))
+    if weak is not None:
+        holes = dataclasses.replace(holes, weak=np.flatnonzero(weak & ~hole))
+    return holes
 
 
 def fuse_dense(
@@ -188,9 +206,12 @@ def fuse_dense(
     # the disagreement (z - f) / sqrt(v_f + sigma_px^2), then its robust weight, in place
     weight = measured - field
     spread = prior_variance + np.float32(model.pixel_std**2)
+    weak_variance = np.float32(model.weak_std**2)
+    spread.ravel()[holes.weak] += weak_variance  # a weak pixel's noise: sigma_px^2 + weak^2
     weight /= np.sqrt(spread, out=spread)
     weight = _robust_weights(weight, model.robust)
     weight *= pixel_precision  # w / sigma_px^2
+    weight.ravel()[holes.weak] *= np.float32(1.0) / (pixel_precision * weak_variance + 1)
     field_precision = np.reciprocal(prior_variance, out=prior_variance)  # 1 / v_f
     precision = field_precision + weight
     disparity = field * field_precision

@@ -524,7 +524,7 @@ class FrameProcessor:
                 disparity_map = measurements.disparity_map
                 # the fusion's part that needs no estimate, here in parallel, not in the
                 # sequential densify thread
-                holes = find_holes(disparity_map)
+                holes = find_holes(disparity_map, measurements.weak)
             elif self.config.edge_aware:  # an edge-aware local prior's cells, beside SGBM
                 size, basis_grid = frame.camera.image_size, self.basis.grid_size
                 partition = Partition.along(measurements.disparity_map, pixels, size, basis_grid)
