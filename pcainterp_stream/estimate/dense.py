@@ -14,8 +14,11 @@ product of the two Gaussians:
 
     P = 1 / v_f + w / sigma_px^2,   d_hat = (f / v_f + w z / sigma_px^2) / P,   var = 1 / P.
 
-A matcher may mark some of its values as weak (:class:`MapHoles`): there sigma_px^2 is
-sigma_px^2 + weak_std^2, in the weight and in the product alike.
+A matcher may mark some of its values as weak (:class:`MapHoles`): matched, but less surely
+than the others. Their value is fused as any matched pixel's, and their std is
+sqrt(var + weak_std^2): the matcher's doubt added to the fusion's. (Giving them the noise
+sigma_px^2 + weak_std^2 instead pulls them towards the field, which measured worse on real
+truth: docs/dense.md.)
 
 **In a hole** (no SGBM value: the left band, occlusions, sky, textureless road, speckles)
 the pixel may continue the surface of one of its four directional nearest valid SGBM pixels
@@ -73,7 +76,7 @@ class DenseModel:
         no_neighbour: pi_0, prior weight of "no neighbour continues" (the field alone).
         hole_std_scale: factor on the std in holes (a calibration on held-out frames).
         robust: loss on the SGBM pixels' disagreement with the field.
-        weak_std: std (px) added (in quadrature) to sigma_px at a map's weak pixels
+        weak_std: std (px) added (in quadrature) to the std of a map's weak pixels
             (:class:`MapHoles`: matched, but less surely, e.g. next to the holes of a
             half-resolution guide).
     """
@@ -206,12 +209,9 @@ def fuse_dense(
     # the disagreement (z - f) / sqrt(v_f + sigma_px^2), then its robust weight, in place
     weight = measured - field
     spread = prior_variance + np.float32(model.pixel_std**2)
-    weak_variance = np.float32(model.weak_std**2)
-    spread.ravel()[holes.weak] += weak_variance  # a weak pixel's noise: sigma_px^2 + weak^2
     weight /= np.sqrt(spread, out=spread)
     weight = _robust_weights(weight, model.robust)
     weight *= pixel_precision  # w / sigma_px^2
-    weight.ravel()[holes.weak] *= np.float32(1.0) / (pixel_precision * weak_variance + 1)
     field_precision = np.reciprocal(prior_variance, out=prior_variance)  # 1 / v_f
     precision = field_precision + weight
     disparity = field * field_precision
@@ -223,6 +223,9 @@ def fuse_dense(
     if estimate.disparity_std is not None:
         std = np.sqrt(np.reciprocal(precision, out=precision), out=precision)
         std.ravel()[index] = np.sqrt(hole_variance) * np.float32(model.hole_std_scale)
+        if holes.weak.size:  # the matcher's doubt, beside the fusion's
+            weak = np.square(std.ravel().take(holes.weak)) + np.float32(model.weak_std**2)
+            std.ravel()[holes.weak] = np.sqrt(weak)
     depth, depth_std = None, None
     if estimate.focal_baseline > 0:
         depth, depth_std = depth_from_disparity(
