@@ -259,20 +259,38 @@ def _holes(holes: MapHoles, f: F32, v_f: F32, model: DenseModel) -> tuple[F32, F
     total = np.full(f.shape, np.float32(model.no_neighbour))
     mean_sum = total * f
     second_sum = total * (v_f + f * f)
+    base = np.float32(model.neighbour_std**2)
+    rate = np.float32(model.neighbour_rate)
+    length = np.float32(model.neighbour_reach)
+    # in place, each with the same operations in the same order as written in the maths
     for value, distance in holes.neighbours:
         found = np.isfinite(distance)
         reach = np.where(found, distance, np.float32(0.0))
-        spread = np.float32(model.neighbour_std**2) + np.float32(model.neighbour_rate) * reach
+        spread = rate * reach
+        spread += base
         both = v_f + spread
-        gap = value - f
-        weight = np.exp(np.float32(-0.5) * gap * gap / both) * np.sqrt(v_f / both)
-        weight /= one + reach / np.float32(model.neighbour_reach)
+        weight = value - f  # the gap, then the weight
+        weight *= np.float32(-0.5) * weight
+        weight /= both
+        np.exp(weight, out=weight)
+        both = np.divide(v_f, both, out=both)
+        weight *= np.sqrt(both, out=both)
+        reach /= length
+        reach += one
+        weight /= reach
         weight[~found] = 0.0
-        variance = one / (field_precision + one / spread)
-        mean = (field_term + value / spread) * variance
+        variance = np.divide(one, spread)
+        variance += field_precision
+        np.divide(one, variance, out=variance)
+        mean = np.divide(value, spread, out=spread)
+        mean += field_term
+        mean *= variance
         total += weight
-        mean_sum += weight * mean
-        second_sum += weight * (variance + mean * mean)
+        variance += mean * mean
+        mean *= weight
+        mean_sum += mean
+        variance *= weight
+        second_sum += variance
     estimate = (mean_sum / total).astype(np.float32)
     spread_out = np.maximum(second_sum / total - estimate * estimate, np.float32(1e-6))
     return estimate, spread_out.astype(np.float32)

@@ -28,7 +28,7 @@ FixedArray = npt.NDArray[np.int16]
 
 BoolArray = npt.NDArray[np.bool_]
 
-REFINE_SMOOTHING = 5
+REFINE_SMOOTHING = 3
 """Side (px, at half resolution) of the box filter that smooths the half-resolution map
 before it warps the right image (3-9 px alike on real truth; docs/dense.md)."""
 
