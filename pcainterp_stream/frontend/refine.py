@@ -4,9 +4,10 @@
 resolution; that map, its holes filled along the row and box-smoothed, warps the right image
 (sub-pixel), and SGBM matches the left image against the warped one again at full
 resolution over a small range around zero. The map is the warp plus that residual: SGBM's
-smoothness and checks at full resolution, at a fraction of the whole range's cost. The
-matcher itself stays in :mod:`.stereo`; this module does the warp and the residual's
-bookkeeping, given a function that runs the residual match.
+smoothness and checks at full resolution, at a fraction of the whole range's cost. Pixels
+without texture at half resolution are removed (the sky, blank walls), and pixels next to
+the half-resolution map's holes or far from the guide are marked weak (:class:`Refined`).
+:mod:`.stereo` passes in SGBM itself (:func:`refined_match`).
 """
 
 from __future__ import annotations
@@ -34,10 +35,11 @@ before it warps the right image (3-9 px alike on real truth; docs/dense.md)."""
 
 TEXTURELESS = 3.0
 """A pixel whose half-resolution neighbourhood (:data:`TEXTURE_SIDE` px square at half
-resolution) has a mean |x-gradient| (3x3 Sobel of the 8-bit image) below this is removed,
-as full-resolution SGBM's uniqueness check would leave it: the sky and blank walls, where a
-small range's match is a guess. At half resolution the image's noise is averaged out, so
-weak but real texture (a road) stays above it (docs/dense.md)."""
+resolution) has a mean |x-gradient| (3x3 Sobel of the 8-bit image: 8 for a ramp of one
+grey level per px) below this is removed, as full-resolution SGBM's uniqueness check would
+leave it: the sky and blank walls, where a small range's match is a guess. At half
+resolution the image's noise is averaged out, so weak but real texture (a road) stays above
+it (docs/dense.md)."""
 
 TEXTURE_SIDE = 7
 """Side (px, at half resolution) of the box over which :data:`TEXTURELESS` averages."""
