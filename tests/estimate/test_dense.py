@@ -207,7 +207,8 @@ def test_weak_pixels_keep_their_value_and_widen_their_std(seed: int, weak_std: f
     plain = fuse_dense(field_estimate(field), sgbm, model)
     marked = fuse_dense(field_estimate(field), sgbm, model, holes=find_holes(sgbm, weak))
     np.testing.assert_array_equal(marked.disparity, plain.disparity)
-    assert plain.disparity_std is not None and marked.disparity_std is not None
+    assert plain.disparity_std is not None
+    assert marked.disparity_std is not None
     widened = weak & np.isfinite(sgbm)
     np.testing.assert_array_equal(marked.disparity_std[~widened], plain.disparity_std[~widened])
     expected = np.sqrt(np.square(plain.disparity_std[widened]) + np.float32(weak_std**2))

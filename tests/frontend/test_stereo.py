@@ -482,14 +482,15 @@ def test_half_resolution_refined_at_full_resolution(
 def test_refined_map_removes_textureless_pixels_and_marks_weak_ones(
     pair: tuple[npt.NDArray[Any], ...],
 ) -> None:
-    left, right, truth = pair
+    left, right, _truth = pair
     config = SgbmConfig(num_disparities=32, full_width=True, refine_range=8)
     # a blank square (the sky, a white wall) in both images, on the farther surface
     blank_left, blank_right = left.copy(), right.copy()
     blank_left[20:60, 40:100] = 128
     blank_right[20:60, 40 - 10 : 100 - 10] = 128
     disparity, weak = compute_weak_disparity(blank_left, blank_right, config)
-    assert weak is not None and weak.shape == disparity.shape
+    assert weak is not None
+    assert weak.shape == disparity.shape
     half = cv2.resize(blank_left, (WIDTH // 2, HEIGHT // 2), interpolation=cv2.INTER_AREA)
     flat = textureless(half).repeat(2, axis=0).repeat(2, axis=1)
     assert flat[30:50, 50:90].all()  # the blank square's inside, at least
