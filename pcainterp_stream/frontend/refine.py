@@ -63,19 +63,18 @@ def fill_rows(disparity: FloatArray) -> FloatArray:
     """
     height, width = disparity.shape
     valid = np.isfinite(disparity)
-    columns = np.arange(width)
-    # nearest valid column at or left of each pixel, and at or right of it (width: none)
-    seen = np.where(valid, columns, -1)
+    # nearest valid column at or left of each pixel (-1: none), as a flat index
+    seen = np.where(valid, np.arange(width, dtype=np.int32), np.int32(-1))
     np.maximum.accumulate(seen, axis=1, out=seen)
-    left = np.where(seen < 0, width, seen)
-    right = np.where(valid, columns, width)
-    right = np.minimum.accumulate(right[:, ::-1], axis=1)[:, ::-1]
-    padded = np.full((height, width + 1), np.nan, np.float32)
-    padded[:, :width] = disparity
-    filled = np.take_along_axis(padded, left, 1)
-    missing = np.isnan(filled)
-    filled[missing] = np.take_along_axis(padded, right, 1)[missing]
-    filled[np.isnan(filled)] = 0.0
+    leading = seen < 0
+    np.maximum(seen, 0, out=seen)
+    seen += (np.arange(height, dtype=np.int32) * np.int32(width))[:, None]
+    filled = np.asarray(disparity, np.float32).ravel().take(seen)
+    # before a row's first valid pixel: that pixel's value (0 in a row without any)
+    rows = np.arange(height)
+    first = np.argmax(valid, axis=1)
+    value = np.where(valid[rows, first], disparity[rows, first], np.float32(0.0))
+    filled[leading] = np.broadcast_to(value[:, None], filled.shape)[leading]
     return filled
 
 
