@@ -1515,3 +1515,28 @@ def test_signal_during_densify(
     )
     assert rerun.returncode == 0, rerun.stderr
     assert assert_valid_mcap(out)["/pcainterp/depth"] == SMALL_FRAMES
+
+
+@pytest.mark.parametrize(
+    ("options", "matcher", "downscale"),
+    [
+        (("--measurements", "dense"), "refined", 1),
+        (("--measurements", "dense", "--dense-matcher", "full"), "full", 1),
+        (("--measurements", "dense", "--dense-matcher", "refined"), "refined", 1),
+        # at half resolution there is nothing to refine: the whole range, halved
+        (("--measurements", "dense", "--stereo-downscale", "2"), "full", 2),
+    ],
+)
+def test_dense_mode_matcher_by_default_and_by_choice(
+    options: tuple[str, ...], matcher: str, downscale: int
+) -> None:
+    import dataclasses
+
+    from pcainterp_stream.cli import build_parser
+    from pcainterp_stream.cli.densify import _processor_config
+    from pcainterp_stream.frontend.matchers import DENSE_MATCHERS
+
+    args = build_parser().parse_args(["densify", "in.mcap", "-o", "out.mcap", *options])
+    config = _processor_config(args, adapt="check")
+    expected = dataclasses.replace(DENSE_MATCHERS[matcher], downscale=downscale)
+    assert config.sgbm == expected

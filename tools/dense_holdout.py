@@ -24,7 +24,7 @@ from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.dense import find_holes, fuse_dense
 from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.evaluate.metrics import fill_nearest
-from pcainterp_stream.frontend.matchers import DENSE_MATCHERS
+from pcainterp_stream.frontend.matchers import DEFAULT_DENSE_MATCHER, DENSE_MATCHERS
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     SgbmConfig,
@@ -45,7 +45,7 @@ def score_clip(
     blocks: int,
     size: int,
     seed: int,
-    matcher: str = "full",
+    matcher: str = DEFAULT_DENSE_MATCHER,
 ) -> dict[str, float]:
     """Mean abs. error (px) on the hidden pixels of each filler, and dense mode's coverage.
 
@@ -117,8 +117,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--matcher",
         choices=sorted(DENSE_MATCHERS),
-        default="full",
-        help="dense mode's matcher (densify --dense-matcher; default full)",
+        default=DEFAULT_DENSE_MATCHER,
+        help="dense mode's matcher (densify --dense-matcher; default refined)",
     )
     args = parser.parse_args(argv)
     clips = {

@@ -27,7 +27,7 @@ from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.dense import find_holes, fuse_dense
 from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.evaluate.metrics import disparity_from_depth, fill_nearest
-from pcainterp_stream.frontend.matchers import DENSE_MATCHERS
+from pcainterp_stream.frontend.matchers import DEFAULT_DENSE_MATCHER, DENSE_MATCHERS
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     SgbmConfig,
@@ -46,7 +46,7 @@ REGIONS = ("left band", "sky", "close (> 90 px)", "other")
 
 
 def calibration(
-    downscale: int, matcher: str = "full"
+    downscale: int, matcher: str = DEFAULT_DENSE_MATCHER
 ) -> tuple[dict[str, float], dict[str, list[float]]]:
     """Score dense mode on the calibration frames with SGBM at 1/``downscale`` resolution.
 
@@ -131,7 +131,7 @@ def calibration(
     }
 
 
-def print_calibration(matcher: str = "full") -> None:
+def print_calibration(matcher: str = DEFAULT_DENSE_MATCHER) -> None:
     """Print the calibration-frame tables (dense mode with the ``matcher`` named)."""
     print("\n## Calibration frames (seeds 9001-9003, frames 0, 10, 20, 30; ground truth)\n")
     headers = [
@@ -172,7 +172,7 @@ def print_calibration(matcher: str = "full") -> None:
         )
 
 
-def run_commands(work: Path, realdata: Path, matcher: str = "full") -> None:
+def run_commands(work: Path, realdata: Path, matcher: str = DEFAULT_DENSE_MATCHER) -> None:
     """Run the real command line of the held-out table (evaluate prints the results).
 
     ``matcher``: ``--dense-matcher`` of the dense runs.
@@ -199,7 +199,7 @@ def run_commands(work: Path, realdata: Path, matcher: str = "full") -> None:
         if name != "syn":  # against full-resolution SGBM: dense matches at half resolution
             runs = {"sparse": (), "dense2": ("--measurements", "dense", "--stereo-downscale", 2)}
         for label, extra in runs.items():
-            if label != "sparse" and matcher != "full":
+            if label != "sparse" and matcher != DEFAULT_DENSE_MATCHER:
                 extra = (*extra, "--dense-matcher", matcher)
             out = work / f"{name}_{label}.mcap"
             out.unlink(missing_ok=True)
@@ -229,8 +229,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--matcher",
         choices=sorted(DENSE_MATCHERS),
-        default="full",
-        help="dense mode's matcher (densify --dense-matcher; default full)",
+        default=DEFAULT_DENSE_MATCHER,
+        help="dense mode's matcher (densify --dense-matcher; default refined)",
     )
     args = parser.parse_args(argv)
     work = harness.work_dir(args.work_dir)

@@ -87,7 +87,7 @@ class DenseModel:
     neighbour_rate: float = 0.1
     neighbour_reach: float = 1.0
     no_neighbour: float = 0.02
-    hole_std_scale: float = 2.0
+    hole_std_scale: float = 2.5
     robust: Robust = Robust.CAUCHY
     weak_std: float = 4.0
 
