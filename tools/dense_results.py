@@ -27,7 +27,11 @@ from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.dense import find_holes, fuse_dense
 from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.evaluate.metrics import disparity_from_depth, fill_nearest
-from pcainterp_stream.frontend.matchers import DEFAULT_DENSE_MATCHER, DENSE_MATCHERS
+from pcainterp_stream.frontend.matchers import (
+    DEFAULT_DENSE_MATCHER,
+    DENSE_MATCHERS,
+    dense_matcher,
+)
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     SgbmConfig,
@@ -55,7 +59,9 @@ def calibration(
     basis = Basis.default()
     options = resolve_settings(basis, ProcessorConfig()).densify_options()
     sgbm = SgbmConfig(downscale=downscale)
-    dense_sgbm = dataclasses.replace(DENSE_MATCHERS[matcher], downscale=downscale)
+    # as densify: at half resolution there is nothing to refine (the whole range, halved)
+    name = dense_matcher(matcher, downscale)
+    dense_sgbm = dataclasses.replace(DENSE_MATCHERS[name], downscale=downscale)
     sums = dict.fromkeys(
         ("pixels", "valid", "holes", "dense", "nearest", "dense valid", "sgbm valid"), 0.0
     )
