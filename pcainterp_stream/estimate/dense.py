@@ -87,9 +87,9 @@ class DenseModel:
     neighbour_rate: float = 0.1
     neighbour_reach: float = 1.0
     no_neighbour: float = 0.02
-    hole_std_scale: float = 2.5
+    hole_std_scale: float = 3.0
     robust: Robust = Robust.CAUCHY
-    weak_std: float = 4.0
+    weak_std: float = 8.0
 
     def __post_init__(self) -> None:
         for name in ("pixel_std", "detail_std", "neighbour_std", "neighbour_reach"):
