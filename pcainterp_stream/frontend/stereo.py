@@ -59,6 +59,7 @@ __all__ = [
     "StereoFrontEnd",
     "compute_disparity",
     "compute_right_disparity",
+    "compute_weak_disparity",
     "detect_corners",
     "lattice_points",
     "lookup_disparities",
