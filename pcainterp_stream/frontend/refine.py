@@ -14,14 +14,11 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import replace
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
 import numpy.typing as npt
-
-if TYPE_CHECKING:
-    from pcainterp_stream.frontend.stereo import SgbmConfig
 
 FloatArray = npt.NDArray[np.float32]
 UInt8Array = npt.NDArray[np.uint8]
@@ -186,14 +183,16 @@ def halved(image: UInt8Array) -> UInt8Array:
 def refined_match(
     left: UInt8Array,
     right: UInt8Array,
-    config: SgbmConfig,
-    match: Callable[[UInt8Array, UInt8Array, SgbmConfig, bool], FloatArray],
-    matcher: Callable[[SgbmConfig], Any],
+    config: Any,
+    match: Callable[[UInt8Array, UInt8Array, Any, bool], FloatArray],
+    matcher: Callable[[Any], Any],
 ) -> Refined:
     """``SgbmConfig.refine_range``: the whole range at half resolution, refined near it.
 
-    ``match`` is SGBM at the images' resolution (NaN where invalid; the last argument pads
-    the left band) and ``matcher`` the ``cv2.StereoSGBM`` of a configuration.
+    ``config`` is the matcher's :class:`.stereo.SgbmConfig` (not imported here: stereo
+    imports this module), ``match`` SGBM at the images' resolution for a configuration
+    (NaN where invalid; the last argument pads the left band) and ``matcher`` the
+    ``cv2.StereoSGBM`` of a configuration.
     """
     coarse_config = replace(config, downscale=2, refine_range=0, near_at_half=False)
     halved_left = halved(left)
