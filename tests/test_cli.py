@@ -251,12 +251,13 @@ def test_densify_dense_measurements(
     disparity = next(m for t, m, _ in messages if t == "/pcainterp/disparity")
     fused = rosmsg.image_array(disparity.image)
     assert np.isfinite(fused).all()
-    # the left band is matched too (DENSE_SGBM): where SGBM finds a value there, it is kept
+    # the default matcher (REFINED_DENSE_SGBM) matches the left band too: where it finds a
+    # value there, it is kept
     left, right = (
         rosmsg.image_array(next(m for t, m, _ in messages if t == f"/stereo/{side}/image_rect"))
         for side in ("left", "right")
     )
-    matched = compute_disparity(left, right, DENSE_SGBM)
+    matched = compute_disparity(left, right, REFINED_DENSE_SGBM)
     band = np.zeros(matched.shape, bool)
     band[:, : DENSE_SGBM.band] = True
     found = band & np.isfinite(matched)
@@ -274,30 +275,30 @@ def test_densify_dense_measurements(
     assert not other.exists()
 
 
-def test_densify_dense_refined_matcher(
+def test_densify_dense_full_matcher(
     pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path
 ) -> None:
     run = pcainterp(
         *densify_args(small_log, out, basis_path, "--measurements", "dense", "--precision", "full"),
         "--dense-matcher",
-        "refined",
+        "full",
     )
     assert run.code == 0, run.err
     messages = read_messages(out)
     fused = rosmsg.image_array(next(m for t, m, _ in messages if t == "/pcainterp/disparity").image)
     assert np.isfinite(fused).all()
-    # where the refined matcher matched, dense mode keeps its value
+    # where the whole-range matcher matched, dense mode keeps its value
     left, right = (
         rosmsg.image_array(next(m for t, m, _ in messages if t == f"/stereo/{side}/image_rect"))
         for side in ("left", "right")
     )
-    matched = compute_disparity(left, right, REFINED_DENSE_SGBM)
+    matched = compute_disparity(left, right, DENSE_SGBM)
     found = np.isfinite(matched)
     assert found.mean() > 0.5
     assert np.median(np.abs(fused - matched)[found]) < 0.1
     # the matcher of dense mode only: without it, one line naming the fix
     other = out.parent / "other.mcap"
-    run = pcainterp(*densify_args(small_log, other, basis_path), "--dense-matcher", "refined")
+    run = pcainterp(*densify_args(small_log, other, basis_path), "--dense-matcher", "full")
     assert run.code == 2
     assert "add --measurements dense" in run.err
     assert len(run.err.strip().splitlines()) == 1
@@ -1515,3 +1516,28 @@ def test_signal_during_densify(
     )
     assert rerun.returncode == 0, rerun.stderr
     assert assert_valid_mcap(out)["/pcainterp/depth"] == SMALL_FRAMES
+
+
+@pytest.mark.parametrize(
+    ("options", "matcher", "downscale"),
+    [
+        (("--measurements", "dense"), "refined", 1),
+        (("--measurements", "dense", "--dense-matcher", "full"), "full", 1),
+        (("--measurements", "dense", "--dense-matcher", "refined"), "refined", 1),
+        # at half resolution there is nothing to refine: the whole range, halved
+        (("--measurements", "dense", "--stereo-downscale", "2"), "full", 2),
+    ],
+)
+def test_dense_mode_matcher_by_default_and_by_choice(
+    options: tuple[str, ...], matcher: str, downscale: int
+) -> None:
+    import dataclasses
+
+    from pcainterp_stream.cli import build_parser
+    from pcainterp_stream.cli.densify import _processor_config
+    from pcainterp_stream.frontend.matchers import DENSE_MATCHERS
+
+    args = build_parser().parse_args(["densify", "in.mcap", "-o", "out.mcap", *options])
+    config = _processor_config(args, adapt="check")
+    expected = dataclasses.replace(DENSE_MATCHERS[matcher], downscale=downscale)
+    assert config.sgbm == expected

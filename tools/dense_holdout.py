@@ -21,14 +21,14 @@ import harness
 import numpy as np
 
 from pcainterp_stream.estimate.basis import Basis
-from pcainterp_stream.estimate.dense import fuse_dense
+from pcainterp_stream.estimate.dense import find_holes, fuse_dense
 from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.evaluate.metrics import fill_nearest
-from pcainterp_stream.frontend.matchers import DENSE_MATCHERS
+from pcainterp_stream.frontend.matchers import DEFAULT_DENSE_MATCHER, DENSE_MATCHERS
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     SgbmConfig,
-    compute_disparity,
+    compute_weak_disparity,
     detect_corners,
     lookup_disparities,
     to_grey8,
@@ -45,7 +45,7 @@ def score_clip(
     blocks: int,
     size: int,
     seed: int,
-    matcher: str = "full",
+    matcher: str = DEFAULT_DENSE_MATCHER,
 ) -> dict[str, float]:
     """Mean abs. error (px) on the hidden pixels of each filler, and dense mode's coverage.
 
@@ -61,7 +61,7 @@ def score_clip(
     for index, frame in enumerate(iter_frames(sequence, max_frames=frames * every)):
         if index % every:
             continue
-        full = compute_disparity(frame.left, frame.right, sgbm)
+        full, weak = compute_weak_disparity(frame.left, frame.right, sgbm)
         height, width = full.shape
         mask = np.zeros(full.shape, bool)
         for _ in range(blocks):
@@ -83,7 +83,7 @@ def score_clip(
             focal_baseline=sequence.camera.focal_baseline,
             **settings.densify_options(),
         )
-        fused = fuse_dense(estimate, masked)
+        fused = fuse_dense(estimate, masked, holes=find_holes(masked, weak))
         assert fused.disparity_std is not None
         truth = full[hidden]
         sums["hidden px"] += hidden.sum()
@@ -117,8 +117,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--matcher",
         choices=sorted(DENSE_MATCHERS),
-        default="full",
-        help="dense mode's matcher (densify --dense-matcher; default full)",
+        default=DEFAULT_DENSE_MATCHER,
+        help="dense mode's matcher (densify --dense-matcher; default refined)",
     )
     args = parser.parse_args(argv)
     clips = {

@@ -24,14 +24,19 @@ import harness
 import numpy as np
 
 from pcainterp_stream.estimate.basis import Basis
-from pcainterp_stream.estimate.dense import fuse_dense
+from pcainterp_stream.estimate.dense import find_holes, fuse_dense
 from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.evaluate.metrics import disparity_from_depth, fill_nearest
-from pcainterp_stream.frontend.matchers import DENSE_MATCHERS
+from pcainterp_stream.frontend.matchers import (
+    DEFAULT_DENSE_MATCHER,
+    DENSE_MATCHERS,
+    dense_matcher,
+)
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     SgbmConfig,
     compute_disparity,
+    compute_weak_disparity,
     detect_corners,
     lookup_disparities,
     to_grey8,
@@ -45,7 +50,7 @@ REGIONS = ("left band", "sky", "close (> 90 px)", "other")
 
 
 def calibration(
-    downscale: int, matcher: str = "full"
+    downscale: int, matcher: str = DEFAULT_DENSE_MATCHER
 ) -> tuple[dict[str, float], dict[str, list[float]]]:
     """Score dense mode on the calibration frames with SGBM at 1/``downscale`` resolution.
 
@@ -54,7 +59,9 @@ def calibration(
     basis = Basis.default()
     options = resolve_settings(basis, ProcessorConfig()).densify_options()
     sgbm = SgbmConfig(downscale=downscale)
-    dense_sgbm = dataclasses.replace(DENSE_MATCHERS[matcher], downscale=downscale)
+    # as densify: at half resolution there is nothing to refine (the whole range, halved)
+    name = dense_matcher(matcher, downscale)
+    dense_sgbm = dataclasses.replace(DENSE_MATCHERS[name], downscale=downscale)
     sums = dict.fromkeys(
         ("pixels", "valid", "holes", "dense", "nearest", "dense valid", "sgbm valid"), 0.0
     )
@@ -66,7 +73,7 @@ def calibration(
                 continue
             truth = disparity_from_depth(frame.depth, frame.camera.focal_baseline)
             # dense mode matches the left band too; SGBM's holes are the plain matcher's
-            matched = compute_disparity(frame.left, frame.right, dense_sgbm)
+            matched, weak = compute_weak_disparity(frame.left, frame.right, dense_sgbm)
             plain = compute_disparity(frame.left, frame.right, sgbm)
             corners = detect_corners(
                 to_grey8(frame.left), GfttConfig(), min_x=dense_sgbm.valid_min_x
@@ -81,7 +88,7 @@ def calibration(
                 focal_baseline=frame.camera.focal_baseline,
                 **options,
             )
-            fused = fuse_dense(estimate, matched)
+            fused = fuse_dense(estimate, matched, holes=find_holes(matched, weak))
             filled = fill_nearest(plain)
             assert fused.disparity_std is not None
             assert filled is not None
@@ -130,7 +137,7 @@ def calibration(
     }
 
 
-def print_calibration(matcher: str = "full") -> None:
+def print_calibration(matcher: str = DEFAULT_DENSE_MATCHER) -> None:
     """Print the calibration-frame tables (dense mode with the ``matcher`` named)."""
     print("\n## Calibration frames (seeds 9001-9003, frames 0, 10, 20, 30; ground truth)\n")
     headers = [
@@ -171,7 +178,7 @@ def print_calibration(matcher: str = "full") -> None:
         )
 
 
-def run_commands(work: Path, realdata: Path, matcher: str = "full") -> None:
+def run_commands(work: Path, realdata: Path, matcher: str = DEFAULT_DENSE_MATCHER) -> None:
     """Run the real command line of the held-out table (evaluate prints the results).
 
     ``matcher``: ``--dense-matcher`` of the dense runs.
@@ -198,7 +205,7 @@ def run_commands(work: Path, realdata: Path, matcher: str = "full") -> None:
         if name != "syn":  # against full-resolution SGBM: dense matches at half resolution
             runs = {"sparse": (), "dense2": ("--measurements", "dense", "--stereo-downscale", 2)}
         for label, extra in runs.items():
-            if label != "sparse" and matcher != "full":
+            if label != "sparse" and matcher != DEFAULT_DENSE_MATCHER:
                 extra = (*extra, "--dense-matcher", matcher)
             out = work / f"{name}_{label}.mcap"
             out.unlink(missing_ok=True)
@@ -228,8 +235,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--matcher",
         choices=sorted(DENSE_MATCHERS),
-        default="full",
-        help="dense mode's matcher (densify --dense-matcher; default full)",
+        default=DEFAULT_DENSE_MATCHER,
+        help="dense mode's matcher (densify --dense-matcher; default refined)",
     )
     args = parser.parse_args(argv)
     work = harness.work_dir(args.work_dir)

@@ -28,6 +28,8 @@ import harness
 import numpy as np
 import numpy.typing as npt
 
+from pcainterp_stream.frontend.matchers import DEFAULT_DENSE_MATCHER
+
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
 
@@ -161,14 +163,14 @@ def run_job(log: Path, processor: object, work: Path) -> JobMaps:
     return maps
 
 
-MATCHERS = ("full", "refined", "split")
-"""Dense mode's matchers ``--matcher`` chooses: ``full`` (``DENSE_SGBM``, the default: the
-whole range at full resolution), ``refined`` (``REFINED_DENSE_SGBM``: half resolution
-refined at full resolution near it) and ``split`` (the near half of the range at half
+MATCHERS = ("refined", "full", "split")
+"""Dense mode's matchers ``--matcher`` chooses: ``refined`` (``REFINED_DENSE_SGBM``, the
+default: half resolution refined at full resolution near it), ``full`` (``DENSE_SGBM``: the
+whole range at full resolution) and ``split`` (the near half of the range at half
 resolution, ``SgbmConfig.near_at_half``)."""
 
 
-def dense_matcher(name: str = "full") -> object:
+def dense_matcher(name: str = DEFAULT_DENSE_MATCHER) -> object:
     """Return the ``SgbmConfig`` of dense mode's matcher ``name`` (one of :data:`MATCHERS`)."""
     import dataclasses
 
@@ -181,8 +183,8 @@ def dense_matcher(name: str = "full") -> object:
     raise ValueError(f"unknown matcher {name!r}; one of {', '.join(MATCHERS)}")
 
 
-def dense_config(model: object = None, *, matcher: str = "full") -> object:
-    """The processor of ``densify --measurements dense`` (by default its matcher ``DENSE_SGBM``).
+def dense_config(model: object = None, *, matcher: str = DEFAULT_DENSE_MATCHER) -> object:
+    """The processor of ``densify --measurements dense`` (by default its default matcher).
 
     ``model``: a ``DenseModel`` in place of the default one; ``matcher``: one of
     :data:`MATCHERS`.
@@ -313,10 +315,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--matcher",
         choices=MATCHERS,
-        default="full",
-        help="dense mode's matcher: full (the whole range at full resolution, the default), "
-        "refined (half resolution refined at full resolution near it, --dense-matcher "
-        "refined), split (the near half of the range at half resolution; measured only)",
+        default=DEFAULT_DENSE_MATCHER,
+        help="dense mode's matcher: refined (half resolution refined at full resolution near "
+        "it, the default), full (the whole range at full resolution, --dense-matcher full), "
+        "split (the near half of the range at half resolution; measured only)",
     )
     args = parser.parse_args(argv)
     if not args.folder.is_dir():

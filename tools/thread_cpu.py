@@ -114,7 +114,7 @@ class StageTimers:
 
 STAGES: list[tuple[Any, str, str]] = [
     (processor.FrameProcessor, "_measure", "stereo worker, all"),
-    (stereo, "_sgbm_grey", "  SGBM (half resolution; dense mode: full)"),
+    (stereo, "_sgbm_weak", "  SGBM (half resolution; dense mode: full)"),
     (stereo, "detect_corners", "  GFTT corners"),
     (stereo, "lattice_points", "  lattice points"),
     (stereo, "patch_contrast", "  lattice contrast"),

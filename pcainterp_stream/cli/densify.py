@@ -177,12 +177,13 @@ def _add_estimate_options(densify: argparse.ArgumentParser) -> None:
     )
     estimate.add_argument(
         "--dense-matcher",
-        choices=["full", "refined"],
-        default="full",
-        help="with --measurements dense: full = SGBM over the whole range at full resolution "
-        "(default); refined = at half resolution, refined at full resolution within +-8 px "
-        "of it: ~0.55x the matching time, better on scenes with close surfaces, a little "
-        "worse on KITTI's real truth (docs/dense.md)",
+        choices=["refined", "full"],
+        default=None,
+        help="with --measurements dense: refined = SGBM over the whole range at half "
+        "resolution, refined at full resolution within +-8 px of it (default); full = SGBM "
+        "over the whole range at full resolution: ~1.8x the matching time, no more accurate "
+        "(docs/dense.md). With --stereo-downscale 2 dense mode matches the whole range at "
+        "half resolution",
     )
     estimate.add_argument(
         "--sigma",
@@ -266,7 +267,7 @@ def run(args: argparse.Namespace) -> int:
             "--measurements dense fuses the whole SGBM map of the stereo pair; "
             "drop --features-topic (a feature stream is sparse)"
         )
-    if args.dense_matcher != "full" and args.measurements != "dense":
+    if args.dense_matcher is not None and args.measurements != "dense":
         raise PcaInterpError(
             f"--dense-matcher {args.dense_matcher} chooses dense mode's matcher; "
             "add --measurements dense"
@@ -313,7 +314,7 @@ def _processor_config(
     args: argparse.Namespace, *, adapt: str, builtin: str = "auto"
 ) -> ProcessorConfig:
     """Return the estimate's config the options ask for (``adapt``: see ``ProcessorConfig``)."""
-    from pcainterp_stream.frontend.matchers import DENSE_MATCHERS
+    from pcainterp_stream.frontend.matchers import DENSE_MATCHERS, dense_matcher
     from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
 
     source = MeasurementSource.FEATURES if args.features_topic else MeasurementSource.STEREO
@@ -324,7 +325,10 @@ def _processor_config(
         gftt=gftt_config(args),
         # dense mode outputs the SGBM map itself where it is valid: full resolution
         sgbm=sgbm_config(
-            args, DENSE_MATCHERS[args.dense_matcher] if dense else ProcessorConfig().sgbm
+            args,
+            DENSE_MATCHERS[dense_matcher(args.dense_matcher, args.stereo_downscale)]
+            if dense
+            else ProcessorConfig().sgbm,
         ),
         measurements=args.measurements,
         sigma=_sigma_option(args.sigma),

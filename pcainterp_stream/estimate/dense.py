@@ -14,6 +14,12 @@ product of the two Gaussians:
 
     P = 1 / v_f + w / sigma_px^2,   d_hat = (f / v_f + w z / sigma_px^2) / P,   var = 1 / P.
 
+A matcher may mark some of its values as weak (:class:`MapHoles`): matched, but less surely
+than the others. Their value is fused as any matched pixel's, and their std is
+sqrt(var + weak_std^2): the matcher's doubt added to the fusion's. (Giving them the noise
+sigma_px^2 + weak_std^2 instead pulls them towards the field, which measured worse on real
+truth: docs/dense.md.)
+
 **In a hole** (no SGBM value: the left band, occlusions, sky, textureless road, speckles)
 the pixel may continue the surface of one of its four directional nearest valid SGBM pixels
 (left, right, up, down in its row and column; c_j at distance r_j px), or none of them. A
@@ -70,6 +76,9 @@ class DenseModel:
         no_neighbour: pi_0, prior weight of "no neighbour continues" (the field alone).
         hole_std_scale: factor on the std in holes (a calibration on held-out frames).
         robust: loss on the SGBM pixels' disagreement with the field.
+        weak_std: std (px) added (in quadrature) to the std of a map's weak pixels
+            (:class:`MapHoles`: matched, but less surely, e.g. next to the holes of a
+            half-resolution guide).
     """
 
     pixel_std: float = 0.75
@@ -78,15 +87,16 @@ class DenseModel:
     neighbour_rate: float = 0.1
     neighbour_reach: float = 1.0
     no_neighbour: float = 0.02
-    hole_std_scale: float = 2.0
+    hole_std_scale: float = 3.0
     robust: Robust = Robust.CAUCHY
+    weak_std: float = 8.0
 
     def __post_init__(self) -> None:
         for name in ("pixel_std", "detail_std", "neighbour_std", "neighbour_reach"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"Expected `{name}` > 0, got {value}")
-        for name in ("neighbour_rate", "no_neighbour", "hole_std_scale"):
+        for name in ("neighbour_rate", "no_neighbour", "hole_std_scale", "weak_std"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"Expected `{name}` >= 0, got {value}")
@@ -110,33 +120,44 @@ class MapHoles:
         neighbours: four (value, distance) pairs of (n,) float32 arrays, left, right, up,
             down: the nearest valid pixel in that direction along the hole's row or
             column; distance ``inf`` (value 0) where there is none.
+        weak: flat indices of valid pixels whose value the matcher is less sure of
+            (``DenseModel.weak_std``), ascending; empty for most matchers.
     """
 
     shape: tuple[int, int]
     index: npt.NDArray[np.intp]
     neighbours: tuple[tuple[F32, F32], ...]
+    weak: npt.NDArray[np.intp] = dataclasses.field(default_factory=lambda: np.zeros(0, np.intp))
 
 
-def find_holes(disparity_map: npt.ArrayLike) -> MapHoles:
+def find_holes(disparity_map: npt.ArrayLike, weak: npt.NDArray[np.bool_] | None = None) -> MapHoles:
     """Find a disparity map's holes and their directional neighbours (:class:`MapHoles`).
 
     Args:
         disparity_map: (H, W) float disparity (px), NaN (or negative) where there is none.
+        weak: (H, W) bool, the matcher's weak pixels (``Measurements.weak``), or None.
 
     Returns:
         The holes, for :func:`fuse_dense`'s ``holes``.
 
     Raises:
-        ValueError: the map is not 2-D.
+        ValueError: the map is not 2-D, or ``weak`` is not of its shape.
     """
     values = np.asarray(disparity_map, dtype=np.float32)
     if values.ndim != 2:
         raise ValueError(f"Expected an (H, W) disparity map, got shape {values.shape}")
+    if weak is not None and weak.shape != values.shape:
+        raise ValueError(
+            f"Expected weak pixels of the map's shape {values.shape}, got {weak.shape}"
+        )
     with np.errstate(invalid="ignore"):
         hole = ~(np.isfinite(values) & (values >= 0))
     index, neighbours = _hole_neighbours(values, hole)
     height, width = values.shape
-    return MapHoles((height, width), index, tuple(neighbours))
+    holes = MapHoles((height, width), index, tuple(neighbours))
+    if weak is not None:
+        holes = dataclasses.replace(holes, weak=np.flatnonzero(weak & ~hole))
+    return holes
 
 
 def fuse_dense(
@@ -202,6 +223,9 @@ def fuse_dense(
     if estimate.disparity_std is not None:
         std = np.sqrt(np.reciprocal(precision, out=precision), out=precision)
         std.ravel()[index] = np.sqrt(hole_variance) * np.float32(model.hole_std_scale)
+        if holes.weak.size:  # the matcher's doubt, beside the fusion's
+            weak = np.square(std.ravel().take(holes.weak)) + np.float32(model.weak_std**2)
+            std.ravel()[holes.weak] = np.sqrt(weak)
     depth, depth_std = None, None
     if estimate.focal_baseline > 0:
         depth, depth_std = depth_from_disparity(
@@ -235,20 +259,38 @@ def _holes(holes: MapHoles, f: F32, v_f: F32, model: DenseModel) -> tuple[F32, F
     total = np.full(f.shape, np.float32(model.no_neighbour))
     mean_sum = total * f
     second_sum = total * (v_f + f * f)
+    base = np.float32(model.neighbour_std**2)
+    rate = np.float32(model.neighbour_rate)
+    length = np.float32(model.neighbour_reach)
+    # in place, each with the same operations in the same order as written in the maths
     for value, distance in holes.neighbours:
         found = np.isfinite(distance)
         reach = np.where(found, distance, np.float32(0.0))
-        spread = np.float32(model.neighbour_std**2) + np.float32(model.neighbour_rate) * reach
+        spread = rate * reach
+        spread += base
         both = v_f + spread
-        gap = value - f
-        weight = np.exp(np.float32(-0.5) * gap * gap / both) * np.sqrt(v_f / both)
-        weight /= one + reach / np.float32(model.neighbour_reach)
+        weight = value - f  # the gap, then the weight
+        weight *= np.float32(-0.5) * weight
+        weight /= both
+        np.exp(weight, out=weight)
+        both = np.divide(v_f, both, out=both)
+        weight *= np.sqrt(both, out=both)
+        reach /= length
+        reach += one
+        weight /= reach
         weight[~found] = 0.0
-        variance = one / (field_precision + one / spread)
-        mean = (field_term + value / spread) * variance
+        variance = np.divide(one, spread)
+        variance += field_precision
+        np.divide(one, variance, out=variance)
+        mean = np.divide(value, spread, out=spread)
+        mean += field_term
+        mean *= variance
         total += weight
-        mean_sum += weight * mean
-        second_sum += weight * (variance + mean * mean)
+        variance += mean * mean
+        mean *= weight
+        mean_sum += mean
+        variance *= weight
+        second_sum += variance
     estimate = (mean_sum / total).astype(np.float32)
     spread_out = np.maximum(second_sum / total - estimate * estimate, np.float32(1e-6))
     return estimate, spread_out.astype(np.float32)

@@ -4,14 +4,17 @@
 resolution; that map, its holes filled along the row and box-smoothed, warps the right image
 (sub-pixel), and SGBM matches the left image against the warped one again at full
 resolution over a small range around zero. The map is the warp plus that residual: SGBM's
-smoothness and checks at full resolution, at a fraction of the whole range's cost. The
-matcher itself stays in :mod:`.stereo`; this module does the warp and the residual's
-bookkeeping, given a function that runs the residual match.
+smoothness and checks at full resolution, at a fraction of the whole range's cost. Pixels
+without texture at half resolution are removed (the sky, blank walls), and pixels next to
+the half-resolution map's holes or far from the guide are marked weak (:class:`Refined`).
+:mod:`.stereo` passes in SGBM itself (:func:`refined_match`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -21,9 +24,32 @@ FloatArray = npt.NDArray[np.float32]
 UInt8Array = npt.NDArray[np.uint8]
 FixedArray = npt.NDArray[np.int16]
 
-REFINE_SMOOTHING = 5
+BoolArray = npt.NDArray[np.bool_]
+
+REFINE_SMOOTHING = 3
 """Side (px, at half resolution) of the box filter that smooths the half-resolution map
-before it warps the right image (3-9 px alike on real truth; docs/dense.md)."""
+before it warps the right image (3 px: better than 1, 5 or 7 on real truth and on the
+synthetic frames, with textureless pixels removed; docs/dense.md)."""
+
+TEXTURELESS = 3.0
+"""A pixel whose half-resolution neighbourhood (:data:`TEXTURE_SIDE` px square at half
+resolution) has a mean |x-gradient| (3x3 Sobel of the 8-bit image: 8 for a ramp of one
+grey level per px) below this is removed, as full-resolution SGBM's uniqueness check would
+leave it: the sky and blank walls, where a small range's match is a guess. At half
+resolution the image's noise is averaged out, so weak but real texture (a road) stays above
+it (docs/dense.md)."""
+
+TEXTURE_SIDE = 7
+"""Side (px, at half resolution) of the box over which :data:`TEXTURELESS` averages."""
+
+WEAK_HOLE_REACH = 2
+"""A refined pixel within this many half-resolution px of a half-resolution hole is weak
+(:class:`Refined`): occlusion edges and surfaces the half-resolution map missed, where the
+guide may belong to the other surface."""
+
+WEAK_RESIDUAL = 3.0
+"""A refined pixel whose residual is at least this (px) away from the guide is weak: far
+from the guide, towards the small range's ends, matches are less often right."""
 
 
 def fill_rows(disparity: FloatArray) -> FloatArray:
@@ -35,20 +61,45 @@ def fill_rows(disparity: FloatArray) -> FloatArray:
     """
     height, width = disparity.shape
     valid = np.isfinite(disparity)
-    columns = np.arange(width)
-    # nearest valid column at or left of each pixel, and at or right of it (width: none)
-    seen = np.where(valid, columns, -1)
+    # nearest valid column at or left of each pixel (-1: none), as a flat index
+    seen = np.where(valid, np.arange(width, dtype=np.int32), np.int32(-1))
     np.maximum.accumulate(seen, axis=1, out=seen)
-    left = np.where(seen < 0, width, seen)
-    right = np.where(valid, columns, width)
-    right = np.minimum.accumulate(right[:, ::-1], axis=1)[:, ::-1]
-    padded = np.full((height, width + 1), np.nan, np.float32)
-    padded[:, :width] = disparity
-    filled = np.take_along_axis(padded, left, 1)
-    missing = np.isnan(filled)
-    filled[missing] = np.take_along_axis(padded, right, 1)[missing]
-    filled[np.isnan(filled)] = 0.0
+    leading = seen < 0
+    np.maximum(seen, 0, out=seen)
+    seen += (np.arange(height, dtype=np.int32) * np.int32(width))[:, None]
+    filled = np.asarray(disparity, np.float32).ravel().take(seen)
+    # before a row's first valid pixel: that pixel's value (0 in a row without any)
+    rows = np.arange(height)
+    first = np.argmax(valid, axis=1)
+    value = np.where(valid[rows, first], disparity[rows, first], np.float32(0.0))
+    filled[leading] = np.broadcast_to(value[:, None], filled.shape)[leading]
     return filled
+
+
+def textureless(image: UInt8Array) -> BoolArray:
+    """Where ``image`` (half resolution) has too little texture to match: :data:`TEXTURELESS`."""
+    gradient = np.abs(np.asarray(cv2.Sobel(image, cv2.CV_16S, 1, 0, ksize=3), np.int16))
+    mean = cv2.blur(gradient.astype(np.float32), (TEXTURE_SIDE, TEXTURE_SIDE))
+    return np.asarray(mean < np.float32(TEXTURELESS), bool)
+
+
+class Refined(NamedTuple):
+    """A refined disparity map and where its values are weak.
+
+    Attributes:
+        disparity: (H, W) float32 disparity (px), NaN where removed.
+        weak: (H, W) bool, True at valid pixels whose value is less sure than a matched
+            pixel's (next to a half-resolution hole, or far from the guide): dense fusion
+            widens their std (``DenseModel.weak_std``).
+    """
+
+    disparity: FloatArray
+    weak: BoolArray
+
+
+def _full_size(mask: BoolArray, height: int, width: int) -> BoolArray:
+    """A half-resolution mask at full resolution (each pixel its 2x2 pixels)."""
+    return np.asarray(mask.repeat(2, axis=0).repeat(2, axis=1)[:height, :width], bool)
 
 
 def refine_disparity(
@@ -57,11 +108,12 @@ def refine_disparity(
     coarse: FloatArray,
     residual: Callable[[UInt8Array, UInt8Array], FixedArray],
     *,
+    halved_left: UInt8Array,
     reach: int,
     min_disparity: int,
     speckle_window_size: int,
     speckle_range: int,
-) -> FloatArray:
+) -> Refined:
     """Refine a half-resolution map at full resolution within +-``reach`` px of it.
 
     Args:
@@ -71,6 +123,7 @@ def refine_disparity(
             half-resolution px, NaN where it has none.
         residual: SGBM of (left, warped right) over [-reach, reach), OpenCV's int16 output
             (16 x disparity; below -16 * reach where invalid), speckle filter off.
+        halved_left: the left image at half resolution (the one ``coarse`` was matched on).
         reach: the residual range (px).
         min_disparity: smallest disparity of the whole range; smaller values are removed.
         speckle_window_size: SGBM's speckle filter's largest region (px), run on the
@@ -78,17 +131,24 @@ def refine_disparity(
         speckle_range: its largest disparity variation inside a region (px).
 
     Returns:
-        (H, W) float32 disparity (px), NaN where removed: the half-resolution map's holes
-        (each hole pixel its 2x2 full-resolution pixels), invalid residuals and those at
-        the small range's ends (the match may lie beyond), values d > x (left of the right
-        image) or below ``min_disparity``, and speckles.
+        The map (:class:`Refined`): float32 disparity (px), NaN where removed: the
+        half-resolution map's holes and its textureless pixels (:data:`TEXTURELESS`; each
+        half-resolution pixel its 2x2 full-resolution pixels), invalid residuals and those
+        at the small range's ends (the match may lie beyond), values d > x (left of the
+        right image) or below ``min_disparity``, and speckles; and its weak pixels.
     """
     height, width = left.shape
     guide = cv2.blur(fill_rows(coarse), (REFINE_SMOOTHING, REFINE_SMOOTHING))
     scale = np.float32(width / coarse.shape[1])
     shift = np.asarray(cv2.resize(guide, (width, height), interpolation=cv2.INTER_LINEAR))
     shift = shift.astype(np.float32) * scale
-    holes = np.isnan(coarse).repeat(2, axis=0).repeat(2, axis=1)[:height, :width]
+    coarse_holes = np.isnan(coarse)
+    holes = _full_size(coarse_holes | textureless(halved_left), height, width)
+    reach_side = 2 * WEAK_HOLE_REACH + 1
+    near_holes = cv2.dilate(
+        coarse_holes.view(np.uint8), np.ones((reach_side, reach_side), np.uint8)
+    )
+    weak = _full_size(near_holes.view(bool), height, width)
     # right image warped by the guide: pixel x of the warped image is right pixel x - shift
     map_x = np.arange(width, dtype=np.float32)[None, :] - shift
     map_y = np.repeat(np.arange(height, dtype=np.float32)[:, None], width, axis=1)
@@ -98,6 +158,8 @@ def refine_disparity(
     disparity *= np.float32(1.0 / 16.0)
     disparity += shift
     removed = holes | (fixed < (1 - reach) * 16) | (fixed > (reach - 2) * 16)
+    far = np.int16(WEAK_RESIDUAL * 16)
+    weak |= (fixed >= far) | (fixed <= -far)
     columns = np.arange(width, dtype=np.float32)
     removed |= (disparity > columns) | (disparity < min_disparity)
     if speckle_window_size > 0:
@@ -107,4 +169,56 @@ def refine_disparity(
         cv2.filterSpeckles(sixteenths, marker, speckle_window_size, speckle_range * 16)
         removed |= sixteenths == marker
     disparity[removed] = np.nan
-    return disparity
+    weak &= ~removed
+    return Refined(disparity, weak)
+
+
+def halved(image: UInt8Array) -> UInt8Array:
+    """Return ``image`` at half resolution (INTER_AREA, odd sizes rounded up)."""
+    height, width = image.shape
+    size = (-(-width // 2), -(-height // 2))
+    return np.asarray(cv2.resize(image, size, interpolation=cv2.INTER_AREA), np.uint8)
+
+
+def refined_match(
+    left: UInt8Array,
+    right: UInt8Array,
+    config: Any,
+    match: Callable[[UInt8Array, UInt8Array, Any, bool], FloatArray],
+    matcher: Callable[[Any], Any],
+) -> Refined:
+    """``SgbmConfig.refine_range``: the whole range at half resolution, refined near it.
+
+    ``config`` is the matcher's :class:`.stereo.SgbmConfig` (not imported here: stereo
+    imports this module), ``match`` SGBM at the images' resolution for a configuration
+    (NaN where invalid; the last argument pads the left band) and ``matcher`` the
+    ``cv2.StereoSGBM`` of a configuration.
+    """
+    coarse_config = replace(config, downscale=2, refine_range=0, near_at_half=False)
+    halved_left = halved(left)
+    coarse = match(halved_left, halved(right), coarse_config.matched(), config.full_width)
+    reach = config.refine_range
+    residual_config = replace(
+        config,
+        min_disparity=-reach,
+        num_disparities=2 * reach,
+        speckle_window_size=0,
+        full_width=False,
+        near_at_half=False,
+        refine_range=0,
+    )
+
+    def residual(image: UInt8Array, warped: UInt8Array) -> FixedArray:
+        return np.asarray(matcher(residual_config).compute(image, warped), np.int16)
+
+    return refine_disparity(
+        left,
+        right,
+        coarse,
+        residual,
+        halved_left=halved_left,
+        reach=reach,
+        min_disparity=config.min_disparity,
+        speckle_window_size=config.speckle_window_size,
+        speckle_range=config.speckle_range,
+    )

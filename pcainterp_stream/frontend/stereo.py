@@ -44,7 +44,8 @@ from pcainterp_stream.frontend.corners import (
     lattice_points,
     patch_contrast,
 )
-from pcainterp_stream.frontend.refine import refine_disparity
+from pcainterp_stream.frontend.refine import halved as _halved
+from pcainterp_stream.frontend.refine import refined_match
 
 __all__ = [
     "GfttConfig",
@@ -58,6 +59,7 @@ __all__ = [
     "StereoFrontEnd",
     "compute_disparity",
     "compute_right_disparity",
+    "compute_weak_disparity",
     "detect_corners",
     "lattice_points",
     "lookup_disparities",
@@ -211,17 +213,14 @@ class SgbmConfig:
             anywhere else; one whose match would lie left of it (out of the right camera's
             view) can only match the padding: a disparity d > x is removed. Costs
             (W + band) / W of the matching time.
-        near_at_half: match the far half of the disparity range at full resolution and the
-            whole range at half resolution, and take the half-resolution value where it
-            lies in the near half (from :data:`NEAR_MARGIN` px below the far range's end):
-            ~0.75x the matching time of the whole range at full resolution. Measured for
-            dense mode and not its default (docs/dense.md): better on KITTI's real truth,
-            worse on scenes with many close surfaces (synthetic drives). With
-            ``downscale=1`` and at least 32 disparities only.
+        near_at_half: match the far half of the range at full resolution, the whole range
+            at half resolution, and take the latter's value where it lies in the near half
+            (from :data:`NEAR_MARGIN` px below the far range's end): ~0.75x the time;
+            measured for dense mode, not its default (docs/dense.md). ``downscale=1`` and
+            at least 32 disparities only.
         refine_range: 0, or a positive multiple of 8 (px): match the whole range at half
             resolution, warp the right image by that map and match again at full
-            resolution within +-``refine_range`` px of it (:mod:`.refine`): ~0.55x the
-            time of the whole range at full resolution with 8 px; ``downscale=1`` only.
+            resolution within +-``refine_range`` px of it (:mod:`.refine`); ``downscale=1``.
     """
 
     min_disparity: int = 0
@@ -371,13 +370,6 @@ def _match(
     return disparity
 
 
-def _halved(image: UInt8Array) -> UInt8Array:
-    """Return ``image`` at half resolution (INTER_AREA, odd sizes rounded up)."""
-    height, width = image.shape
-    size = (-(-width // 2), -(-height // 2))
-    return np.asarray(cv2.resize(image, size, interpolation=cv2.INTER_AREA), np.uint8)
-
-
 def _upsampled(disparity: FloatArray, height: int, width: int) -> FloatArray:
     """Upsample a map to (height, width), values scaled by the width ratio (NaN spreads)."""
     # Pixel-centre aligned upsampling; a NaN spreads to every output it touches.
@@ -386,34 +378,13 @@ def _upsampled(disparity: FloatArray, height: int, width: int) -> FloatArray:
     return np.asarray(upsampled, np.float32) * scale
 
 
-def _sgbm_refined(left: UInt8Array, right: UInt8Array, config: SgbmConfig) -> FloatArray:
-    """``SgbmConfig.refine_range``: half resolution, refined at full resolution near it."""
-    coarse_config = replace(config, downscale=2, refine_range=0, near_at_half=False)
-    coarse = _match(_halved(left), _halved(right), coarse_config.matched(), config.full_width)
-    reach = config.refine_range
-    residual_config = replace(
-        config,
-        min_disparity=-reach,
-        num_disparities=2 * reach,
-        speckle_window_size=0,
-        full_width=False,
-        near_at_half=False,
-        refine_range=0,
-    )
-
-    def residual(image: UInt8Array, warped: UInt8Array) -> npt.NDArray[np.int16]:
-        return np.asarray(_matcher(residual_config).compute(image, warped), np.int16)
-
-    return refine_disparity(
-        left,
-        right,
-        coarse,
-        residual,
-        reach=reach,
-        min_disparity=config.min_disparity,
-        speckle_window_size=config.speckle_window_size,
-        speckle_range=config.speckle_range,
-    )
+def _sgbm_weak(
+    left: UInt8Array, right: UInt8Array, config: SgbmConfig
+) -> tuple[FloatArray, npt.NDArray[np.bool_] | None]:
+    """:func:`_sgbm_grey` and the map's weak pixels (``refine_range`` only, else None)."""
+    if config.refine_range and config.downscale == 1:
+        return refined_match(left, right, config, _match, _matcher)
+    return _sgbm_grey(left, right, config), None
 
 
 def _sgbm_grey(left: UInt8Array, right: UInt8Array, config: SgbmConfig) -> FloatArray:
@@ -429,7 +400,7 @@ def _sgbm_grey(left: UInt8Array, right: UInt8Array, config: SgbmConfig) -> Float
         far[near] = whole[near]
         return far
     if config.refine_range and config.downscale == 1:
-        return _sgbm_refined(left, right, config)
+        return refined_match(left, right, config, _match, _matcher).disparity
     if config.downscale == 1:
         return _match(left, right, config, config.full_width)
     coarse = _match(_halved(left), _halved(right), config.matched(), config.full_width)
@@ -462,6 +433,14 @@ def compute_disparity(
     """
     grey_left, grey_right = to_grey8_pair(left, right)
     return _sgbm_grey(grey_left, grey_right, config)
+
+
+def compute_weak_disparity(
+    left: npt.NDArray[Any], right: npt.NDArray[Any], config: SgbmConfig
+) -> tuple[FloatArray, npt.NDArray[np.bool_] | None]:
+    """:func:`compute_disparity` and its weak pixels (``Measurements.weak``)."""
+    grey_left, grey_right = to_grey8_pair(left, right)
+    return _sgbm_weak(grey_left, grey_right, config)
 
 
 def compute_right_disparity(
@@ -834,12 +813,15 @@ class Measurements(NamedTuple):
         disparities: (k,) float32 disparities (px).
         disparity_map: (H, W) float32 SGBM left disparity map (px), NaN where invalid.
         counts: corners found, lookups kept and rejected by reason.
+        weak: (H, W) bool, valid pixels whose value is less sure than a matched pixel's
+            (``SgbmConfig.refine_range`` only: :class:`.refine.Refined`), else None.
     """
 
     pixels: FloatArray
     disparities: FloatArray
     disparity_map: FloatArray
     counts: RejectionCounts
+    weak: npt.NDArray[np.bool_] | None = None
 
 
 @dataclass(frozen=True)
@@ -882,7 +864,7 @@ class StereoFrontEnd:
             ValueError: if the images differ in shape or dtype or are not images.
         """
         grey_left, grey_right = to_grey8_pair(left, right)
-        disparity_map = _sgbm_grey(grey_left, grey_right, self.sgbm)
+        disparity_map, weak = _sgbm_weak(grey_left, grey_right, self.sgbm)
         right_map = None
         if self.lr_check:
             flipped = _sgbm_grey(_flip(grey_right), _flip(grey_left), self.sgbm)
@@ -895,4 +877,4 @@ class StereoFrontEnd:
             min_x=self.sgbm.valid_min_x,
             right_disparity=right_map,
         )
-        return Measurements(found.pixels, found.disparities, disparity_map, found.counts)
+        return Measurements(found.pixels, found.disparities, disparity_map, found.counts, weak)

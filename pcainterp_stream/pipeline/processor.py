@@ -136,7 +136,7 @@ class ProcessorConfig:
             SGBM map, the default) or ``"dense"`` (that estimate then fused, pixel by pixel,
             with the whole SGBM map: :mod:`~pcainterp_stream.estimate.dense`; stereo
             source only; ``densify --measurements dense`` pairs it with
-            ``sgbm=frontend.matchers.DENSE_SGBM``).
+            ``sgbm=frontend.matchers.REFINED_DENSE_SGBM``).
         dense: the noise model of dense mode.
         batch_size: frames densified together (matrix-matrix products).
         lookahead: frames queued for stereo matching ahead of densification; at least
@@ -533,7 +533,7 @@ class FrameProcessor:
                 disparity_map = measurements.disparity_map
                 # the fusion's part that needs no estimate, here in parallel, not in the
                 # sequential densify thread
-                holes = find_holes(disparity_map)
+                holes = find_holes(disparity_map, measurements.weak)
             elif self.config.edge_aware:  # an edge-aware local prior's cells, beside SGBM
                 size, basis_grid = frame.camera.image_size, self.basis.grid_size
                 partition = Partition.along(measurements.disparity_map, pixels, size, basis_grid)

@@ -191,3 +191,35 @@ def test_holes_of_another_map_are_refused() -> None:
         fuse_dense(field_estimate(field), sgbm, holes=find_holes(sgbm[:, :4]))
     with pytest.raises(ValueError, match="map"):
         find_holes(sgbm[0])
+
+
+@settings(max_examples=examples(40), deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), weak_std=st.floats(0.0, 10.0))
+def test_weak_pixels_keep_their_value_and_widen_their_std(seed: int, weak_std: float) -> None:
+    # a matcher's weak pixels are fused as any matched pixel; only their std grows, by
+    # weak_std in quadrature; holes and the other pixels do not move
+    rng = np.random.default_rng(seed)
+    field = rng.uniform(3, 60, (6, 9)).astype(np.float32)
+    sgbm = (field + rng.uniform(-3, 3, field.shape)).astype(np.float32)
+    sgbm[rng.random(field.shape) < 0.3] = np.nan
+    weak = rng.random(field.shape) < 0.4
+    model = DenseModel(weak_std=weak_std)
+    plain = fuse_dense(field_estimate(field), sgbm, model)
+    marked = fuse_dense(field_estimate(field), sgbm, model, holes=find_holes(sgbm, weak))
+    np.testing.assert_array_equal(marked.disparity, plain.disparity)
+    assert plain.disparity_std is not None
+    assert marked.disparity_std is not None
+    widened = weak & np.isfinite(sgbm)
+    np.testing.assert_array_equal(marked.disparity_std[~widened], plain.disparity_std[~widened])
+    expected = np.sqrt(np.square(plain.disparity_std[widened]) + np.float32(weak_std**2))
+    np.testing.assert_allclose(marked.disparity_std[widened], expected, rtol=1e-6)
+    np.testing.assert_array_equal(find_holes(sgbm, weak).weak, np.flatnonzero(widened))
+    assert find_holes(sgbm).weak.size == 0
+
+
+def test_weak_pixels_of_another_shape_and_a_negative_weak_std_are_refused() -> None:
+    sgbm = np.full((4, 5), 19.0, np.float32)
+    with pytest.raises(ValueError, match="weak"):
+        find_holes(sgbm, np.zeros((4, 4), bool))
+    with pytest.raises(ValueError, match="weak_std"):
+        DenseModel(weak_std=-1.0)

@@ -15,7 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from pcainterp_stream.frontend.refine import fill_rows
+from pcainterp_stream.frontend.refine import TEXTURELESS, fill_rows, textureless
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     LookupMethod,
@@ -23,6 +23,7 @@ from pcainterp_stream.frontend.stereo import (
     StereoFrontEnd,
     compute_disparity,
     compute_right_disparity,
+    compute_weak_disparity,
     detect_corners,
     lattice_points,
     lookup_disparities,
@@ -476,6 +477,50 @@ def test_half_resolution_refined_at_full_resolution(
     np.testing.assert_array_equal(
         compute_disparity(left, right, replace(refined_config, downscale=2)), half
     )
+
+
+def test_refined_map_removes_textureless_pixels_and_marks_weak_ones(
+    pair: tuple[npt.NDArray[Any], ...],
+) -> None:
+    left, right, _truth = pair
+    config = SgbmConfig(num_disparities=32, full_width=True, refine_range=8)
+    # a blank square (the sky, a white wall) in both images, on the farther surface
+    blank_left, blank_right = left.copy(), right.copy()
+    blank_left[20:60, 40:100] = 128
+    blank_right[20:60, 40 - 10 : 100 - 10] = 128
+    disparity, weak = compute_weak_disparity(blank_left, blank_right, config)
+    assert weak is not None
+    assert weak.shape == disparity.shape
+    half = cv2.resize(blank_left, (WIDTH // 2, HEIGHT // 2), interpolation=cv2.INTER_AREA)
+    flat = textureless(half).repeat(2, axis=0).repeat(2, axis=1)
+    assert flat[30:50, 50:90].all()  # the blank square's inside, at least
+    assert not np.isfinite(disparity[flat]).any()
+    # the textured rest keeps its values; the map is compute_disparity's
+    np.testing.assert_array_equal(disparity, compute_disparity(blank_left, blank_right, config))
+    assert np.isfinite(disparity[~flat]).mean() > 0.8
+    # weak pixels are valid ones, found next to the half-resolution map's holes (the
+    # nearer rectangle's occlusion edge and the blank square), a small share of the map
+    assert not weak[~np.isfinite(disparity)].any()
+    assert 0 < weak.sum() < 0.25 * np.isfinite(disparity).sum()
+    # other matchers mark none
+    assert compute_weak_disparity(left, right, replace(config, refine_range=0))[1] is None
+    measured = StereoFrontEnd(gftt=GFTT, sgbm=config).measure(blank_left, blank_right)
+    assert measured.weak is not None
+    np.testing.assert_array_equal(measured.weak, weak)
+    assert StereoFrontEnd(gftt=GFTT, sgbm=SGBM).measure(left, right).weak is None
+
+
+def test_textureless_is_the_mean_gradient_below_the_threshold() -> None:
+    rng = np.random.default_rng(3)
+    image = np.full((40, 60), 100, np.uint8)
+    image[:, 30:] = rng.integers(0, 255, (40, 30), dtype=np.uint8)
+    found = textureless(image)
+    assert found[:, :20].all()
+    assert not found[:, 40:].any()
+    # a ramp of one grey level per px (8 through the 3x3 Sobel's weights) is texture
+    ramp = np.tile(np.arange(60, dtype=np.uint8), (40, 1))
+    assert TEXTURELESS < 8
+    assert not textureless(ramp)[:, 4:-4].any()
 
 
 @pytest.mark.parametrize(

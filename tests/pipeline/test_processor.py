@@ -480,15 +480,15 @@ def test_dense_holes_found_in_the_stereo_workers_change_nothing(
     find_holes = processor_module.find_holes
     found: list[int] = []
 
-    def counted(disparity_map: np.ndarray) -> object:
+    def counted(disparity_map: np.ndarray, weak: np.ndarray | None = None) -> object:
         found.append(1)
-        return find_holes(disparity_map)
+        return find_holes(disparity_map, weak)
 
     monkeypatch.setattr(processor_module, "find_holes", counted)
     with FrameProcessor(config=config) as dense_processor:
         ahead = list(dense_processor.process(frames))
     assert len(found) == len(frames)
-    monkeypatch.setattr(processor_module, "find_holes", lambda disparity_map: None)
+    monkeypatch.setattr(processor_module, "find_holes", lambda disparity_map, weak: None)
     with FrameProcessor(config=config) as dense_processor:
         alone = list(dense_processor.process(frames))
     for one, other in zip(ahead, alone, strict=True):
