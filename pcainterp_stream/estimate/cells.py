@@ -65,11 +65,21 @@ class Cells:
             ys: (m,) float64, y in px of that image.
             image_size: the image the cell grid spans (at any resolution).
         """
-        rows, cols = self.labels.shape
-        column = _node(xs, image_size[1], cols)
-        row = _node(ys, image_size[0], rows)
+        row, column = self.nodes(xs, ys, image_size)
         cells: npt.NDArray[np.int64] = self.labels.take(row, axis=0).take(column, axis=1)
         return cells
+
+    def nodes(
+        self, xs: npt.NDArray[np.float64], ys: npt.NDArray[np.float64], image_size: tuple[int, int]
+    ) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+        """Return the cell-grid row of each of ``ys`` and the column of each of ``xs``."""
+        rows, cols = self.labels.shape
+        return _node(ys, image_size[0], rows), _node(xs, image_size[1], cols)
+
+    def node_members(self) -> npt.NDArray[np.int64]:
+        """Return (m, rows, cols) int64: each node's cell's r-th measurement, -1 past the last."""
+        members: npt.NDArray[np.int64] = self.members[:, self.labels.reshape(-1)]
+        return members.reshape(-1, *self.labels.shape)
 
 
 @dataclass(frozen=True, eq=False)

@@ -124,8 +124,17 @@ class LocalPrior:
                 products with the image, which run in float32 anyway.
         """
         gap = (at[None, :] - positions[:, None]).astype(dtype, copy=False)
+        return self.factor(gap)
+
+    def factor(self, gap: npt.NDArray[Any]) -> npt.NDArray[Any]:
+        """Return the 1-D kernel factor k(gap) elementwise, computed in ``gap`` (overwritten).
+
+        ``gap``: a float32 or float64 array of coordinate differences (basis px) the caller
+        owns; the result is that array.
+        """
+        dtype = gap.dtype.type
         if self.kernel is Kernel.LAPLACE:
-            gap = np.abs(gap)
+            np.abs(gap, out=gap)
             gap *= dtype(-1.0 / self.length_scale)
         else:
             gap *= dtype(1.0 / self.length_scale)

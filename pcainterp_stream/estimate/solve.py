@@ -7,7 +7,6 @@ triangular-BLAS helpers they share.
 from __future__ import annotations
 
 import functools
-from collections.abc import Iterator
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any, TypeVar
@@ -379,72 +378,115 @@ def _local_mean(
         coefficient = (scale * local.prior.variance * (1.0 - weight) * local.alpha).astype(
             np.float32
         )
-        flat = dense.reshape(-1)
-        for at, j, values in _cell_pairs(local, ys, xs, basis_image):
-            values *= coefficient.take(j)
-            if at.size == flat.size:  # rank 0 over the whole grid: at is every point
-                flat += values
-            else:
-                flat[at] += values
+        dense += _own_cell_mean(local, ys, xs, basis_image, coefficient)
     return dense
 
 
-def _cell_pairs(
+def _own_cell_mean(
     local: _Local,
     ys: npt.NDArray[np.float64],
     xs: npt.NDArray[np.float64],
     basis_image: tuple[int, int],
-) -> Iterator[tuple[npt.NDArray[np.intp], npt.NDArray[np.int64], npt.NDArray[np.float32]]]:
-    """The points x of rows ys x columns xs paired with the measurements of their own cell.
+    coefficient: npt.NDArray[np.float32],
+) -> npt.NDArray[np.float32]:
+    """Return sum over j in cell(x) of coefficient_j k(x - p_j) at points x of rows ys x columns xs.
 
-    Yields, per rank r, (at, j, k(x - p_j)): the flat indices (row-major) of the points
-    whose cell has an r-th measurement, that measurement j, and the kernel between them;
-    ys and xs in basis-image px. A cell holds one measurement but where several share a
-    cell-grid node (none where its seed is not among the measurements), so after rank 0
-    (usually every point) few are left.
+    Returns (len(ys), len(xs)) float32; ys and xs in basis-image px. The cells are constant
+    on each node of the cell grid, so the kernel's factors are evaluated per node, not per
+    point: with j(R, C) the first measurement of node (R, C)'s cell, the term is
+    coefficient_j k_y(y - y_j) k_x(x - x_j) with k_y one factor per row y and node column C
+    and k_x one per node row R and column x, gathered to the points (a few passes over
+    them, no loop). The cells holding further measurements (carried ones sharing a seed's
+    cell, or several measurements on one node) are few: those are added node block by
+    node block.
     """
     cells = local.cells
     assert cells is not None
-    cell = cells.at(xs, ys, basis_image)
-    position_x = np.ascontiguousarray(local.positions[:, 0])
-    position_y = np.ascontiguousarray(local.positions[:, 1])
-    for rank, members in enumerate(cells.members):
-        j = np.where(cell >= 0, members.take(np.maximum(cell, 0)), -1)
-        if rank == 0 and j.min() >= 0:  # every point's cell has one: no index arithmetic
-            values = local.prior.pointwise(
-                xs[None, :] - position_x.take(j), ys[:, None] - position_y.take(j)
-            )
-            yield np.arange(cell.size), j.reshape(-1), values.reshape(-1)
-            continue
-        at = np.flatnonzero(j >= 0)
-        if not at.size:
-            return
-        j = j.reshape(-1)[at]
-        row, column = np.divmod(at, xs.size)
-        values = local.prior.pointwise(
-            xs.take(column) - position_x.take(j), ys.take(row) - position_y.take(j)
+    node_row, node_column = cells.nodes(xs, ys, basis_image)
+    members = cells.node_members()  # (m, R, C)
+    position_x = local.positions[:, 0]
+    position_y = local.positions[:, 1]
+    first = members[0]
+    present = first >= 0  # a cell whose seed was dropped has no measurement
+    j = np.where(present, first, 0)
+    weight = np.where(present, coefficient.take(j), np.float32(0.0))
+    # (len(ys), C): k_y(y - y_j(R(y), C)), times the node's coefficient
+    along_y = local.prior.factor(
+        (ys[:, None] - position_y.take(j).take(node_row, axis=0)).astype(np.float32)
+    )
+    along_y *= weight.take(node_row, axis=0)
+    # (R, len(xs)): k_x(x - x_j(R, C(x)))
+    along_x = local.prior.factor(
+        (xs[None, :] - position_x.take(j).take(node_column, axis=1)).astype(np.float32)
+    )
+    own: npt.NDArray[np.float32] = along_y.take(node_column, axis=1)
+    own *= along_x.take(node_row, axis=0)
+    rank, row, column = np.nonzero(members[1:] >= 0)
+    if rank.size:
+        j = members[1:][rank, row, column]
+        rows_of, row_valid = _spans(node_row, members.shape[1])  # (R, bh)
+        columns_of, column_valid = _spans(node_column, members.shape[2])  # (C, bw)
+        at_row = rows_of.take(row, axis=0)  # (P, bh)
+        at_column = columns_of.take(column, axis=0)  # (P, bw)
+        block_y = local.prior.factor(
+            (ys.take(at_row) - position_y.take(j)[:, None]).astype(np.float32)
         )
-        yield at, j, values
+        block_y *= np.where(row_valid.take(row, axis=0), coefficient.take(j)[:, None], 0)
+        block_x = local.prior.factor(
+            (xs.take(at_column) - position_x.take(j)[:, None]).astype(np.float32)
+        )
+        block_x *= column_valid.take(column, axis=0)
+        values = block_y[:, :, None] * block_x[:, None, :]
+        flat = at_row[:, :, None] * xs.size + at_column[:, None, :]
+        np.add.at(own.reshape(-1), flat.reshape(-1), values.reshape(-1))
+    return own
 
 
-def _keep_own_cells(
+def _spans(
+    node: npt.NDArray[np.intp], count: int
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.bool_]]:
+    """The points of each of ``count`` nodes along an axis, padded: (count, n) indices and mask.
+
+    ``node`` (non-decreasing) is the node of each point; a node's points are consecutive.
+    Padding repeats the node's first point (or point 0) and is masked False.
+    """
+    sizes = np.bincount(node, minlength=count)
+    starts = np.cumsum(sizes) - sizes
+    offsets = np.arange(max(int(sizes.max(initial=0)), 1))
+    valid = offsets < sizes[:, None]
+    indices = np.where(valid, starts[:, None] + offsets, np.minimum(starts, node.size - 1)[:, None])
+    return indices.astype(np.intp), valid
+
+
+def _cross_covariance(
     local: _Local,
-    covariance: npt.NDArray[np.float32],
     ys: npt.NDArray[np.float64],
     xs: npt.NDArray[np.float64],
     basis_image: tuple[int, int],
-) -> None:
-    """Scale c(P, x) (k, len(ys) * len(xs)) in place by w except within each x's own cell.
+) -> npt.NDArray[np.float32]:
+    """c(P, x) (k, len(ys) * len(xs)) float32 at the points x of rows ys x columns xs.
 
-    C(p_j, x) = v k(p_j - x) [w + (1 - w) 1{same cell}]: v k itself where j is in x's cell.
+    ``ys`` and ``xs`` are basis-image px; the separable kernel is one outer product per
+    measurement. The edge-aware kernel, C(p_j, x) = v k(p_j - x) [w + (1 - w) 1{same
+    cell}], is that product scaled by w, with v k itself at the pairs of x and the
+    measurements of its own cell (about one per point).
     """
+    along_y = local.prior.axis(local.positions[:, 1], ys, np.float32)
+    along_x = local.prior.axis(local.positions[:, 0], xs, np.float32)
+    variance = np.float32(local.prior.variance)
+    k = local.alpha.size
     if local.cells is None:
-        return
-    own = [(j, at) for at, j, _ in _cell_pairs(local, ys, xs, basis_image)]
-    kept = [covariance[rows, columns] for rows, columns in own]
-    covariance *= np.float32(local.prior.cell_weight)
-    for (rows, columns), values in zip(own, kept, strict=True):
-        covariance[rows, columns] = values
+        product = along_y[:, :, None] * along_x[:, None, :] * variance
+        covariance: npt.NDArray[np.float32] = product.reshape(k, ys.size * xs.size)
+        return covariance
+    scaled = along_y * np.float32(local.prior.variance * local.prior.cell_weight)
+    covariance = (scaled[:, :, None] * along_x[:, None, :]).reshape(k, ys.size * xs.size)
+    members = local.cells.members[:, local.cells.at(xs, ys, basis_image).reshape(-1)]
+    rank, at = np.nonzero(members >= 0)
+    j = members[rank, at]
+    row, column = np.divmod(at, xs.size)
+    covariance[j, at] = along_y[j, row] * along_x[j, column] * variance
+    return covariance
 
 
 def _local_covariance(
@@ -453,14 +495,7 @@ def _local_covariance(
     """c(P, x) for x on the variance grid, (k, s_v) float32."""
     ys = _image_coordinates(vgrid_size[0], basis_image[0])
     xs = _image_coordinates(vgrid_size[1], basis_image[1])
-    along_y = local.prior.axis(local.positions[:, 1], ys, np.float32)
-    along_x = local.prior.axis(local.positions[:, 0], xs, np.float32)
-    product = along_y[:, :, None] * along_x[:, None, :] * np.float32(local.prior.variance)
-    covariance: npt.NDArray[np.float32] = product.reshape(
-        local.alpha.size, vgrid_size[0] * vgrid_size[1]
-    )
-    _keep_own_cells(local, covariance, ys, xs, basis_image)
-    return covariance
+    return _cross_covariance(local, ys, xs, basis_image)
 
 
 @functools.cache
