@@ -74,12 +74,7 @@ class Cells:
     ) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
         """Return the cell-grid row of each of ``ys`` and the column of each of ``xs``."""
         rows, cols = self.labels.shape
-        return _node(ys, image_size[0], rows), _node(xs, image_size[1], cols)
-
-    def node_members(self) -> npt.NDArray[np.int64]:
-        """Return (m, rows, cols) int64: each node's cell's r-th measurement, -1 past the last."""
-        members: npt.NDArray[np.int64] = self.members[:, self.labels.reshape(-1)]
-        return members.reshape(-1, *self.labels.shape)
+        return node_along(ys, image_size[0], rows), node_along(xs, image_size[1], cols)
 
 
 @dataclass(frozen=True, eq=False)
@@ -148,18 +143,23 @@ class Partition:
         return Cells(self.labels, point_cells, members)
 
 
-def _node(coordinates: npt.NDArray[np.float64], size: int, count: int) -> npt.NDArray[np.intp]:
-    """The node (0 .. count - 1) of a grid of ``count`` cells over ``size`` px holding px."""
+def node_along(coordinates: npt.NDArray[np.float64], size: int, count: int) -> npt.NDArray[np.intp]:
+    """Return the node (0 .. count - 1) of each coordinate (px) on ``count`` nodes over ``size`` px.
+
+    Non-decreasing in the coordinates.
+    """
     node = np.floor((coordinates + 0.5) * (count / size)).astype(np.intp)
-    return np.clip(node, 0, count - 1)
+    np.maximum(node, 0, out=node)
+    np.minimum(node, count - 1, out=node)
+    return node
 
 
 def _flat_nodes(
     pixels: npt.NDArray[np.float64], image_size: tuple[int, int], grid: tuple[int, int]
 ) -> npt.NDArray[np.intp]:
     """The flat node index (row * cols + col) of the grid node holding each pixel (x, y)."""
-    column = _node(pixels[:, 0], image_size[1], grid[1])
-    row = _node(pixels[:, 1], image_size[0], grid[0])
+    column = node_along(pixels[:, 0], image_size[1], grid[1])
+    row = node_along(pixels[:, 1], image_size[0], grid[0])
     flat: npt.NDArray[np.intp] = row * grid[1] + column
     return flat
 
