@@ -269,11 +269,14 @@ def _relax(
     d(j) <- min(d(j), min over i <= j of d(i) + position(j) - position(i)), the label of
     the minimising i coming along (the last one on ties: a node keeps its own on a tie).
     """
+    rows, cols = distance.shape
     shifted = distance - position
     running = np.minimum.accumulate(shifted, axis=1)
-    source = np.where(shifted <= running, np.arange(shifted.shape[1]), 0)
+    source = np.where(shifted <= running, np.arange(cols, dtype=np.int32), np.int32(0))
     np.maximum.accumulate(source, axis=1, out=source)
     candidate = running + position
     better = candidate < distance
     np.copyto(distance, candidate, where=better)
-    np.copyto(labels, np.take_along_axis(labels, source, axis=1), where=better)
+    # the labels at the sources, as one flat gather (row-major over the view)
+    source += (np.arange(rows, dtype=np.int32) * np.int32(cols))[:, None]
+    np.copyto(labels, labels.reshape(-1).take(source), where=better)
