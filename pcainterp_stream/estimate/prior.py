@@ -209,11 +209,15 @@ class LocalPrior:
         fx = self.axis(positions[:, 0], positions[:, 0], np.float32)
         fy = self.axis(positions[:, 1], positions[:, 1], np.float32)
         fx *= fy
-        if point_cells is not None and self.edge_aware:
-            same = point_cells[:, None] == point_cells
-            fx *= np.where(same, np.float32(1.0), np.float32(self.cell_weight))
         matrix: FloatArray = fx.astype(np.float64)
-        matrix *= self.variance
+        if point_cells is None or not self.edge_aware:
+            matrix *= self.variance
+            return matrix
+        # w everywhere, then v k itself back at the pairs within a cell (about k of them)
+        first, second = same_cell_pairs(point_cells)
+        kept = matrix[first, second]
+        matrix *= self.variance * self.cell_weight
+        matrix[first, second] = kept * self.variance
         return matrix
 
     def to_meta(self) -> dict[str, Any]:
@@ -236,6 +240,20 @@ class LocalPrior:
             kernel=Kernel(str(meta.get("kernel", Kernel.LAPLACE.value))),
             cell_weight=float(meta.get("cell_weight", 1.0)),
         )
+
+
+def same_cell_pairs(
+    point_cells: npt.NDArray[np.int64],
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """Return (i, j) of every ordered pair of measurements in one cell, (i, i) included."""
+    order = np.argsort(point_cells, kind="stable")
+    ordered = point_cells[order]
+    start = np.searchsorted(ordered, ordered, side="left")
+    size = np.searchsorted(ordered, ordered, side="right") - start
+    first = np.repeat(np.arange(ordered.size), size)
+    offset = np.arange(first.size) - np.repeat(np.cumsum(size) - size, size)
+    second = np.repeat(start, size) + offset
+    return order[first], order[second]
 
 
 @dataclass
