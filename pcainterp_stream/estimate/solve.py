@@ -474,9 +474,9 @@ def _own_cell_mean(
     spill = np.empty(out_size[0] * out_size[1] + 1, np.float32)
     own: npt.NDArray[np.float32] = spill[:-1].reshape(out_size)
     np.multiply(along_y[:, nodes.column], along_x[nodes.row], out=own)
-    if cells.members.shape[0] > 1:
-        later = cells.members[1:]  # (m - 1, cells)
-        holding = np.flatnonzero(later[0].take(labels) >= 0)  # nodes of such cells
+    later = cells.members[1:]  # (m - 1, cells)
+    holding = np.flatnonzero(later[0].take(labels) >= 0) if later.size else later  # their nodes
+    if holding.size:
         extra = later[:, labels.take(holding)].reshape(-1)  # (m - 1) x len(holding)
         pair = np.flatnonzero(extra >= 0)
         j = extra.take(pair)
