@@ -120,6 +120,7 @@ STAGES: list[tuple[Any, str, str]] = [
     (stereo, "patch_contrast", "  lattice contrast"),
     (stereo, "_lookup", "  lookups"),
     (processor, "estimate_motion", "  odometry"),
+    (processor.Partition, "along", "  edge-aware partition"),
     (processor, "_prepare", "densify thread: set-up"),
     (processor.FrameProcessor, "_warm_up", "densify thread: fit check"),
     (processor.FrameProcessor, "_measurements", "densify thread: carried points"),

@@ -271,7 +271,7 @@ def _relax(
     """
     rows, cols = distance.shape
     shifted = distance - position
-    running = np.minimum.accumulate(shifted, axis=1)
+    running = np.fmin.accumulate(shifted, axis=1)  # as minimum (no NaN here), faster
     source = np.where(shifted <= running, np.arange(cols, dtype=np.int32), np.int32(0))
     np.maximum.accumulate(source, axis=1, out=source)
     candidate = running + position
