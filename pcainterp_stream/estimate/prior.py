@@ -144,7 +144,8 @@ class LocalPrior:
         # Left alone, far factors and their products with alpha land in float32's
         # subnormal range, where multiplies and the GEMM with them run many times slower
         np.maximum(gap, dtype(_CLAMP_BELOW), out=gap)
-        return np.exp(gap, out=gap)
+        values: npt.NDArray[Any] = np.exp(gap, out=gap)
+        return values
 
     def pointwise(self, dx: npt.NDArray[Any], dy: npt.NDArray[Any]) -> npt.NDArray[np.float32]:
         """Return k(dx) k(dy) elementwise (float32), the product of two :meth:`axis` factors."""
