@@ -404,7 +404,7 @@ class _Nodes:
     blocks: npt.NDArray[np.intp]
 
 
-@functools.lru_cache(maxsize=16)
+@functools.lru_cache(maxsize=4)
 def _nodes(
     out_size: tuple[int, int], basis_image: tuple[int, int], cell_grid: tuple[int, int]
 ) -> _Nodes:
