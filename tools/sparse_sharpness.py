@@ -26,6 +26,7 @@ Variants change the corner options (``gftt``), the matcher's (``sgbm``) or the b
 basis's fitted prior (``prior``: its local kernel, its noise sigma).
 
     python tools/sparse_sharpness.py --variants corners400 default --timing
+    python tools/sparse_sharpness.py --variants default edge_aware --sources odometry --pool-timing
 """
 
 from __future__ import annotations
@@ -451,6 +452,59 @@ def estimate_seconds(
     return best
 
 
+def pool_seconds(
+    items: list[tuple[StereoFrame, Array]],
+    configs: list[ProcessorConfig],
+    bases: list[Basis | None],
+    rounds: int = 5,
+) -> list[list[float]]:
+    """CPU seconds per frame of the estimate pool's own batches, per configuration and round.
+
+    Each configuration's job runs once through the frame processor (fit check, carried
+    points and all), its estimate batches (``densify_batch`` calls) recorded; then the
+    batches are replayed in one thread, one BLAS thread, the configurations in turns for
+    ``rounds`` rounds. Unlike :func:`estimate_seconds` the cells then hold carried points
+    too, as in a job.
+    """
+    import copy
+
+    from threadpoolctl import threadpool_limits
+
+    from pcainterp_stream.estimate.estimator import densify_batch
+    from pcainterp_stream.pipeline import processor
+
+    recorded: list[list[tuple[Basis, Any, Any, dict[str, Any]]]] = []
+    for config, basis in zip(configs, bases, strict=True):
+        batches: list[tuple[Basis, Any, Any, dict[str, Any]]] = []
+
+        def recording(
+            basis: Basis,
+            pixels: Any,
+            disparities: Any,
+            batches: list[tuple[Basis, Any, Any, dict[str, Any]]] = batches,
+            **options: Any,
+        ) -> Any:
+            batches.append((basis, copy.deepcopy(pixels), copy.deepcopy(disparities), options))
+            return densify_batch(basis, pixels, disparities, **options)
+
+        setattr(processor, "densify_batch", recording)  # noqa: B010
+        try:
+            with FrameProcessor(basis, config) as job:
+                list(job.process([frame for frame, _ in items]))
+        finally:
+            setattr(processor, "densify_batch", densify_batch)  # noqa: B010
+        recorded.append(batches)
+    seconds: list[list[float]] = [[] for _ in configs]
+    with threadpool_limits(1):
+        for _ in range(rounds):
+            for index, batches in enumerate(recorded):
+                started = time.thread_time()
+                for basis, pixels, disparities, options in batches:
+                    densify_batch(basis, pixels, disparities, **copy.copy(options))
+                seconds[index].append((time.thread_time() - started) / len(items))
+    return seconds
+
+
 def _partition(measured: Any, image_size: tuple[int, int], grid: tuple[int, int]) -> Any:
     """The partition a stereo worker makes of a frame along its SGBM map (cells.Partition)."""
     from pcainterp_stream.estimate.cells import Partition
@@ -490,6 +544,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--kitti-frames", type=int, default=40)
     parser.add_argument(
         "--timing", action="store_true", help="also time the estimate alone per variant"
+    )
+    parser.add_argument(
+        "--pool-timing",
+        action="store_true",
+        help="also time the estimate pool's own batches (carried points included), "
+        "replayed per variant in turns",
     )
     parser.add_argument(
         "--geodesic",
@@ -562,6 +622,19 @@ def main(argv: list[str] | None = None) -> int:
                     for v, t in zip(args.variants, seconds, strict=True)
                 )
                 + f"; partition (stereo worker) {1000 * partition_seconds(items):.2f}",
+                flush=True,
+            )
+        if args.pool_timing:
+            configs = [_variant_config(v) for v in args.variants]
+            bases = [_variant_basis(v) for v in args.variants]
+            rounds = pool_seconds(items, configs, bases)
+            first_rounds = np.array(rounds[0])
+            print(
+                "estimate pool CPU ms/frame (median of rounds; ratio per round, median): "
+                + ", ".join(
+                    f"{v} {1000 * np.median(r):.1f} ({np.median(np.array(r) / first_rounds):.3f}x)"
+                    for v, r in zip(args.variants, rounds, strict=True)
+                ),
                 flush=True,
             )
     return 0

@@ -42,6 +42,7 @@ from typing import Any
 import harness
 
 from pcainterp_stream.cli import app
+from pcainterp_stream.estimate import cells
 from pcainterp_stream.frontend import stereo
 from pcainterp_stream.pipeline import processor
 
@@ -120,6 +121,7 @@ STAGES: list[tuple[Any, str, str]] = [
     (stereo, "patch_contrast", "  lattice contrast"),
     (stereo, "_lookup", "  lookups"),
     (processor, "estimate_motion", "  odometry"),
+    (cells.Partition, "along", "  edge-aware partition"),
     (processor, "_prepare", "densify thread: set-up"),
     (processor.FrameProcessor, "_warm_up", "densify thread: fit check"),
     (processor.FrameProcessor, "_measurements", "densify thread: carried points"),

@@ -65,11 +65,16 @@ class Cells:
             ys: (m,) float64, y in px of that image.
             image_size: the image the cell grid spans (at any resolution).
         """
-        rows, cols = self.labels.shape
-        column = _node(xs, image_size[1], cols)
-        row = _node(ys, image_size[0], rows)
+        row, column = self.nodes(xs, ys, image_size)
         cells: npt.NDArray[np.int64] = self.labels.take(row, axis=0).take(column, axis=1)
         return cells
+
+    def nodes(
+        self, xs: npt.NDArray[np.float64], ys: npt.NDArray[np.float64], image_size: tuple[int, int]
+    ) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+        """Return the cell-grid row of each of ``ys`` and the column of each of ``xs``."""
+        rows, cols = self.labels.shape
+        return node_along(ys, image_size[0], rows), node_along(xs, image_size[1], cols)
 
 
 @dataclass(frozen=True, eq=False)
@@ -138,18 +143,23 @@ class Partition:
         return Cells(self.labels, point_cells, members)
 
 
-def _node(coordinates: npt.NDArray[np.float64], size: int, count: int) -> npt.NDArray[np.intp]:
-    """The node (0 .. count - 1) of a grid of ``count`` cells over ``size`` px holding px."""
+def node_along(coordinates: npt.NDArray[np.float64], size: int, count: int) -> npt.NDArray[np.intp]:
+    """Return the node (0 .. count - 1) of each coordinate (px) on ``count`` nodes over ``size`` px.
+
+    Non-decreasing in the coordinates.
+    """
     node = np.floor((coordinates + 0.5) * (count / size)).astype(np.intp)
-    return np.clip(node, 0, count - 1)
+    np.maximum(node, 0, out=node)
+    np.minimum(node, count - 1, out=node)
+    return node
 
 
 def _flat_nodes(
     pixels: npt.NDArray[np.float64], image_size: tuple[int, int], grid: tuple[int, int]
 ) -> npt.NDArray[np.intp]:
     """The flat node index (row * cols + col) of the grid node holding each pixel (x, y)."""
-    column = _node(pixels[:, 0], image_size[1], grid[1])
-    row = _node(pixels[:, 1], image_size[0], grid[0])
+    column = node_along(pixels[:, 0], image_size[1], grid[1])
+    row = node_along(pixels[:, 1], image_size[0], grid[0])
     flat: npt.NDArray[np.intp] = row * grid[1] + column
     return flat
 
@@ -259,11 +269,14 @@ def _relax(
     d(j) <- min(d(j), min over i <= j of d(i) + position(j) - position(i)), the label of
     the minimising i coming along (the last one on ties: a node keeps its own on a tie).
     """
+    rows, cols = distance.shape
     shifted = distance - position
-    running = np.minimum.accumulate(shifted, axis=1)
-    source = np.where(shifted <= running, np.arange(shifted.shape[1]), 0)
+    running = np.fmin.accumulate(shifted, axis=1)  # as minimum (no NaN here), faster
+    source = np.where(shifted <= running, np.arange(cols, dtype=np.int32), np.int32(0))
     np.maximum.accumulate(source, axis=1, out=source)
     candidate = running + position
     better = candidate < distance
     np.copyto(distance, candidate, where=better)
-    np.copyto(labels, np.take_along_axis(labels, source, axis=1), where=better)
+    # the labels at the sources, as one flat gather (row-major over the view)
+    source += (np.arange(rows, dtype=np.int32) * np.int32(cols))[:, None]
+    np.copyto(labels, labels.reshape(-1).take(source), where=better)

@@ -124,8 +124,17 @@ class LocalPrior:
                 products with the image, which run in float32 anyway.
         """
         gap = (at[None, :] - positions[:, None]).astype(dtype, copy=False)
+        return self.factor(gap)
+
+    def factor(self, gap: npt.NDArray[Any]) -> npt.NDArray[Any]:
+        """Return the 1-D kernel factor k(gap) elementwise, computed in ``gap`` (overwritten).
+
+        ``gap``: a float32 or float64 array of coordinate differences (basis px) the caller
+        owns; the result is that array.
+        """
+        dtype = gap.dtype.type
         if self.kernel is Kernel.LAPLACE:
-            gap = np.abs(gap)
+            np.abs(gap, out=gap)
             gap *= dtype(-1.0 / self.length_scale)
         else:
             gap *= dtype(1.0 / self.length_scale)
@@ -135,7 +144,8 @@ class LocalPrior:
         # Left alone, far factors and their products with alpha land in float32's
         # subnormal range, where multiplies and the GEMM with them run many times slower
         np.maximum(gap, dtype(_CLAMP_BELOW), out=gap)
-        return np.exp(gap, out=gap)
+        values: npt.NDArray[Any] = np.exp(gap, out=gap)
+        return values
 
     def pointwise(self, dx: npt.NDArray[Any], dy: npt.NDArray[Any]) -> npt.NDArray[np.float32]:
         """Return k(dx) k(dy) elementwise (float32), the product of two :meth:`axis` factors."""
@@ -200,11 +210,15 @@ class LocalPrior:
         fx = self.axis(positions[:, 0], positions[:, 0], np.float32)
         fy = self.axis(positions[:, 1], positions[:, 1], np.float32)
         fx *= fy
-        if point_cells is not None and self.edge_aware:
-            same = point_cells[:, None] == point_cells
-            fx *= np.where(same, np.float32(1.0), np.float32(self.cell_weight))
         matrix: FloatArray = fx.astype(np.float64)
-        matrix *= self.variance
+        if point_cells is None or not self.edge_aware:
+            matrix *= self.variance
+            return matrix
+        # w everywhere, then v k itself back at the pairs within a cell (about k of them)
+        first, second = same_cell_pairs(point_cells)
+        kept = matrix[first, second]
+        matrix *= self.variance * self.cell_weight
+        matrix[first, second] = kept * self.variance
         return matrix
 
     def to_meta(self) -> dict[str, Any]:
@@ -227,6 +241,20 @@ class LocalPrior:
             kernel=Kernel(str(meta.get("kernel", Kernel.LAPLACE.value))),
             cell_weight=float(meta.get("cell_weight", 1.0)),
         )
+
+
+def same_cell_pairs(
+    point_cells: npt.NDArray[np.int64],
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """Return (i, j) of every ordered pair of measurements in one cell, (i, i) included."""
+    order = np.argsort(point_cells, kind="stable")
+    ordered = point_cells[order]
+    start = np.searchsorted(ordered, ordered, side="left")
+    size = np.searchsorted(ordered, ordered, side="right") - start
+    first = np.repeat(np.arange(ordered.size), size)
+    offset = np.arange(first.size) - np.repeat(np.cumsum(size) - size, size)
+    second = np.repeat(start, size) + offset
+    return order[first], order[second]
 
 
 @dataclass

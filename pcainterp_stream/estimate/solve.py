@@ -6,8 +6,8 @@ triangular-BLAS helpers they share.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
-from collections.abc import Iterator
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any, TypeVar
@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.compiled import hold_scipy_blas_at_one_thread, one_blas_thread_when_loaded
-from pcainterp_stream.estimate.cells import Cells
+from pcainterp_stream.estimate.cells import Cells, node_along
 from pcainterp_stream.estimate.lapack import routines
 from pcainterp_stream.estimate.prior import (
     DOWNWEIGHTED_BELOW,
@@ -356,12 +356,17 @@ def _local_mean(
     xs = _image_coordinates(width, basis_image[1])
     support = local.prior.support()
     blocks = _LOCAL_BLOCKS if _LOCAL_BLOCKS * 2.0 * support < basis_image[1] else 1
+    # the edge-aware kernel: w times the stationary part plus (1 - w) times each point's
+    # own cell's, sum over j in cell(x) of v alpha_j k(x - p_j)
+    weight = 1.0 if local.cells is None else local.prior.cell_weight
     # short kernels: columns in blocks, each with only the measurements within the
     # kernel's support of it (sorted by x); the terms left out are < 4e-18 of the peak
     order = np.argsort(local.positions[:, 0], kind="stable")
     position_x = local.positions[order, 0]
     along_y = local.prior.axis(local.positions[order, 1], ys, np.float32)  # (k, H)
-    along_y *= (scale * local.prior.variance * local.alpha[order]).astype(np.float32)[:, None]
+    along_y *= (scale * local.prior.variance * weight * local.alpha[order]).astype(np.float32)[
+        :, None
+    ]
     dense = np.zeros(out_size, dtype=np.float32)
     step = -(-width // blocks)
     for start in range(0, width, step):
@@ -372,79 +377,171 @@ def _local_mean(
             along_x = local.prior.axis(position_x[first:last], columns, np.float32)
             dense[:, start : start + step] = along_y[first:last].T @ along_x
     if local.cells is not None:
-        # edge-aware kernel: w times the stationary part plus (1 - w) times each pixel's
-        # own cell's, sum over j in cell(x) of v alpha_j k(x - p_j)
-        weight = local.prior.cell_weight
-        dense *= np.float32(weight)
-        coefficient = (scale * local.prior.variance * (1.0 - weight) * local.alpha).astype(
-            np.float32
-        )
-        flat = dense.reshape(-1)
-        for at, j, values in _cell_pairs(local, ys, xs, basis_image):
-            values *= coefficient.take(j)
-            if at.size == flat.size:  # rank 0 over the whole grid: at is every point
-                flat += values
-            else:
-                flat[at] += values
+        coefficient = scale * local.prior.variance * (1.0 - weight) * local.alpha
+        dense += _own_cell_mean(local, out_size, basis_image, coefficient.astype(np.float32))
     return dense
 
 
-def _cell_pairs(
-    local: _Local,
-    ys: npt.NDArray[np.float64],
-    xs: npt.NDArray[np.float64],
-    basis_image: tuple[int, int],
-) -> Iterator[tuple[npt.NDArray[np.intp], npt.NDArray[np.int64], npt.NDArray[np.float32]]]:
-    """The points x of rows ys x columns xs paired with the measurements of their own cell.
+@dataclass(frozen=True, eq=False)
+class _Nodes:
+    """Where the points of a grid (rows ys x columns xs) fall on a cell grid (R, C).
 
-    Yields, per rank r, (at, j, k(x - p_j)): the flat indices (row-major) of the points
-    whose cell has an r-th measurement, that measurement j, and the kernel between them;
-    ys and xs in basis-image px. A cell holds one measurement but where several share a
-    cell-grid node (none where its seed is not among the measurements), so after rank 0
-    (usually every point) few are left.
+    Attributes:
+        ys, xs: the points' rows and columns (basis-image px).
+        row, column: (len(ys),), (len(xs),) the cell-grid row of each y, column of each x.
+        row_ys: (R, bh) the ys of each cell-grid row's points (padded by repetition).
+        column_xs: (C, bw) the xs of each cell-grid column's points (padded likewise).
+        blocks: (R * C, bh * bw) intp, the flat index (row-major) of each node's points,
+            len(ys) * len(xs) (one past the last) at the padding.
+    """
+
+    ys: npt.NDArray[np.float64]
+    xs: npt.NDArray[np.float64]
+    row: npt.NDArray[np.intp]
+    column: npt.NDArray[np.intp]
+    row_ys: npt.NDArray[np.float64]
+    column_xs: npt.NDArray[np.float64]
+    blocks: npt.NDArray[np.intp]
+
+
+@functools.lru_cache(maxsize=4)
+def _nodes(
+    out_size: tuple[int, int], basis_image: tuple[int, int], cell_grid: tuple[int, int]
+) -> _Nodes:
+    """The :class:`_Nodes` of the grid ``out_size`` spanning the basis image (cached)."""
+    ys = _image_coordinates(out_size[0], basis_image[0])
+    xs = _image_coordinates(out_size[1], basis_image[1])
+    row = node_along(ys, basis_image[0], cell_grid[0])
+    column = node_along(xs, basis_image[1], cell_grid[1])
+    rows_of, row_valid = _spans(row, cell_grid[0])
+    columns_of, column_valid = _spans(column, cell_grid[1])
+    # (R, C, bh, bw): the flat index of each node's points
+    blocks = (rows_of * out_size[1])[:, None, :, None] + columns_of[None, :, None, :]
+    valid = row_valid[:, None, :, None] & column_valid[None, :, None, :]
+    blocks = np.where(valid, blocks, out_size[0] * out_size[1])
+    nodes = _Nodes(
+        ys=ys,
+        xs=xs,
+        row=row,
+        column=column,
+        row_ys=ys.take(rows_of),
+        column_xs=xs.take(columns_of),
+        blocks=blocks.reshape(cell_grid[0] * cell_grid[1], -1),
+    )
+    for array in dataclasses.astuple(nodes):
+        if isinstance(array, np.ndarray):
+            array.flags.writeable = False
+    return nodes
+
+
+def _own_cell_mean(
+    local: _Local,
+    out_size: tuple[int, int],
+    basis_image: tuple[int, int],
+    coefficient: npt.NDArray[np.float32],
+) -> npt.NDArray[np.float32]:
+    """Return sum over j in cell(x) of coefficient_j k(x - p_j) at the points of a grid.
+
+    Returns ``out_size`` float32, the grid spanning the basis image pixel-centre aligned.
+    The cells are constant on each node of the cell grid, so the kernel's factors are
+    evaluated per node, not per point: with j(R, C) the first measurement of node (R, C)'s
+    cell, the term is coefficient_j k_y(y - y_j) k_x(x - x_j), k_y one factor per row y
+    and node column C, k_x one per node row R and column x, gathered to the points (a few
+    passes over them, no loop). Few cells hold further measurements (carried ones in a
+    seed's cell, several measurements on one node): their nodes are added block by block.
     """
     cells = local.cells
     assert cells is not None
-    cell = cells.at(xs, ys, basis_image)
-    position_x = np.ascontiguousarray(local.positions[:, 0])
-    position_y = np.ascontiguousarray(local.positions[:, 1])
-    for rank, members in enumerate(cells.members):
-        j = np.where(cell >= 0, members.take(np.maximum(cell, 0)), -1)
-        if rank == 0 and j.min() >= 0:  # every point's cell has one: no index arithmetic
-            values = local.prior.pointwise(
-                xs[None, :] - position_x.take(j), ys[:, None] - position_y.take(j)
-            )
-            yield np.arange(cell.size), j.reshape(-1), values.reshape(-1)
-            continue
-        at = np.flatnonzero(j >= 0)
-        if not at.size:
-            return
-        j = j.reshape(-1)[at]
-        row, column = np.divmod(at, xs.size)
-        values = local.prior.pointwise(
-            xs.take(column) - position_x.take(j), ys.take(row) - position_y.take(j)
+    grid = cells.labels.shape
+    nodes = _nodes(out_size, basis_image, (grid[0], grid[1]))
+    labels = cells.labels.reshape(-1)
+    position_x = local.positions[:, 0]
+    position_y = local.positions[:, 1]
+    first = cells.members[0].take(labels).reshape(grid)
+    present = first >= 0  # a cell whose seed was dropped has no measurement
+    j = np.where(present, first, 0)
+    weight = np.where(present, coefficient.take(j), np.float32(0.0))
+    # (len(ys), C): k_y(y - y_j(R(y), C)), times the node's coefficient
+    along_y = local.prior.factor(
+        (nodes.ys[:, None] - position_y.take(j).take(nodes.row, axis=0)).astype(np.float32)
+    )
+    along_y *= weight.take(nodes.row, axis=0)
+    # (R, len(xs)): k_x(x - x_j(R, C(x)))
+    along_x = local.prior.factor(
+        (nodes.xs[None, :] - position_x.take(j).take(nodes.column, axis=1)).astype(np.float32)
+    )
+    # one spare element past the points: the later ranks' padding adds there
+    spill = np.empty(out_size[0] * out_size[1] + 1, np.float32)
+    own: npt.NDArray[np.float32] = spill[:-1].reshape(out_size)
+    np.multiply(along_y[:, nodes.column], along_x[nodes.row], out=own)
+    later = cells.members[1:]  # (m - 1, cells)
+    holding = np.flatnonzero(later[0].take(labels) >= 0) if later.size else later  # their nodes
+    if holding.size:
+        extra = later[:, labels.take(holding)].reshape(-1)  # (m - 1) x len(holding)
+        pair = np.flatnonzero(extra >= 0)
+        j = extra.take(pair)
+        node = holding.take(pair % holding.size)
+        row, column = np.divmod(node, grid[1])
+        block_y = local.prior.factor(
+            (nodes.row_ys.take(row, axis=0) - position_y.take(j)[:, None]).astype(np.float32)
         )
-        yield at, j, values
+        block_y *= coefficient.take(j)[:, None]
+        block_x = local.prior.factor(
+            (nodes.column_xs.take(column, axis=0) - position_x.take(j)[:, None]).astype(np.float32)
+        )
+        # each node's block of points, row by row (padding: a spare point past the last)
+        height, width = block_y.shape[1], block_x.shape[1]
+        values = np.repeat(block_y, width, axis=1)
+        values *= np.tile(block_x, (1, height))
+        np.add.at(spill, nodes.blocks.take(node, axis=0).reshape(-1), values.reshape(-1))
+    return own
 
 
-def _keep_own_cells(
+def _spans(
+    node: npt.NDArray[np.intp], count: int
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.bool_]]:
+    """The points of each of ``count`` nodes along an axis, padded: (count, n) indices and mask.
+
+    ``node`` (non-decreasing) is the node of each point; a node's points are consecutive.
+    Padding repeats the node's first point (or point 0) and is masked False.
+    """
+    sizes = np.bincount(node, minlength=count)
+    starts = np.cumsum(sizes) - sizes
+    offsets = np.arange(max(int(sizes.max(initial=0)), 1))
+    valid = offsets < sizes[:, None]
+    indices = np.where(valid, starts[:, None] + offsets, np.minimum(starts, node.size - 1)[:, None])
+    return indices.astype(np.intp), valid
+
+
+def _cross_covariance(
     local: _Local,
-    covariance: npt.NDArray[np.float32],
     ys: npt.NDArray[np.float64],
     xs: npt.NDArray[np.float64],
     basis_image: tuple[int, int],
-) -> None:
-    """Scale c(P, x) (k, len(ys) * len(xs)) in place by w except within each x's own cell.
+) -> npt.NDArray[np.float32]:
+    """c(P, x) (k, len(ys) * len(xs)) float32 at the points x of rows ys x columns xs.
 
-    C(p_j, x) = v k(p_j - x) [w + (1 - w) 1{same cell}]: v k itself where j is in x's cell.
+    ``ys`` and ``xs`` are basis-image px; the separable kernel is one outer product per
+    measurement. The edge-aware kernel, C(p_j, x) = v k(p_j - x) [w + (1 - w) 1{same
+    cell}], is that product scaled by w, with v k itself at the pairs of x and the
+    measurements of its own cell (about one per point).
     """
+    along_y = local.prior.axis(local.positions[:, 1], ys, np.float32)
+    along_x = local.prior.axis(local.positions[:, 0], xs, np.float32)
+    variance = np.float32(local.prior.variance)
+    k = local.alpha.size
     if local.cells is None:
-        return
-    own = [(j, at) for at, j, _ in _cell_pairs(local, ys, xs, basis_image)]
-    kept = [covariance[rows, columns] for rows, columns in own]
-    covariance *= np.float32(local.prior.cell_weight)
-    for (rows, columns), values in zip(own, kept, strict=True):
-        covariance[rows, columns] = values
+        product = along_y[:, :, None] * along_x[:, None, :] * variance
+        covariance: npt.NDArray[np.float32] = product.reshape(k, ys.size * xs.size)
+        return covariance
+    scaled = along_y * np.float32(local.prior.variance * local.prior.cell_weight)
+    covariance = (scaled[:, :, None] * along_x[:, None, :]).reshape(k, ys.size * xs.size)
+    members = local.cells.members[:, local.cells.at(xs, ys, basis_image).reshape(-1)]
+    rank, at = np.nonzero(members >= 0)
+    j = members[rank, at]
+    row, column = np.divmod(at, xs.size)
+    covariance[j, at] = along_y[j, row] * along_x[j, column] * variance
+    return covariance
 
 
 def _local_covariance(
@@ -453,14 +550,7 @@ def _local_covariance(
     """c(P, x) for x on the variance grid, (k, s_v) float32."""
     ys = _image_coordinates(vgrid_size[0], basis_image[0])
     xs = _image_coordinates(vgrid_size[1], basis_image[1])
-    along_y = local.prior.axis(local.positions[:, 1], ys, np.float32)
-    along_x = local.prior.axis(local.positions[:, 0], xs, np.float32)
-    product = along_y[:, :, None] * along_x[:, None, :] * np.float32(local.prior.variance)
-    covariance: npt.NDArray[np.float32] = product.reshape(
-        local.alpha.size, vgrid_size[0] * vgrid_size[1]
-    )
-    _keep_own_cells(local, covariance, ys, xs, basis_image)
-    return covariance
+    return _cross_covariance(local, ys, xs, basis_image)
 
 
 @functools.cache

@@ -19,9 +19,8 @@ from pcainterp_stream.estimate.basis import (
     sample_rows,
 )
 from pcainterp_stream.estimate.solve import (
+    _cross_covariance,
     _image_coordinates,
-    _keep_own_cells,
-    _Local,
     _local_covariance,
     _lower_times,
     _Posterior,
@@ -97,7 +96,7 @@ def _variance_beyond(
         if coordinates is None:
             joint += _local_covariance(local, vgrid.size, basis_image)
         else:
-            joint += _local_covariance_at(local, *coordinates, basis_image)
+            joint += _cross_covariance(local, *coordinates, basis_image)
         projected = _lower_times(local.lower_inverse, joint)
     else:
         projected = _factor(posterior) @ vgrid.component_rows
@@ -182,25 +181,6 @@ def _variance_stride(basis: Basis, variance_stride: int | None) -> int:
         return int(variance_stride)
     grid_scale = basis.grid_size[0] / basis.image_size[0]
     return max(1, int(np.floor(grid_scale / DEFAULT_VARIANCE_GRID_SCALE + 1e-9)))
-
-
-def _local_covariance_at(
-    local: _Local,
-    ys: npt.NDArray[np.float64],
-    xs: npt.NDArray[np.float64],
-    basis_image: tuple[int, int],
-) -> npt.NDArray[np.float32]:
-    """c(P, x) (k, len(ys) * len(xs)) float32 at the points (x, y) of rows ys x columns xs.
-
-    ``ys`` and ``xs`` are basis-image px; the separable kernel is one outer product per
-    measurement, as :func:`solve._local_covariance` on a whole grid.
-    """
-    along_y = local.prior.axis(local.positions[:, 1], ys, np.float32)
-    along_x = local.prior.axis(local.positions[:, 0], xs, np.float32)
-    product = along_y[:, :, None] * along_x[:, None, :] * np.float32(local.prior.variance)
-    covariance: npt.NDArray[np.float32] = product.reshape(local.alpha.size, ys.size * xs.size)
-    _keep_own_cells(local, covariance, ys, xs, basis_image)
-    return covariance
 
 
 def _pixel_variances(

@@ -319,3 +319,32 @@ def test_a_cell_without_measurements_gets_the_stationary_part_alone() -> None:
     np.testing.assert_allclose(result.disparity, expected[0], atol=2e-3)
     assert result.disparity_std is not None
     np.testing.assert_allclose(result.disparity_std, expected[1], atol=2e-3)
+
+
+@pytest.mark.parametrize("kernel", [Kernel.LAPLACE, Kernel.GAUSSIAN])
+@pytest.mark.parametrize("length_scale", [3.0, 20.0])
+def test_cells_holding_several_measurements_on_uneven_nodes(
+    kernel: Kernel, length_scale: float
+) -> None:
+    """Measurements that are not seeds (carried ones) join a seed's cell, so cells hold
+    several; an image whose cell grid's nodes span 2 or 3 pixels (13 x 19 px on 6 x 10
+    nodes). Mean and std still equal the dense posterior's."""
+    basis = _basis(13, 19)
+    pixels, disparities = _points(basis, 16, seed=11)
+    partition = Partition.along(_edge_map(13, 19), pixels[:5], basis.image_size, basis.grid_size)
+    assert partition is not None
+    assert partition.cells(pixels).members.shape[0] >= 3  # a cell holds three or more
+    local = LocalPrior(4.0, length_scale, kernel, cell_weight=0.3)
+    result = densify_batch(
+        basis,
+        [pixels],
+        [disparities],
+        sigma=1.5,
+        local_prior=local,
+        variance_stride=1,
+        partitions=[partition],
+    )[0]
+    expected = _brute_force_cells(basis, pixels, disparities, 1.5, local, partition)
+    np.testing.assert_allclose(result.disparity, expected[0], atol=2e-3)
+    assert result.disparity_std is not None
+    np.testing.assert_allclose(result.disparity_std, expected[1], atol=2e-3)
