@@ -75,6 +75,15 @@ _CLAMP_BELOW = -40.0
 SAMPLES_PER_LENGTH = {Kernel.LAPLACE: 16.0, Kernel.GAUSSIAN: 4.0}
 """Samples per length scale for which :meth:`LocalPrior.smooth_at` holds."""
 
+SPACING_TOLERANCE = 0.01
+"""Relative slack of :meth:`LocalPrior.smooth_at`'s test.
+
+A basis grid's spacing is the image width over the grid's (1241 / 310 = 4.003 px at KITTI
+size): without slack the built-in 64 px kernel missed 16 samples by 0.07 % and its local
+part was computed on a 2 px grid, 4x the products of the basis grid, for the same maps
+(mean |disparity error| equal to 0.001 px on real truth, synthetic truth and both real
+clips; 1.2-1.7 ms less estimate CPU per KITTI frame; docs/speed_levers.md)."""
+
 
 @dataclass(frozen=True)
 class LocalPrior:
@@ -183,7 +192,8 @@ class LocalPrior:
         (1/16 of the products at the default grid scale), or on a grid 2x coarser than the
         image, resampled.
         """
-        return self.length_scale >= SAMPLES_PER_LENGTH[self.kernel] * spacing
+        wanted = SAMPLES_PER_LENGTH[self.kernel] * spacing
+        return self.length_scale >= wanted * (1.0 - SPACING_TOLERANCE)
 
     def sample_spacing(self, coarsest: float) -> float:
         """Return the largest of coarsest, coarsest / 2, ... (down to 1 px) it is smooth at.
