@@ -189,6 +189,29 @@ def _brute_force_cells(
     return estimate.reshape(height, width), np.sqrt(np.maximum(variance, 0)).reshape(height, width)
 
 
+def _assert_batch_is_dense_posterior(
+    basis: Basis,
+    pixels: np.ndarray,
+    disparities: np.ndarray,
+    local: LocalPrior,
+    partition: Partition,
+) -> None:
+    """``densify_batch`` with ``partition`` gives the dense posterior's mean and std."""
+    result = densify_batch(
+        basis,
+        [pixels],
+        [disparities],
+        sigma=1.5,
+        local_prior=local,
+        variance_stride=1,
+        partitions=[partition],
+    )[0]
+    expected = _brute_force_cells(basis, pixels, disparities, 1.5, local, partition)
+    np.testing.assert_allclose(result.disparity, expected[0], atol=2e-3)
+    assert result.disparity_std is not None
+    np.testing.assert_allclose(result.disparity_std, expected[1], atol=2e-3)
+
+
 @pytest.mark.parametrize("kernel", [Kernel.LAPLACE, Kernel.GAUSSIAN])
 @pytest.mark.parametrize("length_scale", [3.0, 20.0])  # full-size and grid local part
 @pytest.mark.parametrize("weight", [0.0, 0.4])
@@ -306,19 +329,7 @@ def test_a_cell_without_measurements_gets_the_stationary_part_alone() -> None:
     seeds = np.vstack([pixels, [[15.0, 11.0], [0.0, 11.0]]])
     partition = Partition.along(edge, seeds, basis.image_size, basis.grid_size)
     assert partition is not None
-    result = densify_batch(
-        basis,
-        [pixels],
-        [disparities],
-        sigma=1.5,
-        local_prior=local,
-        variance_stride=1,
-        partitions=[partition],
-    )[0]
-    expected = _brute_force_cells(basis, pixels, disparities, 1.5, local, partition)
-    np.testing.assert_allclose(result.disparity, expected[0], atol=2e-3)
-    assert result.disparity_std is not None
-    np.testing.assert_allclose(result.disparity_std, expected[1], atol=2e-3)
+    _assert_batch_is_dense_posterior(basis, pixels, disparities, local, partition)
 
 
 @pytest.mark.parametrize("kernel", [Kernel.LAPLACE, Kernel.GAUSSIAN])
@@ -335,16 +346,4 @@ def test_cells_holding_several_measurements_on_uneven_nodes(
     assert partition is not None
     assert partition.cells(pixels).members.shape[0] >= 3  # a cell holds three or more
     local = LocalPrior(4.0, length_scale, kernel, cell_weight=0.3)
-    result = densify_batch(
-        basis,
-        [pixels],
-        [disparities],
-        sigma=1.5,
-        local_prior=local,
-        variance_stride=1,
-        partitions=[partition],
-    )[0]
-    expected = _brute_force_cells(basis, pixels, disparities, 1.5, local, partition)
-    np.testing.assert_allclose(result.disparity, expected[0], atol=2e-3)
-    assert result.disparity_std is not None
-    np.testing.assert_allclose(result.disparity_std, expected[1], atol=2e-3)
+    _assert_batch_is_dense_posterior(basis, pixels, disparities, local, partition)
