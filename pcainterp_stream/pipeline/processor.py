@@ -104,7 +104,7 @@ RELEASE_EVERY = 250
 
 Without it a KITTI densify's resident size crept from 350 to 378 MB over 3,000 frames
 (fragmentation: holes kept resident); each release costs faulting the reused pages in
-again, a fraction of a millisecond per frame at this interval (docs/benchmarks.md)."""
+again, a fraction of a millisecond per frame at this interval (docs/speed_levers.md)."""
 
 
 @dataclass(frozen=True)
@@ -157,7 +157,7 @@ class ProcessorConfig:
             so the many full-size temporaries per frame reuse freed heap memory instead of
             page-faulting fresh ``mmap`` regions: ~15 % less CPU per frame end to end; cap
             its arenas at one per core (each keeps its high-water mark); and give the free
-            pages back every :data:`RELEASE_EVERY` frames, so memory stays flat on long logs.
+            pages back every :data:`RELEASE_EVERY` frames, so memory creeps less on long logs.
         adapt: the fit check and self-supervised adaptation (sparse measurements):
             ``"auto"`` checks the basis on the first frames against linear interpolation on
             held-out SGBM pixels; when it is a built-in one that does not fit well, the
