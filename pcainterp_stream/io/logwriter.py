@@ -35,7 +35,6 @@ import threading
 from abc import ABC, abstractmethod
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import Future
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
@@ -396,37 +395,63 @@ class LogWriter(ABC):
     def _abort_partial(self) -> None: ...
 
 
+class _Reply:
+    """The outcome of one synchronous call, handed back by the writer thread.
+
+    The caller waits on a plain lock, which a signal interrupts cleanly (a condition
+    variable's Python code can be left half-way by ``KeyboardInterrupt``).
+    """
+
+    def __init__(self) -> None:
+        self.error: BaseException | None = None
+        self.ready = threading.Lock()
+        self.ready.acquire()
+
+
 class _WriteThread:
     """One thread running a writer's work items in order, behind a bounded queue.
 
     After an error the thread keeps taking items (so the caller never blocks on a full
     queue) but runs none; :meth:`submit` and :meth:`check` raise it as a
     :class:`LogWriteError` naming the output. :meth:`call` runs one item synchronously.
+
+    The hand-off is built from single native calls (:class:`queue.SimpleQueue`, a lock)
+    rather than :class:`queue.Queue`: Ctrl-C raises ``KeyboardInterrupt`` between any two
+    lines of the caller's Python code, and one raised inside ``Queue.put``'s notify could
+    leave the writer asleep with work queued, so the clean-up that followed waited forever.
+    Here an interrupt leaves at most one slot of the bound unused.
     """
 
     def __init__(self, path: Path) -> None:
         self._path = path
-        self._queue: queue.Queue[tuple[Callable[[], None], Future[None] | None] | None] = (
-            queue.Queue(WRITE_QUEUE_ITEMS)
+        self._items: queue.SimpleQueue[tuple[Callable[[], None], _Reply | None] | None] = (
+            queue.SimpleQueue()
         )
+        self._slots: queue.SimpleQueue[None] = queue.SimpleQueue()
+        for _ in range(WRITE_QUEUE_ITEMS):
+            self._slots.put(None)
         self._error: BaseException | None = None
         self._cancelled = False
         self._thread = threading.Thread(target=self._loop, name="log-writer", daemon=True)
         self._thread.start()
 
+    def _put(self, item: tuple[Callable[[], None], _Reply | None] | None) -> None:
+        self._slots.get()  # blocks while WRITE_QUEUE_ITEMS items wait
+        self._items.put(item)
+
     def _loop(self) -> None:
         while True:
-            item = self._queue.get()
+            item = self._items.get()
+            self._slots.put(None)
             if item is None:
                 return
-            work, done = item
-            if done is not None:  # a synchronous call runs whatever happened before
+            work, reply = item
+            if reply is not None:  # a synchronous call runs whatever happened before
                 try:
                     work()
                 except BaseException as err:  # raised in the caller by call()
-                    done.set_exception(err)
-                else:
-                    done.set_result(None)
+                    reply.error = err
+                reply.ready.release()
                 continue
             if self._error is not None or self._cancelled:
                 continue
@@ -446,13 +471,15 @@ class _WriteThread:
     def submit(self, work: Callable[[], None]) -> None:
         """Queue ``work`` (blocks while the queue is full); raise an earlier error."""
         self._raise()
-        self._queue.put((work, None))
+        self._put((work, None))
 
     def call(self, work: Callable[[], None]) -> None:
         """Run ``work`` in the thread after everything queued; raise its exception."""
-        done: Future[None] = Future()
-        self._queue.put((work, done))
-        done.result()
+        reply = _Reply()
+        self._put((work, reply))
+        reply.ready.acquire()
+        if reply.error is not None:
+            raise reply.error
 
     def check(self) -> None:
         """Wait until everything queued has run; raise the first error, if any."""
@@ -466,7 +493,7 @@ class _WriteThread:
     def stop(self, *, cancel: bool = False) -> None:
         """Stop the thread once it has run (or, with ``cancel``, skipped) what is queued."""
         self._cancelled = self._cancelled or cancel
-        self._queue.put(None)
+        self._put(None)
         self._thread.join()
 
 
