@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -384,7 +385,12 @@ class StereoPairer:
         """Count what is left unpaired and return the final statistics.
 
         Call :meth:`flush` first to get held frames; frames still held are dropped here.
+
+        Raises:
+            CalibrationError: the row check, finished here, refuses the pair.
         """
+        if self._rows is not None:
+            self._rows.finish()
         self.flush()
         self.stats.unpaired_left += len(self._left)
         self.stats.unpaired_right += len(self._right)
@@ -715,24 +721,66 @@ def _size(camera: StereoCamera) -> str:
 
 
 class _RowCheck:
-    """The guard against an unrectified or swapped pair: see :attr:`PairingConfig.check_rows`."""
+    """The guard against an unrectified or swapped pair: see :attr:`PairingConfig.check_rows`.
+
+    A frame's matching (ORB corners, a RANSAC fundamental matrix: ~30-60 ms a KITTI frame,
+    in OpenCV without the interpreter lock) runs in a thread of its own while the frame goes
+    on to stereo matching; the next frame waits for it, so the check looks at the same
+    frames and decides at the same one as a check in line would. A bad pair is refused
+    when the next frame arrives, or by :meth:`finish` at the end of the stream.
+    """
 
     def __init__(self, config: PairingConfig) -> None:
         self.config = config
         self.frames = 0
         self.points: list[Any] = []
         self.done = False
+        self._pending: tuple[Future[Any], bool] | None = None
+        self._executor: ThreadPoolExecutor | None = None
 
     def see(self, left: Any, right: Any, *, rectified: bool) -> None:
-        """Add one frame's correspondences; decide once there are enough.
+        """Start matching one frame's corners, once the frame before has been decided on.
 
         Raises:
             CalibrationError: the pair does not look rectified, or looks swapped.
         """
+        self._decide()  # the frame before says whether this one is needed
         if self.done:
             return
+        if self._executor is None:
+            self._executor = ThreadPoolExecutor(1, thread_name_prefix="row-check")
+        self._pending = (self._executor.submit(rect.correspondences, left, right), rectified)
+
+    def finish(self) -> None:
+        """Decide with the last frame being matched (end of the stream).
+
+        Raises:
+            CalibrationError: the pair does not look rectified, or looks swapped.
+        """
+        try:
+            self._decide()
+        finally:
+            self._close()
+
+    def _decide(self) -> None:
+        try:
+            if self._pending is not None:
+                (future, rectified), self._pending = self._pending, None
+                self._add(future.result(), rectified=rectified)
+        finally:
+            if self.done:
+                self._close()
+
+    def _close(self) -> None:
+        self._pending = None
+        if self._executor is not None:
+            self._executor.shutdown(wait=False, cancel_futures=True)
+            self._executor = None
+
+    def _add(self, matches: Any, *, rectified: bool) -> None:
+        """Add one frame's correspondences; decide once there are enough."""
         self.frames += 1
-        self.points.append(rect.correspondences(left, right))
+        self.points.append(matches)
         points = np.concatenate(self.points)
         if points.shape[0] < ROW_CHECK_MATCHES and self.frames < ROW_CHECK_FRAMES:
             return

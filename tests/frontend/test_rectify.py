@@ -224,6 +224,7 @@ def test_guard_refuses_swapped_cameras() -> None:
     ok = _pairer()
     for i in range(6):
         assert len(_push_pair(ok, 1000 + i, left, right, calibration)) == 1
+    ok.finish()
 
 
 def test_rectified_streams_need_no_raw_calibration() -> None:
@@ -252,3 +253,35 @@ def test_rectified_streams_need_no_raw_calibration() -> None:
     assert len(frames) == 1
     assert frames[0].camera.fx == CAMERA.fx
     assert said[0].startswith("rectify auto: /cam/left/image_rect and /cam/right/image_rect")
+
+
+def test_guard_decides_at_the_same_frame_however_slow_its_matching(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The guard matches a frame's corners in a thread while the frame goes on; the verdict
+    # counts the same frames as a check in line (here the first frame's matches are enough).
+    import threading
+
+    calibration = raw_calibration(CAMERA, "plumb_bob")
+    raw = Unrectifier(calibration)(*_stereo_views())
+    ideal = rect.StereoCalibration(
+        *(
+            rect.CameraCalibration(
+                c.width, c.height, "plumb_bob", c.p[:, :3], np.zeros(5), np.eye(3), c.p
+            )
+            for c in (calibration.left, calibration.right)
+        )
+    )
+    release = threading.Event()
+    matched = rect.correspondences
+
+    def slow(left: np.ndarray, right: np.ndarray) -> np.ndarray:
+        release.wait(10.0)
+        return matched(left, right)
+
+    monkeypatch.setattr(rect, "correspondences", slow)
+    pairer = _pairer()
+    assert len(_push_pair(pairer, 1000, *raw, ideal)) == 1  # out before its rows are matched
+    release.set()
+    with pytest.raises(CalibrationError, match=r"of the first 1 frame\(s\)"):
+        _push_frames(pairer, 5, *raw, ideal)  # refused as the next frame comes
