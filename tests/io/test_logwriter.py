@@ -618,7 +618,7 @@ def test_writer_thread_still_takes_work_after_an_interrupt_at_any_line(tmp_path:
             clock.sleep(0.02)  # whatever was handed over ran; the writer waits again
             done = threading.Thread(target=writer.call, args=(lambda: None,), daemon=True)
             done.start()
-            done.join(2.0)
+            done.join(10.0)
             if done.is_alive():
                 failures.append(line)
             else:
