@@ -189,7 +189,8 @@ def test_features_move_into_the_rectified_frame() -> None:
     np.testing.assert_allclose(features.points[0], calibration.left.r @ [0, 0, 10], rtol=1e-5)
 
 
-def test_guard_refuses_a_raw_pair_declared_rectified() -> None:
+def _raw_pair_declared_rectified() -> tuple[tuple[np.ndarray, np.ndarray], rect.StereoCalibration]:
+    """Return a raw (distorted) pair and a calibration that says it is rectified."""
     calibration = raw_calibration(CAMERA, "plumb_bob")
     raw = Unrectifier(calibration)(*_stereo_views())
     ideal = rect.StereoCalibration(
@@ -200,6 +201,11 @@ def test_guard_refuses_a_raw_pair_declared_rectified() -> None:
             for c in (calibration.left, calibration.right)
         )
     )
+    return raw, ideal
+
+
+def test_guard_refuses_a_raw_pair_declared_rectified() -> None:
+    raw, ideal = _raw_pair_declared_rectified()
     pairer = _pairer()
     with pytest.raises(CalibrationError, match="does not look rectified") as err:
         _push_frames(pairer, 6, *raw, ideal)  # the guard decides by the fifth frame
@@ -262,16 +268,7 @@ def test_guard_decides_at_the_same_frame_however_slow_its_matching(
     # counts the same frames as a check in line (here the first frame's matches are enough).
     import threading
 
-    calibration = raw_calibration(CAMERA, "plumb_bob")
-    raw = Unrectifier(calibration)(*_stereo_views())
-    ideal = rect.StereoCalibration(
-        *(
-            rect.CameraCalibration(
-                c.width, c.height, "plumb_bob", c.p[:, :3], np.zeros(5), np.eye(3), c.p
-            )
-            for c in (calibration.left, calibration.right)
-        )
-    )
+    raw, ideal = _raw_pair_declared_rectified()
     release = threading.Event()
     matched = rect.correspondences
 
