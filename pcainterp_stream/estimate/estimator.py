@@ -529,19 +529,20 @@ def depth_from_disparity(
         raise ValueError(f"Expected `focal_baseline` > 0, got {focal_baseline}")
     if not min_disparity > 0:
         raise ValueError(f"Expected `min_disparity` > 0, got {min_disparity}")
+    infinity = np.float32(np.inf)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         too_far = disparity < np.float32(min_disparity)  # NaN (no estimate) is not
+        # whatever 1 / d is where d is too small, both outputs are +inf there
         inverse = np.divide(np.float32(1.0), disparity, dtype=np.float32)
-        inverse[too_far] = 0.0
         # a tiny min_disparity may overflow float32: inf
-        depth = inverse * np.float32(focal_baseline)
-        depth[too_far] = np.inf
+        depth = np.multiply(inverse, np.float32(focal_baseline))
+        np.copyto(depth, infinity, where=too_far)
         if disparity_std is None:
             return depth, None
-        inverse *= inverse
-        inverse *= np.float32(focal_baseline)
-        inverse *= disparity_std
-    inverse[too_far] = np.inf
+        np.multiply(inverse, inverse, out=inverse)
+        np.multiply(inverse, np.float32(focal_baseline), out=inverse)
+        np.multiply(inverse, disparity_std, out=inverse)
+    np.copyto(inverse, infinity, where=too_far)
     return depth, inverse
 
 
