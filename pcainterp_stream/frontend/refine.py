@@ -174,9 +174,8 @@ def refine_disparity(
     map_x = np.subtract(columns, shift)
     warped = cv2.remap(right, map_x, rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     fixed = residual(left, np.asarray(warped, np.uint8))
-    disparity = fixed.astype(np.float32)
-    disparity *= np.float32(1.0 / 16.0)
-    disparity += shift
+    # fixed / 16 + shift (the division is exact: one rounding, as in two steps)
+    disparity = np.asarray(cv2.scaleAdd(fixed.astype(np.float32), 1.0 / 16.0, shift), np.float32)
     # kept (255): a residual inside the small range, not at its ends ...
     kept = np.asarray(cv2.inRange(fixed, (1 - reach) * 16, (reach - 2) * 16), np.uint8)
     # ... and a disparity in [min_disparity, x] (a larger one matches left of the right image)
@@ -186,7 +185,8 @@ def refine_disparity(
     weak |= cv2.inRange(fixed, 1 - far, far - 1) == 0  # |residual| >= WEAK_RESIDUAL
     if speckle_window_size > 0:
         marker = (min_disparity - 1) * 16
-        sixteenths = np.rint(disparity * 16.0).astype(np.int16)
+        # rounded half to even, as np.rint (x 16 is exact)
+        sixteenths = np.asarray(cv2.multiply(disparity, 16.0, dtype=cv2.CV_16S), np.int16)
         sixteenths[removed] = marker
         cv2.filterSpeckles(sixteenths, marker, speckle_window_size, speckle_range * 16)
         removed |= sixteenths == marker
