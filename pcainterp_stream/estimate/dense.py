@@ -144,7 +144,7 @@ def find_holes(disparity_map: npt.ArrayLike, weak: npt.NDArray[np.bool_] | None 
     Raises:
         ValueError: the map is not 2-D, or ``weak`` is not of its shape.
     """
-    values = np.asarray(disparity_map, dtype=np.float32)
+    values = np.ascontiguousarray(disparity_map, dtype=np.float32)
     if values.ndim != 2:
         raise ValueError(f"Expected an (H, W) disparity map, got shape {values.shape}")
     if weak is not None and weak.shape != values.shape:
@@ -205,8 +205,8 @@ def fuse_dense(
     hole_mean, hole_variance = _holes(holes, hole_field, hole_prior, model)
     # the matched pixels band by band (the temporaries stay in the cache); the holes' values
     # computed there are replaced below
-    disparity = np.empty_like(field)
-    std = None if estimate.disparity_std is None else np.empty_like(field)
+    disparity = np.empty(field.shape, np.float32)  # C order: written through ravel() below
+    std = None if estimate.disparity_std is None else np.empty(field.shape, np.float32)
     for top in range(0, field.shape[0], BAND_ROWS):
         rows = slice(top, top + BAND_ROWS)
         _fuse_matched(
@@ -444,8 +444,8 @@ def directional_neighbours(
         (the pixel itself when it is valid: distance 0); distance ``inf`` (value 0) where
         there is none.
     """
-    array = np.asarray(values, dtype=np.float32)
-    valid = np.asarray(valid, dtype=bool)
+    array = np.ascontiguousarray(values, dtype=np.float32)
+    valid = np.ascontiguousarray(valid, dtype=bool)
     if array.shape != valid.shape or array.ndim != 2:
         raise ValueError(f"Expected values and valid of one (H, W) shape, got {array.shape}")
     flat, at_holes = _hole_neighbours(array, ~valid)
