@@ -185,8 +185,10 @@ def refine_disparity(
     weak |= cv2.inRange(fixed, 1 - far, far - 1) == 0  # |residual| >= WEAK_RESIDUAL
     if speckle_window_size > 0:
         marker = (min_disparity - 1) * 16
-        # rounded half to even, as np.rint (x 16 is exact)
-        sixteenths = np.asarray(cv2.multiply(disparity, 16.0, dtype=cv2.CV_16S), np.int16)
+        # 16 x disparity (+ 0 x disparity), exact, rounded half to even as np.rint
+        sixteenths = np.asarray(
+            cv2.addWeighted(disparity, 16.0, disparity, 0.0, 0.0, dtype=cv2.CV_16S), np.int16
+        )
         sixteenths[removed] = marker
         cv2.filterSpeckles(sixteenths, marker, speckle_window_size, speckle_range * 16)
         removed |= sixteenths == marker
