@@ -346,6 +346,8 @@ def _hole_neighbours(
     """
     height, width = hole.shape
     flat = np.flatnonzero(hole)
+    if flat.size == 0:  # no holes (or no pixels): nothing to look for
+        return flat, [(np.zeros(0, np.float32), np.zeros(0, np.float32)) for _ in range(4)]
     found = _along_rows(flat, values.ravel(), hole)
     hole_t = np.asarray(cv2.transpose(hole.view(np.uint8)), np.uint8).view(bool)
     _, first, past = _runs(hole_t)  # a column's runs: first row, one past the last

@@ -85,6 +85,13 @@ def test_directional_neighbours_of_a_map_taller_than_int16() -> None:
     assert np.isinf(up[1][:, 2]).all()
 
 
+@pytest.mark.parametrize("shape", [(0, 5), (5, 0), (3, 4)])
+def test_a_map_without_holes_has_no_neighbours_to_find(shape: tuple[int, int]) -> None:
+    holes = find_holes(np.ones(shape, np.float32))
+    assert holes.index.size == 0
+    assert [(value.size, distance.size) for value, distance in holes.neighbours] == [(0, 0)] * 4
+
+
 def test_valid_pixels_keep_sgbm_and_a_wrong_match_is_pulled_back() -> None:
     rng = np.random.default_rng(2)
     field = rng.uniform(10, 40, (20, 30)).astype(np.float32)
