@@ -51,6 +51,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 
@@ -143,7 +144,7 @@ def find_holes(disparity_map: npt.ArrayLike, weak: npt.NDArray[np.bool_] | None 
     Raises:
         ValueError: the map is not 2-D, or ``weak`` is not of its shape.
     """
-    values = np.asarray(disparity_map, dtype=np.float32)
+    values = np.ascontiguousarray(disparity_map, dtype=np.float32)
     if values.ndim != 2:
         raise ValueError(f"Expected an (H, W) disparity map, got shape {values.shape}")
     if weak is not None and weak.shape != values.shape:
@@ -194,34 +195,30 @@ def fuse_dense(
     if holes.shape != field.shape:
         raise ValueError(f"Expected the holes of a {field.shape} map, got {holes.shape}")
     detail = np.float32(model.detail_std**2)
-    prior_variance: F32 = (
-        np.full(field.shape, detail, np.float32)
-        if estimate.disparity_std is None
-        else np.square(estimate.disparity_std, dtype=np.float32) + detail
-    )
     index = holes.index
     hole_field = field.ravel().take(index)
-    hole_mean, hole_variance = _holes(holes, hole_field, prior_variance.ravel().take(index), model)
-    pixel_precision = np.float32(1.0 / model.pixel_std**2)
-    # SGBM's value where it matched, the field in the holes (their weight is set below)
-    measured = values.copy()
-    measured.ravel()[index] = hole_field
-    # the disagreement (z - f) / sqrt(v_f + sigma_px^2), then its robust weight, in place
-    weight = measured - field
-    spread = prior_variance + np.float32(model.pixel_std**2)
-    weight /= np.sqrt(spread, out=spread)
-    weight = _robust_weights(weight, model.robust)
-    weight *= pixel_precision  # w / sigma_px^2
-    field_precision = np.reciprocal(prior_variance, out=prior_variance)  # 1 / v_f
-    precision = field_precision + weight
-    disparity = field * field_precision
-    measured *= weight
-    disparity += measured
-    disparity /= precision
+    if estimate.disparity_std is None:
+        hole_prior = np.full(index.shape, detail, np.float32)
+    else:
+        hole_prior = np.square(estimate.disparity_std.ravel().take(index), dtype=np.float32)
+        hole_prior += detail
+    hole_mean, hole_variance = _holes(holes, hole_field, hole_prior, model)
+    # the matched pixels band by band (the temporaries stay in the cache); the holes' values
+    # computed there are replaced below
+    disparity = np.empty(field.shape, np.float32)  # C order: written through ravel() below
+    std = None if estimate.disparity_std is None else np.empty(field.shape, np.float32)
+    for top in range(0, field.shape[0], BAND_ROWS):
+        rows = slice(top, top + BAND_ROWS)
+        _fuse_matched(
+            values[rows],
+            field[rows],
+            None if estimate.disparity_std is None else estimate.disparity_std[rows],
+            model,
+            disparity[rows],
+            None if std is None else std[rows],
+        )
     disparity.ravel()[index] = hole_mean
-    std = None
-    if estimate.disparity_std is not None:
-        std = np.sqrt(np.reciprocal(precision, out=precision), out=precision)
+    if std is not None:
         std.ravel()[index] = np.sqrt(hole_variance) * np.float32(model.hole_std_scale)
         if holes.weak.size:  # the matcher's doubt, beside the fusion's
             weak = np.square(std.ravel().take(holes.weak)) + np.float32(model.weak_std**2)
@@ -234,6 +231,45 @@ def fuse_dense(
     return dataclasses.replace(
         estimate, disparity=disparity, disparity_std=std, depth=depth, depth_std=depth_std
     )
+
+
+BAND_ROWS = 24
+"""Rows fused at a time: a KITTI-sized band's temporaries (~120 KB each) stay in the cache."""
+
+
+def _fuse_matched(
+    values: F32,
+    field: F32,
+    field_std: F32 | None,
+    model: DenseModel,
+    disparity: F32,
+    std: F32 | None,
+) -> None:
+    """The posterior of matched pixels (module docstring) into ``disparity`` and ``std``.
+
+    Elementwise over a band of rows; holes get meaningless values (or NaN).
+    """
+    detail = np.float32(model.detail_std**2)
+    prior_variance: F32 = (
+        np.full(field.shape, detail, np.float32)
+        if field_std is None
+        else np.square(field_std, dtype=np.float32) + detail
+    )
+    with np.errstate(invalid="ignore", over="ignore"):
+        # the disagreement (z - f) / sqrt(v_f + sigma_px^2), then its robust weight, in place
+        weight = values - field
+        spread = prior_variance + np.float32(model.pixel_std**2)
+        weight /= np.sqrt(spread, out=spread)
+        weight = _robust_weights(weight, model.robust)
+        weight *= np.float32(1.0 / model.pixel_std**2)  # w / sigma_px^2
+        field_precision = np.reciprocal(prior_variance, out=prior_variance)  # 1 / v_f
+        precision = field_precision + weight
+        np.multiply(field, field_precision, out=disparity)
+        weight *= values
+        disparity += weight
+        disparity /= precision
+        if std is not None:
+            np.sqrt(np.reciprocal(precision, out=precision), out=std)
 
 
 def _robust_weights(standardised: F32, robust: Robust) -> F32:
@@ -304,26 +340,68 @@ def _hole_neighbours(
     Returns (value, distance) at the holes for left, right, up and down; distance ``inf``
     (value 0) where the row or column has no valid pixel on that side. The holes of a row
     form runs; every pixel of a run shares the valid pixel just before it and just after
-    it, so the work is one pass over the mask per axis and then per hole pixel, not per
-    image pixel. Up and down are the same on the transposed mask, reordered to row-major.
+    it, so the work is one pass over the mask per axis and then per run or per hole pixel,
+    not per image pixel. Up and down are the runs of the transposed mask: their rows are
+    written into a transposed image, transposed back and read at the holes.
     """
     height, width = hole.shape
     flat = np.flatnonzero(hole)
+    if flat.size == 0:  # no holes (or no pixels): nothing to look for
+        return flat, [(np.zeros(0, np.float32), np.zeros(0, np.float32)) for _ in range(4)]
     found = _along_rows(flat, values.ravel(), hole)
-    hole_t = np.ascontiguousarray(hole.T)
+    hole_t = np.asarray(cv2.transpose(hole.view(np.uint8)), np.uint8).view(bool)
+    _, first, past = _runs(hole_t)  # a column's runs: first row, one past the last
+    length = past - first
     flat_t = np.flatnonzero(hole_t)  # the holes in column-major order
-    column = flat_t // height
-    # hole i of the column-major listing is hole order[i] of the row-major one
-    rank = np.empty(hole.size, np.int32)
-    rank[flat] = np.arange(flat.size, dtype=np.int32)
-    order = rank.take((flat_t - column * height) * width + column)
-    for value, distance in _along_rows(flat_t, np.ascontiguousarray(values.T).ravel(), hole_t):
-        value_out = np.empty_like(value)
-        distance_out = np.empty_like(distance)
-        value_out[order] = value
-        distance_out[order] = distance
-        found.append((value_out, distance_out))
+    # the rows above and below each hole, put back in row-major order by a transpose
+    if height < np.iinfo(np.int16).max:
+        rows = np.empty((flat_t.size, 2), np.int16)
+        rows[:, 0] = np.repeat(first - 1, length)
+        rows[:, 1] = np.repeat(past, length)
+        packed = np.empty((width, height), np.int32)  # both rows of a pixel in one int32
+        packed.ravel()[flat_t] = rows.view(np.int32).ravel()
+        back = np.asarray(cv2.transpose(packed), np.int32).ravel().take(flat)
+        pair = back.view(np.int16).reshape(-1, 2)
+        sides = [pair[:, 0].astype(np.intp), pair[:, 1].astype(np.intp)]
+    else:  # rows beyond int16: one transpose each
+        sides = []
+        for side in (first - 1, past):
+            image = np.empty((width, height), np.int32)
+            image.ravel()[flat_t] = np.repeat(side, length)
+            back = np.asarray(cv2.transpose(image), np.int32).ravel().take(flat)
+            sides.append(back.astype(np.intp))
+    row = flat // width
+    column_of = flat - row * width
+    flat_values = values.ravel()
+    for neighbour in sides:
+        missing = (neighbour < 0) | (neighbour >= height)
+        distance = np.abs(row - neighbour).astype(np.float32)
+        distance[missing] = np.inf
+        neighbour[missing] = 0
+        neighbour *= width
+        neighbour += column_of
+        value = flat_values.take(neighbour)
+        value[missing] = 0.0
+        found.append((value, distance))
     return flat, found
+
+
+def _runs(
+    hole: npt.NDArray[np.bool_],
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """The runs of True along the rows of ``hole``, in row-major order.
+
+    Returns each run's row, its first column and the column one past its last.
+    """
+    height, width = hole.shape
+    padded = np.zeros((height, width + 2), np.int8)
+    padded[:, 1:-1] = hole
+    change = np.diff(padded, axis=1).ravel()  # +1 where a run starts, -1 one past its end
+    starts = np.flatnonzero(change == 1)  # flat in the (H, W + 1) change image
+    row = starts // (width + 1)
+    first = starts - row * (width + 1)
+    past = np.flatnonzero(change == -1) - row * (width + 1)
+    return row, first, past
 
 
 def _along_rows(
@@ -334,25 +412,22 @@ def _along_rows(
     ``flat``: the hole pixels' flat indices (row-major), ``values`` the map, flat. Value 0
     and distance ``inf`` where the row has no valid pixel on that side.
     """
-    height, width = hole.shape
-    padded = np.zeros((height, width + 2), np.int8)
-    padded[:, 1:-1] = hole
-    change = np.diff(padded, axis=1).ravel()  # +1 where a run starts, -1 one past its end
-    starts = np.flatnonzero(change == 1)  # flat in the (H, W + 1) change image
-    row = starts // (width + 1)
-    first = starts - row * (width + 1)  # the run's first column, then one past its last
-    past = np.flatnonzero(change == -1) - row * (width + 1)
-    run = np.repeat(np.arange(starts.size), past - first)
+    width = hole.shape[1]
+    row, first, past = _runs(hole)
+    length = past - first
     row *= width
     found = []
-    for source, exists in ((row + first - 1, first > 0), (row + past, past < width)):
-        at = np.where(exists, source, 0)[run]
-        has = exists[run]
-        value = values.take(at)
-        value[~has] = 0.0
-        distance = np.abs(flat - at).astype(np.float32)
-        distance[~has] = np.inf
-        found.append((value, distance))
+    sides = ((row + first - 1, first > 0, True), (row + past, past < width, False))
+    for source, exists, left in sides:
+        missing = ~exists
+        source[missing] = 0
+        value = values.take(source)  # one per run, then one per pixel
+        value[missing] = 0.0
+        at = np.repeat(source, length)
+        gap = np.subtract(flat, at, out=at) if left else np.subtract(at, flat, out=at)
+        distance = gap.astype(np.float32)
+        distance[np.repeat(missing, length)] = np.inf
+        found.append((np.repeat(value, length), distance))
     return found
 
 
@@ -371,8 +446,8 @@ def directional_neighbours(
         (the pixel itself when it is valid: distance 0); distance ``inf`` (value 0) where
         there is none.
     """
-    array = np.asarray(values, dtype=np.float32)
-    valid = np.asarray(valid, dtype=bool)
+    array = np.ascontiguousarray(values, dtype=np.float32)
+    valid = np.ascontiguousarray(valid, dtype=bool)
     if array.shape != valid.shape or array.ndim != 2:
         raise ValueError(f"Expected values and valid of one (H, W) shape, got {array.shape}")
     flat, at_holes = _hole_neighbours(array, ~valid)

@@ -12,6 +12,7 @@ the half-resolution map's holes or far from the guide are marked weak (:class:`R
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import replace
 from typing import Any, NamedTuple
@@ -60,19 +61,24 @@ def fill_rows(disparity: FloatArray) -> FloatArray:
     without any valid value becomes 0.
     """
     height, width = disparity.shape
-    valid = np.isfinite(disparity)
-    # nearest valid column at or left of each pixel (-1: none), as a flat index
-    seen = np.where(valid, np.arange(width, dtype=np.int32), np.int32(-1))
-    np.maximum.accumulate(seen, axis=1, out=seen)
-    leading = seen < 0
-    np.maximum(seen, 0, out=seen)
-    seen += (np.arange(height, dtype=np.int32) * np.int32(width))[:, None]
-    filled = np.asarray(disparity, np.float32).ravel().take(seen)
-    # before a row's first valid pixel: that pixel's value (0 in a row without any)
-    rows = np.arange(height)
-    first = np.argmax(valid, axis=1)
-    value = np.where(valid[rows, first], disparity[rows, first], np.float32(0.0))
-    filled[leading] = np.broadcast_to(value[:, None], filled.shape)[leading]
+    filled = np.array(disparity, np.float32)
+    # the runs of missing values along the rows: +1 where one starts, -1 one past its end
+    padded = np.zeros((height, width + 2), np.int8)
+    np.logical_not(np.isfinite(filled), out=padded[:, 1:-1].view(bool))
+    change = np.diff(padded, axis=1).ravel()
+    starts = np.flatnonzero(change == 1)  # flat in the (H, W + 1) change image
+    row = starts // (width + 1)
+    first = starts - row * (width + 1)
+    past = np.flatnonzero(change == -1) - row * (width + 1)
+    row *= width
+    flat = filled.ravel()
+    # a run's value: the pixel before it, else the one after it, else 0
+    source = np.where(first > 0, row + first - 1, row + past)
+    none = (first == 0) & (past == width)
+    source[none] = 0
+    value = flat.take(source)
+    value[none] = 0.0
+    flat[padded[:, 1:-1].view(bool).ravel()] = np.repeat(value, past - first)
     return filled
 
 
@@ -99,7 +105,19 @@ class Refined(NamedTuple):
 
 def _full_size(mask: BoolArray, height: int, width: int) -> BoolArray:
     """A half-resolution mask at full resolution (each pixel its 2x2 pixels)."""
-    return np.asarray(mask.repeat(2, axis=0).repeat(2, axis=1)[:height, :width], bool)
+    doubled = cv2.resize(mask.view(np.uint8), None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
+    return np.asarray(doubled, np.uint8)[:height, :width].view(bool)
+
+
+@functools.lru_cache(maxsize=8)
+def _grid(height: int, width: int, lowest: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Read-only (H, W) float32 images of each pixel's row, its column, and ``lowest``."""
+    rows = np.repeat(np.arange(height, dtype=np.float32)[:, None], width, axis=1)
+    columns = np.repeat(np.arange(width, dtype=np.float32)[None, :], height, axis=0)
+    constant = np.full((height, width), np.float32(lowest))
+    for image in (rows, columns, constant):
+        image.flags.writeable = False
+    return rows, columns, constant
 
 
 def refine_disparity(
@@ -140,8 +158,10 @@ def refine_disparity(
     height, width = left.shape
     guide = cv2.blur(fill_rows(coarse), (REFINE_SMOOTHING, REFINE_SMOOTHING))
     scale = np.float32(width / coarse.shape[1])
-    shift = np.asarray(cv2.resize(guide, (width, height), interpolation=cv2.INTER_LINEAR))
-    shift = shift.astype(np.float32) * scale
+    shift = np.asarray(
+        cv2.resize(guide, (width, height), interpolation=cv2.INTER_LINEAR), np.float32
+    )
+    shift *= scale
     coarse_holes = np.isnan(coarse)
     holes = _full_size(coarse_holes | textureless(halved_left), height, width)
     reach_side = 2 * WEAK_HOLE_REACH + 1
@@ -150,21 +170,25 @@ def refine_disparity(
     )
     weak = _full_size(near_holes.view(bool), height, width)
     # right image warped by the guide: pixel x of the warped image is right pixel x - shift
-    map_x = np.arange(width, dtype=np.float32)[None, :] - shift
-    map_y = np.repeat(np.arange(height, dtype=np.float32)[:, None], width, axis=1)
-    warped = cv2.remap(right, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    rows, columns, lowest = _grid(height, width, min_disparity)
+    map_x = np.subtract(columns, shift)
+    warped = cv2.remap(right, map_x, rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     fixed = residual(left, np.asarray(warped, np.uint8))
-    disparity = fixed.astype(np.float32)
-    disparity *= np.float32(1.0 / 16.0)
-    disparity += shift
-    removed = holes | (fixed < (1 - reach) * 16) | (fixed > (reach - 2) * 16)
-    far = np.int16(WEAK_RESIDUAL * 16)
-    weak |= (fixed >= far) | (fixed <= -far)
-    columns = np.arange(width, dtype=np.float32)
-    removed |= (disparity > columns) | (disparity < min_disparity)
+    # fixed / 16 + shift (the division is exact: one rounding, as in two steps)
+    disparity = np.asarray(cv2.scaleAdd(fixed.astype(np.float32), 1.0 / 16.0, shift), np.float32)
+    # kept (255): a residual inside the small range, not at its ends ...
+    kept = np.asarray(cv2.inRange(fixed, (1 - reach) * 16, (reach - 2) * 16), np.uint8)
+    # ... and a disparity in [min_disparity, x] (a larger one matches left of the right image)
+    kept &= np.asarray(cv2.inRange(disparity, lowest, columns), np.uint8)
+    removed = holes | (kept == 0)
+    far = int(WEAK_RESIDUAL * 16)
+    weak |= cv2.inRange(fixed, 1 - far, far - 1) == 0  # |residual| >= WEAK_RESIDUAL
     if speckle_window_size > 0:
         marker = (min_disparity - 1) * 16
-        sixteenths = np.rint(disparity * 16.0).astype(np.int16)
+        # 16 x disparity (+ 0 x disparity), exact, rounded half to even as np.rint
+        sixteenths = np.asarray(
+            cv2.addWeighted(disparity, 16.0, disparity, 0.0, 0.0, dtype=cv2.CV_16S), np.int16
+        )
         sixteenths[removed] = marker
         cv2.filterSpeckles(sixteenths, marker, speckle_window_size, speckle_range * 16)
         removed |= sixteenths == marker

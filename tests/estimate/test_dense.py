@@ -71,6 +71,27 @@ def test_directional_neighbours_match_a_scan(
                     assert np.isinf(distance[y, x])
 
 
+def test_directional_neighbours_of_a_map_taller_than_int16() -> None:
+    # up and down of a map too tall for int16 rows are left and right of its transpose
+    rng = np.random.default_rng(5)
+    values = rng.uniform(0, 50, (np.iinfo(np.int16).max + 9, 3)).astype(np.float32)
+    valid = rng.random(values.shape) < 0.3
+    valid[:, 2] = False  # a column without any valid pixel
+    up, down = directional_neighbours(values, valid)[2:]
+    left, right = directional_neighbours(values.T, valid.T)[:2]
+    for (value, distance), (value_t, distance_t) in zip((up, down), (left, right), strict=True):
+        np.testing.assert_array_equal(value, value_t.T)
+        np.testing.assert_array_equal(distance, distance_t.T)
+    assert np.isinf(up[1][:, 2]).all()
+
+
+@pytest.mark.parametrize("shape", [(0, 5), (5, 0), (3, 4)])
+def test_a_map_without_holes_has_no_neighbours_to_find(shape: tuple[int, int]) -> None:
+    holes = find_holes(np.ones(shape, np.float32))
+    assert holes.index.size == 0
+    assert [(value.size, distance.size) for value, distance in holes.neighbours] == [(0, 0)] * 4
+
+
 def test_valid_pixels_keep_sgbm_and_a_wrong_match_is_pulled_back() -> None:
     rng = np.random.default_rng(2)
     field = rng.uniform(10, 40, (20, 30)).astype(np.float32)
@@ -149,6 +170,15 @@ def test_inputs_are_left_alone_and_outputs_are_float32() -> None:
     for array in (fused.disparity, fused.disparity_std, fused.depth, fused.depth_std):
         assert array is not None
         assert array.dtype == np.float32
+    # arrays in column-major order (a transpose's view) fuse as their row-major copies
+    transposed = dataclasses.replace(
+        estimate,
+        disparity=np.asfortranarray(field),
+        disparity_std=np.asfortranarray(estimate.disparity_std),
+    )
+    same = fuse_dense(transposed, np.asfortranarray(sgbm))
+    for name in ("disparity", "disparity_std", "depth", "depth_std"):
+        np.testing.assert_array_equal(getattr(same, name), getattr(fused, name))
         assert not any(np.shares_memory(array, given) for given in after)
 
 
