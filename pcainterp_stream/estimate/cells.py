@@ -22,6 +22,7 @@ Pure maths over arrays (docs/estimator.md, "Beyond the paper"; docs/sharper_spar
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -212,11 +213,19 @@ def geodesic_labels(
     The distance between 4-neighbours is 1 + min(|field difference|, step_cap) (1 where
     either is NaN). Raster passes relax it: along a row from the left, with P the running
     sum of the steps, d(j) <- min over i <= j of d(i) + P(j) - P(i) = P(j) + cummin(d - P)(j)
-    (one ``minimum.accumulate``; the argmin's label comes along), then from the right, then
-    along the columns. A shortest path with r turns between rows and columns is exact after
-    about r / 4 rounds; ``sweeps`` rounds are an approximation of multi-source Dijkstra,
-    exact where the paths turn few times (always on a field without edges). After one
-    round every node has a label.
+    (one ``minimum.accumulate``), from the right likewise, then along the columns. A
+    shortest path with r turns between rows and columns is exact after about r / 4 rounds;
+    ``sweeps`` rounds are an approximation of multi-source Dijkstra, exact where the paths
+    turn few times (always on a field without edges). After one round every node has a
+    label.
+
+    Each node's state is one int64 (:func:`_packed`): its distance in units of 2^-q px
+    (q <= 16: exact for SGBM's 1/16 px disparities), a tie order and its label, so a
+    minimum carries the label along and a pass is four whole-array calls. Ties go as in
+    sequential passes: a node keeps its own label, then takes the nearest source from the
+    left, then from the right. The passes from the left and from the right start from the
+    same distances and are merged by one minimum: the same labels as running them one
+    after the other, as a path from the right never gains by first going left.
 
     Args:
         field: (rows, cols) float32 disparity (px) on the grid, NaN = unknown.
@@ -229,54 +238,108 @@ def geodesic_labels(
         (rows, cols) int64, the flat index of each node's nearest seed node.
     """
     rows, cols = field.shape
+    layout = _packed((rows, cols), step_cap)
     values = field.astype(np.float64)
-    along_x = np.zeros((rows, cols))
-    np.cumsum(_steps(values[:, 1:], values[:, :-1], step_cap), axis=1, out=along_x[:, 1:])
-    along_y = np.zeros((rows, cols))
-    np.cumsum(_steps(values[1:], values[:-1], step_cap), axis=0, out=along_y[1:])
-    distance = np.full((rows, cols), np.inf)
-    labels = np.full((rows, cols), -1, np.int64)
-    distance.flat[seeds] = 0.0
-    labels.flat[seeds] = seeds
+    state = np.full((rows, cols), layout.infinite, np.int64)
+    state.flat[seeds] = seeds  # distance 0, order 0, the seed's own label
+    passes = [
+        _Pass.along(values, axis, step_cap, layout) for axis in (1, 0)
+    ]  # along the rows, then the columns
+    start = np.empty_like(state)
+    forward = np.empty_like(state)
+    backward = np.empty_like(state)
     for _ in range(sweeps):
-        for position, rotate in ((along_x, False), (along_y, True)):
-            d, lab, pos = (
-                (distance.T, labels.T, position.T) if rotate else (distance, labels, position)
-            )
-            _relax(d, lab, pos)  # forward
-            _relax(d[:, ::-1], lab[:, ::-1], -pos[:, ::-1])  # backward: distances from the end
+        for step in passes:
+            np.bitwise_and(state, layout.clear_order, out=start)
+            np.add(start, step.forward_key, out=forward)
+            np.minimum.accumulate(forward, axis=step.axis, out=forward)
+            forward += step.position
+            np.add(start, step.backward_key, out=backward)
+            reverse = backward[:, ::-1] if step.axis == 1 else backward[::-1]
+            np.minimum.accumulate(reverse, axis=step.axis, out=reverse)
+            backward -= step.position
+            np.minimum(forward, backward, out=state)
+    labels: npt.NDArray[np.int64] = state & np.int64(layout.label_mask)
     return labels
 
 
-def _steps(
-    a: npt.NDArray[np.float64], b: npt.NDArray[np.float64], cap: float
-) -> npt.NDArray[np.float64]:
-    """Step costs 1 + min(|a - b|, cap), 1 where either is NaN."""
-    with np.errstate(invalid="ignore"):
-        step = np.minimum(np.abs(a - b), cap)
-    step[np.isnan(step)] = 0.0
-    step += 1.0
-    return step
+@dataclass(frozen=True)
+class _Layout:
+    """The bits of a node's state in :func:`geodesic_labels`.
 
-
-def _relax(
-    distance: npt.NDArray[np.float64],
-    labels: npt.NDArray[np.int64],
-    position: npt.NDArray[np.float64],
-) -> None:
-    """One pass along axis 1 (in place; the arrays may be flipped or transposed views).
-
-    d(j) <- min(d(j), min over i <= j of d(i) + position(j) - position(i)), the label of
-    the minimising i coming along (the last one on ties: a node keeps its own on a tie).
+    state = (distance * 2^quantum) * 2^low + order * 2^label_bits + label, low =
+    label_bits + order bits; the distance may be negative inside a pass (d - P), which
+    two's complement keeps clear of the low bits.
     """
-    rows, cols = distance.shape
-    shifted = distance - position
-    running = np.fmin.accumulate(shifted, axis=1)  # as minimum (no NaN here), faster
-    source = np.where(shifted <= running, np.arange(cols, dtype=np.int32), np.int32(0))
-    np.maximum.accumulate(source, axis=1, out=source)
-    candidate = running + position
-    better = candidate < distance
-    np.copyto(distance, candidate, where=better)
-    # the labels at the sources, as one flat gather (row-major over the view)
-    source += (np.arange(rows, dtype=np.int32) * np.int32(cols))[:, None]
-    np.copyto(labels, labels.reshape(-1).take(source), where=better)
+
+    quantum: int
+    label_bits: int
+    low: int
+    infinite: int
+    clear_order: np.int64
+    label_mask: int
+
+
+def _packed(shape: tuple[int, int], step_cap: float) -> _Layout:
+    """The :class:`_Layout` for a grid ``shape`` (raises ValueError past int64's range)."""
+    rows, cols = shape
+    label_bits = max(rows * cols - 1, 1).bit_length()
+    order_bits = (2 * max(rows, cols)).bit_length()
+    low = label_bits + order_bits
+    longest = (rows + cols) * (1.0 + step_cap)  # no shortest path is longer
+    # values range over -longest .. infinite + longest, infinite = 4 longest
+    quantum = min(16, 62 - low - math.ceil(math.log2(6.0 * longest)))
+    if quantum < 0:
+        raise ValueError(f"Expected a cell grid of at most ~10^5 nodes a side, got {shape}")
+    order_mask = ((1 << order_bits) - 1) << label_bits
+    return _Layout(
+        quantum=quantum,
+        label_bits=label_bits,
+        low=low,
+        infinite=(math.ceil(4.0 * longest) << quantum) << low,
+        clear_order=np.int64(~order_mask),
+        label_mask=(1 << label_bits) - 1,
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class _Pass:
+    """The constants of :func:`geodesic_labels`' passes along one axis (both ways).
+
+    Attributes:
+        axis: 1 along the rows, 0 along the columns.
+        position: P, the running sum of the step costs along the axis, packed (int64).
+        forward_key: order(i) - P(i): from the left, the nearest source (largest i) wins a
+            tie, order = count - 1 - i.
+        backward_key: order(i) + P(i): from the right the smallest i wins, order = count + i,
+            after any source from the left.
+    """
+
+    axis: int
+    position: npt.NDArray[np.int64]
+    forward_key: npt.NDArray[np.int64]
+    backward_key: npt.NDArray[np.int64]
+
+    @classmethod
+    def along(
+        cls, values: npt.NDArray[np.float64], axis: int, step_cap: float, layout: _Layout
+    ) -> _Pass:
+        """The pass along ``axis`` of the field ``values`` (float64, NaN unknown)."""
+        count = values.shape[axis]
+        ahead, behind = (values[:, 1:], values[:, :-1]) if axis == 1 else (values[1:], values[:-1])
+        step = np.subtract(ahead, behind)
+        np.abs(step, out=step)
+        np.minimum(step, step_cap, out=step)  # NaN stays NaN ...
+        np.fmax(step, 0.0, out=step)  # ... and costs nothing here: 1 where either is unknown
+        step += 1.0
+        step *= float(1 << layout.quantum)
+        np.rint(step, out=step)
+        running = np.zeros(values.shape)
+        np.cumsum(step, axis=axis, out=running[:, 1:] if axis == 1 else running[1:])
+        position = np.empty(values.shape, np.int64)  # exact: whole numbers times 2^low
+        np.multiply(running, float(1 << layout.low), out=position, casting="unsafe")
+        index = np.arange(count, dtype=np.int64) << layout.label_bits
+        shape = (1, count) if axis == 1 else (count, 1)
+        forward_order = ((np.int64(count - 1) << layout.label_bits) - index).reshape(shape)
+        backward_order = ((np.int64(count) << layout.label_bits) + index).reshape(shape)
+        return cls(axis, position, forward_order - position, backward_order + position)
