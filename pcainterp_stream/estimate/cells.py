@@ -50,11 +50,13 @@ class Cells:
         members: (m, rows * cols) int64, row r holds each cell's r-th measurement (column:
             the cell's id), -1 past the last. A cell holds one measurement but where several
             share a node.
+        counts: (rows * cols,) intp, the measurements of each cell.
     """
 
     labels: npt.NDArray[np.int64]
     point_cells: npt.NDArray[np.int64]
     members: npt.NDArray[np.int64]
+    counts: npt.NDArray[np.intp]
 
     def at(
         self, xs: npt.NDArray[np.float64], ys: npt.NDArray[np.float64], image_size: tuple[int, int]
@@ -141,7 +143,8 @@ class Partition:
         rank = np.arange(k) - np.searchsorted(sorted_cells, sorted_cells, side="left")
         members = np.full((int(rank.max(initial=-1)) + 1, rows * cols), -1, np.int64)
         members[rank, sorted_cells] = by_cell
-        return Cells(self.labels, point_cells, members)
+        counts = np.bincount(sorted_cells, minlength=rows * cols)
+        return Cells(self.labels, point_cells, members, counts)
 
 
 def node_along(coordinates: npt.NDArray[np.float64], size: int, count: int) -> npt.NDArray[np.intp]:
