@@ -43,20 +43,44 @@ the default grid scale. On a grid half as fine again (16 px per node) the gain i
 class Cells:
     """A frame's measurements in the cells of a :class:`Partition`.
 
+    A cell's id is the flat index of its seed node; its measurements are listed by cell,
+    in their own order within a cell (the first is its rank-0 measurement).
+
     Attributes:
         labels: (rows, cols) int64, the cell of each node of the cell grid (the flat index
             of its seed node), spanning the image pixel-centre aligned.
         point_cells: (k,) int64, the cell of each measurement.
-        members: (m, rows * cols) int64, row r holds each cell's r-th measurement (column:
-            the cell's id), -1 past the last. A cell holds one measurement but where several
-            share a node.
-        counts: (rows * cols,) intp, the measurements of each cell.
+        order: (k,) intp, the measurements sorted by cell.
+        starts: (rows * cols,) intp, where each cell's measurements begin in ``order``.
+        counts: (rows * cols,) intp, the measurements of each cell. A cell holds one
+            measurement but where several share a node (or carried ones join it).
+        first: (rows * cols,) intp, each cell's first measurement, -1 where it has none.
     """
 
     labels: npt.NDArray[np.int64]
     point_cells: npt.NDArray[np.int64]
-    members: npt.NDArray[np.int64]
+    order: npt.NDArray[np.intp]
+    starts: npt.NDArray[np.intp]
     counts: npt.NDArray[np.intp]
+    first: npt.NDArray[np.intp]
+
+    def members(
+        self, cells: npt.NDArray[np.int64], *, after: int = 0
+    ) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+        """Return (entry, j): the measurements j of each of ``cells`` past its first ``after``.
+
+        Entry-major (the index into ``cells``), each cell's measurements in rank order.
+        """
+        count = self.counts.take(cells)
+        holding = np.flatnonzero(count > after)  # the entries with any to list
+        count = count.take(holding) - after
+        entry = np.repeat(holding, count)
+        # each entry's measurements: order[starts + after ...], one after the other
+        skip = self.starts.take(cells.take(holding)) + after - (np.cumsum(count) - count)
+        at = np.repeat(skip, count)
+        at += np.arange(entry.size)
+        j: npt.NDArray[np.intp] = self.order.take(at)
+        return entry, j
 
     def at(
         self, xs: npt.NDArray[np.float64], ys: npt.NDArray[np.float64], image_size: tuple[int, int]
@@ -136,15 +160,13 @@ class Partition:
         """Return the cells of measurements (k, 2) (x, y) in px of the partition's image."""
         rows, cols = self.labels.shape
         point_cells = self.labels.reshape(-1)[_flat_nodes(pixels, self.image_size, (rows, cols))]
-        k = point_cells.size
-        # each cell's measurements, row r = its r-th one
-        by_cell = np.argsort(point_cells, kind="stable")
-        sorted_cells = point_cells[by_cell]
-        rank = np.arange(k) - np.searchsorted(sorted_cells, sorted_cells, side="left")
-        members = np.full((int(rank.max(initial=-1)) + 1, rows * cols), -1, np.int64)
-        members[rank, sorted_cells] = by_cell
-        counts = np.bincount(sorted_cells, minlength=rows * cols)
-        return Cells(self.labels, point_cells, members, counts)
+        order = np.argsort(point_cells, kind="stable")
+        counts = np.bincount(point_cells, minlength=rows * cols)
+        starts = np.cumsum(counts) - counts
+        first = np.full(rows * cols, -1, np.intp)
+        holding = counts > 0
+        first[holding] = order.take(starts[holding])
+        return Cells(self.labels, point_cells, order, starts, counts, first)
 
 
 def node_along(coordinates: npt.NDArray[np.float64], size: int, count: int) -> npt.NDArray[np.intp]:
@@ -245,9 +267,7 @@ def geodesic_labels(
     values = field.astype(np.float64)
     state = np.full((rows, cols), layout.infinite, np.int64)
     state.flat[seeds] = seeds  # distance 0, order 0, the seed's own label
-    passes = [
-        _Pass.along(values, axis, step_cap, layout) for axis in (1, 0)
-    ]  # along the rows, then the columns
+    passes = _Pass.both(values, step_cap, layout)  # along the rows, then the columns
     start = np.empty_like(state)
     forward = np.empty_like(state)
     backward = np.empty_like(state)
@@ -312,10 +332,10 @@ class _Pass:
     Attributes:
         axis: 1 along the rows, 0 along the columns.
         position: P, the running sum of the step costs along the axis, packed (int64).
-        forward_key: order(i) - P(i): from the left, the nearest source (largest i) wins a
-            tie, order = count - 1 - i.
-        backward_key: order(i) + P(i): from the right the smallest i wins, order = count + i,
-            after any source from the left.
+        forward_key: order(i) - P(i): from the start, the nearest source (largest i) wins
+            a tie, order = count - 1 - i.
+        backward_key: order(i) + P(i): from the end the smallest i wins, order = count + i,
+            after any source from the start.
     """
 
     axis: int
@@ -324,25 +344,40 @@ class _Pass:
     backward_key: npt.NDArray[np.int64]
 
     @classmethod
-    def along(
-        cls, values: npt.NDArray[np.float64], axis: int, step_cap: float, layout: _Layout
-    ) -> _Pass:
-        """The pass along ``axis`` of the field ``values`` (float64, NaN unknown)."""
-        count = values.shape[axis]
-        ahead, behind = (values[:, 1:], values[:, :-1]) if axis == 1 else (values[1:], values[:-1])
-        step = np.subtract(ahead, behind)
-        np.abs(step, out=step)
-        np.minimum(step, step_cap, out=step)  # NaN stays NaN ...
-        np.fmax(step, 0.0, out=step)  # ... and costs nothing here: 1 where either is unknown
-        step += 1.0
-        step *= float(1 << layout.quantum)
-        np.rint(step, out=step)
-        running = np.zeros(values.shape)
+    def both(
+        cls, values: npt.NDArray[np.float64], step_cap: float, layout: _Layout
+    ) -> tuple[_Pass, _Pass]:
+        """The passes along the rows and along the columns of a field (float64, NaN unknown).
+
+        The step costs of both axes are computed in one buffer (the same calls for both).
+        """
+        rows, cols = values.shape
+        buffer = np.empty(rows * (cols - 1) + (rows - 1) * cols)
+        along_rows = buffer[: rows * (cols - 1)].reshape(rows, cols - 1)
+        along_columns = buffer[rows * (cols - 1) :].reshape(rows - 1, cols)
+        np.subtract(values[:, 1:], values[:, :-1], out=along_rows)
+        np.subtract(values[1:], values[:-1], out=along_columns)
+        np.abs(buffer, out=buffer)
+        np.minimum(buffer, step_cap, out=buffer)  # NaN stays NaN ...
+        np.fmax(buffer, 0.0, out=buffer)  # ... and costs nothing here: 1 where either is unknown
+        buffer += 1.0
+        buffer *= float(1 << layout.quantum)
+        np.rint(buffer, out=buffer)
+        return cls._along(along_rows, 1, layout), cls._along(along_columns, 0, layout)
+
+    @classmethod
+    def _along(cls, step: npt.NDArray[np.float64], axis: int, layout: _Layout) -> _Pass:
+        """The pass along ``axis`` with these quantised step costs between neighbours."""
+        shape = (
+            (step.shape[0], step.shape[1] + 1) if axis == 1 else (step.shape[0] + 1, step.shape[1])
+        )
+        count = shape[axis]
+        running = np.zeros(shape)
         np.cumsum(step, axis=axis, out=running[:, 1:] if axis == 1 else running[1:])
-        position = np.empty(values.shape, np.int64)  # exact: whole numbers times 2^low
+        position = np.empty(shape, np.int64)  # exact: whole numbers times 2^low
         np.multiply(running, float(1 << layout.low), out=position, casting="unsafe")
         index = np.arange(count, dtype=np.int64) << layout.label_bits
-        shape = (1, count) if axis == 1 else (count, 1)
-        forward_order = ((np.int64(count - 1) << layout.label_bits) - index).reshape(shape)
-        backward_order = ((np.int64(count) << layout.label_bits) + index).reshape(shape)
+        order_shape = (1, count) if axis == 1 else (count, 1)
+        forward_order = ((np.int64(count - 1) << layout.label_bits) - index).reshape(order_shape)
+        backward_order = ((np.int64(count) << layout.label_bits) + index).reshape(order_shape)
         return cls(axis, position, forward_order - position, backward_order + position)

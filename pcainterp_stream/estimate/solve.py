@@ -461,7 +461,7 @@ def _own_cell_mean(
     grid = cells.labels.shape
     nodes = _nodes((height, width), basis_image, (grid[0], grid[1]))
     labels = cells.labels.reshape(-1)
-    first = cells.members[0].take(labels).reshape(grid)
+    first = cells.first.take(labels).reshape(grid)
     present = first >= 0  # a cell whose seed was dropped has no measurement
     at = rank.take(np.where(present, first, 0))  # (R, C): the node's row of the factors
     weight = np.where(present, factor, np.float32(0.0))
@@ -480,13 +480,9 @@ def _own_cell_mean(
     own: npt.NDArray[np.float32] = spill[:-1].reshape(height, width)
     np.multiply(table_y.take(nodes.column, axis=1), table_x.take(nodes.row, axis=0), out=own)
     # the later measurements of each node's cell, node by node: (node, j) pairs
-    per_node = cells.counts.take(labels)
-    holding = np.flatnonzero(per_node > 1)
-    if holding.size:
-        later = per_node.take(holding) - 1
-        node = np.repeat(holding, later)
-        order = np.arange(1, node.size + 1) - np.repeat(np.cumsum(later) - later, later)
-        row = rank.take(cells.members[order, labels.take(node)])[:, None]
+    node, later = cells.members(labels, after=1)
+    if node.size:
+        row = rank.take(later)[:, None]
         block_y = along_y.take(row * height + nodes.node_rows.take(node, axis=0))
         block_y *= factor
         block_x = along_x.take(row * width + nodes.node_columns.take(node, axis=0))
@@ -536,9 +532,7 @@ def _cross_covariance(
         return covariance
     scaled = along_y * np.float32(local.prior.variance * local.prior.cell_weight)
     covariance = (scaled[:, :, None] * along_x[:, None, :]).reshape(k, ys.size * xs.size)
-    members = local.cells.members[:, local.cells.at(xs, ys, basis_image).reshape(-1)]
-    rank, at = np.nonzero(members >= 0)
-    j = members[rank, at]
+    at, j = local.cells.members(local.cells.at(xs, ys, basis_image).reshape(-1))
     row, column = np.divmod(at, xs.size)
     covariance[j, at] = along_y[j, row] * along_x[j, column] * variance
     return covariance

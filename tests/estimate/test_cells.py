@@ -118,13 +118,18 @@ def test_measurements_join_the_cell_of_their_node() -> None:
     cells = partition.cells(np.array([[0.0, 0.0], [3.0, 3.0], [1.0, 0.4], [3.0, 0.0]]))
     assert cells.point_cells[:3].tolist() == [0, 3, 0]
     assert cells.point_cells[3] == partition.labels[0, 1]
-    assert cells.members.shape[1] == 4
-    for cell in (0, 3):
-        members = cells.members[:, cell]
-        assert (
-            sorted(members[members >= 0].tolist())
-            == np.flatnonzero(cells.point_cells == cell).tolist()
-        )
+    assert cells.counts.tolist() == np.bincount(cells.point_cells, minlength=4).tolist()
+    assert cells.counts[0] >= 2
+    assert cells.counts[3] >= 1
+    assert cells.counts[1] == cells.counts[2] == 0  # not seeds: no cells of their own
+    assert cells.first.tolist() == [0, -1, -1, 1]
+    for cell in (0, 1, 2, 3):
+        entry, members = cells.members(np.array([cell, cell]))
+        expected = np.flatnonzero(cells.point_cells == cell).tolist()
+        assert members.tolist() == expected + expected  # in their order, per entry
+        assert entry.tolist() == [0] * len(expected) + [1] * len(expected)
+        entry, members = cells.members(np.array([cell]), after=1)
+        assert members.tolist() == expected[1:]
 
 
 def test_no_seed_no_partition() -> None:
@@ -344,6 +349,6 @@ def test_cells_holding_several_measurements_on_uneven_nodes(
     pixels, disparities = _points(basis, 16, seed=11)
     partition = Partition.along(_edge_map(13, 19), pixels[:5], basis.image_size, basis.grid_size)
     assert partition is not None
-    assert partition.cells(pixels).members.shape[0] >= 3  # a cell holds three or more
+    assert partition.cells(pixels).counts.max() >= 3  # a cell holds three or more
     local = LocalPrior(4.0, length_scale, kernel, cell_weight=0.3)
     _assert_batch_is_dense_posterior(basis, pixels, disparities, local, partition)
