@@ -23,6 +23,7 @@ Pure maths over arrays (docs/estimator.md, "Beyond the paper"; docs/sharper_spar
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -145,16 +146,8 @@ class Partition:
         Raises:
             ValueError: the map is not 2-D or the pixels not (k, 2).
         """
-        values = np.asarray(disparity_map, dtype=np.float32)
-        if values.ndim != 2 or values.size == 0:
-            raise ValueError(f"Expected a disparity map of shape (h, w), got {values.shape}")
-        seeds = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
-        if seeds.shape[0] == 0:
-            return None
-        size = cell_grid_size(basis_grid)
-        field = to_cell_grid(values, size)
-        nodes = _flat_nodes(seeds, image_size, size)
-        return cls(geodesic_labels(field, nodes, step_cap=step_cap), image_size)
+        seeding = Seeding.along(disparity_map, pixels, image_size, basis_grid)
+        return partition_all([seeding], step_cap=step_cap)[0]
 
     def cells(self, pixels: npt.NDArray[np.float64]) -> Cells:
         """Return the cells of measurements (k, 2) (x, y) in px of the partition's image."""
@@ -167,6 +160,78 @@ class Partition:
         holding = counts > 0
         first[holding] = order.take(starts[holding])
         return Cells(self.labels, point_cells, order, starts, counts, first)
+
+
+@dataclass(frozen=True, eq=False)
+class Seeding:
+    """A frame's partition before its label search: the map on the cell grid and the seeds.
+
+    Made beside the matcher (one resize); :func:`partition_all` then searches the labels of
+    several frames at once, so the search's whole-grid numpy calls are shared by a batch
+    instead of made per frame.
+
+    Attributes:
+        field: (rows, cols) float32 disparity (px) on the cell grid, NaN = unknown.
+        nodes: (k,) intp, k >= 1, the flat node of each seed measurement.
+        image_size: (height, width) of the image the grid spans, pixel-centre aligned.
+    """
+
+    field: npt.NDArray[np.float32]
+    nodes: npt.NDArray[np.intp]
+    image_size: tuple[int, int]
+
+    @classmethod
+    def along(
+        cls,
+        disparity_map: npt.ArrayLike,
+        pixels: npt.ArrayLike,
+        image_size: tuple[int, int],
+        basis_grid: tuple[int, int],
+    ) -> Seeding | None:
+        """Return the seeding of :meth:`Partition.along` (same arguments), or None without seeds.
+
+        Raises:
+            ValueError: the map is not 2-D or the pixels not (k, 2).
+        """
+        values = np.asarray(disparity_map, dtype=np.float32)
+        if values.ndim != 2 or values.size == 0:
+            raise ValueError(f"Expected a disparity map of shape (h, w), got {values.shape}")
+        seeds = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+        if seeds.shape[0] == 0:
+            return None
+        size = cell_grid_size(basis_grid)
+        return cls(to_cell_grid(values, size), _flat_nodes(seeds, image_size, size), image_size)
+
+
+def partition_all(
+    frames: Sequence[Seeding | Partition | None], *, step_cap: float = STEP_CAP
+) -> list[Partition | None]:
+    """Return the partitions of several frames, searching the seedings' labels together.
+
+    Seedings on grids of one shape are searched as one stack (:func:`geodesic_labels`);
+    partitions and None pass through. Each frame's labels are those it gets alone.
+    """
+    found: list[Partition | None] = [
+        None if f is None or isinstance(f, Seeding) else f for f in frames
+    ]
+    shapes = {f.field.shape for f in frames if isinstance(f, Seeding)}
+    for shape in sorted(shapes):
+        which = [
+            i for i, f in enumerate(frames) if isinstance(f, Seeding) and f.field.shape == shape
+        ]
+        seedings = [frames[i] for i in which]
+        assert all(isinstance(f, Seeding) for f in seedings)
+        fields = np.stack([f.field for f in seedings if isinstance(f, Seeding)])
+        size = shape[0] * shape[1]
+        seeds = np.concatenate(
+            [f.nodes + n * size for n, f in enumerate(seedings) if isinstance(f, Seeding)]
+        )
+        labels = geodesic_labels(fields, seeds, step_cap=step_cap)
+        for n, i in enumerate(which):
+            seeding = frames[i]
+            assert isinstance(seeding, Seeding)
+            found[i] = Partition(labels[n], seeding.image_size)
+    return found
 
 
 def node_along(coordinates: npt.NDArray[np.float64], size: int, count: int) -> npt.NDArray[np.intp]:
@@ -252,21 +317,26 @@ def geodesic_labels(
     same distances and are merged by one minimum: the same labels as running them one
     after the other, as a path from the right never gains by first going left.
 
+    Several grids of one shape, stacked (frames, rows, cols), are searched at once (each on
+    its own, with the same calls for all): ``seeds`` then index the stack (frame * rows *
+    cols + row * cols + col) and each label is the flat index within its own grid.
+
     Args:
-        field: (rows, cols) float32 disparity (px) on the grid, NaN = unknown.
+        field: (rows, cols) or (frames, rows, cols) float32 disparity (px) on the grid,
+            NaN = unknown.
         seeds: (k,) flat indices (row * cols + col) of the seed nodes (repeats allowed),
-            k >= 1.
+            k >= 1, at least one in every grid.
         step_cap: largest disparity difference charged per step (px).
         sweeps: rounds of passes.
 
     Returns:
-        (rows, cols) int64, the flat index of each node's nearest seed node.
+        int64 of the field's shape, the flat index of each node's nearest seed node.
     """
-    rows, cols = field.shape
+    rows, cols = field.shape[-2:]
     layout = _packed((rows, cols), step_cap)
     values = field.astype(np.float64)
-    state = np.full((rows, cols), layout.infinite, np.int64)
-    state.flat[seeds] = seeds  # distance 0, order 0, the seed's own label
+    state = np.full(field.shape, layout.infinite, np.int64)
+    state.flat[seeds] = seeds % (rows * cols)  # distance 0, order 0, the seed's own label
     passes = _Pass.both(values, step_cap, layout)  # along the rows, then the columns
     start = np.empty_like(state)
     forward = np.empty_like(state)
@@ -278,7 +348,7 @@ def geodesic_labels(
             np.minimum.accumulate(forward, axis=step.axis, out=forward)
             forward += step.position
             np.add(start, step.backward_key, out=backward)
-            reverse = backward[:, ::-1] if step.axis == 1 else backward[::-1]
+            reverse = backward[..., ::-1] if step.axis == -1 else backward[..., ::-1, :]
             np.minimum.accumulate(reverse, axis=step.axis, out=reverse)
             backward -= step.position
             np.minimum(forward, backward, out=state)
@@ -330,7 +400,7 @@ class _Pass:
     """The constants of :func:`geodesic_labels`' passes along one axis (both ways).
 
     Attributes:
-        axis: 1 along the rows, 0 along the columns.
+        axis: -1 along the rows, -2 along the columns.
         position: P, the running sum of the step costs along the axis, packed (int64).
         forward_key: order(i) - P(i): from the start, the nearest source (largest i) wins
             a tie, order = count - 1 - i.
@@ -349,35 +419,38 @@ class _Pass:
     ) -> tuple[_Pass, _Pass]:
         """The passes along the rows and along the columns of a field (float64, NaN unknown).
 
-        The step costs of both axes are computed in one buffer (the same calls for both).
+        The field may be a stack of grids (..., rows, cols). The step costs of both axes are
+        computed in one buffer (the same calls for both).
         """
-        rows, cols = values.shape
-        buffer = np.empty(rows * (cols - 1) + (rows - 1) * cols)
-        along_rows = buffer[: rows * (cols - 1)].reshape(rows, cols - 1)
-        along_columns = buffer[rows * (cols - 1) :].reshape(rows - 1, cols)
-        np.subtract(values[:, 1:], values[:, :-1], out=along_rows)
-        np.subtract(values[1:], values[:-1], out=along_columns)
+        *stack, rows, cols = values.shape
+        across, down = (*stack, rows, cols - 1), (*stack, rows - 1, cols)
+        buffer = np.empty(math.prod(across) + math.prod(down))
+        along_rows = buffer[: math.prod(across)].reshape(across)
+        along_columns = buffer[math.prod(across) :].reshape(down)
+        np.subtract(values[..., 1:], values[..., :-1], out=along_rows)
+        np.subtract(values[..., 1:, :], values[..., :-1, :], out=along_columns)
         np.abs(buffer, out=buffer)
         np.minimum(buffer, step_cap, out=buffer)  # NaN stays NaN ...
         np.fmax(buffer, 0.0, out=buffer)  # ... and costs nothing here: 1 where either is unknown
         buffer += 1.0
         buffer *= float(1 << layout.quantum)
         np.rint(buffer, out=buffer)
-        return cls._along(along_rows, 1, layout), cls._along(along_columns, 0, layout)
+        return cls._along(along_rows, -1, values.shape, layout), cls._along(
+            along_columns, -2, values.shape, layout
+        )
 
     @classmethod
-    def _along(cls, step: npt.NDArray[np.float64], axis: int, layout: _Layout) -> _Pass:
-        """The pass along ``axis`` with these quantised step costs between neighbours."""
-        shape = (
-            (step.shape[0], step.shape[1] + 1) if axis == 1 else (step.shape[0] + 1, step.shape[1])
-        )
+    def _along(
+        cls, step: npt.NDArray[np.float64], axis: int, shape: tuple[int, ...], layout: _Layout
+    ) -> _Pass:
+        """The pass along ``axis`` (-1 or -2) with these quantised step costs."""
         count = shape[axis]
         running = np.zeros(shape)
-        np.cumsum(step, axis=axis, out=running[:, 1:] if axis == 1 else running[1:])
+        np.cumsum(step, axis=axis, out=running[..., 1:] if axis == -1 else running[..., 1:, :])
         position = np.empty(shape, np.int64)  # exact: whole numbers times 2^low
         np.multiply(running, float(1 << layout.low), out=position, casting="unsafe")
         index = np.arange(count, dtype=np.int64) << layout.label_bits
-        order_shape = (1, count) if axis == 1 else (count, 1)
+        order_shape = (1, count) if axis == -1 else (count, 1)
         forward_order = ((np.int64(count - 1) << layout.label_bits) - index).reshape(order_shape)
         backward_order = ((np.int64(count) << layout.label_bits) + index).reshape(order_shape)
         return cls(axis, position, forward_order - position, backward_order + position)

@@ -10,9 +10,11 @@ import pytest
 from pcainterp_stream import Basis, densify, densify_batch
 from pcainterp_stream.estimate.cells import (
     Partition,
+    Seeding,
     cell_grid_size,
     cell_map,
     geodesic_labels,
+    partition_all,
     to_cell_grid,
 )
 from pcainterp_stream.estimate.fitting import fit_cell_weight, fit_frame
@@ -352,3 +354,39 @@ def test_cells_holding_several_measurements_on_uneven_nodes(
     assert partition.cells(pixels).counts.max() >= 3  # a cell holds three or more
     local = LocalPrior(4.0, length_scale, kernel, cell_weight=0.3)
     _assert_batch_is_dense_posterior(basis, pixels, disparities, local, partition)
+
+
+def test_seedings_searched_together_are_each_frames_own_partition() -> None:
+    """A batch's label search in one stack (:func:`partition_all`) gives every frame the
+    labels it gets alone, on grids of two shapes mixed, partitions and None passing
+    through; densify_batch given the seedings gives the same maps as given partitions."""
+    rng = np.random.default_rng(5)
+    frames = []
+    for shape, size in [((24, 40), (6, 10)), ((24, 40), (6, 10)), ((16, 16), (4, 4))] * 2:
+        edge = rng.choice([8.0, 8.5, 30.0, np.nan], size=shape, p=[0.4, 0.3, 0.2, 0.1])
+        pixels = rng.uniform(0.0, 1.0, (int(rng.integers(1, 9)), 2)) * (shape[1], shape[0])
+        frames.append((edge, pixels, shape, size))
+    alone = [Partition.along(e, p, shape, size) for e, p, shape, size in frames]
+    seedings: list[Seeding | Partition | None] = [
+        Seeding.along(e, p, shape, size) for e, p, shape, size in frames
+    ]
+    seedings[3] = alone[3]
+    together = partition_all([*seedings, None])
+    assert together[-1] is None
+    for one, other in zip(alone, together, strict=False):
+        assert one is not None
+        assert other is not None
+        np.testing.assert_array_equal(one.labels, other.labels)
+        assert one.image_size == other.image_size
+    basis = _basis(12, 16)
+    local = LocalPrior(4.0, 6.0, Kernel.LAPLACE, cell_weight=0.3)
+    points = [_points(basis, 9, seed) for seed in (1, 2)]
+    edge = _edge_map(12, 16)
+    arguments = ([p for p, _ in points], [d for _, d in points])
+    given = [Seeding.along(edge, p, basis.image_size, basis.grid_size) for p, _ in points]
+    searched = partition_all(given)
+    from_seedings = densify_batch(basis, *arguments, local_prior=local, partitions=given)
+    from_partitions = densify_batch(basis, *arguments, local_prior=local, partitions=searched)
+    for one, other in zip(from_seedings, from_partitions, strict=True):
+        np.testing.assert_array_equal(one.disparity, other.disparity)
+        np.testing.assert_array_equal(one.disparity_std, other.disparity_std)
