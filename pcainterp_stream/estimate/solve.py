@@ -206,11 +206,13 @@ def _solve_beyond(
     predicted = temporal.predict(eigenvalues) if temporal is not None else None
     if cells is not None and (model.local is None or not model.local.edge_aware):
         cells = None
-    local_matrix = (
-        model.local.matrix(positions, None if cells is None else cells.point_cells)
-        if model.local is not None and rows.shape[0]
-        else None
-    )
+    local_matrix = None
+    if model.local is not None and rows.shape[0]:
+        if cells is None:
+            local_matrix = model.local.matrix(positions)
+        else:  # each measurement with every one of its cell (itself too)
+            pairs = cells.members(cells.point_cells)
+            local_matrix = model.local.matrix(positions, cells.point_cells, pairs=pairs)
     posterior = _solve_measurement(
         rows,
         residual,

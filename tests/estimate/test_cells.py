@@ -18,7 +18,7 @@ from pcainterp_stream.estimate.cells import (
     to_cell_grid,
 )
 from pcainterp_stream.estimate.fitting import fit_cell_weight, fit_frame
-from pcainterp_stream.estimate.prior import Kernel, LocalPrior
+from pcainterp_stream.estimate.prior import Kernel, LocalPrior, same_cell_pairs
 
 
 def _basis(height: int = 12, width: int = 16, n_components: int = 6) -> Basis:
@@ -390,3 +390,17 @@ def test_seedings_searched_together_are_each_frames_own_partition() -> None:
     for one, other in zip(from_seedings, from_partitions, strict=True):
         np.testing.assert_array_equal(one.disparity, other.disparity)
         np.testing.assert_array_equal(one.disparity_std, other.disparity_std)
+
+
+def test_the_cells_list_the_same_cell_pairs_of_c_pp() -> None:
+    """Cells.members of every measurement's own cell are the (i, j) pairs C_pp keeps at v k
+    (prior.same_cell_pairs), (i, i) included."""
+    rng = np.random.default_rng(8)
+    pixels = rng.uniform(0.0, 1.0, (40, 2)) * (40, 24)
+    partition = Partition.along(rng.uniform(5.0, 30.0, (24, 40)), pixels[:12], (24, 40), (6, 10))
+    assert partition is not None
+    cells = partition.cells(pixels)
+    listed = set(zip(*(a.tolist() for a in cells.members(cells.point_cells)), strict=True))
+    paired = set(zip(*(a.tolist() for a in same_cell_pairs(cells.point_cells)), strict=True))
+    assert listed == paired
+    assert len(listed) > 40  # cells holding several
