@@ -340,7 +340,7 @@ def test_a_cell_without_measurements_gets_the_stationary_part_alone() -> None:
 
 
 @pytest.mark.parametrize("kernel", [Kernel.LAPLACE, Kernel.GAUSSIAN])
-@pytest.mark.parametrize("length_scale", [3.0, 20.0])
+@pytest.mark.parametrize("length_scale", [0.02, 3.0, 20.0])  # 0.02: columns in blocks
 def test_cells_holding_several_measurements_on_uneven_nodes(
     kernel: Kernel, length_scale: float
 ) -> None:
