@@ -410,8 +410,9 @@ def estimate_seconds(
 
     ``densify_batch`` of 4 frames at a time, one BLAS thread, the processor's settings, no
     carried points; the configurations are timed in turns, the best of ``repeats`` kept.
-    An edge-aware prior's partitions are made beforehand, as the stereo workers make them
-    (:func:`partition_seconds` times that).
+    An edge-aware prior's seedings (its map on the cell grid) are made beforehand, as the
+    stereo workers make them (:func:`partition_seconds` times that); the label search is
+    part of the estimate, a batch's frames at once, as in the estimate pool.
     """
     from threadpoolctl import threadpool_limits
 
@@ -506,14 +507,14 @@ def pool_seconds(
 
 
 def _partition(measured: Any, image_size: tuple[int, int], grid: tuple[int, int]) -> Any:
-    """The partition a stereo worker makes of a frame along its SGBM map (cells.Partition)."""
-    from pcainterp_stream.estimate.cells import Partition
+    """What a stereo worker makes of a frame for an edge-aware prior (cells.Seeding)."""
+    from pcainterp_stream.estimate.cells import Seeding
 
-    return Partition.along(measured.disparity_map, measured.pixels, image_size, grid)
+    return Seeding.along(measured.disparity_map, measured.pixels, image_size, grid)
 
 
 def partition_seconds(items: list[tuple[StereoFrame, Array]], repeats: int = 3) -> float:
-    """CPU seconds per frame of the stereo workers' partitions (the best of ``repeats``)."""
+    """CPU seconds per frame of the stereo workers' seedings (the best of ``repeats``)."""
     config = ProcessorConfig()
     front_end = StereoFrontEnd(config.gftt, config.sgbm)
     measured = [front_end.measure(frame.left, frame.right) for frame, _ in items]
@@ -621,7 +622,7 @@ def main(argv: list[str] | None = None) -> int:
                     f"{v} {1000 * t:.1f} ({t / seconds[0]:.2f}x)"
                     for v, t in zip(args.variants, seconds, strict=True)
                 )
-                + f"; partition (stereo worker) {1000 * partition_seconds(items):.2f}",
+                + f"; seeding (stereo worker) {1000 * partition_seconds(items):.2f}",
                 flush=True,
             )
         if args.pool_timing:

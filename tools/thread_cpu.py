@@ -42,7 +42,7 @@ from typing import Any
 import harness
 
 from pcainterp_stream.cli import app
-from pcainterp_stream.estimate import cells
+from pcainterp_stream.estimate import cells, estimator
 from pcainterp_stream.frontend import stereo
 from pcainterp_stream.pipeline import processor
 
@@ -121,12 +121,13 @@ STAGES: list[tuple[Any, str, str]] = [
     (stereo, "patch_contrast", "  lattice contrast"),
     (stereo, "_lookup", "  lookups"),
     (processor, "estimate_motion", "  odometry"),
-    (cells.Partition, "along", "  edge-aware partition"),
+    (cells.Seeding, "along", "  edge-aware seeding (map on the cell grid)"),
     (processor, "_prepare", "densify thread: set-up"),
     (processor.FrameProcessor, "_warm_up", "densify thread: fit check"),
     (processor.FrameProcessor, "_measurements", "densify thread: carried points"),
     (processor.FrameProcessor, "_estimate", "estimate pool: batches"),
     (processor, "densify_batch", "  of which densify_batch"),
+    (estimator, "partition_all", "  of which the edge-aware label search"),
     (processor, "fuse_dense", "  of which dense fusion (dense mode)"),
 ]
 """(owner, attribute, label) of each function timed."""

@@ -212,7 +212,7 @@ def _add_estimate_options(densify: argparse.ArgumentParser) -> None:
         action=argparse.BooleanOptionalAction,
         default=False,
         help="cut the local kernel along SGBM's depth edges when the basis's prior has a cell "
-        "weight (the built-in street basis): ~2-3%% lower error for ~4-9%% more CPU "
+        "weight (the built-in street basis): ~2-3%% lower error for ~2%% more CPU "
         "(default: %(default)s; docs/sharper_sparse.md)",
     )
     estimate.add_argument(

@@ -22,6 +22,8 @@ Pure maths over arrays (docs/estimator.md, "Beyond the paper"; docs/sharper_spar
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -42,18 +44,44 @@ the default grid scale. On a grid half as fine again (16 px per node) the gain i
 class Cells:
     """A frame's measurements in the cells of a :class:`Partition`.
 
+    A cell's id is the flat index of its seed node; its measurements are listed by cell,
+    in their own order within a cell (the first is its rank-0 measurement).
+
     Attributes:
         labels: (rows, cols) int64, the cell of each node of the cell grid (the flat index
             of its seed node), spanning the image pixel-centre aligned.
         point_cells: (k,) int64, the cell of each measurement.
-        members: (m, rows * cols) int64, row r holds each cell's r-th measurement (column:
-            the cell's id), -1 past the last. A cell holds one measurement but where several
-            share a node.
+        order: (k,) intp, the measurements sorted by cell.
+        starts: (rows * cols,) intp, where each cell's measurements begin in ``order``.
+        counts: (rows * cols,) intp, the measurements of each cell. A cell holds one
+            measurement but where several share a node (or carried ones join it).
+        first: (rows * cols,) intp, each cell's first measurement, -1 where it has none.
     """
 
     labels: npt.NDArray[np.int64]
     point_cells: npt.NDArray[np.int64]
-    members: npt.NDArray[np.int64]
+    order: npt.NDArray[np.intp]
+    starts: npt.NDArray[np.intp]
+    counts: npt.NDArray[np.intp]
+    first: npt.NDArray[np.intp]
+
+    def members(
+        self, cells: npt.NDArray[np.int64], *, after: int = 0
+    ) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+        """Return (entry, j): the measurements j of each of ``cells`` past its first ``after``.
+
+        Entry-major (the index into ``cells``), each cell's measurements in rank order.
+        """
+        count = self.counts.take(cells)
+        holding = np.flatnonzero(count > after)  # the entries with any to list
+        count = count.take(holding) - after
+        entry = np.repeat(holding, count)
+        # each entry's measurements: order[starts + after ...], one after the other
+        skip = self.starts.take(cells.take(holding)) + after - (np.cumsum(count) - count)
+        at = np.repeat(skip, count)
+        at += np.arange(entry.size)
+        j: npt.NDArray[np.intp] = self.order.take(at)
+        return entry, j
 
     def at(
         self, xs: npt.NDArray[np.float64], ys: npt.NDArray[np.float64], image_size: tuple[int, int]
@@ -118,6 +146,53 @@ class Partition:
         Raises:
             ValueError: the map is not 2-D or the pixels not (k, 2).
         """
+        seeding = Seeding.along(disparity_map, pixels, image_size, basis_grid)
+        return partition_all([seeding], step_cap=step_cap)[0]
+
+    def cells(self, pixels: npt.NDArray[np.float64]) -> Cells:
+        """Return the cells of measurements (k, 2) (x, y) in px of the partition's image."""
+        rows, cols = self.labels.shape
+        point_cells = self.labels.reshape(-1)[_flat_nodes(pixels, self.image_size, (rows, cols))]
+        order = np.argsort(point_cells, kind="stable")
+        counts = np.bincount(point_cells, minlength=rows * cols)
+        starts = np.cumsum(counts) - counts
+        first = np.full(rows * cols, -1, np.intp)
+        holding = counts > 0
+        first[holding] = order.take(starts[holding])
+        return Cells(self.labels, point_cells, order, starts, counts, first)
+
+
+@dataclass(frozen=True, eq=False)
+class Seeding:
+    """A frame's partition before its label search: the map on the cell grid and the seeds.
+
+    Made beside the matcher (one resize); :func:`partition_all` then searches the labels of
+    several frames at once, so the search's whole-grid numpy calls are shared by a batch
+    instead of made per frame.
+
+    Attributes:
+        field: (rows, cols) float32 disparity (px) on the cell grid, NaN = unknown.
+        nodes: (k,) intp, k >= 1, the flat node of each seed measurement.
+        image_size: (height, width) of the image the grid spans, pixel-centre aligned.
+    """
+
+    field: npt.NDArray[np.float32]
+    nodes: npt.NDArray[np.intp]
+    image_size: tuple[int, int]
+
+    @classmethod
+    def along(
+        cls,
+        disparity_map: npt.ArrayLike,
+        pixels: npt.ArrayLike,
+        image_size: tuple[int, int],
+        basis_grid: tuple[int, int],
+    ) -> Seeding | None:
+        """Return the seeding of :meth:`Partition.along` (same arguments), or None without seeds.
+
+        Raises:
+            ValueError: the map is not 2-D or the pixels not (k, 2).
+        """
         values = np.asarray(disparity_map, dtype=np.float32)
         if values.ndim != 2 or values.size == 0:
             raise ValueError(f"Expected a disparity map of shape (h, w), got {values.shape}")
@@ -125,22 +200,38 @@ class Partition:
         if seeds.shape[0] == 0:
             return None
         size = cell_grid_size(basis_grid)
-        field = to_cell_grid(values, size)
-        nodes = _flat_nodes(seeds, image_size, size)
-        return cls(geodesic_labels(field, nodes, step_cap=step_cap), image_size)
+        return cls(to_cell_grid(values, size), _flat_nodes(seeds, image_size, size), image_size)
 
-    def cells(self, pixels: npt.NDArray[np.float64]) -> Cells:
-        """Return the cells of measurements (k, 2) (x, y) in px of the partition's image."""
-        rows, cols = self.labels.shape
-        point_cells = self.labels.reshape(-1)[_flat_nodes(pixels, self.image_size, (rows, cols))]
-        k = point_cells.size
-        # each cell's measurements, row r = its r-th one
-        by_cell = np.argsort(point_cells, kind="stable")
-        sorted_cells = point_cells[by_cell]
-        rank = np.arange(k) - np.searchsorted(sorted_cells, sorted_cells, side="left")
-        members = np.full((int(rank.max(initial=-1)) + 1, rows * cols), -1, np.int64)
-        members[rank, sorted_cells] = by_cell
-        return Cells(self.labels, point_cells, members)
+
+def partition_all(
+    frames: Sequence[Seeding | Partition | None], *, step_cap: float = STEP_CAP
+) -> list[Partition | None]:
+    """Return the partitions of several frames, searching the seedings' labels together.
+
+    Seedings on grids of one shape are searched as one stack (:func:`geodesic_labels`);
+    partitions and None pass through. Each frame's labels are those it gets alone.
+    """
+    found: list[Partition | None] = [
+        None if f is None or isinstance(f, Seeding) else f for f in frames
+    ]
+    shapes = {f.field.shape for f in frames if isinstance(f, Seeding)}
+    for shape in sorted(shapes):
+        which = [
+            i for i, f in enumerate(frames) if isinstance(f, Seeding) and f.field.shape == shape
+        ]
+        seedings = [frames[i] for i in which]
+        assert all(isinstance(f, Seeding) for f in seedings)
+        fields = np.stack([f.field for f in seedings if isinstance(f, Seeding)])
+        size = shape[0] * shape[1]
+        seeds = np.concatenate(
+            [f.nodes + n * size for n, f in enumerate(seedings) if isinstance(f, Seeding)]
+        )
+        labels = geodesic_labels(fields, seeds, step_cap=step_cap)
+        for n, i in enumerate(which):
+            seeding = frames[i]
+            assert isinstance(seeding, Seeding)
+            found[i] = Partition(labels[n], seeding.image_size)
+    return found
 
 
 def node_along(coordinates: npt.NDArray[np.float64], size: int, count: int) -> npt.NDArray[np.intp]:
@@ -212,71 +303,154 @@ def geodesic_labels(
     The distance between 4-neighbours is 1 + min(|field difference|, step_cap) (1 where
     either is NaN). Raster passes relax it: along a row from the left, with P the running
     sum of the steps, d(j) <- min over i <= j of d(i) + P(j) - P(i) = P(j) + cummin(d - P)(j)
-    (one ``minimum.accumulate``; the argmin's label comes along), then from the right, then
-    along the columns. A shortest path with r turns between rows and columns is exact after
-    about r / 4 rounds; ``sweeps`` rounds are an approximation of multi-source Dijkstra,
-    exact where the paths turn few times (always on a field without edges). After one
-    round every node has a label.
+    (one ``minimum.accumulate``), from the right likewise, then along the columns. A
+    shortest path with r turns between rows and columns is exact after about r / 4 rounds;
+    ``sweeps`` rounds are an approximation of multi-source Dijkstra, exact where the paths
+    turn few times (always on a field without edges). After one round every node has a
+    label.
+
+    Each node's state is one int64 (:func:`_packed`): its distance in units of 2^-q px
+    (q <= 16: exact for SGBM's 1/16 px disparities), a tie order and its label, so a
+    minimum carries the label along and a pass is four whole-array calls. Ties go as in
+    sequential passes: a node keeps its own label, then takes the nearest source from the
+    left, then from the right. The passes from the left and from the right start from the
+    same distances and are merged by one minimum: the same labels as running them one
+    after the other, as a path from the right never gains by first going left.
+
+    Several grids of one shape, stacked (frames, rows, cols), are searched at once (each on
+    its own, with the same calls for all): ``seeds`` then index the stack (frame * rows *
+    cols + row * cols + col) and each label is the flat index within its own grid.
 
     Args:
-        field: (rows, cols) float32 disparity (px) on the grid, NaN = unknown.
+        field: (rows, cols) or (frames, rows, cols) float32 disparity (px) on the grid,
+            NaN = unknown.
         seeds: (k,) flat indices (row * cols + col) of the seed nodes (repeats allowed),
-            k >= 1.
+            k >= 1, at least one in every grid.
         step_cap: largest disparity difference charged per step (px).
         sweeps: rounds of passes.
 
     Returns:
-        (rows, cols) int64, the flat index of each node's nearest seed node.
+        int64 of the field's shape, the flat index of each node's nearest seed node.
     """
-    rows, cols = field.shape
+    rows, cols = field.shape[-2:]
+    layout = _packed((rows, cols), step_cap)
     values = field.astype(np.float64)
-    along_x = np.zeros((rows, cols))
-    np.cumsum(_steps(values[:, 1:], values[:, :-1], step_cap), axis=1, out=along_x[:, 1:])
-    along_y = np.zeros((rows, cols))
-    np.cumsum(_steps(values[1:], values[:-1], step_cap), axis=0, out=along_y[1:])
-    distance = np.full((rows, cols), np.inf)
-    labels = np.full((rows, cols), -1, np.int64)
-    distance.flat[seeds] = 0.0
-    labels.flat[seeds] = seeds
+    state = np.full(field.shape, layout.infinite, np.int64)
+    state.flat[seeds] = seeds % (rows * cols)  # distance 0, order 0, the seed's own label
+    passes = _Pass.both(values, step_cap, layout)  # along the rows, then the columns
+    start = np.empty_like(state)
+    forward = np.empty_like(state)
+    backward = np.empty_like(state)
     for _ in range(sweeps):
-        for position, rotate in ((along_x, False), (along_y, True)):
-            d, lab, pos = (
-                (distance.T, labels.T, position.T) if rotate else (distance, labels, position)
-            )
-            _relax(d, lab, pos)  # forward
-            _relax(d[:, ::-1], lab[:, ::-1], -pos[:, ::-1])  # backward: distances from the end
+        for step in passes:
+            np.bitwise_and(state, layout.clear_order, out=start)
+            np.add(start, step.forward_key, out=forward)
+            np.minimum.accumulate(forward, axis=step.axis, out=forward)
+            forward += step.position
+            np.add(start, step.backward_key, out=backward)
+            reverse = backward[..., ::-1] if step.axis == -1 else backward[..., ::-1, :]
+            np.minimum.accumulate(reverse, axis=step.axis, out=reverse)
+            backward -= step.position
+            np.minimum(forward, backward, out=state)
+    labels: npt.NDArray[np.int64] = state & np.int64(layout.label_mask)
     return labels
 
 
-def _steps(
-    a: npt.NDArray[np.float64], b: npt.NDArray[np.float64], cap: float
-) -> npt.NDArray[np.float64]:
-    """Step costs 1 + min(|a - b|, cap), 1 where either is NaN."""
-    with np.errstate(invalid="ignore"):
-        step = np.minimum(np.abs(a - b), cap)
-    step[np.isnan(step)] = 0.0
-    step += 1.0
-    return step
+@dataclass(frozen=True)
+class _Layout:
+    """The bits of a node's state in :func:`geodesic_labels`.
 
-
-def _relax(
-    distance: npt.NDArray[np.float64],
-    labels: npt.NDArray[np.int64],
-    position: npt.NDArray[np.float64],
-) -> None:
-    """One pass along axis 1 (in place; the arrays may be flipped or transposed views).
-
-    d(j) <- min(d(j), min over i <= j of d(i) + position(j) - position(i)), the label of
-    the minimising i coming along (the last one on ties: a node keeps its own on a tie).
+    state = (distance * 2^quantum) * 2^low + order * 2^label_bits + label, low =
+    label_bits + order bits; the distance may be negative inside a pass (d - P), which
+    two's complement keeps clear of the low bits.
     """
-    rows, cols = distance.shape
-    shifted = distance - position
-    running = np.fmin.accumulate(shifted, axis=1)  # as minimum (no NaN here), faster
-    source = np.where(shifted <= running, np.arange(cols, dtype=np.int32), np.int32(0))
-    np.maximum.accumulate(source, axis=1, out=source)
-    candidate = running + position
-    better = candidate < distance
-    np.copyto(distance, candidate, where=better)
-    # the labels at the sources, as one flat gather (row-major over the view)
-    source += (np.arange(rows, dtype=np.int32) * np.int32(cols))[:, None]
-    np.copyto(labels, labels.reshape(-1).take(source), where=better)
+
+    quantum: int
+    label_bits: int
+    low: int
+    infinite: int
+    clear_order: np.int64
+    label_mask: int
+
+
+def _packed(shape: tuple[int, int], step_cap: float) -> _Layout:
+    """The :class:`_Layout` for a grid ``shape`` (raises ValueError past int64's range)."""
+    rows, cols = shape
+    label_bits = max(rows * cols - 1, 1).bit_length()
+    order_bits = (2 * max(rows, cols)).bit_length()
+    low = label_bits + order_bits
+    longest = (rows + cols) * (1.0 + step_cap)  # no shortest path is longer
+    # values range over -longest .. infinite + longest, infinite = 4 longest
+    quantum = min(16, 62 - low - math.ceil(math.log2(6.0 * longest)))
+    if quantum < 0:
+        raise ValueError(f"Expected a cell grid of at most ~10^5 nodes a side, got {shape}")
+    order_mask = ((1 << order_bits) - 1) << label_bits
+    return _Layout(
+        quantum=quantum,
+        label_bits=label_bits,
+        low=low,
+        infinite=(math.ceil(4.0 * longest) << quantum) << low,
+        clear_order=np.int64(~order_mask),
+        label_mask=(1 << label_bits) - 1,
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class _Pass:
+    """The constants of :func:`geodesic_labels`' passes along one axis (both ways).
+
+    Attributes:
+        axis: -1 along the rows, -2 along the columns.
+        position: P, the running sum of the step costs along the axis, packed (int64).
+        forward_key: order(i) - P(i): from the start, the nearest source (largest i) wins
+            a tie, order = count - 1 - i.
+        backward_key: order(i) + P(i): from the end the smallest i wins, order = count + i,
+            after any source from the start.
+    """
+
+    axis: int
+    position: npt.NDArray[np.int64]
+    forward_key: npt.NDArray[np.int64]
+    backward_key: npt.NDArray[np.int64]
+
+    @classmethod
+    def both(
+        cls, values: npt.NDArray[np.float64], step_cap: float, layout: _Layout
+    ) -> tuple[_Pass, _Pass]:
+        """The passes along the rows and along the columns of a field (float64, NaN unknown).
+
+        The field may be a stack of grids (..., rows, cols). The step costs of both axes are
+        computed in one buffer (the same calls for both).
+        """
+        *stack, rows, cols = values.shape
+        across, down = (*stack, rows, cols - 1), (*stack, rows - 1, cols)
+        buffer = np.empty(math.prod(across) + math.prod(down))
+        along_rows = buffer[: math.prod(across)].reshape(across)
+        along_columns = buffer[math.prod(across) :].reshape(down)
+        np.subtract(values[..., 1:], values[..., :-1], out=along_rows)
+        np.subtract(values[..., 1:, :], values[..., :-1, :], out=along_columns)
+        np.abs(buffer, out=buffer)
+        np.minimum(buffer, step_cap, out=buffer)  # NaN stays NaN ...
+        np.fmax(buffer, 0.0, out=buffer)  # ... and costs nothing here: 1 where either is unknown
+        buffer += 1.0
+        buffer *= float(1 << layout.quantum)
+        np.rint(buffer, out=buffer)
+        return cls._along(along_rows, -1, values.shape, layout), cls._along(
+            along_columns, -2, values.shape, layout
+        )
+
+    @classmethod
+    def _along(
+        cls, step: npt.NDArray[np.float64], axis: int, shape: tuple[int, ...], layout: _Layout
+    ) -> _Pass:
+        """The pass along ``axis`` (-1 or -2) with these quantised step costs."""
+        count = shape[axis]
+        running = np.zeros(shape)
+        np.cumsum(step, axis=axis, out=running[..., 1:] if axis == -1 else running[..., 1:, :])
+        position = np.empty(shape, np.int64)  # exact: whole numbers times 2^low
+        np.multiply(running, float(1 << layout.low), out=position, casting="unsafe")
+        index = np.arange(count, dtype=np.int64) << layout.label_bits
+        order_shape = (1, count) if axis == -1 else (count, 1)
+        forward_order = ((np.int64(count - 1) << layout.label_bits) - index).reshape(order_shape)
+        backward_order = ((np.int64(count) << layout.label_bits) + index).reshape(order_shape)
+        return cls(axis, position, forward_order - position, backward_order + position)

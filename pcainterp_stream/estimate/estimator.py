@@ -44,7 +44,7 @@ from pcainterp_stream.estimate.basis import (
     resample_grid,
     sample_rows,
 )
-from pcainterp_stream.estimate.cells import Partition
+from pcainterp_stream.estimate.cells import Partition, Seeding, partition_all
 from pcainterp_stream.estimate.prior import (
     LocalPrior,
     Model,
@@ -252,7 +252,7 @@ def densify_batch(
     scale_by_innovation: bool = False,
     noise_stds: Sequence[npt.ArrayLike | None] | None = None,
     with_depth: bool = True,
-    partitions: Sequence[Partition | None] | None = None,
+    partitions: Sequence[Partition | Seeding | None] | None = None,
 ) -> list[DensifyResult]:
     """Densify several frames at once with matrix-matrix products across frames.
 
@@ -286,7 +286,8 @@ def densify_batch(
         partitions: F partitions of the images (or None) along their disparity maps, for
             an edge-aware ``local_prior`` (:meth:`cells.Partition.along`, e.g. seeded by
             each frame's own measurements; a measurement is in the cell of the grid node it
-            falls on); None: the stationary kernel.
+            falls on), or their :class:`cells.Seeding` (searched here, the batch's at once);
+            None: the stationary kernel.
 
     Returns:
         One :class:`DensifyResult` per frame, in order.
@@ -328,6 +329,7 @@ def densify_batch(
             f"Expected `partitions` to have one entry per frame ({len(pixels_list)}), "
             f"got {len(partitions)}"
         )
+    searched = None if partitions is None else partition_all(partitions)
     frames = []
     extra_variances: list[npt.NDArray[np.float64] | None] = []
     for index, (pixels, disparities) in enumerate(zip(pixels_list, disparities_list, strict=True)):
@@ -360,7 +362,7 @@ def densify_batch(
             continue
         positions = image_to_grid(frame_pixels, out_size, basis.image_size)
         cells = None
-        partition = None if partitions is None else partitions[index]
+        partition = None if searched is None else searched[index]
         if edge_aware and partition is not None and frame_pixels.shape[0]:
             cells = partition.cells(frame_pixels)
         posterior = _solve_beyond(

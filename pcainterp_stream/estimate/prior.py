@@ -206,12 +206,17 @@ class LocalPrior:
         return max(spacing, 1.0)
 
     def matrix(
-        self, positions: FloatArray, point_cells: npt.NDArray[np.int64] | None = None
+        self,
+        positions: FloatArray,
+        point_cells: npt.NDArray[np.int64] | None = None,
+        *,
+        pairs: tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]] | None = None,
     ) -> FloatArray:
         """Return C_pp (k, k) float64 between measurement positions (x, y) basis px.
 
         With ``point_cells`` (k,) (the measurements' cells, :mod:`cells`) and
-        ``cell_weight`` w < 1, entries between different cells are scaled by w.
+        ``cell_weight`` w < 1, entries between different cells are scaled by w. ``pairs``:
+        the (i, j) of :func:`same_cell_pairs` when the caller has them (any order).
 
         The kernel factors are evaluated in float32 (relative error ~1e-7 of v, far below
         the noise sigma^2 >= 0.01 px^2 it is added to): numpy's float64 exp is ~10x slower
@@ -225,7 +230,7 @@ class LocalPrior:
             matrix *= self.variance
             return matrix
         # w everywhere, then v k itself back at the pairs within a cell (about k of them)
-        first, second = same_cell_pairs(point_cells)
+        first, second = same_cell_pairs(point_cells) if pairs is None else pairs
         kept = matrix[first, second]
         matrix *= self.variance * self.cell_weight
         matrix[first, second] = kept * self.variance

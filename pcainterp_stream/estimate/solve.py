@@ -206,11 +206,13 @@ def _solve_beyond(
     predicted = temporal.predict(eigenvalues) if temporal is not None else None
     if cells is not None and (model.local is None or not model.local.edge_aware):
         cells = None
-    local_matrix = (
-        model.local.matrix(positions, None if cells is None else cells.point_cells)
-        if model.local is not None and rows.shape[0]
-        else None
-    )
+    local_matrix = None
+    if model.local is not None and rows.shape[0]:
+        if cells is None:
+            local_matrix = model.local.matrix(positions)
+        else:  # each measurement with every one of its cell (itself too)
+            pairs = cells.members(cells.point_cells)
+            local_matrix = model.local.matrix(positions, cells.point_cells, pairs=pairs)
     posterior = _solve_measurement(
         rows,
         residual,
@@ -356,18 +358,14 @@ def _local_mean(
     xs = _image_coordinates(width, basis_image[1])
     support = local.prior.support()
     blocks = _LOCAL_BLOCKS if _LOCAL_BLOCKS * 2.0 * support < basis_image[1] else 1
-    # the edge-aware kernel: w times the stationary part plus (1 - w) times each point's
-    # own cell's, sum over j in cell(x) of v alpha_j k(x - p_j)
-    weight = 1.0 if local.cells is None else local.prior.cell_weight
     # short kernels: columns in blocks, each with only the measurements within the
     # kernel's support of it (sorted by x); the terms left out are < 4e-18 of the peak
     order = np.argsort(local.positions[:, 0], kind="stable")
     position_x = local.positions[order, 0]
     along_y = local.prior.axis(local.positions[order, 1], ys, np.float32)  # (k, H)
-    along_y *= (scale * local.prior.variance * weight * local.alpha[order]).astype(np.float32)[
-        :, None
-    ]
+    along_y *= (scale * local.prior.variance * local.alpha[order]).astype(np.float32)[:, None]
     dense = np.zeros(out_size, dtype=np.float32)
+    whole_x = None  # (k, W): every measurement's x factor at every column, when computed
     step = -(-width // blocks)
     for start in range(0, width, step):
         columns = xs[start : start + step]
@@ -376,9 +374,21 @@ def _local_mean(
         if first < last:
             along_x = local.prior.axis(position_x[first:last], columns, np.float32)
             dense[:, start : start + step] = along_y[first:last].T @ along_x
-    if local.cells is not None:
-        coefficient = scale * local.prior.variance * (1.0 - weight) * local.alpha
-        dense += _own_cell_mean(local, out_size, basis_image, coefficient.astype(np.float32))
+            if blocks == 1 and first == 0 and last == order.size:
+                whole_x = along_x
+    if local.cells is None:
+        return dense
+    # the edge-aware kernel: w times the stationary part plus (1 - w) times each point's
+    # own cell's, sum over j in cell(x) of v alpha_j k(x - p_j), from the same factors
+    if whole_x is None:
+        whole_x = local.prior.axis(position_x, xs, np.float32)
+    weight = local.prior.cell_weight
+    dense *= np.float32(weight)
+    rank = np.empty(order.size, np.intp)
+    rank[order] = np.arange(order.size)  # each measurement's row of the factor tables
+    dense += _own_cell_mean(
+        local.cells, rank, along_y, whole_x, basis_image, np.float32(1.0 - weight)
+    )
     return dense
 
 
@@ -387,20 +397,18 @@ class _Nodes:
     """Where the points of a grid (rows ys x columns xs) fall on a cell grid (R, C).
 
     Attributes:
-        ys, xs: the points' rows and columns (basis-image px).
         row, column: (len(ys),), (len(xs),) the cell-grid row of each y, column of each x.
-        row_ys: (R, bh) the ys of each cell-grid row's points (padded by repetition).
-        column_xs: (C, bw) the xs of each cell-grid column's points (padded likewise).
+        node_rows: (R * C, bh) the rows (index of ys) of each node's points, padded by
+            repetition, nodes row-major.
+        node_columns: (R * C, bw) the columns (index of xs) of each node's points, likewise.
         blocks: (R * C, bh * bw) intp, the flat index (row-major) of each node's points,
             len(ys) * len(xs) (one past the last) at the padding.
     """
 
-    ys: npt.NDArray[np.float64]
-    xs: npt.NDArray[np.float64]
     row: npt.NDArray[np.intp]
     column: npt.NDArray[np.intp]
-    row_ys: npt.NDArray[np.float64]
-    column_xs: npt.NDArray[np.float64]
+    node_rows: npt.NDArray[np.intp]
+    node_columns: npt.NDArray[np.intp]
     blocks: npt.NDArray[np.intp]
 
 
@@ -420,79 +428,69 @@ def _nodes(
     valid = row_valid[:, None, :, None] & column_valid[None, :, None, :]
     blocks = np.where(valid, blocks, out_size[0] * out_size[1])
     nodes = _Nodes(
-        ys=ys,
-        xs=xs,
         row=row,
         column=column,
-        row_ys=ys.take(rows_of),
-        column_xs=xs.take(columns_of),
+        node_rows=np.repeat(rows_of, cell_grid[1], axis=0),
+        node_columns=np.tile(columns_of, (cell_grid[0], 1)),
         blocks=blocks.reshape(cell_grid[0] * cell_grid[1], -1),
     )
     for array in dataclasses.astuple(nodes):
-        if isinstance(array, np.ndarray):
-            array.flags.writeable = False
+        array.flags.writeable = False
     return nodes
 
 
 def _own_cell_mean(
-    local: _Local,
-    out_size: tuple[int, int],
+    cells: Cells,
+    rank: npt.NDArray[np.intp],
+    along_y: npt.NDArray[np.float32],
+    along_x: npt.NDArray[np.float32],
     basis_image: tuple[int, int],
-    coefficient: npt.NDArray[np.float32],
+    factor: np.float32,
 ) -> npt.NDArray[np.float32]:
-    """Return sum over j in cell(x) of coefficient_j k(x - p_j) at the points of a grid.
+    """Return ``factor`` times sum over j in cell(x) of a_j(y) b_j(x) at the points of a grid.
 
-    Returns ``out_size`` float32, the grid spanning the basis image pixel-centre aligned.
-    The cells are constant on each node of the cell grid, so the kernel's factors are
-    evaluated per node, not per point: with j(R, C) the first measurement of node (R, C)'s
-    cell, the term is coefficient_j k_y(y - y_j) k_x(x - x_j), k_y one factor per row y
-    and node column C, k_x one per node row R and column x, gathered to the points (a few
-    passes over them, no loop). Few cells hold further measurements (carried ones in a
-    seed's cell, several measurements on one node): their nodes are added block by block.
+    ``along_y`` (k, H) and ``along_x`` (k, W) hold each measurement's kernel factors at the
+    grid's rows and columns (a_j with its coefficient, as the local mean's product uses
+    them), measurement j in row ``rank[j]``; the grid spans the basis image pixel-centre
+    aligned. Returns (H, W) float32. The cells are constant on each node of the cell grid,
+    so with j(R, C) the first measurement of node (R, C)'s cell the term is
+    a_j(y) b_j(x): a (H, C) table of a and a (R, W) table of b gathered from the factors,
+    then to the points (a few passes over them, no loop). Few cells hold further
+    measurements (carried ones in a seed's cell, several measurements on one node): their
+    nodes are added block by block, one (node, measurement) pair at a time, in rank order.
     """
-    cells = local.cells
-    assert cells is not None
+    height, width = along_y.shape[1], along_x.shape[1]
     grid = cells.labels.shape
-    nodes = _nodes(out_size, basis_image, (grid[0], grid[1]))
+    nodes = _nodes((height, width), basis_image, (grid[0], grid[1]))
     labels = cells.labels.reshape(-1)
-    position_x = local.positions[:, 0]
-    position_y = local.positions[:, 1]
-    first = cells.members[0].take(labels).reshape(grid)
+    first = cells.first.take(labels).reshape(grid)
     present = first >= 0  # a cell whose seed was dropped has no measurement
-    j = np.where(present, first, 0)
-    weight = np.where(present, coefficient.take(j), np.float32(0.0))
-    # (len(ys), C): k_y(y - y_j(R(y), C)), times the node's coefficient
-    along_y = local.prior.factor(
-        (nodes.ys[:, None] - position_y.take(j).take(nodes.row, axis=0)).astype(np.float32)
-    )
-    along_y *= weight.take(nodes.row, axis=0)
-    # (R, len(xs)): k_x(x - x_j(R, C(x)))
-    along_x = local.prior.factor(
-        (nodes.xs[None, :] - position_x.take(j).take(nodes.column, axis=1)).astype(np.float32)
-    )
+    at = rank.take(np.where(present, first, 0))  # (R, C): the node's row of the factors
+    weight = np.where(present, factor, np.float32(0.0))
+    # (H, C): a_j(R(y), C)(y) times factor, and (R, W): b_j(R, C(x))(x)
+    by_row = at.take(nodes.row, axis=0)
+    by_row *= height
+    by_row += np.arange(height)[:, None]
+    table_y = along_y.take(by_row)
+    table_y *= weight.take(nodes.row, axis=0)
+    by_column = at.take(nodes.column, axis=1)
+    by_column *= width
+    by_column += np.arange(width)
+    table_x = along_x.take(by_column)
     # one spare element past the points: the later ranks' padding adds there
-    spill = np.empty(out_size[0] * out_size[1] + 1, np.float32)
-    own: npt.NDArray[np.float32] = spill[:-1].reshape(out_size)
-    np.multiply(along_y[:, nodes.column], along_x[nodes.row], out=own)
-    later = cells.members[1:]  # (m - 1, cells)
-    holding = np.flatnonzero(later[0].take(labels) >= 0) if later.size else later  # their nodes
-    if holding.size:
-        extra = later[:, labels.take(holding)].reshape(-1)  # (m - 1) x len(holding)
-        pair = np.flatnonzero(extra >= 0)
-        j = extra.take(pair)
-        node = holding.take(pair % holding.size)
-        row, column = np.divmod(node, grid[1])
-        block_y = local.prior.factor(
-            (nodes.row_ys.take(row, axis=0) - position_y.take(j)[:, None]).astype(np.float32)
-        )
-        block_y *= coefficient.take(j)[:, None]
-        block_x = local.prior.factor(
-            (nodes.column_xs.take(column, axis=0) - position_x.take(j)[:, None]).astype(np.float32)
-        )
+    spill = np.empty(height * width + 1, np.float32)
+    own: npt.NDArray[np.float32] = spill[:-1].reshape(height, width)
+    np.multiply(table_y.take(nodes.column, axis=1), table_x.take(nodes.row, axis=0), out=own)
+    # the later measurements of each node's cell, node by node: (node, j) pairs
+    node, later = cells.members(labels, after=1)
+    if node.size:
+        row = rank.take(later)[:, None]
+        block_y = along_y.take(row * height + nodes.node_rows.take(node, axis=0))
+        block_y *= factor
+        block_x = along_x.take(row * width + nodes.node_columns.take(node, axis=0))
         # each node's block of points, row by row (padding: a spare point past the last)
-        height, width = block_y.shape[1], block_x.shape[1]
-        values = np.repeat(block_y, width, axis=1)
-        values *= np.tile(block_x, (1, height))
+        values = np.repeat(block_y, block_x.shape[1], axis=1)
+        values *= np.tile(block_x, (1, block_y.shape[1]))
         np.add.at(spill, nodes.blocks.take(node, axis=0).reshape(-1), values.reshape(-1))
     return own
 
@@ -536,9 +534,7 @@ def _cross_covariance(
         return covariance
     scaled = along_y * np.float32(local.prior.variance * local.prior.cell_weight)
     covariance = (scaled[:, :, None] * along_x[:, None, :]).reshape(k, ys.size * xs.size)
-    members = local.cells.members[:, local.cells.at(xs, ys, basis_image).reshape(-1)]
-    rank, at = np.nonzero(members >= 0)
-    j = members[rank, at]
+    at, j = local.cells.members(local.cells.at(xs, ys, basis_image).reshape(-1))
     row, column = np.divmod(at, xs.size)
     covariance[j, at] = along_y[j, row] * along_x[j, column] * variance
     return covariance

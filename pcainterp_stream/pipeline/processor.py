@@ -56,7 +56,7 @@ from pcainterp_stream.estimate.basis import (
     builtin_basis_installed,
     builtin_kind,
 )
-from pcainterp_stream.estimate.cells import Partition
+from pcainterp_stream.estimate.cells import Seeding
 from pcainterp_stream.estimate.dense import DenseModel, MapHoles, find_holes, fuse_dense
 from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
 from pcainterp_stream.estimate.lapack import routines
@@ -334,7 +334,7 @@ class _Measured(NamedTuple):
     # beside SGBM rather than in the check on the sequential densify thread
     held_out: adapt.HeldOut | None = None
     holes: MapHoles | None = None  # the map's holes and their neighbours (dense mode only)
-    partition: Partition | None = None  # along SGBM's map, for an edge-aware prior
+    partition: Seeding | None = None  # along SGBM's map, for an edge-aware prior
 
 
 def features_to_measurements(
@@ -536,7 +536,7 @@ class FrameProcessor:
                 holes = find_holes(disparity_map, measurements.weak)
             elif self.config.edge_aware:  # an edge-aware local prior's cells, beside SGBM
                 size, basis_grid = frame.camera.image_size, self.basis.grid_size
-                partition = Partition.along(measurements.disparity_map, pixels, size, basis_grid)
+                partition = Seeding.along(measurements.disparity_map, pixels, size, basis_grid)
             if self.adaptation.wants_maps():
                 if check_frame or self.adaptation.adapted:
                     sgbm_map, grid = sgbm_maps(measurements.disparity_map, frame.camera)
@@ -824,7 +824,7 @@ class _Estimate(NamedTuple):
     basis: Basis
     options: dict[str, Any]
     temporal: TemporalPrior | None
-    partitions: list[Partition | None] | None = None
+    partitions: list[Seeding | None] | None = None  # searched in the pool, a batch at once
 
 
 def _done(future: Future[Future[list[DensifiedFrame]]]) -> bool:

@@ -10,13 +10,15 @@ import pytest
 from pcainterp_stream import Basis, densify, densify_batch
 from pcainterp_stream.estimate.cells import (
     Partition,
+    Seeding,
     cell_grid_size,
     cell_map,
     geodesic_labels,
+    partition_all,
     to_cell_grid,
 )
 from pcainterp_stream.estimate.fitting import fit_cell_weight, fit_frame
-from pcainterp_stream.estimate.prior import Kernel, LocalPrior
+from pcainterp_stream.estimate.prior import Kernel, LocalPrior, same_cell_pairs
 
 
 def _basis(height: int = 12, width: int = 16, n_components: int = 6) -> Basis:
@@ -118,13 +120,18 @@ def test_measurements_join_the_cell_of_their_node() -> None:
     cells = partition.cells(np.array([[0.0, 0.0], [3.0, 3.0], [1.0, 0.4], [3.0, 0.0]]))
     assert cells.point_cells[:3].tolist() == [0, 3, 0]
     assert cells.point_cells[3] == partition.labels[0, 1]
-    assert cells.members.shape[1] == 4
-    for cell in (0, 3):
-        members = cells.members[:, cell]
-        assert (
-            sorted(members[members >= 0].tolist())
-            == np.flatnonzero(cells.point_cells == cell).tolist()
-        )
+    assert cells.counts.tolist() == np.bincount(cells.point_cells, minlength=4).tolist()
+    assert cells.counts[0] >= 2
+    assert cells.counts[3] >= 1
+    assert cells.counts[1] == cells.counts[2] == 0  # not seeds: no cells of their own
+    assert cells.first.tolist() == [0, -1, -1, 1]
+    for cell in (0, 1, 2, 3):
+        entry, members = cells.members(np.array([cell, cell]))
+        expected = np.flatnonzero(cells.point_cells == cell).tolist()
+        assert members.tolist() == expected + expected  # in their order, per entry
+        assert entry.tolist() == [0] * len(expected) + [1] * len(expected)
+        entry, members = cells.members(np.array([cell]), after=1)
+        assert members.tolist() == expected[1:]
 
 
 def test_no_seed_no_partition() -> None:
@@ -333,7 +340,7 @@ def test_a_cell_without_measurements_gets_the_stationary_part_alone() -> None:
 
 
 @pytest.mark.parametrize("kernel", [Kernel.LAPLACE, Kernel.GAUSSIAN])
-@pytest.mark.parametrize("length_scale", [3.0, 20.0])
+@pytest.mark.parametrize("length_scale", [0.02, 3.0, 20.0])  # 0.02: columns in blocks
 def test_cells_holding_several_measurements_on_uneven_nodes(
     kernel: Kernel, length_scale: float
 ) -> None:
@@ -344,6 +351,56 @@ def test_cells_holding_several_measurements_on_uneven_nodes(
     pixels, disparities = _points(basis, 16, seed=11)
     partition = Partition.along(_edge_map(13, 19), pixels[:5], basis.image_size, basis.grid_size)
     assert partition is not None
-    assert partition.cells(pixels).members.shape[0] >= 3  # a cell holds three or more
+    assert partition.cells(pixels).counts.max() >= 3  # a cell holds three or more
     local = LocalPrior(4.0, length_scale, kernel, cell_weight=0.3)
     _assert_batch_is_dense_posterior(basis, pixels, disparities, local, partition)
+
+
+def test_seedings_searched_together_are_each_frames_own_partition() -> None:
+    """A batch's label search in one stack (:func:`partition_all`) gives every frame the
+    labels it gets alone, on grids of two shapes mixed, partitions and None passing
+    through; densify_batch given the seedings gives the same maps as given partitions."""
+    rng = np.random.default_rng(5)
+    frames = []
+    for shape, size in [((24, 40), (6, 10)), ((24, 40), (6, 10)), ((16, 16), (4, 4))] * 2:
+        edge = rng.choice([8.0, 8.5, 30.0, np.nan], size=shape, p=[0.4, 0.3, 0.2, 0.1])
+        pixels = rng.uniform(0.0, 1.0, (int(rng.integers(1, 9)), 2)) * (shape[1], shape[0])
+        frames.append((edge, pixels, shape, size))
+    alone = [Partition.along(e, p, shape, size) for e, p, shape, size in frames]
+    seedings: list[Seeding | Partition | None] = [
+        Seeding.along(e, p, shape, size) for e, p, shape, size in frames
+    ]
+    seedings[3] = alone[3]
+    together = partition_all([*seedings, None])
+    assert together[-1] is None
+    for one, other in zip(alone, together, strict=False):
+        assert one is not None
+        assert other is not None
+        np.testing.assert_array_equal(one.labels, other.labels)
+        assert one.image_size == other.image_size
+    basis = _basis(12, 16)
+    local = LocalPrior(4.0, 6.0, Kernel.LAPLACE, cell_weight=0.3)
+    points = [_points(basis, 9, seed) for seed in (1, 2)]
+    edge = _edge_map(12, 16)
+    arguments = ([p for p, _ in points], [d for _, d in points])
+    given = [Seeding.along(edge, p, basis.image_size, basis.grid_size) for p, _ in points]
+    searched = partition_all(given)
+    from_seedings = densify_batch(basis, *arguments, local_prior=local, partitions=given)
+    from_partitions = densify_batch(basis, *arguments, local_prior=local, partitions=searched)
+    for one, other in zip(from_seedings, from_partitions, strict=True):
+        np.testing.assert_array_equal(one.disparity, other.disparity)
+        np.testing.assert_array_equal(one.disparity_std, other.disparity_std)
+
+
+def test_the_cells_list_the_same_cell_pairs_of_c_pp() -> None:
+    """Cells.members of every measurement's own cell are the (i, j) pairs C_pp keeps at v k
+    (prior.same_cell_pairs), (i, i) included."""
+    rng = np.random.default_rng(8)
+    pixels = rng.uniform(0.0, 1.0, (40, 2)) * (40, 24)
+    partition = Partition.along(rng.uniform(5.0, 30.0, (24, 40)), pixels[:12], (24, 40), (6, 10))
+    assert partition is not None
+    cells = partition.cells(pixels)
+    listed = set(zip(*(a.tolist() for a in cells.members(cells.point_cells)), strict=True))
+    paired = set(zip(*(a.tolist() for a in same_cell_pairs(cells.point_cells)), strict=True))
+    assert listed == paired
+    assert len(listed) > 40  # cells holding several
