@@ -172,7 +172,9 @@ class ProcessorConfig:
             frames well (``adapt`` not ``"off"``), checks the indoor one on the same held-out
             pixels and uses whichever fits better; ``"street"`` or ``"indoor"``: that one.
         edge_aware: sparse stereo mode partitions each frame along its SGBM map (beside
-            SGBM) for an edge-aware local prior (:mod:`~pcainterp_stream.estimate.cells`).
+            SGBM) for an edge-aware local prior (:mod:`~pcainterp_stream.estimate.cells`),
+            used when the basis's local prior has a cell weight (the built-in street
+            basis); False: the stationary kernel.
     """
 
     gftt: GfttConfig = field(default_factory=GfttConfig)
@@ -207,7 +209,7 @@ class ProcessorConfig:
     adapt: str = "auto"
     warmup_frames: int = 8
     builtin: str = "auto"
-    edge_aware: bool = False
+    edge_aware: bool = True
 
     def __post_init__(self) -> None:
         if self.adapt not in ("auto", "check", "off"):
