@@ -79,9 +79,11 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "gaussian40": {"prior": {"local": {"kernel": "gaussian", "length_scale": 40.0}}},
     "sigma0.5": {"prior": {"sigma": 0.5}},
     "sigma1": {"prior": {"sigma": 1.0}},
-    # the edge-aware local prior (densify --edge-aware) with the built-in basis's cell weight
-    # 0.75, or another w (1: the stationary kernel; estimate/cells.py)
+    # the edge-aware local prior (densify's default) with the built-in basis's cell weight
+    # 0.75, or another w (1: the stationary kernel; estimate/cells.py); no_edge_aware is
+    # densify --no-edge-aware, the stationary kernel without the partition
     "edge_aware": {"edge_aware": True},
+    "no_edge_aware": {"edge_aware": False},
     "cells0": {"edge_aware": True, "prior": {"local": {"cell_weight": 0.0}}},
     "cells0.25": {"edge_aware": True, "prior": {"local": {"cell_weight": 0.25}}},
     "cells0.5": {"edge_aware": True, "prior": {"local": {"cell_weight": 0.5}}},
