@@ -574,9 +574,14 @@ def _estimate_line(basis: Basis) -> str:
     parts = []
     if settings.local_prior is not None:
         local = settings.local_prior
+        edges = (
+            f", cut along SGBM's depth edges (w {local.cell_weight:g})"
+            if local.edge_aware and ProcessorConfig().edge_aware
+            else ""
+        )
         parts.append(
             f"hybrid prior ({local.kernel.value} kernel, {local.length_scale:g} px, "
-            f"{local.variance:.2g} px^2, fitted by evidence)"
+            f"{local.variance:.2g} px^2, fitted by evidence{edges})"
         )
     else:
         parts.append("paper's prior")
