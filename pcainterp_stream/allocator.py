@@ -14,6 +14,7 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import functools
+import os
 import sys
 from collections.abc import Callable
 from typing import cast
@@ -86,6 +87,23 @@ def release_free_memory() -> bool:
     trim.restype = ctypes.c_int
     trim(0)
     return True
+
+
+def resident_bytes() -> int | None:
+    """Return the process's resident set size in bytes (``/proc/self/statm``), or None.
+
+    One small read (~10 us): cheap enough to check every few frames. None where ``/proc``
+    is not there (not Linux).
+    """
+    try:
+        with open("/proc/self/statm", "rb") as statm:
+            fields = statm.read().split()
+        return int(fields[1]) * _PAGE_SIZE
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+_PAGE_SIZE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
 
 
 def _mallopt() -> Callable[[int, int], int] | None:
