@@ -47,7 +47,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream import compiled, defaults
-from pcainterp_stream.allocator import release_free_memory, resident_bytes
+from pcainterp_stream.allocator import Releases
 from pcainterp_stream.estimate import adapt
 from pcainterp_stream.estimate.basis import (
     BUILTIN_KINDS,
@@ -98,26 +98,6 @@ The check and the first batch take the densify thread ~0.4-0.6 s on a KITTI log 
 built-in bases checked), as long as matching ~12-18 frames on the other core: with one
 batch ahead the workers stopped and a core sat idle (measured in docs/speed_levers.md).
 Each frame held costs its pair and SGBM map (~3-5 MB at KITTI size)."""
-
-RELEASE_EVERY = 250
-"""Frames between two returns of the heap's free pages to the OS (with the allocator tuned).
-
-Without it a KITTI densify's resident size crept from 350 to 378 MB over 3,000 frames
-(fragmentation: holes kept resident); each release costs faulting the reused pages in
-again, a fraction of a millisecond per frame at this interval (docs/speed_levers.md)."""
-
-RELEASE_ABOVE_MB = 350
-"""Resident size (MB) above which the free pages are given back at once, between the
-periodic releases: a KITTI job's heap holds 150-230 MB of freed, reused memory beside the
-120-180 MB in use, and its resident size reached 404 MB once; checked every
-:data:`RESIDENT_CHECK_EVERY` frames, released again only after it grew by
-:data:`RELEASE_GROWTH_MB` more (the pages in use are not given back)."""
-
-RESIDENT_CHECK_EVERY = 4
-"""Frames between two reads of the resident size (``/proc/self/statm``, ~10 us)."""
-
-RELEASE_GROWTH_MB = 32
-"""Growth (MB) of the resident size after a release before the next early one."""
 
 
 @dataclass(frozen=True)
@@ -170,7 +150,8 @@ class ProcessorConfig:
             so the many full-size temporaries per frame reuse freed heap memory instead of
             page-faulting fresh ``mmap`` regions: ~15 % less CPU per frame end to end; cap
             its arenas at one per core (each keeps its high-water mark); and give the free
-            pages back every :data:`RELEASE_EVERY` frames, so memory creeps less on long logs.
+            pages back now and then (:class:`~pcainterp_stream.allocator.Releases`), so
+            memory creeps less on long logs.
         adapt: the fit check and self-supervised adaptation (sparse measurements):
             ``"auto"`` checks the basis on the first frames against linear interpolation on
             held-out SGBM pixels; when it is a built-in one that does not fit well, the
@@ -453,7 +434,7 @@ class FrameProcessor:
         self.carried = CarriedPoints(self.config.carry) if self.config.carry.frames else None
         self._previous_frame: StereoFrame | None = None
         self._submitted = 0
-        self._release_floor = RELEASE_ABOVE_MB << 20  # resident bytes that trigger a release
+        self._releases = Releases()  # the heap's free pages given back now and then
         # a feature stream has no SGBM maps: checked by left-out points, never adapted
         mode = self.config.adapt if not self.dense else "off"
         kind = builtin_kind(basis)
@@ -586,19 +567,6 @@ class FrameProcessor:
             partition,
         )
 
-    def _release_memory(self) -> None:
-        """Give the heap's free pages back every RELEASE_EVERY frames, or early when big."""
-        if self._submitted % RELEASE_EVERY == 0:
-            release_free_memory()  # the heap's holes, kept resident, would creep up
-            return
-        if self._submitted % RESIDENT_CHECK_EVERY:
-            return
-        resident = resident_bytes()
-        if resident is not None and resident > self._release_floor:
-            release_free_memory()
-            after = resident_bytes() or resident
-            self._release_floor = max(RELEASE_ABOVE_MB << 20, after + (RELEASE_GROWTH_MB << 20))
-
     def submit(
         self, frame: StereoFrame, features: SparseFeatures | None = None
     ) -> list[DensifiedFrame]:
@@ -608,7 +576,7 @@ class FrameProcessor:
         check_frame = self._submitted < self.adaptation.warmup_frames
         self._submitted += 1
         if self.config.keep_freed_memory:
-            self._release_memory()
+            self._releases.frame(self._submitted)
         self._pending.append(
             self._executor.submit(self._measure, frame, features, previous, check_frame)
         )

@@ -607,25 +607,3 @@ def test_an_edge_aware_prior_gets_each_frames_sgbm_map(frames: list[StereoFrame]
         edge_map=measured.disparity_map,
     )
     np.testing.assert_allclose(aware[0].disparity, expected.disparity, rtol=1e-4, atol=1e-4)
-
-
-def test_free_memory_goes_back_early_when_the_resident_size_is_high(
-    basis: Basis, frames: list[StereoFrame], monkeypatch: pytest.MonkeyPatch
-) -> None:
-    # Checked every RESIDENT_CHECK_EVERY frames: above RELEASE_ABOVE_MB the free pages go
-    # back at once; the next early release waits until the size grew RELEASE_GROWTH_MB more.
-    mib = 1 << 20
-    sizes = iter([300 * mib, 400 * mib, 380 * mib, 390 * mib, 420 * mib, 100 * mib] + [0] * 99)
-    released: list[int] = []
-    monkeypatch.setattr(processor, "resident_bytes", lambda: next(sizes))
-    monkeypatch.setattr(processor, "release_free_memory", lambda: released.append(1) or True)
-    monkeypatch.setattr(processor, "RESIDENT_CHECK_EVERY", 1)
-    config = ProcessorConfig(sgbm=SGBM, keep_freed_memory=True)
-    with FrameProcessor(basis, config) as engine:
-        for _ in range(5):
-            engine._submitted += 1
-            engine._release_memory()
-    # frame 1: 300 (below 350); frame 2: 400 -> release, 380 after -> next at 412;
-    # frame 3: 390 (below 412); frame 4: 420 -> release, 100 after -> next at 350; frame 5: 0
-    assert len(released) == 2
-    assert engine._release_floor == processor.RELEASE_ABOVE_MB * mib

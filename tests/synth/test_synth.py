@@ -230,3 +230,27 @@ def test_released_memory_leaves_the_resident_set() -> None:
     kept = resident_mb()
     assert release_free_memory()
     assert resident_mb() < kept - 128  # most of the 256 MiB left the resident set
+
+
+def test_free_memory_goes_back_early_when_the_resident_size_is_high(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # Read every RESIDENT_CHECK_EVERY frames: above RELEASE_ABOVE_MB the free pages go back
+    # at once; the next early release waits until the size grew RELEASE_GROWTH_MB more.
+    from pcainterp_stream import allocator
+
+    mib = 1 << 20
+    sizes = iter([300 * mib, 400 * mib, 380 * mib, 390 * mib, 420 * mib, 100 * mib])
+    released: list[int] = []
+    monkeypatch.setattr(allocator, "resident_bytes", lambda: next(sizes))
+    monkeypatch.setattr(allocator, "release_free_memory", lambda: released.append(1) or True)
+    monkeypatch.setattr(allocator, "RESIDENT_CHECK_EVERY", 1)
+    releases = allocator.Releases()
+    for count in range(1, 5):
+        releases.frame(count)
+    # 1: 300 (below 350); 2: 400 -> release, 380 after -> next above 412; 3: 390;
+    # 4: 420 -> release, 100 after -> next above 350 again
+    assert len(released) == 2
+    assert releases.floor == allocator.RELEASE_ABOVE_MB * mib
+    releases.frame(allocator.RELEASE_EVERY)  # the periodic release, whatever the size
+    assert len(released) == 3
