@@ -82,10 +82,7 @@ def release_free_memory() -> bool:
     libc = _glibc()
     if libc is None:
         return False
-    trim = libc.malloc_trim
-    trim.argtypes = [ctypes.c_size_t]
-    trim.restype = ctypes.c_int
-    trim(0)
+    libc.malloc_trim(0)
     return True
 
 
@@ -157,10 +154,7 @@ def _mallopt() -> Callable[[int, int], int] | None:
     libc = _glibc()
     if libc is None:
         return None
-    mallopt = libc.mallopt
-    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
-    mallopt.restype = ctypes.c_int
-    return cast("Callable[[int, int], int]", mallopt)
+    return cast("Callable[[int, int], int]", libc.mallopt)
 
 
 @functools.cache
@@ -171,7 +165,10 @@ def _glibc() -> ctypes.CDLL | None:
     name = ctypes.util.find_library("c")
     try:
         libc = ctypes.CDLL(name or "libc.so.6")
-        libc.mallopt, libc.malloc_trim  # noqa: B018 - both or neither
+        libc.mallopt.argtypes = [ctypes.c_int, ctypes.c_int]  # both or neither
+        libc.mallopt.restype = ctypes.c_int
+        libc.malloc_trim.argtypes = [ctypes.c_size_t]
+        libc.malloc_trim.restype = ctypes.c_int
     except (OSError, AttributeError):
         return None
     return libc

@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import itertools
-import os
 import platform
 import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -218,11 +216,12 @@ def test_allocator_tuning_is_idempotent() -> None:
     reason="glibc's allocator and /proc",
 )
 def test_released_memory_leaves_the_resident_set() -> None:
-    from pcainterp_stream.allocator import keep_freed_memory, release_free_memory
+    from pcainterp_stream.allocator import keep_freed_memory, release_free_memory, resident_bytes
 
     def resident_mb() -> float:
-        pages = int(Path("/proc/self/statm").read_text().split()[1])
-        return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
+        resident = resident_bytes()
+        assert resident is not None
+        return resident / 2**20
 
     assert keep_freed_memory()  # freed memory is kept resident from here on
     blocks = [np.ones(2**19) for _ in range(64)]  # 64 x 4 MiB from the heap, touched
