@@ -5,7 +5,8 @@ Each round runs, in fresh processes: full-resolution SGBM alone
 before the change (``--before``: a folder holding its ``pcainterp_stream`` package, put
 first on ``PYTHONPATH``), and the same command with the code installed here. Per round it
 prints the wall time and the CPU (user + system, start-up included) of each, CPU per frame,
-the job's wall time and CPU against SGBM alone's, and the output's MB per frame; then the
+the job's wall time and CPU against SGBM alone's, the output's MB per frame and each
+process's peak RSS; then the
 medians. "before" and "after" swap places every round. Both
 packages are compiled to bytecode first, as an installed copy is
 (:func:`harness.compile_bytecode`).
@@ -35,8 +36,10 @@ import pcainterp_stream
 from pcainterp_stream.io.logreader import open_log
 
 
-def run(command: list[str], cwd: Path, env: dict[str, str] | None = None) -> tuple[float, float]:
-    """Run a command to its end in ``cwd``; return its wall and CPU seconds.
+def run(
+    command: list[str], cwd: Path, env: dict[str, str] | None = None
+) -> tuple[float, float, float]:
+    """Run a command to its end in ``cwd``; return its wall and CPU seconds and peak RSS (MB).
 
     Raises:
         SystemExit: the command failed (its last error lines).
@@ -50,7 +53,8 @@ def run(command: list[str], cwd: Path, env: dict[str, str] | None = None) -> tup
     _, status, usage = os.wait4(child.pid, 0)
     if os.waitstatus_to_exitcode(status) != 0:
         raise SystemExit(f"{' '.join(command)} failed: {errors.decode()[-2000:]}")
-    return time.perf_counter() - started, usage.ru_utime + usage.ru_stime
+    wall = time.perf_counter() - started
+    return wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024  # KiB on Linux
 
 
 def frame_count(log: Path) -> int:
@@ -101,35 +105,42 @@ def main(argv: list[str] | None = None) -> int:
                 "CPU after / SGBM",
                 "MB/frame before",
                 "after",
+                "peak RSS MB before",
+                "after",
             ]
         )
     )
     walls: dict[str, list[float]] = {"before": [], "after": []}
     cpus: dict[str, list[float]] = {"before": [], "after": []}
+    peaks: dict[str, list[float]] = {"before": [], "after": []}
     for round_index in range(args.rounds):
         alone = run(sgbm, work)
         # the order alternates from round to round, so neither gains from going second
-        timed: dict[str, tuple[float, float]] = {}
+        timed: dict[str, tuple[float, float, float]] = {}
         sizes: dict[str, float] = {}
         for name in ("before", "after") if round_index % 2 == 0 else ("after", "before"):
             timed[name] = run(densify, work, old_env if name == "before" else None)
             sizes[name] = output.stat().st_size / 1e6 / frames
             walls[name].append(timed[name][0] / alone[0])
             cpus[name].append(timed[name][1] / alone[1])
+            peaks[name].append(timed[name][2])
         cells: list[object] = [round_index + 1]
         cells += [
             f"{wall:.2f} ({1000 * cpu / frames:.0f})"
-            for wall, cpu in (alone, timed["before"], timed["after"])
+            for wall, cpu, _ in (alone, timed["before"], timed["after"])
         ]
         cells += [f"{walls[name][-1]:.3f}" for name in ("before", "after")]
         cells += [f"{cpus[name][-1]:.2f}" for name in ("before", "after")]
         cells += [f"{sizes['before']:.3f}", f"{sizes['after']:.3f}"]
+        cells += [f"{peaks[name][-1]:.0f}" for name in ("before", "after")]
         print(harness.table_row(cells), flush=True)
     print(
         f"\nagainst SGBM alone over {args.rounds} rounds, median wall: before "
         f"{statistics.median(walls['before']):.3f}, after {statistics.median(walls['after']):.3f}"
         f"; median CPU: before {statistics.median(cpus['before']):.2f}, after "
-        f"{statistics.median(cpus['after']):.2f}"
+        f"{statistics.median(cpus['after']):.2f}; peak RSS: before "
+        f"{min(peaks['before']):.0f}-{max(peaks['before']):.0f} MB, after "
+        f"{min(peaks['after']):.0f}-{max(peaks['after']):.0f} MB"
     )
     return 0
 
