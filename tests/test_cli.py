@@ -1162,7 +1162,7 @@ def test_densify_output_is_a_folder(
         ("--num-disparities", "20", "--num-disparities must be a positive multiple of 16, got 20"),
         ("--num-disparities", "0", "--num-disparities must be a positive multiple of 16"),
         ("--block-size", "4", "--block-size must be odd and positive, got 4"),
-        ("--corners", "0", "--corners must be at least 1, got 0"),
+        ("--corners", "-1", "--corners must be at least 0, got -1"),
         ("--quality", "1.5", "--quality must be in (0, 1), got 1.5"),
         ("--min-distance", "-2", "--min-distance must be >= 0 px, got -2.0"),
         ("--baseline", "0", "--baseline must be a finite number > 0 m, got 0.0"),
@@ -1516,6 +1516,36 @@ def test_signal_during_densify(
     )
     assert rerun.returncode == 0, rerun.stderr
     assert assert_valid_mcap(out)["/pcainterp/depth"] == SMALL_FRAMES
+
+
+def test_densify_without_corners_or_lattice_is_refused(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path
+) -> None:
+    args = densify_args(small_log, out, basis_path, "--corners", "0", "--fill-spacing", "0")
+    line = pcainterp(*args).error_line()
+    assert "--corners 0 --fill-spacing 0 leaves no point to measure" in line
+    assert_nothing_written(out)
+
+
+@pytest.mark.parametrize(
+    ("options", "corners", "spacing"),
+    [
+        ((), 250, 40.0),  # sparse mode: corners and a lattice in their gaps
+        (("--measurements", "dense"), 0, 30.0),  # dense mode: the lattice alone
+        (("--measurements", "dense", "--corners", "100"), 100, 30.0),
+        (("--measurements", "dense", "--fill-spacing", "20"), 0, 20.0),
+        (("--corners", "0", "--fill-spacing", "25"), 0, 25.0),
+    ],
+)
+def test_points_by_mode_and_by_choice(
+    options: tuple[str, ...], corners: int, spacing: float
+) -> None:
+    from pcainterp_stream.cli import build_parser
+    from pcainterp_stream.cli.densify import _processor_config
+
+    args = build_parser().parse_args(["densify", "in.mcap", "-o", "out.mcap", *options])
+    config = _processor_config(args, adapt="check")
+    assert (config.gftt.max_corners, config.gftt.fill_spacing) == (corners, spacing)
 
 
 @pytest.mark.parametrize(

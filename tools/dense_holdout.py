@@ -4,8 +4,9 @@ Real clips have no ground truth, and SGBM's real holes have no reference. This h
 square blocks of dense mode's SGBM map (full resolution, the left band matched too) where it
 is valid (seeded, right of the left band), so the hidden values are a reference for what
 fills them: nearest-neighbour fill (evaluate's ``sgbm_nn``), the sparse estimate (PCA-MAP
-from the GFTT lookups of the masked map, densify's defaults with the built-in basis) and
-dense mode's fusion. The blocks are textured surfaces SGBM matched, not the sky or
+from dense mode's lookups of the masked map: its lattice, or the corners ``--corners``
+asks for; densify's defaults with the built-in basis) and dense mode's fusion. The blocks
+are textured surfaces SGBM matched, not the sky or
 occlusions real holes often are, so this measures the fill of holes in matched surfaces
 only (docs/dense.md).
 
@@ -24,13 +25,16 @@ from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.dense import find_holes, fuse_dense
 from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.evaluate.metrics import fill_nearest
-from pcainterp_stream.frontend.matchers import DEFAULT_DENSE_MATCHER, DENSE_MATCHERS
+from pcainterp_stream.frontend.matchers import (
+    DEFAULT_DENSE_MATCHER,
+    DENSE_GFTT,
+    DENSE_MATCHERS,
+)
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     SgbmConfig,
     compute_weak_disparity,
-    detect_corners,
-    lookup_disparities,
+    sparse_lookups,
     to_grey8,
 )
 from pcainterp_stream.io.kitti import iter_frames, open_kitti
@@ -46,11 +50,14 @@ def score_clip(
     size: int,
     seed: int,
     matcher: str = DEFAULT_DENSE_MATCHER,
+    gftt: GfttConfig | None = None,
 ) -> dict[str, float]:
     """Mean abs. error (px) on the hidden pixels of each filler, and dense mode's coverage.
 
-    ``matcher``: dense mode's matcher by ``--dense-matcher`` name (``DENSE_MATCHERS``).
+    ``matcher``: dense mode's matcher by ``--dense-matcher`` name (``DENSE_MATCHERS``);
+    ``gftt``: the sparse estimate's points (None: ``DENSE_GFTT``), looked up as densify does.
     """
+    gftt = gftt or DENSE_GFTT
     basis = Basis.default()
     settings = resolve_settings(basis, ProcessorConfig())
     sgbm = DENSE_MATCHERS[matcher]
@@ -71,9 +78,7 @@ def score_clip(
         hidden = mask & np.isfinite(full)
         masked = np.where(mask, np.float32(np.nan), full)
         grey = to_grey8(frame.left)
-        found = lookup_disparities(
-            masked, detect_corners(grey, GfttConfig(), min_x=sgbm.valid_min_x)
-        )
+        found = sparse_lookups(grey, masked, gftt, min_x=sgbm.valid_min_x)
         estimate = densify(
             basis,
             found.pixels,
@@ -120,6 +125,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         default=DEFAULT_DENSE_MATCHER,
         help="dense mode's matcher (densify --dense-matcher; default refined)",
     )
+    harness.add_dense_points(parser)
     args = parser.parse_args(argv)
     clips = {
         "KITTI raw drive 0001": args.realdata / harness.KITTI_RAW_0001,
@@ -142,6 +148,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             size=args.block_size,
             seed=args.seed,
             matcher=args.matcher,
+            gftt=harness.dense_points(args),
         )
         print(
             harness.table_row(

@@ -29,6 +29,7 @@ from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.evaluate.metrics import disparity_from_depth, fill_nearest
 from pcainterp_stream.frontend.matchers import (
     DEFAULT_DENSE_MATCHER,
+    DENSE_GFTT,
     DENSE_MATCHERS,
     dense_matcher,
 )
@@ -37,8 +38,7 @@ from pcainterp_stream.frontend.stereo import (
     SgbmConfig,
     compute_disparity,
     compute_weak_disparity,
-    detect_corners,
-    lookup_disparities,
+    sparse_lookups,
     to_grey8,
 )
 from pcainterp_stream.pipeline.processor import ProcessorConfig, resolve_settings
@@ -50,12 +50,14 @@ REGIONS = ("left band", "sky", "close (> 90 px)", "other")
 
 
 def calibration(
-    downscale: int, matcher: str = DEFAULT_DENSE_MATCHER
+    downscale: int, matcher: str = DEFAULT_DENSE_MATCHER, gftt: GfttConfig | None = None
 ) -> tuple[dict[str, float], dict[str, list[float]]]:
     """Score dense mode on the calibration frames with SGBM at 1/``downscale`` resolution.
 
-    ``matcher``: dense mode's matcher by ``--dense-matcher`` name (``DENSE_MATCHERS``).
+    ``matcher``: dense mode's matcher by ``--dense-matcher`` name (``DENSE_MATCHERS``);
+    ``gftt``: the sparse estimate's points (None: ``DENSE_GFTT``), looked up as densify does.
     """
+    gftt = gftt or DENSE_GFTT
     basis = Basis.default()
     options = resolve_settings(basis, ProcessorConfig()).densify_options()
     sgbm = SgbmConfig(downscale=downscale)
@@ -75,10 +77,9 @@ def calibration(
             # dense mode matches the left band too; SGBM's holes are the plain matcher's
             matched, weak = compute_weak_disparity(frame.left, frame.right, dense_sgbm)
             plain = compute_disparity(frame.left, frame.right, sgbm)
-            corners = detect_corners(
-                to_grey8(frame.left), GfttConfig(), min_x=dense_sgbm.valid_min_x
+            found = sparse_lookups(
+                to_grey8(frame.left), matched, gftt, min_x=dense_sgbm.valid_min_x
             )
-            found = lookup_disparities(matched, corners)
             estimate = densify(
                 basis,
                 found.pixels,
@@ -137,7 +138,7 @@ def calibration(
     }
 
 
-def print_calibration(matcher: str = DEFAULT_DENSE_MATCHER) -> None:
+def print_calibration(matcher: str = DEFAULT_DENSE_MATCHER, gftt: GfttConfig | None = None) -> None:
     """Print the calibration-frame tables (dense mode with the ``matcher`` named)."""
     print("\n## Calibration frames (seeds 9001-9003, frames 0, 10, 20, 30; ground truth)\n")
     headers = [
@@ -153,7 +154,7 @@ def print_calibration(matcher: str = DEFAULT_DENSE_MATCHER) -> None:
     print(harness.table_header(headers))
     breakdowns = {}
     for downscale in (1, 2):
-        scores, breakdowns[downscale] = calibration(downscale, matcher)
+        scores, breakdowns[downscale] = calibration(downscale, matcher, gftt)
         print(
             harness.table_row(
                 [
@@ -178,11 +179,20 @@ def print_calibration(matcher: str = DEFAULT_DENSE_MATCHER) -> None:
         )
 
 
-def run_commands(work: Path, realdata: Path, matcher: str = DEFAULT_DENSE_MATCHER) -> None:
+def run_commands(
+    work: Path,
+    realdata: Path,
+    matcher: str = DEFAULT_DENSE_MATCHER,
+    gftt: GfttConfig | None = None,
+) -> None:
     """Run the real command line of the held-out table (evaluate prints the results).
 
-    ``matcher``: ``--dense-matcher`` of the dense runs.
+    ``matcher``: ``--dense-matcher`` of the dense runs; ``gftt``: their points (None:
+    ``DENSE_GFTT``, densify's own, so no option is passed).
     """
+    points: tuple[str | int | float, ...] = ()
+    if gftt is not None and gftt != DENSE_GFTT:
+        points = ("--corners", gftt.max_corners, "--fill-spacing", gftt.fill_spacing)
     syn = work / "syn.mcap"
     if not syn.exists():
         harness.run_cli(
@@ -198,7 +208,7 @@ def run_commands(work: Path, realdata: Path, matcher: str = DEFAULT_DENSE_MATCHE
             harness.run_cli("import-kitti", folder, logs[name], quiet=True)
     evaluate = ("--mode", "stereo", "--no-basis", "--no-linear")
     for name, log in logs.items():
-        runs: dict[str, tuple[str | int, ...]] = {
+        runs: dict[str, tuple[str | int | float, ...]] = {
             "sparse": (),
             "dense": ("--measurements", "dense"),
         }
@@ -207,6 +217,8 @@ def run_commands(work: Path, realdata: Path, matcher: str = DEFAULT_DENSE_MATCHE
         for label, extra in runs.items():
             if label != "sparse" and matcher != DEFAULT_DENSE_MATCHER:
                 extra = (*extra, "--dense-matcher", matcher)
+            if label != "sparse":
+                extra = (*extra, *points)
             out = work / f"{name}_{label}.mcap"
             out.unlink(missing_ok=True)
             print(f"\n## {name}, {label}\n")
@@ -238,14 +250,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         default=DEFAULT_DENSE_MATCHER,
         help="dense mode's matcher (densify --dense-matcher; default refined)",
     )
+    harness.add_dense_points(parser)
     args = parser.parse_args(argv)
     work = harness.work_dir(args.work_dir)
+    gftt = harness.dense_points(args)
     if "calibration" in args.sections:
-        print_calibration(args.matcher)
+        print_calibration(args.matcher, gftt)
     if "cli" in args.sections:
         if not (args.realdata / harness.KITTI_RAW_0001).is_dir():
             parser.error(f"{args.realdata / harness.KITTI_RAW_0001} not found; pass --realdata")
-        run_commands(work, args.realdata, args.matcher)
+        run_commands(work, args.realdata, args.matcher, gftt)
     return 0
 
 

@@ -183,20 +183,26 @@ def dense_matcher(name: str = DEFAULT_DENSE_MATCHER) -> object:
     raise ValueError(f"unknown matcher {name!r}; one of {', '.join(MATCHERS)}")
 
 
-def dense_config(model: object = None, *, matcher: str = DEFAULT_DENSE_MATCHER) -> object:
+def dense_config(
+    model: object = None, *, matcher: str = DEFAULT_DENSE_MATCHER, gftt: object = None
+) -> object:
     """The processor of ``densify --measurements dense`` (by default its default matcher).
 
     ``model``: a ``DenseModel`` in place of the default one; ``matcher``: one of
-    :data:`MATCHERS`.
+    :data:`MATCHERS`; ``gftt``: the sparse estimate's points (None: ``DENSE_GFTT``).
     """
     from pcainterp_stream.estimate.dense import DenseModel
-    from pcainterp_stream.frontend.stereo import SgbmConfig
+    from pcainterp_stream.frontend.matchers import DENSE_GFTT
+    from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig
     from pcainterp_stream.pipeline.processor import ProcessorConfig
 
     assert model is None or isinstance(model, DenseModel)
+    assert gftt is None or isinstance(gftt, GfttConfig)
     sgbm = dense_matcher(matcher)
     assert isinstance(sgbm, SgbmConfig)
-    return ProcessorConfig(measurements="dense", sgbm=sgbm, dense=model or DenseModel())
+    return ProcessorConfig(
+        measurements="dense", sgbm=sgbm, gftt=gftt or DENSE_GFTT, dense=model or DenseModel()
+    )
 
 
 @dataclass
@@ -320,6 +326,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "it, the default), full (the whole range at full resolution, --dense-matcher full), "
         "split (the near half of the range at half resolution; measured only)",
     )
+    harness.add_dense_points(parser)
     args = parser.parse_args(argv)
     if not args.folder.is_dir():
         parser.error(f"{args.folder} is not a folder; pass a KITTI depth-annotated sequence")
@@ -329,7 +336,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         log = work / "annotated.mcap"
         write_log(frames, log)
         jobs = {
-            "dense": run_job(log, dense_config(matcher=args.matcher), work),
+            "dense": run_job(
+                log, dense_config(matcher=args.matcher, gftt=harness.dense_points(args)), work
+            ),
             "sparse": run_job(log, ProcessorConfig(), work),
         }
     print(f"{len(frames.names)} frames of {args.folder}\n")

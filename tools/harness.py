@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import io
 import json
 import os
@@ -83,6 +84,33 @@ def add_realdata(parser: argparse.ArgumentParser) -> None:
         default=REALDATA,
         help=f"folder holding {KITTI_RAW_0001.as_posix()}",
     )
+
+
+def add_dense_points(parser: argparse.ArgumentParser) -> None:
+    """Add ``--corners`` and ``--fill-spacing``: the points of dense mode's sparse estimate."""
+    from pcainterp_stream.frontend.matchers import DENSE_GFTT
+
+    parser.add_argument(
+        "--corners",
+        type=int,
+        default=DENSE_GFTT.max_corners,
+        help=f"GFTT corners of dense mode's sparse estimate (densify --corners; default "
+        f"{DENSE_GFTT.max_corners}, as densify --measurements dense)",
+    )
+    parser.add_argument(
+        "--fill-spacing",
+        type=float,
+        default=DENSE_GFTT.fill_spacing,
+        help=f"its lattice's side, px (densify --fill-spacing; default "
+        f"{DENSE_GFTT.fill_spacing:g})",
+    )
+
+
+def dense_points(args: argparse.Namespace) -> Any:
+    """The ``GfttConfig`` of :func:`add_dense_points`' options."""
+    from pcainterp_stream.frontend.matchers import DENSE_GFTT
+
+    return dataclasses.replace(DENSE_GFTT, max_corners=args.corners, fill_spacing=args.fill_spacing)
 
 
 def add_basis_arguments(parser: argparse.ArgumentParser) -> None:

@@ -63,7 +63,14 @@ def print_written(summary: WriteSummary) -> None:
 def add_stereo_options(parser: argparse.ArgumentParser) -> None:
     """Add the GFTT and SGBM options of ``learn`` and ``densify``."""
     group = parser.add_argument_group("stereo front end (GFTT corners, SGBM lookups)")
-    group.add_argument("--corners", type=int, default=None, metavar="N", help="max GFTT corners")
+    group.add_argument(
+        "--corners",
+        type=int,
+        default=None,
+        metavar="N",
+        help="max GFTT corners (default 250; densify --measurements dense: 0, the lattice "
+        "alone; 0 = none)",
+    )
     group.add_argument(
         "--quality", type=float, default=None, metavar="Q", help="GFTT quality level"
     )
@@ -75,7 +82,8 @@ def add_stereo_options(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=None,
         metavar="PX",
-        help="lattice of extra lookups in the corners' gaps, side in px (default 40; 0 = off)",
+        help="lattice of extra lookups in the corners' gaps, side in px (default 40; "
+        "densify --measurements dense: 30; 0 = off)",
     )
     group.add_argument(
         "--num-disparities", type=int, default=None, metavar="N", help="SGBM disparity range"
@@ -123,18 +131,19 @@ def sgbm_config(args: argparse.Namespace, base: SgbmConfig | None = None) -> Sgb
     return dataclasses.replace(SgbmConfig() if base is None else base, **changes)
 
 
-def gftt_config(args: argparse.Namespace) -> GfttConfig:
-    """Return ``GfttConfig()`` with the corner options given changed.
+def gftt_config(args: argparse.Namespace, base: GfttConfig | None = None) -> GfttConfig:
+    """Return ``base`` (None: ``GfttConfig()``) with the corner options given changed.
 
     Raises:
-        PcaInterpError: a corner count, quality or distance out of its range.
+        PcaInterpError: a corner count, quality or distance out of its range, or neither
+            corners nor a lattice.
     """
     from pcainterp_stream.frontend.stereo import GfttConfig
 
     changes: dict[str, Any] = {}
     if args.corners is not None:
-        if args.corners < 1:
-            raise PcaInterpError(f"--corners must be at least 1, got {args.corners}")
+        if args.corners < 0:
+            raise PcaInterpError(f"--corners must be at least 0, got {args.corners}")
         changes["max_corners"] = args.corners
     if args.quality is not None:
         if not 0 < args.quality < 1:
@@ -148,7 +157,14 @@ def gftt_config(args: argparse.Namespace) -> GfttConfig:
         if not args.fill_spacing >= 0:
             raise PcaInterpError(f"--fill-spacing must be >= 0 px, got {args.fill_spacing}")
         changes["fill_spacing"] = args.fill_spacing
-    return dataclasses.replace(GfttConfig(), **changes)
+    config = GfttConfig() if base is None else base
+    if changes.get("max_corners", config.max_corners) == 0:
+        if changes.get("fill_spacing", config.fill_spacing) <= 0:
+            raise PcaInterpError(
+                "--corners 0 --fill-spacing 0 leaves no point to measure; "
+                "give corners or a lattice spacing"
+            )
+    return dataclasses.replace(config, **changes)
 
 
 # ----------------------------------------------------------------------------- Dask

@@ -42,7 +42,8 @@ class GfttConfig:
     (``docs/stages.md``); the lattice's lookups well under 1 ms.
 
     Attributes:
-        max_corners: most corners returned (strongest first).
+        max_corners: most corners returned (strongest first); 0 detects none, so the
+            lattice (``fill_spacing``) alone is looked up.
         quality_level: minimum accepted corner response as a fraction of the strongest.
         min_distance: minimum distance between corners (px).
         block_size: size of the averaging block of the structure tensor (px).
@@ -83,8 +84,10 @@ class GfttConfig:
                 f"buckets ({self.buckets}) must be >= 1 each and fill_spacing "
                 f"({self.fill_spacing}) >= 0"
             )
-        if self.max_corners < 1:
-            raise ValueError(f"max_corners must be >= 1, got {self.max_corners}")
+        if self.max_corners < 0:
+            raise ValueError(f"max_corners must be >= 0, got {self.max_corners}")
+        if self.max_corners == 0 and self.fill_spacing <= 0.0:
+            raise ValueError("max_corners 0 (no corners) needs a lattice: fill_spacing > 0")
         if not 0.0 < self.quality_level < 1.0:
             raise ValueError(f"quality_level must be in (0, 1), got {self.quality_level}")
         if self.border < 0 or self.block_size < 1 or self.subpixel_window < 1:
@@ -116,7 +119,7 @@ def detect_corners(
 
     Returns:
         (k, 2) float32 corner positions (x, y) in image px, strongest first; (0, 2) when the
-        image has no corners (e.g. a blank image).
+        image has no corners (e.g. a blank image) or ``config.max_corners`` is 0.
 
     Raises:
         ValueError: if ``left_grey`` is not a 2-D uint8 array.
@@ -128,7 +131,7 @@ def detect_corners(
         )
     height, width = left_grey.shape
     x_start = max(config.border, min_x)
-    if x_start >= width - config.border or 2 * config.border >= height:
+    if x_start >= width - config.border or 2 * config.border >= height or not config.max_corners:
         return np.zeros((0, 2), np.float32)
     # searched on the area and a margin only (the response's filters and the 3x3 local
     # maximum reach block_size // 2 + 2 px): the same corners, without the response of

@@ -6,7 +6,7 @@ Dense mode outputs SGBM's own value where it matched, so it matches at full reso
 
 from __future__ import annotations
 
-from pcainterp_stream.frontend.stereo import SgbmConfig
+from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig
 
 DENSE_SGBM = SgbmConfig(full_width=True, speckle_window_size=300)
 """Dense mode's whole-range matcher (``--dense-matcher full``): full resolution (the output is
@@ -30,6 +30,15 @@ DENSE_MATCHERS = {"refined": REFINED_DENSE_SGBM, "full": DENSE_SGBM}
 
 DEFAULT_DENSE_MATCHER = "refined"
 """The ``--dense-matcher`` of ``densify --measurements dense`` when none is given."""
+
+
+DENSE_GFTT = GfttConfig(max_corners=0, fill_spacing=30.0)
+"""The points of dense mode's own sparse estimate (the field that fills SGBM's holes and
+weighs its matches): a lattice of SGBM lookups 30 px apart over the whole searched area, no
+Shi-Tomasi corners. The corners cluster on texture and on object outlines, where a lookup
+is least sure and where a hole's surface is not; the even lattice fills the holes better on
+real and synthetic truth alike, and skips the corner detector (docs/dense.md). ``--corners``
+and ``--fill-spacing`` change it."""
 
 
 def dense_matcher(name: str | None, downscale: int | None = None) -> str:

@@ -129,7 +129,8 @@ class ProcessorConfig:
             SGBM map, the default) or ``"dense"`` (that estimate then fused, pixel by pixel,
             with the whole SGBM map: :mod:`~pcainterp_stream.estimate.dense`; stereo
             source only; ``densify --measurements dense`` pairs it with
-            ``sgbm=frontend.matchers.REFINED_DENSE_SGBM``).
+            ``sgbm=frontend.matchers.REFINED_DENSE_SGBM`` and
+            ``gftt=frontend.matchers.DENSE_GFTT``).
         dense: the noise model of dense mode.
         batch_size: frames densified together (matrix-matrix products).
         lookahead: frames queued for stereo matching ahead of densification; at least

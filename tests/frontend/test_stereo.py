@@ -204,6 +204,28 @@ def test_lattice_lookups_measure_the_gaps(pair: tuple[npt.NDArray[Any], ...]) ->
     )
 
 
+def test_no_corners_looks_up_the_lattice_alone(pair: tuple[npt.NDArray[Any], ...]) -> None:
+    left, right, truth = pair
+    lattice = GfttConfig(max_corners=0, fill_spacing=24.0)
+    assert detect_corners(left, lattice).shape == (0, 2)
+    found = StereoFrontEnd(gftt=lattice, sgbm=SGBM).measure(left, right)
+    area = (max(lattice.border, SGBM.valid_min_x), lattice.border)
+    area += (WIDTH - lattice.border, HEIGHT - lattice.border)
+    expected = lattice_points(np.zeros((0, 2), np.float32), 24.0, area)
+    assert 0 < found.counts.kept <= len(expected) == found.counts.corners
+    # every kept point is a lattice point, and measured as well as the corners are
+    on_lattice = np.abs(found.pixels[:, None, :] - expected[None, :, :]).sum(axis=2).min(axis=1)
+    assert on_lattice.max() == 0.0
+    assert np.median(np.abs(found.disparities - _truth_at(truth, found.pixels))) < 0.15
+
+
+def test_neither_corners_nor_lattice_is_refused() -> None:
+    with pytest.raises(ValueError, match="needs a lattice"):
+        GfttConfig(max_corners=0, fill_spacing=0.0)
+    with pytest.raises(ValueError, match="max_corners must be >= 0"):
+        GfttConfig(max_corners=-1)
+
+
 def test_sparse_lookups_are_the_front_ends(pair: tuple[npt.NDArray[Any], ...]) -> None:
     left, right, _ = pair
     filled = GfttConfig(max_corners=20, min_distance=5.0, fill_spacing=24.0)
