@@ -1531,8 +1531,9 @@ def test_densify_without_corners_or_lattice_is_refused(
     ("options", "corners", "spacing"),
     [
         ((), 250, 40.0),  # sparse mode: corners and a lattice in their gaps
-        (("--measurements", "dense"), 0, 30.0),  # dense mode: the lattice alone
-        (("--measurements", "dense", "--corners", "100"), 100, 30.0),
+        (("--measurements", "dense"), 0, 34.0),  # dense mode: the lattice alone
+        (("--measurements", "dense", "--corners", "100"), 100, 34.0),
+        (("--measurements", "dense", "--stereo-downscale", "2"), 250, 40.0),
         (("--measurements", "dense", "--fill-spacing", "20"), 0, 20.0),
         (("--corners", "0", "--fill-spacing", "25"), 0, 25.0),
     ],

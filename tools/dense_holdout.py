@@ -27,8 +27,8 @@ from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.evaluate.metrics import fill_nearest
 from pcainterp_stream.frontend.matchers import (
     DEFAULT_DENSE_MATCHER,
-    DENSE_GFTT,
     DENSE_MATCHERS,
+    dense_points,
 )
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
@@ -55,9 +55,10 @@ def score_clip(
     """Mean abs. error (px) on the hidden pixels of each filler, and dense mode's coverage.
 
     ``matcher``: dense mode's matcher by ``--dense-matcher`` name (``DENSE_MATCHERS``);
-    ``gftt``: the sparse estimate's points (None: ``DENSE_GFTT``), looked up as densify does.
+    ``gftt``: the sparse estimate's points (None: densify's own, ``dense_points``), looked
+    up as densify does.
     """
-    gftt = gftt or DENSE_GFTT
+    gftt = gftt or dense_points()
     basis = Basis.default()
     settings = resolve_settings(basis, ProcessorConfig())
     sgbm = DENSE_MATCHERS[matcher]

@@ -29,9 +29,9 @@ from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.evaluate.metrics import disparity_from_depth, fill_nearest
 from pcainterp_stream.frontend.matchers import (
     DEFAULT_DENSE_MATCHER,
-    DENSE_GFTT,
     DENSE_MATCHERS,
     dense_matcher,
+    dense_points,
 )
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
@@ -55,9 +55,10 @@ def calibration(
     """Score dense mode on the calibration frames with SGBM at 1/``downscale`` resolution.
 
     ``matcher``: dense mode's matcher by ``--dense-matcher`` name (``DENSE_MATCHERS``);
-    ``gftt``: the sparse estimate's points (None: ``DENSE_GFTT``), looked up as densify does.
+    ``gftt``: the sparse estimate's points (None: densify's own, ``dense_points``), looked
+    up as densify does.
     """
-    gftt = gftt or DENSE_GFTT
+    gftt = gftt or dense_points(downscale)
     basis = Basis.default()
     options = resolve_settings(basis, ProcessorConfig()).densify_options()
     sgbm = SgbmConfig(downscale=downscale)
@@ -188,10 +189,10 @@ def run_commands(
     """Run the real command line of the held-out table (evaluate prints the results).
 
     ``matcher``: ``--dense-matcher`` of the dense runs; ``gftt``: their points (None:
-    ``DENSE_GFTT``, densify's own, so no option is passed).
+    densify's own, so no option is passed).
     """
     points: tuple[str | int | float, ...] = ()
-    if gftt is not None and gftt != DENSE_GFTT:
+    if gftt is not None:
         points = ("--corners", gftt.max_corners, "--fill-spacing", gftt.fill_spacing)
     syn = work / "syn.mcap"
     if not syn.exists():

@@ -189,10 +189,11 @@ def dense_config(
     """The processor of ``densify --measurements dense`` (by default its default matcher).
 
     ``model``: a ``DenseModel`` in place of the default one; ``matcher``: one of
-    :data:`MATCHERS`; ``gftt``: the sparse estimate's points (None: ``DENSE_GFTT``).
+    :data:`MATCHERS`; ``gftt``: the sparse estimate's points (None: densify's own,
+    ``dense_points()``).
     """
     from pcainterp_stream.estimate.dense import DenseModel
-    from pcainterp_stream.frontend.matchers import DENSE_GFTT
+    from pcainterp_stream.frontend.matchers import dense_points
     from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig
     from pcainterp_stream.pipeline.processor import ProcessorConfig
 
@@ -201,7 +202,7 @@ def dense_config(
     sgbm = dense_matcher(matcher)
     assert isinstance(sgbm, SgbmConfig)
     return ProcessorConfig(
-        measurements="dense", sgbm=sgbm, gftt=gftt or DENSE_GFTT, dense=model or DenseModel()
+        measurements="dense", sgbm=sgbm, gftt=gftt or dense_points(), dense=model or DenseModel()
     )
 
 

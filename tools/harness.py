@@ -93,24 +93,28 @@ def add_dense_points(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--corners",
         type=int,
-        default=DENSE_GFTT.max_corners,
-        help=f"GFTT corners of dense mode's sparse estimate (densify --corners; default "
-        f"{DENSE_GFTT.max_corners}, as densify --measurements dense)",
+        default=None,
+        help=f"GFTT corners of dense mode's sparse estimate (densify --corners; default: "
+        f"densify --measurements dense's, {DENSE_GFTT.max_corners} at full resolution)",
     )
     parser.add_argument(
         "--fill-spacing",
         type=float,
-        default=DENSE_GFTT.fill_spacing,
-        help=f"its lattice's side, px (densify --fill-spacing; default "
-        f"{DENSE_GFTT.fill_spacing:g})",
+        default=None,
+        help=f"its lattice's side, px (densify --fill-spacing; default: densify's, "
+        f"{DENSE_GFTT.fill_spacing:g} at full resolution)",
     )
 
 
 def dense_points(args: argparse.Namespace) -> Any:
-    """The ``GfttConfig`` of :func:`add_dense_points`' options."""
+    """The ``GfttConfig`` of :func:`add_dense_points`' options; None: densify's own."""
     from pcainterp_stream.frontend.matchers import DENSE_GFTT
 
-    return dataclasses.replace(DENSE_GFTT, max_corners=args.corners, fill_spacing=args.fill_spacing)
+    if args.corners is None and args.fill_spacing is None:
+        return None
+    changes = {"max_corners": args.corners, "fill_spacing": args.fill_spacing}
+    given = {name: value for name, value in changes.items() if value is not None}
+    return dataclasses.replace(DENSE_GFTT, **given)
 
 
 def add_basis_arguments(parser: argparse.ArgumentParser) -> None:

@@ -68,8 +68,8 @@ def add_stereo_options(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=None,
         metavar="N",
-        help="max GFTT corners (default 250; densify --measurements dense: 0, the lattice "
-        "alone; 0 = none)",
+        help="max GFTT corners (default 250; densify --measurements dense at full "
+        "resolution: 0, the lattice alone; 0 = none)",
     )
     group.add_argument(
         "--quality", type=float, default=None, metavar="Q", help="GFTT quality level"
@@ -83,7 +83,7 @@ def add_stereo_options(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="PX",
         help="lattice of extra lookups in the corners' gaps, side in px (default 40; "
-        "densify --measurements dense: 30; 0 = off)",
+        "densify --measurements dense at full resolution: 34; 0 = off)",
     )
     group.add_argument(
         "--num-disparities", type=int, default=None, metavar="N", help="SGBM disparity range"

@@ -314,7 +314,7 @@ def _processor_config(
     args: argparse.Namespace, *, adapt: str, builtin: str = "auto"
 ) -> ProcessorConfig:
     """Return the estimate's config the options ask for (``adapt``: see ``ProcessorConfig``)."""
-    from pcainterp_stream.frontend.matchers import DENSE_GFTT, DENSE_MATCHERS, dense_matcher
+    from pcainterp_stream.frontend.matchers import DENSE_MATCHERS, dense_matcher, dense_points
     from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
 
     source = MeasurementSource.FEATURES if args.features_topic else MeasurementSource.STEREO
@@ -322,7 +322,7 @@ def _processor_config(
     return ProcessorConfig(
         builtin=builtin,
         adapt=adapt,
-        gftt=gftt_config(args, DENSE_GFTT if dense else None),
+        gftt=gftt_config(args, dense_points(args.stereo_downscale) if dense else None),
         # dense mode outputs the SGBM map itself where it is valid: full resolution
         sgbm=sgbm_config(
             args,

@@ -130,7 +130,7 @@ class ProcessorConfig:
             with the whole SGBM map: :mod:`~pcainterp_stream.estimate.dense`; stereo
             source only; ``densify --measurements dense`` pairs it with
             ``sgbm=frontend.matchers.REFINED_DENSE_SGBM`` and
-            ``gftt=frontend.matchers.DENSE_GFTT``).
+            ``gftt=frontend.matchers.dense_points()``).
         dense: the noise model of dense mode.
         batch_size: frames densified together (matrix-matrix products).
         lookahead: frames queued for stereo matching ahead of densification; at least
