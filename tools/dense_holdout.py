@@ -22,7 +22,7 @@ import harness
 import numpy as np
 
 from pcainterp_stream.estimate.basis import Basis
-from pcainterp_stream.estimate.dense import find_holes, fuse_dense
+from pcainterp_stream.estimate.dense import field_options, find_holes, fuse_dense
 from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.evaluate.metrics import fill_nearest
 from pcainterp_stream.frontend.matchers import (
@@ -88,6 +88,7 @@ def score_clip(
             image_size=(height, width),
             focal_baseline=sequence.camera.focal_baseline,
             **settings.densify_options(),
+            **field_options(basis),
         )
         fused = fuse_dense(estimate, masked, holes=find_holes(masked, weak))
         assert fused.disparity_std is not None

@@ -24,7 +24,7 @@ import harness
 import numpy as np
 
 from pcainterp_stream.estimate.basis import Basis
-from pcainterp_stream.estimate.dense import find_holes, fuse_dense
+from pcainterp_stream.estimate.dense import field_options, find_holes, fuse_dense
 from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.evaluate.metrics import disparity_from_depth, fill_nearest
 from pcainterp_stream.frontend.matchers import (
@@ -89,6 +89,7 @@ def calibration(
                 image_size=matched.shape,
                 focal_baseline=frame.camera.focal_baseline,
                 **options,
+                **field_options(basis),
             )
             fused = fuse_dense(estimate, matched, holes=find_holes(matched, weak))
             filled = fill_nearest(plain)

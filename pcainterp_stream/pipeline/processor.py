@@ -57,7 +57,13 @@ from pcainterp_stream.estimate.basis import (
     builtin_kind,
 )
 from pcainterp_stream.estimate.cells import Seeding
-from pcainterp_stream.estimate.dense import DenseModel, MapHoles, find_holes, fuse_dense
+from pcainterp_stream.estimate.dense import (
+    DenseModel,
+    MapHoles,
+    field_options,
+    find_holes,
+    fuse_dense,
+)
 from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
 from pcainterp_stream.estimate.lapack import routines
 from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
@@ -781,6 +787,7 @@ class FrameProcessor:
             with_depth=not self.dense,  # dense mode converts the fused disparity
             partitions=job.partitions,
             **job.options,
+            **(field_options(job.basis, self._dense_model) if self.dense else {}),
         )
         return [
             self._result(item, estimate, n_carried)
