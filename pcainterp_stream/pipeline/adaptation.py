@@ -202,13 +202,27 @@ class Adaptation:
                 )
             return None if self.switched is None else self.switched.basis
         maps = [f.grid_map for f in usable if f.grid_map is not None]
+        # the std is calibrated on the frames left out of the maps (below); with one map
+        # there are none, and the map's own frame calibrates it
         own = adapt.refit_prior(
-            adapt.own_basis(maps, size, fb), measured, robust=self.robust, calibrate=self.calibrate
+            adapt.own_basis(maps, size, fb),
+            measured,
+            robust=self.robust,
+            calibrate=self.calibrate and len(maps) < 2,
         )
         prior = own.meta.get("prior", {})
-        self.own_check = adapt.leave_one_out(
-            maps, measured, prior, image_size=size, focal_baseline=fb, robust=self.robust
+        held = adapt.leave_one_out(
+            maps,
+            measured,
+            prior,
+            image_size=size,
+            focal_baseline=fb,
+            robust=self.robust,
+            calibrate=self.calibrate,
         )
+        self.own_check = None if held is None else held.check
+        if held is not None and held.std_scale is not None:
+            own = adapt.with_prior(own, {**prior, "std_scale": held.std_scale})
         own_error = self.own_check.prior if self.own_check is not None else None
         if own_error is None:  # one frame: no held-out figure for its own basis
             better = not self.check.fits
@@ -324,12 +338,16 @@ class Adaptation:
         self._next_update = 2 * self._seen
         self.updates += 1
         size, fb = self._camera
+        # the std is calibrated on the recent frames with a basis learned without their
+        # maps (the newest ones): their errors are those of frames to come
+        older = self._maps[: -len(self._recent)] if self._recent else self._maps
         return adapt.refit_prior(
             adapt.own_basis(self._maps, size, fb),
             self._recent,
             robust=self.robust,
             calibrate=self.calibrate,
             keep=current,
+            calibrate_with=adapt.own_basis(older, size, fb) if len(older) >= 2 else None,
         )
 
     def final_line(self, basis: Basis) -> str | None:

@@ -108,12 +108,37 @@ def test_leave_one_out_beats_linear_on_scenes_like_the_others() -> None:
     maps = [adapt.grid_map(reference, SIZE) for reference in references]
     basis = adapt.refit_prior(adapt.own_basis(maps, SIZE, 50.0), frames, robust="cauchy")
     assert "sigma" in basis.meta["prior"]
-    check = adapt.leave_one_out(
+    held = adapt.leave_one_out(
         maps, frames, basis.meta["prior"], image_size=SIZE, focal_baseline=50.0, robust="cauchy"
     )
-    assert check is not None
-    assert check.frames == 4
-    assert check.ratio < 1.0
+    assert held is not None
+    assert held.check.frames == 4
+    assert held.check.ratio < 1.0
+    assert held.std_scale is None  # not asked for
+
+
+def test_own_basis_std_is_calibrated_on_frames_it_did_not_learn() -> None:
+    # each scene has a bump of its own: a basis of all five maps reproduces each (so a std
+    # calibrated on them fits maps it has seen), one learned without a frame cannot
+    rows, cols = np.mgrid[0 : SIZE[0], 0 : SIZE[1]].astype(np.float32)
+    rng = np.random.default_rng(5)
+    frames, maps = [], []
+    for index in range(5):
+        y, x = rng.uniform(8, SIZE[0] - 8), rng.uniform(8, SIZE[1] - 8)
+        bump = 4.0 * np.exp(-((rows - y) ** 2 + (cols - x) ** 2) / 40.0)
+        reference = (_scene(2.0 * index) + bump).astype(np.float32)
+        pixels = _points(30, seed=20 + index)
+        frames.append(adapt.Measured(pixels, _measure(reference, pixels), reference))
+        maps.append(adapt.grid_map(reference, SIZE))
+    in_sample = adapt.refit_prior(adapt.own_basis(maps, SIZE, 50.0), frames, robust="cauchy")
+    prior = in_sample.meta["prior"]
+    held = adapt.leave_one_out(
+        maps, frames, prior, image_size=SIZE, focal_baseline=50.0, robust="cauchy", calibrate=True
+    )
+    assert held is not None
+    assert held.std_scale is not None
+    assert held.check.frames == 4
+    assert held.std_scale > 1.5 * prior["std_scale"]
 
 
 def test_evidence_fits_the_prior_scale_instead_of_a_huge_noise() -> None:
