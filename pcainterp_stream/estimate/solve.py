@@ -295,9 +295,8 @@ def _solve_measurement(
     noise = noise / scale  # the unit prior with the fit's noise-to-signal ratio; sigma is s
     iterations = model.robust_iterations if model.robust is not Robust.NONE else 0
     for iteration in range(iterations + 1):
-        system = signal.copy()
-        system.flat[:: k + 1] += noise / weights  # + R
-        lower_inverse = _cholesky_inverse(system) if k else np.zeros((0, 0))
+        # K = signal + R, R on the diagonal of the factorisation's own copy
+        lower_inverse = _cholesky_inverse(signal, noise / weights) if k else np.zeros((0, 0))
         alpha = lower_inverse.T @ (lower_inverse @ innovation)  # K^-1 (z~ - B~ mu)
         if iteration == iterations:
             break
@@ -568,22 +567,29 @@ def triangular_lapack() -> Any:
     return lapack
 
 
-def _cholesky_inverse(system: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """Return L^-1 (lower triangular) of the Cholesky factor L L^T = system.
+def _cholesky_inverse(
+    system: npt.NDArray[np.float64],
+    diagonal: npt.NDArray[np.float64] | float | None = None,
+) -> npt.NDArray[np.float64]:
+    """Return L^-1 (lower triangular) of the Cholesky factor L L^T = system (+ diagonal).
 
-    LAPACK ``dpotrf`` + ``dtrtri`` through scipy (its OpenBLAS held at one thread, see
-    :func:`triangular_lapack`); numpy's general ``inv`` of the factor only when scipy is
-    missing.
+    LAPACK ``dpotrf`` and a blocked triangular inverse through scipy's library (its
+    OpenBLAS held at one thread, see :func:`triangular_lapack` and :mod:`.lapack`);
+    numpy's general ``inv`` of the factor only when scipy is missing. ``diagonal`` is added
+    to the diagonal of a copy; ``system`` is not modified.
 
     Raises:
         numpy.linalg.LinAlgError: the system is not positive definite.
     """
     unlocked = routines()
     if unlocked is not None:  # scipy's routines, the GIL released
-        inverse, info = unlocked.cholesky_inverse(system)
+        inverse, info = unlocked.cholesky_inverse(system, diagonal)
         if info != 0:
             raise np.linalg.LinAlgError(f"matrix is not positive definite (dpotrf info {info})")
         return inverse
+    if diagonal is not None:  # pragma: no cover - scipy's wheels have the routines
+        system = system.copy()
+        system.flat[:: system.shape[0] + 1] += diagonal
     lapack = triangular_lapack()  # pragma: no cover - scipy's wheels have the routines
     if lapack is None:  # pragma: no cover - scipy is a dependency
         return np.tril(np.linalg.inv(np.linalg.cholesky(system)))

@@ -23,18 +23,42 @@ def _system(rng: np.random.Generator, k: int) -> np.ndarray:
     return rows @ rows.T + 0.05 * np.eye(k)
 
 
-@pytest.mark.parametrize("k", [1, 2, 7, 64, 150, 363])
-def test_cholesky_inverse_is_scipys_bit_for_bit(routines: lapack.Routines, k: int) -> None:
+@pytest.mark.parametrize("k", [1, 2, 7, lapack.INVERT_BLOCK, 150, 363])
+def test_cholesky_inverse_is_scipys_up_to_rounding(routines: lapack.Routines, k: int) -> None:
+    """dpotrf's factor, inverted: dtrtri's bits up to INVERT_BLOCK, its values beyond."""
     system = _system(np.random.default_rng(k), k)
     lower, info = scipy_lapack.dpotrf(system, lower=1, clean=1)
     expected, _ = scipy_lapack.dtrtri(lower, lower=1)
     inverse, info = routines.cholesky_inverse(system)
     assert info == 0
     assert inverse.flags.f_contiguous
-    np.testing.assert_array_equal(inverse, expected)
     np.testing.assert_array_equal(inverse, np.tril(inverse))
+    if k <= lapack.INVERT_BLOCK:
+        np.testing.assert_array_equal(inverse, expected)
+    else:  # blocks inverted apart: another order of the same sums
+        assert not np.array_equal(inverse, expected)
+        scale = float(np.abs(expected).max())
+        np.testing.assert_allclose(inverse, expected, rtol=0.0, atol=1e-12 * scale)
+    np.testing.assert_allclose(inverse @ lower, np.eye(k), atol=1e-12)
     np.testing.assert_allclose(inverse @ system @ inverse.T, np.eye(k), atol=1e-8)
-    np.testing.assert_array_equal(solve._cholesky_inverse(system), expected)
+    np.testing.assert_array_equal(solve._cholesky_inverse(system), inverse)
+
+
+@pytest.mark.parametrize("k", [5, 200])
+def test_cholesky_inverse_adds_the_diagonal_to_a_copy(routines: lapack.Routines, k: int) -> None:
+    rng = np.random.default_rng(k)
+    system = _system(rng, k)
+    before = system.copy()
+    diagonal = rng.uniform(0.5, 2.0, k)
+    added = system.copy()
+    added.flat[:: k + 1] += diagonal
+    inverse, info = routines.cholesky_inverse(system, diagonal)
+    assert info == 0
+    np.testing.assert_array_equal(system, before)
+    np.testing.assert_array_equal(inverse, routines.cholesky_inverse(added)[0])
+    np.testing.assert_array_equal(
+        solve._cholesky_inverse(system, 3.0), solve._cholesky_inverse(system + 3.0 * np.eye(k))
+    )
 
 
 def test_cholesky_inverse_of_nothing(routines: lapack.Routines) -> None:
