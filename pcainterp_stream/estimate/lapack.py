@@ -49,7 +49,7 @@ def _pointer(capsules: dict[str, Any], name: str, arguments: int) -> Any:
 
 
 class Routines:
-    """``dpotrf``, ``dtrtri``, ``dlaset`` and ``?trmm``, called with the GIL released."""
+    """``dpotrf``, ``dtrtri``, ``dlaset``, ``?trmm`` and ``?gemm``, called with the GIL released."""
 
     def __init__(self, lapack: dict[str, Any], blas: dict[str, Any]) -> None:
         self._dpotrf = _pointer(lapack, "dpotrf", 5)
@@ -57,6 +57,8 @@ class Routines:
         self._dlaset = _pointer(lapack, "dlaset", 7)
         self._dtrmm = _pointer(blas, "dtrmm", 11)
         self._strmm = _pointer(blas, "strmm", 11)
+        self._sgemm = _pointer(blas, "sgemm", 13)
+        self._dgemm = _pointer(blas, "dgemm", 13)
 
     def cholesky_inverse(
         self,
@@ -160,19 +162,24 @@ class Routines:
         )
 
     def lower_times(
-        self, lower: npt.NDArray[_Float], matrix: npt.NDArray[_Float]
+        self, lower: npt.NDArray[_Float], matrix: npt.NDArray[_Float], *, overwrite: bool = False
     ) -> npt.NDArray[_Float]:
         """Return ``lower @ matrix`` (C-ordered) for a lower-triangular ``lower`` (``?trmm``).
 
         BLAS is column-major: the C-ordered ``matrix`` is its transpose there, so the call
         computes matrix^T lower^T (right side, transposed triangle) in a copy of it, as
-        ``scipy.linalg.blas``'s ``trmm(1, lower, matrix.T, lower=1, side=1, trans_a=1)``.
+        ``scipy.linalg.blas``'s ``trmm(1, lower, matrix.T, lower=1, side=1, trans_a=1)``;
+        with ``overwrite``, in ``matrix`` itself when it is C-ordered of the right type.
         """
         single = matrix.dtype == np.float32
         dtype = np.float32 if single else np.float64
         triangle = np.asarray(lower, dtype=dtype, order="F")
         # the product's transpose, column-major: a C-ordered copy of matrix is exactly that
-        product: npt.NDArray[_Float] = np.array(matrix, dtype=dtype, order="C", copy=True)
+        product: npt.NDArray[_Float] = (
+            matrix
+            if overwrite and matrix.flags.c_contiguous and matrix.dtype == dtype
+            else np.array(matrix, dtype=dtype, order="C", copy=True)
+        )
         rows, inner = product.shape
         if rows == 0 or inner == 0:
             return product
@@ -197,6 +204,45 @@ class Routines:
             ctypes.byref(m),
         )
         return product
+
+    def add_product(
+        self, total: npt.NDArray[_Float], left: npt.NDArray[_Float], right: npt.NDArray[_Float]
+    ) -> None:
+        """``total += left @ right`` in place (``?gemm`` with beta 1: no temporary product).
+
+        All three C-ordered of one type: column-major, that is total^T += right^T left^T.
+        """
+        single = total.dtype == np.float32
+        dtype = np.float32 if single else np.float64
+        if not (total.flags.c_contiguous and total.dtype == dtype):
+            raise ValueError("add_product needs a C-ordered float32 or float64 total")
+        rows, columns = total.shape
+        inner = left.shape[1]
+        if left.shape != (rows, inner) or right.shape != (inner, columns):
+            raise ValueError(f"shapes {left.shape} @ {right.shape} do not give {total.shape}")
+        if rows == 0 or columns == 0 or inner == 0:
+            return
+        first = np.ascontiguousarray(right, dtype=dtype)
+        second = np.ascontiguousarray(left, dtype=dtype)
+        m, n, k = ctypes.c_int(columns), ctypes.c_int(rows), ctypes.c_int(inner)
+        one: ctypes.c_float | ctypes.c_double = (
+            ctypes.c_float(1.0) if single else ctypes.c_double(1.0)
+        )
+        (self._sgemm if single else self._dgemm)(
+            b"N",
+            b"N",
+            ctypes.byref(m),
+            ctypes.byref(n),
+            ctypes.byref(k),
+            ctypes.byref(one),
+            _P(first.ctypes.data),
+            ctypes.byref(m),
+            _P(second.ctypes.data),
+            ctypes.byref(k),
+            ctypes.byref(one),
+            _P(total.ctypes.data),
+            ctypes.byref(m),
+        )
 
 
 @functools.cache

@@ -602,17 +602,20 @@ def _cholesky_inverse(
     return np.asarray(inverse, dtype=np.float64)
 
 
-def _lower_times(lower: npt.NDArray[_Float], matrix: npt.NDArray[_Float]) -> npt.NDArray[_Float]:
+def _lower_times(
+    lower: npt.NDArray[_Float], matrix: npt.NDArray[_Float], *, overwrite: bool = False
+) -> npt.NDArray[_Float]:
     """Return lower @ matrix for a lower-triangular ``lower`` (BLAS ``?trmm``, half a GEMM).
 
     BLAS is column-major: the C-ordered ``matrix`` is its transpose there, so the call
-    computes matrix^T lower^T (right side, transposed triangle) with no copy of ``matrix``.
+    computes matrix^T lower^T (right side, transposed triangle). ``overwrite``: the caller
+    gives ``matrix`` up, and the product may be computed in it.
     """
     if lower.shape[0] == 0:
         return lower @ matrix
     unlocked = routines()
     if unlocked is not None:  # scipy's routine, the GIL released
-        return unlocked.lower_times(lower, matrix)
+        return unlocked.lower_times(lower, matrix, overwrite=overwrite)
     if triangular_lapack() is None:  # pragma: no cover - scipy is a dependency
         return lower @ matrix
     from scipy.linalg import blas
@@ -620,3 +623,14 @@ def _lower_times(lower: npt.NDArray[_Float], matrix: npt.NDArray[_Float]) -> npt
     trmm = blas.strmm if matrix.dtype == np.float32 else blas.dtrmm
     product = trmm(1.0, lower, np.ascontiguousarray(matrix).T, lower=1, side=1, trans_a=1)
     return np.ascontiguousarray(product.T)
+
+
+def _add_product(
+    total: npt.NDArray[_Float], left: npt.NDArray[_Float], right: npt.NDArray[_Float]
+) -> None:
+    """``total += left @ right`` in place, C-ordered arrays of one float type (BLAS ``?gemm``)."""
+    unlocked = routines()
+    if unlocked is not None:  # scipy's routine, the GIL released, no temporary product
+        unlocked.add_product(total, left, right)
+        return
+    total += left @ right  # pragma: no cover - scipy's wheels have the routines

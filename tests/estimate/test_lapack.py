@@ -104,3 +104,44 @@ def test_lower_times_of_a_float64_factor_and_float32_rows(routines: lapack.Routi
     matrix = rng.standard_normal((50, 20)).astype(np.float32)
     expected = np.ascontiguousarray(blas.strmm(1.0, lower, matrix.T, lower=1, side=1, trans_a=1).T)
     np.testing.assert_array_equal(routines.lower_times(lower, matrix), expected)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_lower_times_may_overwrite_its_matrix(routines: lapack.Routines, dtype: type) -> None:
+    rng = np.random.default_rng(11)
+    lower = np.asfortranarray(np.tril(rng.standard_normal((30, 30))).astype(dtype))
+    matrix = rng.standard_normal((30, 70)).astype(dtype)
+    expected = routines.lower_times(lower, matrix)
+    given = matrix.copy()
+    product = solve._lower_times(lower, given, overwrite=True)
+    assert product is given
+    np.testing.assert_array_equal(product, expected)
+    # a view that is not C-ordered is copied, as without overwrite
+    columns = np.asfortranarray(matrix)
+    np.testing.assert_array_equal(solve._lower_times(lower, columns, overwrite=True), expected)
+    np.testing.assert_array_equal(columns, matrix)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("shape", [(1, 1, 1), (9, 3, 5), (363, 150, 1872), (4, 0, 6)])
+def test_add_product_adds_the_gemm_in_place(
+    routines: lapack.Routines, dtype: type, shape: tuple[int, int, int]
+) -> None:
+    rows, inner, columns = shape
+    rng = np.random.default_rng(rows)
+    total = rng.standard_normal((rows, columns)).astype(dtype)
+    left = rng.standard_normal((rows, inner)).astype(dtype)
+    right = rng.standard_normal((inner, columns)).astype(dtype)
+    expected = total + left @ right
+    place = total.ctypes.data
+    solve._add_product(total, left, right)
+    assert total.ctypes.data == place
+    tolerance = 1e-4 if dtype is np.float32 else 1e-12
+    np.testing.assert_allclose(total, expected, rtol=tolerance, atol=tolerance * max(inner, 1))
+
+
+def test_add_product_refuses_what_it_cannot_add_to(routines: lapack.Routines) -> None:
+    with pytest.raises(ValueError, match="C-ordered"):
+        routines.add_product(np.zeros((3, 4), order="F"), np.zeros((3, 2)), np.zeros((2, 4)))
+    with pytest.raises(ValueError, match="do not give"):
+        routines.add_product(np.zeros((3, 4)), np.zeros((3, 2)), np.zeros((3, 4)))
