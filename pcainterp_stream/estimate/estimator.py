@@ -252,6 +252,7 @@ def densify_batch(
     scale_by_innovation: bool = False,
     noise_stds: Sequence[npt.ArrayLike | None] | None = None,
     with_depth: bool = True,
+    with_depth_std: bool = True,
     partitions: Sequence[Partition | Seeding | None] | None = None,
 ) -> list[DensifyResult]:
     """Densify several frames at once with matrix-matrix products across frames.
@@ -283,6 +284,9 @@ def densify_batch(
         with_depth: also convert to depth and its std; False leaves ``depth`` and
             ``depth_std`` None (for a caller that changes the disparity first, as dense
             fusion does, and converts then).
+        with_depth_std: with ``with_depth``, also the depth's std; False leaves
+            ``depth_std`` None (the depth itself is made), for a caller that does not use
+            it (half of the conversion's time).
         partitions: F partitions of the images (or None) along their disparity maps, for
             an edge-aware ``local_prior`` (:meth:`cells.Partition.along`, e.g. seeded by
             each frame's own measurements; a measurement is in the cell of the grid node it
@@ -438,7 +442,9 @@ def densify_batch(
         # REP 118: a disparity below one noise std cannot be told from 0 (infinity)
         min_disparity = posterior.sigma / to_basis
         depth, depth_std = (
-            _depth(disparity, disparity_std, fb_out, min_disparity) if with_depth else (None, None)
+            _depth(disparity, disparity_std if with_depth_std else None, fb_out, min_disparity)
+            if with_depth
+            else (None, None)
         )
         results.append(
             DensifyResult(

@@ -295,9 +295,8 @@ def _solve_measurement(
     noise = noise / scale  # the unit prior with the fit's noise-to-signal ratio; sigma is s
     iterations = model.robust_iterations if model.robust is not Robust.NONE else 0
     for iteration in range(iterations + 1):
-        system = signal.copy()
-        system.flat[:: k + 1] += noise / weights  # + R
-        lower_inverse = _cholesky_inverse(system) if k else np.zeros((0, 0))
+        # K = signal + R, R on the diagonal of the factorisation's own copy
+        lower_inverse = _cholesky_inverse(signal, noise / weights) if k else np.zeros((0, 0))
         alpha = lower_inverse.T @ (lower_inverse @ innovation)  # K^-1 (z~ - B~ mu)
         if iteration == iterations:
             break
@@ -568,22 +567,29 @@ def triangular_lapack() -> Any:
     return lapack
 
 
-def _cholesky_inverse(system: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """Return L^-1 (lower triangular) of the Cholesky factor L L^T = system.
+def _cholesky_inverse(
+    system: npt.NDArray[np.float64],
+    diagonal: npt.NDArray[np.float64] | float | None = None,
+) -> npt.NDArray[np.float64]:
+    """Return L^-1 (lower triangular) of the Cholesky factor L L^T = system (+ diagonal).
 
-    LAPACK ``dpotrf`` + ``dtrtri`` through scipy (its OpenBLAS held at one thread, see
-    :func:`triangular_lapack`); numpy's general ``inv`` of the factor only when scipy is
-    missing.
+    LAPACK ``dpotrf`` and a blocked triangular inverse through scipy's library (its
+    OpenBLAS held at one thread, see :func:`triangular_lapack` and :mod:`.lapack`);
+    numpy's general ``inv`` of the factor only when scipy is missing. ``diagonal`` is added
+    to the diagonal of a copy; ``system`` is not modified.
 
     Raises:
         numpy.linalg.LinAlgError: the system is not positive definite.
     """
     unlocked = routines()
     if unlocked is not None:  # scipy's routines, the GIL released
-        inverse, info = unlocked.cholesky_inverse(system)
+        inverse, info = unlocked.cholesky_inverse(system, diagonal)
         if info != 0:
             raise np.linalg.LinAlgError(f"matrix is not positive definite (dpotrf info {info})")
         return inverse
+    if diagonal is not None:  # pragma: no cover - scipy's wheels have the routines
+        system = system.copy()
+        system.flat[:: system.shape[0] + 1] += diagonal
     lapack = triangular_lapack()  # pragma: no cover - scipy's wheels have the routines
     if lapack is None:  # pragma: no cover - scipy is a dependency
         return np.tril(np.linalg.inv(np.linalg.cholesky(system)))
@@ -596,17 +602,20 @@ def _cholesky_inverse(system: npt.NDArray[np.float64]) -> npt.NDArray[np.float64
     return np.asarray(inverse, dtype=np.float64)
 
 
-def _lower_times(lower: npt.NDArray[_Float], matrix: npt.NDArray[_Float]) -> npt.NDArray[_Float]:
+def _lower_times(
+    lower: npt.NDArray[_Float], matrix: npt.NDArray[_Float], *, overwrite: bool = False
+) -> npt.NDArray[_Float]:
     """Return lower @ matrix for a lower-triangular ``lower`` (BLAS ``?trmm``, half a GEMM).
 
     BLAS is column-major: the C-ordered ``matrix`` is its transpose there, so the call
-    computes matrix^T lower^T (right side, transposed triangle) with no copy of ``matrix``.
+    computes matrix^T lower^T (right side, transposed triangle). ``overwrite``: the caller
+    gives ``matrix`` up, and the product may be computed in it.
     """
     if lower.shape[0] == 0:
         return lower @ matrix
     unlocked = routines()
     if unlocked is not None:  # scipy's routine, the GIL released
-        return unlocked.lower_times(lower, matrix)
+        return unlocked.lower_times(lower, matrix, overwrite=overwrite)
     if triangular_lapack() is None:  # pragma: no cover - scipy is a dependency
         return lower @ matrix
     from scipy.linalg import blas
@@ -614,3 +623,14 @@ def _lower_times(lower: npt.NDArray[_Float], matrix: npt.NDArray[_Float]) -> npt
     trmm = blas.strmm if matrix.dtype == np.float32 else blas.dtrmm
     product = trmm(1.0, lower, np.ascontiguousarray(matrix).T, lower=1, side=1, trans_a=1)
     return np.ascontiguousarray(product.T)
+
+
+def _add_product(
+    total: npt.NDArray[_Float], left: npt.NDArray[_Float], right: npt.NDArray[_Float]
+) -> None:
+    """``total += left @ right`` in place, C-ordered arrays of one float type (BLAS ``?gemm``)."""
+    unlocked = routines()
+    if unlocked is not None:  # scipy's routine, the GIL released, no temporary product
+        unlocked.add_product(total, left, right)
+        return
+    total += left @ right  # pragma: no cover - scipy's wheels have the routines

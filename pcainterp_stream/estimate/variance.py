@@ -19,6 +19,7 @@ from pcainterp_stream.estimate.basis import (
     sample_rows,
 )
 from pcainterp_stream.estimate.solve import (
+    _add_product,
     _cross_covariance,
     _image_coordinates,
     _local_covariance,
@@ -83,21 +84,22 @@ def _variance_beyond(
     if local is not None:
         if local.lower_inverse is None or local.prior_rows is None:
             raise AssertionError("exact variance needs the posterior factor")
-        # L^-1 (B~ P U + C): one triangular product (half a GEMM) instead of two GEMMs
+        # L^-1 (B~ P U + C): one triangular product (half a GEMM) instead of two GEMMs,
+        # in place; C first, B~ P U added to it by the GEMM itself (no temporary)
+        if coordinates is None:
+            joint = _local_covariance(local, vgrid.size, basis_image)
+        else:
+            joint = _cross_covariance(local, *coordinates, basis_image)
         if (
             covariance is not None
             and posterior.prior_diagonal is None
             and (local.indices is not None and local.weights is not None)
         ):
             # static prior P = Lambda: B~ Lambda U = the bilinear mix of U Lambda U_v^T rows
-            joint = sample_rows(covariance, local.indices, local.weights)
+            joint += sample_rows(covariance, local.indices, local.weights)
         else:
-            joint = local.prior_rows @ vgrid.component_rows
-        if coordinates is None:
-            joint += _local_covariance(local, vgrid.size, basis_image)
-        else:
-            joint += _cross_covariance(local, *coordinates, basis_image)
-        projected = _lower_times(local.lower_inverse, joint)
+            _add_product(joint, local.prior_rows, vgrid.component_rows)
+        projected = _lower_times(local.lower_inverse, joint, overwrite=True)
     else:
         projected = _factor(posterior) @ vgrid.component_rows
     reduction = np.einsum("ks,ks->s", projected, projected)

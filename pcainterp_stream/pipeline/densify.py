@@ -148,6 +148,9 @@ def densify(
     pairing = pairing or PairingConfig()
     processor = processor or ProcessorConfig()
     topics = topics or OutputTopics().compact()
+    if not (topics.writes("depth_std") or rrd is not None or spawn_viewer or on_frame is not None):
+        # nothing takes the depth's std (the compact output writes the disparity's)
+        processor = dataclasses.replace(processor, depth_std=False)
     basis, label = resolve_basis(basis)
     kind = builtin_kind(basis)
     if kind is not None and processor.builtin not in ("auto", kind):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
+from pathlib import Path
 from typing import Any
 
 import cv2
@@ -607,3 +608,42 @@ def test_an_edge_aware_prior_gets_each_frames_sgbm_map(frames: list[StereoFrame]
         edge_map=measured.disparity_map,
     )
     np.testing.assert_allclose(aware[0].disparity, expected.disparity, rtol=1e-4, atol=1e-4)
+
+
+def test_without_the_depth_std_the_rest_is_the_same(
+    basis: Basis, frames: list[StereoFrame]
+) -> None:
+    with_std = run(basis, frames)
+    without = run(basis, frames, depth_std=False)
+    for one, other in zip(with_std, without, strict=True):
+        np.testing.assert_array_equal(one.disparity, other.disparity)
+        np.testing.assert_array_equal(one.disparity_std, other.disparity_std)
+        np.testing.assert_array_equal(one.depth, other.depth)
+        assert np.isfinite(one.depth_std).any()
+        assert np.isnan(other.depth_std).all()  # unknown, as with uncertainty "none"
+
+
+def test_densify_drops_the_depth_std_only_when_nothing_takes_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from pcainterp_stream.io.outputs import OutputTopics
+    from pcainterp_stream.pipeline import densify as pipeline
+    from pcainterp_stream.pipeline.jobs import synth
+
+    log = tmp_path / "drive.mcap"
+    synth(log, frames=2, seed=3, scale=0.25, fmt=None)
+    seen: list[bool] = []
+    real = pipeline.FrameProcessor
+
+    def recording(basis: Basis, config: ProcessorConfig) -> FrameProcessor:
+        seen.append(config.depth_std)
+        return real(basis, config)
+
+    monkeypatch.setattr(pipeline, "FrameProcessor", recording)
+    taken: list[DensifiedFrame] = []
+    pipeline.densify(log, tmp_path / "compact.mcap")  # compact: the disparity's std only
+    pipeline.densify(log, tmp_path / "full.mcap", topics=OutputTopics())
+    pipeline.densify(log, tmp_path / "callback.mcap", on_frame=taken.append)
+    assert seen == [False, True, True]
+    assert taken
+    assert all(np.isfinite(frame.depth_std).any() for frame in taken)
