@@ -1518,6 +1518,19 @@ def test_signal_during_densify(
     assert assert_valid_mcap(out)["/pcainterp/depth"] == SMALL_FRAMES
 
 
+def test_densify_refuses_images_narrower_than_the_disparity_range(
+    pcainterp: Callable[..., Run], tmp_path: Path, out: Path
+) -> None:
+    # OpenCV's 3-way SGBM fails, or crashes the process, on images narrower than its range
+    log = tmp_path / "narrow.mcap"
+    assert pcainterp("synth", log, "--frames", "2", "--scale", "0.05").code == 0
+    line = pcainterp("densify", log, "-o", out).error_line()
+    assert f"{log}: /stereo/left/image_rect's images are 62 px wide" in line
+    assert "pass --num-disparities 32 (or less, a multiple of 16)" in line
+    assert_nothing_written(out)
+    assert pcainterp("densify", log, "-o", out, "--num-disparities", "32").code == 0
+
+
 def test_densify_without_corners_or_lattice_is_refused(
     pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path
 ) -> None:

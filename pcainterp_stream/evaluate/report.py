@@ -72,6 +72,7 @@ from pcainterp_stream.frontend.stereo import (
     SgbmConfig,
     compute_disparity,
     detect_corners,
+    fitting,
     lookup_disparities,
     to_grey8,
 )
@@ -390,7 +391,9 @@ def _stereo(frame: _Frame, sgbm: SgbmConfig) -> _Stereo | None:
     if frame.right is None:
         return None
     started = time.perf_counter()
-    disparity = compute_disparity(frame.left, frame.right, sgbm)
+    # a pair narrower than the reference's range is matched with the widest range it fits
+    narrow = fitting(sgbm, int(frame.left.shape[1])) or sgbm
+    disparity = compute_disparity(frame.left, frame.right, narrow)
     return _Stereo(disparity, time.perf_counter() - started)
 
 

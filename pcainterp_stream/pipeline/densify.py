@@ -30,6 +30,7 @@ from pcainterp_stream.frontend.pairing import (
     PairingStats,
     StereoPairer,
 )
+from pcainterp_stream.frontend.stereo import SgbmConfig, fitting, narrowest_width
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.foxglove import FoxgloveLive, LiveMessage
 from pcainterp_stream.io.logreader import open_log
@@ -50,7 +51,7 @@ from pcainterp_stream.pipeline.common import (
     _require_topics,
 )
 from pcainterp_stream.pipeline.processor import FrameProcessor, MeasurementSource, ProcessorConfig
-from pcainterp_stream.records import DensifiedFrame
+from pcainterp_stream.records import DensifiedFrame, StereoFrame
 
 ENCODE_WORKERS = 2
 """Threads building (and PNG-encoding) the output messages of densified frames."""
@@ -266,6 +267,15 @@ def densify(
             robust["carry_resets"] += result.counts.get("carry_reset", 0)
             bar.update(1)
 
+        checked_width = processor.source is not MeasurementSource.STEREO
+
+        def submit(frame: StereoFrame) -> None:
+            nonlocal checked_width
+            if not checked_width:  # SGBM would fail, or crash, on too narrow a pair
+                _check_width(frame, processor.sgbm, input_path, pairing.left_topic)
+                checked_width = True
+            emit(engine.submit(frame, pairer.features_for(frame)))
+
         for raw in reader.messages():
             if writer is not None:
                 writer.add_raw(raw)
@@ -273,9 +283,9 @@ def densify(
                 live.add_raw(raw)
             if pairer.wants(raw.topic):
                 for frame in pairer.push_raw(raw, reader.decode):
-                    emit(engine.submit(frame, pairer.features_for(frame)))
+                    submit(frame)
         for frame in pairer.flush():
-            emit(engine.submit(frame, pairer.features_for(frame)))
+            submit(frame)
         for batch in engine.finish_batches():  # each batch to the encoders as it is done
             emit(batch)
         while encoding:
@@ -385,3 +395,25 @@ def _no_pair_message(
             "--stamp-tolerance-ms)"
         )
     return f"no stereo pair found in {path} ({details}); {fix}"
+
+
+def _check_width(frame: StereoFrame, sgbm: SgbmConfig, log: Path, topic: str) -> None:
+    """Refuse a pair narrower than SGBM's disparity range, naming the widest range that fits.
+
+    Raises:
+        PcaInterpError: the frame's images are too narrow for ``sgbm``.
+    """
+    width = int(frame.left.shape[1])
+    needed = narrowest_width(sgbm)
+    if width >= needed:
+        return
+    fits = fitting(sgbm, width)
+    fix = (
+        f"pass --num-disparities {fits.num_disparities} (or less, a multiple of 16)"
+        if fits is not None
+        else "no disparity range fits images this narrow"
+    )
+    raise PcaInterpError(
+        f"{log}: {topic}'s images are {width} px wide, narrower than the {needed} px SGBM "
+        f"needs for {sgbm.num_disparities} disparities; {fix}"
+    )

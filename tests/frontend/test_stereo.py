@@ -15,11 +15,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from pcainterp_stream.frontend.matchers import DENSE_SGBM, REFINED_DENSE_SGBM
 from pcainterp_stream.frontend.refine import TEXTURELESS, fill_rows, textureless
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
+    ImageTooNarrowError,
     LookupMethod,
     SgbmConfig,
+    SgbmMode,
     StereoFrontEnd,
     compute_disparity,
     compute_right_disparity,
@@ -27,6 +30,7 @@ from pcainterp_stream.frontend.stereo import (
     detect_corners,
     lattice_points,
     lookup_disparities,
+    narrowest_width,
     sparse_lookups,
     to_grey8_pair,
 )
@@ -217,6 +221,35 @@ def test_no_corners_looks_up_the_lattice_alone(pair: tuple[npt.NDArray[Any], ...
     on_lattice = np.abs(found.pixels[:, None, :] - expected[None, :, :]).sum(axis=2).min(axis=1)
     assert on_lattice.max() == 0.0
     assert np.median(np.abs(found.disparities - _truth_at(truth, found.pixels))) < 0.15
+
+
+@pytest.mark.parametrize(
+    "config",
+    [
+        SgbmConfig(),
+        SgbmConfig(downscale=2),
+        SgbmConfig(mode=SgbmMode.SGBM, block_size=7),
+        SgbmConfig(min_disparity=16, num_disparities=32),
+        REFINED_DENSE_SGBM,
+    ],
+    ids=["full", "half", "sgbm-mode", "min-disparity", "refined"],
+)
+def test_too_narrow_a_pair_is_refused_not_crashed(config: SgbmConfig) -> None:
+    # OpenCV's 3-way SGBM crashes the process on images narrower than its range
+    rng = np.random.default_rng(4)
+    width = narrowest_width(config)
+    image = (rng.random((24, width)) * 255).astype(np.uint8)
+    assert compute_disparity(image, image, config).shape == image.shape
+    narrower = np.ascontiguousarray(image[:, :-1])
+    with pytest.raises(ImageTooNarrowError, match="narrower than the"):
+        compute_disparity(narrower, narrower, config)
+
+
+def test_a_padded_matcher_matches_a_narrow_pair() -> None:
+    # the left band's padding gives SGBM the columns the range needs
+    image = (np.random.default_rng(5).random((24, 6)) * 255).astype(np.uint8)
+    assert narrowest_width(DENSE_SGBM) <= 6
+    assert compute_disparity(image, image, DENSE_SGBM).shape == image.shape
 
 
 def test_neither_corners_nor_lattice_is_refused() -> None:
