@@ -67,12 +67,12 @@ from pcainterp_stream.evaluate.results import (
 from pcainterp_stream.evaluate.tables import results_markdown, summary_table
 from pcainterp_stream.frontend.images import PairImages
 from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.frontend.sgbm_limits import fitting
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     SgbmConfig,
     compute_disparity,
     detect_corners,
-    fitting,
     lookup_disparities,
     to_grey8,
 )

@@ -38,7 +38,6 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.errors import PcaInterpError
 from pcainterp_stream.frontend.corners import (
     GfttConfig,
     detect_corners,
@@ -47,6 +46,10 @@ from pcainterp_stream.frontend.corners import (
 )
 from pcainterp_stream.frontend.refine import halved as _halved
 from pcainterp_stream.frontend.refine import refined_match
+from pcainterp_stream.frontend.sgbm_limits import (
+    ImageTooNarrowError,
+    needed_width,
+)
 
 __all__ = [
     "GfttConfig",
@@ -315,37 +318,6 @@ end or above is taken (nearer than the full-resolution matcher can see well)."""
 _matchers = threading.local()
 
 
-class ImageTooNarrowError(PcaInterpError, ValueError):
-    """A pair narrower than SGBM's disparity range (OpenCV's matcher would fail or crash).
-
-    Attributes:
-        width: the images' width (px) at the matching resolution.
-        needed: the width that configuration needs there (px).
-    """
-
-    def __init__(self, width: int, needed: int, num_disparities: int) -> None:
-        super().__init__(
-            f"images {width} px wide (at the matching resolution) are narrower than the "
-            f"{needed} px SGBM needs for {num_disparities} disparities; pass a smaller "
-            "--num-disparities"
-        )
-        self.width = width
-        self.needed = needed
-
-
-def _needed_width(config: SgbmConfig) -> int:
-    """The narrowest image (px, at the matching resolution) ``config`` matches.
-
-    OpenCV's SGBM needs more columns than its range: 3-way (and HH4) one more than the
-    largest disparity, the others half a block more; narrower images make it fail, or, in
-    3-way mode, crash the process (measured with OpenCV 5.0, every mode and width).
-    """
-    largest = max(config.min_disparity, 0) + config.num_disparities
-    if config.mode in (SgbmMode.SGBM_3WAY, SgbmMode.HH4):
-        return largest + 1
-    return largest + config.block_size // 2 + 1
-
-
 class _Checked:
     """``cv2.StereoSGBM`` for a configuration, refusing images too narrow for it."""
 
@@ -353,49 +325,10 @@ class _Checked:
         self.config = config
 
     def compute(self, left: UInt8Array, right: UInt8Array) -> npt.NDArray[np.int16]:
-        needed = _needed_width(self.config)
+        needed = needed_width(self.config)
         if left.shape[1] < needed:
             raise ImageTooNarrowError(left.shape[1], needed, self.config.num_disparities)
         return np.asarray(_matcher(self.config).compute(left, right), np.int16)
-
-
-def fitting(config: SgbmConfig, width: int) -> SgbmConfig | None:
-    """Return ``config`` with the widest range images ``width`` px wide can be matched with.
-
-    The range is a multiple of 16 and at most ``config``'s own; None when none fits.
-    """
-    for count in range(config.num_disparities, 0, -16):
-        fits = replace(config, num_disparities=count)
-        if narrowest_width(fits) <= width:
-            return fits
-    return None
-
-
-def narrowest_width(config: SgbmConfig) -> int:
-    """Return the narrowest image (px, full resolution) the front end matches with ``config``.
-
-    With ``full_width`` the padding gives SGBM its columns; at half resolution the range and
-    the image are both halved; the refined matcher's bound is its +-range pass.
-    """
-    if config.refine_range and config.downscale == 1:
-        reach = config.refine_range
-        passes = (
-            replace(
-                config,
-                min_disparity=-reach,
-                num_disparities=2 * reach,
-                refine_range=0,
-                full_width=False,
-            ),
-            replace(config, downscale=2, refine_range=0),
-        )
-        return max(narrowest_width(one) for one in passes)
-    matched = config.matched()
-    needed = _needed_width(matched)
-    if config.full_width:  # the padding is the left band
-        needed = max(needed - max(matched.band, 0), 1)
-    # at the matching resolution the image's width is ceil(W / downscale)
-    return config.downscale * (needed - 1) + 1
 
 
 def _matcher(config: SgbmConfig) -> cv2.StereoSGBM:

@@ -30,7 +30,8 @@ from pcainterp_stream.frontend.pairing import (
     PairingStats,
     StereoPairer,
 )
-from pcainterp_stream.frontend.stereo import SgbmConfig, fitting, narrowest_width
+from pcainterp_stream.frontend.sgbm_limits import fitting, narrowest_width
+from pcainterp_stream.frontend.stereo import SgbmConfig
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.foxglove import FoxgloveLive, LiveMessage
 from pcainterp_stream.io.logreader import open_log

@@ -17,9 +17,9 @@ from hypothesis.extra.numpy import arrays
 
 from pcainterp_stream.frontend.matchers import DENSE_SGBM, REFINED_DENSE_SGBM
 from pcainterp_stream.frontend.refine import TEXTURELESS, fill_rows, textureless
+from pcainterp_stream.frontend.sgbm_limits import ImageTooNarrowError, narrowest_width
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
-    ImageTooNarrowError,
     LookupMethod,
     SgbmConfig,
     SgbmMode,
@@ -30,7 +30,6 @@ from pcainterp_stream.frontend.stereo import (
     detect_corners,
     lattice_points,
     lookup_disparities,
-    narrowest_width,
     sparse_lookups,
     to_grey8_pair,
 )
