@@ -66,6 +66,11 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "corners300_fill40_contrast2.5": {"gftt": {"max_corners": 300, "fill_min_contrast": 2.5}},
     "corners300_fill50": {"gftt": {"max_corners": 300, "fill_spacing": 50.0}},
     "corners300_fill40": {"gftt": {"max_corners": 300}},
+    # the lattice alone (no corners), and the corners with a denser lattice
+    "lattice26": {"gftt": {"max_corners": 0, "fill_spacing": 26.0}},
+    "lattice30": {"gftt": {"max_corners": 0, "fill_spacing": 30.0}},
+    "lattice34": {"gftt": {"max_corners": 0, "fill_spacing": 34.0}},
+    "corners250_fill30": {"gftt": {"fill_spacing": 30.0}},
     "corners300_fill45": {"gftt": {"max_corners": 300, "fill_spacing": 45.0}},
     "buckets24x6_fill50": {"gftt": {"max_corners": 400, "buckets": (24, 6), "fill_spacing": 50.0}},
     # the left band x < 128 px matched too (SGBM on padded images, as dense mode does)
@@ -269,7 +274,10 @@ def score(
     with FrameProcessor(basis, config) as processor:
         results = list(processor.process([frame for frame, _ in items]))
     seconds = time.perf_counter() - started
-    corners_only = StereoFrontEnd(dataclasses.replace(config.gftt, fill_spacing=0.0), config.sgbm)
+    # the corners alone (a lattice-only variant's: the default's corners, what users had)
+    count = config.gftt.max_corners or ProcessorConfig().gftt.max_corners
+    alone = dataclasses.replace(config.gftt, fill_spacing=0.0, max_corners=count)
+    corners_only = StereoFrontEnd(alone, config.sgbm)
     sums = dict.fromkeys(
         (
             "px",
