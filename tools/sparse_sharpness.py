@@ -51,6 +51,9 @@ Array = npt.NDArray[np.float32]
 DEPTH_CAP_M = 80.0
 
 # variant name -> changes to ProcessorConfig's corner options
+STREET = {"builtin": "street", "adapt": "check"}
+"""Keep the built-in street basis: checked, never switched or adapted."""
+
 VARIANTS: dict[str, dict[str, Any]] = {
     "default": {},
     # the previous default: 400 strongest corners, no lattice
@@ -71,6 +74,14 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "lattice30": {"gftt": {"max_corners": 0, "fill_spacing": 30.0}},
     "lattice34": {"gftt": {"max_corners": 0, "fill_spacing": 34.0}},
     "corners250_fill30": {"gftt": {"fill_spacing": 30.0}},
+    "corners150_fill30": {"gftt": {"max_corners": 150, "fill_spacing": 30.0}},
+    # the same point sets with the street basis kept whatever the fit check says
+    "lattice26_street": {"gftt": {"max_corners": 0, "fill_spacing": 26.0}, **STREET},
+    "lattice30_street": {"gftt": {"max_corners": 0, "fill_spacing": 30.0}, **STREET},
+    "lattice34_street": {"gftt": {"max_corners": 0, "fill_spacing": 34.0}, **STREET},
+    "corners150_fill30_street": {"gftt": {"max_corners": 150, "fill_spacing": 30.0}, **STREET},
+    "corners100_fill30": {"gftt": {"max_corners": 100, "fill_spacing": 30.0}},
+    "corners150_fill34": {"gftt": {"max_corners": 150, "fill_spacing": 34.0}},
     "corners300_fill45": {"gftt": {"max_corners": 300, "fill_spacing": 45.0}},
     "buckets24x6_fill50": {"gftt": {"max_corners": 400, "buckets": (24, 6), "fill_spacing": 50.0}},
     # the left band x < 128 px matched too (SGBM on padded images, as dense mode does)
@@ -263,6 +274,10 @@ def geodesic_nearest(
     return np.asarray(values[labels.astype(np.int64)], np.float32)
 
 
+CHECK_LINES: list[str] = []
+"""The fit check's lines of the last :func:`score` (``--explain`` prints them)."""
+
+
 def score(
     items: list[tuple[StereoFrame, Array]],
     config: ProcessorConfig,
@@ -273,6 +288,8 @@ def score(
     started = time.perf_counter()
     with FrameProcessor(basis, config) as processor:
         results = list(processor.process([frame for frame, _ in items]))
+        adapted = processor.adaptation.adapted
+        CHECK_LINES[:] = list(processor.adaptation.lines)
     seconds = time.perf_counter() - started
     # the corners alone (a lattice-only variant's: the default's corners, what users had)
     count = config.gftt.max_corners or ProcessorConfig().gftt.max_corners
@@ -293,6 +310,8 @@ def score(
             "edge_px",
             "edge_err",
             "edge_inside",
+            "range_px",
+            "range_err",
         ),
         0.0,
     )
@@ -319,6 +338,10 @@ def score(
             sgbm = np.where(sgbm > 0, sgbm, np.nan)
             along = geodesic_nearest(sgbm, result.pixels, result.disparities, beta=1.0, cap=20.0)
             sums["geodesic_sgbm"] += np.abs(along - truth)[valid].sum()
+        # within the matcher's range: the pixels a looked-up point can be right at
+        reach = truth[valid] < config.sgbm.num_disparities
+        sums["range_px"] += reach.sum()
+        sums["range_err"] += error[reach].sum()
         std = result.disparity_std[valid]
         inside = error <= 2.0 * std
         sums["px"] += valid.sum()
@@ -337,6 +360,7 @@ def score(
         points += len(result.pixels)
     return {
         "error_px": sums["err"] / sums["px"],
+        "range_error_px": sums["range_err"] / max(sums["range_px"], 1.0),
         "nearest_px": sums["nn"] / sums["px"],
         "ratio_nn": sums["err"] / sums["nn"],
         "linear_px": sums["linear"] / sums["px"],
@@ -353,6 +377,7 @@ def score(
         / max(sums["px"] - sums["edge_px"], 1.0),
         "depth_rmse_m": float(np.sqrt(sums["sq_depth"] / sums["px"])),
         "points": points / len(items),
+        "adapted": float(adapted),
         "seconds": seconds,
         "frames": float(len(items)),
     }
@@ -554,6 +579,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--synth-frames", type=int, default=20)
     parser.add_argument("--kitti-frames", type=int, default=40)
     parser.add_argument(
+        "--explain", action="store_true", help="print each variant's fit-check lines"
+    )
+    parser.add_argument(
         "--timing", action="store_true", help="also time the estimate alone per variant"
     )
     parser.add_argument(
@@ -585,6 +613,7 @@ def main(argv: list[str] | None = None) -> int:
     }
     keys = (
         "error_px",
+        "range_error_px",
         "edge_error_px",
         "edge_coverage",
         "away_coverage",
@@ -598,6 +627,7 @@ def main(argv: list[str] | None = None) -> int:
         "coverage_2sigma",
         "depth_rmse_m",
         "points",
+        "adapted",
         "seconds",
     )
     for source in args.sources:
@@ -613,11 +643,17 @@ def main(argv: list[str] | None = None) -> int:
         print("| variant | " + " | ".join(keys) + " | time ratio |")
         print("| --- |" + " ---: |" * (len(keys) + 1))
         first = None
+        lines: list[str] = []
         for variant in args.variants:
             figures = score(items, _variant_config(variant), _variant_basis(variant), args.geodesic)
             first = first or figures["seconds"]
             cells = " | ".join(f"{figures[k]:.3f}" for k in keys)
             print(f"| {variant} | {cells} | {figures['seconds'] / first:.2f} |", flush=True)
+            if args.explain:
+                lines.extend(f"  {source} {variant}: {line}" for line in CHECK_LINES)
+        if lines:
+            print("\n".join(lines), flush=True)
+            lines.clear()
         if args.guided:
             print("\n| guided filter (first variant) | error_px | coverage_2sigma |")
             print("| --- | ---: | ---: |")

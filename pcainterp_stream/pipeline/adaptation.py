@@ -179,8 +179,8 @@ class Adaptation:
                 if other.frames and other.prior < self.check.prior:
                     self.check, self.switched = other, candidate
         # a built-in basis that fits well is used as it is: the log's own basis is tried
-        # only when none does (its leave-one-out figure on consecutive frames, scored
-        # against the SGBM maps it learns from, flatters it against the truth)
+        # only when none does (its leave-one-out figure, scored against the SGBM maps it
+        # learns from, flatters it against the truth)
         try_own = (
             self.mode == "auto"
             and self.may_replace

@@ -158,3 +158,32 @@ def test_evidence_fits_the_prior_scale_instead_of_a_huge_noise() -> None:
     sigma_extra, scale_extra = evidence_noise(signal, draw, extra)
     assert 100.0 <= scale_extra <= 1600.0
     assert np.isfinite(sigma_extra)
+
+
+def test_leave_one_out_leaves_the_neighbours_out_too() -> None:
+    # frames come in near-identical pairs (a bump of their own each pair): a basis that
+    # learned a frame's twin reproduces it, so a frame left out alone is scored too well
+    rows, cols = np.mgrid[0 : SIZE[0], 0 : SIZE[1]].astype(np.float32)
+    rng = np.random.default_rng(7)
+    centres = [(rng.uniform(8, SIZE[0] - 8), rng.uniform(8, SIZE[1] - 8)) for _ in range(4)]
+    frames, maps = [], []
+    for index in range(8):
+        y, x = centres[index // 2]
+        bump = 4.0 * np.exp(-((rows - y) ** 2 + (cols - x) ** 2) / 40.0)
+        reference = (_scene(float(index)) + bump).astype(np.float32)
+        pixels = _points(30, seed=40 + index)
+        frames.append(adapt.Measured(pixels, _measure(reference, pixels), reference))
+        maps.append(adapt.grid_map(reference, SIZE))
+    prior = adapt.refit_prior(adapt.own_basis(maps, SIZE, 50.0), frames, robust="cauchy")
+    options = {"image_size": SIZE, "focal_baseline": 50.0, "robust": "cauchy"}
+    alone = adapt.leave_one_out(maps, frames, prior.meta["prior"], gap=0, **options)
+    held = adapt.leave_one_out(maps, frames, prior.meta["prior"], **options)
+    assert alone is not None and held is not None
+    assert adapt.LEAVE_OUT_GAP >= 1
+    assert held.check.frames == alone.check.frames == 4
+    assert held.check.prior > 1.8 * alone.check.prior
+    # a short warm-up: too few maps beyond the gap, so the frame alone is left out
+    short = adapt.leave_one_out(maps[:4], frames[:4], prior.meta["prior"], **options)
+    plain = adapt.leave_one_out(maps[:4], frames[:4], prior.meta["prior"], gap=0, **options)
+    assert short is not None and plain is not None
+    assert short.check == plain.check
