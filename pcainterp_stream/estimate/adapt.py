@@ -19,9 +19,9 @@ prior refitted by the evidence of the frames' measurements (local kernel and sig
 that map as the mean with no direction of variation worth the name: the frame's own
 stereo, smoothed, which the measurements then correct. Its held-out figure and its std's
 calibration are measured leaving each checked frame and its neighbours out of the maps
-(:func:`leave_one_out`): the honest figures for the frames that follow. (Calibrated on the frames it learned from,
-its std fits the maps it reproduces: on a KITTI drive measured on a 34 px lattice, 44 % of
-the frames' errors then fell inside +-2 sigma.)
+(:func:`leave_one_out`): the honest figures for the frames that follow. (Calibrated on the
+frames it learned from, its std fits the maps it reproduces: on a KITTI drive measured on a
+34 px lattice, 44 % of the frames' errors then fell inside +-2 sigma.)
 
 Everything here is deterministic: the same maps and measurements give the same basis.
 """
@@ -56,8 +56,9 @@ ADAPT_GAIN = 0.5
 """A log's own basis also replaces a prior that fits when its held-out (leave-one-out) error
 is below this share of the prior's. Its leave-one-out figure still flatters it: the
 reference is the SGBM it learns to reproduce (and on a short warm-up, :data:`LEAVE_OUT_MAPS`,
-the maps it learns from include the left-out frame's neighbours). On synthetic indoor logs it was chosen over the built-in indoor
-basis at 0.7x and was worse against the truth (seed 4: 0.233 against 0.204 px)."""
+the maps it learns from include the left-out frame's neighbours). On synthetic indoor logs
+it was chosen over the built-in indoor basis at 0.7x and was worse against the truth (seed
+4: 0.233 against 0.204 px)."""
 
 GRID_SCALE = 0.25
 """Grid scale of a basis learned from a log's own maps (the built-in basis's)."""
@@ -546,8 +547,8 @@ def leave_one_out(
 
     For up to ``max_frames`` frames (evenly spaced), learn from the maps of the frames more
     than ``gap`` frames away (every other map when that leaves fewer than
-    :data:`LEAVE_OUT_MAPS`), densify the left-out frame with ``prior`` (its fitted local kernel and sigma: hyperparameters of all
-    frames, a small leak) and score it as :func:`check_frame` does. With ``calibrate``, the
+    :data:`LEAVE_OUT_MAPS`), densify the left-out frame with ``prior`` (its fitted local
+    kernel and sigma: hyperparameters of all frames, a small leak) and score it as :func:`check_frame` does. With ``calibrate``, the
     left-out frames' posterior std is computed too and calibrated against their maps.
     """
     if len(grid_maps) < 2:

@@ -178,12 +178,14 @@ def test_leave_one_out_leaves_the_neighbours_out_too() -> None:
     options = {"image_size": SIZE, "focal_baseline": 50.0, "robust": "cauchy"}
     alone = adapt.leave_one_out(maps, frames, prior.meta["prior"], gap=0, **options)
     held = adapt.leave_one_out(maps, frames, prior.meta["prior"], **options)
-    assert alone is not None and held is not None
+    assert alone is not None
+    assert held is not None
     assert adapt.LEAVE_OUT_GAP >= 1
     assert held.check.frames == alone.check.frames == 4
     assert held.check.prior > 1.8 * alone.check.prior
     # a short warm-up: too few maps beyond the gap, so the frame alone is left out
     short = adapt.leave_one_out(maps[:4], frames[:4], prior.meta["prior"], **options)
     plain = adapt.leave_one_out(maps[:4], frames[:4], prior.meta["prior"], gap=0, **options)
-    assert short is not None and plain is not None
+    assert short is not None
+    assert plain is not None
     assert short.check == plain.check
