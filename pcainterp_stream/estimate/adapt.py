@@ -548,8 +548,9 @@ def leave_one_out(
     For up to ``max_frames`` frames (evenly spaced), learn from the maps of the frames more
     than ``gap`` frames away (every other map when that leaves fewer than
     :data:`LEAVE_OUT_MAPS`), densify the left-out frame with ``prior`` (its fitted local
-    kernel and sigma: hyperparameters of all frames, a small leak) and score it as :func:`check_frame` does. With ``calibrate``, the
-    left-out frames' posterior std is computed too and calibrated against their maps.
+    kernel and sigma: hyperparameters of all frames, a small leak) and score it as
+    :func:`check_frame` does. With ``calibrate``, the left-out frames' posterior std is
+    computed too and calibrated against their maps.
     """
     if len(grid_maps) < 2:
         return None
