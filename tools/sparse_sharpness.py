@@ -79,6 +79,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "lattice26_street": {"gftt": {"max_corners": 0, "fill_spacing": 26.0}, **STREET},
     "lattice30_street": {"gftt": {"max_corners": 0, "fill_spacing": 30.0}, **STREET},
     "lattice34_street": {"gftt": {"max_corners": 0, "fill_spacing": 34.0}, **STREET},
+    "indoor": {"builtin": "indoor", "adapt": "check"},
     "corners150_fill30_street": {"gftt": {"max_corners": 150, "fill_spacing": 30.0}, **STREET},
     "corners100_fill30": {"gftt": {"max_corners": 100, "fill_spacing": 30.0}},
     "corners150_fill34": {"gftt": {"max_corners": 150, "fill_spacing": 34.0}},
