@@ -119,6 +119,7 @@ def main(argv: list[str] | None = None) -> int:
         timed: dict[str, tuple[float, float, float]] = {}
         sizes: dict[str, float] = {}
         for name in ("before", "after") if round_index % 2 == 0 else ("after", "before"):
+            output.unlink(missing_ok=True)  # a fresh output each run, as a first run writes
             timed[name] = run(densify, work, old_env if name == "before" else None)
             sizes[name] = output.stat().st_size / 1e6 / frames
             walls[name].append(timed[name][0] / alone[0])
