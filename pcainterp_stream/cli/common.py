@@ -83,7 +83,8 @@ def add_stereo_options(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="PX",
         help="lattice of extra lookups in the corners' gaps, side in px (default 40; "
-        "densify --measurements dense at full resolution: 34; 0 = off)",
+        "densify --measurements dense at full resolution: 34; 0 = off); denser is "
+        "sharper and slower: 30 measured 12-13 %% lower error on KITTI for ~14 %% more CPU",
     )
     group.add_argument(
         "--num-disparities", type=int, default=None, metavar="N", help="SGBM disparity range"
