@@ -313,6 +313,9 @@ def score(
             "edge_inside",
             "range_px",
             "range_err",
+            "near_inside",
+            "near_estimate",
+            "near_truth",
         ),
         0.0,
     )
@@ -343,8 +346,11 @@ def score(
         reach = truth[valid] < config.sgbm.num_disparities
         sums["range_px"] += reach.sum()
         sums["range_err"] += error[reach].sum()
+        sums["near_estimate"] += estimate[valid][~reach].sum()
+        sums["near_truth"] += truth[valid][~reach].sum()
         std = result.disparity_std[valid]
         inside = error <= 2.0 * std
+        sums["near_inside"] += inside[~reach].sum()
         sums["px"] += valid.sum()
         sums["err"] += error.sum()
         sums["inside"] += inside.sum()
@@ -362,6 +368,13 @@ def score(
     return {
         "error_px": sums["err"] / sums["px"],
         "range_error_px": sums["range_err"] / max(sums["range_px"], 1.0),
+        # the truth nearer than the matcher's range: its share of the pixels and of the
+        # error, the estimate's and the truth's mean there, +-2 sigma coverage there
+        "near_px_pct": 100.0 * (1.0 - sums["range_px"] / sums["px"]),
+        "near_error_pct": 100.0 * (1.0 - sums["range_err"] / sums["err"]),
+        "near_estimate_px": sums["near_estimate"] / max(sums["px"] - sums["range_px"], 1.0),
+        "near_truth_px": sums["near_truth"] / max(sums["px"] - sums["range_px"], 1.0),
+        "near_coverage": 100.0 * sums["near_inside"] / max(sums["px"] - sums["range_px"], 1.0),
         "nearest_px": sums["nn"] / sums["px"],
         "ratio_nn": sums["err"] / sums["nn"],
         "linear_px": sums["linear"] / sums["px"],
@@ -583,6 +596,11 @@ def main(argv: list[str] | None = None) -> int:
         "--explain", action="store_true", help="print each variant's fit-check lines"
     )
     parser.add_argument(
+        "--near",
+        action="store_true",
+        help="also score the pixels whose truth is nearer than the matcher's range",
+    )
+    parser.add_argument(
         "--timing", action="store_true", help="also time the estimate alone per variant"
     )
     parser.add_argument(
@@ -615,6 +633,11 @@ def main(argv: list[str] | None = None) -> int:
     keys = (
         "error_px",
         "range_error_px",
+        *(
+            ("near_px_pct", "near_error_pct", "near_estimate_px", "near_truth_px", "near_coverage")
+            if args.near
+            else ()
+        ),
         "edge_error_px",
         "edge_coverage",
         "away_coverage",
