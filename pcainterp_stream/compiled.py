@@ -10,6 +10,16 @@ Importing them the usual way runs the ``__init__`` of ``scipy.linalg`` and
 ``python -X importtime``). :func:`module` loads each compiled module from its file in
 scipy's package instead; they are the same modules, so every result is the same to the
 bit. Where the file is not where scipy's wheels put it, the module is imported as usual.
+
+The k-d tree's module imports two of scipy's modules when it is loaded: ``scipy.sparse``
+for the one method that returns a sparse matrix (``sparse_distance_matrix``, which no job
+calls) and ``scipy._lib._util`` for one constant (``copy_if_needed``). Those imports are
+~0.2 s more of CPU holding the GIL (they pull in ``scipy._lib``'s array API layer and,
+through it, ``numpy.f2py`` and ``numpy.testing``), paid by every job while its stereo
+workers match the first pairs. :data:`DEFERRED` names them: while the module loads, each
+stands in ``sys.modules`` as a placeholder (:class:`_Deferred`) that answers the names
+it is given and imports the real module the first time anything else is looked up on it,
+so a program that goes on to use ``scipy.sparse`` gets the real one, as usual.
 """
 
 from __future__ import annotations
@@ -27,12 +37,46 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+import numpy as np
+from numpy.lib import NumpyVersion
+
 NEEDS: dict[str, tuple[str, ...]] = {
     # Qhull's Cython code imports LAPACK's interface by name: loaded first, it is found in
     # sys.modules and scipy.linalg's __init__ does not run
     "spatial._qhull": ("linalg.cython_lapack",),
 }
 """Modules loaded before a module that imports them by name."""
+
+
+def _copy_if_needed() -> dict[str, Any]:
+    """Return ``scipy._lib._util.copy_if_needed`` as scipy sets it, by name.
+
+    None with NumPy 2 (NumPy's "copy only if needed"), False before it; nothing for NumPy
+    2's pre-releases, where scipy probes NumPy (the module is then imported as usual).
+    """
+    version = NumpyVersion(np.__version__)
+    if version >= "2.0.0":
+        return {"copy_if_needed": None}
+    if version < "1.28.0":
+        return {"copy_if_needed": False}
+    return {}
+
+
+def _deferred_modules() -> dict[str, dict[str, dict[str, Any]]]:
+    """Return :data:`DEFERRED`."""
+    known = _copy_if_needed()
+    return {
+        "spatial._ckdtree": {
+            "scipy.sparse": {},
+            **({"scipy._lib._util": known} if known else {}),
+        }
+    }
+
+
+DEFERRED = _deferred_modules()
+"""Compiled module -> the modules it imports when it loads but uses only in functions a
+job never calls, each with the names it takes from them at load (their values): those
+modules are imported on first use instead (:class:`_Deferred`)."""
 
 _LOCK = threading.RLock()
 
@@ -51,11 +95,44 @@ def module(name: str) -> ModuleType:
             return loaded
         for needed in NEEDS.get(name, ()):
             module(needed)
-        with one_blas_thread_when_loaded():
+        with one_blas_thread_when_loaded(), _deferred(DEFERRED.get(name, {})):
             try:
                 return _load_file(full)
             except (ImportError, OSError):
                 return importlib.import_module(full)
+
+
+class _Deferred(ModuleType):
+    """Placeholder of a module in ``sys.modules``: the real one is imported on first use.
+
+    It answers the names it was made with (the same values as the real module's); any
+    other lookup (the module's functions, classes, submodules) imports the module, leaves
+    ``sys.modules`` to it and hands the lookup on.
+    """
+
+    def __init__(self, name: str, known: dict[str, Any]) -> None:
+        super().__init__(name)
+        self.__dict__.update(known)
+
+    def __getattr__(self, name: str) -> Any:
+        with _LOCK:
+            if sys.modules.get(self.__name__) is self:
+                del sys.modules[self.__name__]
+            real = importlib.import_module(self.__name__)
+        return getattr(real, name)
+
+
+@contextlib.contextmanager
+def _deferred(modules: dict[str, dict[str, Any]]) -> Iterator[None]:
+    """Put placeholders (:class:`_Deferred`) for the ``modules`` not yet imported.
+
+    A placeholder stays after the block: whoever imports its module later gets the real
+    one through it on first use, as if it had been imported here.
+    """
+    for name, known in modules.items():
+        if name not in sys.modules:
+            sys.modules[name] = _Deferred(name, known)
+    yield
 
 
 def _load_file(full: str) -> ModuleType:

@@ -74,3 +74,32 @@ def test_loading_leaves_the_blas_variable_as_it_was() -> None:
         "print(json.dumps([os.environ.get('OPENBLAS_NUM_THREADS')]))\n"
     )
     assert out == ["3"]
+
+
+def test_the_k_d_trees_imports_wait_for_their_first_use_and_are_then_scipys_own() -> None:
+    out = _run(
+        "import json, sys\n"
+        "import numpy as np\n"
+        "from pcainterp_stream import compiled\n"
+        "tree = compiled.module('spatial._ckdtree')\n"
+        "heavy = sorted(m for m in ('scipy._lib._array_api', 'numpy.f2py') if m in sys.modules)\n"
+        "rng = np.random.default_rng(2)\n"
+        "points = rng.uniform(0, 100, (200, 2))\n"
+        "at = rng.uniform(0, 100, (300, 2))\n"
+        "found = tree.cKDTree(points).query(at)\n"
+        "after_query = 'scipy._lib._array_api' in sys.modules\n"
+        "matrix = tree.cKDTree(points).sparse_distance_matrix(tree.cKDTree(at), 5.0)\n"
+        "import scipy.sparse\n"
+        "from scipy._lib import _util\n"
+        "usual = [type(matrix) is scipy.sparse.dok_matrix, matrix.nnz > 0,\n"
+        "         type(sys.modules['scipy.sparse']) is type(sys), _util.copy_if_needed is\n"
+        "         compiled.DEFERRED['spatial._ckdtree']['scipy._lib._util']['copy_if_needed']]\n"
+        "dense = np.hypot(*(points[:, None, :] - at[None, :, :]).transpose(2, 0, 1))\n"
+        "nearest = bool(np.allclose(found[0], dense.min(axis=0)))\n"
+        "print(json.dumps([heavy, after_query, usual, nearest]))\n"
+    )
+    heavy, after_query, usual, nearest = out
+    assert heavy == []  # scipy.sparse and scipy._lib._util were not imported by the load
+    assert after_query is False
+    assert usual == [True] * 4
+    assert nearest is True
