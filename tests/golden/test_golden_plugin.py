@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy.fft  # noqa: F401 - see _run
 import pytest
 
 pytest_plugins = ["pytester"]
@@ -42,6 +43,9 @@ def _write(pytester: pytest.Pytester, *, scale: float, arrays: bool = False) -> 
 
 
 def _run(pytester: pytest.Pytester, *args: str) -> pytest.RunResult:
+    # in this process (a fresh one each is ~10x slower): a run drops the modules first
+    # imported inside it, and numpy.fft's compiled module (which the comparison's imports
+    # reach) cannot load twice per process, so it is imported above, before any run
     return pytester.runpytest("-q", "-p", "no:cacheprovider", *args)
 
 

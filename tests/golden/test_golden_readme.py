@@ -22,23 +22,25 @@ def readme_example() -> str:
 
 
 def test_readme_example_passes_then_fails_naming_the_depth(pytester: pytest.Pytester) -> None:
+    # each run in a fresh process, as a user runs it: an in-process run drops the modules
+    # first imported inside it, and numpy's compiled modules cannot load twice per process
     example = readme_example()
     assert len(example.strip().splitlines()) <= 12
     pytester.makepyfile(test_densify_golden=example)
 
-    first = pytester.runpytest("-q", "-p", "no:cacheprovider")
+    first = pytester.runpytest_subprocess("-q", "-p", "no:cacheprovider")
     first.assert_outcomes(failed=1)
     first.stdout.fnmatch_lines(["*File not found in data directory, created*"])
     golden = pytester.path / "test_densify_golden" / "test_densified_drive_is_unchanged.golden.json"
     assert golden.is_file()
 
-    pytester.runpytest("-q", "-p", "no:cacheprovider").assert_outcomes(passed=1)
+    pytester.runpytest_subprocess("-q", "-p", "no:cacheprovider").assert_outcomes(passed=1)
 
     densify = '"-o", str(dense)]'
     assert densify in example
     changed = example.replace(densify, '"-o", str(dense), "--corners", "15"]')
     pytester.makepyfile(test_densify_golden=changed)
-    third = pytester.runpytest("-q", "-p", "no:cacheprovider")
+    third = pytester.runpytest_subprocess("-q", "-p", "no:cacheprovider")
     third.assert_outcomes(failed=1)
     third.stdout.fnmatch_lines(
         ["*drive_dense.mcap differs from the golden file*", "*/pcainterp/depth #0 (stamp *"]
