@@ -131,8 +131,10 @@ class _PartsRecordBuilder(RecordBuilder):
     mcap's builder copies every message into a growing ``BytesIO`` (the copy and each
     regrowth hold the GIL: ~2 CPU ms per KITTI frame of output, measured with yappi); this
     one keeps references to the parts (each record's header is packed once its length is
-    known) and joins them once when the chunk ends, into the same bytes. A part must not
-    change after it is written: messages are ``bytes`` or views of decoded input chunks.
+    known) and joins them once when the chunk ends, into the same bytes. Only parts that
+    cannot change are kept by reference (``bytes``, and views of ``bytes`` such as a
+    message of a decoded input chunk); any other buffer is copied when written, as
+    ``BytesIO`` copies it, since mcap's writer is patched for the whole process.
     """
 
     def __init__(self) -> None:
@@ -164,8 +166,13 @@ class _PartsRecordBuilder(RecordBuilder):
         return data
 
     def write(self, data: bytes | bytearray | memoryview) -> None:
+        if isinstance(data, memoryview) and isinstance(data.obj, bytes):
+            self._size += data.nbytes
+        else:
+            if type(data) is not bytes:
+                data = bytes(data)  # its owner may change it before the chunk ends
+            self._size += len(data)
         self._parts.append(data)
-        self._size += data.nbytes if isinstance(data, memoryview) else len(data)
 
 
 class _PartsChunkBuilder(ChunkBuilder):

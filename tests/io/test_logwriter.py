@@ -576,6 +576,32 @@ def test_mcap_chunk_crcs_check_out_with_zlib(tmp_path: Path) -> None:
         assert chunk.uncompressed_crc == zlib.crc32(data) != 0
 
 
+def test_mcap_chunks_built_from_parts_hold_what_was_written_even_if_changed_later(
+    tmp_path: Path,
+) -> None:
+    # mcap's writer is patched for the whole process: a buffer its owner reuses is copied
+    # when written, bytes and views of bytes are kept by reference, and every record reads
+    # back as written, with chunk offsets the reader's index finds
+    target = tmp_path / "out.mcap"
+    reused = bytearray(b"first")
+    chunk_of_input = bytes(range(256)) * 4
+    with target.open("wb") as stream:
+        writer = mcap.writer.Writer(stream, chunk_size=1 << 10)
+        writer.start()
+        channel = writer.register_channel("/t", "raw", 0)
+        writer.add_message(channel, 1, reused, 1)
+        reused[:] = b"later"  # changed before the chunk ends
+        writer.add_message(channel, 2, memoryview(chunk_of_input)[10:700], 2)
+        writer.add_message(channel, 3, np.arange(6, dtype=np.uint8).data, 3)
+        for time in range(4, 40):
+            writer.add_message(channel, time, bytes([time]) * time, time)
+        writer.finish()
+    with target.open("rb") as stream:
+        read = [(m.log_time, bytes(m.data)) for _, _, m in make_reader(stream).iter_messages()]
+    assert read[:3] == [(1, b"first"), (2, chunk_of_input[10:700]), (3, bytes(range(6)))]
+    assert read[3:] == [(time, bytes([time]) * time) for time in range(4, 40)]
+
+
 def _submit_interrupted_at_line(writer: _WriteThread, line: int) -> bool:
     """Submit an item with ``KeyboardInterrupt`` raised at the ``line``-th traced line.
 
