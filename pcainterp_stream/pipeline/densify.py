@@ -182,7 +182,6 @@ def densify(
             )
         left = reader.topics().get(pairing.left_topic)
         total = left.message_count if left is not None else None
-        metadata = channel_metadata(label, basis.fingerprint, processor.measurements)
         writer: LogWriter | None = None
         if isinstance(output, Path):
             writer = stack.enter_context(
@@ -190,9 +189,12 @@ def densify(
             )
         elif output is not None:
             writer = stack.enter_context(McapStreamWriter(output))
-        if writer is not None:
-            writer.channel_metadata = topic_metadata(topics, metadata)
+        # the output channels' metadata names the basis by its fingerprint, which the thread
+        # preloading the built-in basis may still be hashing: the written channels take it
+        # with the first output (below), the live ones now, to be advertised before frame 1
+        metadata: dict[str, str] | None = None
         if live is not None:
+            metadata = channel_metadata(label, basis.fingerprint, processor.measurements)
             for topic, msgtype in output_types(topics).items():  # subscribable before frame 1
                 live.advertise(topic, msgtype, metadata=metadata)
         # the output messages (quantising and PNG-deflating: numpy and zlib-ng release the
@@ -213,7 +215,10 @@ def densify(
             for result in map(pairer.full_result, results):
                 if frames == 0 and not encoding and writer is not None:
                     # f*b and the first min disparity: what evaluate needs of a compact log
-                    first = {**metadata, **frame_metadata(result)}
+                    first = {
+                        **channel_metadata(label, basis.fingerprint, processor.measurements),
+                        **frame_metadata(result),
+                    }
                     switched = engine.adaptation.switched
                     if switched is not None:  # the check chose another built-in basis
                         first.update(
@@ -246,6 +251,7 @@ def densify(
                 for topic, message in messages:
                     writer.add_message(topic, message, result.frame.log_time_ns)
             if live is not None:
+                assert metadata is not None  # set with the live channels' advertisement
                 live.add_frame(
                     result.frame.log_time_ns,
                     [
