@@ -105,13 +105,17 @@ def module(name: str) -> ModuleType:
 class _Deferred(ModuleType):
     """Placeholder of a module in ``sys.modules``: the real one is imported on first use.
 
-    It answers the names it was made with (the same values as the real module's); any
-    other lookup (the module's functions, classes, submodules) imports the module, leaves
-    ``sys.modules`` to it and hands the lookup on.
+    It answers the names it was made with (the same values as the real module's) and
+    carries the real module's spec (``importlib.util.find_spec`` reads it from
+    ``sys.modules``); any other lookup (the module's functions, classes, submodules)
+    imports the module, leaves ``sys.modules`` to it and hands the lookup on.
     """
 
-    def __init__(self, name: str, known: dict[str, Any]) -> None:
+    def __init__(
+        self, name: str, known: dict[str, Any], spec: importlib.machinery.ModuleSpec
+    ) -> None:
         super().__init__(name)
+        self.__spec__ = spec
         self.__dict__.update(known)
 
     def __getattr__(self, name: str) -> Any:
@@ -130,8 +134,14 @@ def _deferred(modules: dict[str, dict[str, Any]]) -> Iterator[None]:
     one through it on first use, as if it had been imported here.
     """
     for name, known in modules.items():
-        if name not in sys.modules:
-            sys.modules[name] = _Deferred(name, known)
+        if name in sys.modules:
+            continue
+        try:  # locates the module (importing its parent package, as loading it would)
+            spec = importlib.util.find_spec(name)
+        except (ImportError, ValueError):
+            spec = None
+        if spec is not None:  # else the module is imported as usual, or its import fails
+            sys.modules[name] = _Deferred(name, known, spec)
     yield
 
 
