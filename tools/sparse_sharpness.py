@@ -44,7 +44,7 @@ import numpy.typing as npt
 from pcainterp_stream.estimate.baselines import linear, nearest
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.frontend.stereo import SgbmConfig, StereoFrontEnd, compute_disparity
-from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
+from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig, prior_std_map
 from pcainterp_stream.records import StereoCamera, StereoFrame
 
 Array = npt.NDArray[np.float32]
@@ -108,6 +108,16 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "cells0.75": {"edge_aware": True, "prior": {"local": {"cell_weight": 0.75}}},
     "cells0.9": {"edge_aware": True, "prior": {"local": {"cell_weight": 0.9}}},
     "stationary": {"prior": {"local": {"cell_weight": 1.0}}},
+    # as many gap-filling lookups as the 40 px lattice keeps, placed greedily where the gap
+    # to the nearest point times a weight is largest (GfttConfig.fill_placement): weight 1,
+    # the prior's disparity std, or the looked-up disparity, to the power given
+    "fill_even": {"gftt": {"fill_placement": "even"}},
+    "fill_prior_std": {"gftt": {"fill_placement": "prior_std"}},
+    "fill_prior_std0.25": {"gftt": {"fill_placement": "prior_std", "fill_exponent": 0.25}},
+    "fill_prior_std0.5": {"gftt": {"fill_placement": "prior_std", "fill_exponent": 0.5}},
+    "fill_disparity0.25": {"gftt": {"fill_placement": "disparity", "fill_exponent": 0.25}},
+    "fill_disparity0.5": {"gftt": {"fill_placement": "disparity", "fill_exponent": 0.5}},
+    "fill_disparity": {"gftt": {"fill_placement": "disparity"}},
 }
 
 
@@ -470,8 +480,11 @@ def estimate_seconds(
     from pcainterp_stream.pipeline.processor import resolve_settings
 
     measured = []
-    for config in configs:
-        front_end = StereoFrontEnd(config.gftt, config.sgbm)
+    for config, basis in zip(configs, bases, strict=True):
+        prior_std = None
+        if config.gftt.fill_placement == "prior_std":
+            prior_std = prior_std_map(basis or Basis.default())
+        front_end = StereoFrontEnd(config.gftt, config.sgbm, prior_std=prior_std)
         measured.append([front_end.measure(frame.left, frame.right) for frame, _ in items])
     best = [np.inf] * len(configs)
     camera = items[0][0].camera
@@ -555,6 +568,57 @@ def pool_seconds(
     return seconds
 
 
+def lookup_seconds(
+    items: list[tuple[StereoFrame, Array]],
+    configs: list[ProcessorConfig],
+    bases: list[Basis | None],
+    repeats: int = 3,
+) -> tuple[list[float], float]:
+    """CPU seconds per frame of the front end's lookups (corners and fill), per configuration.
+
+    ``sparse_lookups`` on each frame's SGBM map (made beforehand), the configurations in
+    turns, the best of ``repeats``; and the SGBM map itself (the same matcher settings as
+    the first configuration), the reference the lookups' cost is read against.
+    """
+    import cv2
+
+    from pcainterp_stream.frontend.stereo import compute_disparity, sparse_lookups, to_grey8
+
+    sgbm = configs[0].sgbm
+    greys = [to_grey8(frame.left) for frame, _ in items]
+    maps = [compute_disparity(frame.left, frame.right, sgbm) for frame, _ in items]
+    stds = [
+        prior_std_map(basis or Basis.default())
+        if config.gftt.fill_placement == "prior_std"
+        else None
+        for config, basis in zip(configs, bases, strict=True)
+    ]
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        best = [np.inf] * len(configs)
+        matching = np.inf
+        for _ in range(repeats):
+            started = time.process_time()
+            for frame, _ in items:
+                compute_disparity(frame.left, frame.right, sgbm)
+            matching = min(matching, (time.process_time() - started) / len(items))
+            for index, config in enumerate(configs):
+                started = time.process_time()
+                for grey, disparity in zip(greys, maps, strict=True):
+                    sparse_lookups(
+                        grey,
+                        disparity,
+                        config.gftt,
+                        min_x=config.sgbm.valid_min_x,
+                        prior_std=stds[index],
+                    )
+                best[index] = min(best[index], (time.process_time() - started) / len(items))
+    finally:
+        cv2.setNumThreads(threads)
+    return best, matching
+
+
 def _partition(measured: Any, image_size: tuple[int, int], grid: tuple[int, int]) -> Any:
     """What a stereo worker makes of a frame for an edge-aware prior (cells.Seeding)."""
     from pcainterp_stream.estimate.cells import Seeding
@@ -602,6 +666,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--timing", action="store_true", help="also time the estimate alone per variant"
+    )
+    parser.add_argument(
+        "--lookup-timing",
+        action="store_true",
+        help="also time the front end's lookups (corners and fill) per variant, against SGBM alone",
     )
     parser.add_argument(
         "--pool-timing",
@@ -693,6 +762,19 @@ def main(argv: list[str] | None = None) -> int:
                     for v, t in zip(args.variants, seconds, strict=True)
                 )
                 + f"; seeding (stereo worker) {1000 * partition_seconds(items):.2f}",
+                flush=True,
+            )
+        if args.lookup_timing:
+            configs = [_variant_config(v) for v in args.variants]
+            bases = [_variant_basis(v) for v in args.variants]
+            spent, matching = lookup_seconds(items, configs, bases)
+            print(
+                "lookups CPU ms/frame (corners and fill; / SGBM alone "
+                f"{1000 * matching:.1f} ms): "
+                + ", ".join(
+                    f"{v} {1000 * t:.1f} ({t / matching:.3f})"
+                    for v, t in zip(args.variants, spent, strict=True)
+                ),
                 flush=True,
             )
         if args.pool_timing:

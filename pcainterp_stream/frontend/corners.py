@@ -4,6 +4,8 @@
 * :func:`detect_corners` -- ``cv2.goodFeaturesToTrack`` (+ ``cv2.cornerSubPix``), strongest
   first or taken in turns from the cells of a grid;
 * :func:`lattice_points` -- the points of a square lattice that no measurement is near;
+* :func:`weighted_fill` -- a greedy placement of a given number of points where the gap to
+  the nearest measurement times a weight (the prior's std, the disparity) is largest;
 * :func:`patch_contrast` -- the grey-level std around points (a blank surface has none).
 
 :func:`.stereo.sparse_lookups` looks both up in an SGBM map (docs/estimator.md, "Where the
@@ -18,10 +20,20 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["GfttConfig", "detect_corners", "lattice_points", "patch_contrast"]
+__all__ = [
+    "FILL_PLACEMENTS",
+    "GfttConfig",
+    "detect_corners",
+    "lattice_points",
+    "patch_contrast",
+    "weighted_fill",
+]
 
 FloatArray = npt.NDArray[np.float32]
 UInt8Array = npt.NDArray[np.uint8]
+
+FILL_PLACEMENTS = ("lattice", "even", "prior_std", "disparity")
+"""Where the gap-filling lookups go (:attr:`GfttConfig.fill_placement`)."""
 
 
 # ---------------------------------------------------------------------------------------
@@ -63,6 +75,19 @@ class GfttConfig:
             7x7 px around it have at least this std: on a blank surface (saturated sky, a
             blank wall) SGBM's costs tie and it returns its smallest disparity (0, i.e.
             infinitely far) as if sure; a camera's noise alone gives ~1-2 grey levels.
+        fill_placement: where the gap-filling lookups go. ``"lattice"`` (the default): the
+            lattice above. The others look up as many points as the lattice kept, chosen
+            greedily from a finer candidate lattice (side ``fill_spacing / 4``, the same
+            contrast and lookup checks, so a rejected point leaves no gap) where the gap
+            to the nearest measurement times a weight is largest (:func:`weighted_fill`):
+            ``"even"`` weight 1; ``"prior_std"`` the prior's disparity std at the point
+            (the basis's per-pixel prior variance plus its local prior's, given by the
+            processor) to the power ``fill_exponent``; ``"disparity"`` the looked-up
+            disparity itself (floored at 1 px) to that power, so near surfaces get more
+            points than the far field. Measured against the lattice in
+            ``docs/sharper_sparse.md``.
+        fill_exponent: the weight's exponent of the ``"prior_std"`` and ``"disparity"``
+            placements: the points' spacing then goes roughly as weight^-exponent.
     """
 
     max_corners: int = 250
@@ -77,8 +102,17 @@ class GfttConfig:
     buckets: tuple[int, int] = (1, 1)
     fill_spacing: float = 40.0
     fill_min_contrast: float = 1.0
+    fill_placement: str = "lattice"
+    fill_exponent: float = 1.0
 
     def __post_init__(self) -> None:
+        if self.fill_placement not in FILL_PLACEMENTS:
+            raise ValueError(
+                f"fill_placement must be one of {', '.join(FILL_PLACEMENTS)}, "
+                f"got {self.fill_placement!r}"
+            )
+        if not self.fill_exponent >= 0.0:
+            raise ValueError(f"fill_exponent must be >= 0, got {self.fill_exponent}")
         if min(self.buckets) < 1 or self.fill_spacing < 0.0:
             raise ValueError(
                 f"buckets ({self.buckets}) must be >= 1 each and fill_spacing "
@@ -226,6 +260,65 @@ def lattice_points(kept: FloatArray, spacing: float, area: tuple[int, int, int, 
         gap += along_y
         grid = grid[gap.min(axis=1) > (spacing / 2) ** 2]
     return np.ascontiguousarray(grid)
+
+
+def weighted_fill(
+    kept: FloatArray, candidates: FloatArray, weights: FloatArray, count: int
+) -> npt.NDArray[np.int64]:
+    """Choose ``count`` candidates greedily where gap to the nearest point x weight is largest.
+
+    Each step takes the candidate c maximising w(c) min_p |c - p| over the kept points and
+    those chosen so far, then shrinks every candidate's gap by the new point. With weight 1
+    this is farthest-point sampling (an even cover); with a weight the final gaps go as
+    about 1 / w, so the points' density grows as w^2.
+
+    Args:
+        kept: (k, 2) float32 (x, y) px of the measurements already made.
+        candidates: (m, 2) float32 (x, y) px to choose from.
+        weights: (m,) float32 >= 0, each candidate's weight.
+        count: how many to choose (at most m; fewer when the weighted gaps reach 0).
+
+    Returns:
+        The chosen candidates' indices, in the order chosen.
+    """
+    total = min(int(count), candidates.shape[0])
+    if total <= 0:
+        return np.zeros(0, np.int64)
+    xs = candidates[:, 0].astype(np.float32)
+    ys = candidates[:, 1].astype(np.float32)
+    if kept.shape[0]:
+        gap = xs[:, None] - kept[None, :, 0].astype(np.float32)
+        along_y = ys[:, None] - kept[None, :, 1].astype(np.float32)
+        gap *= gap
+        along_y *= along_y
+        gap += along_y
+        squared = gap.min(axis=1)
+    else:
+        squared = np.full(xs.shape, np.float32(np.inf))
+    # compare w^2 gap^2: no square root per step
+    weight_sq = np.square(np.asarray(weights, np.float32))
+    score = np.empty_like(squared)
+    step_x, step_y = np.empty_like(xs), np.empty_like(ys)
+    chosen = np.empty(total, np.int64)
+    taken = 0
+    for taken in range(total):
+        if kept.shape[0] or taken:
+            np.multiply(squared, weight_sq, out=score)
+            best = int(np.argmax(score))
+            if not score[best] > 0.0:
+                break
+        else:  # no measurement yet: the heaviest candidate starts
+            best = int(np.argmax(weight_sq))
+        chosen[taken] = best
+        np.subtract(xs, xs[best], out=step_x)
+        np.subtract(ys, ys[best], out=step_y)
+        step_x *= step_x
+        step_y *= step_y
+        step_x += step_y
+        np.minimum(squared, step_x, out=squared)
+    else:
+        taken = total
+    return chosen[:taken]
 
 
 def patch_contrast(grey: UInt8Array, points: FloatArray, half: int = 3) -> FloatArray:

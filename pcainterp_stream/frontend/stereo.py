@@ -43,6 +43,7 @@ from pcainterp_stream.frontend.corners import (
     detect_corners,
     lattice_points,
     patch_contrast,
+    weighted_fill,
 )
 from pcainterp_stream.frontend.refine import halved as _halved
 from pcainterp_stream.frontend.refine import refined_match
@@ -758,26 +759,36 @@ def sparse_lookups(
     *,
     min_x: int = 0,
     right_disparity: FloatArray | None = None,
+    prior_std: FloatArray | None = None,
 ) -> Lookup:
-    """The sparse measurements of a pair as ``densify`` makes them: corners, then the lattice.
+    """The sparse measurements of a pair as ``densify`` makes them: corners, then the fill.
 
     The corners of :func:`detect_corners` are looked up (:func:`lookup_disparities`); with
     ``gftt.fill_spacing`` > 0 the points of :func:`lattice_points` in their gaps (farther
     than half a side from every kept corner lookup, with a 7x7 grey-level std of at least
-    ``gftt.fill_min_contrast``) are looked up with the same checks and appended.
+    ``gftt.fill_min_contrast``) are looked up with the same checks and appended. With a
+    ``gftt.fill_placement`` other than ``"lattice"`` as many points as the lattice kept
+    are chosen instead by :func:`weighted_fill` among the valid lookups of a lattice
+    4 times finer (same checks).
 
     Args:
         left_grey: (H, W) uint8 grey left image.
         disparity: (H, W) float32 left disparity map (px), NaN where invalid.
-        gftt: corner and lattice settings.
+        gftt: corner and fill settings.
         lookup: the lookup checks.
         min_x: first column SGBM can match (px); nothing left of it is looked up.
         right_disparity: optional right map for the explicit left-right check.
+        prior_std: (gh, gw) float32 prior disparity std (px) on a grid spanning the image,
+            the weight of ``fill_placement="prior_std"`` (required there, else unused).
 
     Returns:
         The kept pixels (corners first), disparities, indices into the corners followed by
-        the lattice points looked up, and the counts of both together (``corners`` counts
-        every point looked up).
+        the fill points looked up, and the counts of both together (``corners`` counts
+        every point looked up; of a weighted fill only the chosen points are counted, all
+        kept).
+
+    Raises:
+        ValueError: if ``fill_placement`` is ``"prior_std"`` and ``prior_std`` is None.
     """
     corners = detect_corners(left_grey, gftt, min_x=min_x)
     found = _lookup(disparity, corners, lookup, right_disparity)
@@ -789,12 +800,64 @@ def sparse_lookups(
     points = lattice_points(found.pixels, gftt.fill_spacing, area)
     points = points[patch_contrast(left_grey, points) >= gftt.fill_min_contrast]
     extra = _lookup(disparity, points, lookup, right_disparity)
+    if gftt.fill_placement != "lattice":
+        extra = _weighted_extra(
+            left_grey,
+            disparity,
+            gftt,
+            lookup,
+            area,
+            found.pixels,
+            extra.counts.kept,
+            right_disparity,
+            prior_std,
+        )
     a, b = found.counts, extra.counts
     counts = RejectionCounts(*(getattr(a, n) + getattr(b, n) for n in _COUNT_NAMES))
     return Lookup(
         np.concatenate([found.pixels, extra.pixels]),
         np.concatenate([found.disparities, extra.disparities]),
         np.concatenate([found.indices, extra.indices + a.corners]),
+        counts,
+    )
+
+
+def _weighted_extra(
+    left_grey: UInt8Array,
+    disparity: FloatArray,
+    gftt: GfttConfig,
+    lookup: LookupConfig,
+    area: tuple[int, int, int, int],
+    kept: FloatArray,
+    count: int,
+    right_disparity: FloatArray | None,
+    prior_std: FloatArray | None,
+) -> Lookup:
+    """``count`` fill lookups placed by :func:`weighted_fill` among a finer lattice's valid ones."""
+    candidates = lattice_points(kept, gftt.fill_spacing / 4.0, area)
+    candidates = candidates[patch_contrast(left_grey, candidates) >= gftt.fill_min_contrast]
+    valid = _lookup(disparity, candidates, lookup, right_disparity)
+    if gftt.fill_placement == "even":
+        weights = np.ones(valid.indices.size, np.float32)
+    elif gftt.fill_placement == "disparity":
+        weights = np.maximum(valid.disparities, 1.0) ** np.float32(gftt.fill_exponent)
+    else:
+        if prior_std is None:
+            raise ValueError(
+                "fill_placement 'prior_std' needs the prior's std map (prior_std=); the frame "
+                "processor gives it from its basis"
+            )
+        height, width = left_grey.shape
+        rows, cols = prior_std.shape
+        gx = np.clip((valid.pixels[:, 0] * cols / width).astype(np.int64), 0, cols - 1)
+        gy = np.clip((valid.pixels[:, 1] * rows / height).astype(np.int64), 0, rows - 1)
+        weights = np.maximum(prior_std[gy, gx], 1e-3) ** np.float32(gftt.fill_exponent)
+    chosen = weighted_fill(kept, valid.pixels, np.asarray(weights, np.float32), count)
+    counts = RejectionCounts(int(chosen.size), int(chosen.size), 0, 0, 0, 0)
+    return Lookup(
+        np.ascontiguousarray(valid.pixels[chosen]),
+        np.ascontiguousarray(valid.disparities[chosen]),
+        np.arange(chosen.size, dtype=np.int64),
         counts,
     )
 
@@ -855,6 +918,8 @@ class StereoFrontEnd:
             and reject lookups whose two disparities disagree. Off by default: on KITTI it
             removed 0.1 lookups per frame beyond SGBM's own ``disp12_max_diff=1`` check,
             and none on synthetic scenes with ground truth.
+        prior_std: (gh, gw) float32 prior disparity std (px) on a grid spanning the
+            image, for ``gftt.fill_placement="prior_std"`` (:func:`sparse_lookups`).
 
     Example:
         >>> front_end = StereoFrontEnd()
@@ -866,6 +931,7 @@ class StereoFrontEnd:
     sgbm: SgbmConfig = field(default_factory=SgbmConfig)
     lookup: LookupConfig = field(default_factory=LookupConfig)
     lr_check: bool = False
+    prior_std: FloatArray | None = field(default=None, compare=False, repr=False)
 
     def measure(self, left: npt.NDArray[Any], right: npt.NDArray[Any]) -> Measurements:
         """Measure sparse disparities of one rectified stereo pair.
@@ -893,5 +959,6 @@ class StereoFrontEnd:
             self.lookup,
             min_x=self.sgbm.valid_min_x,
             right_disparity=right_map,
+            prior_std=self.prior_std,
         )
         return Measurements(found.pixels, found.disparities, disparity_map, found.counts, weak)

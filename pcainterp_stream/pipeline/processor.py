@@ -381,6 +381,17 @@ def features_to_measurements(
     return pixels, disparity[keep].astype(np.float32), counts
 
 
+def prior_std_map(basis: Basis) -> npt.NDArray[np.float32]:
+    """The prior's disparity std on the basis grid (px): sqrt(diag(B Lambda B^T) + v).
+
+    v is the variance of the basis's fitted local prior (0 without one). What the
+    ``"prior_std"`` fill placement weighs its points by (:func:`.stereo.sparse_lookups`).
+    """
+    local = basis.meta.get("prior", {}).get("local")
+    variance = float(local["variance"]) if isinstance(local, dict) else 0.0
+    return np.asarray(np.sqrt(basis.prior_variance + np.float32(variance)), np.float32)
+
+
 class FrameProcessor:
     """Densify a stream of stereo pairs, pipelined; use as a context manager.
 
@@ -398,7 +409,10 @@ class FrameProcessor:
         self.config = config or ProcessorConfig()
         basis = self._builtin(basis)
         self.basis = basis
-        self.front_end = StereoFrontEnd(self.config.gftt, self.config.sgbm)
+        prior_std = None
+        if self.config.gftt.fill_placement == "prior_std":
+            prior_std = prior_std_map(basis)
+        self.front_end = StereoFrontEnd(self.config.gftt, self.config.sgbm, prior_std=prior_std)
         if self.config.keep_freed_memory:
             # the synthetic renderer's allocator tuning; same temporaries problem here
             from pcainterp_stream.allocator import keep_freed_memory, limit_arenas
