@@ -118,6 +118,19 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "fill_disparity0.25": {"gftt": {"fill_placement": "disparity", "fill_exponent": 0.25}},
     "fill_disparity0.5": {"gftt": {"fill_placement": "disparity", "fill_exponent": 0.5}},
     "fill_disparity": {"gftt": {"fill_placement": "disparity"}},
+    # the same with candidates only where >= 80 % (95 %) of SGBM's 21 x 21 px are valid
+    "fill_support0.8": {"gftt": {"fill_min_support": 0.8}},
+    "fill_even_support0.8": {"gftt": {"fill_placement": "even", "fill_min_support": 0.8}},
+    "fill_even_support0.95": {"gftt": {"fill_placement": "even", "fill_min_support": 0.95}},
+    "fill_prior_std0.25_support0.8": {
+        "gftt": {"fill_placement": "prior_std", "fill_exponent": 0.25, "fill_min_support": 0.8}
+    },
+    "fill_disparity0.25_support0.8": {
+        "gftt": {"fill_placement": "disparity", "fill_exponent": 0.25, "fill_min_support": 0.8}
+    },
+    "fill_disparity0.5_support0.8": {
+        "gftt": {"fill_placement": "disparity", "fill_exponent": 0.5, "fill_min_support": 0.8}
+    },
 }
 
 

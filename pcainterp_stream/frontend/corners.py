@@ -88,6 +88,12 @@ class GfttConfig:
             ``docs/sharper_sparse.md``.
         fill_exponent: the weight's exponent of the ``"prior_std"`` and ``"disparity"``
             placements: the points' spacing then goes roughly as weight^-exponent.
+        fill_min_support: a fill point (or a weighted placement's candidate) is looked
+            up only where at least this share of the SGBM map's 21 x 21 px around it is
+            valid: a greedy fill seeks the largest gaps, and the largest gaps are where
+            SGBM failed (near objects beyond its range, blank surfaces), whose few valid
+            pixels are the least sure; 0 checks nothing. A weighted placement still
+            looks up as many points as the lattice without this check keeps.
     """
 
     max_corners: int = 250
@@ -104,6 +110,7 @@ class GfttConfig:
     fill_min_contrast: float = 1.0
     fill_placement: str = "lattice"
     fill_exponent: float = 1.0
+    fill_min_support: float = 0.0
 
     def __post_init__(self) -> None:
         if self.fill_placement not in FILL_PLACEMENTS:
@@ -113,6 +120,8 @@ class GfttConfig:
             )
         if not self.fill_exponent >= 0.0:
             raise ValueError(f"fill_exponent must be >= 0, got {self.fill_exponent}")
+        if not 0.0 <= self.fill_min_support <= 1.0:
+            raise ValueError(f"fill_min_support must be in [0, 1], got {self.fill_min_support}")
         if min(self.buckets) < 1 or self.fill_spacing < 0.0:
             raise ValueError(
                 f"buckets ({self.buckets}) must be >= 1 each and fill_spacing "

@@ -799,6 +799,8 @@ def sparse_lookups(
     area = (max(border, min_x), border, width - border, height - border)
     points = lattice_points(found.pixels, gftt.fill_spacing, area)
     points = points[patch_contrast(left_grey, points) >= gftt.fill_min_contrast]
+    if gftt.fill_placement == "lattice" and gftt.fill_min_support > 0.0:
+        points = points[_support(disparity, points) >= gftt.fill_min_support]
     extra = _lookup(disparity, points, lookup, right_disparity)
     if gftt.fill_placement != "lattice":
         extra = _weighted_extra(
@@ -836,6 +838,8 @@ def _weighted_extra(
     """``count`` fill lookups placed by :func:`weighted_fill` among a finer lattice's valid ones."""
     candidates = lattice_points(kept, gftt.fill_spacing / 4.0, area)
     candidates = candidates[patch_contrast(left_grey, candidates) >= gftt.fill_min_contrast]
+    if gftt.fill_min_support > 0.0:
+        candidates = candidates[_support(disparity, candidates) >= gftt.fill_min_support]
     valid = _lookup(disparity, candidates, lookup, right_disparity)
     if gftt.fill_placement == "even":
         weights = np.ones(valid.indices.size, np.float32)
@@ -860,6 +864,25 @@ def _weighted_extra(
         np.arange(chosen.size, dtype=np.int64),
         counts,
     )
+
+
+_SUPPORT_HALF = 10
+"""Half side (px) of the window whose valid share :func:`_support` gives."""
+
+
+def _support(disparity: FloatArray, points: FloatArray) -> FloatArray:
+    """Share of valid (finite) SGBM pixels in the 21 x 21 px around each point (nearest px)."""
+    if points.shape[0] == 0:
+        return np.zeros(0, np.float32)
+    height, width = disparity.shape
+    counts = cv2.integral(np.isfinite(disparity).view(np.uint8))
+    half = _SUPPORT_HALF
+    x = np.rint(points[:, 0]).astype(np.int64)
+    y = np.rint(points[:, 1]).astype(np.int64)
+    x0, x1 = np.clip(x - half, 0, width), np.clip(x + half + 1, 0, width)
+    y0, y1 = np.clip(y - half, 0, height), np.clip(y + half + 1, 0, height)
+    inside = counts[y1, x1] - counts[y0, x1] - counts[y1, x0] + counts[y0, x0]
+    return np.asarray(inside / ((2 * half + 1) ** 2), np.float32)
 
 
 def _lookup(

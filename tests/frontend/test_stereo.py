@@ -793,3 +793,31 @@ def test_prior_std_placement_needs_the_map_and_options_are_checked(
         GfttConfig(fill_placement="random")
     with pytest.raises(ValueError, match="fill_exponent must be >= 0"):
         GfttConfig(fill_exponent=-1.0)
+    with pytest.raises(ValueError, match="fill_min_support must be in"):
+        GfttConfig(fill_min_support=1.5)
+
+
+def test_a_greedy_fill_seeks_the_gaps_and_the_support_check_skips_sgbms_holes(
+    pair: tuple[npt.NDArray[Any], ...], disparity: npt.NDArray[np.float32]
+) -> None:
+    # a hole in SGBM's map with one small valid island in it: the largest gap of all
+    holed = disparity.copy()
+    holed[20:140, 200:300] = np.nan
+    holed[76:86, 246:256] = D_BACK
+    even = GfttConfig(max_corners=20, min_distance=5.0, fill_spacing=24.0, fill_placement="even")
+    supported = replace(even, fill_min_support=0.8)
+    lattice = replace(even, fill_placement="lattice", fill_min_support=0.8)
+
+    def in_hole(config: GfttConfig) -> int:
+        found = sparse_lookups(pair[0], holed, config, min_x=SGBM.valid_min_x)
+        x, y = found.pixels[:, 0], found.pixels[:, 1]
+        return int(((x >= 200) & (x < 300) & (y >= 20) & (y < 140)).sum())
+
+    assert in_hole(even) >= 1
+    assert in_hole(supported) == 0
+    assert in_hole(lattice) == 0
+    counts = [
+        sparse_lookups(pair[0], holed, config, min_x=SGBM.valid_min_x).counts.kept
+        for config in (replace(even, fill_placement="lattice"), even, supported)
+    ]
+    assert counts[0] == counts[1] == counts[2]

@@ -655,7 +655,8 @@ def test_a_prior_std_fill_weighs_by_the_basiss_prior(
     local = {"kernel": "laplace", "length_scale": 16.0, "variance": 9.0}
     hybrid = dataclasses.replace(basis, meta={"prior": {"local": local}})
     std = processor.prior_std_map(hybrid)
-    assert std.shape == basis.grid_size and std.dtype == np.float32
+    assert std.shape == basis.grid_size
+    assert std.dtype == np.float32
     np.testing.assert_allclose(std**2, basis.prior_variance + 9.0, rtol=1e-5)
     np.testing.assert_allclose(processor.prior_std_map(basis) ** 2, basis.prior_variance, rtol=1e-5)
     gftt = dataclasses.replace(ProcessorConfig().gftt, fill_spacing=24.0)
