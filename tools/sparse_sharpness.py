@@ -128,6 +128,9 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "fill_disparity0.25_support0.8": {
         "gftt": {"fill_placement": "disparity", "fill_exponent": 0.25, "fill_min_support": 0.8}
     },
+    "fill_prior_std0.5_support0.8": {
+        "gftt": {"fill_placement": "prior_std", "fill_exponent": 0.5, "fill_min_support": 0.8}
+    },
     "fill_disparity0.5_support0.8": {
         "gftt": {"fill_placement": "disparity", "fill_exponent": 0.5, "fill_min_support": 0.8}
     },

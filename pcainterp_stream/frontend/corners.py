@@ -272,20 +272,28 @@ def lattice_points(kept: FloatArray, spacing: float, area: tuple[int, int, int, 
 
 
 def weighted_fill(
-    kept: FloatArray, candidates: FloatArray, weights: FloatArray, count: int
+    kept: FloatArray,
+    candidates: FloatArray,
+    weights: FloatArray,
+    count: int,
+    area: tuple[int, int, int, int] | None = None,
 ) -> npt.NDArray[np.int64]:
     """Choose ``count`` candidates greedily where gap to the nearest point x weight is largest.
 
-    Each step takes the candidate c maximising w(c) min_p |c - p| over the kept points and
-    those chosen so far, then shrinks every candidate's gap by the new point. With weight 1
-    this is farthest-point sampling (an even cover); with a weight the final gaps go as
-    about 1 / w, so the points' density grows as w^2.
+    Each step takes the candidate c maximising w(c) g(c), g(c) = min_p |c - p| over the
+    kept points and those chosen so far, then shrinks every candidate's gap by the new
+    point. With weight 1 this is farthest-point sampling (an even cover); with a weight the
+    final gaps go as about 1 / w, so the points' density grows as w^2. With ``area`` the
+    gap is also at most twice the distance to the area's edge, as if the edge were
+    mirrored measurements: plain farthest-point sampling would put its first points on the
+    edges, where a point covers half the pixels an inner one does.
 
     Args:
         kept: (k, 2) float32 (x, y) px of the measurements already made.
         candidates: (m, 2) float32 (x, y) px to choose from.
         weights: (m,) float32 >= 0, each candidate's weight.
         count: how many to choose (at most m; fewer when the weighted gaps reach 0).
+        area: (x0, y0, x1, y1) px the candidates lie in, or None (no edge term).
 
     Returns:
         The chosen candidates' indices, in the order chosen.
@@ -304,6 +312,10 @@ def weighted_fill(
         squared = gap.min(axis=1)
     else:
         squared = np.full(xs.shape, np.float32(np.inf))
+    if area is not None:
+        x0, y0, x1, y1 = area
+        edge = np.minimum(np.minimum(xs - x0, x1 - 1 - xs), np.minimum(ys - y0, y1 - 1 - ys))
+        np.minimum(squared, np.square(2.0 * np.maximum(edge, 0.0)), out=squared)
     # compare w^2 gap^2: no square root per step
     weight_sq = np.square(np.asarray(weights, np.float32))
     score = np.empty_like(squared)
@@ -311,12 +323,12 @@ def weighted_fill(
     chosen = np.empty(total, np.int64)
     taken = 0
     for taken in range(total):
-        if kept.shape[0] or taken:
+        if np.isfinite(squared[0]):
             np.multiply(squared, weight_sq, out=score)
             best = int(np.argmax(score))
             if not score[best] > 0.0:
                 break
-        else:  # no measurement yet: the heaviest candidate starts
+        else:  # no measurement and no edge yet: the heaviest candidate starts
             best = int(np.argmax(weight_sq))
         chosen[taken] = best
         np.subtract(xs, xs[best], out=step_x)

@@ -856,7 +856,7 @@ def _weighted_extra(
         gx = np.clip((valid.pixels[:, 0] * cols / width).astype(np.int64), 0, cols - 1)
         gy = np.clip((valid.pixels[:, 1] * rows / height).astype(np.int64), 0, rows - 1)
         weights = np.maximum(prior_std[gy, gx], 1e-3) ** np.float32(gftt.fill_exponent)
-    chosen = weighted_fill(kept, valid.pixels, np.asarray(weights, np.float32), count)
+    chosen = weighted_fill(kept, valid.pixels, np.asarray(weights, np.float32), count, area)
     counts = RejectionCounts(int(chosen.size), int(chosen.size), 0, 0, 0, 0)
     return Lookup(
         np.ascontiguousarray(valid.pixels[chosen]),
