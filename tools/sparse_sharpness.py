@@ -108,33 +108,44 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "cells0.75": {"edge_aware": True, "prior": {"local": {"cell_weight": 0.75}}},
     "cells0.9": {"edge_aware": True, "prior": {"local": {"cell_weight": 0.9}}},
     "stationary": {"prior": {"local": {"cell_weight": 1.0}}},
-    # as many gap-filling lookups as the 40 px lattice keeps, placed greedily where the gap
-    # to the nearest point times a weight is largest (GfttConfig.fill_placement): weight 1,
-    # the prior's disparity std, or the looked-up disparity, to the power given
-    "fill_even": {"gftt": {"fill_placement": "even"}},
-    "fill_prior_std": {"gftt": {"fill_placement": "prior_std"}},
-    "fill_prior_std0.25": {"gftt": {"fill_placement": "prior_std", "fill_exponent": 0.25}},
-    "fill_prior_std0.5": {"gftt": {"fill_placement": "prior_std", "fill_exponent": 0.5}},
-    "fill_disparity0.25": {"gftt": {"fill_placement": "disparity", "fill_exponent": 0.25}},
-    "fill_disparity0.5": {"gftt": {"fill_placement": "disparity", "fill_exponent": 0.5}},
-    "fill_disparity": {"gftt": {"fill_placement": "disparity"}},
-    # the same with candidates only where >= 80 % (95 %) of SGBM's 21 x 21 px are valid
-    "fill_support0.8": {"gftt": {"fill_min_support": 0.8}},
-    "fill_even_support0.8": {"gftt": {"fill_placement": "even", "fill_min_support": 0.8}},
-    "fill_even_support0.95": {"gftt": {"fill_placement": "even", "fill_min_support": 0.95}},
-    "fill_prior_std0.25_support0.8": {
-        "gftt": {"fill_placement": "prior_std", "fill_exponent": 0.25, "fill_min_support": 0.8}
-    },
-    "fill_disparity0.25_support0.8": {
-        "gftt": {"fill_placement": "disparity", "fill_exponent": 0.25, "fill_min_support": 0.8}
-    },
-    "fill_prior_std0.5_support0.8": {
-        "gftt": {"fill_placement": "prior_std", "fill_exponent": 0.5, "fill_min_support": 0.8}
-    },
-    "fill_disparity0.5_support0.8": {
-        "gftt": {"fill_placement": "disparity", "fill_exponent": 0.5, "fill_min_support": 0.8}
-    },
 }
+
+LATTICE = {"fill_placement": "lattice", "fill_min_support": 0.0}
+"""The fill before the greedy placement: the even 40 px lattice, no support check."""
+
+# every variant above was measured with the lattice fill: they keep it
+for _name, _changes in VARIANTS.items():
+    if _name != "default":
+        _changes["gftt"] = {**LATTICE, **_changes.get("gftt", {})}
+
+VARIANTS.update(
+    {
+        # the lattice: the default before the greedy fill
+        "lattice": {"gftt": LATTICE},
+        # the lattice's points where >= 80 % of SGBM's 21 x 21 px are valid
+        "fill_support0.8": {"gftt": {**LATTICE, "fill_min_support": 0.8}},
+        # as many gap-filling lookups as the 40 px lattice keeps, placed greedily where the
+        # gap to the nearest point times a weight is largest (GfttConfig.fill_placement):
+        # weight 1 (the default, there with the support check 0.8), the prior's disparity
+        # std, or the looked-up disparity, to the power given; _support0.8 / 0.95: only
+        # candidates where >= 80 % (95 %) of SGBM's 21 x 21 px are valid
+        "fill_even": {"gftt": {"fill_min_support": 0.0}},
+        "fill_even_support0.8": {"gftt": {"fill_min_support": 0.8}},
+        "fill_even_support0.95": {"gftt": {"fill_min_support": 0.95}},
+    }
+)
+for _weight in ("prior_std", "disparity"):
+    for _exponent in (0.25, 0.5, 1.0):
+        for _support in (0.0, 0.8):
+            _suffix = f"{_exponent:g}" if _exponent != 1.0 else ""
+            _suffix += f"_support{_support:g}" if _support else ""
+            VARIANTS[f"fill_{_weight}{_suffix}"] = {
+                "gftt": {
+                    "fill_placement": _weight,
+                    "fill_exponent": _exponent,
+                    "fill_min_support": _support,
+                }
+            }
 
 
 def _variant_config(name: str) -> ProcessorConfig:

@@ -195,7 +195,13 @@ def test_lattice_points_fill_only_the_gaps() -> None:
 def test_lattice_lookups_measure_the_gaps(pair: tuple[npt.NDArray[Any], ...]) -> None:
     left, right, truth = pair
     corners_only = GfttConfig(max_corners=20, min_distance=5.0, fill_spacing=0.0)
-    filled = GfttConfig(max_corners=20, min_distance=5.0, fill_spacing=24.0)
+    filled = GfttConfig(
+        max_corners=20,
+        min_distance=5.0,
+        fill_spacing=24.0,
+        fill_placement="lattice",
+        fill_min_support=0.0,
+    )
     sparse = StereoFrontEnd(gftt=corners_only, sgbm=SGBM).measure(left, right)
     dense = StereoFrontEnd(gftt=filled, sgbm=SGBM).measure(left, right)
     assert dense.counts.kept >= sparse.counts.kept + 40
@@ -210,7 +216,9 @@ def test_lattice_lookups_measure_the_gaps(pair: tuple[npt.NDArray[Any], ...]) ->
 
 def test_no_corners_looks_up_the_lattice_alone(pair: tuple[npt.NDArray[Any], ...]) -> None:
     left, right, truth = pair
-    lattice = GfttConfig(max_corners=0, fill_spacing=24.0)
+    lattice = GfttConfig(
+        max_corners=0, fill_spacing=24.0, fill_placement="lattice", fill_min_support=0.0
+    )
     assert detect_corners(left, lattice).shape == (0, 2)
     found = StereoFrontEnd(gftt=lattice, sgbm=SGBM).measure(left, right)
     area = (max(lattice.border, SGBM.valid_min_x), lattice.border)
@@ -721,6 +729,22 @@ def test_weighted_fill_with_unit_weight_is_farthest_point_sampling() -> None:
     assert line[chosen, 0].tolist() == [100.0, 50.0]
 
 
+def test_weighted_fill_counts_the_areas_edge_as_covered() -> None:
+    line = np.column_stack([np.arange(0, 101, 1.0), np.zeros(101)]).astype(np.float32)
+    ones = np.ones(101, np.float32)
+    area = (0, -50, 101, 51)
+    chosen = weighted_fill(np.zeros((0, 2), np.float32), line, ones, 2, area)
+    # the middle first (gap 2 x 50 to the mirrored edges), then halfway to an edge
+    assert line[chosen[0], 0] == 50.0
+    assert line[chosen[1], 0] in (17.0, 83.0)
+    square = np.mgrid[0:40, 0:40].reshape(2, -1).T.astype(np.float32)
+    picked = square[
+        weighted_fill(square[:0], square, np.ones(1600, np.float32), 16, (0, 0, 40, 40))
+    ]
+    assert picked.min() >= 4.0
+    assert picked.max() <= 35.0
+
+
 def test_weighted_fill_puts_more_points_where_the_weight_is_larger() -> None:
     ys, xs = np.mgrid[0:60, 0:120].astype(np.float32)
     grid = np.column_stack([xs.ravel(), ys.ravel()])
@@ -745,7 +769,13 @@ def _placed(
 ) -> tuple[Any, Any, npt.NDArray[np.float32]]:
     """The lattice's measurements, a placement's, and its fill points."""
     left, right, _ = pair
-    lattice = GfttConfig(max_corners=20, min_distance=5.0, fill_spacing=24.0)
+    lattice = GfttConfig(
+        max_corners=20,
+        min_distance=5.0,
+        fill_spacing=24.0,
+        fill_placement="lattice",
+        fill_min_support=0.0,
+    )
     placed = replace(lattice, fill_placement=placement)
     # a prior std growing downwards, 1 px at the top to 9 px at the bottom
     prior_std = np.repeat(np.linspace(1.0, 9.0, 8, dtype=np.float32)[:, None], 16, axis=1)
@@ -804,7 +834,7 @@ def test_a_greedy_fill_seeks_the_gaps_and_the_support_check_skips_sgbms_holes(
     holed = disparity.copy()
     holed[20:140, 200:300] = np.nan
     holed[76:86, 246:256] = D_BACK
-    even = GfttConfig(max_corners=20, min_distance=5.0, fill_spacing=24.0, fill_placement="even")
+    even = GfttConfig(max_corners=20, min_distance=5.0, fill_spacing=24.0, fill_min_support=0.0)
     supported = replace(even, fill_min_support=0.8)
     lattice = replace(even, fill_placement="lattice", fill_min_support=0.8)
 
