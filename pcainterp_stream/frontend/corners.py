@@ -280,6 +280,7 @@ def weighted_fill(
     weights: FloatArray,
     count: int,
     area: tuple[int, int, int, int] | None = None,
+    min_gap: float = 0.0,
 ) -> npt.NDArray[np.int64]:
     """Choose ``count`` candidates greedily where gap to the nearest point x weight is largest.
 
@@ -297,6 +298,7 @@ def weighted_fill(
         weights: (m,) float32 >= 0, each candidate's weight.
         count: how many to choose (at most m; fewer when the weighted gaps reach 0).
         area: (x0, y0, x1, y1) px the candidates lie in, or None (no edge term).
+        min_gap: candidates this near a kept point (px) or nearer are never chosen.
 
     Returns:
         The chosen candidates' indices, in the order chosen.
@@ -315,12 +317,13 @@ def weighted_fill(
         squared = gap.min(axis=1)
     else:
         squared = np.full(xs.shape, np.float32(np.inf))
+    # compare w^2 gap^2: no square root per step
+    weight_sq = np.square(np.asarray(weights, np.float32))
+    weight_sq[squared <= min_gap**2] = 0.0
     if area is not None:
         x0, y0, x1, y1 = area
         edge = np.minimum(np.minimum(xs - x0, x1 - 1 - xs), np.minimum(ys - y0, y1 - 1 - ys))
         np.minimum(squared, np.square(2.0 * np.maximum(edge, 0.0)), out=squared)
-    # compare w^2 gap^2: no square root per step
-    weight_sq = np.square(np.asarray(weights, np.float32))
     score = np.empty_like(squared)
     step_x, step_y = np.empty_like(xs), np.empty_like(ys)
     chosen = np.empty(total, np.int64)

@@ -836,15 +836,19 @@ def _weighted_extra(
     prior_std: FloatArray | None,
 ) -> Lookup:
     """``count`` fill lookups placed by :func:`weighted_fill` among a finer lattice's valid ones."""
-    candidates = lattice_points(kept, gftt.fill_spacing / 4.0, area)
-    candidates = candidates[patch_contrast(left_grey, candidates) >= gftt.fill_min_contrast]
+    # the cheap checks first, the gaps to the kept points last (in weighted_fill), on the
+    # fewest candidates; every check is per point, so the order changes nothing
+    spacing = gftt.fill_spacing / 4.0
+    candidates = lattice_points(np.zeros((0, 2), np.float32), spacing, area)
     if gftt.fill_min_support > 0.0:
         candidates = candidates[_support(disparity, candidates) >= gftt.fill_min_support]
-    valid = _lookup(disparity, candidates, lookup, right_disparity)
+    looked_up = _lookup(disparity, candidates, lookup, right_disparity)
+    textured = patch_contrast(left_grey, looked_up.pixels) >= gftt.fill_min_contrast
+    pixels, values = looked_up.pixels[textured], looked_up.disparities[textured]
     if gftt.fill_placement == "even":
-        weights = np.ones(valid.indices.size, np.float32)
+        weights = np.ones(values.size, np.float32)
     elif gftt.fill_placement == "disparity":
-        weights = np.maximum(valid.disparities, 1.0) ** np.float32(gftt.fill_exponent)
+        weights = np.maximum(values, 1.0) ** np.float32(gftt.fill_exponent)
     else:
         if prior_std is None:
             raise ValueError(
@@ -853,14 +857,15 @@ def _weighted_extra(
             )
         height, width = left_grey.shape
         rows, cols = prior_std.shape
-        gx = np.clip((valid.pixels[:, 0] * cols / width).astype(np.int64), 0, cols - 1)
-        gy = np.clip((valid.pixels[:, 1] * rows / height).astype(np.int64), 0, rows - 1)
+        gx = np.clip((pixels[:, 0] * cols / width).astype(np.int64), 0, cols - 1)
+        gy = np.clip((pixels[:, 1] * rows / height).astype(np.int64), 0, rows - 1)
         weights = np.maximum(prior_std[gy, gx], 1e-3) ** np.float32(gftt.fill_exponent)
-    chosen = weighted_fill(kept, valid.pixels, np.asarray(weights, np.float32), count, area)
+    weights = np.asarray(weights, np.float32)
+    chosen = weighted_fill(kept, pixels, weights, count, area, min_gap=spacing / 2)
     counts = RejectionCounts(int(chosen.size), int(chosen.size), 0, 0, 0, 0)
     return Lookup(
-        np.ascontiguousarray(valid.pixels[chosen]),
-        np.ascontiguousarray(valid.disparities[chosen]),
+        np.ascontiguousarray(pixels[chosen]),
+        np.ascontiguousarray(values[chosen]),
         np.arange(chosen.size, dtype=np.int64),
         counts,
     )
