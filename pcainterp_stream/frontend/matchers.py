@@ -32,7 +32,9 @@ DEFAULT_DENSE_MATCHER = "refined"
 """The ``--dense-matcher`` of ``densify --measurements dense`` when none is given."""
 
 
-DENSE_GFTT = GfttConfig(max_corners=0, fill_spacing=34.0, fill_placement="lattice")
+DENSE_GFTT = GfttConfig(
+    max_corners=0, fill_spacing=34.0, fill_placement="lattice", fill_min_support=0.0
+)
 """The points of dense mode's own sparse estimate (the field that fills SGBM's holes and
 weighs its matches) at full resolution: a lattice of SGBM lookups 34 px apart over the
 whole searched area, no Shi-Tomasi corners. The corners cluster on texture and on object
