@@ -4,8 +4,6 @@
 * :func:`detect_corners` -- ``cv2.goodFeaturesToTrack`` (+ ``cv2.cornerSubPix``), strongest
   first or taken in turns from the cells of a grid;
 * :func:`lattice_points` -- the points of a square lattice that no measurement is near;
-* :func:`weighted_fill` -- a greedy placement of a given number of points where the gap to
-  the nearest measurement times a weight (the prior's std, the disparity) is largest;
 * :func:`patch_contrast` -- the grey-level std around points (a blank surface has none).
 
 :func:`.stereo.sparse_lookups` looks both up in an SGBM map (docs/estimator.md, "Where the
@@ -26,7 +24,6 @@ __all__ = [
     "detect_corners",
     "lattice_points",
     "patch_contrast",
-    "weighted_fill",
 ]
 
 FloatArray = npt.NDArray[np.float32]
@@ -80,7 +77,7 @@ class GfttConfig:
             above. The others look up as many points as the lattice keeps, chosen
             greedily from a finer candidate lattice (side ``fill_spacing / 4``, the same
             contrast and lookup checks, so a rejected point leaves no gap) where the gap
-            to the nearest measurement times a weight is largest (:func:`weighted_fill`):
+            to the nearest measurement times a weight is largest (:func:`.fill.weighted_fill`):
             ``"even"`` (the default) weight 1; ``"prior_std"`` the prior's disparity std at
             the point (the basis's per-pixel prior variance plus its local prior's, given
             by the processor) to the power ``fill_exponent``; ``"disparity"`` the looked-up
@@ -272,80 +269,6 @@ def lattice_points(kept: FloatArray, spacing: float, area: tuple[int, int, int, 
         gap += along_y
         grid = grid[gap.min(axis=1) > (spacing / 2) ** 2]
     return np.ascontiguousarray(grid)
-
-
-def weighted_fill(
-    kept: FloatArray,
-    candidates: FloatArray,
-    weights: FloatArray,
-    count: int,
-    area: tuple[int, int, int, int] | None = None,
-    min_gap: float = 0.0,
-) -> npt.NDArray[np.int64]:
-    """Choose ``count`` candidates greedily where gap to the nearest point x weight is largest.
-
-    Each step takes the candidate c maximising w(c) g(c), g(c) = min_p |c - p| over the
-    kept points and those chosen so far, then shrinks every candidate's gap by the new
-    point. With weight 1 this is farthest-point sampling (an even cover); with a weight the
-    final gaps go as about 1 / w, so the points' density grows as w^2. With ``area`` the
-    gap is also at most twice the distance to the area's edge, as if the edge were
-    mirrored measurements: plain farthest-point sampling would put its first points on the
-    edges, where a point covers half the pixels an inner one does.
-
-    Args:
-        kept: (k, 2) float32 (x, y) px of the measurements already made.
-        candidates: (m, 2) float32 (x, y) px to choose from.
-        weights: (m,) float32 >= 0, each candidate's weight.
-        count: how many to choose (at most m; fewer when the weighted gaps reach 0).
-        area: (x0, y0, x1, y1) px the candidates lie in, or None (no edge term).
-        min_gap: candidates this near a kept point (px) or nearer are never chosen.
-
-    Returns:
-        The chosen candidates' indices, in the order chosen.
-    """
-    total = min(int(count), candidates.shape[0])
-    if total <= 0:
-        return np.zeros(0, np.int64)
-    xs = candidates[:, 0].astype(np.float32)
-    ys = candidates[:, 1].astype(np.float32)
-    if kept.shape[0]:
-        gap = xs[:, None] - kept[None, :, 0].astype(np.float32)
-        along_y = ys[:, None] - kept[None, :, 1].astype(np.float32)
-        gap *= gap
-        along_y *= along_y
-        gap += along_y
-        squared = gap.min(axis=1)
-    else:
-        squared = np.full(xs.shape, np.float32(np.inf))
-    # compare w^2 gap^2: no square root per step
-    weight_sq = np.square(np.asarray(weights, np.float32))
-    weight_sq[squared <= min_gap**2] = 0.0
-    if area is not None:
-        x0, y0, x1, y1 = area
-        edge = np.minimum(np.minimum(xs - x0, x1 - 1 - xs), np.minimum(ys - y0, y1 - 1 - ys))
-        np.minimum(squared, np.square(2.0 * np.maximum(edge, 0.0)), out=squared)
-    score = np.empty_like(squared)
-    step_x, step_y = np.empty_like(xs), np.empty_like(ys)
-    chosen = np.empty(total, np.int64)
-    taken = 0
-    for taken in range(total):
-        if np.isfinite(squared[0]):
-            np.multiply(squared, weight_sq, out=score)
-            best = int(np.argmax(score))
-            if not score[best] > 0.0:
-                break
-        else:  # no measurement and no edge yet: the heaviest candidate starts
-            best = int(np.argmax(weight_sq))
-        chosen[taken] = best
-        np.subtract(xs, xs[best], out=step_x)
-        np.subtract(ys, ys[best], out=step_y)
-        step_x *= step_x
-        step_y *= step_y
-        step_x += step_y
-        np.minimum(squared, step_x, out=squared)
-    else:
-        taken = total
-    return chosen[:taken]
 
 
 def patch_contrast(grey: UInt8Array, points: FloatArray, half: int = 3) -> FloatArray:

@@ -32,19 +32,15 @@ import threading
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, fields, replace
 from enum import Enum
+from functools import partial
 from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.frontend.corners import (
-    GfttConfig,
-    detect_corners,
-    lattice_points,
-    patch_contrast,
-    weighted_fill,
-)
+from pcainterp_stream.frontend.corners import GfttConfig, detect_corners, lattice_points
+from pcainterp_stream.frontend.fill import fill_points
 from pcainterp_stream.frontend.refine import halved as _halved
 from pcainterp_stream.frontend.refine import refined_match
 from pcainterp_stream.frontend.sgbm_limits import (
@@ -766,10 +762,8 @@ def sparse_lookups(
     The corners of :func:`detect_corners` are looked up (:func:`lookup_disparities`); with
     ``gftt.fill_spacing`` > 0 the points of :func:`lattice_points` in their gaps (farther
     than half a side from every kept corner lookup, with a 7x7 grey-level std of at least
-    ``gftt.fill_min_contrast``) are looked up with the same checks and appended. With a
-    ``gftt.fill_placement`` other than ``"lattice"`` as many points as the lattice kept
-    are chosen instead by :func:`weighted_fill` among the valid lookups of a lattice
-    4 times finer (same checks).
+    ``gftt.fill_min_contrast``) are looked up with the same checks and appended; with a
+    ``gftt.fill_placement`` other than ``"lattice"``, as many chosen by :mod:`.fill`.
 
     Args:
         left_grey: (H, W) uint8 grey left image.
@@ -778,17 +772,12 @@ def sparse_lookups(
         lookup: the lookup checks.
         min_x: first column SGBM can match (px); nothing left of it is looked up.
         right_disparity: optional right map for the explicit left-right check.
-        prior_std: (gh, gw) float32 prior disparity std (px) on a grid spanning the image,
-            the weight of ``fill_placement="prior_std"`` (required there, else unused).
+        prior_std: (gh, gw) prior disparity std (px), required by ``"prior_std"`` fills.
 
     Returns:
         The kept pixels (corners first), disparities, indices into the corners followed by
         the fill points looked up, and the counts of both together (``corners`` counts
-        every point looked up; of a weighted fill only the chosen points are counted, all
-        kept).
-
-    Raises:
-        ValueError: if ``fill_placement`` is ``"prior_std"`` and ``prior_std`` is None.
+        every point looked up; of a greedy fill only the chosen ones).
     """
     corners = detect_corners(left_grey, gftt, min_x=min_x)
     found = _lookup(disparity, corners, lookup, right_disparity)
@@ -797,23 +786,9 @@ def sparse_lookups(
     height, width = left_grey.shape
     border = gftt.border
     area = (max(border, min_x), border, width - border, height - border)
-    points = lattice_points(found.pixels, gftt.fill_spacing, area)
-    points = points[patch_contrast(left_grey, points) >= gftt.fill_min_contrast]
-    if gftt.fill_placement == "lattice" and gftt.fill_min_support > 0.0:
-        points = points[_support(disparity, points) >= gftt.fill_min_support]
-    extra = _lookup(disparity, points, lookup, right_disparity)
-    if gftt.fill_placement != "lattice":
-        extra = _weighted_extra(
-            left_grey,
-            disparity,
-            gftt,
-            lookup,
-            area,
-            found.pixels,
-            extra.counts.kept,
-            right_disparity,
-            prior_std,
-        )
+    look_up = partial(_lookup, disparity, config=lookup, right_disparity=right_disparity)
+    points = fill_points(left_grey, disparity, gftt, area, found.pixels, look_up, prior_std)
+    extra = look_up(points)
     a, b = found.counts, extra.counts
     counts = RejectionCounts(*(getattr(a, n) + getattr(b, n) for n in _COUNT_NAMES))
     return Lookup(
@@ -822,72 +797,6 @@ def sparse_lookups(
         np.concatenate([found.indices, extra.indices + a.corners]),
         counts,
     )
-
-
-def _weighted_extra(
-    left_grey: UInt8Array,
-    disparity: FloatArray,
-    gftt: GfttConfig,
-    lookup: LookupConfig,
-    area: tuple[int, int, int, int],
-    kept: FloatArray,
-    count: int,
-    right_disparity: FloatArray | None,
-    prior_std: FloatArray | None,
-) -> Lookup:
-    """``count`` fill lookups placed by :func:`weighted_fill` among a finer lattice's valid ones."""
-    # the cheap checks first, the gaps to the kept points last (in weighted_fill), on the
-    # fewest candidates; every check is per point, so the order changes nothing
-    spacing = gftt.fill_spacing / 4.0
-    candidates = lattice_points(np.zeros((0, 2), np.float32), spacing, area)
-    if gftt.fill_min_support > 0.0:
-        candidates = candidates[_support(disparity, candidates) >= gftt.fill_min_support]
-    looked_up = _lookup(disparity, candidates, lookup, right_disparity)
-    textured = patch_contrast(left_grey, looked_up.pixels) >= gftt.fill_min_contrast
-    pixels, values = looked_up.pixels[textured], looked_up.disparities[textured]
-    if gftt.fill_placement == "even":
-        weights = np.ones(values.size, np.float32)
-    elif gftt.fill_placement == "disparity":
-        weights = np.maximum(values, 1.0) ** np.float32(gftt.fill_exponent)
-    else:
-        if prior_std is None:
-            raise ValueError(
-                "fill_placement 'prior_std' needs the prior's std map (prior_std=); the frame "
-                "processor gives it from its basis"
-            )
-        height, width = left_grey.shape
-        rows, cols = prior_std.shape
-        gx = np.clip((pixels[:, 0] * cols / width).astype(np.int64), 0, cols - 1)
-        gy = np.clip((pixels[:, 1] * rows / height).astype(np.int64), 0, rows - 1)
-        weights = np.maximum(prior_std[gy, gx], 1e-3) ** np.float32(gftt.fill_exponent)
-    weights = np.asarray(weights, np.float32)
-    chosen = weighted_fill(kept, pixels, weights, count, area, min_gap=spacing / 2)
-    counts = RejectionCounts(int(chosen.size), int(chosen.size), 0, 0, 0, 0)
-    return Lookup(
-        np.ascontiguousarray(pixels[chosen]),
-        np.ascontiguousarray(values[chosen]),
-        np.arange(chosen.size, dtype=np.int64),
-        counts,
-    )
-
-
-_SUPPORT_HALF = 10
-"""Half side (px) of the window whose valid share :func:`_support` gives."""
-
-
-def _support(disparity: FloatArray, points: FloatArray) -> FloatArray:
-    """Share of valid (finite) SGBM pixels in the 21 x 21 px around each point (nearest px)."""
-    if points.shape[0] == 0:
-        return np.zeros(0, np.float32)
-    height, width = disparity.shape
-    counts = cv2.integral(np.isfinite(disparity).view(np.uint8))
-    half = _SUPPORT_HALF
-    x = np.rint(points[:, 0]).astype(np.int64)
-    y = np.rint(points[:, 1]).astype(np.int64)
-    x0, x1 = np.clip(x - half, 0, width), np.clip(x + half + 1, 0, width)
-    y0, y1 = np.clip(y - half, 0, height), np.clip(y + half + 1, 0, height)
-    inside = counts[y1, x1] - counts[y0, x1] - counts[y1, x0] + counts[y0, x0]
-    return np.asarray(inside / ((2 * half + 1) ** 2), np.float32)
 
 
 def _lookup(
@@ -946,8 +855,7 @@ class StereoFrontEnd:
             and reject lookups whose two disparities disagree. Off by default: on KITTI it
             removed 0.1 lookups per frame beyond SGBM's own ``disp12_max_diff=1`` check,
             and none on synthetic scenes with ground truth.
-        prior_std: (gh, gw) float32 prior disparity std (px) on a grid spanning the
-            image, for ``gftt.fill_placement="prior_std"`` (:func:`sparse_lookups`).
+        prior_std: the prior's std map of ``"prior_std"`` fills (:func:`sparse_lookups`).
 
     Example:
         >>> front_end = StereoFrontEnd()

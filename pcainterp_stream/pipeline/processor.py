@@ -67,7 +67,7 @@ from pcainterp_stream.estimate.dense import (
 from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
 from pcainterp_stream.estimate.lapack import routines
 from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
-from pcainterp_stream.estimate.variance import _variance_stride
+from pcainterp_stream.estimate.variance import _variance_stride, prior_std_map
 from pcainterp_stream.frontend.motion import CarriedPoints, CarryConfig, Motion, estimate_motion
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
@@ -381,17 +381,6 @@ def features_to_measurements(
     return pixels, disparity[keep].astype(np.float32), counts
 
 
-def prior_std_map(basis: Basis) -> npt.NDArray[np.float32]:
-    """The prior's disparity std on the basis grid (px): sqrt(diag(B Lambda B^T) + v).
-
-    v is the variance of the basis's fitted local prior (0 without one). What the
-    ``"prior_std"`` fill placement weighs its points by (:func:`.stereo.sparse_lookups`).
-    """
-    local = basis.meta.get("prior", {}).get("local")
-    variance = float(local["variance"]) if isinstance(local, dict) else 0.0
-    return np.asarray(np.sqrt(basis.prior_variance + np.float32(variance)), np.float32)
-
-
 class FrameProcessor:
     """Densify a stream of stereo pairs, pipelined; use as a context manager.
 
@@ -409,10 +398,8 @@ class FrameProcessor:
         self.config = config or ProcessorConfig()
         basis = self._builtin(basis)
         self.basis = basis
-        prior_std = None
-        if self.config.gftt.fill_placement == "prior_std":
-            prior_std = prior_std_map(basis)
-        self.front_end = StereoFrontEnd(self.config.gftt, self.config.sgbm, prior_std=prior_std)
+        std = prior_std_map(basis) if self.config.gftt.fill_placement == "prior_std" else None
+        self.front_end = StereoFrontEnd(self.config.gftt, self.config.sgbm, prior_std=std)
         if self.config.keep_freed_memory:
             # the synthetic renderer's allocator tuning; same temporaries problem here
             from pcainterp_stream.allocator import keep_freed_memory, limit_arenas

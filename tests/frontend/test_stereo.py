@@ -15,7 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from pcainterp_stream.frontend.corners import weighted_fill
+from pcainterp_stream.frontend.fill import weighted_fill
 from pcainterp_stream.frontend.matchers import DENSE_SGBM, REFINED_DENSE_SGBM
 from pcainterp_stream.frontend.refine import TEXTURELESS, fill_rows, textureless
 from pcainterp_stream.frontend.sgbm_limits import ImageTooNarrowError, narrowest_width
