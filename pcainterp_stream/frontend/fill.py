@@ -1,4 +1,4 @@
-"""Where sparse mode's gap-filling lookups go when not on the lattice (``fill_placement``).
+"""Where sparse mode's gap-filling lookups go: the lattice or a greedy fill (``fill_placement``).
 
 * :func:`weighted_fill` -- a greedy choice of a given number of points where the gap to
   the nearest measurement times a weight (1, the prior's std, the disparity) is largest;
