@@ -43,6 +43,7 @@ import numpy.typing as npt
 
 from pcainterp_stream.estimate.baselines import linear, nearest
 from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.variance import prior_std_map
 from pcainterp_stream.frontend.stereo import SgbmConfig, StereoFrontEnd, compute_disparity
 from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
 from pcainterp_stream.records import StereoCamera, StereoFrame
@@ -109,6 +110,43 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "cells0.9": {"edge_aware": True, "prior": {"local": {"cell_weight": 0.9}}},
     "stationary": {"prior": {"local": {"cell_weight": 1.0}}},
 }
+
+LATTICE = {"fill_placement": "lattice", "fill_min_support": 0.0}
+"""The fill before the greedy placement: the even 40 px lattice, no support check."""
+
+# every variant above was measured with the lattice fill: they keep it
+for _name, _changes in VARIANTS.items():
+    if _name != "default":
+        _changes["gftt"] = {**LATTICE, **_changes.get("gftt", {})}
+
+VARIANTS.update(
+    {
+        # the lattice: the default before the greedy fill
+        "lattice": {"gftt": LATTICE},
+        # the lattice's points where >= 80 % of SGBM's 21 x 21 px are valid
+        "fill_support0.8": {"gftt": {**LATTICE, "fill_min_support": 0.8}},
+        # as many gap-filling lookups as the 40 px lattice keeps, placed greedily where the
+        # gap to the nearest point times a weight is largest (GfttConfig.fill_placement):
+        # weight 1 (the default, there with the support check 0.8), the prior's disparity
+        # std, or the looked-up disparity, to the power given; _support0.8 / 0.95: only
+        # candidates where >= 80 % (95 %) of SGBM's 21 x 21 px are valid
+        "fill_even": {"gftt": {"fill_min_support": 0.0}},
+        "fill_even_support0.8": {"gftt": {"fill_min_support": 0.8}},
+        "fill_even_support0.95": {"gftt": {"fill_min_support": 0.95}},
+    }
+)
+for _weight in ("prior_std", "disparity"):
+    for _exponent in (0.25, 0.5, 1.0):
+        for _support in (0.0, 0.8):
+            _suffix = f"{_exponent:g}" if _exponent != 1.0 else ""
+            _suffix += f"_support{_support:g}" if _support else ""
+            VARIANTS[f"fill_{_weight}{_suffix}"] = {
+                "gftt": {
+                    "fill_placement": _weight,
+                    "fill_exponent": _exponent,
+                    "fill_min_support": _support,
+                }
+            }
 
 
 def _variant_config(name: str) -> ProcessorConfig:
@@ -470,8 +508,11 @@ def estimate_seconds(
     from pcainterp_stream.pipeline.processor import resolve_settings
 
     measured = []
-    for config in configs:
-        front_end = StereoFrontEnd(config.gftt, config.sgbm)
+    for config, basis in zip(configs, bases, strict=True):
+        prior_std = None
+        if config.gftt.fill_placement == "prior_std":
+            prior_std = prior_std_map(basis or Basis.default())
+        front_end = StereoFrontEnd(config.gftt, config.sgbm, prior_std=prior_std)
         measured.append([front_end.measure(frame.left, frame.right) for frame, _ in items])
     best = [np.inf] * len(configs)
     camera = items[0][0].camera
@@ -555,6 +596,57 @@ def pool_seconds(
     return seconds
 
 
+def lookup_seconds(
+    items: list[tuple[StereoFrame, Array]],
+    configs: list[ProcessorConfig],
+    bases: list[Basis | None],
+    repeats: int = 3,
+) -> tuple[list[float], float]:
+    """CPU seconds per frame of the front end's lookups (corners and fill), per configuration.
+
+    ``sparse_lookups`` on each frame's SGBM map (made beforehand), the configurations in
+    turns, the best of ``repeats``; and the SGBM map itself (the same matcher settings as
+    the first configuration), the reference the lookups' cost is read against.
+    """
+    import cv2
+
+    from pcainterp_stream.frontend.stereo import compute_disparity, sparse_lookups, to_grey8
+
+    sgbm = configs[0].sgbm
+    greys = [to_grey8(frame.left) for frame, _ in items]
+    maps = [compute_disparity(frame.left, frame.right, sgbm) for frame, _ in items]
+    stds = [
+        prior_std_map(basis or Basis.default())
+        if config.gftt.fill_placement == "prior_std"
+        else None
+        for config, basis in zip(configs, bases, strict=True)
+    ]
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        best = [np.inf] * len(configs)
+        matching = np.inf
+        for _ in range(repeats):
+            started = time.process_time()
+            for frame, _ in items:
+                compute_disparity(frame.left, frame.right, sgbm)
+            matching = min(matching, (time.process_time() - started) / len(items))
+            for index, config in enumerate(configs):
+                started = time.process_time()
+                for grey, disparity in zip(greys, maps, strict=True):
+                    sparse_lookups(
+                        grey,
+                        disparity,
+                        config.gftt,
+                        min_x=config.sgbm.valid_min_x,
+                        prior_std=stds[index],
+                    )
+                best[index] = min(best[index], (time.process_time() - started) / len(items))
+    finally:
+        cv2.setNumThreads(threads)
+    return best, matching
+
+
 def _partition(measured: Any, image_size: tuple[int, int], grid: tuple[int, int]) -> Any:
     """What a stereo worker makes of a frame for an edge-aware prior (cells.Seeding)."""
     from pcainterp_stream.estimate.cells import Seeding
@@ -602,6 +694,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--timing", action="store_true", help="also time the estimate alone per variant"
+    )
+    parser.add_argument(
+        "--lookup-timing",
+        action="store_true",
+        help="also time the front end's lookups (corners and fill) per variant, against SGBM alone",
     )
     parser.add_argument(
         "--pool-timing",
@@ -693,6 +790,19 @@ def main(argv: list[str] | None = None) -> int:
                     for v, t in zip(args.variants, seconds, strict=True)
                 )
                 + f"; seeding (stereo worker) {1000 * partition_seconds(items):.2f}",
+                flush=True,
+            )
+        if args.lookup_timing:
+            configs = [_variant_config(v) for v in args.variants]
+            bases = [_variant_basis(v) for v in args.variants]
+            spent, matching = lookup_seconds(items, configs, bases)
+            print(
+                "lookups CPU ms/frame (corners and fill; / SGBM alone "
+                f"{1000 * matching:.1f} ms): "
+                + ", ".join(
+                    f"{v} {1000 * t:.1f} ({t / matching:.3f})"
+                    for v, t in zip(args.variants, spent, strict=True)
+                ),
                 flush=True,
             )
         if args.pool_timing:

@@ -43,7 +43,7 @@ import harness
 
 from pcainterp_stream.cli import app
 from pcainterp_stream.estimate import cells, estimator
-from pcainterp_stream.frontend import stereo
+from pcainterp_stream.frontend import fill, stereo
 from pcainterp_stream.pipeline import processor
 
 GROUPS = ("MainThread", "stereo", "densify", "estimate", "encode", "log-writer")
@@ -117,8 +117,9 @@ STAGES: list[tuple[Any, str, str]] = [
     (processor.FrameProcessor, "_measure", "stereo worker, all"),
     (stereo, "_sgbm_weak", "  SGBM (half resolution; dense mode: full)"),
     (stereo, "detect_corners", "  GFTT corners"),
-    (stereo, "lattice_points", "  lattice points"),
-    (stereo, "patch_contrast", "  lattice contrast"),
+    (fill, "lattice_points", "  lattice points"),
+    (fill, "patch_contrast", "  lattice contrast"),
+    (fill, "greedy_fill", "  greedy fill (its lookups and contrast too)"),
     (stereo, "_lookup", "  lookups"),
     (processor, "estimate_motion", "  odometry"),
     (cells.Seeding, "along", "  edge-aware seeding (map on the cell grid)"),

@@ -331,3 +331,14 @@ def _axis_weights(
     first = np.minimum(np.floor(position).astype(np.intp), max(grid_count - 2, 0))
     second = np.minimum(first + 1, grid_count - 1)
     return first, second, position - first
+
+
+def prior_std_map(basis: Basis) -> npt.NDArray[np.float32]:
+    """The prior's disparity std on the basis grid (px): sqrt(diag(B Lambda B^T) + v).
+
+    v is the variance of the basis's fitted local prior (0 without one). What the
+    ``"prior_std"`` fill placement weighs its points by (:mod:`.frontend.fill`).
+    """
+    local = basis.meta.get("prior", {}).get("local")
+    variance = float(local["variance"]) if isinstance(local, dict) else 0.0
+    return np.asarray(np.sqrt(basis.prior_variance + np.float32(variance)), np.float32)

@@ -18,10 +18,19 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["GfttConfig", "detect_corners", "lattice_points", "patch_contrast"]
+__all__ = [
+    "FILL_PLACEMENTS",
+    "GfttConfig",
+    "detect_corners",
+    "lattice_points",
+    "patch_contrast",
+]
 
 FloatArray = npt.NDArray[np.float32]
 UInt8Array = npt.NDArray[np.uint8]
+
+FILL_PLACEMENTS = ("lattice", "even", "prior_std", "disparity")
+"""Where the gap-filling lookups go (:attr:`GfttConfig.fill_placement`)."""
 
 
 # ---------------------------------------------------------------------------------------
@@ -31,15 +40,16 @@ UInt8Array = npt.NDArray[np.uint8]
 
 @dataclass(frozen=True)
 class GfttConfig:
-    """Shi-Tomasi corner detection (``cv2.goodFeaturesToTrack``) and the lattice fill.
+    """Shi-Tomasi corner detection (``cv2.goodFeaturesToTrack``) and the fill in their gaps.
 
     The defaults give ~330-390 valid lookups per KITTI frame (1242x375): 250 corners, of
-    which ~200-240 pass the checks of :func:`lookup_disparities`, plus the lattice points,
-    40 px apart, that no corner lookup is within 20 px of (~130-145 pass). Corners
-    cluster on texture (trees, lane marks, outlines); the lattice points measure the
-    surfaces between them, where the map erred most (``docs/options.md``, "Where the
-    points are"). Detection takes ~5-7 ms, of which ``cornerSubPix`` ~1.5 ms
-    (``docs/stages.md``); the lattice's lookups well under 1 ms.
+    which ~200-240 pass the checks of :func:`lookup_disparities`, plus as many fill points
+    as a 40 px lattice in their gaps keeps (~130-145), placed greedily where the gap to
+    the nearest measurement is largest (``fill_placement="even"``). Corners cluster on
+    texture (trees, lane marks, outlines); the fill points measure the surfaces between
+    them, where the map erred most (``docs/options.md``, "Where the points are";
+    ``docs/sharper_sparse.md``, "Where the fill points go"). Detection takes ~5-7 ms, of
+    which ``cornerSubPix`` ~1.5 ms (``docs/stages.md``).
 
     Attributes:
         max_corners: most corners returned (strongest first); 0 detects none, so the
@@ -63,6 +73,27 @@ class GfttConfig:
             7x7 px around it have at least this std: on a blank surface (saturated sky, a
             blank wall) SGBM's costs tie and it returns its smallest disparity (0, i.e.
             infinitely far) as if sure; a camera's noise alone gives ~1-2 grey levels.
+        fill_placement: where the gap-filling lookups go. ``"lattice"``: the lattice
+            above. The others look up as many points as the lattice keeps, chosen
+            greedily from a finer candidate lattice (side ``fill_spacing / 4``, the same
+            contrast and lookup checks, so a rejected point leaves no gap) where the gap
+            to the nearest measurement times a weight is largest (:func:`.fill.weighted_fill`):
+            ``"even"`` (the default) weight 1; ``"prior_std"`` the prior's disparity std at
+            the point (the basis's per-pixel prior variance plus its local prior's, given
+            by the processor) to the power ``fill_exponent``; ``"disparity"`` the looked-up
+            disparity itself (floored at 1 px) to that power, so near surfaces get more
+            points than the far field. Measured against the lattice in
+            ``docs/sharper_sparse.md``.
+        fill_exponent: the weight's exponent of the ``"prior_std"`` and ``"disparity"``
+            placements: the points' spacing then goes roughly as weight^-exponent.
+        fill_min_support: a fill point (or a weighted placement's candidate) is looked
+            up only where at least this share of the SGBM map's 21 x 21 px around it is
+            valid: a greedy fill seeks the largest gaps, and the largest gaps are where
+            SGBM failed (near objects beyond its range, blank surfaces), whose few valid
+            pixels are the least sure; 0 checks nothing. A weighted placement still
+            looks up as many points as the lattice without this check keeps. The default
+            0.8 goes with the default placement; ``fill_placement="lattice"`` with 0 is
+            the fill before it.
     """
 
     max_corners: int = 250
@@ -77,8 +108,20 @@ class GfttConfig:
     buckets: tuple[int, int] = (1, 1)
     fill_spacing: float = 40.0
     fill_min_contrast: float = 1.0
+    fill_placement: str = "even"
+    fill_exponent: float = 1.0
+    fill_min_support: float = 0.8
 
     def __post_init__(self) -> None:
+        if self.fill_placement not in FILL_PLACEMENTS:
+            raise ValueError(
+                f"fill_placement must be one of {', '.join(FILL_PLACEMENTS)}, "
+                f"got {self.fill_placement!r}"
+            )
+        if not self.fill_exponent >= 0.0:
+            raise ValueError(f"fill_exponent must be >= 0, got {self.fill_exponent}")
+        if not 0.0 <= self.fill_min_support <= 1.0:
+            raise ValueError(f"fill_min_support must be in [0, 1], got {self.fill_min_support}")
         if min(self.buckets) < 1 or self.fill_spacing < 0.0:
             raise ValueError(
                 f"buckets ({self.buckets}) must be >= 1 each and fill_spacing "

@@ -32,18 +32,15 @@ import threading
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, fields, replace
 from enum import Enum
+from functools import partial
 from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.frontend.corners import (
-    GfttConfig,
-    detect_corners,
-    lattice_points,
-    patch_contrast,
-)
+from pcainterp_stream.frontend.corners import GfttConfig, detect_corners, lattice_points
+from pcainterp_stream.frontend.fill import fill_points
 from pcainterp_stream.frontend.refine import halved as _halved
 from pcainterp_stream.frontend.refine import refined_match
 from pcainterp_stream.frontend.sgbm_limits import (
@@ -758,26 +755,29 @@ def sparse_lookups(
     *,
     min_x: int = 0,
     right_disparity: FloatArray | None = None,
+    prior_std: FloatArray | None = None,
 ) -> Lookup:
-    """The sparse measurements of a pair as ``densify`` makes them: corners, then the lattice.
+    """The sparse measurements of a pair as ``densify`` makes them: corners, then the fill.
 
     The corners of :func:`detect_corners` are looked up (:func:`lookup_disparities`); with
     ``gftt.fill_spacing`` > 0 the points of :func:`lattice_points` in their gaps (farther
     than half a side from every kept corner lookup, with a 7x7 grey-level std of at least
-    ``gftt.fill_min_contrast``) are looked up with the same checks and appended.
+    ``gftt.fill_min_contrast``) are looked up with the same checks and appended; with a
+    ``gftt.fill_placement`` other than ``"lattice"``, as many chosen by :mod:`.fill`.
 
     Args:
         left_grey: (H, W) uint8 grey left image.
         disparity: (H, W) float32 left disparity map (px), NaN where invalid.
-        gftt: corner and lattice settings.
+        gftt: corner and fill settings.
         lookup: the lookup checks.
         min_x: first column SGBM can match (px); nothing left of it is looked up.
         right_disparity: optional right map for the explicit left-right check.
+        prior_std: (gh, gw) prior disparity std (px), required by ``"prior_std"`` fills.
 
     Returns:
         The kept pixels (corners first), disparities, indices into the corners followed by
-        the lattice points looked up, and the counts of both together (``corners`` counts
-        every point looked up).
+        the fill points looked up, and the counts of both together (``corners`` counts
+        every point looked up; of a greedy fill only the chosen ones).
     """
     corners = detect_corners(left_grey, gftt, min_x=min_x)
     found = _lookup(disparity, corners, lookup, right_disparity)
@@ -786,9 +786,9 @@ def sparse_lookups(
     height, width = left_grey.shape
     border = gftt.border
     area = (max(border, min_x), border, width - border, height - border)
-    points = lattice_points(found.pixels, gftt.fill_spacing, area)
-    points = points[patch_contrast(left_grey, points) >= gftt.fill_min_contrast]
-    extra = _lookup(disparity, points, lookup, right_disparity)
+    look_up = partial(_lookup, disparity, config=lookup, right_disparity=right_disparity)
+    points = fill_points(left_grey, disparity, gftt, area, found.pixels, look_up, prior_std)
+    extra = look_up(points)
     a, b = found.counts, extra.counts
     counts = RejectionCounts(*(getattr(a, n) + getattr(b, n) for n in _COUNT_NAMES))
     return Lookup(
@@ -855,6 +855,7 @@ class StereoFrontEnd:
             and reject lookups whose two disparities disagree. Off by default: on KITTI it
             removed 0.1 lookups per frame beyond SGBM's own ``disp12_max_diff=1`` check,
             and none on synthetic scenes with ground truth.
+        prior_std: the prior's std map of ``"prior_std"`` fills (:func:`sparse_lookups`).
 
     Example:
         >>> front_end = StereoFrontEnd()
@@ -866,6 +867,7 @@ class StereoFrontEnd:
     sgbm: SgbmConfig = field(default_factory=SgbmConfig)
     lookup: LookupConfig = field(default_factory=LookupConfig)
     lr_check: bool = False
+    prior_std: FloatArray | None = field(default=None, compare=False, repr=False)
 
     def measure(self, left: npt.NDArray[Any], right: npt.NDArray[Any]) -> Measurements:
         """Measure sparse disparities of one rectified stereo pair.
@@ -893,5 +895,6 @@ class StereoFrontEnd:
             self.lookup,
             min_x=self.sgbm.valid_min_x,
             right_disparity=right_map,
+            prior_std=self.prior_std,
         )
         return Measurements(found.pixels, found.disparities, disparity_map, found.counts, weak)

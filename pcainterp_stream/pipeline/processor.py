@@ -67,7 +67,7 @@ from pcainterp_stream.estimate.dense import (
 from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
 from pcainterp_stream.estimate.lapack import routines
 from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
-from pcainterp_stream.estimate.variance import _variance_stride
+from pcainterp_stream.estimate.variance import _variance_stride, prior_std_map
 from pcainterp_stream.frontend.motion import CarriedPoints, CarryConfig, Motion, estimate_motion
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
@@ -398,7 +398,8 @@ class FrameProcessor:
         self.config = config or ProcessorConfig()
         basis = self._builtin(basis)
         self.basis = basis
-        self.front_end = StereoFrontEnd(self.config.gftt, self.config.sgbm)
+        std = prior_std_map(basis) if self.config.gftt.fill_placement == "prior_std" else None
+        self.front_end = StereoFrontEnd(self.config.gftt, self.config.sgbm, prior_std=std)
         if self.config.keep_freed_memory:
             # the synthetic renderer's allocator tuning; same temporaries problem here
             from pcainterp_stream.allocator import keep_freed_memory, limit_arenas

@@ -15,6 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from pcainterp_stream.frontend.fill import weighted_fill
 from pcainterp_stream.frontend.matchers import DENSE_SGBM, REFINED_DENSE_SGBM
 from pcainterp_stream.frontend.refine import TEXTURELESS, fill_rows, textureless
 from pcainterp_stream.frontend.sgbm_limits import ImageTooNarrowError, narrowest_width
@@ -194,7 +195,13 @@ def test_lattice_points_fill_only_the_gaps() -> None:
 def test_lattice_lookups_measure_the_gaps(pair: tuple[npt.NDArray[Any], ...]) -> None:
     left, right, truth = pair
     corners_only = GfttConfig(max_corners=20, min_distance=5.0, fill_spacing=0.0)
-    filled = GfttConfig(max_corners=20, min_distance=5.0, fill_spacing=24.0)
+    filled = GfttConfig(
+        max_corners=20,
+        min_distance=5.0,
+        fill_spacing=24.0,
+        fill_placement="lattice",
+        fill_min_support=0.0,
+    )
     sparse = StereoFrontEnd(gftt=corners_only, sgbm=SGBM).measure(left, right)
     dense = StereoFrontEnd(gftt=filled, sgbm=SGBM).measure(left, right)
     assert dense.counts.kept >= sparse.counts.kept + 40
@@ -209,7 +216,9 @@ def test_lattice_lookups_measure_the_gaps(pair: tuple[npt.NDArray[Any], ...]) ->
 
 def test_no_corners_looks_up_the_lattice_alone(pair: tuple[npt.NDArray[Any], ...]) -> None:
     left, right, truth = pair
-    lattice = GfttConfig(max_corners=0, fill_spacing=24.0)
+    lattice = GfttConfig(
+        max_corners=0, fill_spacing=24.0, fill_placement="lattice", fill_min_support=0.0
+    )
     assert detect_corners(left, lattice).shape == (0, 2)
     found = StereoFrontEnd(gftt=lattice, sgbm=SGBM).measure(left, right)
     area = (max(lattice.border, SGBM.valid_min_x), lattice.border)
@@ -704,3 +713,141 @@ def test_kitti_pair_gives_many_well_spread_lookups() -> None:
     cols = ((result.pixels[:, 0] - x_start) / (left.shape[1] - x_start) * 4).astype(int)
     rows = (result.pixels[:, 1] / left.shape[0] * 3).astype(int)
     assert len(set(zip(cols.tolist(), rows.tolist(), strict=True))) >= 10
+
+
+# --- weighted fill placements ------------------------------------------------------------
+
+
+def test_weighted_fill_with_unit_weight_is_farthest_point_sampling() -> None:
+    line = np.column_stack([np.arange(0, 101, 1.0), np.zeros(101)]).astype(np.float32)
+    ones = np.ones(101, np.float32)
+    chosen = weighted_fill(np.zeros((0, 2), np.float32), line, ones, 3)
+    assert sorted(line[chosen, 0].tolist()) == [0.0, 50.0, 100.0]
+    # from a kept point at x = 0: the far end first, then the middle
+    kept = np.array([[0.0, 0.0]], np.float32)
+    chosen = weighted_fill(kept, line, ones, 2)
+    assert line[chosen, 0].tolist() == [100.0, 50.0]
+
+
+def test_weighted_fill_counts_the_areas_edge_as_covered() -> None:
+    line = np.column_stack([np.arange(0, 101, 1.0), np.zeros(101)]).astype(np.float32)
+    ones = np.ones(101, np.float32)
+    area = (0, -50, 101, 51)
+    chosen = weighted_fill(np.zeros((0, 2), np.float32), line, ones, 2, area)
+    # the middle first (gap 2 x 50 to the mirrored edges), then halfway to an edge
+    assert line[chosen[0], 0] == 50.0
+    assert line[chosen[1], 0] in (17.0, 83.0)
+    square = np.mgrid[0:40, 0:40].reshape(2, -1).T.astype(np.float32)
+    picked = square[
+        weighted_fill(square[:0], square, np.ones(1600, np.float32), 16, (0, 0, 40, 40))
+    ]
+    assert picked.min() >= 4.0
+    assert picked.max() <= 35.0
+
+
+def test_weighted_fill_puts_more_points_where_the_weight_is_larger() -> None:
+    ys, xs = np.mgrid[0:60, 0:120].astype(np.float32)
+    grid = np.column_stack([xs.ravel(), ys.ravel()])
+    weights = np.where(grid[:, 0] >= 60, 3.0, 1.0).astype(np.float32)
+    chosen = weighted_fill(np.zeros((0, 2), np.float32), grid, weights, 60)
+    right = int((grid[chosen, 0] >= 60).sum())
+    assert right >= 3 * (60 - right)
+    even = weighted_fill(np.zeros((0, 2), np.float32), grid, np.ones_like(weights), 60)
+    assert 20 <= int((grid[even, 0] >= 60).sum()) <= 40
+
+
+def test_weighted_fill_stops_where_nothing_is_left_to_cover() -> None:
+    points = np.array([[1.0, 1.0], [5.0, 5.0]], np.float32)
+    ones = np.ones(2, np.float32)
+    assert weighted_fill(points, points, ones, 5).size == 0
+    assert weighted_fill(points[:1], points, ones, 5).tolist() == [1]
+    assert weighted_fill(points[:1], points, np.zeros(2, np.float32), 5).size == 0
+
+
+def _placed(
+    pair: tuple[npt.NDArray[Any], ...], placement: str
+) -> tuple[Any, Any, npt.NDArray[np.float32]]:
+    """The lattice's measurements, a placement's, and its fill points."""
+    left, right, _ = pair
+    lattice = GfttConfig(
+        max_corners=20,
+        min_distance=5.0,
+        fill_spacing=24.0,
+        fill_placement="lattice",
+        fill_min_support=0.0,
+    )
+    placed = replace(lattice, fill_placement=placement)
+    # a prior std growing downwards, 1 px at the top to 9 px at the bottom
+    prior_std = np.repeat(np.linspace(1.0, 9.0, 8, dtype=np.float32)[:, None], 16, axis=1)
+    corners = StereoFrontEnd(gftt=replace(lattice, fill_spacing=0.0), sgbm=SGBM)
+    base = StereoFrontEnd(gftt=lattice, sgbm=SGBM).measure(left, right)
+    found = StereoFrontEnd(gftt=placed, sgbm=SGBM, prior_std=prior_std).measure(left, right)
+    own = corners.measure(left, right)
+    np.testing.assert_array_equal(found.pixels[: own.counts.kept], own.pixels)
+    return base, found, found.pixels[own.counts.kept :]
+
+
+@pytest.mark.parametrize("placement", ["even", "prior_std", "disparity"])
+def test_weighted_placements_look_up_as_many_points_as_the_lattice(
+    pair: tuple[npt.NDArray[Any], ...], placement: str
+) -> None:
+    truth = pair[2]
+    base, found, fill = _placed(pair, placement)
+    assert found.counts.kept == base.counts.kept == len(found.pixels)
+    assert len(fill) >= 40
+    # on the lattice 4 times finer, and measured as well as the lattice's points
+    area = (max(8, SGBM.valid_min_x), 8, WIDTH - 8, HEIGHT - 8)
+    finer = lattice_points(np.zeros((0, 2), np.float32), 6.0, area)
+    on_lattice = np.abs(fill[:, None, :] - finer[None, :, :]).sum(axis=2).min(axis=1)
+    assert on_lattice.max() == 0.0
+    assert np.median(np.abs(found.disparities - _truth_at(truth, found.pixels))) < 0.15
+
+
+def test_weighted_placements_follow_their_weights(pair: tuple[npt.NDArray[Any], ...]) -> None:
+    truth = pair[2]
+    even = _placed(pair, "even")[2]
+    by_prior = _placed(pair, "prior_std")[2]
+    by_disparity = _placed(pair, "disparity")[2]
+    # the prior's std grows downwards; the rectangle is twice as near as the plane
+    assert by_prior[:, 1].mean() > even[:, 1].mean() + 5.0
+    assert _truth_at(truth, by_disparity).mean() > _truth_at(truth, even).mean() + 0.5
+
+
+def test_prior_std_placement_needs_the_map_and_options_are_checked(
+    pair: tuple[npt.NDArray[Any], ...], disparity: npt.NDArray[np.float32]
+) -> None:
+    placed = GfttConfig(fill_placement="prior_std", fill_spacing=24.0)
+    with pytest.raises(ValueError, match="prior's std map"):
+        sparse_lookups(pair[0], disparity, placed, min_x=SGBM.valid_min_x)
+    with pytest.raises(ValueError, match="fill_placement must be one of"):
+        GfttConfig(fill_placement="random")
+    with pytest.raises(ValueError, match="fill_exponent must be >= 0"):
+        GfttConfig(fill_exponent=-1.0)
+    with pytest.raises(ValueError, match="fill_min_support must be in"):
+        GfttConfig(fill_min_support=1.5)
+
+
+def test_a_greedy_fill_seeks_the_gaps_and_the_support_check_skips_sgbms_holes(
+    pair: tuple[npt.NDArray[Any], ...], disparity: npt.NDArray[np.float32]
+) -> None:
+    # a hole in SGBM's map with one small valid island in it: the largest gap of all
+    holed = disparity.copy()
+    holed[20:140, 200:300] = np.nan
+    holed[76:86, 246:256] = D_BACK
+    even = GfttConfig(max_corners=20, min_distance=5.0, fill_spacing=24.0, fill_min_support=0.0)
+    supported = replace(even, fill_min_support=0.8)
+    lattice = replace(even, fill_placement="lattice", fill_min_support=0.8)
+
+    def in_hole(config: GfttConfig) -> int:
+        found = sparse_lookups(pair[0], holed, config, min_x=SGBM.valid_min_x)
+        x, y = found.pixels[:, 0], found.pixels[:, 1]
+        return int(((x >= 200) & (x < 300) & (y >= 20) & (y < 140)).sum())
+
+    assert in_hole(even) >= 1
+    assert in_hole(supported) == 0
+    assert in_hole(lattice) == 0
+    counts = [
+        sparse_lookups(pair[0], holed, config, min_x=SGBM.valid_min_x).counts.kept
+        for config in (replace(even, fill_placement="lattice"), even, supported)
+    ]
+    assert counts[0] == counts[1] == counts[2]

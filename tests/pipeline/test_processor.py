@@ -17,6 +17,7 @@ from pcainterp_stream.estimate import estimator
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.estimate.prior import LocalPrior
+from pcainterp_stream.estimate.variance import prior_std_map
 from pcainterp_stream.frontend.motion import CarryConfig
 from pcainterp_stream.frontend.stereo import SgbmConfig, StereoFrontEnd
 from pcainterp_stream.pipeline import processor
@@ -647,3 +648,25 @@ def test_densify_drops_the_depth_std_only_when_nothing_takes_it(
     assert seen == [False, True, True]
     assert taken
     assert all(np.isfinite(frame.depth_std).any() for frame in taken)
+
+
+def test_a_prior_std_fill_weighs_by_the_basiss_prior(
+    basis: Basis, frames: list[StereoFrame]
+) -> None:
+    local = {"kernel": "laplace", "length_scale": 16.0, "variance": 9.0}
+    hybrid = dataclasses.replace(basis, meta={"prior": {"local": local}})
+    std = prior_std_map(hybrid)
+    assert std.shape == basis.grid_size
+    assert std.dtype == np.float32
+    np.testing.assert_allclose(std**2, basis.prior_variance + 9.0, rtol=1e-5)
+    np.testing.assert_allclose(prior_std_map(basis) ** 2, basis.prior_variance, rtol=1e-5)
+    gftt = dataclasses.replace(ProcessorConfig().gftt, fill_spacing=24.0)
+    placed = dataclasses.replace(gftt, fill_placement="prior_std")
+    config = ProcessorConfig(sgbm=SGBM, gftt=placed)
+    with FrameProcessor(basis, config) as engine:
+        assert engine.front_end.prior_std is not None
+        results = list(engine.process(frames[:2]))
+    lattice = run(basis, frames[:2], gftt=gftt)
+    for result, reference in zip(results, lattice, strict=True):
+        assert result.counts["kept"] == reference.counts["kept"]
+        assert np.isfinite(result.disparity).all()

@@ -1,0 +1,217 @@
+"""Where sparse mode's gap-filling lookups go: the lattice or a greedy fill (``fill_placement``).
+
+* :func:`weighted_fill` -- a greedy choice of a given number of points where the gap to
+  the nearest measurement times a weight (1, the prior's std, the disparity) is largest;
+* :func:`fill_points` -- the points :func:`.stereo.sparse_lookups` looks up in the corners'
+  gaps: the lattice's, or as many chosen by :func:`greedy_fill`;
+* :func:`greedy_fill` -- the candidates (a lattice 4x finer than the fill's, looked up with
+  the usual checks), their weights and the choice;
+* :func:`valid_share` -- the share of valid SGBM pixels around points.
+
+Maths and measurements: ``docs/sharper_sparse.md``, "Where the fill points go".
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Protocol
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.frontend.corners import GfttConfig, lattice_points, patch_contrast
+
+__all__ = ["fill_points", "greedy_fill", "valid_share", "weighted_fill"]
+
+FloatArray = npt.NDArray[np.float32]
+
+
+class Looked(Protocol):
+    """What a lookup returns that the fill uses (:class:`.stereo.Lookup` is one)."""
+
+    @property
+    def pixels(self) -> FloatArray: ...  # (m, 2) float32 (x, y) px of the kept points
+
+    @property
+    def disparities(self) -> FloatArray: ...  # (m,) float32 px
+
+
+LookUp = Callable[[FloatArray], Looked]
+"""Points -> their lookups that pass the checks (:func:`.stereo.lookup_disparities`)."""
+
+SUPPORT_HALF = 10
+"""Half side (px) of the window whose valid share :func:`valid_share` gives."""
+
+
+def valid_share(disparity: FloatArray, points: FloatArray) -> FloatArray:
+    """Share of valid (finite) SGBM pixels in the 21 x 21 px around each point (nearest px)."""
+    if points.shape[0] == 0:
+        return np.zeros(0, np.float32)
+    height, width = disparity.shape
+    counts = cv2.integral(np.isfinite(disparity).view(np.uint8))
+    half = SUPPORT_HALF
+    x = np.rint(points[:, 0]).astype(np.int64)
+    y = np.rint(points[:, 1]).astype(np.int64)
+    x0, x1 = np.clip(x - half, 0, width), np.clip(x + half + 1, 0, width)
+    y0, y1 = np.clip(y - half, 0, height), np.clip(y + half + 1, 0, height)
+    inside = counts[y1, x1] - counts[y0, x1] - counts[y1, x0] + counts[y0, x0]
+    return np.asarray(inside / ((2 * half + 1) ** 2), np.float32)
+
+
+def fill_points(
+    left_grey: npt.NDArray[np.uint8],
+    disparity: FloatArray,
+    gftt: GfttConfig,
+    area: tuple[int, int, int, int],
+    kept: FloatArray,
+    look_up: LookUp,
+    prior_std: FloatArray | None = None,
+) -> FloatArray:
+    """The points to look up in the gaps of the ``kept`` corner lookups (``fill_spacing`` > 0).
+
+    ``"lattice"``: the points of :func:`lattice_points` with a 7x7 grey-level std of at
+    least ``gftt.fill_min_contrast`` (and the support check when ``fill_min_support`` > 0).
+    Otherwise as many as those pass the lookups' checks, chosen by :func:`greedy_fill`
+    (each then passes them again). Arguments as :func:`greedy_fill`'s.
+    """
+    points = lattice_points(kept, gftt.fill_spacing, area)
+    points = points[patch_contrast(left_grey, points) >= gftt.fill_min_contrast]
+    if gftt.fill_placement == "lattice":
+        if gftt.fill_min_support > 0.0:
+            points = points[valid_share(disparity, points) >= gftt.fill_min_support]
+        return points
+    count = look_up(points).pixels.shape[0]
+    return greedy_fill(left_grey, disparity, gftt, area, kept, count, look_up, prior_std)[0]
+
+
+def greedy_fill(
+    left_grey: npt.NDArray[np.uint8],
+    disparity: FloatArray,
+    gftt: GfttConfig,
+    area: tuple[int, int, int, int],
+    kept: FloatArray,
+    count: int,
+    look_up: LookUp,
+    prior_std: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray]:
+    """``count`` fill points placed by :func:`weighted_fill` among a finer lattice's lookups.
+
+    Args:
+        left_grey: (H, W) uint8 grey left image.
+        disparity: (H, W) float32 SGBM map (px), NaN where invalid.
+        gftt: the fill's settings (``fill_placement`` other than ``"lattice"``).
+        area: (x0, y0, x1, y1) px searched.
+        kept: (k, 2) float32 (x, y) px of the corners' lookups.
+        count: how many points to choose.
+        look_up: the lookups with their checks (points -> the ones kept and their values).
+        prior_std: (gh, gw) prior disparity std (px) spanning the image (``"prior_std"``).
+
+    Returns:
+        The chosen points' pixels (m, 2) and disparities (m,), in the order chosen.
+
+    Raises:
+        ValueError: if ``fill_placement`` is ``"prior_std"`` and ``prior_std`` is None.
+    """
+    # the cheap checks first, the gaps to the kept points last (in weighted_fill), on the
+    # fewest candidates; every check is per point, so the order changes nothing
+    spacing = gftt.fill_spacing / 4.0
+    candidates = lattice_points(np.zeros((0, 2), np.float32), spacing, area)
+    if gftt.fill_min_support > 0.0:
+        candidates = candidates[valid_share(disparity, candidates) >= gftt.fill_min_support]
+    found = look_up(candidates)
+    pixels, values = found.pixels, found.disparities
+    textured = patch_contrast(left_grey, pixels) >= gftt.fill_min_contrast
+    pixels, values = pixels[textured], values[textured]
+    if gftt.fill_placement == "even":
+        weights = np.ones(values.size, np.float32)
+    elif gftt.fill_placement == "disparity":
+        weights = np.maximum(values, 1.0) ** np.float32(gftt.fill_exponent)
+    else:
+        if prior_std is None:
+            raise ValueError(
+                "fill_placement 'prior_std' needs the prior's std map (prior_std=); the frame "
+                "processor gives it from its basis"
+            )
+        height, width = left_grey.shape
+        rows, cols = prior_std.shape
+        gx = np.clip((pixels[:, 0] * cols / width).astype(np.int64), 0, cols - 1)
+        gy = np.clip((pixels[:, 1] * rows / height).astype(np.int64), 0, rows - 1)
+        weights = np.maximum(prior_std[gy, gx], 1e-3) ** np.float32(gftt.fill_exponent)
+    weights = np.asarray(weights, np.float32)
+    chosen = weighted_fill(kept, pixels, weights, count, area, min_gap=spacing / 2)
+    return np.ascontiguousarray(pixels[chosen]), np.ascontiguousarray(values[chosen])
+
+
+def weighted_fill(
+    kept: FloatArray,
+    candidates: FloatArray,
+    weights: FloatArray,
+    count: int,
+    area: tuple[int, int, int, int] | None = None,
+    min_gap: float = 0.0,
+) -> npt.NDArray[np.int64]:
+    """Choose ``count`` candidates greedily where gap to the nearest point x weight is largest.
+
+    Each step takes the candidate c maximising w(c) g(c), g(c) = min_p |c - p| over the
+    kept points and those chosen so far, then shrinks every candidate's gap by the new
+    point. With weight 1 this is farthest-point sampling (an even cover); with a weight the
+    final gaps go as about 1 / w, so the points' density grows as w^2. With ``area`` the
+    gap is also at most twice the distance to the area's edge, as if the edge were
+    mirrored measurements: plain farthest-point sampling would put its first points on the
+    edges, where a point covers half the pixels an inner one does.
+
+    Args:
+        kept: (k, 2) float32 (x, y) px of the measurements already made.
+        candidates: (m, 2) float32 (x, y) px to choose from.
+        weights: (m,) float32 >= 0, each candidate's weight.
+        count: how many to choose (at most m; fewer when the weighted gaps reach 0).
+        area: (x0, y0, x1, y1) px the candidates lie in, or None (no edge term).
+        min_gap: candidates this near a kept point (px) or nearer are never chosen.
+
+    Returns:
+        The chosen candidates' indices, in the order chosen.
+    """
+    total = min(int(count), candidates.shape[0])
+    if total <= 0:
+        return np.zeros(0, np.int64)
+    xs = candidates[:, 0].astype(np.float32)
+    ys = candidates[:, 1].astype(np.float32)
+    if kept.shape[0]:
+        gap = xs[:, None] - kept[None, :, 0].astype(np.float32)
+        along_y = ys[:, None] - kept[None, :, 1].astype(np.float32)
+        gap *= gap
+        along_y *= along_y
+        gap += along_y
+        squared = gap.min(axis=1)
+    else:
+        squared = np.full(xs.shape, np.float32(np.inf))
+    # compare w^2 gap^2: no square root per step
+    weight_sq = np.square(np.asarray(weights, np.float32))
+    weight_sq[squared <= min_gap**2] = 0.0
+    if area is not None:
+        x0, y0, x1, y1 = area
+        edge = np.minimum(np.minimum(xs - x0, x1 - 1 - xs), np.minimum(ys - y0, y1 - 1 - ys))
+        np.minimum(squared, np.square(2.0 * np.maximum(edge, 0.0)), out=squared)
+    score = np.empty_like(squared)
+    step_x, step_y = np.empty_like(xs), np.empty_like(ys)
+    chosen = np.empty(total, np.int64)
+    taken = 0
+    for taken in range(total):
+        if np.isfinite(squared[0]):
+            np.multiply(squared, weight_sq, out=score)
+            best = int(np.argmax(score))
+            if not score[best] > 0.0:
+                break
+        else:  # no measurement and no edge yet: the heaviest candidate starts
+            best = int(np.argmax(weight_sq))
+        chosen[taken] = best
+        np.subtract(xs, xs[best], out=step_x)
+        np.subtract(ys, ys[best], out=step_y)
+        step_x *= step_x
+        step_y *= step_y
+        step_x += step_y
+        np.minimum(squared, step_x, out=squared)
+    else:
+        taken = total
+    return chosen[:taken]
