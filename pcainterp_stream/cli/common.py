@@ -82,10 +82,9 @@ def add_stereo_options(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=None,
         metavar="PX",
-        help="extra lookups in the corners' gaps: as many as a lattice of this side in px "
-        "keeps, each where the gap is largest (default 40; densify --measurements dense at "
-        "full resolution: the 34 px lattice itself; 0 = off); denser is sharper and slower: "
-        "a 30 px lattice measured 12-13 %% lower error on KITTI for ~14 %% more CPU",
+        help="lattice of extra lookups in the corners' gaps, side in px (default 40; "
+        "densify --measurements dense at full resolution: 34; 0 = off); denser is "
+        "sharper and slower: 30 measured 12-13 %% lower error on KITTI for ~14 %% more CPU",
     )
     group.add_argument(
         "--num-disparities", type=int, default=None, metavar="N", help="SGBM disparity range"

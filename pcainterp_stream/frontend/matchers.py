@@ -32,9 +32,7 @@ DEFAULT_DENSE_MATCHER = "refined"
 """The ``--dense-matcher`` of ``densify --measurements dense`` when none is given."""
 
 
-DENSE_GFTT = GfttConfig(
-    max_corners=0, fill_spacing=34.0, fill_placement="lattice", fill_min_support=0.0
-)
+DENSE_GFTT = GfttConfig(max_corners=0, fill_spacing=34.0)
 """The points of dense mode's own sparse estimate (the field that fills SGBM's holes and
 weighs its matches) at full resolution: a lattice of SGBM lookups 34 px apart over the
 whole searched area, no Shi-Tomasi corners. The corners cluster on texture and on object
@@ -43,19 +41,13 @@ fills the holes better on real and synthetic truth alike, with fewer points and 
 detector (docs/dense.md). ``--corners`` and ``--fill-spacing`` change it."""
 
 
-LATTICE_GFTT = GfttConfig(fill_placement="lattice", fill_min_support=0.0)
-"""Sparse mode's corners with the even 40 px lattice in their gaps (its points until the
-greedy fill became the default): dense mode's points at half resolution."""
-
-
 def dense_points(downscale: int | None = None) -> GfttConfig:
     """Return the points of dense mode's sparse estimate for its matcher's ``downscale``.
 
     :data:`DENSE_GFTT`, except at half resolution (``downscale`` 2), where the upsampled map
-    is better served by the sparse mode's corners and lattice (``GfttConfig()`` with
-    ``fill_placement="lattice"``, as dense mode was measured with).
+    is better served by the sparse mode's corners and lattice (``GfttConfig()``).
     """
-    return LATTICE_GFTT if downscale == 2 else DENSE_GFTT
+    return GfttConfig() if downscale == 2 else DENSE_GFTT
 
 
 def dense_matcher(name: str | None, downscale: int | None = None) -> str:

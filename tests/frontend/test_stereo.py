@@ -834,7 +834,13 @@ def test_a_greedy_fill_seeks_the_gaps_and_the_support_check_skips_sgbms_holes(
     holed = disparity.copy()
     holed[20:140, 200:300] = np.nan
     holed[76:86, 246:256] = D_BACK
-    even = GfttConfig(max_corners=20, min_distance=5.0, fill_spacing=24.0, fill_min_support=0.0)
+    even = GfttConfig(
+        max_corners=20,
+        min_distance=5.0,
+        fill_spacing=24.0,
+        fill_placement="even",
+        fill_min_support=0.0,
+    )
     supported = replace(even, fill_min_support=0.8)
     lattice = replace(even, fill_placement="lattice", fill_min_support=0.8)
 
