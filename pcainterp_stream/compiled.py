@@ -95,7 +95,8 @@ def module(name: str) -> ModuleType:
             return loaded
         for needed in NEEDS.get(name, ()):
             module(needed)
-        with one_blas_thread_when_loaded(), _deferred(DEFERRED.get(name, {})):
+        _defer(DEFERRED.get(name, {}))
+        with one_blas_thread_when_loaded():
             try:
                 return _load_file(full)
             except (ImportError, OSError):
@@ -126,12 +127,11 @@ class _Deferred(ModuleType):
         return getattr(real, name)
 
 
-@contextlib.contextmanager
-def _deferred(modules: dict[str, dict[str, Any]]) -> Iterator[None]:
+def _defer(modules: dict[str, dict[str, Any]]) -> None:
     """Put placeholders (:class:`_Deferred`) for the ``modules`` not yet imported.
 
-    A placeholder stays after the block: whoever imports its module later gets the real
-    one through it on first use, as if it had been imported here.
+    A placeholder stays: whoever imports its module later gets the real one through it on
+    first use, as if it had been imported here.
     """
     for name, known in modules.items():
         if name in sys.modules:
@@ -142,7 +142,6 @@ def _deferred(modules: dict[str, dict[str, Any]]) -> Iterator[None]:
             spec = None
         if spec is not None:  # else the module is imported as usual, or its import fails
             sys.modules[name] = _Deferred(name, known, spec)
-    yield
 
 
 def _load_file(full: str) -> ModuleType:
