@@ -32,6 +32,7 @@ basis's fitted prior (``prior``: its local kernel, its noise sigma).
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -50,6 +51,9 @@ from pcainterp_stream.records import StereoCamera, StereoFrame
 
 Array = npt.NDArray[np.float32]
 DEPTH_CAP_M = 80.0
+
+DEPTH_BINS_M = (0.0, 10.0, 20.0, 30.0, 40.0, 60.0, 80.0)
+"""Bins of the truth's depth (m) for ``--depth-bins`` (the last one ends at the depth cap)."""
 
 # variant name -> changes to ProcessorConfig's corner options
 STREET = {"builtin": "street", "adapt": "check"}
@@ -355,9 +359,11 @@ def score(
             "near_inside",
             "near_estimate",
             "near_truth",
+            "capped",
         ),
         0.0,
     )
+    bins = np.zeros((len(DEPTH_BINS_M) - 1, 3))  # pixels, sum |error| px, sum sq depth m^2
     points = 0
     for (frame, truth), result in zip(items, results, strict=True):
         valid = np.isfinite(truth) & (truth > 0)
@@ -403,6 +409,15 @@ def score(
                 frame.camera.focal_baseline / np.maximum(estimate[valid], 0), DEPTH_CAP_M
             )
         sums["sq_depth"] += ((depth_est - depth_true) ** 2).sum()
+        sums["capped"] += float(
+            (depth_est >= DEPTH_CAP_M).sum() - (depth_true >= DEPTH_CAP_M).sum()
+        )
+        bin_of = np.clip(np.digitize(depth_true, DEPTH_BINS_M) - 1, 0, len(DEPTH_BINS_M) - 2)
+        for index in range(len(DEPTH_BINS_M) - 1):
+            inside_bin = bin_of == index
+            bins[index, 0] += inside_bin.sum()
+            bins[index, 1] += error[inside_bin].sum()
+            bins[index, 2] += ((depth_est - depth_true)[inside_bin] ** 2).sum()
         points += len(result.pixels)
     return {
         "error_px": sums["err"] / sums["px"],
@@ -429,6 +444,19 @@ def score(
         * (sums["inside"] - sums["edge_inside"])
         / max(sums["px"] - sums["edge_px"], 1.0),
         "depth_rmse_m": float(np.sqrt(sums["sq_depth"] / sums["px"])),
+        # by the truth's depth (DEPTH_BINS_M): mean |disparity error| px and depth RMSE m
+        **{
+            f"{key}_{low:g}-{high:g}m": value
+            for (low, high), (count, error_sum, squares) in zip(
+                itertools.pairwise(DEPTH_BINS_M), bins, strict=True
+            )
+            for key, value in (
+                ("error_px", error_sum / max(count, 1.0)),
+                ("depth_rmse_m", float(np.sqrt(squares / max(count, 1.0)))),
+            )
+        },
+        # estimates at the depth cap where the truth is nearer (net count)
+        "capped_px": sums["capped"],
         "points": points / len(items),
         "adapted": float(adapted),
         "seconds": seconds,
@@ -694,6 +722,11 @@ def main(argv: list[str] | None = None) -> int:
         help="also score the pixels whose truth is nearer than the matcher's range",
     )
     parser.add_argument(
+        "--depth-bins",
+        action="store_true",
+        help="also score by the truth's depth: mean |disparity error| and depth RMSE per bin",
+    )
+    parser.add_argument(
         "--timing", action="store_true", help="also time the estimate alone per variant"
     )
     parser.add_argument(
@@ -748,6 +781,18 @@ def main(argv: list[str] | None = None) -> int:
         *(("geodesic_nn_px", "geodesic_sgbm_nn_px") if args.geodesic else ()),
         "coverage_2sigma",
         "depth_rmse_m",
+        *(
+            (
+                *(
+                    f"{key}_{low:g}-{high:g}m"
+                    for low, high in itertools.pairwise(DEPTH_BINS_M)
+                    for key in ("error_px", "depth_rmse_m")
+                ),
+                "capped_px",
+            )
+            if args.depth_bins
+            else ()
+        ),
         "points",
         "adapted",
         "seconds",
