@@ -116,7 +116,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
 }
 
 LATTICE = {"fill_placement": "lattice", "fill_min_support": 0.0}
-"""The default fill: the even 40 px lattice, no support check."""
+"""The lattice fill (the default before the nudged lattice): the even 40 px lattice."""
 
 # every variant above was measured with the lattice fill: they keep it
 for _name, _changes in VARIANTS.items():
@@ -135,6 +135,15 @@ VARIANTS.update(
         # front end's cost), the prior's disparity std, or the looked-up disparity, to the
         # power given; _support0.8 / 0.95: only candidates where >= 80 % (95 %) of SGBM's
         # 21 x 21 px are valid
+        # the lattice, each rejected point moved a quarter side to where a lookup passes
+        # (the default: nudge_min_support 0.9), with other shares of valid SGBM px around
+        # a moved point required
+        **{
+            f"nudged_support{_share:g}": {
+                "gftt": {**LATTICE, "fill_placement": "nudged", "nudge_min_support": _share}
+            }
+            for _share in (0.0, 0.5, 0.8, 0.9, 0.95)
+        },
         "fill_even": {"gftt": {"fill_placement": "even", "fill_min_support": 0.0}},
         "fill_even_support0.8": {"gftt": {"fill_placement": "even", "fill_min_support": 0.8}},
         "fill_even_support0.95": {"gftt": {"fill_placement": "even", "fill_min_support": 0.95}},

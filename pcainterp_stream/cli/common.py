@@ -87,6 +87,14 @@ def add_stereo_options(parser: argparse.ArgumentParser) -> None:
         "sharper and slower: 30 measured 12-13 %% lower error on KITTI for ~14 %% more CPU",
     )
     group.add_argument(
+        "--fill-placement",
+        choices=["nudged", "lattice"],
+        default=None,
+        help="nudged (default): a lattice point whose lookup fails is moved a quarter side "
+        "to where one passes; lattice: such a point is dropped (densify --measurements "
+        "dense: lattice)",
+    )
+    group.add_argument(
         "--num-disparities", type=int, default=None, metavar="N", help="SGBM disparity range"
     )
     group.add_argument("--block-size", type=int, default=None, metavar="N", help="SGBM block")
@@ -158,6 +166,8 @@ def gftt_config(args: argparse.Namespace, base: GfttConfig | None = None) -> Gft
         if not args.fill_spacing >= 0:
             raise PcaInterpError(f"--fill-spacing must be >= 0 px, got {args.fill_spacing}")
         changes["fill_spacing"] = args.fill_spacing
+    if getattr(args, "fill_placement", None) is not None:
+        changes["fill_placement"] = args.fill_placement
     config = GfttConfig() if base is None else base
     if changes.get("max_corners", config.max_corners) == 0:
         if changes.get("fill_spacing", config.fill_spacing) <= 0:

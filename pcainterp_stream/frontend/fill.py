@@ -1,14 +1,17 @@
-"""Where sparse mode's gap-filling lookups go: the lattice or a greedy fill (``fill_placement``).
+"""Where sparse mode's gap-filling lookups go (``GfttConfig.fill_placement``).
 
+* :func:`nudged_lattice` -- the lattice, each rejected point moved a quarter side to where
+  a lookup passes (the default);
 * :func:`weighted_fill` -- a greedy choice of a given number of points where the gap to
   the nearest measurement times a weight (1, the prior's std, the disparity) is largest;
 * :func:`fill_points` -- the points :func:`.stereo.sparse_lookups` looks up in the corners'
-  gaps: the lattice's, or as many chosen by :func:`greedy_fill`;
+  gaps: the lattice's, nudged or not, or as many chosen by :func:`greedy_fill`;
 * :func:`greedy_fill` -- the candidates (a lattice 4x finer than the fill's, looked up with
   the usual checks), their weights and the choice;
 * :func:`valid_share` -- the share of valid SGBM pixels around points.
 
-Maths and measurements: ``docs/sharper_sparse.md``, "Where the fill points go".
+Measurements: ``docs/sharper_sparse_2.md`` (the nudged lattice) and
+``docs/sharper_sparse.md``, "Where the fill points go" (the greedy fill).
 """
 
 from __future__ import annotations
@@ -35,6 +38,9 @@ class Looked(Protocol):
 
     @property
     def disparities(self) -> FloatArray: ...  # (m,) float32 px
+
+    @property
+    def indices(self) -> npt.NDArray[np.int64]: ...  # (m,) index of each kept point
 
 
 LookUp = Callable[[FloatArray], Looked]
@@ -72,10 +78,13 @@ def fill_points(
 
     ``"lattice"``: the points of :func:`lattice_points` with a 7x7 grey-level std of at
     least ``gftt.fill_min_contrast`` (and the support check when ``fill_min_support`` > 0).
+    ``"nudged"``: those of :func:`nudged_lattice` (the same checks, then the moves).
     Otherwise as many as those pass the lookups' checks, chosen by :func:`greedy_fill`
     (each then passes them again). Arguments as :func:`greedy_fill`'s.
     """
     points = lattice_points(kept, gftt.fill_spacing, area)
+    if gftt.fill_placement == "nudged":
+        return nudged_lattice(left_grey, disparity, gftt, area, points, look_up)
     points = points[patch_contrast(left_grey, points) >= gftt.fill_min_contrast]
     if gftt.fill_placement == "lattice":
         if gftt.fill_min_support > 0.0:
@@ -83,6 +92,69 @@ def fill_points(
         return points
     count = look_up(points).pixels.shape[0]
     return greedy_fill(left_grey, disparity, gftt, area, kept, count, look_up, prior_std)[0]
+
+
+NUDGES = np.array(
+    [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, 1), (1, -1), (-1, -1)], np.float32
+)
+"""The moves tried for a rejected lattice point, first passing one kept (x a quarter side)."""
+
+
+def nudged_lattice(
+    left_grey: npt.NDArray[np.uint8],
+    disparity: FloatArray,
+    gftt: GfttConfig,
+    area: tuple[int, int, int, int],
+    nodes: FloatArray,
+    look_up: LookUp,
+) -> FloatArray:
+    """The lattice's points, each rejected one moved a quarter side to where a lookup passes.
+
+    A lattice point whose lookup fails (too little contrast, an invalid or steep SGBM
+    patch) leaves its whole cell unmeasured. Here it is moved a quarter side along the
+    axes, else the diagonals, to the first position of :data:`NUDGES` that passes the same
+    checks (with ``fill_min_support`` > 0 its support check too) and at least
+    ``nudge_min_support`` valid SGBM pixels around it (:func:`valid_share`); one that
+    passes nowhere is dropped. A moved point stays over a quarter side from every kept
+    corner lookup (the lattice keeps half a side from them).
+
+    Args:
+        left_grey: (H, W) uint8 grey left image.
+        disparity: (H, W) float32 SGBM map (px), NaN where invalid.
+        gftt: the fill's settings.
+        area: (x0, y0, x1, y1) px searched.
+        nodes: (n, 2) float32 (x, y) px, the lattice's points (:func:`lattice_points`).
+        look_up: the lookups with their checks.
+
+    Returns:
+        (m, 2) float32 (x, y) px: the points that passed, then the moved ones.
+    """
+    textured = patch_contrast(left_grey, nodes) >= gftt.fill_min_contrast
+    if gftt.fill_min_support > 0.0:
+        textured &= valid_share(disparity, nodes) >= gftt.fill_min_support
+    passed = np.zeros(nodes.shape[0], bool)
+    passed[np.flatnonzero(textured)[look_up(nodes[textured]).indices]] = True
+    open_ = nodes[~passed]
+    if open_.shape[0] == 0:
+        return np.ascontiguousarray(nodes)
+    x0, y0, x1, y1 = area
+    trials = open_[:, None, :] + np.float32(gftt.fill_spacing / 4.0) * NUDGES[None, :, :]
+    trials = trials.reshape(-1, 2)
+    ok = (trials[:, 0] >= x0) & (trials[:, 0] <= x1 - 1)
+    ok &= (trials[:, 1] >= y0) & (trials[:, 1] <= y1 - 1)
+    where = np.flatnonzero(ok)
+    where = where[look_up(trials[where]).indices]
+    where = where[patch_contrast(left_grey, trials[where]) >= gftt.fill_min_contrast]
+    support = max(gftt.fill_min_support, gftt.nudge_min_support)
+    if support > 0.0:
+        where = where[valid_share(disparity, trials[where]) >= support]
+    hit = np.zeros(trials.shape[0], bool)
+    hit[where] = True
+    hits = hit.reshape(open_.shape[0], NUDGES.shape[0])  # per open point, per move
+    found = hits.any(axis=1)
+    first = hits.argmax(axis=1)[found]
+    moved = trials.reshape(open_.shape[0], NUDGES.shape[0], 2)[found, first]
+    return np.ascontiguousarray(np.concatenate([nodes[passed], moved]), dtype=np.float32)
 
 
 def greedy_fill(

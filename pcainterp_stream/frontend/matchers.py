@@ -32,7 +32,7 @@ DEFAULT_DENSE_MATCHER = "refined"
 """The ``--dense-matcher`` of ``densify --measurements dense`` when none is given."""
 
 
-DENSE_GFTT = GfttConfig(max_corners=0, fill_spacing=34.0)
+DENSE_GFTT = GfttConfig(max_corners=0, fill_spacing=34.0, fill_placement="lattice")
 """The points of dense mode's own sparse estimate (the field that fills SGBM's holes and
 weighs its matches) at full resolution: a lattice of SGBM lookups 34 px apart over the
 whole searched area, no Shi-Tomasi corners. The corners cluster on texture and on object
@@ -40,14 +40,18 @@ outlines, where a lookup is least sure and where a hole's surface is not; the ev
 fills the holes better on real and synthetic truth alike, with fewer points and no corner
 detector (docs/dense.md). ``--corners`` and ``--fill-spacing`` change it."""
 
+HALF_DENSE_GFTT = GfttConfig(fill_placement="lattice")
+"""The points of dense mode's sparse estimate at half resolution: sparse mode's corners and
+40 px lattice, its points not nudged (dense mode was measured with the plain lattice)."""
+
 
 def dense_points(downscale: int | None = None) -> GfttConfig:
     """Return the points of dense mode's sparse estimate for its matcher's ``downscale``.
 
     :data:`DENSE_GFTT`, except at half resolution (``downscale`` 2), where the upsampled map
-    is better served by the sparse mode's corners and lattice (``GfttConfig()``).
+    is better served by the sparse mode's corners and lattice (:data:`HALF_DENSE_GFTT`).
     """
-    return GfttConfig() if downscale == 2 else DENSE_GFTT
+    return HALF_DENSE_GFTT if downscale == 2 else DENSE_GFTT
 
 
 def dense_matcher(name: str | None, downscale: int | None = None) -> str:
