@@ -115,8 +115,9 @@ def nudged_lattice(
     axes, else the diagonals, to the first position of :data:`NUDGES` that passes the same
     checks (with ``fill_min_support`` > 0 its support check too) and at least
     ``nudge_min_support`` valid SGBM pixels around it (:func:`valid_share`); one that
-    passes nowhere is dropped. A moved point stays over a quarter side from every kept
-    corner lookup (the lattice keeps half a side from them).
+    passes nowhere is dropped. A moved point stays farther than (1/2 - sqrt(2)/4) of a
+    side (~0.15 s, 5.9 px at 40) from every kept corner lookup: the lattice keeps half a
+    side from them and a diagonal move is sqrt(2)/4 of a side.
 
     Args:
         left_grey: (H, W) uint8 grey left image.
