@@ -144,6 +144,8 @@ VARIANTS.update(
             }
             for _share in (0.0, 0.5, 0.8, 0.9, 0.95)
         },
+        # the nudged lattice (the default) at other sides
+        **{f"nudged_fill{_side}": {"gftt": {"fill_spacing": float(_side)}} for _side in (34, 36)},
         "fill_even": {"gftt": {"fill_placement": "even", "fill_min_support": 0.0}},
         "fill_even_support0.8": {"gftt": {"fill_placement": "even", "fill_min_support": 0.8}},
         "fill_even_support0.95": {"gftt": {"fill_placement": "even", "fill_min_support": 0.95}},
