@@ -1208,6 +1208,31 @@ def test_learn_bad_option(
     assert_nothing_written(target)
 
 
+def test_learn_passes_its_corner_and_lattice_options_on(
+    pcainterp: Callable[..., Run],
+    small_log: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # the fitting frames are measured as densify would with the same options
+    from pcainterp_stream.pipeline import learn as learning
+
+    seen: list[learning.LearnOptions] = []
+
+    def capture(
+        logs: object, output: object, options: learning.LearnOptions, *rest: object
+    ) -> None:
+        seen.append(options)
+        raise SystemExit(0)
+
+    monkeypatch.setattr(learning, "learn", capture)
+    args = ["--corners", "120", "--fill-spacing", "36", "--fill-placement", "lattice"]
+    with pytest.raises(SystemExit):
+        pcainterp("learn", small_log, "-o", tmp_path / "basis.npz", *args)
+    gftt = seen[0].gftt
+    assert (gftt.max_corners, gftt.fill_spacing, gftt.fill_placement) == (120, 36.0, "lattice")
+
+
 def test_learn_help_states_the_auto_rule(capsys: pytest.CaptureFixture[str]) -> None:
     from pcainterp_stream.estimate.finetune import ASPECT_TOLERANCE, DISPARITY_TOLERANCE
     from pcainterp_stream.pipeline.learn import AUTO_MAX_MAPS, AUTO_PRIOR_MAPS

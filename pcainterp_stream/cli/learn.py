@@ -12,6 +12,7 @@ from pcainterp_stream.cli.common import (
     add_stereo_options,
     echo,
     formatter,
+    gftt_config,
     sgbm_config,
 )
 from pcainterp_stream.cli.pairing import add_topic_options, pairing_config
@@ -122,6 +123,7 @@ def run(args: argparse.Namespace) -> int:
         depth_topic=args.depth_topic,
         every=args.every,
         sgbm=sgbm_config(args),
+        gftt=gftt_config(args),
         fit_prior=args.fit_prior is not False,
         holdout=args.holdout,
         fit_logs=tuple(args.fit_logs),
