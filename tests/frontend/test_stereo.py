@@ -43,6 +43,10 @@ D_BACK, D_FRONT = 10.3, 20.6  # fractional on purpose: sub-pixel recovery is tes
 RECT = (150, 50, 250, 110)  # x0, y0, x1, y1 of the nearer rectangle in the left image
 SGBM = SgbmConfig(num_disparities=32)
 GFTT = GfttConfig(max_corners=300, min_distance=5.0)
+LATTICE_24 = GfttConfig(
+    max_corners=20, min_distance=5.0, fill_spacing=24.0, fill_placement="lattice"
+)
+"""20 corners and the plain lattice of side 24 px in their gaps (no point moved)."""
 
 
 def _texture(rng: np.random.Generator, height: int, width: int) -> npt.NDArray[np.float32]:
@@ -195,13 +199,7 @@ def test_lattice_points_fill_only_the_gaps() -> None:
 def test_lattice_lookups_measure_the_gaps(pair: tuple[npt.NDArray[Any], ...]) -> None:
     left, right, truth = pair
     corners_only = GfttConfig(max_corners=20, min_distance=5.0, fill_spacing=0.0)
-    filled = GfttConfig(
-        max_corners=20,
-        min_distance=5.0,
-        fill_spacing=24.0,
-        fill_placement="lattice",
-        fill_min_support=0.0,
-    )
+    filled = LATTICE_24
     sparse = StereoFrontEnd(gftt=corners_only, sgbm=SGBM).measure(left, right)
     dense = StereoFrontEnd(gftt=filled, sgbm=SGBM).measure(left, right)
     assert dense.counts.kept >= sparse.counts.kept + 40
@@ -769,13 +767,7 @@ def _placed(
 ) -> tuple[Any, Any, npt.NDArray[np.float32]]:
     """The lattice's measurements, a placement's, and its fill points."""
     left, right, _ = pair
-    lattice = GfttConfig(
-        max_corners=20,
-        min_distance=5.0,
-        fill_spacing=24.0,
-        fill_placement="lattice",
-        fill_min_support=0.0,
-    )
+    lattice = LATTICE_24
     placed = replace(lattice, fill_placement=placement)
     # a prior std growing downwards, 1 px at the top to 9 px at the bottom
     prior_std = np.repeat(np.linspace(1.0, 9.0, 8, dtype=np.float32)[:, None], 16, axis=1)
