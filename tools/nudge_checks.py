@@ -1,0 +1,179 @@
+"""Checks behind docs/sharper_sparse_2.md that ``sparse_sharpness.py`` does not print.
+
+Three reports on the sources of ``tools/sparse_sharpness.py`` (the same frames, cached in
+the same work folder; run that tool once first, or let this one build them):
+
+* ``counts`` -- per frame, the lattice's points, how many fail their lookup or contrast,
+  and how many the default nudged lattice moves to where a lookup passes;
+* ``moves`` -- the mean |disparity error| of the default with other move sets for a
+  failed point (the axes alone; eighth-side moves before the quarter-side ones);
+* ``near-std`` -- the +-2 sigma coverage if the std were raised where the estimate nears
+  the matcher's range, std'^2 = std^2 + (k max(0, d - (range - w)))^2, per source, over
+  all pixels and over those whose truth lies beyond the range.
+
+Examples::
+
+    python tools/nudge_checks.py counts
+    python tools/nudge_checks.py moves --sources lidar synth
+    python tools/nudge_checks.py near-std
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import harness
+import numpy as np
+import sparse_sharpness as sharpness
+
+import pcainterp_stream.frontend.fill as fill
+from pcainterp_stream.frontend.corners import lattice_points, patch_contrast
+from pcainterp_stream.frontend.stereo import (
+    LookupConfig,
+    compute_disparity,
+    detect_corners,
+    lookup_disparities,
+    to_grey8,
+)
+from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
+
+Items = list[tuple[Any, Any]]
+
+AXES = [(1, 0), (-1, 0), (0, 1), (0, -1)]
+DIAGONALS = [(1, 1), (-1, 1), (1, -1), (-1, -1)]
+MOVE_SETS = {
+    "default": AXES + DIAGONALS,
+    "axes_only": AXES,
+    "eighth_then_quarter": [(a / 2, b / 2) for a, b in AXES + DIAGONALS] + AXES + DIAGONALS,
+}
+"""Move sets for a failed lattice point, in units of a quarter side, tried in order."""
+
+NEAR_STD = [(16, 0.5), (16, 1.0), (16, 1.5), (32, 0.5), (32, 1.0)]
+"""(w px, k) of the near-range std term."""
+
+
+def counts(items: Items) -> str:
+    """Lattice points, failed and moved ones per frame, with the default settings."""
+    config = ProcessorConfig()
+    gftt, checks = config.gftt, LookupConfig()
+    nodes = failed = moved = 0
+    for frame, _ in items:
+        grey = to_grey8(frame.left)
+        disparity = compute_disparity(frame.left, frame.right, config.sgbm)
+        min_x = config.sgbm.valid_min_x
+        corners = lookup_disparities(disparity, detect_corners(grey, gftt, min_x=min_x))
+        height, width = grey.shape
+        area = (max(gftt.border, min_x), gftt.border, width - gftt.border, height - gftt.border)
+        lattice = lattice_points(corners.pixels, gftt.fill_spacing, area)
+        look_up = partial(
+            lookup_disparities,
+            disparity,
+            max_gradient=checks.max_gradient,
+            discontinuity_radius=checks.discontinuity_radius,
+        )
+        textured = patch_contrast(grey, lattice) >= gftt.fill_min_contrast
+        passed = look_up(lattice[textured]).counts.kept
+        placed = fill.nudged_lattice(grey, disparity, gftt, area, lattice, look_up)
+        nodes += len(lattice)
+        failed += len(lattice) - passed
+        moved += len(placed) - passed
+    frames = len(items)
+    return (
+        f"lattice points {nodes / frames:.1f}, failed {failed / frames:.1f}, "
+        f"moved {moved / frames:.1f} per frame"
+    )
+
+
+def moves(items: Items) -> str:
+    """Mean |disparity error| (px) of the default with each move set."""
+    saved = fill.NUDGES
+    parts = []
+    try:
+        for name, steps in MOVE_SETS.items():
+            fill.NUDGES = np.array(steps, np.float32)
+            figures = sharpness.score(items, ProcessorConfig(), None)
+            parts.append(f"{name} {figures['error_px']:.3f}")
+    finally:
+        fill.NUDGES = saved
+    return "mean |disparity error| px: " + ", ".join(parts)
+
+
+def near_std(items: Items) -> str:
+    """+-2 sigma coverage, all pixels and beyond the range, with the near-range std term."""
+    config = ProcessorConfig()
+    reach = config.sgbm.num_disparities
+    with FrameProcessor(None, config) as processor:
+        results = list(processor.process([frame for frame, _ in items]))
+    sums = {setting: np.zeros(5) for setting in [(0, 0.0), *NEAR_STD]}
+    for (_, truth), result in zip(items, results, strict=True):
+        valid = np.isfinite(truth) & (truth > 0)
+        estimate, std = result.disparity[valid], result.disparity_std[valid]
+        error = np.abs(estimate - truth[valid])
+        beyond = truth[valid] >= reach
+        for (width, k), acc in sums.items():
+            extra = k * np.maximum(estimate - (reach - width), 0.0)
+            inside = error <= 2.0 * np.sqrt(std**2 + extra**2)
+            acc += (
+                valid.sum(),
+                inside.sum(),
+                beyond.sum(),
+                inside[beyond].sum(),
+                (extra > 0).sum(),
+            )
+    lines = []
+    for (width, k), (px, inside, beyond, inside_beyond, touched) in sums.items():
+        label = "as shipped" if k == 0 else f"w {width} k {k:g}"
+        near = f"{100 * inside_beyond / beyond:.1f} %" if beyond else "none"
+        lines.append(
+            f"  {label}: {100 * inside / px:.2f} % (beyond the range: {near} of "
+            f"{int(beyond)} px; std raised at {100 * touched / px:.2f} % of the pixels)"
+        )
+    return "+-2 sigma coverage\n" + "\n".join(lines)
+
+
+REPORTS: dict[str, Callable[[Items], str]] = {
+    "counts": counts,
+    "moves": moves,
+    "near-std": near_std,
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the chosen report for each source."""
+    parser = harness.argument_parser(__doc__)
+    parser.add_argument("report", choices=sorted(REPORTS))
+    harness.add_work_dir(parser, Path("/tmp/sparse_sharpness"))
+    harness.add_realdata(parser)
+    parser.add_argument(
+        "--sources",
+        nargs="+",
+        default=["lidar", "synth", "odometry", "raw"],
+        choices=["lidar", "synth", "odometry", "raw"],
+    )
+    args = parser.parse_args(argv)
+    work = harness.work_dir(args.work_dir)
+    realdata: Path = args.realdata
+    makers: dict[str, tuple[str, Callable[[], Iterator[tuple[Any, Any]]]]] = {
+        "lidar": ("lidar", lambda: sharpness._lidar_frames(realdata)),
+        "synth": ("synth_9001_9002_20", lambda: sharpness._synth_frames([9001, 9002], 20)),
+        "odometry": (
+            "odometry_40",
+            lambda: sharpness._kitti_frames(realdata / harness.KITTI_ODOMETRY_CLIP, 40),
+        ),
+        "raw": (
+            "raw_40",
+            lambda: sharpness._kitti_frames(realdata / harness.KITTI_RAW_0001, 40),
+        ),
+    }
+    for source in args.sources:
+        tag, make = makers[source]
+        items = sharpness._cached(work, tag, make)
+        print(f"{source} ({len(items)} frames): {REPORTS[args.report](items)}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
