@@ -60,7 +60,7 @@ def score_clip(
     """
     gftt = gftt or dense_points()
     basis = Basis.default()
-    settings = resolve_settings(basis, ProcessorConfig())
+    settings = resolve_settings(basis, ProcessorConfig(measurements="dense"))
     sgbm = DENSE_MATCHERS[matcher]
     left_band = SgbmConfig().band  # the blocks lie where any matcher has the whole range
     rng = np.random.default_rng(seed)

@@ -60,7 +60,7 @@ def calibration(
     """
     gftt = gftt or dense_points(downscale)
     basis = Basis.default()
-    options = resolve_settings(basis, ProcessorConfig()).densify_options()
+    options = resolve_settings(basis, ProcessorConfig(measurements="dense")).densify_options()
     sgbm = SgbmConfig(downscale=downscale)
     # as densify: at half resolution there is nothing to refine (the whole range, halved)
     name = dense_matcher(matcher, downscale)

@@ -66,6 +66,7 @@ from pcainterp_stream.estimate.variance import (
     _pixel_variances,
     _variance_stride,
     _variances,
+    widen_near_range,
 )
 
 __all__ = [
@@ -159,6 +160,7 @@ def densify(
     scale_by_innovation: bool = False,
     noise_std: npt.ArrayLike | None = None,
     edge_map: npt.ArrayLike | None = None,
+    match_range: float | None = None,
 ) -> DensifyResult:
     """Densify one frame's sparse disparities with the MAP estimate.
 
@@ -198,6 +200,9 @@ def densify(
             resolution (px, <= 0 or NaN unknown; e.g. the front end's SGBM map), along which
             an edge-aware ``local_prior`` (``cell_weight`` < 1) partitions the image among
             the kept measurements (:class:`cells.Partition`); None: the stationary kernel.
+        match_range: the largest disparity (px of the output camera) the measurements'
+            matcher returns (SGBM's range): the std is widened where the estimate nears it
+            (:func:`variance.widen_near_range`); None: the std as the model gives it.
 
     Returns:
         The :class:`DensifyResult`. Zero usable measurements give the prior (mean map,
@@ -230,6 +235,7 @@ def densify(
         scale_by_innovation=scale_by_innovation,
         noise_stds=None if noise_std is None else [noise_std],
         partitions=None if partition is None else [partition],
+        match_range=match_range,
     )[0]
 
 
@@ -254,6 +260,7 @@ def densify_batch(
     with_depth: bool = True,
     with_depth_std: bool = True,
     partitions: Sequence[Partition | Seeding | None] | None = None,
+    match_range: float | None = None,
 ) -> list[DensifyResult]:
     """Densify several frames at once with matrix-matrix products across frames.
 
@@ -292,6 +299,7 @@ def densify_batch(
             each frame's own measurements; a measurement is in the cell of the grid node it
             falls on), or their :class:`cells.Seeding` (searched here, the batch's at once);
             None: the stationary kernel.
+        match_range: the matcher's largest disparity (px), see :func:`densify`; None: off.
 
     Returns:
         One :class:`DensifyResult` per frame, in order.
@@ -315,6 +323,8 @@ def densify_batch(
     )
     if not (np.isfinite(std_scale) and std_scale > 0):
         raise ValueError(f"Expected `std_scale` > 0, got {std_scale}")
+    if match_range is not None and not (np.isfinite(match_range) and match_range > 0):
+        raise ValueError(f"Expected `match_range` > 0 or None, got {match_range}")
     mode = Uncertainty(uncertainty)
     form = SolveForm(solve_form)
     out_size = _image_size(basis, image_size)
@@ -439,6 +449,8 @@ def densify_batch(
                 frame_scale / to_basis
             )
             disparity_std = resample_grid(grid_std.reshape(variance_size), out_size)
+            if match_range is not None:
+                widen_near_range(disparity, disparity_std, match_range)
         # REP 118: a disparity below one noise std cannot be told from 0 (infinity)
         min_disparity = posterior.sigma / to_basis
         depth, depth_std = (

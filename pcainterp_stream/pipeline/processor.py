@@ -68,6 +68,7 @@ from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
 from pcainterp_stream.estimate.lapack import routines
 from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
 from pcainterp_stream.estimate.variance import _variance_stride, prior_std_map
+from pcainterp_stream.frontend.features import features_to_measurements
 from pcainterp_stream.frontend.motion import CarriedPoints, CarryConfig, Motion, estimate_motion
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
@@ -85,7 +86,7 @@ from pcainterp_stream.pipeline.adaptation import (
     sgbm_maps,
 )
 from pcainterp_stream.pipeline.threads import ThreadLimits, finished, gathered, lower_priority
-from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoCamera, StereoFrame
+from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoFrame
 
 
 class MeasurementSource(enum.Enum):
@@ -254,6 +255,8 @@ class EstimateSettings:
         process_noise: the temporal prior's process noise.
         std_scale: calibration factor on the reported std (1: the posterior std).
         scale_by_innovation: also scale each frame's std by its covariance scale.
+        match_range: SGBM's largest disparity (px; sparse stereo mode), near which the std
+            is widened (:func:`~pcainterp_stream.estimate.variance.widen_near_range`).
     """
 
     sigma: float | str
@@ -261,18 +264,21 @@ class EstimateSettings:
     process_noise: float
     std_scale: float = 1.0
     scale_by_innovation: bool = False
+    match_range: float | None = None
 
     def densify_options(self) -> dict[str, Any]:
         """Return the keyword arguments of :func:`~estimator.densify` these settings fill.
 
-        ``sigma``, ``local_prior``, ``std_scale`` and ``scale_by_innovation``: the
-        processor's estimate, for tools that call ``densify`` as ``densify`` the command does.
+        ``sigma``, ``local_prior``, ``std_scale``, ``scale_by_innovation`` and
+        ``match_range``: the processor's estimate, for tools that call ``densify`` as
+        ``densify`` the command does.
         """
         return {
             "sigma": self.sigma,
             "local_prior": self.local_prior,
             "std_scale": self.std_scale,
             "scale_by_innovation": self.scale_by_innovation,
+            "match_range": self.match_range,
         }
 
 
@@ -317,12 +323,15 @@ def resolve_settings(basis: Basis, config: ProcessorConfig) -> EstimateSettings:
         scale_by_innovation = "innovation_std_scale" in fitted
         key = "innovation_std_scale" if scale_by_innovation else "std_scale"
         std_scale = float(fitted.get(key, 1.0))
+    stereo = config.source is MeasurementSource.STEREO and config.measurements == "sparse"
     return EstimateSettings(
         sigma=sigma,
         local_prior=local,
         process_noise=process_noise,
         std_scale=std_scale,
         scale_by_innovation=scale_by_innovation,
+        # the largest disparity SGBM returns, in the images' px
+        match_range=config.sgbm.matched().band * config.sgbm.downscale if stereo else None,
     )
 
 
@@ -343,42 +352,6 @@ class _Measured(NamedTuple):
     held_out: adapt.HeldOut | None = None
     holes: MapHoles | None = None  # the map's holes and their neighbours (dense mode only)
     partition: Seeding | None = None  # along SGBM's map, for an edge-aware prior
-
-
-def features_to_measurements(
-    features: SparseFeatures | None, camera: StereoCamera
-) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32], dict[str, int]]:
-    """Project sparse 3-D points of the left optical frame to pixels and disparities.
-
-    Args:
-        features: the frame's points, or None when the stream has none for this stamp.
-        camera: the stereo calibration.
-
-    Returns:
-        pixels (k, 2) float32 (x, y) px, disparities (k,) float32 px = f*b / z, and counts
-        (points, behind the camera or outside the image).
-    """
-    if features is None or features.points.size == 0:
-        empty = np.zeros((0, 2), dtype=np.float32)
-        return empty, np.zeros(0, dtype=np.float32), {"features": 0, "features_rejected": 0}
-    points = features.points.astype(np.float64)
-    z = points[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = camera.fx * points[:, 0] / z + camera.cx
-        v = camera.fy * points[:, 1] / z + camera.cy
-        disparity = camera.focal_baseline / z
-    keep = (
-        np.isfinite(u)
-        & np.isfinite(v)
-        & (z > 0)
-        & (u >= -0.5)
-        & (u <= camera.width - 0.5)
-        & (v >= -0.5)
-        & (v <= camera.height - 0.5)
-    )
-    pixels = np.stack([u[keep], v[keep]], axis=1).astype(np.float32)
-    counts = {"features": int(points.shape[0]), "features_rejected": int((~keep).sum())}
-    return pixels, disparity[keep].astype(np.float32), counts
 
 
 class FrameProcessor:

@@ -520,3 +520,43 @@ def test_exact_without_a_local_part_is_its_bilinear_form(
             assert b.disparity_std is not None
             assert a.disparity_std.shape == out_size
             np.testing.assert_allclose(a.disparity_std, b.disparity_std, rtol=1e-4, atol=1e-5)
+
+
+@settings(max_examples=examples(50), deadline=None)
+@given(
+    seed=seeds,
+    match_range=st.sampled_from([16.0, 64.0, 128.0, 256.0]),
+    top=st.floats(min_value=1.0, max_value=400.0),
+)
+def test_near_range_widening_raises_the_std_only_near_the_range(
+    seed: int, match_range: float, top: float
+) -> None:
+    rng = np.random.default_rng(seed)
+    disparity = rng.uniform(0.0, top, (9, 11)).astype(np.float32)
+    std = rng.uniform(0.1, 20.0, (9, 11)).astype(np.float32)
+    widened = variance.widen_near_range(disparity, std.copy(), match_range)
+    start = variance.NEAR_RANGE_START * match_range
+    far = disparity <= np.float32(start)
+    np.testing.assert_array_equal(widened[far], std[far])
+    excess = variance.NEAR_RANGE_SLOPE * (disparity[~far].astype(np.float64) - start)
+    np.testing.assert_allclose(widened[~far], np.hypot(std[~far], excess), rtol=1e-5)
+    assert np.all(widened >= std)
+
+
+def test_match_range_widens_the_std_of_near_estimates_only() -> None:
+    basis = random_basis(3, image_size=(35, 45))
+    pixels = random_pixels(np.random.default_rng(4), 12, basis.image_size)
+    disparities = np.linspace(5.0, 60.0, 12)
+    plain = densify(basis, pixels, disparities, sigma=1.0)
+    near = densify(basis, pixels, disparities, sigma=1.0, match_range=64.0)
+    assert plain.disparity_std is not None and near.disparity_std is not None
+    assert plain.depth_std is not None and near.depth_std is not None
+    np.testing.assert_array_equal(near.disparity, plain.disparity)
+    beyond = plain.disparity > 32.0
+    assert beyond.any() and (~beyond).any()
+    np.testing.assert_array_equal(near.disparity_std[~beyond], plain.disparity_std[~beyond])
+    assert np.all(near.disparity_std[beyond] > plain.disparity_std[beyond])
+    assert np.all(near.depth_std[beyond] > plain.depth_std[beyond])  # the depth's std follows
+    for bad in (0.0, -5.0, float("nan")):
+        with pytest.raises(ValueError, match="match_range"):
+            densify(basis, pixels, disparities, match_range=bad)

@@ -232,3 +232,27 @@ def test_resolve_settings_calibrates_as_the_fit_did() -> None:
     settings = resolve_settings(with_both, ProcessorConfig(prior="paper"))
     assert not settings.scale_by_innovation
     assert settings.std_scale == 1.0
+
+
+def test_resolve_settings_widens_the_std_near_sgbms_range_in_sparse_stereo_mode() -> None:
+    from pcainterp_stream.frontend.stereo import SgbmConfig
+    from pcainterp_stream.pipeline.processor import (
+        MeasurementSource,
+        ProcessorConfig,
+        resolve_settings,
+    )
+
+    basis = _tiny_basis()
+    assert resolve_settings(basis, ProcessorConfig()).match_range == 128
+    assert resolve_settings(basis, ProcessorConfig()).densify_options()["match_range"] == 128
+    narrow = ProcessorConfig(sgbm=SgbmConfig(num_disparities=64, downscale=2))
+    assert resolve_settings(basis, narrow).match_range == 64
+    # a range that is no multiple of 32 is matched at half resolution as the next one up
+    odd = ProcessorConfig(sgbm=SgbmConfig(num_disparities=80, downscale=2))
+    assert resolve_settings(basis, odd).match_range == 96
+    full = ProcessorConfig(sgbm=SgbmConfig(num_disparities=96, min_disparity=8))
+    assert resolve_settings(basis, full).match_range == 104
+    # dense mode fuses SGBM's map itself; a feature stream's points have no known range
+    assert resolve_settings(basis, ProcessorConfig(measurements="dense")).match_range is None
+    features = ProcessorConfig(source=MeasurementSource.FEATURES)
+    assert resolve_settings(basis, features).match_range is None

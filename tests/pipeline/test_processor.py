@@ -25,8 +25,8 @@ from pcainterp_stream.pipeline.processor import (
     FrameProcessor,
     MeasurementSource,
     ProcessorConfig,
-    features_to_measurements,
 )
+from pcainterp_stream.frontend.features import features_to_measurements
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoCamera, StereoFrame
 
 HEIGHT, WIDTH = 94, 310  # a quarter of KITTI's 376 x 1241
