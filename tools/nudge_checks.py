@@ -7,9 +7,11 @@ the same work folder; run that tool once first, or let this one build them):
   and how many the default nudged lattice moves to where a lookup passes;
 * ``moves`` -- the mean |disparity error| of the default with other move sets for a
   failed point (the axes alone; eighth-side moves before the quarter-side ones);
-* ``near-std`` -- the +-2 sigma coverage if the std were raised where the estimate nears
-  the matcher's range, std'^2 = std^2 + (k max(0, d - (range - w)))^2, per source, over
-  all pixels and over those whose truth lies beyond the range.
+* ``near-std`` -- the +-2 sigma coverage and the mean Gaussian negative log-likelihood of
+  the posterior std (the widening near the matcher's range turned off) and of that std
+  widened as std'^2 = std^2 + (k max(0, d - (range - w)))^2 for several (w, k), the
+  default's (``variance.widen_near_range``: w = range / 2, k = 0.5) among them, per
+  source, over all pixels and over those whose truth lies beyond the range.
 
 Examples::
 
@@ -29,6 +31,7 @@ import harness
 import numpy as np
 import sparse_sharpness as sharpness
 
+import pcainterp_stream.estimate.variance as variance
 import pcainterp_stream.frontend.fill as fill
 from pcainterp_stream.frontend.corners import lattice_points, patch_contrast
 from pcainterp_stream.frontend.stereo import (
@@ -51,8 +54,8 @@ MOVE_SETS = {
 }
 """Move sets for a failed lattice point, in units of a quarter side, tried in order."""
 
-NEAR_STD = [(16, 0.5), (16, 1.0), (16, 1.5), (32, 0.5), (32, 1.0)]
-"""(w px, k) of the near-range std term."""
+NEAR_STD = [(16, 1.0), (32, 1.0), (48, 0.5), (48, 1.0), (64, 0.5), (64, 1.0), (80, 0.5), (96, 0.5)]
+"""(w px, k) of the near-range std term; (64, 0.5) is the default's at SGBM's 128 px."""
 
 
 def counts(items: Items) -> str:
@@ -102,34 +105,43 @@ def moves(items: Items) -> str:
 
 
 def near_std(items: Items) -> str:
-    """+-2 sigma coverage, all pixels and beyond the range, with the near-range std term."""
+    """+-2 sigma coverage and NLL, all pixels and beyond the range, with the near-range term."""
     config = ProcessorConfig()
-    reach = config.sgbm.num_disparities
-    with FrameProcessor(None, config) as processor:
-        results = list(processor.process([frame for frame, _ in items]))
-    sums = {setting: np.zeros(5) for setting in [(0, 0.0), *NEAR_STD]}
+    reach = config.sgbm.band
+    saved = variance.NEAR_RANGE_SLOPE
+    variance.NEAR_RANGE_SLOPE = 0.0  # the posterior std as the model gives it
+    try:
+        with FrameProcessor(None, config) as processor:
+            results = list(processor.process([frame for frame, _ in items]))
+    finally:
+        variance.NEAR_RANGE_SLOPE = saved
+    sums = {setting: np.zeros(6) for setting in [(0, 0.0), *NEAR_STD]}
     for (_, truth), result in zip(items, results, strict=True):
         valid = np.isfinite(truth) & (truth > 0)
-        estimate, std = result.disparity[valid], result.disparity_std[valid]
+        estimate = result.disparity[valid].astype(np.float64)
+        std = result.disparity_std[valid].astype(np.float64)
         error = np.abs(estimate - truth[valid])
         beyond = truth[valid] >= reach
         for (width, k), acc in sums.items():
             extra = k * np.maximum(estimate - (reach - width), 0.0)
-            inside = error <= 2.0 * np.sqrt(std**2 + extra**2)
+            widened = np.sqrt(std**2 + extra**2)
+            inside = error <= 2.0 * widened
+            nll = np.log(widened) + 0.5 * np.log(2 * np.pi) + 0.5 * (error / widened) ** 2
             acc += (
                 valid.sum(),
                 inside.sum(),
                 beyond.sum(),
                 inside[beyond].sum(),
                 (extra > 0).sum(),
+                nll.sum(),
             )
     lines = []
-    for (width, k), (px, inside, beyond, inside_beyond, touched) in sums.items():
-        label = "as shipped" if k == 0 else f"w {width} k {k:g}"
+    for (width, k), (px, inside, beyond, inside_beyond, touched, nll) in sums.items():
+        label = "posterior std" if k == 0 else f"w {width} k {k:g}"
         near = f"{100 * inside_beyond / beyond:.1f} %" if beyond else "none"
         lines.append(
-            f"  {label}: {100 * inside / px:.2f} % (beyond the range: {near} of "
-            f"{int(beyond)} px; std raised at {100 * touched / px:.2f} % of the pixels)"
+            f"  {label}: {100 * inside / px:.2f} %, NLL {nll / px:.4f} (beyond the range: "
+            f"{near} of {int(beyond)} px; std raised at {100 * touched / px:.2f} % of the pixels)"
         )
     return "+-2 sigma coverage\n" + "\n".join(lines)
 
