@@ -552,7 +552,7 @@ def test_match_range_widens_the_std_of_near_estimates_only() -> None:
     assert plain.disparity_std is not None and near.disparity_std is not None
     assert plain.depth_std is not None and near.depth_std is not None
     np.testing.assert_array_equal(near.disparity, plain.disparity)
-    beyond = plain.disparity > 32.0
+    beyond = plain.disparity > variance.NEAR_RANGE_START * 64.0
     assert beyond.any() and (~beyond).any()
     np.testing.assert_array_equal(near.disparity_std[~beyond], plain.disparity_std[~beyond])
     assert np.all(near.disparity_std[beyond] > plain.disparity_std[beyond])
