@@ -1,6 +1,6 @@
 """Checks behind docs/sharper_sparse_2.md that ``sparse_sharpness.py`` does not print.
 
-Three reports on the sources of ``tools/sparse_sharpness.py`` (the same frames, cached in
+Four reports on the sources of ``tools/sparse_sharpness.py`` (the same frames, cached in
 the same work folder; run that tool once first, or let this one build them):
 
 * ``counts`` -- per frame, the lattice's points, how many fail their lookup or contrast,
@@ -11,13 +11,16 @@ the same work folder; run that tool once first, or let this one build them):
   the posterior std (the widening near the matcher's range turned off) and of that std
   widened as std'^2 = std^2 + (k max(0, d - (range - w)))^2 for several (w, k), the
   default's (``variance.widen_near_range``: w = range / 2, k = 0.5) among them, per
-  source, over all pixels and over those whose truth lies beyond the range.
+  source, over all pixels and over those whose truth lies beyond the range;
+* ``std-scale`` -- the same for the calibrated std times a common factor (< 1: narrower),
+  the near-range widening as shipped.
 
 Examples::
 
     python tools/nudge_checks.py counts
     python tools/nudge_checks.py moves --sources lidar synth
     python tools/nudge_checks.py near-std
+    python tools/nudge_checks.py std-scale
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from typing import Any
 
 import harness
 import numpy as np
+import numpy.typing as npt
 import sparse_sharpness as sharpness
 
 import pcainterp_stream.estimate.variance as variance
@@ -55,7 +59,14 @@ MOVE_SETS = {
 """Move sets for a failed lattice point, in units of a quarter side, tried in order."""
 
 NEAR_STD = [(16, 1.0), (32, 1.0), (48, 0.5), (48, 1.0), (64, 0.5), (64, 1.0), (80, 0.5), (96, 0.5)]
-"""(w px, k) of the near-range std term; (64, 0.5) is the default's at SGBM's 128 px."""
+"""(w px, k) of the near-range std term; (32, 1) is the default's at SGBM's 128 px."""
+
+STD_SCALES = [1.0, 0.97, 0.95, 0.92, 0.9]
+"""Common factors on the built-in basis's calibrated std (the near-range term as shipped)."""
+
+Array = npt.NDArray[np.float64]
+Widen = Callable[[Array, Array], Array]
+"""The std a check reports, from the estimate and the posterior std (px, valid pixels)."""
 
 
 def counts(items: Items) -> str:
@@ -106,38 +117,63 @@ def moves(items: Items) -> str:
 
 def near_std(items: Items) -> str:
     """+-2 sigma coverage and NLL, all pixels and beyond the range, with the near-range term."""
+    reach = ProcessorConfig().sgbm.band
+
+    def widen(width: int, k: float) -> Widen:
+        return lambda estimate, std: np.sqrt(
+            std**2 + (k * np.maximum(estimate - (reach - width), 0.0)) ** 2
+        )
+
+    settings = {"posterior std": widen(0, 0.0)}
+    settings.update({f"w {width} k {k:g}": widen(width, k) for width, k in NEAR_STD})
+    return _std_table(items, settings, reach)
+
+
+def std_scale(items: Items) -> str:
+    """+-2 sigma coverage and NLL with the built-in basis's std scaled by a common factor."""
     config = ProcessorConfig()
-    reach = config.sgbm.band
+    start = variance.NEAR_RANGE_START * config.sgbm.band
+
+    def scaled(factor: float) -> Widen:
+        def widen(estimate: Array, std: Array) -> Array:
+            near = np.maximum(estimate - start, 0.0) * variance.NEAR_RANGE_SLOPE
+            return np.sqrt((factor * std) ** 2 + near**2)
+
+        return widen
+
+    return _std_table(items, {f"std x {f:g}": scaled(f) for f in STD_SCALES}, config.sgbm.band)
+
+
+def _std_table(items: Items, settings: dict[str, Widen], reach: float) -> str:
+    """Coverage and NLL of each way of widening the posterior std (the default's widening off)."""
     saved = variance.NEAR_RANGE_SLOPE
     variance.NEAR_RANGE_SLOPE = 0.0  # the posterior std as the model gives it
     try:
-        with FrameProcessor(None, config) as processor:
+        with FrameProcessor(None, ProcessorConfig()) as processor:
             results = list(processor.process([frame for frame, _ in items]))
     finally:
         variance.NEAR_RANGE_SLOPE = saved
-    sums = {setting: np.zeros(6) for setting in [(0, 0.0), *NEAR_STD]}
+    sums = {label: np.zeros(6) for label in settings}
     for (_, truth), result in zip(items, results, strict=True):
         valid = np.isfinite(truth) & (truth > 0)
         estimate = result.disparity[valid].astype(np.float64)
         std = result.disparity_std[valid].astype(np.float64)
         error = np.abs(estimate - truth[valid])
         beyond = truth[valid] >= reach
-        for (width, k), acc in sums.items():
-            extra = k * np.maximum(estimate - (reach - width), 0.0)
-            widened = np.sqrt(std**2 + extra**2)
+        for label, widen in settings.items():
+            widened = widen(estimate, std)
             inside = error <= 2.0 * widened
             nll = np.log(widened) + 0.5 * np.log(2 * np.pi) + 0.5 * (error / widened) ** 2
-            acc += (
+            sums[label] += (
                 valid.sum(),
                 inside.sum(),
                 beyond.sum(),
                 inside[beyond].sum(),
-                (extra > 0).sum(),
+                (widened > std).sum(),
                 nll.sum(),
             )
     lines = []
-    for (width, k), (px, inside, beyond, inside_beyond, touched, nll) in sums.items():
-        label = "posterior std" if k == 0 else f"w {width} k {k:g}"
+    for label, (px, inside, beyond, inside_beyond, touched, nll) in sums.items():
         near = f"{100 * inside_beyond / beyond:.1f} %" if beyond else "none"
         lines.append(
             f"  {label}: {100 * inside / px:.2f} %, NLL {nll / px:.4f} (beyond the range: "
@@ -150,6 +186,7 @@ REPORTS: dict[str, Callable[[Items], str]] = {
     "counts": counts,
     "moves": moves,
     "near-std": near_std,
+    "std-scale": std_scale,
 }
 
 
