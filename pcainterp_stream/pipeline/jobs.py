@@ -596,6 +596,8 @@ def _estimate_line(basis: Basis) -> str:
         parts.append(f"std x {settings.std_scale:.3g} x per-frame covariance scale")
     elif settings.std_scale != 1.0:
         parts.append(f"std x {settings.std_scale:.3g}")
+    if settings.match_range is not None:
+        parts.append(f"std widened near SGBM's {settings.match_range:g} px range")
     return ", ".join(parts)
 
 

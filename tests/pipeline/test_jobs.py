@@ -257,3 +257,9 @@ def test_cli_half_resolution_stereo_option(logs: dict[str, Path]) -> None:
     assert main([*args, "--stereo-downscale", "2"]) == 0
     with open_log(out) as reader:
         assert reader.topics()["/pcainterp/depth"].message_count == 5
+
+
+def test_the_estimate_line_names_the_std_widened_near_sgbms_range() -> None:
+    line = jobs._estimate_line(Basis.default())
+    assert "std widened near SGBM's 128 px range" in line
+    assert "per-frame covariance scale" in line  # the calibration is named beside it
