@@ -1,6 +1,6 @@
 """Checks behind docs/sharper_sparse_2.md that ``sparse_sharpness.py`` does not print.
 
-Four reports on the sources of ``tools/sparse_sharpness.py`` (the same frames, cached in
+Five reports on the sources of ``tools/sparse_sharpness.py`` (the same frames, cached in
 the same work folder; run that tool once first, or let this one build them):
 
 * ``counts`` -- per frame, the lattice's points, how many fail their lookup or contrast,
@@ -13,7 +13,10 @@ the same work folder; run that tool once first, or let this one build them):
   default's (``variance.widen_near_range``: w = range / 2, k = 0.5) among them, per
   source, over all pixels and over those whose truth lies beyond the range;
 * ``std-scale`` -- the same for the calibrated std times a common factor (< 1: narrower),
-  the near-range widening as shipped.
+  the near-range widening as shipped;
+* ``where-error`` -- the default's mean error by the distance of a truth pixel to the
+  nearest measurement and by how far SGBM's map (as the front end matched it) is from the
+  truth there.
 
 Examples::
 
@@ -21,6 +24,7 @@ Examples::
     python tools/nudge_checks.py moves --sources lidar synth
     python tools/nudge_checks.py near-std
     python tools/nudge_checks.py std-scale
+    python tools/nudge_checks.py where-error --sources lidar
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ import harness
 import numpy as np
 import numpy.typing as npt
 import sparse_sharpness as sharpness
+from scipy.spatial import cKDTree
 
 import pcainterp_stream.estimate.variance as variance
 import pcainterp_stream.frontend.fill as fill
@@ -182,11 +187,53 @@ def _std_table(items: Items, settings: dict[str, Widen], reach: float) -> str:
     return "+-2 sigma coverage\n" + "\n".join(lines)
 
 
+def where_error(items: Items) -> str:
+    """The default's error by distance to the nearest point and by SGBM's own error there."""
+    config = ProcessorConfig()
+    with FrameProcessor(None, config) as processor:
+        results = list(processor.process([frame for frame, _ in items]))
+    groups: dict[str, list[float]] = {}
+    for (frame, truth), result in zip(items, results, strict=True):
+        valid = np.isfinite(truth) & (truth > 0)
+        rows, cols = np.nonzero(valid)
+        error = np.abs(result.disparity[valid] - truth[valid])
+        gap, _ = cKDTree(result.pixels).query(np.stack([cols, rows], axis=1))
+        sgbm = compute_disparity(frame.left, frame.right, config.sgbm)[valid]
+        matched = np.isfinite(sgbm) & (sgbm > 0)
+        sgbm_error = np.abs(sgbm - truth[valid])
+        masks = {
+            "all": np.ones(error.shape, bool),
+            "< 10 px from a point": gap < 10,
+            "10-20 px": (gap >= 10) & (gap < 20),
+            "20-40 px": (gap >= 20) & (gap < 40),
+            ">= 40 px": gap >= 40,
+            "SGBM (as matched) within 1 px of the truth": matched & (sgbm_error < 1),
+            "SGBM 1-3 px off": matched & (sgbm_error >= 1) & (sgbm_error < 3),
+            "SGBM >= 3 px off": matched & (sgbm_error >= 3),
+            "SGBM has no value": ~matched,
+        }
+        for name, mask in masks.items():
+            counts = groups.setdefault(name, [0.0, 0.0, 0.0, 0.0])
+            counts[0] += mask.sum()
+            counts[1] += error[mask].sum()
+            counts[2] += (mask & matched).sum()
+            counts[3] += sgbm_error[mask & matched].sum()
+    pixels, total = groups["all"][0], groups["all"][1]
+    lines = [
+        f"  {name}: {100 * n / pixels:.1f} % of the truth px, mean error {err / max(n, 1):.2f} px "
+        f"({100 * err / total:.1f} % of the error); SGBM's own "
+        + (f"{sgbm / on:.2f} px at its {100 * on / max(n, 1):.0f} %" if on else "none")
+        for name, (n, err, on, sgbm) in groups.items()
+    ]
+    return "where the default errs\n" + "\n".join(lines)
+
+
 REPORTS: dict[str, Callable[[Items], str]] = {
     "counts": counts,
     "moves": moves,
     "near-std": near_std,
     "std-scale": std_scale,
+    "where-error": where_error,
 }
 
 
