@@ -363,8 +363,8 @@ def widen_near_range(
     is widened as std'^2 = std^2 + (s max(0, d - r0))^2, r0 = ``NEAR_RANGE_START`` x the range
     and s = ``NEAR_RANGE_SLOPE``: chosen by the Gaussian log-likelihood of the synthetic
     drives' dense truth (their near objects lie beyond SGBM's 128 px) among the settings
-    that leave a real indoor log alone, whose floor SGBM measures well at 64-96 px (a start
-    at half the range widened a fifth of its std and lowered its log-likelihood).
+    that leave a real indoor log alone, whose near surfaces SGBM measures at 64-96 px (a
+    start at half the range widened a fifth of its std and lowered its log-likelihood).
 
     Args:
         disparity: (H, W) the estimate (px).
