@@ -43,6 +43,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.estimate.baselines import linear, nearest
+from pcainterp_stream.frontend.near import NearConfig
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.variance import prior_std_map
 from pcainterp_stream.frontend.stereo import SgbmConfig, StereoFrontEnd, compute_disparity
@@ -61,6 +62,8 @@ STREET = {"builtin": "street", "adapt": "check"}
 
 VARIANTS: dict[str, dict[str, Any]] = {
     "default": {},
+    "near_reach": {"near": NearConfig()},  # quarter-resolution points beyond SGBM's range
+    "near_reach_always": {"near": NearConfig(trigger_share=0.0)},
     # the previous default: 400 strongest corners, no lattice
     "corners400": {"gftt": {"max_corners": 400, "fill_spacing": 0.0}},
     "corners600": {"gftt": {"max_corners": 600, "fill_spacing": 0.0}},

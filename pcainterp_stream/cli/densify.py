@@ -216,6 +216,14 @@ def _add_estimate_options(densify: argparse.ArgumentParser) -> None:
         "--no-edge-aware: the stationary kernel (default: %(default)s; docs/sharper_sparse.md)",
     )
     estimate.add_argument(
+        "--near-reach",
+        action="store_true",
+        help="also match at quarter resolution (four times SGBM's range) on frames whose map "
+        "nears the range's end, and measure the surfaces nearer than the range there: ~20%% "
+        "lower error on drives with such surfaces, ~0.1-3.5 ms more per frame "
+        "(docs/sharper_sparse_2.md)",
+    )
+    estimate.add_argument(
         "--robust",
         choices=["none", "huber", "cauchy"],
         default=defaults.ROBUST,
@@ -315,21 +323,25 @@ def _processor_config(
 ) -> ProcessorConfig:
     """Return the estimate's config the options ask for (``adapt``: see ``ProcessorConfig``)."""
     from pcainterp_stream.frontend.matchers import DENSE_MATCHERS, dense_matcher, dense_points
+    from pcainterp_stream.frontend.near import NearConfig
     from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
 
     source = MeasurementSource.FEATURES if args.features_topic else MeasurementSource.STEREO
     dense = args.measurements == "dense"
+    sgbm = sgbm_config(
+        args,
+        DENSE_MATCHERS[dense_matcher(args.dense_matcher, args.stereo_downscale)]
+        if dense
+        else ProcessorConfig().sgbm,
+    )
+    near = None
+    if getattr(args, "near_reach", False):
+        near = NearConfig(match_range=sgbm.matched().band * sgbm.downscale)
     return ProcessorConfig(
         builtin=builtin,
         adapt=adapt,
         gftt=gftt_config(args, dense_points(args.stereo_downscale) if dense else None),
-        # dense mode outputs the SGBM map itself where it is valid: full resolution
-        sgbm=sgbm_config(
-            args,
-            DENSE_MATCHERS[dense_matcher(args.dense_matcher, args.stereo_downscale)]
-            if dense
-            else ProcessorConfig().sgbm,
-        ),
+        sgbm=sgbm,  # dense mode outputs the SGBM map itself where valid: full resolution
         measurements=args.measurements,
         sigma=_sigma_option(args.sigma),
         uncertainty=args.uncertainty,
@@ -341,6 +353,7 @@ def _processor_config(
         calibrate=args.calibrate,
         source=source,
         edge_aware=args.edge_aware,
+        near=near,
     )
 
 

@@ -70,6 +70,7 @@ from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
 from pcainterp_stream.estimate.variance import _variance_stride, prior_std_map
 from pcainterp_stream.frontend.features import features_to_measurements
 from pcainterp_stream.frontend.motion import CarriedPoints, CarryConfig, Motion, estimate_motion
+from pcainterp_stream.frontend.near import NearConfig, extend_near
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     SgbmConfig,
@@ -177,6 +178,9 @@ class ProcessorConfig:
             SGBM) for an edge-aware local prior (:mod:`~pcainterp_stream.estimate.cells`),
             used when the basis's local prior has a cell weight (the built-in street
             basis); False: the stationary kernel.
+        near: sparse stereo mode also matches at quarter resolution (four times SGBM's
+            range) on frames whose map nears the range's end, and measures the surfaces
+            nearer than the range there (:mod:`~pcainterp_stream.frontend.near`); None: off.
         depth_std: sparse mode converts each frame's disparity std to a depth std; False
             leaves the results' ``depth_std`` unknown (NaN), for a caller that does not
             use it (:func:`~pcainterp_stream.pipeline.densify.densify` when no written
@@ -216,6 +220,7 @@ class ProcessorConfig:
     warmup_frames: int = 8
     builtin: str = "auto"
     edge_aware: bool = True
+    near: NearConfig | None = None
     depth_std: bool = True
 
     def __post_init__(self) -> None:
@@ -231,6 +236,9 @@ class ProcessorConfig:
             )
         if self.measurements == "dense" and self.source is not MeasurementSource.STEREO:
             raise ValueError("dense measurements come from the stereo pair, not a feature stream")
+        sparse_stereo = self.measurements == "sparse" and self.source is MeasurementSource.STEREO
+        if self.near is not None and not sparse_stereo:
+            raise ValueError("--near-reach measures the stereo pair in sparse mode only")
         if self.batch_size < 1:
             raise ValueError(f"batch_size must be >= 1, got {self.batch_size}")
         if self.lookahead < 0:
@@ -352,6 +360,7 @@ class _Measured(NamedTuple):
     held_out: adapt.HeldOut | None = None
     holes: MapHoles | None = None  # the map's holes and their neighbours (dense mode only)
     partition: Seeding | None = None  # along SGBM's map, for an edge-aware prior
+    noise: npt.NDArray[np.float32] | None = None  # extra noise std of each point (near)
 
 
 class FrameProcessor:
@@ -501,7 +510,7 @@ class FrameProcessor:
         previous: StereoFrame | None = None,
         check_frame: bool = True,
     ) -> _Measured:
-        disparity_map = raw_map = None
+        disparity_map = raw_map = noise = None
         sgbm_map = grid = None
         held_out = None
         holes = None
@@ -512,6 +521,12 @@ class FrameProcessor:
             measurements = self.front_end.measure(frame.left, frame.right)
             pixels, disparities = measurements.pixels, measurements.disparities
             counts = dict(measurements.counts)
+            if self.config.near is not None and not self.dense:
+                grey = to_grey8(frame.left), to_grey8(frame.right)
+                pixels, disparities, noise, near = extend_near(
+                    *grey, measurements.disparity_map, pixels, disparities, self.config.near
+                )
+                counts.update(near)
             if self.dense:
                 disparity_map = measurements.disparity_map
                 # the fusion's part that needs no estimate, here in parallel, not in the
@@ -551,6 +566,7 @@ class FrameProcessor:
             held_out,
             holes,
             partition,
+            noise,
         )
 
     def submit(
@@ -721,6 +737,8 @@ class FrameProcessor:
             pixels: list[npt.NDArray[Any]] = [item.pixels for item in group]
             disparities: list[npt.NDArray[Any]] = [item.disparities for item in group]
             noise_stds: list[npt.NDArray[Any] | None] | None = None
+            if any(item.noise is not None for item in group):
+                noise_stds = [item.noise for item in group]
             carried = [0] * len(group)
             if self.carried is not None:
                 noise_stds = []
@@ -729,6 +747,8 @@ class FrameProcessor:
                     pixels[index], disparities[index], noise, carried[index] = self.carried.carry(
                         None, item.pixels, item.disparities, camera, motion=item.motion
                     )
+                    if item.noise is not None:  # this frame's own points come first
+                        noise[: item.noise.shape[0]] = item.noise
                     noise_stds.append(noise)
                     item.counts["carry_reset"] = self.carried.resets - resets
             jobs.append(

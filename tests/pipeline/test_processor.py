@@ -670,3 +670,34 @@ def test_a_prior_std_fill_weighs_by_the_basiss_prior(
     for result, reference in zip(results, lattice, strict=True):
         assert result.counts["kept"] == reference.counts["kept"]
         assert np.isfinite(result.disparity).all()
+
+
+def _coarse_pair(shift: int) -> StereoFrame:
+    """A plane at ``shift`` px with texture coarse enough to match at quarter resolution."""
+    rng = np.random.default_rng(5)
+    texture = cv2.GaussianBlur(rng.random((HEIGHT, WIDTH + shift)).astype(np.float32), (0, 0), 2.5)
+    texture = (texture - texture.min()) / (texture.max() - texture.min()) * 255
+    scene = texture.astype(np.uint8)
+    left, right = np.ascontiguousarray(scene[:, :WIDTH]), np.ascontiguousarray(scene[:, shift:])
+    return StereoFrame(0, 1_000_000_000, 1_000_000_000, "left", left, right, CAMERA)
+
+
+def test_near_reach_measures_a_plane_beyond_sgbms_range(basis: Basis) -> None:
+    from pcainterp_stream.frontend.near import NearConfig
+
+    frame = _coarse_pair(48)  # beyond the 32 px range of SGBM
+    near = NearConfig(match_range=32.0, num_disparities=16, margin=4.0, trigger_share=0.0)
+    options: dict[str, Any] = {"adapt": "off", "carry": CarryConfig(frames=0)}
+    (plain,) = run(basis, [frame], **options)
+    (reached,) = run(basis, [frame], near=near, **options)
+    assert "near_added" not in plain.counts
+    assert reached.counts["near_matched"] == 1 and reached.counts["near_added"] > 5
+    added = reached.pixels[-reached.counts["near_added"] :]
+    assert added.shape[0] == reached.counts["near_added"]
+    values = reached.disparities[-added.shape[0] :]
+    assert np.median(np.abs(values - 48.0)) < 3.0
+    # beside carried points (own points first, then the carried ones with their age noise)
+    drive = run(basis, _drive(3), near=near, adapt="off")
+    assert drive[2].counts["carried"] > 0 and drive[2].counts["near_added"] > 0
+    with pytest.raises(ValueError, match="sparse mode only"):
+        ProcessorConfig(near=near, measurements="dense")

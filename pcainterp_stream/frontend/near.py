@@ -1,0 +1,251 @@
+"""Measurements beyond the matcher's range from a cheap quarter-resolution match.
+
+Sparse mode matches at half resolution with 64 disparities: 128 px at full resolution. A
+surface nearer than that has no valid lookup; SGBM leaves holes there or, on ~40 % of its
+pixels (synthetic drives), aliased values far below the truth. :func:`near_points` runs SGBM
+once more at quarter resolution (64 disparities = 256 px at full resolution, ~1/4 of the
+half-resolution match's cost) and returns points only where the half-resolution map cannot
+measure: grid points whose quarter-resolution value is near or beyond the range's end
+(>= range - ``margin``), smooth, well supported, and not already matched by the
+half-resolution map. It also flags the half-resolution lookups the quarter map contradicts
+there (a value well below a confident quarter value beyond the range), for dropping.
+
+A cheap trigger (:func:`wants_near`) skips the extra match on frames whose half-resolution
+map has (almost) no values near the range's end. The processor adds these points, with
+``NearConfig.noise`` extra noise, when ``ProcessorConfig.near`` is set (``densify
+--near-reach``); measured in docs/sharper_sparse_2.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.frontend.stereo import SgbmConfig, lookup_disparities
+
+FloatArray = npt.NDArray[np.float32]
+UInt8Array = npt.NDArray[np.uint8]
+
+__all__ = [
+    "NearConfig",
+    "NearPoints",
+    "extend_near",
+    "near_points",
+    "quarter_disparity",
+    "wants_near",
+]
+
+
+@dataclass(frozen=True)
+class NearConfig:
+    """Options of the quarter-resolution measurements beyond the range.
+
+    Attributes:
+        match_range: the main matcher's largest disparity (px, full resolution).
+        num_disparities: disparities of the quarter-resolution match (its px).
+        margin: a quarter value from ``match_range - margin`` up is a candidate (px).
+        agree: a candidate whose half-resolution value is within this many px is already
+            measured there and skipped (px).
+        spacing: side of the candidate grid (full-resolution px).
+        min_support: share of valid quarter px required in the 5 x 5 (quarter px) window.
+        max_gradient: the smoothness check of the quarter lookup (quarter px per px).
+        radius: the quarter lookup's support patch grows this many quarter px around it.
+        drop_below: half-resolution lookups this many px below a confident quarter value
+            beyond the range are flagged (px); 0: none.
+        trigger_share: the frame is matched only when at least this share of the
+            half-resolution map's valid pixels (sampled every 4th) is >= ``trigger_at`` x
+            the range; 0: always.
+        trigger_at: see ``trigger_share``.
+        border: points closer than this to an image edge are not made (full px).
+        noise: extra noise std of the added points (px, in quadrature with sigma).
+    """
+
+    match_range: float = 128.0
+    num_disparities: int = 64
+    margin: float = 8.0
+    agree: float = 3.0
+    spacing: float = 20.0
+    min_support: float = 0.8
+    max_gradient: float = 1.0
+    radius: int = 1
+    drop_below: float = 8.0
+    trigger_share: float = 0.003
+    trigger_at: float = 0.875
+    border: int = 8
+    noise: float = 1.0
+
+
+class NearPoints:
+    """Points of one frame from the quarter match.
+
+    Attributes:
+        pixels: (m, 2) float32 (x, y) full-resolution px.
+        disparities: (m,) float32 full-resolution px.
+        contradicted: (k,) bool over the given half-resolution lookups: flagged to drop.
+        matched: whether the quarter match ran (the trigger fired).
+    """
+
+    def __init__(
+        self,
+        pixels: FloatArray,
+        disparities: FloatArray,
+        contradicted: npt.NDArray[np.bool_],
+        matched: bool,
+    ) -> None:
+        self.pixels = pixels
+        self.disparities = disparities
+        self.contradicted = contradicted
+        self.matched = matched
+
+
+def wants_near(half_map: FloatArray, config: NearConfig) -> bool:
+    """Return whether a frame's half-resolution map has enough values near the range's end."""
+    if config.trigger_share <= 0.0:
+        return True
+    sampled = half_map[::4, ::4]
+    with np.errstate(invalid="ignore"):
+        high = np.count_nonzero(sampled >= np.float32(config.trigger_at * config.match_range))
+    valid = np.count_nonzero(np.isfinite(sampled))
+    return bool(valid > 0 and high >= config.trigger_share * valid)
+
+
+def quarter_disparity(left: UInt8Array, right: UInt8Array, num_disparities: int) -> FloatArray:
+    """SGBM at quarter resolution (halved twice): its own px and values, NaN where invalid.
+
+    Halving twice (INTER_AREA) costs ~0.3 ms per KITTI image, one x4 INTER_AREA ~1.1 ms
+    (OpenCV's fast path is for x2); the front end's own half images could be reused.
+    """
+    from pcainterp_stream.frontend.refine import halved
+    from pcainterp_stream.frontend.stereo import _match
+
+    small_left = halved(halved(left))
+    small_right = halved(halved(right))
+    base = SgbmConfig()
+    config = SgbmConfig(
+        num_disparities=num_disparities,
+        speckle_window_size=base.speckle_window_size // 16,
+    )
+    return _match(small_left, small_right, config, False)
+
+
+def _support(quarter: FloatArray) -> FloatArray:
+    valid = np.isfinite(quarter).astype(np.float32)
+    return np.asarray(cv2.blur(valid, (5, 5), borderType=cv2.BORDER_CONSTANT), np.float32)
+
+
+def near_points(
+    left: UInt8Array,
+    right: UInt8Array,
+    half_map: FloatArray,
+    pixels: FloatArray,
+    disparities: FloatArray,
+    config: NearConfig = NearConfig(),  # frozen, so a shared default is safe
+) -> NearPoints:
+    """Measure beyond the half-resolution matcher's range where it cannot.
+
+    Args:
+        left: (H, W) uint8 grey left image.
+        right: (H, W) uint8 grey right image.
+        half_map: (H, W) the front end's (half-resolution, upsampled) map, NaN where invalid.
+        pixels: (k, 2) the front end's lookups (x, y) px.
+        disparities: (k,) their values (px).
+        config: the options.
+
+    Returns:
+        The new points (full-resolution px and values) and the lookups to drop.
+    """
+    count = pixels.shape[0]
+    none = NearPoints(
+        np.zeros((0, 2), np.float32), np.zeros(0, np.float32), np.zeros(count, bool), False
+    )
+    if not wants_near(half_map, config):
+        return none
+    quarter = quarter_disparity(left, right, config.num_disparities)
+    height, width = left.shape
+    scale = np.float32(width / quarter.shape[1])  # full px per quarter px (~4)
+    scale_y = np.float32(height / quarter.shape[0])
+    start = np.float32(config.match_range - config.margin)
+    support = _support(quarter)
+    highest = cv2.dilate(np.nan_to_num(quarter, nan=0.0), np.ones((3, 3), np.uint8))
+
+    def at_quarter(points: FloatArray) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+        """Checked quarter values (full px) at full-resolution points; NaN where rejected."""
+        small = np.empty_like(points)
+        small[:, 0] = (points[:, 0] + 0.5) / scale - 0.5
+        small[:, 1] = (points[:, 1] + 0.5) / scale_y - 0.5
+        rows = np.clip(np.rint(small[:, 1]).astype(np.int64), 0, quarter.shape[0] - 1)
+        cols = np.clip(np.rint(small[:, 0]).astype(np.int64), 0, quarter.shape[1] - 1)
+        # only where a value >= start is within a px (a bilinear value is at most its cell's)
+        chosen = np.flatnonzero(highest[rows, cols] >= start / scale - np.float32(1e-3))
+        found = lookup_disparities(
+            quarter,
+            small[chosen],
+            max_gradient=config.max_gradient,
+            discontinuity_radius=config.radius,
+        )
+        values = np.full(points.shape[0], np.nan, np.float32)
+        values[chosen[found.indices]] = found.disparities * scale
+        supported = support[rows, cols] >= config.min_support
+        with np.errstate(invalid="ignore"):
+            confident = supported & (values >= start)
+        return values, confident
+
+    # the candidate grid, right of the quarter match's own left band
+    first_x = max(config.border, int(np.ceil(config.num_disparities * scale)))
+    xs = np.arange(first_x, width - config.border, config.spacing, dtype=np.float32)
+    ys = np.arange(config.border, height - config.border, config.spacing, dtype=np.float32)
+    grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2).astype(np.float32)
+    values, confident = at_quarter(grid)
+    rows = np.clip(np.rint(grid[:, 1]).astype(np.int64), 0, height - 1)
+    cols = np.clip(np.rint(grid[:, 0]).astype(np.int64), 0, width - 1)
+    half = half_map[rows, cols]
+    with np.errstate(invalid="ignore"):
+        measured = np.abs(half - values) <= config.agree
+    keep = confident & ~measured
+    contradicted = np.zeros(count, bool)
+    if config.drop_below > 0.0 and count:
+        there, sure = at_quarter(np.asarray(pixels, np.float32))
+        with np.errstate(invalid="ignore"):
+            contradicted = sure & (disparities < there - np.float32(config.drop_below))
+    return NearPoints(
+        np.ascontiguousarray(grid[keep]), values[keep].astype(np.float32), contradicted, True
+    )
+
+
+def extend_near(
+    left: UInt8Array,
+    right: UInt8Array,
+    half_map: FloatArray,
+    pixels: FloatArray,
+    disparities: FloatArray,
+    config: NearConfig,
+) -> tuple[FloatArray, FloatArray, FloatArray | None, dict[str, int]]:
+    """The front end's lookups with the contradicted ones dropped and the near points added.
+
+    Returns:
+        pixels (m, 2), disparities (m,), each one's extra noise std (m,) (0 for the kept
+        lookups, ``config.noise`` for the added points; None when nothing was added), and
+        the counts ``near_added``, ``near_dropped`` and ``near_matched`` (0 or 1).
+    """
+    found = near_points(left, right, half_map, pixels, disparities, config)
+    kept = ~found.contradicted
+    added = found.pixels.shape[0]
+    counts = {
+        "near_added": added,
+        "near_dropped": int(found.contradicted.sum()),
+        "near_matched": int(found.matched),
+    }
+    if not added and kept.all():
+        return pixels, disparities, None, counts
+    own = int(kept.sum())
+    noise = np.zeros(own + added, np.float32)
+    noise[own:] = np.float32(config.noise)
+    return (
+        np.ascontiguousarray(np.concatenate([pixels[kept], found.pixels]), np.float32),
+        np.ascontiguousarray(np.concatenate([disparities[kept], found.disparities]), np.float32),
+        noise if added else None,
+        counts,
+    )

@@ -1,0 +1,56 @@
+"""Tests of the quarter-resolution measurements beyond the matcher's range (frontend/near.py)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.frontend.near import NearConfig, near_points, wants_near
+from pcainterp_stream.frontend.stereo import SgbmConfig, compute_disparity
+
+HEIGHT, WIDTH = 192, 768
+NEAR = 160  # px: beyond the half-resolution matcher's 128 px, inside the quarter's 256
+
+
+def _pair(disparity: int) -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.uint8]]:
+    """A textured fronto-parallel plane at ``disparity`` px (coarse texture: 4x scale)."""
+    rng = np.random.default_rng(3)
+    noise = rng.random((HEIGHT, WIDTH + disparity)).astype(np.float32)
+    texture = cv2.GaussianBlur(noise, (0, 0), 2.5)
+    texture = (texture - texture.min()) / (texture.max() - texture.min()) * 255
+    scene = texture.astype(np.uint8)
+    return np.ascontiguousarray(scene[:, :WIDTH]), np.ascontiguousarray(scene[:, disparity:])
+
+
+def test_near_points_measure_beyond_the_range() -> None:
+    left, right = _pair(NEAR)
+    half = compute_disparity(left, right, SgbmConfig(downscale=2))
+    empty = np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
+    found = near_points(left, right, half, *empty, NearConfig(trigger_share=0.0))
+    assert found.matched
+    assert found.pixels.shape[0] > 20
+    assert np.median(np.abs(found.disparities - NEAR)) < 2.0
+
+
+def test_near_points_flag_contradicted_lookups_and_skip_far_planes() -> None:
+    left, right = _pair(NEAR)
+    half = compute_disparity(left, right, SgbmConfig(downscale=2))
+    pixels = np.array([[400.0, 96.0], [500.0, 100.0]], np.float32)
+    values = np.array([60.0, NEAR], np.float32)
+    found = near_points(left, right, half, pixels, values, NearConfig(trigger_share=0.0))
+    assert found.contradicted.tolist() == [True, False]
+    far_left, far_right = _pair(40)
+    far = compute_disparity(far_left, far_right, SgbmConfig(downscale=2))
+    always = NearConfig(trigger_share=0.0)
+    assert near_points(far_left, far_right, far, pixels, values, always).pixels.shape[0] == 0
+
+
+def test_trigger() -> None:
+    config = NearConfig(trigger_share=0.01)
+    far = np.full((64, 64), 40.0, np.float32)
+    assert not wants_near(far, config)
+    far[:16] = 120.0
+    assert wants_near(far, config)
+    assert wants_near(np.full((8, 8), np.nan, np.float32), NearConfig(trigger_share=0.0))
+    assert not wants_near(np.full((8, 8), np.nan, np.float32), NearConfig())  # nothing valid
