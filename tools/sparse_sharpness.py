@@ -43,9 +43,9 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.estimate.baselines import linear, nearest
-from pcainterp_stream.frontend.near import NearConfig
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.variance import prior_std_map
+from pcainterp_stream.frontend.near import NearConfig
 from pcainterp_stream.frontend.stereo import SgbmConfig, StereoFrontEnd, compute_disparity
 from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
 from pcainterp_stream.records import StereoCamera, StereoFrame
