@@ -62,8 +62,6 @@ STREET = {"builtin": "street", "adapt": "check"}
 
 VARIANTS: dict[str, dict[str, Any]] = {
     "default": {},
-    "near_reach": {"near": NearConfig()},  # quarter-resolution points beyond SGBM's range
-    "near_reach_always": {"near": NearConfig(trigger_share=0.0)},
     # the previous default: 400 strongest corners, no lattice
     "corners400": {"gftt": {"max_corners": 400, "fill_spacing": 0.0}},
     "corners600": {"gftt": {"max_corners": 600, "fill_spacing": 0.0}},
@@ -128,6 +126,9 @@ for _name, _changes in VARIANTS.items():
 
 VARIANTS.update(
     {
+        # the default and points beyond SGBM's range from a quarter-resolution match
+        "near_reach": {"near": NearConfig()},
+        "near_reach_always": {"near": NearConfig(trigger_share=0.0)},
         # the lattice: the default (named, so the tables comparing it read as such)
         "lattice": {"gftt": LATTICE},
         # the lattice's points where >= 80 % of SGBM's 21 x 21 px are valid
