@@ -180,7 +180,9 @@ class ProcessorConfig:
             basis); False: the stationary kernel.
         near: sparse stereo mode also matches at quarter resolution (four times SGBM's
             range) on frames whose map nears the range's end, and measures the surfaces
-            nearer than the range there (:mod:`~pcainterp_stream.frontend.near`); None: off.
+            nearer than the range there (:mod:`~pcainterp_stream.frontend.near`; its
+            ``match_range`` is set from ``sgbm``); None: off. Dense mode and feature
+            streams do not use it.
         depth_std: sparse mode converts each frame's disparity std to a depth std; False
             leaves the results' ``depth_std`` unknown (NaN), for a caller that does not
             use it (:func:`~pcainterp_stream.pipeline.densify.densify` when no written
@@ -220,7 +222,7 @@ class ProcessorConfig:
     warmup_frames: int = 8
     builtin: str = "auto"
     edge_aware: bool = True
-    near: NearConfig | None = None
+    near: NearConfig | None = field(default_factory=NearConfig)
     depth_std: bool = True
 
     def __post_init__(self) -> None:
@@ -236,9 +238,6 @@ class ProcessorConfig:
             )
         if self.measurements == "dense" and self.source is not MeasurementSource.STEREO:
             raise ValueError("dense measurements come from the stereo pair, not a feature stream")
-        sparse_stereo = self.measurements == "sparse" and self.source is MeasurementSource.STEREO
-        if self.near is not None and not sparse_stereo:
-            raise ValueError("--near-reach measures the stereo pair in sparse mode only")
         if self.batch_size < 1:
             raise ValueError(f"batch_size must be >= 1, got {self.batch_size}")
         if self.lookahead < 0:
@@ -382,6 +381,9 @@ class FrameProcessor:
         self.basis = basis
         std = prior_std_map(basis) if self.config.gftt.fill_placement == "prior_std" else None
         self.front_end = StereoFrontEnd(self.config.gftt, self.config.sgbm, prior_std=std)
+        sgbm, near = self.config.sgbm, self.config.near
+        reach = sgbm.matched().band * sgbm.downscale  # SGBM's largest disparity, image px
+        self.near = None if near is None else dataclasses.replace(near, match_range=reach)
         if self.config.keep_freed_memory:
             # the synthetic renderer's allocator tuning; same temporaries problem here
             from pcainterp_stream.allocator import keep_freed_memory, limit_arenas
@@ -521,10 +523,10 @@ class FrameProcessor:
             measurements = self.front_end.measure(frame.left, frame.right)
             pixels, disparities = measurements.pixels, measurements.disparities
             counts = dict(measurements.counts)
-            if self.config.near is not None and not self.dense:
+            if self.near is not None and not self.dense:
                 grey = to_grey8(frame.left), to_grey8(frame.right)
                 pixels, disparities, noise, near = extend_near(
-                    *grey, measurements.disparity_map, pixels, disparities, self.config.near
+                    *grey, measurements.disparity_map, pixels, disparities, self.near
                 )
                 counts.update(near)
             if self.dense:

@@ -18,6 +18,7 @@ from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.estimate.prior import LocalPrior
 from pcainterp_stream.estimate.variance import prior_std_map
+from pcainterp_stream.frontend.features import features_to_measurements
 from pcainterp_stream.frontend.motion import CarryConfig
 from pcainterp_stream.frontend.stereo import SgbmConfig, StereoFrontEnd
 from pcainterp_stream.pipeline import processor
@@ -26,7 +27,6 @@ from pcainterp_stream.pipeline.processor import (
     MeasurementSource,
     ProcessorConfig,
 )
-from pcainterp_stream.frontend.features import features_to_measurements
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoCamera, StereoFrame
 
 HEIGHT, WIDTH = 94, 310  # a quarter of KITTI's 376 x 1241
@@ -688,16 +688,21 @@ def test_near_reach_measures_a_plane_beyond_sgbms_range(basis: Basis) -> None:
     frame = _coarse_pair(48)  # beyond the 32 px range of SGBM
     near = NearConfig(match_range=32.0, num_disparities=16, margin=4.0, trigger_share=0.0)
     options: dict[str, Any] = {"adapt": "off", "carry": CarryConfig(frames=0)}
-    (plain,) = run(basis, [frame], **options)
+    (plain,) = run(basis, [frame], near=None, **options)
     (reached,) = run(basis, [frame], near=near, **options)
     assert "near_added" not in plain.counts
-    assert reached.counts["near_matched"] == 1 and reached.counts["near_added"] > 5
+    assert reached.counts["near_matched"] == 1
+    assert reached.counts["near_added"] > 5
     added = reached.pixels[-reached.counts["near_added"] :]
     assert added.shape[0] == reached.counts["near_added"]
     values = reached.disparities[-added.shape[0] :]
     assert np.median(np.abs(values - 48.0)) < 3.0
     # beside carried points (own points first, then the carried ones with their age noise)
     drive = run(basis, _drive(3), near=near, adapt="off")
-    assert drive[2].counts["carried"] > 0 and drive[2].counts["near_added"] > 0
-    with pytest.raises(ValueError, match="sparse mode only"):
-        ProcessorConfig(near=near, measurements="dense")
+    assert drive[2].counts["carried"] > 0
+    assert drive[2].counts["near_added"] > 0
+    # on by default, its range set from SGBM's
+    assert ProcessorConfig().near is not None
+    with FrameProcessor(basis, ProcessorConfig(sgbm=SGBM, adapt="off")) as engine:
+        assert engine.near is not None
+        assert engine.near.match_range == 32
