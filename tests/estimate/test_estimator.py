@@ -549,11 +549,14 @@ def test_match_range_widens_the_std_of_near_estimates_only() -> None:
     disparities = np.linspace(5.0, 60.0, 12)
     plain = densify(basis, pixels, disparities, sigma=1.0)
     near = densify(basis, pixels, disparities, sigma=1.0, match_range=64.0)
-    assert plain.disparity_std is not None and near.disparity_std is not None
-    assert plain.depth_std is not None and near.depth_std is not None
+    assert plain.disparity_std is not None
+    assert near.disparity_std is not None
+    assert plain.depth_std is not None
+    assert near.depth_std is not None
     np.testing.assert_array_equal(near.disparity, plain.disparity)
     beyond = plain.disparity > variance.NEAR_RANGE_START * 64.0
-    assert beyond.any() and (~beyond).any()
+    assert beyond.any()
+    assert (~beyond).any()
     np.testing.assert_array_equal(near.disparity_std[~beyond], plain.disparity_std[~beyond])
     assert np.all(near.disparity_std[beyond] > plain.disparity_std[beyond])
     assert np.all(near.depth_std[beyond] > plain.depth_std[beyond])  # the depth's std follows
