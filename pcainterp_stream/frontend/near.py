@@ -18,13 +18,13 @@ map has (almost) no values near the range's end. The processor adds these points
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.frontend.stereo import SgbmConfig, lookup_disparities
+from pcainterp_stream.frontend.stereo import SgbmConfig, lookup_disparities, to_grey8
 
 FloatArray = npt.NDArray[np.float32]
 UInt8Array = npt.NDArray[np.uint8]
@@ -216,8 +216,8 @@ def near_points(
 
 
 def extend_near(
-    left: UInt8Array,
-    right: UInt8Array,
+    left: npt.NDArray[np.generic],
+    right: npt.NDArray[np.generic],
     half_map: FloatArray,
     pixels: FloatArray,
     disparities: FloatArray,
@@ -225,12 +225,19 @@ def extend_near(
 ) -> tuple[FloatArray, FloatArray, FloatArray | None, dict[str, int]]:
     """The front end's lookups with the contradicted ones dropped and the near points added.
 
+    ``left`` and ``right`` are the pair as recorded (grey or colour): they are converted to
+    grey only when the trigger fires.
+
     Returns:
         pixels (m, 2), disparities (m,), each one's extra noise std (m,) (0 for the kept
         lookups, ``config.noise`` for the added points; None when nothing was added), and
         the counts ``near_added``, ``near_dropped`` and ``near_matched`` (0 or 1).
     """
-    found = near_points(left, right, half_map, pixels, disparities, config)
+    if not wants_near(half_map, config):
+        return pixels, disparities, None, {"near_added": 0, "near_dropped": 0, "near_matched": 0}
+    grey = to_grey8(left), to_grey8(right)
+    always = replace(config, trigger_share=0.0)
+    found = near_points(*grey, half_map, pixels, disparities, always)
     kept = ~found.contradicted
     added = found.pixels.shape[0]
     counts = {

@@ -524,9 +524,13 @@ class FrameProcessor:
             pixels, disparities = measurements.pixels, measurements.disparities
             counts = dict(measurements.counts)
             if self.near is not None and not self.dense:
-                grey = to_grey8(frame.left), to_grey8(frame.right)
                 pixels, disparities, noise, near = extend_near(
-                    *grey, measurements.disparity_map, pixels, disparities, self.near
+                    frame.left,
+                    frame.right,
+                    measurements.disparity_map,
+                    pixels,
+                    disparities,
+                    self.near,
                 )
                 counts.update(near)
             if self.dense:
