@@ -419,7 +419,7 @@ def test_dense_measurements_fill_every_pixel_and_keep_sgbm() -> None:
         for f in generate(SynthConfig(seed=3, frames=3, scale=0.5))
     ]
     sgbm = SgbmConfig(num_disparities=64)
-    sparse_config = ProcessorConfig(sgbm=sgbm)
+    sparse_config = ProcessorConfig(sgbm=sgbm, near=None)  # dense mode measures no near points
     with FrameProcessor(config=sparse_config) as sparse_processor:
         sparse = list(sparse_processor.process(frames))
     config = ProcessorConfig(measurements="dense", sgbm=sgbm)
