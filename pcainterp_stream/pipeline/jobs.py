@@ -592,6 +592,8 @@ def _estimate_line(basis: Basis) -> str:
     parts.append("temporal prior" if config.temporal else "no temporal prior")
     if config.carry.frames:
         parts.append(f"points carried from the {config.carry.frames} previous frames")
+    if config.near is not None:
+        parts.append("points beyond SGBM's range from a quarter-resolution match")
     if settings.scale_by_innovation:
         parts.append(f"std x {settings.std_scale:.3g} x per-frame covariance scale")
     elif settings.std_scale != 1.0:

@@ -263,3 +263,4 @@ def test_the_estimate_line_names_the_std_widened_near_sgbms_range() -> None:
     line = jobs._estimate_line(Basis.default())
     assert "std widened near SGBM's 128 px range" in line
     assert "per-frame covariance scale" in line  # the calibration is named beside it
+    assert "points beyond SGBM's range from a quarter-resolution match" in line
