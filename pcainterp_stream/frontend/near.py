@@ -233,8 +233,13 @@ def extend_near(
         lookups, ``config.noise`` for the added points; None when nothing was added), and
         the counts ``near_added``, ``near_dropped`` and ``near_matched`` (0 or 1).
     """
+    unchanged = {"near_added": 0, "near_dropped": 0, "near_matched": 0}
+    # narrower, the quarter match has no column right of its own left band (and OpenCV's
+    # matcher could fail on it: frontend/sgbm_limits.py)
+    if left.shape[1] <= 4 * config.num_disparities + 2 * config.border:
+        return pixels, disparities, None, unchanged
     if not wants_near(half_map, config):
-        return pixels, disparities, None, {"near_added": 0, "near_dropped": 0, "near_matched": 0}
+        return pixels, disparities, None, unchanged
     grey = to_grey8(left), to_grey8(right)
     always = replace(config, trigger_share=0.0)
     found = near_points(*grey, half_map, pixels, disparities, always)

@@ -54,3 +54,17 @@ def test_trigger() -> None:
     assert wants_near(far, config)
     assert wants_near(np.full((8, 8), np.nan, np.float32), NearConfig(trigger_share=0.0))
     assert not wants_near(np.full((8, 8), np.nan, np.float32), NearConfig())  # nothing valid
+
+
+def test_a_pair_too_narrow_for_the_quarter_match_is_left_alone() -> None:
+    from pcainterp_stream.frontend.near import extend_near
+
+    left, right = _pair(NEAR)
+    narrow_left, narrow_right = left[:, :200].copy(), right[:, :200].copy()
+    half = np.full(narrow_left.shape, 127.0, np.float32)  # the trigger would fire
+    pixels = np.array([[100.0, 50.0]], np.float32)
+    values = np.array([120.0], np.float32)
+    out = extend_near(narrow_left, narrow_right, half, pixels, values, NearConfig())
+    assert out[0] is pixels
+    assert out[2] is None
+    assert out[3]["near_matched"] == 0
