@@ -381,9 +381,6 @@ class FrameProcessor:
         self.basis = basis
         std = prior_std_map(basis) if self.config.gftt.fill_placement == "prior_std" else None
         self.front_end = StereoFrontEnd(self.config.gftt, self.config.sgbm, prior_std=std)
-        sgbm, near = self.config.sgbm, self.config.near
-        reach = sgbm.matched().band * sgbm.downscale  # SGBM's largest disparity, image px
-        self.near = None if near is None else dataclasses.replace(near, match_range=reach)
         if self.config.keep_freed_memory:
             # the synthetic renderer's allocator tuning; same temporaries problem here
             from pcainterp_stream.allocator import keep_freed_memory, limit_arenas
@@ -418,6 +415,10 @@ class FrameProcessor:
         self._densified_any = False
         self.frames_done = 0
         self.settings = resolve_settings(basis, self.config)
+        near, reach = self.config.near, self.settings.match_range  # None unless sparse stereo
+        self.near = (
+            None if near is None or reach is None else dataclasses.replace(near, match_range=reach)
+        )
         self.temporal = (
             TemporalPrior(process_noise=self.settings.process_noise)
             if self.config.temporal
@@ -523,7 +524,7 @@ class FrameProcessor:
             measurements = self.front_end.measure(frame.left, frame.right)
             pixels, disparities = measurements.pixels, measurements.disparities
             counts = dict(measurements.counts)
-            if self.near is not None and not self.dense:
+            if self.near is not None:  # sparse stereo mode only (see __init__)
                 pixels, disparities, noise, near = extend_near(
                     frame.left,
                     frame.right,
