@@ -1,6 +1,6 @@
 """Checks behind docs/sharper_sparse_2.md that ``sparse_sharpness.py`` does not print.
 
-Five reports on the sources of ``tools/sparse_sharpness.py`` (the same frames, cached in
+Six reports on the sources of ``tools/sparse_sharpness.py`` (the same frames, cached in
 the same work folder; run that tool once first, or let this one build them):
 
 * ``counts`` -- per frame, the lattice's points, how many fail their lookup or contrast,
@@ -10,13 +10,17 @@ the same work folder; run that tool once first, or let this one build them):
 * ``near-std`` -- the +-2 sigma coverage and the mean Gaussian negative log-likelihood of
   the posterior std (the widening near the matcher's range turned off) and of that std
   widened as std'^2 = std^2 + (k max(0, d - (range - w)))^2 for several (w, k), the
-  default's (``variance.widen_near_range``: w = range / 2, k = 0.5) among them, per
+  default's (``variance.widen_near_range``: w = range / 4, k = 1) among them, per
   source, over all pixels and over those whose truth lies beyond the range;
 * ``std-scale`` -- the same for the calibrated std times a common factor (< 1: narrower),
   the near-range widening as shipped;
 * ``where-error`` -- the default's mean error by the distance of a truth pixel to the
   nearest measurement and by how far SGBM's map (as the front end matched it) is from the
-  truth there.
+  truth there;
+* ``near-points`` -- the points the near reach adds (``frontend/near.py``), without and
+  with its check against the right view's quarter map: how many, how many more than 3 and
+  10 px from the truth, and the mean |disparity error| by the truth's depth, against no
+  near reach at all (``--sources demo``: the demo's held-out drive, seed 9001, 40 frames).
 
 Examples::
 
@@ -25,14 +29,18 @@ Examples::
     python tools/nudge_checks.py near-std
     python tools/nudge_checks.py std-scale
     python tools/nudge_checks.py where-error --sources lidar
+    python tools/nudge_checks.py near-points --sources demo synth
 """
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
 from collections.abc import Callable, Iterator
 from functools import partial
 from pathlib import Path
 from typing import Any
+from unittest import mock
 
 import harness
 import numpy as np
@@ -42,7 +50,9 @@ from scipy.spatial import cKDTree
 
 import pcainterp_stream.estimate.variance as variance
 import pcainterp_stream.frontend.fill as fill
+import pcainterp_stream.pipeline.processor as processor
 from pcainterp_stream.frontend.corners import lattice_points, patch_contrast
+from pcainterp_stream.frontend.near import NearConfig, extend_near
 from pcainterp_stream.frontend.stereo import (
     LookupConfig,
     compute_disparity,
@@ -228,12 +238,66 @@ def where_error(items: Items) -> str:
     return "where the default errs\n" + "\n".join(lines)
 
 
+DEPTH_BINS = (0.0, 5.0, 10.0, 20.0, 40.0, np.inf)
+"""Truth depth bins (m) of ``near-points``."""
+
+
+def near_points(items: Items) -> str:
+    """The near reach's added points against the truth, without and with the right view's check."""
+    truths = {id(frame.left): truth for frame, truth in items}
+    added: list[tuple[Any, Any]] = []  # (values, truth there) per frame with points added
+
+    def recording(left: Any, *args: Any) -> Any:
+        found = extend_near(left, *args)
+        noise = found[2]
+        if noise is not None:
+            pixels, values = found[0][noise > 0], found[1][noise > 0]
+            rows, cols = np.rint(pixels[:, 1]).astype(int), np.rint(pixels[:, 0]).astype(int)
+            added.append((values, truths[id(left)][rows, cols]))
+        return found
+
+    base = ProcessorConfig()
+    settings = {
+        "none": dataclasses.replace(base, near=None),
+        "unchecked": dataclasses.replace(base, near=NearConfig(lr_max_diff=0.0)),
+        "checked": dataclasses.replace(base, near=NearConfig()),
+    }
+    focal_baseline = items[0][0].camera.focal_baseline
+    lines = []
+    with mock.patch.object(processor, "extend_near", recording):
+        for name, config in settings.items():
+            added.clear()
+            with FrameProcessor(None, config) as densifier:
+                results = list(densifier.process([frame for frame, _ in items]))
+            sums, counts = np.zeros(len(DEPTH_BINS) - 1), np.zeros(len(DEPTH_BINS) - 1)
+            for (_, truth), result in zip(items, results, strict=True):
+                valid = np.isfinite(truth) & (truth > 0)
+                where = np.digitize(focal_baseline / truth[valid], DEPTH_BINS) - 1
+                error = np.abs(result.disparity[valid] - truth[valid])
+                sums += np.bincount(where, error, sums.size)
+                counts += np.bincount(where, None, sums.size)
+            values = np.concatenate([v for v, _ in added]) if added else np.zeros(0)
+            there = np.concatenate([t for _, t in added]) if added else np.zeros(0)
+            with np.errstate(invalid="ignore"):
+                off = np.abs(values - there)
+                known = max(int(np.isfinite(off).sum()), 1)
+                wrong = np.sum(off > 3) / known, np.sum(off > 10) / known
+            bins = " ".join(f"{e:.3f}" for e in sums / np.maximum(counts, 1))
+            lines.append(
+                f"  {name:9s} added {values.size:4d}, > 3 px off {wrong[0]:6.1%}, > 10 px "
+                f"{wrong[1]:6.1%}; |error| {sums.sum() / counts.sum():.3f} px, by depth {bins}"
+            )
+    edges = ", ".join(f"{a:g}-{b:g}" for a, b in itertools.pairwise(DEPTH_BINS))
+    return f"depth bins (m) {edges}\n" + "\n".join(lines)
+
+
 REPORTS: dict[str, Callable[[Items], str]] = {
     "counts": counts,
     "moves": moves,
     "near-std": near_std,
     "std-scale": std_scale,
     "where-error": where_error,
+    "near-points": near_points,
 }
 
 
@@ -247,7 +311,7 @@ def main(argv: list[str] | None = None) -> int:
         "--sources",
         nargs="+",
         default=["lidar", "synth", "odometry", "raw"],
-        choices=["lidar", "synth", "odometry", "raw"],
+        choices=["lidar", "synth", "odometry", "raw", "demo"],
     )
     args = parser.parse_args(argv)
     work = harness.work_dir(args.work_dir)
@@ -255,6 +319,7 @@ def main(argv: list[str] | None = None) -> int:
     makers: dict[str, tuple[str, Callable[[], Iterator[tuple[Any, Any]]]]] = {
         "lidar": ("lidar", lambda: sharpness._lidar_frames(realdata)),
         "synth": ("synth_9001_9002_20", lambda: sharpness._synth_frames([9001, 9002], 20)),
+        "demo": ("synth_9001_40", lambda: sharpness._synth_frames([9001], 40)),
         "odometry": (
             "odometry_40",
             lambda: sharpness._kitti_frames(realdata / harness.KITTI_ODOMETRY_CLIP, 40),

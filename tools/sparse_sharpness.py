@@ -129,6 +129,11 @@ VARIANTS.update(
         # the default and points beyond SGBM's range from a quarter-resolution match
         "near_reach": {"near": NearConfig()},
         "near_reach_always": {"near": NearConfig(trigger_share=0.0)},
+        # without it (densify --no-near-reach), and its quarter values checked against the
+        # right view's quarter map within 1 or 2 quarter px (NearConfig.lr_max_diff)
+        "no_near_reach": {"near": None},
+        "near_lr1": {"near": NearConfig(lr_max_diff=1.0)},
+        "near_lr2": {"near": NearConfig(lr_max_diff=2.0)},
         # the lattice: the default (named, so the tables comparing it read as such)
         "lattice": {"gftt": LATTICE},
         # the lattice's points where >= 80 % of SGBM's 21 x 21 px are valid

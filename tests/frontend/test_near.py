@@ -68,3 +68,43 @@ def test_a_pair_too_narrow_for_the_quarter_match_is_left_alone() -> None:
     assert out[0] is pixels
     assert out[2] is None
     assert out[3]["near_matched"] == 0
+
+
+FAINT = 12.0  # grey levels of the plane's texture: too faint for the matcher to hold on to
+
+
+def _occluding_pair(
+    near: int, far: int, start: int, stop: int
+) -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.uint8]]:
+    """A faint plane at ``far`` px behind a box at ``near`` px over left columns [start, stop)."""
+    rng = np.random.default_rng(5)
+
+    def texture(width: int, contrast: float) -> npt.NDArray[np.uint8]:
+        noise = cv2.GaussianBlur(rng.random((HEIGHT, width)).astype(np.float32), (0, 0), 2.5)
+        scaled = (noise - noise.min()) / (noise.max() - noise.min()) * contrast
+        return (scaled + 128 - contrast / 2).astype(np.uint8)
+
+    back, box = texture(WIDTH + far, FAINT), texture(WIDTH + near, 255.0)
+    columns = np.arange(WIDTH)
+    left = np.where((columns >= start) & (columns < stop), box[:, :WIDTH], back[:, :WIDTH])
+    # a right column x sees the box's column x + near where that lies on the box
+    on_box = (columns + near >= start) & (columns + near < stop)
+    right = np.where(on_box, box[:, near : near + WIDTH], back[:, far : far + WIDTH])
+    return np.ascontiguousarray(left, np.uint8), np.ascontiguousarray(right, np.uint8)
+
+
+def test_the_right_views_check_keeps_points_off_the_occluded_background() -> None:
+    # left of the box, columns [start - (NEAR - far), start) of the plane are hidden from
+    # the right camera; a matcher lends them the box's value, the right view does not
+    far, start, stop = 40, 480, 720
+    left, right = _occluding_pair(NEAR, far, start, stop)
+    half = compute_disparity(left, right, SgbmConfig(downscale=2))
+    empty = np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
+    checked = near_points(left, right, half, *empty, NearConfig(trigger_share=0.0))  # default
+    assert checked.pixels.shape[0] > 10
+    assert np.all(checked.pixels[:, 0] >= start - 4)
+    assert np.median(np.abs(checked.disparities - NEAR)) < 2.0
+    unchecked = near_points(
+        left, right, half, *empty, NearConfig(trigger_share=0.0, lr_max_diff=0.0)
+    )
+    assert np.any(unchecked.pixels[:, 0] < start - 4)  # what the check is for
