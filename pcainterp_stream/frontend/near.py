@@ -43,6 +43,7 @@ __all__ = [
     "extend_near",
     "near_points",
     "quarter_disparity",
+    "quarter_images",
     "wants_near",
 ]
 
@@ -124,33 +125,44 @@ def wants_near(half_map: FloatArray, config: NearConfig) -> bool:
     return bool(valid > 0 and high >= config.trigger_share * valid)
 
 
-def quarter_disparity(
-    left: UInt8Array, right: UInt8Array, num_disparities: int, *, right_view: bool = False
-) -> tuple[FloatArray, FloatArray | None]:
-    """SGBM at quarter resolution (halved twice): its own px and values, NaN where invalid.
-
-    Halving twice (INTER_AREA) costs ~0.3 ms per KITTI image, one x4 INTER_AREA ~1.1 ms
-    (OpenCV's fast path is for x2); the front end's own half images could be reused.
-
-    Returns:
-        The left view's map and, with ``right_view``, the right view's (SGBM on the
-        mirrored, swapped pair, mirrored back), else None.
-    """
-    from pcainterp_stream.frontend.refine import halved
-    from pcainterp_stream.frontend.stereo import _flip, _match
-
-    small_left = halved(halved(left))
-    small_right = halved(halved(right))
+def _quarter_config(num_disparities: int) -> SgbmConfig:
     base = SgbmConfig()
-    config = SgbmConfig(
+    return SgbmConfig(
         num_disparities=num_disparities,
         speckle_window_size=base.speckle_window_size // 16,
     )
-    own = _match(small_left, small_right, config, False)
+
+
+def quarter_images(left: UInt8Array, right: UInt8Array) -> tuple[UInt8Array, UInt8Array]:
+    """The pair at quarter resolution (halved twice, INTER_AREA).
+
+    Halving twice costs ~0.3 ms per KITTI image, one x4 INTER_AREA ~1.1 ms (OpenCV's fast
+    path is for x2); the front end's own half images could be reused.
+    """
+    from pcainterp_stream.frontend.refine import halved
+
+    return halved(halved(left)), halved(halved(right))
+
+
+def quarter_disparity(
+    small_left: UInt8Array,
+    small_right: UInt8Array,
+    num_disparities: int,
+    *,
+    right_view: bool = False,
+) -> FloatArray:
+    """SGBM on a quarter-resolution pair: its own px and values, NaN where invalid.
+
+    With ``right_view``, the right view's map instead: SGBM on the mirrored, swapped pair,
+    mirrored back (right pixel x matches left pixel x + d).
+    """
+    from pcainterp_stream.frontend.stereo import _flip, _match
+
+    config = _quarter_config(num_disparities)
     if not right_view:
-        return own, None
+        return _match(small_left, small_right, config, False)
     mirrored = _match(_flip(small_right), _flip(small_left), config, False)
-    return own, np.ascontiguousarray(mirrored[:, ::-1])
+    return np.ascontiguousarray(mirrored[:, ::-1])
 
 
 def _support(quarter: FloatArray) -> FloatArray:
@@ -185,9 +197,17 @@ def near_points(
     )
     if not wants_near(half_map, config):
         return none
-    quarter, right_quarter = quarter_disparity(
-        left, right, config.num_disparities, right_view=config.lr_max_diff > 0.0
-    )
+    pair = quarter_images(left, right)
+    quarter = quarter_disparity(*pair, config.num_disparities)
+    right_views: list[FloatArray] = []  # matched when a value first needs checking
+
+    def right_view() -> FloatArray | None:
+        if config.lr_max_diff <= 0.0:
+            return None
+        if not right_views:
+            right_views.append(quarter_disparity(*pair, config.num_disparities, right_view=True))
+        return right_views[0]
+
     height, width = left.shape
     scale = np.float32(width / quarter.shape[1])  # full px per quarter px (~4)
     scale_y = np.float32(height / quarter.shape[0])
@@ -207,7 +227,7 @@ def near_points(
         found = lookup_disparities(
             quarter,
             small[chosen],
-            right_disparity=right_quarter,
+            right_disparity=right_view() if chosen.size else None,
             max_gradient=config.max_gradient,
             discontinuity_radius=config.radius,
             lr_max_diff=config.lr_max_diff,

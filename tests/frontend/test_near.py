@@ -108,3 +108,29 @@ def test_the_right_views_check_keeps_points_off_the_occluded_background() -> Non
         left, right, half, *empty, NearConfig(trigger_share=0.0, lr_max_diff=0.0)
     )
     assert np.any(unchecked.pixels[:, 0] < start - 4)  # what the check is for
+
+
+def test_the_right_view_is_matched_only_when_a_value_needs_its_check() -> None:
+    from unittest import mock
+
+    import pcainterp_stream.frontend.near as near
+
+    calls: list[bool] = []
+    match = near.quarter_disparity
+
+    def counted(*args: object, right_view: bool = False) -> npt.NDArray[np.float32]:
+        calls.append(right_view)
+        return match(*args, right_view=right_view)  # type: ignore[arg-type]
+
+    empty = np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
+    always = NearConfig(trigger_share=0.0)
+    with mock.patch.object(near, "quarter_disparity", counted):
+        far_left, far_right = _pair(40)  # nothing near the range's end: no candidate
+        far = compute_disparity(far_left, far_right, SgbmConfig(downscale=2))
+        near_points(far_left, far_right, far, *empty, always)
+        assert calls == [False]
+        calls.clear()
+        left, right = _pair(NEAR)
+        half = compute_disparity(left, right, SgbmConfig(downscale=2))
+        assert near_points(left, right, half, *empty, always).pixels.shape[0] > 0
+        assert calls == [False, True]
