@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.frontend.stereo import SgbmConfig, lookup_disparities, to_grey8
+from pcainterp_stream.frontend.stereo import SgbmConfig, _bilinear, lookup_disparities, to_grey8
 
 FloatArray = npt.NDArray[np.float32]
 UInt8Array = npt.NDArray[np.uint8]
@@ -199,15 +199,6 @@ def near_points(
         return none
     pair = quarter_images(left, right)
     quarter = quarter_disparity(*pair, config.num_disparities)
-    right_views: list[FloatArray] = []  # matched when a value first needs checking
-
-    def right_view() -> FloatArray | None:
-        if config.lr_max_diff <= 0.0:
-            return None
-        if not right_views:
-            right_views.append(quarter_disparity(*pair, config.num_disparities, right_view=True))
-        return right_views[0]
-
     height, width = left.shape
     scale = np.float32(width / quarter.shape[1])  # full px per quarter px (~4)
     scale_y = np.float32(height / quarter.shape[0])
@@ -227,10 +218,8 @@ def near_points(
         found = lookup_disparities(
             quarter,
             small[chosen],
-            right_disparity=right_view() if chosen.size else None,
             max_gradient=config.max_gradient,
             discontinuity_radius=config.radius,
-            lr_max_diff=config.lr_max_diff,
         )
         values = np.full(points.shape[0], np.nan, np.float32)
         values[chosen[found.indices]] = found.disparities * scale
@@ -238,6 +227,24 @@ def near_points(
         with np.errstate(invalid="ignore"):
             confident = supported & (values >= start)
         return values, confident
+
+    right_views: list[FloatArray] = []  # matched once, when a value first needs the check
+
+    def right_agrees(points: FloatArray, values: FloatArray) -> npt.NDArray[np.bool_]:
+        """Whether the right view's quarter map, where each value matches, does not disagree.
+
+        Where it has no value there (its own band, occlusions) nothing speaks against it.
+        """
+        if config.lr_max_diff <= 0.0 or not points.shape[0]:
+            return np.ones(points.shape[0], bool)
+        if not right_views:
+            right_views.append(quarter_disparity(*pair, config.num_disparities, right_view=True))
+        small = values / scale
+        x = (points[:, 0] + 0.5) / scale - 0.5 - small
+        y = (points[:, 1] + 0.5) / scale_y - 0.5
+        there = _bilinear(right_views[0], x.astype(np.float32), y.astype(np.float32))
+        with np.errstate(invalid="ignore"):
+            return ~(np.abs(there - small) > np.float32(config.lr_max_diff))
 
     # the candidate grid, right of the quarter match's own left band
     first_x = max(config.border, int(np.ceil(config.num_disparities * scale)))
@@ -251,11 +258,15 @@ def near_points(
     with np.errstate(invalid="ignore"):
         measured = np.abs(half - values) <= config.agree
     keep = confident & ~measured
+    # the right view last: only the points every cheaper check kept need it
+    keep[keep] = right_agrees(grid[keep], values[keep])
     contradicted = np.zeros(count, bool)
     if config.drop_below > 0.0 and count:
-        there, sure = at_quarter(np.asarray(pixels, np.float32))
+        lookups = np.asarray(pixels, np.float32)
+        there, sure = at_quarter(lookups)
         with np.errstate(invalid="ignore"):
             contradicted = sure & (disparities < there - np.float32(config.drop_below))
+        contradicted[contradicted] = right_agrees(lookups[contradicted], there[contradicted])
     return NearPoints(
         np.ascontiguousarray(grid[keep]), values[keep].astype(np.float32), contradicted, True
     )
