@@ -219,8 +219,9 @@ def _add_estimate_options(densify: argparse.ArgumentParser) -> None:
         "--near-reach",
         action=argparse.BooleanOptionalAction,
         default=True,
-        help="also match at quarter resolution (four times SGBM's range) on frames whose map "
-        "nears the range's end, and measure the surfaces nearer than the range there: ~24%% "
+        help="also match at quarter resolution (twice SGBM's range) on frames whose map "
+        "nears the range's end, and measure the surfaces nearer than the range there (each "
+        "value checked against the right view's quarter map): ~23%% "
         "lower error on drives with such surfaces, none elsewhere; --no-near-reach: off "
         "(default: %(default)s; docs/sharper_sparse_2.md)",
     )

@@ -178,7 +178,7 @@ class ProcessorConfig:
             SGBM) for an edge-aware local prior (:mod:`~pcainterp_stream.estimate.cells`),
             used when the basis's local prior has a cell weight (the built-in street
             basis); False: the stationary kernel.
-        near: sparse stereo mode also matches at quarter resolution (four times SGBM's
+        near: sparse stereo mode also matches at quarter resolution (twice SGBM's
             range) on frames whose map nears the range's end, and measures the surfaces
             nearer than the range there (:mod:`~pcainterp_stream.frontend.near`; its
             ``match_range`` is set from ``sgbm``); None: off. Dense mode and feature
