@@ -134,6 +134,9 @@ VARIANTS.update(
         "no_near_reach": {"near": None},
         "near_lr1": {"near": NearConfig(lr_max_diff=1.0)},
         "near_lr2": {"near": NearConfig(lr_max_diff=2.0)},
+        # the left band x < 128 px matched too (SGBM on padded images, as dense mode does),
+        # measured on the default's nudged lattice (``left_band`` above: the plain lattice)
+        "left_band_nudged": {"sgbm": {"full_width": True}},
         # the lattice: the default (named, so the tables comparing it read as such)
         "lattice": {"gftt": LATTICE},
         # the lattice's points where >= 80 % of SGBM's 21 x 21 px are valid
