@@ -41,6 +41,7 @@ __all__ = [
     "NearConfig",
     "NearPoints",
     "extend_near",
+    "lookups_only",
     "near_points",
     "quarter_disparity",
     "quarter_images",
@@ -318,3 +319,17 @@ def extend_near(
         noise if added else None,
         counts,
     )
+
+
+def lookups_only(
+    pixels: FloatArray, disparities: FloatArray, noise: FloatArray | None
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`extend_near`'s output without the points it added (those with extra noise).
+
+    The basis's fit check scores against SGBM's map, which has no value beyond the range
+    (or an aliased one): it judges the basis on the points SGBM's map can confirm.
+    """
+    if noise is None:
+        return pixels, disparities
+    own = noise == 0
+    return pixels[own], disparities[own]

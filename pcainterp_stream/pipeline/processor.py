@@ -70,7 +70,7 @@ from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
 from pcainterp_stream.estimate.variance import _variance_stride, prior_std_map
 from pcainterp_stream.frontend.features import features_to_measurements
 from pcainterp_stream.frontend.motion import CarriedPoints, CarryConfig, Motion, estimate_motion
-from pcainterp_stream.frontend.near import NearConfig, extend_near
+from pcainterp_stream.frontend.near import NearConfig, extend_near, lookups_only
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
     SgbmConfig,
@@ -546,7 +546,8 @@ class FrameProcessor:
                 if check_frame or self.adaptation.adapted:
                     sgbm_map, grid = sgbm_maps(measurements.disparity_map, frame.camera)
                     if check_frame and grid is not None:
-                        held_out = adapt.HeldOut.of(sgbm_map, pixels, disparities)
+                        checked = lookups_only(pixels, disparities, noise)
+                        held_out = adapt.HeldOut.of(sgbm_map, *checked)
                 else:  # matched ahead while the check runs: needed only if it adapts
                     raw_map = measurements.disparity_map
         motion = None
@@ -876,8 +877,7 @@ def _adapt_frame(item: _Measured) -> AdaptFrame:
     if item.raw_map is not None:
         sgbm_map, grid = sgbm_maps(item.raw_map, camera)
     return AdaptFrame(
-        item.pixels,
-        item.disparities,
+        *lookups_only(item.pixels, item.disparities, item.noise),  # SGBM's, not the near reach's
         sgbm_map,
         grid,
         camera.image_size,

@@ -701,6 +701,22 @@ def test_near_reach_measures_a_plane_beyond_sgbms_range(basis: Basis) -> None:
     drive = run(basis, _drive(3), near=near, adapt="off")
     assert drive[2].counts["carried"] > 0
     assert drive[2].counts["near_added"] > 0
+    # the basis's fit check judges it on SGBM's own lookups only: its reference, SGBM's map,
+    # has no value beyond the range (and on real pairs an aliased one)
+    checked: list[int] = []
+    original = adapt_frame = processor._adapt_frame
+
+    def recorded(item: Any) -> Any:
+        frame = adapt_frame(item)
+        checked.append(frame.pixels.shape[0])
+        return frame
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(processor, "_adapt_frame", recorded)
+        (fitted,) = run(basis, [frame], near=near, carry=CarryConfig(frames=0), warmup_frames=1)
+    assert processor._adapt_frame is original
+    assert fitted.counts["near_added"] > 5
+    assert checked == [fitted.pixels.shape[0] - fitted.counts["near_added"]]
     # on by default, its range set from SGBM's
     assert ProcessorConfig().near is not None
     with FrameProcessor(basis, ProcessorConfig(sgbm=SGBM, adapt="off")) as engine:
