@@ -15,8 +15,8 @@ quarter match, on the mirrored pair): where the right view, at the pixel the val
 disagrees by more than ``NearConfig.lr_max_diff`` quarter px, the value is not used. Left of
 a near object lies a strip of background the right camera does not see; a matcher lends it
 the object's disparity. Points placed there were 50-110 px too high and raised the error of
-the background around them by 10-16 % at 5-20 m on a synthetic drive; the check removes 2 %
-of the added points, those among them (measured in docs/sharper_sparse_2.md).
+the background around them by 11-16 % at 5-20 m on a synthetic drive; the check removes 2 %
+of the added points, these among them (measured in docs/sharper_sparse_2.md).
 
 A cheap trigger (:func:`wants_near`) skips the extra match on frames whose half-resolution
 map has (almost) no values near the range's end. The processor adds these points, with
