@@ -134,6 +134,9 @@ VARIANTS.update(
         "no_near_reach": {"near": None},
         "near_lr1": {"near": NearConfig(lr_max_diff=1.0)},
         "near_lr2": {"near": NearConfig(lr_max_diff=2.0)},
+        # the added points on a 14 or 10 px grid instead of 20 px
+        "near_spacing14": {"near": NearConfig(spacing=14.0)},
+        "near_spacing10": {"near": NearConfig(spacing=10.0)},
         # the left band x < 128 px matched too (SGBM on padded images, as dense mode does),
         # measured on the default's nudged lattice (``left_band`` above: the plain lattice)
         "left_band_nudged": {"sgbm": {"full_width": True}},
