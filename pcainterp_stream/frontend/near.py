@@ -32,7 +32,14 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.frontend.stereo import SgbmConfig, _bilinear, lookup_disparities, to_grey8
+from pcainterp_stream.frontend.stereo import (
+    SgbmConfig,
+    _bilinear,
+    compute_disparity,
+    compute_right_disparity,
+    lookup_disparities,
+    to_grey8,
+)
 
 FloatArray = npt.NDArray[np.float32]
 UInt8Array = npt.NDArray[np.uint8]
@@ -154,16 +161,13 @@ def quarter_disparity(
 ) -> FloatArray:
     """SGBM on a quarter-resolution pair: its own px and values, NaN where invalid.
 
-    With ``right_view``, the right view's map instead: SGBM on the mirrored, swapped pair,
-    mirrored back (right pixel x matches left pixel x + d).
+    With ``right_view``, the right view's map instead (:func:`compute_right_disparity`:
+    right pixel x matches left pixel x + d).
     """
-    from pcainterp_stream.frontend.stereo import _flip, _match
-
     config = _quarter_config(num_disparities)
-    if not right_view:
-        return _match(small_left, small_right, config, False)
-    mirrored = _match(_flip(small_right), _flip(small_left), config, False)
-    return np.ascontiguousarray(mirrored[:, ::-1])
+    if right_view:
+        return compute_right_disparity(small_left, small_right, config)
+    return compute_disparity(small_left, small_right, config)
 
 
 def _support(quarter: FloatArray) -> FloatArray:
@@ -207,11 +211,16 @@ def near_points(
     support = _support(quarter)
     highest = cv2.dilate(np.nan_to_num(quarter, nan=0.0), np.ones((3, 3), np.uint8))
 
-    def at_quarter(points: FloatArray) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
-        """Checked quarter values (full px) at full-resolution points; NaN where rejected."""
+    def to_quarter(points: FloatArray) -> FloatArray:
+        """Full-resolution (x, y) px as quarter-resolution px (pixel centres aligned)."""
         small = np.empty_like(points)
         small[:, 0] = (points[:, 0] + 0.5) / scale - 0.5
         small[:, 1] = (points[:, 1] + 0.5) / scale_y - 0.5
+        return small
+
+    def at_quarter(points: FloatArray) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+        """Checked quarter values (full px) at full-resolution points; NaN where rejected."""
+        small = to_quarter(points)
         rows = np.clip(np.rint(small[:, 1]).astype(np.int64), 0, quarter.shape[0] - 1)
         cols = np.clip(np.rint(small[:, 0]).astype(np.int64), 0, quarter.shape[1] - 1)
         # only where a value >= start is within a px (a bilinear value is at most its cell's)
@@ -240,12 +249,12 @@ def near_points(
             return np.ones(points.shape[0], bool)
         if not right_views:
             right_views.append(quarter_disparity(*pair, config.num_disparities, right_view=True))
-        small = values / scale
-        x = (points[:, 0] + 0.5) / scale - 0.5 - small
-        y = (points[:, 1] + 0.5) / scale_y - 0.5
-        there = _bilinear(right_views[0], x.astype(np.float32), y.astype(np.float32))
+        small = to_quarter(points)
+        value: FloatArray = (values / scale).astype(np.float32)
+        there = _bilinear(right_views[0], small[:, 0] - value, small[:, 1])
         with np.errstate(invalid="ignore"):
-            return ~(np.abs(there - small) > np.float32(config.lr_max_diff))
+            disagrees: npt.NDArray[np.bool_] = np.abs(there - value) > config.lr_max_diff
+        return ~disagrees
 
     # the candidate grid, right of the quarter match's own left band
     first_x = max(config.border, int(np.ceil(config.num_disparities * scale)))
