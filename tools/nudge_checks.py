@@ -17,10 +17,13 @@ the same work folder; run that tool once first, or let this one build them):
 * ``where-error`` -- the default's mean error by the distance of a truth pixel to the
   nearest measurement and by how far SGBM's map (as the front end matched it) is from the
   truth there;
-* ``near-points`` -- the points the near reach adds (``frontend/near.py``), without and
-  with its check against the right view's quarter map: how many, how many more than 3 and
-  10 px from the truth, and the mean |disparity error| by the truth's depth, against no
-  near reach at all (``--sources demo``: the demo's held-out drive, seed 9001, 40 frames).
+* ``near-points`` -- the points the near reach adds (``frontend/near.py``) under several
+  settings (none; without the right view's check; that with only the added points within
+  3 px of the truth kept, an oracle; the default; a 1 quarter px check; no drops; 3 px
+  noise; margin 0; a 14 px grid): how many, how many more than 3 and 10 px from the truth,
+  the mean |disparity error| by the truth's depth, +-2 sigma, the Gaussian NLL (all and
+  by depth), and how often and at what thread CPU the right view is matched
+  (``--sources demo``: the demo's held-out drive, seed 9001, 40 frames).
 
 Examples::
 
@@ -36,6 +39,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import time
 from collections.abc import Callable, Iterator
 from functools import partial
 from pathlib import Path
@@ -50,6 +54,7 @@ from scipy.spatial import cKDTree
 
 import pcainterp_stream.estimate.variance as variance
 import pcainterp_stream.frontend.fill as fill
+import pcainterp_stream.frontend.near as near_module
 import pcainterp_stream.pipeline.processor as processor
 from pcainterp_stream.frontend.corners import lattice_points, patch_contrast
 from pcainterp_stream.frontend.near import NearConfig, extend_near
@@ -243,49 +248,82 @@ DEPTH_BINS = (0.0, 5.0, 10.0, 20.0, 40.0, np.inf)
 
 
 def near_points(items: Items) -> str:
-    """The near reach's added points against the truth, without and with the right view's check."""
+    """The near reach's added points against the truth, per setting, and the maps' errors."""
     truths = {id(frame.left): truth for frame, truth in items}
     added: list[tuple[Any, Any]] = []  # (values, truth there) per frame with points added
+    oracle = [False]  # keep only the added points within 3 px of the truth
+    right_views: list[float] = []  # thread CPU seconds of each right-view quarter match
+    quarter = near_module.quarter_disparity
 
     def recording(left: Any, *args: Any) -> Any:
-        found = extend_near(left, *args)
-        noise = found[2]
-        if noise is not None:
-            pixels, values = found[0][noise > 0], found[1][noise > 0]
-            rows, cols = np.rint(pixels[:, 1]).astype(int), np.rint(pixels[:, 0]).astype(int)
-            added.append((values, truths[id(left)][rows, cols]))
-        return found
+        pixels, values, noise, found = extend_near(left, *args)
+        if noise is None:
+            return pixels, values, noise, found
+        rows, cols = np.rint(pixels[:, 1]).astype(int), np.rint(pixels[:, 0]).astype(int)
+        there = truths[id(left)][rows, cols]
+        if oracle[0]:
+            with np.errstate(invalid="ignore"):
+                keep = (noise == 0) | (np.abs(values - there) <= 3.0)
+            pixels, values, noise, there = pixels[keep], values[keep], noise[keep], there[keep]
+        added.append((values[noise > 0], there[noise > 0]))
+        return pixels, values, noise, found
+
+    def timed(*args: Any, right_view: bool = False) -> Any:
+        start = time.thread_time()
+        disparity = quarter(*args, right_view=right_view)
+        if right_view:
+            right_views.append(time.thread_time() - start)
+        return disparity
 
     base = ProcessorConfig()
-    settings = {
-        "none": dataclasses.replace(base, near=None),
-        "unchecked": dataclasses.replace(base, near=NearConfig(lr_max_diff=0.0)),
-        "checked": dataclasses.replace(base, near=NearConfig()),
+    settings: dict[str, tuple[NearConfig | None, bool]] = {
+        "none": (None, False),
+        "unchecked": (NearConfig(lr_max_diff=0.0), False),
+        "oracle": (NearConfig(lr_max_diff=0.0), True),
+        "checked": (NearConfig(), False),
+        "lr1": (NearConfig(lr_max_diff=1.0), False),
+        "no_drops": (NearConfig(drop_below=0.0), False),
+        "noise3": (NearConfig(noise=3.0), False),
+        "margin0": (NearConfig(margin=0.0), False),
+        "grid14": (NearConfig(spacing=14.0), False),
     }
     focal_baseline = items[0][0].camera.focal_baseline
     lines = []
-    with mock.patch.object(processor, "extend_near", recording):
-        for name, config in settings.items():
+    with (
+        mock.patch.object(processor, "extend_near", recording),
+        mock.patch.object(near_module, "quarter_disparity", timed),
+    ):
+        for name, (near, oracle[0]) in settings.items():
             added.clear()
-            with FrameProcessor(None, config) as densifier:
+            right_views.clear()
+            with FrameProcessor(None, dataclasses.replace(base, near=near)) as densifier:
                 results = list(densifier.process([frame for frame, _ in items]))
-            sums, counts = np.zeros(len(DEPTH_BINS) - 1), np.zeros(len(DEPTH_BINS) - 1)
+            sums = np.zeros((4, len(DEPTH_BINS) - 1))  # pixels, |error|, inside +-2 std, NLL
             for (_, truth), result in zip(items, results, strict=True):
                 valid = np.isfinite(truth) & (truth > 0)
                 where = np.digitize(focal_baseline / truth[valid], DEPTH_BINS) - 1
-                error = np.abs(result.disparity[valid] - truth[valid])
-                sums += np.bincount(where, error, sums.size)
-                counts += np.bincount(where, None, sums.size)
+                error = np.abs(result.disparity[valid] - truth[valid]).astype(np.float64)
+                std = result.disparity_std[valid].astype(np.float64)
+                nll = np.log(std) + 0.5 * np.log(2 * np.pi) + 0.5 * (error / std) ** 2
+                for row, weights in enumerate((None, error, error <= 2 * std, nll)):
+                    sums[row] += np.bincount(where, weights, sums.shape[1])
             values = np.concatenate([v for v, _ in added]) if added else np.zeros(0)
             there = np.concatenate([t for _, t in added]) if added else np.zeros(0)
             with np.errstate(invalid="ignore"):
                 off = np.abs(values - there)
                 known = max(int(np.isfinite(off).sum()), 1)
                 wrong = np.sum(off > 3) / known, np.sum(off > 10) / known
-            bins = " ".join(f"{e:.3f}" for e in sums / np.maximum(counts, 1))
+            pixels = sums[0].sum()
+            bins = " ".join(f"{e:.3f}" for e in sums[1] / np.maximum(sums[0], 1))
+            nll_bins = " ".join(f"{e:.2f}" for e in sums[3] / np.maximum(sums[0], 1))
+            matched = sum(result.counts.get("near_matched", 0) for result in results)
+            cost = f"{1e3 * np.mean(right_views):.1f} ms" if right_views else "-"
             lines.append(
                 f"  {name:9s} added {values.size:4d}, > 3 px off {wrong[0]:6.1%}, > 10 px "
-                f"{wrong[1]:6.1%}; |error| {sums.sum() / counts.sum():.3f} px, by depth {bins}"
+                f"{wrong[1]:6.1%}; |error| {sums[1].sum() / pixels:.3f} px, by depth {bins}; "
+                f"+-2 sigma {sums[2].sum() / pixels:.2%}, NLL {sums[3].sum() / pixels:.3f} "
+                f"(by depth {nll_bins}); quarter match on {matched} frames, the right view's "
+                f"on {len(right_views)} ({cost} each)"
             )
     edges = ", ".join(f"{a:g}-{b:g}" for a, b in itertools.pairwise(DEPTH_BINS))
     return f"depth bins (m) {edges}\n" + "\n".join(lines)
