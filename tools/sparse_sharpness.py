@@ -160,7 +160,18 @@ VARIANTS.update(
             for _share in (0.0, 0.5, 0.8, 0.9, 0.95)
         },
         # the nudged lattice (the default) at other sides
-        **{f"nudged_fill{_side}": {"gftt": {"fill_spacing": float(_side)}} for _side in (34, 36)},
+        **{
+            f"nudged_fill{_side}": {"gftt": {"fill_spacing": float(_side)}}
+            for _side in (30, 32, 34, 36, 37, 38)
+        },
+        # fewer corners and a denser nudged lattice: about the default's count of points
+        **{
+            f"corners{_count}_nudged{_side}": {
+                "gftt": {"max_corners": _count, "fill_spacing": float(_side)}
+            }
+            for _count in (150, 200)
+            for _side in (34, 36)
+        },
         "fill_even": {"gftt": {"fill_placement": "even", "fill_min_support": 0.0}},
         "fill_even_support0.8": {"gftt": {"fill_placement": "even", "fill_min_support": 0.8}},
         "fill_even_support0.95": {"gftt": {"fill_placement": "even", "fill_min_support": 0.95}},
