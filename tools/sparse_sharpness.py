@@ -45,6 +45,7 @@ import numpy.typing as npt
 from pcainterp_stream.estimate.baselines import linear, nearest
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.variance import prior_std_map
+from pcainterp_stream.frontend.motion import CarryConfig
 from pcainterp_stream.frontend.near import NearConfig
 from pcainterp_stream.frontend.stereo import SgbmConfig, StereoFrontEnd, compute_disparity
 from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
@@ -164,6 +165,10 @@ VARIANTS.update(
             f"nudged_fill{_side}": {"gftt": {"fill_spacing": float(_side)}}
             for _side in (30, 32, 34, 36, 37, 38)
         },
+        # the carried points with a denser lattice: none, or a wider gap to the frame's own
+        "no_carry": {"carry": CarryConfig(frames=0)},
+        "nudged_fill36_no_carry": {"gftt": {"fill_spacing": 36.0}, "carry": CarryConfig(frames=0)},
+        "nudged_fill36_gap40": {"gftt": {"fill_spacing": 36.0}, "carry": CarryConfig(gap=40.0)},
         # fewer corners and a denser nudged lattice: about the default's count of points
         **{
             f"corners{_count}_nudged{_side}": {
