@@ -38,7 +38,7 @@ from pcainterp_stream.frontend.stereo import (
     compute_disparity,
     compute_right_disparity,
     lookup_disparities,
-    to_grey8,
+    to_grey8_pair,
 )
 
 FloatArray = npt.NDArray[np.float32]
@@ -97,6 +97,12 @@ class NearConfig:
     border: int = 8
     noise: float = 1.0
     lr_max_diff: float = 2.0
+
+    def __post_init__(self) -> None:
+        # the added points are told from the front end's own by their extra noise
+        # (lookups_only): a point added without any would pass for a lookup
+        if not self.noise > 0.0:
+            raise ValueError(f"NearConfig.noise must be > 0 px, got {self.noise}")
 
 
 class NearPoints:
@@ -162,11 +168,13 @@ def quarter_disparity(
     """SGBM on a quarter-resolution pair: its own px and values, NaN where invalid.
 
     With ``right_view``, the right view's map instead (:func:`compute_right_disparity`:
-    right pixel x matches left pixel x + d).
+    right pixel x matches left pixel x + d), over the whole width: its own band (the right
+    one, where a match would reach past the left image's right edge) padded and matched
+    too, so a value near the right edge is checked as well as any other.
     """
     config = _quarter_config(num_disparities)
     if right_view:
-        return compute_right_disparity(small_left, small_right, config)
+        return compute_right_disparity(small_left, small_right, replace(config, full_width=True))
     return compute_disparity(small_left, small_right, config)
 
 
@@ -307,7 +315,7 @@ def extend_near(
         return pixels, disparities, None, unchanged
     if not wants_near(half_map, config):
         return pixels, disparities, None, unchanged
-    grey = to_grey8(left), to_grey8(right)
+    grey = to_grey8_pair(left, right)  # one intensity scale for both views (16-bit)
     always = replace(config, trigger_share=0.0)
     found = near_points(*grey, half_map, pixels, disparities, always)
     kept = ~found.contradicted
