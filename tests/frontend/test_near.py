@@ -69,6 +69,13 @@ def test_a_pair_too_narrow_for_the_quarter_match_is_left_alone() -> None:
     assert out[0] is pixels
     assert out[2] is None
     assert out[3]["near_matched"] == 0
+    # too short for the quarter lookup's patch: left alone too, however the map reads
+    short_left, short_right = left[:8].copy(), right[:8].copy()
+    lookup = np.array([[300.0, 0.0]], np.float32), np.array([60.0], np.float32)
+    high = np.full(short_left.shape, 127.0, np.float32)
+    short = extend_near(short_left, short_right, high, *lookup, NearConfig())
+    assert short[0] is lookup[0]
+    assert short[2] is None
 
 
 FAINT = 12.0  # grey levels of the plane's texture: too faint for the matcher to hold on to
