@@ -221,7 +221,7 @@ def _add_estimate_options(densify: argparse.ArgumentParser) -> None:
         default=True,
         help="also match at quarter resolution (twice SGBM's range) on frames whose map "
         "nears the range's end, and measure the surfaces nearer than the range there (each "
-        "value checked against the right view's quarter map): ~23%% "
+        "value checked against the right view's quarter map): ~24%% "
         "lower error on drives with such surfaces, none elsewhere; --no-near-reach: off "
         "(default: %(default)s; docs/sharper_sparse_2.md)",
     )

@@ -210,9 +210,6 @@ def near_points(
     )
     if not wants_near(half_map, config):
         return none
-    # the quarter lookup's support patch (2 + 2 radius quarter px a side) must fit the map
-    if min(left.shape[:2]) < 4 * (2 + 2 * config.radius):
-        return none
     pair = quarter_images(left, right)
     quarter = quarter_disparity(*pair, config.num_disparities)
     height, width = left.shape

@@ -590,10 +590,10 @@ class Lookup(NamedTuple):
 def _patches(
     image: FloatArray, top: npt.NDArray[np.int64], left: npt.NDArray[np.int64], size: int
 ) -> FloatArray:
-    """Gather (m, size, size) patches whose top-left corners are (top, left)."""
-    offsets = np.arange(size)
-    rows = (top[:, None] + offsets)[:, :, None]
-    cols = (left[:, None] + offsets)[:, None, :]
+    """Gather (m, size, size) patches at top-left corners (top, left), clipped to the image."""
+    offsets = np.arange(size)  # (clipped: a map smaller than a patch has no patch inside)
+    rows = np.minimum(top[:, None] + offsets, image.shape[0] - 1)[:, :, None]
+    cols = np.minimum(left[:, None] + offsets, image.shape[1] - 1)[:, None, :]
     return np.asarray(image[rows, cols], np.float32)
 
 

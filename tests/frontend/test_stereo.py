@@ -849,3 +849,10 @@ def test_a_greedy_fill_seeks_the_gaps_and_the_support_check_skips_sgbms_holes(
         for config in (replace(even, fill_placement="lattice"), even, supported)
     ]
     assert counts[0] == counts[1] == counts[2]
+
+
+def test_lookup_on_a_map_smaller_than_its_patch_rejects_every_point() -> None:
+    tiny = np.full((2, 3), 50.0, np.float32)  # the 4 x 4 px support patch fits nowhere
+    found = lookup_disparities(tiny, np.array([[1.0, 0.5], [0.0, 0.0]], np.float32))
+    assert found.indices.size == 0
+    assert found.counts.outside == 2
