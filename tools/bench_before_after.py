@@ -12,13 +12,16 @@ packages are compiled to bytecode first, as an installed copy is
 (:func:`harness.compile_bytecode`).
 
 On a shared machine the wall times are the load's; the CPU figures, paired within a round,
-are the measure.
+are the measure. ``--after-args`` adds densify options to the "after" run only: with
+``--before`` a copy of the same code, it times an option against the default.
 
 Example (a checkout of the parent commit, without touching the work tree)::
 
     git archive HEAD~1 | tar -x -C /tmp/before
     python tools/bench_before_after.py kitti_odometry.mcap --before /tmp/before \
         --work-dir /tmp/before_after --rounds 4
+    python tools/bench_before_after.py kitti_odometry.mcap --before /tmp/same \
+        --work-dir /tmp/option --rounds 4 --after-args=--fill-spacing=36
 """
 
 from __future__ import annotations
@@ -75,6 +78,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     harness.add_work_dir(parser, description="folder of the outputs (overwritten)")
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument(
+        "--after-args",
+        nargs="+",
+        default=[],
+        metavar="ARG",
+        help="densify options of the 'after' run only (write --after-args=--opt=value)",
+    )
     args = parser.parse_args(argv)
     if not (args.before / "pcainterp_stream").is_dir():
         parser.error(f"--before {args.before} holds no pcainterp_stream package")
@@ -120,7 +130,10 @@ def main(argv: list[str] | None = None) -> int:
         sizes: dict[str, float] = {}
         for name in ("before", "after") if round_index % 2 == 0 else ("after", "before"):
             output.unlink(missing_ok=True)  # a fresh output each run, as a first run writes
-            timed[name] = run(densify, work, old_env if name == "before" else None)
+            if name == "before":
+                timed[name] = run(densify, work, old_env)
+            else:
+                timed[name] = run(densify + args.after_args, work)
             sizes[name] = output.stat().st_size / 1e6 / frames
             walls[name].append(timed[name][0] / alone[0])
             cpus[name].append(timed[name][1] / alone[1])
