@@ -23,7 +23,12 @@ the same work folder; run that tool once first, or let this one build them):
   noise; margin 0; a 14 px grid): how many, how many more than 3 and 10 px from the truth,
   the mean |disparity error| by the truth's depth, +-2 sigma, the Gaussian NLL (all and
   by depth), and how often and at what thread CPU the right view is matched
-  (``--sources demo``: the demo's held-out drive, seed 9001, 40 frames).
+  (``--sources demo``: the demo's held-out drive, seed 9001, 40 frames);
+* ``robust-from`` -- the default with the IRLS reweighting run only on frames where some
+  point's leave-one-out standardised residual reaches T (``prior.Model.robust_from``;
+  T = 0: always, inf: never), per T: the error, +-2 sigma, depth RMSE, the share of the
+  solves that reweighted, and the estimate's CPU per frame alone (one thread, the
+  settings in turns, best of 3; as ``sparse_sharpness.py --timing``).
 
 Examples::
 
@@ -33,6 +38,7 @@ Examples::
     python tools/nudge_checks.py std-scale
     python tools/nudge_checks.py where-error --sources lidar
     python tools/nudge_checks.py near-points --sources demo synth
+    python tools/nudge_checks.py robust-from
 """
 
 from __future__ import annotations
@@ -52,20 +58,24 @@ import numpy.typing as npt
 import sparse_sharpness as sharpness
 from scipy.spatial import cKDTree
 
+import pcainterp_stream.estimate.solve as solve
 import pcainterp_stream.estimate.variance as variance
 import pcainterp_stream.frontend.fill as fill
 import pcainterp_stream.frontend.near as near_module
 import pcainterp_stream.pipeline.processor as processor
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.estimator import densify_batch
 from pcainterp_stream.frontend.corners import lattice_points, patch_contrast
 from pcainterp_stream.frontend.near import NearConfig, extend_near
 from pcainterp_stream.frontend.stereo import (
     LookupConfig,
+    StereoFrontEnd,
     compute_disparity,
     detect_corners,
     lookup_disparities,
     to_grey8,
 )
-from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
+from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig, resolve_settings
 
 Items = list[tuple[Any, Any]]
 
@@ -329,6 +339,80 @@ def near_points(items: Items) -> str:
     return f"depth bins (m) {edges}\n" + "\n".join(lines)
 
 
+ROBUST_FROM = [0.0, 3.0, 4.0, 5.0, np.inf]
+"""Thresholds T of ``robust-from``: reweight a frame only when some |t_j| >= T."""
+
+
+def robust_from(items: Items) -> str:
+    """Error, coverage and estimate CPU with the reweighting only on frames with an outlier."""
+    reweighted = [0, 0]  # solves that reweighted, all solves
+    weights: Callable[[Array, Any], Array] = getattr(solve, "robust_weights")  # noqa: B009 (not exported)
+    original = getattr(processor, "densify_batch")  # noqa: B009
+
+    def counted(standardised: Array, robust: Any) -> Array:
+        reweighted[0] += 1
+        return weights(standardised, robust)
+
+    def solved(*args: Any, **kwargs: Any) -> Any:
+        results = original(*args, **kwargs)
+        reweighted[1] += len(results)
+        return results
+
+    lines = []
+    for threshold in ROBUST_FROM:
+        reweighted[:] = [0, 0]
+        with (
+            mock.patch.object(solve, "robust_weights", counted),
+            mock.patch.object(processor, "densify_batch", partial(solved, robust_from=threshold)),
+        ):
+            figures = sharpness.score(items, ProcessorConfig())
+        lines.append(
+            f"  T {threshold:g}: {figures['error_px']:.4f} px, +-2 sigma "
+            f"{figures['coverage_2sigma']:.2f} %, depth RMSE {figures['depth_rmse_m']:.3f} m, "
+            f"reweighted {reweighted[0]} of {reweighted[1]} solves"
+        )
+    seconds = _estimate_cpu(items, ROBUST_FROM)
+    timing = ", ".join(
+        f"T {t:g} {1000 * s:.1f} ({s / seconds[0]:.2f}x)"
+        for t, s in zip(ROBUST_FROM, seconds, strict=True)
+    )
+    return "\n".join(lines) + f"\n  estimate alone, CPU ms per frame: {timing}"
+
+
+def _estimate_cpu(items: Items, thresholds: list[float], repeats: int = 3) -> list[float]:
+    """CPU seconds per frame of ``densify_batch`` (4 frames a call) for each threshold."""
+    from threadpoolctl import threadpool_limits
+
+    config = ProcessorConfig()
+    basis = Basis.default()
+    front_end = StereoFrontEnd(config.gftt, config.sgbm)
+    measured = [front_end.measure(frame.left, frame.right) for frame, _ in items]
+    camera = items[0][0].camera
+    parts = [sharpness._partition(m, camera.image_size, basis.grid_size) for m in measured]
+    options = resolve_settings(basis, config).densify_options()
+    best = [np.inf] * len(thresholds)
+    with threadpool_limits(1):
+        for _ in range(repeats):
+            for index, threshold in enumerate(thresholds):
+                started = time.process_time()
+                for start in range(0, len(items), 4):
+                    batch = measured[start : start + 4]
+                    densify_batch(
+                        basis,
+                        [m.pixels for m in batch],
+                        [m.disparities for m in batch],
+                        partitions=parts[start : start + 4],
+                        image_size=camera.image_size,
+                        focal_baseline=camera.focal_baseline,
+                        robust=config.robust,
+                        robust_from=threshold,
+                        **options,
+                    )
+                spent = (time.process_time() - started) / len(items)
+                best[index] = min(best[index], spent)
+    return best
+
+
 REPORTS: dict[str, Callable[[Items], str]] = {
     "counts": counts,
     "moves": moves,
@@ -336,6 +420,7 @@ REPORTS: dict[str, Callable[[Items], str]] = {
     "std-scale": std_scale,
     "where-error": where_error,
     "near-points": near_points,
+    "robust-from": robust_from,
 }
 
 

@@ -46,6 +46,7 @@ from pcainterp_stream.estimate.basis import (
 )
 from pcainterp_stream.estimate.cells import Partition, Seeding, partition_all
 from pcainterp_stream.estimate.prior import (
+    ROBUST_FROM,
     LocalPrior,
     Model,
     Robust,
@@ -255,6 +256,7 @@ def densify_batch(
     temporal: TemporalPrior | None = None,
     std_scale: float = 1.0,
     robust_iterations: int = 1,
+    robust_from: float = ROBUST_FROM,
     scale_by_innovation: bool = False,
     noise_stds: Sequence[npt.ArrayLike | None] | None = None,
     with_depth: bool = True,
@@ -284,6 +286,8 @@ def densify_batch(
         temporal: temporal prior state carried across calls (frames in stream order).
         std_scale: factor on the reported std (1: the posterior std itself).
         robust_iterations: IRLS reweightings with ``robust``.
+        robust_from: reweight a frame only when a measurement's leave-one-out standardised
+            residual reaches this (:class:`prior.Model`); 0: always.
         scale_by_innovation: multiply each frame's std by sqrt(a) of
             :func:`prior.covariance_scale` too.
         noise_stds: F arrays (k_f,) (or None) of extra per-measurement noise std (px),
@@ -320,6 +324,7 @@ def densify_batch(
         local=local_prior,
         robust=Robust(robust),
         robust_iterations=robust_iterations,
+        robust_from=robust_from,
     )
     if not (np.isfinite(std_scale) and std_scale > 0):
         raise ValueError(f"Expected `std_scale` > 0, got {std_scale}")

@@ -302,7 +302,10 @@ def _solve_measurement(
             break
         # leave-one-out standardised residuals: alpha_j / sqrt([K^-1]_jj)
         inverse_diagonal = np.einsum("ij,ij->j", lower_inverse, lower_inverse)
-        updated = robust_weights(alpha / np.sqrt(inverse_diagonal), model.robust)
+        standardised = alpha / np.sqrt(inverse_diagonal)
+        if iteration == 0 and not np.max(np.abs(standardised), initial=0.0) >= model.robust_from:
+            break  # no outlier: the unweighted solve stands (weights 1)
+        updated = robust_weights(standardised, model.robust)
         converged = bool(np.max(np.abs(updated - weights), initial=0.0) < 1e-3)
         weights = updated
         if converged:

@@ -162,6 +162,41 @@ def test_robust_estimate_resists_an_outlier() -> None:
     assert robust.n_downweighted >= 3
 
 
+def test_robust_reweights_only_a_frame_with_an_outlier() -> None:
+    basis = _basis()
+    rng = np.random.default_rng(7)
+    truth = basis.mean + np.tensordot(
+        rng.normal(size=6) * np.sqrt(basis.eigenvalues), basis.components, axes=1
+    )
+    pixels, _ = _points(basis, 30, seed=7)
+    rows, cols = pixels[:, 1].astype(int), pixels[:, 0].astype(int)
+    disparities = truth[rows, cols] + rng.normal(0, 0.3, 30)
+    options = {"sigma": 0.5, "robust": "cauchy"}
+
+    def solve(values: np.ndarray, **more: float) -> DensifyResult:
+        return densify_batch(basis, [pixels], [values], **options, **more)[0]  # type: ignore[arg-type]
+
+    # every leave-one-out residual within 4 predictive std: the unweighted solve stands
+    clean = solve(disparities)
+    plain = densify_batch(basis, [pixels], [disparities], sigma=0.5)[0]
+    assert clean.weights is not None
+    np.testing.assert_array_equal(clean.weights, 1.0)
+    np.testing.assert_array_equal(clean.disparity, plain.disparity)
+    np.testing.assert_allclose(clean.disparity_std, plain.disparity_std, rtol=1e-5)
+    # robust_from=0: reweighted all the same, every Cauchy weight below 1
+    always = solve(disparities, robust_from=0.0)
+    assert always.weights is not None and always.weights.max() < 1.0
+    assert not np.array_equal(always.disparity, plain.disparity)
+    # one wrong lookup: the frame is reweighted from it
+    wrong = disparities.copy()
+    wrong[4] += 40.0
+    outlier = solve(wrong)
+    assert outlier.weights is not None and outlier.weights[4] < 0.5
+    np.testing.assert_array_equal(outlier.disparity, solve(wrong, robust_from=0.0).disparity)
+    with pytest.raises(ValueError, match="robust_from"):
+        solve(disparities, robust_from=-1.0)
+
+
 def test_robust_weights_shapes() -> None:
     t = np.array([0.0, 1.0, 3.0, -10.0])
     np.testing.assert_allclose(robust_weights(t, Robust.NONE), 1.0)
