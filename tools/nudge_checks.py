@@ -28,7 +28,11 @@ the same work folder; run that tool once first, or let this one build them):
   point's leave-one-out standardised residual reaches T (``prior.Model.robust_from``;
   T = 0: always, inf: never), per T: the error, +-2 sigma, depth RMSE, the share of the
   solves that reweighted, and the estimate's CPU per frame alone (one thread, the
-  settings in turns, best of 3; as ``sparse_sharpness.py --timing``).
+  settings in turns, best of 3; as ``sparse_sharpness.py --timing``);
+* ``extra-points`` -- the default with m more lookups (30, 60) placed greedily among a
+  10 px lattice's passing lookups, weighted by how far each one's value is from the linear
+  interpolant of the frame's points (where those points say least of SGBM's map), or by
+  1 (the gap to the nearest point alone): whether it matters where the extra points go.
 
 Examples::
 
@@ -39,12 +43,14 @@ Examples::
     python tools/nudge_checks.py where-error --sources lidar
     python tools/nudge_checks.py near-points --sources demo synth
     python tools/nudge_checks.py robust-from
+    python tools/nudge_checks.py extra-points --sources lidar synth
 """
 
 from __future__ import annotations
 
 import dataclasses
 import itertools
+import threading
 import time
 from collections.abc import Callable, Iterator
 from functools import partial
@@ -62,6 +68,8 @@ import pcainterp_stream.estimate.solve as solve
 import pcainterp_stream.estimate.variance as variance
 import pcainterp_stream.frontend.fill as fill
 import pcainterp_stream.frontend.near as near_module
+import pcainterp_stream.frontend.stereo as stereo_module
+import pcainterp_stream.pipeline.adaptation as adaptation
 import pcainterp_stream.pipeline.processor as processor
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.estimator import densify_batch
@@ -344,32 +352,43 @@ ROBUST_FROM = [0.0, 3.0, 4.0, 5.0, np.inf]
 
 
 def robust_from(items: Items) -> str:
-    """Error, coverage and estimate CPU with the reweighting only on frames with an outlier."""
-    reweighted = [0, 0]  # solves that reweighted, all solves
-    weights: Callable[[Array, Any], Array] = getattr(solve, "robust_weights")  # noqa: B009 (not exported)
-    original = getattr(processor, "densify_batch")  # noqa: B009
+    """Error, coverage and estimate CPU with the reweighting only on frames with an outlier.
+
+    The threshold applies to the job's estimates and to its fit check's solves alike; the
+    count is of the job's own frames (one solve each), and of those that reweighted.
+    """
+    counts = [0, 0]  # frames reweighted, frames solved
+    job = threading.local()  # set while the job's own estimate runs in this thread
+    weights: Callable[[Array, Any], Array] = getattr(solve, "robust_weights")  # noqa: B009
+    estimate = getattr(processor, "densify_batch")  # noqa: B009 (not exported)
+    check = getattr(adaptation, "densify_batch")  # noqa: B009
 
     def counted(standardised: Array, robust: Any) -> Array:
-        reweighted[0] += 1
+        counts[0] += int(getattr(job, "on", False))
         return weights(standardised, robust)
 
     def solved(*args: Any, **kwargs: Any) -> Any:
-        results = original(*args, **kwargs)
-        reweighted[1] += len(results)
+        job.on = True
+        try:
+            results = estimate(*args, **kwargs)
+        finally:
+            job.on = False
+        counts[1] += len(results)
         return results
 
     lines = []
     for threshold in ROBUST_FROM:
-        reweighted[:] = [0, 0]
+        counts[:] = [0, 0]
         with (
             mock.patch.object(solve, "robust_weights", counted),
             mock.patch.object(processor, "densify_batch", partial(solved, robust_from=threshold)),
+            mock.patch.object(adaptation, "densify_batch", partial(check, robust_from=threshold)),
         ):
             figures = sharpness.score(items, ProcessorConfig())
         lines.append(
             f"  T {threshold:g}: {figures['error_px']:.4f} px, +-2 sigma "
             f"{figures['coverage_2sigma']:.2f} %, depth RMSE {figures['depth_rmse_m']:.3f} m, "
-            f"reweighted {reweighted[0]} of {reweighted[1]} solves"
+            f"reweighted {counts[0]} of {counts[1]} frames"
         )
     seconds = _estimate_cpu(items, ROBUST_FROM)
     timing = ", ".join(
@@ -413,6 +432,57 @@ def _estimate_cpu(items: Items, thresholds: list[float], repeats: int = 3) -> li
     return best
 
 
+EXTRA_POINTS = [(0, "residual"), (30, "residual"), (30, "gap"), (60, "residual"), (60, "gap")]
+"""(m, weight) of ``extra-points``: m extra lookups, weighted by the residual or by 1."""
+
+
+def extra_points(items: Items) -> str:
+    """The default with m extra lookups where the points' linear interpolant misses most."""
+    from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
+
+    fill_points = getattr(stereo_module, "fill_points")  # noqa: B009 (not exported)
+    setting: list[Any] = [0, "residual"]
+
+    def with_extra(
+        grey: Any, disparity: Any, gftt: Any, area: Any, kept: Any, look_up: Any, *rest: Any
+    ) -> Any:
+        nodes = fill_points(grey, disparity, gftt, area, kept, look_up, *rest)
+        count, weight = setting
+        if not count:
+            return nodes
+        have = look_up(np.concatenate([kept, nodes]).astype(np.float32))
+        side = gftt.fill_spacing / 4.0
+        candidates = lattice_points(np.zeros((0, 2), np.float32), side, area)
+        candidates = candidates[fill.valid_share(disparity, candidates) >= 0.9]
+        found = look_up(candidates)
+        textured = patch_contrast(grey, found.pixels) >= gftt.fill_min_contrast
+        pixels, values = found.pixels[textured], found.disparities[textured]
+        weights = np.ones(values.size)
+        if weight == "residual":
+            guess = LinearNDInterpolator(have.pixels, have.disparities)(pixels)
+            outside = ~np.isfinite(guess)
+            guess[outside] = NearestNDInterpolator(have.pixels, have.disparities)(pixels[outside])
+            residual = np.abs(values - guess)
+            weights = np.where(residual >= 1.0, residual, 0.0)
+        chosen = fill.weighted_fill(
+            have.pixels, pixels, weights.astype(np.float32), count, area, min_gap=side
+        )
+        return np.ascontiguousarray(np.concatenate([nodes, pixels[chosen]]), np.float32)
+
+    lines = []
+    with mock.patch.object(stereo_module, "fill_points", with_extra):
+        for count, weight in EXTRA_POINTS:
+            setting[:] = [count, weight]
+            figures = sharpness.score(items, ProcessorConfig())
+            lines.append(
+                f"  {count} by {weight}: {figures['error_px']:.3f} px (nearest "
+                f"neighbour {figures['nearest_px']:.3f}, {figures['ratio_nn']:.3f}x), +-2 sigma "
+                f"{figures['coverage_2sigma']:.2f} %, depth RMSE {figures['depth_rmse_m']:.2f} m, "
+                f"{figures['points']:.1f} points"
+            )
+    return "\n".join(lines)
+
+
 REPORTS: dict[str, Callable[[Items], str]] = {
     "counts": counts,
     "moves": moves,
@@ -421,6 +491,7 @@ REPORTS: dict[str, Callable[[Items], str]] = {
     "where-error": where_error,
     "near-points": near_points,
     "robust-from": robust_from,
+    "extra-points": extra_points,
 }
 
 

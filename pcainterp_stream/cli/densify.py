@@ -229,7 +229,8 @@ def _add_estimate_options(densify: argparse.ArgumentParser) -> None:
         "--robust",
         choices=["none", "huber", "cauchy"],
         default=defaults.ROBUST,
-        help="IRLS against wrong SGBM lookups (default: %(default)s)",
+        help="IRLS against wrong SGBM lookups, run on a frame only when one of its points is "
+        "4 predictive std or more from what the others predict (default: %(default)s)",
     )
     estimate.add_argument(
         "--temporal",
