@@ -1,6 +1,6 @@
 """Checks behind docs/sharper_sparse_2.md that ``sparse_sharpness.py`` does not print.
 
-Six reports on the sources of ``tools/sparse_sharpness.py`` (the same frames, cached in
+Nine reports on the sources of ``tools/sparse_sharpness.py`` (the same frames, cached in
 the same work folder; run that tool once first, or let this one build them):
 
 * ``counts`` -- per frame, the lattice's points, how many fail their lookup or contrast,
@@ -26,9 +26,9 @@ the same work folder; run that tool once first, or let this one build them):
   (``--sources demo``: the demo's held-out drive, seed 9001, 40 frames);
 * ``robust-from`` -- the default with the IRLS reweighting run only on frames where some
   point's leave-one-out standardised residual reaches T (``prior.Model.robust_from``;
-  T = 0: always, inf: never), per T: the error, +-2 sigma, depth RMSE, the share of the
-  solves that reweighted, and the estimate's CPU per frame alone (one thread, the
-  settings in turns, best of 3; as ``sparse_sharpness.py --timing``);
+  T = 0: always, inf: never), per T: the error, +-2 sigma, depth RMSE and the frames that
+  reweighted; ``robust-from-timing``: the estimate's CPU per frame alone for each T (one
+  thread, the settings in turns, best of 3; as ``sparse_sharpness.py --timing``);
 * ``extra-points`` -- the default with m more lookups (30, 60) placed greedily among a
   10 px lattice's passing lookups, weighted by how far each one's value is from the linear
   interpolant of the frame's points (where those points say least of SGBM's map), or by
@@ -43,6 +43,7 @@ Examples::
     python tools/nudge_checks.py where-error --sources lidar
     python tools/nudge_checks.py near-points --sources demo synth
     python tools/nudge_checks.py robust-from
+    python tools/nudge_checks.py robust-from-timing --sources odometry raw
     python tools/nudge_checks.py extra-points --sources lidar synth
 """
 
@@ -390,12 +391,16 @@ def robust_from(items: Items) -> str:
             f"{figures['coverage_2sigma']:.2f} %, depth RMSE {figures['depth_rmse_m']:.3f} m, "
             f"reweighted {counts[0]} of {counts[1]} frames"
         )
+    return "\n".join(lines)
+
+
+def robust_from_timing(items: Items) -> str:
+    """The estimate's CPU per frame alone for each threshold of ``robust-from``."""
     seconds = _estimate_cpu(items, ROBUST_FROM)
-    timing = ", ".join(
+    return "estimate alone, CPU ms per frame: " + ", ".join(
         f"T {t:g} {1000 * s:.1f} ({s / seconds[0]:.2f}x)"
         for t, s in zip(ROBUST_FROM, seconds, strict=True)
     )
-    return "\n".join(lines) + f"\n  estimate alone, CPU ms per frame: {timing}"
 
 
 def _estimate_cpu(items: Items, thresholds: list[float], repeats: int = 3) -> list[float]:
@@ -491,6 +496,7 @@ REPORTS: dict[str, Callable[[Items], str]] = {
     "where-error": where_error,
     "near-points": near_points,
     "robust-from": robust_from,
+    "robust-from-timing": robust_from_timing,
     "extra-points": extra_points,
 }
 
