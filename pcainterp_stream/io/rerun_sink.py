@@ -13,6 +13,8 @@ Entity layout (one time line, ``stamp``, the left image's header stamp):
 
 from __future__ import annotations
 
+import os
+import sys
 from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING
@@ -28,6 +30,19 @@ if TYPE_CHECKING:
     import rerun as rr
 
 TIMELINE = "stamp"
+
+VIEWER_FLUSH_S = 10.0
+"""How long the end of a job waits for a spawned viewer to take the last frames."""
+
+FILE_FLUSH_S = 300.0
+"""How long it waits for the recording's last bytes to reach its file (a full disk: forever)."""
+
+
+def has_display() -> bool:
+    """Whether a spawned viewer can open a window: not on Linux without X11 or Wayland."""
+    if not sys.platform.startswith("linux"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
 class RerunSink:
@@ -59,6 +74,12 @@ class RerunSink:
     def __enter__(self) -> RerunSink:
         import rerun as rr  # imported when used: ~0.3 s of every densify start-up otherwise
 
+        if self.spawn and not has_display():
+            raise LogWriteError(
+                "--rerun starts a Rerun viewer, which needs a display (neither DISPLAY nor "
+                "WAYLAND_DISPLAY is set); record with --rrd FILE instead and open it with "
+                "`rerun FILE` where there is one"
+            )
         recording = rr.RecordingStream(self.application_id)
         if self.rrd_path is not None:
             if not self.rrd_path.parent.is_dir():
@@ -83,14 +104,26 @@ class RerunSink:
         self._recording = None
         if recording is None:
             return
-        recording.flush()
+        # the recording's failure never costs the job's other outputs: it is a warning
+        failed = None
+        try:
+            recording.flush(timeout_sec=FILE_FLUSH_S if self.rrd_path else VIEWER_FLUSH_S)
+        except RuntimeError as error:  # the viewer gone, or the file's bytes stuck
+            failed = str(error).splitlines()[0] if str(error) else type(error).__name__
         recording.disconnect()
         if self._partial is not None and self.rrd_path is not None:
-            if exc_type is None and not signalled():  # never committed after a signal
+            if exc_type is None and failed is None and not signalled():  # never after a signal
                 self._partial.replace(self.rrd_path)
             else:
                 self._partial.unlink(missing_ok=True)
             untrack_partial(self._partial)
+        if failed is not None:
+            target = f"the recording {self.rrd_path}" if self.rrd_path else "the Rerun viewer"
+            print(
+                f"warning: {target} did not take the last frames ({failed}); "
+                + ("nothing was written there" if self.rrd_path else "the other outputs are whole"),
+                file=sys.stderr,
+            )
 
     def log(self, result: DensifiedFrame) -> None:
         """Log one densified frame at its left-image stamp."""
