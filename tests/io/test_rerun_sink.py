@@ -31,7 +31,7 @@ def test_a_viewer_without_a_display_is_refused_before_any_work(
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     assert not rerun_sink.has_display()
-    with pytest.raises(LogWriteError, match="needs a display.*--rrd"):
+    with pytest.raises(LogWriteError, match=r"needs a display.*--rrd"):
         RerunSink(spawn=True).__enter__()
     monkeypatch.setenv("DISPLAY", ":0")
     assert rerun_sink.has_display()
@@ -43,7 +43,8 @@ def test_a_recording_that_cannot_finish_is_a_warning_and_leaves_no_file(
     target = tmp_path / "run.rrd"
     sink = RerunSink(rrd_path=target)
     sink.__enter__()
-    assert sink._partial is not None and sink._partial.exists()
+    assert sink._partial is not None
+    assert sink._partial.exists()
     stuck = _StuckRecording()
     sink._recording = stuck  # type: ignore[assignment]
     sink.__exit__(None, None, None)  # no exception: the MCAP beside it is committed
@@ -52,7 +53,8 @@ def test_a_recording_that_cannot_finish_is_a_warning_and_leaves_no_file(
     assert not sink._partial.exists()
     err = capsys.readouterr().err
     assert f"warning: the recording {target} did not take the last frames" in err
-    assert "Flush timed out" in err and "nothing was written there" in err
+    assert "Flush timed out" in err
+    assert "nothing was written there" in err
 
 
 def test_a_viewer_that_went_away_is_a_warning(capsys: pytest.CaptureFixture[str]) -> None:
