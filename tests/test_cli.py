@@ -1099,7 +1099,7 @@ def test_learn_output_is_input(
     log = tmp_path / "drive.mcap"
     log.write_bytes(small_log.read_bytes())
     line = pcainterp("learn", log, "-o", log).error_line()
-    assert "is one of the input logs" in line
+    assert "refusing to write the output onto the input" in line
     assert log.read_bytes() == small_log.read_bytes()
 
 
@@ -1147,6 +1147,136 @@ def test_densify_output_is_a_folder(
     assert list(target.iterdir()) == []
 
 
+def _copy(source: Path, target: Path) -> Path:
+    target.write_bytes(source.read_bytes())
+    return target
+
+
+@pytest.mark.parametrize("onto", ["input", "output"])
+def test_densify_rrd_onto_the_input_or_the_output_is_refused(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, tmp_path: Path, onto: str
+) -> None:
+    log = _copy(small_log, tmp_path / "drive.mcap")
+    target = tmp_path / "dense.mcap"
+    rrd = log if onto == "input" else target
+    line = pcainterp(*densify_args(log, target, basis_path, "--rrd", rrd)).error_line()
+    assert f"refusing to write the --rrd recording onto the {onto} {rrd}" in line
+    assert "choose a different --rrd path" in line
+    assert log.read_bytes() == small_log.read_bytes()
+    assert_nothing_written(target)
+
+
+def test_densify_rrd_folder_is_refused_before_the_job(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    folder = tmp_path / "views"
+    folder.mkdir()
+    line = pcainterp(*densify_args(small_log, out, basis_path, "--rrd", folder)).error_line()
+    assert f"--rrd {folder} is a folder" in line
+    assert list(folder.iterdir()) == []
+    assert_nothing_written(out)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "views"]  # no .views.partial
+
+
+def test_densify_output_onto_the_basis_or_a_calibration_file_is_refused(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, tmp_path: Path
+) -> None:
+    basis = _copy(basis_path, tmp_path / "basis")  # no suffix: -o without one is an MCAP
+    line = pcainterp(*densify_args(small_log, basis, basis)).error_line()
+    assert f"refusing to write the output onto the --basis file {basis}" in line
+    assert basis.read_bytes() == basis_path.read_bytes()
+    left, right = tmp_path / "left", tmp_path / "right"
+    left.write_text("image_width: 310\n")
+    right.write_text("image_width: 310\n")
+    line = pcainterp("densify", small_log, "-o", right, "--calibration", left, right).error_line()
+    assert f"refusing to write the output onto the --calibration file {right}" in line
+    assert right.read_text() == "image_width: 310\n"
+
+
+def test_densify_adapted_basis_beside_the_output_onto_an_input_is_refused(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, tmp_path: Path
+) -> None:
+    log = _copy(small_log, tmp_path / "drive.basis.npz")  # drive.mcap's side file
+    line = pcainterp("densify", log, "-o", tmp_path / "drive.mcap").error_line()
+    assert f"refusing to write the adapted basis drive.basis.npz onto the input {log}" in line
+    assert log.read_bytes() == small_log.read_bytes()
+    basis = _copy(basis_path, tmp_path / "dense.basis.npz")
+    line = pcainterp(*densify_args(small_log, tmp_path / "dense.mcap", basis)).error_line()
+    assert "onto the --basis file" in line
+    assert basis.read_bytes() == basis_path.read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dense.basis.npz", "drive.basis.npz"]
+
+
+def test_densify_out_dir_output_onto_another_input_is_refused(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, tmp_path: Path
+) -> None:
+    first = _copy(small_log, tmp_path / "a.mcap")
+    second = _copy(small_log, tmp_path / "a_dense.mcap")  # a.mcap's output in tmp_path
+    line = pcainterp(
+        "densify", first, second, "--out-dir", tmp_path, "--basis", basis_path, "--workers", "1"
+    ).error_line()
+    assert f"refusing to write the output onto the input {second}" in line
+    assert "choose a different --out-dir" in line
+    assert second.read_bytes() == small_log.read_bytes()
+
+
+@pytest.mark.parametrize("name", ["dense.bag", "dense.db3", "dense.MCAP.txt"])
+def test_densify_output_not_named_mcap_is_refused(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, tmp_path: Path, name: str
+) -> None:
+    target = tmp_path / name
+    line = pcainterp(*densify_args(small_log, target, basis_path)).error_line()
+    assert f"output {target} is named {target.suffix} but densify writes MCAP" in line
+    assert "name the output .mcap" in line
+    assert_nothing_written(target)
+
+
+def test_densify_output_without_a_suffix_is_an_mcap(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, tmp_path: Path
+) -> None:
+    target = tmp_path / "dense"
+    assert pcainterp(*densify_args(small_log, target, basis_path)).code == 0
+    assert target.read_bytes().startswith(b"\x89MCAP")
+
+
+def test_learn_output_onto_a_fit_log_is_refused(
+    pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path
+) -> None:
+    fit = _copy(small_log, tmp_path / "fit.mcap")
+    line = pcainterp(
+        "learn", small_log, "-o", fit, "--fit-logs", fit, "--components", "3"
+    ).error_line()
+    assert f"refusing to write the output onto the --fit-logs log {fit}" in line
+    assert fit.read_bytes() == small_log.read_bytes()
+
+
+def test_learn_output_folder_and_missing_fit_log_are_refused_before_learning(
+    pcainterp: Callable[..., Run],
+    small_log: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from pcainterp_stream.pipeline import learn as learn_job
+
+    def no_work(*args: object, **kwargs: object) -> None:
+        raise AssertionError("learned before checking -o and --fit-logs")
+
+    monkeypatch.setattr(learn_job, "learn_pairing", no_work)
+    monkeypatch.setattr(learn_job, "learn", no_work)
+    folder = tmp_path / "bases"
+    folder.mkdir()
+    line = pcainterp("learn", small_log, "-o", folder, "--components", "3").error_line()
+    assert f"output {folder} is a folder but learn writes one basis file" in line
+    assert list(folder.iterdir()) == []
+    missing = tmp_path / "nope.mcap"
+    target = tmp_path / "basis.npz"
+    line = pcainterp(
+        "learn", small_log, "-o", target, "--fit-logs", missing, "--components", "3"
+    ).error_line()
+    assert f"--fit-logs log {missing} does not exist" in line
+    assert_nothing_written(target)
+
+
 # ----------------------------------------------------------------------------- bad options
 
 
@@ -1158,6 +1288,7 @@ def test_densify_output_is_a_folder(
         ("--sigma", "nan", "--sigma must be a number > 0 px, 'evidence' or 'auto', got nan"),
         ("--sigma", "fitted", "--sigma must be a number > 0 px, 'evidence' or 'auto', got fitted"),
         ("--process-noise", "0", "--process-noise must be > 0, got 0.0"),
+        ("--process-noise", "0.001", "--process-noise 0.001 is the temporal prior's and applies"),
         ("--prior", "hybrid", "--prior hybrid with"),
         ("--num-disparities", "20", "--num-disparities must be a positive multiple of 16, got 20"),
         ("--num-disparities", "0", "--num-disparities must be a positive multiple of 16"),

@@ -10,9 +10,12 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import gc
+import os
+from collections.abc import Iterable
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeAlias
 
-from pcainterp_stream.errors import PcaInterpError
+from pcainterp_stream.errors import LogWriteError, PcaInterpError
 
 if TYPE_CHECKING:
     from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig
@@ -55,6 +58,48 @@ def print_written(summary: WriteSummary) -> None:
     """Print the line that closes a command which wrote a log."""
     duration = ((summary.end_ns or 0) - (summary.start_ns or 0)) / 1e9
     echo(f"wrote {summary.path}: {summary.message_count} messages, {duration:.1f} s of log")
+
+
+# ----------------------------------------------------------------------------- outputs
+
+
+STREAM = Path("-")
+"""A log named ``-``: standard input (INPUT) or standard output (``-o``), not a file."""
+
+
+def same_file(first: Path, second: Path) -> bool:
+    """Return whether two paths name one file: one inode where both exist, else one path."""
+    if first.exists() and second.exists():
+        try:
+            return os.path.samefile(first, second)
+        except OSError:
+            pass
+    return first.resolve() == second.resolve()
+
+
+def refuse_overwrites(
+    writes: Iterable[tuple[str, Path | None, str]], reads: Iterable[tuple[str, Path | None]]
+) -> None:
+    """Refuse, before any work, a file a command writes that it also reads or writes already.
+
+    Args:
+        writes: (what it is, its path, the fix) of each file the command writes, in the
+            order it writes them; each is checked against ``reads`` and the writes before it.
+        reads: (what it is, its path) of each file the command reads.
+        None and ``-`` (:data:`STREAM`) are not files and are skipped.
+
+    Raises:
+        LogWriteError: "refusing to write the --rrd recording onto the input drive.mcap;
+            choose a different --rrd path".
+    """
+    others = [(what, path) for what, path in reads if path is not None and path != STREAM]
+    for what, path, fix in writes:
+        if path is None or path == STREAM:
+            continue
+        for other, other_path in others:
+            if same_file(path, other_path):
+                raise LogWriteError(f"refusing to write {what} onto {other} {other_path}; {fix}")
+        others.append((what, path))
 
 
 # ----------------------------------------------------------------------------- stereo front end

@@ -17,17 +17,19 @@ from typing import TYPE_CHECKING
 
 from pcainterp_stream import defaults
 from pcainterp_stream.cli.common import (
+    STREAM,
     Commands,
     add_cluster_options,
     add_stereo_options,
     echo,
     formatter,
     gftt_config,
+    refuse_overwrites,
     sgbm_config,
 )
 from pcainterp_stream.cli.densify_one import LiveOptions, densify_one
 from pcainterp_stream.cli.pairing import add_topic_options, pairing_config
-from pcainterp_stream.errors import PcaInterpError, StreamError
+from pcainterp_stream.errors import LogWriteError, PcaInterpError, StreamError
 from pcainterp_stream.io.foxglove import DEFAULT_HOST, DEFAULT_PORT, ServeAddress
 
 if TYPE_CHECKING:
@@ -268,10 +270,15 @@ def run(args: argparse.Namespace) -> int:
     """Check the options, build the estimate's config and densify; return the exit code."""
     if args.process_noise is not None and not 0 < args.process_noise < float("inf"):
         raise PcaInterpError(f"--process-noise must be > 0, got {args.process_noise}")
+    if args.process_noise is not None and not args.temporal:
+        raise PcaInterpError(
+            f"--process-noise {args.process_noise:g} is the temporal prior's and applies with "
+            "--temporal only; add --temporal or drop --process-noise"
+        )
     if args.carry_frames < 0:
         raise PcaInterpError(f"--carry-frames must be >= 0, got {args.carry_frames}")
     live = _live_options(args)
-    if args.out_dir is not None and Path("-") in args.input:
+    if args.out_dir is not None and STREAM in args.input:
         raise PcaInterpError("standard input (-) is one log; pass -o OUTPUT, not --out-dir")
     if args.measurements == "dense" and args.features_topic:
         raise PcaInterpError(
@@ -295,6 +302,7 @@ def run(args: argparse.Namespace) -> int:
         from pcainterp_stream.estimate.basis import preload_builtin
 
         preload_builtin("street" if kind in (None, "auto") else kind)
+    _check_paths(args)  # after the preload: the basis loads while it imports
     processor = _processor_config(
         args, adapt="check" if builtin else "auto", builtin=kind or "auto"
     )
@@ -319,6 +327,61 @@ def run(args: argparse.Namespace) -> int:
         rrd=args.rrd,
         spawn_viewer=args.rerun,
     )
+
+
+def _check_paths(args: argparse.Namespace) -> None:
+    """Refuse, before any work, an output densify cannot write or that replaces what it reads.
+
+    The outputs are ``-o`` (or each ``--out-dir`` output), the adapted basis written beside
+    each when the run adapts (``OUTPUT.basis.npz``, ``OUTPUT.final.basis.npz``) and
+    ``--rrd``; what it reads is the input logs, ``--basis`` and ``--calibration``.
+
+    Raises:
+        LogWriteError: an output that is a folder, not named .mcap, or one of those files.
+    """
+    from pcainterp_stream.pipeline.densify import final_basis_path, own_basis_path
+
+    output: Path | None = args.output
+    if output is not None and output != STREAM:
+        if output.is_dir():
+            raise LogWriteError(
+                f"output {output} is a folder but densify writes one MCAP file; "
+                "choose a file path ending in .mcap"
+            )
+        if output.suffix and output.suffix.lower() != ".mcap":
+            raise LogWriteError(
+                f"output {output} is named {output.suffix} but densify writes MCAP; "
+                "name the output .mcap"
+            )
+    if args.rrd is not None and args.rrd.is_dir():
+        raise LogWriteError(
+            f"--rrd {args.rrd} is a folder; name the recording's file, "
+            f"e.g. --rrd {args.rrd / 'densify.rrd'}"
+        )
+    reads: list[tuple[str, Path | None]] = [("the input", path) for path in args.input]
+    reads.append(("the --basis file", args.basis))
+    reads.extend(("the --calibration file", path) for path in args.calibration or ())
+    if args.out_dir is not None:
+        from pcainterp_stream.pipeline.distributed import output_path
+
+        # two inputs of one stem are refused by name where the logs are handed out
+        outputs = list(dict.fromkeys(output_path(path, args.out_dir) for path in args.input))
+        fix = "choose a different --out-dir"
+    else:
+        outputs = [output] if output is not None and output != STREAM else []
+        fix = "choose a different output path"
+    writes: list[tuple[str, Path | None, str]] = [("the output", path, fix) for path in outputs]
+    for path in outputs:
+        for side in (own_basis_path(path), final_basis_path(path)):
+            writes.append(
+                (
+                    f"the adapted basis {side.name}",
+                    side,
+                    f"{fix} (a run that adapts its basis writes it beside the output)",
+                )
+            )
+    writes.append(("the --rrd recording", args.rrd, "choose a different --rrd path"))
+    refuse_overwrites(writes, reads)
 
 
 def _processor_config(

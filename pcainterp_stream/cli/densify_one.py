@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
-from pcainterp_stream.cli.common import echo, settle_heap
+from pcainterp_stream.cli.common import STREAM, echo, settle_heap
 from pcainterp_stream.interrupt import end_if_signalled
 from pcainterp_stream.io.foxglove import (
     INTERRUPTED_STOP_TIMEOUT_S,
@@ -27,9 +27,6 @@ if TYPE_CHECKING:
     from pcainterp_stream.io.outputs import OutputTopics
     from pcainterp_stream.pipeline.densify import DensifySummary
     from pcainterp_stream.pipeline.processor import ProcessorConfig
-
-STREAM = Path("-")
-"""INPUT ``-``: standard input; ``-o -``: standard output."""
 
 
 @dataclass(frozen=True)

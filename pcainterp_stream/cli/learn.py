@@ -13,10 +13,11 @@ from pcainterp_stream.cli.common import (
     echo,
     formatter,
     gftt_config,
+    refuse_overwrites,
     sgbm_config,
 )
 from pcainterp_stream.cli.pairing import add_topic_options, pairing_config
-from pcainterp_stream.errors import PcaInterpError
+from pcainterp_stream.errors import LogReadError, LogWriteError, PcaInterpError
 
 
 def add_parser(commands: Commands) -> None:
@@ -112,6 +113,7 @@ def run(args: argparse.Namespace) -> int:
     if args.fit_prior is False and args.fit_logs:
         raise PcaInterpError("--fit-logs are for fitting the prior; drop --no-fit-prior")
     with_synthetic = _with_synthetic(args.with_synthetic)
+    _check_paths(args)
     if with_synthetic not in ("auto", 0) and args.grid_scale is not None:
         raise PcaInterpError(
             "--with-synthetic fine-tunes the built-in basis on its own grid; drop --grid-scale"
@@ -143,6 +145,27 @@ def run(args: argparse.Namespace) -> int:
     echo(describe_basis(args.output))
     del basis
     return 0
+
+
+def _check_paths(args: argparse.Namespace) -> None:
+    """Refuse, before any work, a -o learn cannot write or that replaces a file it reads.
+
+    Raises:
+        LogWriteError: -o is a folder, or one of the logs, --fit-logs or --calibration.
+        LogReadError: a --fit-logs log does not exist.
+    """
+    if args.output.is_dir():
+        raise LogWriteError(
+            f"output {args.output} is a folder but learn writes one basis file; "
+            f"choose a file path, e.g. -o {args.output / 'basis.npz'}"
+        )
+    for log in args.fit_logs:
+        if not log.exists():
+            raise LogReadError(f"--fit-logs log {log} does not exist; pass an existing log")
+    reads: list[tuple[str, Path | None]] = [("the input", log) for log in args.logs]
+    reads.extend(("the --fit-logs log", log) for log in args.fit_logs)
+    reads.extend(("the --calibration file", path) for path in args.calibration or ())
+    refuse_overwrites([("the output", args.output, "choose a different -o path")], reads)
 
 
 def _with_synthetic(value: str) -> int | Literal["auto"]:
