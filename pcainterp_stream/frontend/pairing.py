@@ -23,8 +23,9 @@ A single pass over a log (the processor's loop)::
 
 from __future__ import annotations
 
+import math
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
@@ -44,10 +45,13 @@ from pcainterp_stream.records import (
 )
 
 MAX_PROBLEMS = 20
+"""How many one-line problem descriptions :class:`PairingStats` keeps (counts are exact)."""
 
 MAX_HELD_RECTIFIERS = 256
 """Frames whose rectifier is kept for :meth:`StereoPairer.full_result` when nobody asks."""
-"""How many one-line problem descriptions :class:`PairingStats` keeps (counts are exact)."""
+
+NEAR_MISS_NS = 50_000_000
+"""An unpaired image with an other-side image this near (ns) is counted as a near miss."""
 
 
 @dataclass(frozen=True)
@@ -134,6 +138,10 @@ class PairingStats:
         features_unmatched: feature clouds that matched no frame.
         non_monotonic_stamps: images whose stamp is earlier than the previous one on the
             same side.
+        near_misses_ns: of the images dropped unpaired, each one's gap to the nearest
+            image of the other side when it came, where that was beyond the tolerance
+            but within :data:`NEAR_MISS_NS` (ns): a pair the tolerance split.
+        tolerance_ns: the pairing's tolerance (ns).
         problems: the first :data:`MAX_PROBLEMS` one-line problem descriptions.
     """
 
@@ -146,7 +154,22 @@ class PairingStats:
     features_matched: int = 0
     features_unmatched: int = 0
     non_monotonic_stamps: int = 0
+    near_misses_ns: list[int] = field(default_factory=list)
+    tolerance_ns: int = 0
     problems: list[str] = field(default_factory=list)
+
+    def tolerance_hint(self) -> str | None:
+        """A warning when unpaired images had a partner just beyond the tolerance, else None."""
+        misses = self.near_misses_ns
+        if not misses:
+            return None
+        widest = max(misses) / 1e6
+        return (
+            f"{len(misses)} images were dropped unpaired whose other-side image was "
+            f"{min(misses) / 1e6:.2f}-{widest:.2f} ms away, beyond the "
+            f"{self.tolerance_ns / 1e6:g} ms tolerance; pass --stamp-tolerance-ms "
+            f"{math.ceil(widest)} to pair them"
+        )
 
     def note(self, problem: str) -> None:
         """Keep a one-line problem description (only the first few are kept)."""
@@ -179,12 +202,13 @@ class PairingStats:
 class _Pending:
     """One image waiting for its partner: the message is decoded only when paired."""
 
-    __slots__ = ("log_time_ns", "message", "stamp_ns")
+    __slots__ = ("log_time_ns", "message", "miss_ns", "stamp_ns")
 
     def __init__(self, stamp_ns: int, log_time_ns: int, message: Any) -> None:
         self.stamp_ns = stamp_ns
         self.log_time_ns = log_time_ns
         self.message = message
+        self.miss_ns = -1  # the nearest other-side image beyond the tolerance when it came
 
 
 def camera_from_infos(
@@ -290,7 +314,7 @@ class StereoPairer:
             if self.config.check_rows and self.config.rectify != "never"
             else None
         )
-        self.stats = PairingStats()
+        self.stats = PairingStats(tolerance_ns=self.config.tolerance_ns)
         self._left: deque[_Pending] = deque()
         self._right: deque[_Pending] = deque()
         self._matched: deque[tuple[_Pending, _Pending]] = deque()  # waiting for camera info
@@ -392,8 +416,8 @@ class StereoPairer:
         if self._rows is not None:
             self._rows.finish()
         self.flush()
-        self.stats.unpaired_left += len(self._left)
-        self.stats.unpaired_right += len(self._right)
+        self._count_unpaired("left", self._left)
+        self._count_unpaired("right", self._right)
         if self._matched:
             self.stats.no_camera_info += len(self._matched)
             self.stats.note(
@@ -413,10 +437,12 @@ class StereoPairer:
         own, other = (self._left, self._right) if side == "left" else (self._right, self._left)
         partner = self._closest(other, item.stamp_ns)
         if partner is None:
+            gaps = [abs(p.stamp_ns - item.stamp_ns) for p in other]
+            if gaps and min(gaps) <= NEAR_MISS_NS:
+                item.miss_ns = min(gaps)
             own.append(item)
             if len(own) > self.config.window:
-                own.popleft()
-                self._count_unpaired(side, 1)
+                self._count_unpaired(side, [own.popleft()])
             return []
         other.remove(partner)
         left, right = (item, partner) if side == "left" else (partner, item)
@@ -427,18 +453,19 @@ class StereoPairer:
             stale = [p for p in queue if p.stamp_ns < horizon]
             for p in stale:
                 queue.remove(p)
-            self._count_unpaired(name, len(stale))
+            self._count_unpaired(name, stale)
         self._matched.append((left, right))
         if len(self._matched) > self.config.window:
             self._matched.popleft()
             self.stats.no_camera_info += 1
         return self._release_matched()
 
-    def _count_unpaired(self, side: str, count: int) -> None:
+    def _count_unpaired(self, side: str, dropped: Sequence[_Pending]) -> None:
         if side == "left":
-            self.stats.unpaired_left += count
+            self.stats.unpaired_left += len(dropped)
         else:
-            self.stats.unpaired_right += count
+            self.stats.unpaired_right += len(dropped)
+        self.stats.near_misses_ns.extend(p.miss_ns for p in dropped if p.miss_ns >= 0)
 
     def _closest(self, queue: deque[_Pending], stamp_ns: int) -> _Pending | None:
         best: _Pending | None = None

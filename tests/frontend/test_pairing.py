@@ -84,6 +84,27 @@ def test_outside_tolerance_and_missing_side_are_counted() -> None:
     stats = pairer.finish()
     assert (stats.pairs, stats.unpaired_left, stats.unpaired_right) == (1, 2, 1)
     assert stats.summary().startswith("1 pairs, 2 unpaired left, 1 unpaired right")
+    # the 2 ms pair is a near miss (the right image came 2 ms after its left one); the
+    # left image whose right never came is not
+    assert stats.near_misses_ns == [2 * MS]
+    hint = stats.tolerance_hint()
+    assert hint is not None
+    assert "1 images were dropped unpaired" in hint
+    assert "2.00-2.00 ms away, beyond the 1 ms tolerance" in hint
+    assert hint.endswith("pass --stamp-tolerance-ms 2 to pair them")
+
+
+def test_no_tolerance_hint_when_every_image_pairs_or_none_was_near() -> None:
+    pairer = StereoPairer(PairingConfig(tolerance_ns=MS))
+    with_infos(pairer)
+    push(pairer, CONFIG.left_topic, 0, image(0))
+    push(pairer, CONFIG.right_topic, 0, image(0))
+    push(pairer, CONFIG.left_topic, 100 * MS, image(100 * MS))  # its right one never comes
+    push(pairer, CONFIG.right_topic, 300 * MS, image(300 * MS))  # 200 ms off: not near
+    stats = pairer.finish()
+    assert (stats.pairs, stats.unpaired_left, stats.unpaired_right) == (1, 1, 1)
+    assert stats.near_misses_ns == []
+    assert stats.tolerance_hint() is None
 
 
 def test_buffers_are_bounded() -> None:
