@@ -1253,6 +1253,8 @@ def test_learn_help_states_the_auto_rule(capsys: pytest.CaptureFixture[str]) -> 
         (["--frames", "-5"], "--frames must be at least 1, got -5"),
         (["--scale", "0"], "--scale must be in [0.05, 4], got 0.0"),
         (["--scale", "nan"], "--scale must be in [0.05, 4], got nan"),
+        (["--seed", "-1"], "--seed must be >= 0, got -1"),
+        (["--seed", "-1", "--raw"], "--seed must be >= 0, got -1"),
     ],
 )
 def test_synth_bad_option(
