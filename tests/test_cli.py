@@ -1137,6 +1137,17 @@ def test_synth_unknown_suffix(pcainterp: Callable[..., Run], tmp_path: Path) -> 
     assert_nothing_written(target)
 
 
+@pytest.mark.parametrize("below", [False, True])
+def test_demo_output_is_a_file(pcainterp: Callable[..., Run], tmp_path: Path, below: bool) -> None:
+    afile = tmp_path / "afile"
+    afile.write_text("kept")
+    target = afile / "demo" if below else afile
+    line = pcainterp("demo", "--out", target).error_line()
+    assert f"cannot create the demo folder {target}" in line
+    assert "pass --out a folder path" in line
+    assert afile.read_text() == "kept"
+
+
 def test_densify_output_is_a_folder(
     pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, tmp_path: Path
 ) -> None:
