@@ -827,6 +827,46 @@ def test_densify_unsupported_encoding_everywhere(
     assert_nothing_written(out)
 
 
+def test_densify_refuses_float_images_naming_the_topic(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    # a 32FC1 image is depth or disparity, not a camera image: refused at decoding, in one
+    # line, not by the stereo front end in the processor thread
+    def change(topic: str, message: Any, _: int) -> Any:
+        if topic not in (LEFT, RIGHT):
+            return message
+        image = rosmsg.image_array(message).astype(np.float32) / 255
+        return rosmsg.image_message(image, rosmsg.stamp_ns(message), message.header.frame_id)
+
+    log = rewrite(small_log, tmp_path / "float.mcap", change)
+    line = pcainterp(*densify_args(log, out, basis_path)).error_line()
+    assert f"{SMALL_FRAMES} undecodable (unsupported image encoding '32FC1')" in line
+    assert f"{LEFT} at " in line
+    assert "camera images are mono8, 8UC1, rgb8, bgr8, 8UC3, mono16, 16UC1)" in line
+    assert_nothing_written(out)
+
+
+def test_densify_encoding_mismatch_is_not_called_a_size_mismatch(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    def change(topic: str, message: Any, _: int) -> Any:  # mono8 left, rgb8 right
+        if topic != RIGHT:
+            return message
+        grey = rosmsg.image_array(message)
+        colour = np.repeat(grey[:, :, None], 3, axis=2)
+        return rosmsg.image_message(colour, rosmsg.stamp_ns(message), message.header.frame_id)
+
+    log = rewrite(small_log, tmp_path / "mixed.mcap", change)
+    line = pcainterp(*densify_args(log, out, basis_path)).error_line()
+    height, width = SMALL_SIZE
+    assert f"{SMALL_FRAMES} encoding mismatches" in line
+    assert f"is {width}x{height} uint8 but right image" in line
+    assert f"is {width}x{height}x3 uint8; the sizes are equal, the encodings" in line
+    assert "must have one encoding" in line
+    assert "size" not in line.split("); ")[-1]
+    assert_nothing_written(out)
+
+
 def test_densify_unsupported_encoding_some_frames(
     pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
 ) -> None:
@@ -1137,6 +1177,17 @@ def test_synth_unknown_suffix(pcainterp: Callable[..., Run], tmp_path: Path) -> 
     assert_nothing_written(target)
 
 
+@pytest.mark.parametrize("below", [False, True])
+def test_demo_output_is_a_file(pcainterp: Callable[..., Run], tmp_path: Path, below: bool) -> None:
+    afile = tmp_path / "afile"
+    afile.write_text("kept")
+    target = afile / "demo" if below else afile
+    line = pcainterp("demo", "--out", target).error_line()
+    assert f"cannot create the demo folder {target}" in line
+    assert "pass --out a folder path" in line
+    assert afile.read_text() == "kept"
+
+
 def test_densify_output_is_a_folder(
     pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, tmp_path: Path
 ) -> None:
@@ -1384,6 +1435,8 @@ def test_learn_help_states_the_auto_rule(capsys: pytest.CaptureFixture[str]) -> 
         (["--frames", "-5"], "--frames must be at least 1, got -5"),
         (["--scale", "0"], "--scale must be in [0.05, 4], got 0.0"),
         (["--scale", "nan"], "--scale must be in [0.05, 4], got nan"),
+        (["--seed", "-1"], "--seed must be >= 0, got -1"),
+        (["--seed", "-1", "--raw"], "--seed must be >= 0, got -1"),
     ],
 )
 def test_synth_bad_option(

@@ -437,7 +437,7 @@ def lookup_loss(log: Path, frames: int) -> str:
             stamp = int(message.header.stamp.sec) * 1_000_000_000 + int(
                 message.header.stamp.nanosec
             )
-            truth[stamp] = np.asarray(logreader.decode_image(message), np.float32)
+            truth[stamp] = np.asarray(rosmsg.image_array(message), np.float32)  # 32FC1 depth
             if len(truth) >= frames:
                 break
     rows: dict[str, list[Any]] = {"full": [], "half": []}

@@ -82,6 +82,8 @@ def add_parser(commands: Commands) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Render the world asked for and write its log; return the exit code."""
+    if args.seed < 0:
+        raise PcaInterpError(f"--seed must be >= 0, got {args.seed}")
     if args.raw is not None:
         return _run_raw(args)
     from pcainterp_stream.pipeline.jobs import synth

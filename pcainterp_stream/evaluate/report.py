@@ -760,6 +760,11 @@ def write_report(
         raise PcaInterpError(
             f"cannot write the report to {folder}: folder {folder.parent} does not exist"
         )
+    if folder.exists() and not folder.is_dir():
+        raise PcaInterpError(
+            f"cannot write the report to {folder}: it is a file, the report is a folder; "
+            "pass a folder path"
+        )
     result, examples = evaluate_log(path, options, topics=topics, progress=progress)
     folder.mkdir(exist_ok=True)  # only now: a log that cannot be evaluated leaves nothing
     figures = write_figures(result, examples, folder, _load_basis(options))

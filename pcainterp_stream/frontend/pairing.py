@@ -133,6 +133,8 @@ class PairingStats:
         unpaired_right: right images dropped without a left partner.
         undecodable: images (or feature clouds) that could not be decoded, by reason.
         size_mismatches: pairs skipped because left and right sizes differ.
+        encoding_mismatches: pairs skipped because left and right are of one size but
+            differ in channels (grey, colour) or bit depth.
         no_camera_info: pairs dropped because a side never had a camera info in time.
         features_matched: frames that got a feature cloud of their stamp.
         features_unmatched: feature clouds that matched no frame.
@@ -150,6 +152,7 @@ class PairingStats:
     unpaired_right: int = 0
     undecodable: dict[str, int] = field(default_factory=dict)
     size_mismatches: int = 0
+    encoding_mismatches: int = 0
     no_camera_info: int = 0
     features_matched: int = 0
     features_unmatched: int = 0
@@ -185,6 +188,8 @@ class PairingStats:
         ]
         if self.size_mismatches:
             parts.append(f"{self.size_mismatches} size mismatches")
+        if self.encoding_mismatches:
+            parts.append(f"{self.encoding_mismatches} encoding mismatches")
         if self.no_camera_info:
             parts.append(f"{self.no_camera_info} without camera info")
         if self.non_monotonic_stamps:
@@ -508,14 +513,22 @@ class StereoPairer:
             left_image = left_image[y : y + h, x : x + w]
             right_image = right_image[y : y + h, x : x + w]
         if left_image.shape != right_image.shape or left_image.dtype != right_image.dtype:
+            sized = left_image.shape[:2] != right_image.shape[:2]
+            need = (
+                "a rectified pair needs equal sizes"
+                if sized
+                else "the sizes are equal, the encodings (channels or bit depth) differ"
+            )
             problem = (
                 f"left image at stamp {left.stamp_ns} is {_describe(left_image)} but right "
-                f"image at stamp {right.stamp_ns} is {_describe(right_image)}; a rectified "
-                "pair needs equal sizes"
+                f"image at stamp {right.stamp_ns} is {_describe(right_image)}; {need}"
             )
             if self.config.fail_on_size_mismatch:
                 raise LogReadError(problem)
-            self.stats.size_mismatches += 1
+            if sized:
+                self.stats.size_mismatches += 1
+            else:
+                self.stats.encoding_mismatches += 1
             self.stats.note(problem)
             return None
         height, width = left_image.shape[:2]

@@ -72,9 +72,17 @@ def arrays_path(golden: str | Path) -> Path:
 
 @contextmanager
 def _replacing(target: Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``target``; rename it onto ``target`` on success."""
-    target.parent.mkdir(parents=True, exist_ok=True)
-    handle, name = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+    """Yield a temporary path beside ``target``; rename it onto ``target`` on success.
+
+    Raises:
+        GoldenError: the file cannot be written (a full disk, a read-only folder, a file
+            where a folder should be); nothing is left at or beside ``target``.
+    """
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        handle, name = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+    except OSError as err:
+        raise _write_error(target, err) from err
     os.close(handle)
     temporary = Path(name)
     umask = os.umask(0)
@@ -84,8 +92,16 @@ def _replacing(target: Path) -> Iterator[Path]:
         yield temporary
         raise_if_signalled()  # never committed after a signal
         temporary.replace(target)
+    except OSError as err:
+        raise _write_error(target, err) from err
     finally:
         temporary.unlink(missing_ok=True)
+
+
+def _write_error(target: Path, err: OSError) -> GoldenError:
+    return GoldenError(
+        f"cannot write {target}: {err.strerror or err}; free some space, or write it elsewhere"
+    )
 
 
 def _document(

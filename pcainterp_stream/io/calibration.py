@@ -35,9 +35,14 @@ _FISHEYE = ("equidistant", "fisheye", "kannala_brandt")
 
 def _read_yaml(path: Path) -> dict[str, Any]:
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
     except OSError as err:
         raise CalibrationError(f"cannot read calibration file {path}: {err.strerror}") from err
+    except UnicodeDecodeError as err:  # a binary file (an image, a log) given as calibration
+        raise CalibrationError(
+            f"calibration file {path} is not valid YAML (not UTF-8 text: byte "
+            f"0x{err.object[err.start]:02x} at offset {err.start}); pass the calibration YAML"
+        ) from err
     lines = text.splitlines()
     if lines and lines[0].startswith("%YAML"):  # OpenCV's "%YAML:1.0" is no YAML directive
         lines = lines[1:]

@@ -157,21 +157,27 @@ def open_log(path: str | Path) -> LogReader:
 
 
 def decode_image(message: Any) -> npt.NDArray[np.generic]:
-    """Decode a ``sensor_msgs/Image`` or ``sensor_msgs/CompressedImage`` into an array.
+    """Decode a camera's ``sensor_msgs/Image`` or ``sensor_msgs/CompressedImage`` into an array.
 
     Args:
         message: a typestore ``Image`` (mono8, rgb8, bgr8, mono16 and the other encodings of
-            :data:`rosmsg.IMAGE_ENCODINGS`) or ``CompressedImage`` (png, jpeg).
+            :data:`rosmsg.CAMERA_IMAGE_ENCODINGS`) or ``CompressedImage`` (png, jpeg).
 
     Returns:
         (H, W) grey or (H, W, 3) RGB array: uint8 for 8-bit encodings, uint16 for 16-bit
-        ones (mono16 stays uint16), float32 for 32FC1.
+        ones (mono16 stays uint16).
 
     Raises:
-        ValueError: for an unsupported encoding or format (named), or data that does not
-            decode.
+        ValueError: for an unsupported encoding or format (named; a float image such as
+            32FC1 depth is no camera image), or data that does not decode.
     """
     if hasattr(message, "encoding"):
+        encoding = str(message.encoding)
+        if encoding not in rosmsg.CAMERA_IMAGE_ENCODINGS:
+            supported = ", ".join(rosmsg.CAMERA_IMAGE_ENCODINGS)
+            raise ValueError(
+                f"unsupported image encoding {encoding!r}; camera images are {supported}"
+            )
         return rosmsg.image_array(message)
     image_format = str(getattr(message, "format", ""))
     kind = image_format.lower().replace(";", " ").split()

@@ -39,6 +39,12 @@ IMAGE_ENCODINGS: dict[str, tuple[str, int]] = {
     "32FC1": ("f4", 1),
 }
 
+CAMERA_IMAGE_ENCODINGS: tuple[str, ...] = tuple(
+    name for name, (dtype, _) in IMAGE_ENCODINGS.items() if dtype != "f4"
+)
+"""The encodings of :data:`IMAGE_ENCODINGS` a camera (stereo) image may have: 8- and 16-bit
+grey or RGB. ``32FC1`` is a depth or disparity image, which the stereo front end does not match."""
+
 # PointField datatype code -> numpy dtype
 POINT_FIELD_DTYPES: dict[int, str] = {
     1: "i1",

@@ -393,6 +393,11 @@ def _no_pair_message(
         fix = "convert the images to mono8, rgb8 or bgr8 (or png/jpeg CompressedImage)"
     elif stats.size_mismatches:
         fix = "left and right images of a rectified pair must have the same size"
+    elif stats.encoding_mismatches:
+        fix = (
+            "left and right images of a pair must have one encoding, both grey or both "
+            "colour of one bit depth (e.g. mono8 and mono8); convert one side"
+        )
     elif damage:
         fix = "the readable part of the log has no complete pair; repair or re-record it"
     else:

@@ -445,7 +445,12 @@ def demo(out: Path, *, spawn_viewer: bool = False, learn_basis: bool = False) ->
     Returns:
         The summary text.
     """
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:  # a file of that name, a file on the way, a read-only folder
+        raise PcaInterpError(
+            f"cannot create the demo folder {out}: {err.strerror}; pass --out a folder path"
+        ) from err
     if learn_basis:
         return _demo_learn(out, spawn_viewer=spawn_viewer)
     started = time.perf_counter()

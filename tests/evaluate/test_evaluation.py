@@ -305,6 +305,27 @@ def test_evaluate_cli_one_line_errors(
     assert "does not exist" in capsys.readouterr().err
 
 
+def test_evaluate_refuses_a_file_as_report_folder_up_front(
+    dense_logs: dict[str, Path],
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from pcainterp_stream.evaluate import report
+
+    def never(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the log was evaluated before the output was checked")
+
+    monkeypatch.setattr(report, "evaluate_log", never)
+    target = dense_logs["folder"] / "a_file"
+    target.write_text("kept")
+    args = ["evaluate", str(dense_logs["dense"]), "-o", str(target), "--no-basis"]
+    assert cli.main(args) == 2
+    err = capsys.readouterr().err
+    assert f"cannot write the report to {target}: it is a file" in err
+    assert len(err.splitlines()) == 1
+    assert target.read_text() == "kept"
+
+
 def test_evaluate_help_has_examples(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as exit_info:
         cli.main(["evaluate", "--help"])

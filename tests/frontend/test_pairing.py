@@ -136,6 +136,28 @@ def test_size_mismatch_counted_or_fatal() -> None:
         push(strict, CONFIG.right_topic, 7, image(7, shape=(6, 9)))
 
 
+@pytest.mark.parametrize(
+    ("right", "described"),
+    [
+        (np.zeros((6, 8, 3), np.uint8), "8x6x3 uint8"),  # mono8 left, rgb8 right
+        (np.zeros((6, 8), np.uint16), "8x6 uint16"),  # mono8 left, mono16 right
+    ],
+)
+def test_encoding_mismatch_is_not_called_a_size_mismatch(right: Any, described: str) -> None:
+    pairer = StereoPairer()
+    with_infos(pairer)
+    push(pairer, CONFIG.left_topic, 7, image(7))
+    assert push(pairer, CONFIG.right_topic, 7, rosmsg.image_message(right, 7, "right")) == []
+    stats = pairer.finish()
+    assert (stats.size_mismatches, stats.encoding_mismatches) == (0, 1)
+    assert "1 encoding mismatches" in stats.summary()
+    assert "size mismatch" not in stats.summary()
+    assert stats.problems == [
+        f"left image at stamp 7 is 8x6 uint8 but right image at stamp 7 is {described}; "
+        "the sizes are equal, the encodings (channels or bit depth) differ"
+    ]
+
+
 def test_camera_info_without_baseline() -> None:
     flat = rosmsg.camera_info_message(CAMERA, 0, "right")  # the left P: P[0, 3] == 0
     pairer = StereoPairer()

@@ -299,6 +299,35 @@ def test_bad_input_is_one_line_and_exit_2(
     assert not target.exists()
 
 
+@pytest.mark.parametrize("where", ["full disk", "file as folder"])
+def test_a_golden_file_that_cannot_be_written_is_one_line(
+    drive: dict[str, Path],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    where: str,
+) -> None:
+    from pcainterp_stream.golden import store
+
+    target, failing = tmp_path / "g.json", tmp_path / "g.npz"
+    if where == "full disk":
+
+        def full(*args: object, **kwargs: object) -> None:
+            raise OSError(28, "No space left on device")
+
+        monkeypatch.setattr(store.np, "savez_compressed", full)
+    else:
+        (tmp_path / "afile").write_text("kept")
+        target = failing = tmp_path / "afile" / "g.json"
+    capsys.readouterr()
+    assert _run("golden", "save", drive["dense"], "-o", target, "--arrays") == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert f"cannot write {failing}: " in err
+    assert "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == (["afile"] if where != "full disk" else [])
+
+
 REALDATA = ROOT.parent / "shared" / "realdata"
 
 

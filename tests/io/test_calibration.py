@@ -138,11 +138,18 @@ def _bad(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
     return path
 
 
+def _binary(tmp_path: Path) -> Path:
+    path = tmp_path / "image.png"
+    path.write_bytes(b"\x89PNG\r\n\x1a\n\x00\xff")
+    return path
+
+
 @pytest.mark.parametrize(
     ("make", "expected"),
     [
         (lambda d: [d / "missing.yaml", d / "missing2.yaml"], "cannot read calibration file"),
         (lambda d: [_bad(d, "a: [1, 2\n")], "is not valid YAML"),
+        (lambda d: [_binary(d), _binary(d)], "is not valid YAML (not UTF-8 text: byte 0x89"),
         (lambda d: [_bad(d, "- 1\n- 2\n")], "holds no YAML mapping"),
         (lambda d: [_bad(d, "cam0: {}\n")], "has no cam0 and cam1"),
         (lambda d: [_bad(d, "cam0: {}\ncam1: {}\n")], "cam1 has no T_cn_cnm1"),

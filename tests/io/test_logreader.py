@@ -353,6 +353,11 @@ def test_decode_image_unsupported_encoding() -> None:
     message.encoding = "bayer_rggb8"
     with pytest.raises(ValueError, match="unsupported image encoding 'bayer_rggb8'"):
         decode_image(message)
+    depth = rosmsg.image_message(np.zeros((2, 2), np.float32), 0, "f")
+    assert depth.encoding == "32FC1"
+    with pytest.raises(ValueError, match=r"encoding '32FC1'; camera images are mono8,") as err:
+        decode_image(depth)
+    assert "32FC1" not in str(err.value).split(";")[1]
     tiff = rosmsg.compressed_image_message(b"II*\x00", "tiff", 0, "f")
     with pytest.raises(ValueError, match="unsupported compressed image format 'tiff'"):
         decode_image(tiff)
