@@ -146,15 +146,20 @@ def test_robust_weights_match_a_weighted_gaussian_posterior() -> None:
     _assert_matches(result, _brute_force(basis, pixels, disparities, 1.0, local, result.weights))
 
 
-def test_robust_estimate_resists_an_outlier() -> None:
-    basis = _basis()
-    rng = np.random.default_rng(5)
+def _drawn(basis: Basis, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A field drawn from the basis's prior, and 30 points of it with 0.3 px noise."""
+    rng = np.random.default_rng(seed)
     truth = basis.mean + np.tensordot(
         rng.normal(size=6) * np.sqrt(basis.eigenvalues), basis.components, axes=1
     )
-    pixels, _ = _points(basis, 30, seed=5)
+    pixels, _ = _points(basis, 30, seed=seed)
     rows, cols = pixels[:, 1].astype(int), pixels[:, 0].astype(int)
-    disparities = truth[rows, cols] + rng.normal(0, 0.3, 30)
+    return truth, pixels, truth[rows, cols] + rng.normal(0, 0.3, 30)
+
+
+def test_robust_estimate_resists_an_outlier() -> None:
+    basis = _basis()
+    truth, pixels, disparities = _drawn(basis, seed=5)
     disparities[:3] += 40.0
     plain = densify(basis, pixels, disparities, sigma=0.5)
     robust = densify(basis, pixels, disparities, sigma=0.5, robust=Robust.HUBER)
@@ -164,13 +169,7 @@ def test_robust_estimate_resists_an_outlier() -> None:
 
 def test_robust_reweights_only_a_frame_with_an_outlier() -> None:
     basis = _basis()
-    rng = np.random.default_rng(7)
-    truth = basis.mean + np.tensordot(
-        rng.normal(size=6) * np.sqrt(basis.eigenvalues), basis.components, axes=1
-    )
-    pixels, _ = _points(basis, 30, seed=7)
-    rows, cols = pixels[:, 1].astype(int), pixels[:, 0].astype(int)
-    disparities = truth[rows, cols] + rng.normal(0, 0.3, 30)
+    _, pixels, disparities = _drawn(basis, seed=7)
     options = {"sigma": 0.5, "robust": "cauchy"}
 
     def solve(values: np.ndarray, **more: float) -> DensifyResult:
