@@ -61,7 +61,8 @@ def add_topic_options(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=None,
         metavar="M",
-        help="stereo baseline (m) when the right camera info has none",
+        help="stereo baseline (m); it overrides the right camera info's (for a log whose "
+        "right camera info has none)",
     )
     group.add_argument(
         "--stamp-tolerance-ms",
