@@ -1188,6 +1188,21 @@ def test_demo_output_is_a_file(pcainterp: Callable[..., Run], tmp_path: Path, be
     assert afile.read_text() == "kept"
 
 
+def test_demo_rerun_without_a_display_is_refused_before_rendering(
+    pcainterp: Callable[..., Run], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from pcainterp_stream.io import rerun_sink
+
+    monkeypatch.setattr(rerun_sink.sys, "platform", "linux")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    target = tmp_path / "demo"
+    line = pcainterp("demo", "--out", target, "--rerun").error_line()
+    assert "--rerun starts a Rerun viewer, which needs a display" in line
+    assert f"the demo records {target / 'heldout.rrd'} anyway" in line
+    assert not target.exists()
+
+
 def test_densify_output_is_a_folder(
     pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, tmp_path: Path
 ) -> None:

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from pcainterp_stream.cli.common import Commands, echo, formatter
+from pcainterp_stream.errors import PcaInterpError
 
 
 def add_parser(commands: Commands) -> None:
@@ -34,7 +35,14 @@ def add_parser(commands: Commands) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo; return the exit code."""
+    from pcainterp_stream.io.rerun_sink import has_display
     from pcainterp_stream.pipeline.jobs import demo
 
+    if args.rerun and not has_display():
+        raise PcaInterpError(
+            "--rerun starts a Rerun viewer, which needs a display (neither DISPLAY nor "
+            f"WAYLAND_DISPLAY is set); drop --rerun: the demo records {args.out / 'heldout.rrd'}"
+            " anyway, open it with `rerun` where there is a display"
+        )
     echo(demo(args.out, spawn_viewer=args.rerun, learn_basis=args.learn))
     return 0
