@@ -140,9 +140,8 @@ class PairingStats:
         features_unmatched: feature clouds that matched no frame.
         non_monotonic_stamps: images whose stamp is earlier than the previous one on the
             same side.
-        near_misses_ns: of the images dropped unpaired, each one's gap to the nearest
-            image of the other side when it came, where that was beyond the tolerance
-            but within :data:`NEAR_MISS_NS` (ns): a pair the tolerance split.
+        near_misses_ns: the gap (ns) of each image dropped unpaired to the nearest other-side
+            image when it came, if beyond the tolerance but within :data:`NEAR_MISS_NS`.
         tolerance_ns: the pairing's tolerance (ns).
         problems: the first :data:`MAX_PROBLEMS` one-line problem descriptions.
     """
@@ -231,16 +230,24 @@ def camera_from_infos(
     Args:
         left_info: left ``CameraInfo`` (ROS 1 ``P`` or ROS 2 ``p``).
         right_info: right ``CameraInfo``; its P[0, 3] = -fx * baseline.
-        width: image width (px).
-        height: image height (px).
+        width: the images' width (px); an info for another size is refused.
+        height: their height (px).
         left_topic: topic name used in error messages.
         right_topic: topic name used in error messages.
         baseline: override (m); when given the right P[0, 3] is not used.
 
     Raises:
-        CalibrationError: fx or fy is not positive, or the right P gives no positive baseline
-            and no override is given.
+        CalibrationError: an info for another image size, fx or fy not positive, or no
+            positive baseline from the right P and no override.
     """
+    for info, topic in ((left_info, left_topic), (right_info, right_topic)):
+        size = rosmsg.imaged_size(info)
+        if size is not None and size != (width, height):
+            raise CalibrationError(
+                f"camera info on {topic} is for {size[0]}x{size[1]} px images but they are "
+                f"{width}x{height}: its K and P would be off by the scale; record the images "
+                "with their own camera info (or its roi / binning)"
+            )
     p_left = rosmsg.projection_matrix(left_info)
     p_right = rosmsg.projection_matrix(right_info)
     fx, fy, cx, cy = p_left[0, 0], p_left[1, 1], p_left[0, 2], p_left[1, 2]
@@ -443,8 +450,7 @@ class StereoPairer:
         partner = self._closest(other, item.stamp_ns)
         if partner is None:
             gaps = [abs(p.stamp_ns - item.stamp_ns) for p in other]
-            if gaps and min(gaps) <= NEAR_MISS_NS:
-                item.miss_ns = min(gaps)
+            item.miss_ns = min(gaps) if gaps and min(gaps) <= NEAR_MISS_NS else -1
             own.append(item)
             if len(own) > self.config.window:
                 self._count_unpaired(side, [own.popleft()])

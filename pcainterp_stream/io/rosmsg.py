@@ -201,6 +201,23 @@ def projection_matrix(message: Any) -> npt.NDArray[np.float64]:
     return np.asarray(p, dtype=np.float64).reshape(3, 4)
 
 
+def imaged_size(message: Any) -> tuple[int, int] | None:
+    """Return the (width, height) of the images a CameraInfo describes, None when it says none.
+
+    ``width`` x ``height`` is the size the camera was calibrated at; a region of interest
+    (``roi`` with a width and height) crops it and binning divides it, as ``image_proc``
+    reads them. A CameraInfo with a zero width or height (some drivers) says nothing.
+    """
+    width, height = int(getattr(message, "width", 0)), int(getattr(message, "height", 0))
+    if width <= 0 or height <= 0:
+        return None
+    roi = getattr(message, "roi", None)
+    if roi is not None and int(roi.width) > 0 and int(roi.height) > 0:
+        width, height = int(roi.width), int(roi.height)
+    binning = int(getattr(message, "binning_x", 0)), int(getattr(message, "binning_y", 0))
+    return width // max(binning[0], 1), height // max(binning[1], 1)
+
+
 def pointcloud2_message(
     fields: dict[str, npt.NDArray[np.float32]], stamp_ns: int, frame_id: str
 ) -> Any:

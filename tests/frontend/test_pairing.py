@@ -183,6 +183,23 @@ def test_camera_info_without_focal_length() -> None:
         camera_from_infos(zero, right_info(), width=8, height=6, left_topic="/l")
 
 
+def test_camera_info_for_another_image_size_is_refused() -> None:
+    big = rosmsg.camera_info_message(
+        StereoCamera(width=16, height=12, fx=100.0, fy=102.0, cx=8.0, cy=6.0, baseline=0.25),
+        0,
+        "left_optical",
+    )
+    with pytest.raises(CalibrationError, match=r"^camera info on /l is for 16x12 px images"):
+        camera_from_infos(big, right_info(), width=8, height=6, left_topic="/l")
+    # binned 2 x 2, it describes 8 x 6 images; a zero size says nothing
+    binned = rosmsg.camera_info_message(CAMERA, 0, "left_optical")
+    binned.width, binned.height, binned.binning_x, binned.binning_y = 16, 12, 2, 2
+    assert camera_from_infos(binned, right_info(), width=8, height=6).fx == CAMERA.fx
+    unsized = rosmsg.camera_info_message(CAMERA, 0, "left_optical")
+    unsized.width = unsized.height = 0
+    assert camera_from_infos(unsized, right_info(), width=8, height=6) == CAMERA
+
+
 def test_ros1_camera_info_fields() -> None:
     left = SimpleNamespace(P=CAMERA.projection_left().reshape(-1))
     right = SimpleNamespace(P=CAMERA.projection_right().reshape(-1))
