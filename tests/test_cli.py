@@ -846,6 +846,30 @@ def test_densify_refuses_float_images_naming_the_topic(
     assert_nothing_written(out)
 
 
+def test_densify_warns_of_frames_without_a_measurement(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    # the first two pairs black (a lens cap, a dark tunnel): no corner, no lookup
+    blanked: dict[str, int] = {}
+
+    def change(topic: str, message: Any, _: int) -> Any:
+        if topic not in (LEFT, RIGHT) or blanked.get(topic, 0) >= 2:
+            return message
+        blanked[topic] = blanked.get(topic, 0) + 1
+        image = np.zeros_like(rosmsg.image_array(message))
+        return rosmsg.image_message(image, rosmsg.stamp_ns(message), message.header.frame_id)
+
+    log = rewrite(small_log, tmp_path / "blank.mcap", change)
+    run = pcainterp(*densify_args(log, out, basis_path, "--carry-frames", "0"))
+    assert run.code == 0
+    assert (
+        f"warning: 2 of {SMALL_FRAMES} frames had no measurement (blank, dark or textureless "
+        "images): their depth is the prior's mean alone" in run.out
+    )
+    plain = pcainterp(*densify_args(small_log, out, basis_path))
+    assert "had no measurement" not in plain.out
+
+
 def test_densify_encoding_mismatch_is_not_called_a_size_mismatch(
     pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
 ) -> None:

@@ -164,7 +164,9 @@ def densify(
         raise PcaInterpError("densify needs an output: pass -o OUTPUT, --foxglove, or both")
     measurements = 0
     frames = 0
+    # "empty": frames without a single measurement (the prior's mean alone)
     robust = {"downweighted": 0, "most": 0, "resets": 0, "carried": 0, "carry_resets": 0}
+    robust["empty"] = 0
     with contextlib.ExitStack() as stack:
         if isinstance(input_path, Path):
             reader = stack.enter_context(open_log(input_path))
@@ -266,6 +268,7 @@ def densify(
             if on_frame is not None:
                 on_frame(result)
             measurements += int(result.pixels.shape[0])
+            robust["empty"] += int(result.pixels.shape[0] == 0)
             frames += 1
             robust["downweighted"] += result.counts.get("downweighted", 0)
             robust["most"] = max(robust["most"], result.counts.get("downweighted", 0))
@@ -323,7 +326,7 @@ def densify(
         pairing=stats,
         damage=list(reader.damage),
         written=writer.summary() if writer is not None else None,
-        warnings=list(reader.warnings),
+        warnings=list(reader.warnings) + _empty_warning(robust["empty"], frames, processor),
         downweighted=robust["downweighted"],
         most_downweighted=robust["most"],
         temporal_resets=robust["resets"],
@@ -429,3 +432,13 @@ def _check_width(frame: StereoFrame, sgbm: SgbmConfig, log: Path, topic: str) ->
         f"{log}: {topic}'s images are {width} px wide, narrower than the {needed} px SGBM "
         f"needs for {sgbm.num_disparities} disparities; {fix}"
     )
+
+
+def _empty_warning(empty: int, frames: int, processor: ProcessorConfig) -> list[str]:
+    """The warning for sparse frames that had no measurement at all (none when there were none)."""
+    if not empty or processor.measurements != "sparse":
+        return []
+    return [
+        f"{empty} of {frames} frames had no measurement (blank, dark or textureless images): "
+        "their depth is the prior's mean alone, and their std the prior's; do not trust them"
+    ]
