@@ -35,14 +35,13 @@ def add_parser(commands: Commands) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo; return the exit code."""
-    from pcainterp_stream.io.rerun_sink import has_display
+    from pcainterp_stream.io.rerun_sink import NO_DISPLAY, has_display
     from pcainterp_stream.pipeline.jobs import demo
 
-    if args.rerun and not has_display():
+    if args.rerun and not has_display():  # before the drive is rendered, not after
         raise PcaInterpError(
-            "--rerun starts a Rerun viewer, which needs a display (neither DISPLAY nor "
-            f"WAYLAND_DISPLAY is set); drop --rerun: the demo records {args.out / 'heldout.rrd'}"
-            " anyway, open it with `rerun` where there is a display"
+            f"{NO_DISPLAY}; drop --rerun: the demo records {args.out / 'heldout.rrd'} anyway, "
+            "open it with `rerun` where there is a display"
         )
     echo(demo(args.out, spawn_viewer=args.rerun, learn_basis=args.learn))
     return 0

@@ -38,6 +38,13 @@ FILE_FLUSH_S = 300.0
 """How long it waits for the recording's last bytes to reach its file (a full disk: forever)."""
 
 
+NO_DISPLAY = (
+    "--rerun starts a Rerun viewer, which needs a display (neither DISPLAY nor "
+    "WAYLAND_DISPLAY is set)"
+)
+"""The start of the error for a viewer on a machine without one; the caller adds the fix."""
+
+
 def has_display() -> bool:
     """Whether a spawned viewer can open a window: not on Linux without X11 or Wayland."""
     if not sys.platform.startswith("linux"):
@@ -76,9 +83,8 @@ class RerunSink:
 
         if self.spawn and not has_display():
             raise LogWriteError(
-                "--rerun starts a Rerun viewer, which needs a display (neither DISPLAY nor "
-                "WAYLAND_DISPLAY is set); record with --rrd FILE instead and open it with "
-                "`rerun FILE` where there is one"
+                f"{NO_DISPLAY}; record with --rrd FILE instead and open it with `rerun FILE` "
+                "where there is one"
             )
         recording = rr.RecordingStream(self.application_id)
         if self.rrd_path is not None:
