@@ -16,7 +16,8 @@ rectified image both raw cameras see (:func:`valid_box`) and padded back to the 
 
 The maps are built once per calibration: :class:`StereoRectifier` keeps the last one and
 builds new maps only when a calibration differs in a value (a driver re-sends the same
-``CameraInfo`` with every image).
+``CameraInfo`` with every image). A pair that is rectified already (D = 0, R = I, K = P on
+both sides) is passed through unchanged, as ``image_proc``'s identity maps would leave it.
 """
 
 from __future__ import annotations
@@ -66,6 +67,9 @@ class StereoRectifier:
     def __init__(self, calibration: StereoCalibration, baseline: float | None = None) -> None:
         self.calibration = calibration
         left, right = calibration.left, calibration.right
+        # an identity remap: resampling would only add rounding (and float maps a hair
+        # outside the image would shave a border row and column off the valid box)
+        self.identity = calibration.is_rectified and left.image_size() == right.image_size()
         self._maps = [cal.rectification_maps() for cal in (left, right)]
         p = left.rectified_projection()
         width, height = left.image_size()
@@ -90,7 +94,10 @@ class StereoRectifier:
             baseline=float(baseline),
         )
         self.rotation = left.r.copy()
-        self.box = valid_box(self._maps, left.image_size(), right.image_size())
+        if self.identity:
+            self.box = (0, 0, int(width), int(height))
+        else:
+            self.box = valid_box(self._maps, left.image_size(), right.image_size())
         x, y, w, h = self.box
         self.inner = StereoCamera(
             width=w,
@@ -125,6 +132,8 @@ class StereoRectifier:
     def rectify_one(self, image: npt.NDArray[np.generic], side: str) -> npt.NDArray[np.generic]:
         """Return one rectified image of the pair (``side``: ``left`` or ``right``)."""
         self.check_size(image.shape, side)
+        if self.identity:
+            return np.asarray(image)
         map_x, map_y = self._maps[0 if side == "left" else 1]
         remapped = cv2.remap(
             np.asarray(image, dtype=image.dtype),

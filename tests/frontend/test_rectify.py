@@ -102,6 +102,36 @@ def test_binning_and_roi_as_image_proc() -> None:
     assert p[0, 2] == (full.p[0, 2] - 40) / 2
 
 
+def _ideal(calibration: rect.StereoCalibration) -> rect.StereoCalibration:
+    """The rectified pair's own calibration: K = P[:3, :3], D = 0, R = I on both sides."""
+    return rect.StereoCalibration(
+        *(
+            rect.CameraCalibration(
+                c.width, c.height, "plumb_bob", c.p[:, :3], np.zeros(5), np.eye(3), c.p
+            )
+            for c in (calibration.left, calibration.right)
+        )
+    )
+
+
+def test_a_rectified_pair_passes_through_unchanged() -> None:
+    """--rectify always on a pair that is rectified already: image_proc's identity, exactly."""
+    # KITTI's P: maps built from it land a hair below 0 in the first row and column
+    kitti = StereoCamera(320, 120, 707.0912, 707.0912, 161.8873, 63.1104, 0.54)
+    ideal = _ideal(raw_calibration(kitti, "plumb_bob"))
+    assert ideal.is_rectified
+    rectifier = rect.StereoRectifier(ideal)
+    left, right = _stereo_views()
+    out_left, out_right = rectifier.rectify(left, right)
+    np.testing.assert_array_equal(out_left, left)
+    np.testing.assert_array_equal(out_right, right)
+    assert rectifier.box == (0, 0, kitti.width, kitti.height)
+    assert rectifier.inner == rectifier.camera
+    (frame,) = _push_pair(_pairer(rectify="always"), 1000, left, right, ideal)
+    np.testing.assert_array_equal(frame.left, left)
+    assert frame.camera.cx == rectifier.camera.cx
+
+
 def test_unknown_model_is_one_line() -> None:
     cal = raw_calibration(CAMERA, "plumb_bob").left
     with pytest.raises(CalibrationError, match="distortion model 'kb4'") as err:
@@ -193,15 +223,7 @@ def _raw_pair_declared_rectified() -> tuple[tuple[np.ndarray, np.ndarray], rect.
     """Return a raw (distorted) pair and a calibration that says it is rectified."""
     calibration = raw_calibration(CAMERA, "plumb_bob")
     raw = Unrectifier(calibration)(*_stereo_views())
-    ideal = rect.StereoCalibration(
-        *(
-            rect.CameraCalibration(
-                c.width, c.height, "plumb_bob", c.p[:, :3], np.zeros(5), np.eye(3), c.p
-            )
-            for c in (calibration.left, calibration.right)
-        )
-    )
-    return raw, ideal
+    return raw, _ideal(calibration)
 
 
 def test_guard_refuses_a_raw_pair_declared_rectified() -> None:
