@@ -52,12 +52,49 @@ from pcainterp_stream.pipeline.common import (
     _require_topics,
 )
 from pcainterp_stream.pipeline.processor import FrameProcessor, MeasurementSource, ProcessorConfig
-from pcainterp_stream.records import DensifiedFrame, StereoFrame
+from pcainterp_stream.records import DensifiedFrame, RawMessage, StereoFrame
 
 ENCODE_WORKERS = 2
 """Threads building (and PNG-encoding) the output messages of densified frames."""
 ENCODE_AHEAD = 4
 """Frames whose output messages may be in the making at once (bounds their memory)."""
+HOLD_BYTES = 256 << 20
+"""Input bytes held back so that the output file is in log-time order (beyond: written)."""
+
+
+class _InLogTimeOrder:
+    """Copy input messages into the output after the outputs of frames up to their log time.
+
+    A frame's output messages carry the log time of its left image but are made frames
+    later (the processor's queue, the prior check's warm-up). Input messages are held here
+    until every frame at or before their log time is written, so that the file reads in
+    log-time order as well as in its index; the input's own order is kept. At most
+    ``limit`` bytes are held: beyond it the oldest are written anyway (a few out of order).
+    """
+
+    def __init__(self, writer: LogWriter, limit: int = HOLD_BYTES) -> None:
+        self._writer = writer
+        self._limit = limit
+        self._held: deque[RawMessage] = deque()
+        self._bytes = 0
+
+    def add(self, raw: RawMessage) -> None:
+        """Hold one input message (writing the oldest while over the limit)."""
+        self._held.append(raw)
+        self._bytes += len(raw.data)
+        while self._bytes > self._limit:
+            self._write_oldest()
+
+    def release(self, log_time_ns: int | None = None) -> None:
+        """Write the held messages up to ``log_time_ns`` in input order (all with None)."""
+        held = self._held
+        while held and (log_time_ns is None or held[0].log_time_ns <= log_time_ns):
+            self._write_oldest()
+
+    def _write_oldest(self) -> None:
+        raw = self._held.popleft()
+        self._bytes -= len(raw.data)
+        self._writer.add_raw(raw)
 
 
 @dataclass
@@ -191,6 +228,7 @@ def densify(
             )
         elif output is not None:
             writer = stack.enter_context(McapStreamWriter(output))
+        inputs = _InLogTimeOrder(writer) if writer is not None else None
         # the output channels' metadata names the basis by its fingerprint, which the thread
         # preloading the built-in basis may still be hashing: the written channels take it
         # with the first output (below), the live ones now, to be advertised before frame 1
@@ -250,6 +288,8 @@ def densify(
             nonlocal measurements, frames
             messages = built.result()
             if writer is not None:
+                assert inputs is not None  # made with the writer
+                inputs.release(result.frame.log_time_ns)  # the inputs up to this frame first
                 for topic, message in messages:
                     writer.add_message(topic, message, result.frame.log_time_ns)
             if live is not None:
@@ -287,8 +327,8 @@ def densify(
             emit(engine.submit(frame, pairer.features_for(frame)))
 
         for raw in reader.messages():
-            if writer is not None:
-                writer.add_raw(raw)
+            if inputs is not None:
+                inputs.add(raw)
             if live is not None:
                 live.add_raw(raw)
             if pairer.wants(raw.topic):
@@ -300,6 +340,8 @@ def densify(
             emit(batch)
         while encoding:
             write(*encoding.popleft())
+        if inputs is not None:
+            inputs.release()
         if live is not None:
             live.flush()
         stats = pairer.finish()

@@ -81,8 +81,10 @@ def test_densify_output_messages_carry_left_header_and_log_time(logs: dict[str, 
     jobs.densify(logs["test"], out, logs["basis"])
     left: dict[int, tuple[int, str]] = {}
     outputs: list[tuple[int, int, str]] = []
+    in_file_order: list[int] = []
     with open_log(out) as reader:
         for raw in reader.messages():
+            in_file_order.append(raw.log_time_ns)
             message = reader.decode(raw)
             if raw.topic == "/stereo/left/image_rect":
                 left[raw.log_time_ns] = (rosmsg.stamp_ns(message), message.header.frame_id)
@@ -92,6 +94,8 @@ def test_densify_output_messages_carry_left_header_and_log_time(logs: dict[str, 
     assert len(outputs) == 5 * 5  # the compact default: depth, std, features, info, depth_mm
     for log_time, stamp, frame_id in outputs:
         assert left[log_time] == (stamp, frame_id)
+    # the inputs wait for the outputs made frames later: the file reads in log-time order
+    assert in_file_order == sorted(in_file_order)
 
 
 def _add_feature_stream(source: Path, target: Path) -> None:
@@ -264,3 +268,30 @@ def test_the_estimate_line_names_the_std_widened_near_sgbms_range() -> None:
     assert "std widened near SGBM's 128 px range" in line
     assert "per-frame covariance scale" in line  # the calibration is named beside it
     assert "points beyond SGBM's range from a quarter-resolution match" in line
+
+
+def test_inputs_held_for_log_time_order_are_bounded() -> None:
+    from pcainterp_stream.pipeline.densify import _InLogTimeOrder
+    from pcainterp_stream.records import RawMessage
+
+    written: list[int] = []
+
+    class Writer:
+        def add_raw(self, raw: RawMessage) -> None:
+            written.append(raw.log_time_ns)
+
+    def raw(t: int) -> RawMessage:
+        return RawMessage(
+            "/t", "std_msgs/msg/String", "s", "ros2msg", b"", "cdr", {}, b"x" * 10, t, t, 0
+        )
+
+    held = _InLogTimeOrder(Writer(), limit=35)  # type: ignore[arg-type]
+    for t in (1, 2, 5, 3):
+        held.add(raw(t))
+    assert written == [1]  # 40 bytes held: the oldest goes out, in input order
+    held.release(2)
+    assert written == [1, 2]
+    held.release(4)  # 5 came before 3 in the input: its order is kept
+    assert written == [1, 2]
+    held.release()
+    assert written == [1, 2, 5, 3]
