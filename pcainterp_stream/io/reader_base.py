@@ -274,10 +274,34 @@ class LogReader:
         try:
             return store.deserialize_cdr(raw.data, raw.msgtype)
         except Exception as err:  # rosbags raises SerdeError, struct.error, IndexError...
+            standard = self._standard_fallback(raw, store)
+            if standard is not None:
+                return standard
             raise LogReadError(
                 f"cannot decode {where} as {raw.msgtype}: {_one_line(err)}; the data does not "
                 "match its schema (damaged message?)"
             ) from err
+
+    def _standard_fallback(self, raw: RawMessage, store: Typestore) -> Any:
+        """Decode with the standard ROS 2 type when the log's own schema of it does not fit.
+
+        Some bags store a placeholder definition (rosbag2's own test bags: ``uint8 level``
+        for ``rcl_interfaces/msg/Log``). When the standard definition of the same type name
+        decodes the data, it is used for that schema from then on, with a warning; else None.
+        """
+        if store is rosmsg.TYPESTORE or raw.msgtype not in rosmsg.TYPESTORE.fielddefs:
+            return None
+        try:
+            message = rosmsg.TYPESTORE.deserialize_cdr(raw.data, raw.msgtype)
+        except Exception:  # the log's own error is the one reported
+            return None
+        self._decoders[(raw.msgtype, raw.schema_encoding, raw.schema_data)] = rosmsg.TYPESTORE
+        _add_once(
+            self.warnings,
+            f"{self.path.name}: the schema stored for {raw.msgtype} on {raw.topic} does not "
+            "match its messages; they were decoded with the standard ROS 2 definition",
+        )
+        return message
 
     def _decoder_store(self, raw: RawMessage, where: str) -> Typestore:
         key = (raw.msgtype, raw.schema_encoding, raw.schema_data)

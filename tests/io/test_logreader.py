@@ -399,6 +399,33 @@ def test_decode_non_cdr_is_a_log_read_error(tmp_path: Path) -> None:
             reader.decode(raw)
 
 
+def test_a_placeholder_schema_falls_back_to_the_standard_type(tmp_path: Path) -> None:
+    """rosbag2's own test bags store ``uint8 level`` as rcl_interfaces/msg/Log's definition."""
+    log = rosmsg.TYPESTORE.types["rcl_interfaces/msg/Log"]
+    time = rosmsg.TYPESTORE.types["builtin_interfaces/msg/Time"]
+    message = log(time(sec=1, nanosec=2), 20, "node", "hello", "f.cpp", "fn", 38)
+    path = tmp_path / "rosout.mcap"
+    with path.open("wb") as f:
+        writer = Writer(f)
+        writer.start("ros2", "test")
+        schema = writer.register_schema("rcl_interfaces/msg/Log", "ros2msg", b"uint8 level")
+        rosout = writer.register_channel("/rosout", "cdr", schema)
+        for stamp in (1, 2):
+            writer.add_message(rosout, stamp, rosmsg.serialize(message), stamp)
+        bad = writer.register_schema("std_msgs/msg/String", "ros2msg", b"uint8 level")
+        chatter = writer.register_channel("/chatter", "cdr", bad)
+        writer.add_message(chatter, 3, b"\x00\x01\x00\x00\xff\xff\xff\x7f\x01\x02\x03\x04", 3)
+        writer.finish()
+    with open_log(path) as reader:
+        first, second, broken = list(reader.messages())
+        assert reader.decode(first).msg == "hello"
+        assert reader.decode(second).line == 38
+        (warning,) = reader.warnings
+        assert "rcl_interfaces/msg/Log on /rosout does not match" in warning
+        with pytest.raises(LogReadError, match="cannot decode message on /chatter"):
+            reader.decode(broken)  # neither its schema nor the standard one decodes it
+
+
 # --- real data ------------------------------------------------------------------------------
 
 needs_realdata = pytest.mark.skipif(
