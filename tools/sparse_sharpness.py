@@ -66,6 +66,9 @@ VARIANTS: dict[str, dict[str, Any]] = {
     # the previous default: 400 strongest corners, no lattice
     "corners400": {"gftt": {"max_corners": 400, "fill_spacing": 0.0}},
     "corners600": {"gftt": {"max_corners": 600, "fill_spacing": 0.0}},
+    # the corners alone (today's count, no lattice): nearest neighbour of the corners is the
+    # baseline the sharper-sparse work started from
+    "corners_only": {"gftt": {"fill_spacing": 0.0}},
     "buckets12x4": {"gftt": {"max_corners": 400, "fill_spacing": 0.0, "buckets": (12, 4)}},
     "buckets24x6": {"gftt": {"max_corners": 400, "fill_spacing": 0.0, "buckets": (24, 6)}},
     "corners400_fill30": {"gftt": {"max_corners": 400, "fill_spacing": 30.0}},
