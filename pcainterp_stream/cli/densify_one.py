@@ -102,7 +102,7 @@ def densify_one(
             echo=echo,
         )
         _print_summary(summary, processor)
-        if rrd is not None:
+        if rrd is not None and summary.rrd_written:
             echo(f"wrote {rrd}")
         if server is not None:
             stats = server.stats

@@ -14,10 +14,13 @@ Entity layout (one time line, ``stamp``, the left image's header stamp):
 from __future__ import annotations
 
 import os
+import shutil
 import sys
+import tempfile
+import threading
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, BinaryIO
 
 import numpy as np
 
@@ -35,7 +38,10 @@ VIEWER_FLUSH_S = 10.0
 """How long the end of a job waits for a spawned viewer to take the last frames."""
 
 FILE_FLUSH_S = 300.0
-"""How long it waits for the recording's last bytes to reach its file (a full disk: forever)."""
+"""How long it waits for the recording's last bytes to reach its file."""
+
+PUMP_CHUNK = 1 << 20
+"""Bytes the recording's pump moves from Rerun's pipe to the file at a time."""
 
 
 NO_DISPLAY = (
@@ -50,6 +56,76 @@ def has_display() -> bool:
     if not sys.platform.startswith("linux"):
         return True
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+class _Pump:
+    """Move the bytes Rerun's file sink writes into a pipe on to the recording's file.
+
+    Rerun's own file sink never returns from its shutdown once a write has failed (a full
+    disk), so it is given a named pipe and this thread writes the file: a failed write is
+    remembered, the partial file removed, and the pipe drained to its end, so Rerun always
+    finishes. Where there are no named pipes (Windows) Rerun writes the file itself.
+    """
+
+    def __init__(self, target: Path, name: Path) -> None:
+        self.target = target
+        self.name = name  # the file the user named (``target`` is its partial)
+        self.error: str | None = None
+        self._folder = Path(tempfile.mkdtemp(prefix="pcainterp-rrd-"))
+        self.pipe = self._folder / "recording.rrd"
+        os.mkfifo(self.pipe)
+        self._thread = threading.Thread(target=self._run, name="rrd-pump", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            with self.pipe.open("rb") as source:
+                out = None
+                try:
+                    out = self._open_target()
+                except OSError as error:
+                    self._fail(error)
+                while chunk := source.read(PUMP_CHUNK):
+                    if out is None:
+                        continue  # given up: drained, so that Rerun can finish
+                    try:
+                        out.write(chunk)
+                    except OSError as error:
+                        self._fail(error)
+                        self._close(out)
+                        out = None
+                if out is not None:
+                    self._close(out)
+        except OSError as error:  # the pipe itself
+            self._fail(error)
+
+    def _open_target(self) -> BinaryIO:
+        return self.target.open("wb")
+
+    def _close(self, out: BinaryIO) -> None:
+        try:
+            out.close()
+        except OSError as error:  # the last buffered bytes
+            self._fail(error)
+        if self.error is not None:
+            self.target.unlink(missing_ok=True)
+
+    def _fail(self, error: OSError) -> None:
+        if self.error is None:
+            self.error = f"cannot write {self.name}: {error.strerror or error}"
+        self.target.unlink(missing_ok=True)  # free what it took of the disk at once
+
+    def finish(self, timeout: float) -> None:
+        """Wait for the pipe's end (Rerun closed it), then remove the pipe."""
+        if self._thread.is_alive():
+            try:  # Rerun never opened it: a writer that closes at once ends the read
+                os.close(os.open(self.pipe, os.O_WRONLY | os.O_NONBLOCK))
+            except OSError:
+                pass  # opened and being written: the read ends when Rerun closes it
+        self._thread.join(timeout)
+        if self._thread.is_alive() and self.error is None:
+            self.error = f"cannot write {self.name}: its bytes did not arrive in {timeout:g} s"
+        shutil.rmtree(self._folder, ignore_errors=True)
 
 
 class RerunSink:
@@ -75,6 +151,9 @@ class RerunSink:
         self.spawn = spawn
         self.application_id = application_id
         self._partial: Path | None = None
+        self._pump: _Pump | None = None
+        self.written = False
+        """Whether the recording file was written whole (set when the sink closes)."""
         self._recording: rr.RecordingStream | None = None
         self._camera_logged: tuple[int, int, float, float, float, float] | None = None
 
@@ -94,7 +173,11 @@ class RerunSink:
                 )
             self._partial = self.rrd_path.with_name(f".{self.rrd_path.name}.partial")
             track_partial(self._partial)  # removed even if a signal forces the end
-            recording.save(self._partial)
+            if hasattr(os, "mkfifo"):
+                self._pump = _Pump(self._partial, self.rrd_path)
+                recording.save(self._pump.pipe)
+            else:
+                recording.save(self._partial)
         if self.spawn:
             recording.spawn(connect=self.rrd_path is None)
         self._recording = recording
@@ -117,13 +200,23 @@ class RerunSink:
         except RuntimeError as error:  # the viewer gone, or the file's bytes stuck
             failed = str(error).splitlines()[0] if str(error) else type(error).__name__
         recording.disconnect()
+        if self._pump is not None:
+            self._pump.finish(FILE_FLUSH_S)
+            failed = failed or self._pump.error
         if self._partial is not None and self.rrd_path is not None:
             if exc_type is None and failed is None and not signalled():  # never after a signal
                 self._partial.replace(self.rrd_path)
+                self.written = True
             else:
                 self._partial.unlink(missing_ok=True)
             untrack_partial(self._partial)
-        if failed is not None:
+        if self._pump is not None and self._pump.error is not None:
+            print(
+                f"warning: {self._pump.error}; no recording was written there, the other "
+                "outputs are whole",
+                file=sys.stderr,
+            )
+        elif failed is not None:
             target = f"the recording {self.rrd_path}" if self.rrd_path else "the Rerun viewer"
             print(
                 f"warning: {target} did not take the last frames ({failed}); "

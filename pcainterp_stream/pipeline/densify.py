@@ -122,6 +122,7 @@ class DensifySummary:
             (beside the output; the output channels name it), None when the run did not adapt.
         final_basis_written: where the basis relearned from all the log's maps was saved,
             None when it was never relearned.
+        rrd_written: whether the ``.rrd`` recording was written whole.
     """
 
     input: Path
@@ -139,6 +140,7 @@ class DensifySummary:
     carried: int = 0
     carry_resets: int = 0
     prior_lines: list[str] = dataclasses.field(default_factory=list)
+    rrd_written: bool = False
     basis_written: Path | None = None
     final_basis_written: Path | None = None
 
@@ -377,6 +379,7 @@ def densify(
         prior_lines=prior_lines,
         basis_written=basis_written,
         final_basis_written=final_written,
+        rrd_written=sink is not None and sink.written,
     )
 
 

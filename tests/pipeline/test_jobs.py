@@ -168,7 +168,9 @@ def test_rerun_recording_has_every_frame(logs: dict[str, Path]) -> None:
     import rerun.chunk
 
     rrd = logs["folder"] / "test.rrd"
-    jobs.densify(logs["test"], logs["folder"] / "dense_rrd.mcap", logs["basis"], rrd=rrd)
+    summary_of_job = jobs.densify(
+        logs["test"], logs["folder"] / "dense_rrd.mcap", logs["basis"], rrd=rrd
+    )
     summary = rerun.chunk.RrdReader(rrd).store().summary()
     rows: dict[str, int] = {}
     for entity, count in re.findall(r"^(\S+) rows=(\d+) static=False", summary, re.MULTILINE):
@@ -177,6 +179,34 @@ def test_rerun_recording_has_every_frame(logs: dict[str, Path]) -> None:
         assert rows[entity] == 5, summary
     assert rows["/camera"] == 1  # the pinhole, logged once for an unchanging camera
     assert not list(logs["folder"].glob(".test.rrd*"))
+    assert summary_of_job.rrd_written
+
+
+def test_a_recording_that_cannot_be_written_is_a_warning_and_never_hangs(
+    logs: dict[str, Path], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A full disk under --rrd: Rerun's own file sink would never return from its shutdown."""
+    import errno
+
+    from pcainterp_stream.io import rerun_sink
+
+    class FullDisk:
+        def write(self, data: bytes) -> int:
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        def close(self) -> None:
+            pass
+
+    monkeypatch.setattr(rerun_sink._Pump, "_open_target", lambda self: FullDisk())
+    rrd, out = logs["folder"] / "full.rrd", logs["folder"] / "dense_full.mcap"
+    summary = jobs.densify(logs["test"], out, logs["basis"], rrd=rrd)
+    assert summary.frames == 5
+    assert out.is_file()  # the log's own output is whole
+    assert not summary.rrd_written
+    assert not rrd.exists()
+    assert not list(logs["folder"].glob(".full.rrd*"))
+    err = capsys.readouterr().err
+    assert f"warning: cannot write {rrd}: No space left on device; no recording" in err
 
 
 def test_info_describes_basis_and_log(logs: dict[str, Path]) -> None:
