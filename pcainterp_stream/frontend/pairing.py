@@ -26,7 +26,6 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -34,6 +33,7 @@ import numpy as np
 
 from pcainterp_stream.errors import CalibrationError, LogReadError
 from pcainterp_stream.frontend import rectify as rect
+from pcainterp_stream.frontend.row_check import RowCheck
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import LogReader, decode_image
 from pcainterp_stream.records import (
@@ -322,7 +322,11 @@ class StereoPairer:
         self._said: str | None = None
         self._frame_rectifier: dict[int, rect.StereoRectifier] = {}
         self._rows = (
-            _RowCheck(self.config)
+            RowCheck(
+                self.config.left_topic,
+                self.config.right_topic,
+                calibration_files=self.config.calibration is not None,
+            )
             if self.config.check_rows and self.config.rectify != "never"
             else None
         )
@@ -740,22 +744,6 @@ class StereoPairer:
         return released
 
 
-ROW_CHECK_FRAMES = 5
-"""How many first frames the row check looks at (it decides earlier with enough matches)."""
-
-ROW_CHECK_MATCHES = 150
-"""Matches after which the row check decides."""
-
-ROW_CHECK_MIN_MATCHES = 30
-"""Fewer matches than this over the first frames: no verdict (textureless, unrelated images)."""
-
-MAX_ROW_OFFSET_PX = 1.0
-"""Largest median vertical offset (px) of matched corners a rectified pair may have."""
-
-MIN_MEDIAN_DISPARITY_PX = -1.0
-"""A median disparity of matched corners below this says left and right are swapped."""
-
-
 def is_rectified_name(topic: str) -> bool:
     """Return True for an image topic named as rectified (``image_rect``, ``image_rect_color``)."""
     parts = [p for p in topic.split("/") if p and p not in ("compressed", "compressedDepth")]
@@ -764,102 +752,6 @@ def is_rectified_name(topic: str) -> bool:
 
 def _size(camera: StereoCamera) -> str:
     return f"{camera.width}x{camera.height}"
-
-
-class _RowCheck:
-    """The guard against an unrectified or swapped pair: see :attr:`PairingConfig.check_rows`.
-
-    A frame's matching (ORB corners, a RANSAC fundamental matrix: ~30-60 ms a KITTI frame,
-    in OpenCV without the interpreter lock) runs in a thread of its own while the frame goes
-    on to stereo matching; the next frame waits for it, so the check looks at the same
-    frames and decides at the same one as a check in line would. A bad pair is refused
-    when the next frame arrives, or by :meth:`finish` at the end of the stream.
-    """
-
-    def __init__(self, config: PairingConfig) -> None:
-        self.config = config
-        self.frames = 0
-        self.points: list[Any] = []
-        self.done = False
-        self._pending: tuple[Future[Any], bool] | None = None
-        self._executor: ThreadPoolExecutor | None = None
-
-    def see(self, left: Any, right: Any, *, rectified: bool) -> None:
-        """Start matching one frame's corners, once the frame before has been decided on.
-
-        Raises:
-            CalibrationError: the pair does not look rectified, or looks swapped.
-        """
-        self._decide()  # the frame before says whether this one is needed
-        if self.done:
-            return
-        if self._executor is None:
-            self._executor = ThreadPoolExecutor(1, thread_name_prefix="row-check")
-        self._pending = (self._executor.submit(rect.correspondences, left, right), rectified)
-
-    def finish(self) -> None:
-        """Decide with the last frame being matched (end of the stream).
-
-        Raises:
-            CalibrationError: the pair does not look rectified, or looks swapped.
-        """
-        try:
-            self._decide()
-        finally:
-            self._close()
-
-    def _decide(self) -> None:
-        try:
-            if self._pending is not None:
-                (future, rectified), self._pending = self._pending, None
-                self._add(future.result(), rectified=rectified)
-        finally:
-            if self.done:
-                self._close()
-
-    def _close(self) -> None:
-        self._pending = None
-        if self._executor is not None:
-            self._executor.shutdown(wait=False, cancel_futures=True)
-            self._executor = None
-
-    def _add(self, matches: Any, *, rectified: bool) -> None:
-        """Add one frame's correspondences; decide once there are enough."""
-        self.frames += 1
-        self.points.append(matches)
-        points = np.concatenate(self.points)
-        if points.shape[0] < ROW_CHECK_MATCHES and self.frames < ROW_CHECK_FRAMES:
-            return
-        self.done = True
-        self.points = []
-        if points.shape[0] < ROW_CHECK_MIN_MATCHES:
-            return
-        offset = rect.row_offset(points)
-        config = self.config
-        pair = f"{config.left_topic} / {config.right_topic}"
-        where = f"median over {offset.matches} matched corners of the first {self.frames} frame(s)"
-        if offset.median_abs_dy > MAX_ROW_OFFSET_PX:
-            if rectified:
-                fix = "the calibration does not fit these images: check the camera infos" + (
-                    " (or the --calibration files)" if config.calibration else ""
-                )
-            else:
-                fix = (
-                    "pass --rectify always to remap them with their CameraInfo (or "
-                    "--calibration files), or check the CameraInfo"
-                )
-            raise CalibrationError(
-                f"the stereo pair {pair} does not look rectified: matched corners are "
-                f"{offset.median_abs_dy:.2f} px apart vertically ({where}; rectified < "
-                f"{MAX_ROW_OFFSET_PX:g} px); {fix}; --rectify never densifies them anyway"
-            )
-        if offset.median_dx < MIN_MEDIAN_DISPARITY_PX:
-            raise CalibrationError(
-                f"the stereo pair {pair} has negative disparities: x_left - x_right = "
-                f"{offset.median_dx:.1f} px ({where}): left and right look swapped; swap "
-                "--left-topic and --right-topic (or fix the baseline sign of the right camera's "
-                "P); --rectify never densifies them anyway"
-            )
 
 
 def _reason(err: BaseException) -> str:
