@@ -706,6 +706,61 @@ def test_densify_log_without_right_images(
     assert_nothing_written(out)
 
 
+def _two_heads(small_messages: list[Message], path: Path) -> Path:
+    """The small log with a second stereo head: every /stereo/* message also on /front/*."""
+    messages = []
+    for topic, message, log_time_ns in small_messages:
+        messages.append((topic, message, log_time_ns))
+        if topic.startswith("/stereo/"):
+            messages.append((topic.replace("/stereo/", "/front/", 1), message, log_time_ns))
+    return write_messages(path, messages)
+
+
+def test_densify_two_heads_lists_the_heads_not_cross_pairs(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+) -> None:
+    log = _two_heads(small_messages, tmp_path / "heads.mcap")
+    line = pcainterp(*densify_args(log, out, basis_path)).error_line()
+    assert "2 stereo pairs in " in line
+    assert "heads.mcap are equally good" in line
+    assert "--left-topic /front/left/image_rect --right-topic /front/right/image_rect" in line
+    assert f"--left-topic {LEFT} --right-topic {RIGHT}" in line
+    assert "/front/left/image_rect --right-topic /stereo" not in line
+    assert "its --left-topic alone will do" in line
+    assert_nothing_written(out)
+
+
+@pytest.mark.parametrize(
+    ("option", "named", "sibling"),
+    [
+        ("--left-topic", "/front/left/image_rect", "right /front/right/image_rect"),
+        ("--left-topic", LEFT, f"right {RIGHT}"),  # the default topic, named
+        ("--right-topic", RIGHT, f"left {LEFT}"),
+        ("--right-topic", "/front/right/image_rect", "left /front/left/image_rect"),
+    ],
+)
+def test_densify_one_side_named_takes_its_sibling(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+    option: str,
+    named: str,
+    sibling: str,
+) -> None:
+    log = _two_heads(small_messages, tmp_path / "heads.mcap")
+    run = pcainterp(*densify_args(log, out, basis_path, option, named))
+    assert run.code == 0, run.err
+    assert sibling in run.out.splitlines()[0]
+    assert "(found by name (1 other pair(s) less preferred)" in run.out
+    assert f"densified {SMALL_FRAMES} frames" in run.out
+
+
 def test_learn_missing_topic(
     pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path
 ) -> None:

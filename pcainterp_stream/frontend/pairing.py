@@ -79,6 +79,8 @@ class PairingConfig:
             (the info topics are then not read).
         discover: the topics were not named: find the pair in the log
             (:func:`frontend.discovery.resolve_pairing`).
+        named_sides: with ``discover``: the sides (``left``, ``right``) whose image topic was
+            named, the default one included; the pair found must have it.
         check_rows: on the first frames, refuse a pair whose matched corners are not on the
             same rows (or have negative disparities); off with ``rectify="never"``.
     """
@@ -95,6 +97,7 @@ class PairingConfig:
     rectify: str = "auto"
     calibration: rect.StereoCalibration | None = None
     discover: bool = False
+    named_sides: tuple[str, ...] = ()
     check_rows: bool = True
 
     def __post_init__(self) -> None:
