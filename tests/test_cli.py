@@ -1154,6 +1154,44 @@ def test_densify_non_monotonic_stamps(
     assert assert_valid_mcap(out)["/pcainterp/depth"] == SMALL_FRAMES
 
 
+def test_densify_warns_of_pairs_dropped_before_the_first_camera_info(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+) -> None:
+    # the small log twice (16 frames), its camera infos recorded from the 11th frame on,
+    # after its images: the pairer holds 8 pairs waiting for them, the first 3 are dropped
+    span = small_messages[-1][2] - small_messages[0][2] + 100_000_000
+    messages = list(small_messages)
+    for topic, message, log_time_ns in small_messages:
+        stamp = rosmsg.stamp_ns(message) + span
+        header = rosmsg.header(stamp, message.header.frame_id)
+        messages.append((topic, dataclasses.replace(message, header=header), log_time_ns + span))
+    per_frame = len(small_messages) // SMALL_FRAMES
+    late = [
+        (topic, message, log_time_ns)
+        for index, (topic, message, log_time_ns) in enumerate(messages)
+        if index // per_frame >= 10 or topic not in (LEFT_INFO, RIGHT_INFO)
+    ]
+    log = write_messages(tmp_path / "late.mcap", late)
+    run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err
+    assert "densified 13 frames" in run.out
+    assert "pairing: 13 pairs, 0 unpaired left, 0 unpaired right, 3 without camera info" in run.out
+    (warning,) = [line for line in run.out.splitlines() if "camera info had" in line]
+    assert warning.startswith(
+        f"warning: 3 of 16 stereo pairs were dropped because no camera info had arrived yet on "
+        f"{LEFT_INFO} and {RIGHT_INFO} (it came 1.0 s of log after the first dropped pair)"
+    )
+    assert warning.endswith(
+        "pass --calibration LEFT.yaml RIGHT.yaml (the cameras' "
+        "camera_info_manager files) to densify every pair"
+    )
+    assert assert_valid_mcap(out)["/pcainterp/depth"] == 13
+
+
 def test_densify_log_with_channels_but_no_messages(
     pcainterp: Callable[..., Run], basis_path: Path, out: Path, tmp_path: Path
 ) -> None:

@@ -139,6 +139,10 @@ class PairingStats:
         encoding_mismatches: pairs skipped because left and right are of one size but
             differ in channels (grey, colour) or bit depth.
         no_camera_info: pairs dropped because a side never had a camera info in time.
+        missing_info_topics: the camera info topics that had no message yet when a pair
+            was dropped.
+        info_late_ns: log time (ns) from the first pair dropped for want of a camera info to
+            the first camera info on both sides; -1 when none was dropped or none came.
         features_matched: frames that got a feature cloud of their stamp.
         features_unmatched: feature clouds that matched no frame.
         non_monotonic_stamps: images whose stamp is earlier than the previous one on the
@@ -156,6 +160,8 @@ class PairingStats:
     size_mismatches: int = 0
     encoding_mismatches: int = 0
     no_camera_info: int = 0
+    missing_info_topics: list[str] = field(default_factory=list)
+    info_late_ns: int = -1
     features_matched: int = 0
     features_unmatched: int = 0
     non_monotonic_stamps: int = 0
@@ -174,6 +180,23 @@ class PairingStats:
             f"{min(misses) / 1e6:.2f}-{widest:.2f} ms away, beyond the "
             f"{self.tolerance_ns / 1e6:g} ms tolerance; pass --stamp-tolerance-ms "
             f"{math.ceil(widest)} to pair them"
+        )
+
+    def camera_info_hint(self) -> str | None:
+        """A warning when pairs were dropped before the first camera info came, else None.
+
+        A log without a single pair gets no hint: its error says why (``no stereo pair``).
+        """
+        if not (self.no_camera_info and self.pairs):
+            return None
+        topics = " and ".join(self.missing_info_topics) or "the camera info topics"
+        late = self.info_late_ns / 1e9
+        when = f" (it came {late:.1f} s of log after the first dropped pair)" if late >= 0 else ""
+        return (
+            f"{self.no_camera_info} of {self.no_camera_info + self.pairs} stereo pairs were "
+            f"dropped because no camera info had arrived yet on {topics}{when}; pass "
+            "--calibration LEFT.yaml RIGHT.yaml (the cameras' camera_info_manager files) to "
+            "densify every pair"
         )
 
     def note(self, problem: str) -> None:
@@ -345,6 +368,7 @@ class StereoPairer:
         self._frame_features: dict[int, SparseFeatures] = {}
         self._last_stamp = {"left": -(2**63), "right": -(2**63)}
         self._last_feature_stamp_ns: int | None = None
+        self._first_dropped_ns: int | None = None  # first pair dropped waiting for infos
         self._index = 0
 
     def wants(self, topic: str) -> bool:
@@ -388,13 +412,14 @@ class StereoPairer:
             config.right_info_topic,
         ):
             return []  # the calibration files stand for the camera infos
-        if topic == config.left_info_topic:
-            self._left_info = message
-            if topic == config.right_info_topic:  # one info for both sides (with --baseline)
+        if topic in (config.left_info_topic, config.right_info_topic):
+            if topic == config.left_info_topic:
+                self._left_info = message
+            if topic == config.right_info_topic:  # or one info for both sides (--baseline)
                 self._right_info = message
-            return self._release_matched()
-        if topic == config.right_info_topic:
-            self._right_info = message
+            first = self._first_dropped_ns
+            if first is not None and self.stats.info_late_ns < 0 and self._has_infos():
+                self.stats.info_late_ns = max(0, log_time_ns - first)
             return self._release_matched()
         if topic == config.features_topic:
             return self._push_features(message, log_time_ns)
@@ -438,7 +463,7 @@ class StereoPairer:
         self._count_unpaired("left", self._left)
         self._count_unpaired("right", self._right)
         if self._matched:
-            self.stats.no_camera_info += len(self._matched)
+            self._count_no_info(len(self._matched))
             self.stats.note(
                 f"{len(self._matched)} pairs never had a camera info on both "
                 f"{self.config.left_info_topic} and {self.config.right_info_topic}"
@@ -474,9 +499,25 @@ class StereoPairer:
             self._count_unpaired(name, stale)
         self._matched.append((left, right))
         if len(self._matched) > self.config.window:
-            self._matched.popleft()
-            self.stats.no_camera_info += 1
+            dropped, _ = self._matched.popleft()
+            if self._first_dropped_ns is None:
+                self._first_dropped_ns = dropped.log_time_ns
+            self._count_no_info(1)
         return self._release_matched()
+
+    def _has_infos(self) -> bool:
+        return self._left_info is not None and self._right_info is not None
+
+    def _count_no_info(self, count: int) -> None:
+        """Count pairs dropped for want of a camera info, and the info topics still silent."""
+        self.stats.no_camera_info += count
+        config, missing = self.config, self.stats.missing_info_topics
+        for info, topic in (
+            (self._left_info, config.left_info_topic),
+            (self._right_info, config.right_info_topic),
+        ):
+            if info is None and topic not in missing:
+                missing.append(topic)
 
     def _count_unpaired(self, side: str, dropped: Sequence[_Pending]) -> None:
         if side == "left":
@@ -496,9 +537,7 @@ class StereoPairer:
         return best
 
     def _release_matched(self) -> list[StereoFrame]:
-        if self.config.calibration is None and (
-            self._left_info is None or self._right_info is None
-        ):
+        if self.config.calibration is None and not self._has_infos():
             return []
         frames: list[StereoFrame] = []
         while self._matched:

@@ -107,6 +107,57 @@ def test_no_tolerance_hint_when_every_image_pairs_or_none_was_near() -> None:
     assert stats.tolerance_hint() is None
 
 
+def _pairs_before_infos(pairer: StereoPairer, count: int) -> None:
+    for index in range(count):
+        stamp = index * 100 * MS
+        push(pairer, CONFIG.left_topic, stamp, image(stamp))
+        assert push(pairer, CONFIG.right_topic, stamp, image(stamp)) == []
+
+
+def test_pairs_dropped_before_the_first_camera_info_are_a_warning() -> None:
+    pairer = StereoPairer(PairingConfig(window=3))
+    _pairs_before_infos(pairer, 5)  # the first 2 fall out of the window of 3
+    # the infos come 0.5 s of log after the first pair (log time = stamp + 5 ns)
+    assert push(pairer, CONFIG.left_info_topic, 500 * MS, left_info()) == []
+    frames = push(pairer, CONFIG.right_info_topic, 500 * MS, right_info())
+    assert [frame.stamp_ns for frame in frames] == [200 * MS, 300 * MS, 400 * MS]
+    stats = pairer.finish()
+    assert (stats.pairs, stats.no_camera_info) == (3, 2)
+    assert stats.summary().endswith("2 without camera info")
+    hint = stats.camera_info_hint()
+    assert hint == (
+        "2 of 5 stereo pairs were dropped because no camera info had arrived yet on "
+        "/stereo/left/camera_info and /stereo/right/camera_info (it came 0.5 s of log after "
+        "the first dropped pair); pass --calibration LEFT.yaml RIGHT.yaml (the cameras' "
+        "camera_info_manager files) to densify every pair"
+    )
+
+
+def test_camera_info_warning_names_only_the_side_that_came_late() -> None:
+    pairer = StereoPairer(PairingConfig(window=1))
+    push(pairer, CONFIG.left_info_topic, 0, left_info())
+    _pairs_before_infos(pairer, 3)
+    (frame,) = push(pairer, CONFIG.right_info_topic, 300 * MS, right_info())
+    assert frame.stamp_ns == 200 * MS
+    hint = pairer.finish().camera_info_hint()
+    assert hint is not None
+    assert hint.startswith("2 of 3 stereo pairs were dropped because no camera info had ")
+    assert "yet on /stereo/right/camera_info (it came 0.3 s of log" in hint
+
+
+def test_no_camera_info_warning_without_drops_or_without_any_pair() -> None:
+    pairer = StereoPairer(PairingConfig(window=3))
+    _pairs_before_infos(pairer, 3)  # held, not dropped, until the infos come
+    push(pairer, CONFIG.left_info_topic, 400 * MS, left_info())
+    assert len(push(pairer, CONFIG.right_info_topic, 400 * MS, right_info())) == 3
+    assert pairer.finish().camera_info_hint() is None
+    pairer = StereoPairer(PairingConfig(window=3))
+    _pairs_before_infos(pairer, 5)  # no info ever: no frame, the no-pair error says why
+    stats = pairer.finish()
+    assert (stats.pairs, stats.no_camera_info) == (0, 5)
+    assert stats.camera_info_hint() is None
+
+
 def test_buffers_are_bounded() -> None:
     pairer = StereoPairer(PairingConfig(window=3))
     with_infos(pairer)
