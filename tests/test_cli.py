@@ -761,6 +761,30 @@ def test_densify_one_side_named_takes_its_sibling(
     assert f"densified {SMALL_FRAMES} frames" in run.out
 
 
+def test_learn_finds_each_logs_own_topics(
+    pcainterp: Callable[..., Run],
+    small_log: Path,
+    small_messages: list[Message],
+    tmp_path: Path,
+) -> None:
+    renamed = [(topic.replace("/stereo/", "/cam/", 1), m, t) for topic, m, t in small_messages]
+    cam = write_messages(tmp_path / "cam.mcap", renamed)
+    target = tmp_path / "basis.npz"
+    args = ["--components", "3", "--no-fit-prior", "--with-synthetic", "0"]
+    run = pcainterp("learn", small_log, cam, "-o", target, *args)
+    assert run.code == 0, run.err
+    lines = run.out.splitlines()
+    assert lines[0].startswith(f"small.mcap: topics: left {LEFT}, right {RIGHT}")
+    assert lines[1].startswith("cam.mcap: topics: left /cam/left/image_rect, right /cam/right")
+    assert "training maps    16 (SGBM)" in run.out  # 8 of each log
+    # a log with no pair is refused before any work, naming it
+    mono = write_messages(tmp_path / "mono.mcap", [m for m in renamed if "/right/" not in m[0]])
+    line = pcainterp("learn", small_log, mono, "-o", tmp_path / "b2.npz", *args).error_line()
+    assert "no stereo pair found in " in line
+    assert "mono.mcap" in line
+    assert_nothing_written(tmp_path / "b2.npz")
+
+
 def test_learn_missing_topic(
     pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path
 ) -> None:
