@@ -1178,15 +1178,8 @@ def test_densify_non_monotonic_stamps(
     assert assert_valid_mcap(out)["/pcainterp/depth"] == SMALL_FRAMES
 
 
-def test_densify_warns_of_pairs_dropped_before_the_first_camera_info(
-    pcainterp: Callable[..., Run],
-    small_messages: list[Message],
-    basis_path: Path,
-    out: Path,
-    tmp_path: Path,
-) -> None:
-    # the small log twice (16 frames), its camera infos recorded from the 11th frame on,
-    # after its images: the pairer holds 8 pairs waiting for them, the first 3 are dropped
+def _late_infos(small_messages: list[Message]) -> list[Message]:
+    """The small log twice (16 frames), its camera infos recorded from the 11th frame on."""
     span = small_messages[-1][2] - small_messages[0][2] + 100_000_000
     messages = list(small_messages)
     for topic, message, log_time_ns in small_messages:
@@ -1194,12 +1187,48 @@ def test_densify_warns_of_pairs_dropped_before_the_first_camera_info(
         header = rosmsg.header(stamp, message.header.frame_id)
         messages.append((topic, dataclasses.replace(message, header=header), log_time_ns + span))
     per_frame = len(small_messages) // SMALL_FRAMES
-    late = [
+    return [
         (topic, message, log_time_ns)
         for index, (topic, message, log_time_ns) in enumerate(messages)
         if index // per_frame >= 10 or topic not in (LEFT_INFO, RIGHT_INFO)
     ]
-    log = write_messages(tmp_path / "late.mcap", late)
+
+
+def test_densify_reads_camera_infos_recorded_late_ahead(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+) -> None:
+    # an MCAP has an index: the first camera infos are read ahead, every pair is densified
+    log = write_messages(tmp_path / "late.mcap", _late_infos(small_messages))
+    run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err
+    assert f"densified {2 * SMALL_FRAMES} frames" in run.out
+    assert f"pairing: {2 * SMALL_FRAMES} pairs, 0 unpaired left, 0 unpaired right\n" in run.out
+    assert (
+        "camera info: the first 11 stereo pairs came before the first camera info on "
+        f"{LEFT_INFO} and {RIGHT_INFO} (recorded 1.0 s of log later): densified with it, read "
+        "ahead (the log's camera infos do not change)\n"
+    ) in run.out
+    assert "warning" not in run.out
+    assert assert_valid_mcap(out)["/pcainterp/depth"] == 2 * SMALL_FRAMES
+
+
+def test_densify_warns_of_pairs_dropped_before_the_first_camera_info(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+) -> None:
+    # a rosbag2 SQLite log is not read ahead: the pairer holds 8 pairs waiting for the
+    # infos (each frame's come after its images), the first 3 are dropped
+    log = tmp_path / "late"
+    with open_writer(log, "rosbag2-sqlite3") as writer:
+        for topic, message, log_time_ns in _late_infos(small_messages):
+            writer.add_message(topic, message, log_time_ns)
     run = pcainterp(*densify_args(log, out, basis_path))
     assert run.code == 0, run.err
     assert "densified 13 frames" in run.out

@@ -33,6 +33,11 @@ import numpy as np
 
 from pcainterp_stream.errors import CalibrationError, LogReadError
 from pcainterp_stream.frontend import rectify as rect
+from pcainterp_stream.frontend.camera_infos import (
+    calibration_values,
+    camera_from_infos,
+    first_infos,
+)
 from pcainterp_stream.frontend.row_check import RowCheck
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import LogReader, decode_image
@@ -140,9 +145,14 @@ class PairingStats:
             differ in channels (grey, colour) or bit depth.
         no_camera_info: pairs dropped because a side never had a camera info in time.
         missing_info_topics: the camera info topics that had no message yet when a pair
-            was dropped.
-        info_late_ns: log time (ns) from the first pair dropped for want of a camera info to
-            the first camera info on both sides; -1 when none was dropped or none came.
+            was dropped (or made with one read ahead).
+        info_late_ns: log time (ns) from the first pair dropped for want of a camera info (or
+            made with one read ahead) to the first camera info on both sides; -1 when none
+            was dropped or none came.
+        pairs_before_info: pairs made before the stream's first camera info of a side, with
+            the one read ahead (:meth:`StereoPairer.look_ahead`).
+        changed_info_topics: camera info topics whose calibration later differs from the
+            one read ahead.
         features_matched: frames that got a feature cloud of their stamp.
         features_unmatched: feature clouds that matched no frame.
         non_monotonic_stamps: images whose stamp is earlier than the previous one on the
@@ -150,6 +160,7 @@ class PairingStats:
         near_misses_ns: the gap (ns) of each image dropped unpaired to the nearest other-side
             image when it came, if beyond the tolerance but within :data:`NEAR_MISS_NS`.
         tolerance_ns: the pairing's tolerance (ns).
+        window: the pairing's window (pairs held waiting for camera infos).
         problems: the first :data:`MAX_PROBLEMS` one-line problem descriptions.
     """
 
@@ -162,11 +173,14 @@ class PairingStats:
     no_camera_info: int = 0
     missing_info_topics: list[str] = field(default_factory=list)
     info_late_ns: int = -1
+    pairs_before_info: int = 0
+    changed_info_topics: list[str] = field(default_factory=list)
     features_matched: int = 0
     features_unmatched: int = 0
     non_monotonic_stamps: int = 0
     near_misses_ns: list[int] = field(default_factory=list)
     tolerance_ns: int = 0
+    window: int = 0
     problems: list[str] = field(default_factory=list)
 
     def tolerance_hint(self) -> str | None:
@@ -185,18 +199,44 @@ class PairingStats:
     def camera_info_hint(self) -> str | None:
         """A warning when pairs were dropped before the first camera info came, else None.
 
-        A log without a single pair gets no hint: its error says why (``no stereo pair``).
+        Also when pairs were made with a camera info read ahead that changed later in the
+        log. A log without a single pair gets no hint: its error says why.
         """
-        if not (self.no_camera_info and self.pairs):
-            return None
         topics = " and ".join(self.missing_info_topics) or "the camera info topics"
         late = self.info_late_ns / 1e9
+        # pairs within the window would have waited for the first info: no difference
+        ahead = self.pairs_before_info > self.window
+        if ahead and self.changed_info_topics:
+            return (
+                f"the first {self.pairs_before_info} stereo pairs came before the first camera "
+                f"info on {topics} (recorded {late:.1f} s of log later) and were densified with "
+                f"it, but {' and '.join(self.changed_info_topics)} changed later in the log: "
+                "their depth may be off; pass --calibration LEFT.yaml RIGHT.yaml (the cameras' "
+                "camera_info_manager files) to densify them with their own"
+            )
+        if not (self.no_camera_info and self.pairs):
+            return None
         when = f" (it came {late:.1f} s of log after the first dropped pair)" if late >= 0 else ""
         return (
             f"{self.no_camera_info} of {self.no_camera_info + self.pairs} stereo pairs were "
             f"dropped because no camera info had arrived yet on {topics}{when}; pass "
             "--calibration LEFT.yaml RIGHT.yaml (the cameras' camera_info_manager files) to "
             "densify every pair"
+        )
+
+    def camera_info_note(self) -> str | None:
+        """A note when pairs were made with a camera info read ahead that never changed.
+
+        Only when they are more than the window: pairs within it would have waited for that
+        first camera info anyway (a log that writes each image before its camera info).
+        """
+        if self.pairs_before_info <= self.window or self.changed_info_topics:
+            return None
+        return (
+            f"camera info: the first {self.pairs_before_info} stereo pairs came before the first "
+            f"camera info on {' and '.join(self.missing_info_topics)} (recorded "
+            f"{self.info_late_ns / 1e9:.1f} s of log later): densified with it, read ahead "
+            "(the log's camera infos do not change)"
         )
 
     def note(self, problem: str) -> None:
@@ -239,72 +279,6 @@ class _Pending:
         self.log_time_ns = log_time_ns
         self.message = message
         self.miss_ns = -1  # the nearest other-side image beyond the tolerance when it came
-
-
-def camera_from_infos(
-    left_info: Any,
-    right_info: Any,
-    *,
-    width: int,
-    height: int,
-    left_topic: str = "left camera_info",
-    right_topic: str = "right camera_info",
-    baseline: float | None = None,
-) -> StereoCamera:
-    """Build the stereo calibration from the two rectified ``CameraInfo`` messages.
-
-    Args:
-        left_info: left ``CameraInfo`` (ROS 1 ``P`` or ROS 2 ``p``).
-        right_info: right ``CameraInfo``; its P[0, 3] = -fx * baseline.
-        width: the images' width (px); an info for another size is refused.
-        height: their height (px).
-        left_topic: topic name used in error messages.
-        right_topic: topic name used in error messages.
-        baseline: override (m); when given the right P[0, 3] is not used.
-
-    Raises:
-        CalibrationError: an info for another image size, fx or fy not positive, or no
-            positive baseline from the right P and no override.
-    """
-    for info, topic in ((left_info, left_topic), (right_info, right_topic)):
-        size = rosmsg.imaged_size(info)
-        if size is not None and size != (width, height):
-            raise CalibrationError(
-                f"camera info on {topic} is for {size[0]}x{size[1]} px images but they are "
-                f"{width}x{height}: its K and P would be off by the scale; record the images "
-                "with their own camera info (or its roi / binning)"
-            )
-    p_left = rosmsg.projection_matrix(left_info)
-    p_right = rosmsg.projection_matrix(right_info)
-    fx, fy, cx, cy = p_left[0, 0], p_left[1, 1], p_left[0, 2], p_left[1, 2]
-    if not (np.isfinite(p_left).all() and fx > 0 and fy > 0):
-        raise CalibrationError(
-            f"camera info on {left_topic} has P with fx={fx}, fy={fy}; a rectified camera "
-            "needs positive focal lengths: fix the calibration"
-        )
-    if baseline is None:
-        if not (np.isfinite(p_right).all() and p_right[0, 0] > 0):
-            raise CalibrationError(
-                f"camera info on {right_topic} has P with fx={p_right[0, 0]}; fix the "
-                "calibration or pass --baseline"
-            )
-        with np.errstate(over="ignore"):  # a damaged tiny fx overflows: caught below
-            baseline = float(-p_right[0, 3] / p_right[0, 0])
-        if not (baseline > 0 and np.isfinite(baseline)):
-            raise CalibrationError(
-                f"camera info on {right_topic} gives no baseline (P[0,3] = {p_right[0, 3]}, "
-                f"fx = {p_right[0, 0]}; expected -fx * baseline < 0, finite); pass --baseline "
-                "METRES"
-            )
-    return StereoCamera(
-        width=int(width),
-        height=int(height),
-        fx=float(fx),
-        fy=float(fy),
-        cx=float(cx),
-        cy=float(cy),
-        baseline=float(baseline),
-    )
 
 
 def features_from_pointcloud(message: Any, log_time_ns: int) -> SparseFeatures:
@@ -356,7 +330,7 @@ class StereoPairer:
             if self.config.check_rows and self.config.rectify != "never"
             else None
         )
-        self.stats = PairingStats(tolerance_ns=self.config.tolerance_ns)
+        self.stats = PairingStats(tolerance_ns=self.config.tolerance_ns, window=self.config.window)
         self._left: deque[_Pending] = deque()
         self._right: deque[_Pending] = deque()
         self._matched: deque[tuple[_Pending, _Pending]] = deque()  # waiting for camera info
@@ -369,6 +343,8 @@ class StereoPairer:
         self._last_stamp = {"left": -(2**63), "right": -(2**63)}
         self._last_feature_stamp_ns: int | None = None
         self._first_dropped_ns: int | None = None  # first pair dropped waiting for infos
+        self._ahead: dict[str, tuple[int, Any]] = {}  # info topic -> (log time, read ahead)
+        self._ahead_unseen: set[str] = set()  # read ahead, not yet met in the stream
         self._index = 0
 
     def wants(self, topic: str) -> bool:
@@ -420,6 +396,7 @@ class StereoPairer:
             first = self._first_dropped_ns
             if first is not None and self.stats.info_late_ns < 0 and self._has_infos():
                 self.stats.info_late_ns = max(0, log_time_ns - first)
+            self._meet_ahead(topic, message)
             return self._release_matched()
         if topic == config.features_topic:
             return self._push_features(message, log_time_ns)
@@ -428,6 +405,44 @@ class StereoPairer:
         if topic == config.right_topic:
             return self._push_image("right", _Pending(stamp_ns, log_time_ns, message))
         return []
+
+    def look_ahead(self, topic: str, log_time_ns: int, message: Any) -> None:
+        """Take a side's first camera info, read ahead of the stream (:meth:`read_ahead`).
+
+        Until the stream brings a camera info of that side, pairs use this one instead of
+        waiting for it (and falling out of the window): a log whose camera infos were
+        recorded late is densified whole. The pairs made with it are counted
+        (``stats.pairs_before_info``); a camera info of the topic later in the stream with
+        another calibration is noted (``stats.changed_info_topics``). Call before the stream.
+        """
+        config = self.config
+        if config.calibration is not None:
+            return
+        if topic == config.left_info_topic and self._left_info is None:
+            self._left_info = message
+        if topic == config.right_info_topic and self._right_info is None:
+            self._right_info = message
+        self._ahead[topic] = (log_time_ns, message)
+        self._ahead_unseen.add(topic)
+
+    def read_ahead(self, reader: LogReader) -> None:
+        """:meth:`look_ahead` of each side's first camera info, when the log has an index."""
+        config = self.config
+        if config.calibration is None:
+            for topic, log_time_ns, message in first_infos(
+                reader, [config.left_info_topic, config.right_info_topic]
+            ):
+                self.look_ahead(topic, log_time_ns, message)
+
+    def _meet_ahead(self, topic: str, message: Any) -> None:
+        """Note a stream camera info of a topic read ahead: met, and changed or not."""
+        ahead = self._ahead.get(topic)
+        if ahead is None:
+            return
+        self._ahead_unseen.discard(topic)
+        changed = self.stats.changed_info_topics
+        if topic not in changed and calibration_values(message) != calibration_values(ahead[1]):
+            changed.append(topic)
 
     def features_for(self, frame: StereoFrame) -> SparseFeatures | None:
         """Return (once) the feature cloud of a frame's stamp, or None when there is none.
@@ -603,6 +618,13 @@ class StereoPairer:
                     del self._frame_rectifier[index]
         self._index += 1
         self.stats.pairs += 1
+        if self._ahead_unseen:  # made with a camera info read ahead
+            stats = self.stats
+            if not stats.pairs_before_info:
+                stats.missing_info_topics = sorted(self._ahead_unseen)
+                latest = max(self._ahead[topic][0] for topic in self._ahead_unseen)
+                stats.info_late_ns = max(0, latest - left.log_time_ns)
+            stats.pairs_before_info += 1
         return frame
 
     def full_result(self, result: DensifiedFrame) -> DensifiedFrame:
@@ -828,6 +850,7 @@ def iter_stereo_frames(
     """
     pairer = pairer or StereoPairer(config)
     reader.require_topics(pairer.config.required_topics())
+    pairer.read_ahead(reader)
     for raw in reader.messages(pairer.config.topics):
         yield from pairer.push_raw(raw, reader.decode)
     yield from pairer.flush()

@@ -25,6 +25,7 @@ from pcainterp_stream.estimate.basis import Basis, grid_size_for
 from pcainterp_stream.estimate.finetune import camera_mismatch, disparity_scale, finetune_basis
 from pcainterp_stream.estimate.learning import DEFAULT_BOX_SIZE, learn_basis, preprocess_disparity
 from pcainterp_stream.estimate.prior import LocalPrior
+from pcainterp_stream.frontend.camera_infos import first_infos
 from pcainterp_stream.frontend.discovery import resolve_pairing
 from pcainterp_stream.frontend.pairing import (
     PairingConfig,
@@ -130,9 +131,13 @@ def _depth_maps(
                 *_pairing_types(dataclasses.replace(pairing, features_topic=None))[2:],
             ],
         )
-        infos: dict[str, Any] = {}
+        info_topics = [pairing.left_info_topic, pairing.right_info_topic]
+        # camera infos recorded after the first depth images: their first, read ahead
+        infos: dict[str, Any] = {
+            topic: message for topic, _, message in first_infos(reader, info_topics)
+        }
         index = 0
-        topics = [options.depth_topic, pairing.left_info_topic, pairing.right_info_topic]
+        topics = [options.depth_topic, *info_topics]
         for raw in reader.messages(topics):
             message = reader.decode(raw)
             if raw.topic != options.depth_topic:
@@ -152,7 +157,7 @@ def _depth_maps(
                     f"depth image on {options.depth_topic} at log time {raw.log_time_ns} ns in "
                     f"{log.name} is unusable ({err}); pass a 32FC1 depth topic (m) as --depth-topic"
                 ) from err
-            from pcainterp_stream.frontend.pairing import camera_from_infos
+            from pcainterp_stream.frontend.camera_infos import camera_from_infos
 
             camera = camera_from_infos(
                 infos[pairing.left_info_topic],
