@@ -343,7 +343,8 @@ class StereoPairer:
         self._last_stamp = {"left": -(2**63), "right": -(2**63)}
         self._last_feature_stamp_ns: int | None = None
         self._first_dropped_ns: int | None = None  # first pair dropped waiting for infos
-        self._ahead: dict[str, tuple[int, Any]] = {}  # info topic -> (log time, read ahead)
+        # info topic -> (log time, calibration_values) of the camera info read ahead
+        self._ahead: dict[str, tuple[int, tuple[Any, ...]]] = {}
         self._ahead_unseen: set[str] = set()  # read ahead, not yet met in the stream
         self._index = 0
 
@@ -422,7 +423,7 @@ class StereoPairer:
             self._left_info = message
         if topic == config.right_info_topic and self._right_info is None:
             self._right_info = message
-        self._ahead[topic] = (log_time_ns, message)
+        self._ahead[topic] = (log_time_ns, calibration_values(message))
         self._ahead_unseen.add(topic)
 
     def read_ahead(self, reader: LogReader) -> None:
@@ -441,7 +442,7 @@ class StereoPairer:
             return
         self._ahead_unseen.discard(topic)
         changed = self.stats.changed_info_topics
-        if topic not in changed and calibration_values(message) != calibration_values(ahead[1]):
+        if topic not in changed and calibration_values(message) != ahead[1]:
             changed.append(topic)
 
     def features_for(self, frame: StereoFrame) -> SparseFeatures | None:
