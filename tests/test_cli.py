@@ -706,6 +706,85 @@ def test_densify_log_without_right_images(
     assert_nothing_written(out)
 
 
+def _two_heads(small_messages: list[Message], path: Path) -> Path:
+    """The small log with a second stereo head: every /stereo/* message also on /front/*."""
+    messages = []
+    for topic, message, log_time_ns in small_messages:
+        messages.append((topic, message, log_time_ns))
+        if topic.startswith("/stereo/"):
+            messages.append((topic.replace("/stereo/", "/front/", 1), message, log_time_ns))
+    return write_messages(path, messages)
+
+
+def test_densify_two_heads_lists_the_heads_not_cross_pairs(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+) -> None:
+    log = _two_heads(small_messages, tmp_path / "heads.mcap")
+    line = pcainterp(*densify_args(log, out, basis_path)).error_line()
+    assert "2 stereo pairs in " in line
+    assert "heads.mcap are equally good" in line
+    assert "--left-topic /front/left/image_rect --right-topic /front/right/image_rect" in line
+    assert f"--left-topic {LEFT} --right-topic {RIGHT}" in line
+    assert "/front/left/image_rect --right-topic /stereo" not in line
+    assert "its --left-topic alone will do" in line
+    assert_nothing_written(out)
+
+
+@pytest.mark.parametrize(
+    ("option", "named", "sibling"),
+    [
+        ("--left-topic", "/front/left/image_rect", "right /front/right/image_rect"),
+        ("--left-topic", LEFT, f"right {RIGHT}"),  # the default topic, named
+        ("--right-topic", RIGHT, f"left {LEFT}"),
+        ("--right-topic", "/front/right/image_rect", "left /front/left/image_rect"),
+    ],
+)
+def test_densify_one_side_named_takes_its_sibling(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+    option: str,
+    named: str,
+    sibling: str,
+) -> None:
+    log = _two_heads(small_messages, tmp_path / "heads.mcap")
+    run = pcainterp(*densify_args(log, out, basis_path, option, named))
+    assert run.code == 0, run.err
+    assert sibling in run.out.splitlines()[0]
+    assert "(found by name (1 other pair(s) less preferred)" in run.out
+    assert f"densified {SMALL_FRAMES} frames" in run.out
+
+
+def test_learn_finds_each_logs_own_topics(
+    pcainterp: Callable[..., Run],
+    small_log: Path,
+    small_messages: list[Message],
+    tmp_path: Path,
+) -> None:
+    renamed = [(topic.replace("/stereo/", "/cam/", 1), m, t) for topic, m, t in small_messages]
+    cam = write_messages(tmp_path / "cam.mcap", renamed)
+    target = tmp_path / "basis.npz"
+    args = ["--components", "3", "--no-fit-prior", "--with-synthetic", "0"]
+    run = pcainterp("learn", small_log, cam, "-o", target, *args)
+    assert run.code == 0, run.err
+    lines = run.out.splitlines()
+    assert lines[0].startswith(f"small.mcap: topics: left {LEFT}, right {RIGHT}")
+    assert lines[1].startswith("cam.mcap: topics: left /cam/left/image_rect, right /cam/right")
+    assert "training maps    16 (SGBM)" in run.out  # 8 of each log
+    # a log with no pair is refused before any work, naming it
+    mono = write_messages(tmp_path / "mono.mcap", [m for m in renamed if "/right/" not in m[0]])
+    line = pcainterp("learn", small_log, mono, "-o", tmp_path / "b2.npz", *args).error_line()
+    assert "no stereo pair found in " in line
+    assert "mono.mcap" in line
+    assert_nothing_written(tmp_path / "b2.npz")
+
+
 def test_learn_missing_topic(
     pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path
 ) -> None:
@@ -1097,6 +1176,73 @@ def test_densify_non_monotonic_stamps(
     assert "non-monotonic stamps" in run.out
     assert "non-monotonic log times" in run.out
     assert assert_valid_mcap(out)["/pcainterp/depth"] == SMALL_FRAMES
+
+
+def _late_infos(small_messages: list[Message]) -> list[Message]:
+    """The small log twice (16 frames), its camera infos recorded from the 11th frame on."""
+    span = small_messages[-1][2] - small_messages[0][2] + 100_000_000
+    messages = list(small_messages)
+    for topic, message, log_time_ns in small_messages:
+        stamp = rosmsg.stamp_ns(message) + span
+        header = rosmsg.header(stamp, message.header.frame_id)
+        messages.append((topic, dataclasses.replace(message, header=header), log_time_ns + span))
+    per_frame = len(small_messages) // SMALL_FRAMES
+    return [
+        (topic, message, log_time_ns)
+        for index, (topic, message, log_time_ns) in enumerate(messages)
+        if index // per_frame >= 10 or topic not in (LEFT_INFO, RIGHT_INFO)
+    ]
+
+
+def test_densify_reads_camera_infos_recorded_late_ahead(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+) -> None:
+    # an MCAP has an index: the first camera infos are read ahead, every pair is densified
+    log = write_messages(tmp_path / "late.mcap", _late_infos(small_messages))
+    run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err
+    assert f"densified {2 * SMALL_FRAMES} frames" in run.out
+    assert f"pairing: {2 * SMALL_FRAMES} pairs, 0 unpaired left, 0 unpaired right\n" in run.out
+    assert (
+        "camera info: the first 11 stereo pairs came before the first camera info on "
+        f"{LEFT_INFO} and {RIGHT_INFO} (recorded 1.0 s of log later): densified with it, read "
+        "ahead (the log's camera infos do not change)\n"
+    ) in run.out
+    assert "warning" not in run.out
+    assert assert_valid_mcap(out)["/pcainterp/depth"] == 2 * SMALL_FRAMES
+
+
+def test_densify_warns_of_pairs_dropped_before_the_first_camera_info(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+) -> None:
+    # a rosbag2 SQLite log is not read ahead: the pairer holds 8 pairs waiting for the
+    # infos (each frame's come after its images), the first 3 are dropped
+    log = tmp_path / "late"
+    with open_writer(log, "rosbag2-sqlite3") as writer:
+        for topic, message, log_time_ns in _late_infos(small_messages):
+            writer.add_message(topic, message, log_time_ns)
+    run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err
+    assert "densified 13 frames" in run.out
+    assert "pairing: 13 pairs, 0 unpaired left, 0 unpaired right, 3 without camera info" in run.out
+    (warning,) = [line for line in run.out.splitlines() if "camera info had" in line]
+    assert warning.startswith(
+        f"warning: 3 of 16 stereo pairs were dropped because no camera info had arrived yet on "
+        f"{LEFT_INFO} and {RIGHT_INFO} (it came 1.0 s of log after the first dropped pair)"
+    )
+    assert warning.endswith(
+        "pass --calibration LEFT.yaml RIGHT.yaml (the cameras' "
+        "camera_info_manager files) to densify every pair"
+    )
+    assert assert_valid_mcap(out)["/pcainterp/depth"] == 13
 
 
 def test_densify_log_with_channels_but_no_messages(

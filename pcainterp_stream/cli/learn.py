@@ -131,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
         fit_logs=tuple(args.fit_logs),
         with_synthetic=with_synthetic,
     )
-    pairing = learn_pairing(args.logs, pairing_config(args), args.depth_topic)
+    pairing = learn_pairing([*args.logs, *args.fit_logs], pairing_config(args), args.depth_topic)
     if args.workers is not None and args.workers < 1:
         raise PcaInterpError(f"--workers must be at least 1, got {args.workers}")
     if on_cluster:  # the same learn, the maps' statistics gathered by the workers

@@ -143,5 +143,10 @@ def pairing_config(args: argparse.Namespace, features_topic: str | None = None) 
         rectify=args.rectify,
         calibration=calibration,
         discover=discover,
+        named_sides=tuple(
+            side
+            for side, topic in (("left", args.left_topic), ("right", args.right_topic))
+            if topic
+        ),
         check_rows=args.rectify != "never",
     )

@@ -7,8 +7,11 @@ that says which is left: ``left``/``right``, ``l``/``r``, or a number (``cam0``/
 ``infra1``/``infra2``, ``image_2``/``image_3``: the lower one is left); names that say
 nothing are ordered by the sign of P[0, 3] (the right camera's is negative). Of a camera's
 streams the rectified one is preferred (``image_rect`` over ``image_raw``), then the
-uncompressed, then the grey one. Two pairs equally good are an error that lists them with the
-options that choose one.
+uncompressed, then the grey one. A log with several heads (``/front/left`` + ``/front/right``
+and ``/rear/left`` + ``/rear/right``) has cross-head candidates too (``/front/left`` +
+``/rear/right``, sides from Tx): a pair whose namespaces differ only in the name that says
+the side comes first, then one whose namespaces differ in one name, then the others. Two
+pairs equally good are an error that lists them with the options that choose one.
 """
 
 from __future__ import annotations
@@ -25,7 +28,6 @@ from pcainterp_stream.io.reader_base import LogReader, TopicInfo
 
 DEFAULT_LEFT_IMAGE = PairingConfig.left_topic
 DEFAULT_RIGHT_IMAGE = PairingConfig.right_topic
-_DEFAULT_IMAGES = (DEFAULT_LEFT_IMAGE, DEFAULT_RIGHT_IMAGE)
 DEFAULT_LEFT_INFO = PairingConfig.left_info_topic
 DEFAULT_RIGHT_INFO = PairingConfig.right_info_topic
 _IMAGE_TYPES = (rosmsg.IMAGE, rosmsg.COMPRESSED_IMAGE)
@@ -52,13 +54,35 @@ class Camera:
         return (int(is_rectified_name(self.topic)), int(not compressed), int(not colour))
 
 
+BY_NAME = 2
+"""Closeness of a pair whose namespaces differ only in a name that says the side."""
+
+SIBLINGS = 1
+"""Closeness of a pair whose namespaces differ in one name that does not say the side."""
+
+DISTANT = 0
+"""Closeness of a pair whose namespaces differ in more (cameras of two heads, say)."""
+
+
 @dataclass(frozen=True)
 class StereoTopics:
-    """A stereo pair found in a log."""
+    """A stereo pair found in a log.
+
+    Attributes:
+        left: the left camera's stream.
+        right: the right camera's stream.
+        how: how the sides were told apart (``by name``, ``by the sign of P's Tx``).
+        closeness: :data:`BY_NAME`, :data:`SIBLINGS` or :data:`DISTANT`.
+    """
 
     left: Camera
     right: Camera
     how: str
+    closeness: int = BY_NAME
+
+    def preference(self) -> tuple[int, int, int, int]:
+        """Return how much this pair is preferred: closeness, then the streams' score."""
+        return (self.closeness, *self.left.score())
 
     def describe(self) -> str:
         """Return the pair as the options that would choose it."""
@@ -90,6 +114,12 @@ def cameras(topics: dict[str, TopicInfo], *, need_info: bool = True) -> list[Cam
         if has_info or not need_info:
             found.append(Camera(topic, ns, info_topic if has_info else None))
     return found
+
+
+def _differing_names(a: str, b: str) -> int:
+    """Return in how many ``/`` segments two namespaces differ (a missing one counts)."""
+    sa, sb = a.split("/"), b.split("/")
+    return sum(x != y for x, y in zip(sa, sb, strict=False)) + abs(len(sa) - len(sb))
 
 
 def _side_by_name(a: str, b: str) -> int | None:
@@ -139,11 +169,11 @@ def find_pairs(
     for cam in streams:
         by_ns.setdefault(cam.namespace, []).append(cam)
     spaces = sorted(by_ns)
-    pairs: list[tuple[tuple[int, int, int], StereoTopics]] = []
+    pairs: list[StereoTopics] = []
     for i, a in enumerate(spaces):
         for b in spaces[i + 1 :]:
             side = _side_by_name(a, b)
-            how = "by name"
+            how, closeness = "by name", BY_NAME
             if side is None and tx_of is not None:
                 info_a, info_b = by_ns[a][0].info, by_ns[b][0].info
                 tx_a = tx_of(info_a) if info_a else None
@@ -151,6 +181,7 @@ def find_pairs(
                 if tx_a is not None and tx_b is not None and (tx_a < 0) != (tx_b < 0):
                     side = 1 if tx_a < 0 else -1
                     how = "by the sign of P's Tx"
+                    closeness = SIBLINGS if _differing_names(a, b) == 1 else DISTANT
             if side is None:
                 continue
             left_ns, right_ns = (a, b) if side < 0 else (b, a)
@@ -161,9 +192,9 @@ def find_pairs(
                 if partner is not None and (best is None or cam.score() > best[0]):
                     best = (cam.score(), cam, partner)
             if best is not None:
-                pairs.append((best[0], StereoTopics(best[1], best[2], how)))
-    pairs.sort(key=lambda item: item[0], reverse=True)
-    return [pair for _, pair in pairs]
+                pairs.append(StereoTopics(best[1], best[2], how, closeness))
+    pairs.sort(key=StereoTopics.preference, reverse=True)
+    return pairs
 
 
 def _first_tx(reader: LogReader) -> Callable[[str], float | None]:
@@ -188,10 +219,11 @@ def resolve_pairing(
 ) -> PairingConfig:
     """Return ``config`` with the topics of the log's stereo pair when none were named.
 
-    With ``config.discover`` set, an image topic other than the default one (one side named
-    on the command line) keeps only the pairs with it. With ``config.discover`` unset, the
-    named topics are kept; only info topics left at their defaults become the image topics'
-    sibling ``camera_info`` when the log has those and not the defaults.
+    With ``config.discover`` set, an image topic of ``config.named_sides`` or other than the
+    default one (one side named on the command line) keeps only the pairs with it. With
+    ``config.discover`` unset, the named topics are kept; only info topics left at their
+    defaults become the image topics' sibling ``camera_info`` when the log has those and not
+    the defaults.
 
     Raises:
         TopicNotFoundError: no pair, or two equally good pairs (listing them and the options).
@@ -214,12 +246,14 @@ def resolve_pairing(
             right_info_topic=siblings.get("right_info_topic", config.right_info_topic),
         )
     need_info = config.calibration is None
-    named = [t for t in (config.left_topic, config.right_topic) if t not in _DEFAULT_IMAGES]
+    named_left = "left" in config.named_sides or config.left_topic != DEFAULT_LEFT_IMAGE
+    named_right = "right" in config.named_sides or config.right_topic != DEFAULT_RIGHT_IMAGE
+    named = named_left or named_right
     pairs = find_pairs(topics, need_info=need_info, tx_of=_first_tx(reader))
-    # a topic other than the default was named: only the pairs with it
-    if config.left_topic != DEFAULT_LEFT_IMAGE:
+    # a side was named: only the pairs with it
+    if named_left:
         pairs = [p for p in pairs if p.left.topic == config.left_topic]
-    if config.right_topic != DEFAULT_RIGHT_IMAGE:
+    if named_right:
         pairs = [p for p in pairs if p.right.topic == config.right_topic]
     if named and not pairs:  # the named topic is missing, of another type, or has no partner
         return resolve_pairing(reader, dataclasses.replace(config, discover=False), echo)
@@ -242,12 +276,14 @@ def resolve_pairing(
             )
         )
     best = pairs[0]
-    ties = [p for p in pairs if p.left.score() == best.left.score()]
+    ties = [p for p in pairs if p.preference() == best.preference()]
     if len(ties) > 1:
         listed = "; ".join(p.describe() for p in ties)
+        # one side named keeps the pairs with it: the best of those is the tie with it
+        alone = len({p.left.topic for p in ties}) == len(ties)
         raise TopicNotFoundError(
             f"{len(ties)} stereo pairs in {name} are equally good: {listed}; pass the options "
-            "of the one to densify"
+            "of the one to densify" + (" (its --left-topic alone will do)" if alone else "")
         )
     left_info, right_info = config.left_info_topic, config.right_info_topic
     if best.left.info is not None and best.right.info is not None:

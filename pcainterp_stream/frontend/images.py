@@ -38,6 +38,7 @@ class PairImages:
 
             self.config = resolve_pairing(reader, self.config)
             self._pairer = StereoPairer(self.config)
+            self._pairer.read_ahead(reader)  # as densify read the infos
             return
         from pcainterp_stream.frontend.discovery import resolve_pairing
 
@@ -65,6 +66,7 @@ class PairImages:
 
         self.config = resolve_pairing(_Inputs(), self.config)  # type: ignore[arg-type]
         self._pairer = StereoPairer(self.config)
+        self._pairer.read_ahead(reader)  # as densify read the infos
 
     @property
     def left_topic(self) -> str:

@@ -26,7 +26,6 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -34,6 +33,12 @@ import numpy as np
 
 from pcainterp_stream.errors import CalibrationError, LogReadError
 from pcainterp_stream.frontend import rectify as rect
+from pcainterp_stream.frontend.camera_infos import (
+    calibration_values,
+    camera_from_infos,
+    first_infos,
+)
+from pcainterp_stream.frontend.row_check import RowCheck
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import LogReader, decode_image
 from pcainterp_stream.records import (
@@ -79,6 +84,8 @@ class PairingConfig:
             (the info topics are then not read).
         discover: the topics were not named: find the pair in the log
             (:func:`frontend.discovery.resolve_pairing`).
+        named_sides: with ``discover``: the sides (``left``, ``right``) whose image topic was
+            named, the default one included; the pair found must have it.
         check_rows: on the first frames, refuse a pair whose matched corners are not on the
             same rows (or have negative disparities); off with ``rectify="never"``.
     """
@@ -95,6 +102,7 @@ class PairingConfig:
     rectify: str = "auto"
     calibration: rect.StereoCalibration | None = None
     discover: bool = False
+    named_sides: tuple[str, ...] = ()
     check_rows: bool = True
 
     def __post_init__(self) -> None:
@@ -136,6 +144,15 @@ class PairingStats:
         encoding_mismatches: pairs skipped because left and right are of one size but
             differ in channels (grey, colour) or bit depth.
         no_camera_info: pairs dropped because a side never had a camera info in time.
+        missing_info_topics: the camera info topics that had no message yet when a pair
+            was dropped (or made with one read ahead).
+        info_late_ns: log time (ns) from the first pair dropped for want of a camera info (or
+            made with one read ahead) to the first camera info on both sides; -1 when none
+            was dropped or none came.
+        pairs_before_info: pairs made before the stream's first camera info of a side, with
+            the one read ahead (:meth:`StereoPairer.look_ahead`).
+        changed_info_topics: camera info topics whose calibration later differs from the
+            one read ahead.
         features_matched: frames that got a feature cloud of their stamp.
         features_unmatched: feature clouds that matched no frame.
         non_monotonic_stamps: images whose stamp is earlier than the previous one on the
@@ -143,6 +160,7 @@ class PairingStats:
         near_misses_ns: the gap (ns) of each image dropped unpaired to the nearest other-side
             image when it came, if beyond the tolerance but within :data:`NEAR_MISS_NS`.
         tolerance_ns: the pairing's tolerance (ns).
+        window: the pairing's window (pairs held waiting for camera infos).
         problems: the first :data:`MAX_PROBLEMS` one-line problem descriptions.
     """
 
@@ -153,11 +171,16 @@ class PairingStats:
     size_mismatches: int = 0
     encoding_mismatches: int = 0
     no_camera_info: int = 0
+    missing_info_topics: list[str] = field(default_factory=list)
+    info_late_ns: int = -1
+    pairs_before_info: int = 0
+    changed_info_topics: list[str] = field(default_factory=list)
     features_matched: int = 0
     features_unmatched: int = 0
     non_monotonic_stamps: int = 0
     near_misses_ns: list[int] = field(default_factory=list)
     tolerance_ns: int = 0
+    window: int = 0
     problems: list[str] = field(default_factory=list)
 
     def tolerance_hint(self) -> str | None:
@@ -171,6 +194,49 @@ class PairingStats:
             f"{min(misses) / 1e6:.2f}-{widest:.2f} ms away, beyond the "
             f"{self.tolerance_ns / 1e6:g} ms tolerance; pass --stamp-tolerance-ms "
             f"{math.ceil(widest)} to pair them"
+        )
+
+    def camera_info_hint(self) -> str | None:
+        """A warning when pairs were dropped before the first camera info came, else None.
+
+        Also when pairs were made with a camera info read ahead that changed later in the
+        log. A log without a single pair gets no hint: its error says why.
+        """
+        topics = " and ".join(self.missing_info_topics) or "the camera info topics"
+        late = self.info_late_ns / 1e9
+        # pairs within the window would have waited for the first info: no difference
+        ahead = self.pairs_before_info > self.window
+        if ahead and self.changed_info_topics:
+            return (
+                f"the first {self.pairs_before_info} stereo pairs came before the first camera "
+                f"info on {topics} (recorded {late:.1f} s of log later) and were densified with "
+                f"it, but {' and '.join(self.changed_info_topics)} changed later in the log: "
+                "their depth may be off; pass --calibration LEFT.yaml RIGHT.yaml (the cameras' "
+                "camera_info_manager files) to densify them with their own"
+            )
+        if not (self.no_camera_info and self.pairs):
+            return None
+        when = f" (it came {late:.1f} s of log after the first dropped pair)" if late >= 0 else ""
+        return (
+            f"{self.no_camera_info} of {self.no_camera_info + self.pairs} stereo pairs were "
+            f"dropped because no camera info had arrived yet on {topics}{when}; pass "
+            "--calibration LEFT.yaml RIGHT.yaml (the cameras' camera_info_manager files) to "
+            "densify every pair"
+        )
+
+    def camera_info_note(self) -> str | None:
+        """A note when pairs were made with a camera info read ahead that never changed.
+
+        Only when they are more than the window: pairs within it would have waited for that
+        first camera info anyway (a log that writes each image before its camera info).
+        """
+        if self.pairs_before_info <= self.window or self.changed_info_topics:
+            return None
+        return (
+            f"camera info: the first {self.pairs_before_info} stereo pairs came before the first "
+            f"camera info on {' and '.join(self.missing_info_topics)} (recorded "
+            f"{self.info_late_ns / 1e9:.1f} s of log later): densified with it, read ahead "
+            "(the log's camera infos do not change)"
         )
 
     def note(self, problem: str) -> None:
@@ -215,72 +281,6 @@ class _Pending:
         self.miss_ns = -1  # the nearest other-side image beyond the tolerance when it came
 
 
-def camera_from_infos(
-    left_info: Any,
-    right_info: Any,
-    *,
-    width: int,
-    height: int,
-    left_topic: str = "left camera_info",
-    right_topic: str = "right camera_info",
-    baseline: float | None = None,
-) -> StereoCamera:
-    """Build the stereo calibration from the two rectified ``CameraInfo`` messages.
-
-    Args:
-        left_info: left ``CameraInfo`` (ROS 1 ``P`` or ROS 2 ``p``).
-        right_info: right ``CameraInfo``; its P[0, 3] = -fx * baseline.
-        width: the images' width (px); an info for another size is refused.
-        height: their height (px).
-        left_topic: topic name used in error messages.
-        right_topic: topic name used in error messages.
-        baseline: override (m); when given the right P[0, 3] is not used.
-
-    Raises:
-        CalibrationError: an info for another image size, fx or fy not positive, or no
-            positive baseline from the right P and no override.
-    """
-    for info, topic in ((left_info, left_topic), (right_info, right_topic)):
-        size = rosmsg.imaged_size(info)
-        if size is not None and size != (width, height):
-            raise CalibrationError(
-                f"camera info on {topic} is for {size[0]}x{size[1]} px images but they are "
-                f"{width}x{height}: its K and P would be off by the scale; record the images "
-                "with their own camera info (or its roi / binning)"
-            )
-    p_left = rosmsg.projection_matrix(left_info)
-    p_right = rosmsg.projection_matrix(right_info)
-    fx, fy, cx, cy = p_left[0, 0], p_left[1, 1], p_left[0, 2], p_left[1, 2]
-    if not (np.isfinite(p_left).all() and fx > 0 and fy > 0):
-        raise CalibrationError(
-            f"camera info on {left_topic} has P with fx={fx}, fy={fy}; a rectified camera "
-            "needs positive focal lengths: fix the calibration"
-        )
-    if baseline is None:
-        if not (np.isfinite(p_right).all() and p_right[0, 0] > 0):
-            raise CalibrationError(
-                f"camera info on {right_topic} has P with fx={p_right[0, 0]}; fix the "
-                "calibration or pass --baseline"
-            )
-        with np.errstate(over="ignore"):  # a damaged tiny fx overflows: caught below
-            baseline = float(-p_right[0, 3] / p_right[0, 0])
-        if not (baseline > 0 and np.isfinite(baseline)):
-            raise CalibrationError(
-                f"camera info on {right_topic} gives no baseline (P[0,3] = {p_right[0, 3]}, "
-                f"fx = {p_right[0, 0]}; expected -fx * baseline < 0, finite); pass --baseline "
-                "METRES"
-            )
-    return StereoCamera(
-        width=int(width),
-        height=int(height),
-        fx=float(fx),
-        fy=float(fy),
-        cx=float(cx),
-        cy=float(cy),
-        baseline=float(baseline),
-    )
-
-
 def features_from_pointcloud(message: Any, log_time_ns: int) -> SparseFeatures:
     """Convert a ``PointCloud2`` with x, y, z fields into :class:`~records.SparseFeatures`.
 
@@ -322,11 +322,15 @@ class StereoPairer:
         self._said: str | None = None
         self._frame_rectifier: dict[int, rect.StereoRectifier] = {}
         self._rows = (
-            _RowCheck(self.config)
+            RowCheck(
+                self.config.left_topic,
+                self.config.right_topic,
+                calibration_files=self.config.calibration is not None,
+            )
             if self.config.check_rows and self.config.rectify != "never"
             else None
         )
-        self.stats = PairingStats(tolerance_ns=self.config.tolerance_ns)
+        self.stats = PairingStats(tolerance_ns=self.config.tolerance_ns, window=self.config.window)
         self._left: deque[_Pending] = deque()
         self._right: deque[_Pending] = deque()
         self._matched: deque[tuple[_Pending, _Pending]] = deque()  # waiting for camera info
@@ -338,6 +342,10 @@ class StereoPairer:
         self._frame_features: dict[int, SparseFeatures] = {}
         self._last_stamp = {"left": -(2**63), "right": -(2**63)}
         self._last_feature_stamp_ns: int | None = None
+        self._first_dropped_ns: int | None = None  # first pair dropped waiting for infos
+        # info topic -> (log time, calibration_values) of the camera info read ahead
+        self._ahead: dict[str, tuple[int, tuple[Any, ...]]] = {}
+        self._ahead_unseen: set[str] = set()  # read ahead, not yet met in the stream
         self._index = 0
 
     def wants(self, topic: str) -> bool:
@@ -381,13 +389,15 @@ class StereoPairer:
             config.right_info_topic,
         ):
             return []  # the calibration files stand for the camera infos
-        if topic == config.left_info_topic:
-            self._left_info = message
-            if topic == config.right_info_topic:  # one info for both sides (with --baseline)
+        if topic in (config.left_info_topic, config.right_info_topic):
+            if topic == config.left_info_topic:
+                self._left_info = message
+            if topic == config.right_info_topic:  # or one info for both sides (--baseline)
                 self._right_info = message
-            return self._release_matched()
-        if topic == config.right_info_topic:
-            self._right_info = message
+            first = self._first_dropped_ns
+            if first is not None and self.stats.info_late_ns < 0 and self._has_infos():
+                self.stats.info_late_ns = max(0, log_time_ns - first)
+            self._meet_ahead(topic, message)
             return self._release_matched()
         if topic == config.features_topic:
             return self._push_features(message, log_time_ns)
@@ -396,6 +406,44 @@ class StereoPairer:
         if topic == config.right_topic:
             return self._push_image("right", _Pending(stamp_ns, log_time_ns, message))
         return []
+
+    def look_ahead(self, topic: str, log_time_ns: int, message: Any) -> None:
+        """Take a side's first camera info, read ahead of the stream (:meth:`read_ahead`).
+
+        Until the stream brings a camera info of that side, pairs use this one instead of
+        waiting for it (and falling out of the window): a log whose camera infos were
+        recorded late is densified whole. The pairs made with it are counted
+        (``stats.pairs_before_info``); a camera info of the topic later in the stream with
+        another calibration is noted (``stats.changed_info_topics``). Call before the stream.
+        """
+        config = self.config
+        if config.calibration is not None:
+            return
+        if topic == config.left_info_topic and self._left_info is None:
+            self._left_info = message
+        if topic == config.right_info_topic and self._right_info is None:
+            self._right_info = message
+        self._ahead[topic] = (log_time_ns, calibration_values(message))
+        self._ahead_unseen.add(topic)
+
+    def read_ahead(self, reader: LogReader) -> None:
+        """:meth:`look_ahead` of each side's first camera info, when the log has an index."""
+        config = self.config
+        if config.calibration is None:
+            for topic, log_time_ns, message in first_infos(
+                reader, [config.left_info_topic, config.right_info_topic]
+            ):
+                self.look_ahead(topic, log_time_ns, message)
+
+    def _meet_ahead(self, topic: str, message: Any) -> None:
+        """Note a stream camera info of a topic read ahead: met, and changed or not."""
+        ahead = self._ahead.get(topic)
+        if ahead is None:
+            return
+        self._ahead_unseen.discard(topic)
+        changed = self.stats.changed_info_topics
+        if topic not in changed and calibration_values(message) != ahead[1]:
+            changed.append(topic)
 
     def features_for(self, frame: StereoFrame) -> SparseFeatures | None:
         """Return (once) the feature cloud of a frame's stamp, or None when there is none.
@@ -431,7 +479,7 @@ class StereoPairer:
         self._count_unpaired("left", self._left)
         self._count_unpaired("right", self._right)
         if self._matched:
-            self.stats.no_camera_info += len(self._matched)
+            self._count_no_info(len(self._matched))
             self.stats.note(
                 f"{len(self._matched)} pairs never had a camera info on both "
                 f"{self.config.left_info_topic} and {self.config.right_info_topic}"
@@ -467,9 +515,25 @@ class StereoPairer:
             self._count_unpaired(name, stale)
         self._matched.append((left, right))
         if len(self._matched) > self.config.window:
-            self._matched.popleft()
-            self.stats.no_camera_info += 1
+            dropped, _ = self._matched.popleft()
+            if self._first_dropped_ns is None:
+                self._first_dropped_ns = dropped.log_time_ns
+            self._count_no_info(1)
         return self._release_matched()
+
+    def _has_infos(self) -> bool:
+        return self._left_info is not None and self._right_info is not None
+
+    def _count_no_info(self, count: int) -> None:
+        """Count pairs dropped for want of a camera info, and the info topics still silent."""
+        self.stats.no_camera_info += count
+        config, missing = self.config, self.stats.missing_info_topics
+        for info, topic in (
+            (self._left_info, config.left_info_topic),
+            (self._right_info, config.right_info_topic),
+        ):
+            if info is None and topic not in missing:
+                missing.append(topic)
 
     def _count_unpaired(self, side: str, dropped: Sequence[_Pending]) -> None:
         if side == "left":
@@ -489,9 +553,7 @@ class StereoPairer:
         return best
 
     def _release_matched(self) -> list[StereoFrame]:
-        if self.config.calibration is None and (
-            self._left_info is None or self._right_info is None
-        ):
+        if self.config.calibration is None and not self._has_infos():
             return []
         frames: list[StereoFrame] = []
         while self._matched:
@@ -557,6 +619,13 @@ class StereoPairer:
                     del self._frame_rectifier[index]
         self._index += 1
         self.stats.pairs += 1
+        if self._ahead_unseen:  # made with a camera info read ahead
+            stats = self.stats
+            if not stats.pairs_before_info:
+                stats.missing_info_topics = sorted(self._ahead_unseen)
+                latest = max(self._ahead[topic][0] for topic in self._ahead_unseen)
+                stats.info_late_ns = max(0, latest - left.log_time_ns)
+            stats.pairs_before_info += 1
         return frame
 
     def full_result(self, result: DensifiedFrame) -> DensifiedFrame:
@@ -740,22 +809,6 @@ class StereoPairer:
         return released
 
 
-ROW_CHECK_FRAMES = 5
-"""How many first frames the row check looks at (it decides earlier with enough matches)."""
-
-ROW_CHECK_MATCHES = 150
-"""Matches after which the row check decides."""
-
-ROW_CHECK_MIN_MATCHES = 30
-"""Fewer matches than this over the first frames: no verdict (textureless, unrelated images)."""
-
-MAX_ROW_OFFSET_PX = 1.0
-"""Largest median vertical offset (px) of matched corners a rectified pair may have."""
-
-MIN_MEDIAN_DISPARITY_PX = -1.0
-"""A median disparity of matched corners below this says left and right are swapped."""
-
-
 def is_rectified_name(topic: str) -> bool:
     """Return True for an image topic named as rectified (``image_rect``, ``image_rect_color``)."""
     parts = [p for p in topic.split("/") if p and p not in ("compressed", "compressedDepth")]
@@ -764,102 +817,6 @@ def is_rectified_name(topic: str) -> bool:
 
 def _size(camera: StereoCamera) -> str:
     return f"{camera.width}x{camera.height}"
-
-
-class _RowCheck:
-    """The guard against an unrectified or swapped pair: see :attr:`PairingConfig.check_rows`.
-
-    A frame's matching (ORB corners, a RANSAC fundamental matrix: ~30-60 ms a KITTI frame,
-    in OpenCV without the interpreter lock) runs in a thread of its own while the frame goes
-    on to stereo matching; the next frame waits for it, so the check looks at the same
-    frames and decides at the same one as a check in line would. A bad pair is refused
-    when the next frame arrives, or by :meth:`finish` at the end of the stream.
-    """
-
-    def __init__(self, config: PairingConfig) -> None:
-        self.config = config
-        self.frames = 0
-        self.points: list[Any] = []
-        self.done = False
-        self._pending: tuple[Future[Any], bool] | None = None
-        self._executor: ThreadPoolExecutor | None = None
-
-    def see(self, left: Any, right: Any, *, rectified: bool) -> None:
-        """Start matching one frame's corners, once the frame before has been decided on.
-
-        Raises:
-            CalibrationError: the pair does not look rectified, or looks swapped.
-        """
-        self._decide()  # the frame before says whether this one is needed
-        if self.done:
-            return
-        if self._executor is None:
-            self._executor = ThreadPoolExecutor(1, thread_name_prefix="row-check")
-        self._pending = (self._executor.submit(rect.correspondences, left, right), rectified)
-
-    def finish(self) -> None:
-        """Decide with the last frame being matched (end of the stream).
-
-        Raises:
-            CalibrationError: the pair does not look rectified, or looks swapped.
-        """
-        try:
-            self._decide()
-        finally:
-            self._close()
-
-    def _decide(self) -> None:
-        try:
-            if self._pending is not None:
-                (future, rectified), self._pending = self._pending, None
-                self._add(future.result(), rectified=rectified)
-        finally:
-            if self.done:
-                self._close()
-
-    def _close(self) -> None:
-        self._pending = None
-        if self._executor is not None:
-            self._executor.shutdown(wait=False, cancel_futures=True)
-            self._executor = None
-
-    def _add(self, matches: Any, *, rectified: bool) -> None:
-        """Add one frame's correspondences; decide once there are enough."""
-        self.frames += 1
-        self.points.append(matches)
-        points = np.concatenate(self.points)
-        if points.shape[0] < ROW_CHECK_MATCHES and self.frames < ROW_CHECK_FRAMES:
-            return
-        self.done = True
-        self.points = []
-        if points.shape[0] < ROW_CHECK_MIN_MATCHES:
-            return
-        offset = rect.row_offset(points)
-        config = self.config
-        pair = f"{config.left_topic} / {config.right_topic}"
-        where = f"median over {offset.matches} matched corners of the first {self.frames} frame(s)"
-        if offset.median_abs_dy > MAX_ROW_OFFSET_PX:
-            if rectified:
-                fix = "the calibration does not fit these images: check the camera infos" + (
-                    " (or the --calibration files)" if config.calibration else ""
-                )
-            else:
-                fix = (
-                    "pass --rectify always to remap them with their CameraInfo (or "
-                    "--calibration files), or check the CameraInfo"
-                )
-            raise CalibrationError(
-                f"the stereo pair {pair} does not look rectified: matched corners are "
-                f"{offset.median_abs_dy:.2f} px apart vertically ({where}; rectified < "
-                f"{MAX_ROW_OFFSET_PX:g} px); {fix}; --rectify never densifies them anyway"
-            )
-        if offset.median_dx < MIN_MEDIAN_DISPARITY_PX:
-            raise CalibrationError(
-                f"the stereo pair {pair} has negative disparities: x_left - x_right = "
-                f"{offset.median_dx:.1f} px ({where}): left and right look swapped; swap "
-                "--left-topic and --right-topic (or fix the baseline sign of the right camera's "
-                "P); --rectify never densifies them anyway"
-            )
 
 
 def _reason(err: BaseException) -> str:
@@ -894,6 +851,7 @@ def iter_stereo_frames(
     """
     pairer = pairer or StereoPairer(config)
     reader.require_topics(pairer.config.required_topics())
+    pairer.read_ahead(reader)
     for raw in reader.messages(pairer.config.topics):
         yield from pairer.push_raw(raw, reader.decode)
     yield from pairer.flush()

@@ -210,6 +210,17 @@ class McapLogReader(LogReader):
             return (0, None, None)
         return (stats.message_count, stats.message_start_time, stats.message_end_time)
 
+    def indexed(self) -> bool:
+        """See :meth:`LogReader.indexed`: chunks without a wanted topic are skipped unread."""
+        self._check_open()
+        indexes = self._chunk_indexes.values()
+        return (
+            self._summary_complete
+            and not self.damage
+            and bool(indexes)
+            and all(index.message_index_offsets for index in indexes)
+        )
+
     @staticmethod
     def _channel_kind(channel: Channel, schema: Schema | None) -> tuple[str, str, str]:
         """Return (msgtype, schema encoding, message encoding) as this reader yields them."""

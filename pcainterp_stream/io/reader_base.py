@@ -232,6 +232,15 @@ class LogReader:
         """
         return None
 
+    def indexed(self) -> bool:
+        """Return True when :meth:`messages` of a few topics reads only the part holding them.
+
+        A log with an index (an MCAP summary with chunk and message indexes, a ROS 1 bag)
+        finds a topic's first message without reading the rest: a look ahead is cheap. False
+        when it would read the log from the start.
+        """
+        return False
+
     def require_topics(self, options: dict[str, str]) -> None:
         """Check that topics exist, for a command-line option each.
 

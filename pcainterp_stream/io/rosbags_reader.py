@@ -202,6 +202,10 @@ class RosbagsLogReader(LogReader):
         except Exception:  # rosbags raises on bags without an index; count instead
             return None
 
+    def indexed(self) -> bool:
+        """See :meth:`LogReader.indexed`: a ROS 1 bag's connection index finds a topic's chunks."""
+        return self.format is LogFormat.ROS1
+
     def messages(self, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
         """See :meth:`LogReader.messages`."""
         self._check_open()

@@ -251,6 +251,7 @@ def densify(
         )
         engine = stack.enter_context(FrameProcessor(basis, processor))
         pairer = StereoPairer(pairing, echo=echo)
+        pairer.read_ahead(reader)  # camera infos recorded after the first images
         bar = stack.enter_context(_bar(total, f"densify {input_path.name}"))
 
         def emit(results: list[DensifiedFrame]) -> None:

@@ -54,6 +54,7 @@ from pcainterp_stream.pipeline.learn import (
     MapPlan,
     _depth_maps,
     learn,
+    log_pairing,
     measure_held_out,
     to_grid,
 )
@@ -193,6 +194,7 @@ def _chunk_maps(
             yield disparity, info[0].image_size, info[0].focal_baseline
         return
     with open_log(log) as reader:
+        pairing = log_pairing(reader, pairing)  # the logs' topics may differ
         _require_topics(reader, pairing.required_topics(), "stereo pair")
         _check_topic_types(reader, _pairing_types(pairing))
         used = 0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import itertools
 import time
@@ -24,6 +25,7 @@ from pcainterp_stream.estimate.basis import Basis, grid_size_for
 from pcainterp_stream.estimate.finetune import camera_mismatch, disparity_scale, finetune_basis
 from pcainterp_stream.estimate.learning import DEFAULT_BOX_SIZE, learn_basis, preprocess_disparity
 from pcainterp_stream.estimate.prior import LocalPrior
+from pcainterp_stream.frontend.camera_infos import first_infos
 from pcainterp_stream.frontend.discovery import resolve_pairing
 from pcainterp_stream.frontend.pairing import (
     PairingConfig,
@@ -31,7 +33,7 @@ from pcainterp_stream.frontend.pairing import (
 )
 from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig, compute_disparity
 from pcainterp_stream.io import rosmsg
-from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.logreader import LogReader, open_log
 from pcainterp_stream.pipeline.common import (
     _bar,
     _check_output_folder,
@@ -112,6 +114,7 @@ def _depth_maps(
     """Yield disparity maps f*b/depth of a depth topic; no surface (NaN, inf) is d = 0."""
     assert options.depth_topic is not None
     with open_log(log) as reader:
+        pairing = log_pairing(reader, pairing, options.depth_topic)
         _require_topics(
             reader,
             {
@@ -128,9 +131,13 @@ def _depth_maps(
                 *_pairing_types(dataclasses.replace(pairing, features_topic=None))[2:],
             ],
         )
-        infos: dict[str, Any] = {}
+        info_topics = [pairing.left_info_topic, pairing.right_info_topic]
+        # camera infos recorded after the first depth images: their first, read ahead
+        infos: dict[str, Any] = {
+            topic: message for topic, _, message in first_infos(reader, info_topics)
+        }
         index = 0
-        topics = [options.depth_topic, pairing.left_info_topic, pairing.right_info_topic]
+        topics = [options.depth_topic, *info_topics]
         for raw in reader.messages(topics):
             message = reader.decode(raw)
             if raw.topic != options.depth_topic:
@@ -150,7 +157,7 @@ def _depth_maps(
                     f"depth image on {options.depth_topic} at log time {raw.log_time_ns} ns in "
                     f"{log.name} is unusable ({err}); pass a 32FC1 depth topic (m) as --depth-topic"
                 ) from err
-            from pcainterp_stream.frontend.pairing import camera_from_infos
+            from pcainterp_stream.frontend.camera_infos import camera_from_infos
 
             camera = camera_from_infos(
                 infos[pairing.left_info_topic],
@@ -173,6 +180,7 @@ def _sgbm_maps(
 ) -> Iterator[npt.NDArray[np.float32]]:
     """Yield SGBM maps of every N-th pair, matching the next pair while this one is used."""
     with open_log(log) as reader, ThreadPoolExecutor(1, thread_name_prefix="sgbm") as pool:
+        pairing = log_pairing(reader, pairing)
         _require_topics(reader, pairing.required_topics(), "stereo pair")
         _check_topic_types(reader, _pairing_types(pairing))
         pending: list[Future[npt.NDArray[np.float32]]] = []
@@ -191,28 +199,81 @@ def _sgbm_maps(
 def learn_pairing(
     logs: list[Path], pairing: PairingConfig, depth_topic: str | None = None
 ) -> PairingConfig:
-    r"""Return the pairing ``learn`` reads every log with: the topics found in the first one.
+    r"""Return the pairing ``learn`` reads the logs with, the pair of each found and printed.
 
-    All the logs of one ``learn`` share their topics. With a ``depth_topic`` only the camera
-    infos are needed, so a log whose images cannot be paired keeps the defaults.
+    Each log's pair is found in it (:func:`log_pairing`), before any work, so a log without
+    one is refused first. When every log has the same topics that pairing is returned; when
+    they differ, ``pairing`` itself, and each log is read with its own
+    (:func:`log_pairing` again where it is opened).
 
     Args:
-        logs: the logs to learn from (the first is read for its topics).
+        logs: the logs to read (to learn from and to fit on).
         pairing: the pairing the options ask for; returned as it is unless it ``discover``\s
             or a ``depth_topic`` is given.
         depth_topic: the depth topic learned from instead of SGBM maps, if any.
 
     Raises:
-        TopicNotFoundError: no stereo pair in the first log (and no ``depth_topic``).
+        TopicNotFoundError: no stereo pair in a log (and no ``depth_topic``), or two
+            equally good ones.
     """
-    if logs and (pairing.discover or depth_topic is not None):
-        with open_log(logs[0]) as reader:
-            try:
-                pairing = resolve_pairing(reader, pairing, _echo)
-            except TopicNotFoundError:
-                if depth_topic is None:
-                    raise  # a depth topic needs only the camera infos: the defaults may do
-    return pairing
+    if not (pairing.discover or depth_topic is not None):
+        return pairing
+    found: list[PairingConfig] = []
+    for log in dict.fromkeys(logs):  # a log given twice is read once
+        with open_log(log) as reader:
+            echo = _echo if len(logs) == 1 else _prefixed(f"{log.name}: ")
+            found.append(log_pairing(reader, pairing, depth_topic, echo))
+    topics = {(p.left_topic, p.right_topic, p.left_info_topic, p.right_info_topic) for p in found}
+    return found[0] if len(topics) == 1 else pairing
+
+
+def _prefixed(prefix: str) -> Callable[[str], None]:
+    """Return an echo that starts each line with ``prefix`` (the log's name)."""
+    return lambda line: _echo(prefix + line)
+
+
+def log_pairing(
+    reader: LogReader,
+    pairing: PairingConfig,
+    depth_topic: str | None = None,
+    echo: Callable[[str], None] | None = None,
+) -> PairingConfig:
+    r"""Return the pairing one open log is read with: its pair found, or ``pairing``.
+
+    With a ``depth_topic`` only the camera infos are needed, so a log whose images cannot be
+    paired keeps the default topics.
+
+    Args:
+        reader: the open log.
+        pairing: the pairing the options ask for; returned as it is unless it ``discover``\s
+            or a ``depth_topic`` is given.
+        depth_topic: the depth topic learned from instead of SGBM maps, if any.
+        echo: given the line that says which pair was found.
+
+    Raises:
+        TopicNotFoundError: no stereo pair in the log (and no ``depth_topic``), or two
+            equally good ones.
+    """
+    if not (pairing.discover or depth_topic is not None):
+        return pairing
+    try:
+        return resolve_pairing(reader, pairing, echo)
+    except TopicNotFoundError:
+        if depth_topic is None:
+            raise
+        # a depth topic needs only the camera infos: the defaults may do
+        return dataclasses.replace(pairing, discover=False)
+
+
+def _source_topic(log: Path, options: LearnOptions, pairing: PairingConfig) -> str:
+    """Return the topic a log's maps are counted on: the depth topic or its left images."""
+    if options.depth_topic:
+        return options.depth_topic
+    if not pairing.discover:
+        return pairing.left_topic
+    with contextlib.suppress(PcaInterpError), open_log(log) as reader:
+        return log_pairing(reader, pairing).left_topic
+    return pairing.left_topic  # unreadable, or no pair: said when the log is read
 
 
 def _count_frames(log: Path, topic: str, every: int) -> int:
@@ -323,8 +384,9 @@ def kept_kernel(basis: Basis) -> LocalPrior | None:
 
 def expected_maps(logs: list[Path], options: LearnOptions, pairing: PairingConfig) -> int | None:
     """Return the maps the logs' summaries promise (every N-th frame); None: unknown."""
-    source = options.depth_topic or pairing.left_topic
-    totals = [_expected_frames(log, source, options.every) for log in logs]
+    totals = [
+        _expected_frames(log, _source_topic(log, options, pairing), options.every) for log in logs
+    ]
     return None if None in totals else sum(total for total in totals if total is not None)
 
 
@@ -399,22 +461,45 @@ class MapPlan:
         return [(log, (keep or 0) * options.every) for log, keep in kept]
 
 
-def _first_camera(
-    logs: list[Path], options: LearnOptions, pairing: PairingConfig
-) -> _MapSource | None:
-    """Return the camera of the first map the logs give (reads one frame), or None."""
-    for log in logs:
-        if options.depth_topic:
-            info: list[_MapSource] = []
-            if next(_depth_maps(log, options, pairing, info), None) is not None:
-                return info[0]
-            continue
-        with open_log(log) as reader:
-            _require_topics(reader, pairing.required_topics(), "stereo pair")
-            _check_topic_types(reader, _pairing_types(pairing))
-            for frame in iter_stereo_frames(reader, pairing):
-                return _MapSource(frame.camera.image_size, frame.camera.focal_baseline)
+def _log_camera(log: Path, options: LearnOptions, pairing: PairingConfig) -> _MapSource | None:
+    """Return the camera of the first map a log gives (reads one frame), or None."""
+    if options.depth_topic:
+        info: list[_MapSource] = []
+        if next(_depth_maps(log, options, pairing, info), None) is not None:
+            return info[0]
+        return None
+    with open_log(log) as reader:
+        paired = log_pairing(reader, pairing)
+        _require_topics(reader, paired.required_topics(), "stereo pair")
+        _check_topic_types(reader, _pairing_types(paired))
+        for frame in iter_stereo_frames(reader, paired):
+            return _MapSource(frame.camera.image_size, frame.camera.focal_baseline)
     return None
+
+
+def _one_camera(logs: list[Path], options: LearnOptions, pairing: PairingConfig) -> _MapSource:
+    """Return the camera of the first map the logs give, each log's first map checked.
+
+    Raises:
+        LogReadError: no log gives a map.
+        PcaInterpError: two logs' images differ in size (before any map is learned from).
+    """
+    cameras = [(log, _log_camera(log, options, pairing)) for log in logs]
+    found = [(log, camera) for log, camera in cameras if camera is not None]
+    if not found:
+        raise LogReadError(
+            f"no {'depth image' if options.depth_topic else 'stereo pair'} found in "
+            f"{', '.join(map(str, logs))}; check the topic options (pcainterp info LOG)"
+        )
+    first_log, camera = found[0]
+    height, width = camera.image_size
+    for log, other in found[1:]:
+        if other.image_size != camera.image_size:
+            raise PcaInterpError(
+                f"{log} has {other.image_size[1]}x{other.image_size[0]} images but {first_log} "
+                f"has {width}x{height}; learn one basis per camera"
+            )
+    return camera
 
 
 def plan_maps(
@@ -423,13 +508,13 @@ def plan_maps(
     """Check the options and decide what ``learn`` does with the logs' maps.
 
     Counts the maps (from the logs' summaries, else by reading them), holds the last
-    ``options.holdout`` share of each log out for the prior's fit, reads the camera of the
-    first frame and decides about the built-in basis (:func:`plan_synthetic`, its note
+    ``options.holdout`` share of each log out for the prior's fit, reads the camera of each
+    log's first frame and decides about the built-in basis (:func:`plan_synthetic`, its note
     printed).
 
     Raises:
-        PcaInterpError: bad options, an output that is an input or in a missing folder, or
-            no map in the logs.
+        PcaInterpError: bad options, an output that is an input or in a missing folder, no
+            map in the logs, or logs of two image sizes.
     """
     if options.every < 1:
         raise PcaInterpError(f"--every must be at least 1, got {options.every}")
@@ -444,8 +529,11 @@ def plan_maps(
         if log.resolve() == output.resolve():
             raise PcaInterpError(f"output {output} is one of the input logs; choose another -o")
     _check_output_folder(output)
-    source = options.depth_topic or pairing.left_topic
-    counts = [_expected_frames(log, source, options.every) for log in logs]
+    sources = [_source_topic(log, options, pairing) for log in logs]
+    counts = [
+        _expected_frames(log, source, options.every)
+        for log, source in zip(logs, sources, strict=True)
+    ]
     total = None if None in counts else sum(t for t in counts if t is not None)
     holding_out = options.fit_prior and not options.fit_logs
     if holding_out and not 0 < options.holdout < 1:
@@ -454,21 +542,16 @@ def plan_maps(
     if holding_out:
         for index, count in enumerate(counts):
             if count is None:  # the log keeps no counts (or cannot be read: that error now)
-                count = counts[index] = _count_frames(logs[index], source, options.every)
+                count = counts[index] = _count_frames(logs[index], sources[index], options.every)
             kept[index] = max(1, int(count * (1.0 - options.holdout)))
         total = sum(k for k in kept if k is not None)
     elif requested == AUTO and total is None:
         counts = [
             _count_frames(log, source, options.every) if count is None else count
-            for log, count in zip(logs, counts, strict=True)
+            for log, source, count in zip(logs, sources, counts, strict=True)
         ]
         total = sum(c for c in counts if c is not None)
-    camera = _first_camera(logs, options, pairing)
-    if camera is None:
-        raise LogReadError(
-            f"no {'depth image' if options.depth_topic else 'stereo pair'} found in "
-            f"{', '.join(map(str, logs))}; check the topic options (pcainterp info LOG)"
-        )
+    camera = _one_camera(logs, options, pairing)
     plan = plan_synthetic(options, total, (camera.image_size, camera.focal_baseline))
     if plan.note is not None:
         _echo(plan.note)
@@ -684,6 +767,7 @@ def measure_held_out(
     front_end = StereoFrontEnd(options.gftt, options.sgbm)
     frames: list[HeldOutFrame] = []
     with open_log(log) as reader:
+        pairing = log_pairing(reader, pairing)
         _require_topics(reader, pairing.required_topics(), "stereo pair")
         for frame in iter_stereo_frames(reader, pairing):
             if frame.index < first:

@@ -3,12 +3,19 @@
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
 
 from pcainterp_stream.errors import TopicNotFoundError
-from pcainterp_stream.frontend.discovery import find_pairs, resolve_pairing
+from pcainterp_stream.frontend.discovery import (
+    BY_NAME,
+    DISTANT,
+    SIBLINGS,
+    find_pairs,
+    resolve_pairing,
+)
 from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.reader_base import TopicInfo
@@ -131,3 +138,107 @@ def test_one_named_side_takes_the_other_from_its_pair() -> None:
         "/rear/right/image_raw",
         "/rear/left/camera_info",
     )
+
+
+class _TxReader(_Reader):
+    """A reader whose camera infos have P[0, 3] = ``tx[topic]`` (the right camera's < 0)."""
+
+    def __init__(self, topics: dict[str, TopicInfo], tx: dict[str, float]) -> None:
+        super().__init__(topics)
+        self._tx = tx
+
+    def messages(self, topics: Any = None) -> Any:
+        return iter([SimpleNamespace(topic=topic) for topic in topics or () if topic in self._tx])
+
+    def decode(self, raw: Any) -> Any:
+        p = [500.0, 0.0, 300.0, self._tx[raw.topic], 0.0, 500.0, 200.0, 0.0, 0, 0, 1, 0]
+        return SimpleNamespace(p=p)
+
+
+def _two_heads(first: str = "/front", second: str = "/stereo") -> _TxReader:
+    names = [f"{head}/{side}" for head in (first, second) for side in ("left", "right")]
+    topics = _topics(*(topic for ns in names for topic in _camera(ns, "image_rect")))
+    tx = {f"{ns}/camera_info": -50.0 if ns.endswith("right") else 0.0 for ns in names}
+    return _TxReader(topics, tx)
+
+
+def test_cross_head_pairs_rank_below_the_heads() -> None:
+    reader = _two_heads()
+    pairs = find_pairs(reader.topics(), tx_of=lambda topic: reader._tx.get(topic))
+    heads = [(p.left.topic, p.right.topic) for p in pairs[:2]]
+    assert heads == [
+        ("/front/left/image_rect", "/front/right/image_rect"),
+        ("/stereo/left/image_rect", "/stereo/right/image_rect"),
+    ]
+    assert [p.closeness for p in pairs] == [BY_NAME, BY_NAME, DISTANT, DISTANT]
+    assert {p.how for p in pairs[2:]} == {"by the sign of P's Tx"}
+
+
+def test_two_heads_are_one_line_listing_only_the_heads() -> None:
+    with pytest.raises(TopicNotFoundError) as err:
+        resolve_pairing(_two_heads(), PairingConfig(discover=True))  # type: ignore[arg-type]
+    line = str(err.value)
+    assert "2 stereo pairs in robot.bag are equally good" in line
+    assert "--left-topic /front/left/image_rect --right-topic /front/right/image_rect" in line
+    assert "--left-topic /stereo/left/image_rect --right-topic /stereo/right/image_rect" in line
+    assert "--right-topic /stereo/right/image_rect --left-info-topic /front" not in line
+    assert line.endswith("pass the options of the one to densify (its --left-topic alone will do)")
+
+
+@pytest.mark.parametrize(
+    ("named", "expected"),
+    [
+        ({"left_topic": "/front/left/image_rect"}, "/front/right/image_rect"),
+        ({"left_topic": "/stereo/left/image_rect"}, "/stereo/right/image_rect"),
+        ({"right_topic": "/front/right/image_rect"}, "/front/left/image_rect"),
+        ({"right_topic": "/stereo/right/image_rect"}, "/stereo/left/image_rect"),
+    ],
+)
+def test_one_named_side_takes_its_sibling_not_another_heads_camera(
+    named: dict[str, str], expected: str
+) -> None:
+    said: list[str] = []
+    # the command line says which side it named: /stereo/left/image_rect is the default topic
+    sides = tuple(field.split("_")[0] for field in named)
+    config = PairingConfig(discover=True, named_sides=sides, **named)  # type: ignore[arg-type]
+    config = resolve_pairing(_two_heads(), config, said.append)  # type: ignore[arg-type]
+    other = config.right_topic if "left_topic" in named else config.left_topic
+    assert other == expected
+    assert config.left_info_topic == config.left_topic.replace("image_rect", "camera_info")
+    assert config.right_info_topic == config.right_topic.replace("image_rect", "camera_info")
+    assert "found by name (1 other pair(s) less preferred)" in said[0]
+
+
+def test_heads_named_alike_keep_the_pairs_with_a_side_in_one_name() -> None:
+    # a RealSense's infra1/infra2 beside a ZED's left/right: two heads, no cross pairs
+    names = ["/camera/infra1", "/camera/infra2", "/zed/left", "/zed/right"]
+    topics = _topics(*(topic for ns in names for topic in _camera(ns, "image_rect_raw")))
+    tx = {f"{ns}/camera_info": -50.0 if ns[-1] in "t2" else 0.0 for ns in names}
+    pairs = find_pairs(topics, tx_of=tx.get)
+    assert [(p.left.topic, p.closeness) for p in pairs[:2]] == [
+        ("/camera/infra1/image_rect_raw", BY_NAME),
+        ("/zed/left/image_rect_raw", BY_NAME),
+    ]
+    assert all(p.closeness == DISTANT for p in pairs[2:])
+
+
+def test_sides_by_tx_in_one_parent_rank_above_sides_by_tx_across_heads() -> None:
+    names = ["/front/a", "/front/b", "/rear/c"]
+    topics = _topics(*(topic for ns in names for topic in _camera(ns, "image_raw")))
+    tx = {"/front/a/camera_info": 0.0, "/front/b/camera_info": -50.0, "/rear/c/camera_info": -5.0}
+    pairs = find_pairs(topics, tx_of=tx.get)
+    assert [(p.left.topic, p.right.topic, p.closeness) for p in pairs] == [
+        ("/front/a/image_raw", "/front/b/image_raw", SIBLINGS),
+        ("/front/a/image_raw", "/rear/c/image_raw", DISTANT),
+    ]
+    config = resolve_pairing(_TxReader(topics, tx), PairingConfig(discover=True))  # type: ignore[arg-type]
+    assert (config.left_topic, config.right_topic) == ("/front/a/image_raw", "/front/b/image_raw")
+
+
+def test_one_head_named_by_number_still_pairs_with_tx() -> None:
+    # EuRoC-style names: cam0 is left; with its infos' Tx as well, nothing else competes
+    topics = _topics(*_camera("/cam0", "image_raw"), *_camera("/cam1", "image_raw"))
+    tx = {"/cam0/camera_info": 0.0, "/cam1/camera_info": -50.0}
+    config = resolve_pairing(_TxReader(topics, tx), PairingConfig(discover=True))  # type: ignore[arg-type]
+    assert (config.left_topic, config.right_topic) == ("/cam0/image_raw", "/cam1/image_raw")
+    assert config.right_info_topic == "/cam1/camera_info"

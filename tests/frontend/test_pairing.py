@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -9,10 +10,10 @@ import pytest
 from mcap.writer import Writer
 
 from pcainterp_stream.errors import CalibrationError, LogReadError, TopicNotFoundError
+from pcainterp_stream.frontend.camera_infos import camera_from_infos
 from pcainterp_stream.frontend.pairing import (
     PairingConfig,
     StereoPairer,
-    camera_from_infos,
     iter_stereo_frames,
 )
 from pcainterp_stream.io import rosmsg
@@ -105,6 +106,116 @@ def test_no_tolerance_hint_when_every_image_pairs_or_none_was_near() -> None:
     assert (stats.pairs, stats.unpaired_left, stats.unpaired_right) == (1, 1, 1)
     assert stats.near_misses_ns == []
     assert stats.tolerance_hint() is None
+
+
+def _pairs_before_infos(pairer: StereoPairer, count: int) -> None:
+    for index in range(count):
+        stamp = index * 100 * MS
+        push(pairer, CONFIG.left_topic, stamp, image(stamp))
+        assert push(pairer, CONFIG.right_topic, stamp, image(stamp)) == []
+
+
+def test_pairs_dropped_before_the_first_camera_info_are_a_warning() -> None:
+    pairer = StereoPairer(PairingConfig(window=3))
+    _pairs_before_infos(pairer, 5)  # the first 2 fall out of the window of 3
+    # the infos come 0.5 s of log after the first pair (log time = stamp + 5 ns)
+    assert push(pairer, CONFIG.left_info_topic, 500 * MS, left_info()) == []
+    frames = push(pairer, CONFIG.right_info_topic, 500 * MS, right_info())
+    assert [frame.stamp_ns for frame in frames] == [200 * MS, 300 * MS, 400 * MS]
+    stats = pairer.finish()
+    assert (stats.pairs, stats.no_camera_info) == (3, 2)
+    assert stats.summary().endswith("2 without camera info")
+    hint = stats.camera_info_hint()
+    assert hint == (
+        "2 of 5 stereo pairs were dropped because no camera info had arrived yet on "
+        "/stereo/left/camera_info and /stereo/right/camera_info (it came 0.5 s of log after "
+        "the first dropped pair); pass --calibration LEFT.yaml RIGHT.yaml (the cameras' "
+        "camera_info_manager files) to densify every pair"
+    )
+
+
+def test_camera_info_warning_names_only_the_side_that_came_late() -> None:
+    pairer = StereoPairer(PairingConfig(window=1))
+    push(pairer, CONFIG.left_info_topic, 0, left_info())
+    _pairs_before_infos(pairer, 3)
+    (frame,) = push(pairer, CONFIG.right_info_topic, 300 * MS, right_info())
+    assert frame.stamp_ns == 200 * MS
+    hint = pairer.finish().camera_info_hint()
+    assert hint is not None
+    assert hint.startswith("2 of 3 stereo pairs were dropped because no camera info had ")
+    assert "yet on /stereo/right/camera_info (it came 0.3 s of log" in hint
+
+
+def test_no_camera_info_warning_without_drops_or_without_any_pair() -> None:
+    pairer = StereoPairer(PairingConfig(window=3))
+    _pairs_before_infos(pairer, 3)  # held, not dropped, until the infos come
+    push(pairer, CONFIG.left_info_topic, 400 * MS, left_info())
+    assert len(push(pairer, CONFIG.right_info_topic, 400 * MS, right_info())) == 3
+    assert pairer.finish().camera_info_hint() is None
+    pairer = StereoPairer(PairingConfig(window=3))
+    _pairs_before_infos(pairer, 5)  # no info ever: no frame, the no-pair error says why
+    stats = pairer.finish()
+    assert (stats.pairs, stats.no_camera_info) == (0, 5)
+    assert stats.camera_info_hint() is None
+
+
+def test_camera_infos_read_ahead_pair_every_image_before_them() -> None:
+    pairer = StereoPairer(PairingConfig(window=2))
+    # read ahead of the stream: the first infos of the log, at 0.5 s of log
+    pairer.look_ahead(CONFIG.left_info_topic, 500 * MS, left_info())
+    pairer.look_ahead(CONFIG.right_info_topic, 500 * MS, right_info())
+    made = []
+    for index in range(5):
+        stamp = index * 100 * MS
+        push(pairer, CONFIG.left_topic, stamp, image(stamp))
+        made += push(pairer, CONFIG.right_topic, stamp, image(stamp))
+    assert [frame.camera for frame in made] == [CAMERA] * 5  # none waits, none is dropped
+    with_infos(pairer)  # the stream's own, the same calibration
+    push(pairer, CONFIG.left_topic, 600 * MS, image(600 * MS))
+    push(pairer, CONFIG.right_topic, 600 * MS, image(600 * MS))
+    stats = pairer.finish()
+    assert (stats.pairs, stats.no_camera_info, stats.pairs_before_info) == (6, 0, 5)
+    assert stats.camera_info_hint() is None
+    assert stats.camera_info_note() == (
+        "camera info: the first 5 stereo pairs came before the first camera info on "
+        "/stereo/left/camera_info and /stereo/right/camera_info (recorded 0.5 s of log "
+        "later): densified with it, read ahead (the log's camera infos do not change)"
+    )
+
+
+def test_camera_infos_read_ahead_then_changed_are_a_warning() -> None:
+    pairer = StereoPairer(PairingConfig(window=1))
+    pairer.look_ahead(CONFIG.left_info_topic, 0, left_info())
+    pairer.look_ahead(CONFIG.right_info_topic, 0, right_info())
+    for index in range(3):
+        push(pairer, CONFIG.left_topic, index * 100 * MS, image(index * 100 * MS))
+        assert len(push(pairer, CONFIG.right_topic, index * 100 * MS, image(index * 100 * MS))) == 1
+    wider = right_info(dataclasses.replace(CAMERA, baseline=0.3))
+    push(pairer, CONFIG.left_info_topic, 400 * MS, left_info())
+    push(pairer, CONFIG.right_info_topic, 400 * MS, wider)
+    stats = pairer.finish()
+    assert stats.changed_info_topics == [CONFIG.right_info_topic]
+    assert stats.camera_info_note() is None
+    hint = stats.camera_info_hint()
+    assert hint is not None
+    assert hint.startswith("the first 3 stereo pairs came before the first camera info on ")
+    assert "but /stereo/right/camera_info changed later in the log: their depth may be off" in hint
+
+
+def test_camera_infos_read_ahead_within_the_window_say_nothing() -> None:
+    # a log that writes each image before its camera info: the pairs would have waited
+    pairer = StereoPairer(PairingConfig(window=3))
+    pairer.look_ahead(CONFIG.left_info_topic, 5, left_info())
+    pairer.look_ahead(CONFIG.right_info_topic, 5, right_info())
+    (_frame,) = [
+        *push(pairer, CONFIG.left_topic, 0, image(0)),
+        *push(pairer, CONFIG.right_topic, 0, image(0)),
+    ]
+    with_infos(pairer)
+    stats = pairer.finish()
+    assert stats.pairs_before_info == 1
+    assert stats.camera_info_note() is None
+    assert stats.camera_info_hint() is None
 
 
 def test_buffers_are_bounded() -> None:

@@ -15,8 +15,9 @@ from scipy.linalg import subspace_angles
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.logwriter import LogFormat, open_writer
 from pcainterp_stream.pipeline import distributed, jobs
-from pcainterp_stream.pipeline.learn import AUTO_PRIOR_MAPS
+from pcainterp_stream.pipeline.learn import AUTO_PRIOR_MAPS, learn_pairing
 
 pytest.importorskip("dask.distributed")
 
@@ -77,6 +78,24 @@ def test_learn_on_cluster_matches_local_learner(
     first = local.components.reshape(local.components.shape[0], -1).T.astype(np.float64)
     second = remote.components.reshape(remote.components.shape[0], -1).T.astype(np.float64)
     assert np.degrees(subspace_angles(first[:, :5], second[:, :5])).max() < 0.5
+
+
+def test_learn_on_cluster_reads_each_log_with_its_own_topics(
+    logs: dict[str, Path], client: Any, tmp_path: Path
+) -> None:
+    renamed = tmp_path / "cam.mcap"
+    with open_log(logs["b"]) as reader, open_writer(renamed, LogFormat.MCAP) as writer:
+        for raw in reader.messages():
+            topic = raw.topic.replace("/stereo/", "/cam/", 1)
+            writer.add_message(topic, reader.decode(raw), raw.log_time_ns)
+    options = jobs.LearnOptions(n_components=3)  # and the prior fitted on held-out frames
+    both = [logs["a"], renamed]
+    pairing = learn_pairing(both, PairingConfig(discover=True))
+    remote = distributed.learn_distributed(
+        both, tmp_path / "remote.npz", options, pairing, client, chunk_frames=5
+    )
+    assert remote.n_train == 11 + 8  # 80 % of 14 and of 10 frames
+    assert remote.meta["prior"]["fit_logs"] == [str(logs["a"]), str(renamed)]
 
 
 def test_learn_on_cluster_with_truncation_keeps_leading_subspace(

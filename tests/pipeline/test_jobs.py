@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pcainterp_stream.errors import PcaInterpError
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.evaluate.metrics import compare_with_ground_truth
@@ -17,6 +18,7 @@ from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import LogFormat, open_writer
 from pcainterp_stream.io.outputs import OutputTopics, image_of
 from pcainterp_stream.pipeline import jobs
+from pcainterp_stream.pipeline.learn import learn_pairing
 from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
 
 REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata"
@@ -58,6 +60,52 @@ def test_learn_from_depth_topic_uses_every_nth_frame(logs: dict[str, Path]) -> N
     assert basis.n_train == 12
     # sky (NaN depth) is disparity 0, so the mean map's top rows are small
     assert float(basis.mean[0].mean()) < float(basis.mean[-1].mean())
+
+
+def _renamed(source: Path, target: Path, old: str, new: str) -> Path:
+    """Copy a log with every topic starting with ``old`` moved under ``new``."""
+    with open_log(source) as reader, open_writer(target, LogFormat.MCAP) as writer:
+        for raw in reader.messages():
+            topic = new + raw.topic[len(old) :] if raw.topic.startswith(old) else raw.topic
+            writer.add_message(topic, reader.decode(raw), raw.log_time_ns)
+    return target
+
+
+def test_learn_finds_each_logs_own_topics(
+    logs: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    cam = _renamed(logs["test"], logs["folder"] / "cam.mcap", "/stereo/", "/cam/")
+    both = [logs["test"], cam]
+    pairing = learn_pairing(both, PairingConfig(discover=True))
+    assert pairing.discover  # the topics differ: each log's are found where it is read
+    said = capsys.readouterr().out.splitlines()
+    assert said[0].startswith("test.mcap: topics: left /stereo/left/image_rect,")
+    assert said[1].startswith("cam.mcap: topics: left /cam/left/image_rect, right /cam/right")
+    out = logs["folder"] / "both_basis.npz"
+    basis = jobs.learn(both, out, jobs.LearnOptions(n_components=3), pairing)
+    assert basis.n_train == 8  # 4 of each log's 5 frames; the 5th of each fits the prior
+    assert basis.meta["prior"]["fit_logs"] == [str(logs["test"]), str(cam)]
+    # logs of one pair of topics: that pair, found once
+    same = learn_pairing([logs["test"], logs["train"]], PairingConfig(discover=True))
+    assert not same.discover
+    assert same.left_topic == "/stereo/left/image_rect"
+
+
+def test_learn_refuses_logs_of_two_image_sizes_before_learning(
+    logs: dict[str, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from pcainterp_stream.pipeline import learn as learn_job
+
+    small = logs["folder"] / "small_camera.mcap"
+    jobs.synth(small, frames=2, seed=13, scale=0.2, fmt="mcap")
+    monkeypatch.setattr(learn_job, "learn_basis", None)  # not reached
+    with pytest.raises(PcaInterpError, match=r"small_camera.mcap has 248x75 images but .*test"):
+        jobs.learn(
+            [logs["test"], small],
+            logs["folder"] / "sizes.npz",
+            jobs.LearnOptions(n_components=3),
+            PairingConfig(discover=True),
+        )
 
 
 def test_densify_beats_nearest_neighbour_against_ground_truth(logs: dict[str, Path]) -> None:

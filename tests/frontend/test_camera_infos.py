@@ -1,0 +1,70 @@
+"""The camera infos of a log read ahead of its stream, and whether two say the same."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pcainterp_stream.frontend.camera_infos import calibration_values, first_infos
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.logwriter import open_writer
+from pcainterp_stream.records import StereoCamera
+
+CAMERA = StereoCamera(width=8, height=6, fx=50.0, fy=51.0, cx=4.0, cy=3.0, baseline=0.25)
+INFOS = ["/s/left/camera_info", "/s/right/camera_info"]
+
+
+def _late_log(path: Path, fmt: str) -> Path:
+    """Five images, then the camera infos (from 0.5 s of log on)."""
+    with open_writer(path, fmt) as writer:
+        for index in range(5):
+            stamp = index * 100_000_000
+            image = rosmsg.image_message(np.zeros((6, 8), np.uint8), stamp, "left")
+            writer.add_message("/s/left/image_rect", image, stamp)
+        for index, stamp in enumerate((500_000_000, 600_000_000)):
+            camera = dataclasses.replace(CAMERA, baseline=0.25 + index)
+            writer.add_message(INFOS[0], rosmsg.camera_info_message(camera, stamp, "l"), stamp)
+            info = rosmsg.camera_info_message(camera, stamp, "r", right=True)
+            writer.add_message(INFOS[1], info, stamp)
+    return path
+
+
+@pytest.mark.parametrize(("name", "fmt"), [("late.mcap", "mcap"), ("late.bag", "ros1")])
+def test_first_infos_of_an_indexed_log(tmp_path: Path, name: str, fmt: str) -> None:
+    with open_log(_late_log(tmp_path / name, fmt)) as reader:
+        assert reader.indexed()
+        found = first_infos(reader, INFOS)
+        # the stream reads from the start afterwards, as if nothing had been read
+        assert sum(1 for _ in reader.messages()) == 9
+    assert [(topic, log_time_ns) for topic, log_time_ns, _ in found] == [
+        (INFOS[0], 500_000_000),
+        (INFOS[1], 500_000_000),
+    ]
+    assert rosmsg.projection_matrix(found[1][2])[0, 3] == pytest.approx(-50.0 * 0.25)
+
+
+def test_no_look_ahead_without_an_index(tmp_path: Path) -> None:
+    # a rosbag2 SQLite log would be read from the start to find them
+    with open_log(_late_log(tmp_path / "late", "rosbag2-sqlite3")) as reader:
+        assert not reader.indexed()
+        assert first_infos(reader, INFOS) == []
+
+
+def test_a_topic_without_an_info_is_left_out(tmp_path: Path) -> None:
+    with open_log(_late_log(tmp_path / "late.mcap", "mcap")) as reader:
+        found = first_infos(reader, [INFOS[0], "/other/camera_info"])
+    assert [topic for topic, _, _ in found] == [INFOS[0]]
+
+
+def test_calibration_values_tell_another_calibration_not_another_stamp() -> None:
+    first = rosmsg.camera_info_message(CAMERA, 0, "r", right=True)
+    later = rosmsg.camera_info_message(CAMERA, 10**9, "r", right=True)
+    wider = rosmsg.camera_info_message(
+        dataclasses.replace(CAMERA, baseline=0.3), 0, "r", right=True
+    )
+    assert calibration_values(first) == calibration_values(later)
+    assert calibration_values(first) != calibration_values(wider)
