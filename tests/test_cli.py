@@ -1386,6 +1386,16 @@ def test_learn_output_folder_and_missing_fit_log_are_refused_before_learning(
         ("--corners", "-1", "--corners must be at least 0, got -1"),
         ("--quality", "1.5", "--quality must be in (0, 1), got 1.5"),
         ("--min-distance", "-2", "--min-distance must be >= 0 px, got -2.0"),
+        # 1 px never finished on a 310x94 log; 2 px took 28 s for 4 frames
+        (
+            "--fill-spacing",
+            "1",
+            "--fill-spacing must be 0 (no lattice) or at least 10 px (GFTT's default min "
+            "corner distance; see --help), got 1",
+        ),
+        ("--fill-spacing", "9.5", "at least 10 px (GFTT's default min corner distance"),
+        ("--fill-spacing", "-1", "--fill-spacing must be 0 (no lattice) or at least 10 px"),
+        ("--fill-spacing", "nan", "--fill-spacing must be 0 (no lattice) or at least 10 px"),
         ("--baseline", "0", "--baseline must be a finite number > 0 m, got 0.0"),
         ("--baseline", "inf", "--baseline must be a finite number > 0 m, got inf"),
         ("--stamp-tolerance-ms", "-1", "--stamp-tolerance-ms must be >= 0, got -1.0"),
