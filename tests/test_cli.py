@@ -1397,6 +1397,13 @@ def test_learn_output_folder_and_missing_fit_log_are_refused_before_learning(
         ("--fill-spacing", "-1", "--fill-spacing must be 0 (no lattice) or at least 10 px"),
         ("--fill-spacing", "nan", "--fill-spacing must be 0 (no lattice) or at least 10 px"),
         ("--baseline", "0", "--baseline must be a finite number > 0 m, got 0.0"),
+        # these wrote //depth, //camera_info ... and /a b/depth
+        ("--output-prefix", "", "--output-prefix '' is not a ROS 2 topic name: it is empty;"),
+        ("--output-prefix", "/", "--output-prefix '/' is not a ROS 2 topic name: it has no name"),
+        ("--output-prefix", "/a b", "'a b' has characters other than A-Z a-z 0-9 _; use /-"),
+        ("--output-prefix", "//x", "'//x' is not a ROS 2 topic name: it has an empty name"),
+        ("--output-prefix", "/p/", "'/p/' is not a ROS 2 topic name: it ends with /"),
+        ("--output-prefix", "/p/2d", "'2d' starts with a digit; use /-separated names of"),
         ("--baseline", "inf", "--baseline must be a finite number > 0 m, got inf"),
         ("--stamp-tolerance-ms", "-1", "--stamp-tolerance-ms must be >= 0, got -1.0"),
     ],

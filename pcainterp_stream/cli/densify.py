@@ -134,7 +134,7 @@ def add_parser(commands: Commands) -> None:
         "--output-prefix",
         default="/pcainterp",
         metavar="PREFIX",
-        help="prefix of the output topics (default: %(default)s)",
+        help="prefix of the output topics, a ROS 2 topic name (default: %(default)s)",
     )
     densify.add_argument(
         "--depth-mm",
@@ -307,8 +307,9 @@ def run(args: argparse.Namespace) -> int:
         args, adapt="check" if builtin else "auto", builtin=kind or "auto"
     )
     _check_estimate(processor, args.basis)
+    topics = _output_topics(args)
     if args.out_dir is not None:
-        return _densify_many(args, processor)
+        return _densify_many(args, processor, topics)
     if len(args.input) > 1:
         raise PcaInterpError(
             f"-o takes one input but {len(args.input)} were given; "
@@ -322,7 +323,7 @@ def run(args: argparse.Namespace) -> int:
         args.basis,
         processor=processor,
         pairing=pairing_config(args, args.features_topic),
-        topics=_output_topics(args),
+        topics=topics,
         live=live,
         rrd=args.rrd,
         spawn_viewer=args.rerun,
@@ -511,9 +512,14 @@ def _output_topics(args: argparse.Namespace) -> OutputTopics:
     """Return the output topics of ``densify``: --output-prefix, --depth-mm, --outputs."""
     from pcainterp_stream.io.outputs import OutputTopics
 
-    topics = OutputTopics.with_prefix(
-        args.output_prefix, depth_mm=args.depth_mm, precision=getattr(args, "precision", "full")
-    )
+    try:
+        topics = OutputTopics.with_prefix(
+            args.output_prefix,
+            depth_mm=args.depth_mm,
+            precision=getattr(args, "precision", "full"),
+        )
+    except ValueError as err:
+        raise PcaInterpError(f"--output-prefix {err}") from None
     if args.outputs is None:
         return topics
     try:
@@ -522,7 +528,9 @@ def _output_topics(args: argparse.Namespace) -> OutputTopics:
         raise PcaInterpError(f"--outputs: {err}") from None
 
 
-def _densify_many(args: argparse.Namespace, processor: ProcessorConfig) -> int:
+def _densify_many(
+    args: argparse.Namespace, processor: ProcessorConfig, topics: OutputTopics
+) -> int:
     """Densify several logs into ``--out-dir`` on Dask; exit code 1 if any log failed."""
     from pcainterp_stream.pipeline import distributed
 
@@ -541,7 +549,7 @@ def _densify_many(args: argparse.Namespace, processor: ProcessorConfig) -> int:
             client,
             pairing=pairing_config(args, args.features_topic),
             processor=processor,
-            topics=_output_topics(args),
+            topics=topics,
         )
     failed = 0
     for outcome in outcomes:

@@ -23,6 +23,7 @@ Two precisions (``densify --precision``), chosen by measurement (docs/benchmarks
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -55,6 +56,44 @@ DEPTH_STEP_RANGE = (1.0 / 1024.0, 1.0 / 16.0)
 DISPLAY_DEPTH_STEP_MM = 50
 """The compact ``depth_mm`` viewer copy's rounding (mm): a fifth of one colour of a
 256-colour map over 0 to :data:`~pcainterp_stream.defaults.DISPLAY_MAX_DEPTH` m."""
+
+
+_TOPIC_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def topic_prefix(prefix: str) -> str:
+    """Return a prefix of output topics as an absolute ROS 2 name, checked.
+
+    ROS 2 topic names are ``/``-separated tokens of letters, digits and ``_``, none starting
+    with a digit, with no empty token (no ``//``) and no trailing ``/``. A relative name
+    (``pcainterp``) is resolved in the root namespace, as ROS 2 does (``/pcainterp``).
+
+    Raises:
+        ValueError: the prefix is not such a name (``""``, ``"/"``, ``"/a b"``, ``"/a/"``).
+
+    Examples:
+        >>> topic_prefix("pcainterp")
+        '/pcainterp'
+    """
+    name = prefix if prefix.startswith("/") else "/" + prefix
+    tokens = name[1:].split("/")
+    if name == "/":
+        problem = "it is empty" if prefix == "" else "it has no name under /"
+    elif name.endswith("/"):
+        problem = "it ends with /"
+    elif "" in tokens:
+        problem = "it has an empty name between two /"
+    else:
+        bad = next((token for token in tokens if not _TOPIC_TOKEN.fullmatch(token)), None)
+        if bad is None:
+            return name
+        problem = f"{bad!r} " + (
+            "starts with a digit" if bad[0].isdigit() else "has characters other than A-Z a-z 0-9 _"
+        )
+    raise ValueError(
+        f"{prefix!r} is not a ROS 2 topic name: {problem}; use /-separated names of letters, "
+        "digits and _ (not starting with a digit), e.g. /pcainterp"
+    )
 
 
 @dataclass(frozen=True)
@@ -150,10 +189,14 @@ class OutputTopics:
         """Return the default topics under another prefix (``/pcainterp`` by default).
 
         ``precision="compact"`` returns :meth:`compact` of them.
+
+        Raises:
+            ValueError: an unknown precision, or a prefix that is no ROS 2 topic name
+                (:func:`topic_prefix`).
         """
         if precision not in PRECISIONS:
             raise ValueError(f"unknown precision {precision!r}; choose {' or '.join(PRECISIONS)}")
-        prefix = "/" + prefix.strip("/")
+        prefix = topic_prefix(prefix)
         topics = cls(
             depth=f"{prefix}/depth",
             depth_std=f"{prefix}/depth_std",

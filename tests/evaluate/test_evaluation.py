@@ -331,6 +331,8 @@ def test_evaluate_cli_one_line_errors(
     missing = dense_logs["folder"] / "nope.npz"
     assert cli.main(["evaluate", str(dense_logs["dense"]), "--basis", str(missing)]) == 2
     assert "does not exist" in capsys.readouterr().err
+    assert cli.main(["evaluate", str(dense_logs["dense"]), "--output-prefix", "/a b"]) == 2
+    assert "--output-prefix '/a b' is not a ROS 2 topic name" in capsys.readouterr().err
 
 
 def test_evaluate_refuses_a_file_as_report_folder_up_front(
