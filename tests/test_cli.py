@@ -416,6 +416,23 @@ def test_densify_missing_basis(
     assert_nothing_written(out)
 
 
+def test_densify_basis_that_is_a_folder_or_a_log(
+    pcainterp: Callable[..., Run], small_log: Path, out: Path, tmp_path: Path
+) -> None:
+    # a folder "did not exist"; a log leaked numpy's hint to load pickles unsafely
+    line = pcainterp(*densify_args(small_log, out, tmp_path)).error_line()
+    assert f"basis file {tmp_path} is a folder, not a basis file; pass the path of" in line
+    line = pcainterp(*densify_args(small_log, out, small_log)).error_line()
+    assert f"basis file {small_log} is not a basis file (.npz): it is an MCAP log; pass" in line
+    assert "pickle" not in line
+    dense = tmp_path / "dense"
+    line = pcainterp("densify", small_log, "--out-dir", dense, "--basis", tmp_path).error_line()
+    assert "is a folder, not a basis file" in line
+    line = pcainterp("evaluate", small_log, "--basis", tmp_path).error_line()
+    assert "is a folder, not a basis file" in line
+    assert_nothing_written(out)
+
+
 # ----------------------------------------------------------------------------- not a log
 
 

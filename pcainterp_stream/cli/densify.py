@@ -538,8 +538,10 @@ def _densify_many(
         raise PcaInterpError("--rrd/--rerun take one log; use -o OUTPUT without --out-dir")
     if args.workers is not None and args.workers < 1:
         raise PcaInterpError(f"--workers must be at least 1, got {args.workers}")
-    if args.basis is not None and not args.basis.exists():
-        raise PcaInterpError(f"basis {args.basis} does not exist; learn one with pcainterp learn")
+    if args.basis is not None:
+        from pcainterp_stream.estimate.basis import check_basis_file
+
+        check_basis_file(args.basis)
     started = time.perf_counter()
     with distributed.connect(args.scheduler, args.workers) as client:
         outcomes = distributed.densify_many(

@@ -30,6 +30,7 @@ from pcainterp_stream.estimate.basis import (
     builtin_basis,
     builtin_basis_installed,
     builtin_kind,
+    check_basis_file,
     default_basis_path,
     default_basis_recipe,
     indoor_basis_path,
@@ -192,8 +193,8 @@ def evaluate(
         raise PcaInterpError(f"--sweep-every must be >= 0, got {sweep_every}")
     if max_frames is not None and max_frames < 1:
         raise PcaInterpError(f"--max-frames must be at least 1, got {max_frames}")
-    if isinstance(basis, Path) and not basis.is_file():
-        raise PcaInterpError(f"basis {basis} does not exist; pass the basis used by densify")
+    if isinstance(basis, Path):
+        check_basis_file(basis)
     folder = output or input_path.with_name(input_path.stem + "_report")
     if not basis_rows:
         chosen, note = None, "none, those rows are skipped"
