@@ -323,6 +323,17 @@ def test_densify_outputs_chooses_the_channels(
     assert counts[LEFT] == SMALL_FRAMES  # the input is still copied whole
 
 
+def test_densify_outputs_may_name_depth_mm(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path
+) -> None:
+    # refused as an unknown channel, though written by default
+    run = pcainterp(*densify_args(small_log, out, basis_path, "--outputs", "features,depth_mm"))
+    assert run.code == 0, run.err
+    counts = assert_valid_mcap(out)
+    written = {topic for topic in counts if topic.startswith("/pcainterp/")}
+    assert written == {"/pcainterp/features", "/pcainterp/depth_mm"}
+
+
 @pytest.mark.parametrize(
     ("value", "expected"),
     [

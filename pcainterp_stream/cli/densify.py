@@ -156,9 +156,11 @@ def add_parser(commands: Commands) -> None:
         default=None,
         metavar="CHANNELS",
         help="comma-separated output channels to write, of depth, depth_std, disparity, "
-        "disparity_std, features, camera_info (default: depth, disparity_std, features, "
-        "camera_info at compact precision, all at full; evaluate needs depth or disparity, "
-        "disparity_std, features, camera_info; depth and disparity are reciprocal)",
+        "disparity_std, features, camera_info, depth_mm (default: depth, disparity_std, "
+        "features, camera_info and depth_mm at compact precision, all but depth_mm at full; "
+        "depth_mm also comes with depth at compact precision; evaluate needs depth or "
+        "disparity, disparity_std, features, camera_info; depth and disparity are "
+        "reciprocal)",
     )
     add_cluster_options(densify)
     add_topic_options(densify)

@@ -156,21 +156,29 @@ class OutputTopics:
         return self.encoding(channel).split(" ", 1)[0].replace("/", "/msg/", 1)
 
     def only(self, channels: Iterable[str]) -> OutputTopics:
-        """Return these topics writing only ``channels`` (names of :data:`CHANNELS`).
+        """Return these topics writing only ``channels`` (of :data:`CHANNELS`, ``depth_mm``).
+
+        ``depth_mm`` names the millimetre viewer copy of the depth (``<prefix>/depth_mm``
+        beside ``depth``), at either precision. Not named, it follows ``depth`` at compact
+        precision (the copy the compact default writes) and stays as it is at full.
 
         Raises:
             ValueError: an unknown channel name, or no channel at all.
         """
         chosen = set(channels)
-        unknown = sorted(chosen - set(CHANNELS))
+        names = (*CHANNELS, "depth_mm")
+        unknown = sorted(chosen - set(names))
         if unknown:
             raise ValueError(
-                f"unknown output channel {', '.join(unknown)}; choose from {', '.join(CHANNELS)}"
+                f"unknown output channel {', '.join(unknown)}; choose from {', '.join(names)}"
             )
         if not chosen:
-            raise ValueError(f"no output channel chosen; choose from {', '.join(CHANNELS)}")
+            raise ValueError(f"no output channel chosen; choose from {', '.join(names)}")
         topics = replace(self, skipped=frozenset(set(CHANNELS) - chosen))
-        if self.precision == "compact" and "depth" not in chosen:
+        if "depth_mm" in chosen:
+            depth_mm = self.depth_mm or self.depth.rsplit("/", 1)[0] + "/depth_mm"
+            topics = replace(topics, depth_mm=depth_mm)
+        elif self.precision == "compact" and "depth" not in chosen:
             topics = replace(topics, depth_mm=None)  # the viewers' copy of the depth
         return topics
 

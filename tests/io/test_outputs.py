@@ -33,3 +33,19 @@ def test_a_prefix_that_is_no_ros2_name_is_refused(prefix: str, problem: str) -> 
     # "", "/" and "/a b" wrote //depth, //camera_info ... and /a b/depth
     with pytest.raises(ValueError, match=f"is not a ROS 2 topic name: {problem}"):
         OutputTopics.with_prefix(prefix)
+
+
+def test_outputs_may_name_the_depth_mm_copy() -> None:
+    # --outputs depth_mm was refused though /PREFIX/depth_mm is written by default
+    compact = OutputTopics.with_prefix("/p", precision="compact")
+    assert compact.depth_mm == "/p/depth_mm"
+    alone = compact.only(["depth_mm"])
+    assert alone.all() == ["/p/depth_mm"]
+    assert compact.only(["depth"]).all() == ["/p/depth", "/p/depth_mm"]  # as before
+    assert compact.only(["features"]).all() == ["/p/features"]  # as before
+    full = OutputTopics.with_prefix("/p")
+    assert full.depth_mm is None
+    assert full.only(["depth", "depth_mm"]).all() == ["/p/depth", "/p/depth_mm"]
+    assert full.only(["depth"]).all() == ["/p/depth"]
+    with pytest.raises(ValueError, match=r"choose from depth, .*, camera_info, depth_mm"):
+        full.only(["depth_m"])
