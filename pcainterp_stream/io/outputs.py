@@ -497,6 +497,53 @@ def estimate_topics(present: Iterable[str], topics: OutputTopics) -> EstimateTop
     return EstimateTopics(topics.depth, topics.disparity_std, compact=True)
 
 
+def densified_prefixes(present: Iterable[str]) -> list[str]:
+    """Return the prefixes under which a log has densify's channels, sorted.
+
+    A prefix counts when the log has its ``disparity_std``, ``camera_info`` and ``depth``
+    or ``disparity`` (what :func:`estimate_topics` reads, in either form).
+    """
+    names = set(present)
+    found = []
+    for name in sorted(names):
+        prefix = name.removesuffix("/disparity_std")
+        if prefix == name or f"{prefix}/camera_info" not in names:
+            continue
+        if {f"{prefix}/depth", f"{prefix}/disparity"} & names:
+            found.append(prefix)
+    return found
+
+
+def missing_outputs(
+    present: Iterable[str], topics: OutputTopics, wanted: Iterable[str]
+) -> tuple[list[str], str]:
+    """Return the ``wanted`` topics a log lacks and a hint naming where its outputs are.
+
+    The estimate is named in both forms (``/p/disparity or /p/depth``) when the log has
+    neither: a compact log has ``depth`` where a full one has ``disparity``.
+
+    Returns:
+        The missing topics, and ``""`` or ``"; it has densified channels under /q: pass
+        --output-prefix /q"`` when the log has them under other prefixes.
+    """
+    names = set(present)
+    estimates = (topics.disparity, topics.depth)
+    missing = []
+    for topic in wanted:
+        if topic in names:
+            continue
+        if topic in estimates and not names.intersection(estimates):
+            topic = f"{topics.disparity} or {topics.depth}"
+        missing.append(topic)
+    own = topics.camera_info.rsplit("/", 1)[0]
+    others = [prefix for prefix in densified_prefixes(names) if prefix and prefix != own]
+    if not missing or not others:
+        return missing, ""
+    return missing, (
+        f"; it has densified channels under {', '.join(others)}: pass --output-prefix {others[0]}"
+    )
+
+
 @dataclass(frozen=True)
 class DecodedEstimate:
     """A densified frame's estimate as evaluate uses it, whatever its encoding.

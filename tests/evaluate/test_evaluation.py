@@ -319,8 +319,21 @@ def test_evaluate_cli_prints_table(
 
 
 def test_evaluate_refuses_a_log_without_densified_channels(dense_logs: dict[str, Path]) -> None:
-    with pytest.raises(LogReadError, match=r"has no /pcainterp/disparity.*pcainterp densify"):
+    with pytest.raises(
+        LogReadError, match=r"has no /pcainterp/disparity or /pcainterp/depth, .*pcainterp densify"
+    ):
         evaluate_log(dense_logs["test"])
+
+
+def test_evaluate_names_the_prefix_a_log_has(dense_logs: dict[str, Path]) -> None:
+    # it named /nope/disparity alone and did not say the log has them under /pcainterp
+    with pytest.raises(LogReadError) as caught:
+        evaluate_log(dense_logs["dense"], topics=OutputTopics.with_prefix("/nope"))
+    assert str(caught.value) == (
+        f"{dense_logs['dense']} has no /nope/disparity or /nope/depth, /nope/disparity_std, "
+        "/nope/features, /nope/camera_info; it has densified channels under /pcainterp: "
+        "pass --output-prefix /pcainterp"
+    )
 
 
 def test_evaluate_cli_one_line_errors(

@@ -4,7 +4,12 @@ from __future__ import annotations
 
 import pytest
 
-from pcainterp_stream.io.outputs import OutputTopics, topic_prefix
+from pcainterp_stream.io.outputs import (
+    OutputTopics,
+    densified_prefixes,
+    missing_outputs,
+    topic_prefix,
+)
 
 
 @pytest.mark.parametrize(
@@ -49,3 +54,21 @@ def test_outputs_may_name_the_depth_mm_copy() -> None:
     assert full.only(["depth"]).all() == ["/p/depth"]
     with pytest.raises(ValueError, match=r"choose from depth, .*, camera_info, depth_mm"):
         full.only(["depth_m"])
+
+
+def test_missing_outputs_name_both_forms_and_other_prefixes() -> None:
+    topics = OutputTopics.with_prefix("/nope")
+    wanted = [topics.disparity, topics.disparity_std, topics.camera_info]
+    compact = ["/pcainterp/depth", "/pcainterp/disparity_std", "/pcainterp/camera_info"]
+    full = ["/p2/disparity", "/p2/disparity_std", "/p2/camera_info", "/cam/left/image_rect"]
+    assert densified_prefixes([*compact, *full, "/x/disparity_std"]) == ["/p2", "/pcainterp"]
+    missing, hint = missing_outputs([*compact, *full], topics, wanted)
+    assert missing == ["/nope/disparity or /nope/depth", "/nope/disparity_std", "/nope/camera_info"]
+    assert hint == "; it has densified channels under /p2, /pcainterp: pass --output-prefix /p2"
+    assert missing_outputs(full, topics, wanted)[0][0] == "/nope/disparity or /nope/depth"
+    assert missing_outputs(["/a"], topics, wanted)[1] == ""  # not densified at all
+    own = OutputTopics.with_prefix("/p2")
+    assert missing_outputs(full[1:], own, [own.disparity, own.disparity_std]) == (
+        ["/p2/disparity or /p2/depth"],
+        "",
+    )
