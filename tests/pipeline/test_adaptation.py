@@ -152,6 +152,30 @@ def test_a_street_log_keeps_the_street_basis() -> None:
         assert not any("indoor" in line for line in engine.adaptation.lines)
 
 
+def test_an_own_basis_better_but_not_by_the_margin_is_said_so() -> None:
+    """The built-in indoor basis fits a synthetic room; the log's own basis errs less on the
+    held-out pixels but not below adapt.ADAPT_GAIN of it: the line said it "did no better"."""
+    config = SynthConfig(seed=3, frames=6, scale=0.5, scene="indoor", **camera_options("752x480"))
+    frames = [
+        StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
+        for f in generate(config)
+    ]
+    with FrameProcessor(None, ProcessorConfig()) as engine:
+        list(engine.process(frames))
+        adaptation = engine.adaptation
+        assert adaptation.own_check is not None
+        assert adaptation.check is not None
+        assert adaptation.check.fits
+        own, chosen = adaptation.own_check.prior, adaptation.check.prior
+        assert adapt.ADAPT_GAIN * chosen <= own < chosen
+        assert not adaptation.adapted
+        assert adaptation.lines[-1].startswith(
+            "prior: the built-in indoor basis chosen; this log's own basis was better "
+            f"({own:.2f} px against {chosen:.2f}) but not by the margin that replaces a prior "
+            "that fits (an error below 0.5x the prior's): "
+        )
+
+
 def test_builtin_indoor_is_recorded_and_evaluate_finds_it(tmp_path: Path) -> None:
     """--basis builtin-indoor (ProcessorConfig.builtin): the output names the indoor basis and
     evaluate re-densifies with it; --basis builtin-street keeps the street one."""
