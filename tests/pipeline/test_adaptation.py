@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import io
 from pathlib import Path
 from types import ModuleType
 
@@ -133,6 +134,22 @@ def test_the_log_basis_keeps_learning_and_never_depends_on_thread_timing() -> No
     # the same maps and decisions whatever the threads and the look-ahead
     np.testing.assert_array_equal(outputs[0], outputs[1])
     np.testing.assert_array_equal(outputs[1], outputs[2])
+
+
+def test_an_adapted_basis_without_a_file_output_is_said_unsaved(tmp_path: Path) -> None:
+    """densify - -o -: no folder to save OUTPUT.basis.npz in; it was dropped silently."""
+    log = tmp_path / "room.mcap"
+    synth(log, frames=4, seed=1, scale=0.25, fmt=None, scene="indoor", camera="752x480")
+    processor = ProcessorConfig(builtin="street")  # a room the street basis does not fit
+    summary = densify(log, io.BytesIO(), processor=processor)
+    assert any(line.startswith("adapted:") for line in summary.prior_lines)
+    assert summary.basis_written is None
+    assert summary.prior_lines[-1] == (
+        "note: the adapted basis was not saved: the output is standard output, with no folder "
+        "to save it in; densify -o FILE.mcap also writes it, as FILE.basis.npz, for evaluate "
+        "and for --basis"
+    )
+    assert list(tmp_path.iterdir()) == [log]
 
 
 def test_a_street_log_keeps_the_street_basis() -> None:
