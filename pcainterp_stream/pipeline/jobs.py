@@ -131,8 +131,15 @@ def synth_raw(
         )
 
 
-def import_kitti(folder: Path, out: Path, *, max_frames: int | None) -> WriteSummary:
-    """Convert a KITTI folder into an MCAP log (``pcainterp import-kitti``)."""
+def import_kitti(
+    folder: Path, out: Path, *, max_frames: int | None, colour: bool = False
+) -> WriteSummary:
+    """Convert a KITTI folder into an MCAP log (``pcainterp import-kitti``).
+
+    ``colour``: the colour pair even where the grey one is there (default: the grey pair,
+    the colour one in a folder without it).
+    """
+    from pcainterp_stream.io.kitti import KittiPair
     from pcainterp_stream.io.kitti import import_kitti as convert
 
     if max_frames is not None and max_frames < 1:
@@ -143,7 +150,8 @@ def import_kitti(folder: Path, out: Path, *, max_frames: int | None) -> WriteSum
             bar.total = total
             bar.update(done - bar.n)
 
-        return convert(folder, out, max_frames=max_frames, progress=progress)
+        pair = KittiPair.COLOUR if colour else None
+        return convert(folder, out, max_frames=max_frames, progress=progress, pair=pair)
 
 
 def evaluate(
