@@ -323,6 +323,17 @@ def test_densify_outputs_chooses_the_channels(
     assert counts[LEFT] == SMALL_FRAMES  # the input is still copied whole
 
 
+def test_densify_outputs_may_name_depth_mm(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path
+) -> None:
+    # refused as an unknown channel, though written by default
+    run = pcainterp(*densify_args(small_log, out, basis_path, "--outputs", "features,depth_mm"))
+    assert run.code == 0, run.err
+    counts = assert_valid_mcap(out)
+    written = {topic for topic in counts if topic.startswith("/pcainterp/")}
+    assert written == {"/pcainterp/features", "/pcainterp/depth_mm"}
+
+
 @pytest.mark.parametrize(
     ("value", "expected"),
     [
@@ -413,6 +424,23 @@ def test_densify_missing_basis(
 ) -> None:
     line = pcainterp(*densify_args(small_log, out, tmp_path / "none.npz")).error_line()
     assert "none.npz does not exist" in line
+    assert_nothing_written(out)
+
+
+def test_densify_basis_that_is_a_folder_or_a_log(
+    pcainterp: Callable[..., Run], small_log: Path, out: Path, tmp_path: Path
+) -> None:
+    # a folder "did not exist"; a log leaked numpy's hint to load pickles unsafely
+    line = pcainterp(*densify_args(small_log, out, tmp_path)).error_line()
+    assert f"basis file {tmp_path} is a folder, not a basis file; pass the path of" in line
+    line = pcainterp(*densify_args(small_log, out, small_log)).error_line()
+    assert f"basis file {small_log} is not a basis file (.npz): it is an MCAP log; pass" in line
+    assert "pickle" not in line
+    dense = tmp_path / "dense"
+    line = pcainterp("densify", small_log, "--out-dir", dense, "--basis", tmp_path).error_line()
+    assert "is a folder, not a basis file" in line
+    line = pcainterp("evaluate", small_log, "--basis", tmp_path).error_line()
+    assert "is a folder, not a basis file" in line
     assert_nothing_written(out)
 
 
@@ -1532,7 +1560,24 @@ def test_learn_output_folder_and_missing_fit_log_are_refused_before_learning(
         ("--corners", "-1", "--corners must be at least 0, got -1"),
         ("--quality", "1.5", "--quality must be in (0, 1), got 1.5"),
         ("--min-distance", "-2", "--min-distance must be >= 0 px, got -2.0"),
+        # 1 px never finished on a 310x94 log; 2 px took 28 s for 4 frames
+        (
+            "--fill-spacing",
+            "1",
+            "--fill-spacing must be 0 (no lattice) or at least 10 px (GFTT's default min "
+            "corner distance; see --help), got 1",
+        ),
+        ("--fill-spacing", "9.5", "at least 10 px (GFTT's default min corner distance"),
+        ("--fill-spacing", "-1", "--fill-spacing must be 0 (no lattice) or at least 10 px"),
+        ("--fill-spacing", "nan", "--fill-spacing must be 0 (no lattice) or at least 10 px"),
         ("--baseline", "0", "--baseline must be a finite number > 0 m, got 0.0"),
+        # these wrote //depth, //camera_info ... and /a b/depth
+        ("--output-prefix", "", "--output-prefix '' is not a ROS 2 topic name: it is empty;"),
+        ("--output-prefix", "/", "--output-prefix '/' is not a ROS 2 topic name: it has no name"),
+        ("--output-prefix", "/a b", "'a b' has characters other than A-Z a-z 0-9 _; use /-"),
+        ("--output-prefix", "//x", "'//x' is not a ROS 2 topic name: it has an empty name"),
+        ("--output-prefix", "/p/", "'/p/' is not a ROS 2 topic name: it ends with /"),
+        ("--output-prefix", "/p/2d", "'2d' starts with a digit; use /-separated names of"),
         ("--baseline", "inf", "--baseline must be a finite number > 0 m, got inf"),
         ("--stamp-tolerance-ms", "-1", "--stamp-tolerance-ms must be >= 0, got -1.0"),
     ],

@@ -15,6 +15,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeAlias
 
+from pcainterp_stream import defaults
 from pcainterp_stream.errors import LogWriteError, PcaInterpError
 
 if TYPE_CHECKING:
@@ -130,7 +131,10 @@ def add_stereo_options(parser: argparse.ArgumentParser) -> None:
         help="lattice of extra lookups in the corners' gaps, side in px (default 40; "
         "densify --measurements dense at full resolution: 34; 0 = off); denser is "
         "sharper and slower: 36 measured 4-7 %% lower error on KITTI and synthetic drives "
-        "for 1.2x the estimate's CPU, 30 11-17 %% on KITTI",
+        "for 1.2x the estimate's CPU, 30 11-17 %% on KITTI; at least "
+        f"{defaults.MIN_FILL_SPACING:g}, GFTT's default min corner distance (denser "
+        "lookups share their SGBM windows, and the estimate's cost grows faster than the "
+        "points: 10 px is ~10 s per KITTI frame)",
     )
     group.add_argument(
         "--fill-placement",
@@ -209,8 +213,12 @@ def gftt_config(args: argparse.Namespace, base: GfttConfig | None = None) -> Gft
             raise PcaInterpError(f"--min-distance must be >= 0 px, got {args.min_distance}")
         changes["min_distance"] = args.min_distance
     if args.fill_spacing is not None:
-        if not args.fill_spacing >= 0:
-            raise PcaInterpError(f"--fill-spacing must be >= 0 px, got {args.fill_spacing}")
+        low = defaults.MIN_FILL_SPACING
+        if not (args.fill_spacing == 0 or args.fill_spacing >= low):
+            raise PcaInterpError(
+                f"--fill-spacing must be 0 (no lattice) or at least {low:g} px (GFTT's "
+                f"default min corner distance; see --help), got {args.fill_spacing:g}"
+            )
         changes["fill_spacing"] = args.fill_spacing
     if getattr(args, "fill_placement", None) is not None:
         changes["fill_placement"] = args.fill_placement

@@ -134,7 +134,7 @@ def add_parser(commands: Commands) -> None:
         "--output-prefix",
         default="/pcainterp",
         metavar="PREFIX",
-        help="prefix of the output topics (default: %(default)s)",
+        help="prefix of the output topics, a ROS 2 topic name (default: %(default)s)",
     )
     densify.add_argument(
         "--depth-mm",
@@ -156,9 +156,11 @@ def add_parser(commands: Commands) -> None:
         default=None,
         metavar="CHANNELS",
         help="comma-separated output channels to write, of depth, depth_std, disparity, "
-        "disparity_std, features, camera_info (default: depth, disparity_std, features, "
-        "camera_info at compact precision, all at full; evaluate needs depth or disparity, "
-        "disparity_std, features, camera_info; depth and disparity are reciprocal)",
+        "disparity_std, features, camera_info, depth_mm (default: depth, disparity_std, "
+        "features, camera_info and depth_mm at compact precision, all but depth_mm at full; "
+        "depth_mm also comes with depth at compact precision; evaluate needs depth or "
+        "disparity, disparity_std, features, camera_info; depth and disparity are "
+        "reciprocal)",
     )
     add_cluster_options(densify)
     add_topic_options(densify)
@@ -307,8 +309,9 @@ def run(args: argparse.Namespace) -> int:
         args, adapt="check" if builtin else "auto", builtin=kind or "auto"
     )
     _check_estimate(processor, args.basis)
+    topics = _output_topics(args)
     if args.out_dir is not None:
-        return _densify_many(args, processor)
+        return _densify_many(args, processor, topics)
     if len(args.input) > 1:
         raise PcaInterpError(
             f"-o takes one input but {len(args.input)} were given; "
@@ -322,7 +325,7 @@ def run(args: argparse.Namespace) -> int:
         args.basis,
         processor=processor,
         pairing=pairing_config(args, args.features_topic),
-        topics=_output_topics(args),
+        topics=topics,
         live=live,
         rrd=args.rrd,
         spawn_viewer=args.rerun,
@@ -511,9 +514,14 @@ def _output_topics(args: argparse.Namespace) -> OutputTopics:
     """Return the output topics of ``densify``: --output-prefix, --depth-mm, --outputs."""
     from pcainterp_stream.io.outputs import OutputTopics
 
-    topics = OutputTopics.with_prefix(
-        args.output_prefix, depth_mm=args.depth_mm, precision=getattr(args, "precision", "full")
-    )
+    try:
+        topics = OutputTopics.with_prefix(
+            args.output_prefix,
+            depth_mm=args.depth_mm,
+            precision=getattr(args, "precision", "full"),
+        )
+    except ValueError as err:
+        raise PcaInterpError(f"--output-prefix {err}") from None
     if args.outputs is None:
         return topics
     try:
@@ -522,7 +530,9 @@ def _output_topics(args: argparse.Namespace) -> OutputTopics:
         raise PcaInterpError(f"--outputs: {err}") from None
 
 
-def _densify_many(args: argparse.Namespace, processor: ProcessorConfig) -> int:
+def _densify_many(
+    args: argparse.Namespace, processor: ProcessorConfig, topics: OutputTopics
+) -> int:
     """Densify several logs into ``--out-dir`` on Dask; exit code 1 if any log failed."""
     from pcainterp_stream.pipeline import distributed
 
@@ -530,8 +540,10 @@ def _densify_many(args: argparse.Namespace, processor: ProcessorConfig) -> int:
         raise PcaInterpError("--rrd/--rerun take one log; use -o OUTPUT without --out-dir")
     if args.workers is not None and args.workers < 1:
         raise PcaInterpError(f"--workers must be at least 1, got {args.workers}")
-    if args.basis is not None and not args.basis.exists():
-        raise PcaInterpError(f"basis {args.basis} does not exist; learn one with pcainterp learn")
+    if args.basis is not None:
+        from pcainterp_stream.estimate.basis import check_basis_file
+
+        check_basis_file(args.basis)
     started = time.perf_counter()
     with distributed.connect(args.scheduler, args.workers) as client:
         outcomes = distributed.densify_many(
@@ -541,7 +553,7 @@ def _densify_many(args: argparse.Namespace, processor: ProcessorConfig) -> int:
             client,
             pairing=pairing_config(args, args.features_topic),
             processor=processor,
-            topics=_output_topics(args),
+            topics=topics,
         )
     failed = 0
     for outcome in outcomes:

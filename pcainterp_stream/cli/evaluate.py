@@ -101,7 +101,7 @@ def add_parser(commands: Commands) -> None:
         "--output-prefix",
         default="/pcainterp",
         metavar="PREFIX",
-        help="prefix of the densified topics (default: %(default)s)",
+        help="prefix of the densified topics, a ROS 2 topic name (default: %(default)s)",
     )
     add_input_pair_options(evaluate)
 
@@ -115,6 +115,10 @@ def run(args: argparse.Namespace) -> int:
         raise PcaInterpError("--no-basis and --basis contradict each other; pass one")
     if args.reference_topic is None and args.reference_kind != "auto":
         raise PcaInterpError("--reference-kind needs --reference-topic TOPIC")
+    try:
+        topics = OutputTopics.with_prefix(args.output_prefix)
+    except ValueError as err:
+        raise PcaInterpError(f"--output-prefix {err}") from None
     folder, table = evaluate(
         args.input,
         args.output,
@@ -123,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
         sigma=args.sigma,
         sweep_every=args.sweep_every,
         max_frames=args.max_frames,
-        topics=OutputTopics.with_prefix(args.output_prefix),
+        topics=topics,
         linear=not args.no_linear,
         basis_rows=not args.no_basis,
         reference_topic=args.reference_topic,

@@ -16,22 +16,34 @@ def add_parser(commands: Commands) -> None:
         help="convert a KITTI raw drive or odometry sequence into an MCAP log",
         description=(
             "Convert a KITTI raw drive folder (<date>/<date>_drive_XXXX_sync) or an odometry\n"
-            "sequence (sequences/XX with calib.txt) into the project's MCAP layout."
+            "sequence (sequences/XX with calib.txt) into the project's MCAP layout: the grey\n"
+            "pair (cameras 0/1), or the colour pair (cameras 2/3, converted to grey) in a\n"
+            "folder without the grey one or with --colour."
         ),
         epilog=(
             "examples:\n"
             "  pcainterp import-kitti 2011_09_26/2011_09_26_drive_0001_sync drive.mcap\n"
             "  pcainterp import-kitti dataset/sequences/00 seq00.mcap\n"
+            "  pcainterp import-kitti dataset/sequences/00 seq00_colour.mcap --colour\n"
         ),
     )
     kitti.add_argument("kitti_dir", type=Path, metavar="KITTI_DIR")
     kitti.add_argument("out", type=Path, metavar="OUT")
     kitti.add_argument("--max-frames", type=int, default=None, metavar="N")
+    kitti.add_argument(
+        "--colour",
+        action="store_true",
+        help="import the colour pair (image_2/image_3 with P2/P3 of calib.txt; a raw drive's "
+        "image_02/image_03 with P_rect_02/P_rect_03) as grey images, also where the grey "
+        "pair is there (default: the grey pair, the colour one in a folder without it)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     """Convert the KITTI folder; return the exit code."""
     from pcainterp_stream.pipeline.jobs import import_kitti
 
-    print_written(import_kitti(args.kitti_dir, args.out, max_frames=args.max_frames))
+    print_written(
+        import_kitti(args.kitti_dir, args.out, max_frames=args.max_frames, colour=args.colour)
+    )
     return 0

@@ -184,6 +184,45 @@ def resample_grid(
     return np.asarray(resized, dtype=np.float32)
 
 
+_FILE_KINDS = {
+    b"\x89MCAP": "an MCAP log",
+    b"#ROSBAG": "a ROS 1 bag",
+    b"SQLite format 3": "a SQLite (rosbag2) database",
+    b"\x93NUMPY": "a single numpy array (.npy)",
+}
+"""First bytes of files given as a basis by mistake, and what to call them."""
+
+
+def check_basis_file(path: Path) -> None:
+    """Refuse a path that cannot be a basis file, before reading it.
+
+    Args:
+        path: the path given as a basis.
+
+    Raises:
+        BasisError: the path does not exist, is a folder, or does not start as a zip
+            archive (an ``.npz``) does; the message says what it is when it can.
+    """
+    fix = "pass the path of a basis .npz (pcainterp learn writes one)"
+    if path.is_dir():
+        raise BasisError(f"basis file {path} is a folder, not a basis file; {fix}")
+    if not path.is_file():
+        builtin = " or builtin, builtin-street, builtin-indoor"
+        raise BasisError(
+            f"basis file {path} does not exist; {fix}"
+            + (builtin if path.name.startswith("builtin") else "")
+        )
+    try:
+        with path.open("rb") as stream:
+            head = stream.read(16)
+    except OSError as err:
+        raise BasisError(f"cannot read basis file {path}: {err.strerror or err}") from err
+    if not head.startswith(b"PK"):  # every zip archive (an .npz is one) starts so
+        kind = next((name for magic, name in _FILE_KINDS.items() if head.startswith(magic)), "")
+        what = ": it is empty" if not head else f": it is {kind}" if kind else ""
+        raise BasisError(f"basis file {path} is not a basis file (.npz){what}; {fix}")
+
+
 PRIOR_COVARIANCE_MAX_BYTES = 512 << 20
 """Largest :meth:`Basis.prior_covariance` kept (the KITTI-size basis's takes 218 MB)."""
 
@@ -401,15 +440,7 @@ class Basis:
                 the key and the problem.
         """
         path = Path(path)
-        if not path.is_file():
-            raise BasisError(
-                f"basis file {path} does not exist; pass the path of a basis .npz"
-                + (
-                    " (the built-in ones are builtin, builtin-street and builtin-indoor)"
-                    if Path(path).name.startswith("builtin")
-                    else ""
-                )
-            )
+        check_basis_file(path)
         try:
             # open the file ourselves: np.load leaks its handle when the archive is damaged
             with path.open("rb") as stream, np.load(stream, allow_pickle=False) as archive:
@@ -423,6 +454,7 @@ class Basis:
         except BasisError:
             raise
         except (zipfile.BadZipFile, EOFError, OSError, ValueError) as err:
+            # a zip archive cut short or damaged (check_basis_file saw its first bytes)
             raise BasisError(
                 f"basis file {path} is not a readable .npz archive ({err}); "
                 "it is truncated or not a basis, re-run `pcainterp learn`"

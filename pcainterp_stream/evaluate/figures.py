@@ -93,7 +93,8 @@ def write_figures(
         {n: _ratio(s.by_depth_3d, s.by_depth_3d_count) for n, s in methods.items()},
         "mean Delta_3D (m)",
     )
-    axes[2].set_yscale("log")
+    if any(value > 0 for stats in methods.values() for value in stats.by_depth_3d):
+        axes[2].set_yscale("log")  # matplotlib warns when no value is positive
     axes[2].set_title("Delta_3D by reference depth (m)")
     save(figure, "errors.png")
 

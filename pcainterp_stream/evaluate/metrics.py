@@ -28,6 +28,7 @@ from pcainterp_stream.io.outputs import (
     OutputTopics,
     decode_estimate,
     estimate_topics,
+    missing_outputs,
 )
 from pcainterp_stream.records import StereoCamera
 
@@ -88,12 +89,13 @@ def compare_with_ground_truth(
         if where.compact:
             wanted.append(topics.camera_info)
         metadata: dict[str, str] = {}
-        missing = [topic for topic in wanted if topic not in present]
+        missing, hint = missing_outputs(present, topics, wanted)
         if missing:
-            raise LogReadError(
-                f"{path} has no {', '.join(missing)}; compare needs a log densified by "
-                "`pcainterp densify` from a log with ground truth (e.g. `pcainterp synth`)"
+            advice = hint or (
+                "; compare needs a log densified by `pcainterp densify` from a log with "
+                "ground truth (e.g. `pcainterp synth`)"
             )
+            raise LogReadError(f"{path} has no {', '.join(missing)}{advice}")
         pending: dict[int, dict[str, Any]] = {}
         for raw in reader.messages(wanted):
             message = reader.decode(raw)

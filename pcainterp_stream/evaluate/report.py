@@ -84,6 +84,7 @@ from pcainterp_stream.io.outputs import (
     OutputTopics,
     decode_estimate,
     estimate_topics,
+    missing_outputs,
 )
 from pcainterp_stream.records import StereoCamera
 
@@ -241,12 +242,13 @@ def _frames(
         present = reader.topics()
         where = estimate_topics(present, topics)
         needed = [where.estimate, where.std, topics.features, topics.camera_info]
-        missing = [topic for topic in [*needed, left_image] if topic not in present]
+        missing, hint = missing_outputs(present, topics, [*needed, left_image])
         if missing:
-            raise LogReadError(
-                f"{path} has no {', '.join(missing)}; evaluate needs a log written by "
-                "`pcainterp densify` (with the input's stereo images)"
+            advice = hint or (
+                "; evaluate needs a log written by `pcainterp densify` (with the input's "
+                "stereo images)"
             )
+            raise LogReadError(f"{path} has no {', '.join(missing)}{advice}")
         truth = [] if reference is not None else [GROUND_TRUTH_DEPTH]
         optional = [t for t in (*truth, GROUND_TRUTH_POSE) if t in present]
         grouped = [*needed, left_image, *optional]

@@ -212,7 +212,18 @@ class Evaluation:
             },
         }
 
-    def ratio(self) -> float:
-        """Return PCA-MAP's mean Delta_2D divided by nearest neighbour's."""
-        pca = self.methods["pca_map"].summary()["delta_2d_mean"]
-        return pca / max(self.methods["nearest"].summary()["delta_2d_mean"], 1e-12)
+    def ratio(self) -> float | None:
+        """Return PCA-MAP's mean Delta_2D divided by nearest neighbour's (None: undefined)."""
+        return mean_ratio(self.methods["pca_map"], self.methods["nearest"])
+
+
+def mean_ratio(numerator: MethodStats, denominator: MethodStats) -> float | None:
+    """Return the ratio of two methods' mean Delta_2D, None when it is undefined.
+
+    Undefined: the denominator scored no pixel or scored 0 px (e.g. nearest neighbour of no
+    measurement, which counts as far, against the zero disparity SGBM finds on black images).
+    """
+    below = denominator.summary()["delta_2d_mean"]
+    if denominator.pixels <= 0 or below <= 0:
+        return None
+    return float(numerator.summary()["delta_2d_mean"] / below)

@@ -14,20 +14,33 @@ from pcainterp_stream.evaluate.results import (
     TARGET_RATIO,
     TARGET_SGBM_NN_RATIO,
     Evaluation,
+    mean_ratio,
 )
+
+UNDEFINED = "-"
+"""What a table prints for a figure that is undefined (a ratio to 0, a mean of no pixel)."""
 
 
 def _percent(value: float) -> str:
     return f"{100 * value:.1f} %"
 
 
-def _method_row(name: str, stats: MethodStats, nn_mean: float) -> str:
+def _number(value: float | None, decimals: int, defined: bool = True) -> str:
+    return f"{value:.{decimals}f}" if value is not None and defined else UNDEFINED
+
+
+def _method_row(name: str, stats: MethodStats, nearest: MethodStats) -> str:
     s = stats.summary()
-    timing = f"{s['ms_per_frame']:.0f}" if stats.seconds > 0 else "-"
+    timing = f"{s['ms_per_frame']:.0f}" if stats.seconds > 0 else UNDEFINED
+    scored, scored_3d = stats.pixels > 0, sum(stats.by_depth_3d_count) > 0
+    scored_depth = stats.depth["n"] > 0  # no reference depth up to 80 m: no depth metric
     return (
-        f"{name:<12} {s['delta_2d_mean']:>8.3f} {s['delta_2d_mean'] / nn_mean:>6.2f} "
-        f"{s['delta_3d_mean']:>8.2f} {s['rmse_m']:>8.2f} {s['mae_m']:>7.2f} "
-        f"{s['irmse_per_km']:>7.1f} {s['imae_per_km']:>7.1f} {timing:>9}"
+        f"{name:<12} {_number(s['delta_2d_mean'], 3, scored):>8} "
+        f"{_number(mean_ratio(stats, nearest), 2):>6} "
+        f"{_number(s['delta_3d_mean'], 2, scored_3d):>8} "
+        f"{_number(s['rmse_m'], 2, scored_depth):>8} {_number(s['mae_m'], 2, scored_depth):>7} "
+        f"{_number(s['irmse_per_km'], 1, scored_depth):>7} "
+        f"{_number(s['imae_per_km'], 1, scored_depth):>7} {timing:>9}"
     )
 
 
@@ -50,10 +63,10 @@ def _calibration_row(name: str, calibration: CalibrationStats) -> str:
     )
 
 
-def _stereo_lines(result: Evaluation, nn_mean: float) -> list[str]:
+def _stereo_lines(result: Evaluation, nearest: MethodStats) -> list[str]:
     if not result.stereo:
         return [f"stereo baselines: {result.stereo_note}"] if result.stereo_note else []
-    lines = [_method_row(name, stats, nn_mean) for name, stats in result.stereo.items()]
+    lines = [_method_row(name, stats, nearest) for name, stats in result.stereo.items()]
     lines.append(
         f"SGBM has a value at {_percent(result.sgbm_fill)} of the counted pixels: {SGBM} and "
         f"{PCA_ON_SGBM} are scored there, {SGBM_NN} (holes filled by the nearest value) on all"
@@ -81,9 +94,9 @@ def summary_table(result: Evaluation) -> str:
         f"{'method':<12} {'D2D px':>8} {'/NN':>6} {'D3D m':>8} {'RMSE m':>8} {'MAE m':>7} "
         f"{'iRMSE':>7} {'iMAE':>7} {'ms/frame':>9}"
     )
-    nn_mean = result.methods["nearest"].summary()["delta_2d_mean"] or 1e-12
-    lines += [_method_row(name, stats, nn_mean) for name, stats in result.methods.items()]
-    lines += _stereo_lines(result, nn_mean)
+    nearest = result.methods["nearest"]
+    lines += [_method_row(name, stats, nearest) for name, stats in result.methods.items()]
+    lines += _stereo_lines(result, nearest)
     lines += [_calibration_row(name, stats) for name, stats in result.calibration.items()]
     if result.ranges.counted:
         r = result.ranges.summary()
@@ -102,12 +115,21 @@ def _verdict(value: float, low: float, high: float) -> str:
     return f"missed by {100 * (low - value if value < low else value - high):.1f} points"
 
 
+def _met(ratio: float | None, target: float) -> str:
+    if ratio is None:
+        return "undefined"
+    return "met" if ratio <= target else "missed"
+
+
 def _targets(result: Evaluation) -> list[str]:
     lines = []
     ratio = result.ratio()
-    verdict = "met" if ratio <= TARGET_RATIO else f"missed by {ratio - TARGET_RATIO:.2f}"
+    if ratio is None:
+        verdict = "undefined, nearest neighbour's mean Delta_2D is 0"
+    else:
+        verdict = "met" if ratio <= TARGET_RATIO else f"missed by {ratio - TARGET_RATIO:.2f}"
     lines.append(
-        f"- PCA-MAP / nearest neighbour mean Delta_2D = {ratio:.2f} (target <= "
+        f"- PCA-MAP / nearest neighbour mean Delta_2D = {_number(ratio, 2)} (target <= "
         f"{TARGET_RATIO}; paper 0.63 KITTI, 0.61 Virtual KITTI): {verdict}."
     )
     low, high = TARGET_COVERAGE
@@ -118,17 +140,15 @@ def _targets(result: Evaluation) -> list[str]:
             f"{100 * low:.0f}-{100 * high:.0f} %): {_verdict(coverage, low, high)}."
         )
     if SGBM_NN in result.stereo and result.measurements == "dense":
-        pca = result.methods["pca_map"].summary()["delta_2d_mean"]
-        filled = pca / max(result.stereo[SGBM_NN].summary()["delta_2d_mean"], 1e-12)
-        on_sgbm = result.stereo[PCA_ON_SGBM].summary()["delta_2d_mean"] / max(
-            result.stereo[SGBM].summary()["delta_2d_mean"], 1e-12
-        )
+        filled = mean_ratio(result.methods["pca_map"], result.stereo[SGBM_NN])
+        on_sgbm = mean_ratio(result.stereo[PCA_ON_SGBM], result.stereo[SGBM])
         lines += [
-            f"- dense mode: PCA-MAP / {SGBM_NN} mean Delta_2D = {filled:.2f} "
+            f"- dense mode: PCA-MAP / {SGBM_NN} mean Delta_2D = {_number(filled, 2)} "
             f"(target <= {TARGET_SGBM_NN_RATIO}): "
-            + ("met" if filled <= TARGET_SGBM_NN_RATIO else "missed")
-            + f"; on SGBM's pixels PCA-MAP / {SGBM} = {on_sgbm:.2f} (target <= 1): "
-            + ("met." if on_sgbm <= 1.0 else "missed."),
+            + _met(filled, TARGET_SGBM_NN_RATIO)
+            + f"; on SGBM's pixels PCA-MAP / {SGBM} = {_number(on_sgbm, 2)} (target <= 1): "
+            + _met(on_sgbm, 1.0)
+            + ".",
         ]
         stored = result.calibration.get("stored")
         if stored is not None and stored.has_sgbm_split:
@@ -186,9 +206,10 @@ def results_markdown(result: Evaluation, figures: list[str]) -> str:
         ]
         for points, methods in sorted(result.sweep.items()):
             means = {name: stats.summary()["delta_2d_mean"] for name, stats in methods.items()}
+            ratio = _number(mean_ratio(methods["pca_map"], methods["nearest"]), 2)
             lines.append(
                 f"| {points} | {means['pca_map']:.3f} | {means['nearest']:.3f} | "
-                f"{means['linear']:.3f} | {means['pca_map'] / max(means['nearest'], 1e-12):.2f} |"
+                f"{means['linear']:.3f} | {ratio} |"
             )
         lines.append("")
     if result.basis is not None:

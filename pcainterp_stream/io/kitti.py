@@ -12,10 +12,18 @@ Two layouts are recognised:
   per frame) and optional ground truth ``poses/XX.txt`` two levels up (a 3x4
   camera-to-world matrix per line, row-major).
 
+Either layout may hold the colour pair instead of (or beside) the grey one
+(:class:`KittiPair`): cameras 2 and 3, ``image_2``/``image_3`` with ``P2``/``P3`` (odometry),
+``image_02``/``image_03`` with ``P_rect_02``/``P_rect_03`` and ``image_02/timestamps.txt``
+(raw). The grey pair is imported when the folder has it, the colour one otherwise or when
+asked; colour images are converted to grey (what densify matches).
+
 The camera comes from the rectified projection matrices: fx, fy, cx, cy of the left one and
 baseline b = (P_left[0, 3] - P_right[0, 3]) / P_right[0, 0] (= -P1[0, 3] / P1[0, 0] in
-KITTI, where P_left[0, 3] = 0). Without timestamps frames are 10 Hz from t = 0. Frames are
-read and written one at a time.
+KITTI, where P0[0, 3] = 0; the colour cameras' P2[0, 3] is not 0, camera 2 being ~6 cm left
+of camera 0). KITTI's poses are camera 0's: for the colour pair they are moved to camera 2,
+whose centre is -K^-1 P2[:, 3] in camera 0's frame. Without timestamps frames are 10 Hz from
+t = 0. Frames are read and written one at a time.
 """
 
 from __future__ import annotations
@@ -45,8 +53,9 @@ ODOMETRY_CALIBRATION = "calib.txt"
 
 EXPECTED_LAYOUTS = (
     "expected a KITTI raw drive folder (<date>_drive_XXXX_sync with image_00/data and "
-    "image_01/data, and calib_cam_to_cam.txt in it or one level up) or an odometry sequence "
-    "folder (sequences/XX with image_0, image_1 and calib.txt)"
+    "image_01/data, or the colour image_02/data and image_03/data, and calib_cam_to_cam.txt "
+    "in it or one level up) or an odometry sequence folder (sequences/XX with image_0 and "
+    "image_1, or the colour image_2 and image_3, and calib.txt)"
 )
 
 
@@ -57,6 +66,27 @@ class KittiLayout(Enum):
     ODOMETRY = "odometry sequence"
 
 
+class KittiPair(Enum):
+    """Which stereo pair of a KITTI recording: the grey cameras 0/1 or the colour ones 2/3."""
+
+    GREY = 0
+    COLOUR = 2
+
+    def folders(self, layout: KittiLayout) -> tuple[str, str]:
+        """Return the left and right image folders (a raw drive's hold ``data/``)."""
+        left = self.value
+        if layout is KittiLayout.RAW:
+            return f"image_{left:02d}", f"image_{left + 1:02d}"
+        return f"image_{left}", f"image_{left + 1}"
+
+    def projection_keys(self, layout: KittiLayout) -> tuple[str, str]:
+        """Return the calibration file's keys of the left and right projection matrices."""
+        left = self.value
+        if layout is KittiLayout.RAW:
+            return f"P_rect_{left:02d}", f"P_rect_{left + 1:02d}"
+        return f"P{left}", f"P{left + 1}"
+
+
 @dataclass(frozen=True)
 class KittiSequence:
     """A validated KITTI stereo sequence, with file lists but no image data loaded.
@@ -64,11 +94,12 @@ class KittiSequence:
     Attributes:
         layout: which KITTI layout the folder has.
         folder: the drive or sequence folder.
-        left_paths: left (camera 0) image files in frame order.
-        right_paths: right (camera 1) image files, same length and names.
+        left_paths: left (camera 0, or 2 for the colour pair) image files in frame order.
+        right_paths: right (camera 1, or 3) image files, same length and names.
         camera: the rectified stereo calibration (size of the first left image).
         stamps_ns: (n,) int64 capture times (ns).
         camera_to_world: (n, 4, 4) float64 left-camera poses, or None without ground truth.
+        pair: the grey or the colour pair.
     """
 
     layout: KittiLayout
@@ -78,6 +109,7 @@ class KittiSequence:
     camera: StereoCamera
     stamps_ns: npt.NDArray[np.int64]
     camera_to_world: npt.NDArray[np.float64] | None
+    pair: KittiPair = KittiPair.GREY
 
     def __len__(self) -> int:
         return len(self.left_paths)
@@ -249,18 +281,36 @@ def _raw_stamps(path: Path, count: int) -> npt.NDArray[np.int64]:
     return stamps
 
 
-def _odometry_stamps(path: Path, count: int) -> npt.NDArray[np.int64]:
+def _frame_lines(lines: list[str], images: list[Path]) -> list[tuple[int, str]] | None:
+    """Return (line number, line) of the images' frames: all lines, or by frame number.
+
+    A folder may hold some frames of a sequence (``000168.png``...) beside the whole
+    sequence's ``times.txt`` or poses: each image then takes the line of its number.
+    None when neither fits.
+    """
+    if len(lines) == len(images):
+        return list(enumerate(lines, start=1))
+    if len(lines) > len(images) and all(path.stem.isdigit() for path in images):
+        numbers = [int(path.stem) for path in images]
+        if max(numbers, default=0) < len(lines):
+            return [(number + 1, lines[number]) for number in numbers]
+    return None
+
+
+def _odometry_stamps(path: Path, images: list[Path]) -> npt.NDArray[np.int64]:
     """Parse an odometry ``times.txt`` (seconds from the start, one per frame)."""
+    count = len(images)
     if not path.is_file():
         return np.arange(count, dtype=np.int64) * FRAME_PERIOD_NS
-    lines = [line for line in path.read_text().splitlines() if line.strip()]
-    if len(lines) != count:
+    every = [line for line in path.read_text().splitlines() if line.strip()]
+    lines = _frame_lines(every, images)
+    if lines is None:
         raise DatasetImportError(
-            f"{path} has {len(lines)} times for {count} images; "
+            f"{path} has {len(every)} times for {count} images; "
             "restore the file or the missing images"
         )
     try:
-        seconds = np.array([float(line) for line in lines])
+        seconds = np.array([float(line) for _, line in lines])
     except ValueError as err:
         raise DatasetImportError(
             f"{path} must hold one number (seconds) per line: {err}; fix or restore the file"
@@ -268,36 +318,62 @@ def _odometry_stamps(path: Path, count: int) -> npt.NDArray[np.int64]:
     return np.round(seconds * 1e9).astype(np.int64)
 
 
-def _poses(path: Path, count: int) -> npt.NDArray[np.float64] | None:
+def _poses(path: Path, images: list[Path]) -> npt.NDArray[np.float64] | None:
     """Parse KITTI odometry ground truth: a row-major 3x4 camera-to-world per line."""
     if not path.is_file():
         return None
-    lines = [line for line in path.read_text().splitlines() if line.strip()]
-    if len(lines) != count:
+    count = len(images)
+    every = [line for line in path.read_text().splitlines() if line.strip()]
+    lines = _frame_lines(every, images)
+    if lines is None:
         raise DatasetImportError(
-            f"pose file {path} has {len(lines)} poses for {count} images; "
+            f"pose file {path} has {len(every)} poses for {count} images; "
             "it must have one line per frame: restore the file"
         )
     poses = np.tile(np.eye(4), (count, 1, 1))
-    for i, line in enumerate(lines):
+    for i, (number, line) in enumerate(lines):
         try:
             numbers = [float(item) for item in line.split()]
         except ValueError:
             numbers = []
         if len(numbers) != 12:
             raise DatasetImportError(
-                f"line {i + 1} of pose file {path} must hold 12 numbers (a 3x4 matrix); "
+                f"line {number} of pose file {path} must hold 12 numbers (a 3x4 matrix); "
                 "fix or restore the file"
             )
         poses[i, :3, :] = np.reshape(numbers, (3, 4))
     return poses
 
 
+def _is_raw_drive(folder: Path) -> bool:
+    """Return whether a folder holds a raw drive's grey or colour left images."""
+    return any((folder / name / "data").is_dir() for name in ("image_00", "image_02"))
+
+
+def _choose_pair(folder: Path, layout: KittiLayout, pair: KittiPair | None, what: str) -> KittiPair:
+    """Return the pair to import: ``pair``, else the grey one when the folder has it.
+
+    Raises:
+        DatasetImportError: the chosen pair's left or right folder is missing.
+    """
+    suffix = "/data" if layout is KittiLayout.RAW else ""
+    if pair is None:
+        grey = KittiPair.GREY.folders(layout)
+        has_grey = any((folder / f"{name}{suffix}").is_dir() for name in grey)
+        pair = KittiPair.GREY if has_grey else KittiPair.COLOUR
+    names = [f"{name}{suffix}" for name in pair.folders(layout)]
+    found = [(folder / name).is_dir() for name in names]
+    if not all(found):
+        fix = "restore the missing camera folder" if any(found) else EXPECTED_LAYOUTS
+        raise DatasetImportError(f"{what} {folder} needs both {names[0]} and {names[1]}; {fix}")
+    return pair
+
+
 def _raw_drive_folder(folder: Path) -> Path | None:
     """Return the drive folder for a drive or a date folder holding one drive, else None."""
-    if (folder / "image_00" / "data").is_dir():
+    if _is_raw_drive(folder):
         return folder
-    drives = sorted(p for p in folder.glob("*_sync") if (p / "image_00" / "data").is_dir())
+    drives = sorted(p for p in folder.glob("*_sync") if _is_raw_drive(p))
     if len(drives) > 1:
         names = ", ".join(p.name for p in drives)
         raise DatasetImportError(
@@ -306,12 +382,9 @@ def _raw_drive_folder(folder: Path) -> Path | None:
     return drives[0] if drives else None
 
 
-def _open_raw(drive: Path) -> KittiSequence:
-    for name in ("image_00", "image_01"):
-        if not (drive / name / "data").is_dir():
-            raise DatasetImportError(
-                f"KITTI raw drive {drive} has no {name}/data folder; {EXPECTED_LAYOUTS}"
-            )
+def _open_raw(drive: Path, pair: KittiPair | None) -> KittiSequence:
+    pair = _choose_pair(drive, KittiLayout.RAW, pair, "KITTI raw drive")
+    left_name, right_name = pair.folders(KittiLayout.RAW)
     calibration = next(
         (p for p in (drive / RAW_CALIBRATION, drive.parent / RAW_CALIBRATION) if p.is_file()),
         None,
@@ -322,33 +395,58 @@ def _open_raw(drive: Path) -> KittiSequence:
             "raw calibration download of that date into the date folder"
         )
     values = _key_values(calibration)
-    left_p = _projection(calibration, values, "P_rect_00")
-    right_p = _projection(calibration, values, "P_rect_01")
-    left, right = _paired_images(drive / "image_00" / "data", drive / "image_01" / "data")
+    left_key, right_key = pair.projection_keys(KittiLayout.RAW)
+    left_p = _projection(calibration, values, left_key)
+    right_p = _projection(calibration, values, right_key)
+    left, right = _paired_images(drive / left_name / "data", drive / right_name / "data")
     camera = camera_from_projections(left_p, right_p, read_grey(left[0]).shape[:2], calibration)
-    stamps = _raw_stamps(drive / "image_00" / "timestamps.txt", len(left))
-    return KittiSequence(KittiLayout.RAW, drive, left, right, camera, stamps, None)
+    stamps = _raw_stamps(drive / left_name / "timestamps.txt", len(left))
+    return KittiSequence(KittiLayout.RAW, drive, left, right, camera, stamps, None, pair)
 
 
-def _open_odometry(sequence: Path) -> KittiSequence:
+def _from_camera_0(
+    poses: npt.NDArray[np.float64] | None, left: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64] | None:
+    """Return camera 0's poses moved to the camera of projection ``left`` (rectified).
+
+    ``left`` = K [I | t] in camera 0's rectified frame, so that camera sits at -t = -K^-1
+    P[:, 3] there, with the same axes: its camera-to-world is pose @ [[I, -t], [0, 1]].
+    """
+    if poses is None:
+        return None
+    offset = np.eye(4)
+    offset[:3, 3] = -np.linalg.solve(left[:, :3], left[:, 3])
+    return np.asarray(poses @ offset, dtype=np.float64)
+
+
+def _open_odometry(sequence: Path, pair: KittiPair | None) -> KittiSequence:
     calibration = sequence / ODOMETRY_CALIBRATION
     if not calibration.is_file():
         raise DatasetImportError(
             f"KITTI odometry sequence {sequence} has no {ODOMETRY_CALIBRATION}; copy it from "
             "KITTI's odometry calibration download (data_odometry_calib)"
         )
+    pair = _choose_pair(sequence, KittiLayout.ODOMETRY, pair, "KITTI odometry sequence")
     values = _key_values(calibration)
-    left_p = _projection(calibration, values, "P0")
-    right_p = _projection(calibration, values, "P1")
-    left, right = _paired_images(sequence / "image_0", sequence / "image_1")
+    left_key, right_key = pair.projection_keys(KittiLayout.ODOMETRY)
+    left_p = _projection(calibration, values, left_key)
+    right_p = _projection(calibration, values, right_key)
+    left_name, right_name = pair.folders(KittiLayout.ODOMETRY)
+    left, right = _paired_images(sequence / left_name, sequence / right_name)
     camera = camera_from_projections(left_p, right_p, read_grey(left[0]).shape[:2], calibration)
-    stamps = _odometry_stamps(sequence / "times.txt", len(left))
-    poses = _poses(sequence.parent.parent / "poses" / f"{sequence.name}.txt", len(left))
-    return KittiSequence(KittiLayout.ODOMETRY, sequence, left, right, camera, stamps, poses)
+    stamps = _odometry_stamps(sequence / "times.txt", left)
+    poses = _poses(sequence.parent.parent / "poses" / f"{sequence.name}.txt", left)
+    poses = _from_camera_0(poses, left_p)
+    return KittiSequence(KittiLayout.ODOMETRY, sequence, left, right, camera, stamps, poses, pair)
 
 
-def open_kitti(folder: str | os.PathLike[str]) -> KittiSequence:
+def open_kitti(folder: str | os.PathLike[str], *, pair: KittiPair | None = None) -> KittiSequence:
     """Detect and validate a KITTI raw drive or odometry sequence (reads one image).
+
+    Args:
+        folder: a raw drive (or its date folder holding one drive) or an odometry sequence.
+        pair: the grey or the colour pair; None: the grey one when the folder has it, else
+            the colour one.
 
     Raises:
         DatasetImportError: the folder is missing, not a KITTI layout, or has a missing or
@@ -357,16 +455,11 @@ def open_kitti(folder: str | os.PathLike[str]) -> KittiSequence:
     root = Path(folder)
     if not root.is_dir():
         raise DatasetImportError(f"KITTI folder {root} does not exist; {EXPECTED_LAYOUTS}")
-    if (root / "image_0").is_dir() or (root / "image_1").is_dir():
-        if not ((root / "image_0").is_dir() and (root / "image_1").is_dir()):
-            raise DatasetImportError(
-                f"KITTI odometry sequence {root} needs both image_0 and image_1; "
-                "restore the missing camera folder"
-            )
-        return _open_odometry(root)
+    if any((root / f"image_{camera}").is_dir() for camera in range(4)):
+        return _open_odometry(root, pair)
     drive = _raw_drive_folder(root)
-    if drive is not None or (root / "image_01").is_dir():
-        return _open_raw(drive or root)
+    if drive is not None or any((root / f"image_{c:02d}").is_dir() for c in range(4)):
+        return _open_raw(drive or root, pair)
     raise DatasetImportError(f"{root} is not a KITTI folder; {EXPECTED_LAYOUTS}")
 
 
@@ -399,6 +492,7 @@ def import_kitti(
     format: LogFormat | str | None = None,
     max_frames: int | None = None,
     progress: ProgressCallback | None = None,
+    pair: KittiPair | None = None,
 ) -> WriteSummary:
     """Convert a KITTI raw drive or odometry sequence into a log (synthetic-log topics).
 
@@ -412,6 +506,7 @@ def import_kitti(
         format: output format; chosen from ``out_path``'s name when None.
         max_frames: import only the first frames (all when None).
         progress: called as ``progress(frames_done, total)`` after every frame.
+        pair: the grey or the colour pair (see :func:`open_kitti`).
 
     Returns:
         What was written.
@@ -421,7 +516,7 @@ def import_kitti(
             :func:`iter_frames`).
         LogWriteError: the output cannot be written.
     """
-    sequence = open_kitti(folder)
+    sequence = open_kitti(folder, pair=pair)
     total = len(sequence) if max_frames is None else min(len(sequence), max_frames)
     with open_writer(out_path, format, inputs=[sequence.folder]) as writer:
         for frame in iter_frames(sequence, max_frames=max_frames):

@@ -106,6 +106,23 @@ def describe(path: str | Path, *, count: bool = False) -> LogInfo:
         )
 
 
+def seconds_text(time_ns: int) -> str:
+    """Return a time in integer ns as exact seconds with nine decimals.
+
+    A float64 holds about 16 significant digits, so ``time_ns / 1e9`` of an epoch time
+    (19 digits) invents its last nanosecond digits; integer division does not.
+
+    Examples:
+        >>> seconds_text(1_600_000_000_300_000_000)
+        '1600000000.300000000'
+        >>> seconds_text(-1)
+        '-0.000000001'
+    """
+    sign = "-" if time_ns < 0 else ""
+    whole, fraction = divmod(abs(time_ns), 1_000_000_000)
+    return f"{sign}{whole}.{fraction:09d}"
+
+
 def format_info(info: LogInfo) -> str:
     """Return a log description as text for the terminal (one topic per line)."""
     lines = [f"{info.path}: {info.format.value} log"]
@@ -115,7 +132,8 @@ def format_info(info: LogInfo) -> str:
         lines.append(
             f"  messages: {info.message_count} ({'counted' if info.counted else 'from the index'})"
         )
-        lines.append(f"  start: {info.start_ns / 1e9:.9f} s   end: {info.end_ns / 1e9:.9f} s")
+        start, end = seconds_text(info.start_ns), seconds_text(info.end_ns)
+        lines.append(f"  start: {start} s   end: {end} s")
         lines.append(f"  duration: {info.duration_ns / 1e9:.3f} s")
     lines.append(f"  topics: {len(info.topics)}")
     width = max((len(name) for name in info.topics), default=0)

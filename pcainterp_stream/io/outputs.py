@@ -23,6 +23,7 @@ Two precisions (``densify --precision``), chosen by measurement (docs/benchmarks
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -55,6 +56,44 @@ DEPTH_STEP_RANGE = (1.0 / 1024.0, 1.0 / 16.0)
 DISPLAY_DEPTH_STEP_MM = 50
 """The compact ``depth_mm`` viewer copy's rounding (mm): a fifth of one colour of a
 256-colour map over 0 to :data:`~pcainterp_stream.defaults.DISPLAY_MAX_DEPTH` m."""
+
+
+_TOPIC_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def topic_prefix(prefix: str) -> str:
+    """Return a prefix of output topics as an absolute ROS 2 name, checked.
+
+    ROS 2 topic names are ``/``-separated tokens of letters, digits and ``_``, none starting
+    with a digit, with no empty token (no ``//``) and no trailing ``/``. A relative name
+    (``pcainterp``) is resolved in the root namespace, as ROS 2 does (``/pcainterp``).
+
+    Raises:
+        ValueError: the prefix is not such a name (``""``, ``"/"``, ``"/a b"``, ``"/a/"``).
+
+    Examples:
+        >>> topic_prefix("pcainterp")
+        '/pcainterp'
+    """
+    name = prefix if prefix.startswith("/") else "/" + prefix
+    tokens = name[1:].split("/")
+    if name == "/":
+        problem = "it is empty" if prefix == "" else "it has no name under /"
+    elif name.endswith("/"):
+        problem = "it ends with /"
+    elif "" in tokens:
+        problem = "it has an empty name between two /"
+    else:
+        bad = next((token for token in tokens if not _TOPIC_TOKEN.fullmatch(token)), None)
+        if bad is None:
+            return name
+        problem = f"{bad!r} " + (
+            "starts with a digit" if bad[0].isdigit() else "has characters other than A-Z a-z 0-9 _"
+        )
+    raise ValueError(
+        f"{prefix!r} is not a ROS 2 topic name: {problem}; use /-separated names of letters, "
+        "digits and _ (not starting with a digit), e.g. /pcainterp"
+    )
 
 
 @dataclass(frozen=True)
@@ -117,21 +156,29 @@ class OutputTopics:
         return self.encoding(channel).split(" ", 1)[0].replace("/", "/msg/", 1)
 
     def only(self, channels: Iterable[str]) -> OutputTopics:
-        """Return these topics writing only ``channels`` (names of :data:`CHANNELS`).
+        """Return these topics writing only ``channels`` (of :data:`CHANNELS`, ``depth_mm``).
+
+        ``depth_mm`` names the millimetre viewer copy of the depth (``<prefix>/depth_mm``
+        beside ``depth``), at either precision. Not named, it follows ``depth`` at compact
+        precision (the copy the compact default writes) and stays as it is at full.
 
         Raises:
             ValueError: an unknown channel name, or no channel at all.
         """
         chosen = set(channels)
-        unknown = sorted(chosen - set(CHANNELS))
+        names = (*CHANNELS, "depth_mm")
+        unknown = sorted(chosen - set(names))
         if unknown:
             raise ValueError(
-                f"unknown output channel {', '.join(unknown)}; choose from {', '.join(CHANNELS)}"
+                f"unknown output channel {', '.join(unknown)}; choose from {', '.join(names)}"
             )
         if not chosen:
-            raise ValueError(f"no output channel chosen; choose from {', '.join(CHANNELS)}")
+            raise ValueError(f"no output channel chosen; choose from {', '.join(names)}")
         topics = replace(self, skipped=frozenset(set(CHANNELS) - chosen))
-        if self.precision == "compact" and "depth" not in chosen:
+        if "depth_mm" in chosen:
+            depth_mm = self.depth_mm or self.depth.rsplit("/", 1)[0] + "/depth_mm"
+            topics = replace(topics, depth_mm=depth_mm)
+        elif self.precision == "compact" and "depth" not in chosen:
             topics = replace(topics, depth_mm=None)  # the viewers' copy of the depth
         return topics
 
@@ -150,10 +197,14 @@ class OutputTopics:
         """Return the default topics under another prefix (``/pcainterp`` by default).
 
         ``precision="compact"`` returns :meth:`compact` of them.
+
+        Raises:
+            ValueError: an unknown precision, or a prefix that is no ROS 2 topic name
+                (:func:`topic_prefix`).
         """
         if precision not in PRECISIONS:
             raise ValueError(f"unknown precision {precision!r}; choose {' or '.join(PRECISIONS)}")
-        prefix = "/" + prefix.strip("/")
+        prefix = topic_prefix(prefix)
         topics = cls(
             depth=f"{prefix}/depth",
             depth_std=f"{prefix}/depth_std",
@@ -444,6 +495,53 @@ def estimate_topics(present: Iterable[str], topics: OutputTopics) -> EstimateTop
     if topics.disparity in names or topics.depth not in names:
         return EstimateTopics(topics.disparity, topics.disparity_std, compact=False)
     return EstimateTopics(topics.depth, topics.disparity_std, compact=True)
+
+
+def densified_prefixes(present: Iterable[str]) -> list[str]:
+    """Return the prefixes under which a log has densify's channels, sorted.
+
+    A prefix counts when the log has its ``disparity_std``, ``camera_info`` and ``depth``
+    or ``disparity`` (what :func:`estimate_topics` reads, in either form).
+    """
+    names = set(present)
+    found = []
+    for name in sorted(names):
+        prefix = name.removesuffix("/disparity_std")
+        if prefix == name or f"{prefix}/camera_info" not in names:
+            continue
+        if {f"{prefix}/depth", f"{prefix}/disparity"} & names:
+            found.append(prefix)
+    return found
+
+
+def missing_outputs(
+    present: Iterable[str], topics: OutputTopics, wanted: Iterable[str]
+) -> tuple[list[str], str]:
+    """Return the ``wanted`` topics a log lacks and a hint naming where its outputs are.
+
+    The estimate is named in both forms (``/p/disparity or /p/depth``) when the log has
+    neither: a compact log has ``depth`` where a full one has ``disparity``.
+
+    Returns:
+        The missing topics, and ``""`` or ``"; it has densified channels under /q: pass
+        --output-prefix /q"`` when the log has them under other prefixes.
+    """
+    names = set(present)
+    estimates = (topics.disparity, topics.depth)
+    missing = []
+    for topic in wanted:
+        if topic in names:
+            continue
+        if topic in estimates and not names.intersection(estimates):
+            topic = f"{topics.disparity} or {topics.depth}"
+        missing.append(topic)
+    own = topics.camera_info.rsplit("/", 1)[0]
+    others = [prefix for prefix in densified_prefixes(names) if prefix and prefix != own]
+    if not missing or not others:
+        return missing, ""
+    return missing, (
+        f"; it has densified channels under {', '.join(others)}: pass --output-prefix {others[0]}"
+    )
 
 
 @dataclass(frozen=True)

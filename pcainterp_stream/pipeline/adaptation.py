@@ -235,8 +235,17 @@ class Adaptation:
             better = self.check.ratio >= FITS_BELOW
         if not better:
             kept = "kept" if self.switched is None else f"{self.switched.name} chosen"
+            if own_error is not None and own_error < self.check.prior:
+                # better, but a prior that fits is replaced only below ADAPT_GAIN of its error
+                verdict = (
+                    f"was better ({own_error:.2f} px against {self.check.prior:.2f}) but not by "
+                    f"the margin that replaces a prior that fits (an error below "
+                    f"{adapt.ADAPT_GAIN:g}x the prior's)"
+                )
+            else:
+                verdict = "did no better"
             self.lines.append(
-                f"prior: {kept}; this log's own basis did no better ({self.own_check.describe()})"
+                f"prior: {kept}; this log's own basis {verdict}: {self.own_check.describe()}"
                 if self.own_check is not None
                 else f"prior: {kept}"
             )

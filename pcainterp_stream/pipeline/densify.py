@@ -362,6 +362,13 @@ def densify(
                 if engine.basis is not first:  # relearned while streaming
                     final_written = final_basis_path(output)
                     engine.basis.save(final_written)
+            else:  # no file to save OUTPUT.basis.npz beside
+                where = "standard output" if output is not None else "served live only"
+                prior_lines.append(
+                    f"note: the adapted basis was not saved: the output is {where}, with no "
+                    "folder to save it in; densify -o FILE.mcap also writes it, as "
+                    "FILE.basis.npz, for evaluate and for --basis"
+                )
     return DensifySummary(
         input=input_path,
         output=writer.path if writer is not None else None,

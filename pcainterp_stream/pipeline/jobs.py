@@ -30,6 +30,7 @@ from pcainterp_stream.estimate.basis import (
     builtin_basis,
     builtin_basis_installed,
     builtin_kind,
+    check_basis_file,
     default_basis_path,
     default_basis_recipe,
     indoor_basis_path,
@@ -130,8 +131,15 @@ def synth_raw(
         )
 
 
-def import_kitti(folder: Path, out: Path, *, max_frames: int | None) -> WriteSummary:
-    """Convert a KITTI folder into an MCAP log (``pcainterp import-kitti``)."""
+def import_kitti(
+    folder: Path, out: Path, *, max_frames: int | None, colour: bool = False
+) -> WriteSummary:
+    """Convert a KITTI folder into an MCAP log (``pcainterp import-kitti``).
+
+    ``colour``: the colour pair even where the grey one is there (default: the grey pair,
+    the colour one in a folder without it).
+    """
+    from pcainterp_stream.io.kitti import KittiPair
     from pcainterp_stream.io.kitti import import_kitti as convert
 
     if max_frames is not None and max_frames < 1:
@@ -142,7 +150,8 @@ def import_kitti(folder: Path, out: Path, *, max_frames: int | None) -> WriteSum
             bar.total = total
             bar.update(done - bar.n)
 
-        return convert(folder, out, max_frames=max_frames, progress=progress)
+        pair = KittiPair.COLOUR if colour else None
+        return convert(folder, out, max_frames=max_frames, progress=progress, pair=pair)
 
 
 def evaluate(
@@ -192,8 +201,8 @@ def evaluate(
         raise PcaInterpError(f"--sweep-every must be >= 0, got {sweep_every}")
     if max_frames is not None and max_frames < 1:
         raise PcaInterpError(f"--max-frames must be at least 1, got {max_frames}")
-    if isinstance(basis, Path) and not basis.is_file():
-        raise PcaInterpError(f"basis {basis} does not exist; pass the basis used by densify")
+    if isinstance(basis, Path):
+        check_basis_file(basis)
     folder = output or input_path.with_name(input_path.stem + "_report")
     if not basis_rows:
         chosen, note = None, "none, those rows are skipped"

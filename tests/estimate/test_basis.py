@@ -121,8 +121,36 @@ def test_load_missing_file(tmp_path: Path) -> None:
 def test_load_not_a_zip(tmp_path: Path) -> None:
     path = tmp_path / "basis.npz"
     path.write_bytes(b"this is not an npz archive at all")
-    with pytest.raises(BasisError, match=r"basis\.npz is not a readable \.npz archive"):
+    with pytest.raises(BasisError, match=r"basis\.npz is not a basis file \(\.npz\); pass"):
         Basis.load(path)
+
+
+@pytest.mark.parametrize(
+    ("head", "what"),
+    [
+        (b"\x89MCAP0\r\n" + bytes(64), ": it is an MCAP log; "),
+        (b"#ROSBAG V2.0\n" + bytes(64), ": it is a ROS 1 bag; "),
+        (b"", ": it is empty; "),
+        (b"\x80\x04\x95" + bytes(64), "; "),  # a pickle: numpy's hint to load it unsafely leaked
+    ],
+)
+def test_load_names_what_a_file_given_as_basis_is(tmp_path: Path, head: bytes, what: str) -> None:
+    path = tmp_path / "drive.mcap"
+    path.write_bytes(head)
+    with pytest.raises(BasisError) as caught:
+        Basis.load(path)
+    expected = f"basis file {path} is not a basis file (.npz){what}pass the path of a basis .npz"
+    assert str(caught.value).startswith(expected)
+    assert "pickle" not in str(caught.value)
+
+
+def test_load_a_folder_or_an_npy(tmp_path: Path) -> None:
+    # a folder was reported as "does not exist"
+    with pytest.raises(BasisError, match=r"basis file .* is a folder, not a basis file; pass"):
+        Basis.load(tmp_path)
+    np.save(tmp_path / "mean.npy", np.zeros(3))
+    with pytest.raises(BasisError, match=r"mean\.npy is not a basis file \(\.npz\): it is a sin"):
+        Basis.load(tmp_path / "mean.npy")
 
 
 def test_load_truncated(tmp_path: Path) -> None:

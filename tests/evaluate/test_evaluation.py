@@ -16,6 +16,7 @@ from pcainterp_stream import cli
 from pcainterp_stream.errors import LogReadError
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.learning import preprocess_disparity
+from pcainterp_stream.evaluate.figures import write_figures
 from pcainterp_stream.evaluate.metrics import (
     CalibrationStats,
     MethodStats,
@@ -30,6 +31,8 @@ from pcainterp_stream.evaluate.metrics import (
     stereo_transform,
 )
 from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log
+from pcainterp_stream.evaluate.results import Evaluation
+from pcainterp_stream.evaluate.tables import results_markdown, summary_table
 from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.io.outputs import OutputTopics
 from pcainterp_stream.pipeline import jobs
@@ -176,6 +179,31 @@ def test_method_stats_means_and_bins() -> None:
     assert calibration.summary()["coverage_2sigma"] == 1.0
 
 
+def test_undefined_ratios_print_a_dash_and_figures_do_not_warn(tmp_path: Path) -> None:
+    # black images: no measurement, so nearest neighbour is "far" everywhere, as is SGBM's
+    # reference: nearest scores 0 px and PCA-MAP / nearest is undefined (it printed
+    # 30376721943148.96); no reference depth is within 80 m, so no depth metric either
+    def stats(delta_2d_sum: float) -> MethodStats:
+        return MethodStats(pixels=100.0, delta_2d_sum=delta_2d_sum, seconds=0.1, frames=2)
+
+    result = Evaluation(log="blank.mcap", mode="stereo", reference="SGBM", frames=2)
+    result.methods = {"pca_map": stats(3000.0), "nearest": stats(0.0), "linear": stats(5.0)}
+    result.sweep = {10: dict(result.methods)}
+    result.calibration = {"stored": CalibrationStats()}
+    table = summary_table(result)
+    row = next(line for line in table.splitlines() if line.startswith("pca_map"))
+    assert row.split() == ["pca_map", "30.000", "-", "-", "-", "-", "-", "-", "50"]
+    markdown = results_markdown(result, [])
+    assert "nearest neighbour mean Delta_2D = - (target" in markdown
+    assert "undefined, nearest neighbour's mean Delta_2D is 0." in markdown
+    assert "| 10 | 30.000 | 0.000 | 0.050 | - |" in markdown
+    assert "e+" not in markdown
+    write_figures(result, [], tmp_path, None)  # warnings are errors: no log scale of zeros
+    result.methods["nearest"] = stats(10000.0)
+    assert result.ratio() == pytest.approx(0.3)
+    assert " 0.30 " in summary_table(result)
+
+
 def test_oracle_reproduces_a_map_in_the_basis_span() -> None:
     rng = np.random.default_rng(5)
     grid_size = (10, 20)
@@ -291,8 +319,21 @@ def test_evaluate_cli_prints_table(
 
 
 def test_evaluate_refuses_a_log_without_densified_channels(dense_logs: dict[str, Path]) -> None:
-    with pytest.raises(LogReadError, match=r"has no /pcainterp/disparity.*pcainterp densify"):
+    with pytest.raises(
+        LogReadError, match=r"has no /pcainterp/disparity or /pcainterp/depth, .*pcainterp densify"
+    ):
         evaluate_log(dense_logs["test"])
+
+
+def test_evaluate_names_the_prefix_a_log_has(dense_logs: dict[str, Path]) -> None:
+    # it named /nope/disparity alone and did not say the log has them under /pcainterp
+    with pytest.raises(LogReadError) as caught:
+        evaluate_log(dense_logs["dense"], topics=OutputTopics.with_prefix("/nope"))
+    assert str(caught.value) == (
+        f"{dense_logs['dense']} has no /nope/disparity or /nope/depth, /nope/disparity_std, "
+        "/nope/features, /nope/camera_info; it has densified channels under /pcainterp: "
+        "pass --output-prefix /pcainterp"
+    )
 
 
 def test_evaluate_cli_one_line_errors(
@@ -303,6 +344,8 @@ def test_evaluate_cli_one_line_errors(
     missing = dense_logs["folder"] / "nope.npz"
     assert cli.main(["evaluate", str(dense_logs["dense"]), "--basis", str(missing)]) == 2
     assert "does not exist" in capsys.readouterr().err
+    assert cli.main(["evaluate", str(dense_logs["dense"]), "--output-prefix", "/a b"]) == 2
+    assert "--output-prefix '/a b' is not a ROS 2 topic name" in capsys.readouterr().err
 
 
 def test_evaluate_refuses_a_file_as_report_folder_up_front(

@@ -7,14 +7,22 @@ import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 
+from pcainterp_stream import cli
 from pcainterp_stream.errors import DatasetImportError
 from pcainterp_stream.io import rosmsg
-from pcainterp_stream.io.kitti import KittiLayout, import_kitti, iter_frames, open_kitti
+from pcainterp_stream.io.kitti import (
+    KittiLayout,
+    KittiPair,
+    import_kitti,
+    iter_frames,
+    open_kitti,
+)
 from pcainterp_stream.io.logwriter import LogFormat
 
 REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata"
 RAW_DRIVE = REALDATA / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0001_sync"
 ODOMETRY = REALDATA / "kitti_odometry_clip" / "sequences" / "a"
+COLOUR_07 = REALDATA / "kitti_depth_annotated_07"  # KITTI's colour odometry layout
 needs_realdata = pytest.mark.skipif(
     not REALDATA.is_dir(), reason=f"real KITTI data not found at {REALDATA}"
 )
@@ -75,6 +83,117 @@ def make_odometry(root: Path, n: int = 4, *, times: bool = True, poses: bool = T
         lines = [_numbers([1, 0, 0, 0.1 * i, 0, 1, 0, 0, 0, 0, 1, 1.0 * i]) for i in range(n)]
         (root / "poses" / "05.txt").write_text("\n".join(lines))
     return sequence
+
+
+# the colour cameras: camera 2 is 6 cm left of camera 0 (P2[0, 3] > 0), camera 3 0.48 m right
+P2 = [FX, 0, CX, 6.0, 0, FX, CY, 0.1, 0, 0, 1, 0.002]
+P3 = [FX, 0, CX, -48.0, 0, FX, CY, 0, 0, 0, 1, 0]
+
+
+def make_colour(root: Path, n: int = 3, *, grey: bool = False) -> Path:
+    """A tiny odometry layout with the colour pair image_2/image_3 (and the grey one)."""
+    sequence = make_odometry(root, n) if grey else root / "sequences" / "05"
+    names = [f"{i:06d}.png" for i in range(n)]
+    for camera, seed in ((2, 5), (3, 6)):
+        folder = sequence / f"image_{camera}"
+        folder.mkdir(parents=True)
+        rng = np.random.default_rng(seed)
+        for name in names:
+            image = rng.integers(0, 256, size=(HEIGHT, WIDTH, 3), dtype=np.uint8)
+            assert cv2.imwrite(str(folder / name), image)
+    (sequence / "calib.txt").write_text(
+        "".join(f"P{i}: {_numbers(p)}\n" for i, p in enumerate((P_LEFT, P_RIGHT, P2, P3)))
+    )
+    if not grey:
+        (root / "poses").mkdir()
+        lines = [_numbers([1, 0, 0, 0.1 * i, 0, 1, 0, 0, 0, 0, 1, 1.0 * i]) for i in range(n)]
+        (root / "poses" / "05.txt").write_text("\n".join(lines))
+    return sequence
+
+
+def _grey(path: Path) -> np.ndarray:
+    return cv2.cvtColor(cv2.imread(str(path), cv2.IMREAD_COLOR), cv2.COLOR_BGR2GRAY)
+
+
+def test_odometry_colour_pair_when_the_grey_one_is_absent(tmp_path: Path) -> None:
+    # refused: "is not a KITTI folder; expected ... image_0, image_1"
+    sequence_dir = make_colour(tmp_path / "in")
+    sequence = open_kitti(sequence_dir)
+    assert (sequence.layout, sequence.pair) == (KittiLayout.ODOMETRY, KittiPair.COLOUR)
+    assert sequence.left_paths[0] == sequence_dir / "image_2" / "000000.png"
+    assert sequence.right_paths[0] == sequence_dir / "image_3" / "000000.png"
+    assert (sequence.camera.fx, sequence.camera.cx, sequence.camera.cy) == (FX, CX, CY)
+    assert sequence.camera.baseline == pytest.approx((6.0 + 48.0) / FX)
+    # camera 0's pose moved to camera 2, at -K^-1 P2[:, 3] in camera 0's frame
+    assert sequence.camera_to_world is not None
+    p2 = np.reshape(P2, (3, 4))
+    centre = -np.linalg.solve(p2[:, :3], p2[:, 3])
+    np.testing.assert_allclose(sequence.camera_to_world[2][:3, 3], np.add([0.2, 0, 2.0], centre))
+    assert centre[0] == pytest.approx(-0.06, abs=1e-3)
+    out = tmp_path / "colour.mcap"
+    assert cli.main(["import-kitti", str(sequence_dir), str(out)]) == 0
+    read = _read(out)
+    left = [m for topic, _, m in read if topic == "/stereo/left/image_rect"]
+    expected = _grey(sequence_dir / "image_2" / "000001.png")
+    np.testing.assert_array_equal(rosmsg.image_array(left[1]), expected)
+    right_info = next(m for topic, _, m in read if topic == "/stereo/right/camera_info")
+    p = rosmsg.projection_matrix(right_info)
+    assert -p[0, 3] / p[0, 0] == pytest.approx(0.54)
+
+
+def test_some_frames_of_a_sequence_take_their_lines_by_number(tmp_path: Path) -> None:
+    # frames 000002-000003 beside the whole sequence's times.txt and poses (as KITTI's
+    # depth-annotated sequence 07): "times.txt has 4 times for 2 images"
+    sequence_dir = make_odometry(tmp_path, n=4)
+    for camera in ("image_0", "image_1"):
+        for name in ("000000.png", "000001.png"):
+            (sequence_dir / camera / name).unlink()
+    sequence = open_kitti(sequence_dir)
+    assert sequence.stamps_ns.tolist() == [207_400_000, 311_100_000]
+    assert sequence.camera_to_world is not None
+    np.testing.assert_allclose(sequence.camera_to_world[1][:3, 3], [0.3, 0, 3.0])
+    (tmp_path / "poses" / "05.txt").write_text("1 2 3\n" * 4)
+    with pytest.raises(DatasetImportError, match=r"line 3 of pose file .* must hold 12 numbers"):
+        open_kitti(sequence_dir)
+
+
+def test_colour_option_picks_the_colour_pair_beside_the_grey_one(tmp_path: Path) -> None:
+    sequence_dir = make_colour(tmp_path / "in", grey=True)
+    assert open_kitti(sequence_dir).pair is KittiPair.GREY  # as before
+    colour = open_kitti(sequence_dir, pair=KittiPair.COLOUR)
+    assert colour.left_paths[0].parent.name == "image_2"
+    assert colour.camera.baseline == pytest.approx(0.54)
+    out = tmp_path / "colour.mcap"
+    assert cli.main(["import-kitti", str(sequence_dir), str(out), "--colour"]) == 0
+    left = next(m for topic, _, m in _read(out) if topic == "/stereo/left/image_rect")
+    expected = _grey(sequence_dir / "image_2" / "000000.png")
+    np.testing.assert_array_equal(rosmsg.image_array(left), expected)
+    grey_only = make_odometry(tmp_path / "grey")
+    with pytest.raises(
+        DatasetImportError, match=r"sequence .* needs both image_2 and image_3; expected a KITTI"
+    ):
+        open_kitti(grey_only, pair=KittiPair.COLOUR)
+
+
+def test_raw_drive_colour_pair(tmp_path: Path) -> None:
+    drive = make_raw(tmp_path / "in")
+    (drive / "image_00").rename(drive / "image_02")
+    (drive / "image_01").rename(drive / "image_03")
+    (drive / "image_02" / "timestamps.txt").write_text(
+        "".join(f"2011-01-01 12:00:0{i}.000000000\n" for i in range(3))
+    )
+    calib = (drive.parent / "calib_cam_to_cam.txt").read_text()
+    (drive.parent / "calib_cam_to_cam.txt").write_text(
+        calib + f"P_rect_02: {_numbers(P2)}\nP_rect_03: {_numbers(P3)}\n"
+    )
+    sequence = open_kitti(drive.parent)
+    assert (sequence.layout, sequence.pair, sequence.folder) == (
+        KittiLayout.RAW,
+        KittiPair.COLOUR,
+        drive,
+    )
+    assert sequence.camera.baseline == pytest.approx(0.54)
+    assert np.diff(sequence.stamps_ns).tolist() == [1_000_000_000, 1_000_000_000]
 
 
 def _read(path: Path) -> list[tuple[str, int, object]]:
@@ -179,6 +298,31 @@ def test_real_odometry_clip(tmp_path: Path) -> None:
     np.testing.assert_allclose(rosmsg.pose_matrix(last_pose)[:3], expected, atol=1e-6)
 
 
+@needs_realdata
+@pytest.mark.realdata
+def test_real_colour_odometry_layout(tmp_path: Path) -> None:
+    if not COLOUR_07.is_dir():
+        pytest.skip(f"{COLOUR_07} is absent")
+    sequence = open_kitti(COLOUR_07)
+    assert (sequence.layout, sequence.pair, len(sequence)) == (
+        KittiLayout.ODOMETRY,
+        KittiPair.COLOUR,
+        3,
+    )
+    camera = sequence.camera
+    assert (camera.width, camera.height) == (1226, 370)
+    assert (camera.fx, camera.cx, camera.cy) == (707.0912, 601.8873, 183.1104)
+    assert camera.baseline == pytest.approx((46.88783 + 333.4597) / 707.0912)  # P2, P3
+    # frames 000168-000170 of a 1101-frame sequence: times.txt has all 1101 lines
+    assert sequence.stamps_ns.tolist() == [17_467_890_000, 17_571_660_000, 17_675_510_000]
+    out = tmp_path / "seq07.mcap"
+    summary = import_kitti(COLOUR_07, out)
+    assert summary.topic_counts["/stereo/left/image_rect"] == 3
+    left = [m for topic, _, m in _read(out) if topic == "/stereo/left/image_rect"]
+    expected = _grey(COLOUR_07 / "image_2" / "000170.png")
+    np.testing.assert_array_equal(rosmsg.image_array(left[2]), expected)
+
+
 # --- one test per error message -------------------------------------------------------
 
 
@@ -205,7 +349,10 @@ def test_error_raw_missing_camera_folder(tmp_path: Path) -> None:
     for image in (drive / "image_00" / "data").iterdir():
         image.unlink()
     (drive / "image_00" / "data").rmdir()
-    with pytest.raises(DatasetImportError, match=r"raw drive .* has no image_00/data folder"):
+    with pytest.raises(
+        DatasetImportError,
+        match=r"raw drive .* needs both image_00/data and image_01/data; restore the missing",
+    ):
         open_kitti(drive)
 
 

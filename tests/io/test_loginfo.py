@@ -9,7 +9,7 @@ from mcap.writer import Writer
 
 from pcainterp_stream.errors import LogReadError
 from pcainterp_stream.io import rosmsg
-from pcainterp_stream.io.loginfo import describe, format_info
+from pcainterp_stream.io.loginfo import LogInfo, describe, format_info, seconds_text
 from pcainterp_stream.io.logreader import LogFormat
 
 REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata"
@@ -61,6 +61,23 @@ def test_describe_damaged_counts_what_is_readable(tmp_path: Path) -> None:
     assert info.damage
     assert f"DAMAGE ({len(info.damage)}):" in format_info(info)
     assert len(info.damage) == 2  # no footer, and a chunk cut short
+
+
+def test_format_prints_epoch_times_exactly(tmp_path: Path) -> None:
+    # through a float64 1600000000300000000 ns printed as 1600000000.299999952 s
+    info = LogInfo(
+        path=tmp_path / "x.mcap",
+        format=LogFormat.MCAP,
+        topics={},
+        message_count=2,
+        start_ns=1_585_866_235_112_411_371,
+        end_ns=1_600_000_000_300_000_000,
+        counted=False,
+    )
+    text = format_info(info)
+    assert "start: 1585866235.112411371 s   end: 1600000000.300000000 s" in text
+    assert seconds_text(0) == "0.000000000"
+    assert seconds_text(-1_500_000_000) == "-1.500000000"
 
 
 def test_describe_empty_log(tmp_path: Path) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import io
 from pathlib import Path
 from types import ModuleType
 
@@ -135,6 +136,22 @@ def test_the_log_basis_keeps_learning_and_never_depends_on_thread_timing() -> No
     np.testing.assert_array_equal(outputs[1], outputs[2])
 
 
+def test_an_adapted_basis_without_a_file_output_is_said_unsaved(tmp_path: Path) -> None:
+    """densify - -o -: no folder to save OUTPUT.basis.npz in; it was dropped silently."""
+    log = tmp_path / "room.mcap"
+    synth(log, frames=4, seed=1, scale=0.25, fmt=None, scene="indoor", camera="752x480")
+    processor = ProcessorConfig(builtin="street")  # a room the street basis does not fit
+    summary = densify(log, io.BytesIO(), processor=processor)
+    assert any(line.startswith("adapted:") for line in summary.prior_lines)
+    assert summary.basis_written is None
+    assert summary.prior_lines[-1] == (
+        "note: the adapted basis was not saved: the output is standard output, with no folder "
+        "to save it in; densify -o FILE.mcap also writes it, as FILE.basis.npz, for evaluate "
+        "and for --basis"
+    )
+    assert list(tmp_path.iterdir()) == [log]
+
+
 def test_a_street_log_keeps_the_street_basis() -> None:
     """The street basis fits a street: kept, the indoor one not even tried."""
     config = SynthConfig(seed=9001, frames=8, scale=0.5)
@@ -150,6 +167,30 @@ def test_a_street_log_keeps_the_street_basis() -> None:
         assert not engine.adaptation.adapted
         assert engine.basis is Basis.default()
         assert not any("indoor" in line for line in engine.adaptation.lines)
+
+
+def test_an_own_basis_better_but_not_by_the_margin_is_said_so() -> None:
+    """The built-in indoor basis fits a synthetic room; the log's own basis errs less on the
+    held-out pixels but not below adapt.ADAPT_GAIN of it: the line said it "did no better"."""
+    config = SynthConfig(seed=3, frames=6, scale=0.5, scene="indoor", **camera_options("752x480"))
+    frames = [
+        StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
+        for f in generate(config)
+    ]
+    with FrameProcessor(None, ProcessorConfig()) as engine:
+        list(engine.process(frames))
+        adaptation = engine.adaptation
+        assert adaptation.own_check is not None
+        assert adaptation.check is not None
+        assert adaptation.check.fits
+        own, chosen = adaptation.own_check.prior, adaptation.check.prior
+        assert adapt.ADAPT_GAIN * chosen <= own < chosen
+        assert not adaptation.adapted
+        assert adaptation.lines[-1].startswith(
+            "prior: the built-in indoor basis chosen; this log's own basis was better "
+            f"({own:.2f} px against {chosen:.2f}) but not by the margin that replaces a prior "
+            "that fits (an error below 0.5x the prior's): "
+        )
 
 
 def test_builtin_indoor_is_recorded_and_evaluate_finds_it(tmp_path: Path) -> None:
