@@ -207,7 +207,7 @@ def check_basis_file(path: Path) -> None:
     if path.is_dir():
         raise BasisError(f"basis file {path} is a folder, not a basis file; {fix}")
     if not path.is_file():
-        builtin = " or builtin, builtin-street, builtin-indoor"
+        builtin = ", or one of builtin, builtin-street and builtin-indoor"
         raise BasisError(
             f"basis file {path} does not exist; {fix}"
             + (builtin if path.name.startswith("builtin") else "")
