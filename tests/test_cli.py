@@ -866,8 +866,22 @@ def test_learn_depth_topic_of_wrong_type(
     args = ["learn", small_log, "-o", target, "--depth-topic", "/ground_truth/pose"]
     line = pcainterp(*args).error_line()
     assert "topic /ground_truth/pose in small.mcap has type geometry_msgs/msg/PoseStamped" in line
-    assert "/ground_truth/depth" in line
-    assert line.endswith("pass --depth-topic")
+    assert "depth topics in the log: /ground_truth/depth;" in line  # no camera image offered
+    assert line.endswith("as --depth-topic")
+    assert_nothing_written(target)
+
+
+def test_learn_depth_topic_of_camera_images(
+    pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path
+) -> None:
+    target = tmp_path / "basis.npz"
+    line = pcainterp("learn", small_log, "-o", target, "--depth-topic", LEFT).error_line()
+    assert line == (
+        f"pcainterp: error: topic {LEFT} in small.mcap is unusable as depth: mono8 is a camera "
+        "image, not depth (depth is 32FC1, 16UC1, mono16 or compressedDepth); depth topics in "
+        "the log: /ground_truth/depth; pass a depth topic (32FC1 m, 16UC1 mm or "
+        "compressedDepth) as --depth-topic"
+    )
     assert_nothing_written(target)
 
 
@@ -883,9 +897,9 @@ def test_learn_depth_topic_unusable_encoding(
     target = tmp_path / "basis.npz"
     args = ["learn", log, "-o", target, "--depth-topic", "/ground_truth/depth"]
     line = pcainterp(*args).error_line()
-    assert "depth image on /ground_truth/depth at log time" in line
-    assert "unsupported image encoding '64FC1'" in line
-    assert "pass a 32FC1 depth topic" in line
+    assert "topic /ground_truth/depth in odd_depth.mcap is unusable as depth" in line
+    assert "64FC1 is an image, not depth" in line
+    assert line.endswith("(32FC1 m, 16UC1 mm or compressedDepth) as --depth-topic")
     assert_nothing_written(target)
 
 

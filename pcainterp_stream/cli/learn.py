@@ -54,7 +54,9 @@ def add_parser(commands: Commands) -> None:
         "--depth-topic",
         default=None,
         metavar="TOPIC",
-        help="learn from this depth image topic (32FC1, m) instead of SGBM maps",
+        help="learn from this depth image topic instead of SGBM maps: 32FC1 in m, 16UC1 in mm "
+        "(0: none), or either as compressedDepth (pcainterp's own /pcainterp/depth and "
+        "depth_mm); camera images (mono8, rgb8, png, jpeg) are refused",
     )
     learn.add_argument("--every", type=int, default=1, metavar="N", help="use every N-th frame")
     learn.add_argument(
