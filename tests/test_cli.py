@@ -8,6 +8,7 @@ leave nothing at the output target, nor a partial file or folder beside it.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import signal
 import subprocess
@@ -217,6 +218,60 @@ def test_top_level_help(capsys: pytest.CaptureFixture[str]) -> None:
     assert "examples:" in text
     for command in SUBCOMMANDS:
         assert command in text
+
+
+def _parsers(
+    parser: argparse.ArgumentParser, name: str = "pcainterp"
+) -> list[tuple[str, argparse.ArgumentParser]]:
+    """Return (command, parser) of the top level and of every subcommand, nested ones too."""
+    found = [(name, parser)]
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for command, sub in action.choices.items():
+                found.extend(_parsers(sub, f"{name} {command}"))
+    return found
+
+
+def test_every_option_and_command_has_help() -> None:
+    parsers = _parsers(cli.build_parser())
+    assert {"pcainterp evaluate", "pcainterp golden", "pcainterp info"} <= dict(parsers).keys()
+    bare = [
+        f"{name}: {'/'.join(action.option_strings) or action.metavar or action.dest}"
+        for name, parser in parsers
+        for action in parser._actions
+        if not isinstance(action, argparse._SubParsersAction) and not (action.help or "").strip()
+    ]
+    assert bare == []  # before: learn LOG, -o, --components, ...; evaluate --sigma, ...
+    undescribed = [name for name, parser in parsers[1:] if not parser.description]
+    assert undescribed == []  # before: pcainterp info
+
+
+def _help(command: str, capsys: pytest.CaptureFixture[str]) -> str:
+    with pytest.raises(SystemExit):
+        cli.main([command, "--help"])
+    return " ".join(capsys.readouterr().out.split())
+
+
+def test_stereo_options_state_their_defaults_and_learn_no_densify_modes(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig
+
+    gftt, sgbm = GfttConfig(), SgbmConfig()
+    for command in ("densify", "learn"):
+        text = _help(command, capsys)
+        assert f"(default {gftt.quality_level:g})" in text
+        assert f"two corners, px (default {gftt.min_distance:g})" in text
+        assert f"multiple of 16 (default {sgbm.num_disparities}" in text
+        assert f"odd (default {sgbm.block_size})" in text
+        assert f"{sgbm.mode.name.lower()} (3, parallel over strips; the default)" in text
+    learn_help = _help("learn", capsys)
+    assert "--measurements" not in learn_help  # a densify option
+    assert "(default 1; docs/benchmarks.md)" in learn_help  # --stereo-downscale
+    assert "(default 2; --measurements dense: 1;" in _help("densify", capsys)
+    info_help = _help("info", capsys)
+    assert "the built-in bases" in info_help
+    assert "built-in basis" not in info_help.replace("built-in bases", "")
 
 
 # ----------------------------------------------------------------------------- the good path
@@ -866,8 +921,22 @@ def test_learn_depth_topic_of_wrong_type(
     args = ["learn", small_log, "-o", target, "--depth-topic", "/ground_truth/pose"]
     line = pcainterp(*args).error_line()
     assert "topic /ground_truth/pose in small.mcap has type geometry_msgs/msg/PoseStamped" in line
-    assert "/ground_truth/depth" in line
-    assert line.endswith("pass --depth-topic")
+    assert "depth topics in the log: /ground_truth/depth;" in line  # no camera image offered
+    assert line.endswith("as --depth-topic")
+    assert_nothing_written(target)
+
+
+def test_learn_depth_topic_of_camera_images(
+    pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path
+) -> None:
+    target = tmp_path / "basis.npz"
+    line = pcainterp("learn", small_log, "-o", target, "--depth-topic", LEFT).error_line()
+    assert line == (
+        f"pcainterp: error: topic {LEFT} in small.mcap is unusable as depth: mono8 is a camera "
+        "image, not depth (depth is 32FC1, 16UC1, mono16 or compressedDepth); depth topics in "
+        "the log: /ground_truth/depth; pass a depth topic (32FC1 m, 16UC1 mm or "
+        "compressedDepth) as --depth-topic"
+    )
     assert_nothing_written(target)
 
 
@@ -883,9 +952,9 @@ def test_learn_depth_topic_unusable_encoding(
     target = tmp_path / "basis.npz"
     args = ["learn", log, "-o", target, "--depth-topic", "/ground_truth/depth"]
     line = pcainterp(*args).error_line()
-    assert "depth image on /ground_truth/depth at log time" in line
-    assert "unsupported image encoding '64FC1'" in line
-    assert "pass a 32FC1 depth topic" in line
+    assert "topic /ground_truth/depth in odd_depth.mcap is unusable as depth" in line
+    assert "64FC1 is an image, not depth" in line
+    assert line.endswith("(32FC1 m, 16UC1 mm or compressedDepth) as --depth-topic")
     assert_nothing_written(target)
 
 

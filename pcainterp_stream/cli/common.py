@@ -106,33 +106,48 @@ def refuse_overwrites(
 # ----------------------------------------------------------------------------- stereo front end
 
 
-def add_stereo_options(parser: argparse.ArgumentParser) -> None:
-    """Add the GFTT and SGBM options of ``learn`` and ``densify``."""
-    group = parser.add_argument_group("stereo front end (GFTT corners, SGBM lookups)")
+def add_stereo_options(parser: argparse.ArgumentParser, *, command: str) -> None:
+    """Add the GFTT and SGBM options of ``learn`` and ``densify`` (``command``)."""
+    densify = command == "densify"
+    dense = "; --measurements dense: {}" if densify else ""
+    group = parser.add_argument_group(
+        "stereo front end (GFTT corners, SGBM lookups)"
+        if densify
+        else "stereo front end (SGBM maps; GFTT corners of the frames the prior is fitted on)"
+    )
     group.add_argument(
         "--corners",
         type=int,
         default=None,
         metavar="N",
-        help="max GFTT corners (default 250; densify --measurements dense at full "
-        "resolution: 0, the lattice alone; 0 = none)",
+        help="max GFTT corners, 0 = none (default 250"
+        + ("; --measurements dense at full resolution: 0, the lattice alone)" if densify else ")"),
     )
     group.add_argument(
-        "--quality", type=float, default=None, metavar="Q", help="GFTT quality level"
+        "--quality",
+        type=float,
+        default=None,
+        metavar="Q",
+        help="GFTT quality level: a corner's least response as a share of the strongest's, "
+        "in (0, 1) (default 0.01)",
     )
     group.add_argument(
-        "--min-distance", type=float, default=None, metavar="PX", help="GFTT min corner distance"
+        "--min-distance",
+        type=float,
+        default=None,
+        metavar="PX",
+        help="GFTT min distance between two corners, px (default 10)",
     )
     group.add_argument(
         "--fill-spacing",
         type=float,
         default=None,
         metavar="PX",
-        help="lattice of extra lookups in the corners' gaps, side in px (default 40; "
-        "densify --measurements dense at full resolution: 34; 0 = off); denser is "
-        "sharper and slower: 36 measured 4-7 %% lower error on KITTI and synthetic drives "
-        "for 1.2x the estimate's CPU, 30 11-17 %% on KITTI; at least "
-        f"{defaults.MIN_FILL_SPACING:g}, GFTT's default min corner distance (denser "
+        help="lattice of extra lookups in the corners' gaps, side in px (default 40"
+        + ("; --measurements dense at full resolution: 34" if densify else "")
+        + "; 0 = off); denser is sharper and slower: 36 measured 4-7 %% lower error on "
+        "KITTI and synthetic drives for 1.2x the estimate's CPU, 30 11-17 %% on KITTI; at "
+        f"least {defaults.MIN_FILL_SPACING:g}, GFTT's default min corner distance (denser "
         "lookups share their SGBM windows, and the estimate's cost grows faster than the "
         "points: 10 px is ~10 s per KITTI frame)",
     )
@@ -140,19 +155,31 @@ def add_stereo_options(parser: argparse.ArgumentParser) -> None:
         "--fill-placement",
         choices=["nudged", "lattice"],
         default=None,
-        help="nudged (default): a lattice point whose lookup fails is moved a quarter side "
-        "to where one passes; lattice: such a point is dropped (densify --measurements "
-        "dense: lattice)",
+        help="nudged (default" + dense.format("lattice") + "): a lattice point whose lookup "
+        "fails is moved a quarter side to where one passes; lattice: such a point is dropped",
     )
     group.add_argument(
-        "--num-disparities", type=int, default=None, metavar="N", help="SGBM disparity range"
+        "--num-disparities",
+        type=int,
+        default=None,
+        metavar="N",
+        help="SGBM disparity range, px, a multiple of 16 (default 128"
+        + dense.format("160, matched at half resolution and refined at full")
+        + ")",
     )
-    group.add_argument("--block-size", type=int, default=None, metavar="N", help="SGBM block")
+    group.add_argument(
+        "--block-size",
+        type=int,
+        default=None,
+        metavar="N",
+        help="SGBM matching block side, px, odd (default 5)",
+    )
     group.add_argument(
         "--sgbm-mode",
         choices=["sgbm", "hh", "sgbm_3way", "hh4"],
         default=None,
-        help="SGBM variant",
+        help="SGBM variant: sgbm (5 directions in one pass), hh (8, much more memory), "
+        "sgbm_3way (3, parallel over strips; the default), hh4 (4)",
     )
     group.add_argument(
         "--stereo-downscale",
@@ -160,7 +187,9 @@ def add_stereo_options(parser: argparse.ArgumentParser) -> None:
         choices=[1, 2],
         default=None,
         help="match at 1/N resolution: 2 is ~4x cheaper SGBM for slightly less exact "
-        "lookups, as good a dense map (default: densify 2, learn 1; docs/benchmarks.md)",
+        "lookups, as good a dense map (default "
+        + ("2; --measurements dense: 1" if densify else "1")
+        + "; docs/benchmarks.md)",
     )
 
 
@@ -235,10 +264,12 @@ def gftt_config(args: argparse.Namespace, base: GfttConfig | None = None) -> Gft
 # ----------------------------------------------------------------------------- Dask
 
 
-def add_cluster_options(parser: argparse.ArgumentParser) -> None:
-    """Add ``--scheduler`` and ``--workers`` (``learn``, ``densify --out-dir``)."""
+def add_cluster_options(parser: argparse.ArgumentParser, *, command: str) -> None:
+    """Add ``--scheduler`` and ``--workers`` (``learn``, ``densify --out-dir``: ``command``)."""
     group = parser.add_argument_group(
-        "scale-out on Dask (learn: default this process; densify --out-dir: 2 local workers)"
+        "scale-out on Dask (with --out-dir; default: 2 local workers)"
+        if command == "densify"
+        else "scale-out on Dask (default: this process)"
     )
     where = group.add_mutually_exclusive_group()
     where.add_argument(

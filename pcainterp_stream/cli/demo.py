@@ -26,7 +26,13 @@ def add_parser(commands: Commands) -> None:
             "  pcainterp demo --learn\n"
         ),
     )
-    demo.add_argument("--out", type=Path, default=Path("demo_out"), metavar="DIR")
+    demo.add_argument(
+        "--out",
+        type=Path,
+        default=Path("demo_out"),
+        metavar="DIR",
+        help="folder for the logs, the Rerun recording and the report (default: %(default)s)",
+    )
     demo.add_argument("--rerun", action="store_true", help="watch the densified log in Rerun")
     demo.add_argument(
         "--learn", action="store_true", help="learn a basis from rendered drives first (~3 min)"

@@ -162,9 +162,9 @@ def add_parser(commands: Commands) -> None:
         "disparity, disparity_std, features, camera_info; depth and disparity are "
         "reciprocal)",
     )
-    add_cluster_options(densify)
+    add_cluster_options(densify, command="densify")
     add_topic_options(densify)
-    add_stereo_options(densify)
+    add_stereo_options(densify, command="densify")
 
 
 def _add_estimate_options(densify: argparse.ArgumentParser) -> None:

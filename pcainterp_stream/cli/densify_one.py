@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
 from pcainterp_stream.cli.common import STREAM, echo, settle_heap
-from pcainterp_stream.interrupt import end_if_signalled
+from pcainterp_stream.interrupt import InterruptedAfterOutput, end_if_signalled, signalled
 from pcainterp_stream.io.foxglove import (
     INTERRUPTED_STOP_TIMEOUT_S,
     FoxgloveLive,
@@ -65,7 +65,49 @@ def densify_one(
     MCAP. With ``live`` (``--foxglove``) the server starts first (its URL is printed), and
     without an output it serves after the last frame until Ctrl-C (exit code 0) unless
     ``--exit-when-done``.
+
+    Raises:
+        InterruptedAfterOutput: a signal after the output file was complete at its target
+            (while the summary is printed or the server stops): it is kept.
     """
+    kept: list[Path] = []  # the output file, once complete at its target
+    try:
+        return _densify_one(
+            source,
+            output,
+            basis,
+            processor=processor,
+            pairing=pairing,
+            topics=topics,
+            live=live,
+            rrd=rrd,
+            spawn_viewer=spawn_viewer,
+            kept=kept,
+        )
+    except KeyboardInterrupt as err:
+        if not kept or isinstance(err, InterruptedAfterOutput):
+            raise
+        raise InterruptedAfterOutput(kept[0]) from err
+    except Exception as err:
+        if kept and signalled():  # a signal inside native code surfaces as its error
+            raise InterruptedAfterOutput(kept[0]) from err
+        raise
+
+
+def _densify_one(
+    source: Path,
+    output: Path | None,
+    basis: Path | None,
+    *,
+    processor: ProcessorConfig,
+    pairing: PairingConfig,
+    topics: OutputTopics,
+    live: LiveOptions | None,
+    rrd: Path | None,
+    spawn_viewer: bool,
+    kept: list[Path],
+) -> int:
+    """:func:`densify_one`, adding the output to ``kept`` once it is complete."""
     from pcainterp_stream.pipeline.densify import densify
 
     settle_heap()
@@ -101,6 +143,8 @@ def densify_one(
             live=server,
             echo=echo,
         )
+        if summary.written is not None and not to_stdout:
+            kept.append(summary.written.path)
         _print_summary(summary, processor)
         if rrd is not None and summary.rrd_written:
             echo(f"wrote {rrd}")

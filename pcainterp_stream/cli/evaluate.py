@@ -38,7 +38,12 @@ def add_parser(commands: Commands) -> None:
             "      --reference-kind disparity --mode stereo\n"
         ),
     )
-    evaluate.add_argument("input", type=Path, metavar="DENSIFIED.mcap")
+    evaluate.add_argument(
+        "input",
+        type=Path,
+        metavar="DENSIFIED.mcap",
+        help="a log written by pcainterp densify (with its input pair, as densify writes it)",
+    )
     evaluate.add_argument(
         "-o",
         "--output",
@@ -72,7 +77,14 @@ def add_parser(commands: Commands) -> None:
         help="view B: right camera (stereo) or next frame (temporal; needs poses); "
         "default temporal when the log has ground truth and poses",
     )
-    evaluate.add_argument("--sigma", type=float, default=2.0, metavar="PX")
+    evaluate.add_argument(
+        "--sigma",
+        type=float,
+        default=2.0,
+        metavar="PX",
+        help="measurement noise std (px) of the rows that densify again with the basis "
+        "(paper vs exact uncertainty, points sweep) (default: %(default)s)",
+    )
     evaluate.add_argument(
         "--sweep-every",
         type=int,
@@ -80,7 +92,13 @@ def add_parser(commands: Commands) -> None:
         metavar="N",
         help="points sweep on every N-th frame, 0 = off (default: %(default)s)",
     )
-    evaluate.add_argument("--max-frames", type=int, default=None, metavar="N")
+    evaluate.add_argument(
+        "--max-frames",
+        type=int,
+        default=None,
+        metavar="N",
+        help="evaluate the first N densified frames only (default: all)",
+    )
     evaluate.add_argument(
         "--reference-topic",
         default=None,

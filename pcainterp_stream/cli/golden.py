@@ -52,6 +52,8 @@ def add_parser(commands: Commands) -> None:
         "save",
         formatter_class=formatter,
         help="write the golden file of a log",
+        description="Write the golden file of a log: what it contains and the tolerances a "
+        "later log is checked within.",
         epilog="example:\n  pcainterp golden save drive_dense.mcap -o drive.golden.json --arrays",
     )
     save.add_argument("log", type=Path, metavar="LOG", help="MCAP file, ROS 1 .bag or rosbag2")
@@ -71,6 +73,8 @@ def add_parser(commands: Commands) -> None:
         "check",
         formatter_class=formatter,
         help="check a log against its golden file (exit 1 and the differences when it differs)",
+        description="Check a log against its golden file: exit 0 when it matches within the "
+        "file's tolerances, else exit 1 and the differences.",
         epilog="example:\n  pcainterp golden check drive_dense.mcap drive.golden.json",
     )
     check.add_argument("log", type=Path, metavar="LOG", help="MCAP file, ROS 1 .bag or rosbag2")

@@ -27,9 +27,21 @@ def add_parser(commands: Commands) -> None:
             "  pcainterp import-kitti dataset/sequences/00 seq00_colour.mcap --colour\n"
         ),
     )
-    kitti.add_argument("kitti_dir", type=Path, metavar="KITTI_DIR")
-    kitti.add_argument("out", type=Path, metavar="OUT")
-    kitti.add_argument("--max-frames", type=int, default=None, metavar="N")
+    kitti.add_argument(
+        "kitti_dir",
+        type=Path,
+        metavar="KITTI_DIR",
+        help="a raw drive folder (<date>/<date>_drive_XXXX_sync, its calibration files in "
+        "the date folder) or an odometry sequence folder (sequences/XX with calib.txt)",
+    )
+    kitti.add_argument("out", type=Path, metavar="OUT", help="the MCAP log to write")
+    kitti.add_argument(
+        "--max-frames",
+        type=int,
+        default=None,
+        metavar="N",
+        help="import the first N frames only (default: all)",
+    )
     kitti.add_argument(
         "--colour",
         action="store_true",

@@ -14,18 +14,28 @@ def add_parser(commands: Commands) -> None:
         "info",
         formatter_class=formatter,
         help="describe a log (topics, counts, duration) or a basis file",
+        description=(
+            "Describe a log (its topics with their message counts and types, start, end and\n"
+            "duration) or a basis file (its camera, grid, components, fitted prior and how it\n"
+            "was learned); with no file, the two built-in bases and their recipes."
+        ),
         epilog=(
             "examples:\n  pcainterp info drive.mcap\n  pcainterp info basis.npz\n"
-            "  pcainterp info                  # the built-in basis\n"
+            "  pcainterp info                  # the two built-in bases\n"
         ),
     )
     info.add_argument(
-        "file", type=Path, nargs="?", default=None, metavar="FILE", help="default: built-in basis"
+        "file",
+        type=Path,
+        nargs="?",
+        default=None,
+        metavar="FILE",
+        help="a log (MCAP, ROS 1 bag, ROS 2 bag) or a basis .npz (default: the built-in bases)",
     )
 
 
 def run(args: argparse.Namespace) -> int:
-    """Describe the file (default: the built-in basis); return the exit code."""
+    """Describe the file (default: the built-in bases); return the exit code."""
     from pcainterp_stream.pipeline.jobs import info
 
     echo(info(args.file))

@@ -44,19 +44,58 @@ def add_parser(commands: Commands) -> None:
             "  pcainterp learn fleet/*.mcap -o basis.npz --scheduler tcp://10.0.0.5:8786\n"
         ),
     )
-    learn.add_argument("logs", type=Path, nargs="+", metavar="LOG")
-    learn.add_argument("-o", "--output", type=Path, required=True, metavar="BASIS.npz")
+    learn.add_argument(
+        "logs",
+        type=Path,
+        nargs="+",
+        metavar="LOG",
+        help="the stereo logs to learn from (MCAP, ROS 1 bag or ROS 2 bag), one camera",
+    )
+    learn.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        required=True,
+        metavar="BASIS.npz",
+        help="the basis file to write (required); densify --basis reads it",
+    )
     size = learn.add_mutually_exclusive_group()
-    size.add_argument("--components", type=int, default=None, metavar="L")
-    size.add_argument("--variance", type=float, default=None, metavar="R")
-    learn.add_argument("--grid-scale", type=float, default=None, metavar="G")
+    size.add_argument(
+        "--components",
+        type=int,
+        default=None,
+        metavar="L",
+        help="the most components to keep (default 500); fewer when the maps do not "
+        "support them: N training maps give at most N - 1, a fine-tuned basis "
+        "(--with-synthetic) at most the built-in basis's plus N",
+    )
+    size.add_argument(
+        "--variance",
+        type=float,
+        default=None,
+        metavar="R",
+        help="keep the fewest components (at most 500) explaining this share of the maps' "
+        "variance, in (0, 1] (default: off, --components decides)",
+    )
+    learn.add_argument(
+        "--grid-scale",
+        type=float,
+        default=None,
+        metavar="G",
+        help="basis grid pixels per image pixel, in (0, 1] (default 0.25: a 1241x376 image "
+        "gives a 310x94 grid); a fine-tuned basis keeps the built-in basis's grid",
+    )
     learn.add_argument(
         "--depth-topic",
         default=None,
         metavar="TOPIC",
-        help="learn from this depth image topic (32FC1, m) instead of SGBM maps",
+        help="learn from this depth image topic instead of SGBM maps: 32FC1 in m, 16UC1 in mm "
+        "(0: none), or either as compressedDepth (pcainterp's own /pcainterp/depth and "
+        "depth_mm); camera images (mono8, rgb8, png, jpeg) are refused",
     )
-    learn.add_argument("--every", type=int, default=1, metavar="N", help="use every N-th frame")
+    learn.add_argument(
+        "--every", type=int, default=1, metavar="N", help="use every N-th frame (default: 1, all)"
+    )
     learn.add_argument(
         "--with-synthetic",
         default="auto",
@@ -93,9 +132,9 @@ def add_parser(commands: Commands) -> None:
         metavar="LOG",
         help="fit on these logs instead of a held-out share",
     )
-    add_cluster_options(learn)
+    add_cluster_options(learn, command="learn")
     add_topic_options(learn)
-    add_stereo_options(learn)
+    add_stereo_options(learn, command="learn")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -79,8 +79,18 @@ def add_input_pair_options(parser: argparse.ArgumentParser) -> None:
         "the input stereo pair, as densify read it (default: found in the log)"
     )
     for side in ("left", "right"):
-        group.add_argument(f"--{side}-topic", default=None, metavar="TOPIC")
-        group.add_argument(f"--{side}-info-topic", default=None, metavar="TOPIC")
+        group.add_argument(
+            f"--{side}-topic",
+            default=None,
+            metavar="TOPIC",
+            help=f"the {side} image topic densify read (default: found by name)",
+        )
+        group.add_argument(
+            f"--{side}-info-topic",
+            default=None,
+            metavar="TOPIC",
+            help=f"the {side} camera info topic densify read (default: found by name)",
+        )
     group.add_argument(
         "--rectify",
         choices=["auto", "always", "never"],

@@ -29,10 +29,20 @@ def add_parser(commands: Commands) -> None:
         ),
     )
     synth.add_argument("out", type=Path, metavar="OUT", help="output log path")
-    synth.add_argument("--frames", type=int, default=100, metavar="N", help="(default: 100)")
+    synth.add_argument(
+        "--frames",
+        type=int,
+        default=100,
+        metavar="N",
+        help="frames to render, 10 per second of log (default: %(default)s)",
+    )
     synth.add_argument("--seed", type=int, default=0, metavar="S", help="world seed (default: 0)")
     synth.add_argument(
-        "--scale", type=float, default=1.0, metavar="F", help="image scale, 1 = 1241x376"
+        "--scale",
+        type=float,
+        default=1.0,
+        metavar="F",
+        help="image scale: 1 = 1241x376, or the --camera size (default: %(default)s)",
     )
     synth.add_argument(
         "--format",

@@ -29,13 +29,11 @@ import numpy.typing as npt
 from pcainterp_stream.errors import LogReadError, TopicNotFoundError
 from pcainterp_stream.evaluate.metrics import ReferenceKind, disparity_from_reference
 from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.depth_image import DEPTH_ENCODINGS, depth_metres
 from pcainterp_stream.io.reader_base import TopicInfo
 
 IMAGE_TYPES = (rosmsg.IMAGE, rosmsg.DISPARITY_IMAGE)
 """Message types a reference topic may have."""
-
-DEPTH_ENCODINGS = {"32FC1": 1.0, "16UC1": 1e-3, "mono16": 1e-3}
-"""Image encodings a depth reference may have, with their unit in metres."""
 
 SPARSE_BELOW = 0.5
 """A reference with truth at fewer than this share of the pixels is called sparse."""
@@ -132,8 +130,7 @@ def reference_disparity(
     else:
         allowed = {"32FC1": 1.0}
         what = "a disparity reference must be 32FC1 (px)"
-    unit = allowed.get(encoding)
-    if unit is None:
+    if encoding not in allowed:
         raise LogReadError(f"reference topic {topic} has {encoding} images; {what}")
     height, width = int(image.height), int(image.width)
     if (height, width) != image_size:
@@ -142,12 +139,12 @@ def reference_disparity(
             f"{image_size[1]}x{image_size[0]}; pass a reference at the densified size"
         )
     try:
-        raw = rosmsg.image_array(image)
+        if reference.kind is ReferenceKind.DEPTH:
+            values = depth_metres(image)  # 0 mm is "no return" (REP 118)
+        else:
+            values = rosmsg.image_array(image).astype(np.float64)
     except ValueError as err:
         raise LogReadError(f"reference topic {topic}: {err}") from err
-    values = raw.astype(np.float64) * unit
-    if np.issubdtype(raw.dtype, np.integer):  # 0 mm is "no return" (REP 118)
-        values[raw == 0] = np.nan
     if reference.msgtype == rosmsg.DISPARITY_IMAGE:
         # d = f t / Z: a disparity of another focal length or baseline than the log's
         focal_t = float(message.f) * float(message.t)

@@ -134,6 +134,20 @@ class Adaptation:
         finally:
             self.checked = True
 
+    def _warn_unfit(self, may_adapt: bool) -> None:
+        """Add a ``warning:`` line when the basis kept loses to linear interpolation."""
+        if self.check is None or not self.check.frames or self.check.fits:
+            return
+        fix = (
+            "densify without --basis builtin to adapt to this log"
+            if may_adapt
+            else "learn a basis for this camera: pcainterp learn LOG -o BASIS.npz"
+        )
+        self.lines.append(
+            f"warning: the prior is worse than linear interpolation on this log "
+            f"({self.check.ratio:.2f}x); {fix}"
+        )
+
     def _decide(
         self, basis: Basis, frames: list[AdaptFrame], settings: dict[str, object]
     ) -> Basis | None:
@@ -190,16 +204,7 @@ class Adaptation:
         if not try_own:
             if self.switched is not None:
                 self.lines.append(f"prior: {self.switched.name} chosen (fits this log better)")
-            if self.check.frames and not self.check.fits:
-                fix = (
-                    "densify without --basis builtin to adapt to this log"
-                    if self.may_replace
-                    else "learn a basis for this camera: pcainterp learn LOG -o BASIS.npz"
-                )
-                self.lines.append(
-                    f"warning: the prior is worse than linear interpolation on this log "
-                    f"({self.check.ratio:.2f}x); {fix}"
-                )
+            self._warn_unfit(self.may_replace)
             return None if self.switched is None else self.switched.basis
         maps = [f.grid_map for f in usable if f.grid_map is not None]
         # the std is calibrated on the frames left out of the maps (below); with one map
@@ -234,7 +239,12 @@ class Adaptation:
             # one frame and a built-in basis that fits: no held-out figure to prefer its own
             better = self.check.ratio >= FITS_BELOW
         if not better:
-            kept = "kept" if self.switched is None else f"{self.switched.name} chosen"
+            kept = f"{self.name} kept" if self.switched is None else f"{self.switched.name} chosen"
+            if self.check.frames and not self.check.fits:
+                kept += (
+                    f" ({self.check.ratio:.2f}x linear: worse than linear interpolation on "
+                    "this log)"
+                )
             if own_error is not None and own_error < self.check.prior:
                 # better, but a prior that fits is replaced only below ADAPT_GAIN of its error
                 verdict = (
@@ -249,6 +259,7 @@ class Adaptation:
                 if self.own_check is not None
                 else f"prior: {kept}"
             )
+            self._warn_unfit(False)  # its own basis was tried: no adapting left to suggest
             return None if self.switched is None else self.switched.basis
         self.switched = None
         self.adapted = True

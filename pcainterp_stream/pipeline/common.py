@@ -17,6 +17,7 @@ from pcainterp_stream.frontend.pairing import (
     PairingConfig,
 )
 from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.depth_image import DEPTH_TYPES, depth_metres, depth_topics
 from pcainterp_stream.io.logreader import LogReader, open_log
 
 if TYPE_CHECKING:
@@ -89,6 +90,39 @@ def _check_topic_types(reader: LogReader, checks: list[tuple[str, str, tuple[str
         raise LogReadError(
             f"topic {topic} in {reader.path.name} has type {info.msgtype or 'unknown'}, not "
             f"{' or '.join(accepted)}; topics of that type: {candidates}; pass {option}"
+        )
+
+
+def _check_depth_topic(reader: LogReader, topic: str) -> None:
+    """Check that a ``--depth-topic`` holds depth: its type and its first message.
+
+    Raises:
+        LogReadError: a topic of another type, or of camera images (mono8, rgb8, png,
+            jpeg): names it and the log's depth topics.
+    """
+    info = reader.topics().get(topic)
+    if info is None:
+        return
+    problem = None
+    if info.msgtype not in DEPTH_TYPES:
+        problem = f"has type {info.msgtype or 'unknown'}, not a depth image"
+    else:
+        stream = reader.messages([topic])
+        raw = next(stream, None)
+        close = getattr(stream, "close", None)  # a generator: release its file position
+        if close is not None:
+            close()
+        try:
+            if raw is not None:
+                depth_metres(reader.decode(raw))
+        except ValueError as err:
+            problem = f"is unusable as depth: {err}"
+    if problem is not None:
+        candidates = ", ".join(t for t in depth_topics(reader) if t != topic) or "none"
+        raise LogReadError(
+            f"topic {topic} in {reader.path.name} {problem}; depth topics in the log: "
+            f"{candidates}; pass a depth topic (32FC1 m, 16UC1 mm or compressedDepth) "
+            "as --depth-topic"
         )
 
 

@@ -32,10 +32,11 @@ from pcainterp_stream.frontend.pairing import (
     iter_stereo_frames,
 )
 from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig, compute_disparity
-from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.depth_image import depth_metres
 from pcainterp_stream.io.logreader import LogReader, open_log
 from pcainterp_stream.pipeline.common import (
     _bar,
+    _check_depth_topic,
     _check_output_folder,
     _check_topic_types,
     _echo,
@@ -54,7 +55,8 @@ class LearnOptions:
         n_components: components to keep (the most, with ``variance``).
         variance: keep the fewest components reaching this explained-variance ratio.
         grid_scale: basis grid pixels per image pixel.
-        depth_topic: learn from this depth topic (32FC1, m) instead of SGBM maps.
+        depth_topic: learn from this depth topic (32FC1 m, 16UC1 mm, compressedDepth)
+            instead of SGBM maps.
         every: use every N-th frame.
         sgbm: matcher options for SGBM maps (and the fitting frames' lookups).
         fit_prior: fit the hybrid prior, the noise level and the temporal process noise by
@@ -111,7 +113,11 @@ class _MapSource:
 def _depth_maps(
     log: Path, options: LearnOptions, pairing: PairingConfig, info: list[_MapSource]
 ) -> Iterator[npt.NDArray[np.float32]]:
-    """Yield disparity maps f*b/depth of a depth topic; no surface (NaN, inf) is d = 0."""
+    """Yield disparity maps f*b/depth of a depth topic; no surface (NaN, inf) is d = 0.
+
+    The topic is read as :func:`~pcainterp_stream.io.depth_image.depth_metres` reads it:
+    32FC1 in metres, 16UC1 in millimetres (0: none), or either as compressedDepth.
+    """
     assert options.depth_topic is not None
     with open_log(log) as reader:
         pairing = log_pairing(reader, pairing, options.depth_topic)
@@ -124,12 +130,9 @@ def _depth_maps(
             },
             "depth image",
         )
+        _check_depth_topic(reader, options.depth_topic)
         _check_topic_types(
-            reader,
-            [
-                (options.depth_topic, "--depth-topic", (rosmsg.IMAGE,)),
-                *_pairing_types(dataclasses.replace(pairing, features_topic=None))[2:],
-            ],
+            reader, _pairing_types(dataclasses.replace(pairing, features_topic=None))[2:]
         )
         info_topics = [pairing.left_info_topic, pairing.right_info_topic]
         # camera infos recorded after the first depth images: their first, read ahead
@@ -149,13 +152,12 @@ def _depth_maps(
             if len(infos) < 2:
                 continue  # no calibration yet
             try:
-                depth = rosmsg.image_array(message).astype(np.float32)
-                if depth.ndim != 2:
-                    raise ValueError(f"encoding {message.encoding!r} has {depth.shape[2]} channels")
+                depth = depth_metres(message)
             except ValueError as err:
                 raise LogReadError(
                     f"depth image on {options.depth_topic} at log time {raw.log_time_ns} ns in "
-                    f"{log.name} is unusable ({err}); pass a 32FC1 depth topic (m) as --depth-topic"
+                    f"{log.name} is unusable ({err}); pass a depth topic (32FC1 m, 16UC1 mm or "
+                    "compressedDepth) as --depth-topic"
                 ) from err
             from pcainterp_stream.frontend.camera_infos import camera_from_infos
 

@@ -317,6 +317,31 @@ def test_exit_when_done_with_no_client(synthetic_log: Path) -> None:
     assert "to 0 client(s)" in out
 
 
+def test_a_signal_after_the_output_is_complete_says_it_is_kept(
+    synthetic_log: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Ctrl-C while the server stops (after `wrote X`): the complete output is kept and the
+    line says so (it said "no partial output was left at the target")."""
+    close = FoxgloveLive.close
+
+    def interrupted_close(self: FoxgloveLive, *args: Any, **kwargs: Any) -> None:
+        close(self, drain_s=0.0)
+        raise KeyboardInterrupt  # as a Ctrl-C in the drain after the last frame
+
+    monkeypatch.setattr(FoxgloveLive, "close", interrupted_close)
+    output = tmp_path / "dense.mcap"
+    args = [str(synthetic_log), "-o", str(output), "--foxglove", "127.0.0.1:0", "--rate", "0"]
+    assert cli.main(["densify", *args]) == 130
+    out, err = capsys.readouterr()
+    assert f"wrote {output}: " in out
+    assert err.splitlines()[-1] == f"pcainterp: interrupted; {output} was complete and is kept"
+    with output.open("rb") as stream:
+        assert sum(1 for _ in make_reader(stream).iter_messages()) > 0
+
+
 # ----------------------------------------------------------------------------- TypeScript
 
 

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import io
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 import numpy as np
 import pytest
@@ -18,6 +20,7 @@ from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import LogFormat, open_writer
 from pcainterp_stream.io.outputs import BASIS_KEY, recorded_metadata
+from pcainterp_stream.pipeline import adaptation as adaptation_module
 from pcainterp_stream.pipeline.densify import densify, own_basis_path
 from pcainterp_stream.pipeline.jobs import evaluation_basis, synth
 from pcainterp_stream.pipeline.processor import (
@@ -167,6 +170,48 @@ def test_a_street_log_keeps_the_street_basis() -> None:
         assert not engine.adaptation.adapted
         assert engine.basis is Basis.default()
         assert not any("indoor" in line for line in engine.adaptation.lines)
+
+
+def test_a_kept_basis_worse_than_linear_is_named_and_warned(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Every built-in basis and the log's own lose to linear interpolation: the line names the
+    basis kept and says it loses, and a warning line follows (it said "prior: kept;")."""
+    real = adaptation_module.densify_batch
+
+    def off_by_five(*args: Any, **kwargs: Any) -> list[Any]:
+        return [
+            dataclasses.replace(e, disparity=e.disparity + 5.0) for e in real(*args, **kwargs)
+        ]
+
+    def no_better(*args: Any, **kwargs: Any) -> adapt.OwnCheck:
+        return adapt.OwnCheck(adapt.FitCheck(2, 100, 50.0, 1.0, 1.0), None)
+
+    monkeypatch.setattr(adaptation_module, "densify_batch", off_by_five)
+    monkeypatch.setattr(adapt, "leave_one_out", no_better)
+    config = SynthConfig(seed=9001, frames=6, scale=0.25)
+    frames = [
+        StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
+        for f in generate(config)
+    ]
+    with FrameProcessor(None, ProcessorConfig()) as engine:
+        list(engine.process(frames))
+        adaptation = engine.adaptation
+        assert adaptation.check is not None
+        assert not adaptation.check.fits
+        assert not adaptation.adapted
+        kept, warning = adaptation.lines[-2:]
+        name = adaptation.name if adaptation.switched is None else adaptation.switched.name
+        assert kept.startswith(
+            f"prior: {name} {'kept' if adaptation.switched is None else 'chosen'} "
+            f"({adaptation.check.ratio:.2f}x linear: worse than linear interpolation on this "
+            "log); this log's own basis did no better: 50.00x linear"
+        )
+        assert warning == (
+            f"warning: the prior is worse than linear interpolation on this log "
+            f"({adaptation.check.ratio:.2f}x); learn a basis for this camera: "
+            "pcainterp learn LOG -o BASIS.npz"
+        )
 
 
 def test_an_own_basis_better_but_not_by_the_margin_is_said_so() -> None:

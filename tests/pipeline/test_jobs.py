@@ -13,10 +13,10 @@ from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.estimator import densify
 from pcainterp_stream.evaluate.metrics import compare_with_ground_truth
 from pcainterp_stream.frontend.pairing import PairingConfig
-from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io import depth_codec, rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import LogFormat, open_writer
-from pcainterp_stream.io.outputs import OutputTopics, image_of
+from pcainterp_stream.io.outputs import OutputTopics, display_millimetres, image_of
 from pcainterp_stream.pipeline import jobs
 from pcainterp_stream.pipeline.learn import learn_pairing
 from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
@@ -60,6 +60,39 @@ def test_learn_from_depth_topic_uses_every_nth_frame(logs: dict[str, Path]) -> N
     assert basis.n_train == 12
     # sky (NaN depth) is disparity 0, so the mean map's top rows are small
     assert float(basis.mean[0].mean()) < float(basis.mean[-1].mean())
+
+
+def test_learn_reads_millimetres_and_compressed_depth(logs: dict[str, Path]) -> None:
+    # the ground truth (to 50 m) as 32FC1 metres, as a 16UC1 millimetre image (pcainterp's
+    # depth_mm) and as a 32FC1 compressedDepth one (its compact depth): the same basis
+    source = logs["folder"] / "depth_forms.mcap"
+    with open_log(logs["train"]) as reader, open_writer(source, LogFormat.MCAP) as writer:
+        for raw in reader.messages():
+            message = reader.decode(raw)
+            writer.add_message(raw.topic, message, raw.log_time_ns)
+            if raw.topic != "/ground_truth/depth":
+                continue
+            depth = rosmsg.image_array(message).astype(np.float32)
+            depth[~(depth < 50.0)] = np.nan  # within depth_mm's range (it clips at 60 m)
+            stamp = rosmsg.stamp_ns(message)
+            near = rosmsg.image_message(depth, stamp, "left")
+            writer.add_message("/gt/near", near, raw.log_time_ns)
+            millimetres = rosmsg.image_message(
+                display_millimetres(depth.copy()), stamp, "left", encoding="16UC1"
+            )
+            writer.add_message("/gt/depth_mm", millimetres, raw.log_time_ns)
+            encoded = depth_codec.encode_depth(depth, quant_a=4000.0)
+            compact = rosmsg.compressed_image_message(encoded.data, encoded.format, stamp, "left")
+            writer.add_message("/gt/depth", compact, raw.log_time_ns)
+    bases = {}
+    for topic in ("/gt/near", "/gt/depth_mm", "/gt/depth"):
+        options = jobs.LearnOptions(n_components=5, depth_topic=topic, every=2, fit_prior=False)
+        out = logs["folder"] / f"forms_{topic.replace('/', '_')}.npz"
+        bases[topic] = jobs.learn([source], out, options, PairingConfig())
+    metres = bases["/gt/near"].mean
+    # before: the 16UC1 millimetres were read as metres, a mean disparity 1000x too small
+    np.testing.assert_allclose(bases["/gt/depth_mm"].mean, metres, rtol=0.01, atol=0.05)
+    np.testing.assert_allclose(bases["/gt/depth"].mean, metres, rtol=0.01, atol=0.05)
 
 
 def _renamed(source: Path, target: Path, old: str, new: str) -> Path:
