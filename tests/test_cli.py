@@ -1245,6 +1245,53 @@ def test_densify_warns_of_pairs_dropped_before_the_first_camera_info(
     assert assert_valid_mcap(out)["/pcainterp/depth"] == 13
 
 
+def _depth_by_log_time(path: Path) -> dict[int, bytes]:
+    with open_log(path) as reader:
+        return {
+            raw.log_time_ns: image_of(reader.decode(raw)).tobytes()
+            for raw in reader.messages(["/pcainterp/depth"])
+        }
+
+
+def test_densify_pairs_images_whose_stamps_are_all_zero_by_log_time(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    tmp_path: Path,
+) -> None:
+    # the right image of frame 3 is missing: by first-come the left image of frame 3 took
+    # the right one of frame 4, and so on
+    dropped_ns = small_messages[0][2] + 3 * 100_000_000
+
+    def log(name: str, zero: bool) -> Path:
+        messages = []
+        for topic, message, log_time_ns in small_messages:
+            if topic == RIGHT and log_time_ns == dropped_ns:
+                continue
+            if zero and topic in (LEFT, RIGHT):
+                header = rosmsg.header(0, message.header.frame_id)
+                message = dataclasses.replace(message, header=header)
+            messages.append((topic, message, log_time_ns))
+        return write_messages(tmp_path / name, messages)
+
+    stamped, zero = log("stamped.mcap", False), log("zero.mcap", True)
+    run = pcainterp(*densify_args(stamped, tmp_path / "stamped_out.mcap", basis_path))
+    assert run.code == 0, run.err
+    assert "stamps:" not in run.out
+    run = pcainterp(*densify_args(zero, tmp_path / "zero_out.mcap", basis_path))
+    assert run.code == 0, run.err
+    assert f"pairing: {SMALL_FRAMES - 1} pairs, 1 unpaired left, 0 unpaired right\n" in run.out
+    assert (
+        f"stamps: the header stamps of {LEFT} repeat 0 (not set), so they do not tell its "
+        "images apart: the images were paired by log time after the first 1, within the 1 ms "
+        "tolerance (--stamp-tolerance-ms)\n"
+    ) in run.out
+    assert "warning" not in run.out
+    expected = _depth_by_log_time(tmp_path / "stamped_out.mcap")
+    assert dropped_ns not in expected
+    assert _depth_by_log_time(tmp_path / "zero_out.mcap") == expected
+
+
 def test_densify_log_with_channels_but_no_messages(
     pcainterp: Callable[..., Run], basis_path: Path, out: Path, tmp_path: Path
 ) -> None:

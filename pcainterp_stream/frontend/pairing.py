@@ -206,6 +206,10 @@ class StereoPairer:
         self._ahead: dict[str, tuple[int, tuple[Any, ...]]] = {}
         self._ahead_unseen: set[str] = set()  # read ahead, not yet met in the stream
         self._index = 0
+        self._by_log_time = False  # the stamps do not tell the images apart: by log time
+        self._paired_by_stamp = 0
+        # (stamp, left log time, right log time) of the last pairs made by stamp
+        self._recent: deque[tuple[int, int, int]] = deque(maxlen=self.config.window)
 
     def wants(self, topic: str) -> bool:
         """Return True for a topic this pairer reads (decode only those)."""
@@ -350,13 +354,20 @@ class StereoPairer:
 
     # images ---------------------------------------------------------------------------
     def _push_image(self, side: str, item: _Pending) -> list[StereoFrame]:
+        frames: list[StereoFrame] = []
+        if not self._by_log_time and item.stamp_ns == self._last_stamp[side]:
+            frames = self._stamps_repeat(side, item.stamp_ns)
         if item.stamp_ns < self._last_stamp[side]:
             self.stats.non_monotonic_stamps += 1
         self._last_stamp[side] = item.stamp_ns
+        return frames + self._match(side, item)
+
+    def _match(self, side: str, item: _Pending) -> list[StereoFrame]:
+        """Pair an image with the other side's nearest (by :meth:`_time`), or queue it."""
         own, other = (self._left, self._right) if side == "left" else (self._right, self._left)
-        partner = self._closest(other, item.stamp_ns)
+        partner = self._closest(other, self._time(item))
         if partner is None:
-            gaps = [abs(p.stamp_ns - item.stamp_ns) for p in other]
+            gaps = [abs(self._time(p) - self._time(item)) for p in other]
             item.miss_ns = min(gaps) if gaps and min(gaps) <= NEAR_MISS_NS else -1
             own.append(item)
             if len(own) > self.config.window:
@@ -366,9 +377,9 @@ class StereoPairer:
         left, right = (item, partner) if side == "left" else (partner, item)
         # Stamps before this pair (minus the tolerance) will not pair any more in an
         # ordered stream: drop them now so the counts are exact and the buffers small.
-        horizon = left.stamp_ns - self.config.tolerance_ns
+        horizon = self._time(left) - self.config.tolerance_ns
         for queue, name in ((self._left, "left"), (self._right, "right")):
-            stale = [p for p in queue if p.stamp_ns < horizon]
+            stale = [p for p in queue if self._time(p) < horizon]
             for p in stale:
                 queue.remove(p)
             self._count_unpaired(name, stale)
@@ -379,6 +390,47 @@ class StereoPairer:
                 self._first_dropped_ns = dropped.log_time_ns
             self._count_no_info(1)
         return self._release_matched()
+
+    def _time(self, item: _Pending) -> int:
+        """Return what pairs an image: its header stamp, or log time (:meth:`_stamps_repeat`)."""
+        return item.log_time_ns if self._by_log_time else item.stamp_ns
+
+    def _stamps_repeat(self, side: str, stamp_ns: int) -> list[StereoFrame]:
+        """Pair by log time from now on: an image has its side's previous stamp again.
+
+        Such stamps (all 0 from a driver that sets none, or a coarse clock's) do not tell the
+        images of a side apart, so the nearest stamp would pair first-come (after a dropped
+        image, each left with the next right). A stamp that is 0 only once pairs as any.
+        Pairs made by stamp before the repeat showed that have this stamp are checked by log
+        time: those still waiting for camera infos are paired again, those already made are
+        counted (``stats.unsure_pairs``). Returns the frames the pairing again completes.
+        """
+        self._by_log_time = True
+        tolerance = self.config.tolerance_ns
+        stats = self.stats
+        config = self.config
+        stats.repeated_stamp_topic = config.left_topic if side == "left" else config.right_topic
+        stats.repeated_stamp_ns = stamp_ns
+        stats.pairs_by_stamp = self._paired_by_stamp + len(self._matched)
+        stats.unsure_pairs = [
+            left_log_ns
+            for pair_stamp_ns, left_log_ns, right_log_ns in self._recent
+            if pair_stamp_ns == stamp_ns and abs(left_log_ns - right_log_ns) > tolerance
+        ]
+        unsure = [
+            (left, right)
+            for left, right in self._matched
+            if left.stamp_ns == stamp_ns and abs(left.log_time_ns - right.log_time_ns) > tolerance
+        ]
+        frames: list[StereoFrame] = []
+        for left, right in unsure:
+            self._matched.remove((left, right))
+            stats.pairs_by_stamp -= 1
+            for item, item_side in sorted(
+                ((left, "left"), (right, "right")), key=lambda pair: pair[0].log_time_ns
+            ):
+                frames.extend(self._match(item_side, item))
+        return frames
 
     def _has_infos(self) -> bool:
         return self._left_info is not None and self._right_info is not None
@@ -401,14 +453,13 @@ class StereoPairer:
             self.stats.unpaired_right += len(dropped)
         self.stats.near_misses_ns.extend(p.miss_ns for p in dropped if p.miss_ns >= 0)
 
-    def _closest(self, queue: deque[_Pending], stamp_ns: int) -> _Pending | None:
+    def _closest(self, queue: deque[_Pending], time_ns: int) -> _Pending | None:
         best: _Pending | None = None
+        best_gap = 0
         for candidate in queue:
-            gap = abs(candidate.stamp_ns - stamp_ns)
-            if gap <= self.config.tolerance_ns and (
-                best is None or gap < abs(best.stamp_ns - stamp_ns)
-            ):
-                best = candidate
+            gap = abs(self._time(candidate) - time_ns)
+            if gap <= self.config.tolerance_ns and (best is None or gap < best_gap):
+                best, best_gap = candidate, gap
         return best
 
     def _release_matched(self) -> list[StereoFrame]:
@@ -417,6 +468,9 @@ class StereoPairer:
         frames: list[StereoFrame] = []
         while self._matched:
             left, right = self._matched.popleft()
+            if not self._by_log_time:
+                self._paired_by_stamp += 1
+                self._recent.append((left.stamp_ns, left.log_time_ns, right.log_time_ns))
             frame = self._make_frame(left, right)
             if frame is not None:
                 frames.extend(self._hold_for_features(frame))

@@ -42,6 +42,13 @@ class PairingStats:
             same side.
         near_misses_ns: the gap (ns) of each image dropped unpaired to the nearest other-side
             image when it came, if beyond the tolerance but within :data:`NEAR_MISS_NS`.
+        repeated_stamp_topic: the image topic whose header stamps did not tell its images
+            apart (the side's previous stamp again), from which on images were paired
+            by log time; None when the stamps paired every image.
+        repeated_stamp_ns: that stamp (ns).
+        pairs_by_stamp: pairs made by header stamp before the switch to log time.
+        unsure_pairs: log times (ns) of pairs made by stamp before the stamps repeated that
+            have the repeated stamp but were recorded beyond the tolerance apart.
         tolerance_ns: the pairing's tolerance (ns).
         window: the pairing's window (pairs held waiting for camera infos).
         problems: the first :data:`MAX_PROBLEMS` one-line problem descriptions.
@@ -62,6 +69,10 @@ class PairingStats:
     features_unmatched: int = 0
     non_monotonic_stamps: int = 0
     near_misses_ns: list[int] = field(default_factory=list)
+    repeated_stamp_topic: str | None = None
+    repeated_stamp_ns: int = 0
+    pairs_by_stamp: int = 0
+    unsure_pairs: list[int] = field(default_factory=list)
     tolerance_ns: int = 0
     window: int = 0
     problems: list[str] = field(default_factory=list)
@@ -72,11 +83,44 @@ class PairingStats:
         if not misses:
             return None
         widest = max(misses) / 1e6
+        when = " of log time" if self.repeated_stamp_topic is not None else ""
         return (
             f"{len(misses)} images were dropped unpaired whose other-side image was "
-            f"{min(misses) / 1e6:.2f}-{widest:.2f} ms away, beyond the "
+            f"{min(misses) / 1e6:.2f}-{widest:.2f} ms{when} away, beyond the "
             f"{self.tolerance_ns / 1e6:g} ms tolerance; pass --stamp-tolerance-ms "
             f"{math.ceil(widest)} to pair them"
+        )
+
+    def stamp_note(self) -> str | None:
+        """A note when images were paired by log time: their header stamps repeat, else None."""
+        topic = self.repeated_stamp_topic
+        if topic is None:
+            return None
+        stamp = self.repeated_stamp_ns
+        why = (
+            "repeat 0 (not set)"
+            if stamp == 0
+            else f"repeat ({stamp // 1_000_000_000}.{stamp % 1_000_000_000:09d} s twice)"
+        )
+        after = f" after the first {self.pairs_by_stamp}" if self.pairs_by_stamp else ""
+        return (
+            f"stamps: the header stamps of {topic} {why}, so they do not tell its images "
+            f"apart: the images were paired by log time{after}, within the "
+            f"{self.tolerance_ns / 1e6:g} ms tolerance (--stamp-tolerance-ms)"
+        )
+
+    def stamp_hint(self) -> str | None:
+        """A warning when pairs made by stamp before the stamps repeated may be wrong, else None."""
+        unsure = self.unsure_pairs
+        if not unsure:
+            return None
+        times = ", ".join(f"{t / 1e9:.3f}" for t in unsure[:3])
+        more = ", ..." if len(unsure) > 3 else ""
+        return (
+            f"{len(unsure)} stereo pair(s) made by header stamp before the stamps of "
+            f"{self.repeated_stamp_topic} repeated were recorded more than the "
+            f"{self.tolerance_ns / 1e6:g} ms tolerance apart and may be mispaired (left images "
+            f"at log time {times}{more} s); the log's stamps do not identify its stereo pairs"
         )
 
     def camera_info_hint(self) -> str | None:

@@ -25,11 +25,8 @@ from pcainterp_stream.estimate.basis import (
     builtin_kind,
 )
 from pcainterp_stream.frontend.discovery import resolve_pairing
-from pcainterp_stream.frontend.pairing import (
-    PairingConfig,
-    PairingStats,
-    StereoPairer,
-)
+from pcainterp_stream.frontend.pairing import PairingConfig, StereoPairer
+from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.frontend.sgbm_limits import fitting, narrowest_width
 from pcainterp_stream.frontend.stereo import SgbmConfig
 from pcainterp_stream.io import rosmsg
