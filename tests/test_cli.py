@@ -761,6 +761,43 @@ def test_densify_one_side_named_takes_its_sibling(
     assert f"densified {SMALL_FRAMES} frames" in run.out
 
 
+def test_densify_finds_a_pair_of_one_compressed_and_one_raw_side(
+    pcainterp: Callable[..., Run],
+    small_log: Path,
+    small_messages: list[Message],
+    basis_path: Path,
+    tmp_path: Path,
+) -> None:
+    left, right = "/cam/left/image_raw/compressed", "/cam/right/image_raw"
+    renamed = {
+        LEFT: left,
+        RIGHT: right,
+        LEFT_INFO: "/cam/left/camera_info",
+        RIGHT_INFO: "/cam/right/camera_info",
+    }
+    messages = []
+    for topic, message, log_time_ns in small_messages:
+        if topic == LEFT:  # PNG: lossless, so the outputs are the original log's
+            ok, data = cv2.imencode(".png", image_of(message))
+            assert ok
+            stamp = rosmsg.stamp_ns(message)
+            frame_id = message.header.frame_id
+            message = rosmsg.compressed_image_message(data.tobytes(), "png", stamp, frame_id)
+        messages.append((renamed.get(topic, topic), message, log_time_ns))
+    log = write_messages(tmp_path / "mixed.mcap", messages)
+    run = pcainterp(*densify_args(log, tmp_path / "mixed_out.mcap", basis_path))
+    assert run.code == 0, run.err
+    assert run.out.startswith(
+        f"topics: left {left}, right {right} with /cam/left/camera_info and "
+        "/cam/right/camera_info (found by name;"
+    )
+    assert f"densified {SMALL_FRAMES} frames" in run.out
+    run = pcainterp(*densify_args(small_log, tmp_path / "small_out.mcap", basis_path))
+    assert run.code == 0, run.err
+    original = _depth_by_log_time(tmp_path / "small_out.mcap")
+    assert _depth_by_log_time(tmp_path / "mixed_out.mcap") == original
+
+
 def test_learn_finds_each_logs_own_topics(
     pcainterp: Callable[..., Run],
     small_log: Path,
