@@ -1329,6 +1329,42 @@ def test_densify_pairs_images_whose_stamps_are_all_zero_by_log_time(
     assert _depth_by_log_time(tmp_path / "zero_out.mcap") == expected
 
 
+def test_evaluate_pairs_right_images_as_densify_did(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    tmp_path: Path,
+) -> None:
+    # no ground truth (the reference is SGBM of the pair), the right images 3 ms late
+    messages = []
+    for topic, message, log_time_ns in small_messages:
+        if topic.startswith("/ground_truth/"):
+            continue
+        if topic == RIGHT:
+            header = rosmsg.header(rosmsg.stamp_ns(message) + 3_000_000, message.header.frame_id)
+            message = dataclasses.replace(message, header=header)
+        messages.append((topic, message, log_time_ns))
+    log = write_messages(tmp_path / "late_right.mcap", messages)
+    dense = tmp_path / "dense.mcap"
+    run = pcainterp(*densify_args(log, dense, basis_path, "--stamp-tolerance-ms", "5"))
+    assert run.code == 0, run.err
+    assert f"densified {SMALL_FRAMES} frames" in run.out
+    report = tmp_path / "report"
+    fast = ["--no-basis", "--no-linear", "--sweep-every", "0"]
+    run = pcainterp("evaluate", dense, "-o", report, *fast)
+    assert run.code == 0, run.err
+    assert (report / "results.md").is_file()
+    run = pcainterp("evaluate", dense, "-o", tmp_path / "tight", *fast, "--stamp-tolerance-ms", "2")
+    assert run.error_line() == (
+        "pcainterp: error: frame 0 has no /ground_truth/depth and the right images of "
+        f"{RIGHT} did not pair with it within 2 ms (--stamp-tolerance-ms; the nearest is "
+        "3.00 ms away), so there is no SGBM reference; pass --stamp-tolerance-ms 3"
+    )
+    assert_nothing_written(tmp_path / "tight")
+    run = pcainterp("evaluate", dense, "-o", tmp_path / "bad", "--stamp-tolerance-ms", "-1")
+    assert run.error_line() == "pcainterp: error: --stamp-tolerance-ms must be >= 0, got -1.0"
+
+
 def test_densify_log_with_channels_but_no_messages(
     pcainterp: Callable[..., Run], basis_path: Path, out: Path, tmp_path: Path
 ) -> None:

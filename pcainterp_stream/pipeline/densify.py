@@ -38,6 +38,7 @@ from pcainterp_stream.io.outputs import (
     channel_metadata,
     frame_metadata,
     output_messages,
+    pairing_metadata,
     topic_metadata,
 )
 from pcainterp_stream.io.pipes import STDIN_NAME, McapStreamWriter, spool
@@ -258,6 +259,7 @@ def densify(
                     first = {
                         **channel_metadata(label, basis.fingerprint, processor.measurements),
                         **frame_metadata(result),
+                        **pairing_metadata(pairing.tolerance_ns),  # for evaluate's right images
                     }
                     switched = engine.adaptation.switched
                     if switched is not None:  # the check chose another built-in basis
