@@ -535,3 +535,30 @@ def test_distinct_stamps_pair_by_stamp_whatever_the_log_times() -> None:
     assert [(int(f.left[0, 0]), int(f.right[0, 0])) for f in frames] == [(i, i) for i in range(4)]
     stats = pairer.finish()
     assert (stats.stamp_note(), stats.stamp_hint(), stats.near_misses_ns) == (None, None, [])
+
+
+def test_repeated_stamps_recorded_apart_are_a_tolerance_warning_in_log_time() -> None:
+    pairer = StereoPairer()
+    with_infos(pairer)
+    for index in range(4):  # the right images recorded 3 ms after their left ones
+        log_ns = index * 100 * MS
+        pairer.push(CONFIG.left_topic, 0, log_ns, image(0, index))
+        pairer.push(CONFIG.right_topic, 0, log_ns + 3 * MS, image(0, index))
+    stats = pairer.finish()
+    assert (stats.pairs, stats.unpaired_left, stats.unpaired_right) == (1, 3, 3)
+    hint = stats.tolerance_hint()
+    assert hint is not None
+    assert "3.00-3.00 ms of log time away, beyond the 1 ms tolerance" in hint
+    assert hint.endswith("pass --stamp-tolerance-ms 3 to pair them")
+    # the first pair, made by stamp, cannot be told from a wrong one: the same fix
+    assert stats.stamp_hint() is not None
+    pairer = StereoPairer(PairingConfig(tolerance_ns=3 * MS))
+    with_infos(pairer)
+    frames = []
+    for index in range(4):
+        log_ns = index * 100 * MS
+        frames += pairer.push(CONFIG.left_topic, 0, log_ns, image(0, index))
+        frames += pairer.push(CONFIG.right_topic, 0, log_ns + 3 * MS, image(0, index))
+    assert [(int(f.left[0, 0]), int(f.right[0, 0])) for f in frames] == [(i, i) for i in range(4)]
+    stats = pairer.finish()
+    assert (stats.tolerance_hint(), stats.stamp_hint()) == (None, None)
