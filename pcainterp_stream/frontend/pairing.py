@@ -413,7 +413,7 @@ class StereoPairer:
         stats.repeated_stamp_ns = stamp_ns
         stats.pairs_by_stamp = self._paired_by_stamp + len(self._matched)
         stats.unsure_pairs = [
-            left_log_ns
+            (left_log_ns, abs(left_log_ns - right_log_ns))
             for pair_stamp_ns, left_log_ns, right_log_ns in self._recent
             if pair_stamp_ns == stamp_ns and abs(left_log_ns - right_log_ns) > tolerance
         ]

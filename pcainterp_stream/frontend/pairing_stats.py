@@ -47,8 +47,9 @@ class PairingStats:
             by log time; None when the stamps paired every image.
         repeated_stamp_ns: that stamp (ns).
         pairs_by_stamp: pairs made by header stamp before the switch to log time.
-        unsure_pairs: log times (ns) of pairs made by stamp before the stamps repeated that
-            have the repeated stamp but were recorded beyond the tolerance apart.
+        unsure_pairs: (left log time, log time between the sides) (ns) of the pairs made by
+            stamp before the stamps repeated that have the repeated stamp but whose images
+            were recorded beyond the tolerance apart.
         tolerance_ns: the pairing's tolerance (ns).
         window: the pairing's window (pairs held waiting for camera infos).
         problems: the first :data:`MAX_PROBLEMS` one-line problem descriptions.
@@ -72,7 +73,7 @@ class PairingStats:
     repeated_stamp_topic: str | None = None
     repeated_stamp_ns: int = 0
     pairs_by_stamp: int = 0
-    unsure_pairs: list[int] = field(default_factory=list)
+    unsure_pairs: list[tuple[int, int]] = field(default_factory=list)
     tolerance_ns: int = 0
     window: int = 0
     problems: list[str] = field(default_factory=list)
@@ -114,13 +115,16 @@ class PairingStats:
         unsure = self.unsure_pairs
         if not unsure:
             return None
-        times = ", ".join(f"{t / 1e9:.3f}" for t in unsure[:3])
+        times = ", ".join(f"{t / 1e9:.3f}" for t, _ in unsure[:3])
         more = ", ..." if len(unsure) > 3 else ""
+        gaps = [gap / 1e6 for _, gap in unsure]
         return (
             f"{len(unsure)} stereo pair(s) made by header stamp before the stamps of "
-            f"{self.repeated_stamp_topic} repeated were recorded more than the "
-            f"{self.tolerance_ns / 1e6:g} ms tolerance apart and may be mispaired (left images "
-            f"at log time {times}{more} s); the log's stamps do not identify its stereo pairs"
+            f"{self.repeated_stamp_topic} repeated had their images recorded "
+            f"{min(gaps):.2f}-{max(gaps):.2f} ms apart, beyond the {self.tolerance_ns / 1e6:g} "
+            f"ms tolerance: they may be mispaired (left images at log time {times}{more} s); "
+            f"pass --stamp-tolerance-ms {math.ceil(max(gaps))} if the two sides are only "
+            "received that far apart"
         )
 
     def camera_info_hint(self) -> str | None:
