@@ -207,6 +207,7 @@ class StereoPairer:
         self._ahead_unseen: set[str] = set()  # read ahead, not yet met in the stream
         self._index = 0
         self._by_log_time = False  # the stamps do not tell the images apart: by log time
+        self._last_log = {"left": -1, "right": -1}  # log time of each side's last image
         self._paired_by_stamp = 0
         # (stamp, left log time, right log time) of the last pairs made by stamp
         self._recent: deque[tuple[int, int, int]] = deque(maxlen=self.config.window)
@@ -356,10 +357,12 @@ class StereoPairer:
     def _push_image(self, side: str, item: _Pending) -> list[StereoFrame]:
         frames: list[StereoFrame] = []
         if not self._by_log_time and item.stamp_ns == self._last_stamp[side]:
-            frames = self._stamps_repeat(side, item.stamp_ns)
+            period = item.log_time_ns - self._last_log[side]
+            frames = self._stamps_repeat(side, item.stamp_ns, period)
         if item.stamp_ns < self._last_stamp[side]:
             self.stats.non_monotonic_stamps += 1
         self._last_stamp[side] = item.stamp_ns
+        self._last_log[side] = item.log_time_ns
         return frames + self._match(side, item)
 
     def _match(self, side: str, item: _Pending) -> list[StereoFrame]:
@@ -377,7 +380,7 @@ class StereoPairer:
         left, right = (item, partner) if side == "left" else (partner, item)
         # Stamps before this pair (minus the tolerance) will not pair any more in an
         # ordered stream: drop them now so the counts are exact and the buffers small.
-        horizon = self._time(left) - self.config.tolerance_ns
+        horizon = self._time(left) - self._tolerance()
         for queue, name in ((self._left, "left"), (self._right, "right")):
             stale = [p for p in queue if self._time(p) < horizon]
             for p in stale:
@@ -391,11 +394,15 @@ class StereoPairer:
             self._count_no_info(1)
         return self._release_matched()
 
+    def _tolerance(self) -> int:
+        """Return the pairing's tolerance (ns): by log time, at least a quarter frame."""
+        return self.stats.log_tolerance_ns if self._by_log_time else self.config.tolerance_ns
+
     def _time(self, item: _Pending) -> int:
         """Return what pairs an image: its header stamp, or log time (:meth:`_stamps_repeat`)."""
         return item.log_time_ns if self._by_log_time else item.stamp_ns
 
-    def _stamps_repeat(self, side: str, stamp_ns: int) -> list[StereoFrame]:
+    def _stamps_repeat(self, side: str, stamp_ns: int, period_ns: int) -> list[StereoFrame]:
         """Pair by log time from now on: an image has its side's previous stamp again.
 
         Such stamps (all 0 from a driver that sets none, or a coarse clock's) do not tell the
@@ -404,9 +411,15 @@ class StereoPairer:
         Pairs made by stamp before the repeat showed that have this stamp are checked by log
         time: those still waiting for camera infos are paired again, those already made are
         counted (``stats.unsure_pairs``). Returns the frames the pairing again completes.
+
+        By log time the tolerance is at least a quarter of the side's last frame interval
+        (``period_ns``): the two sides of a pair are received apart by their drivers' jitter,
+        often more than the stamps' 1 ms, and a quarter frame still never reaches the next
+        frame's image.
         """
         self._by_log_time = True
-        tolerance = self.config.tolerance_ns
+        self.stats.log_tolerance_ns = max(self.config.tolerance_ns, max(period_ns, 0) // 4)
+        tolerance = self.stats.log_tolerance_ns
         stats = self.stats
         config = self.config
         stats.repeated_stamp_topic = config.left_topic if side == "left" else config.right_topic
@@ -458,7 +471,7 @@ class StereoPairer:
         best_gap = 0
         for candidate in queue:
             gap = abs(self._time(candidate) - time_ns)
-            if gap <= self.config.tolerance_ns and (best is None or gap < best_gap):
+            if gap <= self._tolerance() and (best is None or gap < best_gap):
                 best, best_gap = candidate, gap
         return best
 

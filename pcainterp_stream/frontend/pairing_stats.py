@@ -51,6 +51,8 @@ class PairingStats:
             stamp before the stamps repeated that have the repeated stamp but whose images
             were recorded beyond the tolerance apart.
         tolerance_ns: the pairing's tolerance (ns).
+        log_tolerance_ns: the tolerance once paired by log time (ns): at least a quarter of
+            a frame interval.
         window: the pairing's window (pairs held waiting for camera infos).
         problems: the first :data:`MAX_PROBLEMS` one-line problem descriptions.
     """
@@ -75,6 +77,7 @@ class PairingStats:
     pairs_by_stamp: int = 0
     unsure_pairs: list[tuple[int, int]] = field(default_factory=list)
     tolerance_ns: int = 0
+    log_tolerance_ns: int = 0
     window: int = 0
     problems: list[str] = field(default_factory=list)
 
@@ -84,11 +87,13 @@ class PairingStats:
         if not misses:
             return None
         widest = max(misses) / 1e6
-        when = " of log time" if self.repeated_stamp_topic is not None else ""
+        by_log = self.repeated_stamp_topic is not None
+        when = " of log time" if by_log else ""
+        tolerance = self.log_tolerance_ns if by_log else self.tolerance_ns
         return (
             f"{len(misses)} images were dropped unpaired whose other-side image was "
             f"{min(misses) / 1e6:.2f}-{widest:.2f} ms{when} away, beyond the "
-            f"{self.tolerance_ns / 1e6:g} ms tolerance; pass --stamp-tolerance-ms "
+            f"{tolerance / 1e6:g} ms tolerance; pass --stamp-tolerance-ms "
             f"{math.ceil(widest)} to pair them"
         )
 
@@ -106,8 +111,9 @@ class PairingStats:
         after = f" after the first {self.pairs_by_stamp}" if self.pairs_by_stamp else ""
         return (
             f"stamps: the header stamps of {topic} {why}, so they do not tell its images "
-            f"apart: the images were paired by log time{after}, within the "
-            f"{self.tolerance_ns / 1e6:g} ms tolerance (--stamp-tolerance-ms)"
+            f"apart: the images were paired by log time{after}, within "
+            f"{self.log_tolerance_ns / 1e6:g} ms (a quarter frame, or --stamp-tolerance-ms "
+            "when wider)"
         )
 
     def stamp_hint(self) -> str | None:
@@ -121,8 +127,9 @@ class PairingStats:
         return (
             f"{len(unsure)} stereo pair(s) made by header stamp before the stamps of "
             f"{self.repeated_stamp_topic} repeated had their images recorded "
-            f"{min(gaps):.2f}-{max(gaps):.2f} ms apart, beyond the {self.tolerance_ns / 1e6:g} "
-            f"ms tolerance: they may be mispaired (left images at log time {times}{more} s); "
+            f"{min(gaps):.2f}-{max(gaps):.2f} ms apart, beyond the "
+            f"{self.log_tolerance_ns / 1e6:g} ms tolerance: they may be mispaired (left "
+            f"images at log time {times}{more} s); "
             f"pass --stamp-tolerance-ms {math.ceil(max(gaps))} if the two sides are only "
             "received that far apart"
         )
