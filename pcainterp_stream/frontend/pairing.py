@@ -208,6 +208,8 @@ class StereoPairer:
         self._index = 0
         self._by_log_time = False  # the stamps do not tell the images apart: by log time
         self._last_log = {"left": -1, "right": -1}  # log time of each side's last image
+        self._info_stamp = {"left": -1, "right": -1}  # header stamp of each side's last info
+        self._infos_follow = False  # infos carry their image's stamp and come after it
         self._paired_by_stamp = 0
         # (stamp, left log time, right log time) of the last pairs made by stamp
         self._recent: deque[tuple[int, int, int]] = deque(maxlen=self.config.window)
@@ -256,8 +258,13 @@ class StereoPairer:
         if topic in (config.left_info_topic, config.right_info_topic):
             if topic == config.left_info_topic:
                 self._left_info = message
+                self._info_stamp["left"] = stamp_ns
             if topic == config.right_info_topic:  # or one info for both sides (--baseline)
                 self._right_info = message
+                self._info_stamp["right"] = stamp_ns
+            if stamp_ns in (self._last_stamp["left"], self._last_stamp["right"]) and stamp_ns:
+                # infos stamped as their images, recorded after them: a pair waits for its own
+                self._infos_follow = True
             first = self._first_dropped_ns
             if first is not None and self.stats.info_late_ns < 0 and self._has_infos():
                 self.stats.info_late_ns = max(0, log_time_ns - first)
@@ -322,8 +329,12 @@ class StereoPairer:
         return features
 
     def flush(self) -> list[StereoFrame]:
-        """Release frames still held waiting for features (call at the end of the stream)."""
-        frames = list(self._held)
+        """Release the frames still held (call at the end of the stream).
+
+        Those waiting for features, and a last pair waiting for infos of its own stamp.
+        """
+        frames = self._release_matched(force=True) if self._matched else []
+        frames += list(self._held)
         self._held.clear()
         self.stats.features_unmatched += len(self._features)
         self._features.clear()
@@ -475,12 +486,22 @@ class StereoPairer:
                 best, best_gap = candidate, gap
         return best
 
-    def _release_matched(self) -> list[StereoFrame]:
+    def _release_matched(self, *, force: bool = False) -> list[StereoFrame]:
+        """Make the frames of the pairs matched, in order, once camera infos are there.
+
+        When the infos carry their images' stamps and are recorded after them (a camera
+        publisher's order), the newest pair waits for infos of its own stamp, so that a
+        change of calibration or size applies from its own frame; a newer pair (or
+        ``force``, at the end) releases it with the infos there are.
+        """
         if self.config.calibration is None and not self._has_infos():
             return []
         frames: list[StereoFrame] = []
         while self._matched:
-            left, right = self._matched.popleft()
+            left, right = self._matched[0]
+            if not force and len(self._matched) == 1 and self._info_behind(left.stamp_ns):
+                break
+            self._matched.popleft()
             if not self._by_log_time:
                 self._paired_by_stamp += 1
                 self._recent.append((left.stamp_ns, left.log_time_ns, right.log_time_ns))
@@ -488,6 +509,12 @@ class StereoPairer:
             if frame is not None:
                 frames.extend(self._hold_for_features(frame))
         return frames
+
+    def _info_behind(self, stamp_ns: int) -> bool:
+        """Whether a pair of this stamp should wait for infos stamped as it (see above)."""
+        if not self._infos_follow or self.config.calibration is not None or self._by_log_time:
+            return False
+        return any(self._info_stamp[side] < stamp_ns for side in ("left", "right"))
 
     def _make_frame(self, left: _Pending, right: _Pending) -> StereoFrame | None:
         try:

@@ -567,3 +567,28 @@ def test_repeated_stamps_recorded_apart_are_a_tolerance_warning_in_log_time() ->
     frames, stats = run(PairingConfig(tolerance_ns=40 * MS), 40)
     assert [(int(f.left[0, 0]), int(f.right[0, 0])) for f in frames] == [(i, i) for i in range(4)]
     assert (stats.tolerance_hint(), stats.stamp_hint()) == (None, None)
+
+
+def test_infos_recorded_after_their_images_apply_to_their_own_frame() -> None:
+    """A camera publisher's order: image, then the info of the same stamp (bug hunt 2, M4)."""
+
+    def run(info_after_image: bool) -> list[Any]:
+        pairer = StereoPairer()
+        frames = []
+        for index in range(4):
+            stamp = (index + 1) * 100 * MS
+            camera = dataclasses.replace(CAMERA, fx=50.0 + index)  # recalibrated every frame
+            infos = [(CONFIG.left_info_topic, left_info(camera))]
+            infos.append((CONFIG.right_info_topic, right_info(camera)))
+            images = [(CONFIG.left_topic, image(stamp, index))]
+            images.append((CONFIG.right_topic, image(stamp, index)))
+            for topic, message in images + infos if info_after_image else infos + images:
+                frames += push(pairer, topic, stamp, message)
+        frames += pairer.flush()
+        assert pairer.finish().pairs == 4
+        return frames
+
+    for order in (True, False):
+        frames = run(order)
+        assert [int(f.left[0, 0]) for f in frames] == [0, 1, 2, 3]
+        assert [f.camera.fx for f in frames] == [50.0, 51.0, 52.0, 53.0]
