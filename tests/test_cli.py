@@ -844,6 +844,43 @@ def test_densify_one_side_named_takes_its_sibling(
     assert f"densified {SMALL_FRAMES} frames" in run.out
 
 
+def test_densify_finds_a_pair_of_one_compressed_and_one_raw_side(
+    pcainterp: Callable[..., Run],
+    small_log: Path,
+    small_messages: list[Message],
+    basis_path: Path,
+    tmp_path: Path,
+) -> None:
+    left, right = "/cam/left/image_raw/compressed", "/cam/right/image_raw"
+    renamed = {
+        LEFT: left,
+        RIGHT: right,
+        LEFT_INFO: "/cam/left/camera_info",
+        RIGHT_INFO: "/cam/right/camera_info",
+    }
+    messages = []
+    for topic, message, log_time_ns in small_messages:
+        if topic == LEFT:  # PNG: lossless, so the outputs are the original log's
+            ok, data = cv2.imencode(".png", image_of(message))
+            assert ok
+            stamp = rosmsg.stamp_ns(message)
+            frame_id = message.header.frame_id
+            message = rosmsg.compressed_image_message(data.tobytes(), "png", stamp, frame_id)
+        messages.append((renamed.get(topic, topic), message, log_time_ns))
+    log = write_messages(tmp_path / "mixed.mcap", messages)
+    run = pcainterp(*densify_args(log, tmp_path / "mixed_out.mcap", basis_path))
+    assert run.code == 0, run.err
+    assert run.out.startswith(
+        f"topics: left {left}, right {right} with /cam/left/camera_info and "
+        "/cam/right/camera_info (found by name;"
+    )
+    assert f"densified {SMALL_FRAMES} frames" in run.out
+    run = pcainterp(*densify_args(small_log, tmp_path / "small_out.mcap", basis_path))
+    assert run.code == 0, run.err
+    original = _depth_by_log_time(tmp_path / "small_out.mcap")
+    assert _depth_by_log_time(tmp_path / "mixed_out.mcap") == original
+
+
 def test_learn_finds_each_logs_own_topics(
     pcainterp: Callable[..., Run],
     small_log: Path,
@@ -1340,6 +1377,89 @@ def test_densify_warns_of_pairs_dropped_before_the_first_camera_info(
         "camera_info_manager files) to densify every pair"
     )
     assert assert_valid_mcap(out)["/pcainterp/depth"] == 13
+
+
+def _depth_by_log_time(path: Path) -> dict[int, bytes]:
+    with open_log(path) as reader:
+        return {
+            raw.log_time_ns: image_of(reader.decode(raw)).tobytes()
+            for raw in reader.messages(["/pcainterp/depth"])
+        }
+
+
+def test_densify_pairs_images_whose_stamps_are_all_zero_by_log_time(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    tmp_path: Path,
+) -> None:
+    # the right image of frame 3 is missing: by first-come the left image of frame 3 took
+    # the right one of frame 4, and so on
+    dropped_ns = small_messages[0][2] + 3 * 100_000_000
+
+    def log(name: str, zero: bool) -> Path:
+        messages = []
+        for topic, message, log_time_ns in small_messages:
+            if topic == RIGHT and log_time_ns == dropped_ns:
+                continue
+            if zero and topic in (LEFT, RIGHT):
+                header = rosmsg.header(0, message.header.frame_id)
+                message = dataclasses.replace(message, header=header)
+            messages.append((topic, message, log_time_ns))
+        return write_messages(tmp_path / name, messages)
+
+    stamped, zero = log("stamped.mcap", False), log("zero.mcap", True)
+    run = pcainterp(*densify_args(stamped, tmp_path / "stamped_out.mcap", basis_path))
+    assert run.code == 0, run.err
+    assert "stamps:" not in run.out
+    run = pcainterp(*densify_args(zero, tmp_path / "zero_out.mcap", basis_path))
+    assert run.code == 0, run.err
+    assert f"pairing: {SMALL_FRAMES - 1} pairs, 1 unpaired left, 0 unpaired right\n" in run.out
+    assert (
+        f"stamps: the header stamps of {LEFT} repeat 0 (not set), so they do not tell its "
+        "images apart: the images were paired by log time after the first 1, within the 1 ms "
+        "tolerance (--stamp-tolerance-ms)\n"
+    ) in run.out
+    assert "warning" not in run.out
+    expected = _depth_by_log_time(tmp_path / "stamped_out.mcap")
+    assert dropped_ns not in expected
+    assert _depth_by_log_time(tmp_path / "zero_out.mcap") == expected
+
+
+def test_evaluate_pairs_right_images_as_densify_did(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    tmp_path: Path,
+) -> None:
+    # no ground truth (the reference is SGBM of the pair), the right images 3 ms late
+    messages = []
+    for topic, message, log_time_ns in small_messages:
+        if topic.startswith("/ground_truth/"):
+            continue
+        if topic == RIGHT:
+            header = rosmsg.header(rosmsg.stamp_ns(message) + 3_000_000, message.header.frame_id)
+            message = dataclasses.replace(message, header=header)
+        messages.append((topic, message, log_time_ns))
+    log = write_messages(tmp_path / "late_right.mcap", messages)
+    dense = tmp_path / "dense.mcap"
+    run = pcainterp(*densify_args(log, dense, basis_path, "--stamp-tolerance-ms", "5"))
+    assert run.code == 0, run.err
+    assert f"densified {SMALL_FRAMES} frames" in run.out
+    report = tmp_path / "report"
+    fast = ["--no-basis", "--no-linear", "--sweep-every", "0"]
+    run = pcainterp("evaluate", dense, "-o", report, *fast)
+    assert run.code == 0, run.err
+    assert (report / "results.md").is_file()
+    run = pcainterp("evaluate", dense, "-o", tmp_path / "tight", *fast, "--stamp-tolerance-ms", "2")
+    assert run.error_line() == (
+        "pcainterp: error: frame 0 has no /ground_truth/depth and the right images of "
+        f"{RIGHT} did not pair with it within 2 ms (--stamp-tolerance-ms; the nearest is "
+        "3.00 ms away), so there is no SGBM reference; pass --stamp-tolerance-ms 3"
+    )
+    assert_nothing_written(tmp_path / "tight")
+    run = pcainterp("evaluate", dense, "-o", tmp_path / "bad", "--stamp-tolerance-ms", "-1")
+    assert run.error_line() == "pcainterp: error: --stamp-tolerance-ms must be >= 0, got -1.0"
 
 
 def test_densify_log_with_channels_but_no_messages(

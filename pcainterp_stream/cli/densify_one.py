@@ -182,10 +182,14 @@ def _print_summary(summary: DensifySummary, processor: ProcessorConfig) -> None:
         + (", fused with the whole SGBM map (dense)" if dense else "")
     )
     echo(f"pairing: {summary.pairing.summary()}")
-    note = summary.pairing.camera_info_note()
-    if note is not None:
-        echo(note)
-    for hint in (summary.pairing.tolerance_hint(), summary.pairing.camera_info_hint()):
+    for note in (summary.pairing.stamp_note(), summary.pairing.camera_info_note()):
+        if note is not None:
+            echo(note)
+    for hint in (
+        summary.pairing.stamp_hint(),
+        summary.pairing.tolerance_hint(),
+        summary.pairing.camera_info_hint(),
+    ):
         if hint is not None:
             echo(f"warning: {hint}")
     if processor.robust != "none":

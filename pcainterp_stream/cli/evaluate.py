@@ -6,7 +6,11 @@ import argparse
 from pathlib import Path
 
 from pcainterp_stream.cli.common import Commands, echo, formatter
-from pcainterp_stream.cli.pairing import add_input_pair_options, pairing_config
+from pcainterp_stream.cli.pairing import (
+    add_input_pair_options,
+    pairing_config,
+    stamp_tolerance_ms,
+)
 from pcainterp_stream.errors import PcaInterpError
 
 
@@ -151,6 +155,7 @@ def run(args: argparse.Namespace) -> int:
         reference_topic=args.reference_topic,
         reference_kind=args.reference_kind,
         pairing=pairing_config(args),
+        stamp_tolerance_ms=stamp_tolerance_ms(args),
     )
     echo(table)
     echo(f"wrote {folder}/results.md, results.json and figures")

@@ -1,8 +1,9 @@
 """The options that name a log's stereo pair and its calibration, shared by several commands.
 
 ``densify`` and ``learn`` take the topics, ``--baseline``, ``--stamp-tolerance-ms``,
-``--rectify`` and ``--calibration``; ``evaluate`` takes the topics, ``--rectify`` and
-``--calibration`` to read the input pair of a densified log as ``densify`` did. Without topic
+``--rectify`` and ``--calibration``; ``evaluate`` takes the topics, ``--rectify``,
+``--calibration`` and ``--stamp-tolerance-ms`` (default: the one the log records) to read the
+input pair of a densified log as ``densify`` did. Without topic
 options the pair is found in the log (:mod:`frontend.discovery`). Heavy modules load only when
 a command runs.
 """
@@ -105,6 +106,14 @@ def add_input_pair_options(parser: argparse.ArgumentParser) -> None:
         metavar="YAML",
         help="the calibration files densify was given, for logs without CameraInfo",
     )
+    group.add_argument(
+        "--stamp-tolerance-ms",
+        type=float,
+        default=None,
+        metavar="MS",
+        help="a frame's right image is the one stamped closer than this (default: the "
+        "tolerance the log records densify paired with; 1 ms for logs that record none)",
+    )
 
 
 def pairing_config(args: argparse.Namespace, features_topic: str | None = None) -> PairingConfig:
@@ -136,10 +145,10 @@ def pairing_config(args: argparse.Namespace, features_topic: str | None = None) 
             f"--left-topic and --right-topic are both {left_topic}; a stereo pair needs the "
             "images of two cameras: pass the right camera's topic as --right-topic"
         )
-    tolerance_ms = getattr(args, "stamp_tolerance_ms", 1.0)  # evaluate has neither
-    baseline = getattr(args, "baseline", None)
-    if not 0 <= tolerance_ms < float("inf"):
-        raise PcaInterpError(f"--stamp-tolerance-ms must be >= 0, got {tolerance_ms}")
+    tolerance_ms = stamp_tolerance_ms(args)
+    if tolerance_ms is None:  # evaluate: the log's own, read later
+        tolerance_ms = defaults.tolerance_ns / 1e6
+    baseline = getattr(args, "baseline", None)  # evaluate has none
     if baseline is not None and not 0 < baseline < float("inf"):
         raise PcaInterpError(f"--baseline must be a finite number > 0 m, got {baseline}")
     return PairingConfig(
@@ -160,3 +169,15 @@ def pairing_config(args: argparse.Namespace, features_topic: str | None = None) 
         ),
         check_rows=args.rectify != "never",
     )
+
+
+def stamp_tolerance_ms(args: argparse.Namespace) -> float | None:
+    """Return ``--stamp-tolerance-ms`` as given (None: not given, evaluate's default).
+
+    Raises:
+        PcaInterpError: a negative or infinite tolerance.
+    """
+    tolerance_ms: float | None = getattr(args, "stamp_tolerance_ms", None)
+    if tolerance_ms is not None and not 0 <= tolerance_ms < float("inf"):
+        raise PcaInterpError(f"--stamp-tolerance-ms must be >= 0, got {tolerance_ms}")
+    return tolerance_ms

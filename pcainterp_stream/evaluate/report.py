@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
@@ -85,6 +86,7 @@ from pcainterp_stream.io.outputs import (
     decode_estimate,
     estimate_topics,
     missing_outputs,
+    recorded_tolerance_ns,
 )
 from pcainterp_stream.records import StereoCamera
 
@@ -111,8 +113,8 @@ RIGHT_IMAGE = "/stereo/right/image_rect"
 GROUND_TRUTH_DEPTH = "/ground_truth/depth"
 GROUND_TRUTH_POSE = "/ground_truth/pose"
 RIGHT_STAMP_TOLERANCE_NS = 1_000_000
-"""The right image belongs to the frame whose stamp is this close (pairing's default)."""
-"""Channel metadata key of the output channels: the measurement mode, dense or sparse."""
+"""The right image belongs to the frame whose stamp is this close (pairing's default), unless
+the log records the tolerance densify paired with or ``stamp_tolerance_ns`` is given."""
 REFERENCE_WAIT_FRAMES = 4
 """A complete frame waits for its reference message until this many frames are waiting."""
 PENDING_FRAMES = 32
@@ -166,6 +168,9 @@ class EvaluateOptions:
     pairing: PairingConfig | None = None
     """The input pair's topics and rectification (default: the synthetic logs' topics as
     recorded); raw images are rectified as densify did, for the baselines and figures."""
+    stamp_tolerance_ns: int | None = None
+    """The largest stamp difference (ns) of a frame and its right image; None: the one the
+    log records densify paired with (:data:`RIGHT_STAMP_TOLERANCE_NS` for older logs)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -186,6 +191,8 @@ class _Frame:
     min_disparity: float = 0.0
     reference: Any = None
     """The reference topic's message of this stamp (None: none, or no reference topic)."""
+    right_gap_ns: int | None = None
+    """Without a right image: how far (ns) the nearest one read was from the frame's stamp."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -206,6 +213,10 @@ class _ReadState:
     seen_disparity: bool = False
     metadata: dict[str, str] = field(default_factory=dict)
     """The estimate channel's metadata (a compact log's f*b and min disparity)."""
+    tolerance_ns: int = RIGHT_STAMP_TOLERANCE_NS
+    """The stamp tolerance of a frame's right image (given, recorded or the default)."""
+    tolerance_from: str = "the default: the log records none"
+    """Where :attr:`tolerance_ns` came from, for messages."""
 
 
 def _camera(info: Any, baseline: float, size: tuple[int, int]) -> StereoCamera:
@@ -228,10 +239,13 @@ def _frames(
     reference: ReferenceTopic | None = None,
     state: _ReadState | None = None,
     images: PairImages | None = None,
+    tolerance_ns: int | None = None,
 ) -> Iterator[_Frame]:
     """Yield the densified frames of a log in order, grouping channels by header stamp.
 
-    With a reference topic, each frame carries the reference message of its stamp. A
+    Each frame takes the right image nearest its stamp within ``tolerance_ns`` (None: the
+    tolerance the log records densify paired with). With a reference topic, each frame
+    carries the reference message of its stamp. A
     complete frame waits (at most :data:`REFERENCE_WAIT_FRAMES` frames, so memory stays
     bounded) for a reference logged after it; then it is yielded without one.
     """
@@ -270,6 +284,12 @@ def _frames(
                 state.seen_disparity = True
                 state.metadata = dict(raw.channel_metadata)
                 state.measurements = state.metadata.get(MEASUREMENTS_KEY)
+                recorded = recorded_tolerance_ns(state.metadata)
+                if tolerance_ns is not None:
+                    state.tolerance_ns, state.tolerance_from = tolerance_ns, "--stamp-tolerance-ms"
+                elif recorded is not None:
+                    state.tolerance_ns = recorded
+                    state.tolerance_from = "the tolerance the log was densified with"
             message = reader.decode(raw)
             if raw.topic in infos:
                 images.see_info(raw.topic, message)
@@ -299,6 +319,7 @@ def _frames(
                             images=images,
                             where=where,
                             metadata=state.metadata,
+                            tolerance_ns=state.tolerance_ns,
                         )
                     )
                     index += 1
@@ -332,6 +353,7 @@ def _frame(
     images: PairImages,
     where: EstimateTopics,
     metadata: dict[str, str],
+    tolerance_ns: int = RIGHT_STAMP_TOLERANCE_NS,
 ) -> _Frame:
     """Build a frame from its complete messages and the right image nearest its stamp."""
     parts = pending_parts
@@ -346,11 +368,10 @@ def _frame(
     depth = parts.get(GROUND_TRUTH_DEPTH)
     pose = parts.get(GROUND_TRUTH_POSE)
     nearest_right = min(rights, key=lambda other: abs(other - stamp), default=None)
-    right = (
-        rights[nearest_right]
-        if nearest_right is not None and abs(nearest_right - stamp) <= RIGHT_STAMP_TOLERANCE_NS
-        else None
-    )
+    right, gap = None, None
+    if nearest_right is not None:
+        gap = abs(nearest_right - stamp)
+        right = rights[nearest_right] if gap <= tolerance_ns else None
     return _Frame(
         index=index,
         stamp_ns=stamp,
@@ -368,6 +389,7 @@ def _frame(
         depth=None if depth is None else rosmsg.image_array(depth).astype(np.float32),
         pose=None if pose is None else rosmsg.pose_matrix(pose),
         min_disparity=decoded.min_disparity,
+        right_gap_ns=gap if right is None else None,
     )
 
 
@@ -387,6 +409,23 @@ def _truth(
     if frame.depth is not None and use_truth:
         return disparity_from_depth(frame.depth, frame.camera.focal_baseline)
     return None
+
+
+def _no_reference_message(frame: _Frame, right_topic: str, state: _ReadState) -> str:
+    """Say why a frame has no reference: no right image within the tolerance, or none."""
+    gap = frame.right_gap_ns
+    if gap is None:
+        return (
+            f"frame {frame.index} has neither {GROUND_TRUTH_DEPTH} nor {right_topic}; "
+            "evaluate needs ground truth or the right image for an SGBM reference"
+        )
+    return (
+        f"frame {frame.index} has no {GROUND_TRUTH_DEPTH} and the right images of "
+        f"{right_topic} did not pair with it within {state.tolerance_ns / 1e6:g} ms "
+        f"({state.tolerance_from}; the nearest is {gap / 1e6:.2f} ms away), so there is no "
+        f"SGBM reference; pass --stamp-tolerance-ms {math.ceil(gap / 1e6)}"
+        + (" (as densify was given)" if state.tolerance_from.startswith("the default") else "")
+    )
 
 
 def _stereo(frame: _Frame, sgbm: SgbmConfig) -> _Stereo | None:
@@ -677,7 +716,10 @@ def evaluate_log(
     previous: tuple[_Frame, npt.NDArray[np.float64], _Stereo | None] | None = None
     read = 0
     state = _ReadState()
-    for frame in _frames(path, topics, options.max_frames, reference, state, images):
+    frames = _frames(
+        path, topics, options.max_frames, reference, state, images, options.stamp_tolerance_ns
+    )
+    for frame in frames:
         read += 1
         if progress is not None:
             progress(read)
@@ -692,10 +734,7 @@ def evaluate_log(
         elif reference is not None:
             frame_reference = None
         elif stereo is None:
-            raise LogReadError(
-                f"frame {frame.index} has neither {GROUND_TRUTH_DEPTH} nor {images.right_topic}; "
-                "evaluate needs ground truth or the right image for an SGBM reference"
-            )
+            raise LogReadError(_no_reference_message(frame, images.right_topic, state))
         else:
             frame_reference = stereo.disparity.astype(np.float64)
         baselines = truth is not None and stereo is not None

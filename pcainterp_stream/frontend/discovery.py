@@ -5,13 +5,15 @@ A camera is an image topic (``sensor_msgs/Image`` or ``CompressedImage``) with a
 files, any image topic. Two cameras are a stereo pair when their topics differ in one name
 that says which is left: ``left``/``right``, ``l``/``r``, or a number (``cam0``/``cam1``,
 ``infra1``/``infra2``, ``image_2``/``image_3``: the lower one is left); names that say
-nothing are ordered by the sign of P[0, 3] (the right camera's is negative). Of a camera's
-streams the rectified one is preferred (``image_rect`` over ``image_raw``), then the
-uncompressed, then the grey one. A log with several heads (``/front/left`` + ``/front/right``
-and ``/rear/left`` + ``/rear/right``) has cross-head candidates too (``/front/left`` +
-``/rear/right``, sides from Tx): a pair whose namespaces differ only in the name that says
-the side comes first, then one whose namespaces differ in one name, then the others. Two
-pairs equally good are an error that lists them with the options that choose one.
+nothing are ordered by the sign of P[0, 3] (the right camera's is negative). The two sides
+are streams of one image (``image_raw``), raw or compressed alike (a compressed left with a
+raw right pairs). Of a camera's streams the rectified one is preferred (``image_rect`` over
+``image_raw``), then one transport on both sides, then the uncompressed, then the grey one.
+A log with several heads (``/front/left`` + ``/front/right`` and ``/rear/left`` +
+``/rear/right``) has cross-head candidates too (``/front/left`` + ``/rear/right``, sides from
+Tx): a pair whose namespaces differ only in the name that says the side comes first, then
+one whose namespaces differ in one name, then the others. Two pairs equally good are an
+error that lists them with the options that choose one.
 """
 
 from __future__ import annotations
@@ -47,11 +49,31 @@ class Camera:
         """Return the stream's name below the namespace (``image_raw``, ``image/compressed``)."""
         return self.topic[len(self.namespace) :].lstrip("/")
 
-    def score(self) -> tuple[int, int, int]:
-        """Return how much this stream is preferred: rectified, uncompressed, grey."""
-        compressed = self.topic.rstrip("/").split("/")[-1] in _COMPRESSED
-        colour = "color" in self.stream or "colour" in self.stream or "rgb" in self.stream
-        return (int(is_rectified_name(self.topic)), int(not compressed), int(not colour))
+    @property
+    def compressed(self) -> bool:
+        """Return True for a ``CompressedImage`` stream (``image_raw/compressed``)."""
+        return self.topic.rstrip("/").split("/")[-1] in _COMPRESSED
+
+    @property
+    def image(self) -> str:
+        """Return the stream's image without its transport (``image_raw`` of both forms)."""
+        parts = self.stream.rstrip("/").split("/")
+        return "/".join(parts[:-1] if self.compressed else parts)
+
+
+def stream_score(left: Camera, right: Camera) -> tuple[int, int, int, int]:
+    """Return how much a pair of streams (of one image) is preferred.
+
+    Rectified first, then both sides of one transport (both raw, or both compressed), then
+    the uncompressed sides (both, one, none), then grey.
+    """
+    colour = any(word in left.stream for word in ("color", "colour", "rgb"))
+    return (
+        int(is_rectified_name(left.topic)),
+        int(left.compressed == right.compressed),
+        int(not left.compressed) + int(not right.compressed),
+        int(not colour),
+    )
 
 
 BY_NAME = 2
@@ -80,9 +102,9 @@ class StereoTopics:
     how: str
     closeness: int = BY_NAME
 
-    def preference(self) -> tuple[int, int, int, int]:
-        """Return how much this pair is preferred: closeness, then the streams' score."""
-        return (self.closeness, *self.left.score())
+    def preference(self) -> tuple[int, int, int, int, int]:
+        """Return how much this pair is preferred: closeness, then :func:`stream_score`."""
+        return (self.closeness, *stream_score(self.left, self.right))
 
     def describe(self) -> str:
         """Return the pair as the options that would choose it."""
@@ -185,12 +207,14 @@ def find_pairs(
             if side is None:
                 continue
             left_ns, right_ns = (a, b) if side < 0 else (b, a)
-            right_streams = {cam.stream: cam for cam in by_ns[right_ns]}
-            best: tuple[tuple[int, int, int], Camera, Camera] | None = None
+            # the two sides of one image; their transports may differ (a compressed left
+            # with a raw right), one transport on both sides preferred
+            best: tuple[tuple[int, int, int, int], Camera, Camera] | None = None
             for cam in by_ns[left_ns]:
-                partner = right_streams.get(cam.stream)
-                if partner is not None and (best is None or cam.score() > best[0]):
-                    best = (cam.score(), cam, partner)
+                for partner in by_ns[right_ns]:
+                    score = stream_score(cam, partner)
+                    if partner.image == cam.image and (best is None or score > best[0]):
+                        best = (score, cam, partner)
             if best is not None:
                 pairs.append(StereoTopics(best[1], best[2], how, closeness))
     pairs.sort(key=StereoTopics.preference, reverse=True)

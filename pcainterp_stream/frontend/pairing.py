@@ -23,10 +23,9 @@ A single pass over a log (the processor's loop)::
 
 from __future__ import annotations
 
-import math
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -38,6 +37,7 @@ from pcainterp_stream.frontend.camera_infos import (
     camera_from_infos,
     first_infos,
 )
+from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.frontend.row_check import RowCheck
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import LogReader, decode_image
@@ -48,9 +48,6 @@ from pcainterp_stream.records import (
     StereoCamera,
     StereoFrame,
 )
-
-MAX_PROBLEMS = 20
-"""How many one-line problem descriptions :class:`PairingStats` keeps (counts are exact)."""
 
 MAX_HELD_RECTIFIERS = 256
 """Frames whose rectifier is kept for :meth:`StereoPairer.full_result` when nobody asks."""
@@ -131,144 +128,6 @@ class PairingConfig:
         return list(self.required_topics())
 
 
-@dataclass
-class PairingStats:
-    """Counts of what the pairer did (a mutable accumulator).
-
-    Attributes:
-        pairs: stereo frames emitted.
-        unpaired_left: left images dropped without a right partner.
-        unpaired_right: right images dropped without a left partner.
-        undecodable: images (or feature clouds) that could not be decoded, by reason.
-        size_mismatches: pairs skipped because left and right sizes differ.
-        encoding_mismatches: pairs skipped because left and right are of one size but
-            differ in channels (grey, colour) or bit depth.
-        no_camera_info: pairs dropped because a side never had a camera info in time.
-        missing_info_topics: the camera info topics that had no message yet when a pair
-            was dropped (or made with one read ahead).
-        info_late_ns: log time (ns) from the first pair dropped for want of a camera info (or
-            made with one read ahead) to the first camera info on both sides; -1 when none
-            was dropped or none came.
-        pairs_before_info: pairs made before the stream's first camera info of a side, with
-            the one read ahead (:meth:`StereoPairer.look_ahead`).
-        changed_info_topics: camera info topics whose calibration later differs from the
-            one read ahead.
-        features_matched: frames that got a feature cloud of their stamp.
-        features_unmatched: feature clouds that matched no frame.
-        non_monotonic_stamps: images whose stamp is earlier than the previous one on the
-            same side.
-        near_misses_ns: the gap (ns) of each image dropped unpaired to the nearest other-side
-            image when it came, if beyond the tolerance but within :data:`NEAR_MISS_NS`.
-        tolerance_ns: the pairing's tolerance (ns).
-        window: the pairing's window (pairs held waiting for camera infos).
-        problems: the first :data:`MAX_PROBLEMS` one-line problem descriptions.
-    """
-
-    pairs: int = 0
-    unpaired_left: int = 0
-    unpaired_right: int = 0
-    undecodable: dict[str, int] = field(default_factory=dict)
-    size_mismatches: int = 0
-    encoding_mismatches: int = 0
-    no_camera_info: int = 0
-    missing_info_topics: list[str] = field(default_factory=list)
-    info_late_ns: int = -1
-    pairs_before_info: int = 0
-    changed_info_topics: list[str] = field(default_factory=list)
-    features_matched: int = 0
-    features_unmatched: int = 0
-    non_monotonic_stamps: int = 0
-    near_misses_ns: list[int] = field(default_factory=list)
-    tolerance_ns: int = 0
-    window: int = 0
-    problems: list[str] = field(default_factory=list)
-
-    def tolerance_hint(self) -> str | None:
-        """A warning when unpaired images had a partner just beyond the tolerance, else None."""
-        misses = self.near_misses_ns
-        if not misses:
-            return None
-        widest = max(misses) / 1e6
-        return (
-            f"{len(misses)} images were dropped unpaired whose other-side image was "
-            f"{min(misses) / 1e6:.2f}-{widest:.2f} ms away, beyond the "
-            f"{self.tolerance_ns / 1e6:g} ms tolerance; pass --stamp-tolerance-ms "
-            f"{math.ceil(widest)} to pair them"
-        )
-
-    def camera_info_hint(self) -> str | None:
-        """A warning when pairs were dropped before the first camera info came, else None.
-
-        Also when pairs were made with a camera info read ahead that changed later in the
-        log. A log without a single pair gets no hint: its error says why.
-        """
-        topics = " and ".join(self.missing_info_topics) or "the camera info topics"
-        late = self.info_late_ns / 1e9
-        # pairs within the window would have waited for the first info: no difference
-        ahead = self.pairs_before_info > self.window
-        if ahead and self.changed_info_topics:
-            return (
-                f"the first {self.pairs_before_info} stereo pairs came before the first camera "
-                f"info on {topics} (recorded {late:.1f} s of log later) and were densified with "
-                f"it, but {' and '.join(self.changed_info_topics)} changed later in the log: "
-                "their depth may be off; pass --calibration LEFT.yaml RIGHT.yaml (the cameras' "
-                "camera_info_manager files) to densify them with their own"
-            )
-        if not (self.no_camera_info and self.pairs):
-            return None
-        when = f" (it came {late:.1f} s of log after the first dropped pair)" if late >= 0 else ""
-        return (
-            f"{self.no_camera_info} of {self.no_camera_info + self.pairs} stereo pairs were "
-            f"dropped because no camera info had arrived yet on {topics}{when}; pass "
-            "--calibration LEFT.yaml RIGHT.yaml (the cameras' camera_info_manager files) to "
-            "densify every pair"
-        )
-
-    def camera_info_note(self) -> str | None:
-        """A note when pairs were made with a camera info read ahead that never changed.
-
-        Only when they are more than the window: pairs within it would have waited for that
-        first camera info anyway (a log that writes each image before its camera info).
-        """
-        if self.pairs_before_info <= self.window or self.changed_info_topics:
-            return None
-        return (
-            f"camera info: the first {self.pairs_before_info} stereo pairs came before the first "
-            f"camera info on {' and '.join(self.missing_info_topics)} (recorded "
-            f"{self.info_late_ns / 1e9:.1f} s of log later): densified with it, read ahead "
-            "(the log's camera infos do not change)"
-        )
-
-    def note(self, problem: str) -> None:
-        """Keep a one-line problem description (only the first few are kept)."""
-        if len(self.problems) < MAX_PROBLEMS:
-            self.problems.append(problem)
-
-    def summary(self) -> str:
-        """Return the counts as one line."""
-        parts = [
-            f"{self.pairs} pairs",
-            f"{self.unpaired_left} unpaired left",
-            f"{self.unpaired_right} unpaired right",
-        ]
-        if self.size_mismatches:
-            parts.append(f"{self.size_mismatches} size mismatches")
-        if self.encoding_mismatches:
-            parts.append(f"{self.encoding_mismatches} encoding mismatches")
-        if self.no_camera_info:
-            parts.append(f"{self.no_camera_info} without camera info")
-        if self.non_monotonic_stamps:
-            parts.append(f"{self.non_monotonic_stamps} non-monotonic stamps")
-        for reason, count in self.undecodable.items():
-            parts.append(f"{count} undecodable ({reason})")
-        if self.features_matched or self.features_unmatched:
-            parts.append(
-                f"{self.features_matched} frames with features, "
-                f"{self.features_unmatched} unmatched feature clouds"
-            )
-        return ", ".join(parts)
-
-
 class _Pending:
     """One image waiting for its partner: the message is decoded only when paired."""
 
@@ -347,6 +206,13 @@ class StereoPairer:
         self._ahead: dict[str, tuple[int, tuple[Any, ...]]] = {}
         self._ahead_unseen: set[str] = set()  # read ahead, not yet met in the stream
         self._index = 0
+        self._by_log_time = False  # the stamps do not tell the images apart: by log time
+        self._last_log = {"left": -1, "right": -1}  # log time of each side's last image
+        self._info_stamp = {"left": -1, "right": -1}  # header stamp of each side's last info
+        self._infos_follow = False  # infos carry their image's stamp and come after it
+        self._paired_by_stamp = 0
+        # (stamp, left log time, right log time) of the last pairs made by stamp
+        self._recent: deque[tuple[int, int, int]] = deque(maxlen=self.config.window)
 
     def wants(self, topic: str) -> bool:
         """Return True for a topic this pairer reads (decode only those)."""
@@ -392,8 +258,13 @@ class StereoPairer:
         if topic in (config.left_info_topic, config.right_info_topic):
             if topic == config.left_info_topic:
                 self._left_info = message
+                self._info_stamp["left"] = stamp_ns
             if topic == config.right_info_topic:  # or one info for both sides (--baseline)
                 self._right_info = message
+                self._info_stamp["right"] = stamp_ns
+            if stamp_ns in (self._last_stamp["left"], self._last_stamp["right"]) and stamp_ns:
+                # infos stamped as their images, recorded after them: a pair waits for its own
+                self._infos_follow = True
             first = self._first_dropped_ns
             if first is not None and self.stats.info_late_ns < 0 and self._has_infos():
                 self.stats.info_late_ns = max(0, log_time_ns - first)
@@ -458,8 +329,12 @@ class StereoPairer:
         return features
 
     def flush(self) -> list[StereoFrame]:
-        """Release frames still held waiting for features (call at the end of the stream)."""
-        frames = list(self._held)
+        """Release the frames still held (call at the end of the stream).
+
+        Those waiting for features, and a last pair waiting for infos of its own stamp.
+        """
+        frames = self._release_matched(force=True) if self._matched else []
+        frames += list(self._held)
         self._held.clear()
         self.stats.features_unmatched += len(self._features)
         self._features.clear()
@@ -491,13 +366,22 @@ class StereoPairer:
 
     # images ---------------------------------------------------------------------------
     def _push_image(self, side: str, item: _Pending) -> list[StereoFrame]:
+        frames: list[StereoFrame] = []
+        if not self._by_log_time and item.stamp_ns == self._last_stamp[side]:
+            period = item.log_time_ns - self._last_log[side]
+            frames = self._stamps_repeat(side, item.stamp_ns, period)
         if item.stamp_ns < self._last_stamp[side]:
             self.stats.non_monotonic_stamps += 1
         self._last_stamp[side] = item.stamp_ns
+        self._last_log[side] = item.log_time_ns
+        return frames + self._match(side, item)
+
+    def _match(self, side: str, item: _Pending) -> list[StereoFrame]:
+        """Pair an image with the other side's nearest (by :meth:`_time`), or queue it."""
         own, other = (self._left, self._right) if side == "left" else (self._right, self._left)
-        partner = self._closest(other, item.stamp_ns)
+        partner = self._closest(other, self._time(item))
         if partner is None:
-            gaps = [abs(p.stamp_ns - item.stamp_ns) for p in other]
+            gaps = [abs(self._time(p) - self._time(item)) for p in other]
             item.miss_ns = min(gaps) if gaps and min(gaps) <= NEAR_MISS_NS else -1
             own.append(item)
             if len(own) > self.config.window:
@@ -507,9 +391,9 @@ class StereoPairer:
         left, right = (item, partner) if side == "left" else (partner, item)
         # Stamps before this pair (minus the tolerance) will not pair any more in an
         # ordered stream: drop them now so the counts are exact and the buffers small.
-        horizon = left.stamp_ns - self.config.tolerance_ns
+        horizon = self._time(left) - self._tolerance()
         for queue, name in ((self._left, "left"), (self._right, "right")):
-            stale = [p for p in queue if p.stamp_ns < horizon]
+            stale = [p for p in queue if self._time(p) < horizon]
             for p in stale:
                 queue.remove(p)
             self._count_unpaired(name, stale)
@@ -520,6 +404,57 @@ class StereoPairer:
                 self._first_dropped_ns = dropped.log_time_ns
             self._count_no_info(1)
         return self._release_matched()
+
+    def _tolerance(self) -> int:
+        """Return the pairing's tolerance (ns): by log time, at least a quarter frame."""
+        return self.stats.log_tolerance_ns if self._by_log_time else self.config.tolerance_ns
+
+    def _time(self, item: _Pending) -> int:
+        """Return what pairs an image: its header stamp, or log time (:meth:`_stamps_repeat`)."""
+        return item.log_time_ns if self._by_log_time else item.stamp_ns
+
+    def _stamps_repeat(self, side: str, stamp_ns: int, period_ns: int) -> list[StereoFrame]:
+        """Pair by log time from now on: an image has its side's previous stamp again.
+
+        Such stamps (all 0 from a driver that sets none, or a coarse clock's) do not tell the
+        images of a side apart, so the nearest stamp would pair first-come (after a dropped
+        image, each left with the next right). A stamp that is 0 only once pairs as any.
+        Pairs made by stamp before the repeat showed that have this stamp are checked by log
+        time: those still waiting for camera infos are paired again, those already made are
+        counted (``stats.unsure_pairs``). Returns the frames the pairing again completes.
+
+        By log time the tolerance is at least a quarter of the side's last frame interval
+        (``period_ns``): the two sides of a pair are received apart by their drivers' jitter,
+        often more than the stamps' 1 ms, and a quarter frame still never reaches the next
+        frame's image.
+        """
+        self._by_log_time = True
+        self.stats.log_tolerance_ns = max(self.config.tolerance_ns, max(period_ns, 0) // 4)
+        tolerance = self.stats.log_tolerance_ns
+        stats = self.stats
+        config = self.config
+        stats.repeated_stamp_topic = config.left_topic if side == "left" else config.right_topic
+        stats.repeated_stamp_ns = stamp_ns
+        stats.pairs_by_stamp = self._paired_by_stamp + len(self._matched)
+        stats.unsure_pairs = [
+            (left_log_ns, abs(left_log_ns - right_log_ns))
+            for pair_stamp_ns, left_log_ns, right_log_ns in self._recent
+            if pair_stamp_ns == stamp_ns and abs(left_log_ns - right_log_ns) > tolerance
+        ]
+        unsure = [
+            (left, right)
+            for left, right in self._matched
+            if left.stamp_ns == stamp_ns and abs(left.log_time_ns - right.log_time_ns) > tolerance
+        ]
+        frames: list[StereoFrame] = []
+        for left, right in unsure:
+            self._matched.remove((left, right))
+            stats.pairs_by_stamp -= 1
+            for item, item_side in sorted(
+                ((left, "left"), (right, "right")), key=lambda pair: pair[0].log_time_ns
+            ):
+                frames.extend(self._match(item_side, item))
+        return frames
 
     def _has_infos(self) -> bool:
         return self._left_info is not None and self._right_info is not None
@@ -542,26 +477,44 @@ class StereoPairer:
             self.stats.unpaired_right += len(dropped)
         self.stats.near_misses_ns.extend(p.miss_ns for p in dropped if p.miss_ns >= 0)
 
-    def _closest(self, queue: deque[_Pending], stamp_ns: int) -> _Pending | None:
+    def _closest(self, queue: deque[_Pending], time_ns: int) -> _Pending | None:
         best: _Pending | None = None
+        best_gap = 0
         for candidate in queue:
-            gap = abs(candidate.stamp_ns - stamp_ns)
-            if gap <= self.config.tolerance_ns and (
-                best is None or gap < abs(best.stamp_ns - stamp_ns)
-            ):
-                best = candidate
+            gap = abs(self._time(candidate) - time_ns)
+            if gap <= self._tolerance() and (best is None or gap < best_gap):
+                best, best_gap = candidate, gap
         return best
 
-    def _release_matched(self) -> list[StereoFrame]:
+    def _release_matched(self, *, force: bool = False) -> list[StereoFrame]:
+        """Make the frames of the pairs matched, in order, once camera infos are there.
+
+        When the infos carry their images' stamps and are recorded after them (a camera
+        publisher's order), the newest pair waits for infos of its own stamp, so that a
+        change of calibration or size applies from its own frame; a newer pair (or
+        ``force``, at the end) releases it with the infos there are.
+        """
         if self.config.calibration is None and not self._has_infos():
             return []
         frames: list[StereoFrame] = []
         while self._matched:
-            left, right = self._matched.popleft()
+            left, right = self._matched[0]
+            if not force and len(self._matched) == 1 and self._info_behind(left.stamp_ns):
+                break
+            self._matched.popleft()
+            if not self._by_log_time:
+                self._paired_by_stamp += 1
+                self._recent.append((left.stamp_ns, left.log_time_ns, right.log_time_ns))
             frame = self._make_frame(left, right)
             if frame is not None:
                 frames.extend(self._hold_for_features(frame))
         return frames
+
+    def _info_behind(self, stamp_ns: int) -> bool:
+        """Whether a pair of this stamp should wait for infos stamped as it (see above)."""
+        if not self._infos_follow or self.config.calibration is not None or self._by_log_time:
+            return False
+        return any(self._info_stamp[side] < stamp_ns for side in ("left", "right"))
 
     def _make_frame(self, left: _Pending, right: _Pending) -> StereoFrame | None:
         try:

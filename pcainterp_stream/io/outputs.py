@@ -247,6 +247,11 @@ MIN_DISPARITY_KEY = "pcainterp.min_disparity"
 first frame (the ``DisparityImage``'s ``min_disparity``; constant unless ``--sigma
 evidence``)."""
 
+STAMP_TOLERANCE_KEY = "pcainterp.stamp_tolerance_ns"
+"""Channel metadata key: the largest left/right stamp difference (ns) densify paired
+(``--stamp-tolerance-ms``), so that ``evaluate`` finds each frame's right image as densify
+did."""
+
 
 def frame_metadata(result: DensifiedFrame) -> dict[str, str]:
     """Return the per-log values a compact log's channels record (f*b, min disparity)."""
@@ -279,6 +284,30 @@ def channel_metadata(basis: str, fingerprint: str, measurements: str = "sparse")
         :data:`MEASUREMENTS_KEY`: measurements}.
     """
     return {BASIS_KEY: basis, BASIS_FINGERPRINT_KEY: fingerprint, MEASUREMENTS_KEY: measurements}
+
+
+def pairing_metadata(tolerance_ns: int) -> dict[str, str]:
+    """Return the metadata that records how the input pair was paired.
+
+    Args:
+        tolerance_ns: the largest left/right stamp difference that paired (ns).
+
+    Returns:
+        {:data:`STAMP_TOLERANCE_KEY`: tolerance_ns}.
+    """
+    return {STAMP_TOLERANCE_KEY: str(int(tolerance_ns))}
+
+
+def recorded_tolerance_ns(metadata: dict[str, str]) -> int | None:
+    """Return the pairing tolerance (ns) a densified log's channel metadata records, or None.
+
+    None for logs densified before it was recorded (or with an unreadable value).
+    """
+    try:
+        value = int(metadata[STAMP_TOLERANCE_KEY])
+    except (KeyError, ValueError):
+        return None
+    return value if value >= 0 else None
 
 
 def recorded_metadata(path: Path, topics: OutputTopics | None = None) -> dict[str, str]:

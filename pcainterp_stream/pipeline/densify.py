@@ -25,11 +25,8 @@ from pcainterp_stream.estimate.basis import (
     builtin_kind,
 )
 from pcainterp_stream.frontend.discovery import resolve_pairing
-from pcainterp_stream.frontend.pairing import (
-    PairingConfig,
-    PairingStats,
-    StereoPairer,
-)
+from pcainterp_stream.frontend.pairing import PairingConfig, StereoPairer
+from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.frontend.sgbm_limits import fitting, narrowest_width
 from pcainterp_stream.frontend.stereo import SgbmConfig
 from pcainterp_stream.io import rosmsg
@@ -41,6 +38,7 @@ from pcainterp_stream.io.outputs import (
     channel_metadata,
     frame_metadata,
     output_messages,
+    pairing_metadata,
     topic_metadata,
 )
 from pcainterp_stream.io.pipes import STDIN_NAME, McapStreamWriter, spool
@@ -261,6 +259,7 @@ def densify(
                     first = {
                         **channel_metadata(label, basis.fingerprint, processor.measurements),
                         **frame_metadata(result),
+                        **pairing_metadata(pairing.tolerance_ns),  # for evaluate's right images
                     }
                     switched = engine.adaptation.switched
                     if switched is not None:  # the check chose another built-in basis

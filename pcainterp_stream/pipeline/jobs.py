@@ -169,6 +169,7 @@ def evaluate(
     reference_topic: str | None = None,
     reference_kind: str = "auto",
     pairing: PairingConfig | None = None,
+    stamp_tolerance_ms: float | None = None,
 ) -> tuple[Path, str]:
     """Evaluate a densified log into a report folder (``pcainterp evaluate``).
 
@@ -188,6 +189,8 @@ def evaluate(
         reference_kind: ``auto``, ``depth`` or ``disparity`` (what the topic holds).
         pairing: the input pair's topics and rectification (raw images are rectified as
             densify did); None: the synthetic logs' topics.
+        stamp_tolerance_ms: a frame's right image is the one stamped this close; None: the
+            tolerance the log records densify paired with (1 ms if it records none).
 
     Returns:
         The report folder and the summary table text.
@@ -221,6 +224,7 @@ def evaluate(
         reference_topic=reference_topic,
         reference_kind=ReferenceKind(reference_kind),
         pairing=pairing,
+        stamp_tolerance_ns=None if stamp_tolerance_ms is None else round(stamp_tolerance_ms * 1e6),
     )
     with _bar(None, f"evaluate {input_path.name}") as bar:
         result = write_report(

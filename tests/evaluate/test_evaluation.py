@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -458,3 +459,83 @@ def test_outputs_written_well_after_their_input_are_still_found(tmp_path: Path) 
     for method in ("pca_map", "nearest"):
         assert delayed.methods[method].pixels == on_time.methods[method].pixels
         assert delayed.methods[method].delta_2d_sum == on_time.methods[method].delta_2d_sum
+
+
+def _rewritten(source: Path, target: Path, *, right_later_ns: int = 0, drop_key: str = "") -> Path:
+    """Copy an MCAP: the right images stamped ``right_later_ns`` later, ``drop_key`` left out
+    of every channel's metadata (a log densified before the key was recorded)."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    from pcainterp_stream.io import rosmsg
+    from pcainterp_stream.io.logreader import open_log
+    from pcainterp_stream.io.logwriter import open_writer
+
+    if right_later_ns:
+        with open_log(source) as reader, open_writer(target, "mcap") as writer:
+            for raw in reader.messages():
+                message = reader.decode(raw)
+                if raw.topic == "/stereo/right/image_rect":
+                    stamp = rosmsg.stamp_ns(message) + right_later_ns
+                    message.header = rosmsg.header(stamp, message.header.frame_id)
+                writer.add_message(raw.topic, message, raw.log_time_ns)
+        return target
+    with source.open("rb") as stream, target.open("wb") as out:
+        writer = Writer(out)
+        writer.start()
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, channel, message in make_reader(stream).iter_messages(log_time_order=False):
+            if channel.id not in channels:
+                if schema is not None and schema.id not in schemas:
+                    schemas[schema.id] = writer.register_schema(
+                        schema.name, schema.encoding, schema.data
+                    )
+                metadata = {k: v for k, v in channel.metadata.items() if k != drop_key}
+                channels[channel.id] = writer.register_channel(
+                    channel.topic,
+                    channel.message_encoding,
+                    schemas.get(schema.id, 0) if schema is not None else 0,
+                    metadata,
+                )
+            writer.add_message(
+                channels[channel.id], message.log_time, message.data, message.publish_time
+            )
+        writer.finish()
+    return target
+
+
+def test_evaluate_pairs_the_right_images_within_densifys_tolerance(
+    dense_logs: dict[str, Path], tmp_path: Path
+) -> None:
+    from pcainterp_stream.io.outputs import STAMP_TOLERANCE_KEY, recorded_metadata
+
+    # the right images stamped 3 ms after their left ones: densify pairs them within 5 ms
+    offset = _rewritten(dense_logs["test"], tmp_path / "offset.mcap", right_later_ns=3_000_000)
+    dense = tmp_path / "dense.mcap"
+    jobs.densify(offset, dense, dense_logs["basis"], pairing=PairingConfig(tolerance_ns=5_000_000))
+    assert recorded_metadata(dense)[STAMP_TOLERANCE_KEY] == "5000000"
+    options = EvaluateOptions(mode=Mode.STEREO, sgbm_reference=True, sweep_every=0)
+    result, _ = evaluate_log(dense, options)
+    assert result.frames == 4
+    # a tighter one given is used, and said
+    with pytest.raises(
+        LogReadError,
+        match=r"^frame 0 has no /ground_truth/depth and the right images of "
+        r"/stereo/right/image_rect did not pair with it within 2 ms \(--stamp-tolerance-ms; "
+        r"the nearest is 3\.00 ms away\), so there is no SGBM reference; pass "
+        r"--stamp-tolerance-ms 3$",
+    ):
+        evaluate_log(dense, dataclasses.replace(options, stamp_tolerance_ns=2_000_000))
+    # a log densified before the tolerance was recorded: 1 ms, and the fix
+    old = _rewritten(dense, tmp_path / "old.mcap", drop_key=STAMP_TOLERANCE_KEY)
+    with pytest.raises(
+        LogReadError,
+        match=r"within 1 ms \(the default: the log records none; the nearest is 3\.00 ms "
+        r"away\), so there is no SGBM reference; pass --stamp-tolerance-ms 3 \(as densify "
+        r"was given\)$",
+    ):
+        evaluate_log(old, options)
+    given, _ = evaluate_log(old, dataclasses.replace(options, stamp_tolerance_ns=3_000_000))
+    assert given.frames == 4
+    assert given.methods["pca_map"].delta_2d_sum == result.methods["pca_map"].delta_2d_sum

@@ -65,6 +65,46 @@ def test_rectified_stream_preferred_over_raw_and_compressed() -> None:
     assert pair.right.topic == "/s/right/image_rect"
 
 
+@pytest.mark.parametrize(
+    ("left", "right"),
+    [
+        ("image_raw/compressed", "image_raw"),
+        ("image_rect", "image_rect/compressed"),
+        ("image/compressed", "image"),
+    ],
+)
+def test_one_side_compressed_the_other_raw_is_a_pair(left: str, right: str) -> None:
+    topics = _topics(*_camera("/cam/left", left), *_camera("/cam/right", right))
+    (pair,) = find_pairs(topics)
+    assert (pair.left.topic, pair.right.topic) == (f"/cam/left/{left}", f"/cam/right/{right}")
+
+
+def test_one_transport_on_both_sides_preferred_over_a_mixed_pair() -> None:
+    # the left camera has both transports, the right one only the compressed one
+    topics = _topics(
+        *_camera("/cam/left", "image_raw", "image_raw/compressed"),
+        *_camera("/cam/right", "image_raw/compressed"),
+    )
+    (pair,) = find_pairs(topics)
+    assert (pair.left.topic, pair.right.topic) == (
+        "/cam/left/image_raw/compressed",
+        "/cam/right/image_raw/compressed",
+    )
+    # both with both: the raw pair, as before
+    topics = _topics(*(f"/cam/{side}/image_raw/compressed" for side in ("left", "right")))
+    topics |= _topics(*_camera("/cam/left", "image_raw"), *_camera("/cam/right", "image_raw"))
+    (pair,) = find_pairs(topics)
+    assert (pair.left.topic, pair.right.topic) == ("/cam/left/image_raw", "/cam/right/image_raw")
+
+
+def test_streams_of_two_images_are_no_pair() -> None:
+    # a rectified left and a raw right are two images, whatever their transports
+    topics = _topics(
+        *_camera("/cam/left", "image_rect/compressed"), *_camera("/cam/right", "image_raw")
+    )
+    assert find_pairs(topics) == []
+
+
 def test_image_without_camera_info_is_no_camera_unless_calibrated() -> None:
     topics = _topics("/cam0/image_raw", "/cam1/image_raw")
     assert find_pairs(topics) == []

@@ -13,6 +13,7 @@ from pcainterp_stream.errors import CalibrationError, LogReadError, TopicNotFoun
 from pcainterp_stream.frontend.camera_infos import camera_from_infos
 from pcainterp_stream.frontend.pairing import (
     PairingConfig,
+    PairingStats,
     StereoPairer,
     iter_stereo_frames,
 )
@@ -427,3 +428,167 @@ def test_iter_stereo_frames_over_a_log(tmp_path: Path) -> None:
         ),
     ):
         list(iter_stereo_frames(reader, PairingConfig(features_topic="/features")))
+
+
+def _numbered_pairs(
+    pairer: StereoPairer, stamps: list[int], *, skip_right: tuple[int, ...] = ()
+) -> list[tuple[int, int]]:
+    """Push frames 0..n-1 (left then right, 100 ms of log apart, each image's value its frame
+    number, the right images in ``skip_right`` dropped); return (left, right) of each pair."""
+    frames = []
+    for index, stamp in enumerate(stamps):
+        log_ns = 1_600_000_000 * 10**9 + index * 100 * MS
+        frames += pairer.push(CONFIG.left_topic, stamp, log_ns, image(stamp, index))
+        if index not in skip_right:
+            frames += pairer.push(CONFIG.right_topic, stamp, log_ns, image(stamp, index))
+    frames += pairer.flush()
+    return [(int(f.left[0, 0]), int(f.right[0, 0])) for f in frames]
+
+
+def test_zero_stamps_pair_by_log_time_not_first_come() -> None:
+    pairer = StereoPairer()
+    with_infos(pairer)
+    pairs = _numbered_pairs(pairer, [0] * 6, skip_right=(2,))
+    # first-come paired left 2 with right 3, left 3 with right 4, ...
+    assert pairs == [(0, 0), (1, 1), (3, 3), (4, 4), (5, 5)]
+    stats = pairer.finish()
+    assert (stats.pairs, stats.unpaired_left, stats.unpaired_right) == (5, 1, 0)
+    note = stats.stamp_note()
+    assert note == (
+        f"stamps: the header stamps of {CONFIG.left_topic} repeat 0 (not set), so they do "
+        "not tell its images apart: the images were paired by log time after the first 1, "
+        "within 25 ms (a quarter frame, or --stamp-tolerance-ms when wider)"
+    )
+    assert stats.stamp_hint() is None
+
+
+def test_repeated_stamps_pair_by_log_time_after_the_first_pair() -> None:
+    pairer = StereoPairer()
+    with_infos(pairer)
+    stamp = 7 * 10**9 + 5
+    pairs = _numbered_pairs(pairer, [stamp] * 6, skip_right=(3,))
+    assert pairs == [(0, 0), (1, 1), (2, 2), (4, 4), (5, 5)]
+    stats = pairer.finish()
+    assert stats.unpaired_left == 1
+    note = stats.stamp_note()
+    assert note is not None
+    assert "repeat (7.000000005 s twice)" in note
+    assert "paired by log time after the first 1, within 25 ms (a quarter frame" in note
+
+
+def test_stamps_that_repeat_later_switch_to_log_time_from_there() -> None:
+    pairer = StereoPairer()
+    with_infos(pairer)
+    stamps = [1 * 10**9, 2 * 10**9, 3 * 10**9, 3 * 10**9, 3 * 10**9, 3 * 10**9]
+    pairs = _numbered_pairs(pairer, stamps, skip_right=(3,))
+    assert pairs == [(0, 0), (1, 1), (2, 2), (4, 4), (5, 5)]
+    note = pairer.finish().stamp_note()
+    assert note is not None
+    assert "after the first 3," in note
+
+
+def _first_right_missing(pairer: StereoPairer) -> list[Any]:
+    """Left 0 then, from frame 1 on, each right image before its left one; one stamp for all.
+
+    Left 0 and right 1 pair by stamp before a repeated stamp shows (left 1).
+    """
+    stamp, start = 5 * 10**9, 1_600_000_000 * 10**9
+    frames = pairer.push(CONFIG.left_topic, stamp, start, image(stamp, 0))
+    for index in range(1, 4):
+        log_ns = start + index * 100 * MS
+        frames += pairer.push(CONFIG.right_topic, stamp, log_ns, image(stamp, index))
+        frames += pairer.push(CONFIG.left_topic, stamp, log_ns, image(stamp, index))
+    return frames
+
+
+def test_a_pair_made_by_stamp_before_the_repeat_is_checked_by_log_time() -> None:
+    pairer = StereoPairer()
+    with_infos(pairer)
+    frames = _first_right_missing(pairer)
+    # made and gone before the repeat showed: it can only be said
+    assert [(int(f.left[0, 0]), int(f.right[0, 0])) for f in frames] == [(0, 1), (2, 2), (3, 3)]
+    hint = pairer.finish().stamp_hint()
+    assert hint == (
+        f"1 stereo pair(s) made by header stamp before the stamps of {CONFIG.left_topic} "
+        "repeated had their images recorded 100.00-100.00 ms apart, beyond the 25 ms "
+        "tolerance: they may be mispaired (left images at log time 1600000000.000 s); pass "
+        "--stamp-tolerance-ms 100 if the two sides are only received that far apart"
+    )
+    # while the pair still waits for its camera infos, it is paired again, by log time
+    pairer = StereoPairer()
+    assert _first_right_missing(pairer) == []
+    frames = push(pairer, CONFIG.left_info_topic, 0, left_info())
+    frames += push(pairer, CONFIG.right_info_topic, 0, right_info())
+    assert [(int(f.left[0, 0]), int(f.right[0, 0])) for f in frames] == [(1, 1), (2, 2), (3, 3)]
+    stats = pairer.finish()
+    assert (stats.unpaired_left, stats.unsure_pairs, stats.stamp_hint()) == (1, [], None)
+    assert "paired by log time, within" in (stats.stamp_note() or "")
+
+
+def test_distinct_stamps_pair_by_stamp_whatever_the_log_times() -> None:
+    pairer = StereoPairer()
+    with_infos(pairer)
+    frames = []
+    for index in range(4):  # the right images recorded 30 ms after their left ones
+        stamp = (index + 1) * 100 * MS
+        frames += pairer.push(CONFIG.left_topic, stamp, stamp, image(stamp, index))
+        frames += pairer.push(CONFIG.right_topic, stamp, stamp + 30 * MS, image(stamp, index))
+    assert [(int(f.left[0, 0]), int(f.right[0, 0])) for f in frames] == [(i, i) for i in range(4)]
+    stats = pairer.finish()
+    assert (stats.stamp_note(), stats.stamp_hint(), stats.near_misses_ns) == (None, None, [])
+
+
+def test_repeated_stamps_recorded_apart_are_a_tolerance_warning_in_log_time() -> None:
+    def run(config: PairingConfig, apart_ms: int) -> tuple[list[Any], PairingStats]:
+        pairer = StereoPairer(config)
+        with_infos(pairer)
+        frames = []
+        for index in range(4):  # the right images recorded apart_ms after their left ones
+            log_ns = index * 100 * MS
+            frames += pairer.push(CONFIG.left_topic, 0, log_ns, image(0, index))
+            frames += pairer.push(CONFIG.right_topic, 0, log_ns + apart_ms * MS, image(0, index))
+        return frames, pairer.finish()
+
+    # a driver's jitter: within a quarter frame (25 ms at 10 Hz) the sides pair by log time
+    frames, stats = run(PairingConfig(), 3)
+    assert [(int(f.left[0, 0]), int(f.right[0, 0])) for f in frames] == [(i, i) for i in range(4)]
+    assert (stats.tolerance_hint(), stats.stamp_hint()) == (None, None)
+    # beyond it, the images are dropped and the warning names the tolerance that pairs them
+    frames, stats = run(PairingConfig(), 40)
+    assert (stats.pairs, stats.unpaired_left, stats.unpaired_right) == (1, 3, 3)
+    hint = stats.tolerance_hint()
+    assert hint is not None
+    assert "40.00-40.00 ms of log time away, beyond the 25 ms tolerance" in hint
+    assert hint.endswith("pass --stamp-tolerance-ms 40 to pair them")
+    # the first pair, made by stamp, cannot be told from a wrong one: the same fix
+    assert (stats.stamp_hint() or "").endswith(
+        "pass --stamp-tolerance-ms 40 if the two sides are only received that far apart"
+    )
+    frames, stats = run(PairingConfig(tolerance_ns=40 * MS), 40)
+    assert [(int(f.left[0, 0]), int(f.right[0, 0])) for f in frames] == [(i, i) for i in range(4)]
+    assert (stats.tolerance_hint(), stats.stamp_hint()) == (None, None)
+
+
+def test_infos_recorded_after_their_images_apply_to_their_own_frame() -> None:
+    """A camera publisher's order: image, then the info of the same stamp (bug hunt 2, M4)."""
+
+    def run(info_after_image: bool) -> list[Any]:
+        pairer = StereoPairer()
+        frames = []
+        for index in range(4):
+            stamp = (index + 1) * 100 * MS
+            camera = dataclasses.replace(CAMERA, fx=50.0 + index)  # recalibrated every frame
+            infos = [(CONFIG.left_info_topic, left_info(camera))]
+            infos.append((CONFIG.right_info_topic, right_info(camera)))
+            images = [(CONFIG.left_topic, image(stamp, index))]
+            images.append((CONFIG.right_topic, image(stamp, index)))
+            for topic, message in images + infos if info_after_image else infos + images:
+                frames += push(pairer, topic, stamp, message)
+        frames += pairer.flush()
+        assert pairer.finish().pairs == 4
+        return frames
+
+    for order in (True, False):
+        frames = run(order)
+        assert [int(f.left[0, 0]) for f in frames] == [0, 1, 2, 3]
+        assert [f.camera.fx for f in frames] == [50.0, 51.0, 52.0, 53.0]

@@ -1,0 +1,207 @@
+"""What a stereo pairing did: counts, and the notes and warnings the command line prints.
+
+:class:`PairingStats` is the accumulator :class:`frontend.pairing.StereoPairer` fills as it
+pairs a log; its methods word the lines a run prints about it (a tolerance too tight, camera
+infos recorded late, header stamps that do not tell the pairs apart).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+MAX_PROBLEMS = 20
+"""How many one-line problem descriptions :class:`PairingStats` keeps (counts are exact)."""
+
+
+@dataclass
+class PairingStats:
+    """Counts of what the pairer did (a mutable accumulator).
+
+    Attributes:
+        pairs: stereo frames emitted.
+        unpaired_left: left images dropped without a right partner.
+        unpaired_right: right images dropped without a left partner.
+        undecodable: images (or feature clouds) that could not be decoded, by reason.
+        size_mismatches: pairs skipped because left and right sizes differ.
+        encoding_mismatches: pairs skipped because left and right are of one size but
+            differ in channels (grey, colour) or bit depth.
+        no_camera_info: pairs dropped because a side never had a camera info in time.
+        missing_info_topics: the camera info topics that had no message yet when a pair
+            was dropped (or made with one read ahead).
+        info_late_ns: log time (ns) from the first pair dropped for want of a camera info (or
+            made with one read ahead) to the first camera info on both sides; -1 when none
+            was dropped or none came.
+        pairs_before_info: pairs made before the stream's first camera info of a side, with
+            the one read ahead (:meth:`StereoPairer.look_ahead`).
+        changed_info_topics: camera info topics whose calibration later differs from the
+            one read ahead.
+        features_matched: frames that got a feature cloud of their stamp.
+        features_unmatched: feature clouds that matched no frame.
+        non_monotonic_stamps: images whose stamp is earlier than the previous one on the
+            same side.
+        near_misses_ns: the gap (ns) of each image dropped unpaired to the nearest other-side
+            image when it came, if beyond the tolerance but within :data:`NEAR_MISS_NS`.
+        repeated_stamp_topic: the image topic whose header stamps did not tell its images
+            apart (the side's previous stamp again), from which on images were paired
+            by log time; None when the stamps paired every image.
+        repeated_stamp_ns: that stamp (ns).
+        pairs_by_stamp: pairs made by header stamp before the switch to log time.
+        unsure_pairs: (left log time, log time between the sides) (ns) of the pairs made by
+            stamp before the stamps repeated that have the repeated stamp but whose images
+            were recorded beyond the tolerance apart.
+        tolerance_ns: the pairing's tolerance (ns).
+        log_tolerance_ns: the tolerance once paired by log time (ns): at least a quarter of
+            a frame interval.
+        window: the pairing's window (pairs held waiting for camera infos).
+        problems: the first :data:`MAX_PROBLEMS` one-line problem descriptions.
+    """
+
+    pairs: int = 0
+    unpaired_left: int = 0
+    unpaired_right: int = 0
+    undecodable: dict[str, int] = field(default_factory=dict)
+    size_mismatches: int = 0
+    encoding_mismatches: int = 0
+    no_camera_info: int = 0
+    missing_info_topics: list[str] = field(default_factory=list)
+    info_late_ns: int = -1
+    pairs_before_info: int = 0
+    changed_info_topics: list[str] = field(default_factory=list)
+    features_matched: int = 0
+    features_unmatched: int = 0
+    non_monotonic_stamps: int = 0
+    near_misses_ns: list[int] = field(default_factory=list)
+    repeated_stamp_topic: str | None = None
+    repeated_stamp_ns: int = 0
+    pairs_by_stamp: int = 0
+    unsure_pairs: list[tuple[int, int]] = field(default_factory=list)
+    tolerance_ns: int = 0
+    log_tolerance_ns: int = 0
+    window: int = 0
+    problems: list[str] = field(default_factory=list)
+
+    def tolerance_hint(self) -> str | None:
+        """A warning when unpaired images had a partner just beyond the tolerance, else None."""
+        misses = self.near_misses_ns
+        if not misses:
+            return None
+        widest = max(misses) / 1e6
+        by_log = self.repeated_stamp_topic is not None
+        when = " of log time" if by_log else ""
+        tolerance = self.log_tolerance_ns if by_log else self.tolerance_ns
+        return (
+            f"{len(misses)} images were dropped unpaired whose other-side image was "
+            f"{min(misses) / 1e6:.2f}-{widest:.2f} ms{when} away, beyond the "
+            f"{tolerance / 1e6:g} ms tolerance; pass --stamp-tolerance-ms "
+            f"{math.ceil(widest)} to pair them"
+        )
+
+    def stamp_note(self) -> str | None:
+        """A note when images were paired by log time: their header stamps repeat, else None."""
+        topic = self.repeated_stamp_topic
+        if topic is None:
+            return None
+        stamp = self.repeated_stamp_ns
+        why = (
+            "repeat 0 (not set)"
+            if stamp == 0
+            else f"repeat ({stamp // 1_000_000_000}.{stamp % 1_000_000_000:09d} s twice)"
+        )
+        after = f" after the first {self.pairs_by_stamp}" if self.pairs_by_stamp else ""
+        return (
+            f"stamps: the header stamps of {topic} {why}, so they do not tell its images "
+            f"apart: the images were paired by log time{after}, within "
+            f"{self.log_tolerance_ns / 1e6:g} ms (a quarter frame, or --stamp-tolerance-ms "
+            "when wider)"
+        )
+
+    def stamp_hint(self) -> str | None:
+        """A warning when pairs made by stamp before the stamps repeated may be wrong, else None."""
+        unsure = self.unsure_pairs
+        if not unsure:
+            return None
+        times = ", ".join(f"{t / 1e9:.3f}" for t, _ in unsure[:3])
+        more = ", ..." if len(unsure) > 3 else ""
+        gaps = [gap / 1e6 for _, gap in unsure]
+        return (
+            f"{len(unsure)} stereo pair(s) made by header stamp before the stamps of "
+            f"{self.repeated_stamp_topic} repeated had their images recorded "
+            f"{min(gaps):.2f}-{max(gaps):.2f} ms apart, beyond the "
+            f"{self.log_tolerance_ns / 1e6:g} ms tolerance: they may be mispaired (left "
+            f"images at log time {times}{more} s); "
+            f"pass --stamp-tolerance-ms {math.ceil(max(gaps))} if the two sides are only "
+            "received that far apart"
+        )
+
+    def camera_info_hint(self) -> str | None:
+        """A warning when pairs were dropped before the first camera info came, else None.
+
+        Also when pairs were made with a camera info read ahead that changed later in the
+        log. A log without a single pair gets no hint: its error says why.
+        """
+        topics = " and ".join(self.missing_info_topics) or "the camera info topics"
+        late = self.info_late_ns / 1e9
+        # pairs within the window would have waited for the first info: no difference
+        ahead = self.pairs_before_info > self.window
+        if ahead and self.changed_info_topics:
+            return (
+                f"the first {self.pairs_before_info} stereo pairs came before the first camera "
+                f"info on {topics} (recorded {late:.1f} s of log later) and were densified with "
+                f"it, but {' and '.join(self.changed_info_topics)} changed later in the log: "
+                "their depth may be off; pass --calibration LEFT.yaml RIGHT.yaml (the cameras' "
+                "camera_info_manager files) to densify them with their own"
+            )
+        if not (self.no_camera_info and self.pairs):
+            return None
+        when = f" (it came {late:.1f} s of log after the first dropped pair)" if late >= 0 else ""
+        return (
+            f"{self.no_camera_info} of {self.no_camera_info + self.pairs} stereo pairs were "
+            f"dropped because no camera info had arrived yet on {topics}{when}; pass "
+            "--calibration LEFT.yaml RIGHT.yaml (the cameras' camera_info_manager files) to "
+            "densify every pair"
+        )
+
+    def camera_info_note(self) -> str | None:
+        """A note when pairs were made with a camera info read ahead that never changed.
+
+        Only when they are more than the window: pairs within it would have waited for that
+        first camera info anyway (a log that writes each image before its camera info).
+        """
+        if self.pairs_before_info <= self.window or self.changed_info_topics:
+            return None
+        return (
+            f"camera info: the first {self.pairs_before_info} stereo pairs came before the first "
+            f"camera info on {' and '.join(self.missing_info_topics)} (recorded "
+            f"{self.info_late_ns / 1e9:.1f} s of log later): densified with it, read ahead "
+            "(the log's camera infos do not change)"
+        )
+
+    def note(self, problem: str) -> None:
+        """Keep a one-line problem description (only the first few are kept)."""
+        if len(self.problems) < MAX_PROBLEMS:
+            self.problems.append(problem)
+
+    def summary(self) -> str:
+        """Return the counts as one line."""
+        parts = [
+            f"{self.pairs} pairs",
+            f"{self.unpaired_left} unpaired left",
+            f"{self.unpaired_right} unpaired right",
+        ]
+        if self.size_mismatches:
+            parts.append(f"{self.size_mismatches} size mismatches")
+        if self.encoding_mismatches:
+            parts.append(f"{self.encoding_mismatches} encoding mismatches")
+        if self.no_camera_info:
+            parts.append(f"{self.no_camera_info} without camera info")
+        if self.non_monotonic_stamps:
+            parts.append(f"{self.non_monotonic_stamps} non-monotonic stamps")
+        for reason, count in self.undecodable.items():
+            parts.append(f"{count} undecodable ({reason})")
+        if self.features_matched or self.features_unmatched:
+            parts.append(
+                f"{self.features_matched} frames with features, "
+                f"{self.features_unmatched} unmatched feature clouds"
+            )
+        return ", ".join(parts)
