@@ -31,6 +31,7 @@ the cluster closes.
 from __future__ import annotations
 
 import contextlib
+import errno
 import itertools
 import logging
 import multiprocessing
@@ -783,6 +784,13 @@ def densify_many(
     try:
         tasks: dict[Any, int] = {}
         for index, (path, out) in enumerate(zip(inputs, outputs, strict=True)):
+            if out.is_dir():  # refused before its work, not when committing it
+                message = (
+                    f"output {out} is a folder but densify writes a file there; remove the "
+                    "folder or densify into another one"
+                )
+                outcomes[index] = DensifyOutcome(path, out, 0, 0.0, message)
+                continue
             folder = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out_dir))
             track_partial(folder)
             staging[index] = folder
@@ -800,9 +808,18 @@ def densify_many(
                     path, out, 0, 0.0, str(err), isinstance(err, ClusterTaskError)
                 )
             else:
-                _commit(staging[index], out)
-                kept.append(out)
-                outcomes[index] = DensifyOutcome(path, out, summary.frames, summary.seconds, None)
+                try:
+                    _commit(staging[index], out)
+                except OSError as err:  # a folder of the output's name, no permission
+                    message = (
+                        f"cannot write {out}: {err.strerror or err}; nothing was written there"
+                    )
+                    outcomes[index] = DensifyOutcome(path, out, 0, 0.0, message)
+                else:
+                    kept.append(out)
+                    outcomes[index] = DensifyOutcome(
+                        path, out, summary.frames, summary.seconds, None
+                    )
             _remove(staging.pop(index))
     except BaseException as err:
         stop_local_workers(client)  # before the clean-up: a live worker could still write
@@ -824,10 +841,13 @@ def _commit(folder: Path, output: Path) -> None:
     """
     raise_if_signalled()  # nothing is committed after a signal
     names = [own_basis_path(output).name, final_basis_path(output).name, output.name]
+    names = [name for name in names if (folder / name).exists()]
+    for name in names:  # checked before any rename: none of them or all
+        if (output.parent / name).is_dir():
+            raise IsADirectoryError(errno.EISDIR, "a folder of that name is in the way")
     with signals_deferred():
         for name in names:  # the output last: it names the basis beside it
-            if (folder / name).exists():
-                os.replace(folder / name, output.parent / name)
+            os.replace(folder / name, output.parent / name)
 
 
 def _remove(folder: Path) -> None:

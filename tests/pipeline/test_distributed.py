@@ -581,3 +581,19 @@ def test_a_failing_log_of_out_dir_is_one_line_without_dask_s_report(
     ]
     assert "2 logs densified" in process.stdout.splitlines()[-1]
     assert sorted(p.name for p in out_dir.iterdir()) == ["a_dense.mcap"]
+
+
+def test_densify_many_refuses_an_output_that_is_a_folder_and_densifies_the_others(
+    logs: dict[str, Path], client: Any, tmp_path: Path
+) -> None:
+    """Outputs are committed by the caller: a folder in the way is one log's error, before
+    its work (no traceback when renaming onto it), and nothing hidden is left."""
+    out_dir = tmp_path / "out"
+    (out_dir / "a_dense.mcap").mkdir(parents=True)
+    outcomes = distributed.densify_many([logs["a"], logs["b"]], out_dir, None, client)
+    assert outcomes[0].error is not None
+    assert "is a folder" in outcomes[0].error
+    assert not outcomes[0].unexpected
+    assert outcomes[1].error is None
+    assert sorted(p.name for p in out_dir.iterdir()) == ["a_dense.mcap", "b_dense.mcap"]
+    assert (out_dir / "a_dense.mcap").is_dir()
