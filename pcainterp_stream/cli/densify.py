@@ -564,6 +564,11 @@ def _densify_many(
             error = outcome.error
             if outcome.input.name not in error:
                 error = f"{outcome.input}: {error}"
+            if outcome.unexpected:  # a bug or a dead worker: one process shows where
+                error += (
+                    f"; densify this log alone (pcainterp densify {outcome.input} -o OUTPUT) "
+                    "to see where it failed"
+                )
             print(f"pcainterp: error: {error}", file=sys.stderr)
     frames = sum(outcome.frames for outcome in outcomes)
     echo(

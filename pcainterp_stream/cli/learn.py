@@ -17,7 +17,7 @@ from pcainterp_stream.cli.common import (
     sgbm_config,
 )
 from pcainterp_stream.cli.pairing import add_topic_options, pairing_config
-from pcainterp_stream.errors import LogReadError, LogWriteError, PcaInterpError
+from pcainterp_stream.errors import ClusterTaskError, LogReadError, LogWriteError, PcaInterpError
 
 
 def add_parser(commands: Commands) -> None:
@@ -137,8 +137,15 @@ def run(args: argparse.Namespace) -> int:
     if on_cluster:  # the same learn, the maps' statistics gathered by the workers
         from pcainterp_stream.pipeline import distributed
 
-        with distributed.connect(args.scheduler, args.workers) as client:
-            basis = distributed.learn_distributed(args.logs, args.output, options, pairing, client)
+        try:
+            with distributed.connect(args.scheduler, args.workers) as client:
+                basis = distributed.learn_distributed(
+                    args.logs, args.output, options, pairing, client
+                )
+        except ClusterTaskError as err:  # a bug or a dead worker: one process shows where
+            raise ClusterTaskError(
+                f"{err}; run learn without --scheduler/--workers to see where it failed"
+            ) from err
     else:
         basis = learn(args.logs, args.output, options, pairing)
     echo(f"wrote {args.output}")
