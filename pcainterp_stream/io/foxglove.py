@@ -83,6 +83,12 @@ MAX_GAP_NOTES = 3
 """Skipped gaps reported one by one; the rest only in :attr:`LiveStats.gaps_skipped`."""
 
 _OVERFLOW = re.compile(r"outbox for client (?P<client>\S+) full")
+_DISCONNECT = re.compile(
+    r"Error (?:receiving from|sending message to|reading from byte stream for) client "
+    r"(?P<client>\S+?): (?P<reason>.*)"
+)
+"""The SDK's report of a connection that ended without a close handshake: one per message
+it could not send or read, so a client that drops mid-stream gave dozens of lines."""
 
 
 def check_rate(rate: float) -> float:
@@ -169,6 +175,7 @@ class LiveStats:
             client's oldest queued messages).
         gaps_skipped: gaps in log time the pacing did not wait for.
         gap_s_skipped: their total length (s of log).
+        dropped: client addresses whose connection ended without a close handshake.
     """
 
     frames: int = 0
@@ -178,10 +185,17 @@ class LiveStats:
     overflows: Counter[str] = field(default_factory=Counter)
     gaps_skipped: int = 0
     gap_s_skipped: float = 0.0
+    dropped: set[str] = field(default_factory=set)
 
 
 class _SdkLog(logging.Handler):
-    """Counts the SDK's "outbox full" reports per client and passes its warnings on."""
+    """Counts the SDK's "outbox full" reports per client and passes its warnings on.
+
+    A client that drops its connection without a close handshake (a viewer closed, Wi-Fi
+    lost) is said in one line per client (the SDK logs an error per message it then cannot
+    send); when no server is running (ours is stopping: it closes connections without a
+    close frame) such reports are dropped. Every other warning and error is passed on.
+    """
 
     def __init__(self) -> None:
         super().__init__(level=logging.INFO)
@@ -190,9 +204,21 @@ class _SdkLog(logging.Handler):
     def emit(self, record: logging.LogRecord) -> None:
         text = record.getMessage()
         found = _OVERFLOW.search(text)
+        dropped = _DISCONNECT.search(text)
         if found is not None:
             for sink in list(self.sinks):
                 sink.stats.overflows[found["client"]] += 1
+        elif dropped is not None:
+            client = dropped["client"]
+            for sink in list(self.sinks):
+                if client not in sink.stats.dropped:
+                    sink.stats.dropped.add(client)
+                    print(
+                        f"foxglove: client {client} disconnected without closing the "
+                        f"connection ({dropped['reason']})",
+                        file=sys.stderr,
+                        flush=True,
+                    )
         elif record.levelno >= logging.WARNING:
             print(f"foxglove: {text}", file=sys.stderr, flush=True)
 

@@ -13,6 +13,7 @@ import asyncio
 import contextlib
 import hashlib
 import json
+import logging
 import os
 import re
 import shutil
@@ -516,6 +517,30 @@ def test_a_message_at_log_time_0_does_not_hold_the_stream(
     assert "gap in log time (" in done.stdout
     assert "; skipped 1 gap(s) in log time" in done.stdout
     assert output.exists()
+
+
+def test_a_client_that_drops_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    """The SDK logs an error per message it cannot send to a dropped client: one line each."""
+    sdk = logging.getLogger("foxglove.websocket.connected_client")  # where the SDK logs
+    reset = "WebSocket protocol error: Connection reset without closing handshake"
+    with FoxgloveLive(ServeAddress(port=0), rate=0.0) as live:
+        live.start()
+        for client in ("127.0.0.1:40001", "[::1]:40002"):
+            sdk.error("Error receiving from client %s: %s", client, reset)
+            for _ in range(5):
+                sdk.error(
+                    "Error sending message to client %s: IO error: Broken pipe (os error 32)",
+                    client,
+                )
+        sdk.error("Error advertising channel to client: something else")  # not hidden
+    sdk.error("Error receiving from client 127.0.0.1:40003: %s", reset)  # our own stop
+    lines = capsys.readouterr().err.splitlines()
+    assert lines == [
+        f"foxglove: client 127.0.0.1:40001 disconnected without closing the connection ({reset})",
+        f"foxglove: client [::1]:40002 disconnected without closing the connection ({reset})",
+        "foxglove: Error advertising channel to client: something else",
+    ]
+    assert live.stats.dropped == {"127.0.0.1:40001", "[::1]:40002"}
 
 
 @pytest.mark.parametrize(
