@@ -153,6 +153,11 @@ class ServeAddress:
         host = match["v6"] or match["host"] or DEFAULT_HOST
         return cls(host=host, port=int(match["port"]))
 
+    def __str__(self) -> str:
+        """``HOST:PORT`` as ``--foxglove`` takes it (``[::]:8765`` for IPv6)."""
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"{host}:{self.port}"
+
     def url(self, port: int | None = None) -> str:
         """Return the ``ws://`` URL a client opens (``port`` overrides, for port 0)."""
         host = f"[{self.host}]" if ":" in self.host else self.host
@@ -362,9 +367,7 @@ class FoxgloveLive:
             if "in use" in reason
             else "pass an address of this machine, e.g. 127.0.0.1:8765"
         )
-        raise StreamError(
-            f"cannot serve Foxglove on {self.address.host}:{self.address.port}: {reason}; {hint}"
-        ) from err
+        raise StreamError(f"cannot serve Foxglove on {self.address}: {reason}; {hint}") from err
 
     def start(self) -> None:
         """Start accepting clients (idempotent; the first message does it).

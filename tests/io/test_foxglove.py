@@ -582,6 +582,35 @@ def test_a_port_in_use_is_one_line(synthetic_log: Path, capsys: pytest.CaptureFi
     assert "Address already in use" in err
 
 
+def test_a_busy_ipv6_port_is_named_in_brackets(capsys: pytest.CaptureFixture[str]) -> None:
+    assert str(ServeAddress("::", 8765)) == "[::]:8765"
+    assert str(ServeAddress("127.0.0.1", 8765)) == "127.0.0.1:8765"
+    try:
+        taken = socket.socket(socket.AF_INET6)
+        taken.bind(("::1", 0))
+    except OSError:
+        pytest.skip("no IPv6 loopback here")
+    with taken:
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(StreamError, match=re.escape(f"cannot serve Foxglove on [::1]:{port}:")):
+            FoxgloveLive(ServeAddress("::1", port)).open()
+
+
+def test_the_address_is_printed_once_the_input_is_open(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An input that cannot be read must not look served."""
+    broken = tmp_path / "broken.mcap"
+    broken.write_bytes(b"not a log at all")
+    code = cli.main(["densify", str(broken), "--foxglove", "127.0.0.1:0"])
+    captured = capsys.readouterr()
+    assert code == 2
+    assert "serving on" not in captured.out
+    assert captured.err.count("\n") == 1
+    assert str(broken) in captured.err
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
