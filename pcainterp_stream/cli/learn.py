@@ -158,13 +158,20 @@ def _check_paths(args: argparse.Namespace) -> None:
     """Refuse, before any work, a -o learn cannot write or that replaces a file it reads.
 
     Raises:
-        LogWriteError: -o is a folder, or one of the logs, --fit-logs or --calibration.
+        LogWriteError: -o is a folder, is named other than .npz, or is one of the logs,
+            --fit-logs or --calibration.
         LogReadError: a --fit-logs log does not exist.
     """
     if args.output.is_dir():
         raise LogWriteError(
             f"output {args.output} is a folder but learn writes one basis file; "
             f"choose a file path, e.g. -o {args.output / 'basis.npz'}"
+        )
+    suffix = args.output.suffix
+    if suffix and suffix.lower() != ".npz":
+        raise LogWriteError(
+            f"output {args.output} is named {suffix} but learn writes a basis (.npz); "
+            f"choose a name ending in .npz, e.g. -o {args.output.with_suffix('.npz')}"
         )
     for log in args.fit_logs:
         if not log.exists():
