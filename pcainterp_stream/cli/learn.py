@@ -167,12 +167,6 @@ def _check_paths(args: argparse.Namespace) -> None:
             f"output {args.output} is a folder but learn writes one basis file; "
             f"choose a file path, e.g. -o {args.output / 'basis.npz'}"
         )
-    suffix = args.output.suffix
-    if suffix and suffix.lower() != ".npz":
-        raise LogWriteError(
-            f"output {args.output} is named {suffix} but learn writes a basis (.npz); "
-            f"choose a name ending in .npz, e.g. -o {args.output.with_suffix('.npz')}"
-        )
     for log in args.fit_logs:
         if not log.exists():
             raise LogReadError(f"--fit-logs log {log} does not exist; pass an existing log")
@@ -180,6 +174,12 @@ def _check_paths(args: argparse.Namespace) -> None:
     reads.extend(("the --fit-logs log", log) for log in args.fit_logs)
     reads.extend(("the --calibration file", path) for path in args.calibration or ())
     refuse_overwrites([("the output", args.output, "choose a different -o path")], reads)
+    suffix = args.output.suffix
+    if suffix and suffix.lower() != ".npz":
+        raise LogWriteError(
+            f"output {args.output} is named {suffix} but learn writes a basis (.npz); "
+            f"choose a name ending in .npz, e.g. -o {args.output.with_suffix('.npz')}"
+        )
 
 
 def _with_synthetic(value: str) -> int | Literal["auto"]:
