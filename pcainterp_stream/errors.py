@@ -44,3 +44,11 @@ class StreamError(PcaInterpError):
 
 class GoldenError(PcaInterpError):
     """A golden file is missing, malformed, or of a format version this package does not read."""
+
+
+class ClusterTaskError(PcaInterpError):
+    """A task on a Dask cluster failed with an unexpected error (a bug or a dead worker).
+
+    The errors of the family above reach the caller as they are; anything else a task
+    raises (or a worker process that died under it) arrives as this, in one line.
+    """

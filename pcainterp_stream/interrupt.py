@@ -33,7 +33,7 @@ import signal
 import subprocess
 import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from types import FrameType
 from typing import IO, Any
@@ -132,6 +132,33 @@ _stall_dump: IO[str] | None = None
 _partials: set[Path] = set()
 _control: IO[bytes] | None = None
 _signals_seen = 0
+_deferring = 0
+
+
+class Interrupted(KeyboardInterrupt):
+    """The interruption of a command that writes several outputs into a folder.
+
+    Raised from the ``KeyboardInterrupt`` once the partial outputs are removed; its message
+    says what stayed: the outputs committed before the signal.
+
+    Attributes:
+        folder: the folder the outputs go to.
+        kept: the outputs finished and committed before the signal.
+        total: the outputs the command was to write.
+    """
+
+    def __init__(self, folder: Path, kept: Sequence[Path], total: int) -> None:
+        """Record where the outputs go, which were kept and how many there were to be."""
+        self.folder = folder
+        self.kept = tuple(kept)
+        self.total = total
+        if not self.kept:
+            done = "no output was finished before the signal"
+        else:
+            done = f"kept {len(self.kept)} of {total} outputs, finished before the signal: " + (
+                ", ".join(map(str, self.kept))
+            )
+        super().__init__(f"no partial output was left in {folder}; {done}")
 
 
 def track_partial(path: Path) -> None:
@@ -174,6 +201,8 @@ def _on_signal(signum: int, frame: FrameType | None) -> None:
     global _signals_seen
     _signals_seen += 1
     if _signals_seen == 1:
+        if _deferring:  # raised where the deferring block ends (signals_deferred)
+            return
         raise KeyboardInterrupt
     remove_partials()
     with contextlib.suppress(Exception):
@@ -204,6 +233,26 @@ def raise_if_signalled() -> None:
     """
     if _signals_seen and threading.current_thread() is threading.main_thread():
         raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def signals_deferred() -> Iterator[None]:
+    """Hold a first signal's ``KeyboardInterrupt`` until the block ends (main thread only).
+
+    For a few steps that must happen together or not at all (the renames that commit an
+    output and the files beside it): a signal during the block raises ``KeyboardInterrupt``
+    once it is done. A second signal still ends the command at once.
+    """
+    global _deferring
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    _deferring += 1
+    try:
+        yield
+    finally:
+        _deferring -= 1
+    raise_if_signalled()
 
 
 def end_if_signalled(code: int) -> None:

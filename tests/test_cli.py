@@ -2213,3 +2213,33 @@ def test_dense_mode_matcher_by_default_and_by_choice(
     config = _processor_config(args, adapt="check")
     expected = dataclasses.replace(DENSE_MATCHERS[matcher], downscale=downscale)
     assert config.sgbm == expected
+
+
+def test_learn_refuses_an_output_not_named_npz_before_learning(
+    pcainterp: Callable[..., Run],
+    small_log: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from pcainterp_stream.pipeline import learn as learn_job
+
+    def no_work(*args: object, **kwargs: object) -> None:
+        raise AssertionError("learned before checking -o")
+
+    monkeypatch.setattr(learn_job, "learn_pairing", no_work)
+    monkeypatch.setattr(learn_job, "learn", no_work)
+    target = tmp_path / "basis.mcap"
+    line = pcainterp("learn", small_log, "-o", target).error_line()
+    assert f"output {target} is named .mcap but learn writes a basis (.npz)" in line
+    assert f"-o {tmp_path / 'basis.npz'}" in line
+    assert_nothing_written(target)
+
+
+def test_learn_every_beyond_the_log_names_every(
+    pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path
+) -> None:
+    target = tmp_path / "basis.npz"
+    line = pcainterp("learn", small_log, "-o", target, "--every", "50").error_line()
+    assert "no held-out stereo pair" in line
+    assert "a smaller --every (--every 50 keeps 1 frame in 50)" in line
+    assert_nothing_written(target)

@@ -525,3 +525,25 @@ def test_a_swallowed_interrupt_still_ends_the_command(tmp_path: Path) -> None:
     assert process.returncode == 130, process.stderr
     assert process.stderr.strip() == INTERRUPTED
     assert list(tmp_path.iterdir()) == []
+
+
+SIGNAL_DEFERRED = """
+import signal, sys
+from pcainterp_stream import interrupt
+
+steps = []
+try:
+    with interrupt.stop_on_signals(watchdog=False), interrupt.signals_deferred():
+        signal.raise_signal(signal.SIGINT)  # handled here, its KeyboardInterrupt held
+        steps.append("after the signal, inside the block")
+    steps.append("after the block")
+except KeyboardInterrupt:
+    print(", ".join(steps) + "; interrupted")
+"""
+
+
+def test_a_signal_during_a_deferring_block_takes_effect_after_it() -> None:
+    """``signals_deferred`` (a commit's renames) holds the KeyboardInterrupt to its end."""
+    process = _run_script(SIGNAL_DEFERRED)
+    assert process.returncode == 0, process.stderr
+    assert process.stdout.strip() == "after the signal, inside the block; interrupted"

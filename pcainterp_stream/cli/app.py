@@ -33,6 +33,7 @@ from pcainterp_stream.cli.common import PROG, formatter
 from pcainterp_stream.errors import PcaInterpError
 from pcainterp_stream.interrupt import (
     EXIT_INTERRUPTED,
+    Interrupted,
     InterruptedAfterOutput,
     end_if_signalled,
     signalled,
@@ -100,8 +101,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with stop_on_signals(watchdog=args.command == "densify"):
             return run(args)
-    except KeyboardInterrupt as err:
-        return _interrupted(err)
+    except KeyboardInterrupt as interruption:
+        return _interrupted(interruption)
     except Exception as err:
         # A signal that lands inside an import of a compiled module surfaces as
         # "ImportError: initialization failed", inside other native code as whatever it
@@ -150,12 +151,18 @@ def _end_without_teardown(code: int) -> None:
     os._exit(code)
 
 
-def _interrupted(err: KeyboardInterrupt | None = None) -> int:
-    """Say the command was interrupted; end at once after a real signal; return 130."""
-    if isinstance(err, InterruptedAfterOutput):  # the signal came after the output's commit
-        print(f"{PROG}: interrupted; {err.kept} was complete and is kept", file=sys.stderr)
-    else:
-        print(f"{PROG}: interrupted; no partial output was left at the target", file=sys.stderr)
+def _interrupted(interruption: KeyboardInterrupt | None = None) -> int:
+    """Say the command was interrupted (and what it kept); end at once after a real signal.
+
+    Returns:
+        130.
+    """
+    detail = "no partial output was left at the target"
+    if isinstance(interruption, InterruptedAfterOutput):  # the signal came after the commit
+        detail = f"{interruption.kept} was complete and is kept"
+    elif isinstance(interruption, Interrupted):  # several outputs: which were kept
+        detail = str(interruption)
+    print(f"{PROG}: interrupted; {detail}", file=sys.stderr)
     # A Ctrl-C that lands inside code run by exec() (rosbags generates its message
     # decoders that way) sets a flag that makes `python -m` re-raise SIGINT at exit
     # (CPython bpo-41602) although we handled it; any exec() of a string clears it.

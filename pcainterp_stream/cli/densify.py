@@ -29,8 +29,16 @@ from pcainterp_stream.cli.common import (
 )
 from pcainterp_stream.cli.densify_one import LiveOptions, densify_one
 from pcainterp_stream.cli.pairing import add_topic_options, pairing_config
-from pcainterp_stream.errors import LogWriteError, PcaInterpError, StreamError
-from pcainterp_stream.io.foxglove import DEFAULT_HOST, DEFAULT_PORT, ServeAddress
+from pcainterp_stream.errors import LogWriteError, PcaInterpError
+from pcainterp_stream.io.foxglove import (
+    DEFAULT_HOST,
+    DEFAULT_PORT,
+    MAX_GAP_S,
+    MAX_RATE,
+    MIN_RATE,
+    ServeAddress,
+    check_rate,
+)
 
 if TYPE_CHECKING:
     from pcainterp_stream.io.outputs import OutputTopics
@@ -96,7 +104,8 @@ def add_parser(commands: Commands) -> None:
         type=float,
         default=None,
         metavar="R",
-        help="pace at R x the log's rate: 1 = as recorded, 0 = as fast as processed "
+        help=f"pace at R x the log's rate, {MIN_RATE:g} to {MAX_RATE:g}: 1 = as recorded, 0 = "
+        f"as fast as processed; a gap over {MAX_GAP_S:g} s of log is skipped with a line "
         "(default: 0 with -o, else 1)",
     )
     live.add_argument(
@@ -454,11 +463,9 @@ def _live_options(args: argparse.Namespace) -> LiveOptions | None:
         raise PcaInterpError("--foxglove serves one log; use -o OUTPUT instead of --out-dir")
     address = ServeAddress.parse(args.foxglove)
     rate = args.rate if args.rate is not None else (0.0 if args.output is not None else 1.0)
-    if not 0 <= rate < float("inf"):  # also refuses nan
-        raise StreamError(f"--rate must be a finite number >= 0, got {args.rate}")
     return LiveOptions(
         address=address,
-        rate=rate,
+        rate=check_rate(rate),
         wait_for_client=args.wait_for_client,
         keep_serving=args.output is None and not args.exit_when_done,
     )
@@ -564,6 +571,11 @@ def _densify_many(
             error = outcome.error
             if outcome.input.name not in error:
                 error = f"{outcome.input}: {error}"
+            if outcome.unexpected:  # a bug or a dead worker: one process shows where
+                error += (
+                    f"; densify this log alone (pcainterp densify {outcome.input} -o OUTPUT) "
+                    "to see where it failed"
+                )
             print(f"pcainterp: error: {error}", file=sys.stderr)
     frames = sum(outcome.frames for outcome in outcomes)
     echo(

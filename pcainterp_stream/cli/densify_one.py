@@ -119,18 +119,17 @@ def _densify_one(
             stack.enter_context(contextlib.redirect_stdout(sys.stderr))
         server = None
         if live is not None:
+            # the address is checked now (a port in use stops the run before any work); the
+            # server starts, and says so, with the first message: once the input is open
             server = stack.enter_context(
                 FoxgloveLive(
                     live.address,
                     rate=live.rate,
                     wait_for=topics.all() if live.wait_for_client else (),
+                    note=echo,
+                    on_start=lambda: _serving(server, live, topics),
                 )
             )
-            pace = f"{live.rate:g}x the log's rate" if live.rate > 0 else "as fast as processed"
-            echo(f"foxglove: serving on {server.url} ({pace}); in Foxglove: Open connection")
-            if live.wait_for_client:
-                prefix = topics.depth.rsplit("/", 1)[0]
-                echo(f"foxglove: waiting for a client to subscribe to a {prefix}/* channel")
         summary = densify(
             reading,
             target,
@@ -150,9 +149,14 @@ def _densify_one(
             echo(f"wrote {rrd}")
         if server is not None:
             stats = server.stats
+            skipped = (
+                f"; skipped {stats.gaps_skipped} gap(s) in log time ({stats.gap_s_skipped:.1f} s)"
+                if stats.gaps_skipped
+                else ""
+            )
             echo(
                 f"foxglove: published {stats.frames} frames ({stats.messages} messages) to "
-                f"{stats.clients} client(s)"
+                f"{stats.clients} client(s){skipped}"
             )
             for client, count in sorted(stats.overflows.items()):
                 echo(
@@ -171,6 +175,16 @@ def _densify_one(
                     # down: end here, so that Ctrl-C always ends the process.
                     end_if_signalled(0)
     return 0
+
+
+def _serving(server: FoxgloveLive | None, live: LiveOptions, topics: OutputTopics) -> None:
+    """Say where the server listens, once it accepts clients."""
+    assert server is not None  # started by its first message, after the with block opened it
+    pace = f"{live.rate:g}x the log's rate" if live.rate > 0 else "as fast as processed"
+    echo(f"foxglove: serving on {server.url} ({pace}); in Foxglove: Open connection")
+    if live.wait_for_client:
+        prefix = topics.depth.rsplit("/", 1)[0]
+        echo(f"foxglove: waiting for a client to subscribe to a {prefix}/* channel")
 
 
 def _print_summary(summary: DensifySummary, processor: ProcessorConfig) -> None:

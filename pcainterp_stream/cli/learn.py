@@ -17,7 +17,7 @@ from pcainterp_stream.cli.common import (
     sgbm_config,
 )
 from pcainterp_stream.cli.pairing import add_topic_options, pairing_config
-from pcainterp_stream.errors import LogReadError, LogWriteError, PcaInterpError
+from pcainterp_stream.errors import ClusterTaskError, LogReadError, LogWriteError, PcaInterpError
 
 
 def add_parser(commands: Commands) -> None:
@@ -176,8 +176,15 @@ def run(args: argparse.Namespace) -> int:
     if on_cluster:  # the same learn, the maps' statistics gathered by the workers
         from pcainterp_stream.pipeline import distributed
 
-        with distributed.connect(args.scheduler, args.workers) as client:
-            basis = distributed.learn_distributed(args.logs, args.output, options, pairing, client)
+        try:
+            with distributed.connect(args.scheduler, args.workers) as client:
+                basis = distributed.learn_distributed(
+                    args.logs, args.output, options, pairing, client
+                )
+        except ClusterTaskError as err:  # a bug or a dead worker: one process shows where
+            raise ClusterTaskError(
+                f"{err}; run learn without --scheduler/--workers to see where it failed"
+            ) from err
     else:
         basis = learn(args.logs, args.output, options, pairing)
     echo(f"wrote {args.output}")
@@ -190,7 +197,8 @@ def _check_paths(args: argparse.Namespace) -> None:
     """Refuse, before any work, a -o learn cannot write or that replaces a file it reads.
 
     Raises:
-        LogWriteError: -o is a folder, or one of the logs, --fit-logs or --calibration.
+        LogWriteError: -o is a folder, is named other than .npz, or is one of the logs,
+            --fit-logs or --calibration.
         LogReadError: a --fit-logs log does not exist.
     """
     if args.output.is_dir():
@@ -205,6 +213,12 @@ def _check_paths(args: argparse.Namespace) -> None:
     reads.extend(("the --fit-logs log", log) for log in args.fit_logs)
     reads.extend(("the --calibration file", path) for path in args.calibration or ())
     refuse_overwrites([("the output", args.output, "choose a different -o path")], reads)
+    suffix = args.output.suffix
+    if suffix and suffix.lower() != ".npz":
+        raise LogWriteError(
+            f"output {args.output} is named {suffix} but learn writes a basis (.npz); "
+            f"choose a name ending in .npz, e.g. -o {args.output.with_suffix('.npz')}"
+        )
 
 
 def _with_synthetic(value: str) -> int | Literal["auto"]:

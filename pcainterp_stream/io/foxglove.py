@@ -11,7 +11,12 @@ input messages were read (stereo matching runs ahead). Input messages are theref
 back until the frame of the same log time is published (at most :data:`MAX_HELD` of them),
 so a client sees the stream in log-time order, as a player of the file would. With
 ``rate > 0`` publishing waits until ``(log time - first log time) / rate`` has passed on
-the wall clock; ``rate = 0`` publishes as fast as frames are processed.
+the wall clock; ``rate = 0`` publishes as fast as frames are processed. A gap in log time
+longer than :data:`MAX_GAP_S` (or one that would take more than :data:`MAX_WAIT_S` of wall
+time at ``rate``) is not waited for: publishing goes on at once from the next message, and
+the gap is reported, as ``rosbag play --skip-empty`` does. One message logged at time 0 (a
+static transform, a latched message) before camera frames at epoch times would otherwise
+hold the stream for decades.
 
 Slow clients never block the caller: ``Channel.log`` only queues. The SDK keeps one bounded
 outbox per client (``message_backlog_size`` messages, here :data:`CLIENT_BACKLOG`) and drops
@@ -30,7 +35,7 @@ import sys
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, NamedTuple, Self, cast
@@ -62,7 +67,42 @@ STOP_TIMEOUT_S = 5.0
 INTERRUPTED_STOP_TIMEOUT_S = 0.5
 """The same wait when closing because of Ctrl-C, SIGTERM or an error."""
 
+MIN_RATE = 0.01
+"""Slowest ``rate`` (x the log's rate): a 10 Hz camera at one frame per 10 s."""
+
+MAX_RATE = 1000.0
+"""Fastest ``rate`` besides 0 (as fast as processed)."""
+
+MAX_GAP_S = 5.0
+"""Longest gap in log time (s) the pacing waits for; a longer one is skipped."""
+
+MAX_WAIT_S = 60.0
+"""Longest wall-clock wait (s) for one gap at a slow ``rate``; a longer one is skipped."""
+
+MAX_GAP_NOTES = 3
+"""Skipped gaps reported one by one; the rest only in :attr:`LiveStats.gaps_skipped`."""
+
 _OVERFLOW = re.compile(r"outbox for client (?P<client>\S+) full")
+_DISCONNECT = re.compile(
+    r"Error (?:receiving from|sending message to|reading from byte stream for) client "
+    r"(?P<client>\S+?): (?P<reason>.*)"
+)
+"""The SDK's report of a connection that ended without a close handshake: one per message
+it could not send or read, so a client that drops mid-stream gave dozens of lines."""
+
+
+def check_rate(rate: float) -> float:
+    """Return ``rate`` if it is 0 or within :data:`MIN_RATE` - :data:`MAX_RATE`.
+
+    Raises:
+        StreamError: any other value (negative, nan, inf, 1e-300), in one line.
+    """
+    if rate == 0 or MIN_RATE <= rate <= MAX_RATE:  # also refuses nan
+        return float(rate)
+    raise StreamError(
+        f"--rate must be 0 (as fast as processed) or between {MIN_RATE:g} and {MAX_RATE:g} "
+        f"(x the log's rate; 1 = as recorded), got {rate:g}"
+    )
 
 
 class LiveMessage(NamedTuple):
@@ -113,6 +153,11 @@ class ServeAddress:
         host = match["v6"] or match["host"] or DEFAULT_HOST
         return cls(host=host, port=int(match["port"]))
 
+    def __str__(self) -> str:
+        """``HOST:PORT`` as ``--foxglove`` takes it (``[::]:8765`` for IPv6)."""
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"{host}:{self.port}"
+
     def url(self, port: int | None = None) -> str:
         """Return the ``ws://`` URL a client opens (``port`` overrides, for port 0)."""
         host = f"[{self.host}]" if ":" in self.host else self.host
@@ -133,6 +178,9 @@ class LiveStats:
         clients: distinct clients that subscribed to a channel.
         overflows: client address -> outbox overflows the SDK reported (each one drops that
             client's oldest queued messages).
+        gaps_skipped: gaps in log time the pacing did not wait for.
+        gap_s_skipped: their total length (s of log).
+        dropped: client addresses whose connection ended without a close handshake.
     """
 
     frames: int = 0
@@ -140,10 +188,19 @@ class LiveStats:
     released_early: int = 0
     clients: int = 0
     overflows: Counter[str] = field(default_factory=Counter)
+    gaps_skipped: int = 0
+    gap_s_skipped: float = 0.0
+    dropped: set[str] = field(default_factory=set)
 
 
 class _SdkLog(logging.Handler):
-    """Counts the SDK's "outbox full" reports per client and passes its warnings on."""
+    """Counts the SDK's "outbox full" reports per client and passes its warnings on.
+
+    A client that drops its connection without a close handshake (a viewer closed, Wi-Fi
+    lost) is said in one line per client (the SDK logs an error per message it then cannot
+    send); when no server is running (ours is stopping: it closes connections without a
+    close frame) such reports are dropped. Every other warning and error is passed on.
+    """
 
     def __init__(self) -> None:
         super().__init__(level=logging.INFO)
@@ -152,9 +209,21 @@ class _SdkLog(logging.Handler):
     def emit(self, record: logging.LogRecord) -> None:
         text = record.getMessage()
         found = _OVERFLOW.search(text)
+        dropped = _DISCONNECT.search(text)
         if found is not None:
             for sink in list(self.sinks):
                 sink.stats.overflows[found["client"]] += 1
+        elif dropped is not None:
+            client = dropped["client"]
+            for sink in list(self.sinks):
+                if client not in sink.stats.dropped:
+                    sink.stats.dropped.add(client)
+                    print(
+                        f"foxglove: client {client} disconnected without closing the "
+                        f"connection ({dropped['reason']})",
+                        file=sys.stderr,
+                        flush=True,
+                    )
         elif record.levelno >= logging.WARNING:
             print(f"foxglove: {text}", file=sys.stderr, flush=True)
 
@@ -204,11 +273,14 @@ class FoxgloveLive:
 
     Args:
         address: where to listen.
-        rate: pace at this multiple of the log's rate; 0 = as fast as frames come.
+        rate: pace at this multiple of the log's rate; 0 = as fast as frames come, else
+            within :data:`MIN_RATE` - :data:`MAX_RATE`.
         wait_for: hold the first message until a client subscribed to one of these topics
             (empty: do not wait).
         name: the server name clients show.
         backlog: messages queued per client before its oldest are dropped.
+        note: called with a line for the user when the pacing skips a gap in log time.
+        on_start: called once when the server starts accepting clients (the first message).
     """
 
     def __init__(
@@ -219,11 +291,13 @@ class FoxgloveLive:
         wait_for: Iterable[str] = (),
         name: str = "pcainterp",
         backlog: int = CLIENT_BACKLOG,
+        note: Callable[[str], None] | None = None,
+        on_start: Callable[[], None] | None = None,
     ) -> None:
-        if not rate >= 0 or rate == float("inf"):
-            raise StreamError(f"--rate must be a finite number >= 0, got {rate}")
         self.address = address or ServeAddress()
-        self.rate = rate
+        self.rate = check_rate(rate)
+        self.note = note
+        self.on_start = on_start
         self.wait_for = frozenset(wait_for)
         self.name = name
         self.backlog = backlog
@@ -237,7 +311,8 @@ class FoxgloveLive:
         self._held: deque[RawMessage] = deque()
         self._subscribed = threading.Event()
         self._clients: set[int] = set()
-        self._clock: tuple[int, float] | None = None  # (first log time ns, its wall time)
+        self._clock: tuple[int, float] | None = None  # (a log time ns, its wall time)
+        self._paced_ns = 0  # the latest log time paced
         self._time_ns = -1
         self._waited = not self.wait_for
 
@@ -292,9 +367,7 @@ class FoxgloveLive:
             if "in use" in reason
             else "pass an address of this machine, e.g. 127.0.0.1:8765"
         )
-        raise StreamError(
-            f"cannot serve Foxglove on {self.address.host}:{self.address.port}: {reason}; {hint}"
-        ) from err
+        raise StreamError(f"cannot serve Foxglove on {self.address}: {reason}; {hint}") from err
 
     def start(self) -> None:
         """Start accepting clients (idempotent; the first message does it).
@@ -321,6 +394,8 @@ class FoxgloveLive:
         except RuntimeError as err:
             self._raise_bind_error(str(err).removeprefix("FoxgloveError: "), err)
         _SDK_LOG.sinks.append(self)
+        if self.on_start is not None:
+            self.on_start()
 
     def close(self, drain_s: float = 1.0, stop_timeout_s: float = STOP_TIMEOUT_S) -> None:
         """Stop the server (idempotent); clients see the connection close.
@@ -481,17 +556,47 @@ class FoxgloveLive:
             self._server.broadcast_time(log_time_ns)
 
     def _pace(self, log_time_ns: int) -> None:
-        """Sleep until this log time is due at ``rate`` x the log's rate."""
+        """Sleep until this log time is due at ``rate`` x the log's rate.
+
+        A gap since the latest paced log time longer than :data:`MAX_GAP_S`, or than
+        :data:`MAX_WAIT_S` of wall time at ``rate``, is skipped: the clock restarts at this
+        message, and the gap is counted and reported.
+        """
         if self.rate <= 0:
             return
         now = time.monotonic()
         if self._clock is None:
             self._clock = (log_time_ns, now)
+            self._paced_ns = log_time_ns
             return
+        gap_s = (log_time_ns - self._paced_ns) / 1e9
+        limit_s = min(MAX_GAP_S, MAX_WAIT_S * self.rate)
+        if gap_s > limit_s:
+            self._skip_gap(gap_s, limit_s)
+            self._clock = (log_time_ns, now)
+            self._paced_ns = log_time_ns
+            return
+        self._paced_ns = max(self._paced_ns, log_time_ns)
         first_ns, started = self._clock
         delay = started + (log_time_ns - first_ns) / 1e9 / self.rate - now
         if delay > 0:
-            time.sleep(delay)
+            time.sleep(min(delay, MAX_WAIT_S))
+
+    def _skip_gap(self, gap_s: float, limit_s: float) -> None:
+        self.stats.gaps_skipped += 1
+        self.stats.gap_s_skipped += gap_s
+        if self.note is None or self.stats.gaps_skipped > MAX_GAP_NOTES:
+            return
+        at_rate = f" ({gap_s / self.rate:.0f} s at --rate {self.rate:g})" if self.rate != 1 else ""
+        more = (
+            "; further gaps are counted in the summary"
+            if self.stats.gaps_skipped == MAX_GAP_NOTES
+            else ""
+        )
+        self.note(
+            f"foxglove: skipped a {gap_s:.1f} s gap in log time{at_rate}: gaps over "
+            f"{limit_s:g} s are not waited for{more}"
+        )
 
     def _on_subscribe(self, client_id: int, topic: str) -> None:
         if client_id not in self._clients:

@@ -16,13 +16,30 @@ merged, the merge done here on the reduced summary), and the held-out frames mea
 the workers, one task per log, for the same fit of the prior.
 
 Densifying runs :func:`pcainterp_stream.pipeline.densify.densify` on each log in its own task; a
-failing log is reported and does not stop the others.
+failing log is reported and does not stop the others. A task writes its output into a hidden
+staging folder beside the target (``.NAME.partial-XXXX``), and this process, not the worker,
+moves it onto the target once the task is done: nothing is committed after a Ctrl-C.
+
+Tasks return the errors they meet (:class:`TaskFailure`) rather than raise them: Dask logs
+every exception a task raises as a multi-line "Compute Failed" block on the worker's stderr,
+before the caller could say the same in one line. On an interruption (or any error that
+leaves :func:`connect`'s block) the local cluster's worker processes are killed at once,
+before their clean-up could log or commit anything, and Dask's logging is silenced while
+the cluster closes.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import itertools
+import logging
+import multiprocessing
+import os
+import shutil
+import signal
+import tempfile
+import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,7 +48,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.errors import LogReadError, PcaInterpError
+from pcainterp_stream.errors import ClusterTaskError, LogReadError, PcaInterpError
 from pcainterp_stream.estimate.basis import Basis, grid_size_for
 from pcainterp_stream.estimate.finetune import finetune_from_sketch
 from pcainterp_stream.estimate.learning import (
@@ -41,13 +58,21 @@ from pcainterp_stream.estimate.learning import (
     merge_sketches,
     truncated_product,
 )
+from pcainterp_stream.interrupt import (
+    Interrupted,
+    raise_if_signalled,
+    signalled,
+    signals_deferred,
+    track_partial,
+    untrack_partial,
+)
 from pcainterp_stream.pipeline.common import (
     _bar,
     _check_topic_types,
     _pairing_types,
     _require_topics,
 )
-from pcainterp_stream.pipeline.densify import densify
+from pcainterp_stream.pipeline.densify import densify, final_basis_path, own_basis_path
 from pcainterp_stream.pipeline.learn import (
     GridTarget,
     HeldOutFrame,
@@ -64,6 +89,76 @@ DEFAULT_CHUNK_FRAMES = 64
 
 DEFAULT_OVERSAMPLING = 20
 """The fewest columns kept beyond l in every summary (the local streaming learner's)."""
+
+
+@dataclass(frozen=True)
+class TaskFailure:
+    """An error a task met, returned as its result instead of raised (see the module's notes).
+
+    Attributes:
+        message: the error's message, its first line.
+        kind: the exception's class name.
+        error: the error itself when it is one of this package's (the input's fault, its
+            message written for the user), else None (unexpected: a bug).
+    """
+
+    message: str
+    kind: str
+    error: PcaInterpError | None
+
+    @classmethod
+    def of(cls, error: Exception) -> TaskFailure:
+        """Return the failure of ``error``."""
+        text = str(error).splitlines()[0] if str(error) else type(error).__name__
+        expected = error if isinstance(error, PcaInterpError) else None
+        return cls(text, type(error).__name__, expected)
+
+    def raise_error(self, what: str) -> None:
+        """Raise the error here: this package's as it was, anything else as one line.
+
+        Args:
+            what: the task, for the message of an unexpected error ("a learning task").
+
+        Raises:
+            PcaInterpError: the task's own error.
+            ClusterTaskError: any other.
+        """
+        if self.error is not None:
+            raise self.error
+        raise ClusterTaskError(
+            f"{what} failed on the cluster with an unexpected {self.kind}: {self.message}"
+        )
+
+
+def run_task(function: Callable[..., Any], *args: Any) -> Any:
+    """Run ``function(*args)`` as a task: its result, or the :class:`TaskFailure` it met.
+
+    An argument that is itself a failure (the summary of a chunk that failed, merged) is
+    passed on as the result, unrun.
+    """
+    for arg in args:
+        if isinstance(arg, TaskFailure):
+            return arg
+    try:
+        return function(*args)
+    except Exception as err:  # returned, not raised: see TaskFailure
+        return TaskFailure.of(err)
+
+
+def task_result(future: Any, what: str) -> Any:
+    """Return a task's result (:func:`run_task`), raising the error it met here.
+
+    Raises:
+        PcaInterpError: the task's own error.
+        ClusterTaskError: anything else, a worker that died under the task included.
+    """
+    try:
+        result = future.result()
+    except Exception as err:  # Dask's own: a worker died (KilledWorker), a lost scheduler
+        result = TaskFailure.of(err)
+    if isinstance(result, TaskFailure):
+        result.raise_error(what)
+    return result
 
 
 def cluster_oversampling(n_components: int) -> int:
@@ -267,6 +362,14 @@ def summarize_chunk(
 def connect(scheduler: str | None = None, workers: int | None = None) -> Iterator[Any]:
     """Yield a ``dask.distributed.Client``: to ``scheduler``, or to a new local cluster.
 
+    A local cluster's worker processes leave SIGINT and SIGTERM to the command
+    (:func:`_start_workers`): a Ctrl-C at the terminal reaches its whole process group, and
+    a worker left to the default handling prints a ``KeyboardInterrupt`` traceback and goes
+    on with its task. When the block ends with an exception (an interruption, a failed
+    task) they are killed at once (:func:`stop_local_workers`), and Dask's logging is
+    silenced until the cluster is closed: Dask would otherwise report the tasks it cancels
+    and the workers it finds still running.
+
     Args:
         scheduler: address of a running scheduler (``tcp://host:8786``), or None.
         workers: worker processes of a new ``LocalCluster`` (one thread each) when no
@@ -281,17 +384,87 @@ def connect(scheduler: str | None = None, workers: int | None = None) -> Iterato
         with Client(scheduler) as client:  # type: ignore[no-untyped-call]
             yield client
         return
-    with (
-        LocalCluster(  # type: ignore[no-untyped-call]
-            n_workers=workers or 2,
-            threads_per_worker=1,
-            processes=True,
-            # any free port for its HTTP server: ":8787" may be taken by another cluster
-            dashboard_address=":0",
-        ) as cluster,
-        Client(cluster) as client,  # type: ignore[no-untyped-call]
-    ):
-        yield client
+    # the cluster is made without workers (the scheduler alone, a few tenths of a second)
+    # and they are added once it is bound here, so an interruption while they start
+    # still finds and stops them; closing restores the logging last
+    with contextlib.ExitStack() as after_close, contextlib.ExitStack() as stack:
+        cluster = stack.enter_context(
+            LocalCluster(  # type: ignore[no-untyped-call]
+                n_workers=0,
+                threads_per_worker=1,
+                processes=True,
+                # any free port for its HTTP server: ":8787" may be taken by another cluster
+                dashboard_address=":0",
+            )
+        )
+        client = stack.enter_context(Client(cluster))  # type: ignore[no-untyped-call]
+        children = set(multiprocessing.active_children())
+        try:
+            _start_workers(cluster, client, workers or 2)
+            yield client
+        except BaseException:
+            after_close.enter_context(_logging_silenced())
+            stop_local_workers(client)
+            # the worker processes still starting (Dask lists them once all have started):
+            # killed too, else closing the cluster waits for them to start and then stop
+            for process in set(multiprocessing.active_children()) - children:
+                process.kill()
+            raise
+
+
+def _start_workers(cluster: Any, client: Any, count: int) -> None:
+    """Start ``count`` worker processes that never receive SIGINT or SIGTERM.
+
+    A process starts with the signal mask of the thread that started it. Dask starts its
+    worker processes from threads of its event loop's thread: SIGINT and SIGTERM are
+    blocked in that thread first, so they stay pending, never delivered, in every worker
+    from its first instruction on; the command stops its workers itself, and a worker
+    ends anyway as soon as the process that started it does. The multiprocessing resource
+    tracker is started before: starting it unblocks both signals in the thread that
+    starts it.
+    """
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()
+    blocked = threading.Event()
+
+    def block() -> None:
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+        blocked.set()
+
+    cluster.loop.add_callback(block)
+    blocked.wait()
+    cluster.scale(count)
+    client.wait_for_workers(count)
+
+
+@contextlib.contextmanager
+def _logging_silenced() -> Iterator[None]:
+    """Silence every logger of this process for the block (Dask's closing a stopped cluster)."""
+    previous = logging.root.manager.disable
+    logging.disable(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        logging.disable(previous)
+
+
+def stop_local_workers(client: Any) -> None:
+    """Kill the worker processes of the client's local cluster at once (a no-op for others).
+
+    Their nannies (in this process) are told first that the end is intended, so none
+    restarts its worker. A killed worker commits nothing, logs nothing and needs no time
+    to end a task that was still running.
+    """
+    cluster = getattr(client, "cluster", None)
+    for nanny in list(getattr(cluster, "workers", {}).values()):
+        pid = getattr(nanny, "pid", None)
+        if pid is None:
+            continue  # a worker in a thread of this process, or already gone
+        with contextlib.suppress(Exception):
+            nanny.close_gracefully("pcainterp stopped the cluster")
+        with contextlib.suppress(OSError):
+            os.kill(pid, signal.SIGKILL)
 
 
 def learn_distributed(
@@ -421,12 +594,7 @@ def learn_on_cluster(
     specs = [(log.resolve(), start, stop) for log, start, stop in chunk_specs(plan, chunk_frames)]
     with _bar(len(specs), "learn on the cluster", unit="chunk") as bar:
         final = _reduce(client, specs, options, pairing, keep, plan.target, bar.update)
-        try:
-            total: ChunkSummary | None = final.result()
-        except PcaInterpError:
-            raise
-        except Exception as err:  # a worker's error arrives re-raised here
-            raise PcaInterpError(f"a learning task failed on the cluster: {err}") from err
+        total: ChunkSummary | None = task_result(final, "a learning task")
     if total is None:
         raise LogReadError(
             f"no {'depth image' if options.depth_topic else 'stereo pair'} found in "
@@ -478,18 +646,15 @@ def measure_on_cluster(
         PcaInterpError: a task failed.
     """
     futures = [
-        client.submit(measure_held_out, log.resolve(), first, options, pairing, pure=False)
+        client.submit(
+            run_task, measure_held_out, log.resolve(), first, options, pairing, pure=False
+        )
         for log, first in sources
     ]
     measured: list[list[HeldOutFrame]] = []
     with _bar(len(futures), "fit prior (measure held-out frames on the cluster)", "log") as bar:
         for future in futures:
-            try:
-                measured.append(future.result())
-            except PcaInterpError:
-                raise
-            except Exception as err:  # a worker's error arrives re-raised here
-                raise PcaInterpError(f"a measuring task failed on the cluster: {err}") from err
+            measured.append(task_result(future, "a measuring task"))
             bar.update(1)
     return measured
 
@@ -523,7 +688,10 @@ def _reduce(
                 return
             log, start, stop = spec
             future = client.submit(
-                summarize_chunk, log, start, stop, options, pairing, keep, target, pure=False
+                run_task,
+                summarize_chunk,
+                *(log, start, stop, options, pairing, keep, target),
+                pure=False,
             )
             chunks.add(future.key)
             running.add(future)
@@ -536,7 +704,7 @@ def _reduce(
         if ready is None:
             ready = future
         else:
-            running.add(client.submit(merge, ready, future, keep, pure=False))
+            running.add(client.submit(run_task, merge, ready, future, keep, pure=False))
             ready = None
         refill()
     return ready
@@ -552,6 +720,8 @@ class DensifyOutcome:
         frames: frames densified (0 on failure).
         seconds: wall time of the task (s).
         error: one-line error of a failed log, or None.
+        unexpected: the error is not one of this package's (a bug, or a worker that died):
+            its message alone does not say what to fix.
     """
 
     input: Path
@@ -559,6 +729,7 @@ class DensifyOutcome:
     frames: int
     seconds: float
     error: str | None
+    unexpected: bool = False
 
 
 def output_path(input_path: Path, out_dir: Path) -> Path:
@@ -579,6 +750,11 @@ def densify_many(
 ) -> list[DensifyOutcome]:
     """Densify many logs in parallel on a Dask cluster, one output per log.
 
+    Each task writes into a staging folder of its own in ``out_dir``; its output (and the
+    adapted basis saved beside it) is moved onto the target here, as soon as the task is
+    done. On an interruption the local workers are killed, every staging folder removed,
+    and :class:`pcainterp_stream.interrupt.Interrupted` names the outputs committed before it.
+
     Args:
         inputs: input logs (paths readable by the workers), distinct stems.
         out_dir: output folder (created); outputs are :func:`output_path`.
@@ -592,25 +768,91 @@ def densify_many(
 
     Raises:
         PcaInterpError: two inputs would write the same output.
+        Interrupted: a signal (or ``KeyboardInterrupt``) stopped the run.
     """
+    from dask.distributed import as_completed
+
     outputs = [output_path(path, out_dir) for path in inputs]
     if len(set(outputs)) != len(outputs):
         raise PcaInterpError(
             f"inputs share a file name stem, so their outputs in {out_dir} would collide; "
             "densify them into different --out-dir folders"
         )
+    created = not out_dir.exists()
     out_dir.mkdir(parents=True, exist_ok=True)
-    futures = [
-        client.submit(_densify_one, path, out, basis, kwargs, pure=False)
-        for path, out in zip(inputs, outputs, strict=True)
-    ]
-    outcomes: list[DensifyOutcome] = []
-    for path, out, future in zip(inputs, outputs, futures, strict=True):
-        try:
-            summary = future.result()
-        except Exception as err:  # reported per log; the other logs go on
-            message = str(err).splitlines()[0] if str(err) else type(err).__name__
-            outcomes.append(DensifyOutcome(path, out, 0, 0.0, message))
-        else:
-            outcomes.append(DensifyOutcome(path, out, summary.frames, summary.seconds, None))
-    return outcomes
+    staging: dict[int, Path] = {}  # input index -> its staging folder, until committed
+    outcomes: dict[int, DensifyOutcome] = {}
+    kept: list[Path] = []
+    try:
+        tasks: dict[Any, int] = {}
+        for index, (path, out) in enumerate(zip(inputs, outputs, strict=True)):
+            if out.is_dir():  # refused before its work, not when committing it
+                message = (
+                    f"output {out} is a folder but densify writes a file there; remove the "
+                    "folder or densify into another one"
+                )
+                outcomes[index] = DensifyOutcome(path, out, 0, 0.0, message)
+                continue
+            folder = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out_dir))
+            track_partial(folder)
+            staging[index] = folder
+            future = client.submit(
+                run_task, _densify_one, path, folder / out.name, basis, kwargs, pure=False
+            )
+            tasks[future] = index
+        for future in as_completed(list(tasks)):  # type: ignore[no-untyped-call]
+            index = tasks[future]
+            path, out = inputs[index], outputs[index]
+            try:
+                summary = task_result(future, "densifying")
+            except PcaInterpError as err:  # reported per log; the other logs go on
+                outcomes[index] = DensifyOutcome(
+                    path, out, 0, 0.0, str(err), isinstance(err, ClusterTaskError)
+                )
+            else:
+                try:
+                    _commit(staging[index], out)
+                except OSError as err:  # a folder of the output's name, no permission
+                    message = (
+                        f"cannot write {out}: {err.strerror or err}; nothing was written there"
+                    )
+                    outcomes[index] = DensifyOutcome(path, out, 0, 0.0, message)
+                else:
+                    kept.append(out)
+                    outcomes[index] = DensifyOutcome(
+                        path, out, summary.frames, summary.seconds, None
+                    )
+            _remove(staging.pop(index))
+    except BaseException as err:
+        stop_local_workers(client)  # before the clean-up: a live worker could still write
+        for folder in staging.values():
+            _remove(folder)
+        if created and not kept:  # the folder this run made, empty again
+            with contextlib.suppress(OSError):
+                out_dir.rmdir()
+        if isinstance(err, KeyboardInterrupt) or signalled():
+            raise Interrupted(out_dir, kept, len(inputs)) from err
+        raise
+    return [outcomes[index] for index in range(len(inputs))]
+
+
+def _commit(folder: Path, output: Path) -> None:
+    """Move a finished output, and the bases densify saved beside it, onto the target.
+
+    The renames happen together or not at all: a signal during them takes effect after.
+    """
+    raise_if_signalled()  # nothing is committed after a signal
+    names = [own_basis_path(output).name, final_basis_path(output).name, output.name]
+    names = [name for name in names if (folder / name).exists()]
+    for name in names:  # checked before any rename: none of them or all
+        if (output.parent / name).is_dir():
+            raise IsADirectoryError(errno.EISDIR, "a folder of that name is in the way")
+    with signals_deferred():
+        for name in names:  # the output last: it names the basis beside it
+            os.replace(folder / name, output.parent / name)
+
+
+def _remove(folder: Path) -> None:
+    """Remove a staging folder and forget it."""
+    shutil.rmtree(folder, ignore_errors=True)
+    untrack_partial(folder)

@@ -855,9 +855,14 @@ def fit_prior(
             if frame.reference is not None
         )
     if not any(frame.residual.size for sequence in sequences for frame in sequence):
+        every = (
+            f"a smaller --every (--every {options.every} keeps 1 frame in {options.every}), "
+            if options.every > 1
+            else ""
+        )
         raise PcaInterpError(
-            "no held-out stereo pair with measurements to fit the prior on; use more frames, a "
-            "larger --holdout or --fit-logs LOG"
+            "no held-out stereo pair with measurements to fit the prior on; use more frames, "
+            f"{every}a larger --holdout or --fit-logs LOG"
         )
     _echo("fitting the prior by the evidence on the held-out frames")
     fitted = fitting.fit_prior(

@@ -13,6 +13,7 @@ import asyncio
 import contextlib
 import hashlib
 import json
+import logging
 import os
 import re
 import shutil
@@ -29,14 +30,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from mcap.reader import make_reader
 
 from pcainterp_stream import cli
 from pcainterp_stream.errors import StreamError
 from pcainterp_stream.interrupt import STALL_DUMP_VARIABLE
-from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io import foxglove, rosmsg
 from pcainterp_stream.io.foxglove import SUBPROTOCOL, FoxgloveLive, LiveMessage, ServeAddress
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.logwriter import open_writer
 from pcainterp_stream.io.outputs import image_of
 from pcainterp_stream.records import RawMessage
 
@@ -140,12 +144,13 @@ def serving(*args: str) -> Iterator[tuple[subprocess.Popen[str], str]]:
     )
     try:
         assert process.stdout is not None
-        line = process.stdout.readline()
-        found = URL.search(line)
+        lines = []  # the URL comes when the server starts: with the first message
+        while (found := URL.search(line := process.stdout.readline())) is None and line:
+            lines.append(line)
         if found is None:
             process.kill()
             _, err = process.communicate()
-            pytest.fail(f"no URL printed: {line!r}\n{err}")
+            pytest.fail(f"no URL printed: {lines!r}\n{err}")
         yield process, found[1]
     finally:
         if process.poll() is None:
@@ -456,6 +461,113 @@ def test_inputs_are_held_until_their_frame_and_paced(tmp_path: Path) -> None:
     assert live.stats.clients == 1
 
 
+EPOCH_NS = 1_600_000_000_000_000_000  # camera frames at epoch times
+
+
+@pytest.mark.parametrize("rate", [1.0, 0.1, 0.01])
+def test_a_gap_in_log_time_is_skipped_with_a_note(
+    monkeypatch: pytest.MonkeyPatch, rate: float
+) -> None:
+    """A message at log time 0 before frames at epoch times: no wait of decades, no crash."""
+    slept: list[float] = []
+    monkeypatch.setattr(foxglove.time, "sleep", slept.append)  # records, never waits
+    notes: list[str] = []
+    step = 10_000_000  # 0.01 s of log between frames
+    with FoxgloveLive(ServeAddress(port=0), rate=rate, note=notes.append) as live:
+        live.add_raw(_raw("/static", 0))
+        for index in range(3):
+            live.add_frame(EPOCH_NS + index * step, [LiveMessage("/out", rosmsg.IMAGE, b"f")])
+        live.flush()
+    assert slept, "the frames after the gap are paced"
+    # the sleeps do not pass: the last frame is due 2 steps after the first
+    assert max(slept) <= 2 * step / 1e9 / rate + 0.01
+    assert live.stats.gaps_skipped == 1
+    assert live.stats.gap_s_skipped == pytest.approx(EPOCH_NS / 1e9)
+    assert len(notes) == 1
+    assert notes[0].startswith("foxglove: skipped a 1600000000.0 s gap in log time")
+    assert "\n" not in notes[0]
+
+
+def test_gaps_up_to_the_limit_are_waited_for_and_longer_ones_skipped(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    slept: list[float] = []
+    monkeypatch.setattr(foxglove.time, "sleep", slept.append)
+    notes: list[str] = []
+    second = 1_000_000_000
+    times = [0, 3 * second, 3 * second + 3600 * second]  # a 3 s gap, then an hour
+    times += [times[-1] + 7200 * second * k for k in (1, 2, 3, 4)]  # four gaps of 2 h
+    with FoxgloveLive(ServeAddress(port=0), rate=1.0, note=notes.append) as live:
+        for log_time_ns in times:
+            live.add_frame(log_time_ns, [LiveMessage("/out", rosmsg.IMAGE, b"f")])
+    assert len(slept) == 1  # the 3 s gap (minus the time the first frame took)
+    assert 0 < slept[0] <= 3.0
+    assert live.stats.gaps_skipped == 5
+    assert len(notes) == foxglove.MAX_GAP_NOTES  # then only counted
+    assert notes[0].startswith("foxglove: skipped a 3600.0 s gap in log time: gaps over 5 s")
+    assert notes[-1].endswith("further gaps are counted in the summary")
+
+
+@pytest.mark.parametrize("rate", ["1e-300", "5e-324", "0.001", "-1", "nan", "inf", "1e6"])
+def test_a_rate_out_of_range_is_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], rate: str
+) -> None:
+    missing = tmp_path / "missing.mcap"  # the rate is checked before the input is opened
+    code = cli.main(["densify", str(missing), "--foxglove", "127.0.0.1:0", "--rate", rate])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.count("\n") == 1
+    assert "--rate must be 0 (as fast as processed) or between 0.01 and 1000" in err
+
+
+def test_a_message_at_log_time_0_does_not_hold_the_stream(
+    synthetic_log: Path, tmp_path: Path
+) -> None:
+    """The bug: a static transform logged at time 0 held the first frame for 1.6e9 s."""
+    log = tmp_path / "t0.mcap"
+    with open_log(synthetic_log) as reader, open_writer(log) as writer:
+        pose = rosmsg.pose_stamped_message(np.eye(4), 0, "map")
+        writer.add_message("/static_pose", pose, 0)
+        for raw in reader.messages():
+            writer.add_message(raw.topic, reader.decode(raw), raw.log_time_ns)
+    output = tmp_path / "dense.mcap"
+    command = [sys.executable, "-m", "pcainterp_stream.cli", "densify", str(log)]
+    command += ["-o", str(output), "--foxglove", "127.0.0.1:0", "--rate", "0.5"]
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, env=_env(), timeout=300)
+    except subprocess.TimeoutExpired as err:
+        pytest.fail(f"still waiting for the gap after 300 s: {err.stdout!r}")
+    assert done.returncode == 0, done.stderr
+    assert "foxglove: skipped a " in done.stdout
+    assert "gap in log time (" in done.stdout
+    assert "; skipped 1 gap(s) in log time" in done.stdout
+    assert output.exists()
+
+
+def test_a_client_that_drops_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    """The SDK logs an error per message it cannot send to a dropped client: one line each."""
+    sdk = logging.getLogger("foxglove.websocket.connected_client")  # where the SDK logs
+    reset = "WebSocket protocol error: Connection reset without closing handshake"
+    with FoxgloveLive(ServeAddress(port=0), rate=0.0) as live:
+        live.start()
+        for client in ("127.0.0.1:40001", "[::1]:40002"):
+            sdk.error("Error receiving from client %s: %s", client, reset)
+            for _ in range(5):
+                sdk.error(
+                    "Error sending message to client %s: IO error: Broken pipe (os error 32)",
+                    client,
+                )
+        sdk.error("Error advertising channel to client: something else")  # not hidden
+    sdk.error("Error receiving from client 127.0.0.1:40003: %s", reset)  # our own stop
+    lines = capsys.readouterr().err.splitlines()
+    assert lines == [
+        f"foxglove: client 127.0.0.1:40001 disconnected without closing the connection ({reset})",
+        f"foxglove: client [::1]:40002 disconnected without closing the connection ({reset})",
+        "foxglove: Error advertising channel to client: something else",
+    ]
+    assert live.stats.dropped == {"127.0.0.1:40001", "[::1]:40002"}
+
+
 @pytest.mark.parametrize(
     ("text", "host", "port"),
     [
@@ -495,11 +607,40 @@ def test_a_port_in_use_is_one_line(synthetic_log: Path, capsys: pytest.CaptureFi
     assert "Address already in use" in err
 
 
+def test_a_busy_ipv6_port_is_named_in_brackets(capsys: pytest.CaptureFixture[str]) -> None:
+    assert str(ServeAddress("::", 8765)) == "[::]:8765"
+    assert str(ServeAddress("127.0.0.1", 8765)) == "127.0.0.1:8765"
+    try:
+        taken = socket.socket(socket.AF_INET6)
+        taken.bind(("::1", 0))
+    except OSError:
+        pytest.skip("no IPv6 loopback here")
+    with taken:
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(StreamError, match=re.escape(f"cannot serve Foxglove on [::1]:{port}:")):
+            FoxgloveLive(ServeAddress("::1", port)).open()
+
+
+def test_the_address_is_printed_once_the_input_is_open(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An input that cannot be read must not look served."""
+    broken = tmp_path / "broken.mcap"
+    broken.write_bytes(b"not a log at all")
+    code = cli.main(["densify", str(broken), "--foxglove", "127.0.0.1:0"])
+    captured = capsys.readouterr()
+    assert code == 2
+    assert "serving on" not in captured.out
+    assert captured.err.count("\n") == 1
+    assert str(broken) in captured.err
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
         (["--foxglove", "127.0.0.1:99999"], "bad --foxglove address '127.0.0.1:99999'"),
-        (["--foxglove", "--rate", "-1"], "--rate must be a finite number >= 0"),
+        (["--foxglove", "--rate", "-1"], "--rate must be 0 (as fast as processed) or between"),
         (["--rate", "2", "-o", "x.mcap"], "--rate needs --foxglove"),
         ([], "densify needs an output"),
     ],

@@ -2,9 +2,16 @@
 
 from __future__ import annotations
 
+import os
+import shutil
+import signal
 import struct
+import subprocess
+import sys
+import time
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
@@ -12,8 +19,10 @@ import numpy as np
 import pytest
 from scipy.linalg import subspace_angles
 
+from pcainterp_stream.errors import ClusterTaskError, TopicNotFoundError
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import LogFormat, open_writer
 from pcainterp_stream.pipeline import distributed, jobs
@@ -323,3 +332,286 @@ def test_cli_densify_refuses_output_with_several_inputs(
         "pass --out-dir DIR to densify several logs"
     ]
     assert not (tmp_path / "x.mcap").exists()
+
+
+def test_a_task_returns_the_error_it_meets_and_the_caller_raises_it_in_one_line() -> None:
+    """Tasks never raise (Dask would log a multi-line "Compute Failed" block on the worker's
+    stderr): this package's errors reach the caller as they are, anything else in one line."""
+
+    def missing_topic() -> None:
+        raise TopicNotFoundError("topic /left not found in a.mcap; pass --left-topic")
+
+    def bug() -> None:
+        raise ValueError("a bug\nwith a second line")
+
+    def done(value: Any) -> Future[Any]:
+        future: Future[Any] = Future()
+        future.set_result(value)
+        return future
+
+    failure = distributed.run_task(missing_topic)
+    assert isinstance(failure, distributed.TaskFailure)
+    with pytest.raises(TopicNotFoundError, match="pass --left-topic"):
+        distributed.task_result(done(failure), "a task")
+    unexpected = distributed.run_task(bug)
+    assert isinstance(unexpected, distributed.TaskFailure)
+    assert unexpected.error is None
+    with pytest.raises(ClusterTaskError) as raised:
+        distributed.task_result(done(unexpected), "a learning task")
+    assert str(raised.value) == (
+        "a learning task failed on the cluster with an unexpected ValueError: a bug"
+    )
+    # a merge of a failed chunk passes the failure on, unrun
+    assert distributed.run_task(distributed.merge, unexpected, None, 3) is unexpected
+    assert distributed.run_task(lambda a, b: a + b, 1, 2) == 3
+
+
+def test_densify_many_reports_an_unexpected_error_as_such(
+    logs: dict[str, Path], client: Any, tmp_path: Path
+) -> None:
+    outcomes = distributed.densify_many([logs["b"]], tmp_path / "out", None, client, processor=1)
+    assert outcomes[0].unexpected
+    assert outcomes[0].error is not None
+    assert "failed on the cluster with an unexpected" in outcomes[0].error
+    assert list((tmp_path / "out").iterdir()) == []  # its staging folder is gone
+
+
+def test_cli_densify_out_dir_adds_a_hint_to_an_unexpected_error(
+    logs: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: Any
+) -> None:
+    from contextlib import nullcontext
+
+    from pcainterp_stream import cli
+
+    def densify_many(inputs: list[Path], out_dir: Path, *args: Any, **kwargs: Any) -> Any:
+        return [
+            distributed.DensifyOutcome(inputs[0], out_dir / "a_dense.mcap", 0, 0.0, "boom", True)
+        ]
+
+    monkeypatch.setattr(distributed, "connect", lambda *args: nullcontext(None))
+    monkeypatch.setattr(distributed, "densify_many", densify_many)
+    code = cli.main(["densify", str(logs["a"]), "--out-dir", str(tmp_path), "--workers", "1"])
+    assert code == 1
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line == (
+        f"pcainterp: error: {logs['a']}: boom; densify this log alone "
+        f"(pcainterp densify {logs['a']} -o OUTPUT) to see where it failed"
+    )
+
+
+def test_cli_learn_on_the_cluster_adds_a_hint_to_an_unexpected_error(
+    logs: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: Any
+) -> None:
+    from contextlib import nullcontext
+
+    from pcainterp_stream import cli
+
+    def learn_distributed(*args: Any) -> Any:
+        raise ClusterTaskError("a learning task failed on the cluster with an unexpected X: y")
+
+    monkeypatch.setattr(distributed, "connect", lambda *args: nullcontext(None))
+    monkeypatch.setattr(distributed, "learn_distributed", learn_distributed)
+    args = ["learn", str(logs["a"]), "-o", str(tmp_path / "b.npz"), "--workers", "1"]
+    assert cli.main(args) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.endswith("y; run learn without --scheduler/--workers to see where it failed")
+
+
+# --- the command in a process of its own: what the user sees on stderr, and Ctrl-C ---------
+
+PCAINTERP = [sys.executable, "-m", "pcainterp_stream.cli"]
+REPEATS = 40  # the long log: the 10-frame log 40 times, ~15 s of densify: still running
+START_S = 120  # generous: a cluster starts in 2-8 s on a loaded two-core machine
+EXIT_S = 30
+
+
+@pytest.fixture(scope="module")
+def long_log(logs: dict[str, Path]) -> Path:
+    """Log "b" repeated REPEATS times, stamps shifted so every pair is distinct."""
+    path = logs["folder"] / "long.mcap"
+    with open_log(logs["b"]) as reader:
+        raws = list(reader.messages())
+    span_ns = raws[-1].log_time_ns - raws[0].log_time_ns + 100_000_000
+    with open_writer(path, "mcap") as writer:
+        for repeat in range(REPEATS):
+            for raw in raws:
+                writer.add_raw(_shifted(raw, repeat * span_ns))
+    return path
+
+
+def _shifted(raw: Any, shift_ns: int) -> Any:
+    message = rosmsg.deserialize(raw.data, raw.msgtype)
+    stamp = rosmsg.stamp_ns(message) + shift_ns
+    message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp, 10**9)
+    return raw._replace(
+        data=rosmsg.serialize(message),
+        log_time_ns=raw.log_time_ns + shift_ns,
+        publish_time_ns=raw.publish_time_ns + shift_ns,
+    )
+
+
+def _default_signals() -> None:
+    """Default SIGINT in the child (a shell running the tests in the background ignores it)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def _writing(out_dir: Path) -> list[str]:
+    """The outputs a worker is writing: a file of the output's name in a hidden partial."""
+    names = (staging.name.split(".partial-")[0][1:] for staging in out_dir.glob(".*.partial-*"))
+    return sorted(name for name in names if any(out_dir.glob(f".{name}.partial-*/**/{name}")))
+
+
+def _interrupt_out_dir(
+    args: list[str],
+    out_dir: Path,
+    ready: Callable[[], bool],
+    send: Callable[[subprocess.Popen[str]], None],
+) -> tuple[subprocess.Popen[str], str, list[str]]:
+    """Run ``pcainterp ARGS`` in a session of its own, ``send`` it a signal once ``ready()``.
+
+    Returns:
+        The ended process, its stderr, and the committed outputs at the signal.
+    """
+    process = subprocess.Popen(
+        [*PCAINTERP, *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=_default_signals,
+        start_new_session=True,  # its own process group, as a terminal's foreground job
+    )
+    try:
+        deadline = time.monotonic() + START_S
+        while not (out_dir.is_dir() and ready()):
+            assert process.poll() is None, process.communicate()
+            assert time.monotonic() < deadline, "the tasks never started writing"
+            time.sleep(0.05)
+        committed = sorted(p.name for p in out_dir.glob("*.mcap"))
+        send(process)
+        # stderr closes when the command and every process it started (workers, the
+        # resource tracker, which would warn of leaked semaphores) have ended
+        _, err = process.communicate(timeout=EXIT_S)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+    return process, err, committed
+
+
+def _group_has_ended(group: int) -> bool:
+    """Whether no live process (zombies aside) is left in process group ``group``."""
+    deadline = time.monotonic() + 10
+    while True:
+        alive = []
+        for status in Path("/proc").glob("[0-9]*/stat"):
+            try:
+                fields = status.read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[2]) == group and fields[0] != "Z":
+                alive.append(status.parent.name)
+        if not alive or time.monotonic() > deadline:
+            return not alive
+        time.sleep(0.1)
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="needs /proc")
+@pytest.mark.slow  # a cluster starts: 2-8 s on a loaded two-core machine
+def test_ctrl_c_at_the_terminal_stops_densify_out_dir_at_once(
+    long_log: Path, tmp_path: Path
+) -> None:
+    """SIGINT to the whole process group (a terminal's Ctrl-C: the workers get it too) while
+    both workers write: exit 130, one line, no staging folder, no output, no process left."""
+    first, second = tmp_path / "first.mcap", tmp_path / "second.mcap"
+    shutil.copy(long_log, first)
+    shutil.copy(long_log, second)
+    out_dir = (tmp_path / "dense").resolve()
+    process, err, committed = _interrupt_out_dir(
+        ["densify", str(first), str(second), "--out-dir", str(out_dir), "--workers", "2"],
+        out_dir,
+        lambda: _writing(out_dir) == ["first_dense.mcap", "second_dense.mcap"],
+        lambda running: os.killpg(running.pid, signal.SIGINT),
+    )
+    assert committed == []
+    assert process.returncode == 130, err
+    assert err.splitlines() == [
+        f"pcainterp: interrupted; no partial output was left in {out_dir}; "
+        "no output was finished before the signal"
+    ]
+    assert not out_dir.exists()  # the run made it: removed again, empty
+    assert _group_has_ended(process.pid)
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="needs /proc")
+@pytest.mark.slow  # a cluster starts: 2-8 s on a loaded two-core machine
+def test_sigterm_keeps_the_outputs_committed_before_it_and_no_other(
+    logs: dict[str, Path], long_log: Path, tmp_path: Path
+) -> None:
+    """SIGTERM to the command alone after one log was done, the other being written (one
+    worker): the first output stays and is named, the other is neither committed nor left."""
+    out_dir = (tmp_path / "dense").resolve()
+    out_dir.mkdir()
+    (out_dir / "unrelated.txt").write_text("the user's")
+
+    def ready() -> bool:
+        done = [p.name for p in out_dir.glob("*.mcap")]
+        return len(done) == 1 and len(_writing(out_dir)) == 1
+
+    process, err, committed = _interrupt_out_dir(
+        ["densify", str(logs["a"]), str(long_log), "--out-dir", str(out_dir), "--workers", "1"],
+        out_dir,
+        ready,
+        lambda running: running.send_signal(signal.SIGTERM),
+    )
+    assert process.returncode == 130, err
+    (kept,) = committed
+    assert err.splitlines() == [
+        f"pcainterp: interrupted; no partial output was left in {out_dir}; kept 1 of 2 "
+        f"outputs, finished before the signal: {out_dir / kept}"
+    ]
+    left = sorted(p.name for p in out_dir.iterdir())
+    assert [name for name in left if name.startswith(".")] == []
+    assert [name for name in left if name.endswith(".mcap")] == [kept]
+    assert "unrelated.txt" in left
+    assert _group_has_ended(process.pid)
+
+
+@pytest.mark.slow  # a cluster starts: 2-8 s on a loaded two-core machine
+def test_a_failing_log_of_out_dir_is_one_line_without_dask_s_report(
+    logs: dict[str, Path], tmp_path: Path
+) -> None:
+    """A 0-byte input: our one-line error and the summary, no "Compute Failed" block."""
+    empty = tmp_path / "empty.mcap"
+    empty.touch()
+    out_dir = tmp_path / "dense"
+    args = ["densify", str(logs["a"]), str(empty), "--out-dir", str(out_dir), "--workers", "1"]
+    process = subprocess.run(
+        [*PCAINTERP, *args],
+        capture_output=True,
+        text=True,
+        timeout=START_S,
+        check=False,
+    )
+    assert process.returncode == 1, process.stderr
+    assert process.stderr.splitlines() == [
+        f"pcainterp: error: {empty.resolve()} is empty, not a log; pass an MCAP file, "
+        "a ROS 1 .bag or a rosbag2 folder"
+    ]
+    assert "2 logs densified" in process.stdout.splitlines()[-1]
+    assert sorted(p.name for p in out_dir.iterdir()) == ["a_dense.mcap"]
+
+
+def test_densify_many_refuses_an_output_that_is_a_folder_and_densifies_the_others(
+    logs: dict[str, Path], client: Any, tmp_path: Path
+) -> None:
+    """Outputs are committed by the caller: a folder in the way is one log's error, before
+    its work (no traceback when renaming onto it), and nothing hidden is left."""
+    out_dir = tmp_path / "out"
+    (out_dir / "a_dense.mcap").mkdir(parents=True)
+    outcomes = distributed.densify_many([logs["a"], logs["b"]], out_dir, None, client)
+    assert outcomes[0].error is not None
+    assert "is a folder" in outcomes[0].error
+    assert not outcomes[0].unexpected
+    assert outcomes[1].error is None
+    assert sorted(p.name for p in out_dir.iterdir()) == ["a_dense.mcap", "b_dense.mcap"]
+    assert (out_dir / "a_dense.mcap").is_dir()
