@@ -24,6 +24,7 @@ import numpy.typing as npt
 from pcainterp_stream.errors import PcaInterpError
 from pcainterp_stream.io import depth_codec, rosmsg
 from pcainterp_stream.io.logreader import LogReader
+from pcainterp_stream.records import RawMessage
 
 __all__ = ["DEPTH_ENCODINGS", "DEPTH_TYPES", "depth_metres", "depth_topics"]
 
@@ -77,6 +78,16 @@ def _is_depth(message: Any) -> bool:
     return str(message.encoding) in DEPTH_ENCODINGS
 
 
+def first_message(reader: LogReader, topic: str) -> RawMessage | None:
+    """Return a topic's first message (None when it has none), leaving the log unread after."""
+    stream = reader.messages([topic])
+    raw = next(stream, None)
+    close = getattr(stream, "close", None)  # a generator: release its file position
+    if close is not None:
+        close()
+    return raw
+
+
 def depth_topics(reader: LogReader) -> list[str]:
     """Return the image topics of a log whose first message is a depth image.
 
@@ -90,11 +101,7 @@ def depth_topics(reader: LogReader) -> list[str]:
         name = topic.rsplit("/", 1)[-1]
         if info.msgtype not in DEPTH_TYPES or "disparity" in name or name.endswith("std"):
             continue  # a 32FC1 disparity or standard deviation is no depth
-        stream = reader.messages([topic])
-        raw = next(stream, None)
-        close = getattr(stream, "close", None)  # a generator: release its file position
-        if close is not None:
-            close()
+        raw = first_message(reader, topic)
         try:
             if raw is not None and _is_depth(reader.decode(raw)):
                 found.append(topic)

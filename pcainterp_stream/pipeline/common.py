@@ -17,7 +17,12 @@ from pcainterp_stream.frontend.pairing import (
     PairingConfig,
 )
 from pcainterp_stream.io import rosmsg
-from pcainterp_stream.io.depth_image import DEPTH_TYPES, depth_metres, depth_topics
+from pcainterp_stream.io.depth_image import (
+    DEPTH_TYPES,
+    depth_metres,
+    depth_topics,
+    first_message,
+)
 from pcainterp_stream.io.logreader import LogReader, open_log
 
 if TYPE_CHECKING:
@@ -107,11 +112,7 @@ def _check_depth_topic(reader: LogReader, topic: str) -> None:
     if info.msgtype not in DEPTH_TYPES:
         problem = f"has type {info.msgtype or 'unknown'}, not a depth image"
     else:
-        stream = reader.messages([topic])
-        raw = next(stream, None)
-        close = getattr(stream, "close", None)  # a generator: release its file position
-        if close is not None:
-            close()
+        raw = first_message(reader, topic)
         try:
             if raw is not None:
                 depth_metres(reader.decode(raw))
