@@ -566,6 +566,8 @@ def _densify_many(
     for outcome in outcomes:
         if outcome.error is None:
             echo(f"densified {outcome.frames} frames of {outcome.input} -> {outcome.output}")
+            for line in outcome.warnings:
+                echo(f"warning: {outcome.input.name}: {line}")
         else:
             failed += 1
             error = outcome.error

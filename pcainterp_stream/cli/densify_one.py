@@ -199,13 +199,8 @@ def _print_summary(summary: DensifySummary, processor: ProcessorConfig) -> None:
     for note in (summary.pairing.stamp_note(), summary.pairing.camera_info_note()):
         if note is not None:
             echo(note)
-    for hint in (
-        summary.pairing.stamp_hint(),
-        summary.pairing.tolerance_hint(),
-        summary.pairing.camera_info_hint(),
-    ):
-        if hint is not None:
-            echo(f"warning: {hint}")
+    for hint in summary.pairing_hints():
+        echo(f"warning: {hint}")
     if processor.robust != "none":
         echo(
             f"robust ({processor.robust}): {summary.downweighted} measurements down-weighted "

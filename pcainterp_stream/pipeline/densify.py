@@ -142,6 +142,26 @@ class DensifySummary:
     basis_written: Path | None = None
     final_basis_written: Path | None = None
 
+    def pairing_hints(self) -> list[str]:
+        """Return the pairing's warnings (repeated stamps, near misses, late camera infos)."""
+        pairing = self.pairing
+        hints = (pairing.stamp_hint(), pairing.tolerance_hint(), pairing.camera_info_hint())
+        return [hint for hint in hints if hint is not None]
+
+    def warning_lines(self) -> list[str]:
+        """Return every warning of the run, one line each, without the ``warning:`` prefix.
+
+        The pairing's, the damage found in the input, the input's notes and the fit check's
+        (a prior worse than linear interpolation): what a run of several logs reports per log.
+        """
+        prior = [
+            line.removeprefix("warning: ")
+            for line in self.prior_lines
+            if line.startswith("warning: ")
+        ]
+        damage = [f"damage: {line}" for line in self.damage]
+        return self.pairing_hints() + damage + list(self.warnings) + prior
+
     @property
     def frames_per_second(self) -> float:
         """Return densified frames per wall-clock second."""

@@ -722,6 +722,8 @@ class DensifyOutcome:
         error: one-line error of a failed log, or None.
         unexpected: the error is not one of this package's (a bug, or a worker that died):
             its message alone does not say what to fix.
+        warnings: the run's warnings (:meth:`~pcainterp_stream.pipeline.densify.
+            DensifySummary.warning_lines`), one line each.
     """
 
     input: Path
@@ -730,6 +732,7 @@ class DensifyOutcome:
     seconds: float
     error: str | None
     unexpected: bool = False
+    warnings: tuple[str, ...] = ()
 
 
 def output_path(input_path: Path, out_dir: Path) -> Path:
@@ -820,7 +823,12 @@ def densify_many(
                 else:
                     kept.append(out)
                     outcomes[index] = DensifyOutcome(
-                        path, out, summary.frames, summary.seconds, None
+                        path,
+                        out,
+                        summary.frames,
+                        summary.seconds,
+                        None,
+                        warnings=tuple(summary.warning_lines()),
                     )
             _remove(staging.pop(index))
     except BaseException as err:

@@ -615,3 +615,41 @@ def test_densify_many_refuses_an_output_that_is_a_folder_and_densifies_the_other
     assert outcomes[1].error is None
     assert sorted(p.name for p in out_dir.iterdir()) == ["a_dense.mcap", "b_dense.mcap"]
     assert (out_dir / "a_dense.mcap").is_dir()
+
+
+def test_cli_densify_out_dir_prints_each_log_s_warnings(
+    logs: dict[str, Path], client: Any, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A run of several logs says per log what densify -o would warn of (here: pairs lost)."""
+    from pcainterp_stream import cli
+
+    late = tmp_path / "late.mcap"  # the first 3 right images stamped 2 ms after their left
+    with open_log(logs["b"]) as reader, open_writer(late, "mcap") as writer:
+        shifted = 0
+        for raw in reader.messages():
+            if raw.topic != "/stereo/right/image_rect" or shifted == 3:
+                writer.add_raw(raw)
+                continue
+            shifted += 1
+            message = rosmsg.deserialize(raw.data, raw.msgtype)
+            stamp = rosmsg.stamp_ns(message) + 2_000_000
+            message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp, 10**9)
+            writer.add_raw(raw._replace(data=rosmsg.serialize(message)))
+    code = cli.main(
+        [
+            "densify",
+            str(logs["a"]),
+            str(late),
+            "--out-dir",
+            str(tmp_path / "out"),
+            "--scheduler",
+            client.scheduler.address,
+        ]
+    )
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert f"densified 7 frames of {late} ->" in out
+    warnings = [line for line in out.splitlines() if line.startswith("warning:")]
+    assert len(warnings) == 1, out
+    assert warnings[0].startswith("warning: late.mcap: 3 images were dropped unpaired")
+    assert warnings[0].endswith("pass --stamp-tolerance-ms 2 to pair them")
