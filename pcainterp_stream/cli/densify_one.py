@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import sys
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
@@ -70,51 +71,14 @@ def densify_one(
         InterruptedAfterOutput: a signal after the output file was complete at its target
             (while the summary is printed or the server stops): it is kept.
     """
-    kept: list[Path] = []  # the output file, once complete at its target
-    try:
-        return _densify_one(
-            source,
-            output,
-            basis,
-            processor=processor,
-            pairing=pairing,
-            topics=topics,
-            live=live,
-            rrd=rrd,
-            spawn_viewer=spawn_viewer,
-            kept=kept,
-        )
-    except KeyboardInterrupt as err:
-        if not kept or isinstance(err, InterruptedAfterOutput):
-            raise
-        raise InterruptedAfterOutput(kept[0]) from err
-    except Exception as err:
-        if kept and signalled():  # a signal inside native code surfaces as its error
-            raise InterruptedAfterOutput(kept[0]) from err
-        raise
-
-
-def _densify_one(
-    source: Path,
-    output: Path | None,
-    basis: Path | None,
-    *,
-    processor: ProcessorConfig,
-    pairing: PairingConfig,
-    topics: OutputTopics,
-    live: LiveOptions | None,
-    rrd: Path | None,
-    spawn_viewer: bool,
-    kept: list[Path],
-) -> int:
-    """:func:`densify_one`, adding the output to ``kept`` once it is complete."""
     from pcainterp_stream.pipeline.densify import densify
 
     settle_heap()
     to_stdout = output == STREAM
     target: Path | IO[bytes] | None = sys.stdout.buffer if to_stdout else output
     reading: Path | IO[bytes] = sys.stdin.buffer if source == STREAM else source
-    with contextlib.ExitStack() as stack:
+    kept: list[Path] = []  # the output file, once complete at its target
+    with _kept_if_interrupted(kept), contextlib.ExitStack() as stack:
         if to_stdout:
             stack.enter_context(contextlib.redirect_stdout(sys.stderr))
         server = None
@@ -175,6 +139,24 @@ def _densify_one(
                     # down: end here, so that Ctrl-C always ends the process.
                     end_if_signalled(0)
     return 0
+
+
+@contextlib.contextmanager
+def _kept_if_interrupted(kept: list[Path]) -> Iterator[None]:
+    """Raise :class:`InterruptedAfterOutput` for an interruption once ``kept`` has the output.
+
+    That error says the complete output is kept; an earlier interruption passes unchanged.
+    """
+    try:
+        yield
+    except KeyboardInterrupt as err:
+        if not kept or isinstance(err, InterruptedAfterOutput):
+            raise
+        raise InterruptedAfterOutput(kept[0]) from err
+    except Exception as err:
+        if kept and signalled():  # a signal inside native code surfaces as its error
+            raise InterruptedAfterOutput(kept[0]) from err
+        raise
 
 
 def _serving(server: FoxgloveLive | None, live: LiveOptions, topics: OutputTopics) -> None:
