@@ -88,6 +88,7 @@ from pcainterp_stream.io.outputs import (
     missing_outputs,
     recorded_tolerance_ns,
 )
+from pcainterp_stream.io.stereo_log import LIDAR_DEPTH
 from pcainterp_stream.records import StereoCamera
 
 __all__ = [
@@ -147,8 +148,9 @@ class EvaluateOptions:
         sgbm: matcher settings of the SGBM reference, of the stereo baselines and of the
             sweep's measurements.
         reference_topic: score against this depth or disparity image topic of the log
-            (dense or sparse; NaN, 0 or < 0 = no truth) instead of ``/ground_truth/depth``
-            or SGBM; frames without a message of their stamp are skipped and counted.
+            (dense or sparse; NaN, 0 or < 0 = no truth) instead of ``/ground_truth/depth``,
+            else ``/ground_truth/lidar_depth``, else SGBM; frames without a message of their
+            stamp are skipped and counted.
         reference_kind: what ``reference_topic`` holds; auto: a DisparityImage holds
             disparity, an Image depth (32FC1 m, 16UC1 mm).
     """
@@ -667,10 +669,14 @@ def evaluate_log(
         if options.pairing is not None:
             images.resolve(reader, exclude_prefix=topics.depth.rsplit("/", 1)[0])
         present = reader.topics()
+        reference_topic = options.reference_topic
+        if reference_topic is None and not options.sgbm_reference:
+            sparse_only = GROUND_TRUTH_DEPTH not in present and LIDAR_DEPTH in present
+            reference_topic = LIDAR_DEPTH if sparse_only else None
         reference = (
             None
-            if options.reference_topic is None
-            else resolve_reference(options.reference_topic, options.reference_kind, present, path)
+            if reference_topic is None
+            else resolve_reference(reference_topic, options.reference_kind, present, path)
         )
         has_truth = reference is not None or GROUND_TRUTH_DEPTH in present
         has_pose = GROUND_TRUTH_POSE in present

@@ -24,6 +24,13 @@ KITTI, where P0[0, 3] = 0; the colour cameras' P2[0, 3] is not 0, camera 2 being
 of camera 0). KITTI's poses are camera 0's: for the colour pair they are moved to camera 2,
 whose centre is -K^-1 P2[:, 3] in camera 0's frame. Without timestamps frames are 10 Hz from
 t = 0. Frames are read and written one at a time.
+
+KITTI's depth-completion truth (uint16 PNG, depth in m = value / 256, 0 = no truth) belongs to
+camera 2, so it comes along with the colour pair: a raw drive's
+``proj_depth/groundtruth/image_02/*.png`` or a sequence's ``image_depth_annotated/*.png``,
+matched to the left images by file name, written as ``/ground_truth/lidar_depth`` (32FC1 m,
+NaN = no truth). Frames without a truth file (the depth-completion set skips a drive's first
+and last five) get none.
 """
 
 from __future__ import annotations
@@ -42,7 +49,14 @@ import numpy.typing as npt
 
 from pcainterp_stream.errors import DatasetImportError
 from pcainterp_stream.io.logwriter import LogFormat, ProgressCallback, WriteSummary, open_writer
-from pcainterp_stream.io.stereo_log import POSE, pose_message, stereo_messages
+from pcainterp_stream.io.rosmsg import image_message
+from pcainterp_stream.io.stereo_log import (
+    LEFT_FRAME,
+    LIDAR_DEPTH,
+    POSE,
+    pose_message,
+    stereo_messages,
+)
 from pcainterp_stream.records import StereoCamera
 
 FRAME_PERIOD_NS = 100_000_000
@@ -100,6 +114,9 @@ class KittiSequence:
         stamps_ns: (n,) int64 capture times (ns).
         camera_to_world: (n, 4, 4) float64 left-camera poses, or None without ground truth.
         pair: the grey or the colour pair.
+        truth_folder: the folder of the left camera's depth-completion truth, or None.
+        unused_truth: a truth folder that was found but not imported (it belongs to the
+            colour camera 2 and the grey pair is imported), else None.
     """
 
     layout: KittiLayout
@@ -110,6 +127,8 @@ class KittiSequence:
     stamps_ns: npt.NDArray[np.int64]
     camera_to_world: npt.NDArray[np.float64] | None
     pair: KittiPair = KittiPair.GREY
+    truth_folder: Path | None = None
+    unused_truth: Path | None = None
 
     def __len__(self) -> int:
         return len(self.left_paths)
@@ -124,6 +143,7 @@ class KittiFrame(NamedTuple):
         left: (H, W) uint8 rectified left grey image.
         right: (H, W) uint8 rectified right grey image.
         camera_to_world: (4, 4) float64 left-camera pose, or None without ground truth.
+        depth_truth: (H, W) float32 depth-completion truth (m, NaN = none), or None.
     """
 
     frame_index: int
@@ -131,6 +151,7 @@ class KittiFrame(NamedTuple):
     left: npt.NDArray[np.uint8]
     right: npt.NDArray[np.uint8]
     camera_to_world: npt.NDArray[np.float64] | None
+    depth_truth: npt.NDArray[np.float32] | None = None
 
 
 def _key_values(path: Path) -> dict[str, tuple[int, str]]:
@@ -232,6 +253,46 @@ def read_grey(path: Path) -> npt.NDArray[np.uint8]:
             image, cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY
         )
     return np.ascontiguousarray(image)
+
+
+TRUTH_FOLDERS = {
+    KittiLayout.RAW: Path("proj_depth", "groundtruth", "image_02"),
+    KittiLayout.ODOMETRY: Path("image_depth_annotated"),
+}
+"""Where each layout keeps camera 2's depth-completion truth (beside the images)."""
+
+
+def _truth_folders(
+    folder: Path, layout: KittiLayout, pair: KittiPair
+) -> tuple[Path | None, Path | None]:
+    """Return (truth folder to import, truth folder found but not usable with ``pair``)."""
+    truth = folder / TRUTH_FOLDERS[layout]
+    if not truth.is_dir() or not _pngs(truth):
+        return None, None
+    return (truth, None) if pair is KittiPair.COLOUR else (None, truth)
+
+
+def read_depth_truth(path: Path, image_size: tuple[int, int]) -> npt.NDArray[np.float32]:
+    """Read a depth-completion truth PNG as (H, W) float32 metres, NaN where it has none.
+
+    Raises:
+        DatasetImportError: the file cannot be decoded, is not 16-bit single-channel or has
+            another size than the images.
+    """
+    png = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if png is None or png.dtype != np.uint16 or png.ndim != 2:
+        raise DatasetImportError(
+            f"depth truth {path} is not a 16-bit single-channel PNG (depth * 256); "
+            "restore it from KITTI's depth-completion download"
+        )
+    if png.shape != image_size:
+        raise DatasetImportError(
+            f"depth truth {path} is {png.shape[1]}x{png.shape[0]} but the images are "
+            f"{image_size[1]}x{image_size[0]}; it belongs to another sequence"
+        )
+    depth = png.astype(np.float32) / np.float32(256.0)
+    depth[png == 0] = np.nan
+    return depth
 
 
 def _pngs(folder: Path) -> list[Path]:
@@ -401,7 +462,10 @@ def _open_raw(drive: Path, pair: KittiPair | None) -> KittiSequence:
     left, right = _paired_images(drive / left_name / "data", drive / right_name / "data")
     camera = camera_from_projections(left_p, right_p, read_grey(left[0]).shape[:2], calibration)
     stamps = _raw_stamps(drive / left_name / "timestamps.txt", len(left))
-    return KittiSequence(KittiLayout.RAW, drive, left, right, camera, stamps, None, pair)
+    truth, unused = _truth_folders(drive, KittiLayout.RAW, pair)
+    return KittiSequence(
+        KittiLayout.RAW, drive, left, right, camera, stamps, None, pair, truth, unused
+    )
 
 
 def _from_camera_0(
@@ -437,7 +501,10 @@ def _open_odometry(sequence: Path, pair: KittiPair | None) -> KittiSequence:
     stamps = _odometry_stamps(sequence / "times.txt", left)
     poses = _poses(sequence.parent.parent / "poses" / f"{sequence.name}.txt", left)
     poses = _from_camera_0(poses, left_p)
-    return KittiSequence(KittiLayout.ODOMETRY, sequence, left, right, camera, stamps, poses, pair)
+    truth, unused = _truth_folders(sequence, KittiLayout.ODOMETRY, pair)
+    return KittiSequence(
+        KittiLayout.ODOMETRY, sequence, left, right, camera, stamps, poses, pair, truth, unused
+    )
 
 
 def open_kitti(folder: str | os.PathLike[str], *, pair: KittiPair | None = None) -> KittiSequence:
@@ -482,11 +549,16 @@ def iter_frames(sequence: KittiSequence, *, max_frames: int | None = None) -> It
                 )
             pair.append(image)
         pose = None if sequence.camera_to_world is None else sequence.camera_to_world[index]
-        yield KittiFrame(index, int(sequence.stamps_ns[index]), pair[0], pair[1], pose)
+        truth = None
+        if sequence.truth_folder is not None:
+            path = sequence.truth_folder / sequence.left_paths[index].name
+            if path.is_file():
+                truth = read_depth_truth(path, sequence.camera.image_size)
+        yield KittiFrame(index, int(sequence.stamps_ns[index]), pair[0], pair[1], pose, truth)
 
 
 def import_kitti(
-    folder: str | os.PathLike[str],
+    folder: str | os.PathLike[str] | KittiSequence,
     out_path: str | os.PathLike[str],
     *,
     format: LogFormat | str | None = None,
@@ -496,12 +568,14 @@ def import_kitti(
 ) -> WriteSummary:
     """Convert a KITTI raw drive or odometry sequence into a log (synthetic-log topics).
 
-    Writes, per frame, the left/right images (mono8), both camera infos and, when the
-    sequence has ground-truth poses, ``/ground_truth/pose``; log time = header stamp.
+    Writes, per frame, the left/right images (mono8), both camera infos, when the sequence
+    has ground-truth poses ``/ground_truth/pose``, and with the colour pair the frame's
+    depth-completion truth as ``/ground_truth/lidar_depth``; log time = header stamp.
 
     Args:
         folder: a raw drive ``<date>_drive_XXXX_sync`` (or its date folder holding one drive)
-            or an odometry ``sequences/XX`` folder.
+            or an odometry ``sequences/XX`` folder, or one already opened by
+            :func:`open_kitti` (``pair`` is then ignored).
         out_path: output ``.mcap``, ``.bag`` or rosbag2 folder; written atomically.
         format: output format; chosen from ``out_path``'s name when None.
         max_frames: import only the first frames (all when None).
@@ -516,7 +590,7 @@ def import_kitti(
             :func:`iter_frames`).
         LogWriteError: the output cannot be written.
     """
-    sequence = open_kitti(folder, pair=pair)
+    sequence = folder if isinstance(folder, KittiSequence) else open_kitti(folder, pair=pair)
     total = len(sequence) if max_frames is None else min(len(sequence), max_frames)
     with open_writer(out_path, format, inputs=[sequence.folder]) as writer:
         for frame in iter_frames(sequence, max_frames=max_frames):
@@ -528,6 +602,10 @@ def import_kitti(
                 writer.add_message(
                     POSE, pose_message(frame.camera_to_world, frame.stamp_ns), frame.stamp_ns
                 )
+            if frame.depth_truth is not None:
+                truth = frame.depth_truth
+                message = image_message(truth, frame.stamp_ns, LEFT_FRAME, encoding="32FC1")
+                writer.add_message(LIDAR_DEPTH, message, frame.stamp_ns)
             if progress is not None:
                 progress(frame.frame_index + 1, total)
     return writer.summary()

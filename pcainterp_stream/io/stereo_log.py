@@ -23,6 +23,8 @@ LEFT_INFO = "/stereo/left/camera_info"
 RIGHT_INFO = "/stereo/right/camera_info"
 DEPTH = "/ground_truth/depth"
 POSE = "/ground_truth/pose"
+LIDAR_DEPTH = "/ground_truth/lidar_depth"
+"""Sparse depth truth (sensor_msgs/msg/Image 32FC1, m, NaN = no return)."""
 
 LEFT_FRAME = "stereo_left_optical"
 RIGHT_FRAME = "stereo_right_optical"

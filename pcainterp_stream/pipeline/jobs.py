@@ -139,8 +139,9 @@ def import_kitti(
     ``colour``: the colour pair even where the grey one is there (default: the grey pair,
     the colour one in a folder without it).
     """
-    from pcainterp_stream.io.kitti import KittiPair
+    from pcainterp_stream.io.kitti import KittiPair, open_kitti
     from pcainterp_stream.io.kitti import import_kitti as convert
+    from pcainterp_stream.io.stereo_log import LEFT_IMAGE, LIDAR_DEPTH
 
     if max_frames is not None and max_frames < 1:
         raise PcaInterpError(f"--max-frames must be at least 1, got {max_frames}")
@@ -150,8 +151,20 @@ def import_kitti(
             bar.total = total
             bar.update(done - bar.n)
 
-        pair = KittiPair.COLOUR if colour else None
-        return convert(folder, out, max_frames=max_frames, progress=progress, pair=pair)
+        sequence = open_kitti(folder, pair=KittiPair.COLOUR if colour else None)
+        summary = convert(sequence, out, max_frames=max_frames, progress=progress)
+    truths = summary.topic_counts.get(LIDAR_DEPTH, 0)
+    if truths:
+        _echo(
+            f"depth truth: {truths} of {summary.topic_counts.get(LEFT_IMAGE, 0)} frames on "
+            f"{LIDAR_DEPTH} (from {sequence.truth_folder}); evaluate scores against it"
+        )
+    elif sequence.unused_truth is not None:
+        _echo(
+            f"note: the depth truth in {sequence.unused_truth} belongs to the colour camera 2 "
+            "and was left out with the grey pair; add --colour to import it"
+        )
+    return summary
 
 
 def evaluate(

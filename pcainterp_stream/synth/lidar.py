@@ -36,10 +36,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from pcainterp_stream.io.stereo_log import LIDAR_DEPTH as LIDAR_DEPTH
 from pcainterp_stream.records import StereoCamera
-
-LIDAR_DEPTH = "/ground_truth/lidar_depth"
-"""Topic of the sparse LiDAR-like truth (sensor_msgs/msg/Image 32FC1, m, NaN = no return)."""
 
 KITTI_FOCAL = 718.856
 """Focal length (px) at which the scanner is the HDL-64E (full-size synthetic logs)."""

@@ -448,3 +448,18 @@ def test_cli_report_names_a_sparse_reference(
     assert split["pixels_sgbm_holes"] + split["pixels_sgbm_valid"] == split["pixels"]
     for name in ("errors.png", "uncertainty.png", "sweep.png", "examples.png"):
         assert (out / name).stat().st_size > 1000
+
+
+def test_sparse_truth_alone_is_the_default_reference(logs: dict[str, Path]) -> None:
+    # a log with /ground_truth/lidar_depth but no dense truth, as import-kitti writes KITTI's
+    sparse_only = logs["folder"] / "sparse_only.mcap"
+    with open_log(logs["dense"]) as reader, open_writer(sparse_only) as writer:
+        for raw in reader.messages():
+            if raw.topic != DEPTH:
+                writer.add_raw(raw)
+    default = _evaluate(sparse_only, None)
+    assert default.reference == LIDAR_DEPTH
+    named = _evaluate(logs["dense"], LIDAR_DEPTH)
+    assert default.methods["pca_map"].summary() == named.methods["pca_map"].summary()
+    assert _evaluate(logs["dense"], None).reference == "ground truth"  # the dense one first
+    assert _evaluate(sparse_only, None, sgbm_reference=True).reference == "SGBM"

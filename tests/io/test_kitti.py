@@ -321,6 +321,91 @@ def test_real_colour_odometry_layout(tmp_path: Path) -> None:
     left = [m for topic, _, m in _read(out) if topic == "/stereo/left/image_rect"]
     expected = _grey(COLOUR_07 / "image_2" / "000170.png")
     np.testing.assert_array_equal(rosmsg.image_array(left[2]), expected)
+    assert summary.topic_counts["/ground_truth/lidar_depth"] == 3
+    truth = [m for topic, _, m in _read(out) if topic == "/ground_truth/lidar_depth"][1]
+    png = cv2.imread(str(COLOUR_07 / "image_depth_annotated" / "000169.png"), cv2.IMREAD_UNCHANGED)
+    depth = rosmsg.image_array(truth)
+    np.testing.assert_array_equal(np.isfinite(depth), png > 0)
+    np.testing.assert_array_equal(depth[png > 0], png[png > 0] / np.float32(256))
+
+
+def _write_truth(folder: Path, names: list[str]) -> list[np.ndarray]:
+    """KITTI depth-completion truth PNGs: uint16 depth * 256, 0 = no truth."""
+    folder.mkdir(parents=True)
+    pngs = []
+    for i, name in enumerate(names):
+        png = np.zeros((HEIGHT, WIDTH), dtype=np.uint16)
+        png[1, 2], png[4, 7] = 256 * (5 + i) + 128, 65535  # 5.5 m + i, 255.996 m
+        assert cv2.imwrite(str(folder / name), png)
+        pngs.append(png)
+    return pngs
+
+
+def test_odometry_colour_pair_brings_its_depth_truth(tmp_path: Path) -> None:
+    sequence_dir = make_colour(tmp_path / "in", n=3)
+    _write_truth(sequence_dir / "image_depth_annotated", ["000000.png", "000002.png"])
+    sequence = open_kitti(sequence_dir)
+    assert sequence.truth_folder == sequence_dir / "image_depth_annotated"
+    truths = [frame.depth_truth for frame in iter_frames(sequence)]
+    assert truths[1] is None  # no truth file for that frame
+    assert truths[0] is not None and truths[2] is not None
+    assert truths[2].dtype == np.float32
+    assert (truths[2][1, 2], truths[2][4, 7]) == (6.5, np.float32(65535 / 256))
+    assert np.isnan(truths[2]).sum() == HEIGHT * WIDTH - 2
+    out = tmp_path / "seq.mcap"
+    summary = import_kitti(sequence_dir, out)
+    assert summary.topic_counts["/ground_truth/lidar_depth"] == 2
+    read = [(t, m) for topic, t, m in _read(out) if topic == "/ground_truth/lidar_depth"]
+    assert [t for t, _ in read] == [sequence.stamps_ns[0], sequence.stamps_ns[2]]
+    message = read[0][1]
+    assert (message.encoding, message.header.frame_id) == ("32FC1", "stereo_left_optical")
+    np.testing.assert_array_equal(rosmsg.image_array(message), truths[0])
+
+
+def test_raw_drive_truth_layout_and_the_grey_pair_leaves_it_out(tmp_path: Path) -> None:
+    drive = make_raw(tmp_path / "in")
+    _write_truth(drive / "proj_depth" / "groundtruth" / "image_02", ["0000000001.png"])
+    grey = open_kitti(drive)  # the truth is camera 2's: not the grey pair's
+    assert (grey.truth_folder, grey.unused_truth) == (
+        None,
+        drive / "proj_depth" / "groundtruth" / "image_02",
+    )
+    assert all(frame.depth_truth is None for frame in iter_frames(grey))
+    (drive / "image_00").rename(drive / "image_02")
+    (drive / "image_01").rename(drive / "image_03")
+    calib = (drive.parent / "calib_cam_to_cam.txt").read_text()
+    (drive.parent / "calib_cam_to_cam.txt").write_text(
+        calib + f"P_rect_02: {_numbers(P2)}\nP_rect_03: {_numbers(P3)}\n"
+    )
+    colour = open_kitti(drive)
+    assert colour.unused_truth is None
+    assert [f.depth_truth is not None for f in iter_frames(colour)] == [False, True, False]
+
+
+def test_cli_names_the_depth_truth_or_the_option_that_brings_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    sequence_dir = make_colour(tmp_path / "in", n=2, grey=True)
+    _write_truth(sequence_dir / "image_depth_annotated", ["000000.png", "000001.png"])
+    assert cli.main(["import-kitti", str(sequence_dir), str(tmp_path / "grey.mcap")]) == 0
+    out = capsys.readouterr().out
+    assert "the depth truth in" in out and "add --colour to import it" in out
+    assert cli.main(["import-kitti", str(sequence_dir), str(tmp_path / "c.mcap"), "--colour"]) == 0
+    assert "depth truth: 2 of 2 frames on /ground_truth/lidar_depth" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("kind", ["8-bit", "size"])
+def test_error_bad_depth_truth(tmp_path: Path, kind: str) -> None:
+    sequence_dir = make_colour(tmp_path / "in", n=1)
+    folder = sequence_dir / "image_depth_annotated"
+    folder.mkdir()
+    shape = (HEIGHT, WIDTH) if kind == "8-bit" else (HEIGHT + 1, WIDTH)
+    dtype = np.uint8 if kind == "8-bit" else np.uint16
+    assert cv2.imwrite(str(folder / "000000.png"), np.ones(shape, dtype=dtype))
+    match = "not a 16-bit single-channel PNG" if kind == "8-bit" else "it belongs to another"
+    with pytest.raises(DatasetImportError, match=rf"depth truth .*000000.png .*{match}"):
+        import_kitti(sequence_dir, tmp_path / "x.mcap")
+    assert not (tmp_path / "x.mcap").exists()
 
 
 # --- one test per error message -------------------------------------------------------
