@@ -2243,3 +2243,38 @@ def test_learn_every_beyond_the_log_names_every(
     assert "no held-out stereo pair" in line
     assert "a smaller --every (--every 50 keeps 1 frame in 50)" in line
     assert_nothing_written(target)
+
+
+@pytest.mark.parametrize(
+    ("args", "note"),
+    [
+        (["--components", "50"], "not --components 50: 8 maps span no more directions"),
+        (["--variance", "0.5"], "not the default 500 components: the fewest that explain"),
+        (["--components", "2"], None),  # as many as asked: no note
+    ],
+)
+def test_learn_says_why_it_kept_fewer_components(
+    pcainterp: Callable[..., Run],
+    small_log: Path,
+    tmp_path: Path,
+    args: list[str],
+    note: str | None,
+) -> None:
+    run = pcainterp(
+        "learn",
+        small_log,
+        "-o",
+        tmp_path / "b.npz",
+        "--no-fit-prior",
+        "--with-synthetic",
+        "0",
+        *args,
+    )
+    assert run.code == 0, run.err
+    notes = [
+        line for line in run.out.splitlines() if line.startswith("note: ") and "component" in line
+    ]
+    if note is None:
+        assert notes == []
+    else:
+        assert len(notes) == 1 and note in notes[0], run.out

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from pcainterp_stream.cli.common import (
     Commands,
@@ -18,6 +18,9 @@ from pcainterp_stream.cli.common import (
 )
 from pcainterp_stream.cli.pairing import add_topic_options, pairing_config
 from pcainterp_stream.errors import ClusterTaskError, LogReadError, LogWriteError, PcaInterpError
+
+if TYPE_CHECKING:
+    from pcainterp_stream.estimate.basis import Basis
 
 
 def add_parser(commands: Commands) -> None:
@@ -189,8 +192,33 @@ def run(args: argparse.Namespace) -> int:
         basis = learn(args.logs, args.output, options, pairing)
     echo(f"wrote {args.output}")
     echo(describe_basis(args.output))
+    shortfall = components_note(basis, args.components)
+    if shortfall:
+        echo(shortfall)
     del basis
     return 0
+
+
+def components_note(basis: Basis, asked: int | None) -> str:
+    """Return a note on why the basis has fewer components than asked, or ""."""
+    learning = basis.meta.get("learning", {})
+    wanted = asked or int(learning.get("n_components_requested") or 0)
+    kept = basis.n_components
+    if kept >= wanted:
+        return ""
+    what = f"--components {asked}" if asked else f"the default {wanted} components"
+    variance = learning.get("variance_requested")
+    if variance is not None and basis.explained_variance_ratio >= variance - 1e-9:
+        why = f"the fewest that explain --variance {variance:g} of the maps' variance"
+    elif "finetune" in basis.meta:
+        merged = basis.meta["finetune"]
+        why = (
+            f"the built-in basis's {merged['prior_basis']['n_components']} components and "
+            f"{merged['n_maps']} maps of your own span no more; learn from more frames"
+        )
+    else:
+        why = f"{basis.n_train} maps span no more directions; learn from more frames"
+    return f"note: {kept} component{'s' * (kept != 1)}, not {what}: {why}"
 
 
 def _check_paths(args: argparse.Namespace) -> None:
