@@ -2278,3 +2278,40 @@ def test_learn_says_why_it_kept_fewer_components(
         assert notes == []
     else:
         assert len(notes) == 1 and note in notes[0], run.out
+
+
+def _blanked(small_log: Path, target: Path, frames: int) -> Path:
+    """The small log with its first ``frames`` pairs black (SGBM: disparity 0 all over)."""
+    blanked: dict[str, int] = {}
+
+    def change(topic: str, message: Any, _: int) -> Any:
+        if topic not in (LEFT, RIGHT) or blanked.get(topic, 0) >= frames:
+            return message
+        blanked[topic] = blanked.get(topic, 0) + 1
+        image = np.zeros_like(rosmsg.image_array(message))
+        return rosmsg.image_message(image, rosmsg.stamp_ns(message), message.header.frame_id)
+
+    return rewrite(small_log, target, change)
+
+
+@pytest.mark.parametrize("workers", [None, "1"])
+def test_learn_skips_blank_maps_and_refuses_a_log_of_them(
+    pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path, workers: str | None
+) -> None:
+    args = ["--no-fit-prior", "--with-synthetic", "0", *(["--workers", workers] if workers else [])]
+    black = _blanked(small_log, tmp_path / "black.mcap", SMALL_FRAMES)
+    line = pcainterp("learn", black, "-o", tmp_path / "b.npz", *args).error_line()
+    if workers:
+        assert "with a disparity above 0 found in" in line
+    else:
+        assert line.endswith(
+            f"black.mcap: SGBM found no disparity above 0 in {SMALL_FRAMES} of {SMALL_FRAMES} "
+            "maps (blank, dark or textureless images); learn from frames that show the scene"
+        )
+    assert_nothing_written(tmp_path / "b.npz")
+    some = _blanked(small_log, tmp_path / "some.mcap", 2)
+    run = pcainterp("learn", some, "-o", tmp_path / "s.npz", *args)
+    assert run.code == 0, run.err
+    assert f"training maps    {SMALL_FRAMES - 2} (SGBM)" in run.out
+    if not workers:
+        assert f"note: SGBM found no disparity above 0 in 2 of {SMALL_FRAMES} maps" in run.out

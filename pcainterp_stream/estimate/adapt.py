@@ -371,8 +371,9 @@ def own_basis(
         focal_baseline: its f*b (px*m).
 
     Returns:
-        The basis, at the camera's own size and f*b. From one map: that map as the mean and
-        one placeholder component of negligible variance.
+        The basis, at the camera's own size and f*b. From one map, or maps that are all the
+        same (a static pair repeated): that map as the mean and one placeholder component of
+        negligible variance.
 
     Raises:
         ValueError: no map.
@@ -380,7 +381,7 @@ def own_basis(
     if not grid_maps:
         raise ValueError("Expected at least one map to learn a basis from")
     meta = {"source": "self-supervised: the log's own SGBM maps", "maps": len(grid_maps)}
-    if len(grid_maps) == 1:
+    if all(np.array_equal(grid_maps[0], other) for other in grid_maps[1:]):
         grid = grid_maps[0].shape
         component = np.zeros((1, *grid), dtype=np.float32)
         component[0].flat[0] = 1.0

@@ -725,6 +725,10 @@ def _check_arrays(basis: Basis, where: str) -> None:
             f"(l, {basis.mean.shape[0]}, {basis.mean.shape[1]}) to match 'mean'"
         )
     n_components = basis.components.shape[0]
+    if n_components == 0:
+        raise ValueError(
+            "key 'components' holds no component; learn the basis again from maps that vary"
+        )
     if basis.eigenvalues.shape != (n_components,):
         raise ValueError(
             f"key 'eigenvalues' has shape {basis.eigenvalues.shape}, expected ({n_components},)"
@@ -739,16 +743,15 @@ def _check_arrays(basis: Basis, where: str) -> None:
         )
     if basis.n_train < 0:
         raise ValueError(f"key 'n_train' must be >= 0, got {basis.n_train}")
-    if n_components:
-        # float32 Gram (s * l^2 flops): its rounding, ~sqrt(s) * 6e-8, is far below the tolerance.
-        # One BLAS thread: on a busy 2-core machine a two-thread OpenBLAS spun 0.7 s on the
-        # 150-component KITTI-size Gram that one thread does in 0.02 s.
-        rows = basis.components.reshape(n_components, -1).astype(np.float32, copy=False)
-        with threadpool_limits(1, user_api="blas"):
-            gram = rows @ rows.T
-        error = float(np.abs(gram - np.eye(n_components, dtype=np.float32)).max())
-        if error > ORTHONORMALITY_TOLERANCE:
-            raise ValueError(
-                f"key 'components' is not orthonormal over grid pixels (max |B^T B - I| = "
-                f"{error:.3g} > {ORTHONORMALITY_TOLERANCE})"
-            )
+    # float32 Gram (s * l^2 flops): its rounding, ~sqrt(s) * 6e-8, is far below the tolerance.
+    # One BLAS thread: on a busy 2-core machine a two-thread OpenBLAS spun 0.7 s on the
+    # 150-component KITTI-size Gram that one thread does in 0.02 s.
+    rows = basis.components.reshape(n_components, -1).astype(np.float32, copy=False)
+    with threadpool_limits(1, user_api="blas"):
+        gram = rows @ rows.T
+    error = float(np.abs(gram - np.eye(n_components, dtype=np.float32)).max())
+    if error > ORTHONORMALITY_TOLERANCE:
+        raise ValueError(
+            f"key 'components' is not orthonormal over grid pixels (max |B^T B - I| = "
+            f"{error:.3g} > {ORTHONORMALITY_TOLERANCE})"
+        )

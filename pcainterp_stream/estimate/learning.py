@@ -282,6 +282,11 @@ def basis_from_fit(
     size = image_size
     eigenvalues = fit.eigenvalues
     n_keep = min(n_components, eigenvalues.shape[0])
+    if n_keep == 0:
+        raise ValueError(
+            "the maps do not vary (every map is the same after preprocessing: a static scene, "
+            "repeated frames or blank images); learn from frames that show different scenes"
+        )
     if variance is not None and fit.total_variance > 0:
         ratio = np.cumsum(eigenvalues) / fit.total_variance
         reached = np.flatnonzero(ratio >= variance - 1e-12)

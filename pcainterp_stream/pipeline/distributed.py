@@ -74,6 +74,7 @@ from pcainterp_stream.pipeline.common import (
 )
 from pcainterp_stream.pipeline.densify import densify, final_basis_path, own_basis_path
 from pcainterp_stream.pipeline.learn import (
+    BLANK_MAPS,
     GridTarget,
     HeldOutFrame,
     MapPlan,
@@ -81,6 +82,7 @@ from pcainterp_stream.pipeline.learn import (
     learn,
     log_pairing,
     measure_held_out,
+    shows_surface,
     to_grid,
 )
 
@@ -343,11 +345,13 @@ def summarize_chunk(
                 "learn one basis per camera"
             )
         assert target is not None
+        if not shows_surface(disparity):
+            continue  # as on one machine (learn.shows_surface)
         try:
             grids.append(to_grid(disparity, target))
         except ValueError as err:
             raise PcaInterpError(f"cannot learn from a map of {log}: {err}") from err
-    if image_size is None or target is None:
+    if not grids or target is None or image_size is None:
         return None
     return summarize(
         np.stack(grids),
@@ -597,8 +601,9 @@ def learn_on_cluster(
         total: ChunkSummary | None = task_result(final, "a learning task")
     if total is None:
         raise LogReadError(
-            f"no {'depth image' if options.depth_topic else 'stereo pair'} found in "
-            f"{', '.join(map(str, plan.logs))}; check the topic options (pcainterp info LOG)"
+            f"no {'depth image' if options.depth_topic else 'stereo pair'} with a disparity "
+            f"above 0 found in {', '.join(map(str, plan.logs))}; check the topic options "
+            f"(pcainterp info LOG) and the images ({BLANK_MAPS} give none)"
         )
     meta = {**meta, "distributed": {"chunk_frames": chunk_frames, "tasks": len(specs)}}
     prior_basis = plan.synthetic.prior_basis

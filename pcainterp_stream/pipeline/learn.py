@@ -411,6 +411,15 @@ class GridTarget:
     finetune: bool = False
 
 
+BLANK_MAPS = "blank, dark or textureless images"
+
+
+def shows_surface(disparity: npt.NDArray[np.float32]) -> bool:
+    """Return whether a map has a disparity above 0 (SGBM gives 0 all over a black pair)."""
+    with np.errstate(invalid="ignore"):
+        return bool(np.any(disparity > 0))
+
+
 def to_grid(disparity: npt.NDArray[np.float32], target: GridTarget) -> npt.NDArray[np.float32]:
     """Preprocess one map onto the grid as the local learner does; (s,) float32 (px).
 
@@ -660,8 +669,10 @@ def _learn_here(
     """Learn the basis of a plan in this process, streaming the maps."""
     image_size = plan.camera.image_size
     info: list[_MapSource] = []
+    blank = used = 0
 
     def maps() -> Iterator[npt.NDArray[np.float32]]:
+        nonlocal blank, used
         for log, keep in zip(plan.logs, plan.kept, strict=True):
             produce = _depth_maps if options.depth_topic else _sgbm_maps
             for disparity in itertools.islice(produce(log, options, pairing, info), keep):
@@ -671,7 +682,17 @@ def _learn_here(
                         f"first log has {image_size[1]}x{image_size[0]}; "
                         "learn one basis per camera"
                     )
+                if not shows_surface(disparity):
+                    blank += 1
+                    continue
+                used += 1
                 yield disparity
+        found = f"SGBM found no disparity above 0 in {blank} of {blank + used} maps ({BLANK_MAPS})"
+        if blank and not used:
+            names = ", ".join(log.name for log in plan.logs)
+            raise PcaInterpError(f"{names}: {found}; learn from frames that show the scene")
+        if blank:
+            _echo(f"note: {found}: they are skipped")
 
     with _bar(plan.total, "learn") as bar:
         progress = lambda done: bar.update(done - bar.n)  # noqa: E731
@@ -704,20 +725,14 @@ def _learn_here(
 
 
 FIT_MAX_FRAMES = 16
-
-
 """Frames used by the evidence fit of the local prior (evenly spread over the fit frames)."""
 
 
 CALIBRATION_EVERY = 4
-
-
 """Every N-th held-out frame is densified to calibrate the std (``fitting.fit_std_scale``)."""
 
 
 FIT_SEQUENCE_FRAMES = 16
-
-
 """Consecutive held-out frames measured per log (with --fit-logs: per fit log); they are the
 fit's frames and the sequences of the temporal process-noise fit."""
 

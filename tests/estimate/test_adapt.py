@@ -96,6 +96,11 @@ def test_own_basis_from_the_log_reproduces_its_scenes() -> None:
     np.testing.assert_array_equal(single.mean, maps[0])
     with pytest.raises(ValueError, match="at least one map"):
         adapt.own_basis([], SIZE, 50.0)
+    # a static pair repeated (an image publisher, a driver re-sending its last frame)
+    repeated = adapt.own_basis([maps[1]] * 3, SIZE, 50.0)
+    assert repeated.n_components == 1
+    np.testing.assert_array_equal(repeated.mean, maps[1])
+    assert len(repeated.fingerprint) == 16
 
 
 def test_leave_one_out_beats_linear_on_scenes_like_the_others() -> None:

@@ -191,6 +191,13 @@ def test_load_wrong_component_shape(tmp_path: Path) -> None:
         Basis.load(path)
 
 
+def test_load_refuses_a_basis_without_components(tmp_path: Path) -> None:
+    empty = np.zeros((0, 6, 9), dtype=np.float32)
+    path = _write(tmp_path / "basis.npz", components=empty, eigenvalues=np.zeros(0))
+    with pytest.raises(BasisError, match="key 'components' holds no component; learn"):
+        Basis.load(path)
+
+
 def test_load_wrong_eigenvalue_count(tmp_path: Path) -> None:
     path = _write(tmp_path / "basis.npz", eigenvalues=np.ones(3))
     with pytest.raises(BasisError, match="key 'eigenvalues' has shape"):

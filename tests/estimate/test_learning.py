@@ -164,3 +164,9 @@ def test_learn_rejects_too_few_maps() -> None:
         learn_basis([])
     with pytest.raises(ValueError, match="at least two"):
         learn_basis([np.ones((4, 4))], grid_scale=1.0, method="exact")
+
+
+def test_learn_refuses_maps_that_do_not_vary() -> None:
+    same = np.random.default_rng(0).uniform(1, 50, (8, 8)).astype(np.float32)
+    with pytest.raises(ValueError, match="the maps do not vary"):
+        learn_basis([same, same, same], grid_scale=1.0, method="exact")
