@@ -89,6 +89,13 @@ class CameraCalibration:
                 )
         if not np.isfinite(self.d).all():
             raise CalibrationError(f"{self.name} has non-finite distortion coefficients")
+        takes = (4, 5) if model == "equidistant" else (4, 5, 8, 12, 14)
+        if self.d.size and self.d.size not in takes:
+            raise CalibrationError(
+                f"{self.name} has {self.d.size} distortion coefficients but {model} takes "
+                f"{', '.join(map(str, takes[:-1]))} or {takes[-1]}: fix the calibration, or pass "
+                "--calibration FILE, or --rectify never for images that are rectified"
+            )
         if not (self.k[0, 0] > 0 and self.k[1, 1] > 0 and self.p[0, 0] > 0 and self.p[1, 1] > 0):
             raise CalibrationError(
                 f"{self.name} has K or P without positive focal lengths (K fx={self.k[0, 0]}, "

@@ -139,6 +139,31 @@ def test_unknown_model_is_one_line() -> None:
     assert "\n" not in str(err.value)
 
 
+@pytest.mark.parametrize(
+    ("model", "count", "takes"),
+    [
+        ("plumb_bob", 6, "4, 5, 8, 12 or 14"),
+        ("plumb_bob", 3, "4, 5, 8"),
+        ("equidistant", 8, "4 or 5"),
+    ],
+)
+def test_distortion_coefficients_opencv_does_not_take_are_one_line(
+    model: str, count: int, takes: str
+) -> None:
+    # OpenCV's initUndistortRectifyMap asserted (a traceback naming no topic) on these
+    cal = raw_calibration(CAMERA, "plumb_bob").left
+    d = np.full(count, 0.01)
+    with pytest.raises(CalibrationError, match=f"has {count} distortion coefficients but") as err:
+        rect.CameraCalibration(cal.width, cal.height, model, cal.k, d, cal.r, cal.p, name="/l/info")
+    assert f"/l/info has {count} distortion coefficients but {model} takes {takes}" in str(
+        err.value
+    )
+    assert "\n" not in str(err.value)
+    for fine in (4, 5):
+        d = np.full(fine, 0.01)
+        rect.CameraCalibration(cal.width, cal.height, model, cal.k, d, cal.r, cal.p)
+
+
 def _messages(calibration: rect.StereoCalibration, stamp: int) -> dict[str, Any]:
     return {
         "/cam/left/camera_info": camera_info_message(calibration.left, stamp, "l"),
