@@ -30,7 +30,8 @@ TARGET_RATIO = 0.65
 """Target: PCA-MAP's mean Delta_2D at most this times nearest neighbour's."""
 
 TARGET_COVERAGE = (0.90, 0.98)
-"""Target: the exact uncertainty's +-2 sigma coverage lies in this range."""
+"""Target: the +-2 sigma coverage of the std the log carries (else of evaluate's exact
+uncertainty) lies in this range."""
 
 TARGET_SGBM_NN_RATIO = 0.85
 """Dense-mode target: PCA-MAP's mean Delta_2D at most this times ``sgbm_nn``'s."""

@@ -444,6 +444,11 @@ def test_cli_report_names_a_sparse_reference(
     assert set(report["stereo_baselines"]) == {SGBM, SGBM_NN, PCA_ON_SGBM}
     assert "oracle" not in report["methods"]  # a sparse reference is no map to fit the basis to
     assert set(report["sweep"]) == {"50", "100", "200", "400", "800"}
+    # the coverage target grades the std the log carries, not evaluate's re-densification
+    stored = report["calibration"]["stored"]["mean"]["coverage_2sigma"]
+    assert f"- the log's stored uncertainty: +-2 sigma coverage = {100 * stored:.1f} %" in markdown
+    assert "re-densification (--sigma, no calibration) +-2 sigma" in markdown
+    assert "for the paper's model, not graded." in markdown
     split = report["calibration"]["exact"]["mean"]
     assert split["pixels_sgbm_holes"] + split["pixels_sgbm_valid"] == split["pixels"]
     for name in ("errors.png", "uncertainty.png", "sweep.png", "examples.png"):
