@@ -1201,6 +1201,30 @@ def test_densify_no_baseline_then_baseline_option(
     assert assert_valid_mcap(out)["/pcainterp/depth"] == SMALL_FRAMES
 
 
+def test_densify_names_its_camera_and_warns_of_a_baseline_in_millimetres(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    def change(topic: str, message: Any, _: int) -> Any:
+        if topic != RIGHT_INFO:
+            return message
+        p = np.array(message.p, dtype=np.float64)
+        p[3] *= 1000.0  # Tx in px * mm
+        return dataclasses.replace(message, p=p)
+
+    plain = pcainterp(*densify_args(small_log, out, basis_path))
+    assert f"baseline 0.5372 m (from P of {RIGHT_INFO})" in plain.out
+    assert "beyond any stereo rig" not in plain.out
+    log = rewrite(small_log, tmp_path / "mm.mcap", change)
+    run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err
+    assert f"baseline 537.2 m (from P of {RIGHT_INFO})" in run.out
+    assert (
+        f"warning: the baseline from P of {RIGHT_INFO} is 537.2 m, beyond any stereo rig's "
+        "(< 3 m), and every depth scales with it" in run.out
+    )
+    assert "if it is in millimetres, pass --baseline 0.5372" in run.out
+
+
 # ----------------------------------------------------------------------------- basis files
 
 

@@ -554,6 +554,7 @@ class StereoPairer:
             return None
         height, width = left_image.shape[:2]
         camera = rectifier.inner if rectifier is not None else self._camera(width, height)
+        self.stats.saw_camera(camera, self._baseline_source(rectifier))
         frame = StereoFrame(
             index=self._index,
             stamp_ns=left.stamp_ns,
@@ -681,6 +682,14 @@ class StereoPairer:
         if current is not None and current.calibration.key() == calibration.key():
             return current
         return rect.StereoRectifier(calibration, baseline=self.config.baseline)
+
+    def _baseline_source(self, rectifier: rect.StereoRectifier | None) -> str:
+        config = self.config
+        if config.baseline is not None:
+            return "--baseline"
+        if rectifier is None:
+            return f"P of {config.right_info_topic}"
+        return "--calibration" if config.calibration else f"{config.right_info_topic}"
 
     def _say(self, line: str) -> None:
         if line != self._said and self._echo is not None:

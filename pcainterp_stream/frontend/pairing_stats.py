@@ -10,8 +10,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from pcainterp_stream.records import StereoCamera
+
 MAX_PROBLEMS = 20
 """How many one-line problem descriptions :class:`PairingStats` keeps (counts are exact)."""
+
+MAX_BASELINE_M = 3.0
+"""Beyond this baseline (m) a calibration is taken for wrong (a rig of trucks' width is ~1.5 m;
+a millimetre P[0, 3] gives a thousand times the real one)."""
 
 
 @dataclass
@@ -19,6 +25,9 @@ class PairingStats:
     """Counts of what the pairer did (a mutable accumulator).
 
     Attributes:
+        camera: the camera of the first pair, or the first with a baseline beyond
+            :data:`MAX_BASELINE_M`; None before any pair.
+        camera_source: where that camera's baseline came from.
         pairs: stereo frames emitted.
         unpaired_left: left images dropped without a right partner.
         unpaired_right: right images dropped without a left partner.
@@ -57,6 +66,8 @@ class PairingStats:
         problems: the first :data:`MAX_PROBLEMS` one-line problem descriptions.
     """
 
+    camera: StereoCamera | None = None
+    camera_source: str = ""
     pairs: int = 0
     unpaired_left: int = 0
     unpaired_right: int = 0
@@ -175,6 +186,34 @@ class PairingStats:
             f"camera info on {' and '.join(self.missing_info_topics)} (recorded "
             f"{self.info_late_ns / 1e9:.1f} s of log later): densified with it, read ahead "
             "(the log's camera infos do not change)"
+        )
+
+    def saw_camera(self, camera: StereoCamera, source: str) -> None:
+        """Keep the first camera, or the first whose baseline is implausible (see below)."""
+        if self.camera is None or (self.camera.baseline <= MAX_BASELINE_M < camera.baseline):
+            self.camera, self.camera_source = camera, source
+
+    def camera_note(self) -> str | None:
+        """The camera the depths were computed with, else None (no pair)."""
+        camera = self.camera
+        if camera is None:
+            return None
+        return (
+            f"camera: {camera.width}x{camera.height} px, fx {camera.fx:.6g} px, baseline "
+            f"{camera.baseline:.4g} m (from {self.camera_source}), f*b {camera.focal_baseline:.5g}"
+            " px*m"
+        )
+
+    def baseline_hint(self) -> str | None:
+        """A warning when the baseline is beyond any stereo rig's, else None."""
+        camera = self.camera
+        if camera is None or camera.baseline <= MAX_BASELINE_M:
+            return None
+        guess = f"; if it is in millimetres, pass --baseline {camera.baseline / 1000:.4g}"
+        return (
+            f"the baseline from {self.camera_source} is {camera.baseline:.4g} m, beyond any "
+            f"stereo rig's (< {MAX_BASELINE_M:g} m), and every depth scales with it: fix the "
+            f"calibration (P[0, 3] = -fx * baseline, in metres){guess}"
         )
 
     def note(self, problem: str) -> None:

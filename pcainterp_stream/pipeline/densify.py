@@ -145,7 +145,12 @@ class DensifySummary:
     def pairing_hints(self) -> list[str]:
         """Return the pairing's warnings (repeated stamps, near misses, late camera infos)."""
         pairing = self.pairing
-        hints = (pairing.stamp_hint(), pairing.tolerance_hint(), pairing.camera_info_hint())
+        hints = (
+            pairing.baseline_hint(),
+            pairing.stamp_hint(),
+            pairing.tolerance_hint(),
+            pairing.camera_info_hint(),
+        )
         return [hint for hint in hints if hint is not None]
 
     def warning_lines(self) -> list[str]:
