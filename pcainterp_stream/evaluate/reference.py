@@ -8,6 +8,7 @@ message type and encoding              kind        values
 =====================================  ==========  ==========================================
 sensor_msgs/msg/Image 32FC1            depth       metres; NaN, 0, < 0: no truth; +inf: far
 sensor_msgs/msg/Image 16UC1 / mono16   depth       millimetres (REP 118); 0: no truth
+CompressedImage, compressedDepth       depth       as its encoding (32FC1 m or 16UC1 mm)
 sensor_msgs/msg/Image 32FC1            disparity   px (``--reference-kind disparity``)
 stereo_msgs/msg/DisparityImage         disparity   px, rescaled by the log's f*b / its f*t
 =====================================  ==========  ==========================================
@@ -32,7 +33,7 @@ from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.depth_image import DEPTH_ENCODINGS, depth_metres
 from pcainterp_stream.io.reader_base import TopicInfo
 
-IMAGE_TYPES = (rosmsg.IMAGE, rosmsg.DISPARITY_IMAGE)
+IMAGE_TYPES = (rosmsg.IMAGE, rosmsg.COMPRESSED_IMAGE, rosmsg.DISPARITY_IMAGE)
 """Message types a reference topic may have."""
 
 SPARSE_BELOW = 0.5
@@ -83,7 +84,7 @@ def resolve_reference(
     if info.msgtype not in IMAGE_TYPES:
         raise LogReadError(
             f"reference topic {topic} in {log} is a {info.msgtype or 'non-ROS channel'}, not a "
-            f"depth or disparity image ({' or '.join(IMAGE_TYPES)}); project it into the left "
+            f"depth or disparity image ({', '.join(IMAGE_TYPES)}); project it into the left "
             "camera first"
         )
     if info.msgtype == rosmsg.DISPARITY_IMAGE:
@@ -93,6 +94,11 @@ def resolve_reference(
                 "drop --reference-kind depth"
             )
         kind = ReferenceKind.DISPARITY
+    elif info.msgtype == rosmsg.COMPRESSED_IMAGE and kind is ReferenceKind.DISPARITY:
+        raise LogReadError(
+            f"reference topic {topic} is a {rosmsg.COMPRESSED_IMAGE}, read as compressedDepth "
+            "depth; drop --reference-kind disparity"
+        )
     elif kind is ReferenceKind.AUTO:
         kind = ReferenceKind.DEPTH
     return ReferenceTopic(topic=topic, msgtype=info.msgtype, kind=kind)
@@ -122,6 +128,13 @@ def reference_disparity(
             that does not hold depth or disparity.
     """
     topic = reference.topic
+    if reference.msgtype == rosmsg.COMPRESSED_IMAGE:  # compressedDepth (image_transport)
+        try:
+            values = depth_metres(message)
+        except ValueError as err:
+            raise LogReadError(f"reference topic {topic}: {err}") from err
+        _check_size(topic, values.shape, image_size)
+        return disparity_from_reference(values, kind=reference.kind, focal_baseline=focal_baseline)
     image = message.image if reference.msgtype == rosmsg.DISPARITY_IMAGE else message
     encoding = str(image.encoding)
     if reference.kind is ReferenceKind.DEPTH:
@@ -132,12 +145,7 @@ def reference_disparity(
         what = "a disparity reference must be 32FC1 (px)"
     if encoding not in allowed:
         raise LogReadError(f"reference topic {topic} has {encoding} images; {what}")
-    height, width = int(image.height), int(image.width)
-    if (height, width) != image_size:
-        raise LogReadError(
-            f"reference topic {topic} has {width}x{height} images but the estimate is "
-            f"{image_size[1]}x{image_size[0]}; pass a reference at the densified size"
-        )
+    _check_size(topic, (int(image.height), int(image.width)), image_size)
     try:
         if reference.kind is ReferenceKind.DEPTH:
             values = depth_metres(image)  # 0 mm is "no return" (REP 118)
@@ -151,3 +159,11 @@ def reference_disparity(
         if focal_t > 0 and np.isfinite(focal_t):
             values *= focal_baseline / focal_t
     return disparity_from_reference(values, kind=reference.kind, focal_baseline=focal_baseline)
+
+
+def _check_size(topic: str, size: tuple[int, ...], image_size: tuple[int, int]) -> None:
+    if size != image_size:
+        raise LogReadError(
+            f"reference topic {topic} has {size[1]}x{size[0]} images but the estimate is "
+            f"{image_size[1]}x{image_size[0]}; pass a reference at the densified size"
+        )

@@ -33,7 +33,7 @@ from pcainterp_stream.evaluate.metrics import (
 from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log, summary_table
 from pcainterp_stream.evaluate.results import PCA_ON_SGBM, SGBM, SGBM_NN, Evaluation
 from pcainterp_stream.frontend.stereo import SgbmConfig, compute_disparity
-from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io import depth_codec, rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import open_writer
 from pcainterp_stream.io.outputs import OutputTopics
@@ -155,6 +155,11 @@ def _image(array: np.ndarray, stamp: int, encoding: str) -> Any:
     return rosmsg.image_message(array, stamp, LEFT_FRAME, encoding=encoding)
 
 
+def _compressed_mm(millimetres: np.ndarray, stamp: int) -> Any:
+    encoded = depth_codec.encode_16(millimetres)
+    return rosmsg.compressed_image_message(encoded.data, encoded.format, stamp, LEFT_FRAME)
+
+
 def _references(depth: np.ndarray, stamp: int, index: int) -> list[tuple[str, Any, int]]:
     """The extra reference topics of one frame: (topic, message, log time offset ns)."""
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -173,6 +178,7 @@ def _references(depth: np.ndarray, stamp: int, index: int) -> list[tuple[str, An
     )
     extra = [
         ("/ref/depth_mm", _image(millimetres, stamp, "16UC1"), 0),
+        ("/ref/compressed_mm", _compressed_mm(millimetres, stamp), 0),  # image_transport's
         ("/ref/depth_m_of_mm", _image(metres_of_mm, stamp, "32FC1"), 0),
         ("/ref/disparity_image", doubled, 0),
         ("/ref/disparity_32f", _image(disparity, stamp, "32FC1"), 0),
@@ -362,6 +368,8 @@ def test_reference_encodings_give_the_same_scores(logs: dict[str, Path]) -> None
     assert _evaluate(path, "/ref/disparity_image").reference_kind == "disparity"
     millimetres = _evaluate(path, "/ref/depth_mm")
     metres = _evaluate(path, "/ref/depth_m_of_mm")
+    compressed = _evaluate(path, "/ref/compressed_mm")  # 16UC1; compressedDepth png
+    assert means(compressed) == means(millimetres)
     assert millimetres.methods["pca_map"].pixels == metres.methods["pca_map"].pixels
     assert means(millimetres) == pytest.approx(means(metres), rel=1e-6)
     assert means(millimetres)["delta_2d_mean"] == pytest.approx(
