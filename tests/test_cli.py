@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import signal
 import subprocess
 import sys
@@ -686,6 +687,29 @@ def test_densify_truncated(
         assert run.code == 0, run.err
     if fraction <= 0.02:  # not even one image
         assert run.code == 2
+
+
+def test_learn_and_evaluate_report_a_truncated_log(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    data = small_log.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.8)])
+    args = ["--no-fit-prior", "--with-synthetic", "0", "--components", "2"]
+    run = pcainterp("learn", cut, "-o", tmp_path / "b.npz", *args)
+    assert run.code == 0, run.err
+    assert "damage: cut.mcap: no MCAP magic at the end" in run.out
+    assert "learn uses the frames before it" in run.out
+    assert pcainterp(*densify_args(small_log, out, basis_path)).code == 0
+    dense = out.read_bytes()
+    cut_dense = tmp_path / "cut_dense.mcap"
+    cut_dense.write_bytes(dense[: int(len(dense) * 0.8)])
+    report = tmp_path / "report"
+    run = pcainterp("evaluate", cut_dense, "-o", report, "--no-basis", "--no-linear")
+    assert run.code == 0, run.err
+    assert "damage: cut_dense.mcap: " in run.out
+    assert "only the frames read before it count" in (report / "results.md").read_text()
+    assert json.loads((report / "results.json").read_text())["damage"]
 
 
 @pytest.mark.parametrize("fraction", [0.3, 0.6, 0.95])

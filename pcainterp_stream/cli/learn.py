@@ -142,6 +142,7 @@ def add_parser(commands: Commands) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Learn the basis (here or on Dask), save it and describe it; return the exit code."""
+    from pcainterp_stream.pipeline.common import damage_at_open
     from pcainterp_stream.pipeline.jobs import describe_basis
     from pcainterp_stream.pipeline.learn import LearnOptions, learn, learn_pairing
 
@@ -174,6 +175,8 @@ def run(args: argparse.Namespace) -> int:
         with_synthetic=with_synthetic,
     )
     pairing = learn_pairing([*args.logs, *args.fit_logs], pairing_config(args), args.depth_topic)
+    for line in damage_at_open([*args.logs, *args.fit_logs]):
+        echo(f"damage: {line}; learn uses the frames before it")
     if args.workers is not None and args.workers < 1:
         raise PcaInterpError(f"--workers must be at least 1, got {args.workers}")
     if on_cluster:  # the same learn, the maps' statistics gathered by the workers

@@ -219,6 +219,8 @@ class _ReadState:
     """The stamp tolerance of a frame's right image (given, recorded or the default)."""
     tolerance_from: str = "the default: the log records none"
     """Where :attr:`tolerance_ns` came from, for messages."""
+    damage: list[str] = field(default_factory=list)
+    """The reader's damage lines (the reader's own list: it grows as the log is read)."""
 
 
 def _camera(info: Any, baseline: float, size: tuple[int, int]) -> StereoCamera:
@@ -255,6 +257,7 @@ def _frames(
     images = images or PairImages()
     left_image, right_image = images.left_topic, images.right_topic
     with open_log(path) as reader:
+        state.damage = reader.damage
         present = reader.topics()
         where = estimate_topics(present, topics)
         needed = [where.estimate, where.std, topics.features, topics.camera_info]
@@ -767,6 +770,7 @@ def evaluate_log(
             )
         previous = None if frame_reference is None else (frame, frame_reference, stereo)
     result.measurements = state.measurements
+    result.damage = list(state.damage)
     if evaluator.sgbm_empty:
         result.stereo_note = (
             f"{SGBM_NN} left out on {evaluator.sgbm_empty} frames where SGBM found no pixel"

@@ -131,6 +131,7 @@ class Evaluation:
         stereo_counted: counted pixels of the frames the stereo baselines ran on.
         measurements: the ``pcainterp.measurements`` channel metadata of the densified log
             (``dense`` or ``sparse``), None when the log records none.
+        damage: damage found reading the log (a truncated file), one line each.
     """
 
     log: str
@@ -155,6 +156,7 @@ class Evaluation:
     stereo_note: str = ""
     stereo_counted: float = 0.0
     measurements: str | None = None
+    damage: list[str] = field(default_factory=list)
 
     @property
     def reference_fraction(self) -> float:
@@ -186,6 +188,7 @@ class Evaluation:
             "reference_fraction": self.reference_fraction,
             "skipped_no_reference": self.skipped,
             "measurements": self.measurements,
+            "damage": self.damage,
             "frames": self.frames,
             "image_size": list(self.image_size),
             "points_per_frame": self.points_per_frame,

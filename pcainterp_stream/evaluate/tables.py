@@ -86,6 +86,7 @@ def summary_table(result: Evaluation) -> str:
         lines.append(
             f"{result.skipped} frames skipped: no {result.reference} message with their stamp"
         )
+    lines += [f"damage: {line}; only the frames read before it count" for line in result.damage]
     if result.measurements:
         lines.append(f"measurements of the densified log: {result.measurements}")
     if result.basis_note:

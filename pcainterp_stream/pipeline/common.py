@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Self
 
@@ -166,6 +167,18 @@ def _require_topics(reader: LogReader, options: dict[str, str], wanted: str) -> 
                 "pass a log recorded with stereo images"
             ) from err
         raise
+
+
+def damage_at_open(logs: Sequence[Path]) -> list[str]:
+    """Return the damage the logs show when opened, one line each.
+
+    A truncated MCAP's missing footer and summary is found without reading the messages.
+    """
+    lines: list[str] = []
+    for log in logs:
+        with contextlib.suppress(PcaInterpError), open_log(log) as reader:
+            lines += reader.damage
+    return lines
 
 
 def _expected_frames(log: Path, topic: str, every: int) -> int | None:
