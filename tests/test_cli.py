@@ -2325,7 +2325,8 @@ def test_learn_says_why_it_kept_fewer_components(
     if note is None:
         assert notes == []
     else:
-        assert len(notes) == 1 and note in notes[0], run.out
+        assert len(notes) == 1, run.out
+        assert note in notes[0]
 
 
 def _blanked(small_log: Path, target: Path, frames: int) -> Path:
