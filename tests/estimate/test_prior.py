@@ -184,13 +184,15 @@ def test_robust_reweights_only_a_frame_with_an_outlier() -> None:
     np.testing.assert_allclose(clean.disparity_std, plain.disparity_std, rtol=1e-5)
     # robust_from=0: reweighted all the same, every Cauchy weight below 1
     always = solve(disparities, robust_from=0.0)
-    assert always.weights is not None and always.weights.max() < 1.0
+    assert always.weights is not None
+    assert always.weights.max() < 1.0
     assert not np.array_equal(always.disparity, plain.disparity)
     # one wrong lookup: the frame is reweighted from it
     wrong = disparities.copy()
     wrong[4] += 40.0
     outlier = solve(wrong)
-    assert outlier.weights is not None and outlier.weights[4] < 0.5
+    assert outlier.weights is not None
+    assert outlier.weights[4] < 0.5
     np.testing.assert_array_equal(outlier.disparity, solve(wrong, robust_from=0.0).disparity)
     with pytest.raises(ValueError, match="robust_from"):
         solve(disparities, robust_from=-1.0)

@@ -348,7 +348,8 @@ def test_odometry_colour_pair_brings_its_depth_truth(tmp_path: Path) -> None:
     assert sequence.truth_folder == sequence_dir / "image_depth_annotated"
     truths = [frame.depth_truth for frame in iter_frames(sequence)]
     assert truths[1] is None  # no truth file for that frame
-    assert truths[0] is not None and truths[2] is not None
+    assert truths[0] is not None
+    assert truths[2] is not None
     assert truths[2].dtype == np.float32
     assert (truths[2][1, 2], truths[2][4, 7]) == (6.5, np.float32(65535 / 256))
     assert np.isnan(truths[2]).sum() == HEIGHT * WIDTH - 2
@@ -389,7 +390,8 @@ def test_cli_names_the_depth_truth_or_the_option_that_brings_it(
     _write_truth(sequence_dir / "image_depth_annotated", ["000000.png", "000001.png"])
     assert cli.main(["import-kitti", str(sequence_dir), str(tmp_path / "grey.mcap")]) == 0
     out = capsys.readouterr().out
-    assert "the depth truth in" in out and "add --colour to import it" in out
+    assert "the depth truth in" in out
+    assert "add --colour to import it" in out
     assert cli.main(["import-kitti", str(sequence_dir), str(tmp_path / "c.mcap"), "--colour"]) == 0
     assert "depth truth: 2 of 2 frames on /ground_truth/lidar_depth" in capsys.readouterr().out
 
