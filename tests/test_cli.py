@@ -1023,7 +1023,7 @@ def test_learn_without_a_decodable_pair(
     pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path
 ) -> None:
     def change(topic: str, message: Any, _: int) -> Any:
-        return dataclasses.replace(message, encoding="yuv422") if topic == RIGHT else message
+        return dataclasses.replace(message, encoding="nv21") if topic == RIGHT else message
 
     log = rewrite(small_log, tmp_path / "odd.mcap", change)
     target = tmp_path / "basis.npz"
@@ -1044,7 +1044,7 @@ def test_densify_rrd_folder_missing(
 # ----------------------------------------------------------------------------- images
 
 
-@pytest.mark.parametrize("encoding", ["yuv422", "64FC1"])
+@pytest.mark.parametrize("encoding", ["nv21", "64FC1"])
 def test_densify_unsupported_encoding_everywhere(
     pcainterp: Callable[..., Run],
     encoding: str,
@@ -1079,7 +1079,7 @@ def test_densify_refuses_float_images_naming_the_topic(
     line = pcainterp(*densify_args(log, out, basis_path)).error_line()
     assert f"{SMALL_FRAMES} undecodable (unsupported image encoding '32FC1')" in line
     assert f"{LEFT} at " in line
-    assert "camera images are mono8, 8UC1, rgb8, bgr8, 8UC3, mono16, 16UC1)" in line
+    assert "camera images are mono8, 8UC1, rgb8, bgr8, 8UC3, bgra8, rgba8, bayer_rggb8, " in line
     assert_nothing_written(out)
 
 
@@ -1142,14 +1142,14 @@ def test_densify_unsupported_encoding_some_frames(
 
     def change(topic: str, message: Any, _: int) -> Any:
         if topic == LEFT and rosmsg.stamp_ns(message) in bad:
-            return dataclasses.replace(message, encoding="yuv422")
+            return dataclasses.replace(message, encoding="nv21")
         return message
 
     log = rewrite(small_log, tmp_path / "mixed.mcap", change)
     run = pcainterp(*densify_args(log, out, basis_path))
     assert run.code == 0, run.err
     assert f"densified {SMALL_FRAMES - 2} frames" in run.out
-    assert "2 undecodable (unsupported image encoding 'yuv422')" in run.out
+    assert "2 undecodable (unsupported image encoding 'nv21')" in run.out
     assert assert_valid_mcap(out)["/pcainterp/depth"] == SMALL_FRAMES - 2
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 from functools import cache
 from typing import Any
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 from rosbags.typesys import Stores, get_typestore
@@ -34,10 +35,33 @@ IMAGE_ENCODINGS: dict[str, tuple[str, int]] = {
     "rgb8": ("u1", 3),
     "bgr8": ("u1", 3),
     "8UC3": ("u1", 3),
+    "bgra8": ("u1", 4),
+    "rgba8": ("u1", 4),
+    "bayer_rggb8": ("u1", 1),
+    "bayer_bggr8": ("u1", 1),
+    "bayer_gbrg8": ("u1", 1),
+    "bayer_grbg8": ("u1", 1),
+    "yuv422": ("u1", 2),
+    "yuv422_yuy2": ("u1", 2),
     "mono16": ("u2", 1),
     "16UC1": ("u2", 1),
     "32FC1": ("f4", 1),
 }
+
+TO_RGB: dict[str, int] = {
+    "bgr8": cv2.COLOR_BGR2RGB,
+    "8UC3": cv2.COLOR_BGR2RGB,  # cv_bridge's order for three 8-bit channels
+    "bgra8": cv2.COLOR_BGRA2RGB,  # the ZED wrappers' image_rect_color
+    "rgba8": cv2.COLOR_RGBA2RGB,
+    # ROS names the first 2x2 cell, OpenCV the second row's: as cv_bridge maps them
+    "bayer_rggb8": cv2.COLOR_BayerBG2RGB,
+    "bayer_bggr8": cv2.COLOR_BayerRG2RGB,
+    "bayer_gbrg8": cv2.COLOR_BayerGR2RGB,
+    "bayer_grbg8": cv2.COLOR_BayerGB2RGB,
+    "yuv422": cv2.COLOR_YUV2RGB_UYVY,  # usb_cam, UVC stereo cameras
+    "yuv422_yuy2": cv2.COLOR_YUV2RGB_YUY2,
+}
+"""Encodings :func:`image_array` converts to RGB (demosaicing Bayer images, as image_proc)."""
 
 CAMERA_IMAGE_ENCODINGS: tuple[str, ...] = tuple(
     name for name, (dtype, _) in IMAGE_ENCODINGS.items() if dtype != "f4"
@@ -132,7 +156,8 @@ def image_array(message: Any) -> npt.NDArray[np.generic]:
     """Decode a ``sensor_msgs/Image`` into an array, honouring step and endianness.
 
     Returns:
-        (H, W) or (H, W, 3) array of the encoding's dtype; ``bgr8`` is returned as RGB.
+        (H, W) or (H, W, 3) array of the encoding's dtype; the encodings of :data:`TO_RGB`
+        (BGR, with alpha, Bayer, YUV 4:2:2) are returned as RGB.
 
     Raises:
         ValueError: for an encoding outside :data:`IMAGE_ENCODINGS` or a data size that does
@@ -156,8 +181,10 @@ def image_array(message: Any) -> npt.NDArray[np.generic]:
     rows = raw[: height * step].reshape(height, step)[:, :row_bytes]
     image = np.ascontiguousarray(rows).view(dtype).astype(dtype.newbyteorder("="), copy=False)
     image = image.reshape((height, width, channels) if channels > 1 else (height, width))
-    if encoding == "bgr8":
-        image = np.ascontiguousarray(image[:, :, ::-1])
+    if encoding in TO_RGB:
+        if encoding.startswith("yuv422") and width % 2:
+            raise ValueError(f"a {encoding} image needs an even width, got {width}")
+        image = cv2.cvtColor(np.ascontiguousarray(image), TO_RGB[encoding])
     return image
 
 

@@ -161,7 +161,7 @@ def test_every_image_encoding_is_summarised(encoding: str) -> None:
     assert "data" not in content.values
     image = content.arrays["image"]
     assert image.shape == shape
-    expected = array[:, :, ::-1] if encoding == "bgr8" else array
+    expected = array[:, :, ::-1] if encoding in ("bgr8", "8UC3") else array  # BGR to RGB
     np.testing.assert_array_equal(image, expected)
 
 

@@ -350,8 +350,8 @@ def test_decode_image_encodings() -> None:
 
 def test_decode_image_unsupported_encoding() -> None:
     message = rosmsg.image_message(np.zeros((2, 2), np.uint8), 0, "f")
-    message.encoding = "bayer_rggb8"
-    with pytest.raises(ValueError, match="unsupported image encoding 'bayer_rggb8'"):
+    message.encoding = "bayer_rggb16"
+    with pytest.raises(ValueError, match="unsupported image encoding 'bayer_rggb16'"):
         decode_image(message)
     depth = rosmsg.image_message(np.zeros((2, 2), np.float32), 0, "f")
     assert depth.encoding == "32FC1"

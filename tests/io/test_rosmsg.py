@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from pcainterp_stream.io import rosmsg
@@ -17,3 +18,55 @@ def test_pointcloud2_is_dense_only_without_non_finite_values() -> None:
     with_nan = dict(finite, z=np.array([1.0, np.nan, 2.0], dtype=np.float32))
     assert not rosmsg.pointcloud2_message(with_nan, 5, "left").is_dense
     assert rosmsg.pointcloud2_message({}, 5, "left").is_dense  # an empty cloud has no NaN
+
+
+def _raw_image(data: np.ndarray, encoding: str) -> object:
+    height, width = data.shape[:2]
+    return rosmsg.TYPESTORE.types[rosmsg.IMAGE](
+        header=rosmsg.header(0, "cam"),
+        height=height,
+        width=width,
+        encoding=encoding,
+        is_bigendian=0,
+        step=data.nbytes // height,
+        data=np.ascontiguousarray(data).reshape(-1),
+    )
+
+
+def _mosaic(rgb: np.ndarray, pattern: str) -> np.ndarray:
+    """A Bayer mosaic of an RGB image; ``pattern`` names the first 2x2 cell (ROS)."""
+    out = np.empty(rgb.shape[:2], dtype=np.uint8)
+    for k, colour in enumerate(pattern):
+        out[k // 2 :: 2, k % 2 :: 2] = rgb[k // 2 :: 2, k % 2 :: 2, "rgb".index(colour)]
+    return out
+
+
+def test_camera_encodings_of_real_drivers_decode_to_rgb() -> None:
+    rng = np.random.default_rng(0)
+    rgb = cv2.GaussianBlur(rng.integers(0, 256, (24, 32, 3), dtype=np.uint8), (7, 7), 2)
+    bgr = np.ascontiguousarray(rgb[:, :, ::-1])
+    alpha = np.full((24, 32, 1), 255, np.uint8)
+    exact = {
+        "bgr8": bgr,
+        "8UC3": bgr,  # three 8-bit channels are BGR to cv_bridge
+        "bgra8": np.concatenate([bgr, alpha], axis=2),
+        "rgba8": np.concatenate([rgb, alpha], axis=2),
+    }
+    for encoding, data in exact.items():
+        np.testing.assert_array_equal(rosmsg.image_array(_raw_image(data, encoding)), rgb)
+    for pattern in ("rggb", "bggr", "gbrg", "grbg"):
+        mosaic = _mosaic(rgb, pattern)
+        decoded = rosmsg.image_array(_raw_image(mosaic, f"bayer_{pattern}8"))
+        assert decoded.shape == rgb.shape
+        inner = (slice(3, -3), slice(3, -3))
+        error = np.abs(decoded[inner].astype(int) - rgb[inner]).mean()
+        assert error < 3, pattern  # a wrong pattern swaps red and blue: tens of levels
+    yuv = cv2.cvtColor(bgr, cv2.COLOR_BGR2YUV)
+    uyvy = np.empty((24, 32, 2), np.uint8)  # U Y0 V Y1 per two pixels
+    uyvy[:, :, 1] = yuv[:, :, 0]
+    uyvy[:, 0::2, 0], uyvy[:, 1::2, 0] = yuv[:, 0::2, 1], yuv[:, 0::2, 2]
+    decoded = rosmsg.image_array(_raw_image(uyvy, "yuv422")).astype(int)
+    assert np.abs(decoded - rgb).mean() < 6
+    yuy2 = uyvy[:, :, ::-1].copy()  # Y0 U Y1 V
+    decoded = rosmsg.image_array(_raw_image(yuy2, "yuv422_yuy2")).astype(int)
+    assert np.abs(decoded - rgb).mean() < 6
