@@ -191,9 +191,9 @@ class FeatureStreamCheck:
         undecodable = [p for p in stats.problems if p.startswith(f"{self.topic}: ")]
         nearest = stats.features_nearest_miss_ns
         if clouds == 0 and undecodable:
-            return f"{clause}: its clouds could not be read ({undecodable[0]})"
+            return f"{self.without_cloud} had no cloud: none could be read ({undecodable[0]})"
         if clouds == 0:
-            return f"{clause}: the log has no cloud on {self.topic}"
+            return f"{self.without_cloud} had no cloud: the log has none on {self.topic}"
         if nearest >= 0 and (error or nearest <= NEAR_MISS_NS):
             return (
                 f"{clause} (the nearest cloud was {nearest / 1e6:.3g} ms from an image's "

@@ -36,8 +36,13 @@ def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-def with_features(source: Path, target: Path, damage: Damage | None = None) -> Path:
-    """Copy a synthetic log adding /features: true 3-D points (left optical, m), damaged."""
+def with_features(
+    source: Path, target: Path, damage: Damage | None = None, names: str = "xyz"
+) -> Path:
+    """Copy a synthetic log adding /features: true 3-D points (left optical, m), damaged.
+
+    ``names`` are the clouds' three field names (``xyw``: a cloud without z).
+    """
     rng = np.random.default_rng(0)
     index = 0
     with open_log(source) as reader, open_writer(target, LogFormat.MCAP) as writer:
@@ -67,7 +72,7 @@ def with_features(source: Path, target: Path, damage: Damage | None = None) -> P
                 continue
             stamp, frame_id, points = cloud
             points = points.astype(np.float32)
-            fields = {"x": points[:, 0], "y": points[:, 1], "z": points[:, 2]}
+            fields = {name: points[:, i] for i, name in enumerate(names)}
             message = rosmsg.pointcloud2_message(fields, stamp, frame_id)
             writer.add_message("/features", message, raw.log_time_ns)
     return target
@@ -132,6 +137,16 @@ def test_a_stream_that_gives_no_frame_a_point_is_refused_naming_why(
     ):
         densify(source, output)
     assert sorted(path.name for path in tmp_path.iterdir()) == ["f.mcap"]  # nothing written
+
+
+def test_clouds_that_cannot_be_read_are_named(log: Path, tmp_path: Path) -> None:
+    source = with_features(log, tmp_path / "f.mcap", names="xyw")
+    with pytest.raises(
+        PcaInterpError,
+        match=r"in any of the 4 frames: 4 had no cloud: none could be read \(/features: "
+        r"point cloud has no field z \(fields: x, y, w\)\)$",
+    ):
+        densify(source, tmp_path / "out.mcap")
 
 
 def test_frames_without_a_cloud_are_blamed_on_the_stream(log: Path, tmp_path: Path) -> None:
