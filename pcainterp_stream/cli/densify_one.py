@@ -178,6 +178,8 @@ def _print_summary(summary: DensifySummary, processor: ProcessorConfig) -> None:
         + (", fused with the whole SGBM map (dense)" if dense else "")
     )
     echo(f"pairing: {summary.pairing.summary()}")
+    if summary.feature_line is not None:
+        echo(summary.feature_line)
     notes = (summary.pairing.camera_note(), summary.pairing.stamp_note())
     for note in (*notes, summary.pairing.camera_info_note()):
         if note is not None:

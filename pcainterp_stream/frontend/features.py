@@ -18,12 +18,16 @@ def features_to_measurements(
         camera: the stereo calibration.
 
     Returns:
-        pixels (k, 2) float32 (x, y) px, disparities (k,) float32 px = f*b / z, and counts
-        (points, behind the camera or outside the image).
+        pixels (k, 2) float32 (x, y) px, disparities (k,) float32 px = f*b / z, and counts:
+        ``feature_cloud`` (1 when the frame had a cloud), ``features`` (its points),
+        ``features_rejected`` (behind the camera or outside the image) and
+        ``features_behind`` (of those, behind the camera: z <= 0).
     """
+    cloud = int(features is not None)
     if features is None or features.points.size == 0:
         empty = np.zeros((0, 2), dtype=np.float32)
-        return empty, np.zeros(0, dtype=np.float32), {"features": 0, "features_rejected": 0}
+        counts = {"feature_cloud": cloud, "features": 0, "features_rejected": 0}
+        return empty, np.zeros(0, dtype=np.float32), counts | {"features_behind": 0}
     points = features.points.astype(np.float64)
     z = points[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -40,5 +44,10 @@ def features_to_measurements(
         & (v <= camera.height - 0.5)
     )
     pixels = np.stack([u[keep], v[keep]], axis=1).astype(np.float32)
-    counts = {"features": int(points.shape[0]), "features_rejected": int((~keep).sum())}
+    counts = {
+        "feature_cloud": cloud,
+        "features": int(points.shape[0]),
+        "features_rejected": int((~keep).sum()),
+        "features_behind": int((~(z > 0)).sum()),
+    }
     return pixels, disparity[keep].astype(np.float32), counts

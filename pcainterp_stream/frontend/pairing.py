@@ -334,6 +334,8 @@ class StereoPairer:
         Those waiting for features, and a last pair waiting for infos of its own stamp.
         """
         frames = self._release_matched(force=True) if self._matched else []
+        for frame in self._held:  # none of the clouds left is within the tolerance
+            self.stats.feature_miss(frame.stamp_ns, (f.stamp_ns for f in self._features))
         frames += list(self._held)
         self._held.clear()
         self.stats.features_unmatched += len(self._features)
@@ -760,11 +762,14 @@ class StereoPairer:
                 or len(self._held) > self.config.window
             ):
                 break
+            else:
+                self.stats.feature_miss(frame.stamp_ns, (f.stamp_ns for f in self._features))
             released.append(self._held.popleft())
         # clouds older than every frame still to come match nothing
         if self._held:
             horizon = self._held[0].stamp_ns - tolerance
             stale = [f for f in self._features if f.stamp_ns < horizon]
+            self.stats.feature_miss(self._held[0].stamp_ns, (f.stamp_ns for f in stale))
             for f in stale:
                 self._features.remove(f)
             self.stats.features_unmatched += len(stale)

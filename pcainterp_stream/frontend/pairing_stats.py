@@ -8,6 +8,7 @@ infos recorded late, header stamps that do not tell the pairs apart).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 from pcainterp_stream.records import StereoCamera
@@ -47,6 +48,9 @@ class PairingStats:
             one read ahead.
         features_matched: frames that got a feature cloud of their stamp.
         features_unmatched: feature clouds that matched no frame.
+        features_nearest_miss_ns: the smallest gap (ns) between the stamps of a frame and a
+            feature cloud that were not paired, one of them for want of the other (beyond
+            the tolerance, or they would have been); -1 when there was none.
         non_monotonic_stamps: images whose stamp is earlier than the previous one on the
             same side.
         near_misses_ns: the gap (ns) of each image dropped unpaired to the nearest other-side
@@ -81,6 +85,7 @@ class PairingStats:
     changed_info_topics: list[str] = field(default_factory=list)
     features_matched: int = 0
     features_unmatched: int = 0
+    features_nearest_miss_ns: int = -1
     non_monotonic_stamps: int = 0
     near_misses_ns: list[int] = field(default_factory=list)
     repeated_stamp_topic: str | None = None
@@ -215,6 +220,13 @@ class PairingStats:
             f"stereo rig's (< {MAX_BASELINE_M:g} m), and every depth scales with it: fix the "
             f"calibration (P[0, 3] = -fx * baseline, in metres){guess}"
         )
+
+    def feature_miss(self, stamp_ns: int, cloud_stamps_ns: Iterable[int]) -> None:
+        """Keep the gap from a frame to the nearest of feature clouds it was not paired with."""
+        gaps = [abs(cloud - stamp_ns) for cloud in cloud_stamps_ns]
+        if gaps:
+            nearest = self.features_nearest_miss_ns
+            self.features_nearest_miss_ns = min(gaps) if nearest < 0 else min(nearest, *gaps)
 
     def note(self, problem: str) -> None:
         """Keep a one-line problem description (only the first few are kept)."""

@@ -49,6 +49,7 @@ from pcainterp_stream.pipeline.common import (
     _pairing_types,
     _require_topics,
 )
+from pcainterp_stream.pipeline.feature_check import FeatureStreamCheck
 from pcainterp_stream.pipeline.processor import FrameProcessor, MeasurementSource, ProcessorConfig
 from pcainterp_stream.records import DensifiedFrame, RawMessage, StereoFrame
 
@@ -121,6 +122,8 @@ class DensifySummary:
         final_basis_written: where the basis relearned from all the log's maps was saved,
             None when it was never relearned.
         rrd_written: whether the ``.rrd`` recording was written whole.
+        feature_line: with a feature stream, what it gave (points used, dropped by reason);
+            None when the measurements came from the stereo pair.
     """
 
     input: Path
@@ -141,6 +144,7 @@ class DensifySummary:
     rrd_written: bool = False
     basis_written: Path | None = None
     final_basis_written: Path | None = None
+    feature_line: str | None = None
 
     def pairing_hints(self) -> list[str]:
         """Return the pairing's warnings (repeated stamps, near misses, late camera infos)."""
@@ -229,6 +233,11 @@ def densify(
     # "empty": frames without a single measurement (the prior's mean alone)
     robust = {"downweighted": 0, "most": 0, "resets": 0, "carried": 0, "carry_resets": 0}
     robust["empty"] = 0
+    check = (
+        FeatureStreamCheck(pairing.features_topic)
+        if processor.source is MeasurementSource.FEATURES and pairing.features_topic is not None
+        else None
+    )
     with contextlib.ExitStack() as stack:
         if isinstance(input_path, Path):
             reader = stack.enter_context(open_log(input_path))
@@ -342,6 +351,8 @@ def densify(
             robust["resets"] += result.counts.get("temporal_reset", 0)
             robust["carried"] += result.counts.get("carried", 0)
             robust["carry_resets"] += result.counts.get("carry_reset", 0)
+            if check is not None:
+                check.result(result)
             bar.update(1)
 
         checked_width = processor.source is not MeasurementSource.STEREO
@@ -351,7 +362,10 @@ def densify(
             if not checked_width:  # SGBM would fail, or crash, on too narrow a pair
                 _check_width(frame, processor.sgbm, input_path, pairing.left_topic)
                 checked_width = True
-            emit(engine.submit(frame, pairer.features_for(frame)))
+            features = pairer.features_for(frame)
+            if check is not None:
+                check.cloud(frame, features)
+            emit(engine.submit(frame, features))
 
         for raw in reader.messages():
             if inputs is not None:
@@ -374,6 +388,9 @@ def densify(
         stats = pairer.finish()
         if frames == 0:
             raise LogReadError(_no_pair_message(input_path, pairing, stats, reader.damage))
+        unusable = check.error(stats) if check is not None else None
+        if unusable is not None:  # raised in the writer's block: no output is left behind
+            raise PcaInterpError(f"{input_path}: {unusable}")
         prior_lines = list(engine.adaptation.lines)
         basis_written = final_written = None
         final = engine.adaptation.final_line(engine.basis)
@@ -402,7 +419,12 @@ def densify(
         pairing=stats,
         damage=list(reader.damage),
         written=writer.summary() if writer is not None else None,
-        warnings=list(reader.warnings) + _empty_warning(robust["empty"], frames, processor),
+        warnings=list(reader.warnings)
+        + (
+            check.warnings(stats)
+            if check is not None
+            else _empty_warning(robust["empty"], frames, processor)
+        ),
         downweighted=robust["downweighted"],
         most_downweighted=robust["most"],
         temporal_resets=robust["resets"],
@@ -412,6 +434,7 @@ def densify(
         basis_written=basis_written,
         final_basis_written=final_written,
         rrd_written=sink is not None and sink.written,
+        feature_line=check.summary() if check is not None else None,
     )
 
 
@@ -512,7 +535,11 @@ def _check_width(frame: StereoFrame, sgbm: SgbmConfig, log: Path, topic: str) ->
 
 
 def _empty_warning(empty: int, frames: int, processor: ProcessorConfig) -> list[str]:
-    """The warning for sparse frames that had no measurement at all (none when there were none)."""
+    """The warning for sparse frames that had no measurement at all (none when there were none).
+
+    For measurements from the stereo pair; a feature stream's frames without one are warned
+    of by :class:`~pcainterp_stream.pipeline.feature_check.FeatureStreamCheck`, by cause.
+    """
     if not empty or processor.measurements != "sparse":
         return []
     return [

@@ -371,6 +371,26 @@ def test_features_before_and_after_the_frame() -> None:
     assert pairer.flush() == []
     stats = pairer.finish()
     assert (stats.features_matched, stats.features_unmatched) == (2, 1)
+    assert stats.features_nearest_miss_ns == 100 * MS  # frame 300 ms, cloud 400 ms
+
+
+@pytest.mark.parametrize("offset_ms", [3, -3])
+def test_features_just_beyond_the_tolerance_give_the_nearest_gap(offset_ms: int) -> None:
+    # clouds stamped 3 ms after (or before) their images: none pairs within 1 ms, and the
+    # gap is what --stamp-tolerance-ms must cover
+    pairer = StereoPairer(PairingConfig(features_topic="/features"))
+    with_infos(pairer)
+    frames = []
+    for stamp in (100 * MS, 200 * MS, 300 * MS):
+        push(pairer, CONFIG.left_topic, stamp, image(stamp))
+        frames += push(pairer, CONFIG.right_topic, stamp, image(stamp))
+        cloud = stamp + offset_ms * MS
+        frames += push(pairer, "/features", cloud, features(cloud, 2))
+    frames += pairer.flush()
+    assert [pairer.features_for(frame) for frame in frames] == [None] * 3
+    stats = pairer.finish()
+    assert stats.features_matched == 0
+    assert stats.features_nearest_miss_ns == 3 * MS
 
 
 def test_required_topics_name_the_options() -> None:

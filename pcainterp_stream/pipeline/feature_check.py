@@ -1,0 +1,210 @@
+"""What a sparse feature stream gave ``densify``: its counts, warnings and the error of none.
+
+With ``--features-topic`` the measurements are the points of another system's clouds, not
+the images' corners: a frame without a measurement is the stream's doing (no cloud of its
+stamp, an empty cloud, points behind the camera or outside the image), not the images'.
+:class:`FeatureStreamCheck` accumulates, frame by frame, what the stream gave and words it:
+a summary line, warnings that name the cause, and the one-line error of a run in which no
+frame got a single usable point. It also warns, once, of clouds in another frame than the
+left image's and of coordinates that look like millimetres.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pcainterp_stream.frontend.pairing import NEAR_MISS_NS
+from pcainterp_stream.frontend.pairing_stats import PairingStats
+from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoFrame
+
+MILLIMETRE_DEPTH_M = 500.0
+"""Median point depth (m) beyond which a feature stream's coordinates look like millimetres.
+
+A street scene's features have a median depth of 10-20 m (the KITTI features of the bug
+hunt's log: 16 m, with single points out to 2 km), a room's 1-5 m; in millimetres those read
+10,000-20,000 and 1,000-5,000. A stereo camera resolves no depth at 500 m (KITTI's 0.54 m
+baseline: 0.8 px of disparity), so a median beyond it is no real scene. A scene closer than
+0.5 m recorded in millimetres is not caught."""
+
+
+@dataclass
+class FeatureStreamCheck:
+    """What a feature stream gave the frames of one ``densify`` run (a mutable accumulator).
+
+    Attributes:
+        topic: the feature stream's topic.
+        frames: frames densified.
+        without_cloud: frames that had no cloud within the stamp tolerance.
+        empty_clouds: frames whose cloud had no point (with finite x, y, z).
+        all_dropped: frames whose cloud had points, all behind the camera or outside the image.
+        all_dropped_behind: the points of those frames behind the camera.
+        all_dropped_outside: the points of those frames outside the image.
+        usable_frames: frames with at least one point in front of the camera, in the image.
+        unmeasured: frames without a single measurement (the prior's mean alone).
+        points: points of the frames' clouds.
+        behind: points behind the camera (z <= 0).
+        outside: points in front of the camera but outside the image.
+        image_size: the left image's ``WxH`` (px).
+        frame_ids: the first (cloud, left image) frame_ids that differ, None while they agree.
+        median_depths: each cloud's median depth of its points in front of the camera (m).
+    """
+
+    topic: str
+    frames: int = 0
+    without_cloud: int = 0
+    empty_clouds: int = 0
+    all_dropped: int = 0
+    all_dropped_behind: int = 0
+    all_dropped_outside: int = 0
+    usable_frames: int = 0
+    unmeasured: int = 0
+    points: int = 0
+    behind: int = 0
+    outside: int = 0
+    image_size: str = ""
+    frame_ids: tuple[str, str] | None = None
+    median_depths: list[float] = field(default_factory=list)
+
+    def cloud(self, frame: StereoFrame, features: SparseFeatures | None) -> None:
+        """Look at the cloud handed to a frame (None: none): its frame_id and its depths."""
+        if features is None:
+            return
+        cloud_id, image_id = features.frame_id.lstrip("/"), frame.frame_id.lstrip("/")
+        if self.frame_ids is None and cloud_id and image_id and cloud_id != image_id:
+            self.frame_ids = (features.frame_id, frame.frame_id)
+        depth = features.points[:, 2]
+        ahead = depth[depth > 0]
+        if ahead.size:
+            self.median_depths.append(float(np.median(ahead)))
+
+    def result(self, result: DensifiedFrame) -> None:
+        """Count one densified frame's feature counts (``features_to_measurements``)."""
+        counts = result.counts
+        points = counts.get("features", 0)
+        rejected = counts.get("features_rejected", 0)
+        behind = counts.get("features_behind", 0)
+        self.frames += 1
+        self.image_size = f"{result.frame.camera.width}x{result.frame.camera.height}"
+        self.points += points
+        self.behind += behind
+        self.outside += rejected - behind
+        self.unmeasured += int(result.pixels.shape[0] == 0)
+        if not counts.get("feature_cloud", 0):
+            self.without_cloud += 1
+        elif points == 0:
+            self.empty_clouds += 1
+        elif rejected == points:
+            self.all_dropped += 1
+            self.all_dropped_behind += behind
+            self.all_dropped_outside += rejected - behind
+        else:
+            self.usable_frames += 1
+
+    def summary(self) -> str:
+        """Return one line: the points the stream gave and those dropped, by reason."""
+        used = self.points - self.behind - self.outside
+        return (
+            f"features: {self.points} points of {self.topic} in {self.frames - self.without_cloud}"
+            f" of {self.frames} frames, {used} used; {self.behind} behind the camera, "
+            f"{self.outside} outside the {self.image_size} image"
+        )
+
+    def error(self, stats: PairingStats) -> str | None:
+        """Return why no frame got a usable point from the stream, or None when one did."""
+        if self.usable_frames or not self.frames:
+            return None
+        return (
+            f"--features-topic {self.topic} gave no usable point in any of the {self.frames} "
+            f"frames: {'; '.join(self._causes(stats, error=True))}"
+        )
+
+    def warnings(self, stats: PairingStats) -> list[str]:
+        """Return the run's warnings on the stream (none when every frame got points)."""
+        lines: list[str] = []
+        missed = self.frames - self.usable_frames
+        if missed:
+            if self.unmeasured == missed:
+                alone = "their depth is the prior's mean alone, and their std the prior's"
+            else:  # the others had points carried from earlier frames
+                alone = f"{self.unmeasured} of them had only the prior's mean"
+            lines.append(
+                f"{missed} of {self.frames} frames got no point from --features-topic "
+                f"{self.topic}, so {alone} (do not trust them): "
+                f"{'; '.join(self._causes(stats, error=False))}"
+            )
+        dropped = self.behind + self.outside
+        # frames that lost every point have their warning above; this one is for the others
+        if dropped and not self.all_dropped and dropped * 2 > self.points:
+            lines.append(
+                f"{dropped} of the {self.points} points of {self.topic} were dropped "
+                f"({self.behind} behind the camera, {self.outside} outside the "
+                f"{self.image_size} image): {self._frame_hint()}"
+            )
+        if self.frame_ids is not None:
+            cloud_id, image_id = self.frame_ids
+            lines.append(
+                f"the clouds of {self.topic} are in frame '{cloud_id}', the left image in "
+                f"'{image_id}': their points were used as if in the left optical frame "
+                "(transform them there before densifying)"
+            )
+        depth = self.median_depth()
+        if depth is not None and depth > MILLIMETRE_DEPTH_M:
+            lines.append(
+                f"the points of {self.topic} have a median depth of {depth:,.0f} m "
+                f"({depth / 1000:.2f} m if the coordinates are millimetres): ROS point clouds "
+                "are in metres (REP 103); fix the publisher's units: the depths and the fit "
+                "check's figures of this run are wrong"
+            )
+        return lines
+
+    def median_depth(self) -> float | None:
+        """Return the median of the clouds' median depths (m), None without a point ahead."""
+        return float(np.median(self.median_depths)) if self.median_depths else None
+
+    def _causes(self, stats: PairingStats, *, error: bool) -> list[str]:
+        """Return why frames got no point, one clause per cause with its fix."""
+        causes: list[str] = []
+        if self.without_cloud:
+            causes.append(self._no_cloud(stats, error=error))
+        if self.empty_clouds:
+            causes.append(f"{self.empty_clouds} had an empty cloud (no point with finite x, y, z)")
+        if self.all_dropped:
+            behind, outside = self.all_dropped_behind, self.all_dropped_outside
+            where = [
+                f"behind the camera (z <= 0, {behind} points)" if behind else "",
+                f"outside the {self.image_size} image ({outside} points)" if outside else "",
+            ]
+            causes.append(
+                f"{self.all_dropped} had every point of their cloud "
+                f"{' or '.join(w for w in where if w)}: {self._frame_hint()}"
+            )
+        return causes
+
+    def _no_cloud(self, stats: PairingStats, *, error: bool) -> str:
+        """Return the clause for frames without a cloud of their stamp."""
+        tolerance = stats.tolerance_ns / 1e6
+        clause = f"{self.without_cloud} had no cloud within the {tolerance:g} ms stamp tolerance"
+        clouds = stats.features_matched + stats.features_unmatched
+        undecodable = [p for p in stats.problems if p.startswith(f"{self.topic}: ")]
+        nearest = stats.features_nearest_miss_ns
+        if clouds == 0 and undecodable:
+            return f"{self.without_cloud} had no cloud: none could be read ({undecodable[0]})"
+        if clouds == 0:
+            return f"{self.without_cloud} had no cloud: the log has none on {self.topic}"
+        if nearest >= 0 and (error or nearest <= NEAR_MISS_NS):
+            return (
+                f"{clause} (the nearest cloud was {nearest / 1e6:.3g} ms from an image's "
+                f"stamp; pass --stamp-tolerance-ms {math.ceil(nearest / 1e6)} if they are of "
+                "the same instant)"
+            )
+        return clause
+
+    def _frame_hint(self) -> str:
+        """Return what points behind the camera or outside the image suggest."""
+        hint = "are the clouds in the left camera's optical frame (x right, y down, z forward)?"
+        if self.frame_ids is not None:
+            hint += f" (their frame_id is '{self.frame_ids[0]}', the image's '{self.frame_ids[1]}')"
+        return hint

@@ -1,0 +1,237 @@
+"""densify with a feature stream names the stream's problems, not the images'."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from pcainterp_stream import cli
+from pcainterp_stream.errors import PcaInterpError
+from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.logwriter import LogFormat, open_writer
+from pcainterp_stream.pipeline import jobs
+from pcainterp_stream.pipeline.densify import DensifySummary
+from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
+
+FRAMES = 4
+MS = 1_000_000
+FEATURES = ["--features-topic", "/features"]
+Points = npt.NDArray[np.floating[Any]]
+# (frame number, stamp, frame_id, points) -> the cloud written, or None for none
+Damage = Callable[[int, int, str, Points], tuple[int, str, Points] | None]
+
+
+@pytest.fixture(scope="module")
+def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("features") / "drive.mcap"
+    jobs.synth(path, frames=FRAMES, seed=12, scale=0.25, fmt="mcap")
+    return path
+
+
+def with_features(
+    source: Path, target: Path, damage: Damage | None = None, names: str = "xyz"
+) -> Path:
+    """Copy a synthetic log adding /features: true 3-D points (left optical, m), damaged.
+
+    ``names`` are the clouds' three field names (``xyw``: a cloud without z).
+    """
+    rng = np.random.default_rng(0)
+    index = 0
+    with open_log(source) as reader, open_writer(target, LogFormat.MCAP) as writer:
+        camera_info = None
+        for raw in reader.messages():
+            writer.add_raw(raw)
+            if raw.topic == "/stereo/left/camera_info":
+                camera_info = reader.decode(raw)
+            if raw.topic != "/ground_truth/depth" or camera_info is None:
+                continue
+            depth = rosmsg.image_array(reader.decode(raw))
+            p = rosmsg.projection_matrix(camera_info)
+            v = rng.integers(0, depth.shape[0], 150)
+            u = rng.integers(0, depth.shape[1], 150)
+            z = depth[v, u]
+            keep = np.isfinite(z)
+            u, v, z = u[keep], v[keep], z[keep]
+            x = (u - p[0, 2]) * z / p[0, 0]
+            y = (v - p[1, 2]) * z / p[1, 1]
+            points = np.stack([x, y, z], axis=1).astype(np.float32)
+            stamp = rosmsg.stamp_ns(reader.decode(raw))
+            cloud: tuple[int, str, Points] | None = (stamp, "stereo_left_optical", points)
+            if damage is not None:
+                cloud = damage(index, stamp, "stereo_left_optical", points)
+            index += 1
+            if cloud is None:
+                continue
+            stamp, frame_id, points = cloud
+            points = points.astype(np.float32)
+            fields = {name: points[:, i] for i, name in enumerate(names)}
+            message = rosmsg.pointcloud2_message(fields, stamp, frame_id)
+            writer.add_message("/features", message, raw.log_time_ns)
+    return target
+
+
+def densify(source: Path, output: Path) -> DensifySummary:
+    return jobs.densify(
+        source,
+        output,
+        pairing=PairingConfig(features_topic="/features"),
+        processor=ProcessorConfig(source=MeasurementSource.FEATURES),
+    )
+
+
+def test_a_sound_stream_says_what_it_gave_and_warns_of_nothing(log: Path, tmp_path: Path) -> None:
+    summary = densify(with_features(log, tmp_path / "f.mcap"), tmp_path / "out.mcap")
+    assert summary.feature_line is not None
+    assert re.fullmatch(
+        r"features: (\d+) points of /features in 4 of 4 frames, \1 used; 0 behind the "
+        r"camera, 0 outside the 310x94 image",
+        summary.feature_line,
+    )
+    assert summary.warnings == []
+
+
+def _later(ms: int) -> Damage:
+    return lambda i, stamp, frame_id, points: (stamp + ms * MS, frame_id, points)
+
+
+@pytest.mark.parametrize(
+    ("damage", "cause"),
+    [
+        (
+            _later(3),
+            r"4 had no cloud within the 1 ms stamp tolerance \(the nearest cloud was "
+            r"3 ms from an image's stamp; pass --stamp-tolerance-ms 3 if",
+        ),
+        (_later(-3), r"4 had no cloud .*the nearest cloud was 3 ms .* --stamp-tolerance-ms 3 "),
+        (lambda i, s, f, p: (s, f, p[:0]), r"4 had an empty cloud \(no point with finite"),
+        (
+            lambda i, s, f, p: (s, f, -p),
+            r"4 had every point of their cloud behind the camera "
+            r"\(z <= 0, \d+ points\): are the clouds in the left camera's optical frame",
+        ),
+        (
+            lambda i, s, f, p: (s, f, p + p[:, 2:] * [5, 0, 0]),
+            r"4 had every point of their "
+            r"cloud outside the 310x94 image \(\d+ points\)",
+        ),
+    ],
+    ids=["3ms-late", "3ms-early", "empty", "behind", "outside"],
+)
+def test_a_stream_that_gives_no_frame_a_point_is_refused_naming_why(
+    log: Path, tmp_path: Path, damage: Damage, cause: str
+) -> None:
+    source = with_features(log, tmp_path / "f.mcap", damage)
+    output = tmp_path / "out.mcap"
+    with pytest.raises(
+        PcaInterpError,
+        match=rf"^{source}: --features-topic /features gave no usable point in any of the 4 "
+        rf"frames: {cause}",
+    ):
+        densify(source, output)
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["f.mcap"]  # nothing written
+
+
+def test_clouds_that_cannot_be_read_are_named(log: Path, tmp_path: Path) -> None:
+    source = with_features(log, tmp_path / "f.mcap", names="xyw")
+    with pytest.raises(
+        PcaInterpError,
+        match=r"in any of the 4 frames: 4 had no cloud: none could be read \(/features: "
+        r"point cloud has no field z \(fields: x, y, w\)\)$",
+    ):
+        densify(source, tmp_path / "out.mcap")
+
+
+def test_frames_without_a_cloud_are_blamed_on_the_stream(log: Path, tmp_path: Path) -> None:
+    # a SLAM front end publishing at keyframes only: every other frame has no cloud
+    source = with_features(
+        log, tmp_path / "f.mcap", lambda i, s, f, p: None if i % 2 else (s, f, p)
+    )
+    summary = densify(source, tmp_path / "out.mcap")
+    assert summary.frames == 4
+    (line,) = summary.warnings
+    assert line.startswith("2 of 4 frames got no point from --features-topic /features, so ")
+    assert line.endswith(": 2 had no cloud within the 1 ms stamp tolerance")  # no near miss
+    assert "textureless" not in line
+    assert summary.feature_line is not None
+    assert " in 2 of 4 frames" in summary.feature_line
+
+
+def test_frames_whose_points_all_fall_outside_are_blamed_on_the_stream(
+    log: Path, tmp_path: Path
+) -> None:
+    source = with_features(
+        log, tmp_path / "f.mcap", lambda i, s, f, p: (s, f, p + p[:, 2:] * [5, 0, 0] * (i % 2))
+    )
+    (line,) = densify(source, tmp_path / "out.mcap").warnings
+    assert re.search(
+        r"^2 of 4 frames got no point .*: 2 had every point of their cloud outside the "
+        r"310x94 image \(\d+ points\)",
+        line,
+    )
+
+
+def test_points_mostly_dropped_are_a_warning(log: Path, tmp_path: Path) -> None:
+    def shift_most(i: int, stamp: int, frame_id: str, points: Points) -> tuple[int, str, Points]:
+        moved = points.copy()
+        moved[len(points) // 4 :, 0] += moved[len(points) // 4 :, 2] * 5
+        return stamp, frame_id, moved
+
+    summary = densify(with_features(log, tmp_path / "f.mcap", shift_most), tmp_path / "o.mcap")
+    (line,) = summary.warnings
+    assert re.fullmatch(
+        r"(\d+) of the \d+ points of /features were dropped \(0 behind the camera, \1 "
+        r"outside the 310x94 image\): are the clouds in the left camera's optical frame .*",
+        line,
+    )
+
+
+def test_clouds_in_another_frame_are_a_warning(log: Path, tmp_path: Path) -> None:
+    source = with_features(log, tmp_path / "f.mcap", lambda i, s, f, p: (s, "map", p))
+    assert densify(source, tmp_path / "out.mcap").warnings == [
+        "the clouds of /features are in frame 'map', the left image in "
+        "'stereo_left_optical': their points were used as if in the left optical frame "
+        "(transform them there before densifying)"
+    ]
+    # a ROS 1 frame_id's leading slash names the same frame
+    slash = with_features(log, tmp_path / "g.mcap", lambda i, s, f, p: (s, "/" + f, p))
+    assert densify(slash, tmp_path / "out2.mcap").warnings == []
+
+
+def test_millimetre_coordinates_are_a_warning(log: Path, tmp_path: Path) -> None:
+    source = with_features(log, tmp_path / "f.mcap", lambda i, s, f, p: (s, f, p * 1000))
+    warnings = densify(source, tmp_path / "out.mcap").warnings
+    (line,) = [w for w in warnings if "median depth" in w]
+    assert re.fullmatch(
+        r"the points of /features have a median depth of [\d,]+ m \([\d.]+ m if the "
+        r"coordinates are millimetres\): ROS point clouds are in metres \(REP 103\); .*",
+        line,
+    )
+
+
+def test_the_command_line_prints_the_stream_and_refuses_in_one_line(
+    log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    sound = with_features(log, tmp_path / "f.mcap")
+    assert cli.main(["densify", str(sound), "-o", str(tmp_path / "out.mcap"), *FEATURES]) == 0
+    assert re.search(
+        r"^features: \d+ points of /features in 4 of 4 frames", capsys.readouterr().out, re.M
+    )
+    late = with_features(log, tmp_path / "late.mcap", _later(3))
+    target = tmp_path / "late_out.mcap"
+    assert cli.main(["densify", str(late), "-o", str(target), *FEATURES]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"pcainterp: error: {late}: --features-topic /features gave no usable")
+    assert err.count("\n") == 1
+    assert "Traceback" not in err
+    assert "--stamp-tolerance-ms 3" in err
+    assert not [p.name for p in tmp_path.iterdir() if "late_out" in p.name]  # nor a temporary
+    ok = ["densify", str(late), "-o", str(target), *FEATURES, "--stamp-tolerance-ms", "3"]
+    assert cli.main(ok) == 0  # the fix it names works
