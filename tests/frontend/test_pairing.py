@@ -322,11 +322,11 @@ def test_undecodable_images_are_counted_by_reason() -> None:
     pairer = StereoPairer()
     with_infos(pairer)
     bad = image(3)
-    bad.encoding = "yuv422"
+    bad.encoding = "nv21"
     push(pairer, CONFIG.left_topic, 3, bad)
     assert push(pairer, CONFIG.right_topic, 3, image(3)) == []
     stats = pairer.finish()
-    assert stats.undecodable == {"unsupported image encoding 'yuv422'": 1}
+    assert stats.undecodable == {"unsupported image encoding 'nv21'": 1}
     assert stats.pairs == 0
 
 

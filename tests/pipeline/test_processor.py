@@ -257,7 +257,13 @@ def test_features_project_a_known_point() -> None:
     pixels, disparities, counts = features_to_measurements(features, camera)
     np.testing.assert_allclose(pixels, [[210.0, 70.0], [0.0, 0.0]], atol=1e-4)
     np.testing.assert_allclose(disparities, [25.0, 25.0], rtol=1e-6)
-    assert counts == {"features": 5, "features_rejected": 3}
+    # rejected: behind (z = -5 and z = 0) and right of the image
+    assert counts == {
+        "feature_cloud": 1,
+        "features": 5,
+        "features_rejected": 3,
+        "features_behind": 2,
+    }
     assert pixels.dtype == np.float32
     assert disparities.dtype == np.float32
 
@@ -266,7 +272,12 @@ def test_no_features_is_empty_data() -> None:
     pixels, disparities, counts = features_to_measurements(None, CAMERA)
     assert pixels.shape == (0, 2)
     assert disparities.shape == (0,)
-    assert counts == {"features": 0, "features_rejected": 0}
+    assert counts == {
+        "feature_cloud": 0,
+        "features": 0,
+        "features_rejected": 0,
+        "features_behind": 0,
+    }
 
 
 def test_features_source_densifies_the_projected_points(basis: Basis) -> None:
