@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import io
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -442,6 +444,92 @@ def test_densify_rejects_negative_carry_frames(
     assert run.code != 0
     assert "--carry-frames must be >= 0, got -1" in run.err
     assert not out.exists()
+
+
+URDF = b'<robot name="r2d2"/>'
+ROSBAG2_RECORD = ("rosbag2", {"serialized_metadata": "x", "ros_distro": "humble"})
+
+
+def with_extras(source: Path, target: Path) -> Path:
+    """Copy an MCAP log adding an attachment, a metadata record and a channel without messages."""
+    with source.open("rb") as f, target.open("wb") as g:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        writer = Writer(g)
+        writer.start("ros2", "test")
+        schemas = {
+            s.id: writer.register_schema(s.name, s.encoding, s.data)
+            for s in summary.schemas.values()
+        }
+        channels = {
+            c.id: writer.register_channel(c.topic, c.message_encoding, schemas[c.schema_id])
+            for c in summary.channels.values()
+        }
+        writer.register_channel("/empty_topic", "cdr", next(iter(schemas.values())))
+        writer.add_metadata(*ROSBAG2_RECORD)
+        writer.add_attachment(2, 1, "robot.urdf", "application/xml", URDF)
+        for _, channel, message in reader.iter_messages():
+            writer.add_message(
+                channels[channel.id], message.log_time, message.data, message.publish_time
+            )
+        writer.finish()
+    return target
+
+
+def extras_of(data: bytes) -> tuple[list[Any], list[Any], list[str]]:
+    """Return the attachments, metadata records and topics of an MCAP file's bytes."""
+    reader = make_reader(io.BytesIO(data))
+    summary = reader.get_summary()
+    assert summary is not None
+    attachments = [
+        (a.name, a.media_type, a.log_time, a.create_time, a.data) for a in reader.iter_attachments()
+    ]
+    metadata = [(m.name, dict(m.metadata)) for m in reader.iter_metadata()]
+    return attachments, metadata, [c.topic for c in summary.channels.values()]
+
+
+def test_densify_keeps_attachments_metadata_and_channels_without_messages(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, tmp_path: Path, out: Path
+) -> None:
+    log = with_extras(small_log, tmp_path / "extras.mcap")
+    run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err
+    assert "damage" not in run.out
+    attachments, metadata, topics = extras_of(out.read_bytes())
+    assert attachments == [("robot.urdf", "application/xml", 1, 2, URDF)]  # before: []
+    assert metadata == [ROSBAG2_RECORD]  # before: []
+    assert "/empty_topic" in topics  # before: missing
+    assert "/pcainterp/depth" in topics
+    for path in (log, out):  # before: info never named them
+        text = pcainterp("info", path).out
+        assert re.search(r"\n    /empty_topic +0  sensor_msgs/msg/", text)
+        assert re.search(r"\n  attachments: 1\n    robot.urdf +20 bytes  application/xml\n", text)
+        assert "  metadata records: 1\n    rosbag2  2 keys\n" in text
+    assert "attachments" not in pcainterp("info", small_log).out
+    # the log's other readers take it as it is: golden files and evaluate
+    golden = tmp_path / "dense.golden.json"
+    assert pcainterp("golden", "save", out, "-o", golden).code == 0
+    run = pcainterp("golden", "check", out, golden)
+    assert run.code == 0, run.out + run.err
+    fast = ["--no-basis", "--no-linear", "--sweep-every", "0"]
+    run = pcainterp("evaluate", out, "-o", tmp_path / "report", *fast)
+    assert run.code == 0, run.err
+
+
+def test_densify_through_pipes_keeps_attachments_and_metadata(
+    small_log: Path, basis_path: Path, tmp_path: Path
+) -> None:
+    from pcainterp_stream.pipeline.densify import densify
+
+    log = with_extras(small_log, tmp_path / "extras.mcap")
+    output = io.BytesIO()
+    with log.open("rb") as stream:  # a stream, as standard input is: spooled, then read
+        densify(stream, output, basis_path)
+    attachments, metadata, topics = extras_of(output.getvalue())
+    assert attachments == [("robot.urdf", "application/xml", 1, 2, URDF)]
+    assert metadata == [ROSBAG2_RECORD]
+    assert "/empty_topic" in topics
 
 
 # ----------------------------------------------------------------------------- missing input

@@ -16,8 +16,9 @@ def add_parser(commands: Commands) -> None:
         help="describe a log (topics, counts, duration) or a basis file",
         description=(
             "Describe a log (its topics with their message counts and types, start, end and\n"
-            "duration) or a basis file (its camera, grid, components, fitted prior and how it\n"
-            "was learned); with no file, the two built-in bases and their recipes."
+            "duration, and an MCAP log's attachments and metadata records) or a basis file\n"
+            "(its camera, grid, components, fitted prior and how it was learned); with no\n"
+            "file, the two built-in bases and their recipes."
         ),
         epilog=(
             "examples:\n  pcainterp info drive.mcap\n  pcainterp info basis.npz\n"

@@ -9,8 +9,17 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from mcap.records import Metadata
+
 from pcainterp_stream.errors import LogReadError
-from pcainterp_stream.io.logreader import LogFormat, TopicInfo, looks_like_kitti, open_log
+from pcainterp_stream.io.logreader import (
+    LogFormat,
+    McapLogReader,
+    TopicInfo,
+    looks_like_kitti,
+    open_log,
+)
+from pcainterp_stream.io.mcap_extras import AttachmentInfo, size_text
 
 
 @dataclass(frozen=True)
@@ -28,6 +37,8 @@ class LogInfo:
             the log's index.
         damage: one-line descriptions of damage found.
         warnings: one-line notes that are not damage.
+        attachments: an MCAP log's attachments (their headers).
+        metadata: an MCAP log's metadata records.
     """
 
     path: Path
@@ -39,6 +50,8 @@ class LogInfo:
     counted: bool
     damage: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    attachments: list[AttachmentInfo] = field(default_factory=list)
+    metadata: list[Metadata] = field(default_factory=list)
 
     @property
     def duration_ns(self) -> int:
@@ -93,6 +106,7 @@ def describe(path: str | Path, *, count: bool = False) -> LogInfo:
                 for name, info in topics.items()
             }
             counted = True
+        extras = reader.extras() if isinstance(reader, McapLogReader) else None
         return LogInfo(
             path=path,
             format=reader.format,
@@ -103,6 +117,8 @@ def describe(path: str | Path, *, count: bool = False) -> LogInfo:
             counted=counted,
             damage=list(reader.damage),
             warnings=list(reader.warnings),
+            attachments=extras.attachments if extras is not None else [],
+            metadata=extras.metadata if extras is not None else [],
         )
 
 
@@ -143,6 +159,18 @@ def format_info(info: LogInfo) -> str:
         if topic.message_encoding not in ("cdr", ""):
             kind += f" [{topic.message_encoding}]"
         lines.append(f"    {name:<{width}}  {count:>8}  {kind}")
+    if info.attachments:
+        lines.append(f"  attachments: {len(info.attachments)}")
+        width = max(len(item.name) for item in info.attachments)
+        for item in info.attachments:
+            kind = item.media_type or "(no media type)"
+            lines.append(f"    {item.name:<{width}}  {size_text(item.size):>10}  {kind}")
+    if info.metadata:
+        lines.append(f"  metadata records: {len(info.metadata)}")
+        width = max(len(record.name) for record in info.metadata)
+        for record in info.metadata:
+            keys = len(record.metadata)
+            lines.append(f"    {record.name:<{width}}  {keys} key{'s' if keys != 1 else ''}")
     for note in info.warnings:
         lines.append(f"  note: {note}")
     if info.damage:

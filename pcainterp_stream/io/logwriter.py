@@ -55,6 +55,8 @@ from zlib_ng import zlib_ng
 from pcainterp_stream.errors import LogWriteError
 from pcainterp_stream.interrupt import raise_if_signalled, track_partial, untrack_partial
 from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.mcap_extras import McapExtras, write_extras
+from pcainterp_stream.io.output_paths import check_not_input
 from pcainterp_stream.records import RawMessage
 
 if TYPE_CHECKING:  # rosbags' bag writers are imported when used (~65 ms with its readers)
@@ -649,6 +651,10 @@ class McapLogWriter(LogWriter):
                 sequence=int(raw.sequence),
             )
 
+    def add_extras(self, extras: McapExtras) -> None:
+        """Copy an MCAP input's channels, metadata records and attachments (its order: first)."""
+        self._run(lambda: write_extras(extras, self._writer, self._schema_id, self._channel_id))
+
     def _close_partial(self) -> None:
         assert self._writer is not None
         assert self._stream is not None
@@ -815,32 +821,6 @@ class Ros1LogWriter(LogWriter):
         if self._writer is not None and self._writer.bio is not None:
             self._writer.bio.close()
         self._writer = None
-
-
-def _inside(path: Path, folder: Path) -> bool:
-    return path == folder or folder in path.parents
-
-
-def check_not_input(target: Path, inputs: Iterable[str | os.PathLike[str]]) -> None:
-    """Refuse a target that is, or contains, one of the inputs.
-
-    Raises:
-        LogWriteError: naming the path and the fix.
-    """
-    resolved = target.resolve()
-    for item in inputs:
-        source = Path(item)
-        same = resolved == source.resolve() or _inside(source.resolve(), resolved)
-        if not same and target.exists() and source.exists():
-            try:
-                same = os.path.samefile(target, source)
-            except OSError:
-                same = False
-        if same:
-            raise LogWriteError(
-                f"refusing to write the output onto the input {source}; "
-                "choose a different output path"
-            )
 
 
 def open_writer(

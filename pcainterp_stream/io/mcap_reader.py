@@ -17,10 +17,19 @@ from typing import IO, Any
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import Channel, ChunkIndex, Footer, Schema, Statistics
+from mcap.records import (
+    AttachmentIndex,
+    Channel,
+    ChunkIndex,
+    Footer,
+    MetadataIndex,
+    Schema,
+    Statistics,
+)
 from zlib_ng.zlib_ng import crc32
 
 from pcainterp_stream.errors import LogReadError
+from pcainterp_stream.io.mcap_extras import ChannelInfo, McapExtras, find_records
 from pcainterp_stream.io.reader_base import (
     MCAP_MAGIC,
     ROS2_SCHEMA_ENCODINGS,
@@ -71,8 +80,11 @@ class McapLogReader(LogReader):
         self._summary_schemas: dict[int, Schema] = {}
         self._statistics: Statistics | None = None
         self._chunk_indexes: dict[int, ChunkIndex] = {}
+        self._attachment_offsets: list[int] = []  # of the summary's attachment index
+        self._metadata_offsets: list[int] = []  # of the summary's metadata index
         self._summary_complete = False
         self._topics: dict[str, TopicInfo] | None = None
+        self._channel_records: tuple[list[Channel], dict[int, Schema]] = ([], {})
         self._ros1 = _Ros1Converter()
 
     def _open(self) -> None:
@@ -143,6 +155,10 @@ class McapLogReader(LogReader):
                 elif opcode == Opcode.CHUNK_INDEX:
                     index = ChunkIndex.read(stream)
                     self._chunk_indexes[index.chunk_start_offset] = index
+                elif opcode == Opcode.ATTACHMENT_INDEX:
+                    self._attachment_offsets.append(AttachmentIndex.read(stream).offset)
+                elif opcode == Opcode.METADATA_INDEX:
+                    self._metadata_offsets.append(MetadataIndex.read(stream).offset)
                 offset += 9 + length
         except Exception as err:  # struct.error, EndOfFile, UnicodeDecodeError...
             self._damage(offset, f"corrupt summary section ({_one_line(err)})")
@@ -150,6 +166,8 @@ class McapLogReader(LogReader):
             self._summary_schemas.clear()
             self._statistics = None
             self._chunk_indexes.clear()
+            self._attachment_offsets.clear()
+            self._metadata_offsets.clear()
             return
         stats = self._statistics
         self._summary_complete = (
@@ -186,6 +204,7 @@ class McapLogReader(LogReader):
             channels = list(channels_by_id.values())
             schemas = schemas_by_id
             known_counts = True
+        self._channel_records = (channels, schemas)
         topics: dict[str, TopicInfo] = {}
         for channel in channels:
             schema = schemas.get(channel.schema_id)
@@ -220,6 +239,58 @@ class McapLogReader(LogReader):
             and bool(indexes)
             and all(index.message_index_offsets for index in indexes)
         )
+
+    def extras(self, *, verify: bool = False) -> McapExtras:
+        """Return what the log holds besides messages (:mod:`~pcainterp_stream.io.mcap_extras`).
+
+        Every channel (those without messages too) as :meth:`messages` yields its messages,
+        the attachments' headers and the metadata records: from the summary's indexes when
+        the summary is complete, else by walking the file's top-level records. A record that
+        does not parse (with ``verify``, an attachment whose data fails its CRC) is left out
+        and added to :attr:`damage`.
+        """
+        self._check_open()
+        stats = self._statistics
+        indexed = None
+        if (
+            self._summary_complete
+            and stats is not None
+            and stats.attachment_count == len(self._attachment_offsets)
+            and stats.metadata_count == len(self._metadata_offsets)
+        ):
+            indexed = (self._attachment_offsets, self._metadata_offsets)
+        found = find_records(self.path, indexed, verify=verify)
+        for offset, what in found.damage:
+            self._damage(offset, what)
+        return McapExtras(self.path, self._channel_infos(), found.attachments, found.metadata)
+
+    def _channel_infos(self) -> list[ChannelInfo]:
+        """Return every channel as :meth:`messages` yields its messages, in id order."""
+        self.topics()  # reads the channel records of a log without a complete summary
+        channels, schemas = self._channel_records
+        infos: list[ChannelInfo] = []
+        for channel in sorted(channels, key=lambda c: c.id):
+            schema = schemas.get(channel.schema_id) if channel.schema_id != 0 else None
+            msgtype, schema_encoding, message_encoding = self._channel_kind(channel, schema)
+            name = schema.name if schema is not None else ""
+            data = bytes(schema.data) if schema is not None else b""
+            if schema is not None and schema.encoding == "ros1msg" and message_encoding == "cdr":
+                try:  # converted to CDR as its messages are
+                    data = self._ros1.schema(msgtype, schema.data.decode())[1]
+                except Exception:  # a bad definition: its messages do not convert either
+                    continue
+                name = msgtype
+            infos.append(
+                ChannelInfo(
+                    channel.topic,
+                    message_encoding,
+                    name,
+                    schema_encoding,
+                    data,
+                    dict(channel.metadata),
+                )
+            )
+        return infos
 
     @staticmethod
     def _channel_kind(channel: Channel, schema: Schema | None) -> tuple[str, str, str]:

@@ -31,8 +31,14 @@ from pcainterp_stream.frontend.sgbm_limits import fitting, narrowest_width
 from pcainterp_stream.frontend.stereo import SgbmConfig
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.foxglove import FoxgloveLive, LiveMessage
-from pcainterp_stream.io.logreader import open_log
-from pcainterp_stream.io.logwriter import LogFormat, LogWriter, WriteSummary, open_writer
+from pcainterp_stream.io.logreader import McapLogReader, open_log
+from pcainterp_stream.io.logwriter import (
+    LogFormat,
+    LogWriter,
+    McapLogWriter,
+    WriteSummary,
+    open_writer,
+)
 from pcainterp_stream.io.outputs import (
     OutputTopics,
     channel_metadata,
@@ -262,6 +268,9 @@ def densify(
             )
         elif output is not None:
             writer = stack.enter_context(McapStreamWriter(output))
+        if isinstance(writer, McapLogWriter) and isinstance(reader, McapLogReader):
+            # the rest of the copy: attachments, metadata records, channels without messages
+            writer.add_extras(reader.extras(verify=True))
         inputs = _InLogTimeOrder(writer) if writer is not None else None
         # the output channels' metadata names the basis by its fingerprint, which the thread
         # preloading the built-in basis may still be hashing: the written channels take it

@@ -135,3 +135,57 @@ def test_every_realdata_file_describes_or_fails_in_one_line(path: Path) -> None:
     if expected is not None:  # the conformance suite says how many messages there are
         assert info.message_count == expected
         assert sum(t.message_count or 0 for t in info.topics.values()) == expected
+
+
+def test_describe_lists_attachments_and_metadata_records(tmp_path: Path) -> None:
+    path = tmp_path / "extras.mcap"
+    with path.open("wb") as f:
+        writer = Writer(f)
+        writer.start("ros2", "test")
+        writer.add_attachment(2, 1, "robot.urdf", "application/xml", b"<robot/>")
+        writer.add_attachment(0, 1, "calibration.bin", "", bytes(3000))
+        writer.add_metadata("rosbag2", {"serialized_metadata": "x", "ros_distro": "humble"})
+        writer.add_metadata("origin", {"site": "lab"})
+        writer.finish()
+    info = describe(path)
+    assert [(a.name, a.media_type, a.size) for a in info.attachments] == [
+        ("robot.urdf", "application/xml", 8),
+        ("calibration.bin", "", 3000),
+    ]
+    assert [(m.name, dict(m.metadata)) for m in info.metadata] == [
+        ("rosbag2", {"serialized_metadata": "x", "ros_distro": "humble"}),
+        ("origin", {"site": "lab"}),
+    ]
+    text = format_info(info)  # before: neither was mentioned
+    assert "  attachments: 2\n" in text
+    assert "    robot.urdf          8 bytes  application/xml\n" in text
+    assert "    calibration.bin     2.9 KiB  (no media type)\n" in text
+    assert "  metadata records: 2\n    rosbag2  2 keys\n    origin   1 key" in text
+    plain = tmp_path / "plain.mcap"
+    write_small(plain)
+    assert "attachments" not in format_info(describe(plain))
+    assert "metadata" not in format_info(describe(plain))
+
+
+@pytest.mark.realdata
+@pytest.mark.skipif(not REALDATA.is_dir(), reason=f"real data folder {REALDATA} is absent")
+@pytest.mark.parametrize(
+    "path",
+    sorted(REALDATA.glob("mcap_conformance/One[AM]*/*.mcap")) if REALDATA.is_dir() else [],
+    ids=lambda p: p.name,
+)
+def test_conformance_attachments_and_metadata_are_found(path: Path) -> None:
+    records = json.loads(path.with_suffix(".json").read_text())["records"]
+    fields = [dict(r["fields"]) for r in records if r["type"] in ("Attachment", "Metadata")]
+    info = describe(path)  # with and without summary, indexes, statistics, padding
+    assert info.damage == []
+    assert [
+        (a.name, a.media_type, a.log_time_ns, a.create_time_ns, a.size) for a in info.attachments
+    ] == [
+        (f["name"], f["media_type"], int(f["log_time"]), int(f["create_time"]), len(f["data"]))
+        for f in fields
+        if "data" in f
+    ]
+    assert [(m.name, dict(m.metadata)) for m in info.metadata] == [
+        (f["name"], f["metadata"]) for f in fields if "metadata" in f
+    ]
