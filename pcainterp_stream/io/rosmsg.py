@@ -284,15 +284,28 @@ def pointcloud2_message(
 def pointcloud2_arrays(message: Any) -> dict[str, npt.NDArray[np.float64]]:
     """Decode every scalar field of a ``PointCloud2`` into float64 arrays of length n.
 
+    An organized cloud (``height`` > 1) is read row by row at ``row_step`` bytes, which may
+    exceed ``width * point_step`` (rows padded, as PointCloud2 allows).
+
     Raises:
-        ValueError: for a field type code outside 1..8 or data shorter than the points need.
+        ValueError: for a field type code outside 1..8, a ``row_step`` shorter than a row's
+            points or data shorter than the points need.
     """
-    n = int(message.height) * int(message.width)
+    height, width = int(message.height), int(message.width)
+    n = height * width
     point_step = int(message.point_step)
+    row_step = int(message.row_step) if height > 1 else width * point_step
+    if height > 1 and row_step < width * point_step:
+        raise ValueError(
+            f"point cloud row_step {row_step} is shorter than its {width} points of "
+            f"{point_step} bytes ({width * point_step})"
+        )
     raw = np.asarray(message.data, dtype=np.uint8)
-    if raw.size < n * point_step:
-        raise ValueError(f"point cloud data has {raw.size} bytes, {n} points need {n * point_step}")
+    need = (height - 1) * row_step + width * point_step if n else 0
+    if raw.size < need:
+        raise ValueError(f"point cloud data has {raw.size} bytes, {n} points need {need}")
     order = ">" if message.is_bigendian else "<"
+    buffer = raw[:need].tobytes()
     out: dict[str, npt.NDArray[np.float64]] = {}
     for field in message.fields:
         code = int(field.datatype)
@@ -303,16 +316,16 @@ def pointcloud2_arrays(message: Any) -> dict[str, npt.NDArray[np.float64]]:
             raise ValueError(f"point field {field.name!r} lies outside the point step {point_step}")
         view = (
             np.ndarray(
-                shape=(n,),
+                shape=(height, width),
                 dtype=dtype,
-                buffer=raw[: n * point_step].tobytes(),
+                buffer=buffer,
                 offset=int(field.offset),
-                strides=(point_step,),
+                strides=(row_step, point_step),
             )
             if n
-            else np.zeros(0, dtype=dtype)
+            else np.zeros((0, 0), dtype=dtype)
         )
-        out[str(field.name)] = view.astype(np.float64)
+        out[str(field.name)] = view.reshape(-1).astype(np.float64)
     return out
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 
 from pcainterp_stream.io import rosmsg
 
@@ -70,3 +71,39 @@ def test_camera_encodings_of_real_drivers_decode_to_rgb() -> None:
     yuy2 = uyvy[:, :, ::-1].copy()  # Y0 U Y1 V
     decoded = rosmsg.image_array(_raw_image(yuy2, "yuv422_yuy2")).astype(int)
     assert np.abs(decoded - rgb).mean() < 6
+
+
+def _organized_cloud(points: np.ndarray, padding: int, row_step: int | None = None) -> object:
+    """An organized (H, W) cloud of x, y, z float32 whose rows end in ``padding`` bytes."""
+    height, width = points.shape[:2]
+    rows = np.ascontiguousarray(points, "<f4").view(np.uint8).reshape(height, width * 12)
+    rows = np.concatenate([rows, np.full((height, padding), 0xAB, np.uint8)], axis=1)
+    types = rosmsg.TYPESTORE.types
+    return types[rosmsg.POINT_CLOUD2](
+        header=rosmsg.header(0, "left"),
+        height=height,
+        width=width,
+        fields=[
+            types["sensor_msgs/msg/PointField"](name=name, offset=4 * i, datatype=7, count=1)
+            for i, name in enumerate("xyz")
+        ],
+        is_bigendian=False,
+        point_step=12,
+        row_step=width * 12 + padding if row_step is None else row_step,
+        data=rows.reshape(-1),
+        is_dense=True,
+    )
+
+
+def test_organized_pointcloud2_rows_are_read_at_row_step() -> None:
+    points = np.arange(2 * 3 * 3, dtype=np.float32).reshape(2, 3, 3) / 10 + 1
+    for padding in (0, 8):
+        fields = rosmsg.pointcloud2_arrays(_organized_cloud(points, padding))
+        read = np.stack([fields["x"], fields["y"], fields["z"]], axis=1)
+        np.testing.assert_array_equal(read, points.reshape(-1, 3).astype(np.float64))
+
+
+def test_pointcloud2_row_step_shorter_than_a_row_is_refused() -> None:
+    cloud = _organized_cloud(np.ones((2, 3, 3), np.float32), 0, row_step=24)
+    with pytest.raises(ValueError, match="row_step 24 is shorter than its 3 points"):
+        rosmsg.pointcloud2_arrays(cloud)
