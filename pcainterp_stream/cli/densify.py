@@ -140,6 +140,16 @@ def add_parser(commands: Commands) -> None:
         help="take measurements from this PointCloud2 stream instead of GFTT + SGBM",
     )
     densify.add_argument(
+        "--max-features",
+        type=int,
+        default=None,
+        metavar="N",
+        help="with --features-topic: most points measured per frame; a denser cloud (a LiDAR "
+        "scan, stereo_image_proc's points2) keeps one point per cell of a grid, and points "
+        "on one pixel keep the nearest (default "
+        f"{defaults.MAX_FEATURES}: the estimate's cost grows with the square of the points)",
+    )
+    densify.add_argument(
         "--output-prefix",
         default="/pcainterp",
         metavar="PREFIX",
@@ -296,6 +306,13 @@ def run(args: argparse.Namespace) -> int:
             "--measurements dense fuses the whole SGBM map of the stereo pair; "
             "drop --features-topic (a feature stream is sparse)"
         )
+    if args.max_features is not None and not args.features_topic:
+        raise PcaInterpError(
+            f"--max-features {args.max_features} caps the points of a feature stream; "
+            "add --features-topic or drop --max-features"
+        )
+    if args.max_features is not None and args.max_features < 1:
+        raise PcaInterpError(f"--max-features must be at least 1, got {args.max_features}")
     if args.dense_matcher is not None and args.measurements != "dense":
         raise PcaInterpError(
             f"--dense-matcher {args.dense_matcher} chooses dense mode's matcher; "
@@ -428,6 +445,7 @@ def _processor_config(
         carry=dataclasses.replace(ProcessorConfig().carry, frames=args.carry_frames),
         calibrate=args.calibrate,
         source=source,
+        max_features=args.max_features or defaults.MAX_FEATURES,
         edge_aware=args.edge_aware,
         near=near,
     )

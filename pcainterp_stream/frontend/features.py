@@ -1,33 +1,57 @@
-"""A sparse feature stream's points as measurements: pixels and disparities of the left camera."""
+"""A sparse feature stream's points as measurements: pixels and disparities of the left camera.
+
+A stream may be far from sparse: a LiDAR scan or ``stereo_image_proc``'s ``points2`` has
+tens of thousands of points in the image, and the estimate's local prior costs memory and
+time with the square of the points (92,400 points are a 64 GiB matrix). The points in the
+image are thinned as the stereo front end spaces its own measurements (corners, and a
+lattice in their gaps): one per pixel, the nearest, and beyond ``max_points`` one per cell
+of the coarsest square grid that keeps at most that many (:func:`thin_measurements`).
+"""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import numpy.typing as npt
 
+from pcainterp_stream import defaults
 from pcainterp_stream.records import SparseFeatures, StereoCamera
+
+GRID_STEPS = 10
+"""Bisection steps for the thinning grid's cell side, on a log scale from 0.5 px to the image's
+side: 10 steps end within 1 % of the finest side that keeps ``max_points`` (up to 8000 px)."""
 
 
 def features_to_measurements(
-    features: SparseFeatures | None, camera: StereoCamera
+    features: SparseFeatures | None,
+    camera: StereoCamera,
+    max_points: int = defaults.MAX_FEATURES,
 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32], dict[str, int]]:
     """Project sparse 3-D points of the left optical frame to pixels and disparities.
 
     Args:
         features: the frame's points, or None when the stream has none for this stamp.
         camera: the stereo calibration.
+        max_points: most measurements kept (:func:`thin_measurements`), >= 1.
 
     Returns:
         pixels (k, 2) float32 (x, y) px, disparities (k,) float32 px = f*b / z, and counts:
         ``feature_cloud`` (1 when the frame had a cloud), ``features`` (its points),
-        ``features_rejected`` (behind the camera or outside the image) and
-        ``features_behind`` (of those, behind the camera: z <= 0).
+        ``features_rejected`` (behind the camera or outside the image),
+        ``features_behind`` (of those, behind the camera: z <= 0), ``features_thinned``
+        (points in the image left out by the thinning) and ``features_cell`` (the thinning
+        grid's cell side, px, rounded up; 0 when the cap was not reached).
     """
     cloud = int(features is not None)
     if features is None or features.points.size == 0:
         empty = np.zeros((0, 2), dtype=np.float32)
         counts = {"feature_cloud": cloud, "features": 0, "features_rejected": 0}
-        return empty, np.zeros(0, dtype=np.float32), counts | {"features_behind": 0}
+        return (
+            empty,
+            np.zeros(0, dtype=np.float32),
+            counts | {"features_behind": 0, "features_thinned": 0, "features_cell": 0},
+        )
     points = features.points.astype(np.float64)
     z = points[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -44,10 +68,91 @@ def features_to_measurements(
         & (v <= camera.height - 0.5)
     )
     pixels = np.stack([u[keep], v[keep]], axis=1).astype(np.float32)
+    disparities = disparity[keep].astype(np.float32)
+    kept, cell = thin_measurements(
+        pixels, disparities, (camera.width, camera.height), max_points=max_points
+    )
     counts = {
         "feature_cloud": cloud,
         "features": int(points.shape[0]),
         "features_rejected": int((~keep).sum()),
         "features_behind": int((~(z > 0)).sum()),
+        "features_thinned": int(pixels.shape[0] - kept.size),
+        "features_cell": math.ceil(cell),
     }
-    return pixels, disparity[keep].astype(np.float32), counts
+    return pixels[kept], disparities[kept], counts
+
+
+def thin_measurements(
+    pixels: npt.NDArray[np.float32],
+    disparities: npt.NDArray[np.float32],
+    image_size: tuple[int, int],
+    *,
+    max_points: int,
+) -> tuple[npt.NDArray[np.intp], float]:
+    """Choose the measurements of a cloud to keep: one per pixel, at most ``max_points``.
+
+    Points that fall on one pixel are one measurement: the nearest (largest disparity) is
+    kept, as a depth buffer keeps the surface it sees (a LiDAR point behind it is occluded
+    for the camera). When more than ``max_points`` remain, the image is cut into square
+    cells, the smallest (found by bisection, :data:`GRID_STEPS`) of which at most
+    ``max_points`` hold a point, and each cell keeps its point of median disparity
+    (the lower median: a real point, robust to a few stray ones), as the stereo front end's
+    lattice measures one point per cell in the gaps of its corners.
+
+    Args:
+        pixels: (n, 2) float32 (x, y) px, inside the image.
+        disparities: (n,) float32 px.
+        image_size: (width, height) px.
+        max_points: most points kept, >= 1.
+
+    Returns:
+        the kept points' indices into ``pixels`` (ascending, intp) and the cell side (px;
+        0.0 when no grid was needed).
+
+    Examples:
+        >>> pixels = np.array([[1.2, 1.0], [0.8, 1.1], [30.0, 5.0]], np.float32)
+        >>> kept, cell = thin_measurements(
+        ...     pixels, np.array([4.0, 6.0, 2.0], np.float32), (40, 10), max_points=5
+        ... )
+        >>> kept.tolist(), cell
+        ([1, 2], 0.0)
+    """
+    if max_points < 1:
+        raise ValueError(f"max_points must be >= 1, got {max_points}")
+    width, height = image_size
+    count = pixels.shape[0]
+    if count == 0:
+        return np.zeros(0, dtype=np.intp), 0.0
+    column = np.clip(np.rint(pixels[:, 0]), 0, width - 1).astype(np.int64)
+    row = np.clip(np.rint(pixels[:, 1]), 0, height - 1).astype(np.int64)
+    order = np.lexsort((-disparities, row * width + column))  # by pixel, nearest first
+    pixel = (row * width + column)[order]
+    first = np.ones(count, dtype=bool)
+    first[1:] = pixel[1:] != pixel[:-1]
+    kept = np.sort(order[first])
+    if kept.size <= max_points:
+        return kept, 0.0
+    x, y = pixels[kept, 0].astype(np.float64) + 0.5, pixels[kept, 1].astype(np.float64) + 0.5
+
+    def cells_of(side: float) -> npt.NDArray[np.int64]:
+        row, column = np.floor(y / side).astype(np.int64), np.floor(x / side).astype(np.int64)
+        cells: npt.NDArray[np.int64] = row * math.ceil(width / side) + column
+        return cells
+
+    # the finest grid with at most max_points occupied cells, by bisection of the side
+    # (log scale): below 1 px every point has its cell, one cell the size of the image holds all
+    fine, coarse = 0.5, float(max(width, height) + 1)
+    for _ in range(GRID_STEPS):
+        side = math.sqrt(fine * coarse)
+        if np.unique(cells_of(side)).size <= max_points:
+            coarse = side
+        else:
+            fine = side
+    key = cells_of(coarse)
+    cells = np.unique(key)
+    order = np.lexsort((disparities[kept], key))  # by cell, then by disparity
+    start = np.searchsorted(key[order], cells)
+    sizes = np.diff(np.append(start, key.size))
+    median = order[start + (sizes - 1) // 2]
+    return np.sort(kept[median]), coarse

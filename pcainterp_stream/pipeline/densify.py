@@ -240,7 +240,7 @@ def densify(
     robust = {"downweighted": 0, "most": 0, "resets": 0, "carried": 0, "carry_resets": 0}
     robust["empty"] = 0
     check = (
-        FeatureStreamCheck(pairing.features_topic)
+        FeatureStreamCheck(pairing.features_topic, max_points=processor.max_features)
         if processor.source is MeasurementSource.FEATURES and pairing.features_topic is not None
         else None
     )

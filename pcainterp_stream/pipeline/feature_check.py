@@ -6,7 +6,8 @@ stamp, an empty cloud, points behind the camera or outside the image), not the i
 :class:`FeatureStreamCheck` accumulates, frame by frame, what the stream gave and words it:
 a summary line, warnings that name the cause, and the one-line error of a run in which no
 frame got a single usable point. It also warns, once, of clouds in another frame than the
-left image's and of coordinates that look like millimetres.
+left image's and of coordinates that look like millimetres, and says how a dense cloud was
+thinned (:func:`~pcainterp_stream.frontend.features.thin_measurements`).
 """
 
 from __future__ import annotations
@@ -50,6 +51,12 @@ class FeatureStreamCheck:
         image_size: the left image's ``WxH`` (px).
         frame_ids: the first (cloud, left image) frame_ids that differ, None while they agree.
         median_depths: each cloud's median depth of its points in front of the camera (m).
+        max_points: the most points measured per frame (0: not known).
+        thinned: points in the image left out by the thinning.
+        grid_frames: frames whose cloud had more than ``max_points`` in the image.
+        grid_points: the points in the image of those frames.
+        grid_kept: the points kept of those.
+        cell: the largest thinning grid cell side (px).
     """
 
     topic: str
@@ -67,6 +74,12 @@ class FeatureStreamCheck:
     image_size: str = ""
     frame_ids: tuple[str, str] | None = None
     median_depths: list[float] = field(default_factory=list)
+    max_points: int = 0
+    thinned: int = 0
+    grid_frames: int = 0
+    grid_points: int = 0
+    grid_kept: int = 0
+    cell: int = 0
 
     def cloud(self, frame: StereoFrame, features: SparseFeatures | None) -> None:
         """Look at the cloud handed to a frame (None: none): its frame_id and its depths."""
@@ -91,6 +104,13 @@ class FeatureStreamCheck:
         self.points += points
         self.behind += behind
         self.outside += rejected - behind
+        thinned = counts.get("features_thinned", 0)
+        self.thinned += thinned
+        if counts.get("features_cell", 0):
+            self.grid_frames += 1
+            self.grid_points += points - rejected
+            self.grid_kept += points - rejected - thinned
+            self.cell = max(self.cell, counts["features_cell"])
         self.unmeasured += int(result.pixels.shape[0] == 0)
         if not counts.get("feature_cloud", 0):
             self.without_cloud += 1
@@ -105,12 +125,24 @@ class FeatureStreamCheck:
 
     def summary(self) -> str:
         """Return one line: the points the stream gave and those dropped, by reason."""
-        used = self.points - self.behind - self.outside
-        return (
+        used = self.points - self.behind - self.outside - self.thinned
+        line = (
             f"features: {self.points} points of {self.topic} in {self.frames - self.without_cloud}"
             f" of {self.frames} frames, {used} used; {self.behind} behind the camera, "
             f"{self.outside} outside the {self.image_size} image"
         )
+        shared = self.thinned - (self.grid_points - self.grid_kept)
+        if self.grid_frames:
+            cap = f", --max-features {self.max_points}" if self.max_points else ""
+            line += (
+                f"; {self.grid_points / self.grid_frames:.0f} points per frame in the image"
+                f"{'' if self.grid_frames == self.frames else f' ({self.grid_frames} frames)'}, "
+                f"thinned to {self.grid_kept / self.grid_frames:.0f} (one per cell of "
+                f"{self.cell} px{cap})"
+            )
+        if shared > 0:
+            line += f"; {shared} left out on a pixel already holding a nearer point"
+        return line
 
     def error(self, stats: PairingStats) -> str | None:
         """Return why no frame got a usable point from the stream, or None when one did."""

@@ -133,6 +133,8 @@ class ProcessorConfig:
             from the frame's innovation (``prior.covariance_scale``) when the fit has that
             factor (``innovation_std_scale``); False reports the posterior std itself.
         source: measurement source.
+        max_features: most points of a feature stream's cloud measured per frame (thinned:
+            :func:`~pcainterp_stream.frontend.features.thin_measurements`).
         measurements: ``"sparse"`` (the paper's: a few hundred GFTT corners looked up in the
             SGBM map, the default) or ``"dense"`` (that estimate then fused, pixel by pixel,
             with the whole SGBM map: :mod:`~pcainterp_stream.estimate.dense`; stereo
@@ -208,6 +210,7 @@ class ProcessorConfig:
     )
     calibrate: bool = True
     source: MeasurementSource = MeasurementSource.STEREO
+    max_features: int = defaults.MAX_FEATURES
     measurements: str = "sparse"
     dense: DenseModel = field(default_factory=DenseModel)
     batch_size: int = 4
@@ -513,13 +516,10 @@ class FrameProcessor:
         previous: StereoFrame | None = None,
         check_frame: bool = True,
     ) -> _Measured:
-        disparity_map = raw_map = noise = None
-        sgbm_map = grid = None
-        held_out = None
-        holes = None
-        partition = None
+        disparity_map = raw_map = noise = sgbm_map = grid = held_out = holes = partition = None
         if self.config.source is MeasurementSource.FEATURES:
-            pixels, disparities, counts = features_to_measurements(features, frame.camera)
+            cap = self.config.max_features
+            pixels, disparities, counts = features_to_measurements(features, frame.camera, cap)
         else:
             measurements = self.front_end.measure(frame.left, frame.right)
             pixels, disparities = measurements.pixels, measurements.disparities

@@ -78,23 +78,28 @@ def with_features(
     return target
 
 
-def densify(source: Path, output: Path) -> DensifySummary:
+def densify(source: Path, output: Path, max_features: int = 500) -> DensifySummary:
     return jobs.densify(
         source,
         output,
         pairing=PairingConfig(features_topic="/features"),
-        processor=ProcessorConfig(source=MeasurementSource.FEATURES),
+        processor=ProcessorConfig(source=MeasurementSource.FEATURES, max_features=max_features),
     )
 
 
 def test_a_sound_stream_says_what_it_gave_and_warns_of_nothing(log: Path, tmp_path: Path) -> None:
     summary = densify(with_features(log, tmp_path / "f.mcap"), tmp_path / "out.mcap")
     assert summary.feature_line is not None
-    assert re.fullmatch(
-        r"features: (\d+) points of /features in 4 of 4 frames, \1 used; 0 behind the "
-        r"camera, 0 outside the 310x94 image",
+    found = re.fullmatch(
+        r"features: (\d+) points of /features in 4 of 4 frames, (\d+) used; 0 behind the "
+        r"camera, 0 outside the 310x94 image(?:; (\d+) left out on a pixel already holding a "
+        r"nearer point)?",
         summary.feature_line,
     )
+    assert found is not None
+    points, used, shared = (int(n or 0) for n in found.groups())
+    assert used + shared == points  # the random pixels repeat a few: one point each
+    assert shared < 0.02 * points
     assert summary.warnings == []
 
 
@@ -235,3 +240,38 @@ def test_the_command_line_prints_the_stream_and_refuses_in_one_line(
     assert not [p.name for p in tmp_path.iterdir() if "late_out" in p.name]  # nor a temporary
     ok = ["densify", str(late), "-o", str(target), *FEATURES, "--stamp-tolerance-ms", "3"]
     assert cli.main(ok) == 0  # the fix it names works
+
+
+def _dense(i: int, stamp: int, frame_id: str, points: Points) -> tuple[int, str, Points]:
+    """Each point 20 times with 1 cm of noise: a cloud as dense as a LiDAR's in the image."""
+    noise = np.random.default_rng(i).normal(0, 0.01, (points.shape[0] * 20, 3))
+    return stamp, frame_id, np.repeat(points, 20, axis=0) + noise
+
+
+def test_a_dense_cloud_is_thinned_and_the_summary_says_so(log: Path, tmp_path: Path) -> None:
+    source = with_features(log, tmp_path / "f.mcap", _dense)
+    summary = densify(source, tmp_path / "out.mcap", max_features=60)
+    assert summary.feature_line is not None
+    found = re.fullmatch(
+        r"features: (\d+) points of /features in 4 of 4 frames, (\d+) used; 0 behind the "
+        r"camera, \d+ outside the 310x94 image; (\d+) points per frame in the image, thinned to "
+        r"(\d+) \(one per cell of \d+ px, --max-features 60\)",
+        summary.feature_line,
+    )
+    assert found is not None
+    points, used, per_frame, kept = (int(n) for n in found.groups())
+    assert per_frame * 4 > 0.95 * points  # a few of the noisy copies fall off the image
+    assert 40 <= kept <= 60
+    assert abs(used - 4 * kept) <= 2  # the per-frame figures are means, rounded
+    assert summary.warnings == []
+
+
+def test_max_features_needs_a_stream_and_a_positive_count(
+    log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    target = str(tmp_path / "out.mcap")
+    assert cli.main(["densify", str(log), "-o", target, "--max-features", "100"]) == 2
+    assert "add --features-topic or drop --max-features" in capsys.readouterr().err
+    assert cli.main(["densify", str(log), "-o", target, *FEATURES, "--max-features", "0"]) == 2
+    err = capsys.readouterr().err
+    assert err == "pcainterp: error: --max-features must be at least 1, got 0\n"

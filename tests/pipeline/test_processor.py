@@ -263,6 +263,8 @@ def test_features_project_a_known_point() -> None:
         "features": 5,
         "features_rejected": 3,
         "features_behind": 2,
+        "features_thinned": 0,
+        "features_cell": 0,
     }
     assert pixels.dtype == np.float32
     assert disparities.dtype == np.float32
@@ -277,6 +279,8 @@ def test_no_features_is_empty_data() -> None:
         "features": 0,
         "features_rejected": 0,
         "features_behind": 0,
+        "features_thinned": 0,
+        "features_cell": 0,
     }
 
 
