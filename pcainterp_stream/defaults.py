@@ -50,7 +50,8 @@ MAX_FEATURES = 500
 """Most points of a feature stream's cloud ``densify`` measures per frame (``--max-features``):
 a denser cloud (a LiDAR scan, ``stereo_image_proc``'s ``points2``) is thinned to one point per
 cell of a grid (:func:`pcainterp_stream.frontend.features.thin_measurements`). Twice the ~227
-points the stereo front end measures on a 620x188 KITTI pair; on a ``points2`` of such pairs
-(83,000 points) 500 gave 427 points in 0.5 s per frame, 2x a 226-point cloud's time, 3.1 %
-median depth error against the cloud where the 226 points gave 4.5 %; 1000 gave 2.4 % in
-1.1 s, 2000 1.8 % in 2.3 s (the local prior's cost grows with the square of the points)."""
+points the stereo front end measures on a 620x188 KITTI pair. On 20 frames of a ``points2``
+of such pairs (83,000 points per frame) 500 kept 495: 0.25 s per frame, 2-3x a 226-point
+cloud's, and a 2.9 % median depth error against the cloud, where the 226 points gave 4.5 %;
+250 gave 3.8 %, 1000 2.2 % at ~1 s per frame, 2000 1.8 % at ~2.3 s (the local prior's cost
+grows with the square of the points)."""

@@ -126,33 +126,49 @@ def thin_measurements(
         return np.zeros(0, dtype=np.intp), 0.0
     column = np.clip(np.rint(pixels[:, 0]), 0, width - 1).astype(np.int64)
     row = np.clip(np.rint(pixels[:, 1]), 0, height - 1).astype(np.int64)
-    order = np.lexsort((-disparities, row * width + column))  # by pixel, nearest first
+    order = _sorted_by(row * width + column, -disparities)  # by pixel, nearest first
     pixel = (row * width + column)[order]
     first = np.ones(count, dtype=bool)
     first[1:] = pixel[1:] != pixel[:-1]
     kept = np.sort(order[first])
     if kept.size <= max_points:
         return kept, 0.0
-    x, y = pixels[kept, 0].astype(np.float64) + 0.5, pixels[kept, 1].astype(np.float64) + 0.5
+    # from the image's corner (-0.5, -0.5), the far edge itself in the last cell
+    x = np.clip(pixels[kept, 0].astype(np.float64) + 0.5, 0.0, np.nextafter(width, 0))
+    y = np.clip(pixels[kept, 1].astype(np.float64) + 0.5, 0.0, np.nextafter(height, 0))
 
     def cells_of(side: float) -> npt.NDArray[np.int64]:
-        row, column = np.floor(y / side).astype(np.int64), np.floor(x / side).astype(np.int64)
-        cells: npt.NDArray[np.int64] = row * math.ceil(width / side) + column
+        cell_row = np.floor(y / side).astype(np.int64)
+        cells: npt.NDArray[np.int64] = cell_row * math.ceil(width / side) + np.floor(
+            x / side
+        ).astype(np.int64)
         return cells
+
+    def occupied(side: float) -> int:  # cells holding a point, without sorting
+        held = np.zeros(math.ceil(width / side) * math.ceil(height / side), dtype=bool)
+        held[cells_of(side)] = True
+        return int(np.count_nonzero(held))
 
     # the finest grid with at most max_points occupied cells, by bisection of the side
     # (log scale): below 1 px every point has its cell, one cell the size of the image holds all
     fine, coarse = 0.5, float(max(width, height) + 1)
     for _ in range(GRID_STEPS):
         side = math.sqrt(fine * coarse)
-        if np.unique(cells_of(side)).size <= max_points:
+        if occupied(side) <= max_points:
             coarse = side
         else:
             fine = side
     key = cells_of(coarse)
     cells = np.unique(key)
-    order = np.lexsort((disparities[kept], key))  # by cell, then by disparity
+    order = _sorted_by(key, disparities[kept])  # by cell, then by disparity
     start = np.searchsorted(key[order], cells)
     sizes = np.diff(np.append(start, key.size))
     median = order[start + (sizes - 1) // 2]
     return np.sort(kept[median]), coarse
+
+
+def _sorted_by(key: npt.NDArray[np.int64], then: npt.NDArray[np.float32]) -> npt.NDArray[np.intp]:
+    """Return the order by ``key``, ties by ``then`` (``np.lexsort``'s, ~2x faster)."""
+    order = np.argsort(then)  # ties of ``then`` in any order: either point will do
+    result: npt.NDArray[np.intp] = order[np.argsort(key[order], kind="stable")]
+    return result
