@@ -787,8 +787,8 @@ def _size(camera: StereoCamera) -> str:
 
 
 def _reason(err: BaseException) -> str:
-    """Return the reason of a decoding error, short enough to count by."""
-    text = str(err).split(";")[0]
+    """Return the reason of a decoding error, short enough to count by (no sizes, formats)."""
+    text = str(err).split(";")[0].split(" (")[0]
     return text if len(text) <= 60 else text[:57] + "..."
 
 

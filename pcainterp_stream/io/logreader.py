@@ -187,9 +187,20 @@ def decode_image(message: Any) -> npt.NDArray[np.generic]:
             f"unsupported compressed image format {image_format!r}; supported: png, jpeg"
         )
     data = np.asarray(message.data, dtype=np.uint8)
+    codec = "png" if "png" in kind else "jpeg"
+    # a cut-off PNG: said here, or libpng prints its own lines (a JPEG may carry padding
+    # after its end marker, as some UVC cameras send it: no such check)
+    if codec == "png" and b"IEND" not in bytes(data[-32:]):
+        raise ValueError(
+            f"compressed {codec} image is cut off (no end marker; {data.size} bytes, format "
+            f"{image_format!r})"
+        )
     image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
     if image is None:
-        raise ValueError(f"compressed image ({image_format}) of {data.size} bytes does not decode")
+        raise ValueError(
+            f"compressed {codec} image does not decode ({data.size} bytes, format "
+            f"{image_format!r})"
+        )
     if image.ndim == 3 and image.shape[2] == 4:
         image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGB)
     elif image.ndim == 3:

@@ -612,3 +612,14 @@ def test_infos_recorded_after_their_images_apply_to_their_own_frame() -> None:
         frames = run(order)
         assert [int(f.left[0, 0]) for f in frames] == [0, 1, 2, 3]
         assert [f.camera.fx for f in frames] == [50.0, 51.0, 52.0, 53.0]
+
+
+def test_undecodable_reasons_count_without_sizes_or_formats() -> None:
+    from pcainterp_stream.frontend.pairing import _reason
+
+    for size in (9769, 9721):
+        err = ValueError(f"compressed png image does not decode ({size} bytes, format 'bgr8; png')")
+        assert _reason(err) == "compressed png image does not decode"
+    assert _reason(ValueError("unsupported image encoding 'nv21'; camera images are")) == (
+        "unsupported image encoding 'nv21'"
+    )
