@@ -364,7 +364,7 @@ def test_decode_image_unsupported_encoding() -> None:
     broken = rosmsg.compressed_image_message(b"not a png", "png", 0, "f")
     with pytest.raises(ValueError, match=r"compressed png image is cut off \(no end marker; 9 b"):
         decode_image(broken)
-    ok, png = cv2.imencode(".png", np.arange(64, dtype=np.uint8).reshape(8, 8))
+    _, png = cv2.imencode(".png", np.arange(64, dtype=np.uint8).reshape(8, 8))
     damaged = png.tobytes()
     damaged = damaged[:20] + bytes(40) + damaged[60:]  # end marker kept, pixels gone
     bad = rosmsg.compressed_image_message(damaged, "bgr8; png compressed bgr8", 0, "f")
