@@ -2452,3 +2452,21 @@ def test_learn_skips_blank_maps_and_refuses_a_log_of_them(
     assert f"training maps    {SMALL_FRAMES - 2} (SGBM)" in run.out
     if not workers:
         assert f"note: SGBM found no disparity above 0 in 2 of {SMALL_FRAMES} maps" in run.out
+
+
+def test_densified_log_says_which_version_and_options_made_it(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path
+) -> None:
+    from mcap.reader import make_reader
+
+    from pcainterp_stream.version import __version__
+
+    assert pcainterp(*densify_args(small_log, out, basis_path, "--corners", "150")).code == 0
+    with out.open("rb") as stream:
+        reader = make_reader(stream)
+        assert reader.get_header().library == f"pcainterp_stream {__version__}"
+        (record,) = [m for m in reader.iter_metadata() if m.name == "pcainterp.densify"]
+    assert record.metadata["version"] == __version__
+    processor = json.loads(record.metadata["processor"])
+    assert processor["gftt"]["max_corners"] == 150
+    assert json.loads(record.metadata["pairing"])["left_topic"] == LEFT

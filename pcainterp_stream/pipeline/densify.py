@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import json
 import time
 from collections import deque
 from collections.abc import Callable
@@ -183,6 +184,25 @@ class DensifySummary:
         return self.frames / self.seconds if self.seconds > 0 else 0.0
 
 
+PROVENANCE = "pcainterp.densify"
+"""The metadata record naming what made a densified log: version, basis and options."""
+
+
+def provenance(basis: str, pairing: PairingConfig, processor: ProcessorConfig) -> dict[str, str]:
+    """Return the :data:`PROVENANCE` record: the version and the resolved options (JSON)."""
+    from pcainterp_stream.version import __version__
+
+    def text(config: Any) -> str:
+        return json.dumps(dataclasses.asdict(config), default=str, sort_keys=True)
+
+    return {
+        "version": __version__,
+        "basis": basis,
+        "pairing": text(pairing),
+        "processor": text(processor),
+    }
+
+
 def densify(
     input_path: Path | IO[bytes],
     output: Path | IO[bytes] | None,
@@ -271,6 +291,8 @@ def densify(
         if isinstance(writer, McapLogWriter) and isinstance(reader, McapLogReader):
             # the rest of the copy: attachments, metadata records, channels without messages
             writer.add_extras(reader.extras(verify=True))
+        if isinstance(writer, McapLogWriter):
+            writer.add_metadata(PROVENANCE, provenance(label, pairing, processor))
         inputs = _InLogTimeOrder(writer) if writer is not None else None
         # the output channels' metadata names the basis by its fingerprint, which the thread
         # preloading the built-in basis may still be hashing: the written channels take it
