@@ -2470,3 +2470,24 @@ def test_densified_log_says_which_version_and_options_made_it(
     processor = json.loads(record.metadata["processor"])
     assert processor["gftt"]["max_corners"] == 150
     assert json.loads(record.metadata["pairing"])["left_topic"] == LEFT
+
+
+def test_learn_refuses_a_log_given_twice(
+    pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path
+) -> None:
+    link = tmp_path / "link.mcap"
+    link.symlink_to(small_log)
+    line = pcainterp("learn", small_log, link, "-o", tmp_path / "b.npz").error_line()
+    assert line.endswith(
+        "link.mcap is " + str(small_log) + " again: its maps would count twice; pass each log once"
+    )
+    assert_nothing_written(tmp_path / "b.npz")
+
+
+def test_synth_refuses_a_platform_for_a_street_drive(
+    pcainterp: Callable[..., Run], tmp_path: Path
+) -> None:
+    line = pcainterp("synth", tmp_path / "s.mcap", "--platform", "drone").error_line()
+    assert "--platform drone carries the camera of an indoor scene" in line
+    assert "add --scene indoor or drop --platform" in line
+    assert_nothing_written(tmp_path / "s.mcap")
