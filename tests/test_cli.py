@@ -2491,3 +2491,35 @@ def test_synth_refuses_a_platform_for_a_street_drive(
     assert "--platform drone carries the camera of an indoor scene" in line
     assert "add --scene indoor or drop --platform" in line
     assert_nothing_written(tmp_path / "s.mcap")
+
+
+@pytest.mark.parametrize(
+    ("offset_ns", "fix"),
+    [
+        (
+            33_100_000,
+            "33.10-33.10 ms away, beyond the 1 ms tolerance; pass --stamp-tolerance-ms 34",
+        ),
+        (-1_000_000_000_000, "s before the nearest left ones: the two cameras stamp with"),
+    ],
+)
+def test_densify_without_a_pair_names_the_stamp_offset(
+    pcainterp: Callable[..., Run],
+    small_log: Path,
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+    offset_ns: int,
+    fix: str,
+) -> None:
+    def change(topic: str, message: Any, _: int) -> Any:  # an unsynchronised right camera
+        if topic not in (RIGHT, RIGHT_INFO):
+            return message
+        stamp = rosmsg.stamp_ns(message) + offset_ns
+        return dataclasses.replace(message, header=rosmsg.header(stamp, message.header.frame_id))
+
+    log = rewrite(small_log, tmp_path / "offset.mcap", change)
+    line = pcainterp(*densify_args(log, out, basis_path)).error_line()
+    assert "no stereo pair found in" in line
+    assert fix in line
+    assert_nothing_written(out)

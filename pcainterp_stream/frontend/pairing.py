@@ -383,8 +383,11 @@ class StereoPairer:
         own, other = (self._left, self._right) if side == "left" else (self._right, self._left)
         partner = self._closest(other, self._time(item))
         if partner is None:
-            gaps = [abs(self._time(p) - self._time(item)) for p in other]
-            item.miss_ns = min(gaps) if gaps and min(gaps) <= NEAR_MISS_NS else -1
+            gaps = [self._time(p) - self._time(item) for p in other]
+            nearest = min(gaps, key=abs, default=None)
+            item.miss_ns = -1 if nearest is None or abs(nearest) > NEAR_MISS_NS else abs(nearest)
+            if nearest is not None:
+                self.stats.saw_gap(nearest if side == "left" else -nearest)
             own.append(item)
             if len(own) > self.config.window:
                 self._count_unpaired(side, [own.popleft()])

@@ -534,6 +534,8 @@ def _no_pair_message(
         )
     elif damage:
         fix = "the readable part of the log has no complete pair; repair or re-record it"
+    elif stats.tolerance_hint() or stats.clock_hint():
+        fix = stats.tolerance_hint() or stats.clock_hint() or ""
     else:
         fix = (
             f"left {pairing.left_topic} and right {pairing.right_topic} need images with "

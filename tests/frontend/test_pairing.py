@@ -623,3 +623,14 @@ def test_undecodable_reasons_count_without_sizes_or_formats() -> None:
     assert _reason(ValueError("unsupported image encoding 'nv21'; camera images are")) == (
         "unsupported image encoding 'nv21'"
     )
+
+
+def test_sides_on_different_clocks_are_named() -> None:
+    stats = PairingStats()
+    stats.saw_gap(-1_700_000_000_000_000_000)
+    stats.saw_gap(-1_699_999_999_900_000_000)  # the nearest is kept
+    hint = stats.clock_hint()
+    assert hint is not None
+    assert hint.startswith("the right images are stamped at least 1.7e+09 s before the nearest")
+    stats.saw_gap(30_000_000)
+    assert stats.clock_hint() is None  # 30 ms: a tolerance, not a clock
