@@ -2074,11 +2074,11 @@ def test_info_on_realdata(pcainterp: Callable[..., Run], relative: str) -> None:
 
 
 REALDATA_DENSIFY = [
-    ("ros1/example.bag", "example.bag: it needs two cameras"),
+    ("ros1/example.bag", "example.bag: it has no camera images; pcainterp densifies logs"),
     ("ros1/no-messages.bag", "no stereo pair found"),
-    ("rosbag2/mcap/talker", "talker: it needs two cameras"),
+    ("rosbag2/mcap/talker", "talker: it has no camera images"),
     ("rosbag2/sqlite3/empty_bag", "no stereo pair found"),
-    ("mcap_conformance/TenMessages/TenMessages-ch-chx-mx.mcap", "image topics: none"),
+    ("mcap_conformance/TenMessages/TenMessages-ch-chx-mx.mcap", "it has no camera images"),
     ("mcap_conformance/NoData/NoData-st-sum.mcap", "no stereo pair found"),
     ("mcap_ros2/supported_ros2_messages.mcap", "image topics: /compressed_image, /image"),
     ("kitti_raw/2011_09_26/2011_09_26_drive_0001_sync", "pcainterp import-kitti"),
@@ -2522,4 +2522,21 @@ def test_densify_without_a_pair_names_the_stamp_offset(
     line = pcainterp(*densify_args(log, out, basis_path)).error_line()
     assert "no stereo pair found in" in line
     assert fix in line
+    assert_nothing_written(out)
+
+
+def test_densify_a_log_of_one_camera_says_so(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+) -> None:
+    mono = write_messages(
+        tmp_path / "mono.mcap", [m for m in small_messages if "/right/" not in m[0]]
+    )
+    line = pcainterp(*densify_args(mono, out, basis_path)).error_line()
+    assert line.endswith(
+        f"it has one camera ({LEFT}); pcainterp needs a stereo pair, two cameras side by side"
+    )
     assert_nothing_written(out)
