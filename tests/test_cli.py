@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 import pytest
 from mcap.reader import make_reader
-from mcap.writer import Writer
+from mcap.writer import IndexType, Writer
 
 from pcainterp_stream import cli
 from pcainterp_stream.estimate.basis import Basis
@@ -106,6 +106,26 @@ def write_messages(path: Path, messages: list[Message]) -> Path:
     with open_writer(path, "mcap") as writer:
         for topic, message, log_time_ns in messages:
             writer.add_message(topic, message, log_time_ns)
+    return path
+
+
+def write_unindexed(path: Path, messages: list[Message]) -> Path:
+    """Write decoded messages as an MCAP without chunks or index: it is read in file order."""
+    with path.open("wb") as f:
+        writer = Writer(f, use_chunking=False, index_types=IndexType.NONE)
+        writer.start("ros2", "test")
+        schemas: dict[str, int] = {}
+        channels: dict[str, int] = {}
+        for topic, message, log_time_ns in messages:
+            msgtype = message.__msgtype__
+            if msgtype not in schemas:
+                text = rosmsg.schema_text(msgtype).encode()
+                schemas[msgtype] = writer.register_schema(msgtype, "ros2msg", text)
+            if topic not in channels:
+                channels[topic] = writer.register_channel(topic, "cdr", schemas[msgtype])
+            data = rosmsg.serialize(message)
+            writer.add_message(channels[topic], log_time_ns, data, log_time_ns)
+        writer.finish()
     return path
 
 
@@ -1439,13 +1459,67 @@ def test_densify_non_monotonic_stamps(
     per_frame = len(small_messages) // SMALL_FRAMES
     frames = [small_messages[i : i + per_frame] for i in range(0, len(small_messages), per_frame)]
     frames[3], frames[4] = frames[4], frames[3]  # frame 4 is written (and logged) before 3
-    log = write_messages(tmp_path / "swapped.mcap", [m for frame in frames for m in frame])
+    # without an index: read in file order (an indexed MCAP is read in log-time order)
+    log = write_unindexed(tmp_path / "swapped.mcap", [m for frame in frames for m in frame])
     run = pcainterp(*densify_args(log, out, basis_path))
     assert run.code == 0, run.err
     assert f"densified {SMALL_FRAMES} frames" in run.out
     assert "non-monotonic stamps" in run.out
     assert "non-monotonic log times" in run.out
     assert assert_valid_mcap(out)["/pcainterp/depth"] == SMALL_FRAMES
+
+
+def _topic_by_topic(small_messages: list[Message], copies: int) -> list[Message]:
+    """The small log ``copies`` times over, stored one topic after another, log times kept."""
+    span = small_messages[-1][2] - small_messages[0][2] + 100_000_000
+    messages = []
+    for copy in range(copies):
+        for topic, message, log_time_ns in small_messages:
+            stamp = rosmsg.stamp_ns(message) + copy * span
+            header = rosmsg.header(stamp, message.header.frame_id)
+            shifted = dataclasses.replace(message, header=header)
+            messages.append((topic, shifted, log_time_ns + copy * span))
+    return sorted(messages, key=lambda m: m[0])  # stable: each topic in time order
+
+
+def test_densify_reads_an_mcap_stored_topic_by_topic_in_log_time_order(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # a converter's order, in several chunks: the chunk index puts them back in time order
+    monkeypatch.setattr(logwriter, "MCAP_CHUNK_SIZE", 64 * 1024)
+    log = write_messages(tmp_path / "by_topic.mcap", _topic_by_topic(small_messages, 3))
+    run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err
+    assert f"pairing: {3 * SMALL_FRAMES} pairs, 0 unpaired left, 0 unpaired right\n" in run.out
+    assert "warning" not in run.out
+    assert assert_valid_mcap(out)["/pcainterp/depth"] == 3 * SMALL_FRAMES
+
+
+def test_densify_of_an_unindexed_log_out_of_time_order_says_what_it_cost(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+) -> None:
+    log = write_unindexed(tmp_path / "by_topic.mcap", _topic_by_topic(small_messages, 3))
+    run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err
+    pairing = next(line for line in run.out.splitlines() if line.startswith("pairing: "))
+    pairs = int(pairing.split()[1])
+    lost = 3 * SMALL_FRAMES - pairs
+    assert lost > 0
+    (warning,) = [line for line in run.out.splitlines() if "log-time order" in line]
+    assert warning.startswith("warning: by_topic.mcap: the log is not stored in log-time order")
+    assert f"this cost up to {lost} stereo pairs ({lost} left and {lost} right" in warning
+    assert "`mcap recover by_topic.mcap -o indexed.mcap`" in warning
+    assert "non-monotonic log times" in warning
+    assert run.out.count("non-monotonic log times") == 1  # replaces the plain warning
 
 
 def _late_infos(small_messages: list[Message]) -> list[Message]:

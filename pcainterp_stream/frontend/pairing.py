@@ -1,7 +1,7 @@
 """Pair left and right images of a message stream into stereo frames (no I/O).
 
-:class:`StereoPairer` is fed the decoded messages of a log one at a time (in file order)
-and emits a :class:`~records.StereoFrame` as soon as a left and a right image with matching
+:class:`StereoPairer` is fed the decoded messages of a log one at a time (in the reader's
+order) and emits a :class:`~records.StereoFrame` as soon as a left and a right image with matching
 header stamps, and a camera info of each side, are there. It keeps bounded buffers, so a
 stream with a missing or late side cannot make it grow; what it drops it counts in
 :class:`PairingStats`. An optional sparse feature stream (``/features``, PointCloud2 with x,

@@ -2,9 +2,10 @@
 
 :func:`open_log` looks at a path and returns an opened :class:`LogReader`, a context manager
 in the manner of rosbags' ``AnyReader``. Every reader yields :class:`~records.RawMessage`
-records in file order with bounded memory, and normalises what it yields so that the rest
-of the pipeline sees one kind of log: ROS messages are CDR with a ``ros2msg`` schema and
-type names in ROS 2 spelling (``sensor_msgs/msg/Image``), whatever the input format.
+records in log-time order (an MCAP without a chunk index: in file order) with bounded
+memory, and normalises what it yields so that the rest of the pipeline sees one kind of
+log: ROS messages are CDR with a ``ros2msg`` schema and type names in ROS 2 spelling
+(``sensor_msgs/msg/Image``), whatever the input format.
 
 Damaged input is read as far as it can be: the reader yields every message before the
 damage, then stops (or skips a damaged chunk whose framing is intact) and records a
