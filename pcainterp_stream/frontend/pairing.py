@@ -692,9 +692,18 @@ class StereoPairer:
         config = self.config
         if config.baseline is not None:
             return "--baseline"
-        if rectifier is None:
-            return f"P of {config.right_info_topic}"
-        return "--calibration" if config.calibration else f"{config.right_info_topic}"
+        if rectifier is not None and config.calibration:
+            return "--calibration"
+        if rectifier is not None:
+            left_tx = float(rectifier.calibration.left.p[0, 3])
+        elif self._left_info is not None:
+            left_tx = float(rosmsg.projection_matrix(self._left_info)[0, 3])
+        else:
+            left_tx = 0.0
+        topics = config.right_info_topic
+        if left_tx:  # a pair calibrated against a third camera: both Tx make the baseline
+            topics = f"{config.left_info_topic} and {topics}"
+        return f"P of {topics}" if rectifier is None else topics
 
     def _say(self, line: str) -> None:
         if line != self._said and self._echo is not None:
