@@ -17,8 +17,9 @@ import pytest
 from rosbags.rosbag1 import Reader, Writer
 
 from pcainterp_stream import cli
+from pcainterp_stream.errors import LogReadError
 from pcainterp_stream.io.logreader import LogFormat, decode_image, open_log
-from pcainterp_stream.io.rosbag1_walk import Ros1WalkReader, read_bag_header
+from pcainterp_stream.io.rosbag1_walk import VERSION_LINE, Ros1WalkReader, read_bag_header
 from pcainterp_stream.io.rosbags_reader import RosbagsLogReader
 from pcainterp_stream.pipeline.jobs import synth
 
@@ -209,7 +210,7 @@ def test_unreadable_bag_header_is_still_an_error_naming_reindex(tmp_path: Path) 
     path = tmp_path / "bad.bag"
     path.write_bytes(b"#ROSBAG V2.0\n" + b"\xff" * 100)
     assert read_bag_header(path) is None
-    with pytest.raises(Exception, match=r"cannot read ROS 1 bag .*; if it is damaged, `rosbag"):
+    with pytest.raises(LogReadError, match=r"cannot read ROS 1 bag .*; if it is damaged, `rosbag"):
         open_log(path)
 
 
@@ -225,3 +226,36 @@ def test_densify_reads_a_killed_recording(
     assert "densified 6 frames" in captured.out
     assert re.search(r"damage: d\.bag\.active: unindexed \(recording cut off\?\)", captured.out)
     assert out.is_file()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("compression", ["lz4", "bz2", "none"])
+def test_random_damage_to_an_unindexed_bag_never_escapes(
+    synth_bag: Path, tmp_path: Path, compression: str
+) -> None:
+    """Flipped bytes and cuts: the walk reads on or stops with damage, no library exception."""
+    bag = unindex(rerecord(synth_bag, tmp_path / "drive.bag", compression), tmp_path / "x.bag")
+    data = bag.read_bytes()
+    rng = np.random.default_rng(3)
+    damaged = tmp_path / "damaged.bag.active"
+    errors: list[str] = []
+    for trial in range(24):
+        buffer = bytearray(data)
+        if trial % 3 == 0:
+            buffer = buffer[: int(rng.integers(len(VERSION_LINE), len(buffer)))]
+        else:
+            for position in rng.integers(4200, len(buffer), int(rng.integers(1, 6))):
+                buffer[position] = int(rng.integers(0, 256))
+        damaged.write_bytes(bytes(buffer))
+        try:
+            with open_log(damaged) as reader:
+                reader.topics()
+                for raw in reader.messages():
+                    try:
+                        reader.decode(raw)
+                    except LogReadError:
+                        pass
+                assert reader.damage
+        except LogReadError as err:
+            errors.append(str(err))
+    assert all("\n" not in message for message in errors)
