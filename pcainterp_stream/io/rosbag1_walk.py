@@ -217,7 +217,10 @@ def _index_problem(header: BagHeader) -> str | None:
         return None  # rosbags names the encryption it does not support
     if header.index_pos == 0:
         return "unindexed (recording cut off?)"
-    if header.index_pos >= header.size:
+    # a bag without connections ends with its header; its (empty) index is at the end
+    if header.index_pos > header.size or (
+        header.index_pos == header.size and (header.conn_count or header.chunk_count)
+    ):
         return f"index missing (the bag header puts it at byte {header.index_pos}: file cut short?)"
     return None
 

@@ -206,6 +206,18 @@ def test_length_fields_do_not_allocate(synth_bag: Path, tmp_path: Path) -> None:
     assert "record header of 4294967295 bytes: cut short" in damage[0]
 
 
+def test_an_intact_bag_without_messages_reads_as_before(tmp_path: Path) -> None:
+    """Its bag header puts the (empty) index at the end of the file: not a missing index."""
+    path = tmp_path / "empty.bag"
+    with Writer(path):
+        pass
+    header = read_bag_header(path)
+    assert header is not None
+    assert header.index_pos == header.size
+    messages, damage, kind = read_all(path)
+    assert (messages, damage, kind) == ([], [], RosbagsLogReader)
+
+
 def test_unreadable_bag_header_is_still_an_error_naming_reindex(tmp_path: Path) -> None:
     path = tmp_path / "bad.bag"
     path.write_bytes(b"#ROSBAG V2.0\n" + b"\xff" * 100)
