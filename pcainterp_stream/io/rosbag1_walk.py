@@ -390,6 +390,7 @@ class Ros1WalkReader(LogReader):
                 cause = f" (then a corrupt record: {err})"
                 break
             offset = data_offset + len(data)
+        offset = min(offset, self._header.size)  # a bag header cut short: nothing read
         name = self.path.name
         _add_once(
             self.damage,
