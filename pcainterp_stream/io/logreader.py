@@ -148,6 +148,11 @@ def open_log(path: str | Path) -> LogReader:
     reader: LogReader
     if log_format is LogFormat.MCAP:
         reader = McapLogReader(path)
+    elif log_format is LogFormat.ROS1:
+        # an indexed bag through rosbags; one without a usable index in file order
+        from pcainterp_stream.io.rosbag1_walk import open_ros1_bag
+
+        return open_ros1_bag(path)
     else:
         # imported here: rosbags' readers take ~65 ms to import, which an MCAP job never uses
         from pcainterp_stream.io.rosbags_reader import RosbagsLogReader

@@ -1,7 +1,7 @@
 """What every log reader shares: the base class, topic descriptions, formats, ROS types.
 
-The format readers (:mod:`.mcap_reader`, :mod:`.rosbags_reader`) build on it;
-:mod:`.logreader` opens a path with the right one.
+The format readers (:mod:`.mcap_reader`, :mod:`.rosbags_reader`, :mod:`.rosbag1_walk`)
+build on it; :mod:`.logreader` opens a path with the right one.
 """
 
 from __future__ import annotations
