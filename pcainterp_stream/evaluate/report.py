@@ -32,7 +32,7 @@ import numpy.typing as npt
 from pcainterp_stream.errors import LogReadError, PcaInterpError
 from pcainterp_stream.estimate.baselines import linear, nearest
 from pcainterp_stream.estimate.basis import BUILTIN_LABELS, IN_MEMORY, Basis, builtin_kind
-from pcainterp_stream.estimate.estimator import densify
+from pcainterp_stream.estimate.estimator import clean_measurements, densify
 from pcainterp_stream.evaluate.figures import write_figures
 from pcainterp_stream.evaluate.metrics import (
     SWEEP_POINTS,
@@ -122,6 +122,10 @@ PENDING_FRAMES = 32
 """Stamps whose channels are gathered at once (and right images and reference messages
 kept): densify writes a frame's outputs up to its look-ahead, the densify thread's queue and
 the output encoders' frames (~20 at the fit check's warm-up) after the frame's input images."""
+
+MIN_MEASUREMENTS = 1
+"""A frame is scored only with at least this many finite measurements inside the image:
+nearest neighbour and linear interpolation of none are undefined (NaN everywhere)."""
 
 REFERENCE_BUFFER = PENDING_FRAMES
 """Reference messages kept (by stamp) for frames not yet complete."""
@@ -477,8 +481,17 @@ class _Evaluator:
         *,
         baselines: bool = False,
     ) -> None:
-        """Score one frame against its reference (``baselines``: with the stereo ones)."""
+        """Score one frame against its reference (``baselines``: with the stereo ones).
+
+        A frame with fewer than :data:`MIN_MEASUREMENTS` usable measurements is left out of
+        every method (nearest and linear have nothing to interpolate, PCA-MAP gives the
+        prior's mean alone) and only counted in ``result.no_measurement``.
+        """
         camera, size = frame.camera, frame.camera.image_size
+        usable, _, _ = clean_measurements(frame.pixels, frame.disparities, size)
+        if usable.shape[0] < MIN_MEASUREMENTS:
+            self.result.no_measurement.append(frame.index)
+            return
         view = reference_view(reference, camera, transform)
         sgbm_valid = np.isfinite(stereo.disparity) if baselines and stereo else None
         delta = self._stats("pca_map").add(frame.estimate, view, camera, transform)
@@ -777,6 +790,8 @@ def evaluate_log(
         )
     if result.frames == 0:
         without = f", {result.skipped} without a {reference.topic} message" if reference else ""
+        if result.no_measurement:
+            without += f", {len(result.no_measurement)} without a measurement"
         raise LogReadError(
             f"no frame of {path} could be evaluated ({read} densified frames read{without}; "
             "temporal mode needs two)"

@@ -86,6 +86,8 @@ def summary_table(result: Evaluation) -> str:
         lines.append(
             f"{result.skipped} frames skipped: no {result.reference} message with their stamp"
         )
+    if result.no_measurement:
+        lines.append(result.no_measurement_note)
     lines += [f"damage: {line}; only the frames read before it count" for line in result.damage]
     if result.measurements:
         lines.append(f"measurements of the densified log: {result.measurements}")
@@ -183,6 +185,8 @@ def results_markdown(result: Evaluation, figures: list[str]) -> str:
         if result.skipped
         else ""
     )
+    if result.no_measurement:
+        skipped += f" {result.no_measurement_note[0].upper()}{result.no_measurement_note[1:]}."
     lines = [
         f"# Evaluation of `{Path(result.log).name}`",
         "",
