@@ -18,6 +18,16 @@ from pcainterp_stream.evaluate.metrics import DELTA_2D_EDGES, DEPTH_EDGES, STD_E
 from pcainterp_stream.evaluate.reference import SPARSE_BELOW
 from pcainterp_stream.evaluate.results import Evaluation, Example
 
+FIGURE_NAMES: tuple[str, ...] = (
+    "errors.png",
+    "uncertainty.png",
+    "sweep.png",
+    "examples.png",
+    "basis.png",
+    "variance.png",
+)
+"""Every figure a report may hold (those without data are not written)."""
+
 
 def _bar_chart(axis: Any, labels: list[str], series: dict[str, list[float]], ylabel: str) -> None:
     width = 0.8 / max(len(series), 1)
@@ -64,6 +74,7 @@ def write_figures(
     names: list[str] = []
 
     def save(figure: Any, name: str) -> None:
+        assert name in FIGURE_NAMES
         figure.tight_layout()
         figure.savefig(folder / name, dpi=90)
         plt.close(figure)

@@ -17,7 +17,6 @@ the re-densification with the basis (uncertainty kinds, oracle, points sweep);
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import time
 from collections import deque
@@ -54,6 +53,11 @@ from pcainterp_stream.evaluate.reference import (
     ReferenceTopic,
     reference_disparity,
     resolve_reference,
+)
+from pcainterp_stream.evaluate.report_folder import (
+    check_report_folder,
+    report_json,
+    write_report_folder,
 )
 from pcainterp_stream.evaluate.results import (
     PCA_ON_SGBM,
@@ -813,27 +817,26 @@ def write_report(
 
     Args:
         path: a log written by ``pcainterp densify``.
-        folder: the report folder (created).
+        folder: the report folder: new, empty or an earlier report's (replaced as a whole,
+            once the report is complete).
         options: evaluation options.
         topics: output topic names.
         progress: called with the number of frames read so far.
 
     Returns:
         The :class:`Evaluation`.
+
+    Raises:
+        PcaInterpError: the folder holds files a report does not write, or cannot be written.
     """
     options = options or EvaluateOptions()
-    if not folder.parent.is_dir():
-        raise PcaInterpError(
-            f"cannot write the report to {folder}: folder {folder.parent} does not exist"
-        )
-    if folder.exists() and not folder.is_dir():
-        raise PcaInterpError(
-            f"cannot write the report to {folder}: it is a file, the report is a folder; "
-            "pass a folder path"
-        )
+    check_report_folder(folder)  # before the log is evaluated: a refusal costs nothing
     result, examples = evaluate_log(path, options, topics=topics, progress=progress)
-    folder.mkdir(exist_ok=True)  # only now: a log that cannot be evaluated leaves nothing
-    figures = write_figures(result, examples, folder, _load_basis(options))
-    (folder / "results.json").write_text(json.dumps(result.summary(), indent=1) + "\n")
-    (folder / "results.md").write_text(results_markdown(result, figures))
+
+    def write(staging: Path) -> None:
+        figures = write_figures(result, examples, staging, _load_basis(options))
+        (staging / "results.json").write_text(report_json(result.summary()))
+        (staging / "results.md").write_text(results_markdown(result, figures))
+
+    write_report_folder(folder, write)  # only now: a log that cannot be evaluated leaves nothing
     return result

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
 
+from pcainterp_stream import cli
 from pcainterp_stream.evaluate.metrics import Mode
 from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log
 from pcainterp_stream.evaluate.tables import results_markdown, summary_table
@@ -83,3 +85,71 @@ def test_a_log_without_any_measurement_cannot_be_evaluated(tmp_path: Path) -> No
     jobs.densify(_blanked(log, tmp_path / "black.mcap", {0, 1}), dense)
     with pytest.raises(LogReadError, match=r"\(2 densified frames read, 2 without a measurement;"):
         evaluate_log(dense, EvaluateOptions(mode=Mode.STEREO, sweep_every=0, linear=False))
+
+
+FAST = ["--no-basis", "--no-linear", "--max-frames", "2"]
+
+
+def test_evaluate_refuses_a_folder_holding_other_files(
+    logs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # before: a user's results.md was overwritten, and any folder was written into
+    notes = tmp_path / "myproj"
+    notes.mkdir()
+    (notes / "results.md").write_text("my notes")
+    assert cli.main(["evaluate", str(logs["dense"]), "-o", str(notes), *FAST]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1
+    assert f"cannot write the report to {notes}: its results.md is not an evaluate report's" in err
+    assert (notes / "results.md").read_text() == "my notes"
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    assert cli.main(["evaluate", str(logs["dense"]), "-o", str(other), *FAST]) == 2
+    err = capsys.readouterr().err
+    assert err.strip().endswith(
+        f"cannot write the report to {other}: it holds files a report does not write "
+        "(notes.txt); pass -o with a new or empty folder, or an earlier report's folder"
+    )
+    assert sorted(path.name for path in other.iterdir()) == ["notes.txt"]
+    assert not list(tmp_path.glob(".*partial*"))
+
+
+def test_a_rerun_replaces_the_report_and_its_stale_figures(
+    logs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # before: basis.png, variance.png and sweep.png of a run with the basis stayed beside
+    # the results.md of a run without it
+    report = tmp_path / "report"
+    with_basis = ["evaluate", str(logs["dense"]), "-o", str(report), "--max-frames", "3"]
+    assert cli.main([*with_basis, "--sweep-every", "1", "--no-linear"]) == 0
+    assert {"basis.png", "variance.png", "sweep.png"} <= {p.name for p in report.iterdir()}
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    for folder in (report, empty):
+        assert cli.main(["evaluate", str(logs["dense"]), "-o", str(folder), *FAST]) == 0
+        names = {path.name for path in folder.iterdir()}
+        assert names == {
+            "results.md",
+            "results.json",
+            "errors.png",
+            "uncertainty.png",
+            "examples.png",
+        }
+    capsys.readouterr()
+    assert not list(tmp_path.glob(".*partial*"))
+
+
+def test_results_json_is_strict_json(logs: dict[str, Path], tmp_path: Path) -> None:
+    # before: the histograms' open last bin edges were written as bare Infinity, which
+    # JavaScript's JSON.parse (and every RFC 8259 reader) rejects
+    report = tmp_path / "report"
+    jobs.evaluate(logs["dense"], report, basis_rows=False, linear=False, max_frames=2)
+    text = (report / "results.json").read_text()
+
+    def refuse(constant: str) -> None:
+        raise ValueError(f"non-standard JSON constant {constant}")
+
+    data = json.loads(text, parse_constant=refuse)
+    assert data["bins"]["delta_2d_px"][-1] is None  # the open last bin
+    assert data["bins"]["depth_m"][:2] == [0.0, 5.0]
