@@ -20,7 +20,7 @@ import dataclasses
 import math
 import time
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -271,11 +271,10 @@ def _frames(
         needed = [where.estimate, where.std, topics.features, topics.camera_info]
         missing, hint = missing_outputs(present, topics, [*needed, left_image])
         if missing:
-            advice = hint or (
-                "; evaluate needs a log written by `pcainterp densify` (with the input's "
-                "stereo images)"
+            raise LogReadError(
+                f"{path} has no {', '.join(missing)}"
+                f"{hint or _missing_advice(present, topics, missing, left_image)}"
             )
-            raise LogReadError(f"{path} has no {', '.join(missing)}{advice}")
         truth = [] if reference is not None else [GROUND_TRUTH_DEPTH]
         optional = [t for t in (*truth, GROUND_TRUTH_POSE) if t in present]
         grouped = [*needed, left_image, *optional]
@@ -354,6 +353,26 @@ def _frames(
             yielded += 1
             if max_frames is not None and yielded >= max_frames:
                 return
+
+
+def _missing_advice(
+    present: Iterable[str], topics: OutputTopics, missing: list[str], left_image: str
+) -> str:
+    """Say how to get a log evaluate can read: densify it, or densify it with more outputs."""
+    outputs = [topics.depth, topics.disparity, topics.depth_std, topics.disparity_std]
+    outputs.append(topics.features)
+    written = [topic for topic in (*outputs, topics.camera_info) if topic in present]
+    if not written or missing == [left_image]:
+        return (
+            "; evaluate needs a log written by `pcainterp densify` (with the input's "
+            "stereo images)"
+        )
+    names = [topic.rsplit("/", 1)[1] for topic in written]
+    return (
+        f"; densify wrote only {', '.join(names)} into it (`pcainterp densify --outputs`): "
+        "evaluate needs depth or disparity, disparity_std, features and camera_info; densify "
+        "again with --outputs depth,disparity_std,features,camera_info (or without --outputs)"
+    )
 
 
 def _frame(

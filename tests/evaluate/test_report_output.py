@@ -153,3 +153,23 @@ def test_results_json_is_strict_json(logs: dict[str, Path], tmp_path: Path) -> N
     data = json.loads(text, parse_constant=refuse)
     assert data["bins"]["delta_2d_px"][-1] is None  # the open last bin
     assert data["bins"]["depth_m"][:2] == [0.0, 5.0]
+
+
+def test_a_log_densified_with_too_few_outputs_names_densify_outputs(
+    logs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # before: "...; evaluate needs a log written by `pcainterp densify`", which it was
+    dense = tmp_path / "depth_only.mcap"
+    assert cli.main(["densify", str(logs["log"]), "-o", str(dense), "--outputs", "depth"]) == 0
+    capsys.readouterr()
+    assert cli.main(["evaluate", str(dense), "-o", str(tmp_path / "report"), *FAST]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1
+    assert err.strip() == (
+        f"pcainterp: error: {dense} has no /pcainterp/disparity_std, /pcainterp/features, "
+        "/pcainterp/camera_info; densify wrote only depth into it (`pcainterp densify "
+        "--outputs`): evaluate needs depth or disparity, disparity_std, features and "
+        "camera_info; densify again with --outputs depth,disparity_std,features,camera_info "
+        "(or without --outputs)"
+    )
+    assert not (tmp_path / "report").exists()
