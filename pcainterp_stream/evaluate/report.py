@@ -364,8 +364,7 @@ def _missing_advice(
     written = [topic for topic in (*outputs, topics.camera_info) if topic in present]
     if not written or missing == [left_image]:
         return (
-            "; evaluate needs a log written by `pcainterp densify` (with the input's "
-            "stereo images)"
+            "; evaluate needs a log written by `pcainterp densify` (with the input's stereo images)"
         )
     names = [topic.rsplit("/", 1)[1] for topic in written]
     return (
@@ -638,7 +637,11 @@ class _Evaluator:
             min_x=self.options.sgbm.valid_min_x,
         )
         found = lookup_disparities(stereo.disparity, corners)
+        self.result.sweep_corners.append(int(found.pixels.shape[0]))
         for points in SWEEP_POINTS:
+            if points > found.pixels.shape[0]:  # fewer corners: the count was not reached
+                break
+            self.result.sweep_reached[points] = self.result.sweep_reached.get(points, 0) + 1
             pixels = found.pixels[:points].astype(np.float64)
             values = found.disparities[:points].astype(np.float64)
             methods = self.result.sweep.setdefault(points, {})
@@ -736,6 +739,7 @@ def evaluate_log(
         reference=(reference.topic if reference else "ground truth" if has_truth else "SGBM"),
         basis_note=options.basis_note,
         reference_kind=str(reference.kind) if reference else "",
+        sigma=options.sigma,
     )
     if not has_right:
         result.stereo_note = f"skipped, the log has no {images.right_topic}"

@@ -119,6 +119,10 @@ class Evaluation:
         calibration: per uncertainty kind (stored, paper, exact) its calibration.
         sweep: per number of points, per method, its accumulated errors.
         sweep_frames: frames in the sweep.
+        sweep_reached: per number of points, the sweep frames that had that many corners
+            with a disparity (a count no frame reached has no row).
+        sweep_corners: corners with a disparity found on each sweep frame.
+        sigma: measurement noise std (px) of evaluate's re-densifications.
         points_per_frame: mean sparse points per frame.
         basis: description of the basis (None without one).
         basis_note: how the basis was chosen, or why there is none.
@@ -148,6 +152,9 @@ class Evaluation:
     calibration: dict[str, CalibrationStats] = field(default_factory=dict)
     sweep: dict[int, dict[str, MethodStats]] = field(default_factory=dict)
     sweep_frames: int = 0
+    sweep_reached: dict[int, int] = field(default_factory=dict)
+    sweep_corners: list[int] = field(default_factory=list)
+    sigma: float = 2.0
     points_per_frame: float = 0.0
     basis: dict[str, Any] | None = None
     basis_note: str = ""
@@ -217,6 +224,9 @@ class Evaluation:
                 "accumulated": dataclasses.asdict(self.ranges),
             },
             "sweep_frames": self.sweep_frames,
+            "sweep_frames_reached": {str(p): n for p, n in self.sweep_reached.items()},
+            "sweep_corners": list(self.sweep_corners),
+            "sigma_px": self.sigma,
             "sweep": {
                 str(points): {name: stats.summary() for name, stats in methods.items()}
                 for points, methods in self.sweep.items()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from pcainterp_stream.evaluate.metrics import CalibrationStats, MethodStats
+from pcainterp_stream.evaluate.metrics import SWEEP_POINTS, CalibrationStats, MethodStats
 from pcainterp_stream.evaluate.results import (
     PCA_ON_SGBM,
     SGBM,
@@ -178,6 +178,42 @@ def _targets(result: Evaluation) -> list[str]:
     return lines
 
 
+def _sweep_lines(result: Evaluation) -> list[str]:
+    """The points sweep's section: what it measures, and a row per count some frame reached."""
+    frames = result.sweep_frames
+    corners = result.sweep_corners or [0]
+    found = f"{min(corners)}" if min(corners) == max(corners) else f"{min(corners)}-{max(corners)}"
+    lines = [
+        f"## Error against the number of points ({frames} {'frame' if frames == 1 else 'frames'})",
+        "",
+        "On the frames --sweep-every picks, the sweep re-densifies from the N strongest "
+        "Shi-Tomasi corners with SGBM's disparity (corners only, none of densify's lattice "
+        "points) with the paper's estimator (the basis's prior, measurement noise --sigma "
+        f"{result.sigma:g} px) and interpolates the same points with nearest and linear: it "
+        "measures the methods against the number of points, not the log's stored estimate, "
+        "so its errors are not the table's above. "
+        + (
+            f"The frame had {found} corners with a disparity; larger counts have no row."
+            if frames == 1
+            else f"The frames had {found} corners with a disparity; a count is scored on the "
+            "frames that had as many (frames column)."
+        ),
+        "",
+        "| points | frames | PCA-MAP D2D px | nearest D2D px | linear D2D px | PCA/NN |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    if not result.sweep:
+        return [*lines[:-2], f"No frame had {SWEEP_POINTS[0]} corners: no row.", ""]
+    for points, methods in sorted(result.sweep.items()):
+        means = {name: stats.summary()["delta_2d_mean"] for name, stats in methods.items()}
+        ratio = _number(mean_ratio(methods["pca_map"], methods["nearest"]), 2)
+        lines.append(
+            f"| {points} | {result.sweep_reached.get(points, 0)} | {means['pca_map']:.3f} | "
+            f"{means['nearest']:.3f} | {means['linear']:.3f} | {ratio} |"
+        )
+    return [*lines, ""]
+
+
 def results_markdown(result: Evaluation, figures: list[str]) -> str:
     """Return ``results.md`` of a report folder."""
     skipped = (
@@ -214,21 +250,8 @@ def results_markdown(result: Evaluation, figures: list[str]) -> str:
         *_targets(result),
         "",
     ]
-    if result.sweep:
-        lines += [
-            f"## Error against the number of points ({result.sweep_frames} frames)",
-            "",
-            "| points | PCA-MAP D2D px | nearest D2D px | linear D2D px | PCA/NN |",
-            "| --- | --- | --- | --- | --- |",
-        ]
-        for points, methods in sorted(result.sweep.items()):
-            means = {name: stats.summary()["delta_2d_mean"] for name, stats in methods.items()}
-            ratio = _number(mean_ratio(methods["pca_map"], methods["nearest"]), 2)
-            lines.append(
-                f"| {points} | {means['pca_map']:.3f} | {means['nearest']:.3f} | "
-                f"{means['linear']:.3f} | {ratio} |"
-            )
-        lines.append("")
+    if result.sweep or result.sweep_frames:
+        lines += _sweep_lines(result)
     if result.basis is not None:
         b = result.basis
         lines += [

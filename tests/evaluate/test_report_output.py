@@ -173,3 +173,25 @@ def test_a_log_densified_with_too_few_outputs_names_densify_outputs(
         "(or without --outputs)"
     )
     assert not (tmp_path / "report").exists()
+
+
+def test_the_points_sweep_lists_only_the_counts_it_reached(logs: dict[str, Path]) -> None:
+    # before: rows for 400 and 800 points identical to the last reached one (fewer corners
+    # were found than asked for), "(1 frames)", and no word on what the sweep measures
+    basis, _ = jobs.evaluation_basis(logs["dense"])  # the built-in one densify used
+    options = EvaluateOptions(basis, mode=Mode.STEREO, sweep_every=1, max_frames=1, linear=False)
+    result, _ = evaluate_log(logs["dense"], options)
+    assert result.sweep_frames == 1
+    (corners,) = result.sweep_corners
+    assert 50 <= corners < 800
+    assert sorted(result.sweep) == [p for p in (50, 100, 200, 400, 800) if p <= corners]
+    assert all(result.sweep_reached[points] == 1 for points in result.sweep)
+    markdown = results_markdown(result, [])
+    assert "## Error against the number of points (1 frame)\n" in markdown
+    assert f"The frame had {corners} corners with a disparity; larger counts have no row." in (
+        markdown
+    )
+    assert "corners only, none of densify's lattice points" in markdown
+    assert "measurement noise --sigma 2 px" in markdown
+    rows = [line for line in markdown.splitlines() if line[:2] == "| " and line[2].isdigit()]
+    assert [int(row.split("|")[1]) for row in rows] == sorted(result.sweep)
