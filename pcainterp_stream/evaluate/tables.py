@@ -261,5 +261,12 @@ def results_markdown(result: Evaluation, figures: list[str]) -> str:
             "",
         ]
     lines += ["## Figures", ""] + [f"![{name}]({name})" for name in figures]
+    if "uncertainty.png" in figures and set(result.calibration) - {"stored"}:
+        lines += [
+            "",
+            "In `uncertainty.png`, `stored` is the log's own estimate and std; "
+            f"{', '.join(f'`{n}`' for n in result.calibration if n != 'stored')} are evaluate's "
+            f"re-densifications of the same points with the basis at --sigma {result.sigma:g} px.",
+        ]
     lines += ["", "All numbers, with the accumulated histograms: `results.json`.", ""]
     return "\n".join(lines)

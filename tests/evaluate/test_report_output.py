@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -195,3 +196,31 @@ def test_the_points_sweep_lists_only_the_counts_it_reached(logs: dict[str, Path]
     assert "measurement noise --sigma 2 px" in markdown
     rows = [line for line in markdown.splitlines() if line[:2] == "| " and line[2].isdigit()]
     assert [int(row.split("|")[1]) for row in rows] == sorted(result.sweep)
+
+
+def test_the_uncertainty_figure_says_which_estimate_each_series_is(
+    logs: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # before: the log's stored estimate and evaluate's re-densifications (--sigma 2) were
+    # drawn as one "PCA-MAP", told apart only by the bare names stored/paper/exact
+    from matplotlib.figure import Figure
+
+    legends: dict[str, list[str]] = {}
+    save = Figure.savefig
+
+    def savefig(figure: Figure, name: Path, **kwargs: Any) -> None:
+        found = [axis.get_legend() for axis in figure.axes]
+        legends[Path(name).name] = [t.get_text() for f in found if f for t in f.get_texts()]
+        save(figure, name, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", savefig)
+    basis, _ = jobs.evaluation_basis(logs["dense"])
+    report = tmp_path / "report"
+    jobs.evaluate(logs["dense"], report, basis=basis, max_frames=2, sweep_every=0, linear=False)
+    labels = legends["uncertainty.png"]
+    assert "stored: the log's estimate and std" in labels
+    assert "exact: re-densified, --sigma 2" in labels
+    assert "paper: re-densified, --sigma 2: RMS error" in labels
+    assert "`stored` is the log's own estimate and std; `paper`, `exact`, `exact+residual` are" in (
+        (report / "results.md").read_text()
+    )
