@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.errors import LogReadError, PcaInterpError
+from pcainterp_stream.errors import LogReadError, PcaInterpError, TopicNotFoundError
 from pcainterp_stream.estimate.baselines import linear, nearest
 from pcainterp_stream.estimate.basis import BUILTIN_LABELS, IN_MEMORY, Basis, builtin_kind
 from pcainterp_stream.estimate.estimator import clean_measurements, densify
@@ -353,6 +353,22 @@ def _frames(
             yielded += 1
             if max_frames is not None and yielded >= max_frames:
                 return
+
+
+def _calibration_hint(path: Path, present: dict[str, Any], topics: OutputTopics) -> str:
+    """Explain a densified log whose input pair has no camera infos ("": it has some)."""
+    prefix = topics.camera_info.rsplit("/", 1)[0] + "/"
+    inputs = [t for t, i in present.items() if not t.startswith(prefix)]
+    if topics.camera_info not in present or any(
+        present[t].msgtype == rosmsg.CAMERA_INFO for t in inputs
+    ):
+        return ""
+    return (
+        f"no stereo pair with camera infos in {path}: its input images have none "
+        f"({topics.camera_info} is densify's output, the rectified left camera), so it was "
+        "densified with --calibration; pass evaluate the same --calibration LEFT.yaml "
+        "RIGHT.yaml files densify was given"
+    )
 
 
 def _missing_advice(
@@ -708,9 +724,15 @@ def evaluate_log(
         )
     images = PairImages(options.pairing)
     with open_log(path) as reader:
-        if options.pairing is not None:
-            images.resolve(reader, exclude_prefix=topics.depth.rsplit("/", 1)[0])
         present = reader.topics()
+        if options.pairing is not None:
+            try:
+                images.resolve(reader, exclude_prefix=topics.depth.rsplit("/", 1)[0])
+            except TopicNotFoundError as err:
+                if not str(err).startswith("no stereo pair found"):
+                    raise
+                hint = _calibration_hint(path, present, topics)
+                raise TopicNotFoundError(hint or str(err)) from None
         reference_topic = options.reference_topic
         if reference_topic is None and not options.sgbm_reference:
             sparse_only = GROUND_TRUTH_DEPTH not in present and LIDAR_DEPTH in present
