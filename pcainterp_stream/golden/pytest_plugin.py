@@ -89,7 +89,6 @@ class LogGolden:
         from pcainterp_stream.errors import GoldenError
         from pcainterp_stream.golden.comparison import format_differences
         from pcainterp_stream.golden.store import (
-            arrays_path,
             compare_documents,
             load_golden,
             save_golden,
@@ -111,9 +110,10 @@ class LogGolden:
             __tracebackhide__ = True
             try:
                 golden = load_golden(expected)
-                if golden.get("arrays_file") and not arrays_path(expected).exists():
+                name = golden.get("arrays_file")
+                if name and not (expected.parent / name).exists():
                     # the lazy data directory copied the JSON only
-                    shutil.copy2(arrays_path(source), arrays_path(expected))
+                    shutil.copy2(source.parent / name, expected.parent / name)
                 differences = compare_documents(golden, expected, load_golden(obtained), obtained)
             except GoldenError as err:  # an old format: --force-regen rewrites it
                 raise AssertionError(
