@@ -35,6 +35,7 @@ __all__ = [
     "arrays_path",
     "check_log",
     "compare_documents",
+    "describe_golden_file",
     "is_golden_arrays",
     "load_golden",
     "save_golden",
@@ -437,3 +438,51 @@ def check_log(
         )
         result.updated = True
     return result
+
+
+def describe_golden_file(path: str | Path) -> str | None:
+    """Return a few lines on a golden file or a golden arrays file (None: it is neither).
+
+    For ``pcainterp info``: a golden JSON (any format version) or an ``.npz`` that
+    :func:`is_golden_arrays` recognises; any other file, or a folder, gives None.
+    """
+    path = Path(path)
+    if not path.is_file():
+        return None
+    if is_golden_arrays(path):
+        with np.load(path) as data:
+            count = sum(1 for key in data.files if key != ARRAYS_MARKER)
+            owner = None
+            if ARRAYS_MARKER in data.files:
+                try:
+                    owner = json.loads(str(data[ARRAYS_MARKER])).get("golden")
+                except (ValueError, AttributeError):
+                    owner = None
+        of = f"the golden file {owner}" if owner else "a golden file"
+        return (
+            f"{path}: the arrays of {of} ({count} arrays, for its element-wise check), "
+            f"written by `pcainterp golden save --arrays`; not a basis. Check a log with "
+            f"`pcainterp golden check LOG {owner or 'GOLDEN.json'}`"
+        )
+    with path.open("rb") as stream:
+        if stream.read(1) != b"{":
+            return None
+    try:
+        document = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None
+    fmt = document.get("format") if isinstance(document, dict) else None
+    if not str(fmt).startswith(f"{FORMAT_NAME}/"):
+        return None
+    channels = document.get("channels")
+    channels = channels if isinstance(channels, dict) else {}
+    messages = sum(int(c.get("message_count", 0)) for c in channels.values())
+    arrays = document.get("arrays_file")
+    lines = [
+        f"{path}: pcainterp golden file ({fmt}, written by "
+        f"{document.get('created_by', 'an unknown version')} from {document.get('log', '?')})",
+        f"  channels: {len(channels)}, messages: {messages}",
+        f"  arrays: {arrays} (element-wise check)" if arrays else "  arrays: none (statistics)",
+        f"  check a log against it: pcainterp golden check LOG {path.name}",
+    ]
+    return "\n".join(lines)

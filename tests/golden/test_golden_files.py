@@ -136,3 +136,20 @@ def test_a_mirrored_depth_fails_a_stats_only_golden(log: Path, tmp_path: Path) -
     del document["tolerance"]["blocks"]
     golden.write_text(json.dumps(document))
     assert check_log(_write_log(tmp_path / "mirrored.mcap", mirror=True), golden).passed
+
+
+def test_info_names_golden_files(
+    log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    golden = tmp_path / "drive.golden.json"
+    save_golden(log, golden, arrays=True)
+    capsys.readouterr()
+    assert main(["info", str(tmp_path / "drive.golden.npz")]) == 0
+    out = capsys.readouterr().out
+    assert "the arrays of the golden file drive.golden.json" in out
+    assert "learn" not in out
+    assert main(["info", str(golden)]) == 0
+    out = capsys.readouterr().out
+    assert "pcainterp golden file (pcainterp-golden/2" in out
+    assert "from drive.mcap" in out
+    assert "arrays: drive.golden.npz" in out
