@@ -102,18 +102,36 @@ def is_golden_arrays(path: str | Path) -> bool:
     return bool(keys) and all(key[:1] == "a" and key[1:].isdigit() for key in keys)
 
 
+def _is_golden_json(path: Path) -> bool:
+    """Return True for a golden JSON of any format version (a file this package wrote)."""
+    try:
+        with path.open("rb") as stream:
+            if stream.read(1) != b"{":
+                return False
+        document = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+    fmt = document.get("format") if isinstance(document, dict) else None
+    return str(fmt).startswith(f"{FORMAT_NAME}/")
+
+
 def _check_writable(golden: Path, array_file: Path | None, log: Path) -> None:
     """Refuse to write over the log, or over an arrays path holding a file not ours.
 
     Raises:
-        GoldenError: ``golden`` or ``array_file`` is the log, or ``array_file`` exists and
-            is not a golden arrays file.
+        GoldenError: ``golden`` or ``array_file`` is the log, ``golden`` exists and is not
+            a golden file, or ``array_file`` exists and is not a golden arrays file.
     """
     for target in (golden, array_file):
         if target is not None and target.resolve() == log.resolve():
             raise GoldenError(
                 f"{target} is the log {log.name} itself; give the golden file another name"
             )
+    if golden.is_file() and not _is_golden_json(golden):
+        raise GoldenError(
+            f"{golden} exists and is not a golden file, so it is not overwritten; move it, "
+            "or give the golden file another name"
+        )
     if array_file is not None and array_file.exists() and not is_golden_arrays(array_file):
         raise GoldenError(
             f"{array_file} exists and is not a golden arrays file (a basis? a log?), so it "
@@ -265,8 +283,8 @@ def save_golden(
     Raises:
         LogReadError: the log is missing, not a log or damaged.
         TopicNotFoundError: a topic in ``topics`` is not in the log.
-        GoldenError: ``golden`` or its arrays file would overwrite the log, or the arrays
-            file exists and is not a golden arrays file (nothing is written).
+        GoldenError: ``golden`` or its arrays file would overwrite the log, or either
+            exists and is not a golden file of this package (nothing is written).
 
     Examples:
         >>> from pcainterp_stream.golden import save_golden, check_log
@@ -464,16 +482,10 @@ def describe_golden_file(path: str | Path) -> str | None:
             f"written by `pcainterp golden save --arrays`; not a basis. Check a log with "
             f"`pcainterp golden check LOG {owner or 'GOLDEN.json'}`"
         )
-    with path.open("rb") as stream:
-        if stream.read(1) != b"{":
-            return None
-    try:
-        document = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, ValueError):
+    if not _is_golden_json(path):
         return None
-    fmt = document.get("format") if isinstance(document, dict) else None
-    if not str(fmt).startswith(f"{FORMAT_NAME}/"):
-        return None
+    document = json.loads(path.read_text())
+    fmt = document["format"]
     channels = document.get("channels")
     channels = channels if isinstance(channels, dict) else {}
     messages = sum(int(c.get("message_count", 0)) for c in channels.values())

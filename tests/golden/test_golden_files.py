@@ -153,3 +153,19 @@ def test_info_names_golden_files(
     assert "pcainterp golden file (pcainterp-golden/2" in out
     assert "from drive.mcap" in out
     assert "arrays: drive.golden.npz" in out
+
+
+def test_a_file_not_ours_at_the_golden_path_is_refused(log: Path, tmp_path: Path) -> None:
+    for name in ("config.json", "kitti.npz"):
+        other = tmp_path / name
+        if name.endswith(".json"):
+            other.write_text('{"my": "settings"}')
+        else:
+            _basis(other)
+        before = other.read_bytes()
+        with pytest.raises(GoldenError, match=rf"{name} exists and is not a golden file"):
+            save_golden(log, other)
+        assert other.read_bytes() == before
+    golden = tmp_path / "drive.golden.json"
+    save_golden(log, golden)
+    save_golden(log, golden)  # its own file is rewritten
