@@ -36,8 +36,8 @@ DEFAULT_TOLERANCE: dict[str, Any] = {
         "values.abs; "
         "a DisparityImage's min_disparity and max_disparity (taken from its image) within "
         "the tolerance of that image's mean. "
-        "Point-cloud sizes (width, row_step): within point_count.rel plus point_count.abs "
-        "points. Stored arrays (--arrays): |actual - golden| <= pixels.atol + pixels.rtol * "
+        "Point-cloud sizes (width, row_step) and the lengths of its fields: within "
+        "point_count.rel plus point_count.abs points. Stored arrays (--arrays): |actual - golden| <= pixels.atol + pixels.rtol * "
         "|golden|, or where a channel <topic>_std is in the log (depth and its posterior std) "
         "<= pixels.std_atol * that std (for a depth beside a disparity std, /ns/depth with "
         "/ns/disparity_std: depth^2 / (f*b) * the disparity std, f*b from the depth "
@@ -272,6 +272,19 @@ class _Comparer:
         if abs(have - want) > allowed:
             add(name, f"{want} -> {have} (moved {have - want}, tolerance {allowed:g})")
 
+    def points(
+        self, want: Mapping[str, Any], have: Mapping[str, Any], tolerance: Mapping[str, Any]
+    ) -> bool:
+        """Return True for point-cloud fields of lengths within the point count's tolerance.
+
+        Their statistics are then compared as usual (the width already had its tolerance).
+        """
+        if not self.cloud or len(want["shape"]) != 1 or len(have["shape"]) != 1:
+            return False
+        limits = tolerance["point_count"]
+        count = int(want["shape"][0])
+        return abs(int(have["shape"][0]) - count) <= limits["rel"] * count + limits["abs"]
+
     def derived(
         self,
         add: Any,
@@ -326,7 +339,9 @@ class _Comparer:
         tolerance: Mapping[str, Any],
     ) -> None:
         for key in ("dtype", "shape"):
-            if want[key] != have[key]:
+            if want[key] != have[key] and not (
+                key == "shape" and self.points(want, have, tolerance)
+            ):
                 add(f"{name} {key}", f"{have[key]}, golden {want[key]}")
                 return
         size = math.prod(want["shape"])

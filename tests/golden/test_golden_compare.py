@@ -200,6 +200,14 @@ def test_a_point_cloud_may_move_as_many_points_as_it_may_lose() -> None:
     assert [d.what for d in differences] == ["points.y elements"]
     assert "40 of 200 beyond" in differences[0].text
     assert "(allowed 11)" in differences[0].text
+    # one corner more: the width is within its tolerance, so are the fields' lengths (the
+    # statistics of 201 points are compared as usual)
+    more = np.append(y, y[:1])
+    whats = {d.what for d in compare(golden, _cloud_document(more, "b0"))}
+    assert not whats & {"width", "row_step", "points.y shape"}
+    fewer = y[:150]
+    whats = {d.what for d in compare(golden, _cloud_document(fewer, "b0"))}
+    assert {"width", "points.y shape"} <= whats
 
 
 def _image_document(image: np.ndarray) -> dict[str, Any]:
