@@ -284,7 +284,8 @@ class _Comparer:
             return False
         limits = tolerance["point_count"]
         count = int(want["shape"][0])
-        return abs(int(have["shape"][0]) - count) <= limits["rel"] * count + limits["abs"]
+        allowed = float(limits["rel"]) * count + float(limits["abs"])
+        return abs(int(have["shape"][0]) - count) <= allowed
 
     def derived(
         self,
