@@ -93,9 +93,12 @@ def is_golden_arrays(path: str | Path) -> bool:
     marker) only keys ``a0``, ``a1``, ... A basis, a log or any other file is not one.
     """
     try:
+        with Path(path).open("rb") as stream:
+            if stream.read(4) != b"PK\x03\x04":  # an .npz is a zip; a .npy, a log are not
+                return False
         with np.load(path) as data:
             keys = list(data.files)
-    except (OSError, ValueError, EOFError):  # not a zip, or not an npz
+    except (OSError, ValueError, EOFError):  # not readable, or a zip that is not an npz
         return False
     if ARRAYS_MARKER in keys:
         return True

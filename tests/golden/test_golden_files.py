@@ -153,6 +153,9 @@ def test_info_names_golden_files(
     assert "pcainterp golden file (pcainterp-golden/2" in out
     assert "from drive.mcap" in out
     assert "arrays: drive.golden.npz" in out
+    np.save(tmp_path / "plain.npy", np.zeros(3))  # np.load gives an array, not an npz
+    assert main(["info", str(tmp_path / "plain.npy")]) == 2
+    assert "plain.npy is not a log" in capsys.readouterr().err
 
 
 def test_a_file_not_ours_at_the_golden_path_is_refused(log: Path, tmp_path: Path) -> None:
