@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 
 from pcainterp_stream.golden import array_statistics, compare, format_differences
 
@@ -246,3 +248,23 @@ def test_blocks_leave_out_nan_and_clip_inf() -> None:
     assert blocks["means"][0][0] is None
     assert blocks["means"][0][-1] == 10.0  # +inf counts as the 99 % quantile, not as inf
     json.dumps(blocks, allow_nan=False)
+
+
+ALOE = Path(__file__).resolve().parents[3] / "shared" / "realdata" / "stereo_aloe" / "aloe-L.png"
+
+
+@pytest.mark.realdata
+@pytest.mark.skipif(not ALOE.is_file(), reason="../shared/realdata is absent")
+def test_a_real_photo_swapped_or_mirrored_fails_its_noise_passes() -> None:
+    """Middlebury's Aloe (553x640 colour): what block means see on a real image."""
+    import cv2
+
+    rgb = np.ascontiguousarray(cv2.imread(str(ALOE))[:, :, ::-1])
+    golden = _image_document(rgb)
+    swapped = compare(golden, _image_document(np.ascontiguousarray(rgb[:, :, ::-1])))
+    assert [d.what for d in swapped] == ["image block means"]
+    mirrored = compare(golden, _image_document(np.ascontiguousarray(rgb[:, ::-1])))
+    assert [d.what for d in mirrored] == ["image block means"]
+    noisy = rgb.copy()
+    noisy[np.random.default_rng(0).random(rgb.shape[:2]) < 0.01] ^= 1
+    assert compare(golden, _image_document(noisy)) == []
