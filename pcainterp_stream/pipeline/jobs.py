@@ -446,6 +446,11 @@ def info(path: Path | None) -> str:
     if path is None:  # the built-in bases, each with what it was learned from
         kinds = [k for k in BUILTIN_KINDS if k == "street" or builtin_basis_installed(k)]
         return "\n\n".join(describe_basis(None, builtin=kind) for kind in kinds)
+    from pcainterp_stream.golden.store import describe_golden_file
+
+    golden = describe_golden_file(path)  # a golden file is neither a log nor a basis
+    if golden is not None:
+        return golden
     if path.suffix == ".npz":
         return describe_basis(path)
     if path.is_file():
