@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 import pytest
 from mcap.reader import make_reader
-from mcap.writer import Writer
+from mcap.writer import IndexType, Writer
 
 from pcainterp_stream import cli
 from pcainterp_stream.estimate.basis import Basis
@@ -106,6 +106,26 @@ def write_messages(path: Path, messages: list[Message]) -> Path:
     with open_writer(path, "mcap") as writer:
         for topic, message, log_time_ns in messages:
             writer.add_message(topic, message, log_time_ns)
+    return path
+
+
+def write_unindexed(path: Path, messages: list[Message]) -> Path:
+    """Write decoded messages as an MCAP without chunks or index: it is read in file order."""
+    with path.open("wb") as f:
+        writer = Writer(f, use_chunking=False, index_types=IndexType.NONE)
+        writer.start("ros2", "test")
+        schemas: dict[str, int] = {}
+        channels: dict[str, int] = {}
+        for topic, message, log_time_ns in messages:
+            msgtype = message.__msgtype__
+            if msgtype not in schemas:
+                text = rosmsg.schema_text(msgtype).encode()
+                schemas[msgtype] = writer.register_schema(msgtype, "ros2msg", text)
+            if topic not in channels:
+                channels[topic] = writer.register_channel(topic, "cdr", schemas[msgtype])
+            data = rosmsg.serialize(message)
+            writer.add_message(channels[topic], log_time_ns, data, log_time_ns)
+        writer.finish()
     return path
 
 
@@ -498,14 +518,16 @@ def test_densify_keeps_attachments_metadata_and_channels_without_messages(
     assert "damage" not in run.out
     attachments, metadata, topics = extras_of(out.read_bytes())
     assert attachments == [("robot.urdf", "application/xml", 1, 2, URDF)]  # before: []
-    assert metadata == [ROSBAG2_RECORD]  # before: []
+    assert metadata[0] == ROSBAG2_RECORD  # before: []
+    assert [name for name, _ in metadata[1:]] == ["pcainterp.densify"]  # what made it
     assert "/empty_topic" in topics  # before: missing
     assert "/pcainterp/depth" in topics
     for path in (log, out):  # before: info never named them
         text = pcainterp("info", path).out
         assert re.search(r"\n    /empty_topic +0  sensor_msgs/msg/", text)
         assert re.search(r"\n  attachments: 1\n    robot.urdf +20 bytes  application/xml\n", text)
-        assert "  metadata records: 1\n    rosbag2  2 keys\n" in text
+        assert "  metadata records: " in text
+        assert re.search(r"\n    rosbag2 +2 keys\n", text)
     assert "attachments" not in pcainterp("info", small_log).out
     # the log's other readers take it as it is: golden files and evaluate
     golden = tmp_path / "dense.golden.json"
@@ -528,7 +550,8 @@ def test_densify_through_pipes_keeps_attachments_and_metadata(
         densify(stream, output, basis_path)
     attachments, metadata, topics = extras_of(output.getvalue())
     assert attachments == [("robot.urdf", "application/xml", 1, 2, URDF)]
-    assert metadata == [ROSBAG2_RECORD]
+    assert metadata[0] == ROSBAG2_RECORD
+    assert [name for name, _ in metadata[1:]] == ["pcainterp.densify"]
     assert "/empty_topic" in topics
 
 
@@ -897,7 +920,7 @@ def test_densify_log_without_right_images(
     assert "no stereo pair found in" in line
     assert "mono.mcap" in line
     assert LEFT in line
-    assert "pass --left-topic and --right-topic" in line
+    assert "it has one camera" in line
     assert_nothing_written(out)
 
 
@@ -1439,13 +1462,67 @@ def test_densify_non_monotonic_stamps(
     per_frame = len(small_messages) // SMALL_FRAMES
     frames = [small_messages[i : i + per_frame] for i in range(0, len(small_messages), per_frame)]
     frames[3], frames[4] = frames[4], frames[3]  # frame 4 is written (and logged) before 3
-    log = write_messages(tmp_path / "swapped.mcap", [m for frame in frames for m in frame])
+    # without an index: read in file order (an indexed MCAP is read in log-time order)
+    log = write_unindexed(tmp_path / "swapped.mcap", [m for frame in frames for m in frame])
     run = pcainterp(*densify_args(log, out, basis_path))
     assert run.code == 0, run.err
     assert f"densified {SMALL_FRAMES} frames" in run.out
     assert "non-monotonic stamps" in run.out
     assert "non-monotonic log times" in run.out
     assert assert_valid_mcap(out)["/pcainterp/depth"] == SMALL_FRAMES
+
+
+def _topic_by_topic(small_messages: list[Message], copies: int) -> list[Message]:
+    """The small log ``copies`` times over, stored one topic after another, log times kept."""
+    span = small_messages[-1][2] - small_messages[0][2] + 100_000_000
+    messages = []
+    for copy in range(copies):
+        for topic, message, log_time_ns in small_messages:
+            stamp = rosmsg.stamp_ns(message) + copy * span
+            header = rosmsg.header(stamp, message.header.frame_id)
+            shifted = dataclasses.replace(message, header=header)
+            messages.append((topic, shifted, log_time_ns + copy * span))
+    return sorted(messages, key=lambda m: m[0])  # stable: each topic in time order
+
+
+def test_densify_reads_an_mcap_stored_topic_by_topic_in_log_time_order(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # a converter's order, in several chunks: the chunk index puts them back in time order
+    monkeypatch.setattr(logwriter, "MCAP_CHUNK_SIZE", 64 * 1024)
+    log = write_messages(tmp_path / "by_topic.mcap", _topic_by_topic(small_messages, 3))
+    run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err
+    assert f"pairing: {3 * SMALL_FRAMES} pairs, 0 unpaired left, 0 unpaired right\n" in run.out
+    assert "warning" not in run.out
+    assert assert_valid_mcap(out)["/pcainterp/depth"] == 3 * SMALL_FRAMES
+
+
+def test_densify_of_an_unindexed_log_out_of_time_order_says_what_it_cost(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+) -> None:
+    log = write_unindexed(tmp_path / "by_topic.mcap", _topic_by_topic(small_messages, 3))
+    run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err
+    pairing = next(line for line in run.out.splitlines() if line.startswith("pairing: "))
+    pairs = int(pairing.split()[1])
+    lost = 3 * SMALL_FRAMES - pairs
+    assert lost > 0
+    (warning,) = [line for line in run.out.splitlines() if "log-time order" in line]
+    assert warning.startswith("warning: by_topic.mcap: the log is not stored in log-time order")
+    assert f"this cost up to {lost} stereo pairs ({lost} left and {lost} right" in warning
+    assert "`mcap recover by_topic.mcap -o indexed.mcap`" in warning
+    assert "non-monotonic log times" in warning
+    assert run.out.count("non-monotonic log times") == 1  # replaces the plain warning
 
 
 def _late_infos(small_messages: list[Message]) -> list[Message]:
@@ -2074,11 +2151,11 @@ def test_info_on_realdata(pcainterp: Callable[..., Run], relative: str) -> None:
 
 
 REALDATA_DENSIFY = [
-    ("ros1/example.bag", "example.bag: it needs two cameras"),
+    ("ros1/example.bag", "example.bag: it has no camera images; pcainterp densifies logs"),
     ("ros1/no-messages.bag", "no stereo pair found"),
-    ("rosbag2/mcap/talker", "talker: it needs two cameras"),
+    ("rosbag2/mcap/talker", "talker: it has no camera images"),
     ("rosbag2/sqlite3/empty_bag", "no stereo pair found"),
-    ("mcap_conformance/TenMessages/TenMessages-ch-chx-mx.mcap", "image topics: none"),
+    ("mcap_conformance/TenMessages/TenMessages-ch-chx-mx.mcap", "it has no camera images"),
     ("mcap_conformance/NoData/NoData-st-sum.mcap", "no stereo pair found"),
     ("mcap_ros2/supported_ros2_messages.mcap", "image topics: /compressed_image, /image"),
     ("kitti_raw/2011_09_26/2011_09_26_drive_0001_sync", "pcainterp import-kitti"),
@@ -2452,3 +2529,91 @@ def test_learn_skips_blank_maps_and_refuses_a_log_of_them(
     assert f"training maps    {SMALL_FRAMES - 2} (SGBM)" in run.out
     if not workers:
         assert f"note: SGBM found no disparity above 0 in 2 of {SMALL_FRAMES} maps" in run.out
+
+
+def test_densified_log_says_which_version_and_options_made_it(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path
+) -> None:
+    from mcap.reader import make_reader
+
+    from pcainterp_stream.version import __version__
+
+    assert pcainterp(*densify_args(small_log, out, basis_path, "--corners", "150")).code == 0
+    with out.open("rb") as stream:
+        reader = make_reader(stream)
+        assert reader.get_header().library == f"pcainterp_stream {__version__}"
+        (record,) = [m for m in reader.iter_metadata() if m.name == "pcainterp.densify"]
+    assert record.metadata["version"] == __version__
+    processor = json.loads(record.metadata["processor"])
+    assert processor["gftt"]["max_corners"] == 150
+    assert json.loads(record.metadata["pairing"])["left_topic"] == LEFT
+
+
+def test_learn_refuses_a_log_given_twice(
+    pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path
+) -> None:
+    link = tmp_path / "link.mcap"
+    link.symlink_to(small_log)
+    line = pcainterp("learn", small_log, link, "-o", tmp_path / "b.npz").error_line()
+    assert line.endswith(
+        "link.mcap is " + str(small_log) + " again: its maps would count twice; pass each log once"
+    )
+    assert_nothing_written(tmp_path / "b.npz")
+
+
+def test_synth_refuses_a_platform_for_a_street_drive(
+    pcainterp: Callable[..., Run], tmp_path: Path
+) -> None:
+    line = pcainterp("synth", tmp_path / "s.mcap", "--platform", "drone").error_line()
+    assert "--platform drone carries the camera of an indoor scene" in line
+    assert "add --scene indoor or drop --platform" in line
+    assert_nothing_written(tmp_path / "s.mcap")
+
+
+@pytest.mark.parametrize(
+    ("offset_ns", "fix"),
+    [
+        (
+            33_100_000,
+            "33.10-33.10 ms away, beyond the 1 ms tolerance; pass --stamp-tolerance-ms 34",
+        ),
+        (-1_000_000_000_000, "s before the nearest left ones: the two cameras stamp with"),
+    ],
+)
+def test_densify_without_a_pair_names_the_stamp_offset(
+    pcainterp: Callable[..., Run],
+    small_log: Path,
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+    offset_ns: int,
+    fix: str,
+) -> None:
+    def change(topic: str, message: Any, _: int) -> Any:  # an unsynchronised right camera
+        if topic not in (RIGHT, RIGHT_INFO):
+            return message
+        stamp = rosmsg.stamp_ns(message) + offset_ns
+        return dataclasses.replace(message, header=rosmsg.header(stamp, message.header.frame_id))
+
+    log = rewrite(small_log, tmp_path / "offset.mcap", change)
+    line = pcainterp(*densify_args(log, out, basis_path)).error_line()
+    assert "no stereo pair found in" in line
+    assert fix in line
+    assert_nothing_written(out)
+
+
+def test_densify_a_log_of_one_camera_says_so(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+) -> None:
+    mono = write_messages(
+        tmp_path / "mono.mcap", [m for m in small_messages if "/right/" not in m[0]]
+    )
+    line = pcainterp(*densify_args(mono, out, basis_path)).error_line()
+    assert line.endswith(
+        f"it has one camera ({LEFT}); pcainterp needs a stereo pair, two cameras side by side"
+    )
+    assert_nothing_written(out)

@@ -297,3 +297,37 @@ def test_compressed_raw_images_are_found_and_rectified(
     assert len(maps["compressed"]) == 3
     for a, b in zip(maps["raw"], maps["compressed"], strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def test_evaluate_of_a_log_densified_with_calibration_files_asks_for_them(
+    capsys: pytest.CaptureFixture[str], raw_bag: Path, tmp_path: Path
+) -> None:
+    # before: "no stereo pair found ...; camera infos: none; pass --left-topic and
+    # --right-topic ..." beside the log's /pcainterp/camera_info
+    from tests.io.test_calibration import write_camera_info_yaml
+
+    bare = tmp_path / "bare.mcap"
+    with open_log(raw_bag) as reader, open_writer(bare, None) as writer:
+        for raw in reader.messages():
+            if not raw.topic.endswith("camera_info"):
+                writer.add_raw(raw)
+    drive = RawDrive(SynthConfig(seed=2, frames=3, scale=0.25), "plumb_bob")
+    left, right = write_camera_info_yaml(drive.calibration, tmp_path)
+    dense = tmp_path / "dense.mcap"
+    code, _, err = _run(capsys, "densify", bare, "-o", dense, "--calibration", left, right)
+    assert code == 0, err
+    fast = ["--no-basis", "--no-linear", "--mode", "stereo"]
+    code, _, err = _run(capsys, "evaluate", dense, "-o", tmp_path / "report", *fast)
+    assert code == 2
+    assert err.splitlines() == [
+        f"pcainterp: error: no stereo pair with camera infos in {dense}: its input images have "
+        "none (/pcainterp/camera_info is densify's output, the rectified left camera), so it was "
+        "densified with --calibration; pass evaluate the same --calibration LEFT.yaml "
+        "RIGHT.yaml files densify was given"
+    ]
+    report = tmp_path / "report"
+    code, _, err = _run(
+        capsys, "evaluate", dense, "-o", report, *fast, "--calibration", left, right
+    )
+    assert code == 0, err
+    assert (report / "results.json").is_file()

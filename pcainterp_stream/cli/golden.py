@@ -63,8 +63,8 @@ def add_parser(commands: Commands) -> None:
     save.add_argument(
         "--arrays",
         action="store_true",
-        help="also store every array (compressed .npz beside the JSON) for an element-wise "
-        "check with atol/rtol (depth: in units of its published std)",
+        help="also store every array (compressed <stem>.golden.npz beside the JSON) for an "
+        "element-wise check with atol/rtol (depth: in units of its published std)",
     )
     save.add_argument(
         "--topics", nargs="+", default=None, metavar="TOPIC", help="record only these channels"

@@ -13,7 +13,7 @@ def add_parser(commands: Commands) -> None:
     info = commands.add_parser(
         "info",
         formatter_class=formatter,
-        help="describe a log (topics, counts, duration) or a basis file",
+        help="describe a log (topics, counts, duration), a basis file or a golden file",
         description=(
             "Describe a log (its topics with their message counts and types, start, end and\n"
             "duration, and an MCAP log's attachments and metadata records) or a basis file\n"
@@ -31,7 +31,8 @@ def add_parser(commands: Commands) -> None:
         nargs="?",
         default=None,
         metavar="FILE",
-        help="a log (MCAP, ROS 1 bag, ROS 2 bag) or a basis .npz (default: the built-in bases)",
+        help="a log (MCAP, ROS 1 bag, ROS 2 bag), a basis .npz or a golden file (default: the "
+        "built-in bases)",
     )
 
 

@@ -14,6 +14,7 @@ from pcainterp_stream.cli.common import (
     formatter,
     gftt_config,
     refuse_overwrites,
+    same_file,
     sgbm_config,
 )
 from pcainterp_stream.cli.pairing import add_topic_options, pairing_config
@@ -240,6 +241,12 @@ def _check_paths(args: argparse.Namespace) -> None:
     for log in args.fit_logs:
         if not log.exists():
             raise LogReadError(f"--fit-logs log {log} does not exist; pass an existing log")
+    for index, log in enumerate(args.logs):
+        twin = next((other for other in args.logs[:index] if same_file(other, log)), None)
+        if twin is not None:
+            raise LogReadError(
+                f"{log} is {twin} again: its maps would count twice; pass each log once"
+            )
     reads: list[tuple[str, Path | None]] = [("the input", log) for log in args.logs]
     reads.extend(("the --fit-logs log", log) for log in args.fit_logs)
     reads.extend(("the --calibration file", path) for path in args.calibration or ())

@@ -18,6 +18,16 @@ from pcainterp_stream.evaluate.metrics import DELTA_2D_EDGES, DEPTH_EDGES, STD_E
 from pcainterp_stream.evaluate.reference import SPARSE_BELOW
 from pcainterp_stream.evaluate.results import Evaluation, Example
 
+FIGURE_NAMES: tuple[str, ...] = (
+    "errors.png",
+    "uncertainty.png",
+    "sweep.png",
+    "examples.png",
+    "basis.png",
+    "variance.png",
+)
+"""Every figure a report may hold (those without data are not written)."""
+
 
 def _bar_chart(axis: Any, labels: list[str], series: dict[str, list[float]], ylabel: str) -> None:
     width = 0.8 / max(len(series), 1)
@@ -27,6 +37,17 @@ def _bar_chart(axis: Any, labels: list[str], series: dict[str, list[float]], yla
     axis.set_xticks(positions, labels, rotation=30, fontsize=7)
     axis.set_ylabel(ylabel)
     axis.legend(fontsize=7)
+
+
+def uncertainty_label(name: str, sigma: float) -> str:
+    """Return the legend label of an uncertainty series: the log's or a re-densification's.
+
+    >>> uncertainty_label("stored", 2.0), uncertainty_label("exact", 2.0)
+    ("stored: the log's estimate and std", 'exact: re-densified, --sigma 2')
+    """
+    if name == "stored":
+        return "stored: the log's estimate and std"
+    return f"{name}: re-densified, --sigma {sigma:g}"
 
 
 def _bin_labels(edges: tuple[float, ...], unit: str) -> list[str]:
@@ -64,6 +85,7 @@ def write_figures(
     names: list[str] = []
 
     def save(figure: Any, name: str) -> None:
+        assert name in FIGURE_NAMES
         figure.tight_layout()
         figure.savefig(folder / name, dpi=90)
         plt.close(figure)
@@ -104,16 +126,21 @@ def write_figures(
     _bar_chart(
         axes[0],
         std_labels,
-        {n: _ratio(c.by_std_2d, c.by_std_count) for n, c in result.calibration.items()},
+        {
+            uncertainty_label(n, result.sigma): _ratio(c.by_std_2d, c.by_std_count)
+            for n, c in result.calibration.items()
+        },
         "mean Delta_2D (px)",
     )
-    axes[0].set_title("PCA-MAP Delta_2D by predicted disparity std (px)")
+    # the stored series is the log's own estimate; the others evaluate's re-densifications
+    axes[0].set_title("PCA-MAP Delta_2D by predicted disparity std (px)", fontsize=9)
     for name, calibration in result.calibration.items():
         counts = np.asarray(calibration.by_std_count)
         rms = np.where(
             counts > 0, np.sqrt(_ratio(calibration.by_std_sq, calibration.by_std_count)), np.nan
         )  # empty bins are gaps, not zeros on the log axis
-        axes[1].plot(std_labels, rms, marker="o", label=f"{name}: RMS error")
+        label = uncertainty_label(name, result.sigma)
+        axes[1].plot(std_labels, rms, marker="o", label=f"{label}: RMS error")
     centres = [0.25, 0.75, 1.5, 3.0, 6.0, 12.0]
     axes[1].plot(std_labels, centres, "k--", label="calibrated (bin centre)")
     axes[1].set_yscale("log")

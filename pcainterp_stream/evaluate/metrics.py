@@ -687,9 +687,7 @@ class CalibrationStats:
     """
 
     sums: dict[str, float] = field(
-        default_factory=lambda: dict.fromkeys(
-            ("n", "inside_1", "inside_2", "nll", "certain"), 0.0
-        )
+        default_factory=lambda: dict.fromkeys(("n", "inside_1", "inside_2", "nll", "certain"), 0.0)
     )
     by_std_count: list[float] = field(default_factory=lambda: _zeros(STD_EDGES))
     by_std_2d: list[float] = field(default_factory=lambda: _zeros(STD_EDGES))

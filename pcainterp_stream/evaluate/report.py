@@ -17,11 +17,10 @@ the re-densification with the basis (uncertainty kinds, oracle, points sweep);
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import time
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,10 +28,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.errors import LogReadError, PcaInterpError
+from pcainterp_stream.errors import LogReadError, PcaInterpError, TopicNotFoundError
 from pcainterp_stream.estimate.baselines import linear, nearest
 from pcainterp_stream.estimate.basis import BUILTIN_LABELS, IN_MEMORY, Basis, builtin_kind
-from pcainterp_stream.estimate.estimator import densify
+from pcainterp_stream.estimate.estimator import clean_measurements, densify
 from pcainterp_stream.evaluate.figures import write_figures
 from pcainterp_stream.evaluate.metrics import (
     SWEEP_POINTS,
@@ -54,6 +53,11 @@ from pcainterp_stream.evaluate.reference import (
     ReferenceTopic,
     reference_disparity,
     resolve_reference,
+)
+from pcainterp_stream.evaluate.report_folder import (
+    check_report_folder,
+    report_json,
+    write_report_folder,
 )
 from pcainterp_stream.evaluate.results import (
     PCA_ON_SGBM,
@@ -122,6 +126,10 @@ PENDING_FRAMES = 32
 """Stamps whose channels are gathered at once (and right images and reference messages
 kept): densify writes a frame's outputs up to its look-ahead, the densify thread's queue and
 the output encoders' frames (~20 at the fit check's warm-up) after the frame's input images."""
+
+MIN_MEASUREMENTS = 1
+"""A frame is scored only with at least this many finite measurements inside the image:
+nearest neighbour and linear interpolation of none are undefined (NaN everywhere)."""
 
 REFERENCE_BUFFER = PENDING_FRAMES
 """Reference messages kept (by stamp) for frames not yet complete."""
@@ -263,11 +271,10 @@ def _frames(
         needed = [where.estimate, where.std, topics.features, topics.camera_info]
         missing, hint = missing_outputs(present, topics, [*needed, left_image])
         if missing:
-            advice = hint or (
-                "; evaluate needs a log written by `pcainterp densify` (with the input's "
-                "stereo images)"
+            raise LogReadError(
+                f"{path} has no {', '.join(missing)}"
+                f"{hint or _missing_advice(present, topics, missing, left_image)}"
             )
-            raise LogReadError(f"{path} has no {', '.join(missing)}{advice}")
         truth = [] if reference is not None else [GROUND_TRUTH_DEPTH]
         optional = [t for t in (*truth, GROUND_TRUTH_POSE) if t in present]
         grouped = [*needed, left_image, *optional]
@@ -346,6 +353,41 @@ def _frames(
             yielded += 1
             if max_frames is not None and yielded >= max_frames:
                 return
+
+
+def _calibration_hint(path: Path, present: dict[str, Any], topics: OutputTopics) -> str:
+    """Explain a densified log whose input pair has no camera infos ("": it has some)."""
+    prefix = topics.camera_info.rsplit("/", 1)[0] + "/"
+    inputs = [t for t, i in present.items() if not t.startswith(prefix)]
+    if topics.camera_info not in present or any(
+        present[t].msgtype == rosmsg.CAMERA_INFO for t in inputs
+    ):
+        return ""
+    return (
+        f"no stereo pair with camera infos in {path}: its input images have none "
+        f"({topics.camera_info} is densify's output, the rectified left camera), so it was "
+        "densified with --calibration; pass evaluate the same --calibration LEFT.yaml "
+        "RIGHT.yaml files densify was given"
+    )
+
+
+def _missing_advice(
+    present: Iterable[str], topics: OutputTopics, missing: list[str], left_image: str
+) -> str:
+    """Say how to get a log evaluate can read: densify it, or densify it with more outputs."""
+    outputs = [topics.depth, topics.disparity, topics.depth_std, topics.disparity_std]
+    outputs.append(topics.features)
+    written = [topic for topic in (*outputs, topics.camera_info) if topic in present]
+    if not written or missing == [left_image]:
+        return (
+            "; evaluate needs a log written by `pcainterp densify` (with the input's stereo images)"
+        )
+    names = [topic.rsplit("/", 1)[1] for topic in written]
+    return (
+        f"; densify wrote only {', '.join(names)} into it (`pcainterp densify --outputs`): "
+        "evaluate needs depth or disparity, disparity_std, features and camera_info; densify "
+        "again with --outputs depth,disparity_std,features,camera_info (or without --outputs)"
+    )
 
 
 def _frame(
@@ -477,8 +519,17 @@ class _Evaluator:
         *,
         baselines: bool = False,
     ) -> None:
-        """Score one frame against its reference (``baselines``: with the stereo ones)."""
+        """Score one frame against its reference (``baselines``: with the stereo ones).
+
+        A frame with fewer than :data:`MIN_MEASUREMENTS` usable measurements is left out of
+        every method (nearest and linear have nothing to interpolate, PCA-MAP gives the
+        prior's mean alone) and only counted in ``result.no_measurement``.
+        """
         camera, size = frame.camera, frame.camera.image_size
+        usable, _, _ = clean_measurements(frame.pixels, frame.disparities, size)
+        if usable.shape[0] < MIN_MEASUREMENTS:
+            self.result.no_measurement.append(frame.index)
+            return
         view = reference_view(reference, camera, transform)
         sgbm_valid = np.isfinite(stereo.disparity) if baselines and stereo else None
         delta = self._stats("pca_map").add(frame.estimate, view, camera, transform)
@@ -602,7 +653,11 @@ class _Evaluator:
             min_x=self.options.sgbm.valid_min_x,
         )
         found = lookup_disparities(stereo.disparity, corners)
+        self.result.sweep_corners.append(int(found.pixels.shape[0]))
         for points in SWEEP_POINTS:
+            if points > found.pixels.shape[0]:  # fewer corners: the count was not reached
+                break
+            self.result.sweep_reached[points] = self.result.sweep_reached.get(points, 0) + 1
             pixels = found.pixels[:points].astype(np.float64)
             values = found.disparities[:points].astype(np.float64)
             methods = self.result.sweep.setdefault(points, {})
@@ -669,9 +724,15 @@ def evaluate_log(
         )
     images = PairImages(options.pairing)
     with open_log(path) as reader:
-        if options.pairing is not None:
-            images.resolve(reader, exclude_prefix=topics.depth.rsplit("/", 1)[0])
         present = reader.topics()
+        if options.pairing is not None:
+            try:
+                images.resolve(reader, exclude_prefix=topics.depth.rsplit("/", 1)[0])
+            except TopicNotFoundError as err:
+                if not str(err).startswith("no stereo pair found"):
+                    raise
+                hint = _calibration_hint(path, present, topics)
+                raise TopicNotFoundError(hint or str(err)) from None
         reference_topic = options.reference_topic
         if reference_topic is None and not options.sgbm_reference:
             sparse_only = GROUND_TRUTH_DEPTH not in present and LIDAR_DEPTH in present
@@ -700,6 +761,7 @@ def evaluate_log(
         reference=(reference.topic if reference else "ground truth" if has_truth else "SGBM"),
         basis_note=options.basis_note,
         reference_kind=str(reference.kind) if reference else "",
+        sigma=options.sigma,
     )
     if not has_right:
         result.stereo_note = f"skipped, the log has no {images.right_topic}"
@@ -777,6 +839,8 @@ def evaluate_log(
         )
     if result.frames == 0:
         without = f", {result.skipped} without a {reference.topic} message" if reference else ""
+        if result.no_measurement:
+            without += f", {len(result.no_measurement)} without a measurement"
         raise LogReadError(
             f"no frame of {path} could be evaluated ({read} densified frames read{without}; "
             "temporal mode needs two)"
@@ -798,27 +862,26 @@ def write_report(
 
     Args:
         path: a log written by ``pcainterp densify``.
-        folder: the report folder (created).
+        folder: the report folder: new, empty or an earlier report's (replaced as a whole,
+            once the report is complete).
         options: evaluation options.
         topics: output topic names.
         progress: called with the number of frames read so far.
 
     Returns:
         The :class:`Evaluation`.
+
+    Raises:
+        PcaInterpError: the folder holds files a report does not write, or cannot be written.
     """
     options = options or EvaluateOptions()
-    if not folder.parent.is_dir():
-        raise PcaInterpError(
-            f"cannot write the report to {folder}: folder {folder.parent} does not exist"
-        )
-    if folder.exists() and not folder.is_dir():
-        raise PcaInterpError(
-            f"cannot write the report to {folder}: it is a file, the report is a folder; "
-            "pass a folder path"
-        )
+    check_report_folder(folder)  # before the log is evaluated: a refusal costs nothing
     result, examples = evaluate_log(path, options, topics=topics, progress=progress)
-    folder.mkdir(exist_ok=True)  # only now: a log that cannot be evaluated leaves nothing
-    figures = write_figures(result, examples, folder, _load_basis(options))
-    (folder / "results.json").write_text(json.dumps(result.summary(), indent=1) + "\n")
-    (folder / "results.md").write_text(results_markdown(result, figures))
+
+    def write(staging: Path) -> None:
+        figures = write_figures(result, examples, staging, _load_basis(options))
+        (staging / "results.json").write_text(report_json(result.summary()))
+        (staging / "results.md").write_text(results_markdown(result, figures))
+
+    write_report_folder(folder, write)  # only now: a log that cannot be evaluated leaves nothing
     return result

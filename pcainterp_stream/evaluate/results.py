@@ -36,6 +36,9 @@ uncertainty) lies in this range."""
 TARGET_SGBM_NN_RATIO = 0.85
 """Dense-mode target: PCA-MAP's mean Delta_2D at most this times ``sgbm_nn``'s."""
 
+NAMED_FRAMES = 10
+"""Frames named in a note (the rest are counted)."""
+
 SGBM = "sgbm"
 """Stereo baseline: SGBM's own full-resolution map, scored where it has a value."""
 SGBM_NN = "sgbm_nn"
@@ -116,6 +119,10 @@ class Evaluation:
         calibration: per uncertainty kind (stored, paper, exact) its calibration.
         sweep: per number of points, per method, its accumulated errors.
         sweep_frames: frames in the sweep.
+        sweep_reached: per number of points, the sweep frames that had that many corners
+            with a disparity (a count no frame reached has no row).
+        sweep_corners: corners with a disparity found on each sweep frame.
+        sigma: measurement noise std (px) of evaluate's re-densifications.
         points_per_frame: mean sparse points per frame.
         basis: description of the basis (None without one).
         basis_note: how the basis was chosen, or why there is none.
@@ -132,6 +139,8 @@ class Evaluation:
         measurements: the ``pcainterp.measurements`` channel metadata of the densified log
             (``dense`` or ``sparse``), None when the log records none.
         damage: damage found reading the log (a truncated file), one line each.
+        no_measurement: indices (from 0, in log order) of the frames left out of every
+            method because they had no measurement (black, dark or textureless images).
     """
 
     log: str
@@ -143,6 +152,9 @@ class Evaluation:
     calibration: dict[str, CalibrationStats] = field(default_factory=dict)
     sweep: dict[int, dict[str, MethodStats]] = field(default_factory=dict)
     sweep_frames: int = 0
+    sweep_reached: dict[int, int] = field(default_factory=dict)
+    sweep_corners: list[int] = field(default_factory=list)
+    sigma: float = 2.0
     points_per_frame: float = 0.0
     basis: dict[str, Any] | None = None
     basis_note: str = ""
@@ -157,6 +169,7 @@ class Evaluation:
     stereo_counted: float = 0.0
     measurements: str | None = None
     damage: list[str] = field(default_factory=list)
+    no_measurement: list[int] = field(default_factory=list)
 
     @property
     def reference_fraction(self) -> float:
@@ -189,6 +202,7 @@ class Evaluation:
             "skipped_no_reference": self.skipped,
             "measurements": self.measurements,
             "damage": self.damage,
+            "left_out_no_measurement": list(self.no_measurement),
             "frames": self.frames,
             "image_size": list(self.image_size),
             "points_per_frame": self.points_per_frame,
@@ -210,11 +224,29 @@ class Evaluation:
                 "accumulated": dataclasses.asdict(self.ranges),
             },
             "sweep_frames": self.sweep_frames,
+            "sweep_frames_reached": {str(p): n for p, n in self.sweep_reached.items()},
+            "sweep_corners": list(self.sweep_corners),
+            "sigma_px": self.sigma,
             "sweep": {
                 str(points): {name: stats.summary() for name, stats in methods.items()}
                 for points, methods in self.sweep.items()
             },
         }
+
+    @property
+    def no_measurement_note(self) -> str:
+        """Return the sentence naming the frames left out for want of a measurement ("": none)."""
+        count = len(self.no_measurement)
+        if not count:
+            return ""
+        shown = ", ".join(str(index) for index in self.no_measurement[:NAMED_FRAMES])
+        more = f" and {count - NAMED_FRAMES} more" if count > NAMED_FRAMES else ""
+        return (
+            f"{count} {'frame' if count == 1 else 'frames'} left out of every method: no "
+            f"measurement there (black, dark or textureless images), so nearest and linear "
+            f"have nothing to interpolate and densify wrote the prior's mean "
+            f"({'frame' if count == 1 else 'frames'} {shown}{more}, counted from 0)"
+        )
 
     def ratio(self) -> float | None:
         """Return PCA-MAP's mean Delta_2D divided by nearest neighbour's (None: undefined)."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from pcainterp_stream.evaluate.metrics import CalibrationStats, MethodStats
+from pcainterp_stream.evaluate.metrics import SWEEP_POINTS, CalibrationStats, MethodStats
 from pcainterp_stream.evaluate.results import (
     PCA_ON_SGBM,
     SGBM,
@@ -86,6 +86,8 @@ def summary_table(result: Evaluation) -> str:
         lines.append(
             f"{result.skipped} frames skipped: no {result.reference} message with their stamp"
         )
+    if result.no_measurement:
+        lines.append(result.no_measurement_note)
     lines += [f"damage: {line}; only the frames read before it count" for line in result.damage]
     if result.measurements:
         lines.append(f"measurements of the densified log: {result.measurements}")
@@ -176,6 +178,42 @@ def _targets(result: Evaluation) -> list[str]:
     return lines
 
 
+def _sweep_lines(result: Evaluation) -> list[str]:
+    """The points sweep's section: what it measures, and a row per count some frame reached."""
+    frames = result.sweep_frames
+    corners = result.sweep_corners or [0]
+    found = f"{min(corners)}" if min(corners) == max(corners) else f"{min(corners)}-{max(corners)}"
+    lines = [
+        f"## Error against the number of points ({frames} {'frame' if frames == 1 else 'frames'})",
+        "",
+        "On the frames --sweep-every picks, the sweep re-densifies from the N strongest "
+        "Shi-Tomasi corners with SGBM's disparity (corners only, none of densify's lattice "
+        "points) with the paper's estimator (the basis's prior, measurement noise --sigma "
+        f"{result.sigma:g} px) and interpolates the same points with nearest and linear: it "
+        "measures the methods against the number of points, not the log's stored estimate, "
+        "so its errors are not the table's above. "
+        + (
+            f"The frame had {found} corners with a disparity; larger counts have no row."
+            if frames == 1
+            else f"The frames had {found} corners with a disparity; a count is scored on the "
+            "frames that had as many (frames column)."
+        ),
+        "",
+        "| points | frames | PCA-MAP D2D px | nearest D2D px | linear D2D px | PCA/NN |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    if not result.sweep:
+        return [*lines[:-2], f"No frame had {SWEEP_POINTS[0]} corners: no row.", ""]
+    for points, methods in sorted(result.sweep.items()):
+        means = {name: stats.summary()["delta_2d_mean"] for name, stats in methods.items()}
+        ratio = _number(mean_ratio(methods["pca_map"], methods["nearest"]), 2)
+        lines.append(
+            f"| {points} | {result.sweep_reached.get(points, 0)} | {means['pca_map']:.3f} | "
+            f"{means['nearest']:.3f} | {means['linear']:.3f} | {ratio} |"
+        )
+    return [*lines, ""]
+
+
 def results_markdown(result: Evaluation, figures: list[str]) -> str:
     """Return ``results.md`` of a report folder."""
     skipped = (
@@ -183,6 +221,8 @@ def results_markdown(result: Evaluation, figures: list[str]) -> str:
         if result.skipped
         else ""
     )
+    if result.no_measurement:
+        skipped += f" {result.no_measurement_note[0].upper()}{result.no_measurement_note[1:]}."
     lines = [
         f"# Evaluation of `{Path(result.log).name}`",
         "",
@@ -210,21 +250,8 @@ def results_markdown(result: Evaluation, figures: list[str]) -> str:
         *_targets(result),
         "",
     ]
-    if result.sweep:
-        lines += [
-            f"## Error against the number of points ({result.sweep_frames} frames)",
-            "",
-            "| points | PCA-MAP D2D px | nearest D2D px | linear D2D px | PCA/NN |",
-            "| --- | --- | --- | --- | --- |",
-        ]
-        for points, methods in sorted(result.sweep.items()):
-            means = {name: stats.summary()["delta_2d_mean"] for name, stats in methods.items()}
-            ratio = _number(mean_ratio(methods["pca_map"], methods["nearest"]), 2)
-            lines.append(
-                f"| {points} | {means['pca_map']:.3f} | {means['nearest']:.3f} | "
-                f"{means['linear']:.3f} | {ratio} |"
-            )
-        lines.append("")
+    if result.sweep or result.sweep_frames:
+        lines += _sweep_lines(result)
     if result.basis is not None:
         b = result.basis
         lines += [
@@ -234,5 +261,12 @@ def results_markdown(result: Evaluation, figures: list[str]) -> str:
             "",
         ]
     lines += ["## Figures", ""] + [f"![{name}]({name})" for name in figures]
+    if "uncertainty.png" in figures and set(result.calibration) - {"stored"}:
+        lines += [
+            "",
+            "In `uncertainty.png`, `stored` is the log's own estimate and std; "
+            f"{', '.join(f'`{n}`' for n in result.calibration if n != 'stored')} are evaluate's "
+            f"re-densifications of the same points with the basis at --sigma {result.sigma:g} px.",
+        ]
     lines += ["", "All numbers, with the accumulated histograms: `results.json`.", ""]
     return "\n".join(lines)

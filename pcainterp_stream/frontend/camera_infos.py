@@ -15,6 +15,7 @@ import numpy as np
 
 from pcainterp_stream.errors import CalibrationError, LogReadError
 from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.camera_model import image_projection, uncalibrated
 from pcainterp_stream.io.reader_base import LogReader
 from pcainterp_stream.records import StereoCamera
 
@@ -33,18 +34,25 @@ def camera_from_infos(
 ) -> StereoCamera:
     """Build the stereo calibration from the two rectified ``CameraInfo`` messages.
 
+    P is read as ``image_geometry`` reads it: the full-resolution camera's, moved by the
+    ROI and divided by the binning the images were taken with (:func:`image_projection`),
+    so the camera describes the images as they are. The baseline is
+    (P_left[0, 3] - P_right[0, 3]) / fx: ROS writes Tx = 0 on the left, but a pair
+    calibrated against a third camera (KITTI's colour cameras through kitti2bag) has a
+    left Tx too.
+
     Args:
         left_info: left ``CameraInfo`` (ROS 1 ``P`` or ROS 2 ``p``).
-        right_info: right ``CameraInfo``; its P[0, 3] = -fx * baseline.
+        right_info: right ``CameraInfo``; its P[0, 3] = -fx * baseline (+ the left's).
         width: the images' width (px); an info for another size is refused.
         height: their height (px).
         left_topic: topic name used in error messages.
         right_topic: topic name used in error messages.
-        baseline: override (m); when given the right P[0, 3] is not used.
+        baseline: override (m); when given the P[0, 3] are not used.
 
     Raises:
-        CalibrationError: an info for another image size, fx or fy not positive, or no
-            positive baseline from the right P and no override.
+        CalibrationError: an info for another image size, an uncalibrated (all-zero) P, fx
+            or fy not positive, or no positive baseline from the P and no override.
     """
     for info, topic in ((left_info, left_topic), (right_info, right_topic)):
         size = rosmsg.imaged_size(info)
@@ -54,8 +62,16 @@ def camera_from_infos(
                 f"{width}x{height}: its K and P would be off by the scale; record the images "
                 "with their own camera info (or its roi / binning)"
             )
-    p_left = rosmsg.projection_matrix(left_info)
-    p_right = rosmsg.projection_matrix(right_info)
+    p_left = image_projection(left_info)
+    p_right = image_projection(right_info)
+    used = [(left_info, p_left, left_topic)]
+    if baseline is None:
+        used.append((right_info, p_right, right_topic))
+    for info, p, topic in used:  # all zeros: ROS's "not calibrated"
+        if np.isfinite(p).all() and not np.any(p[:, :3]):
+            k = getattr(info, "k", getattr(info, "K", None))
+            zeros = "K and P" if k is not None and not np.any(k) else "P"
+            raise CalibrationError(uncalibrated(f"camera info on {topic}", zeros))
     fx, fy, cx, cy = p_left[0, 0], p_left[1, 1], p_left[0, 2], p_left[1, 2]
     if not (np.isfinite(p_left).all() and fx > 0 and fy > 0):
         raise CalibrationError(
@@ -69,12 +85,13 @@ def camera_from_infos(
                 "calibration or pass --baseline"
             )
         with np.errstate(over="ignore"):  # a damaged tiny fx overflows: caught below
-            baseline = float(-p_right[0, 3] / p_right[0, 0])
+            baseline = float((p_left[0, 3] - p_right[0, 3]) / p_right[0, 0])
         if not (baseline > 0 and np.isfinite(baseline)):
+            left_tx = f", left P[0,3] = {p_left[0, 3]}" if p_left[0, 3] else ""
             raise CalibrationError(
                 f"camera info on {right_topic} gives no baseline (P[0,3] = {p_right[0, 3]}, "
-                f"fx = {p_right[0, 0]}; expected -fx * baseline < 0, finite); pass --baseline "
-                "METRES"
+                f"fx = {p_right[0, 0]}{left_tx}; expected P_left[0,3] - P_right[0,3] = fx * "
+                "baseline > 0, finite); pass --baseline METRES"
             )
     return StereoCamera(
         width=int(width),

@@ -288,6 +288,21 @@ def resolve_pairing(
         images = [t for t, i in sorted(topics.items()) if i.msgtype in _IMAGE_TYPES]
         infos = [t for t, i in sorted(topics.items()) if i.msgtype == rosmsg.CAMERA_INFO]
         want = "an image topic with a sibling camera_info" if need_info else "an image topic"
+        foreign = sorted({i.msgtype for i in topics.values() if "Image" in (i.msgtype or "")})
+        foreign = [kind for kind in foreign if kind not in _IMAGE_TYPES]
+        if not images:
+            other = f" (its {', '.join(foreign)} are not read)" if foreign else ""
+            raise TopicNotFoundError(
+                f"no stereo pair found in {name}: it has no camera images{other}; pcainterp "
+                "densifies logs with two cameras' sensor_msgs/Image or CompressedImage topics"
+            )
+        depth = re.compile(r"(^|[/_\-.])(depth|disparity)($|[/_\-.])")
+        cameras = [t for t in images if not depth.search(t.lower())]
+        if len(cameras) == 1 and not named:
+            raise TopicNotFoundError(
+                f"no stereo pair found in {name}: it has one camera ({cameras[0]}); pcainterp "
+                "needs a stereo pair, two cameras side by side"
+            )
         raise TopicNotFoundError(
             f"no stereo pair found in {name}: it needs two cameras, each {want}, named left/"
             f"right (or cam0/cam1, ...); image topics: {', '.join(images) or 'none'}; camera "

@@ -1,7 +1,7 @@
 """Pair left and right images of a message stream into stereo frames (no I/O).
 
-:class:`StereoPairer` is fed the decoded messages of a log one at a time (in file order)
-and emits a :class:`~records.StereoFrame` as soon as a left and a right image with matching
+:class:`StereoPairer` is fed the decoded messages of a log one at a time (in the reader's
+order) and emits a :class:`~records.StereoFrame` as soon as a left and a right image with matching
 header stamps, and a camera info of each side, are there. It keeps bounded buffers, so a
 stream with a missing or late side cannot make it grow; what it drops it counts in
 :class:`PairingStats`. An optional sparse feature stream (``/features``, PointCloud2 with x,
@@ -383,8 +383,11 @@ class StereoPairer:
         own, other = (self._left, self._right) if side == "left" else (self._right, self._left)
         partner = self._closest(other, self._time(item))
         if partner is None:
-            gaps = [abs(self._time(p) - self._time(item)) for p in other]
-            item.miss_ns = min(gaps) if gaps and min(gaps) <= NEAR_MISS_NS else -1
+            gaps = [self._time(p) - self._time(item) for p in other]
+            nearest = min(gaps, key=abs, default=None)
+            item.miss_ns = -1 if nearest is None or abs(nearest) > NEAR_MISS_NS else abs(nearest)
+            if nearest is not None:
+                self.stats.saw_gap(nearest if side == "left" else -nearest)
             own.append(item)
             if len(own) > self.config.window:
                 self._count_unpaired(side, [own.popleft()])
@@ -689,9 +692,18 @@ class StereoPairer:
         config = self.config
         if config.baseline is not None:
             return "--baseline"
-        if rectifier is None:
-            return f"P of {config.right_info_topic}"
-        return "--calibration" if config.calibration else f"{config.right_info_topic}"
+        if rectifier is not None and config.calibration:
+            return "--calibration"
+        if rectifier is not None:
+            left_tx = float(rectifier.calibration.left.p[0, 3])
+        elif self._left_info is not None:
+            left_tx = float(rosmsg.projection_matrix(self._left_info)[0, 3])
+        else:
+            left_tx = 0.0
+        topics = config.right_info_topic
+        if left_tx:  # a pair calibrated against a third camera: both Tx make the baseline
+            topics = f"{config.left_info_topic} and {topics}"
+        return f"P of {topics}" if rectifier is None else topics
 
     def _say(self, line: str) -> None:
         if line != self._said and self._echo is not None:
@@ -787,8 +799,8 @@ def _size(camera: StereoCamera) -> str:
 
 
 def _reason(err: BaseException) -> str:
-    """Return the reason of a decoding error, short enough to count by."""
-    text = str(err).split(";")[0]
+    """Return the reason of a decoding error, short enough to count by (no sizes, formats)."""
+    text = str(err).split(";")[0].split(" (")[0]
     return text if len(text) <= 60 else text[:57] + "..."
 
 

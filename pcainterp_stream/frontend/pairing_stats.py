@@ -16,6 +16,9 @@ from pcainterp_stream.records import StereoCamera
 MAX_PROBLEMS = 20
 """How many one-line problem descriptions :class:`PairingStats` keeps (counts are exact)."""
 
+NEAR_MISS_LIMIT_NS = 1_000_000_000
+"""Sides whose nearest stamps are farther apart than this (ns) are on different clocks."""
+
 MAX_BASELINE_M = 3.0
 """Beyond this baseline (m) a calibration is taken for wrong (a rig of trucks' width is ~1.5 m;
 a millimetre P[0, 3] gives a thousand times the real one)."""
@@ -29,6 +32,8 @@ class PairingStats:
         camera: the camera of the first pair, or the first with a baseline beyond
             :data:`MAX_BASELINE_M`; None before any pair.
         camera_source: where that camera's baseline came from.
+        nearest_gap_ns: the smallest stamp gap (right minus left, ns) seen between an image
+            that found no partner and the other side's waiting images; None: none seen.
         pairs: stereo frames emitted.
         unpaired_left: left images dropped without a right partner.
         unpaired_right: right images dropped without a left partner.
@@ -72,6 +77,7 @@ class PairingStats:
 
     camera: StereoCamera | None = None
     camera_source: str = ""
+    nearest_gap_ns: int | None = None
     pairs: int = 0
     unpaired_left: int = 0
     unpaired_right: int = 0
@@ -191,6 +197,23 @@ class PairingStats:
             f"camera info on {' and '.join(self.missing_info_topics)} (recorded "
             f"{self.info_late_ns / 1e9:.1f} s of log later): densified with it, read ahead "
             "(the log's camera infos do not change)"
+        )
+
+    def saw_gap(self, right_minus_left_ns: int) -> None:
+        """Keep the smallest stamp gap between an unpaired image and the other side's."""
+        if self.nearest_gap_ns is None or abs(right_minus_left_ns) < abs(self.nearest_gap_ns):
+            self.nearest_gap_ns = right_minus_left_ns
+
+    def clock_hint(self) -> str | None:
+        """Why no image paired when the two sides' stamps are far apart, else None."""
+        gap = self.nearest_gap_ns
+        if self.pairs or gap is None or abs(gap) <= NEAR_MISS_LIMIT_NS:
+            return None
+        side = "after" if gap > 0 else "before"
+        return (
+            f"the right images are stamped at least {abs(gap) / 1e9:.6g} s {side} the nearest "
+            "left ones: the two cameras stamp with different clocks (or one is not synchronised); "
+            "re-stamp one side, or record the pair with one clock"
         )
 
     def saw_camera(self, camera: StereoCamera, source: str) -> None:

@@ -58,7 +58,8 @@ class StereoRectifier:
 
     Args:
         calibration: the pair's calibration.
-        baseline: baseline override (m); else -P_right[0, 3] / P_right[0, 0].
+        baseline: baseline override (m); else (P_left[0, 3] - P_right[0, 3]) / fx (ROS
+            writes the left Tx 0; a pair calibrated against a third camera does not).
 
     Raises:
         CalibrationError: the right P gives no positive baseline and none is given.
@@ -75,14 +76,14 @@ class StereoRectifier:
         width, height = left.image_size()
         if baseline is None:
             p_right = right.p
-            with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
-                baseline = float(-p_right[0, 3] / p_right[0, 0])
+            baseline = left.baseline(right)
             if not (baseline > 0 and np.isfinite(baseline)):
                 sign = "swapped left/right?" if baseline < 0 else "no Tx"
+                left_tx = f", left P[0,3] = {left.p[0, 3]}" if left.p[0, 3] else ""
                 raise CalibrationError(
                     f"{right.name} gives no baseline (P[0,3] = {p_right[0, 3]}, fx = "
-                    f"{p_right[0, 0]}; expected -fx * baseline < 0: {sign}); fix the "
-                    "calibration or pass --baseline METRES"
+                    f"{p_right[0, 0]}{left_tx}; expected P_left[0,3] - P_right[0,3] = fx * "
+                    f"baseline > 0: {sign}); fix the calibration or pass --baseline METRES"
                 )
         self.camera = StereoCamera(
             width=int(width),

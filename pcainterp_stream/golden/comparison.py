@@ -13,7 +13,7 @@ dropped message shows as one missing message rather than as every later message 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -30,15 +30,21 @@ DEFAULT_TOLERANCE: dict[str, Any] = {
         "uint8.stat_abs, quantiles within uint8.quantile_abs. Other arrays: each statistic "
         "within float.rel of its value plus float.spread of the golden 1%-99% quantile "
         "spread plus float.abs. NaN/inf counts within nonfinite_fraction of the element "
-        "count. Float values (CameraInfo K, P...): within values.rel plus values.abs. "
-        "Point-cloud sizes (width, row_step): within point_count.rel plus point_count.abs "
-        "points. Stored arrays (--arrays): |actual - golden| <= pixels.atol + pixels.rtol * "
+        "count. Images: the means of a grid of blocks (per channel) within blocks.scale "
+        "times the tolerance of the image mean (a block holds 1/16 of the pixels: its mean "
+        "is 4 times as noisy). Float values (CameraInfo K, P...): within values.rel plus "
+        "values.abs; "
+        "a DisparityImage's min_disparity and max_disparity (taken from its image) within "
+        "the tolerance of that image's mean. "
+        "Point-cloud sizes (width, row_step) and the lengths of its fields: within "
+        "point_count.rel plus point_count.abs points. Stored arrays (--arrays): "
+        "|actual - golden| <= pixels.atol + pixels.rtol * "
         "|golden|, or where a channel <topic>_std is in the log (depth and its posterior std) "
         "<= pixels.std_atol * that std (for a depth beside a disparity std, /ns/depth with "
         "/ns/disparity_std: depth^2 / (f*b) * the disparity std, f*b from the depth "
         "channel's metadata as recorded under focal_baseline); at most pixels.bad_fraction "
         "of the elements may exceed it (NaN/inf where the golden has a number, or the "
-        "reverse, count as beyond). "
+        "reverse, count as beyond), of a point cloud's fields as many as point_count allows. "
         "channels: per-topic overrides of any of these, e.g. "
         '{"/pcainterp/depth": {"float": {"rel": 0.01}}}.'
     ),
@@ -47,6 +53,7 @@ DEFAULT_TOLERANCE: dict[str, Any] = {
     "nonfinite_fraction": 0.002,
     "values": {"rel": 1e-6, "abs": 1e-9},
     "point_count": {"rel": 0.05, "abs": 1},
+    "blocks": {"scale": 4.0},
     "pixels": {"atol": 1e-4, "rtol": 1e-3, "std_atol": 0.05, "bad_fraction": 0.002},
     "channels": {},
 }
@@ -54,6 +61,11 @@ DEFAULT_TOLERANCE: dict[str, Any] = {
 # PointCloud2 fields that count points: the front end may find a corner more or less
 _POINT_COUNT_VALUES = frozenset({"width", "row_step"})
 _POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
+# header scalars derived from a message's own image (a DisparityImage's largest pixel and
+# the floor it was cut at): compared like that image's statistics, not like a constant
+_DATA_SCALARS = {
+    "stereo_msgs/msg/DisparityImage": ("image.image", ("min_disparity", "max_disparity"))
+}
 _STAT_NAMES = ("mean", "std", "median", "mad")
 
 
@@ -132,6 +144,7 @@ class _Comparer:
         self.actual_channels: Mapping[str, Any] = {}
         self.golden_channels: Mapping[str, Any] = {}
         self.cloud = False  # the channel being compared holds point clouds
+        self.schema = ""  # the schema of the channel being compared
 
     def tolerance(self, topic: str) -> dict[str, Any]:
         return _merge(self.base, self.base.get("channels", {}).get(topic, {}))
@@ -180,6 +193,7 @@ class _Comparer:
                 )
         tolerance = self.tolerance(topic)
         self.cloud = want["schema"] == _POINT_CLOUD
+        self.schema = str(want["schema"])
         # the posterior std published beside a channel (depth and depth_std, or the
         # disparity std of a compact depth) sets its element-wise tolerance in std units
         source = _std_source(topic, self.golden_channels, self.actual_channels)
@@ -220,12 +234,17 @@ class _Comparer:
             if want.get(key) != have.get(key):
                 add(key, f"{have.get(key)}, golden {want.get(key)}")
         want_values, have_values = want.get("values", {}), have.get("values", {})
+        image, derived = _DATA_SCALARS.get(self.schema, ("", ()))
+        image_stats = want.get("arrays", {}).get(image)
         for name, value in want_values.items():
             if name not in have_values:
                 add(name, "missing")
                 continue
             if self.cloud and name in _POINT_COUNT_VALUES:
                 self.count(add, name, value, have_values[name], tolerance)
+                continue
+            if name in derived and image_stats is not None:
+                self.derived(add, name, value, have_values[name], image_stats, tolerance)
                 continue
             self.value(add, name, value, have_values[name], tolerance)
         for name in have_values:
@@ -253,6 +272,40 @@ class _Comparer:
         allowed = limits["rel"] * abs(want) + limits["abs"]
         if abs(have - want) > allowed:
             add(name, f"{want} -> {have} (moved {have - want}, tolerance {allowed:g})")
+
+    def points(
+        self, want: Mapping[str, Any], have: Mapping[str, Any], tolerance: Mapping[str, Any]
+    ) -> bool:
+        """Return True for point-cloud fields of lengths within the point count's tolerance.
+
+        Their statistics are then compared as usual (the width already had its tolerance).
+        """
+        if not self.cloud or len(want["shape"]) != 1 or len(have["shape"]) != 1:
+            return False
+        limits = tolerance["point_count"]
+        count = int(want["shape"][0])
+        allowed = float(limits["rel"]) * count + float(limits["abs"])
+        return abs(int(have["shape"][0]) - count) <= allowed
+
+    def derived(
+        self,
+        add: Any,
+        name: str,
+        want: Any,
+        have: Any,
+        image: Mapping[str, Any],
+        tolerance: Mapping[str, Any],
+    ) -> None:
+        """Compare a scalar taken from an image within that image's statistics' tolerance."""
+        if not (isinstance(want, int | float) and isinstance(have, int | float)):
+            self.value(add, name, want, have, tolerance)
+            return
+        expected, actual = float(want), float(have)
+        if math.isnan(expected) and math.isnan(actual):
+            return
+        allowed = _statistic_limits(image, tolerance)(expected)
+        if not abs(actual - expected) <= allowed and actual != expected:
+            add(name, _moved(actual, expected, allowed))
 
     def value(
         self, add: Any, name: str, want: Any, have: Any, tolerance: Mapping[str, Any]
@@ -288,7 +341,9 @@ class _Comparer:
         tolerance: Mapping[str, Any],
     ) -> None:
         for key in ("dtype", "shape"):
-            if want[key] != have[key]:
+            if want[key] != have[key] and not (
+                key == "shape" and self.points(want, have, tolerance)
+            ):
                 add(f"{name} {key}", f"{have[key]}, golden {want[key]}")
                 return
         size = math.prod(want["shape"])
@@ -305,24 +360,61 @@ class _Comparer:
             return
         if "mean" not in want:
             return
-        quantiles = dict(zip(QUANTILES, want["quantiles"], strict=True))
+        limit = _statistic_limits(want, tolerance)
+        stat_limit = {key: limit(want[key]) for key in _STAT_NAMES}
         if want["dtype"] == "uint8":
-            limits = tolerance["uint8"]
-            allowed_stat, allowed_quantile = limits["stat_abs"], limits["quantile_abs"]
-            stat_limit = {key: allowed_stat for key in _STAT_NAMES}
-            quantile_limit = dict.fromkeys(QUANTILES, allowed_quantile)
+            quantile_limit = dict.fromkeys(QUANTILES, tolerance["uint8"]["quantile_abs"])
         else:
-            limits = tolerance["float"]
-            spread = quantiles[0.99] - quantiles[0.01]
-            floor = limits["spread"] * spread + limits["abs"]
-            stat_limit = {key: limits["rel"] * abs(want[key]) + floor for key in _STAT_NAMES}
-            quantile_limit = {q: limits["rel"] * abs(v) + floor for q, v in quantiles.items()}
+            quantile_limit = {
+                q: limit(v) for q, v in zip(QUANTILES, want["quantiles"], strict=True)
+            }
         for key in _STAT_NAMES:
             if abs(have[key] - want[key]) > stat_limit[key]:
                 add(f"{name} {key}", _moved(have[key], want[key], stat_limit[key]))
         for q, value, actual in zip(QUANTILES, want["quantiles"], have["quantiles"], strict=True):
             if abs(actual - value) > quantile_limit[q]:
                 add(f"{name} quantile {q:g}", _moved(actual, value, quantile_limit[q]))
+        if "blocks" in want and "blocks" in have:  # golden files before blocks have none
+            scale = float(tolerance["blocks"]["scale"])
+            self.blocks(add, name, want["blocks"], have["blocks"], lambda v: scale * limit(v))
+
+    def blocks(
+        self,
+        add: Any,
+        name: str,
+        want: Mapping[str, Any],
+        have: Mapping[str, Any],
+        limit: Callable[[float], float],
+    ) -> None:
+        """Compare block means (where the values are) within the mean's tolerance."""
+        if want["grid"] != have["grid"] or len(want["means"]) != len(have["means"]):
+            add(f"{name} blocks", f"grid {have['grid']}, golden {want['grid']}")
+            return
+        columns = int(want["grid"][1])
+        beyond: list[tuple[float, str]] = []
+        total = 0
+        for channel, (expected, actual) in enumerate(
+            zip(want["means"], have["means"], strict=True)
+        ):
+            for cell, (golden, value) in enumerate(zip(expected, actual, strict=True)):
+                total += 1
+                where = f"({cell // columns}, {cell % columns}"
+                where += f", channel {channel})" if len(want["means"]) > 1 else ")"
+                if golden is None or value is None:
+                    if (golden is None) != (value is None):
+                        text = "has no number" if value is None else "golden had no number"
+                        beyond.append((math.inf, f"{where} {text}"))
+                    continue
+                allowed = limit(golden)
+                if abs(value - golden) > allowed:
+                    moved = abs(value - golden) / allowed if allowed > 0 else math.inf
+                    beyond.append((moved, f"{where}: {_moved(value, golden, allowed)}"))
+        if beyond:
+            worst = max(beyond, key=lambda item: item[0])[1]
+            add(
+                f"{name} block means",
+                f"{len(beyond)} of {total} blocks beyond tolerance; e.g. block {worst}",
+            )
 
     def elements(
         self,
@@ -372,6 +464,9 @@ class _Comparer:
             beyond = (both_finite & (error > allowed)) | ~(both_finite | same_special)
             count = int(beyond.sum())
             limit = limits["bad_fraction"] * golden.size
+            if self.cloud:  # as many points may move as may come or go
+                counts = tolerance["point_count"]
+                limit = max(limit, counts["rel"] * golden.size + counts["abs"])
             if count > limit:
                 score = error
                 if std is not None:  # the element that moved most in units of its std
@@ -390,6 +485,24 @@ class _Comparer:
                     f"{tuple(int(i) for i in worst)}: {_g(actual[worst])}, golden "
                     f"{_g(golden[worst])}{moved}",
                 )
+
+
+def _statistic_limits(
+    stats: Mapping[str, Any], tolerance: Mapping[str, Any]
+) -> Callable[[float], float]:
+    """Return value -> allowed move of a statistic of an array with golden ``stats``.
+
+    uint8: ``uint8.stat_abs`` grey levels. Other dtypes: ``float.rel`` of the value plus
+    ``float.spread`` of the golden 1 %-99 % quantile spread plus ``float.abs``.
+    """
+    if stats["dtype"] == "uint8":
+        allowed = float(tolerance["uint8"]["stat_abs"])
+        return lambda value: allowed
+    limits = tolerance["float"]
+    quantiles = stats.get("quantiles") or [0.0] * len(QUANTILES)
+    spread = quantiles[-1] - quantiles[0]
+    floor = limits["spread"] * spread + limits["abs"]
+    return lambda value: limits["rel"] * abs(value) + floor
 
 
 class _StdSource(NamedTuple):

@@ -37,6 +37,7 @@ MAX_VALUE_LENGTH = 64
 """Numeric sequences up to this length are kept as values (CameraInfo's K, D, R, P); longer
 ones are summarised as arrays."""
 
+
 @dataclasses.dataclass
 class MessageContent:
     """What :func:`message_content` found in one message.

@@ -55,6 +55,7 @@ class LogGolden:
         self._request = request
         self._datadir = datadir
         self._original_datadir = Path(original_datadir)
+        self._checked: set[Path] = set()  # the golden files this test has checked
         self.max_lines = MAX_LINES
 
     def check(
@@ -71,7 +72,9 @@ class LogGolden:
 
         Args:
             log: the log to check (MCAP, ROS 1 ``.bag``, rosbag2).
-            basename: golden file name without extension (default: the test's name).
+            basename: golden file name without extension (default: the test's name); a
+                test that checks more than one log passes one per call, e.g.
+                ``check(dense, basename="dense")`` and ``check(raw, basename="raw")``.
             fullpath: an explicit golden file path instead (e.g. in a shared data folder).
             topics: record and check only these channels.
             arrays: also store and check every array element-wise.
@@ -82,6 +85,8 @@ class LogGolden:
             AssertionError: (a test failure) the log differs; the message lists the
                 differences, each with channel, message index, stamp, what moved and by
                 how much against its tolerance.
+            pytest.fail: (a test failure) this test already checked a log against the same
+                golden file (two calls without ``basename=``).
         """
         __tracebackhide__ = True
         from pytest_regressions.common import perform_regression_check
@@ -89,7 +94,6 @@ class LogGolden:
         from pcainterp_stream.errors import GoldenError
         from pcainterp_stream.golden.comparison import format_differences
         from pcainterp_stream.golden.store import (
-            arrays_path,
             compare_documents,
             load_golden,
             save_golden,
@@ -111,9 +115,10 @@ class LogGolden:
             __tracebackhide__ = True
             try:
                 golden = load_golden(expected)
-                if golden.get("arrays_file") and not arrays_path(expected).exists():
+                name = golden.get("arrays_file")
+                if name and not (expected.parent / name).exists():
                     # the lazy data directory copied the JSON only
-                    shutil.copy2(arrays_path(source), arrays_path(expected))
+                    shutil.copy2(source.parent / name, expected.parent / name)
                 differences = compare_documents(golden, expected, load_golden(obtained), obtained)
             except GoldenError as err:  # an old format: --force-regen rewrites it
                 raise AssertionError(
@@ -138,6 +143,14 @@ class LogGolden:
             if fullpath is not None
             else self._original_datadir / f"{paths_basename}{EXTENSION}"
         )
+        if source.resolve() in self._checked:
+            pytest.fail(
+                f"log_golden.check({log.name!r}): this test already checked a log against "
+                f"{source.name}; pass basename='...' (a name per call) or fullpath=... so "
+                "that each log has its own golden file",
+                pytrace=False,
+            )
+        self._checked.add(source.resolve())
         if self._request.config.getoption("update_golden"):
             dump(source)
             return

@@ -1,9 +1,11 @@
 """Golden files: save a log's summary with its tolerances, check a log against one.
 
-A golden file is JSON (format :data:`FORMAT`); with ``arrays=True`` a compressed ``.npz``
-of the same name sits beside it and holds every array for an element-wise check. Both are
-written to temporary files first and renamed into place, so a failure never leaves half a
-golden file.
+A golden file is JSON (format :data:`FORMAT`); with ``arrays=True`` a compressed
+``.golden.npz`` of the same stem sits beside it (:func:`arrays_path`) and holds every array
+for an element-wise check, with a marker key (:data:`ARRAYS_MARKER`) that says it is one.
+Both are written to temporary files first and renamed into place, so a failure never leaves
+half a golden file; a file in the way that this package did not write (a basis, the log
+itself) is never overwritten.
 """
 
 from __future__ import annotations
@@ -27,11 +29,14 @@ from pcainterp_stream.interrupt import raise_if_signalled
 from pcainterp_stream.version import __version__
 
 __all__ = [
+    "ARRAYS_MARKER",
     "FORMAT",
     "CheckResult",
     "arrays_path",
     "check_log",
     "compare_documents",
+    "describe_golden_file",
+    "is_golden_arrays",
     "load_golden",
     "save_golden",
 ]
@@ -40,6 +45,11 @@ FORMAT_NAME = "pcainterp-golden"
 FORMAT_VERSION = 2
 FORMAT = f"{FORMAT_NAME}/{FORMAT_VERSION}"
 """The format string this version writes and reads."""
+
+ARRAYS_MARKER = "__pcainterp_golden_arrays__"
+"""The key of a golden arrays file that marks it as one: a JSON string naming the format
+(``pcainterp-golden-arrays/1``) and the golden JSON it belongs to."""
+ARRAYS_FORMAT = "pcainterp-golden-arrays/1"
 
 
 @dataclass
@@ -65,9 +75,72 @@ class CheckResult:
 
 
 def arrays_path(golden: str | Path) -> Path:
-    """Return the ``.npz`` beside a golden JSON (``a.golden.json`` -> ``a.golden.npz``)."""
+    """Return the arrays file beside a golden JSON, always ending in ``.golden.npz``.
+
+    ``a.golden.json`` -> ``a.golden.npz``, ``kitti.json`` -> ``kitti.golden.npz`` (not
+    ``kitti.npz``, the natural name of a basis learned from the same drive). Golden files
+    written before this naming keep the name they record (``"arrays_file"``).
+    """
     golden = Path(golden)
-    return golden.with_suffix(".npz")
+    stem = golden.name.removesuffix(".json").removesuffix(".golden")
+    return golden.with_name(f"{stem}.golden.npz")
+
+
+def is_golden_arrays(path: str | Path) -> bool:
+    """Return True for an ``.npz`` this package wrote as a golden file's arrays.
+
+    Recognised by content: the key :data:`ARRAYS_MARKER`, or (files written before the
+    marker) only keys ``a0``, ``a1``, ... A basis, a log or any other file is not one.
+    """
+    try:
+        with Path(path).open("rb") as stream:
+            if stream.read(4) != b"PK\x03\x04":  # an .npz is a zip; a .npy, a log are not
+                return False
+        with np.load(path) as data:
+            keys = list(data.files)
+    except (OSError, ValueError, EOFError):  # not readable, or a zip that is not an npz
+        return False
+    if ARRAYS_MARKER in keys:
+        return True
+    return bool(keys) and all(key[:1] == "a" and key[1:].isdigit() for key in keys)
+
+
+def _is_golden_json(path: Path) -> bool:
+    """Return True for a golden JSON of any format version (a file this package wrote)."""
+    try:
+        with path.open("rb") as stream:
+            if stream.read(1) != b"{":
+                return False
+        document = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+    fmt = document.get("format") if isinstance(document, dict) else None
+    return str(fmt).startswith(f"{FORMAT_NAME}/")
+
+
+def _check_writable(golden: Path, array_file: Path | None, log: Path) -> None:
+    """Refuse to write over the log, or over an arrays path holding a file not ours.
+
+    Raises:
+        GoldenError: ``golden`` or ``array_file`` is the log, ``golden`` exists and is not
+            a golden file, or ``array_file`` exists and is not a golden arrays file.
+    """
+    for target in (golden, array_file):
+        if target is not None and target.resolve() == log.resolve():
+            raise GoldenError(
+                f"{target} is the log {log.name} itself; give the golden file another name"
+            )
+    if golden.is_file() and not _is_golden_json(golden):
+        raise GoldenError(
+            f"{golden} exists and is not a golden file, so it is not overwritten; move it, "
+            "or give the golden file another name"
+        )
+    if array_file is not None and array_file.exists() and not is_golden_arrays(array_file):
+        raise GoldenError(
+            f"{array_file} exists and is not a golden arrays file (a basis? a log?), so it "
+            f"is not overwritten with {golden.name}'s arrays; move it, or give the golden "
+            "file another name"
+        )
 
 
 @contextmanager
@@ -123,25 +196,67 @@ def _document(
     }
 
 
-def _write(golden: Path, document: dict[str, Any], arrays: Mapping[str, npt.NDArray[Any]]) -> None:
+def _write(
+    golden: Path,
+    document: dict[str, Any],
+    arrays: Mapping[str, npt.NDArray[Any]],
+    *,
+    log: Path,
+) -> None:
+    """Write the JSON (and the arrays); remove arrays files of ours it no longer names.
+
+    The arrays file an older golden file at ``golden`` named (``kitti.npz`` before the
+    ``.golden.npz`` naming) is removed when it is ours, never otherwise.
+    """
     array_file = arrays_path(golden)
+    _check_writable(golden, array_file if document["arrays_file"] else None, log)  # again
+    stale = {array_file}
+    previous = _recorded_arrays(golden)
+    if previous is not None:
+        stale.add(previous)
+    if document["arrays_file"]:
+        stale.discard(array_file)
+    marker = json.dumps({"format": ARRAYS_FORMAT, "golden": golden.name})
     with _replacing(golden) as json_tmp:
         json_tmp.write_text(json.dumps(document, indent=1, allow_nan=True) + "\n")
         if document["arrays_file"]:
             with _replacing(array_file) as npz_tmp:
+                stored = {**arrays, ARRAYS_MARKER: np.array(marker)}
                 with npz_tmp.open("wb") as stream:
-                    np.savez_compressed(stream, **arrays)  # type: ignore[arg-type]
-        elif array_file.exists() and _owned_arrays(array_file):
-            array_file.unlink()
+                    np.savez_compressed(stream, **stored)  # type: ignore[arg-type]
+    for path in stale:
+        if path.exists() and path.resolve() != log.resolve() and _arrays_of(path, golden):
+            path.unlink()
 
 
-def _owned_arrays(path: Path) -> bool:
-    """Return True for an .npz this package wrote (keys a0, a1, ...), safe to remove."""
+def _arrays_of(path: Path, golden: Path) -> bool:
+    """Return True when ``path`` holds ``golden``'s arrays (safe to remove with it).
+
+    Marked files name their golden JSON; unmarked ones (written before the marker) count
+    only under their old name, ``golden`` with the suffix ``.npz``, never another golden
+    file's arrays that a copied JSON names.
+    """
+    if not is_golden_arrays(path):
+        return False
     try:
         with np.load(path) as data:
-            return all(key[:1] == "a" and key[1:].isdigit() for key in data.files)
-    except (OSError, ValueError):
+            if ARRAYS_MARKER not in data.files:
+                return path.name == golden.with_suffix(".npz").name
+            owner = json.loads(str(data[ARRAYS_MARKER])).get("golden")
+    except (OSError, ValueError, AttributeError):
         return False
+    return bool(owner == golden.name)
+
+
+def _recorded_arrays(golden: Path) -> Path | None:
+    """Return the arrays file an existing golden file at ``golden`` names, if any."""
+    try:
+        name = json.loads(golden.read_text()).get("arrays_file")
+    except (OSError, UnicodeDecodeError, ValueError, AttributeError):
+        return None
+    if not isinstance(name, str) or not name or Path(name).name != name:
+        return None
+    return golden.parent / name
 
 
 def save_golden(
@@ -171,6 +286,8 @@ def save_golden(
     Raises:
         LogReadError: the log is missing, not a log or damaged.
         TopicNotFoundError: a topic in ``topics`` is not in the log.
+        GoldenError: ``golden`` or its arrays file would overwrite the log, or either
+            exists and is not a golden file of this package (nothing is written).
 
     Examples:
         >>> from pcainterp_stream.golden import save_golden, check_log
@@ -180,12 +297,13 @@ def save_golden(
     """
     log, golden = Path(log), Path(golden)
     selected = None if topics is None else list(topics)
+    _check_writable(golden, arrays_path(golden) if arrays else None, log)  # before the work
     summary = summarize_log(log, topics=selected, keep_arrays=arrays, progress=progress)
     merged = dict(DEFAULT_TOLERANCE)
     merged.update(tolerance or {})
     arrays_file = arrays_path(golden).name if arrays else None
     document = _document(log, summary, topics=selected, tolerance=merged, arrays_file=arrays_file)
-    _write(golden, document, summary.arrays)
+    _write(golden, document, summary.arrays, log=log)
     return summary
 
 
@@ -281,7 +399,9 @@ def check_log(
         golden: a file :func:`save_golden` wrote.
         topics: check only these channels (default: those the golden file records).
         update: rewrite the golden file from this log when they differ (same channel
-            selection, tolerances and arrays option); the differences are still returned.
+            selection, tolerances and arrays option; the arrays go to :func:`arrays_path`,
+            an older file's arrays of ours under another name are removed); the
+            differences are still returned.
         progress: called after each message with (messages done, total or None).
 
     Returns:
@@ -289,7 +409,8 @@ def check_log(
 
     Raises:
         GoldenError: the golden file is missing, malformed or of another format version,
-            or a topic in ``topics`` is not in it.
+            a topic in ``topics`` is not in it, or (``update``) the rewrite would overwrite
+            the log or a file that is not a golden arrays file.
         LogReadError: the log is missing, not a log or damaged.
         TopicNotFoundError: a topic in ``topics`` is not in the log.
     """
@@ -306,6 +427,8 @@ def check_log(
                 f"recorded: {listed}"
             )
     with_arrays = bool(document.get("arrays_file"))
+    if update:  # refuse before the work, not after it
+        _check_writable(golden, arrays_path(golden) if with_arrays else None, log)
     with _open_arrays(golden, document) as golden_arrays:
         summary = summarize_log(
             log,
@@ -336,3 +459,45 @@ def check_log(
         )
         result.updated = True
     return result
+
+
+def describe_golden_file(path: str | Path) -> str | None:
+    """Return a few lines on a golden file or a golden arrays file (None: it is neither).
+
+    For ``pcainterp info``: a golden JSON (any format version) or an ``.npz`` that
+    :func:`is_golden_arrays` recognises; any other file, or a folder, gives None.
+    """
+    path = Path(path)
+    if not path.is_file():
+        return None
+    if is_golden_arrays(path):
+        with np.load(path) as data:
+            count = sum(1 for key in data.files if key != ARRAYS_MARKER)
+            owner = None
+            if ARRAYS_MARKER in data.files:
+                try:
+                    owner = json.loads(str(data[ARRAYS_MARKER])).get("golden")
+                except (ValueError, AttributeError):
+                    owner = None
+        of = f"the golden file {owner}" if owner else "a golden file"
+        return (
+            f"{path}: the arrays of {of} ({count} arrays, for its element-wise check), "
+            f"written by `pcainterp golden save --arrays`; not a basis. Check a log with "
+            f"`pcainterp golden check LOG {owner or 'GOLDEN.json'}`"
+        )
+    if not _is_golden_json(path):
+        return None
+    document = json.loads(path.read_text())
+    fmt = document["format"]
+    channels = document.get("channels")
+    channels = channels if isinstance(channels, dict) else {}
+    messages = sum(int(c.get("message_count", 0)) for c in channels.values())
+    arrays = document.get("arrays_file")
+    lines = [
+        f"{path}: pcainterp golden file ({fmt}, written by "
+        f"{document.get('created_by', 'an unknown version')} from {document.get('log', '?')})",
+        f"  channels: {len(channels)}, messages: {messages}",
+        f"  arrays: {arrays} (element-wise check)" if arrays else "  arrays: none (statistics)",
+        f"  check a log against it: pcainterp golden check LOG {path.name}",
+    ]
+    return "\n".join(lines)

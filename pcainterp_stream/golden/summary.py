@@ -24,13 +24,23 @@ from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.outputs import FOCAL_BASELINE_KEY
 from pcainterp_stream.io.reader_base import ROS2_SCHEMA_ENCODINGS
 
-__all__ = ["QUANTILES", "LogSummary", "Progress", "array_statistics", "summarize_log"]
+__all__ = [
+    "BLOCK_GRID",
+    "QUANTILES",
+    "LogSummary",
+    "Progress",
+    "array_statistics",
+    "summarize_log",
+]
 
 Progress = Callable[[int, int | None], None]
 """A progress callback: (messages done, total messages or None when the log has no index)."""
 
 QUANTILES = (0.01, 0.1, 0.25, 0.5, 0.75, 0.9, 0.99)
 """The quantiles every array summary records (of its finite values)."""
+
+BLOCK_GRID = 4
+"""An image's spatial summary: the means of a BLOCK_GRID x BLOCK_GRID grid of blocks."""
 
 
 @dataclass
@@ -62,7 +72,8 @@ def array_statistics(values: npt.NDArray[Any]) -> dict[str, Any]:
         ``dtype``, ``shape``, counts of ``nan``, ``posinf`` and ``neginf`` elements, and over
         the finite elements ``mean``, ``std``, ``median``, ``mad`` (median absolute
         deviation) and ``quantiles`` (at :data:`QUANTILES`); the last five only when some
-        element is finite.
+        element is finite. An image ((H, W) or (H, W, C)) with a finite element also gets
+        ``blocks``, where its values are (:func:`block_means`).
     """
     data = np.asarray(values, dtype=np.float64)
     finite = data[np.isfinite(data)]
@@ -82,7 +93,59 @@ def array_statistics(values: npt.NDArray[Any]) -> dict[str, Any]:
             mad=float(np.median(np.abs(finite - median))),
             quantiles=[float(q) for q in np.quantile(finite, QUANTILES)],
         )
+        if data.ndim in (2, 3) and min(data.shape[:2]) > 0:
+            low, high = stats["quantiles"][0], stats["quantiles"][-1]
+            stats["blocks"] = block_means(data, low=low, high=high)
     return stats
+
+
+def block_means(data: npt.NDArray[Any], *, low: float, high: float) -> dict[str, Any]:
+    """Return a coarse spatial summary of an image: block means per channel.
+
+    The pooled statistics of :func:`array_statistics` do not change when the pixels are
+    permuted (a mirrored depth map, red and blue exchanged); these do. Values are clipped
+    to [low, high] first (winsorised: +inf counts as ``high``, so a pixel that turns
+    infinite or a far outlier moves a block mean by at most the spread over the block's
+    pixel count); NaN is left out.
+
+    Args:
+        data: (H, W) or (H, W, C) array, any numeric dtype.
+        low: the clip floor (the image's 1 % quantile).
+        high: the clip ceiling (the image's 99 % quantile).
+
+    Returns:
+        ``grid``: [rows, columns] of blocks (:data:`BLOCK_GRID` each, fewer for an image
+        smaller than that), ``means``: one row-major list of rows x columns block means per
+        channel, None for a block without a number.
+    """
+    values = np.asarray(data, dtype=np.float64)
+    if values.ndim == 2:
+        values = values[:, :, None]
+    height, width = values.shape[:2]
+    rows, columns = min(BLOCK_GRID, height), min(BLOCK_GRID, width)
+    row_starts = np.linspace(0, height, rows + 1).astype(np.intp)[:-1]
+    column_starts = np.linspace(0, width, columns + 1).astype(np.intp)[:-1]
+    number = ~np.isnan(values)
+    clipped = np.where(number, np.clip(values, low, high), 0.0)
+
+    def block_sums(array: npt.NDArray[Any]) -> npt.NDArray[np.float64]:
+        by_rows = np.add.reduceat(array, row_starts, axis=0)
+        return np.asarray(np.add.reduceat(by_rows, column_starts, axis=1), dtype=np.float64)
+
+    sums, counts = block_sums(clipped), block_sums(number.astype(np.float64))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        means = sums / counts
+    return {
+        "grid": [rows, columns],
+        "means": [
+            [float(m) if n > 0 else None for m, n in zip(mean, count, strict=True)]
+            for mean, count in zip(
+                means.reshape(-1, means.shape[2]).T,
+                counts.reshape(-1, counts.shape[2]).T,
+                strict=True,
+            )
+        ],
+    }
 
 
 def _json_value(value: Any) -> Any:

@@ -94,14 +94,22 @@ def camera_info_yaml(path: Path, data: dict[str, Any]) -> CameraCalibration:
     width, height = _size(path, data)
     model = str(data.get("distortion_model", "plumb_bob"))
     d = _numbers(path, data, "distortion_coefficients", None)
+    k = _numbers(path, data, "camera_matrix", 9).reshape(3, 3)
+    p = _numbers(path, data, "projection_matrix", 12).reshape(3, 4)
+    for key, matrix in (("camera_matrix", k), ("projection_matrix", p[:, :3])):
+        if not np.any(matrix):
+            raise CalibrationError(
+                f"calibration file {path}: {key} is all zeros (a camera without a calibration); "
+                "pass the files ROS camera_calibration wrote for this camera"
+            )
     return CameraCalibration(
         width=width,
         height=height,
         model=model,
-        k=_numbers(path, data, "camera_matrix", 9).reshape(3, 3),
+        k=k,
         d=d,
         r=_numbers(path, data, "rectification_matrix", 9).reshape(3, 3),
-        p=_numbers(path, data, "projection_matrix", 12).reshape(3, 4),
+        p=p,
         name=str(path),
     )
 
@@ -257,11 +265,12 @@ def load_calibration(paths: list[Path]) -> tuple[StereoCalibration, tuple[str, s
             )
     left = camera_info_yaml(paths[0], left_data)
     right = camera_info_yaml(paths[1], right_data)
-    if not right.p[0, 3] < 0:
+    if not left.baseline(right) > 0:
+        left_tx = f" (and {paths[0]} Tx = {left.p[0, 3]})" if left.p[0, 3] else ""
         raise CalibrationError(
-            f"calibration file {paths[1]}: projection_matrix has Tx = {right.p[0, 3]} (expected "
-            "-fx * baseline < 0: the right camera of a stereo calibration); pass LEFT.yaml "
-            "first, or the files of a stereo calibration"
+            f"calibration file {paths[1]}: projection_matrix has Tx = {right.p[0, 3]}{left_tx} "
+            "(expected the left Tx - the right Tx = fx * baseline > 0: the right camera of a "
+            "stereo calibration); pass LEFT.yaml first, or the files of a stereo calibration"
         )
     return StereoCalibration(left, right), None
 

@@ -39,6 +39,46 @@ def _field(message: Any, name: str) -> Any:
     return value
 
 
+def uncalibrated(name: str, matrix: str) -> str:
+    """Return the error of a camera info whose ``matrix`` (K, P or both) is all zeros."""
+    return (
+        f"{name} has an all-zero {matrix}: the camera is not calibrated (a driver without a "
+        "calibration publishes zeros); calibrate it (ROS camera_calibration) and pass "
+        "--calibration LEFT.yaml RIGHT.yaml"
+    )
+
+
+def reduced_projection(
+    p: npt.NDArray[np.float64], offset: tuple[int, int], binning: tuple[int, int]
+) -> npt.NDArray[np.float64]:
+    """Return the P of the images a camera takes with a ROI at ``offset`` and ``binning``.
+
+    ``CameraInfo``'s P is the full-resolution camera's (REP 104); the images of a region
+    of interest and of binning are described by P with the principal point moved by the
+    ROI's offset and the first two rows (fx, cx, Tx; fy, cy) divided by the binning, as
+    ``image_geometry``'s ``PinholeCameraModel`` reads them. The baseline (Tx / fx) is kept.
+    """
+    out = np.array(p, dtype=np.float64).reshape(3, 4)
+    out[0, 2] -= offset[0] * out[2, 2]
+    out[1, 2] -= offset[1] * out[2, 2]
+    out[0] /= max(int(binning[0]), 1)
+    out[1] /= max(int(binning[1]), 1)
+    return out
+
+
+def image_projection(message: Any) -> npt.NDArray[np.float64]:
+    """Return the P of the images a ``CameraInfo`` (ROS 1 or 2 names) describes.
+
+    Its full-resolution P reduced by its ROI and binning (:func:`reduced_projection`); a
+    message without ``roi`` or binning fields (binning 0 = 1) gives its P as it is.
+    """
+    p = np.asarray(_field(message, "p"), dtype=np.float64).reshape(3, 4)
+    roi = _field(message, "roi")
+    offset = (0, 0) if roi is None else (int(roi.x_offset), int(roi.y_offset))
+    binning = (int(_field(message, "binning_x") or 0), int(_field(message, "binning_y") or 0))
+    return reduced_projection(p, offset, binning)
+
+
 @dataclass(frozen=True)
 class CameraCalibration:
     """One camera's calibration as a ``CameraInfo`` holds it (full-resolution values).
@@ -96,6 +136,9 @@ class CameraCalibration:
                 f"{', '.join(map(str, takes[:-1]))} or {takes[-1]}: fix the calibration, or pass "
                 "--calibration FILE, or --rectify never for images that are rectified"
             )
+        zeros = [name for name, m in (("K", self.k), ("P", self.p[:, :3])) if not np.any(m)]
+        if zeros:  # ROS's "not calibrated"
+            raise CalibrationError(uncalibrated(self.name, " and ".join(zeros)))
         if not (self.k[0, 0] > 0 and self.k[1, 1] > 0 and self.p[0, 0] > 0 and self.p[1, 1] > 0):
             raise CalibrationError(
                 f"{self.name} has K or P without positive focal lengths (K fx={self.k[0, 0]}, "
@@ -208,12 +251,15 @@ class CameraCalibration:
     def rectified_projection(self) -> npt.NDArray[np.float64]:
         """Return P of the ``image_rect`` images: moved by the ROI, divided by the binning."""
         x, y, _, _ = self.region()
-        p = self.p.copy()
-        p[0, 2] -= x * p[2, 2]
-        p[1, 2] -= y * p[2, 2]
-        p[0] /= self.binning[0]
-        p[1] /= self.binning[1]
-        return p
+        return reduced_projection(self.p, (x, y), self.binning)
+
+    def baseline(self, right: CameraCalibration) -> float:
+        """Return the baseline (m) of this left camera and ``right``: (Tx_l - Tx_r) / fx.
+
+        NaN or a value <= 0 when their P give none (the caller says what to do).
+        """
+        with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+            return float((self.p[0, 3] - right.p[0, 3]) / right.p[0, 0])
 
     def raw_to_rectified(self, pixels: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         """Return the rectified positions of raw full-resolution pixels (n, 2)."""

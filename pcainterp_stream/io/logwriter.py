@@ -58,6 +58,7 @@ from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.mcap_extras import McapExtras, write_extras
 from pcainterp_stream.io.output_paths import check_not_input
 from pcainterp_stream.records import RawMessage
+from pcainterp_stream.version import __version__
 
 if TYPE_CHECKING:  # rosbags' bag writers are imported when used (~65 ms with its readers)
     from rosbags.interfaces import Connection
@@ -68,7 +69,7 @@ if TYPE_CHECKING:  # rosbags' bag writers are imported when used (~65 ms with it
 ProgressCallback = Callable[[int, int | None], None]
 """Called as ``progress(done, total)`` after each unit of work; ``total`` None if unknown."""
 
-LIBRARY = "pcainterp_stream"
+LIBRARY = f"pcainterp_stream {__version__}"
 MCAP_CHUNK_SIZE = 4 * 1024 * 1024
 """Uncompressed MCAP chunk size (bytes): a few KITTI images per zstd chunk."""
 MCAP_ZSTD_LEVEL = -1
@@ -650,6 +651,12 @@ class McapLogWriter(LogWriter):
                 int(raw.publish_time_ns),
                 sequence=int(raw.sequence),
             )
+
+    def add_metadata(self, name: str, record: dict[str, str]) -> None:
+        """Write a metadata record (name and string key/values)."""
+        writer = self._writer
+        assert writer is not None
+        self._run(lambda: writer.add_metadata(name, record))
 
     def add_extras(self, extras: McapExtras) -> None:
         """Copy an MCAP input's channels, metadata records and attachments (its order: first)."""

@@ -8,11 +8,13 @@ the hot path, are unpacked with :mod:`struct`. Damage is recorded, not raised.
 
 from __future__ import annotations
 
+import heapq
 import io
 import struct
 from collections.abc import Iterable, Iterator
+from operator import itemgetter
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, NamedTuple
 
 import zstandard
 from mcap.data_stream import ReadDataStream
@@ -67,6 +69,18 @@ _MAX_CHUNK_BYTES = 1 << 32  # refuse to inflate a chunk that claims more than 4 
 _MAX_SALVAGE_BYTES = 1 << 28  # read at most 256 MiB of a chunk cut short by truncation
 
 
+class _MergePlan(NamedTuple):
+    """How to read a file whose chunks overlap in time: the chunks by start time.
+
+    Attributes:
+        chunks: (message start time ns, offset, record length) of every chunk, sorted.
+        definitions: (kind, schema or channel, offset) of the records outside chunks.
+    """
+
+    chunks: list[tuple[int, int, int]]
+    definitions: list[tuple[str, Any, int]]
+
+
 class McapLogReader(LogReader):
     """Reads an MCAP file record by record (see the module docstring for why)."""
 
@@ -86,6 +100,8 @@ class McapLogReader(LogReader):
         self._topics: dict[str, TopicInfo] | None = None
         self._channel_records: tuple[list[Channel], dict[int, Schema]] = ([], {})
         self._ros1 = _Ros1Converter()
+        self._merge_plan: _MergePlan | None = None
+        self._planned = False
 
     def _open(self) -> None:
         try:
@@ -313,7 +329,9 @@ class McapLogReader(LogReader):
         schemas: dict[int, Schema] = {}
         order = _TimeOrder()
         unknown_channels: set[int] = set()
-        for kind, record, offset in self._records(wanted):
+        plan = self._plan_merge()
+        records = self._records(wanted) if plan is None else self._merged_records(plan, wanted)
+        for kind, record, offset in records:
             if kind == "schema":
                 assert isinstance(record, Schema)
                 schemas[record.id] = record
@@ -387,6 +405,120 @@ class McapLogReader(LogReader):
             for channel_id in index.message_index_offsets
         )
 
+    def _plan_merge(self) -> _MergePlan | None:
+        """Return how to merge the chunks when file order is not log-time order, else None.
+
+        The chunk index gives every chunk's time range. When, in file order, no chunk starts
+        before an earlier one ended (a log written as it was recorded), file order is time
+        order, up to the order inside a chunk, which :meth:`_chunk_records` sorts: None. A
+        file written topic by topic, or merged from several recordings without sorting, has
+        overlapping chunks: they are merged by :meth:`_merged_records`. Also None (file
+        order) without a chunk index, after damage, or with messages outside chunks; a
+        walk over the top-level records (headers only; chunks are skipped by seeking)
+        checks for those.
+        """
+        if self._planned:
+            return self._merge_plan
+        self._planned = True
+        if self.damage or not self._chunk_indexes:
+            return None
+        latest_end = -1
+        for offset in sorted(self._chunk_indexes):
+            index = self._chunk_indexes[offset]
+            if index.message_start_time < latest_end:
+                break
+            latest_end = max(latest_end, index.message_end_time)
+        else:
+            return None
+        self._merge_plan = self._chunk_layout()
+        return self._merge_plan
+
+    def _chunk_layout(self) -> _MergePlan | None:
+        """Walk the top-level records: the chunks and definitions, or None to read in order."""
+        assert self._file is not None
+        f = self._file
+        size = self._size
+        chunks: list[tuple[int, int, int]] = []
+        definitions: list[tuple[str, Any, int]] = []
+        offset = len(MCAP_MAGIC)
+        f.seek(offset)
+        while True:
+            head = f.read(_RECORD_HEADER.size)
+            if len(head) < _RECORD_HEADER.size:
+                return None  # the walk in file order notes the damage
+            opcode, length = _RECORD_HEADER.unpack(head)
+            if length > size - offset - _RECORD_HEADER.size or opcode == Opcode.MESSAGE:
+                return None
+            if opcode in (Opcode.DATA_END, Opcode.FOOTER):
+                break
+            if opcode == Opcode.CHUNK:
+                if length < _CHUNK_HEADER.size:
+                    return None
+                start_ns = _CHUNK_HEADER.unpack(f.read(_CHUNK_HEADER.size))[0]
+                chunks.append((start_ns, offset, length))
+                f.seek(offset + _RECORD_HEADER.size + length)
+            elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
+                try:
+                    kind, item = _parse_record(opcode, f.read(length))
+                except Exception:  # struct.error, EndOfFile, UnicodeDecodeError
+                    return None
+                definitions.append((kind, item, offset))
+            else:
+                f.seek(length, io.SEEK_CUR)
+            offset += _RECORD_HEADER.size + length
+        chunks.sort()
+        return _MergePlan(chunks, definitions)
+
+    def _merged_records(
+        self, plan: _MergePlan, wanted: set[str] | None
+    ) -> Iterator[tuple[str, Any, int]]:
+        """Yield the records as :meth:`_records` does, the messages in log-time order.
+
+        A heap merge over the chunks (log time, then file position): a chunk is read and
+        inflated when the merge reaches its start time and released when its last message
+        is out, so memory holds the chunks that overlap the current time (for a file
+        written topic by topic, one chunk per topic; a chunk whose messages span the whole
+        log stays open, its messages released as they go out). Chunks without a wanted
+        topic are skipped unread, as in file order.
+        """
+        assert self._file is not None
+        f = self._file
+        yield from plan.definitions
+        heap: list[tuple[int, int, int, list[Any]]] = []  # next log time, offset, position
+        chunks = plan.chunks
+        next_chunk = 0
+        while next_chunk < len(chunks) or heap:
+            while next_chunk < len(chunks) and (not heap or chunks[next_chunk][0] <= heap[0][0]):
+                _, offset, length = chunks[next_chunk]
+                next_chunk += 1
+                if self._skippable(offset, wanted):
+                    continue
+                f.seek(offset + _RECORD_HEADER.size)
+                messages: list[Any] = []
+                for kind, item, _ in self._chunk_records(f.read(length), offset):
+                    if kind != "message":
+                        yield kind, item, offset
+                    elif wanted is None or self._wanted(item[0], wanted):
+                        messages.append(item)
+                if messages:
+                    heapq.heappush(heap, (messages[0][2], offset, 0, messages))
+            if not heap:
+                continue
+            _, offset, position, messages = heap[0]
+            item = messages[position]
+            messages[position] = None  # released once it is out
+            position += 1
+            if position < len(messages):
+                heapq.heapreplace(heap, (messages[position][2], offset, position, messages))
+            else:
+                heapq.heappop(heap)
+            yield "message", item, offset
+
+    def _wanted(self, channel_id: int, wanted: set[str]) -> bool:
+        """Return False for a message on a known channel of a topic not wanted."""
+        channel = self._summary_channels.get(channel_id)
+        return channel is None or channel.topic in wanted
+
     def _records(self, wanted: set[str] | None) -> Iterator[tuple[str, Any, int]]:
         """Yield (kind, record, offset) of schemas, channels and messages in file order.
 
@@ -448,10 +580,12 @@ class McapLogReader(LogReader):
     def _chunk_records(
         self, body: bytes, offset: int, *, truncated: bool = False
     ) -> Iterator[tuple[str, Any, int]]:
-        """Yield the records of one chunk; damage skips the rest of the chunk.
+        """Yield the records of one chunk: schemas and channels, then messages by log time.
 
-        A ``truncated`` chunk (the file ends inside it, already noted as damage) yields the
-        complete records at its start and stops quietly at the cut.
+        The messages are sorted by log time (stably: a chunk written in time order keeps its
+        order), as the spec lets a writer store them in any order. Damage skips the rest of
+        the chunk. A ``truncated`` chunk (the file ends inside it, already noted as damage)
+        yields the complete records at its start and stops quietly at the cut.
         """
         try:
             records = _inflate_truncated_chunk(body) if truncated else _inflate_chunk(body)
@@ -460,6 +594,10 @@ class McapLogReader(LogReader):
                 self._damage(offset, f"corrupt chunk skipped ({_one_line(err)})")
             return
         view = memoryview(records)
+        # (log time, channel id, sequence, publish time, data start, data end)
+        messages: list[tuple[int, int, int, int, int, int]] = []
+        in_order = True
+        last_time = 0
         position = 0
         while position < len(records):
             try:
@@ -468,18 +606,33 @@ class McapLogReader(LogReader):
                 if start + length > len(records):
                     raise ValueError(f"record length {length} runs past the chunk end")
                 position = start + length
-                if opcode in (Opcode.MESSAGE, Opcode.SCHEMA, Opcode.CHANNEL):
+                if opcode == Opcode.MESSAGE:
+                    if length < _MESSAGE_HEADER.size:
+                        raise ValueError(f"message record of {length} bytes")
+                    channel_id, sequence, log_time, publish_time = _MESSAGE_HEADER.unpack_from(
+                        records, start
+                    )
+                    in_order = in_order and log_time >= last_time
+                    last_time = log_time
+                    data_start = start + _MESSAGE_HEADER.size
+                    messages.append(
+                        (log_time, channel_id, sequence, publish_time, data_start, position)
+                    )
+                elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
                     kind, item = _parse_record(opcode, view[start:position])
-                else:
-                    continue
+                    yield kind, item, offset
             except Exception as err:  # struct.error, UnicodeDecodeError, ValueError
                 if not truncated:
                     self._damage(
                         offset,
                         f"corrupt record inside a chunk, rest of chunk skipped ({_one_line(err)})",
                     )
-                return
-            yield kind, item, offset
+                break
+        if not in_order:
+            messages.sort(key=itemgetter(0))
+        for log_time, channel_id, sequence, publish_time, data_start, data_end in messages:
+            data = records[data_start:data_end]
+            yield "message", (channel_id, sequence, log_time, publish_time, data), offset
 
 
 def _opcode_name(opcode: int) -> str:

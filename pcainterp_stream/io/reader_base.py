@@ -1,7 +1,7 @@
 """What every log reader shares: the base class, topic descriptions, formats, ROS types.
 
-The format readers (:mod:`.mcap_reader`, :mod:`.rosbags_reader`) build on it;
-:mod:`.logreader` opens a path with the right one.
+The format readers (:mod:`.mcap_reader`, :mod:`.rosbags_reader`, :mod:`.rosbag1_walk`)
+build on it; :mod:`.logreader` opens a path with the right one.
 """
 
 from __future__ import annotations
@@ -158,6 +158,8 @@ class LogReader:
         damage: one-line descriptions of damage found so far (file and byte offset); grows
             while :meth:`messages` runs.
         warnings: one-line notes that are not damage (non-monotonic log times, a fallback).
+        backward_log_times: messages whose log time was earlier than the message yielded
+            before them, in the most of a complete :meth:`messages` run (0: in order).
     """
 
     format: LogFormat
@@ -166,6 +168,7 @@ class LogReader:
         self.path = path
         self.damage: list[str] = []
         self.warnings: list[str] = []
+        self.backward_log_times = 0
         self._is_open = False
         self._decoders: dict[tuple[str, str, bytes], Typestore] = {}
 
@@ -213,7 +216,11 @@ class LogReader:
         raise NotImplementedError
 
     def messages(self, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
-        """Yield the messages of the log in file order, with bounded memory.
+        """Yield the messages of the log in log-time order, with bounded memory.
+
+        ROS 1 bags, rosbag2 and indexed MCAP files are read in log-time order (equal log
+        times in file order), however the file stores them; an MCAP without a chunk index
+        (unchunked, or cut short) in file order.
 
         Args:
             topics: yield only these topics (all when None).
@@ -354,6 +361,14 @@ def _add_once(notes: list[str], note: str) -> None:
         notes.append(note)
 
 
+def non_monotonic_warning(name: str, backwards: int) -> str:
+    """Return the warning for ``backwards`` messages of log ``name`` that went back in time."""
+    return (
+        f"{name}: {backwards} messages have a log time earlier than the message before them "
+        "(non-monotonic log times)"
+    )
+
+
 class _TimeOrder:
     """Count messages whose log time goes back in time."""
 
@@ -368,8 +383,5 @@ class _TimeOrder:
 
     def report(self, reader: LogReader) -> None:
         if self.backwards:
-            _add_once(
-                reader.warnings,
-                f"{reader.path.name}: {self.backwards} messages have a log time earlier than "
-                "the message before them (non-monotonic log times)",
-            )
+            reader.backward_log_times = max(reader.backward_log_times, self.backwards)
+            _add_once(reader.warnings, non_monotonic_warning(reader.path.name, self.backwards))

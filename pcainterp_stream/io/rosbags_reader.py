@@ -119,7 +119,10 @@ class RosbagsLogReader(LogReader):
     def _open_error(self, path: Path, err: BaseException) -> str:
         text = _one_line(err)
         if self.format is LogFormat.ROS1:
-            return f"cannot read ROS 1 bag {path} ({text}); check it with `rosbag check`"
+            return (
+                f"cannot read ROS 1 bag {path} ({text}); if it is damaged, "
+                f"`rosbag reindex {path}` may repair it"
+            )
         storage = _storage_files(path) if path.is_dir() else []
         if storage and "Could not parse" in str(err):
             return (

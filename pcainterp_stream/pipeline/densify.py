@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import json
 import time
 from collections import deque
 from collections.abc import Callable
@@ -29,9 +30,9 @@ from pcainterp_stream.frontend.pairing import PairingConfig, StereoPairer
 from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.frontend.sgbm_limits import fitting, narrowest_width
 from pcainterp_stream.frontend.stereo import SgbmConfig
-from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io import reader_base, rosmsg
 from pcainterp_stream.io.foxglove import FoxgloveLive, LiveMessage
-from pcainterp_stream.io.logreader import McapLogReader, open_log
+from pcainterp_stream.io.logreader import LogReader, McapLogReader, open_log
 from pcainterp_stream.io.logwriter import (
     LogFormat,
     LogWriter,
@@ -183,6 +184,25 @@ class DensifySummary:
         return self.frames / self.seconds if self.seconds > 0 else 0.0
 
 
+PROVENANCE = "pcainterp.densify"
+"""The metadata record naming what made a densified log: version, basis and options."""
+
+
+def provenance(basis: str, pairing: PairingConfig, processor: ProcessorConfig) -> dict[str, str]:
+    """Return the :data:`PROVENANCE` record: the version and the resolved options (JSON)."""
+    from pcainterp_stream.version import __version__
+
+    def text(config: Any) -> str:
+        return json.dumps(dataclasses.asdict(config), default=str, sort_keys=True)
+
+    return {
+        "version": __version__,
+        "basis": basis,
+        "pairing": text(pairing),
+        "processor": text(processor),
+    }
+
+
 def densify(
     input_path: Path | IO[bytes],
     output: Path | IO[bytes] | None,
@@ -271,6 +291,8 @@ def densify(
         if isinstance(writer, McapLogWriter) and isinstance(reader, McapLogReader):
             # the rest of the copy: attachments, metadata records, channels without messages
             writer.add_extras(reader.extras(verify=True))
+        if isinstance(writer, McapLogWriter):
+            writer.add_metadata(PROVENANCE, provenance(label, pairing, processor))
         inputs = _InLogTimeOrder(writer) if writer is not None else None
         # the output channels' metadata names the basis by its fingerprint, which the thread
         # preloading the built-in basis may still be hashing: the written channels take it
@@ -428,7 +450,7 @@ def densify(
         pairing=stats,
         damage=list(reader.damage),
         written=writer.summary() if writer is not None else None,
-        warnings=list(reader.warnings)
+        warnings=_order_warnings(reader, stats)
         + (
             check.warnings(stats)
             if check is not None
@@ -512,6 +534,8 @@ def _no_pair_message(
         )
     elif damage:
         fix = "the readable part of the log has no complete pair; repair or re-record it"
+    elif stats.tolerance_hint() or stats.clock_hint():
+        fix = stats.tolerance_hint() or stats.clock_hint() or ""
     else:
         fix = (
             f"left {pairing.left_topic} and right {pairing.right_topic} need images with "
@@ -554,4 +578,33 @@ def _empty_warning(empty: int, frames: int, processor: ProcessorConfig) -> list[
     return [
         f"{empty} of {frames} frames had no measurement (blank, dark or textureless images): "
         "their depth is the prior's mean alone, and their std the prior's; do not trust them"
+    ]
+
+
+def _order_warnings(reader: LogReader, stats: PairingStats) -> list[str]:
+    """The reader's warnings; a log read out of time order says what that cost the pairing.
+
+    A reader reads an indexed MCAP (and every bag) in log-time order; one it has to read in
+    file order (no chunk index) may hand the pairer, whose window is a few frames, the two
+    images of a pair too far apart to meet.
+    """
+    warnings = list(reader.warnings)
+    backwards = reader.backward_log_times
+    lost = min(stats.unpaired_left, stats.unpaired_right)
+    if not backwards or not lost:
+        return warnings
+    name = reader.path.name
+    plain = reader_base.non_monotonic_warning(name, backwards)
+    source = "LOG.mcap" if name == STDIN_NAME else name
+    fix = (
+        f"index it with the mcap CLI (`mcap recover {source} -o indexed.mcap`) and densify that: "
+        "an indexed MCAP is read in log-time order"
+        if reader.format is reader_base.LogFormat.MCAP
+        else "rewrite it in log-time order"
+    )
+    return [warning for warning in warnings if warning != plain] + [
+        f"{name}: the log is not stored in log-time order ({backwards} messages have a log time "
+        "earlier than the message before them: non-monotonic log times) and has no index to "
+        f"read it in that order; this cost up to {lost} stereo pairs ({stats.unpaired_left} "
+        f"left and {stats.unpaired_right} right images unpaired); {fix}"
     ]

@@ -90,6 +90,11 @@ def synth(
         raise PcaInterpError(f"--frames must be at least 1, got {frames}")
     if not 0.05 <= scale <= 4.0:  # also refuses nan
         raise PcaInterpError(f"--scale must be in [0.05, 4], got {scale}")
+    if platform != "auto" and scene != "indoor":
+        raise PcaInterpError(
+            f"--platform {platform} carries the camera of an indoor scene; a street drive's "
+            "camera is on a car: add --scene indoor or drop --platform"
+        )
     config = SynthConfig(
         seed=seed,
         frames=frames,
@@ -441,6 +446,11 @@ def info(path: Path | None) -> str:
     if path is None:  # the built-in bases, each with what it was learned from
         kinds = [k for k in BUILTIN_KINDS if k == "street" or builtin_basis_installed(k)]
         return "\n\n".join(describe_basis(None, builtin=kind) for kind in kinds)
+    from pcainterp_stream.golden.store import describe_golden_file
+
+    golden = describe_golden_file(path)  # a golden file is neither a log nor a basis
+    if golden is not None:
+        return golden
     if path.suffix == ".npz":
         return describe_basis(path)
     if path.is_file():

@@ -9,7 +9,8 @@ Example:
     >>> from pcainterp_stream.synth import SynthConfig, generate
     >>> for frame in generate(SynthConfig(seed=0, frames=2, scale=0.25)):
     ...     print(frame.left.shape, frame.depth.dtype)
-    (94, 310) float32... # doctest: +SKIP
+    (94, 310) float32
+    (94, 310) float32
 """
 
 from __future__ import annotations

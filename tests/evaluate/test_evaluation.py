@@ -190,6 +190,7 @@ def test_undefined_ratios_print_a_dash_and_figures_do_not_warn(tmp_path: Path) -
     result = Evaluation(log="blank.mcap", mode="stereo", reference="SGBM", frames=2)
     result.methods = {"pca_map": stats(3000.0), "nearest": stats(0.0), "linear": stats(5.0)}
     result.sweep = {10: dict(result.methods)}
+    result.sweep_frames, result.sweep_reached, result.sweep_corners = 1, {10: 1}, [12]
     result.calibration = {"stored": CalibrationStats()}
     table = summary_table(result)
     row = next(line for line in table.splitlines() if line.startswith("pca_map"))
@@ -197,7 +198,7 @@ def test_undefined_ratios_print_a_dash_and_figures_do_not_warn(tmp_path: Path) -
     markdown = results_markdown(result, [])
     assert "nearest neighbour mean Delta_2D = - (target" in markdown
     assert "undefined, nearest neighbour's mean Delta_2D is 0." in markdown
-    assert "| 10 | 30.000 | 0.000 | 0.050 | - |" in markdown
+    assert "| 10 | 1 | 30.000 | 0.000 | 0.050 | - |" in markdown
     assert "e+" not in markdown
     write_figures(result, [], tmp_path, None)  # warnings are errors: no log scale of zeros
     result.methods["nearest"] = stats(10000.0)
@@ -271,7 +272,11 @@ def test_evaluate_writes_report_with_every_section(dense_logs: dict[str, Path]) 
     # adding the variance the basis leaves out widens the band
     widened = report["calibration"]["exact+residual"]["mean"]["coverage_2sigma"]
     assert widened >= report["calibration"]["exact"]["mean"]["coverage_2sigma"]
-    assert set(report["sweep"]) == {"50", "100", "200", "400", "800"}
+    # only the counts the sweep's frames had corners for (a 80x40 px frame has few)
+    reached = {
+        str(points) for points in (50, 100, 200, 400, 800) if points <= max(report["sweep_corners"])
+    }
+    assert set(report["sweep"]) == set(report["sweep_frames_reached"]) == reached
     # the log was densified with exact uncertainty: re-densifying reproduces its calibration
     stored = report["calibration"]["stored"]["mean"]["coverage_2sigma"]
     assert report["calibration"]["exact"]["mean"]["coverage_2sigma"] == pytest.approx(
@@ -280,7 +285,9 @@ def test_evaluate_writes_report_with_every_section(dense_logs: dict[str, Path]) 
     # the oracle is the best the basis can do (on average, with the same reference)
     means = {name: m["mean"]["delta_2d_mean"] for name, m in report["methods"].items()}
     assert means["oracle"] < means["pca_map"]
-    for name in ("errors.png", "uncertainty.png", "sweep.png", "examples.png", "basis.png"):
+    figures = ["errors.png", "uncertainty.png", "examples.png", "basis.png"]
+    figures += ["sweep.png"] if reached else []  # no row: no curve
+    for name in figures:
         assert (out / name).stat().st_size > 1000
         assert f"({name})" in (out / "results.md").read_text()
     assert "pca_map" in table

@@ -290,9 +290,26 @@ def test_camera_info_without_baseline() -> None:
 
 
 def test_camera_info_without_focal_length() -> None:
-    zero = SimpleNamespace(P=np.zeros(12))  # ROS 1 field name
-    with pytest.raises(CalibrationError, match=r"^camera info on /l has P with fx=0\.0"):
-        camera_from_infos(zero, right_info(), width=8, height=6, left_topic="/l")
+    negative = SimpleNamespace(P=np.diag([-1.0, 1.0, 1.0, 0.0])[:3].reshape(-1))  # ROS 1 name
+    with pytest.raises(CalibrationError, match=r"^camera info on /l has P with fx=-1\.0"):
+        camera_from_infos(negative, right_info(), width=8, height=6, left_topic="/l")
+
+
+@pytest.mark.parametrize("side", ["left", "right"])
+def test_uncalibrated_camera_info_names_calibration_files(side: str) -> None:
+    """All zeros is ROS's "not calibrated": the fix is --calibration, not the P."""
+    zero = left_info() if side == "left" else right_info()
+    zero.k, zero.p = np.zeros(9), np.zeros(12)
+    infos = (zero, right_info()) if side == "left" else (left_info(), zero)
+    with pytest.raises(CalibrationError) as err:
+        camera_from_infos(*infos, width=8, height=6, left_topic="/l", right_topic="/r")
+    topic = "/l" if side == "left" else "/r"
+    assert str(err.value).startswith(f"camera info on {topic} has an all-zero K and P: the camera ")
+    assert "not calibrated" in str(err.value)
+    assert str(err.value).endswith("pass --calibration LEFT.yaml RIGHT.yaml")
+    if side == "right":  # the right P gives only the baseline: --baseline stands in for it
+        camera = camera_from_infos(*infos, width=8, height=6, baseline=0.25)
+        assert camera == CAMERA
 
 
 def test_camera_info_for_another_image_size_is_refused() -> None:
@@ -303,13 +320,105 @@ def test_camera_info_for_another_image_size_is_refused() -> None:
     )
     with pytest.raises(CalibrationError, match=r"^camera info on /l is for 16x12 px images"):
         camera_from_infos(big, right_info(), width=8, height=6, left_topic="/l")
-    # binned 2 x 2, it describes 8 x 6 images; a zero size says nothing
-    binned = rosmsg.camera_info_message(CAMERA, 0, "left_optical")
-    binned.width, binned.height, binned.binning_x, binned.binning_y = 16, 12, 2, 2
+    # binned 2 x 2 (P of the full-resolution camera), it describes 8 x 6 images; a zero
+    # size says nothing
+    binned = rosmsg.camera_info_message(_full_resolution(CAMERA, 2), 0, "left_optical")
+    binned.binning_x = binned.binning_y = 2
     assert camera_from_infos(binned, right_info(), width=8, height=6).fx == CAMERA.fx
     unsized = rosmsg.camera_info_message(CAMERA, 0, "left_optical")
     unsized.width = unsized.height = 0
     assert camera_from_infos(unsized, right_info(), width=8, height=6) == CAMERA
+
+
+def _full_resolution(camera: StereoCamera, binning: int) -> StereoCamera:
+    """The camera of the sensor whose binned images ``camera`` describes."""
+    return dataclasses.replace(
+        camera,
+        width=camera.width * binning,
+        height=camera.height * binning,
+        fx=camera.fx * binning,
+        fy=camera.fy * binning,
+        cx=camera.cx * binning,
+        cy=camera.cy * binning,
+    )
+
+
+def _sensor_infos(full: StereoCamera, binning: int, roi: tuple[int, int, int, int]) -> list[Any]:
+    """Left and right infos as a binning / ROI driver writes them: P at full resolution."""
+    infos = []
+    for right in (False, True):
+        info = rosmsg.camera_info_message(full, 0, "optical", right=right)
+        info.binning_x = info.binning_y = binning
+        info.roi.x_offset, info.roi.y_offset, info.roi.width, info.roi.height = roi
+        info.roi.do_rectify = roi != (0, 0, 0, 0)
+        infos.append(info)
+    return infos
+
+
+def test_binned_camera_info_is_the_binned_images_camera() -> None:
+    """REP 104: P is the full-resolution camera's; binning 2 halves fx, fy, cx, cy (and Tx)."""
+    pairer = StereoPairer()
+    left, right = _sensor_infos(_full_resolution(CAMERA, 2), 2, (0, 0, 0, 0))
+    push(pairer, CONFIG.left_info_topic, 0, left)
+    push(pairer, CONFIG.right_info_topic, 0, right)
+    push(pairer, CONFIG.left_topic, 1, image(1))
+    (frame,) = push(pairer, CONFIG.right_topic, 1, image(1))
+    assert frame.camera == CAMERA  # fx 100 and f*b doubled before: every depth 2x too far
+    assert frame.camera.focal_baseline == CAMERA.focal_baseline
+
+
+def test_roi_camera_info_moves_the_principal_point() -> None:
+    """A 6 x 4 ROI at (10, 6) of a 2x binned 32 x 24 sensor: cx, cy of the written images."""
+    full = StereoCamera(width=32, height=24, fx=100.0, fy=102.0, cx=15.0, cy=11.0, baseline=0.25)
+    left, right = _sensor_infos(full, 2, (10, 6, 12, 8))
+    camera = camera_from_infos(left, right, width=6, height=4)
+    assert (camera.fx, camera.fy) == (50.0, 51.0)
+    assert (camera.cx, camera.cy) == ((15.0 - 10) / 2, (11.0 - 6) / 2)
+    assert camera.baseline == pytest.approx(0.25)
+    # the output camera_info describes the images as written: no ROI, no binning left
+    written = rosmsg.camera_info_message(camera, 0, "optical")
+    assert (written.width, written.height) == (6, 4)
+    assert rosmsg.projection_matrix(written)[0, 2] == camera.cx
+    assert (written.binning_x, written.roi.x_offset, written.roi.width) == (0, 0, 0)
+    # the pairer's camera (what densify writes) is this one
+    pairer = StereoPairer()
+    push(pairer, CONFIG.left_info_topic, 0, left)
+    push(pairer, CONFIG.right_info_topic, 0, right)
+    push(pairer, CONFIG.left_topic, 1, image(1, shape=(4, 6)))
+    (frame,) = push(pairer, CONFIG.right_topic, 1, image(1, shape=(4, 6)))
+    assert frame.camera == camera
+
+
+def test_left_tx_takes_part_in_the_baseline() -> None:
+    """kitti2bag writes KITTI's colour P2 / P3 as they are: both have a Tx (camera 0's frame)."""
+    left, right = left_info(), right_info()
+    p_left = rosmsg.projection_matrix(left).copy()
+    p_right = rosmsg.projection_matrix(right).copy()
+    p_left[0, 3] = CAMERA.fx * 0.06  # the left camera 6 cm left of the reference one
+    p_right[0, 3] = -CAMERA.fx * (CAMERA.baseline - 0.06)
+    left.p, right.p = p_left.reshape(-1), p_right.reshape(-1)
+    assert camera_from_infos(left, right, width=8, height=6).baseline == pytest.approx(0.25)
+    # the camera line names both infos as the baseline's source; --baseline still wins
+    pairer = StereoPairer()
+    push(pairer, CONFIG.left_info_topic, 0, left)
+    push(pairer, CONFIG.right_info_topic, 0, right)
+    push(pairer, CONFIG.left_topic, 1, image(1))
+    (frame,) = push(pairer, CONFIG.right_topic, 1, image(1))
+    assert frame.camera.baseline == pytest.approx(CAMERA.baseline)
+    note = pairer.finish().camera_note()
+    assert note is not None
+    assert f"(from P of {CONFIG.left_info_topic} and {CONFIG.right_info_topic})" in note
+    override = StereoPairer(PairingConfig(baseline=0.3))
+    push(override, CONFIG.left_info_topic, 0, left)
+    push(override, CONFIG.right_info_topic, 0, right)
+    push(override, CONFIG.left_topic, 1, image(1))
+    (frame,) = push(override, CONFIG.right_topic, 1, image(1))
+    assert frame.camera.baseline == 0.3
+    # a left Tx below the right's (swapped sides) gives no baseline: both Tx named
+    p_left[0, 3] = p_right[0, 3] - 1.0
+    left.p = p_left.reshape(-1)
+    with pytest.raises(CalibrationError, match=r"gives no baseline .*left P\[0,3\] = "):
+        camera_from_infos(left, right, width=8, height=6)
 
 
 def test_ros1_camera_info_fields() -> None:
@@ -612,3 +721,25 @@ def test_infos_recorded_after_their_images_apply_to_their_own_frame() -> None:
         frames = run(order)
         assert [int(f.left[0, 0]) for f in frames] == [0, 1, 2, 3]
         assert [f.camera.fx for f in frames] == [50.0, 51.0, 52.0, 53.0]
+
+
+def test_undecodable_reasons_count_without_sizes_or_formats() -> None:
+    from pcainterp_stream.frontend.pairing import _reason
+
+    for size in (9769, 9721):
+        err = ValueError(f"compressed png image does not decode ({size} bytes, format 'bgr8; png')")
+        assert _reason(err) == "compressed png image does not decode"
+    assert _reason(ValueError("unsupported image encoding 'nv21'; camera images are")) == (
+        "unsupported image encoding 'nv21'"
+    )
+
+
+def test_sides_on_different_clocks_are_named() -> None:
+    stats = PairingStats()
+    stats.saw_gap(-1_700_000_000_000_000_000)
+    stats.saw_gap(-1_699_999_999_900_000_000)  # the nearest is kept
+    hint = stats.clock_hint()
+    assert hint is not None
+    assert hint.startswith("the right images are stamped at least 1.7e+09 s before the nearest")
+    stats.saw_gap(30_000_000)
+    assert stats.clock_hint() is None  # 30 ms: a tolerance, not a clock

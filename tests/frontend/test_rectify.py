@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import cv2
@@ -102,6 +103,50 @@ def test_binning_and_roi_as_image_proc() -> None:
     assert p[0, 2] == (full.p[0, 2] - 40) / 2
 
 
+def _with_left_tx(calibration: rect.StereoCalibration, tx: float) -> rect.StereoCalibration:
+    """The pair calibrated against a third camera: both P carry ``tx`` more (kitti2bag)."""
+    sides = []
+    for cal in (calibration.left, calibration.right):
+        p = cal.p.copy()
+        p[0, 3] += tx
+        sides.append(dataclasses.replace(cal, p=p))
+    return rect.StereoCalibration(*sides)
+
+
+def test_raw_pair_with_a_left_tx_keeps_its_baseline() -> None:
+    """The baseline is (Tx_left - Tx_right) / fx; the right Tx alone was 11 % short on KITTI."""
+    shifted = _with_left_tx(raw_calibration(CAMERA, "plumb_bob"), 0.06 * CAMERA.fx)
+    rectifier = rect.StereoRectifier(shifted)
+    assert rectifier.camera.baseline == pytest.approx(CAMERA.baseline)
+    assert rect.StereoRectifier(shifted, baseline=0.3).camera.baseline == 0.3
+    (frame,) = _push_pair(_pairer(check_rows=False), 1000, *_stereo_views(), shifted)
+    assert frame.camera.baseline == pytest.approx(CAMERA.baseline)
+    swapped = rect.StereoCalibration(shifted.right, shifted.left)
+    with pytest.raises(CalibrationError, match=r"gives no baseline .*left P\[0,3\] = .*swapped"):
+        rect.StereoRectifier(swapped)
+
+
+def test_raw_and_rectified_paths_read_binning_and_roi_alike() -> None:
+    """image_rect of a binning / ROI camera: remapped or used as it is, one camera."""
+    from pcainterp_stream.frontend.camera_infos import camera_from_infos
+
+    ideal = _ideal(raw_calibration(CAMERA, "plumb_bob"))
+    reduced = rect.StereoCalibration(
+        *(
+            dataclasses.replace(c, binning=(2, 2), roi=(40, 20, 200, 80))
+            for c in (ideal.left, ideal.right)
+        )
+    )
+    messages = _messages(reduced, 0)
+    from_infos = camera_from_infos(
+        messages["/cam/left/camera_info"], messages["/cam/right/camera_info"], width=100, height=40
+    )
+    remapped = rect.StereoRectifier(reduced).camera
+    assert from_infos == remapped
+    assert (from_infos.fx, from_infos.cx) == (CAMERA.fx / 2, (CAMERA.cx - 40) / 2)
+    assert from_infos.focal_baseline == pytest.approx(CAMERA.focal_baseline / 2)
+
+
 def _ideal(calibration: rect.StereoCalibration) -> rect.StereoCalibration:
     """The rectified pair's own calibration: K = P[:3, :3], D = 0, R = I on both sides."""
     return rect.StereoCalibration(
@@ -130,6 +175,18 @@ def test_a_rectified_pair_passes_through_unchanged() -> None:
     (frame,) = _push_pair(_pairer(rectify="always"), 1000, left, right, ideal)
     np.testing.assert_array_equal(frame.left, left)
     assert frame.camera.cx == rectifier.camera.cx
+
+
+def test_uncalibrated_camera_info_names_calibration_files() -> None:
+    """A driver without a calibration publishes K = P = 0 (ROS's "not calibrated")."""
+    cal = raw_calibration(CAMERA, "plumb_bob").left
+    zero = np.zeros((3, 4))
+    with pytest.raises(CalibrationError) as err:
+        rect.CameraCalibration(
+            cal.width, cal.height, "", zero[:, :3], cal.d[:0], cal.r, zero, name="/l"
+        )
+    assert str(err.value).startswith("/l has an all-zero K and P: the camera is not calibrated")
+    assert str(err.value).endswith("pass --calibration LEFT.yaml RIGHT.yaml")
 
 
 def test_unknown_model_is_one_line() -> None:

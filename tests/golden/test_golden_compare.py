@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 
 from pcainterp_stream.golden import array_statistics, compare, format_differences
 
@@ -127,3 +129,142 @@ def test_a_channel_tolerance_override_applies_to_that_channel_only() -> None:
     for channel in actual["channels"].values():
         channel["messages"][0]["values"]["data"] = 1.1
     assert [d.topic for d in compare(golden, actual)] == ["/tight"]
+
+
+def _disparity_document(disparity: np.ndarray, key: str) -> dict[str, Any]:
+    finite = disparity[np.isfinite(disparity)]
+    message = {
+        "log_time_ns": 7,
+        "stamp_ns": 7,
+        "values": {
+            "f": 500.0,
+            "t": 0.5,
+            "min_disparity": 0.0,
+            "max_disparity": float(finite.max()),
+        },
+        "arrays": {"image.image": array_statistics(disparity)},
+        "array_keys": {"image.image": key},
+    }
+    return {
+        "channels": {"/pcainterp/disparity": _channel("stereo_msgs/msg/DisparityImage", [message])}
+    }
+
+
+def test_max_disparity_has_the_tolerance_of_its_image() -> None:
+    rng = np.random.default_rng(3)
+    disparity = rng.uniform(5.0, 80.0, size=(40, 60)).astype(np.float32)
+    golden = _disparity_document(disparity, "a0")
+    # input noise moves the largest pixel by 0.04 px: the image statistics accept it, and
+    # so must max_disparity (it was held to 1e-6 relative)
+    noisy = disparity.copy()
+    noisy[np.unravel_index(np.argmax(disparity), disparity.shape)] += 0.04
+    assert compare(golden, _disparity_document(noisy, "b0")) == []
+    # the constants of the same message keep their tight tolerance
+    moved_f = _disparity_document(noisy, "b0")
+    moved_f["channels"]["/pcainterp/disparity"]["messages"][0]["values"]["f"] = 500.01
+    assert [d.what for d in compare(golden, moved_f)] == ["f"]
+    # a real change of the largest disparity fails, naming it
+    far = disparity.copy()
+    far[0, 0] = float(disparity.max()) + 5.0
+    differences = compare(golden, _disparity_document(far, "b0"))
+    assert [d.what for d in differences] == ["max_disparity"]
+    assert "tolerance 0.3" in differences[0].text  # 0.2 % of 80 + 0.2 % of the ~74 px spread
+
+
+def _cloud_document(y: np.ndarray, key: str) -> dict[str, Any]:
+    message = {
+        "log_time_ns": 9,
+        "stamp_ns": 9,
+        "values": {"width": int(y.size), "row_step": int(y.size) * 24, "height": 1},
+        "arrays": {"points.y": array_statistics(y)},
+        "array_keys": {"points.y": key},
+    }
+    return {"channels": {"/pcainterp/features": _channel("sensor_msgs/msg/PointCloud2", [message])}}
+
+
+def test_a_point_cloud_may_move_as_many_points_as_it_may_lose() -> None:
+    rng = np.random.default_rng(4)
+    y = rng.uniform(-2.0, 2.0, size=200).astype(np.float32)
+    golden, arrays = _cloud_document(y, "a0"), {"a0": y}
+    # 5 corners found 4 mm off (a few input bits): within the 5 % + 1 points a cloud's
+    # size may change by (0.2 % of 200 points allowed none to move)
+    few = y.copy()
+    few[:5] += 4e-3
+    assert (
+        compare(golden, _cloud_document(few, "b0"), golden_arrays=arrays, actual_arrays={"b0": few})
+        == []
+    )
+    many = y.copy()
+    many[:40] += 4e-3
+    differences = compare(
+        golden, _cloud_document(many, "b0"), golden_arrays=arrays, actual_arrays={"b0": many}
+    )
+    assert [d.what for d in differences] == ["points.y elements"]
+    assert "40 of 200 beyond" in differences[0].text
+    assert "(allowed 11)" in differences[0].text
+    # one corner more: the width is within its tolerance, so are the fields' lengths (the
+    # statistics of 201 points are compared as usual)
+    more = np.append(y, y[:1])
+    whats = {d.what for d in compare(golden, _cloud_document(more, "b0"))}
+    assert not whats & {"width", "row_step", "points.y shape"}
+    fewer = y[:150]
+    whats = {d.what for d in compare(golden, _cloud_document(fewer, "b0"))}
+    assert {"width", "points.y shape"} <= whats
+
+
+def _image_document(image: np.ndarray) -> dict[str, Any]:
+    message = {
+        "log_time_ns": 3,
+        "stamp_ns": 3,
+        "values": {},
+        "arrays": {"image": array_statistics(image)},
+    }
+    return {"channels": {"/camera/image": _channel("sensor_msgs/msg/Image", [message])}}
+
+
+def test_red_and_blue_exchanged_fail_by_their_block_means() -> None:
+    rng = np.random.default_rng(5)
+    rgb = np.empty((48, 64, 3), dtype=np.uint8)
+    rgb[:20] = (110, 160, 230)  # sky
+    rgb[20:] = (150, 120, 90)  # road
+    rgb = np.clip(rgb + rng.normal(0, 20, rgb.shape), 0, 255).astype(np.uint8)
+    golden = _image_document(rgb)
+    blocks = golden["channels"]["/camera/image"]["messages"][0]["arrays"]["image"]["blocks"]
+    assert blocks["grid"] == [4, 4]
+    assert len(blocks["means"]) == 3  # one list per channel
+    noisy = rgb.copy()
+    noisy[rng.random(rgb.shape[:2]) < 0.01] ^= 1  # the last bit of 1 % of the pixels
+    assert compare(golden, _image_document(noisy)) == []
+    differences = compare(golden, _image_document(rgb[:, :, ::-1]))
+    assert [d.what for d in differences] == ["image block means"]  # the pooled stats pass
+    assert "channel 0" in differences[0].text
+
+
+def test_blocks_leave_out_nan_and_clip_inf() -> None:
+    depth = np.full((8, 8), 10.0)
+    depth[:4, :4] = np.nan
+    depth[7, 7] = np.inf
+    blocks = array_statistics(depth)["blocks"]
+    assert blocks["means"][0][0] is None
+    assert blocks["means"][0][-1] == 10.0  # +inf counts as the 99 % quantile, not as inf
+    json.dumps(blocks, allow_nan=False)
+
+
+ALOE = Path(__file__).resolve().parents[3] / "shared" / "realdata" / "stereo_aloe" / "aloe-L.png"
+
+
+@pytest.mark.realdata
+@pytest.mark.skipif(not ALOE.is_file(), reason="../shared/realdata is absent")
+def test_a_real_photo_swapped_or_mirrored_fails_its_noise_passes() -> None:
+    """Middlebury's Aloe (553x640 colour): what block means see on a real image."""
+    import cv2
+
+    rgb = np.ascontiguousarray(cv2.imread(str(ALOE))[:, :, ::-1])
+    golden = _image_document(rgb)
+    swapped = compare(golden, _image_document(np.ascontiguousarray(rgb[:, :, ::-1])))
+    assert [d.what for d in swapped] == ["image block means"]
+    mirrored = compare(golden, _image_document(np.ascontiguousarray(rgb[:, ::-1])))
+    assert [d.what for d in mirrored] == ["image block means"]
+    noisy = rgb.copy()
+    noisy[np.random.default_rng(0).random(rgb.shape[:2]) < 0.01] ^= 1
+    assert compare(golden, _image_document(noisy)) == []

@@ -98,3 +98,32 @@ def test_fixture_is_registered_by_the_entry_point(pytester: pytest.Pytester) -> 
     result = _run(pytester, "--fixtures")
     result.stdout.fnmatch_lines(["*log_golden*", "*Check a log against a golden file beside*"])
     assert Path(__file__).exists()
+
+
+TWICE = """
+from test_tiny import write_log
+
+
+def test_twice(tmp_path, log_golden):
+    log_golden.check(write_log(tmp_path / "a.mcap"){first})
+    log_golden.check(write_log(tmp_path / "b.mcap"){second})
+"""
+
+
+def test_a_second_check_needs_its_own_basename(pytester: pytest.Pytester) -> None:
+    _write(pytester, scale=1.0)
+    pytester.makepyfile(test_twice=TWICE.format(first="", second=""))
+    _run(pytester, "test_twice.py").assert_outcomes(failed=1)  # the first file is written
+    result = _run(pytester, "test_twice.py")
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines(
+        [
+            "*log_golden.check('b.mcap'): this test already checked a log against "
+            "test_twice.golden.json; pass basename=*"
+        ]
+    )
+    result.stdout.no_fnmatch_line("*Traceback*")
+    pytester.makepyfile(test_twice=TWICE.format(first="", second=', basename="raw"'))
+    _run(pytester, "test_twice.py").assert_outcomes(failed=1)  # raw.golden.json written
+    _run(pytester, "test_twice.py").assert_outcomes(passed=1)
+    assert (pytester.path / "test_twice" / "raw.golden.json").is_file()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -193,3 +194,29 @@ def test_left_and_right_files_swapped_are_refused(tmp_path: Path) -> None:
     left, right = write_camera_info_yaml(raw_calibration(CAMERA, "plumb_bob"), tmp_path)
     with pytest.raises(CalibrationError, match=r"pass LEFT\.yaml first"):
         load_calibration([right, left])
+
+
+def test_camera_info_yaml_with_a_left_tx(tmp_path: Path) -> None:
+    """A pair calibrated against a third camera: both P have a Tx; the baseline is their gap."""
+    calibration = raw_calibration(CAMERA, "plumb_bob")
+    sides = []
+    for cal in (calibration.left, calibration.right):
+        p = cal.p.copy()
+        p[0, 3] += 0.6 * CAMERA.fx  # the right Tx is positive too (it was refused as swapped)
+        sides.append(dataclasses.replace(cal, p=p))
+    loaded, _ = load_calibration(list(write_camera_info_yaml(StereoCalibration(*sides), tmp_path)))
+    assert loaded.right.p[0, 3] > 0
+    assert StereoRectifier(loaded).camera.baseline == pytest.approx(CAMERA.baseline)
+    with pytest.raises(CalibrationError, match=r"pass LEFT\.yaml first"):
+        load_calibration(list(write_camera_info_yaml(StereoCalibration(*sides[::-1]), tmp_path)))
+
+
+def test_uncalibrated_camera_info_yaml_is_refused(tmp_path: Path) -> None:
+    left_path, right_path = write_camera_info_yaml(raw_calibration(CAMERA, "plumb_bob"), tmp_path)
+    data = yaml.safe_load(left_path.read_text())
+    data["camera_matrix"]["data"] = [0.0] * 9
+    data["projection_matrix"]["data"] = [0.0] * 12
+    left_path.write_text(yaml.safe_dump(data))
+    with pytest.raises(CalibrationError, match="camera_matrix is all zeros") as err:
+        load_calibration([left_path, right_path])
+    assert "\n" not in str(err.value)

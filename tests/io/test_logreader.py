@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 from mcap.reader import make_reader
-from mcap.writer import CompressionType, Writer
+from mcap.writer import CompressionType, IndexType, Writer
 
 from pcainterp_stream.errors import LogReadError, TopicNotFoundError
 from pcainterp_stream.io import rosmsg
@@ -45,10 +45,24 @@ def write_mcap(
     chunk_size: int = 1,
     compression: CompressionType = CompressionType.ZSTD,
     log_times: list[int] | None = None,
+    summary: bool = True,
 ) -> None:
-    """Write ROS 2 messages with mcap's Writer (chunk_size=1: one message per chunk)."""
+    """Write ROS 2 messages with mcap's Writer (chunk_size=1: one message per chunk).
+
+    ``summary=False`` writes no summary section (no index, no statistics), as a recorder
+    that streams does.
+    """
     with path.open("wb") as f:
-        writer = Writer(f, chunk_size=chunk_size, compression=compression)
+        options: dict[str, Any] = {}
+        if not summary:
+            options = {
+                "index_types": IndexType.NONE,
+                "repeat_channels": False,
+                "repeat_schemas": False,
+                "use_statistics": False,
+                "use_summary_offsets": False,
+            }
+        writer = Writer(f, chunk_size=chunk_size, compression=compression, **options)
         writer.start("ros2", "test")
         schemas: dict[str, int] = {}
         channels: dict[str, int] = {}
@@ -245,17 +259,101 @@ def test_missing_summary_is_damage_but_all_messages_read(
         assert any("no MCAP magic at the end" in note for note in reader.damage)
 
 
-def test_non_monotonic_log_times_are_a_warning(tmp_path: Path) -> None:
+def test_non_monotonic_log_times_of_an_indexed_mcap_are_read_in_order(tmp_path: Path) -> None:
     messages = frame_messages(2)
     times = [5, 6, 7, 8, 1, 2, 9, 10]
     path = tmp_path / "jumpy.mcap"
     write_mcap(path, messages, log_times=times)
     with open_log(path) as reader:
         got = [r.log_time_ns for r in reader.messages()]
+    assert got == sorted(times)
+    assert reader.damage == []
+    assert reader.warnings == []
+
+
+def test_non_monotonic_log_times_without_summary_are_a_warning(tmp_path: Path) -> None:
+    messages = frame_messages(2)
+    times = [5, 6, 7, 8, 1, 2, 9, 10]
+    path = tmp_path / "jumpy.mcap"
+    write_mcap(path, messages, log_times=times, summary=False)
+    with open_log(path) as reader:
+        got = [r.log_time_ns for r in reader.messages()]
+        assert reader.message_stats() is None  # no index: read in file order
     assert got == times
     assert reader.damage == []
     assert len(reader.warnings) == 1
     assert reader.warnings[0].startswith("jumpy.mcap: 1 messages have a log time earlier")
+
+
+# --- log-time order -------------------------------------------------------------------------
+
+
+def _stored(messages: list[tuple[str, Any, int]], arrangement: str) -> list[tuple[str, Any, int]]:
+    """The messages in the order a writer stores them, log times kept."""
+    if arrangement == "by-topic":  # a converter writing one topic after another
+        return sorted(messages, key=lambda m: m[0])
+    # a recorder that receives the right camera 0.7 s (7 frames) late
+    return sorted(messages, key=lambda m: m[2] + (700_000_000 if m[0] == RIGHT else 0))
+
+
+def _log_time_order(messages: list[tuple[str, Any, int]]) -> list[tuple[str, int, bytes]]:
+    """(topic, log time, data) by log time; equal log times in file order (a stable sort)."""
+    ordered = sorted(messages, key=lambda m: m[2])
+    return [(topic, log_time, rosmsg.serialize(message)) for topic, message, log_time in ordered]
+
+
+@pytest.mark.parametrize("arrangement", ["by-topic", "right-late"])
+@pytest.mark.parametrize("chunk_size", [1, 2_000, 1 << 20], ids=["1msg", "2kB", "1MB"])
+def test_mcap_not_stored_in_time_order_reads_in_log_time_order(
+    tmp_path: Path, arrangement: str, chunk_size: int
+) -> None:
+    stored = _stored(frame_messages(15), arrangement)
+    path = tmp_path / "stored.mcap"
+    write_mcap(path, stored, chunk_size=chunk_size)
+    with open_log(path) as reader:
+        got = [(r.topic, r.log_time_ns, r.data) for r in reader.messages()]
+        right = [r.log_time_ns for r in reader.messages([RIGHT])]
+    assert got == _log_time_order(stored)
+    assert right == [log_time for topic, log_time, _ in _log_time_order(stored) if topic == RIGHT]
+    assert reader.warnings == []
+    assert reader.damage == []
+    with path.open("rb") as f:  # as the mcap library (and Foxglove) plays them
+        library = [m.log_time for _, _, m in make_reader(f).iter_messages(log_time_order=True)]
+    assert [log_time for _, log_time, _ in got] == library
+
+
+def test_mcap_in_time_order_reads_in_file_order(tmp_path: Path) -> None:
+    messages = frame_messages(15)  # four topics per frame, one log time: ties in file order
+    path = tmp_path / "ordered.mcap"
+    write_mcap(path, messages, chunk_size=2_000)
+    with open_log(path) as reader:
+        got = [(r.topic, r.log_time_ns, r.data) for r in reader.messages()]
+    with path.open("rb") as f:
+        library = make_reader(f).iter_messages(log_time_order=False)
+        assert got == [(c.topic, m.log_time, m.data) for _, c, m in library]
+    assert reader.warnings == []
+
+
+def test_corrupt_chunk_of_an_mcap_stored_by_topic_is_skipped(tmp_path: Path) -> None:
+    stored = _stored(frame_messages(3), "by-topic")
+    path = tmp_path / "by_topic.mcap"
+    write_mcap(path, stored)  # one message per chunk
+    data = bytearray(path.read_bytes())
+    starts, ends = chunk_starts(path), chunk_ends(path)
+    middle = (starts[4] + ends[4]) // 2  # inside chunk 4's compressed records
+    data[middle - 8 : middle + 8] = bytes(b ^ 0x5A for b in data[middle - 8 : middle + 8])
+    path.write_bytes(bytes(data))
+    with open_log(path) as reader:
+        got = [(r.topic, r.log_time_ns, r.data) for r in reader.messages()]
+    assert got == _log_time_order(stored[:4] + stored[5:])
+    assert len(reader.damage) == 1
+    assert "corrupt chunk skipped" in reader.damage[0]
+    assert f"at byte {starts[4]}" in reader.damage[0]
+    assert stored[4][0] == LEFT
+    with open_log(path) as reader:  # the index says which chunks hold a topic: others unread
+        right = [r.log_time_ns for r in reader.messages([RIGHT])]
+    assert right == [log_time for topic, _, log_time in stored if topic == RIGHT]
+    assert reader.damage == []
 
 
 def test_empty_mcap_has_no_messages_and_no_error(tmp_path: Path) -> None:
@@ -362,8 +460,14 @@ def test_decode_image_unsupported_encoding() -> None:
     with pytest.raises(ValueError, match="unsupported compressed image format 'tiff'"):
         decode_image(tiff)
     broken = rosmsg.compressed_image_message(b"not a png", "png", 0, "f")
-    with pytest.raises(ValueError, match=r"compressed image \(png\) of 9 bytes does not decode"):
+    with pytest.raises(ValueError, match=r"compressed png image is cut off \(no end marker; 9 b"):
         decode_image(broken)
+    _, png = cv2.imencode(".png", np.arange(64, dtype=np.uint8).reshape(8, 8))
+    damaged = png.tobytes()
+    damaged = damaged[:20] + bytes(40) + damaged[60:]  # end marker kept, pixels gone
+    bad = rosmsg.compressed_image_message(damaged, "bgr8; png compressed bgr8", 0, "f")
+    with pytest.raises(ValueError, match=r"^compressed png image does not decode \(\d+ bytes, "):
+        decode_image(bad)
 
 
 def test_decode_compressed_png_and_jpeg() -> None:

@@ -1,0 +1,226 @@
+"""What ``pcainterp evaluate`` writes: the frames it scores, the report folder, results.json."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from pcainterp_stream import cli
+from pcainterp_stream.evaluate.metrics import Mode
+from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log
+from pcainterp_stream.evaluate.tables import results_markdown, summary_table
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.logreader import decode_image, open_log
+from pcainterp_stream.io.logwriter import open_writer
+from pcainterp_stream.pipeline import jobs
+
+LEFT, RIGHT = "/stereo/left/image_rect", "/stereo/right/image_rect"
+
+
+def _blanked(source: Path, target: Path, frames: set[int]) -> Path:
+    """Copy a log with the stereo images of ``frames`` (counted from 0) all black."""
+    seen: dict[str, int] = {}
+    with open_log(source) as reader, open_writer(target, "mcap") as writer:
+        for raw in reader.messages():
+            message = reader.decode(raw)
+            if raw.topic in (LEFT, RIGHT):
+                index = seen[raw.topic] = seen.get(raw.topic, -1) + 1
+                if index in frames:
+                    black = decode_image(message) * 0
+                    message = rosmsg.image_message(
+                        black,
+                        rosmsg.stamp_ns(message),
+                        message.header.frame_id,
+                        encoding=message.encoding,
+                    )
+            writer.add_message(raw.topic, message, raw.log_time_ns)
+    return target
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    folder = tmp_path_factory.mktemp("report_output")
+    log = folder / "drive.mcap"
+    jobs.synth(log, frames=6, seed=31, scale=0.25, fmt="mcap")
+    dense, blank_dense = folder / "dense.mcap", folder / "blank_dense.mcap"
+    jobs.densify(log, dense)
+    jobs.densify(_blanked(log, folder / "blank.mcap", {1, 2}), blank_dense)
+    return {"folder": folder, "log": log, "dense": dense, "blank_dense": blank_dense}
+
+
+def test_frames_without_a_measurement_are_left_out_of_every_method(
+    logs: dict[str, Path],
+) -> None:
+    # before: nearest and linear (NaN there) were charged huge errors on the black frames,
+    # so PCA-MAP / nearest fell (0.66 -> 0.38 on a bug hunt log) and the report was silent
+    options = EvaluateOptions(mode=Mode.STEREO, sweep_every=0, linear=True)
+    blank, _ = evaluate_log(logs["blank_dense"], options)
+    assert blank.no_measurement == [1, 2]
+    assert blank.frames == 4
+    for name in ("pca_map", "nearest", "linear"):
+        stats = blank.methods[name]
+        assert stats.pixels > 0
+        assert stats.summary()["delta_2d_mean"] < 20.0  # no NaN estimate charged as far
+    # every method on the same frames: the same counted pixels
+    pixels = {name: stats.pixels for name, stats in blank.methods.items() if name != "oracle"}
+    assert len(set(pixels.values())) == 1
+    note = "2 frames left out of every method: no measurement there"
+    assert note in summary_table(blank)
+    assert "(frames 1, 2, counted from 0)" in summary_table(blank)
+    assert note in results_markdown(blank, [])
+    assert blank.summary()["left_out_no_measurement"] == [1, 2]
+    full, _ = evaluate_log(logs["dense"], options)
+    assert full.no_measurement == []
+    assert "left out" not in summary_table(full)
+
+
+def test_a_log_without_any_measurement_cannot_be_evaluated(tmp_path: Path) -> None:
+    from pcainterp_stream.errors import LogReadError
+
+    log = tmp_path / "drive.mcap"
+    jobs.synth(log, frames=2, seed=32, scale=0.25, fmt="mcap")
+    dense = tmp_path / "dense.mcap"
+    jobs.densify(_blanked(log, tmp_path / "black.mcap", {0, 1}), dense)
+    with pytest.raises(LogReadError, match=r"\(2 densified frames read, 2 without a measurement;"):
+        evaluate_log(dense, EvaluateOptions(mode=Mode.STEREO, sweep_every=0, linear=False))
+
+
+FAST = ["--no-basis", "--no-linear", "--max-frames", "2"]
+
+
+def test_evaluate_refuses_a_folder_holding_other_files(
+    logs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # before: a user's results.md was overwritten, and any folder was written into
+    notes = tmp_path / "myproj"
+    notes.mkdir()
+    (notes / "results.md").write_text("my notes")
+    assert cli.main(["evaluate", str(logs["dense"]), "-o", str(notes), *FAST]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1
+    assert f"cannot write the report to {notes}: its results.md is not an evaluate report's" in err
+    assert (notes / "results.md").read_text() == "my notes"
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    assert cli.main(["evaluate", str(logs["dense"]), "-o", str(other), *FAST]) == 2
+    err = capsys.readouterr().err
+    assert err.strip().endswith(
+        f"cannot write the report to {other}: it holds files a report does not write "
+        "(notes.txt); pass -o with a new or empty folder, or an earlier report's folder"
+    )
+    assert sorted(path.name for path in other.iterdir()) == ["notes.txt"]
+    assert not list(tmp_path.glob(".*partial*"))
+
+
+def test_a_rerun_replaces_the_report_and_its_stale_figures(
+    logs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # before: basis.png, variance.png and sweep.png of a run with the basis stayed beside
+    # the results.md of a run without it
+    report = tmp_path / "report"
+    with_basis = ["evaluate", str(logs["dense"]), "-o", str(report), "--max-frames", "3"]
+    assert cli.main([*with_basis, "--sweep-every", "1", "--no-linear"]) == 0
+    assert {"basis.png", "variance.png", "sweep.png"} <= {p.name for p in report.iterdir()}
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    for folder in (report, empty):
+        assert cli.main(["evaluate", str(logs["dense"]), "-o", str(folder), *FAST]) == 0
+        names = {path.name for path in folder.iterdir()}
+        assert names == {
+            "results.md",
+            "results.json",
+            "errors.png",
+            "uncertainty.png",
+            "examples.png",
+        }
+    capsys.readouterr()
+    assert not list(tmp_path.glob(".*partial*"))
+
+
+def test_results_json_is_strict_json(logs: dict[str, Path], tmp_path: Path) -> None:
+    # before: the histograms' open last bin edges were written as bare Infinity, which
+    # JavaScript's JSON.parse (and every RFC 8259 reader) rejects
+    report = tmp_path / "report"
+    jobs.evaluate(logs["dense"], report, basis_rows=False, linear=False, max_frames=2)
+    text = (report / "results.json").read_text()
+
+    def refuse(constant: str) -> None:
+        raise ValueError(f"non-standard JSON constant {constant}")
+
+    data = json.loads(text, parse_constant=refuse)
+    assert data["bins"]["delta_2d_px"][-1] is None  # the open last bin
+    assert data["bins"]["depth_m"][:2] == [0.0, 5.0]
+
+
+def test_a_log_densified_with_too_few_outputs_names_densify_outputs(
+    logs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # before: "...; evaluate needs a log written by `pcainterp densify`", which it was
+    dense = tmp_path / "depth_only.mcap"
+    assert cli.main(["densify", str(logs["log"]), "-o", str(dense), "--outputs", "depth"]) == 0
+    capsys.readouterr()
+    assert cli.main(["evaluate", str(dense), "-o", str(tmp_path / "report"), *FAST]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1
+    assert err.strip() == (
+        f"pcainterp: error: {dense} has no /pcainterp/disparity_std, /pcainterp/features, "
+        "/pcainterp/camera_info; densify wrote only depth into it (`pcainterp densify "
+        "--outputs`): evaluate needs depth or disparity, disparity_std, features and "
+        "camera_info; densify again with --outputs depth,disparity_std,features,camera_info "
+        "(or without --outputs)"
+    )
+    assert not (tmp_path / "report").exists()
+
+
+def test_the_points_sweep_lists_only_the_counts_it_reached(logs: dict[str, Path]) -> None:
+    # before: rows for 400 and 800 points identical to the last reached one (fewer corners
+    # were found than asked for), "(1 frames)", and no word on what the sweep measures
+    basis, _ = jobs.evaluation_basis(logs["dense"])  # the built-in one densify used
+    options = EvaluateOptions(basis, mode=Mode.STEREO, sweep_every=1, max_frames=1, linear=False)
+    result, _ = evaluate_log(logs["dense"], options)
+    assert result.sweep_frames == 1
+    (corners,) = result.sweep_corners
+    assert 50 <= corners < 800
+    assert sorted(result.sweep) == [p for p in (50, 100, 200, 400, 800) if p <= corners]
+    assert all(result.sweep_reached[points] == 1 for points in result.sweep)
+    markdown = results_markdown(result, [])
+    assert "## Error against the number of points (1 frame)\n" in markdown
+    assert f"The frame had {corners} corners with a disparity; larger counts have no row." in (
+        markdown
+    )
+    assert "corners only, none of densify's lattice points" in markdown
+    assert "measurement noise --sigma 2 px" in markdown
+    rows = [line for line in markdown.splitlines() if line[:2] == "| " and line[2].isdigit()]
+    assert [int(row.split("|")[1]) for row in rows] == sorted(result.sweep)
+
+
+def test_the_uncertainty_figure_says_which_estimate_each_series_is(
+    logs: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # before: the log's stored estimate and evaluate's re-densifications (--sigma 2) were
+    # drawn as one "PCA-MAP", told apart only by the bare names stored/paper/exact
+    from matplotlib.figure import Figure
+
+    legends: dict[str, list[str]] = {}
+    save = Figure.savefig
+
+    def savefig(figure: Figure, name: Path, **kwargs: Any) -> None:
+        found = [axis.get_legend() for axis in figure.axes]
+        legends[Path(name).name] = [t.get_text() for f in found if f for t in f.get_texts()]
+        save(figure, name, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", savefig)
+    basis, _ = jobs.evaluation_basis(logs["dense"])
+    report = tmp_path / "report"
+    jobs.evaluate(logs["dense"], report, basis=basis, max_frames=2, sweep_every=0, linear=False)
+    labels = legends["uncertainty.png"]
+    assert "stored: the log's estimate and std" in labels
+    assert "exact: re-densified, --sigma 2" in labels
+    assert "paper: re-densified, --sigma 2: RMS error" in labels
+    assert "`stored` is the log's own estimate and std; `paper`, `exact`, `exact+residual` are" in (
+        (report / "results.md").read_text()
+    )
