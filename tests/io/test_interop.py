@@ -38,6 +38,7 @@ from rosbags.highlevel import AnyReader
 from pcainterp_stream import cli
 from pcainterp_stream.defaults import DISPLAY_MAX_DEPTH
 from pcainterp_stream.io import rosmsg
+from pcainterp_stream.version import __version__
 
 JS_DIR = Path(__file__).resolve().parents[1] / "js"
 FRAMES = 3
@@ -259,7 +260,7 @@ def test_js_reads_summary_and_every_channel(
 ) -> None:
     indexed, stream = js_output["indexed"], js_output["stream"]
     assert indexed["profile"] == "ros2"
-    assert indexed["library"] == "pcainterp_stream"
+    assert indexed["library"] == f"pcainterp_stream {__version__}"  # the version that wrote it
     assert indexed["chunk_compression"] == ["zstd"]
     counts: dict[str, int] = defaultdict(int)
     for item in reference:
