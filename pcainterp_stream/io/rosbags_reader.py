@@ -267,11 +267,47 @@ def _sum_counts(first: int | None, second: int) -> int | None:
 
 
 def _connection_metadata(connection: Any) -> dict[str, str]:
-    """Return MCAP channel metadata for a rosbags connection (rosbag2 QoS as YAML text)."""
+    """Return MCAP channel metadata for a rosbags connection (rosbag2 QoS as YAML text).
+
+    rosbags hands older bags' QoS over as the YAML text rosbag2 stored, newer ones' parsed:
+    those are written back in the numeric form rosbag2 writes and every release reads, so
+    that a latched topic (``/tf_static``) replays latched from the output too.
+    """
     qos = getattr(connection.ext, "offered_qos_profiles", None)
     if isinstance(qos, str) and qos:
         return {"offered_qos_profiles": qos}
+    if isinstance(qos, list) and qos:
+        try:
+            return {"offered_qos_profiles": "\n".join(map(_qos_yaml, qos))}
+        except (AttributeError, TypeError, ValueError):
+            return {}  # a form of a future rosbags: leave it out rather than guess
     return {}
+
+
+def _qos_yaml(profile: Any) -> str:
+    """Return one rosbag2 QoS profile (a rosbags ``Qos``) as rosbag2's YAML list item."""
+
+    def number(value: Any) -> int:
+        return int(getattr(value, "value", value))
+
+    def duration(name: str) -> str:
+        time = getattr(profile, name)
+        return f"  {name}:\n    sec: {int(time.sec)}\n    nsec: {int(time.nsec)}"
+
+    return "\n".join(
+        [
+            f"- history: {number(profile.history)}",
+            f"  depth: {int(profile.depth)}",
+            f"  reliability: {number(profile.reliability)}",
+            f"  durability: {number(profile.durability)}",
+            duration("deadline"),
+            duration("lifespan"),
+            f"  liveliness: {number(profile.liveliness)}",
+            duration("liveliness_lease_duration"),
+            "  avoid_ros_namespace_conventions: "
+            + str(bool(profile.avoid_ros_namespace_conventions)).lower(),
+        ]
+    )
 
 
 class _ClampedReader(io.BufferedReader):

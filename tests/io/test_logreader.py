@@ -623,3 +623,58 @@ def test_mcap_ros1_profile_is_converted_to_cdr(tmp_path: Path) -> None:
         assert raw.data == rosmsg.serialize(message)
         info = reader.decode(raw)
     np.testing.assert_allclose(rosmsg.projection_matrix(info), CAMERA.projection_right())
+
+
+def test_rosbag2_qos_parsed_by_rosbags_is_written_back_as_rosbag2_stores_it() -> None:
+    from rosbags.interfaces import (
+        Qos,
+        QosDurability,
+        QosHistory,
+        QosLiveliness,
+        QosReliability,
+        QosTime,
+    )
+
+    from pcainterp_stream.io.rosbags_reader import _connection_metadata
+
+    latched = Qos(  # /tf_static's: transient local, as a newer rosbag2 hands it to rosbags
+        history=QosHistory.KEEP_LAST,
+        depth=1,
+        reliability=QosReliability.RELIABLE,
+        durability=QosDurability.TRANSIENT_LOCAL,
+        deadline=QosTime(sec=0, nsec=0),
+        lifespan=QosTime(sec=10, nsec=0),
+        liveliness=QosLiveliness.AUTOMATIC,
+        liveliness_lease_duration=QosTime(sec=0, nsec=0),
+        avoid_ros_namespace_conventions=False,
+    )
+    connection = SimpleNamespace(ext=SimpleNamespace(offered_qos_profiles=[latched]))
+    assert _connection_metadata(connection) == {  # before: {}, replayed volatile
+        "offered_qos_profiles": "- history: 1\n  depth: 1\n  reliability: 1\n  durability: 1\n"
+        "  deadline:\n    sec: 0\n    nsec: 0\n  lifespan:\n    sec: 10\n    nsec: 0\n"
+        "  liveliness: 1\n  liveliness_lease_duration:\n    sec: 0\n    nsec: 0\n"
+        "  avoid_ros_namespace_conventions: false"
+    }
+    stored = SimpleNamespace(ext=SimpleNamespace(offered_qos_profiles="- history: 3"))
+    assert _connection_metadata(stored) == {"offered_qos_profiles": "- history: 3"}
+    assert _connection_metadata(SimpleNamespace(ext=SimpleNamespace())) == {}
+
+
+@pytest.mark.skipif(not REALDATA.is_dir(), reason=f"real data not found at {REALDATA}")
+def test_rosbag2_talker_qos_comes_out_as_its_metadata_yaml_holds_it() -> None:
+    import yaml
+    from rosbags.highlevel import AnyReader
+
+    from pcainterp_stream.io.rosbags_reader import _connection_metadata
+
+    bag = REALDATA / "rosbag2" / "mcap" / "talker"
+    info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    stored = {
+        t["topic_metadata"]["name"]: t["topic_metadata"]["offered_qos_profiles"]
+        for t in info["topics_with_message_count"]
+    }
+    with AnyReader([bag]) as reader:
+        written = {
+            c.topic: _connection_metadata(c)["offered_qos_profiles"] for c in reader.connections
+        }
+    assert written == stored
