@@ -1503,6 +1503,40 @@ def test_densify_reads_an_mcap_stored_topic_by_topic_in_log_time_order(
     assert assert_valid_mcap(out)["/pcainterp/depth"] == 3 * SMALL_FRAMES
 
 
+def test_densify_a_damaged_attachment_keeps_the_log_time_order(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+) -> None:
+    # the attachment's damage is no damage to the messages: the chunk index still holds
+    log = tmp_path / "by_topic_attachment.mcap"
+    with log.open("wb") as f:
+        writer = Writer(f, chunk_size=64 * 1024)
+        writer.start("ros2", "test")
+        writer.add_attachment(1, 2, "robot.urdf", "application/xml", b"<robot name='r'/>" * 50)
+        schemas: dict[str, int] = {}
+        channels: dict[str, int] = {}
+        for topic, message, log_time_ns in _topic_by_topic(small_messages, 3):
+            msgtype = message.__msgtype__
+            if msgtype not in schemas:
+                text = rosmsg.schema_text(msgtype).encode()
+                schemas[msgtype] = writer.register_schema(msgtype, "ros2msg", text)
+            if topic not in channels:
+                channels[topic] = writer.register_channel(topic, "cdr", schemas[msgtype])
+            writer.add_message(channels[topic], log_time_ns, rosmsg.serialize(message), log_time_ns)
+        writer.finish()
+    data = bytearray(log.read_bytes())
+    data[data.find(b"<robot name='r'/>") + 5] ^= 0x20  # one flipped bit of the attachment
+    log.write_bytes(bytes(data))
+    run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err
+    assert "corrupt attachment left out (CRC mismatch)" in run.out
+    assert f"pairing: {3 * SMALL_FRAMES} pairs, 0 unpaired left, 0 unpaired right\n" in run.out
+    assert "mcap recover" not in run.out  # before: 'has no index', pairs lost
+
+
 def test_densify_of_an_unindexed_log_out_of_time_order_says_what_it_cost(
     pcainterp: Callable[..., Run],
     small_messages: list[Message],

@@ -102,6 +102,7 @@ class McapLogReader(LogReader):
         self._ros1 = _Ros1Converter()
         self._merge_plan: _MergePlan | None = None
         self._planned = False
+        self._extras_damage = 0  # lines of damage found in attachments and metadata records
 
     def _open(self) -> None:
         try:
@@ -122,6 +123,10 @@ class McapLogReader(LogReader):
         if self._file is not None:
             self._file.close()
             self._file = None
+
+    def _message_damage(self) -> bool:
+        """Whether damage touches the messages or their index (not an attachment's)."""
+        return len(self.damage) > self._extras_damage
 
     def _damage(self, offset: int, what: str) -> None:
         _add_once(self.damage, f"{self.path.name}: {what} at byte {offset} of {self._size}")
@@ -239,7 +244,7 @@ class McapLogReader(LogReader):
         """See :meth:`LogReader.message_stats`."""
         self._check_open()
         stats = self._statistics
-        if stats is None or self.damage:
+        if stats is None or self._message_damage():
             return None
         if stats.message_count == 0:
             return (0, None, None)
@@ -251,7 +256,7 @@ class McapLogReader(LogReader):
         indexes = self._chunk_indexes.values()
         return (
             self._summary_complete
-            and not self.damage
+            and not self._message_damage()
             and bool(indexes)
             and all(index.message_index_offsets for index in indexes)
         )
@@ -278,6 +283,7 @@ class McapLogReader(LogReader):
         found = find_records(self.path, indexed, verify=verify)
         for offset, what in found.damage:
             self._damage(offset, what)
+            self._extras_damage += 1  # the messages and their index are not touched
         return McapExtras(self.path, self._channel_infos(), found.attachments, found.metadata)
 
     def _channel_infos(self) -> list[ChannelInfo]:
@@ -420,7 +426,7 @@ class McapLogReader(LogReader):
         if self._planned:
             return self._merge_plan
         self._planned = True
-        if self.damage or not self._chunk_indexes:
+        if self._message_damage() or not self._chunk_indexes:
             return None
         latest_end = -1
         for offset in sorted(self._chunk_indexes):
