@@ -2602,6 +2602,11 @@ def test_synth_refuses_a_platform_for_a_street_drive(
     assert "--platform drone carries the camera of an indoor scene" in line
     assert "add --scene indoor or drop --platform" in line
     assert_nothing_written(tmp_path / "s.mcap")
+    for scene in ("indoor", "room", "corridor", "hall"):  # the indoor scenes take it
+        target = tmp_path / f"{scene}.mcap"
+        args = ["--scene", scene, "--platform", "drone", "--frames", "1", "--scale", "0.1"]
+        run = pcainterp("synth", target, *args)
+        assert run.code == 0, run.err
 
 
 @pytest.mark.parametrize(

@@ -90,7 +90,7 @@ def synth(
         raise PcaInterpError(f"--frames must be at least 1, got {frames}")
     if not 0.05 <= scale <= 4.0:  # also refuses nan
         raise PcaInterpError(f"--scale must be in [0.05, 4], got {scale}")
-    if platform != "auto" and scene != "indoor":
+    if platform != "auto" and scene == "street":
         raise PcaInterpError(
             f"--platform {platform} carries the camera of an indoor scene; a street drive's "
             "camera is on a car: add --scene indoor or drop --platform"
