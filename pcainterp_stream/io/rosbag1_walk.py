@@ -386,7 +386,7 @@ class Ros1WalkReader(LogReader):
                     if salvaged:
                         cause = f"{cause[:-1]}; {salvaged} messages read from it)"
                 break
-            except (ValueError, UnicodeDecodeError) as err:
+            except (ValueError, UnicodeDecodeError, IndexError) as err:
                 cause = f" (then a corrupt record: {err})"
                 break
             offset = data_offset + len(data)
@@ -466,7 +466,7 @@ class Ros1WalkReader(LogReader):
                     yield _connection(inner, body)
                 elif op == _OP_MESSAGE_DATA:
                     yield _message(inner, offset, body)
-            except (ValueError, UnicodeDecodeError) as err:
+            except (ValueError, UnicodeDecodeError, IndexError) as err:
                 if not truncated:
                     self._damage(
                         offset, f"corrupt record inside a chunk, rest of chunk skipped ({err})"
@@ -481,7 +481,7 @@ def _connection(fields: dict[str, bytes], data: bytes | memoryview) -> _Connecti
     topic = fields.get("topic")
     msgtype = described.get("type")
     msgdef = described.get("message_definition")
-    if topic is None or msgtype is None or msgdef is None:
+    if not topic or not msgtype or msgdef is None:
         raise ValueError("connection record without topic, type or message_definition")
     return _Connection(
         conn_id, normalize(topic.decode()), ros2_type_name(msgtype.decode()), msgdef.decode()

@@ -271,3 +271,21 @@ def test_random_damage_to_an_unindexed_bag_never_escapes(
         except LogReadError as err:
             errors.append(str(err))
     assert all("\n" not in message for message in errors)
+
+
+def test_a_connection_without_a_topic_is_damage_not_a_traceback(
+    synth_bag: Path, tmp_path: Path
+) -> None:
+    bag = unindex(rerecord(synth_bag, tmp_path / "drive.bag", "none"), tmp_path / "x.bag")
+    data = bytearray(bag.read_bytes())
+    start = data.index(b"topic=" + LEFT.encode()) - 4  # the field's 4-byte length first
+    size = struct.unpack_from("<I", data, start)[0]
+    filler = b"x=" + b"_" * (size - 12)  # as many bytes: "topic=" and a field of filler
+    data[start : start + 4 + size] = (
+        struct.pack("<I", 6) + b"topic=" + struct.pack("<I", len(filler)) + filler
+    )
+    damaged = tmp_path / "empty_topic.bag"
+    damaged.write_bytes(bytes(data))
+    messages, damage, _ = read_all(damaged)  # before: IndexError from an empty topic
+    assert any("connection record without topic" in note for note in damage), damage
+    assert LEFT not in {topic for topic, _, _ in messages}
