@@ -920,7 +920,7 @@ def test_densify_log_without_right_images(
     assert "no stereo pair found in" in line
     assert "mono.mcap" in line
     assert LEFT in line
-    assert "it has one camera" in line
+    assert "pass --left-topic and --right-topic" in line  # /ground_truth/depth is an image too
     assert_nothing_written(out)
 
 
@@ -2648,11 +2648,11 @@ def test_densify_a_log_of_one_camera_says_so(
     out: Path,
     tmp_path: Path,
 ) -> None:
-    mono = write_messages(
-        tmp_path / "mono.mcap", [m for m in small_messages if "/right/" not in m[0]]
-    )
+    camera = [m for m in small_messages if m[0].startswith("/stereo/left/")]  # no truth
+    mono = write_messages(tmp_path / "mono.mcap", camera)
     line = pcainterp(*densify_args(mono, out, basis_path)).error_line()
     assert line.endswith(
-        f"it has one camera ({LEFT}); pcainterp needs a stereo pair, two cameras side by side"
+        f"it has one camera ({LEFT}; camera infos: {LEFT_INFO}); pcainterp needs a stereo pair, "
+        "two cameras side by side (--left-topic and --right-topic name them)"
     )
     assert_nothing_written(out)

@@ -288,20 +288,23 @@ def resolve_pairing(
         images = [t for t, i in sorted(topics.items()) if i.msgtype in _IMAGE_TYPES]
         infos = [t for t, i in sorted(topics.items()) if i.msgtype == rosmsg.CAMERA_INFO]
         want = "an image topic with a sibling camera_info" if need_info else "an image topic"
-        foreign = sorted({i.msgtype for i in topics.values() if "Image" in (i.msgtype or "")})
-        foreign = [kind for kind in foreign if kind not in _IMAGE_TYPES]
+        other_images = [  # cameras in a form pcainterp does not decode (theora, ffmpeg, SDK)
+            t
+            for t, i in topics.items()
+            if i.msgtype not in _IMAGE_TYPES and re.search(r"Image|Packet", i.msgtype or "")
+        ]
+        foreign = sorted({str(topics[t].msgtype) for t in other_images})
         if not images:
             other = f" (its {', '.join(foreign)} are not read)" if foreign else ""
             raise TopicNotFoundError(
                 f"no stereo pair found in {name}: it has no camera images{other}; pcainterp "
                 "densifies logs with two cameras' sensor_msgs/Image or CompressedImage topics"
             )
-        depth = re.compile(r"(^|[/_\-.])(depth|disparity)($|[/_\-.])")
-        cameras = [t for t in images if not depth.search(t.lower())]
-        if len(cameras) == 1 and not named:
+        if len(images) == 1 and not other_images and not named:
             raise TopicNotFoundError(
-                f"no stereo pair found in {name}: it has one camera ({cameras[0]}); pcainterp "
-                "needs a stereo pair, two cameras side by side"
+                f"no stereo pair found in {name}: it has one camera ({images[0]}; camera infos: "
+                f"{', '.join(infos) or 'none'}); pcainterp needs a stereo pair, two cameras side "
+                "by side (--left-topic and --right-topic name them)"
             )
         raise TopicNotFoundError(
             f"no stereo pair found in {name}: it needs two cameras, each {want}, named left/"

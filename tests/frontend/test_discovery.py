@@ -282,3 +282,28 @@ def test_one_head_named_by_number_still_pairs_with_tx() -> None:
     config = resolve_pairing(_TxReader(topics, tx), PairingConfig(discover=True))  # type: ignore[arg-type]
     assert (config.left_topic, config.right_topic) == ("/cam0/image_raw", "/cam1/image_raw")
     assert config.right_info_topic == "/cam1/camera_info"
+
+
+def test_a_camera_in_a_transport_not_decoded_is_not_called_a_one_camera_log() -> None:
+    from types import SimpleNamespace
+
+    from pcainterp_stream.errors import TopicNotFoundError
+    from pcainterp_stream.frontend.discovery import resolve_pairing
+    from pcainterp_stream.frontend.pairing import PairingConfig
+    from pcainterp_stream.io.reader_base import TopicInfo
+
+    kinds = {
+        "/cam/left/image_raw": "sensor_msgs/msg/Image",
+        "/cam/left/camera_info": "sensor_msgs/msg/CameraInfo",
+        "/cam/right/image_raw/ffmpeg": "ffmpeg_image_transport_msgs/msg/FFMPEGPacket",
+        "/cam/right/camera_info": "sensor_msgs/msg/CameraInfo",
+    }
+    topics = {t: TopicInfo(t, kind, 10, "cdr", "ros2msg") for t, kind in kinds.items()}
+    reader = SimpleNamespace(path="x.mcap", damage=[], topics=lambda: topics)
+    with pytest.raises(TopicNotFoundError) as caught:
+        resolve_pairing(reader, PairingConfig(discover=True))  # type: ignore[arg-type]
+    assert "one camera" not in str(caught.value)  # the right camera is there, as ffmpeg
+    assert str(caught.value).endswith(
+        "pass --left-topic and --right-topic (and --calibration LEFT.yaml RIGHT.yaml without "
+        "camera infos)"
+    )
