@@ -2616,7 +2616,7 @@ def test_synth_refuses_a_platform_for_a_street_drive(
             33_100_000,
             "33.10-33.10 ms away, beyond the 1 ms tolerance; pass --stamp-tolerance-ms 34",
         ),
-        (-1_000_000_000_000, "s before the nearest left ones: the two cameras stamp with"),
+        (-1_000_000_000_000, "(the first right image -1000 s from the first left one): the two"),
     ],
 )
 def test_densify_without_a_pair_names_the_stamp_offset(

@@ -374,6 +374,7 @@ class StereoPairer:
             frames = self._stamps_repeat(side, item.stamp_ns, period)
         if item.stamp_ns < self._last_stamp[side]:
             self.stats.non_monotonic_stamps += 1
+        self.stats.first_stamps_ns.setdefault(side, item.stamp_ns)
         self._last_stamp[side] = item.stamp_ns
         self._last_log[side] = item.log_time_ns
         return frames + self._match(side, item)

@@ -34,6 +34,7 @@ class PairingStats:
         camera_source: where that camera's baseline came from.
         nearest_gap_ns: the smallest stamp gap (right minus left, ns) seen between an image
             that found no partner and the other side's waiting images; None: none seen.
+        first_stamps_ns: the header stamp of each side's first image (``left``, ``right``).
         pairs: stereo frames emitted.
         unpaired_left: left images dropped without a right partner.
         unpaired_right: right images dropped without a left partner.
@@ -78,6 +79,7 @@ class PairingStats:
     camera: StereoCamera | None = None
     camera_source: str = ""
     nearest_gap_ns: int | None = None
+    first_stamps_ns: dict[str, int] = field(default_factory=dict)
     pairs: int = 0
     unpaired_left: int = 0
     unpaired_right: int = 0
@@ -210,10 +212,15 @@ class PairingStats:
         if self.pairs or gap is None or abs(gap) <= NEAR_MISS_LIMIT_NS:
             return None
         side = "after" if gap > 0 else "before"
+        first = self.first_stamps_ns
+        offset = ""
+        if "left" in first and "right" in first:  # what re-stamping has to move
+            shift = (first["right"] - first["left"]) / 1e9
+            offset = f" (the first right image {shift:+.6g} s from the first left one)"
         return (
             f"the right images are stamped at least {abs(gap) / 1e9:.6g} s {side} the nearest "
-            "left ones: the two cameras stamp with different clocks (or one is not synchronised); "
-            "re-stamp one side, or record the pair with one clock"
+            f"left ones{offset}: the two cameras stamp with different clocks (or one is not "
+            "synchronised); re-stamp one side, or record the pair with one clock"
         )
 
     def saw_camera(self, camera: StereoCamera, source: str) -> None:

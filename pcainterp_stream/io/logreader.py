@@ -2,10 +2,10 @@
 
 :func:`open_log` looks at a path and returns an opened :class:`LogReader`, a context manager
 in the manner of rosbags' ``AnyReader``. Every reader yields :class:`~records.RawMessage`
-records in log-time order (an MCAP without a chunk index: in file order) with bounded
-memory, and normalises what it yields so that the rest of the pipeline sees one kind of
-log: ROS messages are CDR with a ``ros2msg`` schema and type names in ROS 2 spelling
-(``sensor_msgs/msg/Image``), whatever the input format.
+records in log-time order (an MCAP without a chunk index, a bag without its index: in file
+order) with bounded memory, and normalises what it yields so that the rest of the pipeline
+sees one kind of log: ROS messages are CDR with a ``ros2msg`` schema and type names in ROS 2
+spelling (``sensor_msgs/msg/Image``), whatever the input format.
 
 Damaged input is read as far as it can be: the reader yields every message before the
 damage, then stops (or skips a damaged chunk whose framing is intact) and records a
@@ -196,7 +196,7 @@ def decode_image(message: Any) -> npt.NDArray[np.generic]:
     codec = "png" if "png" in kind else "jpeg"
     # a cut-off PNG: said here, or libpng prints its own lines (a JPEG may carry padding
     # after its end marker, as some UVC cameras send it: no such check)
-    if codec == "png" and b"IEND" not in bytes(data[-32:]):
+    if codec == "png" and b"IEND" not in bytes(data[-4096:]):
         raise ValueError(
             f"compressed {codec} image is cut off (no end marker; {data.size} bytes, format "
             f"{image_format!r})"
@@ -204,8 +204,7 @@ def decode_image(message: Any) -> npt.NDArray[np.generic]:
     image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
     if image is None:
         raise ValueError(
-            f"compressed {codec} image does not decode ({data.size} bytes, format "
-            f"{image_format!r})"
+            f"compressed {codec} image does not decode ({data.size} bytes, format {image_format!r})"
         )
     if image.ndim == 3 and image.shape[2] == 4:
         image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGB)

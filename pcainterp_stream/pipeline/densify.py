@@ -584,9 +584,9 @@ def _empty_warning(empty: int, frames: int, processor: ProcessorConfig) -> list[
 def _order_warnings(reader: LogReader, stats: PairingStats) -> list[str]:
     """The reader's warnings; a log read out of time order says what that cost the pairing.
 
-    A reader reads an indexed MCAP (and every bag) in log-time order; one it has to read in
-    file order (no chunk index) may hand the pairer, whose window is a few frames, the two
-    images of a pair too far apart to meet.
+    A reader reads an indexed MCAP or bag in log-time order; one it has to read in file
+    order (an MCAP without a chunk index, a ROS 1 bag without its index) may hand the pairer,
+    whose window is a few frames, the two images of a pair too far apart to meet.
     """
     warnings = list(reader.warnings)
     backwards = reader.backward_log_times
@@ -600,6 +600,9 @@ def _order_warnings(reader: LogReader, stats: PairingStats) -> list[str]:
         f"index it with the mcap CLI (`mcap recover {source} -o indexed.mcap`) and densify that: "
         "an indexed MCAP is read in log-time order"
         if reader.format is reader_base.LogFormat.MCAP
+        else f"restore its index (`rosbag reindex {source}`): an indexed bag is read in log-time "
+        "order"
+        if reader.format is reader_base.LogFormat.ROS1
         else "rewrite it in log-time order"
     )
     return [warning for warning in warnings if warning != plain] + [

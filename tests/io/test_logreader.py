@@ -465,6 +465,8 @@ def test_decode_image_unsupported_encoding() -> None:
     _, png = cv2.imencode(".png", np.arange(64, dtype=np.uint8).reshape(8, 8))
     damaged = png.tobytes()
     damaged = damaged[:20] + bytes(40) + damaged[60:]  # end marker kept, pixels gone
+    padded = rosmsg.compressed_image_message(png.tobytes() + bytes(64), "png", 0, "f")
+    assert decode_image(padded).shape == (8, 8)  # a fixed-size buffer's padding after IEND
     bad = rosmsg.compressed_image_message(damaged, "bgr8; png compressed bgr8", 0, "f")
     with pytest.raises(ValueError, match=r"^compressed png image does not decode \(\d+ bytes, "):
         decode_image(bad)
