@@ -411,7 +411,7 @@ class GridTarget:
     finetune: bool = False
 
 
-BLANK_MAPS = "blank, dark or textureless images"
+BLANK_MAPS = "blank, dark or textureless images, or a depth topic without depth"
 
 
 def shows_surface(disparity: npt.NDArray[np.float32]) -> bool:
@@ -687,7 +687,7 @@ def _learn_here(
                     continue
                 used += 1
                 yield disparity
-        found = f"SGBM found no disparity above 0 in {blank} of {blank + used} maps ({BLANK_MAPS})"
+        found = f"{blank} of {blank + used} maps hold no disparity above 0 ({BLANK_MAPS})"
         if blank and not used:
             names = ", ".join(log.name for log in plan.logs)
             raise PcaInterpError(f"{names}: {found}; learn from frames that show the scene")
