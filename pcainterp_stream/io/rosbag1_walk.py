@@ -497,6 +497,10 @@ def _message(fields: dict[str, bytes], offset: int, data: memoryview) -> _Messag
     return _Message(_uint(fields, "conn", 4), offset, sec * 1_000_000_000 + nsec, data)
 
 
+MAX_CHUNK_BYTES = 1 << 30
+"""The largest chunk the walker decompresses (rosbag record's chunks are 768 KiB)."""
+
+
 def _inflate(fields: dict[str, bytes], data: bytes, *, truncated: bool) -> bytes:
     """Return the records of a chunk: ``data`` decompressed, at most its stated size.
 
@@ -511,6 +515,8 @@ def _inflate(fields: dict[str, bytes], data: bytes, *, truncated: bool) -> bytes
     size = _uint(fields, "size", 4)
     if size == 0 and not data:  # the header a killed recorder left for the chunk it wrote
         return b""
+    if size > MAX_CHUNK_BYTES:  # rosbag's chunks hold 768 KiB: a damaged size, not a chunk
+        raise ValueError(f"chunk claims {size} bytes, more than {MAX_CHUNK_BYTES}")
     if compression == "none":
         records = data[:size]
         ended = len(data) == size
