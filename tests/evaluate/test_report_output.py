@@ -203,6 +203,28 @@ def test_a_folder_that_cannot_be_written_is_refused_before_the_evaluation(
         )
 
 
+def test_a_folder_named_like_a_figure_is_refused_before_the_evaluation(
+    logs: dict[str, Path],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # the files are moved into an existing folder one by one: a folder errors.png would
+    # fail that move after the evaluation (and is no report's, so it is not removed)
+    def not_run(*args: Any, **kwargs: Any) -> None:
+        raise AssertionError("the log was evaluated")
+
+    monkeypatch.setattr(report_module, "evaluate_log", not_run)
+    (tmp_path / "report" / "errors.png").mkdir(parents=True)
+    folder = tmp_path / "report"
+    assert cli.main(["evaluate", str(logs["dense"]), "-o", str(folder), *FAST]) == 2
+    err = capsys.readouterr().err
+    assert err.strip().endswith(
+        f"cannot write the report to {folder}: it holds files a report does not write "
+        "(errors.png); pass -o with a new or empty folder, or an earlier report's folder"
+    )
+
+
 def test_the_current_folder_can_hold_the_report(
     logs: dict[str, Path],
     tmp_path: Path,
