@@ -49,6 +49,7 @@ from pcainterp_stream.evaluate.metrics import (
     stereo_transform,
 )
 from pcainterp_stream.evaluate.reference import (
+    IMAGE_TYPES,
     SPARSE_BELOW,
     ReferenceTopic,
     reference_disparity,
@@ -735,7 +736,8 @@ def evaluate_log(
                 raise TopicNotFoundError(hint or str(err)) from None
         reference_topic = options.reference_topic
         if reference_topic is None and not options.sgbm_reference:
-            sparse_only = GROUND_TRUTH_DEPTH not in present and LIDAR_DEPTH in present
+            lidar = present[LIDAR_DEPTH].msgtype if LIDAR_DEPTH in present else None
+            sparse_only = GROUND_TRUTH_DEPTH not in present and lidar in IMAGE_TYPES  # else SGBM
             reference_topic = LIDAR_DEPTH if sparse_only else None
         reference = (
             None
@@ -862,7 +864,7 @@ def write_report(
 
     Args:
         path: a log written by ``pcainterp densify``.
-        folder: the report folder: new, empty or an earlier report's (replaced as a whole,
+        folder: the report folder: new, empty or an earlier report's (its files replaced
             once the report is complete).
         options: evaluation options.
         topics: output topic names.

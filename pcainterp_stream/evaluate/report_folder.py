@@ -1,9 +1,11 @@
 """The report folder of ``pcainterp evaluate``: which folder it may write, and how.
 
-A report is written into a staging folder beside the target (``.NAME.partial-XXXX``) and
-moved onto it only once complete, as densify writes its outputs: a stopped or failed run
-leaves the folder as it was, and a re-run leaves no figure of an earlier one. A folder that
-holds files a report does not write (a user's notes, another tool's output) is refused.
+A report is written into a hidden staging folder (``.NAME.partial-XXXX``: beside a new target,
+inside an existing one) and moved into place only once complete, as densify writes its
+outputs: a stopped or failed run leaves the folder as it was, and a re-run leaves no figure
+of an earlier one. An existing folder is written into, never renamed, so it may be a mount
+point (a container's volume) or the current folder. A folder that holds files a report does
+not write (a user's notes, another tool's output) is refused; hidden files are ignored.
 ``results.json`` is strict JSON (RFC 8259): non-finite numbers are written as ``null``.
 """
 
@@ -32,34 +34,67 @@ def check_report_folder(folder: Path) -> None:
     """Refuse a report folder evaluate must not write (before the log is evaluated).
 
     Allowed: a path that does not exist yet (its parent folder must), an empty folder, or a
-    folder of an earlier report (only :data:`REPORT_FILES`).
+    folder of an earlier report (only :data:`REPORT_FILES`; hidden files such as
+    ``.gitkeep`` are ignored and kept). The folder (or, for a new one, its parent) must be
+    writable: that is tried here, so a refusal costs no evaluation.
 
     Raises:
-        PcaInterpError: no parent folder, a file, or a folder holding other files.
+        PcaInterpError: no parent folder, a file, a folder holding other files, or a
+            folder evaluate cannot write.
     """
-    if not folder.parent.is_dir():
+    path = _absolute(folder)
+    if not path.parent.is_dir():
         raise PcaInterpError(
             f"cannot write the report to {folder}: folder {folder.parent} does not exist"
         )
-    if folder.exists() and not folder.is_dir():
+    if path.exists() and not path.is_dir():
         raise PcaInterpError(
             f"cannot write the report to {folder}: it is a file, the report is a folder; "
             "pass a folder path"
         )
-    if not folder.is_dir():
-        return
-    others = sorted(entry.name for entry in folder.iterdir() if entry.name not in REPORT_FILES)
+    if path.is_dir():
+        _check_contents(folder, path)
+    _probe_writable(folder, path if path.is_dir() else path.parent)
+
+
+def _absolute(folder: Path) -> Path:
+    """``folder`` made absolute and normalised (``.`` and ``..`` resolved, links kept)."""
+    return Path(os.path.abspath(folder))
+
+
+def _visible(folder: Path) -> list[str]:
+    return sorted(entry.name for entry in folder.iterdir() if not entry.name.startswith("."))
+
+
+def _check_contents(folder: Path, path: Path) -> None:
+    others = [name for name in _visible(path) if name not in REPORT_FILES or (path / name).is_dir()]
     if others:
         shown = ", ".join(others[:5]) + (f" and {len(others) - 5} more" if len(others) > 5 else "")
         raise PcaInterpError(
             f"cannot write the report to {folder}: it holds files a report does not write "
             f"({shown}); pass -o with a new or empty folder, or an earlier report's folder"
         )
-    if (folder / "results.md").is_file() and not _is_report_json(folder / "results.json"):
+    if (path / "results.md").is_file() and not _is_report_json(path / "results.json"):
         raise PcaInterpError(
             f"cannot write the report to {folder}: its results.md is not an evaluate "
             "report's (no results.json of one beside it); pass -o with a new or empty folder"
         )
+
+
+def _probe_writable(folder: Path, where: Path) -> None:
+    """Make and remove a folder in ``where``: what writing the report will do."""
+    try:
+        Path(tempfile.mkdtemp(prefix=".pcainterp-probe-", dir=where)).rmdir()
+    except OSError as err:
+        raise _not_writable(folder, where, err) from err
+
+
+def _not_writable(folder: Path, where: Path, err: OSError) -> PcaInterpError:
+    which = "it is" if where == _absolute(folder) else f"its folder {folder.parent} is"
+    return PcaInterpError(
+        f"cannot write the report to {folder}: {which} not writable ({err.strerror}); "
+        "choose a writable folder"
+    )
 
 
 def _is_report_json(path: Path) -> bool:
@@ -91,40 +126,46 @@ def report_json(summary: dict[str, Any]) -> str:
 
 
 def write_report_folder(folder: Path, write: Callable[[Path], None]) -> None:
-    """Run ``write`` on a staging folder and move it onto ``folder`` once it is complete.
+    """Run ``write`` on a staging folder and move its files into ``folder`` once complete.
 
-    An existing ``folder`` (checked by :func:`check_report_folder`) is replaced as a whole,
-    so no file of an earlier report stays beside the new one.
+    A new ``folder`` is the staging folder renamed. An existing one (checked by
+    :func:`check_report_folder`; it may be a mount point or the current folder) is never
+    renamed: the report is staged in a hidden folder inside it, each file is moved into
+    place (atomically, one by one), and the report files of an earlier run that this one
+    did not write are removed, so no stale figure stays beside the new report.
 
     Raises:
-        PcaInterpError: the staging folder cannot be made or moved (permissions).
+        PcaInterpError: the staging folder cannot be made, or a file cannot be moved.
     """
+    path = _absolute(folder)
+    existing = path.is_dir()
+    where = path if existing else path.parent
     try:
-        staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.partial-", dir=folder.parent))
+        staging = Path(tempfile.mkdtemp(prefix=f".{path.name}.partial-", dir=where))
     except OSError as err:
-        raise PcaInterpError(
-            f"cannot write the report to {folder}: {err.strerror}; choose a writable folder"
-        ) from err
+        raise _not_writable(folder, where, err) from err
     track_partial(staging)  # removed even if a signal forces the end
     try:
         write(staging)
-        os.chmod(staging, 0o777 & ~_umask())  # mkdtemp's 0700 would hide the report
-        if folder.is_dir():
-            check_report_folder(folder)  # nothing was added while the log was evaluated
-            old = staging.with_name(staging.name + ".replaced")
-            os.replace(folder, old)
+        if not existing:
+            os.chmod(staging, 0o777 & ~_umask())  # mkdtemp's 0700 would hide the report
             try:
-                os.replace(staging, folder)
+                os.replace(staging, path)
+                return
             except OSError:
-                os.replace(old, folder)
-                raise
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(staging, folder)
+                if not path.is_dir():  # else: made meanwhile, move the files into it
+                    raise
+        check_report_folder(folder)  # nothing was added while the log was evaluated
+        written = {entry.name for entry in staging.iterdir()}
+        for name in sorted(written):
+            os.replace(staging / name, path / name)
+        for name in REPORT_FILES:
+            if name not in written:
+                (path / name).unlink(missing_ok=True)
     except OSError as err:
         raise PcaInterpError(
-            f"cannot move the finished report onto {folder}: {err.strerror}; check the "
-            "folder's permissions"
+            f"cannot move the finished report into {folder}: {err.strerror}; "
+            "re-run once it is writable"
         ) from err
     finally:
         shutil.rmtree(staging, ignore_errors=True)

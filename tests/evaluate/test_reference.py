@@ -17,6 +17,7 @@ from hypothesis.extra import numpy as hnp
 from hypothesis_profiles import examples
 
 from pcainterp_stream import cli
+from pcainterp_stream.errors import PcaInterpError
 from pcainterp_stream.evaluate.metrics import (
     CalibrationStats,
     MethodStats,
@@ -478,3 +479,24 @@ def test_sparse_truth_alone_is_the_default_reference(logs: dict[str, Path]) -> N
     assert default.methods["pca_map"].summary() == named.methods["pca_map"].summary()
     assert _evaluate(logs["dense"], None).reference == "ground truth"  # the dense one first
     assert _evaluate(sparse_only, None, sgbm_reference=True).reference == "SGBM"
+
+
+def test_a_default_lidar_topic_that_is_no_image_falls_back_to_sgbm(
+    logs: dict[str, Path],
+) -> None:
+    # before: a /ground_truth/lidar_depth of another type (a point cloud under that natural
+    # name) made evaluate fail as if the user had named it, where it used to compare to SGBM
+    cloud = logs["folder"] / "cloud_lidar.mcap"
+    with open_log(logs["dense"]) as reader, open_writer(cloud) as writer:
+        for raw in reader.messages():
+            if raw.topic == LIDAR_DEPTH:
+                points = {axis: np.zeros(3, np.float32) for axis in "xyz"}
+                stamp = rosmsg.stamp_ns(reader.decode(raw))
+                writer.add_message(
+                    raw.topic, rosmsg.pointcloud2_message(points, stamp, "lidar"), raw.log_time_ns
+                )
+            elif raw.topic != DEPTH:
+                writer.add_raw(raw)
+    assert _evaluate(cloud, None).reference == "SGBM"
+    with pytest.raises(PcaInterpError, match="is a sensor_msgs/msg/PointCloud2"):
+        _evaluate(cloud, LIDAR_DEPTH)  # named by the user: still refused

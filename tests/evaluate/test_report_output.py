@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 from pathlib import Path
 from typing import Any
 
 import pytest
 
 from pcainterp_stream import cli
+from pcainterp_stream.evaluate import report as report_module
+from pcainterp_stream.evaluate import report_folder
 from pcainterp_stream.evaluate.metrics import Mode
 from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log
 from pcainterp_stream.evaluate.tables import results_markdown, summary_table
@@ -139,6 +143,111 @@ def test_a_rerun_replaces_the_report_and_its_stale_figures(
         }
     capsys.readouterr()
     assert not list(tmp_path.glob(".*partial*"))
+
+
+REPORT = {"results.md", "results.json", "errors.png", "uncertainty.png", "examples.png"}
+
+
+def test_an_existing_folder_is_written_into_not_renamed(
+    logs: dict[str, Path],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # before: the folder was renamed away and the staging folder renamed onto it, which a
+    # mount point (a container's volume: EBUSY) refuses, after the whole evaluation
+    report = tmp_path / "report"
+    with_basis = ["evaluate", str(logs["dense"]), "-o", str(report), "--max-frames", "3"]
+    assert cli.main([*with_basis, "--sweep-every", "1", "--no-linear"]) == 0
+    (report / ".gitkeep").write_text("")  # hidden files are neither refused nor removed
+    inode = report.stat().st_ino
+    replace = os.replace
+
+    def mount_point(source: Any, target: Any) -> None:
+        if Path(source).resolve() == report.resolve():
+            raise OSError(errno.EBUSY, os.strerror(errno.EBUSY), str(source))
+        replace(source, target)
+
+    monkeypatch.setattr(report_folder.os, "replace", mount_point)
+    assert cli.main(["evaluate", str(logs["dense"]), "-o", str(report), *FAST]) == 0
+    assert {path.name for path in report.iterdir()} == {*REPORT, ".gitkeep"}
+    assert report.stat().st_ino == inode
+    assert "methods" in json.loads((report / "results.json").read_text())
+    capsys.readouterr()
+    assert not list(tmp_path.glob(".*partial*"))
+
+
+def test_a_folder_that_cannot_be_written_is_refused_before_the_evaluation(
+    logs: dict[str, Path],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # before: a folder in a parent evaluate could not write failed only after the evaluation
+    def not_run(*args: Any, **kwargs: Any) -> None:
+        raise AssertionError("the log was evaluated")
+
+    def denied(*args: Any, **kwargs: Any) -> str:
+        raise PermissionError(errno.EACCES, os.strerror(errno.EACCES))
+
+    monkeypatch.setattr(report_module, "evaluate_log", not_run)
+    monkeypatch.setattr(report_folder.tempfile, "mkdtemp", denied)
+    for folder in (tmp_path / "new", tmp_path):
+        assert cli.main(["evaluate", str(logs["dense"]), "-o", str(folder), *FAST]) == 2
+        err = capsys.readouterr().err
+        assert len(err.splitlines()) == 1
+        which = f"its folder {tmp_path} is" if folder.name == "new" else "it is"
+        assert err.strip().endswith(
+            f"cannot write the report to {folder}: {which} not writable "
+            "(Permission denied); choose a writable folder"
+        )
+
+
+def test_a_folder_named_like_a_figure_is_refused_before_the_evaluation(
+    logs: dict[str, Path],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # the files are moved into an existing folder one by one: a folder errors.png would
+    # fail that move after the evaluation (and is no report's, so it is not removed)
+    def not_run(*args: Any, **kwargs: Any) -> None:
+        raise AssertionError("the log was evaluated")
+
+    monkeypatch.setattr(report_module, "evaluate_log", not_run)
+    (tmp_path / "report" / "errors.png").mkdir(parents=True)
+    folder = tmp_path / "report"
+    assert cli.main(["evaluate", str(logs["dense"]), "-o", str(folder), *FAST]) == 2
+    err = capsys.readouterr().err
+    assert err.strip().endswith(
+        f"cannot write the report to {folder}: it holds files a report does not write "
+        "(errors.png); pass -o with a new or empty folder, or an earlier report's folder"
+    )
+
+
+def test_the_current_folder_can_hold_the_report(
+    logs: dict[str, Path],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # before: `-o .` staged inside `.` itself and refused its own staging folder, after the
+    # whole evaluation
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    for _ in range(2):  # empty, then an earlier report's
+        assert cli.main(["evaluate", str(logs["dense"]), "-o", ".", *FAST]) == 0
+        assert {path.name for path in here.iterdir()} == REPORT
+    (here / "sub").mkdir()
+    monkeypatch.chdir(here / "sub")
+    assert cli.main(["evaluate", str(logs["dense"]), "-o", "..", *FAST]) == 2  # holds sub/
+    err = capsys.readouterr().err
+    assert err.strip().endswith(
+        "cannot write the report to ..: it holds files a report does not write (sub); "
+        "pass -o with a new or empty folder, or an earlier report's folder"
+    )
+    assert not list(tmp_path.rglob(".*partial*"))
 
 
 def test_results_json_is_strict_json(logs: dict[str, Path], tmp_path: Path) -> None:
