@@ -130,7 +130,8 @@ def _check_writable(golden: Path, array_file: Path | None, log: Path) -> None:
 
     Raises:
         GoldenError: ``golden`` or ``array_file`` is the log, ``golden`` exists and is not
-            a golden file, or ``array_file`` exists and is not a golden arrays file.
+            a golden file, or ``array_file`` exists and is not a golden arrays file or
+            holds the arrays of another golden file beside it (:func:`_other_owner`).
     """
     for target in (golden, array_file):
         if target is not None and target.resolve() == log.resolve():
