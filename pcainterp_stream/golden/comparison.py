@@ -435,8 +435,16 @@ class _Comparer:
                 continue
             golden = np.asarray(self.golden_arrays[key], dtype=np.float64)
             actual = np.asarray(self.actual_arrays[have_key], dtype=np.float64)
+            size, came_or_went, compared = golden.size, 0, ""
             if golden.shape != actual.shape:
-                continue  # the statistics already name the shape
+                if not (self.cloud and golden.ndim == 1 and actual.ndim == 1):
+                    continue  # the statistics already name the shape
+                # a cloud whose point count moved within tolerance: its common prefix is
+                # compared, and the points that came or went count as beyond
+                common = min(golden.size, actual.size)
+                came_or_went = abs(golden.size - actual.size)
+                compared = f" (first {common} points compared; {actual.size} points, golden {size})"
+                golden, actual = golden[:common], actual[:common]
             std_key = std_arrays.get(name)
             std: npt.NDArray[np.float64] | None = None
             if (
@@ -462,11 +470,11 @@ class _Comparer:
             with np.errstate(invalid="ignore"):  # inf - inf where both are +inf
                 error = np.where(both_finite, np.abs(actual - golden), 0.0)
             beyond = (both_finite & (error > allowed)) | ~(both_finite | same_special)
-            count = int(beyond.sum())
-            limit = limits["bad_fraction"] * golden.size
+            count = int(beyond.sum()) + came_or_went
+            limit = limits["bad_fraction"] * size
             if self.cloud:  # as many points may move as may come or go
                 counts = tolerance["point_count"]
-                limit = max(limit, counts["rel"] * golden.size + counts["abs"])
+                limit = max(limit, counts["rel"] * size + counts["abs"])
             if count > limit:
                 score = error
                 if std is not None:  # the element that moved most in units of its std
@@ -481,8 +489,8 @@ class _Comparer:
                     moved = f" ({_g(float(error[worst] / std[worst]))} std)"
                 add(
                     f"{name} elements",
-                    f"{count} of {golden.size} beyond {unit} (allowed {limit:.0f}); e.g. at "
-                    f"{tuple(int(i) for i in worst)}: {_g(actual[worst])}, golden "
+                    f"{count} of {size} beyond {unit} (allowed {limit:.0f}){compared}; e.g. "
+                    f"at {tuple(int(i) for i in worst)}: {_g(actual[worst])}, golden "
                     f"{_g(golden[worst])}{moved}",
                 )
 

@@ -13,6 +13,8 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import zipfile
+import zlib
 from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -50,6 +52,10 @@ ARRAYS_MARKER = "__pcainterp_golden_arrays__"
 """The key of a golden arrays file that marks it as one: a JSON string naming the format
 (``pcainterp-golden-arrays/1``) and the golden JSON it belongs to."""
 ARRAYS_FORMAT = "pcainterp-golden-arrays/1"
+
+_NPZ_ERRORS = (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error)
+"""What ``np.load`` of a damaged or cut-off ``.npz`` raises (a zip without its directory
+raises :class:`zipfile.BadZipFile`, a damaged member :class:`zlib.error`)."""
 
 
 @dataclass
@@ -96,9 +102,10 @@ def is_golden_arrays(path: str | Path) -> bool:
         with Path(path).open("rb") as stream:
             if stream.read(4) != b"PK\x03\x04":  # an .npz is a zip; a .npy, a log are not
                 return False
-        with np.load(path) as data:
-            keys = list(data.files)
-    except (OSError, ValueError, EOFError):  # not readable, or a zip that is not an npz
+            stream.seek(0)
+            with np.load(stream) as data:  # our stream: closed also when np.load fails
+                keys = list(data.files)
+    except _NPZ_ERRORS:  # not readable, cut off, or a zip that is not an npz
         return False
     if ARRAYS_MARKER in keys:
         return True
@@ -123,7 +130,8 @@ def _check_writable(golden: Path, array_file: Path | None, log: Path) -> None:
 
     Raises:
         GoldenError: ``golden`` or ``array_file`` is the log, ``golden`` exists and is not
-            a golden file, or ``array_file`` exists and is not a golden arrays file.
+            a golden file, or ``array_file`` exists and is not a golden arrays file or
+            holds the arrays of another golden file beside it (:func:`_other_owner`).
     """
     for target in (golden, array_file):
         if target is not None and target.resolve() == log.resolve():
@@ -135,12 +143,58 @@ def _check_writable(golden: Path, array_file: Path | None, log: Path) -> None:
             f"{golden} exists and is not a golden file, so it is not overwritten; move it, "
             "or give the golden file another name"
         )
-    if array_file is not None and array_file.exists() and not is_golden_arrays(array_file):
+    if array_file is None or not array_file.exists():
+        return
+    if not is_golden_arrays(array_file):
         raise GoldenError(
-            f"{array_file} exists and is not a golden arrays file (a basis? a log?), so it "
-            f"is not overwritten with {golden.name}'s arrays; move it, or give the golden "
-            "file another name"
+            f"{array_file} exists and is not a golden arrays file (a basis? a log? a "
+            f"damaged file?), so it is not overwritten with {golden.name}'s arrays; move it, "
+            "or give the golden file another name"
         )
+    owner = _other_owner(array_file, golden)
+    if owner is not None:
+        raise GoldenError(
+            f"{array_file} holds the arrays of the golden file {owner} beside it, so it is "
+            f"not overwritten with {golden.name}'s arrays; give the golden file another name"
+        )
+
+
+def _owner(path: Path) -> str | None:
+    """Return the golden JSON a marked arrays file names (None: unmarked or unreadable)."""
+    try:
+        with path.open("rb") as stream, np.load(stream) as data:
+            if ARRAYS_MARKER not in data.files:
+                return None
+            owner = json.loads(str(data[ARRAYS_MARKER])).get("golden")
+    except (*_NPZ_ERRORS, AttributeError):
+        return None
+    return owner if isinstance(owner, str) and owner else None
+
+
+def _other_owner(path: Path, golden: Path, channels: Mapping[str, Any] | None = None) -> str | None:
+    """Return the name of another golden JSON beside ``path`` that keeps its arrays there.
+
+    ``a.json`` and ``a.golden.json`` both keep their arrays in ``a.golden.npz``; the marker
+    says whose they are. None when they are ``golden``'s, unmarked (written before the
+    marker), their golden JSON is gone or names another arrays file (``golden`` was
+    renamed or copied from it), or (``channels`` given: a check) it summarises the same
+    channels as ``golden``, so its arrays fit ``golden`` too.
+    """
+    owner = _owner(path)
+    if owner is None or owner == golden.name or Path(owner).name != owner:
+        return None
+    other = path.parent / owner
+    if other.resolve() == golden.resolve() or not _is_golden_json(other):
+        return None
+    try:
+        document = json.loads(other.read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None
+    if document.get("arrays_file") != path.name:
+        return None
+    if channels is not None and document.get("channels") == channels:
+        return None
+    return owner
 
 
 @contextmanager
@@ -239,11 +293,11 @@ def _arrays_of(path: Path, golden: Path) -> bool:
     if not is_golden_arrays(path):
         return False
     try:
-        with np.load(path) as data:
+        with path.open("rb") as stream, np.load(stream) as data:
             if ARRAYS_MARKER not in data.files:
                 return path.name == golden.with_suffix(".npz").name
             owner = json.loads(str(data[ARRAYS_MARKER])).get("golden")
-    except (OSError, ValueError, AttributeError):
+    except (*_NPZ_ERRORS, AttributeError):
         return False
     return bool(owner == golden.name)
 
@@ -352,15 +406,30 @@ def _open_arrays(
         return
     path = golden.parent / str(document["arrays_file"])
     try:
-        data = np.load(path)
+        stream = path.open("rb")
     except FileNotFoundError as err:
         raise GoldenError(
             f"{golden.name} stores its arrays in {path.name}, which is missing; copy it "
             "beside the golden file or save again"
         ) from err
-    except (OSError, ValueError) as err:
-        raise GoldenError(f"arrays file {path} does not load ({err})") from err
-    with data:
+    except OSError as err:
+        raise GoldenError(f"arrays file {path} is not readable ({err})") from err
+    try:
+        data = np.load(stream)
+    except _NPZ_ERRORS as err:
+        stream.close()
+        raise GoldenError(
+            f"arrays file {path} does not load ({err}); it is damaged or cut off: save "
+            f"{golden.name} again with --arrays"
+        ) from err
+    with stream, data:
+        owner = _other_owner(path, golden, document.get("channels"))
+        if owner is not None:
+            raise GoldenError(
+                f"{path} holds the arrays of the golden file {owner}, not those of "
+                f"{golden.name} (both name it); save {golden.name} again under another name "
+                "with --arrays"
+            )
         yield data
 
 
@@ -471,14 +540,9 @@ def describe_golden_file(path: str | Path) -> str | None:
     if not path.is_file():
         return None
     if is_golden_arrays(path):
-        with np.load(path) as data:
+        with path.open("rb") as stream, np.load(stream) as data:
             count = sum(1 for key in data.files if key != ARRAYS_MARKER)
-            owner = None
-            if ARRAYS_MARKER in data.files:
-                try:
-                    owner = json.loads(str(data[ARRAYS_MARKER])).get("golden")
-                except (ValueError, AttributeError):
-                    owner = None
+        owner = _owner(path)
         of = f"the golden file {owner}" if owner else "a golden file"
         return (
             f"{path}: the arrays of {of} ({count} arrays, for its element-wise check), "
@@ -491,6 +555,13 @@ def describe_golden_file(path: str | Path) -> str | None:
     fmt = document["format"]
     channels = document.get("channels")
     channels = channels if isinstance(channels, dict) else {}
+    for topic, channel in channels.items():
+        stated = channel.get("message_count", 0) if isinstance(channel, dict) else None
+        if not isinstance(stated, int) or isinstance(stated, bool) or stated < 0:
+            raise GoldenError(
+                f"{path} is a malformed golden file ({fmt}): channel {topic} has no message "
+                "count; write it again with `pcainterp golden save`"
+            )
     messages = sum(int(c.get("message_count", 0)) for c in channels.values())
     arrays = document.get("arrays_file")
     lines = [

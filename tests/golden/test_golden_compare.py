@@ -223,7 +223,7 @@ def _image_document(image: np.ndarray) -> dict[str, Any]:
 
 
 def test_red_and_blue_exchanged_fail_by_their_block_means() -> None:
-    rng = np.random.default_rng(5)
+    rng = np.random.default_rng(4)  # (a point more moves no statistic of these)
     rgb = np.empty((48, 64, 3), dtype=np.uint8)
     rgb[:20] = (110, 160, 230)  # sky
     rgb[20:] = (150, 120, 90)  # road
@@ -268,3 +268,27 @@ def test_a_real_photo_swapped_or_mirrored_fails_its_noise_passes() -> None:
     noisy = rgb.copy()
     noisy[np.random.default_rng(0).random(rgb.shape[:2]) < 0.01] ^= 1
     assert compare(golden, _image_document(noisy)) == []
+
+
+def test_a_point_cloud_of_another_length_is_still_compared_element_wise() -> None:
+    rng = np.random.default_rng(4)
+    y = rng.uniform(-2.0, 2.0, size=200).astype(np.float32)
+    golden, arrays = _cloud_document(y, "a0"), {"a0": y}
+
+    def elements(points: np.ndarray) -> list[str]:
+        found = compare(
+            golden,
+            _cloud_document(points, "b0"),
+            golden_arrays=arrays,
+            actual_arrays={"b0": points},
+        )
+        return [d.text for d in found if d.what == "points.y elements"]
+
+    more = np.append(y, y[:1])  # a corner more, within the point count's tolerance
+    assert elements(more) == []
+    moved = more.copy()
+    moved[:40] += 4e-3  # no longer skipped because the length moved
+    texts = elements(moved)
+    assert len(texts) == 1
+    assert "41 of 200 beyond" in texts[0]  # 40 moved + 1 that came
+    assert "(first 200 points compared; 201 points, golden 200)" in texts[0]

@@ -172,3 +172,75 @@ def test_a_file_not_ours_at_the_golden_path_is_refused(log: Path, tmp_path: Path
     golden = tmp_path / "drive.golden.json"
     save_golden(log, golden)
     save_golden(log, golden)  # its own file is rewritten
+
+
+def test_damaged_npz_files_are_one_line_errors(
+    log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    golden = tmp_path / "z.golden.json"
+    save_golden(log, golden, arrays=True)
+    whole = (tmp_path / "z.golden.npz").read_bytes()
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes(whole[: len(whole) // 2])  # the zip magic, no zip directory
+    fake = tmp_path / "fake.npz"
+    fake.write_bytes(b"PK\x03\x04garbage")
+    for damaged in (cut, fake):
+        capsys.readouterr()
+        assert main(["info", str(damaged)]) == 2  # the basis reader's error, as before
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0
+        assert "is not a readable .npz archive" in err
+        assert damaged.name in err
+    (tmp_path / "z.golden.npz").write_bytes(cut.read_bytes())
+    assert main(["golden", "check", str(log), str(golden)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0
+    assert "z.golden.npz does not load" in err
+    other = tmp_path / "other.json"
+    (tmp_path / "other.golden.npz").write_bytes(cut.read_bytes())
+    assert main(["golden", "save", str(log), "-o", str(other), "--arrays"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0
+    assert "other.golden.npz exists and is not a golden arrays" in err
+    assert not other.exists()
+
+
+def test_a_json_and_a_golden_json_do_not_share_arrays(
+    log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    plain, dotted = tmp_path / "a.json", tmp_path / "a.golden.json"
+    save_golden(log, plain, arrays=True)
+    before = (tmp_path / "a.golden.npz").read_bytes()
+    other_log = _write_log(tmp_path / "other.mcap", scale=2.0)
+    with pytest.raises(GoldenError, match=r"holds the arrays of the golden file a\.json"):
+        save_golden(other_log, dotted, arrays=True)
+    assert (tmp_path / "a.golden.npz").read_bytes() == before
+    assert not dotted.exists()
+    assert check_log(log, plain).passed
+    # as an older version left them: the other log's a.golden.json over a.json's arrays
+    save_golden(other_log, tmp_path / "x.golden.json", arrays=True)
+    document = json.loads((tmp_path / "x.golden.json").read_text())
+    dotted.write_text(json.dumps(dict(document, arrays_file="a.golden.npz")))
+    with np.load(tmp_path / "x.golden.npz") as data:
+        stored = dict(data)
+    marker = json.dumps({"format": "pcainterp-golden-arrays/1", "golden": "a.golden.json"})
+    stored["__pcainterp_golden_arrays__"] = np.array(marker)
+    np.savez_compressed(tmp_path / "a.golden.npz", **stored)  # type: ignore[arg-type]
+    with pytest.raises(GoldenError, match=r"holds the arrays of the golden file a\.golden\.json"):
+        check_log(log, plain)
+    assert check_log(other_log, dotted).passed
+    # the owner summarises the same channels (a copy of a.json): its arrays fit a.json too
+    dotted.write_text(json.dumps(dict(json.loads(plain.read_text()), arrays_file="a.golden.npz")))
+    assert check_log(log, plain).differences  # the stored arrays are other_log's: compared
+
+
+def test_info_on_a_malformed_golden_file_is_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    for n, channels in enumerate(({"a": 1}, {"a": {"message_count": "x"}})):
+        bad = tmp_path / f"g{n}.json"
+        bad.write_text(json.dumps({"format": "pcainterp-golden/2", "channels": channels}))
+        assert main(["info", str(bad)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0
+        assert f"g{n}.json is a malformed golden file" in err
