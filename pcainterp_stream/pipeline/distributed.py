@@ -38,6 +38,7 @@ import multiprocessing
 import os
 import shutil
 import signal
+import sys
 import tempfile
 import threading
 from collections.abc import Callable, Iterator
@@ -85,6 +86,9 @@ from pcainterp_stream.pipeline.learn import (
     shows_surface,
     to_grid,
 )
+
+QUIET_TRACKER = "ignore:resource_tracker:UserWarning"
+"""The warnings filter that keeps the resource tracker's leaked-semaphore warning quiet."""
 
 DEFAULT_CHUNK_FRAMES = 64
 """Frames (after ``every``) one learning task reads, matches and summarises."""
@@ -388,6 +392,11 @@ def connect(scheduler: str | None = None, workers: int | None = None) -> Iterato
         with Client(scheduler) as client:  # type: ignore[no-untyped-call]
             yield client
         return
+    # multiprocessing's resource tracker (a process of its own, started with this
+    # interpreter's -W options) warns of the semaphores of workers a Ctrl-C ended: it
+    # removes them all the same, so the warning is noise under the one-line message
+    if QUIET_TRACKER not in sys.warnoptions:
+        sys.warnoptions.append(QUIET_TRACKER)
     # the cluster is made without workers (the scheduler alone, a few tenths of a second)
     # and they are added once it is bound here, so an interruption while they start
     # still finds and stops them; closing restores the logging last
