@@ -1194,20 +1194,25 @@ def test_densify_refuses_float_images_naming_the_topic(
     assert_nothing_written(out)
 
 
-def test_densify_warns_of_frames_without_a_measurement(
-    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
-) -> None:
-    # the first two pairs black (a lens cap, a dark tunnel): no corner, no lookup
+def _blanked(small_log: Path, target: Path, frames: int) -> Path:
+    """The small log with its first ``frames`` pairs black (SGBM: disparity 0 all over)."""
     blanked: dict[str, int] = {}
 
     def change(topic: str, message: Any, _: int) -> Any:
-        if topic not in (LEFT, RIGHT) or blanked.get(topic, 0) >= 2:
+        if topic not in (LEFT, RIGHT) or blanked.get(topic, 0) >= frames:
             return message
         blanked[topic] = blanked.get(topic, 0) + 1
         image = np.zeros_like(rosmsg.image_array(message))
         return rosmsg.image_message(image, rosmsg.stamp_ns(message), message.header.frame_id)
 
-    log = rewrite(small_log, tmp_path / "blank.mcap", change)
+    return rewrite(small_log, target, change)
+
+
+def test_densify_warns_of_frames_without_a_measurement(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    # the first two pairs black (a lens cap, a dark tunnel): no corner, no lookup
+    log = _blanked(small_log, tmp_path / "blank.mcap", 2)
     run = pcainterp(*densify_args(log, out, basis_path, "--carry-frames", "0"))
     assert run.code == 0
     assert (
@@ -2526,20 +2531,6 @@ def test_learn_says_why_it_kept_fewer_components(
     else:
         assert len(notes) == 1, run.out
         assert note in notes[0]
-
-
-def _blanked(small_log: Path, target: Path, frames: int) -> Path:
-    """The small log with its first ``frames`` pairs black (SGBM: disparity 0 all over)."""
-    blanked: dict[str, int] = {}
-
-    def change(topic: str, message: Any, _: int) -> Any:
-        if topic not in (LEFT, RIGHT) or blanked.get(topic, 0) >= frames:
-            return message
-        blanked[topic] = blanked.get(topic, 0) + 1
-        image = np.zeros_like(rosmsg.image_array(message))
-        return rosmsg.image_message(image, rosmsg.stamp_ns(message), message.header.frame_id)
-
-    return rewrite(small_log, target, change)
 
 
 @pytest.mark.parametrize("workers", [None, "1"])
