@@ -2,6 +2,6 @@
 
 import sys
 
-from pcainterp_stream.cli.app import console
+from pcainterp_stream.cli import console
 
 sys.exit(console())

@@ -14,6 +14,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 LOG = ROOT / "tests" / "data" / "golden_synth.mcap"
 
@@ -139,3 +141,46 @@ def test_the_program_freezes_the_imports_for_the_collector_and_main_does_not(
     before, in_process, program = map(int, result.stdout.split()[-3:])
     assert in_process == before == 0
     assert program > 0
+
+
+def test_the_command_imports_nothing_heavy_before_it_handles_signals() -> None:
+    """``pcainterp``'s console script imports ``pcainterp_stream.cli`` before it runs: that
+    import (and the package's) loads none of NumPy, OpenCV or the jobs, so a Ctrl-C during
+    the ~0.4 s they take lands in :func:`cli.console`, which answers it in one line."""
+    modules = _modules_after("import pcainterp_stream, pcainterp_stream.cli")
+    assert _loaded(modules, ("numpy", "cv2", "scipy", "mcap", "rosbags")) == []
+    assert "pcainterp_stream.cli.app" not in modules
+
+
+def test_a_ctrl_c_while_the_command_starts_is_one_line(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import importlib
+
+    from pcainterp_stream import cli
+
+    def interrupted(name: str) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(importlib, "import_module", interrupted)
+    assert cli.console() == 130
+    assert capsys.readouterr().err == (
+        "pcainterp: interrupted while starting; nothing was read or written\n"
+    )
+
+
+def test_the_packages_names_load_on_first_use() -> None:
+    import pcainterp_stream
+    from pcainterp_stream import cli
+    from pcainterp_stream.cli import app
+    from pcainterp_stream.estimate import basis, estimator
+
+    assert pcainterp_stream.Basis is basis.Basis
+    assert pcainterp_stream.densify is estimator.densify
+    assert cli.main is app.main
+    assert cli.COMMANDS is app.COMMANDS
+    assert set(pcainterp_stream.__all__) <= set(dir(pcainterp_stream))
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        pcainterp_stream.nope  # noqa: B018
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        cli.nope  # noqa: B018
