@@ -163,7 +163,8 @@ class DensifiedFrame(NamedTuple):
         frame: the input pair (stamp, frame id, images, camera).
         pixels: (k, 2) float32 (x, y) image px of the measurements used.
         disparities: (k,) float32 measured disparities (px).
-        disparity: (H, W) float32 dense MAP disparity (px).
+        disparity: (H, W) float32 dense MAP disparity (px); NaN all over for a frame
+            without any measurement, own or carried (no estimate, not the prior's mean).
         disparity_std: (H, W) float32 posterior std of the disparity (px).
         depth: (H, W) float32 depth (m) with REP 118 ranges: ``+inf`` (farther than
             measurable) where the disparity is below ``min_disparity``, NaN where there is
@@ -186,3 +187,8 @@ class DensifiedFrame(NamedTuple):
     measurement_source: str
     counts: dict[str, int]
     min_disparity: float = 0.0
+
+    @property
+    def estimated(self) -> bool:
+        """Whether the frame has an estimate (a black frame has none: its maps are NaN)."""
+        return self.pixels.shape[0] > 0 or bool(np.isfinite(self.disparity).any())

@@ -1217,8 +1217,14 @@ def test_densify_warns_of_frames_without_a_measurement(
     assert run.code == 0
     assert (
         f"warning: 2 of {SMALL_FRAMES} frames had no measurement (blank, dark or textureless "
-        "images): their depth is the prior's mean alone" in run.out
+        "images): they have no estimate, their depth is NaN" in run.out
     )
+    # ... and they have none: NaN all over (not the prior's mean, a scene never seen)
+    with open_log(out) as reader:
+        depths = [image_of(reader.decode(raw)) for raw in reader.messages(["/pcainterp/depth"])]
+    assert len(depths) == SMALL_FRAMES
+    assert all(np.isnan(depth).all() for depth in depths[:2])
+    assert all(np.isfinite(depth).mean() > 0.5 for depth in depths[2:])
     plain = pcainterp(*densify_args(small_log, out, basis_path))
     assert "had no measurement" not in plain.out
 

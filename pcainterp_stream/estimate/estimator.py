@@ -141,6 +141,18 @@ class DensifyResult:
         """Return k, the number of measurements used."""
         return int(self.disparities.shape[0])
 
+    def unknown(self) -> DensifyResult:
+        """Return this result with no estimate: disparity NaN and no std nor depth.
+
+        For a frame that had no information at all (not one measurement, nor a temporal
+        prior): its MAP estimate is the prior's mean, a scene that was never seen, which a
+        caller that reads the depth without its std would take for a measurement.
+        """
+        unknown = np.full(self.disparity.shape, np.nan, dtype=np.float32)
+        return dataclasses.replace(
+            self, disparity=unknown, disparity_std=None, depth=None, depth_std=None
+        )
+
 
 def densify(
     basis: Basis | None,

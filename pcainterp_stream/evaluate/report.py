@@ -523,8 +523,9 @@ class _Evaluator:
         """Score one frame against its reference (``baselines``: with the stereo ones).
 
         A frame with fewer than :data:`MIN_MEASUREMENTS` usable measurements is left out of
-        every method (nearest and linear have nothing to interpolate, PCA-MAP gives the
-        prior's mean alone) and only counted in ``result.no_measurement``.
+        every method (nearest and linear have nothing to interpolate, PCA-MAP has no estimate:
+        NaN; the prior's mean in logs densified by earlier versions) and only counted in
+        ``result.no_measurement``.
         """
         camera, size = frame.camera, frame.camera.image_size
         usable, _, _ = clean_measurements(frame.pixels, frame.disparities, size)

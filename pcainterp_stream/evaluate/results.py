@@ -244,7 +244,7 @@ class Evaluation:
         return (
             f"{count} {'frame' if count == 1 else 'frames'} left out of every method: no "
             f"measurement there (black, dark or textureless images), so nearest and linear "
-            f"have nothing to interpolate and densify wrote the prior's mean "
+            f"have nothing to interpolate and PCA-MAP has no estimate "
             f"({'frame' if count == 1 else 'frames'} {shown}{more}, counted from 0)"
         )
 

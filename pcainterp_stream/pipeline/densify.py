@@ -256,7 +256,7 @@ def densify(
         raise PcaInterpError("densify needs an output: pass -o OUTPUT, --foxglove, or both")
     measurements = 0
     frames = 0
-    # "empty": frames without a single measurement (the prior's mean alone)
+    # "empty": frames without a single measurement, so without an estimate (NaN)
     robust = {"downweighted": 0, "most": 0, "resets": 0, "carried": 0, "carry_resets": 0}
     robust["empty"] = 0
     check = (
@@ -375,7 +375,7 @@ def densify(
             if on_frame is not None:
                 on_frame(result)
             measurements += int(result.pixels.shape[0])
-            robust["empty"] += int(result.pixels.shape[0] == 0)
+            robust["empty"] += not result.estimated
             frames += 1
             robust["downweighted"] += result.counts.get("downweighted", 0)
             robust["most"] = max(robust["most"], result.counts.get("downweighted", 0))
@@ -577,7 +577,7 @@ def _empty_warning(empty: int, frames: int, processor: ProcessorConfig) -> list[
         return []
     return [
         f"{empty} of {frames} frames had no measurement (blank, dark or textureless images): "
-        "their depth is the prior's mean alone, and their std the prior's; do not trust them"
+        "they have no estimate, their depth is NaN"
     ]
 
 

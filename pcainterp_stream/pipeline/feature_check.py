@@ -44,7 +44,7 @@ class FeatureStreamCheck:
         all_dropped_behind: the points of those frames behind the camera.
         all_dropped_outside: the points of those frames outside the image.
         usable_frames: frames with at least one point in front of the camera, in the image.
-        unmeasured: frames without a single measurement (the prior's mean alone).
+        unmeasured: frames without a single measurement, own or carried (no estimate: NaN).
         points: points of the frames' clouds.
         behind: points behind the camera (z <= 0).
         outside: points in front of the camera but outside the image.
@@ -111,7 +111,7 @@ class FeatureStreamCheck:
             self.grid_points += points - rejected
             self.grid_kept += points - rejected - thinned
             self.cell = max(self.cell, counts["features_cell"])
-        self.unmeasured += int(result.pixels.shape[0] == 0)
+        self.unmeasured += not result.estimated
         if not counts.get("feature_cloud", 0):
             self.without_cloud += 1
         elif points == 0:
@@ -158,14 +158,16 @@ class FeatureStreamCheck:
         lines: list[str] = []
         missed = self.frames - self.usable_frames
         if missed:
+            carried = "only the points carried from earlier frames (do not trust them)"
             if self.unmeasured == missed:
-                alone = "their depth is the prior's mean alone, and their std the prior's"
-            else:  # the others had points carried from earlier frames
-                alone = f"{self.unmeasured} of them had only the prior's mean"
+                alone = "they have no estimate (depth NaN)"
+            elif self.unmeasured:
+                alone = f"{self.unmeasured} of them have no estimate (NaN), the others {carried}"
+            else:
+                alone = f"they have {carried}"
             lines.append(
                 f"{missed} of {self.frames} frames got no point from --features-topic "
-                f"{self.topic}, so {alone} (do not trust them): "
-                f"{'; '.join(self._causes(stats, error=False))}"
+                f"{self.topic}, so {alone}: {'; '.join(self._causes(stats, error=False))}"
             )
         dropped = self.behind + self.outside
         # frames that lost every point have their warning above; this one is for the others

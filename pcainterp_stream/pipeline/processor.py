@@ -811,6 +811,8 @@ class FrameProcessor:
         if item.disparity_map is not None:  # dense mode: the SGBM map, pixel by pixel
             estimate = fuse_dense(estimate, item.disparity_map, self._dense_model, item.holes)
         unknown = _unknown(estimate.disparity.shape)
+        if not (item.pixels.shape[0] or n_carried or estimate.temporal == "temporal" or self.dense):
+            estimate = estimate.unknown()  # not one measurement, own or carried: no estimate
         return DensifiedFrame(
             frame=item.frame,
             pixels=item.pixels,
@@ -894,7 +896,5 @@ def _unknown(shape: tuple[int, ...]) -> npt.NDArray[np.float32]:
     return unknown
 
 
-def _or(
-    array: npt.NDArray[np.float32] | None, default: npt.NDArray[np.float32]
-) -> npt.NDArray[np.float32]:
+def _or(array: npt.NDArray[np.float32] | None, default: npt.NDArray[np.float32]) -> Any:
     return default if array is None else array
