@@ -17,6 +17,7 @@ from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import LogFormat, open_writer
+from pcainterp_stream.io.outputs import image_of
 from pcainterp_stream.pipeline import jobs
 from pcainterp_stream.pipeline.densify import DensifySummary
 from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
@@ -162,7 +163,13 @@ def test_frames_without_a_cloud_are_blamed_on_the_stream(log: Path, tmp_path: Pa
     summary = densify(source, tmp_path / "out.mcap")
     assert summary.frames == 4
     (line,) = summary.warnings
-    assert line.startswith("2 of 4 frames got no point from --features-topic /features, so ")
+    assert line.startswith(
+        "2 of 4 frames got no point from --features-topic /features, so they have no estimate "
+        "(depth NaN): "
+    )
+    with open_log(tmp_path / "out.mcap") as reader:
+        depths = [image_of(reader.decode(raw)) for raw in reader.messages(["/pcainterp/depth"])]
+    assert [bool(np.isnan(depth).all()) for depth in depths] == [False, True, False, True]
     assert line.endswith(": 2 had no cloud within the 1 ms stamp tolerance")  # no near miss
     assert "textureless" not in line
     assert summary.feature_line is not None
