@@ -2256,7 +2256,7 @@ def test_densify_rerun_recording_with_one_camera(
     assert_nothing_written(out)
     run = pcainterp(*args, "--baseline", "0.1")
     assert run.code == 0, run.err
-    assert "densified 1 frames" in run.out
+    assert "densified 1 frame of" in run.out
     assert assert_valid_mcap(out)["/image"] == 1
     assert depth_shapes(out) == [(480, 640)]
 

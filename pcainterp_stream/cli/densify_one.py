@@ -172,7 +172,8 @@ def _serving(server: FoxgloveLive | None, live: LiveOptions, topics: OutputTopic
 def _print_summary(summary: DensifySummary, processor: ProcessorConfig) -> None:
     dense = processor.measurements == "dense"
     echo(
-        f"densified {summary.frames} frames of {summary.input} in {summary.seconds:.1f} s "
+        f"densified {summary.frames} frame{'' if summary.frames == 1 else 's'} of "
+        f"{summary.input} in {summary.seconds:.1f} s "
         f"({summary.frames_per_second:.1f} frames/s), "
         f"{summary.measurements / max(summary.frames, 1):.0f} points per frame"
         + (", fused with the whole SGBM map (dense)" if dense else "")

@@ -79,7 +79,8 @@ def _stereo_lines(result: Evaluation, nearest: MethodStats) -> list[str]:
 def summary_table(result: Evaluation) -> str:
     """Return the plain-text summary table ``evaluate`` prints."""
     lines = [
-        f"{result.frames} frames of {result.log}, {result.mode} mode, reference: "
+        f"{result.frames} frame{'' if result.frames == 1 else 's'} of {result.log}, "
+        f"{result.mode} mode, reference: "
         f"{result.reference_label}, {result.points_per_frame:.0f} points per frame",
     ]
     if result.skipped:
