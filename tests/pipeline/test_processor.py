@@ -301,15 +301,21 @@ def test_features_source_densifies_the_projected_points(basis: Basis) -> None:
     assert result.counts["features"] == 3
 
 
-def test_blank_frame_yields_the_prior(basis: Basis) -> None:
+def test_blank_frame_has_no_estimate(basis: Basis) -> None:
+    """Not the prior's mean (a scene never seen, which the estimator's MAP gives): NaN."""
     blank = np.full((HEIGHT, WIDTH), 128, dtype=np.uint8)
     frame = make_frame(0, 10)._replace(left=blank, right=blank)
-    (result,) = run(basis, [frame])
-    prior = densify(basis, np.zeros((0, 2)), np.zeros(0))
+    (result, after) = run(basis, [frame, make_frame(1, 10)])
     assert result.pixels.shape == (0, 2)
-    np.testing.assert_allclose(result.disparity, prior.disparity, rtol=1e-5)
-    assert np.isfinite(result.disparity_std).all()
-    assert float(result.disparity_std.min()) > 0.0
+    assert not result.estimated
+    for image in (result.disparity, result.disparity_std, result.depth, result.depth_std):
+        assert image.shape == (HEIGHT, WIDTH)
+        assert np.isnan(image).all()
+    assert after.estimated
+    assert np.isfinite(after.disparity).all()
+    # the estimator itself still answers no measurement with the prior
+    prior = densify(basis, np.zeros((0, 2)), np.zeros(0))
+    assert np.isfinite(prior.disparity).all()
 
 
 def test_camera_change_splits_the_batch(basis: Basis, monkeypatch: pytest.MonkeyPatch) -> None:
