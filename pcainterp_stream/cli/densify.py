@@ -166,8 +166,8 @@ def add_parser(commands: Commands) -> None:
         choices=["compact", "full"],
         default="compact",
         help="compact (default): depth and disparity_std as compressedDepth PNG within 1/64 "
-        "of the posterior std, a 16UC1 mm depth for viewers: ~0.7 MB of output per KITTI "
-        "frame. full: every channel float32, ~7.3 MB per KITTI frame (docs/benchmarks.md, "
+        "of the posterior std: ~0.8 MB of output per KITTI frame. full: every channel "
+        "float32, ~7.3 MB per KITTI frame (docs/benchmarks.md, "
         "'Output encodings')",
     )
     densify.add_argument(
