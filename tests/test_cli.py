@@ -1227,6 +1227,21 @@ def test_densify_warns_of_frames_without_a_measurement(
     assert all(np.isfinite(depth).mean() > 0.5 for depth in depths[2:])
     plain = pcainterp(*densify_args(small_log, out, basis_path))
     assert "had no measurement" not in plain.out
+    assert "could not check" not in plain.out  # the rectified-and-not-swapped check decided
+
+
+def test_densify_says_when_the_rows_could_not_be_checked(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
+) -> None:
+    # black all through (a lens cap): no corner to tell a raw or swapped pair by
+    log = _blanked(small_log, tmp_path / "black.mcap", SMALL_FRAMES)
+    run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err
+    assert (
+        f"warning: could not check that {LEFT} / {RIGHT} is rectified and not swapped: 0 "
+        f"matched corners in all {SMALL_FRAMES} frames, 30 needed (dark, blank or unrelated "
+        "images); it was densified unchecked" in run.out
+    )
 
 
 def test_densify_encoding_mismatch_is_not_called_a_size_mismatch(

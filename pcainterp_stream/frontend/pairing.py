@@ -137,7 +137,7 @@ class _Pending:
         self.stamp_ns = stamp_ns
         self.log_time_ns = log_time_ns
         self.message = message
-        self.miss_ns = -1  # the nearest other-side image beyond the tolerance when it came
+        self.miss_ns = -1  # the nearest other-side image that waited unpaired as it did
 
 
 def features_from_pointcloud(message: Any, log_time_ns: int) -> SparseFeatures:
@@ -184,7 +184,9 @@ class StereoPairer:
             RowCheck(
                 self.config.left_topic,
                 self.config.right_topic,
-                calibration_files=self.config.calibration is not None,
+                info_topics=None
+                if self.config.calibration is not None
+                else (self.config.left_info_topic, self.config.right_info_topic),
             )
             if self.config.check_rows and self.config.rectify != "never"
             else None
@@ -352,6 +354,7 @@ class StereoPairer:
         """
         if self._rows is not None:
             self._rows.finish()
+            self.stats.row_check_undecided = self._rows.undecided
         self.flush()
         self._count_unpaired("left", self._left)
         self._count_unpaired("right", self._right)
@@ -384,9 +387,13 @@ class StereoPairer:
         own, other = (self._left, self._right) if side == "left" else (self._right, self._left)
         partner = self._closest(other, self._time(item))
         if partner is None:
+            # each waiting image keeps its nearest other-side image (before or after it) that
+            # waited too: the partner a wider tolerance would give it, not a paired neighbour
             gaps = [self._time(p) - self._time(item) for p in other]
+            for waiting, gap in zip(other, gaps, strict=True):
+                waiting.miss_ns = _nearer(waiting.miss_ns, abs(gap))
+                item.miss_ns = _nearer(item.miss_ns, abs(gap))
             nearest = min(gaps, key=abs, default=None)
-            item.miss_ns = -1 if nearest is None or abs(nearest) > NEAR_MISS_NS else abs(nearest)
             if nearest is not None:
                 self.stats.saw_gap(nearest if side == "left" else -nearest)
             own.append(item)
@@ -571,7 +578,7 @@ class StereoPairer:
             camera=camera,
         )
         if self._rows is not None:
-            self._rows.see(left_image, right_image, rectified=rectifier is not None)
+            self._rows.see(left_image, right_image, rectifier=rectifier)
         if rectifier is not None:
             self._frame_rectifier[self._index] = rectifier
             if len(self._frame_rectifier) > 4 * MAX_HELD_RECTIFIERS:  # nobody asks (learn)
@@ -793,6 +800,13 @@ def is_rectified_name(topic: str) -> bool:
     """Return True for an image topic named as rectified (``image_rect``, ``image_rect_color``)."""
     parts = [p for p in topic.split("/") if p and p not in ("compressed", "compressedDepth")]
     return bool(parts) and "rect" in parts[-1].lower()
+
+
+def _nearer(miss_ns: int, gap_ns: int) -> int:
+    """Return the nearer of a near miss (-1: none) and a gap, -1 beyond :data:`NEAR_MISS_NS`."""
+    if gap_ns > NEAR_MISS_NS:
+        return miss_ns
+    return gap_ns if miss_ns < 0 else min(miss_ns, gap_ns)
 
 
 def _size(camera: StereoCamera) -> str:

@@ -60,7 +60,8 @@ class PairingStats:
         non_monotonic_stamps: images whose stamp is earlier than the previous one on the
             same side.
         near_misses_ns: the gap (ns) of each image dropped unpaired to the nearest other-side
-            image when it came, if beyond the tolerance but within :data:`NEAR_MISS_NS`.
+            image that was waiting unpaired too (recorded before or after it), if beyond the
+            tolerance but within :data:`NEAR_MISS_NS`.
         repeated_stamp_topic: the image topic whose header stamps did not tell its images
             apart (the side's previous stamp again), from which on images were paired
             by log time; None when the stamps paired every image.
@@ -74,6 +75,8 @@ class PairingStats:
             a frame interval.
         window: the pairing's window (pairs held waiting for camera infos).
         problems: the first :data:`MAX_PROBLEMS` one-line problem descriptions.
+        row_check_undecided: why the check that the pair is rectified and not swapped gave
+            no verdict (too few matched corners); None when it gave one or was off.
     """
 
     camera: StereoCamera | None = None
@@ -104,6 +107,11 @@ class PairingStats:
     log_tolerance_ns: int = 0
     window: int = 0
     problems: list[str] = field(default_factory=list)
+    row_check_undecided: str | None = None
+
+    def row_check_hint(self) -> str | None:
+        """A warning when the rectified-and-not-swapped check could not decide, else None."""
+        return self.row_check_undecided if self.pairs else None
 
     def tolerance_hint(self) -> str | None:
         """A warning when unpaired images had a partner just beyond the tolerance, else None."""
@@ -114,8 +122,10 @@ class PairingStats:
         by_log = self.repeated_stamp_topic is not None
         when = " of log time" if by_log else ""
         tolerance = self.log_tolerance_ns if by_log else self.tolerance_ns
+        dropped = self.unpaired_left + self.unpaired_right
+        some = f"{len(misses)} of the {dropped}" if len(misses) < dropped else f"all {dropped}"
         return (
-            f"{len(misses)} images were dropped unpaired whose other-side image was "
+            f"{some} images dropped unpaired had an unpaired other-side image "
             f"{min(misses) / 1e6:.2f}-{widest:.2f} ms{when} away, beyond the "
             f"{tolerance / 1e6:g} ms tolerance; pass --stamp-tolerance-ms "
             f"{math.ceil(widest)} to pair them"

@@ -1,7 +1,10 @@
 """The guard against an unrectified or swapped stereo pair (``PairingConfig.check_rows``).
 
 The pairer shows it the first frames of a pair: matched corners of a rectified pair lie on
-the same rows, with non-negative disparities. A pair that fails is refused with the fix.
+the same rows, with non-negative disparities. A pair that fails is refused with the fix. The
+check goes on past frames that give few matches (a camera's dark start-up, a lens cap) until
+enough frames have given some, within the first :data:`ROW_CHECK_MAX_FRAMES`; a log that never
+gives enough is densified unchecked, and :attr:`RowCheck.undecided` says why.
 """
 
 from __future__ import annotations
@@ -9,21 +12,29 @@ from __future__ import annotations
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
+import cv2
 import numpy as np
+import numpy.typing as npt
 
 from pcainterp_stream.errors import CalibrationError
 from pcainterp_stream.frontend import rectify as rect
 
-__all__ = ["RowCheck"]
+__all__ = ["RowCheck", "exchanged_offset"]
 
 ROW_CHECK_FRAMES = 5
-"""How many first frames the row check looks at (it decides earlier with enough matches)."""
+"""How many frames with matches the row check looks at (it decides earlier with enough)."""
+
+ROW_CHECK_FRAME_MATCHES = 10
+"""A frame with fewer matches than this (dark, blank) does not count in :data:`ROW_CHECK_FRAMES`."""
+
+ROW_CHECK_MAX_FRAMES = 100
+"""The row check decides by this frame at the latest (5 s at 20 Hz, 3.3 s at 30 Hz)."""
 
 ROW_CHECK_MATCHES = 150
 """Matches after which the row check decides."""
 
 ROW_CHECK_MIN_MATCHES = 30
-"""Fewer matches than this over the first frames: no verdict (textureless, unrelated images)."""
+"""Fewer matches than this when it decides: no verdict (dark, textureless, unrelated images)."""
 
 MAX_ROW_OFFSET_PX = 1.0
 """Largest median vertical offset (px) of matched corners a rectified pair may have."""
@@ -44,20 +55,34 @@ class RowCheck:
     Args:
         left_topic: the left image topic (named in the error).
         right_topic: the right image topic.
-        calibration_files: the calibration comes from files, not camera infos.
+        info_topics: the left and right camera info topics; None when the calibration comes
+            from files.
+
+    Attributes:
+        undecided: why the check gave no verdict (too few matches), else None.
     """
 
-    def __init__(self, left_topic: str, right_topic: str, *, calibration_files: bool) -> None:
+    def __init__(
+        self, left_topic: str, right_topic: str, *, info_topics: tuple[str, str] | None
+    ) -> None:
         self.pair = f"{left_topic} / {right_topic}"
-        self.calibration_files = calibration_files
+        self.topics = (left_topic, right_topic)
+        self.info_topics = info_topics
         self.frames = 0
-        self.points: list[Any] = []
+        self.frames_with_matches = 0
+        self.points: list[tuple[Any, rect.StereoRectifier | None]] = []
         self.done = False
-        self._pending: tuple[Future[Any], bool] | None = None
+        self.undecided: str | None = None
+        self._pending: tuple[Future[Any], rect.StereoRectifier | None] | None = None
         self._executor: ThreadPoolExecutor | None = None
 
-    def see(self, left: Any, right: Any, *, rectified: bool) -> None:
+    def see(self, left: Any, right: Any, *, rectifier: rect.StereoRectifier | None) -> None:
         """Start matching one frame's corners, once the frame before has been decided on.
+
+        Args:
+            left: the left image as densified (rectified by ``rectifier``, in its box).
+            right: the right image.
+            rectifier: the rectifier that remapped the raw pair, None when used as recorded.
 
         Raises:
             CalibrationError: the pair does not look rectified, or looks swapped.
@@ -67,24 +92,26 @@ class RowCheck:
             return
         if self._executor is None:
             self._executor = ThreadPoolExecutor(1, thread_name_prefix="row-check")
-        self._pending = (self._executor.submit(rect.correspondences, left, right), rectified)
+        self._pending = (self._executor.submit(rect.correspondences, left, right), rectifier)
 
     def finish(self) -> None:
-        """Decide with the last frame being matched (end of the stream).
+        """Decide with the frames matched so far (end of the stream).
 
         Raises:
             CalibrationError: the pair does not look rectified, or looks swapped.
         """
         try:
             self._decide()
+            if not self.done and self.frames:
+                self._judge(end=True)
         finally:
             self._close()
 
     def _decide(self) -> None:
         try:
             if self._pending is not None:
-                (future, rectified), self._pending = self._pending, None
-                self._add(future.result(), rectified=rectified)
+                (future, rectifier), self._pending = self._pending, None
+                self._add(future.result(), rectifier)
         finally:
             if self.done:
                 self._close()
@@ -95,24 +122,57 @@ class RowCheck:
             self._executor.shutdown(wait=False, cancel_futures=True)
             self._executor = None
 
-    def _add(self, matches: Any, *, rectified: bool) -> None:
+    def _add(self, matches: Any, rectifier: rect.StereoRectifier | None) -> None:
         """Add one frame's correspondences; decide once there are enough."""
         self.frames += 1
-        self.points.append(matches)
-        points = np.concatenate(self.points)
-        if points.shape[0] < ROW_CHECK_MATCHES and self.frames < ROW_CHECK_FRAMES:
+        self.frames_with_matches += int(matches.shape[0] >= ROW_CHECK_FRAME_MATCHES)
+        self.points.append((matches, rectifier))
+        if (
+            sum(points.shape[0] for points, _ in self.points) < ROW_CHECK_MATCHES
+            and self.frames_with_matches < ROW_CHECK_FRAMES
+            and self.frames < ROW_CHECK_MAX_FRAMES
+        ):
             return
+        self._judge(end=False)
+
+    def _judge(self, *, end: bool) -> None:
+        """Give the verdict on the frames matched (``end``: the stream ended first)."""
         self.done = True
-        self.points = []
+        chunks, self.points = self.points, []
+        points = np.concatenate([points for points, _ in chunks])
+        frames = f"the first {self.frames} frames"
+        if end:
+            frames = "the log's only frame" if self.frames == 1 else f"all {self.frames} frames"
         if points.shape[0] < ROW_CHECK_MIN_MATCHES:
+            self.undecided = (
+                f"could not check that {self.pair} is rectified and not swapped: "
+                f"{points.shape[0]} matched corners in {frames}, {ROW_CHECK_MIN_MATCHES} "
+                "needed (dark, blank or unrelated images); it was densified unchecked: if "
+                "the depth looks wrong, check the camera infos and which camera each topic "
+                "carries"
+            )
             return
         offset = rect.row_offset(points)
-        pair = self.pair
         where = f"median over {offset.matches} matched corners of the first {self.frames} frame(s)"
         if offset.median_abs_dy > MAX_ROW_OFFSET_PX:
-            if rectified:
+            matched = [(p, r) for p, r in chunks if p.shape[0]]
+            remapped = [(p, r) for p, r in matched if r is not None]
+            if remapped and len(remapped) == len(matched):  # raw pairs: were the sides crossed?
+                exchanged = exchanged_offset(remapped)
+                if (
+                    exchanged.median_abs_dy <= MAX_ROW_OFFSET_PX
+                    and exchanged.median_dx >= MIN_MEDIAN_DISPARITY_PX
+                ):
+                    raise CalibrationError(
+                        f"the stereo pair {self.pair} does not look rectified: matched corners "
+                        f"are {offset.median_abs_dy:.2f} px apart vertically ({where}), but "
+                        f"{exchanged.median_abs_dy:.2f} px with the two images exchanged: left "
+                        "and right look swapped (each topic carries the other camera's "
+                        f"images); pass {self.swap_flags()}"
+                    )
+            if remapped:
                 fix = "the calibration does not fit these images: check the camera infos" + (
-                    " (or the --calibration files)" if self.calibration_files else ""
+                    " (or the --calibration files)" if self.info_topics is None else ""
                 )
             else:
                 fix = (
@@ -120,14 +180,63 @@ class RowCheck:
                     "--calibration files), or check the CameraInfo"
                 )
             raise CalibrationError(
-                f"the stereo pair {pair} does not look rectified: matched corners are "
+                f"the stereo pair {self.pair} does not look rectified: matched corners are "
                 f"{offset.median_abs_dy:.2f} px apart vertically ({where}; rectified < "
                 f"{MAX_ROW_OFFSET_PX:g} px); {fix}; --rectify never densifies them anyway"
             )
         if offset.median_dx < MIN_MEDIAN_DISPARITY_PX:
             raise CalibrationError(
-                f"the stereo pair {pair} has negative disparities: x_left - x_right = "
-                f"{offset.median_dx:.1f} px ({where}): left and right look swapped; swap "
-                "--left-topic and --right-topic (or fix the baseline sign of the right camera's "
-                "P); --rectify never densifies them anyway"
+                f"the stereo pair {self.pair} has negative disparities: x_left - x_right = "
+                f"{offset.median_dx:.1f} px ({where}): left and right look swapped; pass "
+                f"{self.swap_flags()} (or fix the baseline sign of the right camera's P); "
+                "--rectify never densifies them anyway"
             )
+
+    def swap_flags(self) -> str:
+        """Return the options that exchange the two image topics, the camera infos kept."""
+        left, right = self.topics
+        flags = f"--left-topic {right} --right-topic {left}"
+        if self.info_topics is None:
+            return flags
+        left_info, right_info = self.info_topics
+        return f"{flags} --left-info-topic {left_info} --right-info-topic {right_info}"
+
+
+def exchanged_offset(
+    chunks: list[tuple[npt.NDArray[np.float64], rect.StereoRectifier]],
+) -> rect.RowOffset:
+    """Return the row offset of matched corners of remapped pairs with the raw images exchanged.
+
+    A raw pair whose topics carry each other's camera (crossed cables) is remapped with the
+    wrong calibration on both sides: its corners are rows apart, not at negative disparities.
+    Each corner is taken back to its raw image through its side's maps and rectified with the
+    other side's calibration: a swapped pair is then on one row.
+
+    Args:
+        chunks: per frame, (n, 4) float64 x_left, y_left, x_right, y_right of matched
+            corners (px in the rectifier's box) and the rectifier that remapped the frame.
+
+    Returns:
+        The offset of the exchanged pair (px of the rectified image).
+    """
+    exchanged = []
+    for points, rectifier in chunks:
+        calibration = rectifier.calibration
+        box_x, box_y, _, _ = rectifier.box
+        raw: list[npt.NDArray[np.float64]] = []
+        for cal, xy in ((calibration.left, points[:, :2]), (calibration.right, points[:, 2:])):
+            map_x, map_y = cal.rectification_maps()
+            at_x = (xy[:, :1].T + box_x).astype(np.float32)  # (1, n): remap reads a map at them
+            at_y = (xy[:, 1:].T + box_y).astype(np.float32)
+            raw_x = cv2.remap(map_x, at_x, at_y, cv2.INTER_LINEAR).ravel()
+            raw_y = cv2.remap(map_y, at_x, at_y, cv2.INTER_LINEAR).ravel()
+            roi_x, roi_y, _, _ = cal.region()
+            bin_x, bin_y = cal.binning  # the maps are in binned pixels of the ROI
+            full = np.stack([raw_x * bin_x + roi_x, raw_y * bin_y + roi_y], axis=1)
+            raw.append(full.astype(np.float64))
+        # the left image was taken by the right camera, and the other way round
+        new_left = calibration.left.raw_to_rectified(raw[1])
+        new_right = calibration.right.raw_to_rectified(raw[0])
+        bin_x, bin_y = calibration.left.binning
+        exchanged.append(np.hstack([new_left, new_right]) / [bin_x, bin_y, bin_x, bin_y])
+    return rect.row_offset(np.concatenate(exchanged))

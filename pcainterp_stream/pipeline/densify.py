@@ -157,6 +157,7 @@ class DensifySummary:
         """Return the pairing's warnings (repeated stamps, near misses, late camera infos)."""
         pairing = self.pairing
         hints = (
+            pairing.row_check_hint(),
             pairing.baseline_hint(),
             pairing.stamp_hint(),
             pairing.tolerance_hint(),

@@ -86,12 +86,12 @@ def test_outside_tolerance_and_missing_side_are_counted() -> None:
     stats = pairer.finish()
     assert (stats.pairs, stats.unpaired_left, stats.unpaired_right) == (1, 2, 1)
     assert stats.summary().startswith("1 pairs, 2 unpaired left, 1 unpaired right")
-    # the 2 ms pair is a near miss (the right image came 2 ms after its left one); the
-    # left image whose right never came is not
-    assert stats.near_misses_ns == [2 * MS]
+    # both images of the 2 ms pair are near misses (the right image came 2 ms after its
+    # left one); the left image whose right never came is not
+    assert stats.near_misses_ns == [2 * MS, 2 * MS]
     hint = stats.tolerance_hint()
     assert hint is not None
-    assert "1 images were dropped unpaired" in hint
+    assert hint.startswith("2 of the 3 images dropped unpaired had an unpaired other-side")
     assert "2.00-2.00 ms away, beyond the 1 ms tolerance" in hint
     assert hint.endswith("pass --stamp-tolerance-ms 2 to pair them")
 
@@ -107,6 +107,30 @@ def test_no_tolerance_hint_when_every_image_pairs_or_none_was_near() -> None:
     assert (stats.pairs, stats.unpaired_left, stats.unpaired_right) == (1, 1, 1)
     assert stats.near_misses_ns == []
     assert stats.tolerance_hint() is None
+
+
+def test_tolerance_hint_gives_each_dropped_image_its_own_partner_not_a_neighbour() -> None:
+    # 20 Hz, each right image stamped within 3 ms of its left one and recorded after it: the
+    # images beyond 1 ms are dropped, and the warning gives their offsets, not a frame period
+    def run(tolerance_ns: int) -> PairingStats:
+        pairer = StereoPairer(PairingConfig(tolerance_ns=tolerance_ns))
+        with_infos(pairer)
+        for index, offset_us in enumerate([500, 1_200, 2_500, -2_600, 1_600, 100]):
+            stamp = index * 50 * MS
+            pairer.push(CONFIG.left_topic, stamp, stamp, image(stamp))
+            right = stamp + offset_us * 1000
+            pairer.push(CONFIG.right_topic, right, stamp + 4 * MS, image(right))
+        return pairer.finish()
+
+    stats = run(MS)
+    assert (stats.pairs, stats.unpaired_left, stats.unpaired_right) == (2, 4, 4)
+    gaps = [1_200_000, 2_500_000, 2_600_000, 1_600_000]
+    assert sorted(stats.near_misses_ns) == sorted(2 * gaps)  # both images of each pair
+    assert stats.tolerance_hint() == (
+        "all 8 images dropped unpaired had an unpaired other-side image 1.20-2.60 ms away, "
+        "beyond the 1 ms tolerance; pass --stamp-tolerance-ms 3 to pair them"
+    )
+    assert run(3 * MS).pairs == 6  # the tolerance it names pairs them all
 
 
 def _pairs_before_infos(pairer: StereoPairer, count: int) -> None:

@@ -651,5 +651,5 @@ def test_cli_densify_out_dir_prints_each_log_s_warnings(
     assert f"densified 7 frames of {late} ->" in out
     warnings = [line for line in out.splitlines() if line.startswith("warning:")]
     assert len(warnings) == 1, out
-    assert warnings[0].startswith("warning: late.mcap: 3 images were dropped unpaired")
+    assert warnings[0].startswith("warning: late.mcap: all 6 images dropped unpaired had an")
     assert warnings[0].endswith("pass --stamp-tolerance-ms 2 to pair them")

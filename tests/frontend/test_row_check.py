@@ -1,0 +1,137 @@
+"""The row check: an unrectified or swapped pair is refused, also after dark start-up frames."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+
+from pcainterp_stream.errors import CalibrationError
+from pcainterp_stream.frontend import rectify as rect
+from pcainterp_stream.frontend import row_check
+from pcainterp_stream.frontend.pairing import PairingConfig, StereoPairer
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.calibration import camera_info_message
+from pcainterp_stream.io.raw_log import Unrectifier
+from pcainterp_stream.records import StereoCamera
+from pcainterp_stream.synth.raw import raw_calibration
+
+CAMERA = StereoCamera(width=320, height=120, fx=180.0, fy=180.0, cx=158.0, cy=60.0, baseline=0.5)
+LEFT, RIGHT = "/cam/left/image_raw", "/cam/right/image_raw"
+LEFT_INFO, RIGHT_INFO = "/cam/left/camera_info", "/cam/right/camera_info"
+Pair = tuple[np.ndarray, np.ndarray]
+
+
+def _views(shift: float = 12.0) -> Pair:
+    """A rectified pair: the right view is the left shifted by a constant disparity."""
+    rng = np.random.default_rng(1)
+    small = rng.integers(0, 256, (CAMERA.height // 4 + 1, CAMERA.width // 4 + 1), dtype=np.uint8)
+    left = cv2.resize(small, (CAMERA.width, CAMERA.height), interpolation=cv2.INTER_CUBIC)
+    shifted = np.float32([[1, 0, -shift], [0, 1, 0]])
+    right = cv2.warpAffine(left, shifted, (CAMERA.width, CAMERA.height), borderMode=4)
+    return left, right
+
+
+def _ideal(calibration: rect.StereoCalibration) -> rect.StereoCalibration:
+    """The rectified pair's own calibration: K = P[:3, :3], D = 0, R = I on both sides."""
+    return rect.StereoCalibration(
+        *(
+            rect.CameraCalibration(
+                c.width, c.height, "plumb_bob", c.p[:, :3], np.zeros(5), np.eye(3), c.p
+            )
+            for c in (calibration.left, calibration.right)
+        )
+    )
+
+
+RAW = raw_calibration(CAMERA, "plumb_bob")
+IDEAL = _ideal(RAW)
+DARK: Pair = (np.zeros((CAMERA.height, CAMERA.width), np.uint8),) * 2
+
+
+def _run(frames: list[Pair], calibration: rect.StereoCalibration) -> StereoPairer:
+    """Push the frames through a pairer (camera infos of ``calibration``) and finish it."""
+    pairer = StereoPairer(
+        PairingConfig(
+            left_topic=LEFT,
+            right_topic=RIGHT,
+            left_info_topic=LEFT_INFO,
+            right_info_topic=RIGHT_INFO,
+        )
+    )
+    for index, (left, right) in enumerate(frames):
+        stamp = 1000 + index
+        messages: dict[str, Any] = {
+            LEFT_INFO: camera_info_message(calibration.left, stamp, "l"),
+            RIGHT_INFO: camera_info_message(calibration.right, stamp, "r"),
+            LEFT: rosmsg.image_message(left, stamp, "l", encoding="mono8"),
+            RIGHT: rosmsg.image_message(right, stamp, "l", encoding="mono8"),
+        }
+        for topic, message in messages.items():
+            pairer.push(topic, stamp, stamp, message)
+    pairer.finish()
+    return pairer
+
+
+def test_dark_first_frames_do_not_switch_the_check_off() -> None:
+    # a camera's auto-exposure start-up: the first frames give no match; the check goes on
+    raw = Unrectifier(RAW)(*_views())
+    with pytest.raises(CalibrationError, match=r"does not look rectified.* first 6 frame\(s\)"):
+        _run([DARK] * 5 + [raw], IDEAL)  # raw images whose camera infos say rectified
+    left, right = _views()
+    with pytest.raises(CalibrationError, match="negative disparities"):
+        _run([DARK] * 5 + [(right, left)], IDEAL)  # rectified, the sides swapped
+    assert _run([DARK] * 5 + [(left, right)], IDEAL).stats.row_check_hint() is None
+
+
+def test_a_check_that_never_decides_says_so(monkeypatch: pytest.MonkeyPatch) -> None:
+    hint = _run([DARK] * 3, IDEAL).stats.row_check_hint()
+    assert hint == (
+        f"could not check that {LEFT} / {RIGHT} is rectified and not swapped: 0 matched "
+        "corners in all 3 frames, 30 needed (dark, blank or unrelated images); it was "
+        "densified unchecked: if the depth looks wrong, check the camera infos and which "
+        "camera each topic carries"
+    )
+    # it looks at the first ROW_CHECK_MAX_FRAMES frames at most, then lets the log be
+    monkeypatch.setattr(row_check, "ROW_CHECK_MAX_FRAMES", 4)
+    raw = Unrectifier(RAW)(*_views())
+    hint = _run([DARK] * 4 + [raw] * 2, IDEAL).stats.row_check_hint()
+    assert hint is not None
+    assert "0 matched corners in the first 4 frames, 30 needed" in hint
+
+
+def test_a_log_that_ends_before_enough_matches_is_judged_on_what_it_had(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(row_check, "ROW_CHECK_MATCHES", 10**6)  # never enough while streaming
+    raw = Unrectifier(RAW)(*_views())
+    with pytest.raises(CalibrationError, match=r"does not look rectified.* first 2 frame\(s\)"):
+        _run([raw] * 2, IDEAL)
+
+
+def test_a_raw_pair_with_its_sides_swapped_names_the_topics_to_swap() -> None:
+    # crossed cables: each topic carries the other camera's raw images, the infos are right
+    raw_left, raw_right = Unrectifier(RAW)(*_views())
+    with pytest.raises(CalibrationError) as err:
+        _run([(raw_right, raw_left)], RAW)
+    message = str(err.value)
+    assert "px with the two images exchanged: left and right look swapped" in message
+    assert message.endswith(
+        f"pass --left-topic {RIGHT} --right-topic {LEFT} --left-info-topic {LEFT_INFO} "
+        f"--right-info-topic {RIGHT_INFO}"
+    )
+    assert "\n" not in message
+    assert _run([(raw_left, raw_right)], RAW).stats.row_check_hint() is None  # as recorded
+
+
+def test_a_calibration_that_does_not_fit_is_not_called_a_swap() -> None:
+    raw = Unrectifier(RAW)(*_views())
+    tilt = cv2.Rodrigues(np.array([np.radians(3.0), 0.0, 0.0]))[0]  # the left camera's R is off
+    wrong = rect.StereoCalibration(dataclasses.replace(RAW.left, r=tilt @ RAW.left.r), RAW.right)
+    with pytest.raises(CalibrationError, match="does not look rectified") as err:
+        _run([raw], wrong)
+    assert "the calibration does not fit these images: check the camera infos" in str(err.value)
+    assert "exchanged" not in str(err.value)
