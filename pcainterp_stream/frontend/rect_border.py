@@ -104,7 +104,8 @@ class RectifiedBorder:
         return (
             f"rectified border: {100 * self.border_share:.1f} % of the {full.width}x"
             f"{full.height} frame is border in the left or the right image ({self.source}: "
-            f"rectified keeping every raw pixel, alpha > 0); estimated in the {w}x{h} box at "
+            f"the rectified view reaches beyond the raw images, as alpha > 0 or a fisheye "
+            f"balance > 0 makes it); estimated in the {w}x{h} box at "
             f"({x}, {y}) inside it, no estimate (NaN) in the {100 * outside:.1f} % outside the box"
         )
 
