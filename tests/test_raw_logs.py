@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -9,9 +10,12 @@ import pytest
 
 from pcainterp_stream import cli
 from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.frontend.rectify import StereoCalibration, StereoRectifier
 from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.calibration import camera_info_message
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import open_writer
+from pcainterp_stream.io.outputs import image_of
 from pcainterp_stream.pipeline.densify import densify
 from pcainterp_stream.synth import SynthConfig, generate
 from pcainterp_stream.synth.log import write_synthetic_log
@@ -331,3 +335,68 @@ def test_evaluate_of_a_log_densified_with_calibration_files_asks_for_them(
     )
     assert code == 0, err
     assert (report / "results.json").is_file()
+
+
+def _wide_view(calibration: StereoCalibration, zoom: float) -> StereoCalibration:
+    """The calibration with P's focal lengths (and Tx) times ``zoom``: a wider rectified view."""
+    sides = []
+    for cal in (calibration.left, calibration.right):
+        p = cal.p.copy()
+        p[0, 0] *= zoom
+        p[1, 1] *= zoom
+        p[0, 3] *= zoom
+        sides.append(dataclasses.replace(cal, p=p))
+    return StereoCalibration(*sides)
+
+
+def _bordered_rect_log(path: Path, frames: int = 3) -> StereoCalibration:
+    """Write image_rect streams rectified keeping every raw pixel (black borders, alpha = 1).
+
+    The synthetic raw drive's images are rectified with a P that sees wider than the raw
+    lenses, and recorded as ``image_rect`` with the raw camera infos, as ROS does.
+    """
+    drive = RawDrive(SynthConfig(seed=2, frames=frames, scale=0.25), "plumb_bob")
+    wide = _wide_view(drive.calibration, 0.7)
+    rectifier = StereoRectifier(wide)
+    with open_writer(path) as writer:
+        for frame, raw_left, raw_right in drive.frames():
+            left, right = rectifier.rectify(raw_left, raw_right)
+            stamp = frame.stamp_ns
+            for side, image, cal in (("left", left, wide.left), ("right", right, wide.right)):
+                frame_id = f"camera_{side}_optical"
+                image_message = rosmsg.image_message(image, stamp, frame_id, encoding="mono8")
+                writer.add_message(f"/camera/{side}/image_rect", image_message, stamp)
+                info = camera_info_message(cal, stamp, frame_id)
+                writer.add_message(f"/camera/{side}/camera_info", info, stamp)
+    return wide
+
+
+def test_image_rect_with_black_borders_has_no_estimate_there(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    log = tmp_path / "rect.mcap"
+    wide = _bordered_rect_log(log)
+    box = StereoRectifier(wide).box  # the raw path's box: what both cameras see
+    out = tmp_path / "dense.mcap"
+    code, printed, err = _run(capsys, "densify", log, "-o", out)
+    assert code == 0, err
+    (line,) = [line for line in printed.splitlines() if line.startswith("rectified border:")]
+    x, y, w, h = box
+    assert f"{w}x{h} box at ({x}, {y})" in line
+    assert "raw calibration" in line
+    with open_log(log) as reader:
+        image = image_of(reader.decode(next(iter(reader.messages(["/camera/left/image_rect"])))))
+    border = image == 0
+    assert border.mean() > 0.15
+    with open_log(out) as reader:
+        for topic in ("/pcainterp/depth", "/pcainterp/disparity_std"):
+            maps = [image_of(reader.decode(raw)) for raw in reader.messages([topic])]
+            assert len(maps) == 3
+            for values in maps:
+                assert values.shape == image.shape
+                assert not np.isfinite(values[border]).any()
+                inside = values[y : y + h, x : x + w]
+                assert np.isfinite(inside).mean() > 0.9
+                outside = np.ones(values.shape, bool)
+                outside[y : y + h, x : x + w] = False
+                assert not np.isfinite(values[outside]).any()

@@ -38,6 +38,7 @@ from pcainterp_stream.frontend.camera_infos import (
     first_infos,
 )
 from pcainterp_stream.frontend.pairing_stats import PairingStats
+from pcainterp_stream.frontend.rect_border import BorderFinder, RectifiedBorder
 from pcainterp_stream.frontend.row_check import RowCheck
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import LogReader, decode_image
@@ -179,7 +180,10 @@ class StereoPairer:
         self._rectifier: rect.StereoRectifier | None = None
         self._rect_infos: tuple[Any, Any] | None = None
         self._said: str | None = None
-        self._frame_rectifier: dict[int, rect.StereoRectifier] = {}
+        # the frames estimated in a box: remapped, or rectified with a border (rect_border)
+        self._frame_rectifier: dict[int, rect.StereoRectifier | RectifiedBorder] = {}
+        self._borders = BorderFinder(echo)
+        self._as_is: rect.StereoCalibration | None = None  # of images used as they are
         self._rows = (
             RowCheck(
                 self.config.left_topic,
@@ -326,7 +330,7 @@ class StereoPairer:
         """
         features = self._frame_features.pop(frame.index, None)
         rectifier = self._frame_rectifier.get(frame.index)
-        if features is not None and rectifier is not None:  # raw left frame -> rectified
+        if features is not None and isinstance(rectifier, rect.StereoRectifier):  # raw -> rect
             features = features._replace(points=rectifier.rotate_points(features.points))
         return features
 
@@ -566,7 +570,17 @@ class StereoPairer:
             self.stats.note(problem)
             return None
         height, width = left_image.shape[:2]
-        camera = rectifier.inner if rectifier is not None else self._camera(width, height)
+        boxed: rect.StereoRectifier | RectifiedBorder | None = rectifier
+        if rectifier is not None:
+            camera = rectifier.inner
+        else:
+            camera = self._camera(width, height)
+            border = None
+            if self.config.rectify != "never":  # a black border is estimated around
+                border = self._borders.find(left_image, right_image, camera, self._as_is)
+            if border is not None:
+                left_image, right_image = border.crop(left_image), border.crop(right_image)
+                camera, boxed = border.inner, border
         self.stats.saw_camera(camera, self._baseline_source(rectifier))
         frame = StereoFrame(
             index=self._index,
@@ -579,8 +593,8 @@ class StereoPairer:
         )
         if self._rows is not None:
             self._rows.see(left_image, right_image, rectifier=rectifier)
-        if rectifier is not None:
-            self._frame_rectifier[self._index] = rectifier
+        if boxed is not None:
+            self._frame_rectifier[self._index] = boxed
             if len(self._frame_rectifier) > 4 * MAX_HELD_RECTIFIERS:  # nobody asks (learn)
                 for index in sorted(self._frame_rectifier)[:-MAX_HELD_RECTIFIERS]:
                     del self._frame_rectifier[index]
@@ -600,8 +614,9 @@ class StereoPairer:
 
         A remapped pair is estimated in the box of the rectified image that both raw images
         cover (:attr:`frontend.rectify.StereoRectifier.box`: the view a camera with this
-        calibration has); outside it the outputs have no estimate (NaN). Frames that were not
-        remapped are returned as they are.
+        calibration has), a rectified pair with a black border in the box inside the border
+        (:mod:`frontend.rect_border`); outside it the outputs have no estimate (NaN). Other
+        frames are returned as they are.
         """
         rectifier = self._frame_rectifier.pop(result.frame.index, None)
         if rectifier is None:
@@ -652,7 +667,7 @@ class StereoPairer:
                     "rectified: used as they are, with P of their camera infos"
                 )
                 self._rect_infos = (self._left_info, self._right_info)
-                self._rectifier = None
+                self._rectifier = self._as_is = None
                 return None
             source = f"{config.left_info_topic} and {config.right_info_topic}"
         rectifier: rect.StereoRectifier | None = None
@@ -687,6 +702,7 @@ class StereoPairer:
         if config.calibration is None:
             self._rect_infos = (self._left_info, self._right_info)
         self._rectifier = rectifier
+        self._as_is = calibration if rectifier is None else None
         return rectifier
 
     def _build(self, calibration: rect.StereoCalibration) -> rect.StereoRectifier:

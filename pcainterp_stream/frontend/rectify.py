@@ -23,7 +23,7 @@ both sides) is passed through unchanged, as ``image_proc``'s identity maps would
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -40,11 +40,14 @@ from pcainterp_stream.records import DensifiedFrame, StereoCamera
 
 __all__ = [
     "MODELS",
+    "BoxedCamera",
     "CameraCalibration",
     "RowOffset",
     "StereoCalibration",
     "StereoRectifier",
+    "box_without",
     "correspondences",
+    "invalid_pixels",
     "pad_result",
     "row_offset",
     "stereo_from_infos",
@@ -231,12 +234,37 @@ def valid_box(
     is found by shaving off, one at a time, the border row or column with the most invalid
     pixels (per pixel of its length) until none is left.
     """
+    return box_without(invalid_pixels(maps, *sizes))
+
+
+def invalid_pixels(
+    maps: list[tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]],
+    *sizes: tuple[int, int],
+) -> npt.NDArray[np.bool_]:
+    """Return (height, width) bool: rectified pixels whose raw position in a camera is outside.
+
+    Args:
+        maps: each camera's (map_x, map_y), (height, width) float32 raw positions in px.
+        sizes: each camera's raw image (width, height) in px.
+    """
     height0, width0 = maps[0][0].shape[:2]
     valid: npt.NDArray[np.bool_] = np.ones((height0, width0), dtype=bool)
     for (map_x, map_y), (width, height) in zip(maps, sizes, strict=True):
         valid &= (map_x >= 0) & (map_x <= width - 1) & (map_y >= 0) & (map_y <= height - 1)
+    return ~valid
+
+
+def box_without(bad: npt.NDArray[np.bool_]) -> tuple[int, int, int, int]:
+    """Return (x, y, width, height): a large box of an image holding none of ``bad``.
+
+    The border row or column with the most ``bad`` pixels (per pixel of its length) is shaved
+    off, one at a time, until none is left.
+
+    Args:
+        bad: (height, width) bool, the pixels the box must not hold.
+    """
+    height0, width0 = bad.shape[:2]
     top, left, bottom, right = 0, 0, height0, width0
-    bad = ~valid
     while top < bottom and left < right:
         box = bad[top:bottom, left:right]
         edges = {
@@ -259,8 +287,26 @@ def valid_box(
     return (left, top, max(right - left, 0), max(bottom - top, 0))
 
 
-def pad_result(result: DensifiedFrame, rectifier: StereoRectifier) -> DensifiedFrame:
-    """Return a frame estimated in ``rectifier.box`` at the full rectified size (NaN outside)."""
+class BoxedCamera(Protocol):
+    """A rectified camera (``camera``) whose estimate is made in a box of it (``box``)."""
+
+    @property
+    def box(self) -> tuple[int, int, int, int]:
+        """(x, y, width, height) of the box in the rectified image (px)."""
+        ...
+
+    @property
+    def camera(self) -> StereoCamera:
+        """The rectified camera at its full size."""
+        ...
+
+
+def pad_result(result: DensifiedFrame, rectifier: BoxedCamera) -> DensifiedFrame:
+    """Return a frame estimated in ``rectifier.box`` at the full rectified size (NaN outside).
+
+    ``rectifier`` is a :class:`StereoRectifier` or the border of rectified images used as
+    they are (:class:`frontend.rect_border.RectifiedBorder`).
+    """
     x, y, w, h = rectifier.box
     full = rectifier.camera
     if (x, y, w, h) == (0, 0, full.width, full.height):
