@@ -583,7 +583,10 @@ def _densify_many(
     failed = 0
     for outcome in outcomes:
         if outcome.error is None:
-            echo(f"densified {outcome.frames} frames of {outcome.input} -> {outcome.output}")
+            echo(f"densified {_frames(outcome.frames)} of {outcome.input} -> {outcome.output}")
+            if outcome.adapted is not None:
+                wrote = " and ".join(str(path) for path in outcome.bases)
+                echo(f"adapted: {outcome.input.name}: {outcome.adapted}; wrote {wrote}")
             for line in outcome.warnings:
                 echo(f"warning: {outcome.input.name}: {line}")
         else:
@@ -599,7 +602,12 @@ def _densify_many(
             print(f"pcainterp: error: {error}", file=sys.stderr)
     frames = sum(outcome.frames for outcome in outcomes)
     echo(
-        f"{len(outcomes) - failed} of {len(outcomes)} logs densified, {frames} frames in "
+        f"{len(outcomes) - failed} of {len(outcomes)} logs densified, {_frames(frames)} in "
         f"{time.perf_counter() - started:.1f} s"
     )
     return 1 if failed else 0
+
+
+def _frames(count: int) -> str:
+    """Return "1 frame", "2 frames"."""
+    return f"{count} frame{'' if count == 1 else 's'}"

@@ -1,14 +1,15 @@
 """``pcainterp evaluate``: read a densified log, measure it, write a report folder.
 
 The log is streamed (frame t and, in temporal mode, frame t+1 in memory, plus the few frames
-that wait for a late reference message). Per frame the reference is the log's
+that wait for a right image or reference message logged after them:
+:mod:`~pcainterp_stream.evaluate.log_frames`). Per frame the reference is the log's
 ``--reference-topic`` when one is given (any depth or disparity image, dense or sparse:
 :mod:`~pcainterp_stream.evaluate.reference`), else the ground-truth depth when the log has
 it (synthetic logs), else a dense SGBM map of the same pair (the paper's KITTI setup); never
 the sparse points. Beside PCA-MAP, nearest neighbour and linear interpolation, SGBM's own
 map of the pair is scored as a stereo baseline, as is that map with its holes filled.
 
-The maths is in :mod:`pcainterp_stream.evaluate.metrics`; this module does the reading and
+The maths is in :mod:`pcainterp_stream.evaluate.metrics`; this module does the scoring and
 the re-densification with the basis (uncertainty kinds, oracle, points sweep);
 :mod:`~pcainterp_stream.evaluate.tables` writes the text and
 :mod:`~pcainterp_stream.evaluate.figures` the figures.
@@ -19,8 +20,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections import deque
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,6 +33,13 @@ from pcainterp_stream.estimate.baselines import linear, nearest
 from pcainterp_stream.estimate.basis import BUILTIN_LABELS, IN_MEMORY, Basis, builtin_kind
 from pcainterp_stream.estimate.estimator import clean_measurements, densify
 from pcainterp_stream.evaluate.figures import write_figures
+from pcainterp_stream.evaluate.log_frames import (
+    GROUND_TRUTH_DEPTH,
+    GROUND_TRUTH_POSE,
+    Frame,
+    ReadState,
+    read_frames,
+)
 from pcainterp_stream.evaluate.metrics import (
     SWEEP_POINTS,
     CalibrationStats,
@@ -83,18 +90,13 @@ from pcainterp_stream.frontend.stereo import (
     to_grey8,
 )
 from pcainterp_stream.io import rosmsg
-from pcainterp_stream.io.logreader import decode_image, open_log
+from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.outputs import (
     MEASUREMENTS_KEY,
-    EstimateTopics,
     OutputTopics,
-    decode_estimate,
     estimate_topics,
-    missing_outputs,
-    recorded_tolerance_ns,
 )
 from pcainterp_stream.io.stereo_log import LIDAR_DEPTH
-from pcainterp_stream.records import StereoCamera
 
 __all__ = [
     "GROUND_TRUTH_DEPTH",
@@ -116,24 +118,9 @@ __all__ = [
 
 LEFT_IMAGE = "/stereo/left/image_rect"
 RIGHT_IMAGE = "/stereo/right/image_rect"
-GROUND_TRUTH_DEPTH = "/ground_truth/depth"
-GROUND_TRUTH_POSE = "/ground_truth/pose"
-RIGHT_STAMP_TOLERANCE_NS = 1_000_000
-"""The right image belongs to the frame whose stamp is this close (pairing's default), unless
-the log records the tolerance densify paired with or ``stamp_tolerance_ns`` is given."""
-REFERENCE_WAIT_FRAMES = 4
-"""A complete frame waits for its reference message until this many frames are waiting."""
-PENDING_FRAMES = 32
-"""Stamps whose channels are gathered at once (and right images and reference messages
-kept): densify writes a frame's outputs up to its look-ahead, the densify thread's queue and
-the output encoders' frames (~20 at the fit check's warm-up) after the frame's input images."""
-
 MIN_MEASUREMENTS = 1
 """A frame is scored only with at least this many finite measurements inside the image:
 nearest neighbour and linear interpolation of none are undefined (NaN everywhere)."""
-
-REFERENCE_BUFFER = PENDING_FRAMES
-"""Reference messages kept (by stamp) for frames not yet complete."""
 
 
 @dataclass(frozen=True)
@@ -181,29 +168,7 @@ class EvaluateOptions:
     recorded); raw images are rectified as densify did, for the baselines and figures."""
     stamp_tolerance_ns: int | None = None
     """The largest stamp difference (ns) of a frame and its right image; None: the one the
-    log records densify paired with (:data:`RIGHT_STAMP_TOLERANCE_NS` for older logs)."""
-
-
-@dataclass(frozen=True, eq=False)
-class _Frame:
-    """One densified frame as read from the log."""
-
-    index: int
-    stamp_ns: int
-    camera: StereoCamera
-    estimate: npt.NDArray[np.float32]
-    std: npt.NDArray[np.float32]
-    pixels: npt.NDArray[np.float64]
-    disparities: npt.NDArray[np.float64]
-    left: npt.NDArray[Any]
-    right: npt.NDArray[Any] | None
-    depth: npt.NDArray[np.float32] | None
-    pose: npt.NDArray[np.float64] | None
-    min_disparity: float = 0.0
-    reference: Any = None
-    """The reference topic's message of this stamp (None: none, or no reference topic)."""
-    right_gap_ns: int | None = None
-    """Without a right image: how far (ns) the nearest one read was from the frame's stamp."""
+    log records densify paired with (1 ms, pairing's default, for older logs)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -214,146 +179,6 @@ class _Stereo:
     """(H, W) float32 disparity (px), NaN in SGBM's holes."""
     seconds: float
     """Time SGBM took (s)."""
-
-
-@dataclass
-class _ReadState:
-    """What reading the log found besides the frames."""
-
-    measurements: str | None = None
-    seen_disparity: bool = False
-    metadata: dict[str, str] = field(default_factory=dict)
-    """The estimate channel's metadata (a compact log's f*b and min disparity)."""
-    tolerance_ns: int = RIGHT_STAMP_TOLERANCE_NS
-    """The stamp tolerance of a frame's right image (given, recorded or the default)."""
-    tolerance_from: str = "the default: the log records none"
-    """Where :attr:`tolerance_ns` came from, for messages."""
-    damage: list[str] = field(default_factory=list)
-    """The reader's damage lines (the reader's own list: it grows as the log is read)."""
-
-
-def _camera(info: Any, baseline: float, size: tuple[int, int]) -> StereoCamera:
-    p = rosmsg.projection_matrix(info)
-    return StereoCamera(
-        width=size[1],
-        height=size[0],
-        fx=float(p[0, 0]),
-        fy=float(p[1, 1]),
-        cx=float(p[0, 2]),
-        cy=float(p[1, 2]),
-        baseline=baseline,
-    )
-
-
-def _frames(
-    path: Path,
-    topics: OutputTopics,
-    max_frames: int | None,
-    reference: ReferenceTopic | None = None,
-    state: _ReadState | None = None,
-    images: PairImages | None = None,
-    tolerance_ns: int | None = None,
-) -> Iterator[_Frame]:
-    """Yield the densified frames of a log in order, grouping channels by header stamp.
-
-    Each frame takes the right image nearest its stamp within ``tolerance_ns`` (None: the
-    tolerance the log records densify paired with). With a reference topic, each frame
-    carries the reference message of its stamp. A
-    complete frame waits (at most :data:`REFERENCE_WAIT_FRAMES` frames, so memory stays
-    bounded) for a reference logged after it; then it is yielded without one.
-    """
-    state = state or _ReadState()
-    images = images or PairImages()
-    left_image, right_image = images.left_topic, images.right_topic
-    with open_log(path) as reader:
-        state.damage = reader.damage
-        present = reader.topics()
-        where = estimate_topics(present, topics)
-        needed = [where.estimate, where.std, topics.features, topics.camera_info]
-        missing, hint = missing_outputs(present, topics, [*needed, left_image])
-        if missing:
-            raise LogReadError(
-                f"{path} has no {', '.join(missing)}"
-                f"{hint or _missing_advice(present, topics, missing, left_image)}"
-            )
-        truth = [] if reference is not None else [GROUND_TRUTH_DEPTH]
-        optional = [t for t in (*truth, GROUND_TRUTH_POSE) if t in present]
-        grouped = [*needed, left_image, *optional]
-        complete = len(grouped)
-        # the right image may be stamped up to the pairing tolerance apart from the left;
-        # densify copies it before it writes the pair's outputs, so it is read first
-        wanted = [*grouped, *([right_image] if right_image in present else [])]
-        infos = [t for t in images.info_topics if t in present and t not in wanted]
-        wanted += infos
-        if reference is not None and reference.topic not in wanted:
-            wanted.append(reference.topic)
-        rights: dict[int, Any] = {}
-        references: dict[int, Any] = {}
-        pending: dict[int, dict[str, Any]] = {}
-        waiting: deque[_Frame] = deque()
-        index = yielded = 0
-        for raw in reader.messages(wanted):
-            if raw.topic == where.estimate and not state.seen_disparity:
-                state.seen_disparity = True
-                state.metadata = dict(raw.channel_metadata)
-                state.measurements = state.metadata.get(MEASUREMENTS_KEY)
-                recorded = recorded_tolerance_ns(state.metadata)
-                if tolerance_ns is not None:
-                    state.tolerance_ns, state.tolerance_from = tolerance_ns, "--stamp-tolerance-ms"
-                elif recorded is not None:
-                    state.tolerance_ns = recorded
-                    state.tolerance_from = "the tolerance the log was densified with"
-            message = reader.decode(raw)
-            if raw.topic in infos:
-                images.see_info(raw.topic, message)
-                continue
-            if reference is not None and raw.topic == reference.topic:
-                references[rosmsg.stamp_ns(message)] = message
-                while len(references) > REFERENCE_BUFFER:
-                    references.pop(min(references))
-            full_estimate = raw.topic == where.estimate and not where.compact
-            stamp = rosmsg.stamp_ns(message.image if full_estimate else message)
-            if raw.topic == right_image:
-                rights[stamp] = message
-                while len(rights) > PENDING_FRAMES:
-                    rights.pop(min(rights))
-            elif raw.topic in grouped:
-                parts = pending.setdefault(stamp, {})
-                parts[raw.topic] = message
-                if len(parts) == complete:
-                    del pending[stamp]
-                    waiting.append(
-                        _frame(
-                            index,
-                            stamp,
-                            pending_parts=parts,
-                            rights=rights,
-                            topics=topics,
-                            images=images,
-                            where=where,
-                            metadata=state.metadata,
-                            tolerance_ns=state.tolerance_ns,
-                        )
-                    )
-                    index += 1
-                while len(pending) > PENDING_FRAMES:  # frames are written close together
-                    pending.pop(min(pending))
-            while waiting and (
-                reference is None
-                or waiting[0].stamp_ns in references
-                or len(waiting) > REFERENCE_WAIT_FRAMES
-            ):
-                frame = waiting.popleft()
-                yield dataclasses.replace(frame, reference=references.pop(frame.stamp_ns, None))
-                yielded += 1
-                if max_frames is not None and yielded >= max_frames:
-                    return
-        while waiting:  # the end of the log: no reference can come any more
-            frame = waiting.popleft()
-            yield dataclasses.replace(frame, reference=references.pop(frame.stamp_ns, None))
-            yielded += 1
-            if max_frames is not None and yielded >= max_frames:
-                return
 
 
 def _calibration_hint(path: Path, present: dict[str, Any], topics: OutputTopics) -> str:
@@ -372,77 +197,8 @@ def _calibration_hint(path: Path, present: dict[str, Any], topics: OutputTopics)
     )
 
 
-def _missing_advice(
-    present: Iterable[str], topics: OutputTopics, missing: list[str], left_image: str
-) -> str:
-    """Say how to get a log evaluate can read: densify it, or densify it with more outputs."""
-    outputs = [topics.depth, topics.disparity, topics.depth_std, topics.disparity_std]
-    outputs.append(topics.features)
-    written = [topic for topic in (*outputs, topics.camera_info) if topic in present]
-    if not written or missing == [left_image]:
-        return (
-            "; evaluate needs a log written by `pcainterp densify` (with the input's stereo images)"
-        )
-    names = [topic.rsplit("/", 1)[1] for topic in written]
-    return (
-        f"; densify wrote only {', '.join(names)} into it (`pcainterp densify --outputs`): "
-        "evaluate needs depth or disparity, disparity_std, features and camera_info; densify "
-        "again with --outputs depth,disparity_std,features,camera_info (or without --outputs)"
-    )
-
-
-def _frame(
-    index: int,
-    stamp: int,
-    *,
-    pending_parts: dict[str, Any],
-    rights: dict[int, Any],
-    topics: OutputTopics,
-    images: PairImages,
-    where: EstimateTopics,
-    metadata: dict[str, str],
-    tolerance_ns: int = RIGHT_STAMP_TOLERANCE_NS,
-) -> _Frame:
-    """Build a frame from its complete messages and the right image nearest its stamp."""
-    parts = pending_parts
-    try:
-        decoded = decode_estimate(
-            parts[where.estimate], parts[where.std], parts[topics.camera_info], metadata
-        )
-    except ValueError as err:
-        raise LogReadError(f"frame {index} of the densified log: {err}") from None
-    estimate = decoded.disparity
-    features = rosmsg.pointcloud2_arrays(parts[topics.features])
-    depth = parts.get(GROUND_TRUTH_DEPTH)
-    pose = parts.get(GROUND_TRUTH_POSE)
-    nearest_right = min(rights, key=lambda other: abs(other - stamp), default=None)
-    right, gap = None, None
-    if nearest_right is not None:
-        gap = abs(nearest_right - stamp)
-        right = rights[nearest_right] if gap <= tolerance_ns else None
-    return _Frame(
-        index=index,
-        stamp_ns=stamp,
-        camera=_camera(
-            parts[topics.camera_info],
-            decoded.baseline,
-            (int(estimate.shape[0]), int(estimate.shape[1])),
-        ),
-        estimate=estimate,
-        std=decoded.disparity_std,
-        pixels=np.stack([features["u"], features["v"]], axis=1),
-        disparities=features["disparity"],
-        left=images.rectified(decode_image(parts[images.left_topic]), "left"),
-        right=None if right is None else images.rectified(decode_image(right), "right"),
-        depth=None if depth is None else rosmsg.image_array(depth).astype(np.float32),
-        pose=None if pose is None else rosmsg.pose_matrix(pose),
-        min_disparity=decoded.min_disparity,
-        right_gap_ns=gap if right is None else None,
-    )
-
-
 def _truth(
-    frame: _Frame, reference: ReferenceTopic | None, use_truth: bool
+    frame: Frame, reference: ReferenceTopic | None, use_truth: bool
 ) -> npt.NDArray[np.float64] | None:
     """Return the frame's ground-truth disparity (px, NaN = no truth), None without one."""
     if reference is not None:
@@ -459,7 +215,7 @@ def _truth(
     return None
 
 
-def _no_reference_message(frame: _Frame, right_topic: str, state: _ReadState) -> str:
+def _no_reference_message(frame: Frame, right_topic: str, state: ReadState) -> str:
     """Say why a frame has no reference: no right image within the tolerance, or none."""
     gap = frame.right_gap_ns
     if gap is None:
@@ -476,7 +232,7 @@ def _no_reference_message(frame: _Frame, right_topic: str, state: _ReadState) ->
     )
 
 
-def _stereo(frame: _Frame, sgbm: SgbmConfig) -> _Stereo | None:
+def _stereo(frame: Frame, sgbm: SgbmConfig) -> _Stereo | None:
     if frame.right is None:
         return None
     started = time.perf_counter()
@@ -513,7 +269,7 @@ class _Evaluator:
 
     def add(
         self,
-        frame: _Frame,
+        frame: Frame,
         reference: npt.NDArray[np.float64],
         transform: Any,
         stereo: _Stereo | None = None,
@@ -574,7 +330,7 @@ class _Evaluator:
 
     def _stereo_baselines(
         self,
-        frame: _Frame,
+        frame: Frame,
         stereo: _Stereo,
         sgbm_valid: npt.NDArray[np.bool_],
         view: ReferenceView,
@@ -599,7 +355,7 @@ class _Evaluator:
 
     def _with_basis(
         self,
-        frame: _Frame,
+        frame: Frame,
         reference: npt.NDArray[np.float64],
         view: ReferenceView,
         transform: Any,
@@ -645,7 +401,7 @@ class _Evaluator:
         if every > 0 and self.result.frames % every == 0 and stereo is not None:
             self._sweep(frame, stereo, view, transform)
 
-    def _sweep(self, frame: _Frame, stereo: _Stereo, view: ReferenceView, transform: Any) -> None:
+    def _sweep(self, frame: Frame, stereo: _Stereo, view: ReferenceView, transform: Any) -> None:
         """Error against the number of points: GFTT + SGBM lookups, strongest N corners."""
         assert self.basis is not None
         camera, size = frame.camera, frame.camera.image_size
@@ -787,10 +543,10 @@ def evaluate_log(
         last = total - 2 if mode is Mode.TEMPORAL else total - 1
         picks = np.linspace(0, max(last, 0), options.examples + 2)[1:-1]
         evaluator.example_at = {round(float(i)) for i in picks}
-    previous: tuple[_Frame, npt.NDArray[np.float64], _Stereo | None] | None = None
+    previous: tuple[Frame, npt.NDArray[np.float64], _Stereo | None] | None = None
     read = 0
-    state = _ReadState()
-    frames = _frames(
+    state = ReadState()
+    frames = read_frames(
         path, topics, options.max_frames, reference, state, images, options.stamp_tolerance_ns
     )
     for frame in frames:

@@ -179,6 +179,17 @@ class DensifySummary:
         damage = [f"damage: {line}" for line in self.damage]
         return self.pairing_hints() + damage + list(self.warnings) + prior
 
+    def adapted_line(self) -> str | None:
+        """Return why the run densified with a basis of the log's own, or None.
+
+        The fit check's ``adapted:`` line without its prefix; None when no such basis was
+        saved (the run kept the given or a built-in basis, or had no file to save it beside).
+        """
+        if self.basis_written is None:
+            return None
+        reasons = [line for line in self.prior_lines if line.startswith("adapted: ")]
+        return reasons[0].removeprefix("adapted: ") if reasons else "learned from this log"
+
     @property
     def frames_per_second(self) -> float:
         """Return densified frames per wall-clock second."""

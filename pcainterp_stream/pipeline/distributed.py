@@ -738,6 +738,10 @@ class DensifyOutcome:
             its message alone does not say what to fix.
         warnings: the run's warnings (:meth:`~pcainterp_stream.pipeline.densify.
             DensifySummary.warning_lines`), one line each.
+        adapted: why the log was densified with a basis of its own (:meth:`~pcainterp_stream.
+            pipeline.densify.DensifySummary.adapted_line`), None when it was not.
+        bases: the bases saved beside ``output`` when it adapted (``OUTPUT.basis.npz``, the
+            one its channels name, then ``OUTPUT.final.basis.npz`` when relearned).
     """
 
     input: Path
@@ -747,6 +751,8 @@ class DensifyOutcome:
     error: str | None
     unexpected: bool = False
     warnings: tuple[str, ...] = ()
+    adapted: str | None = None
+    bases: tuple[Path, ...] = ()
 
 
 def output_path(input_path: Path, out_dir: Path) -> Path:
@@ -843,6 +849,12 @@ def densify_many(
                         summary.seconds,
                         None,
                         warnings=tuple(summary.warning_lines()),
+                        adapted=summary.adapted_line(),
+                        bases=tuple(  # committed beside the output with it
+                            out.parent / written.name
+                            for written in (summary.basis_written, summary.final_basis_written)
+                            if written is not None
+                        ),
                     )
             _remove(staging.pop(index))
     except BaseException as err:

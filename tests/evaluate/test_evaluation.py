@@ -32,7 +32,7 @@ from pcainterp_stream.evaluate.metrics import (
     stereo_transform,
 )
 from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log
-from pcainterp_stream.evaluate.results import Evaluation
+from pcainterp_stream.evaluate.results import PCA_ON_SGBM, SGBM, SGBM_NN, Evaluation
 from pcainterp_stream.evaluate.tables import results_markdown, summary_table
 from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.io.outputs import OutputTopics
@@ -546,3 +546,166 @@ def test_evaluate_pairs_the_right_images_within_densifys_tolerance(
     given, _ = evaluate_log(old, dataclasses.replace(options, stamp_tolerance_ns=3_000_000))
     assert given.frames == 4
     assert given.methods["pca_map"].delta_2d_sum == result.methods["pca_map"].delta_2d_sum
+
+
+def _recorded_by_a_driver(
+    source: Path, target: Path, right_later_ns: int, fmt: str, *, png: bool = False
+) -> Path:
+    """Copy a synthetic log as a stereo driver records it: the right image and its camera
+    info logged ``right_later_ns`` after the left one (same stamps), written as ``fmt``;
+    with ``png`` both images as PNG ``CompressedImage`` (lossless: the same pixels)."""
+    import cv2
+
+    from pcainterp_stream.io import rosmsg
+    from pcainterp_stream.io.logreader import open_log
+    from pcainterp_stream.io.logwriter import open_writer
+    from pcainterp_stream.io.outputs import image_of
+
+    with open_log(source) as reader, open_writer(target, fmt) as writer:
+        for raw in reader.messages():
+            message = reader.decode(raw)
+            log_time_ns = raw.log_time_ns
+            if raw.topic.startswith("/stereo/right/"):
+                log_time_ns += right_later_ns
+            if png and raw.topic.endswith("/image_rect"):
+                ok, data = cv2.imencode(".png", image_of(message))
+                assert ok
+                stamp, frame_id = rosmsg.stamp_ns(message), message.header.frame_id
+                message = rosmsg.compressed_image_message(data.tobytes(), "png", stamp, frame_id)
+            writer.add_message(raw.topic, message, log_time_ns)
+    return target
+
+
+def _scores(result: Evaluation) -> dict[str, dict[str, Any]]:
+    """Every row's accumulated errors, without its timing."""
+    rows = {**result.methods, **{f"stereo {k}": v for k, v in result.stereo.items()}}
+    return {
+        name: {k: v for k, v in dataclasses.asdict(stats).items() if k != "seconds"}
+        for name, stats in rows.items()
+    }
+
+
+@pytest.fixture(scope="module")
+def driver_logs(dense_logs: dict[str, Path], tmp_path_factory: pytest.TempPathFactory) -> Any:
+    """Return a function: (right log delay ns, format, png) -> that log densified."""
+    folder = tmp_path_factory.mktemp("driver_logs")
+    made: dict[tuple[int, str, bool], Path] = {}
+
+    def densified(right_later_ns: int, fmt: str = "mcap", png: bool = False) -> Path:
+        key = (right_later_ns, fmt, png)
+        if key not in made:
+            name = f"r{right_later_ns}_{fmt}{'_png' if png else ''}"
+            suffix = {"mcap": ".mcap", "ros1": ".bag"}.get(fmt, "")
+            log = _recorded_by_a_driver(
+                dense_logs["test"], folder / f"{name}{suffix}", right_later_ns, fmt, png=png
+            )
+            made[key] = folder / f"{name}_dense.mcap"
+            jobs.densify(log, made[key], dense_logs["basis"], topics=OutputTopics())
+        return made[key]
+
+    return densified
+
+
+@pytest.mark.parametrize(
+    ("right_later_ns", "fmt", "png"),
+    [
+        (1_000_000, "mcap", False),
+        (30_000_000, "mcap", False),
+        (1_000_000, "ros1", False),
+        (30_000_000, "rosbag2-sqlite3", False),
+        (30_000_000, "mcap", True),
+        (250_000_000, "mcap", False),  # 2.5 frames: 30 ms at 80 Hz
+        (-1_000_000, "mcap", False),
+    ],
+)
+def test_a_right_image_logged_after_the_left_is_found(
+    driver_logs: Any, right_later_ns: int, fmt: str, png: bool
+) -> None:
+    """A driver's right image is received (logged) apart from the left by jitter, mostly
+    after it, while densify writes the outputs at the left's log time: evaluate scores the
+    SGBM rows and takes the SGBM reference as it does with equal log times."""
+    same, later = driver_logs(0, fmt, png), driver_logs(right_later_ns, fmt, png)
+    truth = EvaluateOptions(mode=Mode.STEREO, sweep_every=0)
+    expected, _ = evaluate_log(same, truth)
+    assert expected.stereo.keys() == {SGBM, SGBM_NN, PCA_ON_SGBM}
+    result, _ = evaluate_log(later, truth)
+    assert result.stereo_note == expected.stereo_note == ""
+    assert _scores(result) == _scores(expected)
+    sgbm = EvaluateOptions(mode=Mode.STEREO, sgbm_reference=True, sweep_every=0)
+    expected, _ = evaluate_log(same, sgbm)
+    result, _ = evaluate_log(later, sgbm)
+    assert result.frames == expected.frames == 4
+    assert _scores(result) == _scores(expected)
+
+
+def test_a_frame_whose_right_image_never_comes_is_evaluated_without_it(
+    driver_logs: Any, tmp_path: Path
+) -> None:
+    """Frame 1's right image was dropped (right images logged 30 ms after the left): the
+    frames after it find theirs, it has no SGBM rows, and with the SGBM reference it is the
+    error it is with equal log times."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    source = driver_logs(30_000_000)
+    dropped = tmp_path / "dropped.mcap"
+    rights = 0
+    with source.open("rb") as stream, dropped.open("wb") as out:
+        writer = Writer(out)
+        writer.start()
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, channel, message in make_reader(stream).iter_messages():
+            if channel.topic == "/stereo/right/image_rect":
+                rights += 1
+                if rights == 2:
+                    continue
+            if channel.id not in channels:
+                if schema is not None and schema.id not in schemas:
+                    schemas[schema.id] = writer.register_schema(
+                        schema.name, schema.encoding, schema.data
+                    )
+                channels[channel.id] = writer.register_channel(
+                    channel.topic,
+                    channel.message_encoding,
+                    schemas.get(schema.id, 0) if schema is not None else 0,
+                    dict(channel.metadata),
+                )
+            writer.add_message(
+                channels[channel.id], message.log_time, message.data, message.publish_time
+            )
+        writer.finish()
+    truth = EvaluateOptions(mode=Mode.STEREO, sweep_every=0)
+    full, _ = evaluate_log(source, truth)
+    result, _ = evaluate_log(dropped, truth)
+    assert result.frames == full.frames == 4
+    assert result.stereo[SGBM].frames == 3
+    assert full.stereo[SGBM].frames == 4
+    assert _scores(result)["pca_map"] == _scores(full)["pca_map"]
+    with pytest.raises(
+        LogReadError,
+        match=r"^frame 1 has no /ground_truth/depth and the right images of "
+        r"/stereo/right/image_rect did not pair with it within 1 ms .*the nearest is 100\.00 ms",
+    ):
+        evaluate_log(dropped, EvaluateOptions(mode=Mode.STEREO, sgbm_reference=True))
+
+
+def test_a_frame_waits_a_bounded_number_of_frames_for_its_right_image(
+    dense_logs: dict[str, Path], tmp_path: Path
+) -> None:
+    """Right images logged 1.5 s (15 frames) late, densified with a pairing window that
+    long: the first frames do not wait for them (memory stays bounded) and go on without
+    one; the last ones still find theirs."""
+    from pcainterp_stream.evaluate.log_frames import RIGHT_WAIT_FRAMES, read_frames
+
+    log = tmp_path / "in.mcap"
+    jobs.synth(log, frames=12, seed=24, scale=0.25, fmt="mcap")
+    late = _recorded_by_a_driver(log, tmp_path / "late.mcap", 1_500_000_000, "mcap")
+    dense = tmp_path / "dense.mcap"
+    window = PairingConfig(window=16)
+    jobs.densify(late, dense, dense_logs["basis"], topics=OutputTopics(), pairing=window)
+    frames = list(read_frames(dense, OutputTopics(), None))
+    alone = 12 - RIGHT_WAIT_FRAMES
+    assert [frame.right is None for frame in frames] == [True] * alone + [False] * (12 - alone)
+    assert [frame.index for frame in frames] == list(range(12))
+    assert frames[0].right_gap_ns is None  # no right image was read yet

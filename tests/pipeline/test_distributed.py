@@ -307,6 +307,62 @@ def test_densify_many_without_a_basis_uses_the_built_in_one(
     assert [outcome.error for outcome in outcomes] == [None]
     assert outcomes[0].frames == 10
     assert recorded_metadata(outcomes[0].output)[BASIS_KEY] == "built-in"
+    assert outcomes[0].adapted is None  # nothing to say of a basis of its own
+    assert outcomes[0].bases == ()
+
+
+def test_densify_many_says_which_logs_adapted_and_where_their_basis_is(
+    client: Any, tmp_path: Path
+) -> None:
+    """A room the street basis does not fit gets a basis of its own, saved beside its output:
+    the outcome says so (densify -o prints it; --out-dir printed nothing of it)."""
+    from pcainterp_stream.pipeline.densify import own_basis_path
+    from pcainterp_stream.pipeline.processor import ProcessorConfig
+
+    room = tmp_path / "room.mcap"
+    jobs.synth(room, frames=4, seed=1, scale=0.25, fmt="mcap", scene="indoor", camera="752x480")
+    out = tmp_path / "out"
+    processor = ProcessorConfig(builtin="street")
+    (outcome,) = distributed.densify_many([room], out, None, client, processor=processor)
+    assert outcome.error is None
+    assert outcome.adapted is not None
+    assert outcome.adapted.startswith("the built-in street basis does not fit this camera")
+    assert outcome.bases == (own_basis_path(out / "room_dense.mcap"),)
+    assert outcome.bases[0].is_file()
+
+
+def test_cli_densify_out_dir_prints_a_line_per_adapted_log(
+    logs: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: Any
+) -> None:
+    from contextlib import nullcontext
+
+    from pcainterp_stream import cli
+
+    def densify_many(inputs: list[Path], out_dir: Path, *args: Any, **kwargs: Any) -> Any:
+        own, final = out_dir / "b_dense.basis.npz", out_dir / "b_dense.final.basis.npz"
+        return [
+            distributed.DensifyOutcome(inputs[0], out_dir / "a_dense.mcap", 1, 1.0, None),
+            distributed.DensifyOutcome(
+                inputs[1], out_dir / "b_dense.mcap", 9, 1.0, None, adapted="why", bases=(own,)
+            ),
+            distributed.DensifyOutcome(
+                inputs[1], out_dir / "b_dense.mcap", 9, 1.0, None, adapted="why", bases=(own, final)
+            ),
+        ]
+
+    monkeypatch.setattr(distributed, "connect", lambda *args: nullcontext(None))
+    monkeypatch.setattr(distributed, "densify_many", densify_many)
+    args = [str(logs["a"]), str(logs["b"]), "--out-dir", str(tmp_path), "--workers", "1"]
+    assert cli.main(["densify", *args]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == f"densified 1 frame of {logs['a']} -> {tmp_path / 'a_dense.mcap'}"
+    assert lines[1].startswith("densified 9 frames of ")
+    assert lines[2] == f"adapted: b.mcap: why; wrote {tmp_path / 'b_dense.basis.npz'}"
+    assert lines[4] == (
+        f"adapted: b.mcap: why; wrote {tmp_path / 'b_dense.basis.npz'} and "
+        f"{tmp_path / 'b_dense.final.basis.npz'}"
+    )
+    assert lines[5].startswith("3 of 3 logs densified, 19 frames in ")
 
 
 def test_cli_densify_refuses_output_with_several_inputs(
