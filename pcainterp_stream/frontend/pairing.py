@@ -560,7 +560,10 @@ class StereoPairer:
             return None
         height, width = left_image.shape[:2]
         camera = rectifier.inner if rectifier is not None else self._camera(width, height)
-        self.stats.saw_camera(camera, self._baseline_source(rectifier))
+        # the camera line names the rectified camera the outputs have (full_result pads the
+        # box back to it), as the rectify line does, not the box the estimate is made in
+        seen = rectifier.camera if rectifier is not None else camera
+        self.stats.saw_camera(seen, self._baseline_source(rectifier))
         frame = StereoFrame(
             index=self._index,
             stamp_ns=left.stamp_ns,
