@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from pcainterp_stream import cli
+from pcainterp_stream.errors import PcaInterpError
 from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.frontend.rectify import StereoCalibration, StereoRectifier
 from pcainterp_stream.io import rosmsg
@@ -16,6 +17,7 @@ from pcainterp_stream.io.calibration import camera_info_message
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import open_writer
 from pcainterp_stream.io.outputs import image_of
+from pcainterp_stream.pipeline import jobs
 from pcainterp_stream.pipeline.densify import densify
 from pcainterp_stream.synth import SynthConfig, generate
 from pcainterp_stream.synth.log import write_synthetic_log
@@ -67,6 +69,10 @@ def test_densify_finds_and_rectifies_a_raw_log(
         "rectify auto: remapping the raw images with /camera/left/camera_info"
     )
     assert "equidistant" in lines[1]
+    # the camera line names the rectified camera the outputs have, not the box estimated in
+    size = lines[1].split("as image_proc does: ")[1].split(" rectified")[0]
+    camera_line = next(line for line in lines if line.startswith("camera: "))
+    assert camera_line.startswith(f"camera: {size} px")
     with open_log(out) as reader:
         infos = [reader.decode(raw) for raw in reader.messages(["/pcainterp/camera_info"])]
     camera = RawDrive(SynthConfig(seed=2, frames=3, scale=0.25), "equidistant").camera
@@ -155,6 +161,9 @@ def test_learn_and_dense_measurements_on_a_raw_log(
     )
     assert code == 0, err
     assert "rectify auto: remapping" in printed
+    assert "as image_proc does: 310x94 rectified" in printed
+    # the outputs' camera (310x94), not the 310x92 box both raw cameras see
+    assert "camera: 310x94 px" in printed
     code, printed, err = _run(
         capsys,
         "learn",
@@ -400,3 +409,18 @@ def test_image_rect_with_black_borders_has_no_estimate_there(
                 outside = np.ones(values.shape, bool)
                 outside[y : y + h, x : x + w] = False
                 assert not np.isfinite(values[outside]).any()
+
+
+def test_learn_names_two_raw_cameras_by_their_images_and_boxes(
+    raw_bag: Path, tmp_path: Path
+) -> None:
+    small = tmp_path / "small.bag"
+    write_raw_log(SynthConfig(seed=2, frames=2, scale=0.2), small, model="plumb_bob")
+    sizes = r"small.bag has 248x75 images \(rectified box 248x73\) but .*raw.bag has 310x94 images"
+    with pytest.raises(PcaInterpError, match=sizes + r" \(rectified box 310x92\); learn one basis"):
+        jobs.learn(
+            [raw_bag, small],
+            tmp_path / "b.npz",
+            jobs.LearnOptions(n_components=2, fit_prior=False),
+            PairingConfig(discover=True),
+        )

@@ -35,8 +35,9 @@ def add_parser(commands: Commands) -> None:
             "(or a ground-truth depth topic), the paper's preprocessing, streaming PCA; then\n"
             "fit the hybrid prior, sigma and the std calibration on held-out frames\n"
             "(--no-fit-prior: the paper's model alone). With few maps of your own (fewer\n"
-            "than 1000) from a camera like KITTI's, it fine-tunes the built-in basis with\n"
-            "them instead, and says so (--with-synthetic auto, the default; 0 turns it off)."
+            "than 1000) from a camera like a built-in basis's (KITTI-like: street; 752x480\n"
+            "VI-sensor-like: indoor), it fine-tunes that basis with them instead, and says\n"
+            "so (--with-synthetic auto, the default; 0 turns it off)."
         ),
         epilog=(
             "examples:\n"
@@ -104,11 +105,12 @@ def add_parser(commands: Commands) -> None:
         "--with-synthetic",
         default="auto",
         metavar="N|auto",
-        help="fine-tune the built-in basis (learned from the synthetic world) with these logs' "
-        "maps, counting it as N maps, and keep its local kernel; the result is on the "
-        "built-in basis's grid and camera and applies to yours as any basis does. auto "
+        help="fine-tune the built-in basis of your camera (learned from synthetic streets, or "
+        "rooms for the indoor one; the closest if none is like it) with these logs' "
+        "maps, counting it as N maps, and keep its local kernel; the result is on that "
+        "basis's grid and camera and applies to yours as any basis does. auto "
         "(default): N = 1000 when the logs give fewer than 1000 maps and their camera is "
-        "like the built-in basis's (aspect ratio within 10 %%, f*b per image width within "
+        "like a built-in basis's (aspect ratio within 10 %%, f*b per image width within "
         "1.5x), else the maps alone; 0: the maps alone",
     )
     fit = learn.add_argument_group("fitted prior (docs/results.md, 'Beyond the paper')")
@@ -216,8 +218,12 @@ def components_note(basis: Basis, asked: int | None) -> str:
         why = f"the fewest that explain --variance {variance:g} of the maps' variance"
     elif "finetune" in basis.meta:
         merged = basis.meta["finetune"]
+        from pcainterp_stream.estimate.basis import BUILT_IN_INDOOR
+
+        indoor = basis.meta.get("source", {}).get("with_synthetic_basis") == BUILT_IN_INDOOR
         why = (
-            f"the built-in basis's {merged['prior_basis']['n_components']} components and "
+            f"the built-in{' indoor' * indoor} basis's {merged['prior_basis']['n_components']} "
+            "components and "
             f"{merged['n_maps']} maps of your own span no more; learn from more frames"
         )
     else:

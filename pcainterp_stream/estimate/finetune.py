@@ -28,12 +28,14 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.errors import BasisError
+from pcainterp_stream.estimate.basis import BUILTIN_KINDS, Basis, builtin_basis
 from pcainterp_stream.estimate.learning import (
     DEFAULT_BOX_SIZE,
     PcaFit,
@@ -93,6 +95,80 @@ def camera_mismatch(basis: Basis, image_size: tuple[int, int], focal_baseline: f
             f"{basis.focal_baseline / basis_width:.3g} m"
         )
     return None
+
+
+def camera_distance(basis: Basis, image_size: tuple[int, int], focal_baseline: float) -> float:
+    """Return how far a camera is from a basis's, in units of :func:`camera_mismatch`'s limits.
+
+    The larger of |aspect / basis aspect - 1| / :data:`ASPECT_TOLERANCE` and
+    |log(disparity range ratio)| / log(:data:`DISPARITY_TOLERANCE`) (the aspect term alone
+    when either f*b is unknown): at most 1 when :func:`camera_mismatch` finds nothing. It
+    ranks the built-in bases for a camera (:func:`builtin_fits`).
+
+    Args:
+        basis: the basis (its ``image_size`` and ``focal_baseline``).
+        image_size: (height, width) of the maps' camera (px).
+        focal_baseline: f*b of the maps' camera (px*m); <= 0: unknown.
+    """
+    height, width = image_size
+    basis_height, basis_width = basis.image_size
+    aspect = abs((width / height) / (basis_width / basis_height) - 1.0) / ASPECT_TOLERANCE
+    if not (np.isfinite(focal_baseline) and focal_baseline > 0) or basis.focal_baseline <= 0:
+        return float(aspect)
+    ratio = (focal_baseline / width) / (basis.focal_baseline / basis_width)
+    return float(max(aspect, abs(np.log(ratio)) / np.log(DISPARITY_TOLERANCE)))
+
+
+@dataclass(frozen=True)
+class BuiltinFit:
+    """How a camera fits one built-in basis (:func:`builtin_fits`).
+
+    Attributes:
+        kind: "street" or "indoor" (:data:`~pcainterp_stream.estimate.basis.BUILTIN_KINDS`).
+        basis: that built-in basis.
+        mismatch: :func:`camera_mismatch`'s reason, None when the camera is like its.
+        distance: :func:`camera_distance` of the camera from its.
+    """
+
+    kind: str
+    basis: Basis
+    mismatch: str | None
+    distance: float
+
+
+def builtin_fits(image_size: tuple[int, int], focal_baseline: float) -> list[BuiltinFit]:
+    """Return how a camera fits each installed built-in basis, the closest first.
+
+    Every built-in basis (street and indoor), as ``densify``'s fit check considers every
+    installed one; a tie keeps :data:`~pcainterp_stream.estimate.basis.BUILTIN_KINDS`'
+    order (street first).
+
+    Args:
+        image_size: (height, width) of the maps' camera (px).
+        focal_baseline: f*b of the maps' camera (px*m); <= 0: unknown.
+
+    Raises:
+        BasisError: no built-in basis is installed (the street basis's error).
+    """
+    fits: list[BuiltinFit] = []
+    errors: list[BasisError] = []
+    for kind in BUILTIN_KINDS:
+        try:
+            basis = builtin_basis(kind)
+        except BasisError as err:
+            errors.append(err)
+            continue
+        fits.append(
+            BuiltinFit(
+                kind,
+                basis,
+                camera_mismatch(basis, image_size, focal_baseline),
+                camera_distance(basis, image_size, focal_baseline),
+            )
+        )
+    if not fits:
+        raise errors[0]
+    return sorted(fits, key=lambda fit: fit.distance)
 
 
 def basis_sketch(basis: Basis, n_prior: int) -> Sketch:

@@ -572,16 +572,18 @@ class StereoPairer:
         height, width = left_image.shape[:2]
         boxed: rect.StereoRectifier | RectifiedBorder | None = rectifier
         if rectifier is not None:
-            camera = rectifier.inner
+            camera, seen = rectifier.inner, rectifier.camera
         else:
-            camera = self._camera(width, height)
+            camera = seen = self._camera(width, height)
             border = None
             if self.config.rectify != "never":  # a black border is estimated around
                 border = self._borders.find(left_image, right_image, camera, self._as_is)
             if border is not None:
                 left_image, right_image = border.crop(left_image), border.crop(right_image)
                 camera, boxed = border.inner, border
-        self.stats.saw_camera(camera, self._baseline_source(rectifier))
+        # the camera line names the camera the outputs have (full_result pads the box back
+        # to it), as the rectify line does, not the box the estimate is made in
+        self.stats.saw_camera(seen, self._baseline_source(rectifier))
         frame = StereoFrame(
             index=self._index,
             stamp_ns=left.stamp_ns,

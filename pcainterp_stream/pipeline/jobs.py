@@ -361,8 +361,10 @@ def describe_basis(path: Path | None = None, *, builtin: str = "street") -> str:
     lines.append(f"  method           {learning.get('method', '?')}")
     tuned, rule = meta.get("finetune"), source.get("with_synthetic_rule")
     if isinstance(tuned, dict):
+        into = {BUILT_IN: "the built-in street basis", BUILT_IN_INDOOR: "the built-in indoor basis"}
         lines.append(
-            f"  fine-tuned       {tuned.get('n_maps', '?')} maps merged into a basis counted "
+            f"  fine-tuned       {tuned.get('n_maps', '?')} maps merged into "
+            f"{into.get(str(source.get('with_synthetic_basis')), 'a basis')} counted "
             f"as {tuned.get('n_prior', '?')} maps (learn --with-synthetic"
             + (f"; {rule})" if isinstance(rule, str) else ")")
         )

@@ -21,14 +21,21 @@ from pcainterp_stream.errors import (
     PcaInterpError,
     TopicNotFoundError,
 )
-from pcainterp_stream.estimate.basis import Basis, grid_size_for
-from pcainterp_stream.estimate.finetune import camera_mismatch, disparity_scale, finetune_basis
+from pcainterp_stream.estimate.basis import BUILTIN_LABELS, Basis, grid_size_for
+from pcainterp_stream.estimate.finetune import (
+    BuiltinFit,
+    builtin_fits,
+    camera_mismatch,
+    disparity_scale,
+    finetune_basis,
+)
 from pcainterp_stream.estimate.learning import DEFAULT_BOX_SIZE, learn_basis, preprocess_disparity
 from pcainterp_stream.estimate.prior import LocalPrior
 from pcainterp_stream.frontend.camera_infos import first_infos
 from pcainterp_stream.frontend.discovery import resolve_pairing
 from pcainterp_stream.frontend.pairing import (
     PairingConfig,
+    StereoPairer,
     iter_stereo_frames,
 )
 from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig, compute_disparity
@@ -44,6 +51,11 @@ from pcainterp_stream.pipeline.common import (
     _pairing_types,
     _require_topics,
 )
+from pcainterp_stream.pipeline.held_out import FIT_SEQUENCE_FRAMES
+
+# re-exported: the cluster's learner (pipeline/distributed.py) imports them from here
+from pcainterp_stream.pipeline.held_out import HeldOutFrame as HeldOutFrame
+from pcainterp_stream.pipeline.held_out import measure_held_out as measure_held_out
 from pcainterp_stream.pipeline.processor import ProcessorConfig
 
 
@@ -106,8 +118,16 @@ mean over the two real KITTI clips, each learned and the other densified (docs/b
 
 @dataclass(frozen=True)
 class _MapSource:
-    image_size: tuple[int, int]
+    image_size: tuple[int, int]  # (height, width) of the maps: the images or their box
     focal_baseline: float
+    images: tuple[int, int] | None = None  # (height, width) of raw images remapped, else None
+
+    def describe(self) -> str:
+        """Say the images' size, and their rectified box where it differs: "752x480 images"."""
+        height, width = self.image_size
+        if self.images is None or self.images == self.image_size:
+            return f"{width}x{height} images"
+        return f"{self.images[1]}x{self.images[0]} images (rectified box {width}x{height})"
 
 
 def _depth_maps(
@@ -306,18 +326,39 @@ class SyntheticPlan:
         n_prior: the maps it counts for (0 with no prior basis).
         rule: why, as ``meta["source"]["with_synthetic_rule"]`` records it.
         note: the line printed for the user, or None.
+        label: which built-in basis ``prior_basis`` is (``built-in``, ``built-in-indoor``),
+            None: none or one given by the caller.
     """
 
     prior_basis: Basis | None
     n_prior: int
     rule: str
     note: str | None = None
+    label: str | None = None
+
+
+BUILTIN_WORLDS = {
+    "street": ("KITTI-like", "synthetic streets"),
+    "indoor": ("VI-sensor-like", "synthetic rooms, corridors and halls"),
+}
+"""Each built-in basis's camera and world, as ``learn``'s notes name them."""
+
+
+def _camera_of(fit: BuiltinFit) -> str:
+    """Name a built-in basis's camera: "the indoor basis's VI-sensor-like 752x480"."""
+    height, width = fit.basis.image_size
+    return f"the {fit.kind} basis's {BUILTIN_WORLDS[fit.kind][0]} {width}x{height}"
 
 
 def plan_synthetic(
     options: LearnOptions, n_maps: int | None, camera: tuple[tuple[int, int], float]
 ) -> SyntheticPlan:
-    """Decide whether ``learn`` fine-tunes the built-in basis (``--with-synthetic``).
+    """Decide whether ``learn`` fine-tunes a built-in basis (``--with-synthetic``), and which.
+
+    The built-in basis whose camera is like the logs' (:func:`finetune.builtin_fits`: the
+    street basis for a KITTI-like camera, the indoor one for a 752x480 VI-sensor-like one)
+    or, with ``--with-synthetic N`` and no such one, the closest; ``options.prior_basis``
+    when given.
 
     Args:
         options: the learning options (``with_synthetic``, ``prior_basis``).
@@ -327,53 +368,80 @@ def plan_synthetic(
     Returns:
         The :class:`SyntheticPlan`. ``auto`` fine-tunes with :data:`AUTO_PRIOR_MAPS` when
         ``n_maps`` < :data:`AUTO_MAX_MAPS` and :func:`camera_mismatch` finds nothing; it
-        learns from the maps alone, with a note, when the camera differs, ``grid_scale``
-        asks for another grid than the basis's, or the built-in basis is not installed.
+        learns from the maps alone, with a note, when the camera is like no built-in
+        basis's, ``grid_scale`` asks for another grid than the basis's, or no built-in
+        basis is installed.
     """
     requested = options.with_synthetic
     if requested is None or requested == 0:
         return SyntheticPlan(None, 0, "off: --with-synthetic 0" if requested == 0 else "off")
-    if requested != AUTO:
-        prior_basis = options.prior_basis or Basis.default()
-        return SyntheticPlan(prior_basis, int(requested), f"--with-synthetic {requested}")
-    count = "an unknown number of" if n_maps is None else str(n_maps)
-    if n_maps is not None and n_maps >= AUTO_MAX_MAPS:
-        return SyntheticPlan(None, 0, f"auto: {n_maps} maps, not fewer than {AUTO_MAX_MAPS}")
-    try:
-        prior_basis = options.prior_basis or Basis.default()
-    except BasisError as err:
-        rule = f"auto: the built-in basis is not installed ({err})"
-        return SyntheticPlan(None, 0, rule, f"note: {rule}; learning from your {count} maps alone")
     image_size, focal_baseline = camera
-    mismatch = camera_mismatch(prior_basis, image_size, focal_baseline)
-    if mismatch is not None:
-        rule = f"auto: the camera differs from the built-in basis's ({mismatch})"
+    count = "an unknown number of" if n_maps is None else str(n_maps)
+    if requested == AUTO and n_maps is not None and n_maps >= AUTO_MAX_MAPS:
+        return SyntheticPlan(None, 0, f"auto: {n_maps} maps, not fewer than {AUTO_MAX_MAPS}")
+    if options.prior_basis is not None:
+        mismatch = camera_mismatch(options.prior_basis, image_size, focal_baseline)
+        fits = [BuiltinFit("given", options.prior_basis, mismatch, 0.0)]
+    elif requested != AUTO:
+        fits = builtin_fits(image_size, focal_baseline)  # none installed: the error says so
+    else:
+        try:
+            fits = builtin_fits(image_size, focal_baseline)
+        except BasisError as err:
+            rule = f"auto: the built-in basis is not installed ({err})"
+            note = f"note: {rule}; learning from your {count} maps alone"
+            return SyntheticPlan(None, 0, rule, note)
+    chosen = fits[0]
+    given = options.prior_basis is not None
+    label = None if given else BUILTIN_LABELS[chosen.kind]
+    name = "the basis" if given else f"the built-in {chosen.kind} basis"
+    if requested != AUTO:
+        rule = f"--with-synthetic {requested}"
+        if given:
+            return SyntheticPlan(chosen.basis, int(requested), rule)
+        unlike = "" if chosen.mismatch is None else f", the closest ({chosen.mismatch})"
+        note = (
+            f"note: merging your {count} maps with {name}'s {BUILTIN_WORLDS[chosen.kind][1]} "
+            f"(counted as {requested} maps{unlike})"
+        )
+        return SyntheticPlan(chosen.basis, int(requested), rule, note, label)
+    if chosen.mismatch is not None:
+        rule = f"auto: the camera differs from {name}'s ({chosen.mismatch})"
+        unlike = (
+            f"your camera is not like the given basis's ({chosen.mismatch})"
+            if given
+            else "your camera is like none of theirs: "
+            + "; ".join(f"{_camera_of(fit)} ({fit.mismatch})" for fit in fits)
+        )
         return SyntheticPlan(
             None,
             0,
             rule,
-            f"note: not merging the built-in basis's synthetic maps into your {count} maps: "
-            f"your camera is not like its KITTI-like one ({mismatch}); --with-synthetic N "
-            "merges them anyway",
+            f"note: not merging {'the basis' if given else 'the built-in bases'}' synthetic "
+            f"maps into your {count} maps: {unlike}; --with-synthetic N merges them anyway",
         )
+    prior_basis = chosen.basis
     preprocessing = prior_basis.meta.get("preprocessing", {})
     grid_scale = float(
         preprocessing.get("grid_scale", prior_basis.grid_size[1] / prior_basis.image_size[1])
     )
     if not np.isclose(options.grid_scale, grid_scale, rtol=0.01):
         rule = (
-            f"auto: --grid-scale {options.grid_scale:g} asks for another grid than the "
-            f"built-in basis's {grid_scale:g}"
+            f"auto: --grid-scale {options.grid_scale:g} asks for another grid than "
+            f"{name}'s {grid_scale:g}"
         )
         return SyntheticPlan(None, 0, rule, f"note: {rule}; learning from your {count} maps alone")
-    rule = f"auto: {count} maps, fewer than {AUTO_MAX_MAPS}, and a camera like the basis's"
+    kind = "" if given else f" {chosen.kind}"
+    rule = f"auto: {count} maps, fewer than {AUTO_MAX_MAPS}, and a camera like the{kind} basis's"
+    world = "" if given else f"{BUILTIN_WORLDS[chosen.kind][1]}, "
     return SyntheticPlan(
         prior_basis,
         AUTO_PRIOR_MAPS,
         rule,
-        f"note: {count} maps of your own are few (< {AUTO_MAX_MAPS}): merging them with the "
-        f"built-in basis's synthetic statistics (counted as {AUTO_PRIOR_MAPS} maps) and "
+        f"note: {count} maps of your own are few (< {AUTO_MAX_MAPS}): merging them with "
+        f"{name}'s synthetic statistics ({world}counted as {AUTO_PRIOR_MAPS} maps) and "
         "keeping its local kernel; --with-synthetic 0 learns from your maps alone",
+        label,
     )
 
 
@@ -483,8 +551,13 @@ def _log_camera(log: Path, options: LearnOptions, pairing: PairingConfig) -> _Ma
         paired = log_pairing(reader, pairing)
         _require_topics(reader, paired.required_topics(), "stereo pair")
         _check_topic_types(reader, _pairing_types(paired))
-        for frame in iter_stereo_frames(reader, paired):
-            return _MapSource(frame.camera.image_size, frame.camera.focal_baseline)
+        pairer = StereoPairer(paired)
+        for frame in iter_stereo_frames(reader, pairer=pairer):
+            # raw images are estimated in the box of their rectified view both cameras see
+            rectifier = pairer.rectification()
+            width, height = rectifier.calibration.left.image_size() if rectifier else (0, 0)
+            images = (height, width) if rectifier else None
+            return _MapSource(frame.camera.image_size, frame.camera.focal_baseline, images)
     return None
 
 
@@ -503,12 +576,11 @@ def _one_camera(logs: list[Path], options: LearnOptions, pairing: PairingConfig)
             f"{', '.join(map(str, logs))}; check the topic options (pcainterp info LOG)"
         )
     first_log, camera = found[0]
-    height, width = camera.image_size
     for log, other in found[1:]:
         if other.image_size != camera.image_size:
             raise PcaInterpError(
-                f"{log} has {other.image_size[1]}x{other.image_size[0]} images but {first_log} "
-                f"has {width}x{height}; learn one basis per camera"
+                f"{log} has {other.describe()} but {first_log} has {camera.describe()}; "
+                "learn one basis per camera"
             )
     return camera
 
@@ -633,6 +705,8 @@ def learn(
     source = source_meta(logs, options)
     source["with_synthetic"] = plan.synthetic.n_prior
     source["with_synthetic_rule"] = plan.synthetic.rule
+    if plan.synthetic.label is not None:
+        source["with_synthetic_basis"] = plan.synthetic.label
     meta: dict[str, Any] = {"source": source}
     try:
         if cluster is None:
@@ -678,9 +752,9 @@ def _learn_here(
             for disparity in itertools.islice(produce(log, options, pairing, info), keep):
                 if disparity.shape != image_size:
                     raise PcaInterpError(
-                        f"{log} has {disparity.shape[1]}x{disparity.shape[0]} images but the "
-                        f"first log has {image_size[1]}x{image_size[0]}; "
-                        "learn one basis per camera"
+                        f"{log} gives a {disparity.shape[1]}x{disparity.shape[0]} map (its "
+                        "images, or their rectified box) but the first log's are "
+                        f"{image_size[1]}x{image_size[0]}; learn one basis per camera"
                     )
                 if not shows_surface(disparity):
                     blank += 1
@@ -726,85 +800,6 @@ def _learn_here(
 
 FIT_MAX_FRAMES = 16
 """Frames used by the evidence fit of the local prior (evenly spread over the fit frames)."""
-
-
-CALIBRATION_EVERY = 4
-"""Every N-th held-out frame is densified to calibrate the std (``fitting.fit_std_scale``)."""
-
-
-FIT_SEQUENCE_FRAMES = 16
-"""Consecutive held-out frames measured per log (with --fit-logs: per fit log); they are the
-fit's frames and the sequences of the temporal process-noise fit."""
-
-
-@dataclass(frozen=True)
-class HeldOutFrame:
-    """One held-out frame measured as ``densify`` measures it.
-
-    Attributes:
-        pixels: (k, 2) float, (x, y) of the measurements (px).
-        disparities: (k,) float, their disparities (px).
-        image_size: (height, width) of the camera (px).
-        focal_baseline: f*b of the camera (px*m).
-        reference: (H, W) float32 SGBM map of a calibration frame (every
-            :data:`CALIBRATION_EVERY`-th), else None.
-    """
-
-    pixels: npt.NDArray[Any]
-    disparities: npt.NDArray[Any]
-    image_size: tuple[int, int]
-    focal_baseline: float
-    reference: npt.NDArray[Any] | None
-
-
-def measure_held_out(
-    log: Path,
-    first: int,
-    options: LearnOptions,
-    pairing: PairingConfig,
-    progress: Callable[[], None] | None = None,
-) -> list[HeldOutFrame]:
-    """Measure up to :data:`FIT_SEQUENCE_FRAMES` consecutive pairs of a log from ``first`` on.
-
-    GFTT corners looked up in the SGBM map, as ``densify`` measures; a function of the log
-    alone, so a cluster's worker runs it as well as this process.
-
-    Args:
-        log: the log.
-        first: index of the first stereo pair to measure.
-        options: the learning options (SGBM and GFTT settings).
-        pairing: topics of the stereo pairs.
-        progress: called after each frame.
-
-    Returns:
-        The frames, in log order.
-    """
-    from pcainterp_stream.frontend.stereo import StereoFrontEnd
-
-    front_end = StereoFrontEnd(options.gftt, options.sgbm)
-    frames: list[HeldOutFrame] = []
-    with open_log(log) as reader:
-        pairing = log_pairing(reader, pairing)
-        _require_topics(reader, pairing.required_topics(), "stereo pair")
-        for frame in iter_stereo_frames(reader, pairing):
-            if frame.index < first:
-                continue
-            if len(frames) >= FIT_SEQUENCE_FRAMES:
-                break
-            measured = front_end.measure(frame.left, frame.right)
-            calibrates = (frame.index - first) % CALIBRATION_EVERY == 0
-            frames.append(
-                HeldOutFrame(
-                    measured.pixels,
-                    measured.disparities,
-                    frame.camera.image_size,
-                    frame.camera.focal_baseline,
-                    measured.disparity_map if calibrates else None,
-                )
-            )
-            if progress is not None:
-                progress()
-    return frames
 
 
 def fit_prior(

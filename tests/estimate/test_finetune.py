@@ -9,7 +9,13 @@ import pytest
 from scipy.linalg import subspace_angles
 
 from pcainterp_stream.estimate.basis import Basis
-from pcainterp_stream.estimate.finetune import basis_sketch, camera_mismatch, finetune_basis
+from pcainterp_stream.estimate.finetune import (
+    basis_sketch,
+    builtin_fits,
+    camera_distance,
+    camera_mismatch,
+    finetune_basis,
+)
 from pcainterp_stream.estimate.learning import learn_basis
 
 GRID = (12, 20)
@@ -149,3 +155,26 @@ def test_another_camera_is_named(
     image_size: tuple[int, int], focal_baseline: float, reason: str
 ) -> None:
     assert camera_mismatch(kitti_like(), image_size, focal_baseline) == reason
+
+
+@pytest.mark.parametrize(
+    ("image_size", "focal_baseline", "kinds", "fits"),
+    [
+        ((376, 1241), 386.17, ["street", "indoor"], True),  # KITTI's grey camera
+        ((94, 310), 96.5, ["street", "indoor"], True),  # quarter-size synthetic drive
+        ((480, 752), 48.02, ["indoor", "street"], True),  # EuRoC's VI-sensor
+        ((120, 188), 12.0, ["indoor", "street"], True),  # quarter-size synthetic walk
+        ((480, 640), 30.0, ["indoor", "street"], False),  # a depth camera: like neither
+    ],
+)
+def test_builtin_fits_puts_the_built_in_basis_of_the_camera_first(
+    image_size: tuple[int, int], focal_baseline: float, kinds: list[str], fits: bool
+) -> None:
+    found = builtin_fits(image_size, focal_baseline)
+    assert [fit.kind for fit in found] == kinds
+    assert (found[0].mismatch is None) is fits
+    assert found[1].mismatch is not None
+    for fit in found:  # within the tolerances exactly when camera_mismatch finds nothing
+        distance = camera_distance(fit.basis, image_size, focal_baseline)
+        assert fit.distance == distance
+        assert (distance <= 1.0) is (fit.mismatch is None)

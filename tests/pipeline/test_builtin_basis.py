@@ -1,10 +1,11 @@
 """Issue 16 through the jobs and the command line: the built-in basis where no basis is
 given (densify, evaluate, info, the processor), the prior fitted by default, and
-``learn --with-synthetic`` (``auto`` by default: merged into few maps of a KITTI-like
-camera)."""
+``learn --with-synthetic`` (``auto`` by default: the built-in basis of the logs' camera,
+street or indoor, merged into few maps)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -394,3 +395,72 @@ def test_learn_refuses_contradicting_options(
     assert code == 2
     assert message in err
     assert not target.exists()
+
+
+# ------------------------------------------------- learn: the built-in basis of the camera
+
+
+@pytest.fixture(scope="module")
+def indoor_logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Quarter-size indoor logs: a VI-sensor camera (188x120, like the indoor basis's
+    752x480) and a depth camera (160x120, like no built-in basis's)."""
+    folder = tmp_path_factory.mktemp("indoor")
+    logs = {"vi": folder / "room.mcap", "depth": folder / "depthcam.mcap"}
+    for log, camera in zip(logs.values(), ("752x480", "640x480"), strict=True):
+        jobs.synth(log, frames=FRAMES, seed=4, scale=0.25, fmt=None, scene="indoor", camera=camera)
+    return logs
+
+
+def test_auto_merges_the_indoor_basis_into_few_maps_of_a_vi_sensor_camera(
+    indoor_logs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "room.npz"
+    options = jobs.LearnOptions(n_components=20, fit_prior=False, with_synthetic="auto")
+    capsys.readouterr()
+    tuned = jobs.learn([indoor_logs["vi"]], out, options, PairingConfig())
+    notes = [line for line in capsys.readouterr().out.splitlines() if line.startswith("note:")]
+    assert len(notes) == 1
+    assert "merging them with the built-in indoor basis's synthetic statistics" in notes[0]
+    assert f"counted as {AUTO_PRIOR_MAPS} maps" in notes[0]
+    indoor = Basis.indoor()
+    assert tuned.image_size == indoor.image_size  # its camera, not the log's 188x120
+    assert tuned.grid_size == indoor.grid_size
+    assert tuned.n_train == AUTO_PRIOR_MAPS + FRAMES
+    assert tuned.meta["finetune"]["prior_basis"]["fingerprint"] == indoor.fingerprint
+    assert tuned.meta["source"]["with_synthetic_basis"] == "built-in-indoor"
+    assert "and a camera like the indoor basis's" in tuned.meta["source"]["with_synthetic_rule"]
+    assert "merged into the built-in indoor basis counted as" in jobs.describe_basis(out)
+
+
+def test_with_synthetic_n_merges_the_built_in_basis_of_the_camera(
+    indoor_logs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "room.npz"
+    args = ["learn", indoor_logs["vi"], "-o", out, "--with-synthetic", "200"]
+    code, text, err = run(capsys, *args, "--components", "20", "--no-fit-prior")
+    assert code == 0, err
+    assert "note: merging your 6 maps with the built-in indoor basis's synthetic rooms" in text
+    tuned = Basis.load(out)
+    assert tuned.meta["finetune"]["prior_basis"]["fingerprint"] == Basis.indoor().fingerprint
+    assert tuned.n_train == 200 + FRAMES
+
+
+def test_a_camera_like_no_built_in_basis_is_merged_only_when_asked(
+    indoor_logs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    options = jobs.LearnOptions(n_components=3, fit_prior=False, with_synthetic="auto")
+    capsys.readouterr()
+    alone = jobs.learn([indoor_logs["depth"]], tmp_path / "a.npz", options, PairingConfig())
+    notes = [line for line in capsys.readouterr().out.splitlines() if line.startswith("note:")]
+    assert len(notes) == 1
+    assert "not merging the built-in bases' synthetic maps into your 6 maps" in notes[0]
+    assert "the street basis's KITTI-like 1241x376 (aspect ratio 1.33 against 3.30)" in notes[0]
+    assert "the indoor basis's VI-sensor-like 752x480 (aspect ratio 1.33 against 1.57)" in notes[0]
+    assert "finetune" not in alone.meta
+    assert alone.image_size == (120, 160)
+    # asked for, the closest is merged (the indoor basis: 1.33 is nearer 1.57 than 3.30)
+    options = dataclasses.replace(options, with_synthetic=200)
+    tuned = jobs.learn([indoor_logs["depth"]], tmp_path / "t.npz", options, PairingConfig())
+    assert "the closest (aspect ratio 1.33 against 1.57)" in capsys.readouterr().out
+    assert tuned.meta["source"]["with_synthetic_basis"] == "built-in-indoor"
+    assert tuned.image_size == Basis.indoor().image_size
