@@ -127,6 +127,30 @@ class InterruptedAfterOutput(KeyboardInterrupt):
         self.kept = kept
 
 
+class InterruptedStreamOutput(KeyboardInterrupt):
+    """A signal while an output went to a stream (standard output), which keeps what it got.
+
+    Bytes sent down a pipe cannot be taken back: the message says how many there are and
+    whether they make the whole output.
+
+    Attributes:
+        what: the output, as a message names it ("the MCAP written to standard output").
+        written: bytes sent before the signal.
+        complete: whether they are the whole output.
+    """
+
+    def __init__(self, what: str, written: int, *, complete: bool) -> None:
+        """Record what was sent; the message says whether to keep it."""
+        self.what = what
+        self.written = written
+        self.complete = complete
+        if complete:
+            state = f"is complete ({written} bytes)"
+        else:
+            state = f"is incomplete ({written} bytes); discard it"
+        super().__init__(f"{what} {state}")
+
+
 _lock = threading.Lock()
 _stall_dump: IO[str] | None = None
 _partials: set[Path] = set()

@@ -10,13 +10,18 @@
 - ``default``: hypothesis' defaults with the per-test example counts.
 
 ``HYPOTHESIS_PROFILE`` names a profile explicitly and wins over ``CI``.
+
+Also the ``full_disk`` fixture: files written through ``Path.open`` on a disk that fills up.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 from hypothesis import HealthCheck, settings
@@ -57,3 +62,46 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
     for path, text in stalled:
         terminalreporter.write_line(f"{path}:")
         terminalreporter.write_line(text)
+
+
+class _FileOnFullDisk:
+    """A file opened for writing on a disk with ``room`` bytes left (shared by its files)."""
+
+    def __init__(self, file: Any, room: list[int]) -> None:
+        self._file = file
+        self._room = room
+
+    def write(self, data: Any) -> int:
+        size = len(data) if isinstance(data, str) else memoryview(data).nbytes
+        if size > self._room[0]:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        self._room[0] -= size
+        written: int = self._file.write(data)
+        return written
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._file, name)
+
+    def __enter__(self) -> _FileOnFullDisk:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._file.close()
+
+
+@pytest.fixture
+def full_disk(monkeypatch: pytest.MonkeyPatch) -> Callable[[int], None]:
+    """Return ``fill(room)``: from then on, files opened with ``Path.open`` for writing share
+    ``room`` bytes, and a write past them raises ``OSError(ENOSPC)`` as a full disk does."""
+
+    def fill(room: int) -> None:
+        left = [room]
+        original = Path.open
+
+        def open_on_full_disk(path: Path, mode: str = "r", *args: Any, **kwargs: Any) -> Any:
+            file = original(path, mode, *args, **kwargs)
+            return _FileOnFullDisk(file, left) if set(mode) & set("wxa") else file
+
+        monkeypatch.setattr(Path, "open", open_on_full_disk)
+
+    return fill

@@ -754,6 +754,36 @@ def test_import_kitti_then_densify(
     assert depth_shapes(out) == [(24, 40), (24, 40)]
 
 
+@pytest.mark.parametrize(
+    ("name", "format_args"),
+    [("s.mcap", []), ("s.bag", []), ("s2", ["--format", "rosbag2"])],
+)
+def test_synth_and_import_kitti_on_a_full_disk_are_one_error(
+    pcainterp: Callable[..., Run],
+    full_disk: Callable[[int], None],
+    tmp_path: Path,
+    name: str,
+    format_args: list[str],
+) -> None:
+    """A disk that fills up mid-way was a traceback here (only densify's threaded writer
+    turned it into the one line)."""
+    drive = _fake_kitti_drive(tmp_path, calibration=True)
+    target = tmp_path / "out" / name
+    target.parent.mkdir()
+    full_disk(20_000)
+    line = pcainterp("synth", target, "--frames", "4", "--scale", "0.2", *format_args).error_line()
+    assert line == (
+        f"pcainterp: error: writing {target} failed: OSError: [Errno 28] No space left on "
+        "device; nothing was written there"
+    )
+    assert_nothing_written(target)
+    if name.endswith(".mcap"):
+        full_disk(1000)  # room for the header, not the two frames
+        line = pcainterp("import-kitti", drive, target).error_line()
+        assert f"writing {target} failed: OSError: [Errno 28] No space left" in line
+        assert_nothing_written(target)
+
+
 def test_import_kitti_output_missing_folder(pcainterp: Callable[..., Run], tmp_path: Path) -> None:
     drive = _fake_kitti_drive(tmp_path, calibration=True)
     target = tmp_path / "missing" / "drive.mcap"
@@ -2669,3 +2699,32 @@ def test_densify_a_log_of_one_camera_says_so(
         "two cameras side by side (--left-topic and --right-topic name them)"
     )
     assert_nothing_written(out)
+
+
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        (["info", "drive.mcap"], "pcainterp: interrupted"),
+        (["golden", "check", "drive.mcap", "g.json"], "pcainterp: interrupted"),
+        (
+            ["golden", "check", "drive.mcap", "g.json", "--update"],
+            "pcainterp: interrupted; no partial output was left at the target",
+        ),
+        (
+            ["synth", "drive.mcap"],
+            "pcainterp: interrupted; no partial output was left at the target",
+        ),
+    ],
+)
+def test_an_interrupted_command_that_only_reads_says_just_interrupted(
+    pcainterp: Callable[..., Run], monkeypatch: pytest.MonkeyPatch, args: list[str], said: str
+) -> None:
+    """``info`` and ``golden check`` write nothing: no word of partial outputs for them."""
+    from pcainterp_stream.cli import app
+
+    def interrupted(args: argparse.Namespace) -> int:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(app, "run", interrupted)
+    run = pcainterp(*args)
+    assert (run.code, run.err.strip()) == (130, said)

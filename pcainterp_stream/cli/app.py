@@ -35,6 +35,7 @@ from pcainterp_stream.interrupt import (
     EXIT_INTERRUPTED,
     Interrupted,
     InterruptedAfterOutput,
+    InterruptedStreamOutput,
     end_if_signalled,
     signalled,
     stop_on_signals,
@@ -102,13 +103,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         with stop_on_signals(watchdog=args.command == "densify"):
             return run(args)
     except KeyboardInterrupt as interruption:
-        return _interrupted(interruption)
+        return _interrupted(interruption, writes=_writes(args))
     except Exception as err:
         # A signal that lands inside an import of a compiled module surfaces as
         # "ImportError: initialization failed", inside other native code as whatever it
         # raises: once a signal was handled, every error is the interruption's.
         if signalled():
-            return _interrupted()
+            return _interrupted(writes=_writes(args))
         if isinstance(err, PcaInterpError):
             print(f"{PROG}: error: {err}", file=sys.stderr)
             return 2
@@ -151,18 +152,31 @@ def _end_without_teardown(code: int) -> None:
     os._exit(code)
 
 
-def _interrupted(interruption: KeyboardInterrupt | None = None) -> int:
+def _writes(args: argparse.Namespace) -> bool:
+    """Whether the command writes a file (``info`` and ``golden check`` only read)."""
+    if args.command == "info":
+        return False
+    return not (args.command == "golden" and args.golden_command == "check" and not args.update)
+
+
+def _interrupted(interruption: KeyboardInterrupt | None = None, *, writes: bool = True) -> int:
     """Say the command was interrupted (and what it kept); end at once after a real signal.
+
+    Args:
+        interruption: what was raised (its kind says what was kept).
+        writes: the command writes an output (False: the line says no more).
 
     Returns:
         130.
     """
     detail = "no partial output was left at the target"
-    if isinstance(interruption, InterruptedAfterOutput):  # the signal came after the commit
+    if not writes:
+        detail = ""
+    elif isinstance(interruption, InterruptedAfterOutput):  # the signal came after the commit
         detail = f"{interruption.kept} was complete and is kept"
-    elif isinstance(interruption, Interrupted):  # several outputs: which were kept
-        detail = str(interruption)
-    print(f"{PROG}: interrupted; {detail}", file=sys.stderr)
+    elif isinstance(interruption, Interrupted | InterruptedStreamOutput):
+        detail = str(interruption)  # which outputs were kept; what standard output holds
+    print(f"{PROG}: interrupted" + (f"; {detail}" if detail else ""), file=sys.stderr)
     # A Ctrl-C that lands inside code run by exec() (rosbags generates its message
     # decoders that way) sets a flag that makes `python -m` re-raise SIGINT at exit
     # (CPython bpo-41602) although we handled it; any exec() of a string clears it.

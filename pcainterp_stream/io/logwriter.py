@@ -18,7 +18,9 @@ leaves an existing target untouched. The writer refuses to write onto one of its
 own behind a bounded queue (:data:`WRITE_QUEUE_ITEMS` messages), so the caller's thread only
 hands messages over; zstd and file writes release the GIL. An error in that thread is
 raised, as a :class:`LogWriteError` naming the output, by the next ``add_*`` call or by
-``close``, and the partial output is removed as for any other error. MCAP chunks are
+``close``, and the partial output is removed as for any other error. Without the thread, the
+disk's own errors (a full disk: ``OSError``, SQLite's "database or disk is full") become
+the same :class:`LogWriteError` (:meth:`LogWriter.failed`). MCAP chunks are
 compressed with zstd at ``zstd_level`` (:data:`MCAP_ZSTD_LEVEL` by default).
 
 This module knows message layouts only through :mod:`rosmsg`; it never reads a log.
@@ -28,7 +30,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import queue
 import shutil
 import struct
 import tempfile
@@ -57,6 +58,7 @@ from pcainterp_stream.interrupt import raise_if_signalled, track_partial, untrac
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.mcap_extras import McapExtras, write_extras
 from pcainterp_stream.io.output_paths import check_not_input
+from pcainterp_stream.io.write_thread import WriteThread
 from pcainterp_stream.records import RawMessage
 from pcainterp_stream.version import __version__
 
@@ -259,7 +261,9 @@ class LogWriter(ABC):
     def __init__(self, path: Path) -> None:
         self.path = path
         self._partial_dir: Path | None = None
-        self._thread: _WriteThread | None = None
+        self._thread: WriteThread | None = None
+        self._write_errors: tuple[type[Exception], ...] = (OSError,)
+        """What the format's writer raises when the disk refuses bytes (a full disk)."""
         self.threaded = False
         """Write in a thread of its own (set before :meth:`open`; :func:`open_writer`)."""
         self._topic_counts: Counter[str] = Counter()
@@ -294,17 +298,30 @@ class LogWriter(ABC):
             ) from err
         try:
             if self.threaded:
-                self._thread = _WriteThread(self.path)
+                self._thread = WriteThread(self.failed, queue_items=WRITE_QUEUE_ITEMS)
             self._call(self._open_partial)
         except BaseException:
-            self._stop_thread()
-            self._remove_partial()
+            try:
+                self._drop_partial()  # closes the file the format's writer began
+            finally:
+                self._stop_thread()
+                self._remove_partial()
             raise
 
     def _run(self, work: Callable[[], None]) -> None:
-        """Run ``work`` now, or hand it to the writer thread (in order) when threaded."""
+        """Run ``work`` now, or hand it to the writer thread (in order) when threaded.
+
+        Raises:
+            LogWriteError: the disk (or stream) refused the bytes (:meth:`failed`), here or,
+                threaded, in earlier work.
+        """
         if self._thread is None:
-            work()
+            try:
+                work()
+            except BrokenPipeError:  # the reader of a stream went away: it wants no more
+                raise
+            except self._write_errors as err:
+                raise self.failed(err) from err
         else:
             self._thread.submit(work)
 
@@ -313,11 +330,36 @@ class LogWriter(ABC):
 
         The format's writer is opened, closed and aborted in the thread that writes: SQLite
         connections (rosbag2 ``.db3``) must stay in the thread that made them.
+
+        Raises:
+            LogWriteError: the disk (or stream) refused the bytes (:meth:`failed`).
         """
-        if self._thread is None:
-            work()
-        else:
-            self._thread.call(work)
+        try:
+            if self._thread is None:
+                work()
+            else:
+                self._thread.call(work)
+        except BrokenPipeError:
+            raise
+        except self._write_errors as err:
+            raise self.failed(err) from err
+
+    def _drop_partial(self) -> None:
+        """Close what the format's writer left open; an error doing so changes nothing.
+
+        The partial output is removed next: a full disk refusing its last bytes (or a
+        closed stream) must not hide the error that ended the writing.
+        """
+        with contextlib.suppress(LogWriteError):
+            self._call(self._abort_partial)
+
+    def failed(self, error: BaseException) -> LogWriteError:
+        """Return the error that reports ``error``, raised while writing, to the user.
+
+        One sentence naming the output: the partial output is removed, so nothing was
+        written at the target.
+        """
+        return write_failed(self.path, error)
 
     def _stop_thread(self) -> None:
         """Drop the writer thread's queued work and stop it (no-op when not threaded)."""
@@ -369,7 +411,7 @@ class LogWriter(ABC):
             self._commit()
         except BaseException:
             try:
-                self._call(self._abort_partial)  # closes what a failed thread left open
+                self._drop_partial()  # closes what a failed thread left open
             finally:
                 self._stop_thread()
                 self._remove_partial()
@@ -381,7 +423,7 @@ class LogWriter(ABC):
         try:
             if self._thread is not None:
                 self._thread.cancel()
-            self._call(self._abort_partial)
+            self._drop_partial()
         finally:
             self._stop_thread()
             self._remove_partial()
@@ -462,106 +504,16 @@ class LogWriter(ABC):
     def _abort_partial(self) -> None: ...
 
 
-class _Reply:
-    """The outcome of one synchronous call, handed back by the writer thread.
+def write_failed(path: Path, error: BaseException) -> LogWriteError:
+    """Return the error of a file output whose writing failed (its partial output removed).
 
-    The caller waits on a plain lock, which a signal interrupts cleanly (a condition
-    variable's Python code can be left half-way by ``KeyboardInterrupt``).
+    Args:
+        path: the output's target.
+        error: what the writing raised (a full disk: ``OSError`` ``ENOSPC``).
     """
-
-    def __init__(self) -> None:
-        self.error: BaseException | None = None
-        self.ready = threading.Lock()
-        self.ready.acquire()
-
-
-class _WriteThread:
-    """One thread running a writer's work items in order, behind a bounded queue.
-
-    After an error the thread keeps taking items (so the caller never blocks on a full
-    queue) but runs none; :meth:`submit` and :meth:`check` raise it as a
-    :class:`LogWriteError` naming the output. :meth:`call` runs one item synchronously.
-
-    The hand-off is built from single native calls (:class:`queue.SimpleQueue`, a lock)
-    rather than :class:`queue.Queue`: Ctrl-C raises ``KeyboardInterrupt`` between any two
-    lines of the caller's Python code, and one raised inside ``Queue.put``'s notify could
-    leave the writer asleep with work queued, so the clean-up that followed waited forever.
-    Here an interrupt leaves at most one slot of the bound unused.
-    """
-
-    def __init__(self, path: Path) -> None:
-        self._path = path
-        self._items: queue.SimpleQueue[tuple[Callable[[], None], _Reply | None] | None] = (
-            queue.SimpleQueue()
-        )
-        self._slots: queue.SimpleQueue[None] = queue.SimpleQueue()
-        for _ in range(WRITE_QUEUE_ITEMS):
-            self._slots.put(None)
-        self._error: BaseException | None = None
-        self._cancelled = False
-        self._thread = threading.Thread(target=self._loop, name="log-writer", daemon=True)
-        self._thread.start()
-
-    def _put(self, item: tuple[Callable[[], None], _Reply | None] | None) -> None:
-        self._slots.get()  # blocks while WRITE_QUEUE_ITEMS items wait
-        self._items.put(item)
-
-    def _loop(self) -> None:
-        while True:
-            item = self._items.get()
-            self._slots.put(None)
-            if item is None:
-                return
-            work, reply = item
-            if reply is not None:  # a synchronous call runs whatever happened before
-                try:
-                    work()
-                except BaseException as err:  # raised in the caller by call()
-                    reply.error = err
-                reply.ready.release()
-                continue
-            if self._error is not None or self._cancelled:
-                continue
-            try:
-                work()
-            except BaseException as err:  # raised in the caller by submit / check
-                self._error = err
-
-    def _raise(self) -> None:
-        if self._error is not None:
-            error = self._error
-            raise LogWriteError(
-                f"writing {self._path} failed: {type(error).__name__}: {error}; "
-                "nothing was written there"
-            ) from error
-
-    def submit(self, work: Callable[[], None]) -> None:
-        """Queue ``work`` (blocks while the queue is full); raise an earlier error."""
-        self._raise()
-        self._put((work, None))
-
-    def call(self, work: Callable[[], None]) -> None:
-        """Run ``work`` in the thread after everything queued; raise its exception."""
-        reply = _Reply()
-        self._put((work, reply))
-        reply.ready.acquire()
-        if reply.error is not None:
-            raise reply.error
-
-    def check(self) -> None:
-        """Wait until everything queued has run; raise the first error, if any."""
-        self.call(lambda: None)
-        self._raise()
-
-    def cancel(self) -> None:
-        """Skip the work still queued (synchronous calls still run)."""
-        self._cancelled = True
-
-    def stop(self, *, cancel: bool = False) -> None:
-        """Stop the thread once it has run (or, with ``cancel``, skipped) what is queued."""
-        self._cancelled = self._cancelled or cancel
-        self._put(None)
-        self._thread.join()
+    return LogWriteError(
+        f"writing {path} failed: {type(error).__name__}: {error}; nothing was written there"
+    )
 
 
 def _check_replaceable_folder(target: Path) -> None:
@@ -713,6 +665,10 @@ class Rosbag2LogWriter(LogWriter):
             LogFormat.ROSBAG2 if storage == StoragePlugin.MCAP else LogFormat.ROSBAG2_SQLITE3
         )
         self._storage = storage
+        if storage != StoragePlugin.MCAP:
+            import sqlite3  # SQLite's "database or disk is full"
+
+            self._write_errors = (OSError, sqlite3.Error)
         self._writer: Rosbag2Writer | None = None
         self._connections: dict[tuple[str, str], Connection] = {}
 
@@ -748,8 +704,8 @@ class Rosbag2LogWriter(LogWriter):
 
     def _close_partial(self) -> None:
         assert self._writer is not None
-        writer, self._writer = self._writer, None
-        writer.close()
+        self._writer.close()
+        self._writer = None  # kept until then: a failed close is aborted (file closed)
 
     def _abort_partial(self) -> None:
         if self._writer is not None:
@@ -821,8 +777,8 @@ class Ros1LogWriter(LogWriter):
 
     def _close_partial(self) -> None:
         assert self._writer is not None
-        writer, self._writer = self._writer, None
-        writer.close()
+        self._writer.close()
+        self._writer = None  # kept until then: a failed close is aborted (file closed)
 
     def _abort_partial(self) -> None:
         if self._writer is not None and self._writer.bio is not None:

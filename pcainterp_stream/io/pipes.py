@@ -16,17 +16,24 @@ memory stays bounded whatever the log's length, the disk holds one copy of the i
 from __future__ import annotations
 
 import contextlib
+import errno
 import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+from types import TracebackType
 from typing import IO
 
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 
 from pcainterp_stream.errors import LogReadError, LogWriteError
-from pcainterp_stream.interrupt import track_partial, untrack_partial
+from pcainterp_stream.interrupt import (
+    InterruptedStreamOutput,
+    signalled,
+    track_partial,
+    untrack_partial,
+)
 from pcainterp_stream.io.logwriter import LIBRARY, MCAP_CHUNK_SIZE, McapLogWriter
 
 STDIN_NAME = "stdin"
@@ -46,8 +53,14 @@ class _CountingStream:
         self._position = 0
 
     def write(self, data: bytes | bytearray | memoryview) -> int:
-        self._stream.write(data)
-        self._position += len(data)
+        """Write all of ``data``: an unbuffered stream (``PYTHONUNBUFFERED``) may take part."""
+        view = memoryview(data).cast("B")
+        while view:
+            written = self._stream.write(view)
+            if not written:  # None: a non-blocking stream that is full
+                raise OSError(errno.EAGAIN, "the stream takes no more bytes")
+            self._position += written
+            view = view[written:]
         return len(data)
 
     def tell(self) -> int:
@@ -66,19 +79,57 @@ class McapStreamWriter(McapLogWriter):
 
     The stream is flushed, not closed, at the end. An exception in the ``with`` block
     leaves what was written so far on the stream (a truncated MCAP a reader reports as
-    such): a pipe cannot take bytes back.
+    such): a pipe cannot take bytes back. So the errors say so: a failed write raises a
+    :class:`LogWriteError` and an interruption an :class:`InterruptedStreamOutput`, each
+    naming the bytes sent.
     """
 
     def __init__(self, stream: IO[bytes], name: Path = STDOUT_PATH) -> None:
         super().__init__(name)
         self._target = stream
+        self._counting: _CountingStream | None = None
+        self._finished = False
+
+    @property
+    def written(self) -> int:
+        """Bytes written to the stream so far."""
+        return 0 if self._counting is None else self._counting.tell()
+
+    def _description(self) -> str:
+        where = "standard output" if self.path == STDOUT_PATH else str(self.path)
+        return f"the MCAP written to {where}"
+
+    def failed(self, error: BaseException) -> LogWriteError:
+        """Return the error for a failed write: the bytes sent stay on the stream."""
+        return LogWriteError(
+            f"writing {self.path} failed: {type(error).__name__}: {error}; "
+            f"{self._description()} is incomplete ({self.written} bytes); discard it"
+        )
 
     def open(self) -> None:
         """Start the MCAP on the stream."""
         self._open_partial()
 
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc_value: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        """Finish the MCAP (or stop it); an interruption says what the stream holds."""
+        try:
+            super().__exit__(exc_type, exc_value, traceback)
+        except KeyboardInterrupt as err:
+            raise self._interrupted() from err
+        if isinstance(exc_value, KeyboardInterrupt) or (exc_value is not None and signalled()):
+            # (a signal inside native code surfaces as that code's error)
+            raise self._interrupted() from exc_value
+
+    def _interrupted(self) -> InterruptedStreamOutput:
+        return InterruptedStreamOutput(self._description(), self.written, complete=self._finished)
+
     def _open_partial(self) -> None:
-        stream = _CountingStream(self._target)
+        stream = self._counting = _CountingStream(self._target)
         self._stream = stream  # type: ignore[assignment]
         self._writer = McapWriter(
             stream,  # type: ignore[arg-type]
@@ -89,6 +140,10 @@ class McapStreamWriter(McapLogWriter):
             self._writer.start(profile="ros2", library=LIBRARY)
         except OSError as err:
             raise LogWriteError(f"cannot write the MCAP output to {self.path}: {err}") from err
+
+    def _close_partial(self) -> None:
+        super()._close_partial()
+        self._finished = True
 
     def _commit(self) -> None:
         """Nothing to move: the bytes are already on the stream."""

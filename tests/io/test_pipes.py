@@ -7,11 +7,14 @@ as the file output of the same log. Progress and the summary go to standard erro
 
 from __future__ import annotations
 
+import errno
 import io
+import os
 import shlex
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -20,7 +23,8 @@ from mcap.stream_reader import StreamReader
 from rosbags.highlevel import AnyReader
 
 from pcainterp_stream import cli
-from pcainterp_stream.errors import LogReadError
+from pcainterp_stream.errors import LogReadError, LogWriteError
+from pcainterp_stream.interrupt import InterruptedStreamOutput
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.pipes import McapStreamWriter, spool
 
@@ -107,3 +111,86 @@ def test_empty_standard_input_is_one_clear_error() -> None:
 def test_stdin_is_refused_with_out_dir(capsys: pytest.CaptureFixture[str]) -> None:
     assert cli.main(["densify", "-", "--out-dir", "x"]) == 2
     assert "standard input (-) is one log" in capsys.readouterr().err
+
+
+class _Pipe(io.RawIOBase):
+    """A pipe that takes at most ``most`` bytes a write, then fails with ``error`` after
+    ``room`` bytes."""
+
+    def __init__(self, *, most: int = 1 << 30, room: int = 1 << 30, error: int = 0) -> None:
+        self.data = bytearray()
+        self.most, self.room, self.error = most, room, error
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, data: Any) -> int:
+        taken = bytes(data)[: min(self.most, self.room - len(self.data))]
+        if not taken:
+            raise OSError(self.error, os.strerror(self.error))
+        self.data += taken
+        return len(taken)
+
+
+def _write_frames(writer: McapStreamWriter, frames: int) -> None:
+    rng = np.random.default_rng(0)
+    for index in range(frames):
+        depth = rng.uniform(1, 50, size=(600, 800)).astype(np.float32)  # 1.9 MB
+        writer.add_message("/depth", rosmsg.image_message(depth, index, "left"), index)
+
+
+def test_an_unbuffered_stream_that_takes_part_of_a_write_gets_the_rest() -> None:
+    """``PYTHONUNBUFFERED=1`` makes standard output a raw file, whose write may take part
+    of the bytes (a pipe interrupted by a signal, a disk filling up): the rest was lost."""
+    pipe = _Pipe(most=65536)
+    with McapStreamWriter(pipe) as writer:  # type: ignore[arg-type]
+        _write_frames(writer, 3)
+    assert [time for _, time, _ in _stream_messages(bytes(pipe.data))] == [0, 1, 2]
+    assert writer.written == len(pipe.data)
+
+
+def test_a_full_disk_under_standard_output_is_one_error_naming_the_bytes_sent() -> None:
+    """``densify -o - > FILE`` on a full disk: the bytes sent stay there, and the error says
+    so (it was a traceback once the stream was running)."""
+    pipe = _Pipe(most=65536, room=3_000_000, error=errno.ENOSPC)
+    message = (
+        r"writing <stdout> failed: OSError: \[Errno 28\] No space left on device; the MCAP "
+        r"written to standard output is incomplete \(3000000 bytes\); discard it$"
+    )
+    with (
+        pytest.raises(LogWriteError, match=message),
+        McapStreamWriter(pipe) as writer,  # type: ignore[arg-type]
+    ):
+        _write_frames(writer, 3)
+    assert len(pipe.data) == 3_000_000
+
+
+def test_a_reader_that_goes_away_is_a_broken_pipe_still() -> None:
+    """``densify -o - | head -c 100``: the program ends quietly, as on any broken pipe."""
+    pipe = _Pipe(room=100, error=errno.EPIPE)
+    with pytest.raises(BrokenPipeError), McapStreamWriter(pipe) as writer:  # type: ignore[arg-type]
+        _write_frames(writer, 3)
+
+
+@pytest.mark.parametrize("when", ["while writing", "after the end"])
+def test_an_interruption_says_what_standard_output_holds(when: str) -> None:
+    """Ctrl-C of ``densify -o - > out.mcap``: the bytes sent cannot be taken back; the
+    interruption says how many there are and whether they are the whole MCAP."""
+    pipe = _Pipe()
+
+    def interrupted() -> None:
+        with McapStreamWriter(pipe) as writer:  # type: ignore[arg-type]
+            _write_frames(writer, 3)
+            if when == "after the end":
+                writer.close()
+            raise KeyboardInterrupt
+
+    with pytest.raises(InterruptedStreamOutput) as raised:
+        interrupted()
+    size = len(pipe.data)
+    assert raised.value.written == size > 3_000_000
+    state = "complete" if when == "after the end" else "incomplete"
+    assert str(raised.value).startswith(
+        f"the MCAP written to standard output is {state} ({size} bytes)"
+    )
+    assert str(raised.value).endswith("discard it") == (state == "incomplete")
