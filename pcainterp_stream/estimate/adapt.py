@@ -18,7 +18,8 @@ prior refitted by the evidence of the frames' measurements (local kernel and sig
 (:func:`fitting.fit_std_scale`) of frames the basis did not learn from. From one map it is
 that map as the mean with no direction of variation worth the name: the frame's own
 stereo, smoothed, which the measurements then correct. Its held-out figure and its std's
-calibration are measured leaving each checked frame and its neighbours out of the maps
+calibration are measured leaving each checked frame, its neighbours and every copy of it
+(:func:`view_labels`: a camera standing still repeats one view) out of the maps
 (:func:`leave_one_out`): the honest figures for the frames that follow. (Calibrated on the
 frames it learned from, its std fits the maps it reproduces: on a KITTI drive measured on a
 34 px lattice, 44 % of the frames' errors then fell inside +-2 sigma.)
@@ -515,7 +516,60 @@ log's own basis meets those frames 1-8 frames after its newest map before it rel
 
 LEAVE_OUT_MAPS = 3
 """Fewest maps a left-out frame's basis learns from; with fewer beyond the gap, every other
-map is used (a short warm-up: its figure flatters the basis more)."""
+map that is no copy of it is used (a short warm-up: its figure flatters the basis more)."""
+
+SAME_VIEW = 0.1
+"""Two frames whose grid maps (:func:`grid_map`) differ by less than this median |difference|
+(px of disparity) are one view: a camera standing still, or a driver sending its last pair
+again. Measured on grid maps (the median over the grid, per pair of frames): one frame
+repeated with 1-2 grey levels of noise 0.04-0.07 px (KITTI odometry, EuRoC machine hall, a
+synthetic room); the slowest motion seen, a synthetic indoor walk at 20 Hz and half size,
+0.11-0.23 px between consecutive frames and 0.16 or more three frames apart; the two EuRoC
+pairs 0.30 px; KITTI frames at 10 Hz 0.58 px or more. The median, not the mean: SGBM's noisy
+pixels (a standing KITTI view: mean 0.55-1.2 px) or a person walking past a robot that
+stands change a few cells, not the view."""
+
+
+def view_distance(grid: npt.NDArray[np.float32], other: npt.NDArray[np.float32]) -> float:
+    """Return the median |difference| (px) of two grid maps (:func:`grid_map`) of one camera."""
+    return float(np.median(np.abs(grid - other)))
+
+
+def view_labels(
+    grid_maps: Sequence[npt.NDArray[np.float32]], *, tolerance: float = SAME_VIEW
+) -> npt.NDArray[np.intp]:
+    """Label each map with its view: maps closer than ``tolerance`` share one.
+
+    In stream order, a map joins the first view whose first map is closer to it than
+    ``tolerance`` (:func:`view_distance`), else starts a view of its own. Maps of one view
+    are one piece of evidence: a basis that learned one reproduces the others.
+
+    Args:
+        grid_maps: (gh, gw) float32 maps of one camera (:func:`grid_map`), in stream order.
+        tolerance: the largest median |difference| (px of disparity) within a view.
+
+    Returns:
+        (n,) view index of each map: 0 for the first map's view, then 1, 2... in the order
+        they first appear.
+
+    Examples:
+        >>> import numpy as np
+        >>> still = np.full((4, 4), 10.0, dtype=np.float32)
+        >>> moved = still + 1.0
+        >>> view_labels([still, still + 0.01, moved, still]).tolist()
+        [0, 0, 1, 0]
+    """
+    labels = np.zeros(len(grid_maps), dtype=np.intp)
+    firsts: list[int] = []
+    for index, grid in enumerate(grid_maps):
+        for label, first in enumerate(firsts):
+            if view_distance(grid, grid_maps[first]) < tolerance:
+                labels[index] = label
+                break
+        else:
+            labels[index] = len(firsts)
+            firsts.append(index)
+    return labels
 
 
 class OwnCheck(NamedTuple):
@@ -543,27 +597,40 @@ def leave_one_out(
     max_frames: int = 4,
     calibrate: bool = False,
     gap: int = LEAVE_OUT_GAP,
+    tolerance: float = SAME_VIEW,
 ) -> OwnCheck | None:
-    """Check a log's own basis on frames left out of its maps (None with fewer than 2 maps).
+    """Check a log's own basis on frames left out of its maps (None with fewer than 2 views).
 
-    For up to ``max_frames`` frames (evenly spaced), learn from the maps of the frames more
-    than ``gap`` frames away (every other map when that leaves fewer than
-    :data:`LEAVE_OUT_MAPS`), densify the left-out frame with ``prior`` (its fitted local
-    kernel and sigma: hyperparameters of all frames, a small leak) and score it as
-    :func:`check_frame` does. With ``calibrate``, the left-out frames' posterior std is
-    computed too and calibrated against their maps.
+    For up to ``max_frames`` views (:func:`view_labels` with ``tolerance``; evenly spaced, a
+    view's first frame), learn from the maps of the frames more than ``gap`` frames away
+    that are no copy of it (closer than ``tolerance``; when that leaves fewer than
+    :data:`LEAVE_OUT_MAPS`, from every map that is no copy), densify the left-out frame with
+    ``prior`` (its fitted local kernel and sigma: hyperparameters of all frames, a small
+    leak) and score it as :func:`check_frame` does. With ``calibrate``, the left-out frames'
+    posterior std is computed too and calibrated against their maps. A log whose frames all
+    differ is checked on evenly spaced frames, its copies (a camera standing still) on one
+    frame per view and never with a copy among the maps: ``tolerance=0`` checks every frame
+    as a view of its own.
     """
-    if len(grid_maps) < 2:
+    _, firsts = np.unique(view_labels(grid_maps, tolerance=tolerance), return_index=True)
+    if firsts.size < 2:
         return None
     local = LocalPrior.from_meta(prior["local"]) if prior.get("local") else None
     sigma = float(prior.get("sigma" if local is not None else "plain_sigma", 2.0))
-    chosen = np.unique(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round())
+    picks = np.linspace(0, firsts.size - 1, min(max_frames, firsts.size)).round()
+    chosen = firsts[np.unique(picks).astype(np.intp)]
     checks = []
     estimates, stds, references = [], [], []
     for index in chosen.astype(int):
-        others = [grid for i, grid in enumerate(grid_maps) if abs(i - index) > gap]
-        if len(others) < min(LEAVE_OUT_MAPS, len(grid_maps) - 1):
-            others = [grid for i, grid in enumerate(grid_maps) if i != index]
+        # a map closer to the left-out frame's than ``tolerance`` is a copy: never learned
+        differ = [
+            i
+            for i, grid in enumerate(grid_maps)
+            if i != index and view_distance(grid, grid_maps[index]) >= tolerance
+        ]
+        others = [grid_maps[i] for i in differ if abs(i - index) > gap]
+        if len(others) < min(LEAVE_OUT_MAPS, len(differ)):
+            others = [grid_maps[i] for i in differ]
         basis = own_basis(others, image_size, focal_baseline)
         frame = frames[index]
         result = densify(

@@ -134,18 +134,31 @@ class Adaptation:
         finally:
             self.checked = True
 
-    def _warn_unfit(self, may_adapt: bool) -> None:
-        """Add a ``warning:`` line when the basis kept loses to linear interpolation."""
+    def _warn_unfit(self, may_adapt: bool, own_frames: int = 0) -> None:
+        """Add a ``warning:`` line when the basis kept loses to linear interpolation.
+
+        ``own_frames``: the log's own basis, learned from that many warm-up frames, was
+        tried and did no better (0: not tried).
+        """
         if self.check is None or not self.check.frames or self.check.fits:
             return
-        fix = (
-            "densify without --basis builtin to adapt to this log"
-            if may_adapt
-            else "learn a basis for this camera: pcainterp learn LOG -o BASIS.npz"
-        )
+        if own_frames:
+            # what was tried is named, and what differs in the advice: more frames, and
+            # learn merges a camera like the built-in one's with the built-in basis's maps
+            fix = (
+                f", and so is this log's own basis, learned from its first "
+                f"{_count(own_frames, 'frame')}; a basis learned from more frames of this "
+                "camera may fit (learn merges them with the built-in basis's maps when the "
+                "camera is like its own): pcainterp learn LOG [LOG ...] -o BASIS.npz, then "
+                "densify --basis BASIS.npz"
+            )
+        elif may_adapt:
+            fix = "; densify without --basis builtin to adapt to this log"
+        else:
+            fix = "; learn a basis for this camera: pcainterp learn LOG -o BASIS.npz"
         self.lines.append(
             f"warning: the prior is worse than linear interpolation on this log "
-            f"({self.check.ratio:.2f}x); {fix}"
+            f"({self.check.ratio:.2f}x){fix}"
         )
 
     def _decide(
@@ -207,13 +220,28 @@ class Adaptation:
             self._warn_unfit(self.may_replace)
             return None if self.switched is None else self.switched.basis
         maps = [f.grid_map for f in usable if f.grid_map is not None]
+        kept = f"{self.name} kept" if self.switched is None else f"{self.switched.name} chosen"
+        # frames that repeat one view (a camera standing still) are one piece of evidence:
+        # the log's own basis is checked only on views it did not learn from
+        views = adapt.view_labels(maps)
+        distinct = int(views.max()) + 1 if views.size else 0
+        log_goes_on = len(frames) >= self.warmup_frames  # fewer: the log ended in the warm-up
+        if len(maps) >= 2 and distinct < 2 and self.check.fits and log_goes_on:
+            # one view and more log to come: nothing to check the log's own basis on, and
+            # the frames that follow are not that view
+            self.lines.append(
+                f"prior: {kept}; this log's own basis not tried: its first "
+                f"{_count(len(maps), 'frame')} are one view (the camera stood still), none "
+                "left to check it on"
+            )
+            return None if self.switched is None else self.switched.basis
         # the std is calibrated on the frames left out of the maps (below); with one map
         # there are none, and the map's own frame calibrates it
         own = adapt.refit_prior(
             adapt.own_basis(maps, size, fb),
             measured,
             robust=self.robust,
-            calibrate=self.calibrate and len(maps) < 2,
+            calibrate=self.calibrate and distinct < 2,
         )
         prior = own.meta.get("prior", {})
         held = adapt.leave_one_out(
@@ -239,7 +267,6 @@ class Adaptation:
             # one frame and a built-in basis that fits: no held-out figure to prefer its own
             better = self.check.ratio >= FITS_BELOW
         if not better:
-            kept = f"{self.name} kept" if self.switched is None else f"{self.switched.name} chosen"
             if self.check.frames and not self.check.fits:
                 kept += (
                     f" ({self.check.ratio:.2f}x linear: worse than linear interpolation on "
@@ -259,8 +286,24 @@ class Adaptation:
                 if self.own_check is not None
                 else f"prior: {kept}"
             )
-            self._warn_unfit(False)  # its own basis was tried: no adapting left to suggest
+            # its own basis was tried: no adapting left to suggest
+            self._warn_unfit(False, own_frames=len(maps) if self.own_check is not None else 0)
             return None if self.switched is None else self.switched.basis
+        chosen = self.name if self.switched is None else self.switched.name
+        if not self.check.fits:
+            why = (
+                "the built-in bases do not fit this camera or scene"
+                if self.alternatives
+                else f"{self.name} does not fit this camera or scene"
+            )
+        elif own_error is not None:
+            why = (
+                f"{chosen} fits ({self.check.ratio:.2f}x linear), but this log's own basis did "
+                f"better on frames it did not learn ({own_error:.2f} px against "
+                f"{self.check.prior:.2f})"
+            )
+        else:  # one frame, a built-in basis that fits only loosely (FITS_BELOW or worse)
+            why = f"{chosen} fits only loosely ({self.check.ratio:.2f}x linear)"
         self.switched = None
         self.adapted = True
         self.first_basis = own
@@ -269,15 +312,17 @@ class Adaptation:
         self._recent = measured[-adapt.FIT_FRAMES :]
         self._seen = len(maps)
         self._next_update = 2 * len(maps)
-        how = (
-            f"held out: {self.own_check.describe()}"
-            if self.own_check is not None
-            else "one frame: its own stereo, smoothed, corrected by its points"
-        )
+        if self.own_check is not None:
+            how = f"held out: {self.own_check.describe()}"
+        elif len(maps) > 1:
+            how = "one view: its own stereo, smoothed, corrected by its points"
+        else:
+            how = "one frame: its own stereo, smoothed, corrected by its points"
+        frame_count = _count(len(maps), "frame")
+        if distinct < len(maps):
+            frame_count += f" of {_count(distinct, 'view')}"
         self.lines.append(
-            f"adapted: {'the built-in bases do' if self.alternatives else self.name + ' does'} "
-            f"not fit this camera or scene; learned one from "
-            f"this log's own SGBM maps ({_count(len(maps), 'frame')}, "
+            f"adapted: {why}; learned one from this log's own SGBM maps ({frame_count}, "
             f"{_count(own.n_components, 'component')}; "
             f"{how}); --basis builtin keeps a built-in one"
         )

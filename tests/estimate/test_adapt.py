@@ -194,3 +194,60 @@ def test_leave_one_out_leaves_the_neighbours_out_too() -> None:
     assert short is not None
     assert plain is not None
     assert short.check == plain.check
+
+
+def _bumped(centre: tuple[float, float], shift: float) -> np.ndarray:
+    rows, cols = np.mgrid[0 : SIZE[0], 0 : SIZE[1]].astype(np.float32)
+    bump = 4.0 * np.exp(-((rows - centre[0]) ** 2 + (cols - centre[1]) ** 2) / 40.0)
+    return (_scene(shift) + bump).astype(np.float32)
+
+
+def test_repeated_views_are_labelled_one_view() -> None:
+    rng = np.random.default_rng(11)
+    still = adapt.grid_map(_bumped((20.0, 20.0), 2.0), SIZE)
+    moved = adapt.grid_map(_bumped((30.0, 40.0), 5.0), SIZE)
+
+    def noisy(grid: np.ndarray) -> np.ndarray:  # SGBM's noise on a standing camera
+        return (grid + rng.normal(0.0, 0.03, grid.shape)).astype(np.float32)
+
+    maps = [noisy(still), noisy(still), noisy(moved), noisy(still), noisy(moved)]
+    assert adapt.view_labels(maps).tolist() == [0, 0, 1, 0, 1]
+    assert adapt.view_labels(maps, tolerance=0.0).tolist() == [0, 1, 2, 3, 4]
+    # a few cells that change (a person walking past a robot standing) keep the view
+    passer = noisy(still)
+    passer[:3, :3] += 10.0
+    assert adapt.view_labels([maps[0], passer]).tolist() == [0, 0]
+    assert adapt.view_labels([]).size == 0
+
+
+def test_leave_one_out_never_learns_copies_of_the_left_out_view() -> None:
+    # a camera standing still for 6 frames, then 2 frames of views of their own: a basis that
+    # learned the copies of a left-out standing frame reproduced it (the figure that made a
+    # KITTI drive adapt to a basis learned from its standing start)
+    rng = np.random.default_rng(12)
+    references = [_bumped((20.0, 20.0), 2.0)] * 6
+    references += [_bumped((30.0, 44.0), 6.0), _bumped((12.0, 50.0), 9.0)]
+    frames, maps = [], []
+    for index, reference in enumerate(references):
+        noisy = (reference + rng.normal(0.0, 0.03, reference.shape)).astype(np.float32)
+        pixels = _points(30, seed=60 + index)
+        frames.append(adapt.Measured(pixels, _measure(noisy, pixels), noisy))
+        maps.append(adapt.grid_map(noisy, SIZE))
+    prior = adapt.refit_prior(adapt.own_basis(maps, SIZE, 50.0), frames, robust="cauchy")
+    options = {"image_size": SIZE, "focal_baseline": 50.0, "robust": "cauchy"}
+    held = adapt.leave_one_out(maps, frames, prior.meta["prior"], **options)
+    assert held is not None
+    assert held.check.frames == 3  # one frame per view
+    # the first frame left out: learned from the other views only, or (every frame its own
+    # view, what the check did before) from the standing frames beyond the gap too
+    first = adapt.leave_one_out(maps, frames, prior.meta["prior"], max_frames=1, **options)
+    copies = adapt.leave_one_out(
+        maps, frames, prior.meta["prior"], max_frames=1, tolerance=0.0, **options
+    )
+    assert first is not None
+    assert copies is not None
+    assert first.check.frames == copies.check.frames == 1
+    assert first.check.prior > 3.0 * copies.check.prior  # 0.69 against 0.15 px
+    # all frames one view: nothing is left to check the log's own basis on
+    still = adapt.leave_one_out(maps[:6], frames[:6], prior.meta["prior"], **options)
+    assert still is None
