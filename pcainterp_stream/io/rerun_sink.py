@@ -13,11 +13,13 @@ Entity layout (one time line, ``stamp``, the left image's header stamp):
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import sys
 import tempfile
 import threading
+import time
 from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, BinaryIO
@@ -43,6 +45,15 @@ FILE_FLUSH_S = 300.0
 PUMP_CHUNK = 1 << 20
 """Bytes the recording's pump moves from Rerun's pipe to the file at a time."""
 
+CLOSE_AFTER_SIGNAL_S = 1.0
+"""After a signal, how long the end waits for Rerun to close its sinks (nothing is kept)."""
+
+VIEWER_HOST = "127.0.0.1"
+"""The address a spawned viewer listens on: this machine only."""
+
+VIEWER_PORT = 9876
+"""The port of the spawned viewer (Rerun's default)."""
+
 
 NO_DISPLAY = (
     "--rerun starts a Rerun viewer, which needs a display (neither DISPLAY nor "
@@ -63,28 +74,38 @@ class _Pump:
 
     Rerun's own file sink never returns from its shutdown once a write has failed (a full
     disk), so it is given a named pipe and this thread writes the file: a failed write is
-    remembered, the partial file removed, and the pipe drained to its end, so Rerun always
-    finishes. Where there are no named pipes (Windows) Rerun writes the file itself.
+    remembered, the partial file removed, and the pipe drained to its end whatever happens,
+    so Rerun always finishes. Where there are no named pipes (Windows) Rerun writes the file
+    itself.
+
+    The file is opened here, in the caller's thread, so a target that cannot be written at
+    all raises ``OSError`` before any frame; the pipe's temporary folder is a tracked partial
+    output, removed however the command ends.
     """
 
     def __init__(self, target: Path, name: Path) -> None:
         self.target = target
         self.name = name  # the file the user named (``target`` is its partial)
         self.error: str | None = None
-        self._folder = Path(tempfile.mkdtemp(prefix="pcainterp-rrd-"))
+        out = self._open_target()  # OSError: the caller refuses the path
+        try:
+            self._folder = Path(tempfile.mkdtemp(prefix="pcainterp-rrd-"))
+        except OSError as err:
+            self._close(out)
+            self.target.unlink(missing_ok=True)
+            raise LogWriteError(
+                f"cannot write {name}: no temporary folder for its pipe ({err.strerror or err}); "
+                "set TMPDIR to a writable folder"
+            ) from err
+        track_partial(self._folder)  # removed even if a signal forces the end
         self.pipe = self._folder / "recording.rrd"
         os.mkfifo(self.pipe)
-        self._thread = threading.Thread(target=self._run, name="rrd-pump", daemon=True)
+        self._thread = threading.Thread(target=self._run, args=(out,), name="rrd-pump", daemon=True)
         self._thread.start()
 
-    def _run(self) -> None:
+    def _run(self, out: BinaryIO | None) -> None:
         try:
             with self.pipe.open("rb") as source:
-                out = None
-                try:
-                    out = self._open_target()
-                except OSError as error:
-                    self._fail(error)
                 while chunk := source.read(PUMP_CHUNK):
                     if out is None:
                         continue  # given up: drained, so that Rerun can finish
@@ -94,10 +115,11 @@ class _Pump:
                         self._fail(error)
                         self._close(out)
                         out = None
-                if out is not None:
-                    self._close(out)
         except OSError as error:  # the pipe itself
             self._fail(error)
+        finally:
+            if out is not None:
+                self._close(out)
 
     def _open_target(self) -> BinaryIO:
         return self.target.open("wb")
@@ -108,34 +130,66 @@ class _Pump:
         except OSError as error:  # the last buffered bytes
             self._fail(error)
         if self.error is not None:
-            self.target.unlink(missing_ok=True)
+            self._remove_target()
 
     def _fail(self, error: OSError) -> None:
         if self.error is None:
             self.error = f"cannot write {self.name}: {error.strerror or error}"
-        self.target.unlink(missing_ok=True)  # free what it took of the disk at once
+        self._remove_target()  # free what it took of the disk at once
+
+    def _remove_target(self) -> None:
+        with contextlib.suppress(OSError):  # the folder may refuse even that
+            self.target.unlink(missing_ok=True)
 
     def finish(self, timeout: float) -> None:
         """Wait for the pipe's end (Rerun closed it), then remove the pipe."""
-        if self._thread.is_alive():
+        deadline = time.monotonic() + timeout
+        while self._thread.is_alive() and time.monotonic() < deadline:
             try:  # Rerun never opened it: a writer that closes at once ends the read
                 os.close(os.open(self.pipe, os.O_WRONLY | os.O_NONBLOCK))
-            except OSError:
-                pass  # opened and being written: the read ends when Rerun closes it
-        self._thread.join(timeout)
+                break  # opened and being written: the read ends when Rerun closes it
+            except OSError:  # no reader yet: the thread has not reached its open
+                self._thread.join(0.05)
+        self._thread.join(max(0.0, deadline - time.monotonic()))
         if self._thread.is_alive() and self.error is None:
             self.error = f"cannot write {self.name}: its bytes did not arrive in {timeout:g} s"
+        self.remove_folder()
+
+    def remove_folder(self) -> None:
+        """Remove the pipe's temporary folder (the thread, if still reading, ends with us)."""
         shutil.rmtree(self._folder, ignore_errors=True)
+        untrack_partial(self._folder)
+
+
+def spawn_viewer(port: int) -> None:
+    """Start a Rerun viewer listening on loopback ``port``, or use the one listening there.
+
+    ``rr.spawn`` starts it on every interface (Rerun's default bind, 0.0.0.0); this binds it
+    to 127.0.0.1, as densify's Foxglove server is by default, so that only this machine can
+    connect to the stream. Waits until the viewer accepts connections.
+    """
+    import rerun_bindings
+
+    if os.environ.get("_RERUN_TEST_FORCE_SAVE") is not None:
+        return  # Rerun's own test switch: every stream goes to disk, no viewer (as rr.spawn)
+    rerun_bindings.spawn(
+        port=port,
+        extra_args=["--bind", VIEWER_HOST],
+        extra_env=[("RERUN_APP_ONLY", "true")],  # as rr.spawn: no analytics opt-in prompt
+    )
 
 
 class RerunSink:
     """Log :class:`DensifiedFrame` records to Rerun, as a context manager.
 
+    With both ``rrd_path`` and ``spawn`` the recording goes to both, the viewer and the file.
+
     Args:
         rrd_path: write a recording to this file (written to a temporary beside it and
             renamed when the sink closes without error).
-        spawn: start a viewer and stream to it.
+        spawn: start a viewer (or use the one listening on ``viewer_port``) and stream to it.
         application_id: Rerun application id.
+        viewer_port: the loopback port of the viewer.
     """
 
     def __init__(
@@ -144,12 +198,14 @@ class RerunSink:
         rrd_path: str | Path | None = None,
         spawn: bool = False,
         application_id: str = "pcainterp",
+        viewer_port: int = VIEWER_PORT,
     ) -> None:
         if rrd_path is None and not spawn:
             raise ValueError("RerunSink needs rrd_path or spawn=True")
         self.rrd_path = Path(rrd_path) if rrd_path is not None else None
         self.spawn = spawn
         self.application_id = application_id
+        self.viewer_port = viewer_port
         self._partial: Path | None = None
         self._pump: _Pump | None = None
         self.written = False
@@ -165,23 +221,50 @@ class RerunSink:
                 f"{NO_DISPLAY}; record with --rrd FILE instead and open it with `rerun FILE` "
                 "where there is one"
             )
-        recording = rr.RecordingStream(self.application_id)
-        if self.rrd_path is not None:
-            if not self.rrd_path.parent.is_dir():
-                raise LogWriteError(
-                    f"cannot write {self.rrd_path}: folder {self.rrd_path.parent} does not exist"
-                )
-            self._partial = self.rrd_path.with_name(f".{self.rrd_path.name}.partial")
-            track_partial(self._partial)  # removed even if a signal forces the end
-            if hasattr(os, "mkfifo"):
-                self._pump = _Pump(self._partial, self.rrd_path)
-                recording.save(self._pump.pipe)
-            else:
-                recording.save(self._partial)
-        if self.spawn:
-            recording.spawn(connect=self.rrd_path is None)
+        sinks: list[rr.GrpcSink | rr.FileSink] = []
+        try:
+            if self.rrd_path is not None:  # before the viewer: a path refused starts none
+                sinks.append(rr.FileSink(self._open_recording_file(self.rrd_path)))
+            if self.spawn:
+                spawn_viewer(self.viewer_port)
+                sinks.append(rr.GrpcSink(f"rerun+http://{VIEWER_HOST}:{self.viewer_port}/proxy"))
+            recording = rr.RecordingStream(self.application_id)
+            recording.set_sinks(*sinks)
+        except BaseException:
+            self._discard()
+            raise
         self._recording = recording
         return self
+
+    def _open_recording_file(self, rrd_path: Path) -> Path:
+        """Create the partial beside ``rrd_path``; return the file Rerun is to write.
+
+        Raises:
+            LogWriteError: the folder is missing or cannot be written (before any frame).
+        """
+        if not rrd_path.parent.is_dir():
+            raise LogWriteError(f"cannot write {rrd_path}: folder {rrd_path.parent} does not exist")
+        self._partial = rrd_path.with_name(f".{rrd_path.name}.partial")
+        track_partial(self._partial)  # removed even if a signal forces the end
+        try:
+            if hasattr(os, "mkfifo"):
+                self._pump = _Pump(self._partial, rrd_path)
+                return self._pump.pipe
+            self._partial.open("wb").close()  # Rerun writes it: only whether it can be
+            return self._partial
+        except OSError as err:
+            raise LogWriteError(
+                f"cannot write {rrd_path}: {err.strerror or err}; choose a writable folder"
+            ) from err
+
+    def _discard(self) -> None:
+        """Remove the partial recording and the pipe's folder (an error or a signal)."""
+        if self._pump is not None:
+            self._pump.remove_folder()
+        if self._partial is not None:
+            with contextlib.suppress(OSError):
+                self._partial.unlink(missing_ok=True)
+            untrack_partial(self._partial)
 
     def __exit__(
         self,
@@ -193,23 +276,30 @@ class RerunSink:
         self._recording = None
         if recording is None:
             return
-        # the recording's failure never costs the job's other outputs: it is a warning
-        failed = None
+        interrupted = signalled() or (
+            exc_type is not None and issubclass(exc_type, KeyboardInterrupt)
+        )
         try:
-            recording.flush(timeout_sec=FILE_FLUSH_S if self.rrd_path else VIEWER_FLUSH_S)
-        except RuntimeError as error:  # the viewer gone, or the file's bytes stuck
-            failed = str(error).splitlines()[0] if str(error) else type(error).__name__
-        recording.disconnect()
-        if self._pump is not None:
-            self._pump.finish(FILE_FLUSH_S)
-            failed = failed or self._pump.error
+            # the recording's failure never costs the job's other outputs: it is a warning
+            failed = _close_recording(
+                recording,
+                flush_s=None if interrupted else FILE_FLUSH_S if self.rrd_path else VIEWER_FLUSH_S,
+            )
+            if self._pump is not None:
+                self._pump.finish(CLOSE_AFTER_SIGNAL_S if interrupted else FILE_FLUSH_S)
+                failed = failed or self._pump.error
+        except BaseException:  # a signal while Rerun finishes
+            self._discard()
+            raise
         if self._partial is not None and self.rrd_path is not None:
             if exc_type is None and failed is None and not signalled():  # never after a signal
                 self._partial.replace(self.rrd_path)
                 self.written = True
+                untrack_partial(self._partial)
             else:
-                self._partial.unlink(missing_ok=True)
-            untrack_partial(self._partial)
+                self._discard()
+        if interrupted:
+            return  # the command says it was stopped; the recording is simply not there
         if self._pump is not None and self._pump.error is not None:
             print(
                 f"warning: {self._pump.error}; no recording was written there, the other "
@@ -271,3 +361,31 @@ class RerunSink:
                 depth_range=(0.0, DISPLAY_MAX_DEPTH_STD),
             ),
         )
+
+
+def _close_recording(recording: rr.RecordingStream, *, flush_s: float | None) -> str | None:
+    """Flush (unless ``flush_s`` is None) and disconnect ``recording``; return a failure.
+
+    Rerun's flush and disconnect are native calls that can wait for seconds (a viewer that
+    went away, a slow disk). Made from the main thread, they would hold off a second Ctrl-C's
+    handler (Python runs it only between the main thread's bytecodes) until the signal
+    watchdog killed the process; so they run in a thread of their own, which the main thread
+    joins in short, interruptible waits. Without a flush (after a signal) the wait is bounded
+    by :data:`CLOSE_AFTER_SIGNAL_S`: nothing is kept then, and the process is ending.
+    """
+    failed: list[str] = []
+
+    def close() -> None:
+        if flush_s is not None:
+            try:
+                recording.flush(timeout_sec=flush_s)
+            except RuntimeError as error:  # the viewer gone, or the file's bytes stuck
+                failed.append(str(error).splitlines()[0] if str(error) else type(error).__name__)
+        recording.disconnect()
+
+    closer = threading.Thread(target=close, name="rerun-close", daemon=True)
+    closer.start()
+    deadline = None if flush_s is not None else time.monotonic() + CLOSE_AFTER_SIGNAL_S
+    while closer.is_alive() and (deadline is None or time.monotonic() < deadline):
+        closer.join(0.1)
+    return failed[0] if failed else None

@@ -2,13 +2,29 @@
 
 from __future__ import annotations
 
+import errno
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import warnings
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pytest
 
+from pcainterp_stream import interrupt
 from pcainterp_stream.errors import LogWriteError
 from pcainterp_stream.io import rerun_sink
 from pcainterp_stream.io.rerun_sink import RerunSink
+from pcainterp_stream.records import DensifiedFrame, StereoCamera, StereoFrame
 
 
 class _StuckRecording:
@@ -62,3 +78,270 @@ def test_a_viewer_that_went_away_is_a_warning(capsys: pytest.CaptureFixture[str]
     sink._recording = _StuckRecording()  # type: ignore[assignment]
     sink.__exit__(None, None, None)
     assert "warning: the Rerun viewer did not take the last frames" in capsys.readouterr().err
+
+
+@pytest.fixture
+def temporary_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A TMPDIR of the test's own, to see what the sink leaves there."""
+    folder = tmp_path / "tmp"
+    folder.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(folder))
+    return folder
+
+
+def _frame(index: int) -> DensifiedFrame:
+    camera = StereoCamera(width=8, height=6, fx=7.0, fy=7.0, cx=4.0, cy=3.0, baseline=0.5)
+    image = np.full((6, 8), 10 * index, np.uint8)
+    stereo = StereoFrame(
+        index, index * 100_000_000, index * 100_000_000, "left", image, image, camera
+    )
+    maps = np.full((6, 8), 2.0, np.float32)
+    pixels = np.array([[1.0, 2.0], [3.0, 4.0]], np.float32)
+    disparities = np.array([1.0, 3.0], np.float32)
+    return DensifiedFrame(stereo, pixels, disparities, maps, maps, maps, maps, "stereo", {})
+
+
+def _entity_rows(rrd: Path) -> dict[str, int]:
+    import rerun.chunk
+
+    rows: dict[str, int] = {}
+    with warnings.catch_warnings():  # the stand-in's file has no footer (read whole instead)
+        warnings.filterwarnings("ignore", "RRD file has no footer")
+        chunks = rerun.chunk.RrdReader(rrd).stream().to_chunks()
+    for chunk in chunks:
+        if not chunk.is_static:
+            rows[str(chunk.entity_path)] = rows.get(str(chunk.entity_path), 0) + chunk.num_rows
+    return rows
+
+
+def test_a_folder_that_cannot_be_written_is_refused_before_any_frame(
+    tmp_path: Path, temporary_folder: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A read-only folder (EROFS, or EACCES for a user): one error, no thread, nothing left."""
+
+    def read_only(self: object) -> None:
+        raise OSError(errno.EROFS, "Read-only file system")
+
+    monkeypatch.setattr(rerun_sink._Pump, "_open_target", read_only)
+    target = tmp_path / "run.rrd"
+    with (
+        pytest.raises(
+            LogWriteError,
+            match=r"cannot write .*run\.rrd: Read-only file system; choose a writable folder",
+        ),
+        RerunSink(rrd_path=target),
+    ):
+        pass
+    assert not list(tmp_path.glob("*.rrd*"))
+    assert not list(tmp_path.glob(".run.rrd*"))
+    assert not list(temporary_folder.iterdir())  # no pipe folder
+    assert not [t for t in threading.enumerate() if t.name == "rrd-pump"]
+
+
+@pytest.mark.skipif(
+    hasattr(os, "geteuid") and os.geteuid() == 0, reason="root writes into a read-only folder"
+)
+def test_a_folder_without_write_permission_is_refused(
+    tmp_path: Path, temporary_folder: Path
+) -> None:
+    folder = tmp_path / "locked"
+    folder.mkdir()
+    folder.chmod(0o555)
+    try:
+        with (
+            pytest.raises(LogWriteError, match=r"Permission denied; choose a writable folder"),
+            RerunSink(rrd_path=folder / "run.rrd"),
+        ):
+            pass
+    finally:
+        folder.chmod(0o755)
+    assert not list(folder.iterdir())
+    assert not list(temporary_folder.iterdir())
+
+
+class _FullDisk:
+    def write(self, data: bytes) -> int:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    def close(self) -> None:
+        pass
+
+
+def test_the_pump_drains_the_pipe_when_the_partial_cannot_even_be_removed(
+    tmp_path: Path, temporary_folder: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A write fails and so does the unlink of the partial: the pipe is still drained.
+
+    Rerun writes into the pipe; had the pump's thread died, its writes would block for ever
+    once the pipe is full (the run hung) or fail with a broken pipe (a traceback).
+    """
+    monkeypatch.setattr(rerun_sink._Pump, "_open_target", lambda self: _FullDisk())
+    blocker = tmp_path / "a_file"
+    blocker.write_bytes(b"")
+    # unlinking a path below a regular file fails with ENOTDIR, not "missing"
+    pump = rerun_sink._Pump(blocker / ".run.rrd.partial", tmp_path / "run.rrd")
+    written = threading.Event()
+
+    def rerun_writes() -> None:
+        with pump.pipe.open("wb") as pipe:
+            for _ in range(16):
+                pipe.write(bytes(1 << 20))
+        written.set()
+
+    writer = threading.Thread(target=rerun_writes, daemon=True)
+    writer.start()
+    writer.join(20)
+    # had the pump's thread died, the writer is blocked on the full pipe or broke it
+    assert written.is_set(), "the pump stopped draining Rerun's pipe"
+    pump.finish(5)
+    assert pump.error is not None
+    assert pump.error.endswith("No space left on device")
+    assert not list(temporary_folder.iterdir())
+
+
+def test_the_pipe_folder_is_removed_however_the_command_ends(
+    tmp_path: Path, temporary_folder: Path
+) -> None:
+    """A forced end (second Ctrl-C, the watchdog) removes the tracked partials: the folder too."""
+    sink = RerunSink(rrd_path=tmp_path / "run.rrd")
+    sink.__enter__()
+    try:
+        (folder,) = temporary_folder.iterdir()
+        assert folder.name.startswith("pcainterp-rrd-")
+        interrupt.remove_partials()  # what the second signal's handler does before it exits
+        assert not folder.exists()
+        assert not list(tmp_path.glob(".run.rrd*"))
+    finally:
+        sink.__exit__(KeyboardInterrupt, KeyboardInterrupt(), None)
+    assert not list(temporary_folder.iterdir())
+    assert not (tmp_path / "run.rrd").exists()
+    # and a clean end leaves nothing in the temporary folder either
+    with RerunSink(rrd_path=tmp_path / "whole.rrd") as whole:
+        whole.log(_frame(0))
+    assert whole.written
+    assert not list(temporary_folder.iterdir())
+
+
+class _SlowRecording:
+    """A recording whose flush takes long (a slow disk, a viewer that stopped reading)."""
+
+    def __init__(self) -> None:
+        self.flushed = False
+        self.threads: list[threading.Thread] = []
+
+    def flush(self, *, timeout_sec: float) -> None:
+        self.threads.append(threading.current_thread())
+        self.flushed = True
+        time.sleep(min(timeout_sec, 30.0))
+
+    def disconnect(self) -> None:
+        self.threads.append(threading.current_thread())
+
+
+def test_after_a_signal_the_end_waits_for_nothing_kept_and_never_blocks_the_main_thread(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A signal's clean-up does not flush what is thrown away; Rerun is closed off the main thread.
+
+    Rerun's flush is a native call: made in the main thread it held off the second Ctrl-C's
+    handler until the watchdog killed the command (exit 137, "did not end in time").
+    """
+    sink = RerunSink(spawn=True)
+    slow = _SlowRecording()
+    sink._recording = slow  # type: ignore[assignment]
+    started = time.monotonic()
+    sink.__exit__(KeyboardInterrupt, KeyboardInterrupt(), None)
+    assert time.monotonic() - started < 2.0
+    assert not slow.flushed
+    assert slow.threads
+    assert threading.main_thread() not in slow.threads
+    assert capsys.readouterr().err == ""
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port: int = probe.getsockname()[1]
+    return port
+
+
+@pytest.fixture
+def stand_in_viewer(tmp_path: Path) -> Iterator[tuple[int, Path]]:
+    """A Rerun gRPC server on a free loopback port, saving what it receives (a viewer's place)."""
+    rerun = Path(sys.executable).with_name("rerun")
+    if not rerun.is_file():
+        rerun_on_path = shutil.which("rerun")
+        if rerun_on_path is None:
+            pytest.skip("no rerun executable to stand in for a viewer")
+        rerun = Path(rerun_on_path)
+    port, received = _free_port(), tmp_path / "received.rrd"
+    server = subprocess.Popen(
+        [rerun, "--serve-grpc", "--bind", "127.0.0.1", "--port", str(port), "--save", received],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,  # `rerun` is a launcher: signal its group, the server with it
+    )
+    try:
+        deadline = time.monotonic() + 30
+        while True:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
+                break
+            except OSError:
+                if time.monotonic() > deadline or server.poll() is not None:
+                    pytest.fail("the stand-in viewer did not start")
+                time.sleep(0.1)
+        yield port, received
+    finally:
+        os.killpg(server.pid, signal.SIGINT)  # it finishes its file on Ctrl-C
+        try:
+            server.wait(10)
+        except subprocess.TimeoutExpired:
+            os.killpg(server.pid, signal.SIGKILL)
+            server.wait()
+
+
+def test_viewer_and_recording_both_get_every_frame(
+    tmp_path: Path,
+    temporary_folder: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    stand_in_viewer: tuple[int, Path],
+) -> None:
+    """--rerun with --rrd: streamed to the viewer (bound to loopback) and written to the file."""
+    import rerun_bindings
+
+    port, received = stand_in_viewer
+    monkeypatch.setattr(rerun_sink, "has_display", lambda: True)
+    spawned: list[dict[str, Any]] = []
+    real_spawn = rerun_bindings.spawn
+
+    def spawn(**kwargs: Any) -> int | None:
+        spawned.append(kwargs)
+        return real_spawn(**kwargs)  # the port is taken: it starts nothing, as with a viewer open
+
+    monkeypatch.setattr(rerun_bindings, "spawn", spawn)
+    target = tmp_path / "run.rrd"
+    with RerunSink(rrd_path=target, spawn=True, viewer_port=port) as sink:
+        for index in range(3):
+            sink.log(_frame(index))
+    assert sink.written
+    assert not list(temporary_folder.iterdir())
+    ((options,),) = [tuple(spawned)]
+    assert options["port"] == port
+    extra = list(options.get("extra_args", []))
+    assert extra[extra.index("--bind") + 1] == "127.0.0.1"  # this machine only
+    rows = _entity_rows(target)
+    for entity in ("/camera/image", "/camera/depth", "/camera/features", "/depth_std"):
+        assert rows[entity] == 3, rows
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and not received.is_file():
+        time.sleep(0.1)
+    # the stand-in saves as it receives; give it the recording's last chunks
+    for _ in range(50):
+        try:
+            if _entity_rows(received).get("/camera/depth") == 3:
+                break
+        except Exception:  # the stand-in is still writing its last chunk
+            pass
+        time.sleep(0.2)
+    assert _entity_rows(received).get("/camera/depth") == 3
