@@ -110,11 +110,9 @@ def write_advice(err: OSError) -> str:
     """Return the fix for an error writing an output: "free some space, ..." for a full disk."""
     if err.errno in (errno.ENOSPC, errno.EDQUOT):
         return "free some space, or write it elsewhere"
-    if err.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
-        return "choose a writable folder"
     if err.errno in (errno.ENOTDIR, errno.EEXIST):
         return "a file is in the way of its folder; move it, or write it elsewhere"
-    return "write it elsewhere"
+    return "choose a writable folder"  # read-only, no permission, or a folder refusing files
 
 
 def _existing_ancestor(path: Path) -> Path:
