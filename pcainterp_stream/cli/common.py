@@ -51,8 +51,21 @@ def formatter(prog: str) -> argparse.HelpFormatter:
 
 
 def echo(text: str) -> None:
-    """Print one line of a command's report at once (standard error with ``-o -``)."""
-    print(text, flush=True)  # sys.stdout at the time of the call
+    """Print one line of a command's report at once (standard error with ``-o -``).
+
+    Raises:
+        BrokenPipeError: the reader of standard output is gone (the command ends quietly).
+        PcaInterpError: standard output cannot be written (a full disk, ``> /dev/full``).
+    """
+    try:
+        print(text, flush=True)  # sys.stdout at the time of the call
+    except BrokenPipeError:
+        raise
+    except OSError as err:
+        raise PcaInterpError(
+            f"cannot print to standard output: {err.strerror or err}; redirect it to a "
+            "writable file (outputs already complete are kept, partial ones removed)"
+        ) from None
 
 
 def print_written(summary: WriteSummary) -> None:

@@ -370,6 +370,7 @@ def _check_paths(args: argparse.Namespace) -> None:
     """
     from pcainterp_stream.pipeline.densify import final_basis_path, own_basis_path
 
+    _check_targets(args)
     output: Path | None = args.output
     if output is not None and output != STREAM:
         if output.is_dir():
@@ -411,6 +412,35 @@ def _check_paths(args: argparse.Namespace) -> None:
             )
     writes.append(("the --rrd recording", args.rrd, "choose a different --rrd path"))
     refuse_overwrites(writes, reads)
+
+
+def _check_targets(args: argparse.Namespace) -> None:
+    """Refuse a device, a pipe or a folder in the way as -o, --rrd or --out-dir, up front.
+
+    ``-o /dev/stdout`` (``/dev/fd/1``) becomes ``-o -``; an ``-o`` or ``--rrd`` that is a
+    symbolic link is written through (the file it points to is replaced, the link kept).
+    """
+    from pcainterp_stream.io.output_paths import (
+        check_output_file,
+        check_output_folder,
+        is_standard_output,
+    )
+
+    discard = "to discard or pipe the output, pass -o - (e.g. -o - > /dev/null)"
+    if args.output is not None and args.output != STREAM:
+        if is_standard_output(args.output):
+            args.output = STREAM
+        else:
+            check_output_file(args.output, fix=discard)
+    if args.rrd is not None:
+        args.rrd = check_output_file(args.rrd, fix="drop --rrd, or name a file")
+    if args.out_dir is not None:
+        check_output_folder(args.out_dir)
+        if args.out_dir.is_dir():  # its outputs are staged in it: a link is not followed
+            from pcainterp_stream.pipeline.distributed import output_path
+
+            for path in args.input:
+                check_output_file(output_path(path, args.out_dir), links=False)
 
 
 def _processor_config(

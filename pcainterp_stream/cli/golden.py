@@ -14,7 +14,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from pcainterp_stream.cli.common import Commands, formatter
+from pcainterp_stream.cli.common import Commands, echo, formatter
 from pcainterp_stream.errors import PcaInterpError
 
 if TYPE_CHECKING:
@@ -140,9 +140,9 @@ def run(args: argparse.Namespace) -> int:
             )
         messages = sum(c["message_count"] for c in summary.channels.values())
         extra = f" and {arrays_path(args.output).name}" if args.arrays else ""
-        print(f"wrote {args.output}{extra}: {len(summary.channels)} channels, {messages} messages")
+        echo(f"wrote {args.output}{extra}: {len(summary.channels)} channels, {messages} messages")
         for note in summary.notes[:5]:
-            print(f"note: {note}")
+            echo(f"note: {note}")
         return 0
     if args.max_lines < 0:
         raise PcaInterpError(f"--max-lines must be >= 0, got {args.max_lines}")
@@ -151,15 +151,15 @@ def run(args: argparse.Namespace) -> int:
             args.log, args.golden, topics=args.topics, update=args.update, progress=progress
         )
     if result.passed:
-        print(f"{args.log.name} matches {args.golden.name}")
+        echo(f"{args.log.name} matches {args.golden.name}")
         return 0
-    print(format_differences(result.differences, args.max_lines))
+    echo(format_differences(result.differences, args.max_lines))
     count = len(result.differences)
     plural = "s" if count > 1 else ""
     if result.updated:
-        print(f"{count} difference{plural}; rewrote {args.golden} from {args.log.name}")
+        echo(f"{count} difference{plural}; rewrote {args.golden} from {args.log.name}")
         return 0
-    print(
+    echo(
         f"{args.log.name} differs from {args.golden.name} in {count} place{plural} beyond "
         "tolerance (pass --update to accept the log as the new golden)"
     )

@@ -19,6 +19,7 @@ import hashlib
 import importlib.resources
 import json
 import os
+import stat
 import tempfile
 import threading
 import zipfile
@@ -386,9 +387,20 @@ class Basis:
         a half-written basis.
 
         Args:
-            path: destination file (conventionally ``.npz``).
+            path: destination file (conventionally ``.npz``); a symbolic link is written
+                through.
+
+        Raises:
+            BasisError: ``path`` is a device, pipe or folder, or cannot be written.
         """
         target = Path(path)
+        if target.is_symlink():  # written through the link: the file it points to replaced
+            target = Path(os.path.realpath(target))
+        with contextlib.suppress(OSError):  # absent: a new file
+            if not stat.S_ISREG(os.stat(target).st_mode):  # a rename would replace a device
+                raise BasisError(
+                    f"cannot write basis {path}: it is not a regular file; give a file path"
+                )
         arrays: dict[str, npt.NDArray[Any]] = {
             "format": np.array(FORMAT),
             "mean": np.ascontiguousarray(self.mean, dtype=np.float32),

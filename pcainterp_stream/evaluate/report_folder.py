@@ -44,6 +44,12 @@ def check_report_folder(folder: Path) -> None:
     """
     path = _absolute(folder)
     if not path.parent.is_dir():
+        in_the_way = next((parent for parent in folder.parents if parent.exists()), None)
+        if in_the_way is not None and not in_the_way.is_dir():
+            raise PcaInterpError(
+                f"cannot write the report to {folder}: {in_the_way} is a file, not a folder; "
+                "move it, or pass -o with another folder"
+            )
         raise PcaInterpError(
             f"cannot write the report to {folder}: folder {folder.parent} does not exist"
         )

@@ -24,10 +24,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.errors import GoldenError
+from pcainterp_stream.errors import GoldenError, LogWriteError
 from pcainterp_stream.golden.comparison import DEFAULT_TOLERANCE, Difference, compare
 from pcainterp_stream.golden.summary import LogSummary, Progress, summarize_log
 from pcainterp_stream.interrupt import raise_if_signalled
+from pcainterp_stream.io.output_paths import check_output_file, write_advice
 from pcainterp_stream.version import __version__
 
 __all__ = [
@@ -131,13 +132,22 @@ def _check_writable(golden: Path, array_file: Path | None, log: Path) -> None:
     Raises:
         GoldenError: ``golden`` or ``array_file`` is the log, ``golden`` exists and is not
             a golden file, or ``array_file`` exists and is not a golden arrays file or
-            holds the arrays of another golden file beside it (:func:`_other_owner`).
+            holds the arrays of another golden file beside it (:func:`_other_owner`);
+            ``golden`` is a folder; either is a device or a pipe, or lies below a file or
+            in a folder that cannot be written.
     """
     for target in (golden, array_file):
         if target is not None and target.resolve() == log.resolve():
             raise GoldenError(
                 f"{target} is the log {log.name} itself; give the golden file another name"
             )
+    if golden.is_dir():
+        raise GoldenError(
+            f"{golden} is a folder; name the golden file, e.g. {golden / 'log.golden.json'}"
+        )
+    for target in (golden, array_file):
+        if target is not None:
+            _staged_at(target)  # a device, or a folder missing or not writable: refused now
     if golden.is_file() and not _is_golden_json(golden):
         raise GoldenError(
             f"{golden} exists and is not a golden file, so it is not overwritten; move it, "
@@ -205,6 +215,7 @@ def _replacing(target: Path) -> Iterator[Path]:
         GoldenError: the file cannot be written (a full disk, a read-only folder, a file
             where a folder should be); nothing is left at or beside ``target``.
     """
+    target = _staged_at(target)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         handle, name = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
@@ -225,10 +236,20 @@ def _replacing(target: Path) -> Iterator[Path]:
         temporary.unlink(missing_ok=True)
 
 
+def _staged_at(target: Path) -> Path:
+    """Return the file to write ``target`` beside and rename onto (a link's own file).
+
+    Raises:
+        GoldenError: a device, a pipe, or a folder above it that is a file or not writable.
+    """
+    try:
+        return check_output_file(target, creates_folders=True)
+    except LogWriteError as err:
+        raise GoldenError(str(err)) from None
+
+
 def _write_error(target: Path, err: OSError) -> GoldenError:
-    return GoldenError(
-        f"cannot write {target}: {err.strerror or err}; free some space, or write it elsewhere"
-    )
+    return GoldenError(f"cannot write {target}: {err.strerror or err}; {write_advice(err)}")
 
 
 def _document(

@@ -57,7 +57,7 @@ from pcainterp_stream.errors import LogWriteError
 from pcainterp_stream.interrupt import raise_if_signalled, track_partial, untrack_partial
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.mcap_extras import McapExtras, write_extras
-from pcainterp_stream.io.output_paths import check_not_input
+from pcainterp_stream.io.output_paths import check_not_input, check_output_file
 from pcainterp_stream.io.write_thread import WriteThread
 from pcainterp_stream.records import RawMessage
 from pcainterp_stream.version import __version__
@@ -805,7 +805,7 @@ def open_writer(
 
     Raises:
         LogWriteError: bad format name, the output is an input, its folder is missing, or
-            the target is a folder that is not a rosbag2 bag.
+            the target is a folder that is not a rosbag2 bag, or a device, pipe or socket.
     """
     target = Path(path)
     if format is None:
@@ -821,6 +821,7 @@ def open_writer(
                 f"unknown log format {format!r} for {target}; choose one of {names}"
             ) from None
     check_not_input(target, inputs)
+    target = check_output_file(target)  # a device refused; through a link: its file replaced
     if target.is_dir() and not target.is_symlink():
         if chosen in (LogFormat.MCAP, LogFormat.ROS1):
             raise LogWriteError(

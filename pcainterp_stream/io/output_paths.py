@@ -1,12 +1,49 @@
-"""Where an output log may be written: never onto one of its inputs, nor around one."""
+"""Where an output may be written, checked before any work.
+
+Every output is staged beside its target and renamed onto it once complete. A rename
+replaces the directory entry, so the target must be something a finished file may replace:
+a new path, a regular file, or (for a rosbag2 output) a folder. A device (``/dev/null``), a
+named pipe, a socket or a file descriptor (``/dev/stdout``) would be replaced by a regular
+file, so they are refused; a symbolic link is written through, the file it points to
+being replaced and the link kept (:func:`check_output_file` returns that file). An output
+never lands onto one of the inputs, nor around one (:func:`check_not_input`).
+"""
 
 from __future__ import annotations
 
+import errno
 import os
-from collections.abc import Iterable
+import re
+import stat
+import tempfile
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from pcainterp_stream.errors import LogWriteError
+
+__all__ = [
+    "check_not_input",
+    "check_output_file",
+    "check_output_folder",
+    "is_standard_output",
+    "write_advice",
+]
+
+DISCARD = "give the path of a regular file (to discard the output, write one and delete it)"
+"""The fix for a device or pipe as an output, where the caller names no better one."""
+
+_DESCRIPTOR = re.compile(
+    r"/(?:dev/(?:(?P<std>stdin|stdout|stderr)|fd/(?P<dev_fd>\d+))"
+    r"|proc/(?P<pid>self|thread-self|\d+)/fd/(?P<proc_fd>\d+))"
+)
+_STANDARD = {"stdin": 0, "stdout": 1, "stderr": 2}
+_STREAM_NAMES = {0: "standard input", 1: "standard output", 2: "standard error"}
+_KINDS = {
+    stat.S_IFCHR: "a character device",
+    stat.S_IFBLK: "a block device",
+    stat.S_IFIFO: "a named pipe (FIFO)",
+    stat.S_IFSOCK: "a socket",
+}
 
 
 def _inside(path: Path, folder: Path) -> bool:
@@ -33,3 +70,150 @@ def check_not_input(target: Path, inputs: Iterable[str | os.PathLike[str]]) -> N
                 f"refusing to write the output onto the input {source}; "
                 "choose a different output path"
             )
+
+
+def _hops(path: Path) -> Iterator[Path]:
+    """Yield ``path`` and each path its chain of symbolic links leads to, absolute."""
+    current = Path(os.path.abspath(path))
+    for _ in range(40):  # the kernel's own limit on links followed
+        yield current
+        real = Path(os.path.realpath(current.parent)) / current.name
+        if real != current:
+            yield real
+        if not real.is_symlink():
+            return
+        current = Path(os.path.abspath(real.parent / os.readlink(real)))
+
+
+def _descriptor(path: Path) -> tuple[int, bool] | None:
+    """Return (descriptor, of this process) when ``path`` names an open file descriptor."""
+    for hop in _hops(path):
+        match = _DESCRIPTOR.fullmatch(str(hop))
+        if match is None:
+            continue
+        if match["std"] is not None:
+            return _STANDARD[match["std"]], True
+        if match["dev_fd"] is not None:
+            return int(match["dev_fd"]), True
+        pid = match["pid"]
+        own = pid in ("self", "thread-self") or int(pid) == os.getpid()
+        return int(match["proc_fd"]), own
+    return None
+
+
+def is_standard_output(path: Path) -> bool:
+    """Return whether ``path`` names this process's standard output (``/dev/stdout``, ...)."""
+    return _descriptor(path) == (1, True)
+
+
+def write_advice(err: OSError) -> str:
+    """Return the fix for an error writing an output: "free some space, ..." for a full disk."""
+    if err.errno in (errno.ENOSPC, errno.EDQUOT):
+        return "free some space, or write it elsewhere"
+    if err.errno in (errno.ENOTDIR, errno.EEXIST):
+        return "a file is in the way of its folder; move it, or write it elsewhere"
+    return "choose a writable folder"  # read-only, no permission, or a folder refusing files
+
+
+def _existing_ancestor(path: Path) -> Path:
+    """Return the nearest of ``path`` and its parents that exists (as a file or folder)."""
+    for candidate in (path, *path.parents):
+        if os.path.lexists(candidate):
+            return candidate
+    return Path(path.anchor or ".")
+
+
+def _probe(where: Path) -> None:
+    """Make and remove a folder in ``where``: what staging an output does first."""
+    Path(tempfile.mkdtemp(prefix=".pcainterp-probe-", dir=where)).rmdir()
+
+
+def check_output_file(
+    path: Path, *, fix: str = DISCARD, creates_folders: bool = False, links: bool = True
+) -> Path:
+    """Refuse, before any work, an output a finished file cannot be renamed onto.
+
+    Args:
+        path: the output as given (a file, or a rosbag2 folder).
+        fix: the end of the message for a device, pipe or descriptor (how to discard or
+            stream the output instead).
+        creates_folders: the writer makes missing folders above ``path``; else they must exist.
+        links: write through a symbolic link (else a link is refused).
+
+    Returns:
+        The path to stage the output beside and rename it onto: ``path``, or the file a
+        symbolic link at ``path`` points to (the link is kept).
+
+    Raises:
+        LogWriteError: ``path`` names a file descriptor (``/dev/stdout``), is a device, a
+            named pipe or a socket (or a link to one), a link loop, a link when ``links`` is
+            False, or its folder is missing, a file, or not writable.
+    """
+    described = _descriptor(path)
+    if described is not None:
+        number, own = described
+        name = _STREAM_NAMES.get(number, f"file descriptor {number}")
+        if not own:
+            name = f"file descriptor {number} of another process"
+        raise LogWriteError(f"cannot write {path}: it is {name}, not a regular file; {fix}")
+    target = path
+    if path.is_symlink():
+        target = Path(os.path.realpath(path))
+        if not links:
+            raise LogWriteError(
+                f"cannot write {path}: it is a symbolic link (to {target}); "
+                "remove the link, or write to the file it points to"
+            )
+    try:
+        mode: int | None = os.stat(target).st_mode
+    except OSError as err:
+        if err.errno == errno.ELOOP:
+            raise LogWriteError(
+                f"cannot write {path}: it is a loop of symbolic links; remove the link"
+            ) from None
+        mode = None  # a new file (or a dangling link: its target is made)
+    if mode is not None and not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+        kind = _KINDS.get(stat.S_IFMT(mode), "not a file or folder")
+        which = "it is" if target == path else f"it links to {target}, which is"
+        raise LogWriteError(
+            f"cannot write {path}: {which} {kind}, not a regular file, and would be "
+            f"replaced by one; {fix}"
+        )
+    folder = target.parent
+    found = _existing_ancestor(folder)
+    if not found.is_dir():
+        raise LogWriteError(
+            f"cannot write {path}: {found} is a file, not a folder; move it, or choose another path"
+        )
+    if found != folder and not creates_folders:
+        raise LogWriteError(
+            f"cannot write {path}: folder {path.parent} does not exist; create it first"
+        )
+    try:
+        _probe(found)
+    except OSError as err:
+        raise LogWriteError(
+            f"cannot write {path}: {err.strerror or err}; {write_advice(err)}"
+        ) from err
+    return target
+
+
+def check_output_folder(folder: Path) -> None:
+    """Refuse, before any work, a folder outputs cannot be written into (made if missing).
+
+    Raises:
+        LogWriteError: ``folder`` is a file (or a device), lies below a file, or it (or,
+            when missing, the folder it would be made in) is not writable.
+    """
+    found = _existing_ancestor(folder)
+    if not found.is_dir():
+        where = "it is" if found == folder or folder.is_symlink() else f"{found} is"
+        raise LogWriteError(
+            f"cannot write into {folder}: {where} a file, not a folder; pass a folder"
+        )
+    try:
+        _probe(found)
+    except OSError as err:
+        raise LogWriteError(
+            f"cannot write into {folder}: {err.strerror or err}; {write_advice(err)}"
+        ) from err

@@ -10,7 +10,6 @@ from typing import TYPE_CHECKING, Any, Self
 
 from pcainterp_stream.errors import (
     LogReadError,
-    LogWriteError,
     PcaInterpError,
     TopicNotFoundError,
 )
@@ -25,6 +24,7 @@ from pcainterp_stream.io.depth_image import (
     first_message,
 )
 from pcainterp_stream.io.logreader import LogReader, open_log
+from pcainterp_stream.io.output_paths import check_output_file
 
 if TYPE_CHECKING:
     from tqdm import tqdm
@@ -66,11 +66,13 @@ def _echo(text: str) -> None:
 
 
 def _check_output_folder(output: Path) -> None:
-    """Refuse an output whose folder is missing before any long work is done."""
-    if not output.parent.is_dir():
-        raise LogWriteError(
-            f"cannot write {output}: folder {output.parent} does not exist; create it first"
-        )
+    """Refuse, before any long work, an output that cannot be written.
+
+    Raises:
+        LogWriteError: its folder is missing, a file or not writable, or the output is a
+            device, a pipe or a socket (:func:`io.output_paths.check_output_file`).
+    """
+    check_output_file(output)
 
 
 _IMAGE_TYPES = (rosmsg.IMAGE, rosmsg.COMPRESSED_IMAGE)
