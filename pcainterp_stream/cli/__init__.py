@@ -38,6 +38,9 @@ def console() -> int:
     except KeyboardInterrupt:
         # nothing has been read or written yet
         print("pcainterp: interrupted while starting; nothing was read or written", file=sys.stderr)
+        # a Ctrl-C inside code run by exec() makes `python -m` re-raise SIGINT at exit although
+        # it was handled (CPython bpo-41602); any exec() of a string clears that flag
+        exec("")
         return EXIT_INTERRUPTED
     code: int = app.console()
     return code

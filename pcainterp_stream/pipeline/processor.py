@@ -354,11 +354,9 @@ class _Measured(NamedTuple):
     disparity_map: npt.NDArray[np.float32] | None = None  # SGBM's (dense mode only)
     sgbm_map: npt.NDArray[np.float32] | None = None  # SGBM's, NaN = invalid (fit check)
     grid_map: npt.NDArray[np.float32] | None = None  # preprocessed for the log's own basis
-    # SGBM's map as matched, for the two above when a frame matched while the check ran
-    # turns out to need them (the log's own basis): made then, or never
+    # SGBM's map as matched, for the two above if the log's own basis needs them later
     raw_map: npt.NDArray[np.float32] | None = None
-    # the fit check's held-out pixels and plain interpolation (check frames), made here
-    # beside SGBM rather than in the check on the sequential densify thread
+    # the fit check's held-out pixels and interpolation, made beside SGBM (check frames)
     held_out: adapt.HeldOut | None = None
     holes: MapHoles | None = None  # the map's holes and their neighbours (dense mode only)
     partition: Seeding | None = None  # along SGBM's map, for an edge-aware prior
@@ -408,8 +406,7 @@ class FrameProcessor:
         # (temporal prior, carried points, adaptation), runs batch after batch in a thread
         # of its own, so the calling thread keeps reading and feeding the stereo workers
         self._lane = ThreadPoolExecutor(max_workers=1, thread_name_prefix="densify")
-        # each batch's estimate (solves, std, images) once its measurements are final: in
-        # a pool, several batches at once, when no state runs from frame to frame
+        # each batch's estimate once its measurements are final: several at once if stateless
         estimate_workers = self.config.estimate_workers or (
             1 if self.config.measurements == "dense" else 2
         )
@@ -888,13 +885,16 @@ def _adapt_frame(item: _Measured) -> AdaptFrame:
     )
 
 
+Float32 = npt.NDArray[np.float32]
+
+
 @functools.lru_cache(maxsize=4)
-def _unknown(shape: tuple[int, ...]) -> npt.NDArray[np.float32]:
+def _unknown(shape: tuple[int, ...]) -> Float32:
     """Return a shared read-only all-NaN float32 image (the std when uncertainty is "none")."""
     unknown = np.full(shape, np.nan, dtype=np.float32)
     unknown.flags.writeable = False
     return unknown
 
 
-def _or(array: npt.NDArray[np.float32] | None, default: npt.NDArray[np.float32]) -> Any:
+def _or(array: Float32 | None, default: Float32) -> Float32:
     return default if array is None else array
