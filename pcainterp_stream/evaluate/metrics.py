@@ -512,24 +512,27 @@ def calibration_sums(
         reference: (H, W) float, reference disparity (px), NaN where invalid.
         mask: (H, W) bool, pixels that count.
 
-    Pixels whose std is below :data:`CERTAIN_STD` or missing (NaN: a std of 0 stored in a
-    compact log decodes as "no value") claim a certainty no Gaussian likelihood can score:
-    a model that never varies there (a basis whose training maps were all sky at a pixel, a
-    tiny basis learned from one or two of a log's own maps) would give an NLL of 1e10 per
-    wrong pixel, or NaN. They are **left out of the NLL** (not floored) and counted apart
+    Pixels whose std is below :data:`CERTAIN_STD` claim a certainty no Gaussian likelihood
+    can score: a model that never varies there (a basis whose training maps were all sky at
+    a pixel, a tiny basis learned from one or two of a log's own maps) would give an NLL of
+    1e10 per wrong pixel. They are **left out of the NLL** (not floored) and counted apart
     as ``certain``; the coverage counts them inside +-k std only where the error is exactly
-    0 (a std of 0 claims exactly that).
+    0 (a std of 0 claims exactly that). Pixels with no std at all (NaN: no estimate there,
+    or a std of 0 that a compact log stores as "no value") claim nothing: they are left out
+    of the coverage and the NLL alike and counted apart as ``no_std``.
 
     Returns:
-        ``n``, ``inside_1`` and ``inside_2`` (counts within +-1 and +-2 std, all counted
-        pixels), ``certain`` (pixels with a std below :data:`CERTAIN_STD` or missing) and
-        ``nll`` (sum over the other pixels).
+        ``n``, ``inside_1`` and ``inside_2`` (counts within +-1 and +-2 std over the counted
+        pixels with a std), ``certain`` (those with a std below :data:`CERTAIN_STD`),
+        ``nll`` (sum over the other pixels) and ``no_std`` (counted pixels without a std).
     """
     ref = np.asarray(reference, dtype=np.float64)
-    counted = mask & np.isfinite(ref)
+    with_truth = mask & np.isfinite(ref)
+    sigmas = np.asarray(std, dtype=np.float64)
+    counted = with_truth & ~np.isnan(sigmas)
     error = np.abs(np.asarray(estimate, dtype=np.float64)[counted] - ref[counted])
-    raw = np.asarray(std, dtype=np.float64)[counted]
-    certain = ~(raw >= CERTAIN_STD)  # also NaN
+    raw = sigmas[counted]
+    certain = ~(raw >= CERTAIN_STD)
     sigma = np.where(certain, 1.0, raw)
     z = np.where(certain, np.where(error == 0.0, 0.0, np.inf), error / sigma)
     nll = 0.5 * np.log(2.0 * np.pi * sigma[~certain] ** 2) + 0.5 * z[~certain] ** 2
@@ -539,6 +542,7 @@ def calibration_sums(
         "inside_2": float(np.count_nonzero(z <= 2.0)),
         "nll": float(np.sum(nll)),
         "certain": float(np.count_nonzero(certain)),
+        "no_std": float(np.count_nonzero(with_truth) - z.size),
     }
 
 
@@ -687,7 +691,9 @@ class CalibrationStats:
     """
 
     sums: dict[str, float] = field(
-        default_factory=lambda: dict.fromkeys(("n", "inside_1", "inside_2", "nll", "certain"), 0.0)
+        default_factory=lambda: dict.fromkeys(
+            ("n", "inside_1", "inside_2", "nll", "certain", "no_std"), 0.0
+        )
     )
     by_std_count: list[float] = field(default_factory=lambda: _zeros(STD_EDGES))
     by_std_2d: list[float] = field(default_factory=lambda: _zeros(STD_EDGES))
@@ -729,7 +735,7 @@ class CalibrationStats:
                 part_sums = calibration_sums(values, sigma, view.disparity, view.counted & mask)
                 totals = self.by_sgbm[part]
                 self.by_sgbm[part] = {key: totals[key] + part_sums[key] for key in totals}
-        counted = view.counted
+        counted = view.counted & ~np.isnan(sigma)  # no std: no bin
         stds = sigma[counted]
         error = values[counted] - view.disparity[counted]
         for name, weights in (
@@ -746,12 +752,14 @@ class CalibrationStats:
         """Return coverage of +-1 and +-2 std (fractions), mean NLL (nats) and ms per frame.
 
         The NLL is the mean over the pixels with a std (:func:`calibration_sums`); NaN when
-        none has one. ``certain`` is the share of pixels left out of it.
+        none has one. ``certain`` is the share of pixels left out of it; ``no_std`` the share
+        of the counted pixels left out of every figure for having no std.
         """
         n = max(self.sums["n"], 1.0)
         scored = self.sums["n"] - self.sums["certain"]
         summary = {
             "pixels": self.sums["n"],
+            "no_std": self.sums["no_std"] / max(self.sums["n"] + self.sums["no_std"], 1.0),
             "coverage_1sigma": self.sums["inside_1"] / n,
             "coverage_2sigma": self.sums["inside_2"] / n,
             "nll": self.sums["nll"] / scored if scored > 0 else math.nan,

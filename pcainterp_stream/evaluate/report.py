@@ -97,6 +97,7 @@ from pcainterp_stream.io.outputs import (
     estimate_topics,
 )
 from pcainterp_stream.io.stereo_log import LIDAR_DEPTH
+from pcainterp_stream.records import StereoCamera
 
 __all__ = [
     "GROUND_TRUTH_DEPTH",
@@ -242,6 +243,83 @@ def _stereo(frame: Frame, sgbm: SgbmConfig) -> _Stereo | None:
     return _Stereo(disparity, time.perf_counter() - started)
 
 
+def estimate_box(has_estimate: npt.NDArray[np.bool_]) -> tuple[int, int, int, int] | None:
+    """Return the box (x, y, width, height) a frame's estimate fills exactly, None if none.
+
+    densify estimates a raw or black-bordered pair in the box both cameras see and writes NaN
+    outside it; this recovers that box from the NaN.
+
+    Args:
+        has_estimate: (H, W) bool, where the stored estimate is not NaN.
+
+    Returns:
+        The box, or None when the estimate is empty or not one filled rectangle.
+    """
+    rows = np.flatnonzero(has_estimate.any(axis=1))
+    columns = np.flatnonzero(has_estimate.any(axis=0))
+    if rows.size == 0:
+        return None
+    top, bottom, left, right = rows[0], rows[-1] + 1, columns[0], columns[-1] + 1
+    if not has_estimate[top:bottom, left:right].all():
+        return None
+    return int(left), int(top), int(right - left), int(bottom - top)
+
+
+@dataclass(frozen=True)
+class _Boxed:
+    """A box (x, y, width, height) of a frame's image, where the basis rows re-densify."""
+
+    box: tuple[int, int, int, int]
+    full: StereoCamera
+
+    @property
+    def whole(self) -> bool:
+        """Return whether the box is the whole image."""
+        return self.box == (0, 0, self.full.width, self.full.height)
+
+    @property
+    def camera(self) -> StereoCamera:
+        """Return the camera of the box (principal point moved by its corner)."""
+        x, y, width, height = self.box
+        return dataclasses.replace(
+            self.full, width=width, height=height, cx=self.full.cx - x, cy=self.full.cy - y
+        )
+
+    def inside(self, pixels: npt.NDArray[Any]) -> npt.NDArray[np.bool_]:
+        """Return (k,) bool: which (k, 2) (x, y) image px lie in the box."""
+        x, y, width, height = self.box
+        return (
+            (pixels[:, 0] >= x - 0.5)
+            & (pixels[:, 0] < x + width - 0.5)
+            & (pixels[:, 1] >= y - 0.5)
+            & (pixels[:, 1] < y + height - 0.5)
+        )
+
+    def points(
+        self, pixels: npt.NDArray[Any], disparities: npt.NDArray[Any]
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """Return the points in the box, (x, y) in box px, and their disparities (px)."""
+        if self.whole:
+            return pixels, disparities
+        keep = self.inside(pixels)
+        corner = np.array(self.box[:2], dtype=np.float64)
+        return pixels[keep].astype(np.float64) - corner, disparities[keep].astype(np.float64)
+
+    def crop(self, image: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """Return the box of an (H, W) image."""
+        x, y, width, height = self.box
+        return image[y : y + height, x : x + width]
+
+    def pad(self, image: npt.NDArray[Any]) -> npt.NDArray[Any]:
+        """Return a box-size image placed in a frame-size one, NaN outside the box."""
+        if self.whole:
+            return image
+        x, y, width, height = self.box
+        full = np.full(self.full.image_size, np.nan, dtype=image.dtype)
+        full[y : y + height, x : x + width] = image
+        return full
+
+
 def _timed(stats: MethodStats | CalibrationStats, work: Callable[[], Any]) -> Any:
     started = time.perf_counter()
     result = work()
@@ -289,6 +367,13 @@ class _Evaluator:
             self.result.no_measurement.append(frame.index)
             return
         view = reference_view(reference, camera, transform)
+        has_estimate = ~np.isnan(frame.estimate)  # +inf depth (far) is an estimate; NaN none
+        self.result.reference_counted += int(np.count_nonzero(view.counted))
+        box: tuple[int, int, int, int] | None = (0, 0, size[1], size[0])
+        if not has_estimate.all():  # outside the rectified box: no method is scored there
+            self.result.no_estimate += int(np.count_nonzero(view.counted & ~has_estimate))
+            view = dataclasses.replace(view, counted=view.counted & has_estimate)
+            box = estimate_box(has_estimate)
         sgbm_valid = np.isfinite(stereo.disparity) if baselines and stereo else None
         delta = self._stats("pca_map").add(frame.estimate, view, camera, transform)
         self._calibration("stored").add(
@@ -308,8 +393,11 @@ class _Evaluator:
             linear_stats.add(lin.disparity, view, camera, transform)
         if stereo is not None and sgbm_valid is not None:
             self._stereo_baselines(frame, stereo, sgbm_valid, view, transform)
-        if self.basis is not None:
-            self._with_basis(frame, reference, view, transform, stereo, sgbm_valid)
+        if self.basis is not None and box is None:
+            self.result.basis_rows_skipped += 1
+        elif self.basis is not None and box is not None:
+            boxed = _Boxed(box, camera)
+            self._with_basis(frame, reference, view, transform, stereo, sgbm_valid, boxed)
         if frame.index in self.example_at:
             self.examples.append(
                 Example(
@@ -361,9 +449,17 @@ class _Evaluator:
         transform: Any,
         stereo: _Stereo | None,
         sgbm_valid: npt.NDArray[np.bool_] | None,
+        box: _Boxed,
     ) -> None:
+        """The rows that re-densify with the basis: paper, exact, oracle and the sweep.
+
+        They re-densify in the box the stored estimate fills (``box``, the whole image but
+        for a raw or black-bordered pair), as densify did: a basis learned there spans the
+        box, not the frame. Outside the box they are NaN, and not scored.
+        """
         assert self.basis is not None
         basis, camera = self.basis, frame.camera
+        pixels, disparities = box.points(frame.pixels, frame.disparities)
         # "exact" here is what densify writes by default (exact on the variance grid)
         for kind, uncertainty in (("paper", "paper"), ("exact", "exact-coarse")):
             stats = self._calibration(kind)
@@ -371,37 +467,39 @@ class _Evaluator:
                 stats,
                 lambda uncertainty=uncertainty: densify(  # type: ignore[misc]
                     basis,
-                    frame.pixels,
-                    frame.disparities,
+                    pixels,
+                    disparities,
                     sigma=self.options.sigma,
                     uncertainty=uncertainty,
                     focal_baseline=camera.focal_baseline,
-                    image_size=camera.image_size,
+                    image_size=box.camera.image_size,
                 ),
             )
-            delta, _ = projection_errors(dense.disparity, view, camera, transform)
-            stats.add(dense.disparity, dense.disparity_std, view, delta, sgbm_valid=sgbm_valid)
+            estimate, std = box.pad(dense.disparity), box.pad(dense.disparity_std)
+            delta, _ = projection_errors(estimate, view, camera, transform)
+            stats.add(estimate, std, view, delta, sgbm_valid=sgbm_valid)
         # the exact posterior knows only the l kept components; the training variance the
         # basis leaves out, spread evenly over the grid pixels, is a floor it misses
         residual = max(float(basis.total_variance - basis.eigenvalues.sum()), 0.0)
         to_log = camera.focal_baseline / basis.focal_baseline  # basis px -> log px
-        residual_std = np.sqrt(
-            dense.disparity_std.astype(np.float64) ** 2 + residual / basis.mean.size * to_log**2
-        )
+        residual_std = np.sqrt(std.astype(np.float64) ** 2 + residual / basis.mean.size * to_log**2)
         self._calibration("exact+residual").add(
-            dense.disparity, residual_std, view, delta, sgbm_valid=sgbm_valid
+            estimate, residual_std, view, delta, sgbm_valid=sgbm_valid
         )
         # the oracle fits the basis to the whole reference map: from a sparse one it would
         # fit a nearest-neighbour fill of it, no bound on any estimate, so it is left out
-        if np.count_nonzero(np.isfinite(reference)) >= SPARSE_BELOW * reference.size:
+        inside = box.crop(reference)
+        if np.count_nonzero(np.isfinite(inside)) >= SPARSE_BELOW * inside.size:
             scale = basis.focal_baseline / camera.focal_baseline
-            oracle = oracle_disparity(basis, reference * scale) / scale
+            oracle = box.pad(oracle_disparity(basis, inside * scale) / scale)
             self._stats("oracle").add(oracle, view, camera, transform)
         every = self.options.sweep_every
         if every > 0 and self.result.frames % every == 0 and stereo is not None:
-            self._sweep(frame, stereo, view, transform)
+            self._sweep(frame, stereo, view, transform, box)
 
-    def _sweep(self, frame: Frame, stereo: _Stereo, view: ReferenceView, transform: Any) -> None:
+    def _sweep(
+        self, frame: Frame, stereo: _Stereo, view: ReferenceView, transform: Any, box: _Boxed
+    ) -> None:
         """Error against the number of points: GFTT + SGBM lookups, strongest N corners."""
         assert self.basis is not None
         camera, size = frame.camera, frame.camera.image_size
@@ -411,6 +509,13 @@ class _Evaluator:
             min_x=self.options.sgbm.valid_min_x,
         )
         found = lookup_disparities(stereo.disparity, corners)
+        if not box.whole:  # densify measured only in the box, so does the sweep
+            keep = box.inside(found.pixels)
+            found = found._replace(
+                pixels=found.pixels[keep],
+                disparities=found.disparities[keep],
+                indices=found.indices[keep],
+            )
         self.result.sweep_corners.append(int(found.pixels.shape[0]))
         for points in SWEEP_POINTS:
             if points > found.pixels.shape[0]:  # fewer corners: the count was not reached
@@ -421,15 +526,14 @@ class _Evaluator:
             methods = self.result.sweep.setdefault(points, {})
             dense = densify(
                 self.basis,
-                pixels,
-                values,
+                *box.points(pixels, values),
                 sigma=self.options.sigma,
                 uncertainty="none",
                 focal_baseline=camera.focal_baseline,
-                image_size=size,
+                image_size=box.camera.image_size,
             )
             estimates = {
-                "pca_map": dense.disparity,
+                "pca_map": box.pad(dense.disparity),
                 "nearest": nearest(pixels, values, image_size=size).disparity,
                 "linear": linear(pixels, values, image_size=size).disparity,
             }

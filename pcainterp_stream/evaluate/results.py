@@ -141,6 +141,12 @@ class Evaluation:
         damage: damage found reading the log (a truncated file), one line each.
         no_measurement: indices (from 0, in log order) of the frames left out of every
             method because they had no measurement (black, dark or textureless images).
+        no_estimate: counted reference pixels where the stored estimate is NaN (no estimate:
+            outside the rectified box of a raw or black-bordered pair), left out of every
+            method and uncertainty row.
+        reference_counted: counted reference pixels before those were left out.
+        basis_rows_skipped: frames whose estimate is no box (NaN in an irregular region),
+            left out of the re-densified rows (paper, exact, oracle, sweep).
     """
 
     log: str
@@ -170,6 +176,30 @@ class Evaluation:
     measurements: str | None = None
     damage: list[str] = field(default_factory=list)
     no_measurement: list[int] = field(default_factory=list)
+    no_estimate: int = 0
+    reference_counted: int = 0
+    basis_rows_skipped: int = 0
+
+    @property
+    def no_estimate_fraction(self) -> float:
+        """Return the share of the counted reference pixels that have no stored estimate."""
+        return self.no_estimate / max(self.reference_counted, 1)
+
+    @property
+    def no_estimate_note(self) -> str:
+        """Return the sentence on the pixels left out for want of an estimate ("": none)."""
+        notes = []
+        if self.no_estimate:
+            notes.append(
+                f"{100 * self.no_estimate_fraction:.1f} % of the reference pixels have no "
+                "estimate (NaN in the log: outside the rectified box): left out of every method"
+            )
+        if self.basis_rows_skipped:
+            notes.append(
+                f"{self.basis_rows_skipped} frames left out of the re-densified rows: their "
+                "estimate is NaN outside no box, so the box densify used is unknown"
+            )
+        return "; ".join(notes)
 
     @property
     def reference_fraction(self) -> float:
@@ -203,6 +233,9 @@ class Evaluation:
             "measurements": self.measurements,
             "damage": self.damage,
             "left_out_no_measurement": list(self.no_measurement),
+            "left_out_no_estimate": self.no_estimate_fraction,
+            "left_out_no_estimate_pixels": self.no_estimate,
+            "left_out_of_redensified_rows": self.basis_rows_skipped,
             "frames": self.frames,
             "image_size": list(self.image_size),
             "points_per_frame": self.points_per_frame,

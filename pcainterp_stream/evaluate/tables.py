@@ -49,7 +49,9 @@ def _calibration_row(name: str, calibration: CalibrationStats) -> str:
     timing = f", {c['ms_per_frame']:.0f} ms/frame" if calibration.seconds > 0 else ""
     certain = ""
     if c["certain"] > 0:  # a basis that never varies at some pixels claims std 0 there
-        certain = f" (std 0 or none at {100 * c['certain']:.3g} % of pixels, left out of the NLL)"
+        certain = f" (std 0 at {100 * c['certain']:.3g} % of pixels, left out of the NLL)"
+    if c["no_std"] > 0:  # NaN: a compact log's std of 0, or no estimate there
+        certain += f" (no std at {100 * c['no_std']:.3g} % of pixels, left out)"
     nll = f"{c['nll']:.2f}" if math.isfinite(c["nll"]) else "- (no pixel has a std)"
     split = ""
     if calibration.has_sgbm_split:
@@ -89,6 +91,8 @@ def summary_table(result: Evaluation) -> str:
         )
     if result.no_measurement:
         lines.append(result.no_measurement_note)
+    if result.no_estimate_note:
+        lines.append(result.no_estimate_note)
     lines += [f"damage: {line}; only the frames read before it count" for line in result.damage]
     if result.measurements:
         lines.append(f"measurements of the densified log: {result.measurements}")
@@ -224,6 +228,8 @@ def results_markdown(result: Evaluation, figures: list[str]) -> str:
     )
     if result.no_measurement:
         skipped += f" {result.no_measurement_note[0].upper()}{result.no_measurement_note[1:]}."
+    if result.no_estimate_note:
+        skipped += f" {result.no_estimate_note[0].upper()}{result.no_estimate_note[1:]}."
     lines = [
         f"# Evaluation of `{Path(result.log).name}`",
         "",

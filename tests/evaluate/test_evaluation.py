@@ -127,8 +127,9 @@ def test_calibration_coverage_of_a_gaussian_sample() -> None:
 
 
 def test_calibration_leaves_pixels_without_a_std_out_of_the_nll() -> None:
-    """A std of 0 (a basis that never varies there) or NaN (a 0 stored in a compact log) is
-    counted apart and left out of the NLL, which stays finite; coverage counts it outside."""
+    """A std of 0 (a basis that never varies there) is counted apart and left out of the
+    NLL, which stays finite; coverage counts it outside. No std (NaN: no estimate there, or
+    a 0 stored in a compact log) claims nothing: left out of coverage and NLL alike."""
     std = np.full((10, 10), 1.0)
     std[0, :5] = 0.0  # e.g. pixels that were sky in every training map
     std[1, :3] = np.nan
@@ -136,14 +137,18 @@ def test_calibration_leaves_pixels_without_a_std_out_of_the_nll() -> None:
     estimate = np.full((10, 10), 0.5)
     estimate[0, 0] = 0.0  # exactly right where the std is 0: inside
     sums = calibration_sums(estimate, std, reference, np.ones(std.shape, dtype=bool))
-    assert sums["certain"] == 8
+    assert sums["certain"] == 5
+    assert sums["no_std"] == 3
+    assert sums["n"] == 97
     per_pixel = 0.5 * np.log(2 * np.pi) + 0.5 * 0.25
     assert sums["nll"] == pytest.approx(92 * per_pixel)
     assert sums["inside_1"] == 93
     stats = CalibrationStats()
     stats.sums = {key: stats.sums[key] + sums[key] for key in stats.sums}
     assert stats.summary()["nll"] == pytest.approx(per_pixel)
-    assert stats.summary()["certain"] == pytest.approx(0.08)
+    assert stats.summary()["certain"] == pytest.approx(5 / 97)
+    assert stats.summary()["no_std"] == pytest.approx(0.03)
+    assert stats.summary()["coverage_1sigma"] == pytest.approx(93 / 97)
     nothing = calibration_sums(estimate, np.zeros((10, 10)), reference, np.ones((10, 10), bool))
     assert nothing["nll"] == 0.0
     assert nothing["certain"] == 100
@@ -709,3 +714,82 @@ def test_a_frame_waits_a_bounded_number_of_frames_for_its_right_image(
     assert [frame.right is None for frame in frames] == [True] * alone + [False] * (12 - alone)
     assert [frame.index for frame in frames] == list(range(12))
     assert frames[0].right_gap_ns is None  # no right image was read yet
+
+
+def _boxed(source: Path, target: Path, box: tuple[int, int, int, int]) -> Path:
+    """Copy a float32 densified log with its estimate and std NaN outside ``box`` (x, y,
+    width, height), as densify writes a raw or black-bordered pair."""
+    from pcainterp_stream.io import rosmsg
+    from pcainterp_stream.io.logreader import open_log
+    from pcainterp_stream.io.logwriter import open_writer
+
+    x, y, width, height = box
+
+    def cut(image: Any) -> Any:
+        values = rosmsg.image_array(image).astype(np.float32)
+        outside = np.ones(values.shape, dtype=bool)
+        outside[y : y + height, x : x + width] = False
+        values[outside] = np.nan
+        return rosmsg.image_message(values, rosmsg.stamp_ns(image), image.header.frame_id)
+
+    with open_log(source) as reader, open_writer(target, "mcap") as writer:
+        for raw in reader.messages():
+            message = reader.decode(raw)
+            if raw.topic.startswith("/pcainterp/") and str(message.__msgtype__) in (
+                rosmsg.DISPARITY_IMAGE,
+                rosmsg.IMAGE,
+            ):
+                if str(message.__msgtype__) == rosmsg.DISPARITY_IMAGE:
+                    message.image = cut(message.image)
+                elif message.encoding == "32FC1":
+                    message = cut(message)
+            writer.channel_metadata.setdefault(raw.topic, dict(raw.channel_metadata))
+            writer.add_message(raw.topic, message, raw.log_time_ns)
+    return target
+
+
+def test_pixels_without_an_estimate_are_left_out_of_every_method(
+    dense_logs: dict[str, Path],
+) -> None:
+    # before: NaN (no estimate, outside the rectified box) was scored as disparity 0 (far)
+    # for pca_map only, and its NaN std as a miss of the stored uncertainty
+    options = EvaluateOptions(mode=Mode.STEREO, basis=dense_logs["basis"], sweep_every=1)
+    whole, _ = evaluate_log(dense_logs["dense"], options)
+    height, width = whole.image_size
+    box = (6, 3, width - 14, height - 12)  # cut more at the bottom: the near ground
+    log = _boxed(dense_logs["dense"], dense_logs["folder"] / "boxed.mcap", box)
+    boxed, _ = evaluate_log(log, options)
+    assert boxed.frames == whole.frames
+    for name in ("pca_map", "nearest", "oracle"):
+        mean, before = (r.methods[name].summary()["delta_2d_mean"] for r in (boxed, whole))
+        assert mean < 1.5 * before, name
+    stored = boxed.calibration["stored"].summary()["coverage_2sigma"]
+    assert stored > whole.calibration["stored"].summary()["coverage_2sigma"] - 0.05
+    assert 0 < boxed.no_estimate < whole.methods["pca_map"].pixels
+    counted = {name: stats.pixels for name, stats in boxed.methods.items()}
+    assert set(counted.values()) == {whole.methods["pca_map"].pixels - boxed.no_estimate}
+    for name, stats in boxed.calibration.items():
+        assert stats.sums["no_std"] == 0, name
+        assert stats.sums["n"] == counted["pca_map"], name
+    # the re-densified rows estimate in the box, as densify did: as good as on the whole
+    for name in ("paper", "exact"):
+        coverage = (r.calibration[name].summary()["coverage_2sigma"] for r in (boxed, whole))
+        assert next(coverage) > next(coverage) - 0.1, name
+    share = f"{100 * boxed.no_estimate_fraction:.1f} % of the reference pixels have no estimate"
+    assert share in summary_table(boxed)
+    assert share in results_markdown(boxed, [])
+    assert boxed.summary()["left_out_no_estimate"] == pytest.approx(boxed.no_estimate_fraction)
+    assert "no estimate" not in summary_table(whole)
+    assert whole.summary()["left_out_no_estimate"] == 0.0
+
+
+def test_the_box_of_an_estimate_is_recovered_from_its_nan() -> None:
+    from pcainterp_stream.evaluate.report import estimate_box
+
+    has_estimate = np.zeros((40, 80), dtype=bool)
+    assert estimate_box(has_estimate) is None  # no estimate at all
+    has_estimate[3:31, 6:72] = True
+    assert estimate_box(has_estimate) == (6, 3, 66, 28)
+    has_estimate[10, 10] = False  # NaN inside: no box densify used, the basis rows skip it
+    assert estimate_box(has_estimate) is None
+    assert estimate_box(np.ones((40, 80), dtype=bool)) == (0, 0, 80, 40)
