@@ -16,7 +16,11 @@ rectified already is given the same box here, found once per calibration:
   blend with the black. Black scene content is not taken for a border: an image that is dark,
   or whose black fades out through near-black pixels instead of ending in a blend with the
   scene, is not counted (:func:`frame_border`); a pixel that is not black in one frame is no
-  border from then on; a border under :data:`MIN_BORDER_SHARE` of the frame is none.
+  border from then on; a border under :data:`MIN_BORDER_SHARE` of the frame is none. The
+  images are looked at on the first :data:`LOOK_FRAMES` frames of a camera at most, and the
+  box is decided by the first :data:`EVIDENCE_FRAMES` that give evidence: a later frame
+  changes nothing, and a box that grows by less than :data:`SAY_AGAIN` of the frame is not
+  taken, so the camera does not change mid-log for a pixel.
 
 The estimate is then made in the box and padded back with no estimate (NaN) outside
 (:func:`frontend.rectify.pad_result`), so corners, lattice lookups and stereo matching never
@@ -40,6 +44,8 @@ from pcainterp_stream.records import StereoCamera
 __all__ = [
     "DARK_LEVEL",
     "DARK_SHARE",
+    "EVIDENCE_FRAMES",
+    "LOOK_FRAMES",
     "MIN_BORDER_SHARE",
     "MIN_BOX",
     "RING_CONTRAST",
@@ -70,7 +76,19 @@ MIN_BOX = 32
 
 
 SAY_AGAIN = 0.01
-"""A box that grows or shrinks by this share of the frame is said again (a new line)."""
+"""A box from the images is replaced only when its area changes by this share of the frame.
+
+The border from the images only shrinks from frame to frame (a pixel that is not black once
+is no border), so the box kept holds none of a later border: it is replaced (and the new one
+said) only when the new one is larger by this much. A box one pixel wider would change the
+camera mid-log for nothing.
+"""
+
+LOOK_FRAMES = 100
+"""Frames of a camera whose images are looked at for a border, at most (dark or not)."""
+
+EVIDENCE_FRAMES = 5
+"""Frames that give evidence (not dark, not black content) after which the border is decided."""
 
 
 @dataclass(frozen=True)
@@ -177,14 +195,15 @@ def frame_border(image: npt.NDArray[np.generic]) -> npt.NDArray[np.bool_] | None
         image: (height, width) or (height, width, channels) image, any dtype.
     """
     array = np.asarray(image)
+    if _dark(array):  # first, on every 4th pixel: a dark frame costs ~1 ms, not 20-100
+        return None
     black = black_border(array)
     if not black.any():
         return black
     grey = array.astype(np.float32)
     if grey.ndim == 3:
         grey = grey.mean(axis=2)
-    full_scale = float(np.iinfo(array.dtype).max) if array.dtype.kind in "iu" else 1.0
-    if float(np.median(grey)) < DARK_LEVEL * full_scale or black.mean() >= DARK_SHARE:
+    if black.mean() >= DARK_SHARE:
         return None
     blend = _widen(black)
     ring = _widen(_widen(blend)) & ~blend
@@ -209,6 +228,8 @@ class BorderFinder:
         self._border: RectifiedBorder | None = None
         self._silent: tuple[object, ...] | None = None  # a calibration that tells nothing
         self._sides: list[npt.NDArray[np.bool_] | None] = [None, None]  # black in every frame
+        self._looked = 0  # frames of this camera looked at
+        self._evidence = 0  # of them, frames that gave evidence on a side
 
     def find(
         self,
@@ -244,19 +265,26 @@ class BorderFinder:
         key = ("images", size, camera)
         if key != self._key:
             self._key, self._sides, self._border = key, [None, None], None
+            self._looked = self._evidence = 0
         if all(side is not None and not side.any() for side in self._sides):
             return None  # no border on either side: black in every frame from now on cannot be
-        changed = False
+        if self._looked >= LOOK_FRAMES or self._evidence >= EVIDENCE_FRAMES:
+            return self._border  # decided: the camera stays for the rest of the log
+        self._looked += 1
+        changed = evidence = False
         for index, image in enumerate((left, right)):
             seen = self._sides[index]
             if seen is not None:  # a border stays one while its pixels stay black
-                kept = seen & _black(image)
+                if _dark(image):
+                    continue  # black wherever it is dark: it tells nothing
+                kept, evidence = seen & _black(image), True
                 if not np.array_equal(kept, seen):
                     self._sides[index], changed = kept, True
                 continue
             black = frame_border(image)
             if black is not None:  # else a dark frame, or black scene content: no evidence
-                self._sides[index], changed = black, True
+                self._sides[index], changed, evidence = black, True, True
+        self._evidence += evidence
         if changed:
             sides = [side for side in self._sides if side is not None]
             union = np.logical_or.reduce(sides) if sides else np.zeros((height, width), bool)
@@ -266,7 +294,7 @@ class BorderFinder:
                 # widened by a pixel: the interpolation blended the next pixels with the black
                 wide = _widen(union)
                 source = "black (0) at the image edge in every frame so far"
-                self._set(wide, camera, source, share=float(union.mean()))
+                self._set(wide, camera, source, share=float(union.mean()), keep_close=True)
         return self._border
 
     def _set(
@@ -276,17 +304,25 @@ class BorderFinder:
         source: str,
         *,
         share: float | None = None,
+        keep_close: bool = False,
     ) -> None:
         """Keep the border of a mask of bad pixels and say it (None when there is none).
 
         A box under :data:`MIN_BOX` px a side is no box to estimate in: the images are then
-        used whole (a calibration that does not describe them).
+        used whole (a calibration that does not describe them). With ``keep_close`` (a border
+        from the images, which only shrinks), the box kept stays unless the new one's area
+        differs by :data:`SAY_AGAIN` of the frame or more.
         """
         box = box_without(bad)
         if not bad.any() or min(box[2], box[3]) < MIN_BOX:
             self._border = None
             return
         previous = self._border
+        close = previous is not None and (
+            abs(_area(previous.box) - _area(box)) < SAY_AGAIN * bad.size
+        )
+        if close and keep_close:
+            return  # the border only shrinks: the box kept holds none of it
         self._border = RectifiedBorder(
             box=box,
             camera=camera,
@@ -294,9 +330,7 @@ class BorderFinder:
             border_share=float(bad.mean()) if share is None else share,
             source=source,
         )
-        if self._echo is None:
-            return
-        if previous is None or abs(_area(previous.box) - _area(box)) >= SAY_AGAIN * bad.size:
+        if self._echo is not None and not close:
             self._echo(self._border.line())
 
 
@@ -313,6 +347,20 @@ def _widen(mask: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
         borderValue=0,
     )
     return np.asarray(grown > 0, dtype=bool)
+
+
+def _dark(image: npt.NDArray[np.generic]) -> bool:
+    """Return whether the median of every 4th pixel is under :data:`DARK_LEVEL` of the range.
+
+    A 16-bit image of 10-bit data, or of 12-bit data with a median under 2621, is always dark:
+    it costs this look only, on at most :data:`LOOK_FRAMES` frames.
+    """
+    array = np.asarray(image)
+    sample = array[::4, ::4].astype(np.float32)
+    if sample.ndim == 3:
+        sample = sample.mean(axis=2)
+    full_scale = float(np.iinfo(array.dtype).max) if array.dtype.kind in "iu" else 1.0
+    return float(np.median(sample)) < DARK_LEVEL * full_scale
 
 
 def _black(image: npt.NDArray[np.generic]) -> npt.NDArray[np.bool_]:

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+from pcainterp_stream.frontend import rect_border
 from pcainterp_stream.frontend import rectify as rect
 from pcainterp_stream.frontend.pairing import PairingConfig, StereoPairer
 from pcainterp_stream.frontend.rect_border import (
@@ -125,12 +126,68 @@ def test_border_from_images_lasts_across_frames_and_dark_content_does_not() -> N
     border = _finder_frames(finder, [(later[0], later[1])])
     assert border.box == (25, 0, CAMERA.width - 25, CAMERA.height)  # widened a pixel
     assert border.inner.cx == CAMERA.cx - 25
-    assert len(said) == 2
+    assert len(said) == 2  # the black object was 7.9 % of the frame: a new box, said
     assert said[-1].startswith("rectified border: 7.5 % of the 320x120 frame")
     assert "black (0) at the image edge in every frame so far" in said[-1]
     dark = np.zeros_like(later[0])
     assert _finder_frames(finder, [(dark, dark)]) == border  # a dark frame tells nothing
+    narrower = [image.copy() for image in _pair(seed=3)]
+    for image in narrower:
+        image[:, :23] = 0  # one column less is black: the box kept holds no border still
+    assert _finder_frames(finder, [(narrower[0], narrower[1])]) == border
     assert len(said) == 2
+
+
+def test_a_border_a_pixel_narrower_later_keeps_the_camera() -> None:
+    # alpha = 1 image_rect with infos that say rectified: column 30 black in frame 0 only
+    pairer, said = _rect_pairer()
+    frames = []
+    for index, width in enumerate((31, 30, 30, 31, 30, 30)):
+        left, right = (image.copy() for image in _pair(seed=index + 1))
+        left[:, :width] = 0
+        right[:, :width] = 0
+        frames += _push(pairer, 1000 * (index + 1), (left, right), _ideal())
+    assert len(frames) == 6
+    assert {frame.left.shape for frame in frames} == {(CAMERA.height, CAMERA.width - 32)}
+    assert len({frame.camera for frame in frames}) == 1  # the fit check sees all 6 frames
+    assert len([s for s in said if s.startswith("rectified border:")]) == 1
+
+
+def test_the_images_are_looked_at_on_the_first_frames_only(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    left, right = _pair()
+    left[:, :24] = 0
+    right[:, :24] = 0
+    dark = (left // 16, right // 16)  # KITTI at a low gain: dark, with zeros at the edge
+    monkeypatch.setattr(rect_border, "LOOK_FRAMES", 3, raising=False)
+    finder = BorderFinder()
+    assert _finder_frames(finder, [dark] * 3) is None
+    looked: list[int] = []
+    original = rect_border.black_border
+    monkeypatch.setattr(
+        rect_border, "black_border", lambda image: looked.append(1) or original(image)
+    )
+    assert finder.find(left, right, CAMERA, None) is None  # no look past LOOK_FRAMES
+    assert not looked
+    monkeypatch.undo()
+    finder = BorderFinder()
+    border = _finder_frames(finder, [(left, right)] * rect_border.EVIDENCE_FRAMES)
+    assert border is not None
+    wider = [image.copy() for image in _pair(seed=2)]  # the box is decided: kept
+    assert finder.find(wider[0], wider[1], CAMERA, None) == border
+
+
+def test_a_dark_frame_is_not_searched_for_black(monkeypatch: pytest.MonkeyPatch) -> None:
+    dark = np.zeros((480, 752), np.uint16)
+    dark[:, 100:] = 2000  # a 16-bit image of 12-bit data: dark by the 16-bit range
+    looked: list[int] = []
+    original = rect_border.black_border
+    monkeypatch.setattr(
+        rect_border, "black_border", lambda image: looked.append(1) or original(image)
+    )
+    assert frame_border(dark) is None
+    assert not looked  # the dark test comes first: ~1 ms a frame, not 20-100 ms
 
 
 def test_dark_frames_and_black_content_are_no_border() -> None:

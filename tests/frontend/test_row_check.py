@@ -135,3 +135,33 @@ def test_a_calibration_that_does_not_fit_is_not_called_a_swap() -> None:
         _run([raw], wrong)
     assert "the calibration does not fit these images: check the camera infos" in str(err.value)
     assert "exchanged" not in str(err.value)
+
+
+def test_a_low_gain_log_is_checked() -> None:
+    # a night log (KITTI at gain 0.05): ORB found no corner, so it went unchecked
+    def dim(pair: Pair) -> Pair:
+        left, right = pair
+        return (left * 0.05).astype(np.uint8), (right * 0.05).astype(np.uint8)
+
+    assert int(dim(_views())[0].max()) <= 13
+    matches = rect.correspondences(*dim(_views()))
+    assert matches.shape[0] >= row_check.ROW_CHECK_MIN_MATCHES
+    raw = dim(Unrectifier(RAW)(*_views()))
+    with pytest.raises(CalibrationError, match="does not look rectified"):
+        _run([raw] * 3, IDEAL)  # raw images whose camera infos say rectified
+    assert _run([dim(_views())] * 3, IDEAL).stats.row_check_hint() is None
+
+
+def test_noise_gives_no_correspondences() -> None:
+    # a fundamental matrix fits ~15 of the matches of any two noise images: chance, no verdict
+    rng = np.random.default_rng(3)
+    for top in (4, 40):  # a lens cap at night (equalised), a blank wall's sensor noise
+        left, right = (rng.integers(0, top, (376, 1241)).astype(np.uint8) for _ in range(2))
+        assert rect.correspondences(left, right).shape == (0, 4)
+    noise = [
+        tuple(rng.integers(0, 4, (CAMERA.height, CAMERA.width)).astype(np.uint8) for _ in range(2))
+        for _ in range(6)
+    ]
+    hint = _run(noise, IDEAL).stats.row_check_hint()
+    assert hint is not None
+    assert "0 matched corners in all 6 frames" in hint
