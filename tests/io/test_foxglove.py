@@ -145,7 +145,7 @@ def serving(*args: str) -> Iterator[tuple[subprocess.Popen[str], str]]:
     try:
         assert process.stdout is not None
         lines = []  # the URL comes when the server starts: with the first message
-        while (found := URL.search(line := process.stdout.readline())) is None and line:
+        while (found := URL.search(line := _line(process))) is None and line:
             lines.append(line)
         if found is None:
             process.kill()
@@ -182,11 +182,25 @@ def _stopped(process: subprocess.Popen[str], sig: signal.Signals) -> tuple[str, 
         pytest.fail(f"still running {EXIT_S} s after {sig.name}\n{out}\n{err}")
 
 
+def _line(process: subprocess.Popen[str]) -> str:
+    """Read one line of standard output from the pipe itself ("" at its end).
+
+    Not through ``process.stdout``: its buffer reads ahead, and what it took is lost to
+    ``communicate``, which reads the pipe's descriptor (a summary printed right after the
+    URL went missing that way on a loaded machine).
+    """
+    assert process.stdout is not None
+    data = bytearray()
+    while not data.endswith(b"\n") and (byte := os.read(process.stdout.fileno(), 1)):
+        data += byte
+    return data.decode()
+
+
 def _read_until(process: subprocess.Popen[str], text: str) -> list[str]:
     """Read standard output until a line holding ``text``; return the lines read."""
     assert process.stdout is not None
     lines = []
-    while text not in (line := process.stdout.readline()):
+    while text not in (line := _line(process)):
         assert line, f"the server stopped before {text!r}: {lines}"
         lines.append(line)
     return lines
