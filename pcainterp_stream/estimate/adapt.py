@@ -490,6 +490,38 @@ def refit_prior(
     return with_prior(basis, prior)
 
 
+BORROWED_PRIOR = (
+    "local",
+    "sigma",
+    "plain_sigma",
+    "process_noise",
+    "std_scale",
+    "innovation_std_scale",
+)
+"""The fitted values a basis learned from one view takes from a built-in basis."""
+
+
+def borrowed_prior(builtin: Basis) -> dict[str, Any]:
+    """Return the prior of ``builtin`` for a basis learned from copies of one view.
+
+    Fitted on the frames a basis learned from, the evidence puts sigma at its floor and
+    the local kernel's variance at zero, and a std calibrated on them covers only their
+    noise: copies of one view leave nothing to fit a prior on. A built-in basis's prior
+    (local kernel, sigma, process noise, std calibration) was fitted on frames its basis
+    did not learn.
+
+    Args:
+        builtin: the built-in basis chosen by the fit check (its ``meta["prior"]``).
+
+    Returns:
+        The fitted values of :data:`BORROWED_PRIOR` it has, and where they come from.
+    """
+    fitted = builtin.meta.get("prior", {})
+    prior = {key: fitted[key] for key in BORROWED_PRIOR if key in fitted}
+    prior["source"] = "a built-in basis's (the log's first frames are one view)"
+    return prior
+
+
 def with_prior(basis: Basis, prior: dict[str, Any]) -> Basis:
     """Return ``basis`` with ``prior`` as its ``meta["prior"]``."""
     meta = dict(basis.meta)

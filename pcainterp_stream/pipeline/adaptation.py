@@ -235,14 +235,25 @@ class Adaptation:
                 "left to check it on"
             )
             return None if self.switched is None else self.switched.basis
-        # the std is calibrated on the frames left out of the maps (below); with one map
-        # there are none, and the map's own frame calibrates it
-        own = adapt.refit_prior(
-            adapt.own_basis(maps, size, fb),
-            measured,
-            robust=self.robust,
-            calibrate=self.calibrate and distinct < 2,
-        )
+        # one map per view (its first): copies teach a basis their noise, not a direction
+        _, firsts = np.unique(views, return_index=True)
+        view_maps = [maps[index] for index in firsts]
+        copies = len(maps) >= 2 and distinct < 2
+        own = adapt.own_basis(view_maps, size, fb)
+        if copies:
+            # the frames are the map the basis learned: fitted or calibrated on them, the
+            # prior trusts it (sigma at its floor; stored +-2 sigma held 5 % of a MyntEye
+            # log's SGBM pixels); the chosen built-in's prior, fitted on frames its basis did
+            # not learn, is the only honest one
+            own = adapt.with_prior(
+                own, adapt.borrowed_prior(basis if self.switched is None else self.switched.basis)
+            )
+        else:
+            # the std is calibrated on the frames left out of the maps (below); with one map
+            # there are none, and the map's own frame calibrates it
+            own = adapt.refit_prior(
+                own, measured, robust=self.robust, calibrate=self.calibrate and distinct < 2
+            )
         prior = own.meta.get("prior", {})
         held = adapt.leave_one_out(
             maps,
@@ -308,23 +319,27 @@ class Adaptation:
         self.adapted = True
         self.first_basis = own
         self._camera = (size, fb)
-        self._maps = list(maps)
+        self._maps = list(view_maps)
         self._recent = measured[-adapt.FIT_FRAMES :]
         self._seen = len(maps)
         self._next_update = 2 * len(maps)
         if self.own_check is not None:
             how = f"held out: {self.own_check.describe()}"
-        elif len(maps) > 1:
-            how = "one view: its own stereo, smoothed, corrected by its points"
+        elif copies:
+            how = (
+                "one view: its own stereo, smoothed, corrected by its points, with the prior "
+                f"and std calibration of {chosen} (copies of one view cannot fit them)"
+            )
         else:
             how = "one frame: its own stereo, smoothed, corrected by its points"
         frame_count = _count(len(maps), "frame")
         if distinct < len(maps):
             frame_count += f" of {_count(distinct, 'view')}"
+        # a one-map basis is the map as its mean: its one component is a placeholder
+        learned = "its first frame's map alone" if copies else _count(own.n_components, "component")
         self.lines.append(
             f"adapted: {why}; learned one from this log's own SGBM maps ({frame_count}, "
-            f"{_count(own.n_components, 'component')}; "
-            f"{how}); --basis builtin keeps a built-in one"
+            f"{learned}; {how}); --basis builtin keeps a built-in one"
         )
         return own
 

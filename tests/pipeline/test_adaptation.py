@@ -285,6 +285,36 @@ def test_a_standing_start_keeps_a_builtin_basis_that_fits() -> None:
         )
 
 
+def test_a_standing_start_no_builtin_fits_learns_one_map_with_a_builtin_prior() -> None:
+    """The first 6 pairs are one view and the street basis alone is offered, which does not
+    fit the room: the log's own basis learned 5 components from the copies' noise, its
+    prior was fitted on them (sigma at its floor) and the line said "6 frames of 1 view, 5
+    components"; a MyntEye log's stored +-2 sigma then held 4.8 % of its SGBM pixels."""
+    frames = _standing_start(standing=6, moving=1)[:6]  # the log ends in the warm-up
+    with FrameProcessor(None, ProcessorConfig(builtin="street")) as engine:
+        list(engine.process(frames))
+        adaptation = engine.adaptation
+        assert adaptation.adapted
+        assert adaptation.own_check is None
+        own = engine.basis
+        assert own.n_train == 1  # one map per view: the first
+        assert own.n_components == 1  # the one-map placeholder
+        street = Basis.default().meta["prior"]
+        prior = own.meta["prior"]
+        for key in ("local", "sigma", "std_scale", "innovation_std_scale", "process_noise"):
+            assert prior[key] == street[key]
+        assert engine.settings.std_scale == street["innovation_std_scale"]
+        line = next(line for line in adaptation.lines if line.startswith("adapted:"))
+        assert "(6 frames of 1 view, its first frame's map alone; one view: " in line
+        assert line.endswith(
+            "with the prior and std calibration of the built-in street basis (copies of one "
+            "view cannot fit them)); --basis builtin keeps a built-in one"
+        )
+        assert adaptation.final_line(own) == (
+            "adapted basis: 1 map, 1 component at the end (0 updates while streaming)"
+        )
+
+
 def test_an_own_basis_that_beats_a_basis_that_fits_says_it_fits(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
