@@ -46,6 +46,15 @@ class GoldenError(PcaInterpError):
     """A golden file is missing, malformed, or of a format version this package does not read."""
 
 
+class GoldenToleranceError(GoldenError):
+    """A golden file's tolerances (or those given to write one) are not valid.
+
+    An unknown key, a value that is not a finite number >= 0, or a per-channel override of
+    a channel the golden file does not record. A rewrite (``--update``, ``--force-regen``)
+    does not replace such a file: its tolerances were edited by hand and must be fixed.
+    """
+
+
 class ClusterTaskError(PcaInterpError):
     """A task on a Dask cluster failed with an unexpected error (a bug or a dead worker).
 

@@ -20,6 +20,7 @@ supplies only how a log is dumped (:func:`~.store.save_golden`) and compared
 
 from __future__ import annotations
 
+import re
 import shutil
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -27,10 +28,15 @@ from typing import Any
 
 import pytest
 
+from pcainterp_stream.errors import GoldenError, GoldenToleranceError
+
 __all__ = ["LogGolden", "log_golden"]
 
 EXTENSION = ".golden.json"
 MAX_LINES = 40
+
+_CLAIMED = pytest.StashKey[dict[Path, str]]()
+"""The golden files the session's tests have checked: resolved path -> the test's node id."""
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -86,14 +92,42 @@ class LogGolden:
                 differences, each with channel, message index, stamp, what moved and by
                 how much against its tolerance.
             pytest.fail: (a test failure) this test already checked a log against the same
-                golden file (two calls without ``basename=``).
+                golden file (two calls without ``basename=``), or another test of the run
+                did (parametrized ids that differ only in punctuation map to one file name);
+                or the golden file's tolerances, or ``tolerance``, are not valid.
         """
+        __tracebackhide__ = True
+        try:
+            self._check(
+                log,
+                basename=basename,
+                fullpath=fullpath,
+                topics=topics,
+                arrays=arrays,
+                tolerance=tolerance,
+            )
+        except GoldenToleranceError as err:  # an edited file is fixed, not replaced
+            message = str(err)
+        else:
+            return
+        pytest.fail(message, pytrace=False)  # outside the except: one line, no chained error
+
+    def _check(
+        self,
+        log: str | Path,
+        *,
+        basename: str | None,
+        fullpath: str | Path | None,
+        topics: Iterable[str] | None,
+        arrays: bool,
+        tolerance: Mapping[str, Any] | None,
+    ) -> None:
         __tracebackhide__ = True
         from pytest_regressions.common import perform_regression_check
 
-        from pcainterp_stream.errors import GoldenError
         from pcainterp_stream.golden.comparison import format_differences
         from pcainterp_stream.golden.store import (
+            checked_tolerance,
             compare_documents,
             load_golden,
             save_golden,
@@ -107,9 +141,14 @@ class LogGolden:
             if path.exists() and not path.name.endswith(".obtained" + EXTENSION):
                 try:
                     kept = load_golden(path).get("tolerance", tolerance)
+                except GoldenToleranceError:
+                    raise
                 except GoldenError:  # an unreadable or old file is simply replaced
                     kept = tolerance
-            save_golden(log, path, topics=selected, arrays=arrays, tolerance=kept)
+            try:
+                save_golden(log, path, topics=selected, arrays=arrays, tolerance=kept)
+            except GoldenToleranceError as err:  # an override of a channel the log lacks
+                raise _naming(err, path, source) from None
 
         def compare(obtained: Path, expected: Path) -> None:
             __tracebackhide__ = True
@@ -120,6 +159,8 @@ class LogGolden:
                     # the lazy data directory copied the JSON only
                     shutil.copy2(source.parent / name, expected.parent / name)
                 differences = compare_documents(golden, expected, load_golden(obtained), obtained)
+            except GoldenToleranceError as err:
+                raise _naming(err, expected, source) from None
             except GoldenError as err:  # an old format: --force-regen rewrites it
                 raise AssertionError(
                     f"{err}\n(rerun with --force-regen or --update-golden)"
@@ -133,11 +174,10 @@ class LogGolden:
                     + "\n(rerun with --force-regen or --update-golden to accept the log)"
                 )
 
+        node = self._request.node
         paths_basename = basename
         if fullpath is None and basename is None:
-            import re
-
-            paths_basename = re.sub(r"[\W]", "_", self._request.node.name)
+            paths_basename = _file_stem(node.name)
         source = (
             Path(fullpath)
             if fullpath is not None
@@ -151,6 +191,24 @@ class LogGolden:
                 pytrace=False,
             )
         self._checked.add(source.resolve())
+        claimed = self._request.config.stash.setdefault(_CLAIMED, {})
+        owner = claimed.setdefault(source.resolve(), node.nodeid)
+        if owner != node.nodeid:  # --update-golden would write the file twice, last one wins
+            owner_name = owner.rpartition("::")[2]
+            fix = "pass another basename='...' or fullpath=..."
+            if paths_basename == _file_stem(owner_name) == _file_stem(node.name):
+                fix = (
+                    f"the test names {owner_name} and {node.name} differ only in characters "
+                    "the file name replaces with '_'; give the parameters ids that differ in "
+                    "letters or digits (pytest.param(..., id='...')) or pass basename='...'"
+                )
+            pytest.fail(
+                f"log_golden.check({log.name!r}): the golden file {source.name} is already "
+                f"that of {owner} in this run; {fix}, so that each test has its own golden file",
+                pytrace=False,
+            )
+        if tolerance is not None:  # before the work, named as the test wrote it
+            checked_tolerance(tolerance, f"log_golden.check(tolerance=...) for {source.name}")
         if self._request.config.getoption("update_golden"):
             dump(source)
             return
@@ -164,6 +222,19 @@ class LogGolden:
             basename=paths_basename if fullpath is None else None,
             fullpath=None if fullpath is None else Path(fullpath),
         )
+
+
+def _naming(err: Exception, copy: Path, source: Path) -> GoldenToleranceError:
+    """Return the error naming the golden file beside the test, not the run's copy of it."""
+    message = str(err)
+    if message.startswith(f"{copy}: "):
+        message = f"{source}{message.removeprefix(str(copy))}"
+    return GoldenToleranceError(message)
+
+
+def _file_stem(test_name: str) -> str:
+    """Return the golden file name of a test without extension (pytest-regressions' naming)."""
+    return re.sub(r"[\W]", "_", test_name)
 
 
 @pytest.fixture

@@ -10,12 +10,15 @@ itself) is never overwritten.
 
 from __future__ import annotations
 
+import difflib
 import json
+import math
+import numbers
 import os
 import tempfile
 import zipfile
 import zlib
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Collection, Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,7 +27,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.errors import GoldenError, LogWriteError
+from pcainterp_stream.errors import GoldenError, GoldenToleranceError, LogWriteError
 from pcainterp_stream.golden.comparison import DEFAULT_TOLERANCE, Difference, compare
 from pcainterp_stream.golden.summary import LogSummary, Progress, summarize_log
 from pcainterp_stream.interrupt import raise_if_signalled
@@ -37,6 +40,7 @@ __all__ = [
     "CheckResult",
     "arrays_path",
     "check_log",
+    "checked_tolerance",
     "compare_documents",
     "describe_golden_file",
     "is_golden_arrays",
@@ -252,6 +256,126 @@ def _write_error(target: Path, err: OSError) -> GoldenError:
     return GoldenError(f"cannot write {target}: {err.strerror or err}; {write_advice(err)}")
 
 
+_CHANNEL_TOLERANCE = {k: v for k, v in DEFAULT_TOLERANCE.items() if k not in ("note", "channels")}
+"""What a per-channel override (``tolerance["channels"][topic]``) may set."""
+_LISTED_CHANNELS = 12
+
+
+def _key(path: str, key: object) -> str:
+    return f"{path}[{json.dumps(key) if isinstance(key, str) else repr(key)}]"
+
+
+def _shown(value: object) -> str:
+    text = json.dumps(value) if isinstance(value, str) else repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _near(word: object, choices: Iterable[str]) -> str:
+    close = difflib.get_close_matches(str(word), list(choices), n=1, cutoff=0.6)
+    return f" (did you mean {json.dumps(close[0])}?)" if close else ""
+
+
+def _is_tolerance(value: object) -> bool:
+    """Return True for a finite number >= 0 (not a bool, not a string of one)."""
+    if not isinstance(value, numbers.Real) or isinstance(value, bool):
+        return False
+    number = float(value)
+    return math.isfinite(number) and number >= 0
+
+
+def _checked_group(
+    value: object, template: Mapping[str, Any], path: str, source: str | Path
+) -> dict[str, Any]:
+    """Return ``value`` checked against the keys of ``template``, numbers as int or float."""
+    if not isinstance(value, Mapping):
+        raise GoldenToleranceError(
+            f"{source}: {path} is {_shown(value)}, not a group of tolerances; give e.g. "
+            f"{json.dumps(template)}"
+        )
+    checked: dict[str, Any] = {}
+    for key, item in value.items():
+        where = _key(path, key)
+        if key not in template:
+            raise GoldenToleranceError(
+                f"{source}: {where} is not a tolerance{_near(key, template)}; the keys of "
+                f"{path} are {', '.join(template)}"
+            )
+        default = template[key]
+        if isinstance(default, Mapping):
+            checked[key] = _checked_group(item, default, where, source)
+        elif isinstance(default, str):  # the note
+            if not isinstance(item, str):
+                raise GoldenToleranceError(f"{source}: {where} is {_shown(item)}, not a string")
+            checked[key] = item
+        elif _is_tolerance(item):
+            checked[key] = int(item) if isinstance(item, numbers.Integral) else float(item)
+        else:
+            raise GoldenToleranceError(
+                f"{source}: {where} is {_shown(item)}, not a finite number >= 0; give a number "
+                f"such as {default!r} (the default)"
+            )
+    return checked
+
+
+def checked_tolerance(
+    tolerance: object,
+    source: str | Path,
+    *,
+    channels: Collection[str] | None = None,
+    of: str = "of the golden file",
+) -> dict[str, Any]:
+    """Return a tolerance tree checked against :data:`DEFAULT_TOLERANCE`'s keys.
+
+    Every key must be one of the defaults' (at any depth), every value a finite number
+    >= 0 (the note a string), and every key of ``"channels"`` a topic with an override of
+    the same groups (the note and ``"channels"`` left out). Keys may be missing: a check
+    takes the defaults' for them.
+
+    Args:
+        tolerance: the tree, as a golden file's ``"tolerance"`` holds it.
+        source: where it comes from, to start a message with (a golden file).
+        channels: the channels an override may name (None: any).
+        of: what ``channels`` are, for the message ("of the golden file").
+
+    Returns:
+        A copy with its numbers as int or float (numpy scalars too) and ``"channels"`` set.
+
+    Raises:
+        GoldenToleranceError: naming ``source``, the key and the valid keys.
+    """
+    if not isinstance(tolerance, Mapping):
+        raise GoldenToleranceError(
+            f"{source}: tolerance is {_shown(tolerance)}, not a mapping of tolerance groups; "
+            'give e.g. {"float": {"rel": 0.01}}, or leave it out for the defaults'
+        )
+    overrides: object = {}
+    if "channels" in tolerance:
+        overrides = tolerance["channels"]
+        tolerance = {k: v for k, v in tolerance.items() if k != "channels"}
+    checked = _checked_group(tolerance, DEFAULT_TOLERANCE, "tolerance", source)
+    where = _key("tolerance", "channels")
+    if not isinstance(overrides, Mapping):
+        raise GoldenToleranceError(
+            f"{source}: {where} is {_shown(overrides)}, not a mapping of topic to tolerances; "
+            'give e.g. {"/pcainterp/depth": {"float": {"rel": 0.01}}}'
+        )
+    checked["channels"] = {}
+    for topic, override in overrides.items():
+        if channels is not None and topic not in channels:
+            listed = sorted(channels)
+            shown = ", ".join(listed[:_LISTED_CHANNELS]) or "none"
+            if len(listed) > _LISTED_CHANNELS:
+                shown += f" and {len(listed) - _LISTED_CHANNELS} more"
+            raise GoldenToleranceError(
+                f"{source}: {_key(where, topic)} names no channel {of}"
+                f"{_near(topic, listed)}; channels: {shown}; rename or remove the override"
+            )
+        checked["channels"][topic] = _checked_group(
+            override, _CHANNEL_TOLERANCE, _key(where, topic), source
+        )
+    return checked
+
+
 def _document(
     log: Path,
     summary: LogSummary,
@@ -352,7 +476,8 @@ def save_golden(
         arrays: also store every array in a compressed ``.npz`` beside the JSON, for an
             element-wise check (see :func:`arrays_path`).
         tolerance: the tolerances to write (default :data:`~.comparison.DEFAULT_TOLERANCE`);
-            the keys given replace the defaults'.
+            the keys given replace the defaults'. Only the defaults' keys, finite numbers
+            >= 0, and under ``"channels"`` channels the golden file records.
         progress: called after each message with (messages done, total or None).
 
     Returns:
@@ -363,6 +488,8 @@ def save_golden(
         TopicNotFoundError: a topic in ``topics`` is not in the log.
         GoldenError: ``golden`` or its arrays file would overwrite the log, or either
             exists and is not a golden file of this package (nothing is written).
+        GoldenToleranceError: ``tolerance`` has a key the defaults do not have, a value
+            that is not a finite number >= 0, or an override of a channel not recorded.
 
     Examples:
         >>> from pcainterp_stream.golden import save_golden, check_log
@@ -373,9 +500,15 @@ def save_golden(
     log, golden = Path(log), Path(golden)
     selected = None if topics is None else list(topics)
     _check_writable(golden, arrays_path(golden) if arrays else None, log)  # before the work
+    given = {} if tolerance is None else tolerance
+    checked_tolerance(given, golden)  # before the work
     summary = summarize_log(log, topics=selected, keep_arrays=arrays, progress=progress)
-    merged = dict(DEFAULT_TOLERANCE)
-    merged.update(tolerance or {})
+    merged = checked_tolerance(
+        {**DEFAULT_TOLERANCE, **given},
+        golden,
+        channels=summary.channels,
+        of=f"recorded from {log.name}",
+    )
     arrays_file = arrays_path(golden).name if arrays else None
     document = _document(log, summary, topics=selected, tolerance=merged, arrays_file=arrays_file)
     _write(golden, document, summary.arrays, log=log)
@@ -388,6 +521,9 @@ def load_golden(golden: str | Path) -> dict[str, Any]:
     Raises:
         GoldenError: the file is missing, not JSON, not a golden file, of a newer format
             version than this package reads, or of an older one.
+        GoldenToleranceError: its ``"tolerance"`` (edited by hand) has a key the defaults
+            do not have, a value that is not a finite number >= 0, or an override of a
+            channel the file does not record.
     """
     golden = Path(golden)
     try:
@@ -414,6 +550,10 @@ def load_golden(golden: str | Path) -> dict[str, Any]:
         )
     if not isinstance(document.get("channels"), dict):
         raise GoldenError(f"{golden} has no channels; write it again with `pcainterp golden save`")
+    if "tolerance" in document:
+        document["tolerance"] = checked_tolerance(
+            document["tolerance"], golden, channels=document["channels"]
+        )
     return dict(document)
 
 
@@ -501,6 +641,9 @@ def check_log(
         GoldenError: the golden file is missing, malformed or of another format version,
             a topic in ``topics`` is not in it, or (``update``) the rewrite would overwrite
             the log or a file that is not a golden arrays file.
+        GoldenToleranceError: the golden file's tolerances are not valid (an unknown key,
+            a value that is not a finite number >= 0, an override of a channel it does not
+            record; with ``update``, of a channel the log does not have).
         LogReadError: the log is missing, not a log or damaged.
         TopicNotFoundError: a topic in ``topics`` is not in the log.
     """

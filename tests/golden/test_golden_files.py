@@ -5,12 +5,13 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from pcainterp_stream.cli import main
-from pcainterp_stream.errors import GoldenError
+from pcainterp_stream.errors import GoldenError, GoldenToleranceError
 from pcainterp_stream.golden import arrays_path, check_log, save_golden
 from pcainterp_stream.records import StereoCamera, SynthFrame
 from pcainterp_stream.synth.log import write_synthetic_log
@@ -244,3 +245,81 @@ def test_info_on_a_malformed_golden_file_is_one_line(
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0
         assert f"g{n}.json is a malformed golden file" in err
+
+
+@pytest.mark.parametrize(
+    ("tolerance", "message"),
+    [
+        (
+            {"flaot": {"rel": 0.5}},
+            r'tolerance\["flaot"\] is not a tolerance \(did you mean "float"',
+        ),
+        ({"nonsense": 3}, r'tolerance\["nonsense"\] is not a tolerance; the keys of tolerance are'),
+        ({"float": {"rel": "abc"}}, r'tolerance\["float"\]\["rel"\] is "abc", not a finite number'),
+        (
+            {"float": {"rel": -0.1}},
+            r"-0\.1, not a finite number >= 0; give a number such as 0\.002",
+        ),
+        ({"float": {"rel": float("inf")}}, r'\["rel"\] is inf, not a finite number'),
+        ({"float": {"rel": True}}, r'\["rel"\] is True, not a finite number'),
+        (
+            {"float": {"rell": 0.1}},
+            r'\["float"\]\["rell"\] is not .* the keys of tolerance\["float',
+        ),
+        ({"float": 0.5}, r'tolerance\["float"\] is 0\.5, not a group of tolerances; give e\.g\.'),
+        ({"channels": []}, r'tolerance\["channels"\] is \[\], not a mapping of topic'),
+        (
+            {"channels": {"/ground_truth/dpeth": {"float": {"rel": 0.5}}}},
+            r'\["/ground_truth/dpeth"\] names no channel recorded from drive\.mcap \(did you mean '
+            r'"/ground_truth/depth"\?\); channels: /ground_truth/depth, .*; rename or remove',
+        ),
+        (
+            {"channels": {"/ground_truth/depth": {"note": "loose"}}},
+            r'\["/ground_truth/depth"\]\["note"\] is not a tolerance',
+        ),
+    ],
+)
+def test_a_bad_tolerance_is_refused_on_save_naming_the_key(
+    log: Path, tmp_path: Path, tolerance: dict[str, Any], message: str
+) -> None:
+    golden = tmp_path / "drive.golden.json"
+    with pytest.raises(GoldenToleranceError, match=message) as raised:
+        save_golden(log, golden, tolerance=tolerance)
+    assert str(raised.value).startswith(f"{golden}: tolerance")  # the file and the key
+    assert not golden.exists()  # nothing written, not even the defaults
+
+
+def test_a_hand_edited_tolerance_is_checked_on_load(
+    log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    golden = tmp_path / "drive.golden.json"
+    loose = {"channels": {"/ground_truth/depth": {"float": {"rel": np.float32(0.5)}}}}
+    save_golden(log, golden, tolerance=loose)  # a numpy number is written as a float
+    document = json.loads(golden.read_text())
+    assert document["tolerance"]["channels"]["/ground_truth/depth"] == {"float": {"rel": 0.5}}
+    changed = _write_log(tmp_path / "changed.mcap", scale=1.1)
+    assert check_log(changed, golden).passed  # the override applies
+    save_golden(log, tmp_path / "tight.golden.json")
+    assert not check_log(changed, tmp_path / "tight.golden.json").passed
+    edits = [
+        (
+            "/ground_truth/dpeth",
+            {"float": {"rel": 0.5}},
+            r'\["/ground_truth/dpeth"\] names no chan',
+        ),
+        ("/ground_truth/depth", {"float": {"rel": "0.5"}}, r'\["rel"\] is "0\.5", not a finite'),
+        ("/ground_truth/depth", {"flaot": {"rel": 0.5}}, r'\["flaot"\] is not a tolerance \(did'),
+    ]
+    for topic, override, message in edits:
+        document["tolerance"]["channels"] = {topic: override}
+        golden.write_text(json.dumps(document))
+        before = golden.read_text()
+        with pytest.raises(GoldenToleranceError, match=message):
+            check_log(changed, golden, update=True)
+        assert golden.read_text() == before  # an edited file is fixed by hand, not replaced
+        capsys.readouterr()
+        assert main(["golden", "check", str(log), str(golden)]) == 2  # bad input, not "differs"
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0
+        assert f"{golden}: tolerance" in err
+        assert "of the golden file" in err or "not a" in err

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy.fft  # noqa: F401 - see _run
@@ -10,6 +11,7 @@ import pytest
 pytest_plugins = ["pytester"]
 
 TEST = """
+import json
 from pathlib import Path
 
 import numpy as np
@@ -127,3 +129,99 @@ def test_a_second_check_needs_its_own_basename(pytester: pytest.Pytester) -> Non
     _run(pytester, "test_twice.py").assert_outcomes(failed=1)  # raw.golden.json written
     _run(pytester, "test_twice.py").assert_outcomes(passed=1)
     assert (pytester.path / "test_twice" / "raw.golden.json").is_file()
+
+
+TOLERANCE = """
+from test_tiny import write_log
+
+
+def test_tol(tmp_path, log_golden):
+    log_golden.check(write_log(tmp_path / "a.mcap"), tolerance={tolerance})
+"""
+
+
+def test_a_bad_tolerance_fails_in_one_line_and_an_edited_file_is_not_replaced(
+    pytester: pytest.Pytester,
+) -> None:
+    _write(pytester, scale=1.0)
+    golden = pytester.path / "test_tol" / "test_tol.golden.json"
+    pytester.makepyfile(test_tol=TOLERANCE.format(tolerance='{"flaot": {"rel": 0.5}}'))
+    result = _run(pytester, "test_tol.py")
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines(
+        [
+            'log_golden.check(tolerance=...) for test_tol.golden.json: tolerance[[]"flaot"[]] '
+            'is not a tolerance (did you mean "float"?); the keys of tolerance are note, *'
+        ]
+    )
+    result.stdout.no_fnmatch_line("*Traceback*")
+    assert not golden.exists()  # not written with the misspelt key
+    pytester.makepyfile(test_tol=TOLERANCE.format(tolerance='{"float": {"rel": 0.01}}'))
+    _run(pytester, "test_tol.py").assert_outcomes(failed=1)  # written
+    _run(pytester, "test_tol.py").assert_outcomes(passed=1)
+    document = json.loads(golden.read_text())
+    document["tolerance"]["channels"] = {"/ground_truth/dpeth": {"float": {"rel": "0.5"}}}
+    golden.write_text(json.dumps(document))
+    before = golden.read_text()
+    for flags in ([], ["--update-golden"], ["--force-regen"]):
+        result = _run(pytester, "test_tol.py", *flags)
+        result.assert_outcomes(failed=1)
+        result.stdout.fnmatch_lines(
+            [
+                f'{golden}: tolerance[[]"channels"[]][[]"/ground_truth/dpeth"[]] names no '
+                'channel of the golden file (did you mean "/ground_truth/depth"?); *'
+            ]
+        )
+        result.stdout.no_fnmatch_line("*Traceback*")
+        assert golden.read_text() == before  # fixed by hand, never replaced
+
+
+COLLIDE = """
+import pytest
+
+from test_tiny import write_log
+
+
+@pytest.mark.parametrize("scale", [1.0, 2.0], ids={ids})
+def test_scale(tmp_path, log_golden, scale):
+    log_golden.check(write_log(tmp_path / "a.mcap"){basename})
+"""
+
+
+def test_ids_that_differ_only_in_punctuation_need_their_own_golden_files(
+    pytester: pytest.Pytester,
+) -> None:
+    _write(pytester, scale=1.0)
+    pytester.makepyfile(test_collide=COLLIDE.format(ids='["a/b", "a.b"]', basename=""))
+    runs = [([], 0), (["--update-golden"], 1), ([], 1), (["--force-regen"], 1)]
+    for flags, passed in runs:  # the first run writes test_scale[a/b]'s file
+        result = _run(pytester, "test_collide.py", *flags)
+        result.assert_outcomes(passed=passed, failed=2 - passed)
+        result.stdout.fnmatch_lines(
+            [
+                "log_golden.check('a.mcap'): the golden file test_scale_a_b_.golden.json is "
+                "already that of test_collide.py::test_scale[[]a/b[]] in this run; the test "
+                "names test_scale[[]a/b[]] and test_scale[[]a.b[]] differ only in characters the "
+                "file name replaces with '_'; give the parameters ids that differ in letters or "
+                "digits (pytest.param(..., id='...')) or pass basename='...', so that each test "
+                "has its own golden file"
+            ]
+        )
+        result.stdout.no_fnmatch_line("*Traceback*")
+    assert [p.name for p in (pytester.path / "test_collide").iterdir()] == [
+        "test_scale_a_b_.golden.json"
+    ]
+    # an explicit name shared by two tests is refused the same way
+    shared = COLLIDE.format(ids='["one", "two"]', basename=', basename="shared"')
+    pytester.makepyfile(test_collide=shared)
+    result = _run(pytester, "test_collide.py", "--update-golden")
+    result.assert_outcomes(passed=1, failed=1)
+    result.stdout.fnmatch_lines(
+        [
+            "*shared.golden.json is already that of test_collide.py::test_scale[[]one[]] in this "
+            "run; pass another basename='...' or fullpath=..., so that each test has its own*"
+        ]
+    )
+    pytester.makepyfile(test_collide=COLLIDE.format(ids='["ab", "a_b"]', basename=""))
+    _run(pytester, "test_collide.py", "--update-golden").assert_outcomes(passed=2)
+    _run(pytester, "test_collide.py").assert_outcomes(passed=2)
