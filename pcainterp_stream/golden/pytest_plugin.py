@@ -70,7 +70,7 @@ class LogGolden:
         *,
         basename: str | None = None,
         fullpath: str | Path | None = None,
-        topics: Iterable[str] | None = None,
+        topics: Iterable[str] | str | None = None,
         arrays: bool = False,
         tolerance: Mapping[str, Any] | None = None,
     ) -> None:
@@ -118,7 +118,7 @@ class LogGolden:
         *,
         basename: str | None,
         fullpath: str | Path | None,
-        topics: Iterable[str] | None,
+        topics: Iterable[str] | str | None,
         arrays: bool,
         tolerance: Mapping[str, Any] | None,
     ) -> None:
@@ -131,10 +131,11 @@ class LogGolden:
             compare_documents,
             load_golden,
             save_golden,
+            topic_selection,
         )
 
         log = Path(log)
-        selected = None if topics is None else list(topics)
+        selected = topic_selection(topics)
 
         def dump(path: Path) -> None:
             kept = tolerance

@@ -458,11 +458,37 @@ def _recorded_arrays(golden: Path) -> Path | None:
     return golden.parent / name
 
 
+def topic_selection(topics: Iterable[str] | str | None) -> list[str] | None:
+    """Return the channels ``topics`` selects: None for all, a single name as a list of one.
+
+    Raises:
+        GoldenError: ``topics`` selects no channel, or holds something that is not a name.
+
+    Examples:
+        >>> topic_selection("/pcainterp/depth")
+        ['/pcainterp/depth']
+        >>> topic_selection(None) is None
+        True
+    """
+    if topics is None:
+        return None
+    selected = [topics] if isinstance(topics, str) else list(topics)
+    if not selected:
+        raise GoldenError(
+            "topics=[] selects no channel, so the golden file would guard nothing; give "
+            "topic names, or None for every channel"
+        )
+    odd = [t for t in selected if not isinstance(t, str) or not t]
+    if odd:
+        raise GoldenError(f"topics must be topic names (str), got {odd[0]!r}")
+    return selected
+
+
 def save_golden(
     log: str | Path,
     golden: str | Path,
     *,
-    topics: Iterable[str] | None = None,
+    topics: Iterable[str] | str | None = None,
     arrays: bool = False,
     tolerance: Mapping[str, Any] | None = None,
     progress: Progress | None = None,
@@ -472,7 +498,7 @@ def save_golden(
     Args:
         log: an MCAP file, a ROS 1 ``.bag``, or a rosbag2 folder or storage file.
         golden: the JSON file to write (its folder is created).
-        topics: record only these channels (all when None).
+        topics: record only these channels (all when None; one name may be given as a str).
         arrays: also store every array in a compressed ``.npz`` beside the JSON, for an
             element-wise check (see :func:`arrays_path`).
         tolerance: the tolerances to write (default :data:`~.comparison.DEFAULT_TOLERANCE`);
@@ -498,7 +524,7 @@ def save_golden(
         True
     """
     log, golden = Path(log), Path(golden)
-    selected = None if topics is None else list(topics)
+    selected = topic_selection(topics)
     _check_writable(golden, arrays_path(golden) if arrays else None, log)  # before the work
     given = {} if tolerance is None else tolerance
     checked_tolerance(given, golden)  # before the work
@@ -618,7 +644,7 @@ def check_log(
     log: str | Path,
     golden: str | Path,
     *,
-    topics: Iterable[str] | None = None,
+    topics: Iterable[str] | str | None = None,
     update: bool = False,
     progress: Progress | None = None,
 ) -> CheckResult:
@@ -627,7 +653,8 @@ def check_log(
     Args:
         log: an MCAP file, a ROS 1 ``.bag``, or a rosbag2 folder or storage file.
         golden: a file :func:`save_golden` wrote.
-        topics: check only these channels (default: those the golden file records).
+        topics: check only these channels (default: those the golden file records; one
+            name may be given as a str).
         update: rewrite the golden file from this log when they differ (same channel
             selection, tolerances and arrays option; the arrays go to :func:`arrays_path`,
             an older file's arrays of ours under another name are removed); the
@@ -650,7 +677,7 @@ def check_log(
     log, golden = Path(log), Path(golden)
     document = load_golden(golden)
     recorded = document.get("topics")
-    selected = list(topics) if topics is not None else recorded
+    selected = topic_selection(topics) if topics is not None else recorded
     if topics is not None:
         unknown = [t for t in selected or [] if t not in document["channels"]]
         if unknown:

@@ -323,3 +323,21 @@ def test_a_hand_edited_tolerance_is_checked_on_load(
         assert err.count("\n") == 0
         assert f"{golden}: tolerance" in err
         assert "of the golden file" in err or "not a" in err
+
+
+def test_an_empty_topic_selection_is_refused(log: Path, tmp_path: Path) -> None:
+    golden = tmp_path / "g.golden.json"
+    with pytest.raises(GoldenError, match=r"topics=\[\] selects no channel"):
+        save_golden(log, golden, topics=[])
+    assert not golden.exists()
+    save_golden(log, golden)
+    with pytest.raises(GoldenError, match=r"topics=\[\] selects no channel"):
+        check_log(log, golden, topics=[])
+
+
+def test_one_topic_may_be_given_as_a_string(log: Path, tmp_path: Path) -> None:
+    golden = tmp_path / "g.golden.json"
+    topic = "/ground_truth/depth"
+    save_golden(log, golden, topics=topic)
+    assert json.loads(golden.read_text())["topics"] == [topic]
+    assert check_log(log, golden, topics=topic).passed
