@@ -234,14 +234,15 @@ def densify(
 
     Raises:
         ValueError: an argument has the wrong shape or value.
-        TypeError: ``disparities`` are 16-bit integers, boolean or complex.
+        TypeError: ``disparities`` or ``edge_map`` are 16-bit integers, boolean or complex.
     """
     partition = None
-    if edge_map is not None and local_prior is not None and local_prior.edge_aware:
+    edge_values = None if edge_map is None else disparity_array(edge_map, "edge_map", np.float32)
+    if edge_values is not None and local_prior is not None and local_prior.edge_aware:
         resolved = basis if basis is not None else Basis.default()
         size = _image_size(resolved, image_size)
         seeds, _, _ = clean_measurements(pixels, disparities, size, zero_is_match=zero_is_match)
-        partition = Partition.along(edge_map, seeds, size, resolved.grid_size)
+        partition = Partition.along(edge_values, seeds, size, resolved.grid_size)
     return densify_batch(
         basis,
         [pixels],

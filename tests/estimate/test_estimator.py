@@ -612,6 +612,8 @@ def test_fixed_point_disparities_are_refused(dtype: type) -> None:
         densify_batch(basis, [pixels], [np.array([160, 320, 16, 200], dtype=dtype)])
     with pytest.raises(TypeError, match="got bool"):
         densify(basis, pixels, np.ones(4, bool))
+    with pytest.raises(TypeError, match="`edge_map`"):
+        densify(basis, pixels, np.full(4, 10.0), edge_map=np.full((14, 18), 160, dtype))
 
 
 def test_dtypes_and_views_give_the_same_estimate() -> None:
