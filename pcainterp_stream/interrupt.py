@@ -115,7 +115,6 @@ STALL_DUMP_VARIABLE = "PCAINTERP_STALL_DUMP"
 command first writes the Python stack of every thread there (``faulthandler``), into
 ``stall-PID.txt``. For finding out where a command hung; unset, nothing is written."""
 
-
 class InterruptedAfterOutput(KeyboardInterrupt):
     """A signal after the command's output was complete and in place: the output is kept.
 
