@@ -90,7 +90,7 @@ def score_clip(
             **settings.densify_options(),
             **field_options(basis),
         )
-        fused = fuse_dense(estimate, masked, holes=find_holes(masked, weak))
+        fused = fuse_dense(estimate, masked, holes=find_holes(masked, weak, zero_is_match=True))
         assert fused.disparity_std is not None
         truth = full[hidden]
         sums["hidden px"] += hidden.sum()

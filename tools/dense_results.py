@@ -91,7 +91,9 @@ def calibration(
                 **options,
                 **field_options(basis),
             )
-            fused = fuse_dense(estimate, matched, holes=find_holes(matched, weak))
+            fused = fuse_dense(
+                estimate, matched, holes=find_holes(matched, weak, zero_is_match=True)
+            )
             filled = fill_nearest(plain)
             assert fused.disparity_std is not None
             assert filled is not None

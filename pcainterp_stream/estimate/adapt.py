@@ -182,7 +182,8 @@ def interpolation_at(
     The same rules as :mod:`~pcainterp_stream.estimate.baselines` (linear on the Delaunay
     triangulation, nearest outside its hull), evaluated only where needed.
     """
-    points, values, _ = clean_measurements(pixels, disparities, image_size)
+    # the front end's measurements: SGBM's 0 is a match (estimator.densify, zero_is_match)
+    points, values, _ = clean_measurements(pixels, disparities, image_size, zero_is_match=True)
     width = image_size[1]
     at = np.stack([flat % width, flat // width], axis=1).astype(np.float64)
     if values.size == 0:
@@ -479,6 +480,7 @@ def refit_prior(
                 local_prior=local_fit.local,
                 robust=robust,
                 uncertainty="exact-coarse",
+                zero_is_match=True,
             )
             if result.disparity_std is None:
                 continue
@@ -673,6 +675,7 @@ def leave_one_out(
             local_prior=local,
             robust=robust,
             uncertainty="exact-coarse" if calibrate else "none",
+            zero_is_match=True,
         )
         checks.append(
             check_frame(result.disparity, frame.reference, frame.pixels, frame.disparities)

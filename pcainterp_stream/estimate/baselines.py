@@ -27,7 +27,7 @@ class BaselineResult:
         disparity: (H, W) float32 (px); NaN everywhere when there was no measurement.
         pixels: (k, 2) float64, the measurements used, (x, y) in image px.
         disparities: (k,) float64, their disparities (px).
-        n_dropped: measurements dropped (non-finite or outside the image).
+        n_dropped: measurements dropped (non-finite, <= 0 or outside the image).
     """
 
     disparity: npt.NDArray[np.float32]
@@ -37,38 +37,54 @@ class BaselineResult:
 
 
 def nearest(
-    pixels: npt.ArrayLike, disparities: npt.ArrayLike, *, image_size: tuple[int, int]
+    pixels: npt.ArrayLike,
+    disparities: npt.ArrayLike,
+    *,
+    image_size: tuple[int, int],
+    zero_is_match: bool = False,
 ) -> BaselineResult:
     """Nearest-measurement interpolation.
 
     Args:
         pixels: (k, 2) float, (x, y) in image px.
-        disparities: (k,) float (px).
+        disparities: (k,) float (px); <= 0 is no measurement and is dropped, as in
+            :func:`~.estimator.densify`.
         image_size: (height, width) of the output.
+        zero_is_match: keep disparities of exactly 0 (see :func:`~.estimator.densify`).
 
     Returns:
         The :class:`BaselineResult`; each pixel takes the disparity of the measurement
         whose (rounded) pixel is nearest.
     """
-    points, values, n_dropped = clean_measurements(pixels, disparities, image_size)
+    points, values, n_dropped = clean_measurements(
+        pixels, disparities, image_size, zero_is_match=zero_is_match
+    )
     return BaselineResult(_nearest_map(points, values, image_size), points, values, n_dropped)
 
 
 def linear(
-    pixels: npt.ArrayLike, disparities: npt.ArrayLike, *, image_size: tuple[int, int]
+    pixels: npt.ArrayLike,
+    disparities: npt.ArrayLike,
+    *,
+    image_size: tuple[int, int],
+    zero_is_match: bool = False,
 ) -> BaselineResult:
     """Piecewise-linear interpolation on the Delaunay triangulation of the measurements.
 
     Args:
         pixels: (k, 2) float, (x, y) in image px.
-        disparities: (k,) float (px).
+        disparities: (k,) float (px); <= 0 is no measurement and is dropped, as in
+            :func:`~.estimator.densify`.
         image_size: (height, width) of the output.
+        zero_is_match: keep disparities of exactly 0 (see :func:`~.estimator.densify`).
 
     Returns:
         The :class:`BaselineResult`; outside the convex hull (or with fewer than three
         non-collinear measurements) the nearest measurement's value.
     """
-    points, values, n_dropped = clean_measurements(pixels, disparities, image_size)
+    points, values, n_dropped = clean_measurements(
+        pixels, disparities, image_size, zero_is_match=zero_is_match
+    )
     dense = _nearest_map(points, values, image_size)
     if points.shape[0] >= 3:
         try:

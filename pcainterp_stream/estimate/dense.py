@@ -57,7 +57,11 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.estimate.basis import Basis
-from pcainterp_stream.estimate.estimator import DensifyResult, depth_from_disparity
+from pcainterp_stream.estimate.estimator import (
+    DensifyResult,
+    depth_from_disparity,
+    disparity_array,
+)
 from pcainterp_stream.estimate.prior import ROBUST_SCALES, Robust, robust_weights
 from pcainterp_stream.estimate.variance import _variance_stride
 
@@ -147,8 +151,8 @@ class MapHoles:
 
     Attributes:
         shape: (H, W) of the map.
-        index: (n,) flat (row-major) indices of the hole pixels (NaN, infinite or
-            negative values), ascending.
+        index: (n,) flat (row-major) indices of the hole pixels (NaN, infinite, negative
+            or, unless found with ``zero_is_match``, 0 values), ascending.
         neighbours: four (value, distance) pairs of (n,) float32 arrays, left, right, up,
             down: the nearest valid pixel in that direction along the hole's row or
             column; distance ``inf`` (value 0) where there is none.
@@ -162,20 +166,29 @@ class MapHoles:
     weak: npt.NDArray[np.intp] = dataclasses.field(default_factory=lambda: np.zeros(0, np.intp))
 
 
-def find_holes(disparity_map: npt.ArrayLike, weak: npt.NDArray[np.bool_] | None = None) -> MapHoles:
+def find_holes(
+    disparity_map: npt.ArrayLike,
+    weak: npt.NDArray[np.bool_] | None = None,
+    *,
+    zero_is_match: bool = False,
+) -> MapHoles:
     """Find a disparity map's holes and their directional neighbours (:class:`MapHoles`).
 
     Args:
-        disparity_map: (H, W) float disparity (px), NaN (or negative) where there is none.
+        disparity_map: (H, W) float disparity (px), NaN, 0 or negative where there is none
+            (16-bit integers raise, see :func:`fuse_dense`).
         weak: (H, W) bool, the matcher's weak pixels (``Measurements.weak``), or None.
+        zero_is_match: a value of exactly 0 is a match at zero disparity (SGBM with
+            ``minDisparity`` 0, as ``pcainterp densify``'s front end), not a hole.
 
     Returns:
         The holes, for :func:`fuse_dense`'s ``holes``.
 
     Raises:
         ValueError: the map is not 2-D, or ``weak`` is not of its shape.
+        TypeError: the map is of 16-bit integers, boolean or complex.
     """
-    values = np.ascontiguousarray(disparity_map, dtype=np.float32)
+    values = np.ascontiguousarray(disparity_array(disparity_map, "disparity_map", np.float32))
     if values.ndim != 2:
         raise ValueError(f"Expected an (H, W) disparity map, got shape {values.shape}")
     if weak is not None and weak.shape != values.shape:
@@ -183,7 +196,8 @@ def find_holes(disparity_map: npt.ArrayLike, weak: npt.NDArray[np.bool_] | None 
             f"Expected weak pixels of the map's shape {values.shape}, got {weak.shape}"
         )
     with np.errstate(invalid="ignore"):
-        hole = ~(np.isfinite(values) & (values >= 0))
+        matched = values >= 0 if zero_is_match else values > 0
+        hole = ~(np.isfinite(values) & matched)
     index, neighbours = _hole_neighbours(values, hole)
     height, width = values.shape
     holes = MapHoles((height, width), index, tuple(neighbours))
@@ -197,16 +211,22 @@ def fuse_dense(
     disparity_map: npt.ArrayLike,
     model: DenseModel | None = None,
     holes: MapHoles | None = None,
+    *,
+    zero_is_match: bool = False,
 ) -> DensifyResult:
     """Fuse a frame's sparse estimate with its whole SGBM disparity map, pixel by pixel.
 
     Args:
         estimate: the frame's sparse MAP estimate (:func:`estimator.densify`), the field.
-        disparity_map: (H, W) float SGBM disparity (px) of the same camera and size, NaN
-            (or negative) where the matcher found none.
+        disparity_map: (H, W) float SGBM disparity (px) of the same camera and size, NaN,
+            0 or negative where the matcher found none (a hole: KITTI's PNGs code it 0,
+            ``StereoSGBM.compute() / 16`` -1). 16-bit integers (the matchers' fixed point,
+            16 or 256 x px) raise: divide them first.
         model: the noise model; None: the measured defaults.
         holes: :func:`find_holes` of ``disparity_map``, when already found (``densify``
             finds them in its stereo workers); None: found here. The result is the same.
+        zero_is_match: with ``holes`` None, a value of exactly 0 is a match at zero
+            disparity, not a hole (:func:`find_holes`).
 
     Returns:
         A :class:`DensifyResult` like ``estimate`` (same coefficients, points and weights)
@@ -214,15 +234,16 @@ def fuse_dense(
 
     Raises:
         ValueError: the map's (or the holes') shape differs from the estimate's.
+        TypeError: the map is of 16-bit integers, boolean or complex.
     """
     model = model or DenseModel()
-    values = np.asarray(disparity_map, dtype=np.float32)
+    values = disparity_array(disparity_map, "disparity_map", np.float32)
     field = np.asarray(estimate.disparity, dtype=np.float32)
     if values.shape != field.shape:
         raise ValueError(
             f"Expected a disparity map of the estimate's shape {field.shape}, got {values.shape}"
         )
-    holes = find_holes(values) if holes is None else holes
+    holes = find_holes(values, zero_is_match=zero_is_match) if holes is None else holes
     if holes.shape != field.shape:
         raise ValueError(f"Expected the holes of a {field.shape} map, got {holes.shape}")
     detail = np.float32(model.detail_std**2)

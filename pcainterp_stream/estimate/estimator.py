@@ -33,6 +33,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -79,6 +80,7 @@ __all__ = [
     "densify",
     "densify_batch",
     "depth_from_disparity",
+    "disparity_array",
     "posterior_covariance",
 ]
 
@@ -100,7 +102,7 @@ class DensifyResult:
         coefficient_variance: (l,) float64, kappa_i^2 = [Sigma_y]_ii.
         pixels: (k, 2) float64, the measurements used, (x, y) in output image px.
         disparities: (k,) float64, the measured disparities used (px, output camera).
-        n_dropped: number of measurements dropped (non-finite or outside the image).
+        n_dropped: number of measurements dropped (non-finite, <= 0 or outside the image).
         solve_form: the system that was solved.
         uncertainty: the uncertainty mode.
         focal_baseline: f*b (px*m) used for depth; 0 when unknown.
@@ -174,13 +176,17 @@ def densify(
     noise_std: npt.ArrayLike | None = None,
     edge_map: npt.ArrayLike | None = None,
     match_range: float | None = None,
+    zero_is_match: bool = False,
 ) -> DensifyResult:
     """Densify one frame's sparse disparities with the MAP estimate.
 
     Args:
         basis: the PCA basis; None: the built-in one (:meth:`Basis.default`).
         pixels: (k, 2) float, (x, y) positions in px of the output image (``image_size``).
-        disparities: (k,) float, measured disparities (px) of the output camera.
+        disparities: (k,) float, measured disparities (px) of the output camera; a value
+            <= 0 is no measurement (the invalid code of disparity images: 0 in KITTI's
+            PNGs, -1 in OpenCV's ``StereoSGBM.compute() / 16``) and is dropped. 16-bit
+            integers (the matchers' fixed point, 16 or 256 x px) raise: divide them first.
         sigma: measurement noise std (px), > 0, or ``"evidence"``: fitted per frame by
             maximising the marginal likelihood (:func:`prior.evidence_sigma`).
         uncertainty: ``"exact-coarse"`` (exact on the variance grid, resampled; the
@@ -216,20 +222,27 @@ def densify(
         match_range: the largest disparity (px of the output camera) the measurements'
             matcher returns (SGBM's range): the std is widened where the estimate nears it
             (:func:`variance.widen_near_range`); None: the std as the model gives it.
+        zero_is_match: keep a disparity of exactly 0 as a measurement (a match at zero
+            disparity, infinitely far: what SGBM with ``minDisparity`` 0 returns, as
+            ``pcainterp densify``'s own front end does); False drops it with the negative
+            ones. Negative disparities are always dropped.
 
     Returns:
         The :class:`DensifyResult`. Zero usable measurements give the prior (mean map,
-        prior std); non-finite or out-of-image measurements are dropped and counted.
+        prior std); non-finite, <= 0 (see ``zero_is_match``) or out-of-image measurements
+        are dropped and counted in ``n_dropped``.
 
     Raises:
         ValueError: an argument has the wrong shape or value.
+        TypeError: ``disparities`` or ``edge_map`` are 16-bit integers, boolean or complex.
     """
     partition = None
-    if edge_map is not None and local_prior is not None and local_prior.edge_aware:
+    edge_values = None if edge_map is None else disparity_array(edge_map, "edge_map", np.float32)
+    if edge_values is not None and local_prior is not None and local_prior.edge_aware:
         resolved = basis if basis is not None else Basis.default()
         size = _image_size(resolved, image_size)
-        seeds, _, _ = clean_measurements(pixels, disparities, size)
-        partition = Partition.along(edge_map, seeds, size, resolved.grid_size)
+        seeds, _, _ = clean_measurements(pixels, disparities, size, zero_is_match=zero_is_match)
+        partition = Partition.along(edge_values, seeds, size, resolved.grid_size)
     return densify_batch(
         basis,
         [pixels],
@@ -249,6 +262,7 @@ def densify(
         noise_stds=None if noise_std is None else [noise_std],
         partitions=None if partition is None else [partition],
         match_range=match_range,
+        zero_is_match=zero_is_match,
     )[0]
 
 
@@ -275,6 +289,7 @@ def densify_batch(
     with_depth_std: bool = True,
     partitions: Sequence[Partition | Seeding | None] | None = None,
     match_range: float | None = None,
+    zero_is_match: bool = False,
 ) -> list[DensifyResult]:
     """Densify several frames at once with matrix-matrix products across frames.
 
@@ -285,7 +300,8 @@ def densify_batch(
     Args:
         basis: the PCA basis; None: the built-in one (:meth:`Basis.default`).
         pixels_list: F arrays (k_f, 2) float, (x, y) in output image px.
-        disparities_list: F arrays (k_f,) float, disparities (px).
+        disparities_list: F arrays (k_f,) float, disparities (px); <= 0 is no measurement
+            and is dropped (see :func:`densify`).
         sigma: measurement noise std (px), > 0.
         uncertainty: ``"exact-coarse"`` (default), ``"exact"``, ``"paper"`` or ``"none"``.
         solve_form: ``"auto"``, ``"coefficient"`` or ``"measurement"``.
@@ -316,12 +332,14 @@ def densify_batch(
             falls on), or their :class:`cells.Seeding` (searched here, the batch's at once);
             None: the stationary kernel.
         match_range: the matcher's largest disparity (px), see :func:`densify`; None: off.
+        zero_is_match: keep disparities of exactly 0 as measurements, see :func:`densify`.
 
     Returns:
         One :class:`DensifyResult` per frame, in order.
 
     Raises:
         ValueError: an argument has the wrong shape or value.
+        TypeError: disparities of 16-bit integers, boolean or complex (see :func:`densify`).
         BasisError: ``basis`` is None and the built-in basis is missing.
     """
     if basis is None:
@@ -364,7 +382,7 @@ def densify_batch(
     frames = []
     extra_variances: list[npt.NDArray[np.float64] | None] = []
     for index, (pixels, disparities) in enumerate(zip(pixels_list, disparities_list, strict=True)):
-        kept_pixels, kept_disparities, keep = _clean(pixels, disparities, out_size)
+        kept_pixels, kept_disparities, keep = _clean(pixels, disparities, out_size, zero_is_match)
         frames.append((kept_pixels, kept_disparities, int(keep.size - np.count_nonzero(keep))))
         noise = None if noise_stds is None else noise_stds[index]
         extra_variances.append(None if noise is None else (_noise_std(noise, keep) * to_basis) ** 2)
@@ -596,51 +614,103 @@ def _depth(
 
 
 def clean_measurements(
-    pixels: npt.ArrayLike, disparities: npt.ArrayLike, image_size: tuple[int, int]
+    pixels: npt.ArrayLike,
+    disparities: npt.ArrayLike,
+    image_size: tuple[int, int],
+    *,
+    zero_is_match: bool = False,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], int]:
-    """Validate shapes, drop non-finite and out-of-image measurements, count the drops.
+    """Validate shapes, drop unusable measurements, count the drops.
+
+    A measurement is dropped when its disparity is non-finite or <= 0 (0 kept with
+    ``zero_is_match``) or its pixel is outside the image.
 
     Args:
         pixels: (k, 2) float, (x, y) in image px.
-        disparities: (k,) float (px).
+        disparities: (k,) float (px); see :func:`disparity_array` for the dtypes.
         image_size: (height, width); pixel centres span [-0.5, size - 0.5].
+        zero_is_match: keep a disparity of exactly 0 (a match at zero disparity, as SGBM
+            with ``minDisparity`` 0 returns: the front end's measurements) instead of
+            taking it for the invalid code of a disparity image.
 
     Returns:
         The kept pixels (m, 2) float64, their disparities (m,) float64, and k - m.
 
     Raises:
         ValueError: ``pixels`` is not (k, 2) or ``disparities`` not (k,).
+        TypeError: ``disparities`` of a dtype :func:`disparity_array` refuses.
     """
-    kept_pixels, kept_disparities, keep = _clean(pixels, disparities, image_size)
+    kept_pixels, kept_disparities, keep = _clean(pixels, disparities, image_size, zero_is_match)
     return kept_pixels, kept_disparities, int(keep.size - np.count_nonzero(keep))
 
 
+def disparity_array(
+    values: npt.ArrayLike, name: str, dtype: type[np.floating[Any]] = np.float64
+) -> npt.NDArray[Any]:
+    """Return disparities (px) as a float array, refusing the matchers' fixed point.
+
+    A 16-bit integer array is a disparity image in fixed point (OpenCV's ``StereoSGBM`` and
+    ``StereoBM`` ``compute()`` give int16 16 x px, invalid < 0; a KITTI disparity PNG is
+    uint16 256 x px, invalid 0), which taken as px would be 16 or 256 times too large.
+    Other integers (e.g. a list of whole px) are px.
+
+    Args:
+        values: the disparities, any shape.
+        name: the argument's name, for the error.
+        dtype: the float dtype returned.
+
+    Returns:
+        ``values`` as ``dtype`` (no copy when they are already).
+
+    Raises:
+        TypeError: 16-bit integer, boolean or complex values.
+    """
+    array = np.asarray(values)
+    if array.dtype in (np.int16, np.uint16):
+        raise TypeError(
+            f"Expected `{name}` as float disparities in px, got {array.dtype}: a 16-bit "
+            f"disparity image is fixed point (OpenCV's StereoSGBM/StereoBM compute(): int16 "
+            f"16 x px, invalid < 0; a KITTI disparity PNG: uint16 256 x px, invalid 0); "
+            f"pass e.g. `disparity.astype(np.float32) / 16` (or / 256)"
+        )
+    if array.dtype.kind in "bc":
+        raise TypeError(f"Expected `{name}` as float disparities in px, got {array.dtype}")
+    return np.asarray(array, dtype=dtype)
+
+
 def _clean(
-    pixels: npt.ArrayLike, disparities: npt.ArrayLike, image_size: tuple[int, int]
+    pixels: npt.ArrayLike,
+    disparities: npt.ArrayLike,
+    image_size: tuple[int, int],
+    zero_is_match: bool,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
     """:func:`clean_measurements`, returning the (k,) mask of what it kept instead of a count."""
     pixel_array = np.asarray(pixels, dtype=np.float64)
-    disparity_array = np.asarray(disparities, dtype=np.float64)
+    disparity_values = disparity_array(disparities, "disparities")
     if pixel_array.size == 0 and pixel_array.ndim < 2:
         pixel_array = pixel_array.reshape(0, 2)
     if pixel_array.ndim != 2 or pixel_array.shape[1] != 2:
         raise ValueError(f"Expected `pixels` of shape (k, 2) as (x, y), got {pixel_array.shape}")
-    if disparity_array.shape != (pixel_array.shape[0],):
+    if disparity_values.shape != (pixel_array.shape[0],):
         raise ValueError(
             f"Expected `disparities` of shape ({pixel_array.shape[0]},) to match `pixels`, "
-            f"got {disparity_array.shape}"
+            f"got {disparity_values.shape}"
         )
     height, width = image_size
     x, y = pixel_array[:, 0], pixel_array[:, 1]
     with np.errstate(invalid="ignore"):
+        # a disparity <= 0 is no stereo match (0: infinitely far; < 0: behind the camera),
+        # the invalid code of disparity images; SGBM's own 0 is a match at its range's end
+        usable = disparity_values >= 0 if zero_is_match else disparity_values > 0
         keep: npt.NDArray[np.bool_] = (
-            np.isfinite(disparity_array)
+            np.isfinite(disparity_values)
+            & usable
             & (x >= -0.5)
             & (x <= width - 0.5)
             & (y >= -0.5)
             & (y <= height - 0.5)
         )
-    return pixel_array[keep], disparity_array[keep], keep
+    return pixel_array[keep], disparity_values[keep], keep
 
 
 def _noise_std(noise_std: npt.ArrayLike, keep: npt.NDArray[np.bool_]) -> npt.NDArray[np.float64]:

@@ -36,6 +36,7 @@ import numpy.typing as npt
 
 from pcainterp_stream.errors import BasisError
 from pcainterp_stream.estimate.basis import BUILTIN_KINDS, Basis, builtin_basis
+from pcainterp_stream.estimate.estimator import disparity_array
 from pcainterp_stream.estimate.learning import (
     DEFAULT_BOX_SIZE,
     PcaFit,
@@ -215,9 +216,10 @@ def finetune_basis(
     Args:
         basis: the basis to start from (e.g. :meth:`Basis.default`).
         maps: iterable of (H, W) float disparity maps (px) of one camera (any size: they
-            are resampled onto the basis grid; NaN or < ``min_disparity`` invalid),
-            consumed once. With ``preprocessed=True``, (gh, gw) float32 maps already on the
-            basis grid and in the basis's disparity units.
+            are resampled onto the basis grid; NaN or < ``min_disparity`` invalid, so 0 is
+            valid by default: see :func:`~.learning.preprocess_disparity`), consumed once.
+            With ``preprocessed=True``, (gh, gw) float32 maps already on the basis grid
+            and in the basis's disparity units.
         n_prior: n_s, how many maps the basis counts for, >= 2 (its ``n_train`` gives it
             the weight of its own training set).
         n_components: l of the result, at most; None: the basis's.
@@ -237,6 +239,7 @@ def finetune_basis(
 
     Raises:
         ValueError: no maps, a map of the wrong shape or bad options.
+        TypeError: a map of 16-bit integers (fixed point), boolean or complex.
     """
     l_out = basis.n_components if n_components is None else n_components
     if l_out < 1:
@@ -252,7 +255,7 @@ def finetune_basis(
 
     def grid_maps() -> Iterator[npt.NDArray[np.float32]]:
         for index, raw in enumerate(maps):
-            array = np.asarray(raw, dtype=np.float32)
+            array = disparity_array(raw, f"maps[{index}]", np.float32)
             if array.ndim != 2 or (preprocessed and array.shape != grid_size):
                 expected = grid_size if preprocessed else "(H, W)"
                 raise ValueError(f"map {index} has shape {array.shape}, expected {expected}")

@@ -77,7 +77,10 @@ def fit_frame(
     size = basis.image_size if image_size is None else image_size
     fb = basis.focal_baseline if focal_baseline is None else focal_baseline
     to_basis = basis.focal_baseline / fb if basis.focal_baseline > 0 and fb > 0 else 1.0
-    kept_pixels, kept_disparities, _ = clean_measurements(pixels, disparities, size)
+    # the front end's measurements: SGBM's 0 is a match (estimator.densify, zero_is_match)
+    kept_pixels, kept_disparities, _ = clean_measurements(
+        pixels, disparities, size, zero_is_match=True
+    )
     if max_points is not None:
         kept_pixels, kept_disparities = kept_pixels[:max_points], kept_disparities[:max_points]
     indices, weights = bilinear_weights(
@@ -523,6 +526,7 @@ def fit_prior(
             robust=robust,
             image_size=frame.image_size,
             focal_baseline=frame.focal_baseline,
+            zero_is_match=True,
         )
         assert result.disparity_std is not None
         estimates.append(result.disparity)

@@ -30,6 +30,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.estimate.basis import Basis, grid_size_for
+from pcainterp_stream.estimate.estimator import disparity_array
 
 DEFAULT_BOX_SIZE = 5
 """Side (px) of the box filter applied after filling invalid pixels (paper: 5x5)."""
@@ -64,9 +65,13 @@ def preprocess_disparity(
     3. area resampling to the basis grid (``cv2.INTER_AREA``).
 
     Args:
-        disparity: (H, W) float, disparity (px); NaN or < min_disparity is invalid.
+        disparity: (H, W) float, disparity (px); NaN or < min_disparity is invalid. 16-bit
+            integers (the matchers' fixed point, 16 or 256 x px) raise: divide them first.
         grid_size: (gh, gw) of the basis grid.
-        min_disparity: smallest valid disparity (px).
+        min_disparity: smallest valid disparity (px). The default 0 takes a 0 for a match
+            at zero disparity (SGBM with ``minDisparity`` 0: ``learn``'s maps); a map whose
+            holes are coded 0 (KITTI's disparity PNGs) needs them set to NaN first, or a
+            ``min_disparity`` > 0 (e.g. 1/256 px, KITTI's resolution).
         box_size: side of the box filter (px); 1 disables it.
 
     Returns:
@@ -74,8 +79,9 @@ def preprocess_disparity(
 
     Raises:
         ValueError: the map is not 2-D or has no valid pixel.
+        TypeError: the map is of 16-bit integers, boolean or complex.
     """
-    values = np.asarray(disparity, dtype=np.float32)
+    values = disparity_array(disparity, "disparity", np.float32)
     if values.ndim != 2:
         raise ValueError(f"Expected `disparity` of shape (H, W), got {values.shape}")
     with np.errstate(invalid="ignore"):
@@ -128,8 +134,9 @@ def learn_basis(
 
     Args:
         maps: iterable of (H, W) float disparity maps (px; NaN or < min_disparity
-            invalid), consumed once and never all held in memory by the streaming path.
-            With ``preprocessed=True``, (gh, gw) float32 grid maps from
+            invalid: 0 is valid by default, see :func:`preprocess_disparity`), consumed
+            once and never all held in memory by the streaming path. With
+            ``preprocessed=True``, (gh, gw) float32 grid maps from
             :func:`preprocess_disparity` instead.
         n_components: l, the number of components to keep (the maximum when ``variance``
             is given).
@@ -154,6 +161,7 @@ def learn_basis(
 
     Raises:
         ValueError: fewer than two maps, inconsistent shapes or bad options.
+        TypeError: a map of 16-bit integers (fixed point), boolean or complex.
     """
     learn_method = LearnMethod(method)
     if n_components < 1:
@@ -162,7 +170,7 @@ def learn_basis(
         raise ValueError(f"Expected `variance` in (0, 1], got {variance}")
     iterator = iter(maps)
     try:
-        first = np.asarray(next(iterator), dtype=np.float32)
+        first = disparity_array(next(iterator), "maps[0]", np.float32)
     except StopIteration:
         raise ValueError("`maps` is empty; learning needs at least two disparity maps") from None
     if first.ndim != 2:
@@ -182,7 +190,7 @@ def learn_basis(
 
     def grid_maps() -> Iterator[npt.NDArray[np.float32]]:
         for index, raw in enumerate(itertools.chain([first], iterator)):
-            array = np.asarray(raw, dtype=np.float32)
+            array = disparity_array(raw, f"maps[{index}]", np.float32)
             expected = grid_size if preprocessed else size
             if array.shape != expected:
                 raise ValueError(f"map {index} has shape {array.shape}, expected {expected}")

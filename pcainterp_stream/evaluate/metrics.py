@@ -136,8 +136,13 @@ def _accumulate(
     image_size = (int(estimate.shape[0]), int(estimate.shape[1]))
     dense = {
         "pca_map": estimate,
-        "nearest": nearest(pixels, features["disparity"], image_size=image_size).disparity,
-        "linear": linear(pixels, features["disparity"], image_size=image_size).disparity,
+        # densify's measurements: SGBM's 0 is a match (densify's zero_is_match)
+        "nearest": nearest(
+            pixels, features["disparity"], image_size=image_size, zero_is_match=True
+        ).disparity,
+        "linear": linear(
+            pixels, features["disparity"], image_size=image_size, zero_is_match=True
+        ).disparity,
     }
     for method, values in dense.items():
         error = np.abs(np.asarray(values, dtype=np.float64)[valid] - truth[valid])

@@ -362,7 +362,8 @@ class _Evaluator:
         ``result.no_measurement``.
         """
         camera, size = frame.camera, frame.camera.image_size
-        usable, _, _ = clean_measurements(frame.pixels, frame.disparities, size)
+        # the log's measurements are densify's: SGBM's 0 is a match (densify's zero_is_match)
+        usable, _, _ = clean_measurements(frame.pixels, frame.disparities, size, zero_is_match=True)
         if usable.shape[0] < MIN_MEASUREMENTS:
             self.result.no_measurement.append(frame.index)
             return
@@ -385,11 +386,16 @@ class _Evaluator:
             )
         nn_stats = self._stats("nearest")
         linear_stats = self._stats("linear") if self.options.linear else MethodStats()
-        nn = _timed(nn_stats, lambda: nearest(frame.pixels, frame.disparities, image_size=size))
+        nn = _timed(
+            nn_stats,
+            lambda: nearest(frame.pixels, frame.disparities, image_size=size, zero_is_match=True),
+        )
         nn_stats.add(nn.disparity, view, camera, transform)
         if self.options.linear:
             pixels, values = frame.pixels, frame.disparities
-            lin = _timed(linear_stats, lambda: linear(pixels, values, image_size=size))
+            lin = _timed(
+                linear_stats, lambda: linear(pixels, values, image_size=size, zero_is_match=True)
+            )
             linear_stats.add(lin.disparity, view, camera, transform)
         if stereo is not None and sgbm_valid is not None:
             self._stereo_baselines(frame, stereo, sgbm_valid, view, transform)
@@ -473,6 +479,7 @@ class _Evaluator:
                     uncertainty=uncertainty,
                     focal_baseline=camera.focal_baseline,
                     image_size=box.camera.image_size,
+                    zero_is_match=True,
                 ),
             )
             estimate, std = box.pad(dense.disparity), box.pad(dense.disparity_std)
@@ -531,11 +538,12 @@ class _Evaluator:
                 uncertainty="none",
                 focal_baseline=camera.focal_baseline,
                 image_size=box.camera.image_size,
+                zero_is_match=True,
             )
             estimates = {
                 "pca_map": box.pad(dense.disparity),
-                "nearest": nearest(pixels, values, image_size=size).disparity,
-                "linear": linear(pixels, values, image_size=size).disparity,
+                "nearest": nearest(pixels, values, image_size=size, zero_is_match=True).disparity,
+                "linear": linear(pixels, values, image_size=size, zero_is_match=True).disparity,
             }
             for name, estimate in estimates.items():
                 methods.setdefault(name, MethodStats()).add(estimate, view, camera, transform)

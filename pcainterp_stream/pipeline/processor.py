@@ -279,9 +279,8 @@ class EstimateSettings:
     def densify_options(self) -> dict[str, Any]:
         """Return the keyword arguments of :func:`~estimator.densify` these settings fill.
 
-        ``sigma``, ``local_prior``, ``std_scale``, ``scale_by_innovation`` and
-        ``match_range``: the processor's estimate, for tools that call ``densify`` as
-        ``densify`` the command does.
+        ``sigma``, ``local_prior``, ``std_scale``, ``scale_by_innovation``, ``match_range``
+        and ``zero_is_match`` (SGBM's 0 is a match): for tools densifying as the command does.
         """
         return {
             "sigma": self.sigma,
@@ -289,6 +288,7 @@ class EstimateSettings:
             "std_scale": self.std_scale,
             "scale_by_innovation": self.scale_by_innovation,
             "match_range": self.match_range,
+            "zero_is_match": True,
         }
 
 
@@ -535,7 +535,7 @@ class FrameProcessor:
                 disparity_map = measurements.disparity_map
                 # the fusion's part that needs no estimate, here in parallel, not in the
                 # sequential densify thread
-                holes = find_holes(disparity_map, measurements.weak)
+                holes = find_holes(disparity_map, measurements.weak, zero_is_match=True)
             elif self.config.edge_aware:  # an edge-aware local prior's cells, beside SGBM
                 size, basis_grid = frame.camera.image_size, self.basis.grid_size
                 partition = Seeding.along(measurements.disparity_map, pixels, size, basis_grid)

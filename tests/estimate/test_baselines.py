@@ -57,3 +57,17 @@ def test_linear_matches_scipy_linear_nd_interpolator_inside_the_hull() -> None:
     inside = np.isfinite(reference)
     assert inside.mean() > 0.8
     np.testing.assert_allclose(dense[inside], reference[inside], atol=1e-4)
+
+
+def test_baselines_drop_disparities_at_or_below_zero() -> None:
+    pixels = np.array([[1.0, 1.0], [10.0, 5.0], [15.0, 8.0], [3.0, 8.0]])
+    values = np.array([4.0, 0.0, -1.0, 6.0])
+    for baseline in (nearest, linear):
+        result = baseline(pixels, values, image_size=(10, 20))
+        assert result.n_dropped == 2
+        assert set(np.unique(result.disparity)) <= {4.0, 6.0}
+        kept = baseline(pixels, values, image_size=(10, 20), zero_is_match=True)
+        assert kept.n_dropped == 1
+        assert 0.0 in kept.disparities
+    with pytest.raises(TypeError, match="int16"):
+        nearest(pixels, (values * 16).astype(np.int16), image_size=(10, 20))

@@ -253,3 +253,48 @@ def test_weak_pixels_of_another_shape_and_a_negative_weak_std_are_refused() -> N
         find_holes(sgbm, np.zeros((4, 4), bool))
     with pytest.raises(ValueError, match="weak_std"):
         DenseModel(weak_std=-1.0)
+
+
+def test_holes_coded_zero_fuse_as_nan_holes() -> None:
+    """A 0 is no match (KITTI's disparity PNGs code their holes 0), as NaN and -1 are."""
+    rng = np.random.default_rng(31)
+    field = rng.uniform(5, 40, (12, 16)).astype(np.float32)
+    noisy = (field + rng.normal(0, 0.5, field.shape)).astype(np.float32)
+    hole = rng.random(field.shape) < 0.2
+    hole[3:7, 4:12] = True
+    fused = {
+        code: fuse_dense(field_estimate(field), np.where(hole, np.float32(code), noisy))
+        for code in (np.nan, -1.0, 0.0)
+    }
+    for name in ("disparity", "disparity_std", "depth", "depth_std"):
+        np.testing.assert_array_equal(getattr(fused[0.0], name), getattr(fused[np.nan], name))
+        np.testing.assert_array_equal(getattr(fused[-1.0], name), getattr(fused[np.nan], name))
+    zeros = np.where(hole, np.float32(0.0), noisy)
+    np.testing.assert_array_equal(find_holes(zeros).index, np.flatnonzero(hole))
+    # SGBM's own 0 (minDisparity 0, densify's front end) is a match at zero disparity
+    assert find_holes(zeros, zero_is_match=True).index.size == 0
+    matched = fuse_dense(field_estimate(field), zeros, zero_is_match=True)
+    assert float(matched.disparity[hole].mean()) < float(fused[0.0].disparity[hole].mean()) - 5
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.uint16])
+def test_fixed_point_maps_are_refused(dtype: type) -> None:
+    """OpenCV's StereoSGBM.compute() gives int16 16 x px, KITTI's PNGs uint16 256 x px."""
+    field = np.full((4, 5), 19.0, np.float32)
+    fixed = np.full(field.shape, 19 * 16, dtype)
+    with pytest.raises(TypeError, match=r"`disparity_map` as float disparities in px.*16 x px"):
+        fuse_dense(field_estimate(field), fixed)
+    with pytest.raises(TypeError, match="astype"):
+        find_holes(fixed)
+
+
+def test_a_strided_float64_map_fuses_as_its_float32_copy() -> None:
+    rng = np.random.default_rng(32)
+    field = rng.uniform(5, 40, (12, 16)).astype(np.float32)
+    wide = np.repeat(field + rng.normal(0, 1, field.shape), 2, axis=1)  # float64
+    wide[2:5, 6:10] = np.nan
+    view = wide[:, ::2]  # a non-contiguous view
+    fused = fuse_dense(field_estimate(field), view)
+    copy = fuse_dense(field_estimate(field), np.ascontiguousarray(view, np.float32))
+    for name in ("disparity", "disparity_std", "depth", "depth_std"):
+        np.testing.assert_array_equal(getattr(fused, name), getattr(copy, name))

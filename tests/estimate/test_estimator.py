@@ -393,13 +393,14 @@ def _dense_posterior_std(
 
 
 def _measured(basis: Basis, k: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """k distinct integer pixels and disparities near the basis mean there."""
+    """k distinct integer pixels and disparities near the basis mean there (> 0: its sky is 0
+    and a disparity <= 0 is no measurement)."""
     rng = np.random.default_rng(seed)
     height, width = basis.image_size
     flat = rng.choice(height * width, size=k, replace=False)
     pixels = np.stack([flat % width, flat // width], axis=1).astype(np.float64)
     mean = cv2.resize(basis.mean, (width, height), interpolation=cv2.INTER_LINEAR)
-    values = mean[flat // width, flat % width] + rng.normal(0.0, 2.0, k)
+    values = np.abs(mean[flat // width, flat % width] + rng.normal(0.0, 2.0, k))
     return pixels, values
 
 
@@ -563,3 +564,73 @@ def test_match_range_widens_the_std_of_near_estimates_only() -> None:
     for bad in (0.0, -5.0, float("nan")):
         with pytest.raises(ValueError, match="match_range"):
             densify(basis, pixels, disparities, match_range=bad)
+
+
+def test_disparities_at_or_below_zero_are_dropped_and_counted() -> None:
+    """A disparity <= 0 is no match (the invalid code of disparity images: 0, SGBM's -1)."""
+    basis = random_basis(21, image_size=(14, 18))
+    rng = np.random.default_rng(21)
+    pixels = random_pixels(rng, 8, basis.image_size)
+    values = rng.uniform(5, 30, 8)
+    invalid = values.copy()
+    invalid[[1, 4, 6]] = [0.0, -1.0, -16.0]
+    clean = densify(basis, pixels[[0, 2, 3, 5, 7]], values[[0, 2, 3, 5, 7]])
+    result = densify(basis, pixels, invalid)
+    assert result.n_dropped == 3
+    assert result.n_measurements == 5
+    np.testing.assert_array_equal(result.disparities, values[[0, 2, 3, 5, 7]])
+    np.testing.assert_array_equal(result.disparity, clean.disparity)
+    (batched,) = densify_batch(basis, [pixels], [invalid])
+    assert batched.n_dropped == 3
+    np.testing.assert_array_equal(batched.disparity, clean.disparity)
+    # the front end's SGBM matches at zero disparity (minDisparity 0) are kept on request
+    kept = densify(basis, pixels, invalid, zero_is_match=True)
+    assert kept.n_dropped == 2
+    assert 0.0 in kept.disparities
+
+
+def test_noise_std_follows_the_dropped_disparities() -> None:
+    basis = random_basis(22, image_size=(14, 18))
+    rng = np.random.default_rng(22)
+    pixels = random_pixels(rng, 6, basis.image_size)
+    values = np.array([10.0, 0.0, 12.0, -1.0, 15.0, 11.0])
+    noise = np.array([0.5, 9.0, 0.5, 9.0, 0.5, 0.5])
+    result = densify(basis, pixels, values, noise_std=noise)
+    used = [0, 2, 4, 5]
+    clean = densify(basis, pixels[used], values[used], noise_std=noise[used])
+    np.testing.assert_array_equal(result.disparity, clean.disparity)
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.uint16])
+def test_fixed_point_disparities_are_refused(dtype: type) -> None:
+    """OpenCV's StereoSGBM gives int16 16 x px, KITTI's PNGs uint16 256 x px."""
+    basis = random_basis(23, image_size=(14, 18))
+    pixels = random_pixels(np.random.default_rng(23), 4, basis.image_size)
+    with pytest.raises(TypeError, match=r"`disparities` as float disparities in px, got u?int16"):
+        densify(basis, pixels, np.array([160, 320, 0, 200], dtype=dtype))
+    with pytest.raises(TypeError, match="astype"):
+        densify_batch(basis, [pixels], [np.array([160, 320, 16, 200], dtype=dtype)])
+    with pytest.raises(TypeError, match="got bool"):
+        densify(basis, pixels, np.ones(4, bool))
+    with pytest.raises(TypeError, match="`edge_map`"):
+        densify(basis, pixels, np.full(4, 10.0), edge_map=np.full((14, 18), 160, dtype))
+
+
+def test_dtypes_and_views_give_the_same_estimate() -> None:
+    basis = random_basis(24, image_size=(14, 18))
+    rng = np.random.default_rng(24)
+    pixels = random_pixels(rng, 6, basis.image_size).round()
+    values = rng.integers(5, 30, 6).astype(np.float64)
+    reference = densify(basis, pixels, values)
+    wide = np.zeros((6, 4))
+    wide[:, ::2] = pixels
+    strided = np.repeat(values, 2)[::2]  # a non-contiguous view
+    for other_pixels, other_values in [
+        (pixels.astype(np.float32), values.astype(np.float32)),
+        (pixels.astype(np.int64), values.astype(np.int64)),
+        (pixels.tolist(), values.tolist()),
+        (wide[:, ::2], strided),
+        (np.asfortranarray(pixels), values),
+    ]:
+        result = densify(basis, other_pixels, other_values)
+        np.testing.assert_allclose(result.disparity, reference.disparity, rtol=1e-5, atol=1e-5)

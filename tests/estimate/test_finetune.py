@@ -178,3 +178,12 @@ def test_builtin_fits_puts_the_built_in_basis_of_the_camera_first(
         distance = camera_distance(fit.basis, image_size, focal_baseline)
         assert fit.distance == distance
         assert (distance <= 1.0) is (fit.mismatch is None)
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.uint16])
+def test_fixed_point_maps_are_refused(dtype: type) -> None:
+    """OpenCV's StereoSGBM.compute() gives int16 16 x px, KITTI's PNGs uint16 256 x px."""
+    start = learn(grid_maps(5, 5.0, seed=8))
+    fixed = np.full(GRID, 20 * 16, dtype)
+    with pytest.raises(TypeError, match=r"`maps\[0\]` as float disparities in px"):
+        finetune_basis(start, [fixed], n_prior=5)

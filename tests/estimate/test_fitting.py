@@ -256,3 +256,22 @@ def test_resolve_settings_widens_the_std_near_sgbms_range_in_sparse_stereo_mode(
     assert resolve_settings(basis, ProcessorConfig(measurements="dense")).match_range is None
     features = ProcessorConfig(source=MeasurementSource.FEATURES)
     assert resolve_settings(basis, features).match_range is None
+
+
+def test_densify_keeps_its_own_sgbm_zero_matches_where_the_library_drops_them() -> None:
+    """SGBM with minDisparity 0 returns 0 for a match at zero disparity: densify's front end
+    passes such lookups, and its estimate, fit check and prior fit keep them (its output is
+    what it was); the library's default takes a 0 for the invalid code of a disparity image.
+    """
+    from pcainterp_stream.estimate.estimator import densify
+    from pcainterp_stream.estimate.fitting import fit_frame
+    from pcainterp_stream.pipeline.processor import ProcessorConfig, resolve_settings
+
+    basis = _tiny_basis()
+    options = resolve_settings(basis, ProcessorConfig()).densify_options()
+    assert options["zero_is_match"] is True
+    pixels = np.array([[3.0, 4.0], [10.0, 12.0], [20.0, 5.0], [25.0, 15.0]])
+    values = np.array([20.0, 0.0, 18.0, 22.0])
+    assert densify(basis, pixels, values, **options).n_dropped == 0
+    assert densify(basis, pixels, values).n_dropped == 1
+    assert fit_frame(basis, pixels, values).residual.size == 4

@@ -170,3 +170,25 @@ def test_learn_refuses_maps_that_do_not_vary() -> None:
     same = np.random.default_rng(0).uniform(1, 50, (8, 8)).astype(np.float32)
     with pytest.raises(ValueError, match="the maps do not vary"):
         learn_basis([same, same, same], grid_scale=1.0, method="exact")
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.uint16])
+def test_fixed_point_maps_are_refused(dtype: type) -> None:
+    """OpenCV's StereoSGBM.compute() gives int16 16 x px, KITTI's PNGs uint16 256 x px."""
+    fixed = np.full((8, 10), 20 * 16, dtype)
+    with pytest.raises(TypeError, match=r"`disparity` as float disparities in px, got u?int16"):
+        preprocess_disparity(fixed, (4, 5))
+    with pytest.raises(TypeError, match=r"`maps\[0\]`"):
+        learn_basis([fixed, fixed], n_components=1)
+    floats = np.full((8, 10), 20.0)
+    with pytest.raises(TypeError, match=r"`maps\[1\]`"):
+        learn_basis([floats, fixed], n_components=1)
+
+
+def test_zero_is_valid_by_default_and_invalid_above_min_disparity() -> None:
+    """0 is a match for SGBM with minDisparity 0 (learn's maps); KITTI's holes need NaN."""
+    values = np.full((8, 10), 20.0, np.float32)
+    values[:, :5] = 0.0
+    assert float(preprocess_disparity(values, (8, 10), box_size=1).min()) == 0.0
+    filled = preprocess_disparity(values, (8, 10), box_size=1, min_disparity=1 / 256)
+    np.testing.assert_array_equal(filled, 20.0)
