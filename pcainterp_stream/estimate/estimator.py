@@ -335,7 +335,7 @@ def densify_batch(
         zero_is_match: keep disparities of exactly 0 as measurements, see :func:`densify`.
 
     Returns:
-        One :class:`DensifyResult` per frame, in order.
+        One :class:`DensifyResult` per frame, in order (none for no frames).
 
     Raises:
         ValueError: an argument has the wrong shape or value.
@@ -349,6 +349,8 @@ def densify_batch(
             f"Expected `disparities_list` to have one array per frame of `pixels_list` "
             f"({len(pixels_list)}), got {len(disparities_list)}"
         )
+    if not pixels_list:
+        return []
     model = Model(
         sigma=_sigma(sigma),
         local=local_prior,
@@ -730,7 +732,8 @@ def _image_size(basis: Basis, image_size: tuple[int, int] | None) -> tuple[int, 
     if image_size is None:
         return basis.image_size
     size = tuple(int(v) for v in image_size)
-    if len(size) != 2 or size[0] < 1 or size[1] < 1:
+    whole = all(float(v) == int(v) for v in image_size)
+    if len(size) != 2 or not whole or size[0] < 1 or size[1] < 1:
         raise ValueError(f"Expected `image_size` as (height, width) > 0, got {image_size}")
     return (size[0], size[1])
 

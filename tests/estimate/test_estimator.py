@@ -382,8 +382,8 @@ def _dense_posterior_std(
     variances = basis.eigenvalues if prior_variances is None else prior_variances
     prior = (rows * variances) @ rows.T
     if local is not None:
-        prior += local.variance * local.axis(grid[:, 0], grid[:, 0]) * local.axis(
-            grid[:, 1], grid[:, 1]
+        prior += (
+            local.variance * local.axis(grid[:, 0], grid[:, 0]) * local.axis(grid[:, 1], grid[:, 1])
         )
     index = pixels[:, 1].astype(int) * width + pixels[:, 0].astype(int)
     system = prior[np.ix_(index, index)] + sigma**2 * np.eye(index.size)
@@ -470,8 +470,14 @@ def test_exact_in_chunks_batched_and_temporal(monkeypatch: pytest.MonkeyPatch) -
         if index == 2:
             predicted = state.predict(basis.eigenvalues)
         single = densify(
-            basis, pixels, values, sigma=0.5, local_prior=local, temporal=state,
-            uncertainty="exact", variance_stride=3,  # ignored by "exact"
+            basis,
+            pixels,
+            values,
+            sigma=0.5,
+            local_prior=local,
+            temporal=state,
+            uncertainty="exact",
+            variance_stride=3,  # ignored by "exact"
         )
         assert single.disparity_std is not None
         assert batched.disparity_std is not None
@@ -506,14 +512,24 @@ def test_exact_without_a_local_part_is_its_bilinear_form(
     for pixels, values in frames:
         results = [
             densify(
-                basis, pixels, values, uncertainty="exact", image_size=out_size,
-                focal_baseline=300.0, local_prior=local, temporal=state,
+                basis,
+                pixels,
+                values,
+                uncertainty="exact",
+                image_size=out_size,
+                focal_baseline=300.0,
+                local_prior=local,
+                temporal=state,
             )
             for local, state in zip([None, LocalPrior(0.0, 5.0)], states, strict=True)
         ]
         static = densify(basis, pixels, values, uncertainty="exact", image_size=out_size)
         pixelwise = densify(
-            basis, pixels, values, uncertainty="exact", image_size=out_size,
+            basis,
+            pixels,
+            values,
+            uncertainty="exact",
+            image_size=out_size,
             local_prior=LocalPrior(0.0, 5.0),
         )
         for a, b in (results, (static, pixelwise)):
@@ -634,3 +650,18 @@ def test_dtypes_and_views_give_the_same_estimate() -> None:
     ]:
         result = densify(basis, other_pixels, other_values)
         np.testing.assert_allclose(result.disparity, reference.disparity, rtol=1e-5, atol=1e-5)
+
+
+def test_a_batch_of_no_frames_is_no_results() -> None:
+    assert densify_batch(None, [], []) == []
+
+
+@pytest.mark.parametrize("size", [(94.9, 310.9), (94.0, 310.5)])
+def test_a_fractional_image_size_is_refused(size: tuple[float, float]) -> None:
+    pixels = np.array([[5.0, 5.0]])
+    with pytest.raises(ValueError, match="image_size"):
+        densify(None, pixels, np.array([10.0]), image_size=size)  # type: ignore[arg-type]
+    assert densify(None, pixels, np.array([10.0]), image_size=(94.0, 310.0)).disparity.shape == (
+        94,
+        310,
+    )  # type: ignore[arg-type]
