@@ -7,7 +7,8 @@ So a frame waits, as an image waits for its partner, until its cloud is known: a
 its very stamp with points came (none can be nearer), a cloud stamped past its stamp plus
 the tolerance came (none nearer is to come from an ordered stream), more frames than the
 window wait, or the stream ended. Among clouds equally near (two publishers on one topic,
-a republished cloud) one with points is taken before an empty one.
+a republished cloud) one with points is taken before an empty one; a cloud nearer to
+another frame waiting (a camera faster than the tolerance is wide) is left to that one.
 """
 
 from __future__ import annotations
@@ -93,9 +94,19 @@ class FeatureMatcher:
         self._clouds.clear()
         return frames
 
-    def _nearest(self, stamp_ns: int) -> SparseFeatures | None:
-        """Return the cloud nearest a stamp within the tolerance (one with points first)."""
-        near = [c for c in self._clouds if abs(c.stamp_ns - stamp_ns) <= self.tolerance_ns]
+    def _nearest(self, frame: StereoFrame) -> SparseFeatures | None:
+        """Return the cloud nearest a frame's stamp within the tolerance (with points first).
+
+        A cloud nearer to another held frame's stamp is left to that frame.
+        """
+        stamp_ns = frame.stamp_ns
+        others = [held.stamp_ns for held in self._held if held is not frame]
+        near = [
+            c
+            for c in self._clouds
+            if abs(c.stamp_ns - stamp_ns) <= self.tolerance_ns
+            and all(abs(c.stamp_ns - other) >= abs(c.stamp_ns - stamp_ns) for other in others)
+        ]
         if not near:
             return None
         # min keeps the first of equals: the one recorded first among clouds with points
@@ -110,7 +121,7 @@ class FeatureMatcher:
         released: list[StereoFrame] = []
         while self._held:
             frame = self._held[0]
-            nearest = self._nearest(frame.stamp_ns)
+            nearest = self._nearest(frame)
             exact = (
                 nearest is not None
                 and nearest.stamp_ns == frame.stamp_ns

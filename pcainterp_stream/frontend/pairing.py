@@ -5,7 +5,8 @@ order) and emits a :class:`~records.StereoFrame` as soon as a left and a right i
 header stamps, and a camera info of each side, are there. It keeps bounded buffers, so a
 stream with a missing or late side cannot make it grow; what it drops it counts in
 :class:`PairingStats`. An optional sparse feature stream (``/features``, PointCloud2 with x,
-y, z in the left optical frame) is associated with the frame of the same stamp.
+y, z in the left optical frame) is associated with the frames by stamp: each takes the cloud
+nearest its own (:mod:`~pcainterp_stream.frontend.feature_match`).
 
 A single pass over a log (the processor's loop)::
 

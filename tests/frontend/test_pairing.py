@@ -568,6 +568,20 @@ def test_a_frame_waits_for_a_nearer_cloud_until_one_past_its_tolerance() -> None
     assert got.stamp_ns == 270 * MS
 
 
+def test_a_cloud_nearer_to_the_next_frame_is_left_to_it() -> None:
+    # a 30 ms camera and a 45 ms tolerance: the cloud 5 ms before the second frame is its
+    pairer = StereoPairer(PairingConfig(features_topic="/features", tolerance_ns=45 * MS))
+    with_infos(pairer)
+    assert _stereo(pairer, 100 * MS) + _stereo(pairer, 130 * MS) == []
+    assert push(pairer, "/features", 125 * MS, features(125 * MS, 3)) == []
+    frames = push(pairer, "/features", 200 * MS, features(200 * MS, 1))
+    assert [frame.stamp_ns for frame in frames] == [100 * MS, 130 * MS]
+    first, second = (pairer.features_for(frame) for frame in frames)
+    assert first is None
+    assert second is not None
+    assert second.stamp_ns == 125 * MS
+
+
 @pytest.mark.parametrize("empty_first", [True, False])
 def test_of_two_clouds_of_one_stamp_the_one_with_points_is_taken(empty_first: bool) -> None:
     # two publishers on one topic (or a republish), one of them with an empty cloud
