@@ -53,6 +53,15 @@ HELDOUT_GAP = 2
 ADAPT_ABOVE = 1.0
 """A prior whose error is at least this times linear interpolation's does not fit."""
 
+EXACT_LINEAR_PX = 1e-3
+"""Held-out error (px) below which linear interpolation is exact: the check compares nothing.
+
+No measured disparity is that exact: SGBM's are sixteenths of a pixel, a triangulated
+point's depth has noise of centimetres. Linear interpolation scores below it only on
+measurements that are constant (every point at one depth) or exactly planar at the scored
+pixels; a ratio of the prior's error to such a ~0 (1e-14 px: 2.4e14x) says nothing of
+the prior."""
+
 ADAPT_GAIN = 0.5
 """A log's own basis also replaces a prior that fits when its held-out (leave-one-out) error
 is below this share of the prior's. Its leave-one-out figure still flatters it: the
@@ -108,10 +117,21 @@ class FitCheck:
         """Return whether the prior beats linear interpolation by the check's standard."""
         return self.frames > 0 and self.ratio < ADAPT_ABOVE
 
+    @property
+    def degenerate(self) -> bool:
+        """Return whether linear interpolation is exact (:data:`EXACT_LINEAR_PX`): no check."""
+        return self.frames > 0 and self.linear < EXACT_LINEAR_PX
+
     def describe(self, where: str = "held-out SGBM pixels") -> str:
         """Return "0.41x linear, 0.35x nearest on held-out SGBM pixels (1.21 px ...)"."""
         if self.frames == 0:
             return f"not checked (no frame had {where})"
+        if self.degenerate:
+            return (
+                f"not checked: linear interpolation is exact on {where} ({self.linear:.2g} px; "
+                f"they are constant or exactly planar), the prior off by {self.prior:.2f} px "
+                f"({self.frames} frame{'s' if self.frames != 1 else ''})"
+            )
         nearest = self.prior / self.nearest if self.nearest > 0 else math.inf
         return (
             f"{self.ratio:.2f}x linear, {nearest:.2f}x nearest on {where} "

@@ -5,7 +5,8 @@ order) and emits a :class:`~records.StereoFrame` as soon as a left and a right i
 header stamps, and a camera info of each side, are there. It keeps bounded buffers, so a
 stream with a missing or late side cannot make it grow; what it drops it counts in
 :class:`PairingStats`. An optional sparse feature stream (``/features``, PointCloud2 with x,
-y, z in the left optical frame) is associated with the frame of the same stamp.
+y, z in the left optical frame) is associated with the frames by stamp: each takes the cloud
+nearest its own (:mod:`~pcainterp_stream.frontend.feature_match`).
 
 A single pass over a log (the processor's loop)::
 
@@ -28,8 +29,6 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from pcainterp_stream.errors import CalibrationError, LogReadError
 from pcainterp_stream.frontend import rectify as rect
 from pcainterp_stream.frontend.camera_infos import (
@@ -37,6 +36,7 @@ from pcainterp_stream.frontend.camera_infos import (
     camera_from_infos,
     first_infos,
 )
+from pcainterp_stream.frontend.feature_match import FeatureMatcher, features_from_pointcloud
 from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.frontend.rect_border import BorderFinder, RectifiedBorder
 from pcainterp_stream.frontend.row_check import RowCheck
@@ -141,30 +141,6 @@ class _Pending:
         self.miss_ns = -1  # the nearest other-side image that waited unpaired as it did
 
 
-def features_from_pointcloud(message: Any, log_time_ns: int) -> SparseFeatures:
-    """Convert a ``PointCloud2`` with x, y, z fields into :class:`~records.SparseFeatures`.
-
-    Points with a non-finite coordinate are dropped.
-
-    Raises:
-        ValueError: the cloud lacks an x, y or z field or its data is short.
-    """
-    fields = rosmsg.pointcloud2_arrays(message)
-    missing = [name for name in ("x", "y", "z") if name not in fields]
-    if missing:
-        raise ValueError(
-            f"point cloud has no field {', '.join(missing)} (fields: {', '.join(fields)})"
-        )
-    points = np.stack([fields["x"], fields["y"], fields["z"]], axis=1).astype(np.float32)
-    points = points[np.isfinite(points).all(axis=1)]
-    return SparseFeatures(
-        stamp_ns=rosmsg.stamp_ns(message),
-        log_time_ns=int(log_time_ns),
-        frame_id=str(message.header.frame_id),
-        points=points.reshape(-1, 3),
-    )
-
-
 class StereoPairer:
     """Incrementally pair stereo images by header stamp; see the module docstring.
 
@@ -202,11 +178,9 @@ class StereoPairer:
         self._left_info: Any = None
         self._right_info: Any = None
         self._camera_cache: dict[tuple[int, int, int, int], StereoCamera] = {}
-        self._held: deque[StereoFrame] = deque()  # waiting for features of their stamp
-        self._features: deque[SparseFeatures] = deque()  # waiting for a frame
-        self._frame_features: dict[int, SparseFeatures] = {}
+        # frames waiting for the cloud nearest their stamp, and the clouds waiting for a frame
+        self._features = FeatureMatcher(self.config.tolerance_ns, self.config.window, self.stats)
         self._last_stamp = {"left": -(2**63), "right": -(2**63)}
-        self._last_feature_stamp_ns: int | None = None
         self._first_dropped_ns: int | None = None  # first pair dropped waiting for infos
         # info topic -> (log time, calibration_values) of the camera info read ahead
         self._ahead: dict[str, tuple[int, tuple[Any, ...]]] = {}
@@ -323,12 +297,12 @@ class StereoPairer:
             changed.append(topic)
 
     def features_for(self, frame: StereoFrame) -> SparseFeatures | None:
-        """Return (once) the feature cloud of a frame's stamp, or None when there is none.
+        """Return (once) the feature cloud nearest a frame's stamp, or None when there is none.
 
-        With a features topic configured, frames are released only once their features are
-        known (they arrived, a later cloud arrived, or the window overflowed).
+        With a features topic configured, frames are released only once their cloud is
+        known (:class:`~pcainterp_stream.frontend.feature_match.FeatureMatcher`).
         """
-        features = self._frame_features.pop(frame.index, None)
+        features = self._features.take(frame.index)
         rectifier = self._frame_rectifier.get(frame.index)
         if features is not None and isinstance(rectifier, rect.StereoRectifier):  # raw -> rect
             features = features._replace(points=rectifier.rotate_points(features.points))
@@ -340,13 +314,7 @@ class StereoPairer:
         Those waiting for features, and a last pair waiting for infos of its own stamp.
         """
         frames = self._release_matched(force=True) if self._matched else []
-        for frame in self._held:  # none of the clouds left is within the tolerance
-            self.stats.feature_miss(frame.stamp_ns, (f.stamp_ns for f in self._features))
-        frames += list(self._held)
-        self._held.clear()
-        self.stats.features_unmatched += len(self._features)
-        self._features.clear()
-        return frames
+        return frames + self._features.flush()
 
     def finish(self) -> PairingStats:
         """Count what is left unpaired and return the final statistics.
@@ -761,8 +729,7 @@ class StereoPairer:
     def _hold_for_features(self, frame: StereoFrame) -> list[StereoFrame]:
         if self.config.features_topic is None:
             return [frame]
-        self._held.append(frame)
-        return self._release_held()
+        return self._features.hold(frame)
 
     def _push_features(self, message: Any, log_time_ns: int) -> list[StereoFrame]:
         try:
@@ -770,48 +737,7 @@ class StereoPairer:
         except (ValueError, AttributeError) as err:
             self._undecodable(_reason(err), f"{self.config.features_topic}: {err}")
             return []
-        latest = self._last_feature_stamp_ns
-        self._last_feature_stamp_ns = (
-            features.stamp_ns if latest is None else max(latest, features.stamp_ns)
-        )
-        self._features.append(features)
-        if len(self._features) > self.config.window:
-            self._features.popleft()
-            self.stats.features_unmatched += 1
-        return self._release_held()
-
-    def _release_held(self) -> list[StereoFrame]:
-        """Release held frames whose features are known, in order."""
-        released: list[StereoFrame] = []
-        tolerance = self.config.tolerance_ns
-        while self._held:
-            frame = self._held[0]
-            match = next(
-                (f for f in self._features if abs(f.stamp_ns - frame.stamp_ns) <= tolerance),
-                None,
-            )
-            latest = self._last_feature_stamp_ns
-            if match is not None:
-                self._features.remove(match)
-                self._frame_features[frame.index] = match
-                self.stats.features_matched += 1
-            elif not (
-                (latest is not None and latest > frame.stamp_ns + tolerance)
-                or len(self._held) > self.config.window
-            ):
-                break
-            else:
-                self.stats.feature_miss(frame.stamp_ns, (f.stamp_ns for f in self._features))
-            released.append(self._held.popleft())
-        # clouds older than every frame still to come match nothing
-        if self._held:
-            horizon = self._held[0].stamp_ns - tolerance
-            stale = [f for f in self._features if f.stamp_ns < horizon]
-            self.stats.feature_miss(self._held[0].stamp_ns, (f.stamp_ns for f in stale))
-            for f in stale:
-                self._features.remove(f)
-            self.stats.features_unmatched += len(stale)
-        return released
+        return self._features.push(features)
 
 
 def is_rectified_name(topic: str) -> bool:

@@ -52,7 +52,7 @@ class PairingStats:
             the one read ahead (:meth:`StereoPairer.look_ahead`).
         changed_info_topics: camera info topics whose calibration later differs from the
             one read ahead.
-        features_matched: frames that got a feature cloud of their stamp.
+        features_matched: frames that got a feature cloud (the nearest within the tolerance).
         features_unmatched: feature clouds that matched no frame.
         features_nearest_miss_ns: the smallest gap (ns) between the stamps of a frame and a
             feature cloud that were not paired, one of them for want of the other (beyond

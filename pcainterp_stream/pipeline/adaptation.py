@@ -41,6 +41,25 @@ MAX_MAPS = 256
 """Most SGBM maps kept for the log's own basis; past it, every other one is dropped."""
 
 
+def unfit_warning(check: adapt.FitCheck, where: str, fix: str) -> str:
+    """Return the warning of a prior that fails the fit check, with ``fix`` ("; learn ...").
+
+    When linear interpolation is exact on the held-out points
+    (:attr:`~pcainterp_stream.estimate.adapt.FitCheck.degenerate`) the ratio is one over ~0
+    and the fix a guess: the warning says what the points are instead.
+    """
+    if check.degenerate:
+        return (
+            f"warning: linear interpolation is exact on this log's {where} "
+            f"({check.linear:.2g} px): they are constant or exactly planar, as no measured "
+            "scene is, so the fit check compares nothing; check what the measurements are"
+        )
+    return (
+        f"warning: the prior is worse than linear interpolation on this log "
+        f"({check.ratio:.2f}x){fix}"
+    )
+
+
 @dataclass(frozen=True)
 class Candidate:
     """Another built-in basis the check may choose instead of the given one.
@@ -156,10 +175,7 @@ class Adaptation:
             fix = "; densify without --basis builtin to adapt to this log"
         else:
             fix = "; learn a basis for this camera: pcainterp learn LOG -o BASIS.npz"
-        self.lines.append(
-            f"warning: the prior is worse than linear interpolation on this log "
-            f"({self.check.ratio:.2f}x){fix}"
-        )
+        self.lines.append(unfit_warning(self.check, "held-out SGBM pixels", fix))
 
     def _decide(
         self, basis: Basis, frames: list[AdaptFrame], settings: dict[str, object]
@@ -278,7 +294,7 @@ class Adaptation:
             # one frame and a built-in basis that fits: no held-out figure to prefer its own
             better = self.check.ratio >= FITS_BELOW
         if not better:
-            if self.check.frames and not self.check.fits:
+            if self.check.frames and not self.check.fits and not self.check.degenerate:
                 kept += (
                     f" ({self.check.ratio:.2f}x linear: worse than linear interpolation on "
                     "this log)"
@@ -389,11 +405,11 @@ class Adaptation:
         if self.switched is not None:
             self.lines.append(f"prior: {self.switched.name} chosen (fits this log better)")
         if self.check.frames and not self.check.fits:
-            self.lines.append(
-                f"warning: the prior is worse than linear interpolation on this log "
-                f"({self.check.ratio:.2f}x); learn a basis for this camera and scene: "
-                "pcainterp learn LOG -o BASIS.npz, then densify --basis BASIS.npz"
+            fix = (
+                "; learn a basis for this camera and scene: pcainterp learn LOG -o BASIS.npz, "
+                "then densify --basis BASIS.npz"
             )
+            self.lines.append(unfit_warning(self.check, where, fix))
         return None if self.switched is None else self.switched.basis
 
     def update(self, frames: list[AdaptFrame], current: Basis | None = None) -> Basis | None:

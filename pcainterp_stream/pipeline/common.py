@@ -76,6 +76,7 @@ def _check_output_folder(output: Path) -> None:
 
 
 _IMAGE_TYPES = (rosmsg.IMAGE, rosmsg.COMPRESSED_IMAGE)
+_OLD_POINT_CLOUDS = ("sensor_msgs/msg/PointCloud", "sensor_msgs/PointCloud")
 
 
 def _check_topic_types(reader: LogReader, checks: list[tuple[str, str, tuple[str, ...]]]) -> None:
@@ -87,17 +88,32 @@ def _check_topic_types(reader: LogReader, checks: list[tuple[str, str, tuple[str
 
     Raises:
         LogReadError: naming the topic, its type, the accepted types, the topics of those
-            types in the log and the option to pass.
+            types in the log and the option to pass (none: that the log has no such topic);
+            an old ``sensor_msgs/PointCloud`` as a feature stream is named as such.
     """
     topics = reader.topics()
     for topic, option, accepted in checks:
         info = topics.get(topic)
         if info is None or info.msgtype in accepted:
             continue
-        candidates = ", ".join(t for t, i in topics.items() if i.msgtype in accepted) or "none"
+        candidates = ", ".join(t for t, i in topics.items() if i.msgtype in accepted)
+        # another topic of the type to pass, or none: then the option already given cannot help
+        other = (
+            f"topics of that type: {candidates}; pass {option}"
+            if candidates
+            else "the log has no topic of that type"
+        )
+        if info.msgtype in _OLD_POINT_CLOUDS:
+            raise LogReadError(
+                f"topic {topic} in {reader.path.name} has the old type {info.msgtype} (as VINS "
+                "feature_tracker's features: normalized image coordinates, depth unknown); "
+                f"{option} needs a {rosmsg.POINT_CLOUD2} of 3-D points in metres in the left "
+                "optical frame (VINS's /vins_estimator/point_cloud, say, converted to "
+                f"PointCloud2 and transformed into that frame); {other}"
+            )
         raise LogReadError(
             f"topic {topic} in {reader.path.name} has type {info.msgtype or 'unknown'}, not "
-            f"{' or '.join(accepted)}; topics of that type: {candidates}; pass {option}"
+            f"{' or '.join(accepted)}; {other}"
         )
 
 

@@ -406,8 +406,9 @@ def densify(
                 _check_width(frame, processor.sgbm, input_path, pairing.left_topic)
                 checked_width = True
             features = pairer.features_for(frame)
-            if check is not None:
-                check.cloud(frame, features)
+            refused = check.cloud(frame, features) if check is not None else None
+            if refused is not None:  # in the writer's block: no output is left behind
+                raise PcaInterpError(f"{input_path}: {refused}")
             emit(engine.submit(frame, features))
 
         for raw in reader.messages():

@@ -5,9 +5,11 @@ the images' corners: a frame without a measurement is the stream's doing (no clo
 stamp, an empty cloud, points behind the camera or outside the image), not the images'.
 :class:`FeatureStreamCheck` accumulates, frame by frame, what the stream gave and words it:
 a summary line, warnings that name the cause, and the one-line error of a run in which no
-frame got a single usable point. It also warns, once, of clouds in another frame than the
-left image's and of coordinates that look like millimetres, and says how a dense cloud was
-thinned (:func:`~pcainterp_stream.frontend.features.thin_measurements`).
+frame got a single usable point. It refuses a stream whose points all lie at one depth
+(:data:`FLAT_SPREAD`: normalized image coordinates, not 3-D points), warns, once, of clouds
+in another frame than the left image's and of coordinates that look like millimetres, says
+how a dense cloud was thinned (:func:`~pcainterp_stream.frontend.features.thin_measurements`)
+and how far from their images' stamps the clouds matched were.
 """
 
 from __future__ import annotations
@@ -29,6 +31,21 @@ hunt's log: 16 m, with single points out to 2 km), a room's 1-5 m; in millimetre
 10,000-20,000 and 1,000-5,000. A stereo camera resolves no depth at 500 m (KITTI's 0.54 m
 baseline: 0.8 px of disparity), so a median beyond it is no real scene. A scene closer than
 0.5 m recorded in millimetres is not caught."""
+
+
+FLAT_SPREAD = 1e-6
+"""Spread of a cloud's depths (max - min, relative to their median) at or below which its
+points all lie at one depth: not 3-D points.
+
+Measured depths vary, if only by noise: a wall facing the camera at 5 m has centimetres of
+stereo, VIO or LiDAR noise (a relative spread of 1e-3 or more), a depth camera's millimetre
+steps 1e-3 at 1 m. 1e-6 is a few float32 steps (2**-23 = 1.2e-7) of one value: only a cloud
+that holds a single depth in every point, such as VINS feature_tracker's normalized image
+coordinates (x/z, y/z, 1), is that flat."""
+
+FLAT_MIN_POINTS = 10
+"""Points (in front of the camera) a cloud needs before its depths are checked for
+:data:`FLAT_SPREAD`: a few quantized depths may coincide by chance."""
 
 
 @dataclass
@@ -57,6 +74,13 @@ class FeatureStreamCheck:
         grid_points: the points in the image of those frames.
         grid_kept: the points kept of those.
         cell: the largest thinning grid cell side (px).
+        offsets_ns: of frames given a cloud of another stamp, the gap between the stamps (ns).
+        spread_seen: a cloud with :data:`FLAT_MIN_POINTS` points of different depths came.
+        flat_clouds: clouds whose points all lay at one depth, after such a cloud.
+        flat_depth: the depth of the first of those (m).
+        carried_frames: frames without a point of their own estimated from carried points.
+        predicted_frames: frames without a point of their own or carried, estimated by the
+            temporal prior's prediction from the previous frame.
     """
 
     topic: str
@@ -80,11 +104,24 @@ class FeatureStreamCheck:
     grid_points: int = 0
     grid_kept: int = 0
     cell: int = 0
+    offsets_ns: list[int] = field(default_factory=list)
+    spread_seen: bool = False
+    flat_clouds: int = 0
+    flat_depth: float = 0.0
+    carried_frames: int = 0
+    predicted_frames: int = 0
 
-    def cloud(self, frame: StereoFrame, features: SparseFeatures | None) -> None:
-        """Look at the cloud handed to a frame (None: none): its frame_id and its depths."""
+    def cloud(self, frame: StereoFrame, features: SparseFeatures | None) -> str | None:
+        """Look at the cloud handed to a frame (None: none): its stamp, frame_id and depths.
+
+        Returns:
+            why the stream is refused: its first cloud (of :data:`FLAT_MIN_POINTS` points
+            or more) has every point at one depth; None to go on.
+        """
         if features is None:
-            return
+            return None
+        if features.stamp_ns != frame.stamp_ns:
+            self.offsets_ns.append(abs(features.stamp_ns - frame.stamp_ns))
         cloud_id, image_id = features.frame_id.lstrip("/"), frame.frame_id.lstrip("/")
         if self.frame_ids is None and cloud_id and image_id and cloud_id != image_id:
             self.frame_ids = (features.frame_id, frame.frame_id)
@@ -92,6 +129,27 @@ class FeatureStreamCheck:
         ahead = depth[depth > 0]
         if ahead.size:
             self.median_depths.append(float(np.median(ahead)))
+        if ahead.size < FLAT_MIN_POINTS:
+            return None
+        median = float(np.median(ahead))
+        if float(np.ptp(ahead)) > FLAT_SPREAD * median:
+            self.spread_seen = True
+            return None
+        if self.spread_seen:  # a stream of 3-D clouds with a flat one: warned of
+            self.flat_clouds += 1
+            self.flat_depth = self.flat_depth or median
+            return None
+        guess = (
+            "normalized image coordinates (x/z, y/z, 1: VINS feature_tracker's points)? "
+            if abs(median - 1.0) <= FLAT_SPREAD
+            else ""
+        )
+        return (
+            f"every point of the cloud of --features-topic {self.topic} at stamp "
+            f"{features.stamp_ns / 1e9:.9f} s ({ahead.size} points) has z = {median:.6g}: not "
+            f"3-D points, whose depths differ if only by noise; {guess}densify needs x y z in "
+            "metres in the left optical frame"
+        )
 
     def result(self, result: DensifiedFrame) -> None:
         """Count one densified frame's feature counts (``features_to_measurements``)."""
@@ -112,6 +170,11 @@ class FeatureStreamCheck:
             self.grid_kept += points - rejected - thinned
             self.cell = max(self.cell, counts["features_cell"])
         self.unmeasured += not result.estimated
+        if result.estimated and points - rejected == 0:  # none of its own: carried, or predicted
+            if counts.get("carried", 0):
+                self.carried_frames += 1
+            else:
+                self.predicted_frames += 1
         if not counts.get("feature_cloud", 0):
             self.without_cloud += 1
         elif points == 0:
@@ -142,6 +205,17 @@ class FeatureStreamCheck:
             )
         if shared > 0:
             line += f"; {shared} left out on a pixel already holding a nearer point"
+        if self.offsets_ns:
+            # clouds of another stamp than their image's (the nearest within the tolerance)
+            low, high = (f"{min(self.offsets_ns) / 1e6:.3g}", f"{max(self.offsets_ns) / 1e6:.3g}")
+            median = f"{float(np.median(self.offsets_ns)) / 1e6:.3g}"
+            line += (
+                f"; {len(self.offsets_ns)} of the {self.frames - self.without_cloud} clouds "
+                "matched an image "
+                + (high if low == high else f"{low}-{high}")
+                + " ms from their stamp"
+                + ("" if low == high else f" (median {median} ms)")
+            )
         return line
 
     def error(self, stats: PairingStats) -> str | None:
@@ -158,13 +232,22 @@ class FeatureStreamCheck:
         lines: list[str] = []
         missed = self.frames - self.usable_frames
         if missed:
-            carried = "only the points carried from earlier frames (do not trust them)"
-            if self.unmeasured == missed:
-                alone = "they have no estimate (depth NaN)"
-            elif self.unmeasured:
-                alone = f"{self.unmeasured} of them have no estimate (NaN), the others {carried}"
+            kinds = [
+                (self.unmeasured, "no estimate (depth NaN)"),
+                (
+                    self.carried_frames,
+                    "only the points carried from earlier frames (do not trust them)",
+                ),
+                (
+                    self.predicted_frames,
+                    "the temporal prior's prediction from the previous frame (wider std)",
+                ),
+            ]
+            had = [(count, what) for count, what in kinds if count]
+            if len(had) == 1:
+                alone = f"they have {had[0][1]}"
             else:
-                alone = f"they have {carried}"
+                alone = ", ".join(f"{count} have {what}" for count, what in had)
             lines.append(
                 f"{missed} of {self.frames} frames got no point from --features-topic "
                 f"{self.topic}, so {alone}: {'; '.join(self._causes(stats, error=False))}"
@@ -183,6 +266,12 @@ class FeatureStreamCheck:
                 f"the clouds of {self.topic} are in frame '{cloud_id}', the left image in "
                 f"'{image_id}': their points were used as if in the left optical frame "
                 "(transform them there before densifying)"
+            )
+        if self.flat_clouds:
+            lines.append(
+                f"{self.flat_clouds} clouds of {self.topic} had every point at one depth (the "
+                f"first z = {self.flat_depth:.6g}): not 3-D points, their frames' depths are a "
+                "flat wall (densify needs x y z in metres in the left optical frame)"
             )
         depth = self.median_depth()
         if depth is not None and depth > MILLIMETRE_DEPTH_M:

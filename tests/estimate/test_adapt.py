@@ -56,6 +56,28 @@ def test_check_scores_the_prior_against_linear_and_nearest() -> None:
     assert "x linear" in poor.describe()
 
 
+def test_a_check_where_linear_interpolation_is_exact_gives_no_ratio() -> None:
+    # every measurement at one disparity: linear's error ~1e-14 px gave "235620346868027.09x"
+    pixels = _points(40, seed=1)
+    disparities = np.full(40, 12.0)
+    kept, left_out = adapt.left_out_split(40)
+    estimate = np.full(SIZE, 14.0, dtype=np.float32)
+    frame = adapt.check_left_out(estimate, pixels, disparities, kept, left_out)
+    check = adapt.FitCheck.combine([frame])
+    assert check.linear < adapt.EXACT_LINEAR_PX
+    assert check.degenerate
+    assert not check.fits
+    described = check.describe("left-out measurements")
+    assert "x linear" not in described
+    assert described.startswith(
+        "not checked: linear interpolation is exact on left-out measurements ("
+    )
+    assert described.endswith(
+        "px; they are constant or exactly planar), the prior off by 2.00 px (1 frame)"
+    )
+    assert not adapt.FitCheck(1, 10, 2.0, 0.5, 1.0).degenerate
+
+
 def test_linear_interpolation_is_scipys_value_for_value() -> None:
     from scipy.interpolate import LinearNDInterpolator
 

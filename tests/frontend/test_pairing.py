@@ -526,6 +526,79 @@ def test_features_just_beyond_the_tolerance_give_the_nearest_gap(offset_ms: int)
     assert stats.features_nearest_miss_ns == 3 * MS
 
 
+def _stereo(pairer: StereoPairer, stamp: int) -> list[Any]:
+    push(pairer, CONFIG.left_topic, stamp, image(stamp))
+    return push(pairer, CONFIG.right_topic, stamp, image(stamp))
+
+
+def test_a_frame_takes_the_nearest_cloud_not_the_first_within_the_tolerance() -> None:
+    # a stream faster than the camera: a cloud 40 ms before each image, then its own; with
+    # a 45 ms tolerance both are within it and the older came first (it took that one)
+    pairer = StereoPairer(PairingConfig(features_topic="/features", tolerance_ns=45 * MS))
+    with_infos(pairer)
+    frames = []
+    for stamp in (100 * MS, 200 * MS):
+        frames += push(pairer, "/features", stamp - 40 * MS, features(stamp - 40 * MS, 5))
+        frames += _stereo(pairer, stamp)
+        frames += push(pairer, "/features", stamp, features(stamp, 2))
+    frames += pairer.flush()
+    clouds = [pairer.features_for(frame) for frame in frames]
+    assert [frame.stamp_ns for frame in frames] == [100 * MS, 200 * MS]
+    assert [c.stamp_ns if c is not None else None for c in clouds] == [100 * MS, 200 * MS]
+    stats = pairer.finish()
+    assert (stats.features_matched, stats.features_unmatched) == (2, 2)
+
+
+def test_a_frame_waits_for_a_nearer_cloud_until_one_past_its_tolerance() -> None:
+    pairer = StereoPairer(PairingConfig(features_topic="/features", tolerance_ns=45 * MS))
+    with_infos(pairer)
+    assert push(pairer, "/features", 60 * MS, features(60 * MS, 3)) == []
+    assert _stereo(pairer, 100 * MS) == []  # 40 ms off: a nearer one may come
+    assert push(pairer, "/features", 110 * MS, features(110 * MS, 4)) == []  # nearer; wait on
+    (frame,) = push(pairer, "/features", 150 * MS, features(150 * MS, 1))  # past 145 ms
+    got = pairer.features_for(frame)
+    assert got is not None
+    assert got.stamp_ns == 110 * MS
+    # the end of the stream decides too: the nearest cloud there is
+    assert _stereo(pairer, 300 * MS) == []
+    push(pairer, "/features", 270 * MS, features(270 * MS, 2))
+    (frame,) = pairer.flush()
+    got = pairer.features_for(frame)
+    assert got is not None
+    assert got.stamp_ns == 270 * MS
+
+
+def test_a_cloud_nearer_to_the_next_frame_is_left_to_it() -> None:
+    # a 30 ms camera and a 45 ms tolerance: the cloud 5 ms before the second frame is its
+    pairer = StereoPairer(PairingConfig(features_topic="/features", tolerance_ns=45 * MS))
+    with_infos(pairer)
+    assert _stereo(pairer, 100 * MS) + _stereo(pairer, 130 * MS) == []
+    assert push(pairer, "/features", 125 * MS, features(125 * MS, 3)) == []
+    frames = push(pairer, "/features", 200 * MS, features(200 * MS, 1))
+    assert [frame.stamp_ns for frame in frames] == [100 * MS, 130 * MS]
+    first, second = (pairer.features_for(frame) for frame in frames)
+    assert first is None
+    assert second is not None
+    assert second.stamp_ns == 125 * MS
+
+
+@pytest.mark.parametrize("empty_first", [True, False])
+def test_of_two_clouds_of_one_stamp_the_one_with_points_is_taken(empty_first: bool) -> None:
+    # two publishers on one topic (or a republish), one of them with an empty cloud
+    pairer = StereoPairer(PairingConfig(features_topic="/features"))
+    with_infos(pairer)
+    clouds = [features(100 * MS, 0), features(100 * MS, 3)]
+    frames = _stereo(pairer, 100 * MS)
+    for cloud in clouds if empty_first else clouds[::-1]:
+        frames += push(pairer, "/features", 100 * MS, cloud)
+    frames += push(pairer, "/features", 200 * MS, features(200 * MS, 1))
+    frames += pairer.flush()
+    (frame,) = frames
+    got = pairer.features_for(frame)
+    assert got is not None
+    assert got.points.shape == (3, 3)
+
+
 def test_required_topics_name_the_options() -> None:
     config = PairingConfig(features_topic="/f")
     assert config.required_topics() == {

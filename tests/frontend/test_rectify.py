@@ -293,7 +293,7 @@ def test_features_move_into_the_rectified_frame() -> None:
     raw = Unrectifier(calibration)(*_stereo_views())
     pairer = _pairer(check_rows=False)
     (frame,) = _push_pair(pairer, 1000, *raw, calibration)
-    pairer._frame_features[frame.index] = SparseFeatures(
+    pairer._features.matched[frame.index] = SparseFeatures(
         1000, 1000, "l", np.array([[0.0, 0.0, 10.0]], dtype=np.float32)
     )
     features = pairer.features_for(frame)

@@ -218,6 +218,21 @@ def test_a_kept_basis_worse_than_linear_is_named_and_warned(
         )
 
 
+def test_the_unfit_warning_over_exact_linear_interpolation_gives_no_ratio() -> None:
+    """Constant held-out disparities: linear's error ~0 made a ratio of ~1e14 (and a fix)."""
+    fix = "; learn a basis for this camera: pcainterp learn LOG -o BASIS.npz"
+    exact = adapt.FitCheck(3, 300, 1.5, 1e-14, 2.0)
+    assert adaptation_module.unfit_warning(exact, "held-out SGBM pixels", fix) == (
+        "warning: linear interpolation is exact on this log's held-out SGBM pixels (1e-14 px): "
+        "they are constant or exactly planar, as no measured scene is, so the fit check "
+        "compares nothing; check what the measurements are"
+    )
+    worse = adapt.FitCheck(3, 300, 1.5, 1.0, 2.0)
+    assert adaptation_module.unfit_warning(worse, "held-out SGBM pixels", fix) == (
+        f"warning: the prior is worse than linear interpolation on this log (1.50x){fix}"
+    )
+
+
 def test_an_own_basis_better_but_not_by_the_margin_is_said_so() -> None:
     """The built-in indoor basis fits a synthetic room; the log's own basis errs less on the
     held-out pixels but not below adapt.ADAPT_GAIN of it: the line said it "did no better"."""

@@ -13,6 +13,7 @@ import pytest
 
 from pcainterp_stream import cli
 from pcainterp_stream.errors import PcaInterpError
+from pcainterp_stream.frontend.motion import CarryConfig
 from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
@@ -26,8 +27,9 @@ FRAMES = 4
 MS = 1_000_000
 FEATURES = ["--features-topic", "/features"]
 Points = npt.NDArray[np.floating[Any]]
-# (frame number, stamp, frame_id, points) -> the cloud written, or None for none
-Damage = Callable[[int, int, str, Points], tuple[int, str, Points] | None]
+# (frame number, stamp, frame_id, points) -> the cloud written (or clouds), or None for none
+Cloud = tuple[int, str, Points]
+Damage = Callable[[int, int, str, Points], Cloud | list[Cloud] | None]
 
 
 @pytest.fixture(scope="module")
@@ -65,26 +67,32 @@ def with_features(
             y = (v - p[1, 2]) * z / p[1, 1]
             points = np.stack([x, y, z], axis=1).astype(np.float32)
             stamp = rosmsg.stamp_ns(reader.decode(raw))
-            cloud: tuple[int, str, Points] | None = (stamp, "stereo_left_optical", points)
+            cloud: Cloud | list[Cloud] | None = (stamp, "stereo_left_optical", points)
             if damage is not None:
                 cloud = damage(index, stamp, "stereo_left_optical", points)
             index += 1
-            if cloud is None:
-                continue
-            stamp, frame_id, points = cloud
-            points = points.astype(np.float32)
-            fields = {name: points[:, i] for i, name in enumerate(names)}
-            message = rosmsg.pointcloud2_message(fields, stamp, frame_id)
-            writer.add_message("/features", message, raw.log_time_ns)
+            for stamp, frame_id, points in [] if cloud is None else _listed(cloud):
+                points = points.astype(np.float32)
+                fields = {name: points[:, i] for i, name in enumerate(names)}
+                message = rosmsg.pointcloud2_message(fields, stamp, frame_id)
+                writer.add_message("/features", message, raw.log_time_ns)
     return target
 
 
-def densify(source: Path, output: Path, max_features: int = 500) -> DensifySummary:
+def _listed(cloud: Cloud | list[Cloud]) -> list[Cloud]:
+    return cloud if isinstance(cloud, list) else [cloud]
+
+
+def densify(
+    source: Path, output: Path, max_features: int = 500, tolerance_ms: int = 1, **options: Any
+) -> DensifySummary:
     return jobs.densify(
         source,
         output,
-        pairing=PairingConfig(features_topic="/features"),
-        processor=ProcessorConfig(source=MeasurementSource.FEATURES, max_features=max_features),
+        pairing=PairingConfig(features_topic="/features", tolerance_ns=tolerance_ms * MS),
+        processor=ProcessorConfig(
+            source=MeasurementSource.FEATURES, max_features=max_features, **options
+        ),
     )
 
 
@@ -282,3 +290,153 @@ def test_max_features_needs_a_stream_and_a_positive_count(
     assert cli.main(["densify", str(log), "-o", target, *FEATURES, "--max-features", "0"]) == 2
     err = capsys.readouterr().err
     assert err == "pcainterp: error: --max-features must be at least 1, got 0\n"
+
+
+def _normalized(i: int, stamp: int, frame_id: str, points: Points) -> Cloud:
+    """VINS feature_tracker's points: normalized image coordinates (x/z, y/z, 1)."""
+    return stamp, frame_id, points / points[:, 2:]
+
+
+def _wall(i: int, stamp: int, frame_id: str, points: Points) -> Cloud:
+    """The same rays on a wall facing the camera 5 m away, with 1 mm of depth noise."""
+    depth = 5.0 + np.random.default_rng(i).normal(0.0, 0.001, points.shape[0])
+    return stamp, frame_id, points / points[:, 2:] * depth[:, None]
+
+
+def test_normalized_image_coordinates_are_refused_and_a_flat_wall_is_not(
+    log: Path, tmp_path: Path
+) -> None:
+    # every depth was 1 m, densified with a confident std and a 2.4e14x fit-check ratio
+    source = with_features(log, tmp_path / "f.mcap", _normalized)
+    with pytest.raises(
+        PcaInterpError,
+        match=rf"^{re.escape(str(source))}: every point of the cloud of --features-topic "
+        r"/features at stamp [\d.]+ s \(\d+ points\) has z = 1: not 3-D points, whose depths "
+        r"differ if only by noise; normalized image coordinates \(x/z, y/z, 1: VINS "
+        r"feature_tracker's points\)\? densify needs x y z in metres in the left optical "
+        r"frame$",
+    ):
+        densify(source, tmp_path / "out.mcap")
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["f.mcap"]  # nothing written
+    wall = with_features(log, tmp_path / "wall.mcap", _wall)
+    summary = densify(wall, tmp_path / "wall_out.mcap")
+    assert summary.frames == 4
+    assert not [line for line in summary.warnings if "one depth" in line]
+    with open_log(tmp_path / "wall_out.mcap") as reader:
+        (depth, *_) = [
+            image_of(reader.decode(raw)) for raw in reader.messages(["/pcainterp/depth"])
+        ]
+    assert np.nanmedian(depth) == pytest.approx(5.0, rel=0.05)
+
+
+def test_flat_clouds_after_3d_ones_are_a_warning(log: Path, tmp_path: Path) -> None:
+    source = with_features(
+        log,
+        tmp_path / "f.mcap",
+        lambda i, s, f, p: (s, f, p) if i == 0 else _normalized(i, s, f, p),
+    )
+    assert (
+        "3 clouds of /features had every point at one depth (the first z = 1): not 3-D points, "
+        "their frames' depths are a flat wall (densify needs x y z in metres in the left "
+        "optical frame)"
+    ) in densify(source, tmp_path / "out.mcap").warnings
+
+
+def test_a_frame_takes_the_nearest_cloud_and_the_line_says_how_far_it_was(
+    log: Path, tmp_path: Path
+) -> None:
+    def twin(i: int, stamp: int, frame_id: str, points: Points) -> list[Cloud]:
+        # a faster stream: a cloud 40 ms before the image (depths off, to tell), then its own
+        return [(stamp - 40 * MS, frame_id, points * 1.3), (stamp, frame_id, points)]
+
+    def empty_first(i: int, stamp: int, frame_id: str, points: Points) -> list[Cloud]:
+        return [(stamp, frame_id, points[:0]), (stamp, frame_id, points)]
+
+    sound = densify(
+        with_features(log, tmp_path / "f.mcap"), tmp_path / "sound.mcap", tolerance_ms=45
+    )
+    twins = densify(
+        with_features(log, tmp_path / "t.mcap", twin), tmp_path / "twin.mcap", tolerance_ms=45
+    )
+    assert twins.feature_line == sound.feature_line  # exact stamps: no gap to tell of
+    assert twins.pairing.features_unmatched == 4  # the early clouds
+    # two clouds of one stamp, the empty one first: it refused the run ("4 had an empty cloud")
+    doubles = densify(
+        with_features(log, tmp_path / "d.mcap", empty_first), tmp_path / "d_out.mcap"
+    )
+    assert doubles.warnings == []
+    for output in ("twin.mcap", "d_out.mcap"):
+        assert _depths(tmp_path / output) == _depths(tmp_path / "sound.mcap")
+    late = densify(
+        with_features(log, tmp_path / "l.mcap", _later(3)), tmp_path / "l_out.mcap", tolerance_ms=5
+    )
+    assert late.feature_line is not None
+    assert late.feature_line.endswith("; 4 of the 4 clouds matched an image 3 ms from their stamp")
+
+
+def _depths(path: Path) -> list[bytes]:
+    with open_log(path) as reader:
+        return [bytes(reader.decode(raw).data) for raw in reader.messages(["/pcainterp/depth"])]
+
+
+def test_frames_without_a_cloud_in_temporal_mode_are_said_predicted(
+    log: Path, tmp_path: Path
+) -> None:
+    # nothing carried (--carry-frames 0): it said "only the points carried from earlier frames"
+    source = with_features(
+        log, tmp_path / "f.mcap", lambda i, s, f, p: None if i % 2 else (s, f, p)
+    )
+    summary = densify(source, tmp_path / "out.mcap", temporal=True, carry=CarryConfig(frames=0))
+    (line,) = summary.warnings
+    assert line == (
+        "2 of 4 frames got no point from --features-topic /features, so they have the temporal "
+        "prior's prediction from the previous frame (wider std): 2 had no cloud within the "
+        "1 ms stamp tolerance"
+    )
+
+
+def test_a_fit_check_with_exact_linear_interpolation_gives_no_ratio(
+    log: Path, tmp_path: Path
+) -> None:
+    # nine points of one wall per frame (too few to refuse as flat): linear interpolation
+    # is exact on the left-out ones, and the warning gave a ratio of ~1e14 and "learn a basis"
+    source = with_features(
+        log, tmp_path / "f.mcap", lambda i, s, f, p: (s, f, p[:9] / p[:9, 2:] * 8.0)
+    )
+    summary = densify(source, tmp_path / "out.mcap")
+    (line,) = [w for w in summary.prior_lines if w.startswith("warning:")]
+    assert re.fullmatch(
+        r"warning: linear interpolation is exact on this log's left-out measurements "
+        r"\(\S+ px\): they are constant or exactly planar, as no measured scene is, so the fit "
+        r"check compares nothing; check what the measurements are",
+        line,
+    )
+    assert "x linear" not in " ".join(summary.prior_lines)
+
+
+def test_an_old_pointcloud_topic_is_named_as_such(
+    log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    source = tmp_path / "vins.mcap"
+    point_cloud = rosmsg.TYPESTORE.types["sensor_msgs/msg/PointCloud"]
+    header = rosmsg.TYPESTORE.types["std_msgs/msg/Header"]
+    stamp = rosmsg.TYPESTORE.types["builtin_interfaces/msg/Time"]
+    with open_log(log) as reader, open_writer(source, LogFormat.MCAP) as writer:
+        for raw in reader.messages():
+            writer.add_raw(raw)
+        cloud = point_cloud(
+            header=header(stamp=stamp(sec=0, nanosec=0), frame_id="l"), points=[], channels=[]
+        )
+        writer.add_message("/features", cloud, 0)
+    target = tmp_path / "out.mcap"
+    assert cli.main(["densify", str(source), "-o", str(target), *FEATURES]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        "pcainterp: error: topic /features in vins.mcap has the old type "
+        "sensor_msgs/msg/PointCloud (as VINS feature_tracker's features: normalized image "
+        "coordinates, depth unknown); --features-topic needs a sensor_msgs/msg/PointCloud2 of "
+        "3-D points in metres in the left optical frame (VINS's /vins_estimator/point_cloud, "
+        "say, converted to PointCloud2 and transformed into that frame); the log has no topic "
+        "of that type\n"
+    )
+    assert not target.exists()

@@ -1,0 +1,154 @@
+"""Match a sparse feature stream's clouds to stereo frames by header stamp (no I/O).
+
+A frame takes the cloud nearest to it in stamp within the stamp tolerance, not the first
+one there: a stream faster than the camera (a 25 Hz VIO beside a 10 Hz camera, a stream of
+another camera) has an older cloud within a widened tolerance as well as the frame's own.
+So a frame waits, as an image waits for its partner, until its cloud is known: a cloud of
+its very stamp with points came (none can be nearer), a cloud stamped past its stamp plus
+the tolerance came (none nearer is to come from an ordered stream), more frames than the
+window wait, or the stream ended. Among clouds equally near (two publishers on one topic,
+a republished cloud) one with points is taken before an empty one; a cloud nearer to
+another frame waiting (a camera faster than the tolerance is wide) is left to that one.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from pcainterp_stream.frontend.pairing_stats import PairingStats
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.records import SparseFeatures, StereoFrame
+
+__all__ = ["FeatureMatcher", "features_from_pointcloud"]
+
+
+def features_from_pointcloud(message: Any, log_time_ns: int) -> SparseFeatures:
+    """Convert a ``PointCloud2`` with x, y, z fields into :class:`~records.SparseFeatures`.
+
+    Points with a non-finite coordinate are dropped.
+
+    Raises:
+        ValueError: the cloud lacks an x, y or z field or its data is short.
+    """
+    fields = rosmsg.pointcloud2_arrays(message)
+    missing = [name for name in ("x", "y", "z") if name not in fields]
+    if missing:
+        raise ValueError(
+            f"point cloud has no field {', '.join(missing)} (fields: {', '.join(fields)})"
+        )
+    points = np.stack([fields["x"], fields["y"], fields["z"]], axis=1).astype(np.float32)
+    points = points[np.isfinite(points).all(axis=1)]
+    return SparseFeatures(
+        stamp_ns=rosmsg.stamp_ns(message),
+        log_time_ns=int(log_time_ns),
+        frame_id=str(message.header.frame_id),
+        points=points.reshape(-1, 3),
+    )
+
+
+class FeatureMatcher:
+    """Hold frames until their feature cloud is known; see the module docstring.
+
+    Args:
+        tolerance_ns: largest difference of header stamps that still matches (ns).
+        window: frames held at most (the oldest beyond it is released with the nearest
+            cloud there is, or none), and clouds kept waiting for a frame.
+        stats: the pairing's statistics: matched and unmatched clouds, the nearest miss.
+    """
+
+    def __init__(self, tolerance_ns: int, window: int, stats: PairingStats) -> None:
+        self.tolerance_ns = tolerance_ns
+        self.window = window
+        self.stats = stats
+        self.matched: dict[int, SparseFeatures] = {}  # frame index -> its cloud
+        self._held: deque[StereoFrame] = deque()  # waiting for their cloud to be known
+        self._clouds: deque[SparseFeatures] = deque()  # waiting for a frame
+        self._latest_ns: int | None = None  # the latest cloud stamp seen
+
+    def hold(self, frame: StereoFrame) -> list[StereoFrame]:
+        """Add a frame; return the frames whose cloud is now known, in order."""
+        self._held.append(frame)
+        return self._release()
+
+    def push(self, features: SparseFeatures) -> list[StereoFrame]:
+        """Add a cloud; return the frames whose cloud is now known, in order."""
+        latest = self._latest_ns
+        self._latest_ns = features.stamp_ns if latest is None else max(latest, features.stamp_ns)
+        self._clouds.append(features)
+        if len(self._clouds) > self.window:
+            self._clouds.popleft()
+            self.stats.features_unmatched += 1
+        return self._release()
+
+    def take(self, index: int) -> SparseFeatures | None:
+        """Return (once) the cloud matched to the frame of this index, None when none was."""
+        return self.matched.pop(index, None)
+
+    def flush(self) -> list[StereoFrame]:
+        """Release every frame still held with the nearest cloud left (end of the stream)."""
+        frames = self._release(force=True)
+        self.stats.features_unmatched += len(self._clouds)
+        self._clouds.clear()
+        return frames
+
+    def _nearest(self, frame: StereoFrame) -> SparseFeatures | None:
+        """Return the cloud nearest a frame's stamp within the tolerance (with points first).
+
+        A cloud nearer to another held frame's stamp is left to that frame.
+        """
+        stamp_ns = frame.stamp_ns
+        others = [held.stamp_ns for held in self._held if held is not frame]
+        near = [
+            c
+            for c in self._clouds
+            if abs(c.stamp_ns - stamp_ns) <= self.tolerance_ns
+            and all(abs(c.stamp_ns - other) >= abs(c.stamp_ns - stamp_ns) for other in others)
+        ]
+        if not near:
+            return None
+        # min keeps the first of equals: the one recorded first among clouds with points
+        return min(near, key=lambda c: (abs(c.stamp_ns - stamp_ns), c.points.shape[0] == 0))
+
+    def _drop(self, cloud: SparseFeatures) -> None:
+        """Remove a waiting cloud by identity (``==`` would compare two clouds' arrays)."""
+        del self._clouds[next(i for i, c in enumerate(self._clouds) if c is cloud)]
+
+    def _release(self, *, force: bool = False) -> list[StereoFrame]:
+        """Release held frames whose cloud is known, in order (all of them with ``force``)."""
+        released: list[StereoFrame] = []
+        while self._held:
+            frame = self._held[0]
+            nearest = self._nearest(frame)
+            exact = (
+                nearest is not None
+                and nearest.stamp_ns == frame.stamp_ns
+                and nearest.points.shape[0] > 0
+            )
+            latest = self._latest_ns
+            known = (
+                force
+                or exact
+                or (latest is not None and latest > frame.stamp_ns + self.tolerance_ns)
+                or len(self._held) > self.window
+            )
+            if not known:
+                break
+            if nearest is not None:
+                self._drop(nearest)
+                self.matched[frame.index] = nearest
+                self.stats.features_matched += 1
+            else:
+                self.stats.feature_miss(frame.stamp_ns, (c.stamp_ns for c in self._clouds))
+            released.append(self._held.popleft())
+        # clouds older than every frame still to come match nothing
+        if self._held:
+            horizon = self._held[0].stamp_ns - self.tolerance_ns
+            stale = [c for c in self._clouds if c.stamp_ns < horizon]
+            self.stats.feature_miss(self._held[0].stamp_ns, (c.stamp_ns for c in stale))
+            for cloud in stale:
+                self._drop(cloud)
+            self.stats.features_unmatched += len(stale)
+        return released
