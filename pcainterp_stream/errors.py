@@ -46,6 +46,10 @@ class GoldenError(PcaInterpError):
     """A golden file is missing, malformed, or of a format version this package does not read."""
 
 
+class SchedulerError(PcaInterpError):
+    """A Dask scheduler cannot be used: a malformed or unreachable address, no workers."""
+
+
 class ClusterTaskError(PcaInterpError):
     """A task on a Dask cluster failed with an unexpected error (a bug or a dead worker).
 
