@@ -157,11 +157,14 @@ def test_cli_refuses_a_worker_wait_without_a_scheduler_or_not_positive(
     ]
 
 
-def test_densify_many_says_when_the_workers_are_gone_and_gives_up_after_the_wait(
-    log: Path, empty_scheduler: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+@pytest.mark.parametrize("job", ["densify", "learn"])
+def test_a_job_says_when_the_workers_are_gone_and_gives_up_after_the_wait(
+    job: str, log: Path, empty_scheduler: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """The last worker leaves the scheduler before the job's tasks ran: the tasks would
     stay queued forever; the watch says so at once and fails after the wait."""
+    from pcainterp_stream.frontend.pairing import PairingConfig
+
     monkeypatch.setattr(scheduler, "WATCH_INTERVAL", 0.05)
     address = empty_scheduler.scheduler_address
     empty_scheduler.scale(1)
@@ -171,9 +174,19 @@ def test_densify_many_says_when_the_workers_are_gone_and_gives_up_after_the_wait
         client.retire_workers()
         while client.scheduler_info()["workers"]:
             time.sleep(0.05)
+        options = jobs.LearnOptions(n_components=2, fit_prior=False)
+        run = (
+            (lambda: distributed.densify_many([log], tmp_path / "d", None, client))
+            if job == "densify"
+            else (
+                lambda: distributed.learn_distributed(
+                    [log], tmp_path / "b.npz", options, PairingConfig(), client
+                )
+            )
+        )
         started = time.monotonic()
         with pytest.raises(SchedulerError) as info:
-            distributed.densify_many([log], tmp_path / "d", None, client)
+            run()
         assert time.monotonic() - started < 5
     assert str(info.value) == (
         f"the Dask scheduler at {address} has had no workers for 0.5 s with tasks still to "
@@ -185,6 +198,7 @@ def test_densify_many_says_when_the_workers_are_gone_and_gives_up_after_the_wait
         f"(start some: dask worker {address})",
     ]
     assert not (tmp_path / "d").exists()  # nor a staging folder in it
+    assert not (tmp_path / "b.npz").exists()
 
 
 class _Futures:
