@@ -55,6 +55,10 @@ class GoldenToleranceError(GoldenError):
     """
 
 
+class SchedulerError(PcaInterpError):
+    """A Dask scheduler cannot be used: a malformed or unreachable address, no workers."""
+
+
 class ClusterTaskError(PcaInterpError):
     """A task on a Dask cluster failed with an unexpected error (a bug or a dead worker).
 

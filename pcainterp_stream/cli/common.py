@@ -11,6 +11,7 @@ import argparse
 import dataclasses
 import gc
 import os
+import sys
 from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeAlias
@@ -291,3 +292,46 @@ def add_cluster_options(parser: argparse.ArgumentParser, *, command: str) -> Non
     where.add_argument(
         "--workers", type=int, default=None, metavar="N", help="a local cluster of N processes"
     )
+    group.add_argument(
+        "--worker-wait",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="with --scheduler: how long to wait for a worker while the scheduler has none "
+        "(default 60)",
+    )
+
+
+def check_cluster_options(args: argparse.Namespace) -> None:
+    """Check ``--scheduler`` and ``--worker-wait`` before any input is read.
+
+    Raises:
+        PcaInterpError: a malformed address, or a wait that is not a positive number.
+    """
+    if args.worker_wait is not None:
+        if args.scheduler is None:
+            raise PcaInterpError(
+                "--worker-wait is the wait for a --scheduler's workers; add --scheduler"
+            )
+        if not 0 < args.worker_wait < float("inf"):
+            raise PcaInterpError(f"--worker-wait must be > 0 seconds, got {args.worker_wait:g}")
+    if args.scheduler is None:
+        return
+    from pcainterp_stream.pipeline.scheduler import check_address
+
+    try:
+        args.scheduler = check_address(args.scheduler)
+    except PcaInterpError as err:
+        raise PcaInterpError(f"--scheduler {err}") from None
+
+
+def cluster_notes(line: str) -> None:
+    """Print a note on the cluster (connecting, waiting for workers) on standard error."""
+    print(line, file=sys.stderr, flush=True)
+
+
+def worker_wait(args: argparse.Namespace) -> float:
+    """Return ``--worker-wait`` or the default (seconds)."""
+    from pcainterp_stream.pipeline.scheduler import DEFAULT_WORKER_WAIT
+
+    return float(args.worker_wait) if args.worker_wait is not None else DEFAULT_WORKER_WAIT

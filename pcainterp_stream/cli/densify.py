@@ -21,11 +21,14 @@ from pcainterp_stream.cli.common import (
     Commands,
     add_cluster_options,
     add_stereo_options,
+    check_cluster_options,
+    cluster_notes,
     echo,
     formatter,
     gftt_config,
     refuse_overwrites,
     sgbm_config,
+    worker_wait,
 )
 from pcainterp_stream.cli.densify_one import LiveOptions, densify_one
 from pcainterp_stream.cli.pairing import add_topic_options, pairing_config
@@ -289,6 +292,7 @@ def _add_estimate_options(densify: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Check the options, build the estimate's config and densify; return the exit code."""
+    check_cluster_options(args)
     if args.process_noise is not None and not 0 < args.process_noise < float("inf"):
         raise PcaInterpError(f"--process-noise must be > 0, got {args.process_noise}")
     if args.process_noise is not None and not args.temporal:
@@ -600,7 +604,9 @@ def _densify_many(
 
         check_basis_file(args.basis)
     started = time.perf_counter()
-    with distributed.connect(args.scheduler, args.workers) as client:
+    with distributed.connect(
+        args.scheduler, args.workers, worker_wait=worker_wait(args), say=cluster_notes
+    ) as client:
         outcomes = distributed.densify_many(
             [path.resolve() for path in args.input],  # workers may run in another folder
             args.out_dir.resolve(),

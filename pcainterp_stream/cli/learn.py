@@ -10,12 +10,15 @@ from pcainterp_stream.cli.common import (
     Commands,
     add_cluster_options,
     add_stereo_options,
+    check_cluster_options,
+    cluster_notes,
     echo,
     formatter,
     gftt_config,
     refuse_overwrites,
     same_file,
     sgbm_config,
+    worker_wait,
 )
 from pcainterp_stream.cli.pairing import add_topic_options, pairing_config
 from pcainterp_stream.errors import ClusterTaskError, LogReadError, LogWriteError, PcaInterpError
@@ -149,6 +152,7 @@ def run(args: argparse.Namespace) -> int:
     from pcainterp_stream.pipeline.jobs import describe_basis
     from pcainterp_stream.pipeline.learn import LearnOptions, learn, learn_pairing
 
+    check_cluster_options(args)
     if args.components is not None and args.components < 1:
         raise PcaInterpError(f"--components must be at least 1, got {args.components}")
     if args.variance is not None and not 0 < args.variance <= 1:  # also refuses nan
@@ -186,7 +190,9 @@ def run(args: argparse.Namespace) -> int:
         from pcainterp_stream.pipeline import distributed
 
         try:
-            with distributed.connect(args.scheduler, args.workers) as client:
+            with distributed.connect(
+                args.scheduler, args.workers, worker_wait=worker_wait(args), say=cluster_notes
+            ) as client:
                 basis = distributed.learn_distributed(
                     args.logs, args.output, options, pairing, client
                 )

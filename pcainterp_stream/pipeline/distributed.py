@@ -33,14 +33,9 @@ from __future__ import annotations
 import contextlib
 import errno
 import itertools
-import logging
-import multiprocessing
 import os
 import shutil
-import signal
-import sys
 import tempfile
-import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,7 +44,12 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.errors import ClusterTaskError, LogReadError, PcaInterpError
+from pcainterp_stream.errors import (
+    ClusterTaskError,
+    LogReadError,
+    PcaInterpError,
+    SchedulerError,
+)
 from pcainterp_stream.estimate.basis import Basis, grid_size_for
 from pcainterp_stream.estimate.finetune import finetune_from_sketch
 from pcainterp_stream.estimate.learning import (
@@ -86,9 +86,34 @@ from pcainterp_stream.pipeline.learn import (
     shows_surface,
     to_grid,
 )
+from pcainterp_stream.pipeline.scheduler import (
+    QUIET_TRACKER,
+    completed,
+    connect,
+    stop_local_workers,
+)
 
-QUIET_TRACKER = "ignore:resource_tracker:UserWarning"
-"""The warnings filter that keeps the resource tracker's leaked-semaphore warning quiet."""
+__all__ = [
+    "QUIET_TRACKER",
+    "ChunkSummary",
+    "DaskLearner",
+    "DensifyOutcome",
+    "TaskFailure",
+    "chunk_specs",
+    "cluster_oversampling",
+    "connect",
+    "densify_many",
+    "learn_distributed",
+    "learn_on_cluster",
+    "measure_on_cluster",
+    "merge",
+    "output_path",
+    "run_task",
+    "stop_local_workers",
+    "summarize",
+    "summarize_chunk",
+    "task_result",
+]
 
 DEFAULT_CHUNK_FRAMES = 64
 """Frames (after ``every``) one learning task reads, matches and summarises."""
@@ -366,120 +391,6 @@ def summarize_chunk(
     )
 
 
-@contextlib.contextmanager
-def connect(scheduler: str | None = None, workers: int | None = None) -> Iterator[Any]:
-    """Yield a ``dask.distributed.Client``: to ``scheduler``, or to a new local cluster.
-
-    A local cluster's worker processes leave SIGINT and SIGTERM to the command
-    (:func:`_start_workers`): a Ctrl-C at the terminal reaches its whole process group, and
-    a worker left to the default handling prints a ``KeyboardInterrupt`` traceback and goes
-    on with its task. When the block ends with an exception (an interruption, a failed
-    task) they are killed at once (:func:`stop_local_workers`), and Dask's logging is
-    silenced until the cluster is closed: Dask would otherwise report the tasks it cancels
-    and the workers it finds still running.
-
-    Args:
-        scheduler: address of a running scheduler (``tcp://host:8786``), or None.
-        workers: worker processes of a new ``LocalCluster`` (one thread each) when no
-            scheduler is given; default 2.
-
-    Yields:
-        The connected client (closed, with its local cluster, on exit).
-    """
-    from dask.distributed import Client, LocalCluster
-
-    if scheduler is not None:
-        with Client(scheduler) as client:  # type: ignore[no-untyped-call]
-            yield client
-        return
-    # multiprocessing's resource tracker (a process of its own, started with this
-    # interpreter's -W options) warns of the semaphores of workers a Ctrl-C ended: it
-    # removes them all the same, so the warning is noise under the one-line message
-    if QUIET_TRACKER not in sys.warnoptions:
-        sys.warnoptions.append(QUIET_TRACKER)
-    # the cluster is made without workers (the scheduler alone, a few tenths of a second)
-    # and they are added once it is bound here, so an interruption while they start
-    # still finds and stops them; closing restores the logging last
-    with contextlib.ExitStack() as after_close, contextlib.ExitStack() as stack:
-        cluster = stack.enter_context(
-            LocalCluster(  # type: ignore[no-untyped-call]
-                n_workers=0,
-                threads_per_worker=1,
-                processes=True,
-                # any free port for its HTTP server: ":8787" may be taken by another cluster
-                dashboard_address=":0",
-            )
-        )
-        client = stack.enter_context(Client(cluster))  # type: ignore[no-untyped-call]
-        children = set(multiprocessing.active_children())
-        try:
-            _start_workers(cluster, client, workers or 2)
-            yield client
-        except BaseException:
-            after_close.enter_context(_logging_silenced())
-            stop_local_workers(client)
-            # the worker processes still starting (Dask lists them once all have started):
-            # killed too, else closing the cluster waits for them to start and then stop
-            for process in set(multiprocessing.active_children()) - children:
-                process.kill()
-            raise
-
-
-def _start_workers(cluster: Any, client: Any, count: int) -> None:
-    """Start ``count`` worker processes that never receive SIGINT or SIGTERM.
-
-    A process starts with the signal mask of the thread that started it. Dask starts its
-    worker processes from threads of its event loop's thread: SIGINT and SIGTERM are
-    blocked in that thread first, so they stay pending, never delivered, in every worker
-    from its first instruction on; the command stops its workers itself, and a worker
-    ends anyway as soon as the process that started it does. The multiprocessing resource
-    tracker is started before: starting it unblocks both signals in the thread that
-    starts it.
-    """
-    from multiprocessing import resource_tracker
-
-    resource_tracker.ensure_running()
-    blocked = threading.Event()
-
-    def block() -> None:
-        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
-        blocked.set()
-
-    cluster.loop.add_callback(block)
-    blocked.wait()
-    cluster.scale(count)
-    client.wait_for_workers(count)
-
-
-@contextlib.contextmanager
-def _logging_silenced() -> Iterator[None]:
-    """Silence every logger of this process for the block (Dask's closing a stopped cluster)."""
-    previous = logging.root.manager.disable
-    logging.disable(logging.CRITICAL)
-    try:
-        yield
-    finally:
-        logging.disable(previous)
-
-
-def stop_local_workers(client: Any) -> None:
-    """Kill the worker processes of the client's local cluster at once (a no-op for others).
-
-    Their nannies (in this process) are told first that the end is intended, so none
-    restarts its worker. A killed worker commits nothing, logs nothing and needs no time
-    to end a task that was still running.
-    """
-    cluster = getattr(client, "cluster", None)
-    for nanny in list(getattr(cluster, "workers", {}).values()):
-        pid = getattr(nanny, "pid", None)
-        if pid is None:
-            continue  # a worker in a thread of this process, or already gone
-        with contextlib.suppress(Exception):
-            nanny.close_gracefully("pcainterp stopped the cluster")
-        with contextlib.suppress(OSError):
-            os.kill(pid, signal.SIGKILL)
-
-
 def learn_distributed(
     logs: list[Path],
     output: Path,
@@ -665,12 +576,12 @@ def measure_on_cluster(
         )
         for log, first in sources
     ]
-    measured: list[list[HeldOutFrame]] = []
+    from dask.distributed import as_completed
+
     with _bar(len(futures), "fit prior (measure held-out frames on the cluster)", "log") as bar:
-        for future in futures:
-            measured.append(task_result(future, "a measuring task"))
+        for _done in completed(as_completed(futures), client):  # type: ignore[no-untyped-call]
             bar.update(1)
-    return measured
+    return [task_result(future, "a measuring task") for future in futures]
 
 
 def _reduce(
@@ -712,7 +623,7 @@ def _reduce(
 
     refill()
     ready: Any = None
-    for future in running:
+    for future in completed(running, client):
         if chunk_done is not None and future.key in chunks:
             chunk_done()
         if ready is None:
@@ -823,7 +734,7 @@ def densify_many(
                 run_task, _densify_one, path, folder / out.name, basis, kwargs, pure=False
             )
             tasks[future] = index
-        for future in as_completed(list(tasks)):  # type: ignore[no-untyped-call]
+        for future in completed(as_completed(list(tasks)), client):  # type: ignore[no-untyped-call]
             index = tasks[future]
             path, out = inputs[index], outputs[index]
             try:
@@ -866,6 +777,11 @@ def densify_many(
                 out_dir.rmdir()
         if isinstance(err, KeyboardInterrupt) or signalled():
             raise Interrupted(out_dir, kept, len(inputs)) from err
+        if isinstance(err, SchedulerError) and kept:
+            raise SchedulerError(
+                f"{err}; kept {len(kept)} of {len(inputs)} outputs, finished before: "
+                + ", ".join(map(str, kept))
+            ) from err
         raise
     return [outcomes[index] for index in range(len(inputs))]
 

@@ -350,7 +350,7 @@ def test_cli_densify_out_dir_prints_a_line_per_adapted_log(
             ),
         ]
 
-    monkeypatch.setattr(distributed, "connect", lambda *args: nullcontext(None))
+    monkeypatch.setattr(distributed, "connect", lambda *args, **kwargs: nullcontext(None))
     monkeypatch.setattr(distributed, "densify_many", densify_many)
     args = [str(logs["a"]), str(logs["b"]), "--out-dir", str(tmp_path), "--workers", "1"]
     assert cli.main(["densify", *args]) == 0
@@ -444,7 +444,7 @@ def test_cli_densify_out_dir_adds_a_hint_to_an_unexpected_error(
             distributed.DensifyOutcome(inputs[0], out_dir / "a_dense.mcap", 0, 0.0, "boom", True)
         ]
 
-    monkeypatch.setattr(distributed, "connect", lambda *args: nullcontext(None))
+    monkeypatch.setattr(distributed, "connect", lambda *args, **kwargs: nullcontext(None))
     monkeypatch.setattr(distributed, "densify_many", densify_many)
     code = cli.main(["densify", str(logs["a"]), "--out-dir", str(tmp_path), "--workers", "1"])
     assert code == 1
@@ -465,7 +465,7 @@ def test_cli_learn_on_the_cluster_adds_a_hint_to_an_unexpected_error(
     def learn_distributed(*args: Any) -> Any:
         raise ClusterTaskError("a learning task failed on the cluster with an unexpected X: y")
 
-    monkeypatch.setattr(distributed, "connect", lambda *args: nullcontext(None))
+    monkeypatch.setattr(distributed, "connect", lambda *args, **kwargs: nullcontext(None))
     monkeypatch.setattr(distributed, "learn_distributed", learn_distributed)
     args = ["learn", str(logs["a"]), "-o", str(tmp_path / "b.npz"), "--workers", "1"]
     assert cli.main(args) == 2

@@ -1,0 +1,362 @@
+"""Connect to Dask: a running scheduler, checked and watched, or a local cluster of our own.
+
+A scheduler's address is checked before any work (:func:`check_address`), the connection
+is announced before Dask's connect timeout could pass in silence, and an address that
+cannot be reached is one :class:`~pcainterp_stream.errors.SchedulerError`, not Dask's
+traceback. A scheduler without workers would queue the tasks forever: the command says so
+at once, waits a bounded time for a worker (:data:`DEFAULT_WORKER_WAIT`) and gives up in one
+line naming the address and ``dask worker ADDRESS``; while tasks are pending,
+:func:`completed` notices when the last worker is gone and does the same.
+
+A local cluster's worker processes leave SIGINT and SIGTERM to the command, and are killed
+at once when its block ends with an exception (:func:`connect`, :func:`stop_local_workers`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import multiprocessing
+import os
+import signal
+import sys
+import threading
+import time
+import weakref
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+from pcainterp_stream.errors import SchedulerError
+
+__all__ = [
+    "DEFAULT_WORKER_WAIT",
+    "QUIET_TRACKER",
+    "WorkerWatch",
+    "check_address",
+    "completed",
+    "connect",
+    "stop_local_workers",
+]
+
+QUIET_TRACKER = "ignore:resource_tracker:UserWarning"
+"""The warnings filter that keeps the resource tracker's leaked-semaphore warning quiet."""
+
+DEFAULT_WORKER_WAIT = 60.0
+"""Seconds a job waits for a worker when the scheduler has none (at the start or later)."""
+
+WATCH_INTERVAL = 1.0
+"""Seconds between two looks at the scheduler's workers while tasks are pending."""
+
+EXAMPLE = "tcp://HOST:PORT, e.g. tcp://10.0.0.5:8786"
+
+_WATCHES: weakref.WeakKeyDictionary[Any, WorkerWatch] = weakref.WeakKeyDictionary()
+
+
+def check_address(address: str) -> str:
+    """Return a scheduler address as Dask reads it (surrounding blanks dropped), or refuse it.
+
+    Accepted: what a ``dask.distributed.Client`` connects to, ``tcp://HOST:PORT`` or
+    ``HOST:PORT`` (tcp), ``[::1]:PORT`` for IPv6, and the schemes ``tls``, ``ws``, ``wss``
+    and ``ucx``. Nothing is resolved or contacted.
+
+    Raises:
+        SchedulerError: no port, an unknown scheme (``http://``), ``inproc://`` (this
+            process only), an empty host or a port outside 1-65535.
+    """
+    from distributed.comm.addressing import parse_address, parse_host_port
+    from distributed.comm.registry import backends
+
+    text = address.strip()
+    try:
+        scheme, location = parse_address(text, strict=False)
+        if scheme == "inproc":
+            raise ValueError("inproc:// reaches a scheduler inside this process only")
+        if scheme not in backends:
+            known = ", ".join(f"{name}://" for name in sorted(backends) if name != "inproc")
+            raise ValueError(f"{scheme}:// is not one of Dask's schemes, {known}")
+        host, port = parse_host_port(location)
+        if not host:
+            raise ValueError("no host")
+        if not 0 < int(port) < 65536:
+            raise ValueError(f"port {port} is not in 1-65535")
+    except ValueError as err:
+        raise SchedulerError(
+            f"{address!r} is not a Dask scheduler address ({err}); give {EXAMPLE}"
+        ) from None
+    return text
+
+
+@contextlib.contextmanager
+def connect(
+    scheduler: str | None = None,
+    workers: int | None = None,
+    *,
+    worker_wait: float = DEFAULT_WORKER_WAIT,
+    say: Callable[[str], object] | None = None,
+) -> Iterator[Any]:
+    """Yield a ``dask.distributed.Client``: to ``scheduler``, or to a new local cluster.
+
+    A running scheduler is checked (:func:`check_address`), the connection announced
+    (``say``), and its workers watched while tasks wait (:func:`completed`): with none the
+    job waits ``worker_wait`` seconds for one, then fails.
+
+    A local cluster's worker processes leave SIGINT and SIGTERM to the command
+    (:func:`_start_workers`): a Ctrl-C at the terminal reaches its whole process group, and
+    a worker left to the default handling prints a ``KeyboardInterrupt`` traceback and goes
+    on with its task. When the block ends with an exception (an interruption, a failed
+    task) they are killed at once (:func:`stop_local_workers`), and Dask's logging is
+    silenced until the cluster is closed: Dask would otherwise report the tasks it cancels
+    and the workers it finds still running.
+
+    Args:
+        scheduler: address of a running scheduler (``tcp://host:8786``), or None.
+        workers: worker processes of a new ``LocalCluster`` (one thread each) when no
+            scheduler is given; default 2.
+        worker_wait: seconds to wait for a worker when the scheduler has none.
+        say: called with each note on the connection and the workers (one line each).
+
+    Yields:
+        The connected client (closed, with its local cluster, on exit).
+
+    Raises:
+        SchedulerError: a malformed or unreachable address, or no worker within
+            ``worker_wait`` seconds.
+    """
+    if scheduler is not None:
+        with _scheduler_client(scheduler, worker_wait, say or _quiet) as client:
+            yield client
+        return
+    from dask.distributed import Client, LocalCluster
+
+    # multiprocessing's resource tracker (a process of its own, started with this
+    # interpreter's -W options) warns of the semaphores of workers a Ctrl-C ended: it
+    # removes them all the same, so the warning is noise under the one-line message
+    if QUIET_TRACKER not in sys.warnoptions:
+        sys.warnoptions.append(QUIET_TRACKER)
+    # the cluster is made without workers (the scheduler alone, a few tenths of a second)
+    # and they are added once it is bound here, so an interruption while they start
+    # still finds and stops them; closing restores the logging last
+    with contextlib.ExitStack() as after_close, contextlib.ExitStack() as stack:
+        cluster = stack.enter_context(
+            LocalCluster(  # type: ignore[no-untyped-call]
+                n_workers=0,
+                threads_per_worker=1,
+                processes=True,
+                # any free port for its HTTP server: ":8787" may be taken by another cluster
+                dashboard_address=":0",
+            )
+        )
+        client = stack.enter_context(Client(cluster))  # type: ignore[no-untyped-call]
+        children = set(multiprocessing.active_children())
+        try:
+            _start_workers(cluster, client, workers or 2)
+            yield client
+        except BaseException:
+            after_close.enter_context(_logging_silenced())
+            stop_local_workers(client)
+            # the worker processes still starting (Dask lists them once all have started):
+            # killed too, else closing the cluster waits for them to start and then stop
+            for process in set(multiprocessing.active_children()) - children:
+                process.kill()
+            raise
+
+
+def _quiet(line: str) -> None:
+    """Say nothing (a caller that passed no ``say``)."""
+
+
+@contextlib.contextmanager
+def _scheduler_client(
+    address: str, worker_wait: float, say: Callable[[str], object]
+) -> Iterator[Any]:
+    """Yield a client of the scheduler at ``address`` that has (or got) a worker."""
+    import dask
+    from dask.distributed import Client
+    from dask.utils import parse_timedelta
+
+    address = check_address(address)
+    timeout = parse_timedelta(dask.config.get("distributed.comm.timeouts.connect"), "s")
+    say(f"connecting to the Dask scheduler at {address} (waiting up to {timeout:g} s)")
+    try:
+        client = Client(address)  # type: ignore[no-untyped-call]
+    except (OSError, ValueError, TypeError, ImportError) as err:  # TimeoutError is an OSError
+        text = str(err).splitlines()[0] if str(err) else type(err).__name__
+        reason = f"no answer within {timeout:g} s" if "Timed out" in text else text
+        _host, _sep, port = address.rpartition(":")
+        raise SchedulerError(
+            f"cannot reach the Dask scheduler at {address} ({reason}); start one there "
+            f"(dask scheduler --port {port}) or give the address of a running one"
+        ) from None
+    with client:
+        watch = WorkerWatch(client, address, worker_wait, say)
+        watch.wait_for_first()
+        _WATCHES[client] = watch
+        try:
+            yield client
+        finally:
+            _WATCHES.pop(client, None)
+
+
+@dataclass
+class WorkerWatch:
+    """Notices a scheduler without workers; mutable: when the count was last seen at 0.
+
+    Attributes:
+        client: the connected client.
+        address: the scheduler's address, for the messages.
+        wait: seconds to wait for a worker before giving up.
+        say: called with each note (one line).
+        empty_since: ``time.monotonic()`` when no worker was seen first, None while some are.
+        next_look: ``time.monotonic()`` of the next look at the workers.
+    """
+
+    client: Any
+    address: str
+    wait: float
+    say: Callable[[str], object]
+    empty_since: float | None = field(default=None)
+    next_look: float = field(default=0.0)
+
+    def _hint(self) -> str:
+        return f"dask worker {self.address}"
+
+    def workers(self) -> int | None:
+        """Return how many workers the scheduler has, None when it cannot be asked."""
+        try:
+            return len(self.client.scheduler_info()["workers"])
+        except Exception:  # a lost scheduler: the pending tasks' own errors say so
+            return None
+
+    def wait_for_first(self) -> None:
+        """Return once the scheduler has a worker; say so and wait if it has none.
+
+        Raises:
+            SchedulerError: none joined within ``wait`` seconds.
+        """
+        if self.workers() != 0:
+            return
+        self.say(
+            f"the Dask scheduler at {self.address} has no workers; waiting up to "
+            f"{self.wait:g} s for one (start some: {self._hint()})"
+        )
+        try:
+            self.client.wait_for_workers(1, timeout=self.wait)
+        except (TimeoutError, OSError):  # Dask's TimeoutError (an OSError)
+            raise SchedulerError(
+                f"the Dask scheduler at {self.address} has no workers and none joined within "
+                f"{self.wait:g} s; start some ({self._hint()}) and run again"
+            ) from None
+
+    def check(self) -> None:
+        """Look at the workers (at most every :data:`WATCH_INTERVAL` s) while tasks wait.
+
+        Says when the last worker is gone and when one is back.
+
+        Raises:
+            SchedulerError: no worker for ``wait`` seconds.
+        """
+        now = time.monotonic()
+        if now < self.next_look:
+            return
+        self.next_look = now + WATCH_INTERVAL
+        count = self.workers()
+        if count is None:
+            return
+        if count:
+            if self.empty_since is not None:
+                self.say(f"the Dask scheduler at {self.address} has a worker again; going on")
+                self.empty_since = None
+            return
+        if self.empty_since is None:
+            self.empty_since = now
+            self.say(
+                f"the Dask scheduler at {self.address} has no workers left; waiting up to "
+                f"{self.wait:g} s for one (start some: {self._hint()})"
+            )
+        elif now - self.empty_since >= self.wait:
+            raise SchedulerError(
+                f"the Dask scheduler at {self.address} has had no workers for {self.wait:g} s "
+                f"with tasks still to run; start some ({self._hint()}) and run again"
+            )
+
+
+def completed(futures: Any, client: Any) -> Iterator[Any]:
+    """Yield the futures of a ``dask.distributed.as_completed`` as they finish.
+
+    With a client of :func:`connect`'s running scheduler, its workers are watched while
+    none is ready (:meth:`WorkerWatch.check`); futures added during the iteration are
+    waited for too.
+
+    Raises:
+        SchedulerError: the scheduler had no workers for the watch's ``wait`` seconds.
+    """
+    watch = _WATCHES.get(client)
+    if watch is None:
+        yield from futures
+        return
+    condition = futures.thread_condition  # notified as each future finishes
+    while True:
+        if futures.has_ready():
+            yield next(futures)
+            continue
+        if futures.is_empty():
+            return
+        watch.check()
+        with condition:
+            condition.wait(timeout=0.1)
+
+
+def _start_workers(cluster: Any, client: Any, count: int) -> None:
+    """Start ``count`` worker processes that never receive SIGINT or SIGTERM.
+
+    A process starts with the signal mask of the thread that started it. Dask starts its
+    worker processes from threads of its event loop's thread: SIGINT and SIGTERM are
+    blocked in that thread first, so they stay pending, never delivered, in every worker
+    from its first instruction on; the command stops its workers itself, and a worker
+    ends anyway as soon as the process that started it does. The multiprocessing resource
+    tracker is started before: starting it unblocks both signals in the thread that
+    starts it.
+    """
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()
+    blocked = threading.Event()
+
+    def block() -> None:
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+        blocked.set()
+
+    cluster.loop.add_callback(block)
+    blocked.wait()
+    cluster.scale(count)
+    client.wait_for_workers(count)
+
+
+@contextlib.contextmanager
+def _logging_silenced() -> Iterator[None]:
+    """Silence every logger of this process for the block (Dask's closing a stopped cluster)."""
+    previous = logging.root.manager.disable
+    logging.disable(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        logging.disable(previous)
+
+
+def stop_local_workers(client: Any) -> None:
+    """Kill the worker processes of the client's local cluster at once (a no-op for others).
+
+    Their nannies (in this process) are told first that the end is intended, so none
+    restarts its worker. A killed worker commits nothing, logs nothing and needs no time
+    to end a task that was still running.
+    """
+    cluster = getattr(client, "cluster", None)
+    for nanny in list(getattr(cluster, "workers", {}).values()):
+        pid = getattr(nanny, "pid", None)
+        if pid is None:
+            continue  # a worker in a thread of this process, or already gone
+        with contextlib.suppress(Exception):
+            nanny.close_gracefully("pcainterp stopped the cluster")
+        with contextlib.suppress(OSError):
+            os.kill(pid, signal.SIGKILL)

@@ -1,0 +1,249 @@
+"""A running Dask scheduler: its address checked, an unreachable one and one without workers."""
+
+from __future__ import annotations
+
+import socket
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from pcainterp_stream.errors import SchedulerError
+from pcainterp_stream.pipeline import distributed, jobs, scheduler
+
+pytest.importorskip("dask.distributed")
+
+
+@pytest.fixture(scope="module")
+def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("scheduler") / "a.mcap"
+    jobs.synth(path, frames=2, seed=3, scale=0.25, fmt="mcap")
+    return path
+
+
+@pytest.fixture
+def empty_scheduler() -> Iterator[Any]:
+    """A scheduler with no worker, in this process (a few tenths of a second to start)."""
+    from dask.distributed import LocalCluster
+
+    with LocalCluster(  # type: ignore[no-untyped-call]
+        n_workers=0, processes=False, protocol="tcp", host="127.0.0.1", dashboard_address=":0"
+    ) as cluster:
+        yield cluster
+
+
+@pytest.fixture
+def closed_port() -> Iterator[str]:
+    """The address of a port nothing listens on; Dask's connect timeout cut to 0.5 s."""
+    import dask
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    with dask.config.set({"distributed.comm.timeouts.connect": "0.5s"}):
+        yield f"tcp://127.0.0.1:{port}"
+
+
+@pytest.mark.parametrize(
+    "address", ["tcp://10.0.0.5:8786", "10.0.0.5:8786", "tcp://[::1]:8786", "tls://h:1", " h:1 "]
+)
+def test_check_address_takes_what_dask_connects_to(address: str) -> None:
+    assert scheduler.check_address(address) == address.strip()
+
+
+@pytest.mark.parametrize(
+    ("address", "why"),
+    [
+        ("tcp//bad", "missing port number"),
+        ("", "missing port number"),
+        ("localhost", "missing port number"),
+        ("http://127.0.0.1:8786", "http:// is not one of Dask's schemes"),
+        ("foo:bar:baz", "invalid address"),
+        ("inproc://x", "inside this process only"),
+        ("tcp://h:0", "port 0 is not in 1-65535"),
+        ("tcp://:8786", "no host"),
+    ],
+)
+def test_check_address_refuses_a_malformed_one_naming_it_and_the_form(
+    address: str, why: str
+) -> None:
+    with pytest.raises(SchedulerError, match=why) as info:
+        scheduler.check_address(address)
+    assert str(info.value).startswith(f"{address!r} is not a Dask scheduler address")
+    assert str(info.value).endswith("give tcp://HOST:PORT, e.g. tcp://10.0.0.5:8786")
+
+
+@pytest.mark.parametrize("command", ["densify", "learn"])
+def test_cli_refuses_a_malformed_scheduler_before_reading_any_input(
+    command: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from pcainterp_stream import cli
+
+    missing = tmp_path / "missing.mcap"  # read first, the error would name it
+    where = ["--out-dir", str(tmp_path / "d")] if command == "densify" else ["-o", "b.npz"]
+    assert cli.main([command, str(missing), *where, "--scheduler", "tcp//bad"]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        "pcainterp: error: --scheduler 'tcp//bad' is not a Dask scheduler address (missing "
+        "port number in address 'tcp//bad'); give tcp://HOST:PORT, e.g. tcp://10.0.0.5:8786"
+    ]
+
+
+@pytest.mark.parametrize("command", ["densify", "learn"])
+def test_cli_says_it_connects_and_an_unreachable_scheduler_is_one_line(
+    command: str,
+    log: Path,
+    closed_port: str,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from pcainterp_stream import cli
+
+    out = tmp_path / "d"
+    where = ["--out-dir", str(out)] if command == "densify" else ["-o", str(tmp_path / "b.npz")]
+    started = time.monotonic()
+    assert cli.main([command, str(log), *where, "--scheduler", closed_port]) == 2
+    assert time.monotonic() - started < 10
+    err = capsys.readouterr().err.splitlines()
+    port = closed_port.rsplit(":", 1)[1]
+    assert err == [
+        f"connecting to the Dask scheduler at {closed_port} (waiting up to 0.5 s)",
+        f"pcainterp: error: cannot reach the Dask scheduler at {closed_port} (no answer within "
+        f"0.5 s); start one there (dask scheduler --port {port}) or give the address of a "
+        "running one",
+    ]
+    assert not out.exists()
+    assert not (tmp_path / "b.npz").exists()
+
+
+@pytest.mark.parametrize("command", ["densify", "learn"])
+def test_cli_says_a_scheduler_has_no_workers_and_gives_up_after_the_wait(
+    command: str,
+    log: Path,
+    empty_scheduler: Any,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from pcainterp_stream import cli
+
+    address = empty_scheduler.scheduler_address
+    out = tmp_path / "d"
+    where = ["--out-dir", str(out)] if command == "densify" else ["-o", str(tmp_path / "b.npz")]
+    args = [command, str(log), *where, "--scheduler", address, "--worker-wait", "0.5"]
+    assert cli.main(args) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[-2:] == [
+        f"the Dask scheduler at {address} has no workers; waiting up to 0.5 s for one "
+        f"(start some: dask worker {address})",
+        f"pcainterp: error: the Dask scheduler at {address} has no workers and none joined "
+        f"within 0.5 s; start some (dask worker {address}) and run again",
+    ]
+    assert not out.exists()
+    assert not (tmp_path / "b.npz").exists()
+
+
+def test_cli_refuses_a_worker_wait_without_a_scheduler_or_not_positive(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from pcainterp_stream import cli
+
+    args = ["densify", str(tmp_path / "a.mcap"), "--out-dir", str(tmp_path / "d")]
+    assert cli.main([*args, "--workers", "1", "--worker-wait", "5"]) == 2
+    assert cli.main([*args, "--scheduler", "h:1", "--worker-wait", "0"]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        "pcainterp: error: --worker-wait is the wait for a --scheduler's workers; add --scheduler",
+        "pcainterp: error: --worker-wait must be > 0 seconds, got 0",
+    ]
+
+
+@pytest.mark.parametrize("job", ["densify", "learn"])
+def test_a_job_says_when_the_workers_are_gone_and_gives_up_after_the_wait(
+    job: str, log: Path, empty_scheduler: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The last worker leaves the scheduler before the job's tasks ran: the tasks would
+    stay queued forever; the watch says so at once and fails after the wait."""
+    from pcainterp_stream.frontend.pairing import PairingConfig
+
+    monkeypatch.setattr(scheduler, "WATCH_INTERVAL", 0.05)
+    address = empty_scheduler.scheduler_address
+    empty_scheduler.scale(1)
+    notes: list[str] = []
+    with scheduler.connect(address, worker_wait=0.5, say=notes.append) as client:
+        client.wait_for_workers(1)
+        client.retire_workers()
+        while client.scheduler_info()["workers"]:
+            time.sleep(0.05)
+        options = jobs.LearnOptions(n_components=2, fit_prior=False)
+        run = (
+            (lambda: distributed.densify_many([log], tmp_path / "d", None, client))
+            if job == "densify"
+            else (
+                lambda: distributed.learn_distributed(
+                    [log], tmp_path / "b.npz", options, PairingConfig(), client
+                )
+            )
+        )
+        started = time.monotonic()
+        with pytest.raises(SchedulerError) as info:
+            run()
+        assert time.monotonic() - started < 5
+    assert str(info.value) == (
+        f"the Dask scheduler at {address} has had no workers for 0.5 s with tasks still to "
+        f"run; start some (dask worker {address}) and run again"
+    )
+    assert notes == [
+        f"connecting to the Dask scheduler at {address} (waiting up to 30 s)",
+        f"the Dask scheduler at {address} has no workers left; waiting up to 0.5 s for one "
+        f"(start some: dask worker {address})",
+    ]
+    assert not (tmp_path / "d").exists()  # nor a staging folder in it
+    assert not (tmp_path / "b.npz").exists()
+
+
+class _Futures:
+    """An ``as_completed`` whose one future finishes after ``ready_after`` looks."""
+
+    def __init__(self, ready_after: int) -> None:
+        import threading
+
+        self.looks = 0
+        self.ready_after = ready_after
+        self.thread_condition = threading.Condition()
+        self.done = False
+
+    def has_ready(self) -> bool:
+        self.looks += 1
+        return not self.done and self.looks > self.ready_after
+
+    def is_empty(self) -> bool:
+        return self.done
+
+    def __next__(self) -> str:
+        self.done = True
+        return "future"
+
+
+class _Client:
+    """A client whose scheduler's workers come and go: one count per look."""
+
+    def __init__(self, counts: list[int]) -> None:
+        self.counts = counts
+
+    def scheduler_info(self) -> dict[str, Any]:
+        count = self.counts.pop(0) if len(self.counts) > 1 else self.counts[0]
+        return {"workers": dict.fromkeys(range(count))}
+
+
+def test_the_watch_says_when_workers_are_gone_and_back(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(scheduler, "WATCH_INTERVAL", 0.0)
+    client = _Client([2, 0, 0, 1])
+    notes: list[str] = []
+    watch = scheduler.WorkerWatch(client, "tcp://h:1", 30.0, notes.append)
+    monkeypatch.setitem(scheduler._WATCHES, client, watch)
+    assert list(scheduler.completed(_Futures(ready_after=6), client)) == ["future"]
+    assert notes == [
+        "the Dask scheduler at tcp://h:1 has no workers left; waiting up to 30 s for one "
+        "(start some: dask worker tcp://h:1)",
+        "the Dask scheduler at tcp://h:1 has a worker again; going on",
+    ]
