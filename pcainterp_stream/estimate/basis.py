@@ -265,6 +265,10 @@ class VarianceGrid:
 class Basis:
     """A learned PCA basis of disparity maps (the ``pcainterp-basis/1`` file).
 
+    A basis read by :meth:`load` (so the built-in ones, shared by the whole process) holds
+    read-only arrays, and every basis's cached arrays are read-only: to try a change, edit
+    a copy, ``dataclasses.replace(basis, mean=basis.mean * 0.5)``.
+
     Attributes:
         mean: (gh, gw) float32, mean disparity on the grid (px).
         components: (l, gh, gw) float32, orthonormal over grid pixels.
@@ -499,7 +503,8 @@ class Basis:
         stays lazy, as for any basis.
 
         Returns:
-            The built-in :class:`Basis` (the same object on every call).
+            The built-in :class:`Basis` (the same object on every call; its arrays are
+            read-only).
 
         Raises:
             BasisError: the file is missing from this installation or damaged.
