@@ -26,6 +26,7 @@ if TYPE_CHECKING:
     )
     from pcainterp_stream.estimate.finetune import finetune_basis
     from pcainterp_stream.estimate.learning import LearnMethod, learn_basis, preprocess_disparity
+    from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
     from pcainterp_stream.version import __version__
 
 _HOMES = {
@@ -41,6 +42,9 @@ _HOMES = {
     "LearnMethod": "estimate.learning",
     "learn_basis": "estimate.learning",
     "preprocess_disparity": "estimate.learning",
+    "LocalPrior": "estimate.prior",
+    "Robust": "estimate.prior",
+    "TemporalPrior": "estimate.prior",
     "__version__": "version",
 }
 """Each public name's module, below the package."""
@@ -50,7 +54,10 @@ __all__ = [
     "DenseModel",
     "DensifyResult",
     "LearnMethod",
+    "LocalPrior",
+    "Robust",
     "SolveForm",
+    "TemporalPrior",
     "Uncertainty",
     "__version__",
     "densify",

@@ -294,7 +294,7 @@ def run(args: argparse.Namespace) -> int:
     """Check the options, build the estimate's config and densify; return the exit code."""
     check_cluster_options(args)
     if args.process_noise is not None and not 0 < args.process_noise < float("inf"):
-        raise PcaInterpError(f"--process-noise must be > 0, got {args.process_noise}")
+        raise PcaInterpError(f"--process-noise must be finite and > 0, got {args.process_noise}")
     if args.process_noise is not None and not args.temporal:
         raise PcaInterpError(
             f"--process-noise {args.process_noise:g} is the temporal prior's and applies with "

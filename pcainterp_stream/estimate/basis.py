@@ -15,6 +15,7 @@ variance sum_i lambda_i u_i(x)^2, coarser variance grids) is computed once per
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import hashlib
 import importlib.resources
 import json
@@ -23,6 +24,7 @@ import stat
 import tempfile
 import threading
 import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -224,6 +226,17 @@ def check_basis_file(path: Path) -> None:
         raise BasisError(f"basis file {path} is not a basis file (.npz){what}; {fix}")
 
 
+def _read_only(array: npt.NDArray[Any]) -> npt.NDArray[Any]:
+    """Return ``array`` marked read-only (a view's flag leaves its base writable).
+
+    A basis is shared - :meth:`Basis.default` is one object per process - so what it holds
+    and what it caches is read-only: an in-place edit raises instead of changing every later
+    frame. Edit a copy (``dataclasses.replace(basis, mean=basis.mean * 0.5)``).
+    """
+    array.flags.writeable = False
+    return array
+
+
 PRIOR_COVARIANCE_MAX_BYTES = 512 << 20
 """Largest :meth:`Basis.prior_covariance` kept (the KITTI-size basis's takes 218 MB)."""
 
@@ -245,12 +258,16 @@ class VarianceGrid:
     @cached_property
     def squared_rows(self) -> npt.NDArray[np.float32]:
         """(l, s_v) float32, u_i(x)^2, for the paper's diagonal variance (eq. 15/16)."""
-        return self.component_rows * self.component_rows
+        return _read_only(self.component_rows * self.component_rows)
 
 
 @dataclass(frozen=True, eq=False)
 class Basis:
     """A learned PCA basis of disparity maps (the ``pcainterp-basis/1`` file).
+
+    A basis read by :meth:`load` (so the built-in ones, shared by the whole process) holds
+    read-only arrays, and every basis's cached arrays are read-only: to try a change, edit
+    a copy, ``dataclasses.replace(basis, mean=basis.mean * 0.5)``.
 
     Attributes:
         mean: (gh, gw) float32, mean disparity on the grid (px).
@@ -273,7 +290,7 @@ class Basis:
     meta: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        _check_arrays(self, "Basis()")
+        _check_arrays(self, _NAMING.get())
 
     @property
     def n_components(self) -> int:
@@ -296,23 +313,23 @@ class Basis:
     def pixel_major(self) -> npt.NDArray[np.float32]:
         """(s, l) float32 C-contiguous: B with one row per grid pixel, for gathers and B @ Y."""
         s = self.grid_size[0] * self.grid_size[1]
-        return np.ascontiguousarray(self.components.reshape(self.n_components, s).T)
+        return _read_only(np.ascontiguousarray(self.components.reshape(self.n_components, s).T))
 
     @cached_property
     def component_rows(self) -> npt.NDArray[np.float32]:
         """(l, s) float32 C-contiguous view of the components: B^T."""
         s = self.grid_size[0] * self.grid_size[1]
-        return np.ascontiguousarray(self.components.reshape(self.n_components, s))
+        return _read_only(np.ascontiguousarray(self.components.reshape(self.n_components, s)))
 
     @cached_property
     def mean_flat(self) -> npt.NDArray[np.float32]:
         """(s,) float32, the mean map flattened in row-major grid order."""
-        return np.ascontiguousarray(self.mean.reshape(-1))
+        return _read_only(np.ascontiguousarray(self.mean.reshape(-1)))
 
     @cached_property
     def prior_variance(self) -> npt.NDArray[np.float32]:
         """(gh, gw) float32, prior variance sum_i lambda_i u_i(x)^2 on the grid (px^2)."""
-        return self.variance_grid(1).prior_variance.reshape(self.grid_size)
+        return _read_only(self.variance_grid(1).prior_variance.reshape(self.grid_size))
 
     @cached_property
     def _variance_grids(self) -> dict[int, VarianceGrid]:
@@ -350,7 +367,9 @@ class Basis:
         prior = np.einsum(
             "i,is,is->s", self.eigenvalues, rows.astype(np.float64), rows.astype(np.float64)
         ).astype(np.float32)
-        grid = VarianceGrid(size=size, component_rows=rows, prior_variance=prior)
+        grid = VarianceGrid(
+            size=size, component_rows=_read_only(rows), prior_variance=_read_only(prior)
+        )
         self._variance_grids[stride] = grid
         return grid
 
@@ -376,7 +395,7 @@ class Basis:
             PRIOR_COVARIANCE_MAX_BYTES
         ):
             scaled = grid.component_rows * self.eigenvalues.astype(np.float32)[:, None]
-            covariance = self.pixel_major @ scaled
+            covariance = _read_only(self.pixel_major @ scaled)
         self._prior_covariances[stride] = covariance
         return covariance
 
@@ -484,7 +503,8 @@ class Basis:
         stays lazy, as for any basis.
 
         Returns:
-            The built-in :class:`Basis` (the same object on every call).
+            The built-in :class:`Basis` (the same object on every call; its arrays are
+            read-only).
 
         Raises:
             BasisError: the file is missing from this installation or damaged.
@@ -712,11 +732,13 @@ def _from_arrays(data: dict[str, npt.NDArray[Any]], where: Path) -> Basis:
         raise BasisError(
             f"basis file {where}: key 'image_size' has shape {image_size.shape}, expected (2,)"
         )
+    naming = _NAMING.set(_file_key)
     try:
+        # read-only: the arrays are the basis's own, and a loaded basis may be shared
         return Basis(
-            mean=mean.astype(np.float32, copy=False),
-            components=components.astype(np.float32, copy=False),
-            eigenvalues=eigenvalues.astype(np.float64, copy=False),
+            mean=_read_only(mean.astype(np.float32, copy=False)),
+            components=_read_only(components.astype(np.float32, copy=False)),
+            eigenvalues=_read_only(eigenvalues.astype(np.float64, copy=False)),
             total_variance=float(total_variance),
             image_size=(int(image_size[0]), int(image_size[1])),
             focal_baseline=float(focal_baseline),
@@ -725,36 +747,59 @@ def _from_arrays(data: dict[str, npt.NDArray[Any]], where: Path) -> Basis:
         )
     except ValueError as err:
         raise BasisError(f"basis file {where}: {err}") from err
+    finally:
+        _NAMING.reset(naming)
 
 
-def _check_arrays(basis: Basis, where: str) -> None:
-    """Validate shapes, order and orthonormality; raise ValueError naming the problem."""
+def _argument(name: str) -> str:
+    return f"Basis argument `{name}`"
+
+
+def _file_key(name: str) -> str:
+    return f"key {name!r}"
+
+
+_NAMING: contextvars.ContextVar[Callable[[str], str]] = contextvars.ContextVar(
+    "basis_naming", default=_argument
+)
+"""How :func:`_check_arrays` names a field: an argument of ``Basis()``, or while
+:func:`_from_arrays` builds a basis from a file, a key of that file."""
+
+
+def _check_arrays(basis: Basis, name: Callable[[str], str]) -> None:
+    """Validate shapes, order and orthonormality; raise ValueError naming the problem.
+
+    Args:
+        basis: the basis to check.
+        name: how to name a field in a message (``key 'mean'`` for a file).
+    """
     if basis.mean.ndim != 2:
-        raise ValueError(f"{where}: key 'mean' must be (gh, gw), got shape {basis.mean.shape}")
+        raise ValueError(f"{name('mean')} must be (gh, gw), got shape {basis.mean.shape}")
     if basis.components.ndim != 3 or basis.components.shape[1:] != basis.mean.shape:
         raise ValueError(
-            f"key 'components' has shape {basis.components.shape}, expected "
+            f"{name('components')} has shape {basis.components.shape}, expected "
             f"(l, {basis.mean.shape[0]}, {basis.mean.shape[1]}) to match 'mean'"
         )
     n_components = basis.components.shape[0]
     if n_components == 0:
         raise ValueError(
-            "key 'components' holds no component; learn the basis again from maps that vary"
+            f"{name('components')} holds no component; learn the basis again from maps that vary"
         )
     if basis.eigenvalues.shape != (n_components,):
         raise ValueError(
-            f"key 'eigenvalues' has shape {basis.eigenvalues.shape}, expected ({n_components},)"
+            f"{name('eigenvalues')} has shape {basis.eigenvalues.shape}, expected ({n_components},)"
         )
     if np.any(basis.eigenvalues < 0) or np.any(np.diff(basis.eigenvalues) > 0):
-        raise ValueError("key 'eigenvalues' must be non-negative and descending")
+        raise ValueError(f"{name('eigenvalues')} must be non-negative and descending")
     if basis.image_size[0] < 1 or basis.image_size[1] < 1:
-        raise ValueError(f"key 'image_size' must be positive, got {basis.image_size}")
+        raise ValueError(f"{name('image_size')} must be positive, got {basis.image_size}")
     if not (np.isfinite(basis.focal_baseline) and basis.focal_baseline >= 0):
         raise ValueError(
-            f"key 'focal_baseline' must be finite and >= 0, got {basis.focal_baseline}"
+            f"{name('focal_baseline')} must be finite and >= 0 (px*m; 0 when unknown), "
+            f"got {basis.focal_baseline}"
         )
     if basis.n_train < 0:
-        raise ValueError(f"key 'n_train' must be >= 0, got {basis.n_train}")
+        raise ValueError(f"{name('n_train')} must be >= 0, got {basis.n_train}")
     # float32 Gram (s * l^2 flops): its rounding, ~sqrt(s) * 6e-8, is far below the tolerance.
     # One BLAS thread: on a busy 2-core machine a two-thread OpenBLAS spun 0.7 s on the
     # 150-component KITTI-size Gram that one thread does in 0.02 s.
@@ -764,6 +809,6 @@ def _check_arrays(basis: Basis, where: str) -> None:
     error = float(np.abs(gram - np.eye(n_components, dtype=np.float32)).max())
     if error > ORTHONORMALITY_TOLERANCE:
         raise ValueError(
-            f"key 'components' is not orthonormal over grid pixels (max |B^T B - I| = "
+            f"{name('components')} is not orthonormal over grid pixels (max |B^T B - I| = "
             f"{error:.3g} > {ORTHONORMALITY_TOLERANCE})"
         )

@@ -20,6 +20,7 @@ seeded with what it kept, once they do not.
 from __future__ import annotations
 
 import itertools
+import math
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from enum import StrEnum
@@ -168,6 +169,11 @@ def learn_basis(
         raise ValueError(f"Expected `n_components` >= 1, got {n_components}")
     if variance is not None and not 0.0 < variance <= 1.0:
         raise ValueError(f"Expected `variance` in (0, 1], got {variance}")
+    if not (math.isfinite(focal_baseline) and focal_baseline >= 0.0):
+        raise ValueError(
+            f"Expected `focal_baseline` finite and >= 0 (px*m; 0 when unknown), "
+            f"got {focal_baseline}"
+        )
     iterator = iter(maps)
     try:
         first = disparity_array(next(iterator), "maps[0]", np.float32)

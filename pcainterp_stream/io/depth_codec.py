@@ -49,6 +49,11 @@ DEFAULT_PNG_LEVEL = 1
 """ISA-L level of the PNG codec: on KITTI depth the size of zlib-ng's level 2 (the default
 before) in ~2/5 of its time, ~1.8 ms per 1241x376 image (docs/output_speed.md)."""
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+RVL_MAX_SIDE = 1 << 20
+"""Largest width or height an RVL header may give (px): OpenCV's limit on a PNG's
+(``CV_IO_MAX_IMAGE_WIDTH``), so that both codecs read the same images."""
+RVL_MAX_PIXELS = 1 << 30
+"""Largest width x height an RVL header may give: OpenCV's ``CV_IO_MAX_IMAGE_PIXELS``."""
 
 
 class DepthCodecError(ValueError):
@@ -216,7 +221,18 @@ def decode_16(payload: npt.NDArray[np.uint8], codec: str) -> npt.NDArray[np.uint
         width, height = (int(value) for value in payload[:8].view("<u4"))
         if width == 0 or height == 0:
             raise DepthCodecError(f"compressedDepth rvl image has size {width}x{height}")
-        return rvl_decode(payload[8:], width * height).reshape(height, width)
+        if max(width, height) > RVL_MAX_SIDE or width * height > RVL_MAX_PIXELS:
+            raise DepthCodecError(
+                f"RVL header says {width}x{height} px, more than an image holds (at most "
+                f"{RVL_MAX_SIDE} px a side, {RVL_MAX_PIXELS} px); the data are damaged or "
+                "not RVL"
+            )
+        try:
+            return rvl_decode(payload[8:], width * height).reshape(height, width)
+        except DepthCodecError as err:
+            raise DepthCodecError(
+                f"RVL header says {width}x{height} px; the data are damaged: {err}"
+            ) from err
     raise DepthCodecError(f"compressedDepth codec {codec!r} is not supported; expected png or rvl")
 
 
@@ -328,6 +344,9 @@ def _pack_nibbles(stream: npt.NDArray[np.int64]) -> bytes:
 def rvl_decode(data: npt.NDArray[np.uint8] | bytes, n_pixels: int) -> npt.NDArray[np.uint16]:
     """Decode ``n_pixels`` uint16 pixels from RVL words.
 
+    The runs are walked before the image is allocated: a damaged count (an RVL header's
+    width x height) is refused, not allocated.
+
     Raises:
         DepthCodecError: the code ends before ``n_pixels`` pixels or its runs overflow them.
     """
@@ -346,8 +365,9 @@ def rvl_decode(data: npt.NDArray[np.uint8] | bytes, n_pixels: int) -> npt.NDArra
     position = np.arange(cut) - np.repeat(starts, ends - starts + 1)
     parts = (nibbles[:cut] & 7) << np.minimum(3 * position, 62)
     stream = np.add.reduceat(parts, starts)
-    out = np.zeros(n_pixels, dtype=np.int64)
     is_delta = np.zeros(stream.size, dtype=bool)
+    run_starts: list[int] = []  # first pixel of each run of non-zeros
+    run_lengths: list[int] = []
     pixel = 0
     cursor = 0
     while pixel < n_pixels:
@@ -359,10 +379,17 @@ def rvl_decode(data: npt.NDArray[np.uint8] | bytes, n_pixels: int) -> npt.NDArra
         if pixel + nonzeros > n_pixels or cursor + nonzeros > stream.size:
             raise DepthCodecError(f"RVL runs overflow the image's {n_pixels} pixels")
         is_delta[cursor : cursor + nonzeros] = True
-        out[pixel : pixel + nonzeros] = -1  # marks the non-zero pixels, in order
+        run_starts.append(pixel)
+        run_lengths.append(nonzeros)
         pixel += nonzeros
         cursor += nonzeros
     zigzag = stream[is_delta]
     delta = np.where(zigzag & 1, -((zigzag + 1) >> 1), zigzag >> 1)
-    out[out == -1] = np.cumsum(delta) & 0xFFFF
-    return out.astype(np.uint16)
+    # the j-th non-zero value, in run r (b_r values before that run, starting at pixel p_r),
+    # is pixel p_r + (j - b_r)
+    lengths = np.asarray(run_lengths, dtype=np.int64)
+    before = np.cumsum(lengths) - lengths
+    shift = np.repeat(np.asarray(run_starts, dtype=np.int64) - before, lengths)
+    out = np.zeros(n_pixels, dtype=np.uint16)
+    out[shift + np.arange(zigzag.size)] = np.cumsum(delta) & 0xFFFF
+    return out

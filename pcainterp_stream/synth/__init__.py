@@ -117,6 +117,27 @@ class SynthConfig:
             raise ValueError(f"speed must be in (0, 40] m/s, got {self.speed}")
         if self.baseline <= 0.0:
             raise ValueError(f"baseline must be > 0 m, got {self.baseline}")
+        self._check_intrinsics()
+
+    def _check_intrinsics(self) -> None:
+        """Refuse an image size or intrinsics the renderer cannot cast rays for."""
+        for name, size in (("width", self.width), ("height", self.height)):
+            if not size >= 1:  # also refuses nan
+                raise ValueError(f"{name} must be >= 1 px, got {size}")
+            if round(size * self.scale) < 1:
+                raise ValueError(
+                    f"{name} {size} px at scale {self.scale} is less than 1 px; "
+                    "give a larger image or scale"
+                )
+        for name, focal in (("fx", self.fx), ("fy", self.fy)):
+            if not (math.isfinite(focal) and focal > 0.0):
+                raise ValueError(f"{name} must be finite and > 0 px, got {focal}")
+        for name, centre, size in (("cx", self.cx, self.width), ("cy", self.cy, self.height)):
+            # pixel centres at 0 .. size - 1: the image spans [-0.5, size - 0.5]
+            if not (math.isfinite(centre) and -0.5 <= centre <= size - 0.5):
+                raise ValueError(
+                    f"{name} must be inside the image, in [-0.5, {size - 0.5}] px, got {centre}"
+                )
 
     @property
     def camera(self) -> StereoCamera:

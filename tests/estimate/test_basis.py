@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import dataclasses
 import json
 import zipfile
 from pathlib import Path
@@ -79,6 +80,23 @@ def test_save_load_round_trip(tmp_path: Path) -> None:
     assert loaded.n_train == basis.n_train
     assert loaded.meta == basis.meta
     assert not list(tmp_path.glob(".*tmp"))
+
+
+def test_a_loaded_basis_and_what_it_caches_are_read_only(tmp_path: Path) -> None:
+    """A loaded basis may be shared (Basis.default()): an in-place edit raises."""
+    made = make_basis()
+    made.save(tmp_path / "basis.npz")
+    loaded = Basis.load(tmp_path / "basis.npz")
+    covariance = loaded.prior_covariance(1)
+    assert covariance is not None
+    for array in (loaded.mean, loaded.components, loaded.eigenvalues, covariance):
+        assert not array.flags.writeable
+    with pytest.raises(ValueError, match="read-only"):
+        loaded.eigenvalues[0] = 0.0
+    # a basis built from the caller's arrays leaves them as they were; its caches are its own
+    assert made.mean.flags.writeable
+    assert not made.mean_flat.flags.writeable
+    assert made.mean.flags.writeable  # the cached flat view did not lock the caller's array
 
 
 def test_prior_variance_is_cached_and_correct() -> None:
@@ -235,6 +253,18 @@ def test_load_negative_focal_baseline(tmp_path: Path) -> None:
     path = _write(tmp_path / "basis.npz", focal_baseline=np.array(-1.0))
     with pytest.raises(BasisError, match="key 'focal_baseline' must be finite and >= 0"):
         Basis.load(path)
+
+
+def test_a_bad_field_is_named_as_an_argument_of_basis() -> None:
+    good = make_basis()
+    with pytest.raises(
+        ValueError, match=r"^Basis argument `focal_baseline` must be finite and >= 0 \(px\*m"
+    ):
+        dataclasses.replace(good, focal_baseline=-1.0)
+    with pytest.raises(ValueError, match=r"^Basis argument `n_train` must be >= 0, got -3$"):
+        dataclasses.replace(good, n_train=-3)
+    with pytest.raises(ValueError, match="^Basis argument `components` is not orthonormal"):
+        dataclasses.replace(good, components=good.components * 2)
 
 
 def test_load_bad_meta(tmp_path: Path) -> None:

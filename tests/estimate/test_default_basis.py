@@ -48,6 +48,30 @@ def test_built_in_basis_is_loaded_once() -> None:
     assert not is_default(Basis.load(default_basis_path()))  # an equal copy is not it
 
 
+def test_built_in_basis_cannot_be_edited_in_place() -> None:
+    basis = Basis.default()
+    derived = (
+        basis.mean,
+        basis.components,
+        basis.eigenvalues,
+        basis.pixel_major,
+        basis.component_rows,
+        basis.mean_flat,
+        basis.prior_variance,
+        basis.variance_grid(1).component_rows,
+        basis.variance_grid(4).prior_variance,
+        basis.variance_grid(4).squared_rows,
+    )
+    for array in derived:
+        assert not array.flags.writeable
+    mean = basis.mean
+    with pytest.raises(ValueError, match="read-only"):
+        mean *= 0.5  # a notebook's scaled prior must not change every later Basis.default()
+    scaled = dataclasses.replace(basis, mean=basis.mean * 0.5)  # the way to edit: a copy
+    assert scaled.mean.flags.writeable
+    assert float(np.abs(Basis.default().mean - basis.mean).max()) == 0.0
+
+
 def test_built_in_basis_loads_quickly_and_keeps_slow_parts_lazy() -> None:
     started = time.perf_counter()
     basis = Basis.load(default_basis_path())

@@ -166,6 +166,17 @@ def test_learn_rejects_too_few_maps() -> None:
         learn_basis([np.ones((4, 4))], grid_scale=1.0, method="exact")
 
 
+@pytest.mark.parametrize("focal_baseline", [-1.0, float("nan"), float("inf")])
+def test_learn_names_a_bad_focal_baseline_as_its_argument(focal_baseline: float) -> None:
+    maps = np.random.default_rng(0).uniform(1, 50, (3, 8, 8))
+    with pytest.raises(
+        ValueError,
+        match=rf"^Expected `focal_baseline` finite and >= 0 \(px\*m; 0 when unknown\), "
+        rf"got {focal_baseline}$",
+    ):
+        learn_basis(maps, grid_scale=1.0, method="exact", focal_baseline=focal_baseline)
+
+
 def test_learn_refuses_maps_that_do_not_vary() -> None:
     same = np.random.default_rng(0).uniform(1, 50, (8, 8)).astype(np.float32)
     with pytest.raises(ValueError, match="the maps do not vary"):

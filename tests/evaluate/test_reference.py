@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import json
+import struct
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +18,7 @@ from hypothesis.extra import numpy as hnp
 from hypothesis_profiles import examples
 
 from pcainterp_stream import cli
-from pcainterp_stream.errors import PcaInterpError
+from pcainterp_stream.errors import LogReadError, PcaInterpError
 from pcainterp_stream.evaluate.metrics import (
     CalibrationStats,
     MethodStats,
@@ -31,6 +32,7 @@ from pcainterp_stream.evaluate.metrics import (
     relative_transform,
     stereo_transform,
 )
+from pcainterp_stream.evaluate.reference import ReferenceTopic, reference_disparity
 from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log, summary_table
 from pcainterp_stream.evaluate.results import PCA_ON_SGBM, SGBM, SGBM_NN, Evaluation
 from pcainterp_stream.frontend.stereo import SgbmConfig, compute_disparity
@@ -433,6 +435,21 @@ def test_reference_errors_are_one_line(
     err = _error(capsys, path, "-o", out, "--reference-kind", "depth")
     assert "--reference-kind needs --reference-topic" in err
     assert not out.exists()
+
+
+def test_a_damaged_compressed_depth_reference_is_a_log_read_error() -> None:
+    """An RVL header of 100000 x 100000 px: evaluate's one-line error, not a MemoryError."""
+    payload = struct.pack("<iff", 0, 100.0, 0.0) + struct.pack("<II", 100_000, 100_000)
+    message = rosmsg.compressed_image_message(
+        payload + bytes(64), "32FC1; compressedDepth rvl", 5, LEFT_FRAME
+    )
+    reference = ReferenceTopic("/ref/rvl", rosmsg.COMPRESSED_IMAGE, ReferenceKind.DEPTH)
+    with pytest.raises(
+        LogReadError, match=r"^reference topic /ref/rvl: RVL header says 100000x100000 px"
+    ):
+        reference_disparity(
+            message, reference, focal_baseline=FOCAL_BASELINE, image_size=CAMERA.image_size
+        )
 
 
 def test_cli_report_names_a_sparse_reference(

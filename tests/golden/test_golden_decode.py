@@ -147,6 +147,17 @@ def test_compressed_depth_refuses_other_formats() -> None:
         decode_compressed_depth("32FC1; compressedDepth png", b"\x00")
 
 
+def test_a_damaged_rvl_header_leaves_a_one_line_note() -> None:
+    """A header of 100000 x 100000 px: a note, not a 74.5 GiB allocation (MemoryError)."""
+    payload = _header(100.0, 0.0) + struct.pack("<II", 100_000, 100_000) + bytes(64)
+    damaged = rosmsg.compressed_image_message(payload, "32FC1; compressedDepth rvl", 5, "cam")
+    content = message_content(rosmsg.COMPRESSED_IMAGE, damaged)
+    assert content.arrays == {}
+    assert len(content.notes) == 1
+    assert "RVL header says 100000x100000 px" in content.notes[0]
+    assert "\n" not in content.notes[0]
+
+
 @pytest.mark.parametrize(
     "encoding", ["mono8", "8UC1", "rgb8", "bgr8", "8UC3", "mono16", "16UC1", "32FC1"]
 )

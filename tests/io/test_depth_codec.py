@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import struct
+import tracemalloc
 import zlib
 
 import cv2
@@ -162,6 +163,42 @@ def test_decode_refuses_what_it_cannot_read() -> None:
     with pytest.raises(depth_codec.DepthCodecError, match="ends after"):
         depth_codec.rvl_decode(depth_codec.rvl_encode(np.ones(10, np.uint16)), 20)
     assert depth_codec.parse_format("32FC1; compressedDepth") == ("32FC1", "png")
+
+
+def _rvl_message(width: int, height: int, code: bytes = bytes(64)) -> bytes:
+    return struct.pack("<iff", 0, 100.0, 0.0) + struct.pack("<II", width, height) + code
+
+
+@pytest.mark.parametrize(("width", "height"), [(100_000, 100_000), (2_000_000_000, 1)])
+def test_a_damaged_rvl_header_is_refused_before_allocating(width: int, height: int) -> None:
+    with pytest.raises(
+        depth_codec.DepthCodecError,
+        match=rf"^RVL header says {width}x{height} px, more than an image holds .* damaged",
+    ):
+        depth_codec.decode("32FC1; compressedDepth rvl", _rvl_message(width, height))
+
+
+def test_an_rvl_header_bigger_than_its_code_allocates_nothing() -> None:
+    """30000 x 30000 px may be an image; 64 bytes of code hold none of it: no 7 GB buffer."""
+    tracemalloc.start()
+    try:
+        with pytest.raises(
+            depth_codec.DepthCodecError,
+            match=r"RVL header says 30000x30000 px; the data are damaged: RVL data ends after "
+            r"0 of 900000000 pixels",
+        ):
+            depth_codec.decode("16UC1; compressedDepth rvl", _rvl_message(30_000, 30_000))
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 10 << 20
+
+
+def test_png_data_read_as_rvl_is_a_codec_error() -> None:
+    """A wrong format string: the PNG signature read as an RVL width x height."""
+    encoded = depth_codec.encode_depth(_depth_image(), quant_a=1000.0, codec="png")
+    with pytest.raises(depth_codec.DepthCodecError, match=r"not RVL"):
+        depth_codec.decode("32FC1; compressedDepth rvl", encoded.data)
 
 
 @given(

@@ -173,10 +173,15 @@ def test_the_packages_names_load_on_first_use() -> None:
     import pcainterp_stream
     from pcainterp_stream import cli
     from pcainterp_stream.cli import app
-    from pcainterp_stream.estimate import basis, estimator
+    from pcainterp_stream.estimate import basis, estimator, prior
 
     assert pcainterp_stream.Basis is basis.Basis
     assert pcainterp_stream.densify is estimator.densify
+    # what densify's local_prior=, temporal= and robust= take, beside densify itself
+    assert pcainterp_stream.LocalPrior is prior.LocalPrior
+    assert pcainterp_stream.TemporalPrior is prior.TemporalPrior
+    assert pcainterp_stream.Robust is prior.Robust
+    assert {"LocalPrior", "Robust", "TemporalPrior"} <= set(pcainterp_stream.__all__)
     assert cli.main is app.main
     assert cli.COMMANDS is app.COMMANDS
     assert set(pcainterp_stream.__all__) <= set(dir(pcainterp_stream))

@@ -71,6 +71,29 @@ def test_streaming_is_lazy() -> None:
     assert second.stamp_ns - first.stamp_ns == 100_000_000
 
 
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"fx": 0.0}, r"fx must be finite and > 0 px, got 0\.0"),
+        ({"fy": -700.0}, r"fy must be finite and > 0 px, got -700\.0"),
+        ({"fx": float("inf")}, r"fx must be finite and > 0 px, got inf"),
+        ({"width": 0}, r"width must be >= 1 px, got 0"),
+        ({"height": float("nan")}, r"height must be >= 1 px, got nan"),
+        ({"width": 4, "scale": 0.1}, r"width 4 px at scale 0\.1 is less than 1 px"),
+        ({"cx": -10.0}, r"cx must be inside the image, in \[-0\.5, 1240\.5\] px, got -10\.0"),
+        ({"cy": float("nan")}, r"cy must be inside the image, in \[-0\.5, 375\.5\] px, got nan"),
+    ],
+)
+def test_camera_options_are_checked(options: dict[str, float], message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        SynthConfig(**{"frames": 1, "scale": 0.25, **options})  # type: ignore[arg-type]
+
+
+def test_a_one_pixel_camera_renders() -> None:
+    frame = next(iter(generate(SynthConfig(frames=1, width=1, height=1, cx=0.0, cy=0.0))))
+    assert frame.left.shape == frame.depth.shape == (1, 1)
+
+
 def test_pose_smooth_at_speed(frames: list[SynthFrame]) -> None:
     positions = np.array([frame.camera_to_world[:3, 3] for frame in frames])
     steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
