@@ -21,6 +21,7 @@ from pcainterp_stream.io.foxglove import (
     INTERRUPTED_STOP_TIMEOUT_S,
     FoxgloveLive,
     ServeAddress,
+    behind_line,
 )
 
 if TYPE_CHECKING:
@@ -122,11 +123,9 @@ def densify_one(
                 f"foxglove: published {stats.frames} frames ({stats.messages} messages) to "
                 f"{stats.clients} client(s){skipped}"
             )
-            for client, count in sorted(stats.overflows.items()):
-                echo(
-                    f"foxglove: client {client} fell behind: its queue overflowed {count} "
-                    "time(s), its oldest messages were dropped"
-                )
+            behind = behind_line(stats)
+            if behind is not None:
+                echo(behind)
             if live is not None and live.keep_serving:
                 try:  # a Ctrl-C right after the line below is caught too
                     echo(f"foxglove: still serving on {server.url}; Ctrl-C to stop")
@@ -174,7 +173,7 @@ def _print_summary(summary: DensifySummary, processor: ProcessorConfig) -> None:
     echo(
         f"densified {summary.frames} frame{'' if summary.frames == 1 else 's'} of "
         f"{summary.input} in {summary.seconds:.1f} s "
-        f"({summary.frames_per_second:.1f} frames/s), "
+        f"({summary.pace}), "
         f"{summary.measurements / max(summary.frames, 1):.0f} points per frame"
         + (", fused with the whole SGBM map (dense)" if dense else "")
     )

@@ -20,10 +20,13 @@ hold the stream for decades.
 
 Slow clients never block the caller: ``Channel.log`` only queues. The SDK keeps one bounded
 outbox per client (``message_backlog_size`` messages, here :data:`CLIENT_BACKLOG`) and drops
-that client's oldest message when it is full. The SDK reports that as a log record
-("outbox for client ADDRESS full") and keeps no count it exposes, so :class:`FoxgloveLive`
-counts those reports per client (:attr:`LiveStats.overflows`); nothing is dropped before
-the SDK.
+that client's oldest message when it is full; nothing is dropped before the SDK. It exposes
+no count of what it dropped (no per-client statistic, no callback): its only sign is a log
+record, "outbox for client ADDRESS full", and foxglove-sdk 0.30 writes at most one such
+record every 30 s for the whole server (one throttle shared by all clients), however many
+messages and clients it dropped from. :class:`FoxgloveLive` therefore keeps only which
+clients were named (:attr:`LiveStats.behind`), and :func:`behind_line` says no number:
+every client named lost messages at least once, and the others may have too.
 """
 
 from __future__ import annotations
@@ -34,7 +37,7 @@ import socket
 import sys
 import threading
 import time
-from collections import Counter, deque
+from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from types import TracebackType
@@ -176,8 +179,9 @@ class LiveStats:
         released_early: input messages published before their frame because
             :data:`MAX_HELD` were waiting (their order is then not guaranteed).
         clients: distinct clients that subscribed to a channel.
-        overflows: client address -> outbox overflows the SDK reported (each one drops that
-            client's oldest queued messages).
+        behind: client addresses the SDK named as having a full outbox (it dropped their
+            oldest queued messages), in the order first named; not every such client is
+            named (see the module's notes).
         gaps_skipped: gaps in log time the pacing did not wait for.
         gap_s_skipped: their total length (s of log).
         dropped: client addresses whose connection ended without a close handshake.
@@ -187,14 +191,35 @@ class LiveStats:
     messages: int = 0
     released_early: int = 0
     clients: int = 0
-    overflows: Counter[str] = field(default_factory=Counter)
+    behind: list[str] = field(default_factory=list)
     gaps_skipped: int = 0
     gap_s_skipped: float = 0.0
     dropped: set[str] = field(default_factory=set)
 
 
+def behind_line(stats: LiveStats) -> str | None:
+    """Return the summary's line on clients that fell behind, None when the SDK named none.
+
+    No count: the SDK keeps none it exposes, and names at most one client every 30 s.
+    """
+    if not stats.behind:
+        return None
+    line = (
+        f"foxglove: {len(stats.behind)} client(s) fell behind ({', '.join(stats.behind)}): "
+        "the server dropped their oldest queued messages at least once; a slow client sees "
+        "gaps"
+    )
+    others = stats.clients - len(stats.behind)
+    if others > 0:
+        line += (
+            f" (the Foxglove SDK names at most one client every 30 s: the other {others} "
+            "may have lost messages too)"
+        )
+    return line
+
+
 class _SdkLog(logging.Handler):
-    """Counts the SDK's "outbox full" reports per client and passes its warnings on.
+    """Notes the clients the SDK's "outbox full" reports name and passes its warnings on.
 
     A client that drops its connection without a close handshake (a viewer closed, Wi-Fi
     lost) is said in one line per client (the SDK logs an error per message it then cannot
@@ -212,7 +237,8 @@ class _SdkLog(logging.Handler):
         dropped = _DISCONNECT.search(text)
         if found is not None:
             for sink in list(self.sinks):
-                sink.stats.overflows[found["client"]] += 1
+                if found["client"] not in sink.stats.behind:
+                    sink.stats.behind.append(found["client"])
         elif dropped is not None:
             client = dropped["client"]
             for sink in list(self.sinks):

@@ -195,6 +195,18 @@ class DensifySummary:
         """Return densified frames per wall-clock second."""
         return self.frames / self.seconds if self.seconds > 0 else 0.0
 
+    @property
+    def pace(self) -> str:
+        """Return the rate for the summary line, never ``0.0`` for a slow run.
+
+        ``12.3 frames/s``; below 1 frame/s with two digits and the seconds per frame
+        (``0.0075 frames/s, 134 s per frame``).
+        """
+        rate = self.frames_per_second
+        if rate >= 1 or rate == 0:
+            return f"{rate:.1f} frames/s"
+        return f"{rate:.2g} frames/s, {self.seconds / self.frames:.3g} s per frame"
+
 
 PROVENANCE = "pcainterp.densify"
 """The metadata record naming what made a densified log: version, basis and options."""

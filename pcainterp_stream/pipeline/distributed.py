@@ -88,8 +88,11 @@ from pcainterp_stream.pipeline.learn import (
 )
 from pcainterp_stream.pipeline.scheduler import (
     QUIET_TRACKER,
+    WorkerPaths,
+    checked,
     completed,
     connect,
+    running_scheduler,
     stop_local_workers,
 )
 
@@ -570,9 +573,14 @@ def measure_on_cluster(
     Raises:
         PcaInterpError: a task failed.
     """
+    remote = running_scheduler(client)
     futures = [
         client.submit(
-            run_task, measure_held_out, log.resolve(), first, options, pairing, pure=False
+            run_task,
+            checked,
+            WorkerPaths((log.resolve(),)) if remote else None,
+            *(measure_held_out, log.resolve(), first, options, pairing),
+            pure=False,
         )
         for log, first in sources
     ]
@@ -605,6 +613,7 @@ def _reduce(
     pending = iter(specs)
     running: Any = as_completed()  # type: ignore[no-untyped-call]
     chunks: set[Any] = set()
+    remote = running_scheduler(client)
 
     def refill() -> None:
         while running.count() < window:
@@ -614,8 +623,9 @@ def _reduce(
             log, start, stop = spec
             future = client.submit(
                 run_task,
-                summarize_chunk,
-                *(log, start, stop, options, pairing, keep, target),
+                checked,
+                WorkerPaths((log,)) if remote else None,
+                *(summarize_chunk, log, start, stop, options, pairing, keep, target),
                 pure=False,
             )
             chunks.add(future.key)
@@ -717,6 +727,7 @@ def densify_many(
     staging: dict[int, Path] = {}  # input index -> its staging folder, until committed
     outcomes: dict[int, DensifyOutcome] = {}
     kept: list[Path] = []
+    remote = running_scheduler(client)  # its workers may not see these paths: they check
     try:
         tasks: dict[Any, int] = {}
         for index, (path, out) in enumerate(zip(inputs, outputs, strict=True)):
@@ -730,8 +741,13 @@ def densify_many(
             folder = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out_dir))
             track_partial(folder)
             staging[index] = folder
+            paths = WorkerPaths((path,), basis, out_dir, folder) if remote else None
             future = client.submit(
-                run_task, _densify_one, path, folder / out.name, basis, kwargs, pure=False
+                run_task,
+                checked,
+                paths,
+                *(_densify_one, path, folder / out.name, basis, kwargs),
+                pure=False,
             )
             tasks[future] = index
         for future in completed(as_completed(list(tasks)), client):  # type: ignore[no-untyped-call]

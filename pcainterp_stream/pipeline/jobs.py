@@ -589,8 +589,8 @@ def _demo_summary(
         f"demo finished in {elapsed:.0f} s; everything is in {out}/",
         f"  basis            {described}",
         f"  estimate         {_estimate_line(basis)}",
-        f"  densified        {summary.frames} frames at {summary.frames_per_second:.1f}"
-        f" frames/s, {summary.measurements / max(summary.frames, 1):.0f} points per frame",
+        f"  densified        {summary.frames} frames at {summary.pace},"
+        f" {summary.measurements / max(summary.frames, 1):.0f} points per frame",
         f"  mean Delta_2D ({report['mode']} mode, paper IV-B), same sparse points:",
         f"    PCA-MAP           {means['pca_map']:.3f} px",
         f"    nearest neighbour {means['nearest']:.3f} px  (PCA-MAP / NN ="

@@ -8,6 +8,10 @@ at once, waits a bounded time for a worker (:data:`DEFAULT_WORKER_WAIT`) and giv
 line naming the address and ``dask worker ADDRESS``; while tasks are pending,
 :func:`completed` notices when the last worker is gone and does the same.
 
+A running scheduler's workers may be other machines, with other files: a task there
+checks the paths it needs first (:class:`WorkerPaths`, :func:`checked`) and names a missing
+one as the worker's view, not as the user's mistake.
+
 A local cluster's worker processes leave SIGINT and SIGTERM to the command, and are killed
 at once when its block ends with an exception (:func:`connect`, :func:`stop_local_workers`).
 """
@@ -25,17 +29,21 @@ import time
 import weakref
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
-from pcainterp_stream.errors import SchedulerError
+from pcainterp_stream.errors import BasisError, LogReadError, LogWriteError, SchedulerError
 
 __all__ = [
     "DEFAULT_WORKER_WAIT",
     "QUIET_TRACKER",
+    "WorkerPaths",
     "WorkerWatch",
     "check_address",
+    "checked",
     "completed",
     "connect",
+    "running_scheduler",
     "stop_local_workers",
 ]
 
@@ -305,6 +313,82 @@ def completed(futures: Any, client: Any) -> Iterator[Any]:
         watch.check()
         with condition:
             condition.wait(timeout=0.1)
+
+
+def running_scheduler(client: Any) -> bool:
+    """Whether ``client`` is :func:`connect`'s client of a running scheduler (not local).
+
+    A running scheduler's workers may be other machines; a local cluster's share these files.
+    """
+    return client in _WATCHES
+
+
+@dataclass(frozen=True)
+class WorkerPaths:
+    """The paths a task needs, checked on the worker that runs it (:meth:`check`).
+
+    The command resolved and checked them here; a worker of a running scheduler sees its
+    own filesystem. Without this check the task's first error would be densify's own, for
+    one machine: a log the user can see "does not exist", or "create it first" for the
+    staging folder the command itself made.
+
+    Attributes:
+        logs: the input logs.
+        basis: the basis file (``--basis``), None for none.
+        out_dir: the output folder (``--out-dir``), None for none.
+        staging: the staging folder made in ``out_dir`` for the task's output.
+    """
+
+    logs: tuple[Path, ...] = ()
+    basis: Path | None = None
+    out_dir: Path | None = None
+    staging: Path | None = None
+
+    def check(self) -> None:
+        """Refuse, in one line naming the worker, a path this worker does not see.
+
+        Raises:
+            LogReadError: a log does not exist here.
+            BasisError: the basis file does not exist here.
+            LogWriteError: ``out_dir`` or the staging folder does not exist here.
+        """
+        names = ["the logs"] + ["--basis"] * (self.basis is not None)
+        names += ["--out-dir"] * (self.out_dir is not None)
+        shared = ", ".join(names[:-1]) + " and " + names[-1] if len(names) > 1 else names[0]
+        hint = f"the workers need {shared} at the same paths (a shared filesystem)"
+        where = f"the Dask worker ({_worker_address()})"
+        for log in self.logs:
+            if not log.exists():
+                raise LogReadError(f"{log} does not exist on {where}: {hint}")
+        if self.basis is not None and not self.basis.exists():
+            raise BasisError(f"--basis {self.basis} does not exist on {where}: {hint}")
+        if self.out_dir is not None and not self.out_dir.is_dir():
+            raise LogWriteError(f"--out-dir {self.out_dir} does not exist on {where}: {hint}")
+        if self.staging is not None and not self.staging.is_dir():
+            raise LogWriteError(
+                f"--out-dir {self.staging.parent} on {where} is not the folder this command wrote "
+                f"to (the staging folder {self.staging.name} it made there is missing): {hint}"
+            )
+
+
+def _worker_address() -> str:
+    """Return the address of the Dask worker running this task ("?" outside of one)."""
+    try:
+        from distributed import get_worker
+
+        return str(get_worker().address)
+    except (ImportError, ValueError):
+        return "?"
+
+
+def checked(paths: WorkerPaths | None, function: Callable[..., Any], *args: Any) -> Any:
+    """Run ``function(*args)`` once ``paths`` are checked on this worker (a task).
+
+    ``paths`` None: no check (a local cluster's workers share this machine's files).
+    """
+    if paths is not None:
+        paths.check()
+    return function(*args)
 
 
 def _start_workers(cluster: Any, client: Any, count: int) -> None:

@@ -582,6 +582,59 @@ def test_a_client_that_drops_is_one_line(capsys: pytest.CaptureFixture[str]) -> 
     assert live.stats.dropped == {"127.0.0.1:40001", "[::1]:40002"}
 
 
+SDK_SEND = "foxglove.websocket.connected_client.send_lossy"
+"""A logger under the SDK's (its records of a full outbox; ours handles all of "foxglove")."""
+
+
+def test_clients_that_fell_behind_are_named_with_no_count(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """The SDK logs "outbox full" at most once per 30 s for all its clients: no count."""
+    sdk = logging.getLogger(SDK_SEND)
+    with FoxgloveLive(ServeAddress(port=0), rate=0.0) as live:
+        live.start()
+        for client in ("127.0.0.1:40001", "127.0.0.1:40001", "[::1]:40002", "127.0.0.1:40001"):
+            sdk.info("outbox for client %s full", client)
+    assert live.stats.behind == ["127.0.0.1:40001", "[::1]:40002"]
+    assert capsys.readouterr().err == ""  # INFO records: said in the summary only
+    live.stats.clients = 2
+    behind = (
+        "foxglove: 2 client(s) fell behind (127.0.0.1:40001, [::1]:40002): the server "
+        "dropped their oldest queued messages at least once; a slow client sees gaps"
+    )
+    assert foxglove.behind_line(live.stats) == behind
+    live.stats.clients = 3  # a client the SDK did not name (its reports are throttled)
+    assert foxglove.behind_line(live.stats) == (
+        f"{behind} (the Foxglove SDK names at most one client every 30 s: the other 1 may "
+        "have lost messages too)"
+    )
+    live.stats.behind.clear()
+    assert foxglove.behind_line(live.stats) is None
+
+
+def test_the_summary_names_clients_behind_once_each_with_no_count(
+    synthetic_log: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Two clients, the SDK's reports naming one of them twice (bug hunt 5B, M2)."""
+    start = FoxgloveLive.start
+
+    def start_and_overflow(live: FoxgloveLive) -> None:
+        start(live)
+        live.stats.clients = 2  # as two subscribed
+        for _ in range(2):
+            logging.getLogger(SDK_SEND).info("outbox for client 127.0.0.1:39744 full")
+
+    monkeypatch.setattr(FoxgloveLive, "start", start_and_overflow)
+    args = [str(synthetic_log), "--foxglove", "127.0.0.1:0", "--exit-when-done", "--rate", "0"]
+    assert cli.main(["densify", *args]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert [line for line in out if "behind" in line or "overflow" in line] == [
+        "foxglove: 1 client(s) fell behind (127.0.0.1:39744): the server dropped their oldest "
+        "queued messages at least once; a slow client sees gaps (the Foxglove SDK names at "
+        "most one client every 30 s: the other 1 may have lost messages too)"
+    ]
+
+
 @pytest.mark.parametrize(
     ("text", "host", "port"),
     [

@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from pcainterp_stream.errors import SchedulerError
+from pcainterp_stream.errors import PcaInterpError, SchedulerError
 from pcainterp_stream.pipeline import distributed, jobs, scheduler
 
 pytest.importorskip("dask.distributed")
@@ -247,3 +247,121 @@ def test_the_watch_says_when_workers_are_gone_and_back(monkeypatch: pytest.Monke
         "(start some: dask worker tcp://h:1)",
         "the Dask scheduler at tcp://h:1 has a worker again; going on",
     ]
+
+
+# ------------------------------------------------- paths the workers do not see (5B, L1)
+
+SHARED = "at the same paths (a shared filesystem)"
+
+
+@pytest.fixture
+def one_worker() -> Iterator[Any]:
+    """A scheduler with one worker in a thread of this process (it sees these files)."""
+    from dask.distributed import LocalCluster
+
+    with LocalCluster(  # type: ignore[no-untyped-call]
+        n_workers=1,
+        threads_per_worker=1,
+        processes=False,
+        protocol="tcp",
+        host="127.0.0.1",
+        dashboard_address=":0",
+    ) as cluster:
+        yield cluster
+
+
+def _worker(client: Any) -> str:
+    [address] = client.scheduler_info()["workers"]
+    return str(address)
+
+
+def test_a_log_the_worker_does_not_see_is_its_view_on_a_running_scheduler(
+    one_worker: Any, tmp_path: Path
+) -> None:
+    """Not "does not exist; pass an MCAP file": the user's machine may have it."""
+    from dask.distributed import Client
+
+    missing = tmp_path / "priv" / "a.mcap"
+    with scheduler.connect(one_worker.scheduler_address) as client:
+        [outcome] = distributed.densify_many([missing], tmp_path / "d", None, client)
+        worker = _worker(client)
+    assert outcome.error == (
+        f"{missing} does not exist on the Dask worker ({worker}): the workers need the logs "
+        f"and --out-dir {SHARED}"
+    )
+    assert not outcome.unexpected
+    assert list((tmp_path / "d").iterdir()) == []  # no staging folder left
+    with Client(one_worker) as local:  # a local cluster shares this machine's files
+        assert not scheduler.running_scheduler(local)
+        [outcome] = distributed.densify_many([missing], tmp_path / "d", None, local)
+    assert outcome.error is not None
+    assert outcome.error.startswith(f"{missing} does not exist; pass an MCAP file")
+
+
+def test_cli_names_an_out_dir_the_worker_does_not_share_not_its_staging_folder(
+    one_worker: Any,
+    log: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """The worker's --out-dir is another folder: the staging folder made here is not in it."""
+    from types import SimpleNamespace
+
+    from pcainterp_stream import cli
+
+    def elsewhere(prefix: str, dir: Path) -> str:  # made on "another machine": not here
+        return str(Path(dir) / f"{prefix}gone")
+
+    monkeypatch.setattr(distributed, "tempfile", SimpleNamespace(mkdtemp=elsewhere))
+    out = tmp_path / "out"
+    address = one_worker.scheduler_address
+    assert cli.main(["densify", str(log), "--out-dir", str(out), "--scheduler", address]) == 1
+    [worker] = one_worker.scheduler_info["workers"]
+    err = capsys.readouterr().err.splitlines()
+    assert err[-1] == (
+        f"pcainterp: error: {log}: --out-dir {out} on the Dask worker ({worker}) is not the "
+        "folder this command wrote to (the staging folder .a_dense.mcap.partial-gone it made "
+        f"there is missing): the workers need the logs and --out-dir {SHARED}"
+    )
+    assert "create it first" not in "\n".join(err)
+
+
+@pytest.mark.parametrize("missing", ["basis", "out_dir"])
+def test_a_basis_or_out_dir_the_worker_does_not_see(
+    one_worker: Any, log: Path, tmp_path: Path, missing: str
+) -> None:
+    basis = tmp_path / "b.npz"
+    paths = scheduler.WorkerPaths((log,), basis, tmp_path / "out", tmp_path / "out" / ".s")
+    if missing == "out_dir":
+        basis.write_bytes(b"")
+    with scheduler.connect(one_worker.scheduler_address) as client:
+        future = client.submit(distributed.run_task, scheduler.checked, paths, len, ())
+        with pytest.raises(PcaInterpError) as info:
+            distributed.task_result(future, "densifying")
+        worker = _worker(client)
+    what = f"--basis {basis}" if missing == "basis" else f"--out-dir {tmp_path / 'out'}"
+    assert str(info.value) == (
+        f"{what} does not exist on the Dask worker ({worker}): the workers need the logs, "
+        f"--basis and --out-dir {SHARED}"
+    )
+
+
+def test_learning_tasks_name_a_log_the_worker_does_not_see(one_worker: Any, tmp_path: Path) -> None:
+    from pcainterp_stream.frontend.pairing import PairingConfig
+
+    missing = tmp_path / "priv" / "a.mcap"
+    options, pairing = jobs.LearnOptions(n_components=2, fit_prior=False), PairingConfig()
+    with scheduler.connect(one_worker.scheduler_address) as client:
+        worker = _worker(client)
+        message = (
+            f"{missing} does not exist on the Dask worker ({worker}): the workers need the "
+            f"logs {SHARED}"
+        )
+        chunks = distributed._reduce(client, [(missing, 0, None)], options, pairing, 3)
+        with pytest.raises(PcaInterpError) as info:
+            distributed.task_result(chunks, "a learning task")
+        assert str(info.value) == message
+        with pytest.raises(PcaInterpError) as info:
+            distributed.measure_on_cluster(client, [(missing, 0)], options, pairing)
+        assert str(info.value) == message
