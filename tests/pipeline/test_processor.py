@@ -503,9 +503,11 @@ def test_dense_holes_found_in_the_stereo_workers_change_nothing(
     find_holes = processor_module.find_holes
     found: list[int] = []
 
-    def counted(disparity_map: np.ndarray, weak: np.ndarray | None = None) -> object:
+    def counted(
+        disparity_map: np.ndarray, weak: np.ndarray | None = None, **options: bool
+    ) -> object:
         found.append(1)
-        return find_holes(disparity_map, weak)
+        return find_holes(disparity_map, weak, **options)
 
     monkeypatch.setattr(processor_module, "find_holes", counted)
     with FrameProcessor(config=config) as dense_processor:
