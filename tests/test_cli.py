@@ -2072,6 +2072,9 @@ def test_learn_output_folder_and_missing_fit_log_are_refused_before_learning(
         ("--output-prefix", "/p/2d", "'2d' starts with a digit; use /-separated names of"),
         ("--baseline", "inf", "--baseline must be a finite number > 0 m, got inf"),
         ("--stamp-tolerance-ms", "-1", "--stamp-tolerance-ms must be >= 0, got -1.0"),
+        ("--hold-s", "-1", "--hold-s must be a finite number >= 0 s, got -1.0"),
+        ("--hold-s", "inf", "--hold-s must be a finite number >= 0 s, got inf"),
+        ("--hold-mib", "0.5", "--hold-mib must be a finite number >= 1 MiB, got 0.5"),
     ],
 )
 def test_densify_bad_option(

@@ -160,6 +160,7 @@ class DensifySummary:
             pairing.row_check_hint(),
             pairing.baseline_hint(),
             pairing.stamp_hint(),
+            pairing.hold_hint(),
             pairing.tolerance_hint(),
             pairing.camera_info_hint(),
         )
@@ -546,8 +547,8 @@ def _no_pair_message(
         )
     elif damage:
         fix = "the readable part of the log has no complete pair; repair or re-record it"
-    elif stats.tolerance_hint() or stats.clock_hint():
-        fix = stats.tolerance_hint() or stats.clock_hint() or ""
+    elif stats.hold_hint() or stats.tolerance_hint() or stats.clock_hint():
+        fix = stats.hold_hint() or stats.tolerance_hint() or stats.clock_hint() or ""
     else:
         fix = (
             f"left {pairing.left_topic} and right {pairing.right_topic} need images with "

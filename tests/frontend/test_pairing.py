@@ -243,15 +243,122 @@ def test_camera_infos_read_ahead_within_the_window_say_nothing() -> None:
     assert stats.camera_info_hint() is None
 
 
-def test_buffers_are_bounded() -> None:
-    pairer = StereoPairer(PairingConfig(window=3))
+def test_buffers_are_bounded_with_one_side_missing() -> None:
+    # 10 s of left images at 30 Hz, the right camera missing: a few seconds of log are held
+    pairer = StereoPairer()
     with_infos(pairer)
-    for i in range(50):
-        push(pairer, CONFIG.left_topic, i * 100 * MS, image(i * 100 * MS))
-    assert len(pairer._left) == 3
+    held = []
+    for i in range(300):
+        stamp = i * 33 * MS
+        push(pairer, CONFIG.left_topic, stamp, image(stamp))
+        held.append(len(pairer._left))
+    assert max(held) == 91  # the 3 s of PairingConfig.hold_ns (91 frames of 33 ms)
     stats = pairer.finish()
-    assert stats.unpaired_left == 50
-    assert stats.pairs == 0
+    assert (stats.pairs, stats.unpaired_left, stats.lost_pairs.count) == (0, 300, 0)
+    assert stats.hold_hint() is None
+    # and the count and the bytes (48 per image) bound it whatever the log-time span
+    for config in (
+        PairingConfig(window=3, hold_count=5, hold_ns=10**12),
+        PairingConfig(window=3, hold_bytes=48 * 4, hold_ns=10**12),
+    ):
+        pairer = StereoPairer(config)
+        with_infos(pairer)
+        for i in range(50):
+            push(pairer, CONFIG.left_topic, i * 100 * MS, image(i * 100 * MS))
+        assert len(pairer._left) == (5 if config.hold_count == 5 else 4)
+        assert pairer.finish().unpaired_left == 50
+    with pytest.raises(ValueError, match=r"^hold_count must be >= window \(8\), got 2$"):
+        PairingConfig(hold_count=2)
+    with pytest.raises(ValueError, match=r"^hold_ns must be >= 0, got -1$"):
+        PairingConfig(hold_ns=-1)
+
+
+def _lagged(
+    pairer: StereoPairer, late_topic: str, lag_ns: int, frames: int = 60
+) -> list[Any]:
+    """Push 30 Hz frames (left, right, /features, stamps equal) in log-time order, the messages
+    of ``late_topic`` logged ``lag_ns`` after (or before) the others; return every frame."""
+    messages = []
+    for index in range(frames):
+        stamp = 10**9 + index * 33 * MS
+        for topic, message in (
+            (CONFIG.left_topic, image(stamp, index)),
+            (CONFIG.right_topic, image(stamp, index)),
+            ("/features", features(stamp, 2)),
+        ):
+            log_ns = stamp + (lag_ns if topic == late_topic else 0)
+            messages.append((log_ns, topic, stamp, message))
+    made: list[Any] = []
+    for log_ns, topic, stamp, message in sorted(messages, key=lambda m: m[0]):
+        made += pairer.push(topic, stamp, log_ns, message)
+    return made + pairer.flush()
+
+
+@pytest.mark.parametrize("late", ["right", "left"])
+def test_a_side_logged_a_second_late_still_pairs_by_stamp(late: str) -> None:
+    # two driver nodes, a recorder over a network: one side's images reach the log 1 s
+    # (30 frames) after the other's, with the same header stamps; 8 frames paired before
+    topic = CONFIG.right_topic if late == "right" else CONFIG.left_topic
+    pairer = StereoPairer()
+    with_infos(pairer)
+    frames = _lagged(pairer, topic, 1000 * MS)
+    assert [(int(f.left[0, 0]), int(f.right[0, 0])) for f in frames] == [(i, i) for i in range(60)]
+    stats = pairer.finish()
+    assert (stats.pairs, stats.unpaired_left, stats.unpaired_right) == (60, 0, 0)
+    assert stats.hold_hint() is None
+    # beyond what the pairing holds, what is lost is said with the lag and the fix
+    pairer = StereoPairer(PairingConfig(hold_ns=500 * MS))
+    with_infos(pairer)
+    assert len(_lagged(pairer, topic, 1000 * MS)) == 16  # those within 0.5 s of the end
+    stats = pairer.finish()
+    assert (stats.pairs, stats.lost_pairs.count) == (16, 44)
+    early = "left" if late == "right" else "right"
+    assert stats.hold_hint() == (
+        f"44 stereo pairs lost: the {late} images were logged ~1 s after the {early} ones "
+        "with the same stamps, beyond the 0.5 s of log the pairing holds an image for its "
+        "partner; pass --hold-s 2"
+    )
+    # the byte limit names its own fix: 48 bytes per image
+    pairer = StereoPairer(PairingConfig(window=3, hold_bytes=48 * 10))
+    with_infos(pairer)
+    _lagged(pairer, topic, 1000 * MS)
+    hint = pairer.finish().hold_hint()
+    assert hint is not None
+    assert "beyond the 0.000457764 MiB the pairing holds; pass --hold-mib 1 if" in hint
+
+
+@pytest.mark.parametrize(
+    ("lag_ms", "given_up", "kept"),
+    [(1000, "a frame for its cloud", 8), (-1000, "a cloud for its frame", 16)],
+)
+def test_features_logged_a_second_after_or_before_their_images_pair(
+    lag_ms: int, given_up: str, kept: int
+) -> None:
+    # a SLAM back end's latency (clouds 1 s late), or images through a compressing
+    # republisher (clouds 1 s early): every cloud has its image's stamp
+    config = PairingConfig(features_topic="/features")
+    pairer = StereoPairer(config)
+    with_infos(pairer)
+    frames = _lagged(pairer, "/features", lag_ms * MS)
+    assert len(frames) == 60
+    assert all(pairer.features_for(frame) is not None for frame in frames)
+    stats = pairer.finish()
+    assert (stats.features_matched, stats.features_unmatched, stats.lost_features.count) == (
+        60,
+        0,
+        0,
+    )
+    pairer = StereoPairer(dataclasses.replace(config, hold_ns=500 * MS))
+    with_infos(pairer)
+    frames = _lagged(pairer, "/features", lag_ms * MS)
+    # late clouds: the window's 8 frames wait at the end; early: the clouds of 0.5 s of log
+    assert sum(pairer.features_for(frame) is not None for frame in frames) == kept
+    stats = pairer.finish()
+    assert (stats.lost_features.count, stats.lost_features.lag_s()) == (60 - kept, lag_ms / 1000)
+    assert stats.hold is not None
+    assert stats.lost_features.beyond(stats.hold, given_up) == (
+        f"beyond the 0.5 s of log the pairing holds {given_up}; pass --hold-s 2"
+    )
 
 
 def test_size_mismatch_counted_or_fatal() -> None:
