@@ -1602,7 +1602,13 @@ def test_densify_of_an_unindexed_log_out_of_time_order_says_what_it_cost(
 ) -> None:
     log = write_unindexed(tmp_path / "by_topic.mcap", _topic_by_topic(small_messages, 3))
     run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err  # within --hold-s (3 s) of log of each other: all pair
+    assert f"pairing: {3 * SMALL_FRAMES} pairs, 0 unpaired left, 0 unpaired right\n" in run.out
+    assert "log-time order" not in run.out
+    out.unlink()
+    run = pcainterp(*densify_args(log, out, basis_path, "--hold-s", "0"))  # 8 images held
     assert run.code == 0, run.err
+    assert "stereo pairs lost" not in run.out  # the lags of a log read out of order mean nothing
     pairing = next(line for line in run.out.splitlines() if line.startswith("pairing: "))
     pairs = int(pairing.split()[1])
     lost = 3 * SMALL_FRAMES - pairs

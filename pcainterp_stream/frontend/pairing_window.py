@@ -137,6 +137,7 @@ class Hold:
         self.limits = limits
         self.tolerance_ns = tolerance_ns
         self.now_ns = -(2**63)  # the newest log time read
+        self.backwards = False  # a log time before the newest: not read in log-time order
         self._queues: list[HeldQueue[Any]] = []
         self._given_up: dict[str, GivenUp] = {}
 
@@ -147,7 +148,8 @@ class Hold:
         return queue
 
     def saw(self, log_time_ns: int) -> None:
-        """Note a message's log time (the log is read in log-time order)."""
+        """Note a message's log time (a log is read in log-time order if it can be)."""
+        self.backwards = self.backwards or log_time_ns < self.now_ns
         self.now_ns = max(self.now_ns, log_time_ns)
 
     def give_up(self, kind: str, queue: HeldQueue[T]) -> list[T]:
@@ -166,9 +168,15 @@ class Hold:
         return limit is not None
 
     def taken(self, kind: str, stamp_ns: int) -> GivenUpItem | None:
-        """Return (once) an item of ``kind`` given up within the tolerance of a stamp."""
+        """Return (once) an item of ``kind`` given up within the tolerance of a stamp.
+
+        None also for a log not read in log-time order: its lags mean nothing (the reader's
+        warning says what reading it so cost).
+        """
         given_up = self._given_up.get(kind)
-        return None if given_up is None else given_up.take(stamp_ns, self.tolerance_ns)
+        if given_up is None or self.backwards:
+            return None
+        return given_up.take(stamp_ns, self.tolerance_ns)
 
 
 @dataclass

@@ -599,7 +599,8 @@ def _order_warnings(reader: LogReader, stats: PairingStats) -> list[str]:
 
     A reader reads an indexed MCAP or bag in log-time order; one it has to read in file
     order (an MCAP without a chunk index, a ROS 1 bag without its index) may hand the pairer,
-    whose window is a few frames, the two images of a pair too far apart to meet.
+    which holds what waits a few seconds of log (``--hold-s``), the two images of a pair too
+    far apart to meet.
     """
     warnings = list(reader.warnings)
     backwards = reader.backward_log_times
