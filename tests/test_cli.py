@@ -1605,7 +1605,13 @@ def test_densify_of_an_unindexed_log_out_of_time_order_says_what_it_cost(
 ) -> None:
     log = write_unindexed(tmp_path / "by_topic.mcap", _topic_by_topic(small_messages, 3))
     run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err  # within --hold-s (3 s) of log of each other: all pair
+    assert f"pairing: {3 * SMALL_FRAMES} pairs, 0 unpaired left, 0 unpaired right\n" in run.out
+    assert "log-time order" not in run.out
+    out.unlink()
+    run = pcainterp(*densify_args(log, out, basis_path, "--hold-s", "0"))  # 8 images held
     assert run.code == 0, run.err
+    assert "stereo pairs lost" not in run.out  # the lags of a log read out of order mean nothing
     pairing = next(line for line in run.out.splitlines() if line.startswith("pairing: "))
     pairs = int(pairing.split()[1])
     lost = 3 * SMALL_FRAMES - pairs
@@ -2076,6 +2082,9 @@ def test_learn_output_folder_and_missing_fit_log_are_refused_before_learning(
         ("--output-prefix", "/p/2d", "'2d' starts with a digit; use /-separated names of"),
         ("--baseline", "inf", "--baseline must be a finite number > 0 m, got inf"),
         ("--stamp-tolerance-ms", "-1", "--stamp-tolerance-ms must be >= 0, got -1.0"),
+        ("--hold-s", "-1", "--hold-s must be a finite number >= 0 s, got -1.0"),
+        ("--hold-s", "inf", "--hold-s must be a finite number >= 0 s, got inf"),
+        ("--hold-mib", "0.5", "--hold-mib must be a finite number >= 1 MiB, got 0.5"),
     ],
 )
 def test_densify_bad_option(

@@ -72,6 +72,23 @@ def add_topic_options(parser: argparse.ArgumentParser) -> None:
         metavar="MS",
         help="left/right header stamps closer than this form a pair (default: %(default)s)",
     )
+    group.add_argument(
+        "--hold-s",
+        type=float,
+        default=3.0,
+        metavar="S",
+        help="how long (s of log time) an image waits for the other side's image of its "
+        "stamp, a frame for its feature cloud, a cloud for its frame: streams recorded up to "
+        "this far apart still pair (default: %(default)s)",
+    )
+    group.add_argument(
+        "--hold-mib",
+        type=float,
+        default=512.0,
+        metavar="MIB",
+        help="the most memory (MiB) the images, frames and clouds waiting so take; beyond it "
+        "the oldest is given up (default: %(default)s)",
+    )
 
 
 def add_input_pair_options(parser: argparse.ArgumentParser) -> None:
@@ -149,6 +166,14 @@ def pairing_config(args: argparse.Namespace, features_topic: str | None = None) 
     if tolerance_ms is None:  # evaluate: the log's own, read later
         tolerance_ms = defaults.tolerance_ns / 1e6
     baseline = getattr(args, "baseline", None)  # evaluate has none
+    hold_s = getattr(args, "hold_s", None)  # evaluate has neither
+    hold_s = defaults.hold_ns / 1e9 if hold_s is None else hold_s
+    hold_mib = getattr(args, "hold_mib", None)
+    hold_mib = defaults.hold_bytes / 2**20 if hold_mib is None else hold_mib
+    if not 0 <= hold_s < float("inf"):
+        raise PcaInterpError(f"--hold-s must be a finite number >= 0 s, got {hold_s}")
+    if not 1 <= hold_mib < float("inf"):
+        raise PcaInterpError(f"--hold-mib must be a finite number >= 1 MiB, got {hold_mib}")
     if baseline is not None and not 0 < baseline < float("inf"):
         raise PcaInterpError(f"--baseline must be a finite number > 0 m, got {baseline}")
     return PairingConfig(
@@ -158,6 +183,8 @@ def pairing_config(args: argparse.Namespace, features_topic: str | None = None) 
         right_info_topic=args.right_info_topic or defaults.right_info_topic,
         features_topic=features_topic,
         tolerance_ns=round(tolerance_ms * 1e6),
+        hold_ns=round(hold_s * 1e9),
+        hold_bytes=round(hold_mib * 2**20),
         baseline=baseline,
         rectify=args.rectify,
         calibration=calibration,

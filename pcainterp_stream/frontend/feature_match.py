@@ -5,20 +5,24 @@ one there: a stream faster than the camera (a 25 Hz VIO beside a 10 Hz camera, a
 another camera) has an older cloud within a widened tolerance as well as the frame's own.
 So a frame waits, as an image waits for its partner, until its cloud is known: a cloud of
 its very stamp with points came (none can be nearer), a cloud stamped past its stamp plus
-the tolerance came (none nearer is to come from an ordered stream), more frames than the
-window wait, or the stream ended. Among clouds equally near (two publishers on one topic,
-a republished cloud) one with points is taken before an empty one; a cloud nearer to
-another frame waiting (a camera faster than the tolerance is wide) is left to that one.
+the tolerance came (none nearer is to come from an ordered stream), it waited as long as the
+pairing's hold allows (by log time, messages and bytes: :mod:`frontend.pairing_window`; a
+feature stream logged a second after its images still matches), or the stream ended. Among
+clouds equally near (two publishers on one topic, a republished cloud) one with points is
+taken before an empty one; a cloud nearer to another frame waiting (a camera faster than
+the tolerance is wide) is left to that one. A frame given up without a cloud, or a cloud
+given up without a frame, whose partner comes later is counted lost with the lag
+(``PairingStats.lost_features``), for the warning naming the lag and ``--hold-s``.
 """
 
 from __future__ import annotations
 
-from collections import deque
 from typing import Any
 
 import numpy as np
 
 from pcainterp_stream.frontend.pairing_stats import PairingStats
+from pcainterp_stream.frontend.pairing_window import HeldQueue, Hold
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.records import SparseFeatures, StereoFrame
 
@@ -54,22 +58,27 @@ class FeatureMatcher:
 
     Args:
         tolerance_ns: largest difference of header stamps that still matches (ns).
-        window: frames held at most (the oldest beyond it is released with the nearest
-            cloud there is, or none), and clouds kept waiting for a frame.
-        stats: the pairing's statistics: matched and unmatched clouds, the nearest miss.
+        hold: the pairing's hold: frames wait in one of its queues (the oldest beyond its
+            limits is released with the nearest cloud there is, or none), clouds waiting for
+            a frame in another (the oldest beyond them is dropped).
+        stats: the pairing's statistics: matched, unmatched and lost clouds, the nearest miss.
     """
 
-    def __init__(self, tolerance_ns: int, window: int, stats: PairingStats) -> None:
+    def __init__(self, tolerance_ns: int, hold: Hold, stats: PairingStats) -> None:
         self.tolerance_ns = tolerance_ns
-        self.window = window
         self.stats = stats
         self.matched: dict[int, SparseFeatures] = {}  # frame index -> its cloud
-        self._held: deque[StereoFrame] = deque()  # waiting for their cloud to be known
-        self._clouds: deque[SparseFeatures] = deque()  # waiting for a frame
+        self._hold = hold
+        # waiting for their cloud to be known; clouds waiting for a frame
+        self._held: HeldQueue[StereoFrame] = hold.queue(lambda f: f.left.nbytes * 2)
+        self._clouds: HeldQueue[SparseFeatures] = hold.queue(lambda c: c.points.nbytes)
         self._latest_ns: int | None = None  # the latest cloud stamp seen
 
     def hold(self, frame: StereoFrame) -> list[StereoFrame]:
         """Add a frame; return the frames whose cloud is now known, in order."""
+        given_up = self._hold.taken("cloud", frame.stamp_ns)
+        if given_up is not None:  # its cloud was given up before it came
+            self.stats.lost_features.add(given_up.log_time_ns - frame.log_time_ns, given_up)
         self._held.append(frame)
         return self._release()
 
@@ -77,10 +86,11 @@ class FeatureMatcher:
         """Add a cloud; return the frames whose cloud is now known, in order."""
         latest = self._latest_ns
         self._latest_ns = features.stamp_ns if latest is None else max(latest, features.stamp_ns)
+        given_up = self._hold.taken("frame", features.stamp_ns)
+        if given_up is not None:  # its frame went on without it: cloud log minus frame log
+            self.stats.lost_features.add(features.log_time_ns - given_up.log_time_ns, given_up)
         self._clouds.append(features)
-        if len(self._clouds) > self.window:
-            self._clouds.popleft()
-            self.stats.features_unmatched += 1
+        self.stats.features_unmatched += len(self._hold.give_up("cloud", self._clouds))
         return self._release()
 
     def take(self, index: int) -> SparseFeatures | None:
@@ -100,7 +110,12 @@ class FeatureMatcher:
         A cloud nearer to another held frame's stamp is left to that frame.
         """
         stamp_ns = frame.stamp_ns
-        others = [held.stamp_ns for held in self._held if held is not frame]
+        reach = 2 * self.tolerance_ns  # a frame farther cannot be nearer to a cloud in reach
+        others = [
+            held.stamp_ns
+            for held in self._held
+            if held is not frame and abs(held.stamp_ns - stamp_ns) <= reach
+        ]
         near = [
             c
             for c in self._clouds
@@ -111,10 +126,6 @@ class FeatureMatcher:
             return None
         # min keeps the first of equals: the one recorded first among clouds with points
         return min(near, key=lambda c: (abs(c.stamp_ns - stamp_ns), c.points.shape[0] == 0))
-
-    def _drop(self, cloud: SparseFeatures) -> None:
-        """Remove a waiting cloud by identity (``==`` would compare two clouds' arrays)."""
-        del self._clouds[next(i for i, c in enumerate(self._clouds) if c is cloud)]
 
     def _release(self, *, force: bool = False) -> list[StereoFrame]:
         """Release held frames whose cloud is known, in order (all of them with ``force``)."""
@@ -132,15 +143,17 @@ class FeatureMatcher:
                 force
                 or exact
                 or (latest is not None and latest > frame.stamp_ns + self.tolerance_ns)
-                or len(self._held) > self.window
             )
-            if not known:
+            limit = None if known else self._hold.beyond(self._held)  # held as long as allowed
+            if not known and limit is None:
                 break
             if nearest is not None:
-                self._drop(nearest)
+                self._clouds.remove(nearest)  # by identity
                 self.matched[frame.index] = nearest
                 self.stats.features_matched += 1
             else:
+                if limit is not None:  # given up without a cloud: one of its stamp is lost
+                    self._hold.remember("frame", self._held, limit)
                 self.stats.feature_miss(frame.stamp_ns, (c.stamp_ns for c in self._clouds))
             released.append(self._held.popleft())
         # clouds older than every frame still to come match nothing
@@ -149,6 +162,6 @@ class FeatureMatcher:
             stale = [c for c in self._clouds if c.stamp_ns < horizon]
             self.stats.feature_miss(self._held[0].stamp_ns, (c.stamp_ns for c in stale))
             for cloud in stale:
-                self._drop(cloud)
+                self._clouds.remove(cloud)
             self.stats.features_unmatched += len(stale)
         return released

@@ -2,11 +2,13 @@
 
 :class:`StereoPairer` is fed the decoded messages of a log one at a time (in the reader's
 order) and emits a :class:`~records.StereoFrame` as soon as a left and a right image with matching
-header stamps, and a camera info of each side, are there. It keeps bounded buffers, so a
-stream with a missing or late side cannot make it grow; what it drops it counts in
-:class:`PairingStats`. An optional sparse feature stream (``/features``, PointCloud2 with x,
-y, z in the left optical frame) is associated with the frames by stamp: each takes the cloud
-nearest its own (:mod:`~pcainterp_stream.frontend.feature_match`).
+header stamps, and a camera info of each side, are there. What waits for its partner is held
+by log time (streams logged seconds apart, with the same stamps, still pair) and bounded in
+messages and bytes (:mod:`frontend.pairing_window`), so a stream with a missing side cannot
+make it grow; what it drops it counts in :class:`PairingStats`. An optional sparse feature
+stream (``/features``, PointCloud2 with x, y, z in the left optical frame) is associated with
+the frames by stamp: each takes the cloud nearest its own, held as the images are
+(:mod:`~pcainterp_stream.frontend.feature_match`).
 
 A single pass over a log (the processor's loop)::
 
@@ -38,6 +40,8 @@ from pcainterp_stream.frontend.camera_infos import (
 )
 from pcainterp_stream.frontend.feature_match import FeatureMatcher, features_from_pointcloud
 from pcainterp_stream.frontend.pairing_stats import PairingStats
+from pcainterp_stream.frontend.pairing_window import HeldQueue, Hold, HoldLimits
+from pcainterp_stream.frontend.pairing_window import PendingImage as _Pending
 from pcainterp_stream.frontend.rect_border import BorderFinder, RectifiedBorder
 from pcainterp_stream.frontend.row_check import RowCheck
 from pcainterp_stream.io import rosmsg
@@ -52,6 +56,8 @@ from pcainterp_stream.records import (
 
 MAX_HELD_RECTIFIERS = 256
 """Frames whose rectifier is kept for :meth:`StereoPairer.full_result` when nobody asks."""
+
+_OTHER = {"left": "right", "right": "left"}
 
 NEAR_MISS_NS = 50_000_000
 """An unpaired image with an other-side image this near (ns) is counted as a near miss."""
@@ -69,8 +75,15 @@ class PairingConfig:
         features_topic: optional ``PointCloud2`` of sparse points (x, y, z, m, left optical
             frame); None for no feature stream.
         tolerance_ns: largest difference of header stamps that still pairs (ns).
-        window: unpaired images kept per side (and frames held waiting for features);
-            the oldest beyond it is dropped and counted.
+        window: pairs held waiting for camera infos (the oldest beyond it is dropped and
+            counted), and the least of each other queue held whatever its log-time span.
+        hold_ns: how long (log time, ns) an unpaired image waits for the other side's image
+            of its stamp, a frame for its feature cloud, a cloud for its frame: streams
+            recorded that far apart still pair (see :mod:`frontend.pairing_window`).
+        hold_count: the most messages a queue holds (unpaired images of a side, frames,
+            clouds), whatever ``hold_ns``.
+        hold_bytes: the most bytes (images, frames and clouds) the queues hold together,
+            whatever ``hold_ns``.
         baseline: baseline override (m); when set, the right camera info's P[0, 3] is not
             used and may be 0.
         fail_on_size_mismatch: raise :class:`~errors.LogReadError` on a left/right size
@@ -95,6 +108,9 @@ class PairingConfig:
     features_topic: str | None = None
     tolerance_ns: int = 1_000_000
     window: int = 8
+    hold_ns: int = 3_000_000_000
+    hold_count: int = 2000
+    hold_bytes: int = 512 * 2**20
     baseline: float | None = None
     fail_on_size_mismatch: bool = False
     rectify: str = "auto"
@@ -110,6 +126,7 @@ class PairingConfig:
             raise ValueError(f"tolerance_ns must be >= 0, got {self.tolerance_ns}")
         if self.window < 1:
             raise ValueError(f"window must be >= 1, got {self.window}")
+        HoldLimits(self.window, self.hold_ns, self.hold_count, self.hold_bytes)  # checks them
         if self.baseline is not None and not self.baseline > 0:
             raise ValueError(f"baseline override must be > 0 m, got {self.baseline}")
 
@@ -127,18 +144,6 @@ class PairingConfig:
     def topics(self) -> list[str]:
         """Return every topic the pairer reads (to pass to :meth:`LogReader.messages`)."""
         return list(self.required_topics())
-
-
-class _Pending:
-    """One image waiting for its partner: the message is decoded only when paired."""
-
-    __slots__ = ("log_time_ns", "message", "miss_ns", "stamp_ns")
-
-    def __init__(self, stamp_ns: int, log_time_ns: int, message: Any) -> None:
-        self.stamp_ns = stamp_ns
-        self.log_time_ns = log_time_ns
-        self.message = message
-        self.miss_ns = -1  # the nearest other-side image that waited unpaired as it did
 
 
 class StereoPairer:
@@ -171,15 +176,19 @@ class StereoPairer:
             if self.config.check_rows and self.config.rectify != "never"
             else None
         )
-        self.stats = PairingStats(tolerance_ns=self.config.tolerance_ns, window=self.config.window)
-        self._left: deque[_Pending] = deque()
-        self._right: deque[_Pending] = deque()
+        config = self.config
+        self.stats = PairingStats(tolerance_ns=config.tolerance_ns, window=config.window)
+        limits = HoldLimits(config.window, config.hold_ns, config.hold_count, config.hold_bytes)
+        self._hold = Hold(limits, config.tolerance_ns)  # by log time, count and bytes
+        self.stats.hold = limits
+        self._left: HeldQueue[_Pending] = self._hold.queue(_Pending.nbytes)
+        self._right: HeldQueue[_Pending] = self._hold.queue(_Pending.nbytes)
         self._matched: deque[tuple[_Pending, _Pending]] = deque()  # waiting for camera info
         self._left_info: Any = None
         self._right_info: Any = None
         self._camera_cache: dict[tuple[int, int, int, int], StereoCamera] = {}
         # frames waiting for the cloud nearest their stamp, and the clouds waiting for a frame
-        self._features = FeatureMatcher(self.config.tolerance_ns, self.config.window, self.stats)
+        self._features = FeatureMatcher(config.tolerance_ns, self._hold, self.stats)
         self._last_stamp = {"left": -(2**63), "right": -(2**63)}
         self._first_dropped_ns: int | None = None  # first pair dropped waiting for infos
         # info topic -> (log time, calibration_values) of the camera info read ahead
@@ -230,6 +239,7 @@ class StereoPairer:
             LogReadError: a size mismatch when ``fail_on_size_mismatch`` is set.
         """
         config = self.config
+        self._hold.saw(log_time_ns)
         if config.calibration is not None and topic in (
             config.left_info_topic,
             config.right_info_topic,
@@ -300,7 +310,8 @@ class StereoPairer:
         """Return (once) the feature cloud nearest a frame's stamp, or None when there is none.
 
         With a features topic configured, frames are released only once their cloud is
-        known (:class:`~pcainterp_stream.frontend.feature_match.FeatureMatcher`).
+        known (:class:`~pcainterp_stream.frontend.feature_match.FeatureMatcher`), or they
+        were held as long as :attr:`PairingConfig.hold_ns` allows.
         """
         features = self._features.take(frame.index)
         rectifier = self._frame_rectifier.get(frame.index)
@@ -368,9 +379,9 @@ class StereoPairer:
             nearest = min(gaps, key=abs, default=None)
             if nearest is not None:
                 self.stats.saw_gap(nearest if side == "left" else -nearest)
+            self._lost_partner(side, item)
             own.append(item)
-            if len(own) > self.config.window:
-                self._count_unpaired(side, [own.popleft()])
+            self._count_unpaired(side, self._hold.give_up(side, own))
             return []
         other.remove(partner)
         left, right = (item, partner) if side == "left" else (partner, item)
@@ -389,6 +400,13 @@ class StereoPairer:
                 self._first_dropped_ns = dropped.log_time_ns
             self._count_no_info(1)
         return self._release_matched()
+
+    def _lost_partner(self, side: str, item: _Pending) -> None:
+        """Count a pair lost: an unpaired image whose partner of its stamp was given up."""
+        given_up = None if self._by_log_time else self._hold.taken(_OTHER[side], item.stamp_ns)
+        if given_up is not None:  # right log time minus left log time
+            lag = item.log_time_ns - given_up.log_time_ns
+            self.stats.lost_pairs.add(lag if side == "right" else -lag, given_up)
 
     def _tolerance(self) -> int:
         """Return the pairing's tolerance (ns): by log time, at least a quarter frame."""

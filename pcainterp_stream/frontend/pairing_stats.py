@@ -11,6 +11,7 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
+from pcainterp_stream.frontend.pairing_window import HoldLimits, Lost
 from pcainterp_stream.records import StereoCamera
 
 MAX_PROBLEMS = 20
@@ -74,6 +75,12 @@ class PairingStats:
         log_tolerance_ns: the tolerance once paired by log time (ns): at least a quarter of
             a frame interval.
         window: the pairing's window (pairs held waiting for camera infos).
+        hold: the limits of what the pairing holds waiting for its partner (log-time span,
+            messages, bytes); None: not known.
+        lost_pairs: pairs lost because one image had been given up by those limits when the
+            other side's image of its stamp came (lags: right minus left log time).
+        lost_features: frames that lost the cloud of their stamp so (lags: cloud minus frame
+            log time).
         problems: the first :data:`MAX_PROBLEMS` one-line problem descriptions.
         row_check_undecided: why the check that the pair is rectified and not swapped gave
             no verdict (too few matched corners); None when it gave one or was off.
@@ -106,6 +113,9 @@ class PairingStats:
     tolerance_ns: int = 0
     log_tolerance_ns: int = 0
     window: int = 0
+    hold: HoldLimits | None = None
+    lost_pairs: Lost = field(default_factory=Lost)
+    lost_features: Lost = field(default_factory=Lost)
     problems: list[str] = field(default_factory=list)
     row_check_undecided: str | None = None
 
@@ -129,6 +139,19 @@ class PairingStats:
             f"{min(misses) / 1e6:.2f}-{widest:.2f} ms{when} away, beyond the "
             f"{tolerance / 1e6:g} ms tolerance; pass --stamp-tolerance-ms "
             f"{math.ceil(widest)} to pair them"
+        )
+
+    def hold_hint(self) -> str | None:
+        """A warning when pairs were lost for a side logged later than the pairing held."""
+        lost, hold = self.lost_pairs, self.hold
+        if not lost.count or hold is None:
+            return None
+        lag = lost.lag_s()
+        late, early = ("right", "left") if lag >= 0 else ("left", "right")
+        return (
+            f"{lost.count} stereo pairs lost: the {late} images were logged ~{abs(lag):.3g} s "
+            f"after the {early} ones with the same stamps, "
+            f"{lost.beyond(hold, 'an image for its partner')}"
         )
 
     def stamp_note(self) -> str | None:

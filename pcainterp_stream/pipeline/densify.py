@@ -160,6 +160,7 @@ class DensifySummary:
             pairing.row_check_hint(),
             pairing.baseline_hint(),
             pairing.stamp_hint(),
+            pairing.hold_hint(),
             pairing.tolerance_hint(),
             pairing.camera_info_hint(),
         )
@@ -559,8 +560,8 @@ def _no_pair_message(
         )
     elif damage:
         fix = "the readable part of the log has no complete pair; repair or re-record it"
-    elif stats.tolerance_hint() or stats.clock_hint():
-        fix = stats.tolerance_hint() or stats.clock_hint() or ""
+    elif stats.hold_hint() or stats.tolerance_hint() or stats.clock_hint():
+        fix = stats.hold_hint() or stats.tolerance_hint() or stats.clock_hint() or ""
     else:
         fix = (
             f"left {pairing.left_topic} and right {pairing.right_topic} need images with "
@@ -611,7 +612,8 @@ def _order_warnings(reader: LogReader, stats: PairingStats) -> list[str]:
 
     A reader reads an indexed MCAP or bag in log-time order; one it has to read in file
     order (an MCAP without a chunk index, a ROS 1 bag without its index) may hand the pairer,
-    whose window is a few frames, the two images of a pair too far apart to meet.
+    which holds what waits a few seconds of log (``--hold-s``), the two images of a pair too
+    far apart to meet.
     """
     warnings = list(reader.warnings)
     backwards = reader.backward_log_times

@@ -313,6 +313,18 @@ class FeatureStreamCheck:
         clouds = stats.features_matched + stats.features_unmatched
         undecodable = [p for p in stats.problems if p.startswith(f"{self.topic}: ")]
         nearest = stats.features_nearest_miss_ns
+        lost = stats.lost_features
+        if lost.count and stats.hold is not None:  # logged farther apart than the pairing held
+            lag = lost.lag_s()
+            order, held = ("after", "a frame for its cloud")
+            if lag < 0:
+                order, held = ("before", "a cloud for its frame")
+            which = f" ({lost.count} of them)" if lost.count < self.without_cloud else ""
+            return (
+                f"{self.without_cloud} had no cloud{which}: the clouds of {self.topic} were "
+                f"logged ~{abs(lag):.3g} s {order} their images with the same stamps, "
+                f"{lost.beyond(stats.hold, held)}"
+            )
         if clouds == 0 and undecodable:
             return f"{self.without_cloud} had no cloud: none could be read ({undecodable[0]})"
         if clouds == 0:

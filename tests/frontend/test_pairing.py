@@ -17,9 +17,10 @@ from pcainterp_stream.frontend.pairing import (
     StereoPairer,
     iter_stereo_frames,
 )
+from pcainterp_stream.frontend.pairing_window import Hold, HoldLimits
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
-from pcainterp_stream.records import StereoCamera
+from pcainterp_stream.records import SparseFeatures, StereoCamera
 
 CAMERA = StereoCamera(width=8, height=6, fx=50.0, fy=51.0, cx=4.0, cy=3.0, baseline=0.25)
 CONFIG = PairingConfig()
@@ -243,15 +244,190 @@ def test_camera_infos_read_ahead_within_the_window_say_nothing() -> None:
     assert stats.camera_info_hint() is None
 
 
-def test_buffers_are_bounded() -> None:
-    pairer = StereoPairer(PairingConfig(window=3))
+def test_buffers_are_bounded_with_one_side_missing() -> None:
+    # 10 s of left images at 30 Hz, the right camera missing: a few seconds of log are held
+    pairer = StereoPairer()
     with_infos(pairer)
-    for i in range(50):
-        push(pairer, CONFIG.left_topic, i * 100 * MS, image(i * 100 * MS))
-    assert len(pairer._left) == 3
+    held = []
+    for i in range(300):
+        stamp = i * 33 * MS
+        push(pairer, CONFIG.left_topic, stamp, image(stamp))
+        held.append(len(pairer._left))
+    assert max(held) == 91  # the 3 s of PairingConfig.hold_ns (91 frames of 33 ms)
     stats = pairer.finish()
-    assert stats.unpaired_left == 50
-    assert stats.pairs == 0
+    assert (stats.pairs, stats.unpaired_left, stats.lost_pairs.count) == (0, 300, 0)
+    assert stats.hold_hint() is None
+    # and the count and the bytes (48 per image) bound it whatever the log-time span
+    for config in (
+        PairingConfig(window=3, hold_count=5, hold_ns=10**12),
+        PairingConfig(window=3, hold_bytes=48 * 4, hold_ns=10**12),
+    ):
+        pairer = StereoPairer(config)
+        with_infos(pairer)
+        for i in range(50):
+            push(pairer, CONFIG.left_topic, i * 100 * MS, image(i * 100 * MS))
+        assert len(pairer._left) == (5 if config.hold_count == 5 else 4)
+        assert pairer.finish().unpaired_left == 50
+    with pytest.raises(ValueError, match=r"^hold_count must be >= window \(8\), got 2$"):
+        PairingConfig(hold_count=2)
+    with pytest.raises(ValueError, match=r"^hold_ns must be >= 0, got -1$"):
+        PairingConfig(hold_ns=-1)
+
+
+def _lagged(
+    pairer: StereoPairer, late_topic: str, lag_ns: int, frames: int = 60
+) -> list[Any]:
+    """Push 30 Hz frames (left, right, /features, stamps equal) in log-time order, the messages
+    of ``late_topic`` logged ``lag_ns`` after (or before) the others; return every frame."""
+    messages = []
+    for index in range(frames):
+        stamp = 2 * 10**9 + index * 33 * MS  # log times after with_infos' 5 ns
+        for topic, message in (
+            (CONFIG.left_topic, image(stamp, index)),
+            (CONFIG.right_topic, image(stamp, index)),
+            ("/features", features(stamp, 2)),
+        ):
+            log_ns = stamp + (lag_ns if topic == late_topic else 0)
+            messages.append((log_ns, topic, stamp, message))
+    made: list[Any] = []
+    for log_ns, topic, stamp, message in sorted(messages, key=lambda m: m[0]):
+        made += pairer.push(topic, stamp, log_ns, message)
+    return made + pairer.flush()
+
+
+@pytest.mark.parametrize("late", ["right", "left"])
+def test_a_side_logged_a_second_late_still_pairs_by_stamp(late: str) -> None:
+    # two driver nodes, a recorder over a network: one side's images reach the log 1 s
+    # (30 frames) after the other's, with the same header stamps; 8 frames paired before
+    topic = CONFIG.right_topic if late == "right" else CONFIG.left_topic
+    pairer = StereoPairer()
+    with_infos(pairer)
+    frames = _lagged(pairer, topic, 1000 * MS)
+    assert [(int(f.left[0, 0]), int(f.right[0, 0])) for f in frames] == [(i, i) for i in range(60)]
+    stats = pairer.finish()
+    assert (stats.pairs, stats.unpaired_left, stats.unpaired_right) == (60, 0, 0)
+    assert stats.hold_hint() is None
+    # beyond what the pairing holds, what is lost is said with the lag and the fix
+    pairer = StereoPairer(PairingConfig(hold_ns=500 * MS))
+    with_infos(pairer)
+    assert len(_lagged(pairer, topic, 1000 * MS)) == 16  # those within 0.5 s of the end
+    stats = pairer.finish()
+    assert (stats.pairs, stats.lost_pairs.count) == (16, 44)
+    early = "left" if late == "right" else "right"
+    assert stats.hold_hint() == (
+        f"44 stereo pairs lost: the {late} images were logged ~1 s after the {early} ones "
+        "with the same stamps, beyond the 0.5 s of log the pairing holds an image for its "
+        "partner; pass --hold-s 2"
+    )
+    # the byte limit names its own fix: 48 bytes per image
+    pairer = StereoPairer(PairingConfig(window=3, hold_bytes=48 * 10))
+    with_infos(pairer)
+    _lagged(pairer, topic, 1000 * MS)
+    hint = pairer.finish().hold_hint()
+    assert hint is not None
+    assert "beyond the 0.000457764 MiB the pairing holds; pass --hold-mib 1 if" in hint
+
+
+@pytest.mark.parametrize(
+    ("lag_ms", "given_up", "kept"),
+    [(1000, "a frame for its cloud", 8), (-1000, "a cloud for its frame", 16)],
+)
+def test_features_logged_a_second_after_or_before_their_images_pair(
+    lag_ms: int, given_up: str, kept: int
+) -> None:
+    # a SLAM back end's latency (clouds 1 s late), or images through a compressing
+    # republisher (clouds 1 s early): every cloud has its image's stamp
+    config = PairingConfig(features_topic="/features")
+    pairer = StereoPairer(config)
+    with_infos(pairer)
+    frames = _lagged(pairer, "/features", lag_ms * MS)
+    assert len(frames) == 60
+    assert all(pairer.features_for(frame) is not None for frame in frames)
+    stats = pairer.finish()
+    assert (stats.features_matched, stats.features_unmatched, stats.lost_features.count) == (
+        60,
+        0,
+        0,
+    )
+    pairer = StereoPairer(dataclasses.replace(config, hold_ns=500 * MS))
+    with_infos(pairer)
+    frames = _lagged(pairer, "/features", lag_ms * MS)
+    # late clouds: the window's 8 frames wait at the end; early: the clouds of 0.5 s of log
+    assert sum(pairer.features_for(frame) is not None for frame in frames) == kept
+    stats = pairer.finish()
+    assert (stats.lost_features.count, stats.lost_features.lag_s()) == (60 - kept, lag_ms / 1000)
+    assert stats.hold is not None
+    assert stats.lost_features.beyond(stats.hold, given_up) == (
+        f"beyond the 0.5 s of log the pairing holds {given_up}; pass --hold-s 2"
+    )
+
+
+def test_nearest_clouds_logged_a_second_late_are_held_by_log_time_and_bytes() -> None:
+    # fix-F's nearest cloud and fix-P's hold together: a stream faster than the camera (a
+    # cloud 40 ms before each image, then its own, 45 ms tolerance) logged 1 s after the
+    # images; the frames wait 1 s (30 of them, not 8) and each takes its own cloud
+    def run(config: PairingConfig) -> tuple[StereoPairer, list[Any]]:
+        pairer = StereoPairer(config)
+        with_infos(pairer)
+        messages = []
+        for index in range(60):
+            stamp = 2 * 10**9 + index * 33 * MS
+            messages += [
+                (stamp, CONFIG.left_topic, stamp, image(stamp, index)),
+                (stamp, CONFIG.right_topic, stamp, image(stamp, index)),
+                (stamp + 1000 * MS, "/features", 0, features(stamp - 40 * MS, 5)),
+                (stamp + 1000 * MS, "/features", 0, features(stamp, 2)),
+            ]
+        frames: list[Any] = []
+        for log_ns, topic, stamp, message in sorted(messages, key=lambda m: m[0]):
+            frames += pairer.push(topic, stamp, log_ns, message)
+        return pairer, frames + pairer.flush()
+
+    config = PairingConfig(features_topic="/features", tolerance_ns=45 * MS)
+    pairer, frames = run(config)
+    clouds = [pairer.features_for(frame) for frame in frames]
+    assert [c.stamp_ns if c is not None else None for c in clouds] == [
+        frame.stamp_ns for frame in frames
+    ]
+    assert len(frames) == 60
+    assert {c.points.shape[0] for c in clouds if c is not None} == {2}
+    stats = pairer.finish()
+    assert (stats.features_matched, stats.features_unmatched, stats.lost_features.count) == (
+        60,
+        60,
+        0,
+    )
+    assert [len(q) for q in pairer._hold._queues] == [0, 0, 0, 0]
+    assert [q.nbytes for q in pairer._hold._queues] == [0, 0, 0, 0]  # kept through remove
+    # held 0.5 s: the frames given up without a cloud are lost, with the lag
+    pairer, frames = run(dataclasses.replace(config, hold_ns=500 * MS))
+    kept = sum(pairer.features_for(frame) is not None for frame in frames)
+    stats = pairer.finish()
+    assert (kept, stats.lost_features.count) == (8, 52)  # the 8 frames always held: the last
+    assert stats.lost_features.lag_s() == pytest.approx(1.0, abs=0.05)
+    assert stats.hold is not None
+    assert stats.lost_features.beyond(stats.hold, "a frame for its cloud") == (
+        "beyond the 0.5 s of log the pairing holds a frame for its cloud; pass --hold-s 2"
+    )
+
+
+def test_a_held_queue_removes_by_identity_and_keeps_its_bytes() -> None:
+    # two clouds equal in every field: deque.remove compared their arrays (ValueError)
+    def cloud() -> SparseFeatures:
+        return SparseFeatures(5, 7, "l", np.ones((4, 3), np.float32))
+
+    hold = Hold(HoldLimits(window=1, span_ns=0, count=10, nbytes=10**6), 0)
+    queue = hold.queue(lambda c: c.points.nbytes)
+    first, second = cloud(), cloud()
+    queue.append(first)
+    queue.append(second)
+    queue.remove(second)
+    assert queue.nbytes == 48
+    assert queue[0] is first
+    with pytest.raises(ValueError, match="not in the queue"):
+        queue.remove(second)
+    queue.remove(first)
+    assert (len(queue), queue.nbytes) == (0, 0)
 
 
 def test_size_mismatch_counted_or_fatal() -> None:
@@ -840,3 +1016,17 @@ def test_sides_on_different_clocks_are_named() -> None:
     assert hint.startswith("the right images are stamped at least 1.7e+09 s before the nearest")
     stats.saw_gap(30_000_000)
     assert stats.clock_hint() is None  # 30 ms: a tolerance, not a clock
+
+
+def test_a_log_read_out_of_log_time_order_counts_no_lag() -> None:
+    # an unindexed log stored topic by topic: every left image, then every right one, of
+    # the same log times; what is lost is the reader's order, which its own warning names
+    pairer = StereoPairer(PairingConfig(hold_ns=0))
+    with_infos(pairer)
+    for topic in (CONFIG.left_topic, CONFIG.right_topic):
+        for index in range(30):
+            stamp = 10**9 + index * 33 * MS
+            pairer.push(topic, stamp, stamp, image(stamp))
+    stats = pairer.finish()
+    assert (stats.pairs, stats.unpaired_left, stats.lost_pairs.count) == (8, 22, 0)
+    assert stats.hold_hint() is None

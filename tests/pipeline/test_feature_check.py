@@ -440,3 +440,42 @@ def test_an_old_pointcloud_topic_is_named_as_such(
         "of that type\n"
     )
     assert not target.exists()
+
+
+def _shifted(source: Path, target: Path, topic: str, shift_ns: int) -> Path:
+    """Copy a log with the log times (not the header stamps) of one topic moved."""
+    with open_log(source) as reader:
+        raws = list(reader.messages())
+    moved = [
+        raw._replace(log_time_ns=raw.log_time_ns + shift_ns) if raw.topic == topic else raw
+        for raw in raws
+    ]
+    with open_writer(target, LogFormat.MCAP) as writer:
+        for raw in sorted(moved, key=lambda raw: raw.log_time_ns):
+            writer.add_raw(raw)
+    return target
+
+
+@pytest.mark.parametrize(("shift_ms", "order"), [(1000, "after"), (-1000, "before")])
+def test_clouds_logged_later_than_the_pairing_holds_are_named_with_the_lag(
+    log: Path, tmp_path: Path, shift_ms: int, order: str
+) -> None:
+    # a SLAM back end's latency (or images through a republisher): the clouds have their
+    # images' stamps, logged 1 s apart; here the pairing holds 1 frame and 50 ms of log
+    source = _shifted(
+        with_features(log, tmp_path / "f.mcap"), tmp_path / "late.mcap", "/features", shift_ms * MS
+    )
+    processor = ProcessorConfig(source=MeasurementSource.FEATURES)
+    pairing = PairingConfig(features_topic="/features")
+    summary = jobs.densify(source, tmp_path / "out.mcap", pairing=pairing, processor=processor)
+    assert summary.warnings == []
+    short = PairingConfig(features_topic="/features", window=1, hold_ns=50 * MS)
+    summary = jobs.densify(source, tmp_path / "out2.mcap", pairing=short, processor=processor)
+    (line,) = summary.warnings
+    held = "a frame for its cloud" if shift_ms > 0 else "a cloud for its frame"
+    assert line == (
+        "3 of 4 frames got no point from --features-topic /features, so they have no estimate "
+        "(depth NaN): 3 had no cloud: the clouds of /features were logged ~1 s "
+        f"{order} their images with the same stamps, beyond the 0.05 s of log the pairing "
+        f"holds {held}; pass --hold-s 2"
+    )
