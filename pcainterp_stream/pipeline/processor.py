@@ -533,8 +533,7 @@ class FrameProcessor:
                 counts.update(near)
             if self.dense:
                 disparity_map = measurements.disparity_map
-                # the fusion's part that needs no estimate, here in parallel, not in the
-                # sequential densify thread
+                # the fusion's estimate-free part, in parallel, not in the densify thread
                 holes = find_holes(disparity_map, measurements.weak, zero_is_match=True)
             elif self.config.edge_aware:  # an edge-aware local prior's cells, beside SGBM
                 size, basis_grid = frame.camera.image_size, self.basis.grid_size
@@ -806,7 +805,8 @@ class FrameProcessor:
         counts["temporal_reset"] = int(estimate.temporal == "reset")
         counts["downweighted"] = int(estimate.n_downweighted)
         if item.disparity_map is not None:  # dense mode: the SGBM map, pixel by pixel
-            estimate = fuse_dense(estimate, item.disparity_map, self._dense_model, item.holes)
+            sgbm_map, model = item.disparity_map, self._dense_model  # 0: a match (SGBM's range)
+            estimate = fuse_dense(estimate, sgbm_map, model, item.holes, zero_is_match=True)
         unknown = _unknown(estimate.disparity.shape)
         if not (item.pixels.shape[0] or n_carried or estimate.temporal == "temporal" or self.dense):
             estimate = estimate.unknown()  # not one measurement, own or carried: no estimate

@@ -513,7 +513,7 @@ def test_dense_holes_found_in_the_stereo_workers_change_nothing(
     with FrameProcessor(config=config) as dense_processor:
         ahead = list(dense_processor.process(frames))
     assert len(found) == len(frames)
-    monkeypatch.setattr(processor_module, "find_holes", lambda disparity_map, weak: None)
+    monkeypatch.setattr(processor_module, "find_holes", lambda disparity_map, weak, **options: None)
     with FrameProcessor(config=config) as dense_processor:
         alone = list(dense_processor.process(frames))
     for one, other in zip(ahead, alone, strict=True):
