@@ -512,38 +512,6 @@ def refit_prior(
     return with_prior(basis, prior)
 
 
-BORROWED_PRIOR = (
-    "local",
-    "sigma",
-    "plain_sigma",
-    "process_noise",
-    "std_scale",
-    "innovation_std_scale",
-)
-"""The fitted values a basis learned from one view takes from a built-in basis."""
-
-
-def borrowed_prior(builtin: Basis) -> dict[str, Any]:
-    """Return the prior of ``builtin`` for a basis learned from copies of one view.
-
-    Fitted on the frames a basis learned from, the evidence puts sigma at its floor and
-    the local kernel's variance at zero, and a std calibrated on them covers only their
-    noise: copies of one view leave nothing to fit a prior on. A built-in basis's prior
-    (local kernel, sigma, process noise, std calibration) was fitted on frames its basis
-    did not learn.
-
-    Args:
-        builtin: the built-in basis chosen by the fit check (its ``meta["prior"]``).
-
-    Returns:
-        The fitted values of :data:`BORROWED_PRIOR` it has, and where they come from.
-    """
-    fitted = builtin.meta.get("prior", {})
-    prior = {key: fitted[key] for key in BORROWED_PRIOR if key in fitted}
-    prior["source"] = "a built-in basis's (the log's first frames are one view)"
-    return prior
-
-
 def with_prior(basis: Basis, prior: dict[str, Any]) -> Basis:
     """Return ``basis`` with ``prior`` as its ``meta["prior"]``."""
     meta = dict(basis.meta)
@@ -590,17 +558,24 @@ def view_distance(grid: npt.NDArray[np.float32], other: npt.NDArray[np.float32])
 
 
 def view_labels(
-    grid_maps: Sequence[npt.NDArray[np.float32]], *, tolerance: float = SAME_VIEW
+    grid_maps: Sequence[npt.NDArray[np.float32]],
+    *,
+    tolerance: float = SAME_VIEW,
+    same_as: Sequence[int] | None = None,
 ) -> npt.NDArray[np.intp]:
     """Label each map with its view: maps closer than ``tolerance`` share one.
 
     In stream order, a map joins the first view whose first map is closer to it than
     ``tolerance`` (:func:`view_distance`), else starts a view of its own. Maps of one view
-    are one piece of evidence: a basis that learned one reproduces the others.
+    are one piece of evidence: a basis that learned one reproduces the others. Fresh sensor
+    noise in every frame puts the maps of a camera standing still 0.07-0.10 px apart, close
+    to ``tolerance``: ``same_as`` (from the ego-motion) says which maps are one view anyway.
 
     Args:
         grid_maps: (gh, gw) float32 maps of one camera (:func:`grid_map`), in stream order.
         tolerance: the largest median |difference| (px of disparity) within a view.
+        same_as: for each map, the index of an earlier map of the same view (the camera
+            has not moved since), or its own index; None: the maps alone decide.
 
     Returns:
         (n,) view index of each map: 0 for the first map's view, then 1, 2... in the order
@@ -616,6 +591,9 @@ def view_labels(
     labels = np.zeros(len(grid_maps), dtype=np.intp)
     firsts: list[int] = []
     for index, grid in enumerate(grid_maps):
+        if same_as is not None and same_as[index] < index:
+            labels[index] = labels[same_as[index]]
+            continue
         for label, first in enumerate(firsts):
             if view_distance(grid, grid_maps[first]) < tolerance:
                 labels[index] = label
@@ -652,6 +630,7 @@ def leave_one_out(
     calibrate: bool = False,
     gap: int = LEAVE_OUT_GAP,
     tolerance: float = SAME_VIEW,
+    views: npt.NDArray[np.intp] | None = None,
 ) -> OwnCheck | None:
     """Check a log's own basis on frames left out of its maps (None with fewer than 2 views).
 
@@ -664,9 +643,12 @@ def leave_one_out(
     posterior std is computed too and calibrated against their maps. A log whose frames all
     differ is checked on evenly spaced frames, its copies (a camera standing still) on one
     frame per view and never with a copy among the maps: ``tolerance=0`` checks every frame
-    as a view of its own.
+    as a view of its own. ``views``: the maps' view labels when known beyond the maps
+    (:func:`view_labels` with ``same_as``); maps of the left-out frame's view are never
+    learned either.
     """
-    _, firsts = np.unique(view_labels(grid_maps, tolerance=tolerance), return_index=True)
+    labels = view_labels(grid_maps, tolerance=tolerance) if views is None else views
+    _, firsts = np.unique(labels, return_index=True)
     if firsts.size < 2:
         return None
     local = LocalPrior.from_meta(prior["local"]) if prior.get("local") else None
@@ -680,7 +662,7 @@ def leave_one_out(
         differ = [
             i
             for i, grid in enumerate(grid_maps)
-            if i != index and view_distance(grid, grid_maps[index]) >= tolerance
+            if labels[i] != labels[index] and view_distance(grid, grid_maps[index]) >= tolerance
         ]
         others = [grid_maps[i] for i in differ if abs(i - index) > gap]
         if len(others) < min(LEAVE_OUT_MAPS, len(differ)):

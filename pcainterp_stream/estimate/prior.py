@@ -31,6 +31,7 @@ Pure maths over arrays: nothing here knows about logs.
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -287,7 +288,10 @@ class TemporalPrior:
     The static prior comes back when the normalised innovation squared
     (z~ - B~ mu)^T K^-1 (z~ - B~ mu) / k exceeds ``reset_threshold`` times that of the last
     static solve (at least 1): the scene changed. Relative, because on real logs the
-    static model's own value is often well above its nominal mean of 1.
+    static model's own value is often well above its nominal mean of 1. A frame whose
+    measurements are bit for bit the previous frame's (a driver sending its last pair again)
+    is no new evidence: it gets the previous frame's prior again (:meth:`repeats`), not the
+    previous posterior, so its std does not shrink while the error stays.
 
     Attributes:
         process_noise: q, process noise as a fraction of the prior eigenvalues.
@@ -307,6 +311,9 @@ class TemporalPrior:
     resets: int = 0
     key: Any = field(default=None, repr=False)
     static_innovation: float = 1.0
+    # the last frame's measurements (a digest) and the state before its update
+    _digest: bytes | None = field(default=None, repr=False)
+    _before: tuple[FloatArray | None, FloatArray | None] = field(default=(None, None), repr=False)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.process_noise) and self.process_noise > 0):
@@ -324,14 +331,36 @@ class TemporalPrior:
 
     def update(self, mean: FloatArray, variance: FloatArray) -> None:
         """Keep a frame's posterior mean and marginal variances as the state."""
+        self._before = (self.mean, self.variance)
         self.mean = mean
         self.variance = variance
         self.frames += 1
+
+    def repeats(self, *measurements: npt.NDArray[Any]) -> bool:
+        """Return whether a frame's measurements are the previous frame's, bit for bit.
+
+        If so, the state goes back to what it was before the previous frame's update: that
+        frame's prior is predicted again, and the repeated measurements count once.
+
+        Args:
+            measurements: the frame's arrays (positions, values), in a fixed order.
+        """
+        digest = hashlib.blake2b(digest_size=16)
+        for array in measurements:
+            digest.update(str(array.shape).encode())
+            digest.update(np.ascontiguousarray(array).tobytes())
+        previous, self._digest = self._digest, digest.digest()
+        if previous != self._digest:
+            return False
+        self.mean, self.variance = self._before
+        return True
 
     def reset(self) -> None:
         """Forget the state (scene change, camera change, a gap in the stream)."""
         self.mean = None
         self.variance = None
+        self._digest = None
+        self._before = (None, None)
 
     def accepts(self, normalised_innovation: float) -> bool:
         """Return whether a temporal solve's innovation passes the scene-change test."""

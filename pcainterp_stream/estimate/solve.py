@@ -203,6 +203,9 @@ def _solve_beyond(
     again with the static prior (and the state restarts from that posterior). ``cells``:
     the measurements' partition for an edge-aware local prior (:mod:`cells`), or None.
     """
+    if temporal is not None:  # a repeated frame: predicted from the previous frame's prior
+        measured = (positions, residual)
+        temporal.repeats(*measured, *(() if extra_variance is None else (extra_variance,)))
     predicted = temporal.predict(eigenvalues) if temporal is not None else None
     if cells is not None and (model.local is None or not model.local.edge_aware):
         cells = None

@@ -6,8 +6,10 @@ them against linear interpolation on held-out SGBM pixels. When it is the built-
 basis and it does not fit the log well, the other built-in bases (the indoor one) are
 checked on the same pixels, and, in ``auto`` mode, a basis learned from the log's own SGBM
 maps is tried too (leave-one-out); the one with the lowest held-out error is used from the
-first frame on (the warm-up frames are densified with it too). A log's own basis is then
-relearned from all its maps so far each time their number doubles. Every decision depends
+first frame on (the warm-up frames are densified with it too). Warm-up frames that are one
+view (their maps, or the ego-motion: a camera that barely moves) teach a basis nothing but
+their noise: a built-in basis is kept. A log's own basis is then relearned from all its maps
+so far (but copies of the view added last) each time their number doubles. Every decision depends
 only on the frames and their order: a log gives the same output however it is read
 (file, pipe, live).
 """
@@ -23,6 +25,7 @@ import numpy.typing as npt
 from pcainterp_stream.estimate import adapt
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.estimator import densify_batch
+from pcainterp_stream.frontend.motion import Motion, view_shift
 from pcainterp_stream.records import StereoCamera
 
 FITS_BELOW = 0.8
@@ -39,6 +42,15 @@ pairs the log's own beat the indoor basis by 4x, so that one keeps :data:`FITS_B
 
 MAX_MAPS = 256
 """Most SGBM maps kept for the log's own basis; past it, every other one is dropped."""
+
+STILL_SHIFT = 0.25
+"""A frame whose ego-motion since a frame (chained frame to frame) moves its measurements
+less than this median (px, :func:`~.motion.view_shift`) is that frame's view again. A camera
+standing still measured 0.00-0.02 px from its first frame over 8 frames (the synthetic
+street with fresh sensor noise in every frame, whose SGBM grid maps are 0.07-0.10 px apart,
+where the maps' own test, :data:`~.adapt.SAME_VIEW` = 0.1 px, splits them into views; a
+KITTI frame repeated with noise), 0.03 px creeping 1 cm/s; a camera swaying 1-2 cm and
+0.2-1 degree per frame 1-7 px per frame."""
 
 
 def unfit_warning(check: adapt.FitCheck, where: str, fix: str) -> str:
@@ -120,6 +132,9 @@ class Adaptation:
     _seen: int = 0
     _next_update: int = 0
     _camera: tuple[tuple[int, int], float] | None = None
+    # the newest map added and the ego-motion since its frame (None: unknown)
+    _last_map: npt.NDArray[np.float32] | None = None
+    _since: npt.NDArray[np.float64] | None = None
 
     @property
     def active(self) -> bool:
@@ -153,15 +168,21 @@ class Adaptation:
         finally:
             self.checked = True
 
-    def _warn_unfit(self, may_adapt: bool, own_frames: int = 0) -> None:
+    def _warn_unfit(self, may_adapt: bool, own_frames: int = 0, standing: bool = False) -> None:
         """Add a ``warning:`` line when the basis kept loses to linear interpolation.
 
         ``own_frames``: the log's own basis, learned from that many warm-up frames, was
-        tried and did no better (0: not tried).
+        tried and did no better (0: not tried). ``standing``: it was not learned, the
+        warm-up frames being one view.
         """
         if self.check is None or not self.check.frames or self.check.fits:
             return
-        if own_frames:
+        if standing:
+            fix = (
+                "; a basis learned from logs of this camera that move may fit: pcainterp "
+                "learn LOG -o BASIS.npz, then densify --basis BASIS.npz"
+            )
+        elif own_frames:
             # what was tried is named, and what differs in the advice: more frames, and
             # learn merges a camera like the built-in one's with the built-in basis's maps
             fix = (
@@ -239,7 +260,12 @@ class Adaptation:
         kept = f"{self.name} kept" if self.switched is None else f"{self.switched.name} chosen"
         # frames that repeat one view (a camera standing still) are one piece of evidence:
         # the log's own basis is checked only on views it did not learn from
-        views = adapt.view_labels(maps)
+        # the ego-motion's views, of the frames in order, for the frames kept
+        links, at = still_links(frames), {id(f): k for k, f in enumerate(usable)}
+        same_as = [
+            at.get(id(frames[links[j]]), at[id(f)]) for j, f in enumerate(frames) if id(f) in at
+        ]
+        views = adapt.view_labels(maps, same_as=same_as)
         distinct = int(views.max()) + 1 if views.size else 0
         log_goes_on = len(frames) >= self.warmup_frames  # fewer: the log ended in the warm-up
         if len(maps) >= 2 and distinct < 2 and self.check.fits and log_goes_on:
@@ -251,25 +277,26 @@ class Adaptation:
                 "left to check it on"
             )
             return None if self.switched is None else self.switched.basis
+        if len(maps) >= 2 and distinct < 2:
+            # a basis learned from one view spans its noise: its std covered 67 % of the
+            # truth on a synthetic street standing still (the built-in one's 97 %), and the
+            # frames that follow when the camera moves are views it never saw
+            best = self.name if self.switched is None else self.switched.name
+            self.lines.append(
+                f"prior: the camera barely moves: kept {best}; this log's own basis is not "
+                f"learned: its first {_count(len(maps), 'frame')} are one view"
+            )
+            self._warn_unfit(False, standing=True)
+            return None if self.switched is None else self.switched.basis
         # one map per view (its first): copies teach a basis their noise, not a direction
         _, firsts = np.unique(views, return_index=True)
         view_maps = [maps[index] for index in firsts]
-        copies = len(maps) >= 2 and distinct < 2
         own = adapt.own_basis(view_maps, size, fb)
-        if copies:
-            # the frames are the map the basis learned: fitted or calibrated on them, the
-            # prior trusts it (sigma at its floor; stored +-2 sigma held 5 % of a MyntEye
-            # log's SGBM pixels); the chosen built-in's prior, fitted on frames its basis did
-            # not learn, is the only honest one
-            own = adapt.with_prior(
-                own, adapt.borrowed_prior(basis if self.switched is None else self.switched.basis)
-            )
-        else:
-            # the std is calibrated on the frames left out of the maps (below); with one map
-            # there are none, and the map's own frame calibrates it
-            own = adapt.refit_prior(
-                own, measured, robust=self.robust, calibrate=self.calibrate and distinct < 2
-            )
+        # the std is calibrated on the frames left out of the maps (below); with one map
+        # there are none, and the map's own frame calibrates it
+        own = adapt.refit_prior(
+            own, measured, robust=self.robust, calibrate=self.calibrate and distinct < 2
+        )
         prior = own.meta.get("prior", {})
         held = adapt.leave_one_out(
             maps,
@@ -279,6 +306,7 @@ class Adaptation:
             focal_baseline=fb,
             robust=self.robust,
             calibrate=self.calibrate,
+            views=views,
         )
         self.own_check = None if held is None else held.check
         if held is not None and held.std_scale is not None:
@@ -339,23 +367,18 @@ class Adaptation:
         self._recent = measured[-adapt.FIT_FRAMES :]
         self._seen = len(maps)
         self._next_update = 2 * len(maps)
+        self._last_map, self._since = maps[-1], np.eye(4)
         if self.own_check is not None:
             how = f"held out: {self.own_check.describe()}"
-        elif copies:
-            how = (
-                "one view: its own stereo, smoothed, corrected by its points, with the prior "
-                f"and std calibration of {chosen} (copies of one view cannot fit them)"
-            )
         else:
             how = "one frame: its own stereo, smoothed, corrected by its points"
         frame_count = _count(len(maps), "frame")
         if distinct < len(maps):
             frame_count += f" of {_count(distinct, 'view')}"
-        # a one-map basis is the map as its mean: its one component is a placeholder
-        learned = "its first frame's map alone" if copies else _count(own.n_components, "component")
         self.lines.append(
             f"adapted: {why}; learned one from this log's own SGBM maps ({frame_count}, "
-            f"{learned}; {how}); --basis builtin keeps a built-in one"
+            f"{_count(own.n_components, 'component')}; {how}); --basis builtin keeps a "
+            "built-in one"
         )
         return own
 
@@ -416,13 +439,19 @@ class Adaptation:
         """Add the frames' maps to the log's own basis; return a relearned basis, or None.
 
         Relearned each time the number of maps seen doubles; its prior refitted, keeping
-        the kernel and process noise of ``current`` (the basis in use) when given.
+        the kernel and process noise of ``current`` (the basis in use) when given. A frame of
+        the view last added (the camera standing still) is not added: copies of one view
+        teach the basis their noise, and calibrate its std on it.
         """
         if not self.adapted or self._camera is None:
             return None
         for frame in frames:
             if frame.grid_map is None or (frame.image_size, frame.focal_baseline) != self._camera:
+                self._since = None  # the motions chain frame to frame
                 continue
+            if self._repeats(frame):
+                continue
+            self._last_map, self._since = frame.grid_map, np.eye(4)
             self._maps.append(frame.grid_map)
             self._recent.append(frame.measured())
             self._seen += 1
@@ -445,6 +474,19 @@ class Adaptation:
             keep=current,
             calibrate_with=adapt.own_basis(older, size, fb) if len(older) >= 2 else None,
         )
+
+    def _repeats(self, frame: AdaptFrame) -> bool:
+        """Return whether ``frame`` is the view of the newest map added (ego-motion or map)."""
+        if self._since is not None and frame.motion is not None and frame.camera is not None:
+            self._since = frame.motion.transform @ self._since
+            shift = view_shift(self._since, frame.pixels, frame.disparities, frame.camera)
+            if shift < STILL_SHIFT:
+                return True
+        else:
+            self._since = None
+        assert frame.grid_map is not None
+        last = self._last_map
+        return last is not None and adapt.view_distance(frame.grid_map, last) < adapt.SAME_VIEW
 
     def final_line(self, basis: Basis) -> str | None:
         """Return the summary line on the streaming updates, or None when not adapted."""
@@ -475,11 +517,35 @@ class AdaptFrame:
     # the check's held-out pixels and plain interpolation of this frame, when the stereo
     # worker made them beside SGBM (else the check makes them)
     held_out: adapt.HeldOut | None = None
+    # the ego-motion from the previous frame (None: unknown) and the camera it is in
+    motion: Motion | None = None
+    camera: StereoCamera | None = None
 
     def measured(self) -> adapt.Measured:
         """Return the frame as :func:`adapt.refit_prior` and the check take it."""
         assert self.sgbm_map is not None
         return adapt.Measured(self.pixels, self.disparities, self.sgbm_map)
+
+
+def still_links(frames: list[AdaptFrame]) -> list[int]:
+    """Return, for each of consecutive frames, the earliest frame of its view by ego-motion.
+
+    A frame is the view of an earlier one when the motions chained from that frame move its
+    measurements by less than :data:`STILL_SHIFT` (:func:`~.motion.view_shift`); a frame
+    without a motion (the first, a lost one, another camera) starts a view of its own.
+    """
+    links: list[int] = []
+    since = np.eye(4)
+    for index, frame in enumerate(frames):
+        still = False
+        if index and frame.motion is not None and frame.camera is not None:
+            since = frame.motion.transform @ since
+            shift = view_shift(since, frame.pixels, frame.disparities, frame.camera)
+            still = shift < STILL_SHIFT
+        if not still:
+            since = np.eye(4)
+        links.append(links[-1] if still else index)
+    return links
 
 
 def sgbm_maps(

@@ -875,13 +875,10 @@ def _adapt_frame(item: _Measured) -> AdaptFrame:
     sgbm_map, grid = item.sgbm_map, item.grid_map
     if item.raw_map is not None:
         sgbm_map, grid = sgbm_maps(item.raw_map, camera)
+    pixels, disparities = lookups_only(item.pixels, item.disparities, item.noise)  # not near's
+    size, fb = camera.image_size, camera.focal_baseline
     return AdaptFrame(
-        *lookups_only(item.pixels, item.disparities, item.noise),  # SGBM's, not the near reach's
-        sgbm_map,
-        grid,
-        camera.image_size,
-        camera.focal_baseline,
-        item.held_out,
+        pixels, disparities, sgbm_map, grid, size, fb, item.held_out, item.motion, camera
     )
 
 

@@ -273,3 +273,32 @@ def test_leave_one_out_never_learns_copies_of_the_left_out_view() -> None:
     # all frames one view: nothing is left to check the log's own basis on
     still = adapt.leave_one_out(maps[:6], frames[:6], prior.meta["prior"], **options)
     assert still is None
+
+
+def test_maps_the_ego_motion_says_are_one_view_are_one_view() -> None:
+    """Fresh sensor noise in every frame puts a standing camera's maps 0.07-0.10 px apart,
+    around adapt.SAME_VIEW: the maps alone split them into views, which the log's own basis
+    then learned and was checked on as if the camera had moved (``same_as``: the ego-motion's
+    word, from pipeline.adaptation.still_links)."""
+    rng = np.random.default_rng(13)
+    still = adapt.grid_map(_bumped((20.0, 20.0), 2.0), SIZE)
+    moved = adapt.grid_map(_bumped((30.0, 40.0), 5.0), SIZE)
+
+    def noisy(grid: np.ndarray) -> np.ndarray:  # median |difference| of two: ~0.14 px
+        return (grid + rng.normal(0.0, 0.15, grid.shape)).astype(np.float32)
+
+    maps = [noisy(still), noisy(still), noisy(still), noisy(moved)]
+    assert adapt.view_labels(maps).tolist() == [0, 1, 2, 3]
+    views = adapt.view_labels(maps, same_as=[0, 0, 1, 3])
+    assert views.tolist() == [0, 0, 0, 1]
+    # the left-out check: one frame per view, never learning a map of its view
+    frames = []
+    for index, grid in enumerate(maps):
+        reference = np.kron(grid, np.ones((4, 4), np.float32))[: SIZE[0], : SIZE[1]]
+        pixels = _points(30, seed=80 + index)
+        frames.append(adapt.Measured(pixels, _measure(reference, pixels), reference))
+    options = {"image_size": SIZE, "focal_baseline": 50.0, "robust": "cauchy"}
+    held = adapt.leave_one_out(maps, frames, {}, views=views, **options)
+    assert held is not None
+    assert held.check.frames == 2
+    assert adapt.leave_one_out(maps[:3], frames[:3], {}, views=views[:3], **options) is None
