@@ -6,6 +6,8 @@ time with the square of the points (92,400 points are a 64 GiB matrix). The poin
 image are thinned as the stereo front end spaces its own measurements (corners, and a
 lattice in their gaps): one per pixel, the nearest, and beyond ``max_points`` one per cell
 of the coarsest square grid that keeps at most that many (:func:`thin_measurements`).
+Points behind the camera, outside the image or nearer than the stereo pair sees
+(:func:`too_near`) are dropped first.
 """
 
 from __future__ import annotations
@@ -97,8 +99,10 @@ def too_near(disparity: npt.NDArray[np.float64], width: int) -> npt.NDArray[np.b
     image's width it is outside the right image wherever the point is in the left one. Such
     a point is nearer than f*b / width (0.31 m for KITTI's 0.54 m baseline at 620 px, 2.5 cm
     for a 5 cm one at 1280 px): a triangulation failure of the system that published it (a
-    point put at 1 cm on its ray has ~19,000 px). Real near objects stay: a wide-baseline rig
-    sees a point at 0.5 m (390 px on 620) beyond SGBM's range, and a LiDAR measures it.
+    point put at 1 cm on its ray has ~19,000 px). Near objects within the width stay, also
+    beyond SGBM's range: a wide-baseline rig's point at 0.5 m (390 px on 620 px) is real, and
+    a LiDAR measures it (a wrong one is left to the trimmed robust start,
+    :class:`~pcainterp_stream.estimate.prior.RobustStart`).
     """
     result: npt.NDArray[np.bool_] = disparity > width
     return result

@@ -6,10 +6,12 @@ stamp, an empty cloud, points behind the camera or outside the image), not the i
 :class:`FeatureStreamCheck` accumulates, frame by frame, what the stream gave and words it:
 a summary line, warnings that name the cause, and the one-line error of a run in which no
 frame got a single usable point. It refuses a stream whose points all lie at one depth
-(:data:`FLAT_SPREAD`: normalized image coordinates, not 3-D points), warns, once, of clouds
-in another frame than the left image's and of coordinates that look like millimetres, says
-how a dense cloud was thinned (:func:`~pcainterp_stream.frontend.features.thin_measurements`)
-and how far from their images' stamps the clouds matched were.
+(:data:`FLAT_SPREAD`: normalized image coordinates, not 3-D points) or whose clouds are in a
+world frame (:data:`WORLD_FRAMES`), warns, once, of clouds in another frame than the left
+image's and of coordinates that look like millimetres, counts points nearer than the stereo
+pair sees (:func:`~pcainterp_stream.frontend.features.too_near`), says how a dense cloud
+was thinned (:func:`~pcainterp_stream.frontend.features.thin_measurements`) and how far
+from their images' stamps the clouds matched were.
 """
 
 from __future__ import annotations
