@@ -86,7 +86,10 @@ ROBUST_FROM = 4.0
 REJECT_FROM = 8.0
 """The |t_j| against the trimmed solve (:attr:`RobustStart.TRIMMED`) from which a point is
 left out: on 20 synthetic frames of 300 true points each the largest was 6.2; one point per
-frame moved to 2 m on its ray (disparity ~97 px) had 9.6-36, at 0.5 m 41-150."""
+frame moved to 2 m on its ray (disparity ~97 px) had 9.6-36, at 0.5 m 41-150. 16 let a
+third of the 2 m ones pull the map (RMSE 2.62 px, 1.97 at 10-12, 1.57 at 8). On KITTI's
+SGBM clouds as the stream (3 annotated frames, LiDAR truth) 8 moved the map by -3 % (street
+basis) and +0.7 % (indoor) of 1.6-1.8 px."""
 
 MAD_TO_STD = 1.4826
 """The std of a normal over its median absolute deviation: the trimmed start's suspects are
