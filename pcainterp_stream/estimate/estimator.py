@@ -51,6 +51,7 @@ from pcainterp_stream.estimate.prior import (
     LocalPrior,
     Model,
     Robust,
+    RobustStart,
     TemporalPrior,
     covariance_scale,
 )
@@ -172,6 +173,7 @@ def densify(
     temporal: TemporalPrior | None = None,
     std_scale: float = 1.0,
     robust_iterations: int = 1,
+    robust_start: RobustStart | str = RobustStart.PLAIN,
     scale_by_innovation: bool = False,
     noise_std: npt.ArrayLike | None = None,
     edge_map: npt.ArrayLike | None = None,
@@ -210,6 +212,9 @@ def densify(
         std_scale: factor on the reported std (a calibration fitted on held-out frames,
             ``fitting.fit_std_scale``); 1 reports the posterior std itself.
         robust_iterations: IRLS reweightings with ``robust`` (:class:`prior.Model`).
+        robust_start: ``"plain"`` or ``"trimmed"``: where a frame's first weights come
+            from (:class:`prior.RobustStart`; ``"trimmed"`` for points of another system,
+            which may be off by hundreds of px).
         scale_by_innovation: also multiply the std by sqrt(a), the frame's covariance
             scale fitted from its normalised innovation (:func:`prior.covariance_scale`).
         noise_std: (k,) float, extra noise std (px of the output camera) of each
@@ -258,6 +263,7 @@ def densify(
         temporal=temporal,
         std_scale=std_scale,
         robust_iterations=robust_iterations,
+        robust_start=robust_start,
         scale_by_innovation=scale_by_innovation,
         noise_stds=None if noise_std is None else [noise_std],
         partitions=None if partition is None else [partition],
@@ -283,6 +289,7 @@ def densify_batch(
     std_scale: float = 1.0,
     robust_iterations: int = 1,
     robust_from: float = ROBUST_FROM,
+    robust_start: RobustStart | str = RobustStart.PLAIN,
     scale_by_innovation: bool = False,
     noise_stds: Sequence[npt.ArrayLike | None] | None = None,
     with_depth: bool = True,
@@ -316,6 +323,7 @@ def densify_batch(
         robust_iterations: IRLS reweightings with ``robust``.
         robust_from: reweight a frame only when a measurement's leave-one-out standardised
             residual reaches this (:class:`prior.Model`); 0: always.
+        robust_start: ``"plain"`` or ``"trimmed"`` (:class:`prior.RobustStart`).
         scale_by_innovation: multiply each frame's std by sqrt(a) of
             :func:`prior.covariance_scale` too.
         noise_stds: F arrays (k_f,) (or None) of extra per-measurement noise std (px),
@@ -357,6 +365,7 @@ def densify_batch(
         robust=Robust(robust),
         robust_iterations=robust_iterations,
         robust_from=robust_from,
+        robust_start=RobustStart(robust_start),
     )
     if not (np.isfinite(std_scale) and std_scale > 0):
         raise ValueError(f"Expected `std_scale` > 0, got {std_scale}")

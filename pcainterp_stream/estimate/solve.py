@@ -20,9 +20,13 @@ from pcainterp_stream.estimate.cells import Cells, node_along
 from pcainterp_stream.estimate.lapack import routines
 from pcainterp_stream.estimate.prior import (
     DOWNWEIGHTED_BELOW,
+    MAD_TO_STD,
+    REJECT_FROM,
+    REJECTED_WEIGHT,
     LocalPrior,
     Model,
     Robust,
+    RobustStart,
     TemporalPrior,
     evidence_noise,
     robust_weights,
@@ -297,6 +301,7 @@ def _solve_measurement(
     noise = sigma**2 if extra_variance is None else sigma**2 + extra_variance
     noise = noise / scale  # the unit prior with the fit's noise-to-signal ratio; sigma is s
     iterations = model.robust_iterations if model.robust is not Robust.NONE else 0
+    rejected = np.zeros(k, dtype=bool)  # left out by the trimmed start, for good
     for iteration in range(iterations + 1):
         # K = signal + R, R on the diagonal of the factorisation's own copy
         lower_inverse = _cholesky_inverse(signal, noise / weights) if k else np.zeros((0, 0))
@@ -308,7 +313,17 @@ def _solve_measurement(
         standardised = alpha / np.sqrt(inverse_diagonal)
         if iteration == 0 and not np.max(np.abs(standardised), initial=0.0) >= model.robust_from:
             break  # no outlier: the unweighted solve stands (weights 1)
+        if iteration == 0 and model.robust_start is RobustStart.TRIMMED:
+            # the suspects: beyond robust_from, in the residuals' own spread when one point
+            # pulled the fit so far that most of the others are beyond it too
+            spread = max(1.0, MAD_TO_STD * float(np.median(np.abs(standardised))))
+            trimmed = _trimmed_residuals(
+                signal, noise, innovation, np.abs(standardised) >= model.robust_from * spread
+            )
+            if trimmed is not None:
+                standardised, rejected = trimmed, np.abs(trimmed) >= REJECT_FROM
         updated = robust_weights(standardised, model.robust)
+        updated[rejected] = REJECTED_WEIGHT
         converged = bool(np.max(np.abs(updated - weights), initial=0.0) < 1e-3)
         weights = updated
         if converged:
@@ -341,6 +356,36 @@ def _solve_measurement(
         normalised_innovation=float(innovation @ alpha / k) if k else 0.0,
         temporal=label,
     )
+
+
+def _trimmed_residuals(
+    signal: npt.NDArray[np.float64],
+    noise: npt.NDArray[np.float64] | float,
+    innovation: npt.NDArray[np.float64],
+    suspect: npt.NDArray[np.bool_],
+) -> npt.NDArray[np.float64] | None:
+    """Standardised residuals t_j (k,) against the solve without the ``suspect`` points.
+
+    A kept point's is its leave-one-out residual in that solve; a suspect's is its
+    residual against that solve's prediction over the predictive std with its own noise,
+    (z~_j - K_jS K_SS^-1 z~_S) / sqrt(K_jj - K_jS K_SS^-1 K_Sj) (:attr:`prior.RobustStart.
+    TRIMMED`). None when half of the points or more are suspects (nothing to trim against).
+    """
+    k = innovation.size
+    kept = ~suspect
+    if 2 * np.count_nonzero(kept) <= k:  # most are suspects: nothing to trim them against
+        return None
+    noise_of = np.broadcast_to(np.asarray(noise, dtype=np.float64), (k,))
+    lower_inverse = _cholesky_inverse(signal[np.ix_(kept, kept)], noise_of[kept])
+    alpha = lower_inverse.T @ (lower_inverse @ innovation[kept])
+    standardised = np.empty(k)
+    standardised[kept] = alpha / np.sqrt(np.einsum("ij,ij->j", lower_inverse, lower_inverse))
+    cross = signal[np.ix_(kept, suspect)]  # K_Sj: the suspects' covariance with the kept
+    projected = lower_inverse @ cross
+    variance = signal[suspect, suspect] + noise_of[suspect]
+    variance -= np.einsum("ij,ij->j", projected, projected)
+    standardised[suspect] = (innovation[suspect] - cross.T @ alpha) / np.sqrt(variance)
+    return standardised
 
 
 def _image_coordinates(count: int, basis_size: int) -> npt.NDArray[np.float64]:

@@ -6,6 +6,8 @@ time with the square of the points (92,400 points are a 64 GiB matrix). The poin
 image are thinned as the stereo front end spaces its own measurements (corners, and a
 lattice in their gaps): one per pixel, the nearest, and beyond ``max_points`` one per cell
 of the coarsest square grid that keeps at most that many (:func:`thin_measurements`).
+Points behind the camera, outside the image or nearer than the stereo pair sees
+(:func:`too_near`) are dropped first.
 """
 
 from __future__ import annotations
@@ -38,8 +40,11 @@ def features_to_measurements(
     Returns:
         pixels (k, 2) float32 (x, y) px, disparities (k,) float32 px = f*b / z, and counts:
         ``feature_cloud`` (1 when the frame had a cloud), ``features`` (its points),
-        ``features_rejected`` (behind the camera or outside the image),
-        ``features_behind`` (of those, behind the camera: z <= 0), ``features_thinned``
+        ``features_rejected`` (behind the camera, outside the image or too near),
+        ``features_behind`` (of those, behind the camera: z <= 0), ``features_near`` (of
+        those, in the image at a disparity over the image's width: nearer than
+        ``focal_baseline / width``, where the right camera cannot see them; a
+        triangulation failure of the stream's system, :func:`too_near`), ``features_thinned``
         (points in the image left out by the thinning) and ``features_cell`` (the thinning
         grid's cell side, px, rounded up; 0 when the cap was not reached).
     """
@@ -47,10 +52,11 @@ def features_to_measurements(
     if features is None or features.points.size == 0:
         empty = np.zeros((0, 2), dtype=np.float32)
         counts = {"feature_cloud": cloud, "features": 0, "features_rejected": 0}
+        counts |= {"features_behind": 0, "features_near": 0}
         return (
             empty,
             np.zeros(0, dtype=np.float32),
-            counts | {"features_behind": 0, "features_thinned": 0, "features_cell": 0},
+            counts | {"features_thinned": 0, "features_cell": 0},
         )
     points = features.points.astype(np.float64)
     z = points[:, 2]
@@ -58,7 +64,7 @@ def features_to_measurements(
         u = camera.fx * points[:, 0] / z + camera.cx
         v = camera.fy * points[:, 1] / z + camera.cy
         disparity = camera.focal_baseline / z
-    keep = (
+    seen = (
         np.isfinite(u)
         & np.isfinite(v)
         & (z > 0)
@@ -67,6 +73,8 @@ def features_to_measurements(
         & (v >= -0.5)
         & (v <= camera.height - 0.5)
     )
+    near = seen & too_near(disparity, camera.width)
+    keep = seen & ~near
     pixels = np.stack([u[keep], v[keep]], axis=1).astype(np.float32)
     disparities = disparity[keep].astype(np.float32)
     kept, cell = thin_measurements(
@@ -77,10 +85,27 @@ def features_to_measurements(
         "features": int(points.shape[0]),
         "features_rejected": int((~keep).sum()),
         "features_behind": int((~(z > 0)).sum()),
+        "features_near": int(near.sum()),
         "features_thinned": int(pixels.shape[0] - kept.size),
         "features_cell": math.ceil(cell),
     }
     return pixels[kept], disparities[kept], counts
+
+
+def too_near(disparity: npt.NDArray[np.float64], width: int) -> npt.NDArray[np.bool_]:
+    """Return which disparities (px) no stereo pair of a camera ``width`` px wide measures.
+
+    A point's match in the right image is its disparity to the left of its pixel; beyond the
+    image's width it is outside the right image wherever the point is in the left one. Such
+    a point is nearer than f*b / width (0.31 m for KITTI's 0.54 m baseline at 620 px, 2.5 cm
+    for a 5 cm one at 1280 px): a triangulation failure of the system that published it (a
+    point put at 1 cm on its ray has ~19,000 px). Near objects within the width stay, also
+    beyond SGBM's range: a wide-baseline rig's point at 0.5 m (390 px on 620 px) is real, and
+    a LiDAR measures it (a wrong one is left to the trimmed robust start,
+    :class:`~pcainterp_stream.estimate.prior.RobustStart`).
+    """
+    result: npt.NDArray[np.bool_] = disparity > width
+    return result
 
 
 def thin_measurements(

@@ -6,10 +6,12 @@ stamp, an empty cloud, points behind the camera or outside the image), not the i
 :class:`FeatureStreamCheck` accumulates, frame by frame, what the stream gave and words it:
 a summary line, warnings that name the cause, and the one-line error of a run in which no
 frame got a single usable point. It refuses a stream whose points all lie at one depth
-(:data:`FLAT_SPREAD`: normalized image coordinates, not 3-D points), warns, once, of clouds
-in another frame than the left image's and of coordinates that look like millimetres, says
-how a dense cloud was thinned (:func:`~pcainterp_stream.frontend.features.thin_measurements`)
-and how far from their images' stamps the clouds matched were.
+(:data:`FLAT_SPREAD`: normalized image coordinates, not 3-D points) or whose clouds are in a
+world frame (:data:`WORLD_FRAMES`), warns, once, of clouds in another frame than the left
+image's and of coordinates that look like millimetres, counts points nearer than the stereo
+pair sees (:func:`~pcainterp_stream.frontend.features.too_near`), says how a dense cloud
+was thinned (:func:`~pcainterp_stream.frontend.features.thin_measurements`) and how far
+from their images' stamps the clouds matched were.
 """
 
 from __future__ import annotations
@@ -43,6 +45,11 @@ steps 1e-3 at 1 m. 1e-6 is a few float32 steps (2**-23 = 1.2e-7) of one value: o
 that holds a single depth in every point, such as VINS feature_tracker's normalized image
 coordinates (x/z, y/z, 1), is that flat."""
 
+WORLD_FRAMES = ("map", "odom", "world", "earth")
+"""Frame ids of a world frame (REP 105's map, odom and earth, and the common world): a cloud
+in one is a SLAM map's points, never in a camera's optical frame, and is refused. Other
+names are warned of only (``camera_link`` may be a renamed optical frame)."""
+
 FLAT_MIN_POINTS = 10
 """Points (in front of the camera) a cloud needs before its depths are checked for
 :data:`FLAT_SPREAD`: a few quantized depths may coincide by chance."""
@@ -57,14 +64,19 @@ class FeatureStreamCheck:
         frames: frames densified.
         without_cloud: frames that had no cloud within the stamp tolerance.
         empty_clouds: frames whose cloud had no point (with finite x, y, z).
-        all_dropped: frames whose cloud had points, all behind the camera or outside the image.
+        all_dropped: frames whose cloud had points, all behind the camera, outside the image
+            or too near.
         all_dropped_behind: the points of those frames behind the camera.
         all_dropped_outside: the points of those frames outside the image.
+        all_dropped_near: the points of those frames too near.
         usable_frames: frames with at least one point in front of the camera, in the image.
         unmeasured: frames without a single measurement, own or carried (no estimate: NaN).
         points: points of the frames' clouds.
         behind: points behind the camera (z <= 0).
         outside: points in front of the camera but outside the image.
+        near: points in the image at a disparity over its width (nearer than ``near_depth``:
+            no stereo pair of the camera sees them; :func:`~.features.too_near`).
+        near_depth: f*b / width of the camera (m).
         image_size: the left image's ``WxH`` (px).
         frame_ids: the first (cloud, left image) frame_ids that differ, None while they agree.
         median_depths: each cloud's median depth of its points in front of the camera (m).
@@ -90,11 +102,14 @@ class FeatureStreamCheck:
     all_dropped: int = 0
     all_dropped_behind: int = 0
     all_dropped_outside: int = 0
+    all_dropped_near: int = 0
     usable_frames: int = 0
     unmeasured: int = 0
     points: int = 0
     behind: int = 0
     outside: int = 0
+    near: int = 0
+    near_depth: float = 0.0
     image_size: str = ""
     frame_ids: tuple[str, str] | None = None
     median_depths: list[float] = field(default_factory=list)
@@ -115,14 +130,22 @@ class FeatureStreamCheck:
         """Look at the cloud handed to a frame (None: none): its stamp, frame_id and depths.
 
         Returns:
-            why the stream is refused: its first cloud (of :data:`FLAT_MIN_POINTS` points
-            or more) has every point at one depth; None to go on.
+            why the stream is refused: its cloud is in a world frame (:data:`WORLD_FRAMES`),
+            or its first cloud (of :data:`FLAT_MIN_POINTS` points or more) has every point
+            at one depth; None to go on.
         """
         if features is None:
             return None
         if features.stamp_ns != frame.stamp_ns:
             self.offsets_ns.append(abs(features.stamp_ns - frame.stamp_ns))
         cloud_id, image_id = features.frame_id.lstrip("/"), frame.frame_id.lstrip("/")
+        if cloud_id.lower() in WORLD_FRAMES:
+            return (
+                f"the clouds of --features-topic {self.topic} are in frame "
+                f"'{features.frame_id}', a world frame (REP 105): a map's points, not the "
+                f"left camera's; transform them into the left optical frame "
+                f"'{frame.frame_id}' (with the camera's pose at each stamp) before densifying"
+            )
         if self.frame_ids is None and cloud_id and image_id and cloud_id != image_id:
             self.frame_ids = (features.frame_id, frame.frame_id)
         depth = features.points[:, 2]
@@ -157,11 +180,15 @@ class FeatureStreamCheck:
         points = counts.get("features", 0)
         rejected = counts.get("features_rejected", 0)
         behind = counts.get("features_behind", 0)
+        near = counts.get("features_near", 0)
+        camera = result.frame.camera
         self.frames += 1
-        self.image_size = f"{result.frame.camera.width}x{result.frame.camera.height}"
+        self.image_size = f"{camera.width}x{camera.height}"
+        self.near_depth = camera.focal_baseline / camera.width
         self.points += points
         self.behind += behind
-        self.outside += rejected - behind
+        self.near += near
+        self.outside += rejected - behind - near
         thinned = counts.get("features_thinned", 0)
         self.thinned += thinned
         if counts.get("features_cell", 0):
@@ -182,18 +209,21 @@ class FeatureStreamCheck:
         elif rejected == points:
             self.all_dropped += 1
             self.all_dropped_behind += behind
-            self.all_dropped_outside += rejected - behind
+            self.all_dropped_outside += rejected - behind - near
+            self.all_dropped_near += near
         else:
             self.usable_frames += 1
 
     def summary(self) -> str:
         """Return one line: the points the stream gave and those dropped, by reason."""
-        used = self.points - self.behind - self.outside - self.thinned
+        used = self.points - self.behind - self.outside - self.near - self.thinned
         line = (
             f"features: {self.points} points of {self.topic} in {self.frames - self.without_cloud}"
             f" of {self.frames} frames, {used} used; {self.behind} behind the camera, "
             f"{self.outside} outside the {self.image_size} image"
         )
+        if self.near:
+            line += f", {self.near} {self._near_clause()}"
         shared = self.thinned - (self.grid_points - self.grid_kept)
         if self.grid_frames:
             cap = f", --max-features {self.max_points}" if self.max_points else ""
@@ -252,13 +282,14 @@ class FeatureStreamCheck:
                 f"{missed} of {self.frames} frames got no point from --features-topic "
                 f"{self.topic}, so {alone}: {'; '.join(self._causes(stats, error=False))}"
             )
-        dropped = self.behind + self.outside
+        dropped = self.behind + self.outside + self.near
         # frames that lost every point have their warning above; this one is for the others
         if dropped and not self.all_dropped and dropped * 2 > self.points:
+            near = f", {self.near} {self._near_clause()}" if self.near else ""
             lines.append(
                 f"{dropped} of the {self.points} points of {self.topic} were dropped "
                 f"({self.behind} behind the camera, {self.outside} outside the "
-                f"{self.image_size} image): {self._frame_hint()}"
+                f"{self.image_size} image{near}): {self._frame_hint()}"
             )
         if self.frame_ids is not None:
             cloud_id, image_id = self.frame_ids
@@ -296,9 +327,11 @@ class FeatureStreamCheck:
             causes.append(f"{self.empty_clouds} had an empty cloud (no point with finite x, y, z)")
         if self.all_dropped:
             behind, outside = self.all_dropped_behind, self.all_dropped_outside
+            near = self.all_dropped_near
             where = [
                 f"behind the camera (z <= 0, {behind} points)" if behind else "",
                 f"outside the {self.image_size} image ({outside} points)" if outside else "",
+                f"{self._near_clause()} ({near} points)" if near else "",
             ]
             causes.append(
                 f"{self.all_dropped} had every point of their cloud "
@@ -336,6 +369,14 @@ class FeatureStreamCheck:
                 "the same instant)"
             )
         return clause
+
+    def _near_clause(self) -> str:
+        """Return what the points too near are (after their count)."""
+        width = self.image_size.split("x")[0]
+        return (
+            f"nearer than the stereo pair sees (disparity over the {width} px width: "
+            f"z < {self.near_depth:.3g} m; triangulation failures?)"
+        )
 
     def _frame_hint(self) -> str:
         """Return what points behind the camera or outside the image suggest."""

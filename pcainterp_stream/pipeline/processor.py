@@ -4,8 +4,7 @@ Per pair: GFTT corners on the left image, SGBM disparity, disparity lookups at t
 (or the points of a sparse feature stream instead), then MAP densification with the basis.
 Stereo matching of the next frames runs in worker threads, the densification of the
 matched frames batch after batch in a thread of its own, and the calling thread does the
-caller's I/O (OpenCV, BLAS, zlib and zstd release the GIL); memory is bounded by the
-look-ahead and the densify thread's queue, whatever the length of the stream.
+caller's I/O (OpenCV, BLAS, zlib and zstd release the GIL).
 
 Threads (measured in docs/stages.md, "Stereo front end", "Threads"): on a few cores the pipeline
 is fastest when no library spawns threads of its own, so that every thread is one unit of
@@ -267,6 +266,7 @@ class EstimateSettings:
         scale_by_innovation: also scale each frame's std by its covariance scale.
         match_range: SGBM's largest disparity (px; sparse stereo mode), near which the std
             is widened (:func:`~pcainterp_stream.estimate.variance.widen_near_range`).
+        robust_start: "trimmed" for a feature stream, else "plain" (``prior.RobustStart``).
     """
 
     sigma: float | str
@@ -275,21 +275,16 @@ class EstimateSettings:
     std_scale: float = 1.0
     scale_by_innovation: bool = False
     match_range: float | None = None
+    robust_start: str = "plain"
 
     def densify_options(self) -> dict[str, Any]:
         """Return the keyword arguments of :func:`~estimator.densify` these settings fill.
 
-        ``sigma``, ``local_prior``, ``std_scale``, ``scale_by_innovation``, ``match_range``
-        and ``zero_is_match`` (SGBM's 0 is a match): for tools densifying as the command does.
+        The fields and ``zero_is_match`` (SGBM's 0 is a match), ``process_noise`` aside:
+        for tools densifying as the command does.
         """
-        return {
-            "sigma": self.sigma,
-            "local_prior": self.local_prior,
-            "std_scale": self.std_scale,
-            "scale_by_innovation": self.scale_by_innovation,
-            "match_range": self.match_range,
-            "zero_is_match": True,
-        }
+        fields = (f.name for f in dataclasses.fields(self) if f.name != "process_noise")
+        return {name: getattr(self, name) for name in fields} | {"zero_is_match": True}
 
 
 def resolve_settings(basis: Basis, config: ProcessorConfig) -> EstimateSettings:
@@ -342,6 +337,7 @@ def resolve_settings(basis: Basis, config: ProcessorConfig) -> EstimateSettings:
         scale_by_innovation=scale_by_innovation,
         # the largest disparity SGBM returns, in the images' px
         match_range=config.sgbm.matched().band * config.sgbm.downscale if stereo else None,
+        robust_start="trimmed" if config.source is MeasurementSource.FEATURES else "plain",
     )
 
 

@@ -10,6 +10,7 @@ from pcainterp_stream.estimate.prior import (
     Kernel,
     LocalPrior,
     Robust,
+    RobustStart,
     TemporalPrior,
     covariance_scale,
     evidence_sigma,
@@ -505,3 +506,40 @@ def test_short_kernel_local_map_in_blocks_equals_the_full_product(
     full = solve._local_mean(local, (100, 300), (200, 600), 1.0)
     assert np.abs(full).max() > 0.5
     np.testing.assert_allclose(blocked, full, atol=1e-6)
+
+
+@pytest.mark.parametrize("offset", [300.0, 19_000.0])
+def test_a_trimmed_start_leaves_a_far_point_out_where_the_plain_one_follows_it(
+    offset: float,
+) -> None:
+    # a feature stream's triangulation failure: one of 200 points hundreds of px off; with
+    # the fitted noise (0.1 px) the plain start's Cauchy weight still trusted it to a few
+    # px (71 px off the map without it), and at 19,000 px it down-weighted the good points
+    basis = _basis(height=48, width=64)
+    rng = np.random.default_rng(3)
+    truth = basis.mean + np.tensordot(
+        rng.normal(size=6) * np.sqrt(basis.eigenvalues), basis.components, axes=1
+    )
+    pixels = np.stack([rng.integers(0, 64, 200), rng.integers(0, 48, 200)], axis=1).astype(float)
+    measured = truth[pixels[:, 1].astype(int), pixels[:, 0].astype(int)] + rng.normal(0, 0.1, 200)
+    options = {"sigma": 0.1, "local_prior": LocalPrior(variance=40.0, length_scale=8.0)}
+    without = densify(basis, pixels[1:], measured[1:], robust="cauchy", **options)  # type: ignore[arg-type]
+    bad = measured.copy()
+    bad[0] += offset
+
+    def solve(start: str) -> DensifyResult:
+        return densify(basis, pixels, bad, robust="cauchy", robust_start=start, **options)  # type: ignore[arg-type]
+
+    plain, trimmed = solve("plain"), solve("trimmed")
+    # the plain start follows the point (300 px) or down-weights the good ones (19,000 px)
+    assert np.abs(plain.disparity - without.disparity).max() > 20.0 or plain.n_downweighted > 50
+    np.testing.assert_allclose(trimmed.disparity, without.disparity, atol=1e-3)
+    assert trimmed.weights is not None
+    assert trimmed.weights[0] < 1e-9
+    assert trimmed.n_downweighted <= 2
+    # a frame without an outlier is not reweighted by either start
+    clean = densify(
+        basis, pixels, measured, robust="cauchy", robust_start=RobustStart.TRIMMED, **options  # type: ignore[arg-type]
+    )
+    assert clean.weights is not None
+    np.testing.assert_array_equal(clean.weights, 1.0)

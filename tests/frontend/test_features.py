@@ -72,3 +72,17 @@ def test_a_sparse_cloud_is_kept_whole() -> None:
     assert cell == 0.0
     with pytest.raises(ValueError, match="max_points must be >= 1"):
         thin_measurements(pixels, np.ones(3, np.float32), (40, 40), max_points=0)
+
+
+def test_points_nearer_than_the_pair_sees_are_dropped_and_counted() -> None:
+    # a triangulation failure: a point put at 1 cm on its ray has a disparity of 5000 px on a
+    # 160 px image; no stereo pair of this camera (f*b 50 px*m) sees nearer than 0.3125 m
+    u = np.array([20.0, 40.0, 60.0, 80.0, 100.0, 170.0])
+    v = np.full(6, 30.0)
+    z = np.array([0.4, 0.3, 0.01, 10.0, 0.3126, 0.01])  # the last outside the image
+    pixels, disparities, counts = features_to_measurements(_cloud(u, v, z), CAMERA)
+    np.testing.assert_allclose(pixels[:, 0], [20.0, 80.0, 100.0], atol=1e-3)
+    np.testing.assert_allclose(disparities, 50.0 / np.array([0.4, 10.0, 0.3126]), rtol=1e-6)
+    assert counts["features_near"] == 2
+    assert counts["features_rejected"] == 3  # with the one outside the image
+    assert counts["features_behind"] == 0

@@ -214,15 +214,80 @@ def test_points_mostly_dropped_are_a_warning(log: Path, tmp_path: Path) -> None:
 
 
 def test_clouds_in_another_frame_are_a_warning(log: Path, tmp_path: Path) -> None:
-    source = with_features(log, tmp_path / "f.mcap", lambda i, s, f, p: (s, "map", p))
+    # camera_link may be a renamed optical frame: warned of, densified
+    source = with_features(log, tmp_path / "f.mcap", lambda i, s, f, p: (s, "camera_link", p))
     assert densify(source, tmp_path / "out.mcap").warnings == [
-        "the clouds of /features are in frame 'map', the left image in "
+        "the clouds of /features are in frame 'camera_link', the left image in "
         "'stereo_left_optical': their points were used as if in the left optical frame "
         "(transform them there before densifying)"
     ]
     # a ROS 1 frame_id's leading slash names the same frame
     slash = with_features(log, tmp_path / "g.mcap", lambda i, s, f, p: (s, "/" + f, p))
     assert densify(slash, tmp_path / "out2.mcap").warnings == []
+
+
+@pytest.mark.parametrize("frame_id", ["map", "odom", "/world", "earth"])
+def test_clouds_in_a_world_frame_are_refused(log: Path, tmp_path: Path, frame_id: str) -> None:
+    # ORB-SLAM's map points: warned of only, and densified worse than without the stream
+    source = with_features(log, tmp_path / "f.mcap", lambda i, s, f, p: (s, frame_id, p + 20))
+    with pytest.raises(
+        PcaInterpError,
+        match=rf"^{re.escape(str(source))}: the clouds of --features-topic /features are in "
+        rf"frame '{frame_id}', a world frame \(REP 105\): a map's points, not the left "
+        r"camera's; transform them into the left optical frame 'stereo_left_optical' \(with "
+        r"the camera's pose at each stamp\) before densifying$",
+    ):
+        densify(source, tmp_path / "out.mcap")
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["f.mcap"]  # nothing written
+
+
+def _moved_to(depth: float) -> Damage:
+    """Move each cloud's first point along its ray to ``depth`` m: a triangulation failure."""
+
+    def moved(i: int, stamp: int, frame_id: str, points: Points) -> Cloud:
+        bad = points.copy()
+        bad[0] *= depth / bad[0, 2]
+        return stamp, frame_id, bad
+
+    return moved
+
+
+def _disparities(path: Path) -> npt.NDArray[np.float64]:
+    with open_log(path) as reader:
+        depths = [image_of(reader.decode(raw)) for raw in reader.messages(["/pcainterp/depth"])]
+    return 1.0 / np.stack(depths).astype(np.float64)  # f*b aside
+
+
+def test_points_nearer_than_the_pair_sees_are_dropped_and_counted(
+    log: Path, tmp_path: Path
+) -> None:
+    # one point per frame at 1 cm (a disparity of ~5,000 px on the 310 px image) made the
+    # map 3-9x worse; now it is left out, as if the cloud had not had it
+    summary = densify(with_features(log, tmp_path / "f.mcap", _moved_to(0.01)), tmp_path / "o")
+    assert summary.feature_line is not None
+    assert re.search(
+        r"; 0 behind the camera, 0 outside the 310x94 image, 4 nearer than the stereo pair "
+        r"sees \(disparity over the 310 px width: z < 0.\d+ m; triangulation failures\?\)",
+        summary.feature_line,
+    )
+    assert summary.warnings == []
+    without = with_features(log, tmp_path / "w.mcap", lambda i, s, f, p: (s, f, p[1:]))
+    densify(without, tmp_path / "w_out")
+    assert _depths(tmp_path / "o") == _depths(tmp_path / "w_out")
+
+
+def test_one_wrong_point_per_frame_is_left_out_by_the_robust_start(
+    log: Path, tmp_path: Path
+) -> None:
+    # one point of ~150 per frame at 1 m (a disparity the pair can see) pulled the map by
+    # tens of px around it: the Cauchy weight of the plain start still trusted it
+    summary = densify(with_features(log, tmp_path / "f.mcap", _moved_to(1.0)), tmp_path / "o")
+    assert summary.feature_line is not None
+    assert "stereo pair" not in summary.feature_line
+    without = with_features(log, tmp_path / "w.mcap", lambda i, s, f, p: (s, f, p[1:]))
+    densify(without, tmp_path / "w_out")
+    error = np.abs(_disparities(tmp_path / "o") - _disparities(tmp_path / "w_out"))
+    assert np.nanmax(error) < 0.01  # 1/m: ~1 px of disparity (f*b ~97 px*m)
 
 
 def test_millimetre_coordinates_are_a_warning(log: Path, tmp_path: Path) -> None:
