@@ -281,6 +281,22 @@ def test_a_repeated_frame_is_not_new_evidence_for_the_temporal_prior() -> None:
     assert state.frames == 6
 
 
+
+def test_frames_without_measurements_are_not_repeats_and_widen_the_std() -> None:
+    """A gap in the measurements: each empty frame predicts one step further (the std
+    widens), although two empty frames have the same (empty) measurements."""
+    basis = _basis()
+    pixels, disparities = _points(basis, 6, seed=500)
+    state = TemporalPrior(process_noise=0.05)
+    densify(basis, pixels, disparities, sigma=1.0, temporal=state)
+    empty = np.zeros((0, 2)), np.zeros(0)
+    stds = []
+    for _ in range(4):
+        gap = densify(basis, *empty, sigma=1.0, temporal=state)
+        assert gap.disparity_std is not None
+        stds.append(float(np.median(gap.disparity_std)))
+    assert all(b > a for a, b in zip(stds, stds[1:], strict=False)), stds
+
 def test_temporal_batch_equals_one_by_one() -> None:
     basis = _basis()
     frames = [_points(basis, 6, seed=300 + i) for i in range(4)]
