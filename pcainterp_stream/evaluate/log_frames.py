@@ -57,9 +57,9 @@ the log records the tolerance densify paired with or ``stamp_tolerance_ns`` is g
 REFERENCE_WAIT_FRAMES = 4
 """A complete frame waits for its reference message until this many frames are waiting."""
 RIGHT_WAIT_FRAMES = 8
-"""A complete frame waits for its right image until this many frames are waiting, as long
-as densify's pairing keeps an unpaired left image (``PairingConfig.window``, 8 images): a
-right image logged up to 8 frame periods after the left one is found (80 ms at 100 Hz)."""
+"""A complete frame waits for its right image until this many frames are waiting. A frame
+is complete once densify's outputs of it are read, and densify writes them only after it
+paired the right image, so in a densified log the right image is seldom far behind."""
 PENDING_FRAMES = 32
 """Stamps whose channels are gathered at once (and right images and reference messages
 kept): densify writes a frame's outputs up to its look-ahead, the densify thread's queue and

@@ -230,13 +230,17 @@ class Lost:
         """
         widest = max((abs(lag) for lag in self.lags_ns), default=0) / 1e9
         parts = []
+        # the wait given up can be longer than the lag (a frame is made when its later side
+        # arrives), so the advice is never the value in force: at least one step beyond it
         if "span" in self.limits:
+            span_s = limits.span_ns / 1e9
             parts.append(
-                f"beyond the {limits.span_ns / 1e9:g} s of log the pairing holds {held}; "
-                f"pass --hold-s {int(widest) + 1}"
+                f"beyond the {span_s:g} s of log the pairing holds {held}; "
+                f"pass --hold-s {max(int(widest), int(span_s)) + 1}"
             )
         if "bytes" in self.limits:
-            need = max(self.bytes_per_s * widest * 1.25, limits.nbytes) / 2**20
+            need = self.bytes_per_s * widest * 1.25
+            need = (need if need > limits.nbytes else 2 * limits.nbytes) / 2**20
             parts.append(
                 f"beyond the {limits.nbytes / 2**20:g} MiB the pairing holds; pass --hold-mib "
                 f"{int(need) + 1} if the machine has the memory"

@@ -17,7 +17,7 @@ from pcainterp_stream.frontend.pairing import (
     StereoPairer,
     iter_stereo_frames,
 )
-from pcainterp_stream.frontend.pairing_window import Hold, HoldLimits
+from pcainterp_stream.frontend.pairing_window import GivenUpItem, Hold, HoldLimits, Lost
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.records import SparseFeatures, StereoCamera
@@ -1030,3 +1030,15 @@ def test_a_log_read_out_of_log_time_order_counts_no_lag() -> None:
     stats = pairer.finish()
     assert (stats.pairs, stats.unpaired_left, stats.lost_pairs.count) == (8, 22, 0)
     assert stats.hold_hint() is None
+
+
+def test_the_hold_advice_is_never_the_value_in_force() -> None:
+    # clouds 1 s early and right images 1.5 s late: the cloud waited 2.5 s, beyond a hold of
+    # 2 s, but its lag to the left image is 1 s: "pass --hold-s 2" was the value in force
+    lost = Lost()
+    lost.add(-10**9, GivenUpItem(0, 0, "span", 0.0))
+    limits = HoldLimits(8, 2 * 10**9, 2000, 512 * 2**20)
+    assert "pass --hold-s 3" in lost.beyond(limits, "a cloud for its frame")
+    lost = Lost()
+    lost.add(10**9, GivenUpItem(0, 0, "bytes", 1.0))  # a small queue given up by all bytes
+    assert "pass --hold-mib 1025 " in lost.beyond(limits, "an image for its partner")
