@@ -169,10 +169,17 @@ def test_a_job_says_when_the_workers_are_gone_and_gives_up_after_the_wait(
     address = empty_scheduler.scheduler_address
     empty_scheduler.scale(1)
     notes: list[str] = []
-    with scheduler.connect(address, worker_wait=0.5, say=notes.append) as client:
+    import dask
+
+    with (
+        dask.config.set({"distributed.comm.timeouts.connect": "30s"}),  # whatever the user's
+        scheduler.connect(address, worker_wait=0.5, say=notes.append) as client,
+    ):
         client.wait_for_workers(1)
         client.retire_workers()
+        deadline = time.monotonic() + 30
         while client.scheduler_info()["workers"]:
+            assert time.monotonic() < deadline, "the retired worker did not leave"
             time.sleep(0.05)
         options = jobs.LearnOptions(n_components=2, fit_prior=False)
         run = (
