@@ -587,7 +587,8 @@ def measure_on_cluster(
     from dask.distributed import as_completed
 
     with _bar(len(futures), "fit prior (measure held-out frames on the cluster)", "log") as bar:
-        for _done in completed(as_completed(futures), client):  # type: ignore[no-untyped-call]
+        for done in completed(as_completed(futures), client):  # type: ignore[no-untyped-call]
+            task_result(done, "a measuring task")  # the first failure raises at once
             bar.update(1)
     return [task_result(future, "a measuring task") for future in futures]
 
