@@ -55,7 +55,8 @@ from pcainterp_stream.records import (
 )
 
 MAX_HELD_RECTIFIERS = 256
-"""Frames whose rectifier is kept for :meth:`StereoPairer.full_result` when nobody asks."""
+"""Frames whose rectifier is kept for :meth:`StereoPairer.full_result` when nobody asks,
+beyond the frames the hold may keep waiting for their clouds (``hold_count``)."""
 
 _OTHER = {"left": "right", "right": "left"}
 
@@ -583,8 +584,9 @@ class StereoPairer:
             self._rows.see(left_image, right_image, rectifier=rectifier)
         if boxed is not None:
             self._frame_rectifier[self._index] = boxed
-            if len(self._frame_rectifier) > 4 * MAX_HELD_RECTIFIERS:  # nobody asks (learn)
-                for index in sorted(self._frame_rectifier)[:-MAX_HELD_RECTIFIERS]:
+            keep = MAX_HELD_RECTIFIERS + self.config.hold_count  # frames held for clouds too
+            if len(self._frame_rectifier) > 4 * keep:  # nobody asks (learn)
+                for index in sorted(self._frame_rectifier)[:-keep]:
                     del self._frame_rectifier[index]
         self._index += 1
         self.stats.pairs += 1
