@@ -263,6 +263,7 @@ def test_features_project_a_known_point() -> None:
         "features": 5,
         "features_rejected": 3,
         "features_behind": 2,
+        "features_near": 0,
         "features_thinned": 0,
         "features_cell": 0,
     }
@@ -279,6 +280,7 @@ def test_no_features_is_empty_data() -> None:
         "features": 0,
         "features_rejected": 0,
         "features_behind": 0,
+        "features_near": 0,
         "features_thinned": 0,
         "features_cell": 0,
     }
