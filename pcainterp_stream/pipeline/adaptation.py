@@ -127,6 +127,11 @@ class Adaptation:
     own_check: adapt.FitCheck | None = None
     first_basis: Basis | None = None
     updates: int = 0
+    deferred: bool = False
+    _given: Basis | None = None
+    _settings: dict[str, object] = field(default_factory=dict)
+    _views: list[AdaptFrame] = field(default_factory=list)
+    _standing_warning: list[str] = field(default_factory=list)
     _maps: list[npt.NDArray[np.float32]] = field(default_factory=list)
     _recent: list[adapt.Measured] = field(default_factory=list)
     _seen: int = 0
@@ -148,7 +153,7 @@ class Adaptation:
 
     def wants_maps(self) -> bool:
         """Return whether the stereo workers should keep each frame's SGBM map."""
-        return self.warming or self.adapted
+        return self.warming or self.adapted or self.deferred
 
     def warm_up(
         self, basis: Basis, frames: list[AdaptFrame], settings: dict[str, object]
@@ -163,6 +168,7 @@ class Adaptation:
         # ``checked`` turns True only once the decision is made (``adapted`` set first): the
         # stereo workers measuring ahead keep every map until then (:meth:`wants_maps`),
         # whatever the timing, so the maps a relearned basis sees never depend on it
+        self._given, self._settings = basis, settings
         try:
             return self._decide(basis, frames, settings)
         finally:
@@ -282,11 +288,22 @@ class Adaptation:
             # truth on a synthetic street standing still (the built-in one's 97 %), and the
             # frames that follow when the camera moves are views it never saw
             best = self.name if self.switched is None else self.switched.name
+            again = (
+                f" (checked again on the first {_count(self.warmup_frames, 'frame')} of other "
+                "views)"
+                if log_goes_on
+                else ""
+            )
             self.lines.append(
                 f"prior: the camera barely moves: kept {best}; this log's own basis is not "
-                f"learned: its first {_count(len(maps), 'frame')} are one view"
+                f"learned: its first {_count(len(maps), 'frame')} are one view{again}"
             )
+            before = len(self.lines)
             self._warn_unfit(False, standing=True)
+            self._standing_warning = self.lines[before:]  # dropped if the check runs again
+            self.deferred, self._views = log_goes_on, []
+            self._camera = (size, fb)
+            self._last_map, self._since = maps[-1], np.eye(4)
             return None if self.switched is None else self.switched.basis
         # one map per view (its first): copies teach a basis their noise, not a direction
         _, firsts = np.unique(views, return_index=True)
@@ -443,6 +460,8 @@ class Adaptation:
         the view last added (the camera standing still) is not added: copies of one view
         teach the basis their noise, and calibrate its std on it.
         """
+        if self.deferred:
+            return self._revisit(frames, current)
         if not self.adapted or self._camera is None:
             return None
         for frame in frames:
@@ -474,6 +493,33 @@ class Adaptation:
             keep=current,
             calibrate_with=adapt.own_basis(older, size, fb) if len(older) >= 2 else None,
         )
+
+    def _revisit(self, frames: list[AdaptFrame], current: Basis | None) -> Basis | None:
+        """After a one-view warm-up: check again once the camera shows other views.
+
+        The first ``warmup_frames`` frames that are not the view before them (ego-motion or
+        map) are checked as the warm-up frames were; returns the basis to use from the next
+        frame on when it is not ``current``, else None.
+        """
+        for frame in frames:
+            if frame.grid_map is None or (frame.image_size, frame.focal_baseline) != self._camera:
+                self._since = None
+                continue
+            if self._repeats(frame):
+                continue
+            self._last_map, self._since = frame.grid_map, np.eye(4)
+            self._views.append(frame)
+        if len(self._views) < self.warmup_frames or self._given is None:
+            return None
+        views, self._views, self.deferred, self.switched = self._views, [], False, None
+        self.lines = [line for line in self.lines if line not in self._standing_warning]
+        self.lines.append(
+            f"prior: the camera moved: checked again on {_count(len(views), 'frame')} of "
+            "other views"
+        )
+        chosen = self._decide(self._given, views, self._settings)
+        target = self._given if chosen is None else chosen
+        return None if target is current else target
 
     def _repeats(self, frame: AdaptFrame) -> bool:
         """Return whether ``frame`` is the view of the newest map added (ego-motion or map)."""

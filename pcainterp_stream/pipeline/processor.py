@@ -692,7 +692,7 @@ class FrameProcessor:
     def _densify_ready(self, ready: list[_Measured]) -> Future[list[DensifiedFrame]]:
         if not ready:
             return finished([])
-        if not self.adaptation.adapted:
+        if not (self.adaptation.adapted or self.adaptation.deferred):
             if self.temporal is None:  # frames independent once carried: in the pool,
                 # the warm-up's large batch in batch-size parts (measured in stream order)
                 size = self.config.batch_size

@@ -360,9 +360,45 @@ def test_a_camera_standing_with_fresh_noise_keeps_a_builtin_basis(
         assert engine.basis is adaptation.switched.basis
         assert (
             "prior: the camera barely moves: kept the built-in indoor basis; this log's own "
-            "basis is not learned: its first 9 frames are one view"  # the warm-up: all 9
+            "basis is not learned: its first 9 frames are one view (checked again on the "
+            "first 8 frames of other views)"  # the warm-up: all 9
         ) in adaptation.lines
+        assert adaptation.deferred  # the camera never moved: nothing checked again
 
+
+
+def test_a_standing_start_is_checked_again_once_the_camera_moves(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """9 pairs standing at a facade (no built-in basis fits: the indoor one is kept), then
+    the street drive: the choice made on the standing view was kept for the whole log (on 10
+    standing + 30 driving: 4.51 px, where the street basis gives 3.26). The first 8 frames of
+    other views are checked as the warm-up's were, and the street basis, which fits them, is
+    used from there on."""
+    first_pose = synth_module.camera_pose
+    facade = SynthConfig(seed=7, frames=1, scale=0.5, speed=0.01)
+    stand = 9
+
+    def pose(world: Any, config: SynthConfig, index: int) -> np.ndarray:
+        if index < stand:
+            return first_pose(world, facade, 0)
+        return first_pose(world, config, index - stand + 1)
+
+    monkeypatch.setattr(synth_module, "camera_pose", pose)
+    config = SynthConfig(seed=7, frames=stand + 10, scale=0.5)
+    frames = [
+        StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
+        for f in generate(config)
+    ]
+    with FrameProcessor(None, ProcessorConfig()) as engine:
+        list(engine.process(frames))
+        adaptation = engine.adaptation
+        assert not adaptation.deferred
+        assert "prior: the camera moved: checked again on 8 frames of other views" in (
+            adaptation.lines
+        )
+        assert engine.basis is Basis.default()  # the street basis, from the 18th frame on
+        assert not any(line.startswith("warning:") for line in adaptation.lines)
 
 def test_the_streaming_update_adds_no_copy_of_the_view_it_just_added() -> None:
     """After adapting, every frame's map was added: a camera that stops (at a light) filled the
