@@ -366,7 +366,6 @@ def test_a_camera_standing_with_fresh_noise_keeps_a_builtin_basis(
         assert adaptation.deferred  # the camera never moved: nothing checked again
 
 
-
 def test_a_standing_start_is_checked_again_once_the_camera_moves(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -399,6 +398,7 @@ def test_a_standing_start_is_checked_again_once_the_camera_moves(
         )
         assert engine.basis is Basis.default()  # the street basis, from the 18th frame on
         assert not any(line.startswith("warning:") for line in adaptation.lines)
+
 
 def test_the_streaming_update_adds_no_copy_of_the_view_it_just_added() -> None:
     """After adapting, every frame's map was added: a camera that stops (at a light) filled the
