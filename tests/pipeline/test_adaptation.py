@@ -40,6 +40,14 @@ EUROC = REALDATA / "euroc_machine_hall"
 FISHEYE = REALDATA / "mynteye_fisheye"
 
 
+def _stereo_frames(config: SynthConfig) -> list[StereoFrame]:
+    """The rendered drive's pairs as the pairer gives them (the left image's stamp twice)."""
+    return [
+        StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
+        for f in generate(config)
+    ]
+
+
 def _rectify_tool() -> ModuleType:
     spec = importlib.util.spec_from_file_location(
         "realdata_rectify", ROOT / "tools" / "realdata_rectify.py"
@@ -115,10 +123,7 @@ def _indoor_frames(frames: int, seed: int = 4) -> list[StereoFrame]:
     config = SynthConfig(
         seed=seed, frames=frames, scale=0.25, scene="indoor", **camera_options("752x480")
     )
-    return [
-        StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
-        for f in generate(config)
-    ]
+    return _stereo_frames(config)
 
 
 def test_the_log_basis_keeps_learning_and_never_depends_on_thread_timing() -> None:
@@ -160,10 +165,7 @@ def test_an_adapted_basis_without_a_file_output_is_said_unsaved(tmp_path: Path) 
 def test_a_street_log_keeps_the_street_basis() -> None:
     """The street basis fits a street: kept, the indoor one not even tried."""
     config = SynthConfig(seed=9001, frames=8, scale=0.5)
-    frames = [
-        StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
-        for f in generate(config)
-    ]
+    frames = _stereo_frames(config)
     with FrameProcessor(None, ProcessorConfig()) as engine:
         list(engine.process(frames))
         assert engine.adaptation.check is not None
@@ -192,10 +194,7 @@ def test_a_kept_basis_worse_than_linear_is_named_and_warned(
     monkeypatch.setattr(adaptation_module, "densify_batch", off_by_five)
     monkeypatch.setattr(adapt, "leave_one_out", no_better)
     config = SynthConfig(seed=9001, frames=6, scale=0.25)
-    frames = [
-        StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
-        for f in generate(config)
-    ]
+    frames = _stereo_frames(config)
     with FrameProcessor(None, ProcessorConfig()) as engine:
         list(engine.process(frames))
         adaptation = engine.adaptation
@@ -239,10 +238,7 @@ def test_an_own_basis_better_but_not_by_the_margin_is_said_so() -> None:
     """The built-in indoor basis fits a synthetic room; the log's own basis errs less on the
     held-out pixels but not below adapt.ADAPT_GAIN of it: the line said it "did no better"."""
     config = SynthConfig(seed=3, frames=6, scale=0.5, scene="indoor", **camera_options("752x480"))
-    frames = [
-        StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
-        for f in generate(config)
-    ]
+    frames = _stereo_frames(config)
     with FrameProcessor(None, ProcessorConfig()) as engine:
         list(engine.process(frames))
         adaptation = engine.adaptation
@@ -337,10 +333,7 @@ def _standing_street(frames: int, monkeypatch: pytest.MonkeyPatch) -> list[Stere
 
     monkeypatch.setattr(synth_module, "camera_pose", standing)
     config = SynthConfig(seed=7, frames=frames, scale=0.5, speed=0.01)
-    return [
-        StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
-        for f in generate(config)
-    ]
+    return _stereo_frames(config)
 
 
 def test_a_camera_standing_with_fresh_noise_keeps_a_builtin_basis(
@@ -385,10 +378,7 @@ def test_a_standing_start_is_checked_again_once_the_camera_moves(
 
     monkeypatch.setattr(synth_module, "camera_pose", pose)
     config = SynthConfig(seed=7, frames=stand + 10, scale=0.5)
-    frames = [
-        StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
-        for f in generate(config)
-    ]
+    frames = _stereo_frames(config)
     with FrameProcessor(None, ProcessorConfig()) as engine:
         list(engine.process(frames))
         adaptation = engine.adaptation
@@ -442,10 +432,7 @@ def test_an_own_basis_that_beats_a_basis_that_fits_says_it_fits(
 
     monkeypatch.setattr(adapt, "leave_one_out", far_better)
     config = SynthConfig(seed=3, frames=6, scale=0.5, scene="indoor", **camera_options("752x480"))
-    frames = [
-        StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
-        for f in generate(config)
-    ]
+    frames = _stereo_frames(config)
     with FrameProcessor(None, ProcessorConfig()) as engine:
         list(engine.process(frames))
         adaptation = engine.adaptation
