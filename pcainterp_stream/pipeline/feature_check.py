@@ -188,7 +188,7 @@ class FeatureStreamCheck:
         if ahead.size >= FLAT_MIN_POINTS:
             return (
                 f"every point of the cloud of --features-topic {self.topic} at stamp "
-                f"{features.stamp_ns / 1e9:.9f} s ({ahead.size} points) has z = {median:.6g}: "
+                f"{_seconds(features.stamp_ns)} s ({ahead.size} points) has z = {median:.6g}: "
                 f"{_not_3d(median)}"
             )
         return self._small_flat(features.stamp_ns, ahead.size, median)
@@ -212,10 +212,10 @@ class FeatureStreamCheck:
 
     def _small_flat_clause(self) -> str:
         """Return "every point of the 4 clouds ... has z = 1" for the pooled small clouds."""
-        first, last = (stamp / 1e9 for stamp in self.small_flat_stamps_ns)
-        clouds, when = f"{self.small_flat_clouds} clouds", f"from stamp {first:.9f} s to {last:.9f}"
+        first, last = (_seconds(stamp) for stamp in self.small_flat_stamps_ns)
+        clouds, when = f"{self.small_flat_clouds} clouds", f"from stamp {first} s to {last}"
         if self.small_flat_clouds == 1:
-            clouds, when = "cloud", f"at stamp {first:.9f}"
+            clouds, when = "cloud", f"at stamp {first}"
         return (
             f"every point of the {clouds} of --features-topic {self.topic} {when} s "
             f"({self.small_flat_points} points, fewer than {FLAT_MIN_POINTS} a cloud) has "
@@ -442,6 +442,11 @@ class FeatureStreamCheck:
         if self.frame_ids is not None:
             hint += f" (their frame_id is '{self.frame_ids[0]}', the image's '{self.frame_ids[1]}')"
         return hint
+
+
+def _seconds(stamp_ns: int) -> str:
+    """Return a stamp (ns) as seconds with all nine digits, exactly."""
+    return f"{stamp_ns // 10**9}.{stamp_ns % 10**9:09d}"
 
 
 def _same_depth(depth: float, other: float) -> bool:
