@@ -12,6 +12,11 @@ check the log against it and fail with the list of differences. ``--force-regen`
 pytest-regressions flag) rewrites the golden files that differ and fails those tests;
 ``--update-golden`` rewrites every golden file the run checks and passes.
 
+A golden file named with ``basename=`` or ``fullpath=`` may be shared by several checks (the
+cases of a parametrized test that must all give the same log, two code paths that must
+agree): the first check of the run that matches or writes it settles it, and the others
+compare with it, never rewrite it, failing in one line naming both when their logs differ.
+
 The snapshot machinery (naming, the data directory beside the test, the first-run and
 ``--force-regen`` flow) is pytest-regressions' ``perform_regression_check``; this module
 supplies only how a log is dumped (:func:`~.store.save_golden`) and compared
@@ -23,20 +28,34 @@ from __future__ import annotations
 import re
 import shutil
 from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pytest
 
 from pcainterp_stream.errors import GoldenError, GoldenToleranceError
+
+if TYPE_CHECKING:
+    from pcainterp_stream.golden.comparison import Difference
 
 __all__ = ["LogGolden", "log_golden"]
 
 EXTENSION = ".golden.json"
 MAX_LINES = 40
 
-_CLAIMED = pytest.StashKey[dict[Path, str]]()
-"""The golden files the session's tests have checked: resolved path -> the test's node id."""
+
+@dataclass
+class _Claim:
+    """The first check of a golden file in a run, and the one that settled it."""
+
+    node_id: str  # the test that first checked the file
+    named: bool  # by basename= or fullpath=: other checks naming it too may share it
+    settled: tuple[str, str, str] | None = None  # (node id, log name, "wrote"/"matched")
+
+
+_CLAIMED = pytest.StashKey[dict[Path, _Claim]]()
+"""The golden files the session's tests have checked: resolved path -> its claim."""
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -61,7 +80,7 @@ class LogGolden:
         self._request = request
         self._datadir = datadir
         self._original_datadir = Path(original_datadir)
-        self._checked: set[Path] = set()  # the golden files this test has checked
+        self._checked: dict[Path, bool] = {}  # golden files this test checked -> named
         self.max_lines = MAX_LINES
 
     def check(
@@ -82,6 +101,8 @@ class LogGolden:
                 test that checks more than one log passes one per call, e.g.
                 ``check(dense, basename="dense")`` and ``check(raw, basename="raw")``.
             fullpath: an explicit golden file path instead (e.g. in a shared data folder).
+                Checks that name one file (``basename=`` or ``fullpath=``) share it: the
+                first of the run to match or write it settles it, the others must match it.
             topics: record and check only these channels.
             arrays: also store and check every array element-wise.
             tolerance: tolerances written into a new golden file (an existing file keeps
@@ -93,8 +114,10 @@ class LogGolden:
                 how much against its tolerance.
             pytest.fail: (a test failure) this test already checked a log against the same
                 golden file (two calls without ``basename=``), or another test of the run
-                did (parametrized ids that differ only in punctuation map to one file name);
-                or the golden file's tolerances, or ``tolerance``, are not valid.
+                did (parametrized ids that differ only in punctuation map to one file name)
+                and not both named it; the log differs from a shared golden file another
+                check of the run settled; or the golden file's tolerances, or
+                ``tolerance``, are not valid.
         """
         __tracebackhide__ = True
         try:
@@ -136,6 +159,16 @@ class LogGolden:
 
         log = Path(log)
         selected = topic_selection(topics)
+        node = self._request.node
+        named = basename is not None or fullpath is not None
+        paths_basename = _file_stem(node.name) if basename is None else basename
+        source = (
+            Path(fullpath)
+            if fullpath is not None
+            else self._original_datadir / f"{paths_basename}{EXTENSION}"
+        )
+        key = source.resolve()
+        claim = self._claim(log, key, source, named=named, paths_basename=paths_basename)
 
         def dump(path: Path) -> None:
             kept = tolerance
@@ -150,66 +183,51 @@ class LogGolden:
                 save_golden(log, path, topics=selected, arrays=arrays, tolerance=kept)
             except GoldenToleranceError as err:  # an override of a channel the log lacks
                 raise _naming(err, path, source) from None
+            if path == source:
+                claim.settled = (node.nodeid, log.name, "wrote")
 
-        def compare(obtained: Path, expected: Path) -> None:
-            __tracebackhide__ = True
+        def differences(obtained: Path, expected: Path) -> list[Difference]:
             try:
                 golden = load_golden(expected)
                 name = golden.get("arrays_file")
                 if name and not (expected.parent / name).exists():
                     # the lazy data directory copied the JSON only
                     shutil.copy2(source.parent / name, expected.parent / name)
-                differences = compare_documents(golden, expected, load_golden(obtained), obtained)
+                return compare_documents(golden, expected, load_golden(obtained), obtained)
             except GoldenToleranceError as err:
                 raise _naming(err, expected, source) from None
             except GoldenError as err:  # an old format: --force-regen rewrites it
                 raise AssertionError(
                     f"{err}\n(rerun with --force-regen or --update-golden)"
                 ) from err
-            if differences:
-                count = len(differences)
+
+        def compare(obtained: Path, expected: Path) -> None:
+            __tracebackhide__ = True
+            found = differences(obtained, expected)
+            if found:
+                count = len(found)
                 raise AssertionError(
                     f"{log.name} differs from the golden file {source} in {count} "
                     f"place{'s' if count > 1 else ''} beyond tolerance:\n"
-                    + format_differences(differences, self.max_lines)
+                    + format_differences(found, self.max_lines)
                     + "\n(rerun with --force-regen or --update-golden to accept the log)"
                 )
+            claim.settled = claim.settled or (node.nodeid, log.name, "matched")
 
-        node = self._request.node
-        paths_basename = basename
-        if fullpath is None and basename is None:
-            paths_basename = _file_stem(node.name)
-        source = (
-            Path(fullpath)
-            if fullpath is not None
-            else self._original_datadir / f"{paths_basename}{EXTENSION}"
-        )
-        if source.resolve() in self._checked:
-            pytest.fail(
-                f"log_golden.check({log.name!r}): this test already checked a log against "
-                f"{source.name}; pass basename='...' (a name per call) or fullpath=... so "
-                "that each log has its own golden file",
-                pytrace=False,
-            )
-        self._checked.add(source.resolve())
-        claimed = self._request.config.stash.setdefault(_CLAIMED, {})
-        owner = claimed.setdefault(source.resolve(), node.nodeid)
-        if owner != node.nodeid:  # --update-golden would write the file twice, last one wins
-            owner_name = owner.rpartition("::")[2]
-            fix = "pass another basename='...' or fullpath=..."
-            if paths_basename == _file_stem(owner_name) == _file_stem(node.name):
-                fix = (
-                    f"the test names {owner_name} and {node.name} differ only in characters "
-                    "the file name replaces with '_'; give the parameters ids that differ in "
-                    "letters or digits (pytest.param(..., id='...')) or pass basename='...'"
-                )
-            pytest.fail(
-                f"log_golden.check({log.name!r}): the golden file {source.name} is already "
-                f"that of {owner} in this run; {fix}, so that each test has its own golden file",
-                pytrace=False,
-            )
         if tolerance is not None:  # before the work, named as the test wrote it
             checked_tolerance(tolerance, f"log_golden.check(tolerance=...) for {source.name}")
+        settled = claim.settled
+        if settled is not None and (settled[0] != node.nodeid or key in self._checked):
+            # shared, and settled by another check of the run: compared, never rewritten
+            self._checked[key] = named
+            stem = f"{source.name.removesuffix(EXTENSION)}.shared{len(self._checked)}"
+            obtained = self._datadir / f"{stem}.obtained{EXTENSION}"
+            dump(obtained)
+            found = differences(obtained, source)
+            if found:
+                self._fail_shared(log, source, settled, found)
+            return
+        self._checked[key] = named
         if self._request.config.getoption("update_golden"):
             dump(source)
             return
@@ -222,6 +240,62 @@ class LogGolden:
             extension=EXTENSION,
             basename=paths_basename if fullpath is None else None,
             fullpath=None if fullpath is None else Path(fullpath),
+        )
+
+    def _claim(
+        self, log: Path, key: Path, source: Path, *, named: bool, paths_basename: str
+    ) -> _Claim:
+        """Return the run's claim on a golden file; fail when this check may not share it."""
+        __tracebackhide__ = True
+        node = self._request.node
+        if key in self._checked and not (named and self._checked[key]):
+            pytest.fail(
+                f"log_golden.check({log.name!r}): this test already checked a log against "
+                f"{source.name}; pass basename='...' (a name per call) or fullpath=... so "
+                "that each log has its own golden file",
+                pytrace=False,
+            )
+        claims = self._request.config.stash.setdefault(_CLAIMED, {})
+        claim = claims.setdefault(key, _Claim(node.nodeid, named))
+        if claim.node_id != node.nodeid and not (named and claim.named):
+            # --update-golden would write the file twice, last one wins
+            owner_name = claim.node_id.rpartition("::")[2]
+            fix = "pass another basename='...' or fullpath=..."
+            if not named and paths_basename == _file_stem(owner_name) == _file_stem(node.name):
+                fix = (
+                    f"the test names {owner_name} and {node.name} differ only in characters "
+                    "the file name replaces with '_'; give the parameters ids that differ in "
+                    "letters or digits (pytest.param(..., id='...')) or pass basename='...'"
+                )
+            else:
+                fix += " (checks share a golden file only when each names it so)"
+            pytest.fail(
+                f"log_golden.check({log.name!r}): the golden file {source.name} is already "
+                f"that of {claim.node_id} in this run; {fix}, so that each test has its own "
+                "golden file",
+                pytrace=False,
+            )
+        return claim
+
+    def _fail_shared(
+        self, log: Path, source: Path, settled: tuple[str, str, str], found: list[Difference]
+    ) -> None:
+        """Fail in one line: the log differs from a shared file another check settled."""
+        __tracebackhide__ = True
+        node_id, log_name, how = settled
+        who = (
+            f"this test's check of {log_name!r}"
+            if node_id == self._request.node.nodeid
+            else f"{node_id} (log {log_name})"
+        )
+        count = len(found)
+        pytest.fail(
+            f"log_golden.check({log.name!r}): {log.name} differs from the shared golden file "
+            f"{source.name}, which {who} {how} in this run, in {count} "
+            f"place{'s' if count > 1 else ''} beyond tolerance (first: {found[0]}); checks "
+            "that share a golden file must give the same log: fix the one that is wrong, or "
+            "give each its own basename='...' or fullpath=...",
+            pytrace=False,
         )
 
 

@@ -6,12 +6,13 @@ stamp, an empty cloud, points behind the camera or outside the image), not the i
 :class:`FeatureStreamCheck` accumulates, frame by frame, what the stream gave and words it:
 a summary line, warnings that name the cause, and the one-line error of a run in which no
 frame got a single usable point. It refuses a stream whose points all lie at one depth
-(:data:`FLAT_SPREAD`: normalized image coordinates, not 3-D points) or whose clouds are in a
-world frame (:data:`WORLD_FRAMES`), warns, once, of clouds in another frame than the left
-image's and of coordinates that look like millimetres, counts points nearer than the stereo
-pair sees (:func:`~pcainterp_stream.frontend.features.too_near`), says how a dense cloud
-was thinned (:func:`~pcainterp_stream.frontend.features.thin_measurements`) and how far
-from their images' stamps the clouds matched were.
+(:data:`FLAT_SPREAD`: normalized image coordinates, not 3-D points; clouds of a few points
+are judged together, :data:`FLAT_MIN_POINTS`) or whose clouds are in a world frame
+(:data:`WORLD_FRAMES`), warns, once, of clouds in another frame than the left image's and
+of coordinates that look like millimetres, counts points nearer than the stereo pair sees
+(:func:`~pcainterp_stream.frontend.features.too_near`), says how a dense cloud was thinned
+(:func:`~pcainterp_stream.frontend.features.thin_measurements`) and how far from their
+images' stamps the clouds matched were.
 """
 
 from __future__ import annotations
@@ -51,8 +52,18 @@ in one is a SLAM map's points, never in a camera's optical frame, and is refused
 names are warned of only (``camera_link`` may be a renamed optical frame)."""
 
 FLAT_MIN_POINTS = 10
-"""Points (in front of the camera) a cloud needs before its depths are checked for
-:data:`FLAT_SPREAD`: a few quantized depths may coincide by chance."""
+"""Points (in front of the camera) at one depth that refuse a stream (:data:`FLAT_SPREAD`).
+
+A few measured depths may coincide by chance (a depth camera's millimetre steps, stereo's
+integer disparities of far points), ten in one cloud do not. Clouds of fewer points are
+judged together: the points of the stream's clouds of 2 to 9 points, while every one of
+them lies at one and the same depth (VINS feature_tracker's z = 1 in every cloud), count
+towards the ten; a cloud with depths that differ, or one at another depth than the clouds
+before it, ends that (a single point has no depth to compare and is not judged)."""
+
+FLAT_SUSPECT_POINTS = 3
+"""Points at one depth, fewer than :data:`FLAT_MIN_POINTS`, that a run warns of when its
+stream gave no cloud with points at different depths."""
 
 
 @dataclass
@@ -87,8 +98,14 @@ class FeatureStreamCheck:
         grid_kept: the points kept of those.
         cell: the largest thinning grid cell side (px).
         offsets_ns: of frames given a cloud of another stamp, the gap between the stamps (ns).
-        spread_seen: a cloud with :data:`FLAT_MIN_POINTS` points of different depths came.
-        flat_clouds: clouds whose points all lay at one depth, after such a cloud.
+        spread_seen: a cloud with points at different depths came.
+        small_flat_clouds: clouds of 2 to :data:`FLAT_MIN_POINTS` - 1 points at one depth,
+            all at the same depth, before any with spread (-1: one came at another depth).
+        small_flat_points: the points of those clouds in front of the camera.
+        small_flat_depth: their depth (m).
+        small_flat_stamps_ns: the stamps of the first and the last of them (ns).
+        flat_clouds: clouds of :data:`FLAT_MIN_POINTS` points or more whose points all lay
+            at one depth, after such a cloud.
         flat_depth: the depth of the first of those (m).
         carried_frames: frames without a point of their own estimated from carried points.
         predicted_frames: frames without a point of their own or carried, estimated by the
@@ -121,6 +138,10 @@ class FeatureStreamCheck:
     cell: int = 0
     offsets_ns: list[int] = field(default_factory=list)
     spread_seen: bool = False
+    small_flat_clouds: int = 0
+    small_flat_points: int = 0
+    small_flat_depth: float = 0.0
+    small_flat_stamps_ns: tuple[int, int] = (0, 0)
     flat_clouds: int = 0
     flat_depth: float = 0.0
     carried_frames: int = 0
@@ -131,8 +152,9 @@ class FeatureStreamCheck:
 
         Returns:
             why the stream is refused: its cloud is in a world frame (:data:`WORLD_FRAMES`),
-            or its first cloud (of :data:`FLAT_MIN_POINTS` points or more) has every point
-            at one depth; None to go on.
+            or, before any cloud with points at different depths, a cloud of
+            :data:`FLAT_MIN_POINTS` points or more has every point at one depth, or smaller
+            clouds together hold that many points, all at the same depth; None to go on.
         """
         if features is None:
             return None
@@ -152,26 +174,52 @@ class FeatureStreamCheck:
         ahead = depth[depth > 0]
         if ahead.size:
             self.median_depths.append(float(np.median(ahead)))
-        if ahead.size < FLAT_MIN_POINTS:
+        if ahead.size < 2:  # a single point has no spread
             return None
         median = float(np.median(ahead))
         if float(np.ptp(ahead)) > FLAT_SPREAD * median:
             self.spread_seen = True
             return None
         if self.spread_seen:  # a stream of 3-D clouds with a flat one: warned of
-            self.flat_clouds += 1
-            self.flat_depth = self.flat_depth or median
+            if ahead.size >= FLAT_MIN_POINTS:
+                self.flat_clouds += 1
+                self.flat_depth = self.flat_depth or median
             return None
-        guess = (
-            "normalized image coordinates (x/z, y/z, 1: VINS feature_tracker's points)? "
-            if abs(median - 1.0) <= FLAT_SPREAD
-            else ""
-        )
+        if ahead.size >= FLAT_MIN_POINTS:
+            return (
+                f"every point of the cloud of --features-topic {self.topic} at stamp "
+                f"{_seconds(features.stamp_ns)} s ({ahead.size} points) has z = {median:.6g}: "
+                f"{_not_3d(median)}"
+            )
+        return self._small_flat(features.stamp_ns, ahead.size, median)
+
+    def _small_flat(self, stamp_ns: int, points: int, depth: float) -> str | None:
+        """Pool a cloud of fewer than :data:`FLAT_MIN_POINTS` points, all at ``depth`` (m)."""
+        if self.small_flat_clouds < 0:
+            return None
+        if self.small_flat_clouds and not _same_depth(depth, self.small_flat_depth):
+            self.small_flat_clouds = -1  # each at a depth of its own: coincidences
+            return None
+        if not self.small_flat_clouds:
+            self.small_flat_depth = depth
+            self.small_flat_stamps_ns = (stamp_ns, stamp_ns)
+        self.small_flat_clouds += 1
+        self.small_flat_points += points
+        self.small_flat_stamps_ns = (self.small_flat_stamps_ns[0], stamp_ns)
+        if self.small_flat_points < FLAT_MIN_POINTS:
+            return None
+        return f"{self._small_flat_clause()}: {_not_3d(self.small_flat_depth)}"
+
+    def _small_flat_clause(self) -> str:
+        """Return "every point of the 4 clouds ... has z = 1" for the pooled small clouds."""
+        first, last = (_seconds(stamp) for stamp in self.small_flat_stamps_ns)
+        clouds, when = f"{self.small_flat_clouds} clouds", f"from stamp {first} s to {last}"
+        if self.small_flat_clouds == 1:
+            clouds, when = "cloud", f"at stamp {first}"
         return (
-            f"every point of the cloud of --features-topic {self.topic} at stamp "
-            f"{features.stamp_ns / 1e9:.9f} s ({ahead.size} points) has z = {median:.6g}: not "
-            f"3-D points, whose depths differ if only by noise; {guess}densify needs x y z in "
-            "metres in the left optical frame"
+            f"every point of the {clouds} of --features-topic {self.topic} {when} s "
+            f"({self.small_flat_points} points, fewer than {FLAT_MIN_POINTS} a cloud) has "
+            f"z = {self.small_flat_depth:.6g}"
         )
 
     def result(self, result: DensifiedFrame) -> None:
@@ -304,6 +352,16 @@ class FeatureStreamCheck:
                 f"first z = {self.flat_depth:.6g}): not 3-D points, their frames' depths are a "
                 "flat wall (densify needs x y z in metres in the left optical frame)"
             )
+        if (
+            self.small_flat_clouds > 0
+            and self.small_flat_points >= FLAT_SUSPECT_POINTS
+            and not self.spread_seen
+        ):
+            # refused at FLAT_MIN_POINTS: fewer are a warning, as real depths may coincide
+            lines.append(
+                f"{self._small_flat_clause()}, and no cloud had points at different depths: "
+                f"{_not_3d(self.small_flat_depth)} (too few points to refuse the run)"
+            )
         depth = self.median_depth()
         if depth is not None and depth > MILLIMETRE_DEPTH_M:
             lines.append(
@@ -384,3 +442,26 @@ class FeatureStreamCheck:
         if self.frame_ids is not None:
             hint += f" (their frame_id is '{self.frame_ids[0]}', the image's '{self.frame_ids[1]}')"
         return hint
+
+
+def _seconds(stamp_ns: int) -> str:
+    """Return a stamp (ns) as seconds with all nine digits, exactly."""
+    return f"{stamp_ns // 10**9}.{stamp_ns % 10**9:09d}"
+
+
+def _same_depth(depth: float, other: float) -> bool:
+    """Return whether two depths (m) are one within :data:`FLAT_SPREAD`."""
+    return abs(depth - other) <= FLAT_SPREAD * max(depth, other)
+
+
+def _not_3d(depth: float) -> str:
+    """Return why points all at ``depth`` (m) are refused, and what densify needs."""
+    guess = (
+        "normalized image coordinates (x/z, y/z, 1: VINS feature_tracker's points)? "
+        if _same_depth(depth, 1.0)
+        else ""
+    )
+    return (
+        f"not 3-D points, whose depths differ if only by noise; {guess}densify needs x y z in "
+        "metres in the left optical frame"
+    )

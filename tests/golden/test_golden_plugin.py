@@ -23,11 +23,11 @@ SCALE = {scale}
 CAMERA = StereoCamera(width=40, height=30, fx=30.0, fy=30.0, cx=19.5, cy=14.5, baseline=0.5)
 
 
-def write_log(path):
+def write_log(path, scale=SCALE):
     rng = np.random.default_rng(0)
     frames = []
     for i in range(2):
-        depth = rng.uniform(3.0, 60.0, size=CAMERA.image_size).astype(np.float32) * SCALE
+        depth = rng.uniform(3.0, 60.0, size=CAMERA.image_size).astype(np.float32) * scale
         depth[:5] = np.nan
         grey = rng.integers(0, 256, size=CAMERA.image_size, dtype=np.uint8)
         frames.append(SynthFrame(i, 10**9 + i * 10**8, grey, grey, depth, np.eye(4), CAMERA))
@@ -211,17 +211,107 @@ def test_ids_that_differ_only_in_punctuation_need_their_own_golden_files(
     assert [p.name for p in (pytester.path / "test_collide").iterdir()] == [
         "test_scale_a_b_.golden.json"
     ]
-    # an explicit name shared by two tests is refused the same way
-    shared = COLLIDE.format(ids='["one", "two"]', basename=', basename="shared"')
-    pytester.makepyfile(test_collide=shared)
+    # a name given by one test only is not shared with a test named after it
+    pytester.makepyfile(
+        test_collide=COLLIDE.format(ids='["one", "two"]', basename="")
+        + "\n\ndef test_other(tmp_path, log_golden):\n"
+        "    log_golden.check(write_log(tmp_path / 'a.mcap'), basename='test_scale_one_')\n"
+    )
     result = _run(pytester, "test_collide.py", "--update-golden")
-    result.assert_outcomes(passed=1, failed=1)
+    result.assert_outcomes(passed=2, failed=1)
     result.stdout.fnmatch_lines(
         [
-            "*shared.golden.json is already that of test_collide.py::test_scale[[]one[]] in this "
-            "run; pass another basename='...' or fullpath=..., so that each test has its own*"
+            "*test_scale_one_.golden.json is already that of test_collide.py::test_scale[[]one[]] "
+            "in this run; pass another basename='...' or fullpath=... (checks share a golden "
+            "file only when each names it so), so that each test has its own golden file"
         ]
     )
     pytester.makepyfile(test_collide=COLLIDE.format(ids='["ab", "a_b"]', basename=""))
     _run(pytester, "test_collide.py", "--update-golden").assert_outcomes(passed=2)
     _run(pytester, "test_collide.py").assert_outcomes(passed=2)
+
+
+SHARED = """
+import pytest
+
+from test_tiny import write_log
+
+NAME = {name}
+
+
+@pytest.mark.parametrize("scale", {scales}, ids=["one", "two"])
+def test_path(tmp_path, log_golden, scale):
+    log_golden.check(write_log(tmp_path / "a.mcap", scale), **NAME)
+"""
+
+
+@pytest.mark.parametrize("how", ["fullpath", "basename"])
+def test_a_golden_file_named_by_several_tests_is_shared_and_written_once(
+    pytester: pytest.Pytester, how: str
+) -> None:
+    _write(pytester, scale=1.0)
+    golden = pytester.path / "shared" / "path.golden.json"
+    name = {"fullpath": f"{{'fullpath': {str(golden)!r}}}", "basename": "{'basename': 'path'}"}
+    if how == "basename":
+        golden = pytester.path / "test_shared" / "path.golden.json"
+
+    def run(*flags: str, scales: str = "[1.0, 1.0]") -> pytest.RunResult:
+        pytester.makepyfile(test_shared=SHARED.format(name=name[how], scales=scales))
+        return _run(pytester, "test_shared.py", *flags)
+
+    # the same log: the first run writes the file once (one "created" failure), then all pass
+    run().assert_outcomes(passed=1, failed=1)
+    for flags in ([], ["--update-golden"], ["--force-regen"]):
+        run(*flags).assert_outcomes(passed=2)
+    written = golden.read_text()
+    # logs that differ: whatever the flags, the second never rewrites the file the first
+    # matched or wrote, and fails in one line naming both
+    message = (
+        "log_golden.check('a.mcap'): a.mcap differs from the shared golden file "
+        "path.golden.json, which test_shared.py::test_path[[]one[]] (log a.mcap) {how} in this "
+        "run, in * places beyond tolerance (first: /ground_truth/depth #0 *); checks that "
+        "share a golden file must give the same log: fix the one that is wrong, or give each "
+        "its own basename='...' or fullpath=..."
+    )
+    for flags in ([], ["--update-golden"], ["--force-regen"]):
+        result = run(*flags, scales="[1.0, 1.05]")
+        result.assert_outcomes(passed=1, failed=1)
+        how_settled = "wrote" if flags == ["--update-golden"] else "matched"
+        result.stdout.fnmatch_lines([message.format(how=how_settled)])
+        result.stdout.no_fnmatch_line("*Traceback*")
+        assert golden.read_text() == written
+    result = run("--force-regen", scales="[1.05, 1.0]")  # the first rewrites it, for review
+    result.assert_outcomes(failed=2)
+    result.stdout.fnmatch_lines([message.format(how="wrote")])
+    assert golden.read_text() != written
+    run(scales="[1.05, 1.0]").assert_outcomes(passed=1, failed=1)
+
+
+ONE_TEST = """
+from pathlib import Path
+
+from test_tiny import write_log
+
+
+def test_paths(tmp_path, log_golden):
+    golden = Path(__file__).parent / "agree.golden.json"
+    log_golden.check(write_log(tmp_path / "a.mcap"), fullpath=golden)
+    log_golden.check(write_log(tmp_path / "b.mcap", {scale}), fullpath=golden)
+"""
+
+
+def test_two_checks_of_one_test_may_share_a_named_golden_file(pytester: pytest.Pytester) -> None:
+    _write(pytester, scale=1.0)
+    pytester.makepyfile(test_agree=ONE_TEST.format(scale=1.0))
+    _run(pytester, "test_agree.py").assert_outcomes(failed=1)  # created
+    _run(pytester, "test_agree.py").assert_outcomes(passed=1)
+    _run(pytester, "test_agree.py", "--update-golden").assert_outcomes(passed=1)
+    pytester.makepyfile(test_agree=ONE_TEST.format(scale=1.05))
+    result = _run(pytester, "test_agree.py", "--update-golden")
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines(
+        [
+            "log_golden.check('b.mcap'): b.mcap differs from the shared golden file "
+            "agree.golden.json, which this test's check of 'a.mcap' wrote in this run, in *"
+        ]
+    )

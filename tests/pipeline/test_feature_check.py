@@ -15,13 +15,16 @@ from pcainterp_stream import cli
 from pcainterp_stream.errors import PcaInterpError
 from pcainterp_stream.frontend.motion import CarryConfig
 from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import LogFormat, open_writer
 from pcainterp_stream.io.outputs import image_of
 from pcainterp_stream.pipeline import jobs
 from pcainterp_stream.pipeline.densify import DensifySummary
+from pcainterp_stream.pipeline.feature_check import FeatureStreamCheck
 from pcainterp_stream.pipeline.processor import MeasurementSource, ProcessorConfig
+from pcainterp_stream.records import SparseFeatures, StereoCamera, StereoFrame
 
 FRAMES = 4
 MS = 1_000_000
@@ -394,6 +397,92 @@ def test_normalized_image_coordinates_are_refused_and_a_flat_wall_is_not(
     assert np.nanmedian(depth) == pytest.approx(5.0, rel=0.05)
 
 
+def _first(count: int, depth: Callable[[int], float] | None = None) -> Damage:
+    """Keep a cloud's first ``count`` points, moved to ``depth(i)`` (m) along their rays."""
+
+    def first(i: int, stamp: int, frame_id: str, points: Points) -> Cloud:
+        kept = points[:count]
+        return stamp, frame_id, kept if depth is None else kept / kept[:, 2:] * depth(i)
+
+    return first
+
+
+def test_small_clouds_at_one_depth_are_judged_together(log: Path, tmp_path: Path) -> None:
+    # clouds of fewer than 10 points were never judged: 3 normalized points a frame, or 9 at
+    # z = 8 m in every frame, were densified as a flat wall without a word
+    for count, depth, points, clouds in [(3, 1.0, 12, 4), (9, 8.0, 18, 2)]:
+        source = with_features(log, tmp_path / "f.mcap", _first(count, lambda i, z=depth: z))
+        guess = r"normalized image coordinates .*\? " if depth == 1.0 else ""
+        with pytest.raises(
+            PcaInterpError,
+            match=rf"^{re.escape(str(source))}: every point of the {clouds} clouds of "
+            r"--features-topic /features from stamp [\d.]+ s to [\d.]+ s "
+            rf"\({points} points, fewer than 10 a cloud\) has z = {depth:g}: not 3-D points, "
+            rf"whose depths differ if only by noise; {guess}densify needs x y z in metres in "
+            r"the left optical frame$",
+        ):
+            densify(source, tmp_path / "out.mcap")
+        assert sorted(path.name for path in tmp_path.iterdir()) == ["f.mcap"]  # nothing written
+        source.unlink()
+    # too few points to refuse (8): a warning
+    source = with_features(log, tmp_path / "two.mcap", _first(2, lambda i: 1.0))
+    (line,) = [w for w in densify(source, tmp_path / "two_out.mcap").warnings if "z = 1" in w]
+    assert re.fullmatch(
+        r"every point of the 4 clouds of --features-topic /features from stamp [\d.]+ s to "
+        r"[\d.]+ s \(8 points, fewer than 10 a cloud\) has z = 1, and no cloud had points at "
+        r"different depths: not 3-D points, whose depths differ if only by noise; normalized "
+        r"image coordinates .*\? densify needs x y z in metres in the left optical frame "
+        r"\(too few points to refuse the run\)",
+        line,
+    )
+
+
+@pytest.mark.parametrize(
+    ("count", "depth"),
+    [(3, None), (1, None), (1, lambda i: 1.0), (3, lambda i: 5.0 + i)],
+    ids=["3 points", "1 point", "1 point at z = 1", "3 points a cloud at one depth each"],
+)
+def test_small_clouds_of_real_points_are_densified_without_a_word(
+    log: Path, tmp_path: Path, count: int, depth: Callable[[int], float] | None
+) -> None:
+    source = with_features(log, tmp_path / "f.mcap", _first(count, depth))
+    summary = densify(source, tmp_path / "out.mcap")
+    assert summary.frames == FRAMES
+    assert not [line for line in summary.warnings if "one depth" in line or "z = " in line]
+
+
+def _checked(*depths: list[float]) -> tuple[list[str | None], list[str]]:
+    """Hand clouds of these depths (one list a cloud) to a check: (its refusals, warnings)."""
+    check = FeatureStreamCheck("/features")
+    camera = StereoCamera(width=40, height=30, fx=30.0, fy=30.0, cx=19.5, cy=14.5, baseline=0.5)
+    grey = np.zeros(camera.image_size, np.uint8)
+    refusals = []
+    for i, cloud in enumerate(depths):
+        frame = StereoFrame(i, i * 10**8, i * 10**8, "left", grey, grey, camera)
+        points = np.array([[0.0, 0.0, z] for z in cloud], np.float32).reshape(-1, 3)
+        refusals.append(check.cloud(frame, SparseFeatures(i * 10**8, 0, "left", points)))
+    return refusals, check.warnings(PairingStats())
+
+
+def test_small_flat_clouds_count_until_a_depth_differs() -> None:
+    one = [1.0, 1.0, 1.0]
+    refusals, warnings = _checked(one, one, one, one)
+    assert refusals[:3] == [None] * 3
+    assert refusals[3] is not None
+    assert refusals[3].startswith("every point of the 4 clouds of --features-topic /features ")
+    # a cloud with spread, or one at another depth, ends the count; single points are not judged
+    for depths in ([one, one, one, [2.0, 2.5], one], [one, [4.0, 4.0], one, one], [[1.0]] * 30):
+        refusals, warnings = _checked(*depths)
+        assert refusals == [None] * len(depths)
+        assert warnings == []
+    (line,) = _checked(one)[1]  # one cloud: said so
+    assert line.startswith(
+        "every point of the cloud of --features-topic /features at stamp 0.000000000 s (3 "
+        "points, fewer than 10 a cloud) has z = 1, and no cloud had points at different depths: "
+    )
+    assert _checked([1.0, 1.0])[1] == []  # two points are too few to warn of
+
+
 def test_flat_clouds_after_3d_ones_are_a_warning(log: Path, tmp_path: Path) -> None:
     source = with_features(
         log,
@@ -463,11 +552,10 @@ def test_frames_without_a_cloud_in_temporal_mode_are_said_predicted(
 def test_a_fit_check_with_exact_linear_interpolation_gives_no_ratio(
     log: Path, tmp_path: Path
 ) -> None:
-    # nine points of one wall per frame (too few to refuse as flat): linear interpolation
-    # is exact on the left-out ones, and the warning gave a ratio of ~1e14 and "learn a basis"
-    source = with_features(
-        log, tmp_path / "f.mcap", lambda i, s, f, p: (s, f, p[:9] / p[:9, 2:] * 8.0)
-    )
+    # nine points of one wall per frame, at 8, 9, 10, 11 m (each cloud at a depth of its own:
+    # not refused as flat): linear interpolation is exact on the left-out ones, and the
+    # warning gave a ratio of ~1e14 and "learn a basis"
+    source = with_features(log, tmp_path / "f.mcap", _first(9, lambda i: 8.0 + i))
     summary = densify(source, tmp_path / "out.mcap")
     (line,) = [w for w in summary.prior_lines if w.startswith("warning:")]
     assert re.fullmatch(
