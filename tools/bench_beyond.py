@@ -171,6 +171,7 @@ def main(argv: list[str] | None = None) -> int:
                 # the std as densify calibrates it
                 "std_scale": calibration.std_scale,
                 "scale_by_innovation": calibration.scale_by_innovation,
+                "zero_is_match": True,  # SGBM's 0 is a match, as in densify
             }
             noise = float(fitted["process_noise"])
             run = partial(

@@ -194,7 +194,9 @@ def estimates(
             started -= float(data.motion_seconds[index])  # the odometry is part of the cost
         if method.baseline is not None:
             interpolate = nearest if method.baseline == "nearest" else linear
-            result = interpolate(pixels, disparities, image_size=camera.image_size)
+            result = interpolate(
+                pixels, disparities, image_size=camera.image_size, zero_is_match=True
+            )
             seconds = time.perf_counter() - started
             yield index, result.disparity.astype(np.float64), None, seconds, {}
             continue
@@ -211,6 +213,7 @@ def estimates(
             std_scale=calibration.std_scale,
             scale_by_innovation=calibration.scale_by_innovation,
             noise_stds=[noise],
+            zero_is_match=True,
         )[0]
         seconds = time.perf_counter() - started
         extras: dict[str, int | float] = {
@@ -336,7 +339,9 @@ def depth_bins(basis: Basis, data: LogData, every: int = 5) -> dict[str, list[fl
         size = data.camera.image_size
         pixels, disparities = data.pixels[index], data.disparities[index]
         estimates = {
-            "plain": densify_batch(basis, [pixels], [disparities], uncertainty="none")[0],
+            "plain": densify_batch(
+                basis, [pixels], [disparities], uncertainty="none", zero_is_match=True
+            )[0],
             "hybrid": densify_batch(
                 basis,
                 [pixels],
@@ -344,10 +349,13 @@ def depth_bins(basis: Basis, data: LogData, every: int = 5) -> dict[str, list[fl
                 uncertainty="none",
                 local_prior=local,
                 sigma=float(hyper["sigma"]),
+                zero_is_match=True,
             )[0],
         }
         maps = {name: e.disparity for name, e in estimates.items()}
-        maps["nearest"] = nearest(pixels, disparities, image_size=size).disparity
+        maps["nearest"] = nearest(
+            pixels, disparities, image_size=size, zero_is_match=True
+        ).disparity
         maps["oracle"] = oracle_disparity(basis, np.nan_to_num(references[index]))
         for name, estimate in maps.items():
             delta_2d, _ = projection_errors(estimate, view, data.camera, transform)
@@ -394,6 +402,7 @@ def irls_iterations(
                     focal_baseline=item.camera.focal_baseline,
                     std_scale=settings.std_scale,
                     scale_by_innovation=settings.scale_by_innovation,
+                    zero_is_match=True,
                 )[0]
                 add_frame(
                     sums,

@@ -77,7 +77,7 @@ def evidence_table(basis: Basis, pairs: Iterator[Pair]) -> tuple[float, dict[flo
     for left, right, image_size, focal_baseline in pairs:
         measured = front_end.measure(left, right)
         pixels, disparities, _ = clean_measurements(
-            measured.pixels, measured.disparities, image_size
+            measured.pixels, measured.disparities, image_size, zero_is_match=True
         )
         frame = fitting.fit_frame(
             basis, pixels, disparities, image_size=image_size, focal_baseline=focal_baseline
@@ -123,6 +123,7 @@ def std_scales(basis: Basis, pairs: Iterator[Pair], weight: float) -> tuple[floa
                 image_size=image_size,
                 focal_baseline=focal_baseline,
                 edge_map=one.disparity_map,
+                zero_is_match=True,
             )
             assert result.disparity_std is not None
             estimates.append(result.disparity)

@@ -62,10 +62,10 @@ def score(seed: int, frames: int, scale: float, camera: str) -> tuple[dict[str, 
                 if name == "default":
                     pixels, values = result.pixels, result.disparities
                     estimates["linear"] = baselines.linear(
-                        pixels, values, image_size=size
+                        pixels, values, image_size=size, zero_is_match=True
                     ).disparity
                     estimates["nearest"] = baselines.nearest(
-                        pixels, values, image_size=size
+                        pixels, values, image_size=size, zero_is_match=True
                     ).disparity
                 for method, estimate in estimates.items():
                     error = float(np.abs(estimate - truth)[:, margin:].mean())

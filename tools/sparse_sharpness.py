@@ -35,6 +35,7 @@ import dataclasses
 import itertools
 import time
 from collections.abc import Callable, Iterator
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -415,11 +416,14 @@ def score(
         estimate = result.disparity
         error = np.abs(estimate - truth)[valid]
         corners = corners_only.measure(frame.left, frame.right)
+        # SGBM's 0 is a match, as in densify and evaluate's baselines
+        nn = partial(nearest, image_size=truth.shape, zero_is_match=True)
+        lin = partial(linear, image_size=truth.shape, zero_is_match=True)
         baselines = {
-            "nn": nearest(result.pixels, result.disparities, image_size=truth.shape),
-            "linear": linear(result.pixels, result.disparities, image_size=truth.shape),
-            "corners_nn": nearest(corners.pixels, corners.disparities, image_size=truth.shape),
-            "corners_linear": linear(corners.pixels, corners.disparities, image_size=truth.shape),
+            "nn": nn(result.pixels, result.disparities),
+            "linear": lin(result.pixels, result.disparities),
+            "corners_nn": nn(corners.pixels, corners.disparities),
+            "corners_linear": lin(corners.pixels, corners.disparities),
         }
         for key, baseline in baselines.items():
             sums[key] += np.abs(baseline.disparity - truth)[valid].sum()
