@@ -47,6 +47,7 @@ __all__ = [
     "StereoCalibration",
     "StereoRectifier",
     "box_without",
+    "grey8",
     "correspondences",
     "invalid_pixels",
     "pad_result",
@@ -182,7 +183,8 @@ class RowOffset:
     median_dx: float
 
 
-def _grey8(image: npt.NDArray[np.generic]) -> npt.NDArray[np.uint8]:
+def grey8(image: npt.NDArray[np.generic]) -> npt.NDArray[np.uint8]:
+    """Return one image as 8-bit grey (RGB converted, deeper images scaled by their maximum)."""
     if image.ndim == 3:
         image = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
     if image.dtype != np.uint8:
@@ -205,7 +207,7 @@ def correspondences(
     than :data:`MIN_INLIER_SHARE` of the matches are chance: none is returned.
     """
     orb = cv2.ORB.create(nfeatures=features)
-    a, b = cv2.equalizeHist(_grey8(left)), cv2.equalizeHist(_grey8(right))
+    a, b = cv2.equalizeHist(grey8(left)), cv2.equalizeHist(grey8(right))
     kp_l, des_l = orb.detectAndCompute(a, None)
     kp_r, des_r = orb.detectAndCompute(b, None)
     if des_l is None or des_r is None or len(kp_l) < 8 or len(kp_r) < 8:

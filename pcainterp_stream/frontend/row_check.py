@@ -1,7 +1,8 @@
 """The guard against an unrectified or swapped stereo pair (``PairingConfig.check_rows``).
 
 The pairer shows it the first frames of a pair: matched corners of a rectified pair lie on
-the same rows, with non-negative disparities. A pair that fails is refused with the fix. The
+the same rows, with non-negative disparities, and not all at one pixel in both images (one
+camera's images on both topics). A pair that fails is refused with the fix. The
 check goes on past frames that give few matches (a camera's dark start-up, a lens cap) until
 enough frames have given some, within the first :data:`ROW_CHECK_MAX_FRAMES`; a log that never
 gives enough is densified unchecked, and :attr:`RowCheck.undecided` says why.
@@ -42,6 +43,19 @@ MAX_ROW_OFFSET_PX = 1.0
 MIN_MEDIAN_DISPARITY_PX = -1.0
 """A median disparity of matched corners below this says left and right are swapped."""
 
+SAME_VIEW_PX = 2.0
+"""Matched corners closer than this in x and y (px) lie where the other image has them too."""
+
+SAME_VIEW_SHARE = 0.9
+"""This share of matched corners within :data:`SAME_VIEW_PX`, with :data:`SAME_VIEW_CHANGE`,
+says both topics carry one camera (real pairs: 0-4 % of their corners)."""
+
+SAME_VIEW_CHANGE = 1.0
+"""Largest mean |left - right| over the mean |left - left shifted by 1 px| of one view twice.
+
+One image and its JPEG copy: 0.3-0.7; real pairs (KITTI, EuRoC): 3.5-7.6; an image against
+itself shifted by 2 px: 1.6."""
+
 
 class RowCheck:
     """The guard against an unrectified or swapped pair (``PairingConfig.check_rows``).
@@ -71,6 +85,7 @@ class RowCheck:
         self.frames = 0
         self.frames_with_matches = 0
         self.points: list[tuple[Any, rect.StereoRectifier | None]] = []
+        self.changes: list[float] = []  # per frame: :func:`view_change`
         self.done = False
         self.undecided: str | None = None
         self._pending: tuple[Future[Any], rect.StereoRectifier | None] | None = None
@@ -92,7 +107,7 @@ class RowCheck:
             return
         if self._executor is None:
             self._executor = ThreadPoolExecutor(1, thread_name_prefix="row-check")
-        self._pending = (self._executor.submit(rect.correspondences, left, right), rectifier)
+        self._pending = (self._executor.submit(_match, left, right), rectifier)
 
     def finish(self) -> None:
         """Decide with the frames matched so far (end of the stream).
@@ -122,8 +137,10 @@ class RowCheck:
             self._executor.shutdown(wait=False, cancel_futures=True)
             self._executor = None
 
-    def _add(self, matches: Any, rectifier: rect.StereoRectifier | None) -> None:
-        """Add one frame's correspondences; decide once there are enough."""
+    def _add(self, matched: tuple[Any, float], rectifier: rect.StereoRectifier | None) -> None:
+        """Add one frame's correspondences and change; decide once there are enough."""
+        matches, change = matched
+        self.changes.append(change)
         self.frames += 1
         self.frames_with_matches += int(matches.shape[0] >= ROW_CHECK_FRAME_MATCHES)
         self.points.append((matches, rectifier))
@@ -184,6 +201,17 @@ class RowCheck:
                 f"{offset.median_abs_dy:.2f} px apart vertically ({where}; rectified < "
                 f"{MAX_ROW_OFFSET_PX:g} px); {fix}; --rectify never densifies them anyway"
             )
+        same = float(np.mean(np.abs(points[:, :2] - points[:, 2:]).max(axis=1) < SAME_VIEW_PX))
+        if same >= SAME_VIEW_SHARE and float(np.median(self.changes)) < SAME_VIEW_CHANGE:
+            right = self.topics[1]
+            raise CalibrationError(
+                f"the stereo pair {self.pair} shows one view twice: {same:.0%} of "
+                f"{offset.matches} matched corners of the first {self.frames} frame(s) are "
+                f"within {SAME_VIEW_PX:g} px of each other and the images barely differ, so {right} "
+                "carries the left camera's images (a remap or republish of the wrong camera); "
+                "pass the right camera's image topic as --right-topic (only a scene beyond "
+                "stereo range everywhere looks like this; --rectify never densifies it anyway)"
+            )
         if offset.median_dx < MIN_MEDIAN_DISPARITY_PX:
             raise CalibrationError(
                 f"the stereo pair {self.pair} has negative disparities: x_left - x_right = "
@@ -200,6 +228,27 @@ class RowCheck:
             return flags
         left_info, right_info = self.info_topics
         return f"{flags} --left-info-topic {left_info} --right-info-topic {right_info}"
+
+
+def view_change(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic]) -> float:
+    """Return mean |left - right| over mean |left - left shifted by one column| (grey levels).
+
+    Below 1 the two images differ less than one of them does from itself moved by a pixel:
+    one camera's view twice (with coding noise), not two cameras'. inf when the sizes differ.
+    """
+    a = rect.grey8(left).astype(np.float32)
+    b = rect.grey8(right).astype(np.float32)
+    if a.shape != b.shape or a.shape[1] < 2:
+        return float("inf")
+    texture = float(np.mean(np.abs(a[:, 1:] - a[:, :-1])))
+    return float(np.mean(np.abs(a - b))) / max(texture, 1e-6)
+
+
+def _match(
+    left: npt.NDArray[np.generic], right: npt.NDArray[np.generic]
+) -> tuple[npt.NDArray[np.float64], float]:
+    """Return one frame's :func:`~rect.correspondences` and :func:`view_change`."""
+    return rect.correspondences(left, right), view_change(left, right)
 
 
 def exchanged_offset(

@@ -165,3 +165,20 @@ def test_noise_gives_no_correspondences() -> None:
     hint = _run(noise, IDEAL).stats.row_check_hint()
     assert hint is not None
     assert "0 matched corners in all 6 frames" in hint
+
+
+@pytest.mark.parametrize("jpeg", [False, True])
+def test_one_camera_on_both_topics_is_refused(jpeg: bool) -> None:
+    # a launch file's remap (or image_transport republish) of the left camera as the right one:
+    # SGBM matches it at 0 px everywhere, which is a valid disparity, so nothing else stops it
+    left, _ = _views()
+    right = left
+    if jpeg:  # the same camera's compressed topic: the same view with coding noise
+        right = cv2.imdecode(cv2.imencode(".jpg", left, [cv2.IMWRITE_JPEG_QUALITY, 80])[1], 0)
+    with pytest.raises(CalibrationError, match=f"shows one view twice.*{RIGHT} carries the left"):
+        _run([(left, right)] * 3, IDEAL)
+
+
+def test_a_small_disparity_everywhere_is_not_one_view() -> None:
+    # a far scene still lies a pixel or two apart in the two views
+    assert _run([_views(shift=1.5)] * 3, IDEAL).stats.row_check_hint() is None
