@@ -307,6 +307,12 @@ class FoxgloveLive:
         backlog: messages queued per client before its oldest are dropped.
         note: called with a line for the user when the pacing skips a gap in log time.
         on_start: called once when the server starts accepting clients (the first message).
+
+    Attributes:
+        before_start: called once just before the server starts, if set: advertises the
+            channels a client must find in its first advertisement whose metadata is known
+            late (a densify run's outputs are advertised at its first output, with the
+            file's metadata; if input messages start the server before, this does it).
     """
 
     def __init__(
@@ -324,6 +330,7 @@ class FoxgloveLive:
         self.rate = check_rate(rate)
         self.note = note
         self.on_start = on_start
+        self.before_start: Callable[[], None] | None = None
         self.wait_for = frozenset(wait_for)
         self.name = name
         self.backlog = backlog
@@ -403,6 +410,9 @@ class FoxgloveLive:
         """
         if self._server is not None or self._context is None:
             return
+        if self.before_start is not None:
+            prepare, self.before_start = self.before_start, None
+            prepare()
         import foxglove
         from foxglove.websocket import Capability
 

@@ -1,6 +1,11 @@
 """Rerun sink: log densified frames to a viewer or an ``.rrd`` recording.
 
-Entity layout (one time line, ``stamp``, the left image's header stamp):
+Time lines: ``stamp``, the left image's header stamp, and ``message_log_time``, its log time
+(the name Rerun's own MCAP importer gives the log time, so the recording and the densified
+MCAP opened in one viewer share it; a timestamp from 1990 to 2100, a duration otherwise, as
+that importer guesses). Rerun's automatic ``log_time``, the wall clock of the run, is off.
+
+Entity layout:
 
 - ``camera``: the left camera's ``Pinhole`` (image plane, focal length, principal point);
 - ``camera/image``: the left image;
@@ -35,6 +40,14 @@ if TYPE_CHECKING:
     import rerun as rr
 
 TIMELINE = "stamp"
+"""The time line of the left image's header stamp."""
+
+LOG_TIME_TIMELINE = "message_log_time"
+"""The time line of the left image's log time, named as Rerun's MCAP importer names it."""
+
+_EPOCH_SPAN_NS = (631_148_400_000_000_000, 4_102_444_800_000_000_000)
+"""Log times Rerun's MCAP importer takes for Unix timestamps (1990 to 2100); others are
+durations since the log's own zero."""
 
 VIEWER_FLUSH_S = 10.0
 """How long the end of a job waits for a spawned viewer to take the last frames."""
@@ -212,6 +225,8 @@ class RerunSink:
         """Whether the recording file was written whole (set when the sink closes)."""
         self._recording: rr.RecordingStream | None = None
         self._camera_logged: tuple[int, int, float, float, float, float] | None = None
+        self._log_time_is_epoch: bool | None = None  # decided at the first frame
+        self._stamps: tuple[int, int, bool] | None = None  # frames, first stamp ns, any other
 
     def __enter__(self) -> RerunSink:
         import rerun as rr  # imported when used: ~0.3 s of every densify start-up otherwise
@@ -229,6 +244,7 @@ class RerunSink:
                 spawn_viewer(self.viewer_port)
                 sinks.append(rr.GrpcSink(f"rerun+http://{VIEWER_HOST}:{self.viewer_port}/proxy"))
             recording = rr.RecordingStream(self.application_id)
+            recording.set_log_time_enabled(False)  # the run's wall clock: not the log's time
             recording.set_sinks(*sinks)
         except BaseException:
             self._discard()
@@ -300,6 +316,8 @@ class RerunSink:
                 self._discard()
         if interrupted:
             return  # the command says it was stopped; the recording is simply not there
+        if exc_type is None and (line := self.constant_stamps_line()) is not None:
+            print(f"warning: {line}", file=sys.stderr)
         if self._pump is not None and self._pump.error is not None:
             print(
                 f"warning: {self._pump.error}; no recording was written there, the other "
@@ -314,8 +332,23 @@ class RerunSink:
                 file=sys.stderr,
             )
 
+    def constant_stamps_line(self) -> str | None:
+        """Say that the header stamps never advanced (None if they did, or one frame).
+
+        A driver that leaves ``header.stamp`` at zero (or at one value) puts every frame at
+        one instant of the ``stamp`` time line; ``message_log_time`` still tells them apart.
+        """
+        if self._stamps is None or self._stamps[0] < 2 or self._stamps[2]:
+            return None
+        frames, stamp_ns, _ = self._stamps
+        return (
+            f"the left images' header stamps do not advance ({frames} frames, all at "
+            f"{stamp_ns} ns): on the recording's `{TIMELINE}` time line they are one instant; "
+            f"choose the `{LOG_TIME_TIMELINE}` time line in the viewer"
+        )
+
     def log(self, result: DensifiedFrame) -> None:
-        """Log one densified frame at its left-image stamp."""
+        """Log one densified frame at its left-image stamp and its log time."""
         import rerun as rr
 
         recording = self._recording
@@ -324,6 +357,15 @@ class RerunSink:
         frame = result.frame
         camera = frame.camera
         recording.set_time(TIMELINE, timestamp=np.datetime64(frame.stamp_ns, "ns"))
+        if self._log_time_is_epoch is None:  # one type for the whole time line
+            low, high = _EPOCH_SPAN_NS
+            self._log_time_is_epoch = low <= frame.log_time_ns <= high
+        if self._log_time_is_epoch:
+            recording.set_time(LOG_TIME_TIMELINE, timestamp=np.datetime64(frame.log_time_ns, "ns"))
+        else:
+            recording.set_time(LOG_TIME_TIMELINE, duration=np.timedelta64(frame.log_time_ns, "ns"))
+        frames, first, other = self._stamps or (0, frame.stamp_ns, False)
+        self._stamps = (frames + 1, first, other or frame.stamp_ns != first)
         key = (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy)
         if key != self._camera_logged:
             recording.log(

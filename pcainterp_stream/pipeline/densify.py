@@ -319,14 +319,30 @@ def densify(
         if isinstance(writer, McapLogWriter):
             writer.add_metadata(PROVENANCE, provenance(label, pairing, processor))
         inputs = _InLogTimeOrder(writer) if writer is not None else None
-        # the output channels' metadata names the basis by its fingerprint, which the thread
-        # preloading the built-in basis may still be hashing: the written channels take it
-        # with the first output (below), the live ones now, to be advertised before frame 1
-        metadata: dict[str, str] | None = None
+        # the output channels' metadata (f*b, the basis used) is known at the first output
+        # (below): the written channels take it then, and so do the live ones, advertised
+        # then, before the server starts (with the first frame) so that a client subscribes
+        # to them in its first advertisement; topic -> the metadata they were advertised with
+        live_metadata: dict[str, dict[str, str]] = {}
+
+        def advertise_live(metadata: dict[str, str]) -> None:
+            if live is None or live_metadata:
+                return
+            by_topic = topic_metadata(topics, metadata)
+            for topic, msgtype in output_types(topics).items():
+                live_metadata[topic] = by_topic.get(topic, {})
+                live.advertise(topic, msgtype, metadata=live_metadata[topic])
+            live.before_start = None
+
         if live is not None:
-            metadata = channel_metadata(label, basis.fingerprint, processor.measurements)
-            for topic, msgtype in output_types(topics).items():  # subscribable before frame 1
-                live.advertise(topic, msgtype, metadata=metadata)
+            # more than MAX_HELD input messages before the first output start the server
+            # early: the outputs go out then with what is known (no f*b, the basis given)
+            live.before_start = lambda: advertise_live(
+                {
+                    **channel_metadata(label, basis.fingerprint, processor.measurements),
+                    **pairing_metadata(pairing.tolerance_ns),
+                }
+            )
         # the output messages (quantising and PNG-deflating: numpy and zlib-ng release the
         # GIL) are built in a pool of their own, so the calling thread only reads, pairs and
         # densifies; they are written in frame order, ENCODE_AHEAD frames behind
@@ -344,7 +360,7 @@ def densify(
 
         def emit(results: list[DensifiedFrame]) -> None:
             for result in map(pairer.full_result, results):
-                if frames == 0 and not encoding and writer is not None:
+                if frames == 0 and not encoding and (writer is not None or live is not None):
                     # f*b and the first min disparity: what evaluate needs of a compact log
                     first = {
                         **channel_metadata(label, basis.fingerprint, processor.measurements),
@@ -370,7 +386,9 @@ def densify(
                                 processor.measurements,
                             )
                         )
-                    writer.channel_metadata = topic_metadata(topics, first)
+                    if writer is not None:
+                        writer.channel_metadata = topic_metadata(topics, first)
+                    advertise_live(first)  # the file's, in the live channels too
                 encoding.append((result, encoder.submit(output_messages, result, topics)))
             # by count, never by which future is done: the output's order is deterministic
             while len(encoding) > ENCODE_AHEAD:
@@ -385,12 +403,14 @@ def densify(
                 for topic, message in messages:
                     writer.add_message(topic, message, result.frame.log_time_ns)
             if live is not None:
-                assert metadata is not None  # set with the live channels' advertisement
                 live.add_frame(
                     result.frame.log_time_ns,
                     [
                         LiveMessage(
-                            topic, str(message.__msgtype__), rosmsg.serialize(message), metadata
+                            topic,
+                            str(message.__msgtype__),
+                            rosmsg.serialize(message),
+                            live_metadata.get(topic),  # as advertised
                         )
                         for topic, message in messages
                     ],

@@ -41,7 +41,10 @@ from pcainterp_stream.io import foxglove, rosmsg
 from pcainterp_stream.io.foxglove import SUBPROTOCOL, FoxgloveLive, LiveMessage, ServeAddress
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import open_writer
-from pcainterp_stream.io.outputs import image_of
+from pcainterp_stream.io.outputs import BASIS_KEY, FOCAL_BASELINE_KEY, OutputTopics, image_of
+from pcainterp_stream.pipeline.densify import densify, output_types
+from pcainterp_stream.pipeline.jobs import synth
+from pcainterp_stream.pipeline.processor import ProcessorConfig
 from pcainterp_stream.records import RawMessage
 
 websockets = pytest.importorskip("websockets")
@@ -121,6 +124,14 @@ def _mcap_messages(path: Path) -> dict[str, list[tuple[int, bytes, str, str]]]:
                 (message.log_time, bytes(message.data), schema.name, schema.data.decode())
             )
     return found
+
+
+def _mcap_channel_metadata(path: Path) -> dict[str, dict[str, str]]:
+    """topic -> channel metadata of an MCAP file."""
+    with path.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    return {channel.topic: dict(channel.metadata) for channel in summary.channels.values()}
 
 
 @pytest.fixture(scope="module")
@@ -231,11 +242,14 @@ def test_a_client_receives_every_frame_equal_to_the_mcap_output(
     assert "foxglove: published 4 frames" in out
     written = _mcap_messages(output)
     assert len(written["/pcainterp/depth"]) == FRAMES
+    metadata = _mcap_channel_metadata(output)
+    assert "pcainterp.focal_baseline" in metadata["/pcainterp/depth"]
     for topic, messages in written.items():
         channel = received.channels[topic]
         _, _, schema_name, schema_text = messages[0]
         assert (channel["encoding"], channel["schemaEncoding"]) == ("cdr", "ros2msg"), topic
         assert (channel["schemaName"], channel["schema"]) == (schema_name, schema_text), topic
+        assert channel.get("metadata", {}) == metadata[topic], topic  # f*b, basis, encoding
         # every message, inputs included, the same bytes at the same log time
         assert received.messages[topic] == [(t, data) for t, data, _, _ in messages], topic
     depth_times = [t for t, _ in received.messages["/pcainterp/depth"]]
@@ -720,3 +734,74 @@ def test_option_errors(
     assert code == 2
     assert message in err
     assert err.count("\n") == 1
+
+
+# ----------------------------------------------------------------------- live metadata
+
+
+class _SeenAtStart(FoxgloveLive):
+    """A live server that notes the channels a first client would be advertised."""
+
+    def __init__(self) -> None:
+        super().__init__(ServeAddress(port=0), rate=0)
+        self.at_start: dict[str, list[dict[str, str]]] | None = None
+        self.published: dict[str, set[tuple[tuple[str, str], ...]]] = defaultdict(set)
+
+    def start(self) -> None:
+        super().start()
+        if self.at_start is None and self._server is not None:
+            self.at_start = defaultdict(list)
+            for topic, *_, metadata in self._channels:
+                self.at_start[topic].append(dict(metadata))
+
+    def add_frame(self, log_time_ns: int, messages: Any) -> None:
+        messages = list(messages)
+        for message in messages:
+            self.published[message.topic].add(tuple(sorted((message.metadata or {}).items())))
+        super().add_frame(log_time_ns, messages)
+
+
+@pytest.fixture(scope="module")
+def room_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A room the street basis does not fit: densify adapts (learns the log's own basis)."""
+    log = tmp_path_factory.mktemp("foxglove") / "room.mcap"
+    synth(log, frames=4, seed=1, scale=0.25, fmt=None, scene="indoor", camera="752x480")
+    return log
+
+
+def test_the_live_outputs_are_advertised_with_the_file_metadata(
+    room_log: Path, tmp_path: Path
+) -> None:
+    """f*b, min disparity, tolerance, encoding, and the basis the run adapted, not the given."""
+    out = tmp_path / "room_dense.mcap"
+    with _SeenAtStart() as live:
+        summary = densify(room_log, out, processor=ProcessorConfig(builtin="street"), live=live)
+    assert any(line.startswith("adapted:") for line in summary.prior_lines)
+    written = _mcap_channel_metadata(out)
+    assert written["/pcainterp/depth"][BASIS_KEY] == "room_dense.basis.npz"
+    assert live.at_start is not None
+    for topic in output_types(OutputTopics().compact()):
+        # one channel per output topic, advertised before the server started
+        assert live.at_start[topic] == [written.get(topic, {})], topic
+    for topic in written:
+        if topic.startswith("/pcainterp/"):
+            assert live.published[topic] == {tuple(sorted(written[topic].items()))}, topic
+
+
+def test_inputs_that_start_the_server_early_advertise_the_outputs_then(
+    synthetic_log: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Past MAX_HELD input messages before the first output: the metadata known then."""
+    monkeypatch.setattr(foxglove, "MAX_HELD", 1)
+    out = tmp_path / "dense.mcap"
+    with _SeenAtStart() as live:
+        densify(synthetic_log, out, live=live)
+    assert live.at_start is not None
+    depth = live.at_start["/pcainterp/depth"]
+    assert len(depth) == 1
+    assert depth[0][BASIS_KEY] == "built-in"
+    assert FOCAL_BASELINE_KEY not in depth[0]  # not known before the first frame
+    assert "pcainterp.stamp_tolerance_ns" in depth[0]
+    # the frames go out on the channels advertised (no second channel per topic)
+    assert live.published["/pcainterp/depth"] == {tuple(sorted(depth[0].items()))}
+    assert live.stats.frames == FRAMES

@@ -89,12 +89,14 @@ def temporary_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     return folder
 
 
-def _frame(index: int) -> DensifiedFrame:
+def _frame(
+    index: int, *, stamp_ns: int | None = None, log_time_ns: int | None = None
+) -> DensifiedFrame:
     camera = StereoCamera(width=8, height=6, fx=7.0, fy=7.0, cx=4.0, cy=3.0, baseline=0.5)
     image = np.full((6, 8), 10 * index, np.uint8)
-    stereo = StereoFrame(
-        index, index * 100_000_000, index * 100_000_000, "left", image, image, camera
-    )
+    stamp_ns = index * 100_000_000 if stamp_ns is None else stamp_ns
+    log_time_ns = index * 100_000_000 if log_time_ns is None else log_time_ns
+    stereo = StereoFrame(index, stamp_ns, log_time_ns, "left", image, image, camera)
     maps = np.full((6, 8), 2.0, np.float32)
     pixels = np.array([[1.0, 2.0], [3.0, 4.0]], np.float32)
     disparities = np.array([1.0, 3.0], np.float32)
@@ -345,3 +347,61 @@ def test_viewer_and_recording_both_get_every_frame(
             pass
         time.sleep(0.2)
     assert _entity_rows(received).get("/camera/depth") == 3
+
+
+def _time_columns(rrd: Path, entity: str) -> dict[str, list[Any]]:
+    """Time line name -> values (in row order) of ``entity`` in a recording."""
+    import pyarrow as pa
+    import rerun.chunk
+
+    columns: dict[str, list[Any]] = {}
+    for chunk in rerun.chunk.RrdReader(rrd).stream().to_chunks():
+        if chunk.is_static or str(chunk.entity_path) != entity:
+            continue
+        batch = chunk.to_record_batch()
+        for name in ("stamp", "message_log_time", "log_time", "log_tick"):
+            if name in batch.schema.names:
+                column = batch.column(batch.schema.names.index(name))
+                kind = "timestamp" if pa.types.is_timestamp(column.type) else "duration"
+                values = column.cast(pa.int64()).to_pylist()
+                columns.setdefault(name, []).extend((kind, value) for value in values)
+    return columns
+
+
+def test_frames_with_one_stamp_are_told_apart_by_their_log_time(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A driver's zero stamps: the log time line, named as Rerun's MCAP importer names it."""
+    target = tmp_path / "run.rrd"
+    with RerunSink(rrd_path=target) as sink:
+        for index in range(3):
+            sink.log(_frame(index, stamp_ns=0))
+    columns = _time_columns(target, "/camera/depth")
+    assert columns["stamp"] == [("timestamp", 0)] * 3
+    # small log times are durations since the log's zero, as Rerun's importer takes them
+    log_times = [("duration", index * 100_000_000) for index in range(3)]
+    assert columns["message_log_time"] == log_times
+    assert "log_time" not in columns  # the run's wall clock is not a time line of the log
+    assert "log_tick" not in columns
+    err = capsys.readouterr().err
+    assert (
+        "warning: the left images' header stamps do not advance (3 frames, all at 0 ns): on "
+        "the recording's `stamp` time line they are one instant; choose the "
+        "`message_log_time` time line in the viewer"
+    ) in err
+
+
+def test_epoch_log_times_are_timestamps_and_advancing_stamps_give_no_warning(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    target = tmp_path / "run.rrd"
+    epoch_ns = 1_317_042_000_000_000_000  # 2011
+    with RerunSink(rrd_path=target) as sink:
+        for index in range(3):
+            sink.log(_frame(index, log_time_ns=epoch_ns + index * 100_000_000))
+    columns = _time_columns(target, "/camera/depth")
+    assert columns["stamp"] == [("timestamp", index * 100_000_000) for index in range(3)]
+    assert columns["message_log_time"] == [
+        ("timestamp", epoch_ns + index * 100_000_000) for index in range(3)
+    ]
+    assert "warning" not in capsys.readouterr().err
