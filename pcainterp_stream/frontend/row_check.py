@@ -209,8 +209,9 @@ class RowCheck:
                 f"{offset.matches} matched corners of the first {self.frames} frame(s) are "
                 f"within {SAME_VIEW_PX:g} px of each other and the images barely differ, so "
                 f"{right} carries the left camera's images (a remap or republish of the wrong "
-                "camera); pass the right camera's image topic as --right-topic (only a scene beyond "
-                "stereo range everywhere looks like this; --rectify never densifies it anyway)"
+                "camera); pass the right camera's image topic as --right-topic (only a scene "
+                "beyond stereo range everywhere looks like this; --rectify never densifies it "
+                "anyway)"
             )
         if offset.median_dx < MIN_MEDIAN_DISPARITY_PX:
             raise CalibrationError(
