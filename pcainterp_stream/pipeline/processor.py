@@ -58,7 +58,6 @@ from pcainterp_stream.estimate.basis import (
 from pcainterp_stream.estimate.cells import Seeding
 from pcainterp_stream.estimate.dense import (
     DenseModel,
-    MapHoles,
     field_options,
     find_holes,
     fuse_dense,
@@ -68,7 +67,7 @@ from pcainterp_stream.estimate.lapack import routines
 from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
 from pcainterp_stream.estimate.variance import _variance_stride, prior_std_map
 from pcainterp_stream.frontend.features import features_to_measurements
-from pcainterp_stream.frontend.motion import CarriedPoints, CarryConfig, Motion, estimate_motion
+from pcainterp_stream.frontend.motion import CarriedPoints, CarryConfig, estimate_motion
 from pcainterp_stream.frontend.near import NearConfig, extend_near, lookups_only
 from pcainterp_stream.frontend.stereo import (
     GfttConfig,
@@ -85,6 +84,7 @@ from pcainterp_stream.pipeline.adaptation import (
     Candidate,
     sgbm_maps,
 )
+from pcainterp_stream.pipeline.measured import Measured, cells_on_grid
 from pcainterp_stream.pipeline.threads import ThreadLimits, finished, gathered, lower_priority
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoFrame
 
@@ -341,24 +341,6 @@ def resolve_settings(basis: Basis, config: ProcessorConfig) -> EstimateSettings:
     )
 
 
-class _Measured(NamedTuple):
-    frame: StereoFrame
-    pixels: npt.NDArray[np.float32]
-    disparities: npt.NDArray[np.float32]
-    counts: dict[str, int]
-    motion: Motion | None = None  # from the previous frame (carried points only)
-    disparity_map: npt.NDArray[np.float32] | None = None  # SGBM's (dense mode only)
-    sgbm_map: npt.NDArray[np.float32] | None = None  # SGBM's, NaN = invalid (fit check)
-    grid_map: npt.NDArray[np.float32] | None = None  # preprocessed for the log's own basis
-    # SGBM's map as matched, for the two above if the log's own basis needs them later
-    raw_map: npt.NDArray[np.float32] | None = None
-    # the fit check's held-out pixels and interpolation, made beside SGBM (check frames)
-    held_out: adapt.HeldOut | None = None
-    holes: MapHoles | None = None  # the map's holes and their neighbours (dense mode only)
-    partition: Seeding | None = None  # along SGBM's map, for an edge-aware prior
-    noise: npt.NDArray[np.float32] | None = None  # extra noise std of each point (near)
-
-
 class FrameProcessor:
     """Densify a stream of stereo pairs, pipelined; use as a context manager.
 
@@ -396,8 +378,8 @@ class FrameProcessor:
             self.config.opencv_threads if stereo else None,
             self.config.blas_threads if stereo else None,
         )
-        self._pending: deque[Future[_Measured]] = deque()
-        self._ready: list[_Measured] = []
+        self._pending: deque[Future[Measured]] = deque()
+        self._ready: list[Measured] = []
         # the densification (the fit check, the solves, the images), sequential by nature
         # (temporal prior, carried points, adaptation), runs batch after batch in a thread
         # of its own, so the calling thread keeps reading and feeding the stereo workers
@@ -444,6 +426,7 @@ class FrameProcessor:
         )
         # decided here, not from the lane's state: the first batch is the check's frames
         self._warming = self.adaptation.warming
+        self._measuring = (basis.grid_size, self.adaptation.wants_maps())  # see _measured_for
         self._lane.submit(_prepare, basis, self.config.uncertainty)
 
     def _builtin(self, basis: Basis | None) -> Basis:
@@ -508,8 +491,9 @@ class FrameProcessor:
         features: SparseFeatures | None,
         previous: StereoFrame | None = None,
         check_frame: bool = True,
-    ) -> _Measured:
+    ) -> Measured:
         disparity_map = raw_map = noise = sgbm_map = grid = held_out = holes = partition = None
+        basis_grid, keep_maps = self._measuring  # one read: the densify thread may switch
         if self.config.source is MeasurementSource.FEATURES:
             cap = self.config.max_features
             pixels, disparities, counts = features_to_measurements(features, frame.camera, cap)
@@ -532,9 +516,9 @@ class FrameProcessor:
                 # the fusion's estimate-free part, in parallel, not in the densify thread
                 holes = find_holes(disparity_map, measurements.weak, zero_is_match=True)
             elif self.config.edge_aware:  # an edge-aware local prior's cells, beside SGBM
-                size, basis_grid = frame.camera.image_size, self.basis.grid_size
+                size = frame.camera.image_size
                 partition = Seeding.along(measurements.disparity_map, pixels, size, basis_grid)
-            if self.adaptation.wants_maps():
+            if keep_maps:
                 if check_frame or self.adaptation.adapted:
                     sgbm_map, grid = sgbm_maps(measurements.disparity_map, frame.camera)
                     if check_frame and grid is not None:
@@ -553,7 +537,7 @@ class FrameProcessor:
                 frame.camera,
                 config=self.config.carry,
             )
-        return _Measured(
+        return Measured(
             frame,
             pixels,
             disparities,
@@ -648,7 +632,7 @@ class FrameProcessor:
             self._densified_any = True
         return results
 
-    def _densify_batch(self, ready: list[_Measured], warming: bool) -> Future[list[DensifiedFrame]]:
+    def _densify_batch(self, ready: list[Measured], warming: bool) -> Future[list[DensifiedFrame]]:
         """Densify one batch from the densify thread (after the fit check on the first).
 
         Returns the future of its frames: the estimate runs in the estimate pool when no
@@ -658,17 +642,33 @@ class FrameProcessor:
             ready = self._warm_up(ready)
         return self._densify_ready(ready)
 
-    def _warm_up(self, ready: list[_Measured]) -> list[_Measured]:
+    def _warm_up(self, ready: list[Measured]) -> list[Measured]:
         """Check the basis on the held-back frames; switch to the log's own when it wins."""
         frames = [_adapt_frame(item) for item in ready]
         own = self.adaptation.warm_up(self.basis, frames, self.settings.densify_options())
         if own is not None:
             self._use(own)
+        self._measured_for()
         # the warm-up maps are in the log's basis now (or not wanted): not added again
         return [
-            item._replace(sgbm_map=None, grid_map=None, raw_map=None, held_out=None)
+            item._replace(
+                partition=cells_on_grid(item, self.basis.grid_size),
+                sgbm_map=None,
+                grid_map=None,
+                raw_map=None,
+                held_out=None,
+            )
             for item in ready
         ]
+
+    def _measured_for(self) -> None:
+        """Set what the stereo workers measure a frame for: the basis's grid, and keep maps.
+
+        One value, set after the densify thread's changes and read once per frame. The maps
+        are kept while the basis may still switch, so a frame measured before a switch gets
+        its cells again for the new basis (:func:`~.measured.cells_on_grid`).
+        """
+        self._measuring = (self.basis.grid_size, self.adaptation.wants_maps())
 
     def _use(self, basis: Basis) -> None:
         """Densify from now on with ``basis`` (its fitted prior; the temporal prior restarts)."""
@@ -689,7 +689,7 @@ class FrameProcessor:
         for batch in self.finish_batches():
             yield from batch
 
-    def _densify_ready(self, ready: list[_Measured]) -> Future[list[DensifiedFrame]]:
+    def _densify_ready(self, ready: list[Measured]) -> Future[list[DensifiedFrame]]:
         if not ready:
             return finished([])
         if not (self.adaptation.adapted or self.adaptation.deferred):
@@ -716,9 +716,11 @@ class FrameProcessor:
                 results += self._estimate_all(self._measurements(ready[start : index + 1]))
                 start = index + 1
                 self._use(relearned)
-        return finished(results + self._estimate_all(self._measurements(ready[start:])))
+        results += self._estimate_all(self._measurements(ready[start:]))
+        self._measured_for()
+        return finished(results)
 
-    def _measurements(self, ready: list[_Measured]) -> list[_Estimate]:
+    def _measurements(self, ready: list[Measured]) -> list[_Estimate]:
         """Return each camera's group of ``ready`` with its final measurements (in order).
 
         The carried points move from frame to frame, so they are added here, in stream
@@ -761,7 +763,9 @@ class FrameProcessor:
                     self.basis,
                     self.settings.densify_options(),
                     self.temporal,
-                    [item.partition for item in group] if self.config.edge_aware else None,
+                    [cells_on_grid(item, self.basis.grid_size) for item in group]
+                    if self.config.edge_aware
+                    else None,
                 )
             )
             start = stop
@@ -794,7 +798,7 @@ class FrameProcessor:
             for item, estimate, n_carried in zip(job.group, estimates, job.carried, strict=True)
         ]
 
-    def _result(self, item: _Measured, estimate: DensifyResult, n_carried: int) -> DensifiedFrame:
+    def _result(self, item: Measured, estimate: DensifyResult, n_carried: int) -> DensifiedFrame:
         counts = dict(item.counts)
         counts["carried"] = n_carried
         counts["dropped"] = int(estimate.n_dropped)
@@ -824,7 +828,7 @@ class FrameProcessor:
 class _Estimate(NamedTuple):
     """One camera's group of a batch with its final measurements, ready to estimate."""
 
-    group: list[_Measured]
+    group: list[Measured]
     pixels: list[npt.NDArray[Any]]
     disparities: list[npt.NDArray[Any]]
     noise_stds: list[npt.NDArray[Any] | None] | None
@@ -866,7 +870,7 @@ def _prepare(basis: Basis, uncertainty: str) -> None:
     compiled.module("spatial._ckdtree")
 
 
-def _adapt_frame(item: _Measured) -> AdaptFrame:
+def _adapt_frame(item: Measured) -> AdaptFrame:
     camera = item.frame.camera
     sgbm_map, grid = item.sgbm_map, item.grid_map
     if item.raw_map is not None:
