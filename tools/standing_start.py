@@ -16,11 +16,8 @@ table, then the lines densify printed about its choice of basis::
     python tools/standing_start.py
 
 The logs are rendered again on every run (~4 s each); the table is the same on every run of
-the same code (~30 s on a loaded 2-core machine). The second log's densified output is not
-byte-identical from run to run: after densify switches to the street basis, some of frames
-22-26 (from 0) come out up to 1.5 px apart at some pixels, with the carried points of
-earlier frames (``--carry-frames 0`` gives the same bytes every run); the figures keep their
-two decimals.
+the same code (~30 s on a loaded 2-core machine), and so is each densified output, byte
+for byte.
 """
 
 from __future__ import annotations
