@@ -519,7 +519,8 @@ def test_densify_keeps_attachments_metadata_and_channels_without_messages(
     attachments, metadata, topics = extras_of(out.read_bytes())
     assert attachments == [("robot.urdf", "application/xml", 1, 2, URDF)]  # before: []
     assert metadata[0] == ROSBAG2_RECORD  # before: []
-    assert [name for name, _ in metadata[1:]] == ["pcainterp.densify"]  # what made it
+    # what made it, and (written at the end) every basis its outputs were made with
+    assert [name for name, _ in metadata[1:]] == ["pcainterp.densify", "pcainterp.basis"]
     assert "/empty_topic" in topics  # before: missing
     assert "/pcainterp/depth" in topics
     for path in (log, out):  # before: info never named them
@@ -551,7 +552,7 @@ def test_densify_through_pipes_keeps_attachments_and_metadata(
     attachments, metadata, topics = extras_of(output.getvalue())
     assert attachments == [("robot.urdf", "application/xml", 1, 2, URDF)]
     assert metadata[0] == ROSBAG2_RECORD
-    assert [name for name, _ in metadata[1:]] == ["pcainterp.densify"]
+    assert [name for name, _ in metadata[1:]] == ["pcainterp.densify", "pcainterp.basis"]
     assert "/empty_topic" in topics
 
 

@@ -3,7 +3,11 @@
 Every output message carries the left image's header (stamp, frame_id); the caller writes
 them at the left image's log time. The output channels' MCAP metadata
 (:func:`channel_metadata`) names the basis the log was densified with, so that
-``evaluate`` can use the same one, and each channel's encoding (:data:`ENCODING_KEY`).
+``evaluate`` can use the same one, and each channel's encoding (:data:`ENCODING_KEY`). A
+channel's metadata is fixed when its first message is written: it names the basis of the
+first outputs, and the metadata record :data:`BASES_RECORD`, written at the end, every basis
+the outputs were made with (the fit check may replace the basis after a standing start, and
+a basis learned from the log is relearned as it streams).
 
 Two precisions (``densify --precision``), chosen by measurement (docs/benchmarks.md,
 "Output encodings"):
@@ -27,7 +31,7 @@ import re
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -229,6 +233,18 @@ BASIS_KEY = "pcainterp.basis"
 BASIS_FINGERPRINT_KEY = "pcainterp.basis_fingerprint"
 """Channel metadata key: the basis's content fingerprint (``Basis.fingerprint``)."""
 
+BASES_RECORD = "pcainterp.basis"
+"""Name of the MCAP metadata record listing every basis the outputs were made with, each from
+the first frame it densified (:func:`bases_record`); written when the output is complete."""
+
+BASIS_SCOPE_KEY = "pcainterp.basis_scope"
+"""Channel metadata key of a written log: what :data:`BASIS_KEY` covers (:data:`BASIS_SCOPE`)."""
+
+BASIS_SCOPE = (
+    f"the first outputs; every basis in force, from its first frame: metadata record {BASES_RECORD}"
+)
+"""The value of :data:`BASIS_SCOPE_KEY`: the channel's basis is the one of the first outputs."""
+
 
 MEASUREMENTS_KEY = "pcainterp.measurements"
 """Channel metadata key: ``sparse`` (the paper's GFTT lookups or a feature stream) or
@@ -284,6 +300,81 @@ def channel_metadata(basis: str, fingerprint: str, measurements: str = "sparse")
         :data:`MEASUREMENTS_KEY`: measurements}.
     """
     return {BASIS_KEY: basis, BASIS_FINGERPRINT_KEY: fingerprint, MEASUREMENTS_KEY: measurements}
+
+
+class BasisInForce(NamedTuple):
+    """One basis a densified log's outputs were made with, from its first frame on.
+
+    Attributes:
+        basis: how the log names it (as :data:`BASIS_KEY` does: ``built-in``, a file name...).
+        fingerprint: its content fingerprint (``Basis.fingerprint``).
+        first_frame: 0-based index of the first stereo pair densified with it.
+        first_stamp_ns: that pair's header stamp (ns).
+        first_log_time_ns: its log time (ns), the log time of its outputs.
+    """
+
+    basis: str
+    fingerprint: str
+    first_frame: int
+    first_stamp_ns: int
+    first_log_time_ns: int
+
+
+_BASIS_FIELDS = BasisInForce._fields
+
+
+def bases_record(bases: Iterable[BasisInForce]) -> dict[str, str]:
+    """Return the :data:`BASES_RECORD` metadata record of the bases in force, in stream order.
+
+    Examples:
+        >>> entry = BasisInForce("built-in", "0123456789abcdef", 0, 5, 7)
+        >>> record = bases_record([entry])
+        >>> record["count"], record["0.basis"], record["0.first_frame"]
+        ('1', 'built-in', '0')
+        >>> recorded_bases_of(record) == [entry]
+        True
+    """
+    entries = list(bases)
+    record = {"count": str(len(entries))}
+    for number, entry in enumerate(entries):
+        record.update({f"{number}.{name}": str(value) for name, value in entry._asdict().items()})
+    return record
+
+
+def recorded_bases_of(record: dict[str, str]) -> list[BasisInForce]:
+    """Return the bases a :data:`BASES_RECORD` record lists (:func:`bases_record`'s inverse).
+
+    Raises:
+        ValueError: the record is not one :func:`bases_record` wrote.
+    """
+    try:
+        return [
+            BasisInForce(
+                record[f"{number}.basis"],
+                record[f"{number}.fingerprint"],
+                *(int(record[f"{number}.{name}"]) for name in _BASIS_FIELDS[2:]),
+            )
+            for number in range(int(record["count"]))
+        ]
+    except (KeyError, ValueError) as err:
+        raise ValueError(
+            f"not a {BASES_RECORD} metadata record: {err!r} missing or invalid"
+        ) from err
+
+
+def recorded_bases(path: Path) -> list[BasisInForce]:
+    """Return the bases a densified MCAP log records (:data:`BASES_RECORD`; the last one).
+
+    [] for a log without the record (another format, or densified by an older version).
+    """
+    from pcainterp_stream.io.logreader import open_log
+    from pcainterp_stream.io.mcap_reader import McapLogReader
+
+    with open_log(path) as reader:
+        if not isinstance(reader, McapLogReader):
+            return []
+        records = [m for m in reader.extras().metadata if m.name == BASES_RECORD]
+    return recorded_bases_of(dict(records[-1].metadata)) if records else []
 
 
 def pairing_metadata(tolerance_ns: int) -> dict[str, str]:

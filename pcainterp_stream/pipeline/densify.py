@@ -41,7 +41,12 @@ from pcainterp_stream.io.logwriter import (
     open_writer,
 )
 from pcainterp_stream.io.outputs import (
+    BASES_RECORD,
+    BASIS_SCOPE,
+    BASIS_SCOPE_KEY,
+    BasisInForce,
     OutputTopics,
+    bases_record,
     channel_metadata,
     frame_metadata,
     output_messages,
@@ -366,6 +371,7 @@ def densify(
                         **channel_metadata(label, basis.fingerprint, processor.measurements),
                         **frame_metadata(result),
                         **pairing_metadata(pairing.tolerance_ns),  # for evaluate's right images
+                        BASIS_SCOPE_KEY: BASIS_SCOPE,  # later bases: the record at the end
                     }
                     switched = engine.adaptation.switched
                     if switched is not None:  # the check chose another built-in basis
@@ -487,6 +493,9 @@ def densify(
                     "folder to save it in; densify -o FILE.mcap also writes it, as "
                     "FILE.basis.npz, for evaluate and for --basis"
                 )
+        if isinstance(writer, McapLogWriter):  # every basis in force: the channels name the first
+            in_force = bases_in_force(engine, basis, label, output, final_written)
+            writer.add_metadata(BASES_RECORD, bases_record(in_force))
     return DensifySummary(
         input=input_path,
         output=writer.path if writer is not None else None,
@@ -513,6 +522,43 @@ def densify(
         rrd_written=sink is not None and sink.written,
         feature_line=check.summary() if check is not None else None,
     )
+
+
+RELEARNED = "self-supervised, relearned while streaming (not saved)"
+"""How the :data:`~.outputs.BASES_RECORD` record names a relearned basis no file holds."""
+
+
+def bases_in_force(
+    engine: FrameProcessor,
+    given: Basis,
+    label: str,
+    output: Path | IO[bytes] | None,
+    final_written: Path | None,
+) -> list[BasisInForce]:
+    """Return every basis ``engine`` densified with, from its first frame, named for the log.
+
+    Named as the output channels name a basis (``built-in``, ``built-in-indoor``, the given
+    file, the log's own ``OUTPUT.basis.npz``), the last relearned one by its file
+    ``OUTPUT.final.basis.npz``, others :data:`RELEARNED`.
+    """
+    adaptation, entries = engine.adaptation, []
+    for start in adaptation.in_force:
+        used, kind = start.basis, builtin_kind(start.basis)
+        if kind is not None:
+            name = BUILTIN_LABELS[kind]
+        elif used is given:
+            name = label
+        elif used is adaptation.first_basis:
+            name = own_basis_label(output)
+        elif used is engine.basis and final_written is not None:
+            name = final_written.name
+        else:
+            name = RELEARNED
+        frame = start.frame
+        entries.append(
+            BasisInForce(name, used.fingerprint, frame.index, frame.stamp_ns, frame.log_time_ns)
+        )
+    return entries
 
 
 def own_basis_path(output: Path) -> Path:

@@ -753,6 +753,7 @@ class FrameProcessor:
                         noise[: item.noise.shape[0]] = item.noise
                     noise_stds.append(noise)
                     item.counts["carry_reset"] = self.carried.resets - resets
+            self.adaptation.bind([item.frame for item in group], self.basis)
             jobs.append(
                 _Estimate(
                     group,

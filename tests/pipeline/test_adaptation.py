@@ -21,9 +21,21 @@ from pcainterp_stream.frontend.stereo import StereoFrontEnd
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import LogFormat, open_writer
-from pcainterp_stream.io.outputs import BASIS_KEY, recorded_metadata
+from pcainterp_stream.io.outputs import (
+    BASIS_FINGERPRINT_KEY,
+    BASIS_KEY,
+    BASIS_SCOPE,
+    BASIS_SCOPE_KEY,
+    recorded_bases,
+    recorded_metadata,
+)
 from pcainterp_stream.pipeline import adaptation as adaptation_module
-from pcainterp_stream.pipeline.densify import densify, own_basis_path
+from pcainterp_stream.pipeline.densify import (
+    RELEARNED,
+    densify,
+    final_basis_path,
+    own_basis_path,
+)
 from pcainterp_stream.pipeline.jobs import evaluation_basis, synth
 from pcainterp_stream.pipeline.processor import (
     FrameProcessor,
@@ -33,6 +45,7 @@ from pcainterp_stream.pipeline.processor import (
 from pcainterp_stream.records import StereoCamera, StereoFrame
 from pcainterp_stream.synth import SynthConfig, generate
 from pcainterp_stream.synth.indoor import camera_options
+from pcainterp_stream.synth.log import write_synthetic_log
 
 ROOT = Path(__file__).resolve().parents[2]
 REALDATA = ROOT.parent / "shared" / "realdata"
@@ -388,6 +401,70 @@ def test_a_standing_start_is_checked_again_once_the_camera_moves(
         )
         assert engine.basis is Basis.default()  # the street basis, from the 18th frame on
         assert not any(line.startswith("warning:") for line in adaptation.lines)
+
+
+def test_a_basis_replaced_mid_log_is_recorded_with_its_first_frame(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """The standing start above, densified to a file: its channels' metadata, fixed at the
+    first outputs, named the built-in indoor basis of the standing frames only, and nothing
+    said the street basis made the rest. The metadata record pcainterp.basis lists both."""
+    first_pose = synth_module.camera_pose
+    facade = SynthConfig(seed=7, frames=1, scale=0.5, speed=0.01)
+    stand = 9
+
+    def pose(world: Any, config: SynthConfig, index: int) -> np.ndarray:
+        if index < stand:
+            return first_pose(world, facade, 0)
+        return first_pose(world, config, index - stand + 1)
+
+    monkeypatch.setattr(synth_module, "camera_pose", pose)
+    log, out = tmp_path / "stand_then_drive.mcap", tmp_path / "dense.mcap"
+    write_synthetic_log(generate(SynthConfig(seed=7, frames=stand + 10, scale=0.5)), log)
+    densify(log, out)
+    channel = recorded_metadata(out)
+    assert channel[BASIS_KEY] == BUILT_IN_INDOOR  # the basis of the first outputs
+    assert channel[BASIS_SCOPE_KEY] == BASIS_SCOPE
+    indoor, street = recorded_bases(out)
+    assert (indoor.basis, indoor.fingerprint) == (BUILT_IN_INDOOR, Basis.indoor().fingerprint)
+    assert indoor.fingerprint == channel[BASIS_FINGERPRINT_KEY]
+    assert (street.basis, street.fingerprint) == (BUILT_IN, Basis.default().fingerprint)
+    assert indoor.first_frame == 0
+    assert street.first_frame == stand + 8  # checked again on frames 9-16, used from 17 on
+    with open_log(out) as reader:
+        depth_times = [raw.log_time_ns for raw in reader.messages(["/pcainterp/depth"])]
+    assert indoor.first_log_time_ns == depth_times[0]
+    assert street.first_log_time_ns == depth_times[street.first_frame]
+
+
+def test_a_relearned_basis_is_recorded_each_time_it_changes(tmp_path: Path) -> None:
+    """A room the street basis does not fit, adapted at the warm-up and relearned as the maps
+    double: the record names the log's own basis file from frame 0, each relearned one from
+    the frame it took over, the last by its file; a log with one basis records that one."""
+    log, out = tmp_path / "room.mcap", tmp_path / "room_dense.mcap"
+    synth(log, frames=14, seed=1, scale=0.25, fmt=None, scene="indoor", camera="752x480")
+    summary = densify(log, out, processor=ProcessorConfig(builtin="street", warmup_frames=2))
+    assert summary.final_basis_written == final_basis_path(out)
+    bases = recorded_bases(out)
+    assert len(bases) >= 3  # the first, then relearned at 4 and 8 maps
+    first, *between, last = bases
+    assert (first.basis, first.first_frame) == (own_basis_path(out).name, 0)
+    assert first.fingerprint == Basis.load(own_basis_path(out)).fingerprint
+    assert first.fingerprint == recorded_metadata(out)[BASIS_FINGERPRINT_KEY]
+    assert last.basis == final_basis_path(out).name
+    assert last.fingerprint == Basis.load(final_basis_path(out)).fingerprint
+    assert all(entry.basis == RELEARNED for entry in between)
+    frames = [entry.first_frame for entry in bases]
+    assert frames == sorted(set(frames))
+    assert len({entry.fingerprint for entry in bases}) == len(bases)
+    kept = tmp_path / "room_kept.mcap"  # --basis builtin: checked, never replaced
+    densify(log, kept, processor=ProcessorConfig(builtin="street", adapt="check"))
+    (only,) = recorded_bases(kept)
+    assert (only.basis, only.fingerprint, only.first_frame) == (
+        BUILT_IN,
+        Basis.default().fingerprint,
+        0,
+    )
 
 
 def test_the_streaming_update_adds_no_copy_of_the_view_it_just_added() -> None:
