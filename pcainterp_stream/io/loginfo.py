@@ -158,6 +158,8 @@ def format_info(info: LogInfo) -> str:
         kind = topic.msgtype or "(no schema)"
         if topic.message_encoding not in ("cdr", ""):
             kind += f" [{topic.message_encoding}]"
+        elif topic.msgtype and not topic.schema_encoding:  # copied as it is, not decodable
+            kind += " (no definition stored)"
         lines.append(f"    {name:<{width}}  {count:>8}  {kind}")
     if info.attachments:
         lines.append(f"  attachments: {len(info.attachments)}")

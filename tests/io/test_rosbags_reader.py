@@ -1,0 +1,84 @@
+"""The rosbags-backed reader: ROS 1 bags and rosbag2 folders as the pipeline sees them."""
+
+from __future__ import annotations
+
+import sqlite3
+import struct
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rosbags.rosbag2 import Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
+
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.loginfo import describe, format_info
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.records import StereoCamera
+
+CAMERA = StereoCamera(width=32, height=24, fx=40.0, fy=40.0, cx=16.0, cy=12.0, baseline=0.5)
+LEFT, LEFT_INFO = "/stereo/left/image_rect", "/stereo/left/camera_info"
+STATUS = "my_robot_msgs/msg/Status"
+
+
+def _frames(n: int) -> list[tuple[str, str, Any, int]]:
+    rng = np.random.default_rng(3)
+    out: list[tuple[str, str, Any, int]] = []
+    for i in range(n):
+        stamp = 1_000_000_000 + i * 100_000_000
+        image = rng.integers(0, 256, (CAMERA.height, CAMERA.width), dtype=np.uint8)
+        out.append((LEFT, rosmsg.IMAGE, rosmsg.image_message(image, stamp, "left"), stamp))
+        info = rosmsg.camera_info_message(CAMERA, stamp, "left")
+        out.append((LEFT_INFO, rosmsg.CAMERA_INFO, info, stamp))
+    return out
+
+
+def _status_store() -> Typestore:
+    store = get_typestore(Stores.EMPTY)
+    store.register(get_types_from_msg("uint32 level", STATUS))
+    return store
+
+
+def test_a_custom_type_without_a_stored_definition_is_copied_and_the_rest_read(
+    tmp_path: Path,
+) -> None:
+    """Humble's sqlite3 storage keeps no definitions: a custom type is unknown to rosbags.
+
+    Before: the first message of /status ended the read as damage ("unreadable after
+    message 1 (TypesysError ...)"), losing every later frame.
+    """
+    bag = tmp_path / "humble"
+    frames = _frames(4)
+    status = struct.pack("<4sI", b"\x00\x01\x00\x00", 7)  # CDR header, uint32 level
+    with Writer(bag, version=8) as writer:
+        connections = {
+            topic: writer.add_connection(topic, msgtype, typestore=rosmsg.TYPESTORE)
+            for topic, msgtype, _, _ in frames[:2]
+        }
+        custom = writer.add_connection("/status", STATUS, typestore=_status_store())
+        writer.write(custom, 999_000_000, status)
+        for topic, _, message, stamp in frames:
+            writer.write(connections[topic], stamp, rosmsg.serialize(message))
+            if topic == LEFT:
+                writer.write(custom, stamp + 1, status)
+    with sqlite3.connect(next(bag.glob("*.db3"))) as db:  # as Humble's storage: no definition
+        db.execute("DELETE FROM message_definitions WHERE topic_type = ?", (STATUS,))
+    with open_log(bag) as reader:
+        assert reader.topics()["/status"].schema_encoding == ""
+        raws = list(reader.messages())
+        assert reader.damage == []
+        assert reader.warnings == [
+            "humble: /status has type my_robot_msgs/msg/Status, whose definition the bag does "
+            "not store; copied without one (an empty schema, as rosbag2 records it)"
+        ]
+        assert [r.topic for r in raws].count(LEFT) == 4
+        copies = [r for r in raws if r.topic == "/status"]
+        assert len(copies) == 5
+        assert {(r.msgtype, r.schema_name, r.schema_encoding, r.schema_data) for r in copies} == {
+            (STATUS, STATUS, "", b"")
+        }
+        assert copies[0].data == status
+        assert copies[0].message_encoding == "cdr"
+    text = format_info(describe(bag))
+    assert text.splitlines()[-1].split() == ["/status", "5", STATUS, "(no", "definition", "stored)"]
