@@ -120,6 +120,43 @@ def _store_from_msg(text: str, typename: str, *, ros2_header: bool = False) -> T
     return store
 
 
+LATCHED_QOS_PROFILES = "\n".join(
+    [
+        "- history: 3",
+        "  depth: 0",
+        "  reliability: 1",
+        "  durability: 1",
+        "  deadline:\n    sec: 2147483647\n    nsec: 4294967295",
+        "  lifespan:\n    sec: 2147483647\n    nsec: 4294967295",
+        "  liveliness: 1",
+        "  liveliness_lease_duration:\n    sec: 2147483647\n    nsec: 4294967295",
+        "  avoid_ros_namespace_conventions: false",
+    ]
+)
+"""rosbag2's ``offered_qos_profiles`` of a latched ROS 1 publisher: reliable, transient local,
+durations infinite (as ``rosbags-convert`` writes it), so that a ROS 2 player offers it
+latched. Numeric, in the form :func:`rosbags_reader._qos_yaml` writes."""
+
+
+def ros1_channel_metadata(metadata: dict[str, str], *, latching: bool) -> dict[str, str]:
+    """Return the channel metadata of a ROS 1 connection whose messages become CDR.
+
+    Args:
+        metadata: what the input says of the connection (a ``ros1`` MCAP's channel
+            metadata: ``callerid``, ``latching``, ``md5sum``), {} for a bag's.
+        latching: the connection is latched (a bag's ``latching=1``).
+
+    Returns:
+        ``metadata`` without ``md5sum`` (the ROS 1 definition's, which the converted channel
+        no longer has) and, for a latched connection, with :data:`LATCHED_QOS_PROFILES`.
+    """
+    out = {key: value for key, value in metadata.items() if key != "md5sum"}
+    latched = latching or metadata.get("latching", "").strip().lower() in ("1", "true")
+    if latched and "offered_qos_profiles" not in out:
+        out["offered_qos_profiles"] = LATCHED_QOS_PROFILES
+    return out
+
+
 class _Ros1Converter:
     """Convert ROS 1 serialized messages to CDR with a ``ros2msg`` schema, per type."""
 

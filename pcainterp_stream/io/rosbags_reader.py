@@ -28,6 +28,7 @@ from pcainterp_stream.io.reader_base import (
     _one_line,
     _Ros1Converter,
     _TimeOrder,
+    ros1_channel_metadata,
     ros2_type_name,
 )
 from pcainterp_stream.records import RawMessage
@@ -256,6 +257,10 @@ class RosbagsLogReader(LogReader):
                 if self.format is LogFormat.ROS1:
                     data, schema = self._ros1.convert(data, msgtype, str(connection.msgdef.data))
                 metadata = _connection_metadata(connection)
+                if self.format is LogFormat.ROS1:
+                    metadata = ros1_channel_metadata(
+                        metadata, latching=bool(getattr(connection.ext, "latching", None))
+                    )
             except (Exception, sqlite3.Error) as err:  # ReaderError, SerdeError, lz4/bz2...
                 _add_once(
                     self.damage,

@@ -82,3 +82,45 @@ def test_a_custom_type_without_a_stored_definition_is_copied_and_the_rest_read(
         assert copies[0].message_encoding == "cdr"
     text = format_info(describe(bag))
     assert text.splitlines()[-1].split() == ["/status", "5", STATUS, "(no", "definition", "stored)"]
+
+
+def _ros1_bag(path: Path, *, latched: str) -> Path:
+    """A ROS 1 bag of 2 frames; connections of topics ending ``latched`` have latching=1."""
+    from rosbags.rosbag1 import Writer as Ros1Writer
+
+    store = rosmsg.TYPESTORE
+    with Ros1Writer(path) as writer:
+        connections: dict[str, Any] = {}
+        for topic, msgtype, message, stamp in _frames(2):
+            if topic not in connections:
+                msgdef, md5sum = store.generate_msgdef(msgtype, ros_version=1)
+                connections[topic] = writer.add_connection(
+                    topic,
+                    msgtype,
+                    msgdef=msgdef,
+                    md5sum=md5sum,
+                    callerid="/driver",
+                    latching=int(topic.endswith(latched)),
+                )
+            data = store.cdr_to_ros1(rosmsg.serialize(message), msgtype)
+            writer.write(connections[topic], stamp, data)
+    return path
+
+
+def test_a_latched_ros1_connection_is_offered_transient_local(tmp_path: Path) -> None:
+    """Before: every ROS 1 channel came out with no metadata, a latched one volatile."""
+    bag = _ros1_bag(tmp_path / "latched.bag", latched="camera_info")
+    unindexed = tmp_path / "unindexed.bag"  # as a killed recorder leaves it: no index
+    data = bytearray(bag.read_bytes())
+    field = data.index(b"index_pos=") + len(b"index_pos=")
+    index_pos = struct.unpack_from("<Q", data, field)[0]
+    struct.pack_into("<Q", data, field, 0)
+    unindexed.write_bytes(bytes(data[:index_pos]))
+    for path in (bag, unindexed):
+        with open_log(path) as reader:
+            metadata = {raw.topic: raw.channel_metadata for raw in reader.messages()}
+        assert metadata[LEFT] == {}, path.name
+        qos = metadata[LEFT_INFO].get("offered_qos_profiles", "")
+        # reliable (1), transient local (1), durations infinite: as rosbags-convert writes it
+        assert qos.startswith("- history: 3\n  depth: 0\n  reliability: 1\n  durability: 1\n")
+        assert "    sec: 2147483647\n    nsec: 4294967295" in qos
