@@ -300,7 +300,7 @@ class McapLogReader(LogReader):
             metadata = dict(channel.metadata)
             if schema is not None and schema.encoding == "ros1msg" and message_encoding == "cdr":
                 try:  # converted to CDR as its messages are
-                    data = self._ros1.schema(msgtype, schema.data.decode())[1]
+                    data = self._ros1.schema(msgtype, schema.data.decode())
                 except Exception:  # a bad definition: its messages do not convert either
                     continue
                 name = msgtype

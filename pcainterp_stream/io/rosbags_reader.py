@@ -176,7 +176,7 @@ class RosbagsLogReader(LogReader):
         assert self._reader is not None
         msgtype = ros2_type_name(str(connection.msgtype))
         if self.format is LogFormat.ROS1:
-            return msgtype, "ros2msg", self._ros1.schema(msgtype, str(connection.msgdef.data))[1]
+            return msgtype, "ros2msg", self._ros1.schema(msgtype, str(connection.msgdef.data))
         schema = self._definition(msgtype)
         if not schema:
             _add_once(

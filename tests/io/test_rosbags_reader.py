@@ -124,3 +124,75 @@ def test_a_latched_ros1_connection_is_offered_transient_local(tmp_path: Path) ->
         # reliable (1), transient local (1), durations infinite: as rosbags-convert writes it
         assert qos.startswith("- history: 3\n  depth: 0\n  reliability: 1\n  durability: 1\n")
         assert "    sec: 2147483647\n    nsec: 4294967295" in qos
+
+
+CUSTOM = "my_msgs/msg/Custom"
+MARKER = "visualization_msgs/msg/Marker"
+
+
+def _ros1_types_bag(path: Path) -> Path:
+    """A ROS 1 bag with a Marker (ROS 1 layout) and a custom type with upper-case names."""
+    from rosbags.rosbag1 import Writer as Ros1Writer
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    store.register(get_types_from_msg("int32 MAX=3\nfloat64 X\nstring Name\nint32 x", CUSTOM))
+    types = store.types
+    header = types["std_msgs/msg/Header"](
+        seq=7, stamp=types["builtin_interfaces/msg/Time"](sec=5, nanosec=6), frame_id="map"
+    )
+    point = types["geometry_msgs/msg/Point"](x=1.0, y=2.0, z=3.0)
+    color = types["std_msgs/msg/ColorRGBA"](r=1.0, g=0.5, b=0.25, a=1.0)
+    marker = types[MARKER](
+        header=header,
+        ns="n",
+        id=3,
+        type=2,
+        action=0,
+        pose=types["geometry_msgs/msg/Pose"](
+            position=point, orientation=types["geometry_msgs/msg/Quaternion"](x=0, y=0, z=0, w=1)
+        ),
+        scale=types["geometry_msgs/msg/Vector3"](x=1.0, y=1.0, z=1.0),
+        color=color,
+        lifetime=types["builtin_interfaces/msg/Duration"](sec=1, nanosec=5),
+        frame_locked=True,
+        points=[point],
+        colors=[color],
+        text="hi",
+        mesh_resource="",
+        mesh_use_embedded_materials=False,
+    )
+    custom = types[CUSTOM](X=1.5, Name="abc", x=4)
+    with Ros1Writer(path) as writer:
+        for topic, msgtype, message in (("/markers", MARKER, marker), ("/custom", CUSTOM, custom)):
+            connection = writer.add_connection(topic, msgtype, typestore=store)
+            writer.write(connection, 1_000_000_000, store.serialize_ros1(message, msgtype))
+    return path
+
+
+def test_a_ros1_type_of_another_layout_is_migrated_to_the_ros2_one(tmp_path: Path) -> None:
+    """Before: /markers kept the ROS 1 Marker layout under the ROS 2 name (no texture...)."""
+    with open_log(
+        _ros1_types_bag(
+            tmp_path / "types.bag",
+        )
+    ) as reader:
+        raw = next(r for r in reader.messages() if r.topic == "/markers")
+    assert raw.schema_data == rosmsg.schema_text(MARKER).encode()
+    marker = rosmsg.deserialize(raw.data, MARKER)  # the ROS 2 type as installed
+    assert (marker.ns, marker.id, marker.text, marker.header.frame_id) == ("n", 3, "hi", "map")
+    assert (marker.points[0].z, marker.colors[0].g, marker.lifetime.nanosec) == (3.0, 0.5, 5)
+    assert (marker.texture_resource, marker.mesh_file.filename) == ("", "")  # added in ROS 2
+
+
+def test_a_ros1_custom_type_gets_ros2_legal_names(tmp_path: Path) -> None:
+    """Before: ``float64 X`` stayed as it was; mcap_ros2 and Foxglove refuse that schema."""
+    with open_log(_ros1_types_bag(tmp_path / "types.bag")) as reader:
+        raw = next(r for r in reader.messages() if r.topic == "/custom")
+        message = reader.decode(raw)
+    assert raw.schema_data.decode().splitlines() == [
+        "int32 MAX=3",
+        "float64 x_2",  # x is taken
+        "string name",
+        "int32 x",
+    ]
+    assert (message.x_2, message.name, message.x) == (1.5, "abc", 4)
