@@ -21,6 +21,7 @@ from rosbags.typesys.store import Typestore
 from pcainterp_stream.errors import LogReadError, TopicNotFoundError
 from pcainterp_stream.interrupt import raise_if_signalled
 from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.mcap_extras import McapExtras
 from pcainterp_stream.records import RawMessage
 
 ROS2_SCHEMA_ENCODINGS = ("ros2msg", "ros2idl")
@@ -362,6 +363,15 @@ class LogReader:
         """Return (message count, first log time ns, last log time ns) from an index.
 
         None when the log has no index that says so (then count with :meth:`messages`).
+        """
+        return None
+
+    def extras(self, *, verify: bool = False) -> McapExtras | None:
+        """Return what an MCAP log holds besides messages, None for a log of another kind.
+
+        See :meth:`McapLogReader.extras <pcainterp_stream.io.mcap_reader.McapLogReader.extras>`;
+        a rosbag2 folder whose storage files are MCAP has them too. ROS 1 bags and rosbag2
+        sqlite3 storage have no attachments or metadata records.
         """
         return None
 
