@@ -14,7 +14,6 @@ from mcap.records import Metadata
 from pcainterp_stream.errors import LogReadError
 from pcainterp_stream.io.logreader import (
     LogFormat,
-    McapLogReader,
     TopicInfo,
     looks_like_kitti,
     open_log,
@@ -37,8 +36,9 @@ class LogInfo:
             the log's index.
         damage: one-line descriptions of damage found.
         warnings: one-line notes that are not damage.
-        attachments: an MCAP log's attachments (their headers).
-        metadata: an MCAP log's metadata records.
+        attachments: an MCAP log's attachments (their headers), a rosbag2 folder's storage
+            files' too.
+        metadata: an MCAP log's metadata records, a rosbag2 folder's storage files' too.
     """
 
     path: Path
@@ -106,7 +106,7 @@ def describe(path: str | Path, *, count: bool = False) -> LogInfo:
                 for name, info in topics.items()
             }
             counted = True
-        extras = reader.extras() if isinstance(reader, McapLogReader) else None
+        extras = reader.extras()
         return LogInfo(
             path=path,
             format=reader.format,
@@ -158,6 +158,8 @@ def format_info(info: LogInfo) -> str:
         kind = topic.msgtype or "(no schema)"
         if topic.message_encoding not in ("cdr", ""):
             kind += f" [{topic.message_encoding}]"
+        elif topic.msgtype and not topic.schema_encoding:  # copied as it is, not decodable
+            kind += " (no definition stored)"
         lines.append(f"    {name:<{width}}  {count:>8}  {kind}")
     if info.attachments:
         lines.append(f"  attachments: {len(info.attachments)}")

@@ -154,10 +154,16 @@ def open_log(path: str | Path) -> LogReader:
 
         return open_ros1_bag(path)
     else:
-        # imported here: rosbags' readers take ~65 ms to import, which an MCAP job never uses
-        from pcainterp_stream.io.rosbags_reader import RosbagsLogReader
+        from pcainterp_stream.io.rosbag2_mcap import Rosbag2McapReader, mcap_storage_files
 
-        reader = RosbagsLogReader(path, log_format)
+        files = mcap_storage_files(path) if path.is_dir() else None
+        if files is not None:  # its MCAP files, as given directly: attachments, publish times
+            reader = Rosbag2McapReader(path, files)
+        else:
+            # imported here: rosbags' readers take ~65 ms to import, which an MCAP job never uses
+            from pcainterp_stream.io.rosbags_reader import RosbagsLogReader
+
+            reader = RosbagsLogReader(path, log_format)
     reader.open()
     return reader
 

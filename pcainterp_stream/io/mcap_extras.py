@@ -79,6 +79,8 @@ class AttachmentInfo:
         data_offset: where its data starts in the file (bytes).
         crc: the CRC-32 the file states for the record's fields up to the data's end, 0
             when none.
+        file: the MCAP file holding it when that is not :attr:`McapExtras.path` (one of a
+            rosbag2 folder's storage files), else None.
     """
 
     name: str
@@ -89,6 +91,7 @@ class AttachmentInfo:
     offset: int
     data_offset: int
     crc: int
+    file: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -96,7 +99,7 @@ class McapExtras:
     """What an MCAP log holds besides its messages.
 
     Attributes:
-        path: the log.
+        path: the log (an MCAP file, or a rosbag2 folder whose storage files are MCAP).
         channels: every channel, in channel-id order, as the reader yields its messages.
         attachments: the attachments, in file (or index) order.
         metadata: the metadata records, in file (or index) order.
@@ -280,7 +283,7 @@ def write_extras(
             log_time=attachment.log_time_ns,
             name=attachment.name,
             media_type=attachment.media_type,
-            data=attachment_data(extras.path, attachment),
+            data=attachment_data(attachment.file or extras.path, attachment),
         )
 
 

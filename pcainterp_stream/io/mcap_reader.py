@@ -42,6 +42,7 @@ from pcainterp_stream.io.reader_base import (
     _one_line,
     _Ros1Converter,
     _TimeOrder,
+    ros1_channel_metadata,
     ros2_type_name,
 )
 from pcainterp_stream.records import RawMessage
@@ -296,12 +297,14 @@ class McapLogReader(LogReader):
             msgtype, schema_encoding, message_encoding = self._channel_kind(channel, schema)
             name = schema.name if schema is not None else ""
             data = bytes(schema.data) if schema is not None else b""
+            metadata = dict(channel.metadata)
             if schema is not None and schema.encoding == "ros1msg" and message_encoding == "cdr":
                 try:  # converted to CDR as its messages are
-                    data = self._ros1.schema(msgtype, schema.data.decode())[1]
+                    data = self._ros1.schema(msgtype, schema.data.decode())
                 except Exception:  # a bad definition: its messages do not convert either
                     continue
                 name = msgtype
+                metadata = ros1_channel_metadata(metadata, latching=False)
             infos.append(
                 ChannelInfo(
                     channel.topic,
@@ -309,7 +312,7 @@ class McapLogReader(LogReader):
                     name,
                     schema_encoding,
                     data,
-                    dict(channel.metadata),
+                    metadata,
                 )
             )
         return infos
@@ -379,12 +382,14 @@ class McapLogReader(LogReader):
         msgtype, schema_encoding, message_encoding = self._channel_kind(channel, schema)
         schema_name = schema.name if schema is not None else ""
         schema_data = bytes(schema.data) if schema is not None else b""
+        metadata = dict(channel.metadata)
         if schema is not None and schema.encoding == "ros1msg" and message_encoding == "cdr":
             try:
                 data, schema_data = self._ros1.convert(data, msgtype, schema.data.decode())
             except Exception:  # rosbags SerdeError / TypesysError on a bad definition
                 return None
             schema_name = msgtype
+            metadata = ros1_channel_metadata(metadata, latching=False)
         return RawMessage(
             topic=channel.topic,
             msgtype=msgtype,
@@ -392,7 +397,7 @@ class McapLogReader(LogReader):
             schema_encoding=schema_encoding,
             schema_data=schema_data,
             message_encoding=message_encoding,
-            channel_metadata=dict(channel.metadata),
+            channel_metadata=metadata,
             data=data,
             log_time_ns=log_time,
             publish_time_ns=publish_time,

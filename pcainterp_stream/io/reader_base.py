@@ -6,9 +6,11 @@ build on it; :mod:`.logreader` opens a path with the right one.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from enum import Enum
+from functools import partial
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -19,6 +21,7 @@ from rosbags.typesys.store import Typestore
 from pcainterp_stream.errors import LogReadError, TopicNotFoundError
 from pcainterp_stream.interrupt import raise_if_signalled
 from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.mcap_extras import McapExtras
 from pcainterp_stream.records import RawMessage
 
 ROS2_SCHEMA_ENCODINGS = ("ros2msg", "ros2idl")
@@ -120,33 +123,157 @@ def _store_from_msg(text: str, typename: str, *, ros2_header: bool = False) -> T
     return store
 
 
+LATCHED_QOS_PROFILES = "\n".join(
+    [
+        "- history: 3",
+        "  depth: 0",
+        "  reliability: 1",
+        "  durability: 1",
+        "  deadline:\n    sec: 2147483647\n    nsec: 4294967295",
+        "  lifespan:\n    sec: 2147483647\n    nsec: 4294967295",
+        "  liveliness: 1",
+        "  liveliness_lease_duration:\n    sec: 2147483647\n    nsec: 4294967295",
+        "  avoid_ros_namespace_conventions: false",
+    ]
+)
+"""rosbag2's ``offered_qos_profiles`` of a latched ROS 1 publisher: reliable, transient local,
+durations infinite (as ``rosbags-convert`` writes it), so that a ROS 2 player offers it
+latched. Numeric, in the form :func:`rosbags_reader._qos_yaml` writes."""
+
+
+def ros1_channel_metadata(metadata: dict[str, str], *, latching: bool) -> dict[str, str]:
+    """Return the channel metadata of a ROS 1 connection whose messages become CDR.
+
+    Args:
+        metadata: what the input says of the connection (a ``ros1`` MCAP's channel
+            metadata: ``callerid``, ``latching``, ``md5sum``), {} for a bag's.
+        latching: the connection is latched (a bag's ``latching=1``).
+
+    Returns:
+        ``metadata`` without ``md5sum`` (the ROS 1 definition's, which the converted channel
+        no longer has) and, for a latched connection, with :data:`LATCHED_QOS_PROFILES`.
+    """
+    out = {key: value for key, value in metadata.items() if key != "md5sum"}
+    latched = latching or metadata.get("latching", "").strip().lower() in ("1", "true")
+    if latched and "offered_qos_profiles" not in out:
+        out["offered_qos_profiles"] = LATCHED_QOS_PROFILES
+    return out
+
+
 class _Ros1Converter:
-    """Convert ROS 1 serialized messages to CDR with a ``ros2msg`` schema, per type."""
+    """Convert ROS 1 serialized messages to CDR with a ``ros2msg`` schema, per type.
+
+    Three kinds of type, by what a ROS 2 consumer of the output expects under its name:
+
+    - the Humble type's layout once ``Header.seq`` is dropped (``sensor_msgs/Image``,
+      ``CameraInfo`` whose ``K`` is ROS 2's ``k``): converted byte for byte, Humble's schema;
+    - a Humble type of another layout (``visualization_msgs/Marker``, which ROS 2 extended):
+      migrated to the Humble layout as ``rosbags-convert --dst-typestore`` does (fields
+      matched by name, then by type; fields ROS 2 added get their defaults, fields it dropped
+      are left out), Humble's schema, so that a node with the ROS 2 type reads it;
+    - a type Humble does not have (a custom one): converted byte for byte, with a schema
+      generated from the bag's own definition, its names made legal in ROS 2 (see
+      :func:`_ros2_names`; the bytes do not depend on them).
+    """
 
     def __init__(self) -> None:
-        self._cache: dict[tuple[str, str], tuple[Typestore, bytes]] = {}
+        self._cache: dict[tuple[str, str], tuple[Any, bytes]] = {}
+        self._migrations: dict[str, object] = {}  # rosbags' cache of migration plans
 
-    def schema(self, typename: str, msgdef: str) -> tuple[Typestore, bytes]:
-        """Return (conversion typestore, ros2msg schema text) for a ROS 1 type definition.
-
-        Types whose layout equals the ROS 2 Humble type (after dropping ``Header.seq``) get
-        Humble's schema text, so that they read as the ROS 2 type downstream; others get a
-        schema generated from the bag's own definition.
-        """
+    def _conversion(self, typename: str, msgdef: str) -> tuple[Any, bytes]:
+        """Return (ROS 1 bytes -> CDR bytes, ros2msg schema text) of a ROS 1 type definition."""
         key = (typename, msgdef)
         if key not in self._cache:
             store = _store_from_msg(msgdef, typename, ros2_header=True)
             if _matches_humble(store, typename):
                 text = rosmsg.schema_text(typename)
+                convert: Any = partial(store.ros1_to_cdr, typename=typename)
+            elif typename in rosmsg.TYPESTORE.fielddefs:
+                text = rosmsg.schema_text(typename)
+                convert = partial(self._migrate, _store_from_msg(msgdef, typename), typename)
             else:
-                text = str(store.generate_msgdef(typename, ros_version=2)[0])
-            self._cache[key] = (store, text.encode())
+                text = str(_ros2_names(store).generate_msgdef(typename, ros_version=2)[0])
+                convert = partial(store.ros1_to_cdr, typename=typename)
+            self._cache[key] = (convert, text.encode())
         return self._cache[key]
+
+    def _migrate(self, store: Typestore, typename: str, data: bytes | memoryview) -> bytes:
+        """Return ROS 1 bytes of ``typename`` (``store``'s layout) as CDR of the Humble type."""
+        from rosbags.convert.converter import migrate_message  # only for types that differ
+
+        message = store.deserialize_ros1(data, typename)
+        migrated = migrate_message(
+            store, rosmsg.TYPESTORE, typename, typename, self._migrations, message
+        )
+        return rosmsg.serialize(migrated)
+
+    def schema(self, typename: str, msgdef: str) -> bytes:
+        """Return the ros2msg schema text its messages get for a ROS 1 type definition.
+
+        Raises:
+            rosbags' TypesysError: the definition does not parse.
+        """
+        return self._conversion(typename, msgdef)[1]
 
     def convert(self, data: bytes | memoryview, typename: str, msgdef: str) -> tuple[bytes, bytes]:
         """Return (CDR bytes, ros2msg schema) of one ROS 1 serialized message."""
-        store, text = self.schema(typename, msgdef)
-        return bytes(store.ros1_to_cdr(data, typename)), text
+        convert, text = self._conversion(typename, msgdef)
+        return bytes(convert(data)), text
+
+
+_FIELD_NAME = re.compile(r"^(?!.*__)(?!.*_$)[a-z][a-z0-9_]*$")
+_CONSTANT_NAME = re.compile(r"^[A-Z]([A-Z0-9_]?[A-Z0-9]+)*$")
+
+
+def _legal_name(name: str, *, constant: bool) -> str:
+    """Return a ROS 1 field (or constant) name as ROS 2's rules allow it.
+
+    ROS 2 (rosidl) wants fields in lower case and constants in upper case, letters, digits
+    and single underscores, not ending in one; ROS 1 allows ``float64 X``, which Foxglove
+    and ``mcap_ros2`` refuse in a ros2msg schema ("Invalid field name: X").
+
+    Examples:
+        >>> _legal_name("X", constant=False), _legal_name("Cov__3_", constant=False)
+        ('x', 'cov_3')
+        >>> _legal_name("max_speed", constant=True)
+        'MAX_SPEED'
+    """
+    text = name.upper() if constant else name.lower()
+    text = re.sub(r"[^A-Za-z0-9]+", "_", text)
+    text = re.sub(r"_+", "_", text).strip("_")
+    if not text or not text[0].isalpha():
+        text = ("C_" if constant else "f_") + text
+    return text.rstrip("_")
+
+
+def _ros2_names(store: Typestore) -> Typestore:
+    """Return a copy of ``store`` whose field and constant names follow ROS 2's rules.
+
+    Only the schema text changes: CDR bytes do not hold names. A name made equal to another
+    of its type gets a number (``x``, ``x_2``).
+    """
+
+    def unique(names: list[str], *, constant: bool, pattern: re.Pattern[str]) -> list[str]:
+        out: list[str] = []
+        for name in names:
+            legal = name if pattern.match(name) else _legal_name(name, constant=constant)
+            candidate, number = legal, 2
+            while candidate in out or (candidate != name and candidate in names):
+                candidate, number = f"{legal}_{number}", number + 1
+            out.append(candidate)
+        return out
+
+    types: dict[str, Any] = {}
+    for typename, (constants, fields) in store.fielddefs.items():
+        constant_names = unique([c[0] for c in constants], constant=True, pattern=_CONSTANT_NAME)
+        field_names = unique([f[0] for f in fields], constant=False, pattern=_FIELD_NAME)
+        types[typename] = (
+            [(name, *rest) for name, (_, *rest) in zip(constant_names, constants, strict=True)],
+            [(name, desc) for name, (_, desc) in zip(field_names, fields, strict=True)],
+        )
+    renamed = get_typestore(Stores.EMPTY)
+    renamed.register(types)
+    return renamed
 
 
 class LogReader:
@@ -236,6 +363,15 @@ class LogReader:
         """Return (message count, first log time ns, last log time ns) from an index.
 
         None when the log has no index that says so (then count with :meth:`messages`).
+        """
+        return None
+
+    def extras(self, *, verify: bool = False) -> McapExtras | None:
+        """Return what an MCAP log holds besides messages, None for a log of another kind.
+
+        See :meth:`McapLogReader.extras <pcainterp_stream.io.mcap_reader.McapLogReader.extras>`;
+        a rosbag2 folder whose storage files are MCAP has them too. ROS 1 bags and rosbag2
+        sqlite3 storage have no attachments or metadata records.
         """
         return None
 

@@ -38,6 +38,7 @@ from pcainterp_stream.io.reader_base import (
     _one_line,
     _Ros1Converter,
     _TimeOrder,
+    ros1_channel_metadata,
     ros2_type_name,
 )
 from pcainterp_stream.records import RawMessage
@@ -89,6 +90,7 @@ class _Connection(NamedTuple):
     topic: str
     msgtype: str  # ROS 2 spelling
     msgdef: str
+    latching: bool
 
 
 class _Message(NamedTuple):
@@ -337,7 +339,7 @@ class Ros1WalkReader(LogReader):
                 schema_encoding="ros2msg",
                 schema_data=schema,
                 message_encoding="cdr",
-                channel_metadata={},
+                channel_metadata=ros1_channel_metadata({}, latching=connection.latching),
                 data=cdr,
                 log_time_ns=time_ns,
                 publish_time_ns=time_ns,
@@ -483,8 +485,13 @@ def _connection(fields: dict[str, bytes], data: bytes | memoryview) -> _Connecti
     msgdef = described.get("message_definition")
     if not topic or not msgtype or msgdef is None:
         raise ValueError("connection record without topic, type or message_definition")
+    latching = described.get("latching", b"").strip() not in (b"", b"0")
     return _Connection(
-        conn_id, normalize(topic.decode()), ros2_type_name(msgtype.decode()), msgdef.decode()
+        conn_id,
+        normalize(topic.decode()),
+        ros2_type_name(msgtype.decode()),
+        msgdef.decode(),
+        latching,
     )
 
 

@@ -28,6 +28,7 @@ from pcainterp_stream.io.reader_base import (
     _one_line,
     _Ros1Converter,
     _TimeOrder,
+    ros1_channel_metadata,
     ros2_type_name,
 )
 from pcainterp_stream.records import RawMessage
@@ -164,20 +165,42 @@ class RosbagsLogReader(LogReader):
             self._reader.close()
             self._reader = None
 
-    def _schema(self, connection: Any) -> tuple[str, bytes]:
-        """Return (ros2 type name, ros2msg schema) of a connection."""
+    def _schema(self, connection: Any) -> tuple[str, str, bytes]:
+        """Return (ros2 type name, schema encoding, schema) of a connection.
+
+        The schema is ``ros2msg`` text. A rosbag2 type whose definition the bag does not
+        store and rosbags does not know (a custom type in a Humble sqlite3 bag) has none:
+        its messages are copied with an empty schema (encoding and data ""), as rosbag2's
+        own MCAP storage writes a type whose definition it lacks, with one warning.
+        """
         assert self._reader is not None
         msgtype = ros2_type_name(str(connection.msgtype))
         if self.format is LogFormat.ROS1:
-            return msgtype, self._ros1.schema(msgtype, str(connection.msgdef.data))[1]
+            return msgtype, "ros2msg", self._ros1.schema(msgtype, str(connection.msgdef.data))
+        schema = self._definition(msgtype)
+        if not schema:
+            _add_once(
+                self.warnings,
+                f"{self.path.name}: {connection.topic} has type {msgtype}, whose definition the "
+                "bag does not store; copied without one (an empty schema, as rosbag2 records it)",
+            )
+            return msgtype, "", b""
+        return msgtype, "ros2msg", schema
+
+    def _definition(self, msgtype: str) -> bytes:
+        """Return the ros2msg text of a rosbag2 type, b"" when rosbags cannot give one."""
+        assert self._reader is not None
         if msgtype not in self._schemas:
             store = self._reader.typestore
             if _matches_humble(store, msgtype):
-                text = rosmsg.schema_text(msgtype)
+                self._schemas[msgtype] = rosmsg.schema_text(msgtype).encode()
             else:
-                text = str(store.generate_msgdef(msgtype, ros_version=2)[0])
-            self._schemas[msgtype] = text.encode()
-        return msgtype, self._schemas[msgtype]
+                try:
+                    text = str(store.generate_msgdef(msgtype, ros_version=2)[0])
+                except Exception:  # rosbags TypesysError: the type (or a field's) is unknown
+                    text = ""
+                self._schemas[msgtype] = text.encode()
+        return self._schemas[msgtype]
 
     def topics(self) -> dict[str, TopicInfo]:
         """See :meth:`LogReader.topics`."""
@@ -190,7 +213,10 @@ class RosbagsLogReader(LogReader):
             count = _message_count(connection.msgcount)
             if previous is not None:
                 count = None if count is None else _sum_counts(previous.message_count, count)
-            topics[connection.topic] = TopicInfo(connection.topic, msgtype, count, "cdr", "ros2msg")
+            known = self.format is LogFormat.ROS1 or bool(self._definition(msgtype))
+            topics[connection.topic] = TopicInfo(
+                connection.topic, msgtype, count, "cdr", "ros2msg" if known else ""
+            )
         return topics
 
     def message_stats(self) -> tuple[int, int | None, int | None] | None:
@@ -227,10 +253,14 @@ class RosbagsLogReader(LogReader):
                 if item is None:
                     break
                 connection, timestamp, data = item
-                msgtype, schema = self._schema(connection)
+                msgtype, schema_encoding, schema = self._schema(connection)
                 if self.format is LogFormat.ROS1:
                     data, schema = self._ros1.convert(data, msgtype, str(connection.msgdef.data))
                 metadata = _connection_metadata(connection)
+                if self.format is LogFormat.ROS1:
+                    metadata = ros1_channel_metadata(
+                        metadata, latching=bool(getattr(connection.ext, "latching", None))
+                    )
             except (Exception, sqlite3.Error) as err:  # ReaderError, SerdeError, lz4/bz2...
                 _add_once(
                     self.damage,
@@ -243,7 +273,7 @@ class RosbagsLogReader(LogReader):
                 topic=connection.topic,
                 msgtype=msgtype,
                 schema_name=msgtype,
-                schema_encoding="ros2msg",
+                schema_encoding=schema_encoding,
                 schema_data=schema,
                 message_encoding="cdr",
                 channel_metadata=metadata,

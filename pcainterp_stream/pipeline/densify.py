@@ -32,7 +32,7 @@ from pcainterp_stream.frontend.sgbm_limits import fitting, narrowest_width
 from pcainterp_stream.frontend.stereo import SgbmConfig
 from pcainterp_stream.io import reader_base, rosmsg
 from pcainterp_stream.io.foxglove import FoxgloveLive, LiveMessage
-from pcainterp_stream.io.logreader import LogReader, McapLogReader, open_log
+from pcainterp_stream.io.logreader import LogReader, open_log
 from pcainterp_stream.io.logwriter import (
     LogFormat,
     LogWriter,
@@ -318,9 +318,9 @@ def densify(
             )
         elif output is not None:
             writer = stack.enter_context(McapStreamWriter(output))
-        if isinstance(writer, McapLogWriter) and isinstance(reader, McapLogReader):
+        if isinstance(writer, McapLogWriter) and (extras := reader.extras(verify=True)) is not None:
             # the rest of the copy: attachments, metadata records, channels without messages
-            writer.add_extras(reader.extras(verify=True))
+            writer.add_extras(extras)
         if isinstance(writer, McapLogWriter):
             writer.add_metadata(PROVENANCE, provenance(label, pairing, processor))
         inputs = _InLogTimeOrder(writer) if writer is not None else None

@@ -352,8 +352,15 @@ def test_right_camera_info_with_denormal_fx_is_a_calibration_error(
         list(iter_stereo_frames(reader))
 
 
-def _edit_metadata(seeds: dict[str, Path], tmp_path: Path, old: str, new: str) -> Path:
-    bag = _copy(seeds["rosbag2"], tmp_path)
+def _edit_metadata(
+    seeds: dict[str, Path], tmp_path: Path, old: str, new: str, fmt: str = "rosbag2-sqlite3"
+) -> Path:
+    """A copy of a rosbag2 seed with its metadata.yaml edited.
+
+    sqlite3 storage by default: a folder with MCAP storage is read through its storage files
+    (bug hunt 6B M7), whose topics and counts its metadata.yaml does not override.
+    """
+    bag = _copy(seeds[fmt], tmp_path)
     metadata = bag / "metadata.yaml"
     text = metadata.read_text()
     assert old in text
@@ -387,6 +394,17 @@ def test_rosbag2_metadata_topic_not_text_is_an_error(
     _check(bag, "topic name: 12")
     with pytest.raises(LogReadError, match=r"metadata.yaml has a topic named 12, not text"):
         open_log(bag)
+
+
+def test_rosbag2_mcap_storage_reads_its_files_whatever_metadata_yaml_says_of_topics(
+    seeds: dict[str, Path], tmp_path: Path
+) -> None:
+    """The topics and counts of a folder with MCAP storage are its storage files'."""
+    bag = _edit_metadata(seeds, tmp_path, "message_count: 2", "message_count: abc", "rosbag2")
+    verdict = _check(bag, "message_count: abc, MCAP storage")
+    assert verdict.outcome.startswith("read: 12 msgs, 0 undecodable, 0 damage")
+    with open_log(bag) as reader:
+        assert reader.topics()["/stereo/left/image_rect"].message_count == 2
 
 
 # --- real files written by others --------------------------------------------------------

@@ -1,0 +1,133 @@
+"""A rosbag2 folder with MCAP storage reads as its storage files do (bug hunt 6B M7).
+
+The folders are written by ``pcainterp synth --format rosbag2`` (rosbags' writer), then
+their storage file is rewritten as ``ros2 bag record`` and ``mcap add attachment`` leave
+one: publish times before the log times, sequences, a metadata record, an attachment;
+split in two files for a split bag.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
+
+from pcainterp_stream import cli
+from pcainterp_stream.io.loginfo import describe
+from pcainterp_stream.io.logreader import LogFormat, open_log
+from pcainterp_stream.pipeline.jobs import synth
+
+URDF = b'<robot name="r"/>'
+
+
+@pytest.fixture(scope="module")
+def synth_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 4-frame eighth-size synthetic drive as a rosbag2 folder with MCAP storage."""
+    path = tmp_path_factory.mktemp("r2") / "drive"
+    synth(path, frames=4, seed=5, scale=0.125, fmt="rosbag2")
+    return path
+
+
+def recorded(source: Path, target: Path, *, parts: int = 1) -> Path:
+    """Copy a rosbag2 folder, its storage rewritten as a recorder leaves it (``parts`` files).
+
+    Publish time = log time - 5 ms, sequence = 1000 + n; every file gets a ``rosbag2``
+    metadata record; the last one also ``calibration_info`` and the attachment robot.urdf.
+    """
+    (storage,) = source.glob("*.mcap")
+    target.mkdir()
+    with storage.open("rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        messages = [(channel, message) for _, channel, message in reader.iter_messages()]
+    names = [f"{target.name}_{i}.mcap" for i in range(parts)]
+    share = -(-len(messages) // parts)
+    for i, name in enumerate(names):
+        with (target / name).open("wb") as f:
+            writer = Writer(f, compression=CompressionType.ZSTD)
+            writer.start(profile="ros2", library="test")
+            schemas = {
+                key: writer.register_schema(s.name, s.encoding, s.data)
+                for key, s in summary.schemas.items()
+            }
+            channels = {
+                key: writer.register_channel(
+                    c.topic, c.message_encoding, schemas[c.schema_id], dict(c.metadata)
+                )
+                for key, c in summary.channels.items()
+            }
+            for n, (channel, message) in enumerate(messages[i * share : (i + 1) * share]):
+                writer.add_message(
+                    channels[channel.id],
+                    message.log_time,
+                    message.data,
+                    message.log_time - 5_000_000,
+                    1000 + i * share + n,
+                )
+            writer.add_metadata("rosbag2", {"serialized_metadata": f"file {i}"})
+            if i == parts - 1:
+                writer.add_metadata("calibration_info", {"rig": "A7"})
+                writer.add_attachment(7, 8, "robot.urdf", "application/xml", URDF)
+            writer.finish()
+    text = (source / "metadata.yaml").read_text().replace(storage.name, names[0])
+    listed = "\n".join(f"  - {name}" for name in names)
+    text = text.replace(
+        f"  relative_file_paths:\n  - {names[0]}", f"  relative_file_paths:\n{listed}"
+    )
+    (target / "metadata.yaml").write_text(text)
+    return target
+
+
+@pytest.mark.parametrize("parts", [1, 2])
+def test_a_folder_keeps_publish_times_sequences_attachments_and_metadata(
+    synth_folder: Path, tmp_path: Path, parts: int
+) -> None:
+    """Before: publish time = log time, sequence 0, no attachment or metadata record."""
+    folder = recorded(synth_folder, tmp_path / "rec", parts=parts)
+    with open_log(folder) as reader:
+        assert reader.format is LogFormat.ROSBAG2
+        raws = list(reader.messages())
+        extras = reader.extras()
+        assert reader.damage == []
+    assert len(raws) == 24
+    assert [raw.log_time_ns for raw in raws] == sorted(raw.log_time_ns for raw in raws)
+    assert all(raw.publish_time_ns == raw.log_time_ns - 5_000_000 for raw in raws)
+    assert sorted(raw.sequence for raw in raws) == list(range(1000, 1024))
+    assert extras is not None
+    assert [(m.name, m.metadata) for m in extras.metadata] == [
+        *(("rosbag2", {"serialized_metadata": f"file {i}"}) for i in range(parts)),
+        ("calibration_info", {"rig": "A7"}),
+    ]
+    assert [(a.name, a.media_type, a.size) for a in extras.attachments] == [
+        ("robot.urdf", "application/xml", len(URDF))
+    ]
+    assert len(extras.channels) == 6  # a split bag's repeated channels listed once
+    info = describe(folder)
+    assert [a.name for a in info.attachments] == ["robot.urdf"]
+    assert [m.name for m in info.metadata][-1] == "calibration_info"
+
+
+def test_densify_of_a_folder_copies_its_attachments_and_metadata_records(
+    synth_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    folder = recorded(synth_folder, tmp_path / "rec", parts=2)
+    out = tmp_path / "dense.mcap"
+    run: Callable[[list[str]], int] = cli.main
+    code = run(["densify", str(folder), "-o", str(out)])
+    assert code == 0, capsys.readouterr().err
+    with out.open("rb") as f:
+        reader = make_reader(f)
+        attachments = [(a.name, a.data) for a in reader.iter_attachments()]
+        names = [m.name for m in reader.iter_metadata()]
+        publish = {
+            (m.log_time - m.publish_time, m.sequence >= 1000)
+            for _, c, m in reader.iter_messages()
+            if not c.topic.startswith("/pcainterp/")
+        }
+    assert attachments == [("robot.urdf", URDF)]
+    assert names == ["rosbag2", "rosbag2", "calibration_info", "pcainterp.densify"]
+    assert publish == {(5_000_000, True)}
