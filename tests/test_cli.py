@@ -939,7 +939,18 @@ def test_densify_missing_topic_option(
     line = run.error_line()
     assert "topic /cam/right not found in small.mcap" in line
     assert f"topics present: /ground_truth/depth, /ground_truth/pose, {LEFT_INFO}" in line
-    assert line.endswith("pass --right-topic")
+    assert line.endswith("; set --right-topic to one of them")
+    assert_nothing_written(out)
+
+
+def test_densify_names_the_topic_a_typo_meant(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path
+) -> None:
+    """A misspelt --left-topic is told the topic it was close to, not to pass --left-topic."""
+    typo = LEFT[:-1]
+    line = pcainterp(*densify_args(small_log, out, basis_path, "--left-topic", typo)).error_line()
+    assert f"topic {typo} not found in small.mcap; topics present: " in line
+    assert line.endswith(f"; the closest is {LEFT}: set --left-topic to it")
     assert_nothing_written(out)
 
 
@@ -1077,7 +1088,7 @@ def test_learn_missing_topic(
     target = tmp_path / "basis.npz"
     line = pcainterp("learn", small_log, "-o", target, "--depth-topic", "/depth").error_line()
     assert "topic /depth not found" in line
-    assert "pass --depth-topic" in line
+    assert "set --depth-topic to one of them" in line
     assert_nothing_written(target)
 
 
@@ -1251,8 +1262,9 @@ def test_densify_warns_of_frames_without_a_measurement(
     assert run.code == 0
     assert (
         f"warning: 2 of {SMALL_FRAMES} frames had no measurement (blank, dark or textureless "
-        "images): they have no estimate, their depth is NaN" in run.out
+        "images): they have no estimate, their depth is NaN" in run.err  # a diagnostic
     )
+    assert "had no measurement" not in run.out  # the report alone on standard output
     # ... and they have none: NaN all over (not the prior's mean, a scene never seen)
     with open_log(out) as reader:
         depths = [image_of(reader.decode(raw)) for raw in reader.messages(["/pcainterp/depth"])]
@@ -1260,8 +1272,8 @@ def test_densify_warns_of_frames_without_a_measurement(
     assert all(np.isnan(depth).all() for depth in depths[:2])
     assert all(np.isfinite(depth).mean() > 0.5 for depth in depths[2:])
     plain = pcainterp(*densify_args(small_log, out, basis_path))
-    assert "had no measurement" not in plain.out
-    assert "could not check" not in plain.out  # the rectified-and-not-swapped check decided
+    assert "had no measurement" not in plain.err
+    assert "could not check" not in plain.err  # the rectified-and-not-swapped check decided
 
 
 def test_densify_says_when_the_rows_could_not_be_checked(
@@ -1274,7 +1286,7 @@ def test_densify_says_when_the_rows_could_not_be_checked(
     assert (
         f"warning: could not check that {LEFT} / {RIGHT} is rectified and not swapped: 0 "
         f"matched corners in all {SMALL_FRAMES} frames, 30 needed (dark, blank or unrelated "
-        "images); it was densified unchecked" in run.out
+        "images); it was densified unchecked" in run.err
     )
 
 
@@ -1415,9 +1427,9 @@ def test_densify_names_its_camera_and_warns_of_a_baseline_in_millimetres(
     assert f"baseline 537.2 m (from P of {RIGHT_INFO})" in run.out
     assert (
         f"warning: the baseline from P of {RIGHT_INFO} is 537.2 m, beyond any stereo rig's "
-        "(< 3 m), and every depth scales with it" in run.out
+        "(< 3 m), and every depth scales with it" in run.err
     )
-    assert "if it is in millimetres, pass --baseline 0.5372" in run.out
+    assert "if it is in millimetres, pass --baseline 0.5372" in run.err
 
 
 # ----------------------------------------------------------------------------- basis files
@@ -1528,7 +1540,7 @@ def test_densify_non_monotonic_stamps(
     assert run.code == 0, run.err
     assert f"densified {SMALL_FRAMES} frames" in run.out
     assert "non-monotonic stamps" in run.out
-    assert "non-monotonic log times" in run.out
+    assert "non-monotonic log times" in run.err  # a warning
     assert assert_valid_mcap(out)["/pcainterp/depth"] == SMALL_FRAMES
 
 
@@ -1559,7 +1571,7 @@ def test_densify_reads_an_mcap_stored_topic_by_topic_in_log_time_order(
     run = pcainterp(*densify_args(log, out, basis_path))
     assert run.code == 0, run.err
     assert f"pairing: {3 * SMALL_FRAMES} pairs, 0 unpaired left, 0 unpaired right\n" in run.out
-    assert "warning" not in run.out
+    assert "warning" not in run.out + run.err
     assert assert_valid_mcap(out)["/pcainterp/depth"] == 3 * SMALL_FRAMES
 
 
@@ -1594,7 +1606,7 @@ def test_densify_a_damaged_attachment_keeps_the_log_time_order(
     assert run.code == 0, run.err
     assert "corrupt attachment left out (CRC mismatch)" in run.out
     assert f"pairing: {3 * SMALL_FRAMES} pairs, 0 unpaired left, 0 unpaired right\n" in run.out
-    assert "mcap recover" not in run.out  # before: 'has no index', pairs lost
+    assert "mcap recover" not in run.out + run.err  # before: 'has no index', pairs lost
 
 
 def test_densify_of_an_unindexed_log_out_of_time_order_says_what_it_cost(
@@ -1608,21 +1620,21 @@ def test_densify_of_an_unindexed_log_out_of_time_order_says_what_it_cost(
     run = pcainterp(*densify_args(log, out, basis_path))
     assert run.code == 0, run.err  # within --hold-s (3 s) of log of each other: all pair
     assert f"pairing: {3 * SMALL_FRAMES} pairs, 0 unpaired left, 0 unpaired right\n" in run.out
-    assert "log-time order" not in run.out
+    assert "log-time order" not in run.err
     out.unlink()
     run = pcainterp(*densify_args(log, out, basis_path, "--hold-s", "0"))  # 8 images held
     assert run.code == 0, run.err
-    assert "stereo pairs lost" not in run.out  # the lags of a log read out of order mean nothing
+    assert "stereo pairs lost" not in run.err  # the lags of a log read out of order mean nothing
     pairing = next(line for line in run.out.splitlines() if line.startswith("pairing: "))
     pairs = int(pairing.split()[1])
     lost = 3 * SMALL_FRAMES - pairs
     assert lost > 0
-    (warning,) = [line for line in run.out.splitlines() if "log-time order" in line]
+    (warning,) = [line for line in run.err.splitlines() if "log-time order" in line]
     assert warning.startswith("warning: by_topic.mcap: the log is not stored in log-time order")
     assert f"this cost up to {lost} stereo pairs ({lost} left and {lost} right" in warning
     assert "`mcap recover by_topic.mcap -o indexed.mcap`" in warning
     assert "non-monotonic log times" in warning
-    assert run.out.count("non-monotonic log times") == 1  # replaces the plain warning
+    assert run.err.count("non-monotonic log times") == 1  # replaces the plain warning
 
 
 def _late_infos(small_messages: list[Message]) -> list[Message]:
@@ -1659,7 +1671,7 @@ def test_densify_reads_camera_infos_recorded_late_ahead(
         f"{LEFT_INFO} and {RIGHT_INFO} (recorded 1.0 s of log later): densified with it, read "
         "ahead (the log's camera infos do not change)\n"
     ) in run.out
-    assert "warning" not in run.out
+    assert "warning" not in run.out + run.err
     assert assert_valid_mcap(out)["/pcainterp/depth"] == 2 * SMALL_FRAMES
 
 
@@ -1680,7 +1692,7 @@ def test_densify_warns_of_pairs_dropped_before_the_first_camera_info(
     assert run.code == 0, run.err
     assert "densified 13 frames" in run.out
     assert "pairing: 13 pairs, 0 unpaired left, 0 unpaired right, 3 without camera info" in run.out
-    (warning,) = [line for line in run.out.splitlines() if "camera info had" in line]
+    (warning,) = [line for line in run.err.splitlines() if "camera info had" in line]
     assert warning.startswith(
         f"warning: 3 of 16 stereo pairs were dropped because no camera info had arrived yet on "
         f"{LEFT_INFO} and {RIGHT_INFO} (it came 1.0 s of log after the first dropped pair)"
@@ -1733,7 +1745,7 @@ def test_densify_pairs_images_whose_stamps_are_all_zero_by_log_time(
         "images apart: the images were paired by log time after the first 1, within 25 ms "
         "(a quarter frame, or --stamp-tolerance-ms when wider)\n"
     ) in run.out
-    assert "warning" not in run.out
+    assert "warning" not in run.out + run.err
     expected = _depth_by_log_time(tmp_path / "stamped_out.mcap")
     assert dropped_ns not in expected
     assert _depth_by_log_time(tmp_path / "zero_out.mcap") == expected
@@ -2001,8 +2013,13 @@ def test_densify_output_without_a_suffix_is_an_mcap(
     pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, tmp_path: Path
 ) -> None:
     target = tmp_path / "dense"
-    assert pcainterp(*densify_args(small_log, target, basis_path)).code == 0
+    run = pcainterp(*densify_args(small_log, target, basis_path))
+    assert run.code == 0
     assert target.read_bytes().startswith(b"\x89MCAP")
+    assert run.err.splitlines() == [  # not silently (bug hunt 6B L4)
+        f"warning: output {target} has no suffix: it is an MCAP, but Foxglove's file dialog "
+        f"and rerun know one by its .mcap suffix; name it {target}.mcap to open it there"
+    ]
 
 
 def test_learn_output_onto_a_fit_log_is_refused(

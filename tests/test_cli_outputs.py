@@ -284,20 +284,23 @@ def test_a_full_standard_output_keeps_the_output(tmp_path: Path) -> None:
     assert out.is_file()
 
 
-def test_a_closed_pipe_ends_quietly(tmp_path: Path) -> None:
+# ----------------------------------------------------------------------------- bug hunt 6B H1
+
+REPORT_GONE = (
+    "pcainterp: standard output was closed by its reader; the rest of the report is not "
+    "printed, and the command goes on to write its output"
+)
+
+
+def _command(*args: str | Path) -> list[str]:
+    return [sys.executable, "-m", "pcainterp_stream.cli", *(str(arg) for arg in args)]
+
+
+def test_a_closed_pipe_costs_no_synth(tmp_path: Path) -> None:
+    """``synth X | head -0``: the log is written and the exit status is the job's, 0."""
     out = tmp_path / "s.mcap"
     process = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "pcainterp_stream.cli",
-            "synth",
-            str(out),
-            "--frames",
-            "1",
-            "--scale",
-            "0.25",
-        ],
+        _command("synth", out, "--frames", "1", "--scale", "0.25"),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
     )
@@ -306,6 +309,167 @@ def test_a_closed_pipe_ends_quietly(tmp_path: Path) -> None:
     process.stdout.close()  # the reader is gone before the "wrote" line
     with process.stderr:
         error = process.stderr.read().decode()
-    assert process.wait(timeout=300) == 1
-    assert error == ""
+    assert process.wait(timeout=300) == 0
+    assert error.splitlines() == [REPORT_GONE]
     assert out.is_file()
+    assert _frames_in(out, "/stereo/left/image_rect") == 1
+
+
+def _frames_in(log: Path, topic: str) -> int:
+    from pcainterp_stream.io.logreader import open_log
+
+    with open_log(log) as reader:
+        return sum(1 for _ in reader.messages([topic]))
+
+
+def test_densify_piped_into_head_writes_its_output(log: Path, tmp_path: Path) -> None:
+    """``densify LOG -o OUT | head -1``: the first line is read, the job finishes, OUT is whole."""
+    out = tmp_path / "d.mcap"
+    process = subprocess.Popen(
+        _command("densify", log, "-o", out),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    assert process.stdout is not None
+    assert process.stderr is not None
+    first = process.stdout.readline().decode()
+    process.stdout.close()  # head -1 has its line and exits; the frames are not densified yet
+    with process.stderr:
+        error = process.stderr.read().decode()
+    assert process.wait(timeout=300) == 0, error
+    assert first.startswith("topics: left /stereo/left/image_rect")
+    assert "Traceback" not in error
+    assert REPORT_GONE in error.splitlines()
+    assert _frames_in(out, "/pcainterp/depth") == 2  # the log's 2 frames, a readable MCAP
+    assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_densify_into_a_pipe_of_both_streams_that_closes(log: Path, tmp_path: Path) -> None:
+    """``densify LOG -o OUT 2>&1 | head -1``: standard error's lines are dropped as well."""
+    out = tmp_path / "d.mcap"
+    read, write = os.pipe()
+    with os.fdopen(read, "rb") as reader:
+        process = subprocess.Popen(
+            _command("densify", log, "-o", out, "--left-topic", "/stereo/left/image_rect"),
+            stdout=write,
+            stderr=write,
+        )
+        os.close(write)
+        reader.readline()
+    assert process.wait(timeout=300) == 0
+    assert _frames_in(out, "/pcainterp/depth") == 2
+
+
+def test_report_stream_drops_lines_once_its_reader_is_gone(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from pcainterp_stream.cli.streams import ReportStream
+
+    read, write = os.pipe()
+    with open(write, "w", encoding="utf-8") as pipe:
+        stream = ReportStream(pipe, note="note: the reader went away")
+        stream.write("first\n")
+        stream.flush()
+        with open(read, "rb") as reader:
+            assert reader.readline() == b"first\n"
+        for _ in range(3):  # no BrokenPipeError, one note
+            print("more", file=stream, flush=True)  # type: ignore[arg-type]
+        assert stream.reader_gone
+    assert capsys.readouterr().err == "note: the reader went away\n"
+
+
+# ---------------------------------------------------------------------------- bug hunt 6B M3, L3
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (
+            ["-o", "{dir}/out.txt"],
+            "output {dir}/out.txt is named .txt but densify writes MCAP; name the output "
+            ".mcap, e.g. -o {dir}/out.mcap",
+        ),
+        (
+            ["-o", "{dir}/o.mcap", "--rrd", "{dir}/old.mcap"],
+            "--rrd {dir}/old.mcap is named .mcap, as a log is, but the recording is a Rerun "
+            "file; name it .rrd, e.g. --rrd {dir}/old.rrd",
+        ),
+        (
+            ["-o", "{dir}/o.mcap", "--rrd", "{dir}/r.db3"],
+            "--rrd {dir}/r.db3 is named .db3, as a log is, but the recording is a Rerun file; "
+            "name it .rrd, e.g. --rrd {dir}/r.rrd",
+        ),
+        (
+            ["-o", "{dir}/o.mcap", "--rrd", "{dir}/x_rrd"],
+            "--rrd {dir}/x_rrd has no suffix but the recording is a Rerun .rrd file; name it "
+            ".rrd, e.g. --rrd {dir}/x_rrd.rrd",
+        ),
+        (
+            ["-o", "{dir}/o.mcap", "--rrd", "-"],
+            "--rrd - would write a file named '-': the recording cannot go to standard output "
+            "(-o - is the MCAP's); name a file, e.g. --rrd densify.rrd, or view it live with "
+            "--rerun",
+        ),
+    ],
+)
+def test_densify_refuses_a_name_of_the_wrong_kind(
+    pcainterp: Callable[..., Run],
+    log: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    args: list[str],
+    expected: str,
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    old = tmp_path / "old.mcap"
+    old.write_bytes(log.read_bytes())  # an earlier output --rrd would have replaced
+    run = pcainterp("densify", log, *(arg.format(dir=tmp_path) for arg in args))
+    assert run.error_line() == "pcainterp: error: " + expected.format(dir=tmp_path)
+    assert old.read_bytes() == log.read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.mcap"]
+
+
+# ----------------------------------------------------------------------------- bug hunt 6B L8
+
+
+def test_densify_to_a_terminal_is_refused(log: Path, tmp_path: Path) -> None:
+    import pty
+
+    primary, terminal = pty.openpty()
+    try:
+        done = subprocess.run(
+            _command("densify", log, "-o", "-"),
+            stdout=terminal,
+            stderr=subprocess.PIPE,
+            text=True,
+            check=False,
+            timeout=300,
+            cwd=tmp_path,
+        )
+    finally:
+        os.close(terminal)
+        os.close(primary)
+    assert done.returncode == 2
+    assert done.stderr.splitlines() == [
+        "pcainterp: error: -o - writes the MCAP to standard output, which is a terminal; "
+        "redirect it (-o - > out.mcap) or pipe it into a reader"
+    ]
+    assert list(tmp_path.iterdir()) == []
+
+
+# ----------------------------------------------------------------------------- bug hunt 6B L7
+
+
+def test_densify_of_a_densified_log_names_the_prefix_to_change(
+    pcainterp: Callable[..., Run], log: Path, tmp_path: Path
+) -> None:
+    dense = tmp_path / "dense.mcap"
+    assert pcainterp("densify", log, "-o", dense).code == 0
+    again = tmp_path / "again.mcap"
+    line = pcainterp("densify", dense, "-o", again, "--output-prefix", "/pcainterp").error_line()
+    assert line.startswith("pcainterp: error: ")
+    assert line.endswith(
+        "; densify the original log, or give --output-prefix a prefix other than /pcainterp"
+    )
+    assert not again.exists()
+    assert pcainterp("densify", dense, "-o", again, "--output-prefix", "/second").code == 0

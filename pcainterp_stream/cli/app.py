@@ -27,6 +27,7 @@ from pcainterp_stream.cli import (
     import_kitti,
     info,
     learn,
+    streams,
     synth,
 )
 from pcainterp_stream.cli.common import PROG, formatter
@@ -53,6 +54,12 @@ COMMANDS: dict[str, ModuleType] = {
     "golden": golden,
 }
 """Command name -> its module (``add_parser``, ``run``), in the order of ``--help``."""
+
+REPORT_GONE = (
+    f"{PROG}: standard output was closed by its reader; the rest of the report is not "
+    "printed, and the command goes on to write its output"
+)
+"""Said on standard error when a report line finds standard output closed (:mod:`.streams`)."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -94,6 +101,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run ``pcainterp``; return the exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    if isinstance(sys.stdout, streams.ReportStream) and _writes(args):
+        sys.stdout.note = REPORT_GONE
     # SIGTERM takes the same clean-up path as Ctrl-C: temporaries removed, target untouched;
     # a second signal ends at once, and densify (native threads: the Foxglove server, the
     # writer, SGBM) has a watchdog that ends it within a few seconds whatever blocks
@@ -113,7 +122,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if isinstance(err, PcaInterpError):
             print(f"{PROG}: error: {err}", file=sys.stderr)
             return 2
-        if isinstance(err, BrokenPipeError):
+        if isinstance(err, BrokenPipeError):  # the reader of densify -o -'s MCAP went away
             return 1
         raise
 
@@ -125,6 +134,7 @@ def console() -> int:
     the garbage collector's view of the imports (:func:`common.settle_heap`), apply only here.
     """
     common.OWN_PROCESS = True
+    streams.guard()  # a reader of the report that goes away costs no job
     code = main()
     _end_without_teardown(code)
     return code  # pragma: no cover - only when a thread of the job is still running

@@ -54,17 +54,43 @@ def formatter(prog: str) -> argparse.HelpFormatter:
 def echo(text: str) -> None:
     """Print one line of a command's report at once (standard error with ``-o -``).
 
+    A line whose reader is gone (``| head -1``) is dropped and the command goes on
+    (:mod:`pcainterp_stream.cli.streams`).
+
     Raises:
-        BrokenPipeError: the reader of standard output is gone (the command ends quietly).
         PcaInterpError: standard output cannot be written (a full disk, ``> /dev/full``).
     """
+    _print(text, sys.stdout, "standard output")  # sys.stdout at the time of the call
+
+
+def warn(text: str) -> None:
+    """Print a ``warning:`` line on standard error, where ``error:`` lines go.
+
+    ``text`` is the warning without its prefix. The report stays on standard output, so
+    ``> run.log`` keeps the warnings on the terminal and ``2> warnings.txt`` collects them.
+
+    Raises:
+        PcaInterpError: standard error cannot be written (a full disk).
+    """
+    _print(f"warning: {text}", sys.stderr, "standard error")
+
+
+def report_line(line: str) -> None:
+    """Print a line the library made for the report; a ``warning:`` one as :func:`warn` does."""
+    if line.startswith("warning: "):
+        warn(line.removeprefix("warning: "))
+    else:
+        echo(line)
+
+
+def _print(text: str, stream: Any, name: str) -> None:
     try:
-        print(text, flush=True)  # sys.stdout at the time of the call
+        print(text, file=stream, flush=True)
     except BrokenPipeError:
-        raise
+        pass  # the reader is gone; the job is not (outside the program: in-process callers)
     except OSError as err:
         raise PcaInterpError(
-            f"cannot print to standard output: {err.strerror or err}; redirect it to a "
+            f"cannot print to {name}: {err.strerror or err}; redirect it to a "
             "writable file (outputs already complete are kept, partial ones removed)"
         ) from None
 

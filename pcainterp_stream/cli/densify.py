@@ -28,6 +28,7 @@ from pcainterp_stream.cli.common import (
     gftt_config,
     refuse_overwrites,
     sgbm_config,
+    warn,
     worker_wait,
 )
 from pcainterp_stream.cli.densify_one import LiveOptions, densify_one
@@ -83,7 +84,8 @@ def add_parser(commands: Commands) -> None:
         type=Path,
         default=None,
         metavar="OUTPUT",
-        help="the densified .mcap ('-': standard output); optional with --foxglove",
+        help="the densified .mcap ('-': standard output, piped or redirected); optional with "
+        "--foxglove",
     )
     target.add_argument(
         "--out-dir",
@@ -134,7 +136,9 @@ def add_parser(commands: Commands) -> None:
         "info describes them)",
     )
     densify.add_argument("--rerun", action="store_true", help="stream to a Rerun viewer")
-    densify.add_argument("--rrd", type=Path, default=None, metavar="FILE", help="write .rrd")
+    densify.add_argument(
+        "--rrd", type=Path, default=None, metavar="FILE.rrd", help="write a Rerun recording"
+    )
     _add_estimate_options(densify)
     densify.add_argument(
         "--features-topic",
@@ -349,6 +353,12 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.scheduler is not None or args.workers is not None:
         raise PcaInterpError("--scheduler/--workers need --out-dir DIR instead of -o")
+    if args.output is not None and args.output != STREAM and not args.output.suffix:
+        # an MCAP all the same, as a user may mean; the readers that go by the suffix do not
+        warn(
+            f"output {args.output} has no suffix: it is an MCAP, but Foxglove's file dialog "
+            f"and rerun know one by its .mcap suffix; name it {args.output}.mcap to open it there"
+        )
     return densify_one(
         args.input[0],
         args.output,
@@ -385,13 +395,8 @@ def _check_paths(args: argparse.Namespace) -> None:
         if output.suffix and output.suffix.lower() != ".mcap":
             raise LogWriteError(
                 f"output {output} is named {output.suffix} but densify writes MCAP; "
-                "name the output .mcap"
+                f"name the output .mcap, e.g. -o {_renamed(output, '.mcap')}"
             )
-    if args.rrd is not None and args.rrd.is_dir():
-        raise LogWriteError(
-            f"--rrd {args.rrd} is a folder; name the recording's file, "
-            f"e.g. --rrd {args.rrd / 'densify.rrd'}"
-        )
     reads: list[tuple[str, Path | None]] = [("the input", path) for path in args.input]
     reads.append(("the --basis file", args.basis))
     reads.extend(("the --calibration file", path) for path in args.calibration or ())
@@ -416,6 +421,48 @@ def _check_paths(args: argparse.Namespace) -> None:
             )
     writes.append(("the --rrd recording", args.rrd, "choose a different --rrd path"))
     refuse_overwrites(writes, reads)
+    _check_rrd_name(args.rrd)  # after: "onto the input drive.mcap" says more than the suffix
+
+
+LOG_SUFFIXES = (".mcap", ".bag", ".db3")
+"""The suffixes of the logs densify reads and writes: never a --rrd recording's."""
+
+
+def _renamed(path: Path, suffix: str) -> Path:
+    """Return ``path`` with ``suffix`` in place of its own, or added when it has none."""
+    return path.with_suffix(suffix) if path.suffix else path.with_name(path.name + suffix)
+
+
+def _check_rrd_name(rrd: Path | None) -> None:
+    """Refuse a ``--rrd`` that is a folder, ``-`` or not named ``.rrd``.
+
+    A recording named like a log would replace that log (``--rrd drive_dense.mcap``) with a
+    file its readers cannot open; ``-`` would be a file named ``-``, not standard output.
+
+    Raises:
+        LogWriteError: naming the value and the fix.
+    """
+    if rrd is None:
+        return
+    if rrd == STREAM:
+        raise LogWriteError(
+            "--rrd - would write a file named '-': the recording cannot go to standard "
+            "output (-o - is the MCAP's); name a file, e.g. --rrd densify.rrd, or view it "
+            "live with --rerun"
+        )
+    if rrd.is_dir():
+        raise LogWriteError(
+            f"--rrd {rrd} is a folder; name the recording's file, e.g. --rrd {rrd / 'densify.rrd'}"
+        )
+    suffix = rrd.suffix.lower()
+    if suffix == ".rrd":
+        return
+    if suffix in LOG_SUFFIXES:  # it would replace a log with a file no log reader opens
+        named = f"is named {rrd.suffix}, as a log is, but the recording is a Rerun file"
+    else:
+        named = ("is named " + rrd.suffix if suffix else "has no suffix") + " but the "
+        named += "recording is a Rerun .rrd file"
+    raise LogWriteError(f"--rrd {rrd} {named}; name it .rrd, e.g. --rrd {_renamed(rrd, '.rrd')}")
 
 
 def _check_targets(args: argparse.Namespace) -> None:
@@ -436,6 +483,11 @@ def _check_targets(args: argparse.Namespace) -> None:
             args.output = STREAM
         else:
             check_output_file(args.output, fix=discard)
+    if args.output == STREAM and sys.stdout.isatty():  # binary would scroll over it
+        raise LogWriteError(
+            f"-o {args.output} writes the MCAP to standard output, which is a terminal; "
+            "redirect it (-o - > out.mcap) or pipe it into a reader"
+        )
     if args.rrd is not None:
         args.rrd = check_output_file(args.rrd, fix="drop --rrd, or name a file")
     if args.out_dir is not None:
@@ -624,7 +676,7 @@ def _densify_many(
                 wrote = " and ".join(str(path) for path in outcome.bases)
                 echo(f"adapted: {outcome.input.name}: {outcome.adapted}; wrote {wrote}")
             for line in outcome.warnings:
-                echo(f"warning: {outcome.input.name}: {line}")
+                warn(f"{outcome.input.name}: {line}")
         else:
             failed += 1
             error = outcome.error

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
-from pcainterp_stream.cli.common import STREAM, echo, settle_heap
+from pcainterp_stream.cli.common import STREAM, echo, report_line, settle_heap, warn
 from pcainterp_stream.interrupt import InterruptedAfterOutput, end_if_signalled, signalled
 from pcainterp_stream.io.foxglove import (
     INTERRUPTED_STOP_TIMEOUT_S,
@@ -185,7 +185,7 @@ def _print_summary(summary: DensifySummary, processor: ProcessorConfig) -> None:
         if note is not None:
             echo(note)
     for hint in summary.pairing_hints():
-        echo(f"warning: {hint}")
+        warn(hint)
     if processor.robust != "none":
         echo(
             f"robust ({processor.robust}): {summary.downweighted} measurements down-weighted "
@@ -201,7 +201,7 @@ def _print_summary(summary: DensifySummary, processor: ProcessorConfig) -> None:
             f"ego-motion lost {summary.carry_resets} times"
         )
     for line in summary.prior_lines:
-        echo(line)
+        report_line(line)  # the fit check's warning on standard error
     if summary.basis_written is not None:
         echo(
             f"wrote {summary.basis_written}: the basis learned from this log's first frames "
@@ -217,7 +217,7 @@ def _print_summary(summary: DensifySummary, processor: ProcessorConfig) -> None:
     for line in summary.damage:
         echo(f"damage: {line}")
     for line in summary.warnings:
-        echo(f"warning: {line}")
+        warn(line)
     written = summary.written
     if written is not None:
         duration = ((written.end_ns or 0) - (written.start_ns or 0)) / 1e9

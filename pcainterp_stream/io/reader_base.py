@@ -6,6 +6,7 @@ build on it; :mod:`.logreader` opens a path with the right one.
 
 from __future__ import annotations
 
+import difflib
 import re
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
@@ -392,16 +393,21 @@ class LogReader:
                 "--left-topic"}``).
 
         Raises:
-            TopicNotFoundError: for the first topic not in the log, naming the topics present
-                and the option to pass.
+            TopicNotFoundError: for the first topic not in the log, naming the topics present,
+                the one its name is closest to (a typo) and the option to set.
         """
         present = self.topics()
         for topic, option in options.items():
             if topic not in present:
                 listed = ", ".join(sorted(present)) or "none"
+                close = difflib.get_close_matches(topic, sorted(present), n=1)
+                fix = (
+                    f"the closest is {close[0]}: set {option} to it"
+                    if close
+                    else f"set {option} to one of them"
+                )
                 raise TopicNotFoundError(
-                    f"topic {topic} not found in {self.path.name}; topics present: {listed}; "
-                    f"pass {option}"
+                    f"topic {topic} not found in {self.path.name}; topics present: {listed}; " + fix
                 )
 
     def decode(self, raw: RawMessage) -> Any:

@@ -306,8 +306,8 @@ def densify(
         clash = sorted(set(topics.all()) & set(reader.topics()))
         if clash:
             raise PcaInterpError(
-                f"{input_path} already has {', '.join(clash)}; densify the original log or "
-                "pass --output-prefix to write under another name"
+                f"{input_path} already has {', '.join(clash)}; densify the original log, "
+                f"or give --output-prefix a prefix other than {clash[0].rsplit('/', 1)[0]}"
             )
         left = reader.topics().get(pairing.left_topic)
         total = left.message_count if left is not None else None

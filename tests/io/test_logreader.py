@@ -378,7 +378,7 @@ def test_missing_topic_names_topics_present_and_option(
         pytest.raises(
             TopicNotFoundError,
             match=r"^topic /cam/right not found in drive\.mcap; topics present: "
-            r"/stereo/left/camera_info, .*; pass --right-topic$",
+            r"/stereo/left/camera_info, .*; set --right-topic to one of them$",
         ),
     ):
         reader.require_topics({LEFT: "--left-topic", "/cam/right": "--right-topic"})

@@ -702,10 +702,11 @@ def test_cli_densify_out_dir_prints_each_log_s_warnings(
             client.scheduler.address,
         ]
     )
-    out = capsys.readouterr().out
+    out, err = capsys.readouterr()
     assert code == 0, out
     assert f"densified 7 frames of {late} ->" in out
-    warnings = [line for line in out.splitlines() if line.startswith("warning:")]
+    assert "warning:" not in out  # diagnostics on standard error, the report on standard output
+    warnings = [line for line in err.splitlines() if line.startswith("warning:")]
     assert len(warnings) == 1, out
     assert warnings[0].startswith("warning: late.mcap: all 6 images dropped unpaired had an")
     assert warnings[0].endswith("pass --stamp-tolerance-ms 2 to pair them")
