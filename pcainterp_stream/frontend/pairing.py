@@ -590,6 +590,7 @@ class StereoPairer:
                     del self._frame_rectifier[index]
         self._index += 1
         self.stats.pairs += 1
+        self.stats.remapped += rectifier is not None
         if self._ahead_unseen:  # made with a camera info read ahead
             stats = self.stats
             if not stats.pairs_before_info:

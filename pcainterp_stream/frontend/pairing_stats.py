@@ -84,6 +84,7 @@ class PairingStats:
         problems: the first :data:`MAX_PROBLEMS` one-line problem descriptions.
         row_check_undecided: why the check that the pair is rectified and not swapped gave
             no verdict (too few matched corners); None when it gave one or was off.
+        remapped: pairs remapped from their calibration (``--rectify``), of ``pairs``.
     """
 
     camera: StereoCamera | None = None
@@ -118,6 +119,7 @@ class PairingStats:
     lost_features: Lost = field(default_factory=Lost)
     problems: list[str] = field(default_factory=list)
     row_check_undecided: str | None = None
+    remapped: int = 0
 
     def row_check_hint(self) -> str | None:
         """A warning when the rectified-and-not-swapped check could not decide, else None."""

@@ -7,7 +7,9 @@ them at the left image's log time. The output channels' MCAP metadata
 channel's metadata is fixed when its first message is written: it names the basis of the
 first outputs, and the metadata record :data:`BASES_RECORD`, written at the end, every basis
 the outputs were made with (the fit check may replace the basis after a standing start, and
-a basis learned from the log is relearned as it streams).
+a basis learned from the log is relearned as it streams). The record of what made the log,
+:data:`~pcainterp_stream.io.densify_record.DENSIFY_RECORD`, names the basis as the channels
+do and how the input pair was read and matched (:func:`recorded_front_end` reads it back).
 
 Two precisions (``densify --precision``), chosen by measurement (docs/benchmarks.md,
 "Output encodings"):
@@ -38,6 +40,7 @@ import numpy.typing as npt
 
 from pcainterp_stream.defaults import DISPLAY_MAX_DEPTH
 from pcainterp_stream.io import depth_codec, rosmsg
+from pcainterp_stream.io.densify_record import DENSIFY_RECORD, FRONT_END_KEY, FrontEnd
 from pcainterp_stream.records import DensifiedFrame
 
 CHANNELS = ("depth", "depth_std", "disparity", "disparity_std", "features", "camera_info")
@@ -367,14 +370,35 @@ def recorded_bases(path: Path) -> list[BasisInForce]:
 
     [] for a log without the record (another format, or densified by an older version).
     """
+    record = _last_record(path, BASES_RECORD)
+    return recorded_bases_of(record) if record is not None else []
+
+
+def recorded_front_end(path: Path) -> FrontEnd | None:
+    """Return how ``densify`` made a log's stereo measurements (:class:`FrontEnd`), or None.
+
+    Read from the last :data:`DENSIFY_RECORD` of an MCAP log; None for a log without one
+    that records it (another format, or densified by an older version).
+
+    Raises:
+        ValueError: the record holds a front end this version cannot read.
+    """
+    record = _last_record(path, DENSIFY_RECORD)
+    if record is None or FRONT_END_KEY not in record:
+        return None
+    return FrontEnd.from_json(record[FRONT_END_KEY])
+
+
+def _last_record(path: Path, name: str) -> dict[str, str] | None:
+    """Return the last MCAP metadata record ``name`` of a log, None when it has none."""
     from pcainterp_stream.io.logreader import open_log
     from pcainterp_stream.io.mcap_reader import McapLogReader
 
     with open_log(path) as reader:
         if not isinstance(reader, McapLogReader):
-            return []
-        records = [m for m in reader.extras().metadata if m.name == BASES_RECORD]
-    return recorded_bases_of(dict(records[-1].metadata)) if records else []
+            return None
+        records = [m for m in reader.extras().metadata if m.name == name]
+    return dict(records[-1].metadata) if records else None
 
 
 def pairing_metadata(tolerance_ns: int) -> dict[str, str]:

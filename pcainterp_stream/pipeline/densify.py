@@ -31,6 +31,14 @@ from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.frontend.sgbm_limits import fitting, narrowest_width
 from pcainterp_stream.frontend.stereo import SgbmConfig
 from pcainterp_stream.io import reader_base, rosmsg
+from pcainterp_stream.io.densify_record import (
+    DENSIFY_RECORD,
+    FRONT_END_KEY,
+    IMAGES,
+    FrontEnd,
+    option_value,
+    options_json,
+)
 from pcainterp_stream.io.foxglove import FoxgloveLive, LiveMessage
 from pcainterp_stream.io.logreader import LogReader, open_log
 from pcainterp_stream.io.logwriter import (
@@ -42,6 +50,8 @@ from pcainterp_stream.io.logwriter import (
 )
 from pcainterp_stream.io.outputs import (
     BASES_RECORD,
+    BASIS_FINGERPRINT_KEY,
+    BASIS_KEY,
     BASIS_SCOPE,
     BASIS_SCOPE_KEY,
     BasisInForce,
@@ -214,23 +224,61 @@ class DensifySummary:
         return f"{rate:.2g} frames/s, {self.seconds / self.frames:.3g} s per frame"
 
 
-PROVENANCE = "pcainterp.densify"
-"""The metadata record naming what made a densified log: version, basis and options."""
+def provenance(
+    channels: dict[str, str],
+    pairing: PairingConfig,
+    processor: ProcessorConfig,
+    stats: PairingStats,
+) -> dict[str, str]:
+    """Return the record of what made a densified log (``pcainterp.densify``), run complete.
 
+    Args:
+        channels: the metadata the output channels were written with: the record names
+            their basis (the first outputs'), with the same words and fingerprint.
+        pairing: the pairing in force (the pair found in the log, if discovered).
+        processor: the processor's options.
+        stats: the pairing's counts (the pairs ``--rectify`` remapped).
 
-def provenance(basis: str, pairing: PairingConfig, processor: ProcessorConfig) -> dict[str, str]:
-    """Return the :data:`PROVENANCE` record: the version and the resolved options (JSON)."""
+    Returns:
+        ``version``, ``basis``, ``basis_fingerprint``, ``basis_scope`` and, as JSON of option
+        values, ``front_end`` (:func:`front_end`), ``pairing`` and ``processor``.
+    """
     from pcainterp_stream.version import __version__
-
-    def text(config: Any) -> str:
-        return json.dumps(dataclasses.asdict(config), default=str, sort_keys=True)
 
     return {
         "version": __version__,
-        "basis": basis,
-        "pairing": text(pairing),
-        "processor": text(processor),
+        "basis": channels[BASIS_KEY],
+        "basis_fingerprint": channels[BASIS_FINGERPRINT_KEY],
+        "basis_scope": BASIS_SCOPE,
+        FRONT_END_KEY: front_end(pairing, processor, stats).to_json(),
+        "pairing": options_json(pairing),
+        "processor": options_json(processor),
     }
+
+
+def front_end(pairing: PairingConfig, processor: ProcessorConfig, stats: PairingStats) -> FrontEnd:
+    """Return how a run read its stereo pair and matched it (what ``evaluate`` redoes)."""
+    calibration, remapped, pairs = pairing.calibration, stats.remapped, stats.pairs
+    return FrontEnd(
+        left_topic=pairing.left_topic,
+        right_topic=pairing.right_topic,
+        left_info_topic=pairing.left_info_topic,
+        right_info_topic=pairing.right_info_topic,
+        stamp_tolerance_ns=pairing.tolerance_ns,
+        baseline=pairing.baseline,
+        calibration="camera_info" if calibration is None else "files",
+        calibration_files=()
+        if calibration is None
+        else (calibration.left.name, calibration.right.name),
+        calibration_values=calibration,
+        rectify=pairing.rectify,
+        images=IMAGES[0] if not remapped else IMAGES[1] if remapped == pairs else IMAGES[2],
+        remapped_pairs=remapped,
+        pairs=pairs,
+        source=option_value(processor.source),
+        features_topic=pairing.features_topic,
+        sgbm=json.loads(options_json(processor.sgbm)),
+    )
 
 
 def densify(
@@ -255,7 +303,9 @@ def densify(
     metadata names the basis (``io/outputs.channel_metadata``): ``built-in`` when ``basis``
     is None (:meth:`Basis.default`), ``built-in-indoor`` when the fit check chose the
     built-in indoor basis (or ``processor.builtin`` is ``"indoor"``), the log's own basis
-    file when it adapted, else the given file.
+    file when it adapted, else the given file. When the output is complete, an MCAP output
+    gets the metadata records ``pcainterp.densify`` (:func:`provenance`: that basis, the front
+    end, the options) and ``pcainterp.basis`` (every basis in force, :func:`bases_in_force`).
 
     ``input_path`` and ``output`` may be open binary streams (standard input and output,
     ``pcainterp densify - -o -``): the input is spooled to a temporary file first
@@ -321,14 +371,13 @@ def densify(
         if isinstance(writer, McapLogWriter) and (extras := reader.extras(verify=True)) is not None:
             # the rest of the copy: attachments, metadata records, channels without messages
             writer.add_extras(extras)
-        if isinstance(writer, McapLogWriter):
-            writer.add_metadata(PROVENANCE, provenance(label, pairing, processor))
         inputs = _InLogTimeOrder(writer) if writer is not None else None
         # the output channels' metadata (f*b, the basis used) is known at the first output
         # (below): the written channels take it then, and so do the live ones, advertised
         # then, before the server starts (with the first frame) so that a client subscribes
         # to them in its first advertisement; topic -> the metadata they were advertised with
         live_metadata: dict[str, dict[str, str]] = {}
+        opening: dict[str, str] = {}  # the metadata the output channels were written with
 
         def advertise_live(metadata: dict[str, str]) -> None:
             if live is None or live_metadata:
@@ -392,6 +441,7 @@ def densify(
                                 processor.measurements,
                             )
                         )
+                    opening.update(first)
                     if writer is not None:
                         writer.channel_metadata = topic_metadata(topics, first)
                     advertise_live(first)  # the file's, in the live channels too
@@ -494,6 +544,8 @@ def densify(
                     "FILE.basis.npz, for evaluate and for --basis"
                 )
         if isinstance(writer, McapLogWriter):  # every basis in force: the channels name the first
+            # what made the log, now that the basis of its outputs is decided
+            writer.add_metadata(DENSIFY_RECORD, provenance(opening, pairing, processor, stats))
             in_force = bases_in_force(engine, basis, label, output, final_written)
             writer.add_metadata(BASES_RECORD, bases_record(in_force))
     return DensifySummary(
