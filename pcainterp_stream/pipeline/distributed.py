@@ -79,13 +79,13 @@ from pcainterp_stream.pipeline.learn import (
     GridTarget,
     HeldOutFrame,
     MapPlan,
-    _depth_maps,
     learn,
     log_pairing,
     measure_held_out,
     shows_surface,
     to_grid,
 )
+from pcainterp_stream.pipeline.learn_maps import depth_maps, scaled_to
 from pcainterp_stream.pipeline.scheduler import (
     QUIET_TRACKER,
     WorkerPaths,
@@ -219,7 +219,7 @@ class ChunkSummary:
         squares: sum of squared centred norms (px^2), exact.
         grid_size: (gh, gw) of the grid, gh * gw = s.
         image_size: (H, W) of the images (px).
-        focal_baseline: f*b (px*m) of the camera of the first map.
+        focal_baseline: f*b (px*m) the maps are in (the target's, else the first map's camera's).
     """
 
     n_maps: int
@@ -310,17 +310,22 @@ def _sketch(summary: ChunkSummary) -> Sketch:
 
 
 def _chunk_maps(
-    log: Path, start: int, stop: int | None, options: Any, pairing: Any
+    log: Path, start: int, stop: int | None, options: Any, pairing: Any, fb: float | None
 ) -> Iterator[tuple[npt.NDArray[np.float32], tuple[int, int], float]]:
-    """Yield (disparity (H, W) px, image size, f*b) of maps start..stop-1 of one log."""
+    """Yield (disparity (H, W) px, image size, f*b) of maps start..stop-1 of one log.
+
+    Each map is put in the f*b ``fb`` (:func:`learn_maps.scaled_to`; None: the first map's),
+    the f*b yielded.
+    """
     from pcainterp_stream.frontend.pairing import iter_stereo_frames
     from pcainterp_stream.frontend.stereo import compute_disparity
     from pcainterp_stream.io.logreader import open_log
 
     if options.depth_topic:
         info: list[Any] = []
-        for disparity in itertools.islice(_depth_maps(log, options, pairing, info), start, stop):
-            yield disparity, info[0].image_size, info[0].focal_baseline
+        maps = depth_maps(log, options, pairing, info, focal_baseline=fb)
+        for disparity in itertools.islice(maps, start, stop):
+            yield disparity, info[0].image_size, info[0].focal_baseline if fb is None else fb
         return
     with open_log(log) as reader:
         pairing = log_pairing(reader, pairing)  # the logs' topics may differ
@@ -336,7 +341,9 @@ def _chunk_maps(
             if stop is not None and used > stop:
                 break
             disparity = compute_disparity(frame.left, frame.right, options.sgbm)
-            yield disparity, frame.camera.image_size, frame.camera.focal_baseline
+            fb = frame.camera.focal_baseline if fb is None else fb
+            scaled = scaled_to(disparity, frame.camera.focal_baseline, fb)
+            yield scaled, frame.camera.image_size, fb
 
 
 def summarize_chunk(
@@ -366,7 +373,8 @@ def summarize_chunk(
     grids: list[npt.NDArray[np.float32]] = []
     image_size: tuple[int, int] | None = None
     focal_baseline = 0.0
-    for disparity, size, fb in _chunk_maps(log, start, stop, options, pairing):
+    fb_target = None if target is None else target.focal_baseline
+    for disparity, size, fb in _chunk_maps(log, start, stop, options, pairing, fb_target):
         if image_size is None:
             image_size, focal_baseline = size, fb
             if target is None:
