@@ -342,6 +342,27 @@ class GridTarget:
 BLANK_MAPS = "blank, dark or textureless images, or a depth topic without depth"
 
 
+FLAT_MAPS = (
+    "have almost no disparity (under 1 % of their valid pixels at 1 px or more): the right "
+    "image matches the left one where it is"
+)
+FLAT_FIX = (
+    "the right topic may show the left camera again (a remap, a republished left image: check "
+    "--right-topic), or the scene is too far for the baseline"
+)
+
+
+def is_flat(disparity: npt.NDArray[np.float32]) -> bool:
+    """Return whether under 1 % of a map's valid pixels (>= 0) have a disparity of 1 px or more.
+
+    A pair whose right image is the left one again matches at 0 px everywhere (a few 1 px
+    values where a codec's noise differs); every scene near enough to measure has more.
+    """
+    with np.errstate(invalid="ignore"):
+        valid = np.count_nonzero(disparity >= 0)
+        return bool(np.count_nonzero(disparity >= 1.0) < 0.01 * valid)
+
+
 def shows_surface(disparity: npt.NDArray[np.float32]) -> bool:
     """Return whether a map has a disparity above 0 (SGBM gives 0 all over a black pair)."""
     with np.errstate(invalid="ignore"):
@@ -565,32 +586,43 @@ def _learn_here(
     """Learn the basis of a plan in this process, streaming the maps."""
     image_size, fb = plan.camera.image_size, plan.camera.focal_baseline
     info: list[MapSource] = []
-    blank = used = 0
+    first: list[Path] = []  # the log of the first map
+    blank = used = flat = 0
 
     def maps() -> Iterator[npt.NDArray[np.float32]]:
-        nonlocal blank, used
+        nonlocal blank, used, flat
         for log, keep in zip(plan.logs, plan.kept, strict=True):
             produce = depth_maps if options.depth_topic else sgbm_maps
             for disparity in itertools.islice(
                 produce(log, options, pairing, info, focal_baseline=fb), keep
             ):
+                if not first:
+                    first.append(log)
                 if disparity.shape != image_size:
+                    whose = "its first maps" if log == first[0] else f"{first[0].name}'s"
                     raise PcaInterpError(
                         f"{log} gives a {disparity.shape[1]}x{disparity.shape[0]} map (its "
-                        "images, or their rectified box) but the first log's are "
+                        f"images, or their rectified box) but {whose} are "
                         f"{image_size[1]}x{image_size[0]}; learn one basis per camera"
                     )
                 if not shows_surface(disparity):
                     blank += 1
                     continue
                 used += 1
+                if not options.depth_topic and is_flat(disparity):
+                    flat += 1
                 yield disparity
+        names = ", ".join(log.name for log in plan.logs)
         found = f"{blank} of {blank + used} maps hold no disparity above 0 ({BLANK_MAPS})"
         if blank and not used:
-            names = ", ".join(log.name for log in plan.logs)
             raise PcaInterpError(f"{names}: {found}; learn from frames that show the scene")
         if blank:
             _echo(f"note: {found}: they are skipped")
+        if flat:
+            said = f"{'all' if flat == used else flat} of the {used} SGBM maps {FLAT_MAPS}"
+            if flat == used:
+                raise PcaInterpError(f"{names}: {said}; {FLAT_FIX}")
+            _echo(f"note: {names}: {said}")
 
     with _bar(plan.total, "learn") as bar:
         progress = lambda done: bar.update(done - bar.n)  # noqa: E731

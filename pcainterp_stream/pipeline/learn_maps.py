@@ -39,6 +39,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "FOCAL_BASELINE_NOTE",
+    "MIN_DEPTH_COVERAGE",
     "MapSource",
     "check_fit_logs",
     "depth_maps",
@@ -51,6 +52,11 @@ __all__ = [
 
 FOCAL_BASELINE_NOTE = 0.01
 """A log whose f*b differs from the first log's by more than this share is named in a note."""
+
+MIN_DEPTH_COVERAGE = 0.5
+"""A depth topic whose first image has a depth at fewer of its pixels is refused: its holes
+would be learned as infinitely far (the synthetic street's truth covers 91-93 %, its
+projected LiDAR 4 %)."""
 
 
 @dataclass(frozen=True)
@@ -274,11 +280,24 @@ def log_camera(
         why: given the one-line reason when the log gives no map: with SGBM maps, the
             pairing's summary and its fix (a stamp tolerance too tight, ...) as ``densify``
             words it.
+
+    Raises:
+        PcaInterpError: the depth topic's first image has a depth at fewer than
+            :data:`MIN_DEPTH_COVERAGE` of its pixels.
     """
     reason = ""
     if options.depth_topic:
         info: list[MapSource] = []
-        if next(depth_maps(log, options, pairing, info), None) is not None:
+        first = next(depth_maps(log, options, pairing, info), None)
+        if first is not None:
+            covered = float(np.mean(first > 0))
+            if covered < MIN_DEPTH_COVERAGE:
+                raise PcaInterpError(
+                    f"{options.depth_topic} in {log.name} has a depth at {covered:.0%} of the "
+                    "pixels of its first image; learn takes a pixel without one (NaN, 0) for "
+                    "infinitely far, so a sparse depth (a projected LiDAR) teaches a basis of "
+                    "far holes: learn from SGBM maps (drop --depth-topic) or a dense depth"
+                )
             return info[0]
         reason = (
             f"no depth image with camera infos found in {log} on {options.depth_topic}; check "

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from pcainterp_stream.errors import LogReadError, PcaInterpError
 from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import LogFormat, open_writer
 from pcainterp_stream.pipeline import jobs
@@ -129,3 +131,87 @@ def test_learn_names_the_stamp_gap_and_the_tolerance_that_pairs(folder: Path) ->
     tolerant = PairingConfig(tolerance_ns=25_000_000)
     options = jobs.LearnOptions(n_components=3, fit_prior=False)
     assert jobs.learn([late], folder / "late.npz", options, tolerant).n_train == 6
+
+
+def _right_is_left(source: Path, target: Path) -> Path:
+    """Copy a log whose right images are its left ones again, a small patch 1 px off.
+
+    (As a codec's noise leaves a few 1 px matches: the exact copy matches at 0 px
+    everywhere, a map refused as blank.)
+    """
+    with open_log(source) as reader:
+        lefts = {
+            rosmsg.stamp_ns(message): message
+            for raw in reader.messages(["/stereo/left/image_rect"])
+            for message in [reader.decode(raw)]
+        }
+    with open_log(source) as reader, open_writer(target, LogFormat.MCAP) as writer:
+        for raw in reader.messages():
+            message = reader.decode(raw)
+            if raw.topic == "/stereo/right/image_rect":
+                left = lefts[rosmsg.stamp_ns(message)]
+                image = rosmsg.image_array(left).copy()
+                image[60:68, 150:160] = image[60:68, 151:161]
+                message = dataclasses.replace(
+                    left, header=message.header, data=image.reshape(-1).astype(np.uint8)
+                )
+            writer.add_message(raw.topic, message, raw.log_time_ns)
+    return target
+
+
+def test_learn_refuses_a_pair_whose_right_image_is_the_left_one(folder: Path) -> None:
+    # before: a basis of ~0 px disparity, written without a word (bug hunt 6A F12)
+    same = _right_is_left(folder / "drive.mcap", folder / "same.mcap")
+    options = jobs.LearnOptions(n_components=3, fit_prior=False)
+    with pytest.raises(
+        PcaInterpError,
+        match=r"same.mcap: all of the 6 SGBM maps have almost no disparity .*; the right "
+        r"topic may show the left camera again",
+    ):
+        jobs.learn([same], folder / "same.npz", options, PairingConfig())
+    assert not (folder / "same.npz").exists()
+
+
+def test_learn_refuses_a_sparse_depth_topic(folder: Path) -> None:
+    # before: a projected LiDAR's holes were learned as infinitely far (bug hunt 6A F14)
+    lidar = folder / "lidar.mcap"
+    jobs.synth(lidar, frames=2, seed=15, scale=0.25, fmt="mcap", lidar=True)
+    options = jobs.LearnOptions(depth_topic="/ground_truth/lidar_depth", fit_prior=False)
+    with pytest.raises(
+        PcaInterpError,
+        match=r"/ground_truth/lidar_depth in lidar.mcap has a depth at \d+% of the pixels of "
+        r"its first image; .*learn from SGBM maps \(drop --depth-topic\) or a dense depth",
+    ):
+        jobs.learn([lidar], folder / "lidar.npz", options, PairingConfig())
+
+
+def _later(source: Path, writer: Any, offset_ns: int) -> None:
+    """Add a log's messages to ``writer``, their header stamps and log times later."""
+    with open_log(source) as reader:
+        for raw in reader.messages():
+            message = reader.decode(raw)
+            header = getattr(message, "header", None)
+            if header is not None:
+                shifted = rosmsg.stamp_ns(message) + offset_ns
+                time = dataclasses.replace(
+                    header.stamp, sec=shifted // 10**9, nanosec=shifted % 10**9
+                )
+                message = dataclasses.replace(
+                    message, header=dataclasses.replace(header, stamp=time)
+                )
+            writer.add_message(raw.topic, message, raw.log_time_ns + offset_ns)
+
+
+def test_a_log_whose_images_change_size_is_named_as_itself(folder: Path) -> None:
+    small = folder / "small2.mcap"
+    jobs.synth(small, frames=2, seed=16, scale=0.2, fmt="mcap")
+    mixed = folder / "mixed.mcap"
+    with open_writer(mixed, LogFormat.MCAP) as writer:
+        _later(folder / "drive.mcap", writer, 0)
+        _later(small, writer, 1000 * 10**9)
+    options = jobs.LearnOptions(n_components=3, fit_prior=False)
+    # before: "... but the first log's are 310x94" of the one log given
+    with pytest.raises(
+        PcaInterpError, match=r"mixed.mcap gives a 248x75 map .* but its first maps"
+    ):
+        jobs.learn([mixed], folder / "mixed.npz", options, PairingConfig())
