@@ -13,7 +13,7 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -22,7 +22,7 @@ from pcainterp_stream.errors import LogReadError, PcaInterpError, TopicNotFoundE
 from pcainterp_stream.frontend.camera_infos import camera_from_infos, first_infos
 from pcainterp_stream.frontend.discovery import resolve_pairing
 from pcainterp_stream.frontend.pairing import PairingConfig, StereoPairer, iter_stereo_frames
-from pcainterp_stream.frontend.stereo import compute_disparity
+from pcainterp_stream.frontend.stereo import SgbmConfig, compute_disparity
 from pcainterp_stream.io.depth_image import depth_metres
 from pcainterp_stream.io.logreader import LogReader, open_log
 from pcainterp_stream.pipeline.common import (
@@ -34,12 +34,10 @@ from pcainterp_stream.pipeline.common import (
     no_pair_message,
 )
 
-if TYPE_CHECKING:
-    from pcainterp_stream.pipeline.learn import LearnOptions
-
 __all__ = [
     "FOCAL_BASELINE_NOTE",
     "MIN_DEPTH_COVERAGE",
+    "MapOptions",
     "MapSource",
     "check_fit_logs",
     "depth_maps",
@@ -57,6 +55,25 @@ MIN_DEPTH_COVERAGE = 0.5
 """A depth topic whose first image has a depth at fewer of its pixels is refused: its holes
 would be learned as infinitely far (the synthetic street's truth covers 91-93 %, its
 projected LiDAR 4 %)."""
+
+
+class MapOptions(Protocol):
+    """What reading maps needs of the learning options (``learn.LearnOptions`` has it)."""
+
+    @property
+    def depth_topic(self) -> str | None:
+        """The depth topic learned from instead of SGBM maps, if any."""
+        ...
+
+    @property
+    def every(self) -> int:
+        """Use every N-th frame."""
+        ...
+
+    @property
+    def sgbm(self) -> SgbmConfig:
+        """The matcher options."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -104,7 +121,7 @@ def scaled_to(
 
 def depth_maps(
     log: Path,
-    options: LearnOptions,
+    options: MapOptions,
     pairing: PairingConfig,
     info: list[MapSource],
     *,
@@ -188,7 +205,7 @@ def depth_maps(
 
 def sgbm_maps(
     log: Path,
-    options: LearnOptions,
+    options: MapOptions,
     pairing: PairingConfig,
     info: list[MapSource],
     *,
@@ -269,7 +286,12 @@ def log_pairing(
 
 
 def log_camera(
-    log: Path, options: LearnOptions, pairing: PairingConfig, why: list[str] | None = None
+    log: Path,
+    options: MapOptions,
+    pairing: PairingConfig,
+    why: list[str] | None = None,
+    *,
+    stereo: bool = False,
 ) -> MapSource | None:
     """Return the camera of the first map a log gives (reads up to its first map), or None.
 
@@ -280,13 +302,14 @@ def log_camera(
         why: given the one-line reason when the log gives no map: with SGBM maps, the
             pairing's summary and its fix (a stamp tolerance too tight, ...) as ``densify``
             words it.
+        stereo: the camera of the stereo pairs even when ``options`` name a depth topic.
 
     Raises:
         PcaInterpError: the depth topic's first image has a depth at fewer than
             :data:`MIN_DEPTH_COVERAGE` of its pixels.
     """
     reason = ""
-    if options.depth_topic:
+    if options.depth_topic and not stereo:
         info: list[MapSource] = []
         first = next(depth_maps(log, options, pairing, info), None)
         if first is not None:
@@ -321,7 +344,7 @@ def log_camera(
     return None
 
 
-def one_camera(logs: list[Path], options: LearnOptions, pairing: PairingConfig) -> MapSource:
+def one_camera(logs: list[Path], options: MapOptions, pairing: PairingConfig) -> MapSource:
     """Return the camera of the first map the logs give, each log's first map checked.
 
     A log whose f*b differs from the first's by more than :data:`FOCAL_BASELINE_NOTE` is
@@ -365,7 +388,7 @@ def _ratio(camera: MapSource, other: MapSource) -> float:
 
 
 def check_fit_logs(
-    fit_logs: tuple[Path, ...], logs: list[Path], options: LearnOptions, pairing: PairingConfig
+    fit_logs: tuple[Path, ...], logs: list[Path], options: MapOptions, pairing: PairingConfig
 ) -> None:
     """Refuse ``--fit-logs`` logs whose stereo images differ in size from the training logs'.
 
@@ -377,11 +400,10 @@ def check_fit_logs(
         LogReadError: a fit log has no stereo pair.
         PcaInterpError: a fit log's images differ in size.
     """
-    stereo = dataclasses.replace(options, depth_topic=None)
     why: list[str] = []
-    training = log_camera(logs[0], stereo, pairing, why)
+    training = log_camera(logs[0], options, pairing, why, stereo=True)
     for log in fit_logs:
-        camera = log_camera(log, stereo, pairing, why)
+        camera = log_camera(log, options, pairing, why, stereo=True)
         if camera is None:
             raise LogReadError(why[-1])
         if training is None:
