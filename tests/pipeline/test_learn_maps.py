@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 from typing import Any
 
@@ -215,3 +216,18 @@ def test_a_log_whose_images_change_size_is_named_as_itself(folder: Path) -> None
         PcaInterpError, match=r"mixed.mcap gives a 248x75 map .* but its first maps"
     ):
         jobs.learn([mixed], folder / "mixed.npz", options, PairingConfig())
+
+
+def test_a_log_without_a_pair_among_others_is_named_in_a_note(
+    folder: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # before: skipped without a word
+    late = _rewritten(folder / "drive.mcap", folder / "late2.mcap", right_ms=20)
+    options = jobs.LearnOptions(n_components=3, fit_prior=False)
+    basis = jobs.learn([folder / "drive.mcap", late], folder / "one.npz", options, PairingConfig())
+    assert basis.n_train == 6
+    assert re.search(
+        r"note: no stereo pair found in .*late2.mcap \(.*\); all 12 images dropped unpaired .*"
+        r"pass --stamp-tolerance-ms 20 to pair them; learning from the other logs",
+        capsys.readouterr().out,
+    )
