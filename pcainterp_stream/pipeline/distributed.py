@@ -31,6 +31,7 @@ the cluster closes.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import errno
 import itertools
 import os
@@ -79,6 +80,8 @@ from pcainterp_stream.pipeline.learn import (
     GridTarget,
     HeldOutFrame,
     MapPlan,
+    check_flat,
+    is_flat,
     learn,
     log_pairing,
     measure_held_out,
@@ -220,6 +223,7 @@ class ChunkSummary:
         grid_size: (gh, gw) of the grid, gh * gw = s.
         image_size: (H, W) of the images (px).
         focal_baseline: f*b (px*m) the maps are in (the target's, else the first map's camera's).
+        flat_maps: SGBM maps among them with almost no disparity (:func:`learn.is_flat`).
     """
 
     n_maps: int
@@ -229,6 +233,7 @@ class ChunkSummary:
     grid_size: tuple[int, int]
     image_size: tuple[int, int]
     focal_baseline: float
+    flat_maps: int = 0
 
 
 def summarize(
@@ -302,6 +307,7 @@ def merge(
         grid_size=first.grid_size,
         image_size=first.image_size,
         focal_baseline=first.focal_baseline,
+        flat_maps=first.flat_maps + second.flat_maps,
     )
 
 
@@ -373,6 +379,7 @@ def summarize_chunk(
     grids: list[npt.NDArray[np.float32]] = []
     image_size: tuple[int, int] | None = None
     focal_baseline = 0.0
+    flat = 0
     fb_target = None if target is None else target.focal_baseline
     for disparity, size, fb in _chunk_maps(log, start, stop, options, pairing, fb_target):
         if image_size is None:
@@ -387,19 +394,22 @@ def summarize_chunk(
         assert target is not None
         if not shows_surface(disparity):
             continue  # as on one machine (learn.shows_surface)
+        if not options.depth_topic and is_flat(disparity):
+            flat += 1
         try:
             grids.append(to_grid(disparity, target))
         except ValueError as err:
             raise PcaInterpError(f"cannot learn from a map of {log}: {err}") from err
     if not grids or target is None or image_size is None:
         return None
-    return summarize(
+    summary = summarize(
         np.stack(grids),
         keep,
         grid_size=target.grid_size,
         image_size=image_size,
         focal_baseline=focal_baseline,
     )
+    return dataclasses.replace(summary, flat_maps=flat)
 
 
 def learn_distributed(
@@ -536,6 +546,7 @@ def learn_on_cluster(
             f"above 0 found in {', '.join(map(str, plan.logs))}; check the topic options "
             f"(pcainterp info LOG) and the images ({BLANK_MAPS} give none)"
         )
+    check_flat(plan.logs, total.flat_maps, total.n_maps)
     meta = {**meta, "distributed": {"chunk_frames": chunk_frames, "tasks": len(specs)}}
     prior_basis = plan.synthetic.prior_basis
     if prior_basis is not None:

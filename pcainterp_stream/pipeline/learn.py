@@ -363,6 +363,26 @@ def is_flat(disparity: npt.NDArray[np.float32]) -> bool:
         return bool(np.count_nonzero(disparity >= 1.0) < 0.01 * valid)
 
 
+def check_flat(logs: tuple[Path, ...], flat: int, used: int) -> None:
+    """Refuse SGBM maps that are all flat (:func:`is_flat`); say so when some are.
+
+    Args:
+        logs: the logs learned from (named).
+        flat: the flat maps among ``used``.
+        used: the maps learned from.
+
+    Raises:
+        PcaInterpError: every map is flat.
+    """
+    if not flat:
+        return
+    names = ", ".join(log.name for log in logs)
+    said = f"{'all' if flat == used else flat} of the {used} SGBM maps {FLAT_MAPS}"
+    if flat == used:
+        raise PcaInterpError(f"{names}: {said}; {FLAT_FIX}")
+    _echo(f"note: {names}: {said}")
+
+
 def shows_surface(disparity: npt.NDArray[np.float32]) -> bool:
     """Return whether a map has a disparity above 0 (SGBM gives 0 all over a black pair)."""
     with np.errstate(invalid="ignore"):
@@ -618,11 +638,7 @@ def _learn_here(
             raise PcaInterpError(f"{names}: {found}; learn from frames that show the scene")
         if blank:
             _echo(f"note: {found}: they are skipped")
-        if flat:
-            said = f"{'all' if flat == used else flat} of the {used} SGBM maps {FLAT_MAPS}"
-            if flat == used:
-                raise PcaInterpError(f"{names}: {said}; {FLAT_FIX}")
-            _echo(f"note: {names}: {said}")
+        check_flat(plan.logs, flat, used)
 
     with _bar(plan.total, "learn") as bar:
         progress = lambda done: bar.update(done - bar.n)  # noqa: E731

@@ -231,3 +231,21 @@ def test_a_log_without_a_pair_among_others_is_named_in_a_note(
         r"pass --stamp-tolerance-ms 20 to pair them; learning from the other logs",
         capsys.readouterr().out,
     )
+
+
+def test_on_a_cluster_the_flat_maps_are_counted_and_refused(folder: Path) -> None:
+    from pcainterp_stream.pipeline.distributed import merge, summarize_chunk
+    from pcainterp_stream.pipeline.learn import check_flat
+
+    same = _right_is_left(folder / "drive.mcap", folder / "same_c.mcap")
+    options = jobs.LearnOptions(n_components=3)
+    first = summarize_chunk(same, 0, 2, options, PairingConfig(), 4)
+    second = summarize_chunk(same, 2, None, options, PairingConfig(), 4)
+    total = merge(first, second, 4)
+    assert total is not None
+    assert (total.n_maps, total.flat_maps) == (6, 6)
+    with pytest.raises(PcaInterpError, match=r"same_c.mcap: all of the 6 SGBM maps have almost"):
+        check_flat((same,), total.flat_maps, total.n_maps)
+    drive = summarize_chunk(folder / "drive.mcap", 0, None, options, PairingConfig(), 4)
+    assert drive is not None
+    assert drive.flat_maps == 0
