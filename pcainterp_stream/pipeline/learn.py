@@ -454,7 +454,8 @@ def plan_maps(
 
     Raises:
         PcaInterpError: bad options, an output that is an input or in a missing folder, no
-            map in the logs, logs of two image sizes, or ``fit_logs`` of another size.
+            map in the logs, logs of two image sizes, ``fit_logs`` of another size, or a
+            depth topic of sparse depth (:data:`learn_maps.MIN_DEPTH_COVERAGE`).
     """
     if options.every < 1:
         raise PcaInterpError(f"--every must be at least 1, got {options.every}")
