@@ -219,7 +219,8 @@ def _add_estimate_options(densify: argparse.ArgumentParser) -> None:
         "--sigma",
         default="auto",
         metavar="PX|evidence|auto",
-        help="measurement noise std: a number (px), 'evidence' (fitted per frame) or 'auto' "
+        help="measurement noise std: a number (px of the basis's camera: on a log of another "
+        "f*b it is sigma * f*b_log / f*b_basis), 'evidence' (fitted per frame) or 'auto' "
         "(the basis's fitted value, else 2 px; default)",
     )
     estimate.add_argument(

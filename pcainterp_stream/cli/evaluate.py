@@ -86,7 +86,8 @@ def add_parser(commands: Commands) -> None:
         type=float,
         default=2.0,
         metavar="PX",
-        help="measurement noise std (px) of the rows that densify again with the basis "
+        help="measurement noise std (px of the basis's camera, as densify --sigma) of the "
+        "rows that densify again with the basis "
         "(paper vs exact uncertainty, points sweep) (default: %(default)s)",
     )
     evaluate.add_argument(

@@ -189,8 +189,11 @@ def densify(
             <= 0 is no measurement (the invalid code of disparity images: 0 in KITTI's
             PNGs, -1 in OpenCV's ``StereoSGBM.compute() / 16``) and is dropped. 16-bit
             integers (the matchers' fixed point, 16 or 256 x px) raise: divide them first.
-        sigma: measurement noise std (px), > 0, or ``"evidence"``: fitted per frame by
-            maximising the marginal likelihood (:func:`prior.evidence_sigma`).
+        sigma: measurement noise std in px of the basis's camera, > 0 (the
+            measurements are mapped to it, so on the camera of ``focal_baseline`` the
+            noise std is sigma * focal_baseline / basis.focal_baseline: docs/estimator.md,
+            "Camera mapping"), or ``"evidence"``: fitted per frame by maximising the
+            marginal likelihood (:func:`prior.evidence_sigma`).
         uncertainty: ``"exact-coarse"`` (exact on the variance grid, resampled; the
             default), ``"exact"`` (exact at every output pixel: 0.06-2.4 s per KITTI-size
             frame), ``"paper"`` or ``"none"`` (see :class:`Uncertainty`).
@@ -309,7 +312,7 @@ def densify_batch(
         pixels_list: F arrays (k_f, 2) float, (x, y) in output image px.
         disparities_list: F arrays (k_f,) float, disparities (px); <= 0 is no measurement
             and is dropped (see :func:`densify`).
-        sigma: measurement noise std (px), > 0.
+        sigma: measurement noise std (px of the basis's camera, as in :func:`densify`), > 0.
         uncertainty: ``"exact-coarse"`` (default), ``"exact"``, ``"paper"`` or ``"none"``.
         solve_form: ``"auto"``, ``"coefficient"`` or ``"measurement"``.
         focal_baseline: f*b (px*m) of the measurements' camera (default: the basis's).

@@ -412,7 +412,8 @@ class Model:
     """Everything of the estimate beyond the basis itself; the default is the paper's model.
 
     Attributes:
-        sigma: measurement noise std (px), or None to fit it per frame by evidence.
+        sigma: measurement noise std (px of the basis's camera: the measurements are
+            mapped to it by the f*b ratio), or None to fit it per frame by evidence.
         local: the local prior of the hybrid model, or None (the paper's prior).
         robust: the IRLS loss.
         robust_iterations: reweightings after the first (unweighted) solve. One is the

@@ -17,6 +17,7 @@ from pcainterp_stream.errors import (
 from pcainterp_stream.frontend.pairing import (
     PairingConfig,
 )
+from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.depth_image import (
     DEPTH_TYPES,
@@ -283,3 +284,34 @@ def _expected_frames(log: Path, topic: str, every: int) -> int | None:
         if count is not None and count.message_count is not None:
             return -(-count.message_count // every)
     return None
+
+
+def no_pair_message(
+    path: Path, pairing: PairingConfig, stats: PairingStats, damage: list[str]
+) -> str:
+    """Return the one-line error of a log without a single usable stereo pair.
+
+    The pairing's summary and the likeliest fix: the image encodings or sizes, damage, a
+    stamp tolerance too tight or clocks apart (:class:`PairingStats`' hints), else the topics.
+    """
+    details = "; ".join([stats.summary(), *stats.problems[:1], *damage[:2]])
+    if stats.undecodable:
+        fix = "convert the images to mono8, rgb8 or bgr8 (or png/jpeg CompressedImage)"
+    elif stats.size_mismatches:
+        fix = "left and right images of a rectified pair must have the same size"
+    elif stats.encoding_mismatches:
+        fix = (
+            "left and right images of a pair must have one encoding, both grey or both "
+            "colour of one bit depth (e.g. mono8 and mono8); convert one side"
+        )
+    elif damage:
+        fix = "the readable part of the log has no complete pair; repair or re-record it"
+    elif stats.hold_hint() or stats.tolerance_hint() or stats.clock_hint():
+        fix = stats.hold_hint() or stats.tolerance_hint() or stats.clock_hint() or ""
+    else:
+        fix = (
+            f"left {pairing.left_topic} and right {pairing.right_topic} need images with "
+            "matching header stamps and camera infos on both sides (see pcainterp info, "
+            "--stamp-tolerance-ms)"
+        )
+    return f"no stereo pair found in {path} ({details}); {fix}"

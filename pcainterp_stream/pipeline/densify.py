@@ -70,6 +70,7 @@ from pcainterp_stream.pipeline.common import (
     _check_topic_types,
     _pairing_types,
     _require_topics,
+    no_pair_message,
 )
 from pcainterp_stream.pipeline.feature_check import FeatureStreamCheck
 from pcainterp_stream.pipeline.processor import FrameProcessor, MeasurementSource, ProcessorConfig
@@ -520,7 +521,7 @@ def densify(
             live.flush()
         stats = pairer.finish()
         if frames == 0:
-            raise LogReadError(_no_pair_message(input_path, pairing, stats, reader.damage))
+            raise LogReadError(no_pair_message(input_path, pairing, stats, reader.damage))
         unusable = check.error(stats) if check is not None else None
         if unusable is not None:  # raised in the writer's block: no output is left behind
             raise PcaInterpError(f"{input_path}: {unusable}")
@@ -660,33 +661,6 @@ def resolve_basis(basis: Basis | Path | None) -> tuple[Basis, str]:
         return Basis.load(basis), str(basis)
     kind = builtin_kind(basis)
     return basis, BUILTIN_LABELS[kind] if kind is not None else IN_MEMORY
-
-
-def _no_pair_message(
-    path: Path, pairing: PairingConfig, stats: PairingStats, damage: list[str]
-) -> str:
-    """Return the one-line error of a log without a single usable stereo pair."""
-    details = "; ".join([stats.summary(), *stats.problems[:1], *damage[:2]])
-    if stats.undecodable:
-        fix = "convert the images to mono8, rgb8 or bgr8 (or png/jpeg CompressedImage)"
-    elif stats.size_mismatches:
-        fix = "left and right images of a rectified pair must have the same size"
-    elif stats.encoding_mismatches:
-        fix = (
-            "left and right images of a pair must have one encoding, both grey or both "
-            "colour of one bit depth (e.g. mono8 and mono8); convert one side"
-        )
-    elif damage:
-        fix = "the readable part of the log has no complete pair; repair or re-record it"
-    elif stats.hold_hint() or stats.tolerance_hint() or stats.clock_hint():
-        fix = stats.hold_hint() or stats.tolerance_hint() or stats.clock_hint() or ""
-    else:
-        fix = (
-            f"left {pairing.left_topic} and right {pairing.right_topic} need images with "
-            "matching header stamps and camera infos on both sides (see pcainterp info, "
-            "--stamp-tolerance-ms)"
-        )
-    return f"no stereo pair found in {path} ({details}); {fix}"
 
 
 def _check_width(frame: StereoFrame, sgbm: SgbmConfig, log: Path, topic: str) -> None:

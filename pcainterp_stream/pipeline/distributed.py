@@ -31,6 +31,7 @@ the cluster closes.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import errno
 import itertools
 import os
@@ -79,13 +80,15 @@ from pcainterp_stream.pipeline.learn import (
     GridTarget,
     HeldOutFrame,
     MapPlan,
-    _depth_maps,
+    check_flat,
+    is_flat,
     learn,
     log_pairing,
     measure_held_out,
     shows_surface,
     to_grid,
 )
+from pcainterp_stream.pipeline.learn_maps import depth_maps, scaled_to
 from pcainterp_stream.pipeline.scheduler import (
     QUIET_TRACKER,
     WorkerPaths,
@@ -219,7 +222,8 @@ class ChunkSummary:
         squares: sum of squared centred norms (px^2), exact.
         grid_size: (gh, gw) of the grid, gh * gw = s.
         image_size: (H, W) of the images (px).
-        focal_baseline: f*b (px*m) of the camera of the first map.
+        focal_baseline: f*b (px*m) the maps are in (the target's, else the first map's camera's).
+        flat_maps: SGBM maps among them with almost no disparity (:func:`learn.is_flat`).
     """
 
     n_maps: int
@@ -229,6 +233,7 @@ class ChunkSummary:
     grid_size: tuple[int, int]
     image_size: tuple[int, int]
     focal_baseline: float
+    flat_maps: int = 0
 
 
 def summarize(
@@ -302,6 +307,7 @@ def merge(
         grid_size=first.grid_size,
         image_size=first.image_size,
         focal_baseline=first.focal_baseline,
+        flat_maps=first.flat_maps + second.flat_maps,
     )
 
 
@@ -310,17 +316,22 @@ def _sketch(summary: ChunkSummary) -> Sketch:
 
 
 def _chunk_maps(
-    log: Path, start: int, stop: int | None, options: Any, pairing: Any
+    log: Path, start: int, stop: int | None, options: Any, pairing: Any, fb: float | None
 ) -> Iterator[tuple[npt.NDArray[np.float32], tuple[int, int], float]]:
-    """Yield (disparity (H, W) px, image size, f*b) of maps start..stop-1 of one log."""
+    """Yield (disparity (H, W) px, image size, f*b) of maps start..stop-1 of one log.
+
+    Each map is put in the f*b ``fb`` (:func:`learn_maps.scaled_to`; None: the first map's),
+    the f*b yielded.
+    """
     from pcainterp_stream.frontend.pairing import iter_stereo_frames
     from pcainterp_stream.frontend.stereo import compute_disparity
     from pcainterp_stream.io.logreader import open_log
 
     if options.depth_topic:
         info: list[Any] = []
-        for disparity in itertools.islice(_depth_maps(log, options, pairing, info), start, stop):
-            yield disparity, info[0].image_size, info[0].focal_baseline
+        maps = depth_maps(log, options, pairing, info, focal_baseline=fb)
+        for disparity in itertools.islice(maps, start, stop):
+            yield disparity, info[0].image_size, info[0].focal_baseline if fb is None else fb
         return
     with open_log(log) as reader:
         pairing = log_pairing(reader, pairing)  # the logs' topics may differ
@@ -336,7 +347,9 @@ def _chunk_maps(
             if stop is not None and used > stop:
                 break
             disparity = compute_disparity(frame.left, frame.right, options.sgbm)
-            yield disparity, frame.camera.image_size, frame.camera.focal_baseline
+            fb = frame.camera.focal_baseline if fb is None else fb
+            scaled = scaled_to(disparity, frame.camera.focal_baseline, fb)
+            yield scaled, frame.camera.image_size, fb
 
 
 def summarize_chunk(
@@ -366,7 +379,9 @@ def summarize_chunk(
     grids: list[npt.NDArray[np.float32]] = []
     image_size: tuple[int, int] | None = None
     focal_baseline = 0.0
-    for disparity, size, fb in _chunk_maps(log, start, stop, options, pairing):
+    flat = 0
+    fb_target = None if target is None else target.focal_baseline
+    for disparity, size, fb in _chunk_maps(log, start, stop, options, pairing, fb_target):
         if image_size is None:
             image_size, focal_baseline = size, fb
             if target is None:
@@ -379,19 +394,22 @@ def summarize_chunk(
         assert target is not None
         if not shows_surface(disparity):
             continue  # as on one machine (learn.shows_surface)
+        if not options.depth_topic and is_flat(disparity):
+            flat += 1
         try:
             grids.append(to_grid(disparity, target))
         except ValueError as err:
             raise PcaInterpError(f"cannot learn from a map of {log}: {err}") from err
     if not grids or target is None or image_size is None:
         return None
-    return summarize(
+    summary = summarize(
         np.stack(grids),
         keep,
         grid_size=target.grid_size,
         image_size=image_size,
         focal_baseline=focal_baseline,
     )
+    return dataclasses.replace(summary, flat_maps=flat)
 
 
 def learn_distributed(
@@ -528,6 +546,7 @@ def learn_on_cluster(
             f"above 0 found in {', '.join(map(str, plan.logs))}; check the topic options "
             f"(pcainterp info LOG) and the images ({BLANK_MAPS} give none)"
         )
+    check_flat(plan.logs, total.flat_maps, total.n_maps)
     meta = {**meta, "distributed": {"chunk_frames": chunk_frames, "tasks": len(specs)}}
     prior_basis = plan.synthetic.prior_basis
     if prior_basis is not None:

@@ -7,7 +7,6 @@ import dataclasses
 import itertools
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, Protocol
@@ -15,12 +14,7 @@ from typing import Any, Literal, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.errors import (
-    BasisError,
-    LogReadError,
-    PcaInterpError,
-    TopicNotFoundError,
-)
+from pcainterp_stream.errors import BasisError, PcaInterpError
 from pcainterp_stream.estimate.basis import BUILTIN_LABELS, Basis, grid_size_for
 from pcainterp_stream.estimate.finetune import (
     BuiltinFit,
@@ -31,31 +25,28 @@ from pcainterp_stream.estimate.finetune import (
 )
 from pcainterp_stream.estimate.learning import DEFAULT_BOX_SIZE, learn_basis, preprocess_disparity
 from pcainterp_stream.estimate.prior import LocalPrior
-from pcainterp_stream.frontend.camera_infos import first_infos
-from pcainterp_stream.frontend.discovery import resolve_pairing
-from pcainterp_stream.frontend.pairing import (
-    PairingConfig,
-    StereoPairer,
-    iter_stereo_frames,
-)
-from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig, compute_disparity
-from pcainterp_stream.io.depth_image import depth_metres
-from pcainterp_stream.io.logreader import LogReader, open_log
+from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig
+from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.pipeline.common import (
     _bar,
-    _check_depth_topic,
     _check_output_folder,
-    _check_topic_types,
     _echo,
     _expected_frames,
-    _pairing_types,
-    _require_topics,
 )
 from pcainterp_stream.pipeline.held_out import FIT_SEQUENCE_FRAMES
 
 # re-exported: the cluster's learner (pipeline/distributed.py) imports them from here
 from pcainterp_stream.pipeline.held_out import HeldOutFrame as HeldOutFrame
 from pcainterp_stream.pipeline.held_out import measure_held_out as measure_held_out
+from pcainterp_stream.pipeline.learn_maps import (
+    MapSource,
+    check_fit_logs,
+    depth_maps,
+    one_camera,
+    sgbm_maps,
+)
+from pcainterp_stream.pipeline.learn_maps import log_pairing as log_pairing
 from pcainterp_stream.pipeline.processor import ProcessorConfig
 
 
@@ -116,108 +107,6 @@ mean over the two real KITTI clips, each learned and the other densified (docs/b
 "How `learn`'s default was chosen")."""
 
 
-@dataclass(frozen=True)
-class _MapSource:
-    image_size: tuple[int, int]  # (height, width) of the maps: the images or their box
-    focal_baseline: float
-    images: tuple[int, int] | None = None  # (height, width) of raw images remapped, else None
-
-    def describe(self) -> str:
-        """Say the images' size, and their rectified box where it differs: "752x480 images"."""
-        height, width = self.image_size
-        if self.images is None or self.images == self.image_size:
-            return f"{width}x{height} images"
-        return f"{self.images[1]}x{self.images[0]} images (rectified box {width}x{height})"
-
-
-def _depth_maps(
-    log: Path, options: LearnOptions, pairing: PairingConfig, info: list[_MapSource]
-) -> Iterator[npt.NDArray[np.float32]]:
-    """Yield disparity maps f*b/depth of a depth topic; no surface (NaN, inf) is d = 0.
-
-    The topic is read as :func:`~pcainterp_stream.io.depth_image.depth_metres` reads it:
-    32FC1 in metres, 16UC1 in millimetres (0: none), or either as compressedDepth.
-    """
-    assert options.depth_topic is not None
-    with open_log(log) as reader:
-        pairing = log_pairing(reader, pairing, options.depth_topic)
-        _require_topics(
-            reader,
-            {
-                options.depth_topic: "--depth-topic",
-                pairing.left_info_topic: "--left-info-topic",
-                pairing.right_info_topic: "--right-info-topic",
-            },
-            "depth image",
-        )
-        _check_depth_topic(reader, options.depth_topic)
-        _check_topic_types(
-            reader, _pairing_types(dataclasses.replace(pairing, features_topic=None))[2:]
-        )
-        info_topics = [pairing.left_info_topic, pairing.right_info_topic]
-        # camera infos recorded after the first depth images: their first, read ahead
-        infos: dict[str, Any] = {
-            topic: message for topic, _, message in first_infos(reader, info_topics)
-        }
-        index = 0
-        topics = [options.depth_topic, *info_topics]
-        for raw in reader.messages(topics):
-            message = reader.decode(raw)
-            if raw.topic != options.depth_topic:
-                infos[raw.topic] = message
-                continue
-            index += 1
-            if (index - 1) % options.every:
-                continue
-            if len(infos) < 2:
-                continue  # no calibration yet
-            try:
-                depth = depth_metres(message)
-            except ValueError as err:
-                raise LogReadError(
-                    f"depth image on {options.depth_topic} at log time {raw.log_time_ns} ns in "
-                    f"{log.name} is unusable ({err}); pass a depth topic (32FC1 m, 16UC1 mm or "
-                    "compressedDepth) as --depth-topic"
-                ) from err
-            from pcainterp_stream.frontend.camera_infos import camera_from_infos
-
-            camera = camera_from_infos(
-                infos[pairing.left_info_topic],
-                infos[pairing.right_info_topic],
-                width=depth.shape[1],
-                height=depth.shape[0],
-                left_topic=pairing.left_info_topic,
-                right_topic=pairing.right_info_topic,
-                baseline=pairing.baseline,
-            )
-            if not info:
-                info.append(_MapSource(camera.image_size, camera.focal_baseline))
-            with np.errstate(divide="ignore", invalid="ignore"):
-                disparity = camera.focal_baseline / depth
-            yield np.where(np.isfinite(disparity) & (depth > 0), disparity, 0.0).astype(np.float32)
-
-
-def _sgbm_maps(
-    log: Path, options: LearnOptions, pairing: PairingConfig, info: list[_MapSource]
-) -> Iterator[npt.NDArray[np.float32]]:
-    """Yield SGBM maps of every N-th pair, matching the next pair while this one is used."""
-    with open_log(log) as reader, ThreadPoolExecutor(1, thread_name_prefix="sgbm") as pool:
-        pairing = log_pairing(reader, pairing)
-        _require_topics(reader, pairing.required_topics(), "stereo pair")
-        _check_topic_types(reader, _pairing_types(pairing))
-        pending: list[Future[npt.NDArray[np.float32]]] = []
-        for frame in iter_stereo_frames(reader, pairing):
-            if frame.index % options.every:
-                continue
-            if not info:
-                info.append(_MapSource(frame.camera.image_size, frame.camera.focal_baseline))
-            pending.append(pool.submit(compute_disparity, frame.left, frame.right, options.sgbm))
-            if len(pending) > 1:
-                yield pending.pop(0).result()
-        for future in pending:
-            yield future.result()
-
-
 def learn_pairing(
     logs: list[Path], pairing: PairingConfig, depth_topic: str | None = None
 ) -> PairingConfig:
@@ -252,39 +141,6 @@ def learn_pairing(
 def _prefixed(prefix: str) -> Callable[[str], None]:
     """Return an echo that starts each line with ``prefix`` (the log's name)."""
     return lambda line: _echo(prefix + line)
-
-
-def log_pairing(
-    reader: LogReader,
-    pairing: PairingConfig,
-    depth_topic: str | None = None,
-    echo: Callable[[str], None] | None = None,
-) -> PairingConfig:
-    r"""Return the pairing one open log is read with: its pair found, or ``pairing``.
-
-    With a ``depth_topic`` only the camera infos are needed, so a log whose images cannot be
-    paired keeps the default topics.
-
-    Args:
-        reader: the open log.
-        pairing: the pairing the options ask for; returned as it is unless it ``discover``\s
-            or a ``depth_topic`` is given.
-        depth_topic: the depth topic learned from instead of SGBM maps, if any.
-        echo: given the line that says which pair was found.
-
-    Raises:
-        TopicNotFoundError: no stereo pair in the log (and no ``depth_topic``), or two
-            equally good ones.
-    """
-    if not (pairing.discover or depth_topic is not None):
-        return pairing
-    try:
-        return resolve_pairing(reader, pairing, echo)
-    except TopicNotFoundError:
-        if depth_topic is None:
-            raise
-        # a depth topic needs only the camera infos: the defaults may do
-        return dataclasses.replace(pairing, discover=False)
 
 
 def _source_topic(log: Path, options: LearnOptions, pairing: PairingConfig) -> str:
@@ -471,15 +327,60 @@ class GridTarget:
         box_size: side of the box filter (px).
         finetune: the maps go into a fine-tuned basis (invalid pixels are made NaN before
             the scale, as :func:`~pcainterp_stream.estimate.finetune.finetune_basis` does).
+        focal_baseline: f*b (px*m) every map is put in as it is read, before
+            ``disparity_scale`` (the first log's: :func:`learn_maps.scaled_to`); None: each
+            chunk's first map's.
     """
 
     grid_size: tuple[int, int]
     disparity_scale: float = 1.0
     box_size: int = DEFAULT_BOX_SIZE
     finetune: bool = False
+    focal_baseline: float | None = None
 
 
 BLANK_MAPS = "blank, dark or textureless images, or a depth topic without depth"
+
+
+FLAT_MAPS = (
+    "have almost no disparity (under 1 % of their valid pixels at 1 px or more): the right "
+    "image matches the left one where it is"
+)
+FLAT_FIX = (
+    "the right topic may show the left camera again (a remap, a republished left image: check "
+    "--right-topic), or the scene is too far for the baseline"
+)
+
+
+def is_flat(disparity: npt.NDArray[np.float32]) -> bool:
+    """Return whether under 1 % of a map's valid pixels (>= 0) have a disparity of 1 px or more.
+
+    A pair whose right image is the left one again matches at 0 px everywhere (a few 1 px
+    values where a codec's noise differs); every scene near enough to measure has more.
+    """
+    with np.errstate(invalid="ignore"):
+        valid = np.count_nonzero(disparity >= 0)
+        return bool(np.count_nonzero(disparity >= 1.0) < 0.01 * valid)
+
+
+def check_flat(logs: tuple[Path, ...], flat: int, used: int) -> None:
+    """Refuse SGBM maps that are all flat (:func:`is_flat`); say so when some are.
+
+    Args:
+        logs: the logs learned from (named).
+        flat: the flat maps among ``used``.
+        used: the maps learned from.
+
+    Raises:
+        PcaInterpError: every map is flat.
+    """
+    if not flat:
+        return
+    names = ", ".join(log.name for log in logs)
+    said = f"{'all' if flat == used else flat} of the {used} SGBM maps {FLAT_MAPS}"
+    if flat == used:
+        raise PcaInterpError(f"{names}: {said}; {FLAT_FIX}")
+    _echo(f"note: {names}: {said}")
 
 
 def shows_surface(disparity: npt.NDArray[np.float32]) -> bool:
@@ -519,7 +420,7 @@ class MapPlan:
         kept: maps of each log that go into the basis (the rest is held out for the
             prior's fit), None: all.
         total: maps the basis is learned from, None: unknown.
-        camera: image size and f*b of the first log's camera.
+        camera: image size and f*b of the first log's camera: every map is put in its f*b.
         synthetic: what happens with the built-in basis's statistics.
         target: the grid and the units of the maps.
     """
@@ -528,7 +429,7 @@ class MapPlan:
     counts: tuple[int | None, ...]
     kept: tuple[int | None, ...]
     total: int | None
-    camera: _MapSource
+    camera: MapSource
     synthetic: SyntheticPlan
     target: GridTarget
 
@@ -540,51 +441,6 @@ class MapPlan:
         return [(log, (keep or 0) * options.every) for log, keep in kept]
 
 
-def _log_camera(log: Path, options: LearnOptions, pairing: PairingConfig) -> _MapSource | None:
-    """Return the camera of the first map a log gives (reads one frame), or None."""
-    if options.depth_topic:
-        info: list[_MapSource] = []
-        if next(_depth_maps(log, options, pairing, info), None) is not None:
-            return info[0]
-        return None
-    with open_log(log) as reader:
-        paired = log_pairing(reader, pairing)
-        _require_topics(reader, paired.required_topics(), "stereo pair")
-        _check_topic_types(reader, _pairing_types(paired))
-        pairer = StereoPairer(paired)
-        for frame in iter_stereo_frames(reader, pairer=pairer):
-            # raw images are estimated in the box of their rectified view both cameras see
-            rectifier = pairer.rectification()
-            width, height = rectifier.calibration.left.image_size() if rectifier else (0, 0)
-            images = (height, width) if rectifier else None
-            return _MapSource(frame.camera.image_size, frame.camera.focal_baseline, images)
-    return None
-
-
-def _one_camera(logs: list[Path], options: LearnOptions, pairing: PairingConfig) -> _MapSource:
-    """Return the camera of the first map the logs give, each log's first map checked.
-
-    Raises:
-        LogReadError: no log gives a map.
-        PcaInterpError: two logs' images differ in size (before any map is learned from).
-    """
-    cameras = [(log, _log_camera(log, options, pairing)) for log in logs]
-    found = [(log, camera) for log, camera in cameras if camera is not None]
-    if not found:
-        raise LogReadError(
-            f"no {'depth image' if options.depth_topic else 'stereo pair'} found in "
-            f"{', '.join(map(str, logs))}; check the topic options (pcainterp info LOG)"
-        )
-    first_log, camera = found[0]
-    for log, other in found[1:]:
-        if other.image_size != camera.image_size:
-            raise PcaInterpError(
-                f"{log} has {other.describe()} but {first_log} has {camera.describe()}; "
-                "learn one basis per camera"
-            )
-    return camera
-
-
 def plan_maps(
     logs: list[Path], output: Path, options: LearnOptions, pairing: PairingConfig
 ) -> MapPlan:
@@ -592,12 +448,14 @@ def plan_maps(
 
     Counts the maps (from the logs' summaries, else by reading them), holds the last
     ``options.holdout`` share of each log out for the prior's fit, reads the camera of each
-    log's first frame and decides about the built-in basis (:func:`plan_synthetic`, its note
-    printed).
+    log's first frame (and of each ``fit_logs`` log) and decides about the built-in basis
+    (:func:`plan_synthetic`, its note printed). The maps of a log whose camera's f*b differs
+    from the first log's are scaled to it (:func:`learn_maps.one_camera` says so).
 
     Raises:
         PcaInterpError: bad options, an output that is an input or in a missing folder, no
-            map in the logs, or logs of two image sizes.
+            map in the logs, logs of two image sizes, ``fit_logs`` of another size, or a
+            depth topic of sparse depth (:data:`learn_maps.MIN_DEPTH_COVERAGE`).
     """
     if options.every < 1:
         raise PcaInterpError(f"--every must be at least 1, got {options.every}")
@@ -634,12 +492,17 @@ def plan_maps(
             for log, source, count in zip(logs, sources, counts, strict=True)
         ]
         total = sum(c for c in counts if c is not None)
-    camera = _one_camera(logs, options, pairing)
+    camera = one_camera(logs, options, pairing)
+    if options.fit_prior and options.fit_logs:
+        check_fit_logs(options.fit_logs, logs, options, pairing)
     plan = plan_synthetic(options, total, (camera.image_size, camera.focal_baseline))
     if plan.note is not None:
         _echo(plan.note)
     if plan.prior_basis is None:
-        target = GridTarget(grid_size_for(camera.image_size, options.grid_scale))
+        target = GridTarget(
+            grid_size_for(camera.image_size, options.grid_scale),
+            focal_baseline=camera.focal_baseline,
+        )
     else:
         preprocessing = plan.prior_basis.meta.get("preprocessing", {})
         target = GridTarget(
@@ -647,6 +510,7 @@ def plan_maps(
             disparity_scale(plan.prior_basis, camera.focal_baseline),
             int(preprocessing.get("box_size", DEFAULT_BOX_SIZE)),
             finetune=True,
+            focal_baseline=camera.focal_baseline,
         )
     return MapPlan(tuple(logs), tuple(counts), tuple(kept), total, camera, plan, target)
 
@@ -741,32 +605,41 @@ def _learn_here(
     meta: dict[str, Any],
 ) -> Basis:
     """Learn the basis of a plan in this process, streaming the maps."""
-    image_size = plan.camera.image_size
-    info: list[_MapSource] = []
-    blank = used = 0
+    image_size, fb = plan.camera.image_size, plan.camera.focal_baseline
+    info: list[MapSource] = []
+    first: list[Path] = []  # the log of the first map
+    blank = used = flat = 0
 
     def maps() -> Iterator[npt.NDArray[np.float32]]:
-        nonlocal blank, used
+        nonlocal blank, used, flat
         for log, keep in zip(plan.logs, plan.kept, strict=True):
-            produce = _depth_maps if options.depth_topic else _sgbm_maps
-            for disparity in itertools.islice(produce(log, options, pairing, info), keep):
+            produce = depth_maps if options.depth_topic else sgbm_maps
+            for disparity in itertools.islice(
+                produce(log, options, pairing, info, focal_baseline=fb), keep
+            ):
+                if not first:
+                    first.append(log)
                 if disparity.shape != image_size:
+                    whose = "its first maps" if log == first[0] else f"{first[0].name}'s"
                     raise PcaInterpError(
                         f"{log} gives a {disparity.shape[1]}x{disparity.shape[0]} map (its "
-                        "images, or their rectified box) but the first log's are "
+                        f"images, or their rectified box) but {whose} are "
                         f"{image_size[1]}x{image_size[0]}; learn one basis per camera"
                     )
                 if not shows_surface(disparity):
                     blank += 1
                     continue
                 used += 1
+                if not options.depth_topic and is_flat(disparity):
+                    flat += 1
                 yield disparity
+        names = ", ".join(log.name for log in plan.logs)
         found = f"{blank} of {blank + used} maps hold no disparity above 0 ({BLANK_MAPS})"
         if blank and not used:
-            names = ", ".join(log.name for log in plan.logs)
             raise PcaInterpError(f"{names}: {found}; learn from frames that show the scene")
         if blank:
             _echo(f"note: {found}: they are skipped")
+        check_flat(plan.logs, flat, used)
 
     with _bar(plan.total, "learn") as bar:
         progress = lambda done: bar.update(done - bar.n)  # noqa: E731
@@ -874,7 +747,8 @@ def fit_prior(
             "no held-out stereo pair with measurements to fit the prior on; use more frames, "
             f"{every}a larger --holdout or --fit-logs LOG"
         )
-    _echo("fitting the prior by the evidence on the held-out frames")
+    fit_on = "the --fit-logs logs' frames" if options.fit_logs else "the held-out frames"
+    _echo(f"fitting the prior by the evidence on {fit_on}")
     fitted = fitting.fit_prior(
         basis,
         sequences,

@@ -20,7 +20,7 @@ from pcainterp_stream.estimate.estimator import (
     posterior_covariance,
 )
 from pcainterp_stream.estimate.learning import learn_basis
-from pcainterp_stream.estimate.prior import Kernel, LocalPrior, TemporalPrior
+from pcainterp_stream.estimate.prior import Kernel, LocalPrior, Model, TemporalPrior
 
 
 def random_basis(
@@ -312,6 +312,22 @@ def test_camera_mapping_round_trip() -> None:
     assert mapped.depth is not None
     assert direct.depth is not None
     np.testing.assert_allclose(np.nanmedian(mapped.depth), np.nanmedian(direct.depth), rtol=0.05)
+
+
+def test_sigma_is_in_px_of_the_basis_camera_and_says_so() -> None:
+    # a camera of 1/8 the basis's f*b: sigma 2 (basis px) is 0.25 px of the log's camera,
+    # the smallest disparity it resolves (bug hunt 6A F2: documented, not converted)
+    basis = random_basis(7, n_components=6, grid_size=(8, 10), image_size=(16, 20))
+    rng = np.random.default_rng(7)
+    pixels = random_pixels(rng, 9, basis.image_size)
+    values = rng.uniform(1, 4, 9)
+    fb = basis.focal_baseline / 8
+    result = densify(basis, pixels, values, sigma=2.0, focal_baseline=fb)
+    assert result.sigma == 2.0
+    assert result.min_disparity == pytest.approx(0.25)
+    for function in (densify, densify_batch):
+        assert "px of the basis's camera" in " ".join((function.__doc__ or "").split())
+    assert "px of the basis's camera" in " ".join((Model.__doc__ or "").split())
 
 
 @pytest.mark.parametrize(

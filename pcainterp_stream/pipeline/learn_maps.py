@@ -1,0 +1,423 @@
+"""The maps ``learn`` reads from logs and the camera they are learned for.
+
+A map is an SGBM map of a stereo pair or f*b / depth of a depth topic, put in the disparity
+units of one f*b: at one depth the disparity is proportional to f*b, so the maps of a
+recalibrated rig (or of two rigs of one image size) are scaled to the first log's f*b,
+as ``densify`` maps a basis onto another camera (docs/estimator.md, "Camera mapping").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.errors import LogReadError, PcaInterpError, TopicNotFoundError
+from pcainterp_stream.frontend.camera_infos import camera_from_infos, first_infos
+from pcainterp_stream.frontend.discovery import resolve_pairing
+from pcainterp_stream.frontend.pairing import PairingConfig, StereoPairer, iter_stereo_frames
+from pcainterp_stream.frontend.stereo import SgbmConfig, compute_disparity
+from pcainterp_stream.io.depth_image import depth_metres
+from pcainterp_stream.io.logreader import LogReader, open_log
+from pcainterp_stream.pipeline.common import (
+    _check_depth_topic,
+    _check_topic_types,
+    _echo,
+    _pairing_types,
+    _require_topics,
+    no_pair_message,
+)
+
+__all__ = [
+    "FOCAL_BASELINE_NOTE",
+    "MIN_DEPTH_COVERAGE",
+    "MapOptions",
+    "MapSource",
+    "check_fit_logs",
+    "depth_maps",
+    "log_camera",
+    "log_pairing",
+    "one_camera",
+    "scaled_to",
+    "sgbm_maps",
+]
+
+FOCAL_BASELINE_NOTE = 0.01
+"""A log whose f*b differs from the first log's by more than this share is named in a note."""
+
+MIN_DEPTH_COVERAGE = 0.5
+"""A depth topic whose first image has a depth at fewer of its pixels is refused: its holes
+would be learned as infinitely far (the synthetic street's truth covers 91-93 %, its
+projected LiDAR 4 %)."""
+
+
+class MapOptions(Protocol):
+    """What reading maps needs of the learning options (``learn.LearnOptions`` has it)."""
+
+    @property
+    def depth_topic(self) -> str | None:
+        """The depth topic learned from instead of SGBM maps, if any."""
+        ...
+
+    @property
+    def every(self) -> int:
+        """Use every N-th frame."""
+        ...
+
+    @property
+    def sgbm(self) -> SgbmConfig:
+        """The matcher options."""
+        ...
+
+
+@dataclass(frozen=True)
+class MapSource:
+    """The camera of a log's maps.
+
+    Attributes:
+        image_size: (height, width) of the maps: the images or their rectified box (px).
+        focal_baseline: f*b of the camera (px*m).
+        images: (height, width) of raw images remapped, else None.
+    """
+
+    image_size: tuple[int, int]
+    focal_baseline: float
+    images: tuple[int, int] | None = None
+
+    def describe(self) -> str:
+        """Say the images' size, and their rectified box where it differs: "752x480 images"."""
+        height, width = self.image_size
+        if self.images is None or self.images == self.image_size:
+            return f"{width}x{height} images"
+        return f"{self.images[1]}x{self.images[0]} images (rectified box {width}x{height})"
+
+
+def scaled_to(
+    disparity: npt.NDArray[np.float32], focal_baseline: float, target: float | None
+) -> npt.NDArray[np.float32]:
+    """Return a map of a camera of ``focal_baseline`` in the disparity units of ``target``.
+
+    Disparity is f*b / depth, so one depth's disparity in the target camera is
+    d * target / focal_baseline; 0, negative (SGBM's invalid) and NaN pixels stay so.
+
+    Args:
+        disparity: (H, W) float32 map (px).
+        focal_baseline: f*b of its camera (px*m).
+        target: f*b to put it in (px*m); None, or either <= 0: the map as it is.
+
+    Returns:
+        (H, W) float32 (px): ``disparity`` itself when nothing is scaled.
+    """
+    if target is None or target <= 0 or focal_baseline <= 0 or target == focal_baseline:
+        return disparity
+    return disparity * np.float32(target / focal_baseline)
+
+
+def depth_maps(
+    log: Path,
+    options: MapOptions,
+    pairing: PairingConfig,
+    info: list[MapSource],
+    *,
+    focal_baseline: float | None = None,
+) -> Iterator[npt.NDArray[np.float32]]:
+    """Yield disparity maps f*b/depth of a depth topic; no surface (NaN, inf) is d = 0.
+
+    The topic is read as :func:`~pcainterp_stream.io.depth_image.depth_metres` reads it:
+    32FC1 in metres, 16UC1 in millimetres (0: none), or either as compressedDepth.
+
+    Args:
+        log: the log.
+        options: the learning options (``depth_topic``, ``every``).
+        pairing: the topics of the camera infos.
+        info: the camera of the first map is appended when empty.
+        focal_baseline: the f*b every map is put in (:func:`scaled_to`); None: the first
+            map's camera's (``info[0]``).
+
+    Yields:
+        (H, W) float32 disparity maps (px).
+    """
+    assert options.depth_topic is not None
+    with open_log(log) as reader:
+        pairing = log_pairing(reader, pairing, options.depth_topic)
+        _require_topics(
+            reader,
+            {
+                options.depth_topic: "--depth-topic",
+                pairing.left_info_topic: "--left-info-topic",
+                pairing.right_info_topic: "--right-info-topic",
+            },
+            "depth image",
+        )
+        _check_depth_topic(reader, options.depth_topic)
+        _check_topic_types(
+            reader, _pairing_types(dataclasses.replace(pairing, features_topic=None))[2:]
+        )
+        info_topics = [pairing.left_info_topic, pairing.right_info_topic]
+        # camera infos recorded after the first depth images: their first, read ahead
+        infos: dict[str, Any] = {
+            topic: message for topic, _, message in first_infos(reader, info_topics)
+        }
+        index = 0
+        topics = [options.depth_topic, *info_topics]
+        for raw in reader.messages(topics):
+            message = reader.decode(raw)
+            if raw.topic != options.depth_topic:
+                infos[raw.topic] = message
+                continue
+            index += 1
+            if (index - 1) % options.every:
+                continue
+            if len(infos) < 2:
+                continue  # no calibration yet
+            try:
+                depth = depth_metres(message)
+            except ValueError as err:
+                raise LogReadError(
+                    f"depth image on {options.depth_topic} at log time {raw.log_time_ns} ns in "
+                    f"{log.name} is unusable ({err}); pass a depth topic (32FC1 m, 16UC1 mm or "
+                    "compressedDepth) as --depth-topic"
+                ) from err
+            camera = camera_from_infos(
+                infos[pairing.left_info_topic],
+                infos[pairing.right_info_topic],
+                width=depth.shape[1],
+                height=depth.shape[0],
+                left_topic=pairing.left_info_topic,
+                right_topic=pairing.right_info_topic,
+                baseline=pairing.baseline,
+            )
+            if not info:
+                info.append(MapSource(camera.image_size, camera.focal_baseline))
+            target = info[0].focal_baseline if focal_baseline is None else focal_baseline
+            # the target's disparity of this depth: f*b_target / depth
+            fb = target if target > 0 else camera.focal_baseline
+            with np.errstate(divide="ignore", invalid="ignore"):
+                disparity = fb / depth
+            yield np.where(np.isfinite(disparity) & (depth > 0), disparity, 0.0).astype(np.float32)
+
+
+def sgbm_maps(
+    log: Path,
+    options: MapOptions,
+    pairing: PairingConfig,
+    info: list[MapSource],
+    *,
+    focal_baseline: float | None = None,
+) -> Iterator[npt.NDArray[np.float32]]:
+    """Yield SGBM maps of every N-th pair, matching the next pair while this one is used.
+
+    Args:
+        log: the log.
+        options: the learning options (``every``, ``sgbm``).
+        pairing: the topics of the stereo pairs.
+        info: the camera of the first map is appended when empty.
+        focal_baseline: the f*b every map is put in (:func:`scaled_to`); None: the first
+            map's camera's (``info[0]``).
+
+    Yields:
+        (H, W) float32 disparity maps (px).
+    """
+    with open_log(log) as reader, ThreadPoolExecutor(1, thread_name_prefix="sgbm") as pool:
+        pairing = log_pairing(reader, pairing)
+        _require_topics(reader, pairing.required_topics(), "stereo pair")
+        _check_topic_types(reader, _pairing_types(pairing))
+        pending: list[tuple[Future[npt.NDArray[np.float32]], float]] = []
+        for frame in iter_stereo_frames(reader, pairing):
+            if frame.index % options.every:
+                continue
+            if not info:
+                info.append(MapSource(frame.camera.image_size, frame.camera.focal_baseline))
+            future = pool.submit(compute_disparity, frame.left, frame.right, options.sgbm)
+            pending.append((future, frame.camera.focal_baseline))
+            if len(pending) > 1:
+                yield _finished(pending.pop(0), info, focal_baseline)
+        for item in pending:
+            yield _finished(item, info, focal_baseline)
+
+
+def _finished(
+    item: tuple[Future[npt.NDArray[np.float32]], float],
+    info: list[MapSource],
+    focal_baseline: float | None,
+) -> npt.NDArray[np.float32]:
+    future, fb = item
+    target = info[0].focal_baseline if focal_baseline is None else focal_baseline
+    return scaled_to(future.result(), fb, target)
+
+
+def log_pairing(
+    reader: LogReader,
+    pairing: PairingConfig,
+    depth_topic: str | None = None,
+    echo: Callable[[str], None] | None = None,
+) -> PairingConfig:
+    r"""Return the pairing one open log is read with: its pair found, or ``pairing``.
+
+    With a ``depth_topic`` only the camera infos are needed, so a log whose images cannot be
+    paired keeps the default topics.
+
+    Args:
+        reader: the open log.
+        pairing: the pairing the options ask for; returned as it is unless it ``discover``\s
+            or a ``depth_topic`` is given.
+        depth_topic: the depth topic learned from instead of SGBM maps, if any.
+        echo: given the line that says which pair was found.
+
+    Raises:
+        TopicNotFoundError: no stereo pair in the log (and no ``depth_topic``), or two
+            equally good ones.
+    """
+    if not (pairing.discover or depth_topic is not None):
+        return pairing
+    try:
+        return resolve_pairing(reader, pairing, echo)
+    except TopicNotFoundError:
+        if depth_topic is None:
+            raise
+        # a depth topic needs only the camera infos: the defaults may do
+        return dataclasses.replace(pairing, discover=False)
+
+
+def log_camera(
+    log: Path,
+    options: MapOptions,
+    pairing: PairingConfig,
+    why: list[str] | None = None,
+    *,
+    stereo: bool = False,
+) -> MapSource | None:
+    """Return the camera of the first map a log gives (reads up to its first map), or None.
+
+    Args:
+        log: the log.
+        options: the learning options (``depth_topic``: its maps, else SGBM's).
+        pairing: the topics of the stereo pairs.
+        why: given the one-line reason when the log gives no map: with SGBM maps, the
+            pairing's summary and its fix (a stamp tolerance too tight, ...) as ``densify``
+            words it.
+        stereo: the camera of the stereo pairs even when ``options`` name a depth topic.
+
+    Raises:
+        PcaInterpError: the depth topic's first image has a depth at fewer than
+            :data:`MIN_DEPTH_COVERAGE` of its pixels.
+    """
+    reason = ""
+    if options.depth_topic and not stereo:
+        info: list[MapSource] = []
+        first = next(depth_maps(log, options, pairing, info), None)
+        if first is not None:
+            covered = float(np.mean(first > 0))
+            if covered < MIN_DEPTH_COVERAGE:
+                raise PcaInterpError(
+                    f"{options.depth_topic} in {log.name} has a depth at {covered:.0%} of the "
+                    "pixels of its first image; learn takes a pixel without one (NaN, 0) for "
+                    "infinitely far, so a sparse depth (a projected LiDAR) teaches a basis of "
+                    "far holes: learn from SGBM maps (drop --depth-topic) or a dense depth"
+                )
+            return info[0]
+        reason = (
+            f"no depth image with camera infos found in {log} on {options.depth_topic}; check "
+            "the topic options (pcainterp info LOG)"
+        )
+    else:
+        with open_log(log) as reader:
+            paired = log_pairing(reader, pairing)
+            _require_topics(reader, paired.required_topics(), "stereo pair")
+            _check_topic_types(reader, _pairing_types(paired))
+            pairer = StereoPairer(paired)
+            for frame in iter_stereo_frames(reader, pairer=pairer):
+                # raw images are estimated in the box of their rectified view both cameras see
+                rectifier = pairer.rectification()
+                width, height = rectifier.calibration.left.image_size() if rectifier else (0, 0)
+                images = (height, width) if rectifier else None
+                return MapSource(frame.camera.image_size, frame.camera.focal_baseline, images)
+            reason = no_pair_message(log, paired, pairer.stats, reader.damage)
+    if why is not None:
+        why.append(reason)
+    return None
+
+
+def one_camera(logs: list[Path], options: MapOptions, pairing: PairingConfig) -> MapSource:
+    """Return the camera of the first map the logs give, each log's first map checked.
+
+    A log whose f*b differs from the first's by more than :data:`FOCAL_BASELINE_NOTE` is
+    named in a note (its maps are scaled: :func:`scaled_to`), and a log that gives no map
+    in another (it adds none).
+
+    Raises:
+        LogReadError: no log gives a map (the first log's reason).
+        PcaInterpError: two logs' images differ in size (before any map is learned from).
+    """
+    why: list[str] = []
+    cameras = [(log, log_camera(log, options, pairing, why)) for log in logs]
+    found = [(log, camera) for log, camera in cameras if camera is not None]
+    if not found:
+        raise LogReadError(why[0])
+    for reason in why:
+        _echo(f"note: {reason}; learning from the other logs")
+    first_log, camera = found[0]
+    for log, other in found[1:]:
+        if other.image_size != camera.image_size:
+            raise PcaInterpError(
+                f"{log} has {other.describe()} but {first_log} has {camera.describe()}; "
+                "learn one basis per camera"
+            )
+        ratio = _ratio(camera, other)
+        if abs(ratio - 1.0) > FOCAL_BASELINE_NOTE:
+            _echo(
+                f"note: {log.name}'s camera has f*b {other.focal_baseline:.2f} px*m, "
+                f"{first_log.name}'s {camera.focal_baseline:.2f}: its maps are scaled by "
+                f"{ratio:.3g} to {first_log.name}'s (at one depth the disparity is "
+                "proportional to f*b)"
+            )
+    return camera
+
+
+def _ratio(camera: MapSource, other: MapSource) -> float:
+    """Return f*b of ``camera`` over ``other``'s (1 when either is unknown)."""
+    if camera.focal_baseline > 0 and other.focal_baseline > 0:
+        return camera.focal_baseline / other.focal_baseline
+    return 1.0
+
+
+def check_fit_logs(
+    fit_logs: tuple[Path, ...], logs: list[Path], options: MapOptions, pairing: PairingConfig
+) -> None:
+    """Refuse ``--fit-logs`` logs whose stereo images differ in size from the training logs'.
+
+    The prior is fitted on their stereo pairs (GFTT + SGBM, as ``densify`` measures), so
+    their camera is compared with the first training log's stereo camera; an f*b that
+    differs is mapped as every camera is (``fitting.fit_frame``), and named in a note.
+
+    Raises:
+        LogReadError: a fit log has no stereo pair.
+        PcaInterpError: a fit log's images differ in size.
+    """
+    why: list[str] = []
+    training = log_camera(logs[0], options, pairing, why, stereo=True)
+    for log in fit_logs:
+        camera = log_camera(log, options, pairing, why, stereo=True)
+        if camera is None:
+            raise LogReadError(why[-1])
+        if training is None:
+            continue  # a training log of a depth topic alone: no stereo camera to compare
+        if camera.image_size != training.image_size:
+            raise PcaInterpError(
+                f"--fit-logs {log.name} has {camera.describe()} but the training log "
+                f"{logs[0].name} has {training.describe()}; fit on logs of the training "
+                "camera (or drop --fit-logs to fit on a held-out share of the training logs)"
+            )
+        ratio = _ratio(training, camera)
+        if abs(ratio - 1.0) > FOCAL_BASELINE_NOTE:
+            _echo(
+                f"note: --fit-logs {log.name}'s camera has f*b {camera.focal_baseline:.2f} "
+                f"px*m, {logs[0].name}'s {training.focal_baseline:.2f}: its disparities are "
+                f"scaled by {ratio:.3g} for the fit"
+            )

@@ -1,0 +1,251 @@
+"""``learn``'s maps and cameras: one f*b, fit logs of the training camera, pairing errors."""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from pcainterp_stream.errors import LogReadError, PcaInterpError
+from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.logwriter import LogFormat, open_writer
+from pcainterp_stream.pipeline import jobs
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("learn_maps")
+    jobs.synth(folder / "drive.mcap", frames=6, seed=11, scale=0.25, fmt="mcap")
+    return folder
+
+
+def _rewritten(source: Path, target: Path, *, baseline: float = 1.0, right_ms: int = 0) -> Path:
+    """Copy a log, the right camera's baseline times ``baseline``, its images stamped later."""
+    with open_log(source) as reader, open_writer(target, LogFormat.MCAP) as writer:
+        for raw in reader.messages():
+            message = reader.decode(raw)
+            if raw.topic == "/stereo/right/camera_info":
+                p = np.array(message.p, dtype=np.float64)
+                p[3] *= baseline  # P[0, 3] = -fx * baseline
+                message = dataclasses.replace(message, p=p)
+            elif raw.topic == "/stereo/right/image_rect" and right_ms:
+                stamp = message.header.stamp
+                shifted = stamp.sec * 10**9 + stamp.nanosec + right_ms * 1_000_000
+                time = dataclasses.replace(stamp, sec=shifted // 10**9, nanosec=shifted % 10**9)
+                message = dataclasses.replace(
+                    message, header=dataclasses.replace(message.header, stamp=time)
+                )
+            writer.add_message(raw.topic, message, raw.log_time_ns)
+    return target
+
+
+def test_scaled_to_keeps_invalid_pixels_invalid() -> None:
+    from pcainterp_stream.pipeline.learn_maps import scaled_to
+
+    disparity = np.array([[2.0, 0.0, -1.0, np.nan]], dtype=np.float32)
+    scaled = scaled_to(disparity, 20.0, 10.0)
+    np.testing.assert_array_equal(scaled[0, :3], [1.0, 0.0, -0.5])
+    assert np.isnan(scaled[0, 3])
+    assert scaled.dtype == np.float32
+    assert scaled_to(disparity, 10.0, 10.0) is disparity
+
+
+def test_learn_puts_the_maps_of_two_f_b_in_the_first_logs(
+    folder: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # the same depths seen by a rig of twice the baseline: twice the disparities; scaled to
+    # the first log's f*b they are the same maps (before: learned as they were, the mean
+    # 1.5x the first log's and the basis stamped with its f*b)
+    drive = folder / "drive.mcap"
+    wide = _rewritten(drive, folder / "wide.mcap", baseline=2.0)
+    options = jobs.LearnOptions(n_components=3, depth_topic="/ground_truth/depth", fit_prior=False)
+    alone = jobs.learn([drive], folder / "alone.npz", options, PairingConfig())
+    capsys.readouterr()
+    both = jobs.learn([drive, wide], folder / "both.npz", options, PairingConfig())
+    assert both.focal_baseline == pytest.approx(alone.focal_baseline)
+    np.testing.assert_allclose(both.mean, alone.mean, rtol=1e-4, atol=1e-4)
+    said = capsys.readouterr().out
+    assert "wide.mcap's camera has f*b " in said
+    assert "its maps are scaled by 0.5 to drive.mcap's" in said
+    # the other order: the basis is the wide camera's, the drive's maps doubled
+    wide_first = jobs.learn([wide, drive], folder / "wide_first.npz", options, PairingConfig())
+    assert wide_first.focal_baseline == pytest.approx(2.0 * alone.focal_baseline)
+    np.testing.assert_allclose(wide_first.mean, 2.0 * alone.mean, rtol=1e-4, atol=1e-3)
+
+
+def test_learn_on_a_cluster_scales_the_maps_too(folder: Path) -> None:
+    from pcainterp_stream.pipeline.distributed import summarize_chunk
+    from pcainterp_stream.pipeline.learn import GridTarget
+
+    wide = _rewritten(folder / "drive.mcap", folder / "wide_c.mcap", baseline=2.0)
+    options = jobs.LearnOptions(depth_topic="/ground_truth/depth")
+    own = summarize_chunk(wide, 0, 2, options, PairingConfig(), 4)
+    assert own is not None
+    target = GridTarget(own.grid_size, focal_baseline=own.focal_baseline / 2.0)
+    half = summarize_chunk(wide, 0, 2, options, PairingConfig(), 4, target)
+    assert half is not None
+    assert half.focal_baseline == pytest.approx(own.focal_baseline / 2.0)
+    np.testing.assert_allclose(half.mean, own.mean / 2.0, rtol=1e-4, atol=1e-4)
+
+
+def test_learn_refuses_fit_logs_of_another_camera(folder: Path) -> None:
+    small = folder / "small.mcap"
+    jobs.synth(small, frames=2, seed=13, scale=0.2, fmt="mcap")
+    options = jobs.LearnOptions(n_components=3, fit_logs=(small,))
+    with pytest.raises(
+        PcaInterpError,
+        match=r"--fit-logs small.mcap has 248x75 images but the training log drive.mcap has "
+        r"310x94 images; fit on logs of the training camera",
+    ):
+        jobs.learn([folder / "drive.mcap"], folder / "fit.npz", options, PairingConfig())
+    assert not (folder / "fit.npz").exists()
+
+
+def test_learn_says_when_it_fits_on_the_fit_logs(
+    folder: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    other = folder / "other.mcap"
+    jobs.synth(other, frames=3, seed=14, scale=0.25, fmt="mcap")
+    options = jobs.LearnOptions(n_components=3, fit_logs=(other,))
+    basis = jobs.learn([folder / "drive.mcap"], folder / "fitted.npz", options, PairingConfig())
+    assert basis.meta["prior"]["fit_logs"] == [str(other)]
+    assert "fitting the prior by the evidence on the --fit-logs logs' frames" in (
+        capsys.readouterr().out
+    )
+
+
+def test_learn_names_the_stamp_gap_and_the_tolerance_that_pairs(folder: Path) -> None:
+    late = _rewritten(folder / "drive.mcap", folder / "late.mcap", right_ms=20)
+    with pytest.raises(
+        LogReadError,
+        match=r"no stereo pair found in .*late.mcap \(.*\); all 12 images dropped unpaired had "
+        r"an unpaired other-side image 20.00-20.00 ms away, beyond the 1 ms tolerance; pass "
+        r"--stamp-tolerance-ms 20 to pair them",
+    ):
+        jobs.learn([late], folder / "late.npz", jobs.LearnOptions(), PairingConfig())
+    tolerant = PairingConfig(tolerance_ns=25_000_000)
+    options = jobs.LearnOptions(n_components=3, fit_prior=False)
+    assert jobs.learn([late], folder / "late.npz", options, tolerant).n_train == 6
+
+
+def _right_is_left(source: Path, target: Path) -> Path:
+    """Copy a log whose right images are its left ones again, a small patch 1 px off.
+
+    (As a codec's noise leaves a few 1 px matches: the exact copy matches at 0 px
+    everywhere, a map refused as blank.)
+    """
+    with open_log(source) as reader:
+        lefts = {
+            rosmsg.stamp_ns(message): message
+            for raw in reader.messages(["/stereo/left/image_rect"])
+            for message in [reader.decode(raw)]
+        }
+    with open_log(source) as reader, open_writer(target, LogFormat.MCAP) as writer:
+        for raw in reader.messages():
+            message = reader.decode(raw)
+            if raw.topic == "/stereo/right/image_rect":
+                left = lefts[rosmsg.stamp_ns(message)]
+                image = rosmsg.image_array(left).copy()
+                image[60:68, 150:160] = image[60:68, 151:161]
+                message = dataclasses.replace(
+                    left, header=message.header, data=image.reshape(-1).astype(np.uint8)
+                )
+            writer.add_message(raw.topic, message, raw.log_time_ns)
+    return target
+
+
+def test_learn_refuses_a_pair_whose_right_image_is_the_left_one(folder: Path) -> None:
+    # before: a basis of ~0 px disparity, written without a word (bug hunt 6A F12)
+    same = _right_is_left(folder / "drive.mcap", folder / "same.mcap")
+    options = jobs.LearnOptions(n_components=3, fit_prior=False)
+    with pytest.raises(
+        PcaInterpError,
+        match=r"same.mcap: all of the 6 SGBM maps have almost no disparity .*; the right "
+        r"topic may show the left camera again",
+    ):
+        jobs.learn([same], folder / "same.npz", options, PairingConfig())
+    assert not (folder / "same.npz").exists()
+
+
+def test_learn_refuses_a_sparse_depth_topic(folder: Path) -> None:
+    # before: a projected LiDAR's holes were learned as infinitely far (bug hunt 6A F14)
+    lidar = folder / "lidar.mcap"
+    jobs.synth(lidar, frames=2, seed=15, scale=0.25, fmt="mcap", lidar=True)
+    options = jobs.LearnOptions(depth_topic="/ground_truth/lidar_depth", fit_prior=False)
+    with pytest.raises(
+        PcaInterpError,
+        match=r"/ground_truth/lidar_depth in lidar.mcap has a depth at \d+% of the pixels of "
+        r"its first image; .*learn from SGBM maps \(drop --depth-topic\) or a dense depth",
+    ):
+        jobs.learn([lidar], folder / "lidar.npz", options, PairingConfig())
+
+
+def _later(source: Path, writer: Any, offset_ns: int) -> None:
+    """Add a log's messages to ``writer``, their header stamps and log times later."""
+    with open_log(source) as reader:
+        for raw in reader.messages():
+            message = reader.decode(raw)
+            header = getattr(message, "header", None)
+            if header is not None:
+                shifted = rosmsg.stamp_ns(message) + offset_ns
+                time = dataclasses.replace(
+                    header.stamp, sec=shifted // 10**9, nanosec=shifted % 10**9
+                )
+                message = dataclasses.replace(
+                    message, header=dataclasses.replace(header, stamp=time)
+                )
+            writer.add_message(raw.topic, message, raw.log_time_ns + offset_ns)
+
+
+def test_a_log_whose_images_change_size_is_named_as_itself(folder: Path) -> None:
+    small = folder / "small2.mcap"
+    jobs.synth(small, frames=2, seed=16, scale=0.2, fmt="mcap")
+    mixed = folder / "mixed.mcap"
+    with open_writer(mixed, LogFormat.MCAP) as writer:
+        _later(folder / "drive.mcap", writer, 0)
+        _later(small, writer, 1000 * 10**9)
+    options = jobs.LearnOptions(n_components=3, fit_prior=False)
+    # before: "... but the first log's are 310x94" of the one log given
+    with pytest.raises(
+        PcaInterpError, match=r"mixed.mcap gives a 248x75 map .* but its first maps"
+    ):
+        jobs.learn([mixed], folder / "mixed.npz", options, PairingConfig())
+
+
+def test_a_log_without_a_pair_among_others_is_named_in_a_note(
+    folder: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # before: skipped without a word
+    late = _rewritten(folder / "drive.mcap", folder / "late2.mcap", right_ms=20)
+    options = jobs.LearnOptions(n_components=3, fit_prior=False)
+    basis = jobs.learn([folder / "drive.mcap", late], folder / "one.npz", options, PairingConfig())
+    assert basis.n_train == 6
+    assert re.search(
+        r"note: no stereo pair found in .*late2.mcap \(.*\); all 12 images dropped unpaired .*"
+        r"pass --stamp-tolerance-ms 20 to pair them; learning from the other logs",
+        capsys.readouterr().out,
+    )
+
+
+def test_on_a_cluster_the_flat_maps_are_counted_and_refused(folder: Path) -> None:
+    from pcainterp_stream.pipeline.distributed import merge, summarize_chunk
+    from pcainterp_stream.pipeline.learn import check_flat
+
+    same = _right_is_left(folder / "drive.mcap", folder / "same_c.mcap")
+    options = jobs.LearnOptions(n_components=3)
+    first = summarize_chunk(same, 0, 2, options, PairingConfig(), 4)
+    second = summarize_chunk(same, 2, None, options, PairingConfig(), 4)
+    total = merge(first, second, 4)
+    assert total is not None
+    assert (total.n_maps, total.flat_maps) == (6, 6)
+    with pytest.raises(PcaInterpError, match=r"same_c.mcap: all of the 6 SGBM maps have almost"):
+        check_flat((same,), total.flat_maps, total.n_maps)
+    drive = summarize_chunk(folder / "drive.mcap", 0, None, options, PairingConfig(), 4)
+    assert drive is not None
+    assert drive.flat_maps == 0
