@@ -23,7 +23,9 @@ baseline b = (P_left[0, 3] - P_right[0, 3]) / P_right[0, 0] (= -P1[0, 3] / P1[0,
 KITTI, where P0[0, 3] = 0; the colour cameras' P2[0, 3] is not 0, camera 2 being ~6 cm left
 of camera 0). KITTI's poses are camera 0's: for the colour pair they are moved to camera 2,
 whose centre is -K^-1 P2[:, 3] in camera 0's frame. Without timestamps frames are 10 Hz from
-t = 0. Frames are read and written one at a time.
+t = 0. Frames are read and written one at a time, in the order of the numbers in their
+names (KITTI's ``000010.png``; also ``2.png`` before ``10.png``), the n-th taking the n-th
+line of the timestamps and poses.
 
 KITTI's depth-completion truth (uint16 PNG, depth in m = value / 256, 0 = no truth) belongs to
 camera 2, so it comes along with the colour pair: a raw drive's
@@ -36,6 +38,7 @@ and last five) get none.
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -295,8 +298,19 @@ def read_depth_truth(path: Path, image_size: tuple[int, int]) -> npt.NDArray[np.
     return depth
 
 
+def _frame_order(path: Path) -> tuple[list[int | str], str]:
+    """Sort key of an image: its name's numbers compared as numbers (``2.png`` < ``10.png``).
+
+    KITTI's names are zero-padded (``000010.png``), where text order is frame order; other
+    tools' "KITTI-layout" exports (``0.png`` ... ``11.png``) are not, and text order would
+    give frame 10 the second line of ``times.txt`` and the poses.
+    """
+    parts = re.split(r"(\d+)", path.stem)  # text, number, text, ...: one type per position
+    return [int(part) if i % 2 else part for i, part in enumerate(parts)], path.name
+
+
 def _pngs(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png")
+    return sorted((p for p in folder.iterdir() if p.suffix.lower() == ".png"), key=_frame_order)
 
 
 def _paired_images(left_dir: Path, right_dir: Path) -> tuple[list[Path], list[Path]]:

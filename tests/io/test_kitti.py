@@ -565,3 +565,26 @@ def test_error_several_drives(tmp_path: Path) -> None:
     (other / "image_00" / "data").mkdir(parents=True)
     with pytest.raises(DatasetImportError, match=r"holds 2 KITTI raw drives .*pass one drive"):
         open_kitti(drive.parent)
+
+
+def test_names_without_zero_padding_keep_frame_order_and_poses(tmp_path: Path) -> None:
+    # "0.png ... 11.png" (another tool's export): text order would put 10 and 11 after 1
+    # and give frame 10 the pose and time of frame 2 (bug hunt 6A F5)
+    n = 12
+    sequence_dir = make_odometry(tmp_path, n=n)
+    for camera in ("image_0", "image_1"):
+        for i in range(n):
+            (sequence_dir / camera / f"{i:06d}.png").rename(sequence_dir / camera / f"{i}.png")
+    sequence = open_kitti(sequence_dir)
+    assert [p.stem for p in sequence.left_paths] == [str(i) for i in range(n)]
+    assert sequence.camera_to_world is not None
+    np.testing.assert_allclose(sequence.camera_to_world[10][:3, 3], [1.0, 0, 10.0])
+    out = tmp_path / "odo.mcap"
+    import_kitti(sequence_dir, out)
+    read = _read(out)
+    left = [m for topic, _, m in read if topic == "/stereo/left/image_rect"]
+    expected = cv2.imread(str(sequence_dir / "image_0" / "10.png"), cv2.IMREAD_GRAYSCALE)
+    np.testing.assert_array_equal(rosmsg.image_array(left[10]), expected)
+    poses = [(t, m) for topic, t, m in read if topic == "/ground_truth/pose"]
+    assert poses[10][0] == round(0.1037 * 10 * 1e9)
+    np.testing.assert_allclose(rosmsg.pose_matrix(poses[10][1])[:3, 3], [1.0, 0, 10.0])
