@@ -26,6 +26,7 @@ from pcainterp_stream.frontend.images import PairImages
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import decode_image, open_log
 from pcainterp_stream.io.outputs import (
+    FOCAL_BASELINE_KEY,
     MEASUREMENTS_KEY,
     EstimateTopics,
     OutputTopics,
@@ -104,6 +105,29 @@ class ReadState:
     """Where :attr:`tolerance_ns` came from, for messages."""
     damage: list[str] = field(default_factory=list)
     """The reader's damage lines (the reader's own list: it grows as the log is read)."""
+    converted: bool = False
+    """The estimate channel carries no ``pcainterp.*`` metadata at all: the log went through
+    a tool that keeps none (rosbag2 keeps only QoS: rosbags-convert, ``ros2 bag convert``)."""
+    recovered_focal_baseline: float | None = None
+    """f*b (px*m) read from the features (z * disparity) when the metadata lacked it."""
+
+    @property
+    def notes(self) -> list[str]:
+        """Return what the report should say about the log's lost metadata ([]: none lost)."""
+        if not self.converted:
+            return []
+        lost = "the stamp tolerance densify paired with (1 ms assumed unless given), its basis"
+        note = (
+            "the densified log's channels carry no pcainterp metadata, as after a ROS 2 bag "
+            "tool (rosbags-convert, `ros2 bag convert`: rosbag2 keeps none)"
+        )
+        if self.recovered_focal_baseline is not None:
+            note += (
+                f"; f*b {self.recovered_focal_baseline:.6g} px*m was read from the features "
+                "(z * disparity)"
+            )
+            lost += " and its smallest resolvable disparity"
+        return [f"{note}; unknown: {lost}; evaluate the log densify wrote to have them"]
 
 
 @dataclass(frozen=True)
@@ -194,6 +218,8 @@ def read_frames(
 
         def release() -> Frame:
             frame = waiting.popleft()
+            if where.compact and FOCAL_BASELINE_KEY not in state.metadata:
+                _recover_focal_baseline(frame, topics.features, state)
             return _frame(
                 frame,
                 rights=rights,
@@ -210,6 +236,7 @@ def read_frames(
                 state.seen_disparity = True
                 state.metadata = dict(raw.channel_metadata)
                 state.measurements = state.metadata.get(MEASUREMENTS_KEY)
+                state.converted = not any(key.startswith("pcainterp.") for key in state.metadata)
                 recorded = recorded_tolerance_ns(state.metadata)
                 if tolerance_ns is not None:
                     state.tolerance_ns, state.tolerance_from = tolerance_ns, "--stamp-tolerance-ms"
@@ -267,6 +294,41 @@ def _missing_advice(
         f"; densify wrote only {', '.join(names)} into it (`pcainterp densify --outputs`): "
         "evaluate needs depth or disparity, disparity_std, features and camera_info; densify "
         "again with --outputs depth,disparity_std,features,camera_info (or without --outputs)"
+    )
+
+
+def _recover_focal_baseline(frame: _Complete, features_topic: str, state: ReadState) -> None:
+    """Put f*b into a compact log's metadata from its features when the metadata lacks it.
+
+    A compact log's depth needs f*b to become disparity; densify records it in the channel
+    metadata, which a ROS 2 bag tool drops. Every feature point holds z = f*b / disparity
+    (``io/outputs``), so f*b = z * disparity of any point with a disparity.
+
+    Raises:
+        LogReadError: the frame's features hold no point with a disparity.
+    """
+    features = rosmsg.pointcloud2_arrays(frame.parts[features_topic])
+    if "z" in features and "disparity" in features:
+        z = np.asarray(features["z"], dtype=np.float64)
+        disparity = np.asarray(features["disparity"], dtype=np.float64)
+        with np.errstate(invalid="ignore"):
+            usable = np.isfinite(z) & np.isfinite(disparity) & (z > 0) & (disparity > 0)
+        if usable.any():
+            focal_baseline = float(np.median(z[usable] * disparity[usable]))
+            state.metadata[FOCAL_BASELINE_KEY] = repr(focal_baseline)
+            state.recovered_focal_baseline = focal_baseline
+            return
+    converted = (
+        "its channels carry no pcainterp metadata (a ROS 2 bag tool such as rosbags-convert "
+        "or `ros2 bag convert` keeps none)"
+        if state.converted
+        else f"its depth channel has no {FOCAL_BASELINE_KEY} metadata"
+    )
+    raise LogReadError(
+        f"frame {frame.index} of the densified log: {converted}, and its {features_topic} "
+        "holds no point with a disparity to read f*b from, so the depth cannot be turned "
+        "into disparity; evaluate the log as densify wrote it, or densify again with "
+        "--precision full (its DisparityImage carries f and b)"
     )
 
 

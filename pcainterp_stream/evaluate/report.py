@@ -47,7 +47,7 @@ from pcainterp_stream.evaluate.metrics import (
     Mode,
     ReferenceKind,
     ReferenceView,
-    disparity_from_depth,
+    disparity_from_reference,
     fill_nearest,
     oracle_disparity,
     projection_errors,
@@ -212,8 +212,59 @@ def _truth(
             image_size=frame.camera.image_size,
         )
     if frame.depth is not None and use_truth:
-        return disparity_from_depth(frame.depth, frame.camera.focal_baseline)
+        # REP 118 as for a reference topic: NaN no truth, +inf too far (disparity 0)
+        return disparity_from_reference(
+            frame.depth, kind=ReferenceKind.DEPTH, focal_baseline=frame.camera.focal_baseline
+        )
     return None
+
+
+@dataclass
+class _TruthValues:
+    """Counts of the ground-truth depth's values that hold no depth (NaN) or a far one."""
+
+    pixels: int = 0
+    nan: int = 0
+    far: int = 0
+
+    def add(self, frame: Frame) -> None:
+        """Count one frame's ``/ground_truth/depth``."""
+        assert frame.depth is not None
+        self.pixels += frame.depth.size
+        self.nan += int(np.count_nonzero(np.isnan(frame.depth)))
+        self.far += int(np.count_nonzero(np.isposinf(frame.depth)))
+
+    def notes(self) -> list[str]:
+        """Say how the NaN were read when no pixel is +inf (a synthetic log of before)."""
+        if not self.nan or self.far or self.nan == self.pixels:
+            return []
+        return [
+            f"{100 * self.nan / self.pixels:.1f} % of {GROUND_TRUTH_DEPTH}'s pixels are NaN, "
+            "read as no truth (REP 118; +inf, too far, counts as disparity 0); a log of an "
+            "earlier `pcainterp synth` holds its sky as NaN: synthesize and densify it again "
+            "to score the sky"
+        ]
+
+
+def _no_truth_message(
+    path: Path, result: Evaluation, reference: ReferenceTopic | None, max_frames: int | None
+) -> str:
+    """Say that no evaluated frame's reference had a pixel with truth, and what to do."""
+    frames = f"{result.frames} frame{'' if result.frames == 1 else 's'} evaluated"
+    if max_frames is not None:
+        frames += f" (at most {max_frames}: --max-frames)"
+    if result.reference == "SGBM":
+        return (
+            f"SGBM of the pair found no pixel in any of the {frames} of {path}, so there is "
+            "no reference to score against; evaluate a log with ground truth or pass "
+            "--reference-topic"
+        )
+    topic = reference.topic if reference is not None else GROUND_TRUTH_DEPTH
+    return (
+        f"{topic} holds no truth in any of the {frames} of {path}: every pixel is NaN, 0 or "
+        "< 0 (no value, REP 118; +inf, too far, would count), so there is nothing to score "
+        "against; pass a --reference-topic that holds truth"
+    )
 
 
 def _no_reference_message(frame: Frame, right_topic: str, state: ReadState) -> str:
@@ -657,6 +708,7 @@ def evaluate_log(
         evaluator.example_at = {round(float(i)) for i in picks}
     previous: tuple[Frame, npt.NDArray[np.float64], _Stereo | None] | None = None
     read = 0
+    truth_values = _TruthValues()
     state = ReadState()
     frames = read_frames(
         path, topics, options.max_frames, reference, state, images, options.stamp_tolerance_ns
@@ -666,6 +718,8 @@ def evaluate_log(
         if progress is not None:
             progress(read)
         truth = _truth(frame, reference, has_truth)
+        if truth is not None and reference is None:
+            truth_values.add(frame)
         if truth is None and reference is not None:  # no reference message of this stamp
             result.skipped += 1
             stereo = None
@@ -704,6 +758,7 @@ def evaluate_log(
         previous = None if frame_reference is None else (frame, frame_reference, stereo)
     result.measurements = state.measurements
     result.damage = list(state.damage)
+    result.notes += state.notes + truth_values.notes()
     if evaluator.sgbm_empty:
         result.stereo_note = (
             f"{SGBM_NN} left out on {evaluator.sgbm_empty} frames where SGBM found no pixel"
@@ -716,6 +771,8 @@ def evaluate_log(
             f"no frame of {path} could be evaluated ({read} densified frames read{without}; "
             "temporal mode needs two)"
         )
+    if result.reference_pixels == 0:
+        raise LogReadError(_no_truth_message(path, result, reference, options.max_frames))
     result.points_per_frame = evaluator.points / result.frames
     result.seconds = time.perf_counter() - started
     return result, evaluator.examples
