@@ -246,6 +246,53 @@ class _TruthValues:
         ]
 
 
+@dataclass
+class _LeftOut:
+    """Frames left out for want of a truth or pose message near their stamp."""
+
+    truths: int = 0
+    poses: int = 0
+    gaps: dict[str, list[int]] = field(default_factory=lambda: {"truth": [], "pose": []})
+    stamps: list[int] = field(default_factory=list)
+    """The stamps (ns) of the frames read, for their period."""
+
+    def see(self, gap_ns: int | None, what: str) -> None:
+        """Count a frame without ``what`` ("truth" or "pose"); ``gap_ns``: the nearest's."""
+        if what == "truth":
+            self.truths += 1
+        else:
+            self.poses += 1
+        if gap_ns is not None:
+            self.gaps[what].append(gap_ns)
+
+    def notes(self, state: ReadState, truth_topic: str) -> list[str]:
+        """Say how many frames lacked a pose or truth, and the tolerance that would pair them."""
+        notes = []
+        for what, count, topic in (
+            ("truth", self.truths, truth_topic),
+            ("pose", self.poses, GROUND_TRUTH_POSE),
+        ):
+            if not count or not topic:
+                continue
+            note = (
+                f"{count} frame{'' if count == 1 else 's'} left out: no {topic} within "
+                f"{state.tolerance_ns / 1e6:g} ms of their stamp ({state.tolerance_from})"
+            )
+            gaps = self.gaps[what]
+            steps = np.diff(np.unique(self.stamps))
+            period = float(np.median(steps)) if steps.size else math.inf
+            if gaps:
+                note += f"; {len(gaps)} had one {min(gaps) / 1e6:.2f}-{max(gaps) / 1e6:.2f} ms away"
+                # a stamp half a frame away or more is another frame's: no tolerance fixes it
+                note += (
+                    f": pass --stamp-tolerance-ms {math.ceil(max(gaps) / 1e6)} to take it"
+                    if max(gaps) < period / 2
+                    else f", another frame's ({period / 1e6:.0f} ms apart): the stream lacks them"
+                )
+            notes.append(note)
+        return notes
+
+
 def _no_truth_message(
     path: Path, result: Evaluation, reference: ReferenceTopic | None, max_frames: int | None
 ) -> str:
@@ -711,8 +758,16 @@ def evaluate_log(
     truth_values = _TruthValues()
     state = ReadState()
     frames = read_frames(
-        path, topics, options.max_frames, reference, state, images, options.stamp_tolerance_ns
+        path,
+        topics,
+        options.max_frames,
+        reference,
+        state,
+        images,
+        options.stamp_tolerance_ns,
+        poses=mode is Mode.TEMPORAL,
     )
+    left_out = _LeftOut()
     for frame in frames:
         read += 1
         if progress is not None:
@@ -720,14 +775,16 @@ def evaluate_log(
         truth = _truth(frame, reference, has_truth)
         if truth is not None and reference is None:
             truth_values.add(frame)
-        if truth is None and reference is not None:  # no reference message of this stamp
+        if truth is None and has_truth:  # no truth message of this stamp (within tolerance)
             result.skipped += 1
+            left_out.see(frame.depth_gap_ns, "truth")
             stereo = None
         else:
             stereo = _stereo(frame, options.sgbm)
+        left_out.stamps.append(frame.stamp_ns)
         if truth is not None:
             frame_reference: npt.NDArray[np.float64] | None = truth
-        elif reference is not None:
+        elif has_truth:  # never SGBM for a frame of a log with truth: skipped, counted
             frame_reference = None
         elif stereo is None:
             raise LogReadError(_no_reference_message(frame, images.right_topic, state))
@@ -744,6 +801,10 @@ def evaluate_log(
                     baselines=baselines,
                 )
             continue
+        if frame.pose is None:  # no pose within the tolerance: no pair with this frame
+            left_out.see(frame.pose_gap_ns, "pose")
+            previous = None
+            continue
         if previous is not None:
             before, before_reference, before_stereo = previous
             assert before.pose is not None
@@ -759,17 +820,24 @@ def evaluate_log(
     result.measurements = state.measurements
     result.damage = list(state.damage)
     result.notes += state.notes + truth_values.notes()
+    causes = left_out.notes(state, GROUND_TRUTH_DEPTH if reference is None else "")
+    causes += [state.incomplete_note] if state.incomplete_note else []
+    result.notes += causes
     if evaluator.sgbm_empty:
         result.stereo_note = (
             f"{SGBM_NN} left out on {evaluator.sgbm_empty} frames where SGBM found no pixel"
         )
     if result.frames == 0:
-        without = f", {result.skipped} without a {reference.topic} message" if reference else ""
+        name = reference.topic if reference else GROUND_TRUTH_DEPTH
+        without = f", {result.skipped} without a {name} message" if result.skipped else ""
+        if left_out.poses:
+            without += f", {left_out.poses} without a {GROUND_TRUTH_POSE}"
         if result.no_measurement:
             without += f", {len(result.no_measurement)} without a measurement"
+        why = "; temporal mode needs two in a row with poses" if mode is Mode.TEMPORAL else ""
         raise LogReadError(
-            f"no frame of {path} could be evaluated ({read} densified frames read{without}; "
-            "temporal mode needs two)"
+            f"no frame of {path} could be evaluated ({read} densified frames read{without}"
+            f"{why})" + "".join(f"; {cause}" for cause in causes)
         )
     if result.reference_pixels == 0:
         raise LogReadError(_no_truth_message(path, result, reference, options.max_frames))

@@ -21,6 +21,8 @@ from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.pipeline import jobs
 
 TRUTH = "/ground_truth/depth"
+POSE = "/ground_truth/pose"
+FEATURES = "/pcainterp/features"
 Patch = Callable[[int, npt.NDArray[np.float32]], npt.NDArray[np.float32]]
 
 
@@ -166,3 +168,88 @@ def test_cli_a_reference_without_truth_is_one_line(
     assert err.count("\n") == 0
     assert "holds no truth in any of the 2 frames evaluated (at most 2: --max-frames)" in err
     assert not report.exists()
+
+
+# ------------------------------------------- truth and poses matched by stamp (bug hunt 6A F8)
+
+
+def _restamped(
+    source: Path, target: Path, topic: str, *, shift_ns: int = 0, drop: int = -1
+) -> Path:
+    """Copy an MCAP with ``topic``'s header stamps ``shift_ns`` later and its ``drop``-th
+    message left out (another clock, a lost message)."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with source.open("rb") as stream, target.open("wb") as out:
+        writer = Writer(out)
+        writer.start()
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        index = 0
+        for schema, channel, message in make_reader(stream).iter_messages(log_time_order=False):
+            if channel.id not in channels:
+                if schema is not None and schema.id not in schemas:
+                    schemas[schema.id] = writer.register_schema(
+                        schema.name, schema.encoding, schema.data
+                    )
+                channels[channel.id] = writer.register_channel(
+                    channel.topic,
+                    channel.message_encoding,
+                    schemas.get(schema.id, 0) if schema is not None else 0,
+                    dict(channel.metadata),
+                )
+            data = bytearray(message.data)
+            if channel.topic == topic:
+                index += 1
+                if index - 1 == drop:
+                    continue
+                seconds, nanoseconds = struct.unpack_from("<iI", data, 4)  # after the CDR header
+                total = seconds * 1_000_000_000 + nanoseconds + shift_ns
+                struct.pack_into("<iI", data, 4, total // 1_000_000_000, total % 1_000_000_000)
+            writer.add_message(
+                channels[channel.id], message.log_time, bytes(data), message.log_time
+            )
+        writer.finish()
+    return target
+
+
+def test_poses_of_another_clock_are_not_needed_in_stereo_mode(logs: dict[str, Path]) -> None:
+    log = _restamped(logs["dense"], logs["folder"] / "pose_5ms.mcap", POSE, shift_ns=5_000_000)
+    stereo, _ = evaluate_log(log, EvaluateOptions(mode=Mode.STEREO, sweep_every=0))
+    assert stereo.frames == 4
+    assert stereo.notes == []
+    with pytest.raises(
+        LogReadError,
+        match=r"4 without a /ground_truth/pose; temporal mode needs two in a row with poses\); "
+        r"4 frames left out: no /ground_truth/pose within 1 ms .* 5.00-5.00 ms away: pass "
+        r"--stamp-tolerance-ms 5 to take it",
+    ):
+        evaluate_log(log, EvaluateOptions(mode=Mode.TEMPORAL, sweep_every=0))
+    options = EvaluateOptions(mode=Mode.TEMPORAL, sweep_every=0, stamp_tolerance_ns=5_000_000)
+    temporal, _ = evaluate_log(log, options)
+    assert temporal.frames == 3
+
+
+def test_a_frame_without_truth_is_skipped_and_counted_not_scored_against_sgbm(
+    logs: dict[str, Path],
+) -> None:
+    log = _restamped(logs["dense"], logs["folder"] / "truth_lost.mcap", TRUTH, drop=1)
+    result, _ = evaluate_log(log, EvaluateOptions(mode=Mode.STEREO, sweep_every=0))
+    assert (result.frames, result.skipped) == (3, 1)
+    assert result.reference == "ground truth"
+    assert any(
+        note.startswith("1 frame left out: no /ground_truth/depth within 1 ms")
+        and "another frame's (100 ms apart): the stream lacks them" in note
+        for note in result.notes
+    )
+
+
+def test_frames_with_incomplete_outputs_are_counted(logs: dict[str, Path]) -> None:
+    log = _restamped(logs["dense"], logs["folder"] / "features_lost.mcap", FEATURES, drop=2)
+    result, _ = evaluate_log(log, EvaluateOptions(mode=Mode.STEREO, sweep_every=0))
+    assert result.frames == 3
+    assert (
+        "at least 1 frame left out: their densified channels are incomplete (missing "
+        "/pcainterp/features on 1" in " ".join(result.notes)
+    )
