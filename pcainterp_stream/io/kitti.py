@@ -310,7 +310,25 @@ def _frame_order(path: Path) -> tuple[list[int | str], str]:
 
 
 def _pngs(folder: Path) -> list[Path]:
-    return sorted((p for p in folder.iterdir() if p.suffix.lower() == ".png"), key=_frame_order)
+    """Return a folder's images in frame order; dot-files (macOS's ``._000000.png``) are not."""
+    images = (p for p in folder.iterdir() if p.suffix.lower() == ".png" and p.name[0] != ".")
+    return sorted(images, key=_frame_order)
+
+
+def _check_increasing(stamps: npt.NDArray[np.int64], path: Path, lines: list[int]) -> None:
+    """Refuse times that do not increase: evaluate tells frames apart by their stamps.
+
+    Args:
+        stamps: (n,) int64 frame times (ns), in frame order.
+        path: the file they were read from.
+        lines: (n,) the line number of each.
+    """
+    for i in np.flatnonzero(np.diff(stamps) <= 0):
+        raise DatasetImportError(
+            f"line {lines[i + 1]} of {path} ({stamps[i + 1] / 1e9:.9f} s) is not after line "
+            f"{lines[i]} ({stamps[i] / 1e9:.9f} s): frames need increasing times; fix or "
+            "restore the file (without it frames are 10 Hz)"
+        )
 
 
 def _paired_images(left_dir: Path, right_dir: Path) -> tuple[list[Path], list[Path]]:
@@ -353,6 +371,7 @@ def _raw_stamps(path: Path, count: int) -> npt.NDArray[np.int64]:
                 "fix or restore the file"
             ) from err
         stamps[i] = int(moment.timestamp()) * 1_000_000_000 + nanoseconds
+    _check_increasing(stamps, path, list(range(1, count + 1)))
     return stamps
 
 
@@ -390,7 +409,9 @@ def _odometry_stamps(path: Path, images: list[Path]) -> npt.NDArray[np.int64]:
         raise DatasetImportError(
             f"{path} must hold one number (seconds) per line: {err}; fix or restore the file"
         ) from err
-    return np.round(seconds * 1e9).astype(np.int64)
+    stamps = np.round(seconds * 1e9).astype(np.int64)
+    _check_increasing(stamps, path, [number for number, _ in lines])
+    return stamps
 
 
 def _poses(path: Path, images: list[Path]) -> npt.NDArray[np.float64] | None:

@@ -588,3 +588,33 @@ def test_names_without_zero_padding_keep_frame_order_and_poses(tmp_path: Path) -
     poses = [(t, m) for topic, t, m in read if topic == "/ground_truth/pose"]
     assert poses[10][0] == round(0.1037 * 10 * 1e9)
     np.testing.assert_allclose(rosmsg.pose_matrix(poses[10][1])[:3, 3], [1.0, 0, 10.0])
+
+
+def test_error_times_that_do_not_increase(tmp_path: Path) -> None:
+    # twelve 0.0 lines gave "0.0 s of log", and evaluate then saw one frame (bug hunt 6A F15)
+    sequence = make_odometry(tmp_path)
+    (sequence / "times.txt").write_text("0.0\n0.1\n0.1\n0.3\n")
+    with pytest.raises(
+        DatasetImportError,
+        match=r"line 3 of .*times\.txt \(0\.100000000 s\) is not after line 2 \(0\.100000000 s\): "
+        r"frames need increasing times",
+    ):
+        open_kitti(sequence)
+
+
+def test_error_raw_timestamps_that_do_not_increase(tmp_path: Path) -> None:
+    drive = make_raw(tmp_path)
+    stamps = ["2011-01-01 12:00:01.000000000", "2011-01-01 12:00:00.500000000"] * 2
+    (drive / "image_00" / "timestamps.txt").write_text("\n".join(stamps[:3]) + "\n")
+    with pytest.raises(DatasetImportError, match=r"line 2 of .*timestamps\.txt .* is not after"):
+        open_kitti(drive)
+
+
+def test_macos_dot_files_beside_the_images_are_not_frames(tmp_path: Path) -> None:
+    # copies from an exFAT/HFS drive leave AppleDouble files: ._000000.png (bug hunt 6A F10)
+    sequence_dir = make_odometry(tmp_path)
+    for camera in ("image_0", "image_1"):
+        (sequence_dir / camera / "._000000.png").write_bytes(b"\x00\x05\x16\x07 not an image")
+    sequence = open_kitti(sequence_dir)
+    assert [p.name for p in sequence.left_paths] == [f"{i:06d}.png" for i in range(4)]
+    assert len(list(iter_frames(sequence))) == 4
