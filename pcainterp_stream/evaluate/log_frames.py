@@ -120,6 +120,9 @@ class ReadState:
     a tool that keeps none (rosbag2 keeps only QoS: rosbags-convert, ``ros2 bag convert``)."""
     recovered_focal_baseline: float | None = None
     """f*b (px*m) read from the features (z * disparity) when the metadata lacked it."""
+    merged: int = 0
+    """Densified messages that replaced one of the same topic and stamp: frames are told
+    apart by header stamp, so frames sharing a stamp became one."""
     incomplete: dict[str, int] = field(default_factory=dict)
     """Per densified topic, the stamps of left images or outputs left out because that topic
     never came with their stamp (a frame densify dropped, a message lost)."""
@@ -144,15 +147,23 @@ class ReadState:
 
     @property
     def incomplete_note(self) -> str:
-        """Return the sentence on the frames left out for missing outputs ("": none)."""
+        """Return the sentence on frames merged or left out for missing outputs ("": none)."""
+        merged = (
+            f"{self.merged} densified messages had the stamp of another of their topic and "
+            "replaced it: frames are told apart by header stamp, so frames sharing one were "
+            "merged; give each frame its own stamp"
+            if self.merged
+            else ""
+        )
         if not self.incomplete:
-            return ""
+            return merged
         counts = ", ".join(f"{topic} on {n}" for topic, n in sorted(self.incomplete.items()))
         count = max(self.incomplete.values())
-        return (
+        left_out = (
             f"at least {count} frame{'' if count == 1 else 's'} left out: their densified "
             f"channels are incomplete (missing {counts}; densify drops unpaired frames)"
         )
+        return f"{merged}; {left_out}" if merged else left_out
 
 
 @dataclass(frozen=True)
@@ -295,6 +306,7 @@ def read_frames(
                     buffer.pop(min(buffer))
             elif raw.topic in grouped:
                 parts = pending.setdefault(stamp, {})
+                state.merged += raw.topic in parts
                 parts[raw.topic] = message
                 if len(parts) == complete:
                     del pending[stamp]

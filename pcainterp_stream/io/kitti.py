@@ -627,7 +627,9 @@ def import_kitti(
     """
     sequence = folder if isinstance(folder, KittiSequence) else open_kitti(folder, pair=pair)
     total = len(sequence) if max_frames is None else min(len(sequence), max_frames)
-    with open_writer(out_path, format, inputs=[sequence.folder]) as writer:
+    # the images too: an output path that is a link to one of them must not replace it
+    inputs = [sequence.folder, *sequence.left_paths, *sequence.right_paths]
+    with open_writer(out_path, format, inputs=inputs) as writer:
         for frame in iter_frames(sequence, max_frames=max_frames):
             for topic, message in stereo_messages(
                 frame.stamp_ns, frame.left, frame.right, sequence.camera

@@ -4,6 +4,7 @@ all is an error, not a report of dashes."""
 
 from __future__ import annotations
 
+import re
 import struct
 from collections.abc import Callable
 from pathlib import Path
@@ -174,10 +175,17 @@ def test_cli_a_reference_without_truth_is_one_line(
 
 
 def _restamped(
-    source: Path, target: Path, topic: str, *, shift_ns: int = 0, drop: int = -1
+    source: Path,
+    target: Path,
+    topic: str,
+    *,
+    shift_ns: int = 0,
+    drop: int = -1,
+    to_ns: int | None = None,
 ) -> Path:
     """Copy an MCAP with ``topic``'s header stamps ``shift_ns`` later and its ``drop``-th
-    message left out (another clock, a lost message)."""
+    message left out (another clock, a lost message); with ``to_ns``, every stamp and log
+    time of ``topic`` ("*": all) is that one, the densified channels after all the inputs."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
@@ -187,6 +195,7 @@ def _restamped(
         schemas: dict[int, int] = {}
         channels: dict[int, int] = {}
         index = 0
+        later: list[tuple[int, bytes]] = []
         for schema, channel, message in make_reader(stream).iter_messages(log_time_order=False):
             if channel.id not in channels:
                 if schema is not None and schema.id not in schemas:
@@ -200,16 +209,21 @@ def _restamped(
                     dict(channel.metadata),
                 )
             data = bytearray(message.data)
-            if channel.topic == topic:
+            if channel.topic == topic or topic == "*":
                 index += 1
                 if index - 1 == drop:
                     continue
                 seconds, nanoseconds = struct.unpack_from("<iI", data, 4)  # after the CDR header
                 total = seconds * 1_000_000_000 + nanoseconds + shift_ns
+                total = total if to_ns is None else to_ns
                 struct.pack_into("<iI", data, 4, total // 1_000_000_000, total % 1_000_000_000)
-            writer.add_message(
-                channels[channel.id], message.log_time, bytes(data), message.log_time
-            )
+            if to_ns is not None and channel.topic.startswith("/pcainterp/"):
+                later.append((channels[channel.id], bytes(data)))  # after all the inputs
+                continue
+            log_time = message.log_time if to_ns is None else to_ns  # all at one instant
+            writer.add_message(channels[channel.id], log_time, bytes(data), log_time)
+        for channel_id, data in later:
+            writer.add_message(channel_id, to_ns or 0, data, to_ns or 0)
         writer.finish()
     return target
 
@@ -253,3 +267,14 @@ def test_frames_with_incomplete_outputs_are_counted(logs: dict[str, Path]) -> No
         "at least 1 frame left out: their densified channels are incomplete (missing "
         "/pcainterp/features on 1" in " ".join(result.notes)
     )
+
+
+def test_frames_sharing_a_stamp_are_said_to_be_merged(logs: dict[str, Path]) -> None:
+    # a times.txt of twelve 0.0 lines gave one frame of twelve, silently (bug hunt 6A F15):
+    # import-kitti writes log time = stamp, so the frames' messages all come at one instant
+    log = _restamped(logs["dense"], logs["folder"] / "one_stamp.mcap", "*", to_ns=10**18)
+    result, _ = evaluate_log(log, EvaluateOptions(mode=Mode.STEREO, sweep_every=0))
+    assert result.frames < 4
+    note = next(note for note in result.notes if "merged" in note)
+    assert re.match(r"\d+ densified messages had the stamp of another of their topic", note)
+    assert "frames sharing one were merged; give each frame its own stamp" in note

@@ -8,7 +8,7 @@ import pytest
 from rosbags.highlevel import AnyReader
 
 from pcainterp_stream import cli
-from pcainterp_stream.errors import DatasetImportError
+from pcainterp_stream.errors import DatasetImportError, LogWriteError
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.kitti import (
     KittiLayout,
@@ -618,3 +618,15 @@ def test_macos_dot_files_beside_the_images_are_not_frames(tmp_path: Path) -> Non
     sequence = open_kitti(sequence_dir)
     assert [p.name for p in sequence.left_paths] == [f"{i:06d}.png" for i in range(4)]
     assert len(list(iter_frames(sequence))) == 4
+
+
+def test_an_output_that_links_to_an_image_is_refused(tmp_path: Path) -> None:
+    # the overwrite check got only the folder: the first image was replaced by the log
+    sequence_dir = make_odometry(tmp_path / "in")
+    image = sequence_dir / "image_0" / "000000.png"
+    before = image.read_bytes()
+    link = tmp_path / "out.mcap"
+    link.symlink_to(image)
+    with pytest.raises(LogWriteError, match=r"refusing to write the output onto the input .*"):
+        import_kitti(sequence_dir, link)
+    assert image.read_bytes() == before
