@@ -198,7 +198,7 @@ def _errors(log: Path, tmp: Path, scale: float) -> float:
     errors = []
     for estimate, depth in zip(maps, truths, strict=True):
         with np.errstate(divide="ignore"):
-            truth = fb / depth
+            truth = np.where(np.isinf(depth), np.nan, fb / depth)  # the sky (+inf) left out
         ok = np.isfinite(truth) & np.isfinite(estimate)
         errors.append(np.abs(estimate - truth)[ok])
     return float(np.mean(np.concatenate(errors)))

@@ -3,10 +3,12 @@
 densify writes a frame's outputs (estimate, std, features, camera info) at its left image's
 log time, up to a few tens of frames after the input images in the file. Here the channels
 are grouped by header stamp into a :class:`Frame`, which also carries the right image of the
-pair (for SGBM) and, with a reference topic, the reference message of its stamp. Both may be
-logged after the outputs: a stereo driver's right image is received (logged) apart from the
-left one by jitter, mostly after it, and a LiDAR message comes when its sweep ends. So a
-complete frame waits for them, a bounded number of frames, so memory stays bounded.
+pair (for SGBM), the ground-truth depth and pose nearest its stamp (their streams may run
+on other clocks and rates) and, with a reference topic, the reference message of its stamp.
+Any may be logged after the outputs: a stereo driver's right image is received (logged)
+apart from the left one by jitter, mostly after it, and a LiDAR message comes when its
+sweep ends. So a complete frame waits for them, a bounded number of frames, so memory
+stays bounded.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from pcainterp_stream.frontend.images import PairImages
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import decode_image, open_log
 from pcainterp_stream.io.outputs import (
+    FOCAL_BASELINE_KEY,
     MEASUREMENTS_KEY,
     EstimateTopics,
     OutputTopics,
@@ -40,6 +43,7 @@ __all__ = [
     "GROUND_TRUTH_DEPTH",
     "GROUND_TRUTH_POSE",
     "PENDING_FRAMES",
+    "POSE_BUFFER",
     "REFERENCE_BUFFER",
     "REFERENCE_WAIT_FRAMES",
     "RIGHT_STAMP_TOLERANCE_NS",
@@ -66,6 +70,9 @@ kept): densify writes a frame's outputs up to its look-ahead, the densify thread
 the output encoders' frames (~20 at the fit check's warm-up) after the frame's input images."""
 REFERENCE_BUFFER = PENDING_FRAMES
 """Reference messages kept (by stamp) for frames not yet complete."""
+POSE_BUFFER = 4096
+"""Ground-truth poses kept (by stamp): a pose stream may run at hundreds of Hz, and a
+frame's outputs come up to :data:`PENDING_FRAMES` frames after its images."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,6 +95,10 @@ class Frame:
     """The reference topic's message of this stamp (None: none, or no reference topic)."""
     right_gap_ns: int | None = None
     """Without a right image: how far (ns) the nearest one read was from the frame's stamp."""
+    depth_gap_ns: int | None = None
+    """Without ``/ground_truth/depth`` in a log that has it: the nearest one's distance (ns)."""
+    pose_gap_ns: int | None = None
+    """Without a pose in a log that has them (poses read): the nearest one's distance (ns)."""
 
 
 @dataclass
@@ -104,6 +115,55 @@ class ReadState:
     """Where :attr:`tolerance_ns` came from, for messages."""
     damage: list[str] = field(default_factory=list)
     """The reader's damage lines (the reader's own list: it grows as the log is read)."""
+    converted: bool = False
+    """The estimate channel carries no ``pcainterp.*`` metadata at all: the log went through
+    a tool that keeps none (rosbag2 keeps only QoS: rosbags-convert, ``ros2 bag convert``)."""
+    recovered_focal_baseline: float | None = None
+    """f*b (px*m) read from the features (z * disparity) when the metadata lacked it."""
+    merged: int = 0
+    """Densified messages that replaced one of the same topic and stamp: frames are told
+    apart by header stamp, so frames sharing a stamp became one."""
+    incomplete: dict[str, int] = field(default_factory=dict)
+    """Per densified topic, the stamps of left images or outputs left out because that topic
+    never came with their stamp (a frame densify dropped, a message lost)."""
+
+    @property
+    def notes(self) -> list[str]:
+        """Return what the report should say about the log's lost metadata ([]: none lost)."""
+        if not self.converted:
+            return []
+        lost = "the stamp tolerance densify paired with (1 ms assumed unless given), its basis"
+        note = (
+            "the densified log's channels carry no pcainterp metadata, as after a ROS 2 bag "
+            "tool (rosbags-convert, `ros2 bag convert`: rosbag2 keeps none)"
+        )
+        if self.recovered_focal_baseline is not None:
+            note += (
+                f"; f*b {self.recovered_focal_baseline:.6g} px*m was read from the features "
+                "(z * disparity)"
+            )
+            lost += " and its smallest resolvable disparity"
+        return [f"{note}; unknown: {lost}; evaluate the log densify wrote to have them"]
+
+    @property
+    def incomplete_note(self) -> str:
+        """Return the sentence on frames merged or left out for missing outputs ("": none)."""
+        merged = (
+            f"{self.merged} densified messages had the stamp of another of their topic and "
+            "replaced it: frames are told apart by header stamp, so frames sharing one were "
+            "merged; give each frame its own stamp"
+            if self.merged
+            else ""
+        )
+        if not self.incomplete:
+            return merged
+        counts = ", ".join(f"{topic} on {n}" for topic, n in sorted(self.incomplete.items()))
+        count = max(self.incomplete.values())
+        left_out = (
+            f"at least {count} frame{'' if count == 1 else 's'} left out: their densified "
+            f"channels are incomplete (missing {counts}; densify drops unpaired frames)"
+        )
+        return f"{merged}; {left_out}" if merged else left_out
 
 
 @dataclass(frozen=True)
@@ -127,16 +187,21 @@ def read_frames(
     state: ReadState | None = None,
     images: PairImages | None = None,
     tolerance_ns: int | None = None,
+    *,
+    poses: bool = True,
 ) -> Iterator[Frame]:
     """Yield the densified frames of a log in order, grouping channels by header stamp.
 
-    Each frame takes the right image nearest its stamp within ``tolerance_ns`` (None: the
-    tolerance the log records densify paired with). A complete frame waits for a right
-    image stamped at or after its own (right images come in stamp order, so the nearest one
-    is then known), at most :data:`RIGHT_WAIT_FRAMES` frames; a frame whose right image
-    never comes (dropped) goes on without one. With a reference topic, each frame carries
-    the reference message of its stamp, waited for at most :data:`REFERENCE_WAIT_FRAMES`
-    frames. The waits bound the frames held in memory.
+    A frame is its densified channels and left image of one stamp. It takes the right
+    image, ``/ground_truth/depth`` (without a reference topic) and ``/ground_truth/pose``
+    (with ``poses``) nearest its stamp within ``tolerance_ns`` (None: the tolerance the log
+    records densify paired with), each when the log has the topic; a frame without one
+    within it has None there and the distance to the nearest (``*_gap_ns``). A complete
+    frame waits for each to have a message stamped at or after its own (they come in stamp
+    order, so the nearest one is then known), at most :data:`RIGHT_WAIT_FRAMES` frames; a
+    frame whose message never comes (dropped) goes on without it. With a reference topic,
+    each frame carries the reference message of its stamp, waited for at most
+    :data:`REFERENCE_WAIT_FRAMES` frames. The waits bound the frames held in memory.
 
     Args:
         path: a log written by ``pcainterp densify``.
@@ -145,7 +210,8 @@ def read_frames(
         reference: the reference topic, if any.
         state: filled with what reading finds besides the frames.
         images: the input pair's topics and rectification.
-        tolerance_ns: the stamp tolerance of a frame's right image (ns).
+        tolerance_ns: the stamp tolerance of a frame's right image, truth and pose (ns).
+        poses: read ``/ground_truth/pose`` (temporal mode needs it, stereo mode does not).
 
     Raises:
         LogReadError: the log lacks densified channels or the left images; a frame's
@@ -165,19 +231,20 @@ def read_frames(
                 f"{path} has no {', '.join(missing)}"
                 f"{hint or _missing_advice(present, topics, missing, left_image)}"
             )
-        truth = [] if reference is not None else [GROUND_TRUTH_DEPTH]
-        optional = [t for t in (*truth, GROUND_TRUTH_POSE) if t in present]
-        grouped = [*needed, left_image, *optional]
+        grouped = [*needed, left_image]
         complete = len(grouped)
         # the right image may be stamped up to the pairing tolerance apart from the left and
-        # logged before or after the outputs (written at the left image's log time)
-        has_right = right_image in present
-        wanted = [*grouped, *([right_image] if has_right else [])]
+        # logged before or after the outputs (written at the left image's log time); the
+        # truth and the poses may come from other clocks and rates: each is matched by stamp
+        truth = [] if reference is not None else [GROUND_TRUTH_DEPTH]
+        nearby_topics = [right_image, *truth, *([GROUND_TRUTH_POSE] if poses else [])]
+        nearby: dict[str, dict[int, Any]] = {t: {} for t in nearby_topics if t in present}
+        latest: dict[str, int] = {}
+        wanted = [*grouped, *nearby]
         infos = [t for t in images.info_topics if t in present and t not in wanted]
         wanted += infos
         if reference is not None and reference.topic not in wanted:
             wanted.append(reference.topic)
-        rights: dict[int, Any] = {}
         references: dict[int, Any] = {}
         pending: dict[int, dict[str, Any]] = {}
         waiting: deque[_Complete] = deque()
@@ -185,8 +252,8 @@ def read_frames(
 
         def ready(frame: _Complete) -> bool:
             """Return True when the oldest waiting frame has all it can still get."""
-            right_known = not has_right or any(other >= frame.stamp_ns for other in rights)
-            return (right_known or len(waiting) > RIGHT_WAIT_FRAMES) and (
+            known = all(latest.get(topic, -1) >= frame.stamp_ns for topic in nearby)
+            return (known or len(waiting) > RIGHT_WAIT_FRAMES) and (
                 reference is None
                 or frame.stamp_ns in references
                 or len(waiting) > REFERENCE_WAIT_FRAMES
@@ -194,9 +261,11 @@ def read_frames(
 
         def release() -> Frame:
             frame = waiting.popleft()
+            if where.compact and FOCAL_BASELINE_KEY not in state.metadata:
+                _recover_focal_baseline(frame, topics.features, state)
             return _frame(
                 frame,
-                rights=rights,
+                nearby=nearby,
                 reference=references.pop(frame.stamp_ns, None),
                 topics=topics,
                 images=images,
@@ -210,6 +279,7 @@ def read_frames(
                 state.seen_disparity = True
                 state.metadata = dict(raw.channel_metadata)
                 state.measurements = state.metadata.get(MEASUREMENTS_KEY)
+                state.converted = not any(key.startswith("pcainterp.") for key in state.metadata)
                 recorded = recorded_tolerance_ns(state.metadata)
                 if tolerance_ns is not None:
                     state.tolerance_ns, state.tolerance_from = tolerance_ns, "--stamp-tolerance-ms"
@@ -226,24 +296,31 @@ def read_frames(
                     references.pop(min(references))
             full_estimate = raw.topic == where.estimate and not where.compact
             stamp = rosmsg.stamp_ns(message.image if full_estimate else message)
-            if raw.topic == right_image:
-                rights[stamp] = message
-                while len(rights) > PENDING_FRAMES:
-                    rights.pop(min(rights))
+            if raw.topic in nearby:
+                buffer = nearby[raw.topic]
+                buffer[stamp] = message
+                latest[raw.topic] = max(stamp, latest.get(raw.topic, stamp))
+                while len(buffer) > (
+                    POSE_BUFFER if raw.topic == GROUND_TRUTH_POSE else PENDING_FRAMES
+                ):
+                    buffer.pop(min(buffer))
             elif raw.topic in grouped:
                 parts = pending.setdefault(stamp, {})
+                state.merged += raw.topic in parts
                 parts[raw.topic] = message
                 if len(parts) == complete:
                     del pending[stamp]
                     waiting.append(_Complete(index, stamp, parts))
                     index += 1
                 while len(pending) > PENDING_FRAMES:  # frames are written close together
-                    pending.pop(min(pending))
+                    _count_incomplete(pending.pop(min(pending)), grouped, state)
             while waiting and ready(waiting[0]):
                 yield release()
                 yielded += 1
                 if max_frames is not None and yielded >= max_frames:
                     return
+        for parts in pending.values():
+            _count_incomplete(parts, grouped, state)
         while waiting:  # the end of the log: no right image or reference can come any more
             yield release()
             yielded += 1
@@ -270,6 +347,57 @@ def _missing_advice(
     )
 
 
+def _count_incomplete(parts: dict[str, Any], grouped: list[str], state: ReadState) -> None:
+    """Count a stamp whose densified channels and left image never all came."""
+    for topic in grouped:
+        if topic not in parts:
+            state.incomplete[topic] = state.incomplete.get(topic, 0) + 1
+
+
+def _nearest(messages: dict[int, Any], stamp: int, tolerance_ns: int) -> tuple[Any, int | None]:
+    """Return the message nearest ``stamp`` within the tolerance (else None) and its gap (ns)."""
+    nearest = min(messages, key=lambda other: abs(other - stamp), default=None)
+    if nearest is None:
+        return None, None
+    gap = abs(nearest - stamp)
+    return (messages[nearest] if gap <= tolerance_ns else None), gap
+
+
+def _recover_focal_baseline(frame: _Complete, features_topic: str, state: ReadState) -> None:
+    """Put f*b into a compact log's metadata from its features when the metadata lacks it.
+
+    A compact log's depth needs f*b to become disparity; densify records it in the channel
+    metadata, which a ROS 2 bag tool drops. Every feature point holds z = f*b / disparity
+    (``io/outputs``), so f*b = z * disparity of any point with a disparity.
+
+    Raises:
+        LogReadError: the frame's features hold no point with a disparity.
+    """
+    features = rosmsg.pointcloud2_arrays(frame.parts[features_topic])
+    if "z" in features and "disparity" in features:
+        z = np.asarray(features["z"], dtype=np.float64)
+        disparity = np.asarray(features["disparity"], dtype=np.float64)
+        with np.errstate(invalid="ignore"):
+            usable = np.isfinite(z) & np.isfinite(disparity) & (z > 0) & (disparity > 0)
+        if usable.any():
+            focal_baseline = float(np.median(z[usable] * disparity[usable]))
+            state.metadata[FOCAL_BASELINE_KEY] = repr(focal_baseline)
+            state.recovered_focal_baseline = focal_baseline
+            return
+    converted = (
+        "its channels carry no pcainterp metadata (a ROS 2 bag tool such as rosbags-convert "
+        "or `ros2 bag convert` keeps none)"
+        if state.converted
+        else f"its depth channel has no {FOCAL_BASELINE_KEY} metadata"
+    )
+    raise LogReadError(
+        f"frame {frame.index} of the densified log: {converted}, and its {features_topic} "
+        "holds no point with a disparity to read f*b from, so the depth cannot be turned "
+        "into disparity; evaluate the log as densify wrote it, or densify again with "
+        "--precision full (its DisparityImage carries f and b)"
+    )
+
+
 def _camera(info: Any, baseline: float, size: tuple[int, int]) -> StereoCamera:
     p = rosmsg.projection_matrix(info)
     return StereoCamera(
@@ -286,7 +414,7 @@ def _camera(info: Any, baseline: float, size: tuple[int, int]) -> StereoCamera:
 def _frame(
     complete: _Complete,
     *,
-    rights: dict[int, Any],
+    nearby: dict[str, dict[int, Any]],
     reference: Any,
     topics: OutputTopics,
     images: PairImages,
@@ -294,7 +422,7 @@ def _frame(
     metadata: dict[str, str],
     tolerance_ns: int = RIGHT_STAMP_TOLERANCE_NS,
 ) -> Frame:
-    """Build a frame from its complete messages and the right image nearest its stamp."""
+    """Build a frame from its complete messages and the messages nearest its stamp."""
     index, stamp, parts = complete.index, complete.stamp_ns, complete.parts
     try:
         decoded = decode_estimate(
@@ -304,13 +432,10 @@ def _frame(
         raise LogReadError(f"frame {index} of the densified log: {err}") from None
     estimate = decoded.disparity
     features = rosmsg.pointcloud2_arrays(parts[topics.features])
-    depth = parts.get(GROUND_TRUTH_DEPTH)
-    pose = parts.get(GROUND_TRUTH_POSE)
-    nearest_right = min(rights, key=lambda other: abs(other - stamp), default=None)
-    right, gap = None, None
-    if nearest_right is not None:
-        gap = abs(nearest_right - stamp)
-        right = rights[nearest_right] if gap <= tolerance_ns else None
+    found = {topic: _nearest(messages, stamp, tolerance_ns) for topic, messages in nearby.items()}
+    right, gap = found.get(images.right_topic, (None, None))
+    depth, depth_gap = found.get(GROUND_TRUTH_DEPTH, (None, None))
+    pose, pose_gap = found.get(GROUND_TRUTH_POSE, (None, None))
     return Frame(
         index=index,
         stamp_ns=stamp,
@@ -330,4 +455,6 @@ def _frame(
         min_disparity=decoded.min_disparity,
         reference=reference,
         right_gap_ns=gap if right is None else None,
+        depth_gap_ns=depth_gap if depth is None else None,
+        pose_gap_ns=pose_gap if pose is None else None,
     )

@@ -2,8 +2,9 @@
 
 This is the quick check ``pcainterp demo`` prints: mean absolute disparity error of the
 PCA-MAP estimate and of the nearest-neighbour and linear baselines on exactly the same
-sparse points, over every pixel with a ground-truth value. Sky (no surface, NaN depth in the
-log, REP 118) has true disparity 0 and counts.
+sparse points, over every pixel with a ground-truth value. The log's depth is read as REP 118
+(and REP 117, which it cites) says: +inf is "too far" (the synthetic logs' sky), true
+disparity 0, and counts; NaN is "no value" and does not.
 """
 
 from __future__ import annotations
@@ -128,8 +129,7 @@ def _accumulate(
     std = decoded.disparity_std.astype(np.float64)
     focal_baseline = decoded.focal * decoded.baseline
     depth = rosmsg.image_array(parts[depth_topic]).astype(np.float64)
-    with np.errstate(divide="ignore"):
-        truth = np.where(np.isnan(depth) | np.isinf(depth), 0.0, focal_baseline / depth)
+    truth = disparity_from_reference(depth, kind=ReferenceKind.DEPTH, focal_baseline=focal_baseline)
     valid = np.isfinite(truth)
     features = rosmsg.pointcloud2_arrays(parts[topics.features])
     pixels = np.stack([features["u"], features["v"]], axis=1)
@@ -191,10 +191,14 @@ class Mode(StrEnum):
 
 
 def disparity_from_depth(depth: npt.ArrayLike, focal_baseline: float) -> npt.NDArray[np.float64]:
-    """Convert depth to disparity; no surface (NaN, inf, <= 0) is disparity 0 (sky).
+    """Convert a rendered depth map to disparity; no surface (NaN, inf, <= 0) is 0 (sky).
+
+    For the in-memory frames of :mod:`pcainterp_stream.synth` (``SynthFrame.depth``, NaN
+    for sky), which are all surface or sky. A depth image read from a log holds "no value"
+    as NaN (REP 118): read it with :func:`disparity_from_reference`.
 
     Args:
-        depth: (H, W) float, depth (m), NaN where there is no surface (REP 118).
+        depth: (H, W) float, depth (m), NaN or +inf where there is no surface.
         focal_baseline: f*b (px*m).
 
     Returns:
@@ -222,10 +226,10 @@ def disparity_from_reference(
 ) -> npt.NDArray[np.float64]:
     """Convert a ground-truth reference image to disparity, NaN where it holds no truth.
 
-    Unlike :func:`disparity_from_depth` (the synthetic ``/ground_truth/depth``, whose NaN is
-    sky), NaN, 0 and negative values mean "no truth at this pixel", as in projected LiDAR
-    or KITTI's sparse ground truth. A depth of +inf (REP 118: farther than measurable) is
-    disparity 0 and counts, as sky does.
+    NaN, 0 and negative values mean "no truth at this pixel" (REP 118's "no value"), as in
+    projected LiDAR or KITTI's sparse ground truth. A depth of +inf (REP 118: farther than
+    measurable; the synthetic logs' sky) is disparity 0 and counts. The log's
+    ``/ground_truth/depth`` and a ``--reference-topic`` are both read so.
 
     Args:
         values: (H, W) float, depth (m) or disparity (px) per ``kind``.

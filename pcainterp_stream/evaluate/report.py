@@ -47,7 +47,7 @@ from pcainterp_stream.evaluate.metrics import (
     Mode,
     ReferenceKind,
     ReferenceView,
-    disparity_from_depth,
+    disparity_from_reference,
     fill_nearest,
     oracle_disparity,
     projection_errors,
@@ -212,8 +212,106 @@ def _truth(
             image_size=frame.camera.image_size,
         )
     if frame.depth is not None and use_truth:
-        return disparity_from_depth(frame.depth, frame.camera.focal_baseline)
+        # REP 118 as for a reference topic: NaN no truth, +inf too far (disparity 0)
+        return disparity_from_reference(
+            frame.depth, kind=ReferenceKind.DEPTH, focal_baseline=frame.camera.focal_baseline
+        )
     return None
+
+
+@dataclass
+class _TruthValues:
+    """Counts of the ground-truth depth's values that hold no depth (NaN) or a far one."""
+
+    pixels: int = 0
+    nan: int = 0
+    far: int = 0
+
+    def add(self, frame: Frame) -> None:
+        """Count one frame's ``/ground_truth/depth``."""
+        assert frame.depth is not None
+        self.pixels += frame.depth.size
+        self.nan += int(np.count_nonzero(np.isnan(frame.depth)))
+        self.far += int(np.count_nonzero(np.isposinf(frame.depth)))
+
+    def notes(self) -> list[str]:
+        """Say how the NaN were read when no pixel is +inf (a synthetic log of before)."""
+        if not self.nan or self.far or self.nan == self.pixels:
+            return []
+        return [
+            f"{100 * self.nan / self.pixels:.1f} % of {GROUND_TRUTH_DEPTH}'s pixels are NaN, "
+            "read as no truth (REP 118; +inf, too far, counts as disparity 0); a log of an "
+            "earlier `pcainterp synth` holds its sky as NaN: synthesize and densify it again "
+            "to score the sky"
+        ]
+
+
+@dataclass
+class _LeftOut:
+    """Frames left out for want of a truth or pose message near their stamp."""
+
+    truths: int = 0
+    poses: int = 0
+    gaps: dict[str, list[int]] = field(default_factory=lambda: {"truth": [], "pose": []})
+    stamps: list[int] = field(default_factory=list)
+    """The stamps (ns) of the frames read, for their period."""
+
+    def see(self, gap_ns: int | None, what: str) -> None:
+        """Count a frame without ``what`` ("truth" or "pose"); ``gap_ns``: the nearest's."""
+        if what == "truth":
+            self.truths += 1
+        else:
+            self.poses += 1
+        if gap_ns is not None:
+            self.gaps[what].append(gap_ns)
+
+    def notes(self, state: ReadState, truth_topic: str) -> list[str]:
+        """Say how many frames lacked a pose or truth, and the tolerance that would pair them."""
+        notes = []
+        for what, count, topic in (
+            ("truth", self.truths, truth_topic),
+            ("pose", self.poses, GROUND_TRUTH_POSE),
+        ):
+            if not count or not topic:
+                continue
+            note = (
+                f"{count} frame{'' if count == 1 else 's'} left out: no {topic} within "
+                f"{state.tolerance_ns / 1e6:g} ms of their stamp ({state.tolerance_from})"
+            )
+            gaps = self.gaps[what]
+            steps = np.diff(np.unique(self.stamps))
+            period = float(np.median(steps)) if steps.size else math.inf
+            if gaps:
+                note += f"; {len(gaps)} had one {min(gaps) / 1e6:.2f}-{max(gaps) / 1e6:.2f} ms away"
+                # a stamp half a frame away or more is another frame's: no tolerance fixes it
+                note += (
+                    f": pass --stamp-tolerance-ms {math.ceil(max(gaps) / 1e6)} to take it"
+                    if max(gaps) < period / 2
+                    else f", another frame's ({period / 1e6:.0f} ms apart): the stream lacks them"
+                )
+            notes.append(note)
+        return notes
+
+
+def _no_truth_message(
+    path: Path, result: Evaluation, reference: ReferenceTopic | None, max_frames: int | None
+) -> str:
+    """Say that no evaluated frame's reference had a pixel with truth, and what to do."""
+    frames = f"{result.frames} frame{'' if result.frames == 1 else 's'} evaluated"
+    if max_frames is not None:
+        frames += f" (at most {max_frames}: --max-frames)"
+    if result.reference == "SGBM":
+        return (
+            f"SGBM of the pair found no pixel in any of the {frames} of {path}, so there is "
+            "no reference to score against; evaluate a log with ground truth or pass "
+            "--reference-topic"
+        )
+    topic = reference.topic if reference is not None else GROUND_TRUTH_DEPTH
+    return (
+        f"{topic} holds no truth in any of the {frames} of {path}: every pixel is NaN, 0 or "
+        "< 0 (no value, REP 118; +inf, too far, would count), so there is nothing to score "
+        "against; pass a --reference-topic that holds truth"
+    )
 
 
 def _no_reference_message(frame: Frame, right_topic: str, state: ReadState) -> str:
@@ -657,23 +755,36 @@ def evaluate_log(
         evaluator.example_at = {round(float(i)) for i in picks}
     previous: tuple[Frame, npt.NDArray[np.float64], _Stereo | None] | None = None
     read = 0
+    truth_values = _TruthValues()
     state = ReadState()
     frames = read_frames(
-        path, topics, options.max_frames, reference, state, images, options.stamp_tolerance_ns
+        path,
+        topics,
+        options.max_frames,
+        reference,
+        state,
+        images,
+        options.stamp_tolerance_ns,
+        poses=mode is Mode.TEMPORAL,
     )
+    left_out = _LeftOut()
     for frame in frames:
         read += 1
         if progress is not None:
             progress(read)
         truth = _truth(frame, reference, has_truth)
-        if truth is None and reference is not None:  # no reference message of this stamp
+        if truth is not None and reference is None:
+            truth_values.add(frame)
+        if truth is None and has_truth:  # no truth message of this stamp (within tolerance)
             result.skipped += 1
+            left_out.see(frame.depth_gap_ns, "truth")
             stereo = None
         else:
             stereo = _stereo(frame, options.sgbm)
+        left_out.stamps.append(frame.stamp_ns)
         if truth is not None:
             frame_reference: npt.NDArray[np.float64] | None = truth
-        elif reference is not None:
+        elif has_truth:  # never SGBM for a frame of a log with truth: skipped, counted
             frame_reference = None
         elif stereo is None:
             raise LogReadError(_no_reference_message(frame, images.right_topic, state))
@@ -690,6 +801,10 @@ def evaluate_log(
                     baselines=baselines,
                 )
             continue
+        if frame.pose is None:  # no pose within the tolerance: no pair with this frame
+            left_out.see(frame.pose_gap_ns, "pose")
+            previous = None
+            continue
         if previous is not None:
             before, before_reference, before_stereo = previous
             assert before.pose is not None
@@ -704,18 +819,28 @@ def evaluate_log(
         previous = None if frame_reference is None else (frame, frame_reference, stereo)
     result.measurements = state.measurements
     result.damage = list(state.damage)
+    result.notes += state.notes + truth_values.notes()
+    causes = left_out.notes(state, GROUND_TRUTH_DEPTH if reference is None else "")
+    causes += [state.incomplete_note] if state.incomplete_note else []
+    result.notes += causes
     if evaluator.sgbm_empty:
         result.stereo_note = (
             f"{SGBM_NN} left out on {evaluator.sgbm_empty} frames where SGBM found no pixel"
         )
     if result.frames == 0:
-        without = f", {result.skipped} without a {reference.topic} message" if reference else ""
+        name = reference.topic if reference else GROUND_TRUTH_DEPTH
+        without = f", {result.skipped} without a {name} message" if result.skipped else ""
+        if left_out.poses:
+            without += f", {left_out.poses} without a {GROUND_TRUTH_POSE}"
         if result.no_measurement:
             without += f", {len(result.no_measurement)} without a measurement"
+        why = "; temporal mode needs two in a row with poses" if mode is Mode.TEMPORAL else ""
         raise LogReadError(
-            f"no frame of {path} could be evaluated ({read} densified frames read{without}; "
-            "temporal mode needs two)"
+            f"no frame of {path} could be evaluated ({read} densified frames read{without}"
+            f"{why})" + "".join(f"; {cause}" for cause in causes)
         )
+    if result.reference_pixels == 0:
+        raise LogReadError(_no_truth_message(path, result, reference, options.max_frames))
     result.points_per_frame = evaluator.points / result.frames
     result.seconds = time.perf_counter() - started
     return result, evaluator.examples

@@ -147,6 +147,8 @@ class Evaluation:
         reference_counted: counted reference pixels before those were left out.
         basis_rows_skipped: frames whose estimate is no box (NaN in an irregular region),
             left out of the re-densified rows (paper, exact, oracle, sweep).
+        notes: what reading the log found that the figures depend on, one sentence each
+            (NaN read as "no truth", channel metadata a conversion dropped).
     """
 
     log: str
@@ -179,6 +181,7 @@ class Evaluation:
     no_estimate: int = 0
     reference_counted: int = 0
     basis_rows_skipped: int = 0
+    notes: list[str] = field(default_factory=list)
 
     @property
     def no_estimate_fraction(self) -> float:
@@ -232,6 +235,7 @@ class Evaluation:
             "skipped_no_reference": self.skipped,
             "measurements": self.measurements,
             "damage": self.damage,
+            "notes": list(self.notes),
             "left_out_no_measurement": list(self.no_measurement),
             "left_out_no_estimate": self.no_estimate_fraction,
             "left_out_no_estimate_pixels": self.no_estimate,

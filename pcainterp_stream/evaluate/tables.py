@@ -94,6 +94,7 @@ def summary_table(result: Evaluation) -> str:
     if result.no_estimate_note:
         lines.append(result.no_estimate_note)
     lines += [f"damage: {line}; only the frames read before it count" for line in result.damage]
+    lines += [f"note: {line}" for line in result.notes]
     if result.measurements:
         lines.append(f"measurements of the densified log: {result.measurements}")
     if result.basis_note:

@@ -23,7 +23,9 @@ baseline b = (P_left[0, 3] - P_right[0, 3]) / P_right[0, 0] (= -P1[0, 3] / P1[0,
 KITTI, where P0[0, 3] = 0; the colour cameras' P2[0, 3] is not 0, camera 2 being ~6 cm left
 of camera 0). KITTI's poses are camera 0's: for the colour pair they are moved to camera 2,
 whose centre is -K^-1 P2[:, 3] in camera 0's frame. Without timestamps frames are 10 Hz from
-t = 0. Frames are read and written one at a time.
+t = 0. Frames are read and written one at a time, in the order of the numbers in their
+names (KITTI's ``000010.png``; also ``2.png`` before ``10.png``), the n-th taking the n-th
+line of the timestamps and poses.
 
 KITTI's depth-completion truth (uint16 PNG, depth in m = value / 256, 0 = no truth) belongs to
 camera 2, so it comes along with the colour pair: a raw drive's
@@ -36,6 +38,7 @@ and last five) get none.
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -295,8 +298,37 @@ def read_depth_truth(path: Path, image_size: tuple[int, int]) -> npt.NDArray[np.
     return depth
 
 
+def _frame_order(path: Path) -> tuple[list[int | str], str]:
+    """Sort key of an image: its name's numbers compared as numbers (``2.png`` < ``10.png``).
+
+    KITTI's names are zero-padded (``000010.png``), where text order is frame order; other
+    tools' "KITTI-layout" exports (``0.png`` ... ``11.png``) are not, and text order would
+    give frame 10 the second line of ``times.txt`` and the poses.
+    """
+    parts = re.split(r"(\d+)", path.stem)  # text, number, text, ...: one type per position
+    return [int(part) if i % 2 else part for i, part in enumerate(parts)], path.name
+
+
 def _pngs(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png")
+    """Return a folder's images in frame order; dot-files (macOS's ``._000000.png``) are not."""
+    images = (p for p in folder.iterdir() if p.suffix.lower() == ".png" and p.name[0] != ".")
+    return sorted(images, key=_frame_order)
+
+
+def _check_increasing(stamps: npt.NDArray[np.int64], path: Path, lines: list[int]) -> None:
+    """Refuse times that do not increase: evaluate tells frames apart by their stamps.
+
+    Args:
+        stamps: (n,) int64 frame times (ns), in frame order.
+        path: the file they were read from.
+        lines: (n,) the line number of each.
+    """
+    for i in np.flatnonzero(np.diff(stamps) <= 0):
+        raise DatasetImportError(
+            f"line {lines[i + 1]} of {path} ({stamps[i + 1] / 1e9:.9f} s) is not after line "
+            f"{lines[i]} ({stamps[i] / 1e9:.9f} s): frames need increasing times; fix or "
+            "restore the file (without it frames are 10 Hz)"
+        )
 
 
 def _paired_images(left_dir: Path, right_dir: Path) -> tuple[list[Path], list[Path]]:
@@ -339,6 +371,7 @@ def _raw_stamps(path: Path, count: int) -> npt.NDArray[np.int64]:
                 "fix or restore the file"
             ) from err
         stamps[i] = int(moment.timestamp()) * 1_000_000_000 + nanoseconds
+    _check_increasing(stamps, path, list(range(1, count + 1)))
     return stamps
 
 
@@ -376,7 +409,9 @@ def _odometry_stamps(path: Path, images: list[Path]) -> npt.NDArray[np.int64]:
         raise DatasetImportError(
             f"{path} must hold one number (seconds) per line: {err}; fix or restore the file"
         ) from err
-    return np.round(seconds * 1e9).astype(np.int64)
+    stamps = np.round(seconds * 1e9).astype(np.int64)
+    _check_increasing(stamps, path, [number for number, _ in lines])
+    return stamps
 
 
 def _poses(path: Path, images: list[Path]) -> npt.NDArray[np.float64] | None:
@@ -592,7 +627,9 @@ def import_kitti(
     """
     sequence = folder if isinstance(folder, KittiSequence) else open_kitti(folder, pair=pair)
     total = len(sequence) if max_frames is None else min(len(sequence), max_frames)
-    with open_writer(out_path, format, inputs=[sequence.folder]) as writer:
+    # the images too: an output path that is a link to one of them must not replace it
+    inputs = [sequence.folder, *sequence.left_paths, *sequence.right_paths]
+    with open_writer(out_path, format, inputs=inputs) as writer:
         for frame in iter_frames(sequence, max_frames=max_frames):
             for topic, message in stereo_messages(
                 frame.stamp_ns, frame.left, frame.right, sequence.camera

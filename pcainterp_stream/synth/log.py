@@ -10,10 +10,13 @@ topic                           type                             content
 ``/stereo/right/image_rect``    sensor_msgs/msg/Image mono8      rectified right grey
 ``/stereo/left/camera_info``    sensor_msgs/msg/CameraInfo       P = [fx 0 cx 0; ...]
 ``/stereo/right/camera_info``   sensor_msgs/msg/CameraInfo       P[0, 3] = -fx * b
-``/ground_truth/depth``         sensor_msgs/msg/Image 32FC1      metres, NaN for sky
+``/ground_truth/depth``         sensor_msgs/msg/Image 32FC1      metres, +inf for sky
 ``/ground_truth/lidar_depth``   sensor_msgs/msg/Image 32FC1      optional, see below
 ``/ground_truth/pose``          geometry_msgs/msg/PoseStamped    left camera in "world"
 ==============================  ===============================  =======================
+
+The sky, NaN in the frames' depth maps, is written as +inf: REP 118 (after REP 117) keeps
+NaN for "no value" and +inf for "too far", and ``evaluate`` reads them so.
 
 The ground-truth topics are optional per frame (:func:`frame_messages` with
 ``ground_truth=False``), which the KITTI importer uses. ``/ground_truth/lidar_depth`` is
@@ -29,6 +32,7 @@ from collections.abc import Iterable, Iterator
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logwriter import (
@@ -68,6 +72,7 @@ __all__ = [
     "frame_messages",
     "pose_message",
     "stereo_messages",
+    "truth_depth_message",
     "write_frame",
     "write_synthetic_log",
 ]
@@ -96,7 +101,7 @@ def frame_messages(
             f"got {frame.depth.shape}"
         )
     depth = np.asarray(frame.depth, dtype=np.float32)
-    yield DEPTH, rosmsg.image_message(depth, frame.stamp_ns, LEFT_FRAME, encoding="32FC1")
+    yield DEPTH, truth_depth_message(depth, frame.stamp_ns)
     if lidar is not None:
         sparse = lidar_depth(depth, frame.camera, frame_index=frame.index, config=lidar)
         yield (
@@ -104,6 +109,23 @@ def frame_messages(
             rosmsg.image_message(sparse, frame.stamp_ns, LEFT_FRAME, encoding="32FC1"),
         )
     yield POSE, pose_message(frame.camera_to_world, frame.stamp_ns)
+
+
+def truth_depth_message(
+    depth: npt.NDArray[np.float32], stamp_ns: int, frame_id: str = LEFT_FRAME
+) -> Any:
+    """Return the ``/ground_truth/depth`` Image of a rendered depth map, sky as +inf.
+
+    Args:
+        depth: (H, W) float32 depth (m), NaN for sky (``SynthFrame.depth``).
+        stamp_ns: header stamp (ns).
+        frame_id: header frame id.
+
+    Returns:
+        A 32FC1 ``sensor_msgs/msg/Image``, +inf (REP 118: too far) where ``depth`` is NaN.
+    """
+    far = np.where(np.isnan(depth), np.float32(np.inf), depth).astype(np.float32, copy=False)
+    return rosmsg.image_message(far, stamp_ns, frame_id, encoding="32FC1")
 
 
 def write_frame(

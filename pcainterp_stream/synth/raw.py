@@ -22,13 +22,13 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
-from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.camera_model import CameraCalibration, StereoCalibration, unrectify_maps
 from pcainterp_stream.io.logwriter import LogFormat, ProgressCallback, WriteSummary, open_writer
 from pcainterp_stream.io.raw_log import LEFT_FRAME, raw_stereo_messages
 from pcainterp_stream.io.stereo_log import DEPTH, pose_message
 from pcainterp_stream.records import StereoCamera, SynthFrame
 from pcainterp_stream.synth import SynthConfig, generate
+from pcainterp_stream.synth.log import truth_depth_message
 
 RAW_MODELS = ("plumb_bob", "equidistant")
 """The lenses ``synth --raw`` can simulate."""
@@ -166,7 +166,8 @@ def write_raw_log(
     """Write a raw synthetic drive: raw pairs, their camera infos, the rectified truth.
 
     Topics: ``/camera/{left,right}/image_raw`` (mono8), ``/camera/{left,right}/camera_info``,
-    ``/ground_truth/depth`` (32FC1 m, the rectified left camera) and ``/ground_truth/pose``.
+    ``/ground_truth/depth`` (32FC1 m, the rectified left camera, +inf for sky) and
+    ``/ground_truth/pose``.
     """
     drive = RawDrive(config, model)
     with open_writer(path, format) as writer:
@@ -175,9 +176,7 @@ def write_raw_log(
                 raw_stereo_messages(frame.stamp_ns, left, right, drive.calibration)
             )
             depth = np.asarray(frame.depth, dtype=np.float32)
-            messages.append(
-                (DEPTH, rosmsg.image_message(depth, frame.stamp_ns, LEFT_FRAME, encoding="32FC1"))
-            )
+            messages.append((DEPTH, truth_depth_message(depth, frame.stamp_ns, LEFT_FRAME)))
             messages.append(
                 ("/ground_truth/pose", pose_message(frame.camera_to_world, frame.stamp_ns))
             )

@@ -88,7 +88,9 @@ def test_a_log_without_any_measurement_cannot_be_evaluated(tmp_path: Path) -> No
     jobs.synth(log, frames=2, seed=32, scale=0.25, fmt="mcap")
     dense = tmp_path / "dense.mcap"
     jobs.densify(_blanked(log, tmp_path / "black.mcap", {0, 1}), dense)
-    with pytest.raises(LogReadError, match=r"\(2 densified frames read, 2 without a measurement;"):
+    with pytest.raises(
+        LogReadError, match=r"\(2 densified frames read, 2 without a measurement\)$"
+    ):
         evaluate_log(dense, EvaluateOptions(mode=Mode.STEREO, sweep_every=0, linear=False))
 
 

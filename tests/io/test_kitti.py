@@ -8,7 +8,7 @@ import pytest
 from rosbags.highlevel import AnyReader
 
 from pcainterp_stream import cli
-from pcainterp_stream.errors import DatasetImportError
+from pcainterp_stream.errors import DatasetImportError, LogWriteError
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.kitti import (
     KittiLayout,
@@ -565,3 +565,68 @@ def test_error_several_drives(tmp_path: Path) -> None:
     (other / "image_00" / "data").mkdir(parents=True)
     with pytest.raises(DatasetImportError, match=r"holds 2 KITTI raw drives .*pass one drive"):
         open_kitti(drive.parent)
+
+
+def test_names_without_zero_padding_keep_frame_order_and_poses(tmp_path: Path) -> None:
+    # "0.png ... 11.png" (another tool's export): text order would put 10 and 11 after 1
+    # and give frame 10 the pose and time of frame 2 (bug hunt 6A F5)
+    n = 12
+    sequence_dir = make_odometry(tmp_path, n=n)
+    for camera in ("image_0", "image_1"):
+        for i in range(n):
+            (sequence_dir / camera / f"{i:06d}.png").rename(sequence_dir / camera / f"{i}.png")
+    sequence = open_kitti(sequence_dir)
+    assert [p.stem for p in sequence.left_paths] == [str(i) for i in range(n)]
+    assert sequence.camera_to_world is not None
+    np.testing.assert_allclose(sequence.camera_to_world[10][:3, 3], [1.0, 0, 10.0])
+    out = tmp_path / "odo.mcap"
+    import_kitti(sequence_dir, out)
+    read = _read(out)
+    left = [m for topic, _, m in read if topic == "/stereo/left/image_rect"]
+    expected = cv2.imread(str(sequence_dir / "image_0" / "10.png"), cv2.IMREAD_GRAYSCALE)
+    np.testing.assert_array_equal(rosmsg.image_array(left[10]), expected)
+    poses = [(t, m) for topic, t, m in read if topic == "/ground_truth/pose"]
+    assert poses[10][0] == round(0.1037 * 10 * 1e9)
+    np.testing.assert_allclose(rosmsg.pose_matrix(poses[10][1])[:3, 3], [1.0, 0, 10.0])
+
+
+def test_error_times_that_do_not_increase(tmp_path: Path) -> None:
+    # twelve 0.0 lines gave "0.0 s of log", and evaluate then saw one frame (bug hunt 6A F15)
+    sequence = make_odometry(tmp_path)
+    (sequence / "times.txt").write_text("0.0\n0.1\n0.1\n0.3\n")
+    with pytest.raises(
+        DatasetImportError,
+        match=r"line 3 of .*times\.txt \(0\.100000000 s\) is not after line 2 \(0\.100000000 s\): "
+        r"frames need increasing times",
+    ):
+        open_kitti(sequence)
+
+
+def test_error_raw_timestamps_that_do_not_increase(tmp_path: Path) -> None:
+    drive = make_raw(tmp_path)
+    stamps = ["2011-01-01 12:00:01.000000000", "2011-01-01 12:00:00.500000000"] * 2
+    (drive / "image_00" / "timestamps.txt").write_text("\n".join(stamps[:3]) + "\n")
+    with pytest.raises(DatasetImportError, match=r"line 2 of .*timestamps\.txt .* is not after"):
+        open_kitti(drive)
+
+
+def test_macos_dot_files_beside_the_images_are_not_frames(tmp_path: Path) -> None:
+    # copies from an exFAT/HFS drive leave AppleDouble files: ._000000.png (bug hunt 6A F10)
+    sequence_dir = make_odometry(tmp_path)
+    for camera in ("image_0", "image_1"):
+        (sequence_dir / camera / "._000000.png").write_bytes(b"\x00\x05\x16\x07 not an image")
+    sequence = open_kitti(sequence_dir)
+    assert [p.name for p in sequence.left_paths] == [f"{i:06d}.png" for i in range(4)]
+    assert len(list(iter_frames(sequence))) == 4
+
+
+def test_an_output_that_links_to_an_image_is_refused(tmp_path: Path) -> None:
+    # the overwrite check got only the folder: the first image was replaced by the log
+    sequence_dir = make_odometry(tmp_path / "in")
+    image = sequence_dir / "image_0" / "000000.png"
+    before = image.read_bytes()
+    link = tmp_path / "out.mcap"
+    link.symlink_to(image)
+    with pytest.raises(LogWriteError, match=r"refusing to write the output onto the input .*"):
+        import_kitti(sequence_dir, link)
+    assert image.read_bytes() == before

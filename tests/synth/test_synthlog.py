@@ -92,7 +92,9 @@ def test_written_log_reads_back(tmp_path: Path, fmt: LogFormat) -> None:
             assert (message.width, message.height) == (16, 10)
         elif topic == DEPTH:
             assert message.encoding == "32FC1"
-            np.testing.assert_array_equal(rosmsg.image_array(message), frame.depth)  # NaN == NaN
+            # the sky, NaN in the frame, is written +inf (REP 118: too far; NaN is no value)
+            expected = np.where(np.isnan(frame.depth), np.inf, frame.depth)
+            np.testing.assert_array_equal(rosmsg.image_array(message), expected)
         else:
             assert (topic, msgtype, message.header.frame_id) == (POSE, rosmsg.POSE_STAMPED, "world")
             np.testing.assert_allclose(
@@ -110,7 +112,7 @@ def test_mcap_topics_in_frame_order_and_decodable(tmp_path: Path) -> None:
     assert {i.schema.name for i in items} == {rosmsg.IMAGE, rosmsg.CAMERA_INFO, rosmsg.POSE_STAMPED}
     depth = items[4].decoded_message
     values = np.frombuffer(bytes(depth.data), dtype="<f4").reshape(10, 16)
-    assert np.isnan(values[:3]).all()
+    assert np.isposinf(values[:3]).all()  # the sky: too far (REP 118)
     assert np.isfinite(values[3:]).all()
 
 
@@ -143,4 +145,6 @@ def test_renderer_frames_write_and_read_back(tmp_path: Path) -> None:
             for c, _, d in reader.messages()
             if c.topic == DEPTH
         ]
-    np.testing.assert_array_equal(depths[1], frames[1].depth)
+    np.testing.assert_array_equal(
+        depths[1], np.where(np.isnan(frames[1].depth), np.inf, frames[1].depth)
+    )

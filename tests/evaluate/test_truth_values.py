@@ -1,0 +1,280 @@
+"""How evaluate reads a log's truth: REP 118's NaN ("no value") and +inf ("too far") the same
+way for ``/ground_truth/depth`` as for a ``--reference-topic``; a reference with no truth at
+all is an error, not a report of dashes."""
+
+from __future__ import annotations
+
+import re
+import struct
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from pcainterp_stream import cli
+from pcainterp_stream.errors import LogReadError
+from pcainterp_stream.evaluate.metrics import Mode, compare_with_ground_truth
+from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.pipeline import jobs
+
+TRUTH = "/ground_truth/depth"
+POSE = "/ground_truth/pose"
+FEATURES = "/pcainterp/features"
+Patch = Callable[[int, npt.NDArray[np.float32]], npt.NDArray[np.float32]]
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    folder = tmp_path_factory.mktemp("truth_values")
+    log, dense = folder / "synth.mcap", folder / "dense.mcap"
+    jobs.synth(log, frames=4, seed=41, scale=0.25, fmt="mcap")
+    jobs.densify(log, dense)
+    return {"folder": folder, "synth": log, "dense": dense}
+
+
+def _patched(source: Path, target: Path, patch: Patch) -> Path:
+    """Copy an MCAP byte for byte but for the 32FC1 data of ``/ground_truth/depth``."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with source.open("rb") as stream, target.open("wb") as out:
+        writer = Writer(out)
+        writer.start()
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        index = 0
+        for schema, channel, message in make_reader(stream).iter_messages(log_time_order=False):
+            if channel.id not in channels:
+                if schema is not None and schema.id not in schemas:
+                    schemas[schema.id] = writer.register_schema(
+                        schema.name, schema.encoding, schema.data
+                    )
+                channels[channel.id] = writer.register_channel(
+                    channel.topic,
+                    channel.message_encoding,
+                    schemas.get(schema.id, 0) if schema is not None else 0,
+                    dict(channel.metadata),
+                )
+            data = bytearray(message.data)
+            if channel.topic == TRUTH:
+                offset = 4 + 8  # CDR header, stamp; then frame_id, height, width
+                length = struct.unpack_from("<I", data, offset)[0]
+                offset = (offset + 4 + length + 3) & ~3
+                height, width = struct.unpack_from("<II", data, offset)
+                size = height * width * 4
+                values = np.frombuffer(bytes(data[-size:]), np.float32).copy()
+                data[-size:] = patch(index, values).astype(np.float32).tobytes()
+                index += 1
+            writer.add_message(
+                channels[channel.id], message.log_time, bytes(data), message.log_time
+            )
+        writer.finish()
+    return target
+
+
+def _sky_as_nan(index: int, values: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
+    """The synthetic logs of earlier versions: sky written as NaN."""
+    return np.where(np.isposinf(values), np.float32(np.nan), values)
+
+
+def _half_nan(index: int, values: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
+    """A truth with holes: every other frame has none (a simulator's or LiDAR's NaN)."""
+    return np.full_like(values, np.nan) if index % 2 == 0 else values
+
+
+def _all_nan(index: int, values: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
+    return np.full_like(values, np.nan)
+
+
+def _scores(log: Path, reference_topic: str | None) -> dict[str, tuple[float, float]]:
+    options = EvaluateOptions(
+        mode=Mode.STEREO, sweep_every=0, reference_topic=reference_topic, linear=False
+    )
+    result, _ = evaluate_log(log, options)
+    return {name: (s.pixels, s.delta_2d_sum) for name, s in result.methods.items()}
+
+
+def test_synthetic_truth_holds_sky_as_inf(logs: dict[str, Path]) -> None:
+    with open_log(logs["synth"]) as reader:
+        depths = [rosmsg.image_array(reader.decode(raw)) for raw in reader.messages([TRUTH])]
+    assert len(depths) == 4
+    assert not any(np.isnan(depth).any() for depth in depths)  # NaN is REP 118's "no value"
+    assert all(np.isposinf(depth).any() for depth in depths)  # the street's sky: too far
+
+
+@pytest.mark.parametrize("patch", [None, _sky_as_nan, _half_nan])
+def test_ground_truth_reads_as_the_same_reference_topic(
+    logs: dict[str, Path], patch: Patch | None
+) -> None:
+    log = logs["dense"]
+    if patch is not None:
+        log = _patched(log, logs["folder"] / f"{patch.__name__}.mcap", patch)
+    default, named = _scores(log, None), _scores(log, TRUTH)
+    assert default == named
+    assert default["pca_map"][0] > 0
+
+
+def test_nan_truth_is_no_truth_and_the_report_says_so(logs: dict[str, Path]) -> None:
+    plain, _ = evaluate_log(logs["dense"], EvaluateOptions(mode=Mode.STEREO, sweep_every=0))
+    log = _patched(logs["dense"], logs["folder"] / "old_sky.mcap", _sky_as_nan)
+    old, _ = evaluate_log(log, EvaluateOptions(mode=Mode.STEREO, sweep_every=0))
+    assert plain.reference_fraction == 1.0  # the sky counts, as disparity 0
+    assert plain.notes == []
+    assert 0.5 < old.reference_fraction < 1.0  # the NaN sky does not
+    assert old.methods["pca_map"].pixels < plain.methods["pca_map"].pixels
+    assert len(old.notes) == 1
+    assert "pixels are NaN, read as no truth" in old.notes[0]
+    assert "synthesize and densify it again" in old.notes[0]
+
+
+def test_the_quick_comparison_reads_truth_the_same_way(logs: dict[str, Path]) -> None:
+    plain = compare_with_ground_truth(logs["dense"])
+    old = compare_with_ground_truth(_patched(logs["dense"], logs["folder"] / "q.mcap", _sky_as_nan))
+    assert plain.pixels == 4 * 94 * 310
+    assert 0 < old.pixels < plain.pixels
+
+
+@pytest.mark.parametrize("topic", [None, TRUTH])
+def test_a_reference_without_any_truth_is_an_error(
+    logs: dict[str, Path], topic: str | None
+) -> None:
+    log = _patched(logs["dense"], logs["folder"] / "all_nan.mcap", _all_nan)
+    options = EvaluateOptions(mode=Mode.STEREO, sweep_every=0, reference_topic=topic)
+    with pytest.raises(LogReadError, match=r"/ground_truth/depth holds no truth in any of the 4"):
+        evaluate_log(log, options)
+
+
+def test_cli_a_reference_without_truth_is_one_line(
+    logs: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    log = _patched(logs["dense"], logs["folder"] / "all_nan_cli.mcap", _all_nan)
+    report = logs["folder"] / "report_all_nan"
+    args = [
+        "evaluate",
+        str(log),
+        "-o",
+        str(report),
+        "--no-basis",
+        "--max-frames",
+        "2",
+        "--mode",
+        "stereo",
+    ]
+    assert cli.main([*args, "--reference-topic", TRUTH]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0
+    assert "holds no truth in any of the 2 frames evaluated (at most 2: --max-frames)" in err
+    assert not report.exists()
+
+
+# ------------------------------------------- truth and poses matched by stamp (bug hunt 6A F8)
+
+
+def _restamped(
+    source: Path,
+    target: Path,
+    topic: str,
+    *,
+    shift_ns: int = 0,
+    drop: int = -1,
+    to_ns: int | None = None,
+) -> Path:
+    """Copy an MCAP with ``topic``'s header stamps ``shift_ns`` later and its ``drop``-th
+    message left out (another clock, a lost message); with ``to_ns``, every stamp and log
+    time of ``topic`` ("*": all) is that one, the densified channels after all the inputs."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with source.open("rb") as stream, target.open("wb") as out:
+        writer = Writer(out)
+        writer.start()
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        index = 0
+        later: list[tuple[int, bytes]] = []
+        for schema, channel, message in make_reader(stream).iter_messages(log_time_order=False):
+            if channel.id not in channels:
+                if schema is not None and schema.id not in schemas:
+                    schemas[schema.id] = writer.register_schema(
+                        schema.name, schema.encoding, schema.data
+                    )
+                channels[channel.id] = writer.register_channel(
+                    channel.topic,
+                    channel.message_encoding,
+                    schemas.get(schema.id, 0) if schema is not None else 0,
+                    dict(channel.metadata),
+                )
+            data = bytearray(message.data)
+            if channel.topic == topic or topic == "*":
+                index += 1
+                if index - 1 == drop:
+                    continue
+                seconds, nanoseconds = struct.unpack_from("<iI", data, 4)  # after the CDR header
+                total = seconds * 1_000_000_000 + nanoseconds + shift_ns
+                total = total if to_ns is None else to_ns
+                struct.pack_into("<iI", data, 4, total // 1_000_000_000, total % 1_000_000_000)
+            if to_ns is not None and channel.topic.startswith("/pcainterp/"):
+                later.append((channels[channel.id], bytes(data)))  # after all the inputs
+                continue
+            log_time = message.log_time if to_ns is None else to_ns  # all at one instant
+            writer.add_message(channels[channel.id], log_time, bytes(data), log_time)
+        for channel_id, data in later:
+            writer.add_message(channel_id, to_ns or 0, data, to_ns or 0)
+        writer.finish()
+    return target
+
+
+def test_poses_of_another_clock_are_not_needed_in_stereo_mode(logs: dict[str, Path]) -> None:
+    log = _restamped(logs["dense"], logs["folder"] / "pose_5ms.mcap", POSE, shift_ns=5_000_000)
+    stereo, _ = evaluate_log(log, EvaluateOptions(mode=Mode.STEREO, sweep_every=0))
+    assert stereo.frames == 4
+    assert stereo.notes == []
+    with pytest.raises(
+        LogReadError,
+        match=r"4 without a /ground_truth/pose; temporal mode needs two in a row with poses\); "
+        r"4 frames left out: no /ground_truth/pose within 1 ms .* 5.00-5.00 ms away: pass "
+        r"--stamp-tolerance-ms 5 to take it",
+    ):
+        evaluate_log(log, EvaluateOptions(mode=Mode.TEMPORAL, sweep_every=0))
+    options = EvaluateOptions(mode=Mode.TEMPORAL, sweep_every=0, stamp_tolerance_ns=5_000_000)
+    temporal, _ = evaluate_log(log, options)
+    assert temporal.frames == 3
+
+
+def test_a_frame_without_truth_is_skipped_and_counted_not_scored_against_sgbm(
+    logs: dict[str, Path],
+) -> None:
+    log = _restamped(logs["dense"], logs["folder"] / "truth_lost.mcap", TRUTH, drop=1)
+    result, _ = evaluate_log(log, EvaluateOptions(mode=Mode.STEREO, sweep_every=0))
+    assert (result.frames, result.skipped) == (3, 1)
+    assert result.reference == "ground truth"
+    assert any(
+        note.startswith("1 frame left out: no /ground_truth/depth within 1 ms")
+        and "another frame's (100 ms apart): the stream lacks them" in note
+        for note in result.notes
+    )
+
+
+def test_frames_with_incomplete_outputs_are_counted(logs: dict[str, Path]) -> None:
+    log = _restamped(logs["dense"], logs["folder"] / "features_lost.mcap", FEATURES, drop=2)
+    result, _ = evaluate_log(log, EvaluateOptions(mode=Mode.STEREO, sweep_every=0))
+    assert result.frames == 3
+    assert (
+        "at least 1 frame left out: their densified channels are incomplete (missing "
+        "/pcainterp/features on 1" in " ".join(result.notes)
+    )
+
+
+def test_frames_sharing_a_stamp_are_said_to_be_merged(logs: dict[str, Path]) -> None:
+    # a times.txt of twelve 0.0 lines gave one frame of twelve, silently (bug hunt 6A F15):
+    # import-kitti writes log time = stamp, so the frames' messages all come at one instant
+    log = _restamped(logs["dense"], logs["folder"] / "one_stamp.mcap", "*", to_ns=10**18)
+    result, _ = evaluate_log(log, EvaluateOptions(mode=Mode.STEREO, sweep_every=0))
+    assert result.frames < 4
+    note = next(note for note in result.notes if "merged" in note)
+    assert re.match(r"\d+ densified messages had the stamp of another of their topic", note)
+    assert "frames sharing one were merged; give each frame its own stamp" in note
