@@ -898,6 +898,16 @@ def test_a_rosbag2_output_onto_an_existing_file_is_refused_up_front(
     line = pcainterp("synth", target, "--format", "rosbag2-sqlite3").error_line()
     assert "but --format rosbag2-sqlite3 writes a rosbag2 bag, which is a folder; choose " in line
     assert target.read_text() == "notes"
+    # import-kitti has no --format for the library's "or pass the format explicitly"
+    named = tmp_path / "drive.txt"
+    given = [drive, named] if command == "import-kitti" else [named]
+    line = pcainterp(command, *given).error_line()
+    assert line.endswith(
+        f"output {named} is named .txt, which is no log format; name it .mcap or .bag, or "
+        "without a suffix for a rosbag2 folder"
+        + (", or pass --format" if command == "synth" else "")
+    )
+    assert not named.exists()
 
 
 # ----------------------------------------------------------------------------- damaged MCAP

@@ -182,15 +182,25 @@ def check_log_output(path: Path, log_format: str | None, command: str) -> None:
         command: the command, for the message.
 
     Raises:
-        LogWriteError: OUT is ``-``, its suffix names no log format, or it is an existing
-            file where a rosbag2 bag (a folder) would go.
+        LogWriteError: OUT is ``-``, its suffix names no log format (without ``--format``),
+            or it is an existing file where a rosbag2 bag (a folder) would go.
     """
     from pcainterp_stream.io.logwriter import LogFormat, format_from_path
 
     refuse_stream_output(
         path, "OUT", f"{command} writes a log file (.mcap, .bag) or a rosbag2 folder", "drive.mcap"
     )
-    chosen = LogFormat(log_format) if log_format is not None else format_from_path(path)
+    if log_format is not None:
+        chosen = LogFormat(log_format)
+    else:
+        try:
+            chosen = format_from_path(path)
+        except LogWriteError:  # the library's words: "pass the format explicitly"
+            fix = ", or pass --format" if command == "synth" else ""
+            raise LogWriteError(
+                f"output {path} is named {path.suffix}, which is no log format; name it .mcap "
+                f"or .bag, or without a suffix for a rosbag2 folder{fix}"
+            ) from None
     if chosen in (LogFormat.ROSBAG2, LogFormat.ROSBAG2_SQLITE3) and path.is_file():
         how, fix = (
             (f"--format {chosen.value}", "choose another path")
