@@ -29,6 +29,7 @@ from mcap.reader import make_reader
 from mcap.writer import IndexType, Writer
 
 from pcainterp_stream import cli
+from pcainterp_stream.cli.common import DOCS_NOTE
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.frontend.matchers import DENSE_SGBM, REFINED_DENSE_SGBM
 from pcainterp_stream.frontend.pairing import PairingConfig
@@ -253,6 +254,24 @@ def _parsers(
             for command, sub in action.choices.items():
                 found.extend(_parsers(sub, f"{name} {command}"))
     return found
+
+
+def test_a_help_that_cites_the_docs_says_where_they_are(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """An installed package has no docs/ folder (bug hunt 6B L11): a help citing a page
+    says it is the source repository's, and every page it cites is there."""
+    docs = Path(__file__).resolve().parents[1] / "docs"
+    citing = []
+    for name, parser in _parsers(cli.build_parser()):
+        text = parser.format_help()
+        pages = set(re.findall(r"docs/(\w+)\.md", text))
+        if pages:
+            citing.append(name)
+            assert " ".join(text.split()).endswith(" ".join(DOCS_NOTE.split())), name
+        assert [page for page in pages if not (docs / f"{page}.md").is_file()] == [], name
+    assert sorted(citing) == ["pcainterp densify", "pcainterp learn"]
+    assert "source repository" in " ".join(DOCS_NOTE.split())
 
 
 def test_every_option_and_command_has_help() -> None:
@@ -612,6 +631,39 @@ def test_densify_basis_that_is_a_folder_or_a_log(
     assert_nothing_written(out)
 
 
+@pytest.mark.parametrize("command", ["densify", "evaluate"])
+def test_a_misspelt_built_in_basis_name_lists_the_names(
+    pcainterp: Callable[..., Run], small_log: Path, out: Path, command: str
+) -> None:
+    target = ["-o", out] if command == "densify" else ["-o", out.parent / "report"]
+    line = pcainterp(command, small_log, *target, "--basis", "builtin-indor").error_line()
+    assert line.endswith(
+        "basis file builtin-indor does not exist; pass the path of a basis .npz (pcainterp "
+        "learn writes one), or one of builtin, builtin-street and builtin-indoor"
+    )
+    assert list(out.parent.iterdir()) == []
+
+
+def test_evaluate_takes_the_built_in_basis_names_as_densify_does(
+    pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path
+) -> None:
+    """`evaluate --basis builtin` was refused with an error saying to pass `builtin`
+    (bug hunt 6A F13)."""
+    dense = tmp_path / "indoor.mcap"
+    assert pcainterp("densify", small_log, "-o", dense, "--basis", "builtin-indoor").code == 0
+    fast = ["--mode", "stereo", "--max-frames", "1", "--sweep-every", "0", "--no-linear"]
+    for name, used in [
+        ("builtin", "built-in-indoor"),  # the one the log records densify used
+        ("builtin-street", "built-in"),
+        ("builtin-indoor", "built-in-indoor"),
+    ]:
+        run = pcainterp("evaluate", dense, "-o", tmp_path / name, "--basis", name, *fast)
+        assert run.code == 0, run.err
+        assert f"basis of the re-densified rows: {used} (given)\n" in run.out
+    line = pcainterp("evaluate", dense, "--basis", "builtin", "--no-basis").error_line()
+    assert "--no-basis and --basis contradict each other" in line
+
+
 # ----------------------------------------------------------------------------- not a log
 
 
@@ -791,6 +843,71 @@ def test_import_kitti_output_missing_folder(pcainterp: Callable[..., Run], tmp_p
     line = pcainterp("import-kitti", drive, target).error_line()
     assert "missing does not exist" in line
     assert not target.parent.exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (["learn", "LOG", "-o", "-"], "-o is -, but learn writes a basis file (.npz), which "),
+        (["import-kitti", "DRIVE", "-"], "OUT is -, but import-kitti writes a log file "),
+        (["synth", "-", "--frames", "2"], "OUT is -, but synth writes a log file "),
+        (["golden", "save", "LOG", "-o", "-"], "-o is -, but golden save writes a golden "),
+    ],
+)
+def test_an_output_that_cannot_be_a_stream_refuses_dash(
+    pcainterp: Callable[..., Run],
+    small_log: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    args: list[str],
+    expected: str,
+) -> None:
+    """`-` was a basis file, a rosbag2 folder or a golden file named "-" (bug hunt 6A F10)."""
+    drive = _fake_kitti_drive(tmp_path, calibration=True)
+    monkeypatch.chdir(tmp_path)
+    given = [{"LOG": small_log, "DRIVE": drive}.get(arg, arg) for arg in args]
+    line = pcainterp(*given).error_line()
+    assert expected in line
+    assert "cannot go to standard output; name a path, e.g. " in line
+    assert not (tmp_path / "-").exists()
+
+
+@pytest.mark.parametrize("command", ["import-kitti", "synth"])
+def test_a_rosbag2_output_onto_an_existing_file_is_refused_up_front(
+    pcainterp: Callable[..., Run],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    command: str,
+) -> None:
+    """The whole import ran, then "cannot move the finished output onto outfile: Not a
+    directory; check the folder's permissions" (bug hunt 6A F10)."""
+    from pcainterp_stream.pipeline import jobs
+
+    drive = _fake_kitti_drive(tmp_path, calibration=True)
+    target = tmp_path / "outfile"
+    target.write_text("notes")
+    for job in ("import_kitti", "synth"):  # up front: no job starts
+        monkeypatch.setattr(jobs, job, lambda *args, **kwargs: pytest.fail("the job ran"))
+    given = [drive, target] if command == "import-kitti" else [target, "--frames", "2"]
+    line = pcainterp(command, *given).error_line()
+    assert line == (
+        f"pcainterp: error: output {target} is an existing file, but a name without a suffix "
+        f"writes a rosbag2 bag, which is a folder; name the output {target}.mcap or "
+        f"{target}.bag, or remove the file"
+    )
+    line = pcainterp("synth", target, "--format", "rosbag2-sqlite3").error_line()
+    assert "but --format rosbag2-sqlite3 writes a rosbag2 bag, which is a folder; choose " in line
+    assert target.read_text() == "notes"
+    # import-kitti has no --format for the library's "or pass the format explicitly"
+    named = tmp_path / "drive.txt"
+    given = [drive, named] if command == "import-kitti" else [named]
+    line = pcainterp(command, *given).error_line()
+    assert line.endswith(
+        f"output {named} is named .txt, which is no log format; name it .mcap or .bag, or "
+        "without a suffix for a rosbag2 folder"
+        + (", or pass --format" if command == "synth" else "")
+    )
+    assert not named.exists()
 
 
 # ----------------------------------------------------------------------------- damaged MCAP
@@ -1017,7 +1134,8 @@ def test_densify_one_side_named_takes_its_sibling(
     run = pcainterp(*densify_args(log, out, basis_path, option, named))
     assert run.code == 0, run.err
     assert sibling in run.out.splitlines()[0]
-    assert "(found by name (1 other pair(s) less preferred)" in run.out
+    assert "found by name for the " in run.out.splitlines()[0]
+    assert "less preferred" not in run.out
     assert f"densified {SMALL_FRAMES} frames" in run.out
 
 

@@ -51,6 +51,13 @@ def formatter(prog: str) -> argparse.HelpFormatter:
     return argparse.RawDescriptionHelpFormatter(prog, max_help_position=32)
 
 
+DOCS_NOTE = (
+    "docs/*.md: the pages of that name in the docs/ folder of pcainterp's source\n"
+    "repository, beside its README (an installed package does not include them)\n"
+)
+"""The end of the help of a command whose options cite the docs (``densify``, ``learn``)."""
+
+
 def echo(text: str) -> None:
     """Print one line of a command's report at once (standard error with ``-o -``).
 
@@ -141,6 +148,108 @@ def refuse_overwrites(
             if same_file(path, other_path):
                 raise LogWriteError(f"refusing to write {what} onto {other} {other_path}; {fix}")
         others.append((what, path))
+
+
+def refuse_stream_output(path: Path, option: str, writes: str, example: str) -> None:
+    """Refuse ``-`` (:data:`STREAM`) as the output of a command that writes no stream.
+
+    Only ``densify -o -`` writes standard output; elsewhere ``-`` would be a file or folder
+    named ``-`` that no one asked for.
+
+    Args:
+        path: the output given.
+        option: how the command line names it (``-o``, ``OUT``).
+        writes: what the command writes (``learn writes a basis file (.npz)``).
+        example: a path to suggest (``basis.npz``).
+
+    Raises:
+        LogWriteError: ``path`` is ``-``.
+    """
+    if path == STREAM:
+        name = f"{option} " if option.startswith("-") else ""
+        raise LogWriteError(
+            f"{option} is -, but {writes}, which cannot go to standard output; "
+            f"name a path, e.g. {name}{example}"
+        )
+
+
+def check_log_output(path: Path, log_format: str | None, command: str) -> None:
+    """Refuse, before any work, a log output (``synth``, ``import-kitti``) it cannot write.
+
+    Args:
+        path: OUT as given.
+        log_format: ``--format``, or None for the format ``path``'s name says.
+        command: the command, for the message.
+
+    Raises:
+        LogWriteError: OUT is ``-``, its suffix names no log format (without ``--format``),
+            or it is an existing file where a rosbag2 bag (a folder) would go.
+    """
+    from pcainterp_stream.io.logwriter import LogFormat, format_from_path
+
+    refuse_stream_output(
+        path, "OUT", f"{command} writes a log file (.mcap, .bag) or a rosbag2 folder", "drive.mcap"
+    )
+    if log_format is not None:
+        chosen = LogFormat(log_format)
+    else:
+        try:
+            chosen = format_from_path(path)
+        except LogWriteError:  # the library's words: "pass the format explicitly"
+            fix = ", or pass --format" if command == "synth" else ""
+            raise LogWriteError(
+                f"output {path} is named {path.suffix}, which is no log format; name it .mcap "
+                f"or .bag, or without a suffix for a rosbag2 folder{fix}"
+            ) from None
+    if chosen in (LogFormat.ROSBAG2, LogFormat.ROSBAG2_SQLITE3) and path.is_file():
+        how, fix = (
+            (f"--format {chosen.value}", "choose another path")
+            if log_format is not None
+            else ("a name without a suffix", f"name the output {path}.mcap or {path}.bag")
+        )
+        raise LogWriteError(
+            f"output {path} is an existing file, but {how} writes a rosbag2 bag, which is a "
+            f"folder; {fix}, or remove the file"
+        )
+
+
+BUILTIN_BASIS_NAMES = {
+    "builtin": "auto",
+    "builtin-street": "street",
+    "builtin-indoor": "indoor",
+}
+"""What ``--basis`` takes besides a file (densify, evaluate) -> the built-in basis kind;
+``auto``: the one the command chooses (densify: by the fit check)."""
+
+
+def basis_option(value: Path | None) -> tuple[Path | None, str | None]:
+    """Read ``--basis``: the name of a built-in basis, or the path of a basis file.
+
+    The file is checked where it is read; only a missing one named like a built-in basis
+    (``builtin-indor``, ``built-in``) is refused here, with the names listed.
+
+    Returns:
+        (None, kind) for a name of :data:`BUILTIN_BASIS_NAMES`, (the path, None) for a file,
+        (None, None) when ``--basis`` was not given.
+
+    Raises:
+        BasisError: a missing file named like a built-in basis.
+    """
+    if value is None:
+        return None, None
+    kind = BUILTIN_BASIS_NAMES.get(str(value))
+    if kind is not None:
+        return None, kind
+    if value.name.lower().startswith("built") and not value.exists():
+        from pcainterp_stream.errors import BasisError
+        from pcainterp_stream.estimate.basis import check_basis_file
+
+        try:
+            check_basis_file(value)
+        except BasisError as err:
+            *first, last = BUILTIN_BASIS_NAMES
+            raise BasisError(f"{err}, or one of {', '.join(first)} and {last}") from None
+    return value, None
 
 
 # ----------------------------------------------------------------------------- stereo front end

@@ -17,10 +17,12 @@ from typing import TYPE_CHECKING
 
 from pcainterp_stream import defaults
 from pcainterp_stream.cli.common import (
+    DOCS_NOTE,
     STREAM,
     Commands,
     add_cluster_options,
     add_stereo_options,
+    basis_option,
     check_cluster_options,
     cluster_notes,
     echo,
@@ -68,6 +70,7 @@ def add_parser(commands: Commands) -> None:
             "  pcainterp densify logs/*.mcap --out-dir dense/ --basis b.npz --workers 2\n"
             "  pcainterp densify drive.mcap --foxglove      # live in Foxglove: ws://127.0.0.1:8765\n"
             "  cat drive.mcap | pcainterp densify - -o - > drive_dense.mcap\n"
+            "\n" + DOCS_NOTE
         ),
     )
     densify.add_argument(
@@ -329,12 +332,8 @@ def run(args: argparse.Namespace) -> int:
         )
     # --basis builtin: the built-in bases as they are (checked, the street or the indoor
     # one chosen, never replaced by the log's own); builtin-street/-indoor: that one
-    kind = {"builtin": "auto", "builtin-street": "street", "builtin-indoor": "indoor"}.get(
-        str(args.basis) if args.basis is not None else ""
-    )
+    args.basis, kind = basis_option(args.basis)
     builtin = kind is not None
-    if builtin:
-        args.basis = None
     if args.basis is None:  # read while the log is opened and its first pair read
         from pcainterp_stream.estimate.basis import preload_builtin
 

@@ -4,14 +4,19 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from pcainterp_stream.cli.common import Commands, echo, formatter
+from pcainterp_stream.cli.common import Commands, basis_option, echo, formatter
 from pcainterp_stream.cli.pairing import (
     add_input_pair_options,
     pairing_config,
     stamp_tolerance_ms,
 )
 from pcainterp_stream.errors import PcaInterpError
+
+if TYPE_CHECKING:
+    from pcainterp_stream.estimate.basis import Basis
+    from pcainterp_stream.io.outputs import OutputTopics
 
 
 def add_parser(commands: Commands) -> None:
@@ -61,8 +66,11 @@ def add_parser(commands: Commands) -> None:
         type=Path,
         default=None,
         metavar="BASIS.npz",
-        help="the basis for the oracle, uncertainty kinds and points sweep (default: the one "
-        "the log records it was densified with; the built-in one for older logs)",
+        help="the basis for the oracle, uncertainty kinds and points sweep: a file; "
+        "'builtin' for the built-in one the log records (the indoor one if densify chose "
+        "it, else the street one), 'builtin-street' or 'builtin-indoor' for that one "
+        "(default: the one the log records it was densified with; the built-in one for "
+        "older logs)",
     )
     evaluate.add_argument(
         "--no-basis",
@@ -137,6 +145,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.no_basis and args.basis is not None:
         raise PcaInterpError("--no-basis and --basis contradict each other; pass one")
+    path, kind = basis_option(args.basis)
     if args.reference_topic is None and args.reference_kind != "auto":
         raise PcaInterpError("--reference-kind needs --reference-topic TOPIC")
     try:
@@ -146,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
     folder, table = evaluate(
         args.input,
         args.output,
-        basis=args.basis,
+        basis=path if kind is None else _builtin_basis(kind, args.input, topics),
         mode=args.mode,
         sigma=args.sigma,
         sweep_every=args.sweep_every,
@@ -162,3 +171,23 @@ def run(args: argparse.Namespace) -> int:
     echo(table)
     echo(f"wrote {folder}/results.md, results.json and figures")
     return 0
+
+
+def _builtin_basis(kind: str, log: Path, topics: OutputTopics) -> Basis:
+    """Return the built-in basis ``--basis builtin[-street|-indoor]`` names.
+
+    ``builtin`` (kind ``auto``) is the one densify chose by its fit check, as the log
+    records it: the indoor one if it says so, else the street one (also for a log
+    densified with a basis file, or one that cannot be read: evaluate reports that).
+    """
+    from pcainterp_stream.estimate.basis import BUILT_IN_INDOOR, builtin_basis
+
+    if kind == "auto":
+        from pcainterp_stream.io.outputs import BASIS_KEY, recorded_metadata
+
+        try:
+            label = recorded_metadata(log, topics).get(BASIS_KEY)
+        except PcaInterpError:
+            label = None
+        kind = "indoor" if label == BUILT_IN_INDOOR else "street"
+    return builtin_basis(kind)

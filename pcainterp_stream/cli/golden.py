@@ -8,17 +8,13 @@ differs (the differences are printed), 2 bad input (printed by the caller as one
 from __future__ import annotations
 
 import argparse
-import sys
-from collections.abc import Iterator
-from contextlib import contextmanager
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from pcainterp_stream.cli.common import Commands, echo, formatter
+from pcainterp_stream.cli.common import Commands, echo, formatter, refuse_stream_output
 from pcainterp_stream.errors import PcaInterpError
-
-if TYPE_CHECKING:
-    from tqdm import tqdm
 
 DEFAULT_MAX_LINES = 20
 
@@ -95,30 +91,25 @@ def add_parser(commands: Commands) -> None:
 
 
 @contextmanager
-def _progress(description: str) -> Iterator[Any]:
-    """Yield a progress callback drawing a bar on a terminal (nothing in logs and tests)."""
-    from tqdm import tqdm  # here: `pcainterp --help` does not load it
+def _progress(description: str) -> Iterator[Callable[[int, int | None], None]]:
+    """Yield a progress callback ``(done, total)`` for the messages read.
 
-    bar: tqdm[Any] | None = None
+    The bar the other jobs show (:func:`pcainterp_stream.pipeline.common._bar`): ``tqdm``
+    on a terminal, off one a plain line a minute; made at the first call, which knows the
+    total.
+    """
+    from pcainterp_stream.pipeline.common import _bar
 
-    def update(done: int, total: int | None) -> None:
-        nonlocal bar
-        if bar is None:
-            bar = tqdm(
-                total=total,
-                desc=description,
-                unit="msg",
-                disable=None,
-                leave=False,
-                file=sys.stderr,
-            )
-        bar.update(done - bar.n)
+    bar: Any = None
+    with ExitStack() as closing:
 
-    try:
+        def update(done: int, total: int | None) -> None:
+            nonlocal bar
+            if bar is None:
+                bar = closing.enter_context(_bar(total, description, unit="message"))
+            bar.update(done - bar.n)
+
         yield update
-    finally:
-        if bar is not None:
-            bar.close()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -132,6 +123,9 @@ def run(args: argparse.Namespace) -> int:
     from pcainterp_stream.golden.store import arrays_path, check_log, save_golden
 
     if args.golden_command == "save":
+        refuse_stream_output(
+            args.output, "-o", "golden save writes a golden file (.json)", "drive.golden.json"
+        )
         if args.output.resolve() == args.log.resolve():
             raise PcaInterpError(f"-o {args.output} is the log itself; name another file")
         with _progress(f"summarising {args.log.name}") as progress:

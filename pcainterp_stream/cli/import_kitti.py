@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pcainterp_stream.cli.common import Commands, formatter, print_written
+from pcainterp_stream.cli.common import Commands, check_log_output, formatter, print_written
 
 
 def add_parser(commands: Commands) -> None:
@@ -34,7 +34,13 @@ def add_parser(commands: Commands) -> None:
         help="a raw drive folder (<date>/<date>_drive_XXXX_sync, its calibration files in "
         "the date folder) or an odometry sequence folder (sequences/XX with calib.txt)",
     )
-    kitti.add_argument("out", type=Path, metavar="OUT", help="the MCAP log to write")
+    kitti.add_argument(
+        "out",
+        type=Path,
+        metavar="OUT",
+        help="the log to write: .mcap an MCAP, .bag a ROS 1 bag, a name without a suffix a "
+        "rosbag2 folder (MCAP storage)",
+    )
     kitti.add_argument(
         "--max-frames",
         type=int,
@@ -55,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
     """Convert the KITTI folder; return the exit code."""
     from pcainterp_stream.pipeline.jobs import import_kitti
 
+    check_log_output(args.out, None, "import-kitti")
     print_written(
         import_kitti(args.kitti_dir, args.out, max_frames=args.max_frames, colour=args.colour)
     )

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
 from pcainterp_stream.cli.common import (
+    DOCS_NOTE,
     Commands,
     add_cluster_options,
     add_stereo_options,
@@ -16,6 +17,7 @@ from pcainterp_stream.cli.common import (
     formatter,
     gftt_config,
     refuse_overwrites,
+    refuse_stream_output,
     same_file,
     sgbm_config,
     worker_wait,
@@ -50,6 +52,7 @@ def add_parser(commands: Commands) -> None:
             "  pcainterp learn a.mcap -o basis.npz --no-fit-prior     # the paper's model\n"
             "  pcainterp learn short.mcap -o basis.npz --with-synthetic 0  # your maps alone\n"
             "  pcainterp learn fleet/*.mcap -o basis.npz --scheduler tcp://10.0.0.5:8786\n"
+            "\n" + DOCS_NOTE
         ),
     )
     learn.add_argument(
@@ -241,10 +244,11 @@ def _check_paths(args: argparse.Namespace) -> None:
     """Refuse, before any work, a -o learn cannot write or that replaces a file it reads.
 
     Raises:
-        LogWriteError: -o is a folder, is named other than .npz, or is one of the logs,
-            --fit-logs or --calibration.
+        LogWriteError: -o is ``-``, a folder, is named other than .npz, or is one of the
+            logs, --fit-logs or --calibration.
         LogReadError: a --fit-logs log does not exist.
     """
+    refuse_stream_output(args.output, "-o", "learn writes a basis file (.npz)", "basis.npz")
     if args.output.is_dir():
         raise LogWriteError(
             f"output {args.output} is a folder but learn writes one basis file; "

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pcainterp_stream.cli.common import Commands, formatter, print_written
+from pcainterp_stream.cli.common import Commands, check_log_output, formatter, print_written
 from pcainterp_stream.errors import PcaInterpError
 
 
@@ -94,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
     """Render the world asked for and write its log; return the exit code."""
     if args.seed < 0:
         raise PcaInterpError(f"--seed must be >= 0, got {args.seed}")
+    check_log_output(args.out, args.format, "synth")
     if args.raw is not None:
         return _run_raw(args)
     from pcainterp_stream.pipeline.jobs import synth

@@ -210,11 +210,7 @@ def check_basis_file(path: Path) -> None:
     if path.is_dir():
         raise BasisError(f"basis file {path} is a folder, not a basis file; {fix}")
     if not path.is_file():
-        builtin = ", or one of builtin, builtin-street and builtin-indoor"
-        raise BasisError(
-            f"basis file {path} does not exist; {fix}"
-            + (builtin if path.name.startswith("builtin") else "")
-        )
+        raise BasisError(f"basis file {path} does not exist; {fix}")
     try:
         with path.open("rb") as stream:
             head = stream.read(16)

@@ -325,18 +325,13 @@ def resolve_pairing(
         alone = len({p.left.topic for p in ties}) == len(ties)
         raise TopicNotFoundError(
             f"{len(ties)} stereo pairs in {name} are equally good: {listed}; pass the options "
-            "of the one to densify" + (" (its --left-topic alone will do)" if alone else "")
+            "of the one to read" + (" (its --left-topic alone will do)" if alone else "")
         )
     left_info, right_info = config.left_info_topic, config.right_info_topic
     if best.left.info is not None and best.right.info is not None:
         left_info, right_info = best.left.info, best.right.info
     if echo is not None:
-        with_infos = f" with {best.left.info} and {best.right.info}" if best.left.info else ""
-        others = f" ({len(pairs) - 1} other pair(s) less preferred)" if len(pairs) > 1 else ""
-        echo(
-            f"topics: left {best.left.topic}, right {best.right.topic}{with_infos} "
-            f"(found {best.how}{others}; --left-topic/--right-topic choose others)"
-        )
+        echo(_found_line(best, len(pairs) - 1, named_left=named_left, named_right=named_right))
     return dataclasses.replace(
         config,
         discover=False,
@@ -345,3 +340,26 @@ def resolve_pairing(
         left_info_topic=left_info,
         right_info_topic=right_info,
     )
+
+
+def _found_line(best: StereoTopics, others: int, *, named_left: bool, named_right: bool) -> str:
+    """Return the line that says which pair was found (one side of it may have been named).
+
+    Args:
+        best: the pair chosen.
+        others: how many other pairs were candidates (with the named side, if one was).
+        named_left: the left image topic was named on the command line.
+        named_right: the right one was.
+    """
+    with_infos = f" with {best.left.info} and {best.right.info}" if best.left.info else ""
+    pair = f"topics: left {best.left.topic}, right {best.right.topic}{with_infos}"
+    if named_left and named_right:
+        return f"{pair} (both named)"
+    if named_left or named_right:
+        named, found = ("left", "right") if named_left else ("right", "left")
+        return (
+            f"{pair} (the {found} camera found {best.how} for the {named} one named; "
+            f"--{found}-topic chooses another)"
+        )
+    more = f"; {others} other pair{'s' * (others > 1)} less preferred" if others else ""
+    return f"{pair} (found {best.how}{more}; --left-topic/--right-topic choose others)"

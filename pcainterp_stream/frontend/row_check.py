@@ -199,7 +199,8 @@ class RowCheck:
             raise CalibrationError(
                 f"the stereo pair {self.pair} does not look rectified: matched corners are "
                 f"{offset.median_abs_dy:.2f} px apart vertically ({where}; rectified < "
-                f"{MAX_ROW_OFFSET_PX:g} px); {fix}; --rectify never densifies them anyway"
+                f"{MAX_ROW_OFFSET_PX:g} px); {fix}; --rectify never uses the pair as "
+                "recorded, unchecked"
             )
         same = float(np.mean(np.abs(points[:, :2] - points[:, 2:]).max(axis=1) < SAME_VIEW_PX))
         if same >= SAME_VIEW_SHARE and float(np.median(self.changes)) < SAME_VIEW_CHANGE:
@@ -210,15 +211,15 @@ class RowCheck:
                 f"within {SAME_VIEW_PX:g} px of each other and the images barely differ, so "
                 f"{right} carries the left camera's images (a remap or republish of the wrong "
                 "camera); pass the right camera's image topic as --right-topic (only a scene "
-                "beyond stereo range everywhere looks like this; --rectify never densifies it "
-                "anyway)"
+                "beyond stereo range everywhere looks like this; --rectify never uses the "
+                "pair as recorded, unchecked)"
             )
         if offset.median_dx < MIN_MEDIAN_DISPARITY_PX:
             raise CalibrationError(
                 f"the stereo pair {self.pair} has negative disparities: x_left - x_right = "
                 f"{offset.median_dx:.1f} px ({where}): left and right look swapped; pass "
                 f"{self.swap_flags()} (or fix the baseline sign of the right camera's P); "
-                "--rectify never densifies them anyway"
+                "--rectify never uses the pair as recorded, unchecked"
             )
 
     def swap_flags(self) -> str:

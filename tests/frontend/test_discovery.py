@@ -222,7 +222,8 @@ def test_two_heads_are_one_line_listing_only_the_heads() -> None:
     assert "--left-topic /front/left/image_rect --right-topic /front/right/image_rect" in line
     assert "--left-topic /stereo/left/image_rect --right-topic /stereo/right/image_rect" in line
     assert "--right-topic /stereo/right/image_rect --left-info-topic /front" not in line
-    assert line.endswith("pass the options of the one to densify (its --left-topic alone will do)")
+    # learn and evaluate discover the pair too: "the one to densify" was densify's word
+    assert line.endswith("pass the options of the one to read (its --left-topic alone will do)")
 
 
 @pytest.mark.parametrize(
@@ -246,7 +247,29 @@ def test_one_named_side_takes_its_sibling_not_another_heads_camera(
     assert other == expected
     assert config.left_info_topic == config.left_topic.replace("image_rect", "camera_info")
     assert config.right_info_topic == config.right_topic.replace("image_rect", "camera_info")
-    assert "found by name (1 other pair(s) less preferred)" in said[0]
+    # the other candidate was a cross-head pair with the named side, never asked for
+    named_side, found = ("left", "right") if "left_topic" in named else ("right", "left")
+    assert said[0].endswith(
+        f" (the {found} camera found by name for the {named_side} one named; "
+        f"--{found}-topic chooses another)"
+    )
+    assert "less preferred" not in said[0]
+
+
+def test_the_line_counts_the_other_pairs_found() -> None:
+    topics = _topics(
+        *_camera("/a/left", "image_rect"),
+        *_camera("/a/right", "image_rect"),
+        *_camera("/b/left", "image_raw"),
+        *_camera("/b/right", "image_raw"),
+    )
+    said: list[str] = []
+    resolve_pairing(_Reader(topics), PairingConfig(discover=True), said.append)  # type: ignore[arg-type]
+    assert said == [
+        "topics: left /a/left/image_rect, right /a/right/image_rect with /a/left/camera_info "
+        "and /a/right/camera_info (found by name; 1 other pair less preferred; "
+        "--left-topic/--right-topic choose others)"
+    ]  # before: "(found by name (1 other pair(s) less preferred); ..."
 
 
 def test_heads_named_alike_keep_the_pairs_with_a_side_in_one_name() -> None:

@@ -182,3 +182,18 @@ def test_one_camera_on_both_topics_is_refused(jpeg: bool) -> None:
 def test_a_small_disparity_everywhere_is_not_one_view() -> None:
     # a far scene still lies a pixel or two apart in the two views
     assert _run([_views(shift=1.5)] * 3, IDEAL).stats.row_check_hint() is None
+
+
+def test_each_refusal_is_worded_for_every_command_that_checks() -> None:
+    # learn and evaluate check the pair too: "--rectify never densifies them anyway" was
+    # densify's word (bug hunt 6A F10)
+    left, right = _views()
+    for pair, kind in [
+        (Unrectifier(RAW)(left, right), "does not look rectified"),
+        ((right, left), "negative disparities"),
+        ((left, left), "shows one view twice"),
+    ]:
+        with pytest.raises(CalibrationError, match=kind) as err:
+            _run([pair] * 3, IDEAL)
+        assert "--rectify never uses the pair as recorded, unchecked" in str(err.value)
+        assert "densif" not in str(err.value)

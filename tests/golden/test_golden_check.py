@@ -92,6 +92,30 @@ def test_a_rerun_passes_and_the_cli_says_so(
     assert set(depth["messages"][0]["arrays"]["image"]) >= {"median", "mad", "quantiles", "nan"}
 
 
+def test_off_a_terminal_the_cli_prints_the_plain_progress_lines(
+    drive: dict[str, Path],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # golden had a bar of its own, silent off a terminal; the other jobs print a plain line
+    # a minute there (a CI step that prints nothing for 10 minutes is ended): now it does too
+    from pcainterp_stream.pipeline import common
+
+    monkeypatch.setattr(common, "PLAIN_PROGRESS_EVERY_S", 0.0)  # a line per message
+    with open_log(drive["dense"]) as reader:
+        count = sum(1 for _ in reader.messages())
+    for args, said in [
+        (["check", drive["dense"], drive["golden"]], "checking dense.mcap"),
+        (["save", drive["dense"], "-o", tmp_path / "again.json"], "summarising dense.mcap"),
+    ]:
+        capsys.readouterr()
+        assert _run("golden", *args) == 0
+        lines = capsys.readouterr().err.splitlines()
+        assert len(lines) == count
+        assert lines[-1].startswith(f"{said}: {count}/{count} messages, ")
+
+
 def test_fewer_corners_fail_naming_the_depth(
     drive: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
