@@ -416,8 +416,11 @@ def test_learn_names_two_raw_cameras_by_their_images_and_boxes(
 ) -> None:
     small = tmp_path / "small.bag"
     write_raw_log(SynthConfig(seed=2, frames=2, scale=0.2), small, model="plumb_bob")
-    sizes = r"small.bag has 248x75 images \(rectified box 248x73\) but .*raw.bag has 310x94 images"
-    with pytest.raises(PcaInterpError, match=sizes + r" \(rectified box 310x92\); learn one basis"):
+    sizes = (
+        r"small.bag gives 248x73 maps \(the rectified box of its 248x75 raw images\) but "
+        r".*raw.bag gives 310x92 maps \(the rectified box of its 310x94 raw images\)"
+    )
+    with pytest.raises(PcaInterpError, match=sizes + r"; learn one basis"):
         jobs.learn(
             [raw_bag, small],
             tmp_path / "b.npz",

@@ -52,6 +52,7 @@ __all__ = [
     "RosbagsLogReader",
     "TopicInfo",
     "decode_image",
+    "log_files",
     "looks_like_kitti",
     "open_log",
     "sniff_format",
@@ -113,6 +114,26 @@ def sniff_format(path: str | Path) -> LogFormat:
         else ("not a log (no MCAP, ROS 1 bag or SQLite magic bytes)")
     )
     raise LogReadError(f"{path} is {what}; pass an MCAP file, a ROS 1 .bag or a rosbag2 folder")
+
+
+def log_files(path: str | Path) -> list[Path]:
+    """Return the files reading a log path opens: a rosbag2 folder's storage files, else it.
+
+    A rosbag2 folder's files are those its ``metadata.yaml`` lists (``relative_file_paths``),
+    or, when that does not parse, the ``.mcap`` and ``.db3`` files in it. Two paths that
+    share a file are one log given twice (a folder and its own storage file).
+    """
+    import yaml
+
+    path = Path(path)
+    if not path.is_dir():
+        return [path]
+    try:
+        info = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        return [path / str(name) for name in info["relative_file_paths"]] or [path]
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError):
+        files = [p for p in path.iterdir() if p.suffix in (".mcap", ".db3") and p.is_file()]
+        return sorted(files) or [path]
 
 
 def looks_like_kitti(path: str | Path) -> bool:

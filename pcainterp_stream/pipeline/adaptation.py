@@ -26,6 +26,7 @@ import numpy.typing as npt
 from pcainterp_stream.estimate import adapt
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.estimator import densify_batch
+from pcainterp_stream.estimate.finetune import camera_mismatch
 from pcainterp_stream.frontend.motion import Motion, view_shift
 from pcainterp_stream.records import StereoCamera, StereoFrame
 
@@ -70,6 +71,25 @@ def unfit_warning(check: adapt.FitCheck, where: str, fix: str) -> str:
     return (
         f"warning: the prior is worse than linear interpolation on this log "
         f"({check.ratio:.2f}x){fix}"
+    )
+
+
+def other_camera(basis: Basis, image_size: tuple[int, int], focal_baseline: float) -> str:
+    """Say, for a warning, that ``basis`` was learned for another camera than the log's, or "".
+
+    Another camera as ``learn`` would not merge its maps into the basis
+    (:func:`~pcainterp_stream.estimate.finetune.camera_mismatch`): "; the basis was learned
+    for another camera (320x240 px, f*b 9.6 px*m; this log's 620x188 px, f*b 193.1 px*m:
+    aspect ratio 3.30 against 1.33)".
+    """
+    why = camera_mismatch(basis, image_size, focal_baseline)
+    if why is None or basis.focal_baseline <= 0 or focal_baseline <= 0:
+        return ""
+    (height, width), (basis_height, basis_width) = image_size, basis.image_size
+    return (
+        f"; the basis was learned for another camera ({basis_width}x{basis_height} px, f*b "
+        f"{basis.focal_baseline:.1f} px*m; this log's {width}x{height} px, f*b "
+        f"{focal_baseline:.1f} px*m: {why})"
     )
 
 
@@ -195,12 +215,19 @@ class Adaptation:
         finally:
             self.checked = True
 
-    def _warn_unfit(self, may_adapt: bool, own_frames: int = 0, standing: bool = False) -> None:
+    def _warn_unfit(
+        self,
+        may_adapt: bool,
+        own_frames: int = 0,
+        standing: bool = False,
+        camera: tuple[tuple[int, int], float] | None = None,
+    ) -> None:
         """Add a ``warning:`` line when the basis kept loses to linear interpolation.
 
         ``own_frames``: the log's own basis, learned from that many warm-up frames, was
         tried and did no better (0: not tried). ``standing``: it was not learned, the
-        warm-up frames being one view.
+        warm-up frames being one view. ``camera``: (image size, f*b) of the log, named with
+        the basis's when they are not alike (:func:`other_camera`).
         """
         if self.check is None or not self.check.frames or self.check.fits:
             return
@@ -223,6 +250,9 @@ class Adaptation:
             fix = "; densify without --basis builtin to adapt to this log"
         else:
             fix = "; learn a basis for this camera: pcainterp learn LOG -o BASIS.npz"
+        basis = self._given if self.switched is None else self.switched.basis
+        if camera is not None and basis is not None:
+            fix = other_camera(basis, *camera) + fix  # the likely cause first
         self.lines.append(unfit_warning(self.check, "held-out SGBM pixels", fix))
 
     def _decide(
@@ -283,7 +313,7 @@ class Adaptation:
         if not try_own:
             if self.switched is not None:
                 self.lines.append(f"prior: {self.switched.name} chosen (fits this log better)")
-            self._warn_unfit(self.may_replace)
+            self._warn_unfit(self.may_replace, camera=(size, fb))
             return None if self.switched is None else self.switched.basis
         maps = [f.grid_map for f in usable if f.grid_map is not None]
         kept = f"{self.name} kept" if self.switched is None else f"{self.switched.name} chosen"
@@ -322,7 +352,7 @@ class Adaptation:
                 f"learned: its first {_count(len(maps), 'frame')} are one view{again}"
             )
             before = len(self.lines)
-            self._warn_unfit(False, standing=True)
+            self._warn_unfit(False, standing=True, camera=(size, fb))
             self._standing_warning = self.lines[before:]  # dropped if the check runs again
             self.deferred, self._views = log_goes_on, []
             self._camera = (size, fb)
@@ -382,7 +412,8 @@ class Adaptation:
                 else f"prior: {kept}"
             )
             # its own basis was tried: no adapting left to suggest
-            self._warn_unfit(False, own_frames=len(maps) if self.own_check is not None else 0)
+            own_frames = len(maps) if self.own_check is not None else 0
+            self._warn_unfit(False, own_frames=own_frames, camera=(size, fb))
             return None if self.switched is None else self.switched.basis
         chosen = self.name if self.switched is None else self.switched.name
         if not self.check.fits:

@@ -88,7 +88,7 @@ from pcainterp_stream.pipeline.learn import (
     shows_surface,
     to_grid,
 )
-from pcainterp_stream.pipeline.learn_maps import depth_maps, scaled_to
+from pcainterp_stream.pipeline.learn_maps import close_sizes, depth_maps, resized_to, scaled_to
 from pcainterp_stream.pipeline.scheduler import (
     QUIET_TRACKER,
     WorkerPaths,
@@ -386,6 +386,9 @@ def summarize_chunk(
             image_size, focal_baseline = size, fb
             if target is None:
                 target = GridTarget(grid_size_for(size, options.grid_scale))
+            image_size = target.image_size or image_size  # the plan's camera
+        if disparity.shape != image_size and close_sizes(disparity.shape, image_size):
+            disparity = resized_to(disparity, image_size)  # as on one machine
         if disparity.shape != image_size:
             raise PcaInterpError(
                 f"{log} has maps of shape {disparity.shape}, expected {image_size}; "

@@ -42,8 +42,11 @@ from pcainterp_stream.pipeline.held_out import measure_held_out as measure_held_
 from pcainterp_stream.pipeline.learn_maps import (
     MapSource,
     check_fit_logs,
+    check_logs_once,
+    close_sizes,
     depth_maps,
     one_camera,
+    resized_to,
     sgbm_maps,
 )
 from pcainterp_stream.pipeline.learn_maps import log_pairing as log_pairing
@@ -330,6 +333,8 @@ class GridTarget:
         focal_baseline: f*b (px*m) every map is put in as it is read, before
             ``disparity_scale`` (the first log's: :func:`learn_maps.scaled_to`); None: each
             chunk's first map's.
+        image_size: (H, W) every map is resampled to when its size is close
+            (:func:`learn_maps.resized_to`; the first log's); None: each chunk's first map's.
     """
 
     grid_size: tuple[int, int]
@@ -337,6 +342,7 @@ class GridTarget:
     box_size: int = DEFAULT_BOX_SIZE
     finetune: bool = False
     focal_baseline: float | None = None
+    image_size: tuple[int, int] | None = None
 
 
 BLANK_MAPS = "blank, dark or textureless images, or a depth topic without depth"
@@ -453,9 +459,9 @@ def plan_maps(
     from the first log's are scaled to it (:func:`learn_maps.one_camera` says so).
 
     Raises:
-        PcaInterpError: bad options, an output that is an input or in a missing folder, no
-            map in the logs, logs of two image sizes, ``fit_logs`` of another size, or a
-            depth topic of sparse depth (:data:`learn_maps.MIN_DEPTH_COVERAGE`).
+        PcaInterpError: bad options, an output that is an input or in a missing folder, a
+            log given twice (:func:`learn_maps.check_logs_once`), no map in the logs, logs
+            of two image sizes, or ``fit_logs`` of another size.
     """
     if options.every < 1:
         raise PcaInterpError(f"--every must be at least 1, got {options.every}")
@@ -469,6 +475,7 @@ def plan_maps(
     for log in logs:
         if log.resolve() == output.resolve():
             raise PcaInterpError(f"output {output} is one of the input logs; choose another -o")
+    check_logs_once(logs)
     _check_output_folder(output)
     sources = [_source_topic(log, options, pairing) for log in logs]
     counts = [
@@ -502,6 +509,7 @@ def plan_maps(
         target = GridTarget(
             grid_size_for(camera.image_size, options.grid_scale),
             focal_baseline=camera.focal_baseline,
+            image_size=camera.image_size,
         )
     else:
         preprocessing = plan.prior_basis.meta.get("preprocessing", {})
@@ -511,6 +519,7 @@ def plan_maps(
             int(preprocessing.get("box_size", DEFAULT_BOX_SIZE)),
             finetune=True,
             focal_baseline=camera.focal_baseline,
+            image_size=camera.image_size,
         )
     return MapPlan(tuple(logs), tuple(counts), tuple(kept), total, camera, plan, target)
 
@@ -619,6 +628,8 @@ def _learn_here(
             ):
                 if not first:
                     first.append(log)
+                if disparity.shape != image_size and close_sizes(disparity.shape, image_size):
+                    disparity = resized_to(disparity, image_size)  # one_camera's note said so
                 if disparity.shape != image_size:
                     whose = "its first maps" if log == first[0] else f"{first[0].name}'s"
                     raise PcaInterpError(

@@ -9,22 +9,25 @@ as ``densify`` maps a basis onto another camera (docs/estimator.md, "Camera mapp
 from __future__ import annotations
 
 import dataclasses
+import os
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.errors import LogReadError, PcaInterpError, TopicNotFoundError
+from pcainterp_stream.evaluate.metrics import ReferenceKind, disparity_from_reference
 from pcainterp_stream.frontend.camera_infos import camera_from_infos, first_infos
 from pcainterp_stream.frontend.discovery import resolve_pairing
 from pcainterp_stream.frontend.pairing import PairingConfig, StereoPairer, iter_stereo_frames
 from pcainterp_stream.frontend.stereo import SgbmConfig, compute_disparity
 from pcainterp_stream.io.depth_image import depth_metres
-from pcainterp_stream.io.logreader import LogReader, open_log
+from pcainterp_stream.io.logreader import LogReader, log_files, open_log
 from pcainterp_stream.pipeline.common import (
     _check_depth_topic,
     _check_topic_types,
@@ -36,14 +39,19 @@ from pcainterp_stream.pipeline.common import (
 
 __all__ = [
     "FOCAL_BASELINE_NOTE",
-    "MIN_DEPTH_COVERAGE",
+    "SIZE_TOLERANCE",
+    "SPARSE_DEPTH_COVERAGE",
     "MapOptions",
     "MapSource",
     "check_fit_logs",
+    "check_logs_once",
+    "close_sizes",
+    "depth_disparity",
     "depth_maps",
     "log_camera",
     "log_pairing",
     "one_camera",
+    "resized_to",
     "scaled_to",
     "sgbm_maps",
 ]
@@ -51,10 +59,15 @@ __all__ = [
 FOCAL_BASELINE_NOTE = 0.01
 """A log whose f*b differs from the first log's by more than this share is named in a note."""
 
-MIN_DEPTH_COVERAGE = 0.5
-"""A depth topic whose first image has a depth at fewer of its pixels is refused: its holes
-would be learned as infinitely far (the synthetic street's truth covers 91-93 %, its
-projected LiDAR 4 %)."""
+SIZE_TOLERANCE = 0.03
+"""Maps whose sides differ from the first log's by at most this share are resampled to its
+size (a raw log's rectified box is a few px smaller than the images a rectified log holds),
+as ``densify`` maps a basis onto another image size; others are another camera."""
+
+SPARSE_DEPTH_COVERAGE = 0.5
+"""A depth topic whose first image has a depth at fewer of its pixels is named in a note
+(the synthetic street's truth covers 100 %, its projected LiDAR 4 %: learned from, its
+holes filled, a basis as good as the dense truth's, docs/estimator.md "Learning")."""
 
 
 class MapOptions(Protocol):
@@ -97,6 +110,35 @@ class MapSource:
             return f"{width}x{height} images"
         return f"{self.images[1]}x{self.images[0]} images (rectified box {width}x{height})"
 
+    def describe_maps(self) -> str:
+        """Say the maps' size and what it is: "620x186 maps (the rectified box of its ...)"."""
+        height, width = self.image_size
+        if self.images is None or self.images == self.image_size:
+            return f"{width}x{height} maps (its images)"
+        raw = f"{self.images[1]}x{self.images[0]}"
+        return f"{width}x{height} maps (the rectified box of its {raw} raw images)"
+
+
+def close_sizes(size: tuple[int, int], other: tuple[int, int]) -> bool:
+    """Return whether two (H, W) sizes differ by at most :data:`SIZE_TOLERANCE` per side."""
+    return all(abs(a - b) <= SIZE_TOLERANCE * b for a, b in zip(size, other, strict=True))
+
+
+def resized_to(
+    disparity: npt.NDArray[np.float32], image_size: tuple[int, int]
+) -> npt.NDArray[np.float32]:
+    """Return a map resampled to ``image_size`` (H, W), pixel-centre aligned, nearest pixel.
+
+    Nearest, so a hole (NaN, < 0) stays a hole and no disparity lies between two surfaces;
+    ``disparity`` itself when it has that size.
+    """
+    if disparity.shape == tuple(image_size):
+        return disparity
+    resized = cv2.resize(
+        disparity, (image_size[1], image_size[0]), interpolation=cv2.INTER_NEAREST
+    )
+    return np.asarray(resized, dtype=np.float32)
+
 
 def scaled_to(
     disparity: npt.NDArray[np.float32], focal_baseline: float, target: float | None
@@ -119,6 +161,35 @@ def scaled_to(
     return disparity * np.float32(target / focal_baseline)
 
 
+def depth_disparity(
+    depth: npt.NDArray[np.floating[Any]], focal_baseline: float
+) -> npt.NDArray[np.float32]:
+    """Return the disparity f*b / depth of a depth image read as REP 118 says, holes NaN.
+
+    NaN, 0 and negative depth hold no value (a projected LiDAR's pixels without a return,
+    16UC1's 0): they are NaN, holes that preprocessing fills from the nearest valid pixel
+    as it fills SGBM's; +inf (farther than measurable, the synthetic sky) is disparity 0.
+    ``evaluate`` reads a depth truth the same way
+    (:func:`~pcainterp_stream.evaluate.metrics.disparity_from_reference`).
+
+    Args:
+        depth: (H, W) float depth (m).
+        focal_baseline: f*b of the disparity's camera (px*m).
+
+    Returns:
+        (H, W) float32 disparity (px): > 0, 0 (infinitely far) or NaN (no value).
+
+    Examples:
+        >>> depth = np.array([[2.0, np.inf, np.nan, 0.0, -1.0]], dtype=np.float32)
+        >>> depth_disparity(depth, 10.0)
+        array([[ 5.,  0., nan, nan, nan]], dtype=float32)
+    """
+    disparity = disparity_from_reference(
+        depth, kind=ReferenceKind.DEPTH, focal_baseline=focal_baseline
+    )
+    return disparity.astype(np.float32)
+
+
 def depth_maps(
     log: Path,
     options: MapOptions,
@@ -127,10 +198,12 @@ def depth_maps(
     *,
     focal_baseline: float | None = None,
 ) -> Iterator[npt.NDArray[np.float32]]:
-    """Yield disparity maps f*b/depth of a depth topic; no surface (NaN, inf) is d = 0.
+    """Yield disparity maps f*b/depth of a depth topic, its holes NaN (:func:`depth_disparity`).
 
     The topic is read as :func:`~pcainterp_stream.io.depth_image.depth_metres` reads it:
-    32FC1 in metres, 16UC1 in millimetres (0: none), or either as compressedDepth.
+    32FC1 in metres, 16UC1 in millimetres (0: none), or either as compressedDepth. NaN, 0 and
+    negative depth are holes (NaN), filled in preprocessing from the nearest pixel with a
+    depth; +inf is infinitely far (disparity 0).
 
     Args:
         log: the log.
@@ -196,11 +269,9 @@ def depth_maps(
             if not info:
                 info.append(MapSource(camera.image_size, camera.focal_baseline))
             target = info[0].focal_baseline if focal_baseline is None else focal_baseline
-            # the target's disparity of this depth: f*b_target / depth
+            # the target's disparity of this depth: f*b_target / depth (REP 118 holes NaN)
             fb = target if target > 0 else camera.focal_baseline
-            with np.errstate(divide="ignore", invalid="ignore"):
-                disparity = fb / depth
-            yield np.where(np.isfinite(disparity) & (depth > 0), disparity, 0.0).astype(np.float32)
+            yield depth_disparity(depth, fb)
 
 
 def sgbm_maps(
@@ -304,22 +375,21 @@ def log_camera(
             words it.
         stereo: the camera of the stereo pairs even when ``options`` name a depth topic.
 
-    Raises:
-        PcaInterpError: the depth topic's first image has a depth at fewer than
-            :data:`MIN_DEPTH_COVERAGE` of its pixels.
+    A depth topic whose first image has a depth at fewer than :data:`SPARSE_DEPTH_COVERAGE`
+    of its pixels is named in a note.
     """
     reason = ""
     if options.depth_topic and not stereo:
         info: list[MapSource] = []
         first = next(depth_maps(log, options, pairing, info), None)
         if first is not None:
-            covered = float(np.mean(first > 0))
-            if covered < MIN_DEPTH_COVERAGE:
-                raise PcaInterpError(
-                    f"{options.depth_topic} in {log.name} has a depth at {covered:.0%} of the "
-                    "pixels of its first image; learn takes a pixel without one (NaN, 0) for "
-                    "infinitely far, so a sparse depth (a projected LiDAR) teaches a basis of "
-                    "far holes: learn from SGBM maps (drop --depth-topic) or a dense depth"
+            covered = float(np.mean(np.isfinite(first)))
+            if covered < SPARSE_DEPTH_COVERAGE:
+                _echo(
+                    f"note: {options.depth_topic} in {log.name} has a depth at {covered:.0%} of "
+                    "the pixels of its first image; learn fills the others from the nearest "
+                    "pixel with a depth, as it fills SGBM's holes: what the sensor never "
+                    "returns from (the sky) takes the depth of the points nearest it"
                 )
             return info[0]
         reason = (
@@ -348,12 +418,13 @@ def one_camera(logs: list[Path], options: MapOptions, pairing: PairingConfig) ->
     """Return the camera of the first map the logs give, each log's first map checked.
 
     A log whose f*b differs from the first's by more than :data:`FOCAL_BASELINE_NOTE` is
-    named in a note (its maps are scaled: :func:`scaled_to`), and a log that gives no map
-    in another (it adds none).
+    named in a note (its maps are scaled: :func:`scaled_to`), one whose maps differ in size
+    by at most :data:`SIZE_TOLERANCE` a side in another (they are resampled:
+    :func:`resized_to`), and a log that gives no map in a third (it adds none).
 
     Raises:
         LogReadError: no log gives a map (the first log's reason).
-        PcaInterpError: two logs' images differ in size (before any map is learned from).
+        PcaInterpError: two logs' maps differ in size by more (before any map is learned).
     """
     why: list[str] = []
     cameras = [(log, log_camera(log, options, pairing, why)) for log in logs]
@@ -365,9 +436,17 @@ def one_camera(logs: list[Path], options: MapOptions, pairing: PairingConfig) ->
     first_log, camera = found[0]
     for log, other in found[1:]:
         if other.image_size != camera.image_size:
-            raise PcaInterpError(
-                f"{log} has {other.describe()} but {first_log} has {camera.describe()}; "
-                "learn one basis per camera"
+            if not close_sizes(other.image_size, camera.image_size):
+                raise PcaInterpError(
+                    f"{log} gives {other.describe_maps()} but {first_log} gives "
+                    f"{camera.describe_maps()}; learn one basis per camera"
+                )
+            height, width = camera.image_size
+            _echo(
+                f"note: {log.name} gives {other.describe_maps()} and {first_log.name} "
+                f"{camera.describe_maps()}: sides within {SIZE_TOLERANCE:.0%}, as one "
+                f"camera's rectified box may differ, so its maps are resampled to "
+                f"{width}x{height} (as densify maps a basis onto another image size)"
             )
         ratio = _ratio(camera, other)
         if abs(ratio - 1.0) > FOCAL_BASELINE_NOTE:
@@ -392,6 +471,9 @@ def check_fit_logs(
 ) -> None:
     """Refuse ``--fit-logs`` logs whose stereo images differ in size from the training logs'.
 
+    Sizes within :data:`SIZE_TOLERANCE` a side are one camera (the fit maps the basis onto
+    each frame's size, as ``densify`` does).
+
     The prior is fitted on their stereo pairs (GFTT + SGBM, as ``densify`` measures), so
     their camera is compared with the first training log's stereo camera; an f*b that
     differs is mapped as every camera is (``fitting.fit_frame``), and named in a note.
@@ -408,7 +490,7 @@ def check_fit_logs(
             raise LogReadError(why[-1])
         if training is None:
             continue  # a training log of a depth topic alone: no stereo camera to compare
-        if camera.image_size != training.image_size:
+        if not close_sizes(camera.image_size, training.image_size):
             raise PcaInterpError(
                 f"--fit-logs {log.name} has {camera.describe()} but the training log "
                 f"{logs[0].name} has {training.describe()}; fit on logs of the training "
@@ -421,3 +503,40 @@ def check_fit_logs(
                 f"px*m, {logs[0].name}'s {training.focal_baseline:.2f}: its disparities are "
                 f"scaled by {ratio:.3g} for the fit"
             )
+
+
+def check_logs_once(logs: list[Path]) -> None:
+    """Refuse two logs that read one file, whose maps would count twice.
+
+    A log given twice, or a rosbag2 folder and its own storage file
+    (:func:`~pcainterp_stream.io.logreader.log_files`).
+
+    Raises:
+        PcaInterpError: "s05_r2/s05_r2.mcap is a storage file of the rosbag2 folder s05_r2,
+            given too: its maps would count twice; pass each log once (the folder or its file)".
+    """
+    read: list[tuple[Path, Path]] = []  # (file, the log that reads it)
+    for log in logs:
+        files = log_files(log)
+        for path, owner in read:
+            if not any(_same_file(path, file) for file in files):
+                continue
+            if files == [log] and owner.is_dir():
+                what = f"is a storage file of the rosbag2 folder {owner}, given too"
+            elif log.is_dir() and not owner.is_dir():
+                what = f"is the rosbag2 folder of {owner}, given too"
+            else:
+                what = f"is {owner} again"
+            raise PcaInterpError(
+                f"{log} {what}: its maps would count twice; pass each log once"
+                + (" (the folder or its file)" if log.is_dir() != owner.is_dir() else "")
+            )
+        read.extend((file, log) for file in files)
+
+
+def _same_file(first: Path, second: Path) -> bool:
+    """Return whether two paths name one file: one inode where both exist, else one path."""
+    try:
+        return os.path.samefile(first, second)
+    except OSError:
+        return first.resolve() == second.resolve()

@@ -618,3 +618,36 @@ def test_a_real_street_log_that_linear_comes_close_to_keeps_the_street_basis(
         assert engine.adaptation.check.ratio < 1.0
         assert not engine.adaptation.adapted
         assert engine.basis is Basis.default()
+
+
+def test_the_unfit_warning_names_a_basis_of_another_camera(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # before: "worse than linear interpolation (10.65x); learn a basis for this camera",
+    # nothing saying the basis's camera (320x240, f*b 9.6) was not the log's (bug hunt 6A F10)
+    real = adaptation_module.densify_batch
+
+    def off_by_five(*args: Any, **kwargs: Any) -> list[Any]:
+        return [
+            dataclasses.replace(e, disparity=e.disparity + 5.0) for e in real(*args, **kwargs)
+        ]
+
+    monkeypatch.setattr(adaptation_module, "densify_batch", off_by_five)
+    # a basis of the indoor camera that is not the built-in one (densify --basis FILE)
+    indoor = dataclasses.replace(Basis.indoor(), mean=Basis.indoor().mean + np.float32(0.01))
+    frames = _stereo_frames(SynthConfig(seed=9002, frames=6, scale=0.25))
+    with FrameProcessor(indoor, ProcessorConfig()) as engine:
+        list(engine.process(frames))
+        warning = engine.adaptation.lines[-1]
+    height, width = indoor.image_size
+    fb = frames[0].camera.focal_baseline
+    assert warning.startswith("warning: the prior is worse than linear interpolation on this log")
+    assert (
+        f"; the basis was learned for another camera ({width}x{height} px, f*b "
+        f"{indoor.focal_baseline:.1f} px*m; this log's 310x94 px, f*b {fb:.1f} px*m: aspect "
+        "ratio 3.30 against "
+    ) in warning
+    assert warning.endswith("; learn a basis for this camera: pcainterp learn LOG -o BASIS.npz")
+    # a basis of a camera like the log's: nothing said about cameras
+    street = Basis.default()
+    assert adaptation_module.other_camera(street, (94, 310), street.focal_baseline / 4) == ""

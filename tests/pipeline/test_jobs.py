@@ -132,7 +132,9 @@ def test_learn_refuses_logs_of_two_image_sizes_before_learning(
     small = logs["folder"] / "small_camera.mcap"
     jobs.synth(small, frames=2, seed=13, scale=0.2, fmt="mcap")
     monkeypatch.setattr(learn_job, "learn_basis", None)  # not reached
-    with pytest.raises(PcaInterpError, match=r"small_camera.mcap has 248x75 images but .*test"):
+    with pytest.raises(
+        PcaInterpError, match=r"small_camera.mcap gives 248x75 maps \(its images\) but .*test"
+    ):
         jobs.learn(
             [logs["test"], small],
             logs["folder"] / "sizes.npz",
