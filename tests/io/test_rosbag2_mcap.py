@@ -129,5 +129,11 @@ def test_densify_of_a_folder_copies_its_attachments_and_metadata_records(
             if not c.topic.startswith("/pcainterp/")
         }
     assert attachments == [("robot.urdf", URDF)]
-    assert names == ["rosbag2", "rosbag2", "calibration_info", "pcainterp.densify"]
+    assert names == [
+        "rosbag2",
+        "rosbag2",
+        "calibration_info",
+        "pcainterp.densify",
+        "pcainterp.basis",
+    ]
     assert publish == {(5_000_000, True)}
