@@ -100,3 +100,26 @@ def test_the_report_states_the_input_pair(raw_never: Path, tmp_path: Path) -> No
     )
     text = (tmp_path / "r" / "results.md").read_text()
     assert "\ninput pair: /camera/left/image_raw, /camera/right/image_raw, camera infos" in text
+
+
+def test_a_log_of_two_equally_good_pairs_needs_no_topic_options(tmp_path: Path) -> None:
+    # before: "2 stereo pairs ... are equally good ...; pass the options of the one to
+    # densify" although the log records the one densify read (bug hunt 6A F9, related)
+    from pcainterp_stream.synth import generate
+    from pcainterp_stream.synth.log import write_synthetic_log
+
+    single, log = tmp_path / "one.mcap", tmp_path / "heads.mcap"
+    write_synthetic_log(generate(SynthConfig(seed=3, frames=2, scale=0.25)), single)
+    with open_log(single) as reader, open_writer(log, None) as writer:
+        for raw in reader.messages():  # every /stereo/* message also on /front/*
+            writer.add_raw(raw)
+            if raw.topic.startswith("/stereo/"):
+                writer.add_raw(raw._replace(topic=raw.topic.replace("/stereo/", "/front/", 1)))
+    dense = tmp_path / "heads_dense.mcap"
+    front = PairingConfig(
+        left_topic="/front/left/image_rect", discover=True, named_sides=("left",)
+    )  # densify --left-topic /front/left/image_rect
+    densify(log, dense, pairing=front)
+    result = _evaluate(dense, PairingConfig(discover=True))
+    assert result.input_pair.startswith("/front/left/image_rect, /front/right/image_rect, ")
+    assert result.frames == 2
