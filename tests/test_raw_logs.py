@@ -312,11 +312,13 @@ def test_compressed_raw_images_are_found_and_rectified(
         np.testing.assert_array_equal(a, b)
 
 
-def test_evaluate_of_a_log_densified_with_calibration_files_asks_for_them(
+def test_evaluate_of_a_log_densified_with_calibration_files_uses_them(
     capsys: pytest.CaptureFixture[str], raw_bag: Path, tmp_path: Path
 ) -> None:
-    # before: "no stereo pair found ...; camera infos: none; pass --left-topic and
-    # --right-topic ..." beside the log's /pcainterp/camera_info
+    # the log records the files' calibration: evaluate needs them no more (bug hunt 6A F9);
+    # a log without that record asks for them, as before
+    import json
+
     from tests.io.test_calibration import write_camera_info_yaml
 
     bare = tmp_path / "bare.mcap"
@@ -330,20 +332,30 @@ def test_evaluate_of_a_log_densified_with_calibration_files_asks_for_them(
     code, _, err = _run(capsys, "densify", bare, "-o", dense, "--calibration", left, right)
     assert code == 0, err
     fast = ["--no-basis", "--no-linear", "--mode", "stereo"]
-    code, _, err = _run(capsys, "evaluate", dense, "-o", tmp_path / "report", *fast)
+    sgbm, pairs = [], []
+    for name, files in (("recorded", []), ("given", ["--calibration", left, right])):
+        code, _, err = _run(capsys, "evaluate", dense, "-o", tmp_path / name, *fast, *files)
+        assert code == 0, err
+        results = json.loads((tmp_path / name / "results.json").read_text())
+        sgbm.append(results["stereo_baselines"]["sgbm"]["mean"]["delta_2d_mean"])
+        pairs.append(results["input_pair"].split("calibration files, --rectify auto ")[1])
+    assert sgbm[0] == sgbm[1]
+    assert pairs == [
+        "(topics, --rectify, calibration files as densify recorded them; its images: remapped)",
+        "(topics, --rectify as densify recorded them; its images: remapped)",
+    ]
+    unrecorded = tmp_path / "unrecorded.mcap"
+    with open_log(dense) as reader, open_writer(unrecorded, None) as writer:
+        for raw in reader.messages():  # no pcainterp.densify record: an older densify's log
+            writer.add_raw(raw)
+    code, _, err = _run(capsys, "evaluate", unrecorded, "-o", tmp_path / "report", *fast)
     assert code == 2
     assert err.splitlines() == [
-        f"pcainterp: error: no stereo pair with camera infos in {dense}: its input images have "
-        "none (/pcainterp/camera_info is densify's output, the rectified left camera), so it was "
-        "densified with --calibration; pass evaluate the same --calibration LEFT.yaml "
+        f"pcainterp: error: no stereo pair with camera infos in {unrecorded}: its input images "
+        "have none (/pcainterp/camera_info is densify's output, the rectified left camera), so it "
+        "was densified with --calibration; pass evaluate the same --calibration LEFT.yaml "
         "RIGHT.yaml files densify was given"
     ]
-    report = tmp_path / "report"
-    code, _, err = _run(
-        capsys, "evaluate", dense, "-o", report, *fast, "--calibration", left, right
-    )
-    assert code == 0, err
-    assert (report / "results.json").is_file()
 
 
 def _wide_view(calibration: StereoCalibration, zoom: float) -> StereoCalibration:

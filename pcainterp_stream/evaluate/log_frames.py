@@ -37,6 +37,7 @@ from pcainterp_stream.io.outputs import (
     missing_outputs,
     recorded_tolerance_ns,
 )
+from pcainterp_stream.io.reader_base import closest_topic
 from pcainterp_stream.records import StereoCamera
 
 __all__ = [
@@ -335,6 +336,9 @@ def _missing_advice(
     outputs = [topics.depth, topics.disparity, topics.depth_std, topics.disparity_std]
     outputs.append(topics.features)
     written = [topic for topic in (*outputs, topics.camera_info) if topic in present]
+    close = closest_topic(left_image, present) if missing == [left_image] else None
+    if close is not None:  # a typo in --left-topic, as densify's message says
+        return f"; the closest is {close}: set --left-topic to it"
     if not written or missing == [left_image]:
         return (
             "; evaluate needs a log written by `pcainterp densify` (with the input's stereo images)"

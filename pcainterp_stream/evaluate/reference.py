@@ -31,7 +31,7 @@ from pcainterp_stream.errors import LogReadError, TopicNotFoundError
 from pcainterp_stream.evaluate.metrics import ReferenceKind, disparity_from_reference
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.depth_image import DEPTH_ENCODINGS, depth_metres
-from pcainterp_stream.io.reader_base import TopicInfo
+from pcainterp_stream.io.reader_base import TopicInfo, closest_topic
 
 IMAGE_TYPES = (rosmsg.IMAGE, rosmsg.COMPRESSED_IMAGE, rosmsg.DISPARITY_IMAGE)
 """Message types a reference topic may have."""
@@ -77,9 +77,15 @@ def resolve_reference(
     info = present.get(topic)
     if info is None:
         images = sorted(name for name, other in present.items() if other.msgtype in IMAGE_TYPES)
+        close = closest_topic(topic, images)
         raise TopicNotFoundError(
             f"reference topic {topic} not found in {log}; image topics present: "
-            f"{', '.join(images) or 'none'}; pass one of them to --reference-topic"
+            f"{', '.join(images) or 'none'}; "
+            + (
+                f"the closest is {close}: pass it to --reference-topic"
+                if close
+                else "pass one of them to --reference-topic"
+            )
         )
     if info.msgtype not in IMAGE_TYPES:
         raise LogReadError(

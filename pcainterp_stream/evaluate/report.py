@@ -33,6 +33,7 @@ from pcainterp_stream.estimate.baselines import linear, nearest
 from pcainterp_stream.estimate.basis import BUILTIN_LABELS, IN_MEMORY, Basis, builtin_kind
 from pcainterp_stream.estimate.estimator import clean_measurements, densify
 from pcainterp_stream.evaluate.figures import write_figures
+from pcainterp_stream.evaluate.input_pair import describe_pair, follow_densify, matcher_notes
 from pcainterp_stream.evaluate.log_frames import (
     GROUND_TRUTH_DEPTH,
     GROUND_TRUTH_POSE,
@@ -587,6 +588,7 @@ class _Evaluator:
         # basis leaves out, spread evenly over the grid pixels, is a floor it misses
         residual = max(float(basis.total_variance - basis.eigenvalues.sum()), 0.0)
         to_log = camera.focal_baseline / basis.focal_baseline  # basis px -> log px
+        self.result.sigma_log_px = self.options.sigma * to_log  # --sigma is in basis px
         residual_std = np.sqrt(std.astype(np.float64) ** 2 + residual / basis.mean.size * to_log**2)
         self._calibration("exact+residual").add(
             estimate, residual_std, view, delta, sgbm_valid=sgbm_valid
@@ -690,10 +692,11 @@ def evaluate_log(
         raise PcaInterpError(
             "a reference topic and the SGBM reference contradict each other; choose one"
         )
-    images = PairImages(options.pairing)
     with open_log(path) as reader:
         present = reader.topics()
-        if options.pairing is not None:
+        pairing, pair_source, front_end = follow_densify(path, options.pairing, present)
+        images = PairImages(pairing)
+        if pairing is not None:
             try:
                 images.resolve(reader, exclude_prefix=topics.depth.rsplit("/", 1)[0])
             except TopicNotFoundError as err:
@@ -701,6 +704,10 @@ def evaluate_log(
                     raise
                 hint = _calibration_hint(path, present, topics)
                 raise TopicNotFoundError(hint or str(err)) from None
+            if options.pairing is not None and not options.pairing.discover:  # named: typos?
+                reader.require_topics(
+                    {images.left_topic: "--left-topic", images.right_topic: "--right-topic"}
+                )
         reference_topic = options.reference_topic
         if reference_topic is None and not options.sgbm_reference:
             lidar = present[LIDAR_DEPTH].msgtype if LIDAR_DEPTH in present else None
@@ -731,7 +738,9 @@ def evaluate_log(
         basis_note=options.basis_note,
         reference_kind=str(reference.kind) if reference else "",
         sigma=options.sigma,
+        input_pair=describe_pair(images.config, pair_source),
     )
+    result.notes += matcher_notes(front_end, options.sgbm) if has_right else []
     if not has_right:
         result.stereo_note = f"skipped, the log has no {images.right_topic}"
     elif not has_truth:

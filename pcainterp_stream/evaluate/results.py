@@ -149,6 +149,10 @@ class Evaluation:
             left out of the re-densified rows (paper, exact, oracle, sweep).
         notes: what reading the log found that the figures depend on, one sentence each
             (NaN read as "no truth", channel metadata a conversion dropped).
+        sigma_log_px: ``sigma`` in the log's px (it is in the basis's: x the log's f*b / the
+            basis's, of the last frame re-densified); None when no row re-densified.
+        input_pair: the input pair SGBM matched: topics, calibration, ``--rectify`` and
+            where they came from (densify's record of the log, or found again).
     """
 
     log: str
@@ -182,6 +186,16 @@ class Evaluation:
     reference_counted: int = 0
     basis_rows_skipped: int = 0
     notes: list[str] = field(default_factory=list)
+    input_pair: str = ""
+    sigma_log_px: float | None = None
+
+    @property
+    def sigma_label(self) -> str:
+        """Return ``--sigma`` as the report states it: in the basis's px and the log's."""
+        label = f"--sigma {self.sigma:g} px"
+        if self.sigma_log_px is not None:
+            label += f" of the basis's camera, {self.sigma_log_px:.3g} px in the log's"
+        return label
 
     @property
     def no_estimate_fraction(self) -> float:
@@ -236,6 +250,7 @@ class Evaluation:
             "measurements": self.measurements,
             "damage": self.damage,
             "notes": list(self.notes),
+            "input_pair": self.input_pair,
             "left_out_no_measurement": list(self.no_measurement),
             "left_out_no_estimate": self.no_estimate_fraction,
             "left_out_no_estimate_pixels": self.no_estimate,
@@ -264,6 +279,7 @@ class Evaluation:
             "sweep_frames_reached": {str(p): n for p, n in self.sweep_reached.items()},
             "sweep_corners": list(self.sweep_corners),
             "sigma_px": self.sigma,
+            "sigma_log_px": self.sigma_log_px,
             "sweep": {
                 str(points): {name: stats.summary() for name, stats in methods.items()}
                 for points, methods in self.sweep.items()

@@ -85,6 +85,8 @@ def summary_table(result: Evaluation) -> str:
         f"{result.mode} mode, reference: "
         f"{result.reference_label}, {result.points_per_frame:.0f} points per frame",
     ]
+    if result.input_pair:
+        lines.append(f"input pair: {result.input_pair}")
     if result.skipped:
         lines.append(
             f"{result.skipped} frames skipped: no {result.reference} message with their stamp"
@@ -98,7 +100,8 @@ def summary_table(result: Evaluation) -> str:
     if result.measurements:
         lines.append(f"measurements of the densified log: {result.measurements}")
     if result.basis_note:
-        lines.append(f"basis of the re-densified rows: {result.basis_note}")
+        at = f", at {result.sigma_label}" if result.sigma_log_px is not None else ""
+        lines.append(f"basis of the re-densified rows: {result.basis_note}{at}")
     lines.append(
         f"{'method':<12} {'D2D px':>8} {'/NN':>6} {'D3D m':>8} {'RMSE m':>8} {'MAE m':>7} "
         f"{'iRMSE':>7} {'iMAE':>7} {'ms/frame':>9}"
@@ -152,7 +155,8 @@ def _targets(result: Evaluation) -> list[str]:
         coverage = result.calibration["exact"].summary()["coverage_2sigma"]
         graded = "stored" not in result.calibration
         lines.append(
-            "- exact uncertainty of evaluate's re-densification (--sigma, no calibration) "
+            f"- exact uncertainty of evaluate's re-densification ({result.sigma_label}, no "
+            "calibration) "
             f"+-2 sigma coverage = {_percent(coverage)}"
             + (
                 f" (target {100 * low:.0f}-{100 * high:.0f} %): {_verdict(coverage, low, high)}."
@@ -194,8 +198,8 @@ def _sweep_lines(result: Evaluation) -> list[str]:
         "",
         "On the frames --sweep-every picks, the sweep re-densifies from the N strongest "
         "Shi-Tomasi corners with SGBM's disparity (corners only, none of densify's lattice "
-        "points) with the paper's estimator (the basis's prior, measurement noise --sigma "
-        f"{result.sigma:g} px) and interpolates the same points with nearest and linear: it "
+        "points) with the paper's estimator (the basis's prior, measurement noise "
+        f"{result.sigma_label}) and interpolates the same points with nearest and linear: it "
         "measures the methods against the number of points, not the log's stored estimate, "
         "so its errors are not the table's above. "
         + (
@@ -274,7 +278,7 @@ def results_markdown(result: Evaluation, figures: list[str]) -> str:
             "",
             "In `uncertainty.png`, `stored` is the log's own estimate and std; "
             f"{', '.join(f'`{n}`' for n in result.calibration if n != 'stored')} are evaluate's "
-            f"re-densifications of the same points with the basis at --sigma {result.sigma:g} px.",
+            f"re-densifications of the same points with the basis at {result.sigma_label}.",
         ]
     lines += ["", "All numbers, with the accumulated histograms: `results.json`.", ""]
     return "\n".join(lines)

@@ -12,6 +12,9 @@ Two layouts are recognised:
   per frame) and optional ground truth ``poses/XX.txt`` two levels up (a 3x4
   camera-to-world matrix per line, row-major).
 
+KITTI's stereo 2012/2015 benchmark folders (``image_2/000000_10.png``, scenes of two frames
+each, calibrated one by one) look like an odometry sequence but are no sequence: refused.
+
 Either layout may hold the colour pair instead of (or beside) the grey one
 (:class:`KittiPair`): cameras 2 and 3, ``image_2``/``image_3`` with ``P2``/``P3`` (odometry),
 ``image_02``/``image_03`` with ``P_rect_02``/``P_rect_03`` and ``image_02/timestamps.txt``
@@ -542,6 +545,28 @@ def _open_odometry(sequence: Path, pair: KittiPair | None) -> KittiSequence:
     )
 
 
+STEREO_BENCHMARK_IMAGE = re.compile(r"\d{6}_1[01]\.png")
+"""An image name of KITTI's stereo 2012 and 2015 benchmarks: the scene's number, then ``10``
+(the frame with disparity truth) or ``11`` (the one after it)."""
+
+
+def _stereo_benchmark_image(root: Path) -> Path | None:
+    """Return an image showing a folder (or its ``training``) is a stereo benchmark's, else None.
+
+    Those folders have ``image_0``..``image_3`` (2012: also ``colored_0``) as an odometry
+    sequence has, but of unrelated scenes calibrated one by one (``calib_cam_to_cam/`` or
+    ``calib/``): no sequence.
+    """
+    for folder in (root, root / "training", root / "testing"):
+        for camera in ("image_0", "image_2", "colored_0"):
+            if not (folder / camera).is_dir():
+                continue
+            for path in (folder / camera).iterdir():
+                if STEREO_BENCHMARK_IMAGE.fullmatch(path.name):
+                    return path
+    return None
+
+
 def open_kitti(folder: str | os.PathLike[str], *, pair: KittiPair | None = None) -> KittiSequence:
     """Detect and validate a KITTI raw drive or odometry sequence (reads one image).
 
@@ -557,6 +582,14 @@ def open_kitti(folder: str | os.PathLike[str], *, pair: KittiPair | None = None)
     root = Path(folder)
     if not root.is_dir():
         raise DatasetImportError(f"KITTI folder {root} does not exist; {EXPECTED_LAYOUTS}")
+    benchmark = _stereo_benchmark_image(root)
+    if benchmark is not None:
+        raise DatasetImportError(
+            f"{root} holds KITTI's stereo 2012/2015 benchmark layout ({benchmark}: "
+            "unrelated scenes of two frames each, _10 and _11, each with its own calibration), "
+            "not a sequence; import the KITTI raw drive the scenes come from, or an odometry "
+            "sequence"
+        )
     if any((root / f"image_{camera}").is_dir() for camera in range(4)):
         return _open_odometry(root, pair)
     drive = _raw_drive_folder(root)

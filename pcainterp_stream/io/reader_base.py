@@ -36,6 +36,17 @@ SQLITE_MAGIC = b"SQLite format 3\x00"
 _LOG_KINDS = "an MCAP file, a ROS 1 .bag or a rosbag2 folder"
 
 
+def closest_topic(topic: str, names: Iterable[str]) -> str | None:
+    """Return the name of ``names`` closest to a topic not found (a typo's target), or None.
+
+    Examples:
+        >>> closest_topic("/stereo/left/image_rec", ["/stereo/left/image_rect", "/tf"])
+        '/stereo/left/image_rect'
+    """
+    close = difflib.get_close_matches(topic, sorted(names), n=1)
+    return close[0] if close else None
+
+
 class LogFormat(Enum):
     """The container format of a log."""
 
@@ -400,9 +411,9 @@ class LogReader:
         for topic, option in options.items():
             if topic not in present:
                 listed = ", ".join(sorted(present)) or "none"
-                close = difflib.get_close_matches(topic, sorted(present), n=1)
+                close = closest_topic(topic, present)
                 fix = (
-                    f"the closest is {close[0]}: set {option} to it"
+                    f"the closest is {close}: set {option} to it"
                     if close
                     else f"set {option} to one of them"
                 )

@@ -277,7 +277,8 @@ def evaluation_basis(
         topics: its output topics.
 
     Returns:
-        The basis (or None) and a note on how it was chosen.
+        The basis (a built-in one loaded, a file as its path, or None) and a note on how it
+        was chosen.
     """
     try:
         recorded = recorded_metadata(input_path, topics)
@@ -311,7 +312,8 @@ def evaluation_basis(
         return None, f"none ({err}; {skipped})"
     if fingerprint is not None and fingerprint != basis.fingerprint:
         return None, f"none ({label} changed since the log was densified; {skipped})"
-    return basis, f"{path} (recorded in the log)"
+    # the file, not the basis loaded to check it: the report names the file it re-densified with
+    return path, f"{path} (recorded in the log)"
 
 
 def describe_basis(path: Path | None = None, *, builtin: str = "street") -> str:

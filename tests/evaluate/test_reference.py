@@ -482,7 +482,8 @@ def test_cli_report_names_a_sparse_reference(
     # the coverage target grades the std the log carries, not evaluate's re-densification
     stored = report["calibration"]["stored"]["mean"]["coverage_2sigma"]
     assert f"- the log's stored uncertainty: +-2 sigma coverage = {100 * stored:.1f} %" in markdown
-    assert "re-densification (--sigma, no calibration) +-2 sigma" in markdown
+    sigma = "--sigma 2 px of the basis's camera, 0.5 px in the log's"  # quarter-scale log
+    assert f"re-densification ({sigma}, no calibration) +-2 sigma" in markdown
     assert "for the paper's model, not graded." in markdown
     split = report["calibration"]["exact"]["mean"]
     assert split["pixels_sgbm_holes"] + split["pixels_sgbm_valid"] == split["pixels"]

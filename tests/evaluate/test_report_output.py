@@ -335,3 +335,51 @@ def test_the_uncertainty_figure_says_which_estimate_each_series_is(
     assert "`stored` is the log's own estimate and std; `paper`, `exact`, `exact+residual` are" in (
         (report / "results.md").read_text()
     )
+
+
+@pytest.mark.parametrize(
+    ("flags", "closest"),
+    [
+        (
+            ["--reference-topic", "/ground_truth/dept"],
+            "/ground_truth/depth: pass it to --reference-topic",
+        ),
+        (
+            ["--left-topic", "/stereo/left/image_rec", "--right-topic", "/stereo/right/image_rect"],
+            "/stereo/left/image_rect: set --left-topic to it",
+        ),
+        (
+            ["--left-topic", "/stereo/left/image_rect", "--right-topic", "/stereo/right/image_rec"],
+            "/stereo/right/image_rect: set --right-topic to it",
+        ),
+        (["--left-topic", "/stereo/left/image_rec"], "/stereo/left/image_rect: set --left-topic"),
+    ],
+)
+def test_a_topic_not_found_names_the_closest(
+    logs: dict[str, Path],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    flags: list[str],
+    closest: str,
+) -> None:
+    # as densify's messages do (before: the topics present, or "has no", and no hint); the
+    # right topic named wrong was not even an error: the stereo rows were skipped
+    code = cli.main(["evaluate", str(logs["dense"]), "-o", str(tmp_path / "r"), *flags])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert len(err.splitlines()) == 1
+    assert f"; the closest is {closest}" in err
+    assert not (tmp_path / "r").exists()
+
+
+def test_sigma_is_stated_in_the_log_px_too(logs: dict[str, Path], tmp_path: Path) -> None:
+    from pcainterp_stream.estimate.basis import Basis
+    from pcainterp_stream.io.outputs import FOCAL_BASELINE_KEY, recorded_metadata
+
+    jobs.evaluate(logs["dense"], tmp_path / "r", sigma=1.5, sweep_every=0, linear=False)
+    report = json.loads((tmp_path / "r" / "results.json").read_text())
+    log_fb = float(recorded_metadata(logs["dense"])[FOCAL_BASELINE_KEY])
+    expected = 1.5 * log_fb / Basis.default().focal_baseline  # --sigma is in the basis's px
+    assert report["sigma_log_px"] == pytest.approx(expected)
+    text = (tmp_path / "r" / "results.md").read_text()
+    assert f"--sigma 1.5 px of the basis's camera, {expected:.3g} px in the log's" in text

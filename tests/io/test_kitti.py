@@ -630,3 +630,26 @@ def test_an_output_that_links_to_an_image_is_refused(tmp_path: Path) -> None:
     with pytest.raises(LogWriteError, match=r"refusing to write the output onto the input .*"):
         import_kitti(sequence_dir, link)
     assert image.read_bytes() == before
+
+
+@pytest.mark.parametrize("given", ["training", "root"])
+def test_the_stereo_benchmark_layout_is_refused_not_read_as_a_sequence(
+    tmp_path: Path, given: str
+) -> None:
+    # KITTI stereo 2015: image_2/000000_10.png, calib_cam_to_cam/000000.txt; with a
+    # calib.txt beside them it was imported as one odometry sequence (bug hunt 6A F10)
+    training = tmp_path / "data_scene_flow" / "training"
+    names = [f"{scene:06d}_{frame}.png" for scene in range(2) for frame in (10, 11)]
+    _write_images(training / "image_2", names, seed=1)
+    _write_images(training / "image_3", names, seed=2)
+    (training / "calib_cam_to_cam").mkdir()
+    (training / "calib.txt").write_text(f"P2: {_numbers(P_LEFT)}\nP3: {_numbers(P_RIGHT)}\n")
+    folder = training if given == "training" else training.parent
+    with pytest.raises(
+        DatasetImportError,
+        match=r"holds KITTI's stereo 2012/2015 benchmark layout \(.*image_2/00000\d_1[01]\.png: "
+        r"unrelated scenes .* not a sequence; import the KITTI raw drive",
+    ):
+        open_kitti(folder)
+    with pytest.raises(DatasetImportError, match="stereo 2012/2015 benchmark"):
+        open_kitti(training, pair=KittiPair.COLOUR)

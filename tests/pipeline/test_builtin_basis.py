@@ -122,6 +122,9 @@ def test_evaluate_uses_the_basis_the_log_records(
     assert code == 0
     assert f"rows: {folder / 'own.npz'} (recorded in the log)" in out
     assert _report(tmp_path / "b")["basis"]["components"] == 4  # type: ignore[index]
+    # the report names the file, not "in-memory" (bug hunt 6A F10)
+    assert _report(tmp_path / "b")["basis"]["path"] == str(folder / "own.npz")  # type: ignore[index]
+    assert f"Basis: `{folder / 'own.npz'}`" in (tmp_path / "b" / "results.md").read_text()
 
 
 def test_evaluate_skips_the_basis_rows_when_the_recorded_basis_is_gone(

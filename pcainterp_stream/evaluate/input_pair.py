@@ -1,0 +1,134 @@
+"""The input pair ``evaluate`` matches again: the one ``densify`` recorded it read, if it did.
+
+``evaluate`` runs SGBM on a densified log's input pair (its reference without ground truth,
+the ``sgbm`` rows, the points sweep), so it must read the images as ``densify`` did: the same
+topics, the same calibration and the same ``--rectify``. ``densify`` records them in the log
+(:class:`~pcainterp_stream.io.densify_record.FrontEnd`); :func:`follow_densify` puts them into
+evaluate's pairing where the command line left them open, and says which it used. A log
+without the record (another format, an older densify) is read as before: the pair found in
+the log, ``--rectify auto`` decided again. The matcher is not taken from the record: densify
+matches at half resolution for speed, evaluate's reference stays full resolution.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.frontend.stereo import SgbmConfig
+from pcainterp_stream.io.densify_record import FrontEnd, options_json
+from pcainterp_stream.io.outputs import recorded_front_end
+
+__all__ = ["describe_pair", "follow_densify", "matcher_notes"]
+
+
+def follow_densify(
+    path: Path, pairing: PairingConfig | None, present: dict[str, Any]
+) -> tuple[PairingConfig | None, str, FrontEnd | None]:
+    """Return the pairing to read a densified log's input pair with, and where it came from.
+
+    What the caller left open is taken from the record: the topics when ``pairing`` names
+    none (None or ``discover`` without a named side), the calibration files' values when it
+    has no calibration, ``--rectify`` when it is ``auto`` (evaluate's ``auto`` means "as
+    densify did"), ``--baseline`` when it has none. What the caller set stays.
+
+    Args:
+        path: the densified log (its record: ``io.outputs.recorded_front_end``).
+        pairing: the pairing asked for (None: the library default, nothing named).
+        present: the log's topics, to check the recorded ones are still there.
+
+    Returns:
+        The pairing (``pairing`` itself without a usable record), a note on its source and
+        the record (None without one).
+    """
+    again = (
+        "--rectify as given"
+        if pairing is not None and pairing.rectify != "auto"
+        else "--rectify auto decided again as densify decides"
+    )
+    try:
+        front_end = recorded_front_end(path)
+    except ValueError as err:
+        return pairing, f"the log's record cannot be read ({err}): {again}", None
+    if front_end is None:
+        return pairing, f"the log records none: {again}", None
+    if front_end.left_topic not in present or front_end.right_topic not in present:
+        return (
+            pairing,
+            (
+                f"the recorded {front_end.left_topic} and {front_end.right_topic} are not in the "
+                f"log: {again}"
+            ),
+            front_end,
+        )
+    given = pairing or PairingConfig()
+    open_topics = pairing is None or (pairing.discover and not pairing.named_sides)
+    if open_topics:
+        given = dataclasses.replace(
+            given,
+            left_topic=front_end.left_topic,
+            right_topic=front_end.right_topic,
+            left_info_topic=front_end.left_info_topic,
+            right_info_topic=front_end.right_info_topic,
+            discover=False,
+        )
+    config = dataclasses.replace(
+        given,
+        rectify=front_end.rectify if given.rectify == "auto" else given.rectify,
+        calibration=(
+            given.calibration if given.calibration is not None else front_end.calibration_values
+        ),
+        baseline=given.baseline if given.baseline is not None else front_end.baseline,
+    )
+    taken = [
+        *(["topics"] if open_topics else []),
+        *(["--rectify"] if given.rectify == "auto" else []),
+        *(
+            ["calibration files"]
+            if given.calibration is None and front_end.calibration == "files"
+            else []
+        ),
+    ]
+    source = (
+        f"{', '.join(taken)} as densify recorded them; its images: {front_end.images}"
+        if taken
+        else f"as given; densify recorded --rectify {front_end.rectify}, images {front_end.images}"
+    )
+    if given.rectify not in ("auto", front_end.rectify):
+        source += f"; --rectify {given.rectify} given, densify used {front_end.rectify}"
+    return config, source, front_end
+
+
+def describe_pair(config: PairingConfig, source: str) -> str:
+    """Return the report's line on the input pair: topics, calibration, ``--rectify``, source."""
+    calibration = "calibration files" if config.calibration is not None else "camera infos"
+    return (
+        f"{config.left_topic}, {config.right_topic}, {calibration}, --rectify "
+        f"{config.rectify} ({source})"
+    )
+
+
+def matcher_notes(front_end: FrontEnd | None, sgbm: SgbmConfig) -> list[str]:
+    """Say which of densify's SGBM settings evaluate's matcher does not share (a note or none).
+
+    The resolution is left out: densify matches at half resolution for speed by default,
+    evaluate's reference is full resolution by design.
+    """
+    if front_end is None or front_end.source != "stereo":
+        return []
+    ours = json.loads(options_json(sgbm))  # as the record holds them
+    other = {
+        name: value
+        for name, value in front_end.sgbm.items()
+        if name != "downscale" and name in ours and ours[name] != value
+    }
+    if not other:
+        return []
+    settings = ", ".join(f"{name} {value}" for name, value in sorted(other.items()))
+    return [
+        f"densify matched with {settings}; evaluate's SGBM (reference, stereo rows, sweep) "
+        "keeps its own settings, at full resolution"
+    ]

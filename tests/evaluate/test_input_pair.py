@@ -1,0 +1,125 @@
+"""evaluate reads the input pair as densify recorded it read it (bug hunt 6A F9)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from pcainterp_stream.evaluate.report import EvaluateOptions, Evaluation, evaluate_log
+from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.frontend.stereo import SgbmConfig, SgbmMode
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.logwriter import open_writer
+from pcainterp_stream.io.outputs import recorded_front_end
+from pcainterp_stream.pipeline.densify import densify
+from pcainterp_stream.pipeline.processor import ProcessorConfig
+from pcainterp_stream.synth import SynthConfig
+from pcainterp_stream.synth.raw import write_raw_log
+
+FAST = {"linear": False, "basis": None, "mode": "stereo"}
+
+
+@pytest.fixture(scope="module")
+def raw_never(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A raw (plumb_bob) log densified with --rectify never, as a user's rectified images."""
+    folder = tmp_path_factory.mktemp("pair")
+    raw = folder / "raw.mcap"
+    write_raw_log(SynthConfig(seed=2, frames=3, scale=0.25), raw, model="plumb_bob")
+    dense = folder / "raw_never.mcap"
+    densify(
+        raw,
+        dense,
+        pairing=PairingConfig(discover=True, rectify="never", check_rows=False),
+        processor=ProcessorConfig(sgbm=SgbmConfig(block_size=7, mode=SgbmMode.HH, downscale=2)),
+    )
+    front_end = recorded_front_end(dense)
+    assert front_end is not None
+    assert (front_end.rectify, front_end.images) == ("never", "as recorded")
+    return dense
+
+
+def _evaluate(path: Path, pairing: PairingConfig | None) -> Evaluation:
+    options = EvaluateOptions(pairing=pairing, **FAST)  # type: ignore[arg-type]
+    return evaluate_log(path, options)[0]
+
+
+def _sgbm(result: Evaluation) -> float:
+    """SGBM's mean Delta_2D against the truth."""
+    return float(result.stereo["sgbm"].summary()["delta_2d_mean"])
+
+
+def test_evaluate_matches_the_images_densify_matched(raw_never: Path) -> None:
+    # before: evaluate decided --rectify auto itself, remapped the raw images densify used as
+    # recorded, and scored densify's estimate against another pair's SGBM, silently
+    followed = _evaluate(raw_never, PairingConfig(discover=True))  # the CLI's default
+    never = _sgbm(_evaluate(raw_never, PairingConfig(discover=True, rectify="never")))
+    always = _evaluate(raw_never, PairingConfig(discover=True, rectify="always"))
+    assert _sgbm(followed) == pytest.approx(never)
+    assert abs(_sgbm(followed) - _sgbm(always)) > 0.1 * _sgbm(always)
+    # the library default (no pairing) follows the record too
+    assert _sgbm(_evaluate(raw_never, None)) == pytest.approx(never)
+    assert followed.input_pair == (
+        "/camera/left/image_raw, /camera/right/image_raw, camera infos, --rectify never "
+        "(topics, --rectify as densify recorded them; its images: as recorded)"
+    )
+    assert always.input_pair.endswith(
+        "--rectify always (topics as densify recorded them; its images: as recorded; "
+        "--rectify always given, densify used never)"
+    )
+    # densify's matcher is named, the resolution left out (evaluate's is full by design)
+    assert followed.notes[-1] == (
+        "densify matched with block_size 7, mode hh; evaluate's SGBM (reference, stereo rows, "
+        "sweep) keeps its own settings, at full resolution"
+    )
+
+
+def test_a_log_without_the_record_is_read_as_before(raw_never: Path, tmp_path: Path) -> None:
+    bare = tmp_path / "no_record.mcap"
+    with open_log(raw_never) as reader, open_writer(bare, None) as writer:
+        for raw in reader.messages():  # messages and channel metadata, no metadata record
+            writer.add_raw(raw)
+    assert recorded_front_end(bare) is None
+    auto = _evaluate(bare, PairingConfig(discover=True))
+    always = _evaluate(bare, PairingConfig(discover=True, rectify="always"))
+    assert _sgbm(auto) == pytest.approx(_sgbm(always))  # raw infos: auto remaps, as before
+    assert auto.input_pair.endswith(
+        "--rectify auto (the log records none: --rectify auto decided again as densify decides)"
+    )
+    assert not any("densify matched" in note for note in auto.notes)
+
+
+def test_the_report_states_the_input_pair(raw_never: Path, tmp_path: Path) -> None:
+    from pcainterp_stream.evaluate.report import write_report
+
+    write_report(raw_never, tmp_path / "r", EvaluateOptions(**FAST))  # type: ignore[arg-type]
+    report = json.loads((tmp_path / "r" / "results.json").read_text())
+    assert report["input_pair"].endswith(
+        "--rectify never (topics, --rectify as densify recorded them; its images: as recorded)"
+    )
+    text = (tmp_path / "r" / "results.md").read_text()
+    assert "\ninput pair: /camera/left/image_raw, /camera/right/image_raw, camera infos" in text
+
+
+def test_a_log_of_two_equally_good_pairs_needs_no_topic_options(tmp_path: Path) -> None:
+    # before: "2 stereo pairs ... are equally good ...; pass the options of the one to
+    # densify" although the log records the one densify read (bug hunt 6A F9, related)
+    from pcainterp_stream.synth import generate
+    from pcainterp_stream.synth.log import write_synthetic_log
+
+    single, log = tmp_path / "one.mcap", tmp_path / "heads.mcap"
+    write_synthetic_log(generate(SynthConfig(seed=3, frames=2, scale=0.25)), single)
+    with open_log(single) as reader, open_writer(log, None) as writer:
+        for raw in reader.messages():  # every /stereo/* message also on /front/*
+            writer.add_raw(raw)
+            if raw.topic.startswith("/stereo/"):
+                writer.add_raw(raw._replace(topic=raw.topic.replace("/stereo/", "/front/", 1)))
+    dense = tmp_path / "heads_dense.mcap"
+    front = PairingConfig(
+        left_topic="/front/left/image_rect", discover=True, named_sides=("left",)
+    )  # densify --left-topic /front/left/image_rect
+    densify(log, dense, pairing=front)
+    result = _evaluate(dense, PairingConfig(discover=True))
+    assert result.input_pair.startswith("/front/left/image_rect, /front/right/image_rect, ")
+    assert result.frames == 2
