@@ -113,7 +113,10 @@ def add_input_pair_options(parser: argparse.ArgumentParser) -> None:
         "--rectify",
         choices=["auto", "always", "never"],
         default="auto",
-        help="rectify raw input images as densify did (default: auto, as densify decides)",
+        help=(
+            "rectify raw input images as densify did (default: auto, what the log records "
+            "densify decided, else decided again as densify would)"
+        ),
     )
     group.add_argument(
         "--calibration",
@@ -121,7 +124,10 @@ def add_input_pair_options(parser: argparse.ArgumentParser) -> None:
         nargs="+",
         default=None,
         metavar="YAML",
-        help="the calibration files densify was given, for logs without CameraInfo",
+        help=(
+            "the calibration files densify was given, for logs without CameraInfo (needed "
+            "only for logs densified before the output recorded their calibration)"
+        ),
     )
     group.add_argument(
         "--stamp-tolerance-ms",
