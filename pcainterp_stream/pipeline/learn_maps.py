@@ -9,6 +9,7 @@ as ``densify`` maps a basis onto another camera (docs/estimator.md, "Camera mapp
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import os
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -38,6 +39,7 @@ from pcainterp_stream.pipeline.common import (
 )
 
 __all__ = [
+    "COVERAGE_IMAGES",
     "FOCAL_BASELINE_NOTE",
     "SIZE_TOLERANCE",
     "SPARSE_DEPTH_COVERAGE",
@@ -64,8 +66,12 @@ SIZE_TOLERANCE = 0.03
 size (a raw log's rectified box is a few px smaller than the images a rectified log holds),
 as ``densify`` maps a basis onto another image size; others are another camera."""
 
+COVERAGE_IMAGES = 5
+"""How many of a depth topic's first images :data:`SPARSE_DEPTH_COVERAGE` is judged on."""
+
 SPARSE_DEPTH_COVERAGE = 0.5
-"""A depth topic whose first image has a depth at fewer of its pixels is named in a note
+"""A depth topic whose images (median of the first :data:`COVERAGE_IMAGES` that hold any
+depth) have a depth at fewer of their pixels is named in a note
 (the synthetic street's truth covers 100 %, its projected LiDAR 4 %: learned from, its
 holes filled, a basis as good as the dense truth's, docs/estimator.md "Learning")."""
 
@@ -375,21 +381,26 @@ def log_camera(
             words it.
         stereo: the camera of the stereo pairs even when ``options`` name a depth topic.
 
-    A depth topic whose first image has a depth at fewer than :data:`SPARSE_DEPTH_COVERAGE`
-    of its pixels is named in a note.
+    A depth topic whose first images have a depth at fewer than :data:`SPARSE_DEPTH_COVERAGE`
+    of their pixels (:data:`COVERAGE_IMAGES`, median) is named in a note.
     """
     reason = ""
     if options.depth_topic and not stereo:
         info: list[MapSource] = []
-        first = next(depth_maps(log, options, pairing, info), None)
-        if first is not None:
-            covered = float(np.mean(np.isfinite(first)))
+        shares = [
+            float(np.mean(np.isfinite(first)))
+            for first in itertools.islice(depth_maps(log, options, pairing, info), COVERAGE_IMAGES)
+        ]
+        if shares:
+            seen = [share for share in shares if share > 0] or [0.0]  # blank ones: noted apart
+            covered = float(np.median(seen))
             if covered < SPARSE_DEPTH_COVERAGE:
                 _echo(
                     f"note: {options.depth_topic} in {log.name} has a depth at {covered:.0%} of "
-                    "the pixels of its first image; learn fills the others from the nearest "
-                    "pixel with a depth, as it fills SGBM's holes: what the sensor never "
-                    "returns from (the sky) takes the depth of the points nearest it"
+                    f"the pixels of its images (median of the first {len(shares)}); learn fills "
+                    "the others from the nearest pixel with a depth, as it fills SGBM's holes: "
+                    "what the sensor never returns from (the sky) takes the depth of the points "
+                    "nearest it"
                 )
             return info[0]
         reason = (

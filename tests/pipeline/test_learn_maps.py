@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +16,7 @@ from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import LogFormat, open_writer
-from pcainterp_stream.pipeline import jobs
+from pcainterp_stream.pipeline import jobs, learn_maps
 
 
 @pytest.fixture(scope="module")
@@ -205,7 +206,7 @@ def test_learn_fills_a_sparse_depth_topics_holes(
     basis = jobs.learn([lidar], folder / "lidar.npz", sparse, PairingConfig())
     assert re.search(
         r"note: /ground_truth/lidar_depth in lidar.mcap has a depth at \d+% of the pixels of "
-        r"its first image; learn fills the others from the nearest pixel with a depth",
+        r"its images \(median of the first \d+\); learn fills the others from the nearest pixel",
         capsys.readouterr().out,
     )
     dense = dataclasses.replace(sparse, depth_topic="/ground_truth/depth")
@@ -213,6 +214,24 @@ def test_learn_fills_a_sparse_depth_topics_holes(
     assert capsys.readouterr().out.count("note: /ground_truth/depth") == 0
     assert float(basis.mean.mean()) > 0.8 * float(truth.mean.mean())
     assert float(np.mean(basis.mean < 1.0)) < 0.1
+
+
+def test_a_dense_depth_topic_with_a_blank_first_image_is_not_called_sparse(
+    lidar: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # a depth camera's start-up image without depth said nothing of the topic (review 54 F1)
+    real = learn_maps.depth_maps
+
+    def blank_first(*args: Any, **kwargs: Any) -> Iterator[np.ndarray]:
+        maps = real(*args, **kwargs)
+        first = next(maps)
+        yield np.full_like(first, np.nan)
+        yield from maps
+
+    monkeypatch.setattr(learn_maps, "depth_maps", blank_first)
+    dense = jobs.LearnOptions(n_components=3, depth_topic="/ground_truth/depth")
+    assert learn_maps.log_camera(lidar, dense, PairingConfig()) is not None
+    assert "note:" not in capsys.readouterr().out
 
 
 def test_on_a_cluster_a_sparse_depth_topics_holes_are_filled_too(
