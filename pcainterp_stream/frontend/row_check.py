@@ -140,7 +140,8 @@ class RowCheck:
     def _add(self, matched: tuple[Any, float], rectifier: rect.StereoRectifier | None) -> None:
         """Add one frame's correspondences and change; decide once there are enough."""
         matches, change = matched
-        self.changes.append(change)
+        if matches.shape[0]:  # a dark frame (change 0) says nothing of the two views
+            self.changes.append(change)
         self.frames += 1
         self.frames_with_matches += int(matches.shape[0] >= ROW_CHECK_FRAME_MATCHES)
         self.points.append((matches, rectifier))
@@ -203,7 +204,7 @@ class RowCheck:
                 "recorded, unchecked"
             )
         same = float(np.mean(np.abs(points[:, :2] - points[:, 2:]).max(axis=1) < SAME_VIEW_PX))
-        if same >= SAME_VIEW_SHARE and float(np.median(self.changes)) < SAME_VIEW_CHANGE:
+        if same >= SAME_VIEW_SHARE and float(np.median(self.changes or [0.0])) < SAME_VIEW_CHANGE:
             right = self.topics[1]
             raise CalibrationError(
                 f"the stereo pair {self.pair} shows one view twice: {same:.0%} of "
