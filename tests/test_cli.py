@@ -1071,6 +1071,23 @@ def test_densify_names_the_topic_a_typo_meant(
     assert_nothing_written(out)
 
 
+def test_the_closest_topic_is_one_the_option_takes(
+    pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path
+) -> None:
+    """Not the other side's image topic, nor a camera info for an image option."""
+    left_typo = LEFT[:-1]  # closest to the left image, which --left-topic already names
+    line = pcainterp(
+        *densify_args(small_log, out, basis_path, "--right-topic", left_typo)
+    ).error_line()
+    assert line.endswith(f"; the closest is {RIGHT}: set --right-topic to it")
+    info_typo = LEFT_INFO[:-1]
+    line = pcainterp(
+        *densify_args(small_log, out, basis_path, "--right-topic", info_typo)
+    ).error_line()
+    assert LEFT_INFO not in line.split("; ")[-1]
+    assert_nothing_written(out)
+
+
 def test_densify_log_without_right_images(
     pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
 ) -> None:

@@ -36,6 +36,16 @@ SQLITE_MAGIC = b"SQLite format 3\x00"
 _LOG_KINDS = "an MCAP file, a ROS 1 .bag or a rosbag2 folder"
 
 
+_OPTION_TYPES = {
+    "--left-topic": ("Image", "CompressedImage"),
+    "--right-topic": ("Image", "CompressedImage"),
+    "--left-info-topic": ("CameraInfo",),
+    "--right-info-topic": ("CameraInfo",),
+    "--features-topic": ("PointCloud2", "PointCloud"),
+}
+"""The message types (last part of the name) a topic option takes: what its hint offers."""
+
+
 def closest_topic(topic: str, names: Iterable[str]) -> str | None:
     """Return the name of ``names`` closest to a topic not found (a typo's target), or None.
 
@@ -411,7 +421,14 @@ class LogReader:
         for topic, option in options.items():
             if topic not in present:
                 listed = ", ".join(sorted(present)) or "none"
-                close = closest_topic(topic, present)
+                kinds = _OPTION_TYPES.get(option, ())
+                candidates = [
+                    name
+                    for name, info in present.items()
+                    if name not in options  # not the topic another option names
+                    and (not kinds or info.msgtype.rsplit("/", 1)[-1] in kinds)
+                ]
+                close = closest_topic(topic, candidates)
                 fix = (
                     f"the closest is {close}: set {option} to it"
                     if close
