@@ -423,8 +423,18 @@ def densify(
                         **pairing_metadata(pairing.tolerance_ns),  # for evaluate's right images
                         BASIS_SCOPE_KEY: BASIS_SCOPE,  # later bases: the record at the end
                     }
+                    # the basis of the first frames as the densify thread bound it, which the
+                    # record of every basis in force starts with (a later re-check moves the
+                    # adaptation's state on, not this)
+                    started = bases_in_force(engine, basis, label, output, None)[:1]
                     switched = engine.adaptation.switched
-                    if switched is not None:  # the check chose another built-in basis
+                    if started:
+                        first.update(
+                            channel_metadata(
+                                started[0].basis, started[0].fingerprint, processor.measurements
+                            )
+                        )
+                    elif switched is not None:  # the check chose another built-in basis
                         first.update(
                             channel_metadata(
                                 BUILTIN_LABELS[builtin_kind(switched.basis) or "street"],
@@ -432,7 +442,7 @@ def densify(
                                 processor.measurements,
                             )
                         )
-                    if engine.adaptation.adapted:
+                    if not started and engine.adaptation.adapted:
                         # the first outputs follow the warm-up: name the basis learned from it
                         own = engine.adaptation.first_basis
                         first.update(
