@@ -448,7 +448,9 @@ def lookup_loss(log: Path, frames: int) -> str:
         if depth is None:
             continue
         with np.errstate(divide="ignore"):
-            true_disparity = np.where(depth > 0, frame.camera.focal_baseline / depth, np.nan)
+            # +inf (too far: the synthetic sky) has no disparity to compare a lookup with
+            surface = np.isfinite(depth) & (depth > 0)
+            true_disparity = np.where(surface, frame.camera.focal_baseline / depth, np.nan)
         full_config = SgbmConfig()
         corners = detect_corners(
             np.asarray(frame.left), StereoFrontEnd().gftt, min_x=full_config.valid_min_x

@@ -93,7 +93,8 @@ def frames_of(densified: Path) -> Iterator[tuple[F32, F32, F64]]:
         assert frame.depth is not None, f"{densified} has no /ground_truth/depth"
         depth = frame.depth.astype(np.float64)
         with np.errstate(divide="ignore", invalid="ignore"):
-            truth = np.where(depth > 0, frame.camera.focal_baseline / depth, np.nan)
+            surface = np.isfinite(depth) & (depth > 0)  # not the sky (+inf, too far)
+            truth = np.where(surface, frame.camera.focal_baseline / depth, np.nan)
         yield frame.estimate, frame.std, truth
 
 
