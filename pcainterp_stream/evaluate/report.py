@@ -704,9 +704,15 @@ def evaluate_log(
                     raise
                 hint = _calibration_hint(path, present, topics)
                 raise TopicNotFoundError(hint or str(err)) from None
-            if options.pairing is not None and not options.pairing.discover:  # named: typos?
+            named = options.pairing
+            if named is not None and (not named.discover or named.named_sides):  # typos?
+                sides = {"left": images.left_topic, "right": images.right_topic}
                 reader.require_topics(
-                    {images.left_topic: "--left-topic", images.right_topic: "--right-topic"}
+                    {
+                        topic: f"--{side}-topic"
+                        for side, topic in sides.items()
+                        if not named.discover or side in named.named_sides  # only those named
+                    }
                 )
         reference_topic = options.reference_topic
         if reference_topic is None and not options.sgbm_reference:

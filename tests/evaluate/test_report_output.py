@@ -353,6 +353,7 @@ def test_the_uncertainty_figure_says_which_estimate_each_series_is(
             "/stereo/right/image_rect: set --right-topic to it",
         ),
         (["--left-topic", "/stereo/left/image_rec"], "/stereo/left/image_rect: set --left-topic"),
+        (["--right-topic", "/stereo/right/image_rec"], "/stereo/right/image_rect: set --right"),
     ],
 )
 def test_a_topic_not_found_names_the_closest(
