@@ -134,8 +134,11 @@ def add_input_pair_options(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=None,
         metavar="MS",
-        help="a frame's right image is the one stamped closer than this (default: the "
-        "tolerance the log records densify paired with; 1 ms for logs that record none)",
+        help=(
+            "a frame's right image, ground truth and pose are the ones stamped nearest it "
+            "within this (default: the tolerance the log records densify paired with; 1 ms "
+            "for logs that record none)"
+        ),
     )
 
 

@@ -241,9 +241,9 @@ class _TruthValues:
             return []
         return [
             f"{100 * self.nan / self.pixels:.1f} % of {GROUND_TRUTH_DEPTH}'s pixels are NaN, "
-            "read as no truth (REP 118; +inf, too far, counts as disparity 0); a log of an "
-            "earlier `pcainterp synth` holds its sky as NaN: synthesize and densify it again "
-            "to score the sky"
+            "read as no truth (REP 118; +inf, too far, counts as disparity 0); if the log is "
+            "from an earlier `pcainterp synth`, whose sky was NaN, synthesize and densify it "
+            "again to score the sky"
         ]
 
 
@@ -849,7 +849,8 @@ def evaluate_log(
             without += f", {left_out.poses} without a {GROUND_TRUTH_POSE}"
         if result.no_measurement:
             without += f", {len(result.no_measurement)} without a measurement"
-        why = "; temporal mode needs two in a row with poses" if mode is Mode.TEMPORAL else ""
+        temporal = mode is Mode.TEMPORAL and (left_out.poses or not result.skipped)
+        why = "; temporal mode needs two in a row with poses" if temporal else ""
         raise LogReadError(
             f"no frame of {path} could be evaluated ({read} densified frames read{without}"
             f"{why})" + "".join(f"; {cause}" for cause in causes)

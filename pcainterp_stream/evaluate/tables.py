@@ -89,7 +89,8 @@ def summary_table(result: Evaluation) -> str:
         lines.append(f"input pair: {result.input_pair}")
     if result.skipped:
         lines.append(
-            f"{result.skipped} frames skipped: no {result.reference} message with their stamp"
+            f"{result.skipped} frames skipped: no {result.reference} message within the stamp "
+            "tolerance of theirs"
         )
     if result.no_measurement:
         lines.append(result.no_measurement_note)
@@ -227,7 +228,8 @@ def _sweep_lines(result: Evaluation) -> list[str]:
 def results_markdown(result: Evaluation, figures: list[str]) -> str:
     """Return ``results.md`` of a report folder."""
     skipped = (
-        f" {result.skipped} frames were skipped: no {result.reference} message with their stamp."
+        f" {result.skipped} frames were skipped: no {result.reference} message within the "
+        "stamp tolerance of theirs."
         if result.skipped
         else ""
     )

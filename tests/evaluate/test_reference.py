@@ -394,7 +394,10 @@ def test_frames_without_a_reference_message_are_skipped(
     result = _evaluate(logs["references"], "/ref/every_other", mode=mode)
     assert result.skipped == 2
     assert result.frames == frames
-    assert "2 frames skipped: no /ref/every_other message with their stamp" in summary_table(result)
+    assert (
+        "2 frames skipped: no /ref/every_other message within the stamp tolerance"
+        in summary_table(result)
+    )
 
 
 def _error(capsys: pytest.CaptureFixture[str], *args: str | Path) -> str:
