@@ -49,6 +49,7 @@ __all__ = [
     "REFERENCE_WAIT_FRAMES",
     "RIGHT_STAMP_TOLERANCE_NS",
     "RIGHT_WAIT_FRAMES",
+    "TRUTH_WAIT_FRAMES",
     "Frame",
     "ReadState",
     "read_frames",
@@ -65,6 +66,10 @@ RIGHT_WAIT_FRAMES = 8
 """A complete frame waits for its right image until this many frames are waiting. A frame
 is complete once densify's outputs of it are read, and densify writes them only after it
 paired the right image, so in a densified log the right image is seldom far behind."""
+TRUTH_WAIT_FRAMES = 31
+"""A complete frame waits for its ground truth and pose until this many frames are waiting:
+they may be logged later than the images (another recorder, a post-processing step), as
+far as the :data:`PENDING_FRAMES` their buffers keep."""
 PENDING_FRAMES = 32
 """Stamps whose channels are gathered at once (and right images and reference messages
 kept): densify writes a frame's outputs up to its look-ahead, the densify thread's queue and
@@ -199,7 +204,8 @@ def read_frames(
     records densify paired with), each when the log has the topic; a frame without one
     within it has None there and the distance to the nearest (``*_gap_ns``). A complete
     frame waits for each to have a message stamped at or after its own (they come in stamp
-    order, so the nearest one is then known), at most :data:`RIGHT_WAIT_FRAMES` frames; a
+    order, so the nearest one is then known), at most :data:`RIGHT_WAIT_FRAMES` frames for
+    the right image and :data:`TRUTH_WAIT_FRAMES` for truth and pose; a
     frame whose message never comes (dropped) goes on without it. With a reference topic,
     each frame carries the reference message of its stamp, waited for at most
     :data:`REFERENCE_WAIT_FRAMES` frames. The waits bound the frames held in memory.
@@ -253,8 +259,11 @@ def read_frames(
 
         def ready(frame: _Complete) -> bool:
             """Return True when the oldest waiting frame has all it can still get."""
-            known = all(latest.get(topic, -1) >= frame.stamp_ns for topic in nearby)
-            return (known or len(waiting) > RIGHT_WAIT_FRAMES) and (
+            for topic in nearby:  # the right image waits less than truth from another source
+                wait = RIGHT_WAIT_FRAMES if topic == right_image else TRUTH_WAIT_FRAMES
+                if latest.get(topic, -1) < frame.stamp_ns and len(waiting) <= wait:
+                    return False
+            return (
                 reference is None
                 or frame.stamp_ns in references
                 or len(waiting) > REFERENCE_WAIT_FRAMES

@@ -182,10 +182,12 @@ def _restamped(
     shift_ns: int = 0,
     drop: int = -1,
     to_ns: int | None = None,
+    logged_later_ns: int = 0,
 ) -> Path:
     """Copy an MCAP with ``topic``'s header stamps ``shift_ns`` later and its ``drop``-th
     message left out (another clock, a lost message); with ``to_ns``, every stamp and log
-    time of ``topic`` ("*": all) is that one, the densified channels after all the inputs."""
+    time of ``topic`` ("*": all) is that one, the densified channels after all the inputs;
+    with ``logged_later_ns``, ``topic``'s log times that much later (another recorder)."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
@@ -221,6 +223,8 @@ def _restamped(
                 later.append((channels[channel.id], bytes(data)))  # after all the inputs
                 continue
             log_time = message.log_time if to_ns is None else to_ns  # all at one instant
+            if channel.topic == topic:
+                log_time += logged_later_ns
             writer.add_message(channels[channel.id], log_time, bytes(data), log_time)
         for channel_id, data in later:
             writer.add_message(channel_id, to_ns or 0, data, to_ns or 0)
@@ -257,6 +261,17 @@ def test_a_frame_without_truth_is_skipped_and_counted_not_scored_against_sgbm(
         and "another frame's (100 ms apart): the stream lacks them" in note
         for note in result.notes
     )
+
+
+def test_truth_logged_long_after_its_images_is_still_matched(tmp_path: Path) -> None:
+    # truth written by another recorder a second after the images: 10 frames at 10 Hz (the
+    # right image's wait of 8 frames left them out; the truth used to wait 32)
+    log, dense = tmp_path / "synth.mcap", tmp_path / "dense.mcap"
+    jobs.synth(log, frames=12, seed=41, scale=0.25, fmt="mcap")
+    jobs.densify(log, dense)
+    late = _restamped(dense, tmp_path / "late.mcap", TRUTH, logged_later_ns=1_000_000_000)
+    result, _ = evaluate_log(late, EvaluateOptions(mode=Mode.STEREO, sweep_every=0))
+    assert (result.frames, result.skipped) == (12, 0)
 
 
 def test_frames_with_incomplete_outputs_are_counted(logs: dict[str, Path]) -> None:
