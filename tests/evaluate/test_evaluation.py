@@ -12,6 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis_profiles import examples
+from mcap_copy import McapCopy
 
 from pcainterp_stream import cli
 from pcainterp_stream.errors import LogReadError
@@ -417,42 +418,21 @@ def test_evaluate_reads_a_compact_log(dense_logs: dict[str, Path]) -> None:
 
 def _outputs_delayed(source: Path, target: Path, frames: int) -> None:
     """Copy an MCAP with every ``/pcainterp/*`` message written ``frames`` frames later."""
-    from mcap.reader import make_reader
-    from mcap.writer import Writer
-
     held: list[tuple[int, Any, Any]] = []
-    with source.open("rb") as stream, target.open("wb") as out:
-        writer = Writer(out)
-        writer.start()
-        schemas: dict[int, int] = {}
-        channels: dict[int, int] = {}
+    with McapCopy(source, target) as copy:
         lefts = 0
-        for schema, channel, message in make_reader(stream).iter_messages(log_time_order=False):
-            if channel.id not in channels:
-                if schema is not None and schema.id not in schemas:
-                    schemas[schema.id] = writer.register_schema(
-                        schema.name, schema.encoding, schema.data
-                    )
-                channels[channel.id] = writer.register_channel(
-                    channel.topic,
-                    channel.message_encoding,
-                    schemas.get(schema.id, 0) if schema is not None else 0,
-                    dict(channel.metadata),
-                )
-            if channel.topic.startswith("/pcainterp/"):
-                held.append((lefts + frames, channels[channel.id], message))
+        for topic, channel_id, message in copy.messages():
+            if topic.startswith("/pcainterp/"):
+                held.append((lefts + frames, channel_id, message))
                 continue
-            if channel.topic == "/stereo/left/image_rect":
+            if topic == "/stereo/left/image_rect":
                 lefts += 1
             while held and held[0][0] <= lefts:
-                _, channel_id, late = held.pop(0)
-                writer.add_message(channel_id, late.log_time, late.data, late.publish_time)
-            writer.add_message(
-                channels[channel.id], message.log_time, message.data, message.publish_time
-            )
-        for _, channel_id, late in held:
-            writer.add_message(channel_id, late.log_time, late.data, late.publish_time)
-        writer.finish()
+                _, late_id, late = held.pop(0)
+                copy.add(late_id, late.log_time, late.data, late.publish_time)
+            copy.add(channel_id, message.log_time, message.data, message.publish_time)
+        for _, late_id, late in held:
+            copy.add(late_id, late.log_time, late.data, late.publish_time)
 
 
 def test_outputs_written_well_after_their_input_are_still_found(tmp_path: Path) -> None:

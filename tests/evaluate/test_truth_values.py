@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 import pytest
+from mcap_copy import McapCopy
 
 from pcainterp_stream import cli
 from pcainterp_stream.errors import LogReadError
@@ -38,29 +39,11 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 
 def _patched(source: Path, target: Path, patch: Patch) -> Path:
     """Copy an MCAP byte for byte but for the 32FC1 data of ``/ground_truth/depth``."""
-    from mcap.reader import make_reader
-    from mcap.writer import Writer
-
-    with source.open("rb") as stream, target.open("wb") as out:
-        writer = Writer(out)
-        writer.start()
-        schemas: dict[int, int] = {}
-        channels: dict[int, int] = {}
-        index = 0
-        for schema, channel, message in make_reader(stream).iter_messages(log_time_order=False):
-            if channel.id not in channels:
-                if schema is not None and schema.id not in schemas:
-                    schemas[schema.id] = writer.register_schema(
-                        schema.name, schema.encoding, schema.data
-                    )
-                channels[channel.id] = writer.register_channel(
-                    channel.topic,
-                    channel.message_encoding,
-                    schemas.get(schema.id, 0) if schema is not None else 0,
-                    dict(channel.metadata),
-                )
+    index = 0
+    with McapCopy(source, target) as copy:
+        for topic, channel_id, message in copy.messages():
             data = bytearray(message.data)
-            if channel.topic == TRUTH:
+            if topic == TRUTH:
                 offset = 4 + 8  # CDR header, stamp; then frame_id, height, width
                 length = struct.unpack_from("<I", data, offset)[0]
                 offset = (offset + 4 + length + 3) & ~3
@@ -69,10 +52,7 @@ def _patched(source: Path, target: Path, patch: Patch) -> Path:
                 values = np.frombuffer(bytes(data[-size:]), np.float32).copy()
                 data[-size:] = patch(index, values).astype(np.float32).tobytes()
                 index += 1
-            writer.add_message(
-                channels[channel.id], message.log_time, bytes(data), message.log_time
-            )
-        writer.finish()
+            copy.add(channel_id, message.log_time, bytes(data))
     return target
 
 
@@ -188,30 +168,12 @@ def _restamped(
     message left out (another clock, a lost message); with ``to_ns``, every stamp and log
     time of ``topic`` ("*": all) is that one, the densified channels after all the inputs;
     with ``logged_later_ns``, ``topic``'s log times that much later (another recorder)."""
-    from mcap.reader import make_reader
-    from mcap.writer import Writer
-
-    with source.open("rb") as stream, target.open("wb") as out:
-        writer = Writer(out)
-        writer.start()
-        schemas: dict[int, int] = {}
-        channels: dict[int, int] = {}
-        index = 0
-        later: list[tuple[int, bytes]] = []
-        for schema, channel, message in make_reader(stream).iter_messages(log_time_order=False):
-            if channel.id not in channels:
-                if schema is not None and schema.id not in schemas:
-                    schemas[schema.id] = writer.register_schema(
-                        schema.name, schema.encoding, schema.data
-                    )
-                channels[channel.id] = writer.register_channel(
-                    channel.topic,
-                    channel.message_encoding,
-                    schemas.get(schema.id, 0) if schema is not None else 0,
-                    dict(channel.metadata),
-                )
+    index = 0
+    later: list[tuple[int, bytes]] = []
+    with McapCopy(source, target) as copy:
+        for name, channel_id, message in copy.messages():
             data = bytearray(message.data)
-            if channel.topic == topic or topic == "*":
+            if name == topic or topic == "*":
                 index += 1
                 if index - 1 == drop:
                     continue
@@ -219,16 +181,15 @@ def _restamped(
                 total = seconds * 1_000_000_000 + nanoseconds + shift_ns
                 total = total if to_ns is None else to_ns
                 struct.pack_into("<iI", data, 4, total // 1_000_000_000, total % 1_000_000_000)
-            if to_ns is not None and channel.topic.startswith("/pcainterp/"):
-                later.append((channels[channel.id], bytes(data)))  # after all the inputs
+            if to_ns is not None and name.startswith("/pcainterp/"):
+                later.append((channel_id, bytes(data)))  # after all the inputs
                 continue
             log_time = message.log_time if to_ns is None else to_ns  # all at one instant
-            if channel.topic == topic:
+            if name == topic:
                 log_time += logged_later_ns
-            writer.add_message(channels[channel.id], log_time, bytes(data), log_time)
+            copy.add(channel_id, log_time, bytes(data))
         for channel_id, data in later:
-            writer.add_message(channel_id, to_ns or 0, data, to_ns or 0)
-        writer.finish()
+            copy.add(channel_id, to_ns or 0, data)
     return target
 
 
