@@ -659,7 +659,7 @@ def test_evaluate_takes_the_built_in_basis_names_as_densify_does(
     ]:
         run = pcainterp("evaluate", dense, "-o", tmp_path / name, "--basis", name, *fast)
         assert run.code == 0, run.err
-        assert f"basis of the re-densified rows: {used} (given)\n" in run.out
+        assert f"basis of the re-densified rows: {used} (given), at --sigma" in run.out
     line = pcainterp("evaluate", dense, "--basis", "builtin", "--no-basis").error_line()
     assert "--no-basis and --basis contradict each other" in line
 
