@@ -30,10 +30,14 @@ def follow_densify(
 ) -> tuple[PairingConfig | None, str, FrontEnd | None]:
     """Return the pairing to read a densified log's input pair with, and where it came from.
 
-    What the caller left open is taken from the record: the topics when ``pairing`` names
-    none (None or ``discover`` without a named side), the calibration files' values when it
-    has no calibration, ``--rectify`` when it is ``auto`` (evaluate's ``auto`` means "as
-    densify did"), ``--baseline`` when it has none. What the caller set stays.
+    What the caller left open is taken from the record: the image topics when ``pairing``
+    names none (None, ``discover`` without a named side, or only info topics named, which
+    are kept), the calibration files' values when it has no calibration, ``--rectify`` when
+    it is ``auto`` (evaluate's ``auto`` means "as densify did"), ``--baseline`` when it has
+    none. What the caller set stays. Image topics named other than the recorded ones take
+    nothing from the record: ``--rectify auto`` is decided again for them, as for a log
+    without the record, and the note says so. Without a record, only info topics named
+    leave the images to discovery.
 
     Args:
         path: the densified log (its record: ``io.outputs.recorded_front_end``).
@@ -49,6 +53,10 @@ def follow_densify(
         if pairing is not None and pairing.rectify != "auto"
         else "--rectify auto decided again as densify decides"
     )
+    open_topics = _topics_open(pairing)
+    if open_topics and pairing is not None and _infos_named(pairing):
+        # only info topics named: the images are found in the log, the infos named kept
+        pairing = dataclasses.replace(pairing, discover=True)
     try:
         front_end = recorded_front_end(path)
     except ValueError as err:
@@ -64,17 +72,37 @@ def follow_densify(
             ),
             front_end,
         )
-    given = pairing or PairingConfig()
-    open_topics = pairing is None or (pairing.discover and not pairing.named_sides)
-    if open_topics:
-        given = dataclasses.replace(
-            given,
-            left_topic=front_end.left_topic,
-            right_topic=front_end.right_topic,
-            left_info_topic=front_end.left_info_topic,
-            right_info_topic=front_end.right_info_topic,
-            discover=False,
+    if not open_topics and pairing is not None and not _names_recorded(pairing, front_end):
+        # other images than densify read: its --rectify, calibration and baseline were
+        # decided for its pair, not for these
+        return (
+            pairing,
+            (
+                f"other topics than densify read ({front_end.left_topic}, "
+                f"{front_end.right_topic}), so not its --rectify, calibration or baseline: "
+                f"{again}"
+            ),
+            front_end,
         )
+    given = pairing or PairingConfig()
+    defaults = PairingConfig()
+    given = dataclasses.replace(
+        given,
+        left_topic=front_end.left_topic,
+        right_topic=front_end.right_topic,
+        # info topics named on the command line are kept
+        left_info_topic=(
+            given.left_info_topic
+            if given.left_info_topic != defaults.left_info_topic
+            else front_end.left_info_topic
+        ),
+        right_info_topic=(
+            given.right_info_topic
+            if given.right_info_topic != defaults.right_info_topic
+            else front_end.right_info_topic
+        ),
+        discover=False,
+    )
     config = dataclasses.replace(
         given,
         rectify=front_end.rectify if given.rectify == "auto" else given.rectify,
@@ -100,6 +128,45 @@ def follow_densify(
     if given.rectify not in ("auto", front_end.rectify):
         source += f"; --rectify {given.rectify} given, densify used {front_end.rectify}"
     return config, source, front_end
+
+
+def _topics_open(pairing: PairingConfig | None) -> bool:
+    """Whether ``pairing`` leaves the image topics open (no image topic named).
+
+    None, ``discover`` without a named side, or the default image topics without
+    ``discover`` and without a named side (only info topics named: ``cli.pairing`` then
+    leaves ``discover`` unset).
+    """
+    if pairing is None:
+        return True
+    if pairing.named_sides:
+        return False
+    defaults = PairingConfig()
+    return pairing.discover or (pairing.left_topic, pairing.right_topic) == (
+        defaults.left_topic,
+        defaults.right_topic,
+    )
+
+
+def _infos_named(pairing: PairingConfig) -> bool:
+    """Whether ``pairing`` has an info topic other than the default one (named)."""
+    defaults = PairingConfig()
+    return (pairing.left_info_topic, pairing.right_info_topic) != (
+        defaults.left_info_topic,
+        defaults.right_info_topic,
+    )
+
+
+def _names_recorded(pairing: PairingConfig, front_end: FrontEnd) -> bool:
+    """Whether the image topics ``pairing`` names are the ones densify recorded it read.
+
+    With ``discover``, only the named sides are compared (the other one is found): the
+    recorded pair has them.
+    """
+    recorded = {"left": front_end.left_topic, "right": front_end.right_topic}
+    named = {"left": pairing.left_topic, "right": pairing.right_topic}
+    sides = pairing.named_sides if pairing.discover else ("left", "right")
+    return all(named[side] == recorded[side] for side in sides)
 
 
 def describe_pair(config: PairingConfig, source: str) -> str:

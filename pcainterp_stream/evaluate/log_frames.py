@@ -132,6 +132,20 @@ class ReadState:
     incomplete: dict[str, int] = field(default_factory=dict)
     """Per densified topic, the stamps of left images or outputs left out because that topic
     never came with their stamp (a frame densify dropped, a message lost)."""
+    repeated: dict[str, int] = field(default_factory=dict)
+    """Per topic matched by stamp (right image, truth, poses, reference), the messages with
+    the stamp of an earlier one of the topic: the first in log order is used, these not."""
+
+    @property
+    def repeated_note(self) -> str:
+        """Return the sentence on messages of a repeated stamp left unused ("": none)."""
+        if not self.repeated:
+            return ""
+        counts = ", ".join(f"{n} on {topic}" for topic, n in sorted(self.repeated.items()))
+        return (
+            f"messages with the stamp of an earlier one of their topic were not used ({counts}): "
+            "a frame takes the first message of its stamp in log order"
+        )
 
     @property
     def notes(self) -> list[str]:
@@ -208,7 +222,9 @@ def read_frames(
     the right image and :data:`TRUTH_WAIT_FRAMES` for truth and pose; a
     frame whose message never comes (dropped) goes on without it. With a reference topic,
     each frame carries the reference message of its stamp, waited for at most
-    :data:`REFERENCE_WAIT_FRAMES` frames. The waits bound the frames held in memory.
+    :data:`REFERENCE_WAIT_FRAMES` frames. The waits bound the frames held in memory. Of
+    messages of one topic with the same stamp, the first in log order is the one matched;
+    the others are counted (``state.repeated``) and the report names them.
 
     Args:
         path: a log written by ``pcainterp densify``.
@@ -253,6 +269,7 @@ def read_frames(
         if reference is not None and reference.topic not in wanted:
             wanted.append(reference.topic)
         references: dict[int, Any] = {}
+        stamps = _SeenStamps()  # of the topics matched by stamp: the first of a stamp is used
         pending: dict[int, dict[str, Any]] = {}
         waiting: deque[_Complete] = deque()
         index = yielded = 0
@@ -301,14 +318,17 @@ def read_frames(
                 images.see_info(raw.topic, message)
                 continue
             if reference is not None and raw.topic == reference.topic:
-                references[rosmsg.stamp_ns(message)] = message
+                stamp = rosmsg.stamp_ns(message)
+                if stamps.first(raw.topic, stamp, state):
+                    references[stamp] = message
                 while len(references) > REFERENCE_BUFFER:
                     references.pop(min(references))
             full_estimate = raw.topic == where.estimate and not where.compact
             stamp = rosmsg.stamp_ns(message.image if full_estimate else message)
             if raw.topic in nearby:
                 buffer = nearby[raw.topic]
-                buffer[stamp] = message
+                if stamps.first(raw.topic, stamp, state):  # a repeated stamp: its first is used
+                    buffer[stamp] = message
                 latest[raw.topic] = max(stamp, latest.get(raw.topic, stamp))
                 while len(buffer) > (
                     POSE_BUFFER if raw.topic == GROUND_TRUTH_POSE else PENDING_FRAMES
@@ -365,6 +385,27 @@ def _count_incomplete(parts: dict[str, Any], grouped: list[str], state: ReadStat
     for topic in grouped:
         if topic not in parts:
             state.incomplete[topic] = state.incomplete.get(topic, 0) + 1
+
+
+class _SeenStamps:
+    """The stamps seen lately of each topic matched by stamp, to keep the first of each."""
+
+    LIMIT = 4096
+    """Stamps remembered per topic (the oldest forgotten beyond it)."""
+
+    def __init__(self) -> None:
+        self._seen: dict[str, dict[int, None]] = {}
+
+    def first(self, topic: str, stamp: int, state: ReadState) -> bool:
+        """Return True for the first message of ``stamp`` on ``topic``; count a repeat."""
+        seen = self._seen.setdefault(topic, {})
+        if stamp in seen:
+            state.repeated[topic] = state.repeated.get(topic, 0) + 1
+            return False
+        seen[stamp] = None
+        if len(seen) > self.LIMIT:
+            del seen[next(iter(seen))]
+        return True
 
 
 def _nearest(messages: dict[int, Any], stamp: int, tolerance_ns: int) -> tuple[Any, int | None]:

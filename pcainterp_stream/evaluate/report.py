@@ -79,6 +79,7 @@ from pcainterp_stream.evaluate.results import (
     RangeStats,
 )
 from pcainterp_stream.evaluate.tables import results_markdown, summary_table
+from pcainterp_stream.evaluate.truth_values import DepthValues
 from pcainterp_stream.frontend.images import PairImages
 from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.frontend.sgbm_limits import fitting
@@ -220,27 +221,15 @@ def _truth(
     return None
 
 
-@dataclass
-class _TruthValues:
+class _TruthValues(DepthValues):
     """Counts of the ground-truth depth's values that hold no depth (NaN) or a far one."""
-
-    pixels: int = 0
-    nan: int = 0
-    far: int = 0
-
-    def add(self, frame: Frame) -> None:
-        """Count one frame's ``/ground_truth/depth``."""
-        assert frame.depth is not None
-        self.pixels += frame.depth.size
-        self.nan += int(np.count_nonzero(np.isnan(frame.depth)))
-        self.far += int(np.count_nonzero(np.isposinf(frame.depth)))
 
     def notes(self) -> list[str]:
         """Say how the NaN were read when no pixel is +inf (a synthetic log of before)."""
-        if not self.nan or self.far or self.nan == self.pixels:
+        if not self.nan_sky():
             return []
         return [
-            f"{100 * self.nan / self.pixels:.1f} % of {GROUND_TRUTH_DEPTH}'s pixels are NaN, "
+            f"{100 * self.nan_share():.1f} % of {GROUND_TRUTH_DEPTH}'s pixels are NaN, "
             "read as no truth (REP 118; +inf, too far, counts as disparity 0); if the log is "
             "from an earlier `pcainterp synth`, whose sky was NaN, synthesize and densify it "
             "again to score the sky"
@@ -788,8 +777,8 @@ def evaluate_log(
         if progress is not None:
             progress(read)
         truth = _truth(frame, reference, has_truth)
-        if truth is not None and reference is None:
-            truth_values.add(frame)
+        if truth is not None and reference is None and frame.depth is not None:
+            truth_values.add(frame.depth)
         if truth is None and has_truth:  # no truth message of this stamp (within tolerance)
             result.skipped += 1
             left_out.see(frame.depth_gap_ns, "truth")
@@ -837,6 +826,7 @@ def evaluate_log(
     result.notes += state.notes + truth_values.notes()
     causes = left_out.notes(state, GROUND_TRUTH_DEPTH if reference is None else "")
     causes += [state.incomplete_note] if state.incomplete_note else []
+    causes += [state.repeated_note] if state.repeated_note else []
     result.notes += causes
     if evaluator.sgbm_empty:
         result.stereo_note = (

@@ -244,10 +244,10 @@ def resolve_pairing(
     """Return ``config`` with the topics of the log's stereo pair when none were named.
 
     With ``config.discover`` set, an image topic of ``config.named_sides`` or other than the
-    default one (one side named on the command line) keeps only the pairs with it. With
-    ``config.discover`` unset, the named topics are kept; only info topics left at their
-    defaults become the image topics' sibling ``camera_info`` when the log has those and not
-    the defaults.
+    default one (one side named on the command line) keeps only the pairs with it; an info
+    topic other than the default one stays (named). With ``config.discover`` unset, the
+    named topics are kept; only info topics left at their defaults become the image topics'
+    sibling ``camera_info`` when the log has those and not the defaults.
 
     Raises:
         TopicNotFoundError: no pair, or two equally good pairs (listing them and the options).
@@ -329,7 +329,11 @@ def resolve_pairing(
         )
     left_info, right_info = config.left_info_topic, config.right_info_topic
     if best.left.info is not None and best.right.info is not None:
-        left_info, right_info = best.left.info, best.right.info
+        # an info topic other than the default one was named: it stays
+        if left_info == DEFAULT_LEFT_INFO:
+            left_info = best.left.info
+        if right_info == DEFAULT_RIGHT_INFO:
+            right_info = best.right.info
     if echo is not None:
         echo(_found_line(best, len(pairs) - 1, named_left=named_left, named_right=named_right))
     return dataclasses.replace(

@@ -22,7 +22,12 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.errors import LogReadError, PcaInterpError, TopicNotFoundError
-from pcainterp_stream.evaluate.metrics import ReferenceKind, disparity_from_reference
+from pcainterp_stream.evaluate.metrics import (
+    GROUND_TRUTH_DEPTH,
+    ReferenceKind,
+    disparity_from_reference,
+)
+from pcainterp_stream.evaluate.truth_values import DepthValues
 from pcainterp_stream.frontend.camera_infos import camera_from_infos, first_infos
 from pcainterp_stream.frontend.discovery import resolve_pairing
 from pcainterp_stream.frontend.pairing import PairingConfig, StereoPairer, iter_stereo_frames
@@ -387,10 +392,11 @@ def log_camera(
     reason = ""
     if options.depth_topic and not stereo:
         info: list[MapSource] = []
-        shares = [
-            float(np.mean(np.isfinite(first)))
-            for first in itertools.islice(depth_maps(log, options, pairing, info), COVERAGE_IMAGES)
-        ]
+        values = DepthValues()  # NaN but never +inf: an earlier synthetic log's sky
+        shares = []
+        for first in itertools.islice(depth_maps(log, options, pairing, info), COVERAGE_IMAGES):
+            shares.append(float(np.mean(np.isfinite(first))))
+            values.add_disparity(first)
         if shares:
             seen = [share for share in shares if share > 0] or [0.0]  # blank ones: noted apart
             covered = float(np.median(seen))
@@ -401,6 +407,14 @@ def log_camera(
                     "the others from the nearest pixel with a depth, as it fills SGBM's holes: "
                     "what the sensor never returns from (the sky) takes the depth of the points "
                     "nearest it"
+                )
+            elif options.depth_topic == GROUND_TRUTH_DEPTH and values.nan_sky():
+                _echo(
+                    f"note: {values.nan_share():.1%} of {options.depth_topic}'s pixels in "
+                    f"{log.name} are NaN and none +inf (first {len(shares)} images): an earlier "
+                    "`pcainterp synth` wrote the sky so; learn fills them from the nearest pixel "
+                    "with a depth, as SGBM's holes, so the sky is learned as the surface nearest "
+                    "it; synthesize the log again (sky +inf, disparity 0) to learn the sky"
                 )
             return info[0]
         reason = (

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -123,3 +124,113 @@ def test_a_log_of_two_equally_good_pairs_needs_no_topic_options(tmp_path: Path) 
     result = _evaluate(dense, PairingConfig(discover=True))
     assert result.input_pair.startswith("/front/left/image_rect, /front/right/image_rect, ")
     assert result.frames == 2
+
+
+@pytest.fixture(scope="module")
+def two_pairs(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A raw log with its pair also on /other/*, densified on /camera/* with --rectify never."""
+    folder = tmp_path_factory.mktemp("two")
+    raw, log = folder / "raw.mcap", folder / "two.mcap"
+    write_raw_log(SynthConfig(seed=2, frames=3, scale=0.25), raw, model="plumb_bob")
+    with open_log(raw) as reader, open_writer(log, None) as writer:
+        for message in reader.messages():
+            writer.add_raw(message)
+            if message.topic.startswith("/camera/"):
+                other = message.topic.replace("/camera/", "/other/", 1)
+                writer.add_raw(message._replace(topic=other))
+    dense = folder / "two_dense.mcap"
+    densify(
+        log,
+        dense,
+        pairing=PairingConfig(
+            left_topic="/camera/left/image_raw",
+            right_topic="/camera/right/image_raw",
+            left_info_topic="/camera/left/camera_info",
+            right_info_topic="/camera/right/camera_info",
+            rectify="never",
+            check_rows=False,
+        ),
+    )
+    return dense
+
+
+def _other(**changes: object) -> PairingConfig:
+    """evaluate --left-topic /other/left/image_raw --right-topic /other/right/image_raw."""
+    config = PairingConfig(
+        left_topic="/other/left/image_raw",
+        right_topic="/other/right/image_raw",
+        named_sides=("left", "right"),
+    )
+    return dataclasses.replace(config, **changes)  # type: ignore[arg-type]
+
+
+def test_other_topics_named_do_not_take_the_recorded_rectify(two_pairs: Path) -> None:
+    # before: densify's --rectify never (and its calibration, baseline) was applied to the
+    # /other/* raw images too, silently: SGBM of unrectified images (review F2)
+    other = _evaluate(two_pairs, _other())
+    always = _evaluate(two_pairs, _other(rectify="always"))
+    never = _evaluate(two_pairs, _other(rectify="never"))
+    assert _sgbm(other) == pytest.approx(_sgbm(always))  # raw infos: auto remaps
+    assert abs(_sgbm(other) - _sgbm(never)) > 0.1 * _sgbm(never)
+    assert other.input_pair == (
+        "/other/left/image_raw, /other/right/image_raw, camera infos, --rectify auto (other "
+        "topics than densify read (/camera/left/image_raw, /camera/right/image_raw), so not "
+        "its --rectify, calibration or baseline: --rectify auto decided again as densify "
+        "decides)"
+    )
+    # one side named, another than the recorded one: the same
+    left = PairingConfig(left_topic="/other/left/image_raw", discover=True, named_sides=("left",))
+    assert _sgbm(_evaluate(two_pairs, left)) == pytest.approx(_sgbm(always))
+    # the recorded topics named: the record applies to them
+    named = PairingConfig(
+        left_topic="/camera/left/image_raw",
+        right_topic="/camera/right/image_raw",
+        named_sides=("left", "right"),
+    )
+    recorded = _evaluate(two_pairs, named)
+    assert _sgbm(recorded) == pytest.approx(_sgbm(never))
+    assert recorded.input_pair.endswith(
+        "(--rectify as densify recorded them; its images: as recorded)"
+    )
+
+
+def test_an_info_topic_named_alone_keeps_the_recorded_images(two_pairs: Path) -> None:
+    # before: evaluate --left-info-topic X alone looked for /stereo/left/image_rect (the
+    # library default): "topic /stereo/left/image_rect not found" (review F10)
+    from pcainterp_stream.evaluate.input_pair import follow_densify
+
+    info = PairingConfig(left_info_topic="/other/left/camera_info")  # as cli.pairing makes it
+    with open_log(two_pairs) as reader:
+        present = reader.topics()
+    config, source, _ = follow_densify(two_pairs, info, present)
+    assert config is not None
+    assert (config.left_topic, config.right_topic) == (
+        "/camera/left/image_raw",
+        "/camera/right/image_raw",
+    )
+    assert (config.left_info_topic, config.right_info_topic) == (
+        "/other/left/camera_info",
+        "/camera/right/camera_info",
+    )
+    assert source.startswith("topics, --rectify as densify recorded them")
+    result = _evaluate(two_pairs, info)
+    assert result.frames == 3
+    assert result.input_pair.startswith("/camera/left/image_raw, /camera/right/image_raw, ")
+
+
+def test_an_info_topic_named_alone_without_the_record_finds_the_images(
+    raw_never: Path, tmp_path: Path
+) -> None:
+    from pcainterp_stream.evaluate.input_pair import follow_densify
+
+    bare = tmp_path / "no_record.mcap"
+    with open_log(raw_never) as reader, open_writer(bare, None) as writer:
+        for raw in reader.messages():
+            writer.add_raw(raw)
+        present = reader.topics()
+    info = PairingConfig(right_info_topic="/camera/right/camera_info")
+    config, _, _ = follow_densify(bare, info, present)
+    assert config is not None
+    assert config.discover  # the images found in the log
+    result = _evaluate(bare, info)
+    assert result.input_pair.startswith("/camera/left/image_raw, /camera/right/image_raw, ")

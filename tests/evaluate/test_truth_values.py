@@ -254,3 +254,39 @@ def test_frames_sharing_a_stamp_are_said_to_be_merged(logs: dict[str, Path]) -> 
     note = next(note for note in result.notes if "merged" in note)
     assert re.match(r"\d+ densified messages had the stamp of another of their topic", note)
     assert "frames sharing one were merged; give each frame its own stamp" in note
+
+
+def _truth_twice(source: Path, target: Path, *, later: bool) -> Path:
+    """Copy an MCAP with each truth message followed by another of its stamp, depth x 3.
+
+    ``later``: the second one comes a second of log time later (after its frame was read).
+    """
+    with McapCopy(source, target) as copy:
+        for topic, channel_id, message in copy.messages():
+            copy.add(channel_id, message.log_time, message.data)
+            if topic == TRUTH:
+                data = bytearray(message.data)
+                offset = 4 + 8  # CDR header, stamp; then frame_id, height, width
+                length = struct.unpack_from("<I", data, offset)[0]
+                offset = (offset + 4 + length + 3) & ~3
+                height, width = struct.unpack_from("<II", data, offset)
+                count = height * width * 4
+                values = np.frombuffer(bytes(data[-count:]), np.float32) * np.float32(3)
+                data[-count:] = values.tobytes()
+                copy.add(channel_id, message.log_time + later * 10**9, bytes(data))
+    return target
+
+
+@pytest.mark.parametrize("later", [False, True])
+def test_a_repeated_truth_stamp_takes_the_first_and_says_so(
+    logs: dict[str, Path], later: bool
+) -> None:
+    # before: a second truth message of a stamp replaced the first if it came before the
+    # frame was read, silently, and was ignored if after (review F8): arbitrary by layout
+    log = _truth_twice(logs["dense"], logs["folder"] / f"truth_twice_{later}.mcap", later=later)
+    assert _scores(log, None) == _scores(logs["dense"], None)  # the first of each stamp
+    result, _ = evaluate_log(log, EvaluateOptions(mode=Mode.STEREO, sweep_every=0, linear=False))
+    assert (
+        "messages with the stamp of an earlier one of their topic were not used (4 on "
+        "/ground_truth/depth): a frame takes the first message of its stamp in log order"
+    ) in result.notes

@@ -216,6 +216,31 @@ def test_learn_fills_a_sparse_depth_topics_holes(
     assert float(np.mean(basis.mean < 1.0)) < 0.1
 
 
+def test_learn_names_an_earlier_synthetic_logs_nan_sky(
+    folder: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # before: the sky of a log of an earlier synth (NaN, not +inf) was learned as a hole
+    # filled from the nearest pixel, silently (review F4); evaluate notes it as no truth
+    source, nan_sky = folder / "drive.mcap", folder / "nan_sky.mcap"
+    with open_log(source) as reader, open_writer(nan_sky, LogFormat.MCAP) as writer:
+        for raw in reader.messages():
+            message = reader.decode(raw)
+            if raw.topic == "/ground_truth/depth":
+                depth = np.frombuffer(bytes(message.data), np.float32)
+                sky = np.where(np.isposinf(depth), np.float32(np.nan), depth)
+                message = dataclasses.replace(message, data=np.frombuffer(sky.tobytes(), np.uint8))
+            writer.add_message(raw.topic, message, raw.log_time_ns)
+    options = jobs.LearnOptions(n_components=3, depth_topic="/ground_truth/depth", fit_prior=False)
+    jobs.learn([nan_sky], folder / "nan_sky.npz", options, PairingConfig())
+    assert re.search(
+        r"note: \d+\.\d% of /ground_truth/depth's pixels in nan_sky.mcap are NaN and none \+inf "
+        r"\(first \d+ images\): an earlier `pcainterp synth` wrote the sky so; learn fills them",
+        capsys.readouterr().out,
+    )
+    jobs.learn([source], folder / "inf_sky.npz", options, PairingConfig())  # +inf: no note
+    assert "NaN" not in capsys.readouterr().out
+
+
 def test_a_dense_depth_topic_with_a_blank_first_image_is_not_called_sparse(
     lidar: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -234,9 +259,7 @@ def test_a_dense_depth_topic_with_a_blank_first_image_is_not_called_sparse(
     assert "note:" not in capsys.readouterr().out
 
 
-def test_on_a_cluster_a_sparse_depth_topics_holes_are_filled_too(
-    lidar: Path, folder: Path
-) -> None:
+def test_on_a_cluster_a_sparse_depth_topics_holes_are_filled_too(lidar: Path, folder: Path) -> None:
     from pcainterp_stream.pipeline.distributed import summarize_chunk
 
     sparse = jobs.LearnOptions(depth_topic="/ground_truth/lidar_depth")
