@@ -7,7 +7,9 @@ images were taken with. Each image is remapped with ``cv2.initUndistortRectifyMa
 P[:3, :3])`` (``cv2.fisheye`` for ``equidistant``; the records and maps are
 :mod:`io.camera_model`'s), bicubically (``image_proc`` offers it; its default is bilinear,
 measurably worse for matching), at the size ``image_proc``'s ``image_rect`` has: the raw
-image's size (its ROI divided by its binning). The rectified left camera is then P's
+image's size (its ROI divided by its binning); the right camera is remapped into the left's
+rectified image, since P of both infos defines one rectified camera (a right sensor of
+another size too). The rectified left camera is then P's
 (divided by the binning, moved by the ROI) with D = 0 and R = I; points in the raw left
 camera's frame move into the rectified one by R. The estimate is made in the box of the
 rectified image both raw cameras see (:func:`valid_box`) and padded back to the full size
@@ -60,6 +62,49 @@ __all__ = [
 MIN_INLIER_SHARE = 0.2
 """A pair's ORB matches with fewer epipolar inliers than this share are chance (noise)."""
 
+MIN_VALID_BOX = 32
+"""A rectified box both raw cameras see narrower or lower than this (px) is a calibration
+that does not describe the pair (an all-zero or wrong R): refused, not matched."""
+
+ONE_CAMERA_PX = 0.01
+"""Largest difference (px) of the two rectified P's fx, fy, cx, cy for cameras of different
+image sizes to be rectified into one image."""
+
+
+def _frames_differ(left: CameraCalibration, right: CameraCalibration) -> bool:
+    """Return True when the two cameras' images differ in size, ROI or binning."""
+    return (left.width, left.height, left.region(), left.binning) != (
+        right.width,
+        right.height,
+        right.region(),
+        right.binning,
+    )
+
+
+def _check_one_rectified_camera(left: CameraCalibration, right: CameraCalibration) -> None:
+    """Refuse cameras of different image sizes whose P do not define one rectified camera.
+
+    The right camera is rectified into the left's image with its own P: sound only when
+    both P have the same fx, fy, cx, cy (a stereo calibration's; only Tx differs).
+
+    Raises:
+        CalibrationError: naming both sizes and the fix.
+    """
+    if np.allclose(left.p[:, :3], right.p[:, :3], rtol=0, atol=ONE_CAMERA_PX):
+        return
+    (lw, lh), (rw, rh) = left.image_size(), right.image_size()
+    raise CalibrationError(
+        f"the left camera's images are {lw}x{lh} px ({left.name}) and the right's {rw}x{rh} "
+        f"({right.name}), and their P differ in fx, fy, cx or cy (left "
+        f"{_intrinsics(left.p)}, right {_intrinsics(right.p)}), so they define no one "
+        "rectified image: pass --calibration LEFT.yaml RIGHT.yaml of a stereo calibration of "
+        "the pair (both P equal but Tx), or rectify the images yourself and pass --rectify never"
+    )
+
+
+def _intrinsics(p: npt.NDArray[np.float64]) -> str:
+    return f"fx={p[0, 0]:g} fy={p[1, 1]:g} cx={p[0, 2]:g} cy={p[1, 2]:g}"
+
 
 class StereoRectifier:
     """Remap raw stereo pairs into the rectified pair their calibration defines.
@@ -79,7 +124,10 @@ class StereoRectifier:
         # an identity remap: resampling would only add rounding (and float maps a hair
         # outside the image would shave a border row and column off the valid box)
         self.identity = calibration.is_rectified and left.image_size() == right.image_size()
-        self._maps = [cal.rectification_maps() for cal in (left, right)]
+        if _frames_differ(left, right):
+            _check_one_rectified_camera(left, right)
+        # both into the left's rectified image: P of both infos define one rectified camera
+        self._maps = [cal.rectification_maps(left) for cal in (left, right)]
         p = left.rectified_projection()
         width, height = left.image_size()
         if baseline is None:
@@ -108,6 +156,13 @@ class StereoRectifier:
         else:
             self.box = valid_box(self._maps, left.image_size(), right.image_size())
         x, y, w, h = self.box
+        if min(w, h) < MIN_VALID_BOX:
+            raise CalibrationError(
+                f"{left.name} and {right.name} leave a {w}x{h} px box of the {width}x{height} "
+                "rectified image that both raw cameras see: their K, D, R and P do not describe "
+                "one stereo pair; fix the calibration or pass --calibration LEFT.yaml "
+                "RIGHT.yaml (--rectify never if the images are rectified)"
+            )
         self.inner = StereoCamera(
             width=w,
             height=h,

@@ -277,7 +277,7 @@ def exchanged_offset(
         box_x, box_y, _, _ = rectifier.box
         raw: list[npt.NDArray[np.float64]] = []
         for cal, xy in ((calibration.left, points[:, :2]), (calibration.right, points[:, 2:])):
-            map_x, map_y = cal.rectification_maps()
+            map_x, map_y = cal.rectification_maps(calibration.left)  # the left's image
             at_x = (xy[:, :1].T + box_x).astype(np.float32)  # (1, n): remap reads a map at them
             at_y = (xy[:, 1:].T + box_y).astype(np.float32)
             raw_x = cv2.remap(map_x, at_x, at_y, cv2.INTER_LINEAR).ravel()

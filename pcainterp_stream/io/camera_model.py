@@ -22,6 +22,10 @@ from pcainterp_stream.errors import CalibrationError
 MODELS = ("plumb_bob", "rational_polynomial", "equidistant")
 """The distortion models understood (ROS ``sensor_msgs/distortion_models`` names)."""
 
+ROTATION_TOLERANCE = 1e-3
+"""Largest |R R^T - I| entry of a rectifying rotation: a calibration file's R written with
+six or more decimals is within it; a zero, scaled or sheared R is not."""
+
 _ALIASES = {
     "radtan": "plumb_bob",
     "radial-tangential": "plumb_bob",
@@ -139,6 +143,7 @@ class CameraCalibration:
         zeros = [name for name, m in (("K", self.k), ("P", self.p[:, :3])) if not np.any(m)]
         if zeros:  # ROS's "not calibrated"
             raise CalibrationError(uncalibrated(self.name, " and ".join(zeros)))
+        self._check_rotation()
         if not (self.k[0, 0] > 0 and self.k[1, 1] > 0 and self.p[0, 0] > 0 and self.p[1, 1] > 0):
             raise CalibrationError(
                 f"{self.name} has K or P without positive focal lengths (K fx={self.k[0, 0]}, "
@@ -148,6 +153,31 @@ class CameraCalibration:
         if self.width <= 0 or self.height <= 0:
             raise CalibrationError(
                 f"{self.name} has image size {self.width}x{self.height}: fix the calibration"
+            )
+
+    def _check_rotation(self) -> None:
+        """Refuse an R that is no rotation: all zeros, or not orthonormal with det +1.
+
+        A driver that fills K and D but has no stereo rectification leaves R all zero
+        (``camera_info_manager``'s default); its maps send every pixel to one point, and the
+        box both cameras see is empty.
+        """
+        fix = (
+            "pass --calibration LEFT.yaml RIGHT.yaml (a stereo calibration, e.g. ROS "
+            "camera_calibration's), or --rectify never if the images are rectified"
+        )
+        if not np.any(self.r):
+            raise CalibrationError(
+                f"{self.name} has an all-zero R: the stereo rectification is not calibrated "
+                f"(a driver that fills only K and D publishes zeros); {fix}"
+            )
+        error = float(np.abs(self.r @ self.r.T - np.eye(3)).max())
+        det = float(np.linalg.det(self.r))
+        if error > ROTATION_TOLERANCE or det < 0:
+            raise CalibrationError(
+                f"{self.name} has an R that is not a rotation (det {det:.6g}, R R^T off the "
+                f"identity by up to {error:.3g}; a rectifying R is orthonormal with det 1); "
+                f"fix the calibration or {fix}"
             )
 
     @classmethod
@@ -223,10 +253,21 @@ class CameraCalibration:
         ]
         return b"|".join(parts)
 
-    def rectification_maps(self) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
-        """Return (map_x, map_y): for each ``image_rect`` pixel, its position in the raw image."""
+    def rectification_maps(
+        self, frame: CameraCalibration | None = None
+    ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+        """Return (map_x, map_y): for each ``image_rect`` pixel, its position in the raw image.
+
+        Args:
+            frame: the camera whose rectified image the maps cover (its full-resolution
+                size, ROI and binning); this one's by default. A stereo pair's right camera
+                is rectified into the left's image: P of both defines one rectified camera,
+                whatever size each raw sensor has. The positions are in this camera's raw
+                image (its ROI, its binning).
+        """
         new_k = self.p[:, :3]
-        size = (self.width, self.height)
+        out = self if frame is None else frame
+        size = (out.width, out.height)
         if self.model == "equidistant":
             d = np.zeros(4) if self.d.size == 0 else self.d[:4]
             if d.size < 4:
@@ -239,13 +280,17 @@ class CameraCalibration:
         else:
             d = self.d if self.d.size else np.zeros(5)
             map_x, map_y = cv2.initUndistortRectifyMap(self.k, d, self.r, new_k, size, cv2.CV_32FC1)
-        x, y, w, h = self.region()
-        bx, by = self.binning
-        if (x, y, w, h) != (0, 0, self.width, self.height) or (bx, by) != (1, 1):
-            # image_proc's reduced maps: the ROI of the full maps, shifted, sampled every
-            # binning-th pixel and scaled into the binned raw image
-            map_x = (map_x[y : y + h : by, x : x + w : bx][: h // by, : w // bx] - x) / bx
-            map_y = (map_y[y : y + h : by, x : x + w : bx][: h // by, : w // bx] - y) / by
+        x, y, w, h = out.region()
+        bx, by = out.binning
+        if (x, y, w, h) != (0, 0, out.width, out.height) or (bx, by) != (1, 1):
+            # image_proc's reduced maps: the ROI of the full maps, sampled every binning-th
+            # pixel (the rectified image's), shifted and scaled into the binned raw image
+            map_x = map_x[y : y + h : by, x : x + w : bx][: h // by, : w // bx]
+            map_y = map_y[y : y + h : by, x : x + w : bx][: h // by, : w // bx]
+        rx, ry, _, _ = self.region()
+        rbx, rby = self.binning
+        if (rx, ry, rbx, rby) != (0, 0, 1, 1):
+            map_x, map_y = (map_x - rx) / rbx, (map_y - ry) / rby
         return np.ascontiguousarray(map_x, np.float32), np.ascontiguousarray(map_y, np.float32)
 
     def rectified_projection(self) -> npt.NDArray[np.float64]:

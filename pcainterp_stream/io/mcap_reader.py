@@ -100,7 +100,7 @@ class McapLogReader(LogReader):
         self._summary_complete = False
         self._topics: dict[str, TopicInfo] | None = None
         self._channel_records: tuple[list[Channel], dict[int, Schema]] = ([], {})
-        self._ros1 = _Ros1Converter()
+        self._ros1 = _Ros1Converter(self._warn_once)
         self._merge_plan: _MergePlan | None = None
         self._planned = False
         self._extras_damage = 0  # lines of damage found in attachments and metadata records
@@ -385,7 +385,9 @@ class McapLogReader(LogReader):
         metadata = dict(channel.metadata)
         if schema is not None and schema.encoding == "ros1msg" and message_encoding == "cdr":
             try:
-                data, schema_data = self._ros1.convert(data, msgtype, schema.data.decode())
+                data, schema_data = self._ros1.convert(
+                    data, msgtype, schema.data.decode(), channel.topic
+                )
             except Exception:  # rosbags SerdeError / TypesysError on a bad definition
                 return None
             schema_name = msgtype

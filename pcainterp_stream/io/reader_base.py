@@ -8,14 +8,15 @@ from __future__ import annotations
 
 import difflib
 import re
-from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, replace
 from enum import Enum
 from functools import partial
 from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+import numpy as np
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
@@ -196,38 +197,68 @@ class _Ros1Converter:
     - a type Humble does not have (a custom one): converted byte for byte, with a schema
       generated from the bag's own definition, its names made legal in ROS 2 (see
       :func:`_ros2_names`; the bytes do not depend on them).
+
+    The migration drops the fields of the bag's definition that have no place in the Humble
+    type; each topic on which one held a value is warned of once (through ``warn``). The
+    pre-Electric ``sensor_msgs/CameraInfo`` (``float64[5] D``, no ``distortion_model``) is
+    migrated as ROS's own rule did: ``D`` into ``d``, ``distortion_model = "plumb_bob"``.
+
+    Args:
+        warn: takes a one-line warning (a reader's :attr:`LogReader.warnings`, once each).
     """
 
-    def __init__(self) -> None:
-        self._cache: dict[tuple[str, str], tuple[Any, bytes]] = {}
+    def __init__(self, warn: Callable[[str], None] | None = None) -> None:
+        self._cache: dict[tuple[str, str], tuple[Any, bytes, bool]] = {}
         self._migrations: dict[str, object] = {}  # rosbags' cache of migration plans
+        self._warn = warn
+        self._warned: set[tuple[str, str]] = set()
 
-    def _conversion(self, typename: str, msgdef: str) -> tuple[Any, bytes]:
-        """Return (ROS 1 bytes -> CDR bytes, ros2msg schema text) of a ROS 1 type definition."""
+    def _conversion(self, typename: str, msgdef: str) -> tuple[Any, bytes, bool]:
+        """Return (ROS 1 bytes -> CDR bytes, ros2msg schema text, migrated) of a definition.
+
+        A migrated conversion returns (CDR bytes, names of dropped fields that held a value).
+        """
         key = (typename, msgdef)
         if key not in self._cache:
             store = _store_from_msg(msgdef, typename, ros2_header=True)
+            migrates = False
             if _matches_humble(store, typename):
                 text = rosmsg.schema_text(typename)
                 convert: Any = partial(store.ros1_to_cdr, typename=typename)
             elif typename in rosmsg.TYPESTORE.fielddefs:
                 text = rosmsg.schema_text(typename)
-                convert = partial(self._migrate, _store_from_msg(msgdef, typename), typename)
+                source = _store_from_msg(msgdef, typename)
+                dropped = dropped_fields(
+                    source.fielddefs[typename][1], rosmsg.TYPESTORE.fielddefs[typename][1]
+                )
+                convert = partial(self._migrate, source, typename, dropped)
+                migrates = True
             else:
                 text = str(_ros2_names(store).generate_msgdef(typename, ros_version=2)[0])
                 convert = partial(store.ros1_to_cdr, typename=typename)
-            self._cache[key] = (convert, text.encode())
+            self._cache[key] = (convert, text.encode(), migrates)
         return self._cache[key]
 
-    def _migrate(self, store: Typestore, typename: str, data: bytes | memoryview) -> bytes:
-        """Return ROS 1 bytes of ``typename`` (``store``'s layout) as CDR of the Humble type."""
+    def _migrate(
+        self, store: Typestore, typename: str, dropped: list[str], data: bytes | memoryview
+    ) -> tuple[bytes, list[str]]:
+        """Return ROS 1 bytes of ``typename`` (``store``'s layout) as CDR of the Humble type.
+
+        Also the names of the fields of ``dropped`` that held a value in this message.
+        """
         from rosbags.convert.converter import migrate_message  # only for types that differ
 
-        message = store.deserialize_ros1(data, typename)
-        migrated = migrate_message(
+        message: Any = store.deserialize_ros1(data, typename)
+        migrated: Any = migrate_message(
             store, rosmsg.TYPESTORE, typename, typename, self._migrations, message
         )
-        return rosmsg.serialize(migrated)
+        if typename == "sensor_msgs/msg/CameraInfo" and "D" in dropped:
+            # pre-Electric CameraInfo: ROS's migration rule made D plumb_bob's coefficients
+            d = np.asarray(message.D, dtype=np.float64)
+            migrated = replace(migrated, d=d, distortion_model="plumb_bob")
+            dropped = [name for name in dropped if name != "D"]
+        lost = [name for name in dropped if _holds_value(getattr(message, name, None))]
+        return rosmsg.serialize(migrated), lost
 
     def schema(self, typename: str, msgdef: str) -> bytes:
         """Return the ros2msg schema text its messages get for a ROS 1 type definition.
@@ -237,10 +268,62 @@ class _Ros1Converter:
         """
         return self._conversion(typename, msgdef)[1]
 
-    def convert(self, data: bytes | memoryview, typename: str, msgdef: str) -> tuple[bytes, bytes]:
-        """Return (CDR bytes, ros2msg schema) of one ROS 1 serialized message."""
-        convert, text = self._conversion(typename, msgdef)
-        return bytes(convert(data)), text
+    def convert(
+        self, data: bytes | memoryview, typename: str, msgdef: str, topic: str = ""
+    ) -> tuple[bytes, bytes]:
+        """Return (CDR bytes, ros2msg schema) of one ROS 1 serialized message.
+
+        Args:
+            data: the ROS 1 serialized message.
+            typename: its type in ROS 2 spelling.
+            msgdef: the connection's definition (``MSG:`` separated).
+            topic: its topic, named in the warning of fields dropped.
+        """
+        convert, text, migrates = self._conversion(typename, msgdef)
+        if not migrates:
+            return bytes(convert(data)), text
+        cdr, lost = convert(data)
+        if lost and (topic, typename) not in self._warned:
+            self._warned.add((topic, typename))
+            if self._warn is not None:
+                self._warn(
+                    f"{topic or typename}: the log's ROS 1 definition of {typename} has "
+                    f"{', '.join(lost)}, which ROS 2's {typename} has no field for: dropped "
+                    "from every message read and copied (`rosbag fix` with the migration "
+                    "rules of the type updates an old bag)"
+                )
+        return bytes(cdr), text
+
+
+def dropped_fields(source: list[tuple[str, Any]], target: list[tuple[str, Any]]) -> list[str]:
+    """Return the fields of ``source`` that a migration to ``target`` leaves out.
+
+    As ``rosbags``' migration plan matches them: by name, then a field ``target`` adds takes
+    the first left-over ``source`` field of the same type (``K`` -> ``k``, both
+    ``float64[9]``); the ``source`` fields left over are dropped.
+    """
+    source_types, target_types = dict(source), dict(target)
+    removed = [name for name, _ in source if name not in target_types]
+    for name, kind in target:
+        if name in source_types:
+            continue
+        match = next((old for old in removed if source_types[old] == kind), None)
+        if match is not None:
+            removed.remove(match)
+    return removed
+
+
+def _holds_value(value: Any) -> bool:
+    """Return True when a message field's value is not its default (0, empty)."""
+    if value is None:
+        return False
+    if isinstance(value, np.ndarray):
+        return bool(value.size and np.any(value))
+    if isinstance(value, str | bytes | list | tuple):
+        return len(value) > 0
+    if isinstance(value, bool | int | float):
+        return bool(value)
+    return True  # a nested message: taken as holding one
 
 
 _FIELD_NAME = re.compile(r"^(?!.*__)(?!.*_$)[a-z][a-z0-9_]*$")
@@ -320,6 +403,10 @@ class LogReader:
         self.backward_log_times = 0
         self._is_open = False
         self._decoders: dict[tuple[str, str, bytes], Typestore] = {}
+
+    def _warn_once(self, note: str) -> None:
+        """Add a warning to :attr:`warnings` unless it is there (the list may be replaced)."""
+        _add_once(self.warnings, note)
 
     # context manager -------------------------------------------------------------------
     def open(self) -> None:

@@ -258,7 +258,7 @@ class Ros1WalkReader(LogReader):
         self._header = header
         self._reason = reason
         self._file: IO[bytes] | None = None
-        self._ros1 = _Ros1Converter()
+        self._ros1 = _Ros1Converter(self._warn_once)
         self._topics: dict[str, TopicInfo] | None = None
         # the index section starts at index_pos when there is one: stop there
         inside = 0 < header.index_pos <= header.size
@@ -321,7 +321,9 @@ class Ros1WalkReader(LogReader):
             if wanted is not None and connection.topic not in wanted:
                 continue
             try:
-                cdr, schema = self._ros1.convert(item.data, connection.msgtype, connection.msgdef)
+                cdr, schema = self._ros1.convert(
+                    item.data, connection.msgtype, connection.msgdef, connection.topic
+                )
             except Exception as err:  # rosbags TypesysError, SerdeError, struct.error...
                 if connection.topic not in unconverted:
                     unconverted.add(connection.topic)

@@ -70,7 +70,7 @@ class RosbagsLogReader(LogReader):
         super().__init__(path)
         self.format = log_format
         self._reader: AnyReader | None = None
-        self._ros1 = _Ros1Converter()
+        self._ros1 = _Ros1Converter(self._warn_once)
         self._schemas: dict[str, bytes] = {}
 
     def _open(self) -> None:
@@ -255,7 +255,9 @@ class RosbagsLogReader(LogReader):
                 connection, timestamp, data = item
                 msgtype, schema_encoding, schema = self._schema(connection)
                 if self.format is LogFormat.ROS1:
-                    data, schema = self._ros1.convert(data, msgtype, str(connection.msgdef.data))
+                    data, schema = self._ros1.convert(
+                        data, msgtype, str(connection.msgdef.data), connection.topic
+                    )
                 metadata = _connection_metadata(connection)
                 if self.format is LogFormat.ROS1:
                     metadata = ros1_channel_metadata(

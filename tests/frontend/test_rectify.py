@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 from typing import Any
 
 import cv2
@@ -386,3 +387,108 @@ def test_guard_decides_at_the_same_frame_however_slow_its_matching(
     release.set()
     with pytest.raises(CalibrationError, match=r"of the first 1 frame\(s\)"):
         _push_frames(pairer, 5, *raw, ideal)  # refused as the next frame comes
+
+
+def _rotation_y(degrees: float) -> np.ndarray:
+    a = np.radians(degrees)
+    return np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+
+
+@pytest.mark.parametrize(
+    ("r", "says"),
+    [
+        (np.zeros((3, 3)), "/l has an all-zero R: the stereo rectification is not calibrated"),
+        (2 * np.eye(3), "/l has an R that is not a rotation (det 8"),
+        (np.diag([1.0, 1.0, -1.0]), "/l has an R that is not a rotation (det -1"),
+    ],
+)
+def test_an_r_that_is_no_rotation_is_one_line(r: np.ndarray, says: str) -> None:
+    """Bug hunt 7A F5: an all-zero R gave NumPy warnings and a cv2 traceback downstream."""
+    cal = raw_calibration(CAMERA, "plumb_bob").left
+    with pytest.raises(CalibrationError) as err:
+        rect.CameraCalibration(cal.width, cal.height, cal.model, cal.k, cal.d, r, cal.p, name="/l")
+    assert str(err.value).startswith(says)
+    assert "--calibration LEFT.yaml RIGHT.yaml" in str(err.value)
+    assert "--rectify never if the images are rectified" in str(err.value)
+    assert "\n" not in str(err.value)
+    rounded = np.round(_rotation_y(1.0), 6)  # a calibration file's six decimals
+    rect.CameraCalibration(cal.width, cal.height, cal.model, cal.k, cal.d, rounded, cal.p)
+
+
+def test_a_raw_pair_with_an_all_zero_r_is_refused_by_the_pairer() -> None:
+    """Before: the pairer remapped with R = 0 and the empty box crashed the matcher."""
+    from pcainterp_stream.io import rosmsg
+
+    calibration = raw_calibration(CAMERA, "plumb_bob")
+    raw = Unrectifier(calibration)(*_stereo_views())
+    pairer = _pairer(check_rows=False)
+    for topic, info in _messages(calibration, 1000).items():
+        info.r = np.zeros(9)
+        pairer.push(topic, 1000, 1000, info)
+    pairer.push("/cam/left/image_raw", 1000, 1000, rosmsg.image_message(raw[0], 1000, "l"))
+    right = rosmsg.image_message(raw[1], 1000, "l")
+    with pytest.raises(CalibrationError, match=r"^/cam/left/camera_info has an all-zero R"):
+        pairer.push("/cam/right/image_raw", 1000, 1000, right)
+
+
+def test_an_empty_rectified_box_names_both_infos() -> None:
+    """Cameras that see nothing of one rectified image: a CalibrationError, not a crash."""
+    calibration = raw_calibration(CAMERA, "plumb_bob")
+    right = dataclasses.replace(calibration.right, r=_rotation_y(80.0), name="/r/info")
+    left = dataclasses.replace(calibration.left, name="/l/info")
+    with pytest.raises(CalibrationError) as err:
+        rect.StereoRectifier(rect.StereoCalibration(left, right))
+    assert re.match(
+        r"/l/info and /r/info leave a \d+x\d+ px box of the 320x120 rectified", str(err.value)
+    )
+    assert "--calibration LEFT.yaml RIGHT.yaml" in str(err.value)
+
+
+def _narrow_right(calibration: rect.StereoCalibration, width: int) -> rect.StereoCalibration:
+    """The pair with a right sensor ``width`` px wide: the same K, D, R, P (bug hunt 7A F7)."""
+    return rect.StereoCalibration(
+        calibration.left, dataclasses.replace(calibration.right, width=width)
+    )
+
+
+def test_cameras_of_different_sizes_are_rectified_into_one_image() -> None:
+    """Before: a NumPy broadcast traceback (the maps were built at each camera's size)."""
+    calibration = raw_calibration(CAMERA, "plumb_bob")
+    raw_left, raw_right = Unrectifier(calibration)(*_stereo_views())
+    same = rect.StereoRectifier(calibration)
+    narrow = _narrow_right(calibration, 300)
+    rectifier = rect.StereoRectifier(narrow)
+    assert rectifier.camera == same.camera
+    left, right = rectifier.rectify(raw_left, np.ascontiguousarray(raw_right[:, :300]))
+    ref_left, ref_right = same.rectify(raw_left, raw_right)
+    assert left.shape == right.shape == (CAMERA.height, CAMERA.width)
+    np.testing.assert_array_equal(left, ref_left)
+    x, y, w, h = rectifier.box
+    assert rectifier.box[2] < same.box[2]  # the right camera sees less
+    map_x = rectifier._maps[1][0][y : y + h, x : x + w]
+    inside = map_x < 298  # away from the cut: bicubic reads two pixels on
+    np.testing.assert_array_equal(
+        right[y : y + h, x : x + w][inside], ref_right[y : y + h, x : x + w][inside]
+    )
+    (frame,) = _push_pair(
+        _pairer(check_rows=False), 1000, raw_left, np.ascontiguousarray(raw_right[:, :300]), narrow
+    )
+    assert frame.left.shape == frame.right.shape == (h, w)
+
+
+def test_cameras_of_different_sizes_with_different_rectified_cameras_are_refused() -> None:
+    calibration = _narrow_right(raw_calibration(CAMERA, "plumb_bob"), 300)
+    p = calibration.right.p.copy()
+    p[0, 2] -= 10  # the right P centred on its own image: no one rectified camera
+    other = rect.StereoCalibration(
+        dataclasses.replace(calibration.left, name="/l/info"),
+        dataclasses.replace(calibration.right, p=p, name="/r/info"),
+    )
+    with pytest.raises(CalibrationError) as err:
+        rect.StereoRectifier(other)
+    message = str(err.value)
+    assert message.startswith(
+        "the left camera's images are 320x120 px (/l/info) and the right's 300x120 (/r/info)"
+    )
+    assert "--calibration LEFT.yaml RIGHT.yaml" in message
+    assert "\n" not in message

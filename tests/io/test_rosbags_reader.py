@@ -196,3 +196,105 @@ def test_a_ros1_custom_type_gets_ros2_legal_names(tmp_path: Path) -> None:
         "int32 x",
     ]
     assert (message.x_2, message.name, message.x) == (1.5, "abc", 4)
+
+
+OLD_CAMERA_INFO = """Header header
+uint32 height
+uint32 width
+RegionOfInterest roi
+float64[5] D
+float64[9] K
+float64[9] R
+float64[12] P
+================================================================================
+MSG: std_msgs/Header
+uint32 seq
+time stamp
+string frame_id
+================================================================================
+MSG: sensor_msgs/RegionOfInterest
+uint32 x_offset
+uint32 y_offset
+uint32 height
+uint32 width
+"""
+"""``sensor_msgs/CameraInfo`` before ROS Electric (md5 1b5cf7f984c229b6141ceb3a955aa18f)."""
+
+
+def _old_definition_bag(
+    path: Path, typename: str, msgdef: str, messages: list[dict[str, Any]]
+) -> Path:
+    """A ROS 1 bag of ``typename`` messages written with an older definition of it."""
+    from rosbags.rosbag1 import Writer as Ros1Writer
+
+    store = get_typestore(Stores.EMPTY)
+    store.register(get_types_from_msg(msgdef, typename))
+    types = store.types
+    with Ros1Writer(path) as writer:
+        text, md5sum = store.generate_msgdef(typename)  # the md5 rosbag wrote for it
+        connection = writer.add_connection("/old", typename, msgdef=text, md5sum=md5sum)
+        for i, fields in enumerate(messages):
+            header = types["std_msgs/msg/Header"](
+                seq=i,
+                stamp=types["builtin_interfaces/msg/Time"](sec=5 + i, nanosec=0),
+                frame_id="c",
+            )
+            message = types[typename](header=header, **fields)
+            writer.write(
+                connection, 1_000_000_000 * (i + 1), store.serialize_ros1(message, typename)
+            )
+    return path
+
+
+def test_a_pre_electric_ros1_camera_info_keeps_its_distortion(tmp_path: Path) -> None:
+    """Before: ``float64[5] D`` had no place in ``float64[] d``: d = [], model '' (lens lost)."""
+    roi = get_typestore(Stores.ROS1_NOETIC).types["sensor_msgs/msg/RegionOfInterest"]
+    d = [-0.12, 0.02, 0.0008, -0.0005, 0.0]
+    fields = {
+        "height": 24,
+        "width": 32,
+        "roi": roi(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
+        "D": np.array(d),
+        "K": np.array([40.0, 0, 16, 0, 40, 12, 0, 0, 1]),
+        "R": np.eye(3).ravel(),
+        "P": np.array([40.0, 0, 16, 0, 0, 40, 12, 0, 0, 0, 1, 0]),
+    }
+    store = get_typestore(Stores.EMPTY)  # the old RegionOfInterest has no do_rectify
+    store.register(get_types_from_msg(OLD_CAMERA_INFO, "sensor_msgs/msg/CameraInfo"))
+    fields["roi"] = store.types["sensor_msgs/msg/RegionOfInterest"](
+        x_offset=0, y_offset=0, height=0, width=0
+    )
+    bag = _old_definition_bag(
+        tmp_path / "old.bag", "sensor_msgs/msg/CameraInfo", OLD_CAMERA_INFO, [fields]
+    )
+    with open_log(bag) as reader:
+        (raw,) = list(reader.messages())
+        info = reader.decode(raw)
+        assert reader.warnings == []
+    assert info.distortion_model == "plumb_bob"
+    np.testing.assert_array_equal(info.d, d)
+    np.testing.assert_array_equal(info.k, fields["K"])
+    assert raw.schema_data == rosmsg.schema_text("sensor_msgs/msg/CameraInfo").encode()
+
+
+def test_ros1_fields_with_no_ros2_place_are_warned_once_per_topic(tmp_path: Path) -> None:
+    """Before: a field of the bag's definition the ROS 2 type lacks was dropped silently."""
+    noetic = get_typestore(Stores.ROS1_NOETIC)
+    definition = noetic.generate_msgdef("sensor_msgs/msg/Image")[0]
+    definition = definition.replace("uint8[] data", "uint8[] data\nfloat64 exposure", 1)
+    image = {"height": 1, "width": 2, "encoding": "mono8", "is_bigendian": 0, "step": 2}
+    image["data"] = np.array([1, 2], dtype=np.uint8)
+    bag = _old_definition_bag(
+        tmp_path / "extra.bag",
+        "sensor_msgs/msg/Image",
+        definition,
+        [{**image, "exposure": 0.0}, {**image, "exposure": 0.01}, {**image, "exposure": 0.02}],
+    )
+    with open_log(bag) as reader:
+        images = [reader.decode(raw) for raw in reader.messages()]
+        warnings = list(reader.warnings)
+    assert [list(i.data) for i in images] == [[1, 2]] * 3
+    assert len(warnings) == 1
+    assert warnings[0].startswith(
+        "/old: the log's ROS 1 definition of sensor_msgs/msg/Image has exposure"
+    )
