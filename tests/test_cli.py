@@ -1471,6 +1471,46 @@ def test_densify_unsupported_encoding_some_frames(
     assert assert_valid_mcap(out)["/pcainterp/depth"] == SMALL_FRAMES - 2
 
 
+@pytest.mark.parametrize("damage", ["empty_jpeg", "zero_image"])
+def test_empty_images_are_undecodable_in_densify_and_learn(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    out: Path,
+    tmp_path: Path,
+    damage: str,
+) -> None:
+    """Bug hunt 7A F2 / F3: a 0-byte CompressedImage payload was a cv2 traceback; a 0x0
+    Image stopped the run (a size error). Both are counted as undecodable, the rest runs."""
+    stamps = sorted({rosmsg.stamp_ns(m) for t, m, _ in small_messages if t == LEFT})
+    bad = set(stamps[2:4])
+    messages = []
+    for topic, message, log_time_ns in small_messages:
+        stamp = rosmsg.stamp_ns(message) if topic == LEFT else 0
+        if topic == LEFT and damage == "empty_jpeg":
+            ok, jpeg = cv2.imencode(".jpg", image_of(message))
+            assert ok
+            data = b"" if stamp in bad else jpeg.tobytes()
+            frame_id = message.header.frame_id
+            message = rosmsg.compressed_image_message(data, "jpeg", stamp, frame_id)
+            topic = f"{LEFT}/compressed"
+        elif topic == LEFT and stamp in bad:
+            message = rosmsg.image_message(np.zeros((0, 0), np.uint8), stamp, "left")
+        messages.append((topic, message, log_time_ns))
+    log = write_messages(tmp_path / f"{damage}.mcap", messages)
+    reason = "compressed jpeg image is empty" if damage == "empty_jpeg" else "image is empty"
+    run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err
+    assert "Traceback" not in run.err
+    assert f"densified {SMALL_FRAMES - 2} frames" in run.out
+    assert f"2 undecodable ({reason})" in run.out
+    assert assert_valid_mcap(out)["/pcainterp/depth"] == SMALL_FRAMES - 2
+    learn_args = ["--components", "3", "--no-fit-prior", "--with-synthetic", "0"]
+    run = pcainterp("learn", log, "-o", tmp_path / "basis.npz", *learn_args)
+    assert run.code == 0, run.err
+    assert f"training maps    {SMALL_FRAMES - 2} (SGBM)" in run.out
+
+
 def _resized_right(every: bool) -> Callable[[str, Any, int], Any]:
     def change(topic: str, message: Any, _: int) -> Any:
         if topic != RIGHT or (not every and message.header.stamp.nanosec != 0):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -439,3 +440,79 @@ def test_learn_names_two_raw_cameras_by_their_images_and_boxes(
             jobs.LearnOptions(n_components=2, fit_prior=False),
             PairingConfig(discover=True),
         )
+
+
+def _rewrite_images(source: Path, target: Path, image: Any) -> Path:
+    """Copy a raw log, each ``image_raw`` message replaced by ``image(message, index)``
+    (a (topic suffix, message) pair); the other topics as they are."""
+    index: dict[str, int] = {}
+    with open_log(source) as reader, open_writer(target, None) as writer:
+        for raw in reader.messages():
+            if not raw.topic.endswith("image_raw"):
+                writer.add_raw(raw)
+                continue
+            index[raw.topic] = index.get(raw.topic, -1) + 1
+            suffix, message = image(reader.decode(raw), raw.topic, index[raw.topic])
+            writer.add_message(raw.topic + suffix, message, raw.log_time_ns)
+    return target
+
+
+def test_a_compressed_bayer_raw_log_is_densified_as_its_image_log(
+    raw_bag: Path, tmp_path: Path
+) -> None:
+    """Bug hunt 7A F1: a Bayer camera's ``image_raw/compressed`` (``bayer_rggb8; png
+    compressed ``, the mosaic) was matched as a grey image: the same maps as its Image."""
+    import cv2
+
+    def mosaic(message: Any) -> np.ndarray:
+        grey = rosmsg.image_array(message).astype(np.float32)
+        rgb = np.stack([grey, 0.7 * grey + 40, 0.4 * grey + 90], axis=2).clip(0, 255)
+        out = np.empty(grey.shape, np.uint8)  # rggb: R G / G B
+        for k, channel in enumerate((0, 1, 1, 2)):
+            out[k // 2 :: 2, k % 2 :: 2] = rgb[k // 2 :: 2, k % 2 :: 2, channel]
+        return out
+
+    def as_image(message: Any, _: str, __: int) -> tuple[str, Any]:
+        stamp, frame = rosmsg.stamp_ns(message), message.header.frame_id
+        return "", rosmsg.image_message(mosaic(message), stamp, frame, encoding="bayer_rggb8")
+
+    def as_png(message: Any, _: str, __: int) -> tuple[str, Any]:
+        ok, png = cv2.imencode(".png", mosaic(message))
+        assert ok
+        stamp, frame = rosmsg.stamp_ns(message), message.header.frame_id
+        image_format = "bayer_rggb8; png compressed "
+        return "/compressed", rosmsg.compressed_image_message(
+            png.tobytes(), image_format, stamp, frame
+        )
+
+    maps: dict[str, list[np.ndarray]] = {"image": [], "png": []}
+    for name, change in (("image", as_image), ("png", as_png)):
+        log = _rewrite_images(raw_bag, tmp_path / f"{name}.mcap", change)
+        densify(
+            log,
+            tmp_path / f"{name}_dense.mcap",
+            pairing=PairingConfig(discover=True),
+            on_frame=lambda r, n=name: maps[n].append(r.disparity),
+        )
+    assert len(maps["png"]) == 3
+    for a, b in zip(maps["image"], maps["png"], strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_an_empty_raw_image_is_undecodable_not_a_calibration_error(
+    capsys: pytest.CaptureFixture[str], raw_bag: Path, tmp_path: Path
+) -> None:
+    """Bug hunt 7A F3: one 0x0 Image (a driver's failed grab) stopped the run with "the left
+    image is 0x0 but its calibration ... is for ..."; it is one undecodable frame."""
+
+    def empty_second_left(message: Any, topic: str, index: int) -> tuple[str, Any]:
+        if "left" in topic and index == 1:
+            stamp, frame = rosmsg.stamp_ns(message), message.header.frame_id
+            return "", rosmsg.image_message(np.zeros((0, 0), np.uint8), stamp, frame)
+        return "", message
+
+    log = _rewrite_images(raw_bag, tmp_path / "empty.mcap", empty_second_left)
+    code, printed, err = _run(capsys, "densify", log, "-o", tmp_path / "dense.mcap")
+    assert code == 0, err
+    assert "densified 2 frames" in printed
+    assert "1 undecodable (image is empty)" in printed

@@ -5,9 +5,10 @@ large numeric sequences become arrays, nested messages are flattened into dotted
 (``header.frame_id``, ``p``, ``image.step``). The types whose payload is an encoded array
 are decoded first: ``sensor_msgs/Image`` (every REP 118 encoding of
 :data:`~pcainterp_stream.io.rosmsg.IMAGE_ENCODINGS`), ``sensor_msgs/CompressedImage`` (png
-and jpeg through OpenCV, and image_transport's ``compressedDepth`` formats through
-:func:`decode_compressed_depth`), ``stereo_msgs/DisparityImage`` (its image) and
-``sensor_msgs/PointCloud2`` (one array per point field).
+and jpeg through OpenCV, a Bayer mosaic demosaiced as its Image is, and image_transport's
+``compressedDepth`` formats through :func:`decode_compressed_depth`),
+``stereo_msgs/DisparityImage`` (its image) and ``sensor_msgs/PointCloud2`` (one array per
+point field).
 
 :func:`decode_compressed_depth` is the one place that knows the ``compressedDepth`` wire
 format; the rest of the package only calls it.
@@ -81,10 +82,14 @@ def _compressed_image(message: Any) -> npt.NDArray[np.generic]:
     image_format = str(message.format)
     if depth_codec.is_compressed_depth(image_format):
         return decode_compressed_depth(image_format, bytes(np.asarray(message.data, np.uint8)))
-    image = cv2.imdecode(np.asarray(message.data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    data = np.asarray(message.data, dtype=np.uint8)
+    if data.size == 0:  # cv2.imdecode asserts on it
+        raise ValueError(f"CompressedImage of format {image_format!r} is empty (0 bytes)")
+    image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
     if image is None:
         raise ValueError(f"CompressedImage of format {image_format!r} does not decode")
-    return np.asarray(image)
+    # a Bayer mosaic (``bayer_rggb8; png compressed ``) as the raw Image of its encoding
+    return np.asarray(rosmsg.demosaic_compressed(image, image_format))
 
 
 def _is_message(value: Any) -> bool:

@@ -194,7 +194,10 @@ def decode_image(message: Any) -> npt.NDArray[np.generic]:
 
     Args:
         message: a typestore ``Image`` (mono8, rgb8, bgr8, mono16 and the other encodings of
-            :data:`rosmsg.CAMERA_IMAGE_ENCODINGS`) or ``CompressedImage`` (png, jpeg).
+            :data:`rosmsg.CAMERA_IMAGE_ENCODINGS`) or ``CompressedImage`` (png, jpeg; a
+            compressed_image_transport format's encoding prefix is read: a
+            ``bayer_rggb8; png compressed `` mosaic is demosaiced as the raw ``Image`` is,
+            ``... compressed rgb8`` bytes are taken in RGB order, others in BGR).
 
     Returns:
         (H, W) grey or (H, W, 3) RGB array: uint8 for 8-bit encodings, uint16 for 16-bit
@@ -202,7 +205,8 @@ def decode_image(message: Any) -> npt.NDArray[np.generic]:
 
     Raises:
         ValueError: for an unsupported encoding or format (named; a float image such as
-            32FC1 depth is no camera image), or data that does not decode.
+            32FC1 depth is no camera image), an empty image (0x0, or a 0-byte payload), or
+            data that does not decode.
     """
     if hasattr(message, "encoding"):
         encoding = str(message.encoding)
@@ -221,6 +225,8 @@ def decode_image(message: Any) -> npt.NDArray[np.generic]:
         )
     data = np.asarray(message.data, dtype=np.uint8)
     codec = "png" if "png" in kind else "jpeg"
+    if data.size == 0:  # cv2.imdecode asserts on it
+        raise ValueError(f"compressed {codec} image is empty (0 bytes, format {image_format!r})")
     # a cut-off PNG: said here, or libpng prints its own lines (a JPEG may carry padding
     # after its end marker, as some UVC cameras send it: no such check)
     if codec == "png" and b"IEND" not in bytes(data[-4096:]):
@@ -233,8 +239,13 @@ def decode_image(message: Any) -> npt.NDArray[np.generic]:
         raise ValueError(
             f"compressed {codec} image does not decode ({data.size} bytes, format {image_format!r})"
         )
-    if image.ndim == 3 and image.shape[2] == 4:
-        image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGB)
-    elif image.ndim == 3:
+    if image.ndim == 2:  # grey, or a Bayer mosaic the format's prefix names
+        return np.asarray(rosmsg.demosaic_compressed(image, image_format))
+    # the encoded bytes are BGR (OpenCV's order, compressed_image_transport's "compressed
+    # bgr8"), unless the format says "compressed rgb8"
+    stored_rgb = rosmsg.compressed_format_encoding(image_format)[1].startswith("rgb")
+    if image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_RGBA2RGB if stored_rgb else cv2.COLOR_BGRA2RGB)
+    elif not stored_rgb:
         image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
     return np.asarray(image)

@@ -160,8 +160,9 @@ def image_array(message: Any) -> npt.NDArray[np.generic]:
         (BGR, with alpha, Bayer, YUV 4:2:2) are returned as RGB.
 
     Raises:
-        ValueError: for an encoding outside :data:`IMAGE_ENCODINGS` or a data size that does
-            not match height * step.
+        ValueError: for an encoding outside :data:`IMAGE_ENCODINGS`, an empty image (a
+            height or width of 0, what a driver's failed grab publishes) or a data size that
+            does not match height * step.
     """
     encoding = str(message.encoding)
     if encoding not in IMAGE_ENCODINGS:
@@ -171,6 +172,8 @@ def image_array(message: Any) -> npt.NDArray[np.generic]:
     dtype_code, channels = IMAGE_ENCODINGS[encoding]
     dtype = np.dtype(dtype_code).newbyteorder(">" if message.is_bigendian else "<")
     height, width, step = int(message.height), int(message.width), int(message.step)
+    if height <= 0 or width <= 0:
+        raise ValueError(f"image is empty ({width}x{height} {encoding})")
     row_bytes = width * channels * dtype.itemsize
     raw = np.asarray(message.data, dtype=np.uint8)
     if step < row_bytes or raw.size < height * step:
@@ -186,6 +189,48 @@ def image_array(message: Any) -> npt.NDArray[np.generic]:
             raise ValueError(f"a {encoding} image needs an even width, got {width}")
         image = cv2.cvtColor(np.ascontiguousarray(image), TO_RGB[encoding])
     return image
+
+
+def compressed_format_encoding(image_format: str) -> tuple[str, str]:
+    """Return the (encoding, stored colour order) a ``CompressedImage`` format names.
+
+    compressed_image_transport writes ``"ENCODING; CODEC compressed ORDER"``: the encoding
+    of the image it compressed, and for a colour image the channel order of the encoded
+    bytes (``bgr8``; ``rgb8`` in some encoders). ``"bayer_rggb8; png compressed "`` ->
+    ``("bayer_rggb8", "")``; ``"rgb8; jpeg compressed bgr8"`` -> ``("rgb8", "bgr8")``; a
+    bare ``"jpeg"`` -> ``("", "")``.
+    """
+    if ";" not in image_format:
+        return "", ""
+    encoding, rest = image_format.split(";", 1)
+    words = rest.split()
+    order = words[words.index("compressed") + 1] if "compressed" in words[:-1] else ""
+    return encoding.strip(), order
+
+
+def demosaic_compressed(
+    image: npt.NDArray[np.generic], image_format: str
+) -> npt.NDArray[np.generic]:
+    """Demosaic a decoded ``CompressedImage`` whose format names a Bayer encoding.
+
+    compressed_image_transport compresses a Bayer image as its one-channel mosaic (no
+    colour conversion) and restores the encoding from the format's prefix, so that
+    image_proc demosaics it; this does the same, as :func:`image_array` does for the raw
+    ``Image``. Any other image is returned unchanged.
+
+    Raises:
+        ValueError: a Bayer encoding this package does not demosaic (16-bit).
+    """
+    encoding, _ = compressed_format_encoding(image_format)
+    if not encoding.startswith("bayer_") or image.ndim != 2:
+        return image
+    if encoding not in TO_RGB or image.dtype != np.uint8:
+        supported = ", ".join(name for name in TO_RGB if name.startswith("bayer_"))
+        raise ValueError(
+            f"unsupported image encoding {encoding!r} ({image.dtype} mosaic); Bayer images "
+            f"are {supported}"
+        )
+    return np.asarray(cv2.cvtColor(np.ascontiguousarray(image), TO_RGB[encoding]))
 
 
 def compressed_image_message(data: bytes, image_format: str, stamp_ns: int, frame_id: str) -> Any:

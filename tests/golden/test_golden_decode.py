@@ -220,3 +220,30 @@ def test_undecodable_payload_leaves_a_note() -> None:
     assert content.arrays == {}
     assert content.values["data.length"] == len(b"not an image")
     assert content.notes
+
+
+def test_an_empty_compressed_payload_leaves_a_note() -> None:
+    """Bug hunt 7A F2: a 0-byte payload reached cv2.imdecode's assertion (a cv2.error)."""
+    empty = rosmsg.compressed_image_message(b"", "jpeg", 5, "cam")
+    content = message_content(rosmsg.COMPRESSED_IMAGE, empty)
+    assert content.arrays == {}
+    assert content.values["data.length"] == 0
+    assert content.notes == ["CompressedImage of format 'jpeg' is empty (0 bytes)"]
+    zero = message_content(rosmsg.IMAGE, rosmsg.image_message(np.zeros((0, 0), np.uint8), 5, "c"))
+    assert zero.notes == ["image is empty (0x0 mono8)"]
+
+
+def test_a_compressed_bayer_mosaic_is_summarised_as_its_image() -> None:
+    """Bug hunt 7A F1: ``bayer_rggb8; png compressed `` is the mosaic; demosaiced as the raw
+    ``bayer_rggb8`` Image is, not summarised as a grey image."""
+    mosaic = (np.arange(20 * 16) * 37 % 256).astype(np.uint8).reshape(20, 16)
+    image = rosmsg.image_message(mosaic, 5, "cam", encoding="bayer_rggb8")
+    ok, png = cv2.imencode(".png", mosaic)
+    assert ok
+    compressed = rosmsg.compressed_image_message(
+        png.tobytes(), "bayer_rggb8; png compressed ", 5, "cam"
+    )
+    raw = message_content(rosmsg.IMAGE, image).arrays["image"]
+    assert raw.shape == (20, 16, 3)
+    got = message_content(rosmsg.COMPRESSED_IMAGE, compressed).arrays["image"]
+    np.testing.assert_array_equal(got, raw)

@@ -489,6 +489,98 @@ def test_decode_compressed_png_and_jpeg() -> None:
     assert got[8, 8, 2] < 50
 
 
+def _scene(seed: int = 3) -> np.ndarray:
+    """A smooth 24x32 RGB scene (demosaicing is exact only where colour varies slowly)."""
+    rng = np.random.default_rng(seed)
+    noise = rng.integers(0, 256, (24, 32, 3), dtype=np.uint8)
+    return np.asarray(cv2.GaussianBlur(noise, (7, 7), 2))
+
+
+def _mosaic(rgb: np.ndarray, pattern: str) -> np.ndarray:
+    """The one-channel Bayer mosaic of an RGB image (``pattern`` names the first 2x2 cell)."""
+    out = np.empty(rgb.shape[:2], np.uint8)
+    for k, colour in enumerate(pattern):
+        out[k // 2 :: 2, k % 2 :: 2] = rgb[k // 2 :: 2, k % 2 :: 2, "rgb".index(colour)]
+    return out
+
+
+@pytest.mark.parametrize("pattern", ["rggb", "bggr", "gbrg", "grbg"])
+def test_a_compressed_bayer_mosaic_is_demosaiced_as_its_image(pattern: str) -> None:
+    """Bug hunt 7A F1: compressed_image_transport compresses a Bayer image as its mosaic,
+    format ``bayer_rggb8; png compressed ``; it was taken as a grey image."""
+    rgb = _scene()
+    mosaic = _mosaic(rgb, pattern)
+    raw = decode_image(rosmsg.image_message(mosaic, 0, "f", encoding=f"bayer_{pattern}8"))
+    assert raw.shape == rgb.shape
+    ok, png = cv2.imencode(".png", mosaic)
+    assert ok
+    image_format = f"bayer_{pattern}8; png compressed "
+    from_png = decode_image(rosmsg.compressed_image_message(png.tobytes(), image_format, 0, "f"))
+    np.testing.assert_array_equal(from_png, raw)  # PNG is lossless: the Image's own pixels
+    ok, jpeg = cv2.imencode(".jpg", mosaic, [cv2.IMWRITE_JPEG_QUALITY, 98])
+    assert ok
+    jpeg_format = f"bayer_{pattern}8; jpeg compressed "
+    from_jpeg = decode_image(rosmsg.compressed_image_message(jpeg.tobytes(), jpeg_format, 0, "f"))
+    assert from_jpeg.shape == rgb.shape
+    inner = (slice(3, -3), slice(3, -3))
+    assert np.abs(from_jpeg[inner].astype(int) - raw[inner]).mean() < 4
+
+
+def test_the_formats_compressed_image_transport_writes() -> None:
+    """Each prefix and channel order of ``ENCODING; CODEC compressed ORDER`` decodes to the
+    array the uncompressed Image of that encoding gives (RGB, or grey of its depth)."""
+    rgb = _scene(4)
+    bgr = np.ascontiguousarray(rgb[:, :, ::-1])
+
+    def decoded(array: np.ndarray, ext: str, image_format: str) -> np.ndarray:
+        ok, data = cv2.imencode(ext, array)
+        assert ok
+        return decode_image(rosmsg.compressed_image_message(data.tobytes(), image_format, 0, "f"))
+
+    for image_format in ("rgb8; png compressed bgr8", "bgr8; png compressed bgr8", "png"):
+        np.testing.assert_array_equal(decoded(bgr, ".png", image_format), rgb)
+    # some encoders store RGB bytes and say so: compressed_image_transport's subscriber
+    # then does not swap them
+    np.testing.assert_array_equal(decoded(rgb, ".png", "bgr8; png compressed rgb8"), rgb)
+    alpha = np.full((24, 32, 1), 255, np.uint8)
+    bgra = np.concatenate([bgr, alpha], axis=2)
+    np.testing.assert_array_equal(decoded(bgra, ".png", "bgra8; png compressed bgra8"), rgb)
+    rgba = np.concatenate([rgb, alpha], axis=2)
+    np.testing.assert_array_equal(decoded(rgba, ".png", "rgba8; png compressed rgba8"), rgb)
+    jpeg = decoded(bgr, ".jpg", "rgb8; jpeg compressed bgr8").astype(int)
+    assert np.abs(jpeg - rgb).mean() < 4
+    deep = (rgb[:, :, 0].astype(np.uint16) * 257).astype(np.uint16)
+    for image_format in ("mono16; png compressed ", "16UC1; png compressed"):
+        got = decoded(deep, ".png", image_format)
+        assert got.dtype == np.uint16
+        np.testing.assert_array_equal(got, deep)
+    grey = rgb[:, :, 1].copy()
+    np.testing.assert_array_equal(decoded(grey, ".png", "mono8; png compressed "), grey)
+    with pytest.raises(ValueError, match=r"unsupported image encoding 'bayer_rggb16'"):
+        decoded(deep, ".png", "bayer_rggb16; png compressed ")
+
+
+@pytest.mark.parametrize("image_format", ["jpeg", "png", "rgb8; jpeg compressed bgr8"])
+def test_an_empty_compressed_payload_is_undecodable(image_format: str) -> None:
+    """Bug hunt 7A F2: a 0-byte payload (a bridge's failed frame) reached cv2.imdecode,
+    whose assertion was a traceback instead of an undecodable frame."""
+    empty = rosmsg.compressed_image_message(b"", image_format, 0, "f")
+    codec = "png" if "png" in image_format else "jpeg"
+    with pytest.raises(ValueError, match=rf"^compressed {codec} image is empty \(0 bytes, "):
+        decode_image(empty)
+
+
+def test_an_empty_image_is_undecodable() -> None:
+    """Bug hunt 7A F3: a 0x0 Image (a driver's failed grab) decoded to an empty array,
+    which later failed as a calibration of another size."""
+    empty = rosmsg.image_message(np.zeros((0, 0), np.uint8), 0, "f")
+    with pytest.raises(ValueError, match=r"^image is empty \(0x0 mono8\)"):
+        decode_image(empty)
+    no_rows = rosmsg.image_message(np.zeros((0, 8), np.uint8), 0, "f")
+    with pytest.raises(ValueError, match=r"^image is empty \(8x0 mono8\)"):
+        rosmsg.image_array(no_rows)
+
+
 def test_decode_non_cdr_is_a_log_read_error(tmp_path: Path) -> None:
     path = tmp_path / "json.mcap"
     with path.open("wb") as f:
