@@ -8,7 +8,12 @@ that says which is left: ``left``/``right``, ``l``/``r``, or a number (``cam0``/
 nothing are ordered by the sign of P[0, 3] (the right camera's is negative). The two sides
 are streams of one image (``image_raw``), raw or compressed alike (a compressed left with a
 raw right pairs). Of a camera's streams the rectified one is preferred (``image_rect`` over
-``image_raw``), then one transport on both sides, then the uncompressed, then the grey one.
+``image_raw``), then one transport on both sides, then the uncompressed, then the grey one;
+but a stream pair with clearly fewer images than another gives way to it (said in the line).
+An image topic the log counts no message on is no camera. A number does not make a pair
+when a name both namespaces share says the side (``/robot1/stereo/left`` and
+``/robot2/stereo/left``), nor, without calibration files or ``--baseline``, when both infos
+have P[0, 3] = 0 (two monocular ``/camera1`` and ``/camera2``).
 A log with several heads (``/front/left`` + ``/front/right`` and ``/rear/left`` +
 ``/rear/right``) has cross-head candidates too (``/front/left`` + ``/rear/right``, sides from
 Tx): a pair whose namespaces differ only in the name that says the side comes first, then
@@ -221,16 +226,17 @@ def _not_numbered_sides(
     """
     ns_a, ns_b = a[0].namespace, b[0].namespace
     for x, y in zip(ns_a.split("/"), ns_b.split("/"), strict=True):
-        word = next((w for w in ("left", "right") if w in x.lower()), None)
+        # a word of its own: "camera_left", "leftcam", not "bright"
+        word = re.search(r"(?:^|[^a-z])(left|right)", x.lower())
         if x == y and word is not None:
-            return f"{ns_a} and {ns_b} are the {word} cameras of two heads"
+            return f"{ns_a} and {ns_b} are the {word.group(1)} cameras of two heads"
     if tx_of is None or a[0].info is None or b[0].info is None:
         return None
     tx_a, tx_b = tx_of(a[0].info), tx_of(b[0].info)
     if tx_a == 0 and tx_b == 0:
         return (
-            f"{ns_a} and {ns_b} have no baseline (Tx = P[0, 3] = 0 on both camera infos: "
-            "two cameras, not one stereo pair)"
+            f"{ns_a} and {ns_b} have no baseline (Tx = P[0, 3] = 0 on both camera infos, as "
+            "two monocular cameras have)"
         )
     return None
 
@@ -481,8 +487,9 @@ def _discover(
         if rejected:
             raise TopicNotFoundError(
                 f"no stereo pair found in {name}: {'; '.join(dict.fromkeys(rejected))}; a "
-                "stereo pair's right camera info has Tx = -fx * baseline; a pair calibrated "
-                "elsewhere is read with --left-topic, --right-topic and --calibration"
+                "stereo pair's right camera info has Tx = -fx * baseline: for a pair whose "
+                "infos lack it, name its topics with --left-topic and --right-topic and give "
+                "its stereo --calibration"
             )
         if images and len(empty) == len(images):
             raise TopicNotFoundError(

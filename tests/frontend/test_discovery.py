@@ -383,7 +383,7 @@ def test_two_monocular_cameras_numbered_alike_are_no_stereo_pair() -> None:
     line = str(err.value)
     assert line.startswith(
         "no stereo pair found in robot.bag: /camera1 and /camera2 have no baseline (Tx = "
-        "P[0, 3] = 0 on both camera infos: two cameras, not one stereo pair)"
+        "P[0, 3] = 0 on both camera infos, as two monocular cameras have)"
     )
     assert "--baseline" not in line
     # a baseline or calibration files given say they are a pair; so does a Tx < 0
@@ -395,7 +395,8 @@ def test_two_monocular_cameras_numbered_alike_are_no_stereo_pair() -> None:
 
 
 @pytest.mark.parametrize(
-    ("left", "right"), [("/cam0", "/cam1"), ("/camera/infra1", "/camera/infra2")]
+    ("left", "right"),
+    [("/cam0", "/cam1"), ("/camera/infra1", "/camera/infra2"), ("/bright/cam0", "/bright/cam1")],
 )
 def test_numbered_pairs_with_a_baseline_still_pair(left: str, right: str) -> None:
     topics = _topics(*_camera(left, "image_rect_raw"), *_camera(right, "image_rect_raw"))
