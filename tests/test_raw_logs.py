@@ -154,6 +154,38 @@ def test_calibration_files_stand_for_missing_camera_infos(
         np.testing.assert_array_equal(a, b)
 
 
+def test_a_kalibr_camchain_says_its_topics_and_stands_for_absent_ones(
+    capsys: pytest.CaptureFixture[str], raw_bag: Path, tmp_path: Path
+) -> None:
+    # bug hunt 7A F8: the camchain's pair was not printed; its rostopics absent from the log
+    # were blamed on --left-topic, then on --right-topic, topics the user never named
+    from tests.io.test_calibration import write_camchain
+
+    drive = RawDrive(SynthConfig(seed=2, frames=3, scale=0.25), "plumb_bob")
+    camchain = write_camchain(drive.calibration, tmp_path / "camchain.yaml")
+    kalibr = tmp_path / "kalibr.mcap"  # a Kalibr rig's topics, no camera infos
+    with open_log(raw_bag) as reader, open_writer(kalibr, None) as writer:
+        for raw in reader.messages():
+            if raw.topic.endswith("image_raw"):
+                cam = "cam0" if "/left/" in raw.topic else "cam1"
+                writer.add_raw(raw._replace(topic=f"/{cam}/image_raw"))
+    code, printed, err = _run(
+        capsys, "densify", kalibr, "-o", tmp_path / "k.mcap", "--calibration", camchain
+    )
+    assert code == 0, err
+    assert (
+        "topics: left /cam0/image_raw, right /cam1/image_raw (the rostopics of camchain.yaml)"
+    ) in printed.splitlines()
+    # the log's own names: the pair is found in it, and the line says why
+    code, printed, err = _run(
+        capsys, "densify", raw_bag, "-o", tmp_path / "r.mcap", "--calibration", camchain
+    )
+    assert code == 0, err
+    line = next(t for t in printed.splitlines() if t.startswith("topics:"))
+    assert line.startswith("topics: left /camera/left/image_raw, right /camera/right/image_raw")
+    assert "the rostopics of camchain.yaml (/cam0/image_raw, /cam1/image_raw) are not in" in line
+
+
 def test_learn_and_dense_measurements_on_a_raw_log(
     capsys: pytest.CaptureFixture[str], raw_bag: Path, tmp_path: Path
 ) -> None:

@@ -160,12 +160,14 @@ def pairing_config(args: argparse.Namespace, features_topic: str | None = None) 
     # one image topic named: the other side comes from the pair found in the log
     one_side = (args.left_topic is None) != (args.right_topic is None)
     infos_named = args.left_info_topic is not None or args.right_info_topic is not None
-    discover = named is None and (
-        all(flag is None for flag in flags) or (one_side and not infos_named)
-    )
+    discover = all(flag is None for flag in flags) or (one_side and not infos_named)
+    if named is not None:
+        # a camchain's rostopics: the pair unless both sides are named; when the log has not
+        # both, the pair is found in it (the calibration stands for the infos)
+        discover = args.left_topic is None or args.right_topic is None
     defaults = PairingConfig()
-    left_topic = args.left_topic or (named[0] if named else defaults.left_topic)
-    right_topic = args.right_topic or (named[1] if named else defaults.right_topic)
+    left_topic = args.left_topic or defaults.left_topic
+    right_topic = args.right_topic or defaults.right_topic
     if left_topic == right_topic:
         raise PcaInterpError(
             f"--left-topic and --right-topic are both {left_topic}; a stereo pair needs the "
@@ -198,6 +200,7 @@ def pairing_config(args: argparse.Namespace, features_topic: str | None = None) 
         rectify=args.rectify,
         calibration=calibration,
         discover=discover,
+        calibration_topics=named if discover else None,
         named_sides=tuple(
             side
             for side, topic in (("left", args.left_topic), ("right", args.right_topic))

@@ -8,7 +8,12 @@ that says which is left: ``left``/``right``, ``l``/``r``, or a number (``cam0``/
 nothing are ordered by the sign of P[0, 3] (the right camera's is negative). The two sides
 are streams of one image (``image_raw``), raw or compressed alike (a compressed left with a
 raw right pairs). Of a camera's streams the rectified one is preferred (``image_rect`` over
-``image_raw``), then one transport on both sides, then the uncompressed, then the grey one.
+``image_raw``), then one transport on both sides, then the uncompressed, then the grey one;
+but a stream pair with clearly fewer images than another gives way to it (said in the line).
+An image topic the log counts no message on is no camera. A number does not make a pair
+when a name both namespaces share says the side (``/robot1/stereo/left`` and
+``/robot2/stereo/left``), nor, without calibration files or ``--baseline``, when both infos
+have P[0, 3] = 0 (two monocular ``/camera1`` and ``/camera2``).
 A log with several heads (``/front/left`` + ``/front/right`` and ``/rear/left`` +
 ``/rear/right``) has cross-head candidates too (``/front/left`` + ``/rear/right``, sides from
 Tx): a pair whose namespaces differ only in the name that says the side comes first, then
@@ -22,6 +27,7 @@ import dataclasses
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 from pcainterp_stream.errors import PcaInterpError, TopicNotFoundError
 from pcainterp_stream.frontend.pairing import PairingConfig, is_rectified_name
@@ -43,6 +49,8 @@ class Camera:
     topic: str
     namespace: str
     info: str | None
+    count: int | None = dataclasses.field(default=None, compare=False)
+    """How many images the log has on the topic (None: not counted)."""
 
     @property
     def stream(self) -> str:
@@ -95,12 +103,15 @@ class StereoTopics:
         right: the right camera's stream.
         how: how the sides were told apart (``by name``, ``by the sign of P's Tx``).
         closeness: :data:`BY_NAME`, :data:`SIBLINGS` or :data:`DISTANT`.
+        note: what was passed over for these streams (a rectified stream with fewer
+            images), "" when nothing.
     """
 
     left: Camera
     right: Camera
     how: str
     closeness: int = BY_NAME
+    note: str = dataclasses.field(default="", compare=False)
 
     def preference(self) -> tuple[int, int, int, int, int]:
         """Return how much this pair is preferred: closeness, then :func:`stream_score`."""
@@ -123,10 +134,14 @@ def namespace(topic: str) -> str:
 
 
 def cameras(topics: dict[str, TopicInfo], *, need_info: bool = True) -> list[Camera]:
-    """Return the image streams of a log that can be a stereo camera."""
+    """Return the image streams of a log that can be a stereo camera.
+
+    An image topic the log counts no message on (an advertised topic that never published,
+    as ``ros2 bag record`` leaves it) is no camera.
+    """
     found = []
     for topic, info in sorted(topics.items()):
-        if info.msgtype not in _IMAGE_TYPES:
+        if info.msgtype not in _IMAGE_TYPES or info.message_count == 0:
             continue
         ns = namespace(topic)
         info_topic = f"{ns}/camera_info"
@@ -134,7 +149,7 @@ def cameras(topics: dict[str, TopicInfo], *, need_info: bool = True) -> list[Cam
             topics[info_topic].msgtype == rosmsg.CAMERA_INFO
         )
         if has_info or not need_info:
-            found.append(Camera(topic, ns, info_topic if has_info else None))
+            found.append(Camera(topic, ns, info_topic if has_info else None, info.message_count))
     return found
 
 
@@ -144,18 +159,26 @@ def _differing_names(a: str, b: str) -> int:
     return sum(x != y for x, y in zip(sa, sb, strict=False)) + abs(len(sa) - len(sb))
 
 
-def _side_by_name(a: str, b: str) -> int | None:
-    """Return -1 when namespace ``a`` is the left camera of ``b``, 1 when right, None if unsure.
-
-    The two namespaces must differ in exactly one ``/`` segment.
-    """
+def _the_differing_name(a: str, b: str) -> tuple[str, str] | None:
+    """Return the one ``/`` segment two namespaces differ in (lower case), None if not one."""
     sa, sb = a.split("/"), b.split("/")
     if len(sa) != len(sb):
         return None
     diff = [(x, y) for x, y in zip(sa, sb, strict=True) if x != y]
     if len(diff) != 1:
         return None
-    x, y = diff[0][0].lower(), diff[0][1].lower()
+    return diff[0][0].lower(), diff[0][1].lower()
+
+
+def _side_by_name(a: str, b: str) -> int | None:
+    """Return -1 when namespace ``a`` is the left camera of ``b``, 1 when right, None if unsure.
+
+    The two namespaces must differ in exactly one ``/`` segment.
+    """
+    names = _the_differing_name(a, b)
+    if names is None:
+        return None
+    x, y = names
     if "left" in x and "right" in y and x.replace("left", "") == y.replace("right", ""):
         return -1
     if "right" in x and "left" in y and x.replace("right", "") == y.replace("left", ""):
@@ -165,6 +188,19 @@ def _side_by_name(a: str, b: str) -> int | None:
         tokens = [(p, q) for p, q in zip(tx, ty, strict=True) if p != q]
         if len(tokens) == 1 and {tokens[0][0], tokens[0][1]} == {"l", "r"}:
             return -1 if tokens[0][0] == "l" else 1
+    return None
+
+
+def _side_by_number(a: str, b: str) -> int | None:
+    """Return -1 when namespace ``a`` is the lower-numbered of ``b`` (left), 1 when higher.
+
+    The two namespaces must differ in exactly one ``/`` segment, by one number
+    (``cam0``/``cam1``, ``infra1``/``infra2``); None otherwise.
+    """
+    names = _the_differing_name(a, b)
+    if names is None:
+        return None
+    x, y = names
     mx, my = re.fullmatch(r"(.*?)(\d+)(\D*)", x), re.fullmatch(r"(.*?)(\d+)(\D*)", y)
     if mx and my and mx.group(1) == my.group(1) and mx.group(3) == my.group(3):
         nx, ny = int(mx.group(2)), int(my.group(2))
@@ -173,18 +209,108 @@ def _side_by_name(a: str, b: str) -> int | None:
     return None
 
 
+def _not_numbered_sides(
+    a: list[Camera], b: list[Camera], tx_of: Callable[[str], float | None] | None
+) -> str | None:
+    """Return why two cameras numbered alike are not the sides of one pair, None if they may be.
+
+    ``/robot1/stereo/left`` and ``/robot2/stereo/left`` are the left cameras of two heads (a
+    name they share says the side); ``/camera1`` and ``/camera2`` whose infos both have
+    Tx = P[0, 3] = 0 have no baseline: two monocular cameras (a stereo pair's right info has
+    Tx = -fx * baseline).
+
+    Args:
+        a: the streams of one namespace.
+        b: the streams of the other.
+        tx_of: info topic -> its P[0, 3] (None: the infos are not looked at).
+    """
+    ns_a, ns_b = a[0].namespace, b[0].namespace
+    for x, y in zip(ns_a.split("/"), ns_b.split("/"), strict=True):
+        # a word of its own: "camera_left", "leftcam", not "bright"
+        word = re.search(r"(?:^|[^a-z])(left|right)", x.lower())
+        if x == y and word is not None:
+            return f"{ns_a} and {ns_b} are the {word.group(1)} cameras of two heads"
+    if tx_of is None or a[0].info is None or b[0].info is None:
+        return None
+    tx_a, tx_b = tx_of(a[0].info), tx_of(b[0].info)
+    if tx_a == 0 and tx_b == 0:
+        return (
+            f"{ns_a} and {ns_b} have no baseline (Tx = P[0, 3] = 0 on both camera infos, as "
+            "two monocular cameras have)"
+        )
+    return None
+
+
+def _pair_count(left: Camera, right: Camera) -> int | None:
+    """Return how many pairs two streams can make at most (None: a count is not known)."""
+    if left.count is None or right.count is None:
+        return None
+    return min(left.count, right.count)
+
+
+def _best_streams(left: list[Camera], right: list[Camera]) -> tuple[Camera, Camera, str] | None:
+    """Return the preferred streams of two cameras (of one image), and a note on those passed.
+
+    :func:`stream_score` decides, but a stream pair that holds clearly fewer images than
+    another (a ``stereo_image_proc`` started late: 3 rectified pairs of 12 raw ones) comes
+    after it; the note says so ("" when nothing of the kind was passed over).
+    """
+    candidates = [(c, p) for c in left for p in right if p.image == c.image]
+    if not candidates:
+        return None
+    counts = [_pair_count(c, p) for c, p in candidates]
+    most = max((n for n in counts if n is not None), default=None)
+
+    def full(n: int | None) -> bool:
+        return n is None or most is None or n >= most - max(2, most // 10)
+
+    best: tuple[tuple[int, ...], Camera, Camera, int | None] | None = None
+    for (cam, partner), n in zip(candidates, counts, strict=True):
+        score = (int(full(n)), *stream_score(cam, partner))
+        if best is None or score > best[0]:
+            best = (score, cam, partner, n)
+    assert best is not None
+    _, cam, partner, n = best
+    passed = [
+        (c, p, m)
+        for (c, p), m in zip(candidates, counts, strict=True)
+        if not full(m) and stream_score(c, p) > stream_score(cam, partner)
+    ]
+    note = ""
+    if passed:
+        c, p, m = passed[0]
+        note = (
+            f"{c.topic} and {p.topic} hold {m} image pair{'s' * (m != 1)} at most, these "
+            f"{n}: --left-topic {c.topic} reads those"
+        )
+    return cam, partner, note
+
+
 def find_pairs(
     topics: dict[str, TopicInfo],
     *,
     need_info: bool = True,
     tx_of: Callable[[str], float | None] | None = None,
+    baseline_given: bool = False,
+    rejected: list[str] | None = None,
+    left_topic: str | None = None,
+    right_topic: str | None = None,
 ) -> list[StereoTopics]:
     """Return the stereo pairs of a log, best first (see the module docstring).
+
+    Two cameras numbered alike (``cam0``/``cam1``) are not a pair when a name they share
+    says their side (``/robot1/stereo/left`` and ``/robot2/stereo/left``) or, without
+    calibration files and ``--baseline``, when both infos have Tx = 0 (two monocular
+    ``/camera1`` and ``/camera2``).
 
     Args:
         topics: the log's topics.
         need_info: cameras need a sibling ``camera_info`` (False with calibration files).
         tx_of: info topic -> its P[0, 3] (read from the log), for names that say nothing.
+        baseline_given: ``--baseline`` was given (two infos with Tx = 0 may be a pair).
+        rejected: given, it takes why cameras numbered alike were not taken for a pair.
+        left_topic: only the pairs whose left stream is this one (a side named).
+        right_topic: only the pairs whose right stream is this one.
     """
     streams = cameras(topics, need_info=need_info)
     by_ns: dict[str, list[Camera]] = {}
@@ -196,6 +322,13 @@ def find_pairs(
         for b in spaces[i + 1 :]:
             side = _side_by_name(a, b)
             how, closeness = "by name", BY_NAME
+            if side is None and (side := _side_by_number(a, b)) is not None:
+                check_tx = tx_of if need_info and not baseline_given else None
+                reason = _not_numbered_sides(by_ns[a], by_ns[b], check_tx)
+                if reason is not None:
+                    side = None
+                    if rejected is not None:
+                        rejected.append(reason)
             if side is None and tx_of is not None:
                 info_a, info_b = by_ns[a][0].info, by_ns[b][0].info
                 tx_a = tx_of(info_a) if info_a else None
@@ -209,14 +342,11 @@ def find_pairs(
             left_ns, right_ns = (a, b) if side < 0 else (b, a)
             # the two sides of one image; their transports may differ (a compressed left
             # with a raw right), one transport on both sides preferred
-            best: tuple[tuple[int, int, int, int], Camera, Camera] | None = None
-            for cam in by_ns[left_ns]:
-                for partner in by_ns[right_ns]:
-                    score = stream_score(cam, partner)
-                    if partner.image == cam.image and (best is None or score > best[0]):
-                        best = (score, cam, partner)
+            lefts = [c for c in by_ns[left_ns] if left_topic in (None, c.topic)]
+            rights = [c for c in by_ns[right_ns] if right_topic in (None, c.topic)]
+            best = _best_streams(lefts, rights)
             if best is not None:
-                pairs.append(StereoTopics(best[1], best[2], how, closeness))
+                pairs.append(StereoTopics(best[0], best[1], how, closeness, best[2]))
     pairs.sort(key=StereoTopics.preference, reverse=True)
     return pairs
 
@@ -269,23 +399,103 @@ def resolve_pairing(
             left_info_topic=siblings.get("left_info_topic", config.left_info_topic),
             right_info_topic=siblings.get("right_info_topic", config.right_info_topic),
         )
-    need_info = config.calibration is None
     named_left = "left" in config.named_sides or config.left_topic != DEFAULT_LEFT_IMAGE
     named_right = "right" in config.named_sides or config.right_topic != DEFAULT_RIGHT_IMAGE
-    named = named_left or named_right
-    pairs = find_pairs(topics, need_info=need_info, tx_of=_first_tx(reader))
-    # a side was named: only the pairs with it
-    if named_left:
-        pairs = [p for p in pairs if p.left.topic == config.left_topic]
-    if named_right:
-        pairs = [p for p in pairs if p.right.topic == config.right_topic]
-    if named and not pairs:  # the named topic is missing, of another type, or has no partner
-        return resolve_pairing(reader, dataclasses.replace(config, discover=False), echo)
     name = str(reader.path)
+    absent = ""  # the calibration file's topics the log has not
+    if config.calibration_topics is not None:
+        cal_left, cal_right = config.calibration_topics
+        left = config.left_topic if named_left else cal_left
+        right = config.right_topic if named_right else cal_right
+        images = {t for t, i in topics.items() if i.msgtype in _IMAGE_TYPES}
+        source = _calibration_file(config)
+        if left in images and right in images:
+            if echo is not None:
+                echo(f"topics: left {left}, right {right} (the rostopics of {source})")
+            return dataclasses.replace(config, discover=False, left_topic=left, right_topic=right)
+        missing = [t for t in (cal_left, cal_right) if t not in images]
+        absent = (
+            f"the rostopic{'s' * (len(missing) > 1)} of {source} ({', '.join(missing)}) "
+            f"{'are' if len(missing) > 1 else 'is'} not in {name}"
+        )
+    try:
+        return _discover(
+            reader, config, echo, named_left=named_left, named_right=named_right, note=absent
+        )
+    except TopicNotFoundError as err:
+        if not absent:
+            raise
+        raise TopicNotFoundError(f"{absent}; {err}") from None
+
+
+def _calibration_file(config: PairingConfig) -> str:
+    """Return the name of the calibration file (a Kalibr camchain) ``config`` has."""
+    if config.calibration is None:
+        return "the calibration file"
+    # the cameras are named PATH:cam0, PATH:cam1
+    return Path(config.calibration.left.name.rpartition(":")[0]).name or "the calibration file"
+
+
+def _discover(
+    reader: LogReader,
+    config: PairingConfig,
+    echo: Callable[[str], None] | None,
+    *,
+    named_left: bool,
+    named_right: bool,
+    note: str = "",
+) -> PairingConfig:
+    """Return ``config`` with the pair found in the log (:func:`resolve_pairing`).
+
+    Args:
+        reader: the log.
+        config: the pairing asked for (``discover``).
+        echo: given the line that says which pair was found.
+        named_left: the left image topic was named.
+        named_right: the right one was.
+        note: said in that line too (the calibration file's topics the log has not).
+    """
+    topics = reader.topics()
+    name = str(reader.path)
+    need_info = config.calibration is None
+    named = named_left or named_right
+    rejected: list[str] = []
+    # a side was named: only the pairs with it
+    pairs = find_pairs(
+        topics,
+        need_info=need_info,
+        tx_of=_first_tx(reader),
+        baseline_given=config.baseline is not None,
+        rejected=rejected,
+        left_topic=config.left_topic if named_left else None,
+        right_topic=config.right_topic if named_right else None,
+    )
+    if named and not pairs:  # the named topic is missing, of another type, or has no partner
+        if config.calibration_topics is not None:
+            side = "left" if named_left else "right"
+            topic = config.left_topic if named_left else config.right_topic
+            raise TopicNotFoundError(
+                f"{topic} (--{side}-topic) has no partner camera in {name}: pass "
+                "--left-topic and --right-topic both"
+            )
+        return resolve_pairing(reader, dataclasses.replace(config, discover=False), echo)
     if not pairs and (reader.damage or all(info.message_count == 0 for info in topics.values())):
         return dataclasses.replace(config, discover=False)  # the defaults: reported as damaged
     if not pairs:
         images = [t for t, i in sorted(topics.items()) if i.msgtype in _IMAGE_TYPES]
+        empty = [t for t in images if topics[t].message_count == 0]
+        if rejected:
+            raise TopicNotFoundError(
+                f"no stereo pair found in {name}: {'; '.join(dict.fromkeys(rejected))}; a "
+                "stereo pair's right camera info has Tx = -fx * baseline: for a pair whose "
+                "infos lack it, name its topics with --left-topic and --right-topic and give "
+                "its stereo --calibration"
+            )
+        if images and len(empty) == len(images):
+            raise TopicNotFoundError(
+                f"no stereo pair found in {name}: its image topics have no messages "
+                f"({', '.join(empty)}; see pcainterp info)"
+            )
         infos = [t for t, i in sorted(topics.items()) if i.msgtype == rosmsg.CAMERA_INFO]
         want = "an image topic with a sibling camera_info" if need_info else "an image topic"
         other_images = [  # cameras in a form pcainterp does not decode (theora, ffmpeg, SDK)
@@ -306,9 +516,10 @@ def resolve_pairing(
                 f"{', '.join(infos) or 'none'}); pcainterp needs a stereo pair, two cameras side "
                 "by side (--left-topic and --right-topic name them)"
             )
+        listed = ", ".join(f"{t} (no messages)" if t in empty else t for t in images)
         raise TopicNotFoundError(
             f"no stereo pair found in {name}: it needs two cameras, each {want}, named left/"
-            f"right (or cam0/cam1, ...); image topics: {', '.join(images) or 'none'}; camera "
+            f"right (or cam0/cam1, ...); image topics: {listed or 'none'}; camera "
             f"infos: {', '.join(infos) or 'none'}; pass "
             "--left-topic and --right-topic"
             + (
@@ -335,6 +546,7 @@ def resolve_pairing(
         if right_info == DEFAULT_RIGHT_INFO:
             right_info = best.right.info
     if echo is not None:
+        best = dataclasses.replace(best, note="; ".join(n for n in (note, best.note) if n))
         echo(_found_line(best, len(pairs) - 1, named_left=named_left, named_right=named_right))
     return dataclasses.replace(
         config,
@@ -357,13 +569,14 @@ def _found_line(best: StereoTopics, others: int, *, named_left: bool, named_righ
     """
     with_infos = f" with {best.left.info} and {best.right.info}" if best.left.info else ""
     pair = f"topics: left {best.left.topic}, right {best.right.topic}{with_infos}"
+    note = f"; {best.note}" if best.note else ""
     if named_left and named_right:
-        return f"{pair} (both named)"
+        return f"{pair} (both named{note})"
     if named_left or named_right:
         named, found = ("left", "right") if named_left else ("right", "left")
         return (
-            f"{pair} (the {found} camera found {best.how} for the {named} one named; "
+            f"{pair} (the {found} camera found {best.how} for the {named} one named{note}; "
             f"--{found}-topic chooses another)"
         )
     more = f"; {others} other pair{'s' * (others > 1)} less preferred" if others else ""
-    return f"{pair} (found {best.how}{more}; --left-topic/--right-topic choose others)"
+    return f"{pair} (found {best.how}{more}{note}; --left-topic/--right-topic choose others)"

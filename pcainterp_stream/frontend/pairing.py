@@ -98,6 +98,9 @@ class PairingConfig:
             (:func:`frontend.discovery.resolve_pairing`).
         named_sides: with ``discover``: the sides (``left``, ``right``) whose image topic was
             named, the default one included; the pair found must have it.
+        calibration_topics: with ``discover``: the image topics the calibration file names
+            (the ``rostopic`` of a Kalibr camchain's cameras), the pair unless a side is
+            named; when the log has not both, the pair is found in it.
         check_rows: on the first frames, refuse a pair whose matched corners are not on the
             same rows (or have negative disparities); off with ``rectify="never"``.
     """
@@ -118,6 +121,7 @@ class PairingConfig:
     calibration: rect.StereoCalibration | None = None
     discover: bool = False
     named_sides: tuple[str, ...] = ()
+    calibration_topics: tuple[str, str] | None = None
     check_rows: bool = True
 
     def __post_init__(self) -> None:

@@ -330,3 +330,173 @@ def test_a_camera_in_a_transport_not_decoded_is_not_called_a_one_camera_log() ->
         "pass --left-topic and --right-topic (and --calibration LEFT.yaml RIGHT.yaml without "
         "camera infos)"
     )
+
+
+def _counted(topics: dict[str, TopicInfo], counts: dict[str, int | None]) -> dict[str, TopicInfo]:
+    """Return ``topics`` with the message counts of ``counts`` (the others' kept)."""
+    return {
+        t: TopicInfo(t, i.msgtype, counts.get(t, i.message_count), "cdr", "ros2msg")
+        for t, i in topics.items()
+    }
+
+
+def _robots() -> _TxReader:
+    names = [f"/robot{n}/stereo/{side}" for n in (1, 2) for side in ("left", "right")]
+    topics = _topics(*(topic for ns in names for topic in _camera(ns, "image_raw")))
+    tx = {f"{ns}/camera_info": -50.0 if ns.endswith("right") else 0.0 for ns in names}
+    return _TxReader(topics, tx)
+
+
+def test_two_heads_numbered_alike_never_pair_their_left_cameras() -> None:
+    # bug hunt 7A F4: /robot1 and /robot2 were read as sides said by a number: the two left
+    # cameras were a pair as good as each robot's own
+    reader = _robots()
+    rejected: list[str] = []
+    pairs = find_pairs(reader.topics(), tx_of=reader._tx.get, rejected=rejected)
+    by_name = [(p.left.topic, p.right.topic) for p in pairs if p.closeness == BY_NAME]
+    assert by_name == [
+        ("/robot1/stereo/left/image_raw", "/robot1/stereo/right/image_raw"),
+        ("/robot2/stereo/left/image_raw", "/robot2/stereo/right/image_raw"),
+    ]
+    assert "/robot1/stereo/left and /robot2/stereo/left are the left cameras of two heads" in (
+        rejected
+    )
+    said: list[str] = []
+    config = PairingConfig(
+        discover=True, left_topic="/robot1/stereo/left/image_raw", named_sides=("left",)
+    )
+    config = resolve_pairing(reader, config, said.append)  # type: ignore[arg-type]
+    assert config.right_topic == "/robot1/stereo/right/image_raw"
+    assert config.right_info_topic == "/robot1/stereo/right/camera_info"
+
+
+def _monos(tx: float = 0.0) -> _TxReader:
+    topics = _topics(*_camera("/camera1", "image_raw"), *_camera("/camera2", "image_raw"))
+    return _TxReader(topics, {"/camera1/camera_info": 0.0, "/camera2/camera_info": tx})
+
+
+def test_two_monocular_cameras_numbered_alike_are_no_stereo_pair() -> None:
+    # bug hunt 7A F4: /camera1 + /camera2 with Tx = 0 on both were a pair "found by name",
+    # then an error advising --baseline: densifying two unrelated cameras
+    with pytest.raises(TopicNotFoundError) as err:
+        resolve_pairing(_monos(), PairingConfig(discover=True))  # type: ignore[arg-type]
+    line = str(err.value)
+    assert line.startswith(
+        "no stereo pair found in robot.bag: /camera1 and /camera2 have no baseline (Tx = "
+        "P[0, 3] = 0 on both camera infos, as two monocular cameras have)"
+    )
+    assert "--baseline" not in line
+    # a baseline or calibration files given say they are a pair; so does a Tx < 0
+    given = PairingConfig(discover=True, baseline=0.5)
+    assert resolve_pairing(_monos(), given).left_topic == "/camera1/image_raw"  # type: ignore[arg-type]
+    assert find_pairs(_monos().topics(), need_info=False, tx_of=_monos()._tx.get)
+    config = resolve_pairing(_monos(-40.0), PairingConfig(discover=True))  # type: ignore[arg-type]
+    assert (config.left_topic, config.right_topic) == ("/camera1/image_raw", "/camera2/image_raw")
+
+
+@pytest.mark.parametrize(
+    ("left", "right"),
+    [("/cam0", "/cam1"), ("/camera/infra1", "/camera/infra2"), ("/bright/cam0", "/bright/cam1")],
+)
+def test_numbered_pairs_with_a_baseline_still_pair(left: str, right: str) -> None:
+    topics = _topics(*_camera(left, "image_rect_raw"), *_camera(right, "image_rect_raw"))
+    tx = {f"{left}/camera_info": 0.0, f"{right}/camera_info": -30.0}
+    config = resolve_pairing(_TxReader(topics, tx), PairingConfig(discover=True))  # type: ignore[arg-type]
+    assert (config.left_topic, config.right_topic) == (
+        f"{left}/image_rect_raw",
+        f"{right}/image_rect_raw",
+    )
+
+
+def test_image_topics_without_messages_are_no_cameras() -> None:
+    # bug hunt 7A F10: image_rect channels advertised, never published (count 0), won over
+    # the raw pair with every image
+    streams = ("image_raw", "image_rect")
+    topics = _topics(*_camera("/camera/left", *streams), *_camera("/camera/right", *streams))
+    empty = {"/camera/left/image_rect": 0, "/camera/right/image_rect": 0}
+    (pair,) = find_pairs(_counted(topics, empty))
+    assert (pair.left.topic, pair.right.topic) == (
+        "/camera/left/image_raw",
+        "/camera/right/image_raw",
+    )
+    # a count not known (None) is no reason to pass a stream over
+    unknown = {t: None for t in topics}
+    assert find_pairs(_counted(topics, unknown))[0].left.topic == "/camera/left/image_rect"
+    # no image topic with messages: said so
+    nothing = _counted(_topics(*_camera("/cam/left", "image_raw")), {"/cam/left/image_raw": 0})
+    nothing.update({"/imu": TopicInfo("/imu", "sensor_msgs/msg/Imu", 5, "cdr", "ros2msg")})
+    with pytest.raises(TopicNotFoundError) as err:
+        resolve_pairing(_Reader(nothing), PairingConfig(discover=True))  # type: ignore[arg-type]
+    assert "its image topics have no messages (/cam/left/image_raw; see pcainterp info)" in str(
+        err.value
+    )
+
+
+@pytest.mark.parametrize(("rect", "chosen"), [(3, "image_raw"), (11, "image_rect")])
+def test_a_rectified_stream_with_clearly_fewer_images_gives_way(rect: int, chosen: str) -> None:
+    # bug hunt 7A F10: a stereo_image_proc started late (3 rectified pairs of 12) won silently
+    streams = ("image_raw", "image_rect")
+    topics = _topics(*_camera("/camera/left", *streams), *_camera("/camera/right", *streams))
+    counts = {t: rect if "image_rect" in t else 12 for t in topics if "image" in t}
+    said: list[str] = []
+    config = resolve_pairing(
+        _Reader(_counted(topics, counts)),  # type: ignore[arg-type]
+        PairingConfig(discover=True),
+        said.append,
+    )
+    assert config.left_topic == f"/camera/left/{chosen}"
+    note = (
+        "/camera/left/image_rect and /camera/right/image_rect hold 3 image pairs at most, these "
+        "12: --left-topic /camera/left/image_rect reads those"
+    )
+    assert (note in said[0]) == (chosen == "image_raw")
+    # naming the rectified side reads it, whatever its count
+    named = PairingConfig(
+        discover=True, left_topic="/camera/left/image_rect", named_sides=("left",)
+    )
+    config = resolve_pairing(_Reader(_counted(topics, counts)), named)  # type: ignore[arg-type]
+    assert config.right_topic == "/camera/right/image_rect"
+
+
+def _camchain(topics: tuple[str, str] = ("/cam0/image_raw", "/cam1/image_raw")) -> PairingConfig:
+    calibration = SimpleNamespace(left=SimpleNamespace(name="/calib/camchain.yaml:cam0"))
+    return PairingConfig(discover=True, calibration=calibration, calibration_topics=topics)  # type: ignore[arg-type]
+
+
+def test_a_camchains_rostopics_are_the_pair_and_said() -> None:
+    # bug hunt 7A F8: the pair taken from a Kalibr camchain was never printed
+    topics = _topics("/cam0/image_raw", "/cam1/image_raw", "/imu")
+    said: list[str] = []
+    config = resolve_pairing(_Reader(topics), _camchain(), said.append)  # type: ignore[arg-type]
+    assert (config.left_topic, config.right_topic, config.discover) == (
+        "/cam0/image_raw",
+        "/cam1/image_raw",
+        False,
+    )
+    assert said == [
+        "topics: left /cam0/image_raw, right /cam1/image_raw (the rostopics of camchain.yaml)"
+    ]
+
+
+def test_a_camchains_rostopics_not_in_the_log_fall_back_to_the_pair_found() -> None:
+    # bug hunt 7A F8: "topic /cam0/image_raw not found ...: set --left-topic", then the same
+    # for the right one: topics the user never named, one side at a time
+    topics = _topics("/camera/left/image_raw", "/camera/right/image_raw")
+    said: list[str] = []
+    config = resolve_pairing(_Reader(topics), _camchain(), said.append)  # type: ignore[arg-type]
+    assert (config.left_topic, config.right_topic) == (
+        "/camera/left/image_raw",
+        "/camera/right/image_raw",
+    )
+    assert (
+        "(found by name; the rostopics of camchain.yaml (/cam0/image_raw, /cam1/image_raw) are "
+        "not in robot.bag; --left-topic/--right-topic choose others)"
+    ) in said[0]
+    with pytest.raises(TopicNotFoundError) as err:
+        resolve_pairing(_Reader(_topics("/a/image_raw", "/b/image_raw")), _camchain())  # type: ignore[arg-type]
+    line = str(err.value)
+    assert line.startswith(
+        "the rostopics of camchain.yaml (/cam0/image_raw, /cam1/image_raw) are not in robot.bag; "
+        "no stereo pair found in robot.bag"
+    )
+    assert "pass --left-topic and --right-topic" in line
