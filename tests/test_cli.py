@@ -1918,12 +1918,33 @@ def test_densify_pairs_images_whose_stamps_are_all_zero_by_log_time(
     assert (
         f"stamps: the header stamps of {LEFT} repeat 0 (not set), so they do not tell its "
         "images apart: the images were paired by log time after the first 1, within 25 ms "
-        "(a quarter frame, or --stamp-tolerance-ms when wider)\n"
+        "(a quarter frame, or --stamp-tolerance-ms when wider); the outputs of the "
+        f"{SMALL_FRAMES - 1} frames whose left header stamp was 0 or its previous image's are "
+        "stamped with the left image's log time\n"
     ) in run.out
     assert "warning" not in run.out + run.err
     expected = _depth_by_log_time(tmp_path / "stamped_out.mcap")
     assert dropped_ns not in expected
     assert _depth_by_log_time(tmp_path / "zero_out.mcap") == expected
+    # bug hunt 7A F6: every output was stamped 0, and evaluate then advised a tolerance of
+    # 41 years, which matched the frames to arbitrary truths; now the outputs carry their
+    # left image's log time, and evaluate matches the images by it as densify paired them
+    with open_log(tmp_path / "zero_out.mcap") as reader:
+        outputs = [
+            (raw.log_time_ns, rosmsg.stamp_ns(reader.decode(raw)))
+            for raw in reader.messages(["/pcainterp/depth", "/pcainterp/camera_info"])
+        ]
+    assert len(outputs) == 2 * (SMALL_FRAMES - 1)
+    assert all(stamp == log_time_ns for log_time_ns, stamp in outputs)
+    fast = ["--no-basis", "--no-linear", "--sweep-every", "0", "--mode", "stereo"]
+    tables = []
+    for name in ("stamped", "zero"):
+        report = tmp_path / f"{name}_report"
+        run = pcainterp("evaluate", tmp_path / f"{name}_out.mcap", "-o", report, *fast)
+        assert run.code == 0, run.err
+        assert run.out.startswith(f"{SMALL_FRAMES - 1} frames of {tmp_path / name}_out.mcap")
+        tables.append([line for line in run.out.splitlines() if line.startswith("pca_map ")])
+    assert tables[0] == tables[1] != []
 
 
 def test_evaluate_pairs_right_images_as_densify_did(

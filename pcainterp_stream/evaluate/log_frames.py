@@ -270,6 +270,7 @@ def read_frames(
             wanted.append(reference.topic)
         references: dict[int, Any] = {}
         stamps = _SeenStamps()  # of the topics matched by stamp: the first of a stamp is used
+        unplaced = _UnplacedStamps(left_image, right_image)
         pending: dict[int, dict[str, Any]] = {}
         waiting: deque[_Complete] = deque()
         index = yielded = 0
@@ -325,6 +326,10 @@ def read_frames(
                     references.pop(min(references))
             full_estimate = raw.topic == where.estimate and not where.compact
             stamp = rosmsg.stamp_ns(message.image if full_estimate else message)
+            if raw.topic in (left_image, right_image, *nearby):
+                stamp = unplaced.stamp(raw.topic, stamp, raw.log_time_ns)
+            elif stamp == 0 and raw.topic in grouped:
+                raise LogReadError(_zero_output_message(path, raw.topic, left_image))
             if raw.topic in nearby:
                 buffer = nearby[raw.topic]
                 if stamps.first(raw.topic, stamp, state):  # a repeated stamp: its first is used
@@ -385,6 +390,39 @@ def _count_incomplete(parts: dict[str, Any], grouped: list[str], state: ReadStat
     for topic in grouped:
         if topic not in parts:
             state.incomplete[topic] = state.incomplete.get(topic, 0) + 1
+
+
+class _UnplacedStamps:
+    """Put at its log time a message whose header stamp does not place it, as densify does.
+
+    densify stamps the outputs of a frame whose left image's header stamp is 0 (not set) or
+    that of the image before it with the left image's log time (``StereoPairer.full_result``);
+    its left image is then found by log time here, and so are right images, truth and poses
+    stamped 0 (a right image also when it repeats its previous stamp: the pair was made by
+    log time).
+    """
+
+    def __init__(self, left_topic: str, right_topic: str) -> None:
+        self._repeating = (left_topic, right_topic)
+        self._last: dict[str, int] = {}
+
+    def stamp(self, topic: str, stamp_ns: int, log_time_ns: int) -> int:
+        """Return the stamp to match a message of ``topic`` by: its header stamp or log time."""
+        if topic not in self._repeating:
+            return log_time_ns if stamp_ns == 0 else stamp_ns
+        previous = self._last.get(topic)
+        self._last[topic] = stamp_ns
+        return log_time_ns if stamp_ns in (0, previous) else stamp_ns
+
+
+def _zero_output_message(path: Path, topic: str, left_image: str) -> str:
+    """Say that a densified output is stamped 0: written by a densify that copied stamp 0."""
+    return (
+        f"{path}: {topic} has header stamp 0: the input images ({left_image}) have no header "
+        "stamps and the densify that wrote this log copied them, so its frames cannot be told "
+        "apart or matched to truth; densify the input again (densify now stamps such frames "
+        "with their left image's log time)"
+    )
 
 
 class _SeenStamps:

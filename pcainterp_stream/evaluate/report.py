@@ -34,6 +34,7 @@ from pcainterp_stream.estimate.basis import BUILTIN_LABELS, IN_MEMORY, Basis, bu
 from pcainterp_stream.estimate.estimator import clean_measurements, densify
 from pcainterp_stream.evaluate.figures import write_figures
 from pcainterp_stream.evaluate.input_pair import describe_pair, follow_densify, matcher_notes
+from pcainterp_stream.evaluate.left_out import LeftOut
 from pcainterp_stream.evaluate.log_frames import (
     GROUND_TRUTH_DEPTH,
     GROUND_TRUTH_POSE,
@@ -234,53 +235,6 @@ class _TruthValues(DepthValues):
             "from an earlier `pcainterp synth`, whose sky was NaN, synthesize and densify it "
             "again to score the sky"
         ]
-
-
-@dataclass
-class _LeftOut:
-    """Frames left out for want of a truth or pose message near their stamp."""
-
-    truths: int = 0
-    poses: int = 0
-    gaps: dict[str, list[int]] = field(default_factory=lambda: {"truth": [], "pose": []})
-    stamps: list[int] = field(default_factory=list)
-    """The stamps (ns) of the frames read, for their period."""
-
-    def see(self, gap_ns: int | None, what: str) -> None:
-        """Count a frame without ``what`` ("truth" or "pose"); ``gap_ns``: the nearest's."""
-        if what == "truth":
-            self.truths += 1
-        else:
-            self.poses += 1
-        if gap_ns is not None:
-            self.gaps[what].append(gap_ns)
-
-    def notes(self, state: ReadState, truth_topic: str) -> list[str]:
-        """Say how many frames lacked a pose or truth, and the tolerance that would pair them."""
-        notes = []
-        for what, count, topic in (
-            ("truth", self.truths, truth_topic),
-            ("pose", self.poses, GROUND_TRUTH_POSE),
-        ):
-            if not count or not topic:
-                continue
-            note = (
-                f"{count} frame{'' if count == 1 else 's'} left out: no {topic} within "
-                f"{state.tolerance_ns / 1e6:g} ms of their stamp ({state.tolerance_from})"
-            )
-            gaps = self.gaps[what]
-            steps = np.diff(np.unique(self.stamps))
-            period = float(np.median(steps)) if steps.size else math.inf
-            if gaps:
-                note += f"; {len(gaps)} had one {min(gaps) / 1e6:.2f}-{max(gaps) / 1e6:.2f} ms away"
-                # a stamp half a frame away or more is another frame's: no tolerance fixes it
-                note += (
-                    f": pass --stamp-tolerance-ms {math.ceil(max(gaps) / 1e6)} to take it"
-                    if max(gaps) < period / 2
-                    else f", another frame's ({period / 1e6:.0f} ms apart): the stream lacks them"
-                )
-            notes.append(note)
-        return notes
 
 
 def _no_truth_message(
@@ -771,7 +725,7 @@ def evaluate_log(
         options.stamp_tolerance_ns,
         poses=mode is Mode.TEMPORAL,
     )
-    left_out = _LeftOut()
+    left_out = LeftOut()
     for frame in frames:
         read += 1
         if progress is not None:

@@ -168,6 +168,8 @@ class StereoPairer:
         self._said: str | None = None
         # the frames estimated in a box: remapped, or rectified with a border (rect_border)
         self._frame_rectifier: dict[int, rect.StereoRectifier | RectifiedBorder] = {}
+        # frame -> its left image's log time, the stamp of its outputs (see full_result)
+        self._log_stamped: dict[int, int] = {}
         self._borders = BorderFinder(echo)
         self._as_is: rect.StereoCalibration | None = None  # of images used as they are
         self._rows = (
@@ -360,6 +362,8 @@ class StereoPairer:
     # images ---------------------------------------------------------------------------
     def _push_image(self, side: str, item: _Pending) -> list[StereoFrame]:
         frames: list[StereoFrame] = []
+        # a header stamp of 0 (not set) or of the side's previous image does not place it
+        item.unplaced = item.stamp_ns in (0, self._last_stamp[side])
         if not self._by_log_time and item.stamp_ns == self._last_stamp[side]:
             period = item.log_time_ns - self._last_log[side]
             frames = self._stamps_repeat(side, item.stamp_ns, period)
@@ -586,12 +590,18 @@ class StereoPairer:
         )
         if self._rows is not None:
             self._rows.see(left_image, right_image, rectifier=rectifier)
+        keep = MAX_HELD_RECTIFIERS + self.config.hold_count  # frames held for clouds too
         if boxed is not None:
             self._frame_rectifier[self._index] = boxed
-            keep = MAX_HELD_RECTIFIERS + self.config.hold_count  # frames held for clouds too
             if len(self._frame_rectifier) > 4 * keep:  # nobody asks (learn)
                 for index in sorted(self._frame_rectifier)[:-keep]:
                     del self._frame_rectifier[index]
+        if left.unplaced:
+            self._log_stamped[self._index] = left.log_time_ns
+            self.stats.log_stamped += 1
+            if len(self._log_stamped) > 4 * keep:  # nobody asks (learn)
+                for index in sorted(self._log_stamped)[:-keep]:
+                    del self._log_stamped[index]
         self._index += 1
         self.stats.pairs += 1
         self.stats.remapped += rectifier is not None
@@ -610,9 +620,16 @@ class StereoPairer:
         A remapped pair is estimated in the box of the rectified image that both raw images
         cover (:attr:`frontend.rectify.StereoRectifier.box`: the view a camera with this
         calibration has), a rectified pair with a black border in the box inside the border
-        (:mod:`frontend.rect_border`); outside it the outputs have no estimate (NaN). Other
-        frames are returned as they are.
+        (:mod:`frontend.rect_border`); outside it the outputs have no estimate (NaN).
+
+        A frame whose left image's header stamp does not place it (0, not set, or the stamp
+        of the image before it) gets that image's log time as its stamp, the stamp of its
+        outputs: as it was paired, and a time downstream readers (``evaluate``, a viewer's
+        time line, tf) can place it at. Other frames are returned as they are.
         """
+        log_time_ns = self._log_stamped.pop(result.frame.index, None)
+        if log_time_ns is not None:
+            result = result._replace(frame=result.frame._replace(stamp_ns=log_time_ns))
         rectifier = self._frame_rectifier.pop(result.frame.index, None)
         if rectifier is None:
             return result

@@ -74,6 +74,8 @@ class PairingStats:
         tolerance_ns: the pairing's tolerance (ns).
         log_tolerance_ns: the tolerance once paired by log time (ns): at least a quarter of
             a frame interval.
+        log_stamped: frames whose left image's header stamp did not place it (0, or the
+            stamp of the image before it), stamped with its log time instead.
         window: the pairing's window (pairs held waiting for camera infos).
         hold: the limits of what the pairing holds waiting for its partner (log-time span,
             messages, bytes); None: not known.
@@ -113,6 +115,7 @@ class PairingStats:
     unsure_pairs: list[tuple[int, int]] = field(default_factory=list)
     tolerance_ns: int = 0
     log_tolerance_ns: int = 0
+    log_stamped: int = 0
     window: int = 0
     hold: HoldLimits | None = None
     lost_pairs: Lost = field(default_factory=Lost)
@@ -157,10 +160,18 @@ class PairingStats:
         )
 
     def stamp_note(self) -> str | None:
-        """A note when images were paired by log time: their header stamps repeat, else None."""
+        """A note when images were paired by log time: their header stamps repeat, else None.
+
+        It also says when outputs carry their left image's log time as their stamp.
+        """
         topic = self.repeated_stamp_topic
+        stamped = self.log_stamped
+        outputs = (
+            f"the outputs of the {stamped} frame{'' if stamped == 1 else 's'} whose left header "
+            "stamp was 0 or its previous image's are stamped with the left image's log time"
+        )
         if topic is None:
-            return None
+            return f"stamps: {outputs}" if stamped else None
         stamp = self.repeated_stamp_ns
         why = (
             "repeat 0 (not set)"
@@ -172,7 +183,7 @@ class PairingStats:
             f"stamps: the header stamps of {topic} {why}, so they do not tell its images "
             f"apart: the images were paired by log time{after}, within "
             f"{self.log_tolerance_ns / 1e6:g} ms (a quarter frame, or --stamp-tolerance-ms "
-            "when wider)"
+            "when wider)" + (f"; {outputs}" if stamped else "")
         )
 
     def stamp_hint(self) -> str | None:

@@ -42,13 +42,15 @@ T = TypeVar("T", bound=Held)
 class PendingImage:
     """One image waiting for its partner: the message is decoded only when paired."""
 
-    __slots__ = ("log_time_ns", "message", "miss_ns", "stamp_ns")
+    __slots__ = ("log_time_ns", "message", "miss_ns", "stamp_ns", "unplaced")
 
     def __init__(self, stamp_ns: int, log_time_ns: int, message: Any) -> None:
         self.stamp_ns = stamp_ns
         self.log_time_ns = log_time_ns
         self.message = message
         self.miss_ns = -1  # the nearest other-side image that waited unpaired as it did
+        # its header stamp does not place it (0, or its side's previous image's stamp)
+        self.unplaced = False
 
     def nbytes(self) -> int:
         """Return the bytes of the image's (undecoded) data."""

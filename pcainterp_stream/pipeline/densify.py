@@ -420,7 +420,10 @@ def densify(
                     first = {
                         **channel_metadata(label, basis.fingerprint, processor.measurements),
                         **frame_metadata(result),
-                        **pairing_metadata(pairing.tolerance_ns),  # for evaluate's right images
+                        # for evaluate's right images (wider when paired by log time)
+                        **pairing_metadata(
+                            max(pairing.tolerance_ns, pairer.stats.log_tolerance_ns)
+                        ),
                         BASIS_SCOPE_KEY: BASIS_SCOPE,  # later bases: the record at the end
                     }
                     # the basis of the first frames as the densify thread bound it, which the

@@ -3,7 +3,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any
+from typing import Any, NamedTuple, cast
 
 import numpy as np
 import pytest
@@ -859,9 +859,58 @@ def test_zero_stamps_pair_by_log_time_not_first_come() -> None:
     assert note == (
         f"stamps: the header stamps of {CONFIG.left_topic} repeat 0 (not set), so they do "
         "not tell its images apart: the images were paired by log time after the first 1, "
-        "within 25 ms (a quarter frame, or --stamp-tolerance-ms when wider)"
+        "within 25 ms (a quarter frame, or --stamp-tolerance-ms when wider); the outputs of "
+        "the 5 frames whose left header stamp was 0 or its previous image's are stamped with "
+        "the left image's log time"
     )
     assert stats.stamp_hint() is None
+
+
+class _Result(NamedTuple):
+    """What full_result takes of a DensifiedFrame here: its frame."""
+
+    frame: Any
+
+
+def _output_stamps(stamps: list[int]) -> tuple[list[int], PairingStats]:
+    """Pair frames of these left/right stamps (100 ms of log apart, the right 3 ms after the
+    left); return the stamps full_result gives their outputs, in ns from the first log time."""
+    pairer = StereoPairer()
+    with_infos(pairer)
+    start, frames = 1_600_000_000 * 10**9, []
+    for index, stamp in enumerate(stamps):
+        log_ns = start + index * 100 * MS
+        frames += pairer.push(CONFIG.left_topic, stamp, log_ns, image(stamp, index))
+        frames += pairer.push(CONFIG.right_topic, stamp, log_ns + 3 * MS, image(stamp, index))
+    frames += pairer.flush()
+    results = [pairer.full_result(cast(Any, _Result(frame))) for frame in frames]
+    outputs = [result.frame.stamp_ns for result in results]
+    return [stamp - start if stamp >= start else stamp for stamp in outputs], pairer.finish()
+
+
+def test_frames_whose_stamps_do_not_place_them_are_stamped_with_their_log_time() -> None:
+    # bug hunt 7A F6: paired by log time, but every output carried header stamp 0, so
+    # nothing downstream (evaluate, tf, a viewer's time line) could place them
+    outputs, stats = _output_stamps([0] * 4)
+    assert outputs == [0, 100 * MS, 200 * MS, 300 * MS]
+    assert (stats.pairs, stats.log_stamped) == (4, 4)
+    # a stamp 0 once, then stamps that advance: only that frame
+    outputs, stats = _output_stamps([0, 10**9, 2 * 10**9])
+    assert outputs == [0, 10**9, 2 * 10**9]
+    assert stats.stamp_note() == (
+        "stamps: the outputs of the 1 frame whose left header stamp was 0 or its previous "
+        "image's are stamped with the left image's log time"
+    )
+    # a coarse clock: the first image of each stamp keeps it, the repeats are placed by log time
+    outputs, stats = _output_stamps([5 * 10**9, 5 * 10**9, 6 * 10**9, 6 * 10**9])
+    assert outputs == [5 * 10**9, 100 * MS, 6 * 10**9, 300 * MS]
+    # stamps that tell the images apart are the outputs' stamps, whatever the log times
+    outputs, stats = _output_stamps([10**9, 2 * 10**9, 3 * 10**9])
+    assert (outputs, stats.log_stamped, stats.stamp_note()) == (
+        [10**9, 2 * 10**9, 3 * 10**9],
+        0,
+        None,
+    )
 
 
 def test_repeated_stamps_pair_by_log_time_after_the_first_pair() -> None:

@@ -1,0 +1,85 @@
+"""The frames ``pcainterp evaluate`` leaves out for want of a truth or pose near their stamp.
+
+A frame takes the ground-truth depth and pose nearest its stamp within the stamp tolerance.
+When some have none, the report says how far the nearest was and, when a wider tolerance
+would take the frame's own message, which tolerance to pass: never one of a second or more
+(that is another clock, not a late message) nor half a frame period (another frame's).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pcainterp_stream.evaluate.log_frames import GROUND_TRUTH_POSE, ReadState
+
+__all__ = ["MAX_ADVISED_TOLERANCE_NS", "LeftOut"]
+
+MAX_ADVISED_TOLERANCE_NS = 1_000_000_000
+"""The widest stamp tolerance the report advises: a gap of a second or more is another
+clock (or stamps that are not set), which no tolerance matches frame by frame."""
+
+
+@dataclass
+class LeftOut:
+    """Frames left out for want of a truth or pose message near their stamp."""
+
+    truths: int = 0
+    poses: int = 0
+    gaps: dict[str, list[int]] = field(default_factory=lambda: {"truth": [], "pose": []})
+    stamps: list[int] = field(default_factory=list)
+    """The stamps (ns) of the frames read, for their period."""
+
+    def see(self, gap_ns: int | None, what: str) -> None:
+        """Count a frame without ``what`` ("truth" or "pose"); ``gap_ns``: the nearest's."""
+        if what == "truth":
+            self.truths += 1
+        else:
+            self.poses += 1
+        if gap_ns is not None:
+            self.gaps[what].append(gap_ns)
+
+    def notes(self, state: ReadState, truth_topic: str) -> list[str]:
+        """Say how many frames lacked a pose or truth, and the tolerance that would pair them."""
+        notes = []
+        for what, count, topic in (
+            ("truth", self.truths, truth_topic),
+            ("pose", self.poses, GROUND_TRUTH_POSE),
+        ):
+            if not count or not topic:
+                continue
+            note = (
+                f"{count} frame{'' if count == 1 else 's'} left out: no {topic} within "
+                f"{state.tolerance_ns / 1e6:g} ms of their stamp ({state.tolerance_from})"
+            )
+            gaps = self.gaps[what]
+            if gaps:
+                note += f"; {len(gaps)} had one {min(gaps) / 1e6:.2f}-{max(gaps) / 1e6:.2f} ms away"
+                note += self._advice(max(gaps), topic)
+            notes.append(note)
+        return notes
+
+    def _advice(self, widest_ns: int, topic: str) -> str:
+        """Return the tolerance to pass, or why none would take the frames' own messages."""
+        unique = np.unique(self.stamps)
+        steps = np.diff(unique)
+        period = float(np.median(steps)) if steps.size else math.inf
+        if len(self.stamps) > 1 and unique.size == 1:
+            return (
+                f", and all {len(self.stamps)} frames have header stamp {int(unique[0])} ns: "
+                "their stamps do not tell them apart (the input images have no header stamps), "
+                "so no tolerance matches them; densify the input again, which stamps such "
+                "frames with their left image's log time"
+            )
+        if widest_ns >= MAX_ADVISED_TOLERANCE_NS:
+            return (
+                f": a second or more, so {topic} and the images are stamped on different "
+                "clocks (or not at all); no tolerance matches them frame by frame: stamp them "
+                "on one clock"
+            )
+        if widest_ns < period / 2:
+            return f": pass --stamp-tolerance-ms {math.ceil(widest_ns / 1e6)} to take it"
+        # a stamp half a frame away or more is another frame's: no tolerance fixes it
+        return f", another frame's ({period / 1e6:.0f} ms apart): the stream lacks them"
