@@ -1947,6 +1947,34 @@ def test_densify_pairs_images_whose_stamps_are_all_zero_by_log_time(
     assert tables[0] == tables[1] != []
 
 
+def test_densify_pairs_by_stamp_past_a_duplicated_image(
+    pcainterp: Callable[..., Run],
+    small_messages: list[Message],
+    basis_path: Path,
+    tmp_path: Path,
+) -> None:
+    """Bug hunt 7A F11: the left image of frame 2 logged twice (a bag merge), the right images
+    3 ms after the left ones: all pairs but 2 were lost to log time at a 1 ms tolerance."""
+    twice_ns = small_messages[0][2] + 2 * 100_000_000
+    messages = []
+    for topic, message, log_time_ns in small_messages:
+        late = 3_000_000 if topic == RIGHT else 0
+        messages.append((topic, message, log_time_ns + late))
+        if topic == LEFT and log_time_ns == twice_ns:
+            messages.append((topic, message, log_time_ns + 1_000_000))
+    messages.sort(key=lambda item: item[2])
+    log = write_messages(tmp_path / "dup.mcap", messages)
+    run = pcainterp(*densify_args(log, tmp_path / "dup_out.mcap", basis_path))
+    assert run.code == 0, run.err
+    assert (
+        f"pairing: {SMALL_FRAMES} pairs, 0 unpaired left, 0 unpaired right, "
+        "1 duplicate image dropped\n"
+    ) in run.out
+    assert f"duplicates: 1 image of {LEFT} was logged again (the same message" in run.out
+    assert "paired by log time" not in run.out
+    assert "warning" not in run.out + run.err
+
+
 def test_evaluate_pairs_right_images_as_densify_did(
     pcainterp: Callable[..., Run],
     small_messages: list[Message],

@@ -31,6 +31,8 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from pcainterp_stream.errors import CalibrationError, LogReadError
 from pcainterp_stream.frontend import rectify as rect
 from pcainterp_stream.frontend.camera_infos import (
@@ -62,6 +64,9 @@ _OTHER = {"left": "right", "right": "left"}
 
 NEAR_MISS_NS = 50_000_000
 """An unpaired image with an other-side image this near (ns) is counted as a near miss."""
+
+RECENT_INTERVALS = 16
+"""Log-time intervals of a side kept for its frame interval (their median)."""
 
 
 @dataclass(frozen=True)
@@ -204,6 +209,10 @@ class StereoPairer:
         self._index = 0
         self._by_log_time = False  # the stamps do not tell the images apart: by log time
         self._last_log = {"left": -1, "right": -1}  # log time of each side's last image
+        # each side's last log-time intervals (its frame interval) and image (a duplicate?)
+        self._intervals = {side: deque[int](maxlen=RECENT_INTERVALS) for side in _OTHER}
+        self._last_image: dict[str, _Pending | None] = {"left": None, "right": None}
+        self._lag_ns = 0  # by log time: right minus left log time of the pairs made by stamp
         self._info_stamp = {"left": -1, "right": -1}  # header stamp of each side's last info
         self._infos_follow = False  # infos carry their image's stamp and come after it
         self._paired_by_stamp = 0
@@ -361,12 +370,17 @@ class StereoPairer:
 
     # images ---------------------------------------------------------------------------
     def _push_image(self, side: str, item: _Pending) -> list[StereoFrame]:
+        if item.stamp_ns and _same_image(item, self._last_image[side]):
+            self._duplicate(side, item)  # the same message again: it makes no frame
+            return []
+        self._last_image[side] = item
+        if self._last_log[side] >= 0:
+            self._intervals[side].append(item.log_time_ns - self._last_log[side])
         frames: list[StereoFrame] = []
         # a header stamp of 0 (not set) or of the side's previous image does not place it
         item.unplaced = item.stamp_ns in (0, self._last_stamp[side])
         if not self._by_log_time and item.stamp_ns == self._last_stamp[side]:
-            period = item.log_time_ns - self._last_log[side]
-            frames = self._stamps_repeat(side, item.stamp_ns, period)
+            frames = self._stamps_repeat(side, item.stamp_ns, _median(self._intervals[side]))
         if item.stamp_ns < self._last_stamp[side]:
             self.stats.non_monotonic_stamps += 1
         self.stats.first_stamps_ns.setdefault(side, item.stamp_ns)
@@ -374,20 +388,29 @@ class StereoPairer:
         self._last_log[side] = item.log_time_ns
         return frames + self._match(side, item)
 
+    def _duplicate(self, side: str, item: _Pending) -> None:
+        """Count an image that is a copy of one of its side already read (a bag merge's)."""
+        stats = self.stats
+        if not stats.duplicate_images:
+            config = self.config
+            stats.duplicate_topic = config.left_topic if side == "left" else config.right_topic
+            stats.duplicate_stamp_ns = item.stamp_ns
+        stats.duplicate_images += 1
+
     def _match(self, side: str, item: _Pending) -> list[StereoFrame]:
         """Pair an image with the other side's nearest (by :meth:`_time`), or queue it."""
         own, other = (self._left, self._right) if side == "left" else (self._right, self._left)
-        partner = self._closest(other, self._time(item))
+        partner = self._closest(other, _OTHER[side], self._time(item, side))
         if partner is None:
             # each waiting image keeps its nearest other-side image (before or after it) that
             # waited too: the partner a wider tolerance would give it, not a paired neighbour
-            gaps = [self._time(p) - self._time(item) for p in other]
+            gaps = [self._time(p, _OTHER[side]) - self._time(item, side) for p in other]
             for waiting, gap in zip(other, gaps, strict=True):
                 waiting.miss_ns = _nearer(waiting.miss_ns, abs(gap))
                 item.miss_ns = _nearer(item.miss_ns, abs(gap))
             nearest = min(gaps, key=abs, default=None)
             if nearest is not None:
-                self.stats.saw_gap(nearest if side == "left" else -nearest)
+                self.stats.saw_gap(nearest if side == "left" else -nearest, self._by_log_time)
             self._lost_partner(side, item)
             own.append(item)
             self._count_unpaired(side, self._hold.give_up(side, own))
@@ -396,9 +419,9 @@ class StereoPairer:
         left, right = (item, partner) if side == "left" else (partner, item)
         # Stamps before this pair (minus the tolerance) will not pair any more in an
         # ordered stream: drop them now so the counts are exact and the buffers small.
-        horizon = self._time(left) - self._tolerance()
+        horizon = self._time(left, "left") - self._tolerance()
         for queue, name in ((self._left, "left"), (self._right, "right")):
-            stale = [p for p in queue if self._time(p) < horizon]
+            stale = [p for p in queue if self._time(p, name) < horizon]
             for p in stale:
                 queue.remove(p)
             self._count_unpaired(name, stale)
@@ -421,9 +444,14 @@ class StereoPairer:
         """Return the pairing's tolerance (ns): by log time, at least a quarter frame."""
         return self.stats.log_tolerance_ns if self._by_log_time else self.config.tolerance_ns
 
-    def _time(self, item: _Pending) -> int:
-        """Return what pairs an image: its header stamp, or log time (:meth:`_stamps_repeat`)."""
-        return item.log_time_ns if self._by_log_time else item.stamp_ns
+    def _time(self, item: _Pending, side: str) -> int:
+        """Return what pairs an image: its header stamp, or log time (:meth:`_stamps_repeat`).
+
+        By log time, a right image's is less the sides' lag measured on the pairs by stamp.
+        """
+        if not self._by_log_time:
+            return item.stamp_ns
+        return item.log_time_ns - (self._lag_ns if side == "right" else 0)
 
     def _stamps_repeat(self, side: str, stamp_ns: int, period_ns: int) -> list[StereoFrame]:
         """Pair by log time from now on: an image has its side's previous stamp again.
@@ -435,28 +463,40 @@ class StereoPairer:
         time: those still waiting for camera infos are paired again, those already made are
         counted (``stats.unsure_pairs``). Returns the frames the pairing again completes.
 
-        By log time the tolerance is at least a quarter of the side's last frame interval
-        (``period_ns``): the two sides of a pair are received apart by their drivers' jitter,
-        often more than the stamps' 1 ms, and a quarter frame still never reaches the next
-        frame's image.
+        By log time the tolerance is at least a quarter of the side's frame interval
+        (``period_ns``, the median of its last ones, so that no one short gap sets it): the
+        two sides of a pair are received apart by their drivers' jitter, often more than the
+        stamps' 1 ms, and a quarter frame still never reaches the next frame's image. The
+        steady lag of the right images' log times after the left ones, measured on the pairs
+        made by (other) stamps, is subtracted: sides logged apart still pair by log time.
         """
         self._by_log_time = True
+        self.stats.log_period_ns = max(period_ns, 0)
         self.stats.log_tolerance_ns = max(self.config.tolerance_ns, max(period_ns, 0) // 4)
         tolerance = self.stats.log_tolerance_ns
+        lags = [right - left for pair_stamp, left, right in self._recent if pair_stamp != stamp_ns]
+        lags += [
+            r.log_time_ns - left.log_time_ns
+            for left, r in self._matched
+            if left.stamp_ns != stamp_ns
+        ]
+        self._lag_ns = self.stats.log_lag_ns = _median(lags)
+        lag = self._lag_ns
         stats = self.stats
         config = self.config
         stats.repeated_stamp_topic = config.left_topic if side == "left" else config.right_topic
         stats.repeated_stamp_ns = stamp_ns
         stats.pairs_by_stamp = self._paired_by_stamp + len(self._matched)
         stats.unsure_pairs = [
-            (left_log_ns, abs(left_log_ns - right_log_ns))
+            (left_log_ns, abs(right_log_ns - left_log_ns - lag))
             for pair_stamp_ns, left_log_ns, right_log_ns in self._recent
-            if pair_stamp_ns == stamp_ns and abs(left_log_ns - right_log_ns) > tolerance
+            if pair_stamp_ns == stamp_ns and abs(right_log_ns - left_log_ns - lag) > tolerance
         ]
         unsure = [
             (left, right)
             for left, right in self._matched
-            if left.stamp_ns == stamp_ns and abs(left.log_time_ns - right.log_time_ns) > tolerance
+            if left.stamp_ns == stamp_ns
+            and abs(right.log_time_ns - left.log_time_ns - lag) > tolerance
         ]
         frames: list[StereoFrame] = []
         for left, right in unsure:
@@ -489,11 +529,11 @@ class StereoPairer:
             self.stats.unpaired_right += len(dropped)
         self.stats.near_misses_ns.extend(p.miss_ns for p in dropped if p.miss_ns >= 0)
 
-    def _closest(self, queue: deque[_Pending], time_ns: int) -> _Pending | None:
+    def _closest(self, queue: deque[_Pending], side: str, time_ns: int) -> _Pending | None:
         best: _Pending | None = None
         best_gap = 0
         for candidate in queue:
-            gap = abs(self._time(candidate) - time_ns)
+            gap = abs(self._time(candidate, side) - time_ns)
             if gap <= self._tolerance() and (best is None or gap < best_gap):
                 best, best_gap = candidate, gap
         return best
@@ -786,6 +826,24 @@ def is_rectified_name(topic: str) -> bool:
     """Return True for an image topic named as rectified (``image_rect``, ``image_rect_color``)."""
     parts = [p for p in topic.split("/") if p and p not in ("compressed", "compressedDepth")]
     return bool(parts) and "rect" in parts[-1].lower()
+
+
+def _median(values: Sequence[int]) -> int:
+    """Return the median of some integers (the lower middle one), 0 for none."""
+    return sorted(values)[(len(values) - 1) // 2] if values else 0
+
+
+def _same_image(item: _Pending, last: _Pending | None) -> bool:
+    """Whether an image is the side's last one again: its stamp, size, encoding and bytes."""
+    if last is None or item.stamp_ns != last.stamp_ns:
+        return False
+    new, old = item.message, last.message
+    if new is old:
+        return True
+    for name in ("height", "width", "step", "encoding", "format"):
+        if getattr(new, name, None) != getattr(old, name, None):
+            return False
+    return bool(np.array_equal(np.asarray(new.data), np.asarray(old.data)))
 
 
 def _nearer(miss_ns: int, gap_ns: int) -> int:

@@ -68,6 +68,15 @@ class PairingStats:
             by log time; None when the stamps paired every image.
         repeated_stamp_ns: that stamp (ns).
         pairs_by_stamp: pairs made by header stamp before the switch to log time.
+        log_lag_ns: by log time, the right images' log time after their left ones' (ns), the
+            median on the pairs made by other stamps before the switch, subtracted.
+        log_period_ns: by log time, the frame interval (ns) the tolerance is a quarter of.
+        log_gap_ns: by log time, the smallest gap (right minus left log time, less the lag,
+            ns) between an image that found no partner and the other side's waiting images.
+        duplicate_images: images dropped as the same message as their side's last one again
+            (same header stamp, size, encoding and bytes: a bag merge's, a driver's re-send).
+        duplicate_topic: the image topic of the first duplicate; None when there was none.
+        duplicate_stamp_ns: its header stamp (ns).
         unsure_pairs: (left log time, log time between the sides) (ns) of the pairs made by
             stamp before the stamps repeated that have the repeated stamp but whose images
             were recorded beyond the tolerance apart.
@@ -112,6 +121,12 @@ class PairingStats:
     repeated_stamp_topic: str | None = None
     repeated_stamp_ns: int = 0
     pairs_by_stamp: int = 0
+    log_lag_ns: int = 0
+    log_period_ns: int = 0
+    log_gap_ns: int | None = None
+    duplicate_images: int = 0
+    duplicate_topic: str | None = None
+    duplicate_stamp_ns: int = 0
     unsure_pairs: list[tuple[int, int]] = field(default_factory=list)
     tolerance_ns: int = 0
     log_tolerance_ns: int = 0
@@ -142,8 +157,32 @@ class PairingStats:
         return (
             f"{some} images dropped unpaired had an unpaired other-side image "
             f"{min(misses) / 1e6:.2f}-{widest:.2f} ms{when} away, beyond the "
-            f"{tolerance / 1e6:g} ms tolerance; pass --stamp-tolerance-ms "
-            f"{math.ceil(widest)} to pair them"
+            f"{tolerance / 1e6:g} ms tolerance; {self._tolerance_advice(widest)}"
+        )
+
+    def _tolerance_advice(self, widest_ms: float) -> str:
+        """The tolerance that pairs the near misses; by log time, only with what it assumes.
+
+        By log time an image 40 ms after its partner cannot be told from one 60 ms before
+        the next frame's (at 10 Hz): the advice names which, and a tolerance of half a frame
+        or more, which reaches the neighbouring frame's image, is never advised.
+        """
+        advice = f"pass --stamp-tolerance-ms {math.ceil(widest_ms)} to pair them"
+        period, gap = self.log_period_ns / 1e6, self.log_gap_ns
+        if self.repeated_stamp_topic is None or not period or gap is None:
+            return advice
+        if 2 * widest_ms >= period:
+            return (
+                f"that is half the {period:g} ms frame interval or more: by log time they "
+                "cannot be told from the neighbouring frames' images; give the images "
+                "distinct header stamps"
+            )
+        lag, other = abs(gap) / 1e6, period - abs(gap) / 1e6
+        after, before = ("after", "before") if gap > 0 else ("before", "after")
+        return (
+            f"{advice} if each right image is logged {lag:.0f} ms {after} its left one (if "
+            f"{other:.0f} ms {before} it, a tolerance pairs each image with the neighbouring "
+            "frame's: give the images distinct header stamps)"
         )
 
     def hold_hint(self) -> str | None:
@@ -160,10 +199,27 @@ class PairingStats:
         )
 
     def stamp_note(self) -> str | None:
-        """A note when images were paired by log time: their header stamps repeat, else None.
+        """A note on duplicated images and on pairing by log time, else None.
 
-        It also says when outputs carry their left image's log time as their stamp.
+        By log time: the images' header stamps repeat (:meth:`StereoPairer._stamps_repeat`). It
+        also says when outputs carry their left image's log time as their stamp.
         """
+        notes = [self._duplicate_note(), self._log_time_note()]
+        return "; ".join(note for note in notes if note) or None
+
+    def _duplicate_note(self) -> str | None:
+        count, topic = self.duplicate_images, self.duplicate_topic
+        if not count or topic is None:
+            return None
+        images = "1 image" if count == 1 else f"{count} images"
+        how = "made by header stamp" if self.repeated_stamp_topic is None else "made as below"
+        return (
+            f"duplicates: {images} of {topic} {'was' if count == 1 else 'were'} logged again "
+            f"(the same message, first at stamp {_seconds(self.duplicate_stamp_ns)} s): the "
+            f"{'copy was' if count == 1 else 'copies were'} dropped, the pairs are {how}"
+        )
+
+    def _log_time_note(self) -> str | None:
         topic = self.repeated_stamp_topic
         stamped = self.log_stamped
         outputs = (
@@ -173,15 +229,18 @@ class PairingStats:
         if topic is None:
             return f"stamps: {outputs}" if stamped else None
         stamp = self.repeated_stamp_ns
-        why = (
-            "repeat 0 (not set)"
-            if stamp == 0
-            else f"repeat ({stamp // 1_000_000_000}.{stamp % 1_000_000_000:09d} s twice)"
-        )
+        why = "repeat 0 (not set)" if stamp == 0 else f"repeat ({_seconds(stamp)} s twice)"
         after = f" after the first {self.pairs_by_stamp}" if self.pairs_by_stamp else ""
+        lag = self.log_lag_ns
+        lagged = (
+            f" (the right images logged {abs(lag) / 1e6:g} ms {'after' if lag > 0 else 'before'}"
+            " their left ones, as in the pairs by stamp)"
+            if lag
+            else ""
+        )
         return (
             f"stamps: the header stamps of {topic} {why}, so they do not tell its images "
-            f"apart: the images were paired by log time{after}, within "
+            f"apart: the images were paired by log time{after}{lagged}, within "
             f"{self.log_tolerance_ns / 1e6:g} ms (a quarter frame, or --stamp-tolerance-ms "
             "when wider)" + (f"; {outputs}" if stamped else "")
         )
@@ -194,14 +253,23 @@ class PairingStats:
         times = ", ".join(f"{t / 1e9:.3f}" for t, _ in unsure[:3])
         more = ", ..." if len(unsure) > 3 else ""
         gaps = [gap / 1e6 for _, gap in unsure]
-        return (
+        said = (
             f"{len(unsure)} stereo pair(s) made by header stamp before the stamps of "
             f"{self.repeated_stamp_topic} repeated had their images recorded "
             f"{min(gaps):.2f}-{max(gaps):.2f} ms apart, beyond the "
             f"{self.log_tolerance_ns / 1e6:g} ms tolerance: they may be mispaired (left "
-            f"images at log time {times}{more} s); "
-            f"pass --stamp-tolerance-ms {math.ceil(max(gaps))} if the two sides are only "
-            "received that far apart"
+            f"images at log time {times}{more} s)"
+        )
+        period = self.log_period_ns / 1e6
+        if period and 2 * max(gaps) >= period:  # a tolerance would reach the next frame's
+            return (
+                f"{said}; that is half the {period:g} ms frame interval or more, where no "
+                "tolerance tells them from the neighbouring frames' images: give the images "
+                "distinct header stamps"
+            )
+        return (
+            f"{said}; pass --stamp-tolerance-ms {math.ceil(max(gaps))} if the two sides are "
+            "only received that far apart"
         )
 
     def camera_info_hint(self) -> str | None:
@@ -247,8 +315,10 @@ class PairingStats:
             "(the log's camera infos do not change)"
         )
 
-    def saw_gap(self, right_minus_left_ns: int) -> None:
+    def saw_gap(self, right_minus_left_ns: int, by_log: bool = False) -> None:
         """Keep the smallest stamp gap between an unpaired image and the other side's."""
+        if by_log and (self.log_gap_ns is None or abs(right_minus_left_ns) < abs(self.log_gap_ns)):
+            self.log_gap_ns = right_minus_left_ns
         if self.nearest_gap_ns is None or abs(right_minus_left_ns) < abs(self.nearest_gap_ns):
             self.nearest_gap_ns = right_minus_left_ns
 
@@ -324,6 +394,9 @@ class PairingStats:
             parts.append(f"{self.no_camera_info} without camera info")
         if self.non_monotonic_stamps:
             parts.append(f"{self.non_monotonic_stamps} non-monotonic stamps")
+        if self.duplicate_images:
+            many = "s" if self.duplicate_images > 1 else ""
+            parts.append(f"{self.duplicate_images} duplicate image{many} dropped")
         for reason, count in self.undecodable.items():
             parts.append(f"{count} undecodable ({reason})")
         if self.features_matched or self.features_unmatched:
@@ -332,3 +405,8 @@ class PairingStats:
                 f"{self.features_unmatched} unmatched feature clouds"
             )
         return ", ".join(parts)
+
+
+def _seconds(stamp_ns: int) -> str:
+    """Return a stamp (ns) as seconds with all nine decimals."""
+    return f"{stamp_ns // 1_000_000_000}.{stamp_ns % 1_000_000_000:09d}"

@@ -274,9 +274,7 @@ def test_buffers_are_bounded_with_one_side_missing() -> None:
         PairingConfig(hold_ns=-1)
 
 
-def _lagged(
-    pairer: StereoPairer, late_topic: str, lag_ns: int, frames: int = 60
-) -> list[Any]:
+def _lagged(pairer: StereoPairer, late_topic: str, lag_ns: int, frames: int = 60) -> list[Any]:
     """Push 30 Hz frames (left, right, /features, stamps equal) in log-time order, the messages
     of ``late_topic`` logged ``lag_ns`` after (or before) the others; return every frame."""
     messages = []
@@ -962,8 +960,9 @@ def test_a_pair_made_by_stamp_before_the_repeat_is_checked_by_log_time() -> None
     assert hint == (
         f"1 stereo pair(s) made by header stamp before the stamps of {CONFIG.left_topic} "
         "repeated had their images recorded 100.00-100.00 ms apart, beyond the 25 ms "
-        "tolerance: they may be mispaired (left images at log time 1600000000.000 s); pass "
-        "--stamp-tolerance-ms 100 if the two sides are only received that far apart"
+        "tolerance: they may be mispaired (left images at log time 1600000000.000 s); that is "
+        "half the 100 ms frame interval or more, where no tolerance tells them from the "
+        "neighbouring frames' images: give the images distinct header stamps"
     )
     # while the pair still waits for its camera infos, it is paired again, by log time
     pairer = StereoPairer()
@@ -1010,7 +1009,11 @@ def test_repeated_stamps_recorded_apart_are_a_tolerance_warning_in_log_time() ->
     hint = stats.tolerance_hint()
     assert hint is not None
     assert "40.00-40.00 ms of log time away, beyond the 25 ms tolerance" in hint
-    assert hint.endswith("pass --stamp-tolerance-ms 40 to pair them")
+    assert hint.endswith(
+        "pass --stamp-tolerance-ms 40 to pair them if each right image is logged 40 ms after "
+        "its left one (if 60 ms before it, a tolerance pairs each image with the neighbouring "
+        "frame's: give the images distinct header stamps)"
+    )
     # the first pair, made by stamp, cannot be told from a wrong one: the same fix
     assert (stats.stamp_hint() or "").endswith(
         "pass --stamp-tolerance-ms 40 if the two sides are only received that far apart"
@@ -1018,6 +1021,19 @@ def test_repeated_stamps_recorded_apart_are_a_tolerance_warning_in_log_time() ->
     frames, stats = run(PairingConfig(tolerance_ns=40 * MS), 40)
     assert [(int(f.left[0, 0]), int(f.right[0, 0])) for f in frames] == [(i, i) for i in range(4)]
     assert (stats.tolerance_hint(), stats.stamp_hint()) == (None, None)
+    # logged 60 ms apart, the nearest other-side image is the neighbouring frame's, 40 ms
+    # away: the advice says what it assumes (bug hunt 7A F11: it paired each left image with
+    # the previous right one, silently)
+    _, stats = run(PairingConfig(), 60)
+    assert (stats.tolerance_hint() or "").endswith(
+        "pass --stamp-tolerance-ms 40 to pair them if each right image is logged 40 ms before "
+        "its left one (if 60 ms after it, a tolerance pairs each image with the neighbouring "
+        "frame's: give the images distinct header stamps)"
+    )
+    assert (stats.stamp_hint() or "").endswith(  # 60 ms tolerance: the neighbour's 40 ms
+        "that is half the 100 ms frame interval or more, where no tolerance tells them from "
+        "the neighbouring frames' images: give the images distinct header stamps"
+    )
 
 
 def test_infos_recorded_after_their_images_apply_to_their_own_frame() -> None:
@@ -1085,9 +1101,84 @@ def test_the_hold_advice_is_never_the_value_in_force() -> None:
     # clouds 1 s early and right images 1.5 s late: the cloud waited 2.5 s, beyond a hold of
     # 2 s, but its lag to the left image is 1 s: "pass --hold-s 2" was the value in force
     lost = Lost()
-    lost.add(-10**9, GivenUpItem(0, 0, "span", 0.0))
+    lost.add(-(10**9), GivenUpItem(0, 0, "span", 0.0))
     limits = HoldLimits(8, 2 * 10**9, 2000, 512 * 2**20)
     assert "pass --hold-s 3" in lost.beyond(limits, "a cloud for its frame")
     lost = Lost()
     lost.add(10**9, GivenUpItem(0, 0, "bytes", 1.0))  # a small queue given up by all bytes
     assert "pass --hold-mib 1025 " in lost.beyond(limits, "an image for its partner")
+
+
+def _lagged_pairs(
+    config: PairingConfig,
+    stamps: list[int],
+    lag_ms: float,
+    *,
+    duplicate: int | None = None,
+    duplicate_copy: bool = True,
+) -> tuple[list[tuple[int, int]], PairingStats]:
+    """Push frames 0..n-1, 100 ms of log apart, each right image ``lag_ms`` of log after its
+    left one (each image's value its frame number); the left image of frame ``duplicate``
+    is logged a second time 1 ms later (the same message, or another of the same stamp)."""
+    pairer = StereoPairer(config)
+    with_infos(pairer)
+    start = 1_600_000_000 * 10**9
+    messages = []
+    for index, stamp in enumerate(stamps):
+        log_ns = start + index * 100 * MS
+        left = image(stamp, index)
+        messages.append((log_ns, CONFIG.left_topic, stamp, left))
+        messages.append((log_ns + int(lag_ms * MS), CONFIG.right_topic, stamp, image(stamp, index)))
+        if index == duplicate:
+            again = left if duplicate_copy else image(stamp, 200)
+            messages.append((log_ns + MS, CONFIG.left_topic, stamp, again))
+    frames = []
+    for log_ns, topic, stamp, message in sorted(messages, key=lambda m: m[0]):
+        frames += pairer.push(topic, stamp, log_ns, message)
+    frames += pairer.flush()
+    return [(int(f.left[0, 0]), int(f.right[0, 0])) for f in frames], pairer.finish()
+
+
+def test_a_duplicated_image_is_dropped_and_the_pairing_stays_by_stamp() -> None:
+    """Bug hunt 7A F11: one image logged twice switched the rest of the log to log time."""
+    stamps = [1317046453 * 10**9 + index * 100 * MS for index in range(12)]
+    for lag_ms in (60, 3):  # the right images logged 60 (or 3) ms after their left ones
+        pairs, stats = _lagged_pairs(PairingConfig(), stamps, lag_ms, duplicate=3)
+        assert pairs == [(i, i) for i in range(12)], lag_ms  # was 3 pairs
+        assert (stats.pairs, stats.unpaired_left, stats.unpaired_right) == (12, 0, 0)
+        assert stats.duplicate_images == 1
+        assert stats.repeated_stamp_topic is None
+        assert "1 duplicate image dropped" in stats.summary()
+        assert stats.stamp_note() == (
+            f"duplicates: 1 image of {CONFIG.left_topic} was logged again (the same message, "
+            "first at stamp 1317046453.300000000 s): the copy was dropped, the pairs are "
+            "made by header stamp"
+        )
+        assert (stats.tolerance_hint(), stats.stamp_hint()) == (None, None)
+
+
+def test_log_time_pairing_subtracts_the_lag_of_the_pairs_made_by_stamp() -> None:
+    """The stamps stop telling the frames apart after 3 (a driver's clock stuck): by log
+    time, the right images' steady 60 ms lag measured on the stamp pairs is subtracted, and
+    the tolerance is a quarter of the frame interval, not of a 1 ms gap."""
+    stamps = [10**9 + index * 100 * MS for index in range(3)] + [10**9 + 300 * MS] * 9
+    pairs, stats = _lagged_pairs(PairingConfig(), stamps, 60)
+    # was: the left images beyond 3 dropped, and with the advised 40 ms each left image
+    # paired with the previous frame's right one
+    assert pairs == [(i, i) for i in range(12)]
+    assert stats.tolerance_hint() is None
+    note = stats.stamp_note() or ""
+    assert "within 25 ms" in note
+    assert "right images logged 60 ms after their left ones" in note
+    pairs, _ = _lagged_pairs(PairingConfig(tolerance_ns=40 * MS), stamps, 60)
+    assert pairs == [(i, i) for i in range(12)]
+
+
+def test_a_repeated_stamp_one_ms_apart_takes_the_tolerance_from_the_frame_interval() -> None:
+    # another image of the same stamp 1 ms after (not a copy): the stamps repeat, but the
+    # frame interval is 100 ms, so by log time the tolerance is 25 ms and a 3 ms lag pairs
+    stamps = [10**9 + index * 100 * MS for index in range(12)]
+    pairs, stats = _lagged_pairs(PairingConfig(), stamps, 3, duplicate=3, duplicate_copy=False)
+    assert stats.repeated_stamp_topic == CONFIG.left_topic
+    assert stats.log_tolerance_ns == 25 * MS  # was 1 ms: 9 of 12 pairs lost
+    assert [pair for pair in pairs if pair[0] != 200] == [(i, i) for i in range(12)]
