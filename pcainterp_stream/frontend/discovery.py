@@ -403,9 +403,45 @@ def resolve_pairing(
     named topics are kept; only info topics left at their defaults become the image topics'
     sibling ``camera_info`` when the log has those and not the defaults.
 
+    A Kalibr camchain whose cam1 is the left camera (Kalibr numbers the cameras in its
+    ``--topics`` order) is said in a line of its own before the topics line.
+
     Raises:
         TopicNotFoundError: no pair, or two equally good pairs (listing them and the options).
     """
+    order = _camchain_order(config)
+    if order and echo is not None:
+        echo(order)
+    return _resolve(reader, config, echo)
+
+
+def _camchain_order(config: PairingConfig) -> str:
+    """Return the line saying a Kalibr camchain's cam1 is the left camera ("" if it is not).
+
+    :func:`io.calibration.load_calibration` names such a pair's cameras ``PATH:cam1``,
+    ``PATH:cam0``.
+    """
+    calibration = config.calibration
+    if calibration is None:
+        return ""
+    left = str(getattr(calibration.left, "name", ""))
+    if not left.endswith(":cam1") or calibration.right.name != left[: -len("1")] + "0":
+        return ""
+    source = _calibration_file(config)
+    try:
+        apart = f" {calibration.left.baseline(calibration.right):.3f} m"
+    except (AttributeError, TypeError, ValueError):
+        apart = ""
+    return (
+        f"{source}: cam1 is the left camera (cam0 lies{apart} to its right; Kalibr numbers "
+        "cameras in --topics order)"
+    )
+
+
+def _resolve(
+    reader: LogReader, config: PairingConfig, echo: Callable[[str], None] | None
+) -> PairingConfig:
+    """Return ``config`` with the topics of the log's stereo pair (:func:`resolve_pairing`)."""
     topics = reader.topics()
     if not config.discover:
         siblings: dict[str, str] = {}
@@ -502,7 +538,7 @@ def _discover(
                 f"{topic} (--{side}-topic) has no partner camera in {name}: pass "
                 "--left-topic and --right-topic both"
             )
-        return resolve_pairing(reader, dataclasses.replace(config, discover=False), echo)
+        return _resolve(reader, dataclasses.replace(config, discover=False), echo)
     if not pairs and (reader.damage or all(info.message_count == 0 for info in topics.values())):
         return dataclasses.replace(config, discover=False)  # the defaults: reported as damaged
     if not pairs:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -531,3 +532,33 @@ def test_rect_above_the_side_name_says_nothing() -> None:
     assert not is_rectified_name("/zed/zed_node/left/gray/raw/image")
     assert not is_rectified_name("/cam0/rect/image")  # no side said, no partner given
     assert not is_rectified_name("/stereo/left/direct/image")
+
+
+def test_a_camchain_read_with_cam1_left_says_so_in_a_line() -> None:
+    # bug hunt 7A F14: a camchain whose cam0 is the right camera (Kalibr numbers the cameras
+    # in --topics order) is read with cam1 left (io.calibration names the cameras so)
+    left = SimpleNamespace(name="/calib/camchain.yaml:cam1", baseline=lambda right: 0.5372)
+    calibration = SimpleNamespace(
+        left=left, right=SimpleNamespace(name="/calib/camchain.yaml:cam0")
+    )
+    topics = ("/cam1/image_raw", "/cam0/image_raw")
+    config = PairingConfig(discover=True, calibration=calibration, calibration_topics=topics)  # type: ignore[arg-type]
+    said: list[str] = []
+    config = resolve_pairing(_Reader(_topics(*topics)), config, said.append)  # type: ignore[arg-type]
+    assert (config.left_topic, config.right_topic) == topics
+    assert said == [
+        "camchain.yaml: cam1 is the left camera (cam0 lies 0.537 m to its right; Kalibr numbers "
+        "cameras in --topics order)",
+        "topics: left /cam1/image_raw, right /cam0/image_raw (the rostopics of camchain.yaml)",
+    ]
+    # both sides named: the line still says how the camchain is read
+    named = dataclasses.replace(
+        config, discover=False, calibration_topics=None, left_topic=topics[0], right_topic=topics[1]
+    )
+    said.clear()
+    resolve_pairing(_Reader(_topics(*topics)), named, said.append)  # type: ignore[arg-type]
+    assert len(said) == 1
+    assert said[0].startswith("camchain.yaml: cam1 is the left camera")
+    said.clear()
+    resolve_pairing(_Reader(_topics(*topics[::-1])), _camchain(), said.append)  # type: ignore[arg-type]
+    assert len(said) == 1  # cam0 left: nothing more than the topics line
