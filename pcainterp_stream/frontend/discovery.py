@@ -73,11 +73,15 @@ def stream_score(left: Camera, right: Camera) -> tuple[int, int, int, int]:
     """Return how much a pair of streams (of one image) is preferred.
 
     Rectified first, then both sides of one transport (both raw, or both compressed), then
-    the uncompressed sides (both, one, none), then grey.
+    the uncompressed sides (both, one, none), then grey. The names below the one that says
+    the side say it too (``/zed/zed_node/left/gray/rect/image``, the ZED wrapper 5.x's).
     """
-    colour = any(word in left.stream for word in ("color", "colour", "rgb"))
+    parts, others = left.topic.split("/"), right.topic.split("/")
+    side = next((i for i, (a, b) in enumerate(zip(parts, others, strict=False)) if a != b), 0)
+    below = "/".join([left.stream, *parts[side + 1 :]]).lower()
+    colour = any(word in below for word in ("color", "colour", "rgb"))
     return (
-        int(is_rectified_name(left.topic)),
+        int(is_rectified_name(left.topic, right.topic)),
         int(left.compressed == right.compressed),
         int(not left.compressed) + int(not right.compressed),
         int(not colour),
@@ -348,7 +352,27 @@ def find_pairs(
             if best is not None:
                 pairs.append(StereoTopics(best[0], best[1], how, closeness, best[2]))
     pairs.sort(key=StereoTopics.preference, reverse=True)
-    return pairs
+    return _without_crossed_kinds(pairs)
+
+
+def _without_crossed_kinds(pairs: list[StereoTopics]) -> list[StereoTopics]:
+    """Return ``pairs`` without the ones of two kinds of stream of one head.
+
+    ``/zed/zed_node/left/color/rect`` and ``/zed/zed_node/right/gray/raw`` (the ZED wrapper
+    5.x's streams) pair by Tx, but each camera has its partner of its own kind by name: a
+    pair by Tx whose namespaces first differ in a name that says the side, both of whose
+    cameras pair by name, is dropped (two heads, ``/front/left`` + ``/rear/right``, stay).
+    """
+    by_name = {c.namespace for p in pairs if p.how == "by name" for c in (p.left, p.right)}
+
+    def crossed(pair: StereoTopics) -> bool:
+        a, b = pair.left.namespace.split("/"), pair.right.namespace.split("/")
+        if pair.how == "by name" or not {pair.left.namespace, pair.right.namespace} <= by_name:
+            return False
+        k = next((i for i, (x, y) in enumerate(zip(a, b, strict=False)) if x != y), 0)
+        return _side_by_name("/".join(a[: k + 1]), "/".join(b[: k + 1])) is not None
+
+    return [p for p in pairs if not crossed(p)]
 
 
 def _first_tx(reader: LogReader) -> Callable[[str], float | None]:
@@ -379,9 +403,45 @@ def resolve_pairing(
     named topics are kept; only info topics left at their defaults become the image topics'
     sibling ``camera_info`` when the log has those and not the defaults.
 
+    A Kalibr camchain whose cam1 is the left camera (Kalibr numbers the cameras in its
+    ``--topics`` order) is said in a line of its own before the topics line.
+
     Raises:
         TopicNotFoundError: no pair, or two equally good pairs (listing them and the options).
     """
+    order = _camchain_order(config)
+    if order and echo is not None:
+        echo(order)
+    return _resolve(reader, config, echo)
+
+
+def _camchain_order(config: PairingConfig) -> str:
+    """Return the line saying a Kalibr camchain's cam1 is the left camera ("" if it is not).
+
+    :func:`io.calibration.load_calibration` names such a pair's cameras ``PATH:cam1``,
+    ``PATH:cam0``.
+    """
+    calibration = config.calibration
+    if calibration is None:
+        return ""
+    left = str(getattr(calibration.left, "name", ""))
+    if not left.endswith(":cam1") or calibration.right.name != left[: -len("1")] + "0":
+        return ""
+    source = _calibration_file(config)
+    try:
+        apart = f" {calibration.left.baseline(calibration.right):.3f} m"
+    except (AttributeError, TypeError, ValueError):
+        apart = ""
+    return (
+        f"{source}: cam1 is the left camera (cam0 lies{apart} to its right; Kalibr numbers "
+        "cameras in --topics order)"
+    )
+
+
+def _resolve(
+    reader: LogReader, config: PairingConfig, echo: Callable[[str], None] | None
+) -> PairingConfig:
+    """Return ``config`` with the topics of the log's stereo pair (:func:`resolve_pairing`)."""
     topics = reader.topics()
     if not config.discover:
         siblings: dict[str, str] = {}
@@ -478,7 +538,7 @@ def _discover(
                 f"{topic} (--{side}-topic) has no partner camera in {name}: pass "
                 "--left-topic and --right-topic both"
             )
-        return resolve_pairing(reader, dataclasses.replace(config, discover=False), echo)
+        return _resolve(reader, dataclasses.replace(config, discover=False), echo)
     if not pairs and (reader.damage or all(info.message_count == 0 for info in topics.values())):
         return dataclasses.replace(config, discover=False)  # the defaults: reported as damaged
     if not pairs:

@@ -822,10 +822,32 @@ class StereoPairer:
         return self._features.push(features)
 
 
-def is_rectified_name(topic: str) -> bool:
-    """Return True for an image topic named as rectified (``image_rect``, ``image_rect_color``)."""
-    parts = [p for p in topic.split("/") if p and p not in ("compressed", "compressedDepth")]
-    return bool(parts) and "rect" in parts[-1].lower()
+def is_rectified_name(topic: str, partner: str | None = None) -> bool:
+    """Return True for an image topic named as rectified (``image_rect``, ``image_rect_color``).
+
+    The stream's name says it (``image_rect``), or a name below the one that says the side
+    does (``/zed/zed_node/left/gray/rect/image``, as the ZED wrapper 5.x names its streams):
+    that side name is where ``topic`` and ``partner`` (the other side's topic) first differ,
+    else the last name with ``left``/``right`` as a word of its own; names above it
+    (``/rectifier/left/image_raw``) say nothing.
+    """
+    transports = ("compressed", "compressedDepth")
+    parts = [p.lower() for p in topic.split("/") if p and p not in transports]
+    if not parts:
+        return False
+    if "rect" in parts[-1]:
+        return True
+    if partner is not None:
+        others = [p.lower() for p in partner.split("/") if p and p not in transports]
+        sides = [i for i, (a, b) in enumerate(zip(parts, others, strict=False)) if a != b][:1]
+    else:  # "left", "camera_left", "left_raw", not "bright"
+        starts = [(i, p.find(word)) for i, p in enumerate(parts) for word in ("left", "right")]
+        sides = [i for i, k in starts if k == 0 or (k > 0 and not parts[i][k - 1].isalpha())]
+    if not sides:
+        return False
+    # a word of its own: "rect", "rect_color", "rectified", not "direct"
+    below = parts[sides[-1] + 1 :]
+    return any(w.startswith("rect") for p in below for w in p.replace("-", "_").split("_"))
 
 
 def _median(values: Sequence[int]) -> int:

@@ -134,12 +134,21 @@ class StereoRectifier:
             p_right = right.p
             baseline = left.baseline(right)
             if not (baseline > 0 and np.isfinite(baseline)):
-                sign = "swapped left/right?" if baseline < 0 else "no Tx"
                 left_tx = f", left P[0,3] = {left.p[0, 3]}" if left.p[0, 3] else ""
+                # a negative baseline is a sign problem --baseline cannot fix
+                sign, fix = (
+                    (
+                        "swapped left/right?",
+                        f"{right.name} is the left camera's calibration: pass it as the left "
+                        f"one and {left.name} as the right one, each with its camera's images",
+                    )
+                    if baseline < 0
+                    else ("no Tx", "fix the calibration or pass --baseline METRES")
+                )
                 raise CalibrationError(
                     f"{right.name} gives no baseline (P[0,3] = {p_right[0, 3]}, fx = "
                     f"{p_right[0, 0]}{left_tx}; expected P_left[0,3] - P_right[0,3] = fx * "
-                    f"baseline > 0: {sign}); fix the calibration or pass --baseline METRES"
+                    f"baseline > 0: {sign}); {fix}"
                 )
         self.camera = StereoCamera(
             width=int(width),

@@ -9,7 +9,9 @@ Three formats, told apart by their keys:
 - Kalibr ``camchain.yaml``, one file for both (``cam0``, ``cam1`` with ``intrinsics``,
   ``distortion_model`` radtan or equidistant, ``resolution``; ``cam1.T_cn_cnm1`` maps cam0
   coordinates into cam1's): rectified with ``cv2.stereoRectify`` (``cv2.fisheye.stereoRectify``
-  for equidistant).
+  for equidistant). Kalibr numbers the cameras in its ``--topics`` order: the left camera is
+  the one with the other to its right (cam1 when ``T_cn_cnm1``'s x translation, cam0's
+  centre in cam1's frame, is positive), named ``PATH:cam1`` then, its ``rostopic`` the left.
 - EuRoC ``sensor.yaml``, one file per camera (``T_BS``, the camera's pose in the body frame,
   ``intrinsics``, ``distortion_model``, ``resolution``): cam0-to-cam1 is
   inv(T_BS_1) @ T_BS_0, then as Kalibr.
@@ -234,10 +236,17 @@ def load_calibration(paths: list[Path]) -> tuple[StereoCalibration, tuple[str, s
                 f"calibration file {path}: cam1 has no T_cn_cnm1 (cam0 to cam1 transform)"
             )
         t = _transform(path, cam1, "T_cn_cnm1")
+        cams = [(f"{path}:cam0", cam0), (f"{path}:cam1", cam1)]
+        if t[0, 3] > 0:
+            # Kalibr numbers the cameras in --topics order: cam0's centre lies to cam1's
+            # right (x > 0 in cam1's frame), so cam1 is the left camera
+            cams.reverse()
+            t = np.asarray(np.linalg.inv(t), dtype=np.float64)
+        (left_name, left_data), (right_name, right_data) = cams
         calibration = rectify_pair(
-            _intrinsics(path, cam0), _intrinsics(path, cam1), t, (f"{path}:cam0", f"{path}:cam1")
+            _intrinsics(path, left_data), _intrinsics(path, right_data), t, (left_name, right_name)
         )
-        topics = (cam0.get("rostopic"), cam1.get("rostopic"))
+        topics = (left_data.get("rostopic"), right_data.get("rostopic"))
         named = (str(topics[0]), str(topics[1])) if all(topics) else None
         return calibration, named
     if len(paths) != 2:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -16,7 +17,7 @@ from pcainterp_stream.frontend.discovery import (
     find_pairs,
     resolve_pairing,
 )
-from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.frontend.pairing import PairingConfig, is_rectified_name
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.reader_base import TopicInfo
 
@@ -500,3 +501,64 @@ def test_a_camchains_rostopics_not_in_the_log_fall_back_to_the_pair_found() -> N
         "no stereo pair found in robot.bag"
     )
     assert "pass --left-topic and --right-topic" in line
+
+
+def test_the_zed_wrapper_5_layout_takes_its_rectified_grey_pair() -> None:
+    # bug hunt 7A F12: rect/raw and gray/color are names below the side one
+    # (/zed/zed_node/left/gray/rect/image): "4 stereo pairs equally good"
+    z = "/zed/zed_node"
+    kinds = ("color/rect", "gray/rect", "color/raw", "gray/raw")
+    names = [f"{z}/{side}/{kind}" for side in ("left", "right") for kind in kinds]
+    topics = _topics(*(topic for ns in names for topic in _camera(ns, "image")))
+    tx = {f"{ns}/camera_info": (-190.0 if "/right/" in ns else 0.0) for ns in names}
+    said: list[str] = []
+    reader = _TxReader(topics, tx)
+    config = resolve_pairing(reader, PairingConfig(discover=True), said.append)  # type: ignore[arg-type]
+    assert (config.left_topic, config.right_topic) == (
+        f"{z}/left/gray/rect/image",
+        f"{z}/right/gray/rect/image",
+    )
+    assert "(found by name; 3 other pairs less preferred;" in said[0]
+    order = [p.left.topic for p in find_pairs(topics, tx_of=tx.get)]
+    ranked = ("gray/rect", "color/rect", "gray/raw", "color/raw")
+    assert order == [f"{z}/left/{kind}/image" for kind in ranked]
+
+
+def test_rect_above_the_side_name_says_nothing() -> None:
+    # the names below the side one say rectified; above it (a node's name) they do not
+    assert is_rectified_name("/zed/zed_node/left/gray/rect/image")
+    assert is_rectified_name("/cam0/rect/image", "/cam1/rect/image")
+    assert not is_rectified_name("/rectifier/left/image_raw")
+    assert not is_rectified_name("/zed/zed_node/left/gray/raw/image")
+    assert not is_rectified_name("/cam0/rect/image")  # no side said, no partner given
+    assert not is_rectified_name("/stereo/left/direct/image")
+
+
+def test_a_camchain_read_with_cam1_left_says_so_in_a_line() -> None:
+    # bug hunt 7A F14: a camchain whose cam0 is the right camera (Kalibr numbers the cameras
+    # in --topics order) is read with cam1 left (io.calibration names the cameras so)
+    left = SimpleNamespace(name="/calib/camchain.yaml:cam1", baseline=lambda right: 0.5372)
+    calibration = SimpleNamespace(
+        left=left, right=SimpleNamespace(name="/calib/camchain.yaml:cam0")
+    )
+    topics = ("/cam1/image_raw", "/cam0/image_raw")
+    config = PairingConfig(discover=True, calibration=calibration, calibration_topics=topics)  # type: ignore[arg-type]
+    said: list[str] = []
+    config = resolve_pairing(_Reader(_topics(*topics)), config, said.append)  # type: ignore[arg-type]
+    assert (config.left_topic, config.right_topic) == topics
+    assert said == [
+        "camchain.yaml: cam1 is the left camera (cam0 lies 0.537 m to its right; Kalibr numbers "
+        "cameras in --topics order)",
+        "topics: left /cam1/image_raw, right /cam0/image_raw (the rostopics of camchain.yaml)",
+    ]
+    # both sides named: the line still says how the camchain is read
+    named = dataclasses.replace(
+        config, discover=False, calibration_topics=None, left_topic=topics[0], right_topic=topics[1]
+    )
+    said.clear()
+    resolve_pairing(_Reader(_topics(*topics)), named, said.append)  # type: ignore[arg-type]
+    assert len(said) == 1
+    assert said[0].startswith("camchain.yaml: cam1 is the left camera")
+    said.clear()
+    resolve_pairing(_Reader(_topics(*topics[::-1])), _camchain(), said.append)  # type: ignore[arg-type]
+    assert len(said) == 1  # cam0 left: nothing more than the topics line

@@ -127,6 +127,26 @@ def test_raw_pair_with_a_left_tx_keeps_its_baseline() -> None:
         rect.StereoRectifier(swapped)
 
 
+def test_a_sign_problem_is_never_told_to_pass_baseline() -> None:
+    # bug hunt 7A F14: "swapped left/right?); fix the calibration or pass --baseline METRES":
+    # --baseline cannot fix a sign
+    calibration = raw_calibration(CAMERA, "plumb_bob")
+    left = dataclasses.replace(calibration.left, name="c.yaml:cam0")
+    right = dataclasses.replace(calibration.right, name="c.yaml:cam1")
+    with pytest.raises(CalibrationError) as err:
+        rect.StereoRectifier(rect.StereoCalibration(right, left))
+    line = str(err.value)
+    assert "swapped left/right?" in line
+    assert "--baseline" not in line
+    assert line.endswith(
+        "c.yaml:cam0 is the left camera's calibration: pass it as the left one and c.yaml:cam1 "
+        "as the right one, each with its camera's images"
+    )
+    no_tx = dataclasses.replace(right, p=np.hstack([right.p[:, :3], np.zeros((3, 1))]))
+    with pytest.raises(CalibrationError, match=r"no Tx\); fix the calibration or pass --baseline"):
+        rect.StereoRectifier(rect.StereoCalibration(left, no_tx))
+
+
 def test_raw_and_rectified_paths_read_binning_and_roi_alike() -> None:
     """image_rect of a binning / ROI camera: remapped or used as it is, one camera."""
     from pcainterp_stream.frontend.camera_infos import camera_from_infos

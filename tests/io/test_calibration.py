@@ -99,6 +99,27 @@ def test_kalibr_camchain_is_stereo_rectified(tmp_path: Path, model: str, distort
     )
 
 
+def test_a_camchain_whose_cam0_is_the_right_camera_is_read_the_right_way_round(
+    tmp_path: Path,
+) -> None:
+    # bug hunt 7A F14: Kalibr numbers the cameras in --topics order; a camchain with cam0 the
+    # right camera gave "no baseline ... pass --baseline", then "swapped", then "not rectified"
+    calibration = raw_calibration(CAMERA, "plumb_bob")
+    path = write_camchain(calibration, tmp_path / "camchain.yaml")
+    data = yaml.safe_load(path.read_text())
+    t = np.linalg.inv(np.array(data["cam1"].pop("T_cn_cnm1")))  # right -> left
+    data["cam0"], data["cam1"] = data["cam1"], {**data["cam0"], "T_cn_cnm1": t.tolist()}
+    data["cam0"]["rostopic"], data["cam1"]["rostopic"] = "/cam0/image_raw", "/cam1/image_raw"
+    assert t[0, 3] == pytest.approx(CAMERA.baseline, rel=1e-3)  # cam0 lies to cam1's right
+    path.write_text(yaml.safe_dump(data))
+    loaded, topics = load_calibration([path])
+    assert topics == ("/cam1/image_raw", "/cam0/image_raw")
+    assert (loaded.left.name, loaded.right.name) == (f"{path}:cam1", f"{path}:cam0")
+    np.testing.assert_allclose(loaded.left.k, calibration.left.k)
+    rectifier = StereoRectifier(loaded)
+    assert rectifier.camera.baseline == pytest.approx(CAMERA.baseline, rel=1e-6)
+
+
 @pytest.mark.skipif(not REALDATA.is_dir(), reason="../shared/realdata is absent")
 @pytest.mark.parametrize(
     ("folder", "left", "right", "model"),
