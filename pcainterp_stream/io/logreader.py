@@ -60,6 +60,7 @@ __all__ = [
 
 
 ROS1_MAGIC = b"#ROSBAG V2.0"
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 def __getattr__(name: str) -> Any:
@@ -227,13 +228,19 @@ def decode_image(message: Any) -> npt.NDArray[np.generic]:
     codec = "png" if "png" in kind else "jpeg"
     if data.size == 0:  # cv2.imdecode asserts on it
         raise ValueError(f"compressed {codec} image is empty (0 bytes, format {image_format!r})")
-    # a cut-off PNG: said here, or libpng prints its own lines (a JPEG may carry padding
-    # after its end marker, as some UVC cameras send it: no such check)
-    if codec == "png" and b"IEND" not in bytes(data[-4096:]):
-        raise ValueError(
-            f"compressed {codec} image is cut off (no end marker; {data.size} bytes, format "
-            f"{image_format!r})"
-        )
+    # the content decides, not the format's word (imdecode sniffs it: JPEG bytes labelled
+    # png decode as PNG bytes labelled jpeg do). A cut-off PNG: said here, or libpng prints
+    # its own lines (a JPEG may carry padding after its end marker, as some UVC cameras
+    # send it: no such check)
+    if bytes(data[:8]) == PNG_SIGNATURE:
+        codec = "png"
+        if b"IEND" not in bytes(data[-4096:]):
+            raise ValueError(
+                f"compressed png image is cut off (no end marker; {data.size} bytes, format "
+                f"{image_format!r})"
+            )
+    elif bytes(data[:2]) == b"\xff\xd8":
+        codec = "jpeg"
     image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
     if image is None:
         raise ValueError(

@@ -43,8 +43,18 @@ IMAGE_ENCODINGS: dict[str, tuple[str, int]] = {
     "bayer_grbg8": ("u1", 1),
     "yuv422": ("u1", 2),
     "yuv422_yuy2": ("u1", 2),
+    "uyvy": ("u1", 2),  # sensor_msgs' current name of yuv422 (the same bytes)
+    "yuyv": ("u1", 2),  # ... and of yuv422_yuy2
     "mono16": ("u2", 1),
     "16UC1": ("u2", 1),
+    "rgb16": ("u2", 3),  # 12-bit colour of FLIR Spinnaker, Basler pylon drivers
+    "bgr16": ("u2", 3),
+    "rgba16": ("u2", 4),
+    "bgra16": ("u2", 4),
+    "bayer_rggb16": ("u2", 1),  # their 12-bit Bayer formats
+    "bayer_bggr16": ("u2", 1),
+    "bayer_gbrg16": ("u2", 1),
+    "bayer_grbg16": ("u2", 1),
     "32FC1": ("f4", 1),
 }
 
@@ -60,8 +70,21 @@ TO_RGB: dict[str, int] = {
     "bayer_grbg8": cv2.COLOR_BayerGB2RGB,
     "yuv422": cv2.COLOR_YUV2RGB_UYVY,  # usb_cam, UVC stereo cameras
     "yuv422_yuy2": cv2.COLOR_YUV2RGB_YUY2,
+    "uyvy": cv2.COLOR_YUV2RGB_UYVY,
+    "yuyv": cv2.COLOR_YUV2RGB_YUY2,
+    # 16 bits per channel: the same conversions (OpenCV's take uint16), the result uint16
+    "bgr16": cv2.COLOR_BGR2RGB,
+    "bgra16": cv2.COLOR_BGRA2RGB,
+    "rgba16": cv2.COLOR_RGBA2RGB,
+    "bayer_rggb16": cv2.COLOR_BayerBG2RGB,
+    "bayer_bggr16": cv2.COLOR_BayerRG2RGB,
+    "bayer_gbrg16": cv2.COLOR_BayerGR2RGB,
+    "bayer_grbg16": cv2.COLOR_BayerGB2RGB,
 }
 """Encodings :func:`image_array` converts to RGB (demosaicing Bayer images, as image_proc)."""
+
+YUV422_ENCODINGS = frozenset({"yuv422", "yuv422_yuy2", "uyvy", "yuyv"})
+"""The packed YUV 4:2:2 encodings (two pixels share a U and a V: the width must be even)."""
 
 CAMERA_IMAGE_ENCODINGS: tuple[str, ...] = tuple(
     name for name, (dtype, _) in IMAGE_ENCODINGS.items() if dtype != "f4"
@@ -156,8 +179,9 @@ def image_array(message: Any) -> npt.NDArray[np.generic]:
     """Decode a ``sensor_msgs/Image`` into an array, honouring step and endianness.
 
     Returns:
-        (H, W) or (H, W, 3) array of the encoding's dtype; the encodings of :data:`TO_RGB`
-        (BGR, with alpha, Bayer, YUV 4:2:2) are returned as RGB.
+        (H, W) or (H, W, 3) array of the encoding's dtype (uint16 for the 16-bit colour
+        and Bayer encodings); the encodings of :data:`TO_RGB` (BGR, with alpha, Bayer, YUV
+        4:2:2) are returned as RGB.
 
     Raises:
         ValueError: for an encoding outside :data:`IMAGE_ENCODINGS`, an empty image (a
@@ -185,7 +209,7 @@ def image_array(message: Any) -> npt.NDArray[np.generic]:
     image = np.ascontiguousarray(rows).view(dtype).astype(dtype.newbyteorder("="), copy=False)
     image = image.reshape((height, width, channels) if channels > 1 else (height, width))
     if encoding in TO_RGB:
-        if encoding.startswith("yuv422") and width % 2:
+        if encoding in YUV422_ENCODINGS and width % 2:
             raise ValueError(f"a {encoding} image needs an even width, got {width}")
         image = cv2.cvtColor(np.ascontiguousarray(image), TO_RGB[encoding])
     return image
@@ -216,19 +240,27 @@ def demosaic_compressed(
     compressed_image_transport compresses a Bayer image as its one-channel mosaic (no
     colour conversion) and restores the encoding from the format's prefix, so that
     image_proc demosaics it; this does the same, as :func:`image_array` does for the raw
-    ``Image``. Any other image is returned unchanged.
+    ``Image`` (``bayer_*8`` from an 8-bit, ``bayer_*16`` from a 16-bit PNG). Any other image
+    is returned unchanged.
 
     Raises:
-        ValueError: a Bayer encoding this package does not demosaic (16-bit).
+        ValueError: a Bayer encoding this package does not know, or a mosaic whose bit depth
+            is not the encoding's.
     """
     encoding, _ = compressed_format_encoding(image_format)
     if not encoding.startswith("bayer_") or image.ndim != 2:
         return image
-    if encoding not in TO_RGB or image.dtype != np.uint8:
+    if encoding not in TO_RGB:
         supported = ", ".join(name for name in TO_RGB if name.startswith("bayer_"))
         raise ValueError(
             f"unsupported image encoding {encoding!r} ({image.dtype} mosaic); Bayer images "
             f"are {supported}"
+        )
+    expected = np.dtype(IMAGE_ENCODINGS[encoding][0])
+    if image.dtype != expected:
+        raise ValueError(
+            f"a {encoding} mosaic must decode to {expected}, got {image.dtype} "
+            f"(format {image_format!r})"
         )
     return np.asarray(cv2.cvtColor(np.ascontiguousarray(image), TO_RGB[encoding]))
 

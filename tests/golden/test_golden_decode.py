@@ -247,3 +247,22 @@ def test_a_compressed_bayer_mosaic_is_summarised_as_its_image() -> None:
     assert raw.shape == (20, 16, 3)
     got = message_content(rosmsg.COMPRESSED_IMAGE, compressed).arrays["image"]
     np.testing.assert_array_equal(got, raw)
+
+
+def test_a_16_bit_bayer_image_and_its_compressed_mosaic_are_summarised_alike() -> None:
+    """Bug hunt 7A F13: ``bayer_rggb16`` was a note ("unsupported image encoding")."""
+    mosaic = (np.arange(20 * 16) * 2311 % 65536).astype(np.uint16).reshape(20, 16)
+    image = rosmsg.image_message(mosaic, 5, "cam", encoding="bayer_rggb16")
+    raw = message_content(rosmsg.IMAGE, image)
+    assert raw.notes == []
+    assert raw.arrays["image"].shape == (20, 16, 3)
+    assert raw.arrays["image"].dtype == np.uint16
+    # the pixels of a red cell are kept exactly (bilinear demosaicing)
+    assert raw.arrays["image"][2, 2, 0] == mosaic[2, 2]
+    ok, png = cv2.imencode(".png", mosaic)
+    assert ok
+    compressed = rosmsg.compressed_image_message(
+        png.tobytes(), "bayer_rggb16; png compressed ", 5, "cam"
+    )
+    got = message_content(rosmsg.COMPRESSED_IMAGE, compressed).arrays["image"]
+    np.testing.assert_array_equal(got, raw.arrays["image"])

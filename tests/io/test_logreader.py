@@ -435,6 +435,19 @@ def test_closed_reader_refuses(drive: tuple[Path, list[tuple[str, Any, int]]]) -
 # --- images ---------------------------------------------------------------------------------
 
 
+@pytest.mark.parametrize(
+    "encoding", ["uyvy", "yuyv", "rgb16", "bgr16", "rgba16", "bgra16", "bayer_gbrg16"]
+)
+def test_the_encodings_of_real_drivers_are_camera_images(encoding: str) -> None:
+    """Bug hunt 7A F13: decode_image refused these names (see test_rosmsg.py for values)."""
+    dtype, channels = rosmsg.IMAGE_ENCODINGS[encoding]
+    shape = (4, 6, channels) if channels > 1 else (4, 6)
+    message = rosmsg.image_message(np.zeros(shape, dtype), 0, "f", encoding=encoding)
+    decoded = decode_image(message)
+    assert decoded.shape == (4, 6, 3)
+    assert decoded.dtype == np.dtype(dtype)
+
+
 def test_decode_image_encodings() -> None:
     rng = np.random.default_rng(1)
     rgb = rng.integers(0, 256, (4, 5, 3), dtype=np.uint8)
@@ -448,8 +461,8 @@ def test_decode_image_encodings() -> None:
 
 def test_decode_image_unsupported_encoding() -> None:
     message = rosmsg.image_message(np.zeros((2, 2), np.uint8), 0, "f")
-    message.encoding = "bayer_rggb16"
-    with pytest.raises(ValueError, match="unsupported image encoding 'bayer_rggb16'"):
+    message.encoding = "nv21"
+    with pytest.raises(ValueError, match="unsupported image encoding 'nv21'"):
         decode_image(message)
     depth = rosmsg.image_message(np.zeros((2, 2), np.float32), 0, "f")
     assert depth.encoding == "32FC1"
@@ -460,9 +473,12 @@ def test_decode_image_unsupported_encoding() -> None:
     with pytest.raises(ValueError, match="unsupported compressed image format 'tiff'"):
         decode_image(tiff)
     broken = rosmsg.compressed_image_message(b"not a png", "png", 0, "f")
-    with pytest.raises(ValueError, match=r"compressed png image is cut off \(no end marker; 9 b"):
+    with pytest.raises(ValueError, match=r"^compressed png image does not decode \(9 bytes, "):
         decode_image(broken)
     _, png = cv2.imencode(".png", np.arange(64, dtype=np.uint8).reshape(8, 8))
+    cut = rosmsg.compressed_image_message(png.tobytes()[:40], "png", 0, "f")
+    with pytest.raises(ValueError, match=r"compressed png image is cut off \(no end marker; 40 b"):
+        decode_image(cut)
     damaged = png.tobytes()
     damaged = damaged[:20] + bytes(40) + damaged[60:]  # end marker kept, pixels gone
     padded = rosmsg.compressed_image_message(png.tobytes() + bytes(64), "png", 0, "f")
@@ -556,8 +572,36 @@ def test_the_formats_compressed_image_transport_writes() -> None:
         np.testing.assert_array_equal(got, deep)
     grey = rgb[:, :, 1].copy()
     np.testing.assert_array_equal(decoded(grey, ".png", "mono8; png compressed "), grey)
-    with pytest.raises(ValueError, match=r"unsupported image encoding 'bayer_rggb16'"):
-        decoded(deep, ".png", "bayer_rggb16; png compressed ")
+    # a 16-bit Bayer mosaic in a 16-bit PNG (bug hunt 7A F13: refused before)
+    mosaic16 = np.asarray(_mosaic(rgb, "rggb"), np.uint16) * 257
+    raw16 = decode_image(rosmsg.image_message(mosaic16, 0, "f", encoding="bayer_rggb16"))
+    got16 = decoded(mosaic16, ".png", "bayer_rggb16; png compressed ")
+    assert got16.dtype == np.uint16
+    assert got16.shape == rgb.shape
+    np.testing.assert_array_equal(got16, raw16)
+    with pytest.raises(ValueError, match=r"^a bayer_rggb16 mosaic must decode to uint16, got"):
+        decoded(grey, ".png", "bayer_rggb16; png compressed ")
+
+
+@pytest.mark.parametrize("label", ["png", "bgr8; png compressed bgr8", "jpeg"])
+def test_the_payload_not_the_format_word_decides_the_codec(label: str) -> None:
+    """Bug hunt 7A F15: JPEG bytes in a CompressedImage whose format says png were refused
+    as "cut off" (the PNG end-marker check ran on the format's word), though PNG bytes
+    labelled jpeg decoded; a cut PNG is "cut off" whatever its label."""
+    rgb = _scene(5)
+    bgr = np.ascontiguousarray(rgb[:, :, ::-1])
+    ok, jpeg = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    assert ok
+    got = decode_image(rosmsg.compressed_image_message(jpeg.tobytes(), label, 0, "f"))
+    assert got.shape == rgb.shape
+    assert np.abs(got.astype(int) - rgb).mean() < 4  # RGB, as a JPEG labelled jpeg
+    ok, png = cv2.imencode(".png", bgr)
+    assert ok
+    got = decode_image(rosmsg.compressed_image_message(png.tobytes(), label, 0, "f"))
+    np.testing.assert_array_equal(got, rgb)
+    cut = rosmsg.compressed_image_message(png.tobytes()[:-200], label, 0, "f")
+    with pytest.raises(ValueError, match=r"^compressed png image is cut off \(no end marker; "):
+        decode_image(cut)
 
 
 @pytest.mark.parametrize("image_format", ["jpeg", "png", "rgb8; jpeg compressed bgr8"])

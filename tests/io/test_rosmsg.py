@@ -107,3 +107,51 @@ def test_pointcloud2_row_step_shorter_than_a_row_is_refused() -> None:
     cloud = _organized_cloud(np.ones((2, 3, 3), np.float32), 0, row_step=24)
     with pytest.raises(ValueError, match="row_step 24 is shorter than its 3 points"):
         rosmsg.pointcloud2_arrays(cloud)
+
+
+def test_the_16_bit_and_renamed_encodings_of_real_drivers_decode() -> None:
+    """Bug hunt 7A F13: ``uyvy``/``yuyv`` (sensor_msgs' current names of yuv422 and
+    yuv422_yuy2), ``rgb16``/``bgr16``/``rgba16``/``bgra16`` and ``bayer_*16`` (FLIR
+    Spinnaker and Basler pylon drivers' 12-bit formats) were refused as unsupported."""
+    rng = np.random.default_rng(4)
+    rgb8 = cv2.GaussianBlur(rng.integers(0, 256, (24, 32, 3), dtype=np.uint8), (7, 7), 2)
+    rgb = rgb8.astype(np.uint16) * 16 + 5  # 12-bit values, low bits not all zero
+    bgr = np.ascontiguousarray(rgb[:, :, ::-1])
+    alpha = np.full((24, 32, 1), 4095, np.uint16)
+    exact = {
+        "rgb16": rgb,
+        "bgr16": bgr,
+        "rgba16": np.concatenate([rgb, alpha], axis=2),
+        "bgra16": np.concatenate([bgr, alpha], axis=2),
+    }
+    for encoding, data in exact.items():
+        decoded = rosmsg.image_array(_raw_image(data.astype("<u2").view(np.uint8), encoding))
+        assert decoded.dtype == np.uint16, encoding
+        np.testing.assert_array_equal(decoded, rgb, err_msg=encoding)
+    # big endian, as a camera may publish it
+    message = _raw_image(rgb.astype(">u2").view(np.uint8), "rgb16")
+    message.is_bigendian = 1  # type: ignore[attr-defined]
+    np.testing.assert_array_equal(rosmsg.image_array(message), rgb)
+    inner = (slice(3, -3), slice(3, -3))
+    for pattern in ("rggb", "bggr", "gbrg", "grbg"):
+        mosaic = np.empty(rgb.shape[:2], np.uint16)
+        for k, colour in enumerate(pattern):
+            mosaic[k // 2 :: 2, k % 2 :: 2] = rgb[k // 2 :: 2, k % 2 :: 2, "rgb".index(colour)]
+        data = mosaic.astype("<u2").view(np.uint8).reshape(24, 32, 2)  # 2 bytes a pixel
+        image = _raw_image(data, f"bayer_{pattern}16")
+        decoded = rosmsg.image_array(image)
+        assert decoded.dtype == np.uint16
+        assert decoded.shape == rgb.shape
+        error = np.abs(decoded[inner].astype(int) - rgb[inner]).mean()
+        assert error < 3 * 16, pattern  # a wrong pattern swaps red and blue: hundreds
+    yuv = cv2.cvtColor(rgb8, cv2.COLOR_RGB2YUV)
+    uyvy = np.empty((24, 32, 2), np.uint8)  # U Y0 V Y1 per two pixels
+    uyvy[:, :, 1] = yuv[:, :, 0]
+    uyvy[:, 0::2, 0], uyvy[:, 1::2, 0] = yuv[:, 0::2, 1], yuv[:, 0::2, 2]
+    yuyv = uyvy[:, :, ::-1].copy()  # Y0 U Y1 V
+    for encoding, data in (("uyvy", uyvy), ("yuyv", yuyv)):
+        decoded = rosmsg.image_array(_raw_image(data, encoding))
+        assert decoded.dtype == np.uint8
+        assert np.abs(decoded.astype(int) - rgb8).mean() < 6, encoding
+    with pytest.raises(ValueError, match="a yuyv image needs an even width, got 3"):
+        rosmsg.image_array(_raw_image(np.zeros((2, 3, 2), np.uint8), "yuyv"))
