@@ -1425,7 +1425,7 @@ def test_densify_says_when_the_rows_could_not_be_checked(
     )
 
 
-def test_densify_encoding_mismatch_is_not_called_a_size_mismatch(
+def test_densify_a_mono_and_colour_pair_in_grey(
     pcainterp: Callable[..., Run], small_log: Path, basis_path: Path, out: Path, tmp_path: Path
 ) -> None:
     def change(topic: str, message: Any, _: int) -> Any:  # mono8 left, rgb8 right
@@ -1436,14 +1436,19 @@ def test_densify_encoding_mismatch_is_not_called_a_size_mismatch(
         return rosmsg.image_message(colour, rosmsg.stamp_ns(message), message.header.frame_id)
 
     log = rewrite(small_log, tmp_path / "mixed.mcap", change)
-    line = pcainterp(*densify_args(log, out, basis_path)).error_line()
+    run = pcainterp(*densify_args(log, out, basis_path))
+    assert run.code == 0, run.err
     height, width = SMALL_SIZE
-    assert f"{SMALL_FRAMES} encoding mismatches" in line
-    assert f"is {width}x{height} uint8 but right image" in line
-    assert f"is {width}x{height}x3 uint8; the sizes are equal, the encodings" in line
-    assert "must have one encoding" in line
-    assert "size" not in line.split("); ")[-1]
-    assert_nothing_written(out)
+    assert (
+        f"encodings: the left images are {width}x{height} uint8, the right ones "
+        f"{width}x{height}x3 uint8: both converted to grey" in run.out
+    )
+    assert f"{SMALL_FRAMES} pairs" in run.out
+    # evaluate's SGBM reference takes the pair in grey as densify did (was a traceback)
+    fast = ["--no-basis", "--no-linear", "--sweep-every", "0"]
+    run = pcainterp("evaluate", out, "-o", tmp_path / "report", *fast)
+    assert run.code == 0, run.err
+    assert (tmp_path / "report" / "results.md").is_file()
 
 
 def test_densify_unsupported_encoding_some_frames(

@@ -25,6 +25,7 @@ import numpy.typing as npt
 from pcainterp_stream.errors import LogReadError
 from pcainterp_stream.evaluate.reference import ReferenceTopic
 from pcainterp_stream.frontend.images import PairImages
+from pcainterp_stream.frontend.pair_forms import grey_alike
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import decode_image, open_log
 from pcainterp_stream.io.outputs import (
@@ -528,6 +529,10 @@ def _frame(
     right, gap = found.get(images.right_topic, (None, None))
     depth, depth_gap = found.get(GROUND_TRUTH_DEPTH, (None, None))
     pose, pose_gap = found.get(GROUND_TRUTH_POSE, (None, None))
+    left_image = images.rectified(decode_image(parts[images.left_topic]), "left")
+    right_image = None if right is None else images.rectified(decode_image(right), "right")
+    if right_image is not None:  # a colour + mono or 8 + 16-bit rig: grey, as densify made it
+        left_image, right_image, _ = grey_alike(left_image, right_image)
     return Frame(
         index=index,
         stamp_ns=stamp,
@@ -540,8 +545,8 @@ def _frame(
         std=decoded.disparity_std,
         pixels=np.stack([features["u"], features["v"]], axis=1),
         disparities=features["disparity"],
-        left=images.rectified(decode_image(parts[images.left_topic]), "left"),
-        right=None if right is None else images.rectified(decode_image(right), "right"),
+        left=left_image,
+        right=right_image,
         depth=None if depth is None else rosmsg.image_array(depth).astype(np.float32),
         pose=None if pose is None else rosmsg.pose_matrix(pose),
         min_disparity=decoded.min_disparity,

@@ -31,6 +31,7 @@ def camera_from_infos(
     left_topic: str = "left camera_info",
     right_topic: str = "right camera_info",
     baseline: float | None = None,
+    image_topics: tuple[str, str] | None = None,
 ) -> StereoCamera:
     """Build the stereo calibration from the two rectified ``CameraInfo`` messages.
 
@@ -49,6 +50,8 @@ def camera_from_infos(
         left_topic: topic name used in error messages.
         right_topic: topic name used in error messages.
         baseline: override (m); when given the P[0, 3] are not used.
+        image_topics: the (left, right) image topics, named in the advice for a negative
+            baseline (the sides swapped).
 
     Raises:
         CalibrationError: an info for another image size, an uncalibrated (all-zero) P, fx
@@ -88,10 +91,23 @@ def camera_from_infos(
             baseline = float((p_left[0, 3] - p_right[0, 3]) / p_right[0, 0])
         if not (baseline > 0 and np.isfinite(baseline)):
             left_tx = f", left P[0,3] = {p_left[0, 3]}" if p_left[0, 3] else ""
+            fix = "pass --baseline METRES"
+            if baseline < 0:  # a sign problem --baseline cannot fix
+                swap = (
+                    f"pass --left-topic {image_topics[1]} --right-topic {image_topics[0]}"
+                    if image_topics is not None
+                    else "exchange --left-topic and --right-topic"
+                )
+                fix = (
+                    f"the sides look swapped ({right_topic}'s camera lies left of "
+                    f"{left_topic}'s): if the images are swapped too, {swap} (each with its "
+                    "own camera info); if only the infos are crossed, exchange "
+                    "--left-info-topic and --right-info-topic"
+                )
             raise CalibrationError(
                 f"camera info on {right_topic} gives no baseline (P[0,3] = {p_right[0, 3]}, "
                 f"fx = {p_right[0, 0]}{left_tx}; expected P_left[0,3] - P_right[0,3] = fx * "
-                "baseline > 0, finite); pass --baseline METRES"
+                f"baseline > 0, finite); {fix}"
             )
     return StereoCamera(
         width=int(width),

@@ -30,8 +30,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pcainterp_stream.errors import PcaInterpError, TopicNotFoundError
-from pcainterp_stream.frontend.pairing import PairingConfig, is_rectified_name
+from pcainterp_stream.frontend.pair_forms import (
+    SIDE_BY_SIDE_MATCH,
+    halves_match,
+    is_rectified_name,
+)
+from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.logreader import decode_image
 from pcainterp_stream.io.reader_base import LogReader, TopicInfo
 
 DEFAULT_LEFT_IMAGE = PairingConfig.left_topic
@@ -67,6 +73,22 @@ class Camera:
         """Return the stream's image without its transport (``image_raw`` of both forms)."""
         parts = self.stream.rstrip("/").split("/")
         return "/".join(parts[:-1] if self.compressed else parts)
+
+
+def _side_by_side(reader: LogReader, topic: str) -> str:
+    """Return a hint when a lone image topic's first image holds two views side by side."""
+    try:
+        raw = next(iter(reader.messages([topic])), None)
+        image = None if raw is None else decode_image(reader.decode(raw))
+    except (PcaInterpError, ValueError):
+        return ""
+    if image is None or halves_match(image) < SIDE_BY_SIDE_MATCH:
+        return ""
+    return (
+        f"; its {image.shape[1]}x{image.shape[0]} images hold two views side by side (their "
+        "halves show one scene): pcainterp reads one camera per image topic, so split each "
+        "image into a left and a right half on two topics first (with a camera info each)"
+    )
 
 
 def stream_score(left: Camera, right: Camera) -> tuple[int, int, int, int]:
@@ -575,6 +597,7 @@ def _discover(
                 f"no stereo pair found in {name}: it has one camera ({images[0]}; camera infos: "
                 f"{', '.join(infos) or 'none'}); pcainterp needs a stereo pair, two cameras side "
                 "by side (--left-topic and --right-topic name them)"
+                + _side_by_side(reader, images[0])
             )
         listed = ", ".join(f"{t} (no messages)" if t in empty else t for t in images)
         raise TopicNotFoundError(

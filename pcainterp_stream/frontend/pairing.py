@@ -41,6 +41,7 @@ from pcainterp_stream.frontend.camera_infos import (
     first_infos,
 )
 from pcainterp_stream.frontend.feature_match import FeatureMatcher, features_from_pointcloud
+from pcainterp_stream.frontend.pair_forms import describe, grey_alike, is_rectified_name
 from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.frontend.pairing_window import HeldQueue, Hold, HoldLimits
 from pcainterp_stream.frontend.pairing_window import PendingImage as _Pending
@@ -171,6 +172,7 @@ class StereoPairer:
         self._rectifier: rect.StereoRectifier | None = None
         self._rect_infos: tuple[Any, Any] | None = None
         self._said: str | None = None
+        self._mixed_said = False  # the encodings line of a pair of two encodings
         # the frames estimated in a box: remapped, or rectified with a border (rect_border)
         self._frame_rectifier: dict[int, rect.StereoRectifier | RectifiedBorder] = {}
         # frame -> its left image's log time, the stamp of its outputs (see full_result)
@@ -585,6 +587,14 @@ class StereoPairer:
             x, y, w, h = rectifier.box
             left_image = left_image[y : y + h, x : x + w]
             right_image = right_image[y : y + h, x : x + w]
+        grey_left, grey_right, converted = grey_alike(left_image, right_image)
+        if converted and not self._mixed_said and self._echo is not None:  # colour + mono
+            self._mixed_said = True  # (not _say: the rectify line is said once by _said)
+            self._echo(
+                f"encodings: the left images are {describe(left_image)}, the right ones "
+                f"{describe(right_image)}: {converted}"
+            )
+        left_image, right_image = grey_left, grey_right
         if left_image.shape != right_image.shape or left_image.dtype != right_image.dtype:
             sized = left_image.shape[:2] != right_image.shape[:2]
             need = (
@@ -593,8 +603,8 @@ class StereoPairer:
                 else "the sizes are equal, the encodings (channels or bit depth) differ"
             )
             problem = (
-                f"left image at stamp {left.stamp_ns} is {_describe(left_image)} but right "
-                f"image at stamp {right.stamp_ns} is {_describe(right_image)}; {need}"
+                f"left image at stamp {left.stamp_ns} is {describe(left_image)} but right "
+                f"image at stamp {right.stamp_ns} is {describe(right_image)}; {need}"
             )
             if self.config.fail_on_size_mismatch:
                 raise LogReadError(problem)
@@ -798,6 +808,7 @@ class StereoPairer:
                 left_topic=self.config.left_info_topic,
                 right_topic=self.config.right_info_topic,
                 baseline=self.config.baseline,
+                image_topics=(self.config.left_topic, self.config.right_topic),
             )
             self._camera_cache.clear()  # the infos change rarely; keep one entry
             self._camera_cache[key] = camera
@@ -820,34 +831,6 @@ class StereoPairer:
             self._undecodable(_reason(err), f"{self.config.features_topic}: {err}")
             return []
         return self._features.push(features)
-
-
-def is_rectified_name(topic: str, partner: str | None = None) -> bool:
-    """Return True for an image topic named as rectified (``image_rect``, ``image_rect_color``).
-
-    The stream's name says it (``image_rect``), or a name below the one that says the side
-    does (``/zed/zed_node/left/gray/rect/image``, as the ZED wrapper 5.x names its streams):
-    that side name is where ``topic`` and ``partner`` (the other side's topic) first differ,
-    else the last name with ``left``/``right`` as a word of its own; names above it
-    (``/rectifier/left/image_raw``) say nothing.
-    """
-    transports = ("compressed", "compressedDepth")
-    parts = [p.lower() for p in topic.split("/") if p and p not in transports]
-    if not parts:
-        return False
-    if "rect" in parts[-1]:
-        return True
-    if partner is not None:
-        others = [p.lower() for p in partner.split("/") if p and p not in transports]
-        sides = [i for i, (a, b) in enumerate(zip(parts, others, strict=False)) if a != b][:1]
-    else:  # "left", "camera_left", "left_raw", not "bright"
-        starts = [(i, p.find(word)) for i, p in enumerate(parts) for word in ("left", "right")]
-        sides = [i for i, k in starts if k == 0 or (k > 0 and not parts[i][k - 1].isalpha())]
-    if not sides:
-        return False
-    # a word of its own: "rect", "rect_color", "rectified", not "direct"
-    below = parts[sides[-1] + 1 :]
-    return any(w.startswith("rect") for p in below for w in p.replace("-", "_").split("_"))
 
 
 def _median(values: Sequence[int]) -> int:
@@ -883,12 +866,6 @@ def _reason(err: BaseException) -> str:
     """Return the reason of a decoding error, short enough to count by (no sizes, formats)."""
     text = str(err).split(";")[0].split(" (")[0]
     return text if len(text) <= 60 else text[:57] + "..."
-
-
-def _describe(image: Any) -> str:
-    shape = image.shape
-    size = f"{shape[1]}x{shape[0]}"
-    return f"{size}x{shape[2]} {image.dtype}" if len(shape) == 3 else f"{size} {image.dtype}"
 
 
 def iter_stereo_frames(

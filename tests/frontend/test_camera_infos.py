@@ -8,7 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pcainterp_stream.frontend.camera_infos import calibration_values, first_infos
+from pcainterp_stream.errors import CalibrationError
+from pcainterp_stream.frontend.camera_infos import (
+    calibration_values,
+    camera_from_infos,
+    first_infos,
+)
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import open_writer
@@ -68,3 +73,30 @@ def test_calibration_values_tell_another_calibration_not_another_stamp() -> None
     )
     assert calibration_values(first) == calibration_values(later)
     assert calibration_values(first) != calibration_values(wider)
+
+
+def test_a_negative_baseline_says_the_sides_look_swapped_not_pass_baseline() -> None:
+    """Bug hunt 7A: the infos of a pair given the wrong way round (the right camera's info as
+    the left one) give a negative baseline, a sign problem ``--baseline`` cannot fix."""
+    left = rosmsg.camera_info_message(CAMERA, 0, "l")
+    right = rosmsg.camera_info_message(CAMERA, 0, "r", right=True)
+    topics = {"left_topic": INFOS[1], "right_topic": INFOS[0]}  # the two exchanged
+    images = ("/s/right/image_rect", "/s/left/image_rect")
+    with pytest.raises(CalibrationError) as caught:
+        camera_from_infos(right, left, width=8, height=6, **topics, image_topics=images)
+    message = str(caught.value)
+    assert message.startswith(f"camera info on {INFOS[0]} gives no baseline (P[0,3] = 0.0")
+    assert f"the sides look swapped ({INFOS[0]}'s camera lies left of {INFOS[1]}'s)" in message
+    assert (
+        "if the images are swapped too, pass --left-topic /s/left/image_rect --right-topic "
+        "/s/right/image_rect (each with its own camera info); if only the infos are crossed, "
+        "exchange --left-info-topic and --right-info-topic"
+    ) in message
+    assert "--baseline" not in message
+    with pytest.raises(
+        CalibrationError, match=r"swapped.*too, exchange --left-topic and --right-topic \(each"
+    ):
+        camera_from_infos(right, left, width=8, height=6, **topics)
+    # no Tx at all is no sign problem: --baseline is the fix there
+    with pytest.raises(CalibrationError, match=r"finite\); pass --baseline METRES$"):
+        camera_from_infos(left, left, width=8, height=6)

@@ -7,6 +7,7 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
+import numpy as np
 import pytest
 
 from pcainterp_stream.errors import TopicNotFoundError
@@ -17,7 +18,8 @@ from pcainterp_stream.frontend.discovery import (
     find_pairs,
     resolve_pairing,
 )
-from pcainterp_stream.frontend.pairing import PairingConfig, is_rectified_name
+from pcainterp_stream.frontend.pair_forms import is_rectified_name
+from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.reader_base import TopicInfo
 
@@ -562,3 +564,32 @@ def test_a_camchain_read_with_cam1_left_says_so_in_a_line() -> None:
     said.clear()
     resolve_pairing(_Reader(_topics(*topics[::-1])), _camchain(), said.append)  # type: ignore[arg-type]
     assert len(said) == 1  # cam0 left: nothing more than the topics line
+
+
+@pytest.mark.parametrize("side_by_side", [True, False])
+def test_a_lone_side_by_side_topic_is_told_to_be_split(tmp_path: Path, side_by_side: bool) -> None:
+    """Bug hunt 7A: one topic of side-by-side stereo frames (a UVC stereo camera, a ZED
+    without its SDK) gets a hint to split it; one wide camera's images do not."""
+    from pcainterp_stream.io.logreader import open_log
+    from pcainterp_stream.io.logwriter import open_writer
+
+    rng = np.random.default_rng(5)
+    scene = rng.integers(0, 256, (60, 170), np.uint8)
+    left, right = scene[:, 4:164], scene[:, 8:168]  # the right view: the scene 4 px on
+    if not side_by_side:  # two unrelated halves: a wide scene of one camera
+        right = rng.integers(0, 256, (60, 160), np.uint8)
+    frame = np.ascontiguousarray(np.hstack([left, right]))  # 320x60
+    log = tmp_path / "sbs.mcap"
+    with open_writer(log, "mcap") as writer:
+        writer.add_message("/usb_cam/image_raw", rosmsg.image_message(frame, 1, "cam"), 1)
+    with open_log(log) as reader, pytest.raises(TopicNotFoundError) as caught:
+        resolve_pairing(reader, PairingConfig(discover=True))
+    message = str(caught.value)
+    assert "it has one camera (/usb_cam/image_raw; camera infos: none)" in message
+    hint = (
+        "; its 320x60 images hold two views side by side (their halves show one scene): "
+        "pcainterp reads one camera per image topic, so split each image into a left and a "
+        "right half on two topics first (with a camera info each)"
+    )
+    assert message.endswith(hint) == side_by_side
+    assert ("side by side (their" in message) == side_by_side

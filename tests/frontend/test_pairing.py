@@ -447,25 +447,45 @@ def test_size_mismatch_counted_or_fatal() -> None:
 
 
 @pytest.mark.parametrize(
-    ("right", "described"),
-    [
-        (np.zeros((6, 8, 3), np.uint8), "8x6x3 uint8"),  # mono8 left, rgb8 right
-        (np.zeros((6, 8), np.uint16), "8x6 uint16"),  # mono8 left, mono16 right
+    ("right", "described", "grey_right", "converted"),
+    [  # mono8 left: an rgb8 right (grey 60), a mono16 right (its own scale: 99.9% to 255)
+        (np.full((6, 8, 3), 60, np.uint8), "8x6x3 uint8", 60, "both converted to grey"),
+        (
+            np.full((6, 8), 4000, np.uint16),
+            "8x6 uint16",
+            255,
+            "both converted to 8-bit grey, the 16-bit side scaled on its own",
+        ),
     ],
 )
-def test_encoding_mismatch_is_not_called_a_size_mismatch(right: Any, described: str) -> None:
+def test_a_pair_of_two_encodings_of_one_size_is_paired_in_grey(
+    right: Any, described: str, grey_right: int, converted: str
+) -> None:
+    said: list[str] = []
+    pairer = StereoPairer(echo=said.append)
+    with_infos(pairer)
+    for stamp in (7, 8):
+        push(pairer, CONFIG.left_topic, stamp, image(stamp, 90))
+        (frame,) = push(pairer, CONFIG.right_topic, stamp, rosmsg.image_message(right, stamp, "r"))
+        assert (frame.left.shape, frame.left.dtype) == ((6, 8), np.uint8)
+        assert (frame.right.shape, frame.right.dtype) == ((6, 8), np.uint8)
+        assert (int(frame.left[0, 0]), int(frame.right[0, 0])) == (90, grey_right)
+    stats = pairer.finish()
+    assert (stats.pairs, stats.size_mismatches, stats.encoding_mismatches) == (2, 0, 0)
+    assert said[1:] == [  # once, after the rectify line
+        f"encodings: the left images are 8x6 uint8, the right ones {described}: {converted}"
+    ]
+
+
+def test_a_pair_of_two_16_bit_encodings_stays_16_bit_for_one_scale() -> None:
     pairer = StereoPairer()
     with_infos(pairer)
-    push(pairer, CONFIG.left_topic, 7, image(7))
-    assert push(pairer, CONFIG.right_topic, 7, rosmsg.image_message(right, 7, "right")) == []
-    stats = pairer.finish()
-    assert (stats.size_mismatches, stats.encoding_mismatches) == (0, 1)
-    assert "1 encoding mismatches" in stats.summary()
-    assert "size mismatch" not in stats.summary()
-    assert stats.problems == [
-        f"left image at stamp 7 is 8x6 uint8 but right image at stamp 7 is {described}; "
-        "the sizes are equal, the encodings (channels or bit depth) differ"
-    ]
+    colour = np.full((6, 8, 3), 3000, np.uint16)  # rgb16 left, mono16 right
+    push(pairer, CONFIG.left_topic, 7, rosmsg.image_message(colour, 7, "l", encoding="rgb16"))
+    grey = np.full((6, 8), 1000, np.uint16)
+    (frame,) = push(pairer, CONFIG.right_topic, 7, rosmsg.image_message(grey, 7, "r"))
+    assert (frame.left.dtype, frame.right.dtype) == (np.uint16, np.uint16)
+    assert (frame.left.shape, int(frame.left[0, 0]), int(frame.right[0, 0])) == ((6, 8), 3000, 1000)
 
 
 def test_camera_info_without_baseline() -> None:
