@@ -22,7 +22,8 @@ from typing import Any
 
 from pcainterp_stream.errors import PcaInterpError
 from pcainterp_stream.evaluate.figures import FIGURE_NAMES
-from pcainterp_stream.interrupt import track_partial, untrack_partial
+from pcainterp_stream.interrupt import signals_deferred, track_partial, untrack_partial
+from pcainterp_stream.io.output_paths import write_advice
 
 __all__ = ["REPORT_FILES", "check_report_folder", "report_json", "write_report_folder"]
 
@@ -152,7 +153,13 @@ def write_report_folder(folder: Path, write: Callable[[Path], None]) -> None:
         raise _not_writable(folder, where, err) from err
     track_partial(staging)  # removed even if a signal forces the end
     try:
-        write(staging)
+        try:
+            write(staging)
+        except OSError as err:  # the report is not finished: a full disk, not the move
+            raise PcaInterpError(
+                f"writing the report into {folder} failed: {err.strerror or err}; "
+                f"{write_advice(err)}"
+            ) from err
         if not existing:
             os.chmod(staging, 0o777 & ~_umask())  # mkdtemp's 0700 would hide the report
             try:
@@ -163,11 +170,12 @@ def write_report_folder(folder: Path, write: Callable[[Path], None]) -> None:
                     raise
         check_report_folder(folder)  # nothing was added while the log was evaluated
         written = {entry.name for entry in staging.iterdir()}
-        for name in sorted(written):
-            os.replace(staging / name, path / name)
-        for name in REPORT_FILES:
-            if name not in written:
-                (path / name).unlink(missing_ok=True)
+        with signals_deferred():  # a Ctrl-C leaves the whole report, never half of it
+            for name in sorted(written):
+                os.replace(staging / name, path / name)
+            for name in REPORT_FILES:
+                if name not in written:
+                    (path / name).unlink(missing_ok=True)
     except OSError as err:
         raise PcaInterpError(
             f"cannot move the finished report into {folder}: {err.strerror}; "
