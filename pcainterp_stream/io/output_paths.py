@@ -32,6 +32,8 @@ __all__ = [
     "is_standard_output",
     "partial_prefix",
     "remove_stale_partials",
+    "remove_stale_temporaries",
+    "temporary_prefix",
     "write_advice",
 ]
 
@@ -268,6 +270,30 @@ def _size(path: Path) -> int:
         return 0
 
 
+def _stale(folder: Path, start: str) -> Iterator[Path]:
+    """Yield the entries of ``folder`` named ``START PID@HOST-XXXX`` of a dead process here."""
+    pattern = re.compile(re.escape(start) + r"(\d+)@" + re.escape(_host()) + r"-[^-]+")
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return
+    for entry in entries:
+        match = pattern.fullmatch(entry.name)
+        if match is not None and int(match[1]) != os.getpid() and not _alive(int(match[1])):
+            yield Path(entry.path)
+
+
+def temporary_prefix(stem: str) -> str:
+    """Return the prefix of a temporary folder of this process: ``STEM-PID@HOST-``."""
+    return f"{stem}-{os.getpid()}@{_host()}-"
+
+
+def remove_stale_temporaries(folder: Path, stem: str) -> None:
+    """Remove, silently, ``folder``'s temporaries (:func:`temporary_prefix`) of killed runs."""
+    for path in _stale(folder, f"{stem}-"):
+        shutil.rmtree(path, ignore_errors=True)
+
+
 def remove_stale_partials(target: Path, *, label: str | None = None) -> int:
     """Remove ``target``'s partial outputs left by runs that were killed; say so per output.
 
@@ -284,19 +310,8 @@ def remove_stale_partials(target: Path, *, label: str | None = None) -> int:
     Returns:
         The number of partial outputs removed.
     """
-    pattern = re.compile(
-        re.escape(f".{target.name}.partial-") + r"(\d+)@" + re.escape(_host()) + r"-[^-]+"
-    )
-    try:
-        entries = list(os.scandir(target.parent if str(target.parent) else "."))
-    except OSError:
-        return 0
     removed = 0
-    for entry in entries:
-        match = pattern.fullmatch(entry.name)
-        if match is None or int(match[1]) == os.getpid() or _alive(int(match[1])):
-            continue
-        path = Path(entry.path)
+    for path in _stale(target.parent, f".{target.name}.partial-"):
         size = _size(path)
         try:
             if path.is_dir() and not path.is_symlink():

@@ -34,7 +34,12 @@ import numpy as np
 from pcainterp_stream.defaults import DISPLAY_MAX_DEPTH, DISPLAY_MAX_DEPTH_STD
 from pcainterp_stream.errors import LogWriteError
 from pcainterp_stream.interrupt import signalled, track_partial, untrack_partial
-from pcainterp_stream.io.output_paths import partial_prefix, remove_stale_partials
+from pcainterp_stream.io.output_paths import (
+    partial_prefix,
+    remove_stale_partials,
+    remove_stale_temporaries,
+    temporary_prefix,
+)
 from pcainterp_stream.records import DensifiedFrame
 
 if TYPE_CHECKING:
@@ -103,7 +108,8 @@ class _Pump:
         self.error: str | None = None
         out = self._open_target()  # OSError: the caller refuses the path
         try:
-            self._folder = Path(tempfile.mkdtemp(prefix="pcainterp-rrd-"))
+            remove_stale_temporaries(Path(tempfile.gettempdir()), "pcainterp-rrd")
+            self._folder = Path(tempfile.mkdtemp(prefix=temporary_prefix("pcainterp-rrd")))
         except OSError as err:
             self._close(out)
             self.target.unlink(missing_ok=True)

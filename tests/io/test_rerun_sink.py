@@ -456,8 +456,10 @@ def test_a_recording_that_cannot_be_moved_onto_its_target_is_a_warning(
 def test_a_killed_runs_partial_recording_is_removed_and_a_live_ones_kept(
     tmp_path: Path, temporary_folder: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """A partial named after a dead process goes (one line, its size); a live one stays."""
-    from pcainterp_stream.io.output_paths import partial_prefix
+    """A partial named after a dead process goes (one line, its size); a live one stays.
+
+    So does a killed run's pipe folder in the temporary folder (silently: it holds a FIFO)."""
+    from pcainterp_stream.io.output_paths import partial_prefix, temporary_prefix
 
     target = tmp_path / "run.rrd"
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
@@ -467,10 +469,17 @@ def test_a_killed_runs_partial_recording_is_removed_and_a_live_ones_kept(
     stale.write_bytes(bytes(2_500_000))
     live = tmp_path / own.replace(f"-{os.getpid()}@", f"-{os.getppid()}@").__add__("xyz789")
     live.write_bytes(b"x")
+    pipes = temporary_prefix("pcainterp-rrd")
+    stale_pipe = temporary_folder / (pipes.replace(f"-{os.getpid()}@", f"-{dead.pid}@") + "a1")
+    stale_pipe.mkdir()
+    os.mkfifo(stale_pipe / "recording.rrd")
+    live_pipe = temporary_folder / (pipes.replace(f"-{os.getpid()}@", f"-{os.getppid()}@") + "b2")
+    live_pipe.mkdir()
     with RerunSink(rrd_path=target) as sink:
         sink.log(_frame(0))
     assert not stale.exists()
     assert live.exists()
+    assert [p.name for p in temporary_folder.iterdir()] == [live_pipe.name]
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["run.rrd", "tmp", live.name])
     err = capsys.readouterr().err
     assert err.count("note: removed") == 1
