@@ -2989,6 +2989,9 @@ def test_an_interruption_says_what_is_at_the_target(
     assert said("synth", old) == f"{old} {earlier}"
     assert said("synth", new) == "no partial output was left at the target"
     assert said("densify", "in.mcap", "--foxglove", "127.0.0.1:0") == "nothing was written"
+    assert said("densify", "in.mcap", "--out-dir", tmp_path) == (
+        "no partial output was left at the target"
+    )
     rrd = tmp_path / "old.rrd"
     rrd.write_bytes(b"an earlier recording")
     assert said("densify", "in.mcap", "-o", new, "--rrd", rrd) == (

@@ -110,7 +110,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     # writer, SGBM) has a watchdog that ends it within a few seconds whatever blocks
     # (pcainterp_stream/interrupt.py). The previous handlers come back afterwards, for
     # callers that run main() in-process.
-    targets = _Targets(args) if _writes(args) else None
+    targets = None
+    if _writes(args):
+        with contextlib.suppress(OSError, ValueError):  # the line then says what it always did
+            targets = _Targets(args)
     try:
         with stop_on_signals(watchdog=args.command == "densify"):
             return run(args)
@@ -222,6 +225,8 @@ class _Targets:
             if args.command == "golden" and getattr(args, "update", False):
                 paths.append(args.golden)
         self.paths = paths
+        # densify --out-dir: its run names the outputs it kept (interrupt.Interrupted)
+        self.in_folder = getattr(args, "out_dir", None) is not None
         self.before = self._now()
 
     def _now(self) -> dict[Path, object]:
@@ -237,7 +242,7 @@ class _Targets:
         """What is at the targets now, as the end of the "interrupted" line."""
         after = self._now()
         if self.folder is None and not self.paths:
-            return "nothing was written"
+            return NOTHING_LEFT if self.in_folder else "nothing was written"
         kept = [
             str(p)
             for p, state in after.items()
