@@ -294,7 +294,9 @@ def remove_stale_temporaries(folder: Path, stem: str) -> None:
         shutil.rmtree(path, ignore_errors=True)
 
 
-def remove_stale_partials(target: Path, *, label: str | None = None) -> int:
+def remove_stale_partials(
+    target: Path, *, label: str | None = None, where: Path | None = None
+) -> int:
     """Remove ``target``'s partial outputs left by runs that were killed; say so per output.
 
     A killed run (SIGKILL, an out-of-memory kill, a batch system's hard time limit) cannot
@@ -306,12 +308,13 @@ def remove_stale_partials(target: Path, *, label: str | None = None) -> int:
     Args:
         target: the output about to be written.
         label: the output as the line names it (default: ``target``).
+        where: the folder the partial outputs are made in (default: ``target``'s).
 
     Returns:
         The number of partial outputs removed.
     """
     removed = 0
-    for path in _stale(target.parent, f".{target.name}.partial-"):
+    for path in _stale(target.parent if where is None else where, f".{target.name}.partial-"):
         size = _size(path)
         try:
             if path.is_dir() and not path.is_symlink():
