@@ -645,3 +645,38 @@ def test_the_interrupted_line_to_a_terminal_that_went_away_is_dropped(
 
     monkeypatch.setattr(sys, "stderr", GoneTerminal())
     assert app._interrupted(KeyboardInterrupt()) == 130
+
+
+TRACKER = r"""
+import os, signal, sys, time
+from multiprocessing import resource_tracker
+from pcainterp_stream.interrupt import resource_tracker_survives_hang_up
+
+if sys.argv[1] == "prepared":
+    resource_tracker_survives_hang_up()
+resource_tracker.ensure_running()
+pid = resource_tracker._resource_tracker._pid
+os.kill(pid, signal.SIGHUP)
+time.sleep(0.5)
+print("dead" if os.waitpid(pid, os.WNOHANG) != (0, 0) else "alive")
+"""
+"""Start multiprocessing's resource tracker, hang it up, say whether it survived."""
+
+
+@pytest.mark.skipif(not hasattr(signal, "SIGHUP"), reason="no SIGHUP")
+@pytest.mark.parametrize(("prepared", "survives"), [("prepared", True), ("as-is", False)])
+def test_the_resource_tracker_of_worker_processes_survives_a_hang_up(
+    prepared: str, survives: bool
+) -> None:
+    """A hang-up reaches the whole process group: a tracker killed by it made the clean-up
+    of ``learn --workers`` print a KeyError traceback per shared-memory block."""
+    done = subprocess.run(
+        [sys.executable, "-c", TRACKER, prepared],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+        preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_DFL),
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == ("alive" if survives else "dead")

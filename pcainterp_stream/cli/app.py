@@ -40,6 +40,7 @@ from pcainterp_stream.interrupt import (
     InterruptedAfterOutput,
     InterruptedStreamOutput,
     end_if_signalled,
+    resource_tracker_survives_hang_up,
     signalled,
     stop_on_signals,
 )
@@ -114,6 +115,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if _writes(args):
         with contextlib.suppress(OSError, ValueError):  # the line then says what it always did
             targets = _Targets(args)
+    if getattr(args, "workers", None) or getattr(args, "scheduler", None):
+        resource_tracker_survives_hang_up()  # worker processes: a hang-up costs no traceback
     try:
         with stop_on_signals(watchdog=args.command == "densify"):
             return run(args)
