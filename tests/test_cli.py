@@ -2649,7 +2649,7 @@ def _interrupt(args: list[str], target: Path, sig: signal.Signals) -> tuple[int,
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_signal_during_synth(sig: signal.Signals, tmp_path: Path) -> None:
     target = tmp_path / "big.mcap"
     args = ["synth", str(target), "--frames", "200", "--scale", "0.5"]
@@ -2678,7 +2678,7 @@ def test_signal_during_synth(sig: signal.Signals, tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_signal_during_densify(
     sig: signal.Signals, long_log: Path, small_log: Path, basis_path: Path, out: Path
 ) -> None:
@@ -2686,7 +2686,8 @@ def test_signal_during_densify(
     args = ["densify", str(long_log), "-o", str(out), "--basis", str(basis_path)]
     code, err = _interrupt(args, out, sig)
     assert code == 130, err
-    assert err.strip() == "pcainterp: interrupted; no partial output was left at the target"
+    said = f"pcainterp: interrupted; {out} was not changed (it holds an earlier run's output)"
+    assert err.strip() == said
     assert out.read_bytes() == b"an older result"
     assert [p.name for p in out.parent.iterdir()] == [out.name]
     rerun = subprocess.run(
@@ -2988,3 +2989,56 @@ def test_an_interrupted_command_that_only_reads_says_just_interrupted(
     monkeypatch.setattr(app, "run", interrupted)
     run = pcainterp(*args)
     assert (run.code, run.err.strip()) == (130, said)
+
+
+def test_an_interruption_says_what_is_at_the_target(
+    pcainterp: Callable[..., Run],
+    monkeypatch: pytest.MonkeyPatch,
+    tmp_path: Path,
+) -> None:
+    """Not "no partial output was left at the target" while the target holds a file: an
+    earlier run's output is named as such, a run with no file output wrote nothing, and a
+    demo names the steps' files it finished."""
+    from pcainterp_stream.cli import app
+
+    written: list[Path] = []
+
+    def interrupted(args: argparse.Namespace) -> int:
+        for path in written:
+            path.write_bytes(b"this run's")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(app, "run", interrupted)
+    old = tmp_path / "old.mcap"
+    old.write_bytes(b"an earlier run's")
+    new = tmp_path / "new.mcap"
+
+    def said(*args: str | Path) -> str:
+        run = pcainterp(*args)
+        assert run.code == 130
+        return run.err.strip().removeprefix("pcainterp: interrupted; ")
+
+    earlier = "was not changed (it holds an earlier run's output)"
+    assert said("synth", old) == f"{old} {earlier}"
+    assert said("synth", new) == "no partial output was left at the target"
+    assert said("densify", "in.mcap", "--foxglove", "127.0.0.1:0") == "nothing was written"
+    assert said("densify", "in.mcap", "--out-dir", tmp_path) == (
+        "no partial output was left at the target"
+    )
+    rrd = tmp_path / "old.rrd"
+    rrd.write_bytes(b"an earlier recording")
+    assert said("densify", "in.mcap", "-o", new, "--rrd", rrd) == (
+        f"{rrd} {earlier}; nothing was written at {new}"
+    )
+    report = tmp_path / "rep"
+    report.mkdir()
+    (report / "results.md").write_text("an earlier report")
+    assert said("evaluate", "in.mcap", "-o", report) == f"{report} {earlier}"
+    demo = tmp_path / "demo"
+    demo.mkdir()
+    (demo / "report").mkdir()
+    written[:] = [demo / "heldout.mcap", demo / "heldout_dense.mcap"]
+    assert said("demo", "--out", demo) == (
+        f"{demo / 'heldout.mcap'}, {demo / 'heldout_dense.mcap'} were finished before the "
+        f"signal and kept; {demo / 'report'} {earlier}"
+    )

@@ -142,7 +142,7 @@ def _interrupt_while_reading(
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_signal_during_learn(
     sig: signal.Signals, long_log: Path, small_log: Path, tmp_path: Path
 ) -> None:
@@ -160,7 +160,8 @@ def test_signal_during_learn(
     ]
     code, err = _interrupt_while_reading(args, long_log, sig)
     assert code == 130, err
-    assert err.strip() == INTERRUPTED
+    said = f"pcainterp: interrupted; {target} was not changed (it holds an earlier run's output)"
+    assert err.strip() == said
     assert target.read_bytes() == b"an older basis"
     assert [p.name for p in tmp_path.iterdir()] == [target.name]  # no temporary beside it
     # nothing the interrupted run left stops a new one (the short log keeps the test fast)
@@ -562,3 +563,120 @@ def test_a_signal_during_a_deferring_block_takes_effect_after_it() -> None:
     process = _run_script(SIGNAL_DEFERRED)
     assert process.returncode == 0, process.stderr
     assert process.stdout.strip() == "after the signal, inside the block; interrupted"
+
+
+HANG_UP = r"""
+import sys, time
+from pathlib import Path
+from pcainterp_stream.interrupt import stop_on_signals, track_partial
+
+partial = Path(sys.argv[1])
+partial.write_text("half an output")
+try:
+    with stop_on_signals(watchdog=True):
+        track_partial(partial)
+        print("ready", flush=True)
+        time.sleep(60)
+except KeyboardInterrupt:
+    partial.unlink()  # what the writers' with blocks do
+    print("interrupted", file=sys.stderr, flush=True)
+    sys.exit(130)
+"""
+"""A command writing a partial output, which its clean-up removes."""
+
+
+def _hang_up_command(tmp_path: Path, *, ignored: bool) -> tuple[subprocess.Popen[str], Path]:
+    partial = tmp_path / ".out.mcap.partial"
+
+    def dispositions() -> None:
+        _default_sigint()
+        signal.signal(signal.SIGHUP, signal.SIG_IGN if ignored else signal.SIG_DFL)
+
+    process = subprocess.Popen(
+        [sys.executable, "-c", HANG_UP, str(partial)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=dispositions,
+        env=_without_stall_dump(),
+    )
+    assert process.stdout is not None
+    assert process.stdout.readline() == "ready\n", process.communicate()
+    return process, partial
+
+
+@pytest.mark.skipif(not hasattr(signal, "SIGHUP"), reason="no SIGHUP")
+def test_a_hang_up_cleans_up_as_sigterm_does(tmp_path: Path) -> None:
+    """A closed terminal or a dropped ssh session (SIGHUP): the clean path, not a death."""
+    process, partial = _hang_up_command(tmp_path, ignored=False)
+    process.send_signal(signal.SIGHUP)
+    _, err = _ended(process)
+    assert process.returncode == 130, err
+    assert err.strip() == "interrupted"
+    assert not partial.exists()
+
+
+@pytest.mark.skipif(not hasattr(signal, "SIGHUP"), reason="no SIGHUP")
+def test_a_hang_up_ignored_at_start_stays_ignored(tmp_path: Path) -> None:
+    """Under ``nohup`` (SIGHUP ignored before the start) a hang-up changes nothing."""
+    process, partial = _hang_up_command(tmp_path, ignored=True)
+    process.send_signal(signal.SIGHUP)
+    time.sleep(1.0)
+    assert process.poll() is None, process.communicate()
+    assert partial.exists()
+    process.send_signal(signal.SIGTERM)
+    _ended(process)
+    assert process.returncode == 130
+    assert not partial.exists()
+
+
+def test_the_interrupted_line_to_a_terminal_that_went_away_is_dropped(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """After a hang-up, standard error's terminal is gone (EIO): no traceback, still 130."""
+    from pcainterp_stream.cli import app
+
+    class GoneTerminal:
+        def write(self, text: str) -> int:
+            raise OSError(5, "Input/output error")
+
+        def flush(self) -> None:
+            raise OSError(5, "Input/output error")
+
+    monkeypatch.setattr(sys, "stderr", GoneTerminal())
+    assert app._interrupted(KeyboardInterrupt()) == 130
+
+
+TRACKER = r"""
+import os, signal, sys, time
+from multiprocessing import resource_tracker
+from pcainterp_stream.interrupt import resource_tracker_survives_hang_up
+
+if sys.argv[1] == "prepared":
+    resource_tracker_survives_hang_up()
+resource_tracker.ensure_running()
+pid = resource_tracker._resource_tracker._pid
+os.kill(pid, signal.SIGHUP)
+time.sleep(0.5)
+print("dead" if os.waitpid(pid, os.WNOHANG) != (0, 0) else "alive")
+"""
+"""Start multiprocessing's resource tracker, hang it up, say whether it survived."""
+
+
+@pytest.mark.skipif(not hasattr(signal, "SIGHUP"), reason="no SIGHUP")
+@pytest.mark.parametrize(("prepared", "survives"), [("prepared", True), ("as-is", False)])
+def test_the_resource_tracker_of_worker_processes_survives_a_hang_up(
+    prepared: str, survives: bool
+) -> None:
+    """A hang-up reaches the whole process group: a tracker killed by it made the clean-up
+    of ``learn --workers`` print a KeyError traceback per shared-memory block."""
+    done = subprocess.run(
+        [sys.executable, "-c", TRACKER, prepared],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+        preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_DFL),
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == ("alive" if survives else "dead")

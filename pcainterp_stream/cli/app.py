@@ -13,9 +13,11 @@ import argparse
 import atexit
 import contextlib
 import os
+import stat
 import sys
 import threading
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from types import ModuleType
 
 from pcainterp_stream.cli import (
@@ -38,6 +40,7 @@ from pcainterp_stream.interrupt import (
     InterruptedAfterOutput,
     InterruptedStreamOutput,
     end_if_signalled,
+    resource_tracker_survives_hang_up,
     signalled,
     stop_on_signals,
 )
@@ -108,17 +111,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     # writer, SGBM) has a watchdog that ends it within a few seconds whatever blocks
     # (pcainterp_stream/interrupt.py). The previous handlers come back afterwards, for
     # callers that run main() in-process.
+    targets = None
+    if _writes(args):
+        with contextlib.suppress(OSError, ValueError):  # the line then says what it always did
+            targets = _Targets(args)
+    if getattr(args, "workers", None) or getattr(args, "scheduler", None):
+        resource_tracker_survives_hang_up()  # worker processes: a hang-up costs no traceback
     try:
         with stop_on_signals(watchdog=args.command == "densify"):
             return run(args)
     except KeyboardInterrupt as interruption:
-        return _interrupted(interruption, writes=_writes(args))
+        return _interrupted(interruption, writes=_writes(args), targets=targets)
     except Exception as err:
         # A signal that lands inside an import of a compiled module surfaces as
         # "ImportError: initialization failed", inside other native code as whatever it
         # raises: once a signal was handled, every error is the interruption's.
         if signalled():
-            return _interrupted(writes=_writes(args))
+            return _interrupted(writes=_writes(args), targets=targets)
         if isinstance(err, PcaInterpError):
             print(f"{PROG}: error: {err}", file=sys.stderr)
             return 2
@@ -169,24 +178,139 @@ def _writes(args: argparse.Namespace) -> bool:
     return not (args.command == "golden" and args.golden_command == "check" and not args.update)
 
 
-def _interrupted(interruption: KeyboardInterrupt | None = None, *, writes: bool = True) -> int:
+NOTHING_LEFT = "no partial output was left at the target"
+"""What an interruption leaves at new targets (each output is renamed in place once whole)."""
+
+
+def _state(path: Path) -> object:
+    """What is at ``path`` now, to tell later whether it changed (None: no file or folder).
+
+    A file: its inode, size and modification time (an output is renamed onto its target,
+    a new inode). A folder: the same of each entry not hidden (its staging folders are).
+    """
+    try:
+        found = path.stat()
+    except OSError:
+        return None
+    if stat.S_ISREG(found.st_mode):
+        return (found.st_ino, found.st_size, found.st_mtime_ns)
+    if not stat.S_ISDIR(found.st_mode):
+        return None  # a device or a pipe: nothing the command stages and renames
+    try:
+        entries = [entry for entry in os.scandir(path) if not entry.name.startswith(".")]
+        return frozenset(
+            (entry.name, (info.st_ino, info.st_size, info.st_mtime_ns))
+            for entry in entries
+            for info in [entry.stat(follow_symlinks=False)]
+        )
+    except OSError:
+        return None
+
+
+class _Targets:
+    """The outputs a command line names and what was at them before it ran.
+
+    An interruption then says what is at each (:meth:`detail`): an earlier run's output,
+    left unchanged; an output of this run, finished (renamed into place whole) before the
+    signal; or nothing. For ``demo`` the outputs are the entries of its folder.
+    """
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.folder: Path | None = args.out if args.command == "demo" else None
+        paths: list[Path] = []
+        if self.folder is None:
+            for name in ("out", "output", "rrd"):
+                value = getattr(args, name, None)
+                if isinstance(value, Path) and str(value) != "-":
+                    paths.append(value)
+            if args.command == "evaluate" and args.output is None:
+                paths.append(args.input.with_name(args.input.stem + "_report"))
+            if args.command == "golden" and getattr(args, "update", False):
+                paths.append(args.golden)
+        self.paths = paths
+        # densify --out-dir: its run names the outputs it kept (interrupt.Interrupted)
+        self.in_folder = getattr(args, "out_dir", None) is not None
+        self.before = self._now()
+
+    def _now(self) -> dict[Path, object]:
+        if self.folder is None:
+            return {path: _state(path) for path in self.paths}
+        try:
+            names = sorted(e.name for e in os.scandir(self.folder) if not e.name.startswith("."))
+        except OSError:
+            return {}
+        return {self.folder / name: _state(self.folder / name) for name in names}
+
+    def detail(self) -> str:
+        """What is at the targets now, as the end of the "interrupted" line."""
+        after = self._now()
+        if self.folder is None and not self.paths:
+            return NOTHING_LEFT if self.in_folder else "nothing was written"
+        kept = [
+            str(p)
+            for p, state in after.items()
+            if state is not None and state != self.before.get(p)
+        ]
+        old = [
+            str(p)
+            for p, state in self.before.items()
+            if state is not None and after.get(p) == state
+        ]
+        parts = []
+        if kept:
+            parts.append(
+                ", ".join(kept)
+                + (" was" if len(kept) == 1 else " were")
+                + " finished before the signal and kept"
+            )
+        if old:
+            parts.append(
+                ", ".join(old)
+                + (
+                    " was not changed (it holds"
+                    if len(old) == 1
+                    else " were not changed (they hold"
+                )
+                + " an earlier run's output)"
+            )
+        if not parts:
+            return NOTHING_LEFT if self.folder is None else f"nothing was written in {self.folder}"
+        new = [str(p) for p in self.paths if after.get(p) is None]
+        if new:
+            parts.append(f"nothing was written at {', '.join(new)}")
+        return "; ".join(parts)
+
+
+def _interrupted(
+    interruption: KeyboardInterrupt | None = None,
+    *,
+    writes: bool = True,
+    targets: _Targets | None = None,
+) -> int:
     """Say the command was interrupted (and what it kept); end at once after a real signal.
 
     Args:
         interruption: what was raised (its kind says what was kept).
         writes: the command writes an output (False: the line says no more).
+        targets: the outputs and what was at them before the run (None: not known).
 
     Returns:
         130.
     """
-    detail = "no partial output was left at the target"
+    detail = NOTHING_LEFT
     if not writes:
         detail = ""
     elif isinstance(interruption, InterruptedAfterOutput):  # the signal came after the commit
         detail = f"{interruption.kept} was complete and is kept"
     elif isinstance(interruption, Interrupted | InterruptedStreamOutput):
         detail = str(interruption)  # which outputs were kept; what standard output holds
-    print(f"{PROG}: interrupted" + (f"; {detail}" if detail else ""), file=sys.stderr)
+    elif targets is not None:
+        with contextlib.suppress(OSError):
+            detail = targets.detail()
+    # after a SIGHUP standard error may be a terminal that went away: the clean-up is done,
+    # a line that can go nowhere changes nothing
+    with contextlib.suppress(OSError, ValueError):
+        print(f"{PROG}: interrupted" + (f"; {detail}" if detail else ""), file=sys.stderr)
     # A Ctrl-C that lands inside code run by exec() (rosbags generates its message
     # decoders that way) sets a flag that makes `python -m` re-raise SIGINT at exit
     # (CPython bpo-41602) although we handled it; any exec() of a string clears it.

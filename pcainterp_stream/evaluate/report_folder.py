@@ -1,11 +1,12 @@
 """The report folder of ``pcainterp evaluate``: which folder it may write, and how.
 
-A report is written into a hidden staging folder (``.NAME.partial-XXXX``: beside a new target,
-inside an existing one) and moved into place only once complete, as densify writes its
-outputs: a stopped or failed run leaves the folder as it was, and a re-run leaves no figure
-of an earlier one. An existing folder is written into, never renamed, so it may be a mount
-point (a container's volume) or the current folder. A folder that holds files a report does
-not write (a user's notes, another tool's output) is refused; hidden files are ignored.
+A report is written into a hidden staging folder (``.NAME.partial-PID@HOST-XXXX``: beside a
+new target, inside an existing one; a killed run's is removed by the next run) and moved
+into place only once complete, as densify writes its outputs: a stopped or failed run leaves
+the folder as it was, and a re-run leaves no figure of an earlier one. An existing folder is
+written into, never renamed, so it may be a mount point (a container's volume) or the
+current folder. A folder that holds files a report does not write (a user's notes, another
+tool's output) is refused; hidden files are ignored.
 ``results.json`` is strict JSON (RFC 8259): non-finite numbers are written as ``null``.
 """
 
@@ -22,7 +23,8 @@ from typing import Any
 
 from pcainterp_stream.errors import PcaInterpError
 from pcainterp_stream.evaluate.figures import FIGURE_NAMES
-from pcainterp_stream.interrupt import track_partial, untrack_partial
+from pcainterp_stream.interrupt import signals_deferred, track_partial, untrack_partial
+from pcainterp_stream.io.output_paths import partial_prefix, remove_stale_partials, write_advice
 
 __all__ = ["REPORT_FILES", "check_report_folder", "report_json", "write_report_folder"]
 
@@ -146,13 +148,20 @@ def write_report_folder(folder: Path, write: Callable[[Path], None]) -> None:
     path = _absolute(folder)
     existing = path.is_dir()
     where = path if existing else path.parent
+    remove_stale_partials(path, label=str(folder), where=where)  # of a killed earlier run
     try:
-        staging = Path(tempfile.mkdtemp(prefix=f".{path.name}.partial-", dir=where))
+        staging = Path(tempfile.mkdtemp(prefix=partial_prefix(path), dir=where))
     except OSError as err:
         raise _not_writable(folder, where, err) from err
     track_partial(staging)  # removed even if a signal forces the end
     try:
-        write(staging)
+        try:
+            write(staging)
+        except OSError as err:  # the report is not finished: a full disk, not the move
+            raise PcaInterpError(
+                f"writing the report into {folder} failed: {err.strerror or err}; "
+                f"{write_advice(err)}"
+            ) from err
         if not existing:
             os.chmod(staging, 0o777 & ~_umask())  # mkdtemp's 0700 would hide the report
             try:
@@ -163,11 +172,12 @@ def write_report_folder(folder: Path, write: Callable[[Path], None]) -> None:
                     raise
         check_report_folder(folder)  # nothing was added while the log was evaluated
         written = {entry.name for entry in staging.iterdir()}
-        for name in sorted(written):
-            os.replace(staging / name, path / name)
-        for name in REPORT_FILES:
-            if name not in written:
-                (path / name).unlink(missing_ok=True)
+        with signals_deferred():  # a Ctrl-C leaves the whole report, never half of it
+            for name in sorted(written):
+                os.replace(staging / name, path / name)
+            for name in REPORT_FILES:
+                if name not in written:
+                    (path / name).unlink(missing_ok=True)
     except OSError as err:
         raise PcaInterpError(
             f"cannot move the finished report into {folder}: {err.strerror}; "

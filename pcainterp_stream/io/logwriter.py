@@ -10,7 +10,8 @@ Messages are rosbags typestore objects of :data:`rosmsg.TYPESTORE` (ROS 2 Humble
 channel (connection) is registered on first use of a topic with a message type.
 
 Output is atomic: everything is written into a hidden folder beside the target
-(``.OUT.partial-XXXX``) and moved onto the target only once complete and closed. An
+(``.OUT.partial-PID@HOST-XXXX``) and moved onto the target only once complete and closed;
+one left by a killed run is removed when the next run writes the same target. An
 exception or KeyboardInterrupt inside the ``with`` block removes the partial output and
 leaves an existing target untouched. The writer refuses to write onto one of its inputs.
 
@@ -57,7 +58,12 @@ from pcainterp_stream.errors import LogWriteError
 from pcainterp_stream.interrupt import raise_if_signalled, track_partial, untrack_partial
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.mcap_extras import McapExtras, write_extras
-from pcainterp_stream.io.output_paths import check_not_input, check_output_file
+from pcainterp_stream.io.output_paths import (
+    check_not_input,
+    check_output_file,
+    partial_prefix,
+    remove_stale_partials,
+)
 from pcainterp_stream.io.write_thread import WriteThread
 from pcainterp_stream.records import RawMessage
 from pcainterp_stream.version import __version__
@@ -287,10 +293,9 @@ class LogWriter(ABC):
             raise LogWriteError(
                 f"cannot write {self.path}: folder {parent} does not exist; create it first"
             )
+        remove_stale_partials(self.path)  # a killed earlier run's (never a live one's)
         try:
-            self._partial_dir = Path(
-                tempfile.mkdtemp(prefix=f".{self.path.name}.partial-", dir=parent)
-            )
+            self._partial_dir = Path(tempfile.mkdtemp(prefix=partial_prefix(self.path), dir=parent))
             track_partial(self._partial_dir)  # removed even if a signal forces the end
         except OSError as err:
             raise LogWriteError(

@@ -11,10 +11,14 @@ never lands onto one of the inputs, nor around one (:func:`check_not_input`).
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import re
+import shutil
+import socket
 import stat
+import sys
 import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -26,6 +30,10 @@ __all__ = [
     "check_output_file",
     "check_output_folder",
     "is_standard_output",
+    "partial_prefix",
+    "remove_stale_partials",
+    "remove_stale_temporaries",
+    "temporary_prefix",
     "write_advice",
 ]
 
@@ -217,3 +225,109 @@ def check_output_folder(folder: Path) -> None:
         raise LogWriteError(
             f"cannot write into {folder}: {err.strerror or err}; {write_advice(err)}"
         ) from err
+
+
+def _host() -> str:
+    """This machine's name as a partial output's name holds it (safe characters, short)."""
+    return re.sub(r"[^A-Za-z0-9.]", "_", socket.gethostname())[:40] or "host"
+
+
+def partial_prefix(target: Path) -> str:
+    """Return the name prefix of ``target``'s partial output: ``.NAME.partial-PID@HOST-``.
+
+    The writer's process id and machine are in the name, so that a later run can tell the
+    partial output of a run that was killed (:func:`remove_stale_partials`) from that of
+    a run still going; ``tempfile`` adds a unique suffix, so two runs never share one.
+    """
+    return f".{target.name}.partial-{os.getpid()}@{_host()}-"
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` exists on this machine (one of another user's included)."""
+    if pid <= 0:
+        return True  # not a process id of ours: never taken for a dead one
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # PermissionError: it exists, another user's
+        return True
+    return True
+
+
+def _size(path: Path) -> int:
+    """Bytes in the file, or in the files below the folder, at ``path``."""
+    if path.is_dir() and not path.is_symlink():
+        total = 0
+        for root, _, files in os.walk(path):
+            for name in files:
+                with contextlib.suppress(OSError):
+                    total += os.lstat(os.path.join(root, name)).st_size
+        return total
+    try:
+        return path.lstat().st_size
+    except OSError:
+        return 0
+
+
+def _stale(folder: Path, start: str) -> Iterator[Path]:
+    """Yield the entries of ``folder`` named ``START PID@HOST-XXXX`` of a dead process here."""
+    pattern = re.compile(re.escape(start) + r"(\d+)@" + re.escape(_host()) + r"-[^-]+")
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return
+    for entry in entries:
+        match = pattern.fullmatch(entry.name)
+        if match is not None and int(match[1]) != os.getpid() and not _alive(int(match[1])):
+            yield Path(entry.path)
+
+
+def temporary_prefix(stem: str) -> str:
+    """Return the prefix of a temporary folder of this process: ``STEM-PID@HOST-``."""
+    return f"{stem}-{os.getpid()}@{_host()}-"
+
+
+def remove_stale_temporaries(folder: Path, stem: str) -> None:
+    """Remove, silently, ``folder``'s temporaries (:func:`temporary_prefix`) of killed runs."""
+    for path in _stale(folder, f"{stem}-"):
+        shutil.rmtree(path, ignore_errors=True)
+
+
+def remove_stale_partials(
+    target: Path, *, label: str | None = None, where: Path | None = None
+) -> int:
+    """Remove ``target``'s partial outputs left by runs that were killed; say so per output.
+
+    A killed run (SIGKILL, an out-of-memory kill, a batch system's hard time limit) cannot
+    remove its hidden partial output. Only the partial outputs of ``target`` named by
+    :func:`partial_prefix` with this machine's name and the id of a process that no longer
+    exists are removed: one of a run still going (here or on another machine sharing the
+    folder) is never touched. One line on standard error per removal, with its size.
+
+    Args:
+        target: the output about to be written.
+        label: the output as the line names it (default: ``target``).
+        where: the folder the partial outputs are made in (default: ``target``'s).
+
+    Returns:
+        The number of partial outputs removed.
+    """
+    removed = 0
+    for path in _stale(target.parent if where is None else where, f".{target.name}.partial-"):
+        size = _size(path)
+        try:
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)
+            else:
+                path.unlink()
+        except OSError:
+            continue  # not ours to remove (permissions): left as it is
+        removed += 1
+        with contextlib.suppress(OSError, ValueError):
+            print(
+                f"note: removed {label or target}'s partial output left by an earlier run "
+                f"that was killed ({size / 1e6:.1f} MB)",
+                file=sys.stderr,
+            )
+    return removed

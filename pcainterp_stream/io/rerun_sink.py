@@ -34,6 +34,12 @@ import numpy as np
 from pcainterp_stream.defaults import DISPLAY_MAX_DEPTH, DISPLAY_MAX_DEPTH_STD
 from pcainterp_stream.errors import LogWriteError
 from pcainterp_stream.interrupt import signalled, track_partial, untrack_partial
+from pcainterp_stream.io.output_paths import (
+    partial_prefix,
+    remove_stale_partials,
+    remove_stale_temporaries,
+    temporary_prefix,
+)
 from pcainterp_stream.records import DensifiedFrame
 
 if TYPE_CHECKING:
@@ -102,7 +108,8 @@ class _Pump:
         self.error: str | None = None
         out = self._open_target()  # OSError: the caller refuses the path
         try:
-            self._folder = Path(tempfile.mkdtemp(prefix="pcainterp-rrd-"))
+            remove_stale_temporaries(Path(tempfile.gettempdir()), "pcainterp-rrd")
+            self._folder = Path(tempfile.mkdtemp(prefix=temporary_prefix("pcainterp-rrd")))
         except OSError as err:
             self._close(out)
             self.target.unlink(missing_ok=True)
@@ -260,9 +267,14 @@ class RerunSink:
         """
         if not rrd_path.parent.is_dir():
             raise LogWriteError(f"cannot write {rrd_path}: folder {rrd_path.parent} does not exist")
-        self._partial = rrd_path.with_name(f".{rrd_path.name}.partial")
-        track_partial(self._partial)  # removed even if a signal forces the end
+        remove_stale_partials(rrd_path)  # a killed earlier run's (never a live one's)
         try:
+            # unique: two runs writing one --rrd never share (nor remove) each other's
+            handle, name = tempfile.mkstemp(prefix=partial_prefix(rrd_path), dir=rrd_path.parent)
+            os.close(handle)
+            self._partial = Path(name)
+            track_partial(self._partial)  # removed even if a signal forces the end
+            os.chmod(self._partial, 0o666 & ~_umask())  # mkstemp's 0600: as a new file's
             if hasattr(os, "mkfifo"):
                 self._pump = _Pump(self._partial, rrd_path)
                 return self._pump.pipe
@@ -309,9 +321,19 @@ class RerunSink:
             raise
         if self._partial is not None and self.rrd_path is not None:
             if exc_type is None and failed is None and not signalled():  # never after a signal
-                self._partial.replace(self.rrd_path)
-                self.written = True
-                untrack_partial(self._partial)
+                try:
+                    self._partial.replace(self.rrd_path)
+                except OSError as err:  # the recording is lost, never the other outputs
+                    self._discard()
+                    print(
+                        f"warning: cannot move the finished recording onto {self.rrd_path}: "
+                        f"{err.strerror or err}; no recording was written there, the other "
+                        "outputs are whole",
+                        file=sys.stderr,
+                    )
+                else:
+                    self.written = True
+                    untrack_partial(self._partial)
             else:
                 self._discard()
         if interrupted:
@@ -403,6 +425,12 @@ class RerunSink:
                 depth_range=(0.0, DISPLAY_MAX_DEPTH_STD),
             ),
         )
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def _close_recording(recording: rr.RecordingStream, *, flush_s: float | None) -> str | None:

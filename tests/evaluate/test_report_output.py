@@ -384,3 +384,44 @@ def test_sigma_is_stated_in_the_log_px_too(logs: dict[str, Path], tmp_path: Path
     assert report["sigma_log_px"] == pytest.approx(expected)
     text = (tmp_path / "r" / "results.md").read_text()
     assert f"--sigma 1.5 px of the basis's camera, {expected:.3g} px in the log's" in text
+
+
+@pytest.mark.parametrize("existing", [False, True])
+def test_a_full_disk_while_the_report_is_written_says_free_some_space(
+    tmp_path: Path, existing: bool
+) -> None:
+    """The figures' write fails (ENOSPC): not "cannot move the finished report ... re-run
+    once it is writable" (it was never finished, and the folder is writable)."""
+    folder = tmp_path / "rep"
+    if existing:
+        folder.mkdir()
+        (folder / "results.md").write_text("an earlier report")
+
+    def full_disk(staging: Path) -> None:
+        (staging / "results.md").write_text("half")
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    with pytest.raises(report_folder.PcaInterpError) as raised:
+        report_folder.write_report_folder(folder, full_disk)
+    assert str(raised.value) == (
+        f"writing the report into {folder} failed: No space left on device; "
+        "free some space, or write it elsewhere"
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == (["rep"] if existing else [])
+    if existing:
+        assert [p.name for p in folder.iterdir()] == ["results.md"]
+        assert (folder / "results.md").read_text() == "an earlier report"
+
+
+def test_a_failed_move_still_says_cannot_move(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    folder = tmp_path / "rep"
+    folder.mkdir()
+
+    def refused(*args: Any, **kwargs: Any) -> None:
+        raise PermissionError(errno.EACCES, os.strerror(errno.EACCES))
+
+    monkeypatch.setattr(report_folder.os, "replace", refused)
+    with pytest.raises(report_folder.PcaInterpError, match=r"cannot move the finished report"):
+        report_folder.write_report_folder(folder, lambda s: (s / "results.md").write_text("x"))

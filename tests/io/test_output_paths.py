@@ -141,3 +141,52 @@ def test_open_writer_writes_through_a_link(tmp_path: Path) -> None:
         pass  # an empty log is enough
     assert link.is_symlink()
     assert (tmp_path / "real" / "out.mcap").stat().st_size > 0
+
+
+def _dead_pid() -> int:
+    import subprocess
+    import sys
+
+    process = subprocess.Popen([sys.executable, "-c", "pass"])
+    process.wait()
+    return process.pid
+
+
+def _named(target: Path, pid: int, suffix: str, host: str | None = None) -> Path:
+    prefix = output_paths.partial_prefix(target).replace(f"-{os.getpid()}@", f"-{pid}@")
+    if host is not None:
+        prefix = prefix.replace(f"@{output_paths._host()}-", f"@{host}-")
+    return target.with_name(prefix + suffix)
+
+
+def test_a_killed_runs_partial_output_is_removed_when_the_target_is_written_again(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """After a SIGKILL the hidden partial output stayed, and every later run kept quiet.
+
+    Now the next writer of the same target removes it (one line, its size); the partial
+    output of a run still going, of another machine, or of another target is never touched.
+    """
+    target = tmp_path / "out.mcap"
+    dead = _dead_pid()
+    stale = _named(target, dead, "abc12345")
+    stale.mkdir()
+    (stale / "out.mcap").write_bytes(bytes(9_000_000))
+    live = _named(target, os.getppid(), "def67890")
+    live.mkdir()
+    elsewhere = _named(target, dead, "ghi13579", host="another_machine")
+    elsewhere.mkdir()
+    other_target = _named(tmp_path / "other.mcap", dead, "jkl24680")
+    other_target.mkdir()
+    assert stale.name.startswith(".out.mcap.partial-")
+    with open_writer(target, "mcap") as writer:
+        assert writer.partial_path.parent.name.startswith(output_paths.partial_prefix(target))
+    assert not stale.exists()
+    assert live.is_dir() and elsewhere.is_dir() and other_target.is_dir()
+    err = capsys.readouterr().err
+    assert err.strip() == (
+        f"note: removed {target}'s partial output left by an earlier run that was killed (9.0 MB)"
+    )
+    with open_writer(target, "mcap"):
+        pass
+    assert capsys.readouterr().err == ""  # said once

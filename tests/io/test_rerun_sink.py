@@ -405,3 +405,83 @@ def test_epoch_log_times_are_timestamps_and_advancing_stamps_give_no_warning(
         ("timestamp", epoch_ns + index * 100_000_000) for index in range(3)
     ]
     assert "warning" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("first", [0, 1])
+def test_two_sinks_on_one_recording_path_never_share_a_partial(
+    tmp_path: Path, temporary_folder: Path, first: int, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Two runs writing one --rrd (closed in either order): each file whole, no exception.
+
+    With one fixed partial name the first to close renamed the other's partial (which
+    went on being written into the final file) and the second's rename failed with a
+    traceback, which cost that run's MCAP.
+    """
+    target = tmp_path / "same.rrd"
+    sinks = [RerunSink(rrd_path=target), RerunSink(rrd_path=target)]
+    for sink in sinks:
+        sink.__enter__()
+    assert sinks[0]._partial != sinks[1]._partial
+    for index, sink in enumerate(sinks):
+        for frame in range(3 + 2 * index):
+            sink.log(_frame(frame))
+    order = [sinks[first], sinks[1 - first]]
+    order[0].__exit__(None, None, None)
+    assert _entity_rows(target)["/camera/image"] == (3 if first == 0 else 5)
+    order[1].__exit__(None, None, None)
+    assert all(sink.written for sink in sinks)
+    assert _entity_rows(target)["/camera/image"] == (5 if first == 0 else 3)
+    assert [p.name for p in tmp_path.iterdir() if p.name != "tmp"] == ["same.rrd"]
+    assert "warning" not in capsys.readouterr().err
+
+
+def test_a_recording_that_cannot_be_moved_onto_its_target_is_a_warning(
+    tmp_path: Path, temporary_folder: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The final rename fails (here: a folder is in the way): a warning, the job goes on."""
+    target = tmp_path / "run.rrd"
+    sink = RerunSink(rrd_path=target)
+    sink.__enter__()
+    sink.log(_frame(0))
+    target.mkdir()
+    (target / "keep").write_bytes(b"")  # a non-empty folder: the rename is refused
+    sink.__exit__(None, None, None)  # no exception: the MCAP beside it is committed
+    assert not sink.written
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.rrd", "tmp"]
+    err = capsys.readouterr().err
+    assert f"warning: cannot move the finished recording onto {target}" in err
+    assert "no recording was written there, the other outputs are whole" in err
+
+
+def test_a_killed_runs_partial_recording_is_removed_and_a_live_ones_kept(
+    tmp_path: Path, temporary_folder: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A partial named after a dead process goes (one line, its size); a live one stays.
+
+    So does a killed run's pipe folder in the temporary folder (silently: it holds a FIFO)."""
+    from pcainterp_stream.io.output_paths import partial_prefix, temporary_prefix
+
+    target = tmp_path / "run.rrd"
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    own = partial_prefix(target)
+    stale = tmp_path / own.replace(f"-{os.getpid()}@", f"-{dead.pid}@").__add__("abc123")
+    stale.write_bytes(bytes(2_500_000))
+    live = tmp_path / own.replace(f"-{os.getpid()}@", f"-{os.getppid()}@").__add__("xyz789")
+    live.write_bytes(b"x")
+    pipes = temporary_prefix("pcainterp-rrd")
+    stale_pipe = temporary_folder / (pipes.replace(f"-{os.getpid()}@", f"-{dead.pid}@") + "a1")
+    stale_pipe.mkdir()
+    os.mkfifo(stale_pipe / "recording.rrd")
+    live_pipe = temporary_folder / (pipes.replace(f"-{os.getpid()}@", f"-{os.getppid()}@") + "b2")
+    live_pipe.mkdir()
+    with RerunSink(rrd_path=target) as sink:
+        sink.log(_frame(0))
+    assert not stale.exists()
+    assert live.exists()
+    assert [p.name for p in temporary_folder.iterdir()] == [live_pipe.name]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["run.rrd", "tmp", live.name])
+    err = capsys.readouterr().err
+    assert err.count("note: removed") == 1
+    assert f"note: removed {target}'s partial output left by an earlier run that was " in err
+    assert "killed (2.5 MB)" in err
