@@ -24,7 +24,12 @@ from typing import Any
 from pcainterp_stream.errors import PcaInterpError
 from pcainterp_stream.evaluate.figures import FIGURE_NAMES
 from pcainterp_stream.interrupt import signals_deferred, track_partial, untrack_partial
-from pcainterp_stream.io.output_paths import partial_prefix, remove_stale_partials, write_advice
+from pcainterp_stream.io.output_paths import (
+    partial_prefix,
+    remove_stale_partials,
+    removed_meanwhile,
+    write_advice,
+)
 
 __all__ = ["REPORT_FILES", "check_report_folder", "report_json", "write_report_folder"]
 
@@ -148,17 +153,30 @@ def write_report_folder(folder: Path, write: Callable[[Path], None]) -> None:
     path = _absolute(folder)
     existing = path.is_dir()
     where = path if existing else path.parent
+    named = folder if existing else folder.parent  # ``where`` as the user named it
+
+    def removed(during: str) -> PcaInterpError | None:
+        """The error when the folder (or the staging in it) was removed under the job."""
+        reason = removed_meanwhile(staging, named, during)
+        text = f"cannot write the report to {folder}: {reason}; nothing was written"
+        return None if reason is None else PcaInterpError(text)
+
     remove_stale_partials(path, label=str(folder), where=where)  # of a killed earlier run
     try:
         staging = Path(tempfile.mkdtemp(prefix=partial_prefix(path), dir=where))
     except OSError as err:
+        if not where.is_dir():
+            raise PcaInterpError(
+                f"cannot write the report to {folder}: folder {named} no longer exists "
+                "(removed while the log was evaluated); nothing was written"
+            ) from err
         raise _not_writable(folder, where, err) from err
     track_partial(staging)  # removed even if a signal forces the end
     try:
         try:
             write(staging)
         except OSError as err:  # the report is not finished: a full disk, not the move
-            raise PcaInterpError(
+            raise removed("the report was being written") or PcaInterpError(
                 f"writing the report into {folder} failed: {err.strerror or err}; "
                 f"{write_advice(err)}"
             ) from err
@@ -179,7 +197,7 @@ def write_report_folder(folder: Path, write: Callable[[Path], None]) -> None:
                 if name not in written:
                     (path / name).unlink(missing_ok=True)
     except OSError as err:
-        raise PcaInterpError(
+        raise removed("the report was being written") or PcaInterpError(
             f"cannot move the finished report into {folder}: {err.strerror}; "
             "re-run once it is writable"
         ) from err

@@ -35,6 +35,7 @@ import shutil
 import struct
 import tempfile
 import threading
+import time
 from abc import ABC, abstractmethod
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
@@ -63,6 +64,7 @@ from pcainterp_stream.io.output_paths import (
     check_output_file,
     partial_prefix,
     remove_stale_partials,
+    removed_meanwhile,
 )
 from pcainterp_stream.io.write_thread import WriteThread
 from pcainterp_stream.records import RawMessage
@@ -88,6 +90,9 @@ CPU ms per frame less (docs/benchmarks.md, "CRC-32 and zstd level -1")."""
 WRITE_QUEUE_ITEMS = 32
 """Messages a threaded writer holds before ``add_*`` blocks (bounds its memory: ~60 MB of
 KITTI-size float32 images)."""
+PARTIAL_CHECK_S = 1.0
+"""How often (s) a writer checks that its partial output is still there: a folder removed
+under the job stops it within a second, not after writing the rest into an unlinked file."""
 
 
 class _ZstdAtLevel:
@@ -275,6 +280,7 @@ class LogWriter(ABC):
         self._topic_counts: Counter[str] = Counter()
         self._start_ns: int | None = None
         self._end_ns = 0
+        self._next_check = 0.0  # time.monotonic() of the next check of the partial output
         self.channel_metadata: dict[str, dict[str, str]] = {}
         """Metadata of the channels :meth:`add_message` registers, by topic (MCAP only: the
         bag formats have no channel metadata). Set it before a topic's first message."""
@@ -364,7 +370,19 @@ class LogWriter(ABC):
         One sentence naming the output: the partial output is removed, so nothing was
         written at the target.
         """
-        return write_failed(self.path, error)
+        return self._removed() or write_failed(self.path, error)
+
+    def _removed(self) -> LogWriteError | None:
+        """Return the error when the partial output (or its folder) was removed, else None."""
+        if self._partial_dir is None:
+            return None
+        during = "the output was being written"
+        reason = removed_meanwhile(self._partial_dir, self.path.parent, during)
+        return (
+            None
+            if reason is None
+            else LogWriteError(f"cannot write {self.path}: {reason}; nothing was written")
+        )
 
     def _stop_thread(self) -> None:
         """Drop the writer thread's queued work and stop it (no-op when not threaded)."""
@@ -461,6 +479,10 @@ class LogWriter(ABC):
 
     def _count(self, topic: str, log_time_ns: int) -> None:
         raise_if_signalled()  # a signal whose KeyboardInterrupt was lost still stops the job
+        if self._partial_dir is not None and (now := time.monotonic()) >= self._next_check:
+            self._next_check = now + PARTIAL_CHECK_S
+            if (removed := self._removed()) is not None:
+                raise removed
         self._topic_counts[topic] += 1
         self._start_ns = log_time_ns if self._start_ns is None else min(self._start_ns, log_time_ns)
         self._end_ns = max(self._end_ns, log_time_ns)
@@ -479,7 +501,7 @@ class LogWriter(ABC):
             else:
                 os.replace(partial, target)
         except OSError as err:
-            raise LogWriteError(
+            raise self._removed() or LogWriteError(
                 f"cannot move the finished output onto {target}: {err.strerror}; "
                 "check the folder's permissions"
             ) from err

@@ -33,6 +33,7 @@ __all__ = [
     "partial_prefix",
     "remove_stale_partials",
     "remove_stale_temporaries",
+    "removed_meanwhile",
     "temporary_prefix",
     "write_advice",
 ]
@@ -121,6 +122,26 @@ def write_advice(err: OSError) -> str:
     if err.errno in (errno.ENOTDIR, errno.EEXIST):
         return "a file is in the way of its folder; move it, or write it elsewhere"
     return "choose a writable folder"  # read-only, no permission, or a folder refusing files
+
+
+def removed_meanwhile(partial: Path, folder: Path, during: str) -> str | None:
+    """Say why an output cannot be finished when its partial was removed under the job.
+
+    Args:
+        partial: the partial output (a file or a staging folder) beside the target.
+        folder: the folder that holds it, as the user named it.
+        during: what was under way, e.g. ``"the output was being written"``.
+
+    Returns:
+        ``folder F no longer exists (removed while DURING)`` when the folder is gone, ``its
+        partial output P was removed while DURING`` when only the partial is, and None while
+        the partial is there (the error has another cause).
+    """
+    if os.path.lexists(partial):
+        return None
+    if not os.path.isdir(folder):
+        return f"folder {folder} no longer exists (removed while {during})"
+    return f"its partial output {partial} was removed while {during}"
 
 
 def _existing_ancestor(path: Path) -> Path:

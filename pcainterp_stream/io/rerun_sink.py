@@ -38,6 +38,7 @@ from pcainterp_stream.io.output_paths import (
     partial_prefix,
     remove_stale_partials,
     remove_stale_temporaries,
+    removed_meanwhile,
     temporary_prefix,
 )
 from pcainterp_stream.records import DensifiedFrame
@@ -324,13 +325,17 @@ class RerunSink:
                 try:
                     self._partial.replace(self.rrd_path)
                 except OSError as err:  # the recording is lost, never the other outputs
+                    during = "the recording was being written"
+                    gone = removed_meanwhile(self._partial, self.rrd_path.parent, during)
                     self._discard()
-                    print(
-                        f"warning: cannot move the finished recording onto {self.rrd_path}: "
-                        f"{err.strerror or err}; no recording was written there, the other "
-                        "outputs are whole",
-                        file=sys.stderr,
+                    # the MCAP is committed after this: the warning makes no claim about it
+                    reason = (
+                        f"cannot write {self.rrd_path}: {gone}"
+                        if gone
+                        else f"cannot move the finished recording onto {self.rrd_path}: "
+                        f"{err.strerror or err}"
                     )
+                    print(f"warning: {reason}; no recording was written there", file=sys.stderr)
                 else:
                     self.written = True
                     untrack_partial(self._partial)
@@ -341,16 +346,12 @@ class RerunSink:
         if exc_type is None and (line := self.constant_stamps_line()) is not None:
             print(f"warning: {line}", file=sys.stderr)
         if self._pump is not None and self._pump.error is not None:
-            print(
-                f"warning: {self._pump.error}; no recording was written there, the other "
-                "outputs are whole",
-                file=sys.stderr,
-            )
+            print(f"warning: {self._pump.error}; no recording was written there", file=sys.stderr)
         elif failed is not None:
             target = f"the recording {self.rrd_path}" if self.rrd_path else "the Rerun viewer"
             print(
-                f"warning: {target} did not take the last frames ({failed}); "
-                + ("nothing was written there" if self.rrd_path else "the other outputs are whole"),
+                f"warning: {target} did not take the last frames ({failed})"
+                + ("; nothing was written there" if self.rrd_path else ""),
                 file=sys.stderr,
             )
 

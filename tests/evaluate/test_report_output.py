@@ -5,6 +5,8 @@ from __future__ import annotations
 import errno
 import json
 import os
+import re
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -425,3 +427,51 @@ def test_a_failed_move_still_says_cannot_move(
     monkeypatch.setattr(report_folder.os, "replace", refused)
     with pytest.raises(report_folder.PcaInterpError, match=r"cannot move the finished report"):
         report_folder.write_report_folder(folder, lambda s: (s / "results.md").write_text("x"))
+
+
+@pytest.mark.parametrize(
+    ("existing", "when"),
+    [
+        (False, "before-staging"),  # an existing folder removed then is simply made afresh
+        (False, "while-writing"),
+        (True, "while-writing"),
+        (False, "before-the-move"),
+        (True, "before-the-move"),
+    ],
+)
+def test_a_folder_removed_under_the_report_says_so(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, existing: bool, when: str
+) -> None:
+    """The report's folder removed under evaluate (bug hunt 7B F11a): "folder F no longer
+    exists", not "not writable", "choose a writable folder" or "re-run once it is writable"."""
+    parent = tmp_path / "runs"
+    parent.mkdir()
+    folder = parent / "rep"
+    if existing:
+        folder.mkdir()
+    gone = folder if existing else parent  # what holds the staging folder
+    if when == "before-staging":
+        shutil.rmtree(parent)
+    original = report_folder.os.replace
+
+    def move(source: Any, target: Any) -> None:
+        if when == "before-the-move":
+            shutil.rmtree(gone)
+        original(source, target)
+
+    monkeypatch.setattr(report_folder.os, "replace", move)
+
+    def write(staging: Path) -> None:
+        if when == "while-writing":
+            shutil.rmtree(gone)
+        (staging / "results.md").write_text("x")
+
+    with pytest.raises(report_folder.PcaInterpError) as raised:
+        report_folder.write_report_folder(folder, write)
+    during = "the log was evaluated" if when == "before-staging" else "the report was being written"
+    assert str(raised.value) == (
+        f"cannot write the report to {folder}: folder {gone} no longer exists "
+        f"(removed while {during}); nothing was written"
+    )
+    assert not re.search(r"writable|permission", str(raised.value))
+    assert not gone.exists()

@@ -19,7 +19,7 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 
 from pcainterp_stream.errors import LogWriteError
-from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io import logwriter, rosmsg
 from pcainterp_stream.io.logwriter import (
     MCAP_ZSTD_LEVEL,
     LogFormat,
@@ -669,3 +669,69 @@ def test_mcap_chunks_built_from_parts_hold_what_was_written_even_if_changed_late
         read = [(m.log_time, bytes(m.data)) for _, _, m in make_reader(stream).iter_messages()]
     assert read[:3] == [(1, b"first"), (2, chunk_of_input[10:700]), (3, bytes(range(6)))]
     assert read[3:] == [(time, bytes([time]) * time) for time in range(4, 40)]
+
+
+@pytest.mark.parametrize("fmt", list(LogFormat))
+@pytest.mark.parametrize("threaded", [False, True], ids=["plain", "threaded"])
+def test_an_output_folder_removed_before_the_commit_says_so(
+    tmp_path: Path, fmt: LogFormat, threaded: bool
+) -> None:
+    """Bug hunt 7B F11a: "cannot move the finished output onto X: No such file or
+    directory; check the folder's permissions" for a folder removed under the job."""
+    folder = tmp_path / "gone"
+    folder.mkdir()
+    target = folder / OUTPUT_NAMES[fmt]
+
+    def write() -> None:
+        with open_writer(target, fmt, threaded=threaded) as writer:
+            for topic, message, log_time in _messages(1):
+                writer.add_message(topic, message, log_time)
+            shutil.rmtree(folder)  # the close, then the rename, find no folder
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ResourceWarning)  # a bag library's file left open
+        with pytest.raises(LogWriteError) as raised:
+            write()
+        gc.collect()
+    assert str(raised.value) == (
+        f"cannot write {target}: folder {folder} no longer exists (removed while the output "
+        "was being written); nothing was written"
+    )
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("removed", ["folder", "partial"])
+def test_a_removed_output_folder_stops_the_writing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, removed: str
+) -> None:
+    """The writer notices within PARTIAL_CHECK_S that its partial output is gone: the job
+    stops there, not after writing the rest of the log into an unlinked file."""
+    monkeypatch.setattr(logwriter, "PARTIAL_CHECK_S", 0.0)  # check at every message
+    folder = tmp_path / "gone"
+    folder.mkdir()
+    target = folder / "out.mcap"
+    written = 0
+    partial = folder  # the writer's partial folder, once it is made
+
+    def write() -> None:
+        nonlocal written, partial
+        with open_writer(target, LogFormat.MCAP, threaded=True) as writer:
+            for topic, message, log_time in _messages(2):
+                writer.add_message(topic, message, log_time)
+                written += 1
+                if written == 3:
+                    (partial,) = folder.iterdir()
+                    shutil.rmtree(folder if removed == "folder" else partial)
+
+    with pytest.raises(LogWriteError) as raised:
+        write()
+    assert written == 3  # the next message was refused
+    reason = (
+        f"folder {folder} no longer exists (removed while the output was being written)"
+        if removed == "folder"
+        else f"its partial output {partial} was removed while the output was being written"
+    )
+    assert str(raised.value) == f"cannot write {target}: {reason}; nothing was written"
+    assert list(tmp_path.iterdir()) == ([] if removed == "folder" else [folder])
+    if removed == "partial":
+        assert list(folder.iterdir()) == []

@@ -450,7 +450,8 @@ def test_a_recording_that_cannot_be_moved_onto_its_target_is_a_warning(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.rrd", "tmp"]
     err = capsys.readouterr().err
     assert f"warning: cannot move the finished recording onto {target}" in err
-    assert "no recording was written there, the other outputs are whole" in err
+    assert err.rstrip().endswith(": Is a directory; no recording was written there")
+    assert "whole" not in err  # the MCAP is committed after this warning (bug hunt 7B F11b)
 
 
 def test_a_killed_runs_partial_recording_is_removed_and_a_live_ones_kept(
@@ -485,3 +486,45 @@ def test_a_killed_runs_partial_recording_is_removed_and_a_live_ones_kept(
     assert err.count("note: removed") == 1
     assert f"note: removed {target}'s partial output left by an earlier run that was " in err
     assert "killed (2.5 MB)" in err
+
+
+def test_a_recording_that_fails_on_a_full_disk_claims_nothing_of_the_other_outputs(
+    tmp_path: Path,
+    temporary_folder: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Bug hunt 7B F11b: "...; no recording was written there, the other outputs are whole"
+    came just before the MCAP on the same full disk failed too."""
+    monkeypatch.setattr(rerun_sink._Pump, "_open_target", lambda self: _FullDisk())
+    target = tmp_path / "run.rrd"
+    sink = RerunSink(rrd_path=target)
+    sink.__enter__()
+    sink.log(_frame(0))
+    sink.__exit__(None, None, None)
+    assert not sink.written
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tmp"]
+    err = capsys.readouterr().err
+    assert err == (
+        f"warning: cannot write {target}: No space left on device; no recording was written there\n"
+    )
+
+
+def test_a_recording_whose_folder_was_removed_says_so(
+    tmp_path: Path, temporary_folder: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Bug hunt 7B F11a, for --rrd: not "cannot move ...: No such file or directory"."""
+    folder = tmp_path / "gone"
+    folder.mkdir()
+    target = folder / "run.rrd"
+    sink = RerunSink(rrd_path=target)
+    sink.__enter__()
+    sink.log(_frame(0))
+    shutil.rmtree(folder)
+    sink.__exit__(None, None, None)  # a warning, no exception
+    assert not sink.written
+    assert not list(temporary_folder.iterdir())
+    assert capsys.readouterr().err == (
+        f"warning: cannot write {target}: folder {folder} no longer exists (removed while the "
+        "recording was being written); no recording was written there\n"
+    )
