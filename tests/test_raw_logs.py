@@ -176,6 +176,17 @@ def test_a_kalibr_camchain_says_its_topics_and_stands_for_absent_ones(
     assert (
         "topics: left /cam0/image_raw, right /cam1/image_raw (the rostopics of camchain.yaml)"
     ) in printed.splitlines()
+    # review55a F1: one side named as the camchain's other camera paired /cam1 with itself,
+    # then blamed the stamps
+    for side, topic in (("left", "/cam1/image_raw"), ("right", "/cam0/image_raw")):
+        code, printed, err = _run(
+            capsys, "densify", kalibr, "-o", tmp_path / "s.mcap", "--calibration", camchain,
+            f"--{side}-topic", topic,
+        )  # fmt: skip
+        assert code == 2
+        assert f"-topic are both {topic} (--{side}-topic as given" in err
+        assert len(err.strip().splitlines()) == 1
+        assert "topics:" not in printed
     # the log's own names: the pair is found in it, and the line says why
     code, printed, err = _run(
         capsys, "densify", raw_bag, "-o", tmp_path / "r.mcap", "--calibration", camchain

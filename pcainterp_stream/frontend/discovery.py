@@ -489,8 +489,10 @@ def _resolve(
         cal_left, cal_right = config.calibration_topics
         left = config.left_topic if named_left else cal_left
         right = config.right_topic if named_right else cal_right
-        images = {t for t, i in topics.items() if i.msgtype in _IMAGE_TYPES}
         source = _calibration_file(config)
+        if left == right:
+            raise PcaInterpError(_one_topic_both_sides(left, named_left, named_right, config))
+        images = {t for t, i in topics.items() if i.msgtype in _IMAGE_TYPES}
         if left in images and right in images:
             if echo is not None:
                 echo(f"topics: left {left}, right {right} (the rostopics of {source})")
@@ -508,6 +510,31 @@ def _resolve(
         if not absent:
             raise
         raise TopicNotFoundError(f"{absent}; {err}") from None
+
+
+def _one_topic_both_sides(
+    topic: str, named_left: bool, named_right: bool, config: PairingConfig
+) -> str:
+    """Return the error of a camchain's topics that make ``topic`` both sides of the pair.
+
+    One side named as the camchain's other camera (``--left-topic /cam1/image_raw`` with
+    ``/cam0/image_raw``, ``/cam1/image_raw``), or a camchain naming one rostopic twice.
+    """
+    assert config.calibration_topics is not None
+    cal_left, cal_right = config.calibration_topics
+    source = _calibration_file(config)
+    if named_left == named_right:  # none named: the camchain's two cameras share a rostopic
+        return (
+            f"the rostopics of {source} are both {topic}; a stereo pair needs the images of "
+            "two cameras: pass --left-topic and --right-topic"
+        )
+    named, other = ("left", "right") if named_left else ("right", "left")
+    return (
+        f"--{named}-topic and --{other}-topic are both {topic} (--{named}-topic as given, "
+        f"--{other}-topic the rostopic of {source}'s {other} camera); a stereo pair needs "
+        f"the images of two cameras: pass the {other} camera's topic as --{other}-topic, or "
+        f"no topic option to read the pair {source} names (left {cal_left}, right {cal_right})"
+    )
 
 
 def _calibration_file(config: PairingConfig) -> str:
@@ -569,9 +596,10 @@ def _discover(
         if rejected:
             raise TopicNotFoundError(
                 f"no stereo pair found in {name}: {'; '.join(dict.fromkeys(rejected))}; a "
-                "stereo pair's right camera info has Tx = -fx * baseline: for a pair whose "
-                "infos lack it, name its topics with --left-topic and --right-topic and give "
-                "its stereo --calibration"
+                "stereo pair's right camera info has Tx = -fx * baseline: if they are the "
+                "two sides of a stereo pair whose infos lack it, name its topics with "
+                "--left-topic and --right-topic and pass --baseline METRES (its images "
+                "rectified) or its stereo --calibration (raw images)"
             )
         if images and len(empty) == len(images):
             raise TopicNotFoundError(

@@ -373,7 +373,8 @@ class StereoPairer:
     # images ---------------------------------------------------------------------------
     def _push_image(self, side: str, item: _Pending) -> list[StereoFrame]:
         if item.stamp_ns and _same_image(item, self._last_image[side]):
-            self._duplicate(side, item)  # the same message again: it makes no frame
+            topic = self.config.left_topic if side == "left" else self.config.right_topic
+            self.stats.saw_duplicate(topic, item.stamp_ns)  # the same message again: no frame
             return []
         self._last_image[side] = item
         if self._last_log[side] >= 0:
@@ -389,15 +390,6 @@ class StereoPairer:
         self._last_stamp[side] = item.stamp_ns
         self._last_log[side] = item.log_time_ns
         return frames + self._match(side, item)
-
-    def _duplicate(self, side: str, item: _Pending) -> None:
-        """Count an image that is a copy of one of its side already read (a bag merge's)."""
-        stats = self.stats
-        if not stats.duplicate_images:
-            config = self.config
-            stats.duplicate_topic = config.left_topic if side == "left" else config.right_topic
-            stats.duplicate_stamp_ns = item.stamp_ns
-        stats.duplicate_images += 1
 
     def _match(self, side: str, item: _Pending) -> list[StereoFrame]:
         """Pair an image with the other side's nearest (by :meth:`_time`), or queue it."""

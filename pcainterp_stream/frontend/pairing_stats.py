@@ -75,8 +75,9 @@ class PairingStats:
             ns) between an image that found no partner and the other side's waiting images.
         duplicate_images: images dropped as the same message as their side's last one again
             (same header stamp, size, encoding and bytes: a bag merge's, a driver's re-send).
-        duplicate_topic: the image topic of the first duplicate; None when there was none.
-        duplicate_stamp_ns: its header stamp (ns).
+        duplicate_topics: image topic -> how many of its images were so dropped, in the order
+            of their first duplicate.
+        duplicate_stamp_ns: the first duplicate's header stamp (ns).
         unsure_pairs: (left log time, log time between the sides) (ns) of the pairs made by
             stamp before the stamps repeated that have the repeated stamp but whose images
             were recorded beyond the tolerance apart.
@@ -125,7 +126,7 @@ class PairingStats:
     log_period_ns: int = 0
     log_gap_ns: int | None = None
     duplicate_images: int = 0
-    duplicate_topic: str | None = None
+    duplicate_topics: dict[str, int] = field(default_factory=dict)
     duplicate_stamp_ns: int = 0
     unsure_pairs: list[tuple[int, int]] = field(default_factory=list)
     tolerance_ns: int = 0
@@ -207,14 +208,25 @@ class PairingStats:
         notes = [self._duplicate_note(), self._log_time_note()]
         return "; ".join(note for note in notes if note) or None
 
+    def saw_duplicate(self, topic: str, stamp_ns: int) -> None:
+        """Count an image of ``topic`` that is a copy of its side's last one (a bag merge's)."""
+        if not self.duplicate_images:
+            self.duplicate_stamp_ns = stamp_ns
+        self.duplicate_images += 1
+        self.duplicate_topics[topic] = self.duplicate_topics.get(topic, 0) + 1
+
     def _duplicate_note(self) -> str | None:
-        count, topic = self.duplicate_images, self.duplicate_topic
-        if not count or topic is None:
+        count = self.duplicate_images
+        if not count or not self.duplicate_topics:
             return None
-        images = "1 image" if count == 1 else f"{count} images"
+        # each topic with its own count: "6 images of /left and 6 of /right"
+        of = [
+            f"{n} image{'s' * (n != 1)} of {topic}" if not k else f"{n} of {topic}"
+            for k, (topic, n) in enumerate(self.duplicate_topics.items())
+        ]
         how = "made by header stamp" if self.repeated_stamp_topic is None else "made as below"
         return (
-            f"duplicates: {images} of {topic} {'was' if count == 1 else 'were'} logged again "
+            f"duplicates: {' and '.join(of)} {'was' if count == 1 else 'were'} logged again "
             f"(the same message, first at stamp {_seconds(self.duplicate_stamp_ns)} s): the "
             f"{'copy was' if count == 1 else 'copies were'} dropped, the pairs are {how}"
         )

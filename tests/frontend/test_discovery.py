@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from pcainterp_stream.errors import TopicNotFoundError
+from pcainterp_stream.errors import PcaInterpError, TopicNotFoundError
 from pcainterp_stream.frontend.discovery import (
     BY_NAME,
     DISTANT,
@@ -388,7 +388,17 @@ def test_two_monocular_cameras_numbered_alike_are_no_stereo_pair() -> None:
         "no stereo pair found in robot.bag: /camera1 and /camera2 have no baseline (Tx = "
         "P[0, 3] = 0 on both camera infos, as two monocular cameras have)"
     )
-    assert "--baseline" not in line
+    # review55a F4: the sides of a rectified pair whose infos lack Tx are told --baseline,
+    # as an "if" (never advised for two cameras that are no pair)
+    assert line.endswith(
+        "if they are the two sides of a stereo pair whose infos lack it, name its topics with "
+        "--left-topic and --right-topic and pass --baseline METRES (its images rectified) or "
+        "its stereo --calibration (raw images)"
+    )
+    named = PairingConfig(
+        left_topic="/camera1/image_raw", right_topic="/camera2/image_raw", baseline=0.5
+    )
+    assert resolve_pairing(_monos(), named).right_info_topic == "/camera2/camera_info"  # type: ignore[arg-type]
     # a baseline or calibration files given say they are a pair; so does a Tx < 0
     given = PairingConfig(discover=True, baseline=0.5)
     assert resolve_pairing(_monos(), given).left_topic == "/camera1/image_raw"  # type: ignore[arg-type]
@@ -564,6 +574,31 @@ def test_a_camchain_read_with_cam1_left_says_so_in_a_line() -> None:
     said.clear()
     resolve_pairing(_Reader(_topics(*topics[::-1])), _camchain(), said.append)  # type: ignore[arg-type]
     assert len(said) == 1  # cam0 left: nothing more than the topics line
+
+
+@pytest.mark.parametrize("side", ["left", "right"])
+def test_one_side_named_as_the_camchains_other_camera_is_refused(side: str) -> None:
+    # review55a F1: --left-topic /cam1/image_raw with a camchain of /cam0, /cam1 paired
+    # /cam1/image_raw with itself (then "no stereo pair found ... header stamps")
+    other = "/cam1/image_raw" if side == "left" else "/cam0/image_raw"
+    config = dataclasses.replace(_camchain(), named_sides=(side,), **{f"{side}_topic": other})
+    reader = _Reader(_topics("/cam0/image_raw", "/cam1/image_raw"))
+    with pytest.raises(PcaInterpError) as err:
+        resolve_pairing(reader, config)  # type: ignore[arg-type]
+    named, found = (side, "right" if side == "left" else "left")
+    assert str(err.value) == (
+        f"--{named}-topic and --{found}-topic are both {other} (--{named}-topic as given, "
+        f"--{found}-topic the rostopic of camchain.yaml's {found} camera); a stereo pair "
+        f"needs the images of two cameras: pass the {found} camera's topic as --{found}-topic, "
+        "or no topic option to read the pair camchain.yaml names (left /cam0/image_raw, "
+        "right /cam1/image_raw)"
+    )
+    # naming the side as the camchain has it is fine; a camchain naming one topic twice is not
+    same = dataclasses.replace(_camchain(), named_sides=("left",), left_topic="/cam0/image_raw")
+    assert resolve_pairing(reader, same).right_topic == "/cam1/image_raw"  # type: ignore[arg-type]
+    twice = _camchain(("/cam0/image_raw", "/cam0/image_raw"))
+    with pytest.raises(PcaInterpError, match=r"the rostopics of camchain\.yaml are both /cam0/"):
+        resolve_pairing(reader, twice)  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize("side_by_side", [True, False])

@@ -1136,10 +1136,12 @@ def _lagged_pairs(
     *,
     duplicate: int | None = None,
     duplicate_copy: bool = True,
+    duplicate_right: bool = False,
 ) -> tuple[list[tuple[int, int]], PairingStats]:
     """Push frames 0..n-1, 100 ms of log apart, each right image ``lag_ms`` of log after its
     left one (each image's value its frame number); the left image of frame ``duplicate``
-    is logged a second time 1 ms later (the same message, or another of the same stamp)."""
+    is logged a second time 1 ms later (the same message, or another of the same stamp),
+    its right image too with ``duplicate_right`` (the same message)."""
     pairer = StereoPairer(config)
     with_infos(pairer)
     start = 1_600_000_000 * 10**9
@@ -1148,10 +1150,13 @@ def _lagged_pairs(
         log_ns = start + index * 100 * MS
         left = image(stamp, index)
         messages.append((log_ns, CONFIG.left_topic, stamp, left))
-        messages.append((log_ns + int(lag_ms * MS), CONFIG.right_topic, stamp, image(stamp, index)))
+        right_ns, right = log_ns + int(lag_ms * MS), image(stamp, index)
+        messages.append((right_ns, CONFIG.right_topic, stamp, right))
         if index == duplicate:
             again = left if duplicate_copy else image(stamp, 200)
             messages.append((log_ns + MS, CONFIG.left_topic, stamp, again))
+            if duplicate_right:
+                messages.append((right_ns + MS, CONFIG.right_topic, stamp, right))
     frames = []
     for log_ns, topic, stamp, message in sorted(messages, key=lambda m: m[0]):
         frames += pairer.push(topic, stamp, log_ns, message)
@@ -1175,6 +1180,21 @@ def test_a_duplicated_image_is_dropped_and_the_pairing_stays_by_stamp() -> None:
             "made by header stamp"
         )
         assert (stats.tolerance_hint(), stats.stamp_hint()) == (None, None)
+
+
+def test_duplicates_of_both_sides_are_counted_under_each_topic() -> None:
+    # review55a F2: "2 images of /stereo/left/image_rect" when 1 was left and 1 right
+    stamps = [1317046453 * 10**9 + index * 100 * MS for index in range(12)]
+    pairs, stats = _lagged_pairs(PairingConfig(), stamps, 3, duplicate=3, duplicate_right=True)
+    assert pairs == [(i, i) for i in range(12)]
+    assert stats.duplicate_images == 2
+    assert stats.duplicate_topics == {CONFIG.left_topic: 1, CONFIG.right_topic: 1}
+    assert "2 duplicate images dropped" in stats.summary()
+    assert stats.stamp_note() == (
+        f"duplicates: 1 image of {CONFIG.left_topic} and 1 of {CONFIG.right_topic} were logged "
+        "again (the same message, first at stamp 1317046453.300000000 s): the copies were "
+        "dropped, the pairs are made by header stamp"
+    )
 
 
 def test_log_time_pairing_subtracts_the_lag_of_the_pairs_made_by_stamp() -> None:
