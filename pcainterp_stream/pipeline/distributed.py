@@ -1,13 +1,18 @@
 """Scale-out on Dask (dask.distributed): learn a basis from, and densify, fleets of logs.
 
-Learning is a tree-reduced sketch. Each task reads a chunk of frames of one log, matches
-them (SGBM) or converts a depth topic, preprocesses them onto the basis grid and returns a
-small :class:`ChunkSummary`: the count n, the mean m, the sum of squared centred norms and
-U S, the SVD factor of its centred block truncated to r = l + oversampling columns.
-Summaries are merged pairwise, exactly up to the truncation, by the SVD of
+Learning gathers summaries of chunks. Each task reads a chunk of frames of one log,
+matches them (SGBM) or converts a depth topic, preprocesses them onto the basis grid and
+returns a :class:`~pcainterp_stream.pipeline.learn_sketch.ChunkSummary`: the count n, the
+mean m, the sum of squared centred norms and U S, the SVD factor of its centred block.
+While all the maps fit :data:`~pcainterp_stream.pipeline.learn.ONE_STEP_BYTES` (what one
+process merges in one step) the factors are whole and merged here in one exact step
+(:func:`~pcainterp_stream.pipeline.learn_sketch.combine`, in chunk order): the result is one
+process's up to float rounding, the same file run after run. Beyond that they are truncated
+to r = l + oversampling columns and tree-reduced on the workers, pairwise, by the SVD of
 [U1 S1 | U2 S2 | sqrt(n1 n2 / n) (m1 - m2)] (the column corrects for the moved mean; the
-same step as the local streaming learner). A task holds one chunk and a merge two
-(s, r) factors, so worker memory does not grow with the number of frames.
+same step as the local streaming learner), in a tree fixed by the chunks' order, not by
+which task finishes first (two runs give the same file). A task holds one chunk and a merge
+two (s, r) factors, so worker memory does not grow with the number of frames.
 
 What is learned is decided as on one machine (:func:`pcainterp_stream.pipeline.learn.learn`
 with a :class:`DaskLearner` calls :func:`learn_on_cluster`): the same maps of each log (the same
@@ -53,13 +58,7 @@ from pcainterp_stream.errors import (
 )
 from pcainterp_stream.estimate.basis import Basis, grid_size_for
 from pcainterp_stream.estimate.finetune import finetune_from_sketch
-from pcainterp_stream.estimate.learning import (
-    Sketch,
-    basis_from_fit,
-    fit_from_factor,
-    merge_sketches,
-    truncated_product,
-)
+from pcainterp_stream.estimate.learning import basis_from_fit, fit_from_factor
 from pcainterp_stream.interrupt import (
     Interrupted,
     raise_if_signalled,
@@ -81,6 +80,7 @@ from pcainterp_stream.pipeline.learn import (
     HeldOutFrame,
     MapPlan,
     check_flat,
+    fits_one_step,
     is_flat,
     learn,
     log_pairing,
@@ -89,6 +89,13 @@ from pcainterp_stream.pipeline.learn import (
     to_grid,
 )
 from pcainterp_stream.pipeline.learn_maps import close_sizes, depth_maps, resized_to, scaled_to
+from pcainterp_stream.pipeline.learn_sketch import (
+    ChunkSummary,
+    combine,
+    merge,
+    sketch_of,
+    summarize,
+)
 from pcainterp_stream.pipeline.scheduler import (
     QUIET_TRACKER,
     WorkerPaths,
@@ -107,6 +114,7 @@ __all__ = [
     "TaskFailure",
     "chunk_specs",
     "cluster_oversampling",
+    "combine",
     "connect",
     "densify_many",
     "learn_distributed",
@@ -206,113 +214,12 @@ def cluster_oversampling(n_components: int) -> int:
     64) the largest error of the l = 100 eigenvalues against the exact ones was 1.8 % at
     r = l + 20, 0.6 % at r = 1.5 l and 0.1 % at r = 2 l (the top 10: < 5e-5 for all), and a
     merge costs about (2 r)^2 s: r = 1.5 l keeps the learned model within 1 % of one
-    process's at about twice the merge cost of r = l + 20 (docs/cluster.md).
+    process's at about twice the merge cost of r = l + 20 (docs/cluster.md). Used only
+    for maps beyond :data:`~pcainterp_stream.pipeline.learn.ONE_STEP_BYTES` (fewer are
+    merged exactly); a fine-tune keeps at least the built-in basis's rank beyond l
+    (:meth:`DaskLearner.learn_basis`).
     """
     return max(DEFAULT_OVERSAMPLING, n_components // 2)
-
-
-@dataclass(frozen=True)
-class ChunkSummary:
-    """Sketch of the centred grid maps of some frames.
-
-    Attributes:
-        n_maps: number of maps n.
-        mean: (s,) float64 mean grid map (px).
-        factor: (s, r) float32 U S of the centred maps, truncated to r columns (px).
-        squares: sum of squared centred norms (px^2), exact.
-        grid_size: (gh, gw) of the grid, gh * gw = s.
-        image_size: (H, W) of the images (px).
-        focal_baseline: f*b (px*m) the maps are in (the target's, else the first map's camera's).
-        flat_maps: SGBM maps among them with almost no disparity (:func:`learn.is_flat`).
-    """
-
-    n_maps: int
-    mean: npt.NDArray[np.float64]
-    factor: npt.NDArray[np.float32]
-    squares: float
-    grid_size: tuple[int, int]
-    image_size: tuple[int, int]
-    focal_baseline: float
-    flat_maps: int = 0
-
-
-def summarize(
-    grid_maps: npt.NDArray[np.float32],
-    keep: int,
-    *,
-    grid_size: tuple[int, int],
-    image_size: tuple[int, int],
-    focal_baseline: float,
-) -> ChunkSummary:
-    """Summarise a block of grid maps.
-
-    Args:
-        grid_maps: (n, s) float32 grid maps (px), n >= 1.
-        keep: r, the columns kept of the factor.
-        grid_size: (gh, gw) of the grid.
-        image_size: (H, W) of the images (px).
-        focal_baseline: f*b (px*m) of the camera.
-
-    Returns:
-        The :class:`ChunkSummary`.
-    """
-    mean = grid_maps.mean(axis=0, dtype=np.float64)
-    centred = (grid_maps - mean).astype(np.float32).T  # (s, n)
-    squares = float(np.einsum("sn,sn->", centred, centred, dtype=np.float64))
-    factor = (
-        truncated_product(centred, keep)
-        if np.any(centred)
-        else np.zeros((centred.shape[0], 0), dtype=np.float32)
-    )
-    return ChunkSummary(
-        n_maps=int(grid_maps.shape[0]),
-        mean=mean,
-        factor=factor,
-        squares=squares,
-        grid_size=grid_size,
-        image_size=image_size,
-        focal_baseline=focal_baseline,
-    )
-
-
-def merge(
-    first: ChunkSummary | None, second: ChunkSummary | None, keep: int
-) -> ChunkSummary | None:
-    """Merge two summaries (None is empty); exact up to the truncation to ``keep`` columns.
-
-    Args:
-        first: a summary or None.
-        second: a summary or None.
-        keep: r, the columns kept of the merged factor.
-
-    Returns:
-        The summary of both sets of maps (the camera of ``first`` is kept).
-
-    Raises:
-        PcaInterpError: the two summaries have different image sizes.
-    """
-    if first is None or second is None:
-        return first if second is None else second
-    if first.image_size != second.image_size or first.grid_size != second.grid_size:
-        raise PcaInterpError(
-            f"logs have {first.image_size[1]}x{first.image_size[0]} and "
-            f"{second.image_size[1]}x{second.image_size[0]} images; learn one basis per camera"
-        )
-    merged = merge_sketches(_sketch(first), _sketch(second), keep)
-    return ChunkSummary(
-        n_maps=merged.n_maps,
-        mean=merged.mean,
-        factor=merged.factor,
-        squares=merged.squares,
-        grid_size=first.grid_size,
-        image_size=first.image_size,
-        focal_baseline=first.focal_baseline,
-        flat_maps=first.flat_maps + second.flat_maps,
-    )
-
-
-def _sketch(summary: ChunkSummary) -> Sketch:
-    return Sketch(summary.mean, summary.factor, summary.squares, summary.n_maps)
 
 
 def _chunk_maps(
@@ -358,7 +265,7 @@ def summarize_chunk(
     stop: int | None,
     options: Any,
     pairing: Any,
-    keep: int,
+    keep: int | None,
     target: GridTarget | None = None,
 ) -> ChunkSummary | None:
     """Read, match and preprocess maps start..stop-1 of one log and summarise them (a task).
@@ -369,7 +276,7 @@ def summarize_chunk(
         stop: one past the last map, or None for the end of the log.
         options: the :class:`pcainterp_stream.pipeline.learn.LearnOptions`.
         pairing: the :class:`pcainterp_stream.frontend.pairing.PairingConfig`.
-        keep: r, the columns kept of the factor.
+        keep: r, the columns kept of the factor; None: all (the summary is exact).
         target: the grid and units of the maps (:func:`learn.to_grid`); None: the grid of
             ``options.grid_scale``, the maps' own units.
 
@@ -437,8 +344,9 @@ def learn_distributed(
         pairing: the :class:`pcainterp_stream.frontend.pairing.PairingConfig`.
         client: a connected ``dask.distributed.Client``.
         chunk_frames: maps per task.
-        oversampling: columns kept beyond l in every summary; None:
-            :func:`cluster_oversampling`.
+        oversampling: columns kept beyond l in every summary (maps beyond one step); None:
+            20 for maps merged in one step, else :func:`cluster_oversampling` (a
+            fine-tune's at least the built-in basis's rank).
 
     Returns:
         The saved :class:`Basis`.
@@ -457,8 +365,9 @@ class DaskLearner:
     Attributes:
         client: a connected ``dask.distributed.Client``.
         chunk_frames: maps per task.
-        oversampling: columns kept beyond l in every summary; None:
-            :func:`cluster_oversampling`.
+        oversampling: columns kept beyond l in every summary (maps beyond one step); None:
+            20 for maps merged in one step, else :func:`cluster_oversampling` (a
+            fine-tune's at least the built-in basis's rank).
     """
 
     client: Any
@@ -467,9 +376,15 @@ class DaskLearner:
 
     def learn_basis(self, plan: MapPlan, options: Any, pairing: Any, meta: dict[str, Any]) -> Basis:
         """Return the basis of a plan's maps: :func:`learn_on_cluster`."""
+        exact = fits_one_step(plan)
         oversampling = self.oversampling
-        if oversampling is None:
+        if oversampling is None and exact:
+            oversampling = DEFAULT_OVERSAMPLING  # the final truncation only, as one process
+        elif oversampling is None:
             oversampling = cluster_oversampling(options.n_components)
+            prior = plan.synthetic.prior_basis
+            if prior is not None:  # a merge must keep as many directions as the basis's
+                oversampling = max(oversampling, prior.n_components)
         return learn_on_cluster(
             plan,
             options,
@@ -478,6 +393,7 @@ class DaskLearner:
             meta,
             chunk_frames=self.chunk_frames,
             oversampling=oversampling,
+            exact=exact,
         )
 
     def measure_held_out(
@@ -517,6 +433,7 @@ def learn_on_cluster(
     *,
     chunk_frames: int = DEFAULT_CHUNK_FRAMES,
     oversampling: int = DEFAULT_OVERSAMPLING,
+    exact: bool = False,
 ) -> Basis:
     """Learn the basis of a plan from summaries of its maps computed on the cluster.
 
@@ -527,7 +444,9 @@ def learn_on_cluster(
         client: a connected ``dask.distributed.Client``.
         meta: entries for the basis's ``meta`` (``source``).
         chunk_frames: maps per task.
-        oversampling: columns kept beyond l in every summary.
+        oversampling: columns kept beyond l in every summary (exact: in the result).
+        exact: the summaries keep every column and are merged here in one step, in chunk
+            order (:func:`combine`); else truncated and tree-reduced on the workers.
 
     Returns:
         The basis (not saved), fine-tuned from the built-in one when the plan says so.
@@ -537,12 +456,15 @@ def learn_on_cluster(
     """
     if chunk_frames < 1:
         raise PcaInterpError(f"chunk size must be at least 1 frame, got {chunk_frames}")
-    keep = options.n_components + oversampling
+    keep = None if exact else options.n_components + oversampling
     # workers may run in another folder: they get absolute paths, the basis records the given
     specs = [(log.resolve(), start, stop) for log, start, stop in chunk_specs(plan, chunk_frames)]
     with _bar(len(specs), "learn on the cluster", unit="chunk") as bar:
-        final = _reduce(client, specs, options, pairing, keep, plan.target, bar.update)
-        total: ChunkSummary | None = task_result(final, "a learning task")
+        if keep is None:
+            total = combine(_gather(client, specs, options, pairing, plan.target, bar.update))
+        else:
+            final = _reduce(client, specs, options, pairing, keep, plan.target, bar.update)
+            total = task_result(final, "a learning task")
     if total is None:
         raise LogReadError(
             f"no {'depth image' if options.depth_topic else 'stereo pair'} with a disparity "
@@ -550,12 +472,16 @@ def learn_on_cluster(
             f"(pcainterp info LOG) and the images ({BLANK_MAPS} give none)"
         )
     check_flat(plan.logs, total.flat_maps, total.n_maps)
-    meta = {**meta, "distributed": {"chunk_frames": chunk_frames, "tasks": len(specs)}}
+    merged = "in one step" if exact else "tree"
+    meta = {
+        **meta,
+        "distributed": {"chunk_frames": chunk_frames, "tasks": len(specs), "merge": merged},
+    }
     prior_basis = plan.synthetic.prior_basis
     if prior_basis is not None:
         return finetune_from_sketch(
             prior_basis,
-            _sketch(total),
+            sketch_of(total),
             n_prior=plan.synthetic.n_prior,
             maps_image_size=total.image_size,
             n_components=options.n_components,
@@ -615,6 +541,72 @@ def measure_on_cluster(
     return [task_result(future, "a measuring task") for future in futures]
 
 
+def _submit_chunk(
+    client: Any,
+    spec: tuple[Path, int, int | None],
+    options: Any,
+    pairing: Any,
+    keep: int | None,
+    target: GridTarget | None,
+) -> Any:
+    """Submit the task summarising one chunk (:func:`summarize_chunk`); return its future."""
+    log, start, stop = spec
+    return client.submit(
+        run_task,
+        checked,
+        WorkerPaths((log,)) if running_scheduler(client) else None,
+        *(summarize_chunk, log, start, stop, options, pairing, keep, target),
+        pure=False,
+    )
+
+
+def _window(client: Any) -> int:
+    """Tasks outstanding at most: 2 per worker thread (chunks and merges together)."""
+    return max(2, 2 * int(sum(client.nthreads().values())))
+
+
+def _gather(
+    client: Any,
+    specs: list[tuple[Path, int, int | None]],
+    options: Any,
+    pairing: Any,
+    target: GridTarget | None = None,
+    chunk_done: Callable[[], object] | None = None,
+) -> list[ChunkSummary | None]:
+    """Run the chunk tasks with exact summaries; return them here, in chunk order.
+
+    At most :func:`_window` tasks are outstanding; each summary comes here as its task
+    finishes (the maps fit :data:`~pcainterp_stream.pipeline.learn.ONE_STEP_BYTES`).
+
+    Raises:
+        PcaInterpError: a task failed (the first failure to finish).
+    """
+    from dask.distributed import as_completed
+
+    window = _window(client)
+    pending = iter(enumerate(specs))
+    running: Any = as_completed()  # type: ignore[no-untyped-call]
+    index_of: dict[Any, int] = {}
+    summaries: list[ChunkSummary | None] = [None] * len(specs)
+
+    def refill() -> None:
+        while running.count() < window:
+            item = next(pending, None)
+            if item is None:
+                return
+            future = _submit_chunk(client, item[1], options, pairing, None, target)
+            index_of[future.key] = item[0]
+            running.add(future)
+
+    refill()
+    for future in completed(running, client):
+        summaries[index_of[future.key]] = task_result(future, "a learning task")
+        if chunk_done is not None:
+            chunk_done()
+        refill()
+    return summaries
+
+
 def _reduce(
     client: Any,
     specs: list[tuple[Path, int, int | None]],
@@ -624,48 +616,48 @@ def _reduce(
     target: GridTarget | None = None,
     chunk_done: Callable[[], object] | None = None,
 ) -> Any:
-    """Run the chunk tasks and merge their summaries as they finish; return the last future.
+    """Run the chunk tasks and merge their summaries in a tree; return the last future.
 
-    At most 2 tasks per worker thread are outstanding (chunks and merges together), so the
-    summaries alive on the cluster, and hence worker memory, do not grow with the number of
-    chunks.
+    The tree is fixed by the chunks' order (a binary counter: chunks 0+1, 2+3, then (0+1) +
+    (2+3)..., the last ones folded from the right), not by the order the tasks finish, so
+    two runs merge the same summaries the same way and give the same file. A merge is
+    submitted as soon as its two operands are (Dask runs it once both are done). At most
+    :func:`_window` tasks are outstanding, so the summaries alive on the cluster, and
+    hence worker memory, do not grow with the number of chunks.
     """
     from dask.distributed import as_completed
 
-    window = max(2, 2 * sum(client.nthreads().values()))
-    pending = iter(specs)
+    window = _window(client)
     running: Any = as_completed()  # type: ignore[no-untyped-call]
+    finished = completed(running, client)
     chunks: set[Any] = set()
-    remote = running_scheduler(client)
+    stack: list[tuple[int, Any]] = []  # (level, future): merged runs of chunks, in order
 
-    def refill() -> None:
-        while running.count() < window:
-            spec = next(pending, None)
-            if spec is None:
-                return
-            log, start, stop = spec
-            future = client.submit(
-                run_task,
-                checked,
-                WorkerPaths((log,)) if remote else None,
-                *(summarize_chunk, log, start, stop, options, pairing, keep, target),
-                pure=False,
-            )
-            chunks.add(future.key)
-            running.add(future)
+    def wait(limit: int) -> None:
+        while running.count() > limit:
+            future = next(finished)
+            if chunk_done is not None and future.key in chunks:
+                chunk_done()
 
-    refill()
-    ready: Any = None
-    for future in completed(running, client):
-        if chunk_done is not None and future.key in chunks:
-            chunk_done()
-        if ready is None:
-            ready = future
-        else:
-            running.add(client.submit(run_task, merge, ready, future, keep, pure=False))
-            ready = None
-        refill()
-    return ready
+    def merged(first: Any, second: Any) -> Any:
+        future = client.submit(run_task, merge, first, second, keep, pure=False)
+        running.add(future)
+        return future
+
+    for spec in specs:
+        wait(window - 1)
+        future = _submit_chunk(client, spec, options, pairing, keep, target)
+        chunks.add(future.key)
+        running.add(future)
+        stack.append((0, future))
+        while len(stack) > 1 and stack[-1][0] == stack[-2][0]:
+            (level, second), (_, first) = stack.pop(), stack.pop()
+            stack.append((level + 1, merged(first, second)))
+    while len(stack) > 1:
+        (_, second), (level, first) = stack.pop(), stack.pop()
+        stack.append((level, merged(first, second)))
+    wait(0)
+    return stack[0][1] if stack else None
 
 
 @dataclass(frozen=True)

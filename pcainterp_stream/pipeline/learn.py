@@ -562,10 +562,12 @@ def learn(
     With a ``cluster`` (``learn --workers/--scheduler``:
     :func:`pcainterp_stream.pipeline.distributed.learn_distributed`) the same plan
     (:func:`plan_maps`: the same maps, the same hold-out, the same merge with the built-in
-    basis) runs there: the workers match and summarise chunks of maps, merged as they
-    finish, and measure the held-out frames; the result is this function's without a
-    cluster up to the truncation of the summaries (a sketch keeps the leading eigenpairs,
-    the last ones near l less exactly: docs/estimator.md, "On a cluster").
+    basis) runs there: the workers match and summarise chunks of maps and measure the
+    held-out frames. While the maps fit :data:`ONE_STEP_BYTES` (:func:`fits_one_step`) the
+    summaries are exact and merged in one step: the result is this function's without a
+    cluster up to float rounding, the same file every run; beyond, they are truncated and
+    tree-merged in chunk order (a sketch keeps the leading eigenpairs, the last ones near l
+    less exactly: docs/estimator.md, "Exact on a cluster").
 
     Args:
         logs: the input logs (on a cluster: paths the workers can read).
@@ -605,6 +607,15 @@ def learn(
 ONE_STEP_BYTES = 1 << 30
 """A fine-tune merges the maps in one step while they (float32, with the float64 copy of the
 merge) take at most this many bytes on the grid: 1,000 maps on the 1/4 KITTI grid take 0.35 GB."""
+
+
+def fits_one_step(plan: MapPlan) -> bool:
+    """Whether a plan's maps fit :data:`ONE_STEP_BYTES` on its grid (a known number of them).
+
+    Then a fine-tune here, and any learning on a cluster, merges them in one exact step.
+    """
+    n_pixels = plan.target.grid_size[0] * plan.target.grid_size[1]
+    return plan.total is not None and plan.total * n_pixels * 12 <= ONE_STEP_BYTES
 
 
 def _learn_here(
@@ -658,8 +669,7 @@ def _learn_here(
             # maps that fit the budget are merged in one step: the pooled scatter exactly,
             # then its top l + 20 (in batches of 64 the last eigenvalues near l
             # came out up to 4.6 % low at l = 100 on 480 maps: docs/cluster.md)
-            n_pixels = plan.target.grid_size[0] * plan.target.grid_size[1]
-            one_step = plan.total is not None and plan.total * n_pixels * 12 <= ONE_STEP_BYTES
+            one_step = fits_one_step(plan)
             return finetune_basis(
                 plan.synthetic.prior_basis,
                 maps(),

@@ -2,18 +2,22 @@
 
 A scheduler's address is checked before any work (:func:`check_address`), the connection
 is announced before Dask's connect timeout could pass in silence, and an address that
-cannot be reached is one :class:`~pcainterp_stream.errors.SchedulerError`, not Dask's
-traceback. A scheduler without workers would queue the tasks forever: the command says so
-at once, waits a bounded time for a worker (:data:`DEFAULT_WORKER_WAIT`) and gives up in one
-line naming the address and ``dask worker ADDRESS``; while tasks are pending,
-:func:`completed` notices when the last worker is gone and does the same.
+cannot be reached, stays silent after taking the connection (the dashboard's port) or
+answers as something else (an HTTP server) is one
+:class:`~pcainterp_stream.errors.SchedulerError` within the connect timeout, not a wait
+without end or Dask's traceback (:func:`_probe`). A scheduler without workers would queue
+the tasks forever: the command says so at once, waits a bounded time for a worker
+(:data:`DEFAULT_WORKER_WAIT`) and gives up in one line naming the address and
+``dask worker ADDRESS``; while tasks are pending, :func:`completed` notices when the last
+worker is gone and does the same.
 
 A running scheduler's workers may be other machines, with other files: a task there
 checks the paths it needs first (:class:`WorkerPaths`, :func:`checked`) and names a missing
 one as the worker's view, not as the user's mistake.
 
 A local cluster's worker processes leave SIGINT and SIGTERM to the command, and are killed
-at once when its block ends with an exception (:func:`connect`, :func:`stop_local_workers`).
+at once when its block ends with an exception (:func:`connect`, :func:`stop_local_workers`);
+a worker that dies while it runs is one note, not Dask's log line (:class:`_WorkerDeaths`).
 """
 
 from __future__ import annotations
@@ -146,6 +150,7 @@ def connect(
     # and they are added once it is bound here, so an interruption while they start
     # still finds and stops them; closing restores the logging last
     with contextlib.ExitStack() as after_close, contextlib.ExitStack() as stack:
+        stack.enter_context(_worker_deaths_noted(say or _quiet))
         cluster = stack.enter_context(
             LocalCluster(  # type: ignore[no-untyped-call]
                 n_workers=0,
@@ -186,16 +191,11 @@ def _scheduler_client(
     address = check_address(address)
     timeout = parse_timedelta(dask.config.get("distributed.comm.timeouts.connect"), "s")
     say(f"connecting to the Dask scheduler at {address} (waiting up to {timeout:g} s)")
+    _probe(address, timeout)
     try:
         client = Client(address)  # type: ignore[no-untyped-call]
     except (OSError, ValueError, TypeError, ImportError) as err:  # TimeoutError is an OSError
-        text = str(err).splitlines()[0] if str(err) else type(err).__name__
-        reason = f"no answer within {timeout:g} s" if "Timed out" in text else text
-        _host, _sep, port = address.rpartition(":")
-        raise SchedulerError(
-            f"cannot reach the Dask scheduler at {address} ({reason}); start one there "
-            f"(dask scheduler --port {port}) or give the address of a running one"
-        ) from None
+        raise _unreachable(address, timeout, err) from None
     with client:
         watch = WorkerWatch(client, address, worker_wait, say)
         watch.wait_for_first()
@@ -204,6 +204,73 @@ def _scheduler_client(
             yield client
         finally:
             _WATCHES.pop(client, None)
+
+
+NOT_A_SCHEDULER = (
+    "give the address of a running scheduler (it listens on port 8786 unless told "
+    "otherwise; 8787 is its dashboard's)"
+)
+
+
+def _unreachable(address: str, timeout: float, err: BaseException) -> SchedulerError:
+    """Return the error of a scheduler address that did not take the connection."""
+    text = str(err).splitlines()[0] if str(err) else type(err).__name__
+    reason = f"no answer within {timeout:g} s" if "Timed out" in text else text
+    _host, _sep, port = address.rpartition(":")
+    return SchedulerError(
+        f"cannot reach the Dask scheduler at {address} ({reason}); start one there "
+        f"(dask scheduler --port {port}) or give the address of a running one"
+    )
+
+
+def _probe(address: str, timeout: float) -> None:
+    """Connect to ``address`` and finish Dask's handshake within about ``timeout`` seconds.
+
+    Dask's connect timeout bounds the TCP connection only; its handshake then waits without
+    a bound for a reply that an HTTP server (the dashboard's port) or a silent listener
+    never sends, and reads an HTTP answer as a frame length (a MemoryError). The whole
+    connection is bounded here, by the timeout and a second more (Dask's own timeout of the
+    TCP part ends first, so an address that takes no connection is told apart from one
+    that takes it and stays silent), and anything but a Dask reply is one line.
+
+    Raises:
+        SchedulerError: the address did not connect, stayed silent or is no Dask scheduler.
+    """
+    import asyncio
+
+    from distributed.comm.core import CommClosedError, FatalCommClosedError
+    from distributed.comm.core import connect as comm_connect
+    from distributed.security import Security
+
+    async def handshake() -> None:
+        args = Security().get_connection_args("client")  # type: ignore[no-untyped-call]
+        comm = await comm_connect(address, timeout=timeout, **args)  # type: ignore[no-untyped-call]
+        await comm.close()
+
+    async def bounded() -> None:
+        await asyncio.wait_for(handshake(), timeout + min(1.0, timeout))
+
+    try:
+        asyncio.run(bounded())
+    except TimeoutError:  # ours: the TCP connection was made (Dask's own timeout is OSError)
+        raise SchedulerError(
+            f"{address} accepted the connection but did not answer as a Dask scheduler "
+            f"within {timeout:g} s (is it the dashboard's port?); {NOT_A_SCHEDULER}"
+        ) from None
+    except FatalCommClosedError as err:  # before any connection (a TLS setting)
+        raise _unreachable(address, timeout, err) from None
+    except CommClosedError:
+        raise SchedulerError(
+            f"{address} accepted the connection and closed it without answering as a Dask "
+            f"scheduler; {NOT_A_SCHEDULER}"
+        ) from None
+    except OSError as err:
+        raise _unreachable(address, timeout, err) from None
+    except Exception:  # an HTTP reply read as a frame: a MemoryError, a ValueError...
+        raise SchedulerError(
+            f"{address} answered, but not as a Dask scheduler (an HTTP server? the "
+            f"dashboard's port?); {NOT_A_SCHEDULER}"
+        ) from None
 
 
 @dataclass
@@ -415,6 +482,31 @@ def _start_workers(cluster: Any, client: Any, count: int) -> None:
     blocked.wait()
     cluster.scale(count)
     client.wait_for_workers(count)
+
+
+class _WorkerDeaths(logging.Filter):
+    """Turns the nannies' "Restarting worker" warning into one note; drops their other lines."""
+
+    def __init__(self, say: Callable[[str], object]) -> None:
+        super().__init__()
+        self.say = say
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno >= logging.WARNING and "Restarting worker" in record.getMessage():
+            self.say("note: a Dask worker died; its tasks are run again")
+        return False
+
+
+@contextlib.contextmanager
+def _worker_deaths_noted(say: Callable[[str], object]) -> Iterator[None]:
+    """While a local cluster runs: a worker that dies is one note, not Dask's log line."""
+    logger = logging.getLogger("distributed.nanny")
+    deaths = _WorkerDeaths(say)
+    logger.addFilter(deaths)
+    try:
+        yield
+    finally:
+        logger.removeFilter(deaths)
 
 
 @contextlib.contextmanager

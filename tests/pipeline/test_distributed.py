@@ -128,6 +128,50 @@ def test_learn_on_cluster_with_truncation_keeps_leading_subspace(
     assert np.degrees(subspace_angles(first, second)).max() < 10.0
 
 
+def _eigenpairs(basis: Basis, top: int) -> tuple[np.ndarray, np.ndarray]:
+    return basis.eigenvalues, basis.components[:top].reshape(top, -1).T.astype(np.float64)
+
+
+def test_learn_on_cluster_is_one_process_s_fine_tune_and_the_same_file_every_run(
+    logs: dict[str, Path], client: Any, tmp_path: Path
+) -> None:
+    # bug hunt 7B F5: chunks truncated to r columns before the built-in basis joined, merged
+    # in finishing order: another (worse) basis than one process's, another every run.
+    # Maps that fit learn.ONE_STEP_BYTES are merged here in one exact step, in chunk order.
+    options = jobs.LearnOptions(n_components=3, fit_prior=False, with_synthetic="auto")
+    both = [logs["a"], logs["b"]]
+    local = jobs.learn(both, tmp_path / "local.npz", options, PairingConfig())
+    assert "finetune" in local.meta
+    runs = [tmp_path / "c1.npz", tmp_path / "c2.npz"]
+    for run in runs:  # r = l + 1 = 4 columns: chunks of 3 maps would not be truncated
+        distributed.learn_distributed(
+            both, run, options, PairingConfig(), client, chunk_frames=2, oversampling=1
+        )
+    assert runs[0].read_bytes() == runs[1].read_bytes()
+    remote = Basis.load(runs[0])
+    assert remote.meta["distributed"]["merge"] == "in one step"
+    values_here, here = _eigenpairs(local, 3)
+    values_there, there = _eigenpairs(remote, 3)
+    np.testing.assert_allclose(values_there, values_here, rtol=1e-4)
+    assert subspace_angles(here, there).max() < 1e-3  # rad
+
+
+def test_learn_on_cluster_beyond_one_step_merges_in_chunk_order_the_same_file(
+    logs: dict[str, Path], client: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from pcainterp_stream.pipeline import learn as learn_module
+
+    monkeypatch.setattr(learn_module, "ONE_STEP_BYTES", 0)  # the truncated tree
+    options = jobs.LearnOptions(n_components=3, fit_prior=False, with_synthetic=0)
+    runs = [tmp_path / "t1.npz", tmp_path / "t2.npz"]
+    for run in runs:
+        distributed.learn_distributed(
+            [logs["a"], logs["b"]], run, options, PairingConfig(), client, chunk_frames=1
+        )
+    assert Basis.load(runs[0]).meta["distributed"]["merge"] == "tree"
+    assert runs[0].read_bytes() == runs[1].read_bytes()
+
+
 def _messages(path: Path) -> list[tuple[str, int, Any]]:
     """A log's messages, a PNG's deflate stream replaced by what it inflates to.
 

@@ -372,3 +372,81 @@ def test_learning_tasks_name_a_log_the_worker_does_not_see(one_worker: Any, tmp_
         with pytest.raises(PcaInterpError) as info:
             distributed.measure_on_cluster(client, [(missing, 0)], options, pairing)
         assert str(info.value) == message
+
+
+@pytest.fixture
+def odd_server(request: pytest.FixtureRequest) -> Iterator[str]:
+    """A TCP server that accepts and says nothing ("silent") or answers as HTTP ("http")."""
+    import threading
+
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(8)
+    held: list[socket.socket] = []
+
+    def serve() -> None:
+        while True:
+            try:
+                conn, _ = listener.accept()
+            except OSError:
+                return
+            held.append(conn)
+            if request.param == "http":
+                conn.recv(100)
+                conn.sendall(b"HTTP/1.1 400 Bad Request\r\ncontent-length: 0\r\n\r\n")
+                conn.close()
+
+    threading.Thread(target=serve, daemon=True).start()
+    try:
+        yield f"127.0.0.1:{listener.getsockname()[1]}"
+    finally:
+        listener.close()
+        for conn in held:
+            conn.close()
+
+
+@pytest.mark.parametrize(
+    ("odd_server", "says"),
+    [
+        ("silent", "accepted the connection but did not answer as a Dask scheduler within 1 s"),
+        ("http", "answered, but not as a Dask scheduler (an HTTP server?"),
+    ],
+    indirect=["odd_server"],
+)
+def test_cli_an_address_that_is_no_dask_scheduler_is_one_line_within_the_timeout(
+    odd_server: str, says: str, log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import dask
+
+    from pcainterp_stream import cli
+
+    started = time.monotonic()
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
+        code = cli.main(
+            ["learn", str(log), "-o", str(tmp_path / "b.npz"), "--scheduler", odd_server]
+        )
+    assert code == 2
+    assert time.monotonic() - started < 5  # was: for ever (silent), a MemoryError (http)
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2, err
+    assert err[1].startswith(f"pcainterp: error: {odd_server} {says}")
+    assert "8786" in err[1]
+    assert not (tmp_path / "b.npz").exists()
+
+
+def test_a_local_worker_that_dies_is_one_note_not_dask_s_log_line(
+    capfd: pytest.CaptureFixture[str],
+) -> None:
+    import os
+    import signal
+
+    notes: list[str] = []
+    with scheduler.connect(workers=1, say=notes.append) as client:
+        (pid,) = client.run(os.getpid).values()
+        os.kill(pid, signal.SIGKILL)
+        deadline = time.monotonic() + 30
+        while not notes and time.monotonic() < deadline:
+            time.sleep(0.1)
+        client.wait_for_workers(1, timeout=30)
+    assert notes == ["note: a Dask worker died; its tasks are run again"]
+    assert "distributed.nanny" not in capfd.readouterr().err
