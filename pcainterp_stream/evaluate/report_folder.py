@@ -26,6 +26,7 @@ from pcainterp_stream.evaluate.figures import FIGURE_NAMES
 from pcainterp_stream.interrupt import signals_deferred, track_partial, untrack_partial
 from pcainterp_stream.io.output_paths import (
     partial_prefix,
+    process_umask,
     remove_stale_partials,
     removed_meanwhile,
     write_advice,
@@ -181,7 +182,7 @@ def write_report_folder(folder: Path, write: Callable[[Path], None]) -> None:
                 f"{write_advice(err)}"
             ) from err
         if not existing:
-            os.chmod(staging, 0o777 & ~_umask())  # mkdtemp's 0700 would hide the report
+            os.chmod(staging, 0o777 & ~process_umask())  # mkdtemp's 0700 would hide the report
             try:
                 os.replace(staging, path)
                 return
@@ -204,9 +205,3 @@ def write_report_folder(folder: Path, write: Callable[[Path], None]) -> None:
     finally:
         shutil.rmtree(staging, ignore_errors=True)
         untrack_partial(staging)
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import functools
 import os
 import re
 import shutil
@@ -20,6 +21,7 @@ import socket
 import stat
 import sys
 import tempfile
+import threading
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
@@ -31,6 +33,7 @@ __all__ = [
     "check_output_folder",
     "is_standard_output",
     "partial_prefix",
+    "process_umask",
     "remove_stale_partials",
     "remove_stale_temporaries",
     "removed_meanwhile",
@@ -253,18 +256,78 @@ def _host() -> str:
     return re.sub(r"[^A-Za-z0-9.]", "_", socket.gethostname())[:40] or "host"
 
 
-def partial_prefix(target: Path) -> str:
-    """Return the name prefix of ``target``'s partial output: ``.NAME.partial-PID@HOST-``.
+def _boot_id() -> str | None:
+    """This boot of this machine: a random id the kernel draws at boot (None if unknown)."""
+    try:  # Linux, containers included (the kernel's, not the container's)
+        with open("/proc/sys/kernel/random/boot_id", encoding="ascii") as file:
+            text = file.read()
+    except (OSError, ValueError):
+        text = ""
+    if not text and sys.platform == "darwin":  # no PID namespaces there: the boot is the scope
+        text = _sysctl_text(b"kern.bootsessionuuid")
+    digits = re.sub(r"[^0-9a-f]", "", text.lower())
+    return digits[:12] if len(digits) >= 12 else None
 
-    The writer's process id and machine are in the name, so that a later run can tell the
-    partial output of a run that was killed (:func:`remove_stale_partials`) from that of
-    a run still going; ``tempfile`` adds a unique suffix, so two runs never share one.
+
+def _sysctl_text(name: bytes) -> str:
+    """Return a string sysctl of macOS ("" where there is none)."""
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL(None)
+        size = ctypes.c_size_t(64)
+        buffer = ctypes.create_string_buffer(size.value)
+        if libc.sysctlbyname(name, buffer, ctypes.byref(size), None, ctypes.c_size_t(0)) != 0:
+            return ""
+        return buffer.value.decode("ascii", "replace")
+    except (OSError, AttributeError, ValueError):
+        return ""
+
+
+def _pid_namespace() -> str | None:
+    """The PID namespace this process's ids belong to: the inode of ``/proc/self/ns/pid``.
+
+    "0" on macOS, which has no PID namespaces; None where it is unknown (Linux without
+    /proc or a sandbox hiding it, Windows).
     """
-    return f".{target.name}.partial-{os.getpid()}@{_host()}-"
+    try:
+        return str(os.stat("/proc/self/ns/pid").st_ino)
+    except OSError:
+        pass
+    if sys.platform == "darwin":
+        return "0"
+    return None  # Linux without /proc (or a sandbox hiding it), Windows: unknown
+
+
+@functools.cache
+def _scope() -> str | None:
+    """Where this process's id means this process: ``BOOT.NAMESPACE`` (None if unknown).
+
+    The host name alone does not say it: containers sharing the host's name (``docker
+    --net=host``) have PID namespaces of their own, and two machines may have one name.
+    """
+    boot, namespace = _boot_id(), _pid_namespace()
+    return None if boot is None or namespace is None else f"{boot}.{namespace}"
+
+
+def _owner() -> str:
+    """This process as a partial output's name holds it: ``PID@HOST~BOOT.NAMESPACE``."""
+    return f"{os.getpid()}@{_host()}~{_scope() or 'unknown'}"
+
+
+def partial_prefix(target: Path) -> str:
+    """Return the name prefix of ``target``'s partial output: ``.NAME.partial-OWNER-``.
+
+    OWNER is ``PID@HOST~BOOT.NAMESPACE``: the writer's process id, machine, boot and PID
+    namespace, so that a later run can tell the partial output of a run that was killed
+    (:func:`remove_stale_partials`) from that of a run still going; ``tempfile`` adds a
+    unique suffix, so two runs never share one.
+    """
+    return f".{target.name}.partial-{_owner()}-"
 
 
 def _alive(pid: int) -> bool:
-    """Whether process ``pid`` exists on this machine (one of another user's included)."""
+    """Whether process ``pid`` of this PID namespace exists (another user's included)."""
     if pid <= 0:
         return True  # not a process id of ours: never taken for a dead one
     try:
@@ -292,8 +355,18 @@ def _size(path: Path) -> int:
 
 
 def _stale(folder: Path, start: str) -> Iterator[Path]:
-    """Yield the entries of ``folder`` named ``START PID@HOST-XXXX`` of a dead process here."""
-    pattern = re.compile(re.escape(start) + r"(\d+)@" + re.escape(_host()) + r"-[^-]+")
+    """Yield the entries of ``folder`` named ``START OWNER-XXXX`` of a dead process.
+
+    Only an owner of this machine, boot and PID namespace (:func:`_owner`) is looked up:
+    a process id means nothing in another namespace, where a live writer would look dead.
+    Where the namespace is unknown nothing is removed, nor are names without an owner's
+    scope (those of earlier versions).
+    """
+    scope = _scope()
+    if scope is None:
+        return
+    owner = re.escape(f"@{_host()}~{scope}")
+    pattern = re.compile(re.escape(start) + r"(\d+)" + owner + r"-[^-]+")
     try:
         entries = list(os.scandir(folder))
     except OSError:
@@ -305,8 +378,8 @@ def _stale(folder: Path, start: str) -> Iterator[Path]:
 
 
 def temporary_prefix(stem: str) -> str:
-    """Return the prefix of a temporary folder of this process: ``STEM-PID@HOST-``."""
-    return f"{stem}-{os.getpid()}@{_host()}-"
+    """Return the prefix of a temporary folder of this process: ``STEM-OWNER-``."""
+    return f"{stem}-{_owner()}-"
 
 
 def remove_stale_temporaries(folder: Path, stem: str) -> None:
@@ -322,9 +395,10 @@ def remove_stale_partials(
 
     A killed run (SIGKILL, an out-of-memory kill, a batch system's hard time limit) cannot
     remove its hidden partial output. Only the partial outputs of ``target`` named by
-    :func:`partial_prefix` with this machine's name and the id of a process that no longer
-    exists are removed: one of a run still going (here or on another machine sharing the
-    folder) is never touched. One line on standard error per removal, with its size.
+    :func:`partial_prefix` with this machine's name, boot and PID namespace and the id of a
+    process that no longer exists are removed: one of a run still going (here, in another
+    container or on another machine sharing the folder) is never touched. One line on
+    standard error per removal, with its size.
 
     Args:
         target: the output about to be written.
@@ -352,3 +426,39 @@ def remove_stale_partials(
                 file=sys.stderr,
             )
     return removed
+
+
+def _umask_of_status() -> int | None:
+    """The process's umask as Linux shows it (``Umask:`` of /proc/self/status, Linux 4.7+)."""
+    try:
+        with open("/proc/self/status", encoding="ascii", errors="replace") as file:
+            for line in file:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def _umask_by_setting() -> int:
+    """Read the umask by setting it and back (0o077 meanwhile: a file made then is private)."""
+    mask = os.umask(0o077)
+    os.umask(mask)
+    return mask
+
+
+_START_UMASK: int = _umask_of_status() or _umask_by_setting()  # at import: before the threads
+
+
+def process_umask() -> int:
+    """Return the process's umask without changing it while other threads may make files.
+
+    Read from /proc where Linux shows it; elsewhere set and restored only while this is
+    the process's one thread, otherwise the umask at import.
+    """
+    mask = _umask_of_status()
+    if mask is not None:
+        return mask
+    if threading.active_count() == 1:
+        return _umask_by_setting()
+    return _START_UMASK

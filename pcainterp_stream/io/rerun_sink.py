@@ -36,6 +36,7 @@ from pcainterp_stream.errors import LogWriteError
 from pcainterp_stream.interrupt import signalled, track_partial, untrack_partial
 from pcainterp_stream.io.output_paths import (
     partial_prefix,
+    process_umask,
     remove_stale_partials,
     remove_stale_temporaries,
     removed_meanwhile,
@@ -120,7 +121,17 @@ class _Pump:
             ) from err
         track_partial(self._folder)  # removed even if a signal forces the end
         self.pipe = self._folder / "recording.rrd"
-        os.mkfifo(self.pipe)
+        try:
+            os.mkfifo(self.pipe)
+        except OSError as err:  # a temporary folder without named pipes (some FUSE/SMB mounts)
+            self._close(out)
+            self.target.unlink(missing_ok=True)
+            self.remove_folder()
+            raise LogWriteError(
+                f"cannot write {name}: no named pipe can be made in the temporary folder "
+                f"{self._folder.parent} ({err.strerror or err}); set TMPDIR to a local "
+                "writable folder"
+            ) from err
         self._thread = threading.Thread(target=self._run, args=(out,), name="rrd-pump", daemon=True)
         self._thread.start()
 
@@ -275,7 +286,7 @@ class RerunSink:
             os.close(handle)
             self._partial = Path(name)
             track_partial(self._partial)  # removed even if a signal forces the end
-            os.chmod(self._partial, 0o666 & ~_umask())  # mkstemp's 0600: as a new file's
+            os.chmod(self._partial, 0o666 & ~process_umask())  # mkstemp's 0600: as a new file's
             if hasattr(os, "mkfifo"):
                 self._pump = _Pump(self._partial, rrd_path)
                 return self._pump.pipe
@@ -426,12 +437,6 @@ class RerunSink:
                 depth_range=(0.0, DISPLAY_MAX_DEPTH_STD),
             ),
         )
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 def _close_recording(recording: rr.RecordingStream, *, flush_s: float | None) -> str | None:

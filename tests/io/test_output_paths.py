@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import errno
 import os
+import shutil
 import stat
+import subprocess
+import sys
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -155,7 +159,8 @@ def _dead_pid() -> int:
 def _named(target: Path, pid: int, suffix: str, host: str | None = None) -> Path:
     prefix = output_paths.partial_prefix(target).replace(f"-{os.getpid()}@", f"-{pid}@")
     if host is not None:
-        prefix = prefix.replace(f"@{output_paths._host()}-", f"@{host}-")
+        prefix = prefix.replace(f"@{output_paths._host()}~", f"@{host}~")
+        assert f"@{host}~" in prefix
     return target.with_name(prefix + suffix)
 
 
@@ -182,7 +187,9 @@ def test_a_killed_runs_partial_output_is_removed_when_the_target_is_written_agai
     with open_writer(target, "mcap") as writer:
         assert writer.partial_path.parent.name.startswith(output_paths.partial_prefix(target))
     assert not stale.exists()
-    assert live.is_dir() and elsewhere.is_dir() and other_target.is_dir()
+    assert live.is_dir()
+    assert elsewhere.is_dir()
+    assert other_target.is_dir()
     err = capsys.readouterr().err
     assert err.strip() == (
         f"note: removed {target}'s partial output left by an earlier run that was killed (9.0 MB)"
@@ -190,3 +197,158 @@ def test_a_killed_runs_partial_output_is_removed_when_the_target_is_written_agai
     with open_writer(target, "mcap"):
         pass
     assert capsys.readouterr().err == ""  # said once
+
+
+@pytest.fixture
+def pid_namespace(monkeypatch: pytest.MonkeyPatch) -> Iterator[Callable[[str | None], None]]:
+    """Make this process look as if in PID namespace NS (None: unknown)."""
+
+    def enter(namespace: str | None) -> None:
+        monkeypatch.setattr(output_paths, "_pid_namespace", lambda: namespace, raising=False)
+        output_paths._scope.cache_clear()
+
+    yield enter
+    monkeypatch.undo()
+    output_paths._scope.cache_clear()
+
+
+def test_a_live_writer_in_another_pid_namespace_keeps_its_partial(
+    tmp_path: Path,
+    pid_namespace: Callable[[str | None], None],
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Review 55b R55b-1: a container sharing the host's name (docker --net=host) saw the
+    host's live writer's process id as dead and removed its partial output.
+
+    A writer in namespace 111 whose id is not a process here (as another namespace's live
+    one is not) keeps its partial; the same partial in this run's namespace is removed."""
+    target = tmp_path / "out.mcap"
+    dead = _dead_pid()
+    pid_namespace("111")
+    theirs = _named(target, dead, "abc12345")
+    theirs.mkdir()
+    pid_namespace("222")
+    assert theirs.name != _named(target, dead, "abc12345").name  # the namespace is named
+    with open_writer(target, "mcap"):
+        pass
+    assert theirs.is_dir()
+    assert capsys.readouterr().err == ""
+    pid_namespace("111")  # back in its namespace: the writer is dead there
+    with open_writer(target, "mcap"):
+        pass
+    assert not theirs.exists()
+    assert "partial output left by an earlier run that was killed" in capsys.readouterr().err
+
+
+def test_where_the_pid_namespace_is_unknown_no_partial_is_removed(
+    tmp_path: Path, pid_namespace: Callable[[str | None], None]
+) -> None:
+    """No /proc (a sandbox): a process id cannot be told dead, so nothing is removed."""
+    target = tmp_path / "out.mcap"
+    pid_namespace(None)
+    stale = _named(target, _dead_pid(), "abc12345")
+    assert "~unknown-" in stale.name
+    stale.mkdir()
+    with open_writer(target, "mcap"):
+        pass
+    assert stale.is_dir()
+
+
+def test_a_partial_named_without_its_namespace_is_kept(tmp_path: Path) -> None:
+    """A partial of the naming before (``PID@HOST-``) cannot say its namespace: kept."""
+    target = tmp_path / "out.mcap"
+    old = target.with_name(f".out.mcap.partial-{_dead_pid()}@{output_paths._host()}-abc12345")
+    old.mkdir()
+    with open_writer(target, "mcap"):
+        pass
+    assert old.is_dir()
+
+
+def test_the_scope_is_this_boot_and_pid_namespace() -> None:
+    if not Path("/proc/self/ns/pid").exists():
+        pytest.skip("no /proc here")
+    boot = Path("/proc/sys/kernel/random/boot_id").read_text().replace("-", "").strip()
+    namespace = os.stat("/proc/self/ns/pid").st_ino
+    owner = f"{os.getpid()}@{output_paths._host()}~{boot[:12]}.{namespace}-"
+    assert output_paths.partial_prefix(Path("x.mcap")) == f".x.mcap.partial-{owner}"
+    assert output_paths.temporary_prefix("pcainterp-rrd") == f"pcainterp-rrd-{owner}"
+
+
+_LIVE_WRITER = """
+import sys
+from pathlib import Path
+from pcainterp_stream.io.logwriter import open_writer
+with open_writer(Path(sys.argv[1]), "mcap"):
+    print("open", flush=True)
+    sys.stdin.readline()
+"""
+
+
+def test_a_live_writer_of_the_host_survives_a_run_in_a_pid_namespace(tmp_path: Path) -> None:
+    """R55b-1 as the review reproduced it: ``unshare -p -f --mount-proc`` (root only)."""
+    unshare = shutil.which("unshare")
+    if unshare is None:
+        pytest.skip("no unshare")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    probe = subprocess.run(
+        [unshare, "-p", "-f", "--mount-proc", "true"], capture_output=True, check=False
+    )
+    if probe.returncode != 0:
+        pytest.skip("unshare -p needs privileges")
+    target = tmp_path / "out.mcap"
+    with subprocess.Popen(
+        [sys.executable, "-c", _LIVE_WRITER, str(target)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+    ) as writer:
+        assert writer.stdout is not None
+        assert writer.stdin is not None
+        try:
+            assert writer.stdout.readline() == "open\n"
+            (partial,) = tmp_path.iterdir()
+            command = [unshare, "-p", "-f", "--mount-proc", sys.executable, "-c", _LIVE_WRITER]
+            other = subprocess.run(
+                [*command, str(target)],
+                input="\n",
+                capture_output=True,
+                text=True,
+                env=env,
+                check=False,
+                timeout=120,
+            )
+            assert other.returncode == 0, other.stderr
+            assert "removed" not in other.stderr
+            assert partial.is_dir()  # the live writer's, kept
+            writer.stdin.write("\n")
+            writer.stdin.flush()
+            assert writer.wait(timeout=120) == 0
+        finally:
+            writer.kill()
+    assert [p.name for p in tmp_path.iterdir()] == ["out.mcap"]
+
+
+def test_the_umask_is_read_without_being_changed(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Review 55b R55b-5: setting the umask to 0 for a moment gave other threads' files
+    mode 0666; it is read from /proc (or, with threads running, taken from the start)."""
+    previous = os.umask(0o027)
+    try:
+        if Path("/proc/self/status").exists():
+            monkeypatch.setattr(os, "umask", _no_umask_change)
+            assert output_paths.process_umask() == 0o027
+        monkeypatch.setattr(output_paths, "_umask_of_status", lambda: None)
+        monkeypatch.setattr(output_paths, "_START_UMASK", 0o002)
+        monkeypatch.setattr(output_paths.threading, "active_count", lambda: 3)
+        monkeypatch.setattr(os, "umask", _no_umask_change)
+        assert output_paths.process_umask() == 0o002  # threads: the umask at import
+        monkeypatch.undo()
+        monkeypatch.setattr(output_paths, "_umask_of_status", lambda: None)
+        assert output_paths.process_umask() == 0o027  # one thread: set and restored
+        assert os.umask(0o027) == 0o027
+    finally:
+        os.umask(previous)
+
+
+def _no_umask_change(mask: int) -> int:
+    raise AssertionError(f"os.umask({mask:#o}) while threads may be making files")

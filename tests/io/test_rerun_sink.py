@@ -528,3 +528,92 @@ def test_a_recording_whose_folder_was_removed_says_so(
         f"warning: cannot write {target}: folder {folder} no longer exists (removed while the "
         "recording was being written); no recording was written there\n"
     )
+
+
+class _Recorded:
+    """A file handle that says whether it was closed."""
+
+    def __init__(self) -> None:
+        self.closed = False
+
+    def write(self, data: bytes) -> int:
+        return len(data)
+
+    def close(self) -> None:
+        self.closed = True
+
+
+def test_a_temporary_folder_without_named_pipes_is_named_and_leaves_nothing(
+    tmp_path: Path, temporary_folder: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review 55b R55b-6: a failed mkfifo left the pipe folder in TMPDIR and the partial's
+    handle open, and said "choose a writable folder" of the recording's (fine) folder."""
+    handles: list[_Recorded] = []
+
+    def opened(self: Any) -> _Recorded:
+        handles.append(_Recorded())
+        self.target.write_bytes(b"")  # as open("wb") would
+        return handles[-1]
+
+    def refused(path: Any) -> None:
+        raise OSError(errno.EPERM, "Operation not permitted")
+
+    monkeypatch.setattr(rerun_sink._Pump, "_open_target", opened)
+    monkeypatch.setattr(rerun_sink.os, "mkfifo", refused)
+    target = tmp_path / "run.rrd"
+    with pytest.raises(LogWriteError) as caught, RerunSink(rrd_path=target):
+        pass
+    assert str(caught.value) == (
+        f"cannot write {target}: no named pipe can be made in the temporary folder "
+        f"{temporary_folder} (Operation not permitted); set TMPDIR to a local writable folder"
+    )
+    assert [h.closed for h in handles] == [True]
+    assert list(temporary_folder.iterdir()) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tmp"]
+    assert not any(str(p).startswith(str(tmp_path)) for p in interrupt._partials)
+
+
+def test_the_recording_mode_is_set_without_changing_the_umask(
+    tmp_path: Path, temporary_folder: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review 55b R55b-5: the umask was set to 0 for a moment while other threads run."""
+    if not Path("/proc/self/status").exists():
+        pytest.skip("no /proc: the umask is read by setting it while single-threaded")
+    previous = os.umask(0o027)
+    try:
+
+        def changed(mask: int) -> int:
+            raise AssertionError(f"os.umask({mask:#o}) while threads may be making files")
+
+        monkeypatch.setattr(os, "umask", changed)
+        target = tmp_path / "run.rrd"
+        with RerunSink(rrd_path=target) as sink:
+            sink.log(_frame(0))
+        assert target.stat().st_mode & 0o777 == 0o640
+    finally:
+        monkeypatch.undo()
+        os.umask(previous)
+
+
+def test_a_pipe_folder_of_another_pid_namespace_is_kept(
+    tmp_path: Path, temporary_folder: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review 55b R55b-1 for TMPDIR: another container's live run's pipe folder is kept."""
+    from pcainterp_stream.io import output_paths
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    try:
+        monkeypatch.setattr(output_paths, "_pid_namespace", lambda: "111", raising=False)
+        output_paths._scope.cache_clear()
+        theirs = output_paths.temporary_prefix("pcainterp-rrd")
+        theirs = theirs.replace(f"-{os.getpid()}@", f"-{dead.pid}@") + "a1"
+        (temporary_folder / theirs).mkdir()
+        monkeypatch.setattr(output_paths, "_pid_namespace", lambda: "222", raising=False)
+        output_paths._scope.cache_clear()
+        with RerunSink(rrd_path=tmp_path / "run.rrd") as sink:
+            sink.log(_frame(0))
+    finally:
+        monkeypatch.undo()
+        output_paths._scope.cache_clear()
+    assert [p.name for p in temporary_folder.iterdir()] == [theirs]
