@@ -22,8 +22,9 @@ the workers, one task per log, for the same fit of the prior.
 
 Densifying runs :func:`pcainterp_stream.pipeline.densify.densify` on each log in its own task; a
 failing log is reported and does not stop the others. A task writes its output into a hidden
-staging folder beside the target (``.NAME.partial-XXXX``), and this process, not the worker,
-moves it onto the target once the task is done: nothing is committed after a Ctrl-C.
+staging folder beside the target (``.NAME.partial-PID@HOST-XXXX``, this process's id and
+machine: a later run removes those of a run that was killed), and this process, not the
+worker, moves it onto the target once the task is done: nothing is committed after a Ctrl-C.
 
 Tasks return the errors they meet (:class:`TaskFailure`) rather than raise them: Dask logs
 every exception a task raises as a multi-line "Compute Failed" block on the worker's stderr,
@@ -67,6 +68,7 @@ from pcainterp_stream.interrupt import (
     track_partial,
     untrack_partial,
 )
+from pcainterp_stream.io.output_paths import partial_prefix, remove_stale_partials
 from pcainterp_stream.pipeline.common import (
     _bar,
     _check_topic_types,
@@ -753,7 +755,8 @@ def densify_many(
                 )
                 outcomes[index] = DensifyOutcome(path, out, 0, 0.0, message)
                 continue
-            folder = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out_dir))
+            remove_stale_partials(out)  # a killed earlier run's staging (never a live one's)
+            folder = Path(tempfile.mkdtemp(prefix=partial_prefix(out), dir=out_dir))
             track_partial(folder)
             staging[index] = folder
             paths = WorkerPaths((path,), basis, out_dir, folder) if remote else None

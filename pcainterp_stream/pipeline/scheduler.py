@@ -9,7 +9,10 @@ without end or Dask's traceback (:func:`_probe`). A scheduler without workers wo
 the tasks forever: the command says so at once, waits a bounded time for a worker
 (:data:`DEFAULT_WORKER_WAIT`) and gives up in one line naming the address and
 ``dask worker ADDRESS``; while tasks are pending, :func:`completed` notices when the last
-worker is gone and does the same.
+worker is gone and does the same. A scheduler that is lost while the job runs (it stopped,
+its node or the network to it failed) is one :class:`SchedulerError` at once (Dask's client
+has cancelled the job's tasks, and the tasks submitted since never run), not a wait for
+ever, and Dask's client logs nothing meanwhile (:func:`_client_log_dropped`).
 
 A running scheduler's workers may be other machines, with other files: a task there
 checks the paths it needs first (:class:`WorkerPaths`, :func:`checked`) and names a missing
@@ -36,7 +39,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pcainterp_stream.errors import BasisError, LogReadError, LogWriteError, SchedulerError
+from pcainterp_stream.errors import (
+    BasisError,
+    ClusterTaskError,
+    LogReadError,
+    LogWriteError,
+    PcaInterpError,
+    SchedulerError,
+)
 
 __all__ = [
     "DEFAULT_WORKER_WAIT",
@@ -196,14 +206,48 @@ def _scheduler_client(
         client = Client(address)  # type: ignore[no-untyped-call]
     except (OSError, ValueError, TypeError, ImportError) as err:  # TimeoutError is an OSError
         raise _unreachable(address, timeout, err) from None
-    with client:
+    # Dask's client logs a lost scheduler (its reconnection, its traceback, "Failed to
+    # reconnect ... closing client", also when it is closed while reconnecting): the
+    # watch says it in one line instead, until the client is closed
+    with _client_log_dropped(), client:
         watch = WorkerWatch(client, address, worker_wait, say)
         watch.wait_for_first()
         _WATCHES[client] = watch
         try:
             yield client
+        except Exception as err:
+            # Dask's own errors (a closed client's ClosedClientError) and a task's unexpected
+            # one (its future cancelled) are the lost scheduler's; a task's own error stays
+            unexpected = isinstance(err, ClusterTaskError) or not isinstance(err, PcaInterpError)
+            if unexpected and _lost(client):
+                raise watch.lost() from None
+            raise
         finally:
             _WATCHES.pop(client, None)
+
+
+def _lost(client: Any) -> bool:
+    """Whether ``client`` lost its scheduler: it reconnects (its tasks cancelled) or closed."""
+    return getattr(client, "status", "running") not in ("running", "newly-created")
+
+
+class _DroppedRecords(logging.Filter):
+    """Drops every record of the logger it filters."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return False
+
+
+@contextlib.contextmanager
+def _client_log_dropped() -> Iterator[None]:
+    """While a running scheduler's client is open: ``distributed.client`` logs nothing."""
+    logger = logging.getLogger("distributed.client")
+    dropped = _DroppedRecords()
+    logger.addFilter(dropped)
+    try:
+        yield
+    finally:
+        logger.removeFilter(dropped)
 
 
 NOT_A_SCHEDULER = (
@@ -283,6 +327,8 @@ class WorkerWatch:
         wait: seconds to wait for a worker before giving up.
         say: called with each note (one line).
         empty_since: ``time.monotonic()`` when no worker was seen first, None while some are.
+        unanswered_since: ``time.monotonic()`` of the first look the scheduler did not
+            answer, None while it answers.
         next_look: ``time.monotonic()`` of the next look at the workers.
     """
 
@@ -291,10 +337,30 @@ class WorkerWatch:
     wait: float
     say: Callable[[str], object]
     empty_since: float | None = field(default=None)
+    unanswered_since: float | None = field(default=None)
     next_look: float = field(default=0.0)
 
     def _hint(self) -> str:
         return f"dask worker {self.address}"
+
+    def lost(self, why: str = "it stopped, or the network to it failed") -> SchedulerError:
+        """Return the error of a scheduler lost while the job runs."""
+        return SchedulerError(
+            f"lost the connection to the Dask scheduler at {self.address} ({why}); the tasks "
+            "it held are lost with it: run again once it is back"
+        )
+
+    def check_connected(self) -> None:
+        """Raise :meth:`lost` when the client lost its scheduler (a cheap look, no message).
+
+        Dask's client, on losing the scheduler, cancels every task of the job at once and
+        tries to reconnect for its connect timeout, then closes: the job is lost either way.
+
+        Raises:
+            SchedulerError: the client reconnects or is closed.
+        """
+        if _lost(self.client):
+            raise self.lost()
 
     def workers(self) -> int | None:
         """Return how many workers the scheduler has, None when it cannot be asked."""
@@ -309,6 +375,7 @@ class WorkerWatch:
         Raises:
             SchedulerError: none joined within ``wait`` seconds.
         """
+        self.check_connected()
         if self.workers() != 0:
             return
         self.say(
@@ -318,6 +385,7 @@ class WorkerWatch:
         try:
             self.client.wait_for_workers(1, timeout=self.wait)
         except (TimeoutError, OSError):  # Dask's TimeoutError (an OSError)
+            self.check_connected()
             raise SchedulerError(
                 f"the Dask scheduler at {self.address} has no workers and none joined within "
                 f"{self.wait:g} s; start some ({self._hint()}) and run again"
@@ -326,18 +394,27 @@ class WorkerWatch:
     def check(self) -> None:
         """Look at the workers (at most every :data:`WATCH_INTERVAL` s) while tasks wait.
 
-        Says when the last worker is gone and when one is back.
+        Says when the last worker is gone and when one is back. A lost scheduler fails at
+        once (:meth:`check_connected`, every call), or after ``wait`` seconds of looks it
+        did not answer.
 
         Raises:
-            SchedulerError: no worker for ``wait`` seconds.
+            SchedulerError: the scheduler was lost, or had no worker for ``wait`` seconds.
         """
+        self.check_connected()
         now = time.monotonic()
         if now < self.next_look:
             return
         self.next_look = now + WATCH_INTERVAL
         count = self.workers()
+        self.check_connected()  # lost during the look: its count is not the scheduler's
         if count is None:
+            if self.unanswered_since is None:
+                self.unanswered_since = now
+            elif now - self.unanswered_since >= self.wait:
+                raise self.lost(f"no answer for {self.wait:g} s")
             return
+        self.unanswered_since = None
         if count:
             if self.empty_since is not None:
                 self.say(f"the Dask scheduler at {self.address} has a worker again; going on")
@@ -361,10 +438,13 @@ def completed(futures: Any, client: Any) -> Iterator[Any]:
 
     With a client of :func:`connect`'s running scheduler, its workers are watched while
     none is ready (:meth:`WorkerWatch.check`); futures added during the iteration are
-    waited for too.
+    waited for too. A lost scheduler ends the iteration at once: Dask's client cancels
+    the job's futures then (a cancelled future is not yielded), and one submitted since
+    would never finish.
 
     Raises:
-        SchedulerError: the scheduler had no workers for the watch's ``wait`` seconds.
+        SchedulerError: the scheduler was lost, or had no workers for the watch's ``wait``
+            seconds.
     """
     watch = _WATCHES.get(client)
     if watch is None:
@@ -372,8 +452,12 @@ def completed(futures: Any, client: Any) -> Iterator[Any]:
         return
     condition = futures.thread_condition  # notified as each future finishes
     while True:
+        watch.check_connected()
         if futures.has_ready():
-            yield next(futures)
+            future = next(futures)
+            if getattr(future, "status", None) == "cancelled":  # by the client that lost it
+                raise watch.lost()
+            yield future
             continue
         if futures.is_empty():
             return

@@ -355,6 +355,51 @@ def test_densify_many_without_a_basis_uses_the_built_in_one(
     assert outcomes[0].bases == ()
 
 
+def test_densify_many_removes_the_staging_folder_of_a_killed_run_and_names_its_own(
+    logs: dict[str, Path],
+    client: Any,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A killed ``densify --out-dir`` (SIGKILL, out of memory) left its staging folders,
+    named without the writer, for ever (fix-OUT's note on bug hunt 7B F8): they carry this
+    process's id and machine now, and the next run removes a dead run's, in one line."""
+    from pcainterp_stream.io import output_paths
+
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    target = distributed.output_path(logs["b"], out_dir)
+    process = subprocess.Popen([sys.executable, "-c", "pass"])
+    process.wait()
+
+    def named(pid: int, suffix: str) -> Path:
+        prefix = output_paths.partial_prefix(target).replace(f"-{os.getpid()}@", f"-{pid}@")
+        return out_dir / (prefix + suffix)
+
+    stale, live = named(process.pid, "abc12345"), named(os.getppid(), "def67890")
+    stale.mkdir()
+    (stale / target.name).write_bytes(bytes(2_500_000))
+    live.mkdir()
+    staged: list[str] = []
+    commit = distributed._commit
+    monkeypatch.setattr(
+        distributed,
+        "_commit",
+        lambda folder, out: (staged.append(folder.name), commit(folder, out)),
+    )
+    [outcome] = distributed.densify_many([logs["b"]], out_dir, None, client)
+    assert outcome.error is None
+    assert not stale.exists()
+    assert live.is_dir()  # a run still going (here: this test's parent) is never touched
+    assert capsys.readouterr().err.strip() == (
+        f"note: removed {target}'s partial output left by an earlier run that was killed (2.5 MB)"
+    )
+    [name] = staged
+    assert name.startswith(output_paths.partial_prefix(target))  # was: .b_dense.mcap.partial-
+    assert sorted(path.name for path in out_dir.iterdir()) == [live.name, target.name]
+
+
 def test_densify_many_says_which_logs_adapted_and_where_their_basis_is(
     client: Any, tmp_path: Path
 ) -> None:

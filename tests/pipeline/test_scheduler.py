@@ -11,6 +11,7 @@ from typing import Any
 import pytest
 
 from pcainterp_stream.errors import PcaInterpError, SchedulerError
+from pcainterp_stream.io.output_paths import partial_prefix
 from pcainterp_stream.pipeline import distributed, jobs, scheduler
 
 pytest.importorskip("dask.distributed")
@@ -326,9 +327,10 @@ def test_cli_names_an_out_dir_the_worker_does_not_share_not_its_staging_folder(
     assert cli.main(["densify", str(log), "--out-dir", str(out), "--scheduler", address]) == 1
     [worker] = one_worker.scheduler_info["workers"]
     err = capsys.readouterr().err.splitlines()
+    staging = partial_prefix(out / "a_dense.mcap") + "gone"  # .a_dense.mcap.partial-PID@HOST-
     assert err[-1] == (
         f"pcainterp: error: {log}: --out-dir {out} on the Dask worker ({worker}) is not the "
-        "folder this command wrote to (the staging folder .a_dense.mcap.partial-gone it made "
+        f"folder this command wrote to (the staging folder {staging} it made "
         f"there is missing): the workers need the logs and --out-dir {SHARED}"
     )
     assert "create it first" not in "\n".join(err)
@@ -450,3 +452,90 @@ def test_a_local_worker_that_dies_is_one_note_not_dask_s_log_line(
         client.wait_for_workers(1, timeout=30)
     assert notes == ["note: a Dask worker died; its tasks are run again"]
     assert "distributed.nanny" not in capfd.readouterr().err
+
+
+# ------------------------------------------------- a scheduler lost mid-job (bug hunt 7B F10)
+
+_RELEASE = __import__("threading").Event()
+
+
+def _held(value: int) -> int:
+    """A task that runs until the test releases it (a worker thread of this process)."""
+    _RELEASE.wait(30)
+    return value
+
+
+@pytest.fixture
+def doomed() -> Iterator[Any]:
+    """:func:`one_worker`'s cluster, whose scheduler the test closes: its worker, closing
+    after it, retries the scheduler for Dask's connect timeout, here cut to 0.2 s."""
+    import dask
+    from dask.distributed import LocalCluster
+
+    cluster = LocalCluster(  # type: ignore[no-untyped-call]
+        n_workers=1,
+        threads_per_worker=1,
+        processes=False,
+        protocol="tcp",
+        host="127.0.0.1",
+        dashboard_address=":0",
+    )
+    try:
+        yield cluster
+    finally:
+        _RELEASE.set()
+        with dask.config.set({"distributed.comm.timeouts.connect": "0.2s"}):
+            cluster.close()  # type: ignore[no-untyped-call]
+
+
+@pytest.mark.parametrize("when", ["running", "submitted after"])
+def test_a_scheduler_lost_mid_job_is_one_line_at_once_not_a_wait_for_ever(
+    when: str, doomed: Any, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """The scheduler closed while completed() waits: Dask's client cancels the job's
+    futures and reconnects for its connect timeout; one submitted meanwhile never finishes.
+    Was: the cancelled future yielded as a result ("unexpected FutureCancelledError"), or a
+    wait for ever ("no workers left" first), and Dask's ERROR lines on stderr."""
+    import threading
+
+    import dask
+    from dask.distributed import as_completed
+
+    address = doomed.scheduler_address
+    notes: list[str] = []
+    raised: list[BaseException] = []
+    _RELEASE.clear()
+    with (
+        dask.config.set({"distributed.comm.timeouts.connect": "30s"}),
+        scheduler.connect(address, worker_wait=30, say=notes.append) as client,
+    ):
+        futures = [client.submit(_held, 1, pure=False)]
+        if when == "submitted after":
+            doomed.sync(doomed.scheduler.close)
+            while client.status == "running":
+                time.sleep(0.01)
+            futures = [client.submit(_held, 2, pure=False)]  # pending for ever
+
+        def iterate() -> None:
+            try:
+                list(scheduler.completed(as_completed(futures), client))
+            except BaseException as err:  # handed to the test
+                raised.append(err)
+
+        started = time.monotonic()
+        thread = threading.Thread(target=iterate, daemon=True)
+        thread.start()
+        if when == "running":
+            time.sleep(0.3)
+            doomed.sync(doomed.scheduler.close)
+        thread.join(10)
+        assert not thread.is_alive(), "completed() still waits"
+        assert time.monotonic() - started < 5  # the wait (30 s) and Dask's (30 s) not spent
+    [error] = raised
+    assert isinstance(error, SchedulerError)
+    assert str(error) == (
+        f"lost the connection to the Dask scheduler at {address} (it stopped, or the network "
+        "to it failed); the tasks it held are lost with it: run again once it is back"
+    )
+    assert notes == [f"connecting to the Dask scheduler at {address} (waiting up to 30 s)"]
+    assert "distributed.client" not in capfd.readouterr().err  # also once the client closed
