@@ -36,8 +36,11 @@ def follow_densify(
     it is ``auto`` (evaluate's ``auto`` means "as densify did"), ``--baseline`` when it has
     none. What the caller set stays. Image topics named other than the recorded ones take
     nothing from the record: ``--rectify auto`` is decided again for them, as for a log
-    without the record, and the note says so. Without a record, only info topics named
-    leave the images to discovery.
+    without the record, and the note says so. Info topics named other than the ones
+    densify read (any, when it read calibration files) are used and take only the image
+    topics from the record: its ``--rectify``, calibration and baseline were decided for
+    its calibration, so ``--rectify auto`` is decided again and the note says so. Without a
+    record, only info topics named leave the images to discovery.
 
     Args:
         path: the densified log (its record: ``io.outputs.recorded_front_end``).
@@ -103,6 +106,24 @@ def follow_densify(
         ),
         discover=False,
     )
+    others = _other_infos(pairing, front_end)
+    if others:
+        # other camera infos than densify's calibration: its --rectify, calibration files and
+        # baseline were decided for that calibration, not for these, which are used
+        read = (
+            f"calibration files {', '.join(front_end.calibration_files)}"
+            if front_end.calibration == "files"
+            else f"{front_end.left_info_topic}, {front_end.right_info_topic}"
+        )
+        return (
+            given,
+            (
+                f"{'topics as densify recorded them; ' if open_topics else ''}"
+                f"{', '.join(others)} named, not densify's {read}, so not its --rectify, "
+                f"calibration or baseline: {again}"
+            ),
+            front_end,
+        )
     config = dataclasses.replace(
         given,
         rectify=front_end.rectify if given.rectify == "auto" else given.rectify,
@@ -155,6 +176,28 @@ def _infos_named(pairing: PairingConfig) -> bool:
         defaults.left_info_topic,
         defaults.right_info_topic,
     )
+
+
+def _other_infos(pairing: PairingConfig | None, front_end: FrontEnd) -> list[str]:
+    """Return the info topics ``pairing`` names that densify did not read ([]: none).
+
+    A named topic (not the default) other than the recorded one, or any named one when
+    densify read calibration files. None when ``pairing`` gives calibration files itself:
+    no info topic is read then.
+    """
+    if pairing is None or pairing.calibration is not None:
+        return []
+    defaults = PairingConfig()
+    files = front_end.calibration == "files"
+    named = [
+        (pairing.left_info_topic, defaults.left_info_topic, front_end.left_info_topic),
+        (pairing.right_info_topic, defaults.right_info_topic, front_end.right_info_topic),
+    ]
+    return [
+        topic
+        for topic, default, recorded in named
+        if topic != default and (files or topic != recorded)
+    ]
 
 
 def _names_recorded(pairing: PairingConfig, front_end: FrontEnd) -> bool:

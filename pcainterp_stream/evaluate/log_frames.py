@@ -136,6 +136,17 @@ class ReadState:
     repeated: dict[str, int] = field(default_factory=dict)
     """Per topic matched by stamp (right image, truth, poses, reference), the messages with
     the stamp of an earlier one of the topic: the first in log order is used, these not."""
+    copies: dict[str, int] = field(default_factory=dict)
+    """Per image topic of the input pair, the images logged again right after themselves (the
+    same stamp, size, encoding and bytes): skipped, as densify dropped them."""
+
+    @property
+    def copies_note(self) -> str:
+        """Return the sentence on input images logged twice and skipped ("": none)."""
+        if not self.copies:
+            return ""
+        counts = ", ".join(f"{n} on {topic}" for topic, n in sorted(self.copies.items()))
+        return f"images logged again right after themselves were skipped ({counts}), as densify did"
 
     @property
     def repeated_note(self) -> str:
@@ -320,13 +331,17 @@ def read_frames(
                 images.see_info(raw.topic, message)
                 continue
             if reference is not None and raw.topic == reference.topic:
-                stamp = rosmsg.stamp_ns(message)
+                # stamped 0 (a stack without stamps): at its log time, as truth and the frames
+                stamp = unplaced.stamp(raw.topic, rosmsg.stamp_ns(message), raw.log_time_ns)
                 if stamps.first(raw.topic, stamp, state):
                     references[stamp] = message
                 while len(references) > REFERENCE_BUFFER:
                     references.pop(min(references))
             full_estimate = raw.topic == where.estimate and not where.compact
             stamp = rosmsg.stamp_ns(message.image if full_estimate else message)
+            if raw.topic in (left_image, right_image) and unplaced.copy(raw.topic, stamp, message):
+                state.copies[raw.topic] = state.copies.get(raw.topic, 0) + 1
+                continue  # the same image again (densify dropped it): no frame, no repeat
             if raw.topic in (left_image, right_image, *nearby):
                 stamp = unplaced.stamp(raw.topic, stamp, raw.log_time_ns)
             elif stamp == 0 and raw.topic in grouped:
@@ -400,12 +415,23 @@ class _UnplacedStamps:
     that of the image before it with the left image's log time (``StereoPairer.full_result``);
     its left image is then found by log time here, and so are right images, truth and poses
     stamped 0 (a right image also when it repeats its previous stamp: the pair was made by
-    log time).
+    log time), and a reference topic's messages stamped 0. An image that is its topic's
+    previous one again (same stamp, size, encoding and bytes: a re-send, a merged bag) is a
+    copy, which densify drops (``StereoPairer``'s duplicates): :meth:`copy` tells it.
     """
 
     def __init__(self, left_topic: str, right_topic: str) -> None:
         self._repeating = (left_topic, right_topic)
         self._last: dict[str, int] = {}
+        self._last_image: dict[str, Any] = {}
+
+    def copy(self, topic: str, stamp_ns: int, message: Any) -> bool:
+        """Return True for an image that repeats its topic's previous one (stamp not 0)."""
+        last = self._last_image.get(topic)
+        if stamp_ns and last is not None and _same_image(message, last, stamp_ns):
+            return True
+        self._last_image[topic] = message
+        return False
 
     def stamp(self, topic: str, stamp_ns: int, log_time_ns: int) -> int:
         """Return the stamp to match a message of ``topic`` by: its header stamp or log time."""
@@ -414,6 +440,18 @@ class _UnplacedStamps:
         previous = self._last.get(topic)
         self._last[topic] = stamp_ns
         return log_time_ns if stamp_ns in (0, previous) else stamp_ns
+
+
+def _same_image(message: Any, last: Any, stamp_ns: int) -> bool:
+    """Whether an image is ``last`` again: its stamp, size, encoding and bytes (densify's rule)."""
+    if message is last:
+        return True
+    if rosmsg.stamp_ns(last) != stamp_ns:
+        return False
+    for name in ("height", "width", "step", "encoding", "format"):
+        if getattr(message, name, None) != getattr(last, name, None):
+            return False
+    return bool(np.array_equal(np.asarray(message.data), np.asarray(last.data)))
 
 
 def _zero_output_message(path: Path, topic: str, left_image: str) -> str:

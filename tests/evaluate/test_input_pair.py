@@ -212,7 +212,12 @@ def test_an_info_topic_named_alone_keeps_the_recorded_images(two_pairs: Path) ->
         "/other/left/camera_info",
         "/camera/right/camera_info",
     )
-    assert source.startswith("topics, --rectify as densify recorded them")
+    # another info topic than densify read: not its --rectify never (R55b-3)
+    assert source == (
+        "topics as densify recorded them; /other/left/camera_info named, not densify's "
+        "/camera/left/camera_info, /camera/right/camera_info, so not its --rectify, "
+        "calibration or baseline: --rectify auto decided again as densify decides"
+    )
     result = _evaluate(two_pairs, info)
     assert result.frames == 3
     assert result.input_pair.startswith("/camera/left/image_raw, /camera/right/image_raw, ")
@@ -234,3 +239,70 @@ def test_an_info_topic_named_alone_without_the_record_finds_the_images(
     assert config.discover  # the images found in the log
     result = _evaluate(bare, info)
     assert result.input_pair.startswith("/camera/left/image_raw, /camera/right/image_raw, ")
+
+
+@pytest.fixture(scope="module")
+def files_densified(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A raw log with its pair also on /other/*, densified on /camera/* from calibration files."""
+    from pcainterp_stream.synth.raw import RawDrive
+
+    folder = tmp_path_factory.mktemp("files")
+    config = SynthConfig(seed=2, frames=3, scale=0.25)
+    raw, log = folder / "raw.mcap", folder / "files.mcap"
+    write_raw_log(config, raw, model="plumb_bob")
+    with open_log(raw) as reader, open_writer(log, None) as writer:
+        for message in reader.messages():
+            writer.add_raw(message)
+            if message.topic.startswith("/camera/"):
+                writer.add_raw(message._replace(topic=message.topic.replace("/camera/", "/other/")))
+    dense = folder / "files_dense.mcap"
+    pairing = PairingConfig(
+        left_topic="/camera/left/image_raw",
+        right_topic="/camera/right/image_raw",
+        calibration=RawDrive(config, "plumb_bob").calibration,  # densify --calibration
+        check_rows=False,
+    )
+    densify(log, dense, pairing=pairing)
+    front_end = recorded_front_end(dense)
+    assert front_end is not None
+    assert front_end.calibration == "files"
+    return dense
+
+
+def test_info_topics_named_are_used_not_the_recorded_calibration_files(
+    files_densified: Path,
+) -> None:
+    # before: the record's calibration files (and --rectify, baseline) were taken, so the
+    # info topics named were never read, and the line said "calibration files ... as densify
+    # recorded them" with no word of them (review 55b R55b-3)
+    from pcainterp_stream.evaluate.input_pair import follow_densify
+
+    infos = PairingConfig(
+        left_info_topic="/other/left/camera_info", right_info_topic="/other/right/camera_info"
+    )
+    with open_log(files_densified) as reader:
+        present = reader.topics()
+    config, source, front_end = follow_densify(files_densified, infos, present)
+    assert config is not None
+    assert front_end is not None
+    assert config.calibration is None  # the infos named are read
+    assert (config.left_topic, config.left_info_topic) == (
+        "/camera/left/image_raw",
+        "/other/left/camera_info",
+    )
+    assert (config.rectify, config.baseline) == ("auto", None)
+    files = ", ".join(front_end.calibration_files)
+    assert source == (
+        "topics as densify recorded them; /other/left/camera_info, /other/right/camera_info "
+        f"named, not densify's calibration files {files}, so not its --rectify, calibration or "
+        "baseline: --rectify auto decided again as densify decides"
+    )
+    result = _evaluate(files_densified, infos)
+    assert result.frames == 3
+    assert result.input_pair.startswith(
+        "/camera/left/image_raw, /camera/right/image_raw, camera infos, --rectify auto (topics "
+    )
+    # nothing named: the record's calibration files, as before
+    followed = _evaluate(files_densified, None)
+    assert ", calibration files, " in followed.input_pair
+    assert "calibration files as densify recorded them" in followed.input_pair

@@ -3,11 +3,14 @@
 densify pairs their images by log time; its outputs carry the left image's log time, and
 evaluate matches the input images by log time as densify paired them. A log densified
 before that (outputs stamped 0) is refused in one line, and no report advises a stamp
-tolerance of a second or more.
+tolerance of a second or more. A ``--reference-topic`` stamped 0 is placed by log time as
+truth is, and an input image logged twice (densify drops the copy) is skipped, not taken
+for a frame of its own (review 55b R55b-7, R55b-2).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +23,7 @@ from pcainterp_stream.evaluate.log_frames import ReadState
 from pcainterp_stream.evaluate.metrics import Mode
 from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log
 from pcainterp_stream.frontend.pairing import StereoPairer
+from pcainterp_stream.io.stereo_log import DEPTH as TRUTH
 from pcainterp_stream.io.stereo_log import LEFT_IMAGE, LEFT_INFO, RIGHT_IMAGE, RIGHT_INFO
 from pcainterp_stream.pipeline import jobs
 
@@ -41,11 +45,11 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
             copy.add(channel_id, log_time, bytes(data))
     jobs.densify(log, folder / "dense.mcap")
     jobs.densify(zero, folder / "zero_dense.mcap")
-    return {"folder": folder, "zero": zero}
+    return {"folder": folder, "zero": zero, "synth": log}
 
 
-def _scores(path: Path) -> dict[str, tuple[float, float]]:
-    result, _ = evaluate_log(path, OPTIONS)
+def _scores(path: Path, options: EvaluateOptions = OPTIONS) -> dict[str, tuple[float, float]]:
+    result, _ = evaluate_log(path, options)
     assert result.frames == 4
     return {name: (s.pixels, s.delta_2d_sum) for name, s in result.methods.items()}
 
@@ -101,3 +105,46 @@ def test_no_tolerance_of_a_second_or_more_is_advised() -> None:
     single.see(30_000_000, "truth")
     (note,) = single.notes(state, "/ground_truth/depth")
     assert note.endswith("pass --stamp-tolerance-ms 30 to take it")
+
+
+def test_a_reference_topic_stamped_zero_is_placed_by_log_time(logs: dict[str, Path]) -> None:
+    # before: the reference messages kept stamp 0 while the frames took their log time: no
+    # frame found its reference ("no frame ... could be evaluated"), and all but the first
+    # were named "messages with the stamp of an earlier one of their topic" (R55b-7)
+    folder = logs["folder"]
+    zero = folder / "zero_reference.mcap"
+    with McapCopy(logs["zero"], zero) as copy:  # the stampless stack's depth topic too
+        for topic, channel_id, message in copy.messages():
+            data = bytearray(message.data)
+            if topic == TRUTH:
+                data[4:12] = bytes(8)
+            copy.add(channel_id, message.log_time, bytes(data))
+    jobs.densify(zero, folder / "zero_reference_dense.mcap")
+    options = dataclasses.replace(OPTIONS, reference_topic=TRUTH)
+    result, _ = evaluate_log(folder / "zero_reference_dense.mcap", options)
+    assert not any("stamp of an earlier one" in note for note in result.notes)
+    scores = _scores(folder / "zero_reference_dense.mcap", options)
+    assert scores == _scores(folder / "dense.mcap", options)
+
+
+def test_an_image_logged_twice_is_skipped_as_densify_drops_it(logs: dict[str, Path]) -> None:
+    # before: the left copy (its original's stamp) was keyed by log time, waited for outputs
+    # densify never wrote and gave "at least 1 frame left out: their densified channels are
+    # incomplete" although no frame was left out (R55b-2)
+    folder = logs["folder"]
+    copies = folder / "copies.mcap"
+    seen = dict.fromkeys((LEFT_IMAGE, RIGHT_IMAGE), 0)
+    with McapCopy(logs["synth"], copies) as copy:  # the 2nd left, 3rd right image twice
+        for topic, channel_id, message in copy.messages():
+            copy.add(channel_id, message.log_time, message.data)
+            if topic in seen:
+                seen[topic] += 1
+                if seen[topic] == (2 if topic == LEFT_IMAGE else 3):
+                    copy.add(channel_id, message.log_time + 1_000, message.data)
+    jobs.densify(copies, folder / "copies_dense.mcap")
+    result, _ = evaluate_log(folder / "copies_dense.mcap", OPTIONS)
+    assert result.notes == [
+        f"images logged again right after themselves were skipped (1 on {LEFT_IMAGE}, "
+        f"1 on {RIGHT_IMAGE}), as densify did"
+    ]
+    assert _scores(folder / "copies_dense.mcap") == _scores(folder / "dense.mcap")
