@@ -344,6 +344,8 @@ def test_the_umask_is_read_without_being_changed(monkeypatch: pytest.MonkeyPatch
         assert output_paths.process_umask() == 0o002  # threads: the umask at import
         monkeypatch.undo()
         monkeypatch.setattr(output_paths, "_umask_of_status", lambda: None)
+        # (a pytest-xdist worker runs threads of its own: say there is one)
+        monkeypatch.setattr(output_paths.threading, "active_count", lambda: 1)
         assert output_paths.process_umask() == 0o027  # one thread: set and restored
         assert os.umask(0o027) == 0o027
     finally:
