@@ -344,7 +344,8 @@ def read_frames(
                 continue  # the same image again (densify dropped it): no frame, no repeat
             if raw.topic in (left_image, right_image, *nearby):
                 stamp = unplaced.stamp(raw.topic, stamp, raw.log_time_ns)
-            elif stamp == 0 and raw.topic in grouped:
+            elif stamp == 0 and raw.log_time_ns != 0 and raw.topic in grouped:
+                # (stamp 0 at log time 0 is a clock that starts at 0: KITTI's times.txt)
                 raise LogReadError(_zero_output_message(path, raw.topic, left_image))
             if raw.topic in nearby:
                 buffer = nearby[raw.topic]

@@ -148,3 +148,24 @@ def test_an_image_logged_twice_is_skipped_as_densify_drops_it(logs: dict[str, Pa
         f"1 on {RIGHT_IMAGE}), as densify did"
     ]
     assert _scores(folder / "copies_dense.mcap") == _scores(folder / "dense.mcap")
+
+
+def test_a_clock_that_starts_at_zero_is_evaluated(tmp_path: Path) -> None:
+    # KITTI's odometry times start at 0.0 s: import-kitti stamps and logs its first frame at
+    # 0, whose outputs densify stamps with that log time, 0; evaluate refused the whole log
+    # as one an earlier densify had stamped 0 (this session's fix-STAMP)
+    log, shifted = tmp_path / "synth.mcap", tmp_path / "from_zero.mcap"
+    jobs.synth(log, frames=4, seed=43, scale=0.25, fmt="mcap")
+    start = 1_317_046_453_000_000_000  # synth's first stamp and log time
+    with McapCopy(log, shifted) as copy:  # every stamp and log time moved back by it
+        for _, channel_id, message in copy.messages():  # (each of synth's topics: a header)
+            data = bytearray(message.data)
+            sec, nanosec = (int.from_bytes(data[i : i + 4], "little") for i in (4, 8))
+            stamp = sec * 1_000_000_000 + nanosec - start
+            data[4:8] = (stamp // 1_000_000_000).to_bytes(4, "little")
+            data[8:12] = (stamp % 1_000_000_000).to_bytes(4, "little")
+            copy.add(channel_id, message.log_time - start, bytes(data))
+    jobs.densify(log, tmp_path / "dense.mcap")
+    jobs.densify(shifted, tmp_path / "from_zero_dense.mcap")
+    assert _scores(tmp_path / "from_zero_dense.mcap") == _scores(tmp_path / "dense.mcap")
+
