@@ -12,6 +12,7 @@ tool's output) is refused; hidden files are ignored.
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
@@ -25,6 +26,7 @@ from pcainterp_stream.errors import PcaInterpError
 from pcainterp_stream.evaluate.figures import FIGURE_NAMES
 from pcainterp_stream.interrupt import signals_deferred, track_partial, untrack_partial
 from pcainterp_stream.io.output_paths import (
+    name_too_long,
     partial_prefix,
     process_umask,
     remove_stale_partials,
@@ -47,8 +49,8 @@ def check_report_folder(folder: Path) -> None:
     writable: that is tried here, so a refusal costs no evaluation.
 
     Raises:
-        PcaInterpError: no parent folder, a file, a folder holding other files, or a
-            folder evaluate cannot write.
+        PcaInterpError: no parent folder, a name too long for the file system, a file, a
+            folder holding other files, or a folder evaluate cannot write.
     """
     path = _absolute(folder)
     if not path.parent.is_dir():
@@ -61,6 +63,9 @@ def check_report_folder(folder: Path) -> None:
         raise PcaInterpError(
             f"cannot write the report to {folder}: folder {folder.parent} does not exist"
         )
+    too_long = name_too_long(path)  # first: a look at the path would fail (ENAMETOOLONG)
+    if too_long is not None:
+        raise PcaInterpError(f"cannot write the report to {folder}: {too_long}")
     if path.exists() and not path.is_dir():
         raise PcaInterpError(
             f"cannot write the report to {folder}: it is a file, the report is a folder; "
@@ -104,6 +109,10 @@ def _probe_writable(folder: Path, where: Path) -> None:
 
 
 def _not_writable(folder: Path, where: Path, err: OSError) -> PcaInterpError:
+    if err.errno == errno.ENAMETOOLONG:
+        return PcaInterpError(
+            f"cannot write the report to {folder}: {err.strerror}; {write_advice(err)}"
+        )
     which = "it is" if where == _absolute(folder) else f"its folder {folder.parent} is"
     return PcaInterpError(
         f"cannot write the report to {folder}: {which} not writable ({err.strerror}); "
@@ -164,7 +173,7 @@ def write_report_folder(folder: Path, write: Callable[[Path], None]) -> None:
 
     remove_stale_partials(path, label=str(folder), where=where)  # of a killed earlier run
     try:
-        staging = Path(tempfile.mkdtemp(prefix=partial_prefix(path), dir=where))
+        staging = Path(tempfile.mkdtemp(prefix=partial_prefix(path, where), dir=where))
     except OSError as err:
         if not where.is_dir():
             raise PcaInterpError(

@@ -65,6 +65,7 @@ from pcainterp_stream.io.output_paths import (
     partial_prefix,
     remove_stale_partials,
     removed_meanwhile,
+    write_advice,
 )
 from pcainterp_stream.io.write_thread import WriteThread
 from pcainterp_stream.records import RawMessage
@@ -305,7 +306,7 @@ class LogWriter(ABC):
             track_partial(self._partial_dir)  # removed even if a signal forces the end
         except OSError as err:
             raise LogWriteError(
-                f"cannot write {self.path}: {err.strerror}; choose a writable folder"
+                f"cannot write {self.path}: {err.strerror}; {write_advice(err)}"
             ) from err
         try:
             if self.threaded:

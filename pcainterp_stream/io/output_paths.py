@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import functools
+import hashlib
 import os
 import re
 import shutil
@@ -32,6 +33,7 @@ __all__ = [
     "check_output_file",
     "check_output_folder",
     "is_standard_output",
+    "name_too_long",
     "partial_prefix",
     "process_umask",
     "remove_stale_partials",
@@ -72,7 +74,7 @@ def check_not_input(target: Path, inputs: Iterable[str | os.PathLike[str]]) -> N
     for item in inputs:
         source = Path(item)
         same = resolved == source.resolve() or _inside(source.resolve(), resolved)
-        if not same and target.exists() and source.exists():
+        if not same and os.path.exists(target) and os.path.exists(source):
             try:
                 same = os.path.samefile(target, source)
             except OSError:
@@ -92,7 +94,7 @@ def _hops(path: Path) -> Iterator[Path]:
         real = Path(os.path.realpath(current.parent)) / current.name
         if real != current:
             yield real
-        if not real.is_symlink():
+        if not os.path.islink(real):  # False too where it cannot be looked at (a long name)
             return
         current = Path(os.path.abspath(real.parent / os.readlink(real)))
 
@@ -124,6 +126,8 @@ def write_advice(err: OSError) -> str:
         return "free some space, or write it elsewhere"
     if err.errno in (errno.ENOTDIR, errno.EEXIST):
         return "a file is in the way of its folder; move it, or write it elsewhere"
+    if err.errno == errno.ENAMETOOLONG:
+        return "the file name is too long for the file system: choose a shorter name"
     return "choose a writable folder"  # read-only, no permission, or a folder refusing files
 
 
@@ -160,6 +164,22 @@ def _probe(where: Path) -> None:
     Path(tempfile.mkdtemp(prefix=".pcainterp-probe-", dir=where)).rmdir()
 
 
+def name_too_long(path: Path) -> str | None:
+    """Say why ``path``'s name is too long for its file system (None when it is not).
+
+    Returns:
+        ``the file name is too long for the file system (N bytes, at most M): choose a
+        shorter name``, or None.
+    """
+    size, limit = len(os.fsencode(path.name)), _name_max(path.parent)
+    if size <= limit:
+        return None
+    return (
+        f"the file name is too long for the file system ({size} bytes, at most {limit}): "
+        "choose a shorter name"
+    )
+
+
 def check_output_file(
     path: Path, *, fix: str = DISCARD, creates_folders: bool = False, links: bool = True
 ) -> Path:
@@ -177,10 +197,14 @@ def check_output_file(
         symbolic link at ``path`` points to (the link is kept).
 
     Raises:
-        LogWriteError: ``path`` names a file descriptor (``/dev/stdout``), is a device, a
-            named pipe or a socket (or a link to one), a link loop, a link when ``links`` is
-            False, or its folder is missing, a file, or not writable.
+        LogWriteError: ``path``'s name is too long for its file system, it names a file
+            descriptor (``/dev/stdout``), is a device, a named pipe or a socket (or a link
+            to one), a link loop, a link when ``links`` is False, or its folder is missing,
+            a file, or not writable.
     """
+    too_long = name_too_long(path)  # first: a look at the path would fail (ENAMETOOLONG)
+    if too_long is not None:
+        raise LogWriteError(f"cannot write {path}: {too_long}")
     described = _descriptor(path)
     if described is not None:
         number, own = described
@@ -301,29 +325,70 @@ def _pid_namespace() -> str | None:
 
 @functools.cache
 def _scope() -> str | None:
-    """Where this process's id means this process: ``BOOT.NAMESPACE`` (None if unknown).
+    """Where this process's id means this process: 8 hex digits of a hash of BOOT.NAMESPACE.
 
-    The host name alone does not say it: containers sharing the host's name (``docker
-    --net=host``) have PID namespaces of their own, and two machines may have one name.
+    None if either is unknown. The host name alone does not say it: containers sharing the
+    host's name (``docker --net=host``) have PID namespaces of their own, and two machines
+    may have one name. A hash keeps the partial's name short (review 55c R55c-2).
     """
     boot, namespace = _boot_id(), _pid_namespace()
-    return None if boot is None or namespace is None else f"{boot}.{namespace}"
+    if boot is None or namespace is None:
+        return None
+    return hashlib.sha256(f"{boot}.{namespace}".encode("ascii", "replace")).hexdigest()[:8]
 
 
 def _owner() -> str:
-    """This process as a partial output's name holds it: ``PID@HOST~BOOT.NAMESPACE``."""
+    """This process as a partial output's name holds it: ``PID@HOST~SCOPE``."""
     return f"{os.getpid()}@{_host()}~{_scope() or 'unknown'}"
 
 
-def partial_prefix(target: Path) -> str:
+_PID_DIGITS = 10
+"""Room kept for a process id in a partial's name (any id of any system fits)."""
+_RANDOM_CHARACTERS = 8
+"""The unique part ``tempfile`` adds to a prefix."""
+
+
+def _name_max(folder: Path) -> int:
+    """The longest file name, in bytes, the file system of ``folder`` takes (255 if unknown)."""
+    try:
+        limit = os.pathconf(_existing_ancestor(folder), "PC_NAME_MAX")
+    except (OSError, ValueError, AttributeError):  # no pathconf (Windows), or no such name
+        return 255
+    return limit if limit > 0 else 255
+
+
+def _partial_start(target: Path, where: Path | None = None) -> str:
+    """Return ``.NAME.partial-``: the start of ``target``'s partials' names in ``where``.
+
+    NAME is the target's name, or, when a partial's name would be longer than the file
+    system takes (:func:`_name_max`), its start followed by ``~`` and 8 hex digits of a
+    hash of the whole name. It depends on the folder, host and scope only (never on the
+    process id), so a later run names a killed run's partials as that run did.
+    """
+    name = target.name
+    owner = f"@{_host()}~{_scope() or 'unknown'}-"
+    fixed = len(os.fsencode(f"..partial-{owner}")) + _PID_DIGITS + _RANDOM_CHARACTERS
+    room = _name_max(target.parent if where is None else where) - fixed
+    if len(os.fsencode(name)) <= room:
+        return f".{name}.partial-"
+    digest = hashlib.sha256(os.fsencode(name)).hexdigest()[:8]
+    short = name[: max(room - 9, 1)]
+    while len(short) > 1 and len(os.fsencode(short)) > room - 9:
+        short = short[:-1]
+    return f".{short}~{digest}.partial-"
+
+
+def partial_prefix(target: Path, where: Path | None = None) -> str:
     """Return the name prefix of ``target``'s partial output: ``.NAME.partial-OWNER-``.
 
-    OWNER is ``PID@HOST~BOOT.NAMESPACE``: the writer's process id, machine, boot and PID
-    namespace, so that a later run can tell the partial output of a run that was killed
-    (:func:`remove_stale_partials`) from that of a run still going; ``tempfile`` adds a
-    unique suffix, so two runs never share one.
+    OWNER is ``PID@HOST~SCOPE``: the writer's process id and machine, and a hash of its
+    boot and PID namespace, so that a later run can tell the partial output of a run that
+    was killed (:func:`remove_stale_partials`) from that of a run still going; ``tempfile``
+    adds a unique suffix, so two runs never share one. NAME is the target's name, shortened
+    where the whole would be too long for the file system (:func:`_partial_start`);
+    ``where`` is the folder the partial is made in (default: ``target``'s).
     """
-    return f".{target.name}.partial-{_owner()}-"
+    return f"{_partial_start(target, where)}{_owner()}-"
 
 
 def _alive(pid: int) -> bool:
@@ -409,7 +474,8 @@ def remove_stale_partials(
         The number of partial outputs removed.
     """
     removed = 0
-    for path in _stale(target.parent if where is None else where, f".{target.name}.partial-"):
+    folder = target.parent if where is None else where
+    for path in _stale(folder, _partial_start(target, folder)):
         size = _size(path)
         try:
             if path.is_dir() and not path.is_symlink():
@@ -447,7 +513,10 @@ def _umask_by_setting() -> int:
     return mask
 
 
-_START_UMASK: int = _umask_of_status() or _umask_by_setting()  # at import: before the threads
+_STATUS_UMASK = _umask_of_status()
+_START_UMASK: int = (  # at import: before the threads (0, a umask of some images, included)
+    _STATUS_UMASK if _STATUS_UMASK is not None else _umask_by_setting()
+)
 
 
 def process_umask() -> int:

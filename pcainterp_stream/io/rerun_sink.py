@@ -41,6 +41,7 @@ from pcainterp_stream.io.output_paths import (
     remove_stale_temporaries,
     removed_meanwhile,
     temporary_prefix,
+    write_advice,
 )
 from pcainterp_stream.records import DensifiedFrame
 
@@ -294,7 +295,7 @@ class RerunSink:
             return self._partial
         except OSError as err:
             raise LogWriteError(
-                f"cannot write {rrd_path}: {err.strerror or err}; choose a writable folder"
+                f"cannot write {rrd_path}: {err.strerror or err}; {write_advice(err)}"
             ) from err
 
     def _discard(self) -> None:

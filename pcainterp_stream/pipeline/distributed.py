@@ -755,8 +755,8 @@ def densify_many(
                 )
                 outcomes[index] = DensifyOutcome(path, out, 0, 0.0, message)
                 continue
-            remove_stale_partials(out)  # a killed earlier run's staging (never a live one's)
-            folder = Path(tempfile.mkdtemp(prefix=partial_prefix(out), dir=out_dir))
+            remove_stale_partials(out, where=out_dir)  # a killed earlier run's (never a live one's)
+            folder = Path(tempfile.mkdtemp(prefix=partial_prefix(out, out_dir), dir=out_dir))
             track_partial(folder)
             staging[index] = folder
             paths = WorkerPaths((path,), basis, out_dir, folder) if remote else None

@@ -231,6 +231,17 @@ def _lost(client: Any) -> bool:
     return getattr(client, "status", "running") not in ("running", "newly-created")
 
 
+def _cancel_reason(future: Any) -> str | None:
+    """Dask's reason for cancelling ``future`` (``"scheduler-restart"``, ...), None if unknown.
+
+    A cancelled future's ``exception()`` is None: the reason is on its state's
+    ``FutureCancelledError`` (Dask 2024.2 and later).
+    """
+    error = getattr(getattr(future, "_state", None), "exception", None)
+    reason = getattr(error, "reason", None)
+    return reason if isinstance(reason, str) else None
+
+
 class _DroppedRecords(logging.Filter):
     """Drops every record of the logger it filters."""
 
@@ -350,6 +361,26 @@ class WorkerWatch:
             "it held are lost with it: run again once it is back"
         )
 
+    def cancelled(self, future: Any) -> SchedulerError:
+        """Return the error of a task of the job cancelled without a lost connection.
+
+        The client still connected, the scheduler cancelled the task itself: Dask's reason
+        ``scheduler-restart`` is a ``client.restart()`` (another client's, on a shared
+        scheduler); another reason is named as Dask gives it.
+        """
+        reason = _cancel_reason(future)
+        if _lost(self.client) or reason in (None, "scheduler-connection-lost"):
+            return self.lost()
+        if reason == "scheduler-restart":
+            return SchedulerError(
+                f"the Dask scheduler at {self.address} was restarted (by another client?) "
+                "and cancelled this job's tasks; run again"
+            )
+        return SchedulerError(
+            f"the Dask scheduler at {self.address} cancelled this job's tasks (reason: "
+            f"{reason}); run again"
+        )
+
     def check_connected(self) -> None:
         """Raise :meth:`lost` when the client lost its scheduler (a cheap look, no message).
 
@@ -440,11 +471,12 @@ def completed(futures: Any, client: Any) -> Iterator[Any]:
     none is ready (:meth:`WorkerWatch.check`); futures added during the iteration are
     waited for too. A lost scheduler ends the iteration at once: Dask's client cancels
     the job's futures then (a cancelled future is not yielded), and one submitted since
-    would never finish.
+    would never finish. A scheduler restarted by another client cancels them too, the
+    connection kept: that is said as such (:meth:`WorkerWatch.cancelled`).
 
     Raises:
-        SchedulerError: the scheduler was lost, or had no workers for the watch's ``wait``
-            seconds.
+        SchedulerError: the scheduler was lost, restarted, or had no workers for the
+            watch's ``wait`` seconds.
     """
     watch = _WATCHES.get(client)
     if watch is None:
@@ -455,8 +487,8 @@ def completed(futures: Any, client: Any) -> Iterator[Any]:
         watch.check_connected()
         if futures.has_ready():
             future = next(futures)
-            if getattr(future, "status", None) == "cancelled":  # by the client that lost it
-                raise watch.lost()
+            if getattr(future, "status", None) == "cancelled":  # a lost or restarted scheduler
+                raise watch.cancelled(future)
             yield future
             continue
         if futures.is_empty():

@@ -496,3 +496,17 @@ def test_the_report_folder_mode_is_set_without_changing_the_umask(
     finally:
         monkeypatch.undo()
         os.umask(previous)
+
+
+def test_a_report_folder_name_too_long_is_one_line(tmp_path: Path) -> None:
+    """Review 55c R55c-2: a report folder's name over the file system's limit was a traceback
+    (OSError ENAMETOOLONG from a look at it), before any staging folder."""
+    limit = os.pathconf(tmp_path, "PC_NAME_MAX")
+    folder = tmp_path / ("r" * (limit + 1))
+    with pytest.raises(report_folder.PcaInterpError) as caught:
+        report_folder.check_report_folder(folder)
+    assert str(caught.value) == (
+        f"cannot write the report to {folder}: the file name is too long for the file system "
+        f"({limit + 1} bytes, at most {limit}): choose a shorter name"
+    )
+    report_folder.check_report_folder(tmp_path / ("r" * limit))  # the longest: taken

@@ -265,13 +265,76 @@ def test_a_partial_named_without_its_namespace_is_kept(tmp_path: Path) -> None:
 
 
 def test_the_scope_is_this_boot_and_pid_namespace() -> None:
+    import hashlib
+
     if not Path("/proc/self/ns/pid").exists():
         pytest.skip("no /proc here")
     boot = Path("/proc/sys/kernel/random/boot_id").read_text().replace("-", "").strip()
     namespace = os.stat("/proc/self/ns/pid").st_ino
-    owner = f"{os.getpid()}@{output_paths._host()}~{boot[:12]}.{namespace}-"
+    scope = hashlib.sha256(f"{boot[:12]}.{namespace}".encode()).hexdigest()[:8]
+    owner = f"{os.getpid()}@{output_paths._host()}~{scope}-"
     assert output_paths.partial_prefix(Path("x.mcap")) == f".x.mcap.partial-{owner}"
     assert output_paths.temporary_prefix("pcainterp-rrd") == f"pcainterp-rrd-{owner}"
+
+
+def test_a_long_output_name_is_written_its_partial_named_short(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Review 55c R55c-2: the owner's scope made partial names ~24 characters longer, so a
+    208-character output name (one a 40-character host's run took before) failed with
+    "File name too long; choose a writable folder". The scope is 8 hex digits, and the
+    target's part of a partial's name is shortened where the whole would be too long."""
+    monkeypatch.setattr(output_paths, "_host", lambda: "h" * 40)  # the longest kept
+    limit = os.pathconf(tmp_path, "PC_NAME_MAX")
+    for length in (208, limit - len(".mcap")):
+        target = tmp_path / ("n" * length + ".mcap")
+        prefix = output_paths.partial_prefix(target)
+        assert len(prefix) + 8 <= limit - 3  # a 10-digit process id fits too
+        with open_writer(target, "mcap"):
+            pass
+        assert target.is_file()
+        stale = _named(target, _dead_pid(), "abc12345")  # a killed run's, named the same way
+        stale.mkdir()
+        with open_writer(target, "mcap"):
+            pass
+        assert not stale.exists()
+        assert "partial output left by an earlier run that was killed" in capsys.readouterr().err
+    short = output_paths.partial_prefix(tmp_path / ("n" * 250 + ".mcap"))
+    other = output_paths.partial_prefix(tmp_path / ("n" * 250 + ".bag"))
+    assert short != other  # the whole name's hash tells two names of one start apart
+    assert output_paths.partial_prefix(tmp_path / "a.mcap").startswith(".a.mcap.partial-")
+
+
+def test_a_name_too_long_for_the_file_system_says_so(tmp_path: Path) -> None:
+    """ENAMETOOLONG was "choose a writable folder"; the name, not the folder, is the cause."""
+    advice = "the file name is too long for the file system: choose a shorter name"
+    assert write_advice(OSError(errno.ENAMETOOLONG, "File name too long")) == advice
+    limit = os.pathconf(tmp_path, "PC_NAME_MAX")
+    name = "n" * (limit + 1)
+    with pytest.raises(LogWriteError) as caught:
+        check_output_file(tmp_path / name)
+    assert str(caught.value) == (
+        f"cannot write {tmp_path / name}: the file name is too long for the file system "
+        f"({limit + 1} bytes, at most {limit}): choose a shorter name"
+    )
+
+
+def test_a_umask_of_0_is_read_from_proc_not_set_at_import() -> None:
+    """Review 55c R55c-3: a umask of 0 read from /proc was taken as none read, and the umask
+    was set and restored at import."""
+    if output_paths._umask_of_status() is None:
+        pytest.skip("no Umask: in /proc/self/status here")
+    code = (
+        "import os\n"
+        "os.umask(0)\n"
+        "calls = []\n"
+        "real = os.umask\n"
+        "os.umask = lambda mask: calls.append(mask) or real(mask)\n"
+        "from pcainterp_stream.io import output_paths\n"
+        "assert output_paths._START_UMASK == 0, output_paths._START_UMASK\n"
+        "assert calls == [], calls\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=Path(__file__).parent)
 
 
 _LIVE_WRITER = """
@@ -354,3 +417,10 @@ def test_the_umask_is_read_without_being_changed(monkeypatch: pytest.MonkeyPatch
 
 def _no_umask_change(mask: int) -> int:
     raise AssertionError(f"os.umask({mask:#o}) while threads may be making files")
+
+
+def test_a_name_too_long_to_be_looked_at_is_not_a_traceback(tmp_path: Path) -> None:
+    """A look at a name over the limit (is it /dev/stdout? the input?) raised ENAMETOOLONG."""
+    target = tmp_path / ("n" * (os.pathconf(tmp_path, "PC_NAME_MAX") + 1))
+    assert not is_standard_output(target)
+    output_paths.check_not_input(target, [tmp_path / "in.mcap"])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import time
 from collections.abc import Iterator
@@ -539,3 +540,55 @@ def test_a_scheduler_lost_mid_job_is_one_line_at_once_not_a_wait_for_ever(
     )
     assert notes == [f"connecting to the Dask scheduler at {address} (waiting up to 30 s)"]
     assert "distributed.client" not in capfd.readouterr().err  # also once the client closed
+
+
+def test_a_scheduler_restarted_by_another_client_is_not_a_lost_connection(doomed: Any) -> None:
+    """Review 55c R55c-1: another client's ``client.restart()`` on a shared scheduler cancels
+    this job's futures (Dask's reason "scheduler-restart"), the connection kept; it was
+    said as "lost the connection to the Dask scheduler"."""
+    import threading
+
+    from dask.distributed import Client, as_completed
+
+    address = doomed.scheduler_address
+    _RELEASE.clear()
+    with scheduler.connect(address, worker_wait=30, say=lambda _: None) as client:
+        futures = [client.submit(_held, 1, pure=False)]
+
+        def restart() -> None:
+            time.sleep(0.3)
+            with contextlib.suppress(Exception), Client(address) as other:  # type: ignore[no-untyped-call]
+                other.restart(timeout=5, wait_for_workers=False)
+
+        thread = threading.Thread(target=restart, daemon=True)
+        thread.start()
+        with pytest.raises(SchedulerError) as caught:
+            list(scheduler.completed(as_completed(futures), client))
+        assert client.status == "running"
+        thread.join(10)
+    assert str(caught.value) == (
+        f"the Dask scheduler at {address} was restarted (by another client?) and cancelled "
+        "this job's tasks; run again"
+    )
+
+
+def test_a_cancel_reason_other_than_a_restart_is_named() -> None:
+    """The reason Dask gives is named; none, or a lost connection, is the lost scheduler."""
+    from distributed.client import FutureCancelledError
+
+    class Future:
+        def __init__(self, reason: str | None) -> None:
+            error = None if reason is None else FutureCancelledError("k", reason)
+            self._state = type("State", (), {"exception": error})()
+
+    class Client:
+        status = "running"
+
+    watch = scheduler.WorkerWatch(Client(), "tcp://h:1", 1.0, lambda _: None)
+    assert str(watch.cancelled(Future("by-hand"))) == (
+        "the Dask scheduler at tcp://h:1 cancelled this job's tasks (reason: by-hand); run again"
+    )
+    assert str(watch.cancelled(Future(None))).startswith("lost the connection")
+    assert str(watch.cancelled(Future("scheduler-connection-lost"))).startswith("lost the")
+    Client.status = "connecting"
+    assert str(watch.cancelled(Future("scheduler-restart"))).startswith("lost the connection")
