@@ -19,7 +19,7 @@ from __future__ import annotations
 import errno
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -105,3 +105,25 @@ def full_disk(monkeypatch: pytest.MonkeyPatch) -> Callable[[int], None]:
         monkeypatch.setattr(Path, "open", open_on_full_disk)
 
     return fill
+
+
+@pytest.fixture
+def umask_027_unchanged(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """The umask 027, and any ``os.umask`` call while the test runs an error.
+
+    For code that must read the umask without setting it, which would give other threads'
+    files the moment's mask (review 55b R55b-5). Skips where there is no /proc to read it from.
+    """
+    if not Path("/proc/self/status").exists():
+        pytest.skip("no /proc: the umask is read by setting it while single-threaded")
+    real = os.umask
+    previous = real(0o027)
+
+    def changed(mask: int) -> int:
+        raise AssertionError(f"os.umask({mask:#o}) while threads may be making files")
+
+    monkeypatch.setattr(os, "umask", changed)
+    try:
+        yield
+    finally:
+        real(previous)

@@ -477,25 +477,12 @@ def test_a_folder_removed_under_the_report_says_so(
     assert not gone.exists()
 
 
-def test_the_report_folder_mode_is_set_without_changing_the_umask(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
+@pytest.mark.usefixtures("umask_027_unchanged")
+def test_the_report_folder_mode_is_set_without_changing_the_umask(tmp_path: Path) -> None:
     """Review 55b R55b-5: the umask was set to 0 for a moment while other threads run."""
-    if not Path("/proc/self/status").exists():
-        pytest.skip("no /proc: the umask is read by setting it while single-threaded")
-    previous = os.umask(0o027)
-    try:
-
-        def changed(mask: int) -> int:
-            raise AssertionError(f"os.umask({mask:#o}) while threads may be making files")
-
-        monkeypatch.setattr(os, "umask", changed)
-        folder = tmp_path / "report"
-        report_folder.write_report_folder(folder, lambda staging: None)
-        assert folder.stat().st_mode & 0o777 == 0o750
-    finally:
-        monkeypatch.undo()
-        os.umask(previous)
+    folder = tmp_path / "report"
+    report_folder.write_report_folder(folder, lambda staging: None)
+    assert folder.stat().st_mode & 0o777 == 0o750
 
 
 def test_a_report_folder_name_too_long_is_one_line(tmp_path: Path) -> None:

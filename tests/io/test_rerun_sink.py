@@ -573,26 +573,15 @@ def test_a_temporary_folder_without_named_pipes_is_named_and_leaves_nothing(
     assert not any(str(p).startswith(str(tmp_path)) for p in interrupt._partials)
 
 
+@pytest.mark.usefixtures("umask_027_unchanged")
 def test_the_recording_mode_is_set_without_changing_the_umask(
-    tmp_path: Path, temporary_folder: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, temporary_folder: Path
 ) -> None:
     """Review 55b R55b-5: the umask was set to 0 for a moment while other threads run."""
-    if not Path("/proc/self/status").exists():
-        pytest.skip("no /proc: the umask is read by setting it while single-threaded")
-    previous = os.umask(0o027)
-    try:
-
-        def changed(mask: int) -> int:
-            raise AssertionError(f"os.umask({mask:#o}) while threads may be making files")
-
-        monkeypatch.setattr(os, "umask", changed)
-        target = tmp_path / "run.rrd"
-        with RerunSink(rrd_path=target) as sink:
-            sink.log(_frame(0))
-        assert target.stat().st_mode & 0o777 == 0o640
-    finally:
-        monkeypatch.undo()
-        os.umask(previous)
+    target = tmp_path / "run.rrd"
+    with RerunSink(rrd_path=target) as sink:
+        sink.log(_frame(0))
+    assert target.stat().st_mode & 0o777 == 0o640
 
 
 def test_a_pipe_folder_of_another_pid_namespace_is_kept(
