@@ -559,3 +559,17 @@ def test_an_empty_raw_image_is_undecodable_not_a_calibration_error(
     assert code == 0, err
     assert "densified 2 frames" in printed
     assert "1 undecodable (image is empty)" in printed
+
+
+def test_info_topics_named_alone_keep_the_images_found(
+    capsys: pytest.CaptureFixture[str], raw_bag: Path, tmp_path: Path
+) -> None:
+    # before: naming an info topic alone turned discovery off, and densify looked for the
+    # library's default image topics: "topic /stereo/left/image_rect not found"
+    out = tmp_path / "named_info.mcap"
+    code, said, err = _run(
+        capsys, "densify", raw_bag, "-o", out, "--left-info-topic", "/camera/left/camera_info"
+    )
+    assert code == 0, err
+    assert "topics: left /camera/left/image_raw, right /camera/right/image_raw" in said + err
+    assert out.exists()

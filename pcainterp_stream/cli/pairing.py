@@ -156,11 +156,12 @@ def pairing_config(args: argparse.Namespace, features_topic: str | None = None) 
         from pcainterp_stream.io.calibration import load_calibration
 
         calibration, named = load_calibration(list(args.calibration))
-    flags = (args.left_topic, args.right_topic, args.left_info_topic, args.right_info_topic)
-    # one image topic named: the other side comes from the pair found in the log
+    # one image topic named: the other side comes from the pair found in the log; no image
+    # topic named (info topics alone): the pair is found, the info topics named kept
     one_side = (args.left_topic is None) != (args.right_topic is None)
     infos_named = args.left_info_topic is not None or args.right_info_topic is not None
-    discover = all(flag is None for flag in flags) or (one_side and not infos_named)
+    no_image_topic = args.left_topic is None and args.right_topic is None
+    discover = no_image_topic or (one_side and not infos_named)
     if named is not None:
         # a camchain's rostopics: the pair unless both sides are named; when the log has not
         # both, the pair is found in it (the calibration stands for the infos)
