@@ -263,19 +263,24 @@ def test_the_watch_says_when_workers_are_gone_and_back(monkeypatch: pytest.Monke
 SHARED = "at the same paths (a shared filesystem)"
 
 
-@pytest.fixture
-def one_worker() -> Iterator[Any]:
-    """A scheduler with one worker in a thread of this process (it sees these files)."""
+def _thread_cluster() -> Any:
+    """A scheduler on a TCP port with one worker in a thread of this process."""
     from dask.distributed import LocalCluster
 
-    with LocalCluster(  # type: ignore[no-untyped-call]
+    return LocalCluster(  # type: ignore[no-untyped-call]
         n_workers=1,
         threads_per_worker=1,
         processes=False,
         protocol="tcp",
         host="127.0.0.1",
         dashboard_address=":0",
-    ) as cluster:
+    )
+
+
+@pytest.fixture
+def one_worker() -> Iterator[Any]:
+    """A scheduler with one worker in a thread of this process (it sees these files)."""
+    with _thread_cluster() as cluster:
         yield cluster
 
 
@@ -479,16 +484,8 @@ def doomed() -> Iterator[Any]:
     """:func:`one_worker`'s cluster, whose scheduler the test closes: its worker, closing
     after it, retries the scheduler for Dask's connect timeout, here cut to 0.2 s."""
     import dask
-    from dask.distributed import LocalCluster
 
-    cluster = LocalCluster(  # type: ignore[no-untyped-call]
-        n_workers=1,
-        threads_per_worker=1,
-        processes=False,
-        protocol="tcp",
-        host="127.0.0.1",
-        dashboard_address=":0",
-    )
+    cluster = _thread_cluster()
     try:
         yield cluster
     finally:
