@@ -329,7 +329,8 @@ def _scope() -> str | None:
 
     None if either is unknown. The host name alone does not say it: containers sharing the
     host's name (``docker --net=host``) have PID namespaces of their own, and two machines
-    may have one name. A hash keeps the partial's name short (review 55c R55c-2).
+    may have one name. A hash keeps the partial's name short (a file name is at most ~255
+    bytes on most file systems).
     """
     boot, namespace = _boot_id(), _pid_namespace()
     if boot is None or namespace is None:
