@@ -70,6 +70,9 @@ DEFAULT_WORKER_WAIT = 60.0
 WATCH_INTERVAL = 1.0
 """Seconds between two looks at the scheduler's workers while tasks are pending."""
 
+WORKER_START_S = 90.0
+"""How long a local cluster's worker processes may take to start before the job gives up."""
+
 EXAMPLE = "tcp://HOST:PORT, e.g. tcp://10.0.0.5:8786"
 
 _WATCHES: weakref.WeakKeyDictionary[Any, WorkerWatch] = weakref.WeakKeyDictionary()
@@ -597,7 +600,15 @@ def _start_workers(cluster: Any, client: Any, count: int) -> None:
     cluster.loop.add_callback(block)
     blocked.wait()
     cluster.scale(count)
-    client.wait_for_workers(count)
+    try:
+        client.wait_for_workers(count, timeout=WORKER_START_S)
+    except TimeoutError:  # Dask's WorkerStartTimeoutError: the processes die as they start
+        raise SchedulerError(
+            f"the {count} local Dask worker process{'' if count == 1 else 'es'} did not start "
+            f"within {WORKER_START_S:g} s: a worker process fails as it starts (from a script "
+            "of your own, call the library under `if __name__ == \"__main__\":`: each worker "
+            "process imports the script again)"
+        ) from None
 
 
 class _WorkerDeaths(logging.Filter):

@@ -597,3 +597,29 @@ def test_a_cancel_reason_other_than_a_restart_is_named() -> None:
     assert str(watch.cancelled(Future("scheduler-connection-lost"))).startswith("lost the")
     Client.status = "connecting"
     assert str(watch.cancelled(Future("scheduler-restart"))).startswith("lost the connection")
+
+
+_NO_MAIN_GUARD = """
+from pcainterp_stream.pipeline import scheduler
+scheduler.WORKER_START_S = 8.0
+with scheduler.connect(workers=1):
+    pass
+"""
+
+
+def test_local_workers_that_cannot_start_are_one_error_not_a_wait_for_ever(
+    tmp_path: Path,
+) -> None:
+    # a user's script without a main guard: every worker process imports it again and dies
+    # starting a cluster of its own; the job waited for them for ever
+    import subprocess
+    import sys
+
+    script = tmp_path / "no_guard.py"
+    script.write_text(_NO_MAIN_GUARD)
+    done = subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode != 0
+    assert "the 1 local Dask worker process did not start within 8 s" in done.stderr
+    assert 'if __name__ == "__main__":' in done.stderr
