@@ -25,7 +25,7 @@ import numpy.typing as npt
 from pcainterp_stream.errors import LogReadError
 from pcainterp_stream.evaluate.reference import ReferenceTopic
 from pcainterp_stream.frontend.images import PairImages
-from pcainterp_stream.frontend.pair_forms import grey_alike
+from pcainterp_stream.frontend.pair_forms import grey_alike, same_image_message
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import decode_image, open_log
 from pcainterp_stream.io.outputs import (
@@ -445,14 +445,7 @@ class _UnplacedStamps:
 
 def _same_image(message: Any, last: Any, stamp_ns: int) -> bool:
     """Whether an image is ``last`` again: its stamp, size, encoding and bytes (densify's rule)."""
-    if message is last:
-        return True
-    if rosmsg.stamp_ns(last) != stamp_ns:
-        return False
-    for name in ("height", "width", "step", "encoding", "format"):
-        if getattr(message, name, None) != getattr(last, name, None):
-            return False
-    return bool(np.array_equal(np.asarray(message.data), np.asarray(last.data)))
+    return rosmsg.stamp_ns(last) == stamp_ns and same_image_message(message, last)
 
 
 def _zero_output_message(path: Path, topic: str, left_image: str) -> str:

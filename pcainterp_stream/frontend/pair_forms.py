@@ -129,3 +129,17 @@ def is_rectified_name(topic: str, partner: str | None = None) -> bool:
     # a word of its own: "rect", "rect_color", "rectified", not "direct"
     below = parts[sides[-1] + 1 :]
     return any(w.startswith("rect") for p in below for w in p.replace("-", "_").split("_"))
+
+
+def same_image_message(new: Any, old: Any) -> bool:
+    """Whether two image messages are one image: size, step, encoding or format, and bytes.
+
+    The duplicate rule of densify's pairer and evaluate (a re-sent message, a merged bag):
+    the callers compare the header stamps first.
+    """
+    if new is old:
+        return True
+    for name in ("height", "width", "step", "encoding", "format"):
+        if getattr(new, name, None) != getattr(old, name, None):
+            return False
+    return bool(np.array_equal(np.asarray(new.data), np.asarray(old.data)))

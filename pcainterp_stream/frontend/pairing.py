@@ -31,8 +31,6 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from pcainterp_stream.errors import CalibrationError, LogReadError
 from pcainterp_stream.frontend import rectify as rect
 from pcainterp_stream.frontend.camera_infos import (
@@ -41,7 +39,12 @@ from pcainterp_stream.frontend.camera_infos import (
     first_infos,
 )
 from pcainterp_stream.frontend.feature_match import FeatureMatcher, features_from_pointcloud
-from pcainterp_stream.frontend.pair_forms import describe, grey_alike, is_rectified_name
+from pcainterp_stream.frontend.pair_forms import (
+    describe,
+    grey_alike,
+    is_rectified_name,
+    same_image_message,
+)
 from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.frontend.pairing_window import HeldQueue, Hold, HoldLimits
 from pcainterp_stream.frontend.pairing_window import PendingImage as _Pending
@@ -834,13 +837,7 @@ def _same_image(item: _Pending, last: _Pending | None) -> bool:
     """Whether an image is the side's last one again: its stamp, size, encoding and bytes."""
     if last is None or item.stamp_ns != last.stamp_ns:
         return False
-    new, old = item.message, last.message
-    if new is old:
-        return True
-    for name in ("height", "width", "step", "encoding", "format"):
-        if getattr(new, name, None) != getattr(old, name, None):
-            return False
-    return bool(np.array_equal(np.asarray(new.data), np.asarray(old.data)))
+    return same_image_message(item.message, last.message)
 
 
 def _nearer(miss_ns: int, gap_ns: int) -> int:
