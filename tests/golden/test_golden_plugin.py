@@ -48,7 +48,8 @@ def _run(pytester: pytest.Pytester, *args: str) -> pytest.RunResult:
     # in this process (a fresh one each is ~10x slower): a run drops the modules first
     # imported inside it, and numpy.fft's compiled module (which the comparison's imports
     # reach) cannot load twice per process, so it is imported above, before any run
-    return pytester.runpytest("-q", "-p", "no:cacheprovider", *args)
+    # pytest-benchmark, where installed, warns in a run inside an xdist worker (an error here)
+    return pytester.runpytest("-q", "-p", "no:cacheprovider", "-p", "no:benchmark", *args)
 
 
 @pytest.mark.parametrize("arrays", [False, True])
