@@ -4,7 +4,8 @@ The scripts make the figures the docs quote (benchmarks, experiments) or serve t
 maintainers (golden files, the built-in basis, fuzzing); a script nobody can ask what it
 does, or that no page names, is lost. ``--help`` must print the usage and a description
 and exit 0 without doing any work; the modules of helpers the scripts import
-(``harness``, ``beyond_data``, ``beyond_eval``) answer it too.
+(``harness``, ``beyond_data``, ``beyond_eval``) answer it too. And the fuzzer
+(``fuzz_readers.py``) gets coverage of the read path: its readers are instrumented.
 """
 
 from __future__ import annotations
@@ -93,3 +94,89 @@ def test_tools_take_sgbms_zero_as_a_match_as_densify_does(script: Path) -> None:
         return
     lines = _unmatched_zero_calls(script.read_text())
     assert not lines, f"tools/{script.name}:{lines}: pass zero_is_match=True, as densify does"
+
+
+# --- tools/fuzz_readers.py: libFuzzer gets coverage of the read path ----------------------
+
+_FUZZ_WORKER = """
+import json, sys
+from pathlib import Path
+
+sys.path.insert(0, sys.argv[1])
+import atheris
+import fuzz_readers
+
+atheris.Setup = lambda *args, **kwargs: None  # the worker up to libFuzzer, without fuzzing
+atheris.Fuzz = lambda: None
+if sys.argv[4] == "import first":
+    import pcainterp_stream.errors
+code = fuzz_readers.main(["--format", "mcap", "--address-space-mb", "0", sys.argv[2], "--worker"])
+before = set(sys.modules)
+if code == 0:
+    fuzz_readers.read_everything(Path(sys.argv[3]))
+from pcainterp_stream.cli import app
+from pcainterp_stream.frontend.pairing import iter_stereo_frames
+from pcainterp_stream.io.loginfo import describe
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.mcap_reader import McapLogReader
+from pcainterp_stream.pipeline.jobs import info
+from rosbags.rosbag1 import Reader
+
+functions = [app.main, iter_stereo_frames, describe, open_log, McapLogReader.messages, info,
+             Reader.open]
+late = [name for name in set(sys.modules) - before
+        if name.partition(".")[0] in ("pcainterp_stream", "rosbags", "mcap")]
+print(json.dumps({
+    "code": code,
+    "blind": [f.__qualname__ for f in functions if "_trace_branch" not in f.__code__.co_names],
+    "late": sorted(late),
+}))
+"""
+
+
+def _fuzz_worker(tmp_path: Path, mode: str) -> tuple[dict[str, object], str]:
+    pytest.importorskip("atheris", reason="atheris not installed: pip install -e '.[fuzz]'")
+    import json
+    import shutil
+
+    seed = ROOT / "tests" / "data" / "golden_synth.mcap"
+    out = tmp_path / "fuzz"
+    (out / "corpus").mkdir(parents=True)
+    shutil.copyfile(seed, out / "corpus" / "seed.mcap")  # no seed to write with synth
+    done = subprocess.run(
+        [sys.executable, "-c", _FUZZ_WORKER, str(ROOT / "tools"), str(out), str(seed), mode],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    result: dict[str, object] = json.loads(done.stdout.strip().splitlines()[-1])
+    return result, done.stderr
+
+
+@pytest.mark.slow  # ~5 s: atheris instruments ~140 modules
+def test_fuzz_readers_instruments_the_read_path(tmp_path: Path) -> None:
+    """The fuzz worker imports the read path inside atheris' instrumentation block.
+
+    Only modules first imported inside ``atheris.instrument_imports`` report coverage: from
+    406c557 the block was empty and libFuzzer fuzzed blind (no ``cov:``, the corpus never
+    grew). Here the worker runs up to libFuzzer's start; then the readers' functions must
+    carry atheris' branch tracing, and reading a log must import no module of the read path
+    afterwards (it would run uninstrumented).
+    """
+    result, stderr = _fuzz_worker(tmp_path, "fresh")
+    assert result["code"] == 0, stderr[-3000:]
+    assert result["blind"] == [], f"uninstrumented {result['blind']}: see instrument_read_path"
+    assert result["late"] == [], f"imported after instrumenting {result['late']}"
+
+
+def test_fuzz_readers_refuses_modules_imported_before_instrumenting(tmp_path: Path) -> None:
+    """A read-path module imported before the block would run blind: the worker says so."""
+    result, stderr = _fuzz_worker(tmp_path, "import first")
+    assert result["code"] == 2
+    message = [line for line in stderr.splitlines() if line.startswith("fuzz_readers:")]
+    assert message, stderr[-3000:]
+    assert "pcainterp_stream.errors" in message[0]
+    assert "Traceback" not in stderr

@@ -30,6 +30,7 @@ import argparse
 import contextlib
 import enum
 import hashlib
+import importlib
 import io
 import random
 import resource
@@ -593,6 +594,59 @@ class _Target:
         print(f"\nFINDING {len(self.seen)}: {signature} -> crashes/crash-{digest}", flush=True)
 
 
+INSTRUMENTED = ("pcainterp_stream", "rosbags", "mcap")
+"""The packages whose code libFuzzer sees (branch coverage and comparisons): ours and the two
+log libraries. Only code imported inside :func:`instrument_read_path` is instrumented."""
+
+READ_PATH_MODULES = (
+    "pcainterp_stream.io.logreader",
+    "pcainterp_stream.io.mcap_reader",
+    "pcainterp_stream.io.rosbag1_walk",
+    "pcainterp_stream.io.rosbag2_mcap",
+    "pcainterp_stream.io.rosbags_reader",
+    "pcainterp_stream.io.loginfo",
+    "pcainterp_stream.frontend.pairing",
+    "pcainterp_stream.cli.app",
+    "pcainterp_stream.cli.info",
+    "pcainterp_stream.pipeline.jobs",
+    "pcainterp_stream.golden.store",
+    "rosbags.rosbag1",
+    "rosbags.rosbag2",
+    "rosbags.convert.converter",
+    "rosbags.serde.primitives",
+)
+"""The modules of :func:`read_everything`'s stages, several of which the readers, rosbags and
+the CLI import lazily (on the first log of a format, or of ``pcainterp info``):
+:func:`instrument_read_path` imports them all. What the stages import later (rosbags' generated
+``rosbags.usertypes``) runs uninstrumented; ``tests/test_tools.py`` checks that no module of the
+read path does."""
+
+
+def instrument_read_path(atheris: Any) -> None:
+    """Import the read path's modules under atheris' instrumentation (coverage for libFuzzer).
+
+    ``atheris.instrument_imports`` instruments only the modules first imported inside its
+    block: with nothing imported there (406c557 to 2026-11-28) libFuzzer mutated blind ("no
+    interesting inputs were found so far. Is the code instrumented for coverage?"), printed
+    no ``cov:`` figure and never grew the corpus.
+
+    Raises:
+        RuntimeError: a module of :data:`INSTRUMENTED` was imported before, so it would run
+            uninstrumented (this script's top-level imports reach none of them).
+    """
+    early = sorted(name for name in sys.modules if name.partition(".")[0] in INSTRUMENTED)
+    if early:
+        more = " ..." if len(early) > 4 else ""
+        raise RuntimeError(
+            f"fuzz_readers: {', '.join(early[:4])}{more} imported before atheris could "
+            "instrument them (libFuzzer would get no coverage from them); run "
+            "tools/fuzz_readers.py as a script in a fresh process"
+        )
+    with atheris.instrument_imports(include=list(INSTRUMENTED)):
+        for name in READ_PATH_MODULES:
+            importlib.import_module(name)
+
+
 def _custom_mutator(atheris: Any, rate: float) -> Callable[[bytes, int, int], bytes]:
     """Return a mutator: libFuzzer's mutations, and now and then an inflated length field."""
 
@@ -701,9 +755,11 @@ def _fuzz(args: argparse.Namespace) -> int:
     """Run libFuzzer in this process (it exits the process at the end)."""
     import atheris
 
-    with atheris.instrument_imports(include=["pcainterp_stream", "rosbags", "mcap"]):
-        pass
-
+    try:
+        instrument_read_path(atheris)
+    except RuntimeError as err:
+        print(err, file=sys.stderr)
+        return 2
     out: Path = args.out
     corpus, crashes, work = out / "corpus", out / "crashes", out / "work"
     for folder in (corpus, crashes, work):
