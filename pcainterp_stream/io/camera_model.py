@@ -171,9 +171,10 @@ class CameraCalibration:
                 f"{self.name} has an all-zero R: the stereo rectification is not calibrated "
                 f"(a driver that fills only K and D publishes zeros); {fix}"
             )
-        error = float(np.abs(self.r @ self.r.T - np.eye(3)).max())
-        det = float(np.linalg.det(self.r))
-        if error > ROTATION_TOLERANCE or det < 0:
+        with np.errstate(all="ignore"):  # a damaged R (1e200, inf, NaN) is refused below
+            error = float(np.abs(self.r @ self.r.T - np.eye(3)).max())
+            det = float(np.linalg.det(self.r))
+        if not (error <= ROTATION_TOLERANCE and det >= 0):
             raise CalibrationError(
                 f"{self.name} has an R that is not a rotation (det {det:.6g}, R R^T off the "
                 f"identity by up to {error:.3g}; a rectifying R is orthonormal with det 1); "

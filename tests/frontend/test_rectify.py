@@ -420,6 +420,8 @@ def _rotation_y(degrees: float) -> np.ndarray:
         (np.zeros((3, 3)), "/l has an all-zero R: the stereo rectification is not calibrated"),
         (2 * np.eye(3), "/l has an R that is not a rotation (det 8"),
         (np.diag([1.0, 1.0, -1.0]), "/l has an R that is not a rotation (det -1"),
+        # a damaged message's huge entries: refused without NumPy's overflow warning
+        (np.full((3, 3), 1e200), "/l has an R that is not a rotation (det "),
     ],
 )
 def test_an_r_that_is_no_rotation_is_one_line(r: np.ndarray, says: str) -> None:
