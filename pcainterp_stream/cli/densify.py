@@ -135,8 +135,8 @@ def add_parser(commands: Commands) -> None:
         "the indoor one, whichever fits the first frames better), 'builtin-street' or "
         "'builtin-indoor' for that one (default: the built-in street basis, checked on the "
         "first frames against linear interpolation; when it does not fit, the indoor one and "
-        "a basis learned from the log's own stereo are tried and the best is used; pcainterp "
-        "info describes them)",
+        "(not with --measurements dense) a basis learned from the log's own stereo are tried "
+        "and the best is used; pcainterp info describes them)",
     )
     densify.add_argument("--rerun", action="store_true", help="stream to a Rerun viewer")
     densify.add_argument(

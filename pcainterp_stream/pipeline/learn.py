@@ -293,13 +293,19 @@ def plan_synthetic(
     kind = "" if given else f" {chosen.kind}"
     rule = f"auto: {count} maps, fewer than {AUTO_MAX_MAPS}, and a camera like the{kind} basis's"
     world = "" if given else f"{BUILTIN_WORLDS[chosen.kind][1]}, "
+    if not options.fit_prior:  # learn_basis fits no prior: no kernel to keep
+        kernel = ", keeping no local kernel (--no-fit-prior: no fitted prior)"
+    elif kept_kernel(prior_basis) is None:
+        kernel = ""
+    else:
+        kernel = " and keeping its local kernel"
     return SyntheticPlan(
         prior_basis,
         AUTO_PRIOR_MAPS,
         rule,
         f"note: {count} maps of your own are few (< {AUTO_MAX_MAPS}): merging them with "
-        f"{name}'s synthetic statistics ({world}counted as {AUTO_PRIOR_MAPS} maps) and "
-        "keeping its local kernel; --with-synthetic 0 learns from your maps alone",
+        f"{name}'s synthetic statistics ({world}counted as {AUTO_PRIOR_MAPS} maps)"
+        f"{kernel}; --with-synthetic 0 learns from your maps alone",
         label,
     )
 

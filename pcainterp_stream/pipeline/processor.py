@@ -162,13 +162,13 @@ class ProcessorConfig:
             its arenas at one per core (each keeps its high-water mark); and give the free
             pages back now and then (:class:`~pcainterp_stream.allocator.Releases`), so
             memory creeps less on long logs.
-        adapt: the fit check and self-supervised adaptation (sparse measurements):
-            ``"auto"`` checks the basis on the first frames against linear interpolation on
-            held-out SGBM pixels; when it is a built-in one that does not fit well, the
-            other built-in one is checked too (``builtin``) and, when neither fits well, a
-            basis learned from the log's own SGBM maps replaces it if it does better, and
-            keeps learning as frames come; ``"check"`` checks (and may pick between the
-            built-in bases) but never learns; ``"off"``. A feature stream (no SGBM maps) is
+        adapt: the fit check and self-supervised adaptation: ``"auto"`` checks the basis
+            on the first frames against linear interpolation on held-out SGBM pixels; when
+            it is a built-in one that does not fit well, the other built-in one is checked
+            too (``builtin``) and, when neither fits well, a basis learned from the log's
+            own SGBM maps replaces it if it does better (not in dense mode), and keeps
+            learning as frames come; ``"check"`` checks (and may pick between the built-in
+            bases) but never learns; ``"off"``. A feature stream (no SGBM maps) is
             checked on left-out measurements (every 5th) and never adapted.
         warmup_frames: frames of the check (and of the first self-supervised basis).
         builtin: which built-in basis a processor given a built-in one (or None) uses:
@@ -411,12 +411,13 @@ class FrameProcessor:
         self._previous_frame: StereoFrame | None = None
         self._submitted = 0
         self._releases = Releases()  # the heap's free pages given back now and then
-        # a feature stream has no SGBM maps: checked by left-out points, never adapted
-        mode = self.config.adapt if not self.dense else "off"
+        # a feature stream has no SGBM maps: checked by left-out points, never adapted;
+        # dense mode is checked and chooses a built-in basis but learns none (docs/bases.md)
         kind = builtin_kind(basis)
         self.adaptation = Adaptation(
-            mode="check" if mode == "auto" and not stereo else mode,
+            mode="check" if self.config.adapt == "auto" and not stereo else self.config.adapt,
             may_replace=kind is not None,
+            may_learn=not self.dense,
             warmup_frames=self.config.warmup_frames,
             robust=self.config.robust,
             calibrate=self.config.calibrate,

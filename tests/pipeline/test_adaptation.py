@@ -547,6 +547,35 @@ def test_builtin_indoor_is_recorded_and_evaluate_finds_it(tmp_path: Path) -> Non
         ProcessorConfig(builtin="forest")
 
 
+def test_dense_mode_checks_and_chooses_the_built_in_basis_but_learns_none(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """densify --measurements dense checked nothing: no "prior:" line, and the street basis
+    on an indoor log. It is checked and picks between the built-in bases as sparse mode
+    does, but never learns the log's own (measured: docs/bases.md, "Dense mode")."""
+
+    def never(*args: object, **kwargs: object) -> None:
+        raise AssertionError("dense mode learned the log's own basis")
+
+    monkeypatch.setattr(adapt, "own_basis", never)
+    log = tmp_path / "room.mcap"
+    synth(log, frames=4, seed=2, scale=0.5, fmt=None, scene="indoor", camera="752x480")
+    out = tmp_path / "room_dense.mcap"
+    summary = densify(log, out, processor=ProcessorConfig(measurements="dense"))
+    lines = summary.prior_lines
+    assert lines[0].startswith("prior: the built-in street basis ")
+    assert lines[1].startswith("prior: the built-in indoor basis ")
+    assert lines[2] == "prior: the built-in indoor basis chosen (fits this log better)"
+    assert summary.basis_written is None
+    assert recorded_metadata(out)[BASIS_KEY] == BUILT_IN_INDOOR
+    # a built-in basis that loses to linear: the warning does not offer to adapt
+    adaptation = adaptation_module.Adaptation("auto", True, 2, "cauchy", False, may_learn=False)
+    adaptation.check = adapt.FitCheck(2, 100, 2.1, 1.9, 2.0)
+    adaptation._warn_unfit(adaptation.may_replace)
+    assert "to adapt to this log" not in adaptation.lines[-1]
+    assert "dense mode does not adapt the basis: learn one" in adaptation.lines[-1]
+
+
 def test_an_indoor_feature_stream_picks_the_indoor_basis_on_left_out_points(
     tmp_path: Path,
 ) -> None:

@@ -232,6 +232,7 @@ def test_learn_with_no_flags_merges_the_built_in_basis_into_few_maps(
     assert f"4 maps of your own are few (< {AUTO_MAX_MAPS})" in notes[0]
     assert f"counted as {AUTO_PRIOR_MAPS} maps" in notes[0]
     assert "--with-synthetic 0" in notes[0]
+    assert "and keeping its local kernel;" in notes[0]  # it does: see prior["local"] below
     tuned, built_in = Basis.load(out), Basis.default()
     assert tuned.n_train == AUTO_PRIOR_MAPS + 4  # 2 of the 6 frames held out for the fit
     assert tuned.image_size == built_in.image_size
@@ -272,6 +273,10 @@ def test_auto_merges_below_the_threshold_only(
     assert basis.n_train == FRAMES + (AUTO_PRIOR_MAPS if merged else 0)
     assert basis.meta["source"]["with_synthetic"] == (AUTO_PRIOR_MAPS if merged else 0)
     assert ("note:" in printed) is merged  # a long log: nothing to say
+    assert "prior" not in basis.meta  # fit_prior=False: no kernel, kept or fitted
+    if merged:  # so the note does not say it keeps the built-in basis's kernel
+        assert "keeping its local kernel" not in printed
+        assert "keeping no local kernel (--no-fit-prior: no fitted prior);" in printed
     if not merged:
         rule = f"auto: {FRAMES} maps, not fewer than {max_maps}"
         assert basis.meta["source"]["with_synthetic_rule"] == rule
