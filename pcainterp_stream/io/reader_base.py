@@ -242,8 +242,11 @@ LATCHED_QOS_PROFILES = "\n".join(
     ]
 )
 """rosbag2's ``offered_qos_profiles`` of a latched ROS 1 publisher: reliable, transient local,
-durations infinite (as ``rosbags-convert`` writes it), so that a ROS 2 player offers it
-latched. Numeric, in the form :func:`rosbags_reader._qos_yaml` writes."""
+durations infinite (``rosbags-convert``'s profile for it), so that a ROS 2 player offers it
+latched. Policies as numbers, the form of bag metadata version 8 (as ``rosbags-convert
+--dst-version 8`` and :func:`rosbags_reader._qos_yaml` write it), which every rosbag2 reads
+as meant once the file says that version: an MCAP output then ends with a ``rosbag2``
+record saying so (:mod:`.rosbag2_record`)."""
 
 
 def ros1_channel_metadata(metadata: dict[str, str], *, latching: bool) -> dict[str, str]:

@@ -35,7 +35,7 @@ def _ros1_data(store: Typestore, typename: str, fields: dict[str, Any]) -> bytes
         kinds = dict(store.fielddefs[name][1])
         args = {}
         for key, value in values.items():
-            kind, detail = kinds[key]
+            _, detail = kinds[key]
             if isinstance(value, dict):  # a nested message
                 value = build(detail, value)
             elif isinstance(value, list) and value and isinstance(value[0], dict):
