@@ -11,7 +11,7 @@ import re
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, replace
 from enum import Enum
-from functools import partial
+from functools import cache, partial
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -105,6 +105,7 @@ _PACKAGE_NAME = re.compile(r"^(?!.*__)(?!.*_$)[a-z][a-z0-9_]*$")
 _MESSAGE_NAME = re.compile(r"^[A-Z][A-Za-z0-9]*$")
 
 
+@cache  # per message by some readers: a handful of names per log
 def ros1_type_name(name: str) -> str:
     """Return the ROS 2 name a ROS 1 message type gets when its messages become CDR.
 
