@@ -67,6 +67,7 @@ from pcainterp_stream.io.output_paths import (
     removed_meanwhile,
     write_advice,
 )
+from pcainterp_stream.io.rosbag2_record import ROSBAG2_RECORD, Rosbag2Record
 from pcainterp_stream.io.write_thread import WriteThread
 from pcainterp_stream.records import RawMessage
 from pcainterp_stream.version import __version__
@@ -557,7 +558,9 @@ class McapLogWriter(LogWriter):
     """MCAP in the ``ros2`` profile: ``ros2msg`` schemas, CDR messages, zstd chunks.
 
     The summary repeats schemas and channels and holds statistics and a chunk index, so
-    seeking readers (mcap ``make_reader``, Foxglove, Rerun) can use it.
+    seeking readers (mcap ``make_reader``, Foxglove, Rerun) can use it. Channels with rosbag2
+    QoS profiles get them in numbers and a ``rosbag2`` record saying so (version 8) unless
+    the input brought its own (:mod:`.rosbag2_record`): :meth:`add_extras` comes first.
     """
 
     format = LogFormat.MCAP
@@ -570,6 +573,7 @@ class McapLogWriter(LogWriter):
         self._writer: McapWriter | None = None
         self._schemas: dict[tuple[str, str, bytes], int] = {}
         self._channels: dict[tuple[str, str, int, tuple[tuple[str, str], ...]], int] = {}
+        self._rosbag2 = Rosbag2Record()
 
     def _open_partial(self) -> None:
         self._stream = self.partial_path.open("xb")
@@ -585,6 +589,7 @@ class McapLogWriter(LogWriter):
         if key not in self._schemas:
             assert self._writer is not None
             self._schemas[key] = self._writer.register_schema(name, encoding, data)
+            self._rosbag2.schema_names[self._schemas[key]] = name
         return self._schemas[key]
 
     def _channel_id(
@@ -593,9 +598,10 @@ class McapLogWriter(LogWriter):
         key = (topic, message_encoding, schema_id, tuple(sorted(metadata.items())))
         if key not in self._channels:
             assert self._writer is not None
-            self._channels[key] = self._writer.register_channel(
-                topic, message_encoding, schema_id, dict(metadata)
-            )
+            written = self._rosbag2.metadata(dict(metadata))
+            channel = self._writer.register_channel(topic, message_encoding, schema_id, written)
+            self._rosbag2.add_channel(channel, topic, schema_id, message_encoding, written)
+            self._channels[key] = channel
         return self._channels[key]
 
     def _add_message(
@@ -605,6 +611,7 @@ class McapLogWriter(LogWriter):
         metadata = self.channel_metadata.get(topic, {})
         channel_id = self._channel_id(topic, "cdr", schema_id, metadata)
         assert self._writer is not None
+        self._rosbag2.count(channel_id, log_time_ns)
         with self._zstd_level():
             self._writer.add_message(channel_id, log_time_ns, data, publish_time_ns)
 
@@ -623,6 +630,7 @@ class McapLogWriter(LogWriter):
             raw.topic, raw.message_encoding, schema_id, raw.channel_metadata
         )
         assert self._writer is not None
+        self._rosbag2.count(channel_id, int(raw.log_time_ns))
         with self._zstd_level():
             self._writer.add_message(
                 channel_id,
@@ -636,16 +644,20 @@ class McapLogWriter(LogWriter):
         """Write a metadata record (name and string key/values)."""
         writer = self._writer
         assert writer is not None
+        self._rosbag2.see([name])
         self._run(lambda: writer.add_metadata(name, record))
 
     def add_extras(self, extras: McapExtras) -> None:
         """Copy an MCAP input's channels, metadata records and attachments (its order: first)."""
+        self._rosbag2.see(record.name for record in extras.metadata)  # its QoS then stay
         self._run(lambda: write_extras(extras, self._writer, self._schema_id, self._channel_id))
 
     def _close_partial(self) -> None:
         assert self._writer is not None
         assert self._stream is not None
         try:
+            if (record := self._rosbag2.record(self.path.name)) is not None:
+                self._writer.add_metadata(ROSBAG2_RECORD, record)
             with self._zstd_level():
                 self._writer.finish()  # type: ignore[no-untyped-call]
         finally:

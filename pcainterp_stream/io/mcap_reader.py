@@ -43,6 +43,7 @@ from pcainterp_stream.io.reader_base import (
     _Ros1Converter,
     _TimeOrder,
     ros1_channel_metadata,
+    ros1_type_name,
     ros2_type_name,
 )
 from pcainterp_stream.records import RawMessage
@@ -300,7 +301,7 @@ class McapLogReader(LogReader):
             metadata = dict(channel.metadata)
             if schema is not None and schema.encoding == "ros1msg" and message_encoding == "cdr":
                 try:  # converted to CDR as its messages are
-                    data = self._ros1.schema(msgtype, schema.data.decode())
+                    data = self._ros1.schema(ros2_type_name(schema.name), schema.data.decode())
                 except Exception:  # a bad definition: its messages do not convert either
                     continue
                 name = msgtype
@@ -325,7 +326,7 @@ class McapLogReader(LogReader):
         if schema.encoding in ROS2_SCHEMA_ENCODINGS or schema.encoding == "ros1msg":
             msgtype = ros2_type_name(schema.name)
             if schema.encoding == "ros1msg" and channel.message_encoding == "ros1":
-                return msgtype, "ros2msg", "cdr"
+                return ros1_type_name(msgtype), "ros2msg", "cdr"  # named as converted
             return msgtype, schema.encoding, channel.message_encoding
         return schema.name, schema.encoding, channel.message_encoding
 
@@ -386,7 +387,7 @@ class McapLogReader(LogReader):
         if schema is not None and schema.encoding == "ros1msg" and message_encoding == "cdr":
             try:
                 data, schema_data = self._ros1.convert(
-                    data, msgtype, schema.data.decode(), channel.topic
+                    data, ros2_type_name(schema.name), schema.data.decode(), channel.topic
                 )
             except Exception:  # rosbags SerdeError / TypesysError on a bad definition
                 return None

@@ -11,12 +11,13 @@ import re
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, replace
 from enum import Enum
-from functools import partial
+from functools import cache, partial
 from pathlib import Path
 from types import TracebackType
 from typing import Any
 
 import numpy as np
+from rosbags.interfaces import Nodetype
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
@@ -95,6 +96,88 @@ def ros2_type_name(name: str) -> str:
     return name
 
 
+ROS1_TYPE_RENAMES = {"tf/msg/tfMessage": "tf2_msgs/msg/TFMessage"}
+"""ROS 1 types ROS 2 has under another name, with the same wire layout: ``rosbags-convert``'s
+own table (``STATIC_MSGTYPE_RENAMES`` of ``rosbags.convert.converter``, rosbags 0.11.9),
+which renames them whatever the destination typestore."""
+
+_PACKAGE_NAME = re.compile(r"^(?!.*__)(?!.*_$)[a-z][a-z0-9_]*$")
+_MESSAGE_NAME = re.compile(r"^[A-Z][A-Za-z0-9]*$")
+
+
+@cache  # per message by some readers: a handful of names per log
+def ros1_type_name(name: str) -> str:
+    """Return the ROS 2 name a ROS 1 message type gets when its messages become CDR.
+
+    First ``rosbags-convert``'s renames (:data:`ROS1_TYPE_RENAMES`: old ``tf``'s
+    ``tfMessage`` is ``tf2_msgs/msg/TFMessage``); then a name ROS 2 (rosidl, ``mcap_ros2``)
+    refuses is made legal, as field names are: the package in lower snake case, the message
+    name in upper camel case. ROS 1 allows ``my_pkg/laser_scan_2``, which ROS 2 refuses
+    ("invalid message name"); ``mcap_ros2`` then stops reading the whole file. Legal names,
+    and the names this returns, are returned unchanged.
+
+    Examples:
+        >>> ros1_type_name("tf/tfMessage"), ros1_type_name("sensor_msgs/Image")
+        ('tf2_msgs/msg/TFMessage', 'sensor_msgs/msg/Image')
+        >>> ros1_type_name("My_Pkg/laser_scan_2")
+        'my_pkg/msg/LaserScan2'
+    """
+    full = ros2_type_name(name)
+    if full in ROS1_TYPE_RENAMES:
+        return ROS1_TYPE_RENAMES[full]
+    parts = full.split("/")
+    if len(parts) != 3 or not all(parts):
+        return full
+    package, kind, message = parts
+    if not _PACKAGE_NAME.match(package):
+        package = re.sub(r"(?<=[a-z0-9])(?=[A-Z])", "_", package).lower()  # MyPkg: my_pkg
+        package = re.sub(r"[^a-z0-9]+", "_", package).strip("_")
+        package = package if package[:1].isalpha() else f"pkg_{package}".rstrip("_")
+    if not _MESSAGE_NAME.match(message):
+        words = re.split(r"[^A-Za-z0-9]+", message)
+        message = "".join(word[:1].upper() + word[1:] for word in words)
+        message = message if message[:1].isalpha() else f"Msg{message}"
+    return f"{package}/{kind}/{message}"
+
+
+def _ros2_type_names(store: Typestore, typename: str) -> tuple[Typestore, str]:
+    """Return ``store`` with ROS 2's type names (:func:`ros1_type_name`), and ``typename``'s.
+
+    Field types follow their type's new name. A name taken by another type of another
+    layout gets a number (``Pose2``); one of the same layout (a definition holding both
+    ``tf/tfMessage`` and ``tf2_msgs/TFMessage``) is the same type.
+    """
+    defs = store.fielddefs
+    renames: dict[str, str] = {}
+    holder = {name: name for name in defs if ros1_type_name(name) == name}  # name: its type
+    for name in defs:
+        new = ros1_type_name(name)
+        if new == name:
+            continue
+        base, number = new, 2
+        while new in holder and defs[holder[new]] != defs[name]:
+            new, number = f"{base}{number}", number + 1
+        holder.setdefault(new, name)
+        renames[name] = new
+    if not renames:
+        return store, typename
+
+    def ref(desc: Any) -> Any:
+        kind, detail = desc
+        if kind == Nodetype.NAME:
+            return (kind, renames.get(detail, detail))
+        if kind in (Nodetype.ARRAY, Nodetype.SEQUENCE):
+            return (kind, (ref(detail[0]), detail[1]))
+        return desc
+
+    types: dict[str, Any] = {}
+    for name, (constants, fields) in defs.items():
+        types[renames.get(name, name)] = (constants, [(field, ref(d)) for field, d in fields])
+    renamed = get_typestore(Stores.EMPTY)
+    renamed.register(types)
+    return renamed, renames.get(typename, typename)
+
+
 def _layout(store: Typestore, typename: str) -> Any:
     """Return a hashable wire layout of a type: field kinds in order, names lower-cased.
 
@@ -160,8 +243,11 @@ LATCHED_QOS_PROFILES = "\n".join(
     ]
 )
 """rosbag2's ``offered_qos_profiles`` of a latched ROS 1 publisher: reliable, transient local,
-durations infinite (as ``rosbags-convert`` writes it), so that a ROS 2 player offers it
-latched. Numeric, in the form :func:`rosbags_reader._qos_yaml` writes."""
+durations infinite (``rosbags-convert``'s profile for it), so that a ROS 2 player offers it
+latched. Policies as numbers, the form of bag metadata version 8 (as ``rosbags-convert
+--dst-version 8`` and :func:`rosbags_reader._qos_yaml` write it), which every rosbag2 reads
+as meant once the file says that version: an MCAP output then ends with a ``rosbag2``
+record saying so (:mod:`.rosbag2_record`)."""
 
 
 def ros1_channel_metadata(metadata: dict[str, str], *, latching: bool) -> dict[str, str]:
@@ -186,7 +272,10 @@ def ros1_channel_metadata(metadata: dict[str, str], *, latching: bool) -> dict[s
 class _Ros1Converter:
     """Convert ROS 1 serialized messages to CDR with a ``ros2msg`` schema, per type.
 
-    Three kinds of type, by what a ROS 2 consumer of the output expects under its name:
+    Every type has the ROS 2 name :func:`ros1_type_name` gives (``tf/tfMessage`` is
+    ``tf2_msgs/msg/TFMessage``, as ``rosbags-convert`` writes it; a name ROS 2 refuses is
+    made legal); the readers name the messages' type so. Then three kinds of type, by what a
+    ROS 2 consumer of the output expects under its name:
 
     - the Humble type's layout once ``Header.seq`` is dropped (``sensor_msgs/Image``,
       ``CameraInfo`` whose ``K`` is ROS 2's ``k``): converted byte for byte, Humble's schema;
@@ -220,22 +309,24 @@ class _Ros1Converter:
         """
         key = (typename, msgdef)
         if key not in self._cache:
-            store = _store_from_msg(msgdef, typename, ros2_header=True)
+            store, target = _ros2_type_names(
+                _store_from_msg(msgdef, typename, ros2_header=True), typename
+            )
             migrates = False
-            if _matches_humble(store, typename):
-                text = rosmsg.schema_text(typename)
-                convert: Any = partial(store.ros1_to_cdr, typename=typename)
-            elif typename in rosmsg.TYPESTORE.fielddefs:
-                text = rosmsg.schema_text(typename)
-                source = _store_from_msg(msgdef, typename)
+            if _matches_humble(store, target):
+                text = rosmsg.schema_text(target)
+                convert: Any = partial(store.ros1_to_cdr, typename=target)
+            elif target in rosmsg.TYPESTORE.fielddefs:
+                text = rosmsg.schema_text(target)
+                source = _ros2_type_names(_store_from_msg(msgdef, typename), typename)[0]
                 dropped = dropped_fields(
-                    source.fielddefs[typename][1], rosmsg.TYPESTORE.fielddefs[typename][1]
+                    source.fielddefs[target][1], rosmsg.TYPESTORE.fielddefs[target][1]
                 )
-                convert = partial(self._migrate, source, typename, dropped)
+                convert = partial(self._migrate, source, target, dropped)
                 migrates = True
             else:
-                text = str(_ros2_names(store).generate_msgdef(typename, ros_version=2)[0])
-                convert = partial(store.ros1_to_cdr, typename=typename)
+                text = str(_ros2_names(store).generate_msgdef(target, ros_version=2)[0])
+                convert = partial(store.ros1_to_cdr, typename=target)
             self._cache[key] = (convert, text.encode(), migrates)
         return self._cache[key]
 
@@ -275,7 +366,8 @@ class _Ros1Converter:
 
         Args:
             data: the ROS 1 serialized message.
-            typename: its type in ROS 2 spelling.
+            typename: its type in ROS 2 spelling, as the bag names it or as
+                :func:`ros1_type_name` renames it (the schema is that of the renamed type).
             msgdef: the connection's definition (``MSG:`` separated).
             topic: its topic, named in the warning of fields dropped.
         """

@@ -39,6 +39,7 @@ from pcainterp_stream.io.reader_base import (
     _Ros1Converter,
     _TimeOrder,
     ros1_channel_metadata,
+    ros1_type_name,
     ros2_type_name,
 )
 from pcainterp_stream.records import RawMessage
@@ -88,9 +89,14 @@ class BagHeader:
 class _Connection(NamedTuple):
     conn_id: int
     topic: str
-    msgtype: str  # ROS 2 spelling
+    msgtype: str  # ROS 2 spelling, as the bag names it
     msgdef: str
     latching: bool
+
+    @property
+    def ros2_msgtype(self) -> str:
+        """The type its messages have once converted (:func:`ros1_type_name`)."""
+        return ros1_type_name(self.msgtype)
 
 
 class _Message(NamedTuple):
@@ -296,7 +302,7 @@ class Ros1WalkReader(LogReader):
                 if previous is not None and previous.message_count is not None:
                     count += previous.message_count
                 topics[connection.topic] = TopicInfo(
-                    connection.topic, connection.msgtype, count, "cdr", "ros2msg"
+                    connection.topic, connection.ros2_msgtype, count, "cdr", "ros2msg"
                 )
             self._topics = topics
         return self._topics
@@ -336,8 +342,8 @@ class Ros1WalkReader(LogReader):
             order.see(time_ns)
             yield RawMessage(
                 topic=connection.topic,
-                msgtype=connection.msgtype,
-                schema_name=connection.msgtype,
+                msgtype=connection.ros2_msgtype,
+                schema_name=connection.ros2_msgtype,
                 schema_encoding="ros2msg",
                 schema_data=schema,
                 message_encoding="cdr",

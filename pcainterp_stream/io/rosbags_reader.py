@@ -29,6 +29,7 @@ from pcainterp_stream.io.reader_base import (
     _Ros1Converter,
     _TimeOrder,
     ros1_channel_metadata,
+    ros1_type_name,
     ros2_type_name,
 )
 from pcainterp_stream.records import RawMessage
@@ -175,8 +176,9 @@ class RosbagsLogReader(LogReader):
         """
         assert self._reader is not None
         msgtype = ros2_type_name(str(connection.msgtype))
-        if self.format is LogFormat.ROS1:
-            return msgtype, "ros2msg", self._ros1.schema(msgtype, str(connection.msgdef.data))
+        if self.format is LogFormat.ROS1:  # named as converted: tf/tfMessage is tf2_msgs'
+            schema = self._ros1.schema(msgtype, str(connection.msgdef.data))
+            return ros1_type_name(msgtype), "ros2msg", schema
         schema = self._definition(msgtype)
         if not schema:
             _add_once(
@@ -209,6 +211,8 @@ class RosbagsLogReader(LogReader):
         topics: dict[str, TopicInfo] = {}
         for connection in self._reader.connections:
             msgtype = ros2_type_name(str(connection.msgtype))
+            if self.format is LogFormat.ROS1:
+                msgtype = ros1_type_name(msgtype)
             previous = topics.get(connection.topic)
             count = _message_count(connection.msgcount)
             if previous is not None:
@@ -256,7 +260,7 @@ class RosbagsLogReader(LogReader):
                 msgtype, schema_encoding, schema = self._schema(connection)
                 if self.format is LogFormat.ROS1:
                     data, schema = self._ros1.convert(
-                        data, msgtype, str(connection.msgdef.data), connection.topic
+                        data, str(connection.msgtype), str(connection.msgdef.data), connection.topic
                     )
                 metadata = _connection_metadata(connection)
                 if self.format is LogFormat.ROS1:
