@@ -6,17 +6,17 @@ the MCAP output (:mod:`.rosmsg`, and the input's own schemas for copied channels
 Foxglove layout made on a densified file works on the live stream. Each message is sent
 with its log time, and the log time is broadcast as the server's time.
 
-Order and pace: the densified frames come out of the pipeline a few frames after their
-input messages were read (stereo matching runs ahead). Input messages are therefore held
-back until the frame of the same log time is published (at most :data:`MAX_HELD` of them),
-so a client sees the stream in log-time order, as a player of the file would. With
-``rate > 0`` publishing waits until ``(log time - first log time) / rate`` has passed on
-the wall clock; ``rate = 0`` publishes as fast as frames are processed. A gap in log time
-longer than :data:`MAX_GAP_S` (or one that would take more than :data:`MAX_WAIT_S` of wall
-time at ``rate``) is not waited for: publishing goes on at once from the next message, and
-the gap is reported, as ``rosbag play --skip-empty`` does. One message logged at time 0 (a
-static transform, a latched message) before camera frames at epoch times would otherwise
-hold the stream for decades.
+Order and pace: the densified frames come out of the pipeline a few frames after their input
+messages were read (stereo matching runs ahead). Input messages are therefore held back
+until the frame of the same log time is published (at most :data:`MAX_HELD_BYTES` of them,
+as the file output holds), so a client sees the stream in log-time order, as a player of the
+file would. With ``rate > 0`` publishing waits until ``(log time - first log time) / rate``
+has passed on the wall clock; ``rate = 0`` publishes as fast as frames are processed. A gap
+in log time longer than :data:`MAX_GAP_S` (or one that would take more than
+:data:`MAX_WAIT_S` of wall time at ``rate``) is not waited for: publishing goes on at once
+from the next message, and the gap is reported, as ``rosbag play --skip-empty`` does. One
+message logged at time 0 (a static transform, a latched message) before camera frames at
+epoch times would otherwise hold the stream for decades.
 
 Slow clients never block the caller: ``Channel.log`` only queues. The SDK keeps one bounded
 outbox per client (``message_backlog_size`` messages, here :data:`CLIENT_BACKLOG`) and drops
@@ -27,6 +27,15 @@ record every 30 s for the whole server (one throttle shared by all clients), how
 messages and clients it dropped from. :class:`FoxgloveLive` therefore keeps only which
 clients were named (:attr:`LiveStats.behind`), and :func:`behind_line` says no number:
 every client named lost messages at least once, and the others may have too.
+
+Bursts (bug hunt 8B, F5): hundreds of small input messages released with one frame at
+``rate = 0`` would fill that outbox within a millisecond even for a client that keeps up.
+So while a client is subscribed to a message's channel, sending is capped at
+:data:`SEND_RATE` messages/s in bursts of half the outbox (nothing waits while nobody is
+subscribed). And the server's time goes to a second per-client queue of the same size,
+which the SDK does not drop from but disconnects the client for, silently, when full: it is
+sent with each frame and at most every :data:`TIME_EVERY_S` between frames, not once per
+message.
 """
 
 from __future__ import annotations
@@ -56,13 +65,32 @@ DEFAULT_PORT = 8765
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 """The WebSocket subprotocol foxglove-sdk 0.30 accepts (the same messages as the older
-``foxglove.websocket.v1``, which it no longer accepts in the handshake)."""
+``foxglove.websocket.v1``, which it no longer accepts in the handshake, and cannot be told
+to: its handshake takes ``foxglove.sdk.v1`` and ``foxglove.sdk.v1.1`` only)."""
+
+OLD_CLIENT = (
+    "most likely a viewer asking for the older subprotocol foxglove.websocket.v1 (an older "
+    "Foxglove, Lichtblick 1.21 or older, roslibjs-foxglove), and this server speaks "
+    f"{SUBPROTOCOL} only: update the viewer, or write a file with -o and open it (said "
+    "once, not per retry)"
+)
+"""Why a client was refused: the SDK's own line says only "handshake failed"."""
 
 CLIENT_BACKLOG = 256
 """Messages the SDK queues per client before it drops that client's oldest."""
 
-MAX_HELD = 1024
-"""Input messages held back for ordering; beyond this the oldest is published anyway."""
+SEND_RATE = 5000.0
+"""Messages/s sent at most while a client is subscribed (bursts of half the outbox)."""
+
+TIME_EVERY_S = 0.05
+"""Shortest wall time (s) between two broadcasts of the server's time (the log time)."""
+
+MAX_HELD_BYTES = 256 << 20
+"""Input bytes held back for ordering (the file output's limit); beyond, the oldest is
+published anyway. Each message counts :data:`HELD_OVERHEAD` bytes more than its data."""
+
+HELD_OVERHEAD = 256
+"""Bytes a held message counts besides its data (its record), so tiny messages are bounded."""
 
 STOP_TIMEOUT_S = 5.0
 """Longest wait (s) for the server to stop on close; past it the process goes on (and ends)."""
@@ -86,6 +114,9 @@ MAX_GAP_NOTES = 3
 """Skipped gaps reported one by one; the rest only in :attr:`LiveStats.gaps_skipped`."""
 
 _OVERFLOW = re.compile(r"outbox for client (?P<client>\S+) full")
+_REFUSED = re.compile(r"Dropping client (?P<client>\S+): handshake failed")
+"""The SDK's line for a refused handshake, with no reason, once per attempt (a viewer
+retries every second or so)."""
 _DISCONNECT = re.compile(
     r"Error (?:receiving from|sending message to|reading from byte stream for) client "
     r"(?P<client>\S+?): (?P<reason>.*)"
@@ -177,7 +208,7 @@ class LiveStats:
         frames: frames published (:meth:`FoxgloveLive.add_frame` calls).
         messages: messages published, inputs included.
         released_early: input messages published before their frame because
-            :data:`MAX_HELD` were waiting (their order is then not guaranteed).
+            :data:`MAX_HELD_BYTES` were waiting (their order is then not guaranteed).
         clients: distinct clients that subscribed to a channel.
         behind: client addresses the SDK named as having a full outbox (it dropped their
             oldest queued messages), in the order first named; not every such client is
@@ -185,6 +216,9 @@ class LiveStats:
         gaps_skipped: gaps in log time the pacing did not wait for.
         gap_s_skipped: their total length (s of log).
         dropped: client addresses whose connection ended without a close handshake.
+        refused: handshakes the SDK refused (said in one line, at the first).
+        schemaless: topics of channels with no schema (advertised with none).
+        skipped: topics left out of the live stream (the SDK cannot carry them).
     """
 
     frames: int = 0
@@ -195,6 +229,9 @@ class LiveStats:
     gaps_skipped: int = 0
     gap_s_skipped: float = 0.0
     dropped: set[str] = field(default_factory=set)
+    refused: int = 0
+    schemaless: list[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
 
 
 def behind_line(stats: LiveStats) -> str | None:
@@ -221,6 +258,9 @@ def behind_line(stats: LiveStats) -> str | None:
 class _SdkLog(logging.Handler):
     """Notes the clients the SDK's "outbox full" reports name and passes its warnings on.
 
+    A refused handshake (the SDK says only "handshake failed", once per retry of the
+    viewer) is said once per server, with its likely cause and the fix (:data:`OLD_CLIENT`).
+
     A client that drops its connection without a close handshake (a viewer closed, Wi-Fi
     lost) is said in one line per client (the SDK logs an error per message it then cannot
     send); when no server is running (ours is stopping: it closes connections without a
@@ -235,7 +275,18 @@ class _SdkLog(logging.Handler):
         text = record.getMessage()
         found = _OVERFLOW.search(text)
         dropped = _DISCONNECT.search(text)
-        if found is not None:
+        refused = _REFUSED.search(text)
+        if refused is not None and self.sinks:
+            for sink in list(self.sinks):
+                sink.stats.refused += 1
+                if sink.stats.refused == 1:
+                    print(
+                        f"foxglove: refused a client at {refused['client']} (WebSocket "
+                        f"handshake failed): {OLD_CLIENT}",
+                        file=sys.stderr,
+                        flush=True,
+                    )
+        elif found is not None:
             for sink in list(self.sinks):
                 if found["client"] not in sink.stats.behind:
                     sink.stats.behind.append(found["client"])
@@ -305,6 +356,8 @@ class FoxgloveLive:
             (empty: do not wait).
         name: the server name clients show.
         backlog: messages queued per client before its oldest are dropped.
+        send_rate: messages/s sent at most while a client is subscribed to the channel, in
+            bursts of ``backlog // 2`` (0: no cap).
         note: called with a line for the user when the pacing skips a gap in log time.
         on_start: called once when the server starts accepting clients (the first message).
 
@@ -323,6 +376,7 @@ class FoxgloveLive:
         wait_for: Iterable[str] = (),
         name: str = "pcainterp",
         backlog: int = CLIENT_BACKLOG,
+        send_rate: float = SEND_RATE,
         note: Callable[[str], None] | None = None,
         on_start: Callable[[], None] | None = None,
     ) -> None:
@@ -334,6 +388,9 @@ class FoxgloveLive:
         self.wait_for = frozenset(wait_for)
         self.name = name
         self.backlog = backlog
+        self.send_rate = send_rate
+        self._burst = max(1.0, backlog // 2)
+        self._tokens = (self._burst, 0.0)  # (messages that may go at once, when counted)
         self.stats = LiveStats()
         self._server: Any = None
         self._port: int | None = None
@@ -342,11 +399,13 @@ class FoxgloveLive:
             tuple[str, str, str, str, bytes, tuple[tuple[str, str], ...]], Any
         ] = {}
         self._held: deque[RawMessage] = deque()
+        self._held_bytes = 0
         self._subscribed = threading.Event()
         self._clients: set[int] = set()
         self._clock: tuple[int, float] | None = None  # (a log time ns, its wall time)
         self._paced_ns = 0  # the latest log time paced
-        self._time_ns = -1
+        self._time_ns = -1  # the latest log time published
+        self._time_sent: tuple[int, float] = (-1, 0.0)  # the latest time broadcast, its wall time
         self._waited = not self.wait_for
 
     # lifetime ---------------------------------------------------------------------------
@@ -502,13 +561,10 @@ class FoxgloveLive:
             schema_data = rosmsg.schema_text(schema_name).encode()
         meta = tuple(sorted((metadata or {}).items()))
         key = (topic, schema_name, schema_encoding, message_encoding, schema_data, meta)
-        channel = self._channels.get(key)
-        if channel is None:
-            schema = (
-                foxglove.Schema(name=schema_name, encoding=schema_encoding, data=schema_data)
-                if schema_name or schema_data
-                else None
-            )
+        if key in self._channels:
+            return self._channels[key]
+        if schema_name or schema_encoding or schema_data:
+            schema = foxglove.Schema(name=schema_name, encoding=schema_encoding, data=schema_data)
             channel = foxglove.Channel(
                 topic,
                 schema=schema,
@@ -516,7 +572,35 @@ class FoxgloveLive:
                 context=self._context,
                 metadata=dict(meta),
             )
-            self._channels[key] = channel
+        else:
+            channel = self._schemaless(topic, message_encoding, dict(meta))
+        self._channels[key] = channel
+        return channel
+
+    def _schemaless(self, topic: str, message_encoding: str, metadata: dict[str, str]) -> Any:
+        """Return a channel with no schema (MCAP schema id 0: cbor, msgpack, raw bytes...).
+
+        The protocol advertises it as such (``schemaName`` "", no ``schemaEncoding``), as
+        the file has it. ``foxglove.Channel`` refuses a schema of None for any encoding but
+        json (and then makes up a jsonschema name), so the channel is made by the context
+        call it wraps. If this SDK has no such call, the topic is left out of the live
+        stream with one line (None is returned); the file output is not affected.
+        """
+        try:
+            channel = self._context._create_channel(
+                topic, message_encoding=message_encoding, schema=None, metadata=metadata
+            )
+        except (AttributeError, TypeError, ValueError) as err:
+            self.stats.skipped.append(topic)
+            print(
+                f"foxglove: {topic} is not served live: its channel has no schema (message "
+                f"encoding {message_encoding!r}), which this foxglove-sdk cannot advertise "
+                f"({err}); it is in the file output",
+                file=sys.stderr,
+                flush=True,
+            )
+            return None
+        self.stats.schemaless.append(topic)
         return channel
 
     # messages ---------------------------------------------------------------------------
@@ -524,11 +608,12 @@ class FoxgloveLive:
         """Queue a message of the input log; it is published before the next frame after it.
 
         Its channel is advertised now, so clients can subscribe before it is published. At
-        most :data:`MAX_HELD` messages wait; beyond that the oldest is published now.
+        most :data:`MAX_HELD_BYTES` wait; beyond that the oldest is published now.
         """
         self._raw_channel(raw)
         self._held.append(raw)
-        while len(self._held) > MAX_HELD:
+        self._held_bytes += len(raw.data) + HELD_OVERHEAD
+        while self._held_bytes > MAX_HELD_BYTES and self._held:
             self.stats.released_early += 1
             self._publish_raw(self._held.popleft())
 
@@ -542,13 +627,14 @@ class FoxgloveLive:
             self._publish_raw(self._held.popleft())
         for message in messages:
             channel = self.advertise(message.topic, message.schema_name, metadata=message.metadata)
-            self._log(channel, message.data, log_time_ns)
+            self._log(channel, message.data, log_time_ns, frame=True)
         self.stats.frames += 1
 
     def flush(self) -> None:
         """Publish every held input message (at the end of the stream)."""
         while self._held:
             self._publish_raw(self._held.popleft())
+        self._broadcast_time(force=True)
 
     def wait_for_client(self, poll_s: float = 0.2, settle_s: float = 0.2) -> None:
         """Block until a client subscribed to one of ``wait_for`` (Ctrl-C interrupts).
@@ -568,7 +654,10 @@ class FoxgloveLive:
             time.sleep(poll_s)
 
     def _publish_raw(self, raw: RawMessage) -> None:
-        self._log(self._raw_channel(raw), bytes(raw.data), int(raw.log_time_ns))
+        self._held_bytes -= len(raw.data) + HELD_OVERHEAD
+        channel = self._raw_channel(raw)
+        if channel is not None:  # None: a channel the SDK cannot carry (said once)
+            self._log(channel, bytes(raw.data), int(raw.log_time_ns))
 
     def _raw_channel(self, raw: RawMessage) -> Any:
         return self.advertise(
@@ -580,16 +669,55 @@ class FoxgloveLive:
             metadata=raw.channel_metadata,
         )
 
-    def _log(self, channel: Any, data: bytes, log_time_ns: int) -> None:
+    def _log(self, channel: Any, data: bytes, log_time_ns: int, *, frame: bool = False) -> None:
+        """Publish one message, paced, its log time made the server's time first.
+
+        See :meth:`_broadcast_time`. Capped at :attr:`send_rate` while a client is
+        subscribed to its channel.
+        """
         self.start()
         if not self._waited:
             self.wait_for_client()
         self._pace(log_time_ns)
+        self._time_ns = max(self._time_ns, log_time_ns)
+        self._broadcast_time(force=frame)
+        if self.send_rate > 0 and channel.has_sinks():
+            self._throttle()
         channel.log(data, log_time=log_time_ns)
         self.stats.messages += 1
-        if log_time_ns > self._time_ns and self._server is not None:
-            self._time_ns = log_time_ns
-            self._server.broadcast_time(log_time_ns)
+
+    def _broadcast_time(self, *, force: bool) -> None:
+        """Tell the clients the latest log time if new (``force``: now, else every 50 ms).
+
+        A frame's messages force it; inputs between frames wait :data:`TIME_EVERY_S`. The SDK
+        queues the time on each client's control queue, which holds ``backlog`` messages
+        and disconnects the client, silently, when full: a broadcast per message of a burst
+        (hundreds of small input messages per frame at ``rate = 0``) disconnected a client
+        that was keeping up with the data (bug hunt 8B, F5).
+        """
+        sent_ns, sent_at = self._time_sent
+        if self._server is None or self._time_ns <= sent_ns:
+            return
+        now = time.monotonic()
+        if force or sent_ns < 0 or now - sent_at >= TIME_EVERY_S:
+            self._time_sent = (self._time_ns, now)
+            self._server.broadcast_time(self._time_ns)
+
+    def _throttle(self) -> None:
+        """Take one message of the :attr:`send_rate` budget, sleeping when it is spent.
+
+        A token bucket of ``backlog // 2`` messages: when it is empty, wait until half of
+        it is back. A client that reads :attr:`send_rate` messages/s then never has more
+        than half its outbox queued, so the SDK drops nothing of a burst.
+        """
+        tokens, counted = self._tokens
+        now = time.monotonic()
+        tokens = min(self._burst, tokens + (now - counted) * self.send_rate)
+        if tokens < 1:
+            wait = (self._burst / 2 - tokens) / self.send_rate
+            time.sleep(wait)
+            tokens, now = self._burst / 2, now + wait
+        self._tokens = (tokens - 1, now)
 
     def _pace(self, log_time_ns: int) -> None:
         """Sleep until this log time is due at ``rate`` x the log's rate.

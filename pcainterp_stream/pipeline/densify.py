@@ -390,7 +390,7 @@ def densify(
             live.before_start = None
 
         if live is not None:
-            # more than MAX_HELD input messages before the first output start the server
+            # more than MAX_HELD_BYTES of input before the first output start the server
             # early: the outputs go out then with what is known (no f*b, the basis given)
             live.before_start = lambda: advertise_live(
                 {

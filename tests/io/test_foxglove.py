@@ -789,8 +789,8 @@ def test_the_live_outputs_are_advertised_with_the_file_metadata(
 def test_inputs_that_start_the_server_early_advertise_the_outputs_then(
     synthetic_log: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Past MAX_HELD input messages before the first output: the metadata known then."""
-    monkeypatch.setattr(foxglove, "MAX_HELD", 1)
+    """Past MAX_HELD_BYTES of input before the first output: the metadata known then."""
+    monkeypatch.setattr(foxglove, "MAX_HELD_BYTES", 1)
     out = tmp_path / "dense.mcap"
     with _SeenAtStart() as live:
         densify(synthetic_log, out, live=live)
