@@ -119,7 +119,7 @@ def add_parser(commands: Commands) -> None:
     live.add_argument(
         "--wait-for-client",
         action="store_true",
-        help="hold the first frame until a client subscribed to an output channel",
+        help="hold the first message until a client subscribed to an output channel",
     )
     live.add_argument(
         "--exit-when-done",
