@@ -41,6 +41,7 @@ import numpy.typing as npt
 
 from pcainterp_stream.frontend.corners import GfttConfig, detect_corners, lattice_points
 from pcainterp_stream.frontend.fill import fill_points
+from pcainterp_stream.frontend.grey import is_blank, to_grey8, to_grey8_pair
 from pcainterp_stream.frontend.refine import halved as _halved
 from pcainterp_stream.frontend.refine import refined_match
 from pcainterp_stream.frontend.sgbm_limits import (
@@ -71,87 +72,6 @@ __all__ = [
 
 FloatArray = npt.NDArray[np.float32]
 UInt8Array = npt.NDArray[np.uint8]
-
-# Percentile of a 16-bit image mapped to 255 when converting it to 8 bit (see to_grey8).
-_UINT16_PERCENTILE = 99.9
-
-
-# ---------------------------------------------------------------------------------------
-# Image conversion
-# ---------------------------------------------------------------------------------------
-
-
-def _check_image(image: npt.NDArray[Any], name: str) -> None:
-    layout_ok = image.ndim == 2 or (image.ndim == 3 and image.shape[2] in (1, 3))
-    if layout_ok and image.dtype in (np.uint8, np.uint16):
-        return
-    raise ValueError(
-        f"{name} image has shape {image.shape} and dtype {image.dtype}; expected (H, W) "
-        "uint8/uint16 grey or (H, W, 3) uint8/uint16 RGB"
-    )
-
-
-def _grey_of(image: npt.NDArray[Any]) -> npt.NDArray[Any]:
-    if image.ndim == 3 and image.shape[2] == 1:
-        return image[:, :, 0]
-    if image.ndim == 3:
-        return np.asarray(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY))
-    return image
-
-
-def to_grey8_pair(left: npt.NDArray[Any], right: npt.NDArray[Any]) -> tuple[UInt8Array, UInt8Array]:
-    """Convert a stereo pair to 8-bit grey, both images with the same intensity mapping.
-
-    RGB (channel order R, G, B; for BGR the weights differ slightly, which does not matter
-    for matching as both views get the same) is converted with ``cv2.COLOR_RGB2GRAY``.
-    16-bit images are scaled linearly so that the 99.9th percentile of the pair (on a 4x
-    subsampled grid, for speed) maps to 255, and clipped: ``>> 8`` would leave 12-bit
-    cameras with 16 grey levels. Both views share one scale, so matching costs are not
-    biased by a per-image gain.
-
-    Args:
-        left: (H, W) uint8/uint16 grey, (H, W, 1), or (H, W, 3) uint8/uint16 RGB left image.
-        right: right image, same shape and dtype as ``left``.
-
-    Returns:
-        (left, right): two (H, W) uint8 grey images.
-
-    Raises:
-        ValueError: if the shapes or dtypes differ, or an image is not one of the above.
-    """
-    if left.shape != right.shape or left.dtype != right.dtype:
-        raise ValueError(
-            f"left image is {left.shape} {left.dtype} but right image is {right.shape} "
-            f"{right.dtype}; pass a rectified pair of equal size and type"
-        )
-    _check_image(left, "left")
-    grey_left = _grey_of(left)
-    grey_right = _grey_of(right)
-    if grey_left.dtype == np.uint8:
-        return np.ascontiguousarray(grey_left), np.ascontiguousarray(grey_right)
-    top = max(
-        float(np.percentile(grey_left[::4, ::4], _UINT16_PERCENTILE)),
-        float(np.percentile(grey_right[::4, ::4], _UINT16_PERCENTILE)),
-        1.0,
-    )
-    scale = 255.0 / top
-    return (
-        np.asarray(cv2.convertScaleAbs(grey_left, alpha=scale), np.uint8),
-        np.asarray(cv2.convertScaleAbs(grey_right, alpha=scale), np.uint8),
-    )
-
-
-def to_grey8(image: npt.NDArray[Any]) -> UInt8Array:
-    """Convert one image to 8-bit grey, as :func:`to_grey8_pair` does for a pair.
-
-    Args:
-        image: (H, W) uint8/uint16 grey, (H, W, 1), or (H, W, 3) uint8/uint16 RGB.
-
-    Returns:
-        (H, W) uint8 grey image.
-    """
-    return to_grey8_pair(image, image)[0]
-
 
 # ---------------------------------------------------------------------------------------
 # SGBM
@@ -876,6 +796,10 @@ class StereoFrontEnd:
             left: (H, W) uint8/uint16 grey or (H, W, 3) RGB rectified left image.
             right: rectified right image, same shape and dtype.
 
+        A pair with a blank image (:func:`.grey.is_blank`: a dropped-out or capped camera)
+        has no measurement and an all-NaN map: SGBM would resolve a uniform right image's
+        ties to disparity 0 and every lookup would read "far".
+
         Returns:
             The kept measurements, the full disparity map and the counts.
 
@@ -883,6 +807,14 @@ class StereoFrontEnd:
             ValueError: if the images differ in shape or dtype or are not images.
         """
         grey_left, grey_right = to_grey8_pair(left, right)
+        if is_blank(grey_left) or is_blank(grey_right):  # SGBM's ties there: 0, "far"
+            nothing = np.zeros((0, 2), np.float32)
+            return Measurements(
+                nothing,
+                np.zeros(0, np.float32),
+                np.full(grey_left.shape, np.nan, np.float32),
+                RejectionCounts(0, 0, 0, 0, 0, 0),
+            )
         disparity_map, weak = _sgbm_weak(grey_left, grey_right, self.sgbm)
         right_map = None
         if self.lr_check:

@@ -26,6 +26,7 @@ from pcainterp_stream.estimate.basis import (
     builtin_kind,
 )
 from pcainterp_stream.frontend.discovery import resolve_pairing
+from pcainterp_stream.frontend.frame_checks import BeyondRange, StaleRight
 from pcainterp_stream.frontend.pairing import PairingConfig, StereoPairer
 from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.frontend.sgbm_limits import fitting, narrowest_width
@@ -339,7 +340,16 @@ def densify(
     frames = 0
     # "empty": frames without a single measurement, so without an estimate (NaN)
     robust = {"downweighted": 0, "most": 0, "resets": 0, "carried": 0, "carry_resets": 0}
-    robust["empty"] = 0
+    robust["empty"] = robust["stale_empty"] = 0
+    stereo = processor.source is MeasurementSource.STEREO
+    stale = StaleRight() if stereo else None  # a right image repeated: not matched
+    beyond = (
+        BeyondRange(
+            processor.sgbm.matched().band * processor.sgbm.downscale, 16 * processor.sgbm.downscale
+        )
+        if stereo and processor.measurements == "sparse" and processor.near is not None
+        else None
+    )
     check = (
         FeatureStreamCheck(pairing.features_topic, max_points=processor.max_features)
         if processor.source is MeasurementSource.FEATURES and pairing.features_topic is not None
@@ -490,7 +500,12 @@ def densify(
             if on_frame is not None:
                 on_frame(result)
             measurements += int(result.pixels.shape[0])
-            robust["empty"] += not result.estimated
+            if stale is not None and result.frame.index in stale.stale:
+                robust["stale_empty"] += not result.estimated  # warned of on their own
+            else:
+                robust["empty"] += not result.estimated
+            if beyond is not None:
+                beyond.result(result)
             frames += 1
             robust["downweighted"] += result.counts.get("downweighted", 0)
             robust["most"] = max(robust["most"], result.counts.get("downweighted", 0))
@@ -512,7 +527,7 @@ def densify(
             refused = check.cloud(frame, features) if check is not None else None
             if refused is not None:  # in the writer's block: no output is left behind
                 raise PcaInterpError(f"{input_path}: {refused}")
-            emit(engine.submit(frame, features))
+            emit(engine.submit(stale.check(frame) if stale is not None else frame, features))
 
         for raw in reader.messages():
             if inputs is not None:
@@ -576,7 +591,9 @@ def densify(
             check.warnings(stats)
             if check is not None
             else _empty_warning(robust["empty"], frames, processor)
-        ),
+        )
+        + (stale.warnings(frames, robust["stale_empty"]) if stale is not None else [])
+        + (beyond.warnings(frames, processor.sgbm) if beyond is not None else []),
         downweighted=robust["downweighted"],
         most_downweighted=robust["most"],
         temporal_resets=robust["resets"],
