@@ -13,10 +13,19 @@ taken before an empty one; a cloud nearer to another frame waiting (a camera fas
 the tolerance is wide) is left to that one. A frame given up without a cloud, or a cloud
 given up without a frame, whose partner comes later is counted lost with the lag
 (``PairingStats.lost_features``), for the warning naming the lag and ``--hold-s``.
+
+A cloud stamped 0 (its publisher never set the stamp) is placed at no frame with a stamp,
+whatever the tolerance: it is counted (``PairingStats.features_unstamped``) and left out of
+the nearest miss, for the error to say what is wrong rather than advise a tolerance of the
+images' age (41 years). It is not paired by log time either: a cloud is logged after its
+image by the time its producer took (a VIO's 30-100 ms, as long as a frame interval or
+longer), so the frame logged before it may be the next one, and nothing in the log tells
+which. Frames stamped 0 themselves (paired by log time) still take clouds stamped 0.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -32,17 +41,18 @@ __all__ = ["FeatureMatcher", "features_from_pointcloud"]
 def features_from_pointcloud(message: Any, log_time_ns: int) -> SparseFeatures:
     """Convert a ``PointCloud2`` with x, y, z fields into :class:`~records.SparseFeatures`.
 
-    Points with a non-finite coordinate are dropped.
+    Points with a non-finite coordinate are dropped. Only the x, y and z fields are decoded:
+    another field (intensity, rgb, a label of an unset datatype 0) is not looked at.
 
     Raises:
-        ValueError: the cloud lacks an x, y or z field or its data is short.
+        ValueError: the cloud lacks an x, y or z field, one of an unknown datatype, or its
+            data is short.
     """
-    fields = rosmsg.pointcloud2_arrays(message)
+    fields = rosmsg.pointcloud2_arrays(message, ("x", "y", "z"))
     missing = [name for name in ("x", "y", "z") if name not in fields]
     if missing:
-        raise ValueError(
-            f"point cloud has no field {', '.join(missing)} (fields: {', '.join(fields)})"
-        )
+        names = ", ".join(str(field.name) for field in message.fields)
+        raise ValueError(f"point cloud has no field {', '.join(missing)} (fields: {names})")
     points = np.stack([fields["x"], fields["y"], fields["z"]], axis=1).astype(np.float32)
     points = points[np.isfinite(points).all(axis=1)]
     return SparseFeatures(
@@ -90,7 +100,9 @@ class FeatureMatcher:
         if given_up is not None:  # its frame went on without it: cloud log minus frame log
             self.stats.lost_features.add(features.log_time_ns - given_up.log_time_ns, given_up)
         self._clouds.append(features)
-        self.stats.features_unmatched += len(self._hold.give_up("cloud", self._clouds))
+        dropped = self._hold.give_up("cloud", self._clouds)
+        self.stats.features_unmatched += len(dropped)
+        self.stats.features_unstamped += sum(cloud.stamp_ns == 0 for cloud in dropped)
         return self._release()
 
     def take(self, index: int) -> SparseFeatures | None:
@@ -101,13 +113,15 @@ class FeatureMatcher:
         """Release every frame still held with the nearest cloud left (end of the stream)."""
         frames = self._release(force=True)
         self.stats.features_unmatched += len(self._clouds)
+        self.stats.features_unstamped += sum(cloud.stamp_ns == 0 for cloud in self._clouds)
         self._clouds.clear()
         return frames
 
     def _nearest(self, frame: StereoFrame) -> SparseFeatures | None:
         """Return the cloud nearest a frame's stamp within the tolerance (with points first).
 
-        A cloud nearer to another held frame's stamp is left to that frame.
+        A cloud nearer to another held frame's stamp is left to that frame; one stamped 0 is
+        for a frame stamped 0 only (:func:`_placed`).
         """
         stamp_ns = frame.stamp_ns
         reach = 2 * self.tolerance_ns  # a frame farther cannot be nearer to a cloud in reach
@@ -120,6 +134,7 @@ class FeatureMatcher:
             c
             for c in self._clouds
             if abs(c.stamp_ns - stamp_ns) <= self.tolerance_ns
+            and _placed(c, frame)
             and all(abs(c.stamp_ns - other) >= abs(c.stamp_ns - stamp_ns) for other in others)
         ]
         if not near:
@@ -154,14 +169,25 @@ class FeatureMatcher:
             else:
                 if limit is not None:  # given up without a cloud: one of its stamp is lost
                     self._hold.remember("frame", self._held, limit)
-                self.stats.feature_miss(frame.stamp_ns, (c.stamp_ns for c in self._clouds))
+                self.stats.feature_miss(frame.stamp_ns, _stamps(self._clouds, frame))
             released.append(self._held.popleft())
         # clouds older than every frame still to come match nothing
         if self._held:
             horizon = self._held[0].stamp_ns - self.tolerance_ns
             stale = [c for c in self._clouds if c.stamp_ns < horizon]
-            self.stats.feature_miss(self._held[0].stamp_ns, (c.stamp_ns for c in stale))
+            self.stats.feature_miss(self._held[0].stamp_ns, _stamps(stale, self._held[0]))
             for cloud in stale:
                 self._clouds.remove(cloud)
             self.stats.features_unmatched += len(stale)
+            self.stats.features_unstamped += sum(cloud.stamp_ns == 0 for cloud in stale)
         return released
+
+
+def _placed(cloud: SparseFeatures, frame: StereoFrame) -> bool:
+    """Whether a cloud's stamp can place it at a frame: not 0 (unset) beside a frame's stamp."""
+    return cloud.stamp_ns != 0 or frame.stamp_ns == 0
+
+
+def _stamps(clouds: Iterable[SparseFeatures], frame: StereoFrame) -> list[int]:
+    """Return the stamps of the clouds that a frame could have taken (:func:`_placed`)."""
+    return [cloud.stamp_ns for cloud in clouds if _placed(cloud, frame)]

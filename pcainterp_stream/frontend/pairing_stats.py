@@ -55,6 +55,8 @@ class PairingStats:
             one read ahead.
         features_matched: frames that got a feature cloud (the nearest within the tolerance).
         features_unmatched: feature clouds that matched no frame.
+        features_unstamped: of those, clouds whose header stamp is 0 (not set by their
+            publisher) beside frames with stamps: placed at none, whatever the tolerance.
         features_nearest_miss_ns: the smallest gap (ns) between the stamps of a frame and a
             feature cloud that were not paired, one of them for want of the other (beyond
             the tolerance, or they would have been); -1 when there was none.
@@ -116,6 +118,7 @@ class PairingStats:
     changed_info_topics: list[str] = field(default_factory=list)
     features_matched: int = 0
     features_unmatched: int = 0
+    features_unstamped: int = 0
     features_nearest_miss_ns: int = -1
     non_monotonic_stamps: int = 0
     near_misses_ns: list[int] = field(default_factory=list)

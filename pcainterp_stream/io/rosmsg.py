@@ -358,15 +358,23 @@ def pointcloud2_message(
     )
 
 
-def pointcloud2_arrays(message: Any) -> dict[str, npt.NDArray[np.float64]]:
-    """Decode every scalar field of a ``PointCloud2`` into float64 arrays of length n.
+def pointcloud2_arrays(
+    message: Any, names: tuple[str, ...] | None = None
+) -> dict[str, npt.NDArray[np.float64]]:
+    """Decode the scalar fields of a ``PointCloud2`` into float64 arrays of length n.
 
     An organized cloud (``height`` > 1) is read row by row at ``row_step`` bytes, which may
     exceed ``width * point_step`` (rows padded, as PointCloud2 allows).
 
+    Args:
+        message: the cloud.
+        names: the fields to decode (those of them the cloud has); None: every field. Other
+            fields are not looked at: one of a type code outside 1..8 (0, left unset by a
+            publisher that fills only the fields it uses) does not make the cloud unreadable.
+
     Raises:
-        ValueError: for a field type code outside 1..8, a ``row_step`` shorter than a row's
-            points or data shorter than the points need.
+        ValueError: for a decoded field's type code outside 1..8, a ``row_step`` shorter
+            than a row's points or data shorter than the points need.
     """
     height, width = int(message.height), int(message.width)
     n = height * width
@@ -385,6 +393,8 @@ def pointcloud2_arrays(message: Any) -> dict[str, npt.NDArray[np.float64]]:
     buffer = raw[:need].tobytes()
     out: dict[str, npt.NDArray[np.float64]] = {}
     for field in message.fields:
+        if names is not None and str(field.name) not in names:
+            continue
         code = int(field.datatype)
         if code not in POINT_FIELD_DTYPES:
             raise ValueError(f"point field {field.name!r} has unknown datatype {code}")

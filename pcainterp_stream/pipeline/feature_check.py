@@ -5,9 +5,10 @@ the images' corners: a frame without a measurement is the stream's doing (no clo
 stamp, an empty cloud, points behind the camera or outside the image), not the images'.
 :class:`FeatureStreamCheck` accumulates, frame by frame, what the stream gave and words it:
 a summary line, warnings that name the cause, and the one-line error of a run in which no
-frame got a single usable point. It refuses a stream whose points all lie at one depth
-(:data:`FLAT_SPREAD`: normalized image coordinates, not 3-D points; clouds of a few points
-are judged together, :data:`FLAT_MIN_POINTS`) or whose clouds are in a world frame
+frame got a single usable point. It refuses a stream whose points all lie at z = 1
+(:data:`FLAT_SPREAD`, :data:`NORMALIZED_DEPTH`: normalized image coordinates, not 3-D points;
+clouds of a few points are judged together, :data:`FLAT_MIN_POINTS`; a cloud at one other
+depth is a flat surface facing the camera, used) or whose clouds are in a world frame
 (:data:`WORLD_FRAMES`), warns, once, of clouds in another frame than the left image's and
 of coordinates that look like millimetres, counts points nearer than the stereo pair sees
 (:func:`~pcainterp_stream.frontend.features.too_near`), says how a dense cloud was thinned
@@ -23,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pcainterp_stream.frontend.pairing import NEAR_MISS_NS
-from pcainterp_stream.frontend.pairing_stats import PairingStats
+from pcainterp_stream.frontend.pairing_stats import NEAR_MISS_LIMIT_NS, PairingStats
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoFrame
 
 MILLIMETRE_DEPTH_M = 500.0
@@ -38,13 +39,22 @@ baseline: 0.8 px of disparity), so a median beyond it is no real scene. A scene 
 
 FLAT_SPREAD = 1e-6
 """Spread of a cloud's depths (max - min, relative to their median) at or below which its
-points all lie at one depth: not 3-D points.
+points all lie at one depth; at depth 1 they are normalized image coordinates, refused.
 
 Measured depths vary, if only by noise: a wall facing the camera at 5 m has centimetres of
 stereo, VIO or LiDAR noise (a relative spread of 1e-3 or more), a depth camera's millimetre
-steps 1e-3 at 1 m. 1e-6 is a few float32 steps (2**-23 = 1.2e-7) of one value: only a cloud
-that holds a single depth in every point, such as VINS feature_tracker's normalized image
-coordinates (x/z, y/z, 1), is that flat."""
+steps 1e-3 at 1 m. 1e-6 is a few float32 steps (2**-23 = 1.2e-7) of one value: a cloud that
+holds a single depth in every point. VINS feature_tracker's normalized image coordinates
+(x/z, y/z, 1) are such a cloud at z = 1, and are refused (:data:`NORMALIZED_DEPTH`). A
+simulator's noiseless depth sensor facing a wall (Gazebo, Isaac, CARLA without a noise model)
+gives one at the wall's depth too, with x and y spread over metres: those are 3-D points of a
+flat surface and are densified (bug hunt 8C F10: z = 4.95 m refused the run)."""
+
+NORMALIZED_DEPTH = 1.0
+"""The depth (m) of a flat cloud that is refused as normalized image coordinates (x/z, y/z,
+1). A cloud at one other depth is a flat surface facing the camera, used as it is; a real
+wall at exactly 1 m with no noise cannot be told from normalized coordinates and is refused
+with them (the refusal names them)."""
 
 WORLD_FRAMES = ("map", "odom", "world", "earth")
 """Frame ids of a world frame (REP 105's map, odom and earth, and the common world): a cloud
@@ -52,17 +62,18 @@ in one is a SLAM map's points, never in a camera's optical frame, and is refused
 names are warned of only (``camera_link`` may be a renamed optical frame)."""
 
 FLAT_MIN_POINTS = 10
-"""Points (in front of the camera) at one depth that refuse a stream (:data:`FLAT_SPREAD`).
+"""Points (in front of the camera) at z = 1 that refuse a stream (:data:`FLAT_SPREAD`).
 
 A few measured depths may coincide by chance (a depth camera's millimetre steps, stereo's
 integer disparities of far points), ten in one cloud do not. Clouds of fewer points are
 judged together: the points of the stream's clouds of 2 to 9 points, while every one of
 them lies at one and the same depth (VINS feature_tracker's z = 1 in every cloud), count
 towards the ten; a cloud with depths that differ, or one at another depth than the clouds
-before it, ends that (a single point has no depth to compare and is not judged)."""
+before it, ends that (a single point has no depth to compare and is not judged). Clouds
+pooled at another depth than 1 are a flat surface: neither refused nor warned of."""
 
 FLAT_SUSPECT_POINTS = 3
-"""Points at one depth, fewer than :data:`FLAT_MIN_POINTS`, that a run warns of when its
+"""Points at z = 1, fewer than :data:`FLAT_MIN_POINTS`, that a run warns of when its
 stream gave no cloud with points at different depths."""
 
 
@@ -107,6 +118,7 @@ class FeatureStreamCheck:
         flat_clouds: clouds of :data:`FLAT_MIN_POINTS` points or more whose points all lay
             at one depth, after such a cloud.
         flat_depth: the depth of the first of those (m).
+        frame_stamps_ns: the first and the last frame's stamp (ns), for the frame interval.
         carried_frames: frames without a point of their own estimated from carried points.
         predicted_frames: frames without a point of their own or carried, estimated by the
             temporal prior's prediction from the previous frame.
@@ -144,6 +156,7 @@ class FeatureStreamCheck:
     small_flat_stamps_ns: tuple[int, int] = (0, 0)
     flat_clouds: int = 0
     flat_depth: float = 0.0
+    frame_stamps_ns: tuple[int, int] | None = None
     carried_frames: int = 0
     predicted_frames: int = 0
 
@@ -153,9 +166,12 @@ class FeatureStreamCheck:
         Returns:
             why the stream is refused: its cloud is in a world frame (:data:`WORLD_FRAMES`),
             or, before any cloud with points at different depths, a cloud of
-            :data:`FLAT_MIN_POINTS` points or more has every point at one depth, or smaller
-            clouds together hold that many points, all at the same depth; None to go on.
+            :data:`FLAT_MIN_POINTS` points or more has every point at z = 1 (normalized
+            image coordinates), or smaller clouds together hold that many points, all at
+            z = 1; None to go on (a cloud at one other depth is a flat surface).
         """
+        stamps = self.frame_stamps_ns
+        self.frame_stamps_ns = (frame.stamp_ns if stamps is None else stamps[0], frame.stamp_ns)
         if features is None:
             return None
         if features.stamp_ns != frame.stamp_ns:
@@ -180,12 +196,15 @@ class FeatureStreamCheck:
         if float(np.ptp(ahead)) > FLAT_SPREAD * median:
             self.spread_seen = True
             return None
-        if self.spread_seen:  # a stream of 3-D clouds with a flat one: warned of
-            if ahead.size >= FLAT_MIN_POINTS:
+        normalized = _same_depth(median, NORMALIZED_DEPTH)  # else a flat surface: 3-D points
+        if self.spread_seen:  # a stream of 3-D clouds with a normalized one: warned of
+            if ahead.size >= FLAT_MIN_POINTS and normalized:
                 self.flat_clouds += 1
                 self.flat_depth = self.flat_depth or median
             return None
         if ahead.size >= FLAT_MIN_POINTS:
+            if not normalized:  # a noiseless simulator's wall facing the camera
+                return None
             return (
                 f"every point of the cloud of --features-topic {self.topic} at stamp "
                 f"{_seconds(features.stamp_ns)} s ({ahead.size} points) has z = {median:.6g}: "
@@ -206,9 +225,13 @@ class FeatureStreamCheck:
         self.small_flat_clouds += 1
         self.small_flat_points += points
         self.small_flat_stamps_ns = (self.small_flat_stamps_ns[0], stamp_ns)
-        if self.small_flat_points < FLAT_MIN_POINTS:
+        if self.small_flat_points < FLAT_MIN_POINTS or not self._small_flat_normalized():
             return None
         return f"{self._small_flat_clause()}: {_not_3d(self.small_flat_depth)}"
+
+    def _small_flat_normalized(self) -> bool:
+        """Whether the pooled small clouds are at z = 1 (not a flat surface at its depth)."""
+        return _same_depth(self.small_flat_depth, NORMALIZED_DEPTH)
 
     def _small_flat_clause(self) -> str:
         """Return "every point of the 4 clouds ... has z = 1" for the pooled small clouds."""
@@ -346,6 +369,14 @@ class FeatureStreamCheck:
                 f"'{image_id}': their points were used as if in the left optical frame "
                 "(transform them there before densifying)"
             )
+        far = [offset for offset in self.offsets_ns if offset > NEAR_MISS_LIMIT_NS]
+        if far:
+            lines.append(
+                f"{len(far)} of the {self.frames - self.without_cloud} clouds of {self.topic} "
+                f"matched an image more than {NEAR_MISS_LIMIT_NS / 1e9:g} s from their stamp "
+                f"(up to {_duration(max(far))}): not of the image's instant, their points are "
+                f"likely another frame's (a clock other than the images'?); {_RESTAMP}"
+            )
         if self.flat_clouds:
             lines.append(
                 f"{self.flat_clouds} clouds of {self.topic} had every point at one depth (the "
@@ -356,6 +387,7 @@ class FeatureStreamCheck:
             self.small_flat_clouds > 0
             and self.small_flat_points >= FLAT_SUSPECT_POINTS
             and not self.spread_seen
+            and self._small_flat_normalized()
         ):
             # refused at FLAT_MIN_POINTS: fewer are a warning, as real depths may coincide
             lines.append(
@@ -404,6 +436,8 @@ class FeatureStreamCheck:
         clouds = stats.features_matched + stats.features_unmatched
         undecodable = [p for p in stats.problems if p.startswith(f"{self.topic}: ")]
         nearest = stats.features_nearest_miss_ns
+        stamps = self.frame_stamps_ns
+        unstamped = stats.features_unstamped if stamps is not None and stamps[1] else 0
         lost = stats.lost_features
         if lost.count and stats.hold is not None:  # logged farther apart than the pairing held
             lag = lost.lag_s()
@@ -420,13 +454,67 @@ class FeatureStreamCheck:
             return f"{self.without_cloud} had no cloud: none could be read ({undecodable[0]})"
         if clouds == 0:
             return f"{self.without_cloud} had no cloud: the log has none on {self.topic}"
-        if nearest >= 0 and (error or nearest <= NEAR_MISS_NS):
+        if unstamped:
+            of = "" if unstamped == clouds else f" of the {clouds}"
+            clause = (
+                f"{self.without_cloud} had no cloud: {unstamped}{of} clouds of {self.topic} "
+                "have header stamp 0 (not set by their publisher), which places them at no "
+                f"image, whatever the tolerance; {_RESTAMP}"
+            )
+            if nearest < 0:
+                return clause
+            clause += "; of the other clouds, none was within the stamp tolerance"
+        elif 0 <= nearest <= stats.tolerance_ns:  # within it, but nearer another frame
+            return (
+                f"{self.without_cloud} had no cloud of their own: those within the "
+                f"{tolerance:g} ms stamp tolerance were nearer other frames' stamps"
+                + self._far(nearest, stats, error=error)
+            )
+        far = self._far(nearest, stats, error=error) if nearest >= 0 else ""
+        if far:  # never a tolerance that reaches the neighbouring frames' clouds
+            return clause + far
+        interval = self._frame_interval_ns(stats)
+        within_half = not interval or 2 * nearest < interval  # never reaches another frame
+        if nearest >= 0 and within_half and (error or nearest <= NEAR_MISS_NS):
             return (
                 f"{clause} (the nearest cloud was {nearest / 1e6:.3g} ms from an image's "
                 f"stamp; pass --stamp-tolerance-ms {math.ceil(nearest / 1e6)} if they are of "
                 "the same instant)"
             )
         return clause
+
+    def _far(self, nearest_ns: int, stats: PairingStats, *, error: bool = True) -> str:
+        """Return why clouds this far (ns) from the images' stamps pair with no tolerance.
+
+        Empty for a gap under half a frame interval (a tolerance may pair those; without a
+        known interval, under :data:`NEAR_MISS_LIMIT_NS`); for a warning (``error`` False),
+        also for one up to that limit: a frame without a cloud of its own has other frames'
+        clouds farther than half a frame, which says nothing of their clock.
+        """
+        interval = self._frame_interval_ns(stats)
+        other_clock = nearest_ns > NEAR_MISS_LIMIT_NS
+        if not other_clock and (not error or not interval or 2 * nearest_ns < interval):
+            return ""
+        frames = ""
+        if interval and not other_clock:
+            frames = f", {nearest_ns / interval:.3g} frame intervals of {interval / 1e6:.3g} ms"
+        why = "half a frame interval or more"
+        if other_clock:
+            why = "the clouds are stamped on another clock than the images, or another log's"
+        return (
+            f" (the nearest cloud was {_duration(nearest_ns)} from an image's stamp{frames}: "
+            f"{why}; a tolerance that wide pairs frames with other frames' clouds; "
+            f"{_RESTAMP})"
+        )
+
+    def _frame_interval_ns(self, stats: PairingStats) -> int:
+        """Return the frames' mean stamp interval (ns; by log time if so paired), 0: unknown."""
+        if stats.repeated_stamp_topic is not None:
+            return stats.log_period_ns
+        stamps = self.frame_stamps_ns
+        if stamps is None or self.frames < 2 or stamps[1] <= stamps[0]:
+            return 0
+        return (stamps[1] - stamps[0]) // (self.frames - 1)
 
     def _near_clause(self) -> str:
         """Return what the points too near are (after their count)."""
@@ -442,6 +530,21 @@ class FeatureStreamCheck:
         if self.frame_ids is not None:
             hint += f" (their frame_id is '{self.frame_ids[0]}', the image's '{self.frame_ids[1]}')"
         return hint
+
+
+_RESTAMP = "stamp each cloud with the header stamp of the image it was computed from"
+"""The fix of clouds whose stamps place them at no image (0, or another clock's)."""
+
+
+def _duration(ns: int) -> str:
+    """Return a gap (ns) in the unit that reads best: ms, s, hours, days or years."""
+    seconds = ns / 1e9
+    if seconds < 1:
+        return f"{ns / 1e6:.3g} ms"
+    for unit, length in (("years", 365.25 * 86400), ("days", 86400), ("hours", 3600)):
+        if seconds >= length:
+            return f"{seconds:.3g} s ({seconds / length:.3g} {unit})"
+    return f"{seconds:.3g} s"
 
 
 def _seconds(stamp_ns: int) -> str:

@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
+from pcainterp_stream.frontend.feature_match import features_from_pointcloud
 from pcainterp_stream.io import rosmsg
 
 
@@ -101,6 +102,24 @@ def test_organized_pointcloud2_rows_are_read_at_row_step() -> None:
         fields = rosmsg.pointcloud2_arrays(_organized_cloud(points, padding))
         read = np.stack([fields["x"], fields["y"], fields["z"]], axis=1)
         np.testing.assert_array_equal(read, points.reshape(-1, 3).astype(np.float64))
+
+
+def test_a_pointcloud2_field_of_unknown_datatype_is_skipped_when_not_needed() -> None:
+    """Bug hunt 8C F11: one extra field of datatype 0 (left unset by a publisher that fills
+    only the fields it uses) made every cloud unreadable, though x, y and z were fine."""
+    points = {name: np.arange(3, dtype=np.float32) + i for i, name in enumerate("xyz")}
+    cloud = rosmsg.pointcloud2_message(dict(points, label=np.zeros(3, np.float32)), 5, "left")
+    cloud.fields[3].datatype = 0
+    with pytest.raises(ValueError, match="point field 'label' has unknown datatype 0"):
+        rosmsg.pointcloud2_arrays(cloud)  # every field asked for: still said
+    fields = rosmsg.pointcloud2_arrays(cloud, ("x", "y", "z"))
+    assert list(fields) == ["x", "y", "z"]
+    np.testing.assert_array_equal(fields["z"], [2, 3, 4])
+    features = features_from_pointcloud(cloud, 7)
+    np.testing.assert_array_equal(features.points[:, 2], [2, 3, 4])
+    cloud.fields[2].datatype = 0  # a needed field of unknown datatype is an error still
+    with pytest.raises(ValueError, match="point field 'z' has unknown datatype 0"):
+        features_from_pointcloud(cloud, 7)
 
 
 def test_pointcloud2_row_step_shorter_than_a_row_is_refused() -> None:

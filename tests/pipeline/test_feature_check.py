@@ -371,6 +371,31 @@ def _wall(i: int, stamp: int, frame_id: str, points: Points) -> Cloud:
     return stamp, frame_id, points / points[:, 2:] * depth[:, None]
 
 
+def _noiseless_wall(i: int, stamp: int, frame_id: str, points: Points) -> Cloud:
+    """The same rays on a wall facing the camera at 4.95 m, every z exactly that (float32):
+    a simulator's depth sensor without a noise model."""
+    return stamp, frame_id, points / points[:, 2:] * np.float32(4.95)
+
+
+def test_a_noiseless_wall_is_densified_and_normalized_coordinates_still_refused(
+    log: Path, tmp_path: Path
+) -> None:
+    """Bug hunt 8C F10: a simulator's cloud of a wall facing the camera (all z = 4.95 m, x and
+    y over metres) refused the whole run as "not 3-D points"; only z = 1 is refused."""
+    wall = with_features(log, tmp_path / "wall.mcap", _noiseless_wall)
+    summary = densify(wall, tmp_path / "wall_out.mcap")
+    assert summary.frames == FRAMES
+    assert not [line for line in summary.warnings if "one depth" in line or "z = " in line]
+    with open_log(tmp_path / "wall_out.mcap") as reader:
+        depths = [image_of(reader.decode(raw)) for raw in reader.messages(["/pcainterp/depth"])]
+    assert all(np.nanmedian(depth) == pytest.approx(4.95, rel=0.01) for depth in depths)
+    # the refusal of z = 1 is unchanged, after a flat wall too
+    refusals, _ = _checked([4.95] * 12, [1.0] * 12)
+    assert refusals[0] is None
+    assert refusals[1] is not None
+    assert "has z = 1: not 3-D points" in refusals[1]
+
+
 def test_normalized_image_coordinates_are_refused_and_a_flat_wall_is_not(
     log: Path, tmp_path: Path
 ) -> None:
@@ -408,11 +433,12 @@ def _first(count: int, depth: Callable[[int], float] | None = None) -> Damage:
 
 
 def test_small_clouds_at_one_depth_are_judged_together(log: Path, tmp_path: Path) -> None:
-    # clouds of fewer than 10 points were never judged: 3 normalized points a frame, or 9 at
-    # z = 8 m in every frame, were densified as a flat wall without a word
-    for count, depth, points, clouds in [(3, 1.0, 12, 4), (9, 8.0, 18, 2)]:
+    # clouds of fewer than 10 points were never judged: 3 normalized points a frame were
+    # densified as a flat wall without a word (9 at z = 8 m in every frame are a flat wall:
+    # test_small_clouds_of_real_points_are_densified_without_a_word)
+    for count, depth, points, clouds in [(3, 1.0, 12, 4)]:
         source = with_features(log, tmp_path / "f.mcap", _first(count, lambda i, z=depth: z))
-        guess = r"normalized image coordinates .*\? " if depth == 1.0 else ""
+        guess = r"normalized image coordinates .*\? "
         with pytest.raises(
             PcaInterpError,
             match=rf"^{re.escape(str(source))}: every point of the {clouds} clouds of "
@@ -439,8 +465,14 @@ def test_small_clouds_at_one_depth_are_judged_together(log: Path, tmp_path: Path
 
 @pytest.mark.parametrize(
     ("count", "depth"),
-    [(3, None), (1, None), (1, lambda i: 1.0), (3, lambda i: 5.0 + i)],
-    ids=["3 points", "1 point", "1 point at z = 1", "3 points a cloud at one depth each"],
+    [(3, None), (1, None), (1, lambda i: 1.0), (3, lambda i: 5.0 + i), (9, lambda i: 8.0)],
+    ids=[
+        "3 points",
+        "1 point",
+        "1 point at z = 1",
+        "3 points a cloud at one depth each",
+        "9 points a cloud at z = 8 m",
+    ],
 )
 def test_small_clouds_of_real_points_are_densified_without_a_word(
     log: Path, tmp_path: Path, count: int, depth: Callable[[int], float] | None
@@ -526,6 +558,62 @@ def test_a_frame_takes_the_nearest_cloud_and_the_line_says_how_far_it_was(
     )
     assert late.feature_line is not None
     assert late.feature_line.endswith("; 4 of the 4 clouds matched an image 3 ms from their stamp")
+
+
+def test_clouds_stamped_0_are_named_and_paired_with_no_frame_whatever_the_tolerance(
+    log: Path, tmp_path: Path
+) -> None:
+    """Bug hunt 8C F4: clouds whose publisher never set the stamp got the advice
+    ``--stamp-tolerance-ms 1317046453000`` (41 years); taking it gave one frame a cloud."""
+    source = with_features(log, tmp_path / "f.mcap", lambda i, s, f, p: (0, f, p))
+    cause = (
+        r"4 had no cloud: 4 clouds of /features have header stamp 0 \(not set by their "
+        r"publisher\), which places them at no image, whatever the tolerance; stamp each cloud "
+        r"with the header stamp of the image it was computed from$"
+    )
+    for tolerance_ms in (1, 1317046453000):
+        with pytest.raises(PcaInterpError, match=rf"in any of the 4 frames: {cause}"):
+            densify(source, tmp_path / "out.mcap", tolerance_ms=tolerance_ms)
+
+
+def test_clouds_on_another_clock_are_named_and_no_tolerance_is_advised(
+    log: Path, tmp_path: Path
+) -> None:
+    """Bug hunt 8C F4: clouds stamped on the wall clock beside a log in sensor time (4e8 s
+    later) got the advice of a 12.7-year tolerance; one stamped over half a frame off, one
+    that pairs each frame with its neighbour's cloud."""
+    far = with_features(log, tmp_path / "far.mcap", _later(400_000_000_000))
+    with pytest.raises(PcaInterpError) as refused:
+        densify(far, tmp_path / "out.mcap")
+    assert str(refused.value).endswith(
+        "4 had no cloud within the 1 ms stamp tolerance (the nearest cloud was 4e+08 s (12.7 "
+        "years) from an image's stamp: the clouds are stamped on another clock than the "
+        "images, or another log's; a tolerance that wide pairs frames with other frames' "
+        "clouds; stamp each cloud with the header stamp of the image it was computed from)"
+    )
+    # the tolerance taken anyway: each cloud matched beyond a second is warned of
+    wide = densify(far, tmp_path / "wide.mcap", tolerance_ms=400_000_001_000)
+    (line,) = [w for w in wide.warnings if "more than 1 s" in w]
+    assert re.fullmatch(
+        r"\d of the \d clouds of /features matched an image more than 1 s from their stamp "
+        r"\(up to 4e\+08 s \(12.7 years\)\): not of the image's instant, their points are "
+        r"likely another frame's \(a clock other than the images'\?\); stamp each cloud with "
+        r"the header stamp of the image it was computed from",
+        line,
+    )
+    # a nearest cloud half a frame away or more (frames 100 ms apart) is another frame's too
+    check = FeatureStreamCheck("/features", frames=4, without_cloud=4)
+    check.frame_stamps_ns = (0, 300 * MS)
+    stats = PairingStats(tolerance_ns=MS, features_unmatched=4)
+    stats.features_nearest_miss_ns = 40 * MS
+    assert "pass --stamp-tolerance-ms 40 if" in str(check.error(stats))
+    stats.features_nearest_miss_ns = 60 * MS
+    assert str(check.error(stats)).endswith(
+        "4 had no cloud within the 1 ms stamp tolerance (the nearest cloud was 60 ms from an "
+        "image's stamp, 0.6 frame intervals of 100 ms: half a frame interval or more; a "
+        "tolerance that wide pairs frames with other frames' clouds; stamp each cloud with "
+        "the header stamp of the image it was computed from)"
+    )
 
 
 def _depths(path: Path) -> list[bytes]:
