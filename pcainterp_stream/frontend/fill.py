@@ -8,7 +8,9 @@
   gaps: the lattice's, nudged or not, or as many chosen by :func:`greedy_fill`;
 * :func:`greedy_fill` -- the candidates (a lattice 4x finer than the fill's, looked up with
   the usual checks), their weights and the choice;
-* :func:`valid_share` -- the share of valid SGBM pixels around points.
+* :func:`valid_share` -- the share of valid SGBM pixels around points;
+* :func:`scaled_spacing` -- the fill's side on a large image: ``fill_spacing`` up to
+  :data:`FILL_REFERENCE_AREA`, beyond it grown with the square root of the area.
 
 Measurements: ``docs/sharper_sparse_2.md`` (the nudged lattice) and
 ``docs/sharper_sparse.md``, "Where the fill points go" (the greedy fill).
@@ -16,6 +18,8 @@ Measurements: ``docs/sharper_sparse_2.md`` (the nudged lattice) and
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from collections.abc import Callable
 from typing import Protocol
 
@@ -25,7 +29,14 @@ import numpy.typing as npt
 
 from pcainterp_stream.frontend.corners import GfttConfig, lattice_points, patch_contrast
 
-__all__ = ["fill_points", "greedy_fill", "valid_share", "weighted_fill"]
+__all__ = [
+    "FILL_REFERENCE_AREA",
+    "fill_points",
+    "greedy_fill",
+    "scaled_spacing",
+    "valid_share",
+    "weighted_fill",
+]
 
 FloatArray = npt.NDArray[np.float32]
 
@@ -45,6 +56,31 @@ class Looked(Protocol):
 
 LookUp = Callable[[FloatArray], Looked]
 """Points -> their lookups that pass the checks (:func:`.stereo.lookup_disparities`)."""
+
+FILL_REFERENCE_AREA = 2_000_000
+"""Largest searched area (px^2) whose fill keeps ``fill_spacing`` as given: a 1920 x 1080
+pair's (1.90e6 px^2, 1215 lattice points at 40 px) and every smaller camera's. Measured
+(docs/benchmarks.md, "A large image's fill lattice"): on a 4096 x 2160 pair the 40 px
+lattice had 5229 points and took 43 s per frame; here it keeps ~1300 points."""
+
+
+def scaled_spacing(spacing: float, area: tuple[int, int, int, int]) -> float:
+    """The fill's side (px) on ``area``: ``spacing``, grown on an area above the reference.
+
+    The estimate's k x k solve grows with the cube of its points, and a lattice of a fixed
+    side with the image's area. On a searched area ``a`` larger than
+    :data:`FILL_REFERENCE_AREA` the side is ``spacing * sqrt(a / FILL_REFERENCE_AREA)``, so
+    the lattice keeps the points it has on the reference area, spread evenly over the
+    image (the basis is resampled to the image, so they cover the same share of its grid),
+    and the frame's time grows about with its pixels (SGBM) instead of their cube. Up to
+    the reference (KITTI, EuRoC, 1280 x 720, 1920 x 1080) the side is ``spacing`` itself.
+    """
+    x0, y0, x1, y1 = area
+    size = max(x1 - x0, 0) * max(y1 - y0, 0)
+    if spacing <= 0.0 or size <= FILL_REFERENCE_AREA:
+        return spacing
+    return spacing * math.sqrt(size / FILL_REFERENCE_AREA)
+
 
 SUPPORT_HALF = 10
 """Half side (px) of the window whose valid share :func:`valid_share` gives."""
@@ -80,8 +116,12 @@ def fill_points(
     least ``gftt.fill_min_contrast`` (and the support check when ``fill_min_support`` > 0).
     ``"nudged"``: those of :func:`nudged_lattice` (the same checks, then the moves).
     Otherwise as many as those pass the lookups' checks, chosen by :func:`greedy_fill`
-    (each then passes them again). Arguments as :func:`greedy_fill`'s.
+    (each then passes them again). Arguments as :func:`greedy_fill`'s. On an area larger
+    than :data:`FILL_REFERENCE_AREA` the side is :func:`scaled_spacing`'s.
     """
+    spacing = scaled_spacing(gftt.fill_spacing, area)
+    if spacing != gftt.fill_spacing:
+        gftt = dataclasses.replace(gftt, fill_spacing=spacing)
     points = lattice_points(kept, gftt.fill_spacing, area)
     if gftt.fill_placement == "nudged":
         return nudged_lattice(left_grey, disparity, gftt, area, points, look_up)

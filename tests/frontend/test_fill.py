@@ -1,7 +1,9 @@
-"""The nudged lattice: a rejected lattice point is moved to where a lookup passes."""
+"""The nudged lattice: a rejected lattice point is moved to where a lookup passes; the
+lattice's side on a large image."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from functools import partial
 
@@ -13,7 +15,14 @@ from hypothesis import strategies as st
 from hypothesis_profiles import examples
 
 from pcainterp_stream.frontend.corners import GfttConfig, lattice_points
-from pcainterp_stream.frontend.fill import NUDGES, fill_points, nudged_lattice, valid_share
+from pcainterp_stream.frontend.fill import (
+    FILL_REFERENCE_AREA,
+    NUDGES,
+    fill_points,
+    nudged_lattice,
+    scaled_spacing,
+    valid_share,
+)
 from pcainterp_stream.frontend.stereo import lookup_disparities, sparse_lookups
 
 HEIGHT, WIDTH = 120, 200
@@ -155,3 +164,51 @@ def test_the_front_ends_counts_add_up_with_the_nudged_lattice() -> None:
 def test_the_support_share_is_checked() -> None:
     with pytest.raises(ValueError, match="nudge_min_support must be in"):
         GfttConfig(nudge_min_support=-0.1)
+
+
+def _searched(
+    width: int, height: int, band: int = 128, border: int = 8
+) -> tuple[int, int, int, int]:
+    return (band, border, width - border, height - border)
+
+
+def test_a_4k_pairs_fill_keeps_about_the_reference_areas_points() -> None:
+    """Bug hunt 8C F5: a 4096x2160 pair's 40 px lattice had 5346 points (43 s per frame)."""
+    height, width = 2160, 4096
+    area = _searched(width, height)
+    grey = np.asarray(np.random.default_rng(1).integers(0, 256, (height, width)), np.uint8)
+    disparity = np.full((height, width), 20.0, np.float32)
+    look_up = _look_up(disparity)
+    reference = FILL_REFERENCE_AREA / 40.0**2  # the points on the reference area
+    for placement in ("nudged", "lattice"):
+        gftt = GfttConfig(fill_placement=placement)
+        placed = fill_points(grey, disparity, gftt, area, NONE_KEPT, look_up)
+        assert 0.9 * reference <= len(placed) <= 1.1 * reference, (placement, len(placed))
+    # spread evenly: the lattice of the grown side, every point of it
+    side = scaled_spacing(40.0, area)
+    assert side > 80.0
+    np.testing.assert_array_equal(placed, lattice_points(NONE_KEPT, side, area))
+
+
+@pytest.mark.parametrize(
+    ("width", "height", "spacing"),
+    [(1242, 375, 40.0), (1241, 376, 34.0), (752, 480, 40.0), (1280, 720, 10.0), (1920, 1080, 40.0)],
+)
+def test_the_fill_is_unchanged_up_to_1080p(width: int, height: int, spacing: float) -> None:
+    """KITTI, EuRoC, 1280x720 and 1920x1080 keep the given side and the very same points."""
+    area = _searched(width, height)
+    assert scaled_spacing(spacing, area) == spacing
+    grey = np.asarray(np.random.default_rng(2).integers(0, 256, (height, width)), np.uint8)
+    disparity = np.full((height, width), 20.0, np.float32)
+    gftt = GfttConfig(fill_spacing=spacing, fill_placement="lattice")
+    placed = fill_points(grey, disparity, gftt, area, NONE_KEPT, _look_up(disparity))
+    np.testing.assert_array_equal(placed, lattice_points(NONE_KEPT, spacing, area))
+
+
+def test_the_side_grows_with_the_square_root_of_the_area_past_the_reference() -> None:
+    side = math.sqrt(FILL_REFERENCE_AREA)
+    assert scaled_spacing(40.0, (0, 0, int(side), int(side))) == 40.0
+    assert scaled_spacing(40.0, (0, 0, int(2 * side), int(2 * side))) == pytest.approx(
+        80.0, rel=1e-3
+    )
+    assert scaled_spacing(0.0, (0, 0, 10_000, 10_000)) == 0.0  # no lattice stays none
