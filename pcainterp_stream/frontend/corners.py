@@ -68,7 +68,8 @@ class GfttConfig:
         fill_spacing: side (px) of a lattice of extra points (:func:`lattice_points`): a
             lattice point farther than half a side from every kept corner lookup is looked
             up too (same checks), so the surfaces between the corners get measurements;
-            0 adds none.
+            0 adds none. Past ~1920x1080 the side grows with the image
+            (:func:`~pcainterp_stream.frontend.fill.scaled_spacing`).
         fill_min_contrast: a lattice point is looked up only where the grey levels of the
             7x7 px around it have at least this std: on a blank surface (saturated sky, a
             blank wall) SGBM's costs tie and it returns its smallest disparity (0, i.e.
