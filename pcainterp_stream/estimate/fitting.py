@@ -448,6 +448,37 @@ def fit_std_scale(
     return float(np.quantile(joined, COVERAGE_TARGET) / 2.0)
 
 
+ABSURD_STD_SCALE = 1e3
+"""A fitted std scale above this says the basis's own posterior std is degenerate.
+
+Fitted scales of usable bases: 0.67-1.8 (the built-in ones), 4-37 (a log's own basis, whose
+one or few components leave the posterior std narrow; 37.4 brought a flat wall's std from 4
+to 99 % coverage). A basis learned from two EuRoC maps on dense mode's lattice fitted 2.94e7
+(its local kernel 3.9e-15 px^2): its std is then that one factor times a number ~0."""
+
+
+def fitted_std_scale(fitted: dict[str, Any], hybrid: bool) -> tuple[float, bool]:
+    """Return the std scale a basis's fitted prior gives, and whether it is per frame.
+
+    The scale was fitted with the basis's own fitted prior (its local kernel, or the paper's
+    prior when the evidence preferred it): it applies when the estimate uses that prior
+    (``hybrid``: with a local kernel), else 1 (``--prior paper`` on a hybrid fit). The
+    second value: the scale multiplies each frame's covariance scale too
+    (``innovation_std_scale``; bases fitted before it existed have only the plain factor).
+
+    Examples:
+        >>> fitted_std_scale({"local": None, "std_scale": 37.4}, hybrid=False)
+        (37.4, False)
+        >>> fitted_std_scale({"local": {"variance": 1.0}, "std_scale": 0.7}, hybrid=False)
+        (1.0, False)
+    """
+    if hybrid != bool(fitted.get("local")):
+        return 1.0, False
+    per_frame = "innovation_std_scale" in fitted
+    key = "innovation_std_scale" if per_frame else "std_scale"
+    return float(fitted.get(key, 1.0)), per_frame
+
+
 class CalibrationFrame(NamedTuple):
     """A held-out frame with a dense reference, for :func:`fit_std_scale`.
 

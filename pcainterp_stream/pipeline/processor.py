@@ -47,7 +47,7 @@ import numpy.typing as npt
 
 from pcainterp_stream import compiled, defaults
 from pcainterp_stream.allocator import Releases
-from pcainterp_stream.estimate import adapt
+from pcainterp_stream.estimate import adapt, fitting
 from pcainterp_stream.estimate.basis import (
     BUILTIN_KINDS,
     Basis,
@@ -321,13 +321,9 @@ def resolve_settings(basis: Basis, config: ProcessorConfig) -> EstimateSettings:
     process_noise = config.process_noise
     if process_noise is None:
         process_noise = float(fitted.get("process_noise", 0.1))
-    std_scale = 1.0
-    scale_by_innovation = False
-    if config.calibrate and local is not None:
-        # bases fitted before the per-frame scale existed have only the plain factor
-        scale_by_innovation = "innovation_std_scale" in fitted
-        key = "innovation_std_scale" if scale_by_innovation else "std_scale"
-        std_scale = float(fitted.get(key, 1.0))
+    # a paper's-prior fit's scale too (it applied only with a kernel: bug hunt 8C F3)
+    calibrated = fitting.fitted_std_scale(fitted, local is not None) if config.calibrate else None
+    std_scale, scale_by_innovation = calibrated or (1.0, False)
     stereo = config.source is MeasurementSource.STEREO and config.measurements == "sparse"
     return EstimateSettings(
         sigma=sigma,
@@ -425,6 +421,7 @@ class FrameProcessor:
             alternatives=self._alternatives(kind),
             own_above=OWN_ABOVE_STREET if kind == "street" else FITS_BELOW,
         )
+        self.adaptation.warn_std_scale(self.settings.std_scale)
         # decided here, not from the lane's state: the first batch is the check's frames
         self._warming = self.adaptation.warming
         self._measuring = (basis.grid_size, self.adaptation.wants_maps())  # see _measured_for
@@ -675,6 +672,7 @@ class FrameProcessor:
         """Densify from now on with ``basis`` (its fitted prior; the temporal prior restarts)."""
         self.basis = basis
         self.settings = resolve_settings(basis, self.config)
+        self.adaptation.warn_std_scale(self.settings.std_scale, "this log's own basis")
         if self.temporal is not None:
             self.temporal = TemporalPrior(process_noise=self.settings.process_noise)
 
