@@ -126,9 +126,9 @@ def test_a_ros1_bags_latched_topic_is_written_with_a_version_8_record(tmp_path: 
     assert set(listed["/chatter"]["topic_metadata"]) == topic_keys
 
 
-def test_a_sqlite3_bags_qos_is_written_with_a_version_8_record(tmp_path: Path) -> None:
-    bag = tmp_path / "jazzy"  # version 9: rosbag2 stored the profile in names
-    with Rosbag2Writer(bag, version=9, storage_plugin=StoragePlugin.SQLITE3) as writer:
+def _latched_bag(bag: Path, storage: StoragePlugin) -> Path:
+    """A version-9 rosbag2 bag of one latched ``/tf_static`` message."""
+    with Rosbag2Writer(bag, version=9, storage_plugin=storage) as writer:
         connection = writer.add_connection(
             "/tf_static",
             "std_msgs/msg/String",
@@ -136,6 +136,11 @@ def test_a_sqlite3_bags_qos_is_written_with_a_version_8_record(tmp_path: Path) -
             offered_qos_profiles=[LATCHED],
         )
         writer.write(connection, 5, rosmsg.serialize(STATUS))
+    return bag
+
+
+def test_a_sqlite3_bags_qos_is_written_with_a_version_8_record(tmp_path: Path) -> None:
+    bag = _latched_bag(tmp_path / "jazzy", StoragePlugin.SQLITE3)  # version 9: QoS in names
     _assert_rosbag2_reads_latched(_copy(bag, tmp_path / "out.mcap"), "/tf_static")
 
 
@@ -156,15 +161,8 @@ def test_an_mcap_with_names_and_no_record_is_written_in_numbers(tmp_path: Path) 
 
 
 def test_a_rosbag2_mcaps_own_record_and_qos_are_kept_as_they_are(tmp_path: Path) -> None:
-    bag = tmp_path / "recorded"  # as Jazzy's rosbag2 writes it: names and a version-9 record
-    with Rosbag2Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        connection = writer.add_connection(
-            "/tf_static",
-            "std_msgs/msg/String",
-            typestore=rosmsg.TYPESTORE,
-            offered_qos_profiles=[LATCHED],
-        )
-        writer.write(connection, 5, rosmsg.serialize(STATUS))
+    # as Jazzy's rosbag2 writes it: names and a version-9 record
+    bag = _latched_bag(tmp_path / "recorded", StoragePlugin.MCAP)
     before = _read(bag / "recorded.mcap")
     assert _bag_metadata(before[0][0])["version"] == 9
     assert _read(_copy(bag, tmp_path / "out.mcap")) == before  # one record, the input's
