@@ -152,7 +152,7 @@ class Rosbag2Record:
             "compression_format": "",
             "compression_mode": "",
             "files": [{"path": file_name, **times(), "message_count": count}],
-            "custom_data": None,
+            "custom_data": {},  # a map: rosbag2 (yaml-cpp) cannot read null as one
             "ros_distro": "",
         }
         return {"serialized_metadata": yaml.safe_dump(info, default_flow_style=False).strip()}

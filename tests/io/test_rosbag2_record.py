@@ -123,6 +123,7 @@ def test_a_ros1_bags_latched_topic_is_written_with_a_version_8_record(tmp_path: 
     assert listed["/chatter"]["message_count"] == 1
     keys, topic_keys = _rosbags_record_keys(tmp_path, 8)
     assert set(info) == keys  # every key rosbag2 requires of a version-8 record
+    assert info["custom_data"] == {}  # rosbag2 reads a map there (yaml-cpp refuses null)
     assert set(listed["/chatter"]["topic_metadata"]) == topic_keys
 
 
