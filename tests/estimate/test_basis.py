@@ -263,7 +263,7 @@ def test_a_bad_field_is_named_as_an_argument_of_basis() -> None:
         dataclasses.replace(good, focal_baseline=-1.0)
     with pytest.raises(ValueError, match=r"^Basis argument `n_train` must be >= 0, got -3$"):
         dataclasses.replace(good, n_train=-3)
-    with pytest.raises(ValueError, match="^Basis argument `components` is not orthonormal"):
+    with pytest.raises(ValueError, match=r"^Basis argument `components` is not orthonormal"):
         dataclasses.replace(good, components=good.components * 2)
 
 

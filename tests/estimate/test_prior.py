@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -295,7 +297,7 @@ def test_frames_without_measurements_are_not_repeats_and_widen_the_std() -> None
         gap = densify(basis, *empty, sigma=1.0, temporal=state)
         assert gap.disparity_std is not None
         stds.append(float(np.median(gap.disparity_std)))
-    assert all(b > a for a, b in zip(stds, stds[1:], strict=False)), stds
+    assert all(b > a for a, b in itertools.pairwise(stds)), stds
 
 def test_temporal_batch_equals_one_by_one() -> None:
     basis = _basis()
