@@ -22,6 +22,7 @@ from dataclasses import replace
 import numpy as np
 import numpy.typing as npt
 
+from pcainterp_stream.frontend.grey import is_blank, to_grey8_pair
 from pcainterp_stream.frontend.sgbm_limits import narrowest_width
 from pcainterp_stream.frontend.stereo import SgbmConfig
 from pcainterp_stream.records import DensifiedFrame, StereoFrame
@@ -54,7 +55,12 @@ class StaleRight:
         self.stale: set[int] = set()
 
     def is_stale(self, frame: StereoFrame, previous: StereoFrame) -> bool:
-        """Whether ``frame``'s right image equals ``previous``'s while its left changed."""
+        """Whether ``frame``'s right image equals ``previous``'s while its left changed.
+
+        A blank image (:func:`.grey.is_blank`: a black, capped or saturated camera) is not
+        stale: it repeats nothing, and the front end measures nothing in its pair anyway
+        (counted as a frame without a measurement, not as a stale one).
+        """
         right, before = frame.right, previous.right
         if right.shape != before.shape or right.dtype != before.dtype:
             return False
@@ -65,7 +71,10 @@ class StaleRight:
         changed = _thumb(frame.left) != _thumb(previous.left)
         if float(np.mean(changed)) < LEFT_CHANGED:
             return False
-        return bool(np.array_equal(right, before))
+        if not np.array_equal(right, before):
+            return False
+        grey_left, grey_right = to_grey8_pair(frame.left, right)  # as the front end sees them
+        return not (is_blank(grey_right) or is_blank(grey_left))
 
     def check(self, frame: StereoFrame) -> StereoFrame:
         """Return the frame, with a blank (all 0) right image when it is stale."""
@@ -78,8 +87,8 @@ class StaleRight:
     def warnings(self, frames: int, empty: int) -> list[str]:
         """The warning for the stale frames (none when there were none).
 
-        ``empty``: how many of them had no estimate (all, unless measurements were carried
-        into them from earlier frames).
+        ``empty``: how many of them had no estimate (all, unless earlier frames carried
+        measurements or a temporal prior into them; sparse and dense mode alike).
         """
         if not self.stale:
             return []
@@ -88,7 +97,7 @@ class StaleRight:
             "those frames have no estimate, their depth is NaN"
             if empty == count
             else f"{empty} of those frames have no estimate (depth NaN), the others only "
-            "the points carried from earlier frames"
+            "what earlier frames carried into them (points, or the temporal prior)"
         )
         return [
             f"{count} of {frames} frames had a stale right image (the pixels of the frame "

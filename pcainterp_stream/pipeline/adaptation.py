@@ -144,6 +144,10 @@ class Adaptation:
         name: how the summary names the given basis.
         alternatives: loaders of the other built-in bases, checked (and loaded) only when
             the given one does not fit well.
+        advisory: loaders of the built-in bases a basis the user chose (a file, or
+            ``--basis builtin-street``/``-indoor``) is compared with when it loses to linear
+            interpolation: never chosen, only named in the warning when ``--basis builtin``
+            would do better (:meth:`_builtin_advice`).
         switched: the alternative chosen instead of the given basis, if any.
         own_above: the log's own basis is tried when the given basis (if it stays chosen)
             scores at least this times linear interpolation's error.
@@ -159,6 +163,7 @@ class Adaptation:
     name: str = "the basis"
     may_learn: bool = True
     alternatives: list[Callable[[], Candidate]] = field(default_factory=list)
+    advisory: list[Callable[[], Candidate]] = field(default_factory=list)
     own_above: float = FITS_BELOW
     switched: Candidate | None = None
     checked: bool = False
@@ -228,6 +233,8 @@ class Adaptation:
         standing: bool = False,
         camera: tuple[tuple[int, int], float] | None = None,
         single: bool = False,
+        builtin: tuple[str, bool] = ("", False),
+        holes: float | None = None,
     ) -> None:
         """Add a ``warning:`` line when the basis kept loses to linear interpolation.
 
@@ -235,10 +242,17 @@ class Adaptation:
         tried and did no better (0: not tried). ``standing``: it was not learned, the
         warm-up frames being one view; ``single``: nor from a warm-up of one frame.
         ``camera``: (image size, f*b) of the log, named with the basis's when they are not
-        alike (:func:`other_camera`).
+        alike (:func:`other_camera`). ``builtin``: :meth:`_builtin_advice`'s advice and
+        whether the basis it names fits (then no other advice is given). ``holes``: the
+        share of the warm-up's pixels SGBM left as holes (dense mode: what the basis fills).
         """
         if self.check is None or not self.check.frames or self.check.fits:
             return
+        basis = self._given if self.switched is None else self.switched.basis
+        elsewhere = ""
+        if camera is not None and basis is not None:
+            elsewhere = other_camera(basis, *camera)  # the likely cause, named first
+        advice, enough = builtin
         if standing:
             fix = (
                 "; a basis learned from logs of this camera that move may fit: pcainterp "
@@ -259,19 +273,67 @@ class Adaptation:
                 "camera is like its own): pcainterp learn LOG [LOG ...] -o BASIS.npz, then "
                 "densify --basis BASIS.npz"
             )
+        elif enough:  # a built-in basis fits where the user's does not
+            fix = ""
         elif may_adapt and self.may_learn:
             fix = "; densify without --basis builtin to adapt to this log"
-        elif may_adapt:  # dense mode with a built-in basis: it never learns one of its own
+        elif elsewhere:
             fix = (
-                "; dense mode does not adapt the basis: learn one for this camera, "
-                "pcainterp learn LOG -o BASIS.npz, then densify --basis BASIS.npz"
+                "; learn a basis for this camera: pcainterp learn LOG [LOG ...] -o BASIS.npz, "
+                "then densify --basis BASIS.npz"
             )
-        else:
-            fix = "; learn a basis for this camera: pcainterp learn LOG -o BASIS.npz"
-        basis = self._given if self.switched is None else self.switched.basis
-        if camera is not None and basis is not None:
-            fix = other_camera(basis, *camera) + fix  # the likely cause first
+        elif may_adapt:  # a built-in basis (dense mode learns none of the log's own)
+            fix = (
+                "; a basis learned from logs of this camera may fit: pcainterp learn LOG "
+                "[LOG ...] -o BASIS.npz, then densify --basis BASIS.npz"
+            )
+        else:  # a basis file of this camera (perhaps learned from this very log)
+            fix = (
+                "; a basis learned from more frames of this camera may fit: pcainterp learn "
+                "LOG [LOG ...] -o BASIS.npz, then densify --basis BASIS.npz"
+            )
+        if not self.may_learn:  # dense mode: no basis of the log's own, and what it does
+            shared = "" if holes is None else f", {holes:.0%} of this log's pixels"
+            fix = (
+                "; dense mode does not adapt the basis, and uses it mostly to fill SGBM's "
+                f"holes{shared} (where SGBM matched, its own value dominates){fix}"
+            )
+        fix = elsewhere + advice + fix
         self.lines.append(unfit_warning(self.check, "held-out SGBM pixels", fix))
+
+    def _builtin_advice(
+        self, check: Callable[[Basis, dict[str, object]], adapt.FitCheck]
+    ) -> tuple[str, bool]:
+        """Name ``--basis builtin`` when it does better than a user's basis that loses.
+
+        For a basis the user chose (:attr:`advisory` holds the built-in bases to compare it
+        with) that loses to linear interpolation: the built-in bases are checked on the
+        same pixels (only on this warning's path) and the one ``--basis builtin`` chooses
+        (the street basis when it fits well, else the better one) is named when its error
+        is lower. Returns (the advice or "", whether the basis named fits).
+        """
+        if self.check is None or self.check.fits or self.check.degenerate:
+            return "", False
+        if not self.check.frames:
+            return "", False
+        checked = []
+        for load in self.advisory:
+            candidate = load()
+            result = check(candidate.basis, candidate.settings)
+            if result.frames:
+                checked.append((candidate, result))
+        if not checked:
+            return "", False
+        candidate, result = checked[0]  # the street basis first, as --basis builtin checks
+        if result.ratio >= FITS_BELOW:
+            candidate, result = min(checked, key=lambda pair: pair[1].prior)
+        if not result.prior < self.check.prior:
+            return "", False
+        return (
+            f"; {candidate.name} does better ({result.ratio:.2f}x linear): densify with "
+            "--basis builtin, which chooses it",
+            result.fits,
+        )
 
     def warn_std_scale(self, scale: float, name: str | None = None) -> None:
         """Warn (once) when the basis in use has an absurd fitted std scale.
@@ -300,12 +362,12 @@ class Adaptation:
         """
         if self.switched is None or self.check is None:
             return ""
-        chosen, other = self.check.prior, given.prior
-        if f"{chosen:.2f}" != f"{other:.2f}":
+        if f"{self.check.prior:.2f}" != f"{given.prior:.2f}":
             return f"prior: {self.switched.name} chosen (fits this log better)"
+        chosen, other = _figures(self.check.prior, given.prior)
         return (
-            f"prior: {self.switched.name} chosen by a near-tie ({chosen:.4f} px against "
-            f"{other:.4f} for {self.name}); --basis builtin-street or builtin-indoor forces one"
+            f"prior: {self.switched.name} chosen by a near-tie ({chosen} px against "
+            f"{other} for {self.name}); --basis builtin-street or builtin-indoor forces one"
         )
 
     def _decide(
@@ -368,7 +430,12 @@ class Adaptation:
         if not try_own:
             if self.switched is not None:
                 self.lines.append(self._chosen_line(given))
-            self._warn_unfit(self.may_replace, camera=(size, fb))
+            holes = None
+            if not self.may_learn and not self.check.fits:  # dense mode: its SGBM holes
+                maps = [f.sgbm_map for f in usable if f.sgbm_map is not None]
+                holes = float(np.mean([np.mean(~np.isfinite(m)) for m in maps]))
+            builtin = self._builtin_advice(check)
+            self._warn_unfit(self.may_replace, camera=(size, fb), builtin=builtin, holes=holes)
             return None if self.switched is None else self.switched.basis
         maps = [f.grid_map for f in usable if f.grid_map is not None]
         kept = f"{self.name} kept" if self.switched is None else f"{self.switched.name} chosen"
@@ -454,8 +521,9 @@ class Adaptation:
                 )
             if own_error < self.check.prior:
                 # better, but a prior that fits is replaced only below ADAPT_GAIN of its error
+                own_px, prior_px = _figures(own_error, self.check.prior)
                 verdict = (
-                    f"was better ({own_error:.2f} px against {self.check.prior:.2f}) but not by "
+                    f"was better ({own_px} px against {prior_px}) but not by "
                     f"the margin that replaces a prior that fits (an error below "
                     f"{adapt.ADAPT_GAIN:g}x the prior's)"
                 )
@@ -475,10 +543,10 @@ class Adaptation:
                 else f"{self.name} does not fit this camera or scene"
             )
         else:
+            own_px, prior_px = _figures(own_error, self.check.prior)
             why = (
                 f"{chosen} fits ({self.check.ratio:.2f}x linear), but this log's own basis did "
-                f"better on frames it did not learn ({own_error:.2f} px against "
-                f"{self.check.prior:.2f})"
+                f"better on frames it did not learn ({own_px} px against {prior_px})"
             )
         self.switched = None
         self.adapted = True
@@ -547,9 +615,12 @@ class Adaptation:
         if self.switched is not None:
             self.lines.append(self._chosen_line(given))
         if self.check.frames and not self.check.fits:
-            fix = (
-                "; learn a basis for this camera and scene: pcainterp learn LOG -o BASIS.npz, "
-                "then densify --basis BASIS.npz"
+            advice, enough = self._builtin_advice(check)
+            fix = advice + (
+                ""
+                if enough
+                else "; learn a basis for this camera and scene: pcainterp learn LOG -o "
+                "BASIS.npz, then densify --basis BASIS.npz"
             )
             self.lines.append(unfit_warning(self.check, where, fix))
         return None if self.switched is None else self.switched.basis
@@ -645,6 +716,15 @@ class Adaptation:
             f"{_count(basis.n_components, 'component')} at the end "
             f"({self.updates} update{'s' if self.updates != 1 else ''} while streaming)"
         )
+
+
+def _figures(first: float, second: float) -> tuple[str, str]:
+    """Format two errors (px) with 2 decimals, or 4 when 2 would print them alike.
+
+    "better (0.30 px against 0.30)" told nothing (bug hunt 8C F1, review 56b R4).
+    """
+    digits = 2 if f"{first:.2f}" != f"{second:.2f}" else 4
+    return f"{first:.{digits}f}", f"{second:.{digits}f}"
 
 
 def _count(number: int, noun: str) -> str:

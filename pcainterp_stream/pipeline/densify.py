@@ -587,11 +587,7 @@ def densify(
         damage=list(reader.damage),
         written=writer.summary() if writer is not None else None,
         warnings=_order_warnings(reader, stats)
-        + (
-            check.warnings(stats)
-            if check is not None
-            else _empty_warning(robust["empty"], frames, processor)
-        )
+        + (check.warnings(stats) if check is not None else _empty_warning(robust["empty"], frames))
         + (stale.warnings(frames, robust["stale_empty"]) if stale is not None else [])
         + (beyond.warnings(frames, processor.sgbm) if beyond is not None else []),
         downweighted=robust["downweighted"],
@@ -715,13 +711,14 @@ def _check_width(frame: StereoFrame, sgbm: SgbmConfig, log: Path, topic: str) ->
     )
 
 
-def _empty_warning(empty: int, frames: int, processor: ProcessorConfig) -> list[str]:
-    """The warning for sparse frames that had no measurement at all (none when there were none).
+def _empty_warning(empty: int, frames: int) -> list[str]:
+    """The warning for frames that had no measurement at all (none when there were none).
 
-    For measurements from the stereo pair; a feature stream's frames without one are warned
+    For measurements from the stereo pair, sparse or dense (a dense frame whose SGBM map
+    matched nothing, as a blank pair's); a feature stream's frames without one are warned
     of by :class:`~pcainterp_stream.pipeline.feature_check.FeatureStreamCheck`, by cause.
     """
-    if not empty or processor.measurements != "sparse":
+    if not empty:
         return []
     return [
         f"{empty} of {frames} frames had no measurement (blank, dark or textureless images): "

@@ -419,6 +419,7 @@ class FrameProcessor:
             calibrate=self.config.calibrate,
             name=f"the built-in {kind} basis" if kind is not None else "the basis",
             alternatives=self._alternatives(kind),
+            advisory=self._alternatives(kind, warn=True),
             own_above=OWN_ABOVE_STREET if kind == "street" else FITS_BELOW,
         )
         self.adaptation.warn_std_scale(self.settings.std_scale)
@@ -435,13 +436,13 @@ class FrameProcessor:
             return builtin_basis(self.config.builtin)
         return Basis.default() if basis is None else basis
 
-    def _alternatives(self, kind: str | None) -> list[Callable[[], Candidate]]:
-        """Return loaders of the other built-in bases the check may choose.
+    def _alternatives(self, kind: str | None, warn: bool = False) -> list[Callable[[], Candidate]]:
+        """Return loaders of the other built-in bases the check may choose, or (``warn``) name.
 
-        Only with ``builtin="auto"``; each is loaded when the check first needs it, never
-        on logs the given basis fits.
+        Each loaded when first needed. ``warn``: those a basis the user chose (a file, or
+        ``builtin`` "street"/"indoor") is compared with when it loses, for its warning only.
         """
-        if kind is None or self.config.builtin != "auto":
+        if (kind is None or self.config.builtin != "auto") != warn:
             return []
         return [
             functools.partial(_candidate, other, self.config)
@@ -808,7 +809,9 @@ class FrameProcessor:
             sgbm_map, model = item.disparity_map, self._dense_model  # 0: a match (SGBM's range)
             estimate = fuse_dense(estimate, sgbm_map, model, item.holes, zero_is_match=True)
         unknown = _unknown(estimate.disparity.shape)
-        if not (item.pixels.shape[0] or n_carried or estimate.temporal == "temporal" or self.dense):
+        # dense mode: SGBM's matched pixels measure too (a blank pair's map has none)
+        mapped = item.holes is not None and item.holes.index.size < estimate.disparity.size
+        if not (item.pixels.shape[0] or n_carried or estimate.temporal == "temporal" or mapped):
             estimate = estimate.unknown()  # not one measurement, own or carried: no estimate
         return DensifiedFrame(
             frame=item.frame,

@@ -71,3 +71,17 @@ def test_a_right_image_repeated_while_the_left_changes_is_blanked() -> None:
     (line,) = check.warnings(6, 2)
     assert line.startswith("2 of 6 frames had a stale right image")
     assert StaleRight().warnings(6, 0) == []
+
+
+@pytest.mark.parametrize("value", [0, 255])
+def test_a_right_camera_blank_for_several_frames_is_blank_not_stale(value: int) -> None:
+    # a black (or saturated) right camera repeats nothing: its frames are counted as
+    # frames without a measurement only, not as a driver repeating its last image (review 56b R2)
+    check = StaleRight()
+    for index in range(4):
+        left, right = _pair(10 + index)
+        if index:
+            right = np.full_like(right, value)
+        assert check.check(_frame(index, left, right)).right is right
+    assert check.stale == set()
+    assert check.warnings(4, 0) == []

@@ -199,9 +199,7 @@ def test_a_kept_basis_worse_than_linear_is_named_and_warned(
     real = adaptation_module.densify_batch
 
     def off_by_five(*args: Any, **kwargs: Any) -> list[Any]:
-        return [
-            dataclasses.replace(e, disparity=e.disparity + 5.0) for e in real(*args, **kwargs)
-        ]
+        return [dataclasses.replace(e, disparity=e.disparity + 5.0) for e in real(*args, **kwargs)]
 
     def no_better(*args: Any, **kwargs: Any) -> adapt.OwnCheck:
         return adapt.OwnCheck(adapt.FitCheck(2, 100, 50.0, 1.0, 1.0), None)
@@ -543,7 +541,10 @@ def test_builtin_indoor_is_recorded_and_evaluate_finds_it(tmp_path: Path) -> Non
     street = tmp_path / "room_street.mcap"
     summary = densify(log, street, processor=ProcessorConfig(builtin="street", adapt="check"))
     assert summary.prior_lines[0].startswith("prior: the built-in street basis ")
-    assert not any("indoor" in line for line in summary.prior_lines)
+    # not chosen from: only its warning names the indoor basis, as what --basis builtin picks
+    lines = summary.prior_lines
+    assert not any(line.startswith("prior:") and "indoor" in line for line in lines)
+    assert all("--basis builtin, which" in line for line in lines if "indoor" in line)
     assert recorded_metadata(street)[BASIS_KEY] == BUILT_IN
     with pytest.raises(ValueError, match="builtin"):
         ProcessorConfig(builtin="forest")
@@ -575,7 +576,81 @@ def test_dense_mode_checks_and_chooses_the_built_in_basis_but_learns_none(
     adaptation.check = adapt.FitCheck(2, 100, 2.1, 1.9, 2.0)
     adaptation._warn_unfit(adaptation.may_replace)
     assert "to adapt to this log" not in adaptation.lines[-1]
-    assert "dense mode does not adapt the basis: learn one" in adaptation.lines[-1]
+    assert (
+        "; dense mode does not adapt the basis, and uses it mostly to fill SGBM's holes"
+        in (adaptation.lines[-1])
+    )
+    # --basis builtin-street on the room: the indoor basis, which does better, is named (it
+    # said only "learn one for this camera": review 56b R3)
+    forced = densify(
+        log,
+        tmp_path / "street.mcap",
+        processor=ProcessorConfig(measurements="dense", adapt="check", builtin="street"),
+    )
+    (warning,) = [line for line in forced.warnings + forced.prior_lines if "linear interp" in line]
+    assert "; the built-in indoor basis does better (" in warning
+    assert "x linear): densify with --basis builtin, which chooses it; dense mode" in warning
+    assert recorded_metadata(tmp_path / "street.mcap")[BASIS_KEY] == BUILT_IN
+
+
+def _named(name: str) -> Any:
+    return lambda: adaptation_module.Candidate(name, Basis.default(), {"name": name})
+
+
+def test_a_learned_basis_that_loses_is_not_told_to_learn_one_again() -> None:
+    """EuRoC, dense mode: the warning said "learn one for this camera"; the basis so learned
+    (--basis FILE) scored 1.20x linear, the built-in indoor one 1.12x, and the warning said
+    "learn a basis for this camera" again (review 56b R3)."""
+    street, indoor = "the built-in street basis", "the built-in indoor basis"
+    scores = {
+        street: adapt.FitCheck(2, 100, 3.2, 2.0, 2.1),
+        indoor: adapt.FitCheck(2, 100, 2.24, 2.0, 2.1),
+    }
+
+    def check(basis: Basis, settings: dict[str, object]) -> adapt.FitCheck:
+        return scores[str(settings["name"])]
+
+    advisory = [_named(street), _named(indoor)]
+    given = adaptation_module.Adaptation(
+        "check", False, 2, "cauchy", False, may_learn=False, advisory=advisory
+    )
+    given.check = adapt.FitCheck(2, 100, 2.4, 2.0, 2.1)
+    given._warn_unfit(False, builtin=given._builtin_advice(check), holes=0.13)
+    assert given.lines[-1] == (
+        "warning: the prior is worse than linear interpolation on this log (1.20x); the "
+        "built-in indoor basis does better (1.12x linear): densify with --basis builtin, which "
+        "chooses it; dense mode does not adapt the basis, and uses it mostly to fill SGBM's "
+        "holes, 13% of this log's pixels (where SGBM matched, its own value dominates); a "
+        "basis learned from more frames of this camera may fit: pcainterp learn LOG [LOG ...] "
+        "-o BASIS.npz, then densify --basis BASIS.npz"
+    )
+    # one that fits: named, and no basis to learn
+    scores[indoor] = adapt.FitCheck(2, 100, 1.7, 2.0, 2.1)
+    given._warn_unfit(False, builtin=given._builtin_advice(check))
+    assert given.lines[-1].endswith(
+        "the built-in indoor basis does better (0.85x linear): densify with --basis builtin, "
+        "which chooses it; dense mode does not adapt the basis, and uses it mostly to fill "
+        "SGBM's holes (where SGBM matched, its own value dominates)"
+    )
+    # a built-in basis does no better: not named; sparse mode: no dense clause
+    scores[indoor] = adapt.FitCheck(2, 100, 2.6, 2.0, 2.1)
+    sparse = adaptation_module.Adaptation("auto", False, 2, "cauchy", False, advisory=advisory)
+    sparse.check = given.check
+    sparse._warn_unfit(False, builtin=sparse._builtin_advice(check))
+    assert sparse.lines[-1] == (
+        "warning: the prior is worse than linear interpolation on this log (1.20x); a basis "
+        "learned from more frames of this camera may fit: pcainterp learn LOG [LOG ...] -o "
+        "BASIS.npz, then densify --basis BASIS.npz"
+    )
+    # the default (a built-in basis chosen among them): nothing to compare, learning advised
+    default = adaptation_module.Adaptation("auto", True, 2, "cauchy", False, may_learn=False)
+    default.check = adapt.FitCheck(2, 100, 2.24, 2.0, 2.1)
+    default._warn_unfit(True, builtin=default._builtin_advice(check))
+    assert default.lines[-1].endswith(
+        "(where SGBM matched, its own value dominates); a basis learned from logs of this "
+        "camera may fit: pcainterp learn LOG [LOG ...] -o BASIS.npz, then densify --basis "
+        "BASIS.npz"
+    )
 
 
 def test_an_indoor_feature_stream_picks_the_indoor_basis_on_left_out_points(
@@ -659,9 +734,7 @@ def test_the_unfit_warning_names_a_basis_of_another_camera(
     real = adaptation_module.densify_batch
 
     def off_by_five(*args: Any, **kwargs: Any) -> list[Any]:
-        return [
-            dataclasses.replace(e, disparity=e.disparity + 5.0) for e in real(*args, **kwargs)
-        ]
+        return [dataclasses.replace(e, disparity=e.disparity + 5.0) for e in real(*args, **kwargs)]
 
     monkeypatch.setattr(adaptation_module, "densify_batch", off_by_five)
     # a basis of the indoor camera that is not the built-in one (densify --basis FILE)
@@ -678,7 +751,10 @@ def test_the_unfit_warning_names_a_basis_of_another_camera(
         f"{indoor.focal_baseline:.1f} px*m; this log's 310x94 px, f*b {fb:.1f} px*m: aspect "
         "ratio 3.30 against "
     ) in warning
-    assert warning.endswith("; learn a basis for this camera: pcainterp learn LOG -o BASIS.npz")
+    assert warning.endswith(
+        "; learn a basis for this camera: pcainterp learn LOG [LOG ...] -o BASIS.npz, then "
+        "densify --basis BASIS.npz"
+    )
     # a basis of a camera like the log's: nothing said about cameras
     street = Basis.default()
     assert adaptation_module.other_camera(street, (94, 310), street.focal_baseline / 4) == ""

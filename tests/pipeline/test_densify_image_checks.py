@@ -21,6 +21,7 @@ from pcainterp_stream.io.logwriter import open_writer
 from pcainterp_stream.io.outputs import image_of
 from pcainterp_stream.pipeline.densify import densify
 from pcainterp_stream.pipeline.jobs import synth
+from pcainterp_stream.pipeline.processor import ProcessorConfig
 from pcainterp_stream.records import DensifiedFrame
 
 RIGHT = "/stereo/right/image_rect"
@@ -77,6 +78,27 @@ def test_a_black_and_a_stale_right_image_are_warned_of_and_not_estimated(
     # the untouched log: neither warning
     plain = densify(log, tmp_path / "plain.mcap")
     assert not [line for line in plain.warnings if "stale" in line or "no measurement" in line]
+
+
+def test_dense_mode_writes_a_black_or_stale_right_image_s_frame_all_nan(
+    log: Path, tmp_path: Path
+) -> None:
+    # dense mode wrote such a frame as the prior's mean (22 % depth error), with no warning
+    # for the black image and a false "the others only the points carried" for the stale
+    # one (review 56b R1)
+    changed = _rewritten(log, tmp_path / "changed.mcap", black=1, stale=3)
+    out = tmp_path / "dense.mcap"
+    summary = densify(changed, out, processor=ProcessorConfig(measurements="dense"))
+    assert f"1 of {FRAMES} frames had no measurement (blank, dark or textureless images)" in (
+        " ".join(summary.warnings)
+    )
+    (stale,) = [line for line in summary.warnings if "stale right image" in line]
+    assert stale.endswith(
+        "such a pair is not matched: those frames have no estimate, their depth is NaN"
+    )
+    depths = _depths(out)
+    assert [bool(np.isnan(depth).all()) for depth in depths] == [False, True, False, True]
+    assert all(np.isfinite(depths[k]).mean() > 0.9 for k in (0, 2))
 
 
 def _near_frame(kept: int, added: int, dropped: int, values: Any) -> DensifiedFrame:

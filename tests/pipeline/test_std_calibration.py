@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -10,7 +11,10 @@ import pytest
 
 from pcainterp_stream.estimate import adapt
 from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.pipeline import adaptation as adaptation_module
 from pcainterp_stream.pipeline.adaptation import Adaptation, Candidate
+from pcainterp_stream.pipeline.densify import densify
+from pcainterp_stream.pipeline.jobs import synth
 from pcainterp_stream.pipeline.processor import (
     FrameProcessor,
     MeasurementSource,
@@ -138,3 +142,15 @@ def test_a_near_tie_between_built_in_bases_says_so() -> None:
     assert adaptation._chosen_line(_left_out(1.0143)) == (
         "prior: the built-in indoor basis chosen (fits this log better)"
     )
+
+
+def test_the_own_basis_line_prints_a_near_tie_with_enough_digits(tmp_path: Path) -> None:
+    """The own-basis line read "was better (0.30 px against 0.30)" (review 56b R4)."""
+    log = tmp_path / "tie"
+    synth(log, frames=2, seed=4, scale=0.5, fmt="rosbag2", camera="640x480")
+    summary = densify(log, tmp_path / "o.mcap")
+    (line,) = [line for line in summary.prior_lines if "own basis was better (" in line]
+    own, given = line.split("was better (")[1].split(")")[0].split(" px against ")
+    assert own != given, line
+    assert adaptation_module._figures(0.2961, 0.3049) == ("0.2961", "0.3049")
+    assert adaptation_module._figures(0.2961, 0.3149) == ("0.30", "0.31")
