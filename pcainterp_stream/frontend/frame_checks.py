@@ -135,8 +135,8 @@ class BeyondRange:
         """Count a densified frame."""
         counts = result.counts
         added = counts.get("near_added", 0)
-        own = counts.get("kept", 0) - counts.get("near_dropped", 0) + added
-        if not added or added <= self.SHARE * own:
+        total = counts.get("kept", 0) - counts.get("near_dropped", 0) + added
+        if not added or added <= self.SHARE * total:
             return
         self.frames += 1
         values = result.disparities[np.isfinite(result.disparities)]

@@ -56,7 +56,8 @@ class PairingStats:
         features_matched: frames that got a feature cloud (the nearest within the tolerance).
         features_unmatched: feature clouds that matched no frame.
         features_unstamped: of those, clouds whose header stamp is 0 (not set by their
-            publisher) beside frames with stamps: placed at none, whatever the tolerance.
+            publisher); beside frames with stamps such a cloud is placed at none, whatever
+            the tolerance (the feature check says so when the frames have stamps).
         features_nearest_miss_ns: the smallest gap (ns) between the stamps of a frame and a
             feature cloud that were not paired, one of them for want of the other (beyond
             the tolerance, or they would have been); -1 when there was none.

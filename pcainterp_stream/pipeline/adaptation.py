@@ -358,7 +358,7 @@ class Adaptation:
 
         When the two errors print alike at the figures' precision, the line says it is a
         near-tie, with enough digits to tell them apart (both lines read "1.01 px" on a log
-        whose errors were 1.005 and 1.014 px: bug hunt 8C F1); the choice itself is the same.
+        whose errors were 1.005 and 1.014 px); the choice itself is the same.
         """
         if self.switched is None or self.check is None:
             return ""
@@ -465,7 +465,7 @@ class Adaptation:
             # frame, no frame is left to calibrate its std on: calibrated on the frame it
             # reproduces, it covered 0-67 % of the truth on 7 one-frame synthetic logs (4
             # cameras), the built-in basis kept 92-97 %, its depth 10 % better to 21 % worse
-            # per log, 2.5 % worse on average (bug hunt 8C F2)
+            # per log, 2.5 % worse on average
             best = self.name if self.switched is None else self.switched.name
             again = (
                 f" (checked again on the first {_count(self.warmup_frames, 'frame')} of other "
@@ -721,7 +721,7 @@ class Adaptation:
 def _figures(first: float, second: float) -> tuple[str, str]:
     """Format two errors (px) with 2 decimals, or 4 when 2 would print them alike.
 
-    "better (0.30 px against 0.30)" told nothing (bug hunt 8C F1, review 56b R4).
+    "better (0.30 px against 0.30)" would tell the reader nothing.
     """
     digits = 2 if f"{first:.2f}" != f"{second:.2f}" else 4
     return f"{first:.{digits}f}", f"{second:.{digits}f}"

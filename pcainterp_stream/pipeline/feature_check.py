@@ -48,7 +48,7 @@ holds a single depth in every point. VINS feature_tracker's normalized image coo
 (x/z, y/z, 1) are such a cloud at z = 1, and are refused (:data:`NORMALIZED_DEPTH`). A
 simulator's noiseless depth sensor facing a wall (Gazebo, Isaac, CARLA without a noise model)
 gives one at the wall's depth too, with x and y spread over metres: those are 3-D points of a
-flat surface and are densified (bug hunt 8C F10: z = 4.95 m refused the run)."""
+flat surface and are densified."""
 
 NORMALIZED_DEPTH = 1.0
 """The depth (m) of a flat cloud that is refused as normalized image coordinates (x/z, y/z,

@@ -321,7 +321,7 @@ def resolve_settings(basis: Basis, config: ProcessorConfig) -> EstimateSettings:
     process_noise = config.process_noise
     if process_noise is None:
         process_noise = float(fitted.get("process_noise", 0.1))
-    # a paper's-prior fit's scale too (it applied only with a kernel: bug hunt 8C F3)
+    # a paper's-prior fit's scale too, not only a kernel fit's
     calibrated = fitting.fitted_std_scale(fitted, local is not None) if config.calibrate else None
     std_scale, scale_by_innovation = calibrated or (1.0, False)
     stereo = config.source is MeasurementSource.STEREO and config.measurements == "sparse"
