@@ -626,9 +626,9 @@ def instrument_read_path(atheris: Any) -> None:
     """Import the read path's modules under atheris' instrumentation (coverage for libFuzzer).
 
     ``atheris.instrument_imports`` instruments only the modules first imported inside its
-    block: with nothing imported there (406c557 to 2026-11-28) libFuzzer mutated blind ("no
-    interesting inputs were found so far. Is the code instrumented for coverage?"), printed
-    no ``cov:`` figure and never grew the corpus.
+    block: with nothing imported there, libFuzzer mutated blind ("no interesting inputs
+    were found so far. Is the code instrumented for coverage?"), printed no ``cov:`` figure
+    and never grew the corpus.
 
     Raises:
         RuntimeError: a module of :data:`INSTRUMENTED` was imported before, so it would run

@@ -28,11 +28,11 @@ messages and clients it dropped from. :class:`FoxgloveLive` therefore keeps only
 clients were named (:attr:`LiveStats.behind`), and :func:`behind_line` says no number:
 every client named lost messages at least once, and the others may have too.
 
-Bursts (bug hunt 8B, F5): hundreds of small input messages released with one frame at
-``rate = 0`` would fill that outbox within a millisecond even for a client that keeps up.
-So while a client is subscribed to a message's channel, sending is capped at
-:data:`SEND_RATE` messages/s in bursts of half the outbox (nothing waits while nobody is
-subscribed). And the server's time goes to a second per-client queue of the same size,
+Bursts: hundreds of small input messages released with one frame at ``rate = 0`` would
+fill that outbox within a millisecond even for a client that keeps up. So while a client is
+subscribed to a message's channel, sending is capped at :data:`SEND_RATE` messages/s: a
+first burst of half the outbox, then bursts of a quarter of it (nothing waits while nobody
+is subscribed). And the server's time goes to a second per-client queue of the same size,
 which the SDK does not drop from but disconnects the client for, silently, when full: it is
 sent with each frame and at most every :data:`TIME_EVERY_S` between frames, not once per
 message.
@@ -305,6 +305,11 @@ class _SdkLog(logging.Handler):
             print(f"foxglove: {text}", file=sys.stderr, flush=True)
 
 
+def _stderr(line: str) -> None:
+    """Write a line for the user to stderr (a :class:`FoxgloveLive` given no ``note``)."""
+    print(line, file=sys.stderr, flush=True)
+
+
 _SDK_LOG = _SdkLog()
 _SDK_LOG_LOCK = threading.Lock()
 _sdk_logging_on = False
@@ -358,7 +363,8 @@ class FoxgloveLive:
         backlog: messages queued per client before its oldest are dropped.
         send_rate: messages/s sent at most while a client is subscribed to the channel, in
             bursts of ``backlog // 2`` (0: no cap).
-        note: called with a line for the user when the pacing skips a gap in log time.
+        note: called with a line for the user when the pacing skips a gap in log time or a
+            topic is left out of the live stream (unset: that line goes to stderr).
         on_start: called once when the server starts accepting clients (the first message).
 
     Attributes:
@@ -592,12 +598,10 @@ class FoxgloveLive:
             )
         except (AttributeError, TypeError, ValueError) as err:
             self.stats.skipped.append(topic)
-            print(
+            (self.note or _stderr)(
                 f"foxglove: {topic} is not served live: its channel has no schema (message "
                 f"encoding {message_encoding!r}), which this foxglove-sdk cannot advertise "
-                f"({err}); it is in the file output",
-                file=sys.stderr,
-                flush=True,
+                f"({err}); a file output (-o) keeps it"
             )
             return None
         self.stats.schemaless.append(topic)
@@ -693,7 +697,7 @@ class FoxgloveLive:
         queues the time on each client's control queue, which holds ``backlog`` messages
         and disconnects the client, silently, when full: a broadcast per message of a burst
         (hundreds of small input messages per frame at ``rate = 0``) disconnected a client
-        that was keeping up with the data (bug hunt 8B, F5).
+        that was keeping up with the data.
         """
         sent_ns, sent_at = self._time_sent
         if self._server is None or self._time_ns <= sent_ns:

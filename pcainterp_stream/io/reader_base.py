@@ -145,14 +145,21 @@ def _ros2_type_names(store: Typestore, typename: str) -> tuple[Typestore, str]:
 
     Field types follow their type's new name. A name taken by another type of another
     layout gets a number (``Pose2``); one of the same layout (a definition holding both
-    ``tf/tfMessage`` and ``tf2_msgs/TFMessage``) is the same type.
+    ``tf/tfMessage`` and ``tf2_msgs/TFMessage``) is the same type. ``typename`` itself
+    always gets :func:`ros1_type_name`'s name, the one the readers give its schema; a type
+    of its definition that had that name is numbered instead.
     """
     defs = store.fielddefs
     renames: dict[str, str] = {}
-    holder = {name: name for name in defs if ros1_type_name(name) == name}  # name: its type
-    for name in defs:
+    own = ros1_type_name(typename)
+    holder = {  # name: its type; the legal names keep theirs, but typename's is its own
+        name: name
+        for name in defs
+        if ros1_type_name(name) == name and (name == typename or name != own)
+    }
+    for name in sorted(defs, key=lambda name: name != typename):  # typename first
         new = ros1_type_name(name)
-        if new == name:
+        if holder.get(new) == name:
             continue
         base, number = new, 2
         while new in holder and defs[holder[new]] != defs[name]:
@@ -245,7 +252,7 @@ LATCHED_QOS_PROFILES = "\n".join(
 """rosbag2's ``offered_qos_profiles`` of a latched ROS 1 publisher: reliable, transient local,
 durations infinite (``rosbags-convert``'s profile for it), so that a ROS 2 player offers it
 latched. Policies as numbers, the form of bag metadata version 8 (as ``rosbags-convert
---dst-version 8`` and :func:`rosbags_reader._qos_yaml` write it), which every rosbag2 reads
+--dst-version 8`` and :func:`.rosbag2_record.qos_yaml` write it), which every rosbag2 reads
 as meant once the file says that version: an MCAP output then ends with a ``rosbag2``
 record saying so (:mod:`.rosbag2_record`)."""
 

@@ -36,7 +36,8 @@ def numeric_qos(text: str) -> str:
     """Return QoS profiles (rosbag2's YAML) with their policies as numbers.
 
     Text whose policies are numbers already, and text that is not QoS profiles, is returned
-    as it is; names are written as rosbags' writer writes version 8 (``dump_qos_v8``).
+    as it is; names are read with rosbags' own QoS parser and written by :func:`qos_yaml`.
+    Without that parser (a rosbags release that moved it) the text is copied as it is.
 
     Examples:
         >>> latched = "{depth: 0, deadline: {sec: 0, nsec: 0}, lifespan: {sec: 0, nsec: 0}, "
@@ -45,7 +46,7 @@ def numeric_qos(text: str) -> str:
         >>> numbers = numeric_qos("- " + latched + names + rest + "avoid_ros_namespace_"
         ...     "conventions: false}")
         >>> [line for line in numbers.splitlines() if "ty: " in line or "history" in line]
-        ['  durability: 1', '  history: 3', '  reliability: 1']
+        ['- history: 3', '  reliability: 1', '  durability: 1']
     """
     import yaml  # here: an MCAP job whose channels have no QoS does not need it
 
@@ -57,12 +58,43 @@ def numeric_qos(text: str) -> str:
         return text
     if not any(isinstance(p.get(policy), str) for p in profiles for policy in _POLICIES):
         return text
-    from rosbags.rosbag2.metadata import dump_qos_v8, parse_qos  # only for names
-
+    try:  # rosbags does not export its parser (0.11.9): a release may move it
+        from rosbags.rosbag2.metadata import parse_qos
+    except (ImportError, AttributeError):
+        return text  # names copied as they are, rather than a failed write
     try:
-        return dump_qos_v8(parse_qos(profiles))
+        return "\n".join(qos_yaml(profile) for profile in parse_qos(profiles))
     except (KeyError, TypeError, ValueError, AttributeError):
         return text  # not rosbag2's QoS: copied as it is
+
+
+def qos_yaml(profile: Any) -> str:
+    """Return one rosbag2 QoS profile (a rosbags ``Qos``) as rosbag2's YAML list item.
+
+    Policies as numbers, the form of bag metadata version 8 (:data:`RECORD_VERSION`).
+    """
+
+    def number(value: Any) -> int:
+        return int(getattr(value, "value", value))
+
+    def duration(name: str) -> str:
+        time = getattr(profile, name)
+        return f"  {name}:\n    sec: {int(time.sec)}\n    nsec: {int(time.nsec)}"
+
+    return "\n".join(
+        [
+            f"- history: {number(profile.history)}",
+            f"  depth: {int(profile.depth)}",
+            f"  reliability: {number(profile.reliability)}",
+            f"  durability: {number(profile.durability)}",
+            duration("deadline"),
+            duration("lifespan"),
+            f"  liveliness: {number(profile.liveliness)}",
+            duration("liveliness_lease_duration"),
+            "  avoid_ros_namespace_conventions: "
+            + str(bool(profile.avoid_ros_namespace_conventions)).lower(),
+        ]
+    )
 
 
 class Rosbag2Record:

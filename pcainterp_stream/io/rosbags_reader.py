@@ -32,6 +32,7 @@ from pcainterp_stream.io.reader_base import (
     ros1_type_name,
     ros2_type_name,
 )
+from pcainterp_stream.io.rosbag2_record import qos_yaml
 from pcainterp_stream.records import RawMessage
 
 try:  # lz4 chunks are rare (the ROS 2 writers use zstd); lz4 is optional, as in mcap
@@ -259,8 +260,11 @@ class RosbagsLogReader(LogReader):
                 connection, timestamp, data = item
                 msgtype, schema_encoding, schema = self._schema(connection)
                 if self.format is LogFormat.ROS1:
-                    data, schema = self._ros1.convert(
-                        data, str(connection.msgtype), str(connection.msgdef.data), connection.topic
+                    data, schema = self._ros1.convert(  # the type and key _schema used
+                        data,
+                        ros2_type_name(str(connection.msgtype)),
+                        str(connection.msgdef.data),
+                        connection.topic,
                     )
                 metadata = _connection_metadata(connection)
                 if self.format is LogFormat.ROS1:
@@ -314,36 +318,10 @@ def _connection_metadata(connection: Any) -> dict[str, str]:
         return {"offered_qos_profiles": qos}
     if isinstance(qos, list) and qos:
         try:
-            return {"offered_qos_profiles": "\n".join(map(_qos_yaml, qos))}
+            return {"offered_qos_profiles": "\n".join(map(qos_yaml, qos))}
         except (AttributeError, TypeError, ValueError):
             return {}  # a form of a future rosbags: leave it out rather than guess
     return {}
-
-
-def _qos_yaml(profile: Any) -> str:
-    """Return one rosbag2 QoS profile (a rosbags ``Qos``) as rosbag2's YAML list item."""
-
-    def number(value: Any) -> int:
-        return int(getattr(value, "value", value))
-
-    def duration(name: str) -> str:
-        time = getattr(profile, name)
-        return f"  {name}:\n    sec: {int(time.sec)}\n    nsec: {int(time.nsec)}"
-
-    return "\n".join(
-        [
-            f"- history: {number(profile.history)}",
-            f"  depth: {int(profile.depth)}",
-            f"  reliability: {number(profile.reliability)}",
-            f"  durability: {number(profile.durability)}",
-            duration("deadline"),
-            duration("lifespan"),
-            f"  liveliness: {number(profile.liveliness)}",
-            duration("liveliness_lease_duration"),
-            "  avoid_ros_namespace_conventions: "
-            + str(bool(profile.avoid_ros_namespace_conventions)).lower(),
-        ]
-    )
 
 
 class _ClampedReader(io.BufferedReader):

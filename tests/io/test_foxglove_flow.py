@@ -98,9 +98,26 @@ def test_a_channel_the_sdk_cannot_advertise_is_left_out_in_one_line(
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 1
     assert lines[0].startswith("foxglove: /raw_bytes is not served live: its channel has no")
-    assert lines[0].endswith("it is in the file output")
+    assert lines[0].endswith("; a file output (-o) keeps it")
     assert live.stats.skipped == ["/raw_bytes"]
     assert live.stats.messages == 1  # the frame
+
+
+def test_the_line_of_a_channel_left_out_goes_to_the_note_when_given(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """The CLI passes its ``echo`` as ``note``: the line goes there, not straight to stderr."""
+    notes: list[str] = []
+    with FoxgloveLive(ServeAddress(port=0), rate=0.0, note=notes.append) as live:
+        context, live._context = live._context, object()  # no _create_channel
+        try:
+            live.add_raw(_schemaless("/raw_bytes", 0))
+        finally:
+            live._context = context
+        live.flush()
+    assert len(notes) == 1
+    assert notes[0].startswith("foxglove: /raw_bytes is not served live")
+    assert capsys.readouterr().err == ""
 
 
 def _with_schemaless_channel(source: Path, target: Path) -> None:

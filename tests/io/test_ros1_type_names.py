@@ -274,3 +274,27 @@ def test_legal_names_and_ros2_spelling_are_kept() -> None:
         legal = ros1_type_name(name)
         assert ros1_type_name(legal) == legal, name
     assert ros1_type_name("9pkg/9x") == "pkg_9pkg/msg/Msg9x"
+
+
+@pytest.mark.parametrize("kind", READERS)
+def test_a_type_whose_legal_name_a_field_type_has_keeps_it(tmp_path: Path, kind: str) -> None:
+    """The message's own type keeps its legal name; the other layout is numbered.
+
+    Before: the schema was written for ``my_pkg/msg/PoseA2`` but named ``my_pkg/msg/PoseA``
+    (the readers' name), whose text then defined two layouts under one name.
+    """
+    msgdef = "my_pkg/PoseA inner\nint32 v\n" + SEPARATOR + "MSG: my_pkg/PoseA\nfloat64 w\n"
+    messages = [{"inner": {"w": 0.5}, "v": 3}]
+    decoded = _copied(tmp_path, kind, [("/pose", "my_pkg/msg/Pose_A", msgdef, messages)])
+    name, (message,) = decoded["/pose"]
+    assert name == "my_pkg/msg/PoseA"
+    assert (message.inner.w, message.v) == (0.5, 3)
+    with (tmp_path / "out.mcap").open("rb") as f:
+        (schema,) = make_reader(f).get_summary().schemas.values()  # type: ignore[union-attr]
+    assert schema.data.decode().splitlines() == [
+        "my_pkg/PoseA2 inner",
+        "int32 v",
+        SEPARATOR.strip(),
+        "MSG: my_pkg/PoseA2",
+        "float64 w",
+    ]

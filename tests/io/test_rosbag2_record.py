@@ -30,6 +30,7 @@ from rosbags.typesys import Stores, get_typestore
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import LogFormat, open_writer
+from pcainterp_stream.io.rosbag2_record import numeric_qos
 
 FOREVER = QosTime(2147483647, 4294967295)
 LATCHED = Qos(  # /tf_static's: reliable, transient local
@@ -145,22 +146,6 @@ def test_a_sqlite3_bags_qos_is_written_with_a_version_8_record(tmp_path: Path) -
     _assert_rosbag2_reads_latched(_copy(bag, tmp_path / "out.mcap"), "/tf_static")
 
 
-def test_an_mcap_with_names_and_no_record_is_written_in_numbers(tmp_path: Path) -> None:
-    names = yaml.safe_dump(dump_qos_v9([LATCHED]), default_flow_style=False)
-    log = tmp_path / "names.mcap"
-    with log.open("wb") as f:
-        writer = McapWriter(f)
-        writer.start("ros2", "test")
-        text = rosmsg.schema_text("std_msgs/msg/String").encode()
-        schema = writer.register_schema("std_msgs/msg/String", "ros2msg", text)
-        channel = writer.register_channel(
-            "/tf_static", "cdr", schema, {"offered_qos_profiles": names}
-        )
-        writer.add_message(channel, 5, rosmsg.serialize(STATUS), 5)
-        writer.finish()
-    _assert_rosbag2_reads_latched(_copy(log, tmp_path / "out.mcap"), "/tf_static")
-
-
 def test_a_rosbag2_mcaps_own_record_and_qos_are_kept_as_they_are(tmp_path: Path) -> None:
     # as Jazzy's rosbag2 writes it: names and a version-9 record
     bag = _latched_bag(tmp_path / "recorded", StoragePlugin.MCAP)
@@ -174,3 +159,38 @@ def test_an_output_without_qos_gets_no_record(tmp_path: Path) -> None:
     with open_writer(out, LogFormat.MCAP) as writer:
         writer.add_message("/status", STATUS, 5)
     assert _read(out) == ([], {"/status": ""})
+
+
+def _names_mcap(log: Path) -> tuple[Path, str]:
+    """An MCAP of one latched ``/tf_static`` message, its QoS in names and no record."""
+    names = yaml.safe_dump(dump_qos_v9([LATCHED]), default_flow_style=False)
+    with log.open("wb") as f:
+        writer = McapWriter(f)
+        writer.start("ros2", "test")
+        text = rosmsg.schema_text("std_msgs/msg/String").encode()
+        schema = writer.register_schema("std_msgs/msg/String", "ros2msg", text)
+        channel = writer.register_channel(
+            "/tf_static", "cdr", schema, {"offered_qos_profiles": names}
+        )
+        writer.add_message(channel, 5, rosmsg.serialize(STATUS), 5)
+        writer.finish()
+    return log, names
+
+
+def test_an_mcap_with_names_and_no_record_is_written_in_numbers(tmp_path: Path) -> None:
+    log, _ = _names_mcap(tmp_path / "names.mcap")
+    _assert_rosbag2_reads_latched(_copy(log, tmp_path / "out.mcap"), "/tf_static")
+
+
+def test_without_rosbags_qos_parser_the_names_are_copied_and_the_write_succeeds(
+    tmp_path: Path, monkeypatch: Any
+) -> None:
+    # rosbags does not export parse_qos: a release that moves it failed every such write
+    import rosbags.rosbag2.metadata
+
+    monkeypatch.delattr(rosbags.rosbag2.metadata, "parse_qos")
+    log, names = _names_mcap(tmp_path / "names.mcap")
+    assert numeric_qos(names) == names
+    records, qos = _read(_copy(log, tmp_path / "out.mcap"))
+    assert qos == {"/tf_static": names}  # copied as it is
+    assert len(records) == 1
