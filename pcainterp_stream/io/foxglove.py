@@ -8,10 +8,11 @@ with its log time, and the log time is broadcast as the server's time.
 
 Order and pace: the densified frames come out of the pipeline a few frames after their input
 messages were read (stereo matching runs ahead). Input messages are therefore held back
-until the frame of the same log time is published (at most :data:`MAX_HELD_BYTES` of them,
-as the file output holds), so a client sees the stream in log-time order, as a player of the
-file would. With ``rate > 0`` publishing waits until ``(log time - first log time) / rate``
-has passed on the wall clock; ``rate = 0`` publishes as fast as frames are processed. A gap
+until the frame of the same log time is published (in the file output's
+:class:`~pcainterp_stream.io.log_time_hold.LogTimeHold`, at most 256 MiB of them), so a
+client sees the stream in log-time order, as a player of the file would. With
+``rate > 0`` publishing waits until ``(log time - first log time) / rate`` has passed on
+the wall clock; ``rate = 0`` publishes as fast as frames are processed. A gap
 in log time longer than :data:`MAX_GAP_S` (or one that would take more than
 :data:`MAX_WAIT_S` of wall time at ``rate``) is not waited for: publishing goes on at once
 from the next message, and the gap is reported, as ``rosbag play --skip-empty`` does. One
@@ -46,13 +47,13 @@ import socket
 import sys
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, NamedTuple, Self, cast
 
 from pcainterp_stream.errors import StreamError
+from pcainterp_stream.io.log_time_hold import LogTimeHold
 
 if TYPE_CHECKING:  # imported when used: the command line's parser imports this module
     from pcainterp_stream.records import RawMessage
@@ -85,12 +86,7 @@ SEND_RATE = 5000.0
 TIME_EVERY_S = 0.05
 """Shortest wall time (s) between two broadcasts of the server's time (the log time)."""
 
-MAX_HELD_BYTES = 256 << 20
-"""Input bytes held back for ordering (the file output's limit); beyond, the oldest is
-published anyway. Each message counts :data:`HELD_OVERHEAD` bytes more than its data."""
 
-HELD_OVERHEAD = 256
-"""Bytes a held message counts besides its data (its record), so tiny messages are bounded."""
 
 STOP_TIMEOUT_S = 5.0
 """Longest wait (s) for the server to stop on close; past it the process goes on (and ends)."""
@@ -207,8 +203,9 @@ class LiveStats:
     Attributes:
         frames: frames published (:meth:`FoxgloveLive.add_frame` calls).
         messages: messages published, inputs included.
-        released_early: input messages published before their frame because
-            :data:`MAX_HELD_BYTES` were waiting (their order is then not guaranteed).
+        released_early: input messages published before their frame because the hold was
+            full (:data:`~pcainterp_stream.io.log_time_hold.HOLD_BYTES`; their order is then
+            not guaranteed).
         clients: distinct clients that subscribed to a channel.
         behind: client addresses the SDK named as having a full outbox (it dropped their
             oldest queued messages), in the order first named; not every such client is
@@ -404,8 +401,7 @@ class FoxgloveLive:
         self._channels: dict[
             tuple[str, str, str, str, bytes, tuple[tuple[str, str], ...]], Any
         ] = {}
-        self._held: deque[RawMessage] = deque()
-        self._held_bytes = 0
+        self._held = LogTimeHold(self._publish_raw)
         self._subscribed = threading.Event()
         self._clients: set[int] = set()
         self._clock: tuple[int, float] | None = None  # (a log time ns, its wall time)
@@ -612,14 +608,12 @@ class FoxgloveLive:
         """Queue a message of the input log; it is published before the next frame after it.
 
         Its channel is advertised now, so clients can subscribe before it is published. At
-        most :data:`MAX_HELD_BYTES` wait; beyond that the oldest is published now.
+        most :data:`~pcainterp_stream.io.log_time_hold.HOLD_BYTES` wait; beyond that the
+        oldest is published now.
         """
         self._raw_channel(raw)
-        self._held.append(raw)
-        self._held_bytes += len(raw.data) + HELD_OVERHEAD
-        while self._held_bytes > MAX_HELD_BYTES and self._held:
-            self.stats.released_early += 1
-            self._publish_raw(self._held.popleft())
+        self._held.add(raw)
+        self.stats.released_early = self._held.released_early
 
     def add_frame(self, log_time_ns: int, messages: Iterable[LiveMessage]) -> None:
         """Publish one densified frame, after the held input messages up to its log time.
@@ -627,8 +621,7 @@ class FoxgloveLive:
         Paced by ``rate``; with ``wait_for`` the first message waits for a subscriber.
         Returns once the messages are queued for the clients (never waits for a client).
         """
-        while self._held and self._held[0].log_time_ns <= log_time_ns:
-            self._publish_raw(self._held.popleft())
+        self._held.release(log_time_ns)
         for message in messages:
             channel = self.advertise(message.topic, message.schema_name, metadata=message.metadata)
             self._log(channel, message.data, log_time_ns, frame=True)
@@ -636,8 +629,7 @@ class FoxgloveLive:
 
     def flush(self) -> None:
         """Publish every held input message (at the end of the stream)."""
-        while self._held:
-            self._publish_raw(self._held.popleft())
+        self._held.release()
         self._broadcast_time(force=True)
 
     def wait_for_client(self, poll_s: float = 0.2, settle_s: float = 0.2) -> None:
@@ -658,7 +650,6 @@ class FoxgloveLive:
             time.sleep(poll_s)
 
     def _publish_raw(self, raw: RawMessage) -> None:
-        self._held_bytes -= len(raw.data) + HELD_OVERHEAD
         channel = self._raw_channel(raw)
         if channel is not None:  # None: a channel the SDK cannot carry (said once)
             self._log(channel, bytes(raw.data), int(raw.log_time_ns))

@@ -41,6 +41,7 @@ from pcainterp_stream.io.densify_record import (
     options_json,
 )
 from pcainterp_stream.io.foxglove import FoxgloveLive, LiveMessage
+from pcainterp_stream.io.log_time_hold import LogTimeHold
 from pcainterp_stream.io.logreader import LogReader, open_log
 from pcainterp_stream.io.logwriter import (
     LogFormat,
@@ -75,51 +76,12 @@ from pcainterp_stream.pipeline.common import (
 )
 from pcainterp_stream.pipeline.feature_check import FeatureStreamCheck
 from pcainterp_stream.pipeline.processor import FrameProcessor, MeasurementSource, ProcessorConfig
-from pcainterp_stream.records import DensifiedFrame, RawMessage, StereoFrame
+from pcainterp_stream.records import DensifiedFrame, StereoFrame
 
 ENCODE_WORKERS = 2
 """Threads building (and PNG-encoding) the output messages of densified frames."""
 ENCODE_AHEAD = 4
 """Frames whose output messages may be in the making at once (bounds their memory)."""
-HOLD_BYTES = 256 << 20
-"""Input bytes held back so that the output file is in log-time order (beyond: written)."""
-
-
-class _InLogTimeOrder:
-    """Copy input messages into the output after the outputs of frames up to their log time.
-
-    A frame's output messages carry the log time of its left image but are made frames
-    later (the processor's queue, the prior check's warm-up). Input messages are held here
-    until every frame at or before their log time is written, so that the file reads in
-    log-time order as well as in its index; the input's own order is kept. At most
-    ``limit`` bytes are held: beyond it the oldest are written anyway (a few out of order).
-    """
-
-    def __init__(self, writer: LogWriter, limit: int = HOLD_BYTES) -> None:
-        self._writer = writer
-        self._limit = limit
-        self._held: deque[RawMessage] = deque()
-        self._bytes = 0
-
-    def add(self, raw: RawMessage) -> None:
-        """Hold one input message (writing the oldest while over the limit)."""
-        self._held.append(raw)
-        self._bytes += len(raw.data)
-        while self._bytes > self._limit:
-            self._write_oldest()
-
-    def release(self, log_time_ns: int | None = None) -> None:
-        """Write the held messages up to ``log_time_ns`` in input order (all with None)."""
-        held = self._held
-        while held and (log_time_ns is None or held[0].log_time_ns <= log_time_ns):
-            self._write_oldest()
-
-    def _write_oldest(self) -> None:
-        raw = self._held.popleft()
-        self._bytes -= len(raw.data)
-        self._writer.add_raw(raw)
-
-
 @dataclass
 class DensifySummary:
     """What ``densify`` did.
@@ -382,7 +344,7 @@ def densify(
         if isinstance(writer, McapLogWriter) and (extras := reader.extras(verify=True)) is not None:
             # the rest of the copy: attachments, metadata records, channels without messages
             writer.add_extras(extras)
-        inputs = _InLogTimeOrder(writer) if writer is not None else None
+        inputs = LogTimeHold(writer.add_raw) if writer is not None else None
         # the output channels' metadata (f*b, the basis used) is known at the first output
         # (below): the written channels take it then, and so do the live ones, advertised
         # then, before the server starts (with the first frame) so that a client subscribes

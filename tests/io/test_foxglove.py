@@ -37,7 +37,7 @@ from mcap.reader import make_reader
 from pcainterp_stream import cli
 from pcainterp_stream.errors import StreamError
 from pcainterp_stream.interrupt import STALL_DUMP_VARIABLE
-from pcainterp_stream.io import foxglove, rosmsg
+from pcainterp_stream.io import foxglove, log_time_hold, rosmsg
 from pcainterp_stream.io.foxglove import SUBPROTOCOL, FoxgloveLive, LiveMessage, ServeAddress
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import open_writer
@@ -791,8 +791,8 @@ def test_the_live_outputs_are_advertised_with_the_file_metadata(
 def test_inputs_that_start_the_server_early_advertise_the_outputs_then(
     synthetic_log: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Past MAX_HELD_BYTES of input before the first output: the metadata known then."""
-    monkeypatch.setattr(foxglove, "MAX_HELD_BYTES", 1)
+    """Past HOLD_BYTES of input before the first output: the metadata known then."""
+    monkeypatch.setattr(log_time_hold, "HOLD_BYTES", 1)
     out = tmp_path / "dense.mcap"
     with _SeenAtStart() as live:
         densify(synthetic_log, out, live=live)

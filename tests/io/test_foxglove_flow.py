@@ -17,7 +17,7 @@ from mcap.writer import CompressionType, Writer
 from test_foxglove import FRAMES, Received, _collect, _raw, synthetic_log  # noqa: F401
 
 from pcainterp_stream import cli
-from pcainterp_stream.io import foxglove, rosmsg
+from pcainterp_stream.io import foxglove, log_time_hold, rosmsg
 from pcainterp_stream.io.foxglove import FoxgloveLive, LiveMessage, ServeAddress
 from pcainterp_stream.records import RawMessage
 
@@ -248,7 +248,7 @@ def test_held_inputs_are_bounded_in_bytes_not_in_count(monkeypatch: pytest.Monke
         assert published == []
         live.add_frame(0, [LiveMessage("/out", rosmsg.IMAGE, b"frame0")])
         assert [t for _, t in published] == [0, 0]  # input 0, then the frame
-        monkeypatch.setattr(foxglove, "MAX_HELD_BYTES", 100 * (foxglove.HELD_OVERHEAD + 8))
+        monkeypatch.setattr(log_time_hold, "HOLD_BYTES", 100 * (log_time_hold.HOLD_OVERHEAD + 8))
         live.add_raw(_raw("/in", 1500))
     assert live.stats.released_early == 1500 - 100
     assert [t for _, t in published[2:]] == list(range(1, 1401))

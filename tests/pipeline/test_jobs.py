@@ -384,7 +384,7 @@ def test_the_estimate_line_names_the_std_widened_near_sgbms_range() -> None:
 
 
 def test_inputs_held_for_log_time_order_are_bounded() -> None:
-    from pcainterp_stream.pipeline.densify import _InLogTimeOrder
+    from pcainterp_stream.io.log_time_hold import LogTimeHold
     from pcainterp_stream.records import RawMessage
 
     written: list[int] = []
@@ -398,7 +398,7 @@ def test_inputs_held_for_log_time_order_are_bounded() -> None:
             "/t", "std_msgs/msg/String", "s", "ros2msg", b"", "cdr", {}, b"x" * 10, t, t, 0
         )
 
-    held = _InLogTimeOrder(Writer(), limit=35)  # type: ignore[arg-type]
+    held = LogTimeHold(Writer().add_raw, limit=35, overhead=0)
     for t in (1, 2, 5, 3):
         held.add(raw(t))
     assert written == [1]  # 40 bytes held: the oldest goes out, in input order
