@@ -40,6 +40,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.frontend.corners import GfttConfig, detect_corners, lattice_points
+from pcainterp_stream.frontend.far import rematch_far
 from pcainterp_stream.frontend.fill import fill_points
 from pcainterp_stream.frontend.grey import is_blank, to_grey8, to_grey8_pair
 from pcainterp_stream.frontend.refine import halved as _halved
@@ -466,6 +467,9 @@ class RejectionCounts(Mapping[str, int]):
         invalid: a sampled pixel has no disparity.
         discontinuity: a hole or a gradient above ``max_gradient`` in the support patch.
         inconsistent: the right view's disparity disagrees by more than ``lr_max_diff``.
+        far_zeros: kept lookups the half-resolution map read as exactly 0 (not a rejection:
+            :mod:`.far`).
+        far_rematched: of those, how many the full-resolution match measured above 0.
     """
 
     corners: int
@@ -474,6 +478,8 @@ class RejectionCounts(Mapping[str, int]):
     invalid: int
     discontinuity: int
     inconsistent: int
+    far_zeros: int = 0
+    far_rematched: int = 0
 
     def __getitem__(self, name: str) -> int:
         if name not in _COUNT_NAMES:
@@ -829,4 +835,16 @@ class StereoFrontEnd:
             right_disparity=right_map,
             prior_std=self.prior_std,
         )
+        if self.sgbm.downscale == 2:  # a far surface's half-resolution 0: matched again
+            far = rematch_far(
+                grey_left,
+                grey_right,
+                disparity_map,
+                found,
+                self.sgbm,
+                match=_match,
+                look_up=partial(_lookup, config=self.lookup, right_disparity=None),
+            )
+            counts = replace(found.counts, far_zeros=far.zeros, far_rematched=far.rematched)
+            found, disparity_map = far.lookup._replace(counts=counts), far.disparity_map
         return Measurements(found.pixels, found.disparities, disparity_map, found.counts, weak)

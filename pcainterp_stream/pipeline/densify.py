@@ -26,6 +26,7 @@ from pcainterp_stream.estimate.basis import (
     builtin_kind,
 )
 from pcainterp_stream.frontend.discovery import resolve_pairing
+from pcainterp_stream.frontend.far import FarZeros
 from pcainterp_stream.frontend.frame_checks import BeyondRange, StaleRight
 from pcainterp_stream.frontend.pairing import PairingConfig, StereoPairer
 from pcainterp_stream.frontend.pairing_stats import PairingStats
@@ -82,6 +83,8 @@ ENCODE_WORKERS = 2
 """Threads building (and PNG-encoding) the output messages of densified frames."""
 ENCODE_AHEAD = 4
 """Frames whose output messages may be in the making at once (bounds their memory)."""
+
+
 @dataclass
 class DensifySummary:
     """What ``densify`` did.
@@ -312,6 +315,7 @@ def densify(
         if stereo and processor.measurements == "sparse" and processor.near is not None
         else None
     )
+    far = FarZeros() if stereo and processor.sgbm.downscale == 2 else None  # 0: "far"
     check = (
         FeatureStreamCheck(pairing.features_topic, max_points=processor.max_features)
         if processor.source is MeasurementSource.FEATURES and pairing.features_topic is not None
@@ -468,6 +472,8 @@ def densify(
                 robust["empty"] += not result.estimated
             if beyond is not None:
                 beyond.result(result)
+            if far is not None:
+                far.result(result.counts)
             frames += 1
             robust["downweighted"] += result.counts.get("downweighted", 0)
             robust["most"] = max(robust["most"], result.counts.get("downweighted", 0))
@@ -551,7 +557,8 @@ def densify(
         warnings=_order_warnings(reader, stats)
         + (check.warnings(stats) if check is not None else _empty_warning(robust["empty"], frames))
         + (stale.warnings(frames, robust["stale_empty"]) if stale is not None else [])
-        + (beyond.warnings(frames, processor.sgbm) if beyond is not None else []),
+        + (beyond.warnings(frames, processor.sgbm) if beyond is not None else [])
+        + (far.warnings(frames) if far is not None else []),
         downweighted=robust["downweighted"],
         most_downweighted=robust["most"],
         temporal_resets=robust["resets"],

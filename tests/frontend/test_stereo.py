@@ -387,6 +387,8 @@ def test_sgbm_lookups_recover_the_true_disparity(
         "invalid": counts.invalid,
         "discontinuity": counts.discontinuity,
         "inconsistent": counts.inconsistent,
+        "far_zeros": counts.far_zeros,
+        "far_rematched": counts.far_rematched,
     }
     assert counts.corners == (
         counts.kept + counts.outside + counts.invalid + counts.discontinuity + counts.inconsistent
