@@ -13,10 +13,9 @@ the rows and columns around them only, with a small range centred on 0
 (``[-FAR_REACH, FAR_REACH)``), so that 0 is inside the range and refined like any other
 disparity. The half-resolution map takes that value where it read below 1 px, and the
 lookups there are read again with the same checks. A lookup the full-resolution map cannot
-confirm keeps its 0; :func:`zero_noise` gives every lookup still at exactly 0 the
-quantisation's noise. The extra match runs only on frames where at least
-:data:`TRIGGER_SHARE` of the lookups read 0 (KITTI's frames have ~0-2 %, all far sky or
-horizon; the depth camera's hall 86 %).
+confirm keeps its 0 (:class:`FarZeros` warns when many do). The extra match runs only on
+frames where at least :data:`TRIGGER_SHARE` of the lookups read 0 (KITTI's frames have
+~0-2 %, all far sky or horizon; the depth camera's hall 86 %).
 """
 
 from __future__ import annotations
@@ -45,7 +44,6 @@ __all__ = [
     "FarMatch",
     "FarZeros",
     "rematch_far",
-    "zero_noise",
 ]
 
 TRIGGER_SHARE = 0.05
@@ -160,21 +158,6 @@ def rematch_far(
     updated[read] = again.disparities
     rematched = int(np.count_nonzero(zero[read]))
     return FarMatch(spliced, found._replace(disparities=updated), zeros, rematched)
-
-
-def zero_noise(disparities: FloatArray, downscale: int) -> FloatArray | None:
-    """Extra noise std (px) of each lookup: the quantisation's for one still at exactly 0.
-
-    A 0 is "below the first disparity the matcher refines" (half a matching px and below):
-    uniform over ``[0, downscale / 2)`` full-resolution px, std ``downscale / 2 / sqrt(12)``.
-    None when no lookup is 0.
-    """
-    zero = disparities == 0
-    if not zero.any():
-        return None
-    noise = np.zeros(disparities.shape, np.float32)
-    noise[zero] = np.float32(downscale / 2.0 / np.sqrt(12.0))
-    return noise
 
 
 class FarZeros:
