@@ -637,7 +637,9 @@ def evaluate_log(
         )
     with open_log(path) as reader:
         present = reader.topics()
-        pairing, pair_source, front_end = follow_densify(path, options.pairing, present)
+        pairing, pair_source, front_end = follow_densify(
+            path, options.pairing, present, topics.prefix
+        )
         images = PairImages(pairing)
         if pairing is not None:
             try:
