@@ -20,13 +20,16 @@ from typing import Any
 from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.frontend.stereo import SgbmConfig
 from pcainterp_stream.io.densify_record import FrontEnd, options_json
-from pcainterp_stream.io.outputs import recorded_front_end
+from pcainterp_stream.io.outputs import front_end_record
 
 __all__ = ["describe_pair", "follow_densify", "matcher_notes"]
 
 
 def follow_densify(
-    path: Path, pairing: PairingConfig | None, present: dict[str, Any]
+    path: Path,
+    pairing: PairingConfig | None,
+    present: dict[str, Any],
+    prefix: str | None = None,
 ) -> tuple[PairingConfig | None, str, FrontEnd | None]:
     """Return the pairing to read a densified log's input pair with, and where it came from.
 
@@ -43,9 +46,12 @@ def follow_densify(
     record, only info topics named leave the images to discovery.
 
     Args:
-        path: the densified log (its record: ``io.outputs.recorded_front_end``).
+        path: the densified log (its record: ``io.outputs.front_end_record``).
         pairing: the pairing asked for (None: the library default, nothing named).
         present: the log's topics, to check the recorded ones are still there.
+        prefix: the prefix of the outputs evaluated: the record of that prefix is taken (a
+            log densified again under another ``--output-prefix`` has one per prefix; None:
+            the last record).
 
     Returns:
         The pairing (``pairing`` itself without a usable record), a note on its source and
@@ -61,11 +67,23 @@ def follow_densify(
         # only info topics named: the images are found in the log, the infos named kept
         pairing = dataclasses.replace(pairing, discover=True)
     try:
-        front_end = recorded_front_end(path)
+        front_end, which = front_end_record(path, prefix)
     except ValueError as err:
         return pairing, f"the log's record cannot be read ({err}): {again}", None
     if front_end is None:
-        return pairing, f"the log records none: {again}", None
+        return pairing, f"{which or 'the log records none'}: {again}", None
+    pairing, source, front_end = _follow(pairing, front_end, present, open_topics, again)
+    return pairing, f"{source}; {which}" if which else source, front_end
+
+
+def _follow(
+    pairing: PairingConfig | None,
+    front_end: FrontEnd,
+    present: dict[str, Any],
+    open_topics: bool,
+    again: str,
+) -> tuple[PairingConfig | None, str, FrontEnd]:
+    """Return :func:`follow_densify`'s pairing and note for a log's record ``front_end``."""
     if front_end.left_topic not in present or front_end.right_topic not in present:
         return (
             pairing,

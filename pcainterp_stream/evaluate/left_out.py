@@ -4,6 +4,11 @@ A frame takes the ground-truth depth and pose nearest its stamp within the stamp
 When some have none, the report says how far the nearest was and, when a wider tolerance
 would take the frame's own message, which tolerance to pass: never one of a second or more
 (that is another clock, not a late message) nor half a frame period (another frame's).
+
+Temporal mode pairs a frame with the next one only when that is one frame interval later
+(:meth:`LeftOut.pairs`: at most :data:`PAIR_STEP_FACTOR` x the median stamp step, forward in
+time); across a pause, dropped frames or stamps that go back the frame is left unpaired,
+and counted.
 """
 
 from __future__ import annotations
@@ -15,11 +20,15 @@ import numpy as np
 
 from pcainterp_stream.evaluate.log_frames import GROUND_TRUTH_POSE, ReadState
 
-__all__ = ["MAX_ADVISED_TOLERANCE_NS", "LeftOut"]
+__all__ = ["MAX_ADVISED_TOLERANCE_NS", "PAIR_STEP_FACTOR", "LeftOut"]
 
 MAX_ADVISED_TOLERANCE_NS = 1_000_000_000
 """The widest stamp tolerance the report advises: a gap of a second or more is another
 clock (or stamps that are not set), which no tolerance matches frame by frame."""
+
+PAIR_STEP_FACTOR = 1.5
+"""Temporal mode pairs frames at most this many median stamp steps apart (one frame
+interval, with jitter; a frame dropped in between makes two)."""
 
 
 @dataclass
@@ -31,6 +40,23 @@ class LeftOut:
     gaps: dict[str, list[int]] = field(default_factory=lambda: {"truth": [], "pose": []})
     stamps: list[int] = field(default_factory=list)
     """The stamps (ns) of the frames read, for their period."""
+    step_ns: int | None = None
+    """The median step of the log's frame stamps (ns; None: unknown), for :meth:`pairs`."""
+    unpaired: int = 0
+    """Frames temporal mode left unpaired: the next frame was not one interval later."""
+
+    def pairs(self, before_ns: int, after_ns: int) -> bool:
+        """Return whether two frames read one after the other make a temporal pair; count not.
+
+        The second must be later by at most :data:`PAIR_STEP_FACTOR` x :attr:`step_ns`
+        (any step forward when that is unknown).
+        """
+        step = after_ns - before_ns
+        limit = math.inf if self.step_ns is None else PAIR_STEP_FACTOR * self.step_ns
+        if 0 < step <= limit:
+            return True
+        self.unpaired += 1
+        return False
 
     def see(self, gap_ns: int | None, what: str) -> None:
         """Count a frame without ``what`` ("truth" or "pose"); ``gap_ns``: the nearest's."""
@@ -59,6 +85,14 @@ class LeftOut:
                 note += f"; {len(gaps)} had one {min(gaps) / 1e6:.2f}-{max(gaps) / 1e6:.2f} ms away"
                 note += self._advice(max(gaps), topic)
             notes.append(note)
+        if self.unpaired:
+            step = "" if self.step_ns is None else f" of {self.step_ns / 1e6:.3g} ms"
+            notes.append(
+                f"{self.unpaired} frame{'' if self.unpaired == 1 else 's'} left unpaired in "
+                "temporal mode: the next frame is not one frame interval after it (more than "
+                f"{PAIR_STEP_FACTOR:g} x the median step{step} later, or earlier: a pause, "
+                "dropped frames or stamps that go back)"
+            )
         return notes
 
     def _advice(self, widest_ns: int, topic: str) -> str:

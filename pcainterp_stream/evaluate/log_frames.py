@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.errors import LogReadError
+from pcainterp_stream.errors import LogReadError, PcaInterpError
 from pcainterp_stream.evaluate.reference import ReferenceTopic
 from pcainterp_stream.frontend.images import PairImages
 from pcainterp_stream.frontend.pair_forms import grey_alike, same_image_message
@@ -53,6 +53,8 @@ __all__ = [
     "TRUTH_WAIT_FRAMES",
     "Frame",
     "ReadState",
+    "frame_count",
+    "frame_step_ns",
     "read_frames",
 ]
 
@@ -135,7 +137,8 @@ class ReadState:
     never came with their stamp (a frame densify dropped, a message lost)."""
     repeated: dict[str, int] = field(default_factory=dict)
     """Per topic matched by stamp (right image, truth, poses, reference), the messages with
-    the stamp of an earlier one of the topic: the first in log order is used, these not."""
+    the stamp of an earlier one of the topic (stamps that restart, a message logged twice):
+    a frame takes the message of its stamp nearest its own log time."""
     copies: dict[str, int] = field(default_factory=dict)
     """Per image topic of the input pair, the images logged again right after themselves (the
     same stamp, size, encoding and bytes): skipped, as densify dropped them."""
@@ -150,13 +153,14 @@ class ReadState:
 
     @property
     def repeated_note(self) -> str:
-        """Return the sentence on messages of a repeated stamp left unused ("": none)."""
+        """Return the sentence on messages with the stamp of an earlier one ("": none)."""
         if not self.repeated:
             return ""
         counts = ", ".join(f"{n} on {topic}" for topic, n in sorted(self.repeated.items()))
         return (
-            f"messages with the stamp of an earlier one of their topic were not used ({counts}): "
-            "a frame takes the first message of its stamp in log order"
+            f"messages with the stamp of an earlier one of their topic ({counts}; stamps that "
+            "restart, or a message logged twice): a frame takes the message of its stamp "
+            "nearest its own log time"
         )
 
     @property
@@ -209,6 +213,8 @@ class _Complete:
     index: int
     stamp_ns: int
     parts: dict[str, Any]
+    log_time_ns: int = 0
+    """The log time of its left image: of messages sharing a stamp, the nearest is its own."""
 
 
 def read_frames(
@@ -235,8 +241,10 @@ def read_frames(
     frame whose message never comes (dropped) goes on without it. With a reference topic,
     each frame carries the reference message of its stamp, waited for at most
     :data:`REFERENCE_WAIT_FRAMES` frames. The waits bound the frames held in memory. Of
-    messages of one topic with the same stamp, the first in log order is the one matched;
-    the others are counted (``state.repeated``) and the report names them.
+    messages of one topic with the same stamp (stamps that restart mid-log, as a simulator
+    restarted during the recording stamps them; a message logged twice), the one nearest
+    the frame's left image in log time is matched (the first of a tie); the repeats are
+    counted (``state.repeated``) and the report names them.
 
     Args:
         path: a log written by ``pcainterp densify``.
@@ -273,17 +281,22 @@ def read_frames(
         # truth and the poses may come from other clocks and rates: each is matched by stamp
         truth = [] if reference is not None else [GROUND_TRUTH_DEPTH]
         nearby_topics = [right_image, *truth, *([GROUND_TRUTH_POSE] if poses else [])]
-        nearby: dict[str, dict[int, Any]] = {t: {} for t in nearby_topics if t in present}
+        nearby = {
+            t: _Stamped(POSE_BUFFER if t == GROUND_TRUTH_POSE else PENDING_FRAMES)
+            for t in nearby_topics
+            if t in present
+        }
         latest: dict[str, int] = {}
         wanted = [*grouped, *nearby]
         infos = [t for t in images.info_topics if t in present and t not in wanted]
         wanted += infos
         if reference is not None and reference.topic not in wanted:
             wanted.append(reference.topic)
-        references: dict[int, Any] = {}
-        stamps = _SeenStamps()  # of the topics matched by stamp: the first of a stamp is used
+        references = _Stamped(REFERENCE_BUFFER)
+        stamps = _SeenStamps()  # of the topics matched by stamp: repeated stamps counted
         unplaced = _UnplacedStamps(left_image, right_image)
         pending: dict[int, dict[str, Any]] = {}
+        pending_log_times: dict[int, int] = {}  # of the left image of a pending stamp
         waiting: deque[_Complete] = deque()
         index = yielded = 0
 
@@ -295,7 +308,7 @@ def read_frames(
                     return False
             return (
                 reference is None
-                or frame.stamp_ns in references
+                or references.has(frame.stamp_ns)
                 or len(waiting) > REFERENCE_WAIT_FRAMES
             )
 
@@ -306,7 +319,7 @@ def read_frames(
             return _frame(
                 frame,
                 nearby=nearby,
-                reference=references.pop(frame.stamp_ns, None),
+                reference=references.take(frame.stamp_ns, frame.log_time_ns),
                 topics=topics,
                 images=images,
                 where=where,
@@ -333,10 +346,8 @@ def read_frames(
             if reference is not None and raw.topic == reference.topic:
                 # stamped 0 (a stack without stamps): at its log time, as truth and the frames
                 stamp = unplaced.stamp(raw.topic, rosmsg.stamp_ns(message), raw.log_time_ns)
-                if stamps.first(raw.topic, stamp, state):
-                    references[stamp] = message
-                while len(references) > REFERENCE_BUFFER:
-                    references.pop(min(references))
+                stamps.first(raw.topic, stamp, state)  # a repeat is counted, and kept
+                references.add(stamp, raw.log_time_ns, message)
             full_estimate = raw.topic == where.estimate and not where.compact
             stamp = rosmsg.stamp_ns(message.image if full_estimate else message)
             if raw.topic in (left_image, right_image) and unplaced.copy(raw.topic, stamp, message):
@@ -348,24 +359,26 @@ def read_frames(
                 # (stamp 0 at log time 0 is a clock that starts at 0: KITTI's times.txt)
                 raise LogReadError(_zero_output_message(path, raw.topic, left_image))
             if raw.topic in nearby:
-                buffer = nearby[raw.topic]
-                if stamps.first(raw.topic, stamp, state):  # a repeated stamp: its first is used
-                    buffer[stamp] = message
-                latest[raw.topic] = max(stamp, latest.get(raw.topic, stamp))
-                while len(buffer) > (
-                    POSE_BUFFER if raw.topic == GROUND_TRUTH_POSE else PENDING_FRAMES
-                ):
-                    buffer.pop(min(buffer))
+                stamps.first(raw.topic, stamp, state)  # a repeat is counted, and kept
+                nearby[raw.topic].add(stamp, raw.log_time_ns, message)
+                # the last stamp, not the largest: after stamps restart, a frame of the new
+                # run waits for the new run's messages
+                latest[raw.topic] = stamp
             elif raw.topic in grouped:
                 parts = pending.setdefault(stamp, {})
                 state.merged += raw.topic in parts
                 parts[raw.topic] = message
+                if raw.topic == left_image or stamp not in pending_log_times:
+                    pending_log_times[stamp] = raw.log_time_ns
                 if len(parts) == complete:
                     del pending[stamp]
-                    waiting.append(_Complete(index, stamp, parts))
+                    log_time = pending_log_times.pop(stamp)
+                    waiting.append(_Complete(index, stamp, parts, log_time))
                     index += 1
                 while len(pending) > PENDING_FRAMES:  # frames are written close together
-                    _count_incomplete(pending.pop(min(pending)), grouped, state)
+                    oldest = min(pending)
+                    pending_log_times.pop(oldest, None)
+                    _count_incomplete(pending.pop(oldest), grouped, state)
             while waiting and ready(waiting[0]):
                 yield release()
                 yielded += 1
@@ -378,6 +391,51 @@ def read_frames(
             yielded += 1
             if max_frames is not None and yielded >= max_frames:
                 return
+
+
+def frame_count(path: Path, topics: OutputTopics, max_frames: int | None) -> int | None:
+    """Return how many densified frames a log holds (at most ``max_frames``), for progress.
+
+    The estimate channel's message count in the log's summary; None when the log has no
+    summary of counts or cannot be read (its error is raised when it is evaluated).
+    """
+    try:
+        with open_log(path) as reader:
+            present = reader.topics()
+    except PcaInterpError:
+        return None
+    estimate = estimate_topics(present, topics).estimate
+    count = present[estimate].message_count if estimate in present else None
+    if not count:
+        return None
+    return count if max_frames is None else min(count, max_frames)
+
+
+def frame_step_ns(path: Path, topics: OutputTopics, max_frames: int | None) -> int | None:
+    """Return the median step (ns) of a densified log's frame stamps, the frame interval.
+
+    Read from the output camera infos (one per frame, small), in log order: the median of
+    the steps forward in time, so that a pause or a clock that goes back does not move it.
+    None when there are fewer than two frames or no step forward.
+
+    Args:
+        path: a log written by ``pcainterp densify``.
+        topics: its output topics.
+        max_frames: read at most this many frames and one more (None: all).
+    """
+    previous: int | None = None
+    steps: list[int] = []
+    with open_log(path) as reader:
+        if topics.camera_info not in reader.topics():
+            return None
+        for count, raw in enumerate(reader.messages([topics.camera_info])):
+            if max_frames is not None and count > max_frames:
+                break
+            stamp = rosmsg.stamp_ns(reader.decode(raw)) or raw.log_time_ns
+            if previous is not None and stamp > previous:
+                steps.append(stamp - previous)
+            previous = stamp
+    return int(np.median(steps)) if steps else None
 
 
 def _missing_advice(
@@ -479,13 +537,58 @@ class _SeenStamps:
         return True
 
 
-def _nearest(messages: dict[int, Any], stamp: int, tolerance_ns: int) -> tuple[Any, int | None]:
-    """Return the message nearest ``stamp`` within the tolerance (else None) and its gap (ns)."""
-    nearest = min(messages, key=lambda other: abs(other - stamp), default=None)
-    if nearest is None:
-        return None, None
-    gap = abs(nearest - stamp)
-    return (messages[nearest] if gap <= tolerance_ns else None), gap
+class _Stamped:
+    """The latest messages of a topic matched by stamp, with their log times.
+
+    Stamps may repeat (stamps that restart mid-log, a message logged twice): every message
+    is kept, the oldest in log order dropped beyond ``limit``, and a frame takes the one
+    nearest its stamp and, of those, nearest its log time (:meth:`nearest`).
+    """
+
+    def __init__(self, limit: int) -> None:
+        self._limit = limit
+        self._messages: deque[tuple[int, int, Any]] = deque()  # stamp, log time, message
+
+    def add(self, stamp: int, log_time_ns: int, message: Any) -> None:
+        """Keep a message (the oldest one dropped beyond the limit)."""
+        self._messages.append((stamp, log_time_ns, message))
+        if len(self._messages) > self._limit:
+            self._messages.popleft()
+
+    def has(self, stamp: int) -> bool:
+        """Return whether a message of exactly ``stamp`` is kept."""
+        return any(kept == stamp for kept, _, _ in self._messages)
+
+    def _index(self, stamp: int, log_time_ns: int) -> int | None:
+        """Return the index of the message nearest ``stamp``, then ``log_time_ns`` (the first)."""
+        best: tuple[int, int] | None = None
+        found = None
+        for index, (kept, log_time, _) in enumerate(self._messages):
+            key = (abs(kept - stamp), abs(log_time - log_time_ns))
+            if best is None or key < best:
+                best, found = key, index
+        return found
+
+    def nearest(self, stamp: int, tolerance_ns: int, log_time_ns: int) -> tuple[Any, int | None]:
+        """Return the message nearest ``stamp`` within the tolerance (else None), its gap (ns).
+
+        Of messages of the nearest stamp, the one nearest ``log_time_ns`` (the first of a tie).
+        """
+        index = self._index(stamp, log_time_ns)
+        if index is None:
+            return None, None
+        kept, _, message = self._messages[index]
+        gap = abs(kept - stamp)
+        return (message if gap <= tolerance_ns else None), gap
+
+    def take(self, stamp: int, log_time_ns: int) -> Any:
+        """Remove and return the message of exactly ``stamp`` nearest ``log_time_ns`` (or None)."""
+        index = self._index(stamp, log_time_ns)
+        if index is None or self._messages[index][0] != stamp:
+            return None
+        message = self._messages[index][2]
+        del self._messages[index]
+        return message
 
 
 def _recover_focal_baseline(frame: _Complete, features_topic: str, state: ReadState) -> None:
@@ -539,7 +642,7 @@ def _camera(info: Any, baseline: float, size: tuple[int, int]) -> StereoCamera:
 def _frame(
     complete: _Complete,
     *,
-    nearby: dict[str, dict[int, Any]],
+    nearby: dict[str, _Stamped],
     reference: Any,
     topics: OutputTopics,
     images: PairImages,
@@ -557,7 +660,10 @@ def _frame(
         raise LogReadError(f"frame {index} of the densified log: {err}") from None
     estimate = decoded.disparity
     features = rosmsg.pointcloud2_arrays(parts[topics.features])
-    found = {topic: _nearest(messages, stamp, tolerance_ns) for topic, messages in nearby.items()}
+    log_time = complete.log_time_ns
+    found = {
+        topic: messages.nearest(stamp, tolerance_ns, log_time) for topic, messages in nearby.items()
+    }
     right, gap = found.get(images.right_topic, (None, None))
     depth, depth_gap = found.get(GROUND_TRUTH_DEPTH, (None, None))
     pose, pose_gap = found.get(GROUND_TRUTH_POSE, (None, None))

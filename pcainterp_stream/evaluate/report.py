@@ -40,6 +40,7 @@ from pcainterp_stream.evaluate.log_frames import (
     GROUND_TRUTH_POSE,
     Frame,
     ReadState,
+    frame_step_ns,
     read_frames,
 )
 from pcainterp_stream.evaluate.metrics import (
@@ -637,7 +638,9 @@ def evaluate_log(
         )
     with open_log(path) as reader:
         present = reader.topics()
-        pairing, pair_source, front_end = follow_densify(path, options.pairing, present)
+        pairing, pair_source, front_end = follow_densify(
+            path, options.pairing, present, topics.prefix
+        )
         images = PairImages(pairing)
         if pairing is not None:
             try:
@@ -726,6 +729,8 @@ def evaluate_log(
         poses=mode is Mode.TEMPORAL,
     )
     left_out = LeftOut()
+    if mode is Mode.TEMPORAL:  # a pair is two frames one interval apart
+        left_out.step_ns = frame_step_ns(path, topics, options.max_frames)
     for frame in frames:
         read += 1
         if progress is not None:
@@ -763,7 +768,7 @@ def evaluate_log(
             left_out.see(frame.pose_gap_ns, "pose")
             previous = None
             continue
-        if previous is not None:
+        if previous is not None and left_out.pairs(previous[0].stamp_ns, frame.stamp_ns):
             before, before_reference, before_stereo = previous
             assert before.pose is not None
             assert frame.pose is not None

@@ -31,7 +31,13 @@ complete: ``version``; ``basis``, ``basis_fingerprint`` and ``basis_scope`` as t
 channels have them (the basis of the first outputs; every basis in force: the record
 ``pcainterp.basis``);
 ``front_end`` (:class:`FrontEnd`), ``pairing`` and ``processor`` as JSON of option values
-(:func:`options_json`)."""
+(:func:`options_json`); ``output_prefix`` (:data:`OUTPUT_PREFIX_KEY`)."""
+
+OUTPUT_PREFIX_KEY = "output_prefix"
+"""The key of :data:`DENSIFY_RECORD` (and of ``pcainterp.basis``) naming the prefix of the
+output topics the record is about (``/pcainterp``): a log densified again under another
+``--output-prefix`` (its second stereo pair) holds one record per prefix. Records of older
+versions have no such key."""
 
 FRONT_END_KEY = "front_end"
 """The key of :data:`DENSIFY_RECORD` holding :class:`FrontEnd` as JSON."""

@@ -40,7 +40,12 @@ import numpy.typing as npt
 
 from pcainterp_stream.defaults import DISPLAY_MAX_DEPTH
 from pcainterp_stream.io import depth_codec, rosmsg
-from pcainterp_stream.io.densify_record import DENSIFY_RECORD, FRONT_END_KEY, FrontEnd
+from pcainterp_stream.io.densify_record import (
+    DENSIFY_RECORD,
+    FRONT_END_KEY,
+    OUTPUT_PREFIX_KEY,
+    FrontEnd,
+)
 from pcainterp_stream.records import DensifiedFrame
 
 CHANNELS = ("depth", "depth_std", "disparity", "disparity_std", "features", "camera_info")
@@ -223,6 +228,11 @@ class OutputTopics:
         )
         return topics.compact() if precision == "compact" else topics
 
+    @property
+    def prefix(self) -> str:
+        """Return the prefix of the output topics (``/pcainterp``): the camera info's parent."""
+        return self.camera_info.rsplit("/", 1)[0]
+
     def all(self) -> list[str]:
         """Return every output topic in use."""
         topics = [str(getattr(self, name)) for name in CHANNELS if self.writes(name)]
@@ -326,8 +336,11 @@ class BasisInForce(NamedTuple):
 _BASIS_FIELDS = BasisInForce._fields
 
 
-def bases_record(bases: Iterable[BasisInForce]) -> dict[str, str]:
+def bases_record(bases: Iterable[BasisInForce], prefix: str | None = None) -> dict[str, str]:
     """Return the :data:`BASES_RECORD` metadata record of the bases in force, in stream order.
+
+    ``prefix``: the output topics' prefix, recorded under
+    :data:`~pcainterp_stream.io.densify_record.OUTPUT_PREFIX_KEY` (None: not recorded).
 
     Examples:
         >>> entry = BasisInForce("built-in", "0123456789abcdef", 0, 5, 7)
@@ -339,6 +352,8 @@ def bases_record(bases: Iterable[BasisInForce]) -> dict[str, str]:
     """
     entries = list(bases)
     record = {"count": str(len(entries))}
+    if prefix is not None:
+        record[OUTPUT_PREFIX_KEY] = prefix
     for number, entry in enumerate(entries):
         record.update({f"{number}.{name}": str(value) for name, value in entry._asdict().items()})
     return record
@@ -365,40 +380,99 @@ def recorded_bases_of(record: dict[str, str]) -> list[BasisInForce]:
         ) from err
 
 
-def recorded_bases(path: Path) -> list[BasisInForce]:
-    """Return the bases a densified MCAP log records (:data:`BASES_RECORD`; the last one).
+def recorded_bases(path: Path, prefix: str | None = None) -> list[BasisInForce]:
+    """Return the bases a densified MCAP log records (:data:`BASES_RECORD`) for a prefix.
 
-    [] for a log without the record (another format, or densified by an older version).
+    The record of the output prefix ``prefix`` (:func:`record_of_prefix`; None: the last
+    record); [] for a log without one (another format, or densified by an older version).
     """
-    record = _last_record(path, BASES_RECORD)
+    record, _ = record_of_prefix(_records(path, BASES_RECORD), prefix)
     return recorded_bases_of(record) if record is not None else []
 
 
-def recorded_front_end(path: Path) -> FrontEnd | None:
+class RecordedFrontEnd(NamedTuple):
+    """The front end a densified log records for a prefix, and what to say of the choice."""
+
+    front_end: FrontEnd | None
+    """None: no record (of that prefix) that holds one."""
+    note: str
+    """Why that record (several records, none naming its prefix), or why none; "" if plain."""
+
+
+def recorded_front_end(path: Path, prefix: str | None = None) -> FrontEnd | None:
     """Return how ``densify`` made a log's stereo measurements (:class:`FrontEnd`), or None.
 
-    Read from the last :data:`DENSIFY_RECORD` of an MCAP log; None for a log without one
-    that records it (another format, or densified by an older version).
+    Read from the :data:`DENSIFY_RECORD` of the output prefix ``prefix`` of an MCAP log
+    (:func:`front_end_record`); None for a log without one that records it.
 
     Raises:
         ValueError: the record holds a front end this version cannot read.
     """
-    record = _last_record(path, DENSIFY_RECORD)
+    return front_end_record(path, prefix).front_end
+
+
+def front_end_record(path: Path, prefix: str | None = None) -> RecordedFrontEnd:
+    """Return the front end of a log's :data:`DENSIFY_RECORD` for the outputs of ``prefix``.
+
+    A log densified again under another ``--output-prefix`` (a second stereo pair) holds a
+    record per prefix; the one naming ``prefix`` is taken (:func:`record_of_prefix`).
+
+    Raises:
+        ValueError: the record holds a front end this version cannot read.
+    """
+    record, note = record_of_prefix(_records(path, DENSIFY_RECORD), prefix)
     if record is None or FRONT_END_KEY not in record:
-        return None
-    return FrontEnd.from_json(record[FRONT_END_KEY])
+        return RecordedFrontEnd(None, note)
+    return RecordedFrontEnd(FrontEnd.from_json(record[FRONT_END_KEY]), note)
 
 
-def _last_record(path: Path, name: str) -> dict[str, str] | None:
-    """Return the last MCAP metadata record ``name`` of a log, None when it has none."""
+def record_of_prefix(
+    records: list[dict[str, str]], prefix: str | None
+) -> tuple[dict[str, str] | None, str]:
+    """Return the record (of several of one name) about the outputs of ``prefix``, and a note.
+
+    The last record naming ``prefix`` (:data:`~pcainterp_stream.io.densify_record.
+    OUTPUT_PREFIX_KEY`); else, of records that name no prefix (older versions), the last one,
+    with a note when the log holds several records; else None and a note naming the prefixes
+    recorded. ``prefix`` None: the last record, whatever its prefix (as before prefixes).
+
+    Examples:
+        >>> record_of_prefix([{"output_prefix": "/a"}, {"output_prefix": "/b"}], "/a")
+        ({'output_prefix': '/a'}, '')
+        >>> record_of_prefix([{"output_prefix": "/b"}], "/a")[1]
+        'the log records densify only for the outputs of /b, none for /a'
+    """
+    if not records:
+        return None, ""
+    if prefix is None:
+        return records[-1], ""
+    named = [record for record in records if record.get(OUTPUT_PREFIX_KEY) == prefix]
+    if named:
+        return named[-1], ""
+    unnamed = [record for record in records if OUTPUT_PREFIX_KEY not in record]
+    if unnamed:
+        note = (
+            ""
+            if len(records) == 1
+            else (
+                f"the log holds {len(records)} densify records, {len(unnamed)} of an older "
+                "version that names no output prefix: the last of those was taken"
+            )
+        )
+        return unnamed[-1], note
+    prefixes = ", ".join(sorted({record[OUTPUT_PREFIX_KEY] for record in records}))
+    return None, f"the log records densify only for the outputs of {prefixes}, none for {prefix}"
+
+
+def _records(path: Path, name: str) -> list[dict[str, str]]:
+    """Return the MCAP metadata records ``name`` of a log in file order ([]: none, not MCAP)."""
     from pcainterp_stream.io.logreader import open_log
     from pcainterp_stream.io.mcap_reader import McapLogReader
 
     with open_log(path) as reader:
         if not isinstance(reader, McapLogReader):
-            return None
-        records = [m for m in reader.extras().metadata if m.name == name]
-    return dict(records[-1].metadata) if records else None
+            return []
+        return [dict(m.metadata) for m in reader.extras().metadata if m.name == name]
 
 
 def pairing_metadata(tolerance_ns: int) -> dict[str, str]:

@@ -37,6 +37,7 @@ from pcainterp_stream.io.densify_record import (
     DENSIFY_RECORD,
     FRONT_END_KEY,
     IMAGES,
+    OUTPUT_PREFIX_KEY,
     FrontEnd,
     option_value,
     options_json,
@@ -196,6 +197,7 @@ def provenance(
     pairing: PairingConfig,
     processor: ProcessorConfig,
     stats: PairingStats,
+    prefix: str | None = None,
 ) -> dict[str, str]:
     """Return the record of what made a densified log (``pcainterp.densify``), run complete.
 
@@ -205,10 +207,12 @@ def provenance(
         pairing: the pairing in force (the pair found in the log, if discovered).
         processor: the processor's options.
         stats: the pairing's counts (the pairs ``--rectify`` remapped).
+        prefix: the output topics' prefix (``output_prefix``; None: not recorded).
 
     Returns:
-        ``version``, ``basis``, ``basis_fingerprint``, ``basis_scope`` and, as JSON of option
-        values, ``front_end`` (:func:`front_end`), ``pairing`` and ``processor``.
+        ``version``, ``basis``, ``basis_fingerprint``, ``basis_scope``, ``output_prefix`` and,
+        as JSON of option values, ``front_end`` (:func:`front_end`), ``pairing`` and
+        ``processor``.
     """
     from pcainterp_stream.version import __version__
 
@@ -220,6 +224,7 @@ def provenance(
         FRONT_END_KEY: front_end(pairing, processor, stats).to_json(),
         "pairing": options_json(pairing),
         "processor": options_json(processor),
+        **({} if prefix is None else {OUTPUT_PREFIX_KEY: prefix}),
     }
 
 
@@ -542,9 +547,10 @@ def densify(
                 )
         if isinstance(writer, McapLogWriter):  # every basis in force: the channels name the first
             # what made the log, now that the basis of its outputs is decided
-            writer.add_metadata(DENSIFY_RECORD, provenance(opening, pairing, processor, stats))
+            record = provenance(opening, pairing, processor, stats, topics.prefix)
+            writer.add_metadata(DENSIFY_RECORD, record)
             in_force = bases_in_force(engine, basis, label, output, final_written)
-            writer.add_metadata(BASES_RECORD, bases_record(in_force))
+            writer.add_metadata(BASES_RECORD, bases_record(in_force, topics.prefix))
     return DensifySummary(
         input=input_path,
         output=writer.path if writer is not None else None,

@@ -213,6 +213,7 @@ def evaluate(
     Returns:
         The report folder and the summary table text.
     """
+    from pcainterp_stream.evaluate.log_frames import frame_count
     from pcainterp_stream.evaluate.metrics import Mode, ReferenceKind
     from pcainterp_stream.evaluate.report import EvaluateOptions, summary_table, write_report
 
@@ -244,7 +245,8 @@ def evaluate(
         pairing=pairing,
         stamp_tolerance_ns=None if stamp_tolerance_ms is None else round(stamp_tolerance_ms * 1e6),
     )
-    with _bar(None, f"evaluate {input_path.name}") as bar:
+    total = frame_count(input_path, topics or OutputTopics(), max_frames)  # "k/N frames"
+    with _bar(total, f"evaluate {input_path.name}") as bar:
         result = write_report(
             input_path,
             folder,

@@ -306,3 +306,54 @@ def test_info_topics_named_are_used_not_the_recorded_calibration_files(
     followed = _evaluate(files_densified, None)
     assert ", calibration files, " in followed.input_pair
     assert "calibration files as densify recorded them" in followed.input_pair
+
+
+def test_each_prefix_is_evaluated_with_its_own_record(two_pairs: Path, tmp_path: Path) -> None:
+    # before: a log densified again for its second pair under another --output-prefix gave
+    # evaluate of the first prefix the LAST record's pair: SGBM rows of the other camera
+    # (a NumPy traceback when the pairs differ in size; bug hunt 9A F2)
+    from pcainterp_stream.evaluate.input_pair import follow_densify
+    from pcainterp_stream.io.outputs import OutputTopics, front_end_record, recorded_bases
+
+    both = tmp_path / "both.mcap"
+    densify(
+        two_pairs,
+        both,
+        pairing=_other(rectify="always", check_rows=False),
+        topics=OutputTopics.with_prefix("/rear"),
+    )
+    assert front_end_record(both, "/pcainterp") == (recorded_front_end(two_pairs), "")
+    rear = front_end_record(both, "/rear").front_end
+    assert rear is not None
+    assert (rear.left_topic, rear.rectify) == ("/other/left/image_raw", "always")
+    assert len(recorded_bases(both, "/rear")) == len(recorded_bases(both, "/pcainterp")) == 1
+    first = _evaluate(both, PairingConfig(discover=True))
+    assert first.input_pair == _evaluate(two_pairs, PairingConfig(discover=True)).input_pair
+    assert first.input_pair.startswith("/camera/left/image_raw, /camera/right/image_raw, ")
+    with open_log(both) as reader:
+        present = reader.topics()
+    config, source, _ = follow_densify(both, None, present, "/rear")
+    assert config is not None
+    assert (config.left_topic, config.rectify) == ("/other/left/image_raw", "always")
+    # a prefix densify recorded nothing for (records of this version name theirs)
+    _, source, front_end = follow_densify(both, None, present, "/side")
+    assert front_end is None
+    assert source == (
+        "the log records densify only for the outputs of /pcainterp, /rear, none for /side: "
+        "--rectify auto decided again as densify decides"
+    )
+
+
+def test_records_of_an_older_version_name_no_prefix() -> None:
+    from pcainterp_stream.io.outputs import record_of_prefix
+
+    old, new = {"front_end": "a"}, {"front_end": "b", "output_prefix": "/rear"}
+    assert record_of_prefix([old], "/pcainterp") == (old, "")
+    assert record_of_prefix([old, new], "/rear") == (new, "")
+    assert record_of_prefix([old, new], "/pcainterp") == (
+        old,
+        "the log holds 2 densify records, 1 of an older version that names no output prefix: "
+        "the last of those was taken",
+    )
+    assert record_of_prefix([old, new], None) == (new, "")  # the library's default: the last
+    assert record_of_prefix([], "/pcainterp") == (None, "")
