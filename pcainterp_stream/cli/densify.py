@@ -68,6 +68,7 @@ def add_parser(commands: Commands) -> None:
             "  pcainterp densify drive.bag -o out.mcap --rerun\n"
             "  pcainterp densify slam.mcap -o out.mcap --features-topic /features\n"
             "  pcainterp densify logs/*.mcap --out-dir dense/ --basis b.npz --workers 2\n"
+            "  pcainterp densify run_0.bag run_1.bag -o run_dense.mcap   # one split recording\n"
             "  pcainterp densify drive.mcap --foxglove      # live in Foxglove: ws://127.0.0.1:8765\n"
             "  cat drive.mcap | pcainterp densify - -o - > drive_dense.mcap\n"
             "\n" + DOCS_NOTE
@@ -78,7 +79,9 @@ def add_parser(commands: Commands) -> None:
         type=Path,
         nargs="+",
         metavar="INPUT",
-        help="one log ('-': an MCAP stream on standard input), or several with --out-dir",
+        help="one log ('-': an MCAP stream on standard input); with -o, several are the parts "
+        "of one split recording (rosbag record --split: a_0.bag a_1.bag), read as one log in "
+        "log-time order; with --out-dir, several logs densified apart",
     )
     target = densify.add_mutually_exclusive_group()
     target.add_argument(
@@ -346,10 +349,10 @@ def run(args: argparse.Namespace) -> int:
     topics = _output_topics(args)
     if args.out_dir is not None:
         return _densify_many(args, processor, topics)
-    if len(args.input) > 1:
+    if len(args.input) > 1 and STREAM in args.input:
         raise PcaInterpError(
-            f"-o takes one input but {len(args.input)} were given; "
-            "pass --out-dir DIR to densify several logs"
+            "standard input (-) is one whole log, not a part of one; pass the parts of a split "
+            "recording as files (densify a_0.bag a_1.bag -o OUTPUT)"
         )
     if args.scheduler is not None or args.workers is not None:
         raise PcaInterpError("--scheduler/--workers need --out-dir DIR instead of -o")
@@ -360,7 +363,8 @@ def run(args: argparse.Namespace) -> int:
             f"and rerun know one by its .mcap suffix; name it {args.output}.mcap to open it there"
         )
     return densify_one(
-        args.input[0],
+        # several inputs with -o: the parts of one split recording, read as one log
+        args.input if len(args.input) > 1 else args.input[0],
         args.output,
         args.basis,
         processor=processor,

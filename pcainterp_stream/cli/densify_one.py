@@ -49,7 +49,7 @@ class LiveOptions:
 
 
 def densify_one(
-    source: Path,
+    source: Path | list[Path],
     output: Path | None,
     basis: Path | None,
     *,
@@ -63,6 +63,7 @@ def densify_one(
     """Densify one log as the command line asks; print the summary; return the exit code.
 
     ``source`` and ``output`` may be ``-`` (:data:`STREAM`): standard input and output.
+    ``source`` may be a list: the parts of one split recording, read as one log.
     With ``-o -`` everything printed goes to standard error: standard output carries the
     MCAP. With ``live`` (``--foxglove``) the server starts first (its URL is printed), and
     without an output it serves after the last frame until Ctrl-C (exit code 0) unless
@@ -77,7 +78,7 @@ def densify_one(
     settle_heap()
     to_stdout = output == STREAM
     target: Path | IO[bytes] | None = sys.stdout.buffer if to_stdout else output
-    reading: Path | IO[bytes] = sys.stdin.buffer if source == STREAM else source
+    reading: Path | list[Path] | IO[bytes] = sys.stdin.buffer if source == STREAM else source
     kept: list[Path] = []  # the output file, once complete at its target
     with _kept_if_interrupted(kept), contextlib.ExitStack() as stack:
         if to_stdout:

@@ -623,7 +623,9 @@ class StereoPairer:
                 camera, boxed = border.inner, border
         # the camera line names the camera the outputs have (full_result pads the box back
         # to it), as the rectify line does, not the box the estimate is made in
-        self.stats.saw_camera(seen, self._baseline_source(rectifier))
+        changed = self.stats.saw_camera(seen, self._baseline_source(rectifier), left.log_time_ns)
+        if changed is not None and self._echo is not None:
+            self._echo(changed)
         frame = StereoFrame(
             index=self._index,
             stamp_ns=left.stamp_ns,

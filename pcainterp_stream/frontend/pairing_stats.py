@@ -20,6 +20,9 @@ MAX_PROBLEMS = 20
 NEAR_MISS_LIMIT_NS = 1_000_000_000
 """Sides whose nearest stamps are farther apart than this (ns) are on different clocks."""
 
+MAX_CAMERA_LINES = 5
+"""Camera changes said as they happen (each with a line); the summary counts them all."""
+
 MAX_BASELINE_M = 3.0
 """Beyond this baseline (m) a calibration is taken for wrong (a rig of trucks' width is ~1.5 m;
 a millimetre P[0, 3] gives a thousand times the real one)."""
@@ -100,10 +103,21 @@ class PairingStats:
         row_check_undecided: why the check that the pair is rectified and not swapped gave
             no verdict (too few matched corners); None when it gave one or was off.
         remapped: pairs remapped from their calibration (``--rectify``), of ``pairs``.
+        camera_frames: every camera the pairs had (size, intrinsics, baseline), in the order
+            of its first pair, with its pair count and the baseline's source.
+        camera_changes: pairs whose camera differs from the pair before's (a driver
+            restarted at another resolution, a recalibration, another rig).
+        last_camera: the camera of the last pair; None before any pair.
+        first_log_ns: the first pair's log time (ns), what a change's time counts from;
+            None before any pair.
     """
 
     camera: StereoCamera | None = None
     camera_source: str = ""
+    camera_frames: dict[StereoCamera, tuple[int, str]] = field(default_factory=dict)
+    camera_changes: int = 0
+    last_camera: StereoCamera | None = None
+    first_log_ns: int | None = None
     nearest_gap_ns: int | None = None
     first_stamps_ns: dict[str, int] = field(default_factory=dict)
     pairs: int = 0
@@ -355,21 +369,69 @@ class PairingStats:
             "synchronised); re-stamp one side, or record the pair with one clock"
         )
 
-    def saw_camera(self, camera: StereoCamera, source: str) -> None:
-        """Keep the first camera, or the first whose baseline is implausible (see below)."""
+    def saw_camera(self, camera: StereoCamera, source: str, log_time_ns: int = 0) -> str | None:
+        """Count a pair's camera; return the line that says it changed, else None.
+
+        Keeps the first camera, or the first whose baseline is implausible (see below), as
+        :attr:`camera`; the line is returned for the first :data:`MAX_CAMERA_LINES` changes
+        (the summary lists every camera).
+        """
         if self.camera is None or (self.camera.baseline <= MAX_BASELINE_M < camera.baseline):
             self.camera, self.camera_source = camera, source
+        if self.first_log_ns is None:
+            self.first_log_ns = log_time_ns
+        previous, self.last_camera = self.last_camera, camera
+        count, _ = self.camera_frames.get(camera, (0, source))
+        self.camera_frames[camera] = (count + 1, source)
+        if previous is None or previous == camera:
+            return None
+        self.camera_changes += 1
+        if self.camera_changes > MAX_CAMERA_LINES:
+            return None
+        at = (log_time_ns - self.first_log_ns) / 1e9
+        more = (
+            f"; later changes are counted in the summary only ({MAX_CAMERA_LINES} said)"
+            if self.camera_changes == MAX_CAMERA_LINES
+            else ""
+        )
+        return (
+            f"camera changed at {at:.3g} s of log (pair {self.pairs + 1}): "
+            f"{_camera_text(camera)} (was {_camera_text(previous)}); each pair is densified "
+            f"with its own camera{more}"
+        )
 
     def camera_note(self) -> str | None:
-        """The camera the depths were computed with, else None (no pair)."""
+        """The camera(s) the depths were computed with, else None (no pair).
+
+        One line for a log of one camera; for a log whose camera changed, a line that says
+        so and one per camera with its pair count.
+        """
         camera = self.camera
         if camera is None:
             return None
-        return (
-            f"camera: {camera.width}x{camera.height} px, fx {camera.fx:.6g} px, baseline "
-            f"{camera.baseline:.4g} m (from {self.camera_source}), f*b {camera.focal_baseline:.5g}"
-            " px*m"
-        )
+        if len(self.camera_frames) <= 1:
+            return (
+                f"camera: {_camera_text(camera, baseline=False)}, baseline "
+                f"{camera.baseline:.4g} m (from {self.camera_source}), f*b "
+                f"{camera.focal_baseline:.5g} px*m"
+            )
+        times = "once" if self.camera_changes == 1 else f"{self.camera_changes} times"
+        lines = [
+            f"cameras: {len(self.camera_frames)} (the camera changed {times} in the log; "
+            "each pair densified with its own):"
+        ]
+        listed = list(self.camera_frames.items())
+        for seen, (count, source) in listed[:MAX_CAMERA_LINES]:
+            lines.append(
+                f"  {_camera_text(seen, baseline=False)}, baseline {seen.baseline:.4g} m (from "
+                f"{source}), f*b {seen.focal_baseline:.5g} px*m: {count} pair"
+                + ("" if count == 1 else "s")
+            )
+        rest = listed[MAX_CAMERA_LINES:]
+        if rest:
+            pairs = sum(count for _, (count, _) in rest)
+            lines.append(f"  and {len(rest)} more cameras ({pairs} pairs)")
+        return "\n".join(lines)
 
     def baseline_hint(self) -> str | None:
         """A warning when the baseline is beyond any stereo rig's, else None."""
@@ -426,3 +488,9 @@ class PairingStats:
 def _seconds(stamp_ns: int) -> str:
     """Return a stamp (ns) as seconds with all nine decimals."""
     return f"{stamp_ns // 1_000_000_000}.{stamp_ns % 1_000_000_000:09d}"
+
+
+def _camera_text(camera: StereoCamera, *, baseline: bool = True) -> str:
+    """Return "620x188 px, fx 359.428 px" (with ", f*b 193.08 px*m" when ``baseline``)."""
+    text = f"{camera.width}x{camera.height} px, fx {camera.fx:.6g} px"
+    return text + (f", f*b {camera.focal_baseline:.5g} px*m" if baseline else "")

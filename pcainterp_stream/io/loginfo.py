@@ -88,10 +88,13 @@ def describe(path: str | Path, *, count: bool = False) -> LogInfo:
             counted = False
         else:
             per_topic: dict[str, int] = {}
+            per_type: dict[str, dict[str, int]] = {}  # topic -> message type -> count
             total, start_ns, end_ns = 0, None, None
             for raw in reader.messages():
                 total += 1
                 per_topic[raw.topic] = per_topic.get(raw.topic, 0) + 1
+                kinds = per_type.setdefault(raw.topic, {})
+                kinds[raw.msgtype] = kinds.get(raw.msgtype, 0) + 1
                 t = raw.log_time_ns
                 start_ns = t if start_ns is None else min(start_ns, t)
                 end_ns = t if end_ns is None else max(end_ns, t)
@@ -102,6 +105,7 @@ def describe(path: str | Path, *, count: bool = False) -> LogInfo:
                     per_topic.get(name, 0),
                     info.message_encoding,
                     info.schema_encoding,
+                    _types_counted(info, per_type.get(name, {})),
                 )
                 for name, info in topics.items()
             }
@@ -120,6 +124,17 @@ def describe(path: str | Path, *, count: bool = False) -> LogInfo:
             attachments=extras.attachments if extras is not None else [],
             metadata=extras.metadata if extras is not None else [],
         )
+
+
+def _types_counted(
+    info: TopicInfo, counted: dict[str, int]
+) -> tuple[tuple[str, int | None], ...]:
+    """Return a topic's message types with the counts read (of those its channels name)."""
+    if not info.types and len(counted) <= 1:
+        return ()
+    names = [msgtype for msgtype, _ in info.type_counts()]
+    names += [msgtype for msgtype in counted if msgtype not in names]
+    return tuple((msgtype, counted.get(msgtype, 0)) for msgtype in names)
 
 
 def seconds_text(time_ns: int) -> str:
@@ -156,6 +171,11 @@ def format_info(info: LogInfo) -> str:
     for name, topic in info.topics.items():
         count = "?" if topic.message_count is None else str(topic.message_count)
         kind = topic.msgtype or "(no schema)"
+        if topic.types:  # recorded with several message types: each with its count
+            kind = " + ".join(
+                f"{'?' if number is None else number} {msgtype or '(no schema)'}"
+                for msgtype, number in topic.types
+            )
         if topic.message_encoding not in ("cdr", ""):
             kind += f" [{topic.message_encoding}]"
         elif topic.msgtype and not topic.schema_encoding:  # copied as it is, not decodable

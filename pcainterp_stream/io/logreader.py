@@ -22,6 +22,8 @@ summary); messages, the hot path, are unpacked with :mod:`struct`.
 
 from __future__ import annotations
 
+import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -153,7 +155,7 @@ def looks_like_kitti(path: str | Path) -> bool:
     return any(child.is_dir() and child.name.endswith("_sync") for child in path.iterdir())
 
 
-def open_log(path: str | Path) -> LogReader:
+def open_log(path: str | Path | Sequence[str | Path]) -> LogReader:
     """Open a log for reading: an MCAP file, a ROS 1 ``.bag``, or a rosbag2 folder / ``.db3``.
 
     The reader is returned open; use it as a context manager to close it::
@@ -162,9 +164,26 @@ def open_log(path: str | Path) -> LogReader:
             for raw in reader.messages(["/stereo/left/image_rect"]):
                 image = decode_image(reader.decode(raw))
 
+    A sequence of paths is the parts of one split recording (``rosbag record --split``:
+    ``a_0.bag``, ``a_1.bag``), read as one log in log-time order
+    (:class:`~.logreader_parts.PartsLogReader`).
+
     Raises:
-        LogReadError: the path is missing, not a log, or unreadable from its start.
+        LogReadError: the path is missing, not a log, or unreadable from its start; parts
+            of several formats, given twice or overlapping in log time.
     """
+    if not isinstance(path, str | os.PathLike):
+        paths = [Path(item) for item in path]
+        if len(paths) != 1:
+            from pcainterp_stream.io.logreader_parts import PartsLogReader
+
+            if not paths:
+                raise LogReadError(f"no log given; pass {_LOG_KINDS}")
+            formats = [sniff_format(item) for item in paths]
+            parts = PartsLogReader(paths, formats, [log_files(item) for item in paths], open_log)
+            parts.open()
+            return parts
+        path = paths[0]
     path = Path(path)
     log_format = sniff_format(path)
     reader: LogReader

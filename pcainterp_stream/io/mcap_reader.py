@@ -42,6 +42,7 @@ from pcainterp_stream.io.reader_base import (
     _one_line,
     _Ros1Converter,
     _TimeOrder,
+    merge_topic,
     ros1_channel_metadata,
     ros1_type_name,
     ros2_type_name,
@@ -233,11 +234,9 @@ class McapLogReader(LogReader):
             schema = schemas.get(channel.schema_id)
             msgtype, schema_encoding, message_encoding = self._channel_kind(channel, schema)
             count = counts.get(channel.id, 0) if known_counts else None
-            previous = topics.get(channel.topic)
-            if previous is not None and count is not None and previous.message_count is not None:
-                count += previous.message_count
-            topics[channel.topic] = TopicInfo(
-                channel.topic, msgtype, count, message_encoding, schema_encoding
+            topics[channel.topic] = merge_topic(
+                topics.get(channel.topic),
+                TopicInfo(channel.topic, msgtype, count, message_encoding, schema_encoding),
             )
         self._topics = topics
         return topics

@@ -79,6 +79,10 @@ class TopicInfo:
         message_encoding: encoding of the messages as this reader yields them (``cdr`` for
             every ROS message; the input's encoding for others, e.g. ``json``).
         schema_encoding: ``ros2msg`` for ROS messages, else the input's.
+        types: for a topic recorded with more than one message type (a driver restarted
+            with ``CompressedImage`` after ``Image``), each type with its count (None when
+            not indexed), in log order; ``msgtype`` is then the last of them. Empty for a
+            topic of one type.
     """
 
     topic: str
@@ -86,6 +90,42 @@ class TopicInfo:
     message_count: int | None
     message_encoding: str
     schema_encoding: str
+    types: tuple[tuple[str, int | None], ...] = ()
+
+    def type_counts(self) -> tuple[tuple[str, int | None], ...]:
+        """Return every message type of the topic with its count (one pair for most topics)."""
+        return self.types or ((self.msgtype, self.message_count),)
+
+
+def merge_topic(previous: TopicInfo | None, info: TopicInfo) -> TopicInfo:
+    """Return a topic's description with another channel (connection, file) of it added.
+
+    The counts are summed (None when either is unknown); a channel of another message type
+    is kept in :attr:`TopicInfo.types` with its own count. The other fields are the later
+    channel's.
+
+    Examples:
+        >>> a = TopicInfo("/cam", "sensor_msgs/msg/Image", 8, "cdr", "ros2msg")
+        >>> b = TopicInfo("/cam", "sensor_msgs/msg/CompressedImage", 4, "cdr", "ros2msg")
+        >>> merged = merge_topic(a, b)
+        >>> merged.message_count, merged.types
+        (12, (('sensor_msgs/msg/Image', 8), ('sensor_msgs/msg/CompressedImage', 4)))
+        >>> merge_topic(a, a).types
+        ()
+    """
+    if previous is None:
+        return info
+    counts: dict[str, int | None] = {}
+    for msgtype, count in (*previous.type_counts(), *info.type_counts()):
+        known = counts.get(msgtype, 0)
+        counts[msgtype] = None if known is None or count is None else known + count
+    total = (
+        None
+        if previous.message_count is None or info.message_count is None
+        else previous.message_count + info.message_count
+    )
+    types = tuple(counts.items()) if len(counts) > 1 else ()
+    return replace(info, message_count=total, types=types)
 
 
 def ros2_type_name(name: str) -> str:

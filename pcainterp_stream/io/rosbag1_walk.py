@@ -38,6 +38,7 @@ from pcainterp_stream.io.reader_base import (
     _one_line,
     _Ros1Converter,
     _TimeOrder,
+    merge_topic,
     ros1_channel_metadata,
     ros1_type_name,
     ros2_type_name,
@@ -297,13 +298,14 @@ class Ros1WalkReader(LogReader):
                     counts[item.conn_id] = counts.get(item.conn_id, 0) + 1
             topics: dict[str, TopicInfo] = {}
             for conn_id, connection in connections.items():
-                previous = topics.get(connection.topic)
-                count = counts.get(conn_id, 0)
-                if previous is not None and previous.message_count is not None:
-                    count += previous.message_count
-                topics[connection.topic] = TopicInfo(
-                    connection.topic, connection.ros2_msgtype, count, "cdr", "ros2msg"
+                info = TopicInfo(
+                    connection.topic,
+                    connection.ros2_msgtype,
+                    counts.get(conn_id, 0),
+                    "cdr",
+                    "ros2msg",
                 )
+                topics[connection.topic] = merge_topic(topics.get(connection.topic), info)
             self._topics = topics
         return self._topics
 

@@ -21,7 +21,13 @@ from typing import Any
 
 from pcainterp_stream.io.mcap_extras import ChannelInfo, McapExtras
 from pcainterp_stream.io.mcap_reader import McapLogReader
-from pcainterp_stream.io.reader_base import MCAP_MAGIC, LogFormat, LogReader, TopicInfo
+from pcainterp_stream.io.reader_base import (
+    MCAP_MAGIC,
+    LogFormat,
+    LogReader,
+    TopicInfo,
+    merge_topic,
+)
 from pcainterp_stream.records import RawMessage
 
 __all__ = ["Rosbag2McapReader", "mcap_storage_files"]
@@ -84,12 +90,7 @@ class Rosbag2McapReader(LogReader):
         topics: dict[str, TopicInfo] = {}
         for part in self._parts:
             for name, info in part.topics().items():
-                previous = topics.get(name)
-                if previous is not None:
-                    counts = (previous.message_count, info.message_count)
-                    total = None if None in counts else sum(c or 0 for c in counts)
-                    info = dataclasses.replace(previous, message_count=total)
-                topics[name] = info
+                topics[name] = merge_topic(topics.get(name), info)
         return topics
 
     def message_stats(self) -> tuple[int, int | None, int | None] | None:

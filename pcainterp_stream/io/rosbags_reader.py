@@ -28,6 +28,7 @@ from pcainterp_stream.io.reader_base import (
     _one_line,
     _Ros1Converter,
     _TimeOrder,
+    merge_topic,
     ros1_channel_metadata,
     ros1_type_name,
     ros2_type_name,
@@ -214,13 +215,11 @@ class RosbagsLogReader(LogReader):
             msgtype = ros2_type_name(str(connection.msgtype))
             if self.format is LogFormat.ROS1:
                 msgtype = ros1_type_name(msgtype)
-            previous = topics.get(connection.topic)
             count = _message_count(connection.msgcount)
-            if previous is not None:
-                count = None if count is None else _sum_counts(previous.message_count, count)
             known = self.format is LogFormat.ROS1 or bool(self._definition(msgtype))
-            topics[connection.topic] = TopicInfo(
-                connection.topic, msgtype, count, "cdr", "ros2msg" if known else ""
+            topics[connection.topic] = merge_topic(
+                topics.get(connection.topic),
+                TopicInfo(connection.topic, msgtype, count, "cdr", "ros2msg" if known else ""),
             )
         return topics
 
@@ -300,10 +299,6 @@ def _message_count(value: Any) -> int | None:
     if isinstance(value, int) and not isinstance(value, bool) and value >= 0:
         return value
     return None
-
-
-def _sum_counts(first: int | None, second: int) -> int | None:
-    return None if first is None else first + second
 
 
 def _connection_metadata(connection: Any) -> dict[str, str]:

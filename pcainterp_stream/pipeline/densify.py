@@ -7,7 +7,7 @@ import dataclasses
 import json
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -254,7 +254,7 @@ def front_end(pairing: PairingConfig, processor: ProcessorConfig, stats: Pairing
 
 
 def densify(
-    input_path: Path | IO[bytes],
+    input_path: Path | Sequence[Path] | IO[bytes],
     output: Path | IO[bytes] | None,
     basis: Basis | Path | None = None,
     *,
@@ -279,7 +279,9 @@ def densify(
     gets the metadata records ``pcainterp.densify`` (:func:`provenance`: that basis, the front
     end, the options) and ``pcainterp.basis`` (every basis in force, :func:`bases_in_force`).
 
-    ``input_path`` and ``output`` may be open binary streams (standard input and output,
+    ``input_path`` may be a list of paths: the parts of one split recording, read as one
+    log (:func:`io.logreader.open_log`). ``input_path`` and ``output`` may be open binary
+    streams (standard input and output,
     ``pcainterp densify - -o -``): the input is spooled to a temporary file first
     (:func:`io.pipes.spool`), the output written as it goes (:class:`io.pipes.McapStreamWriter`).
     With ``live`` (an open :class:`io.foxglove.FoxgloveLive`) the same messages are served
@@ -327,9 +329,16 @@ def densify(
         else None
     )
     with contextlib.ExitStack() as stack:
+        read: list[Path] = []  # the files read, which the output must not replace
         if isinstance(input_path, Path):
             reader = stack.enter_context(open_log(input_path))
+            read = [input_path]
+        elif isinstance(input_path, list | tuple):  # the parts of one split recording
+            read = list(input_path)
+            reader = stack.enter_context(open_log(read))
+            input_path = reader.path  # "a_0.bag + a_1.bag"
         else:  # standard input: spooled, then named as such, not by the temporary file
+            assert not isinstance(input_path, Sequence)
             reader = stack.enter_context(open_log(stack.enter_context(spool(input_path))))
             input_path = Path(STDIN_NAME)
         pairing = resolve_pairing(reader, pairing, echo)
@@ -346,7 +355,7 @@ def densify(
         writer: LogWriter | None = None
         if isinstance(output, Path):
             writer = stack.enter_context(
-                open_writer(output, LogFormat.MCAP, inputs=[input_path], threaded=True)
+                open_writer(output, LogFormat.MCAP, inputs=read or [input_path], threaded=True)
             )
         elif output is not None:
             writer = stack.enter_context(McapStreamWriter(output))

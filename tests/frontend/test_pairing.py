@@ -1222,3 +1222,41 @@ def test_a_repeated_stamp_one_ms_apart_takes_the_tolerance_from_the_frame_interv
     assert stats.repeated_stamp_topic == CONFIG.left_topic
     assert stats.log_tolerance_ns == 25 * MS  # was 1 ms: 9 of 12 pairs lost
     assert [pair for pair in pairs if pair[0] != 200] == [(i, i) for i in range(12)]
+
+
+def test_camera_change_is_said_and_summarised() -> None:
+    # a driver restarted at half the resolution mid-log: a line when it changes, and the
+    # summary names each camera with its pairs (it named the first camera only)
+    said: list[str] = []
+    pairer = StereoPairer(echo=said.append)
+    with_infos(pairer)
+    half = StereoCamera(width=4, height=3, fx=25.0, fy=25.5, cx=2.0, cy=1.5, baseline=0.25)
+    frames = []
+    for k in range(5):
+        stamp = (100 + 100 * k) * MS
+        if k == 3:
+            push(pairer, CONFIG.left_info_topic, stamp - MS, left_info(half))
+            push(pairer, CONFIG.right_info_topic, stamp - MS, right_info(half))
+        shape = (6, 8) if k < 3 else (3, 4)
+        push(pairer, CONFIG.left_topic, stamp, image(stamp, 1, shape))
+        frames += push(pairer, CONFIG.right_topic, stamp, image(stamp, 2, shape))
+    frames += pairer.flush()
+    assert [frame.camera for frame in frames] == [CAMERA] * 3 + [half] * 2
+    changed = [line for line in said if line.startswith("camera changed")]
+    assert changed == [
+        "camera changed at 0.3 s of log (pair 4): 4x3 px, fx 25 px, f*b 6.25 px*m (was 8x6 px, "
+        "fx 50 px, f*b 12.5 px*m); each pair is densified with its own camera"
+    ]
+    note = pairer.finish().camera_note()
+    assert note is not None
+    lines = note.splitlines()
+    assert lines[0].startswith("cameras: 2 (the camera changed once in the log")
+    assert lines[1].startswith("  8x6 px, fx 50 px, baseline 0.25 m (from P of ")
+    assert lines[1].endswith("f*b 12.5 px*m: 3 pairs")
+    assert lines[2].endswith("f*b 6.25 px*m: 2 pairs")
+    # a log of one camera keeps its one line
+    one = StereoPairer()
+    with_infos(one)
+    push(one, CONFIG.left_topic, 1, image(1))
+    push(one, CONFIG.right_topic, 1, image(1))
+    assert (one.finish().camera_note() or "").startswith("camera: 8x6 px, fx 50 px, baseline")

@@ -189,3 +189,68 @@ def test_conformance_attachments_and_metadata_are_found(path: Path) -> None:
     assert [(m.name, dict(m.metadata)) for m in info.metadata] == [
         (f["name"], f["metadata"]) for f in fields if "metadata" in f
     ]
+
+
+def write_two_types(path: Path, images: int = 3, compressed: int = 2) -> None:
+    """/cam as sensor_msgs/Image, then (a driver restarted) as CompressedImage: two channels."""
+    with path.open("wb") as f:
+        writer = Writer(f, chunk_size=1)
+        writer.start("ros2", "test")
+        channels = {}
+        for name in ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage"):
+            schema = writer.register_schema(name, "ros2msg", rosmsg.schema_text(name).encode())
+            channels[name] = writer.register_channel("/cam", "cdr", schema)
+        for i in range(images + compressed):
+            stamp = 1_000_000_000 + i * 100_000_000
+            if i < images:
+                message = rosmsg.image_message(np.zeros((2, 3), np.uint8), stamp, "c")
+                channel = channels["sensor_msgs/msg/Image"]
+            else:
+                kind = rosmsg.TYPESTORE.types["sensor_msgs/msg/CompressedImage"]
+                header = rosmsg.image_message(np.zeros((2, 3), np.uint8), stamp, "c").header
+                message = kind(header=header, format="png", data=np.zeros(4, np.uint8))
+                channel = channels["sensor_msgs/msg/CompressedImage"]
+            writer.add_message(channel, stamp, rosmsg.serialize(message), stamp)
+        writer.finish()
+
+
+@pytest.mark.parametrize("count", [False, True])
+def test_topic_recorded_with_two_types_lists_both(tmp_path: Path, count: bool) -> None:
+    # a topic whose driver was restarted with compression: info named only the last type
+    path = tmp_path / "two.mcap"
+    write_two_types(path)
+    info = describe(path, count=count)
+    topic = info.topics["/cam"]
+    assert topic.message_count == 5
+    assert topic.types == (("sensor_msgs/msg/Image", 3), ("sensor_msgs/msg/CompressedImage", 2))
+    assert "/cam         5  3 sensor_msgs/msg/Image + 2 sensor_msgs/msg/CompressedImage" in (
+        format_info(info)
+    )
+
+
+def test_ros1_topic_recorded_with_two_types_lists_both(tmp_path: Path) -> None:
+    from rosbags.rosbag1 import Writer as Ros1Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    path = tmp_path / "two.bag"
+    with Ros1Writer(path) as writer:
+        for name, n in (("sensor_msgs/msg/Image", 3), ("sensor_msgs/msg/CompressedImage", 2)):
+            connection = writer.add_connection("/cam", name, typestore=store)
+            kind = store.types[name]
+            header = store.types["std_msgs/msg/Header"](
+                seq=0, stamp=store.types["builtin_interfaces/msg/Time"](sec=1, nanosec=0),
+                frame_id="c",
+            )
+            for i in range(n):
+                if name.endswith("/Image"):
+                    message = kind(header, 1, 1, "mono8", 0, 1, np.zeros(1, np.uint8))
+                else:
+                    message = kind(header, "png", np.zeros(1, np.uint8))
+                data = store.serialize_ros1(message, name)
+                writer.write(connection, 10**9 + i, data)
+    info = describe(path)
+    assert info.topics["/cam"].types == (
+        ("sensor_msgs/msg/Image", 3),
+        ("sensor_msgs/msg/CompressedImage", 2),
+    )

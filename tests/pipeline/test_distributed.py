@@ -454,28 +454,21 @@ def test_cli_densify_out_dir_prints_a_line_per_adapted_log(
     assert lines[5].startswith("3 of 3 logs densified, 19 frames in ")
 
 
-def test_cli_densify_refuses_output_with_several_inputs(
+def test_cli_densify_refuses_output_with_several_logs(
     logs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
+    """Several inputs with -o are the parts of one split recording: two logs are not."""
     from pcainterp_stream import cli
 
-    code = cli.main(
-        [
-            "densify",
-            str(logs["a"]),
-            str(logs["b"]),
-            "-o",
-            str(tmp_path / "x.mcap"),
-            "--basis",
-            str(tmp_path / "b.npz"),
-        ]
-    )
+    code = cli.main(["densify", str(logs["a"]), str(logs["b"]), "-o", str(tmp_path / "x.mcap")])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2
-    assert err == [
-        "pcainterp: error: -o takes one input but 2 were given; "
-        "pass --out-dir DIR to densify several logs"
-    ]
+    assert len(err) == 1
+    assert err[0].startswith(f"pcainterp: error: {logs['a']} (")
+    assert err[0].endswith(
+        "overlap: they are not the parts of one split recording (each part starts where the "
+        "one before ends); to densify them as separate logs, pass --out-dir DIR"
+    )
     assert not (tmp_path / "x.mcap").exists()
 
 

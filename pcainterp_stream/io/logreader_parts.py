@@ -1,0 +1,221 @@
+"""The parts of one split recording read as one log (``rosbag record --split``: a_0.bag, a_1.bag).
+
+``rosbag record --split`` (and ``--duration`` / ``--size``) writes one recording as several
+bags, each a log of its own; a rosbag2 recording's splits are named by its folder's
+``metadata.yaml`` and read as one already (:mod:`.rosbag2_mcap`). :class:`PartsLogReader`
+reads files of one format given together as one log: its parts in the order of their first
+log time (a shell's ``a_*.bag`` puts ``a_10.bag`` before ``a_2.bag``), their messages one part
+after the other, which is log-time order because the parts of one recording do not overlap in
+log time. Parts that do (two recordings, not one split), mixed formats or a file given twice
+are refused with a one-line error.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from pathlib import Path
+
+from pcainterp_stream.errors import LogReadError
+from pcainterp_stream.io.mcap_extras import ChannelInfo, McapExtras
+from pcainterp_stream.io.reader_base import LogFormat, LogReader, TopicInfo, merge_topic
+from pcainterp_stream.records import RawMessage
+
+__all__ = ["PartsLogReader", "parts_name"]
+
+_SEPARATE = "to densify them as separate logs, pass --out-dir DIR"
+
+
+def parts_name(paths: Sequence[Path]) -> Path:
+    """Return the name the parts are shown by: ``a_0.bag + a_1.bag`` (in the first's folder).
+
+    Examples:
+        >>> str(parts_name([Path("d/a_0.bag"), Path("d/a_1.bag")]))
+        'd/a_0.bag + a_1.bag'
+        >>> str(parts_name([Path(f"a_{k}.bag") for k in range(4)]))
+        'a_0.bag + ... + a_3.bag (4 parts)'
+    """
+    first, last = paths[0], paths[-1]
+    if len(paths) == 2:
+        return first.with_name(f"{first.name} + {last.name}")
+    return first.with_name(f"{first.name} + ... + {last.name} ({len(paths)} parts)")
+
+
+class PartsLogReader(LogReader):
+    """Reads several logs of one format as the parts of one recording (module docstring).
+
+    Attributes:
+        parts: the parts' paths, in log-time order (the order they are read in).
+
+    Damage and warnings name the part they were found in.
+    """
+
+    def __init__(
+        self,
+        paths: Sequence[Path],
+        formats: Sequence[LogFormat],
+        files: Sequence[Sequence[Path]],
+        opener: Callable[[Path], LogReader],
+    ) -> None:
+        """Check the parts (not opened yet).
+
+        Args:
+            paths: the parts, in any order.
+            formats: each part's format (``logreader.sniff_format``).
+            files: the files each part reads (``logreader.log_files``).
+            opener: opens one part (``logreader.open_log``).
+
+        Raises:
+            LogReadError: parts of several formats, or a file given twice.
+        """
+        if len(paths) < 2:
+            raise ValueError("PartsLogReader reads two logs or more")
+        for path, log_format in zip(paths[1:], formats[1:], strict=True):
+            if log_format is not formats[0]:
+                raise LogReadError(
+                    f"{paths[0]} is {_kind(formats[0])} but {path} is {_kind(log_format)}: "
+                    f"the parts of one recording are of one format; {_SEPARATE}"
+                )
+        seen: dict[Path, int] = {}  # file -> the part that reads it
+        for index, (path, read) in enumerate(zip(paths, files, strict=True)):
+            for file in read:
+                given = paths[seen.setdefault(file.resolve(), index)]
+                if seen[file.resolve()] != index:
+                    twice = (
+                        f"{path} is given twice"
+                        if given == path
+                        else f"{given} and {path} are one log given twice (both read {file.name})"
+                    )
+                    raise LogReadError(f"{twice}; pass each part of the recording once")
+        super().__init__(parts_name(list(paths)))
+        self.format = formats[0]
+        self.parts = list(paths)
+        self._opener = opener
+        self._readers: list[LogReader] = []
+
+    def _open(self) -> None:
+        try:
+            for path in self.parts:
+                reader = self._opener(path)
+                self._readers.append(reader)
+                # one list for the log: notes name their part
+                self.damage.extend(note for note in reader.damage if note not in self.damage)
+                self.warnings.extend(note for note in reader.warnings if note not in self.warnings)
+                reader.damage, reader.warnings = self.damage, self.warnings
+            self._order()
+        except BaseException:
+            self._close()
+            raise
+
+    def _close(self) -> None:
+        for reader in self._readers:
+            reader.close()
+        self._readers = []
+
+    def _order(self) -> None:
+        """Sort the parts by their first log time; refuse parts that overlap in log time."""
+        spans = [(_span(reader), index) for index, reader in enumerate(self._readers)]
+        # by first log time, then as given; empty parts last
+        spans.sort(key=lambda item: (item[0] is None, item[0][0] if item[0] else 0, item[1]))
+        self._readers = [self._readers[index] for _, index in spans]
+        self.parts = [reader.path for reader in self._readers]
+        self.path = parts_name(self.parts)
+        previous: tuple[Path, tuple[int, int]] | None = None
+        for (span, _), reader in zip(spans, self._readers, strict=True):
+            if span is None:  # an empty part: nothing to order
+                continue
+            if previous is not None and span[0] < previous[1][1]:
+                first, (start, end) = previous
+                raise LogReadError(
+                    f"{first} ({_seconds(start)} to {_seconds(end)} s of log time) and "
+                    f"{reader.path} ({_seconds(span[0])} to {_seconds(span[1])} s) overlap: "
+                    "they are not the parts of one split recording (each part starts where "
+                    f"the one before ends); {_SEPARATE}"
+                )
+            previous = (reader.path, span)
+
+    def topics(self) -> dict[str, TopicInfo]:
+        """See :meth:`LogReader.topics`: every part's, counts summed."""
+        self._check_open()
+        topics: dict[str, TopicInfo] = {}
+        for reader in self._readers:
+            for name, info in reader.topics().items():
+                topics[name] = merge_topic(topics.get(name), info)
+        return topics
+
+    def message_stats(self) -> tuple[int, int | None, int | None] | None:
+        """See :meth:`LogReader.message_stats`: None unless every part's index says so."""
+        self._check_open()
+        count, starts, ends = 0, [], []
+        for reader in self._readers:
+            stats = reader.message_stats()
+            if stats is None:
+                return None
+            count += stats[0]
+            starts += [stats[1]] if stats[1] is not None else []
+            ends += [stats[2]] if stats[2] is not None else []
+        if not count:
+            return (0, None, None)
+        return (count, min(starts), max(ends))
+
+    def indexed(self) -> bool:
+        """See :meth:`LogReader.indexed`: every part is."""
+        self._check_open()
+        return all(reader.indexed() for reader in self._readers)
+
+    def messages(self, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
+        """See :meth:`LogReader.messages`: each part's in turn, the parts in log-time order."""
+        self._check_open()
+        wanted = None if topics is None else list(topics)
+        for reader in self._readers:
+            yield from reader.messages(wanted)
+        self.backward_log_times = max(reader.backward_log_times for reader in self._readers)
+
+    def extras(self, *, verify: bool = False) -> McapExtras | None:
+        """See :meth:`LogReader.extras`: every MCAP part's, in log-time order; else None."""
+        self._check_open()
+        found = [reader.extras(verify=verify) for reader in self._readers]
+        if all(item is None for item in found):
+            return None
+        channels: list[ChannelInfo] = []
+        extras = McapExtras(self.path, channels)
+        for reader, item in zip(self._readers, found, strict=True):
+            if item is None:
+                continue
+            channels += [channel for channel in item.channels if channel not in channels]
+            extras.attachments.extend(
+                dataclasses.replace(attachment, file=reader.path)
+                for attachment in item.attachments
+            )
+            extras.metadata.extend(item.metadata)
+        return extras
+
+
+def _span(reader: LogReader) -> tuple[int, int] | None:
+    """Return a part's first and last log time (ns), None for an empty part.
+
+    From its index where it has one, else read once (a bag without its index).
+    """
+    stats = reader.message_stats()
+    if stats is not None:
+        _, start, end = stats
+        return None if start is None or end is None else (start, end)
+    start_ns: int | None = None
+    end_ns: int | None = None
+    for raw in reader.messages():
+        t = raw.log_time_ns
+        start_ns = t if start_ns is None else min(start_ns, t)
+        end_ns = t if end_ns is None else max(end_ns, t)
+    return None if start_ns is None or end_ns is None else (start_ns, end_ns)
+
+
+def _seconds(time_ns: int) -> str:
+    return f"{time_ns / 1e9:.3f}"
+
+
+def _kind(log_format: LogFormat) -> str:
+    return {
+        LogFormat.MCAP: "an MCAP file",
+        LogFormat.ROS1: "a ROS 1 bag",
+        LogFormat.ROSBAG2: "a rosbag2 bag",
+    }[log_format]

@@ -1,0 +1,126 @@
+"""The parts of one split recording (``rosbag record --split``) read as one log."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+from rosbags.rosbag1 import Reader, Writer
+
+from pcainterp_stream import cli
+from pcainterp_stream.errors import LogReadError
+from pcainterp_stream.io.logreader import LogFormat, open_log
+from pcainterp_stream.pipeline.jobs import synth
+
+FRAMES = 6
+
+
+def split_bag(source: Path, at_ns: int, names: tuple[Path, Path]) -> None:
+    """Write ``source`` as two bags, before and from log time ``at_ns``, as rosbag does."""
+    with Reader(source) as reader:
+        writers = [Writer(name) for name in names]
+        for writer in writers:
+            writer.open()
+        connections: list[dict[int, object]] = [{}, {}]
+        for connection, log_ns, data in reader.messages():
+            part = int(log_ns >= at_ns)
+            added = connections[part].get(connection.id)
+            if added is None:
+                added = connections[part][connection.id] = writers[part].add_connection(
+                    connection.topic,
+                    connection.msgtype,
+                    msgdef=connection.msgdef.data,
+                    md5sum=connection.digest,
+                )
+            writers[part].write(added, log_ns, data)  # type: ignore[arg-type]
+        for writer in writers:
+            writer.close()
+
+
+@pytest.fixture(scope="module")
+def split(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    folder = tmp_path_factory.mktemp("split")
+    whole = folder / "run.bag"
+    synth(whole, frames=FRAMES, seed=5, scale=0.25, fmt="ros1")
+    with open_log(whole) as reader:
+        times = sorted({raw.log_time_ns for raw in reader.messages()})
+    middle = times[len(times) // 2]
+    first, second = folder / "run_0.bag", folder / "run_1.bag"
+    split_bag(whole, middle, (first, second))
+    return {"whole": whole, "first": first, "second": second, "folder": folder}
+
+
+def messages(paths: Path | list[Path]) -> list[tuple[str, int, bytes]]:
+    with open_log(paths) as reader:
+        return [(raw.topic, raw.log_time_ns, raw.data) for raw in reader.messages()]
+
+
+def test_parts_read_as_one_log_in_log_time_order(split: dict[str, Path]) -> None:
+    whole = messages(split["whole"])
+    # in either order (a shell's a_*.bag puts a_10.bag before a_2.bag): log-time order
+    for order in ([split["first"], split["second"]], [split["second"], split["first"]]):
+        assert messages(order) == whole
+    with open_log([split["second"], split["first"]]) as reader:
+        assert reader.format is LogFormat.ROS1
+        assert reader.path.name == "run_0.bag + run_1.bag"
+        with open_log(split["whole"]) as one:
+            assert {t: i.message_count for t, i in reader.topics().items()} == {
+                t: i.message_count for t, i in one.topics().items()
+            }
+            assert reader.message_stats() == one.message_stats()
+
+
+def test_parts_that_are_no_split_recording_are_refused(split: dict[str, Path]) -> None:
+    with pytest.raises(LogReadError, match=r"run\.bag \(.* overlap: they are not the parts"):
+        open_log([split["whole"], split["second"]])
+    with pytest.raises(LogReadError, match=r"run_0\.bag is given twice; pass each part"):
+        open_log([split["first"], split["first"]])
+    mcap = split["folder"] / "other.mcap"
+    synth(mcap, frames=1, seed=6, scale=0.25, fmt="mcap")
+    with pytest.raises(LogReadError, match=r"is a ROS 1 bag but .*other\.mcap is an MCAP file"):
+        open_log([split["first"], mcap])
+
+
+def densified(path: Path) -> dict[str, list[tuple[int, bytes]]]:
+    found: dict[str, list[tuple[int, bytes]]] = {}
+    with path.open("rb") as f:
+        for _, channel, message in make_reader(f).iter_messages(log_time_order=True):
+            found.setdefault(channel.topic, []).append((message.log_time, message.data))
+    return found
+
+
+def test_densify_reads_the_parts_as_one_log(
+    split: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # refused before ("-o takes one input but 2 were given"); --out-dir densified each part
+    # alone (fit check, temporal state and carried points restarted at the split)
+    out, one = tmp_path / "parts.mcap", tmp_path / "whole.mcap"
+    assert cli.main(["densify", str(split["first"]), str(split["second"]), "-o", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert f"densified {FRAMES} frames of {split['first']} + run_1.bag" in said
+    assert cli.main(["densify", str(split["whole"]), "-o", str(one)]) == 0
+    parts, whole = densified(out), densified(one)
+    assert sorted(parts) == sorted(whole)
+    assert parts["/pcainterp/depth"] == whole["/pcainterp/depth"]  # the same frames, bytes
+    assert parts["/stereo/left/image_rect"] == whole["/stereo/left/image_rect"]
+
+
+def test_densify_refuses_overlapping_parts_in_one_line(
+    split: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "x.mcap"
+    code = cli.main(["densify", str(split["whole"]), str(split["first"]), "-o", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert len(err) == 1
+    assert "overlap" in err[0]
+    assert "--out-dir DIR" in err[0]
+    assert not out.exists()
+    code = cli.main(["densify", str(split["first"]), "-", "-o", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert err == [
+        "pcainterp: error: standard input (-) is one whole log, not a part of one; pass the "
+        "parts of a split recording as files (densify a_0.bag a_1.bag -o OUTPUT)"
+    ]
