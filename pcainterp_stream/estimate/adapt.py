@@ -616,6 +616,57 @@ class OwnCheck(NamedTuple):
 
     check: FitCheck
     std_scale: float | None
+    left_out: tuple[int, ...] = ()
+
+
+class LeaveOut(NamedTuple):
+    """One frame :func:`leave_one_out` leaves out, and the maps its basis learns.
+
+    Attributes:
+        frame: the left-out frame (its index).
+        others: the maps learned (indices).
+        near: fewer than :data:`LEAVE_OUT_MAPS` maps lie beyond the gap, so ``others`` has
+            the frame's neighbours too (the short warm-up's fallback): its figure flatters
+            the basis.
+    """
+
+    frame: int
+    others: list[int]
+    near: bool
+
+
+def leave_out_plan(
+    grid_maps: Sequence[npt.NDArray[np.float32]],
+    *,
+    max_frames: int = 4,
+    gap: int = LEAVE_OUT_GAP,
+    tolerance: float = SAME_VIEW,
+    views: npt.NDArray[np.intp] | None = None,
+) -> list[LeaveOut]:
+    """Return the frames :func:`leave_one_out` leaves out and what each one's basis learns.
+
+    Empty with fewer than 2 views. A plan with a ``near`` frame is a warm-up too short for
+    the gap rule: on a 4-frame synthetic room its own basis scored 0.15 px held out, 0.35 px
+    against the truth, and its std calibrated there held 52 % of the truth.
+    """
+    labels = view_labels(grid_maps, tolerance=tolerance) if views is None else views
+    _, firsts = np.unique(labels, return_index=True)
+    if firsts.size < 2:
+        return []
+    picks = np.linspace(0, firsts.size - 1, min(max_frames, firsts.size)).round()
+    chosen = firsts[np.unique(picks).astype(np.intp)]
+    plan = []
+    for index in chosen.astype(int):
+        # a map closer to the left-out frame's than ``tolerance`` is a copy: never learned
+        differ = [
+            i
+            for i, grid in enumerate(grid_maps)
+            if labels[i] != labels[index] and view_distance(grid, grid_maps[index]) >= tolerance
+        ]
+        others = [i for i in differ if abs(i - index) > gap]
+        near = len(others) < min(LEAVE_OUT_MAPS, len(differ))
+        plan.append(LeaveOut(index, differ if near else others, near))
+    return plan
 
 
 def leave_one_out(
@@ -631,6 +682,7 @@ def leave_one_out(
     gap: int = LEAVE_OUT_GAP,
     tolerance: float = SAME_VIEW,
     views: npt.NDArray[np.intp] | None = None,
+    held_out: Sequence[HeldOut] | None = None,
 ) -> OwnCheck | None:
     """Check a log's own basis on frames left out of its maps (None with fewer than 2 views).
 
@@ -645,29 +697,20 @@ def leave_one_out(
     frame per view and never with a copy among the maps: ``tolerance=0`` checks every frame
     as a view of its own. ``views``: the maps' view labels when known beyond the maps
     (:func:`view_labels` with ``same_as``); maps of the left-out frame's view are never
-    learned either.
+    learned either. ``held_out``: each frame's held-out pixels when made already (the
+    other bases' check scored the same pixels); :attr:`OwnCheck.left_out` names the frames.
     """
-    labels = view_labels(grid_maps, tolerance=tolerance) if views is None else views
-    _, firsts = np.unique(labels, return_index=True)
-    if firsts.size < 2:
+    plan = leave_out_plan(
+        grid_maps, max_frames=max_frames, gap=gap, tolerance=tolerance, views=views
+    )
+    if not plan:
         return None
     local = LocalPrior.from_meta(prior["local"]) if prior.get("local") else None
     sigma = float(prior.get("sigma" if local is not None else "plain_sigma", 2.0))
-    picks = np.linspace(0, firsts.size - 1, min(max_frames, firsts.size)).round()
-    chosen = firsts[np.unique(picks).astype(np.intp)]
     checks = []
     estimates, stds, references = [], [], []
-    for index in chosen.astype(int):
-        # a map closer to the left-out frame's than ``tolerance`` is a copy: never learned
-        differ = [
-            i
-            for i, grid in enumerate(grid_maps)
-            if labels[i] != labels[index] and view_distance(grid, grid_maps[index]) >= tolerance
-        ]
-        others = [grid_maps[i] for i in differ if abs(i - index) > gap]
-        if len(others) < min(LEAVE_OUT_MAPS, len(differ)):
-            others = [grid_maps[i] for i in differ]
-        basis = own_basis(others, image_size, focal_baseline)
+    for index, learned, _ in plan:
+        basis = own_basis([grid_maps[i] for i in learned], image_size, focal_baseline)
         frame = frames[index]
         result = densify(
             basis,
@@ -679,12 +722,16 @@ def leave_one_out(
             uncertainty="exact-coarse" if calibrate else "none",
             zero_is_match=True,
         )
-        checks.append(
-            check_frame(result.disparity, frame.reference, frame.pixels, frame.disparities)
+        scored = (
+            held_out[index]
+            if held_out is not None
+            else HeldOut.of(frame.reference, frame.pixels, frame.disparities)
         )
+        checks.append(scored.score(result.disparity))
         if result.disparity_std is not None:
             estimates.append(result.disparity)
             stds.append(result.disparity_std)
             references.append(frame.reference)
     std_scale = fitting.fit_std_scale(estimates, stds, references) if estimates else None
-    return OwnCheck(FitCheck.combine(checks), std_scale)
+    left_out = tuple(step.frame for step in plan)
+    return OwnCheck(FitCheck.combine(checks), std_scale, left_out)

@@ -76,15 +76,9 @@ from pcainterp_stream.frontend.stereo import (
     to_grey8,
 )
 from pcainterp_stream.interrupt import signalled
-from pcainterp_stream.pipeline.adaptation import (
-    FITS_BELOW,
-    OWN_ABOVE_STREET,
-    Adaptation,
-    AdaptFrame,
-    Candidate,
-    sgbm_maps,
-)
+from pcainterp_stream.pipeline.adaptation import FITS_BELOW, OWN_ABOVE_STREET, Candidate, sgbm_maps
 from pcainterp_stream.pipeline.measured import Measured, cells_on_grid
+from pcainterp_stream.pipeline.refit import Camera, Refitting, adapt_frame
 from pcainterp_stream.pipeline.threads import ThreadLimits, finished, gathered, lower_priority
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoFrame
 
@@ -410,7 +404,7 @@ class FrameProcessor:
         # a feature stream has no SGBM maps: checked by left-out points, never adapted;
         # dense mode is checked and chooses a built-in basis but learns none (docs/bases.md)
         kind = builtin_kind(basis)
-        self.adaptation = Adaptation(
+        self.adaptation = Refitting(
             mode="check" if self.config.adapt == "auto" and not stereo else self.config.adapt,
             may_replace=kind is not None,
             may_learn=not self.dense,
@@ -421,7 +415,10 @@ class FrameProcessor:
             alternatives=self._alternatives(kind),
             advisory=self._alternatives(kind, warn=True),
             own_above=OWN_ABOVE_STREET if kind == "street" else FITS_BELOW,
+            options_of=lambda basis: resolve_settings(basis, self.config).densify_options(),
         )
+        self._camera: Camera | None = None  # the last frame submitted's
+        self._changes = 0  # camera changes submitted: their maps are kept (Refitting)
         self.adaptation.warn_std_scale(self.settings.std_scale)
         # decided here, not from the lane's state: the first batch is the check's frames
         self._warming = self.adaptation.warming
@@ -558,6 +555,10 @@ class FrameProcessor:
         """Queue one frame; return the frames finished meanwhile, in stream order."""
         previous = self._previous_frame if self.carried is not None else None
         self._previous_frame = frame
+        camera = (frame.camera.image_size, frame.camera.focal_baseline)
+        if self._camera not in (None, camera):  # the choice is made again on its maps
+            self._changes, self._measuring = self._changes + 1, (self._measuring[0], True)
+        self._camera = camera
         check_frame = self._submitted < self.adaptation.warmup_frames
         self._submitted += 1
         if self.config.keep_freed_memory:
@@ -643,7 +644,7 @@ class FrameProcessor:
 
     def _warm_up(self, ready: list[Measured]) -> list[Measured]:
         """Check the basis on the held-back frames; switch to the log's own when it wins."""
-        frames = [_adapt_frame(item) for item in ready]
+        frames = [adapt_frame(item) for item in ready]
         own = self.adaptation.warm_up(self.basis, frames, self.settings.densify_options())
         if own is not None:
             self._use(own)
@@ -667,7 +668,8 @@ class FrameProcessor:
         are kept while the basis may still switch, so a frame measured before a switch gets
         its cells again for the new basis (:func:`~.measured.cells_on_grid`).
         """
-        self._measuring = (self.basis.grid_size, self.adaptation.wants_maps())
+        wanted = self.adaptation.wants_maps() or self._changes > self.adaptation.changes
+        self._measuring = (self.basis.grid_size, wanted)
 
     def _use(self, basis: Basis) -> None:
         """Densify from now on with ``basis`` (its fitted prior; the temporal prior restarts)."""
@@ -693,25 +695,34 @@ class FrameProcessor:
         if not ready:
             return finished([])
         if not (self.adaptation.adapted or self.adaptation.deferred):
-            if self.temporal is None:  # frames independent once carried: in the pool,
-                # the warm-up's large batch in batch-size parts (measured in stream order)
+            # up to a camera change (then the choice is made again, in stream order)
+            changes = (self.adaptation.new_camera(item.frame)[0] for item in ready)
+            cut = next((at for at, changed in enumerate(changes) if changed), len(ready))
+            if self.temporal is not None:
+                parts = [finished(self._estimate_all(self._measurements(ready[:cut])))]
+            else:  # frames independent once carried: in the pool, in batch-size parts
                 size = self.config.batch_size
-                return gathered(
-                    [
-                        self._estimators.submit(
-                            self._estimate_all, self._measurements(ready[at : at + size])
-                        )
-                        for at in range(0, len(ready), size)
-                    ]
-                )
-            return finished(self._estimate_all(self._measurements(ready)))
+                parts = [
+                    self._estimators.submit(self._estimate_all, self._measurements(ready[at:end]))
+                    for at, end in ((at, min(at + size, cut)) for at in range(0, cut, size))
+                ]
+            return gathered(parts + ([self._in_order(ready[cut:])] if cut < len(ready) else []))
+        return self._in_order(ready)
+
+    def _in_order(self, ready: list[Measured]) -> Future[list[DensifiedFrame]]:
+        """Densify frame by frame with the adaptation (the log's own basis, a check again)."""
         # the log's own basis: a frame whose map completes a relearning is densified with the
         # basis of the frames before it, the next frames with the relearned one, so what a
         # frame gets never depends on how frames were batched
         results: list[DensifiedFrame] = []
         start = 0
         for index, item in enumerate(ready):
-            relearned = self.adaptation.update([_adapt_frame(item)], self.basis)
+            _, basis = self.adaptation.new_camera(item.frame)
+            if basis is not None:  # another camera: this frame on, another basis
+                results += self._estimate_all(self._measurements(ready[start:index]))
+                start = index
+                self._use(basis)
+            relearned = self.adaptation.update([adapt_frame(item)], self.basis)
             if relearned is not None:
                 results += self._estimate_all(self._measurements(ready[start : index + 1]))
                 start = index + 1
@@ -871,18 +882,6 @@ def _prepare(basis: Basis, uncertainty: str) -> None:
     routines()
     compiled.module("spatial._qhull")
     compiled.module("spatial._ckdtree")
-
-
-def _adapt_frame(item: Measured) -> AdaptFrame:
-    camera = item.frame.camera
-    sgbm_map, grid = item.sgbm_map, item.grid_map
-    if item.raw_map is not None:
-        sgbm_map, grid = sgbm_maps(item.raw_map, camera)
-    pixels, disparities = lookups_only(item.pixels, item.disparities, item.noise)  # not near's
-    size, fb = camera.image_size, camera.focal_baseline
-    return AdaptFrame(
-        pixels, disparities, sgbm_map, grid, size, fb, item.held_out, item.motion, camera
-    )
 
 
 Float32 = npt.NDArray[np.float32]

@@ -181,7 +181,7 @@ def test_the_checks_held_out_pixels_are_made_beside_sgbm(
     assert len(made_on) == 3
     assert all(name.startswith("stereo") for name in made_on)
     # made by the check itself when the workers did not (frames measured elsewhere)
-    monkeypatch.setattr(processor, "_adapt_frame", _without_held_out(processor._adapt_frame))
+    monkeypatch.setattr(processor, "adapt_frame", _without_held_out(processor.adapt_frame))
     with FrameProcessor(basis, config) as engine:
         list(engine.process(frames))
         by_check = engine.adaptation.check
@@ -729,7 +729,7 @@ def test_near_reach_measures_a_plane_beyond_sgbms_range(basis: Basis) -> None:
     # the basis's fit check judges it on SGBM's own lookups only: its reference, SGBM's map,
     # has no value beyond the range (and on real pairs an aliased one)
     checked: list[int] = []
-    original = adapt_frame = processor._adapt_frame
+    original = adapt_frame = processor.adapt_frame
 
     def recorded(item: Any) -> Any:
         frame = adapt_frame(item)
@@ -737,9 +737,9 @@ def test_near_reach_measures_a_plane_beyond_sgbms_range(basis: Basis) -> None:
         return frame
 
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(processor, "_adapt_frame", recorded)
+        patch.setattr(processor, "adapt_frame", recorded)
         (fitted,) = run(basis, [frame], near=near, carry=CarryConfig(frames=0), warmup_frames=1)
-    assert processor._adapt_frame is original
+    assert processor.adapt_frame is original
     assert fitted.counts["near_added"] > 5
     assert checked == [fitted.pixels.shape[0] - fitted.counts["near_added"]]
     # on by default, its range set from SGBM's

@@ -1,0 +1,251 @@
+"""The basis choice made again mid-log: another camera, or a log's own basis that stops fitting.
+
+The fit check (:mod:`~pcainterp_stream.pipeline.adaptation`) chooses a basis on the log's
+first frames. Two things can make that choice wrong later, and both were silent:
+
+- **the camera changes** (a driver restarted at another resolution or calibration, another
+  rig): a basis learned from the first camera's SGBM maps gave the second 44-52 % depth
+  error (4 % alone), its std covering 20-24 % of the truth. On a camera change the choice is
+  made again on the new camera's first frames, as at the start; a log's own basis of
+  another camera is not used on it meanwhile (the basis given at the start is).
+- **the scene changes** under a log's own basis (a robot leaving a building): a basis learned
+  indoors put the street 4-5x too near, its std covering 6-19 %. :class:`FitWatch` scores
+  the basis in use on the held-out SGBM pixels of every :data:`WATCH_EVERY`-th frame (the
+  pixels and plain interpolation the fit check scores; one solve without std, before the
+  frame's map is learned) and, when it stops beating linear interpolation, the choice is
+  made again on the next frames. A built-in basis kept is not watched: it is the same basis
+  the check chose and costs nothing more (a street basis on an indoor part degraded the
+  depth, but its std covered it: 99 %).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from pcainterp_stream.estimate import adapt
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.estimator import densify_batch
+from pcainterp_stream.frontend.near import lookups_only
+from pcainterp_stream.pipeline.adaptation import Adaptation, AdaptFrame, sgbm_maps
+from pcainterp_stream.pipeline.measured import Measured
+from pcainterp_stream.records import StereoFrame
+
+WATCH_EVERY = 4
+"""A log's own basis is scored on every this-many-th frame it densifies (one solve, no std)."""
+
+WATCH_FRAMES = 3
+"""The scores pooled: the last this many frames scored (pixel-weighted; fewer at first)."""
+
+WATCH_LINEAR = 2.0
+"""The basis stops fitting when its pooled error is at least this times linear
+interpolation's, and :data:`WATCH_ABOVE` times the ratio it was adopted at (its leave-one-out
+figure). On synthetic rooms that keep their own basis (188x120, 33 frames, seeds 1 and 3)
+single frames scored 0.35-1.43x linear and three pooled up to 1.35x: the noise of a few
+frames, not another scene; the street after a room scored 15x."""
+
+WATCH_ABOVE = 2.0
+"""See :data:`WATCH_LINEAR`: an own basis adopted at 1.1x linear is given up above 2.2x."""
+
+Camera = tuple[tuple[int, int], float]
+"""(image size (height, width), f*b px*m): what tells one camera from another."""
+
+
+def camera_of(frame: AdaptFrame) -> Camera:
+    """Return the frame's camera as the adaptation tells cameras apart."""
+    return frame.image_size, frame.focal_baseline
+
+
+def describe_camera(camera: Camera) -> str:
+    """Return "376x240 px, f*b 24.0 px*m"."""
+    (height, width), focal_baseline = camera
+    return f"{width}x{height} px, f*b {focal_baseline:.1f} px*m"
+
+
+@dataclass
+class FitWatch:
+    """The held-out scores of a log's own basis on the frames it densifies.
+
+    Attributes:
+        adopted: its ratio to linear interpolation when adopted (leave-one-out).
+        scores: the last :data:`WATCH_FRAMES` frames' scores, with their frame indices.
+        count: frames seen since it was adopted.
+    """
+
+    adopted: float
+    scores: list[tuple[int, adapt.FrameCheck]] = field(default_factory=list)
+    count: int = 0
+
+    def due(self) -> bool:
+        """Count one frame; return whether it is to be scored."""
+        self.count += 1
+        return self.count % WATCH_EVERY == 0
+
+    def add(self, index: int, score: adapt.FrameCheck) -> adapt.FitCheck | None:
+        """Add frame ``index``'s score; return the pooled check when the basis stops fitting."""
+        self.scores = [*self.scores, (index, score)][-WATCH_FRAMES:]
+        pooled = adapt.FitCheck.combine([check for _, check in self.scores])
+        limit = max(WATCH_LINEAR, WATCH_ABOVE * self.adopted)
+        if not pooled.frames or pooled.degenerate or pooled.ratio < limit:
+            return None
+        return pooled
+
+    def frames(self) -> str:
+        """Return the frames pooled: "15, 19 and 23"."""
+        names = [str(index) for index, _ in self.scores]
+        return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"
+
+
+def score(
+    basis: Basis,
+    frame: AdaptFrame,
+    options: dict[str, object],
+    robust: str,
+) -> adapt.FrameCheck:
+    """Score ``basis`` on one frame's held-out SGBM pixels (a solve without std)."""
+    assert frame.sgbm_map is not None
+    held = frame.held_out
+    if held is None:
+        held = adapt.HeldOut.of(frame.sgbm_map, frame.pixels, frame.disparities)
+    (estimate,) = densify_batch(
+        basis,
+        [frame.pixels],
+        [frame.disparities],
+        uncertainty="none",
+        image_size=frame.image_size,
+        focal_baseline=frame.focal_baseline,
+        robust=robust,
+        with_depth=False,
+        **options,  # type: ignore[arg-type]
+    )
+    return held.score(estimate.disparity)
+
+
+OptionsOf = Callable[[Basis], dict[str, object]]
+"""The estimate's keyword options with a basis (its fitted prior under the run's options)."""
+
+
+def adapt_frame(item: Measured) -> AdaptFrame:
+    """Return what the adaptation needs of one measured frame."""
+    camera = item.frame.camera
+    sgbm_map, grid = item.sgbm_map, item.grid_map
+    if item.raw_map is not None:
+        sgbm_map, grid = sgbm_maps(item.raw_map, camera)
+    pixels, disparities = lookups_only(item.pixels, item.disparities, item.noise)  # not near's
+    size, fb = camera.image_size, camera.focal_baseline
+    return AdaptFrame(
+        pixels,
+        disparities,
+        sgbm_map,
+        grid,
+        size,
+        fb,
+        item.held_out,
+        item.motion,
+        camera,
+        item.frame.index,
+    )
+
+
+@dataclass
+class Refitting(Adaptation):
+    """:class:`~.adaptation.Adaptation` that makes its choice again when it stops holding.
+
+    Attributes:
+        options_of: the estimate's options with a basis (to score the one in use).
+        changes: camera changes the densify thread has seen, in stream order.
+        watch: the held-out scores of the log's own basis in use, if adopted.
+    """
+
+    options_of: OptionsOf | None = None
+    changes: int = 0
+    watch: FitWatch | None = None
+    _stereo: bool = False
+    _lane_camera: Camera | None = None
+
+    def _decide(
+        self, basis: Basis, frames: list[AdaptFrame], settings: dict[str, object]
+    ) -> Basis | None:
+        usable = [f for f in frames if f.sgbm_map is not None and f.grid_map is not None]
+        chosen = super()._decide(basis, frames, settings)
+        if usable:  # a stereo log: its choice can be made again
+            self._stereo, self._camera = True, camera_of(usable[0])
+        own = self.own_check
+        self.watch = FitWatch(own.ratio) if self.adapted and own is not None else None
+        return chosen
+
+    def new_camera(self, frame: StereoFrame) -> tuple[bool, Basis | None]:
+        """Note the camera of the next frame in stream order (the densify thread's).
+
+        Returns whether it is another camera than the frame before it's, and the basis to
+        densify it with from this frame on when that changes (else None): on a camera change
+        after the fit check, the choice is made again on its first frames, and a log's own
+        basis, learned for the camera before, gives way to the basis given meanwhile.
+        """
+        camera, index = (frame.camera.image_size, frame.camera.focal_baseline), frame.index
+        before, self._lane_camera = self._lane_camera, camera
+        if before is None or camera == before:
+            return False, None
+        self.changes += 1
+        if not (self.active and self.checked and self._stereo and self._given is not None):
+            return True, None
+        if camera == self._camera and not self.deferred:
+            return True, None  # back to the camera the choice was made for
+        adapted, self.adapted, self.watch = self.adapted, False, None
+        line = (
+            f"prior: the camera changed at frame {index} ({describe_camera(camera)}; before: "
+            f"{describe_camera(before)})"
+        )
+        if adapted:
+            line += (
+                f": this log's own basis, learned for the camera before, is not used on it; "
+                f"{self.name} from there"
+            )
+        self.lines.append(
+            f"{line}; the basis choice is made again on its first {self.warmup_frames} frames"
+        )
+        self._recheck(camera, "prior: the basis choice made again on the new camera's first {}")
+        return True, self._given if adapted else None
+
+    def update(self, frames: list[AdaptFrame], current: Basis | None = None) -> Basis | None:
+        """Watch the log's own basis in use, then add the frames' maps (see the base class).
+
+        When the basis stops fitting the frames (:class:`FitWatch`), returns the basis
+        given at the start, used from the next frame on while the choice is made again.
+        """
+        watch, options_of = self.watch, self.options_of
+        if self.adapted and watch is not None and current is not None and options_of:
+            for frame in frames:
+                if frame.sgbm_map is None or camera_of(frame) != self._camera:
+                    continue
+                if not watch.due():
+                    continue
+                check = score(current, frame, options_of(current), self.robust)
+                stopped = watch.add(frame.index, check)
+                if stopped is not None:
+                    return self._stopped(stopped, watch, frame.index, current)
+        return super().update(frames, current)
+
+    def _stopped(
+        self, check: adapt.FitCheck, watch: FitWatch, index: int, current: Basis
+    ) -> Basis | None:
+        self.lines.append(
+            f"prior: this log's own basis stopped fitting at frame {index}: {check.ratio:.2f}x "
+            f"linear on held-out SGBM pixels of frames {watch.frames()} "
+            f"({watch.adopted:.2f}x when adopted); {self.name} from the next frame, the basis "
+            f"choice made again on the next {self.warmup_frames} frames"
+        )
+        self.adapted, self.watch = False, None
+        assert self._camera is not None
+        self._recheck(
+            self._camera, f"prior: the basis choice made again on the {{}} after frame {index}"
+        )
+        return None if self._given is current else self._given
+
+    def _recheck(self, camera: Camera, line: str) -> None:
+        """Make the choice again on the next frames of ``camera`` (:meth:`_revisit`).
+
+        ``line``: what the summary says then ("{}": "8 frames").
+        """
+        self.deferred, self._views, self.again = True, [], line
+        self._camera, self._last_map, self._since = camera, None, None
