@@ -100,10 +100,13 @@ class PairingStats:
         row_check_undecided: why the check that the pair is rectified and not swapped gave
             no verdict (too few matched corners); None when it gave one or was off.
         remapped: pairs remapped from their calibration (``--rectify``), of ``pairs``.
+        matching: the SGBM resolution ``densify`` chose for the camera (``--stereo-downscale
+            auto``), said in :meth:`camera_note`; None when given or not matched.
     """
 
     camera: StereoCamera | None = None
     camera_source: str = ""
+    matching: str | None = None
     nearest_gap_ns: int | None = None
     first_stamps_ns: dict[str, int] = field(default_factory=dict)
     pairs: int = 0
@@ -368,7 +371,7 @@ class PairingStats:
         return (
             f"camera: {camera.width}x{camera.height} px, fx {camera.fx:.6g} px, baseline "
             f"{camera.baseline:.4g} m (from {self.camera_source}), f*b {camera.focal_baseline:.5g}"
-            " px*m"
+            " px*m" + (f"; {self.matching}" if self.matching else "")
         )
 
     def baseline_hint(self) -> str | None:
