@@ -23,11 +23,27 @@ CARRY_AGE_STD = 1.0
 """Extra noise std (px) per frame of a carried measurement's age."""
 
 STEREO_DOWNSCALE = 2
-"""SGBM resolution of ``densify`` (``--stereo-downscale``; ``learn`` matches at full
-resolution, 1): half resolution is ~4x cheaper and the dense map as good (mean Delta_2D and
-+-2 sigma coverage within 1 % of full resolution on the synthetic log and both KITTI clips,
-docs/results.md "Half-resolution SGBM and the dense map"): the dense map's error is set by the
-interpolation, not by the lookups' ~0.1 px."""
+"""SGBM resolution of ``densify`` on a KITTI-like camera (``--stereo-downscale auto``, the
+default, matches others at full resolution: :data:`FULL_RESOLUTION_FB`; ``learn`` matches at
+full resolution, 1): half resolution is ~4x cheaper SGBM and the dense map as good there (mean
+Delta_2D and +-2 sigma coverage within 1 % of full resolution on the synthetic street log and
+both KITTI clips, docs/results.md "Half-resolution SGBM and the dense map"): with disparities
+of tens of px the dense map's error is set by the interpolation, not by the lookups' ~0.1 px."""
+
+FULL_RESOLUTION_FB = 90.0
+"""``--stereo-downscale auto``: a camera whose f*b (px*m, at the images' size) is below this
+is matched at full resolution, one at or above it at half (:data:`STEREO_DOWNSCALE`): f*b is
+the disparity (px) of a surface 1 m away, so below 90 px*m a surface beyond 10 m is under 9
+px, and half resolution's lookups, biased by +0.1-0.3 px, cost such a camera's dense map up
+to 2.2x its error (docs/results.md "Half-resolution SGBM on small-disparity cameras").
+KITTI's pair keeps half resolution down to quarter size (f*b ~390 px*m, ~97 at 310x94, where
+full resolution lost to nearest-neighbour interpolation in tests/pipeline/test_jobs.py); a
+VI-sensor (752x480, f*b ~48), a depth camera (640x480, ~19) or a 1280x720 pair (~84) is
+matched at full resolution."""
+
+FULL_RESOLUTION_MAX_PIXELS = 1280 * 720
+"""``--stereo-downscale auto``: images larger than this (px) are matched at half resolution
+whatever their f*b: full resolution costs ~4x the SGBM of half, ~0.1 s per 1280x720 pair."""
 
 MIN_FILL_SPACING = 10.0
 """Smallest ``--fill-spacing`` (px) the command line takes (0, no lattice, aside): GFTT's

@@ -310,7 +310,9 @@ def test_stereo_options_state_their_defaults_and_learn_no_densify_modes(
     learn_help = _help("learn", capsys)
     assert "--measurements" not in learn_help  # a densify option
     assert "(default 1; docs/benchmarks.md)" in learn_help  # --stereo-downscale
-    assert "(default 2; --measurements dense: 1;" in _help("densify", capsys)
+    densify_help = " ".join(_help("densify", capsys).split())
+    assert "(default auto: 1 when the camera's f*b is below 90 px*m" in densify_help
+    assert "its images at most 1280x720, else 2; --measurements dense: 1;" in densify_help
     info_help = _help("info", capsys)
     assert "the built-in bases" in info_help
     assert "built-in basis" not in info_help.replace("built-in bases", "")
@@ -2718,7 +2720,8 @@ def test_densify_refuses_images_narrower_than_the_disparity_range(
     assert pcainterp("synth", log, "--frames", "2", "--scale", "0.05").code == 0
     line = pcainterp("densify", log, "-o", out).error_line()
     assert f"{log}: /stereo/left/image_rect's images are 62 px wide" in line
-    assert "pass --num-disparities 32 (or less, a multiple of 16)" in line
+    # matched at full resolution (f*b 19 px*m: --stereo-downscale auto), which fits 48
+    assert "pass --num-disparities 48 (or less, a multiple of 16)" in line
     assert_nothing_written(out)
     assert pcainterp("densify", log, "-o", out, "--num-disparities", "32").code == 0
 

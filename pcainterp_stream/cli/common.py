@@ -333,14 +333,29 @@ def add_stereo_options(parser: argparse.ArgumentParser, *, command: str) -> None
     )
     group.add_argument(
         "--stereo-downscale",
-        type=int,
-        choices=[1, 2],
+        type=_downscale if densify else int,
+        choices=None if densify else [1, 2],
         default=None,
-        help="match at 1/N resolution: 2 is ~4x cheaper SGBM for slightly less exact "
-        "lookups, as good a dense map (default "
-        + ("2; --measurements dense: 1" if densify else "1")
-        + "; docs/benchmarks.md)",
+        metavar="{auto,1,2}" if densify else None,
+        help="match at 1/N resolution: 2 is ~4x cheaper SGBM for lookups biased by +0.1-0.3 "
+        "px, as good a dense map on KITTI-like cameras (default "
+        + (
+            f"auto: 1 when the camera's f*b is below {defaults.FULL_RESOLUTION_FB:g} px*m "
+            "(small disparities) and its images at most 1280x720, else 2; "
+            "--measurements dense: 1; docs/results.md)"
+            if densify
+            else "1; docs/benchmarks.md)"
+        ),
     )
+
+
+def _downscale(value: str) -> int | None:
+    """``--stereo-downscale``: 1 or 2; ``auto`` (densify's default) is None."""
+    if value in ("1", "2"):
+        return int(value)
+    if value == "auto":
+        return None
+    raise argparse.ArgumentTypeError(f"expected auto, 1 or 2, got {value!r}")
 
 
 def sgbm_config(args: argparse.Namespace, base: SgbmConfig | None = None) -> SgbmConfig:
@@ -364,8 +379,9 @@ def sgbm_config(args: argparse.Namespace, base: SgbmConfig | None = None) -> Sgb
         changes["block_size"] = args.block_size
     if args.sgbm_mode is not None:
         changes["mode"] = SgbmMode[args.sgbm_mode.upper()]
-    if args.stereo_downscale is not None:
+    if args.stereo_downscale is not None:  # given: not chosen per camera
         changes["downscale"] = args.stereo_downscale
+        changes["by_camera"] = False
     return dataclasses.replace(SgbmConfig() if base is None else base, **changes)
 
 

@@ -110,6 +110,8 @@ class PairingStats:
         last_camera: the camera of the last pair; None before any pair.
         first_log_ns: the first pair's log time (ns), what a change's time counts from;
             None before any pair.
+        matching: the SGBM resolution ``densify`` chose for the camera (``--stereo-downscale
+            auto``), said in :meth:`camera_note`; None when given or not matched.
     """
 
     camera: StereoCamera | None = None
@@ -118,6 +120,7 @@ class PairingStats:
     camera_changes: int = 0
     last_camera: StereoCamera | None = None
     first_log_ns: int | None = None
+    matching: str | None = None
     nearest_gap_ns: int | None = None
     first_stamps_ns: dict[str, int] = field(default_factory=dict)
     pairs: int = 0
@@ -414,11 +417,14 @@ class PairingStats:
                 f"camera: {_camera_text(camera, baseline=False)}, baseline "
                 f"{camera.baseline:.4g} m (from {self.camera_source}), f*b "
                 f"{camera.focal_baseline:.5g} px*m"
+                + (f"; {self.matching}" if self.matching else "")
             )
         times = "once" if self.camera_changes == 1 else f"{self.camera_changes} times"
         lines = [
             f"cameras: {len(self.camera_frames)} (the camera changed {times} in the log; "
-            "each pair densified with its own):"
+            "each pair densified with its own"
+            + (f"; {self.matching}" if self.matching else "")
+            + "):"
         ]
         listed = list(self.camera_frames.items())
         for seen, (count, source) in listed[:MAX_CAMERA_LINES]:

@@ -143,6 +143,9 @@ class SgbmConfig:
         refine_range: 0, or a positive multiple of 8 (px): match the whole range at half
             resolution, warp the right image by that map and match again at full
             resolution within +-``refine_range`` px of it (:mod:`.refine`); ``downscale=1``.
+        by_camera: ``densify``'s default (``--stereo-downscale auto``): ``downscale`` is
+            chosen for the log's camera at its first pair (:func:`.sgbm_resolution.by_camera`);
+            a configuration never resolved matches at ``downscale``.
     """
 
     min_disparity: int = 0
@@ -160,6 +163,7 @@ class SgbmConfig:
     full_width: bool = False
     near_at_half: bool = False
     refine_range: int = 0
+    by_camera: bool = False
 
     def __post_init__(self) -> None:
         if self.num_disparities <= 0 or self.num_disparities % 16:

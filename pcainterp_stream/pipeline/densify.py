@@ -31,6 +31,7 @@ from pcainterp_stream.frontend.frame_checks import BeyondRange, StaleRight
 from pcainterp_stream.frontend.pairing import PairingConfig, StereoPairer
 from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.frontend.sgbm_limits import fitting, narrowest_width
+from pcainterp_stream.frontend.sgbm_resolution import by_camera
 from pcainterp_stream.frontend.stereo import SgbmConfig
 from pcainterp_stream.io import reader_base, rosmsg
 from pcainterp_stream.io.densify_record import (
@@ -398,12 +399,15 @@ def densify(
             if rrd is not None or spawn_viewer
             else None
         )
-        engine = stack.enter_context(FrameProcessor(basis, processor))
+        engine: FrameProcessor | None = None  # made at the first pair (SGBM's resolution)
+        matching: str | None = None  # the resolution chosen for the camera, said with it
+        sgbm = processor.sgbm  # that resolution (a given one as it is)
         pairer = StereoPairer(pairing, echo=echo)
         pairer.read_ahead(reader)  # camera infos recorded after the first images
         bar = stack.enter_context(_bar(total, f"densify {input_path.name}"))
 
         def emit(results: list[DensifiedFrame]) -> None:
+            assert engine is not None  # results come from it
             for result in map(pairer.full_result, results):
                 if frames == 0 and not encoding and (writer is not None or live is not None):
                     # f*b and the first min disparity: what evaluate needs of a compact log
@@ -501,9 +505,20 @@ def densify(
         checked_width = processor.source is not MeasurementSource.STEREO
 
         def submit(frame: StereoFrame) -> None:
-            nonlocal checked_width
+            nonlocal checked_width, engine, matching, sgbm, far
+            if engine is None:
+                if stereo:  # --stereo-downscale auto: the first pair's camera decides
+                    camera = frame.camera
+                    sgbm, matching = by_camera(
+                        sgbm, camera.focal_baseline, camera.width, camera.height
+                    )
+                    far = far if sgbm.downscale == 2 else None  # half resolution's zeros
+                    if beyond is not None:
+                        beyond.step = 16 * sgbm.downscale
+                config = dataclasses.replace(processor, sgbm=sgbm)
+                engine = stack.enter_context(FrameProcessor(basis, config))
             if not checked_width:  # SGBM would fail, or crash, on too narrow a pair
-                _check_width(frame, processor.sgbm, input_path, pairing.left_topic)
+                _check_width(frame, sgbm, input_path, pairing.left_topic)
                 checked_width = True
             features = pairer.features_for(frame)
             refused = check.cloud(frame, features) if check is not None else None
@@ -521,8 +536,8 @@ def densify(
                     submit(frame)
         for frame in pairer.flush():
             submit(frame)
-        for batch in engine.finish_batches():  # each batch to the encoders as it is done
-            emit(batch)
+        for batch in engine.finish_batches() if engine is not None else ():
+            emit(batch)  # each batch to the encoders as it is done
         while encoding:
             write(*encoding.popleft())
         if inputs is not None:
@@ -530,7 +545,8 @@ def densify(
         if live is not None:
             live.flush()
         stats = pairer.finish()
-        if frames == 0:
+        stats.matching = matching
+        if frames == 0 or engine is None:
             raise LogReadError(no_pair_message(input_path, pairing, stats, reader.damage))
         unusable = check.error(stats) if check is not None else None
         if unusable is not None:  # raised in the writer's block: no output is left behind
@@ -556,7 +572,8 @@ def densify(
                 )
         if isinstance(writer, McapLogWriter):  # every basis in force: the channels name the first
             # what made the log, now that the basis of its outputs is decided
-            record = provenance(opening, pairing, processor, stats, topics.prefix)
+            chosen = dataclasses.replace(processor, sgbm=sgbm)  # the resolution chosen
+            record = provenance(opening, pairing, chosen, stats, topics.prefix)
             writer.add_metadata(DENSIFY_RECORD, record)
             in_force = bases_in_force(engine, basis, label, output, final_written)
             writer.add_metadata(BASES_RECORD, bases_record(in_force, topics.prefix))
@@ -572,7 +589,7 @@ def densify(
         warnings=_order_warnings(reader, stats)
         + (check.warnings(stats) if check is not None else _empty_warning(robust["empty"], frames))
         + (stale.warnings(frames, robust["stale_empty"]) if stale is not None else [])
-        + (beyond.warnings(frames, processor.sgbm) if beyond is not None else [])
+        + (beyond.warnings(frames, sgbm) if beyond is not None else [])
         + (far.warnings(frames) if far is not None else []),
         downweighted=robust["downweighted"],
         most_downweighted=robust["most"],

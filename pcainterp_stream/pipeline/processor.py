@@ -107,8 +107,9 @@ class ProcessorConfig:
 
     Attributes:
         gftt: corner detector options.
-        sgbm: stereo matcher options (by default at half resolution,
-            :data:`~pcainterp_stream.defaults.STEREO_DOWNSCALE`).
+        sgbm: stereo matcher options (by default at the resolution ``densify`` chooses for
+            the camera, :mod:`~pcainterp_stream.frontend.sgbm_resolution`; half resolution,
+            :data:`~pcainterp_stream.defaults.STEREO_DOWNSCALE`, until chosen).
         sigma: measurement noise std (px) of the MAP estimate, "evidence" (fitted per
             frame) or "auto" (the basis's fitted sigma when it has one, else 2 px).
         uncertainty: "exact-coarse" (default: the exact std on the variance grid, resampled),
@@ -186,7 +187,7 @@ class ProcessorConfig:
 
     gftt: GfttConfig = field(default_factory=GfttConfig)
     sgbm: SgbmConfig = field(
-        default_factory=lambda: SgbmConfig(downscale=defaults.STEREO_DOWNSCALE)
+        default_factory=lambda: SgbmConfig(downscale=defaults.STEREO_DOWNSCALE, by_camera=True)
     )
     sigma: float | str = "auto"
     uncertainty: str = "exact-coarse"

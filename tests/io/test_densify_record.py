@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -120,7 +121,9 @@ def test_the_front_end_and_the_options_read_back_as_given(
     assert front_end is not None
     assert (front_end.rectify, front_end.images) == ("auto", "remapped")
     assert front_end.remapped_pairs == front_end.pairs == RAW.frames
-    assert _matcher(front_end.sgbm) == ProcessorConfig().sgbm  # half resolution
+    # --stereo-downscale auto, recorded as chosen: half resolution (f*b ~97 px*m at 0.25 scale)
+    chosen = dataclasses.replace(ProcessorConfig().sgbm, downscale=2, by_camera=False)
+    assert _matcher(front_end.sgbm) == chosen
     assert recorded_front_end(raw_bag) is None  # a log densify did not write
 
 

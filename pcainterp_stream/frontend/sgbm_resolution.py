@@ -1,0 +1,56 @@
+"""Which resolution ``densify``'s SGBM matches a camera at (``--stereo-downscale auto``).
+
+Half resolution (``downscale=2``) costs ~1/4 of the full-resolution match. On a KITTI-like
+camera (f*b ~390 px*m, disparities of tens of px) its dense map is as good: the error is set
+by the interpolation. Its lookups are biased by +0.1-0.3 px (SGBM's sub-pixel steps at half
+resolution, doubled by the upsampling), which on a camera whose disparities are a few px (a
+VI-sensor or a depth camera indoors) is 5-30 % of a disparity: the dense map's error there was
+up to 1.9x full resolution's and fewer pixels inside +-2 sigma (docs/results.md). The rule
+(:func:`by_camera`): full resolution when the camera's f*b is below
+:data:`~pcainterp_stream.defaults.FULL_RESOLUTION_FB` px*m and its images are at most
+:data:`~pcainterp_stream.defaults.FULL_RESOLUTION_MAX_PIXELS`; half resolution otherwise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from pcainterp_stream import defaults
+from pcainterp_stream.frontend.stereo import SgbmConfig
+
+__all__ = ["by_camera"]
+
+
+def by_camera(
+    config: SgbmConfig, focal_baseline: float, width: int, height: int
+) -> tuple[SgbmConfig, str | None]:
+    """Return ``config`` with its resolution chosen for a camera, and the phrase saying so.
+
+    Only a ``config`` with ``by_camera`` set is changed (``--stereo-downscale 1`` or ``2``
+    given: returned as it is, with no phrase); the result has ``by_camera`` cleared.
+
+    Args:
+        config: the matcher settings.
+        focal_baseline: the camera's f*b (px*m) at the images' size.
+        width: the images' width (px).
+        height: the images' height (px).
+
+    Returns:
+        The settings to match with and, when chosen here, the phrase for the camera line
+        (``SGBM at full resolution (--stereo-downscale auto: f*b 24 < 90 px*m)``).
+    """
+    if not config.by_camera:
+        return config, None
+    threshold = defaults.FULL_RESOLUTION_FB
+    small = 0 < focal_baseline < threshold
+    fits = width * height <= defaults.FULL_RESOLUTION_MAX_PIXELS
+    if small and fits:
+        downscale, why = 1, f"f*b {focal_baseline:.3g} < {threshold:g} px*m"
+    elif small:
+        downscale, why = defaults.STEREO_DOWNSCALE, f"{width}x{height} px images"
+    else:
+        downscale, why = defaults.STEREO_DOWNSCALE, f"f*b {focal_baseline:.3g} >= {threshold:g}"
+        why += " px*m"
+    resolution = "full" if downscale == 1 else "half"
+    phrase = f"SGBM at {resolution} resolution (--stereo-downscale auto: {why})"
+    return replace(config, downscale=downscale, by_camera=False), phrase
