@@ -476,7 +476,11 @@ def _alive(pid: int) -> bool:
         return False
     except OSError:  # PermissionError: it exists, another user's
         return True
-    return True
+    try:  # a zombie (killed, its parent yet to reap it) writes nothing more
+        with open(f"/proc/{pid}/stat", "rb") as file:
+            return file.read().rpartition(b")")[2].split()[:1] != [b"Z"]
+    except (OSError, IndexError):
+        return True
 
 
 def _size(path: Path) -> int:
