@@ -209,7 +209,8 @@ def test_sgbm_alone_pairs_what_densify_pairs(tmp_path: Path) -> None:
     done = sgbm_alone(str(log), "--left-topic", "/camera/right/image_raw")
     assert done.returncode != 0
     assert done.stdout == ""
-    assert done.stderr.startswith("error: ") and len(done.stderr.splitlines()) == 1
+    assert done.stderr.startswith("error: ")
+    assert len(done.stderr.splitlines()) == 1
     sys.path.insert(0, str(ROOT / "tools"))
     try:
         import bench_before_after

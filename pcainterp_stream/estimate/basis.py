@@ -21,6 +21,7 @@ import importlib.resources
 import json
 import os
 import stat
+import tempfile
 import threading
 import zipfile
 from collections.abc import Callable
@@ -36,7 +37,6 @@ from threadpoolctl import threadpool_limits
 
 from pcainterp_stream.errors import BasisError
 from pcainterp_stream.interrupt import raise_if_signalled
-from pcainterp_stream.io.output_paths import make_partial_file, write_advice
 
 FORMAT = "pcainterp-basis/1"
 """The format string stored under the ``format`` key of a basis file."""
@@ -395,7 +395,12 @@ class Basis:
         self._prior_covariances[stride] = covariance
         return covariance
 
-    def save(self, path: str | os.PathLike[str]) -> None:
+    def save(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        partial_file: Callable[[Path], tuple[int, Path]] | None = None,
+    ) -> None:
         """Write the basis as a ``pcainterp-basis/1`` .npz file, atomically.
 
         The file is written beside the target and renamed over it, so a crash never leaves
@@ -404,6 +409,9 @@ class Basis:
         Args:
             path: destination file (conventionally ``.npz``); a symbolic link is written
                 through.
+            partial_file: makes the temporary beside the target and returns its open
+                descriptor and path (``io.output_paths.make_partial_file``: owner-named,
+                within the name limit, a killed save's removed); default ``mkstemp``.
 
         Raises:
             BasisError: ``path`` is a device, pipe or folder, or cannot be written.
@@ -427,12 +435,19 @@ class Basis:
             "n_train": np.array(self.n_train, dtype=np.int64),
             "meta": np.array(json.dumps(self.meta, sort_keys=True)),
         }
-        try:  # owner-named, fits the name limit; a killed save's is removed (bug hunt 9C F3, F4)
-            handle, temp = make_partial_file(target)
+        try:
+            if partial_file is not None:
+                handle, temp = partial_file(target)
+            else:
+                handle, name = tempfile.mkstemp(
+                    prefix=f".{target.name}.", suffix=".tmp", dir=target.parent
+                )
+                temp = Path(name)
+                umask = os.umask(0)  # mkstemp's 0600: give it a normally created file's mode
+                os.umask(umask)
+                os.fchmod(handle, 0o666 & ~umask)
         except OSError as err:
-            raise BasisError(
-                f"cannot write basis {target}: {err.strerror or err}; {write_advice(err)}"
-            ) from err
+            raise BasisError(f"cannot write basis {target}: {err.strerror or err}") from err
         temp_name = str(temp)
         try:
             with os.fdopen(handle, "wb") as stream:
@@ -441,9 +456,7 @@ class Basis:
             os.replace(temp_name, target)
         except OSError as err:
             Path(temp_name).unlink(missing_ok=True)
-            raise BasisError(
-                f"cannot write basis {target}: {err.strerror or err}; {write_advice(err)}"
-            ) from err
+            raise BasisError(f"cannot write basis {target}: {err.strerror or err}") from err
         except BaseException:
             Path(temp_name).unlink(missing_ok=True)
             raise

@@ -139,6 +139,8 @@ def full_disk_advice(error: BaseException) -> str:
     """Return ``"; free some space, or write it elsewhere"`` for a full disk, else ``""``."""
     if isinstance(error, OSError) and error.errno in (errno.ENOSPC, errno.EDQUOT):
         return f"; {write_advice(error)}"
+    if type(error).__name__ == "OperationalError" and "disk is full" in str(error):
+        return "; free some space, or write it elsewhere"  # sqlite3's SQLITE_FULL
     return ""
 
 
