@@ -829,7 +829,7 @@ def test_synth_and_import_kitti_on_a_full_disk_are_one_error(
     line = pcainterp("synth", target, "--frames", "4", "--scale", "0.2", *format_args).error_line()
     assert line == (
         f"pcainterp: error: writing {target} failed: OSError: [Errno 28] No space left on "
-        "device; nothing was written there"
+        "device; nothing was written there; free some space, or write it elsewhere"
     )
     assert_nothing_written(target)
     if name.endswith(".mcap"):

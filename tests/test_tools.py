@@ -10,6 +10,7 @@ and exit 0 without doing any work; the modules of helpers the scripts import
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -180,3 +181,39 @@ def test_fuzz_readers_refuses_modules_imported_before_instrumenting(tmp_path: Pa
     assert message, stderr[-3000:]
     assert "pcainterp_stream.errors" in message[0]
     assert "Traceback" not in stderr
+
+
+def test_sgbm_alone_pairs_what_densify_pairs(tmp_path: Path) -> None:
+    """Bug hunt 9C F7: the SGBM-alone reference read only /stereo/{left,right}/image_rect:
+    a raw (``image_raw``) or CompressedImage log was "0 pairs matched", rc 0, in 0.7 s, a
+    reference time of nothing. It now finds the pair as densify does, and 0 pairs fail."""
+    from pcainterp_stream.pipeline.jobs import synth_raw
+
+    log = tmp_path / "raw.mcap"
+    synth_raw(log, frames=3, seed=0, scale=0.25, fmt=None, model="plumb_bob")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "tools")])}
+
+    def sgbm_alone(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, str(ROOT / "tools" / "sgbm_alone.py"), *args],
+            cwd=tmp_path,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=300,
+            check=False,
+        )
+
+    done = sgbm_alone(str(log))
+    assert (done.returncode, done.stdout) == (0, "3 pairs matched\n"), done.stderr
+    done = sgbm_alone(str(log), "--left-topic", "/camera/right/image_raw")
+    assert done.returncode != 0
+    assert done.stdout == ""
+    assert done.stderr.startswith("error: ")
+    assert len(done.stderr.splitlines()) == 1
+    sys.path.insert(0, str(ROOT / "tools"))
+    try:
+        import bench_before_after
+    finally:
+        sys.path.remove(str(ROOT / "tools"))
+    assert bench_before_after.frame_count(log) == 3

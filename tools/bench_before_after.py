@@ -36,6 +36,9 @@ from pathlib import Path
 import harness
 
 import pcainterp_stream
+from pcainterp_stream.errors import PcaInterpError
+from pcainterp_stream.frontend.discovery import resolve_pairing
+from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.io.logreader import open_log
 
 
@@ -61,11 +64,19 @@ def run(
 
 
 def frame_count(log: Path) -> int:
-    """Return the number of left images of a log (the frames densify makes)."""
+    """Return the number of left images of a log (the frames densify makes).
+
+    The left camera is the one densify finds (compressed images, ``image_raw``, a camera's
+    own names), not only ``/stereo/left/image_rect``.
+    """
     with open_log(log) as reader:
-        info = reader.topics().get("/stereo/left/image_rect")
+        try:
+            left = resolve_pairing(reader, PairingConfig(discover=True)).left_topic
+        except PcaInterpError as err:
+            raise SystemExit(f"{log}: {err}") from None
+        info = reader.topics().get(left)
     if info is None or not info.message_count:
-        raise SystemExit(f"{log} has no /stereo/left/image_rect messages to densify")
+        raise SystemExit(f"{log} has no {left} messages to densify")
     return int(info.message_count)
 
 

@@ -22,6 +22,8 @@ from typing import Any
 import cv2
 
 from pcainterp_stream.allocator import keep_freed_memory
+from pcainterp_stream.errors import PcaInterpError
+from pcainterp_stream.frontend.discovery import resolve_pairing
 from pcainterp_stream.frontend.pairing import PairingConfig, StereoPairer
 from pcainterp_stream.frontend.stereo import SgbmConfig, compute_disparity
 from pcainterp_stream.io import logreader
@@ -30,15 +32,33 @@ WORKERS = 2
 """Matching threads (the job's stereo workers), one OpenCV thread each."""
 
 
-def sgbm_alone(log: Path, config: SgbmConfig, *, workers: int = WORKERS) -> int:
+def sgbm_alone(
+    log: Path,
+    config: SgbmConfig,
+    *,
+    workers: int = WORKERS,
+    left_topic: str | None = None,
+    right_topic: str | None = None,
+) -> int:
     """Read, pair and stereo-match every pair of a log; return the number of pairs.
 
-    Up to ``2 * workers`` pairs are queued for the workers at once.
+    The pair is the one densify takes: found in the log as densify finds it (compressed
+    images, raw ``image_raw`` ones, a camera's own names), or the topics named; raw images
+    are rectified as densify rectifies them. Up to ``2 * workers`` pairs are queued for the
+    workers at once.
     """
-    pairing = PairingConfig()
-    pairer = StereoPairer(pairing)
+    named = tuple(side for side, topic in (("left", left_topic), ("right", right_topic)) if topic)
+    defaults = PairingConfig()
+    wanted = PairingConfig(
+        left_topic=left_topic or defaults.left_topic,
+        right_topic=right_topic or defaults.right_topic,
+        discover=len(named) < 2,
+        named_sides=named,
+    )
     pairs = 0
     with logreader.open_log(log) as reader, ThreadPoolExecutor(max_workers=workers) as pool:
+        pairing = resolve_pairing(reader, wanted)
+        pairer = StereoPairer(pairing)
         pending: deque[Future[Any]] = deque()
         for raw in reader.messages(pairing.topics):
             for frame in pairer.push_raw(raw, reader.decode):
@@ -59,13 +79,28 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("log", type=Path, help="a stereo log (MCAP or ROS bag)")
     parser.add_argument("--workers", type=int, default=WORKERS, help="matching threads")
+    parser.add_argument("--left-topic", help="the left image topic (default: found as densify)")
+    parser.add_argument("--right-topic", help="the right image topic (default: found)")
     args = parser.parse_args(argv)
     if not args.log.exists():
         print(f"error: {args.log} does not exist", file=sys.stderr)
         return 2
     keep_freed_memory()
     cv2.setNumThreads(1)
-    pairs = sgbm_alone(args.log, SgbmConfig(), workers=args.workers)
+    try:
+        pairs = sgbm_alone(
+            args.log,
+            SgbmConfig(),
+            workers=args.workers,
+            left_topic=args.left_topic,
+            right_topic=args.right_topic,
+        )
+    except PcaInterpError as err:  # no pair found, or two equally good ones
+        print(f"error: {args.log}: {err}", file=sys.stderr)
+        return 2
+    if pairs == 0:  # a reference time of nothing: never divided by
+        print(f"error: {args.log}: 0 stereo pairs matched; nothing to time", file=sys.stderr)
+        return 1
     print(f"{pairs} pairs matched")
     return 0
 

@@ -8,6 +8,7 @@ Heavy modules load only when a command runs, so ``--help`` stays fast.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import gc
 import os
@@ -18,6 +19,7 @@ from typing import TYPE_CHECKING, Any, TypeAlias
 
 from pcainterp_stream import defaults
 from pcainterp_stream.errors import LogWriteError, PcaInterpError
+from pcainterp_stream.io.output_paths import name_too_long
 
 if TYPE_CHECKING:
     from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig
@@ -117,11 +119,9 @@ STREAM = Path("-")
 
 def same_file(first: Path, second: Path) -> bool:
     """Return whether two paths name one file: one inode where both exist, else one path."""
-    if first.exists() and second.exists():
-        try:
+    with contextlib.suppress(OSError):  # exists() raises for a name too long (ENAMETOOLONG)
+        if first.exists() and second.exists():
             return os.path.samefile(first, second)
-        except OSError:
-            pass
     return first.resolve() == second.resolve()
 
 
@@ -144,6 +144,11 @@ def refuse_overwrites(
     for what, path, fix in writes:
         if path is None or path == STREAM:
             continue
+        too_long = name_too_long(path)  # a side file's (OUT.final.basis.npz): before any work
+        if too_long is not None:
+            named = what if path.name in what else f"{what} {path}"
+            why = fix[fix.find("(") :] if "(" in fix else ""  # why a side file is written
+            raise LogWriteError(f"cannot write {named}: {too_long} {why}".rstrip())
         for other, other_path in others:
             if same_file(path, other_path):
                 raise LogWriteError(f"refusing to write {what} onto {other} {other_path}; {fix}")

@@ -41,12 +41,13 @@ def add_parser(commands: Commands) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo; return the exit code."""
-    from pcainterp_stream.io.rerun_sink import NO_DISPLAY, has_display
+    from pcainterp_stream.io.rerun_sink import VIEWER_PORT, display_problem, viewer_listening
     from pcainterp_stream.pipeline.jobs import demo
 
-    if args.rerun and not has_display():  # before the drive is rendered, not after
+    problem = display_problem() if args.rerun and not viewer_listening(VIEWER_PORT) else None
+    if problem is not None:  # before the drive is rendered, not after
         raise PcaInterpError(
-            f"{NO_DISPLAY}; drop --rerun: the demo records {args.out / 'heldout.rrd'} anyway, "
+            f"{problem}; drop --rerun: the demo records {args.out / 'heldout.rrd'} anyway, "
             "open it with `rerun` where there is a display"
         )
     echo(demo(args.out, spawn_viewer=args.rerun, learn_basis=args.learn))

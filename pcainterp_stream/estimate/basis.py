@@ -395,7 +395,12 @@ class Basis:
         self._prior_covariances[stride] = covariance
         return covariance
 
-    def save(self, path: str | os.PathLike[str]) -> None:
+    def save(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        partial_file: Callable[[Path], tuple[int, Path]] | None = None,
+    ) -> None:
         """Write the basis as a ``pcainterp-basis/1`` .npz file, atomically.
 
         The file is written beside the target and renamed over it, so a crash never leaves
@@ -404,6 +409,9 @@ class Basis:
         Args:
             path: destination file (conventionally ``.npz``); a symbolic link is written
                 through.
+            partial_file: makes the temporary beside the target and returns its open
+                descriptor and path (``io.output_paths.make_partial_file``: owner-named,
+                within the name limit, a killed save's removed); default ``mkstemp``.
 
         Raises:
             BasisError: ``path`` is a device, pipe or folder, or cannot be written.
@@ -428,18 +436,20 @@ class Basis:
             "meta": np.array(json.dumps(self.meta, sort_keys=True)),
         }
         try:
-            handle, temp_name = tempfile.mkstemp(
-                prefix=f".{target.name}.", suffix=".tmp", dir=target.parent
-            )
+            if partial_file is not None:
+                handle, temp = partial_file(target)
+            else:
+                handle, name = tempfile.mkstemp(
+                    prefix=f".{target.name}.", suffix=".tmp", dir=target.parent
+                )
+                temp = Path(name)
+                umask = os.umask(0)  # mkstemp's 0600: give it a normally created file's mode
+                os.umask(umask)
+                os.fchmod(handle, 0o666 & ~umask)
         except OSError as err:
-            raise BasisError(
-                f"cannot write basis {target}: {err.strerror or err}; choose a writable folder"
-            ) from err
+            raise BasisError(f"cannot write basis {target}: {err.strerror or err}") from err
+        temp_name = str(temp)
         try:
-            # mkstemp creates 0600; give the file the permissions of a normally created one
-            umask = os.umask(0)
-            os.umask(umask)
-            os.fchmod(handle, 0o666 & ~umask)
             with os.fdopen(handle, "wb") as stream:
                 np.savez(stream, **arrays)  # type: ignore[arg-type]
             raise_if_signalled()  # never committed after a signal

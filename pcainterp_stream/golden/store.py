@@ -15,7 +15,6 @@ import json
 import math
 import numbers
 import os
-import tempfile
 import zipfile
 import zlib
 from collections.abc import Collection, Iterable, Iterator, Mapping
@@ -31,7 +30,7 @@ from pcainterp_stream.errors import GoldenError, GoldenToleranceError, LogWriteE
 from pcainterp_stream.golden.comparison import DEFAULT_TOLERANCE, Difference, compare
 from pcainterp_stream.golden.summary import LogSummary, Progress, summarize_log
 from pcainterp_stream.interrupt import raise_if_signalled
-from pcainterp_stream.io.output_paths import check_output_file, write_advice
+from pcainterp_stream.io.output_paths import check_output_file, make_partial_file, write_advice
 from pcainterp_stream.version import __version__
 
 __all__ = [
@@ -222,14 +221,11 @@ def _replacing(target: Path) -> Iterator[Path]:
     target = _staged_at(target)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
-        handle, name = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+        # owner-named (a killed save's is removed by the next), shortened to fit the name
+        handle, temporary = make_partial_file(target)  # a golden file's mode, not 0600
     except OSError as err:
         raise _write_error(target, err) from err
     os.close(handle)
-    temporary = Path(name)
-    umask = os.umask(0)
-    os.umask(umask)
-    temporary.chmod(0o666 & ~umask)  # mkstemp makes it private; a golden file is shared
     try:
         yield temporary
         raise_if_signalled()  # never committed after a signal

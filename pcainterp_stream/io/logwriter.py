@@ -62,9 +62,11 @@ from pcainterp_stream.io.mcap_extras import McapExtras, write_extras
 from pcainterp_stream.io.output_paths import (
     check_not_input,
     check_output_file,
+    full_disk_advice,
     partial_prefix,
     remove_stale_partials,
     removed_meanwhile,
+    staged_for,
     write_advice,
 )
 from pcainterp_stream.io.rosbag2_record import ROSBAG2_RECORD, Rosbag2Record
@@ -537,11 +539,14 @@ def write_failed(path: Path, error: BaseException) -> LogWriteError:
     """Return the error of a file output whose writing failed (its partial output removed).
 
     Args:
-        path: the output's target.
-        error: what the writing raised (a full disk: ``OSError`` ``ENOSPC``).
+        path: the output's target (in a staging folder of ``densify --out-dir``: the file
+            it is moved to is named, :func:`staged_for`).
+        error: what the writing raised (a full disk: ``OSError`` ``ENOSPC``: the message
+            says to free some space).
     """
     return LogWriteError(
-        f"writing {path} failed: {type(error).__name__}: {error}; nothing was written there"
+        f"writing {staged_for(path)} failed: {type(error).__name__}: {error}; nothing was "
+        f"written there{full_disk_advice(error)}"
     )
 
 

@@ -23,7 +23,7 @@ import stat
 import sys
 import tempfile
 import threading
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 from pcainterp_stream.errors import LogWriteError
@@ -32,13 +32,17 @@ __all__ = [
     "check_not_input",
     "check_output_file",
     "check_output_folder",
+    "full_disk_advice",
     "is_standard_output",
+    "make_partial_file",
     "name_too_long",
     "partial_prefix",
     "process_umask",
     "remove_stale_partials",
     "remove_stale_temporaries",
     "removed_meanwhile",
+    "saved_elsewhere",
+    "staged_for",
     "temporary_prefix",
     "write_advice",
 ]
@@ -129,6 +133,42 @@ def write_advice(err: OSError) -> str:
     if err.errno == errno.ENAMETOOLONG:
         return "the file name is too long for the file system: choose a shorter name"
     return "choose a writable folder"  # read-only, no permission, or a folder refusing files
+
+
+def full_disk_advice(error: BaseException) -> str:
+    """Return ``"; free some space, or write it elsewhere"`` for a full disk, else ``""``."""
+    if isinstance(error, OSError) and error.errno in (errno.ENOSPC, errno.EDQUOT):
+        return f"; {write_advice(error)}"
+    if type(error).__name__ == "OperationalError" and "disk is full" in str(error):
+        return "; free some space, or write it elsewhere"  # sqlite3's SQLITE_FULL
+    return ""
+
+
+def saved_elsewhere(target: Path, error: BaseException, save: Callable[[Path], object]) -> str:
+    """Save, after a full disk refused ``target``, a small result the run spent long on.
+
+    A basis ``learn`` spent minutes or hours on is a few MB: where the disk of ``target``
+    is full (``error`` or its cause ENOSPC/EDQUOT), ``save`` writes it to a new folder in
+    the temporary folder (``TMPDIR``), usually another disk.
+
+    Returns:
+        ``"; it was saved to PATH instead: move it (mv PATH TARGET) once there is room"``,
+        or ``""`` where the disk was not full or that failed too (nothing left behind).
+    """
+    cause = error if isinstance(error, OSError) else error.__cause__
+    if not full_disk_advice(cause if isinstance(cause, BaseException) else error):
+        return ""
+    try:
+        folder = Path(tempfile.mkdtemp(prefix="pcainterp-saved-"))
+    except OSError:
+        return ""
+    kept = folder / target.name
+    try:
+        save(kept)
+    except Exception:  # the temporary folder is full too: nothing saved, nothing left
+        shutil.rmtree(folder, ignore_errors=True)
+        return ""
+    return f"; it was saved to {kept} instead: move it (mv {kept} {target}) once there is room"
 
 
 def removed_meanwhile(partial: Path, folder: Path, during: str) -> str | None:
@@ -379,6 +419,20 @@ def _partial_start(target: Path, where: Path | None = None) -> str:
     return f".{short}~{digest}.partial-"
 
 
+def staged_for(path: Path) -> Path:
+    """Return the output ``path`` is written for: the user's file, not a staging folder's.
+
+    ``densify --out-dir`` writes each log's output in a hidden staging folder,
+    ``DIR/.NAME.partial-OWNER-XXXX/NAME``, then moves it to ``DIR/NAME``: an error names
+    ``DIR/NAME`` (the staging folder is removed with the error). Any other ``path`` is
+    returned as it is.
+    """
+    target = path.parent.parent / path.name
+    if path.parent.name.startswith(_partial_start(target)):
+        return target
+    return path
+
+
 def partial_prefix(target: Path, where: Path | None = None) -> str:
     """Return the name prefix of ``target``'s partial output: ``.NAME.partial-OWNER-``.
 
@@ -392,6 +446,28 @@ def partial_prefix(target: Path, where: Path | None = None) -> str:
     return f"{_partial_start(target, where)}{_owner()}-"
 
 
+def make_partial_file(target: Path) -> tuple[int, Path]:
+    """Create ``target``'s partial file beside it; return its open descriptor and path.
+
+    Named by :func:`partial_prefix` (the owner in the name, shortened to fit the file
+    system), after removing the partial files a killed earlier run left
+    (:func:`remove_stale_partials`). Its mode is a new file's (``0o666`` less the umask),
+    not ``mkstemp``'s private ``0o600``.
+
+    Raises:
+        OSError: the folder refuses the file (the caller names ``target`` and the fix).
+    """
+    remove_stale_partials(target)
+    handle, name = tempfile.mkstemp(prefix=partial_prefix(target), dir=target.parent)
+    try:
+        os.chmod(name, 0o666 & ~process_umask())
+    except OSError:
+        os.close(handle)
+        Path(name).unlink(missing_ok=True)
+        raise
+    return handle, Path(name)
+
+
 def _alive(pid: int) -> bool:
     """Whether process ``pid`` of this PID namespace exists (another user's included)."""
     if pid <= 0:
@@ -402,7 +478,11 @@ def _alive(pid: int) -> bool:
         return False
     except OSError:  # PermissionError: it exists, another user's
         return True
-    return True
+    try:  # a zombie (killed, its parent yet to reap it) writes nothing more
+        with open(f"/proc/{pid}/stat", "rb") as file:
+            return file.read().rpartition(b")")[2].split()[:1] != [b"Z"]
+    except (OSError, IndexError):
+        return True
 
 
 def _size(path: Path) -> int:

@@ -35,6 +35,7 @@ from pcainterp_stream.interrupt import (
     untrack_partial,
 )
 from pcainterp_stream.io.logwriter import LIBRARY, MCAP_CHUNK_SIZE, McapLogWriter
+from pcainterp_stream.io.output_paths import remove_stale_temporaries, temporary_prefix
 
 STDIN_NAME = "stdin"
 """The name a spooled standard input goes by in messages."""
@@ -160,7 +161,9 @@ def spool(stream: IO[bytes], name: str = STDIN_NAME) -> Iterator[Path]:
     Raises:
         LogReadError: the stream is empty or cannot be read, or the disk is full.
     """
-    with tempfile.TemporaryDirectory(prefix="pcainterp-stdin-") as folder:
+    # owner-named: a killed run's copy of the whole log is removed by the next (bug hunt 9C F5)
+    remove_stale_temporaries(Path(tempfile.gettempdir()), "pcainterp-stdin")
+    with tempfile.TemporaryDirectory(prefix=temporary_prefix("pcainterp-stdin")) as folder:
         track_partial(Path(folder))  # removed even if a signal forces the end
         try:
             path = Path(folder) / name

@@ -21,13 +21,14 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import socket
 import sys
 import tempfile
 import threading
 import time
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, BinaryIO
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 import numpy as np
 
@@ -83,12 +84,98 @@ NO_DISPLAY = (
 )
 """The start of the error for a viewer on a machine without one; the caller adds the fix."""
 
+DISPLAY_WAIT_S = 1.0
+"""How long a look at the display, or at a viewer listening on the port, may take."""
+
+START_YOURSELF = (
+    f"or start a viewer yourself (`rerun --bind {VIEWER_HOST}`) where there is a display and "
+    f"forward its port {VIEWER_PORT} to this machine (`ssh -R {VIEWER_PORT}:127.0.0.1:"
+    f"{VIEWER_PORT} THIS_MACHINE`)"
+)
+"""The other fix for a viewer that cannot open a window here: one listening elsewhere."""
+
 
 def has_display() -> bool:
     """Whether a spawned viewer can open a window: not on Linux without X11 or Wayland."""
+    return display_problem() is None
+
+
+def display_problem() -> str | None:
+    """Say why a spawned viewer could not open a window here (None: it can, or unknown).
+
+    On Linux a DISPLAY that is set but where no X server answers (a tmux or screen session
+    that outlived its X login, ``ssh -X`` whose forwarding is gone, a container that copied
+    the host's DISPLAY) is as good as none: the viewer dies at once ("Failed to open
+    connection to X server"). A Wayland socket that is there is taken as a display.
+    """
     if not sys.platform.startswith("linux"):
-        return True
-    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+        return None
+    wayland, display = os.environ.get("WAYLAND_DISPLAY"), os.environ.get("DISPLAY")
+    if not wayland and not display:
+        return NO_DISPLAY
+    if wayland and _wayland_socket_exists(wayland):
+        return None
+    if display and _x_server_answers(display) is not False:
+        return None
+    shown = f"DISPLAY={display}" if display else f"WAYLAND_DISPLAY={wayland}"
+    return (
+        f"--rerun starts a Rerun viewer, which needs a display, and none answers at {shown} "
+        "(a session that outlived its X login, or ssh -X forwarding that is gone?)"
+    )
+
+
+def _wayland_socket_exists(name: str) -> bool:
+    folder = os.environ.get("XDG_RUNTIME_DIR")
+    if not os.path.isabs(name) and not folder:
+        return True  # unknown: taken as there
+    return os.path.exists(name if os.path.isabs(name) else os.path.join(folder or "", name))
+
+
+def _connects(family: int, address: str | tuple[Any, ...]) -> bool:
+    try:
+        with socket.socket(family, socket.SOCK_STREAM) as sock:
+            sock.settimeout(DISPLAY_WAIT_S)
+            sock.connect(address)
+    except OSError:
+        return False
+    return True
+
+
+def _x_server_answers(display: str) -> bool | None:
+    """Whether an X server accepts connections at ``display`` (None: a form not understood).
+
+    ``[PROTOCOL/][HOST]:N[.SCREEN]``: a local display's socket (Linux's abstract one, then
+    ``/tmp/.X11-unix/XN``, then TCP 6000+N on this machine, as libxcb tries them), else TCP
+    port 6000+N of HOST (``localhost:10`` of ``ssh -X``).
+    """
+    if display.startswith("/"):  # a socket path (XQuartz's launchd form)
+        return _connects(socket.AF_UNIX, display.rsplit(":", 1)[0]) or _connects(
+            socket.AF_UNIX, display
+        )
+    host, colon, rest = display.rpartition(":")
+    number = rest.split(".", 1)[0]
+    if not colon or not number.isdigit() or host.endswith(":"):  # DECnet's HOST::N
+        return None
+    protocol, _, host = host.rpartition("/")
+    port = 6000 + int(number)
+    if host in ("", "unix") or protocol == "unix":
+        path = f"/tmp/.X11-unix/X{number}"
+        if _connects(socket.AF_UNIX, "\0" + path) or _connects(socket.AF_UNIX, path):
+            return True
+        if protocol == "unix" or host == "unix":
+            return False
+        host = "localhost"
+    host = host.strip("[]")
+    try:
+        addresses = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except OSError:
+        return False
+    return any(_connects(family, address) for family, _, _, _, address in addresses)
+
+
+def viewer_listening(port: int) -> bool:
+    """Whether something accepts connections on loopback ``port`` (a viewer started by hand)."""
+    return _connects(socket.AF_INET, (VIEWER_HOST, port))
 
 
 class _Pump:
@@ -205,11 +292,31 @@ def spawn_viewer(port: int) -> None:
 
     if os.environ.get("_RERUN_TEST_FORCE_SAVE") is not None:
         return  # Rerun's own test switch: every stream goes to disk, no viewer (as rr.spawn)
-    rerun_bindings.spawn(
+    pid = rerun_bindings.spawn(  # None: one listens there already; else waits ~5 s for it
         port=port,
         extra_args=["--bind", VIEWER_HOST],
-        extra_env=[("RERUN_APP_ONLY", "true")],  # as rr.spawn: no analytics opt-in prompt
+        extra_env=[
+            ("RERUN_APP_ONLY", "true"),  # as rr.spawn: no analytics opt-in prompt
+            ("RUST_LOG", os.environ.get("RUST_LOG", "warn")),  # not its INFO lines
+        ],
     )
+    status = _exit_status(pid)
+    if status is not None:  # it died (its own "Error: ..." line above says why)
+        raise LogWriteError(
+            f"--rerun: the Rerun viewer exited at once (status {status}) without listening on "
+            f"{VIEWER_HOST}:{port}; record with --rrd FILE instead and open it with `rerun FILE`"
+        )
+
+
+def _exit_status(pid: int | None) -> int | None:
+    """The exit status of the spawned viewer ``pid`` if it has ended (None: running, or none)."""
+    if not isinstance(pid, int) or pid <= 0 or not hasattr(os, "waitpid"):
+        return None
+    try:
+        done, status = os.waitpid(pid, os.WNOHANG)
+    except OSError:  # not our child (a Rerun that detaches it): not looked at
+        return None
+    return os.waitstatus_to_exitcode(status) if done else None
 
 
 class RerunSink:
@@ -251,11 +358,13 @@ class RerunSink:
     def __enter__(self) -> RerunSink:
         import rerun as rr  # imported when used: ~0.3 s of every densify start-up otherwise
 
-        if self.spawn and not has_display():
-            raise LogWriteError(
-                f"{NO_DISPLAY}; record with --rrd FILE instead and open it with `rerun FILE` "
-                "where there is one"
-            )
+        if self.spawn and not viewer_listening(self.viewer_port):  # else it gets the stream
+            problem = display_problem()
+            if problem is not None:
+                raise LogWriteError(
+                    f"{problem}; record with --rrd FILE instead and open it with `rerun FILE` "
+                    f"where there is one, {START_YOURSELF}"
+                )
         sinks: list[rr.GrpcSink | rr.FileSink] = []
         try:
             if self.rrd_path is not None:  # before the viewer: a path refused starts none

@@ -53,6 +53,7 @@ from pcainterp_stream.io.logwriter import (
     WriteSummary,
     open_writer,
 )
+from pcainterp_stream.io.output_paths import make_partial_file
 from pcainterp_stream.io.outputs import (
     BASES_RECORD,
     BASIS_FINGERPRINT_KEY,
@@ -559,10 +560,10 @@ def densify(
             prior_lines.append(final)
             if isinstance(output, Path):
                 basis_written = own_basis_path(output)  # the one the output channels name
-                first.save(basis_written)
+                first.save(basis_written, partial_file=make_partial_file)  # 9C F3, F4
                 if engine.basis is not first:  # relearned while streaming
                     final_written = final_basis_path(output)
-                    engine.basis.save(final_written)
+                    engine.basis.save(final_written, partial_file=make_partial_file)
             else:  # no file to save OUTPUT.basis.npz beside
                 where = "standard output" if output is not None else "served live only"
                 prior_lines.append(

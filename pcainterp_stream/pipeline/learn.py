@@ -28,6 +28,7 @@ from pcainterp_stream.estimate.prior import LocalPrior
 from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig
 from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.output_paths import make_partial_file, saved_elsewhere, write_advice
 from pcainterp_stream.pipeline.common import (
     _bar,
     _check_output_folder,
@@ -606,7 +607,12 @@ def learn(
         if local is not None:
             fitted["local_kept_from"] = "the fine-tuned basis (learn --with-synthetic)"
         basis = dataclasses.replace(basis, meta={**basis.meta, "prior": fitted})
-    basis.save(output)
+    try:  # owner-named temporary within the name limit (bug hunt 9C F3, F4)
+        basis.save(output, partial_file=make_partial_file)
+    except BasisError as err:  # the fix; on a full disk the basis is kept in TMPDIR (9C F8)
+        cause = err.__cause__
+        advice = f"; {write_advice(cause)}" if isinstance(cause, OSError) else ""
+        raise BasisError(f"{err}{advice}{saved_elsewhere(output, err, basis.save)}") from err
     return basis
 
 

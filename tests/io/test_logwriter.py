@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import errno
 import gc
 import shutil
 import warnings
@@ -516,7 +517,10 @@ def test_threaded_writer_error_is_raised_and_nothing_is_written(
     assert calls <= len(messages)  # work queued after the failure is not run
 
 
-FULL_DISK = r"writing .*{name} failed: {error}.*; nothing was written there$"
+FULL_DISK = (
+    r"writing .*{name} failed: {error}.*; nothing was written there; "
+    "free some space, or write it elsewhere$"
+)
 
 
 def _big_frames(count: int) -> list[tuple[str, Any, int]]:
@@ -749,3 +753,25 @@ def test_a_removed_output_folder_stops_the_writing(
     assert list(tmp_path.iterdir()) == ([] if removed == "folder" else [folder])
     if removed == "partial":
         assert list(folder.iterdir()) == []
+
+
+def test_a_full_disk_in_an_out_dir_names_the_output_not_its_staging_folder(
+    tmp_path: Path,
+) -> None:
+    """Bug hunt 9C F6: `densify --out-dir` said "writing DIR/.a_dense.mcap.partial-OWNER-XXXX/
+    a_dense.mcap failed: ...; nothing was written there", a hidden folder already removed,
+    and no fix."""
+    from pcainterp_stream.io.logwriter import write_failed
+    from pcainterp_stream.io.output_paths import partial_prefix
+
+    out = tmp_path / "dd" / "a_dense.mcap"
+    staged = out.parent / (partial_prefix(out, out.parent) + "dq0rdd3r") / out.name
+    full = OSError(errno.ENOSPC, "No space left on device")
+    assert str(write_failed(staged, full)) == (
+        f"writing {out} failed: OSError: [Errno 28] No space left on device; nothing was "
+        "written there; free some space, or write it elsewhere"
+    )
+    other = tmp_path / "dd" / ".a_dense.mcap.mine" / "a_dense.mcap"  # not a staging folder
+    assert str(write_failed(other, ValueError("x"))) == (
+        f"writing {other} failed: ValueError: x; nothing was written there"
+    )

@@ -8,6 +8,7 @@ import shutil
 import stat
 import subprocess
 import sys
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -339,6 +340,7 @@ def test_a_umask_of_0_is_read_from_proc_not_set_at_import() -> None:
 
 _LIVE_WRITER = """
 import sys
+import time
 from pathlib import Path
 from pcainterp_stream.io.logwriter import open_writer
 with open_writer(Path(sys.argv[1]), "mcap"):
@@ -424,3 +426,21 @@ def test_a_name_too_long_to_be_looked_at_is_not_a_traceback(tmp_path: Path) -> N
     target = tmp_path / ("n" * (os.pathconf(tmp_path, "PC_NAME_MAX") + 1))
     assert not is_standard_output(target)
     output_paths.check_not_input(target, [tmp_path / "in.mcap"])
+
+
+def test_a_killed_process_not_yet_reaped_is_dead() -> None:
+    """A SIGKILLed writer whose parent has not reaped it yet is a zombie: kill(pid, 0) finds
+    it, but it writes nothing more, so its partial output is stale (seen 0.5 s after a kill
+    of `cat LOG | pcainterp densify - ...`)."""
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:  # ended, not reaped: Popen.wait not called
+        with open(f"/proc/{child.pid}/stat", "rb") as file:
+            if file.read().rpartition(b")")[2].split()[0] == b"Z":
+                break
+        time.sleep(0.02)
+    try:
+        assert not output_paths._alive(child.pid)
+        assert output_paths._alive(os.getpid())
+    finally:
+        child.wait()

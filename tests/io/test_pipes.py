@@ -194,3 +194,28 @@ def test_an_interruption_says_what_standard_output_holds(when: str) -> None:
         f"the MCAP written to standard output is {state} ({size} bytes)"
     )
     assert str(raised.value).endswith("discard it") == (state == "incomplete")
+
+
+def test_a_killed_runs_copy_of_standard_input_is_removed_by_the_next(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Bug hunt 9C F5: a SIGKILL of `cat LOG | pcainterp densify - ...` left the whole log's
+    copy in $TMPDIR/pcainterp-stdin-XXXX (114 MB; RAM on a tmpfs), kept by every later run."""
+    import tempfile
+
+    from pcainterp_stream.io.output_paths import temporary_prefix
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    process = subprocess.Popen([sys.executable, "-c", "pass"])
+    process.wait()
+    prefix = temporary_prefix("pcainterp-stdin")
+    killed = tmp_path / (prefix.replace(f"-{os.getpid()}@", f"-{process.pid}@") + "t1x6e3v1")
+    killed.mkdir()
+    (killed / "stdin").write_bytes(bytes(1000))
+    live = tmp_path / (prefix.replace(f"-{os.getpid()}@", f"-{os.getppid()}@") + "abcdefgh")
+    live.mkdir()  # a run still going
+    with spool(io.BytesIO(b"some log bytes")) as path:
+        assert path.parent.name.startswith(prefix)
+        assert not killed.exists()
+        assert live.is_dir()
+    assert sorted(os.listdir(tmp_path)) == [live.name]

@@ -50,6 +50,7 @@ def test_a_viewer_without_a_display_is_refused_before_any_work(
     with pytest.raises(LogWriteError, match=r"needs a display.*--rrd"):
         RerunSink(spawn=True).__enter__()
     monkeypatch.setenv("DISPLAY", ":0")
+    monkeypatch.setattr(rerun_sink, "_x_server_answers", lambda display: True)
     assert rerun_sink.has_display()
 
 
@@ -606,3 +607,92 @@ def test_a_pipe_folder_of_another_pid_namespace_is_kept(
         monkeypatch.undo()
         output_paths._scope.cache_clear()
     assert [p.name for p in temporary_folder.iterdir()] == [theirs]
+
+
+def _no_spawn(**kwargs: Any) -> int | None:
+    raise AssertionError("a viewer was spawned")
+
+
+def _free_x_display() -> str:
+    """A display number where no X server answers (no socket, nothing on TCP 6000+N)."""
+    for number in range(97, 200):
+        if not Path(f"/tmp/.X11-unix/X{number}").exists() and not rerun_sink._connects(
+            socket.AF_INET, ("127.0.0.1", 6000 + number)
+        ):
+            if not rerun_sink._connects(socket.AF_UNIX, f"\0/tmp/.X11-unix/X{number}"):
+                return f":{number}"
+    pytest.skip("no free X display number")
+
+
+def test_a_display_where_no_x_server_answers_is_refused_before_spawning(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Bug hunt 9C F1: with a stale DISPLAY (tmux outliving its X login, ssh -X gone) the
+    viewer died at once, and densify waited ~6 s for it, streamed into nothing, printed 8 of
+    Rerun's raw log lines and "did not take the last frames": 21 s for a 2 s job, rc 0."""
+    import rerun_bindings
+
+    monkeypatch.setattr(rerun_sink.sys, "platform", "linux")
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    display = _free_x_display()
+    monkeypatch.setenv("DISPLAY", display)
+    monkeypatch.setattr(rerun_bindings, "spawn", _no_spawn)
+    port = _free_port()
+    started = time.monotonic()
+    with pytest.raises(LogWriteError) as caught:
+        RerunSink(spawn=True, viewer_port=port).__enter__()
+    assert time.monotonic() - started < 5
+    message = str(caught.value)
+    assert "\n" not in message
+    assert f"none answers at DISPLAY={display}" in message
+    assert "record with --rrd FILE instead" in message
+    assert not rerun_sink.has_display()
+
+
+def test_an_x_server_that_answers_is_a_display(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``HOST:N`` is TCP port 6000+N of HOST (ssh -X's ``localhost:10``)."""
+    monkeypatch.setattr(rerun_sink.sys, "platform", "linux")
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+        number = server.getsockname()[1] - 6000
+        assert rerun_sink._x_server_answers(f"127.0.0.1:{number}.0") is True
+        monkeypatch.setenv("DISPLAY", f"localhost:{number}")
+        assert rerun_sink.display_problem() is None
+    assert rerun_sink._x_server_answers(f"127.0.0.1:{number}") is False
+    assert rerun_sink._x_server_answers("host::0") is None  # DECnet: not looked at
+    assert rerun_sink._x_server_answers("garbage") is None
+
+
+def test_a_viewer_that_exits_at_once_is_one_line(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A viewer that dies for another reason: said at once, not streamed into."""
+    import rerun_bindings
+
+    child = subprocess.Popen([sys.executable, "-c", "raise SystemExit(1)"])
+    pid = child.pid
+    child.returncode = 0  # let spawn_viewer, not Popen, reap it
+    monkeypatch.setattr(rerun_bindings, "spawn", lambda **kwargs: pid)
+    time.sleep(0.5)
+    with pytest.raises(LogWriteError, match=r"the Rerun viewer exited at once \(status 1\)"):
+        rerun_sink.spawn_viewer(_free_port())
+
+
+def test_a_viewer_listening_gets_the_stream_without_a_display(
+    monkeypatch: pytest.MonkeyPatch, stand_in_viewer: tuple[int, Path]
+) -> None:
+    """Bug hunt 9C F2: docs/viewing.md says a viewer already listening on the port gets the
+    stream; on a machine without DISPLAY (a headless `rerun --serve-grpc`, a laptop's viewer
+    reached by `ssh -R 9876:...`) --rerun was refused "needs a display"."""
+    monkeypatch.setattr(rerun_sink.sys, "platform", "linux")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    port, received = stand_in_viewer
+    with RerunSink(spawn=True, viewer_port=port) as sink:
+        for index in range(2):
+            sink.log(_frame(index))
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and not received.is_file():
+        time.sleep(0.1)
+    with pytest.raises(LogWriteError, match="or start a viewer yourself"):
+        RerunSink(spawn=True, viewer_port=_free_port()).__enter__()
