@@ -69,6 +69,7 @@ from pcainterp_stream.estimate.variance import (
     _pixel_variances,
     _variance_stride,
     _variances,
+    innovation_variance_scale,
     widen_near_range,
 )
 
@@ -463,11 +464,15 @@ def densify_batch(
 
     variances: npt.NDArray[np.float32] | None = None
     variance_size = out_size  # where the variances are: every output pixel ("exact")
+    static_prior: npt.NDArray[np.float32] | None = None  # the basis part's, there
     if mode is Uncertainty.EXACT:
         variances = _pixel_variances(basis, posteriors, out_size)
+        if scale_by_innovation:
+            static_prior = resample_grid(basis.prior_variance, out_size).reshape(-1)
     elif mode is not Uncertainty.NONE:
         vgrid = basis.variance_grid(stride)
         variance_size = vgrid.size
+        static_prior = vgrid.prior_variance
         # B~ Lambda U_v^T as a GEMM (k l s_v products, ~4.5 ms per KITTI-size frame on one
         # core), not gathered from the cached U Lambda U_v^T (Basis.prior_covariance): that
         # matrix takes 218 MB and 1-3 s to build, and gathering 4k of its rows from memory
@@ -489,14 +494,16 @@ def densify_batch(
             disparity += resample_grid(local_map, out_size)
         disparity_std = None
         if variances is not None:
-            frame_scale = std_scale
+            frame_variance = np.maximum(variances[index], 0.0)
             if scale_by_innovation:
-                frame_scale *= np.sqrt(
-                    covariance_scale(posterior.normalised_innovation, frame_pixels.shape[0])
+                assert static_prior is not None
+                local_variance = 0.0 if posterior.local is None else posterior.local.prior.variance
+                frame_variance *= innovation_variance_scale(
+                    covariance_scale(posterior.normalised_innovation, frame_pixels.shape[0]),
+                    frame_variance,
+                    static_prior + np.float32(local_variance),
                 )
-            grid_std = np.sqrt(np.maximum(variances[index], 0.0)) * np.float32(
-                frame_scale / to_basis
-            )
+            grid_std = np.sqrt(frame_variance) * np.float32(std_scale / to_basis)
             disparity_std = resample_grid(grid_std.reshape(variance_size), out_size)
             if match_range is not None:
                 widen_near_range(disparity, disparity_std, match_range)

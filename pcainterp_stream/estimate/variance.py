@@ -344,6 +344,41 @@ def prior_std_map(basis: Basis) -> npt.NDArray[np.float32]:
     return np.asarray(np.sqrt(basis.prior_variance + np.float32(variance)), np.float32)
 
 
+def innovation_variance_scale(
+    scale: float, variance: npt.NDArray[np.float32], prior_variance: npt.NDArray[np.float32]
+) -> npt.NDArray[np.float32] | float:
+    """The factor on a frame's posterior variance from its covariance scale a.
+
+    a (:func:`prior.covariance_scale`) is fitted from the frame's measurements: how far
+    they stray from the prior, at the measurements. Where the posterior is still the prior
+    (nothing measured near enough to reduce the variance) the frame has not said how far
+    the prior errs, so a < 1 (measurements agreeing with the prior) narrows the variance
+    only by the share its measurements explain:
+
+        factor = a + (1 - a) r,  r = clip(var / var_prior, 0, 1)
+
+    1 where the posterior keeps the prior's variance, a where the measurements pin it
+    down. a >= 1 (measurements disagreeing) widens everywhere as before.
+
+    Args:
+        scale: the frame's covariance scale a (> 0).
+        variance: the frame's posterior variance (any shape).
+        prior_variance: the static prior's variance at the same points (same shape).
+
+    Returns:
+        a (a float) or the factor (the shape of ``variance``) float32.
+    """
+    if scale >= 1.0:
+        return scale
+    with np.errstate(divide="ignore", invalid="ignore"):
+        share: npt.NDArray[np.float32] = np.divide(variance, prior_variance, dtype=np.float32)
+    share[~(share <= 1.0)] = 1.0  # NaN (0 / 0): nothing to explain
+    np.maximum(share, 0.0, out=share)
+    share *= np.float32(1.0 - scale)
+    share += np.float32(scale)
+    return share
+
+
 NEAR_RANGE_START = 0.75
 """Where :func:`widen_near_range` starts widening the std: this share of the matcher's range."""
 

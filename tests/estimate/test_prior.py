@@ -18,6 +18,7 @@ from pcainterp_stream.estimate.prior import (
     evidence_sigma,
     robust_weights,
 )
+from pcainterp_stream.estimate.variance import innovation_variance_scale
 
 
 def _basis(height: int = 12, width: int = 16, n_components: int = 6, seed: int = 0) -> Basis:
@@ -415,10 +416,53 @@ def test_scale_by_innovation_widens_the_std_only() -> None:
     )
     np.testing.assert_array_equal(scaled.disparity, plain.disparity)
     factor = np.sqrt(covariance_scale(plain.normalised_innovation, 9))
-    assert factor != pytest.approx(1.0, abs=0.05)  # the test must see a change
+    # measurements disagreeing with the prior (a > 1): widened everywhere by sqrt(a)
+    assert factor > 1.05  # the test must see a change
     assert scaled.disparity_std is not None
     assert plain.disparity_std is not None
     np.testing.assert_allclose(scaled.disparity_std, plain.disparity_std * factor, rtol=1e-5)
+
+
+def test_agreeing_measurements_narrow_the_std_only_where_they_reach() -> None:
+    """a < 1 narrows the std by the share of the variance the measurements explain.
+
+    Bug hunt 9B F5: a frame whose measurements agreed with the prior (a ~ 0.1) had its whole
+    std narrowed by sqrt(a), also where nothing was measured (a sky 6-7 px off held its
+    truth within +-2 sigma at 0.1 % of its pixels).
+    """
+    basis = _basis(height=12, width=48)
+    rng = np.random.default_rng(5)
+    pixels = np.stack([rng.uniform(0, 12, 30), rng.uniform(0, 12, 30)], axis=1)
+    rows = np.clip(pixels.round().astype(int), 0, [47, 11])
+    disparities = basis.mean[rows[:, 1], rows[:, 0]] + rng.normal(0.0, 0.05, 30)
+    local = LocalPrior(variance=4.0, length_scale=3.0)
+    options = dict(sigma=1.0, local_prior=local, std_scale=1.3, uncertainty="exact")
+    plain = densify(basis, pixels, disparities, **options)
+    scaled = densify(basis, pixels, disparities, scale_by_innovation=True, **options)
+    assert plain.disparity_std is not None
+    assert scaled.disparity_std is not None
+    np.testing.assert_array_equal(scaled.disparity, plain.disparity)
+    a = covariance_scale(plain.normalised_innovation, 30)
+    assert a < 0.3  # agreeing measurements
+    ratio = scaled.disparity_std / plain.disparity_std
+    # never narrower than sqrt(a), never wider than the model's own std
+    assert ratio.min() >= np.sqrt(a) - 1e-4
+    assert ratio.max() <= 1.0 + 1e-4
+    # where the measurements are (x < 12): narrowed; far right (x >= 36): about the prior's
+    assert np.median(ratio[:, :12]) < 0.8
+    assert ratio[:, 36:].min() > 0.9  # (sqrt(a) ~ 0.34 before)
+
+
+def test_innovation_variance_scale() -> None:
+    variance = np.array([0.0, 1.0, 2.0, 4.0, 5.0], np.float32)
+    prior = np.full(5, 4.0, np.float32)
+    assert innovation_variance_scale(2.5, variance, prior) == 2.5  # a >= 1: as before
+    np.testing.assert_allclose(
+        innovation_variance_scale(0.2, variance, prior), [0.2, 0.4, 0.6, 1.0, 1.0], rtol=1e-6
+    )
+    # a prior variance of 0 (nothing to explain): the model's own scale
+    zero = np.zeros(1, np.float32)
+    assert innovation_variance_scale(0.2, zero, zero)[0] == 1.0
 
 
 @pytest.mark.parametrize(
