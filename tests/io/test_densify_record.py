@@ -57,7 +57,7 @@ def test_the_record_names_the_adapted_basis_the_channels_name(tmp_path: Path) ->
     """Before: written before the fit check decided, it said ``built-in`` on a log whose
     channels name ``OUTPUT.basis.npz``."""
     log, out = tmp_path / "room.mcap", tmp_path / "room_dense.mcap"
-    synth(log, frames=4, seed=1, scale=0.25, fmt=None, scene="indoor", camera="752x480")
+    synth(log, frames=8, seed=1, scale=0.25, fmt=None, scene="indoor", camera="752x480")
     summary = densify(log, out, processor=ProcessorConfig(builtin="street"))
     assert summary.basis_written == own_basis_path(out)  # adapted
     record, channels = _record(out), recorded_metadata(out)

@@ -765,7 +765,7 @@ class _SeenAtStart(FoxgloveLive):
 def room_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A room the street basis does not fit: densify adapts (learns the log's own basis)."""
     log = tmp_path_factory.mktemp("foxglove") / "room.mcap"
-    synth(log, frames=4, seed=1, scale=0.25, fmt=None, scene="indoor", camera="752x480")
+    synth(log, frames=8, seed=1, scale=0.25, fmt=None, scene="indoor", camera="752x480")
     return log
 
 

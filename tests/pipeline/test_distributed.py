@@ -409,7 +409,7 @@ def test_densify_many_says_which_logs_adapted_and_where_their_basis_is(
     from pcainterp_stream.pipeline.processor import ProcessorConfig
 
     room = tmp_path / "room.mcap"
-    jobs.synth(room, frames=4, seed=1, scale=0.25, fmt="mcap", scene="indoor", camera="752x480")
+    jobs.synth(room, frames=8, seed=1, scale=0.25, fmt="mcap", scene="indoor", camera="752x480")
     out = tmp_path / "out"
     processor = ProcessorConfig(builtin="street")
     (outcome,) = distributed.densify_many([room], out, None, client, processor=processor)
