@@ -1,21 +1,22 @@
-"""Far surfaces the half-resolution matcher reads as exactly 0, matched again at full resolution.
+"""Far surfaces SGBM reads as exactly 0, matched again with a range centred on 0.
 
 OpenCV's SGBM refines a disparity to sub-pixel only strictly inside its range (0 < d <
 range - 1 with ``min_disparity`` 0): a pixel whose best integer disparity is 0 comes back as
-exactly 0. At half resolution (``SgbmConfig.downscale=2``, densify's default) that is every
-surface below ~1 px of full-resolution disparity: a 5 cm depth camera at 320x240 px sees a
-wall 16 m away at 0.6 px and reads it as 0, "infinitely far". Taken as a match, such a
-lookup pins the estimate at 0 with the ordinary noise: +inf depth and a std that holds
-the truth on half the pixels (docs/estimator.md, "Far surfaces").
+exactly 0. That is every surface below half a px of the matching resolution: at half
+resolution (``SgbmConfig.downscale=2``) below ~1 px of full-resolution disparity, at full
+resolution below ~0.5 px. A 5 cm depth camera at 320x240 px sees a wall 16 m away at 0.6 px
+(read as 0 at half resolution) and one 25 m away at 0.38 px (read as 0 at full resolution).
+Taken as a match, such a lookup pins the estimate at 0 with the ordinary noise: +inf depth
+and a std that holds the truth on half the pixels (docs/estimator.md, "Far surfaces").
 
 :func:`rematch_far` runs SGBM once more where such lookups are: at full resolution, over
 the rows and columns around them only, with a small range centred on 0
 (``[-FAR_REACH, FAR_REACH)``), so that 0 is inside the range and refined like any other
-disparity. The half-resolution map takes that value where it read below 1 px, and the
-lookups there are read again with the same checks. A lookup the full-resolution map cannot
+disparity. The map takes that value where it read below half a matching px (:data:`BELOW`),
+and the lookups there are read again with the same checks. A lookup the new match cannot
 confirm keeps its 0 (:class:`FarZeros` warns when many do). The extra match runs only on
 frames where at least :data:`TRIGGER_SHARE` of the lookups read 0 (KITTI's frames have
-~0-2 %, all far sky or horizon; the depth camera's hall 86 %).
+~0-2 %, all far sky or horizon; the depth camera's hall 86 % at half resolution).
 """
 
 from __future__ import annotations
@@ -56,12 +57,14 @@ FAR_REACH = 8
 """The full-resolution match searches ``[-FAR_REACH, FAR_REACH)`` px: 0 is inside the range,
 so SGBM refines it (a value below 0 is a far surface's noise and is clipped to 0)."""
 
-BELOW = 1.0
-"""Half-resolution values below this (px, full resolution) are zeros or blends with them."""
+BELOW = 0.5
+"""Values below this many px of the matching resolution (``SgbmConfig.downscale`` full-
+resolution px: 1.0 at half resolution, 0.5 at full) are zeros or blends with them."""
 
-TRUSTED = 2.0
-"""A full-resolution value replaces a half-resolution one below :data:`BELOW` only when it
-is below this (px): the half-resolution match saw no surface nearer there."""
+TRUSTED = 1.0
+"""A new value replaces one below :data:`BELOW` only when it is below this many px of the
+matching resolution (2.0 full-resolution px at half resolution, 1.0 at full): the first
+match saw no surface nearer there."""
 
 MARGIN = 24
 """Context (px) around the lookups' bounding box given to the full-resolution match."""
@@ -107,15 +110,16 @@ def rematch_far(
     match: Callable[[UInt8Array, UInt8Array, Any, bool], FloatArray],
     look_up: Callable[[FloatArray, FloatArray], Lookup],
 ) -> FarMatch:
-    """Match again at full resolution where half-resolution lookups read exactly 0.
+    """Match again, range centred on 0, where the lookups read exactly 0.
 
     Args:
         left: (H, W) uint8 grey left image.
         right: (H, W) uint8 grey right image.
-        disparity_map: (H, W) float32 the half-resolution map upsampled (px), NaN where
-            invalid.
+        disparity_map: (H, W) float32 the map (px, full resolution; upsampled when
+            ``sgbm.downscale`` is 2), NaN where invalid.
         found: the lookups in that map.
-        sgbm: the front end's matcher settings (``downscale=2``).
+        sgbm: the front end's matcher settings (``downscale`` 1 or 2: the thresholds
+            :data:`BELOW` and :data:`TRUSTED` are in its px).
         match: SGBM at the images' own resolution (``stereo._match``: images, settings,
             full width) -> float32 px, NaN where invalid.
         look_up: (map, points) -> the checked lookups of the points in the map (the front
@@ -140,7 +144,9 @@ def rematch_far(
         near_at_half=False,
         refine_range=0,
     )
-    low = values < BELOW
+    below = np.float32(BELOW * sgbm.downscale)  # full-resolution px
+    trusted = np.float32(TRUSTED * sgbm.downscale)
+    low = values < below
     height, width = left.shape
     top, bottom, first, last = _box(found.pixels[low], height, width, FAR_REACH)
     if last - first < needed_width(config) + FAR_REACH:
@@ -149,7 +155,7 @@ def rematch_far(
     spliced = disparity_map.copy()
     window = spliced[top:bottom, first:last]  # a view: written through
     with np.errstate(invalid="ignore"):
-        take = (window < BELOW) & (full < TRUSTED)
+        take = (window < below) & (full < trusted)
     window[take] = np.maximum(full[take], np.float32(0.0))
     chosen = np.flatnonzero(low)
     again = look_up(spliced, found.pixels[chosen])
@@ -163,16 +169,21 @@ def rematch_far(
 class FarZeros:
     """Count the frames a large share of whose lookups stay at exactly 0 (:func:`rematch_far`).
 
-    Such a frame's far surfaces read 0 at half resolution and the full-resolution match
-    around them could not read them again (its box too narrow, its values failing the
-    lookup's checks): their estimate stays at 0, "infinitely far".
+    Such a frame's far surfaces read 0 in the front end's match and the match around them
+    with a range centred on 0 could not read them again (its box too narrow, its values
+    failing the lookup's checks): their estimate stays at 0, "infinitely far".
+
+    Args:
+        downscale: the front end's ``SgbmConfig.downscale`` (1 or 2); the warning names
+            ``--stereo-downscale 1`` only at 2.
 
     Attributes:
         frames: frames counted.
         share: the largest share of a counted frame's lookups left at 0.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, downscale: int = 2) -> None:
+        self.downscale = downscale
         self.frames = 0
         self.share = 0.0
 
@@ -189,10 +200,15 @@ class FarZeros:
         """The warning for the frames counted (none when there were none)."""
         if not self.frames:
             return []
+        if self.downscale == 2:
+            where = "the half-resolution match (surfaces below ~1 px of disparity)"
+            advice = "; densify --stereo-downscale 1 matches every pixel at full resolution"
+        else:
+            where = "the full-resolution match (surfaces below ~0.5 px of disparity)"
+            advice = " (nothing nearer than ~0.5 px is measured there)"
         return [
             f"{self.frames} of {frames} frames had up to {100 * self.share:.0f} % of their "
-            "lookups at disparity 0 in the half-resolution match (surfaces below ~1 px of "
-            "disparity) that a full-resolution match around them could not measure again: "
-            "the estimate reads them as infinitely far; densify --stereo-downscale 1 matches "
-            "every pixel at full resolution"
+            f"lookups at disparity 0 in {where} that a match around them with a range "
+            f"centred on 0 could not measure again: the estimate reads them as infinitely "
+            f"far{advice}"
         ]

@@ -839,7 +839,7 @@ class StereoFrontEnd:
             right_disparity=right_map,
             prior_std=self.prior_std,
         )
-        if self.sgbm.downscale == 2:  # a far surface's half-resolution 0: matched again
+        if not self.sgbm.refine_range:  # a far surface's exact 0: matched again
             far = rematch_far(
                 grey_left,
                 grey_right,
