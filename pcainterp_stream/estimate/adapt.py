@@ -50,6 +50,11 @@ HELDOUT_SAMPLES = 20_000
 HELDOUT_GAP = 2
 """Pixels within this many px (Chebyshev) of a measurement are not held out."""
 
+UNCHECKED_COLUMNS = 16
+"""A check none of whose pixels lies left of this column (px) says the columns it covered:
+SGBM leaves its left band (x < min_disparity + num_disparities, at least 16 px) empty unless
+it matches the whole width, so there the check has nothing to score (bug hunt 9B F6)."""
+
 ADAPT_ABOVE = 1.0
 """A prior whose error is at least this times linear interpolation's does not fit."""
 
@@ -99,6 +104,8 @@ class FitCheck:
         prior: mean |d - SGBM| of the densified map at those pixels (px).
         linear: the same for linear interpolation of the same points (px).
         nearest: the same for nearest-neighbour interpolation (px).
+        first_column: the leftmost column (px) of those pixels: left of it nothing was
+            checked (SGBM's left band when it is not matched).
     """
 
     frames: int
@@ -106,6 +113,7 @@ class FitCheck:
     prior: float
     linear: float
     nearest: float
+    first_column: int = 0
 
     @property
     def ratio(self) -> float:
@@ -133,6 +141,8 @@ class FitCheck:
                 f"({self.frames} frame{'s' if self.frames != 1 else ''})"
             )
         nearest = self.prior / self.nearest if self.nearest > 0 else math.inf
+        if self.first_column >= UNCHECKED_COLUMNS:  # SGBM's left band: nothing checked there
+            where = f"{where} in columns >= {self.first_column}"
         return (
             f"{self.ratio:.2f}x linear, {nearest:.2f}x nearest on {where} "
             f"({self.prior:.2f} px against {self.linear:.2f} and {self.nearest:.2f}; "
@@ -150,17 +160,19 @@ class FitCheck:
         def mean(name: str) -> float:
             return float(sum(getattr(check, name) * check.pixels for check in used)) / total
 
-        return cls(len(used), total, mean("prior"), mean("linear"), mean("nearest"))
+        first = min(check.first_column for check in used)
+        return cls(len(used), total, mean("prior"), mean("linear"), mean("nearest"), first)
 
 
 @dataclass(frozen=True)
 class FrameCheck:
-    """One frame's held-out errors (px) and how many pixels they are over."""
+    """One frame's held-out errors (px), how many pixels they are over and the leftmost's column."""
 
     pixels: int
     prior: float
     linear: float
     nearest: float
+    first_column: int = 0
 
 
 def heldout_pixels(
@@ -279,6 +291,7 @@ class HeldOut:
     truth: npt.NDArray[np.float64]
     linear: npt.NDArray[np.float64]
     nearest: npt.NDArray[np.float64]
+    width: int = 1  # the image's (px): a flat index's column is flat % width
 
     @classmethod
     def of(
@@ -294,13 +307,14 @@ class HeldOut:
             return cls(np.zeros(0, np.intp), empty, empty, empty)
         truth = reference.ravel()[flat].astype(np.float64)
         linear, nearest = interpolation_at(pixels, disparities, reference.shape[:2], flat)
-        return cls(flat, truth, linear, nearest)
+        return cls(flat, truth, linear, nearest, reference.shape[1])
 
     def score(self, estimate: npt.NDArray[np.floating[Any]]) -> FrameCheck:
         """Score a densified (H, W) map and the interpolation at the held-out pixels."""
         if self.flat.size == 0:
             return FrameCheck(0, 0.0, 0.0, 0.0)
-        return _score(estimate.ravel()[self.flat], self.truth, self.linear, self.nearest)
+        columns = self.flat % self.width
+        return _score(estimate.ravel()[self.flat], self.truth, self.linear, self.nearest, columns)
 
 
 def _score(
@@ -308,8 +322,12 @@ def _score(
     truth: npt.NDArray[np.float64],
     linear: npt.NDArray[np.float64],
     nearest: npt.NDArray[np.float64],
+    columns: npt.NDArray[np.intp],
 ) -> FrameCheck:
-    """Mean |error| of the prior's map, linear and nearest where all three and the truth exist."""
+    """Mean |error| of the prior's map, linear and nearest where all three and the truth exist.
+
+    ``columns`` are the pixels' columns (px): the leftmost scored one is kept.
+    """
     estimate = prior.astype(np.float64)
     ok = np.isfinite(estimate) & np.isfinite(linear) & np.isfinite(truth)
     if not ok.any():
@@ -319,6 +337,7 @@ def _score(
         float(np.abs(estimate[ok] - truth[ok]).mean()),
         float(np.abs(linear[ok] - truth[ok]).mean()),
         float(np.abs(nearest[ok] - truth[ok]).mean()),
+        int(columns[ok].min()),
     )
 
 
@@ -362,7 +381,7 @@ def check_left_out(
         return FrameCheck(0, 0.0, 0.0, 0.0)
     truth = disparities[left_out].astype(np.float64)
     linear, nearest = interpolation_at(pixels[kept], disparities[kept], (height, width), flat)
-    return _score(estimate.ravel()[flat], truth, linear, nearest)
+    return _score(estimate.ravel()[flat], truth, linear, nearest, cols)
 
 
 def own_grid_size(image_size: tuple[int, int]) -> tuple[int, int]:

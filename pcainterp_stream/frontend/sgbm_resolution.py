@@ -9,6 +9,14 @@ up to 1.9x full resolution's and fewer pixels inside +-2 sigma (docs/results.md)
 (:func:`by_camera`): full resolution when the camera's f*b is below
 :data:`~pcainterp_stream.defaults.FULL_RESOLUTION_FB` px*m and its images are at most
 :data:`~pcainterp_stream.defaults.FULL_RESOLUTION_MAX_PIXELS`; half resolution otherwise.
+
+At full resolution the left band x < min_disparity + num_disparities is matched too
+(``SgbmConfig.full_width``, bug hunt 9B F6): SGBM leaves it empty otherwise, which at these
+image sizes is a sixth to a third of the image with no lookups, filled by the prior's
+extrapolation (1.6-2.3x nearest neighbour's error there on indoor halls) and never scored by the
+fit check (it holds out SGBM pixels). The match costs (W + band) / W, +3-14 % of densify's
+CPU on 376-752 px wide images; half resolution (KITTI-like cameras, where the street basis's
+band is 2-2.4x better than nearest) keeps the band empty as before.
 """
 
 from __future__ import annotations
@@ -27,7 +35,8 @@ def by_camera(
     """Return ``config`` with its resolution chosen for a camera, and the phrase saying so.
 
     Only a ``config`` with ``by_camera`` set is changed (``--stereo-downscale 1`` or ``2``
-    given: returned as it is, with no phrase); the result has ``by_camera`` cleared.
+    given: returned as it is, with no phrase); the result has ``by_camera`` cleared and, at
+    full resolution, ``full_width`` set (the left band matched too).
 
     Args:
         config: the matcher settings.
@@ -36,7 +45,8 @@ def by_camera(
         height: the images' height (px).
 
     Returns:
-        The settings to match with and, when chosen here, the phrase for the camera line
+        The settings to match with (``downscale`` chosen; ``full_width`` at full
+        resolution) and, when chosen here, the phrase for the camera line
         (``SGBM at full resolution (--stereo-downscale auto: f*b 24 < 90 px*m)``).
     """
     if not config.by_camera:
@@ -53,4 +63,5 @@ def by_camera(
         why += " px*m"
     resolution = "full" if downscale == 1 else "half"
     phrase = f"SGBM at {resolution} resolution (--stereo-downscale auto: {why})"
-    return replace(config, downscale=downscale, by_camera=False), phrase
+    full_width = config.full_width or downscale == 1
+    return replace(config, downscale=downscale, by_camera=False, full_width=full_width), phrase

@@ -144,8 +144,9 @@ class SgbmConfig:
             resolution, warp the right image by that map and match again at full
             resolution within +-``refine_range`` px of it (:mod:`.refine`); ``downscale=1``.
         by_camera: ``densify``'s default (``--stereo-downscale auto``): ``downscale`` is
-            chosen for the log's camera at its first pair (:func:`.sgbm_resolution.by_camera`);
-            a configuration never resolved matches at ``downscale``.
+            chosen for the log's camera at its first pair (:func:`.sgbm_resolution.by_camera`;
+            at full resolution ``full_width`` too); a configuration never resolved matches
+            at ``downscale``.
     """
 
     min_disparity: int = 0

@@ -56,6 +56,37 @@ def test_check_scores_the_prior_against_linear_and_nearest() -> None:
     assert "x linear" in poor.describe()
 
 
+def test_a_check_with_sgbm_s_left_band_empty_says_the_columns_it_covered() -> None:
+    """Bug hunt 9B F6: SGBM's left band (no values unless it matches the whole width) is never
+    held out, so the check scored only the columns right of it, and its line did not say so.
+    Before: "0.99x linear ... on held-out SGBM pixels (...)" whatever the band."""
+    reference = _scene(4.0)
+    pixels = _points(40, seed=1)
+    disparities = _measure(reference, pixels)
+    estimate = np.full(SIZE, 10.0, dtype=np.float32)
+    whole = adapt.FitCheck.combine([adapt.check_frame(estimate, reference, pixels, disparities)])
+    assert whole.first_column == 0
+    assert "x nearest on held-out SGBM pixels (" in whole.describe()
+    banded = reference.copy()
+    banded[:, :20] = np.nan  # a band of 20 px, as SGBM leaves min_disparity + num_disparities
+    frames = [adapt.check_frame(estimate, banded, pixels, disparities)] * 2
+    check = adapt.FitCheck.combine(frames)
+    assert check.first_column == 20
+    assert "x nearest on held-out SGBM pixels in columns >= 20 (" in check.describe()
+    # a frame that reaches further left sets the pooled check's first column
+    pooled = adapt.FitCheck.combine(
+        [*frames, adapt.HeldOut.of(reference, pixels, disparities).score(estimate)]
+    )
+    assert pooled.first_column == 0
+    assert "columns" not in pooled.describe()
+    # a band narrower than the smallest SGBM band (16 px) is not worth a word
+    narrow = reference.copy()
+    narrow[:, : adapt.UNCHECKED_COLUMNS - 1] = np.nan
+    near = adapt.FitCheck.combine([adapt.check_frame(estimate, narrow, pixels, disparities)])
+    assert near.first_column == adapt.UNCHECKED_COLUMNS - 1
+    assert "columns" not in near.describe()
+
+
 def test_a_check_where_linear_interpolation_is_exact_gives_no_ratio() -> None:
     # every measurement at one disparity: linear's error ~1e-14 px gave "235620346868027.09x"
     pixels = _points(40, seed=1)

@@ -43,9 +43,20 @@ def test_full_resolution_for_small_disparities_on_images_up_to_1280x720(
     focal_baseline: float, width: int, height: int, downscale: int, why: str
 ) -> None:
     chosen, phrase = by_camera(AUTO, focal_baseline, width, height)
-    assert chosen == replace(AUTO, downscale=downscale, by_camera=False)
+    full_width = downscale == 1  # F6: the left band matched too at full resolution
+    assert chosen == replace(AUTO, downscale=downscale, by_camera=False, full_width=full_width)
     resolution = "full" if downscale == 1 else "half"
     assert phrase == f"SGBM at {resolution} resolution (--stereo-downscale auto: {why})"
+
+
+def test_full_resolution_matches_the_left_band_too() -> None:
+    """Bug hunt 9B F6: SGBM left x < 128 empty, a third of a 376 px image, where the prior
+    extrapolated (1.6-2.3x nearest's error on indoor halls) and the fit check never looked.
+    Before: ``full_width`` stayed off at full resolution."""
+    assert by_camera(AUTO, 23.98, 376, 240)[0].full_width
+    assert by_camera(AUTO, 23.98, 376, 240)[0].valid_min_x == 0
+    assert not by_camera(AUTO, 386.1, 1242, 375)[0].full_width  # KITTI: as before
+    assert not by_camera(AUTO, 60.0, 1920, 1080)[0].full_width
 
 
 def test_a_given_resolution_is_kept_and_not_said() -> None:
@@ -88,6 +99,7 @@ def test_a_small_disparity_camera_is_matched_at_full_resolution_and_said(
     front_end = recorded_front_end(out)
     assert front_end is not None
     assert (front_end.sgbm["downscale"], front_end.sgbm["by_camera"]) == (1, False)
+    assert front_end.sgbm["full_width"] is True  # F6
     note = summary.pairing.camera_note()
     assert note is not None
     said = "SGBM at full resolution (--stereo-downscale auto: f*b 24 < 90 px*m)"
