@@ -79,9 +79,10 @@ def add_parser(commands: Commands) -> None:
         type=Path,
         nargs="+",
         metavar="INPUT",
-        help="one log ('-': an MCAP stream on standard input); with -o, several are the parts "
-        "of one split recording (rosbag record --split: a_0.bag a_1.bag), read as one log in "
-        "log-time order; with --out-dir, several logs densified apart",
+        help="one log ('-': an MCAP stream on standard input); with -o or --foxglove, several "
+        "are the parts of one split recording (rosbag record --split: a_0.bag a_1.bag), read "
+        "as one log in log-time order (a warning when parts are over 60 s apart); with "
+        "--out-dir, several logs densified apart",
     )
     target = densify.add_mutually_exclusive_group()
     target.add_argument(
@@ -341,7 +342,11 @@ def run(args: argparse.Namespace) -> int:
         from pcainterp_stream.estimate.basis import preload_builtin
 
         preload_builtin("street" if kind in (None, "auto") else kind)
-    _check_paths(args)  # after the preload: the basis loads while it imports
+    # only the default basis (the built-in street one, checked) may give way to the log's
+    # own, learned from its stereo maps: not a basis chosen, not dense mode, not a feature stream
+    may_adapt = kind is None and args.basis is None
+    may_adapt = may_adapt and args.measurements != "dense" and not args.features_topic
+    _check_paths(args, may_adapt=may_adapt)  # after the preload: the basis loads meanwhile
     processor = _processor_config(
         args, adapt="check" if builtin else "auto", builtin=kind or "auto"
     )
@@ -376,12 +381,13 @@ def run(args: argparse.Namespace) -> int:
     )
 
 
-def _check_paths(args: argparse.Namespace) -> None:
+def _check_paths(args: argparse.Namespace, *, may_adapt: bool = True) -> None:
     """Refuse, before any work, an output densify cannot write or that replaces what it reads.
 
     The outputs are ``-o`` (or each ``--out-dir`` output), the adapted basis written beside
-    each when the run adapts (``OUTPUT.basis.npz``, ``OUTPUT.final.basis.npz``) and
-    ``--rrd``; what it reads is the input logs, ``--basis`` and ``--calibration``.
+    each when the run may adapt (``may_adapt``: ``OUTPUT.basis.npz``,
+    ``OUTPUT.final.basis.npz``) and ``--rrd``; what it reads is the input logs, ``--basis``
+    and ``--calibration``.
 
     Raises:
         LogWriteError: an output that is a folder, not named .mcap, or one of those files.
@@ -414,7 +420,7 @@ def _check_paths(args: argparse.Namespace) -> None:
         outputs = [output] if output is not None and output != STREAM else []
         fix = "choose a different output path"
     writes: list[tuple[str, Path | None, str]] = [("the output", path, fix) for path in outputs]
-    for path in outputs:
+    for path in outputs if may_adapt else []:
         for side in (own_basis_path(path), final_basis_path(path)):
             writes.append(
                 (

@@ -99,6 +99,7 @@ from pcainterp_stream.io.outputs import (
     MEASUREMENTS_KEY,
     OutputTopics,
     estimate_topics,
+    recorded_pairs,
 )
 from pcainterp_stream.io.stereo_log import LIDAR_DEPTH
 from pcainterp_stream.records import StereoCamera
@@ -273,6 +274,34 @@ def _no_reference_message(frame: Frame, right_topic: str, state: ReadState) -> s
         f"({state.tolerance_from}; the nearest is {gap / 1e6:.2f} ms away), so there is no "
         f"SGBM reference; pass --stamp-tolerance-ms {math.ceil(gap / 1e6)}"
         + (" (as densify was given)" if state.tolerance_from.startswith("the default") else "")
+    )
+
+
+def _check_pair_size(frame: Frame, images: PairImages, estimate_topic: str, path: Path) -> None:
+    """Refuse an input pair whose images are not the estimate's size: not the pair densified.
+
+    A log densified again under another ``--output-prefix`` (another pair) by a version that
+    recorded no prefix, or ``--left-topic`` naming another pair: SGBM of that pair cannot be
+    scored against these outputs (review 57b R2: a NumPy broadcast traceback before).
+
+    Raises:
+        LogReadError: one line naming the topics, both sizes and the fix.
+    """
+    height, width = frame.estimate.shape[:2]
+    got_height, got_width = frame.left.shape[:2]
+    if (got_height, got_width) == (height, width):
+        return
+    pairs = [pair for pair in recorded_pairs(path) if not pair.startswith(f"{images.left_topic} ")]
+    raise LogReadError(
+        f"the input pair {images.left_topic}, {images.right_topic} is {got_width}x{got_height} "
+        f"px but {estimate_topic} is {width}x{height} px (frame {frame.index}): these outputs "
+        "were not densified from that pair; pass --left-topic and --right-topic of the pair "
+        "densify read for them"
+        + (
+            f" (densify's records in the log name {', '.join(pairs)})"
+            if pairs
+            else " (`pcainterp info` lists the log's image topics)"
+        )
     )
 
 
@@ -735,6 +764,7 @@ def evaluate_log(
         read += 1
         if progress is not None:
             progress(read)
+        _check_pair_size(frame, images, estimate_topic, path)
         truth = _truth(frame, reference, has_truth)
         if truth is not None and reference is None and frame.depth is not None:
             truth_values.add(frame.depth)

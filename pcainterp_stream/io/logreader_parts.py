@@ -6,13 +6,22 @@ bags, each a log of its own; a rosbag2 recording's splits are named by its folde
 reads files of one format given together as one log: its parts in the order of their first
 log time (a shell's ``a_*.bag`` puts ``a_10.bag`` before ``a_2.bag``), their messages one part
 after the other, which is log-time order because the parts of one recording do not overlap in
-log time. Parts that do (two recordings, not one split), mixed formats or a file given twice
-are refused with a one-line error.
+log time, but for the seam: a recorder stamps each message's receive time on one of several
+threads before queueing it (ROS 1's recorder on its 10 spinner threads, before taking the
+queue lock) and splits between two messages in queue order, so the last messages of one part
+can carry a receive time microseconds later than the first of the next. Parts that overlap
+by up to :data:`SEAM_OVERLAP_NS` (1 s: such jitter is micro- to milliseconds, while two
+recordings of one time overlap by much of a part's length) are read with their messages merged
+in log-time order. Parts that overlap by more, or by half of one of them (two recordings, not
+one split), mixed formats or a file given twice are refused with a one-line error; parts more
+than :data:`GAP_WARN_NS` (60 s) apart are read as one log with a one-line warning (a
+recording's parts follow each other without a gap, unless nothing was recorded for that long).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import heapq
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 
@@ -21,7 +30,12 @@ from pcainterp_stream.io.mcap_extras import ChannelInfo, McapExtras
 from pcainterp_stream.io.reader_base import LogFormat, LogReader, TopicInfo, merge_topic
 from pcainterp_stream.records import RawMessage
 
-__all__ = ["PartsLogReader", "parts_name"]
+__all__ = ["GAP_WARN_NS", "SEAM_OVERLAP_NS", "PartsLogReader", "parts_name"]
+
+SEAM_OVERLAP_NS = 1_000_000_000
+"""How far two parts may overlap in log time at the seam and still be one recording (1 s)."""
+GAP_WARN_NS = 60_000_000_000
+"""A gap between two parts longer than this (60 s) is named in a warning."""
 
 _SEPARATE = "to densify them as separate logs, pass --out-dir DIR"
 
@@ -70,12 +84,7 @@ class PartsLogReader(LogReader):
         """
         if len(paths) < 2:
             raise ValueError("PartsLogReader reads two logs or more")
-        for path, log_format in zip(paths[1:], formats[1:], strict=True):
-            if log_format is not formats[0]:
-                raise LogReadError(
-                    f"{paths[0]} is {_kind(formats[0])} but {path} is {_kind(log_format)}: "
-                    f"the parts of one recording are of one format; {_SEPARATE}"
-                )
+        # one log given twice first: a rosbag2 folder and its own storage file differ in format
         seen: dict[Path, int] = {}  # file -> the part that reads it
         for index, (path, read) in enumerate(zip(paths, files, strict=True)):
             for file in read:
@@ -87,11 +96,18 @@ class PartsLogReader(LogReader):
                         else f"{given} and {path} are one log given twice (both read {file.name})"
                     )
                     raise LogReadError(f"{twice}; pass each part of the recording once")
+        for path, log_format in zip(paths[1:], formats[1:], strict=True):
+            if log_format is not formats[0]:
+                raise LogReadError(
+                    f"{paths[0]} is {_kind(formats[0])} but {path} is {_kind(log_format)}: "
+                    f"the parts of one recording are of one format; {_SEPARATE}"
+                )
         super().__init__(parts_name(list(paths)))
         self.format = formats[0]
         self.parts = list(paths)
         self._opener = opener
         self._readers: list[LogReader] = []
+        self._merge = False  # some parts overlap at the seam: merge their messages by log time
 
     def _open(self) -> None:
         try:
@@ -120,19 +136,34 @@ class PartsLogReader(LogReader):
         self._readers = [self._readers[index] for _, index in spans]
         self.parts = [reader.path for reader in self._readers]
         self.path = parts_name(self.parts)
+        self._merge = False
         previous: tuple[Path, tuple[int, int]] | None = None
         for (span, _), reader in zip(spans, self._readers, strict=True):
             if span is None:  # an empty part: nothing to order
                 continue
-            if previous is not None and span[0] < previous[1][1]:
+            if previous is not None:
                 first, (start, end) = previous
-                raise LogReadError(
-                    f"{first} ({_seconds(start)} to {_seconds(end)} s of log time) and "
-                    f"{reader.path} ({_seconds(span[0])} to {_seconds(span[1])} s) overlap: "
-                    "they are not the parts of one split recording (each part starts where "
-                    f"the one before ends); {_SEPARATE}"
-                )
-            previous = (reader.path, span)
+                overlap = end - span[0]
+                # a seam's few messages, not a share of a part: two recordings of one time
+                if overlap > min(SEAM_OVERLAP_NS, (end - start) // 2, (span[1] - span[0]) // 2):
+                    raise LogReadError(
+                        f"{first} (log time {_seconds(start)} to {_seconds(end)} s) and "
+                        f"{reader.path} ({_seconds(span[0])} to {_seconds(span[1])} s) overlap "
+                        f"by {_duration(overlap)}: they are not the parts of one split "
+                        "recording (each part starts where the one before ends, give or take "
+                        f"the messages at the seam: at most {_duration(SEAM_OVERLAP_NS)} and "
+                        f"half a part); {_SEPARATE}"
+                    )
+                if span[0] < end:
+                    self._merge = True
+                elif span[0] - end > GAP_WARN_NS:
+                    self._warn_once(
+                        f"{reader.path.name} starts {_duration(span[0] - end)} after "
+                        f"{first.name} ends: read as parts of one recording, but a split "
+                        f"recording's parts follow each other (to densify them as separate "
+                        "logs, pass --out-dir DIR)"
+                    )
+            previous = (reader.path, span if previous is None else (span[0], max(span[1], end)))
 
     def topics(self) -> dict[str, TopicInfo]:
         """See :meth:`LogReader.topics`: every part's, counts summed."""
@@ -167,8 +198,14 @@ class PartsLogReader(LogReader):
         """See :meth:`LogReader.messages`: each part's in turn, the parts in log-time order."""
         self._check_open()
         wanted = None if topics is None else list(topics)
-        for reader in self._readers:
-            yield from reader.messages(wanted)
+        if self._merge:  # parts overlap at a seam: in log-time order (ties: the earlier part's)
+            yield from heapq.merge(
+                *(reader.messages(wanted) for reader in self._readers),
+                key=lambda raw: raw.log_time_ns,
+            )
+        else:
+            for reader in self._readers:
+                yield from reader.messages(wanted)
         self.backward_log_times = max(reader.backward_log_times for reader in self._readers)
 
     def extras(self, *, verify: bool = False) -> McapExtras | None:
@@ -184,8 +221,7 @@ class PartsLogReader(LogReader):
                 continue
             channels += [channel for channel in item.channels if channel not in channels]
             extras.attachments.extend(
-                dataclasses.replace(attachment, file=reader.path)
-                for attachment in item.attachments
+                dataclasses.replace(attachment, file=reader.path) for attachment in item.attachments
             )
             extras.metadata.extend(item.metadata)
         return extras
@@ -210,7 +246,20 @@ def _span(reader: LogReader) -> tuple[int, int] | None:
 
 
 def _seconds(time_ns: int) -> str:
-    return f"{time_ns / 1e9:.3f}"
+    """A log time in seconds to the microsecond (``1317046453.600030``)."""
+    return f"{time_ns // 1_000_000_000}.{time_ns % 1_000_000_000 // 1000:06d}"
+
+
+def _duration(span_ns: int) -> str:
+    """A duration in the unit that shows it: ``0.030 ms``, ``2.500 s``.
+
+    Examples:
+        >>> _duration(30_000), _duration(2_500_000_000), _duration(3_600_100_000_000)
+        ('0.030 ms', '2.500 s', '3600.1 s')
+    """
+    if span_ns < 1_000_000_000:
+        return f"{span_ns / 1e6:.3f} ms"
+    return f"{span_ns / 1e9:.3f} s" if span_ns < 60_000_000_000 else f"{span_ns / 1e9:.1f} s"
 
 
 def _kind(log_format: LogFormat) -> str:

@@ -457,11 +457,49 @@ def record_of_prefix(
             else (
                 f"the log holds {len(records)} densify records, {len(unnamed)} of an older "
                 "version that names no output prefix: the last of those was taken"
+                + _other_pairs(unnamed)
             )
         )
         return unnamed[-1], note
     prefixes = ", ".join(sorted({record[OUTPUT_PREFIX_KEY] for record in records}))
     return None, f"the log records densify only for the outputs of {prefixes}, none for {prefix}"
+
+
+def recorded_pairs(path: Path) -> list[str]:
+    """Return the input pairs a log's densify records read (``left + right``, each once)."""
+    return _pairs(_records(path, DENSIFY_RECORD))
+
+
+def _pairs(records: list[dict[str, str]]) -> list[str]:
+    pairs: list[str] = []
+    for record in records:
+        try:
+            front_end = FrontEnd.from_json(record[FRONT_END_KEY])
+        except (KeyError, ValueError):
+            continue
+        pair = f"{front_end.left_topic} + {front_end.right_topic}"
+        pairs += [] if pair in pairs else [pair]
+    return pairs
+
+
+def _other_pairs(unnamed: list[dict[str, str]]) -> str:
+    """Say that the outputs may be of another pair than the last unnamed record's ("": no other).
+
+    Records of an older version name no output prefix: a log densified again for a second
+    pair holds one per pair, and which one these outputs are of is not recorded.
+
+    Examples:
+        >>> _other_pairs([{"front_end": "?"}, {}])
+        ''
+    """
+    pairs = _pairs(unnamed)
+    if len(pairs) < 2:
+        return ""
+    return (
+        f", but these outputs may be of another pair (the records read {', '.join(pairs)}): "
+        "if the scores look wrong, name the pair densify read for them with --left-topic and "
+        "--right-topic"
+    )
 
 
 def _records(path: Path, name: str) -> list[dict[str, str]]:

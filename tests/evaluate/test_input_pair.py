@@ -357,3 +357,82 @@ def test_records_of_an_older_version_name_no_prefix() -> None:
     )
     assert record_of_prefix([old, new], None) == (new, "")  # the library's default: the last
     assert record_of_prefix([], "/pcainterp") == (None, "")
+
+
+@pytest.fixture(scope="module")
+def other_size(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A log with a second pair of half the size on /small/*, densified on /camera/*."""
+    folder = tmp_path_factory.mktemp("size")
+    raw, small, log = folder / "raw.mcap", folder / "small.mcap", folder / "log.mcap"
+    write_raw_log(SynthConfig(seed=2, frames=3, scale=0.25), raw, model="plumb_bob")
+    write_raw_log(SynthConfig(seed=2, frames=3, scale=0.125), small, model="plumb_bob")
+    with open_log(raw) as reader, open_log(small) as other, open_writer(log, None) as writer:
+        for message in reader.messages():
+            writer.add_raw(message)
+        for message in other.messages():
+            if message.topic.startswith("/camera/"):
+                writer.add_raw(message._replace(topic=message.topic.replace("/camera/", "/small/")))
+    dense = folder / "dense.mcap"
+    densify(
+        log,
+        dense,
+        pairing=PairingConfig(
+            left_topic="/camera/left/image_raw",
+            right_topic="/camera/right/image_raw",
+            left_info_topic="/camera/left/camera_info",
+            right_info_topic="/camera/right/camera_info",
+            rectify="never",
+            check_rows=False,
+        ),
+    )
+    return dense
+
+
+def test_a_pair_of_another_size_than_the_estimate_is_refused_in_one_line(
+    other_size: Path,
+) -> None:
+    # review 57b R2: a NumPy broadcast traceback (shapes (h, w) (h/2, w/2)) before
+    from pcainterp_stream.errors import LogReadError
+
+    small = PairingConfig(
+        left_topic="/small/left/image_raw",
+        right_topic="/small/right/image_raw",
+        left_info_topic="/small/left/camera_info",
+        right_info_topic="/small/right/camera_info",
+        rectify="never",
+        check_rows=False,
+    )
+    with pytest.raises(LogReadError) as caught:
+        _evaluate(other_size, small)
+    message = str(caught.value)
+    assert "\n" not in message
+    assert message.startswith("the input pair /small/left/image_raw, /small/right/image_raw is ")
+    assert "these outputs were not densified from that pair" in message
+    assert "--left-topic and --right-topic" in message
+    assert "/camera/left/image_raw + /camera/right/image_raw" in message  # the recorded pair
+
+
+def test_older_records_of_two_pairs_say_the_pair_may_be_another(two_pairs: Path) -> None:
+    # review 57b R2: an older log densified for two pairs was scored on the last record's
+    # pair with a note naming only the record taken
+    from pcainterp_stream.io.outputs import record_of_prefix
+
+    front_end = recorded_front_end(two_pairs)
+    assert front_end is not None
+    other = dataclasses.replace(
+        front_end, left_topic="/other/left/image_raw", right_topic="/other/right/image_raw"
+    )
+    records = [{"front_end": front_end.to_json()}, {"front_end": other.to_json()}]
+    record, note = record_of_prefix(records, "/pcainterp")
+    assert record == records[1]
+    assert note.startswith(
+        "the log holds 2 densify records, 2 of an older version that names no output prefix: "
+        "the last of those was taken, but these outputs may be of another pair (the records "
+        "read /camera/left/image_raw + /camera/right/image_raw, /other/left/image_raw + "
+        "/other/right/image_raw): "
+    )
+    assert "--left-topic and --right-topic" in note
+    # one pair densified twice: no doubt
+    assert record_of_prefix(records[:1] * 2, "/pcainterp")[1].endswith(
+        "the last of those was taken"
+    )

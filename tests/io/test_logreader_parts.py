@@ -72,7 +72,7 @@ def test_parts_read_as_one_log_in_log_time_order(split: dict[str, Path]) -> None
 
 
 def test_parts_that_are_no_split_recording_are_refused(split: dict[str, Path]) -> None:
-    with pytest.raises(LogReadError, match=r"run\.bag \(.* overlap: they are not the parts"):
+    with pytest.raises(LogReadError, match=r"run\.bag \(.* overlap by 200\.000 ms: they are not"):
         open_log([split["whole"], split["second"]])
     with pytest.raises(LogReadError, match=r"run_0\.bag is given twice; pass each part"):
         open_log([split["first"], split["first"]])
@@ -124,3 +124,106 @@ def test_densify_refuses_overlapping_parts_in_one_line(
         "pcainterp: error: standard input (-) is one whole log, not a part of one; pass the "
         "parts of a split recording as files (densify a_0.bag a_1.bag -o OUTPUT)"
     ]
+
+
+def jittered_split(source: Path, at_ns: int, names: tuple[Path, Path], late_ns: int) -> None:
+    """Split as ``rosbag record --split`` when receive stamps are out of queue order at the seam.
+
+    The first message of log time ``at_ns`` goes into the first part stamped ``late_ns`` later;
+    the others of that time stay in the second part: the parts overlap by ``late_ns``.
+    """
+    with Reader(source) as reader:
+        writers = [Writer(name) for name in names]
+        for writer in writers:
+            writer.open()
+        connections: list[dict[int, object]] = [{}, {}]
+        moved = False
+        for connection, log_ns, data in reader.messages():
+            part = int(log_ns >= at_ns)
+            if log_ns == at_ns and not moved:
+                part, log_ns, moved = 0, log_ns + late_ns, True
+            added = connections[part].get(connection.id)
+            if added is None:
+                added = connections[part][connection.id] = writers[part].add_connection(
+                    connection.topic,
+                    connection.msgtype,
+                    msgdef=connection.msgdef.data,
+                    md5sum=connection.digest,
+                )
+            writers[part].write(added, log_ns, data)  # type: ignore[arg-type]
+        for writer in writers:
+            writer.close()
+
+
+def test_parts_overlapping_by_microseconds_at_the_seam_are_merged(split: dict[str, Path]) -> None:
+    # review 57b R1: refused before ("overlap: they are not the parts of one split recording",
+    # both times printed as ...453.600)
+    with open_log(split["whole"]) as reader:
+        times = sorted({raw.log_time_ns for raw in reader.messages()})
+    middle = times[len(times) // 2]
+    folder = split["folder"]
+    first, second = folder / "jit_0.bag", folder / "jit_1.bag"
+    jittered_split(split["whole"], middle, (first, second), 30_000)
+    got = messages([second, first])
+    whole = messages(split["whole"])
+    assert len(got) == len(whole)
+    assert [t for _, t, _ in got] == sorted(t for _, t, _ in got)  # merged in log-time order
+    assert sorted((topic, data) for topic, _, data in got) == sorted(
+        (topic, data) for topic, _, data in whole
+    )
+    # much overlap is still refused, with the times to the microsecond and the overlap
+    late = folder / "late_0.bag"
+    jittered_split(split["whole"], middle, (late, folder / "late_1.bag"), 2_000_000_000)
+    with pytest.raises(LogReadError, match=r"\.\d{6} s\) overlap by 2\.000 s: they are not"):
+        open_log([late, second])
+
+
+def test_parts_far_apart_are_read_with_a_warning(split: dict[str, Path]) -> None:
+    # review 57b R3: two recordings an hour apart were joined without a word
+    folder = split["folder"]
+    shifted = folder / "later.bag"
+    with Reader(split["second"]) as reader:
+        writer = Writer(shifted)
+        writer.open()
+        added: dict[int, object] = {}
+        for connection, log_ns, data in reader.messages():
+            if connection.id not in added:
+                added[connection.id] = writer.add_connection(
+                    connection.topic,
+                    connection.msgtype,
+                    msgdef=connection.msgdef.data,
+                    md5sum=connection.digest,
+                )
+            writer.write(added[connection.id], log_ns + 3600 * 10**9, data)  # type: ignore[arg-type]
+        writer.close()
+    with open_log([split["first"], shifted]) as reader:
+        assert len(list(reader.messages())) == len(messages(split["whole"]))
+        (warning,) = [w for w in reader.warnings if "later.bag starts" in w]
+        assert "after run_0.bag ends" in warning
+        assert "--out-dir DIR" in warning
+    with open_log([split["first"], split["second"]]) as reader:  # one recording: no word
+        assert not [w for w in reader.warnings if "starts" in w]
+
+
+def test_rosbag2_folder_with_its_own_mcap_storage_is_one_log_given_twice(tmp_path: Path) -> None:
+    # review 57b R4: refused as "a rosbag2 bag but ... an MCAP file" (two formats)
+    folder = tmp_path / "r2"
+    synth(folder, frames=1, seed=5, scale=0.125, fmt="rosbag2")
+    (storage,) = folder.glob("*.mcap")
+    with pytest.raises(LogReadError, match=r"r2 and .*\.mcap are one log given twice"):
+        open_log([folder, storage])
+
+
+def test_help_and_docs_say_foxglove_alone_takes_parts_too(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # review 57b R7: "with -o" only, while --foxglove alone reads several inputs as parts too
+    with pytest.raises(SystemExit):
+        cli.main(["densify", "--help"])
+    said = " ".join(capsys.readouterr().out.split())
+    assert "with -o or --foxglove, several are the parts of one split recording" in said
+    root = Path(__file__).resolve().parents[2]
+    readme = " ".join((root / "README.md").read_text().split())
+    assert "Several inputs with `-o`, or with `--foxglove` alone, are not several logs" in readme
+    raw_logs = " ".join((root / "docs" / "raw_logs.md").read_text().split())
+    assert "Give `densify` the parts with `-o` (or with `--foxglove` alone" in raw_logs

@@ -124,6 +124,24 @@ def test_densify_refuses_an_output_whose_side_basis_name_is_too_long_before_any_
     assert _entries(tmp_path) == []
 
 
+@pytest.mark.parametrize(
+    "options", [["--basis", "builtin-street"], ["--measurements", "dense"]], ids=["street", "dense"]
+)
+def test_densify_takes_a_long_output_name_when_the_run_never_adapts(
+    tmp_path: Path, log: Path, capsys: pytest.CaptureFixture[str], options: list[str]
+) -> None:
+    """Review 57b R5: the same 246-250-byte names were refused as "cannot write the adapted
+    basis" for runs that never adapt, so never write it (a basis chosen, dense mode)."""
+    stem = "n" * (_limit(tmp_path) - len(".final.basis.npz") + 1)
+    output = tmp_path / f"{stem}.mcap"
+    capsys.readouterr()
+    code = cli.main(["densify", str(log), "-o", str(output), *options])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "adapted basis" not in err
+    assert output.exists()
+
+
 def test_a_learned_basis_a_full_disk_refuses_is_saved_in_tmpdir(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
