@@ -203,18 +203,8 @@ def _print_summary(summary: DensifySummary, processor: ProcessorConfig) -> None:
         )
     for line in summary.prior_lines:
         report_line(line)  # the fit check's warning on standard error
-    if summary.basis_written is not None:
-        echo(
-            f"wrote {summary.basis_written}: the basis learned from this log's first frames "
-            "(the output names it; evaluate re-densifies with it)"
-        )
-    if summary.final_basis_written is not None:
-        echo(
-            f"wrote {summary.final_basis_written}: the basis relearned from all of this "
-            "log's maps (densify --basis with it for other logs of this camera)"
-        )
-    elif summary.basis_written is not None:
-        echo("  (densify --basis with it for other logs of this camera)")
+    for line in summary.written_lines():  # each basis of the log's own saved beside it
+        echo(line)
     for line in summary.damage:
         echo(f"damage: {line}")
     for line in summary.warnings:

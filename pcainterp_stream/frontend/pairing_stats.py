@@ -112,6 +112,9 @@ class PairingStats:
             None before any pair.
         matching: the SGBM resolution ``densify`` chose for the camera (``--stereo-downscale
             auto``), said in :meth:`camera_note`; None when given or not matched.
+        matched_alone: the later cameras that ``--stereo-downscale auto`` would match at
+            another resolution than the first camera's, which they were matched at: what it
+            would choose for each alone ("full resolution (f*b 24 < 90 px*m)").
     """
 
     camera: StereoCamera | None = None
@@ -121,6 +124,7 @@ class PairingStats:
     last_camera: StereoCamera | None = None
     first_log_ns: int | None = None
     matching: str | None = None
+    matched_alone: dict[StereoCamera, str] = field(default_factory=dict)
     nearest_gap_ns: int | None = None
     first_stamps_ns: dict[str, int] = field(default_factory=dict)
     pairs: int = 0
@@ -423,15 +427,23 @@ class PairingStats:
         lines = [
             f"cameras: {len(self.camera_frames)} (the camera changed {times} in the log; "
             "each pair densified with its own"
-            + (f"; {self.matching}" if self.matching else "")
+            # the resolution is chosen once, on the first camera: said as such
+            + (f"; {self.matching}, chosen on the first camera for all" if self.matching else "")
             + "):"
         ]
         listed = list(self.camera_frames.items())
         for seen, (count, source) in listed[:MAX_CAMERA_LINES]:
+            alone = self.matched_alone.get(seen)
             lines.append(
                 f"  {_camera_text(seen, baseline=False)}, baseline {seen.baseline:.4g} m (from "
                 f"{source}), f*b {seen.focal_baseline:.5g} px*m: {count} pair"
                 + ("" if count == 1 else "s")
+                + (
+                    f"; matched at the first camera's resolution, where on its own "
+                    f"--stereo-downscale auto would choose {alone}"
+                    if alone
+                    else ""
+                )
             )
         rest = listed[MAX_CAMERA_LINES:]
         if rest:

@@ -145,7 +145,10 @@ class Adaptation:
         check: the given basis's held-out figure, once checked.
         own_check: the log's own basis's held-out (leave-one-out) figure, when tried.
         own_against: the basis it was compared with, on the frames it was checked on.
-        first_basis: the log's own basis chosen at the warm-up (the output names it).
+        first_basis: the log's own basis adopted first (``OUTPUT.basis.npz``; the output's
+            channels name it when it densified the first frames).
+        own_bases: every basis of the log's own adopted by a check, in order (a check made
+            again may adopt another: ``OUTPUT.basis-2.npz``); relearned ones are not here.
         name: how the summary names the given basis.
         alternatives: loaders of the other built-in bases, checked (and loaded) only when
             the given one does not fit well.
@@ -178,6 +181,7 @@ class Adaptation:
     own_check: adapt.FitCheck | None = None
     own_against: adapt.FitCheck | None = None
     first_basis: Basis | None = None
+    own_bases: list[Basis] = field(default_factory=list)
     updates: int = 0
     deferred: bool = False
     in_force: list[BasisStart] = field(default_factory=list)
@@ -237,6 +241,7 @@ class Adaptation:
         self,
         may_adapt: bool,
         own_frames: int = 0,
+        learned: str = "",
         standing: bool = False,
         camera: tuple[tuple[int, int], float] | None = None,
         single: bool = False,
@@ -246,9 +251,10 @@ class Adaptation:
     ) -> None:
         """Add a ``warning:`` line when the basis kept loses to linear interpolation.
 
-        ``own_frames``: the log's own basis, learned from that many warm-up frames, was
-        tried and did no better (0: not tried). ``standing``: it was not learned, the
-        warm-up frames being one view; ``single``: nor from a warm-up of one frame.
+        ``own_frames``: the log's own basis, learned from that many frames (``learned``
+        says which: :meth:`_their`), was tried and did no better (0: not tried).
+        ``standing``: it was not learned, the warm-up frames being one view; ``single``: nor
+        from a warm-up of one frame.
         ``camera``: (image size, f*b) of the log, named with the basis's when they are not
         alike (:func:`other_camera`). ``builtin``: :meth:`_builtin_advice`'s advice and
         whether the basis it names fits (then no other advice is given). ``holes``: the
@@ -277,11 +283,11 @@ class Adaptation:
             # what was tried is named, and what differs in the advice: more frames, and
             # learn merges a camera like the built-in one's with the built-in basis's maps
             fix = (
-                f", and so is this log's own basis, learned from its first "
-                f"{_count(own_frames, 'frame')}; a basis learned from more frames of this "
-                "camera may fit (learn merges them with the built-in basis's maps when the "
-                "camera is like its own): pcainterp learn LOG [LOG ...] -o BASIS.npz, then "
-                "densify --basis BASIS.npz"
+                f", and so is this log's own basis, learned from "
+                f"{learned or 'its first ' + _count(own_frames, 'frame')}; a basis learned "
+                "from more frames of this camera may fit (learn merges them with the built-in "
+                "basis's maps when the camera is like its own): pcainterp learn LOG [LOG ...] "
+                "-o BASIS.npz, then densify --basis BASIS.npz"
             )
         elif enough:  # a built-in basis fits where the user's does not
             fix = ""
@@ -385,6 +391,33 @@ class Adaptation:
             f"{other} for {self.name}); --basis builtin-street or builtin-indoor forces one"
         )
 
+    def _their(self, frames: list[AdaptFrame], count: int) -> str:
+        """Name the frames a check is made on: "its first 8 frames" at the warm-up.
+
+        A check made again (a camera change, a basis that stopped fitting, a standing start)
+        is made on later frames: "8 frames from frame 20 to 27".
+        """
+        if not self.checked or not frames:
+            return f"its first {_count(count, 'frame')}"
+        first, last = frames[0].index, frames[-1].index
+        return f"{_count(count, 'frame')} from frame {first} to {last}"
+
+    def end_line(self) -> str | None:
+        """Return the line of a log that ended before a check made again, else None.
+
+        The check announced (after a camera change, a basis that stopped fitting, a standing
+        start) waits for :attr:`warmup_frames` frames of other views; a log that ends first
+        keeps the basis in use to its end.
+        """
+        if not self.deferred:
+            return None
+        kept = self.name if self.switched is None else self.switched.name
+        return (
+            "prior: the log ended before the basis choice was made again (on "
+            f"{_count(len(self._views), 'frame')} of other views of the {self.warmup_frames} it "
+            f"is made on): {kept} kept to the end"
+        )
+
     def _decide(
         self, basis: Basis, frames: list[AdaptFrame], settings: dict[str, object]
     ) -> Basis | None:
@@ -476,8 +509,8 @@ class Adaptation:
             # one view and more log to come: nothing to check the log's own basis on, and
             # the frames that follow are not that view
             self.lines.append(
-                f"prior: {kept}; this log's own basis not tried: its first "
-                f"{_count(len(maps), 'frame')} are one view (the camera stood still), none "
+                f"prior: {kept}; this log's own basis not tried: "
+                f"{self._their(usable, len(maps))} are one view (the camera stood still), none "
                 "left to check it on"
             )
             return None if self.switched is None else self.switched.basis
@@ -498,7 +531,7 @@ class Adaptation:
             )
             self.lines.append(
                 f"prior: the camera barely moves: kept {best}; this log's own basis is not "
-                f"learned: its first {_count(len(maps), 'frame')} are one view{again}"
+                f"learned: {self._their(usable, len(maps))} are one view{again}"
                 if len(maps) >= 2
                 else f"prior: kept {best}; this log's own basis is not learned from one frame: "
                 f"no other frame to calibrate its std on{again}"
@@ -518,8 +551,8 @@ class Adaptation:
             # against 81.5 %, 6.7 % in SGBM's holes)
             best = self.name if self.switched is None else self.switched.name
             self.lines.append(
-                f"prior: kept {best}; this log's own basis is not tried: its first "
-                f"{_count(len(maps), 'frame')} are too few to check it on frames apart from "
+                f"prior: kept {best}; this log's own basis is not tried: "
+                f"{self._their(usable, len(maps))} are too few to check it on frames apart from "
                 f"the ones it learns (a frame's check learns {adapt.LEAVE_OUT_MAPS} maps more "
                 f"than {adapt.LEAVE_OUT_GAP} frames away from it)"
             )
@@ -582,7 +615,12 @@ class Adaptation:
                 f"prior: {kept}; this log's own basis {verdict}: {held.check.describe()}"
             )
             # its own basis was tried: no adapting left to suggest
-            self._warn_unfit(False, own_frames=len(maps), camera=(size, fb))
+            self._warn_unfit(
+                False,
+                own_frames=len(maps),
+                learned=self._their(usable, len(maps)),
+                camera=(size, fb),
+            )
             return None if self.switched is None else self.switched.basis
         chosen = self.name if self.switched is None else self.switched.name
         if not self.check.fits:
@@ -599,7 +637,9 @@ class Adaptation:
             )
         self.switched = None
         self.adapted = True
-        self.first_basis = own
+        self.own_bases.append(own)
+        if self.first_basis is None:  # a later adoption is another basis, another file
+            self.first_basis = own
         self._camera = (size, fb)
         self._maps = list(view_maps)
         self._recent = measured[-adapt.FIT_FRAMES :]

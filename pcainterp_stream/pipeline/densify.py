@@ -79,6 +79,15 @@ from pcainterp_stream.pipeline.common import (
     no_pair_message,
 )
 from pcainterp_stream.pipeline.feature_check import FeatureStreamCheck
+from pcainterp_stream.pipeline.own_bases import (
+    RELEARNED,
+    adoption_lines,
+    matched_alone,
+    own_bases,
+    own_basis_label,
+)
+from pcainterp_stream.pipeline.own_bases import final_basis_path as final_basis_path
+from pcainterp_stream.pipeline.own_bases import own_basis_path as own_basis_path
 from pcainterp_stream.pipeline.processor import FrameProcessor, MeasurementSource, ProcessorConfig
 from pcainterp_stream.records import DensifiedFrame, StereoFrame
 
@@ -109,10 +118,13 @@ class DensifySummary:
         carry_resets: frames where the ego-motion was lost (carrying started over).
         prior_lines: the fit check of the prior and the self-supervised adaptation, one
             line each (:mod:`~pcainterp_stream.pipeline.adaptation`).
-        basis_written: where the basis learned from the log's first frames was saved
-            (beside the output; the output channels name it), None when the run did not adapt.
-        final_basis_written: where the basis relearned from all the log's maps was saved,
-            None when it was never relearned.
+        basis_written: where the log's own basis adopted first was saved (beside the
+            output; the output channels name it when it densified the first frames), None
+            when the run did not adapt.
+        final_basis_written: where that basis's last relearned one was saved, None when it
+            was never relearned.
+        bases_saved: every basis of the log's own saved beside the output (those two, and
+            those a check made again adopted: ``OUTPUT.basis-2.npz``...), with what it is.
         rrd_written: whether the ``.rrd`` recording was written whole.
         feature_line: with a feature stream, what it gave (points used, dropped by reason);
             None when the measurements came from the stereo pair.
@@ -136,7 +148,12 @@ class DensifySummary:
     rrd_written: bool = False
     basis_written: Path | None = None
     final_basis_written: Path | None = None
+    bases_saved: list[tuple[Path, str]] = dataclasses.field(default_factory=list)
     feature_line: str | None = None
+
+    def written_lines(self) -> list[str]:
+        """Return a "wrote OUTPUT.basis.npz: ..." line for each basis saved beside the output."""
+        return [f"wrote {path}: {what}" for path, what in self.bases_saved]
 
     def pairing_hints(self) -> list[str]:
         """Return the pairing's warnings (repeated stamps, near misses, late camera infos)."""
@@ -424,7 +441,7 @@ def densify(
                     # the basis of the first frames as the densify thread bound it, which the
                     # record of every basis in force starts with (a later re-check moves the
                     # adaptation's state on, not this)
-                    started = bases_in_force(engine, basis, label, output, None)[:1]
+                    started = bases_in_force(engine, basis, label, output)[:1]
                     switched = engine.adaptation.switched
                     if started:
                         first.update(
@@ -547,36 +564,38 @@ def densify(
             live.flush()
         stats = pairer.finish()
         stats.matching = matching
+        if matching is not None:  # chosen on the first camera, kept for the others: said
+            stats.matched_alone = matched_alone(stats, processor.sgbm, sgbm)
         if frames == 0 or engine is None:
             raise LogReadError(no_pair_message(input_path, pairing, stats, reader.damage))
         unusable = check.error(stats) if check is not None else None
         if unusable is not None:  # raised in the writer's block: no output is left behind
             raise PcaInterpError(f"{input_path}: {unusable}")
         prior_lines = list(engine.adaptation.lines)
-        basis_written = final_written = None
-        final = engine.adaptation.final_line(engine.basis)
-        first = engine.adaptation.first_basis
-        if final is not None and first is not None:
-            prior_lines.append(final)
-            if isinstance(output, Path):
-                basis_written = own_basis_path(output)  # the one the output channels name
-                first.save(basis_written, partial_file=make_partial_file)  # 9C F3, F4
-                if engine.basis is not first:  # relearned while streaming
-                    final_written = final_basis_path(output)
-                    engine.basis.save(final_written, partial_file=make_partial_file)
-            else:  # no file to save OUTPUT.basis.npz beside
-                where = "standard output" if output is not None else "served live only"
-                prior_lines.append(
-                    f"note: the adapted basis was not saved: the output is {where}, with no "
-                    "folder to save it in; densify -o FILE.mcap also writes it, as "
-                    "FILE.basis.npz, for evaluate and for --basis"
-                )
+        ended = engine.adaptation.end_line()  # a check made again that the log cut short
+        prior_lines.extend([ended] if ended is not None else [])
+        # every basis of the log's own that densified frames, saved as the record names it
+        owns = own_bases(engine.adaptation, basis, output)
+        prior_lines.extend(adoption_lines(owns))
+        saved = [own for own in owns if own.path is not None]
+        for own in saved:
+            assert own.path is not None
+            own.basis.save(own.path, partial_file=make_partial_file)  # 9C F3, F4
+        basis_written = next((o.path for o in saved if o.adoption == 1 and not o.relearned), None)
+        final_written = next((o.path for o in saved if o.adoption == 1 and o.relearned), None)
+        if owns and not isinstance(output, Path):  # no file to save OUTPUT.basis.npz beside
+            where = "standard output" if output is not None else "served live only"
+            prior_lines.append(
+                f"note: the adapted basis was not saved: the output is {where}, with no "
+                "folder to save it in; densify -o FILE.mcap also writes it, as "
+                "FILE.basis.npz, for evaluate and for --basis"
+            )
         if isinstance(writer, McapLogWriter):  # every basis in force: the channels name the first
             # what made the log, now that the basis of its outputs is decided
             chosen = dataclasses.replace(processor, sgbm=sgbm)  # the resolution chosen
             record = provenance(opening, pairing, chosen, stats, topics.prefix)
             writer.add_metadata(DENSIFY_RECORD, record)
-            in_force = bases_in_force(engine, basis, label, output, final_written)
+            in_force = bases_in_force(engine, basis, label, output)
             writer.add_metadata(BASES_RECORD, bases_record(in_force, topics.prefix))
     return DensifySummary(
         input=input_path,
@@ -600,63 +619,37 @@ def densify(
         prior_lines=prior_lines,
         basis_written=basis_written,
         final_basis_written=final_written,
+        bases_saved=[(own.path, own.described(owns)) for own in saved if own.path is not None],
         rrd_written=sink is not None and sink.written,
         feature_line=check.summary() if check is not None else None,
     )
 
 
-RELEARNED = "self-supervised, relearned while streaming (not saved)"
-"""How the :data:`~.outputs.BASES_RECORD` record names a relearned basis no file holds."""
-
-
 def bases_in_force(
-    engine: FrameProcessor,
-    given: Basis,
-    label: str,
-    output: Path | IO[bytes] | None,
-    final_written: Path | None,
+    engine: FrameProcessor, given: Basis, label: str, output: Path | IO[bytes] | None
 ) -> list[BasisInForce]:
     """Return every basis ``engine`` densified with, from its first frame, named for the log.
 
     Named as the output channels name a basis (``built-in``, ``built-in-indoor``, the given
-    file, the log's own ``OUTPUT.basis.npz``), the last relearned one by its file
-    ``OUTPUT.final.basis.npz``, others :data:`RELEARNED`.
+    file), a basis of the log's own by the file it is saved as (:func:`own_bases`:
+    ``OUTPUT.basis.npz``, ``OUTPUT.final.basis.npz``, ``OUTPUT.basis-2.npz``...), others
+    :data:`RELEARNED`.
     """
     adaptation, entries = engine.adaptation, []
+    names = {id(own.basis): own.name for own in own_bases(adaptation, given, output)}
     for start in adaptation.in_force:
         used, kind = start.basis, builtin_kind(start.basis)
         if kind is not None:
             name = BUILTIN_LABELS[kind]
         elif used is given:
             name = label
-        elif used is adaptation.first_basis:
-            name = own_basis_label(output)
-        elif used is engine.basis and final_written is not None:
-            name = final_written.name
         else:
-            name = RELEARNED
+            name = names.get(id(used), RELEARNED)
         frame = start.frame
         entries.append(
             BasisInForce(name, used.fingerprint, frame.index, frame.stamp_ns, frame.log_time_ns)
         )
     return entries
-
-
-def own_basis_path(output: Path) -> Path:
-    """Return where a run that adapted saves its basis: ``OUTPUT.basis.npz`` beside it."""
-    return output.with_name(output.stem + ".basis.npz")
-
-
-def final_basis_path(output: Path) -> Path:
-    """Return where a run that relearned its basis saves the last: ``OUTPUT.final.basis.npz``."""
-    return output.with_name(output.stem + ".final.basis.npz")
-
-
-def own_basis_label(output: Path | IO[bytes] | None) -> str:
-    """Return how the output's channels name a basis learned from the log itself."""
-    if isinstance(output, Path):
-        return own_basis_path(output).name
-    return "self-supervised"
 
 
 def output_types(topics: OutputTopics) -> dict[str, str]:

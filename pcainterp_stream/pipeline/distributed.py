@@ -39,6 +39,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import errno
+import glob
 import itertools
 import os
 import shutil
@@ -75,7 +76,7 @@ from pcainterp_stream.pipeline.common import (
     _pairing_types,
     _require_topics,
 )
-from pcainterp_stream.pipeline.densify import densify, final_basis_path, own_basis_path
+from pcainterp_stream.pipeline.densify import densify
 from pcainterp_stream.pipeline.learn import (
     BLANK_MAPS,
     GridTarget,
@@ -796,9 +797,7 @@ def densify_many(
                         warnings=tuple(summary.warning_lines()),
                         adapted=summary.adapted_line(),
                         bases=tuple(  # committed beside the output with it
-                            out.parent / written.name
-                            for written in (summary.basis_written, summary.final_basis_written)
-                            if written is not None
+                            out.parent / written.name for written, _ in summary.bases_saved
                         ),
                     )
             _remove(staging.pop(index))
@@ -826,7 +825,9 @@ def _commit(folder: Path, output: Path) -> None:
     The renames happen together or not at all: a signal during them takes effect after.
     """
     raise_if_signalled()  # nothing is committed after a signal
-    names = [own_basis_path(output).name, final_basis_path(output).name, output.name]
+    stem = glob.escape(output.stem)  # OUTPUT.basis.npz, OUTPUT.final.basis-2.npz...
+    sides = {*folder.glob(f"{stem}.basis*.npz"), *folder.glob(f"{stem}.final.basis*.npz")}
+    names = [side.name for side in sorted(sides)] + [output.name]
     names = [name for name in names if (folder / name).exists()]
     for name in names:  # checked before any rename: none of them or all
         if (output.parent / name).is_dir():

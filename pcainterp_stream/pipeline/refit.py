@@ -162,6 +162,7 @@ class Refitting(Adaptation):
     watch: FitWatch | None = None
     _stereo: bool = False
     _lane_camera: Camera | None = None
+    _cameras: list[Camera] = field(default_factory=list)  # every camera seen, in order
 
     def _decide(
         self, basis: Basis, frames: list[AdaptFrame], settings: dict[str, object]
@@ -185,26 +186,39 @@ class Refitting(Adaptation):
         camera, index = (frame.camera.image_size, frame.camera.focal_baseline), frame.index
         before, self._lane_camera = self._lane_camera, camera
         if before is None or camera == before:
+            if before is None:
+                self._cameras.append(camera)
             return False, None
+        seen = camera in self._cameras  # back to a camera of the log's
+        if not seen:
+            self._cameras.append(camera)
         self.changes += 1
         if not (self.active and self.checked and self._stereo and self._given is not None):
             return True, None
         if camera == self._camera and not self.deferred:
             return True, None  # back to the camera the choice was made for
         adapted, self.adapted, self.watch = self.adapted, False, None
+        again = ", a camera seen before in the log" if seen else ""
         line = (
-            f"prior: the camera changed at frame {index} ({describe_camera(camera)}; before: "
-            f"{describe_camera(before)})"
+            f"prior: the camera changed at frame {index} ({describe_camera(camera)}{again}; "
+            f"before: {describe_camera(before)})"
         )
         if adapted:
             line += (
                 f": this log's own basis, learned for the camera before, is not used on it; "
                 f"{self.name} from there"
             )
+        which = "next" if seen else "first"
         self.lines.append(
-            f"{line}; the basis choice is made again on its first {self.warmup_frames} frames"
+            f"{line}; the basis choice is made again on its {which} {self.warmup_frames} frames"
         )
-        self._recheck(camera, "prior: the basis choice made again on the new camera's first {}")
+        self._recheck(
+            camera,
+            f"prior: the basis choice made again on the first {{}} of this camera since frame "
+            f"{index}"
+            if seen
+            else "prior: the basis choice made again on the new camera's first {}",
+        )
         return True, self._given if adapted else None
 
     def update(self, frames: list[AdaptFrame], current: Basis | None = None) -> Basis | None:

@@ -1,0 +1,212 @@
+"""The bases of a log's own that densified an output: their files, names and lines.
+
+A basis a fit check adopted is saved beside the output as ``OUTPUT.basis.npz`` (the first
+check's; the output's channels name it when it densified the first frames),
+``OUTPUT.basis-2.npz`` (a check made again after a camera change or a basis that stopped
+fitting, :mod:`~pcainterp_stream.pipeline.refit`)...; the last one relearned from each while
+streaming as ``OUTPUT.final.basis.npz`` (``OUTPUT.final.basis-2.npz``...). The output's
+``pcainterp.basis`` record names each by that file, so ``evaluate`` finds them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO
+
+from pcainterp_stream.estimate.basis import Basis, builtin_kind
+from pcainterp_stream.frontend.pairing_stats import PairingStats
+from pcainterp_stream.frontend.sgbm_resolution import by_camera
+from pcainterp_stream.frontend.stereo import SgbmConfig
+from pcainterp_stream.io.outputs import BASES_RECORD
+from pcainterp_stream.pipeline.adaptation import Adaptation
+from pcainterp_stream.records import StereoCamera
+
+RELEARNED = "self-supervised, relearned while streaming (not saved)"
+"""How the :data:`~.outputs.BASES_RECORD` record names a relearned basis no file holds."""
+
+
+@dataclass(frozen=True)
+class OwnBasis:
+    """A basis of the log's own that densified frames of the output, and its file.
+
+    Attributes:
+        basis: the basis.
+        adoption: which check adopted it or the basis it was relearned from (1: the first;
+            a check made again after a camera change or a basis that stopped fitting: 2...).
+        relearned: relearned while streaming (else adopted by the check).
+        first: the first frame densified with it.
+        until: the first frame densified with another basis after it (None: the log's end).
+        name: how the output's record names it.
+        path: the file it is saved as, beside the output (None: not saved).
+        opening: it densified the first frames (the output's channels name it).
+    """
+
+    basis: Basis
+    adoption: int
+    relearned: bool
+    first: int
+    until: int | None
+    name: str
+    path: Path | None
+    opening: bool = False
+
+    def frames(self) -> str:
+        """Return "frames 16-23" or "frames 16 to the end"."""
+        if self.until is None:
+            return f"frames {self.first} to the end"
+        return (
+            f"frames {self.first}-{self.until - 1}"
+            if self.until - 1 > self.first
+            else (f"frame {self.first}")
+        )
+
+    def described(self, owns: list[OwnBasis]) -> str:
+        """Return what the "wrote" line says of it (``owns``: every one of the log's)."""
+        channels = self.opening  # the output channels name it
+        more = any(o.adoption == self.adoption and o.relearned for o in owns)
+        again = self.adoption > 1
+        if not self.relearned:
+            where = (
+                "the output names it; evaluate re-densifies with it"
+                if channels
+                else f"the output's {BASES_RECORD} record names it for {self.frames()}"
+            )
+            what = (
+                "the basis learned from this log's first frames"
+                if channels
+                else "the basis learned from this log's own SGBM maps by the "
+                + ("check made again" if again else "fit check")
+            )
+            tail = "" if more else "; densify --basis with it for other logs of this camera"
+            return f"{what} ({where}{tail})"
+        if self.until is None and not again:
+            return (
+                "the basis relearned from all of this log's maps (densify --basis with it for "
+                "other logs of this camera)"
+            )
+        return (
+            f"the basis relearned while streaming, last in force on {self.frames()} (the "
+            f"output's {BASES_RECORD} record names it; densify --basis with it for other "
+            "logs of this camera)"
+        )
+
+
+def own_bases(
+    adaptation: Adaptation, given: Basis, output: Path | IO[bytes] | None
+) -> list[OwnBasis]:
+    """Return the bases of the log's own that densified frames, in stream order, named.
+
+    A basis a check adopted is ``OUTPUT.basis.npz`` (the first check's; the output's
+    channels name it when it densified the first frames), ``OUTPUT.basis-2.npz`` (a check
+    made again, after a camera change or a basis that stopped fitting)...; the last basis
+    relearned from each is ``OUTPUT.final.basis.npz`` (``OUTPUT.final.basis-2.npz``...);
+    the relearned ones between are not saved (:data:`RELEARNED`). Without a file output
+    none is saved: the first is named ``self-supervised``.
+    """
+    starts = adaptation.in_force
+    adopted = {id(own): number for number, own in enumerate(adaptation.own_bases, 1)}
+    owns: list[OwnBasis] = []
+    adoption = 0
+    for at, start in enumerate(starts):
+        used = start.basis
+        if builtin_kind(used) is not None or used is given:
+            continue
+        relearned = id(used) not in adopted
+        adoption = adoption if relearned else adopted[id(used)]
+        following = starts[at + 1] if at + 1 < len(starts) else None
+        until = following.frame.index if following is not None else None
+        # the last relearned one of its adoption: the next basis is not relearned from it
+        last = (
+            following is None
+            or id(following.basis) in adopted
+            or (builtin_kind(following.basis) is not None or following.basis is given)
+        )
+        path: Path | None = None
+        if isinstance(output, Path) and (not relearned or last):
+            path = (final_basis_path if relearned else own_basis_path)(output, adoption)
+        if path is not None:
+            name = path.name
+        elif relearned:
+            name = RELEARNED
+        else:
+            name = own_basis_label(output) if adoption == 1 else "self-supervised (not saved)"
+        owns.append(
+            OwnBasis(used, adoption, relearned, start.frame.index, until, name, path, at == 0)
+        )
+    return owns
+
+
+def adoption_lines(owns: list[OwnBasis]) -> list[str]:
+    """Return the "adapted basis:" line of each basis of the log's own adopted.
+
+    Its last relearned basis's maps and components, and whether it was in force at the end
+    or gave way (a camera change, or it stopped fitting) at a frame.
+    """
+    lines = []
+    for own in owns:
+        if own.relearned:
+            continue
+        run = [o for o in owns if o.adoption == own.adoption]
+        last, updates = run[-1], sum(o.relearned for o in run)
+        when = "at the end" if last.until is None else f"when it gave way at frame {last.until}"
+        which = "adapted basis" if own.adoption == 1 else f"adapted basis {own.adoption}"
+        lines.append(
+            f"{which}: {_count(last.basis.n_train, 'map')}, "
+            f"{_count(last.basis.n_components, 'component')} {when} "
+            f"({updates} update{'s' if updates != 1 else ''} while streaming)"
+        )
+    return lines
+
+
+def _count(number: int, noun: str) -> str:
+    """Return "1 map", "2 maps"."""
+    return f"{number} {noun}{'' if number == 1 else 's'}"
+
+
+def matched_alone(
+    stats: PairingStats, given: SgbmConfig, chosen: SgbmConfig
+) -> dict[StereoCamera, str]:
+    """Return the later cameras ``auto`` would match at another resolution, with it.
+
+    ``--stereo-downscale auto`` chooses SGBM's resolution on the first pair's camera, for the
+    whole log: a camera that follows is matched at that resolution. Returns, for each
+    camera after the first that the same rule (``given``, still ``by_camera``) would match
+    at another resolution than ``chosen``'s alone, that choice ("full resolution (f*b 24 <
+    90 px*m)"), for the ``cameras:`` line.
+    """
+    notes: dict[StereoCamera, str] = {}
+    for seen in list(stats.camera_frames)[1:]:
+        alone, phrase = by_camera(given, seen.focal_baseline, seen.width, seen.height)
+        if phrase is None or alone.downscale == chosen.downscale:
+            continue
+        resolution = "full" if alone.downscale == 1 else "half"
+        why = phrase.partition("auto: ")[2].removesuffix(")")  # "f*b 24 < 90 px*m"
+        notes[seen] = f"{resolution} resolution" + (f" ({why})" if why else "")
+    return notes
+
+
+def own_basis_path(output: Path, adoption: int = 1) -> Path:
+    """Return where a run that adapted saves its basis: ``OUTPUT.basis.npz`` beside it.
+
+    ``adoption``: a basis adopted by a check made again later in the log (2, 3...) is saved
+    as ``OUTPUT.basis-2.npz``...
+    """
+    suffix = "" if adoption == 1 else f"-{adoption}"
+    return output.with_name(f"{output.stem}.basis{suffix}.npz")
+
+
+def final_basis_path(output: Path, adoption: int = 1) -> Path:
+    """Return where a run that relearned its basis saves the last: ``OUTPUT.final.basis.npz``.
+
+    ``adoption``: as :func:`own_basis_path` (``OUTPUT.final.basis-2.npz``).
+    """
+    suffix = "" if adoption == 1 else f"-{adoption}"
+    return output.with_name(f"{output.stem}.final.basis{suffix}.npz")
+
+
+def own_basis_label(output: Path | IO[bytes] | None) -> str:
+    """Return how the output's channels name a basis learned from the log itself."""
+    if isinstance(output, Path):
+        return own_basis_path(output).name
+    return "self-supervised"

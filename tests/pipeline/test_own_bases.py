@@ -1,0 +1,178 @@
+"""The log's own bases that give way mid-log: their files, the record naming them, the lines
+(review 57a F1, F5-F7)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.frontend.pairing_stats import PairingStats
+from pcainterp_stream.frontend.sgbm_resolution import by_camera
+from pcainterp_stream.frontend.stereo import SgbmConfig
+from pcainterp_stream.io.outputs import (
+    BASIS_FINGERPRINT_KEY,
+    BASIS_KEY,
+    recorded_bases,
+    recorded_metadata,
+)
+from pcainterp_stream.pipeline.adaptation import Adaptation, AdaptFrame
+from pcainterp_stream.pipeline.densify import densify, final_basis_path, own_basis_path
+from pcainterp_stream.pipeline.jobs import evaluation_basis
+from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
+from pcainterp_stream.records import StereoCamera, StereoFrame, SynthFrame
+from pcainterp_stream.synth import SynthConfig, generate
+from pcainterp_stream.synth.indoor import camera_options
+from pcainterp_stream.synth.log import write_synthetic_log
+
+_VI = camera_options("752x480")
+_ROOM = SynthConfig(seed=3, frames=20, scale=0.25, scene="indoor")  # adapts (310x94)
+
+
+def _parts(*configs: SynthConfig) -> Iterator[SynthFrame]:
+    """The configs' frames one after the other, numbered and stamped as one log."""
+    index, stamp, step = 0, 0, 100_000_000
+    for config in configs:
+        for frame in generate(config):
+            yield frame._replace(index=index, stamp_ns=stamp)
+            index, stamp = index + 1, stamp + step
+
+
+def _as_stereo(frames: Iterator[SynthFrame]) -> list[StereoFrame]:
+    return [
+        StereoFrame(f.index, f.stamp_ns, f.stamp_ns, "left", f.left, f.right, f.camera)
+        for f in frames
+    ]
+
+
+def _files_match_the_record(out: Path) -> list[str]:
+    """Return the names the record gives; assert each file it names is beside the output."""
+    names = []
+    for entry in recorded_bases(out):
+        names.append(entry.basis)
+        if entry.basis.endswith(".npz"):
+            saved = out.parent / entry.basis
+            assert saved.is_file(), f"{entry.basis} (frames from {entry.first_frame}) not written"
+            assert Basis.load(saved).fingerprint == entry.fingerprint
+    return names
+
+
+def test_an_own_basis_that_gave_way_is_saved_as_the_output_names_it(tmp_path: Path) -> None:
+    """A room that adapts, then another camera: OUTPUT.basis.npz was no longer written (nor
+    the "adapted basis:" line), though the channels and the record named it for the room's
+    frames: evaluate could not find it."""
+    log, out = tmp_path / "two.mcap", tmp_path / "two_dense.mcap"
+    write_synthetic_log(_parts(_ROOM, SynthConfig(seed=1, frames=4, scale=0.25, **_VI)), log)
+    summary = densify(log, out)
+    channel = recorded_metadata(out)
+    assert channel[BASIS_KEY] == own_basis_path(out).name
+    first = Basis.load(own_basis_path(out))
+    assert first.fingerprint == channel[BASIS_FINGERPRINT_KEY]
+    names = _files_match_the_record(out)
+    assert names[0] == own_basis_path(out).name
+    assert final_basis_path(out).name in names  # its relearned one, in force until frame 20
+    assert names[-1] == "built-in"
+    assert summary.basis_written == own_basis_path(out)
+    lines = summary.prior_lines
+    assert any(
+        line.startswith("adapted basis: ")
+        and line.endswith("when it gave way at frame 20 (1 update while streaming)")
+        for line in lines
+    ), lines
+    written = summary.written_lines()
+    assert written[0].startswith(f"wrote {own_basis_path(out)}: ")
+    assert any("last in force on frames 16-19" in line for line in written), written
+    # F6: the log ended 4 frames into the new camera's re-check: said, with the basis kept
+    assert (
+        "prior: the log ended before the basis choice was made again (on 4 frames of other "
+        "views of the 8 it is made on): the built-in street basis kept to the end"
+    ) in lines
+    basis, note = evaluation_basis(out)
+    assert basis == own_basis_path(out), note
+
+
+def test_a_second_adoption_is_saved_apart_from_the_first(tmp_path: Path) -> None:
+    """Camera A adapts, B, then A again adapts again: OUTPUT.basis.npz held the second
+    adoption's basis while the record called the first "(not saved)" and the channels
+    named OUTPUT.basis.npz for the first frames."""
+    log, out = tmp_path / "aba.mcap", tmp_path / "aba_dense.mcap"
+    again = SynthConfig(seed=3, frames=12, scale=0.25, scene="indoor")  # A's room again
+    write_synthetic_log(_parts(_ROOM, SynthConfig(seed=1, frames=4, scale=0.25, **_VI), again), log)
+    summary = densify(log, out)
+    names = _files_match_the_record(out)
+    bases = recorded_bases(out)
+    assert (bases[0].basis, bases[0].first_frame) == (own_basis_path(out).name, 0)
+    assert recorded_metadata(out)[BASIS_FINGERPRINT_KEY] == bases[0].fingerprint
+    assert own_basis_path(out, 2).name in names, names
+    second = next(entry for entry in bases if entry.basis == own_basis_path(out, 2).name)
+    assert second.first_frame >= 24 + 8  # adopted by the check made again on A's return
+    lines = summary.prior_lines
+    # F7: the camera coming back is no "new camera"
+    assert any("a camera seen before in the log" in line for line in lines), lines
+    assert (
+        "prior: the basis choice made again on the first 8 frames of this camera since frame 24"
+    ) in lines
+    assert not any("new camera's first" in line for line in lines)
+    assert any(line.startswith("adapted basis 2: ") for line in lines), lines
+    assert [path for path, _ in summary.bases_saved][:1] == [own_basis_path(out)]
+
+
+def test_a_recheck_names_the_frames_it_learned_from() -> None:
+    """The re-check's warning said "learned from its first 8 frames" of frames 20-27."""
+    adaptation = Adaptation(
+        mode="auto", may_replace=True, warmup_frames=8, robust="none", calibrate=False
+    )
+    frames = [
+        AdaptFrame(_empty(), _empty(), None, None, (94, 310), 96.5, index=index)
+        for index in range(20, 28)
+    ]
+    assert adaptation._their(frames, 8) == "its first 8 frames"  # the warm-up
+    adaptation.checked = True
+    assert adaptation._their(frames, 8) == "8 frames from frame 20 to 27"
+
+
+def _empty() -> object:
+    import numpy as np
+
+    return np.zeros((0, 2), np.float32)
+
+
+def test_a_stream_of_two_cameras_notes_the_recheck_that_never_ends() -> None:
+    """The same at the processor: the re-check's line, and no line once it is made."""
+    frames = _as_stereo(_parts(_ROOM, SynthConfig(seed=1, frames=4, scale=0.25, **_VI)))
+    with FrameProcessor(None, ProcessorConfig()) as engine:
+        list(engine.process(frames))
+        assert engine.adaptation.end_line() is not None
+    with FrameProcessor(None, ProcessorConfig()) as engine:
+        list(engine.process(frames[:20]))
+        assert engine.adaptation.end_line() is None  # checked and done
+
+
+def test_a_later_camera_matched_at_the_first_cameras_resolution_is_said() -> None:
+    """--stereo-downscale auto chose on the first camera and kept it for the second (f*b 24,
+    matched at half resolution), while the line stated the first's rule only."""
+    from pcainterp_stream.pipeline.own_bases import matched_alone
+
+    street = StereoCamera(
+        width=620, height=188, fx=359.428, fy=359.428, cx=310, cy=94, baseline=0.5372
+    )
+    vi = StereoCamera(width=376, height=240, fx=218.0, fy=218.0, cx=188, cy=120, baseline=0.11)
+    given = SgbmConfig(by_camera=True)
+    chosen, phrase = by_camera(given, street.focal_baseline, street.width, street.height)
+    stats = PairingStats()
+    stats.camera, stats.camera_source, stats.camera_changes = street, "P", 1
+    stats.camera_frames = {street: (20, "P"), vi: (4, "P")}
+    stats.matching = phrase
+    stats.matched_alone = matched_alone(stats, given, chosen)
+    note = stats.camera_note()
+    assert note is not None
+    head, first, second = note.splitlines()
+    assert head.endswith(
+        "SGBM at half resolution (--stereo-downscale auto: f*b 193 >= 90 px*m), chosen on "
+        "the first camera for all):"
+    )
+    assert second.endswith(
+        "f*b 23.98 px*m: 4 pairs; matched at the first camera's resolution, where on its own "
+        "--stereo-downscale auto would choose full resolution (f*b 24 < 90 px*m)"
+    )
+    assert "matched at" not in first
