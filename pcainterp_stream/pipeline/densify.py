@@ -341,7 +341,7 @@ def densify(
         if stereo and processor.measurements == "sparse" and processor.near is not None
         else None
     )
-    far = FarZeros() if stereo and processor.sgbm.downscale == 2 else None  # 0: "far"
+    far = FarZeros() if stereo and not processor.sgbm.refine_range else None  # 0: "far"
     check = (
         FeatureStreamCheck(pairing.features_topic, max_points=processor.max_features)
         if processor.source is MeasurementSource.FEATURES and pairing.features_topic is not None
@@ -530,7 +530,7 @@ def densify(
                     sgbm, matching = by_camera(
                         sgbm, camera.focal_baseline, camera.width, camera.height
                     )
-                    far = far if sgbm.downscale == 2 else None  # half resolution's zeros
+                    far = FarZeros(sgbm.downscale) if far is not None else None  # its px
                     if beyond is not None:
                         beyond.step = 16 * sgbm.downscale
                 config = dataclasses.replace(processor, sgbm=sgbm)
