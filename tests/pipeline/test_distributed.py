@@ -465,10 +465,8 @@ def test_cli_densify_refuses_output_with_several_logs(
     assert code == 2
     assert len(err) == 1
     assert err[0].startswith(f"pcainterp: error: {logs['a']} (")
-    assert err[0].endswith(
-        "overlap: they are not the parts of one split recording (each part starts where the "
-        "one before ends); to densify them as separate logs, pass --out-dir DIR"
-    )
+    assert "they are not the parts of one split recording" in err[0]
+    assert err[0].endswith("to densify them as separate logs, pass --out-dir DIR")
     assert not (tmp_path / "x.mcap").exists()
 
 
