@@ -347,7 +347,8 @@ def add_stereo_options(parser: argparse.ArgumentParser, *, command: str) -> None
         + (
             f"auto: 1 when the camera's f*b is below {defaults.FULL_RESOLUTION_FB:g} px*m "
             "(small disparities) and its images at most 1280x720, else 2; "
-            "--measurements dense: 1; docs/results.md)"
+            "--measurements dense: 1; docs/results.md); at 1, given or chosen, SGBM also "
+            "matches its left band x < --num-disparities"
             if densify
             else "1; docs/benchmarks.md)"
         ),

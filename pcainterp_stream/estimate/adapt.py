@@ -105,7 +105,8 @@ class FitCheck:
         linear: the same for linear interpolation of the same points (px).
         nearest: the same for nearest-neighbour interpolation (px).
         first_column: the leftmost column (px) of those pixels: left of it nothing was
-            checked (SGBM's left band when it is not matched).
+            checked (SGBM's left band when it is not matched); 0 for a feature stream's
+            left-out check, where there is no band.
     """
 
     frames: int
@@ -322,11 +323,12 @@ def _score(
     truth: npt.NDArray[np.float64],
     linear: npt.NDArray[np.float64],
     nearest: npt.NDArray[np.float64],
-    columns: npt.NDArray[np.intp],
+    columns: npt.NDArray[np.intp] | None = None,
 ) -> FrameCheck:
     """Mean |error| of the prior's map, linear and nearest where all three and the truth exist.
 
-    ``columns`` are the pixels' columns (px): the leftmost scored one is kept.
+    ``columns`` are the pixels' columns (px) of an SGBM held-out check: the leftmost scored
+    one is kept (None, a left-out check of a feature stream: 0, no band to say; review 57c F3).
     """
     estimate = prior.astype(np.float64)
     ok = np.isfinite(estimate) & np.isfinite(linear) & np.isfinite(truth)
@@ -337,7 +339,7 @@ def _score(
         float(np.abs(estimate[ok] - truth[ok]).mean()),
         float(np.abs(linear[ok] - truth[ok]).mean()),
         float(np.abs(nearest[ok] - truth[ok]).mean()),
-        int(columns[ok].min()),
+        0 if columns is None else int(columns[ok].min()),
     )
 
 
@@ -381,7 +383,7 @@ def check_left_out(
         return FrameCheck(0, 0.0, 0.0, 0.0)
     truth = disparities[left_out].astype(np.float64)
     linear, nearest = interpolation_at(pixels[kept], disparities[kept], (height, width), flat)
-    return _score(estimate.ravel()[flat], truth, linear, nearest, cols)
+    return _score(estimate.ravel()[flat], truth, linear, nearest)  # no SGBM band to say
 
 
 def own_grid_size(image_size: tuple[int, int]) -> tuple[int, int]:

@@ -202,7 +202,10 @@ class FarZeros:
             return []
         if self.downscale == 2:
             where = "the half-resolution match (surfaces below ~1 px of disparity)"
-            advice = "; densify --stereo-downscale 1 matches every pixel at full resolution"
+            advice = (
+                "; densify --stereo-downscale 1 matches every pixel at full resolution, the "
+                "left band included"
+            )
         else:
             where = "the full-resolution match (surfaces below ~0.5 px of disparity)"
             advice = " (nothing nearer than ~0.5 px is measured there)"

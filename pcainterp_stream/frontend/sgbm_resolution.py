@@ -16,7 +16,10 @@ image sizes is a sixth to a third of the image with no lookups, filled by the pr
 extrapolation (1.6-2.3x nearest neighbour's error there on indoor halls) and never scored by the
 fit check (it holds out SGBM pixels). The match costs (W + band) / W, +3-14 % of densify's
 CPU on 376-752 px wide images; half resolution (KITTI-like cameras, where the street basis's
-band is 2-2.4x better than nearest) keeps the band empty as before.
+band is 2-2.4x better than nearest) keeps the band empty as before. A given
+``--stereo-downscale 1`` matches the band too (review 57c F1): it is what ``auto`` picks on
+those cameras, and without the band it was up to 3.8x worse than ``auto`` (worse than nearest
+neighbour on a 752x480 indoor log).
 """
 
 from __future__ import annotations
@@ -34,9 +37,10 @@ def by_camera(
 ) -> tuple[SgbmConfig, str | None]:
     """Return ``config`` with its resolution chosen for a camera, and the phrase saying so.
 
-    Only a ``config`` with ``by_camera`` set is changed (``--stereo-downscale 1`` or ``2``
-    given: returned as it is, with no phrase); the result has ``by_camera`` cleared and, at
-    full resolution, ``full_width`` set (the left band matched too).
+    Only a ``config`` with ``by_camera`` set is resolved (``--stereo-downscale 1`` or ``2``
+    given: no phrase); the result has ``by_camera`` cleared and, at full resolution, chosen or
+    given, ``full_width`` set (the left band matched too), so a given ``1`` is ``auto``'s
+    full-resolution choice.
 
     Args:
         config: the matcher settings.
@@ -50,6 +54,8 @@ def by_camera(
         (``SGBM at full resolution (--stereo-downscale auto: f*b 24 < 90 px*m)``).
     """
     if not config.by_camera:
+        if config.downscale == 1 and not config.full_width:
+            return replace(config, full_width=True), None
         return config, None
     threshold = defaults.FULL_RESOLUTION_FB
     small = 0 < focal_baseline < threshold

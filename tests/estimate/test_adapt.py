@@ -87,6 +87,24 @@ def test_a_check_with_sgbm_s_left_band_empty_says_the_columns_it_covered() -> No
     assert "columns" not in near.describe()
 
 
+def test_a_feature_stream_s_left_out_check_says_no_columns() -> None:
+    """Review 57c F3: the left-out check (a feature stream, no SGBM band) took its leftmost
+    left-out point's column: "on left-out measurements in columns >= 42" when no point lies
+    within 40 px of the border. Before: first_column 40+ and the suffix."""
+    rng = np.random.default_rng(3)
+    height, width = SIZE
+    pixels = np.column_stack([rng.uniform(40, width - 1, 60), rng.uniform(0, height - 1, 60)])
+    disparities = 5.0 + pixels[:, 0] / width
+    kept, left_out = adapt.left_out_split(60)
+    estimate = np.full(SIZE, 5.5, dtype=np.float32)
+    check = adapt.FitCheck.combine(
+        [adapt.check_left_out(estimate, pixels, disparities, kept, left_out)]
+    )
+    assert check.frames == 1
+    assert check.first_column == 0
+    assert "columns" not in check.describe("left-out measurements")
+
+
 def test_a_check_where_linear_interpolation_is_exact_gives_no_ratio() -> None:
     # every measurement at one disparity: linear's error ~1e-14 px gave "235620346868027.09x"
     pixels = _points(40, seed=1)

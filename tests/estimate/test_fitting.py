@@ -275,3 +275,49 @@ def test_densify_keeps_its_own_sgbm_zero_matches_where_the_library_drops_them() 
     assert densify(basis, pixels, values, **options).n_dropped == 0
     assert densify(basis, pixels, values).n_dropped == 1
     assert fit_frame(basis, pixels, values).residual.size == 4
+
+
+def test_fit_prior_calibrates_the_std_densify_applies() -> None:
+    """Review 57c F2: ``innovation_std_scale`` was fitted to the std times sqrt(a) everywhere,
+    while densify scales the variance by a + (1 - a) r (wider where the measurements did not
+    reach): a factor fitted for a std model densify no longer uses. Before: fitted to sqrt(a)."""
+    from pcainterp_stream import densify
+    from pcainterp_stream.estimate.fitting import CalibrationFrame, fit_prior
+
+    basis = _tiny_basis()
+    local = LocalPrior(variance=4.0, length_scale=3.0, kernel=Kernel.LAPLACE)
+    sequences = [_draw_frames(basis, local, sigma=0.5, n_frames=6, k=40, seed=7)]
+    rng = np.random.default_rng(8)
+    height, width = basis.image_size
+    xs = np.mgrid[0:height, 0:width][1]
+    calibration = []
+    for _ in range(3):
+        reference = 20.0 + 0.2 * xs + rng.normal(0, 0.5, size=(height, width))
+        pixels = np.stack([rng.uniform(0, 9, 12), rng.uniform(0, height - 1, 12)], axis=1)
+        cols, rows = np.rint(pixels[:, 0]).astype(int), np.rint(pixels[:, 1]).astype(int)
+        calibration.append(
+            CalibrationFrame(pixels, reference[rows, cols], (height, width), 100.0, reference)
+        )
+    fitted = fit_prior(
+        basis, sequences, calibration, max_frames=6, sequence_frames=3, robust="none", local=local
+    )
+    estimates, stds, references = [], [], []
+    for frame in calibration:
+        result = densify(
+            basis,
+            frame.pixels,
+            frame.disparities,
+            sigma=fitted["sigma"],
+            local_prior=local,
+            image_size=frame.image_size,
+            focal_baseline=frame.focal_baseline,
+            zero_is_match=True,
+            scale_by_innovation=True,
+        )
+        assert result.disparity_std is not None
+        estimates.append(result.disparity)
+        stds.append(result.disparity_std)
+        references.append(np.asarray(frame.reference, dtype=np.float32))
+    assert fitted["innovation_std_scale"] == pytest.approx(
+        fit_std_scale(estimates, stds, references), rel=1e-6
+    )

@@ -60,9 +60,20 @@ def test_full_resolution_matches_the_left_band_too() -> None:
 
 
 def test_a_given_resolution_is_kept_and_not_said() -> None:
-    for given in (SgbmConfig(downscale=2), SgbmConfig(downscale=1), SgbmConfig()):
+    for given in (SgbmConfig(downscale=2), replace(AUTO, downscale=2, by_camera=False)):
         assert by_camera(given, 24.0, 376, 240) == (given, None)
         assert by_camera(given, 386.0, 1242, 375) == (given, None)
+
+
+def test_a_given_full_resolution_matches_the_left_band_as_auto_s_does() -> None:
+    """Review 57c F1: a given ``--stereo-downscale 1`` left SGBM's band empty while ``auto``'s
+    full resolution matched it: 0.227 px against auto's 0.059 on a 752x480 indoor log, worse
+    than nearest neighbour. Before: returned as given, ``full_width`` off."""
+    given = replace(AUTO, downscale=1, by_camera=False)
+    auto, _ = by_camera(AUTO, 24.0, 376, 240)
+    for focal_baseline, width, height in ((24.0, 376, 240), (386.0, 1242, 375)):
+        assert by_camera(given, focal_baseline, width, height) == (auto, None)
+    assert by_camera(SgbmConfig(), 386.0, 1242, 375) == (SgbmConfig(full_width=True), None)
 
 
 def _parse(*argv: str) -> argparse.Namespace:
@@ -104,6 +115,16 @@ def test_a_small_disparity_camera_is_matched_at_full_resolution_and_said(
     assert note is not None
     said = "SGBM at full resolution (--stereo-downscale auto: f*b 24 < 90 px*m)"
     assert note.endswith(f"f*b 23.98 px*m; {said}")
+
+
+def test_a_given_full_resolution_is_recorded_with_the_band(vi_sensor: Path, tmp_path: Path) -> None:
+    """F1: densify with ``--stereo-downscale 1`` matches the left band (before: it did not)."""
+    out = tmp_path / "full.mcap"
+    processor = ProcessorConfig(sgbm=replace(AUTO, downscale=1, by_camera=False))
+    densify(vi_sensor, out, processor=processor)
+    front_end = recorded_front_end(out)
+    assert front_end is not None
+    assert (front_end.sgbm["downscale"], front_end.sgbm["full_width"]) == (1, True)
 
 
 def test_a_given_half_resolution_is_kept_and_the_camera_line_unchanged(
