@@ -25,7 +25,7 @@ import numpy.typing as npt
 
 from pcainterp_stream.estimate.basis import Basis, bilinear_weights, image_to_grid, sample_rows
 from pcainterp_stream.estimate.estimator import clean_measurements
-from pcainterp_stream.estimate.prior import Kernel, LocalPrior, TemporalPrior
+from pcainterp_stream.estimate.prior import Kernel, LocalPrior, TemporalPrior, covariance_scale
 from pcainterp_stream.estimate.solve import triangular_lapack
 
 FloatArray = npt.NDArray[np.float64]
@@ -514,11 +514,8 @@ def fit_prior(
     ``sequence_frames`` of each sequence (:func:`fit_process_noise`), and the std scale on
     the calibration frames densified as ``densify`` would (hybrid prior, fitted sigma,
     ``robust`` loss; :func:`fit_std_scale`), once for the posterior std and once for the
-    std scaled per frame by its covariance scale a (:func:`prior.covariance_scale`) as
-    ``densify`` applies it: the variance times a + (1 - a) r,
-    :func:`variance.innovation_variance_scale` (``innovation_std_scale``, what ``densify``
-    uses by default). Bases fitted before review 57c F2 scaled the std by sqrt(a)
-    everywhere.
+    std scaled per frame by sqrt(a) of :func:`prior.covariance_scale`
+    (``innovation_std_scale``, what ``densify`` uses by default).
 
     Args:
         basis: the PCA basis.
@@ -551,27 +548,22 @@ def fit_prior(
     )
     estimates, stds, scaled_stds, references = [], [], [], []
     for frame in calibration:
-        results = [
-            densify(
-                basis,
-                frame.pixels,
-                frame.disparities,
-                sigma=local_fit.sigma,
-                local_prior=local_fit.local,
-                robust=robust,
-                image_size=frame.image_size,
-                focal_baseline=frame.focal_baseline,
-                zero_is_match=True,
-                scale_by_innovation=per_frame,
-            )
-            for per_frame in (False, True)
-        ]
-        plain, scaled = results[0].disparity_std, results[1].disparity_std
-        assert plain is not None
-        assert scaled is not None
-        estimates.append(results[0].disparity)
-        stds.append(plain)
-        scaled_stds.append(scaled)  # as densify scales it: a + (1 - a) r (review 57c F2; was a)
+        result = densify(
+            basis,
+            frame.pixels,
+            frame.disparities,
+            sigma=local_fit.sigma,
+            local_prior=local_fit.local,
+            robust=robust,
+            image_size=frame.image_size,
+            focal_baseline=frame.focal_baseline,
+            zero_is_match=True,
+        )
+        assert result.disparity_std is not None
+        estimates.append(result.disparity)
+        stds.append(result.disparity_std)
+        scale = covariance_scale(result.normalised_innovation, result.n_measurements)
+        scaled_stds.append(result.disparity_std * np.float32(np.sqrt(scale)))
         references.append(np.asarray(frame.reference, dtype=np.float32))
     fitted = local_fit.to_meta()
     fitted.update(
