@@ -219,8 +219,9 @@ def densify(
         robust_start: ``"plain"`` or ``"trimmed"``: where a frame's first weights come
             from (:class:`prior.RobustStart`; ``"trimmed"`` for points of another system,
             which may be off by hundreds of px).
-        scale_by_innovation: also multiply the std by sqrt(a), the frame's covariance
-            scale fitted from its normalised innovation (:func:`prior.covariance_scale`).
+        scale_by_innovation: also scale the variance by the frame's covariance scale a,
+            fitted from its normalised innovation (:func:`prior.covariance_scale`), where the
+            measurements reached: a + (1 - a) r (:func:`variance.innovation_variance_scale`).
         noise_std: (k,) float, extra noise std (px of the output camera) of each
             measurement, added in quadrature to ``sigma``: R_j = (sigma^2 + s_j^2) / w_j
             (e.g. points carried over from earlier frames, :mod:`motion`). None: all 0.
@@ -328,8 +329,8 @@ def densify_batch(
         robust_from: reweight a frame only when a measurement's leave-one-out standardised
             residual reaches this (:class:`prior.Model`); 0: always.
         robust_start: ``"plain"`` or ``"trimmed"`` (:class:`prior.RobustStart`).
-        scale_by_innovation: multiply each frame's std by sqrt(a) of
-            :func:`prior.covariance_scale` too.
+        scale_by_innovation: scale each frame's variance by its covariance scale too, as
+            :func:`densify` does.
         noise_stds: F arrays (k_f,) (or None) of extra per-measurement noise std (px),
             see :func:`densify`; None: none.
         with_depth: also convert to depth and its std; False leaves ``depth`` and
