@@ -13,9 +13,11 @@ can carry a receive time microseconds later than the first of the next. Parts th
 by up to :data:`SEAM_OVERLAP_NS` (1 s: such jitter is micro- to milliseconds, while two
 recordings of one time overlap by much of a part's length) are read with their messages merged
 in log-time order. Parts that overlap by more, or by half of one of them (two recordings, not
-one split), mixed formats or a file given twice are refused with a one-line error; parts more
-than :data:`GAP_WARN_NS` (60 s) apart are read as one log with a one-line warning (a
-recording's parts follow each other without a gap, unless nothing was recorded for that long).
+one split; a part shorter than twice :data:`SEAM_JITTER_NS`, such as a last part of one message,
+may overlap by that 10 ms), mixed formats or a file given twice are refused with a one-line
+error; parts more than :data:`GAP_WARN_NS` (60 s) apart are read as one log with a one-line
+warning (a recording's parts follow each other without a gap, unless nothing was recorded for
+that long).
 """
 
 from __future__ import annotations
@@ -30,10 +32,16 @@ from pcainterp_stream.io.mcap_extras import ChannelInfo, McapExtras
 from pcainterp_stream.io.reader_base import LogFormat, LogReader, TopicInfo, merge_topic
 from pcainterp_stream.records import RawMessage
 
-__all__ = ["GAP_WARN_NS", "SEAM_OVERLAP_NS", "PartsLogReader", "parts_name"]
+__all__ = ["GAP_WARN_NS", "SEAM_JITTER_NS", "SEAM_OVERLAP_NS", "PartsLogReader", "parts_name"]
 
 SEAM_OVERLAP_NS = 1_000_000_000
 """How far two parts may overlap in log time at the seam and still be one recording (1 s)."""
+SEAM_JITTER_NS = 10_000_000
+"""The overlap any part may have, however short (10 ms): a seam's stamp jitter, not half a part.
+
+A recording stopped right after a split leaves a last part of one message (a span of 0), which
+its stamp may still put microseconds before the previous part's end.
+"""
 GAP_WARN_NS = 60_000_000_000
 """A gap between two parts longer than this (60 s) is named in a warning."""
 
@@ -145,14 +153,16 @@ class PartsLogReader(LogReader):
                 first, (start, end) = previous
                 overlap = end - span[0]
                 # a seam's few messages, not a share of a part: two recordings of one time
-                if overlap > min(SEAM_OVERLAP_NS, (end - start) // 2, (span[1] - span[0]) // 2):
+                half = max(SEAM_JITTER_NS, min(end - start, span[1] - span[0]) // 2)
+                if overlap > min(SEAM_OVERLAP_NS, half):
                     raise LogReadError(
                         f"{first} (log time {_seconds(start)} to {_seconds(end)} s) and "
                         f"{reader.path} ({_seconds(span[0])} to {_seconds(span[1])} s) overlap "
                         f"by {_duration(overlap)}: they are not the parts of one split "
                         "recording (each part starts where the one before ends, give or take "
                         f"the messages at the seam: at most {_duration(SEAM_OVERLAP_NS)} and "
-                        f"half a part); {_SEPARATE}"
+                        f"half a part, or {_duration(SEAM_JITTER_NS)} for a shorter part); "
+                        f"{_SEPARATE}"
                     )
                 if span[0] < end:
                     self._merge = True

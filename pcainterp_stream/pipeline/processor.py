@@ -35,6 +35,7 @@ import dataclasses
 import enum
 import functools
 import os
+import threading
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -45,7 +46,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream import compiled, defaults
+from pcainterp_stream import defaults
 from pcainterp_stream.allocator import Releases
 from pcainterp_stream.estimate import adapt, fitting
 from pcainterp_stream.estimate.basis import (
@@ -63,9 +64,8 @@ from pcainterp_stream.estimate.dense import (
     fuse_dense,
 )
 from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
-from pcainterp_stream.estimate.lapack import routines
 from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
-from pcainterp_stream.estimate.variance import _variance_stride, prior_std_map
+from pcainterp_stream.estimate.variance import prior_std_map
 from pcainterp_stream.frontend.features import features_to_measurements
 from pcainterp_stream.frontend.motion import CarriedPoints, CarryConfig, estimate_motion
 from pcainterp_stream.frontend.near import NearConfig, extend_near, lookups_only
@@ -78,6 +78,7 @@ from pcainterp_stream.frontend.stereo import (
 from pcainterp_stream.interrupt import signalled
 from pcainterp_stream.pipeline.adaptation import FITS_BELOW, OWN_ABOVE_STREET, Candidate, sgbm_maps
 from pcainterp_stream.pipeline.measured import Measured, cells_on_grid
+from pcainterp_stream.pipeline.prepare import prepare as _prepare  # tools/thread_cpu.py times it
 from pcainterp_stream.pipeline.refit import Camera, Refitting, adapt_frame
 from pcainterp_stream.pipeline.threads import ThreadLimits, finished, gathered, lower_priority
 from pcainterp_stream.records import DensifiedFrame, SparseFeatures, StereoFrame
@@ -420,6 +421,7 @@ class FrameProcessor:
         )
         self._camera: Camera | None = None  # the last frame submitted's
         self._changes = 0  # camera changes submitted: their maps are kept (Refitting)
+        self._measuring_lock = threading.Lock()  # _changes and _measuring: submit, _measured_for
         self.adaptation.warn_std_scale(self.settings.std_scale)
         # decided here, not from the lane's state: the first batch is the check's frames
         self._warming = self.adaptation.warming
@@ -558,7 +560,7 @@ class FrameProcessor:
         self._previous_frame = frame
         camera = (frame.camera.image_size, frame.camera.focal_baseline)
         if self._camera not in (None, camera):  # the choice is made again on its maps
-            self._changes, self._measuring = self._changes + 1, (self._measuring[0], True)
+            self._camera_changed()
         self._camera = camera
         check_frame = self._submitted < self.adaptation.warmup_frames
         self._submitted += 1
@@ -669,8 +671,14 @@ class FrameProcessor:
         are kept while the basis may still switch, so a frame measured before a switch gets
         its cells again for the new basis (:func:`~.measured.cells_on_grid`).
         """
-        wanted = self.adaptation.wants_maps() or self._changes > self.adaptation.changes
-        self._measuring = (self.basis.grid_size, wanted)
+        with self._measuring_lock:  # else a change submitted meanwhile is lost (review 57d D6)
+            wanted = self.adaptation.wants_maps() or self._changes > self.adaptation.changes
+            self._measuring = (self.basis.grid_size, wanted)
+
+    def _camera_changed(self) -> None:
+        """Count a camera change submitted and keep its maps (the reader's thread)."""
+        with self._measuring_lock:
+            self._changes, self._measuring = self._changes + 1, (self._measuring[0], True)
 
     def _use(self, basis: Basis) -> None:
         """Densify from now on with ``basis`` (its fitted prior; the temporal prior restarts)."""
@@ -864,25 +872,6 @@ def _candidate(kind: str, config: ProcessorConfig) -> Candidate:
     basis = builtin_basis(kind)
     settings = resolve_settings(basis, config).densify_options()
     return Candidate(f"the built-in {kind} basis", basis, settings)
-
-
-def _prepare(basis: Basis, uncertainty: str) -> None:
-    """Build what the first densification needs once (run in the densify thread at start).
-
-    The basis's pixel-major copy and variance grid, the LAPACK set-up and scipy's spatial
-    module: done while the first pairs are read and matched, not in the job's start-up
-    nor while the stereo workers wait for the first batch.
-    """
-    basis.pixel_major  # noqa: B018 - a cached property: built here
-    basis.mean_flat  # noqa: B018
-    if uncertainty not in ("none", "exact"):
-        basis.variance_grid(_variance_stride(basis, None))
-    # scipy's LAPACK (its OpenBLAS with one thread), Qhull and k-d tree load here, while the
-    # stereo workers match the first pairs, not in the job's start-up: the solve's
-    # routines, the check's triangulation and nearest neighbours, the carried points' gaps
-    routines()
-    compiled.module("spatial._qhull")
-    compiled.module("spatial._ckdtree")
 
 
 Float32 = npt.NDArray[np.float32]

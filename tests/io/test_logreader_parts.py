@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
+from mcap.writer import Writer as McapWriter
 from rosbags.rosbag1 import Reader, Writer
 
 from pcainterp_stream import cli
@@ -227,3 +228,35 @@ def test_help_and_docs_say_foxglove_alone_takes_parts_too(
     assert "Several inputs with `-o`, or with `--foxglove` alone, are not several logs" in readme
     raw_logs = " ".join((root / "docs" / "raw_logs.md").read_text().split())
     assert "Give `densify` the parts with `-o` (or with `--foxglove` alone" in raw_logs
+
+
+def string_mcap(path: Path, times_ns: list[int]) -> None:
+    """Write an MCAP log of one std_msgs/String message at each log time."""
+    with path.open("wb") as stream:
+        writer = McapWriter(stream)
+        writer.start()
+        schema = writer.register_schema(
+            name="std_msgs/msg/String", encoding="ros2msg", data=b"string data"
+        )
+        channel = writer.register_channel(
+            topic="/chatter", message_encoding="cdr", schema_id=schema
+        )
+        for t in times_ns:
+            data = b"\x00\x01\x00\x00\x02\x00\x00\x00a\x00"
+            writer.add_message(channel_id=channel, log_time=t, publish_time=t, data=data)
+        writer.finish()
+
+
+def test_a_last_part_of_one_message_overlapping_at_the_seam_is_merged(tmp_path: Path) -> None:
+    # review 57d D5: refused before ("overlap by 0.030 ms: they are not the parts of one split
+    # recording"): half of a one-message part's span (0) allowed no seam jitter at all
+    first, last = tmp_path / "p_0.mcap", tmp_path / "p_1.mcap"
+    string_mcap(first, [k * 100_000_000 for k in range(11)])  # 0 to 1.0 s
+    string_mcap(last, [1_000_000_000 - 30_000])  # stamped 30 us before the first part's end
+    got = [t for _, t, _ in messages([last, first])]
+    assert got == sorted([k * 100_000_000 for k in range(11)] + [1_000_000_000 - 30_000])
+    # a one-message part further inside the other is still refused, naming the allowance
+    inside = tmp_path / "in_1.mcap"
+    string_mcap(inside, [1_000_000_000 - 20_000_000])
+    with pytest.raises(LogReadError, match=r"overlap by 20\.000 ms: .*10\.000 ms for a shorter"):
+        open_log([first, inside])

@@ -747,3 +747,30 @@ def test_near_reach_measures_a_plane_beyond_sgbms_range(basis: Basis) -> None:
     with FrameProcessor(basis, ProcessorConfig(sgbm=SGBM, adapt="off")) as engine:
         assert engine.near is not None
         assert engine.near.match_range == 32
+
+
+def test_a_camera_change_submitted_while_the_maps_are_decided_keeps_them(basis: Basis) -> None:
+    # review 57d D6: the densify thread's _measured_for read _changes, the reader's submit then
+    # counted a camera change and asked for maps, and _measured_for's stale "no maps" overwrote
+    # it: the new camera's first frames lost the maps its re-check is made on. Driven here in
+    # that order: the change is submitted (another thread) between that read and the write.
+    config = ProcessorConfig(sgbm=SGBM, lookahead=8)
+    other = dataclasses.replace(CAMERA, baseline=CAMERA.baseline * 2)
+    with FrameProcessor(basis, config) as engine:
+        engine.submit(make_frame(0, 6))
+        submitted = threading.Thread(target=engine.submit, args=(make_frame(1, 6, other),))
+
+        class Deciding:  # the basis whose grid _measured_for reads after deciding, before writing
+            @property
+            def grid_size(self) -> tuple[int, int]:
+                submitted.start()
+                submitted.join(timeout=0.5)  # with the fix, submit waits for _measured_for
+                return basis.grid_size
+
+        engine.adaptation.wants_maps = lambda: False  # type: ignore[method-assign]
+        engine.basis = Deciding()  # type: ignore[assignment]
+        engine._measured_for()
+        engine.basis = basis
+        submitted.join()
+        assert engine._changes == 1
+        assert engine._measuring == (basis.grid_size, True)  # the new camera's maps are kept
