@@ -176,3 +176,43 @@ def test_a_later_camera_matched_at_the_first_cameras_resolution_is_said() -> Non
         "--stereo-downscale auto would choose full resolution (f*b 24 < 90 px*m)"
     )
     assert "matched at" not in first
+
+
+def test_the_basis_relearned_at_the_logs_last_frame_is_saved(tmp_path: Path) -> None:
+    """Review 57d D1: relearned from all 16 maps at the last frame, it densified no frame:
+    OUTPUT.final.basis.npz was not written and the line said "8 maps, 7 components at the
+    end (0 updates while streaming)"."""
+    log, out = tmp_path / "r16.mcap", tmp_path / "r16_dense.mcap"
+    write_synthetic_log(generate(SynthConfig(seed=3, frames=16, scale=0.25, scene="indoor")), log)
+    summary = densify(log, out)
+    assert (
+        "adapted basis: 16 maps, 15 components at the end (1 update while streaming)"
+        in summary.prior_lines
+    ), summary.prior_lines
+    final = final_basis_path(out)
+    assert summary.final_basis_written == final
+    assert Basis.load(final).n_train == 16
+    assert [path for path, _ in summary.bases_saved] == [own_basis_path(out), final]
+    written = summary.written_lines()
+    assert written[1].startswith(f"wrote {final}: the basis relearned from all of this log's")
+    assert "densify --basis" not in written[0]  # the relearned one is the one to reuse
+    assert _files_match_the_record(out) == [own_basis_path(out).name]  # no frame used it
+
+
+def test_the_basis_relearned_at_a_cameras_last_frame_is_saved(tmp_path: Path) -> None:
+    """The same at the last frame of a camera the log then leaves (16 room frames, 4 VI)."""
+    log, out = tmp_path / "r16vi.mcap", tmp_path / "r16vi_dense.mcap"
+    room = SynthConfig(seed=3, frames=16, scale=0.25, scene="indoor")
+    write_synthetic_log(_parts(room, SynthConfig(seed=1, frames=4, scale=0.25, **_VI)), log)
+    summary = densify(log, out)
+    assert any(
+        line.startswith("adapted basis: 16 maps, 15 components when it gave way at frame 16 ")
+        for line in summary.prior_lines
+    ), summary.prior_lines
+    final = final_basis_path(out)
+    assert Basis.load(final).n_train == 16
+    assert any(
+        line.startswith(f"wrote {final}: ") and "it densified no frame" in line
+        for line in summary.written_lines()
+    ), summary.written_lines()
+    assert final.name not in _files_match_the_record(out)
