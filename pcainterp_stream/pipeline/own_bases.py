@@ -12,14 +12,17 @@ finds them.
 
 from __future__ import annotations
 
+import errno
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import IO
 
+from pcainterp_stream.errors import BasisError
 from pcainterp_stream.estimate.basis import Basis, builtin_kind
 from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.frontend.sgbm_resolution import by_camera
 from pcainterp_stream.frontend.stereo import SgbmConfig
+from pcainterp_stream.io.output_paths import make_partial_file, write_advice
 from pcainterp_stream.io.outputs import BASES_RECORD
 from pcainterp_stream.pipeline.adaptation import Adaptation
 from pcainterp_stream.records import StereoCamera
@@ -161,6 +164,39 @@ def own_bases(
         unused = OwnBasis(newest, number, True, frame, owns[end].until, name, path, False, False)
         owns.insert(end + 1, unused)
     return owns
+
+
+def save_own_bases(owns: list[OwnBasis], log: Path) -> tuple[list[OwnBasis], list[str]]:
+    """Save each of ``owns`` that has a file beside the output; never fail the run for one.
+
+    Returns:
+        Those saved, and a warning for each that could not be (a full disk, a name too
+        long): the output is written all the same, and its record still names the file,
+        which densifying ``log`` again where it can be written makes.
+    """
+    saved, warnings = [], []
+    for own in owns:
+        if own.path is None:
+            continue
+        try:
+            own.basis.save(own.path, partial_file=make_partial_file)  # 9C F3, F4
+        except BasisError as err:
+            cause = err.__cause__
+            why = (  # "No space left on device; free some space, or write it elsewhere"
+                f"{cause.strerror}; {write_advice(cause)}"
+                if isinstance(cause, OSError) and cause.errno != errno.ENAMETOOLONG
+                else write_advice(cause)
+                if isinstance(cause, OSError)
+                else str(err)
+            )
+            warnings.append(
+                f"the adapted basis {own.path} was not written ({why}): the output was "
+                f"written without it, though its record names it; densify {log} again to "
+                "write it"
+            )
+        else:
+            saved.append(own)
+    return saved, warnings
 
 
 def adoption_lines(owns: list[OwnBasis]) -> list[str]:

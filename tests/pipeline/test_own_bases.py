@@ -3,9 +3,13 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
+import pytest
+
+from pcainterp_stream import cli
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.frontend.sgbm_resolution import by_camera
@@ -18,7 +22,7 @@ from pcainterp_stream.io.outputs import (
 )
 from pcainterp_stream.pipeline.adaptation import Adaptation, AdaptFrame
 from pcainterp_stream.pipeline.densify import densify, final_basis_path, own_basis_path
-from pcainterp_stream.pipeline.jobs import evaluation_basis
+from pcainterp_stream.pipeline.jobs import evaluation_basis, synth
 from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
 from pcainterp_stream.records import StereoCamera, StereoFrame, SynthFrame
 from pcainterp_stream.synth import SynthConfig, generate
@@ -216,3 +220,46 @@ def test_the_basis_relearned_at_a_cameras_last_frame_is_saved(tmp_path: Path) ->
         for line in summary.written_lines()
     ), summary.written_lines()
     assert final.name not in _files_match_the_record(out)
+
+
+def test_densify_refuses_up_front_an_output_whose_second_bases_name_is_too_long(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Review 57d D4: a 238-byte stem passed the check (OUTPUT.final.basis.npz fits), then a
+    log that adopted a second basis ran to its end and lost its output to a traceback on
+    OUTPUT.final.basis-2.npz (256 bytes)."""
+    limit = int(os.pathconf(tmp_path, "PC_NAME_MAX"))
+    stem = "s" * (limit - len(".final.basis-2.npz") + 1)
+    log = tmp_path / "logs" / "two.mcap"
+    log.parent.mkdir()
+    synth(log, frames=2, seed=3, scale=0.25, fmt="mcap")
+    capsys.readouterr()
+    code = cli.main(["densify", str(log), "-o", str(tmp_path / f"{stem}.mcap")])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.splitlines() == [
+        f"pcainterp: error: cannot write the adapted basis {stem}.final.basis-2.npz: the file "
+        f"name is too long for the file system ({limit + 1} bytes, at most {limit}): choose a "
+        "shorter name (a run that adapts its basis writes it beside the output)"
+    ]
+    assert sorted(os.listdir(tmp_path)) == ["logs"]
+
+
+def test_a_side_basis_that_cannot_be_written_costs_the_output_nothing(tmp_path: Path) -> None:
+    """D4: where a side basis cannot be written (here, by the library, which checks no name
+    up front), the output is written and a warning names the missing file and the fix."""
+    limit = int(os.pathconf(tmp_path, "PC_NAME_MAX"))
+    stem = "s" * (limit - len(".final.basis-2.npz") + 1)
+    log, out = tmp_path / "aba.mcap", tmp_path / f"{stem}.mcap"
+    write_synthetic_log(_parts(_ROOM, SynthConfig(seed=1, frames=4, scale=0.25, **_VI), _ROOM), log)
+    summary = densify(log, out)
+    assert out.is_file()
+    missing = final_basis_path(out, 2)
+    assert [w for w in summary.warnings if "adapted basis" in w] == [
+        f"the adapted basis {missing} was not written (the file name is too long for the file "
+        "system: choose a shorter name): the output was written without it, though its record "
+        f"names it; densify {log} again to write it"
+    ]
+    assert missing not in [path for path, _ in summary.bases_saved]
+    written = [out, own_basis_path(out), final_basis_path(out), own_basis_path(out, 2)]
+    assert sorted(os.listdir(tmp_path)) == sorted([log.name, *(path.name for path in written)])
