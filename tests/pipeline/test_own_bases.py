@@ -263,3 +263,35 @@ def test_a_side_basis_that_cannot_be_written_costs_the_output_nothing(tmp_path: 
     assert missing not in [path for path, _ in summary.bases_saved]
     written = [out, own_basis_path(out), final_basis_path(out), own_basis_path(out, 2)]
     assert sorted(os.listdir(tmp_path)) == sorted([log.name, *(path.name for path in written)])
+
+
+def test_a_full_disk_refusing_a_side_basis_names_the_fix(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review 57d D2: "cannot write basis X: No space left on device" ended densify with no
+    fix (Basis.save no longer gives one); it is a warning now, with the fix, and the output
+    and the first basis are written."""
+    import errno
+
+    from pcainterp_stream.errors import BasisError
+
+    log, out = tmp_path / "r16.mcap", tmp_path / "r16_dense.mcap"
+    write_synthetic_log(generate(SynthConfig(seed=3, frames=16, scale=0.25, scene="indoor")), log)
+    save = Basis.save
+
+    def full(basis: Basis, path: Path, **options: object) -> None:
+        if Path(path) == final_basis_path(out):
+            error = OSError(errno.ENOSPC, "No space left on device")
+            raise BasisError(f"cannot write basis {path}: {error.strerror}") from error
+        save(basis, path, **options)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(Basis, "save", full)
+    summary = densify(log, out)
+    assert out.is_file()
+    assert own_basis_path(out).is_file()
+    assert [w for w in summary.warnings if "adapted basis" in w] == [
+        f"the adapted basis {final_basis_path(out)} was not written (No space left on device; "
+        "free some space, or write it elsewhere): the output was written without it, though "
+        f"its record names it; densify {log} again to write it"
+    ]
+    assert summary.final_basis_written is None
