@@ -347,7 +347,15 @@ def densify(
         if processor.source is MeasurementSource.FEATURES and pairing.features_topic is not None
         else None
     )
+    committed: list[Path] = []  # the bases saved beside the output, before it is closed
+
+    def drop_bases(kind: type[BaseException] | None, *_: object) -> None:
+        """Remove them when the output then fails: "nothing was written there"."""
+        for path in committed if kind is not None else ():
+            path.unlink(missing_ok=True)
+
     with contextlib.ExitStack() as stack:
+        stack.push(drop_bases)  # the last to run: after the output's writer closed
         read: list[Path] = []  # the files read, which the output must not replace
         if isinstance(input_path, Path):
             reader = stack.enter_context(open_log(input_path))
@@ -579,6 +587,7 @@ def densify(
         prior_lines.extend(adoption_lines(owns))
         # a basis that cannot be written is warned of: the output is written all the same
         saved, unsaved = save_own_bases(owns, input_path)
+        committed.extend(own.path for own in saved if own.path is not None)
         basis_written = next((o.path for o in saved if o.adoption == 1 and not o.relearned), None)
         final_written = next((o.path for o in saved if o.adoption == 1 and o.relearned), None)
         if owns and not isinstance(output, Path):  # no file to save OUTPUT.basis.npz beside

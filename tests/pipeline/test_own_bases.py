@@ -295,3 +295,25 @@ def test_a_full_disk_refusing_a_side_basis_names_the_fix(
         f"its record names it; densify {log} again to write it"
     ]
     assert summary.final_basis_written is None
+
+
+def test_the_bases_go_when_the_output_then_fails(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review 57d D3: the bases were saved (committed) before the output was closed; a full
+    disk at its close left them beside an output the error said "nothing was written there"."""
+    from pcainterp_stream.errors import LogWriteError
+    from pcainterp_stream.io.logwriter import LogWriter
+
+    log, out = tmp_path / "logs" / "r16.mcap", tmp_path / "out" / "r16_dense.mcap"
+    log.parent.mkdir()
+    out.parent.mkdir()
+    write_synthetic_log(generate(SynthConfig(seed=3, frames=16, scale=0.25, scene="indoor")), log)
+
+    def full(self: LogWriter) -> None:
+        raise LogWriteError(f"writing {self.path} failed: No space left on device")
+
+    monkeypatch.setattr(LogWriter, "_commit", full)
+    with pytest.raises(LogWriteError, match="No space left"):
+        densify(log, out)
+    assert os.listdir(out.parent) == []
