@@ -812,16 +812,6 @@ class Adaptation:
         last = self._last_map
         return last is not None and adapt.view_distance(frame.grid_map, last) < adapt.SAME_VIEW
 
-    def final_line(self, basis: Basis) -> str | None:
-        """Return the summary line on the streaming updates, or None when not adapted."""
-        if not self.adapted:
-            return None
-        return (
-            f"adapted basis: {_count(basis.n_train, 'map')}, "
-            f"{_count(basis.n_components, 'component')} at the end "
-            f"({self.updates} update{'s' if self.updates != 1 else ''} while streaming)"
-        )
-
 
 def _figures(first: float, second: float) -> tuple[str, str]:
     """Format two errors (px) with 2 decimals, or 4 when 2 would print them alike.
