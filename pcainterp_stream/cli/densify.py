@@ -386,8 +386,9 @@ def _check_paths(args: argparse.Namespace, *, may_adapt: bool = True) -> None:
 
     The outputs are ``-o`` (or each ``--out-dir`` output), the adapted basis written beside
     each when the run may adapt (``may_adapt``: ``OUTPUT.basis.npz``,
-    ``OUTPUT.final.basis.npz``) and ``--rrd``; what it reads is the input logs, ``--basis``
-    and ``--calibration``.
+    ``OUTPUT.final.basis.npz``, and the name of a later adoption's,
+    ``OUTPUT.final.basis-2.npz``, the longest up to ``-9``, for its length) and ``--rrd``;
+    what it reads is the input logs, ``--basis`` and ``--calibration``.
 
     Raises:
         LogWriteError: an output that is a folder, not named .mcap, or one of those files.
@@ -421,7 +422,7 @@ def _check_paths(args: argparse.Namespace, *, may_adapt: bool = True) -> None:
         fix = "choose a different output path"
     writes: list[tuple[str, Path | None, str]] = [("the output", path, fix) for path in outputs]
     for path in outputs if may_adapt else []:
-        for side in (own_basis_path(path), final_basis_path(path)):
+        for side in (own_basis_path(path), final_basis_path(path), final_basis_path(path, 2)):
             writes.append(
                 (
                     f"the adapted basis {side.name}",

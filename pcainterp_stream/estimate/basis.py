@@ -417,8 +417,11 @@ class Basis:
             BasisError: ``path`` is a device, pipe or folder, or cannot be written.
         """
         target = Path(path)
-        if target.is_symlink():  # written through the link: the file it points to replaced
-            target = Path(os.path.realpath(target))
+        try:  # a name too long for its file system fails here (ENAMETOOLONG)
+            if target.is_symlink():  # written through the link: the file it points to replaced
+                target = Path(os.path.realpath(target))
+        except OSError as err:
+            raise BasisError(f"cannot write basis {target}: {err.strerror or err}") from err
         with contextlib.suppress(OSError):  # absent: a new file
             if not stat.S_ISREG(os.stat(target).st_mode):  # a rename would replace a device
                 raise BasisError(

@@ -517,7 +517,11 @@ def _zero_output_message(path: Path, topic: str, left_image: str) -> str:
 
 
 class _SeenStamps:
-    """The stamps seen lately of each topic matched by stamp, to keep the first of each."""
+    """The stamps seen lately of each topic matched by stamp, to count the repeats of each.
+
+    Every message is kept (:class:`_Stamped`), a repeat of a stamp too; only the count of
+    repeats (``ReadState.repeated``) comes from here.
+    """
 
     LIMIT = 4096
     """Stamps remembered per topic (the oldest forgotten beyond it)."""
@@ -526,7 +530,10 @@ class _SeenStamps:
         self._seen: dict[str, dict[int, None]] = {}
 
     def first(self, topic: str, stamp: int, state: ReadState) -> bool:
-        """Return True for the first message of ``stamp`` on ``topic``; count a repeat."""
+        """Count a repeat of ``stamp`` on ``topic``; return whether it is the first.
+
+        The callers keep every message whatever this returns.
+        """
         seen = self._seen.setdefault(topic, {})
         if stamp in seen:
             state.repeated[topic] = state.repeated.get(topic, 0) + 1

@@ -76,7 +76,8 @@ class FarMatch:
     Attributes:
         disparity_map: (H, W) float32 the map, the full-resolution values spliced in (px).
         lookup: the lookups with the values read again.
-        zeros: lookups that read exactly 0 in the half-resolution map.
+        zeros: lookups that read exactly 0 in the front end's map (at ``downscale``'s
+            resolution, half or full).
         rematched: of those, how many were read again in the full-resolution values (a
             far surface's may be 0 again: a value at or below 0, refined, is clipped there).
     """

@@ -472,9 +472,10 @@ class RejectionCounts(Mapping[str, int]):
         invalid: a sampled pixel has no disparity.
         discontinuity: a hole or a gradient above ``max_gradient`` in the support patch.
         inconsistent: the right view's disparity disagrees by more than ``lr_max_diff``.
-        far_zeros: kept lookups the half-resolution map read as exactly 0 (not a rejection:
-            :mod:`.far`).
-        far_rematched: of those, how many the full-resolution match measured above 0.
+        far_zeros: kept lookups the front end's map (at ``downscale``'s resolution, half or
+            full) read as exactly 0 (not a rejection: :mod:`.far`).
+        far_rematched: of those, how many the far re-match (at full resolution, range
+            centred on 0) read again, 0 included (a value it finds at or below 0 is 0).
     """
 
     corners: int

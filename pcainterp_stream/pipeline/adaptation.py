@@ -149,6 +149,8 @@ class Adaptation:
             channels name it when it densified the first frames).
         own_bases: every basis of the log's own adopted by a check, in order (a check made
             again may adopt another: ``OUTPUT.basis-2.npz``); relearned ones are not here.
+        relearned: by adoption (1, 2...), the last basis relearned from it and the frame whose
+            map completed it (``OUTPUT.final.basis.npz``...), densifying a frame or not.
         name: how the summary names the given basis.
         alternatives: loaders of the other built-in bases, checked (and loaded) only when
             the given one does not fit well.
@@ -183,6 +185,7 @@ class Adaptation:
     first_basis: Basis | None = None
     own_bases: list[Basis] = field(default_factory=list)
     updates: int = 0
+    relearned: dict[int, tuple[Basis, int]] = field(default_factory=dict)
     deferred: bool = False
     in_force: list[BasisStart] = field(default_factory=list)
     again: str = MOVED  # the line of a deferred check, "{}": its frames
@@ -761,7 +764,7 @@ class Adaptation:
         # the std is calibrated on the recent frames with a basis learned without their
         # maps (the newest ones): their errors are those of frames to come
         older = self._maps[: -len(self._recent)] if self._recent else self._maps
-        return adapt.refit_prior(
+        relearned = adapt.refit_prior(
             adapt.own_basis(self._maps, size, fb),
             self._recent,
             robust=self.robust,
@@ -769,6 +772,8 @@ class Adaptation:
             keep=current,
             calibrate_with=adapt.own_basis(older, size, fb) if len(older) >= 2 else None,
         )
+        self.relearned[len(self.own_bases)] = (relearned, frames[-1].index if frames else 0)
+        return relearned
 
     def _revisit(self, frames: list[AdaptFrame], current: Basis | None) -> Basis | None:
         """After a one-view warm-up: check again once the camera shows other views.
@@ -806,16 +811,6 @@ class Adaptation:
         assert frame.grid_map is not None
         last = self._last_map
         return last is not None and adapt.view_distance(frame.grid_map, last) < adapt.SAME_VIEW
-
-    def final_line(self, basis: Basis) -> str | None:
-        """Return the summary line on the streaming updates, or None when not adapted."""
-        if not self.adapted:
-            return None
-        return (
-            f"adapted basis: {_count(basis.n_train, 'map')}, "
-            f"{_count(basis.n_components, 'component')} at the end "
-            f"({self.updates} update{'s' if self.updates != 1 else ''} while streaming)"
-        )
 
 
 def _figures(first: float, second: float) -> tuple[str, str]:

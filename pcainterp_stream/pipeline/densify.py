@@ -53,7 +53,6 @@ from pcainterp_stream.io.logwriter import (
     WriteSummary,
     open_writer,
 )
-from pcainterp_stream.io.output_paths import make_partial_file
 from pcainterp_stream.io.outputs import (
     BASES_RECORD,
     BASIS_FINGERPRINT_KEY,
@@ -85,6 +84,7 @@ from pcainterp_stream.pipeline.own_bases import (
     matched_alone,
     own_bases,
     own_basis_label,
+    save_own_bases,
 )
 from pcainterp_stream.pipeline.own_bases import final_basis_path as final_basis_path
 from pcainterp_stream.pipeline.own_bases import own_basis_path as own_basis_path
@@ -347,7 +347,15 @@ def densify(
         if processor.source is MeasurementSource.FEATURES and pairing.features_topic is not None
         else None
     )
+    committed: list[Path] = []  # the bases saved beside the output, before it is closed
+
+    def drop_bases(kind: type[BaseException] | None, *_: object) -> None:
+        """Remove them when the output then fails: "nothing was written there"."""
+        for path in committed if kind is not None else ():
+            path.unlink(missing_ok=True)
+
     with contextlib.ExitStack() as stack:
+        stack.push(drop_bases)  # the last to run: after the output's writer closed
         read: list[Path] = []  # the files read, which the output must not replace
         if isinstance(input_path, Path):
             reader = stack.enter_context(open_log(input_path))
@@ -577,10 +585,9 @@ def densify(
         # every basis of the log's own that densified frames, saved as the record names it
         owns = own_bases(engine.adaptation, basis, output)
         prior_lines.extend(adoption_lines(owns))
-        saved = [own for own in owns if own.path is not None]
-        for own in saved:
-            assert own.path is not None
-            own.basis.save(own.path, partial_file=make_partial_file)  # 9C F3, F4
+        # a basis that cannot be written is warned of: the output is written all the same
+        saved, unsaved = save_own_bases(owns, input_path)
+        committed.extend(own.path for own in saved if own.path is not None)
         basis_written = next((o.path for o in saved if o.adoption == 1 and not o.relearned), None)
         final_written = next((o.path for o in saved if o.adoption == 1 and o.relearned), None)
         if owns and not isinstance(output, Path):  # no file to save OUTPUT.basis.npz beside
@@ -610,7 +617,8 @@ def densify(
         + (check.warnings(stats) if check is not None else _empty_warning(robust["empty"], frames))
         + (stale.warnings(frames, robust["stale_empty"]) if stale is not None else [])
         + (beyond.warnings(frames, sgbm) if beyond is not None else [])
-        + (far.warnings(frames) if far is not None else []),
+        + (far.warnings(frames) if far is not None else [])
+        + unsaved,
         downweighted=robust["downweighted"],
         most_downweighted=robust["most"],
         temporal_resets=robust["resets"],

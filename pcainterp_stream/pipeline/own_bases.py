@@ -4,20 +4,25 @@ A basis a fit check adopted is saved beside the output as ``OUTPUT.basis.npz`` (
 check's; the output's channels name it when it densified the first frames),
 ``OUTPUT.basis-2.npz`` (a check made again after a camera change or a basis that stopped
 fitting, :mod:`~pcainterp_stream.pipeline.refit`)...; the last one relearned from each while
-streaming as ``OUTPUT.final.basis.npz`` (``OUTPUT.final.basis-2.npz``...). The output's
-``pcainterp.basis`` record names each by that file, so ``evaluate`` finds them.
+streaming as ``OUTPUT.final.basis.npz`` (``OUTPUT.final.basis-2.npz``...), also when it was
+relearned at the last frame of its camera or the log and densified no frame. The output's
+``pcainterp.basis`` record names each that densified frames by that file, so ``evaluate``
+finds them.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import errno
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import IO
 
+from pcainterp_stream.errors import BasisError
 from pcainterp_stream.estimate.basis import Basis, builtin_kind
 from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.frontend.sgbm_resolution import by_camera
 from pcainterp_stream.frontend.stereo import SgbmConfig
+from pcainterp_stream.io.output_paths import make_partial_file, write_advice
 from pcainterp_stream.io.outputs import BASES_RECORD
 from pcainterp_stream.pipeline.adaptation import Adaptation
 from pcainterp_stream.records import StereoCamera
@@ -28,18 +33,22 @@ RELEARNED = "self-supervised, relearned while streaming (not saved)"
 
 @dataclass(frozen=True)
 class OwnBasis:
-    """A basis of the log's own that densified frames of the output, and its file.
+    """A basis of the log's own that densified frames of the output (or was relearned last).
 
     Attributes:
         basis: the basis.
         adoption: which check adopted it or the basis it was relearned from (1: the first;
             a check made again after a camera change or a basis that stopped fitting: 2...).
         relearned: relearned while streaming (else adopted by the check).
-        first: the first frame densified with it.
-        until: the first frame densified with another basis after it (None: the log's end).
+        first: the first frame densified with it (not ``densified``: the frame whose map
+            completed it).
+        until: the first frame densified with another basis after it (None: the log's end;
+            not ``densified``: where its adoption gave way).
         name: how the output's record names it.
         path: the file it is saved as, beside the output (None: not saved).
         opening: it densified the first frames (the output's channels name it).
+        densified: it densified frames (else it was relearned at the last frame of its
+            camera or of the log: saved, and named by no entry of the record).
     """
 
     basis: Basis
@@ -50,6 +59,7 @@ class OwnBasis:
     name: str
     path: Path | None
     opening: bool = False
+    densified: bool = True
 
     def frames(self) -> str:
         """Return "frames 16-23" or "frames 16 to the end"."""
@@ -85,6 +95,12 @@ class OwnBasis:
                 "the basis relearned from all of this log's maps (densify --basis with it for "
                 "other logs of this camera)"
             )
+        if not self.densified:
+            return (
+                f"the basis relearned from the maps up to frame {self.first}, the last of its "
+                "camera there: it densified no frame (densify --basis with it for other logs "
+                "of this camera)"
+            )
         return (
             f"the basis relearned while streaming, last in force on {self.frames()} (the "
             f"output's {BASES_RECORD} record names it; densify --basis with it for other "
@@ -101,8 +117,10 @@ def own_bases(
     channels name it when it densified the first frames), ``OUTPUT.basis-2.npz`` (a check
     made again, after a camera change or a basis that stopped fitting)...; the last basis
     relearned from each is ``OUTPUT.final.basis.npz`` (``OUTPUT.final.basis-2.npz``...);
-    the relearned ones between are not saved (:data:`RELEARNED`). Without a file output
-    none is saved: the first is named ``self-supervised``.
+    the relearned ones between are not saved (:data:`RELEARNED`). The last relearned from
+    an adoption at the last frame of its camera (or of the log) densified no frame: it comes
+    after its adoption's others (``densified`` False), saved, and the one before it is not.
+    Without a file output none is saved: the first is named ``self-supervised``.
     """
     starts = adaptation.in_force
     adopted = {id(own): number for number, own in enumerate(adaptation.own_bases, 1)}
@@ -134,7 +152,51 @@ def own_bases(
         owns.append(
             OwnBasis(used, adoption, relearned, start.frame.index, until, name, path, at == 0)
         )
+    for number, (newest, frame) in adaptation.relearned.items():
+        run = [at for at, own in enumerate(owns) if own.adoption == number]
+        if not run or any(owns[at].basis is newest for at in run):
+            continue  # densified frames (or its adoption none: not one of the log's)
+        end = run[-1]
+        if owns[end].relearned:  # the one it was relearned from: one of those between now
+            owns[end] = replace(owns[end], name=RELEARNED, path=None)
+        path = final_basis_path(output, number) if isinstance(output, Path) else None
+        name = path.name if path is not None else RELEARNED
+        unused = OwnBasis(newest, number, True, frame, owns[end].until, name, path, False, False)
+        owns.insert(end + 1, unused)
     return owns
+
+
+def save_own_bases(owns: list[OwnBasis], log: Path) -> tuple[list[OwnBasis], list[str]]:
+    """Save each of ``owns`` that has a file beside the output; never fail the run for one.
+
+    Returns:
+        Those saved, and a warning for each that could not be (a full disk, a name too
+        long): the output is written all the same, and its record still names the file,
+        which densifying ``log`` again where it can be written makes.
+    """
+    saved, warnings = [], []
+    for own in owns:
+        if own.path is None:
+            continue
+        try:
+            own.basis.save(own.path, partial_file=make_partial_file)  # 9C F3, F4
+        except BasisError as err:
+            cause = err.__cause__
+            why = (  # "No space left on device; free some space, or write it elsewhere"
+                f"{cause.strerror}; {write_advice(cause)}"
+                if isinstance(cause, OSError) and cause.errno != errno.ENAMETOOLONG
+                else write_advice(cause)
+                if isinstance(cause, OSError)
+                else str(err)
+            )
+            warnings.append(
+                f"the adapted basis {own.path} was not written ({why}): the output was "
+                f"written without it, though its record names it; densify {log} again to "
+                "write it"
+            )
+        else:
+            saved.append(own)
+    return saved, warnings
 
 
 def adoption_lines(owns: list[OwnBasis]) -> list[str]:

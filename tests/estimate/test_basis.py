@@ -82,6 +82,15 @@ def test_save_load_round_trip(tmp_path: Path) -> None:
     assert not list(tmp_path.glob(".*tmp"))
 
 
+def test_a_name_too_long_is_a_basis_error_not_an_oserror(tmp_path: Path) -> None:
+    """Review 57d D4: ``target.is_symlink()`` ran outside the save's ``try``: a name too long
+    for the file system raised OSError (a traceback), not the one-line BasisError."""
+    path = tmp_path / ("n" * 300 + ".npz")
+    with pytest.raises(BasisError, match=r"^cannot write basis .*: File name too long$"):
+        make_basis().save(path)
+    assert not list(tmp_path.iterdir())
+
+
 def test_a_loaded_basis_and_what_it_caches_are_read_only(tmp_path: Path) -> None:
     """A loaded basis may be shared (Basis.default()): an in-place edit raises."""
     made = make_basis()

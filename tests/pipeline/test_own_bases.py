@@ -3,9 +3,13 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
+import pytest
+
+from pcainterp_stream import cli
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.frontend.sgbm_resolution import by_camera
@@ -18,7 +22,7 @@ from pcainterp_stream.io.outputs import (
 )
 from pcainterp_stream.pipeline.adaptation import Adaptation, AdaptFrame
 from pcainterp_stream.pipeline.densify import densify, final_basis_path, own_basis_path
-from pcainterp_stream.pipeline.jobs import evaluation_basis
+from pcainterp_stream.pipeline.jobs import evaluation_basis, synth
 from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
 from pcainterp_stream.records import StereoCamera, StereoFrame, SynthFrame
 from pcainterp_stream.synth import SynthConfig, generate
@@ -176,3 +180,140 @@ def test_a_later_camera_matched_at_the_first_cameras_resolution_is_said() -> Non
         "--stereo-downscale auto would choose full resolution (f*b 24 < 90 px*m)"
     )
     assert "matched at" not in first
+
+
+def test_the_basis_relearned_at_the_logs_last_frame_is_saved(tmp_path: Path) -> None:
+    """Review 57d D1: relearned from all 16 maps at the last frame, it densified no frame:
+    OUTPUT.final.basis.npz was not written and the line said "8 maps, 7 components at the
+    end (0 updates while streaming)"."""
+    log, out = tmp_path / "r16.mcap", tmp_path / "r16_dense.mcap"
+    write_synthetic_log(generate(SynthConfig(seed=3, frames=16, scale=0.25, scene="indoor")), log)
+    summary = densify(log, out)
+    assert (
+        "adapted basis: 16 maps, 15 components at the end (1 update while streaming)"
+        in summary.prior_lines
+    ), summary.prior_lines
+    final = final_basis_path(out)
+    assert summary.final_basis_written == final
+    assert Basis.load(final).n_train == 16
+    assert [path for path, _ in summary.bases_saved] == [own_basis_path(out), final]
+    written = summary.written_lines()
+    assert written[1].startswith(f"wrote {final}: the basis relearned from all of this log's")
+    assert "densify --basis" not in written[0]  # the relearned one is the one to reuse
+    assert _files_match_the_record(out) == [own_basis_path(out).name]  # no frame used it
+
+
+def test_the_basis_relearned_at_a_cameras_last_frame_is_saved(tmp_path: Path) -> None:
+    """The same at the last frame of a camera the log then leaves (16 room frames, 4 VI)."""
+    log, out = tmp_path / "r16vi.mcap", tmp_path / "r16vi_dense.mcap"
+    room = SynthConfig(seed=3, frames=16, scale=0.25, scene="indoor")
+    write_synthetic_log(_parts(room, SynthConfig(seed=1, frames=4, scale=0.25, **_VI)), log)
+    summary = densify(log, out)
+    assert any(
+        line.startswith("adapted basis: 16 maps, 15 components when it gave way at frame 16 ")
+        for line in summary.prior_lines
+    ), summary.prior_lines
+    final = final_basis_path(out)
+    assert Basis.load(final).n_train == 16
+    assert any(
+        line.startswith(f"wrote {final}: ") and "it densified no frame" in line
+        for line in summary.written_lines()
+    ), summary.written_lines()
+    assert final.name not in _files_match_the_record(out)
+
+
+def test_densify_refuses_up_front_an_output_whose_second_bases_name_is_too_long(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Review 57d D4: a 238-byte stem passed the check (OUTPUT.final.basis.npz fits), then a
+    log that adopted a second basis ran to its end and lost its output to a traceback on
+    OUTPUT.final.basis-2.npz (256 bytes)."""
+    limit = int(os.pathconf(tmp_path, "PC_NAME_MAX"))
+    stem = "s" * (limit - len(".final.basis-2.npz") + 1)
+    log = tmp_path / "logs" / "two.mcap"
+    log.parent.mkdir()
+    synth(log, frames=2, seed=3, scale=0.25, fmt="mcap")
+    capsys.readouterr()
+    code = cli.main(["densify", str(log), "-o", str(tmp_path / f"{stem}.mcap")])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.splitlines() == [
+        f"pcainterp: error: cannot write the adapted basis {stem}.final.basis-2.npz: the file "
+        f"name is too long for the file system ({limit + 1} bytes, at most {limit}): choose a "
+        "shorter name (a run that adapts its basis writes it beside the output)"
+    ]
+    assert sorted(os.listdir(tmp_path)) == ["logs"]
+
+
+def test_a_side_basis_that_cannot_be_written_costs_the_output_nothing(tmp_path: Path) -> None:
+    """D4: where a side basis cannot be written (here, by the library, which checks no name
+    up front), the output is written and a warning names the missing file and the fix."""
+    limit = int(os.pathconf(tmp_path, "PC_NAME_MAX"))
+    stem = "s" * (limit - len(".final.basis-2.npz") + 1)
+    log, out = tmp_path / "aba.mcap", tmp_path / f"{stem}.mcap"
+    write_synthetic_log(_parts(_ROOM, SynthConfig(seed=1, frames=4, scale=0.25, **_VI), _ROOM), log)
+    summary = densify(log, out)
+    assert out.is_file()
+    missing = final_basis_path(out, 2)
+    assert [w for w in summary.warnings if "adapted basis" in w] == [
+        f"the adapted basis {missing} was not written (the file name is too long for the file "
+        "system: choose a shorter name): the output was written without it, though its record "
+        f"names it; densify {log} again to write it"
+    ]
+    assert missing not in [path for path, _ in summary.bases_saved]
+    written = [out, own_basis_path(out), final_basis_path(out), own_basis_path(out, 2)]
+    assert sorted(os.listdir(tmp_path)) == sorted([log.name, *(path.name for path in written)])
+
+
+def test_a_full_disk_refusing_a_side_basis_names_the_fix(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review 57d D2: "cannot write basis X: No space left on device" ended densify with no
+    fix (Basis.save no longer gives one); it is a warning now, with the fix, and the output
+    and the first basis are written."""
+    import errno
+
+    from pcainterp_stream.errors import BasisError
+
+    log, out = tmp_path / "r16.mcap", tmp_path / "r16_dense.mcap"
+    write_synthetic_log(generate(SynthConfig(seed=3, frames=16, scale=0.25, scene="indoor")), log)
+    save = Basis.save
+
+    def full(basis: Basis, path: Path, **options: object) -> None:
+        if Path(path) == final_basis_path(out):
+            error = OSError(errno.ENOSPC, "No space left on device")
+            raise BasisError(f"cannot write basis {path}: {error.strerror}") from error
+        save(basis, path, **options)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(Basis, "save", full)
+    summary = densify(log, out)
+    assert out.is_file()
+    assert own_basis_path(out).is_file()
+    assert [w for w in summary.warnings if "adapted basis" in w] == [
+        f"the adapted basis {final_basis_path(out)} was not written (No space left on device; "
+        "free some space, or write it elsewhere): the output was written without it, though "
+        f"its record names it; densify {log} again to write it"
+    ]
+    assert summary.final_basis_written is None
+
+
+def test_the_bases_go_when_the_output_then_fails(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review 57d D3: the bases were saved (committed) before the output was closed; a full
+    disk at its close left them beside an output the error said "nothing was written there"."""
+    from pcainterp_stream.errors import LogWriteError
+    from pcainterp_stream.io.logwriter import LogWriter
+
+    log, out = tmp_path / "logs" / "r16.mcap", tmp_path / "out" / "r16_dense.mcap"
+    log.parent.mkdir()
+    out.parent.mkdir()
+    write_synthetic_log(generate(SynthConfig(seed=3, frames=16, scale=0.25, scene="indoor")), log)
+
+    def full(self: LogWriter) -> None:
+        raise LogWriteError(f"writing {self.path} failed: No space left on device")
+
+    monkeypatch.setattr(LogWriter, "_commit", full)
+    with pytest.raises(LogWriteError, match="No space left"):
+        densify(log, out)
+    assert os.listdir(out.parent) == []
