@@ -539,7 +539,8 @@ def densify(
                         sgbm, camera.focal_baseline, camera.width, camera.height
                     )
                     far = FarZeros(sgbm.downscale) if far is not None else None  # its px
-                    if beyond is not None:
+                    if beyond is not None:  # the range and step of the resolution chosen
+                        beyond.match_range = sgbm.matched().band * sgbm.downscale
                         beyond.step = 16 * sgbm.downscale
                 config = dataclasses.replace(processor, sgbm=sgbm)
                 engine = stack.enter_context(FrameProcessor(basis, config))

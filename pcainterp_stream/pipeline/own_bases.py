@@ -24,7 +24,7 @@ from pcainterp_stream.frontend.sgbm_resolution import by_camera
 from pcainterp_stream.frontend.stereo import SgbmConfig
 from pcainterp_stream.io.output_paths import make_partial_file, write_advice
 from pcainterp_stream.io.outputs import BASES_RECORD
-from pcainterp_stream.pipeline.adaptation import Adaptation
+from pcainterp_stream.pipeline.adaptation import Adaptation, _count
 from pcainterp_stream.records import StereoCamera
 
 RELEARNED = "self-supervised, relearned while streaming (not saved)"
@@ -219,11 +219,6 @@ def adoption_lines(owns: list[OwnBasis]) -> list[str]:
             f"({updates} update{'s' if updates != 1 else ''} while streaming)"
         )
     return lines
-
-
-def _count(number: int, noun: str) -> str:
-    """Return "1 map", "2 maps"."""
-    return f"{number} {noun}{'' if number == 1 else 's'}"
 
 
 def matched_alone(

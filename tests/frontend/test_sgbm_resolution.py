@@ -139,3 +139,27 @@ def test_a_given_half_resolution_is_kept_and_the_camera_line_unchanged(
     note = summary.pairing.camera_note()
     assert note is not None
     assert note.endswith("f*b 23.98 px*m")
+
+
+def test_the_beyond_range_check_counts_in_the_resolution_chosen(
+    vi_sensor: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The check of frames measured beyond SGBM's range was built from the half-resolution
+    settings before ``auto`` chose full resolution: --num-disparities 112 read 128 px (half
+    resolution's range, a multiple of 32) in its warning and advice. Before: 128."""
+    from pcainterp_stream.frontend import frame_checks
+    from pcainterp_stream.pipeline import densify as job
+
+    made: list[frame_checks.BeyondRange] = []
+
+    class Kept(frame_checks.BeyondRange):
+        def __init__(self, match_range: float, step: int) -> None:
+            super().__init__(match_range, step)
+            made.append(self)
+
+    monkeypatch.setattr(job, "BeyondRange", Kept)
+    config = ProcessorConfig()
+    config = replace(config, sgbm=replace(config.sgbm, num_disparities=112))
+    densify(vi_sensor, tmp_path / "o.mcap", processor=config)
+    ((check,),) = (made,)
+    assert (check.match_range, check.step) == (112, 16)
