@@ -652,6 +652,20 @@ def _output_topics(args: argparse.Namespace) -> OutputTopics:
         raise PcaInterpError(f"--outputs: {err}") from None
 
 
+def _hint_split(paths: list[Path]) -> None:
+    """Warn when logs given to --out-dir look like the parts of one split recording."""
+    from pcainterp_stream.io.logreader import open_log
+    from pcainterp_stream.io.logreader_parts import seams
+
+    for first, after, gap in seams(paths, open_log):
+        warn(
+            f"{after.name} starts {gap / 1e9:.3g} s after {first.name} ends: they look like "
+            "the parts of one split recording, which --out-dir densifies as separate logs "
+            f"(each choosing its basis from its own start); to read them as one log: "
+            f"pcainterp densify {first} {after} -o OUTPUT"
+        )
+
+
 def _densify_many(
     args: argparse.Namespace, processor: ProcessorConfig, topics: OutputTopics
 ) -> int:
@@ -666,6 +680,7 @@ def _densify_many(
         from pcainterp_stream.estimate.basis import check_basis_file
 
         check_basis_file(args.basis)
+    _hint_split(args.input)
     started = time.perf_counter()
     with distributed.connect(
         args.scheduler, args.workers, worker_wait=worker_wait(args), say=cluster_notes

@@ -402,7 +402,7 @@ class PairingStats:
             else ""
         )
         return (
-            f"camera changed at {at:.3g} s of log (pair {self.pairs + 1}): "
+            f"camera changed at {at:.3g} s of log (frame {self.pairs}): "
             f"{_camera_text(camera)} (was {_camera_text(previous)}); each pair is densified "
             f"with its own camera{more}"
         )

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import heapq
+import itertools
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 
@@ -32,7 +33,15 @@ from pcainterp_stream.io.mcap_extras import ChannelInfo, McapExtras
 from pcainterp_stream.io.reader_base import LogFormat, LogReader, TopicInfo, merge_topic
 from pcainterp_stream.records import RawMessage
 
-__all__ = ["GAP_WARN_NS", "SEAM_JITTER_NS", "SEAM_OVERLAP_NS", "PartsLogReader", "parts_name"]
+__all__ = [
+    "FOLLOW_NS",
+    "GAP_WARN_NS",
+    "SEAM_JITTER_NS",
+    "SEAM_OVERLAP_NS",
+    "PartsLogReader",
+    "parts_name",
+    "seams",
+]
 
 SEAM_OVERLAP_NS = 1_000_000_000
 """How far two parts may overlap in log time at the seam and still be one recording (1 s)."""
@@ -44,6 +53,9 @@ its stamp may still put microseconds before the previous part's end.
 """
 GAP_WARN_NS = 60_000_000_000
 """A gap between two parts longer than this (60 s) is named in a warning."""
+
+FOLLOW_NS = 2_000_000_000
+"""Two logs of which one starts within this (2 s) of the other's end look like one split."""
 
 _SEPARATE = "to densify them as separate logs, pass --out-dir DIR"
 
@@ -235,6 +247,32 @@ class PartsLogReader(LogReader):
             )
             extras.metadata.extend(item.metadata)
         return extras
+
+
+def seams(
+    paths: Sequence[Path], opener: Callable[[Path], LogReader]
+) -> list[tuple[Path, Path, int]]:
+    """Return the logs that look like consecutive parts of one split recording.
+
+    Each is ``(first, next, gap_ns)``: ``next`` starts between :data:`SEAM_JITTER_NS` before
+    and :data:`FOLLOW_NS` after ``first`` ends (by their indexes; a log without one, or one
+    that does not open, is left out: this is a hint, never a check).
+    """
+    spans: list[tuple[int, int, Path]] = []
+    for path in dict.fromkeys(paths):
+        try:
+            with opener(path) as reader:
+                stats = reader.message_stats()
+        except (LogReadError, OSError):  # the job itself reports a log that does not open
+            continue
+        if stats is not None and stats[1] is not None and stats[2] is not None:
+            spans.append((stats[1], stats[2], path))
+    spans.sort(key=lambda item: (item[0], item[1]))
+    found = []
+    for (_, end, first), (start, _, after) in itertools.pairwise(spans):
+        if -SEAM_JITTER_NS <= start - end <= FOLLOW_NS:
+            found.append((first, after, start - end))
+    return found
 
 
 def _span(reader: LogReader) -> tuple[int, int] | None:

@@ -1244,7 +1244,7 @@ def test_camera_change_is_said_and_summarised() -> None:
     assert [frame.camera for frame in frames] == [CAMERA] * 3 + [half] * 2
     changed = [line for line in said if line.startswith("camera changed")]
     assert changed == [
-        "camera changed at 0.3 s of log (pair 4): 4x3 px, fx 25 px, f*b 6.25 px*m (was 8x6 px, "
+        "camera changed at 0.3 s of log (frame 3): 4x3 px, fx 25 px, f*b 6.25 px*m (was 8x6 px, "
         "fx 50 px, f*b 12.5 px*m); each pair is densified with its own camera"
     ]
     note = pairer.finish().camera_note()

@@ -260,3 +260,23 @@ def test_a_last_part_of_one_message_overlapping_at_the_seam_is_merged(tmp_path: 
     string_mcap(inside, [1_000_000_000 - 20_000_000])
     with pytest.raises(LogReadError, match=r"overlap by 20\.000 ms: .*10\.000 ms for a shorter"):
         open_log([first, inside])
+
+
+def test_out_dir_hints_at_the_parts_of_one_split_recording(
+    split: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    # `densify a_0.bag a_1.bag --out-dir DIR` densified the parts apart with no word
+    from pcainterp_stream.cli.densify import _hint_split
+    from pcainterp_stream.io.logreader_parts import seams
+
+    first, second, whole = split["first"], split["second"], split["whole"]
+    ((a, b, gap),) = seams([second, first], open_log)
+    assert (a, b) == (first, second)
+    assert 0 <= gap < 10**9
+    assert seams([first, whole], open_log) == []  # the whole log overlaps its first part
+    assert seams([first, split["folder"] / "missing.bag"], open_log) == []
+    _hint_split([first, second])
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith("warning: run_1.bag starts ")
+    assert "look like the parts of one split recording" in line
+    assert line.endswith(f"pcainterp densify {first} {second} -o OUTPUT")
