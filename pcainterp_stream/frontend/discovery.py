@@ -34,6 +34,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from pcainterp_stream.errors import PcaInterpError, TopicNotFoundError
 from pcainterp_stream.frontend.pair_forms import (
     SIDE_BY_SIDE_MATCH,
@@ -270,8 +272,15 @@ def _side_by_number(a: str, b: str) -> int | None:
     return None
 
 
+UNCALIBRATED = "are not calibrated"
+"""Said in the reason of two cameras whose camera infos have an all-zero K and P."""
+
+
 def _not_numbered_sides(
-    a: list[Camera], b: list[Camera], tx_of: Callable[[str], float | None] | None
+    a: list[Camera],
+    b: list[Camera],
+    tx_of: Callable[[str], float | None] | None,
+    uncalibrated: Callable[[str], bool] | None = None,
 ) -> str | None:
     """Return why two cameras numbered alike are not the sides of one pair, None if they may be.
 
@@ -284,6 +293,8 @@ def _not_numbered_sides(
         a: the streams of one namespace.
         b: the streams of the other.
         tx_of: info topic -> its P[0, 3] (None: the infos are not looked at).
+        uncalibrated: info topic -> its K and P are all zero (a driver without a
+            calibration): said first, the fix being a calibration, not ``--baseline``.
     """
     ns_a, ns_b = a[0].namespace, b[0].namespace
     for x, y in zip(ns_a.split("/"), ns_b.split("/"), strict=True):
@@ -294,6 +305,12 @@ def _not_numbered_sides(
     if tx_of is None or a[0].info is None or b[0].info is None:
         return None
     tx_a, tx_b = tx_of(a[0].info), tx_of(b[0].info)
+    if tx_a == 0 and tx_b == 0 and uncalibrated is not None:
+        if uncalibrated(a[0].info) and uncalibrated(b[0].info):
+            return (
+                f"{ns_a} and {ns_b} {UNCALIBRATED} (all-zero K and P on both camera infos, "
+                "as a driver without a calibration publishes them)"
+            )
     if tx_a == 0 and tx_b == 0:
         return (
             f"{ns_a} and {ns_b} have no baseline (Tx = P[0, 3] = 0 on both camera infos, as "
@@ -371,6 +388,7 @@ def find_pairs(
     need_info: bool = True,
     tx_of: Callable[[str], float | None] | None = None,
     encoding_of: Callable[[str], str | None] | None = None,
+    uncalibrated: Callable[[str], bool] | None = None,
     baseline_given: bool = False,
     rejected: list[str] | None = None,
     left_topic: str | None = None,
@@ -389,6 +407,7 @@ def find_pairs(
         tx_of: info topic -> its P[0, 3] (read from the log), for names that say nothing.
         encoding_of: image topic -> its first image's encoding (read from the log): of a
             camera's streams, those of no camera image (``32FC1``) come last.
+        uncalibrated: info topic -> its K and P are all zero (said in ``rejected``).
         baseline_given: ``--baseline`` was given (two infos with Tx = 0 may be a pair).
         rejected: given, it takes why cameras numbered alike were not taken for a pair.
         left_topic: only the pairs whose left stream is this one (a side named).
@@ -409,7 +428,7 @@ def find_pairs(
             how, closeness = "by name", BY_NAME
             if side is None and (side := _side_by_number(a, b)) is not None:
                 check_tx = tx_of if need_info and not baseline_given else None
-                reason = _not_numbered_sides(by_ns[a], by_ns[b], check_tx)
+                reason = _not_numbered_sides(by_ns[a], by_ns[b], check_tx, uncalibrated)
                 if reason is not None:
                     side = None
                     if rejected is not None:
@@ -471,6 +490,26 @@ def _first_tx(reader: LogReader) -> Callable[[str], float | None]:
         return cache[topic]
 
     return tx_of
+
+
+def _uncalibrated(reader: LogReader) -> Callable[[str], bool]:
+    cache: dict[str, bool] = {}
+
+    def uncalibrated(topic: str) -> bool:
+        if topic not in cache:
+            cache[topic] = False
+            for raw in reader.messages([topic]):
+                try:
+                    info = reader.decode(raw)
+                    k = getattr(info, "k", None)
+                    k = np.asarray(info.K if k is None else k, dtype=float)
+                    cache[topic] = not k.any() and not rosmsg.projection_matrix(info).any()
+                except (PcaInterpError, AttributeError, TypeError, ValueError):
+                    cache[topic] = False
+                break
+        return cache[topic]
+
+    return uncalibrated
 
 
 def _first_encoding(reader: LogReader) -> Callable[[str], str | None]:
@@ -687,6 +726,7 @@ def _discover(
         need_info=need_info,
         tx_of=_first_tx(reader),
         encoding_of=_first_encoding(reader),
+        uncalibrated=_uncalibrated(reader),
         baseline_given=config.baseline is not None,
         rejected=rejected,
         left_topic=config.left_topic if named_left else None,
@@ -706,6 +746,12 @@ def _discover(
     if not pairs:
         images = [t for t, i in sorted(topics.items()) if i.msgtype in _IMAGE_TYPES]
         empty = [t for t in images if topics[t].message_count == 0]
+        if rejected and all(UNCALIBRATED in r for r in rejected):
+            raise TopicNotFoundError(
+                f"no stereo pair found in {name}: {'; '.join(dict.fromkeys(rejected))}; "
+                "calibrate the pair (ROS camera_calibration) and pass --calibration LEFT.yaml "
+                "RIGHT.yaml"
+            )
         if rejected:
             raise TopicNotFoundError(
                 f"no stereo pair found in {name}: {'; '.join(dict.fromkeys(rejected))}; a "

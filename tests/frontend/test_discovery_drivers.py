@@ -6,6 +6,7 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
+import numpy as np
 import pytest
 
 from pcainterp_stream.errors import TopicNotFoundError
@@ -160,3 +161,38 @@ def test_a_named_depth_stream_is_refused_naming_the_camera_streams() -> None:
     alone = {t: i for t, i in _isaac().items() if not t.endswith("/rgb")}
     config = resolve_pairing(_Reader(alone, encodings), named)  # type: ignore[arg-type]
     assert config.left_topic == f"{ns}/left/depth"
+
+
+class _InfoReader(_Reader):
+    """A log whose camera infos have the K and P of ``infos`` (topic -> (k, p))."""
+
+    def __init__(self, topics: dict[str, TopicInfo], infos: dict[str, Any]) -> None:
+        super().__init__(topics, {})
+        self._infos = infos
+
+    def messages(self, topics: Any = None) -> Any:
+        return iter([SimpleNamespace(topic=t) for t in topics or () if t in self._infos])
+
+    def decode(self, raw: Any) -> Any:
+        k, p = self._infos[raw.topic]
+        return SimpleNamespace(k=np.asarray(k, float), p=np.asarray(p, float))
+
+
+def test_uncalibrated_infos_are_said_first_with_calibration_as_the_fix() -> None:
+    # bug hunt 10C F4: all-zero K, R, P (camera_info_manager without a calibration) were
+    # "two monocular cameras ... pass --baseline", a dead end: the real fix is --calibration
+    names = [f"/camera/infra{i}/{s}" for i in (1, 2) for s in ("image_rect_raw", "camera_info")]
+    zero = {f"/camera/infra{i}/camera_info": ([0.0] * 9, [0.0] * 12) for i in (1, 2)}
+    with pytest.raises(TopicNotFoundError) as caught:
+        resolve_pairing(_InfoReader(_topics(*names), zero), PairingConfig(discover=True))  # type: ignore[arg-type]
+    assert str(caught.value) == (
+        "no stereo pair found in sim.mcap: /camera/infra1 and /camera/infra2 are not "
+        "calibrated (all-zero K and P on both camera infos, as a driver without a calibration "
+        "publishes them); calibrate the pair (ROS camera_calibration) and pass --calibration "
+        "LEFT.yaml RIGHT.yaml"
+    )
+    # calibrated monocular infos with Tx = 0 keep the "no baseline" reason
+    k = [500.0, 0, 300, 0, 500, 200, 0, 0, 1]
+    mono = {t: (k, [500.0, 0, 300, 0, 0, 500, 200, 0, 0, 0, 1, 0]) for t in zero}
+    with pytest.raises(TopicNotFoundError, match="have no baseline"):
+        resolve_pairing(_InfoReader(_topics(*names), mono), PairingConfig(discover=True))  # type: ignore[arg-type]
