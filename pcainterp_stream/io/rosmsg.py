@@ -36,8 +36,8 @@ IMAGE_ENCODINGS: dict[str, tuple[str, int]] = {
     "bgr8": ("u1", 3),
     "8UC3": ("u1", 3),
     "bgra8": ("u1", 4),
-    "8UC4": ("u1", 4),
     "rgba8": ("u1", 4),
+    "8UC4": ("u1", 4),  # cv_bridge's BGRA
     "bayer_rggb8": ("u1", 1),
     "bayer_bggr8": ("u1", 1),
     "bayer_gbrg8": ("u1", 1),
