@@ -1372,7 +1372,7 @@ def test_densify_refuses_float_images_naming_the_topic(
     line = pcainterp(*densify_args(log, out, basis_path)).error_line()
     assert f"{SMALL_FRAMES} undecodable (unsupported image encoding '32FC1')" in line
     assert f"{LEFT} at " in line
-    assert "camera images are mono8, 8UC1, rgb8, bgr8, 8UC3, bgra8, rgba8, bayer_rggb8, " in line
+    assert "camera images are mono8, 8UC1, rgb8, bgr8, 8UC3, bgra8, rgba8, 8UC4, bayer_" in line
     assert_nothing_written(out)
 
 

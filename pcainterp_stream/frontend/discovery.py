@@ -1,10 +1,15 @@
 """Find the stereo pair of a log from its topics, when the command line names none.
 
-A camera is an image topic (``sensor_msgs/Image`` or ``CompressedImage``) with a sibling
-``camera_info`` (``/ns/left/image_raw`` -> ``/ns/left/camera_info``), or, with calibration
-files, any image topic. Two cameras are a stereo pair when their topics differ in one name
-that says which is left: ``left``/``right``, ``l``/``r``, or a number (``cam0``/``cam1``,
-``infra1``/``infra2``, ``image_2``/``image_3``: the lower one is left); names that say
+A camera is an image topic (``sensor_msgs/Image`` or ``CompressedImage``) with a
+``camera_info`` of its own below it (``/ns/left/Scene/camera_info``: AirSim, MultiSense) or a
+sibling one (``/ns/left/image_raw`` -> ``/ns/left/camera_info``), or, with calibration
+files, any image topic. A depth, disparity, segmentation, normals or confidence stream
+(``depth``, ``DepthPlanar``, ``disparity``, ``Segmentation``: a simulator's or a depth
+camera's, beside its camera images) is no camera; nor, when the camera has another stream,
+one whose first image is not a camera image (``32FC1``). Two cameras are a stereo pair
+when their topics differ in one name that says which is left: ``left``/``right``,
+``l``/``r``, or a number (``cam0``/``cam1``, ``infra1``/``infra2``, ``image_2``/``image_3``:
+the lower one is left); names that say
 nothing are ordered by the sign of P[0, 3] (the right camera's is negative). The two sides
 are streams of one image (``image_raw``), raw or compressed alike (a compressed left with a
 raw right pairs). Of a camera's streams the rectified one is preferred (``image_rect`` over
@@ -29,6 +34,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from pcainterp_stream.errors import PcaInterpError, TopicNotFoundError
 from pcainterp_stream.frontend.pair_forms import (
     SIDE_BY_SIDE_MATCH,
@@ -46,6 +53,10 @@ DEFAULT_LEFT_INFO = PairingConfig.left_info_topic
 DEFAULT_RIGHT_INFO = PairingConfig.right_info_topic
 _IMAGE_TYPES = (rosmsg.IMAGE, rosmsg.COMPRESSED_IMAGE)
 _COMPRESSED = ("compressed",)
+_NOT_CAMERA = re.compile(
+    r"depth|disparit|segment|semantic|normals|confidence|optical_?flow", re.IGNORECASE
+)
+"""Names of the streams of a camera namespace that hold no camera image (depth, labels)."""
 
 
 @dataclass(frozen=True)
@@ -73,6 +84,17 @@ class Camera:
         """Return the stream's image without its transport (``image_raw`` of both forms)."""
         parts = self.stream.rstrip("/").split("/")
         return "/".join(parts[:-1] if self.compressed else parts)
+
+    @property
+    def not_camera(self) -> bool:
+        """Return True for a depth, disparity, segmentation ... stream (its name says so).
+
+        The stream's name below the namespace decides (``/isaac/left/depth``,
+        ``/airsim_node/drone_1/front_left/DepthPlanar``), and the namespace's last name
+        (``/camera/depth/image_rect_raw``, ``/zed/zed_node/disparity/disparity_image``).
+        """
+        last = self.namespace.rstrip("/").split("/")[-1]
+        return _NOT_CAMERA.search(f"{last}/{self.image}") is not None
 
 
 def _side_by_side(reader: LogReader, topic: str) -> str:
@@ -163,20 +185,35 @@ def cameras(topics: dict[str, TopicInfo], *, need_info: bool = True) -> list[Cam
     """Return the image streams of a log that can be a stereo camera.
 
     An image topic the log counts no message on (an advertised topic that never published,
-    as ``ros2 bag record`` leaves it) is no camera.
+    as ``ros2 bag record`` leaves it) is no camera. Its camera info is the one below it
+    (``IMAGE/camera_info``) if the log has that, else its sibling (:func:`info_topic_of`).
     """
     found = []
     for topic, info in sorted(topics.items()):
         if info.msgtype not in _IMAGE_TYPES or info.message_count == 0:
             continue
-        ns = namespace(topic)
-        info_topic = f"{ns}/camera_info"
-        has_info = topics.get(info_topic) is not None and (
-            topics[info_topic].msgtype == rosmsg.CAMERA_INFO
-        )
-        if has_info or not need_info:
-            found.append(Camera(topic, ns, info_topic if has_info else None, info.message_count))
+        info_topic = info_topic_of(topic, topics)
+        if info_topic is not None or not need_info:
+            found.append(Camera(topic, namespace(topic), info_topic, info.message_count))
     return found
+
+
+def info_topic_of(image: str, topics: dict[str, TopicInfo]) -> str | None:
+    """Return the camera info topic of an image topic in a log, None if it has none.
+
+    The one below the image (``/airsim_node/drone_1/front_left/Scene/camera_info``, the
+    MultiSense driver's ``/multisense/left/image_rect/camera_info``) first, then the
+    sibling (``/stereo/left/image_raw`` -> ``/stereo/left/camera_info``); a compressed
+    stream's are its image's (``.../Scene/compressed`` -> ``.../Scene/camera_info``).
+    """
+    parts = image.rstrip("/").split("/")
+    if parts[-1] in _COMPRESSED:
+        parts = parts[:-1]
+    for candidate in ("/".join([*parts, "camera_info"]), f"{namespace(image)}/camera_info"):
+        found = topics.get(candidate)
+        if found is not None and found.msgtype == rosmsg.CAMERA_INFO:
+            return candidate
+    return None
 
 
 def _differing_names(a: str, b: str) -> int:
@@ -235,8 +272,15 @@ def _side_by_number(a: str, b: str) -> int | None:
     return None
 
 
+UNCALIBRATED = "are not calibrated"
+"""Said in the reason of two cameras whose camera infos have an all-zero K and P."""
+
+
 def _not_numbered_sides(
-    a: list[Camera], b: list[Camera], tx_of: Callable[[str], float | None] | None
+    a: list[Camera],
+    b: list[Camera],
+    tx_of: Callable[[str], float | None] | None,
+    uncalibrated: Callable[[str], bool] | None = None,
 ) -> str | None:
     """Return why two cameras numbered alike are not the sides of one pair, None if they may be.
 
@@ -249,6 +293,8 @@ def _not_numbered_sides(
         a: the streams of one namespace.
         b: the streams of the other.
         tx_of: info topic -> its P[0, 3] (None: the infos are not looked at).
+        uncalibrated: info topic -> its K and P are all zero (a driver without a
+            calibration): said first, the fix being a calibration, not ``--baseline``.
     """
     ns_a, ns_b = a[0].namespace, b[0].namespace
     for x, y in zip(ns_a.split("/"), ns_b.split("/"), strict=True):
@@ -259,6 +305,12 @@ def _not_numbered_sides(
     if tx_of is None or a[0].info is None or b[0].info is None:
         return None
     tx_a, tx_b = tx_of(a[0].info), tx_of(b[0].info)
+    if tx_a == 0 and tx_b == 0 and uncalibrated is not None:
+        if uncalibrated(a[0].info) and uncalibrated(b[0].info):
+            return (
+                f"{ns_a} and {ns_b} {UNCALIBRATED} (all-zero K and P on both camera infos, "
+                "as a driver without a calibration publishes them)"
+            )
     if tx_a == 0 and tx_b == 0:
         return (
             f"{ns_a} and {ns_b} have no baseline (Tx = P[0, 3] = 0 on both camera infos, as "
@@ -274,16 +326,25 @@ def _pair_count(left: Camera, right: Camera) -> int | None:
     return min(left.count, right.count)
 
 
-def _best_streams(left: list[Camera], right: list[Camera]) -> tuple[Camera, Camera, str] | None:
+def _best_streams(
+    left: list[Camera],
+    right: list[Camera],
+    encoding_of: Callable[[str], str | None] | None = None,
+) -> tuple[Camera, Camera, str] | None:
     """Return the preferred streams of two cameras (of one image), and a note on those passed.
 
     :func:`stream_score` decides, but a stream pair that holds clearly fewer images than
     another (a ``stereo_image_proc`` started late: 3 rectified pairs of 12 raw ones) comes
-    after it; the note says so ("" when nothing of the kind was passed over).
+    after it; the note says so ("" when nothing of the kind was passed over). With
+    ``encoding_of`` (image topic -> its first image's encoding) and more than one stream
+    pair, a stream whose images are no camera images (``32FC1`` depth) comes last.
     """
     candidates = [(c, p) for c in left for p in right if p.image == c.image]
     if not candidates:
         return None
+    if encoding_of is not None and len(candidates) > 1:
+        cameras_ = [(c, p) for c, p in candidates if _camera_images(c, p, encoding_of)]
+        candidates = cameras_ or candidates
     counts = [_pair_count(c, p) for c, p in candidates]
     most = max((n for n in counts if n is not None), default=None)
 
@@ -312,11 +373,22 @@ def _best_streams(left: list[Camera], right: list[Camera]) -> tuple[Camera, Came
     return cam, partner, note
 
 
+def _camera_images(left: Camera, right: Camera, encoding_of: Callable[[str], str | None]) -> bool:
+    """Return False when a stream pair's first raw images have an encoding no camera has."""
+    for cam in (left, right):
+        encoding = None if cam.compressed else encoding_of(cam.topic)
+        if encoding is not None and encoding not in rosmsg.CAMERA_IMAGE_ENCODINGS:
+            return False
+    return True
+
+
 def find_pairs(
     topics: dict[str, TopicInfo],
     *,
     need_info: bool = True,
     tx_of: Callable[[str], float | None] | None = None,
+    encoding_of: Callable[[str], str | None] | None = None,
+    uncalibrated: Callable[[str], bool] | None = None,
     baseline_given: bool = False,
     rejected: list[str] | None = None,
     left_topic: str | None = None,
@@ -333,12 +405,18 @@ def find_pairs(
         topics: the log's topics.
         need_info: cameras need a sibling ``camera_info`` (False with calibration files).
         tx_of: info topic -> its P[0, 3] (read from the log), for names that say nothing.
+        encoding_of: image topic -> its first image's encoding (read from the log): of a
+            camera's streams, those of no camera image (``32FC1``) come last.
+        uncalibrated: info topic -> its K and P are all zero (said in ``rejected``).
         baseline_given: ``--baseline`` was given (two infos with Tx = 0 may be a pair).
         rejected: given, it takes why cameras numbered alike were not taken for a pair.
         left_topic: only the pairs whose left stream is this one (a side named).
         right_topic: only the pairs whose right stream is this one.
     """
     streams = cameras(topics, need_info=need_info)
+    # depth, disparity, ... streams are no camera, unless one is named (its partner is one)
+    if not any(c.not_camera and c.topic in (left_topic, right_topic) for c in streams):
+        streams = [c for c in streams if not c.not_camera]
     by_ns: dict[str, list[Camera]] = {}
     for cam in streams:
         by_ns.setdefault(cam.namespace, []).append(cam)
@@ -350,7 +428,7 @@ def find_pairs(
             how, closeness = "by name", BY_NAME
             if side is None and (side := _side_by_number(a, b)) is not None:
                 check_tx = tx_of if need_info and not baseline_given else None
-                reason = _not_numbered_sides(by_ns[a], by_ns[b], check_tx)
+                reason = _not_numbered_sides(by_ns[a], by_ns[b], check_tx, uncalibrated)
                 if reason is not None:
                     side = None
                     if rejected is not None:
@@ -370,7 +448,7 @@ def find_pairs(
             # with a raw right), one transport on both sides preferred
             lefts = [c for c in by_ns[left_ns] if left_topic in (None, c.topic)]
             rights = [c for c in by_ns[right_ns] if right_topic in (None, c.topic)]
-            best = _best_streams(lefts, rights)
+            best = _best_streams(lefts, rights, encoding_of)
             if best is not None:
                 pairs.append(StereoTopics(best[0], best[1], how, closeness, best[2]))
     pairs.sort(key=StereoTopics.preference, reverse=True)
@@ -414,6 +492,43 @@ def _first_tx(reader: LogReader) -> Callable[[str], float | None]:
     return tx_of
 
 
+def _uncalibrated(reader: LogReader) -> Callable[[str], bool]:
+    cache: dict[str, bool] = {}
+
+    def uncalibrated(topic: str) -> bool:
+        if topic not in cache:
+            cache[topic] = False
+            for raw in reader.messages([topic]):
+                try:
+                    info = reader.decode(raw)
+                    k = getattr(info, "k", None)
+                    k = np.asarray(info.K if k is None else k, dtype=float)
+                    cache[topic] = not k.any() and not rosmsg.projection_matrix(info).any()
+                except (PcaInterpError, AttributeError, TypeError, ValueError):
+                    cache[topic] = False
+                break
+        return cache[topic]
+
+    return uncalibrated
+
+
+def _first_encoding(reader: LogReader) -> Callable[[str], str | None]:
+    cache: dict[str, str | None] = {}
+
+    def encoding_of(topic: str) -> str | None:
+        if topic not in cache:
+            cache[topic] = None
+            for raw in reader.messages([topic]):
+                try:
+                    cache[topic] = str(reader.decode(raw).encoding)
+                except (PcaInterpError, AttributeError, ValueError):  # not known: no ranking
+                    cache[topic] = None
+                break
+        return cache[topic]
+
+    return encoding_of
+
+
 def resolve_pairing(
     reader: LogReader, config: PairingConfig, echo: Callable[[str], None] | None = None
 ) -> PairingConfig:
@@ -434,7 +549,43 @@ def resolve_pairing(
     order = _camchain_order(config)
     if order and echo is not None:
         echo(order)
-    return _resolve(reader, config, echo)
+    resolved = _resolve(reader, config, echo)
+    _refuse_no_camera_images(reader, resolved)
+    return resolved
+
+
+def _refuse_no_camera_images(reader: LogReader, config: PairingConfig) -> None:
+    """Raise when a side's first image is no camera image and its camera has other streams.
+
+    ``--left-topic /isaac/left/depth`` (``32FC1``) beside ``/isaac/left/rgb``: the error
+    names the camera's other streams (the images would be refused later, with no word on
+    them).
+
+    Raises:
+        TopicNotFoundError: a side's first image has an encoding no camera image has, and
+            its namespace has other image streams (named in the message).
+    """
+    topics = reader.topics()
+    encoding_of = _first_encoding(reader)
+    images = [c for c in cameras(topics, need_info=False) if not c.compressed]
+    for side, topic in (("left", config.left_topic), ("right", config.right_topic)):
+        encoding = encoding_of(topic) if topic in topics else None
+        if encoding is None or encoding in rosmsg.CAMERA_IMAGE_ENCODINGS:
+            continue
+        ns = namespace(topic)
+        others = [
+            c.topic
+            for c in images
+            if c.namespace == ns and c.topic != topic and not c.not_camera
+            if encoding_of(c.topic) in rosmsg.CAMERA_IMAGE_ENCODINGS
+        ]
+        if not others:
+            continue
+        raise TopicNotFoundError(
+            f"the {side} images ({topic}) are {encoding}, no camera images (a depth or "
+            f"disparity stream?); the camera's image stream{'s' * (len(others) > 1)}: "
+            f"{', '.join(others)}: pass --{side}-topic {others[0]} (and its partner)"
+        )
 
 
 def _camchain_order(config: PairingConfig) -> str:
@@ -471,8 +622,8 @@ def _resolve(
             ("left_info_topic", config.left_topic, DEFAULT_LEFT_INFO),
             ("right_info_topic", config.right_topic, DEFAULT_RIGHT_INFO),
         ):
-            sibling = f"{namespace(image)}/camera_info"
-            if getattr(config, field) == default and default not in topics and sibling in topics:
+            sibling = info_topic_of(image, topics)  # below the image, or beside it
+            if getattr(config, field) == default and default not in topics and sibling:
                 siblings[field] = sibling
         if not siblings:
             return config
@@ -574,6 +725,8 @@ def _discover(
         topics,
         need_info=need_info,
         tx_of=_first_tx(reader),
+        encoding_of=_first_encoding(reader),
+        uncalibrated=_uncalibrated(reader),
         baseline_given=config.baseline is not None,
         rejected=rejected,
         left_topic=config.left_topic if named_left else None,
@@ -593,6 +746,12 @@ def _discover(
     if not pairs:
         images = [t for t, i in sorted(topics.items()) if i.msgtype in _IMAGE_TYPES]
         empty = [t for t in images if topics[t].message_count == 0]
+        if rejected and all(UNCALIBRATED in r for r in rejected):
+            raise TopicNotFoundError(
+                f"no stereo pair found in {name}: {'; '.join(dict.fromkeys(rejected))}; "
+                "calibrate the pair (ROS camera_calibration) and pass --calibration LEFT.yaml "
+                "RIGHT.yaml"
+            )
         if rejected:
             raise TopicNotFoundError(
                 f"no stereo pair found in {name}: {'; '.join(dict.fromkeys(rejected))}; a "

@@ -502,6 +502,19 @@ class PairingStats:
             )
         return ", ".join(parts)
 
+    def undecodable_fix(self) -> str:
+        """Return the fix of images that did not decode (for a log without a usable pair).
+
+        A wrong ``step`` field is the publisher's to fix, not the encoding; other reasons
+        (an encoding not read) are told to convert the images.
+        """
+        if self.undecodable and all(r.startswith("image step ") for r in self.undecodable):
+            return (
+                "the images' step field is shorter than their rows: fix the publisher (step = "
+                "width * bytes per pixel) and re-record"
+            )
+        return "convert the images to mono8, rgb8 or bgr8 (or png/jpeg CompressedImage)"
+
 
 def _seconds(stamp_ns: int) -> str:
     """Return a stamp (ns) as seconds with all nine decimals."""

@@ -135,12 +135,22 @@ class StereoRectifier:
             baseline = left.baseline(right)
             if not (baseline > 0 and np.isfinite(baseline)):
                 left_tx = f", left P[0,3] = {left.p[0, 3]}" if left.p[0, 3] else ""
-                # a negative baseline is a sign problem --baseline cannot fix
+                # a negative baseline is a sign problem: --baseline cannot fix infos crossed
+                # (the left one has the Tx), but does a right Tx of the wrong sign (the remap
+                # uses P[:3, :3], not Tx; the row check then tells swapped images)
                 sign, fix = (
                     (
                         "swapped left/right?",
                         f"{right.name} is the left camera's calibration: pass it as the left "
                         f"one and {left.name} as the right one, each with its camera's images",
+                    )
+                    if baseline < 0 and (left.p[0, 3] != 0 or self.identity)
+                    else (
+                        "Tx of the wrong sign?",
+                        f"if the images are on their topics (a driver writing Tx = +fx * "
+                        f"baseline), pass --baseline {-baseline:.6g} (Tx does not enter the "
+                        f"remap); if the cameras are swapped, pass each camera's images and "
+                        f"info as the other side",
                     )
                     if baseline < 0
                     else ("no Tx", "fix the calibration or pass --baseline METRES")

@@ -37,6 +37,7 @@ IMAGE_ENCODINGS: dict[str, tuple[str, int]] = {
     "8UC3": ("u1", 3),
     "bgra8": ("u1", 4),
     "rgba8": ("u1", 4),
+    "8UC4": ("u1", 4),  # cv_bridge's BGRA
     "bayer_rggb8": ("u1", 1),
     "bayer_bggr8": ("u1", 1),
     "bayer_gbrg8": ("u1", 1),
@@ -62,6 +63,7 @@ TO_RGB: dict[str, int] = {
     "bgr8": cv2.COLOR_BGR2RGB,
     "8UC3": cv2.COLOR_BGR2RGB,  # cv_bridge's order for three 8-bit channels
     "bgra8": cv2.COLOR_BGRA2RGB,  # the ZED wrappers' image_rect_color
+    "8UC4": cv2.COLOR_BGRA2RGB,  # cv_bridge's order for four 8-bit channels
     "rgba8": cv2.COLOR_RGBA2RGB,
     # ROS names the first 2x2 cell, OpenCV the second row's: as cv_bridge maps them
     "bayer_rggb8": cv2.COLOR_BayerBG2RGB,
@@ -200,7 +202,13 @@ def image_array(message: Any) -> npt.NDArray[np.generic]:
         raise ValueError(f"image is empty ({width}x{height} {encoding})")
     row_bytes = width * channels * dtype.itemsize
     raw = np.asarray(message.data, dtype=np.uint8)
-    if step < row_bytes or raw.size < height * step:
+    if step < row_bytes:  # the step field is wrong, not the encoding
+        raise ValueError(
+            f"image step {step} is shorter than a row of {width} px {encoding} ({row_bytes} "
+            f"bytes; data {raw.size} bytes for {height} rows): the publisher's step field is "
+            "wrong (step = width * bytes per pixel)"
+        )
+    if raw.size < height * step:
         raise ValueError(
             f"image data has {raw.size} bytes, expected {height} rows of step {step} "
             f">= {row_bytes} for {width}x{height} {encoding}"

@@ -296,7 +296,7 @@ def no_pair_message(
     """
     details = "; ".join([stats.summary(), *stats.problems[:1], *damage[:2]])
     if stats.undecodable:
-        fix = "convert the images to mono8, rgb8 or bgr8 (or png/jpeg CompressedImage)"
+        fix = stats.undecodable_fix()
     elif stats.size_mismatches:
         fix = "left and right images of a rectified pair must have the same size"
     elif stats.encoding_mismatches:

@@ -514,3 +514,24 @@ def test_cameras_of_different_sizes_with_different_rectified_cameras_are_refused
     )
     assert "--calibration LEFT.yaml RIGHT.yaml" in message
     assert "\n" not in message
+
+
+def test_a_right_tx_of_the_wrong_sign_is_told_the_baseline_that_works() -> None:
+    # bug hunt 10C F5: depthai-ros's right P[0, 3] = +fx * baseline, images on their topics:
+    # "pass it as the left one" failed (rows 3.8 px apart); --baseline works (the remap
+    # does not use Tx), and is named with its value
+    calibration = raw_calibration(CAMERA, "plumb_bob")
+    right = calibration.right
+    p = right.p.copy()
+    p[0, 3] = -p[0, 3]
+    slipped = rect.StereoCalibration(calibration.left, dataclasses.replace(right, p=p))
+    with pytest.raises(CalibrationError) as err:
+        rect.StereoRectifier(slipped)
+    line = str(err.value)
+    assert "Tx of the wrong sign?" in line
+    assert f"pass --baseline {CAMERA.baseline:.6g} (Tx does not enter the remap)" in line
+    assert "is the left camera's calibration" not in line
+    fixed = rect.StereoRectifier(slipped, baseline=CAMERA.baseline)
+    good = rect.StereoRectifier(calibration)
+    for a, b in zip(fixed._maps, good._maps, strict=True):
+        np.testing.assert_array_equal(a[0], b[0])

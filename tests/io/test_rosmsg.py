@@ -52,6 +52,7 @@ def test_camera_encodings_of_real_drivers_decode_to_rgb() -> None:
         "bgr8": bgr,
         "8UC3": bgr,  # three 8-bit channels are BGR to cv_bridge
         "bgra8": np.concatenate([bgr, alpha], axis=2),
+        "8UC4": np.concatenate([bgr, alpha], axis=2),  # bug hunt 10C F6: BGRA to cv_bridge
         "rgba8": np.concatenate([rgb, alpha], axis=2),
     }
     for encoding, data in exact.items():
@@ -72,6 +73,28 @@ def test_camera_encodings_of_real_drivers_decode_to_rgb() -> None:
     yuy2 = uyvy[:, :, ::-1].copy()  # Y0 U Y1 V
     decoded = rosmsg.image_array(_raw_image(yuy2, "yuv422_yuy2")).astype(int)
     assert np.abs(decoded - rgb).mean() < 6
+
+
+def test_a_step_shorter_than_a_row_is_said_to_be_the_step() -> None:
+    # bug hunt 10C F6: mono8 images with step 0 were told "convert the images to mono8"
+    from pcainterp_stream.frontend.pairing import _reason
+    from pcainterp_stream.frontend.pairing_stats import PairingStats
+
+    for step in (0, 31):
+        message = _raw_image(np.zeros((24, 32), np.uint8), "mono8")
+        message.step = step
+        with pytest.raises(ValueError, match="image step") as err:
+            rosmsg.image_array(message)
+        assert str(err.value) == (
+            f"image step {step} is shorter than a row of 32 px mono8 (32 bytes; data 768 "
+            "bytes for 24 rows): the publisher's step field is wrong (step = width * bytes "
+            "per pixel)"
+        )
+        stats = PairingStats(undecodable={_reason(err.value): 4})
+        assert "convert" not in stats.undecodable_fix()
+        assert "step field" in stats.undecodable_fix()
+    encoding = PairingStats(undecodable={"unsupported image encoding '32FC1'": 4})
+    assert encoding.undecodable_fix().startswith("convert the images to mono8")
 
 
 def _organized_cloud(points: np.ndarray, padding: int, row_step: int | None = None) -> object:
