@@ -211,6 +211,16 @@ def _digest(values: list[Any]) -> str:
     return "sha256:" + hashlib.sha256(text.encode()).hexdigest()[:32]
 
 
+def _float_rows(values: list[Any]) -> bool:
+    """Return True for lists of numbers of one length, some of them floats."""
+    if not values or not all(isinstance(v, list) and len(v) == len(values[0]) for v in values):
+        return False
+    items = [x for v in values for x in v]
+    return all(isinstance(x, int | float) and not isinstance(x, bool) for x in items) and any(
+        isinstance(x, float) for x in items
+    )
+
+
 def _sequence(items: list[Any] | tuple[Any, ...], name: str, content: MessageContent) -> None:
     """Record a sequence longer than :data:`MAX_VALUE_LENGTH` field by field over its items.
 
@@ -247,6 +257,11 @@ def _sequence(items: list[Any] | tuple[Any, ...], name: str, content: MessageCon
         ):
             content.arrays[label] = np.array(
                 [np.nan if v is None else float(v) for v in column], dtype=np.float64
+            )
+        elif _float_rows(present):  # a short float list per item (a covariance)
+            width = len(present[0])
+            content.arrays[label] = np.array(
+                [[np.nan] * width if v is None else v for v in column], dtype=np.float64
             )
         elif all(v == column[0] and type(v) is type(column[0]) for v in column):
             content.values[label] = column[0]

@@ -244,3 +244,21 @@ def test_swapped_arguments_name_the_fix(tmp_path: Path) -> None:
         load_golden(log)
     with pytest.raises(GoldenError, match=r"is the arrays file of the golden file g.golden.json"):
         load_golden(tmp_path / "g.golden.npz")
+
+
+def test_short_float_lists_of_long_sequence_items_are_arrays() -> None:
+    """A covariance per item (36 floats) is an (n, 36) array within tolerance, not a digest."""
+    from dataclasses import dataclass
+
+    from pcainterp_stream.golden.summary import array_statistics
+
+    @dataclass
+    class Item:
+        c: list[float]
+
+    items = [[float(i + j) for j in range(36)] for i in range(80)]
+    first = MessageContent()
+    _walk([Item(row) for row in items], "poses", first, frozenset())
+    assert first.arrays["poses[*].c"].shape == (80, 36)
+    assert array_statistics(first.arrays["poses[*].c"])["shape"] == [80, 36]
+    assert "poses[*].c" not in first.values
