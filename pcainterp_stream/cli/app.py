@@ -101,9 +101,21 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``pcainterp``; return the exit code."""
+    """Run ``pcainterp``; return the exit code, also 2 for a usage error.
+
+    argparse ends a bad command line (an unknown option, a value that does not parse) with
+    ``SystemExit(2)`` after printing the usage line; that is returned as 2 here, so that a
+    caller in-process (a test: ``assert main([...]) == 0``) gets the code rather than the
+    exception. ``--help`` and ``--version`` print and end with ``SystemExit(0)``, as
+    argparse does.
+    """
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as done:
+        if done.code in (0, None):  # --help, --version
+            raise
+        return done.code if isinstance(done.code, int) else 2  # usage error, already printed
     if isinstance(sys.stdout, streams.ReportStream) and _writes(args):
         sys.stdout.note = REPORT_GONE
     # SIGTERM takes the same clean-up path as Ctrl-C: temporaries removed, target untouched;

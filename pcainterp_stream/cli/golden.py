@@ -79,7 +79,10 @@ def add_parser(commands: Commands) -> None:
         "--topics", nargs="+", default=None, metavar="TOPIC", help="check only these channels"
     )
     check.add_argument(
-        "--update", action="store_true", help="rewrite the golden file from LOG when they differ"
+        "--update",
+        action="store_true",
+        help="rewrite the golden file from LOG when they differ (with --topics: only those "
+        "channels, the others keep what the file recorded)",
     )
     check.add_argument(
         "--max-lines",
@@ -119,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
         PcaInterpError: bad input (a missing or damaged log, a golden file of another
             format version, a missing channel, a bad option); the caller prints it.
     """
-    from pcainterp_stream.golden.comparison import format_differences
+    from pcainterp_stream.golden.comparison import count_differences, format_differences
     from pcainterp_stream.golden.store import arrays_path, check_log, save_golden
 
     if args.golden_command == "save":
@@ -144,17 +147,25 @@ def run(args: argparse.Namespace) -> int:
         result = check_log(
             args.log, args.golden, topics=args.topics, update=args.update, progress=progress
         )
+    for note in result.notes[:5]:
+        echo(f"note: {note}")
+    if len(result.notes) > 5:
+        echo(f"note: ... and {len(result.notes) - 5} more notes")
     if result.passed:
         echo(f"{args.log.name} matches {args.golden.name}")
+        if result.updated:
+            echo(f"rewrote {args.golden} from {args.log.name} in the current format")
         return 0
     echo(format_differences(result.differences, args.max_lines))
     count = len(result.differences)
     plural = "s" if count > 1 else ""
     if result.updated:
-        echo(f"{count} difference{plural}; rewrote {args.golden} from {args.log.name}")
+        what = f" (channels {', '.join(args.topics)} only)" if args.topics else ""
+        echo(f"{count} difference{plural}; rewrote {args.golden}{what} from {args.log.name}")
         return 0
     echo(
-        f"{args.log.name} differs from {args.golden.name} in {count} place{plural} beyond "
-        "tolerance (pass --update to accept the log as the new golden)"
+        f"{args.log.name} differs from {args.golden.name} in "
+        f"{count_differences(result.differences)} (pass --update to accept the log as the new "
+        "golden)"
     )
     return 1

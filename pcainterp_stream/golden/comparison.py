@@ -1,9 +1,10 @@
 """Compare a log's summary with a golden one, within the tolerances the golden file states.
 
-Exact: the set of channels, their schemas and encodings, message counts, log times, header
-stamps, strings and integers. Within tolerance: floating-point values, the statistics of
-every array, the counts of non-finite elements, the number of points of a point cloud and,
-when the golden file stores the arrays, every element. :data:`DEFAULT_TOLERANCE` is written
+Exact: the set of channels, their schemas and encodings, message counts, log times (unless
+``log_time.abs_ns`` allows more), header stamps, strings and integers. Within tolerance:
+floating-point values, the statistics of every array, the counts of non-finite elements,
+the number of points of a point cloud and, when the golden file stores the arrays, every
+element. :data:`DEFAULT_TOLERANCE` is written
 into each golden file, where it can be edited; :func:`compare` reads it from there.
 
 Messages are matched by header stamp (by log time for messages without a header), so a
@@ -21,12 +22,21 @@ import numpy.typing as npt
 
 from pcainterp_stream.golden.summary import QUANTILES
 
-__all__ = ["DEFAULT_TOLERANCE", "Difference", "compare", "format_differences", "format_stamp"]
+__all__ = [
+    "DEFAULT_TOLERANCE",
+    "Difference",
+    "compare",
+    "count_differences",
+    "format_differences",
+    "format_stamp",
+]
 
 DEFAULT_TOLERANCE: dict[str, Any] = {
     "note": (
-        "Exact: channels, schemas, encodings, message counts, log times, header stamps, "
-        "strings and integers. uint8 arrays (grey levels): mean, std, median and mad within "
+        "Exact: channels, schemas, encodings, message counts, header stamps, strings and "
+        "integers; log times within log_time.abs_ns (0: exact; raise it for a log recorded "
+        "live, whose log times are receive times). uint8 arrays (grey levels): mean, std, "
+        "median and mad within "
         "uint8.stat_abs, quantiles within uint8.quantile_abs. Other arrays: each statistic "
         "within float.rel of its value plus float.spread of the golden 1%-99% quantile "
         "spread plus float.abs. NaN/inf counts within nonfinite_fraction of the element "
@@ -53,6 +63,7 @@ DEFAULT_TOLERANCE: dict[str, Any] = {
     "nonfinite_fraction": 0.002,
     "values": {"rel": 1e-6, "abs": 1e-9},
     "point_count": {"rel": 0.05, "abs": 1},
+    "log_time": {"abs_ns": 0},
     "blocks": {"scale": 4.0},
     "pixels": {"atol": 1e-4, "rtol": 1e-3, "std_atol": 0.05, "bad_fraction": 0.002},
     "channels": {},
@@ -100,6 +111,18 @@ def format_stamp(stamp_ns: int) -> str:
     """Return a stamp in ns as seconds with nine decimals (``1.200000000 s``)."""
     sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
     return f"{sec}.{nsec:09d} s"
+
+
+def count_differences(differences: list[Difference]) -> str:
+    """Return "N places beyond tolerance" / "compared exactly" / both, for a summary line."""
+    count = len(differences)
+    exact = sum(1 for d in differences if "tolerance" not in d.text and "beyond" not in d.text)
+    places = f"{count} place{'s' if count != 1 else ''}"
+    if exact == 0:
+        return f"{places} beyond tolerance"
+    if exact == count:
+        return f"{places} compared exactly"
+    return f"{places} ({count - exact} beyond tolerance, {exact} compared exactly)"
 
 
 def format_differences(differences: list[Difference], max_lines: int | None = 20) -> str:
@@ -230,9 +253,19 @@ class _Comparer:
         def add(what: str, text: str) -> None:
             self.out.append(Difference(topic, index, stamp, what, text))
 
-        for key in ("log_time_ns", "stamp_ns"):
-            if want.get(key) != have.get(key):
-                add(key, f"{have.get(key)}, golden {want.get(key)}")
+        if want.get("stamp_ns") != have.get("stamp_ns"):
+            add("stamp_ns", f"{have.get('stamp_ns')}, golden {want.get('stamp_ns')}")
+        allowed_ns = int(tolerance["log_time"]["abs_ns"])
+        want_time, have_time = want.get("log_time_ns"), have.get("log_time_ns")
+        if want_time != have_time:
+            if allowed_ns == 0 or not (isinstance(want_time, int) and isinstance(have_time, int)):
+                add("log_time_ns", f"{have_time}, golden {want_time}")
+            elif abs(have_time - want_time) > allowed_ns:
+                add(
+                    "log_time_ns",
+                    f"{want_time} -> {have_time} (moved {have_time - want_time} ns, tolerance "
+                    f"{allowed_ns} ns)",
+                )
         want_values, have_values = want.get("values", {}), have.get("values", {})
         image, derived = _DATA_SCALARS.get(self.schema, ("", ()))
         image_stats = want.get("arrays", {}).get(image)
@@ -280,8 +313,8 @@ class _Comparer:
 
         Their statistics are then compared as usual (the width already had its tolerance).
         """
-        if not self.cloud or len(want["shape"]) != 1 or len(have["shape"]) != 1:
-            return False
+        if not self.cloud or want["shape"][1:] != have["shape"][1:] or not want["shape"]:
+            return False  # (n,) or (n, count) of a field of count > 1
         limits = tolerance["point_count"]
         count = int(want["shape"][0])
         allowed = float(limits["rel"]) * count + float(limits["abs"])
@@ -344,7 +377,12 @@ class _Comparer:
             if want[key] != have[key] and not (
                 key == "shape" and self.points(want, have, tolerance)
             ):
-                add(f"{name} {key}", f"{have[key]}, golden {want[key]}")
+                text = f"{have[key]}, golden {want[key]}"
+                if key == "shape" and self.cloud and want[key][1:] == have[key][1:]:
+                    limits = tolerance["point_count"]
+                    allowed = float(limits["rel"]) * int(want[key][0]) + float(limits["abs"])
+                    text += f" (points beyond the point count's tolerance {allowed:g})"
+                add(f"{name} {key}", text)
                 return
         size = math.prod(want["shape"])
         allowed_count = tolerance["nonfinite_fraction"] * size
@@ -437,13 +475,15 @@ class _Comparer:
             actual = np.asarray(self.actual_arrays[have_key], dtype=np.float64)
             size, came_or_went, compared = golden.size, 0, ""
             if golden.shape != actual.shape:
-                if not (self.cloud and golden.ndim == 1 and actual.ndim == 1):
+                if not (self.cloud and golden.ndim >= 1 and golden.shape[1:] == actual.shape[1:]):
                     continue  # the statistics already name the shape
                 # a cloud whose point count moved within tolerance: its common prefix is
                 # compared, and the points that came or went count as beyond
-                common = min(golden.size, actual.size)
+                common = min(len(golden), len(actual))
                 came_or_went = abs(golden.size - actual.size)
-                compared = f" (first {common} points compared; {actual.size} points, golden {size})"
+                compared = (
+                    f" (first {common} points compared; {len(actual)} points, golden {len(golden)})"
+                )
                 golden, actual = golden[:common], actual[:common]
             std_key = std_arrays.get(name)
             std: npt.NDArray[np.float64] | None = None

@@ -12,6 +12,12 @@ check the log against it and fail with the list of differences. ``--force-regen`
 pytest-regressions flag) rewrites the golden files that differ and fails those tests;
 ``--update-golden`` rewrites every golden file the run checks and passes.
 
+The golden file is named after the test (``test_name.golden.json``); with pytest-regressions'
+``--with-test-class-names`` a test method's after its class too (``TestA_test_name``).
+Parts of the log the golden file cannot guard in full (a payload that does not decode, a
+golden file of an older format) are reported as a :class:`GoldenNoteWarning` in pytest's
+warnings summary.
+
 A golden file named with ``basename=`` or ``fullpath=`` may be shared by several checks (the
 cases of a parametrized test that must all give the same log, two code paths that must
 agree): the first check of the run that matches or writes it settles it, and the others
@@ -27,6 +33,7 @@ from __future__ import annotations
 
 import re
 import shutil
+import warnings
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,10 +46,15 @@ from pcainterp_stream.errors import GoldenError, GoldenToleranceError
 if TYPE_CHECKING:
     from pcainterp_stream.golden.comparison import Difference
 
-__all__ = ["LogGolden", "log_golden"]
+__all__ = ["GoldenNoteWarning", "LogGolden", "log_golden"]
 
 EXTENSION = ".golden.json"
 MAX_LINES = 40
+MAX_NOTES = 5
+
+
+class GoldenNoteWarning(UserWarning):
+    """A part of a checked log its golden file does not guard in full (shown, not failed)."""
 
 
 @dataclass
@@ -148,10 +160,13 @@ class LogGolden:
         __tracebackhide__ = True
         from pytest_regressions.common import perform_regression_check
 
-        from pcainterp_stream.golden.comparison import format_differences
+        from pcainterp_stream.golden.comparison import count_differences, format_differences
         from pcainterp_stream.golden.store import (
+            FORMAT_VERSION,
+            OLDEST_FORMAT_VERSION,
             checked_tolerance,
             compare_documents,
+            format_version,
             load_golden,
             save_golden,
             topic_selection,
@@ -161,7 +176,7 @@ class LogGolden:
         selected = topic_selection(topics)
         node = self._request.node
         named = basename is not None or fullpath is not None
-        paths_basename = _file_stem(node.name) if basename is None else basename
+        paths_basename = self._test_stem() if basename is None else basename
         source = (
             Path(fullpath)
             if fullpath is not None
@@ -170,7 +185,9 @@ class LogGolden:
         key = source.resolve()
         claim = self._claim(log, key, source, named=named, paths_basename=paths_basename)
 
-        def dump(path: Path) -> None:
+        notes: list[str] = []
+
+        def dump(path: Path, version: int = FORMAT_VERSION) -> None:
             kept = tolerance
             if path.exists() and not path.name.endswith(".obtained" + EXTENSION):
                 try:
@@ -180,19 +197,35 @@ class LogGolden:
                 except GoldenError:  # an unreadable or old file is simply replaced
                     kept = tolerance
             try:
-                save_golden(log, path, topics=selected, arrays=arrays, tolerance=kept)
+                summary = save_golden(
+                    log,
+                    path,
+                    topics=selected,
+                    arrays=arrays,
+                    tolerance=kept,
+                    format_version=version,
+                )
             except GoldenToleranceError as err:  # an override of a channel the log lacks
                 raise _naming(err, path, source) from None
+            notes[:] = summary.notes
             if path == source:
                 claim.settled = (node.nodeid, log.name, "wrote")
 
         def differences(obtained: Path, expected: Path) -> list[Difference]:
             try:
                 golden = load_golden(expected)
+                _refuse_other_selection(golden, source, selected, arrays)
                 name = golden.get("arrays_file")
                 if name and not (expected.parent / name).exists():
                     # the lazy data directory copied the JSON only
                     shutil.copy2(source.parent / name, expected.parent / name)
+                if format_version(golden) < FORMAT_VERSION:  # summarised as it was written
+                    dump(obtained, OLDEST_FORMAT_VERSION)
+                    if notes:  # only what the older format leaves out is noted
+                        notes.append(
+                            f"{source.name} has the older format {golden['format']}, which "
+                            "leaves these out; rewrite it with --force-regen or --update-golden"
+                        )
                 return compare_documents(golden, expected, load_golden(obtained), obtained)
             except GoldenToleranceError as err:
                 raise _naming(err, expected, source) from None
@@ -205,10 +238,9 @@ class LogGolden:
             __tracebackhide__ = True
             found = differences(obtained, expected)
             if found:
-                count = len(found)
                 raise AssertionError(
-                    f"{log.name} differs from the golden file {source} in {count} "
-                    f"place{'s' if count > 1 else ''} beyond tolerance:\n"
+                    f"{log.name} differs from the golden file {source} in "
+                    f"{count_differences(found)}:\n"
                     + format_differences(found, self.max_lines)
                     + "\n(rerun with --force-regen or --update-golden to accept the log)"
                 )
@@ -224,23 +256,36 @@ class LogGolden:
             obtained = self._datadir / f"{stem}.obtained{EXTENSION}"
             dump(obtained)
             found = differences(obtained, source)
+            _warn(log, source, notes)
             if found:
                 self._fail_shared(log, source, settled, found)
             return
         self._checked[key] = named
-        if self._request.config.getoption("update_golden"):
-            dump(source)
-            return
-        perform_regression_check(
-            datadir=self._datadir,
-            original_datadir=self._original_datadir,
-            request=self._request,
-            check_fn=compare,
-            dump_fn=dump,
-            extension=EXTENSION,
-            basename=paths_basename if fullpath is None else None,
-            fullpath=None if fullpath is None else Path(fullpath),
-        )
+        try:
+            if self._request.config.getoption("update_golden"):
+                dump(source)
+                return
+            perform_regression_check(
+                datadir=self._datadir,
+                original_datadir=self._original_datadir,
+                request=self._request,
+                check_fn=compare,
+                dump_fn=dump,
+                extension=EXTENSION,
+                basename=paths_basename if fullpath is None else None,
+                fullpath=None if fullpath is None else Path(fullpath),
+            )
+        finally:
+            _warn(log, source, notes)
+
+    def _test_stem(self) -> str:
+        """Return the golden file name of this test, as pytest-regressions names it."""
+        node = self._request.node
+        stem = _file_stem(node.name)
+        cls = getattr(node, "cls", None)
+        if cls is not None and self._request.config.getoption("with_test_class_names", False):
+            stem = f"{_file_stem(cls.__name__)}_{stem}"
+        return stem
 
     def _claim(
         self, log: Path, key: Path, source: Path, *, named: bool, paths_basename: str
@@ -261,7 +306,15 @@ class LogGolden:
             # --update-golden would write the file twice, last one wins
             owner_name = claim.node_id.rpartition("::")[2]
             fix = "pass another basename='...' or fullpath=..."
-            if not named and paths_basename == _file_stem(owner_name) == _file_stem(node.name):
+            owner_class = claim.node_id.rpartition("::")[0]
+            node_class = node.nodeid.rpartition("::")[0]
+            if not named and owner_name == node.name and owner_class != node_class:
+                fix = (
+                    f"the tests {claim.node_id} and {node.nodeid} have the same name in "
+                    "different classes; run with --with-test-class-names (the class name "
+                    "then prefixes the file name) or pass basename='...'"
+                )
+            elif not named and paths_basename == _file_stem(owner_name) == _file_stem(node.name):
                 fix = (
                     f"the test names {owner_name} and {node.name} differ only in characters "
                     "the file name replaces with '_'; give the parameters ids that differ in "
@@ -297,6 +350,49 @@ class LogGolden:
             "give each its own basename='...' or fullpath=...",
             pytrace=False,
         )
+
+
+def _refuse_other_selection(
+    golden: Mapping[str, Any], source: Path, selected: list[str] | None, arrays: bool
+) -> None:
+    """Fail naming the fix when the call asks for other channels or arrays than the file has.
+
+    Raises:
+        AssertionError: ``topics=`` leaves out channels the file records, or ``arrays=True``
+            and the file was saved without arrays (no element-wise check would run).
+    """
+    __tracebackhide__ = True
+    rerun = "rerun with --force-regen or --update-golden"
+    if selected is not None:
+        left_out = [topic for topic in golden["channels"] if topic not in selected]
+        if left_out:
+            shown = ", ".join(left_out[:6]) + (
+                f" and {len(left_out) - 6} more" * (len(left_out) > 6)
+            )
+            raise AssertionError(
+                f"the golden file {source} records channels that topics={selected!r} leaves "
+                f"out ({shown}): pass them in topics=, or {rerun} to record only those topics"
+            )
+    if arrays and not golden.get("arrays_file"):
+        raise AssertionError(
+            f"the golden file {source} was saved without arrays, so arrays=True would check "
+            f"no element; {rerun} to add them"
+        )
+
+
+def _warn(log: Path, source: Path, notes: list[str]) -> None:
+    """Show the notes of a check in pytest's warnings summary."""
+    if not notes:
+        return
+    shown = notes[:MAX_NOTES]
+    if len(notes) > MAX_NOTES:
+        shown.append(f"... and {len(notes) - MAX_NOTES} more notes")
+    warnings.warn(
+        GoldenNoteWarning(
+            f"log_golden.check({log.name!r}) against {source.name}: " + "; ".join(shown)
+        ),
+        stacklevel=4,
+    )
 
 
 def _naming(err: Exception, copy: Path, source: Path) -> GoldenToleranceError:

@@ -48,9 +48,16 @@ __all__ = [
 ]
 
 FORMAT_NAME = "pcainterp-golden"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 FORMAT = f"{FORMAT_NAME}/{FORMAT_VERSION}"
-"""The format string this version writes and reads."""
+"""The format string this version writes (it reads :data:`OLDEST_FORMAT_VERSION` too)."""
+OLDEST_FORMAT_VERSION = 2
+"""The oldest format this version checks: format 2 recorded an Image of an encoding outside
+:data:`~pcainterp_stream.io.rosmsg.IMAGE_ENCODINGS` and a payload that did not decode by its
+size only, a point field of ``count`` > 1 by its first element, a cloud with one field of
+an unknown datatype by its size, and a sequence of more than 64 messages by its length. A
+format-2 file is checked as it was written (:func:`~.decode.message_content` ``legacy``),
+with a note on what it leaves out; ``--update`` (or a save) rewrites it in format 3."""
 
 ARRAYS_MARKER = "__pcainterp_golden_arrays__"
 """The key of a golden arrays file that marks it as one: a JSON string naming the format
@@ -379,9 +386,10 @@ def _document(
     topics: list[str] | None,
     tolerance: Mapping[str, Any],
     arrays_file: str | None,
+    version: int = FORMAT_VERSION,
 ) -> dict[str, Any]:
     return {
-        "format": FORMAT,
+        "format": f"{FORMAT_NAME}/{version}",
         "created_by": f"pcainterp-stream {__version__}",
         "log": log.name,
         "topics": topics,
@@ -488,6 +496,7 @@ def save_golden(
     arrays: bool = False,
     tolerance: Mapping[str, Any] | None = None,
     progress: Progress | None = None,
+    format_version: int = FORMAT_VERSION,
 ) -> LogSummary:
     """Summarise a log and write it as a golden file.
 
@@ -501,6 +510,8 @@ def save_golden(
             the keys given replace the defaults'. Only the defaults' keys, finite numbers
             >= 0, and under ``"channels"`` channels the golden file records.
         progress: called after each message with (messages done, total or None).
+        format_version: :data:`FORMAT_VERSION`, or :data:`OLDEST_FORMAT_VERSION` to write
+            what an older golden file records (to compare a log with one).
 
     Returns:
         The summary written.
@@ -521,10 +532,18 @@ def save_golden(
     """
     log, golden = Path(log), Path(golden)
     selected = topic_selection(topics)
+    if format_version not in (OLDEST_FORMAT_VERSION, FORMAT_VERSION):
+        raise GoldenError(
+            f"format_version={format_version!r}: this version writes format "
+            f"{OLDEST_FORMAT_VERSION} or {FORMAT_VERSION}"
+        )
     _check_writable(golden, arrays_path(golden) if arrays else None, log)  # before the work
     given = {} if tolerance is None else tolerance
     checked_tolerance(given, golden)  # before the work
-    summary = summarize_log(log, topics=selected, keep_arrays=arrays, progress=progress)
+    legacy = format_version < FORMAT_VERSION
+    summary = summarize_log(
+        log, topics=selected, keep_arrays=arrays, progress=progress, legacy=legacy
+    )
     merged = checked_tolerance(
         {**DEFAULT_TOLERANCE, **given},
         golden,
@@ -532,17 +551,59 @@ def save_golden(
         of=f"recorded from {log.name}",
     )
     arrays_file = arrays_path(golden).name if arrays else None
-    document = _document(log, summary, topics=selected, tolerance=merged, arrays_file=arrays_file)
+    document = _document(
+        log,
+        summary,
+        topics=selected,
+        tolerance=merged,
+        arrays_file=arrays_file,
+        version=format_version,
+    )
     _write(golden, document, summary.arrays, log=log)
     return summary
+
+
+def _not_golden(golden: Path, err: Exception) -> str:
+    """Return the one-line error for a golden file that is not JSON: name what it is."""
+    if is_golden_arrays(golden):
+        owner = _owner(golden) or _arrays_owner_guess(golden)
+        return (
+            f"{golden} is the arrays file of the golden file {owner}, not a golden file: "
+            f"pass {owner} (the arrays file is read beside it)"
+        )
+    from pcainterp_stream.errors import LogReadError
+    from pcainterp_stream.io.logreader import sniff_format
+
+    try:
+        sniff_format(golden)
+    except LogReadError:
+        return f"golden file {golden} is not readable JSON ({err}); pass a .golden.json"
+    return (
+        f"{golden} is a log, not a golden file: the arguments are LOG GOLDEN.json (the log first)"
+    )
+
+
+def _arrays_owner_guess(path: Path) -> str:
+    """Return the golden JSON name an unmarked arrays file's name suggests."""
+    stem = path.name.removesuffix(".npz").removesuffix(".golden")
+    return f"{stem}.golden.json"
+
+
+def format_version(document: Mapping[str, Any]) -> int:
+    """Return the format version of a document :func:`load_golden` returned."""
+    return int(str(document.get("format", FORMAT)).partition("/")[2])
 
 
 def load_golden(golden: str | Path) -> dict[str, Any]:
     """Read a golden file and check its format.
 
+    A file of format :data:`OLDEST_FORMAT_VERSION` up to :data:`FORMAT_VERSION` is read
+    (:func:`format_version` tells which).
+
     Raises:
-        GoldenError: the file is missing, not JSON, not a golden file, of a newer format
-            version than this package reads, or of an older one.
+        GoldenError: the file is missing, not JSON (a log or an arrays file given in its
+            place is named so), not a golden file, of a newer format version than this
+            package reads, or of an older one.
         GoldenToleranceError: its ``"tolerance"`` (edited by hand) has a key the defaults
             do not have, a value that is not a finite number >= 0, or an override of a
             channel the file does not record.
@@ -555,7 +616,7 @@ def load_golden(golden: str | Path) -> dict[str, Any]:
             f"golden file {golden} does not exist; write it with `pcainterp golden save`"
         ) from err
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise GoldenError(f"golden file {golden} is not readable JSON ({err})") from err
+        raise GoldenError(_not_golden(golden, err)) from err
     fmt = document.get("format") if isinstance(document, dict) else None
     name, _, version = str(fmt).partition("/")
     if name != FORMAT_NAME or not version.isdigit():
@@ -565,7 +626,7 @@ def load_golden(golden: str | Path) -> dict[str, Any]:
             f"{golden} has format {fmt}, newer than this pcainterp-stream {__version__} "
             f"reads ({FORMAT}); upgrade pcainterp-stream"
         )
-    if int(version) < FORMAT_VERSION:
+    if int(version) < OLDEST_FORMAT_VERSION:
         raise GoldenError(
             f"{golden} has the old format {fmt}; write it again with "
             f"`pcainterp golden save LOG -o {golden.name}` (this version reads {FORMAT})"
@@ -648,17 +709,21 @@ def check_log(
 
     Args:
         log: an MCAP file, a ROS 1 ``.bag``, or a rosbag2 folder or storage file.
-        golden: a file :func:`save_golden` wrote.
+        golden: a file :func:`save_golden` wrote (of format 2 too: checked as it was
+            written, with a note on what it leaves out).
         topics: check only these channels (default: those the golden file records; one
             name may be given as a str).
-        update: rewrite the golden file from this log when they differ (same channel
-            selection, tolerances and arrays option; the arrays go to :func:`arrays_path`,
-            an older file's arrays of ours under another name are removed); the
-            differences are still returned.
+        update: rewrite the golden file from this log when they differ, or when it is of
+            an older format: with ``topics``, only the channels checked (the others keep
+            what the file recorded, and the file its format); without, every channel the
+            file records, in the current format (same tolerances and arrays option; the
+            arrays go to :func:`arrays_path`, an older file's arrays of ours under another
+            name are removed). The differences are still returned.
         progress: called after each message with (messages done, total or None).
 
     Returns:
-        The differences (none when the log matches) and whether the file was rewritten.
+        The differences (none when the log matches), notes on what is not guarded, and
+        whether the file was rewritten.
 
     Raises:
         GoldenError: the golden file is missing, malformed or of another format version,
@@ -683,6 +748,8 @@ def check_log(
                 f"recorded: {listed}"
             )
     with_arrays = bool(document.get("arrays_file"))
+    version = format_version(document)
+    partial = topics is not None and set(selected or []) != set(document["channels"])
     if update:  # refuse before the work, not after it
         _check_writable(golden, arrays_path(golden) if with_arrays else None, log)
     with _open_arrays(golden, document) as golden_arrays:
@@ -692,6 +759,7 @@ def check_log(
             keep_arrays=with_arrays,
             skip_missing=topics is None,
             progress=progress,
+            legacy=version < FORMAT_VERSION,
         )
         expected = document
         if topics is not None:
@@ -704,8 +772,18 @@ def check_log(
             actual_arrays=summary.arrays if with_arrays else None,
             std_channels=document["channels"],
         )
-    result = CheckResult(golden=golden, differences=differences, notes=summary.notes)
-    if update and differences:
+        notes = list(summary.notes)
+        if version < FORMAT_VERSION and notes:
+            notes.append(
+                f"{golden.name} has the older format {document['format']}, which leaves "
+                f"these out; rewrite it in {FORMAT} with `pcainterp golden check LOG "
+                f"{golden.name} --update` (or save it again) to guard them"
+            )
+        result = CheckResult(golden=golden, differences=differences, notes=notes)
+        if update and partial and differences:
+            _update_channels(log, golden, document, summary, golden_arrays)
+            result.updated = True
+    if update and not partial and (differences or version < FORMAT_VERSION):
         save_golden(
             log,
             golden,
@@ -715,6 +793,40 @@ def check_log(
         )
         result.updated = True
     return result
+
+
+def _update_channels(
+    log: Path,
+    golden: Path,
+    document: Mapping[str, Any],
+    summary: LogSummary,
+    golden_arrays: Mapping[str, npt.NDArray[Any]] | None,
+) -> None:
+    """Rewrite the channels of ``summary`` in a golden file; keep its other channels."""
+    arrays: dict[str, npt.NDArray[Any]] = {}
+
+    def renumbered(channel: Mapping[str, Any], source: Mapping[str, Any]) -> dict[str, Any]:
+        messages = []
+        for message in channel["messages"]:
+            message = dict(message)
+            if "array_keys" in message:
+                keys = {}
+                for name, key in message["array_keys"].items():
+                    if key in source:
+                        keys[name] = f"a{len(arrays)}"
+                        arrays[keys[name]] = np.asarray(source[key])
+                message["array_keys"] = keys
+            messages.append(message)
+        return dict(channel, messages=messages)
+
+    channels = {}
+    for topic, channel in document["channels"].items():
+        if topic in summary.channels:
+            channels[topic] = renumbered(summary.channels[topic], summary.arrays)
+        else:
+            channels[topic] = renumbered(channel, golden_arrays or {})
+    updated = dict(document, channels=channels, created_by=f"pcainterp-stream {__version__}")
+    _write(golden, updated, arrays, log=log)
 
 
 def describe_golden_file(path: str | Path) -> str | None:

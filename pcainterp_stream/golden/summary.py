@@ -172,6 +172,7 @@ def summarize_log(
     keep_arrays: bool = False,
     skip_missing: bool = False,
     progress: Progress | None = None,
+    legacy: bool = False,
 ) -> LogSummary:
     """Summarise a log for a golden file.
 
@@ -182,6 +183,8 @@ def summarize_log(
         skip_missing: leave out topics of ``topics`` that the log lacks instead of raising
             (a check then reports them as missing channels).
         progress: called after each message with (messages done, total or None).
+        legacy: summarise as golden files of format 2 did (to check one of them; see
+            :func:`~.decode.message_content`).
 
     Returns:
         The summary; message indices count within each channel from 0.
@@ -230,7 +233,7 @@ def summarize_log(
             channel["messages"].append(entry)
             if raw.message_encoding != "cdr" or raw.schema_encoding not in ROS2_SCHEMA_ENCODINGS:
                 continue
-            content = message_content(raw.msgtype, reader.decode(raw))
+            content = message_content(raw.msgtype, reader.decode(raw), legacy=legacy)
             stamp = content.values.pop("header.stamp", None)
             if stamp is not None:
                 entry["stamp_ns"] = stamp

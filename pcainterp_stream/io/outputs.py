@@ -240,8 +240,8 @@ class OutputTopics:
 
 
 BASIS_KEY = "pcainterp.basis"
-"""Channel metadata key: the basis densify used, ``built-in`` or the path of its file as given
-(or ``in-memory`` for a basis passed as an object)."""
+"""Channel metadata key: the basis densify used, ``built-in`` or the name of its file (no
+folder; or ``in-memory`` for a basis passed as an object)."""
 
 BASIS_FINGERPRINT_KEY = "pcainterp.basis_fingerprint"
 """Channel metadata key: the basis's content fingerprint (``Basis.fingerprint``)."""

@@ -4,14 +4,17 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import json
+import os
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, ClassVar, ParamSpec, TypeVar
 
 from pcainterp_stream.errors import (
     LogReadError,
@@ -272,6 +275,80 @@ def front_end(pairing: PairingConfig, processor: ProcessorConfig, stats: Pairing
     )
 
 
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
+
+
+class _BlasThreads:
+    """The BLAS thread counts a caller had when the first densify job of the process began.
+
+    A job holds every BLAS at one thread (:class:`~.threads.ThreadLimits`), and the solver
+    holds scipy's OpenBLAS, loaded inside the first job, at one thread for the process
+    (``estimate/compiled.py``). When the last job running in the process returns, each
+    BLAS the caller had gets its count back and one loaded during the jobs the count the
+    caller's environment gives a new one (``OPENBLAS_NUM_THREADS``, ``OMP_NUM_THREADS``,
+    else the CPUs this process may run on): a caller's own ``scipy.linalg`` work afterwards
+    is not left single-threaded (bug hunt 10A F1).
+    """
+
+    lock: ClassVar[threading.Lock] = threading.Lock()
+    running: ClassVar[int] = 0
+    before: ClassVar[dict[str, int]] = {}
+    default: ClassVar[int] = 1
+
+    @classmethod
+    def enter(cls) -> None:
+        with cls.lock:
+            if cls.running == 0:
+                cls.before = {lib.filepath: lib.num_threads for lib in _blas_libraries()}
+                cls.default = _default_blas_threads()
+            cls.running += 1
+
+    @classmethod
+    def leave(cls) -> None:
+        with cls.lock:
+            cls.running -= 1
+            if cls.running:
+                return  # another job still runs: its BLAS stays at one thread
+            for lib in _blas_libraries():
+                wanted = cls.before.get(lib.filepath, cls.default)
+                if lib.num_threads != wanted:
+                    lib.set_num_threads(wanted)
+
+
+def _blas_libraries() -> list[Any]:
+    try:
+        from threadpoolctl import ThreadpoolController
+    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
+        return []
+    return list(ThreadpoolController().select(user_api="blas").lib_controllers)
+
+
+def _default_blas_threads() -> int:
+    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
+        value = os.environ.get(name, "").split(",")[0].strip()
+        if value.isdigit() and int(value) > 0:
+            return int(value)
+    if hasattr(os, "sched_getaffinity"):
+        return max(len(os.sched_getaffinity(0)), 1)
+    return max(os.cpu_count() or 1, 1)  # pragma: no cover - not Linux
+
+
+def _restoring_blas_threads(job: Callable[_P, _R]) -> Callable[_P, _R]:
+    """Run ``job`` within :class:`_BlasThreads`: the caller's BLAS counts come back after."""
+
+    @functools.wraps(job)
+    def run(*args: _P.args, **kwargs: _P.kwargs) -> _R:
+        _BlasThreads.enter()
+        try:
+            return job(*args, **kwargs)
+        finally:
+            _BlasThreads.leave()
+
+    return run
+
+
+@_restoring_blas_threads
 def densify(
     input_path: Path | Sequence[Path] | IO[bytes],
     output: Path | IO[bytes] | None,
@@ -310,6 +387,9 @@ def densify(
     (:func:`frontend.discovery.resolve_pairing`); raw images are rectified from their
     calibration (:meth:`frontend.pairing.StereoPairer.rectification`). ``echo`` is given the
     one-line notes of those decisions (the command line prints them).
+
+    BLAS runs at one thread while the job runs (its bytes do not depend on the machine's
+    core count); the thread counts the caller had come back when it returns.
     """
     started = time.perf_counter()
     pairing = pairing or PairingConfig()
@@ -678,9 +758,11 @@ def resolve_basis(basis: Basis | Path | None) -> tuple[Basis, str]:
         basis: a basis, its file, or None for the built-in one.
 
     Returns:
-        The loaded :class:`Basis` and its label: ``built-in``, the file's path as given
-        (an output records no folder of the machine it was made on), or ``in-memory`` for a
-        basis object that is not the built-in one.
+        The loaded :class:`Basis` and its label: ``built-in``, the file's name (no folder:
+        an output records none of the machine it was made on, and its bytes do not depend
+        on how the path was spelled; the fingerprint recorded beside it identifies the
+        content; ``evaluate`` looks for it beside the log and in the working folder), or
+        ``in-memory`` for a basis object that is not the built-in one.
 
     Raises:
         BasisError: the file (or the built-in basis) is missing or invalid.
@@ -688,7 +770,7 @@ def resolve_basis(basis: Basis | Path | None) -> tuple[Basis, str]:
     if basis is None:
         return Basis.default(), BUILT_IN
     if isinstance(basis, Path):
-        return Basis.load(basis), str(basis)
+        return Basis.load(basis), basis.name
     kind = builtin_kind(basis)
     return basis, BUILTIN_LABELS[kind] if kind is not None else IN_MEMORY
 

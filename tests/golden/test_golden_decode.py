@@ -152,7 +152,8 @@ def test_a_damaged_rvl_header_leaves_a_one_line_note() -> None:
     payload = _header(100.0, 0.0) + struct.pack("<II", 100_000, 100_000) + bytes(64)
     damaged = rosmsg.compressed_image_message(payload, "32FC1; compressedDepth rvl", 5, "cam")
     content = message_content(rosmsg.COMPRESSED_IMAGE, damaged)
-    assert content.arrays == {}
+    assert list(content.arrays) == ["data"]  # its raw bytes, not the image
+    np.testing.assert_array_equal(content.arrays["data"], np.frombuffer(payload, np.uint8))
     assert len(content.notes) == 1
     assert "RVL header says 100000x100000 px" in content.notes[0]
     assert "\n" not in content.notes[0]
@@ -217,20 +218,24 @@ def test_compressed_png_point_cloud_camera_info_and_disparity() -> None:
 def test_undecodable_payload_leaves_a_note() -> None:
     broken = rosmsg.compressed_image_message(b"not an image", "jpeg", 5, "cam")
     content = message_content(rosmsg.COMPRESSED_IMAGE, broken)
-    assert content.arrays == {}
+    assert list(content.arrays) == ["data"]
     assert content.values["data.length"] == len(b"not an image")
     assert content.notes
+    legacy = message_content(rosmsg.COMPRESSED_IMAGE, broken, legacy=True)  # format 2
+    assert legacy.arrays == {}
+    assert legacy.values == {k: v for k, v in content.values.items()}
 
 
 def test_an_empty_compressed_payload_leaves_a_note() -> None:
     """Bug hunt 7A F2: a 0-byte payload reached cv2.imdecode's assertion (a cv2.error)."""
     empty = rosmsg.compressed_image_message(b"", "jpeg", 5, "cam")
     content = message_content(rosmsg.COMPRESSED_IMAGE, empty)
-    assert content.arrays == {}
+    assert content.arrays["data"].shape == (0,)
     assert content.values["data.length"] == 0
-    assert content.notes == ["CompressedImage of format 'jpeg' is empty (0 bytes)"]
+    raw = "; its raw data bytes are recorded instead"
+    assert content.notes == [f"CompressedImage of format 'jpeg' is empty (0 bytes){raw}"]
     zero = message_content(rosmsg.IMAGE, rosmsg.image_message(np.zeros((0, 0), np.uint8), 5, "c"))
-    assert zero.notes == ["image is empty (0x0 mono8)"]
+    assert zero.notes == [f"image is empty (0x0 mono8){raw}"]
 
 
 def test_a_compressed_bayer_mosaic_is_summarised_as_its_image() -> None:

@@ -151,7 +151,7 @@ def test_info_names_golden_files(
     assert "learn" not in out
     assert main(["info", str(golden)]) == 0
     out = capsys.readouterr().out
-    assert "pcainterp golden file (pcainterp-golden/2" in out
+    assert "pcainterp golden file (pcainterp-golden/3" in out
     assert "from drive.mcap" in out
     assert "arrays: drive.golden.npz" in out
     np.save(tmp_path / "plain.npy", np.zeros(3))  # np.load gives an array, not an npz

@@ -316,3 +316,158 @@ def test_two_checks_of_one_test_may_share_a_named_golden_file(pytester: pytest.P
             "agree.golden.json, which this test's check of 'a.mcap' wrote in this run, in *"
         ]
     )
+
+
+TEST_OPTIONS = """
+import os
+
+from pcainterp_stream.golden import save_golden
+
+{body}
+
+
+def test_options(tmp_path, log_golden):
+    topics = os.environ.get("T")
+    log_golden.check(
+        write_log(tmp_path / "a.mcap"),
+        topics=topics.split(",") if topics else None,
+        arrays=bool(os.environ.get("A")),
+    )
+"""
+
+
+def _write_options(pytester: pytest.Pytester) -> None:
+    body = TEST.format(scale=1.0, arrays=False).replace("def test_log(", "def _unused(")
+    pytester.makepyfile(test_opts=TEST_OPTIONS.format(body=body))
+
+
+def test_arrays_asked_of_a_file_saved_without_them_fails_naming_the_fix(
+    pytester: pytest.Pytester, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Bug hunt 10A F4: arrays=True against a file without arrays passed, checking none."""
+    _write_options(pytester)
+    _run(pytester).assert_outcomes(failed=1)  # first run: written without arrays
+    monkeypatch.setenv("A", "1")
+    result = _run(pytester)
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines(["*was saved without arrays*--force-regen or --update-golden*"])
+    _run(pytester, "--force-regen").assert_outcomes(failed=1)
+    _run(pytester).assert_outcomes(passed=1)
+    assert (pytester.path / "test_opts" / "test_options.golden.npz").is_file()
+
+
+def test_topics_added_to_a_check_name_the_channels_left_out(
+    pytester: pytest.Pytester, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Bug hunt 10A F5: "channel missing from the log" for channels in the log."""
+    _write_options(pytester)
+    _run(pytester).assert_outcomes(failed=1)
+    monkeypatch.setenv("T", "/ground_truth/depth")
+    result = _run(pytester)
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines(["*records channels that topics=* leaves out (*): pass them*"])
+    assert "missing from the log" not in result.stdout.str()
+
+
+CLASSES = """
+from test_tiny import write_log
+
+
+class TestA:
+    def test_same(self, tmp_path, log_golden):
+        log_golden.check(write_log(tmp_path / "a.mcap"))
+
+
+class TestB:
+    def test_same(self, tmp_path, log_golden):
+        log_golden.check(write_log(tmp_path / "a.mcap", scale=2.0))
+"""
+
+
+def test_the_same_test_name_in_two_classes(pytester: pytest.Pytester) -> None:
+    """Bug hunt 10A F2: --with-test-class-names was ignored and the message was wrong."""
+    _write(pytester, scale=1.0)
+    pytester.makepyfile(test_cls=CLASSES)
+    result = _run(pytester, "test_cls.py")
+    result.assert_outcomes(failed=2)
+    result.stdout.fnmatch_lines(["*have the same name in different classes*"])
+    assert "differ only in characters" not in result.stdout.str()
+    _run(pytester, "test_cls.py", "--with-test-class-names").assert_outcomes(failed=2)
+    _run(pytester, "test_cls.py", "--with-test-class-names").assert_outcomes(passed=2)
+    folder = pytester.path / "test_cls"
+    assert {p.name for p in folder.iterdir()} == {
+        "test_same.golden.json",  # the first run's, TestA's
+        "TestA_test_same.golden.json",
+        "TestB_test_same.golden.json",
+    }
+
+
+def test_a_payload_that_does_not_decode_is_a_warning(pytester: pytest.Pytester) -> None:
+    """Bug hunt 10A F11: the fixture dropped the notes; they reach the warnings summary."""
+    pytester.makepyfile(
+        test_video="""
+from mcap_ros2.writer import Writer
+
+from pcainterp_stream.io import rosmsg
+
+
+def test_video(tmp_path, log_golden):
+    path = tmp_path / "v.mcap"
+    with path.open("wb") as stream:
+        writer = Writer(stream)
+        schema = writer.register_msgdef(
+            rosmsg.COMPRESSED_IMAGE, rosmsg.schema_text(rosmsg.COMPRESSED_IMAGE)
+        )
+        message = {"header": {"stamp": {"sec": 1, "nanosec": 0}, "frame_id": "c"},
+                   "format": "h264", "data": bytes(range(200))}
+        writer.write_message("/video", schema, message, log_time=10**9, publish_time=10**9)
+        writer.finish()
+    log_golden.check(path)
+"""
+    )
+    _run(pytester).assert_outcomes(failed=1)
+    result = _run(pytester, "-W", "default")
+    result.assert_outcomes(passed=1, warnings=1)
+    result.stdout.fnmatch_lines(["*GoldenNoteWarning*'h264' does not decode; its raw data bytes*"])
+
+
+def test_a_format_2_file_still_passes_and_warns_what_it_leaves_out(
+    pytester: pytest.Pytester,
+) -> None:
+    """A format-2 golden file is compared with the log summarised as format 2 recorded it."""
+    pytester.makepyfile(
+        test_poses="""
+from pathlib import Path
+
+from mcap_ros2.writer import Writer
+
+from pcainterp_stream.golden import save_golden
+
+GOLDEN = Path(__file__).parent / "poses.golden.json"
+
+
+def write(path, scale):
+    with path.open("wb") as stream:
+        writer = Writer(stream)
+        name = "geometry_msgs/msg/PoseArray"
+        from pcainterp_stream.io import rosmsg
+        schema = writer.register_msgdef(name, rosmsg.schema_text(name))
+        poses = [{"position": {"x": i * scale, "y": 0.0, "z": 0.0},
+                  "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}} for i in range(100)]
+        message = {"header": {"stamp": {"sec": 1, "nanosec": 0}, "frame_id": "map"},
+                   "poses": poses}
+        writer.write_message("/path", schema, message, log_time=10**9, publish_time=10**9)
+        writer.finish()
+    return path
+
+
+def test_poses(tmp_path, log_golden):
+    if not GOLDEN.exists():
+        save_golden(write(tmp_path / "a.mcap", 1.0), GOLDEN, format_version=2)
+    log_golden.check(write(tmp_path / "b.mcap", 1.0), fullpath=GOLDEN)
+"""
+    )
+    result = _run(pytester, "-W", "default")
+    result.assert_outcomes(passed=1, warnings=1)
+    result.stdout.fnmatch_lines(["*format 2 records these 100 items by their count only*"])
+    assert '"pcainterp-golden/2"' in (pytester.path / "poses.golden.json").read_text()

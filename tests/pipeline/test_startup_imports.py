@@ -75,7 +75,8 @@ def test_scipy_loads_off_the_main_thread_with_one_blas_thread(tmp_path: Path) ->
     scipy's LAPACK, Qhull and k-d tree while the first pairs are matched, without the
     ``__init__`` of scipy.linalg and scipy.spatial (the rest of those subpackages: ~0.2 s
     more); scipy's OpenBLAS comes up with one thread (a second, spinning one cost ~5x the
-    solve's CPU), and the process's environment is left as it was.
+    solve's CPU) and stays so while the job runs; when it returns, the caller gets the
+    count a new BLAS has (bug hunt 10A F1), and the process's environment is left as it was.
     """
     out = tmp_path / "out.mcap"
     code = (
@@ -88,12 +89,21 @@ def test_scipy_loads_off_the_main_thread_with_one_blas_thread(tmp_path: Path) ->
         "        return None\n"
         "sys.meta_path.insert(0, Spy())\n"
         "from pcainterp_stream.cli.app import main\n"
+        "from pcainterp_stream.pipeline import densify as job\n"
+        "from threadpoolctl import threadpool_info\n"
+        "def counts(lib):\n"
+        "    return [i['num_threads'] for i in threadpool_info() if lib in i['filepath']]\n"
+        "during = []\n"
+        "leave = job._BlasThreads.leave\n"
+        "def spy():\n"
+        "    during.extend(counts('scipy.libs'))\n"
+        "    leave()\n"
+        "job._BlasThreads.leave = staticmethod(spy)\n"
         f"code = main(['densify', {str(LOG)!r}, '-o', {str(out)!r}])\n"
         "assert code == 0, code\n"
-        "from threadpoolctl import threadpool_info\n"
-        "scipy_blas = [i for i in threadpool_info() if 'scipy.libs' in i['filepath']]\n"
         "import json\n"
-        "print(json.dumps([first.get('scipy'), [i['num_threads'] for i in scipy_blas],"
+        "print(json.dumps([first.get('scipy'), during, counts('scipy.libs'),"
+        " counts('numpy.libs'),"
         " os.environ.get('OPENBLAS_NUM_THREADS'),"
         " [m for m in ('scipy.linalg', 'scipy.spatial') if m in sys.modules]]))\n"
     )
@@ -107,12 +117,15 @@ def test_scipy_loads_off_the_main_thread_with_one_blas_thread(tmp_path: Path) ->
         cwd=ROOT,
         env=environment,
     )
-    thread, blas_threads, variable, packages = json.loads(result.stdout.strip().splitlines()[-1])
+    thread, blas_threads, after, numpy_after, variable, packages = json.loads(
+        result.stdout.strip().splitlines()[-1]
+    )
     # the densify thread's set-up loads it, or a stereo worker making a check frame's
     # held-out pixels gets there first on a loaded machine: never the main thread
     assert thread.startswith(("densify", "stereo")), thread
     assert blas_threads
-    assert set(blas_threads) == {1}
+    assert set(blas_threads) == {1}  # while the job ran
+    assert set(after) == set(numpy_after)  # then the count a new BLAS has
     assert variable is None
     assert packages == []
 
