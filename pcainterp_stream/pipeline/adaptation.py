@@ -26,7 +26,6 @@ import numpy.typing as npt
 from pcainterp_stream.estimate import adapt, fitting
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.estimator import densify_batch
-from pcainterp_stream.estimate.finetune import camera_mismatch
 from pcainterp_stream.frontend.motion import Motion, view_shift
 from pcainterp_stream.records import StereoCamera, StereoFrame
 
@@ -73,27 +72,8 @@ def unfit_warning(check: adapt.FitCheck, where: str, fix: str) -> str:
             "scene is, so the fit check compares nothing; check what the measurements are"
         )
     return (
-        f"warning: the prior is worse than linear interpolation on this log "
+        f"warning: the prior is worse than linear interpolation on this log's {where} "
         f"({check.ratio:.2f}x){fix}"
-    )
-
-
-def other_camera(basis: Basis, image_size: tuple[int, int], focal_baseline: float) -> str:
-    """Say, for a warning, that ``basis`` was learned for another camera than the log's, or "".
-
-    Another camera as ``learn`` would not merge its maps into the basis
-    (:func:`~pcainterp_stream.estimate.finetune.camera_mismatch`): "; the basis was learned
-    for another camera (320x240 px, f*b 9.6 px*m; this log's 620x188 px, f*b 193.1 px*m:
-    aspect ratio 3.30 against 1.33)".
-    """
-    why = camera_mismatch(basis, image_size, focal_baseline)
-    if why is None or basis.focal_baseline <= 0 or focal_baseline <= 0:
-        return ""
-    (height, width), (basis_height, basis_width) = image_size, basis.image_size
-    return (
-        f"; the basis was learned for another camera ({basis_width}x{basis_height} px, f*b "
-        f"{basis.focal_baseline:.1f} px*m; this log's {width}x{height} px, f*b "
-        f"{focal_baseline:.1f} px*m: {why})"
     )
 
 
@@ -117,11 +97,14 @@ class Candidate:
         name: how the summary names it ("the built-in indoor basis").
         basis: the basis.
         settings: the estimate's keyword options with it (its own fitted prior).
+        tuned: the estimate's settings that differ from the basis's fitted prior (the
+            rougher kernel and its std scale: :meth:`Adaptation.tuning`).
     """
 
     name: str
     basis: Basis
     settings: dict[str, object]
+    tuned: dict[str, object] = field(default_factory=dict)
 
 
 @dataclass
@@ -216,6 +199,11 @@ class Adaptation:
         """Return whether the stereo workers should keep each frame's SGBM map."""
         return self.warming or self.adapted or self.deferred
 
+    def tuning(self, basis: Basis) -> dict[str, object]:
+        """Return the estimate's settings to use with ``basis`` beyond its fitted prior's."""
+        chosen = self.switched
+        return dict(chosen.tuned) if chosen is not None and chosen.basis is basis else {}
+
     def bind(self, frames: list[StereoFrame], basis: Basis) -> None:
         """Note that ``frames``, the next ones in stream order, are densified with ``basis``."""
         if frames and (not self.in_force or self.in_force[-1].basis is not basis):
@@ -259,7 +247,7 @@ class Adaptation:
         ``standing``: it was not learned, the warm-up frames being one view; ``single``: nor
         from a warm-up of one frame.
         ``camera``: (image size, f*b) of the log, named with the basis's when they are not
-        alike (:func:`other_camera`). ``builtin``: :meth:`_builtin_advice`'s advice and
+        alike (:func:`~.adapt.other_camera`). ``builtin``: :meth:`_builtin_advice`'s advice and
         whether the basis it names fits (then no other advice is given). ``holes``: the
         share of the warm-up's pixels SGBM left as holes (dense mode: what the basis fills).
         ``short``: the warm-up is too short for the log's own basis to be checked on frames
@@ -270,7 +258,7 @@ class Adaptation:
         basis = self._given if self.switched is None else self.switched.basis
         elsewhere = ""
         if camera is not None and basis is not None:
-            elsewhere = other_camera(basis, *camera)  # the likely cause, named first
+            elsewhere = adapt.other_camera(basis, *camera)  # the likely cause, named first
         advice, enough = builtin
         if standing:
             fix = (
@@ -458,7 +446,7 @@ class Adaptation:
 
         self.check = check(basis, settings)
         self.lines.append(f"prior: {self.name} {self.check.describe()}")
-        given = self.check
+        given = plain = self.check
         if self.may_replace and self.check.frames > 0 and self.check.ratio >= FITS_BELOW:
             # the given built-in basis does not fit well: the other built-in ones, on the
             # same held-out pixels; the lowest error is kept, with no margin for the street
@@ -470,6 +458,28 @@ class Adaptation:
                 self.lines.append(f"prior: {candidate.name} {other.describe()}")
                 if other.frames and other.prior < self.check.prior:
                     self.check, self.switched = other, candidate
+            # the chosen indoor basis with the street basis's kernel (adapt.try_rougher); not in
+            # dense mode, where the basis fills SGBM's holes, which no check scores (measured:
+            # sparse mode only); the own basis is tried as without it (room 5: 0.28 -> 0.21 px)
+            indoor, plain = self.switched, self.check
+            if indoor is not None and self.check.ratio >= FITS_BELOW and self.may_learn:
+                scores = per_frame.get(id(indoor.basis), [])
+                rough = adapt.try_rougher(
+                    (basis, settings),
+                    (indoor.basis, indoor.name, indoor.settings),
+                    lambda options: check(indoor.basis, options),
+                    self.check,
+                    (measured, size, fb),
+                    robust=self.robust,
+                    calibrate=self.calibrate,
+                )
+                self.lines += [rough.line] if rough is not None else []
+                if rough is not None and rough.tuned is None:
+                    per_frame[id(indoor.basis)] = scores  # the kernel kept's
+                elif rough is not None and rough.tuned is not None:
+                    name, tuned = f"{indoor.name} with the street basis's kernel", rough.tuned
+                    self.check = rough.check
+                    self.switched = Candidate(name, indoor.basis, indoor.settings | tuned, tuned)
         # a built-in basis that fits well is used as it is: the log's own basis is tried
         # only when none does (its leave-one-out figure, scored against the SGBM maps it
         # learns from, flatters it against the truth)
@@ -477,8 +487,8 @@ class Adaptation:
             self.mode == "auto"
             and self.may_learn
             and self.may_replace
-            and self.check.frames > 0
-            and self.check.ratio >= (self.own_above if self.switched is None else FITS_BELOW)
+            and plain.frames > 0
+            and plain.ratio >= (self.own_above if self.switched is None else FITS_BELOW)
         )
         maps = [f.grid_map for f in usable if f.grid_map is not None]
         # frames that repeat one view (a camera standing still) are one piece of evidence:
@@ -594,12 +604,12 @@ class Adaptation:
         if held.left_out and len(scores) == len(usable):
             same = adapt.FitCheck.combine([scores[index] for index in held.left_out])
         self.own_against = same
-        better = own_error < same.prior * (1.0 if not self.check.fits else adapt.ADAPT_GAIN)
+        better = own_error < same.prior * (1.0 if not plain.fits else adapt.ADAPT_GAIN)
         if not better:
             if self.check.frames and not self.check.fits and not self.check.degenerate:
                 kept += (
                     f" ({self.check.ratio:.2f}x linear: worse than linear interpolation on "
-                    "this log)"
+                    "held-out SGBM pixels)"
                 )
             if own_error < same.prior:
                 # better, but a prior that fits is replaced only below ADAPT_GAIN of its error
@@ -780,7 +790,7 @@ class Adaptation:
 
         The first ``warmup_frames`` frames that are not the view before them (ego-motion or
         map) are checked as the warm-up frames were; returns the basis to use from the next
-        frame on when it is not ``current``, else None.
+        frame on when it (or its :meth:`tuning`) is not ``current``'s, else None.
         """
         for frame in frames:
             if frame.grid_map is None or (frame.image_size, frame.focal_baseline) != self._camera:
@@ -792,12 +802,13 @@ class Adaptation:
             self._views.append(frame)
         if len(self._views) < self.warmup_frames or self._given is None:
             return None
+        tuned = self.tuning(current) if current is not None else {}  # the kernel in use
         views, self._views, self.deferred, self.switched = self._views, [], False, None
         self.lines = [line for line in self.lines if line not in self._standing_warning]
         self.lines.append(self.again.format(_count(len(views), "frame")))
         chosen = self._decide(self._given, views, self._settings)
         target = self._given if chosen is None else chosen
-        return None if target is current else target
+        return None if target is current and self.tuning(target) == tuned else target
 
     def _repeats(self, frame: AdaptFrame) -> bool:
         """Return whether ``frame`` is the view of the newest map added (ego-motion or map)."""

@@ -681,9 +681,14 @@ class FrameProcessor:
             self._changes, self._measuring = self._changes + 1, (self._measuring[0], True)
 
     def _use(self, basis: Basis) -> None:
-        """Densify from now on with ``basis`` (its fitted prior; the temporal prior restarts)."""
+        """Densify from now on with ``basis`` (its fitted prior; the temporal prior restarts).
+
+        The fit check may have tuned it (:meth:`~.adaptation.Adaptation.tuning`: the indoor
+        basis with the street basis's kernel).
+        """
         self.basis = basis
-        self.settings = resolve_settings(basis, self.config)
+        settings = resolve_settings(basis, self.config)
+        self.settings = dataclasses.replace(settings, **self.adaptation.tuning(basis))  # type: ignore[arg-type]
         self.adaptation.warn_std_scale(self.settings.std_scale, "this log's own basis")
         if self.temporal is not None:
             self.temporal = TemporalPrior(process_noise=self.settings.process_noise)

@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from pcainterp_stream.estimate import adapt
-from pcainterp_stream.estimate.prior import evidence_noise, evidence_sigma
+from pcainterp_stream.estimate.basis import builtin_basis
+from pcainterp_stream.estimate.prior import LocalPrior, evidence_noise, evidence_sigma
+from pcainterp_stream.pipeline.processor import ProcessorConfig, resolve_settings
 
 SIZE = (48, 64)
 
@@ -351,3 +353,130 @@ def test_maps_the_ego_motion_says_are_one_view_are_one_view() -> None:
     assert held is not None
     assert held.check.frames == 2
     assert adapt.leave_one_out(maps[:3], frames[:3], {}, views=views[:3], **options) is None
+
+
+def _builtin_options(kind: str) -> dict[str, object]:
+    return resolve_settings(builtin_basis(kind), ProcessorConfig()).densify_options()
+
+
+def _rough_measured(count: int) -> list[adapt.Measured]:
+    frames = []
+    for index in range(count):
+        reference = _scene(3.0 * index)
+        pixels = _points(40, seed=40 + index)
+        frames.append(adapt.Measured(pixels, _measure(reference, pixels), reference))
+    return frames
+
+
+def test_the_indoor_basis_is_tried_with_the_street_basis_s_kernel() -> None:
+    """bughunt10B Q3: the indoor basis chosen at >= 0.8x linear is scored with the street
+    basis's kernel (read from its fitted prior, without its cell weight) and taken when its
+    held-out error is lower, its std scale refitted on the warm-up's SGBM maps."""
+    street, indoor = builtin_basis("street"), builtin_basis("indoor")
+    street_options, indoor_options = _builtin_options("street"), _builtin_options("indoor")
+    street_kernel = street_options["local_prior"]
+    assert isinstance(street_kernel, LocalPrior)
+    against = adapt.FitCheck(2, 1000, 2.49, 2.25, 2.38)
+    seen: list[dict[str, object]] = []
+
+    def score(options: dict[str, object]) -> adapt.FitCheck:
+        seen.append(options)
+        return adapt.FitCheck(2, 1000, 2.35, 2.25, 2.38)
+
+    frames = _rough_measured(3)
+    rough = adapt.try_rougher(
+        (street, street_options),
+        (indoor, "the built-in indoor basis", indoor_options),
+        score,
+        against,
+        (frames, SIZE, 50.0),
+        robust="cauchy",
+        calibrate=True,
+    )
+    assert rough is not None
+    kernel = LocalPrior(street_kernel.variance, street_kernel.length_scale, street_kernel.kernel)
+    assert seen == [{**indoor_options, "local_prior": kernel}]
+    assert rough.tuned is not None
+    assert rough.tuned["local_prior"] == kernel
+    assert rough.tuned["scale_by_innovation"] is False
+    scale = rough.tuned["std_scale"]
+    assert isinstance(scale, float)
+    assert scale == adapt.sgbm_std_scale(
+        indoor,
+        frames,
+        {**indoor_options, "local_prior": kernel},
+        image_size=SIZE,
+        focal_baseline=50.0,
+        robust="cauchy",
+    )
+    assert rough.line == (
+        "prior: the built-in indoor basis with the street basis's local kernel (laplace, "
+        f"64 px, 40 px^2) {rough.check.describe()}; taken: 2.35 px against 2.49 with its own "
+        f"kernel on the same held-out SGBM pixels; its std scale x{scale:.2f}, refitted on the "
+        "warm-up's SGBM maps"
+    )
+
+
+def test_the_street_kernel_is_not_taken_when_it_does_no_better() -> None:
+
+    street, indoor = builtin_basis("street"), builtin_basis("indoor")
+    given = (street, _builtin_options("street"))
+    chosen = (indoor, "the built-in indoor basis", _builtin_options("indoor"))
+    against = adapt.FitCheck(8, 1000, 0.3701, 0.50, 1.13)
+
+    def worse(options: dict[str, object]) -> adapt.FitCheck:
+        return adapt.FitCheck(8, 1000, 0.3749, 0.50, 1.13)
+
+    rough = adapt.try_rougher(
+        given, chosen, worse, against, ([], SIZE, 50.0), robust="cauchy", calibrate=True
+    )
+    assert rough is not None
+    assert rough.tuned is None
+    assert rough.line.endswith(
+        "; not taken: 0.3749 px against 0.3701 with its own kernel on the same held-out SGBM pixels"
+    )
+    # no candidate: a basis of the user's (not the built-in street one) or no local kernel
+    user = adapt.with_prior(street, dict(street.meta["prior"]))
+    assert (
+        adapt.try_rougher(
+            (user, given[1]),
+            chosen,
+            worse,
+            against,
+            ([], SIZE, 50.0),
+            robust="cauchy",
+            calibrate=True,
+        )
+        is None
+    )
+    paper = (indoor, "the built-in indoor basis", {**chosen[2], "local_prior": None})
+    assert (
+        adapt.try_rougher(
+            given, paper, worse, against, ([], SIZE, 50.0), robust="cauchy", calibrate=True
+        )
+        is None
+    )
+
+
+def test_the_street_kernel_is_not_tried_where_sgbm_left_a_band_unchecked() -> None:
+    """A check that covers columns >= 129 only (SGBM at half resolution leaves its left band
+    empty): the rougher kernel would extrapolate there unchecked (synthetic rooms at 376x240:
+    up to 2.25x the indoor kernel's error in the band, its std holding 21 % of the truth)."""
+    given = (builtin_basis("street"), _builtin_options("street"))
+    chosen = (builtin_basis("indoor"), "the built-in indoor basis", _builtin_options("indoor"))
+    banded = adapt.FitCheck(8, 1000, 0.26, 0.31, 0.45, first_column=129)
+
+    def never(options: dict[str, object]) -> adapt.FitCheck:
+        raise AssertionError("scored")
+
+    rough = adapt.try_rougher(
+        given, chosen, never, banded, ([], SIZE, 50.0), robust="cauchy", calibrate=True
+    )
+    assert rough is not None
+    assert rough.tuned is None
+    assert rough.line == (
+        "prior: the built-in indoor basis with the street basis's local kernel (laplace, 64 px, "
+        "40 px^2): not tried: the held-out pixels cover columns >= 129 only, and left of them "
+        "(SGBM's unmatched band), unchecked, it erred up to 2.2x more than the basis's own "
+        "kernel on synthetic rooms"
+    )

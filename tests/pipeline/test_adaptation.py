@@ -17,6 +17,7 @@ from pcainterp_stream.estimate import adapt
 from pcainterp_stream.estimate.basis import BUILT_IN, BUILT_IN_INDOOR, Basis
 from pcainterp_stream.frontend.motion import Motion
 from pcainterp_stream.frontend.pairing import PairingConfig, iter_stereo_frames
+from pcainterp_stream.frontend.sgbm_resolution import by_camera
 from pcainterp_stream.frontend.stereo import StereoFrontEnd
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
@@ -124,8 +125,8 @@ def test_a_one_pair_log_keeps_a_built_in_basis_whose_std_is_calibrated(tmp_path:
     summary = densify(log, out)
     assert not any(line.startswith("adapted:") for line in summary.prior_lines)
     assert (
-        "prior: kept the built-in indoor basis; this log's own basis is not learned from one "
-        "frame: no other frame to calibrate its std on"
+        "prior: kept the built-in indoor basis with the street basis's kernel; this log's own "
+        "basis is not learned from one frame: no other frame to calibrate its std on"
     ) in summary.prior_lines
     assert summary.basis_written is None
     assert not own_basis_path(out).exists()
@@ -213,14 +214,14 @@ def test_a_kept_basis_worse_than_linear_is_named_and_warned(
         name = adaptation.name if adaptation.switched is None else adaptation.switched.name
         assert kept.startswith(
             f"prior: {name} {'kept' if adaptation.switched is None else 'chosen'} "
-            f"({adaptation.check.ratio:.2f}x linear: worse than linear interpolation on this "
-            "log); this log's own basis did no better: 50.00x linear"
+            f"({adaptation.check.ratio:.2f}x linear: worse than linear interpolation on "
+            "held-out SGBM pixels); this log's own basis did no better: 50.00x linear"
         )
         # the log's own basis was just tried: the warning does not ask to learn one as if
         # it had not been (it said "learn a basis for this camera" right after "did no better")
         assert warning == (
-            f"warning: the prior is worse than linear interpolation on this log "
-            f"({adaptation.check.ratio:.2f}x), and so is this log's own basis, learned from "
+            "warning: the prior is worse than linear interpolation on this log's held-out SGBM "
+            f"pixels ({adaptation.check.ratio:.2f}x), and so is this log's own basis, learned from "
             "its first 8 frames; a basis learned from more frames of this camera may fit "
             "(learn merges them with the built-in basis's maps when the camera is like its "
             "own): pcainterp learn LOG [LOG ...] -o BASIS.npz, then densify --basis BASIS.npz"
@@ -238,7 +239,8 @@ def test_the_unfit_warning_over_exact_linear_interpolation_gives_no_ratio() -> N
     )
     worse = adapt.FitCheck(3, 300, 1.5, 1.0, 2.0)
     assert adaptation_module.unfit_warning(worse, "held-out SGBM pixels", fix) == (
-        f"warning: the prior is worse than linear interpolation on this log (1.50x){fix}"
+        "warning: the prior is worse than linear interpolation on this log's held-out SGBM "
+        f"pixels (1.50x){fix}"
     )
 
 
@@ -576,6 +578,8 @@ def test_dense_mode_checks_and_chooses_the_built_in_basis_but_learns_none(
     assert lines[0].startswith("prior: the built-in street basis ")
     assert lines[1].startswith("prior: the built-in indoor basis ")
     assert lines[2] == "prior: the built-in indoor basis chosen (fits this log better)"
+    # nor is it scored with the street basis's kernel: it fills SGBM's holes, never checked
+    assert not any("kernel" in line for line in lines)
     assert summary.basis_written is None
     assert recorded_metadata(out)[BASIS_KEY] == BUILT_IN_INDOOR
     # a built-in basis that loses to linear: the warning does not offer to adapt
@@ -624,12 +628,12 @@ def test_a_learned_basis_that_loses_is_not_told_to_learn_one_again() -> None:
     given.check = adapt.FitCheck(2, 100, 2.4, 2.0, 2.1)
     given._warn_unfit(False, builtin=given._builtin_advice(check), holes=0.13)
     assert given.lines[-1] == (
-        "warning: the prior is worse than linear interpolation on this log (1.20x); the "
-        "built-in indoor basis does better (1.12x linear): densify with --basis builtin, which "
-        "chooses it; dense mode does not adapt the basis, and uses it mostly to fill SGBM's "
-        "holes, 13% of this log's pixels (where SGBM matched, its own value dominates); a "
-        "basis learned from more frames of this camera may fit: pcainterp learn LOG [LOG ...] "
-        "-o BASIS.npz, then densify --basis BASIS.npz"
+        "warning: the prior is worse than linear interpolation on this log's held-out SGBM "
+        "pixels (1.20x); the built-in indoor basis does better (1.12x linear): densify with "
+        "--basis builtin, which chooses it; dense mode does not adapt the basis, and uses it "
+        "mostly to fill SGBM's holes, 13% of this log's pixels (where SGBM matched, its own "
+        "value dominates); a basis learned from more frames of this camera may fit: pcainterp "
+        "learn LOG [LOG ...] -o BASIS.npz, then densify --basis BASIS.npz"
     )
     # one that fits: named, and no basis to learn
     scores[indoor] = adapt.FitCheck(2, 100, 1.7, 2.0, 2.1)
@@ -645,9 +649,9 @@ def test_a_learned_basis_that_loses_is_not_told_to_learn_one_again() -> None:
     sparse.check = given.check
     sparse._warn_unfit(False, builtin=sparse._builtin_advice(check))
     assert sparse.lines[-1] == (
-        "warning: the prior is worse than linear interpolation on this log (1.20x); a basis "
-        "learned from more frames of this camera may fit: pcainterp learn LOG [LOG ...] -o "
-        "BASIS.npz, then densify --basis BASIS.npz"
+        "warning: the prior is worse than linear interpolation on this log's held-out SGBM "
+        "pixels (1.20x); a basis learned from more frames of this camera may fit: pcainterp "
+        "learn LOG [LOG ...] -o BASIS.npz, then densify --basis BASIS.npz"
     )
     # the default (a built-in basis chosen among them): nothing to compare, learning advised
     default = adaptation_module.Adaptation("auto", True, 2, "cauchy", False, may_learn=False)
@@ -752,7 +756,9 @@ def test_the_unfit_warning_names_a_basis_of_another_camera(
         warning = engine.adaptation.lines[-1]
     height, width = indoor.image_size
     fb = frames[0].camera.focal_baseline
-    assert warning.startswith("warning: the prior is worse than linear interpolation on this log")
+    assert warning.startswith(
+        "warning: the prior is worse than linear interpolation on this log's held-out SGBM pixels"
+    )
     assert (
         f"; the basis was learned for another camera ({width}x{height} px, f*b "
         f"{indoor.focal_baseline:.1f} px*m; this log's 310x94 px, f*b {fb:.1f} px*m: aspect "
@@ -764,4 +770,60 @@ def test_the_unfit_warning_names_a_basis_of_another_camera(
     )
     # a basis of a camera like the log's: nothing said about cameras
     street = Basis.default()
-    assert adaptation_module.other_camera(street, (94, 310), street.focal_baseline / 4) == ""
+    assert adapt.other_camera(street, (94, 310), street.focal_baseline / 4) == ""
+
+
+def _truth_errors(config: SynthConfig, engine: FrameProcessor) -> tuple[float, float]:
+    """Densify the synthetic log; return the mean |error| against the truth and the share
+    of it inside +-2 sigma of the std written."""
+    truth = [f.camera.focal_baseline / f.depth for f in generate(config)]
+    errors, inside = [], []
+    with engine:
+        for result, disparity in zip(engine.process(_stereo_frames(config)), truth, strict=True):
+            valid = np.isfinite(disparity) & np.isfinite(result.disparity)
+            error = np.abs(result.disparity - disparity)[valid]
+            errors.append(error)
+            inside.append(error <= 2.0 * result.disparity_std[valid])
+    return float(np.concatenate(errors).mean()), float(np.concatenate(inside).mean())
+
+
+def _full_width(config: SynthConfig) -> ProcessorConfig:
+    """``densify``'s SGBM for the synthetic camera (full resolution and width indoors)."""
+    processor = ProcessorConfig(adapt="check")  # the built-in bases only
+    camera = config.camera
+    sgbm, _ = by_camera(processor.sgbm, camera.focal_baseline, camera.width, camera.height)
+    return dataclasses.replace(processor, sgbm=sgbm)
+
+
+def test_the_indoor_basis_that_misfits_takes_the_street_basis_s_kernel(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """bughunt10B Q3: a room where the built-in indoor basis is chosen at >= 0.8x linear
+    (seed 5 at 376x240: 0.98x) takes the street basis's rougher kernel, which the check
+    scores lower (0.23 px against 0.25), and errs less against the truth (0.216 -> 0.188 px
+    over every pixel); its std, refitted on the warm-up's SGBM, holds ~95 % of the truth."""
+    config = SynthConfig(seed=5, frames=8, scale=0.5, scene="indoor", **camera_options("752x480"))
+    engine = FrameProcessor(None, _full_width(config))
+    error, inside = _truth_errors(config, engine)
+    adaptation = engine.adaptation
+    assert adaptation.switched is not None
+    assert adaptation.switched.name == "the built-in indoor basis with the street basis's kernel"
+    assert engine.basis is Basis.indoor()
+    kernel = engine.settings.local_prior
+    assert kernel is not None
+    assert (kernel.kernel, kernel.length_scale, kernel.variance) == ("laplace", 64.0, 40.0)
+    assert not engine.settings.scale_by_innovation
+    assert engine.settings.std_scale == adaptation.switched.tuned["std_scale"]
+    line = next(line for line in adaptation.lines if "street basis's local kernel" in line)
+    assert "; taken: " in line
+    # the same log with the indoor kernel (the candidate never scored)
+    monkeypatch.setattr(adapt, "try_rougher", lambda *args, **kwargs: None)
+    indoor = FrameProcessor(None, _full_width(config))
+    indoor_error, _ = _truth_errors(config, indoor)
+    assert indoor.adaptation.switched is not None
+    assert indoor.adaptation.switched.name == "the built-in indoor basis"
+    assert indoor.adaptation.check is not None
+    assert indoor.adaptation.check.ratio >= adaptation_module.FITS_BELOW
+    assert indoor.settings.scale_by_innovation  # the indoor basis's own std scale
+    assert error < 0.95 * indoor_error
+    assert 0.93 < inside < 0.98

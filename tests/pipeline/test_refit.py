@@ -139,9 +139,9 @@ def test_an_adopted_own_basis_that_loses_to_linear_is_warned(
         assert adaptation.adapted
         adapted = next(i for i, line in enumerate(adaptation.lines) if line.startswith("adapted:"))
         assert adaptation.lines[adapted + 1].startswith(
-            "warning: the prior is worse than linear interpolation on this log (1.04x); this "
-            "log's own basis, used for doing better than the built-in ones there, loses to it "
-            "too; a basis learned from more frames of this camera may fit"
+            "warning: the prior is worse than linear interpolation on this log's held-out SGBM "
+            "pixels (1.04x); this log's own basis, used for doing better than the built-in ones "
+            "there, loses to it too; a basis learned from more frames of this camera may fit"
         )
 
 
