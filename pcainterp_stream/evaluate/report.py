@@ -82,6 +82,7 @@ from pcainterp_stream.evaluate.results import (
 )
 from pcainterp_stream.evaluate.tables import results_markdown, summary_table
 from pcainterp_stream.evaluate.truth_values import DepthValues
+from pcainterp_stream.evaluate.tuning import tuning_notes
 from pcainterp_stream.frontend.images import PairImages
 from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.frontend.sgbm_limits import fitting
@@ -722,6 +723,7 @@ def evaluate_log(
         input_pair=describe_pair(images.config, pair_source),
     )
     result.notes += matcher_notes(front_end, options.sgbm) if has_right else []
+    result.notes += tuning_notes(path, topics, basis is not None)  # what the stored rows are
     if not has_right:
         result.stereo_note = f"skipped, the log has no {images.right_topic}"
     elif not has_truth:

@@ -246,6 +246,10 @@ folder; or ``in-memory`` for a basis passed as an object)."""
 BASIS_FINGERPRINT_KEY = "pcainterp.basis_fingerprint"
 """Channel metadata key: the basis's content fingerprint (``Basis.fingerprint``)."""
 
+BASIS_TUNING_KEY = "pcainterp.basis_tuning"
+"""Channel metadata key, only when the fit check tuned the first outputs' basis: the settings
+(JSON, ``evaluate.tuning``) beyond the basis's fitted prior it densified with."""
+
 BASES_RECORD = "pcainterp.basis"
 """Name of the MCAP metadata record listing every basis the outputs were made with, each from
 the first frame it densified (:func:`bases_record`); written when the output is complete."""
@@ -324,6 +328,8 @@ class BasisInForce(NamedTuple):
         first_frame: 0-based index of the first stereo pair densified with it.
         first_stamp_ns: that pair's header stamp (ns).
         first_log_time_ns: its log time (ns), the log time of its outputs.
+        tuning: the settings the fit check tuned it with beyond its fitted prior (JSON,
+            ``evaluate.tuning``; recorded as ``N.tuning``); "": densified as fitted, not recorded.
     """
 
     basis: str
@@ -331,9 +337,10 @@ class BasisInForce(NamedTuple):
     first_frame: int
     first_stamp_ns: int
     first_log_time_ns: int
+    tuning: str = ""
 
 
-_BASIS_FIELDS = BasisInForce._fields
+_BASIS_FIELDS = BasisInForce._fields[:5]
 
 
 def bases_record(bases: Iterable[BasisInForce], prefix: str | None = None) -> dict[str, str]:
@@ -355,7 +362,9 @@ def bases_record(bases: Iterable[BasisInForce], prefix: str | None = None) -> di
     if prefix is not None:
         record[OUTPUT_PREFIX_KEY] = prefix
     for number, entry in enumerate(entries):
-        record.update({f"{number}.{name}": str(value) for name, value in entry._asdict().items()})
+        record.update({f"{number}.{name}": str(getattr(entry, name)) for name in _BASIS_FIELDS})
+        if entry.tuning:  # only then: an untuned log's record is as before
+            record[f"{number}.tuning"] = entry.tuning
     return record
 
 
@@ -370,7 +379,10 @@ def recorded_bases_of(record: dict[str, str]) -> list[BasisInForce]:
             BasisInForce(
                 record[f"{number}.basis"],
                 record[f"{number}.fingerprint"],
-                *(int(record[f"{number}.{name}"]) for name in _BASIS_FIELDS[2:]),
+                int(record[f"{number}.first_frame"]),
+                int(record[f"{number}.first_stamp_ns"]),
+                int(record[f"{number}.first_log_time_ns"]),
+                record.get(f"{number}.tuning", ""),  # recorded only when tuned
             )
             for number in range(int(record["count"]))
         ]

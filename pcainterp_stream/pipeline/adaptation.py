@@ -83,10 +83,12 @@ class BasisStart(NamedTuple):
     Attributes:
         frame: the first frame densified with it (its index, stamp and log time).
         basis: the basis.
+        tuning: the settings the fit check tuned it with (:meth:`Adaptation.tuning`), or None.
     """
 
     frame: StereoFrame
     basis: Basis
+    tuning: dict[str, object] | None = None
 
 
 @dataclass(frozen=True)
@@ -206,8 +208,9 @@ class Adaptation:
 
     def bind(self, frames: list[StereoFrame], basis: Basis) -> None:
         """Note that ``frames``, the next ones in stream order, are densified with ``basis``."""
-        if frames and (not self.in_force or self.in_force[-1].basis is not basis):
-            self.in_force.append(BasisStart(frames[0], basis))
+        last, tuning = self.in_force[-1:], self.tuning(basis)  # a re-check may change only it
+        if frames and (not last or last[0].basis is not basis or (last[0].tuning or {}) != tuning):
+            self.in_force.append(BasisStart(frames[0], basis, tuning or None))
 
     def warm_up(
         self, basis: Basis, frames: list[AdaptFrame], settings: dict[str, object]

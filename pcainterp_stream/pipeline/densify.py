@@ -28,6 +28,7 @@ from pcainterp_stream.estimate.basis import (
     builtin_basis,
     builtin_kind,
 )
+from pcainterp_stream.evaluate.tuning import tuning_json
 from pcainterp_stream.frontend.discovery import resolve_pairing
 from pcainterp_stream.frontend.far import FarZeros
 from pcainterp_stream.frontend.frame_checks import BeyondRange, StaleRight
@@ -62,6 +63,7 @@ from pcainterp_stream.io.outputs import (
     BASIS_KEY,
     BASIS_SCOPE,
     BASIS_SCOPE_KEY,
+    BASIS_TUNING_KEY,
     BasisInForce,
     OutputTopics,
     bases_record,
@@ -232,7 +234,8 @@ def provenance(
         prefix: the output topics' prefix (``output_prefix``; None: not recorded).
 
     Returns:
-        ``version``, ``basis``, ``basis_fingerprint``, ``basis_scope``, ``output_prefix`` and,
+        ``version``, ``basis``, ``basis_fingerprint``, ``basis_scope``, ``basis_tuning`` (only
+        when the fit check tuned the channels' basis: ``evaluate.tuning``), ``output_prefix`` and,
         as JSON of option values, ``front_end`` (:func:`front_end`), ``pairing`` and
         ``processor``.
     """
@@ -243,6 +246,7 @@ def provenance(
         "basis": channels[BASIS_KEY],
         "basis_fingerprint": channels[BASIS_FINGERPRINT_KEY],
         "basis_scope": BASIS_SCOPE,
+        **({"basis_tuning": channels[BASIS_TUNING_KEY]} if BASIS_TUNING_KEY in channels else {}),
         FRONT_END_KEY: front_end(pairing, processor, stats).to_json(),
         "pairing": options_json(pairing),
         "processor": options_json(processor),
@@ -537,6 +541,8 @@ def densify(
                                 started[0].basis, started[0].fingerprint, processor.measurements
                             )
                         )
+                        if started[0].tuning:  # the check tuned it (only then: as before)
+                            first[BASIS_TUNING_KEY] = started[0].tuning
                     elif switched is not None:  # the check chose another built-in basis
                         first.update(
                             channel_metadata(
@@ -545,6 +551,8 @@ def densify(
                                 processor.measurements,
                             )
                         )
+                        if switched.tuned:
+                            first[BASIS_TUNING_KEY] = tuning_json(switched.tuned)
                     if not started and engine.adaptation.adapted:
                         # the first outputs follow the warm-up: name the basis learned from it
                         own = engine.adaptation.first_basis
@@ -734,9 +742,11 @@ def bases_in_force(
             name = label
         else:
             name = names.get(id(used), RELEARNED)
-        frame = start.frame
+        frame, tuning = start.frame, tuning_json(start.tuning or {})
         entries.append(
-            BasisInForce(name, used.fingerprint, frame.index, frame.stamp_ns, frame.log_time_ns)
+            BasisInForce(
+                name, used.fingerprint, frame.index, frame.stamp_ns, frame.log_time_ns, tuning
+            )
         )
     return entries
 
