@@ -23,8 +23,7 @@ The static prior is mu = 0, P = Lambda; the temporal prior takes mu and the diag
 from the previous frame's posterior plus process noise q * Lambda. Robust weights w_j
 come from iteratively reweighted least squares on the leave-one-out standardised residuals
 t_j = alpha_j / sqrt([K^-1]_jj) (the residual of z_j against the prediction from all other
-points, over its predictive std; N(0, 1) under the model), in units of their own spread
-when the prior misfits the frame (:func:`residual_spread`). The noise level sigma can be
+points, over its predictive std; N(0, 1) under the model). The noise level sigma can be
 the maximiser of the marginal likelihood log N(z~; B~ mu, K) (the evidence) per frame.
 
 Pure maths over arrays: nothing here knows about logs.
@@ -68,10 +67,7 @@ class RobustStart(StrEnum):
     """Where the IRLS weights of a frame with an outlier (:data:`ROBUST_FROM`) come from."""
 
     PLAIN = "plain"
-    """The unweighted solve's residuals t_j (SGBM lookups, whose matcher bounds their error)
-    over their spread (:func:`residual_spread`): where the prior misfits the frame most
-    t_j are large, and the loss in units of 1 down-weighted a third of correct lookups
-    (EuRoC machine hall: 111 of 312 per frame; 41 in the spread, 2.494 -> 2.404 px)."""
+    """The unweighted solve's residuals t_j (SGBM lookups, whose matcher bounds their error)."""
     TRIMMED = "trimmed"
     """A second solve without the suspects (|t_j| >= ``robust_from``), each suspect's t_j
     against it; a point still at :data:`REJECT_FROM` or beyond is left out (weight
@@ -99,10 +95,9 @@ frames, LiDAR truth: 1.565 -> 1.726 px; 16: 1.578) and to raise the odometry cli
 error against its cloud (street basis 9.35 -> 11.75 %; 16: 9.11 %)."""
 
 MAD_TO_STD = 1.4826
-"""The std of a normal over its median absolute deviation (:func:`residual_spread`): the
-trimmed start's suspects are beyond ``robust_from`` times the spread (one point at a
-disparity of 19,000 px put most of 300 good points' t_j beyond 4), the plain start's loss
-takes t_j over it."""
+"""The std of a normal over its median absolute deviation: the trimmed start's suspects are
+beyond ``robust_from`` times this times the median |t_j| when that exceeds 1 (one point at
+a disparity of 19,000 px put most of 300 good points' t_j beyond 4)."""
 
 REJECTED_WEIGHT = 1e-12
 """The weight of a point left out: its noise std 1e6 sigma, no pull on the fit."""
@@ -573,17 +568,6 @@ def evidence_noise(
         if objective[index] > best[0]:
             best = (float(objective[index]), float(SIGMA_SEARCH[index]), float(scale))
     return best[1], best[2]
-
-
-def residual_spread(standardised: FloatArray) -> float:
-    """Return the spread of standardised residuals: max(1, MAD_TO_STD * median |t_j|).
-
-    1 where the model fits the frame (under it median |t_j| is 0.674, the spread 1); above
-    when the prior misfits it and most points' t_j are large (:data:`MAD_TO_STD`).
-    """
-    if standardised.size == 0:
-        return 1.0
-    return max(1.0, MAD_TO_STD * float(np.median(np.abs(standardised))))
 
 
 def robust_weights(standardised: FloatArray, robust: Robust) -> FloatArray:

@@ -20,6 +20,7 @@ from pcainterp_stream.estimate.cells import Cells, node_along
 from pcainterp_stream.estimate.lapack import routines
 from pcainterp_stream.estimate.prior import (
     DOWNWEIGHTED_BELOW,
+    MAD_TO_STD,
     REJECT_FROM,
     REJECTED_WEIGHT,
     LocalPrior,
@@ -28,7 +29,6 @@ from pcainterp_stream.estimate.prior import (
     RobustStart,
     TemporalPrior,
     evidence_noise,
-    residual_spread,
     robust_weights,
 )
 
@@ -302,7 +302,6 @@ def _solve_measurement(
     noise = noise / scale  # the unit prior with the fit's noise-to-signal ratio; sigma is s
     iterations = model.robust_iterations if model.robust is not Robust.NONE else 0
     rejected = np.zeros(k, dtype=bool)  # left out by the trimmed start, for good
-    spread = 1.0  # of the unweighted solve's t_j (prior.residual_spread)
     for iteration in range(iterations + 1):
         # K = signal + R, R on the diagonal of the factorisation's own copy
         lower_inverse = _cholesky_inverse(signal, noise / weights) if k else np.zeros((0, 0))
@@ -314,13 +313,10 @@ def _solve_measurement(
         standardised = alpha / np.sqrt(inverse_diagonal)
         if iteration == 0 and not np.max(np.abs(standardised), initial=0.0) >= model.robust_from:
             break  # no outlier: the unweighted solve stands (weights 1)
-        if iteration == 0:
-            # the residuals' own spread: above 1 when the prior misfits the frame (or one
-            # point pulled the fit so far that most of the others are beyond robust_from)
-            spread = residual_spread(standardised)
-        if model.robust_start is RobustStart.PLAIN:
-            standardised = standardised / spread  # the loss's scale in that spread
-        elif iteration == 0:  # trimmed: the suspects are beyond robust_from in the spread
+        if iteration == 0 and model.robust_start is RobustStart.TRIMMED:
+            # the suspects: beyond robust_from, in the residuals' own spread when one point
+            # pulled the fit so far that most of the others are beyond it too
+            spread = max(1.0, MAD_TO_STD * float(np.median(np.abs(standardised))))
             trimmed = _trimmed_residuals(
                 signal, noise, innovation, np.abs(standardised) >= model.robust_from * spread
             )

@@ -16,7 +16,6 @@ from pcainterp_stream.estimate.prior import (
     TemporalPrior,
     covariance_scale,
     evidence_sigma,
-    residual_spread,
     robust_weights,
 )
 from pcainterp_stream.estimate.variance import innovation_variance_scale
@@ -201,38 +200,6 @@ def test_robust_reweights_only_a_frame_with_an_outlier() -> None:
     np.testing.assert_array_equal(outlier.disparity, solve(wrong, robust_from=0.0).disparity)
     with pytest.raises(ValueError, match="robust_from"):
         solve(disparities, robust_from=-1.0)
-
-
-def test_robust_loss_takes_the_residuals_spread_when_the_prior_misfits() -> None:
-    # 200 good points of a field with a part the basis cannot express (3 px), one wrong
-    # lookup (+40 px): the plain start used to down-weight 95 of the good points too
-    # (their t_j large only because the prior misfits; docs/estimator.md, "Robust")
-    basis = _basis(height=48, width=64)
-    rng = np.random.default_rng(11)
-    ys, xs = np.mgrid[0:48, 0:64]
-    truth = basis.mean + np.tensordot(
-        rng.normal(size=6) * np.sqrt(basis.eigenvalues), basis.components, axes=1
-    )
-    truth = truth + 3.0 * np.sin(xs / 2.0) * np.cos(ys / 3.0)
-    pixels = np.stack([rng.integers(0, 64, 200), rng.integers(0, 48, 200)], axis=1).astype(float)
-    measured = truth[pixels[:, 1].astype(int), pixels[:, 0].astype(int)]
-    measured = measured + rng.normal(0, 0.1, 200)
-    measured[0] += 40.0
-    robust = densify(basis, pixels, measured, sigma=0.5, robust="cauchy")
-    unweighted = densify(basis, pixels, measured, sigma=0.5)
-    assert robust.weights is not None
-    assert robust.weights[0] < 0.05  # the wrong lookup still left (nearly) out
-    assert robust.n_downweighted <= 5
-    error = np.abs(robust.disparity - truth).mean()
-    assert error < np.abs(unweighted.disparity - truth).mean()
-
-
-def test_residual_spread_is_one_where_the_model_fits() -> None:
-    t = np.random.default_rng(0).normal(size=20_000)
-    assert residual_spread(t) == pytest.approx(1.0, abs=0.03)
-    assert residual_spread(3.0 * t) == pytest.approx(3.0, rel=0.03)
-    assert residual_spread(0.2 * t) == 1.0
-    assert residual_spread(np.zeros(0)) == 1.0
 
 
 def test_robust_weights_shapes() -> None:
