@@ -138,9 +138,7 @@ class GfttConfig:
         if not 0.0 <= self.fill_min_support <= 1.0:
             raise ValueError(f"fill_min_support must be in [0, 1], got {self.fill_min_support}")
         if not 0.0 <= self.nudge_min_support <= 1.0:
-            raise ValueError(
-                f"nudge_min_support must be in [0, 1], got {self.nudge_min_support}"
-            )
+            raise ValueError(f"nudge_min_support must be in [0, 1], got {self.nudge_min_support}")
         if min(self.buckets) < 1 or self.fill_spacing < 0.0:
             raise ValueError(
                 f"buckets ({self.buckets}) must be >= 1 each and fill_spacing "

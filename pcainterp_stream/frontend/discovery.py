@@ -2,21 +2,21 @@
 
 A camera is an image topic (``sensor_msgs/Image`` or ``CompressedImage``) with a
 ``camera_info`` of its own below it (``/ns/left/Scene/camera_info``: AirSim, MultiSense) or a
-sibling one (``/ns/left/image_raw`` -> ``/ns/left/camera_info``), or, with calibration
-files, any image topic. A depth, disparity, segmentation, normals or confidence stream
-(``depth``, ``DepthPlanar``, ``disparity``, ``Segmentation``: a simulator's or a depth
-camera's, beside its camera images) is no camera; nor, when the camera has another stream,
-one whose first image is not a camera image (``32FC1``). Two cameras are a stereo pair
-when their topics differ in one name that says which is left: ``left``/``right``,
-``l``/``r``, or a number (``cam0``/``cam1``, ``infra1``/``infra2``, ``image_2``/``image_3``:
-the lower one is left); names that say
-nothing are ordered by the sign of P[0, 3] (the right camera's is negative). The two sides
-are streams of one image (``image_raw``), raw or compressed alike (a compressed left with a
-raw right pairs). Of a camera's streams the rectified one is preferred (``image_rect`` over
-``image_raw``), then one transport on both sides, then the uncompressed, then the grey one;
-but a stream pair with clearly fewer images than another gives way to it (said in the line).
-An image topic the log counts no message on is no camera. A number does not make a pair
-when a name both namespaces share says the side (``/robot1/stereo/left`` and
+sibling one (``/ns/left/image_raw`` -> ``/ns/left/camera_info``), or, with calibration files,
+any image topic. A depth, disparity, segmentation, normals or confidence stream (``depth``,
+``DepthPlanar``, ``disparity``, ``Segmentation``: a simulator's or a depth camera's, beside
+its camera images; not ``depth_left``, a camera's name) is no camera, unless no pair is found
+without it and its first image is a camera image; nor, when the camera has another stream, one
+whose first image is not a camera image (``32FC1``). Two cameras are a stereo pair when their
+topics differ in one name that says which is left: ``left``/``right``, ``l``/``r``, or a
+number (``cam0``/``cam1``, ``infra1``/``infra2``, ``image_2``/``image_3``: the lower one is
+left); names that say nothing are ordered by the sign of P[0, 3] (the right camera's is
+negative). The two sides are streams of one image (``image_raw``), raw or compressed alike (a
+compressed left with a raw right pairs). Of a camera's streams the rectified one is preferred
+(``image_rect`` over ``image_raw``), then one transport on both sides, then the uncompressed,
+then the grey one; but a stream pair with clearly fewer images than another gives way to it
+(said in the line). An image topic the log counts no message on is no camera. A number does
+not make a pair when a name both namespaces share says the side (``/robot1/stereo/left`` and
 ``/robot2/stereo/left``), nor, without calibration files or ``--baseline``, when both infos
 have P[0, 3] = 0 (two monocular ``/camera1`` and ``/camera2``).
 A log with several heads (``/front/left`` + ``/front/right`` and ``/rear/left`` +
@@ -34,8 +34,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from pcainterp_stream.errors import PcaInterpError, TopicNotFoundError
 from pcainterp_stream.frontend.pair_forms import (
     SIDE_BY_SIDE_MATCH,
@@ -43,6 +41,13 @@ from pcainterp_stream.frontend.pair_forms import (
     is_rectified_name,
 )
 from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.frontend.stream_kinds import (
+    camera_images,
+    depth_named,
+    first_encoding,
+    first_tx,
+    first_uncalibrated,
+)
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import decode_image
 from pcainterp_stream.io.reader_base import LogReader, TopicInfo
@@ -53,10 +58,6 @@ DEFAULT_LEFT_INFO = PairingConfig.left_info_topic
 DEFAULT_RIGHT_INFO = PairingConfig.right_info_topic
 _IMAGE_TYPES = (rosmsg.IMAGE, rosmsg.COMPRESSED_IMAGE)
 _COMPRESSED = ("compressed",)
-_NOT_CAMERA = re.compile(
-    r"depth|disparit|segment|semantic|normals|confidence|optical_?flow", re.IGNORECASE
-)
-"""Names of the streams of a camera namespace that hold no camera image (depth, labels)."""
 
 
 @dataclass(frozen=True)
@@ -89,12 +90,13 @@ class Camera:
     def not_camera(self) -> bool:
         """Return True for a depth, disparity, segmentation ... stream (its name says so).
 
-        The stream's name below the namespace decides (``/isaac/left/depth``,
-        ``/airsim_node/drone_1/front_left/DepthPlanar``), and the namespace's last name
-        (``/camera/depth/image_rect_raw``, ``/zed/zed_node/disparity/disparity_image``).
+        A name of the stream below the namespace (``/isaac/left/depth``,
+        ``/airsim_node/drone_1/front_left/DepthPlanar``) or the namespace's last name
+        (``/camera/depth/image_rect_raw``, ``/zed/zed_node/disparity/disparity_image``)
+        says it, one that says no side (``/robot/depth_left/image_raw`` is a camera's):
+        :func:`stream_kinds.depth_named`.
         """
-        last = self.namespace.rstrip("/").split("/")[-1]
-        return _NOT_CAMERA.search(f"{last}/{self.image}") is not None
+        return depth_named(self.namespace, self.image)
 
 
 def _side_by_side(reader: LogReader, topic: str) -> str:
@@ -393,8 +395,15 @@ def find_pairs(
     rejected: list[str] | None = None,
     left_topic: str | None = None,
     right_topic: str | None = None,
+    camera_kind: Callable[[str, bool], str | None] | None = None,
+    skipped: list[Camera] | None = None,
 ) -> list[StereoTopics]:
     """Return the stereo pairs of a log, best first (see the module docstring).
+
+    A stream whose name says depth (:attr:`Camera.not_camera`) is no camera, unless a side
+    names it, or no pair is found without such streams and its first image is a camera
+    image (``camera_kind``: a camera of the log named ``/robot/depth_cam0``): the pair then
+    says so in its note.
 
     Two cameras numbered alike (``cam0``/``cam1``) are not a pair when a name they share
     says their side (``/robot1/stereo/left`` and ``/robot2/stereo/left``) or, without
@@ -412,11 +421,68 @@ def find_pairs(
         rejected: given, it takes why cameras numbered alike were not taken for a pair.
         left_topic: only the pairs whose left stream is this one (a side named).
         right_topic: only the pairs whose right stream is this one.
+        camera_kind: (image topic, compressed) -> its first image's encoding or format
+            when a camera image (None: depth, or not known), from
+            :func:`stream_kinds.camera_images`; None: depth-named streams never come back.
+        skipped: given, it takes the depth-named streams left out when no pair is found.
     """
     streams = cameras(topics, need_info=need_info)
+    sides = (left_topic, right_topic)
     # depth, disparity, ... streams are no camera, unless one is named (its partner is one)
-    if not any(c.not_camera and c.topic in (left_topic, right_topic) for c in streams):
-        streams = [c for c in streams if not c.not_camera]
+    if any(c.not_camera and c.topic in sides for c in streams):
+        return _pairs_of(
+            streams, need_info, tx_of, encoding_of, uncalibrated, baseline_given, rejected, sides
+        )
+    depth = [c for c in streams if c.not_camera]
+    cams = [c for c in streams if not c.not_camera]
+    reasons: list[str] = []
+    pairs = _pairs_of(
+        cams, need_info, tx_of, encoding_of, uncalibrated, baseline_given, reasons, sides
+    )
+    back: dict[Camera, str | None] = {}
+    if not pairs and camera_kind is not None:  # read only then: the first image of each
+        back = {c: camera_kind(c.topic, c.compressed) for c in depth}
+    if any(back.values()):  # the only pair: cameras named depth_cam0, ... (not depth images)
+        pairs = _pairs_of(
+            cams + [c for c in depth if back[c]],
+            need_info,
+            tx_of,
+            encoding_of,
+            uncalibrated,
+            baseline_given,
+            reasons,
+            sides,
+        )
+        pairs = [_say_depth_named(p, back) for p in pairs]
+    if rejected is not None:
+        rejected.extend(reasons)
+    if not pairs and skipped is not None:
+        skipped.extend(depth)
+    return pairs
+
+
+def _say_depth_named(pair: StereoTopics, kinds: dict[Camera, str | None]) -> StereoTopics:
+    """Return ``pair`` with a note on its streams whose name says depth (taken: no other)."""
+    named = [c for c in (pair.left, pair.right) if c in kinds]
+    if not named:
+        return pair
+    said = ", ".join(f"{c.topic} ({kinds[c]})" for c in named)
+    note = f"{said} taken though named like depth: their images are camera images, no other pair"
+    return dataclasses.replace(pair, note="; ".join(n for n in (pair.note, note) if n))
+
+
+def _pairs_of(
+    streams: list[Camera],
+    need_info: bool,
+    tx_of: Callable[[str], float | None] | None,
+    encoding_of: Callable[[str], str | None] | None,
+    uncalibrated: Callable[[str], bool] | None,
+    baseline_given: bool,
+    rejected: list[str] | None,
+    sides: tuple[str | None, str | None],
+) -> list[StereoTopics]:
+    """Return the stereo pairs of ``streams``, best first (the arguments of :func:`find_pairs`)."""
+    left_topic, right_topic = sides
     by_ns: dict[str, list[Camera]] = {}
     for cam in streams:
         by_ns.setdefault(cam.namespace, []).append(cam)
@@ -475,60 +541,6 @@ def _without_crossed_kinds(pairs: list[StereoTopics]) -> list[StereoTopics]:
     return [p for p in pairs if not crossed(p)]
 
 
-def _first_tx(reader: LogReader) -> Callable[[str], float | None]:
-    cache: dict[str, float | None] = {}
-
-    def tx_of(topic: str) -> float | None:
-        if topic not in cache:
-            cache[topic] = None
-            for raw in reader.messages([topic]):
-                try:
-                    cache[topic] = float(rosmsg.projection_matrix(reader.decode(raw))[0, 3])
-                except (PcaInterpError, AttributeError, ValueError):  # a damaged info: no side
-                    cache[topic] = None
-                break
-        return cache[topic]
-
-    return tx_of
-
-
-def _uncalibrated(reader: LogReader) -> Callable[[str], bool]:
-    cache: dict[str, bool] = {}
-
-    def uncalibrated(topic: str) -> bool:
-        if topic not in cache:
-            cache[topic] = False
-            for raw in reader.messages([topic]):
-                try:
-                    info = reader.decode(raw)
-                    k = getattr(info, "k", None)
-                    k = np.asarray(info.K if k is None else k, dtype=float)
-                    cache[topic] = not k.any() and not rosmsg.projection_matrix(info).any()
-                except (PcaInterpError, AttributeError, TypeError, ValueError):
-                    cache[topic] = False
-                break
-        return cache[topic]
-
-    return uncalibrated
-
-
-def _first_encoding(reader: LogReader) -> Callable[[str], str | None]:
-    cache: dict[str, str | None] = {}
-
-    def encoding_of(topic: str) -> str | None:
-        if topic not in cache:
-            cache[topic] = None
-            for raw in reader.messages([topic]):
-                try:
-                    cache[topic] = str(reader.decode(raw).encoding)
-                except (PcaInterpError, AttributeError, ValueError):  # not known: no ranking
-                    cache[topic] = None
-                break
-        return cache[topic]
-
-    return encoding_of
-
-
 def resolve_pairing(
     reader: LogReader, config: PairingConfig, echo: Callable[[str], None] | None = None
 ) -> PairingConfig:
@@ -566,7 +578,7 @@ def _refuse_no_camera_images(reader: LogReader, config: PairingConfig) -> None:
             its namespace has other image streams (named in the message).
     """
     topics = reader.topics()
-    encoding_of = _first_encoding(reader)
+    encoding_of = first_encoding(reader)
     images = [c for c in cameras(topics, need_info=False) if not c.compressed]
     for side, topic in (("left", config.left_topic), ("right", config.right_topic)):
         encoding = encoding_of(topic) if topic in topics else None
@@ -720,17 +732,20 @@ def _discover(
     need_info = config.calibration is None
     named = named_left or named_right
     rejected: list[str] = []
+    skipped: list[Camera] = []
     # a side was named: only the pairs with it
     pairs = find_pairs(
         topics,
         need_info=need_info,
-        tx_of=_first_tx(reader),
-        encoding_of=_first_encoding(reader),
-        uncalibrated=_uncalibrated(reader),
+        tx_of=first_tx(reader),
+        encoding_of=first_encoding(reader),
+        uncalibrated=first_uncalibrated(reader),
         baseline_given=config.baseline is not None,
         rejected=rejected,
         left_topic=config.left_topic if named_left else None,
         right_topic=config.right_topic if named_right else None,
+        camera_kind=camera_images(reader),
+        skipped=skipped,
     )
     if named and not pairs:  # the named topic is missing, of another type, or has no partner
         if config.calibration_topics is not None:
@@ -790,7 +805,8 @@ def _discover(
         raise TopicNotFoundError(
             f"no stereo pair found in {name}: it needs two cameras, each {want}, named left/"
             f"right (or cam0/cam1, ...); image topics: {listed or 'none'}; camera "
-            f"infos: {', '.join(infos) or 'none'}; pass "
+            f"infos: {', '.join(infos) or 'none'}"
+            f"{_skipped_as_depth(skipped, first_encoding(reader))}; pass "
             "--left-topic and --right-topic"
             + (
                 " (and --calibration LEFT.yaml RIGHT.yaml without camera infos)"
@@ -825,6 +841,21 @@ def _discover(
         right_topic=best.right.topic,
         left_info_topic=left_info,
         right_info_topic=right_info,
+    )
+
+
+def _skipped_as_depth(skipped: list[Camera], encoding_of: Callable[[str], str | None]) -> str:
+    """Return the clause of the no-pair error on the streams skipped as depth ("" if none)."""
+    if not skipped:
+        return ""
+    listed = []
+    for cam in skipped:
+        encoding = None if cam.compressed else encoding_of(cam.topic)
+        listed.append(f"{cam.topic} ({encoding})" if encoding else cam.topic)
+    return (
+        f"; skipped as depth, disparity, segmentation ... streams, their names saying so: "
+        f"{', '.join(listed)} (a stereo camera named so is read when its topics are named: "
+        f"--left-topic {skipped[0].topic} and its partner's --right-topic)"
     )
 
 

@@ -196,3 +196,103 @@ def test_uncalibrated_infos_are_said_first_with_calibration_as_the_fix() -> None
     mono = {t: (k, [500.0, 0, 300, 0, 0, 500, 200, 0, 0, 0, 1, 0]) for t in zero}
     with pytest.raises(TopicNotFoundError, match="have no baseline"):
         resolve_pairing(_InfoReader(_topics(*names), mono), PairingConfig(discover=True))  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("left", "right"),
+    [
+        ("depth_left", "depth_right"),
+        ("front_depth_left", "front_depth_right"),
+        ("stereo_depth_l", "stereo_depth_r"),
+        ("DepthLeft", "DepthRight"),
+    ],
+)
+def test_a_stereo_camera_whose_name_has_depth_in_it_is_found(left: str, right: str) -> None:
+    # review 58a R3: /robot/depth_left/image_raw + /robot/depth_right/... (each with its
+    # camera_info) were skipped as depth streams: "no stereo pair found"
+    names = [f"/robot/{ns}/{s}" for ns in (left, right) for s in ("image_raw", "camera_info")]
+    (pair,) = find_pairs(_topics(*names, "/robot/depth/image_raw", "/robot/depth/camera_info"))
+    assert pair.left.topic == f"/robot/{left}/image_raw"
+    assert pair.right.topic == f"/robot/{right}/image_raw"
+
+
+def _numbered_depth_cams(encoding: str) -> tuple[dict[str, TopicInfo], dict[str, str]]:
+    names = [f"/robot/depth_cam{i}/{s}" for i in (0, 1) for s in ("image_raw", "camera_info")]
+    return _topics(*names), {f"/robot/depth_cam{i}/image_raw": encoding for i in (0, 1)}
+
+
+class _TxReader(_Reader):
+    """A log of images of ``encodings`` whose camera infos have the P[0, 3] of ``txs``."""
+
+    def __init__(
+        self, topics: dict[str, TopicInfo], encodings: dict[str, str], txs: dict[str, float]
+    ) -> None:
+        super().__init__(topics, encodings)
+        self._txs = txs
+
+    def messages(self, topics: Any = None) -> Any:
+        known = self._encodings.keys() | self._txs.keys()
+        return iter([SimpleNamespace(topic=t) for t in topics or () if t in known])
+
+    def decode(self, raw: Any) -> Any:
+        if raw.topic in self._txs:
+            p = [500.0, 0, 300, self._txs[raw.topic], 0, 500, 200, 0, 0, 0, 1, 0]
+            return SimpleNamespace(k=np.ones(9), p=np.asarray(p))
+        return super().decode(raw)
+
+
+def test_the_only_pair_named_like_depth_is_read_when_its_images_are_camera_images() -> None:
+    # review 58a R3: a name that says depth and no side (`depth_cam0`/`depth_cam1`) is
+    # still the log's stereo camera when its images are mono8 and no other pair is there
+    topics, encodings = _numbered_depth_cams("mono8")
+    txs = {"/robot/depth_cam0/camera_info": 0.0, "/robot/depth_cam1/camera_info": -50.0}
+    lines: list[str] = []
+    config = resolve_pairing(
+        _TxReader(topics, encodings, txs),  # type: ignore[arg-type]
+        PairingConfig(discover=True),
+        lines.append,
+    )
+    assert (config.left_topic, config.right_topic) == (
+        "/robot/depth_cam0/image_raw",
+        "/robot/depth_cam1/image_raw",
+    )
+    assert "taken though named like depth: their images are camera images" in lines[-1]
+
+
+@pytest.mark.parametrize("encoding", ["16UC1", "32FC1"])
+def test_depth_streams_skipped_are_said_in_the_no_pair_error(encoding: str) -> None:
+    # review 58a R3: the error listed the skipped streams as image topics and said nothing
+    # of why they were not taken
+    topics, encodings = _numbered_depth_cams(encoding)
+    txs = {"/robot/depth_cam0/camera_info": 0.0, "/robot/depth_cam1/camera_info": -50.0}
+    with pytest.raises(TopicNotFoundError) as caught:
+        resolve_pairing(_TxReader(topics, encodings, txs), PairingConfig(discover=True))  # type: ignore[arg-type]
+    assert (
+        "; skipped as depth, disparity, segmentation ... streams, their names saying so: "
+        f"/robot/depth_cam0/image_raw ({encoding}), /robot/depth_cam1/image_raw ({encoding}) "
+        "(a stereo camera named so is read when its topics are named: --left-topic "
+        "/robot/depth_cam0/image_raw and its partner's --right-topic); pass --left-topic"
+    ) in str(caught.value)
+
+
+@pytest.mark.parametrize(
+    ("name", "depth"),
+    [
+        ("depth", True),
+        ("DepthPlanar", True),
+        ("depth_registered", True),
+        ("aligned_depth_to_infra1", True),
+        ("disparity_image", True),
+        ("Segmentation", True),
+        ("OpticalFlow", True),
+        ("depth_left", False),
+        ("stereo_depth_r", False),
+        ("DepthRight", False),
+        ("image_raw", False),
+        ("rgb", False),
+    ],
+)
+def test_a_name_says_depth_only_as_a_word_and_without_a_side(name: str, depth: bool) -> None:
+    from pcainterp_stream.frontend.stream_kinds import depth_name
+
+    assert depth_name(name) is depth
