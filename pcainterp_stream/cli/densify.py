@@ -657,12 +657,19 @@ def _hint_split(paths: list[Path]) -> None:
     from pcainterp_stream.io.logreader import open_log
     from pcainterp_stream.io.logreader_parts import seams
 
-    for first, after, gap in seams(paths, open_log):
+    for parts, gaps in seams(paths, open_log):
+        if len(parts) == 2:
+            follow = f"{parts[1].name} starts {gaps[0] / 1e9:.3g} s after {parts[0].name} ends"
+        else:  # one warning for the chain: each part starts where the one before ends
+            names = f"{', '.join(p.name for p in parts[:-1])} and {parts[-1].name}"
+            follow = (
+                f"{names} follow each other (each starting at most {max(gaps) / 1e9:.3g} s "
+                "after the one before ends)"
+            )
         warn(
-            f"{after.name} starts {gap / 1e9:.3g} s after {first.name} ends: they look like "
-            "the parts of one split recording, which --out-dir densifies as separate logs "
-            f"(each choosing its basis from its own start); to read them as one log: "
-            f"pcainterp densify {first} {after} -o OUTPUT"
+            f"{follow}: they look like the parts of one split recording, which --out-dir "
+            "densifies as separate logs (each choosing its basis from its own start); to "
+            f"read them as one log: pcainterp densify {' '.join(map(str, parts))} -o OUTPUT"
         )
 
 

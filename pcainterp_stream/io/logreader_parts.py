@@ -251,12 +251,14 @@ class PartsLogReader(LogReader):
 
 def seams(
     paths: Sequence[Path], opener: Callable[[Path], LogReader]
-) -> list[tuple[Path, Path, int]]:
-    """Return the logs that look like consecutive parts of one split recording.
+) -> list[tuple[tuple[Path, ...], tuple[int, ...]]]:
+    """Return the chains of logs that look like consecutive parts of one split recording.
 
-    Each is ``(first, next, gap_ns)``: ``next`` starts between :data:`SEAM_JITTER_NS` before
-    and :data:`FOLLOW_NS` after ``first`` ends (by their indexes; a log without one, or one
-    that does not open, is left out: this is a hint, never a check).
+    Each is ``(parts, gaps_ns)``: two or more logs in log-time order, each starting between
+    :data:`SEAM_JITTER_NS` before and :data:`FOLLOW_NS` after the one before ends (by their
+    indexes; a log without one, or one that does not open, is left out: this is a hint,
+    never a check), and the gap at each seam (``len(parts) - 1`` of them). Three parts of
+    one recording are one chain, never two pairs.
     """
     spans: list[tuple[int, int, Path]] = []
     for path in dict.fromkeys(paths):
@@ -268,11 +270,16 @@ def seams(
         if stats is not None and stats[1] is not None and stats[2] is not None:
             spans.append((stats[1], stats[2], path))
     spans.sort(key=lambda item: (item[0], item[1]))
-    found = []
+    chains: list[tuple[list[Path], list[int]]] = []
     for (_, end, first), (start, _, after) in itertools.pairwise(spans):
-        if -SEAM_JITTER_NS <= start - end <= FOLLOW_NS:
-            found.append((first, after, start - end))
-    return found
+        if not -SEAM_JITTER_NS <= start - end <= FOLLOW_NS:
+            continue
+        if chains and chains[-1][0][-1] == first:  # the next part of the chain before
+            chains[-1][0].append(after)
+            chains[-1][1].append(start - end)
+        else:
+            chains.append(([first, after], [start - end]))
+    return [(tuple(parts), tuple(gaps)) for parts, gaps in chains]
 
 
 def _span(reader: LogReader) -> tuple[int, int] | None:

@@ -270,7 +270,7 @@ def test_out_dir_hints_at_the_parts_of_one_split_recording(
     from pcainterp_stream.io.logreader_parts import seams
 
     first, second, whole = split["first"], split["second"], split["whole"]
-    ((a, b, gap),) = seams([second, first], open_log)
+    (((a, b), (gap,)),) = seams([second, first], open_log)
     assert (a, b) == (first, second)
     assert 0 <= gap < 10**9
     assert seams([first, whole], open_log) == []  # the whole log overlaps its first part
@@ -280,3 +280,29 @@ def test_out_dir_hints_at_the_parts_of_one_split_recording(
     assert line.startswith("warning: run_1.bag starts ")
     assert "look like the parts of one split recording" in line
     assert line.endswith(f"pcainterp densify {first} {second} -o OUTPUT")
+
+
+def test_out_dir_hints_once_at_the_three_parts_of_one_recording(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # review 58a R5: three parts gave two warnings, `densify part0 part1 -o OUTPUT` and
+    # `densify part1 part2 -o OUTPUT`: following either read two of the three parts
+    from pcainterp_stream.cli.densify import _hint_split
+    from pcainterp_stream.io.logreader_parts import seams
+
+    s = 1_000_000_000
+    parts = [tmp_path / f"part{i}.mcap" for i in range(3)]
+    for i, part in enumerate(parts):
+        string_mcap(part, [i * s + k * s // 10 for k in range(10)])  # 0.1 s from the next
+    alone = tmp_path / "other.mcap"
+    string_mcap(alone, [3600 * s, 3601 * s])  # an hour later: no part of them
+    ((chain, gaps),) = seams([parts[2], alone, parts[0], parts[1]], open_log)
+    assert chain == tuple(parts)
+    assert gaps == (s // 10, s // 10)
+    _hint_split([parts[2], parts[0], alone, parts[1]])
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith(
+        "warning: part0.mcap, part1.mcap and part2.mcap follow each other (each starting at "
+        "most 0.1 s after the one before ends): they look like the parts of one split recording"
+    )
+    assert line.endswith(f"pcainterp densify {parts[0]} {parts[1]} {parts[2]} -o OUTPUT")
