@@ -9,8 +9,9 @@ Installing pcainterp-stream is enough to use it::
 The first run writes the golden file beside the test, in pytest-regressions' layout
 (``test_module/test_name.golden.json``), and fails so that it is reviewed; later runs
 check the log against it and fail with the list of differences. ``--force-regen`` (the
-pytest-regressions flag) rewrites the golden files that differ and fails those tests;
-``--update-golden`` rewrites every golden file the run checks and passes.
+pytest-regressions flag) rewrites the golden files that differ and fails those tests (a
+matching file of an older format that leaves out something of the log too, as its note
+says); ``--update-golden`` rewrites every golden file the run checks and passes.
 
 The golden file is named after the test (``test_name.golden.json``); with pytest-regressions'
 ``--with-test-class-names`` a test method's after its class too (``TestA_test_name``).
@@ -162,6 +163,7 @@ class LogGolden:
 
         from pcainterp_stream.golden.comparison import count_differences, format_differences
         from pcainterp_stream.golden.store import (
+            FORMAT,
             FORMAT_VERSION,
             OLDEST_FORMAT_VERSION,
             checked_tolerance,
@@ -186,6 +188,7 @@ class LogGolden:
         claim = self._claim(log, key, source, named=named, paths_basename=paths_basename)
 
         notes: list[str] = []
+        older: list[str] = []  # the older format of a golden file the notes say to rewrite
 
         def dump(path: Path, version: int = FORMAT_VERSION) -> None:
             kept = tolerance
@@ -222,6 +225,7 @@ class LogGolden:
                 if format_version(golden) < FORMAT_VERSION:  # summarised as it was written
                     dump(obtained, OLDEST_FORMAT_VERSION)
                     if notes:  # only what the older format leaves out is noted
+                        older[:] = [str(golden["format"])]
                         notes.append(
                             f"{source.name} has the older format {golden['format']}, which "
                             "leaves these out; rewrite it with --force-regen or --update-golden"
@@ -243,6 +247,15 @@ class LogGolden:
                     f"{count_differences(found)}:\n"
                     + format_differences(found, self.max_lines)
                     + "\n(rerun with --force-regen or --update-golden to accept the log)"
+                )
+            if older and self._request.config.getoption("force_regen"):
+                # a matching file pytest-regressions would keep: the note names --force-regen
+                dump(source)
+                pytest.fail(
+                    f"rewrote the golden file {source} in format {FORMAT} "
+                    f"(--force-regen: it had the older format {older[0]}, which leaves out "
+                    "what the notes say); rerun without --force-regen",
+                    pytrace=False,
                 )
             claim.settled = claim.settled or (node.nodeid, log.name, "matched")
 

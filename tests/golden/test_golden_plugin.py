@@ -431,12 +431,7 @@ def test_video(tmp_path, log_golden):
     result.stdout.fnmatch_lines(["*GoldenNoteWarning*'h264' does not decode; its raw data bytes*"])
 
 
-def test_a_format_2_file_still_passes_and_warns_what_it_leaves_out(
-    pytester: pytest.Pytester,
-) -> None:
-    """A format-2 golden file is compared with the log summarised as format 2 recorded it."""
-    pytester.makepyfile(
-        test_poses="""
+POSES = """
 from pathlib import Path
 
 from mcap_ros2.writer import Writer
@@ -466,8 +461,40 @@ def test_poses(tmp_path, log_golden):
         save_golden(write(tmp_path / "a.mcap", 1.0), GOLDEN, format_version=2)
     log_golden.check(write(tmp_path / "b.mcap", 1.0), fullpath=GOLDEN)
 """
-    )
+
+
+def test_a_format_2_file_still_passes_and_warns_what_it_leaves_out(
+    pytester: pytest.Pytester,
+) -> None:
+    """A format-2 golden file is compared with the log summarised as format 2 recorded it."""
+    pytester.makepyfile(test_poses=POSES)
     result = _run(pytester, "-W", "default")
     result.assert_outcomes(passed=1, warnings=1)
     result.stdout.fnmatch_lines(["*format 2 records these 100 items by their count only*"])
     assert '"pcainterp-golden/2"' in (pytester.path / "poses.golden.json").read_text()
+
+
+def test_force_regen_rewrites_a_matching_format_2_file_its_note_names(
+    pytester: pytest.Pytester,
+) -> None:
+    # review 58a R6: the note says "rewrite it with --force-regen or --update-golden", but
+    # --force-regen left a matching format-2 file as it was (pytest-regressions rewrites
+    # only files whose check fails): still format 2, the same warning on every run
+    pytester.makepyfile(test_poses=POSES)
+    golden = pytester.path / "poses.golden.json"
+    _run(pytester, "-W", "default").assert_outcomes(passed=1, warnings=1)
+    result = _run(pytester, "-W", "default", "--force-regen")
+    result.assert_outcomes(failed=1)  # rewritten, for review, as files that differ
+    result.stdout.fnmatch_lines(
+        ["*rewrote the golden file *poses.golden.json in format pcainterp-golden/3*"]
+    )
+    assert '"pcainterp-golden/3"' in golden.read_text()
+    result = _run(pytester, "-W", "default")
+    result.assert_outcomes(passed=1)
+    result.stdout.no_fnmatch_line("*GoldenNoteWarning*")
+    # --update-golden rewrites it too (and passes, as it does for files that differ)
+    golden.unlink()
+    _run(pytester, "-W", "default").assert_outcomes(passed=1, warnings=1)  # format 2 again
+    assert '"pcainterp-golden/2"' in golden.read_text()
+    _run(pytester, "-W", "default", "--update-golden").assert_outcomes(passed=1)
+    assert '"pcainterp-golden/3"' in golden.read_text()
