@@ -95,9 +95,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the job a parsed command line asks for; return the exit code."""
+    """Run the job a parsed command line asks for; return the exit code.
+
+    Every command gives the caller's BLAS thread counts back when it returns (a caller
+    in-process: ``learn``, ``evaluate`` and ``densify`` leave scipy's OpenBLAS, which the
+    solver holds at one thread, at the count the caller's environment gives a new one:
+    ``pipeline/blas_threads``).
+    """
+    from pcainterp_stream.pipeline.blas_threads import blas_threads_given_back
+
     command: Callable[[argparse.Namespace], int] = COMMANDS[args.command].run
-    return command(args)
+    with blas_threads_given_back():
+        return command(args)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

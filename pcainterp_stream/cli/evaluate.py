@@ -69,8 +69,9 @@ def add_parser(commands: Commands) -> None:
         help="the basis for the oracle, uncertainty kinds and points sweep: a file; "
         "'builtin' for the built-in one the log records (the indoor one if densify chose "
         "it, else the street one), 'builtin-street' or 'builtin-indoor' for that one "
-        "(default: the one the log records it was densified with; the built-in one for "
-        "older logs)",
+        "(default: the one the log records it was densified with, looked for at its "
+        "recorded path from the log's folder, beside the log, then in the working folder; "
+        "the built-in one for older logs)",
     )
     evaluate.add_argument(
         "--no-basis",

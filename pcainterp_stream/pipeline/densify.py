@@ -4,17 +4,15 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import functools
 import json
 import os
-import threading
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any, ClassVar, ParamSpec, TypeVar
+from typing import IO, Any
 
 from pcainterp_stream.errors import (
     LogReadError,
@@ -75,6 +73,7 @@ from pcainterp_stream.io.outputs import (
 )
 from pcainterp_stream.io.pipes import STDIN_NAME, McapStreamWriter, spool
 from pcainterp_stream.io.rerun_sink import RerunSink
+from pcainterp_stream.pipeline.blas_threads import restoring_blas_threads
 from pcainterp_stream.pipeline.common import (
     _bar,
     _check_topic_types,
@@ -279,80 +278,7 @@ def front_end(pairing: PairingConfig, processor: ProcessorConfig, stats: Pairing
     )
 
 
-_P = ParamSpec("_P")
-_R = TypeVar("_R")
-
-
-class _BlasThreads:
-    """The BLAS thread counts a caller had when the first densify job of the process began.
-
-    A job holds every BLAS at one thread (:class:`~.threads.ThreadLimits`), and the solver
-    holds scipy's OpenBLAS, loaded inside the first job, at one thread for the process
-    (``estimate/compiled.py``). When the last job running in the process returns, each
-    BLAS the caller had gets its count back and one loaded during the jobs the count the
-    caller's environment gives a new one (``OPENBLAS_NUM_THREADS``, ``OMP_NUM_THREADS``,
-    else the CPUs this process may run on): a caller's own ``scipy.linalg`` work afterwards
-    is not left single-threaded (bug hunt 10A F1).
-    """
-
-    lock: ClassVar[threading.Lock] = threading.Lock()
-    running: ClassVar[int] = 0
-    before: ClassVar[dict[str, int]] = {}
-    default: ClassVar[int] = 1
-
-    @classmethod
-    def enter(cls) -> None:
-        with cls.lock:
-            if cls.running == 0:
-                cls.before = {lib.filepath: lib.num_threads for lib in _blas_libraries()}
-                cls.default = _default_blas_threads()
-            cls.running += 1
-
-    @classmethod
-    def leave(cls) -> None:
-        with cls.lock:
-            cls.running -= 1
-            if cls.running:
-                return  # another job still runs: its BLAS stays at one thread
-            for lib in _blas_libraries():
-                wanted = cls.before.get(lib.filepath, cls.default)
-                if lib.num_threads != wanted:
-                    lib.set_num_threads(wanted)
-
-
-def _blas_libraries() -> list[Any]:
-    try:
-        from threadpoolctl import ThreadpoolController
-    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
-        return []
-    return list(ThreadpoolController().select(user_api="blas").lib_controllers)
-
-
-def _default_blas_threads() -> int:
-    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
-        value = os.environ.get(name, "").split(",")[0].strip()
-        if value.isdigit() and int(value) > 0:
-            return int(value)
-    if hasattr(os, "sched_getaffinity"):
-        return max(len(os.sched_getaffinity(0)), 1)
-    return max(os.cpu_count() or 1, 1)  # pragma: no cover - not Linux
-
-
-def _restoring_blas_threads(job: Callable[_P, _R]) -> Callable[_P, _R]:
-    """Run ``job`` within :class:`_BlasThreads`: the caller's BLAS counts come back after."""
-
-    @functools.wraps(job)
-    def run(*args: _P.args, **kwargs: _P.kwargs) -> _R:
-        _BlasThreads.enter()
-        try:
-            return job(*args, **kwargs)
-        finally:
-            _BlasThreads.leave()
-
-    return run
-
-
-@_restoring_blas_threads
+@restoring_blas_threads
 def densify(
     input_path: Path | Sequence[Path] | IO[bytes],
     output: Path | IO[bytes] | None,
@@ -375,7 +301,8 @@ def densify(
     metadata names the basis (``io/outputs.channel_metadata``): ``built-in`` when ``basis``
     is None (:meth:`Basis.default`), ``built-in-indoor`` when the fit check chose the
     built-in indoor basis (or ``processor.builtin`` is ``"indoor"``), the log's own basis
-    file when it adapted, else the given file. When the output is complete, an MCAP output
+    file when it adapted, else the given file (its path relative to the output's folder:
+    :func:`basis_label`). When the output is complete, an MCAP output
     gets the metadata records ``pcainterp.densify`` (:func:`provenance`: that basis, the front
     end, the options) and ``pcainterp.basis`` (every basis in force, :func:`bases_in_force`).
 
@@ -402,7 +329,7 @@ def densify(
     if not (topics.writes("depth_std") or rrd is not None or spawn_viewer or on_frame is not None):
         # nothing takes the depth's std (the compact output writes the disparity's)
         processor = dataclasses.replace(processor, depth_std=False)
-    basis, label = resolve_basis(basis)
+    basis, label = resolve_basis(basis, output)
     kind = builtin_kind(basis)
     if kind is not None and processor.builtin not in ("auto", kind):
         basis = builtin_basis(processor.builtin)
@@ -761,18 +688,18 @@ def output_types(topics: OutputTopics) -> dict[str, str]:
     return {topic: msgtype for topic, msgtype in types.items() if topic in written}
 
 
-def resolve_basis(basis: Basis | Path | None) -> tuple[Basis, str]:
+def resolve_basis(
+    basis: Basis | Path | None, output: Path | IO[bytes] | None = None
+) -> tuple[Basis, str]:
     """Return the basis a job uses and how a densified log names it.
 
     Args:
         basis: a basis, its file, or None for the built-in one.
+        output: the output the log names it in (a file: the name is relative to its folder).
 
     Returns:
-        The loaded :class:`Basis` and its label: ``built-in``, the file's name (no folder:
-        an output records none of the machine it was made on, and its bytes do not depend
-        on how the path was spelled; the fingerprint recorded beside it identifies the
-        content; ``evaluate`` looks for it beside the log and in the working folder), or
-        ``in-memory`` for a basis object that is not the built-in one.
+        The loaded :class:`Basis` and its label: ``built-in``, ``in-memory`` for a basis
+        object that is not the built-in one, or the file (:func:`basis_label`).
 
     Raises:
         BasisError: the file (or the built-in basis) is missing or invalid.
@@ -780,9 +707,29 @@ def resolve_basis(basis: Basis | Path | None) -> tuple[Basis, str]:
     if basis is None:
         return Basis.default(), BUILT_IN
     if isinstance(basis, Path):
-        return Basis.load(basis), basis.name
+        return Basis.load(basis), basis_label(basis, output)
     kind = builtin_kind(basis)
     return basis, BUILTIN_LABELS[kind] if kind is not None else IN_MEMORY
+
+
+def basis_label(basis: Path, output: Path | IO[bytes] | None) -> str:
+    """Return how a densified log names the basis file it was made with.
+
+    Its path relative to the output's folder, both resolved, with ``/``: the bytes of the
+    output do not depend on how either path was spelled nor on the working folder
+    (``bases/my.npz`` and ``/abs/bases/my.npz`` both give ``../bases/my.npz`` for
+    ``out/d.mcap``), and ``evaluate`` finds it from any folder through the log's
+    (``jobs.evaluation_basis``). The file's name alone when the output is no file (a
+    stream, ``-o -``) or no relative path leads there (another drive). The fingerprint
+    recorded beside it identifies the content.
+    """
+    if not isinstance(output, Path):
+        return basis.name
+    try:
+        relative = os.path.relpath(basis.resolve(), output.resolve().parent)
+    except (OSError, ValueError):  # another drive (Windows), or an unreadable folder
+        return basis.name
+    return Path(relative).as_posix()
 
 
 def _check_width(frame: StereoFrame, sgbm: SgbmConfig, log: Path, topic: str) -> None:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import time
 from pathlib import Path
 
@@ -45,6 +46,7 @@ from pcainterp_stream.io.outputs import (
     OutputTopics,
     recorded_metadata,
 )
+from pcainterp_stream.pipeline.blas_threads import restoring_blas_threads
 from pcainterp_stream.pipeline.common import _bar, _echo
 from pcainterp_stream.pipeline.densify import DensifySummary, densify
 from pcainterp_stream.pipeline.learn import LearnOptions, fit_prior, learn
@@ -172,6 +174,7 @@ def import_kitti(
     return summary
 
 
+@restoring_blas_threads
 def evaluate(
     input_path: Path,
     output: Path | None,
@@ -269,10 +272,11 @@ def evaluation_basis(
 ) -> tuple[Basis | Path | None, str]:
     """Choose the basis ``evaluate`` re-densifies with when none is given.
 
-    The one the densified log records in its channel metadata (``io/outputs``), if it is
-    still there with the same content (fingerprint); for a log that records none (densified
-    by an older version), the built-in basis. Otherwise none: the rows that need a basis
-    are skipped, and the note says why.
+    The one the densified log records in its channel metadata (``io/outputs``), if a file
+    of the same content (fingerprint) is where the log records it (relative to the log's
+    folder), beside the log or in the working folder (:func:`_recorded_basis_file`); for a
+    log that records none (densified by an older version), the built-in basis. Otherwise
+    none: the rows that need a basis are skipped, and the note says why.
 
     Args:
         input_path: a log written by ``pcainterp densify``.
@@ -304,18 +308,74 @@ def evaluation_basis(
         return basis, f"{label} ({why})"
     if label == IN_MEMORY:
         return None, f"none (the log was densified with a basis object, no file; {skipped})"
-    # the path as densify was given it: relative to this folder, else to the log's
-    path = next((p for p in (Path(label), input_path.parent / label) if p.is_file()), Path(label))
-    if not path.is_file():
-        return None, f"none (the log was densified with {label}, not found; {skipped})"
+    return _recorded_basis_file(input_path, label, fingerprint, skipped)
+
+
+def _recorded_basis_file(
+    log: Path, label: str, fingerprint: str | None, skipped: str
+) -> tuple[Path | None, str]:
+    """Find the basis file a log records (``label``) whose content is ``fingerprint``'s.
+
+    Where densify recorded it: the path relative to the log's folder (``densify.basis_label``;
+    an absolute path, from older versions, as it is); then a file of its name beside the
+    log; then the path, and the name, in the working folder (older versions recorded the
+    path as densify was given it, or the name only). The first of those whose fingerprint
+    is the log's is the one; a file there with another fingerprint is not used, and the
+    note says whether the recorded file changed or another file has its name.
+    """
+    name = Path(label).name
+    recorded = log.parent / label
+    places = [recorded, log.parent / name, Path(label), Path(name)]
+    seen: set[Path] = set()
+    other: tuple[Path, str] | None = None  # the first file there of another fingerprint
+    error: BasisError | None = None
+    for place in places:
+        if not place.is_file() or place.resolve() in seen:
+            continue
+        seen.add(place.resolve())
+        try:
+            found = Basis.load(place).fingerprint
+        except BasisError as err:
+            error = error or err
+            continue
+        if fingerprint is None or found == fingerprint:
+            # the file, not the basis loaded to check it: the report names the file it
+            # re-densified with
+            return _tidy(place), f"{_tidy(place)} (recorded in the log)"
+        other = other or (place, found)
+    was = f"the log was densified with {label}, fingerprint {fingerprint}"
+    if other is not None:
+        place, found = other
+        if place.resolve() == recorded.resolve():
+            why = f"{_shown(place)} changed since {was}: its fingerprint is now {found}"
+        else:
+            why = (
+                f"{_shown(place)} is another basis of that name (fingerprint {found}), not the "
+                f"one the log was densified with ({label}, fingerprint {fingerprint})"
+            )
+        return None, f"none ({why}; {skipped})"
+    if error is not None:
+        return None, f"none ({error}; {skipped})"
+    if Path(label) == Path(name):
+        looked = "beside the log nor in the working folder"
+    else:
+        looked = f"at {os.path.normpath(recorded)}, nor as {name} beside the log"
+        looked += " or in the working folder"
+    return None, f"none ({was}, not found {looked}; {skipped})"
+
+
+def _shown(path: Path) -> str:
+    """Return how a note names a file: ``./my.npz`` in the working folder, else its path."""
+    return f"./{path}" if len(path.parts) == 1 else str(_tidy(path))
+
+
+def _tidy(path: Path) -> Path:
+    """Return ``path`` without ``..`` parts when that is the same file (``out/../b.npz``)."""
+    tidy = Path(os.path.normpath(path))
     try:
-        basis = Basis.load(path)
-    except BasisError as err:
-        return None, f"none ({err}; {skipped})"
-    if fingerprint is not None and fingerprint != basis.fingerprint:
-        return None, f"none ({label} changed since the log was densified; {skipped})"
-    # the file, not the basis loaded to check it: the report names the file it re-densified with
-    return path, f"{path} (recorded in the log)"
+        return tidy if tidy != path and os.path.samefile(tidy, path) else path
+    except OSError:
+        return path
 
 
 def describe_basis(path: Path | None = None, *, builtin: str = "street") -> str:

@@ -65,7 +65,8 @@ def test_densify_without_basis_records_the_built_in_one(folder: Path) -> None:
         MEASUREMENTS_KEY: "sparse",
     }
     recorded = recorded_metadata(folder / "own_dense.mcap")
-    # bug hunt 10A F6: the file's name, not the path as typed (no machine folder)
+    # bug hunt 10A F6 / review 58a R1: relative to the output's folder (here beside it), not
+    # the path as typed (no machine folder)
     assert recorded[BASIS_KEY] == "own.npz"
     assert recorded[BASIS_FINGERPRINT_KEY] == Basis.load(folder / "own.npz").fingerprint
 
@@ -143,7 +144,8 @@ def test_evaluate_skips_the_basis_rows_when_the_recorded_basis_is_gone(
     finally:
         (folder / "own.npz.away").rename(folder / "own.npz")
     assert code == 0
-    assert f"densified with {recorded}, not found" in out
+    assert f"densified with {recorded}, fingerprint" in out
+    assert "not found beside the log nor in the working folder" in out
     report = _report(tmp_path / "r")
     assert report["basis"] is None
     assert "oracle" not in report["methods"]  # type: ignore[operator]
