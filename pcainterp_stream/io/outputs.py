@@ -240,8 +240,9 @@ class OutputTopics:
 
 
 BASIS_KEY = "pcainterp.basis"
-"""Channel metadata key: the basis densify used, ``built-in`` or the name of its file (no
-folder; or ``in-memory`` for a basis passed as an object)."""
+"""Channel metadata key: the basis densify used, ``built-in`` or its file's path relative to
+the output's folder (its name alone for an output on standard output or on another drive;
+``in-memory`` for a basis passed as an object)."""
 
 BASIS_FINGERPRINT_KEY = "pcainterp.basis_fingerprint"
 """Channel metadata key: the basis's content fingerprint (``Basis.fingerprint``)."""
