@@ -30,7 +30,7 @@ Everything here is deterministic: the same maps and measurements give the same b
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -39,11 +39,11 @@ import numpy.typing as npt
 
 from pcainterp_stream import compiled
 from pcainterp_stream.estimate import fitting
-from pcainterp_stream.estimate.basis import Basis, builtin_kind, grid_size_for
-from pcainterp_stream.estimate.estimator import clean_measurements, densify, densify_batch
+from pcainterp_stream.estimate.basis import Basis, grid_size_for
+from pcainterp_stream.estimate.estimator import clean_measurements, densify
 from pcainterp_stream.estimate.finetune import camera_mismatch
 from pcainterp_stream.estimate.learning import learn_basis, preprocess_disparity
-from pcainterp_stream.estimate.prior import LocalPrior
+from pcainterp_stream.estimate.prior import Kernel, LocalPrior
 
 HELDOUT_SAMPLES = 20_000
 """Held-out SGBM pixels scored per checked frame (evenly spaced over the valid ones)."""
@@ -93,6 +93,15 @@ FIT_POINTS = 200
 
 PROCESS_NOISE = 0.1
 """The temporal prior's process noise when it cannot be fitted (frames not consecutive)."""
+
+ROUGH_KERNEL = LocalPrior(40.0, 64.0, Kernel.LAPLACE)
+"""The local kernel the fit check tries on the built-in indoor basis (:mod:`.rougher`).
+
+Laplace, 64 px, 40 px^2 in the indoor basis's px (752x480, f*b 48 px*m): the values of the
+street basis's fitted kernel, copied as numbers, measured as such on the indoor basis (EuRoC
+2.49 -> 2.32 px, MyntEye 1.96 -> 1.75, synthetic rooms 3-16 % less error; bughunt10B Q2). It
+is not the street prior (its disparity units are 8x the indoor basis's: the same variance in
+inverse depth would be ~65x smaller), and a refit of the street basis does not change it."""
 
 
 @dataclass(frozen=True)
@@ -550,45 +559,6 @@ def with_prior(basis: Basis, prior: dict[str, Any]) -> Basis:
     )
 
 
-def sgbm_std_scale(
-    basis: Basis,
-    frames: Sequence[Measured],
-    options: dict[str, Any],
-    *,
-    image_size: tuple[int, int],
-    focal_baseline: float,
-    robust: str,
-) -> float:
-    """Return the std scale of ``basis`` with ``options`` fitted against the frames' SGBM maps.
-
-    The frames (at most :data:`FIT_FRAMES`, evenly spaced) are densified at their camera
-    with the posterior std unscaled (``"exact-coarse"``), and :func:`fitting.fit_std_scale`
-    puts 95.4 % of the errors against SGBM inside +-2 std. A built-in basis learned none of
-    the frames: the errors are those of frames to come. On the synthetic rooms the factor
-    fitted so (0.34, 0.22) was the one fitted against the truth (0.38, 0.20; bughunt10B Q2).
-    """
-    used = list(frames[:: max(1, math.ceil(len(frames) / FIT_FRAMES))])
-    unscaled = {**options, "std_scale": 1.0, "scale_by_innovation": False}
-    results = densify_batch(
-        basis,
-        [frame.pixels for frame in used],
-        [frame.disparities for frame in used],
-        image_size=image_size,
-        focal_baseline=focal_baseline,
-        robust=robust,
-        uncertainty="exact-coarse",
-        with_depth=False,
-        **unscaled,
-    )
-    estimates, stds, references = [], [], []
-    for result, frame in zip(results, used, strict=True):
-        if result.disparity_std is not None:
-            estimates.append(result.disparity)
-            stds.append(result.disparity_std)
-            references.append(frame.reference)
-    return fitting.fit_std_scale(estimates, stds, references) if estimates else 1.0
-
-
 def other_camera(basis: Basis, image_size: tuple[int, int], focal_baseline: float) -> str:
     """Say, for a warning, that ``basis`` was learned for another camera than the log's, or "".
 
@@ -606,88 +576,6 @@ def other_camera(basis: Basis, image_size: tuple[int, int], focal_baseline: floa
         f"{basis.focal_baseline:.1f} px*m; this log's {width}x{height} px, f*b "
         f"{focal_baseline:.1f} px*m: {why})"
     )
-
-
-class Rougher(NamedTuple):
-    """The built-in indoor basis with the street basis's kernel, scored (:func:`try_rougher`).
-
-    Attributes:
-        line: the ``prior:`` line saying whether it was taken, with the held-out figures.
-        check: its held-out figure.
-        tuned: when taken, the estimate's settings that differ from the indoor basis's own
-            (the kernel, the std scale refitted); None when not taken.
-    """
-
-    line: str
-    check: FitCheck
-    tuned: dict[str, object] | None
-
-
-def try_rougher(
-    given: tuple[Basis, dict[str, Any]],
-    indoor: tuple[Basis, str, dict[str, Any]],
-    score: Callable[[dict[str, Any]], FitCheck],
-    against: FitCheck,
-    warmup: tuple[Sequence[Measured], tuple[int, int], float],
-    *,
-    robust: str,
-    calibrate: bool,
-) -> Rougher | None:
-    """Score the built-in indoor basis chosen with the street basis's local kernel.
-
-    The fit check chose the built-in indoor basis over the street one (``given``: the
-    street basis and its estimate options) and it scored ``against`` (at least
-    ``FITS_BELOW`` times linear interpolation); ``indoor`` is (basis, name, options).
-    The indoor kernel (Gaussian 32 px, 2.4 px^2) is too smooth and weak to bend the basis to
-    its own points where the basis misfits: with the street basis's (Laplace 64 px,
-    40 px^2) on the same basis the EuRoC machine hall went 2.49 -> 2.32 px, the MyntEye
-    fisheye pair 1.96 -> 1.75, synthetic rooms 3-16 % less error against the truth
-    (bughunt10B Q2). ``score`` checks the options on the warm-up's held-out SGBM pixels;
-    the candidate is taken when its error is lower, its std scale then refitted on the
-    warm-up's SGBM maps (``calibrate``; :func:`sgbm_std_scale`): the indoor kernel's was
-    2-5x too wide for it. None when there is no candidate: the street basis not the one
-    given, or a basis without a local kernel (``--prior paper``). The street basis is never
-    given another kernel: on KITTI 07 the variants of it the check preferred lost against
-    the LiDAR truth. Not tried (a line says so) when the held-out pixels leave SGBM's
-    unmatched left band out (:data:`UNCHECKED_COLUMNS`): with no point there, this kernel
-    extrapolates unchecked (synthetic rooms at 376x240, a 129 px band: taken on 3 of 5, it
-    erred 2.25x, 1.42x, 0.93x the indoor kernel's error there, its std holding 21-92 %).
-    """
-    (street, street_options), (basis, name, options) = given, indoor
-    if builtin_kind(street) != "street" or builtin_kind(basis) != "indoor":
-        return None
-    kernel, local = street_options.get("local_prior"), options.get("local_prior")
-    if not isinstance(kernel, LocalPrior) or not isinstance(local, LocalPrior):
-        return None
-    rough = LocalPrior(kernel.variance, kernel.length_scale, kernel.kernel)  # no cell weight
-    if rough == local:
-        return None
-    line = f"prior: {name} with the street basis's local kernel ({rough.kernel}, "
-    line += f"{rough.length_scale:g} px, {rough.variance:g} px^2)"
-    if against.first_column >= UNCHECKED_COLUMNS:
-        why = (
-            f"not tried: the held-out pixels cover columns >= {against.first_column} only, and "
-            "left of them (SGBM's unmatched band), unchecked, it erred up to 2.2x more than "
-            "the basis's own kernel on synthetic rooms"
-        )
-        return Rougher(f"{line}: {why}", against, None)
-    check = score({**options, "local_prior": rough})
-    digits = 2 if f"{check.prior:.2f}" != f"{against.prior:.2f}" else 4
-    figures = f"{check.prior:.{digits}f} px against {against.prior:.{digits}f}"
-    line += f" {check.describe()}"
-    if not (check.frames and check.prior < against.prior):
-        why = f"not taken: {figures} with its own kernel on the same held-out SGBM pixels"
-        return Rougher(f"{line}; {why}", check, None)
-    tuned: dict[str, object] = {"local_prior": rough}
-    why = f"taken: {figures} with its own kernel on the same held-out SGBM pixels"
-    if calibrate:
-        frames, size, fb = warmup
-        scale = sgbm_std_scale(
-            basis, frames, {**options, **tuned}, image_size=size, focal_baseline=fb, robust=robust
-        )
-        tuned |= {"std_scale": scale, "scale_by_innovation": False}
-        why += f"; its std scale x{scale:.2f}, refitted on the warm-up's SGBM maps"
-    return Rougher(f"{line}; {why}", check, tuned)
 
 
 LEAVE_OUT_GAP = 2

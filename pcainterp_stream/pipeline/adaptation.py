@@ -23,10 +23,12 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.estimate import adapt, fitting
+from pcainterp_stream.estimate import adapt, fitting, rougher
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.estimator import densify_batch
 from pcainterp_stream.frontend.motion import Motion, view_shift
+from pcainterp_stream.pipeline.wording import count as _count
+from pcainterp_stream.pipeline.wording import figures as _figures
 from pcainterp_stream.records import StereoCamera, StereoFrame
 
 FITS_BELOW = 0.8
@@ -101,12 +103,14 @@ class Candidate:
         settings: the estimate's keyword options with it (its own fitted prior).
         tuned: the estimate's settings that differ from the basis's fitted prior (the
             rougher kernel and its std scale: :meth:`Adaptation.tuning`).
+        untuned: the candidate before the tuning (the camera changes: :meth:`Adaptation.untune`).
     """
 
     name: str
     basis: Basis
     settings: dict[str, object]
     tuned: dict[str, object] = field(default_factory=dict)
+    untuned: Candidate | None = None
 
 
 @dataclass
@@ -205,6 +209,14 @@ class Adaptation:
         """Return the estimate's settings to use with ``basis`` beyond its fitted prior's."""
         chosen = self.switched
         return dict(chosen.tuned) if chosen is not None and chosen.basis is basis else {}
+
+    def untune(self) -> Basis | None:
+        """Drop the tuning (fitted on the camera before a change); return its basis, if any."""
+        chosen = self.switched
+        if chosen is None or chosen.untuned is None:
+            return None
+        self.switched = chosen.untuned
+        return chosen.basis
 
     def bind(self, frames: list[StereoFrame], basis: Basis) -> None:
         """Note that ``frames``, the next ones in stream order, are densified with ``basis``."""
@@ -461,13 +473,14 @@ class Adaptation:
                 self.lines.append(f"prior: {candidate.name} {other.describe()}")
                 if other.frames and other.prior < self.check.prior:
                     self.check, self.switched = other, candidate
-            # the chosen indoor basis with the street basis's kernel (adapt.try_rougher); not in
+            # the chosen indoor basis with a rougher kernel (rougher.try_rougher); not in
             # dense mode, where the basis fills SGBM's holes, which no check scores (measured:
             # sparse mode only); the own basis is tried as without it (room 5: 0.28 -> 0.21 px)
             indoor, plain = self.switched, self.check
-            if indoor is not None and self.check.ratio >= FITS_BELOW and self.may_learn:
+            tune = self.mode == "auto" and self.may_learn  # `--basis builtin`: as they are
+            if indoor is not None and self.check.ratio >= FITS_BELOW and tune:
                 scores = per_frame.get(id(indoor.basis), [])
-                rough = adapt.try_rougher(
+                rough = rougher.try_rougher(
                     (basis, settings),
                     (indoor.basis, indoor.name, indoor.settings),
                     lambda options: check(indoor.basis, options),
@@ -482,7 +495,8 @@ class Adaptation:
                 elif rough is not None and rough.tuned is not None:
                     name, tuned = f"{indoor.name} with the street basis's kernel", rough.tuned
                     self.check = rough.check
-                    self.switched = Candidate(name, indoor.basis, indoor.settings | tuned, tuned)
+                    both = indoor.settings | tuned
+                    self.switched = Candidate(name, indoor.basis, both, tuned, indoor)
         # a built-in basis that fits well is used as it is: the log's own basis is tried
         # only when none does (its leave-one-out figure, scored against the SGBM maps it
         # learns from, flatters it against the truth)
@@ -825,20 +839,6 @@ class Adaptation:
         assert frame.grid_map is not None
         last = self._last_map
         return last is not None and adapt.view_distance(frame.grid_map, last) < adapt.SAME_VIEW
-
-
-def _figures(first: float, second: float) -> tuple[str, str]:
-    """Format two errors (px) with 2 decimals, or 4 when 2 would print them alike.
-
-    "better (0.30 px against 0.30)" would tell the reader nothing.
-    """
-    digits = 2 if f"{first:.2f}" != f"{second:.2f}" else 4
-    return f"{first:.{digits}f}", f"{second:.{digits}f}"
-
-
-def _count(number: int, noun: str) -> str:
-    """Return "1 frame", "2 frames"."""
-    return f"{number} {noun}{'' if number == 1 else 's'}"
 
 
 @dataclass(frozen=True)

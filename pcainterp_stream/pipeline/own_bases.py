@@ -24,7 +24,8 @@ from pcainterp_stream.frontend.sgbm_resolution import by_camera
 from pcainterp_stream.frontend.stereo import SgbmConfig
 from pcainterp_stream.io.output_paths import make_partial_file, write_advice
 from pcainterp_stream.io.outputs import BASES_RECORD
-from pcainterp_stream.pipeline.adaptation import Adaptation, _count
+from pcainterp_stream.pipeline.adaptation import Adaptation
+from pcainterp_stream.pipeline.wording import count as _count
 from pcainterp_stream.records import StereoCamera
 
 RELEARNED = "self-supervised, relearned while streaming (not saved)"

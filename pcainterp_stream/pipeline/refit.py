@@ -163,6 +163,7 @@ class Refitting(Adaptation):
     _stereo: bool = False
     _lane_camera: Camera | None = None
     _cameras: list[Camera] = field(default_factory=list)  # every camera seen, in order
+    _asked: tuple[StereoFrame, tuple[bool, Basis | None]] | None = None  # the last new_camera
 
     def _decide(
         self, basis: Basis, frames: list[AdaptFrame], settings: dict[str, object]
@@ -176,12 +177,27 @@ class Refitting(Adaptation):
         return chosen
 
     def new_camera(self, frame: StereoFrame) -> tuple[bool, Basis | None]:
+        """Note the camera of the next frame in stream order (see :meth:`_new_camera`).
+
+        Asked again for the same frame (the processor cuts a batch at a camera change, then
+        densifies from that frame frame by frame), it gives the same answer.
+        """
+        asked = self._asked
+        if asked is not None and asked[0] is frame:
+            return asked[1]
+        answer = self._new_camera(frame)
+        self._asked = (frame, answer)
+        return answer
+
+    def _new_camera(self, frame: StereoFrame) -> tuple[bool, Basis | None]:
         """Note the camera of the next frame in stream order (the densify thread's).
 
         Returns whether it is another camera than the frame before it's, and the basis to
         densify it with from this frame on when that changes (else None): on a camera change
         after the fit check, the choice is made again on its first frames, and a log's own
-        basis, learned for the camera before, gives way to the basis given meanwhile.
+        basis, learned for the camera before, gives way to the basis given meanwhile; so does
+        the fit check's tuning of the indoor basis (its kernel and std scale fitted on the
+        camera before's SGBM maps): the basis is used as it is until the choice is made again.
         """
         camera, index = (frame.camera.image_size, frame.camera.focal_baseline), frame.index
         before, self._lane_camera = self._lane_camera, camera
@@ -198,6 +214,7 @@ class Refitting(Adaptation):
         if camera == self._camera and not self.deferred:
             return True, None  # back to the camera the choice was made for
         adapted, self.adapted, self.watch = self.adapted, False, None
+        untuned = None if adapted else self.untune()  # the tuning was fitted on the camera before
         again = ", a camera seen before in the log" if seen else ""
         line = (
             f"prior: the camera changed at frame {index} ({describe_camera(camera)}{again}; "
@@ -207,6 +224,11 @@ class Refitting(Adaptation):
             line += (
                 f": this log's own basis, learned for the camera before, is not used on it; "
                 f"{self.name} from there"
+            )
+        elif untuned is not None and self.switched is not None:
+            line += (
+                f": the kernel and std scale the check tuned on the camera before are not used "
+                f"on it; {self.switched.name} as it is from there"
             )
         which = "next" if seen else "first"
         self.lines.append(
@@ -219,7 +241,7 @@ class Refitting(Adaptation):
             if seen
             else "prior: the basis choice made again on the new camera's first {}",
         )
-        return True, self._given if adapted else None
+        return True, self._given if adapted else untuned
 
     def update(self, frames: list[AdaptFrame], current: Basis | None = None) -> Basis | None:
         """Watch the log's own basis in use, then add the frames' maps (see the base class).

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from pcainterp_stream import synth as synth_module
-from pcainterp_stream.estimate import adapt
+from pcainterp_stream.estimate import adapt, rougher
 from pcainterp_stream.estimate.basis import BUILT_IN, BUILT_IN_INDOOR, Basis
 from pcainterp_stream.frontend.motion import Motion
 from pcainterp_stream.frontend.pairing import PairingConfig, iter_stereo_frames
@@ -42,6 +42,7 @@ from pcainterp_stream.pipeline.processor import (
     FrameProcessor,
     MeasurementSource,
     ProcessorConfig,
+    resolve_settings,
 )
 from pcainterp_stream.records import StereoCamera, StereoFrame
 from pcainterp_stream.synth import SynthConfig, generate
@@ -787,9 +788,9 @@ def _truth_errors(config: SynthConfig, engine: FrameProcessor) -> tuple[float, f
     return float(np.concatenate(errors).mean()), float(np.concatenate(inside).mean())
 
 
-def _full_width(config: SynthConfig) -> ProcessorConfig:
+def _full_width(config: SynthConfig, adapt_mode: str = "auto") -> ProcessorConfig:
     """``densify``'s SGBM for the synthetic camera (full resolution and width indoors)."""
-    processor = ProcessorConfig(adapt="check")  # the built-in bases only
+    processor = ProcessorConfig(adapt=adapt_mode)  # "check": the built-in bases as they are
     camera = config.camera
     sgbm, _ = by_camera(processor.sgbm, camera.focal_baseline, camera.width, camera.height)
     return dataclasses.replace(processor, sgbm=sgbm)
@@ -812,12 +813,12 @@ def test_the_indoor_basis_that_misfits_takes_the_street_basis_s_kernel(
     kernel = engine.settings.local_prior
     assert kernel is not None
     assert (kernel.kernel, kernel.length_scale, kernel.variance) == ("laplace", 64.0, 40.0)
-    assert not engine.settings.scale_by_innovation
+    assert engine.settings.scale_by_innovation  # the indoor basis's rule (review58b R7)
     assert engine.settings.std_scale == adaptation.switched.tuned["std_scale"]
     line = next(line for line in adaptation.lines if "street basis's local kernel" in line)
     assert "; taken: " in line
     # the same log with the indoor kernel (the candidate never scored)
-    monkeypatch.setattr(adapt, "try_rougher", lambda *args, **kwargs: None)
+    monkeypatch.setattr(rougher, "try_rougher", lambda *args, **kwargs: None)
     indoor = FrameProcessor(None, _full_width(config))
     indoor_error, _ = _truth_errors(config, indoor)
     assert indoor.adaptation.switched is not None
@@ -827,3 +828,19 @@ def test_the_indoor_basis_that_misfits_takes_the_street_basis_s_kernel(
     assert indoor.settings.scale_by_innovation  # the indoor basis's own std scale
     assert error < 0.95 * indoor_error
     assert 0.93 < inside < 0.98
+
+
+def test_builtin_keeps_the_built_in_bases_as_they_are() -> None:
+    """review58b R4: ``--basis builtin`` (``adapt="check"``, "the built-in bases as they
+    are") chooses the indoor basis on the room the default run tunes (seed 5 at 376x240),
+    and does not try the rougher kernel on it: its own kernel and std scale."""
+    config = SynthConfig(seed=5, frames=8, scale=0.5, scene="indoor", **camera_options("752x480"))
+    engine = FrameProcessor(None, _full_width(config, "check"))
+    with engine:
+        list(engine.process(_stereo_frames(config)))
+    adaptation = engine.adaptation
+    assert adaptation.switched is not None
+    assert adaptation.switched.name == "the built-in indoor basis"
+    assert adaptation.tuning(engine.basis) == {}
+    assert not any("local kernel" in line for line in adaptation.lines)
+    assert engine.settings == resolve_settings(Basis.indoor(), engine.config)

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from pcainterp_stream.estimate import adapt
-from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.basis import Basis, builtin_kind
+from pcainterp_stream.frontend.sgbm_resolution import by_camera
 from pcainterp_stream.pipeline import adaptation as adaptation_module
 from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
 from pcainterp_stream.records import StereoFrame
@@ -200,3 +201,33 @@ def test_a_scene_change_under_the_own_basis_makes_the_choice_again() -> None:
         assert starts[16] is Basis.default()
         assert engine.basis is Basis.default()  # the street: the check keeps it
         assert not adaptation.adapted
+
+
+def test_a_camera_change_drops_the_tuning_fitted_on_the_camera_before() -> None:
+    """review58b R3: a room whose indoor basis the check tuned (seed 3 at 376x240: the
+    rougher kernel, a std scale fitted on its SGBM maps), then a street camera: its first 8
+    frames were densified with that tuning (1.316 px against the truth, 1.145 untuned);
+    now with the indoor basis as it is until the choice is made again for it."""
+    config = SynthConfig(seed=3, frames=8, scale=0.5, scene="indoor", **_VI)
+    frames = _then(_frames(config), SynthConfig(seed=7, frames=12, scale=0.25, scene="street"))
+    processor = ProcessorConfig()
+    camera = config.camera
+    sgbm, _ = by_camera(processor.sgbm, camera.focal_baseline, camera.width, camera.height)
+    with FrameProcessor(None, dataclasses.replace(processor, sgbm=sgbm)) as engine:
+        list(engine.process(frames))
+        adaptation = engine.adaptation
+        stretches = [(s.frame.index, builtin_kind(s.basis), s.tuning) for s in adaptation.in_force]
+        assert [(index, kind) for index, kind, _ in stretches] == [
+            (0, "indoor"),
+            (8, "indoor"),
+            (16, "street"),
+        ]
+        assert stretches[0][2] is not None  # tuned on the first camera
+        assert stretches[1][2] is None  # not on the second, before its check
+        assert (
+            "prior: the camera changed at frame 8 (310x94 px, f*b 96.5 px*m; before: 376x240 "
+            "px, f*b 24.0 px*m): the kernel and std scale the check tuned on the camera before "
+            "are not used on it; the built-in indoor basis as it is from there; the basis "
+            "choice is made again on its first 8 frames"
+        ) in adaptation.lines
+        assert adaptation.tuning(Basis.indoor()) == {}
