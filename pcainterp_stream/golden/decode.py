@@ -157,21 +157,8 @@ def _cloud(message: Any, content: MessageContent) -> None:
     Raises:
         ValueError: the cloud's layout (row step, data size) does not hold its points.
     """
-    height, width = int(message.height), int(message.width)
-    n = height * width
-    point_step = int(message.point_step)
-    row_step = int(message.row_step) if height > 1 else width * point_step
-    if height > 1 and row_step < width * point_step:
-        raise ValueError(
-            f"point cloud row_step {row_step} is shorter than its {width} points of "
-            f"{point_step} bytes ({width * point_step})"
-        )
-    raw = np.asarray(message.data, dtype=np.uint8)
-    need = (height - 1) * row_step + width * point_step if n else 0
-    if raw.size < need:
-        raise ValueError(f"point cloud data has {raw.size} bytes, {n} points need {need}")
-    order = ">" if message.is_bigendian else "<"
-    buffer = raw[:need].tobytes()
+    cloud = rosmsg.CloudLayout.of(message)
+    point_step = cloud.point_step
     for field in message.fields:
         name, code, count = str(field.name), int(field.datatype), max(int(field.count), 1)
         if code not in rosmsg.POINT_FIELD_DTYPES:
@@ -180,7 +167,7 @@ def _cloud(message: Any, content: MessageContent) -> None:
                 "(the other fields are)"
             )
             continue
-        dtype = np.dtype(order + rosmsg.POINT_FIELD_DTYPES[code])
+        dtype = np.dtype(cloud.order + rosmsg.POINT_FIELD_DTYPES[code])
         if int(field.offset) + count * dtype.itemsize > point_step:
             content.notes.append(
                 f"point field {name!r} ({count} x {dtype.itemsize} bytes at offset "
@@ -188,18 +175,7 @@ def _cloud(message: Any, content: MessageContent) -> None:
                 "recorded (the other fields are)"
             )
             continue
-        view = (
-            np.ndarray(
-                shape=(height, width, count),
-                dtype=dtype,
-                buffer=buffer,
-                offset=int(field.offset),
-                strides=(row_step, point_step, dtype.itemsize),
-            )
-            if n
-            else np.zeros((0, 0, count), dtype=dtype)
-        )
-        values = view.reshape(n, count).astype(np.float64)
+        values = cloud.field(int(field.offset), dtype, count)
         content.arrays[f"points.{name}"] = values[:, 0] if count == 1 else values
     if content.notes:
         content.values["decode_error"] = "; ".join(content.notes)

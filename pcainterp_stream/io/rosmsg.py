@@ -8,7 +8,7 @@ knows message layouts only: nothing here opens a file.
 from __future__ import annotations
 
 from functools import cache
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -384,21 +384,7 @@ def pointcloud2_arrays(
         ValueError: for a decoded field's type code outside 1..8, a ``row_step`` shorter
             than a row's points or data shorter than the points need.
     """
-    height, width = int(message.height), int(message.width)
-    n = height * width
-    point_step = int(message.point_step)
-    row_step = int(message.row_step) if height > 1 else width * point_step
-    if height > 1 and row_step < width * point_step:
-        raise ValueError(
-            f"point cloud row_step {row_step} is shorter than its {width} points of "
-            f"{point_step} bytes ({width * point_step})"
-        )
-    raw = np.asarray(message.data, dtype=np.uint8)
-    need = (height - 1) * row_step + width * point_step if n else 0
-    if raw.size < need:
-        raise ValueError(f"point cloud data has {raw.size} bytes, {n} points need {need}")
-    order = ">" if message.is_bigendian else "<"
-    buffer = raw[:need].tobytes()
+    cloud = CloudLayout.of(message)
     out: dict[str, npt.NDArray[np.float64]] = {}
     for field in message.fields:
         if names is not None and str(field.name) not in names:
@@ -406,22 +392,64 @@ def pointcloud2_arrays(
         code = int(field.datatype)
         if code not in POINT_FIELD_DTYPES:
             raise ValueError(f"point field {field.name!r} has unknown datatype {code}")
-        dtype = np.dtype(order + POINT_FIELD_DTYPES[code])
-        if int(field.offset) + dtype.itemsize > point_step:
-            raise ValueError(f"point field {field.name!r} lies outside the point step {point_step}")
-        view = (
-            np.ndarray(
-                shape=(height, width),
-                dtype=dtype,
-                buffer=buffer,
-                offset=int(field.offset),
-                strides=(row_step, point_step),
+        dtype = np.dtype(cloud.order + POINT_FIELD_DTYPES[code])
+        if int(field.offset) + dtype.itemsize > cloud.point_step:
+            raise ValueError(
+                f"point field {field.name!r} lies outside the point step {cloud.point_step}"
             )
-            if n
-            else np.zeros((0, 0), dtype=dtype)
-        )
-        out[str(field.name)] = view.reshape(-1).astype(np.float64)
+        out[str(field.name)] = cloud.field(int(field.offset), dtype, 1)[:, 0]
     return out
+
+
+class CloudLayout(NamedTuple):
+    """Where a ``PointCloud2``'s points lie in its data (rows may be padded)."""
+
+    height: int
+    width: int
+    point_step: int
+    row_step: int
+    order: str
+    """``>`` or ``<``: the byte order of its fields."""
+    buffer: bytes
+    """The data its points need, rows padded as in the message."""
+
+    @classmethod
+    def of(cls, message: Any) -> CloudLayout:
+        """Return the layout of ``message``.
+
+        Raises:
+            ValueError: a ``row_step`` shorter than a row's points or data shorter than the
+                points need.
+        """
+        height, width = int(message.height), int(message.width)
+        point_step = int(message.point_step)
+        row_step = int(message.row_step) if height > 1 else width * point_step
+        if height > 1 and row_step < width * point_step:
+            raise ValueError(
+                f"point cloud row_step {row_step} is shorter than its {width} points of "
+                f"{point_step} bytes ({width * point_step})"
+            )
+        raw = np.asarray(message.data, dtype=np.uint8)
+        n = height * width
+        need = (height - 1) * row_step + width * point_step if n else 0
+        if raw.size < need:
+            raise ValueError(f"point cloud data has {raw.size} bytes, {n} points need {need}")
+        order = ">" if message.is_bigendian else "<"
+        return cls(height, width, point_step, row_step, order, raw[:need].tobytes())
+
+    def field(self, offset: int, dtype: np.dtype[Any], count: int) -> npt.NDArray[np.float64]:
+        """Return the (n, count) values of the field at ``offset`` as float64."""
+        n = self.height * self.width
+        if not n:
+            return np.zeros((0, count), np.float64)
+        view: npt.NDArray[Any] = np.ndarray(
+            shape=(self.height, self.width, count),
+            dtype=dtype,
+            buffer=self.buffer,
+            offset=offset,
+            strides=(self.row_step, self.point_step, dtype.itemsize),
+        )
+        return view.reshape(n, count).astype(np.float64)
 
 
 def disparity_image_message(
