@@ -102,7 +102,11 @@ def add_parser(commands: Commands) -> None:
         metavar="TOPIC",
         help="learn from this depth image topic instead of SGBM maps: 32FC1 in m, 16UC1 in mm "
         "(0: none), or either as compressedDepth (pcainterp's own /pcainterp/depth and "
-        "depth_mm); camera images (mono8, rgb8, png, jpeg) are refused",
+        "depth_mm); camera images (mono8, rgb8, png, jpeg) are refused. A log of one "
+        "camera (an RGB-D camera: one camera_info) needs --baseline, the baseline its "
+        "disparities fx * baseline / depth are in (the one densify will use for this "
+        "camera; a basis merged into a built-in one is put in that basis's f*b anyway), "
+        "and --no-fit-prior or --fit-logs STEREO_LOG (the prior is fitted on stereo pairs)",
     )
     learn.add_argument(
         "--every", type=int, default=1, metavar="N", help="use every N-th frame (default: 1, all)"

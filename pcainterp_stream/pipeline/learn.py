@@ -15,7 +15,13 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.errors import BasisError, PcaInterpError
-from pcainterp_stream.estimate.basis import BUILTIN_LABELS, Basis, grid_size_for
+from pcainterp_stream.estimate.adapt import ROUGH_KERNEL
+from pcainterp_stream.estimate.basis import (
+    BUILT_IN_INDOOR,
+    BUILTIN_LABELS,
+    Basis,
+    grid_size_for,
+)
 from pcainterp_stream.estimate.finetune import (
     BuiltinFit,
     builtin_fits,
@@ -35,7 +41,7 @@ from pcainterp_stream.pipeline.common import (
     _echo,
     _expected_frames,
 )
-from pcainterp_stream.pipeline.held_out import FIT_SEQUENCE_FRAMES
+from pcainterp_stream.pipeline.held_out import FIT_SEQUENCE_FRAMES, choose_kernel
 
 # re-exported: the cluster's learner (pipeline/distributed.py) imports them from here
 from pcainterp_stream.pipeline.held_out import HeldOutFrame as HeldOutFrame
@@ -507,6 +513,11 @@ def plan_maps(
         ]
         total = sum(c for c in counts if c is not None)
     camera = one_camera(logs, options, pairing)
+    if holding_out and camera.single is not None:
+        raise PcaInterpError(
+            f"the prior is fitted on held-out stereo pairs, and {logs[0].name} has one camera "
+            f"({camera.single}): pass --no-fit-prior, or --fit-logs STEREO_LOG of this camera"
+        )
     if options.fit_prior and options.fit_logs:
         check_fit_logs(options.fit_logs, logs, options, pairing)
     plan = plan_synthetic(options, total, (camera.image_size, camera.focal_baseline))
@@ -589,6 +600,8 @@ def learn(
     source["with_synthetic_rule"] = plan.synthetic.rule
     if plan.synthetic.label is not None:
         source["with_synthetic_basis"] = plan.synthetic.label
+    if plan.camera.decisions:  # what densify prints too (--rectify)
+        source["rectify"] = {"option": pairing.rectify, "decisions": dict(plan.camera.decisions)}
     meta: dict[str, Any] = {"source": source}
     try:
         if cluster is None:
@@ -599,12 +612,16 @@ def learn(
         raise PcaInterpError(f"cannot learn a basis from {len(logs)} log(s): {err}") from err
     if options.fit_prior:
         # a fine-tuned basis keeps the built-in basis's kernel (chosen on real streets; the
-        # evidence of a few held-out frames picks a worse one: docs/bases.md)
+        # evidence of a few held-out frames picks a worse one: docs/bases.md); the indoor
+        # one's, or densify's rougher one, whichever errs less on the held-out frames
         prior_basis = plan.synthetic.prior_basis
         local = None if prior_basis is None else kept_kernel(prior_basis)
+        rougher = None
+        if plan.synthetic.label == BUILT_IN_INDOOR and local not in (None, ROUGH_KERNEL):
+            rougher = ROUGH_KERNEL
         sources = plan.held_out(options)
-        fitted = fit_prior(basis, sources, options, pairing, local, cluster=cluster)
-        if local is not None:
+        fitted = fit_prior(basis, sources, options, pairing, local, rougher, cluster=cluster)
+        if local is not None and "local_kept_from" not in fitted:
             fitted["local_kept_from"] = "the fine-tuned basis (learn --with-synthetic)"
         basis = dataclasses.replace(basis, meta={**basis.meta, "prior": fitted})
     try:  # owner-named temporary within the name limit (bug hunt 9C F3, F4)
@@ -714,6 +731,7 @@ def fit_prior(
     options: LearnOptions,
     pairing: PairingConfig,
     local: LocalPrior | None = None,
+    rougher: LocalPrior | None = None,
     *,
     cluster: Cluster | None = None,
 ) -> dict[str, Any]:
@@ -727,6 +745,11 @@ def fit_prior(
         pairing: topics of the stereo pairs.
         local: a fixed local kernel: only sigma, the process noise and the std scale are
             fitted (:func:`estimate.fitting.fit_prior`).
+        rougher: another fixed kernel (with ``local``: the built-in indoor basis's and
+            :data:`~.adapt.ROUGH_KERNEL`, densify's fit check's): fitted as ``local`` is,
+            and the one whose prior errs less at the held-out frames' SGBM pixels
+            (:func:`held_out.score_fit`) is kept, the choice printed and recorded
+            (``local_choice``).
         cluster: measure the logs there (a Dask cluster: one task per log, the same
             frames, the same measurements); None: here.
 
@@ -782,15 +805,23 @@ def fit_prior(
         )
     fit_on = "the --fit-logs logs' frames" if options.fit_logs else "the held-out frames"
     _echo(f"fitting the prior by the evidence on {fit_on}")
-    fitted = fitting.fit_prior(
-        basis,
-        sequences,
-        calibration,
-        max_frames=FIT_MAX_FRAMES,
-        sequence_frames=FIT_SEQUENCE_FRAMES,
-        robust=ProcessorConfig().robust,
-        local=local,
-    )
+    robust = ProcessorConfig().robust
+
+    def fit(kernel: LocalPrior | None) -> dict[str, Any]:
+        return fitting.fit_prior(
+            basis,
+            sequences,
+            calibration,
+            max_frames=FIT_MAX_FRAMES,
+            sequence_frames=FIT_SEQUENCE_FRAMES,
+            robust=robust,
+            local=kernel,
+        )
+
+    fitted = fit(local)
+    if local is not None and rougher is not None:
+        frames = [frame for log_frames in measured for frame in log_frames]
+        fitted = choose_kernel(basis, frames, fitted, fit(rougher), robust)
     # no wall time in the basis: the same inputs give the same file, byte for byte
     fitted.update(
         {

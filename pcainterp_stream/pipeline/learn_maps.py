@@ -57,10 +57,12 @@ __all__ = [
     "depth_maps",
     "log_camera",
     "log_pairing",
+    "no_pair_for_learn",
     "one_camera",
     "resized_to",
     "scaled_to",
     "sgbm_maps",
+    "single_info",
 ]
 
 FOCAL_BASELINE_NOTE = 0.01
@@ -108,11 +110,18 @@ class MapSource:
         image_size: (height, width) of the maps: the images or their rectified box (px).
         focal_baseline: f*b of the camera (px*m).
         images: (height, width) of raw images remapped, else None.
+        rectify: the ``--rectify`` decision said for the log's stereo pair (None: a depth
+            topic's maps, or nothing said).
+        decisions: (log, its ``rectify`` line) of every log (:func:`one_camera`).
+        single: the one camera info of a depth topic's log without a right one, else None.
     """
 
     image_size: tuple[int, int]
     focal_baseline: float
     images: tuple[int, int] | None = None
+    rectify: str | None = None
+    decisions: tuple[tuple[str, str], ...] = ()
+    single: str | None = None
 
     def describe(self) -> str:
         """Say the images' size, and their rectified box where it differs: "752x480 images"."""
@@ -208,8 +217,13 @@ def depth_maps(
     info: list[MapSource],
     *,
     focal_baseline: float | None = None,
+    note: bool = False,
 ) -> Iterator[npt.NDArray[np.float32]]:
     """Yield disparity maps f*b/depth of a depth topic, its holes NaN (:func:`depth_disparity`).
+
+    A log with one camera info (an RGB-D camera; :func:`single_info`) is read with that info
+    and ``--baseline`` (f*b = fx * baseline): depth needs no right camera, but disparity
+    needs a baseline, and without one it is refused (one line naming ``--baseline``).
 
     The topic is read as :func:`~pcainterp_stream.io.depth_image.depth_metres` reads it:
     32FC1 in metres, 16UC1 in millimetres (0: none), or either as compressedDepth. NaN, 0 and
@@ -223,6 +237,7 @@ def depth_maps(
         info: the camera of the first map is appended when empty.
         focal_baseline: the f*b every map is put in (:func:`scaled_to`); None: the first
             map's camera's (``info[0]``).
+        note: say it when the log's one camera info is used.
 
     Yields:
         (H, W) float32 disparity maps (px).
@@ -230,20 +245,33 @@ def depth_maps(
     assert options.depth_topic is not None
     with open_log(log) as reader:
         pairing = log_pairing(reader, pairing, options.depth_topic)
-        _require_topics(
-            reader,
-            {
-                options.depth_topic: "--depth-topic",
-                pairing.left_info_topic: "--left-info-topic",
-                pairing.right_info_topic: "--right-info-topic",
-            },
-            "depth image",
-        )
+        single = single_info(reader, pairing)
+        needed = {
+            options.depth_topic: "--depth-topic",
+            pairing.left_info_topic: "--left-info-topic",
+        }
+        if single is None:
+            needed[pairing.right_info_topic] = "--right-info-topic"
+        _require_topics(reader, needed, "depth image")
         _check_depth_topic(reader, options.depth_topic)
         _check_topic_types(
             reader, _pairing_types(dataclasses.replace(pairing, features_topic=None))[2:]
         )
-        info_topics = [pairing.left_info_topic, pairing.right_info_topic]
+        if single is not None:
+            if pairing.baseline is None:
+                raise PcaInterpError(
+                    f"{log.name} has one camera info ({single}, no "
+                    f"{pairing.right_info_topic}): learn --depth-topic puts depth in "
+                    "disparity f*b/depth, so pass --baseline METRES (the one densify will use "
+                    "for this camera), or --right-info-topic of the stereo pair's right camera"
+                )
+            if note:
+                _echo(
+                    f"note: {log.name} has one camera info ({single}): its depth maps are "
+                    f"learned as disparity fx * --baseline {pairing.baseline:g} m / depth"
+                )
+            pairing = dataclasses.replace(pairing, right_info_topic=single)
+        info_topics = list(dict.fromkeys([pairing.left_info_topic, pairing.right_info_topic]))
         # camera infos recorded after the first depth images: their first, read ahead
         infos: dict[str, Any] = {
             topic: message for topic, _, message in first_infos(reader, info_topics)
@@ -258,7 +286,7 @@ def depth_maps(
             index += 1
             if (index - 1) % options.every:
                 continue
-            if len(infos) < 2:
+            if len(infos) < len(info_topics):
                 continue  # no calibration yet
             try:
                 depth = depth_metres(message)
@@ -278,7 +306,7 @@ def depth_maps(
                 baseline=pairing.baseline,
             )
             if not info:
-                info.append(MapSource(camera.image_size, camera.focal_baseline))
+                info.append(MapSource(camera.image_size, camera.focal_baseline, single=single))
             target = info[0].focal_baseline if focal_baseline is None else focal_baseline
             # the target's disparity of this depth: f*b_target / depth (REP 118 holes NaN)
             fb = target if target > 0 else camera.focal_baseline
@@ -360,11 +388,50 @@ def log_pairing(
         return pairing
     try:
         return resolve_pairing(reader, pairing, echo)
-    except TopicNotFoundError:
+    except TopicNotFoundError as err:
         if depth_topic is None:
-            raise
+            raise no_pair_for_learn(reader, err) from err
         # a depth topic needs only the camera infos: the defaults may do
         return dataclasses.replace(pairing, discover=False)
+
+
+def single_info(reader: LogReader, pairing: PairingConfig) -> str | None:
+    """Return the one camera info of a one-camera log (an RGB-D camera's), else None.
+
+    One info: the left and right info topics are one, or the right one is not in the log
+    and the left one is.
+    """
+    left, right = pairing.left_info_topic, pairing.right_info_topic
+    topics = reader.topics()
+    if left == right or (right not in topics and left in topics):
+        return left
+    return None
+
+
+def no_pair_for_learn(reader: LogReader, err: TopicNotFoundError) -> TopicNotFoundError:
+    """Return ``err`` with learn's advice when the log has at most one camera info.
+
+    Such a log (a camera and a feature stream, or a depth camera) has no stereo pair to
+    learn SGBM maps from: learn takes a depth topic instead, never a feature cloud.
+    """
+    topics = reader.topics()
+    infos = [t for t, i in topics.items() if i.msgtype and i.msgtype.endswith("CameraInfo")]
+    if len(infos) > 1:
+        return err
+    clouds = sorted(t for t, i in topics.items() if "PointCloud" in str(i.msgtype))
+    depths = sorted(t for t in topics if "depth" in t.lower() and "Image" in str(topics[t].msgtype))
+    found = str(err).split("; pass --left-topic")[0].split("; pcainterp needs")[0]
+    depth = f", e.g. {depths[0]}" if depths else ""
+    cloud = (
+        f"; it cannot learn from feature clouds ({', '.join(clouds)}: densify reads them with "
+        "--features-topic)"
+        if clouds
+        else ""
+    )
+    return TopicNotFoundError(
+        f"{found}; learn needs a stereo pair (its SGBM maps) or a depth image topic "
+        f"(--depth-topic TOPIC{depth}; with one camera info also --baseline METRES){cloud}"
+    )
 
 
 def log_camera(
@@ -374,6 +441,7 @@ def log_camera(
     why: list[str] | None = None,
     *,
     stereo: bool = False,
+    say: Callable[[str], None] | None = None,
 ) -> MapSource | None:
     """Return the camera of the first map a log gives (reads up to its first map), or None.
 
@@ -385,6 +453,8 @@ def log_camera(
             pairing's summary and its fix (a stamp tolerance too tight, ...) as ``densify``
             words it.
         stereo: the camera of the stereo pairs even when ``options`` name a depth topic.
+        say: given the ``--rectify`` decision for the stereo pair, as ``densify`` prints it
+            (also kept in the result's ``rectify``).
 
     A depth topic whose first images have a depth at fewer than :data:`SPARSE_DEPTH_COVERAGE`
     of their pixels (:data:`COVERAGE_IMAGES`, median) is named in a note.
@@ -394,7 +464,8 @@ def log_camera(
         info: list[MapSource] = []
         values = DepthValues()  # NaN but never +inf: an earlier synthetic log's sky
         shares = []
-        for first in itertools.islice(depth_maps(log, options, pairing, info), COVERAGE_IMAGES):
+        maps = depth_maps(log, options, pairing, info, note=True)
+        for first in itertools.islice(maps, COVERAGE_IMAGES):
             shares.append(float(np.mean(np.isfinite(first))))
             values.add_disparity(first)
         if shares:
@@ -426,13 +497,23 @@ def log_camera(
             paired = log_pairing(reader, pairing)
             _require_topics(reader, paired.required_topics(), "stereo pair")
             _check_topic_types(reader, _pairing_types(paired))
-            pairer = StereoPairer(paired)
+            said: list[str] = []
+
+            def hear(line: str) -> None:
+                said.append(line)
+                if say is not None:
+                    say(line)
+
+            pairer = StereoPairer(paired, echo=hear)
             for frame in iter_stereo_frames(reader, pairer=pairer):
                 # raw images are estimated in the box of their rectified view both cameras see
                 rectifier = pairer.rectification()
                 width, height = rectifier.calibration.left.image_size() if rectifier else (0, 0)
                 images = (height, width) if rectifier else None
-                return MapSource(frame.camera.image_size, frame.camera.focal_baseline, images)
+                decision = said[0] if said else None
+                return MapSource(
+                    frame.camera.image_size, frame.camera.focal_baseline, images, decision
+                )
             reason = no_pair_message(log, paired, pairer.stats, reader.damage)
     if why is not None:
         why.append(reason)
@@ -452,10 +533,15 @@ def one_camera(logs: list[Path], options: MapOptions, pairing: PairingConfig) ->
         PcaInterpError: two logs' maps differ in size by more (before any map is learned).
     """
     why: list[str] = []
-    cameras = [(log, log_camera(log, options, pairing, why)) for log in logs]
+
+    def say(log: Path) -> Callable[[str], None]:  # the rectify decision, as densify prints it
+        return _echo if len(logs) == 1 else lambda line: _echo(f"{log.name}: {line}")
+
+    cameras = [(log, log_camera(log, options, pairing, why, say=say(log))) for log in logs]
     found = [(log, camera) for log, camera in cameras if camera is not None]
     if not found:
         raise LogReadError(why[0])
+    decisions = tuple((str(log), c.rectify) for log, c in found if c.rectify is not None)
     for reason in why:
         _echo(f"note: {reason}; learning from the other logs")
     first_log, camera = found[0]
@@ -481,7 +567,7 @@ def one_camera(logs: list[Path], options: MapOptions, pairing: PairingConfig) ->
                 f"{ratio:.3g} to {first_log.name}'s (at one depth the disparity is "
                 "proportional to f*b)"
             )
-    return camera
+    return dataclasses.replace(camera, decisions=decisions)
 
 
 def _ratio(camera: MapSource, other: MapSource) -> float:
@@ -508,7 +594,12 @@ def check_fit_logs(
         PcaInterpError: a fit log's images differ in size.
     """
     why: list[str] = []
-    training = log_camera(logs[0], options, pairing, why, stereo=True)
+    training = None
+    try:
+        training = log_camera(logs[0], options, pairing, why, stereo=True)
+    except TopicNotFoundError:
+        if not options.depth_topic:
+            raise  # a depth topic's log may have one camera: its fit logs are the stereo
     for log in fit_logs:
         camera = log_camera(log, options, pairing, why, stereo=True)
         if camera is None:

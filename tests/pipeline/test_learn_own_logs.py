@@ -1,0 +1,130 @@
+"""``learn`` on a user's own logs: the rectify decision, one-camera depth logs, the kernel kept."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from pcainterp_stream.errors import PcaInterpError, TopicNotFoundError
+from pcainterp_stream.estimate.adapt import ROUGH_KERNEL, FitCheck, HeldOut
+from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.logwriter import LogFormat, open_writer
+from pcainterp_stream.pipeline import held_out, jobs
+from pcainterp_stream.pipeline.learn import learn_pairing
+
+RIGHT = ("/stereo/right/image_rect", "/stereo/right/camera_info")
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("learn_own")
+    jobs.synth(folder / "lidar.mcap", frames=4, seed=15, scale=0.25, fmt="mcap", lidar=True)
+    jobs.synth_raw(folder / "raw.bag", frames=3, seed=18, scale=0.25, fmt=None, model="plumb_bob")
+    with (
+        open_log(folder / "lidar.mcap") as reader,
+        open_writer(folder / "one.mcap", LogFormat.MCAP) as writer,
+    ):
+        for raw in reader.messages():
+            if raw.topic not in RIGHT:  # a one-camera log with its depth (an RGB-D camera)
+                writer.add_message(raw.topic, reader.decode(raw), raw.log_time_ns)
+    return folder
+
+
+def test_learn_prints_and_records_the_rectify_decision(
+    folder: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # before: nothing said, nothing recorded, whatever --rectify was (bug hunt 11A F2)
+    options = jobs.LearnOptions(n_components=2, fit_prior=False, with_synthetic=0)
+    for rectify, said in (("auto", "rectify auto: remapping the raw images"), ("never", None)):
+        pairing = PairingConfig(discover=True, rectify=rectify)
+        basis = jobs.learn([folder / "raw.bag"], folder / f"r_{rectify}.npz", options, pairing)
+        out = capsys.readouterr().out
+        line = next(line for line in out.splitlines() if line.startswith(f"rectify {rectify}"))
+        assert said is None or line.startswith(said)
+        recorded = basis.meta["source"]["rectify"]
+        assert recorded["option"] == rectify
+        assert recorded["decisions"] == {str(folder / "raw.bag"): line}
+
+
+def test_learn_takes_a_one_camera_depth_log_with_its_baseline(folder: Path) -> None:
+    # before: "set --right-info-topic", then "no depth image with camera infos" (11A F3)
+    one = folder / "one.mcap"
+    options = jobs.LearnOptions(
+        n_components=2, depth_topic="/ground_truth/depth", fit_prior=False, with_synthetic=0
+    )
+    with pytest.raises(PcaInterpError, match=r"one camera info .*pass --baseline METRES"):
+        jobs.learn([one], folder / "one.npz", options, PairingConfig())
+    basis = jobs.learn([one], folder / "one.npz", options, PairingConfig(baseline=0.25))
+    with open_log(one) as reader:
+        info = next(reader.decode(r) for r in reader.messages(["/stereo/left/camera_info"]))
+    assert basis.focal_baseline == pytest.approx(float(np.asarray(info.p)[0]) * 0.25)
+    stereo = jobs.learn(
+        [folder / "lidar.mcap"], folder / "two.npz", options, PairingConfig(baseline=0.25)
+    )
+    assert np.allclose(basis.mean, stereo.mean, atol=1e-4)  # the same depth, the same maps
+    fitted = jobs.LearnOptions(n_components=2, depth_topic="/ground_truth/depth")
+    with pytest.raises(PcaInterpError, match=r"one camera .*pass --no-fit-prior, or --fit-logs"):
+        jobs.learn([one], folder / "one.npz", fitted, PairingConfig(baseline=0.25))
+
+
+def test_learn_of_a_one_camera_log_names_depth_topics_not_a_pair(folder: Path) -> None:
+    # before: "pass --left-topic and --right-topic", which cannot be followed (11A F4)
+    with pytest.raises(TopicNotFoundError) as caught:
+        learn_pairing([folder / "one.mcap"], PairingConfig(discover=True))
+    message = str(caught.value)
+    assert "learn needs a stereo pair (its SGBM maps) or a depth image topic" in message
+    assert re.search(r"--depth-topic TOPIC, e\.g\. /ground_truth/\w*depth", message)
+    assert "pass --left-topic" not in message
+
+
+def _frame(reference: np.ndarray) -> held_out.HeldOutFrame:
+    pixels = np.array([[4.0, 4.0], [20.0, 4.0], [4.0, 20.0], [20.0, 20.0]])
+    disparities = np.full(4, 5.0)
+    return held_out.HeldOutFrame(
+        pixels, disparities, (24, 24), 10.0, None, HeldOut.of(reference, pixels, disparities)
+    )
+
+
+def _fit(local: dict[str, Any]) -> dict[str, Any]:
+    return {"local": local, "sigma": 1.0, "plain_sigma": 1.0, "std_scale": 1.0}
+
+
+@pytest.mark.parametrize(("rough_px", "chosen"), [(0.3, "rough"), (0.5, "indoor"), (0.4, "indoor")])
+def test_the_indoor_kernel_or_the_rougher_one_whichever_errs_less_held_out(
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    rough_px: float,
+    chosen: str,
+) -> None:
+    # before: a fine-tuned indoor basis always kept the indoor kernel, and lost to the
+    # default's rougher kernel on held-out frames of the same room (11A F5)
+    indoor = {"kernel": "gaussian", "length_scale": 32.0, "variance": 2.38}
+    kept, rough = _fit(indoor), _fit(ROUGH_KERNEL.to_meta())
+
+    def score(basis: Basis, frames: Any, fitted: dict[str, Any], *, robust: str) -> FitCheck:
+        error = rough_px if fitted is rough else 0.4
+        return FitCheck(len(frames), 100, error, 0.5, 0.6)
+
+    monkeypatch.setattr(held_out, "score_fit", score)
+    frames = [_frame(np.full((24, 24), 5.0, np.float32))]
+    result = held_out.choose_kernel(Basis.default(), frames, kept, rough, "cauchy")
+    assert result is (rough if chosen == "rough" else kept)
+    record = result["local_choice"]
+    assert record["chosen"] == chosen
+    assert record["kernels"]["rough"]["held_out_px"] == rough_px
+    assert record["kernels"]["indoor"]["local"] == indoor
+    assert "prior: local kernel " in capsys.readouterr().out
+
+
+def test_score_fit_scores_held_out_sgbm_pixels() -> None:
+    flat = _frame(np.full((24, 24), 5.0, np.float32))
+    check = held_out.score_fit(Basis.default(), [flat], _fit(ROUGH_KERNEL.to_meta()), robust="none")
+    assert check.frames == 1
+    assert check.pixels > 0
+    assert check.linear == pytest.approx(0.0, abs=1e-9)  # the measurements are the plane
