@@ -34,7 +34,7 @@ from pcainterp_stream.estimate.basis import BUILTIN_LABELS, IN_MEMORY, Basis, bu
 from pcainterp_stream.estimate.estimator import clean_measurements, densify
 from pcainterp_stream.evaluate.figures import write_figures
 from pcainterp_stream.evaluate.input_pair import describe_pair, follow_densify, matcher_notes
-from pcainterp_stream.evaluate.left_out import LeftOut
+from pcainterp_stream.evaluate.left_out import LeftOut, reference_tolerance
 from pcainterp_stream.evaluate.log_frames import (
     GROUND_TRUTH_DEPTH,
     GROUND_TRUTH_POSE,
@@ -749,6 +749,8 @@ def evaluate_log(
     read = 0
     truth_values = _TruthValues()
     state = ReadState()
+    if reference is not None:  # a reference matches its frame's stamp within a tolerance
+        reference_tolerance(state, options.stamp_tolerance_ns, path, topics, options.max_frames)
     frames = read_frames(
         path,
         topics,
@@ -772,7 +774,8 @@ def evaluate_log(
             truth_values.add(frame.depth)
         if truth is None and has_truth:  # no truth message of this stamp (within tolerance)
             result.skipped += 1
-            left_out.see(frame.depth_gap_ns, "truth")
+            gap = frame.depth_gap_ns if reference is None else frame.reference_gap_ns
+            left_out.see(gap, "truth")
             stereo = None
         else:
             stereo = _stereo(frame, options.sgbm)
@@ -815,7 +818,8 @@ def evaluate_log(
     result.measurements = state.measurements
     result.damage = list(state.damage)
     result.notes += state.notes + truth_values.notes()
-    causes = left_out.notes(state, GROUND_TRUTH_DEPTH if reference is None else "")
+    result.notes += [n for n in [state.reference_note(reference.topic)] if n] if reference else []
+    causes = left_out.notes(state, GROUND_TRUTH_DEPTH if reference is None else reference.topic)
     causes += [state.incomplete_note] if state.incomplete_note else []
     causes += [state.repeated_note] if state.repeated_note else []
     result.notes += causes + ([state.copies_note] if state.copies_note else [])
@@ -825,7 +829,13 @@ def evaluate_log(
         )
     if result.frames == 0:
         name = reference.topic if reference else GROUND_TRUTH_DEPTH
-        without = f", {result.skipped} without a {name} message" if result.skipped else ""
+        tolerance = state.reference_tolerance[0] if reference else state.tolerance_ns
+        without = (
+            f", {result.skipped} without a {name} message within {tolerance / 1e6:g} ms of "
+            "their stamp"
+            if result.skipped
+            else ""
+        )
         if left_out.poses:
             without += f", {left_out.poses} without a {GROUND_TRUTH_POSE}"
         if result.no_measurement:

@@ -210,8 +210,10 @@ def evaluate(
         reference_kind: ``auto``, ``depth`` or ``disparity`` (what the topic holds).
         pairing: the input pair's topics and rectification (raw images are rectified as
             densify did); None: the synthetic logs' topics.
-        stamp_tolerance_ms: a frame's right image is the one stamped this close; None: the
-            tolerance the log records densify paired with (1 ms if it records none).
+        stamp_tolerance_ms: a frame's right image, truth, pose and reference message are
+            the ones stamped nearest it within this; None: the tolerance the log records
+            densify paired with (1 ms if it records none), and for the reference message
+            under half the frame interval.
 
     Returns:
         The report folder and the summary table text.
