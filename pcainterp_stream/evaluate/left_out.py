@@ -19,10 +19,25 @@ from pathlib import Path
 
 import numpy as np
 
-from pcainterp_stream.evaluate.log_frames import GROUND_TRUTH_POSE, ReadState, frame_step_ns
+from pcainterp_stream.evaluate.log_frames import (
+    GROUND_TRUTH_DEPTH,
+    GROUND_TRUTH_POSE,
+    Frame,
+    ReadState,
+    frame_step_ns,
+)
+from pcainterp_stream.evaluate.reference import ReferenceTopic
+from pcainterp_stream.evaluate.results import Evaluation
 from pcainterp_stream.io.outputs import OutputTopics
 
-__all__ = ["MAX_ADVISED_TOLERANCE_NS", "PAIR_STEP_FACTOR", "LeftOut", "reference_tolerance"]
+__all__ = [
+    "MAX_ADVISED_TOLERANCE_NS",
+    "PAIR_STEP_FACTOR",
+    "LeftOut",
+    "no_reference_message",
+    "no_truth_message",
+    "reference_tolerance",
+]
 
 MAX_ADVISED_TOLERANCE_NS = 1_000_000_000
 """The widest stamp tolerance the report advises: a gap of a second or more is another
@@ -151,4 +166,42 @@ def reference_tolerance(
     state.reference_tolerance_from = (
         f"the default for a reference topic: under half the frame interval of "
         f"{step / 1e6:.3g} ms; set it with --stamp-tolerance-ms"
+    )
+
+
+def no_truth_message(
+    path: Path, result: Evaluation, reference: ReferenceTopic | None, max_frames: int | None
+) -> str:
+    """Say that no evaluated frame's reference had a pixel with truth, and what to do."""
+    frames = f"{result.frames} frame{'' if result.frames == 1 else 's'} evaluated"
+    if max_frames is not None:
+        frames += f" (at most {max_frames}: --max-frames)"
+    if result.reference == "SGBM":
+        return (
+            f"SGBM of the pair found no pixel in any of the {frames} of {path}, so there is "
+            "no reference to score against; evaluate a log with ground truth or pass "
+            "--reference-topic"
+        )
+    topic = reference.topic if reference is not None else GROUND_TRUTH_DEPTH
+    return (
+        f"{topic} holds no truth in any of the {frames} of {path}: every pixel is NaN, 0 or "
+        "< 0 (no value, REP 118; +inf, too far, would count), so there is nothing to score "
+        "against; pass a --reference-topic that holds truth"
+    )
+
+
+def no_reference_message(frame: Frame, right_topic: str, state: ReadState) -> str:
+    """Say why a frame has no reference: no right image within the tolerance, or none."""
+    gap = frame.right_gap_ns
+    if gap is None:
+        return (
+            f"frame {frame.index} has neither {GROUND_TRUTH_DEPTH} nor {right_topic}; "
+            "evaluate needs ground truth or the right image for an SGBM reference"
+        )
+    return (
+        f"frame {frame.index} has no {GROUND_TRUTH_DEPTH} and the right images of "
+        f"{right_topic} did not pair with it within {state.tolerance_ns / 1e6:g} ms "
+        f"({state.tolerance_from}; the nearest is {gap / 1e6:.2f} ms away), so there is no "
+        f"SGBM reference; pass --stamp-tolerance-ms {math.ceil(gap / 1e6)}"
+        + (" (as densify was given)" if state.tolerance_from.startswith("the default") else "")
     )
