@@ -118,7 +118,9 @@ def add_parser(commands: Commands) -> None:
         default=None,
         metavar="TOPIC",
         help="score against this ground-truth image topic of the log, dense or sparse "
-        "(e.g. projected LiDAR), matched to frames by header stamp: sensor_msgs/msg/Image "
+        "(e.g. projected LiDAR), each message matched to the frame stamped nearest it "
+        "within --stamp-tolerance-ms (default: under half the frame interval): "
+        "sensor_msgs/msg/Image "
         "32FC1 depth in m or 16UC1 in mm, or stereo_msgs/msg/DisparityImage; NaN, 0 or "
         "< 0 = no truth at that pixel (default: /ground_truth/depth if present, else "
         "/ground_truth/lidar_depth, as import-kitti writes KITTI's depth truth, else SGBM)",

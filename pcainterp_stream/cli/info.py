@@ -16,9 +16,11 @@ def add_parser(commands: Commands) -> None:
         help="describe a log (topics, counts, duration), a basis file or a golden file",
         description=(
             "Describe a log (its topics with their message counts and types, start, end and\n"
-            "duration, and an MCAP log's attachments and metadata records) or a basis file\n"
-            "(its camera, grid, components, fitted prior and how it was learned); with no\n"
-            "file, the two built-in bases and their recipes."
+            "duration, an MCAP log's attachments and metadata records and, for a densified\n"
+            "log, the bases it was densified with) or a basis file (its camera, grid,\n"
+            "components, fitted prior and how it was learned; a fine-tuned basis also the\n"
+            "camera of the maps it learned from); with no file, the two built-in bases and\n"
+            "their recipes."
         ),
         epilog=(
             "examples:\n  pcainterp info drive.mcap\n  pcainterp info basis.npz\n"

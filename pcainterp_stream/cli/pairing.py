@@ -135,9 +135,10 @@ def add_input_pair_options(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="MS",
         help=(
-            "a frame's right image, ground truth and pose are the ones stamped nearest it "
-            "within this (default: the tolerance the log records densify paired with; 1 ms "
-            "for logs that record none)"
+            "a frame's right image, ground truth, --reference-topic message and pose are "
+            "the ones stamped nearest it within this (default: the tolerance the log records "
+            "densify paired with, 1 ms for logs that record none; for a --reference-topic, "
+            "under half the frame interval)"
         ),
     )
 

@@ -15,12 +15,29 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
-from pcainterp_stream.evaluate.log_frames import GROUND_TRUTH_POSE, ReadState
+from pcainterp_stream.evaluate.log_frames import (
+    GROUND_TRUTH_DEPTH,
+    GROUND_TRUTH_POSE,
+    Frame,
+    ReadState,
+    frame_step_ns,
+)
+from pcainterp_stream.evaluate.reference import ReferenceTopic
+from pcainterp_stream.evaluate.results import Evaluation
+from pcainterp_stream.io.outputs import OutputTopics
 
-__all__ = ["MAX_ADVISED_TOLERANCE_NS", "PAIR_STEP_FACTOR", "LeftOut"]
+__all__ = [
+    "MAX_ADVISED_TOLERANCE_NS",
+    "PAIR_STEP_FACTOR",
+    "LeftOut",
+    "no_reference_message",
+    "no_truth_message",
+    "reference_tolerance",
+]
 
 MAX_ADVISED_TOLERANCE_NS = 1_000_000_000
 """The widest stamp tolerance the report advises: a gap of a second or more is another
@@ -76,9 +93,14 @@ class LeftOut:
         ):
             if not count or not topic:
                 continue
+            tolerance, where = (
+                state.reference_tolerance
+                if what == "truth"
+                else (state.tolerance_ns, state.tolerance_from)
+            )
             note = (
                 f"{count} frame{'' if count == 1 else 's'} left out: no {topic} within "
-                f"{state.tolerance_ns / 1e6:g} ms of their stamp ({state.tolerance_from})"
+                f"{tolerance / 1e6:g} ms of their stamp ({where})"
             )
             gaps = self.gaps[what]
             if gaps:
@@ -117,3 +139,69 @@ class LeftOut:
             return f": pass --stamp-tolerance-ms {math.ceil(widest_ns / 1e6)} to take it"
         # a stamp half a frame away or more is another frame's: no tolerance fixes it
         return f", another frame's ({period / 1e6:.0f} ms apart): the stream lacks them"
+
+
+def reference_tolerance(
+    state: ReadState,
+    given_ns: int | None,
+    path: Path,
+    topics: OutputTopics,
+    max_frames: int | None,
+) -> None:
+    """Set the stamp tolerance of a reference topic's messages in ``state``.
+
+    ``--stamp-tolerance-ms`` when given; else just under half the frame interval, so that a
+    frame takes the reference nearest it and never its neighbour's: a user's reference (a
+    LiDAR scan projected into the camera) is stamped with its own sensor's time, not the
+    camera's. A log of one frame keeps the frames' tolerance.
+    """
+    if given_ns is not None:
+        state.reference_tolerance_ns = given_ns
+        state.reference_tolerance_from = "--stamp-tolerance-ms"
+        return
+    step = frame_step_ns(path, topics, max_frames)
+    if step is None or step < 2:
+        return
+    state.reference_tolerance_ns = (step - 1) // 2
+    state.reference_tolerance_from = (
+        f"the default for a reference topic: under half the frame interval of "
+        f"{step / 1e6:.3g} ms; set it with --stamp-tolerance-ms"
+    )
+
+
+def no_truth_message(
+    path: Path, result: Evaluation, reference: ReferenceTopic | None, max_frames: int | None
+) -> str:
+    """Say that no evaluated frame's reference had a pixel with truth, and what to do."""
+    frames = f"{result.frames} frame{'' if result.frames == 1 else 's'} evaluated"
+    if max_frames is not None:
+        frames += f" (at most {max_frames}: --max-frames)"
+    if result.reference == "SGBM":
+        return (
+            f"SGBM of the pair found no pixel in any of the {frames} of {path}, so there is "
+            "no reference to score against; evaluate a log with ground truth or pass "
+            "--reference-topic"
+        )
+    topic = reference.topic if reference is not None else GROUND_TRUTH_DEPTH
+    return (
+        f"{topic} holds no truth in any of the {frames} of {path}: every pixel is NaN, 0 or "
+        "< 0 (no value, REP 118; +inf, too far, would count), so there is nothing to score "
+        "against; pass a --reference-topic that holds truth"
+    )
+
+
+def no_reference_message(frame: Frame, right_topic: str, state: ReadState) -> str:
+    """Say why a frame has no reference: no right image within the tolerance, or none."""
+    gap = frame.right_gap_ns
+    if gap is None:
+        return (
+            f"frame {frame.index} has neither {GROUND_TRUTH_DEPTH} nor {right_topic}; "
+            "evaluate needs ground truth or the right image for an SGBM reference"
+        )
+    return (
+        f"frame {frame.index} has no {GROUND_TRUTH_DEPTH} and the right images of "
+        f"{right_topic} did not pair with it within {state.tolerance_ns / 1e6:g} ms "
+        f"({state.tolerance_from}; the nearest is {gap / 1e6:.2f} ms away), so there is no "
+        f"SGBM reference; pass --stamp-tolerance-ms {math.ceil(gap / 1e6)}"
+        + (" (as densify was given)" if state.tolerance_from.startswith("the default") else "")
+    )

@@ -4,7 +4,8 @@ densify writes a frame's outputs (estimate, std, features, camera info) at its l
 log time, up to a few tens of frames after the input images in the file. Here the channels
 are grouped by header stamp into a :class:`Frame`, which also carries the right image of the
 pair (for SGBM), the ground-truth depth and pose nearest its stamp (their streams may run
-on other clocks and rates) and, with a reference topic, the reference message of its stamp.
+on other clocks and rates) and, with a reference topic, the reference message nearest its
+stamp (a projected LiDAR scan is stamped with the scan's time, not the camera's).
 Any may be logged after the outputs: a stereo driver's right image is received (logged)
 apart from the left one by jitter, mostly after it, and a LiDAR message comes when its
 sweep ends. So a complete frame waits for them, a bounded number of frames, so memory
@@ -101,7 +102,11 @@ class Frame:
     pose: npt.NDArray[np.float64] | None
     min_disparity: float = 0.0
     reference: Any = None
-    """The reference topic's message of this stamp (None: none, or no reference topic)."""
+    """The reference topic's message nearest this stamp within the reference tolerance
+    (None: none, or no reference topic)."""
+    reference_gap_ns: int | None = None
+    """With a reference topic: how far (ns) the matched message, or without one the nearest
+    read, is from the frame's stamp (None: no reference message read near it)."""
     right_gap_ns: int | None = None
     """Without a right image: how far (ns) the nearest one read was from the frame's stamp."""
     depth_gap_ns: int | None = None
@@ -122,6 +127,12 @@ class ReadState:
     """The stamp tolerance of a frame's right image (given, recorded or the default)."""
     tolerance_from: str = "the default: the log records none"
     """Where :attr:`tolerance_ns` came from, for messages."""
+    reference_tolerance_ns: int | None = None
+    """The stamp tolerance of a frame's reference message (None: :attr:`tolerance_ns`)."""
+    reference_tolerance_from: str = ""
+    """Where :attr:`reference_tolerance_ns` came from, for messages."""
+    reference_offsets: list[int] = field(default_factory=list)
+    """The stamp offsets (ns) of the reference messages matched to frames."""
     damage: list[str] = field(default_factory=list)
     """The reader's damage lines (the reader's own list: it grows as the log is read)."""
     converted: bool = False
@@ -142,6 +153,26 @@ class ReadState:
     copies: dict[str, int] = field(default_factory=dict)
     """Per image topic of the input pair, the images logged again right after themselves (the
     same stamp, size, encoding and bytes): skipped, as densify dropped them."""
+
+    @property
+    def reference_tolerance(self) -> tuple[int, str]:
+        """Return the reference's stamp tolerance (ns) and where it came from."""
+        if self.reference_tolerance_ns is None:
+            return self.tolerance_ns, self.tolerance_from
+        return self.reference_tolerance_ns, self.reference_tolerance_from
+
+    def reference_note(self, topic: str) -> str:
+        """Return the sentence on reference messages matched off the frames' stamps ("": none)."""
+        offsets = [offset for offset in self.reference_offsets if offset]
+        if not offsets:
+            return ""
+        tolerance, where = self.reference_tolerance
+        return (
+            f"{topic} matched to frames by the nearest header stamp within {tolerance / 1e6:g} "
+            f"ms ({where}): {len(offsets)} of {len(self.reference_offsets)} messages stamped "
+            f"{min(offsets) / 1e6:.2f}-{max(offsets) / 1e6:.2f} ms from their frame's "
+            f"(median {float(np.median(offsets)) / 1e6:.2f} ms)"
+        )
 
     @property
     def copies_note(self) -> str:
@@ -239,7 +270,10 @@ def read_frames(
     order, so the nearest one is then known), at most :data:`RIGHT_WAIT_FRAMES` frames for
     the right image and :data:`TRUTH_WAIT_FRAMES` for truth and pose; a
     frame whose message never comes (dropped) goes on without it. With a reference topic,
-    each frame carries the reference message of its stamp, waited for at most
+    each frame carries the reference message nearest its stamp within
+    ``state.reference_tolerance_ns`` (None: the frames' tolerance), each message matched to
+    one frame, the one stamped nearest it (:meth:`_Stamped.claim`); a frame waits for a
+    reference stamped at or after its own and for the next frame, at most
     :data:`REFERENCE_WAIT_FRAMES` frames. The waits bound the frames held in memory. Of
     messages of one topic with the same stamp (stamps that restart mid-log, as a simulator
     restarted during the recording stamps them; a message logged twice), the one nearest
@@ -293,6 +327,8 @@ def read_frames(
         if reference is not None and reference.topic not in wanted:
             wanted.append(reference.topic)
         references = _Stamped(REFERENCE_BUFFER)
+        reference_latest = -1  # the last reference stamp read
+        released: list[int] = []  # the stamp of the frame released last
         stamps = _SeenStamps()  # of the topics matched by stamp: repeated stamps counted
         unplaced = _UnplacedStamps(left_image, right_image)
         pending: dict[int, dict[str, Any]] = {}
@@ -306,9 +342,11 @@ def read_frames(
                 wait = RIGHT_WAIT_FRAMES if topic == right_image else TRUTH_WAIT_FRAMES
                 if latest.get(topic, -1) < frame.stamp_ns and len(waiting) <= wait:
                     return False
+            # the nearest reference is known once one stamped at or after the frame's is
+            # read, and whose it is once the next frame's stamp is known
             return (
                 reference is None
-                or references.has(frame.stamp_ns)
+                or (reference_latest >= frame.stamp_ns and len(waiting) > 1)
                 or len(waiting) > REFERENCE_WAIT_FRAMES
             )
 
@@ -316,10 +354,18 @@ def read_frames(
             frame = waiting.popleft()
             if where.compact and FOCAL_BASELINE_KEY not in state.metadata:
                 _recover_focal_baseline(frame, topics.features, state)
+            neighbours = [*released[-1:], *(f.stamp_ns for f in list(waiting)[:1])]
+            matched, reference_gap = references.claim(
+                frame.stamp_ns, frame.log_time_ns, state.reference_tolerance[0], neighbours
+            )
+            released[:] = [frame.stamp_ns]
+            if matched is not None and reference_gap is not None:
+                state.reference_offsets.append(reference_gap)
             return _frame(
                 frame,
                 nearby=nearby,
-                reference=references.take(frame.stamp_ns, frame.log_time_ns),
+                reference=matched,
+                reference_gap_ns=reference_gap if reference is not None else None,
                 topics=topics,
                 images=images,
                 where=where,
@@ -348,6 +394,7 @@ def read_frames(
                 stamp = unplaced.stamp(raw.topic, rosmsg.stamp_ns(message), raw.log_time_ns)
                 stamps.first(raw.topic, stamp, state)  # a repeat is counted, and kept
                 references.add(stamp, raw.log_time_ns, message)
+                reference_latest = stamp
             full_estimate = raw.topic == where.estimate and not where.compact
             stamp = rosmsg.stamp_ns(message.image if full_estimate else message)
             if raw.topic in (left_image, right_image) and unplaced.copy(raw.topic, stamp, message):
@@ -562,10 +609,6 @@ class _Stamped:
         if len(self._messages) > self._limit:
             self._messages.popleft()
 
-    def has(self, stamp: int) -> bool:
-        """Return whether a message of exactly ``stamp`` is kept."""
-        return any(kept == stamp for kept, _, _ in self._messages)
-
     def _index(self, stamp: int, log_time_ns: int) -> int | None:
         """Return the index of the message nearest ``stamp``, then ``log_time_ns`` (the first)."""
         best: tuple[int, int] | None = None
@@ -588,14 +631,36 @@ class _Stamped:
         gap = abs(kept - stamp)
         return (message if gap <= tolerance_ns else None), gap
 
-    def take(self, stamp: int, log_time_ns: int) -> Any:
-        """Remove and return the message of exactly ``stamp`` nearest ``log_time_ns`` (or None)."""
-        index = self._index(stamp, log_time_ns)
-        if index is None or self._messages[index][0] != stamp:
-            return None
-        message = self._messages[index][2]
-        del self._messages[index]
-        return message
+    def claim(
+        self, stamp: int, log_time_ns: int, tolerance_ns: int, neighbours: Iterable[int] = ()
+    ) -> tuple[Any, int | None]:
+        """Remove and return the message nearest ``stamp`` within the tolerance, and its gap.
+
+        Each message goes to one frame, the one stamped nearest it: one nearer a neighbour
+        frame's stamp (``neighbours``: the frames before and after; a tie goes to the
+        earlier frame) is not this frame's. Of messages of the nearest stamp, the one nearest
+        ``log_time_ns``. Without one: None and the gap of the nearest message kept (None:
+        none kept).
+        """
+        others = list(neighbours)
+        best: tuple[int, int] | None = None
+        found = None
+        for index, (kept, log_time, _) in enumerate(self._messages):
+            gap = abs(kept - stamp)
+            if gap > tolerance_ns or any(
+                abs(kept - other) < gap or (abs(kept - other) == gap and other < stamp)
+                for other in others
+            ):
+                continue
+            key = (gap, abs(log_time - log_time_ns))
+            if best is None or key < best:
+                best, found = key, index
+        if found is None:
+            nearest = self._index(stamp, log_time_ns)
+            return None, None if nearest is None else abs(self._messages[nearest][0] - stamp)
+        kept, _, message = self._messages[found]
+        del self._messages[found]
+        return message, abs(kept - stamp)
 
 
 def _recover_focal_baseline(frame: _Complete, features_topic: str, state: ReadState) -> None:
@@ -651,6 +716,7 @@ def _frame(
     *,
     nearby: dict[str, _Stamped],
     reference: Any,
+    reference_gap_ns: int | None = None,
     topics: OutputTopics,
     images: PairImages,
     where: EstimateTopics,
@@ -696,6 +762,7 @@ def _frame(
         pose=None if pose is None else rosmsg.pose_matrix(pose),
         min_disparity=decoded.min_disparity,
         reference=reference,
+        reference_gap_ns=reference_gap_ns,
         right_gap_ns=gap if right is None else None,
         depth_gap_ns=depth_gap if depth is None else None,
         pose_gap_ns=pose_gap if pose is None else None,

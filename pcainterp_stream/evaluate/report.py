@@ -18,7 +18,6 @@ the re-densification with the basis (uncertainty kinds, oracle, points sweep);
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -29,12 +28,18 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.errors import LogReadError, PcaInterpError, TopicNotFoundError
+from pcainterp_stream.estimate.adapt import other_camera
 from pcainterp_stream.estimate.baselines import linear, nearest
 from pcainterp_stream.estimate.basis import BUILTIN_LABELS, IN_MEMORY, Basis, builtin_kind
 from pcainterp_stream.estimate.estimator import clean_measurements, densify
 from pcainterp_stream.evaluate.figures import write_figures
 from pcainterp_stream.evaluate.input_pair import describe_pair, follow_densify, matcher_notes
-from pcainterp_stream.evaluate.left_out import LeftOut
+from pcainterp_stream.evaluate.left_out import (
+    LeftOut,
+    no_reference_message,
+    no_truth_message,
+    reference_tolerance,
+)
 from pcainterp_stream.evaluate.log_frames import (
     GROUND_TRUTH_DEPTH,
     GROUND_TRUTH_POSE,
@@ -240,44 +245,6 @@ class _TruthValues(DepthValues):
         ]
 
 
-def _no_truth_message(
-    path: Path, result: Evaluation, reference: ReferenceTopic | None, max_frames: int | None
-) -> str:
-    """Say that no evaluated frame's reference had a pixel with truth, and what to do."""
-    frames = f"{result.frames} frame{'' if result.frames == 1 else 's'} evaluated"
-    if max_frames is not None:
-        frames += f" (at most {max_frames}: --max-frames)"
-    if result.reference == "SGBM":
-        return (
-            f"SGBM of the pair found no pixel in any of the {frames} of {path}, so there is "
-            "no reference to score against; evaluate a log with ground truth or pass "
-            "--reference-topic"
-        )
-    topic = reference.topic if reference is not None else GROUND_TRUTH_DEPTH
-    return (
-        f"{topic} holds no truth in any of the {frames} of {path}: every pixel is NaN, 0 or "
-        "< 0 (no value, REP 118; +inf, too far, would count), so there is nothing to score "
-        "against; pass a --reference-topic that holds truth"
-    )
-
-
-def _no_reference_message(frame: Frame, right_topic: str, state: ReadState) -> str:
-    """Say why a frame has no reference: no right image within the tolerance, or none."""
-    gap = frame.right_gap_ns
-    if gap is None:
-        return (
-            f"frame {frame.index} has neither {GROUND_TRUTH_DEPTH} nor {right_topic}; "
-            "evaluate needs ground truth or the right image for an SGBM reference"
-        )
-    return (
-        f"frame {frame.index} has no {GROUND_TRUTH_DEPTH} and the right images of "
-        f"{right_topic} did not pair with it within {state.tolerance_ns / 1e6:g} ms "
-        f"({state.tolerance_from}; the nearest is {gap / 1e6:.2f} ms away), so there is no "
-        f"SGBM reference; pass --stamp-tolerance-ms {math.ceil(gap / 1e6)}"
-        + (" (as densify was given)" if state.tolerance_from.startswith("the default") else "")
-    )
-
-
 def _check_pair_size(frame: Frame, images: PairImages, estimate_topic: str, path: Path) -> None:
     """Refuse an input pair whose images are not the estimate's size: not the pair densified.
 
@@ -411,6 +378,8 @@ class _Evaluator:
         self.example_at: set[int] = set()
         self.points = 0
         self.sgbm_empty = 0
+        self.other_camera: str | None = None
+        """Why the basis is another camera's ("": it is not; None: not yet known)."""
 
     def _stats(self, name: str) -> MethodStats:
         return self.result.methods.setdefault(name, MethodStats())
@@ -538,6 +507,8 @@ class _Evaluator:
         """
         assert self.basis is not None
         basis, camera = self.basis, frame.camera
+        if self.other_camera is None:  # named once, from the first frame's camera
+            self.other_camera = _other_camera(basis, camera, self.result)
         pixels, disparities = box.points(frame.pixels, frame.disparities)
         # "exact" here is what densify writes by default (exact on the variance grid)
         for kind, uncertainty in (("paper", "paper"), ("exact", "exact-coarse")):
@@ -569,8 +540,10 @@ class _Evaluator:
         )
         # the oracle fits the basis to the whole reference map: from a sparse one it would
         # fit a nearest-neighbour fill of it, no bound on any estimate, so it is left out
+        # (nor is it for a basis of another camera: it would measure how far apart they are)
         inside = box.crop(reference)
-        if np.count_nonzero(np.isfinite(inside)) >= SPARSE_BELOW * inside.size:
+        dense_enough = np.count_nonzero(np.isfinite(inside)) >= SPARSE_BELOW * inside.size
+        if dense_enough and not self.other_camera:
             scale = basis.focal_baseline / camera.focal_baseline
             oracle = box.pad(oracle_disparity(basis, inside * scale) / scale)
             self._stats("oracle").add(oracle, view, camera, transform)
@@ -622,6 +595,23 @@ class _Evaluator:
             for name, estimate in estimates.items():
                 methods.setdefault(name, MethodStats()).add(estimate, view, camera, transform)
         self.result.sweep_frames += 1
+
+
+def _other_camera(basis: Basis, camera: StereoCamera, result: Evaluation) -> str:
+    """Note, as densify warns, a basis file learned for another camera ("": alike, built-in)."""
+    if builtin_kind(basis) is not None:  # learned from several cameras, mapped onto any
+        return ""
+    why = other_camera(basis, camera.image_size, camera.focal_baseline)
+    if why:  # "; the basis was learned for another camera (...)"
+        name = (result.basis or {}).get("path", "")
+        result.notes.append(
+            f"the basis {name} {why.removeprefix('; the basis ')}: its rows re-densify with it "
+            "as densify would (densify warns of it), but the "
+            "oracle row, its best fit to the truth, is left out: it would measure how far "
+            "apart the cameras are; pass --basis with a basis of this camera, or none for the "
+            "one the log records"
+        )
+    return why
 
 
 def _load_basis(options: EvaluateOptions) -> Basis | None:
@@ -749,6 +739,8 @@ def evaluate_log(
     read = 0
     truth_values = _TruthValues()
     state = ReadState()
+    if reference is not None:  # a reference matches its frame's stamp within a tolerance
+        reference_tolerance(state, options.stamp_tolerance_ns, path, topics, options.max_frames)
     frames = read_frames(
         path,
         topics,
@@ -772,7 +764,8 @@ def evaluate_log(
             truth_values.add(frame.depth)
         if truth is None and has_truth:  # no truth message of this stamp (within tolerance)
             result.skipped += 1
-            left_out.see(frame.depth_gap_ns, "truth")
+            gap = frame.depth_gap_ns if reference is None else frame.reference_gap_ns
+            left_out.see(gap, "truth")
             stereo = None
         else:
             stereo = _stereo(frame, options.sgbm)
@@ -782,7 +775,7 @@ def evaluate_log(
         elif has_truth:  # never SGBM for a frame of a log with truth: skipped, counted
             frame_reference = None
         elif stereo is None:
-            raise LogReadError(_no_reference_message(frame, images.right_topic, state))
+            raise LogReadError(no_reference_message(frame, images.right_topic, state))
         else:
             frame_reference = stereo.disparity.astype(np.float64)
         baselines = truth is not None and stereo is not None
@@ -815,7 +808,8 @@ def evaluate_log(
     result.measurements = state.measurements
     result.damage = list(state.damage)
     result.notes += state.notes + truth_values.notes()
-    causes = left_out.notes(state, GROUND_TRUTH_DEPTH if reference is None else "")
+    result.notes += [n for n in [state.reference_note(reference.topic)] if n] if reference else []
+    causes = left_out.notes(state, GROUND_TRUTH_DEPTH if reference is None else reference.topic)
     causes += [state.incomplete_note] if state.incomplete_note else []
     causes += [state.repeated_note] if state.repeated_note else []
     result.notes += causes + ([state.copies_note] if state.copies_note else [])
@@ -825,7 +819,13 @@ def evaluate_log(
         )
     if result.frames == 0:
         name = reference.topic if reference else GROUND_TRUTH_DEPTH
-        without = f", {result.skipped} without a {name} message" if result.skipped else ""
+        tolerance = state.reference_tolerance[0] if reference else state.tolerance_ns
+        without = (
+            f", {result.skipped} without a {name} message within {tolerance / 1e6:g} ms of "
+            "their stamp"
+            if result.skipped
+            else ""
+        )
         if left_out.poses:
             without += f", {left_out.poses} without a {GROUND_TRUTH_POSE}"
         if result.no_measurement:
@@ -837,7 +837,7 @@ def evaluate_log(
             f"{why})" + "".join(f"; {cause}" for cause in causes)
         )
     if result.reference_pixels == 0:
-        raise LogReadError(_no_truth_message(path, result, reference, options.max_frames))
+        raise LogReadError(no_truth_message(path, result, reference, options.max_frames))
     result.points_per_frame = evaluator.points / result.frames
     result.seconds = time.perf_counter() - started
     return result, evaluator.examples

@@ -131,7 +131,7 @@ class Evaluation:
         reference_kind: "depth" or "disparity" for a reference topic, "" otherwise.
         reference_pixels: pixels with truth in the evaluated frames' references.
         reference_area: all pixels of the evaluated frames' references.
-        skipped: frames skipped because no reference message had their stamp.
+        skipped: frames skipped because no reference message was stamped near them.
         stereo: the stereo baselines (:data:`SGBM`, :data:`SGBM_NN`, :data:`PCA_ON_SGBM`),
             apart from ``methods`` as they are not all scored on the same pixels.
         stereo_note: why the stereo baselines are missing ("" when they are there).

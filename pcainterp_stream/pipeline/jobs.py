@@ -39,11 +39,15 @@ from pcainterp_stream.estimate.basis import (
 from pcainterp_stream.frontend.pairing import (
     PairingConfig,
 )
+from pcainterp_stream.io.densify_record import DENSIFY_RECORD, OUTPUT_PREFIX_KEY
 from pcainterp_stream.io.logwriter import WriteSummary
 from pcainterp_stream.io.outputs import (
+    BASES_RECORD,
     BASIS_FINGERPRINT_KEY,
     BASIS_KEY,
+    BasisInForce,
     OutputTopics,
+    recorded_bases_of,
     recorded_metadata,
 )
 from pcainterp_stream.pipeline.blas_threads import restoring_blas_threads
@@ -210,8 +214,10 @@ def evaluate(
         reference_kind: ``auto``, ``depth`` or ``disparity`` (what the topic holds).
         pairing: the input pair's topics and rectification (raw images are rectified as
             densify did); None: the synthetic logs' topics.
-        stamp_tolerance_ms: a frame's right image is the one stamped this close; None: the
-            tolerance the log records densify paired with (1 ms if it records none).
+        stamp_tolerance_ms: a frame's right image, truth, pose and reference message are
+            the ones stamped nearest it within this; None: the tolerance the log records
+            densify paired with (1 ms if it records none), and for the reference message
+            under half the frame interval.
 
     Returns:
         The report folder and the summary table text.
@@ -388,9 +394,12 @@ def describe_basis(path: Path | None = None, *, builtin: str = "street") -> str:
     learning = meta.get("learning", {}) if isinstance(meta.get("learning"), dict) else {}
     source = meta.get("source", {}) if isinstance(meta.get("source"), dict) else {}
     title = f"{path}: pcainterp basis" if path is not None else _built_in_title(builtin)
+    tuned, rule = meta.get("finetune"), source.get("with_synthetic_rule")
+    tuned = tuned if isinstance(tuned, dict) else None
     lines = [
         title,
-        f"  image size       {width}x{height} px",
+        f"  image size       {width}x{height} px"
+        + (" (the basis learn merged into: its grid and camera)" if tuned else ""),
         f"  grid             {grid_width}x{grid_height} ({grid_width * grid_height} pixels)",
         f"  components       {basis.n_components}",
         f"  variance         {100 * ratio:.2f} % of the training variance explained",
@@ -423,15 +432,21 @@ def describe_basis(path: Path | None = None, *, builtin: str = "street") -> str:
             f"{width}x{height}, disparity in its f*b)"
         )
     lines.append(f"  method           {learning.get('method', '?')}")
-    tuned, rule = meta.get("finetune"), source.get("with_synthetic_rule")
-    if isinstance(tuned, dict):
+    if tuned is not None:
         into = {BUILT_IN: "the built-in street basis", BUILT_IN_INDOOR: "the built-in indoor basis"}
+        merged = into.get(str(source.get("with_synthetic_basis")), "a basis")
+        prior = tuned.get("prior_basis")
+        if isinstance(prior, dict) and "fingerprint" in prior:
+            merged += (
+                f" (fingerprint {prior['fingerprint']}, {prior.get('n_components', '?')} "
+                f"components, {prior.get('n_train', '?')} maps)"
+            )
         lines.append(
-            f"  fine-tuned       {tuned.get('n_maps', '?')} maps merged into "
-            f"{into.get(str(source.get('with_synthetic_basis')), 'a basis')} counted "
+            f"  fine-tuned       {tuned.get('n_maps', '?')} maps merged into {merged} counted "
             f"as {tuned.get('n_prior', '?')} maps (learn --with-synthetic"
             + (f"; {rule})" if isinstance(rule, str) else ")")
         )
+        lines += _maps_camera(tuned, basis)
     elif isinstance(rule, str) and rule != "off":
         lines.append(f"  synthetic maps   not merged ({rule})")
     fitted = meta.get("prior")
@@ -475,6 +490,60 @@ def describe_basis(path: Path | None = None, *, builtin: str = "street") -> str:
     elif isinstance(meta.get("source"), str):
         lines.append(f"  learned from     {meta['source']}")
     return "\n".join(lines)
+
+
+def _maps_camera(tuned: dict[str, object], basis: Basis) -> list[str]:
+    """Name the camera a fine-tuned basis's own maps came from ([]: not recorded)."""
+    size, focal_baseline = tuned.get("maps_image_size"), tuned.get("maps_focal_baseline")
+    if not (isinstance(size, list) and len(size) == 2 and isinstance(focal_baseline, float)):
+        return []
+    height, width = size
+    basis_height, basis_width = basis.image_size
+    scale = tuned.get("disparity_scale")
+    mapped = f", disparity x{scale:.3g}" if isinstance(scale, float) and scale != 1.0 else ""
+    return [
+        f"  maps' camera     {width}x{height} px, f*b {focal_baseline:.4g} px*m: the camera "
+        f"of the logs it learned from, their maps mapped onto {basis_width}x{basis_height}"
+        f"{mapped} (densify maps the basis onto each log's camera)"
+    ]
+
+
+def _densified_by(records: list[tuple[str, dict[str, str]]]) -> list[str]:
+    """Name the bases a densified MCAP log was made with, from its records ([]: none).
+
+    Per ``pcainterp.densify`` record (one per output prefix), every basis in force from the
+    ``pcainterp.basis`` record of its prefix, else the basis of its first outputs.
+    """
+    from pcainterp_stream.evaluate.tuning import describe_tuning, tuning_of
+
+    densified = [fields for name, fields in records if name == DENSIFY_RECORD]
+    in_force = {
+        fields.get(OUTPUT_PREFIX_KEY): fields for name, fields in records if name == BASES_RECORD
+    }
+    lines = []
+    for record in densified:
+        prefix = record.get(OUTPUT_PREFIX_KEY)
+        try:
+            bases = recorded_bases_of(in_force[prefix]) if prefix in in_force else []
+        except ValueError:
+            bases = []
+        if not bases and "basis" in record:
+            fingerprint = record.get("basis_fingerprint", "unknown")
+            bases = [BasisInForce(record["basis"], fingerprint, 0, 0, 0)]
+        lines.append(
+            "  densified with" + (f" ({prefix})" if prefix and len(densified) > 1 else "") + ":"
+        )
+        for entry in bases:
+            line = f"    {entry.basis} (fingerprint {entry.fingerprint}) from frame "
+            line += str(entry.first_frame)
+            if entry.tuning:
+                try:
+                    what = describe_tuning(tuning_of(entry.tuning))
+                except ValueError as err:
+                    what = str(err)
+                line += f", tuned by densify's fit check: {what}"
+            lines.append(line)
+    return lines
 
 
 def _built_in_title(builtin: str) -> str:
@@ -526,7 +595,9 @@ def info(path: Path | None) -> str:
                     return describe_basis(path)
                 except BasisError:
                     pass
-    return format_info(describe(path))
+    described = describe(path)
+    records = [(record.name, dict(record.metadata)) for record in described.metadata]
+    return "\n".join([format_info(described), *_densified_by(records)])
 
 
 def demo(out: Path, *, spawn_viewer: bool = False, learn_basis: bool = False) -> str:

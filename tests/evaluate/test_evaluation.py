@@ -300,6 +300,26 @@ def test_evaluate_writes_report_with_every_section(dense_logs: dict[str, Path]) 
     assert "Targets" in (out / "results.md").read_text()
 
 
+def test_a_basis_of_another_camera_is_named_and_has_no_oracle_row(
+    dense_logs: dict[str, Path],
+) -> None:
+    """As densify warns of it; the oracle would read many times nearest (bug hunt 11A F7)."""
+    basis = Basis.load(dense_logs["basis"])
+    other = dense_logs["folder"] / "depth_camera.npz"  # a 320x240 depth camera's, f*b 9.6
+    dataclasses.replace(basis, image_size=(240, 320), focal_baseline=9.6).save(other)
+    out = dense_logs["folder"] / "other_camera_report"
+    _, table = jobs.evaluate(dense_logs["dense"], out, basis=other, sweep_every=0)
+    report = json.loads((out / "results.json").read_text())
+    assert set(report["methods"]) == {"pca_map", "nearest", "linear"}
+    note = (
+        f"the basis {other} was learned for another camera (320x240 px, f*b 9.6 px*m; this "
+        "log's 310x94 px"
+    )
+    assert sum(note in line for line in report["notes"]) == 1
+    assert "the oracle row, its best fit to the truth, is left out" in table
+    assert note in (out / "results.md").read_text()
+
+
 def test_stereo_mode_with_an_sgbm_reference(
     dense_logs: dict[str, Path],
 ) -> None:

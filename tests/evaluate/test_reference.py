@@ -56,6 +56,7 @@ from pcainterp_stream.synth.log import (
 CONFIG = SynthConfig(seed=31, frames=4, scale=0.25)
 CAMERA = CONFIG.camera
 FOCAL_BASELINE = CAMERA.focal_baseline
+MS = 1_000_000
 DISPARITY, STD, INFO = "/pcainterp/disparity", "/pcainterp/disparity_std", "/pcainterp/camera_info"
 
 
@@ -193,6 +194,13 @@ def _references(depth: np.ndarray, stamp: int, index: int) -> list[tuple[str, An
     ]
     if index % 2 == 0:
         extra.append(("/ref/every_other", _image(depth, stamp, "32FC1"), 0))
+        # stamped 60 ms on: nearer the next frame (100 ms on) than its own, so the next's
+        extra.append(("/ref/between", _image(depth, stamp + 60 * MS, "32FC1"), 60 * MS))
+    # a LiDAR scan projected into the camera, stamped with the scan's time 20 ms on
+    extra.append(("/ref/lidar_20ms", _image(depth, stamp + 20 * MS, "32FC1"), 20 * MS))
+    # two scans per frame: 30 ms before (another depth: a wrong match shows) and 10 ms after
+    extra.append(("/ref/two_scans", _image(2 * depth, stamp - 30 * MS, "32FC1"), 0))
+    extra.append(("/ref/two_scans", _image(depth, stamp + 10 * MS, "32FC1"), 10 * MS))
     return extra
 
 
@@ -398,6 +406,50 @@ def test_frames_without_a_reference_message_are_skipped(
         "2 frames skipped: no /ref/every_other message within the stamp tolerance"
         in summary_table(result)
     )
+
+
+def test_a_reference_stamped_apart_from_the_frames_is_matched_by_the_nearest_stamp(
+    logs: dict[str, Path],
+) -> None:
+    """A user's projected LiDAR stamped 20 ms after the camera is scored (bug hunt 11A F1)."""
+    path = logs["references"]
+    exact = _evaluate(path, DEPTH)
+    for topic, tolerance in (
+        ("/ref/lidar_20ms", None),  # under half the frame interval by default
+        ("/ref/lidar_20ms", 25 * MS),
+        ("/ref/two_scans", None),  # the nearest of two: 10 ms after, not 30 ms before
+    ):
+        result = _evaluate(path, topic, stamp_tolerance_ns=tolerance)
+        assert result.skipped == 0, topic
+        assert result.methods["pca_map"].pixels == exact.methods["pca_map"].pixels, topic
+        assert result.methods["pca_map"].summary() == pytest.approx(
+            exact.methods["pca_map"].summary(), rel=1e-6
+        ), topic
+    note = " ".join(_evaluate(path, "/ref/lidar_20ms").notes)
+    assert "/ref/lidar_20ms matched to frames by the nearest header stamp within 50 ms" in note
+    assert "under half the frame interval of 100 ms" in note
+    assert "4 of 4 messages stamped 20.00-20.00 ms from their frame's" in note
+    assert not any("matched to frames" in n for n in exact.notes)  # no note at offset 0
+
+
+@pytest.mark.parametrize("tolerance", [None, 100 * MS])
+def test_each_reference_message_goes_to_the_frame_stamped_nearest_it(
+    logs: dict[str, Path], tolerance: int | None
+) -> None:
+    """Stamped 60 ms after frames 0 and 2: frames 1 and 3 (40 ms away) take them, once each."""
+    result = _evaluate(logs["references"], "/ref/between", stamp_tolerance_ns=tolerance)
+    assert (result.frames, result.skipped) == (2, 2)
+
+
+def test_a_reference_beyond_the_tolerance_names_its_offset_and_the_option(
+    logs: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    path, out = logs["references"], logs["folder"] / "no_report"
+    args = ("--reference-topic", "/ref/lidar_20ms", "--stamp-tolerance-ms", "10")
+    err = _error(capsys, path, "-o", out, *args)
+    assert "4 without a /ref/lidar_20ms message within 10 ms of their stamp" in err
+    assert "4 had one 20.00-20.00 ms away: pass --stamp-tolerance-ms 20 to take it" in err
+    assert not out.exists()
 
 
 def _error(capsys: pytest.CaptureFixture[str], *args: str | Path) -> str:

@@ -300,6 +300,32 @@ def test_info_describes_basis_and_log(logs: dict[str, Path]) -> None:
     assert "/stereo/left/image_rect" in text
 
 
+def test_info_names_the_camera_of_a_fine_tuned_basis(logs: dict[str, Path]) -> None:
+    """Its file is on the built-in's grid; info names the maps' camera (bug hunt 11A F6)."""
+    out = logs["folder"] / "tuned.npz"
+    options = jobs.LearnOptions(n_components=5, fit_prior=False, with_synthetic=100)
+    jobs.learn([logs["train"]], out, options, PairingConfig())
+    built_in = Basis.default()
+    text = jobs.info(out)
+    assert "image size       1241x376 px (the basis learn merged into: its grid and camera)" in text
+    assert f"the built-in street basis (fingerprint {built_in.fingerprint}, " in text
+    assert re.search(
+        r"maps' camera     310x94 px, f\*b 96\.\d+ px\*m: the camera of the logs it learned "
+        r"from, their maps mapped onto 1241x376, disparity x4",
+        text,
+    ), text
+    assert "maps' camera" not in jobs.info(logs["basis"])  # learned from scratch: its own
+
+
+def test_info_names_the_basis_a_log_was_densified_with(logs: dict[str, Path]) -> None:
+    dense = logs["folder"] / "info_dense.mcap"
+    jobs.densify(logs["test"], dense, logs["basis"])
+    fingerprint = Basis.load(logs["basis"]).fingerprint
+    text = jobs.info(dense)
+    assert f"  densified with:\n    basis.npz (fingerprint {fingerprint}) from frame 0" in text
+    assert "densified with" not in jobs.info(logs["test"])
+
+
 def test_demo_learn_runs_small(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(jobs, "DEMO_SCALE", 0.25)
     monkeypatch.setattr(jobs, "DEMO_TRAIN_SEEDS", (1, 3))
