@@ -1,11 +1,14 @@
-"""The caller's BLAS thread counts, given back when the last job of the process returns.
+"""BLAS held at one thread while any job runs, and the caller's counts given back after.
 
-A job holds every BLAS at one thread (:class:`~.threads.ThreadLimits`: its bytes do not
-depend on the machine's core count), and the solver holds scipy's OpenBLAS, loaded inside
-the first job, at one thread for the process (``estimate/compiled.py``). The ``densify``
-and ``evaluate`` jobs and every command :func:`pcainterp_stream.cli.main` runs in-process
-(``learn`` too) run within :class:`BlasThreads`: a caller's own ``scipy.linalg`` work
-afterwards is not left single-threaded (bug hunt 10A F1, review 58a R7).
+A job holds every BLAS at one thread (its bytes do not depend on the machine's core count),
+and the solver holds scipy's OpenBLAS, loaded inside the first job, at one thread
+(``compiled.py``). Two kinds of job count here, in one process-wide count
+(:class:`BlasThreads`): the frame processors (:class:`~.threads.ThreadLimits`, also one a
+caller opens itself) and the ``densify``, ``evaluate``, ``learn`` and ``demo`` jobs and
+every command :func:`pcainterp_stream.cli.main` runs in-process (:func:`restoring_blas_threads`).
+When the last of either kind returns, a caller's own ``scipy.linalg`` work is not left
+single-threaded (bug hunt 10A F1, review 58a R7), and no job's BLAS gets several threads
+back while another job still runs (review 58c C1).
 """
 
 from __future__ import annotations
@@ -22,13 +25,14 @@ _R = TypeVar("_R")
 
 
 class BlasThreads:
-    """The BLAS thread counts a caller had when the first job of the process began.
+    """The one process-wide count of the jobs holding BLAS at a few threads.
 
-    When the last job running in the process returns, each BLAS the caller had gets its
-    count back and one loaded during the jobs the count the caller's environment gives a
-    new one (``OPENBLAS_NUM_THREADS``, ``OMP_NUM_THREADS``, else the CPUs this process may
-    run on). Jobs nest and may run concurrently: a process-wide count of those running
-    (like ``ThreadLimits``), so one ending does not disturb another.
+    The first to enter notes the caller's counts and sets every loaded BLAS to its
+    ``threads``; later ones share that count (jobs nest and run concurrently, in the
+    threads of one process as a Dask worker runs them). When the last leaves, each BLAS
+    the caller had gets its count back and one loaded during the jobs the count the
+    caller's environment gives a new one (``OPENBLAS_NUM_THREADS``, ``OMP_NUM_THREADS``,
+    else the CPUs this process may run on).
     """
 
     lock: ClassVar[threading.Lock] = threading.Lock()
@@ -37,12 +41,16 @@ class BlasThreads:
     default: ClassVar[int] = 1
 
     @classmethod
-    def enter(cls) -> None:
-        """A job begins: the first of those running notes the caller's counts."""
+    def enter(cls, threads: int = 1) -> None:
+        """A job begins: the first of those running notes the counts and sets ``threads``."""
         with cls.lock:
             if cls.running == 0:
-                cls.before = {lib.filepath: lib.num_threads for lib in _blas_libraries()}
+                libraries = _blas_libraries()
+                cls.before = {lib.filepath: lib.num_threads for lib in libraries}
                 cls.default = _default_blas_threads()
+                for lib in libraries:
+                    if lib.num_threads != threads:
+                        lib.set_num_threads(threads)
             cls.running += 1
 
     @classmethod
@@ -60,7 +68,7 @@ class BlasThreads:
 
 @contextmanager
 def blas_threads_given_back() -> Iterator[None]:
-    """Run the block within :class:`BlasThreads`: the caller's BLAS counts come back after."""
+    """Run the block as a job of :class:`BlasThreads`: BLAS at one thread, given back after."""
     BlasThreads.enter()
     try:
         yield
@@ -69,7 +77,7 @@ def blas_threads_given_back() -> Iterator[None]:
 
 
 def restoring_blas_threads(job: Callable[_P, _R]) -> Callable[_P, _R]:
-    """Run ``job`` within :class:`BlasThreads` (:func:`blas_threads_given_back`)."""
+    """Run ``job`` as a job of :class:`BlasThreads` (:func:`blas_threads_given_back`)."""
 
     @functools.wraps(job)
     def run(*args: _P.args, **kwargs: _P.kwargs) -> _R:

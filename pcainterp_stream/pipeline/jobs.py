@@ -600,6 +600,7 @@ def info(path: Path | None) -> str:
     return "\n".join([format_info(described), *_densified_by(records)])
 
 
+@restoring_blas_threads
 def demo(out: Path, *, spawn_viewer: bool = False, learn_basis: bool = False) -> str:
     """Show the product on a generated drive and return a summary (``pcainterp demo``).
 

@@ -35,6 +35,7 @@ from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.output_paths import make_partial_file, saved_elsewhere, write_advice
+from pcainterp_stream.pipeline.blas_threads import restoring_blas_threads
 from pcainterp_stream.pipeline.common import (
     _bar,
     _check_output_folder,
@@ -561,6 +562,7 @@ class Cluster(Protocol):
         ...
 
 
+@restoring_blas_threads
 def learn(
     logs: list[Path],
     output: Path,

@@ -14,6 +14,8 @@ from typing import TypeVar
 
 import cv2
 
+from pcainterp_stream.pipeline.blas_threads import BlasThreads
+
 T = TypeVar("T")
 
 
@@ -23,14 +25,13 @@ class ThreadLimits:
     Shared by the processors open at once (several jobs in the threads of one process, as
     a Dask worker runs them): the first to ask sets a count and the last to leave puts the
     count found before back, so no job's BLAS goes back to several threads while another
-    still runs (its products and factorisations would round differently).
+    still runs (its products and factorisations would round differently). BLAS is counted
+    with the jobs of :class:`~.blas_threads.BlasThreads` in one count (review 58c C1).
     """
 
     _lock = threading.Lock()
     _opencv_users = 0
     _opencv_previous: int | None = None
-    _blas_users = 0
-    _blas_limits: object | None = None
 
     def __init__(self, opencv_threads: int | None, blas_threads: int | None) -> None:
         self._opencv = opencv_threads is not None
@@ -42,10 +43,8 @@ class ThreadLimits:
                     cls._opencv_previous = cv2.getNumThreads()
                     cv2.setNumThreads(opencv_threads)
                 cls._opencv_users += 1
-            if blas_threads is not None:
-                if cls._blas_users == 0:
-                    cls._blas_limits = _limit_blas(blas_threads)
-                cls._blas_users += 1
+        if blas_threads is not None:
+            BlasThreads.enter(blas_threads)
 
     def restore(self) -> None:
         """Leave; the last to leave puts back the counts found on entry (idempotent)."""
@@ -57,22 +56,9 @@ class ThreadLimits:
                 if cls._opencv_users == 0 and cls._opencv_previous is not None:
                     cv2.setNumThreads(cls._opencv_previous)
                     cls._opencv_previous = None
-            if self._blas:
-                self._blas = False
-                cls._blas_users -= 1
-                if cls._blas_users == 0 and cls._blas_limits is not None:
-                    cls._blas_limits.restore_original_limits()  # type: ignore[attr-defined]
-                    cls._blas_limits = None
-
-
-def _limit_blas(threads: int) -> object | None:
-    """Limit every loaded BLAS to ``threads``; None when threadpoolctl is not installed."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
-        return None
-    limits: object = threadpool_limits(limits=threads, user_api="blas")
-    return limits
+            blas, self._blas = self._blas, False
+        if blas:
+            BlasThreads.leave()
 
 
 def lower_priority(niceness: int) -> None:

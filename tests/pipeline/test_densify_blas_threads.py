@@ -11,6 +11,7 @@ import json
 import os
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
@@ -21,10 +22,16 @@ BASIS = ROOT / "tests" / "data" / "golden_basis.npz"
 
 SCRIPT = """
 import json, sys
+from pathlib import Path
 from threadpoolctl import threadpool_info
 from pcainterp_stream.cli import main
 
 for argv in json.loads(sys.argv[1]):
+    if argv[0] == "api-learn":  # pipeline.learn.learn called in-process (review 58c C3)
+        from pcainterp_stream.frontend.pairing import PairingConfig
+        from pcainterp_stream.pipeline.learn import LearnOptions, learn
+        learn([Path(argv[1])], Path(argv[2]), LearnOptions(), PairingConfig())
+        continue
     assert main(argv) == 0, argv  # scipy is first loaded inside the first
 import scipy.linalg  # a caller's own work afterwards
 print(json.dumps({i["filepath"]: i["num_threads"] for i in threadpool_info()
@@ -48,7 +55,7 @@ def _counts_after(tmp_path: Path, argvs: list[list[str]]) -> dict[str, int]:
     return counts
 
 
-@pytest.mark.parametrize("command", ["densify", "evaluate", "learn"])
+@pytest.mark.parametrize("command", ["densify", "evaluate", "learn", "api-learn"])
 def test_a_command_gives_the_callers_blas_thread_counts_back(tmp_path: Path, command: str) -> None:
     dense = str(tmp_path / "d.mcap")
     if command == "evaluate":  # a log to evaluate, densified by another process
@@ -68,6 +75,7 @@ def test_a_command_gives_the_callers_blas_thread_counts_back(tmp_path: Path, com
             ]
         ],
         "learn": [["learn", str(LOG), "-o", str(tmp_path / "b.npz")]],
+        "api-learn": [["api-learn", str(LOG), str(tmp_path / "b.npz")]],
     }[command]
     counts = _counts_after(tmp_path, argvs)
     scipy_libs = {path: n for path, n in counts.items() if "scipy.libs" in path}
@@ -75,3 +83,71 @@ def test_a_command_gives_the_callers_blas_thread_counts_back(tmp_path: Path, com
     assert scipy_libs
     # a new library gets the count the caller's environment gives, as numpy's has
     assert set(scipy_libs.values()) == set(numpy_libs.values())
+
+
+def test_the_learn_and_demo_jobs_give_the_counts_back_when_called_in_process() -> None:
+    """Review 58c C3: ``learn`` and ``demo`` called as API run as jobs (the test above)."""
+    from pcainterp_stream.pipeline import jobs, learn
+
+    for job in (learn.learn, jobs.demo, jobs.evaluate):
+        assert getattr(job, "__wrapped__", None) is not None, job
+
+
+RACE = """
+import json
+import scipy.linalg  # both BLAS loaded
+from threadpoolctl import threadpool_info
+from pcainterp_stream.pipeline.threads import ThreadLimits
+from pcainterp_stream.pipeline.blas_threads import blas_threads_given_back
+
+def counts():
+    return sorted({i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"})
+
+seen = {}
+with blas_threads_given_back():  # a densify job, its processor inside
+    processor = ThreadLimits(None, 1)
+    other = ThreadLimits(None, 1)  # another job's processor, opened during this job
+    processor.restore()
+    seen["job, processor closed"] = counts()
+seen["other running"] = counts()  # the densify job returned
+other.restore()  # from this thread: OpenBLAS takes a count set from the main thread only
+seen["after"] = counts()
+print(json.dumps(seen))
+"""
+
+
+def test_a_job_ending_keeps_blas_at_one_thread_while_another_processor_runs() -> None:
+    """Review 58c C1: one count for the jobs and the processors' ThreadLimits.
+
+    A densify job returning while another job's processor (its own ThreadLimits) still
+    ran gave every BLAS the caller's two threads back under it.
+    """
+    done = subprocess.run(
+        [sys.executable, "-c", RACE],
+        env=dict(os.environ, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="2"),
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    seen = json.loads(done.stdout.strip().splitlines()[-1])
+    assert seen == {"job, processor closed": [1], "other running": [1], "after": [2]}
+
+
+def test_jobs_entering_and_leaving_in_many_threads_leave_the_count_at_zero() -> None:
+    """The one count is taken under a lock: 8 threads x 200 jobs and processors."""
+    from pcainterp_stream.pipeline.blas_threads import BlasThreads, blas_threads_given_back
+    from pcainterp_stream.pipeline.threads import ThreadLimits
+
+    def work() -> None:
+        for _ in range(200):
+            with blas_threads_given_back():
+                ThreadLimits(None, 1).restore()
+
+    threads = [threading.Thread(target=work) for _ in range(8)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert BlasThreads.running == 0
