@@ -14,6 +14,7 @@ from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
 from pcainterp_stream.estimate import fitting
 from pcainterp_stream.estimate.adapt import (
@@ -26,6 +27,7 @@ from pcainterp_stream.estimate.adapt import (
 from pcainterp_stream.estimate.basis import Basis, builtin_kind
 from pcainterp_stream.estimate.estimator import densify_batch
 from pcainterp_stream.estimate.prior import LocalPrior
+from pcainterp_stream.estimate.wording import figures
 
 PER_FRAME = True
 """The refitted std scale multiplies each frame's covariance scale too (``scale_by_innovation``),
@@ -82,6 +84,23 @@ def sgbm_std_scale(
             references.append(frame.reference)
     if not estimates:
         return 1.0
+    return fitted_std_scale(estimates, stds, references, likelihood=likelihood)
+
+
+def fitted_std_scale(
+    estimates: Sequence[npt.NDArray[Any]],
+    stds: Sequence[npt.NDArray[Any]],
+    references: Sequence[npt.NDArray[Any]],
+    *,
+    likelihood: bool = LIKELIHOOD,
+) -> float:
+    """Return the std scale of the rougher kernel's maps against their SGBM references.
+
+    :func:`fitting.fit_std_scale`'s (95.4 % of the errors inside +-2 std), with
+    ``likelihood`` at least the Gaussian maximum-likelihood one, sqrt(mean((e / std)^2))
+    (:data:`LIKELIHOOD`). The one rule for this kernel: ``densify``'s fit check
+    (:func:`sgbm_std_scale`) and ``learn``'s held-out choice (``pipeline/held_out.py``).
+    """
     band = fitting.fit_std_scale(estimates, stds, references)
     if not likelihood:
         return band
@@ -90,7 +109,40 @@ def sgbm_std_scale(
         valid = np.isfinite(reference) & np.isfinite(estimate) & (std > 0)
         ratios.append((estimate[valid] - reference[valid]) / std[valid])
     joined = np.concatenate(ratios)
+    if joined.size == 0:
+        return band
     return max(band, float(np.sqrt(np.mean(np.square(joined, dtype=np.float64)))))
+
+
+def rough_kernel_words(rough: LocalPrior = ROUGH_KERNEL) -> str:
+    """Return "the street basis's local kernel (laplace, 64 px, 40 px^2)": both lines' name."""
+    return (
+        f"the street basis's local kernel ({rough.kernel}, {rough.length_scale:g} px, "
+        f"{rough.variance:g} px^2)"
+    )
+
+
+def band_left_out(first_column: int) -> str | None:
+    """Return why the rougher kernel is not tried, or None: the held-out pixels' columns.
+
+    When they leave SGBM's unmatched left band out (:data:`~.adapt.UNCHECKED_COLUMNS`), the
+    kernel would extrapolate there unchecked: ``densify``'s fit check and ``learn`` keep the
+    indoor kernel then.
+    """
+    if first_column < UNCHECKED_COLUMNS:
+        return None
+    return (
+        f"not tried: the held-out pixels cover columns >= {first_column} only, and "
+        "left of them (SGBM's unmatched band), unchecked, it erred up to 2.2x more than "
+        "the basis's own kernel on synthetic rooms"
+    )
+
+
+def compared(check: FitCheck, against: FitCheck, taken: bool, own: str = "its own kernel") -> str:
+    """Return "taken: 0.27 px against 0.28 with its own kernel on the same held-out SGBM pixels"."""
+    mine, theirs = figures(check.prior, against.prior)
+    verdict = "taken" if taken else "not taken"
+    return f"{verdict}: {mine} px against {theirs} with {own} on the same held-out SGBM pixels"
 
 
 class Rougher(NamedTuple):
@@ -109,7 +161,7 @@ class Rougher(NamedTuple):
 
 
 def try_rougher(
-    given: tuple[Basis, dict[str, Any]],
+    street: Basis,
     indoor: tuple[Basis, str, dict[str, Any]],
     score: Callable[[dict[str, Any]], FitCheck],
     against: FitCheck,
@@ -120,9 +172,10 @@ def try_rougher(
 ) -> Rougher | None:
     """Score the built-in indoor basis chosen with :data:`~.adapt.ROUGH_KERNEL`.
 
-    The fit check chose the built-in indoor basis over the street one (``given``: the
-    street basis and its estimate options) and it scored ``against`` (at least
-    ``FITS_BELOW`` times linear interpolation); ``indoor`` is (basis, name, options).
+    The fit check chose the built-in indoor basis over the basis given (``street``: only
+    whether it is the built-in street basis matters; the kernel tried is the constant
+    :data:`~.adapt.ROUGH_KERNEL`) and it scored ``against`` (at least ``FITS_BELOW`` times
+    linear interpolation); ``indoor`` is (basis, name, options).
     The indoor kernel (Gaussian 32 px, 2.4 px^2) is too smooth and weak to bend the basis to
     its own points where the basis misfits: with Laplace 64 px, 40 px^2 (the street basis's
     values, as numbers in the indoor basis's px) on the same basis the EuRoC machine hall went
@@ -131,7 +184,8 @@ def try_rougher(
     held-out SGBM pixels; the candidate is taken when its error is lower, its std scale then
     refitted on the warm-up's SGBM maps (``calibrate``; :func:`sgbm_std_scale`): the indoor
     kernel's was 2-5x too wide for it. None when there is no candidate: the street basis not
-    the one given, or an indoor basis without a local kernel (``--prior paper``). The street
+    the one given, an indoor basis without a local kernel (``--prior paper``), or one whose
+    kernel is already :data:`~.adapt.ROUGH_KERNEL`. The street
     basis is never given another kernel: on KITTI 07 the variants of it the check preferred
     lost against the LiDAR truth. Not tried (a line says so) when the held-out pixels leave
     SGBM's unmatched left band out (:data:`~.adapt.UNCHECKED_COLUMNS`): with no point there,
@@ -139,30 +193,22 @@ def try_rougher(
     of 5, it erred 2.25x, 1.42x, 0.93x the indoor kernel's error there, its std holding
     21-92 %).
     """
-    (street, _), (basis, name, options) = given, indoor
+    basis, name, options = indoor
     if builtin_kind(street) != "street" or builtin_kind(basis) != "indoor":
         return None
     local, rough = options.get("local_prior"), ROUGH_KERNEL
     if not isinstance(local, LocalPrior) or rough == local:
         return None
-    line = f"prior: {name} with the street basis's local kernel ({rough.kernel}, "
-    line += f"{rough.length_scale:g} px, {rough.variance:g} px^2)"
-    if against.first_column >= UNCHECKED_COLUMNS:
-        why = (
-            f"not tried: the held-out pixels cover columns >= {against.first_column} only, and "
-            "left of them (SGBM's unmatched band), unchecked, it erred up to 2.2x more than "
-            "the basis's own kernel on synthetic rooms"
-        )
-        return Rougher(f"{line}: {why}", against, None)
+    line = f"prior: {name} with {rough_kernel_words(rough)}"
+    left_out = band_left_out(against.first_column)
+    if left_out is not None:
+        return Rougher(f"{line}: {left_out}", against, None)
     check = score({**options, "local_prior": rough})
-    digits = 2 if f"{check.prior:.2f}" != f"{against.prior:.2f}" else 4
-    figures = f"{check.prior:.{digits}f} px against {against.prior:.{digits}f}"
     line += f" {check.describe()}"
     if not (check.frames and check.prior < against.prior):
-        why = f"not taken: {figures} with its own kernel on the same held-out SGBM pixels"
-        return Rougher(f"{line}; {why}", check, None)
+        return Rougher(f"{line}; {compared(check, against, False)}", check, None)
     tuned: dict[str, object] = {"local_prior": rough}
-    why = f"taken: {figures} with its own kernel on the same held-out SGBM pixels"
+    why = compared(check, against, True)
     if calibrate:
         frames, size, fb = warmup
         scale = sgbm_std_scale(

@@ -481,7 +481,7 @@ class Adaptation:
             if indoor is not None and self.check.ratio >= FITS_BELOW and tune:
                 scores = per_frame.get(id(indoor.basis), [])
                 rough = rougher.try_rougher(
-                    (basis, settings),
+                    basis,
                     (indoor.basis, indoor.name, indoor.settings),
                     lambda options: check(indoor.basis, options),
                     self.check,

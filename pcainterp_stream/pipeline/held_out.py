@@ -6,6 +6,7 @@ as the process that learns (:mod:`~pcainterp_stream.pipeline.learn`).
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +30,7 @@ __all__ = [
     "MeasureOptions",
     "choose_kernel",
     "measure_held_out",
+    "rough_std_scales",
     "score_fit",
 ]
 
@@ -163,64 +165,139 @@ def score_fit(
     return FitCheck.combine(checks)
 
 
+def rough_std_scales(
+    basis: Basis, frames: Sequence[HeldOutFrame], fitted: dict[str, Any], *, robust: str
+) -> dict[str, float]:
+    """The rougher kernel's std scales by ``densify``'s rule (``rougher.sgbm_std_scale``).
+
+    The larger of the 95.4 % band's and the Gaussian likelihood's scale
+    (``rougher.LIKELIHOOD``: the band's alone made NLL 0.5-0.7 nats worse for this kernel),
+    on the calibration frames' SGBM maps of the camera most of them have: ``std_scale``
+    plain, ``innovation_std_scale`` per frame (what ``densify`` uses by default).
+    """
+    from pcainterp_stream.estimate.adapt import Measured
+    from pcainterp_stream.estimate.rougher import sgbm_std_scale
+
+    calibration = [frame for frame in frames if frame.reference is not None]
+    cameras = Counter((frame.image_size, frame.focal_baseline) for frame in calibration)
+    if not cameras:
+        return {}
+    (size, fb), _ = cameras.most_common(1)[0]
+    used = [
+        Measured(frame.pixels, frame.disparities, frame.reference)
+        for frame in calibration
+        if frame.reference is not None and (frame.image_size, frame.focal_baseline) == (size, fb)
+    ]
+    options = {"local_prior": LocalPrior.from_meta(fitted["local"]), "sigma": fitted["sigma"]}
+    return {
+        name: sgbm_std_scale(
+            basis,
+            used,
+            options,
+            image_size=size,
+            focal_baseline=fb,
+            robust=robust,
+            per_frame=per_frame,
+        )
+        for name, per_frame in (("std_scale", False), ("innovation_std_scale", True))
+    }
+
+
 def choose_kernel(
     basis: Basis,
     frames: list[HeldOutFrame],
     kept: dict[str, Any],
-    rough: dict[str, Any],
+    fit_rough: Callable[[], dict[str, Any]],
     robust: str,
 ) -> dict[str, Any]:
-    """Return the fit (``kept``: the indoor basis's kernel, or ``rough``) that errs less.
+    """Return the fit (``kept``: the indoor basis's kernel, or the rough one) that errs less.
 
-    Both are scored at the held-out frames' SGBM pixels (:func:`score_fit`, as
-    ``densify``'s fit check scores); the indoor basis's kernel stays on a tie or when
-    nothing could be scored. The choice is printed and recorded as ``local_choice``.
+    ``densify``'s fit check's rule for the built-in indoor basis with
+    :data:`~.adapt.ROUGH_KERNEL` (``rougher.try_rougher``), on the held-out frames:
+
+    - not tried (``fit_rough`` not called) when the held-out SGBM pixels leave SGBM's
+      unmatched left band out (``rougher.band_left_out``): the kernel would extrapolate
+      there unchecked, as at ``densify --stereo-downscale 2``, where no point lies there
+      either. ``learn`` matches the held-out frames without the band
+      (``SgbmConfig().full_width`` is False): with its default options the indoor kernel
+      is kept (review 58c C2);
+    - else both fits are scored at the held-out frames' SGBM pixels (:func:`score_fit`)
+      and the rough one taken when it errs less, its std scales refitted by ``densify``'s
+      rule for it (:func:`rough_std_scales`);
+    - no ``FITS_BELOW`` gate: ``densify`` tries the kernel only when the indoor basis
+      fits badly, to spare its warm-up a second check where there is little to gain;
+      ``learn`` pays once, offline, and its fine-tuned basis fits its own logs better
+      already (fix-LRN11's seed-33 room: 0.48x linear, and still 9 % less error against
+      the truth with this kernel).
+
+    The choice is printed (a ``prior:`` line worded as ``densify``'s) and recorded as
+    ``local_choice``, with the first column scored.
     """
-    checks = {"indoor": score_fit(basis, frames, kept, robust=robust)}
-    checks["rough"] = score_fit(basis, frames, rough, robust=robust)
-    scored = all(check.frames for check in checks.values())
-    chosen = "rough" if scored and checks["rough"].prior < checks["indoor"].prior else "indoor"
-    fitted = rough if chosen == "rough" else kept
+    from pcainterp_stream.estimate.adapt import ROUGH_KERNEL
+    from pcainterp_stream.estimate.rougher import band_left_out, compared, rough_kernel_words
+
+    indoor = score_fit(basis, frames, kept, robust=robust)
 
     def kernel(fit: dict[str, Any]) -> str:
         local = fit["local"]
         return f"{local['kernel']}, {local['length_scale']:g} px, {local['variance']:.3g} px^2"
 
-    names = {
-        "indoor": f"the built-in indoor basis's own kernel ({kernel(kept)})",
-        "rough": f"densify's rougher kernel for it ({kernel(rough)})",
-    }
-    other = "indoor" if chosen == "rough" else "rough"
-    if scored:
-        check, against = checks[chosen], checks[other]
-        digits = 2 if f"{check.prior:.2f}" != f"{against.prior:.2f}" else 4
-        why = (
-            f"{check.prior:.{digits}f} px against {against.prior:.{digits}f} with "
-            f"{names[other].split(' (')[0]} on the held-out frames' SGBM pixels "
-            f"({check.ratio:.2f}x linear; {check.frames} frames)"
-        )
+    own = f"the built-in indoor basis's own kernel ({kernel(kept)})"
+    line = f"prior: the fine-tuned indoor basis with {rough_kernel_words(ROUGH_KERNEL)}"
+    left_out = band_left_out(indoor.first_column) if indoor.frames else None
+    rough: dict[str, Any] | None = None
+    check: FitCheck | None = None
+    scales: dict[str, float] = {}
+    if not indoor.frames:
+        line += f": not tried: no held-out frame had SGBM pixels to score it on; {own} kept"
+    elif left_out is not None:
+        line += f": {left_out}; {own} kept"
     else:
-        why = "no held-out frame had SGBM pixels to score the two on"
-    _echo(f"prior: local kernel {names[chosen]}: {why}")
+        rough = fit_rough()
+        scales = rough_std_scales(basis, frames, rough, robust=robust)
+        rough |= scales
+        check = score_fit(basis, frames, rough, robust=robust)
+    taken = check is not None and check.frames > 0 and check.prior < indoor.prior
+    if check is not None:
+        where = "the held-out frames' SGBM pixels"
+        line += f" {check.describe(where)}; {compared(check, indoor, taken, own)}"
+    if taken and scales:
+        line += (
+            f"; its std scale x{scales['innovation_std_scale']:.2f} per frame, refitted on the "
+            "held-out frames' SGBM maps"
+        )
+    _echo(line)
+    fitted = rough if taken and rough is not None else kept
     fitted["local_kept_from"] = (
         "adapt.ROUGH_KERNEL, densify's rougher kernel for the indoor basis (learn, held out)"
-        if chosen == "rough"
+        if fitted is rough
         else "the fine-tuned basis (learn --with-synthetic)"
     )
+    fits = (
+        ("indoor", kept, indoor, "fitting.fit_std_scale: 95.4 % inside +-2 std"),
+        ("rough", rough, check, "rougher.sgbm_std_scale: the larger of band and likelihood"),
+    )
     fitted["local_choice"] = {
-        "chosen": chosen,
-        "rule": "the lower mean |d - SGBM| at the held-out frames' SGBM pixels",
-        "frames": checks[chosen].frames,
-        "pixels": checks[chosen].pixels,
-        "linear_px": checks[chosen].linear if scored else None,
+        "chosen": "rough" if fitted is rough else "indoor",
+        "tried": rough is not None,
+        "rule": (
+            "densify's: the lower mean |d - SGBM| at the held-out frames' SGBM pixels; "
+            "not tried when they leave SGBM's left band (columns < 16) out"
+        ),
+        "first_column": indoor.first_column if indoor.frames else None,
+        "frames": indoor.frames,
+        "pixels": indoor.pixels,
+        "linear_px": indoor.linear if indoor.frames else None,
         "kernels": {
             name: {
                 "local": fit["local"],
-                "held_out_px": checks[name].prior if scored else None,
+                "held_out_px": score.prior if score is not None and score.frames else None,
                 "std_scale": fit.get("std_scale"),
                 "innovation_std_scale": fit.get("innovation_std_scale"),
+                "std_scale_rule": rule,
             }
-            for name, fit in (("indoor", kept), ("rough", rough))
+            for name, fit, score, rule in fits
+            if fit is not None
         },
     }
     return fitted

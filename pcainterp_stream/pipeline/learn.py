@@ -823,7 +823,7 @@ def fit_prior(
     fitted = fit(local)
     if local is not None and rougher is not None:
         frames = [frame for log_frames in measured for frame in log_frames]
-        fitted = choose_kernel(basis, frames, fitted, fit(rougher), robust)
+        fitted = choose_kernel(basis, frames, fitted, lambda: fit(rougher), robust)
     # no wall time in the basis: the same inputs give the same file, byte for byte
     fitted.update(
         {

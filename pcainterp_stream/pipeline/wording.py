@@ -2,14 +2,9 @@
 
 from __future__ import annotations
 
+from pcainterp_stream.estimate.wording import figures as figures
 
-def figures(first: float, second: float) -> tuple[str, str]:
-    """Format two errors (px) with 2 decimals, or 4 when 2 would print them alike.
-
-    "better (0.30 px against 0.30)" would tell the reader nothing.
-    """
-    digits = 2 if f"{first:.2f}" != f"{second:.2f}" else 4
-    return f"{first:.{digits}f}", f"{second:.{digits}f}"
+__all__ = ["count", "figures"]
 
 
 def count(number: int, noun: str) -> str:

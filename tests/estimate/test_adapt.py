@@ -375,8 +375,7 @@ def test_the_indoor_basis_is_tried_with_the_rougher_kernel() -> None:
     the indoor basis's px), not the street basis's meta (a refit of it changes nothing);
     R7: the scale is fitted per frame (``scale_by_innovation``, the indoor basis's rule)."""
     street, indoor = builtin_basis("street"), builtin_basis("indoor")
-    street_options, indoor_options = _builtin_options("street"), _builtin_options("indoor")
-    refitted = {**street_options, "local_prior": LocalPrior(9.0, 20.0, "gaussian", 0.5)}
+    indoor_options = _builtin_options("indoor")
     against = adapt.FitCheck(2, 1000, 2.49, 2.25, 2.38)
     seen: list[dict[str, object]] = []
 
@@ -386,7 +385,7 @@ def test_the_indoor_basis_is_tried_with_the_rougher_kernel() -> None:
 
     frames = _rough_measured(3)
     rough = rougher.try_rougher(
-        (street, refitted),
+        street,  # review58c C7: the basis alone (its options were never read since R6)
         (indoor, "the built-in indoor basis", indoor_options),
         score,
         against,
@@ -422,7 +421,7 @@ def test_the_indoor_basis_is_tried_with_the_rougher_kernel() -> None:
 def test_the_street_kernel_is_not_taken_when_it_does_no_better() -> None:
 
     street, indoor = builtin_basis("street"), builtin_basis("indoor")
-    given = (street, _builtin_options("street"))
+    given = street
     chosen = (indoor, "the built-in indoor basis", _builtin_options("indoor"))
     against = adapt.FitCheck(8, 1000, 0.3701, 0.50, 1.13)
 
@@ -441,7 +440,7 @@ def test_the_street_kernel_is_not_taken_when_it_does_no_better() -> None:
     user = adapt.with_prior(street, dict(street.meta["prior"]))
     assert (
         rougher.try_rougher(
-            (user, given[1]),
+            user,
             chosen,
             worse,
             against,
@@ -458,13 +457,25 @@ def test_the_street_kernel_is_not_taken_when_it_does_no_better() -> None:
         )
         is None
     )
+    # review58c C7: nor an indoor basis whose kernel is already the rougher one
+    rough_already = (
+        indoor,
+        "the built-in indoor basis",
+        {**chosen[2], "local_prior": adapt.ROUGH_KERNEL},
+    )
+    assert (
+        rougher.try_rougher(
+            given, rough_already, worse, against, ([], SIZE, 50.0), robust="cauchy", calibrate=True
+        )
+        is None
+    )
 
 
 def test_the_street_kernel_is_not_tried_where_sgbm_left_a_band_unchecked() -> None:
     """A check that covers columns >= 129 only (SGBM at half resolution leaves its left band
     empty): the rougher kernel would extrapolate there unchecked (synthetic rooms at 376x240:
     up to 2.25x the indoor kernel's error in the band, its std holding 21 % of the truth)."""
-    given = (builtin_basis("street"), _builtin_options("street"))
+    given = builtin_basis("street")
     chosen = (builtin_basis("indoor"), "the built-in indoor basis", _builtin_options("indoor"))
     banded = adapt.FitCheck(8, 1000, 0.26, 0.31, 0.45, first_column=129)
 

@@ -109,17 +109,96 @@ def test_the_indoor_kernel_or_the_rougher_one_whichever_errs_less_held_out(
 
     def score(basis: Basis, frames: Any, fitted: dict[str, Any], *, robust: str) -> FitCheck:
         error = rough_px if fitted is rough else 0.4
-        return FitCheck(len(frames), 100, error, 0.5, 0.6)
+        return FitCheck(len(frames), 100, error, 0.5, 0.6, first_column=2)
 
     monkeypatch.setattr(held_out, "score_fit", score)
     frames = [_frame(np.full((24, 24), 5.0, np.float32))]
-    result = held_out.choose_kernel(Basis.default(), frames, kept, rough, "cauchy")
+    result = held_out.choose_kernel(Basis.default(), frames, kept, lambda: rough, "cauchy")
     assert result is (rough if chosen == "rough" else kept)
     record = result["local_choice"]
     assert record["chosen"] == chosen
+    assert record["tried"] is True
+    assert record["first_column"] == 2  # review 58c C2: the columns scored
     assert record["kernels"]["rough"]["held_out_px"] == rough_px
     assert record["kernels"]["indoor"]["local"] == indoor
-    assert "prior: local kernel " in capsys.readouterr().out
+    # review 58c C2: worded as densify's line (rougher's helpers)
+    out = capsys.readouterr().out
+    assert (
+        "prior: the fine-tuned indoor basis with the street basis's local kernel (laplace, "
+        "64 px, 40 px^2) " in out
+    )
+    verdict = "taken" if chosen == "rough" else "not taken"
+    mine, theirs = ("0.30", "0.40") if rough_px != 0.4 else ("0.4000", "0.4000")
+    mine = "0.50" if rough_px == 0.5 else mine
+    assert (
+        f"; {verdict}: {mine} px against {theirs} with the built-in indoor basis's own kernel "
+        "(gaussian, 32 px, 2.38 px^2) on the same held-out SGBM pixels"
+    ) in out
+
+
+def test_learn_keeps_the_indoor_kernel_where_sgbm_left_its_band_unchecked(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Review 58c C2: densify's guard. learn's held-out frames are matched without the left
+    band (columns >= 128 scored): the rougher kernel would extrapolate there unchecked, so
+    it is neither fitted nor taken, though it errs less on the columns scored."""
+    indoor = {"kernel": "gaussian", "length_scale": 32.0, "variance": 2.38}
+    kept = _fit(indoor)
+
+    def score(basis: Basis, frames: Any, fitted: dict[str, Any], *, robust: str) -> FitCheck:
+        assert fitted is kept
+        return FitCheck(len(frames), 100, 0.4, 0.5, 0.6, first_column=128)
+
+    def fit_rough() -> dict[str, Any]:
+        raise AssertionError("fitted")
+
+    monkeypatch.setattr(held_out, "score_fit", score)
+    frames = [_frame(np.full((24, 24), 5.0, np.float32))]
+    result = held_out.choose_kernel(Basis.default(), frames, kept, fit_rough, "cauchy")
+    assert result is kept
+    record = result["local_choice"]
+    assert (record["chosen"], record["tried"], record["first_column"]) == ("indoor", False, 128)
+    assert set(record["kernels"]) == {"indoor"}
+    assert (
+        "prior: the fine-tuned indoor basis with the street basis's local kernel (laplace, 64 px, "
+        "40 px^2): not tried: the held-out pixels cover columns >= 128 only"
+    ) in capsys.readouterr().out
+
+
+def test_the_rough_fit_gets_densifys_std_scale_rule() -> None:
+    """Review 58c C2: the rough kernel's std scales are densify's (rougher.sgbm_std_scale:
+    the larger of the 95.4 % band's and the likelihood's), not the band's alone."""
+    from pcainterp_stream.estimate import adapt, rougher
+
+    rng = np.random.default_rng(3)
+    frames = []
+    for index in range(3):
+        reference = (5.0 + rng.normal(0.0, 0.8, (24, 24))).astype(np.float32)
+        pixels = rng.uniform(1.0, 23.0, (12, 2))
+        disparities = reference[pixels[:, 1].astype(int), pixels[:, 0].astype(int)]
+        frames.append(
+            held_out.HeldOutFrame(
+                pixels, disparities, (24, 24), 10.0, reference if index < 2 else None
+            )
+        )
+    fitted = _fit(ROUGH_KERNEL.to_meta())
+    scales = held_out.rough_std_scales(Basis.default(), frames, fitted, robust="cauchy")
+    measured = [adapt.Measured(f.pixels, f.disparities, f.reference) for f in frames[:2]]  # type: ignore[arg-type]
+    options = {"local_prior": ROUGH_KERNEL, "sigma": 1.0}
+    camera = {"image_size": (24, 24), "focal_baseline": 10.0, "robust": "cauchy"}
+    for name, per_frame in (("std_scale", False), ("innovation_std_scale", True)):
+        same = rougher.sgbm_std_scale(
+            Basis.default(), measured, options, per_frame=per_frame, **camera
+        )  # type: ignore[arg-type]
+        band = rougher.sgbm_std_scale(
+            Basis.default(),
+            measured,
+            options,
+            per_frame=per_frame,
+            likelihood=False,
+            **camera,  # type: ignore[arg-type]
+        )
+        assert scales[name] == same >= band
 
 
 def test_score_fit_scores_held_out_sgbm_pixels() -> None:
