@@ -269,27 +269,30 @@ class LogGolden:
             obtained = self._datadir / f"{stem}.obtained{EXTENSION}"
             dump(obtained)
             found = differences(obtained, source)
+            if found:  # the notes go into the failure: a warning raised first would hide it
+                self._fail_shared(log, source, settled, found, _noted(log, source, notes))
             _warn(log, source, notes)
-            if found:
-                self._fail_shared(log, source, settled, found)
             return
         self._checked[key] = named
         try:
             if self._request.config.getoption("update_golden"):
                 dump(source)
-                return
-            perform_regression_check(
-                datadir=self._datadir,
-                original_datadir=self._original_datadir,
-                request=self._request,
-                check_fn=compare,
-                dump_fn=dump,
-                extension=EXTENSION,
-                basename=paths_basename if fullpath is None else None,
-                fullpath=None if fullpath is None else Path(fullpath),
-            )
-        finally:
-            _warn(log, source, notes)
+            else:
+                perform_regression_check(
+                    datadir=self._datadir,
+                    original_datadir=self._original_datadir,
+                    request=self._request,
+                    check_fn=compare,
+                    dump_fn=dump,
+                    extension=EXTENSION,
+                    basename=paths_basename if fullpath is None else None,
+                    fullpath=None if fullpath is None else Path(fullpath),
+                )
+        except (Exception, pytest.fail.Exception) as err:  # under `filterwarnings = error` a
+            # warning raised here would replace the failure (review 58c C6)
+            _add_notes(err, _noted(log, source, notes))
+            raise
+        _warn(log, source, notes)
 
     def _test_stem(self) -> str:
         """Return the golden file name of this test, as pytest-regressions names it."""
@@ -344,7 +347,12 @@ class LogGolden:
         return claim
 
     def _fail_shared(
-        self, log: Path, source: Path, settled: tuple[str, str, str], found: list[Difference]
+        self,
+        log: Path,
+        source: Path,
+        settled: tuple[str, str, str],
+        found: list[Difference],
+        noted: str | None = None,
     ) -> None:
         """Fail in one line: the log differs from a shared file another check settled."""
         __tracebackhide__ = True
@@ -360,7 +368,7 @@ class LogGolden:
             f"{source.name}, which {who} {how} in this run, in {count} "
             f"place{'s' if count > 1 else ''} beyond tolerance (first: {found[0]}); checks "
             "that share a golden file must give the same log: fix the one that is wrong, or "
-            "give each its own basename='...' or fullpath=...",
+            "give each its own basename='...' or fullpath=..." + (f"\n{noted}" if noted else ""),
             pytrace=False,
         )
 
@@ -393,19 +401,34 @@ def _refuse_other_selection(
         )
 
 
-def _warn(log: Path, source: Path, notes: list[str]) -> None:
-    """Show the notes of a check in pytest's warnings summary."""
+def _noted(log: Path, source: Path, notes: list[str]) -> str | None:
+    """Return the notes of a check in one line (at most :data:`MAX_NOTES`), None without."""
     if not notes:
-        return
+        return None
     shown = notes[:MAX_NOTES]
     if len(notes) > MAX_NOTES:
         shown.append(f"... and {len(notes) - MAX_NOTES} more notes")
-    warnings.warn(
-        GoldenNoteWarning(
-            f"log_golden.check({log.name!r}) against {source.name}: " + "; ".join(shown)
-        ),
-        stacklevel=4,
-    )
+    return f"log_golden.check({log.name!r}) against {source.name}: " + "; ".join(shown)
+
+
+def _warn(log: Path, source: Path, notes: list[str]) -> None:
+    """Show the notes of a check that passed in pytest's warnings summary."""
+    noted = _noted(log, source, notes)
+    if noted is not None:
+        warnings.warn(GoldenNoteWarning(noted), stacklevel=4)
+
+
+def _add_notes(err: BaseException, noted: str | None) -> None:
+    """Add a failed check's notes to its failure's message (not a warning: review 58c C6)."""
+    if noted is None:
+        return
+    text = f"notes ({GoldenNoteWarning.__name__}, not failures themselves): {noted}"
+    if isinstance(err, pytest.fail.Exception):
+        err.msg = f"{err.msg}\n{text}" if err.msg else text
+    elif isinstance(err, AssertionError) and len(err.args) == 1:
+        err.args = (f"{err.args[0]}\n{text}",)
+    else:
+        err.add_note(text)
 
 
 def _naming(err: Exception, copy: Path, source: Path) -> GoldenToleranceError:

@@ -431,6 +431,67 @@ def test_video(tmp_path, log_golden):
     result.stdout.fnmatch_lines(["*GoldenNoteWarning*'h264' does not decode; its raw data bytes*"])
 
 
+
+VIDEO_STAMP = """
+import os
+
+from mcap_ros2.writer import Writer
+
+from pcainterp_stream.io import rosmsg
+
+
+def write(path):
+    with path.open("wb") as stream:
+        writer = Writer(stream)
+        schema = writer.register_msgdef(
+            rosmsg.COMPRESSED_IMAGE, rosmsg.schema_text(rosmsg.COMPRESSED_IMAGE)
+        )
+        message = {"header": {"stamp": {"sec": 1, "nanosec": 0}, "frame_id": "c"},
+                   "format": "h264", "data": bytes(range(200))}
+        stamp = int(os.environ.get("STAMP", "1")) * 10**9
+        writer.write_message("/video", schema, message, log_time=stamp, publish_time=stamp)
+        writer.finish()
+    return path
+
+
+def test_video(tmp_path, log_golden):
+    log_golden.check(write(tmp_path / "v.mcap"))
+
+
+def test_shared_a(tmp_path, log_golden):
+    log_golden.check(write(tmp_path / "v.mcap"), basename="shared")
+
+
+def test_shared_b(tmp_path, log_golden, monkeypatch):
+    monkeypatch.setenv("STAMP", "2")
+    log_golden.check(write(tmp_path / "v.mcap"), basename="shared")
+"""
+
+
+def test_a_failing_check_reports_its_differences_and_notes_under_filterwarnings_error(
+    pytester: pytest.Pytester, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review 58c C6: under ``filterwarnings = error`` the note's warning replaced the failure
+    (raised in ``finally``; on a shared file before the differences were reported at all)."""
+    pytester.makepyfile(test_h264=VIDEO_STAMP)
+    alone = ("-k", "test_video")
+    _run(pytester, "-W", "default", *alone).assert_outcomes(failed=1)  # written
+    _run(pytester, "-W", "default", *alone).assert_outcomes(passed=1, warnings=1)
+    monkeypatch.setenv("STAMP", "5")  # the log differs from its golden file now
+    result = _run(pytester, *alone)  # warnings are errors, as in this repo
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines(["*v.mcap differs from the golden file*"])
+    result.stdout.fnmatch_lines(["*notes (GoldenNoteWarning*'h264' does not decode*"])
+    result.stdout.no_fnmatch_line("*During handling of the above exception*")
+    # a shared file: the second check differs from what the first settled in this run
+    monkeypatch.delenv("STAMP")
+    _run(pytester, "-W", "default", "-k", "shared_a").assert_outcomes(failed=1)  # written
+    result = _run(pytester, "-k", "shared")
+    result.assert_outcomes(failed=2)  # a: its note raised as the error; b: the differences
+    result.stdout.fnmatch_lines(["*differs from the shared golden file shared.golden.json*"])
+    result.stdout.fnmatch_lines(["*shared.golden.json: /video #0: *'h264' does not decode*"])
+
+
 POSES = """
 from pathlib import Path
 
