@@ -88,6 +88,8 @@ def measure_held_out(
     options: MeasureOptions,
     pairing: PairingConfig,
     progress: Callable[[], None] | None = None,
+    *,
+    sample_check: bool = True,
 ) -> list[HeldOutFrame]:
     """Measure up to :data:`FIT_SEQUENCE_FRAMES` consecutive pairs of a log from ``first`` on.
 
@@ -100,6 +102,10 @@ def measure_held_out(
         options: the learning options (SGBM and GFTT settings).
         pairing: topics of the stereo pairs.
         progress: called after each frame.
+        sample_check: sample each frame's held-out SGBM pixels (``check``), which only the
+            kernel choice of a merge into the built-in indoor basis scores
+            (:func:`choose_kernel`); False: ``check`` is None (review 58c C4). A cluster's
+            workers are called with the default.
 
     Returns:
         The frames, in log order.
@@ -124,7 +130,9 @@ def measure_held_out(
                     frame.camera.image_size,
                     frame.camera.focal_baseline,
                     measured.disparity_map if calibrates else None,
-                    HeldOut.of(measured.disparity_map, measured.pixels, measured.disparities),
+                    HeldOut.of(measured.disparity_map, measured.pixels, measured.disparities)
+                    if sample_check
+                    else None,
                 )
             )
             if progress is not None:

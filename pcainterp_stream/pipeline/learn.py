@@ -764,7 +764,14 @@ def fit_prior(
     if cluster is None:
         with _bar(None, "fit prior (measure held-out frames)") as bar:
             measured = [
-                measure_held_out(log, first, options, pairing, lambda: bar.update(1))
+                measure_held_out(
+                    log,
+                    first,
+                    options,
+                    pairing,
+                    lambda: bar.update(1),
+                    sample_check=local is not None and rougher is not None,
+                )
                 for log, first in sources
             ]
     else:

@@ -586,7 +586,8 @@ def check_fit_logs(
     each frame's size, as ``densify`` does).
 
     The prior is fitted on their stereo pairs (GFTT + SGBM, as ``densify`` measures), so
-    their camera is compared with the first training log's stereo camera; an f*b that
+    their camera is compared with the first training log's stereo camera (a training log
+    of a depth topic with one camera: its depth maps' camera, review 58c C8); an f*b that
     differs is mapped as every camera is (``fitting.fit_frame``), and named in a note.
 
     Raises:
@@ -600,12 +601,13 @@ def check_fit_logs(
     except TopicNotFoundError:
         if not options.depth_topic:
             raise  # a depth topic's log may have one camera: its fit logs are the stereo
+        training = log_camera(logs[0], options, pairing, why)  # its depth maps' camera
     for log in fit_logs:
         camera = log_camera(log, options, pairing, why, stereo=True)
         if camera is None:
             raise LogReadError(why[-1])
         if training is None:
-            continue  # a training log of a depth topic alone: no stereo camera to compare
+            continue  # a training log that gives no map: nothing to compare
         if not close_sizes(camera.image_size, training.image_size):
             raise PcaInterpError(
                 f"--fit-logs {log.name} has {camera.describe()} but the training log "

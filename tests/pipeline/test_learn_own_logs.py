@@ -73,6 +73,20 @@ def test_learn_takes_a_one_camera_depth_log_with_its_baseline(folder: Path) -> N
         jobs.learn([one], folder / "one.npz", fitted, PairingConfig(baseline=0.25))
 
 
+def test_fit_logs_are_compared_with_a_one_camera_depth_logs_camera(folder: Path) -> None:
+    """Review 58c C8: with a one-camera depth training log, every --fit-logs log skipped the
+    size refusal (no stereo camera to compare with): the depth maps' camera is compared."""
+    from pcainterp_stream.pipeline.learn_maps import check_fit_logs
+
+    other = folder / "bigger.mcap"  # a stereo log of another camera, 2x the size
+    jobs.synth(other, frames=2, seed=16, scale=0.5, fmt="mcap")
+    options = jobs.LearnOptions(n_components=2, depth_topic="/ground_truth/depth")
+    pairing = PairingConfig(baseline=0.25)
+    with pytest.raises(PcaInterpError, match=r"--fit-logs bigger\.mcap has .* but the training"):
+        check_fit_logs((other,), [folder / "one.mcap"], options, pairing)
+    check_fit_logs((folder / "lidar.mcap",), [folder / "one.mcap"], options, pairing)  # same
+
+
 def test_learn_of_a_one_camera_log_names_depth_topics_not_a_pair(folder: Path) -> None:
     # before: "pass --left-topic and --right-topic", which cannot be followed (11A F4)
     with pytest.raises(TopicNotFoundError) as caught:
@@ -207,3 +221,37 @@ def test_score_fit_scores_held_out_sgbm_pixels() -> None:
     assert check.frames == 1
     assert check.pixels > 0
     assert check.linear == pytest.approx(0.0, abs=1e-9)  # the measurements are the plane
+
+
+@pytest.mark.parametrize("rougher", [None, ROUGH_KERNEL])
+def test_the_held_out_check_is_sampled_only_for_the_kernel_choice(
+    folder: Path, monkeypatch: pytest.MonkeyPatch, rougher: Any
+) -> None:
+    """Review 58c C4: every learn sampled 20 000 held-out SGBM pixels per held-out frame
+    (and interpolated there), though only a merge into the indoor basis scores them."""
+    from pcainterp_stream.estimate.prior import LocalPrior
+    from pcainterp_stream.pipeline import learn as learn_module
+
+    asked: list[bool] = []
+
+    def measure(*args: Any, sample_check: bool = True, **kwargs: Any) -> list[Any]:
+        asked.append(sample_check)
+        raise StopIteration  # enough: what it was asked
+
+    monkeypatch.setattr(learn_module, "measure_held_out", measure)
+    indoor = LocalPrior(2.38, 32.0, "gaussian")
+    with pytest.raises(StopIteration):
+        learn_module.fit_prior(
+            Basis.default(),
+            [(folder / "lidar.mcap", 0)],
+            jobs.LearnOptions(),
+            PairingConfig(),
+            indoor,
+            rougher,
+        )
+    assert asked == [rougher is not None]
+    frames = held_out.measure_held_out(
+        folder / "lidar.mcap", 0, jobs.LearnOptions(), PairingConfig(), sample_check=False
+    )
+    assert frames
+    assert all(frame.check is None for frame in frames)
