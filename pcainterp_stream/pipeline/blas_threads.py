@@ -8,7 +8,8 @@ caller opens itself) and the ``densify``, ``evaluate``, ``learn`` and ``demo`` j
 every command :func:`pcainterp_stream.cli.main` runs in-process (:func:`restoring_blas_threads`).
 When the last of either kind returns, a caller's own ``scipy.linalg`` work is not left
 single-threaded (bug hunt 10A F1, review 58a R7), and no job's BLAS gets several threads
-back while another job still runs (review 58c C1).
+back while another job still runs (review 58c C1). OpenBLAS (0.3.30 measured) takes a count
+set from the main thread only: a last job leaving in another thread cannot give it back.
 """
 
 from __future__ import annotations
