@@ -29,7 +29,7 @@ from dataclasses import replace
 from pcainterp_stream import defaults
 from pcainterp_stream.frontend.stereo import SgbmConfig
 
-__all__ = ["by_camera"]
+__all__ = ["by_camera", "full_resolution"]
 
 
 def by_camera(
@@ -59,8 +59,7 @@ def by_camera(
         return config, None
     threshold = defaults.FULL_RESOLUTION_FB
     small = 0 < focal_baseline < threshold
-    fits = width * height <= defaults.FULL_RESOLUTION_MAX_PIXELS
-    if small and fits:
+    if full_resolution(focal_baseline, width, height):
         downscale, why = 1, f"f*b {focal_baseline:.3g} < {threshold:g} px*m"
     elif small:
         downscale, why = defaults.STEREO_DOWNSCALE, f"{width}x{height} px images"
@@ -71,3 +70,9 @@ def by_camera(
     phrase = f"SGBM at {resolution} resolution (--stereo-downscale auto: {why})"
     full_width = config.full_width or downscale == 1
     return replace(config, downscale=downscale, by_camera=False, full_width=full_width), phrase
+
+
+def full_resolution(focal_baseline: float, width: int, height: int) -> bool:
+    """Return whether ``auto`` matches this camera at full resolution, its left band too."""
+    small = 0 < focal_baseline < defaults.FULL_RESOLUTION_FB
+    return small and width * height <= defaults.FULL_RESOLUTION_MAX_PIXELS

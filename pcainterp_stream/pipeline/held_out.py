@@ -211,6 +211,20 @@ def rough_std_scales(
     }
 
 
+def _band_matched(frames: Sequence[HeldOutFrame]) -> bool:
+    """Return whether ``densify --stereo-downscale auto`` matches SGBM's left band there.
+
+    On the camera most of the frames have.
+    """
+    from pcainterp_stream.frontend.sgbm_resolution import full_resolution
+
+    cameras = Counter((frame.image_size, frame.focal_baseline) for frame in frames)
+    if not cameras:
+        return False
+    ((height, width), fb), _ = cameras.most_common(1)[0]
+    return full_resolution(fb, width, height)
+
+
 def choose_kernel(
     basis: Basis,
     frames: list[HeldOutFrame],
@@ -224,19 +238,21 @@ def choose_kernel(
     :data:`~.adapt.ROUGH_KERNEL` (``rougher.try_rougher``), on the held-out frames:
 
     - not tried (``fit_rough`` not called) when the held-out SGBM pixels leave SGBM's
-      unmatched left band out (``rougher.band_left_out``): the kernel would extrapolate
-      there unchecked, as at ``densify --stereo-downscale 2``, where no point lies there
-      either. ``learn`` matches the held-out frames without the band
-      (``SgbmConfig().full_width`` is False): with its default options the indoor kernel
-      is kept (review 58c C2);
+      unmatched left band out (``rougher.band_left_out``) and ``densify`` leaves it empty
+      on this camera too (``--stereo-downscale auto`` at half resolution): the kernel
+      would extrapolate there unchecked. ``learn`` matches the held-out frames without the
+      band (``SgbmConfig().full_width`` is False); on a camera ``densify`` matches at full
+      resolution, its band included (f*b below 90 px*m: the indoor cameras this kernel is
+      for), the band holds points when the basis is used, so the choice is made on the
+      pixels right of it;
     - else both fits are scored at the held-out frames' SGBM pixels (:func:`score_fit`)
       and the rough one taken when it errs less, its std scales refitted by ``densify``'s
       rule for it (:func:`rough_std_scales`);
     - no ``FITS_BELOW`` gate: ``densify`` tries the kernel only when the indoor basis
       fits badly, to spare its warm-up a second check where there is little to gain;
       ``learn`` pays once, offline, and its fine-tuned basis fits its own logs better
-      already (fix-LRN11's seed-33 room: 0.48x linear, and still 9 % less error against
-      the truth with this kernel).
+      already (a synthetic room learned from 30 frames: 0.48x linear, and still 9 % less
+      error against the truth on its next 10 frames with this kernel).
 
     The choice is printed (a ``prior:`` line worded as ``densify``'s) and recorded as
     ``local_choice``, with the first column scored.
@@ -253,6 +269,8 @@ def choose_kernel(
     own = f"the built-in indoor basis's own kernel ({kernel(kept)})"
     line = f"prior: the fine-tuned indoor basis with {rough_kernel_words(ROUGH_KERNEL)}"
     left_out = band_left_out(indoor.first_column) if indoor.frames else None
+    if left_out is not None and _band_matched(frames):
+        left_out = None  # densify matches the band on this camera: points will lie there
     rough: dict[str, Any] | None = None
     check: FitCheck | None = None
     scales: dict[str, float] = {}
@@ -290,7 +308,8 @@ def choose_kernel(
         "tried": rough is not None,
         "rule": (
             "densify's: the lower mean |d - SGBM| at the held-out frames' SGBM pixels; "
-            "not tried when they leave SGBM's left band (columns < 16) out"
+            "not tried when they leave SGBM's left band (columns < 16) out and densify "
+            "matches this camera at half resolution (its band empty)"
         ),
         "first_column": indoor.first_column if indoor.frames else None,
         "frames": indoor.frames,

@@ -97,11 +97,16 @@ def test_learn_of_a_one_camera_log_names_depth_topics_not_a_pair(folder: Path) -
     assert "pass --left-topic" not in message
 
 
-def _frame(reference: np.ndarray) -> held_out.HeldOutFrame:
+def _frame(reference: np.ndarray, focal_baseline: float = 10.0) -> held_out.HeldOutFrame:
     pixels = np.array([[4.0, 4.0], [20.0, 4.0], [4.0, 20.0], [20.0, 20.0]])
     disparities = np.full(4, 5.0)
     return held_out.HeldOutFrame(
-        pixels, disparities, (24, 24), 10.0, None, HeldOut.of(reference, pixels, disparities)
+        pixels,
+        disparities,
+        (24, 24),
+        focal_baseline,
+        None,
+        HeldOut.of(reference, pixels, disparities),
     )
 
 
@@ -154,8 +159,9 @@ def test_learn_keeps_the_indoor_kernel_where_sgbm_left_its_band_unchecked(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """Review 58c C2: densify's guard. learn's held-out frames are matched without the left
-    band (columns >= 128 scored): the rougher kernel would extrapolate there unchecked, so
-    it is neither fitted nor taken, though it errs less on the columns scored."""
+    band (columns >= 128 scored): on a camera densify matches at half resolution (f*b 386
+    px*m), its band empty, the rougher kernel would extrapolate there unchecked, so it is
+    neither fitted nor taken, though it errs less on the columns scored."""
     indoor = {"kernel": "gaussian", "length_scale": 32.0, "variance": 2.38}
     kept = _fit(indoor)
 
@@ -167,7 +173,7 @@ def test_learn_keeps_the_indoor_kernel_where_sgbm_left_its_band_unchecked(
         raise AssertionError("fitted")
 
     monkeypatch.setattr(held_out, "score_fit", score)
-    frames = [_frame(np.full((24, 24), 5.0, np.float32))]
+    frames = [_frame(np.full((24, 24), 5.0, np.float32), focal_baseline=386.0)]
     result = held_out.choose_kernel(Basis.default(), frames, kept, fit_rough, "cauchy")
     assert result is kept
     record = result["local_choice"]
@@ -177,6 +183,29 @@ def test_learn_keeps_the_indoor_kernel_where_sgbm_left_its_band_unchecked(
         "prior: the fine-tuned indoor basis with the street basis's local kernel (laplace, 64 px, "
         "40 px^2): not tried: the held-out pixels cover columns >= 128 only"
     ) in capsys.readouterr().out
+
+
+def test_learn_tries_the_rougher_kernel_where_densify_will_match_the_band(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """On a camera densify matches at full resolution with its left band (f*b below 90
+    px*m), the band holds points when the basis is used: the guard does not apply, though
+    learn's own held-out pixels start at column 128 (with it, a room learned from 30 frames
+    kept the indoor kernel: 0.066 px on its next 10 frames against 0.062 with the rougher)."""
+    kept = _fit({"kernel": "gaussian", "length_scale": 32.0, "variance": 2.38})
+    rough = _fit(ROUGH_KERNEL.to_meta())
+
+    def score(basis: Basis, frames: Any, fitted: dict[str, Any], *, robust: str) -> FitCheck:
+        return FitCheck(
+            len(frames), 100, 0.3 if fitted is rough else 0.4, 0.5, 0.6, first_column=128
+        )
+
+    monkeypatch.setattr(held_out, "score_fit", score)
+    monkeypatch.setattr(held_out, "rough_std_scales", lambda *a, **k: {})
+    frames = [_frame(np.full((24, 24), 5.0, np.float32), focal_baseline=48.0)]
+    result = held_out.choose_kernel(Basis.default(), frames, kept, lambda: rough, "cauchy")
+    assert result is rough
+    assert (result["local_choice"]["tried"], result["local_choice"]["first_column"]) == (True, 128)
 
 
 def test_the_rough_fit_gets_densifys_std_scale_rule() -> None:
