@@ -440,7 +440,9 @@ def test_auto_merges_the_indoor_basis_into_few_maps_of_a_vi_sensor_camera(
     assert tuned.meta["finetune"]["prior_basis"]["fingerprint"] == indoor.fingerprint
     assert tuned.meta["source"]["with_synthetic_basis"] == "built-in-indoor"
     assert "and a camera like the indoor basis's" in tuned.meta["source"]["with_synthetic_rule"]
-    assert "merged into the built-in indoor basis counted as" in jobs.describe_basis(out)
+    said = jobs.describe_basis(out)
+    assert f"merged into the built-in indoor basis (fingerprint {indoor.fingerprint}" in said
+    assert f"counted as {AUTO_PRIOR_MAPS} maps" in said
 
 
 def test_with_synthetic_n_merges_the_built_in_basis_of_the_camera(
