@@ -40,18 +40,26 @@ class BlasThreads:
     running: ClassVar[int] = 0
     before: ClassVar[dict[str, int]] = {}
     default: ClassVar[int] = 1
+    threads: ClassVar[int] = 1
 
     @classmethod
     def enter(cls, threads: int = 1) -> None:
-        """A job begins: the first of those running notes the counts and sets ``threads``."""
+        """A job begins: the first of those running notes the counts and sets ``threads``.
+
+        Every later one sets the first one's count on the BLAS loaded since: the command
+        line enters before it imports NumPy (its imports are lazy), and a frame processor
+        entering after it found numpy's OpenBLAS at the machine's thread count, which then
+        spun two threads through every product (the whole job at 1.3x its CPU).
+        """
         with cls.lock:
+            libraries = _blas_libraries()
             if cls.running == 0:
-                libraries = _blas_libraries()
                 cls.before = {lib.filepath: lib.num_threads for lib in libraries}
                 cls.default = _default_blas_threads()
-                for lib in libraries:
-                    if lib.num_threads != threads:
-                        lib.set_num_threads(threads)
+                cls.threads = threads
+            for lib in libraries:
+                if lib.num_threads != cls.threads:
+                    lib.set_num_threads(cls.threads)
             cls.running += 1
 
     @classmethod

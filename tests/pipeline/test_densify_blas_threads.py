@@ -151,3 +151,33 @@ def test_jobs_entering_and_leaving_in_many_threads_leave_the_count_at_zero() -> 
     for thread in threads:
         thread.join()
     assert BlasThreads.running == 0
+
+
+class _Library:
+    def __init__(self, path: str, threads: int) -> None:
+        self.filepath, self.num_threads = path, threads
+
+    def set_num_threads(self, threads: int) -> None:
+        self.num_threads = threads
+
+
+def test_a_blas_loaded_after_the_first_job_entered_is_held_too(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # the command line entered before it imported NumPy (lazy imports): the frame processor
+    # entering next left numpy's OpenBLAS at 2 threads, the densify job at 1.3x its CPU
+    from pcainterp_stream.pipeline import blas_threads
+    from pcainterp_stream.pipeline.blas_threads import BlasThreads
+
+    numpy_blas = _Library("numpy.libs/openblas.so", 2)
+    loaded: list[_Library] = []
+    monkeypatch.setattr(blas_threads, "_blas_libraries", lambda: list(loaded))
+    monkeypatch.setattr(BlasThreads, "running", 0)
+    BlasThreads.enter()  # the command: nothing loaded yet
+    loaded.append(numpy_blas)  # NumPy imported inside the command
+    BlasThreads.enter(1)  # the frame processor
+    assert numpy_blas.num_threads == 1
+    BlasThreads.leave()
+    assert numpy_blas.num_threads == 1  # the command still runs
+    BlasThreads.leave()
+    assert numpy_blas.num_threads == BlasThreads.default  # loaded during the jobs
