@@ -17,12 +17,15 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable
+from typing import Any, TypeVar
 
 import numpy as np
 
 from pcainterp_stream.errors import PcaInterpError
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.reader_base import LogReader
+
+_T = TypeVar("_T")
 
 DEPTH_WORDS = (
     "depth",
@@ -73,40 +76,35 @@ def depth_named(namespace: str, image: str) -> bool:
     return any(depth_name(name) for name in (last, *image.split("/")))
 
 
-def first_encoding(reader: LogReader) -> Callable[[str], str | None]:
-    """Return image topic -> its first ``Image``'s encoding (None: not known, compressed)."""
-    cache: dict[str, str | None] = {}
+def _first(reader: LogReader, read: Callable[[Any], _T], unknown: _T) -> Callable[[str], _T]:
+    """Return topic -> ``read`` of its first message, read once per topic.
 
-    def encoding_of(topic: str) -> str | None:
+    ``unknown`` for a topic with no message, or one that does not decode or lacks the field.
+    """
+    cache: dict[str, _T] = {}
+
+    def first(topic: str) -> _T:
         if topic not in cache:
-            cache[topic] = None
+            cache[topic] = unknown
             for raw in reader.messages([topic]):
                 try:
-                    cache[topic] = str(reader.decode(raw).encoding)
-                except (PcaInterpError, AttributeError, ValueError):  # not known: no ranking
-                    cache[topic] = None
+                    cache[topic] = read(reader.decode(raw))
+                except (PcaInterpError, AttributeError, TypeError, ValueError):
+                    cache[topic] = unknown
                 break
         return cache[topic]
 
-    return encoding_of
+    return first
+
+
+def first_encoding(reader: LogReader) -> Callable[[str], str | None]:
+    """Return image topic -> its first ``Image``'s encoding (None: not known, compressed)."""
+    return _first(reader, lambda image: str(image.encoding), None)
 
 
 def first_format(reader: LogReader) -> Callable[[str], str | None]:
     """Return image topic -> its first ``CompressedImage``'s format (None: not known)."""
-    cache: dict[str, str | None] = {}
-
-    def format_of(topic: str) -> str | None:
-        if topic not in cache:
-            cache[topic] = None
-            for raw in reader.messages([topic]):
-                try:
-                    cache[topic] = str(reader.decode(raw).format)
-                except (PcaInterpError, AttributeError, ValueError):
-                    cache[topic] = None
-                break
-        return cache[topic]
-
-    return format_of
+    return _first(reader, lambda image: str(image.format), None)
 
 
 def camera_images(reader: LogReader) -> Callable[[str, bool], str | None]:
@@ -134,38 +132,15 @@ def camera_images(reader: LogReader) -> Callable[[str, bool], str | None]:
 
 def first_tx(reader: LogReader) -> Callable[[str], float | None]:
     """Return camera info topic -> its first message's P[0, 3] (None: not known)."""
-    cache: dict[str, float | None] = {}
-
-    def tx_of(topic: str) -> float | None:
-        if topic not in cache:
-            cache[topic] = None
-            for raw in reader.messages([topic]):
-                try:
-                    cache[topic] = float(rosmsg.projection_matrix(reader.decode(raw))[0, 3])
-                except (PcaInterpError, AttributeError, ValueError):  # a damaged info: no side
-                    cache[topic] = None
-                break
-        return cache[topic]
-
-    return tx_of
+    return _first(reader, lambda info: float(rosmsg.projection_matrix(info)[0, 3]), None)
 
 
 def first_uncalibrated(reader: LogReader) -> Callable[[str], bool]:
     """Return camera info topic -> its first message has an all-zero K and P."""
-    cache: dict[str, bool] = {}
 
-    def uncalibrated(topic: str) -> bool:
-        if topic not in cache:
-            cache[topic] = False
-            for raw in reader.messages([topic]):
-                try:
-                    info = reader.decode(raw)
-                    k = getattr(info, "k", None)
-                    k = np.asarray(info.K if k is None else k, dtype=float)
-                    cache[topic] = not k.any() and not rosmsg.projection_matrix(info).any()
-                except (PcaInterpError, AttributeError, TypeError, ValueError):
-                    cache[topic] = False
-                break
-        return cache[topic]
+    def uncalibrated(info: Any) -> bool:
+        k = getattr(info, "k", None)
+        k = np.asarray(info.K if k is None else k, dtype=float)
+        return not k.any() and not rosmsg.projection_matrix(info).any()
 
-    return uncalibrated
+    return _first(reader, uncalibrated, False)
