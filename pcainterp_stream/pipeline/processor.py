@@ -41,7 +41,7 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from types import TracebackType
-from typing import Any, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -709,9 +709,14 @@ class FrameProcessor:
         if not ready:
             return finished([])
         if not (self.adaptation.adapted or self.adaptation.deferred):
-            # up to a camera change (then the choice is made again, in stream order)
-            changes = (self.adaptation.new_camera(item.frame)[0] for item in ready)
-            cut = next((at for at, changed in enumerate(changes) if changed), len(ready))
+            # up to a camera change (then the choice is made again, in stream order): each
+            # frame's camera is noted once, the changed one's answer handed on with it
+            cut, change = len(ready), None
+            for at, item in enumerate(ready):
+                answer = self.adaptation.new_camera(item.frame)
+                if answer[0]:
+                    cut, change = at, answer[1]
+                    break
             if self.temporal is not None:
                 parts = [finished(self._estimate_all(self._measurements(ready[:cut])))]
             else:  # frames independent once carried: in the pool, in batch-size parts
@@ -720,18 +725,28 @@ class FrameProcessor:
                     self._estimators.submit(self._estimate_all, self._measurements(ready[at:end]))
                     for at, end in ((at, min(at + size, cut)) for at in range(0, cut, size))
                 ]
-            return gathered(parts + ([self._in_order(ready[cut:])] if cut < len(ready) else []))
+            rest = [self._in_order(ready[cut:], change)] if cut < len(ready) else []
+            return gathered(parts + rest)
         return self._in_order(ready)
 
-    def _in_order(self, ready: list[Measured]) -> Future[list[DensifiedFrame]]:
-        """Densify frame by frame with the adaptation (the log's own basis, a check again)."""
+    def _in_order(
+        self, ready: list[Measured], noted: Basis | Literal[False] | None = False
+    ) -> Future[list[DensifiedFrame]]:
+        """Densify frame by frame with the adaptation (the log's own basis, a check again).
+
+        ``noted``: the basis :meth:`~.refit.Refitting.new_camera` already gave for the first
+        frame (its camera noted by the caller), False when its camera is still to be noted.
+        """
         # the log's own basis: a frame whose map completes a relearning is densified with the
         # basis of the frames before it, the next frames with the relearned one, so what a
         # frame gets never depends on how frames were batched
         results: list[DensifiedFrame] = []
         start = 0
         for index, item in enumerate(ready):
-            _, basis = self.adaptation.new_camera(item.frame)
+            if index == 0 and noted is not False:
+                basis = noted
+            else:
+                _, basis = self.adaptation.new_camera(item.frame)
             if basis is not None:  # another camera: this frame on, another basis
                 results += self._estimate_all(self._measurements(ready[start:index]))
                 start = index

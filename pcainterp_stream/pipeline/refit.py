@@ -163,7 +163,6 @@ class Refitting(Adaptation):
     _stereo: bool = False
     _lane_camera: Camera | None = None
     _cameras: list[Camera] = field(default_factory=list)  # every camera seen, in order
-    _asked: tuple[StereoFrame, tuple[bool, Basis | None]] | None = None  # the last new_camera
 
     def _decide(
         self, basis: Basis, frames: list[AdaptFrame], settings: dict[str, object]
@@ -177,19 +176,6 @@ class Refitting(Adaptation):
         return chosen
 
     def new_camera(self, frame: StereoFrame) -> tuple[bool, Basis | None]:
-        """Note the camera of the next frame in stream order (see :meth:`_new_camera`).
-
-        Asked again for the same frame (the processor cuts a batch at a camera change, then
-        densifies from that frame frame by frame), it gives the same answer.
-        """
-        asked = self._asked
-        if asked is not None and asked[0] is frame:
-            return asked[1]
-        answer = self._new_camera(frame)
-        self._asked = (frame, answer)
-        return answer
-
-    def _new_camera(self, frame: StereoFrame) -> tuple[bool, Basis | None]:
         """Note the camera of the next frame in stream order (the densify thread's).
 
         Returns whether it is another camera than the frame before it's, and the basis to

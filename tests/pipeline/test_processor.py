@@ -343,6 +343,28 @@ def test_camera_change_splits_the_batch(basis: Basis, monkeypatch: pytest.Monkey
     )
 
 
+def test_each_frames_camera_is_noted_once(basis: Basis, monkeypatch: pytest.MonkeyPatch) -> None:
+    # the batch cut at a camera change asked the adaptation about the changed frame, then
+    # asked again when densifying from it: the second answer (no change) lost the first's
+    # basis, so a choice re-made for the new camera never reached the estimate
+    from pcainterp_stream.pipeline.refit import Refitting
+
+    other = StereoCamera(
+        width=WIDTH, height=HEIGHT, fx=180.0, fy=180.0, cx=155.0, cy=47.0, baseline=1.08
+    )
+    stream = [make_frame(i, 10, CAMERA if i < 3 else other) for i in range(5)]
+    asked: list[int] = []
+    real = Refitting.new_camera
+
+    def spy(self: Refitting, frame: StereoFrame) -> Any:
+        asked.append(frame.index)
+        return real(self, frame)
+
+    monkeypatch.setattr(Refitting, "new_camera", spy)
+    run(basis, stream, batch_size=8, lookahead=8)
+    assert sorted(asked) == list(range(5))
+
+
 def test_close_mid_stream_does_not_hang_and_restores_threads(
     basis: Basis, frames: list[StereoFrame]
 ) -> None:
