@@ -41,7 +41,7 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from types import TracebackType
-from typing import Any, Literal, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -709,14 +709,10 @@ class FrameProcessor:
         if not ready:
             return finished([])
         if not (self.adaptation.adapted or self.adaptation.deferred):
-            # up to a camera change (then the choice is made again, in stream order): each
-            # frame's camera is noted once, the changed one's answer handed on with it
-            cut, change = len(ready), None
-            for at, item in enumerate(ready):
-                answer = self.adaptation.new_camera(item.frame)
-                if answer[0]:
-                    cut, change = at, answer[1]
-                    break
+            # up to a camera change (then the choice is made again, in stream order); each
+            # frame's camera is noted once: the changed frame's answer is handed on
+            answers = enumerate(self.adaptation.new_camera(item.frame) for item in ready)
+            cut, change = next(((at, a) for at, a in answers if a[0]), (len(ready), None))
             if self.temporal is not None:
                 parts = [finished(self._estimate_all(self._measurements(ready[:cut])))]
             else:  # frames independent once carried: in the pool, in batch-size parts
@@ -725,17 +721,15 @@ class FrameProcessor:
                     self._estimators.submit(self._estimate_all, self._measurements(ready[at:end]))
                     for at, end in ((at, min(at + size, cut)) for at in range(0, cut, size))
                 ]
-            rest = [self._in_order(ready[cut:], change)] if cut < len(ready) else []
-            return gathered(parts + rest)
+            return gathered(parts + ([self._in_order(ready[cut:], change)] if change else []))
         return self._in_order(ready)
 
     def _in_order(
-        self, ready: list[Measured], noted: Basis | Literal[False] | None = False
+        self, ready: list[Measured], noted: tuple[bool, Basis | None] | None = None
     ) -> Future[list[DensifiedFrame]]:
         """Densify frame by frame with the adaptation (the log's own basis, a check again).
 
-        ``noted``: the basis :meth:`~.refit.Refitting.new_camera` already gave for the first
-        frame (its camera noted by the caller), False when its camera is still to be noted.
+        ``noted``: the first frame's ``new_camera`` answer, when the caller asked for it.
         """
         # the log's own basis: a frame whose map completes a relearning is densified with the
         # basis of the frames before it, the next frames with the relearned one, so what a
@@ -743,10 +737,7 @@ class FrameProcessor:
         results: list[DensifiedFrame] = []
         start = 0
         for index, item in enumerate(ready):
-            if index == 0 and noted is not False:
-                basis = noted
-            else:
-                _, basis = self.adaptation.new_camera(item.frame)
+            _, basis = noted if index == 0 and noted else self.adaptation.new_camera(item.frame)
             if basis is not None:  # another camera: this frame on, another basis
                 results += self._estimate_all(self._measurements(ready[start:index]))
                 start = index
