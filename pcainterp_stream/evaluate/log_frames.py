@@ -25,6 +25,7 @@ import numpy.typing as npt
 
 from pcainterp_stream.errors import LogReadError, PcaInterpError
 from pcainterp_stream.evaluate.reference import ReferenceTopic
+from pcainterp_stream.frontend.image_clock import ImageClock
 from pcainterp_stream.frontend.images import PairImages
 from pcainterp_stream.frontend.pair_forms import grey_alike, same_image_message
 from pcainterp_stream.io import rosmsg
@@ -330,7 +331,7 @@ def read_frames(
         reference_latest = -1  # the last reference stamp read
         released: list[int] = []  # the stamp of the frame released last
         stamps = _SeenStamps()  # of the topics matched by stamp: repeated stamps counted
-        unplaced = _UnplacedStamps(left_image, right_image)
+        unplaced = _UnplacedStamps(left_image, *nearby)  # the right image, truth, poses
         pending: dict[int, dict[str, Any]] = {}
         pending_log_times: dict[int, int] = {}  # of the left image of a pending stamp
         waiting: deque[_Complete] = deque()
@@ -518,17 +519,17 @@ class _UnplacedStamps:
     """Put at its log time a message whose header stamp does not place it, as densify does.
 
     densify stamps the outputs of a frame whose left image's header stamp is 0 (not set) or
-    that of the image before it with the left image's log time (``StereoPairer.full_result``);
-    its left image is then found by log time here, and so are right images, truth and poses
-    stamped 0 (a right image also when it repeats its previous stamp: the pair was made by
-    log time), and a reference topic's messages stamped 0. An image that is its topic's
-    previous one again (same stamp, size, encoding and bytes: a re-send, a merged bag) is a
+    that of the image before it on the images' clock, or with the left image's log time when
+    no image before had a stamp (``StereoPairer.full_result``, :mod:`frontend.image_clock`);
+    its left image is placed so here, and so are a right image (the pair was made by log
+    time), truth and poses (on the images' clock, a coarse clock repeats their stamps too),
+    and a reference topic's messages stamped 0 at their log time. An image that is its
+    topic's previous one again (same stamp, size, encoding and bytes: a re-send, a merged bag) is a
     copy, which densify drops (``StereoPairer``'s duplicates): :meth:`copy` tells it.
     """
 
-    def __init__(self, left_topic: str, right_topic: str) -> None:
-        self._repeating = (left_topic, right_topic)
-        self._last: dict[str, int] = {}
+    def __init__(self, *clocked: str) -> None:
+        self._clocks = {topic: ImageClock() for topic in clocked}
         self._last_image: dict[str, Any] = {}
 
     def copy(self, topic: str, stamp_ns: int, message: Any) -> bool:
@@ -541,11 +542,10 @@ class _UnplacedStamps:
 
     def stamp(self, topic: str, stamp_ns: int, log_time_ns: int) -> int:
         """Return the stamp to match a message of ``topic`` by: its header stamp or log time."""
-        if topic not in self._repeating:
+        clock = self._clocks.get(topic)
+        if clock is None:
             return log_time_ns if stamp_ns == 0 else stamp_ns
-        previous = self._last.get(topic)
-        self._last[topic] = stamp_ns
-        return log_time_ns if stamp_ns in (0, previous) else stamp_ns
+        return clock.stamp(stamp_ns, log_time_ns)
 
 
 def _same_image(message: Any, last: Any, stamp_ns: int) -> bool:

@@ -39,6 +39,7 @@ from pcainterp_stream.frontend.camera_infos import (
     first_infos,
 )
 from pcainterp_stream.frontend.feature_match import FeatureMatcher, features_from_pointcloud
+from pcainterp_stream.frontend.image_clock import ImageClock
 from pcainterp_stream.frontend.pair_forms import (
     describe,
     grey_alike,
@@ -178,8 +179,9 @@ class StereoPairer:
         self._mixed_said = False  # the encodings line of a pair of two encodings
         # the frames estimated in a box: remapped, or rectified with a border (rect_border)
         self._frame_rectifier: dict[int, rect.StereoRectifier | RectifiedBorder] = {}
-        # frame -> its left image's log time, the stamp of its outputs (see full_result)
-        self._log_stamped: dict[int, int] = {}
+        # frame -> the stamp of its outputs when its left image's does not place it (full_result)
+        self._restamped: dict[int, int] = {}
+        self._left_clock = ImageClock()  # where such a left image is placed
         self._borders = BorderFinder(echo)
         self._as_is: rect.StereoCalibration | None = None  # of images used as they are
         self._rows = (
@@ -384,7 +386,8 @@ class StereoPairer:
             self._intervals[side].append(item.log_time_ns - self._last_log[side])
         frames: list[StereoFrame] = []
         # a header stamp of 0 (not set) or of the side's previous image does not place it
-        item.unplaced = item.stamp_ns in (0, self._last_stamp[side])
+        if side == "left":
+            item.restamp = self._left_clock.place(item.stamp_ns, item.log_time_ns)
         if not self._by_log_time and item.stamp_ns == self._last_stamp[side]:
             frames = self._stamps_repeat(side, item.stamp_ns, _median(self._intervals[side]))
         if item.stamp_ns < self._last_stamp[side]:
@@ -643,12 +646,12 @@ class StereoPairer:
             if len(self._frame_rectifier) > 4 * keep:  # nobody asks (learn)
                 for index in sorted(self._frame_rectifier)[:-keep]:
                     del self._frame_rectifier[index]
-        if left.unplaced:
-            self._log_stamped[self._index] = left.log_time_ns
-            self.stats.log_stamped += 1
-            if len(self._log_stamped) > 4 * keep:  # nobody asks (learn)
-                for index in sorted(self._log_stamped)[:-keep]:
-                    del self._log_stamped[index]
+        if left.restamp is not None:
+            self._restamped[self._index] = left.restamp.stamp_ns
+            self.stats.restamped(by_log_time=left.restamp.by_log_time)
+            if len(self._restamped) > 4 * keep:  # nobody asks (learn)
+                for index in sorted(self._restamped)[:-keep]:
+                    del self._restamped[index]
         self._index += 1
         self.stats.pairs += 1
         self.stats.remapped += rectifier is not None
@@ -670,13 +673,14 @@ class StereoPairer:
         (:mod:`frontend.rect_border`); outside it the outputs have no estimate (NaN).
 
         A frame whose left image's header stamp does not place it (0, not set, or the stamp
-        of the image before it) gets that image's log time as its stamp, the stamp of its
-        outputs: as it was paired, and a time downstream readers (``evaluate``, a viewer's
-        time line, tf) can place it at. Other frames are returned as they are.
+        of the image before it) gets a stamp downstream readers (``evaluate``, a viewer's
+        time line, tf) can place it at, the stamp of its outputs: on the images' header clock
+        when an image before it had a stamp of its own, else that image's log time
+        (:mod:`frontend.image_clock`). Other frames are returned as they are.
         """
-        log_time_ns = self._log_stamped.pop(result.frame.index, None)
-        if log_time_ns is not None:
-            result = result._replace(frame=result.frame._replace(stamp_ns=log_time_ns))
+        stamp_ns = self._restamped.pop(result.frame.index, None)
+        if stamp_ns is not None:
+            result = result._replace(frame=result.frame._replace(stamp_ns=stamp_ns))
         rectifier = self._frame_rectifier.pop(result.frame.index, None)
         if rectifier is None:
             return result

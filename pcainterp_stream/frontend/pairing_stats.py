@@ -91,7 +91,10 @@ class PairingStats:
         log_tolerance_ns: the tolerance once paired by log time (ns): at least a quarter of
             a frame interval.
         log_stamped: frames whose left image's header stamp did not place it (0, or the
-            stamp of the image before it), stamped with its log time instead.
+            stamp of the image before it), stamped with its log time instead (no left image
+            before it had a stamp of its own: see :mod:`frontend.image_clock`).
+        clock_stamped: such frames stamped on the left images' header clock instead: the
+            last stamp of their own plus the log time since that image.
         window: the pairing's window (pairs held waiting for camera infos).
         hold: the limits of what the pairing holds waiting for its partner (log-time span,
             messages, bytes); None: not known.
@@ -157,6 +160,7 @@ class PairingStats:
     tolerance_ns: int = 0
     log_tolerance_ns: int = 0
     log_stamped: int = 0
+    clock_stamped: int = 0
     window: int = 0
     hold: HoldLimits | None = None
     lost_pairs: Lost = field(default_factory=Lost)
@@ -256,13 +260,32 @@ class PairingStats:
             f"{'copy was' if count == 1 else 'copies were'} dropped, the pairs are {how}"
         )
 
+    def restamped(self, *, by_log_time: bool) -> None:
+        """Count a frame whose left header stamp did not place it: by log time or on its clock."""
+        if by_log_time:
+            self.log_stamped += 1
+        else:
+            self.clock_stamped += 1
+
+    def _restamped_note(self) -> str:
+        """Say where the outputs of the frames whose left header stamp did not place them are."""
+        by_log, on_clock = self.log_stamped, self.clock_stamped
+        stamped = by_log + on_clock
+        clock = "on the images' clock (the last stamp of their own plus the log time since it)"
+        log = "with the left image's log time"
+        if by_log and on_clock:
+            how = f": {on_clock} {clock}, {by_log} {log} (no left image before had a stamp)"
+        else:
+            how = f" {clock if on_clock else log}"
+        return (
+            f"the outputs of the {stamped} frame{'' if stamped == 1 else 's'} whose left header "
+            f"stamp was 0 or its previous image's are stamped{how}"
+        )
+
     def _log_time_note(self) -> str | None:
         topic = self.repeated_stamp_topic
-        stamped = self.log_stamped
-        outputs = (
-            f"the outputs of the {stamped} frame{'' if stamped == 1 else 's'} whose left header "
-            "stamp was 0 or its previous image's are stamped with the left image's log time"
-        )
+        stamped = self.log_stamped + self.clock_stamped
+        outputs = self._restamped_note()
         if topic is None:
             return f"stamps: {outputs}" if stamped else None
         stamp = self.repeated_stamp_ns

@@ -19,6 +19,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol, TypeVar
 
+from pcainterp_stream.frontend.image_clock import Restamp
+
 MAX_GIVEN_UP = 4096
 """Stamps given up that are remembered per stream (to count a partner arriving later)."""
 
@@ -42,15 +44,16 @@ T = TypeVar("T", bound=Held)
 class PendingImage:
     """One image waiting for its partner: the message is decoded only when paired."""
 
-    __slots__ = ("log_time_ns", "message", "miss_ns", "stamp_ns", "unplaced")
+    __slots__ = ("log_time_ns", "message", "miss_ns", "restamp", "stamp_ns")
 
     def __init__(self, stamp_ns: int, log_time_ns: int, message: Any) -> None:
         self.stamp_ns = stamp_ns
         self.log_time_ns = log_time_ns
         self.message = message
         self.miss_ns = -1  # the nearest other-side image that waited unpaired as it did
-        # its header stamp does not place it (0, or its side's previous image's stamp)
-        self.unplaced = False
+        # where it is placed when its header stamp does not (0, or its previous image's
+        # stamp): a left image's, see frontend.image_clock; None: at its own stamp
+        self.restamp: Restamp | None = None
 
     def nbytes(self) -> int:
         """Return the bytes of the image's (undecoded) data."""

@@ -169,3 +169,22 @@ def test_a_clock_that_starts_at_zero_is_evaluated(tmp_path: Path) -> None:
     jobs.densify(shifted, tmp_path / "from_zero_dense.mcap")
     assert _scores(tmp_path / "from_zero_dense.mcap") == _scores(tmp_path / "dense.mcap")
 
+
+def test_a_coarse_clock_keeps_every_frame_on_it(logs: dict[str, Path]) -> None:
+    # bug hunt 12C F2: every header stamp (images, infos, truth) from a clock at 1000 s that
+    # ticks every 200 ms, the camera at 10 Hz: each stamp twice. densify stamped each repeat's
+    # outputs with the wall-clock log time, 41 years from the others, and evaluate left those
+    # frames out blaming the clocks; now on the images' clock, scored as the stamped log
+    folder = logs["folder"]
+    coarse = folder / "coarse.mcap"
+    seen: dict[str, int] = {}
+    with McapCopy(logs["synth"], coarse) as copy:
+        for topic, channel_id, message in copy.messages():  # (each of synth's: a header)
+            index = seen[topic] = seen.get(topic, -1) + 1
+            stamp = 1000 * 10**9 + (index // 2) * 200_000_000
+            data = bytearray(message.data)
+            data[4:8] = (stamp // 10**9).to_bytes(4, "little")
+            data[8:12] = (stamp % 10**9).to_bytes(4, "little")
+            copy.add(channel_id, message.log_time, bytes(data))
+    jobs.densify(coarse, folder / "coarse_dense.mcap")
+    assert _scores(folder / "coarse_dense.mcap") == _scores(folder / "dense.mcap")

@@ -919,9 +919,10 @@ def test_frames_whose_stamps_do_not_place_them_are_stamped_with_their_log_time()
         "stamps: the outputs of the 1 frame whose left header stamp was 0 or its previous "
         "image's are stamped with the left image's log time"
     )
-    # a coarse clock: the first image of each stamp keeps it, the repeats are placed by log time
+    # a coarse clock: the first image of each stamp keeps it, the repeats stay on its clock
+    # (bug hunt 12C F2), see test_repeated_stamps_of_a_header_clock_stay_on_it
     outputs, stats = _output_stamps([5 * 10**9, 5 * 10**9, 6 * 10**9, 6 * 10**9])
-    assert outputs == [5 * 10**9, 100 * MS, 6 * 10**9, 300 * MS]
+    assert outputs == [5 * 10**9, 5 * 10**9 + 100 * MS, 6 * 10**9, 6 * 10**9 + 100 * MS]
     # stamps that tell the images apart are the outputs' stamps, whatever the log times
     outputs, stats = _output_stamps([10**9, 2 * 10**9, 3 * 10**9])
     assert (outputs, stats.log_stamped, stats.stamp_note()) == (
@@ -929,6 +930,57 @@ def test_frames_whose_stamps_do_not_place_them_are_stamped_with_their_log_time()
         0,
         None,
     )
+
+
+def test_repeated_stamps_of_a_header_clock_stay_on_it() -> None:
+    """Bug hunt 12C F2: a sim or device clock at 1000 s ticking every 200 ms, the camera at
+    10 Hz: each repeat's outputs took the wall-clock log time, 41 years from the others."""
+    second = 10**9
+    stamps = [1000 * second + (index // 2) * 200 * MS for index in range(8)]
+    outputs, stats = _output_stamps(stamps)
+    # was 1000.0, 1600000000.1, 1000.2, 1600000000.3 ... s
+    assert outputs == [1000 * second + index * 100 * MS for index in range(8)]
+    assert (stats.pairs, stats.clock_stamped, stats.log_stamped) == (8, 4, 0)
+    assert (stats.stamp_note() or "").endswith(
+        "the outputs of the 4 frames whose left header stamp was 0 or its previous image's "
+        "are stamped on the images' clock (the last stamp of their own plus the log time "
+        "since it)"
+    )
+    # a stamp missed (0) amid stamped images, one stuck for three frames: on the clock too
+    outputs, stats = _output_stamps([second, 0, 3 * second, 3 * second, 3 * second])
+    assert outputs == [
+        second,
+        second + 100 * MS,
+        3 * second,
+        3 * second + 100 * MS,
+        3 * second + 200 * MS,
+    ]
+    # a first frame stamped 0 (a clock that starts at 0, or none yet): no stamp before it, so
+    # at its log time (bug hunt 10C F2, left: the images after it are not waited for)
+    outputs, stats = _output_stamps([0, 100 * MS, 100 * MS])
+    assert outputs == [0, 100 * MS, 200 * MS]  # from the first log time; frame 0 at log time
+    assert (stats.log_stamped, stats.clock_stamped) == (1, 1)
+    assert (stats.stamp_note() or "").endswith(
+        "are stamped: 1 on the images' clock (the last stamp of their own plus the log time "
+        "since it), 1 with the left image's log time (no left image before had a stamp)"
+    )
+
+
+def test_the_same_image_republished_is_dropped_not_restamped() -> None:
+    # a driver that publishes its last image again (same stamp, same pixels): a copy, dropped
+    # before the clock sees it; the next image of another stamp keeps its own
+    pairer = StereoPairer()
+    with_infos(pairer)
+    start, frames = 1_600_000_000 * 10**9, []
+    for index, (stamp, value) in enumerate([(10**9, 1), (10**9, 1), (2 * 10**9, 2)]):
+        log_ns = start + index * 50 * MS
+        frames += pairer.push(CONFIG.left_topic, stamp, log_ns, image(stamp, value))
+        frames += pairer.push(CONFIG.right_topic, stamp, log_ns + 3 * MS, image(stamp, value))
+    frames += pairer.flush()
+    outputs = [pairer.full_result(cast(Any, _Result(f))).frame.stamp_ns for f in frames]
+    stats = pairer.finish()
+    assert outputs == [10**9, 2 * 10**9]
+    assert (stats.duplicate_images, stats.log_stamped, stats.clock_stamped) == (2, 0, 0)
 
 
 def test_repeated_stamps_pair_by_log_time_after_the_first_pair() -> None:
