@@ -30,6 +30,7 @@ from pcainterp_stream.frontend.images import PairImages
 from pcainterp_stream.frontend.pair_forms import grey_alike, same_image_message
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import decode_image, open_log
+from pcainterp_stream.io.output_cameras import FrameCameras
 from pcainterp_stream.io.outputs import (
     FOCAL_BASELINE_KEY,
     MEASUREMENTS_KEY,
@@ -139,8 +140,9 @@ class ReadState:
     converted: bool = False
     """The estimate channel carries no ``pcainterp.*`` metadata at all: the log went through
     a tool that keeps none (rosbag2 keeps only QoS: rosbags-convert, ``ros2 bag convert``)."""
-    recovered_focal_baseline: float | None = None
-    """f*b (px*m) read from the features (z * disparity) when the metadata lacked it."""
+    recovered: list[float] = field(default_factory=list)
+    """Each frame's f*b (px*m) read from its features (z * disparity) when the metadata
+    lacked it (:attr:`recovered_focal_baseline`)."""
     merged: int = 0
     """Densified messages that replaced one of the same topic and stamp: frames are told
     apart by header stamp, so frames sharing a stamp became one."""
@@ -196,6 +198,14 @@ class ReadState:
         )
 
     @property
+    def recovered_focal_baseline(self) -> str | None:
+        """f*b (px*m) read from the features, as the note says it (a range when it changed)."""
+        if not self.recovered:
+            return None
+        low, high = f"{min(self.recovered):.6g}", f"{max(self.recovered):.6g}"
+        return low if low == high else f"{low}-{high}"
+
+    @property
     def notes(self) -> list[str]:
         """Return what the report should say about the log's lost metadata ([]: none lost)."""
         if not self.converted:
@@ -207,7 +217,7 @@ class ReadState:
         )
         if self.recovered_focal_baseline is not None:
             note += (
-                f"; f*b {self.recovered_focal_baseline:.6g} px*m was read from the features "
+                f"; f*b {self.recovered_focal_baseline} px*m was read from the features "
                 "(z * disparity)"
             )
             lost += " and its smallest resolvable disparity"
@@ -298,6 +308,10 @@ def read_frames(
     state = state or ReadState()
     images = images or PairImages()
     left_image, right_image = images.left_topic, images.right_topic
+    try:  # each camera's f*b when the camera changed (a compact log's depth needs it)
+        cameras = FrameCameras.of_log(path, topics.prefix)
+    except ValueError as err:
+        raise LogReadError(str(err)) from None
     with open_log(path) as reader:
         state.damage = reader.damage
         present = reader.topics()
@@ -353,8 +367,10 @@ def read_frames(
 
         def release() -> Frame:
             frame = waiting.popleft()
-            if where.compact and FOCAL_BASELINE_KEY not in state.metadata:
-                _recover_focal_baseline(frame, topics.features, state)
+            metadata = cameras.metadata(state.metadata, frame.log_time_ns)  # its camera's f*b
+            if where.compact and FOCAL_BASELINE_KEY not in metadata:
+                recovered = _recover_focal_baseline(frame, topics.features, state)
+                metadata = {**metadata, FOCAL_BASELINE_KEY: repr(recovered)}
             neighbours = [*released[-1:], *(f.stamp_ns for f in list(waiting)[:1])]
             matched, reference_gap = references.claim(
                 frame.stamp_ns, frame.log_time_ns, state.reference_tolerance[0], neighbours
@@ -370,7 +386,7 @@ def read_frames(
                 topics=topics,
                 images=images,
                 where=where,
-                metadata=state.metadata,
+                metadata=metadata,
                 tolerance_ns=state.tolerance_ns,
             )
 
@@ -663,15 +679,16 @@ class _Stamped:
         return message, abs(kept - stamp)
 
 
-def _recover_focal_baseline(frame: _Complete, features_topic: str, state: ReadState) -> None:
-    """Put f*b into a compact log's metadata from its features when the metadata lacks it.
+def _recover_focal_baseline(frame: _Complete, features_topic: str, state: ReadState) -> float:
+    """Return a compact frame's f*b from its features when the log's metadata lacks it.
 
     A compact log's depth needs f*b to become disparity; densify records it in the channel
     metadata, which a ROS 2 bag tool drops. Every feature point holds z = f*b / disparity
-    (``io/outputs``), so f*b = z * disparity of any point with a disparity.
+    (``io/outputs``), so f*b = z * disparity of any point with a disparity: each frame's
+    own (the camera may change), else the last frame's that had one.
 
     Raises:
-        LogReadError: the frame's features hold no point with a disparity.
+        LogReadError: no frame so far had a feature point with a disparity.
     """
     features = rosmsg.pointcloud2_arrays(frame.parts[features_topic])
     if "z" in features and "disparity" in features:
@@ -681,9 +698,10 @@ def _recover_focal_baseline(frame: _Complete, features_topic: str, state: ReadSt
             usable = np.isfinite(z) & np.isfinite(disparity) & (z > 0) & (disparity > 0)
         if usable.any():
             focal_baseline = float(np.median(z[usable] * disparity[usable]))
-            state.metadata[FOCAL_BASELINE_KEY] = repr(focal_baseline)
-            state.recovered_focal_baseline = focal_baseline
-            return
+            state.recovered.append(focal_baseline)
+            return focal_baseline
+    if state.recovered:
+        return state.recovered[-1]
     converted = (
         "its channels carry no pcainterp metadata (a ROS 2 bag tool such as rosbags-convert "
         "or `ros2 bag convert` keeps none)"

@@ -24,6 +24,7 @@ from pcainterp_stream.estimate.baselines import linear, nearest
 from pcainterp_stream.estimate.basis import Basis, resample_grid
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.output_cameras import FrameCameras
 from pcainterp_stream.io.outputs import (
     EstimateTopics,
     OutputTopics,
@@ -98,6 +99,11 @@ def compare_with_ground_truth(
             )
             raise LogReadError(f"{path} has no {', '.join(missing)}{advice}")
         pending: dict[int, dict[str, Any]] = {}
+        log_times: dict[int, int] = {}  # of each stamp's estimate: its camera's f*b
+        try:
+            cameras = FrameCameras.of_log(Path(path), topics.prefix)
+        except ValueError as err:
+            raise LogReadError(str(err)) from None
         for raw in reader.messages(wanted):
             message = reader.decode(raw)
             if raw.topic == where.estimate and not metadata:
@@ -106,11 +112,15 @@ def compare_with_ground_truth(
             stamp = rosmsg.stamp_ns(message.image if full_estimate else message)
             parts = pending.setdefault(stamp, {})
             parts[raw.topic] = message
+            if raw.topic == where.estimate:
+                log_times[stamp] = raw.log_time_ns
             if len(parts) == len(wanted):
-                _accumulate(comparison, pending.pop(stamp), topics, depth_topic, where, metadata)
+                own = cameras.metadata(metadata, log_times.pop(stamp, raw.log_time_ns))
+                _accumulate(comparison, pending.pop(stamp), topics, depth_topic, where, own)
             # frames are written close together: keep only a few stamps waiting
             while len(pending) > 32:  # densify writes outputs ~12 frames after inputs
-                pending.pop(min(pending))
+                log_times.pop(oldest := min(pending), None)
+                pending.pop(oldest)
     return comparison
 
 

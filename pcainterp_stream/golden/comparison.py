@@ -493,10 +493,13 @@ class _Comparer:
                 and self.golden_arrays[std_key].shape == golden.shape
             ):
                 std = np.asarray(self.golden_arrays[std_key], dtype=np.float64)
-                if source.focal_baseline is not None:
+                focal_baseline = source.focal_baseline
+                if focal_baseline is not None:
+                    # a message of a log whose camera changed records its own (summary)
+                    focal_baseline = float(want.get("focal_baseline", focal_baseline))
                     # delta method: z = f*b / d, so std_z = z^2 / (f*b) * std_d
                     with np.errstate(invalid="ignore", over="ignore"):
-                        std = golden * golden / source.focal_baseline * std
+                        std = golden * golden / focal_baseline * std
             if std is not None and source is not None:
                 allowed = np.where(np.isfinite(std), limits["std_atol"] * std, np.inf)
                 unit = f"{limits['std_atol']:g} std ({source.describe()})"

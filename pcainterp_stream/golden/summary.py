@@ -21,6 +21,7 @@ import numpy.typing as npt
 from pcainterp_stream.errors import LogReadError, TopicNotFoundError
 from pcainterp_stream.golden.decode import message_content
 from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.output_cameras import FrameCameras
 from pcainterp_stream.io.outputs import FOCAL_BASELINE_KEY
 from pcainterp_stream.io.reader_base import ROS2_SCHEMA_ENCODINGS
 
@@ -51,7 +52,8 @@ class LogSummary:
         channels: topic -> {"schema", "schema_encoding", "message_encoding",
             "message_count", "messages": [per-message dicts]}, in the log's topic order;
             plus ``"focal_baseline"`` (f*b, px*m) where the channel's metadata states it
-            (the depth of a densified log), to turn a disparity std into a depth std.
+            (the depth of a densified log), to turn a disparity std into a depth std; a
+            message of a log whose camera changed has its own where it differs.
         arrays: array key -> the array itself, filled only when asked for (``keep_arrays``);
             each message dict names its keys under ``"array_keys"``.
         notes: one-line notes on parts that did not decode.
@@ -165,6 +167,36 @@ def _float_or_none(text: str) -> float | None:
     return value if np.isfinite(value) and value > 0 else None
 
 
+def _focal_baseline(
+    path: Path,
+    raw: Any,
+    channel: dict[str, Any],
+    entry: dict[str, Any],
+    cameras: dict[str, FrameCameras],
+) -> None:
+    """Record a densified channel's f*b (its first message's) and a message's own if other.
+
+    A log whose camera changed records each camera's f*b (``io.output_cameras``): a message
+    of another camera than the channel's first gets ``"focal_baseline"`` of its own.
+    """
+    if not channel["messages"]:
+        focal_baseline = _float_or_none(raw.channel_metadata[FOCAL_BASELINE_KEY])
+        if focal_baseline is not None:
+            channel["focal_baseline"] = focal_baseline
+    prefix = raw.topic.rsplit("/", 1)[0]
+    if prefix not in cameras:
+        try:
+            cameras[prefix] = FrameCameras.of_log(path, prefix)
+        except ValueError as err:
+            raise LogReadError(str(err)) from None
+    if not cameras[prefix]:
+        return
+    own = cameras[prefix].metadata(raw.channel_metadata, raw.log_time_ns)[FOCAL_BASELINE_KEY]
+    value = _float_or_none(own)
+    if value is not None and value != channel.get("focal_baseline"):
+        entry["focal_baseline"] = value
+
+
 def summarize_log(
     path: str | Path,
     *,
@@ -217,6 +249,7 @@ def summarize_log(
             for topic in wanted
         }
         summary = LogSummary(channels=channels)
+        cameras: dict[str, FrameCameras] = {}  # by output prefix, read when first needed
         counts = [present[topic].message_count for topic in wanted]
         total = None if None in counts else sum(c or 0 for c in counts)
         for done, raw in enumerate(reader.messages(wanted), start=1):
@@ -225,11 +258,9 @@ def summarize_log(
             channel = channels[raw.topic]
             index = channel["message_count"]
             channel["message_count"] += 1
-            if index == 0 and FOCAL_BASELINE_KEY in raw.channel_metadata:
-                focal_baseline = _float_or_none(raw.channel_metadata[FOCAL_BASELINE_KEY])
-                if focal_baseline is not None:
-                    channel["focal_baseline"] = focal_baseline
             entry: dict[str, Any] = {"log_time_ns": raw.log_time_ns}
+            if FOCAL_BASELINE_KEY in raw.channel_metadata:
+                _focal_baseline(path, raw, channel, entry, cameras)
             channel["messages"].append(entry)
             if raw.message_encoding != "cdr" or raw.schema_encoding not in ROS2_SCHEMA_ENCODINGS:
                 continue

@@ -274,7 +274,15 @@ ENCODING_KEY = "pcainterp.encoding"
 """Channel metadata key: how the channel is encoded (:meth:`OutputTopics.encoding`)."""
 
 FOCAL_BASELINE_KEY = "pcainterp.focal_baseline"
-"""Channel metadata key of compact logs: f*b (px*m), to turn the depth into disparity."""
+"""Channel metadata key: f*b (px*m) of the first outputs, to turn the depth into disparity."""
+
+CAMERAS_RECORD = "pcainterp.cameras"
+"""Name of the MCAP metadata record of a log whose camera changed: each camera's f*b and min
+disparity from its first frame (``io.output_cameras``); absent, the channels' hold for all."""
+
+FOCAL_BASELINE_SCOPE_KEY = "pcainterp.focal_baseline_scope"
+"""Channel metadata key: what :data:`FOCAL_BASELINE_KEY` covers (:data:`FOCAL_BASELINE_SCOPE`)."""
+FOCAL_BASELINE_SCOPE = f"the first outputs; each camera's, when it changed: record {CAMERAS_RECORD}"
 
 MIN_DISPARITY_KEY = "pcainterp.min_disparity"
 """Channel metadata key of compact logs: the smallest resolvable disparity (px) of the
@@ -292,6 +300,7 @@ def frame_metadata(result: DensifiedFrame) -> dict[str, str]:
     return {
         FOCAL_BASELINE_KEY: repr(float(result.frame.camera.focal_baseline)),
         MIN_DISPARITY_KEY: repr(float(result.min_disparity)),
+        FOCAL_BASELINE_SCOPE_KEY: FOCAL_BASELINE_SCOPE,
     }
 
 
@@ -848,7 +857,8 @@ def decode_estimate(
         estimate: the DisparityImage (full) or the compressedDepth depth (compact).
         std: the disparity std (Image or compressedDepth).
         camera_info: the ``camera_info`` output (f of a compact log).
-        metadata: the estimate channel's metadata (f*b and min disparity of a compact log).
+        metadata: the estimate channel's metadata, with the f*b and min disparity of the
+            frame's camera for a compact log (``io.output_cameras.FrameCameras.metadata``).
 
     Raises:
         ValueError: a compact log whose metadata lacks f*b (not written by this version).

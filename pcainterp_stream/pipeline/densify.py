@@ -55,6 +55,7 @@ from pcainterp_stream.io.logwriter import (
     WriteSummary,
     open_writer,
 )
+from pcainterp_stream.io.output_cameras import CAMERAS_RECORD, CamerasInForce
 from pcainterp_stream.io.outputs import (
     BASES_RECORD,
     BASIS_FINGERPRINT_KEY,
@@ -407,6 +408,7 @@ def densify(
         # to them in its first advertisement; topic -> the metadata they were advertised with
         live_metadata: dict[str, dict[str, str]] = {}
         opening: dict[str, str] = {}  # the metadata the output channels were written with
+        cameras = CamerasInForce()  # each camera's f*b from its first frame (compact logs)
 
         def advertise_live(metadata: dict[str, str]) -> None:
             if live is None or live_metadata:
@@ -494,6 +496,7 @@ def densify(
                     if writer is not None:
                         writer.channel_metadata = topic_metadata(topics, first)
                     advertise_live(first)  # the file's, in the live channels too
+                cameras.see(result)
                 encoding.append((result, encoder.submit(output_messages, result, topics)))
             # by count, never by which future is done: the output's order is deterministic
             while len(encoding) > ENCODE_AHEAD:
@@ -620,6 +623,8 @@ def densify(
             writer.add_metadata(DENSIFY_RECORD, record)
             in_force = bases_in_force(engine, basis, label, output)
             writer.add_metadata(BASES_RECORD, bases_record(in_force, topics.prefix))
+            if (changed := cameras.record(topics.prefix)) is not None:  # the channels: one f*b
+                writer.add_metadata(CAMERAS_RECORD, changed)
     return DensifySummary(
         input=input_path,
         output=writer.path if writer is not None else None,

@@ -1,0 +1,187 @@
+"""The cameras a densified log's outputs were made with: the ``pcainterp.cameras`` record.
+
+A compact log stores depth, whose disparity is f*b / depth: a reader needs each frame's f*b.
+The output channels' metadata holds f*b and the smallest resolvable disparity of the first
+outputs (:data:`~.outputs.FOCAL_BASELINE_KEY`, :data:`~.outputs.MIN_DISPARITY_KEY`): a
+channel's metadata is fixed when its first message is written. When the camera changes in
+the log (densify densifies each pair with its own camera), the MCAP metadata record
+:data:`CAMERAS_RECORD`, written at the end as ``pcainterp.basis`` is, lists every camera in
+force from its first frame, with the same per-entry keys: ``count``, ``output_prefix`` and,
+per camera ``N`` (0, 1, ...), ``N.focal_baseline`` (px*m), ``N.min_disparity`` (px),
+``N.first_frame``, ``N.first_stamp_ns`` and ``N.first_log_time_ns``. A frame's values are
+those of the last entry whose ``first_log_time_ns`` is at or before its outputs' log time
+(:meth:`FrameCameras.metadata`). A log without the record (one camera, or densified before
+it was written) has one f*b for every frame: the channels'.
+"""
+
+from __future__ import annotations
+
+from bisect import bisect_right
+from collections.abc import Iterable
+from pathlib import Path
+from typing import NamedTuple
+
+from pcainterp_stream.io.densify_record import OUTPUT_PREFIX_KEY
+from pcainterp_stream.io.outputs import (
+    CAMERAS_RECORD,
+    FOCAL_BASELINE_KEY,
+    MIN_DISPARITY_KEY,
+    _records,
+    record_of_prefix,
+)
+from pcainterp_stream.records import DensifiedFrame, StereoCamera
+
+__all__ = [
+    "CAMERAS_RECORD",
+    "CameraInForce",
+    "CamerasInForce",
+    "FrameCameras",
+    "cameras_record",
+    "recorded_cameras_of",
+]
+
+
+class CameraInForce(NamedTuple):
+    """One camera a densified log's outputs were made with, from its first frame on.
+
+    Attributes:
+        focal_baseline: its f*b (px*m): a compact frame's disparity is f*b / depth.
+        min_disparity: the smallest resolvable disparity (px) of its first frame.
+        first_frame: 0-based index of the first stereo pair densified with it.
+        first_stamp_ns: that pair's header stamp (ns).
+        first_log_time_ns: its log time (ns), the log time of its outputs.
+    """
+
+    focal_baseline: float
+    min_disparity: float
+    first_frame: int
+    first_stamp_ns: int
+    first_log_time_ns: int
+
+
+class CamerasInForce:
+    """The cameras of a densify run's outputs, in output order (:meth:`see` each frame)."""
+
+    def __init__(self) -> None:
+        self.entries: list[CameraInForce] = []
+        self._camera: StereoCamera | None = None
+
+    def see(self, result: DensifiedFrame) -> None:
+        """Count a densified frame: a new entry at the first frame and when the camera changes."""
+        camera, frame = result.frame.camera, result.frame
+        if self.entries and camera == self._camera:
+            return
+        self._camera = camera
+        self.entries.append(
+            CameraInForce(
+                float(camera.focal_baseline),
+                float(result.min_disparity),
+                frame.index,
+                frame.stamp_ns,
+                frame.log_time_ns,
+            )
+        )
+
+    def record(self, prefix: str | None = None) -> dict[str, str] | None:
+        """Return the :data:`CAMERAS_RECORD` record, or None for one camera (the channels')."""
+        return cameras_record(self.entries, prefix) if len(self.entries) > 1 else None
+
+
+def cameras_record(cameras: Iterable[CameraInForce], prefix: str | None = None) -> dict[str, str]:
+    """Return the :data:`CAMERAS_RECORD` metadata record of the cameras in force, in order.
+
+    ``prefix``: the output topics' prefix, recorded under ``output_prefix`` (None: not
+    recorded). Floats are written as ``repr`` (read back exactly).
+
+    Examples:
+        >>> entry = CameraInForce(96.5, 0.25, 6, 5, 7)
+        >>> record = cameras_record([entry], "/pcainterp")
+        >>> record["count"], record["0.focal_baseline"], record["0.first_frame"]
+        ('1', '96.5', '6')
+        >>> recorded_cameras_of(record) == [entry]
+        True
+    """
+    entries = list(cameras)
+    record = {"count": str(len(entries))}
+    if prefix is not None:
+        record[OUTPUT_PREFIX_KEY] = prefix
+    for number, entry in enumerate(entries):
+        record.update(
+            {
+                f"{number}.{name}": repr(value) if isinstance(value, float) else str(value)
+                for name, value in entry._asdict().items()
+            }
+        )
+    return record
+
+
+def recorded_cameras_of(record: dict[str, str]) -> list[CameraInForce]:
+    """Return the cameras a :data:`CAMERAS_RECORD` record lists (:func:`cameras_record`'s inverse).
+
+    Raises:
+        ValueError: the record is not one :func:`cameras_record` wrote.
+    """
+    try:
+        return [
+            CameraInForce(
+                float(record[f"{number}.focal_baseline"]),
+                float(record[f"{number}.min_disparity"]),
+                int(record[f"{number}.first_frame"]),
+                int(record[f"{number}.first_stamp_ns"]),
+                int(record[f"{number}.first_log_time_ns"]),
+            )
+            for number in range(int(record["count"]))
+        ]
+    except (KeyError, ValueError) as err:
+        raise ValueError(
+            f"not a {CAMERAS_RECORD} metadata record: {err!r} missing or invalid"
+        ) from err
+
+
+class FrameCameras:
+    """Each frame's f*b and min disparity in a densified log (the channels' when one camera)."""
+
+    def __init__(self, cameras: Iterable[CameraInForce] = ()) -> None:
+        self.cameras = sorted(cameras, key=lambda entry: entry.first_log_time_ns)
+        self._starts = [entry.first_log_time_ns for entry in self.cameras]
+
+    @classmethod
+    def of_log(cls, path: Path, prefix: str | None = None) -> FrameCameras:
+        """Return the cameras an MCAP log records for the outputs of ``prefix`` (none: empty).
+
+        Raises:
+            ValueError: the log's record is not one densify wrote (the message names ``path``).
+        """
+        record, _ = record_of_prefix(_records(path, CAMERAS_RECORD), prefix)
+        if record is None:
+            return cls()
+        try:
+            return cls(recorded_cameras_of(record))
+        except ValueError as err:
+            raise ValueError(f"{path}: {err}; densify the log again") from None
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+    def metadata(self, channel: dict[str, str], log_time_ns: int) -> dict[str, str]:
+        """Return a channel's metadata with the f*b and min disparity of a frame's camera.
+
+        ``log_time_ns``: the log time of the frame's outputs. The channel's own metadata when
+        the log records no camera change.
+
+        Examples:
+            >>> first, second = CameraInForce(2.0, 0.5, 0, 0, 0), CameraInForce(1.0, 0.25, 6, 6, 60)
+            >>> cameras = FrameCameras([first, second])
+            >>> cameras.metadata({}, 59)["pcainterp.focal_baseline"]
+            '2.0'
+            >>> cameras.metadata({}, 60)["pcainterp.focal_baseline"]
+            '1.0'
+        """
+        if not self.cameras:
+            return channel
+        entry = self.cameras[max(bisect_right(self._starts, log_time_ns) - 1, 0)]
+        return {
+            **channel,
+            FOCAL_BASELINE_KEY: repr(entry.focal_baseline),
+            MIN_DISPARITY_KEY: repr(entry.min_disparity),
+        }
