@@ -6,7 +6,19 @@ Two layouts are recognised:
   and ``image_01/data/*.png`` (right grey), ``image_00/timestamps.txt`` (one
   ``YYYY-MM-DD HH:MM:SS.fffffffff`` per frame) and ``calib_cam_to_cam.txt`` in the drive
   folder or one level up in the date folder (``P_rect_00``, ``P_rect_01``). The date folder
-  itself is accepted when it holds exactly one drive.
+  itself is accepted when it holds exactly one drive. The images must have the rectified
+  size ``S_rect_00`` of the calibration file, or its raw size ``S_00`` (below).
+* **unrectified raw drive**: ``<date>_drive_XXXX_extract`` (KITTI's "unsynced+unrectified"
+  download), images of the raw size ``S_00`` (1392x512, distorted, the two cameras not
+  rectified) with a ``timestamps.txt`` per camera. Written as a driver records a raw
+  camera (:mod:`pcainterp_stream.io.raw_log`): ``/camera/{left,right}/image_raw`` with
+  ``CameraInfo`` K = ``K_00``, D = ``D_00`` (plumb_bob), R = ``R_rect_00``, P =
+  ``P_rect_00`` at ``S_00``'s size (camera 01 the same), which ``densify`` rectifies as
+  ``image_proc`` does. The cameras' own stamps are not synchronised: each left image is
+  paired with the right image nearest its stamp (each the other's nearest, within a
+  quarter frame; the rest is left out and counted), and both are stamped with the left
+  image's time: KITTI triggers the cameras together, the stamps differ by the recording
+  PC's jitter (up to 2.7 ms on drive 2011_09_26_0001), more than densify's 1 ms pairing.
 * **odometry sequence**: ``sequences/XX`` with ``image_0/*.png``, ``image_1/*.png``,
   ``calib.txt`` (``P0:``, ``P1:`` lines of 12 numbers), optional ``times.txt`` (seconds, one
   per frame) and optional ground truth ``poses/XX.txt`` two levels up (a 3x4
@@ -53,8 +65,11 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.errors import DatasetImportError
+from pcainterp_stream.errors import CalibrationError, DatasetImportError
+from pcainterp_stream.io.calibration import kitti_calibration
+from pcainterp_stream.io.camera_model import StereoCalibration
 from pcainterp_stream.io.logwriter import LogFormat, ProgressCallback, WriteSummary, open_writer
+from pcainterp_stream.io.raw_log import raw_stereo_messages
 from pcainterp_stream.io.rosmsg import image_message
 from pcainterp_stream.io.stereo_log import (
     LEFT_FRAME,
@@ -72,7 +87,8 @@ RAW_CALIBRATION = "calib_cam_to_cam.txt"
 ODOMETRY_CALIBRATION = "calib.txt"
 
 EXPECTED_LAYOUTS = (
-    "expected a KITTI raw drive folder (<date>_drive_XXXX_sync with image_00/data and "
+    "expected a KITTI raw drive folder (<date>_drive_XXXX_sync, or the unrectified "
+    "<date>_drive_XXXX_extract, with image_00/data and "
     "image_01/data, or the colour image_02/data and image_03/data, and calib_cam_to_cam.txt "
     "in it or one level up) or an odometry sequence folder (sequences/XX with image_0 and "
     "image_1, or the colour image_2 and image_3, and calib.txt)"
@@ -123,6 +139,10 @@ class KittiSequence:
         truth_folder: the folder of the left camera's depth-completion truth, or None.
         unused_truth: a truth folder that was found but not imported (it belongs to the
             colour camera 2 and the grey pair is imported), else None.
+        lens: the raw cameras (K, D, R_rect, P_rect at the raw size) of an unrectified
+            drive, whose images are written raw with them; None for rectified images.
+        unpaired: left and right images of an unrectified drive left out, with no image of
+            the other camera near their stamp.
     """
 
     layout: KittiLayout
@@ -135,6 +155,8 @@ class KittiSequence:
     pair: KittiPair = KittiPair.GREY
     truth_folder: Path | None = None
     unused_truth: Path | None = None
+    lens: StereoCalibration | None = None
+    unpaired: tuple[int, int] = (0, 0)
 
     def __len__(self) -> int:
         return len(self.left_paths)
@@ -146,8 +168,8 @@ class KittiFrame(NamedTuple):
     Attributes:
         frame_index: 0-based frame number.
         stamp_ns: capture time (ns).
-        left: (H, W) uint8 rectified left grey image.
-        right: (H, W) uint8 rectified right grey image.
+        left: (H, W) uint8 left grey image (rectified, or raw with ``sequence.lens``).
+        right: (H, W) uint8 right grey image.
         camera_to_world: (4, 4) float64 left-camera pose, or None without ground truth.
         depth_truth: (H, W) float32 depth-completion truth (m, NaN = none), or None.
     """
@@ -472,13 +494,92 @@ def _raw_drive_folder(folder: Path) -> Path | None:
     """Return the drive folder for a drive or a date folder holding one drive, else None."""
     if _is_raw_drive(folder):
         return folder
-    drives = sorted(p for p in folder.glob("*_sync") if _is_raw_drive(p))
+    drives = sorted(
+        p for p in [*folder.glob("*_sync"), *folder.glob("*_extract")] if _is_raw_drive(p)
+    )
     if len(drives) > 1:
         names = ", ".join(p.name for p in drives)
         raise DatasetImportError(
             f"{folder} holds {len(drives)} KITTI raw drives ({names}); pass one drive folder"
         )
     return drives[0] if drives else None
+
+
+def _size_line(path: Path, values: dict[str, tuple[int, str]], key: str) -> tuple[int, int] | None:
+    """Return the (height, width) of a calibration file's ``S_xx``/``S_rect_xx``, None without."""
+    if key not in values:
+        return None
+    number, text = values[key]
+    try:
+        width, height = (float(item) for item in text.split())
+    except ValueError:
+        width = height = 0.0
+    if not (width >= 1 and height >= 1 and width == int(width) and height == int(height)):
+        raise DatasetImportError(
+            f"line {number} ({key}) of calibration file {path} must hold an image width and "
+            "height; fix or restore the file"
+        )
+    return int(height), int(width)
+
+
+def _wxh(size: tuple[int, int]) -> str:
+    return f"{size[1]}x{size[0]}"
+
+
+def _is_rectified(
+    calibration: Path, values: dict[str, tuple[int, str]], camera: int, first: Path
+) -> bool | None:
+    """Return whether a raw drive's first image has the rectified size, False for the raw one.
+
+    None: the file has no ``S_rect_xx`` (one written by hand) and the image is not of the
+    raw size: rectified, its size unchecked.
+
+    Raises:
+        DatasetImportError: an image of neither size.
+    """
+    rect_key, raw_key = f"S_rect_{camera:02d}", f"S_{camera:02d}"
+    rect = _size_line(calibration, values, rect_key)
+    raw = _size_line(calibration, values, raw_key)
+    size = read_grey(first).shape[:2]
+    if rect is None:
+        return False if size == raw else None
+    if size == rect and not (size == raw and first.parents[2].name.endswith("_extract")):
+        return True
+    if size == raw:
+        return False
+    sizes = f"{rect_key} {_wxh(rect)}" + ("" if raw is None else f", {raw_key} {_wxh(raw)}")
+    raise DatasetImportError(
+        f"image {first} is {_wxh(size)} but calibration file {calibration} is for images of "
+        f"{sizes}: the drive's images are not the ones it calibrates (resized or from "
+        "another date); import the drive as KITTI ships it (<date>_drive_XXXX_sync, "
+        "rectified, or _extract, raw) with the calib_cam_to_cam.txt of its date"
+    )
+
+
+def _pair_by_stamp(
+    left: npt.NDArray[np.int64], right: npt.NDArray[np.int64]
+) -> list[tuple[int, int]]:
+    """Return (left index, right index) of the images each the other's nearest by stamp.
+
+    Within a quarter of the left camera's median frame interval (10 Hz without one): an
+    image whose partner was dropped is left out, not paired with a neighbour's.
+    """
+    period = int(np.median(np.diff(left))) if len(left) > 1 else FRAME_PERIOD_NS
+    if len(right) == 0:
+        return []
+
+    def nearest(stamps: npt.NDArray[np.int64], to: npt.NDArray[np.int64]) -> npt.NDArray[np.intp]:
+        after = np.clip(np.searchsorted(stamps, to), 0, len(stamps) - 1)
+        before = np.clip(after - 1, 0, len(stamps) - 1)
+        take_before = np.abs(stamps[before] - to) <= np.abs(stamps[after] - to)
+        return np.where(take_before, before, after)
+
+    of_left, of_right = nearest(right, left), nearest(left, right)
+    return [
+        (i, int(j))
+        for i, j in enumerate(of_left)
+        if of_right[j] == i and abs(int(right[j]) - int(left[i])) <= period // 4
+    ]
 
 
 def _open_raw(drive: Path, pair: KittiPair | None) -> KittiSequence:
@@ -497,12 +598,67 @@ def _open_raw(drive: Path, pair: KittiPair | None) -> KittiSequence:
     left_key, right_key = pair.projection_keys(KittiLayout.RAW)
     left_p = _projection(calibration, values, left_key)
     right_p = _projection(calibration, values, right_key)
-    left, right = _paired_images(drive / left_name / "data", drive / right_name / "data")
+    left_dir, right_dir = drive / left_name / "data", drive / right_name / "data"
+    lefts = _pngs(left_dir)
+    if not lefts:
+        raise DatasetImportError(f"{left_dir} holds no .png images; {EXPECTED_LAYOUTS}")
+    rectified = _is_rectified(calibration, values, pair.value, lefts[0])
+    if rectified is False:
+        return _open_unrectified(drive, pair, calibration, left_p, right_p)
+    left, right = _paired_images(left_dir, right_dir)
     camera = camera_from_projections(left_p, right_p, read_grey(left[0]).shape[:2], calibration)
+    if rectified is None:  # no S_rect: the size as far as P tells it
+        _check_centre(camera, left[0], calibration, left_key)
     stamps = _raw_stamps(drive / left_name / "timestamps.txt", len(left))
     truth, unused = _truth_folders(drive, KittiLayout.RAW, pair)
     return KittiSequence(
         KittiLayout.RAW, drive, left, right, camera, stamps, None, pair, truth, unused
+    )
+
+
+def _open_unrectified(
+    drive: Path,
+    pair: KittiPair,
+    calibration: Path,
+    left_p: npt.NDArray[np.float64],
+    right_p: npt.NDArray[np.float64],
+) -> KittiSequence:
+    """Open a drive of raw images (``S_xx``'s size): its pairs by stamp and its raw cameras."""
+    left_name, right_name = pair.folders(KittiLayout.RAW)
+    names = f"{pair.value:02d}", f"{pair.value + 1:02d}"
+    try:
+        lens = kitti_calibration(calibration, *names)
+    except CalibrationError as err:
+        raise DatasetImportError(
+            f"{drive} holds unrectified images, which need the raw cameras of the calibration "
+            f"file: {err}; restore the file from the KITTI download"
+        ) from err
+    lefts = _pngs(drive / left_name / "data")
+    rights = _pngs(drive / right_name / "data")
+    left_stamps = _raw_stamps(drive / left_name / "timestamps.txt", len(lefts))
+    if (drive / right_name / "timestamps.txt").is_file():
+        right_stamps = _raw_stamps(drive / right_name / "timestamps.txt", len(rights))
+        pairs = _pair_by_stamp(left_stamps, right_stamps)
+    else:  # no stamps of its own: the right image of the left one's name
+        lefts, rights = _paired_images(drive / left_name / "data", drive / right_name / "data")
+        pairs = [(i, i) for i in range(len(lefts))]
+    if not pairs:
+        raise DatasetImportError(
+            f"no image of {drive / left_name} has an image of {drive / right_name} within a "
+            "quarter frame of its stamp (timestamps.txt of each); restore the drive's files"
+        )
+    camera = camera_from_projections(left_p, right_p, read_grey(lefts[0]).shape[:2], calibration)
+    return KittiSequence(
+        KittiLayout.RAW,
+        drive,
+        [lefts[i] for i, _ in pairs],
+        [rights[j] for _, j in pairs],
+        camera,
+        left_stamps[[i for i, _ in pairs]],
+        None,
+        pair,
+        lens=lens,
+        unpaired=(len(lefts) - len(pairs), len(rights) - len(pairs)),
     )
 
 
@@ -521,6 +677,35 @@ def _from_camera_0(
     return np.asarray(poses @ offset, dtype=np.float64)
 
 
+CENTRE_TOLERANCE = 0.1
+"""Farthest the principal point of an odometry sequence (or of a raw drive's calibration
+without ``S_rect``) may be off its images' centre, as a share of their width and height:
+KITTI's rectified cameras are within 1-4 %; P_rect of a drive in the unrectified 1392x512
+images is 14-16 % off vertically, in images of half the size 48-96 %."""
+
+
+def _check_centre(camera: StereoCamera, first: Path, calibration: Path, key: str) -> None:
+    """Refuse images whose size does not fit the rectified camera, where no S_rect says it.
+
+    Raises:
+        DatasetImportError: the principal point is off the centre by more than
+            :data:`CENTRE_TOLERANCE`.
+    """
+    off = max(
+        abs(camera.cx - camera.width / 2) / camera.width,
+        abs(camera.cy - camera.height / 2) / camera.height,
+    )
+    if off > CENTRE_TOLERANCE:
+        raise DatasetImportError(
+            f"image {first} is {camera.width}x{camera.height} but {key} of calibration file "
+            f"{calibration} puts the principal point at ({camera.cx:.1f}, {camera.cy:.1f}), "
+            f"{off:.0%} of the image off its centre: these are not the rectified images it "
+            "describes (KITTI's rectified images are 1226x370 to 1242x376; raw 1392x512 ones "
+            "are a raw drive's _extract download, imported with the calib_cam_to_cam.txt of "
+            "its date); restore the images or the calibration file"
+        )
+
+
 def _open_odometry(sequence: Path, pair: KittiPair | None) -> KittiSequence:
     calibration = sequence / ODOMETRY_CALIBRATION
     if not calibration.is_file():
@@ -536,6 +721,7 @@ def _open_odometry(sequence: Path, pair: KittiPair | None) -> KittiSequence:
     left_name, right_name = pair.folders(KittiLayout.ODOMETRY)
     left, right = _paired_images(sequence / left_name, sequence / right_name)
     camera = camera_from_projections(left_p, right_p, read_grey(left[0]).shape[:2], calibration)
+    _check_centre(camera, left[0], calibration, left_key)
     stamps = _odometry_stamps(sequence / "times.txt", left)
     poses = _poses(sequence.parent.parent / "poses" / f"{sequence.name}.txt", left)
     poses = _from_camera_0(poses, left_p)
@@ -638,11 +824,13 @@ def import_kitti(
 
     Writes, per frame, the left/right images (mono8), both camera infos, when the sequence
     has ground-truth poses ``/ground_truth/pose``, and with the colour pair the frame's
-    depth-completion truth as ``/ground_truth/lidar_depth``; log time = header stamp.
+    depth-completion truth as ``/ground_truth/lidar_depth``; log time = header stamp. An
+    unrectified drive (``sequence.lens``) is written as a raw log: driver topic names and
+    the raw cameras' infos (:func:`~pcainterp_stream.io.raw_log.raw_stereo_messages`).
 
     Args:
-        folder: a raw drive ``<date>_drive_XXXX_sync`` (or its date folder holding one drive)
-            or an odometry ``sequences/XX`` folder, or one already opened by
+        folder: a raw drive ``<date>_drive_XXXX_sync`` or ``_extract`` (or its date folder
+            holding one drive) or an odometry ``sequences/XX`` folder, or one already opened by
             :func:`open_kitti` (``pair`` is then ignored).
         out_path: output ``.mcap``, ``.bag`` or rosbag2 folder; written atomically.
         format: output format; chosen from ``out_path``'s name when None.
@@ -664,9 +852,13 @@ def import_kitti(
     inputs = [sequence.folder, *sequence.left_paths, *sequence.right_paths]
     with open_writer(out_path, format, inputs=inputs) as writer:
         for frame in iter_frames(sequence, max_frames=max_frames):
-            for topic, message in stereo_messages(
-                frame.stamp_ns, frame.left, frame.right, sequence.camera
-            ):
+            if sequence.lens is None:
+                messages = stereo_messages(frame.stamp_ns, frame.left, frame.right, sequence.camera)
+            else:
+                messages = raw_stereo_messages(
+                    frame.stamp_ns, frame.left, frame.right, sequence.lens
+                )
+            for topic, message in messages:
                 writer.add_message(topic, message, frame.stamp_ns)
             if frame.camera_to_world is not None:
                 writer.add_message(

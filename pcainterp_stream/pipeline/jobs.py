@@ -164,6 +164,18 @@ def import_kitti(
 
         sequence = open_kitti(folder, pair=KittiPair.COLOUR if colour else None)
         summary = convert(sequence, out, max_frames=max_frames, progress=progress)
+    if sequence.lens is not None:
+        lefts, rights = sequence.unpaired
+        left_out = (
+            f"; {lefts} left and {rights} right images with no partner near their stamp left out"
+            if lefts or rights
+            else ""
+        )
+        _echo(
+            f"unrectified drive ({sequence.camera.width}x{sequence.camera.height}, the raw size "
+            "of the calibration file): written as a raw log, /camera/{left,right}/image_raw with "
+            f"the raw cameras' camera_info (K, D, R_rect, P_rect); densify rectifies it{left_out}"
+        )
     truths = summary.topic_counts.get(LIDAR_DEPTH, 0)
     if truths:
         _echo(

@@ -60,6 +60,7 @@ def make_raw(root: Path, n: int = 3, *, calib_in_drive: bool = False) -> Path:
     calib = (
         "calib_time: 01-Jan-2011 00:00:00\n"
         f"S_rect_00: {WIDTH} {HEIGHT}\n"
+        f"S_rect_02: {WIDTH} {HEIGHT}\n"
         f"P_rect_00: {_numbers(P_LEFT)}\n"
         f"P_rect_01: {_numbers(P_RIGHT)}\n"
     )
