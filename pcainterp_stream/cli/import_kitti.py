@@ -18,11 +18,17 @@ def add_parser(commands: Commands) -> None:
             "Convert a KITTI raw drive folder (<date>/<date>_drive_XXXX_sync) or an odometry\n"
             "sequence (sequences/XX with calib.txt) into the project's MCAP layout: the grey\n"
             "pair (cameras 0/1), or the colour pair (cameras 2/3, converted to grey) in a\n"
-            "folder without the grey one or with --colour."
+            "folder without the grey one or with --colour. An unrectified drive\n"
+            "(<date>_drive_XXXX_extract, images of S_00's size) is written as a raw log:\n"
+            "/camera/{left,right}/image_raw with each camera's CameraInfo (K, D, R_rect,\n"
+            "P_rect of calib_cam_to_cam.txt), which densify rectifies; its cameras' images\n"
+            "are paired by their timestamps. Images of another size than S_rect_00 or S_00\n"
+            "are refused."
         ),
         epilog=(
             "examples:\n"
             "  pcainterp import-kitti 2011_09_26/2011_09_26_drive_0001_sync drive.mcap\n"
+            "  pcainterp import-kitti 2011_09_26/2011_09_26_drive_0001_extract raw.mcap\n"
             "  pcainterp import-kitti dataset/sequences/00 seq00.mcap\n"
             "  pcainterp import-kitti dataset/sequences/00 seq00_colour.mcap --colour\n"
         ),
@@ -31,8 +37,9 @@ def add_parser(commands: Commands) -> None:
         "kitti_dir",
         type=Path,
         metavar="KITTI_DIR",
-        help="a raw drive folder (<date>/<date>_drive_XXXX_sync, its calibration files in "
-        "the date folder) or an odometry sequence folder (sequences/XX with calib.txt)",
+        help="a raw drive folder (<date>/<date>_drive_XXXX_sync, or the unrectified _extract, "
+        "its calibration files in the date folder) or an odometry sequence folder "
+        "(sequences/XX with calib.txt)",
     )
     kitti.add_argument(
         "out",
