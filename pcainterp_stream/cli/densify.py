@@ -42,6 +42,7 @@ from pcainterp_stream.io.foxglove import (
     MAX_GAP_S,
     MAX_RATE,
     MIN_RATE,
+    AddressOption,
     ServeAddress,
     check_rate,
 )
@@ -105,6 +106,7 @@ def add_parser(commands: Commands) -> None:
     live.add_argument(
         "--foxglove",
         nargs="?",
+        action=AddressOption,  # a log taken as the address: one line with the fix
         const=f"{DEFAULT_HOST}:{DEFAULT_PORT}",
         default=None,
         metavar="HOST:PORT",

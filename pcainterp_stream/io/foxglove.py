@@ -41,6 +41,7 @@ message.
 
 from __future__ import annotations
 
+import argparse
 import logging
 import re
 import socket
@@ -49,6 +50,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, NamedTuple, Self, cast
 
@@ -133,6 +135,47 @@ def check_rate(rate: float) -> float:
         f"--rate must be 0 (as fast as processed) or between {MIN_RATE:g} and {MAX_RATE:g} "
         f"(x the log's rate; 1 = as recorded), got {rate:g}"
     )
+
+
+LOG_SUFFIXES = (".mcap", ".bag", ".db3")
+"""Names a ``--foxglove`` value never has: a log's (the option takes an optional value)."""
+
+
+class AddressOption(argparse.Action):
+    """``--foxglove [HOST:PORT]`` that refuses a log taken as its address, in one line.
+
+    Its value is optional, so ``densify --foxglove drive.mcap`` made the log the address and
+    argparse then said only that INPUT was missing. A value that names a log (a log's
+    suffix, ``-``, or an existing path that is no address) ends the parse with the fix.
+    """
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: str | Any,
+        option_string: str | None = None,
+    ) -> None:
+        """Store the address, or end the parse in one line if ``values`` names a log."""
+        text = str(values)
+        if _names_a_log(text):
+            parser.exit(
+                2,
+                f"{parser.prog}: error: {option_string or '--foxglove'} took {text!r} as its "
+                f"address (HOST:PORT); put the log first (pcainterp densify {text} "
+                "--foxglove ...) or write the address as --foxglove=HOST:PORT\n",
+            )
+        setattr(namespace, self.dest, values)
+
+
+def _names_a_log(text: str) -> bool:
+    if text == "-" or text.lower().endswith(LOG_SUFFIXES):
+        return True
+    try:
+        ServeAddress.parse(text)
+    except StreamError:
+        return Path(text).exists()
+    return False
 
 
 class LiveMessage(NamedTuple):
@@ -442,13 +485,20 @@ class FoxgloveLive:
         self._port = self._check_bind()
 
     def _check_bind(self) -> int:
-        """Bind and release the address; return the port (a free one for port 0)."""
+        """Bind and release the address; return the port (a free one for port 0).
+
+        With ``SO_REUSEADDR``, as the server's own listener binds (not on Windows, where it
+        would let a second listener share the port): a port whose last connection is in
+        TIME_WAIT (a run stopped while it sent) binds, one a live server listens on does not.
+        """
         try:
             infos = socket.getaddrinfo(
                 self.address.host, self.address.port, type=socket.SOCK_STREAM
             )
             family, kind, proto, _, where = infos[0]
             with socket.socket(family, kind, proto) as probe:
+                if sys.platform != "win32":
+                    probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
                 probe.bind(where)
                 return int(probe.getsockname()[1])
         except OSError as err:
