@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import json
 import socket
 import sys
+import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -11,7 +14,7 @@ import pytest
 from pcainterp_stream import cli
 from pcainterp_stream.cli.app import build_parser
 from pcainterp_stream.errors import StreamError
-from pcainterp_stream.io.foxglove import FoxgloveLive, ServeAddress
+from pcainterp_stream.io.foxglove import SUBPROTOCOL, FoxgloveLive, LiveMessage, ServeAddress
 
 
 def _time_wait_port() -> int:
@@ -86,3 +89,111 @@ def test_an_address_after_foxglove_is_still_an_address() -> None:
     assert [str(p) for p in args.input] == ["drive.mcap"]
     args = parser.parse_args(["densify", "drive.mcap", "--foxglove"])
     assert args.foxglove == "127.0.0.1:8765"
+
+
+def _slow_client(port: int, got: list[int], read_s: float, ready: threading.Event) -> None:
+    """A protocol client with a small receive buffer that reads one message per ``read_s``."""
+    from websockets.sync.client import connect
+
+    sock = socket.socket()
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 16384)
+    deadline = time.monotonic() + 20
+    while True:
+        try:
+            sock.connect(("127.0.0.1", port))
+            break
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
+    with connect(
+        f"ws://127.0.0.1:{port}",
+        sock=sock,
+        subprotocols=[SUBPROTOCOL],
+        max_size=None,
+        max_queue=1,
+    ) as ws:
+        try:
+            while True:
+                frame = ws.recv(timeout=20)
+                if isinstance(frame, str):
+                    op = json.loads(frame)
+                    if op["op"] == "advertise":
+                        subscriptions = [
+                            {"id": index + 1, "channelId": channel["id"]}
+                            for index, channel in enumerate(op["channels"])
+                        ]
+                        ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
+                        ready.set()
+                elif frame[0] == 1:
+                    got.append(len(frame) - 13)
+                    time.sleep(read_s)
+        except Exception:  # the server closed: what arrived is counted
+            return
+
+
+def _stream_to_a_slow_client(
+    drain_s: float | None, notes: list[str]
+) -> tuple[FoxgloveLive, list[int]]:
+    live = FoxgloveLive(
+        ServeAddress("127.0.0.1", 0), rate=0, wait_for=("/slow",), note=notes.append
+    )
+    got: list[int] = []
+    ready = threading.Event()
+    with live:
+        live.advertise("/slow", "std_msgs/msg/String", schema_data=b"string data")
+        live.start()
+        client = threading.Thread(
+            target=_slow_client, args=(live.port, got, 0.01, ready), daemon=True
+        )
+        client.start()
+        for index in range(MESSAGES):
+            live.add_frame(index, [LiveMessage("/slow", "std_msgs/msg/String", PAYLOAD)])
+        live.flush()
+        live.close(drain_s=drain_s)
+    client.join(20)
+    return live, got
+
+
+MESSAGES = 300
+PAYLOAD = bytes(50_000)  # 15 MB in all: more than the kernel's buffers hold
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/net/tcp")
+def test_a_slow_client_gets_the_end_of_the_stream_before_the_server_closes() -> None:
+    """12A F1: the end waited a fixed second and closed: a slow client lost the last frames
+    and nothing said so. Now it waits (bounded) until nothing is queued for the client."""
+    notes: list[str] = []
+    live, got = _stream_to_a_slow_client(None, notes)
+    assert len(got) == MESSAGES, notes
+    assert not live.stats.cut_off
+    assert any("waiting up to 10 s for 1 client(s)" in note for note in notes), notes
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/net/tcp")
+def test_a_client_still_behind_at_the_deadline_is_named_with_what_it_lost() -> None:
+    notes: list[str] = []
+    live, got = _stream_to_a_slow_client(0.3, notes)
+    assert len(got) < MESSAGES
+    ((client, missed),) = live.stats.cut_off.items()
+    assert missed >= 1
+    (line,) = [note for note in notes if "had not received the end" in note]
+    assert f"client {client} had not received the end of the stream after 0.3 s" in line
+    assert f"the last {missed} message(s) or more" in line
+
+
+def test_serving_on_after_a_run_no_client_saw_says_so() -> None:
+    """12A F2: "still serving" after a run with no client: a viewer that connects gets
+    channels and no message, and nothing said why."""
+    notes: list[str] = []
+    live = FoxgloveLive(ServeAddress("127.0.0.1", 0), rate=0, note=notes.append)
+    with live:
+        live.add_frame(1, [LiveMessage("/a", "std_msgs/msg/String", b"\0\1\0\0\1\0\0\0\0")])
+        live.flush()
+        server = threading.Thread(target=live.serve_forever, args=(0.05,), daemon=True)
+        server.start()
+        time.sleep(0.3)
+        live.close(drain_s=0.0)
+        server.join(5)
+    (line,) = [note for note in notes if "no client was connected" in note]
+    assert "--wait-for-client" in line
