@@ -41,7 +41,6 @@ message.
 
 from __future__ import annotations
 
-import argparse
 import logging
 import re
 import socket
@@ -148,31 +147,19 @@ LOG_SUFFIXES = (".mcap", ".bag", ".db3")
 """Names a ``--foxglove`` value never has: a log's (the option takes an optional value)."""
 
 
-class AddressOption(argparse.Action):
-    """``--foxglove [HOST:PORT]`` that refuses a log taken as its address, in one line.
+def log_given_as_address(text: str, option: str = "--foxglove") -> str | None:
+    """The error for a ``--foxglove`` value that names a log, None for any other value.
 
     Its value is optional, so ``densify --foxglove drive.mcap`` made the log the address and
-    argparse then said only that INPUT was missing. A value that names a log (a log's
-    suffix, ``-``, or an existing path that is no address) ends the parse with the fix.
+    argparse then said only that INPUT was missing. A value names a log if it has a log's
+    suffix, is ``-``, or is an existing path that is no address.
     """
-
-    def __call__(
-        self,
-        parser: argparse.ArgumentParser,
-        namespace: argparse.Namespace,
-        values: str | Any,
-        option_string: str | None = None,
-    ) -> None:
-        """Store the address, or end the parse in one line if ``values`` names a log."""
-        text = str(values)
-        if _names_a_log(text):
-            parser.exit(
-                2,
-                f"{parser.prog}: error: {option_string or '--foxglove'} took {text!r} as its "
-                f"address (HOST:PORT); put the log first (pcainterp densify {text} "
-                "--foxglove ...) or write the address as --foxglove=HOST:PORT\n",
-            )
-        setattr(namespace, self.dest, values)
+    if not _names_a_log(text):
+        return None
+    return (
+        f"{option} took {text!r} as its address (HOST:PORT); put the log first (pcainterp "
+        f"densify {text} --foxglove ...) or write the address as --foxglove=HOST:PORT"
+    )
 
 
 def _names_a_log(text: str) -> bool:
