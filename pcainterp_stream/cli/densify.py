@@ -44,6 +44,7 @@ from pcainterp_stream.io.foxglove import (
     MIN_RATE,
     ServeAddress,
     check_rate,
+    log_given_as_address,
 )
 
 if TYPE_CHECKING:
@@ -102,9 +103,26 @@ def add_parser(commands: Commands) -> None:
         help="write DIR/<stem>_dense.mcap per input, the logs densified in parallel on Dask",
     )
     live = densify.add_argument_group("live view in Foxglove (docs/viewing.md)")
+
+    class AddressOption(argparse.Action):
+        """``--foxglove [HOST:PORT]``; a log taken as its address ends the parse in one line."""
+
+        def __call__(
+            self,
+            parser: argparse.ArgumentParser,
+            namespace: argparse.Namespace,
+            values: object,
+            option_string: str | None = None,
+        ) -> None:
+            error = log_given_as_address(str(values), option_string or "--foxglove")
+            if error is not None:
+                parser.exit(2, f"{parser.prog}: error: {error}\n")
+            setattr(namespace, self.dest, values)
+
     live.add_argument(
         "--foxglove",
         nargs="?",
+        action=AddressOption,
         const=f"{DEFAULT_HOST}:{DEFAULT_PORT}",
         default=None,
         metavar="HOST:PORT",

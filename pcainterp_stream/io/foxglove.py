@@ -49,10 +49,12 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, NamedTuple, Self, cast
 
 from pcainterp_stream.errors import StreamError
+from pcainterp_stream.io.foxglove_drain import SentSizes, queued_bytes
 from pcainterp_stream.io.log_time_hold import LogTimeHold
 
 if TYPE_CHECKING:  # imported when used: the command line's parser imports this module
@@ -87,6 +89,12 @@ TIME_EVERY_S = 0.05
 """Shortest wall time (s) between two broadcasts of the server's time (the log time)."""
 
 
+DRAIN_MAX_S = 10.0
+"""Longest wait (s) at the end for the connected clients to receive what is queued for them
+(Linux; elsewhere a fixed second). A client still behind then loses the rest, and is named."""
+
+DRAIN_NOTE_S = 0.5
+"""Wait (s) at the end before saying that it waits for a client."""
 
 STOP_TIMEOUT_S = 5.0
 """Longest wait (s) for the server to stop on close; past it the process goes on (and ends)."""
@@ -133,6 +141,35 @@ def check_rate(rate: float) -> float:
         f"--rate must be 0 (as fast as processed) or between {MIN_RATE:g} and {MAX_RATE:g} "
         f"(x the log's rate; 1 = as recorded), got {rate:g}"
     )
+
+
+LOG_SUFFIXES = (".mcap", ".bag", ".db3")
+"""Names a ``--foxglove`` value never has: a log's (the option takes an optional value)."""
+
+
+def log_given_as_address(text: str, option: str = "--foxglove") -> str | None:
+    """The error for a ``--foxglove`` value that names a log, None for any other value.
+
+    Its value is optional, so ``densify --foxglove drive.mcap`` made the log the address and
+    argparse then said only that INPUT was missing. A value names a log if it has a log's
+    suffix, is ``-``, or is an existing path that is no address.
+    """
+    if not _names_a_log(text):
+        return None
+    return (
+        f"{option} took {text!r} as its address (HOST:PORT); put the log first (pcainterp "
+        f"densify {text} --foxglove ...) or write the address as --foxglove=HOST:PORT"
+    )
+
+
+def _names_a_log(text: str) -> bool:
+    if text == "-" or text.lower().endswith(LOG_SUFFIXES):
+        return True
+    try:
+        ServeAddress.parse(text)
+    except StreamError:
+        return Path(text).exists()
+    return False
 
 
 class LiveMessage(NamedTuple):
@@ -213,6 +250,8 @@ class LiveStats:
         gaps_skipped: gaps in log time the pacing did not wait for.
         gap_s_skipped: their total length (s of log).
         dropped: client addresses whose connection ended without a close handshake.
+        cut_off: client address -> messages still queued for it when the server closed (at
+            least that many of the last ones: the kernel's queue, as the SDK counts nothing).
         refused: handshakes the SDK refused (said in one line, at the first).
         schemaless: topics of channels with no schema (advertised with none).
         skipped: topics left out of the live stream (the SDK cannot carry them).
@@ -226,6 +265,7 @@ class LiveStats:
     gaps_skipped: int = 0
     gap_s_skipped: float = 0.0
     dropped: set[str] = field(default_factory=set)
+    cut_off: dict[str, int] = field(default_factory=dict)
     refused: int = 0
     schemaless: list[str] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
@@ -408,6 +448,7 @@ class FoxgloveLive:
         self._paced_ns = 0  # the latest log time paced
         self._time_ns = -1  # the latest log time published
         self._time_sent: tuple[int, float] = (-1, 0.0)  # the latest time broadcast, its wall time
+        self._sent = SentSizes(4 * backlog)
         self._waited = not self.wait_for
 
     # lifetime ---------------------------------------------------------------------------
@@ -442,13 +483,20 @@ class FoxgloveLive:
         self._port = self._check_bind()
 
     def _check_bind(self) -> int:
-        """Bind and release the address; return the port (a free one for port 0)."""
+        """Bind and release the address; return the port (a free one for port 0).
+
+        With ``SO_REUSEADDR``, as the server's own listener binds (not on Windows, where it
+        would let a second listener share the port): a port whose last connection is in
+        TIME_WAIT (a run stopped while it sent) binds, one a live server listens on does not.
+        """
         try:
             infos = socket.getaddrinfo(
                 self.address.host, self.address.port, type=socket.SOCK_STREAM
             )
             family, kind, proto, _, where = infos[0]
             with socket.socket(family, kind, proto) as probe:
+                if sys.platform != "win32":
+                    probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
                 probe.bind(where)
                 return int(probe.getsockname()[1])
         except OSError as err:
@@ -494,11 +542,15 @@ class FoxgloveLive:
         if self.on_start is not None:
             self.on_start()
 
-    def close(self, drain_s: float = 1.0, stop_timeout_s: float = STOP_TIMEOUT_S) -> None:
+    def close(self, drain_s: float | None = None, stop_timeout_s: float = STOP_TIMEOUT_S) -> None:
         """Stop the server (idempotent); clients see the connection close.
 
-        With subscribers, first wait ``drain_s`` so their queued messages go out (the SDK
-        closes connections without sending what is queued). The SDK's stop runs in a thread
+        With subscribers, first wait until what is queued for them has gone out (the SDK
+        closes connections without sending what is queued), at most ``drain_s`` (default
+        :data:`DRAIN_MAX_S`; 0: no wait), saying so after :data:`DRAIN_NOTE_S`; a client
+        still behind then is named, with how many messages it lost
+        (:attr:`LiveStats.cut_off`). Where the kernel's queues cannot be read (not Linux)
+        the wait is a fixed second. The SDK's stop runs in a thread
         joined for at most ``stop_timeout_s``: it waits for the connections to close, and a
         client that never answers must not keep the process from ending. If it has not
         finished by then the channels and context are left to the process's end: dropping
@@ -506,8 +558,8 @@ class FoxgloveLive:
         """
         stopped = True
         if self._server is not None:
-            if self.stats.clients and drain_s > 0:
-                time.sleep(drain_s)
+            if self.stats.clients and (drain_s is None or drain_s > 0):
+                self._drain(DRAIN_MAX_S if drain_s is None else drain_s)
             server, self._server = self._server, None
             if self in _SDK_LOG.sinks:
                 _SDK_LOG.sinks.remove(self)
@@ -518,6 +570,36 @@ class FoxgloveLive:
         if stopped:
             self._channels.clear()
             self._context = None
+
+    def _drain(self, limit_s: float, poll_s: float = 0.05) -> None:
+        """Wait until no client has anything queued (twice in a row), at most ``limit_s``."""
+        started = time.monotonic()
+        if queued_bytes(self.port) is None:  # not Linux: the fixed wait of before
+            time.sleep(min(1.0, limit_s))
+            return
+        said, empty, queued = False, 0, {}
+        while empty < 2:
+            queued = queued_bytes(self.port) or {}
+            empty = 0 if queued else empty + 1
+            waited = time.monotonic() - started
+            if queued and waited >= limit_s:
+                break
+            if queued and not said and waited >= DRAIN_NOTE_S:
+                said = True
+                (self.note or _stderr)(
+                    f"foxglove: waiting up to {limit_s:g} s for {len(queued)} client(s) to "
+                    f"receive the end of the stream ({sum(queued.values()) / 1e6:.1f} MB "
+                    "queued)"
+                )
+            time.sleep(poll_s)
+        for client, size in queued.items():
+            missed = self._sent.messages_in(size)
+            self.stats.cut_off[client] = missed
+            (self.note or _stderr)(
+                f"foxglove: client {client} had not received the end of the stream after "
+                f"{limit_s:g} s: the last {missed} message(s) or more ({size / 1e6:.1f} MB "
+                "queued) were lost when the server closed"
+            )
 
     def __enter__(self) -> Self:
         self.open()
@@ -646,6 +728,12 @@ class FoxgloveLive:
     def serve_forever(self, poll_s: float = 0.5) -> None:
         """Keep serving (clients may still connect and look) until Ctrl-C or SIGTERM."""
         self.start()
+        if not self.stats.clients and self.stats.frames:
+            (self.note or _stderr)(
+                "foxglove: no client was connected during the run, and nothing more will be "
+                "sent: a viewer that connects now sees the channels but no message; to "
+                "watch it, run again with --wait-for-client (or write a file with -o)"
+            )
         while self._server is not None:
             time.sleep(poll_s)
 
@@ -679,6 +767,7 @@ class FoxgloveLive:
         if self.send_rate > 0 and channel.has_sinks():
             self._throttle()
         channel.log(data, log_time=log_time_ns)
+        self._sent.add(len(data))
         self.stats.messages += 1
 
     def _broadcast_time(self, *, force: bool) -> None:

@@ -26,6 +26,7 @@ import sys
 import tempfile
 import threading
 import time
+import uuid
 from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, BinaryIO
@@ -60,7 +61,8 @@ _EPOCH_SPAN_NS = (631_148_400_000_000_000, 4_102_444_800_000_000_000)
 durations since the log's own zero."""
 
 VIEWER_FLUSH_S = 10.0
-"""How long the end of a job waits for a spawned viewer to take the last frames."""
+"""How long the end of a job waits for the viewer to take the last frames (a viewer that
+does not answer, suspended or frozen, is then left: Rerun's own flush would wait for ever)."""
 
 FILE_FLUSH_S = 300.0
 """How long it waits for the recording's last bytes to reach its file."""
@@ -322,7 +324,11 @@ def _exit_status(pid: int | None) -> int | None:
 class RerunSink:
     """Log :class:`DensifiedFrame` records to Rerun, as a context manager.
 
-    With both ``rrd_path`` and ``spawn`` the recording goes to both, the viewer and the file.
+    With both ``rrd_path`` and ``spawn`` the recording goes to both, the viewer and the file,
+    as two Rerun recording streams of one recording id: the file is flushed on its own, so
+    a viewer that went away or does not answer never costs the file (Rerun flushes every
+    sink of a stream at once, and one failed sink failed the flush), and the end waits at
+    most :data:`VIEWER_FLUSH_S` for the viewer.
 
     Args:
         rrd_path: write a recording to this file (written to a temporary beside it and
@@ -350,7 +356,8 @@ class RerunSink:
         self._pump: _Pump | None = None
         self.written = False
         """Whether the recording file was written whole (set when the sink closes)."""
-        self._recording: rr.RecordingStream | None = None
+        self._recording: rr.RecordingStream | None = None  # the file's, else the viewer's
+        self._viewer: rr.RecordingStream | None = None  # the viewer's, beside a file's
         self._camera_logged: tuple[int, int, float, float, float, float] | None = None
         self._log_time_is_epoch: bool | None = None  # decided at the first frame
         self._stamps: tuple[int, int, bool] | None = None  # frames, first stamp ns, any other
@@ -365,19 +372,25 @@ class RerunSink:
                     f"{problem}; record with --rrd FILE instead and open it with `rerun FILE` "
                     f"where there is one, {START_YOURSELF}"
                 )
-        sinks: list[rr.GrpcSink | rr.FileSink] = []
+        recordings: list[rr.RecordingStream] = []
+        recording_id = str(uuid.uuid4())  # one recording, in the file and in the viewer
         try:
+            sinks: list[rr.GrpcSink | rr.FileSink] = []
             if self.rrd_path is not None:  # before the viewer: a path refused starts none
                 sinks.append(rr.FileSink(self._open_recording_file(self.rrd_path)))
             if self.spawn:
                 spawn_viewer(self.viewer_port)
                 sinks.append(rr.GrpcSink(f"rerun+http://{VIEWER_HOST}:{self.viewer_port}/proxy"))
-            recording = rr.RecordingStream(self.application_id)
-            recording.set_log_time_enabled(False)  # the run's wall clock: not the log's time
-            recording.set_sinks(*sinks)
+            for sink in sinks:  # a stream per sink: each is flushed (and fails) on its own
+                recording = rr.RecordingStream(self.application_id, recording_id=recording_id)
+                recording.set_log_time_enabled(False)  # the run's wall clock: not the log's time
+                recording.set_sinks(sink)
+                recordings.append(recording)
         except BaseException:
             self._discard()
             raise
+        recording = recordings[0]
+        self._viewer = recordings[1] if len(recordings) > 1 else None
         self._recording = recording
         return self
 
@@ -422,22 +435,27 @@ class RerunSink:
         exc: BaseException | None,
         traceback: TracebackType | None,
     ) -> None:
-        recording = self._recording
-        self._recording = None
+        recording, viewer = self._recording, self._viewer
+        self._recording = self._viewer = None
         if recording is None:
             return
+        if self.rrd_path is None:  # the viewer's stream alone
+            recording, viewer = None, recording
         interrupted = signalled() or (
             exc_type is not None and issubclass(exc_type, KeyboardInterrupt)
         )
+        # the recording's failure never costs the job's other outputs: it is a warning
+        closing = (
+            None if viewer is None else _Closer(viewer, None if interrupted else VIEWER_FLUSH_S)
+        )
+        failed: str | None = None
         try:
-            # the recording's failure never costs the job's other outputs: it is a warning
-            failed = _close_recording(
-                recording,
-                flush_s=None if interrupted else FILE_FLUSH_S if self.rrd_path else VIEWER_FLUSH_S,
-            )
+            if recording is not None:  # the file: never waits on the viewer
+                failed = _Closer(recording, None if interrupted else FILE_FLUSH_S).wait()
             if self._pump is not None:
                 self._pump.finish(CLOSE_AFTER_SIGNAL_S if interrupted else FILE_FLUSH_S)
                 failed = failed or self._pump.error
+            viewer_failed = None if closing is None else closing.wait()
         except BaseException:  # a signal while Rerun finishes
             self._discard()
             raise
@@ -469,10 +487,15 @@ class RerunSink:
         if self._pump is not None and self._pump.error is not None:
             print(f"warning: {self._pump.error}; no recording was written there", file=sys.stderr)
         elif failed is not None:
-            target = f"the recording {self.rrd_path}" if self.rrd_path else "the Rerun viewer"
             print(
-                f"warning: {target} did not take the last frames ({failed})"
-                + ("; nothing was written there" if self.rrd_path else ""),
+                f"warning: the recording {self.rrd_path} did not take the last frames ({failed}); "
+                "nothing was written there",
+                file=sys.stderr,
+            )
+        if viewer_failed is not None:
+            kept = f"; {self.rrd_path} is complete" if self.written else ""
+            print(
+                f"warning: the Rerun viewer did not take the last frames ({viewer_failed}){kept}",
                 file=sys.stderr,
             )
 
@@ -500,33 +523,34 @@ class RerunSink:
             raise RuntimeError("RerunSink.log called outside its with-block")
         frame = result.frame
         camera = frame.camera
-        recording.set_time(TIMELINE, timestamp=np.datetime64(frame.stamp_ns, "ns"))
+        stamp = np.datetime64(frame.stamp_ns, "ns")
         if self._log_time_is_epoch is None:  # one type for the whole time line
             low, high = _EPOCH_SPAN_NS
             self._log_time_is_epoch = low <= frame.log_time_ns <= high
-        if self._log_time_is_epoch:
-            recording.set_time(LOG_TIME_TIMELINE, timestamp=np.datetime64(frame.log_time_ns, "ns"))
-        else:
-            recording.set_time(LOG_TIME_TIMELINE, duration=np.timedelta64(frame.log_time_ns, "ns"))
         frames, first, other = self._stamps or (0, frame.stamp_ns, False)
         self._stamps = (frames + 1, first, other or frame.stamp_ns != first)
+        entities: list[tuple[str, Any]] = []
         key = (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy)
         if key != self._camera_logged:
-            recording.log(
-                "camera",
-                rr.Pinhole(
-                    focal_length=[camera.fx, camera.fy],
-                    principal_point=[camera.cx, camera.cy],
-                    resolution=[camera.width, camera.height],
-                ),
+            entities.append(
+                (
+                    "camera",
+                    rr.Pinhole(
+                        focal_length=[camera.fx, camera.fy],
+                        principal_point=[camera.cx, camera.cy],
+                        resolution=[camera.width, camera.height],
+                    ),
+                )
             )
             self._camera_logged = key
-        recording.log("camera/image", rr.Image(frame.left))
-        recording.log(
-            "camera/depth",
-            rr.DepthImage(
-                result.depth, meter=1.0, colormap="turbo", depth_range=(0.0, DISPLAY_MAX_DEPTH)
-            ),
+        entities.append(("camera/image", rr.Image(frame.left)))
+        entities.append(
+            (
+                "camera/depth",
+                rr.DepthImage(
+                    result.depth, meter=1.0, colormap="turbo", depth_range=(0.0, DISPLAY_MAX_DEPTH)
+                ),
+            )
         )
         disparities = result.disparities
         if disparities.size:
@@ -537,41 +561,80 @@ class RerunSink:
             ).astype(np.uint8)
         else:
             colors = np.zeros((0, 3), dtype=np.uint8)
-        recording.log("camera/features", rr.Points2D(result.pixels, radii=2.0, colors=colors))
-        recording.log(
-            "depth_std",
-            rr.DepthImage(
-                result.depth_std,
-                meter=1.0,
-                colormap="viridis",
-                depth_range=(0.0, DISPLAY_MAX_DEPTH_STD),
-            ),
+        entities.append(("camera/features", rr.Points2D(result.pixels, radii=2.0, colors=colors)))
+        entities.append(
+            (
+                "depth_std",
+                rr.DepthImage(
+                    result.depth_std,
+                    meter=1.0,
+                    colormap="viridis",
+                    depth_range=(0.0, DISPLAY_MAX_DEPTH_STD),
+                ),
+            )
         )
+        for stream in (recording, self._viewer):  # the archetypes are built once for both
+            if stream is None:
+                continue
+            stream.set_time(TIMELINE, timestamp=stamp)
+            if self._log_time_is_epoch:
+                log_time = np.datetime64(frame.log_time_ns, "ns")
+                stream.set_time(LOG_TIME_TIMELINE, timestamp=log_time)
+            else:
+                log_time_d = np.timedelta64(frame.log_time_ns, "ns")
+                stream.set_time(LOG_TIME_TIMELINE, duration=log_time_d)
+            for entity, archetype in entities:
+                stream.log(entity, archetype)
 
 
-def _close_recording(recording: rr.RecordingStream, *, flush_s: float | None) -> str | None:
-    """Flush (unless ``flush_s`` is None) and disconnect ``recording``; return a failure.
+class _Closer:
+    """Flush (unless ``flush_s`` is None) and disconnect a recording stream, in a thread.
 
     Rerun's flush and disconnect are native calls that can wait for seconds (a viewer that
-    went away, a slow disk). Made from the main thread, they would hold off a second Ctrl-C's
-    handler (Python runs it only between the main thread's bytecodes) until the signal
-    watchdog killed the process; so they run in a thread of their own, which the main thread
-    joins in short, interruptible waits. Without a flush (after a signal) the wait is bounded
-    by :data:`CLOSE_AFTER_SIGNAL_S`: nothing is kept then, and the process is ending.
+    went away, a slow disk) or for ever (a viewer that accepted the connection and does not
+    answer: Rerun's gRPC flush then ignores its timeout, "will keep waiting"). Made from the
+    main thread, they would also hold off a second Ctrl-C's handler (Python runs it only
+    between the main thread's bytecodes) until the signal watchdog killed the process; so
+    they run in a daemon thread of their own, which :meth:`wait` joins in short,
+    interruptible waits, for at most ``flush_s`` and a second more. A stream not closed by
+    then is left to the process's end (Rerun's exit handler, which would flush it again,
+    is then removed). Without a flush (after a signal) the wait is
+    :data:`CLOSE_AFTER_SIGNAL_S`: nothing is kept then, and the process is ending.
     """
-    failed: list[str] = []
 
-    def close() -> None:
-        if flush_s is not None:
+    def __init__(self, recording: rr.RecordingStream, flush_s: float | None) -> None:
+        self.failed: list[str] = []
+        self.flush_s = flush_s
+        self._deadline = time.monotonic() + (
+            CLOSE_AFTER_SIGNAL_S if flush_s is None else flush_s + 1.0
+        )
+        self._thread = threading.Thread(
+            target=self._close, args=(recording,), name="rerun-close", daemon=True
+        )
+        self._thread.start()
+
+    def _close(self, recording: rr.RecordingStream) -> None:
+        if self.flush_s is not None:
             try:
-                recording.flush(timeout_sec=flush_s)
+                recording.flush(timeout_sec=self.flush_s)
             except RuntimeError as error:  # the viewer gone, or the file's bytes stuck
-                failed.append(str(error).splitlines()[0] if str(error) else type(error).__name__)
+                text = str(error).splitlines()[0] if str(error) else type(error).__name__
+                self.failed.append(text)
         recording.disconnect()
 
-    closer = threading.Thread(target=close, name="rerun-close", daemon=True)
-    closer.start()
-    deadline = None if flush_s is not None else time.monotonic() + CLOSE_AFTER_SIGNAL_S
-    while closer.is_alive() and (deadline is None or time.monotonic() < deadline):
-        closer.join(0.1)
-    return failed[0] if failed else None
+    def wait(self) -> str | None:
+        """Wait for the close (at most until its deadline); return its failure, if any."""
+        while self._thread.is_alive() and time.monotonic() < self._deadline:
+            self._thread.join(0.1)
+        if self._thread.is_alive():
+            _leave_to_exit()
+            if self.flush_s is not None and not self.failed:
+                return f"no answer in {self.flush_s:g} s"
+        return self.failed[0] if self.failed else None
+
+
+def _leave_to_exit() -> None:
+    """Keep Rerun's exit handler from flushing a stream that did not close (it would hang)."""
+    import rerun as rr
+
+    rr.unregister_shutdown()

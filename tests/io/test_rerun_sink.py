@@ -696,3 +696,101 @@ def test_a_viewer_listening_gets_the_stream_without_a_display(
         time.sleep(0.1)
     with pytest.raises(LogWriteError, match="or start a viewer yourself"):
         RerunSink(spawn=True, viewer_port=_free_port()).__enter__()
+
+
+@pytest.fixture
+def fake_viewer(request: pytest.FixtureRequest) -> Iterator[int]:
+    """A loopback port that accepts connections and then closes them ("close": an `ssh -R`
+    with no viewer behind it, a viewer closed) or never answers ("hold": a suspended viewer)."""
+    mode = request.param
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(16)
+    listener.settimeout(0.1)
+    held: list[socket.socket] = []
+    stop = threading.Event()
+
+    def serve() -> None:
+        while not stop.is_set():
+            try:
+                connection, _ = listener.accept()
+            except OSError:
+                continue
+            if mode == "close":
+                connection.close()
+            else:
+                held.append(connection)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    try:
+        yield int(listener.getsockname()[1])
+    finally:
+        stop.set()
+        thread.join(2)
+        for connection in held:
+            connection.close()
+        listener.close()
+
+
+@pytest.mark.parametrize("fake_viewer", ["close", "hold"], indirect=True)
+def test_a_viewer_that_fails_or_never_answers_costs_not_the_recording_file(
+    tmp_path: Path,
+    temporary_folder: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    fake_viewer: int,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """--rerun --rrd: the file is written whole whatever the viewer does, and the end waits
+    at most VIEWER_FLUSH_S for it (bug hunt 12A F3: the viewer's failure discarded the file;
+    F4: a viewer that accepted and never answered held the end for ever)."""
+    monkeypatch.setattr(rerun_sink, "spawn_viewer", lambda port: None)
+    monkeypatch.setattr(rerun_sink, "has_display", lambda: True)
+    monkeypatch.setattr(rerun_sink, "VIEWER_FLUSH_S", 1.0)
+    target = tmp_path / "run.rrd"
+    outcome: list[bool] = []
+
+    def run() -> None:
+        with RerunSink(rrd_path=target, spawn=True, viewer_port=fake_viewer) as sink:
+            for index in range(3):
+                sink.log(_frame(index))
+        outcome.append(sink.written)
+
+    started = time.monotonic()
+    worker = threading.Thread(target=run, daemon=True)
+    worker.start()
+    worker.join(15)
+    assert not worker.is_alive(), "the end waited on a viewer that does not answer"
+    assert time.monotonic() - started < 8
+    assert outcome == [True]
+    for entity in ("/camera/image", "/camera/depth", "/camera/features", "/depth_std"):
+        assert _entity_rows(target)[entity] == 3
+    assert not list(temporary_folder.iterdir())
+    warning = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert len(warning) == 1, warning
+    assert warning[0].startswith("warning: the Rerun viewer did not take the last frames")
+    assert warning[0].endswith(f"; {target} is complete")
+
+
+@pytest.mark.parametrize("fake_viewer", ["hold"], indirect=True)
+def test_a_viewer_that_never_answers_holds_the_end_at_most_its_deadline(
+    monkeypatch: pytest.MonkeyPatch, fake_viewer: int, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--rerun alone to a suspended viewer: the end gives up after VIEWER_FLUSH_S (12A F4)."""
+    monkeypatch.setattr(rerun_sink, "spawn_viewer", lambda port: None)
+    monkeypatch.setattr(rerun_sink, "has_display", lambda: True)
+    monkeypatch.setattr(rerun_sink, "VIEWER_FLUSH_S", 1.0)
+
+    def run() -> None:
+        with RerunSink(spawn=True, viewer_port=fake_viewer) as sink:
+            for index in range(3):
+                sink.log(_frame(index))
+
+    started = time.monotonic()
+    worker = threading.Thread(target=run, daemon=True)
+    worker.start()
+    worker.join(15)
+    assert not worker.is_alive(), "the end waited on a viewer that does not answer"
+    assert time.monotonic() - started < 8
+    err = capsys.readouterr().err
+    assert "warning: the Rerun viewer did not take the last frames (no answer in 1 s)" in err
