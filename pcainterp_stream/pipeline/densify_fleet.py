@@ -274,7 +274,7 @@ def densify_many(
             )
             tasks[future] = index
         for future in completed(as_completed(list(tasks)), client):  # type: ignore[no-untyped-call]
-            index = tasks[future]
+            index = tasks.pop(future)
             path, out = inputs[index], outputs[index]
             try:
                 summary = task_result(future, "densifying")
@@ -305,6 +305,7 @@ def densify_many(
                         ),
                     )
             _remove(staging.pop(index))
+            future.release()  # done with: not run again when the worker holding it dies
             if on_outcome is not None:
                 on_outcome(outcomes[index])
     except BaseException as err:

@@ -753,7 +753,11 @@ def test_a_failing_log_of_out_dir_is_one_line_without_dask_s_report(
         f"pcainterp: error: {empty.resolve()} is empty, not a log; pass an MCAP file, "
         "a ROS 1 .bag or a rosbag2 folder"
     )
-    assert "2 logs densified" in process.stdout.splitlines()[-1]
+    assert "1 of 2 logs densified" in process.stdout.splitlines()[-2]
+    assert (
+        process.stdout.splitlines()[-1]
+        == line.replace("pcainterp: error: ", "failed: ", 1)[: -len(" (1 of 2 logs done)")]
+    )
     assert sorted(p.name for p in out_dir.iterdir()) == ["a_dense.mcap"]
 
 
