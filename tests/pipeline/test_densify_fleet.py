@@ -10,6 +10,7 @@ import os
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from contextlib import nullcontext
 from pathlib import Path
@@ -238,3 +239,22 @@ def test_the_next_run_removes_every_dead_run_s_staging_folder(
     assert capsys.readouterr().err.splitlines() == [
         f"note: removed {other}'s partial output left by an earlier run that was killed (2.0 MB)"
     ]
+
+
+def test_a_committed_log_s_task_is_released_not_run_again_when_its_worker_dies(
+    log: Path, client: Any, tmp_path: Path
+) -> None:
+    """A worker killed mid-job made Dask re-run the tasks whose results it held, logs
+    already committed ("lose already computed task(s)"): each task is released once done."""
+    other = tmp_path / "other.mcap"
+    other.symlink_to(log)
+    held: list[int] = []
+
+    def on_outcome(_: densify_fleet.DensifyOutcome) -> None:
+        deadline = time.monotonic() + 5  # the client forgets a released task on its loop
+        while len(client.futures) >= 2 - len(held) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        held.append(len(client.futures))
+
+    densify_fleet.densify_many([log, other], tmp_path / "out", None, client, on_outcome=on_outcome)
+    assert held == [1, 0]  # was [2, 2]: the client kept every finished task until the end
