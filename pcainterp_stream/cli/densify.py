@@ -49,6 +49,7 @@ from pcainterp_stream.io.foxglove import (
 
 if TYPE_CHECKING:
     from pcainterp_stream.io.outputs import OutputTopics
+    from pcainterp_stream.pipeline.densify_fleet import DensifyOutcome
     from pcainterp_stream.pipeline.processor import ProcessorConfig
 
 
@@ -707,44 +708,67 @@ def _densify_many(
         check_basis_file(args.basis)
     _hint_split(args.input)
     started = time.perf_counter()
+    report = _OutcomeReport(len(args.input))
     with distributed.connect(
         args.scheduler, args.workers, worker_wait=worker_wait(args), say=cluster_notes
     ) as client:
         outcomes = distributed.densify_many(
-            [path.resolve() for path in args.input],  # workers may run in another folder
-            args.out_dir.resolve(),
+            # absolute (workers may run in another folder), links not followed: an output
+            # is named after the log as given, not after the file a link points to
+            [path.absolute() for path in args.input],
+            args.out_dir.absolute(),
             args.basis.resolve() if args.basis is not None else None,
             client,
+            on_outcome=report.print,
             pairing=pairing_config(args, args.features_topic),
             processor=processor,
             topics=topics,
         )
-    failed = 0
-    for outcome in outcomes:
-        if outcome.error is None:
-            echo(f"densified {_frames(outcome.frames)} of {outcome.input} -> {outcome.output}")
-            if outcome.adapted is not None:
-                wrote = " and ".join(str(path) for path in outcome.bases)
-                echo(f"adapted: {outcome.input.name}: {outcome.adapted}; wrote {wrote}")
-            for line in outcome.warnings:
-                warn(f"{outcome.input.name}: {line}")
-        else:
-            failed += 1
-            error = outcome.error
-            if outcome.input.name not in error:
-                error = f"{outcome.input}: {error}"
-            if outcome.unexpected:  # a bug or a dead worker: one process shows where
-                error += (
-                    f"; densify this log alone (pcainterp densify {outcome.input} -o OUTPUT) "
-                    "to see where it failed"
-                )
-            print(f"pcainterp: error: {error}", file=sys.stderr)
     frames = sum(outcome.frames for outcome in outcomes)
+    failed = [outcome for outcome in outcomes if outcome.error is not None]
+    tail = f"; {len(failed)} failed:" if failed else ""
     echo(
-        f"{len(outcomes) - failed} of {len(outcomes)} logs densified, {_frames(frames)} in "
-        f"{time.perf_counter() - started:.1f} s"
+        f"{len(outcomes) - len(failed)} of {len(outcomes)} logs densified, {_frames(frames)} in "
+        f"{time.perf_counter() - started:.1f} s{tail}"
     )
+    for outcome in failed:
+        echo(f"failed: {_error_line(outcome, hint=False)}")
     return 1 if failed else 0
+
+
+@dataclasses.dataclass
+class _OutcomeReport:
+    """Prints each log's lines of ``densify --out-dir`` as its task is done, with a count."""
+
+    total: int
+    done: int = 0
+
+    def print(self, outcome: DensifyOutcome) -> None:
+        """Print a log's lines: ``densified ...`` (or its error), then adapted and warnings."""
+        self.done += 1
+        count = f"({self.done} of {self.total} logs done)"
+        if outcome.error is not None:
+            print(f"pcainterp: error: {_error_line(outcome)} {count}", file=sys.stderr, flush=True)
+            return
+        echo(f"densified {_frames(outcome.frames)} of {outcome.input} -> {outcome.output} {count}")
+        if outcome.adapted is not None:
+            wrote = " and ".join(str(path) for path in outcome.bases)
+            echo(f"adapted: {outcome.input.name}: {outcome.adapted}; wrote {wrote}")
+        for line in outcome.warnings:
+            warn(f"{outcome.input.name}: {line}")
+
+
+def _error_line(outcome: DensifyOutcome, *, hint: bool = True) -> str:
+    """Return a failed log's error, naming the log (with ``hint``: how to see a bug's cause)."""
+    error = outcome.error or ""
+    if outcome.input.name not in error:
+        error = f"{outcome.input}: {error}"
+    if hint and outcome.unexpected:  # a bug or a dead worker: one process shows where
+        error += (
+            f"; densify this log alone (pcainterp densify {outcome.input} -o OUTPUT) "
+            "to see where it failed"
+        )
+    return error
 
 
 def _frames(count: int) -> str:

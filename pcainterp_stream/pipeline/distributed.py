@@ -20,13 +20,11 @@ held-out share), the same grid and units (the built-in basis's when its statisti
 merged, the merge done here on the reduced summary), and the held-out frames measured on
 the workers, one task per log, for the same fit of the prior.
 
-Densifying runs :func:`pcainterp_stream.pipeline.densify.densify` on each log in its own task; a
-failing log is reported and does not stop the others. A task writes its output into a hidden
-staging folder beside the target (``.NAME.partial-PID@HOST-XXXX``, this process's id and
-machine: a later run removes those of a run that was killed), and this process, not the
-worker, moves it onto the target once the task is done: nothing is committed after a Ctrl-C.
+Densifying many logs (``densify --out-dir``, :func:`densify_many`) is
+:mod:`pcainterp_stream.pipeline.densify_fleet`'s, re-exported here.
 
-Tasks return the errors they meet (:class:`TaskFailure`) rather than raise them: Dask logs
+Tasks return the errors they meet (:class:`TaskFailure`,
+:mod:`pcainterp_stream.pipeline.cluster_tasks`) rather than raise them: Dask logs
 every exception a task raises as a multi-line "Compute Failed" block on the worker's stderr,
 before the caller could say the same in one line. On an interruption (or any error that
 leaves :func:`connect`'s block) the local cluster's worker processes are killed at once,
@@ -36,14 +34,8 @@ the cluster closes.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import errno
-import glob
 import itertools
-import os
-import shutil
-import tempfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -52,31 +44,18 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.errors import (
-    ClusterTaskError,
-    LogReadError,
-    PcaInterpError,
-    SchedulerError,
-)
+from pcainterp_stream.errors import LogReadError, PcaInterpError
 from pcainterp_stream.estimate.basis import Basis, grid_size_for
 from pcainterp_stream.estimate.finetune import finetune_from_sketch
 from pcainterp_stream.estimate.learning import basis_from_fit, fit_from_factor
-from pcainterp_stream.interrupt import (
-    Interrupted,
-    raise_if_signalled,
-    signalled,
-    signals_deferred,
-    track_partial,
-    untrack_partial,
-)
-from pcainterp_stream.io.output_paths import partial_prefix, remove_stale_partials
+from pcainterp_stream.pipeline.cluster_tasks import TaskFailure, run_task, task_result
 from pcainterp_stream.pipeline.common import (
     _bar,
     _check_topic_types,
     _pairing_types,
     _require_topics,
 )
-from pcainterp_stream.pipeline.densify import densify
+from pcainterp_stream.pipeline.densify_fleet import DensifyOutcome, densify_many, output_path
 from pcainterp_stream.pipeline.learn import (
     BLANK_MAPS,
     GridTarget,
@@ -137,76 +116,6 @@ DEFAULT_CHUNK_FRAMES = 64
 
 DEFAULT_OVERSAMPLING = 20
 """The fewest columns kept beyond l in every summary (the local streaming learner's)."""
-
-
-@dataclass(frozen=True)
-class TaskFailure:
-    """An error a task met, returned as its result instead of raised (see the module's notes).
-
-    Attributes:
-        message: the error's message, its first line.
-        kind: the exception's class name.
-        error: the error itself when it is one of this package's (the input's fault, its
-            message written for the user), else None (unexpected: a bug).
-    """
-
-    message: str
-    kind: str
-    error: PcaInterpError | None
-
-    @classmethod
-    def of(cls, error: Exception) -> TaskFailure:
-        """Return the failure of ``error``."""
-        text = str(error).splitlines()[0] if str(error) else type(error).__name__
-        expected = error if isinstance(error, PcaInterpError) else None
-        return cls(text, type(error).__name__, expected)
-
-    def raise_error(self, what: str) -> None:
-        """Raise the error here: this package's as it was, anything else as one line.
-
-        Args:
-            what: the task, for the message of an unexpected error ("a learning task").
-
-        Raises:
-            PcaInterpError: the task's own error.
-            ClusterTaskError: any other.
-        """
-        if self.error is not None:
-            raise self.error
-        raise ClusterTaskError(
-            f"{what} failed on the cluster with an unexpected {self.kind}: {self.message}"
-        )
-
-
-def run_task(function: Callable[..., Any], *args: Any) -> Any:
-    """Run ``function(*args)`` as a task: its result, or the :class:`TaskFailure` it met.
-
-    An argument that is itself a failure (the summary of a chunk that failed, merged) is
-    passed on as the result, unrun.
-    """
-    for arg in args:
-        if isinstance(arg, TaskFailure):
-            return arg
-    try:
-        return function(*args)
-    except Exception as err:  # returned, not raised: see TaskFailure
-        return TaskFailure.of(err)
-
-
-def task_result(future: Any, what: str) -> Any:
-    """Return a task's result (:func:`run_task`), raising the error it met here.
-
-    Raises:
-        PcaInterpError: the task's own error.
-        ClusterTaskError: anything else, a worker that died under the task included.
-    """
-    try:
-        result = future.result()
-    except Exception as err:  # Dask's own: a worker died (KilledWorker), a lost scheduler
-        result = TaskFailure.of(err)
-    if isinstance(result, TaskFailure):
-        result.raise_error(what)
-    return result
 
 
 def cluster_oversampling(n_components: int) -> int:
@@ -661,183 +570,3 @@ def _reduce(
         stack.append((level, merged(first, second)))
     wait(0)
     return stack[0][1] if stack else None
-
-
-@dataclass(frozen=True)
-class DensifyOutcome:
-    """What happened to one log of ``densify --out-dir``.
-
-    Attributes:
-        input: the input log.
-        output: the output log.
-        frames: frames densified (0 on failure).
-        seconds: wall time of the task (s).
-        error: one-line error of a failed log, or None.
-        unexpected: the error is not one of this package's (a bug, or a worker that died):
-            its message alone does not say what to fix.
-        warnings: the run's warnings (:meth:`~pcainterp_stream.pipeline.densify.
-            DensifySummary.warning_lines`), one line each.
-        adapted: why the log was densified with a basis of its own (:meth:`~pcainterp_stream.
-            pipeline.densify.DensifySummary.adapted_line`), None when it was not.
-        bases: the bases saved beside ``output`` when it adapted (``OUTPUT.basis.npz``, the
-            one its channels name, then ``OUTPUT.final.basis.npz`` when relearned).
-    """
-
-    input: Path
-    output: Path
-    frames: int
-    seconds: float
-    error: str | None
-    unexpected: bool = False
-    warnings: tuple[str, ...] = ()
-    adapted: str | None = None
-    bases: tuple[Path, ...] = ()
-
-
-def output_path(input_path: Path, out_dir: Path) -> Path:
-    """Return the output of one input of ``densify --out-dir``: ``DIR/<stem>_dense.mcap``."""
-    return out_dir / f"{input_path.stem}_dense.mcap"
-
-
-def _densify_one(input_path: Path, output: Path, basis: Path | None, kwargs: dict[str, Any]) -> Any:
-    return densify(input_path, output, basis, **kwargs)
-
-
-def densify_many(
-    inputs: list[Path],
-    out_dir: Path,
-    basis: Path | None,
-    client: Any,
-    **kwargs: Any,
-) -> list[DensifyOutcome]:
-    """Densify many logs in parallel on a Dask cluster, one output per log.
-
-    Each task writes into a staging folder of its own in ``out_dir``; its output (and the
-    adapted basis saved beside it) is moved onto the target here, as soon as the task is
-    done. On an interruption the local workers are killed, every staging folder removed,
-    and :class:`pcainterp_stream.interrupt.Interrupted` names the outputs committed before it.
-
-    Args:
-        inputs: input logs (paths readable by the workers), distinct stems.
-        out_dir: output folder (created); outputs are :func:`output_path`.
-        basis: the basis file (readable by the workers); None: the built-in basis.
-        client: a connected ``dask.distributed.Client``.
-        **kwargs: keyword options of :func:`pcainterp_stream.pipeline.densify.densify`
-            (``pairing``, ``processor``, ``topics``).
-
-    Returns:
-        One outcome per input, in input order; failures carry their error.
-
-    Raises:
-        PcaInterpError: two inputs would write the same output.
-        Interrupted: a signal (or ``KeyboardInterrupt``) stopped the run.
-    """
-    from dask.distributed import as_completed
-
-    outputs = [output_path(path, out_dir) for path in inputs]
-    if len(set(outputs)) != len(outputs):
-        raise PcaInterpError(
-            f"inputs share a file name stem, so their outputs in {out_dir} would collide; "
-            "densify them into different --out-dir folders"
-        )
-    created = not out_dir.exists()
-    out_dir.mkdir(parents=True, exist_ok=True)
-    staging: dict[int, Path] = {}  # input index -> its staging folder, until committed
-    outcomes: dict[int, DensifyOutcome] = {}
-    kept: list[Path] = []
-    remote = running_scheduler(client)  # its workers may not see these paths: they check
-    try:
-        tasks: dict[Any, int] = {}
-        for index, (path, out) in enumerate(zip(inputs, outputs, strict=True)):
-            if out.is_dir():  # refused before its work, not when committing it
-                message = (
-                    f"output {out} is a folder but densify writes a file there; remove the "
-                    "folder or densify into another one"
-                )
-                outcomes[index] = DensifyOutcome(path, out, 0, 0.0, message)
-                continue
-            remove_stale_partials(out, where=out_dir)  # a killed earlier run's (never a live one's)
-            folder = Path(tempfile.mkdtemp(prefix=partial_prefix(out, out_dir), dir=out_dir))
-            track_partial(folder)
-            staging[index] = folder
-            paths = WorkerPaths((path,), basis, out_dir, folder) if remote else None
-            future = client.submit(
-                run_task,
-                checked,
-                paths,
-                *(_densify_one, path, folder / out.name, basis, kwargs),
-                pure=False,
-            )
-            tasks[future] = index
-        for future in completed(as_completed(list(tasks)), client):  # type: ignore[no-untyped-call]
-            index = tasks[future]
-            path, out = inputs[index], outputs[index]
-            try:
-                summary = task_result(future, "densifying")
-            except PcaInterpError as err:  # reported per log; the other logs go on
-                outcomes[index] = DensifyOutcome(
-                    path, out, 0, 0.0, str(err), isinstance(err, ClusterTaskError)
-                )
-            else:
-                try:
-                    _commit(staging[index], out)
-                except OSError as err:  # a folder of the output's name, no permission
-                    message = (
-                        f"cannot write {out}: {err.strerror or err}; nothing was written there"
-                    )
-                    outcomes[index] = DensifyOutcome(path, out, 0, 0.0, message)
-                else:
-                    kept.append(out)
-                    outcomes[index] = DensifyOutcome(
-                        path,
-                        out,
-                        summary.frames,
-                        summary.seconds,
-                        None,
-                        warnings=tuple(summary.warning_lines()),
-                        adapted=summary.adapted_line(),
-                        bases=tuple(  # committed beside the output with it
-                            out.parent / written.name for written, _ in summary.bases_saved
-                        ),
-                    )
-            _remove(staging.pop(index))
-    except BaseException as err:
-        stop_local_workers(client)  # before the clean-up: a live worker could still write
-        for folder in staging.values():
-            _remove(folder)
-        if created and not kept:  # the folder this run made, empty again
-            with contextlib.suppress(OSError):
-                out_dir.rmdir()
-        if isinstance(err, KeyboardInterrupt) or signalled():
-            raise Interrupted(out_dir, kept, len(inputs)) from err
-        if isinstance(err, SchedulerError) and kept:
-            raise SchedulerError(
-                f"{err}; kept {len(kept)} of {len(inputs)} outputs, finished before: "
-                + ", ".join(map(str, kept))
-            ) from err
-        raise
-    return [outcomes[index] for index in range(len(inputs))]
-
-
-def _commit(folder: Path, output: Path) -> None:
-    """Move a finished output, and the bases densify saved beside it, onto the target.
-
-    The renames happen together or not at all: a signal during them takes effect after.
-    """
-    raise_if_signalled()  # nothing is committed after a signal
-    stem = glob.escape(output.stem)  # OUTPUT.basis.npz, OUTPUT.final.basis-2.npz...
-    sides = {*folder.glob(f"{stem}.basis*.npz"), *folder.glob(f"{stem}.final.basis*.npz")}
-    names = [side.name for side in sorted(sides)] + [output.name]
-    names = [name for name in names if (folder / name).exists()]
-    for name in names:  # checked before any rename: none of them or all
-        if (output.parent / name).is_dir():
-            raise IsADirectoryError(errno.EISDIR, "a folder of that name is in the way")
-    with signals_deferred():
-        for name in names:  # the output last: it names the basis beside it
-            os.replace(folder / name, output.parent / name)
-
-
-def _remove(folder: Path) -> None:
-    """Remove a staging folder and forget it."""
-    shutil.rmtree(folder, ignore_errors=True)
-    untrack_partial(folder)

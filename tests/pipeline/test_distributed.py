@@ -25,7 +25,7 @@ from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.logwriter import LogFormat, open_writer
-from pcainterp_stream.pipeline import distributed, jobs
+from pcainterp_stream.pipeline import densify_fleet, distributed, jobs
 from pcainterp_stream.pipeline.learn import AUTO_PRIOR_MAPS, learn_pairing
 
 pytest.importorskip("dask.distributed")
@@ -230,6 +230,13 @@ def test_densify_many_matches_one_by_one_and_reports_a_failing_log(
         assert _messages(together) == _messages(alone)
 
 
+def _reported(kwargs: dict[str, Any], outcomes: list[Any]) -> list[Any]:
+    """Hand a fake densify_many's outcomes to the caller's on_outcome, then return them."""
+    for outcome in outcomes:
+        kwargs["on_outcome"](outcome)
+    return outcomes
+
+
 def _assert_same_model(here: Basis, there: Basis) -> None:
     """The bar of a cluster's learn: the local learner's model up to the sketch's truncation."""
     assert there.components.shape == here.components.shape
@@ -382,9 +389,9 @@ def test_densify_many_removes_the_staging_folder_of_a_killed_run_and_names_its_o
     (stale / target.name).write_bytes(bytes(2_500_000))
     live.mkdir()
     staged: list[str] = []
-    commit = distributed._commit
+    commit = densify_fleet._commit
     monkeypatch.setattr(
-        distributed,
+        densify_fleet,
         "_commit",
         lambda folder, out: (staged.append(folder.name), commit(folder, out)),
     )
@@ -429,22 +436,33 @@ def test_cli_densify_out_dir_prints_a_line_per_adapted_log(
 
     def densify_many(inputs: list[Path], out_dir: Path, *args: Any, **kwargs: Any) -> Any:
         own, final = out_dir / "b_dense.basis.npz", out_dir / "b_dense.final.basis.npz"
-        return [
-            distributed.DensifyOutcome(inputs[0], out_dir / "a_dense.mcap", 1, 1.0, None),
-            distributed.DensifyOutcome(
-                inputs[1], out_dir / "b_dense.mcap", 9, 1.0, None, adapted="why", bases=(own,)
-            ),
-            distributed.DensifyOutcome(
-                inputs[1], out_dir / "b_dense.mcap", 9, 1.0, None, adapted="why", bases=(own, final)
-            ),
-        ]
+        return _reported(
+            kwargs,
+            [
+                distributed.DensifyOutcome(inputs[0], out_dir / "a_dense.mcap", 1, 1.0, None),
+                distributed.DensifyOutcome(
+                    inputs[1], out_dir / "b_dense.mcap", 9, 1.0, None, adapted="why", bases=(own,)
+                ),
+                distributed.DensifyOutcome(
+                    inputs[1],
+                    out_dir / "b_dense.mcap",
+                    9,
+                    1.0,
+                    None,
+                    adapted="why",
+                    bases=(own, final),
+                ),
+            ],
+        )
 
     monkeypatch.setattr(distributed, "connect", lambda *args, **kwargs: nullcontext(None))
     monkeypatch.setattr(distributed, "densify_many", densify_many)
-    args = [str(logs["a"]), str(logs["b"]), "--out-dir", str(tmp_path), "--workers", "1"]
-    assert cli.main(["densify", *args]) == 0
+    args = [str(logs["a"]), str(logs["b"]), str(logs["b"]), "--out-dir", str(tmp_path)]
+    assert cli.main(["densify", *args, "--workers", "1"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert lines[0] == f"densified 1 frame of {logs['a']} -> {tmp_path / 'a_dense.mcap'}"
+    assert lines[0] == (
+        f"densified 1 frame of {logs['a']} -> {tmp_path / 'a_dense.mcap'} (1 of 3 logs done)"
+    )
     assert lines[1].startswith("densified 9 frames of ")
     assert lines[2] == f"adapted: b.mcap: why; wrote {tmp_path / 'b_dense.basis.npz'}"
     assert lines[4] == (
@@ -520,9 +538,10 @@ def test_cli_densify_out_dir_adds_a_hint_to_an_unexpected_error(
     from pcainterp_stream import cli
 
     def densify_many(inputs: list[Path], out_dir: Path, *args: Any, **kwargs: Any) -> Any:
-        return [
-            distributed.DensifyOutcome(inputs[0], out_dir / "a_dense.mcap", 0, 0.0, "boom", True)
-        ]
+        return _reported(
+            kwargs,
+            [distributed.DensifyOutcome(inputs[0], out_dir / "a_dense.mcap", 0, 0.0, "boom", True)],
+        )
 
     monkeypatch.setattr(distributed, "connect", lambda *args, **kwargs: nullcontext(None))
     monkeypatch.setattr(distributed, "densify_many", densify_many)
@@ -531,7 +550,7 @@ def test_cli_densify_out_dir_adds_a_hint_to_an_unexpected_error(
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert line == (
         f"pcainterp: error: {logs['a']}: boom; densify this log alone "
-        f"(pcainterp densify {logs['a']} -o OUTPUT) to see where it failed"
+        f"(pcainterp densify {logs['a']} -o OUTPUT) to see where it failed (1 of 1 logs done)"
     )
 
 
@@ -729,11 +748,16 @@ def test_a_failing_log_of_out_dir_is_one_line_without_dask_s_report(
         check=False,
     )
     assert process.returncode == 1, process.stderr
-    assert process.stderr.splitlines() == [
+    [line] = process.stderr.splitlines()
+    assert line.removesuffix(" (1 of 2 logs done)").removesuffix(" (2 of 2 logs done)") == (
         f"pcainterp: error: {empty.resolve()} is empty, not a log; pass an MCAP file, "
         "a ROS 1 .bag or a rosbag2 folder"
-    ]
-    assert "2 logs densified" in process.stdout.splitlines()[-1]
+    )
+    assert "1 of 2 logs densified" in process.stdout.splitlines()[-2]
+    assert (
+        process.stdout.splitlines()[-1]
+        == line.replace("pcainterp: error: ", "failed: ", 1)[: -len(" (1 of 2 logs done)")]
+    )
     assert sorted(p.name for p in out_dir.iterdir()) == ["a_dense.mcap"]
 
 

@@ -13,7 +13,7 @@ import pytest
 
 from pcainterp_stream.errors import PcaInterpError, SchedulerError
 from pcainterp_stream.io.output_paths import partial_prefix
-from pcainterp_stream.pipeline import distributed, jobs, scheduler
+from pcainterp_stream.pipeline import densify_fleet, distributed, jobs, scheduler
 
 pytest.importorskip("dask.distributed")
 
@@ -327,7 +327,7 @@ def test_cli_names_an_out_dir_the_worker_does_not_share_not_its_staging_folder(
     def elsewhere(prefix: str, dir: Path) -> str:  # made on "another machine": not here
         return str(Path(dir) / f"{prefix}gone")
 
-    monkeypatch.setattr(distributed, "tempfile", SimpleNamespace(mkdtemp=elsewhere))
+    monkeypatch.setattr(densify_fleet, "tempfile", SimpleNamespace(mkdtemp=elsewhere))
     out = tmp_path / "out"
     address = one_worker.scheduler_address
     assert cli.main(["densify", str(log), "--out-dir", str(out), "--scheduler", address]) == 1
@@ -337,7 +337,7 @@ def test_cli_names_an_out_dir_the_worker_does_not_share_not_its_staging_folder(
     assert err[-1] == (
         f"pcainterp: error: {log}: --out-dir {out} on the Dask worker ({worker}) is not the "
         f"folder this command wrote to (the staging folder {staging} it made "
-        f"there is missing): the workers need the logs and --out-dir {SHARED}"
+        f"there is missing): the workers need the logs and --out-dir {SHARED} (1 of 1 logs done)"
     )
     assert "create it first" not in "\n".join(err)
 
