@@ -468,7 +468,7 @@ def make_partial_file(target: Path) -> tuple[int, Path]:
     return handle, Path(name)
 
 
-def _alive(pid: int) -> bool:
+def process_alive(pid: int) -> bool:
     """Whether process ``pid`` of this PID namespace exists (another user's included)."""
     if pid <= 0:
         return True  # not a process id of ours: never taken for a dead one
@@ -519,7 +519,7 @@ def _stale(folder: Path, start: str) -> Iterator[Path]:
         return
     for entry in entries:
         match = pattern.fullmatch(entry.name)
-        if match is not None and int(match[1]) != os.getpid() and not _alive(int(match[1])):
+        if match is not None and int(match[1]) != os.getpid() and not process_alive(int(match[1])):
             yield Path(entry.path)
 
 

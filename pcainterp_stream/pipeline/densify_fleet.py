@@ -36,7 +36,11 @@ from pcainterp_stream.interrupt import (
     track_partial,
     untrack_partial,
 )
-from pcainterp_stream.io.output_paths import partial_prefix, remove_stale_partials
+from pcainterp_stream.io.output_paths import (
+    partial_prefix,
+    process_alive,
+    remove_stale_partials,
+)
 from pcainterp_stream.pipeline.cluster_tasks import run_task, task_result
 from pcainterp_stream.pipeline.densify import densify
 from pcainterp_stream.pipeline.scheduler import (
@@ -147,21 +151,6 @@ def remove_dead_staging(out_dir: Path) -> int:
     return sum(remove_stale_partials(out_dir / name, where=out_dir) for name in sorted(names))
 
 
-def _gone(pid: int) -> bool:
-    """Whether process ``pid`` of this machine no longer exists (or is a zombie)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    except OSError:  # another user's: it exists
-        return False
-    try:  # a zombie (killed, its parent yet to reap it) writes nothing more
-        with open(f"/proc/{pid}/stat", "rb") as file:
-            return file.read().rpartition(b")")[2].split()[:1] == [b"Z"]
-    except OSError:
-        return False
-
-
 def _remove_dead_attempt(log: Path, output: Path) -> None:
     """Remove what an earlier attempt of this task left in its staging folder; say so.
 
@@ -180,7 +169,7 @@ def _remove_dead_attempt(log: Path, output: Path) -> None:
     with contextlib.suppress(OSError):
         for entry in os.scandir(output.parent):
             match = pattern.fullmatch(entry.name)
-            if match is None or int(match[1]) == os.getpid() or not _gone(int(match[1])):
+            if match is None or int(match[1]) == os.getpid() or process_alive(int(match[1])):
                 continue
             with contextlib.suppress(OSError):
                 if entry.is_dir(follow_symlinks=False):

@@ -440,7 +440,7 @@ def test_a_killed_process_not_yet_reaped_is_dead() -> None:
                 break
         time.sleep(0.02)
     try:
-        assert not output_paths._alive(child.pid)
-        assert output_paths._alive(os.getpid())
+        assert not output_paths.process_alive(child.pid)
+        assert output_paths.process_alive(os.getpid())
     finally:
         child.wait()
