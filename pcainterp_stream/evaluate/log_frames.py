@@ -346,6 +346,8 @@ def read_frames(
         released: list[int] = []  # the stamp of the frame released last
         stamps = _SeenStamps()  # of the topics matched by stamp: repeated stamps counted
         unplaced = _UnplacedStamps(left_image, *nearby)  # the right image, truth, poses
+        # the reference on its own clock, by the same rule (a sim clock stamps every topic)
+        reference_clock = _UnplacedStamps(*([reference.topic] if reference is not None else []))
         pending: dict[int, dict[str, Any]] = {}
         pending_log_times: dict[int, int] = {}  # of the left image of a pending stamp
         waiting: deque[_Complete] = deque()
@@ -407,8 +409,8 @@ def read_frames(
                 images.see_info(raw.topic, message)
                 continue
             if reference is not None and raw.topic == reference.topic:
-                # stamped 0 (a stack without stamps): at its log time, as truth and the frames
-                stamp = unplaced.stamp(raw.topic, rosmsg.stamp_ns(message), raw.log_time_ns)
+                # stamped 0 or its previous message's: placed as truth and the frames are
+                stamp = reference_clock.stamp(raw.topic, rosmsg.stamp_ns(message), raw.log_time_ns)
                 stamps.first(raw.topic, stamp, state)  # a repeat is counted, and kept
                 references.add(stamp, raw.log_time_ns, message)
                 reference_latest = stamp
@@ -538,8 +540,8 @@ class _UnplacedStamps:
     that of the image before it on the images' clock, or with the left image's log time when
     no image before had a stamp (``StereoPairer.full_result``, :mod:`frontend.image_clock`);
     its left image is placed so here, and so are a right image (the pair was made by log
-    time), truth and poses (on the images' clock, a coarse clock repeats their stamps too),
-    and a reference topic's messages stamped 0 at their log time. An image that is its
+    time), truth, poses and a reference topic's messages (each on its own clock: a coarse or
+    simulator clock repeats their stamps too). An image that is its
     topic's previous one again (same stamp, size, encoding and bytes: a re-send, a merged bag) is a
     copy, which densify drops (``StereoPairer``'s duplicates): :meth:`copy` tells it.
     """
