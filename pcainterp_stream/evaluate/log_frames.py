@@ -30,7 +30,7 @@ from pcainterp_stream.frontend.images import PairImages
 from pcainterp_stream.frontend.pair_forms import grey_alike, same_image_message
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import decode_image, open_log
-from pcainterp_stream.io.output_cameras import FrameCameras
+from pcainterp_stream.io.output_cameras import FrameCameras, features_focal_baseline
 from pcainterp_stream.io.outputs import (
     FOCAL_BASELINE_KEY,
     MEASUREMENTS_KEY,
@@ -143,6 +143,9 @@ class ReadState:
     recovered: list[float] = field(default_factory=list)
     """Each frame's f*b (px*m) read from its features (z * disparity) when the metadata
     lacked it (:attr:`recovered_focal_baseline`)."""
+    unrecorded_note: str = ""
+    """The sentence on frames decoded with their features' f*b, the camera change's record
+    lost (``FrameCameras.unrecorded_note``; "": none)."""
     merged: int = 0
     """Densified messages that replaced one of the same topic and stamp: frames are told
     apart by header stamp, so frames sharing a stamp became one."""
@@ -209,7 +212,7 @@ class ReadState:
     def notes(self) -> list[str]:
         """Return what the report should say about the log's lost metadata ([]: none lost)."""
         if not self.converted:
-            return []
+            return [self.unrecorded_note] if self.unrecorded_note else []
         lost = "the stamp tolerance densify paired with (1 ms assumed unless given), its basis"
         note = (
             "the densified log's channels carry no pcainterp metadata, as after a ROS 2 bag "
@@ -346,6 +349,8 @@ def read_frames(
         released: list[int] = []  # the stamp of the frame released last
         stamps = _SeenStamps()  # of the topics matched by stamp: repeated stamps counted
         unplaced = _UnplacedStamps(left_image, *nearby)  # the right image, truth, poses
+        # the reference on its own clock, by the same rule (a sim clock stamps every topic)
+        reference_clock = _UnplacedStamps(*([reference.topic] if reference is not None else []))
         pending: dict[int, dict[str, Any]] = {}
         pending_log_times: dict[int, int] = {}  # of the left image of a pending stamp
         waiting: deque[_Complete] = deque()
@@ -367,7 +372,10 @@ def read_frames(
 
         def release() -> Frame:
             frame = waiting.popleft()
-            metadata = cameras.metadata(state.metadata, frame.log_time_ns)  # its camera's f*b
+            # its camera's f*b (a compact frame's features tell a change whose record was lost)
+            features = frame.parts[topics.features] if where.compact else None
+            metadata = cameras.metadata(state.metadata, frame.log_time_ns, features)
+            state.unrecorded_note = cameras.unrecorded_note
             if where.compact and FOCAL_BASELINE_KEY not in metadata:
                 recovered = _recover_focal_baseline(frame, topics.features, state)
                 metadata = {**metadata, FOCAL_BASELINE_KEY: repr(recovered)}
@@ -407,8 +415,8 @@ def read_frames(
                 images.see_info(raw.topic, message)
                 continue
             if reference is not None and raw.topic == reference.topic:
-                # stamped 0 (a stack without stamps): at its log time, as truth and the frames
-                stamp = unplaced.stamp(raw.topic, rosmsg.stamp_ns(message), raw.log_time_ns)
+                # stamped 0 or its previous message's: placed as truth and the frames are
+                stamp = reference_clock.stamp(raw.topic, rosmsg.stamp_ns(message), raw.log_time_ns)
                 stamps.first(raw.topic, stamp, state)  # a repeat is counted, and kept
                 references.add(stamp, raw.log_time_ns, message)
                 reference_latest = stamp
@@ -538,8 +546,8 @@ class _UnplacedStamps:
     that of the image before it on the images' clock, or with the left image's log time when
     no image before had a stamp (``StereoPairer.full_result``, :mod:`frontend.image_clock`);
     its left image is placed so here, and so are a right image (the pair was made by log
-    time), truth and poses (on the images' clock, a coarse clock repeats their stamps too),
-    and a reference topic's messages stamped 0 at their log time. An image that is its
+    time), truth, poses and a reference topic's messages (each on its own clock: a coarse or
+    simulator clock repeats their stamps too). An image that is its
     topic's previous one again (same stamp, size, encoding and bytes: a re-send, a merged bag) is a
     copy, which densify drops (``StereoPairer``'s duplicates): :meth:`copy` tells it.
     """
@@ -690,16 +698,10 @@ def _recover_focal_baseline(frame: _Complete, features_topic: str, state: ReadSt
     Raises:
         LogReadError: no frame so far had a feature point with a disparity.
     """
-    features = rosmsg.pointcloud2_arrays(frame.parts[features_topic])
-    if "z" in features and "disparity" in features:
-        z = np.asarray(features["z"], dtype=np.float64)
-        disparity = np.asarray(features["disparity"], dtype=np.float64)
-        with np.errstate(invalid="ignore"):
-            usable = np.isfinite(z) & np.isfinite(disparity) & (z > 0) & (disparity > 0)
-        if usable.any():
-            focal_baseline = float(np.median(z[usable] * disparity[usable]))
-            state.recovered.append(focal_baseline)
-            return focal_baseline
+    focal_baseline = features_focal_baseline(frame.parts[features_topic])
+    if focal_baseline is not None:
+        state.recovered.append(focal_baseline)
+        return focal_baseline
     if state.recovered:
         return state.recovered[-1]
     converted = (

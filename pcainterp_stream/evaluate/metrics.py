@@ -115,7 +115,8 @@ def compare_with_ground_truth(
             if raw.topic == where.estimate:
                 log_times[stamp] = raw.log_time_ns
             if len(parts) == len(wanted):
-                own = cameras.metadata(metadata, log_times.pop(stamp, raw.log_time_ns))
+                features = parts[topics.features] if where.compact else None
+                own = cameras.metadata(metadata, log_times.pop(stamp, raw.log_time_ns), features)
                 _accumulate(comparison, pending.pop(stamp), topics, depth_topic, where, own)
             # frames are written close together: keep only a few stamps waiting
             while len(pending) > 32:  # densify writes outputs ~12 frames after inputs

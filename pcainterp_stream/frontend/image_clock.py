@@ -7,19 +7,37 @@ and ``evaluate`` finds its input images (``evaluate.log_frames``) by the same ru
 :class:`ImageClock` per image topic fed its images in log order, copies left out:
 
 - once an image of the topic had a stamp of its own (the log has a header clock), an unplaced
-  image stays on that clock: the last placed stamp plus the log time since that image (a
-  coarse clock's 1000.0, 1000.0, 1000.2 s at 10 Hz give 1000.0, 1000.1, 1000.2 s);
-- before that (a camera that stamps nothing, all 0; or the images before a clock's first
-  stamp) the log time is the only clock there is: the image's log time.
+  image stays on that clock, after the last stamp of its own ``s`` (logged at ``l``):
+  ``s + rate * (log time - l)``, ``rate`` the clock's: the median, over its last
+  :data:`RATE_SPAN` advances, of the stamp advance over the log-time advance between two
+  images with stamps of their own, at most 1 (a clock that jumped ahead is taken at log-time
+  rate). A coarse clock's 1000.0, 1000.0, 1000.2 s at 10 Hz (rate 1) give 1000.1 for the
+  repeat; a simulator at half real time whose stamps repeat (1000.0, 1000.0, 1000.1,
+  1000.1 ...: rate 0.5) gives 1000.05, 1000.15 ...: between the stamps of their own around
+  it, as long as the clock keeps its rate;
+- while no rate is measured yet (one stamp of its own so far), the ``k``-th image after it
+  is placed at ``s + (log time - l) / (k + 1)``: at a steady frame rate within one frame
+  interval of ``s`` (1000.05, 1000.067, 1000.075 ... s at 10 Hz), short of the next stamp
+  of any clock that ticks no finer than the frames come;
+- each placed stamp is later than the one placed before it (by 1 ns at least) and than the
+  last stamp of its own, so the placed stamps of a run never repeat or go back;
+- before any stamp of its own (a camera that stamps nothing, all 0; or the images before a
+  clock's first stamp) the log time is the only clock there is: the image's log time.
 
 No image is held back: the rule looks only at the images before. A clock that starts at 0
 (a simulator's first frame stamped 0.0 s, then 0.1, 0.2 ...) therefore still places that
-first frame at its log time: telling it from a camera that never stamps needs the next image.
+first frame at its log time: telling it from a camera that never stamps needs the next image;
+and a clock that slows down amid a run of repeats can still be passed by its placed stamps.
 """
 
 from __future__ import annotations
 
+from collections import deque
+from statistics import median
 from typing import NamedTuple
+
+RATE_SPAN = 5
+"""The clock's rate is the median of its rate over this many last advances."""
 
 
 class Restamp(NamedTuple):
@@ -37,20 +55,42 @@ class ImageClock:
 
     def __init__(self) -> None:
         self._previous: int | None = None  # the header stamp of the topic's previous image
-        self._placed: tuple[int, int] | None = None  # (stamp, log time) of the last placed one
+        self._own: tuple[int, int] | None = None  # (stamp, log time) of the last own stamp
+        self._rates: deque[float] = deque(maxlen=RATE_SPAN)  # stamp / log-time advances
+        self._run = 0  # images placed since the last own stamp
+        self._placed = 0  # the last stamp placed (or own) since that one
 
     def place(self, stamp_ns: int, log_time_ns: int) -> Restamp | None:
         """Take the topic's next image; return where it is placed, None: at its own stamp."""
         previous, self._previous = self._previous, stamp_ns
         if stamp_ns not in (0, previous):
-            self._placed = (stamp_ns, log_time_ns)
+            self._see_own(stamp_ns, log_time_ns)
             return None
-        if self._placed is None:
+        if self._own is None:
             return Restamp(log_time_ns, by_log_time=True)
-        placed_ns, placed_log_ns = self._placed
-        return Restamp(placed_ns + max(0, log_time_ns - placed_log_ns), by_log_time=False)
+        own_ns, own_log_ns = self._own
+        self._run += 1
+        since = max(0, log_time_ns - own_log_ns)
+        if self._rates:
+            placed = own_ns + round(min(1.0, median(self._rates)) * since)
+        else:  # no rate yet: within one frame interval of the stamp
+            placed = own_ns + since // (self._run + 1)
+        self._placed = max(placed, self._placed + 1)
+        return Restamp(self._placed, by_log_time=False)
 
     def stamp(self, stamp_ns: int, log_time_ns: int) -> int:
         """Take the topic's next image; return the stamp it is placed at (its own or not)."""
         restamp = self.place(stamp_ns, log_time_ns)
         return stamp_ns if restamp is None else restamp.stamp_ns
+
+    def _see_own(self, stamp_ns: int, log_time_ns: int) -> None:
+        """Take a stamp of the image's own: the clock's rate since the last one."""
+        if self._own is not None:
+            own_ns, own_log_ns = self._own
+            if stamp_ns > own_ns and log_time_ns > own_log_ns:
+                self._rates.append((stamp_ns - own_ns) / (log_time_ns - own_log_ns))
+            elif stamp_ns < own_ns:  # the clock restarted: its rate is measured again
+                self._rates.clear()
+        self._own = (stamp_ns, log_time_ns)
+        self._run = 0
+        self._placed = stamp_ns

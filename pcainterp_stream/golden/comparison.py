@@ -487,6 +487,7 @@ class _Comparer:
                 golden, actual = golden[:common], actual[:common]
             std_key = std_arrays.get(name)
             std: npt.NDArray[np.float64] | None = None
+            used = source  # with the f*b of this message's camera
             if (
                 source is not None
                 and std_key in self.golden_arrays
@@ -495,14 +496,17 @@ class _Comparer:
                 std = np.asarray(self.golden_arrays[std_key], dtype=np.float64)
                 focal_baseline = source.focal_baseline
                 if focal_baseline is not None:
-                    # a message of a log whose camera changed records its own (summary)
-                    focal_baseline = float(want.get("focal_baseline", focal_baseline))
+                    # a message of a log whose camera changed records its own (summary): the
+                    # golden file's, else (saved before it was recorded) the log's under test
+                    own = want.get("focal_baseline", have.get("focal_baseline"))
+                    focal_baseline = focal_baseline if own is None else float(own)
+                    used = source._replace(focal_baseline=focal_baseline)
                     # delta method: z = f*b / d, so std_z = z^2 / (f*b) * std_d
                     with np.errstate(invalid="ignore", over="ignore"):
                         std = golden * golden / focal_baseline * std
-            if std is not None and source is not None:
+            if std is not None and used is not None:
                 allowed = np.where(np.isfinite(std), limits["std_atol"] * std, np.inf)
-                unit = f"{limits['std_atol']:g} std ({source.describe()})"
+                unit = f"{limits['std_atol']:g} std ({used.describe()})"
             else:
                 allowed = limits["atol"] + limits["rtol"] * np.abs(golden)
                 unit = f"atol {limits['atol']:g} + rtol {limits['rtol']:g}"

@@ -12,6 +12,13 @@ per camera ``N`` (0, 1, ...), ``N.focal_baseline`` (px*m), ``N.min_disparity`` (
 those of the last entry whose ``first_log_time_ns`` is at or before its outputs' log time
 (:meth:`FrameCameras.metadata`). A log without the record (one camera, or densified before
 it was written) has one f*b for every frame: the channels'.
+
+A copy of a log that kept its channels and messages but dropped its MCAP metadata records
+(``mcap filter`` without ``--include-metadata``) lost the record of a camera change. Each
+feature point holds z = f*b / disparity, so a frame's features state its own f*b
+(:func:`features_focal_baseline`): :meth:`FrameCameras.metadata` given the features message
+decodes a frame whose features state another f*b than the channel's with theirs, and counts
+it (:attr:`FrameCameras.unrecorded`) for a reader to say so.
 """
 
 from __future__ import annotations
@@ -19,8 +26,11 @@ from __future__ import annotations
 from bisect import bisect_right
 from collections.abc import Iterable
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
+import numpy as np
+
+from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.densify_record import OUTPUT_PREFIX_KEY
 from pcainterp_stream.io.outputs import (
     CAMERAS_RECORD,
@@ -37,6 +47,7 @@ __all__ = [
     "CamerasInForce",
     "FrameCameras",
     "cameras_record",
+    "features_focal_baseline",
     "recorded_cameras_of",
 ]
 
@@ -138,12 +149,38 @@ def recorded_cameras_of(record: dict[str, str]) -> list[CameraInForce]:
         ) from err
 
 
+UNRECORDED_TOLERANCE = 1e-3
+"""A frame's features state another camera when their f*b is this share off the channel's."""
+
+
+def features_focal_baseline(features: Any) -> float | None:
+    """Return the f*b (px*m) a frame's features message states (None: no point with a disparity).
+
+    Each point holds z = f*b / disparity: the median of z * disparity.
+    """
+    arrays = rosmsg.pointcloud2_arrays(features)
+    if "z" not in arrays or "disparity" not in arrays:
+        return None
+    z = np.asarray(arrays["z"], dtype=np.float64)
+    disparity = np.asarray(arrays["disparity"], dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        usable = np.isfinite(z) & np.isfinite(disparity) & (z > 0) & (disparity > 0)
+    return float(np.median(z[usable] * disparity[usable])) if usable.any() else None
+
+
 class FrameCameras:
-    """Each frame's f*b and min disparity in a densified log (the channels' when one camera)."""
+    """Each frame's f*b and min disparity in a densified log (the channels' when one camera).
+
+    Attributes:
+        unrecorded: without the record, the f*b of each frame whose features stated another
+            camera's than the channel's (:meth:`metadata` given ``features``).
+    """
 
     def __init__(self, cameras: Iterable[CameraInForce] = ()) -> None:
         self.cameras = sorted(cameras, key=lambda entry: entry.first_log_time_ns)
         self._starts = [entry.first_log_time_ns for entry in self.cameras]
+        self.unrecorded: list[float] = []
+        self._stated: float | None = None  # the f*b the last frame's features stated
 
     @classmethod
     def of_log(cls, path: Path, prefix: str | None = None) -> FrameCameras:
@@ -163,11 +200,16 @@ class FrameCameras:
     def __len__(self) -> int:
         return len(self.cameras)
 
-    def metadata(self, channel: dict[str, str], log_time_ns: int) -> dict[str, str]:
+    def metadata(
+        self, channel: dict[str, str], log_time_ns: int, features: Any = None
+    ) -> dict[str, str]:
         """Return a channel's metadata with the f*b and min disparity of a frame's camera.
 
         ``log_time_ns``: the log time of the frame's outputs. The channel's own metadata when
-        the log records no camera change.
+        the log records no camera change, unless the frame's ``features`` message (given for
+        a compact log) states another f*b than the channel's (the record lost): then that f*b
+        (a frame whose features hold no disparity: the frame before's), counted in
+        :attr:`unrecorded`; the min disparity stays the channel's.
 
         Examples:
             >>> first, second = CameraInForce(2.0, 0.5, 0, 0, 0), CameraInForce(1.0, 0.25, 6, 6, 60)
@@ -178,10 +220,38 @@ class FrameCameras:
             '1.0'
         """
         if not self.cameras:
-            return channel
+            return channel if features is None else self._stated_by(channel, features)
         entry = self.cameras[max(bisect_right(self._starts, log_time_ns) - 1, 0)]
         return {
             **channel,
             FOCAL_BASELINE_KEY: repr(entry.focal_baseline),
             MIN_DISPARITY_KEY: repr(entry.min_disparity),
         }
+
+    def _stated_by(self, channel: dict[str, str], features: Any) -> dict[str, str]:
+        """Return the channel's metadata, or with the f*b a frame's features state if other."""
+        try:
+            recorded = float(channel[FOCAL_BASELINE_KEY])
+        except (KeyError, ValueError):
+            return channel
+        stated = features_focal_baseline(features)
+        self._stated = stated = self._stated if stated is None else stated
+        if stated is None or abs(stated - recorded) <= UNRECORDED_TOLERANCE * abs(recorded):
+            return channel
+        self.unrecorded.append(stated)
+        return {**channel, FOCAL_BASELINE_KEY: repr(stated)}
+
+    @property
+    def unrecorded_note(self) -> str:
+        """Return the sentence on the frames decoded with their features' f*b ("": none)."""
+        if not self.unrecorded:
+            return ""
+        low, high = f"{min(self.unrecorded):.6g}", f"{max(self.unrecorded):.6g}"
+        stated = low if low == high else f"{low}-{high}"
+        return (
+            f"{len(self.unrecorded)} frames were decoded with the f*b their features "
+            f"state ({stated} px*m, z * disparity), not the depth channel's: the camera changed "
+            f"and the log has no {CAMERAS_RECORD} record (a copy that dropped the MCAP metadata "
+            "records, e.g. `mcap filter` without --include-metadata); their smallest "
+            "resolvable disparity is the first camera's; evaluate the log densify wrote to have it"
+        )

@@ -123,8 +123,11 @@ def test_golden_records_each_cameras_f_b(logs: dict[str, Path]) -> None:
     assert own == [None] * FRAMES + [second.focal_baseline] * FRAMES
 
 
-def _nudged(dense: Path, target: Path, stds: float) -> Path:
-    """Copy a compact log with every depth moved by ``stds`` of its std at its own f*b."""
+def _nudged(dense: Path, target: Path, stds: float, record: bool = False) -> Path:
+    """Copy a compact log with every depth moved by ``stds`` of its std at its own f*b.
+
+    ``record``: with its cameras record (the copy keeps no metadata record otherwise).
+    """
     from mcap_copy import McapCopy
 
     cameras = FrameCameras.of_log(dense, "/pcainterp")
@@ -156,6 +159,8 @@ def _nudged(dense: Path, target: Path, stds: float) -> Path:
                 )
                 data = rosmsg.serialize(moved)
             copy.add(channel_id, raw.log_time, data)
+        for kept in _records(dense, CAMERAS_RECORD) if record else []:
+            copy._writer.add_metadata(CAMERAS_RECORD, dict(kept))
     return target
 
 
@@ -173,3 +178,81 @@ def test_golden_checks_the_second_camera_in_its_own_std(
     nudged = _nudged(logs["compact"], tmp_path / "nudged.mcap", 0.035)
     result = check_log(nudged, golden, topics=[DEPTH])
     assert result.passed, [d.text for d in result.differences]
+
+
+def _without_records(dense: Path, target: Path) -> Path:
+    """Copy a log's channels and messages, no metadata record (`mcap filter`'s default)."""
+    from mcap_copy import McapCopy
+
+    with McapCopy(dense, target) as copy:
+        for _, channel_id, raw in copy.messages():
+            copy.add(channel_id, raw.log_time, raw.data)
+    return target
+
+
+def test_a_compact_log_that_lost_the_record_reads_each_frames_f_b(
+    logs: dict[str, Path], tmp_path: Path
+) -> None:
+    # review 59a F3: without the record every frame took the first camera's f*b again,
+    # silently (nearest 3.94 px against 2.36)
+    lost = _without_records(logs["compact"], tmp_path / "lost.mcap")
+    assert _records(lost, CAMERAS_RECORD) == []
+    options = EvaluateOptions(mode=Mode.STEREO, sweep_every=0, linear=False)
+    kept, _ = evaluate_log(logs["compact"], options)
+    result, _ = evaluate_log(lost, options)
+    assert result.frames == kept.frames == 2 * FRAMES
+    for name, stats in kept.methods.items():
+        assert result.methods[name].pixels == stats.pixels, name
+        assert result.methods[name].delta_2d_sum == pytest.approx(stats.delta_2d_sum, rel=1e-6)
+    (note,) = [note for note in result.notes if CAMERAS_RECORD in note]
+    assert note.startswith(f"{FRAMES} frames were decoded with the f*b their features state")
+    assert not [note for note in kept.notes if CAMERAS_RECORD in note]
+    truth, truth_kept = compare_with_ground_truth(lost), compare_with_ground_truth(logs["compact"])
+    for method in truth_kept.abs_error_sum:
+        assert truth.mean_abs_error(method) == pytest.approx(
+            truth_kept.mean_abs_error(method), rel=1e-6
+        ), method
+
+
+def _golden_files(logs: dict[str, Path], tmp_path: Path) -> tuple[Path, Path]:
+    """Save golden files of the compact log (arrays; statistics loose): as saved now, and as
+    saved before messages recorded their own f*b (none of them does)."""
+    first, golden, old = tmp_path / "first.json", tmp_path / "g.json", tmp_path / "old" / "g.json"
+    save_golden(logs["compact"], first, topics=[DEPTH, STD])
+    loose = json.loads(json.dumps(load_golden(first)["tolerance"]))
+    loose["float"] = {"rel": 1.0, "spread": 1.0, "abs": 1.0}
+    save_golden(logs["compact"], golden, topics=[DEPTH, STD], arrays=True, tolerance=loose)
+    content = json.loads(golden.read_text())
+    messages = content["channels"][DEPTH]["messages"]
+    assert sum("focal_baseline" in message for message in messages) == FRAMES
+    for message in messages:
+        message.pop("focal_baseline", None)
+    old.parent.mkdir()
+    old.write_text(json.dumps(content))
+    for array in tmp_path.glob("g.*"):  # the arrays beside it
+        if array.name != golden.name:
+            (old.parent / array.name).write_bytes(array.read_bytes())
+    return golden, old
+
+
+def test_an_older_golden_file_takes_each_messages_f_b_from_the_log(
+    logs: dict[str, Path], tmp_path: Path
+) -> None:
+    # review 59a F4: a golden file saved before the fix checked the second camera in the
+    # first camera's std although the log under test records its own: 0.035 std failed
+    _, old = _golden_files(logs, tmp_path)
+    nudged = _nudged(logs["compact"], tmp_path / "nudged.mcap", 0.035, record=True)
+    result = check_log(nudged, old, topics=[DEPTH])
+    assert result.passed, [d.text for d in result.differences]
+
+
+def test_a_difference_names_the_f_b_its_std_used(logs: dict[str, Path], tmp_path: Path) -> None:
+    # review 59a F5: a second camera's frame named the first camera's f*b (193.085)
+    golden, _ = _golden_files(logs, tmp_path)
+    nudged = _nudged(logs["compact"], tmp_path / "nudged.mcap", 0.07, record=True)
+    result = check_log(nudged, golden, topics=[DEPTH])
+    first, second = FrameCameras.of_log(logs["compact"], "/pcainterp").cameras
+    texts = [d.text for d in result.differences if "elements" in d.text or "std" in d.text]
+    assert not result.passed
+    assert [t for t in texts if f"f*b {second.focal_baseline:g})" in t], texts
+    assert [t for t in texts if f"f*b {first.focal_baseline:g})" in t], texts

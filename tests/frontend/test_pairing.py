@@ -922,7 +922,8 @@ def test_frames_whose_stamps_do_not_place_them_are_stamped_with_their_log_time()
     # a coarse clock: the first image of each stamp keeps it, the repeats stay on its clock
     # (bug hunt 12C F2), see test_repeated_stamps_of_a_header_clock_stay_on_it
     outputs, stats = _output_stamps([5 * 10**9, 5 * 10**9, 6 * 10**9, 6 * 10**9])
-    assert outputs == [5 * 10**9, 5 * 10**9 + 100 * MS, 6 * 10**9, 6 * 10**9 + 100 * MS]
+    # (the first repeat before the clock's rate is known: half a frame on, review 59a F1)
+    assert outputs == [5 * 10**9, 5 * 10**9 + 50 * MS, 6 * 10**9, 6 * 10**9 + 100 * MS]
     # stamps that tell the images apart are the outputs' stamps, whatever the log times
     outputs, stats = _output_stamps([10**9, 2 * 10**9, 3 * 10**9])
     assert (outputs, stats.log_stamped, stats.stamp_note()) == (
@@ -938,8 +939,9 @@ def test_repeated_stamps_of_a_header_clock_stay_on_it() -> None:
     second = 10**9
     stamps = [1000 * second + (index // 2) * 200 * MS for index in range(8)]
     outputs, stats = _output_stamps(stamps)
-    # was 1000.0, 1600000000.1, 1000.2, 1600000000.3 ... s
-    assert outputs == [1000 * second + index * 100 * MS for index in range(8)]
+    # was 1000.0, 1600000000.1, 1000.2, 1600000000.3 ... s; the first repeat comes before
+    # the clock's rate is known (1000.2 s): half a frame on, short of any next stamp
+    assert outputs == [1000 * second + ms * MS for ms in (0, 50, 200, 300, 400, 500, 600, 700)]
     assert (stats.pairs, stats.clock_stamped, stats.log_stamped) == (8, 4, 0)
     assert (stats.stamp_note() or "").endswith(
         "the outputs of the 4 frames whose left header stamp was 0 or its previous image's "
@@ -950,7 +952,7 @@ def test_repeated_stamps_of_a_header_clock_stay_on_it() -> None:
     outputs, stats = _output_stamps([second, 0, 3 * second, 3 * second, 3 * second])
     assert outputs == [
         second,
-        second + 100 * MS,
+        second + 50 * MS,
         3 * second,
         3 * second + 100 * MS,
         3 * second + 200 * MS,
@@ -958,12 +960,32 @@ def test_repeated_stamps_of_a_header_clock_stay_on_it() -> None:
     # a first frame stamped 0 (a clock that starts at 0, or none yet): no stamp before it, so
     # at its log time (bug hunt 10C F2, left: the images after it are not waited for)
     outputs, stats = _output_stamps([0, 100 * MS, 100 * MS])
-    assert outputs == [0, 100 * MS, 200 * MS]  # from the first log time; frame 0 at log time
+    # from the first log time; frame 0 at log time, frame 2 half a frame after the one stamp
+    # of its own (no rate known yet)
+    assert outputs == [0, 100 * MS, 150 * MS]
     assert (stats.log_stamped, stats.clock_stamped) == (1, 1)
     assert (stats.stamp_note() or "").endswith(
         "are stamped: 1 on the images' clock (the last stamp of their own plus the log time "
         "since it), 1 with the left image's log time (no left image before had a stamp)"
     )
+
+
+def test_a_left_stamp_missed_alone_pairs_with_nothing_as_the_docs_say() -> None:
+    # review 59a F6: docs/raw_logs.md named "a stamp missed once" as kept on the clock; when
+    # only the left image's stamp is 0 and the right keeps its own, the frame is not densified
+    pairer = StereoPairer()
+    with_infos(pairer)
+    start, frames = 1_600_000_000 * 10**9, []
+    for index in range(5):
+        stamp, log_ns = 10**12 + index * 100 * MS, start + index * 100 * MS
+        left = 0 if index == 2 else stamp
+        frames += pairer.push(CONFIG.left_topic, left, log_ns, image(left, index))
+        frames += pairer.push(CONFIG.right_topic, stamp, log_ns + 3 * MS, image(stamp, index))
+    frames += pairer.flush()
+    stats = pairer.finish()
+    assert (len(frames), stats.unpaired_left, stats.unpaired_right) == (4, 1, 1)
+    docs = " ".join((Path(__file__).parents[2] / "docs" / "raw_logs.md").read_text().split())
+    assert "A left image stamped 0 whose right image kept its own stamp pairs with nothing" in docs
 
 
 def test_the_same_image_republished_is_dropped_not_restamped() -> None:
