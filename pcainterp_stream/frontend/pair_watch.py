@@ -9,15 +9,16 @@ with a 1.25 px std (+-2 sigma covered 0.9 % of the truth), and nothing said so; 
 3 px lower from frame 5 on gave 2.5-3x the error, again without a line.
 
 :class:`PairWatch` looks at every frame with a small block matcher whose range is signed
-(:func:`signed_shares`: ~2 ms a KITTI pair at 1/4 resolution, ~1 ms at 620x188): on a pair
-as recorded ~95 % of its matched blocks lie at positive disparities and <= 1 % at negative
-ones; swapped, 93-97 % at negative ones; one view twice, all at 0 with the images equal. A
+(:func:`signed_shares`: ~1.4 ms a KITTI pair at 1/8 resolution, ~0.3 ms at 620x188): on a
+pair as recorded 82-89 % of its matched blocks lie at positive disparities and none at
+negative ones; swapped, 79-86 % at negative ones; one view twice, all at 0 with the images
+equal. A
 frame that looks so, while an earlier frame of the log looked right, is confirmed with the
 row check's own corner matching (:func:`.rectify.correspondences`, 40-70 ms, only then) and
-is not matched (its right image blanked, as a stale one: no estimate, depth NaN). About once
-a second of log time the corners are matched in a thread, and a row offset that moved by
-more than :data:`~.row_check.MAX_ROW_OFFSET_PX` since the first such check is warned of once
-(those frames keep their estimate: the warning says they err more).
+is not matched (its right image blanked, as a stale one: no estimate, depth NaN). Once per
+:data:`ROW_WATCH_SECONDS` of log time the corners are matched in a thread, and a row
+offset that moved by more than :data:`~.row_check.MAX_ROW_OFFSET_PX` since the first such
+check is warned of once (those frames keep their estimate: the warning says they err more).
 """
 
 from __future__ import annotations
@@ -42,20 +43,21 @@ from pcainterp_stream.records import StereoFrame
 
 __all__ = ["PairWatch", "frame_ranges", "signed_shares"]
 
-WATCH_WIDTH = 320
+WATCH_WIDTH = 160
 """The block matcher sees the pair downscaled to about this width (px)."""
 
-WATCH_RANGE = 32
+WATCH_RANGE = 16
 """Its disparity range, each sign (px of the downscaled pair: 128 px on KITTI)."""
 
 GOOD_SHARE = 0.5
 """A frame looks as recorded when more than this share of its matched blocks is at positive
-disparities (KITTI 0.94-0.95, synthetic streets 0.96-0.98, a synthetic room 0.74-0.79)."""
+disparities (KITTI 0.82-0.84, synthetic streets 0.87-0.89, a synthetic room 0.69-0.72)."""
 
 SWAPPED_SHARE = 0.5
 """A frame looks swapped when more than this share is at negative disparities, and more
-than :data:`SWAPPED_RATIO` times the positive share (swapped KITTI 0.93-0.94, synthetic
-0.97; pairs as recorded <= 0.01, a synthetic room 0.2-0.26, a textureless wall 0.45-0.49)."""
+than :data:`SWAPPED_RATIO` times the positive share (swapped KITTI 0.79-0.81, synthetic
+0.85-0.86; pairs as recorded 0.00, a synthetic room 0.24-0.27, a textureless wall 0.36-0.65
+at 1.5-2.2x its positive share)."""
 
 SWAPPED_RATIO = 3.0
 
@@ -67,8 +69,9 @@ noisy wall ~1)."""
 MIN_VALID_SHARE = 0.05
 """Fewer matched blocks than this share of the image: the test says nothing (blank, wall)."""
 
-ROW_WATCH_SECONDS = 1.0
-"""The corners are matched for the row offset once per this much log time."""
+ROW_WATCH_SECONDS = 5.0
+"""The corners are matched for the row offset once per this much log time (40-70 ms a KITTI
+pair in a thread: once a second cost the default densify ~10 % more CPU per frame)."""
 
 
 def signed_shares(

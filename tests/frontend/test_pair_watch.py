@@ -35,7 +35,7 @@ def _pair(seed: int, drop: int = 0) -> tuple[npt.NDArray[np.uint8], npt.NDArray[
 
 
 def _frame(index: int, left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8]) -> StereoFrame:
-    stamp = index * SECOND // 2  # 2 Hz: the rows are checked every other frame
+    stamp = index * 3 * SECOND  # a frame every 3 s: the rows are checked every other frame
     return StereoFrame(index, stamp, stamp, "left", left, right, None)  # type: ignore[arg-type]
 
 
