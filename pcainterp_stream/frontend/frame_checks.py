@@ -6,7 +6,9 @@ under a new stamp. Matched against the new left image it gives wrong depth (a sy
 drive, one stale right image in 4 frames: 33 % median depth error and 68 % of pixels within
 2 std of the truth, the other frames 4-5 % and 90-93 %). The frame gets a blank right image
 instead, so the front end measures nothing there (:func:`.grey.is_blank`): no estimate,
-depth NaN, and one warning line at the end.
+depth NaN, and one warning line at the end. So does a pair that looks swapped, or one view
+twice, after earlier frames looked right (:class:`~.pair_watch.PairWatch`, which also warns of
+rows that drifted apart).
 
 :class:`BeyondRange` counts the frames whose measurements come mostly from the near reach
 (:mod:`.near`: SGBM's range is too short for them) and names the ``--num-disparities`` that
@@ -23,6 +25,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.frontend.grey import is_blank, to_grey8_pair
+from pcainterp_stream.frontend.pair_watch import PairWatch
 from pcainterp_stream.frontend.sgbm_limits import narrowest_width
 from pcainterp_stream.frontend.stereo import SgbmConfig
 from pcainterp_stream.records import DensifiedFrame, StereoFrame
@@ -46,13 +49,20 @@ def _thumb(image: npt.NDArray[np.generic]) -> npt.NDArray[np.generic]:
 class StaleRight:
     """Tell frames whose right image repeats the previous frame's while the left changed.
 
+    And, with ``watch``, the frames whose pair looks swapped or one view twice
+    (:class:`~.pair_watch.PairWatch`): they are blanked too, and warned of on their own.
+
     Attributes:
-        stale: indices of the frames found stale (their right image was blanked).
+        stale: indices of the frames whose right image was blanked (stale, or watched).
+        repeated: those of them found stale.
+        watch: the watch of a broken pair, None when not watched.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, watch: bool = True) -> None:
         self._previous: StereoFrame | None = None
         self.stale: set[int] = set()
+        self.repeated: set[int] = set()
+        self.watch = PairWatch() if watch else None
 
     def is_stale(self, frame: StereoFrame, previous: StereoFrame) -> bool:
         """Whether ``frame``'s right image equals ``previous``'s while its left changed.
@@ -77,32 +87,37 @@ class StaleRight:
         return not (is_blank(grey_right) or is_blank(grey_left))
 
     def check(self, frame: StereoFrame) -> StereoFrame:
-        """Return the frame, with a blank (all 0) right image when it is stale."""
+        """Return the frame, with a blank (all 0) right image when it is stale (or broken)."""
         previous, self._previous = self._previous, frame  # the right image as recorded
-        if previous is None or not self.is_stale(frame, previous):
+        if previous is not None and self.is_stale(frame, previous):
+            self.repeated.add(frame.index)
+        elif self.watch is None or not self.watch.broken(frame):
             return frame
         self.stale.add(frame.index)
         return frame._replace(right=np.zeros_like(frame.right))
 
     def warnings(self, frames: int, empty: int) -> list[str]:
-        """The warning for the stale frames (none when there were none).
+        """The warnings for the stale and the broken frames (none when there were none).
 
         ``empty``: how many of them had no estimate (all, unless earlier frames carried
         measurements or a temporal prior into them; sparse and dense mode alike).
         """
-        if not self.stale:
-            return []
         count = len(self.stale)
         outcome = (
             "those frames have no estimate, their depth is NaN"
             if empty == count
-            else f"{empty} of those frames have no estimate (depth NaN), the others only "
-            "what earlier frames carried into them (points, or the temporal prior)"
+            else f"{empty} of the {count} frames not matched have no estimate (depth NaN), "
+            "the others only what earlier frames carried into them (points, or the temporal "
+            "prior)"
         )
+        lines = self.watch.warnings(frames, outcome) if self.watch is not None else []
+        if not self.repeated:
+            return lines
         return [
-            f"{count} of {frames} frames had a stale right image (the pixels of the frame "
-            "before, while the left image changed: a right camera or driver repeating its "
-            f"last image under a new stamp); such a pair is not matched: {outcome}"
+            f"{len(self.repeated)} of {frames} frames had a stale right image (the pixels of "
+            "the frame before, while the left image changed: a right camera or driver "
+            f"repeating its last image under a new stamp); such a pair is not matched: {outcome}",
+            *lines,
         ]
 
 

@@ -432,6 +432,7 @@ class Adaptation:
             return self._check_left_out(basis, frames, settings)
         size, fb = usable[0].image_size, usable[0].focal_baseline
         usable = [f for f in usable if f.image_size == size and f.focal_baseline == fb]
+        usable = adapt.typical_frames(usable, self.lines)  # few measurements: no reference
         measured = [f.measured() for f in usable]
         # the held-out pixels and plain interpolation there: once per frame, for every basis
         held_out = [

@@ -1,0 +1,103 @@
+"""A pair swapped, one view twice or with drifted rows mid-log is noticed (bughunt13A F1, F3)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from pcainterp_stream.frontend.frame_checks import StaleRight
+from pcainterp_stream.frontend.pair_watch import frame_ranges
+from pcainterp_stream.records import StereoFrame
+
+HEIGHT, WIDTH = 200, 400
+SECOND = 10**9
+
+
+def _pair(seed: int, drop: int = 0) -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.uint8]]:
+    """A textured scene: a far plane at 4 px, a near box at 20 px disparity (right ``drop``
+    px lower: a drifted right camera)."""
+    rng = np.random.default_rng(seed)
+
+    def texture(h: int, w: int) -> npt.NDArray[np.float32]:
+        image = cv2.GaussianBlur(rng.random((h, w)).astype(np.float32), (0, 0), 1.5)
+        return (image - image.min()) / (image.max() - image.min()) * 255
+
+    far, near = texture(HEIGHT + 8, WIDTH + 40), texture(80, 160)
+    left = far[:HEIGHT, 0:WIDTH].copy()
+    right = far[:HEIGHT, 4 : WIDTH + 4].copy()  # x_right = x_left - 4
+    left[60:140, 120:280] = near[:, :160]
+    right[60:140, 100:260] = near[:, :160]  # x_right = x_left - 20
+    if drop:
+        right = np.roll(right, drop, axis=0)
+        right[:drop] = right[drop]
+    return np.round(left).astype(np.uint8), np.round(right).astype(np.uint8)
+
+
+def _frame(index: int, left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8]) -> StereoFrame:
+    stamp = index * 3 * SECOND  # a frame every 3 s: the rows are checked every other frame
+    return StereoFrame(index, stamp, stamp, "left", left, right, None)  # type: ignore[arg-type]
+
+
+def test_a_pair_swapped_mid_log_is_not_matched_and_warned_of() -> None:
+    # before: nothing said it; SGBM matched the swapped pair at ~0 px ("too far" everywhere)
+    check = StaleRight()
+    out = []
+    for index in range(6):
+        left, right = _pair(index)
+        if index in (3, 4):
+            left, right = right, left
+        out.append(check.check(_frame(index, left, right)))
+    assert check.stale == {3, 4}
+    assert not out[3].right.any()
+    assert not out[4].right.any()
+    assert out[5].right.any()
+    assert out[2].right.any()
+    lines = check.warnings(6, empty=2)
+    assert len(lines) == 1
+    assert "2 of 6 frames (3-4) looked swapped" in lines[0]
+    assert "their depth is NaN" in lines[0]
+
+
+def test_one_view_on_both_topics_mid_log_is_not_matched() -> None:
+    check = StaleRight()
+    for index in range(5):
+        left, right = _pair(index)
+        check.check(_frame(index, left, left.copy() if index == 2 else right))
+    assert check.stale == {2}
+    (line,) = check.warnings(5, empty=1)
+    assert "1 of 5 frames (2) carried one view on both image topics" in line
+
+
+def test_a_log_swapped_from_the_start_is_left_to_the_row_check() -> None:
+    check = StaleRight()
+    for index in range(3):
+        left, right = _pair(index)
+        check.check(_frame(index, right, left))
+    assert check.stale == set()
+    assert check.warnings(3, empty=0) == []
+
+
+def test_clean_frames_pass_without_a_line() -> None:
+    check = StaleRight()
+    for index in range(6):
+        left, right = _pair(index)
+        assert check.check(_frame(index, left, right)).right is right
+    assert check.warnings(6, empty=0) == []
+
+
+def test_rows_drifting_apart_mid_log_are_warned_of_once() -> None:
+    # before: the row offset was checked on the first frames only
+    check = StaleRight()
+    for index in range(10):
+        left, right = _pair(index, drop=3 if index >= 5 else 0)
+        assert check.check(_frame(index, left, right)).right is right  # kept: estimated
+    (line,) = check.warnings(10, empty=0)
+    assert line.startswith("from frame 6 the matched corners are 3.0 px apart vertically")
+    assert "(frame 4 was within it)" in line
+    assert "the calibration has drifted" in line
+
+
+def test_frame_ranges() -> None:
+    assert frame_ranges([7, 3, 5, 6]) == "3, 5-7"
+    assert frame_ranges(list(range(0, 30, 2))) == "0, 2, 4, 6, 8, 10, ..."
