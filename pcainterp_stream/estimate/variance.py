@@ -416,3 +416,49 @@ def widen_near_range(
         excess = (disparity.take(near) - start) * np.float32(NEAR_RANGE_SLOPE)
         np.put(std, near, np.sqrt(np.square(std.take(near)) + np.square(excess)))
     return std
+
+
+def widen_near_group(
+    disparity: npt.NDArray[np.float32],
+    std: npt.NDArray[np.float32],
+    pixels: npt.NDArray[np.float64],
+    disparities: npt.NDArray[np.float64],
+    radius: float,
+) -> npt.NDArray[np.float32]:
+    """Widen the std around a group of measurements the prior could not reach.
+
+    A group of measurements that agree with each other but not with the prior (a near
+    object measured by the near-reach match, :func:`solve._consistent_group`) is kept in
+    the fit, but the prior's smooth kernel cannot follow it far: between and around its
+    points the estimate falls back towards the prior while the surface may go on. Within
+    ``radius`` of a member the std is widened as std' = std + |g| / 2, g the gap between
+    the nearest member's disparity and the estimate: the +-2 std band reaches the member's
+    value with the model's own +-2 std beyond it.
+
+    Args:
+        disparity: (H, W) the estimate (px).
+        std: (H, W) its std (px); changed in place where widened and returned.
+        pixels: (m, 2) the members' (x, y) (px of the output image).
+        disparities: (m,) the members' disparities (px).
+        radius: how far from a member the std is widened (px).
+
+    Returns:
+        ``std``.
+    """
+    height, width = disparity.shape
+    x0, y0 = np.floor(pixels.min(axis=0) - radius).astype(int).clip(0)
+    x1 = min(width, int(np.ceil(pixels[:, 0].max() + radius)) + 1)
+    y1 = min(height, int(np.ceil(pixels[:, 1].max() + radius)) + 1)
+    ys, xs = np.mgrid[y0:y1, x0:x1]
+    nearest = np.full(ys.shape, np.inf)
+    value = np.zeros(ys.shape)
+    for (x, y), member in zip(pixels, disparities, strict=True):
+        distance = np.hypot(xs - x, ys - y)
+        closer = distance < nearest
+        nearest[closer] = distance[closer]
+        value[closer] = member
+    within = nearest <= radius
+    window = (slice(y0, y1), slice(x0, x1))
+    gap = np.where(within, 0.5 * np.abs(value - disparity[window]), 0.0).astype(np.float32)
+    std[window] += gap
+    return std
