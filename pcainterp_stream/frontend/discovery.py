@@ -32,9 +32,13 @@ import dataclasses
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 from pcainterp_stream.errors import PcaInterpError, TopicNotFoundError
+from pcainterp_stream.frontend.camchain_topics import (
+    calibration_file,
+    camchain_order,
+    one_topic_both_sides,
+)
 from pcainterp_stream.frontend.pair_forms import (
     SIDE_BY_SIDE_MATCH,
     halves_match,
@@ -549,8 +553,7 @@ def resolve_pairing(
     With ``config.discover`` set, an image topic of ``config.named_sides`` or other than the
     default one (one side named on the command line) keeps only the pairs with it; an info
     topic other than the default one stays (named). With ``config.discover`` unset, the
-    named topics are kept; only info topics left at their defaults become the image topics'
-    sibling ``camera_info`` when the log has those and not the defaults.
+    named topics are kept, each image with its own camera info (:func:`_named_infos`).
 
     A Kalibr camchain whose cam1 is the left camera (Kalibr numbers the cameras in its
     ``--topics`` order) is said in a line of its own before the topics line.
@@ -558,7 +561,7 @@ def resolve_pairing(
     Raises:
         TopicNotFoundError: no pair, or two equally good pairs (listing them and the options).
     """
-    order = _camchain_order(config)
+    order = camchain_order(config)
     if order and echo is not None:
         echo(order)
     resolved = _resolve(reader, config, echo)
@@ -600,50 +603,13 @@ def _refuse_no_camera_images(reader: LogReader, config: PairingConfig) -> None:
         )
 
 
-def _camchain_order(config: PairingConfig) -> str:
-    """Return the line saying a Kalibr camchain's cam1 is the left camera ("" if it is not).
-
-    :func:`io.calibration.load_calibration` names such a pair's cameras ``PATH:cam1``,
-    ``PATH:cam0``.
-    """
-    calibration = config.calibration
-    if calibration is None:
-        return ""
-    left = str(getattr(calibration.left, "name", ""))
-    if not left.endswith(":cam1") or calibration.right.name != left[: -len("1")] + "0":
-        return ""
-    source = _calibration_file(config)
-    try:
-        apart = f" {calibration.left.baseline(calibration.right):.3f} m"
-    except (AttributeError, TypeError, ValueError):
-        apart = ""
-    return (
-        f"{source}: cam1 is the left camera (cam0 lies{apart} to its right; Kalibr numbers "
-        "cameras in --topics order)"
-    )
-
-
 def _resolve(
     reader: LogReader, config: PairingConfig, echo: Callable[[str], None] | None
 ) -> PairingConfig:
     """Return ``config`` with the topics of the log's stereo pair (:func:`resolve_pairing`)."""
     topics = reader.topics()
     if not config.discover:
-        siblings: dict[str, str] = {}
-        for field, image, default in (
-            ("left_info_topic", config.left_topic, DEFAULT_LEFT_INFO),
-            ("right_info_topic", config.right_topic, DEFAULT_RIGHT_INFO),
-        ):
-            sibling = info_topic_of(image, topics)  # below the image, or beside it
-            if getattr(config, field) == default and default not in topics and sibling:
-                siblings[field] = sibling
-        if not siblings:
-            return config
-        return dataclasses.replace(
-            config,
-            left_info_topic=siblings.get("left_info_topic", config.left_info_topic),
-            right_info_topic=siblings.get("right_info_topic", config.right_info_topic),
-        )
+        return _named_infos(topics, config, echo)
     named_left = "left" in config.named_sides or config.left_topic != DEFAULT_LEFT_IMAGE
     named_right = "right" in config.named_sides or config.right_topic != DEFAULT_RIGHT_IMAGE
     name = str(reader.path)
@@ -652,9 +618,9 @@ def _resolve(
         cal_left, cal_right = config.calibration_topics
         left = config.left_topic if named_left else cal_left
         right = config.right_topic if named_right else cal_right
-        source = _calibration_file(config)
+        source = calibration_file(config)
         if left == right:
-            raise PcaInterpError(_one_topic_both_sides(left, named_left, named_right, config))
+            raise PcaInterpError(one_topic_both_sides(left, named_left, named_right, config))
         images = {t for t, i in topics.items() if i.msgtype in _IMAGE_TYPES}
         if left in images and right in images:
             if echo is not None:
@@ -675,37 +641,51 @@ def _resolve(
         raise TopicNotFoundError(f"{absent}; {err}") from None
 
 
-def _one_topic_both_sides(
-    topic: str, named_left: bool, named_right: bool, config: PairingConfig
-) -> str:
-    """Return the error of a camchain's topics that make ``topic`` both sides of the pair.
+def _named_infos(
+    topics: dict[str, TopicInfo], config: PairingConfig, echo: Callable[[str], None] | None
+) -> PairingConfig:
+    """Return ``config`` (image topics named) with each image's own camera info.
 
-    One side named as the camchain's other camera (``--left-topic /cam1/image_raw`` with
-    ``/cam0/image_raw``, ``/cam1/image_raw``), or a camchain naming one rostopic twice.
+    An info topic left at its default becomes the image's own (:func:`info_topic_of`: below
+    the image, else its sibling) whenever the log has one, the default ``/stereo/...`` ones
+    too (a second head named beside a ``/stereo`` one); the default stays only for an image
+    without one. An info topic named (other than the default) is kept. With image topics
+    named on the command line (``config.named_sides``), both in the log, and no calibration
+    files, a line says which infos were taken and why.
     """
-    assert config.calibration_topics is not None
-    cal_left, cal_right = config.calibration_topics
-    source = _calibration_file(config)
-    if named_left == named_right:  # none named: the camchain's two cameras share a rostopic
-        return (
-            f"the rostopics of {source} are both {topic}; a stereo pair needs the images of "
-            "two cameras: pass --left-topic and --right-topic"
-        )
-    named, other = ("left", "right") if named_left else ("right", "left")
-    return (
-        f"--{named}-topic and --{other}-topic are both {topic} (--{named}-topic as given, "
-        f"--{other}-topic the rostopic of {source}'s {other} camera); a stereo pair needs "
-        f"the images of two cameras: pass the {other} camera's topic as --{other}-topic, or "
-        f"no topic option to read the pair {source} names (left {cal_left}, right {cal_right})"
+    infos: dict[str, str] = {}
+    why: dict[str, str] = {}
+    for side, image, info, default in (
+        ("left", config.left_topic, config.left_info_topic, DEFAULT_LEFT_INFO),
+        ("right", config.right_topic, config.right_info_topic, DEFAULT_RIGHT_INFO),
+    ):
+        own = info_topic_of(image, topics)
+        if info != default:
+            infos[side], why[side] = info, f"--{side}-info-topic"
+        elif own is not None:
+            infos[side], why[side] = own, "own"
+        else:
+            infos[side], why[side] = info, f"the default, {image} has no camera_info of its own"
+    resolved = dataclasses.replace(
+        config, left_info_topic=infos["left"], right_info_topic=infos["right"]
     )
-
-
-def _calibration_file(config: PairingConfig) -> str:
-    """Return the name of the calibration file (a Kalibr camchain) ``config`` has."""
-    if config.calibration is None:
-        return "the calibration file"
-    # the cameras are named PATH:cam0, PATH:cam1
-    return Path(config.calibration.left.name.rpartition(":")[0]).name or "the calibration file"
+    images = (config.left_topic, config.right_topic)
+    if echo is None or not config.named_sides or config.calibration is not None:
+        return resolved
+    if not all(image in topics for image in images):
+        return resolved  # refused as missing, with the options
+    named = "both named" if len(config.named_sides) > 1 else f"{config.named_sides[0]} named"
+    if set(why.values()) == {"own"}:
+        said = "each image with its own camera_info"
+    else:
+        said = "; ".join(
+            f"{side}: {'its own camera_info' if how == 'own' else how}" for side, how in why.items()
+        )
+    echo(
+        f"topics: left {images[0]}, right {images[1]} with {infos['left']} and "
+        f"{infos['right']} ({named}; {said})"
+    )
+    return resolved
 
 
 def _discover(

@@ -113,8 +113,9 @@ def measure_held_out(
     front_end = StereoFrontEnd(options.gftt, options.sgbm)
     frames: list[HeldOutFrame] = []
     with open_log(log) as reader:
-        if pairing.discover:  # the log's own pair (learn_pairing printed it)
-            pairing = resolve_pairing(reader, pairing)
+        # the log's own pair, or the named images with their own camera infos (learn_pairing
+        # printed it)
+        pairing = resolve_pairing(reader, pairing)
         _require_topics(reader, pairing.required_topics(), "stereo pair")
         for frame in iter_stereo_frames(reader, pairing):
             if frame.index < first:

@@ -130,16 +130,14 @@ def learn_pairing(
 
     Args:
         logs: the logs to read (to learn from and to fit on).
-        pairing: the pairing the options ask for; returned as it is unless it ``discover``\s
-            or a ``depth_topic`` is given.
+        pairing: the pairing the options ask for (named image topics are kept, each
+            with its own camera info unless an info topic was named).
         depth_topic: the depth topic learned from instead of SGBM maps, if any.
 
     Raises:
         TopicNotFoundError: no stereo pair in a log (and no ``depth_topic``), or two
             equally good ones.
     """
-    if not (pairing.discover or depth_topic is not None):
-        return pairing
     found: list[PairingConfig] = []
     for log in dict.fromkeys(logs):  # a log given twice is read once
         with open_log(log) as reader:

@@ -368,15 +368,16 @@ def log_pairing(
     depth_topic: str | None = None,
     echo: Callable[[str], None] | None = None,
 ) -> PairingConfig:
-    r"""Return the pairing one open log is read with: its pair found, or ``pairing``.
+    r"""Return the pairing one open log is read with: its pair found, or ``pairing``'s.
 
-    With a ``depth_topic`` only the camera infos are needed, so a log whose images cannot be
+    Named image topics are kept, each with its own camera info unless an info topic was
+    named (:func:`frontend.discovery.resolve_pairing`, as densify reads them). With a
+    ``depth_topic`` only the camera infos are needed, so a log whose images cannot be
     paired keeps the default topics.
 
     Args:
         reader: the open log.
-        pairing: the pairing the options ask for; returned as it is unless it ``discover``\s
-            or a ``depth_topic`` is given.
+        pairing: the pairing the options ask for.
         depth_topic: the depth topic learned from instead of SGBM maps, if any.
         echo: given the line that says which pair was found.
 
@@ -384,8 +385,6 @@ def log_pairing(
         TopicNotFoundError: no stereo pair in the log (and no ``depth_topic``), or two
             equally good ones.
     """
-    if not (pairing.discover or depth_topic is not None):
-        return pairing
     try:
         return resolve_pairing(reader, pairing, echo)
     except TopicNotFoundError as err:
