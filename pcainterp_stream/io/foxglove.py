@@ -449,6 +449,7 @@ class FoxgloveLive:
         self._time_ns = -1  # the latest log time published
         self._time_sent: tuple[int, float] = (-1, 0.0)  # the latest time broadcast, its wall time
         self._sent = SentSizes(4 * backlog)
+        self._hosts: tuple[str, ...] = ()  # the addresses the host given resolves to
         self._waited = not self.wait_for
 
     # lifetime ---------------------------------------------------------------------------
@@ -494,6 +495,7 @@ class FoxgloveLive:
                 self.address.host, self.address.port, type=socket.SOCK_STREAM
             )
             family, kind, proto, _, where = infos[0]
+            self._hosts = tuple(str(info[4][0]) for info in infos)  # the drain's own clients
             with socket.socket(family, kind, proto) as probe:
                 if sys.platform != "win32":
                     probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -574,12 +576,12 @@ class FoxgloveLive:
     def _drain(self, limit_s: float, poll_s: float = 0.05) -> None:
         """Wait until no client has anything queued (twice in a row), at most ``limit_s``."""
         started = time.monotonic()
-        if queued_bytes(self.port) is None:  # not Linux: the fixed wait of before
+        if queued_bytes(self.port, self._hosts) is None:  # not Linux: the fixed wait of before
             time.sleep(min(1.0, limit_s))
             return
         said, empty, queued = False, 0, {}
         while empty < 2:
-            queued = queued_bytes(self.port) or {}
+            queued = queued_bytes(self.port, self._hosts) or {}
             empty = 0 if queued else empty + 1
             waited = time.monotonic() - started
             if queued and waited >= limit_s:

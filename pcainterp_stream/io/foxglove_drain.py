@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import ipaddress
 from collections import deque
+from collections.abc import Collection
 from pathlib import Path
 
 _TABLES = (Path("/proc/net/tcp"), Path("/proc/net/tcp6"))
@@ -24,24 +25,46 @@ _FRAME_OVERHEAD = 13 + 10
 and log time (13), and at most 10 of WebSocket framing."""
 
 
-def _address(text: str) -> tuple[str, int]:
+IPAddress = ipaddress.IPv4Address | ipaddress.IPv6Address
+
+
+def _ip(given: str | bytes) -> IPAddress:
+    """An address as compared here: an IPv4-mapped IPv6 one as IPv4, a scope id dropped."""
+    address = ipaddress.ip_address(given.split("%")[0] if isinstance(given, str) else given)
+    if isinstance(address, ipaddress.IPv6Address) and address.ipv4_mapped is not None:
+        return address.ipv4_mapped
+    return address
+
+
+def _address(text: str) -> tuple[IPAddress, int]:
     """``0100007F:1F90`` (``/proc/net/tcp``'s form: 32-bit words in host order) -> address."""
     hex_host, hex_port = text.split(":")
     raw = bytes.fromhex(hex_host)
     host = b"".join(raw[i : i + 4][::-1] for i in range(0, len(raw), 4))
-    address = ipaddress.ip_address(host)
-    if isinstance(address, ipaddress.IPv6Address) and address.ipv4_mapped is not None:
-        address = address.ipv4_mapped
-    shown = f"[{address}]" if address.version == 6 else str(address)
-    return shown, int(hex_port, 16)
+    return _ip(host), int(hex_port, 16)
 
 
-def queued_bytes(port: int) -> dict[str, int] | None:
+def _bound_to(local: IPAddress, hosts: frozenset[IPAddress]) -> bool:
+    """Whether a connection to ``local`` is one a server bound to ``hosts`` accepted.
+
+    ``0.0.0.0`` takes every IPv4 address, ``::`` every address (IPv4 ones mapped); no hosts:
+    any (the port alone).
+    """
+    return not hosts or any(
+        local == host or (host.is_unspecified and (host.version == 6 or local.version == 4))
+        for host in hosts
+    )
+
+
+def queued_bytes(port: int, hosts: Collection[str] = ()) -> dict[str, int] | None:
     """Client address (as the SDK names it, ``HOST:PORT``) -> bytes queued to it, on ``port``.
 
-    Only connections with something queued are listed. None where the kernel's table
-    cannot be read (not Linux).
+    ``hosts``: the addresses the server bound (:func:`_bound_to`): another server's clients
+    on the same port number at another address (``[::1]:P`` beside ``127.0.0.1:P``) are not
+    its own. Only connections with something queued are listed. None where the kernel's
+    table cannot be read (not Linux).
     """
+    bound = frozenset(map(_ip, hosts))
     found: dict[str, int] = {}
     readable = False
     for table in _TABLES:
@@ -56,8 +79,9 @@ def queued_bytes(port: int) -> dict[str, int] | None:
                 continue
             local, remote = _address(fields[1]), _address(fields[2])
             queued = int(fields[4].split(":")[0], 16)
-            if local[1] == port and queued > 0:
-                found[f"{remote[0]}:{remote[1]}"] = queued
+            if local[1] == port and queued > 0 and _bound_to(local[0], bound):
+                shown = f"[{remote[0]}]" if remote[0].version == 6 else str(remote[0])
+                found[f"{shown}:{remote[1]}"] = queued
     return found if readable else None
 
 

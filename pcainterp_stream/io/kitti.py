@@ -139,6 +139,7 @@ class KittiSequence:
         truth_folder: the folder of the left camera's depth-completion truth, or None.
         unused_truth: a truth folder that was found but not imported (it belongs to the
             colour camera 2 and the grey pair is imported), else None.
+        warnings: lines (no ``warning:`` prefix) for the import to print.
         lens: the raw cameras (K, D, R_rect, P_rect at the raw size) of an unrectified
             drive, whose images are written raw with them; None for rectified images.
         unpaired: left and right images of an unrectified drive left out, with no image of
@@ -155,6 +156,7 @@ class KittiSequence:
     pair: KittiPair = KittiPair.GREY
     truth_folder: Path | None = None
     unused_truth: Path | None = None
+    warnings: tuple[str, ...] = ()
     lens: StereoCalibration | None = None
     unpaired: tuple[int, int] = (0, 0)
 
@@ -607,12 +609,12 @@ def _open_raw(drive: Path, pair: KittiPair | None) -> KittiSequence:
         return _open_unrectified(drive, pair, calibration, left_p, right_p)
     left, right = _paired_images(left_dir, right_dir)
     camera = camera_from_projections(left_p, right_p, read_grey(left[0]).shape[:2], calibration)
-    if rectified is None:  # no S_rect: the size as far as P tells it
-        _check_centre(camera, left[0], calibration, left_key)
+    # no S_rect: the size as far as P tells it
+    warned = () if rectified else _check_centre(camera, left[0], calibration, left_key)
     stamps = _raw_stamps(drive / left_name / "timestamps.txt", len(left))
     truth, unused = _truth_folders(drive, KittiLayout.RAW, pair)
     return KittiSequence(
-        KittiLayout.RAW, drive, left, right, camera, stamps, None, pair, truth, unused
+        KittiLayout.RAW, drive, left, right, camera, stamps, None, pair, truth, unused, warned
     )
 
 
@@ -679,31 +681,52 @@ def _from_camera_0(
 
 CENTRE_TOLERANCE = 0.1
 """Farthest the principal point of an odometry sequence (or of a raw drive's calibration
-without ``S_rect``) may be off its images' centre, as a share of their width and height:
-KITTI's rectified cameras are within 1-4 %; P_rect of a drive in the unrectified 1392x512
-images is 14-16 % off vertically, in images of half the size 48-96 %."""
+without ``S_rect``) may be off its images' centre, as a share of their width and height,
+without a warning: KITTI's rectified cameras are within 1-4 %, KITTI-360's perspective pair
+(1408x376, cy 238.8) 13.5 %; P_rect of a drive in the unrectified 1392x512 images is 14-16 %
+off vertically."""
+
+KITTI_RAW_SIZE = (512, 1392)
+"""(height, width) of KITTI's unrectified images (``S_00`` to ``S_03``), refused with a
+rectified projection off their centre where no calibration size says what they are."""
 
 
-def _check_centre(camera: StereoCamera, first: Path, calibration: Path, key: str) -> None:
-    """Refuse images whose size does not fit the rectified camera, where no S_rect says it.
+def _check_centre(
+    camera: StereoCamera, first: Path, calibration: Path, key: str
+) -> tuple[str, ...]:
+    """Check the images fit the rectified camera, where no S_rect gives their size.
+
+    Returns:
+        a warning when the principal point is off the centre by more than
+        :data:`CENTRE_TOLERANCE` (a rectified camera may be: KITTI-360's, a crop's), else ().
 
     Raises:
-        DatasetImportError: the principal point is off the centre by more than
-            :data:`CENTRE_TOLERANCE`.
+        DatasetImportError: the images have KITTI's unrectified size
+            (:data:`KITTI_RAW_SIZE`) and the principal point is that far off: a drive's raw
+            images with its rectified calibration.
     """
     off = max(
         abs(camera.cx - camera.width / 2) / camera.width,
         abs(camera.cy - camera.height / 2) / camera.height,
     )
-    if off > CENTRE_TOLERANCE:
+    if off <= CENTRE_TOLERANCE:
+        return ()
+    where = (
+        f"{key} of calibration file {calibration} puts the principal point at "
+        f"({camera.cx:.1f}, {camera.cy:.1f}), {off:.0%} of the image off its centre"
+    )
+    if camera.image_size == KITTI_RAW_SIZE:
         raise DatasetImportError(
-            f"image {first} is {camera.width}x{camera.height} but {key} of calibration file "
-            f"{calibration} puts the principal point at ({camera.cx:.1f}, {camera.cy:.1f}), "
-            f"{off:.0%} of the image off its centre: these are not the rectified images it "
-            "describes (KITTI's rectified images are 1226x370 to 1242x376; raw 1392x512 ones "
-            "are a raw drive's _extract download, imported with the calib_cam_to_cam.txt of "
-            "its date); restore the images or the calibration file"
+            f"image {first} is {camera.width}x{camera.height} but {where}: these are KITTI's "
+            "unrectified images, not the rectified ones it describes (KITTI's rectified images "
+            "are 1226x370 to 1242x376); import the raw drive's _extract download with the "
+            "calib_cam_to_cam.txt of its date, or the rectified images with this file"
         )
+    return (
+        f"{where} ({camera.width}x{camera.height}, first image {first}): imported as the "
+        "rectified camera it describes (KITTI-360's is 13.5 % off, a crop's may be); if these "
+        "images are resized or not rectified, the depths are wrong",
+    )
 
 
 def _open_odometry(sequence: Path, pair: KittiPair | None) -> KittiSequence:
@@ -721,13 +744,13 @@ def _open_odometry(sequence: Path, pair: KittiPair | None) -> KittiSequence:
     left_name, right_name = pair.folders(KittiLayout.ODOMETRY)
     left, right = _paired_images(sequence / left_name, sequence / right_name)
     camera = camera_from_projections(left_p, right_p, read_grey(left[0]).shape[:2], calibration)
-    _check_centre(camera, left[0], calibration, left_key)
+    warned = _check_centre(camera, left[0], calibration, left_key)
     stamps = _odometry_stamps(sequence / "times.txt", left)
     poses = _poses(sequence.parent.parent / "poses" / f"{sequence.name}.txt", left)
     poses = _from_camera_0(poses, left_p)
-    truth, unused = _truth_folders(sequence, KittiLayout.ODOMETRY, pair)
+    truths = _truth_folders(sequence, KittiLayout.ODOMETRY, pair)
     return KittiSequence(
-        KittiLayout.ODOMETRY, sequence, left, right, camera, stamps, poses, pair, truth, unused
+        KittiLayout.ODOMETRY, sequence, left, right, camera, stamps, poses, pair, *truths, warned
     )
 
 

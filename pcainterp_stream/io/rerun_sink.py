@@ -70,6 +70,9 @@ FILE_FLUSH_S = 300.0
 PUMP_CHUNK = 1 << 20
 """Bytes the recording's pump moves from Rerun's pipe to the file at a time."""
 
+VIEWER_NOTE_S = 0.5
+"""After this long waiting for the viewer the end says it waits (as Foxglove's end does)."""
+
 CLOSE_AFTER_SIGNAL_S = 1.0
 """After a signal, how long the end waits for Rerun to close its sinks (nothing is kept)."""
 
@@ -336,6 +339,9 @@ class RerunSink:
         spawn: start a viewer (or use the one listening on ``viewer_port``) and stream to it.
         application_id: Rerun application id.
         viewer_port: the loopback port of the viewer.
+        defer_viewer_wait: on a clean exit, leave the wait for the viewer to
+            :meth:`wait_for_viewer` (called once the job's other outputs are committed, so
+            that a Ctrl-C in that wait costs none of them).
     """
 
     def __init__(
@@ -345,6 +351,7 @@ class RerunSink:
         spawn: bool = False,
         application_id: str = "pcainterp",
         viewer_port: int = VIEWER_PORT,
+        defer_viewer_wait: bool = False,
     ) -> None:
         if rrd_path is None and not spawn:
             raise ValueError("RerunSink needs rrd_path or spawn=True")
@@ -352,6 +359,8 @@ class RerunSink:
         self.spawn = spawn
         self.application_id = application_id
         self.viewer_port = viewer_port
+        self._defer_viewer_wait = defer_viewer_wait
+        self._closing: _Closer | None = None  # the viewer's close, deferred (defer_viewer_wait)
         self._partial: Path | None = None
         self._pump: _Pump | None = None
         self.written = False
@@ -449,13 +458,17 @@ class RerunSink:
             None if viewer is None else _Closer(viewer, None if interrupted else VIEWER_FLUSH_S)
         )
         failed: str | None = None
+        defer = self._defer_viewer_wait and exc_type is None and not interrupted
         try:
             if recording is not None:  # the file: never waits on the viewer
                 failed = _Closer(recording, None if interrupted else FILE_FLUSH_S).wait()
             if self._pump is not None:
                 self._pump.finish(CLOSE_AFTER_SIGNAL_S if interrupted else FILE_FLUSH_S)
                 failed = failed or self._pump.error
-            viewer_failed = None if closing is None else closing.wait()
+            if defer:
+                self._closing, closing = closing, None
+            note = None if interrupted else self._waiting_line(False)
+            viewer_failed = None if closing is None else closing.wait(note)
         except BaseException:  # a signal while Rerun finishes
             self._discard()
             raise
@@ -492,10 +505,44 @@ class RerunSink:
                 "nothing was written there",
                 file=sys.stderr,
             )
-        if viewer_failed is not None:
+        self._say_viewer_failed(viewer_failed)
+
+    def wait_for_viewer(self) -> None:
+        """Wait for the viewer to take the last frames, once the outputs are committed.
+
+        The deferred end of :meth:`__exit__` (``defer_viewer_wait``): at most
+        :data:`VIEWER_FLUSH_S`, saying so after :data:`VIEWER_NOTE_S`; a viewer that did not
+        take them is warned of. After a signal the viewer is left at once. A Ctrl-C during
+        the wait leaves the viewer and raises: what was written stays written.
+        """
+        closing, self._closing = self._closing, None
+        if closing is None:
+            return
+        if signalled():  # the process is ending: no time for the viewer
+            _leave_to_exit()
+            return
+        try:
+            failed = closing.wait(self._waiting_line(True))
+        except BaseException:
+            _leave_to_exit()  # its thread may still be in Rerun's flush
+            raise
+        self._say_viewer_failed(failed)
+
+    def _waiting_line(self, committed: bool) -> str:
+        """The line said when the wait for the viewer lasts (``committed``: outputs written)."""
+        done = (
+            "; the outputs are written, Ctrl-C stops the wait and keeps them" if committed else ""
+        )
+        return (
+            f"rerun: waiting up to {VIEWER_FLUSH_S:g} s for the viewer to take the last "
+            f"frames{done}"
+        )
+
+    def _say_viewer_failed(self, failed: str | None) -> None:
+        if failed is not None:
             kept = f"; {self.rrd_path} is complete" if self.written else ""
             print(
-                f"warning: the Rerun viewer did not take the last frames ({viewer_failed}){kept}",
+                f"warning: the Rerun viewer did not take the last frames ({failed}){kept}",
                 file=sys.stderr,
             )
 
@@ -622,10 +669,18 @@ class _Closer:
                 self.failed.append(text)
         recording.disconnect()
 
-    def wait(self) -> str | None:
-        """Wait for the close (at most until its deadline); return its failure, if any."""
+    def wait(self, note: str | None = None) -> str | None:
+        """Wait for the close (at most until its deadline); return its failure, if any.
+
+        ``note`` is printed (standard output) once the wait has lasted :data:`VIEWER_NOTE_S`.
+        """
+        started = time.monotonic()
         while self._thread.is_alive() and time.monotonic() < self._deadline:
             self._thread.join(0.1)
+            if note is not None and self._thread.is_alive():
+                if time.monotonic() - started >= VIEWER_NOTE_S:
+                    print(note, flush=True)
+                    note = None
         if self._thread.is_alive():
             _leave_to_exit()
             if self.flush_s is not None and not self.failed:

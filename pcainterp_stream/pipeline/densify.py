@@ -110,7 +110,7 @@ class DensifySummary:
         input: the input log (``stdin`` for standard input).
         output: the written log (``<stdout>`` for standard output), None when only served.
         frames: frames densified.
-        seconds: wall time of the whole run.
+        seconds: wall time of the whole run, but the wait for a Rerun viewer at its end.
         measurements: sparse measurements used, summed over frames.
         pairing: the pairer's counts.
         damage: damage found in the input (one line each).
@@ -366,8 +366,18 @@ def densify(
         for path in committed if kind is not None else ():
             path.unlink(missing_ok=True)
 
+    sink: RerunSink | None = None
+    work_ended: list[float] = []  # when the work ended: the wait for a viewer is not counted
+
+    def wait_for_viewer(*_: object) -> None:
+        """Wait for a Rerun viewer once the outputs are committed (review 59b F2)."""
+        work_ended.append(time.perf_counter())
+        if sink is not None:  # a Ctrl-C in this wait keeps them
+            sink.wait_for_viewer()
+
     with contextlib.ExitStack() as stack:
-        stack.push(drop_bases)  # the last to run: after the output's writer closed
+        stack.push(wait_for_viewer)  # the last to run: every output is committed (or failed)
+        stack.push(drop_bases)  # after the output's writer closed
         read: list[Path] = []  # the files read, which the output must not replace
         if isinstance(input_path, Path):
             reader = stack.enter_context(open_log(input_path))
@@ -433,11 +443,10 @@ def densify(
         # densifies; they are written in frame order, ENCODE_AHEAD frames behind
         encoder = stack.enter_context(ThreadPoolExecutor(ENCODE_WORKERS, "encode-outputs"))
         encoding: deque[tuple[DensifiedFrame, Future[list[tuple[str, Any]]]]] = deque()
-        sink = (
-            stack.enter_context(RerunSink(rrd_path=rrd, spawn=spawn_viewer))
-            if rrd is not None or spawn_viewer
-            else None
-        )
+        if rrd is not None or spawn_viewer:
+            sink = stack.enter_context(
+                RerunSink(rrd_path=rrd, spawn=spawn_viewer, defer_viewer_wait=True)
+            )
         engine: FrameProcessor | None = None  # made at the first pair (SGBM's resolution)
         matching: str | None = None  # the resolution chosen for the camera, said with it
         sgbm = processor.sgbm  # that resolution (a given one as it is)
@@ -629,7 +638,7 @@ def densify(
         input=input_path,
         output=writer.path if writer is not None else None,
         frames=frames,
-        seconds=time.perf_counter() - started,
+        seconds=work_ended[0] - started,
         measurements=measurements,
         pairing=stats,
         damage=list(reader.damage),

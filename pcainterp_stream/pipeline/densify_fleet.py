@@ -94,10 +94,20 @@ def output_path(input_path: Path, out_dir: Path) -> Path:
     """Return the output of one input of ``densify --out-dir``: ``DIR/<stem>_dense.mcap``.
 
     The stem is that of the path as given (a symbolic link's own name, not its target's);
-    a folder's (a rosbag2 log) is its whole name, dots included (``drive_v1.2``).
+    a folder's (a rosbag2 log) is its whole name, dots included (``drive_v1.2``). ``.`` and
+    ``..`` are taken lexically, links not followed (``morning/notes/..`` is ``morning``).
     """
-    stem = input_path.name if input_path.is_dir() else input_path.stem
+    named = Path(os.path.abspath(input_path))
+    stem = named.name if input_path.is_dir() else named.stem
     return out_dir / f"{stem}_dense.mcap"
+
+
+def _same_log(first: Path, path: Path) -> bool:
+    """Whether two inputs are one file or folder (``b1.mcap`` and ``sub/../b1.mcap``)."""
+    try:
+        return os.path.samefile(first, path)
+    except OSError:  # not there (to be reported when read): compared as written
+        return os.path.abspath(first) == os.path.abspath(path)
 
 
 def _check_distinct(inputs: list[Path], outputs: list[Path]) -> None:
@@ -113,6 +123,8 @@ def _check_distinct(inputs: list[Path], outputs: list[Path]) -> None:
             continue
         if first == path:
             raise PcaInterpError(f"{path} is given twice; give each log once")
+        if _same_log(first, path):
+            raise PcaInterpError(f"{first} and {path} are one log given twice; give each once")
         raise PcaInterpError(
             f"{first} and {path} share the name stem {out.name.removesuffix('_dense.mcap')!r}, "
             f"so both would write {out}; densify them into different --out-dir folders, or "

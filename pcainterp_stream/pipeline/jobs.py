@@ -14,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -164,6 +165,8 @@ def import_kitti(
 
         sequence = open_kitti(folder, pair=KittiPair.COLOUR if colour else None)
         summary = convert(sequence, out, max_frames=max_frames, progress=progress)
+    for warning in sequence.warnings:  # on standard error, as cli.common.warn
+        print(f"warning: {warning}", file=sys.stderr, flush=True)
     if sequence.lens is not None:
         lefts, rights = sequence.unpaired
         left_out = (

@@ -197,3 +197,61 @@ def test_serving_on_after_a_run_no_client_saw_says_so() -> None:
         server.join(5)
     (line,) = [note for note in notes if "no client was connected" in note]
     assert "--wait-for-client" in line
+
+
+def _stuck_connection(host: str) -> tuple[int, list[socket.socket]]:
+    """A listener on ``host`` (free port) whose accepted connection has bytes queued to a
+    client that never reads; returns the port and the sockets to close."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    listener = socket.socket(family)
+    listener.bind((host, 0))
+    listener.listen()
+    port = int(listener.getsockname()[1])
+    client = socket.create_connection((host, port))
+    accepted, _ = listener.accept()
+    accepted.setblocking(False)
+    try:
+        while True:
+            accepted.send(bytes(1 << 16))
+    except BlockingIOError:  # the client's window and the send buffer are full
+        pass
+    return port, [listener, client, accepted]
+
+
+def _has_ipv6_loopback() -> bool:
+    try:
+        with socket.socket(socket.AF_INET6) as probe:
+            probe.bind(("::1", 0))
+    except OSError:
+        return False
+    return True
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/net/tcp")
+@pytest.mark.parametrize("host", ["127.0.0.1", "::1"])
+def test_the_drain_counts_only_its_own_address_clients(host: str) -> None:
+    """Review 59b F4: a run on [::1]:P waited for (and reported as lost) another server's
+    client on 127.0.0.1:P: connections were matched by port number alone."""
+    from pcainterp_stream.io.foxglove_drain import queued_bytes
+
+    if host == "::1" and not _has_ipv6_loopback():
+        pytest.skip("no IPv6 loopback")
+    port, sockets = _stuck_connection(host)
+    other = "::1" if host == "127.0.0.1" else "127.0.0.1"
+    wildcard_v4 = host == "127.0.0.1"  # 0.0.0.0 takes IPv4 connections only
+    try:
+        client = sockets[1].getsockname()
+        named = f"[{client[0]}]:{client[1]}" if ":" in host else f"{client[0]}:{client[1]}"
+        deadline = time.monotonic() + 5
+        while not (queued_bytes(port, (host,)) or {}) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        mine = queued_bytes(port, (host,)) or {}
+        assert set(mine) == {named}
+        assert mine[named] > 0
+        assert queued_bytes(port, (other,)) == {}  # another address, the same port number
+        assert set(queued_bytes(port, ("::",)) or {}) == {named}
+        assert set(queued_bytes(port, ("0.0.0.0",)) or {}) == ({named} if wildcard_v4 else set())
+        assert set(queued_bytes(port) or {}) == {named}  # no host: the port alone
+    finally:
+        for item in sockets:
+            item.close()

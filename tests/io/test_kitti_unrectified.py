@@ -154,7 +154,7 @@ def test_images_of_neither_calibrated_size_are_refused(tmp_path: Path) -> None:
 
 def test_without_s_rect_the_principal_point_checks_the_size(tmp_path: Path) -> None:
     # a calibration written by hand, without S_rect_00: raw-size images are still raw ones;
-    # others must have P_rect_00's principal point near their centre
+    # others far off P_rect_00's principal point are imported with a warning (review 59b F1)
     drive = make_extract(tmp_path, [T0], [T0])
     calib = drive.parent / "calib_cam_to_cam.txt"
     calib.write_text("".join(x for x in calib.read_text().splitlines(True) if "S_rect_00" not in x))
@@ -162,13 +162,78 @@ def test_without_s_rect_the_principal_point_checks_the_size(tmp_path: Path) -> N
     for camera in ("image_00", "image_01"):  # 36x20 suits P_rect_00 (cx 17.5, cy 9.5)
         cv2.imwrite(str(drive / camera / "data" / "0000000000.png"), np.zeros((20, 36), np.uint8))
     assert open_kitti(drive).lens is None
+    assert open_kitti(drive).warnings == ()
     for camera in ("image_00", "image_01"):  # 36x40: cy 9.5 is 26 % of the height off
         cv2.imwrite(str(drive / camera / "data" / "0000000000.png"), np.zeros((40, 36), np.uint8))
+    (warning,) = open_kitti(drive).warnings
+    assert warning.startswith("P_rect_00 of calibration file ")
+    assert "(17.5, 9.5), 26% of the image off its centre (36x40, first image " in warning
+
+
+def _kitti_raw_size_drive(root: Path) -> Path:
+    """A _sync drive of 1392x512 images whose calibration has P_rect but neither S_ line."""
+    drive = root / "2011_09_26" / "2011_09_26_drive_0001_sync"
+    for camera in ("image_00", "image_01"):
+        (drive / camera / "data").mkdir(parents=True)
+        image = np.zeros((512, 1392), np.uint8)
+        assert cv2.imwrite(str(drive / camera / "data" / "0000000000.png"), image)
+    p0 = [721.5377, 0, 609.5593, 0, 0, 721.5377, 172.854, 0, 0, 0, 1, 0]
+    p1 = [*p0[:3], -387.5744, *p0[4:]]
+    (drive.parent / "calib_cam_to_cam.txt").write_text(
+        f"P_rect_00: {_numbers(p0)}\nP_rect_01: {_numbers(p1)}\n"
+    )
+    return drive
+
+
+def test_kitti_raw_size_with_its_rectified_calibration_is_refused(tmp_path: Path) -> None:
+    # KITTI's unrectified 1392x512 images with P_rect (cy 172.9: 16 % off) and no size lines
     with pytest.raises(
         DatasetImportError,
-        match=r"is 36x40 but P_rect_00 of calibration file .* \(17\.5, 9\.5\), 26% of the image",
+        match=r"image .*0000000000\.png is 1392x512 but P_rect_00 of calibration file "
+        r".*calib_cam_to_cam\.txt puts the principal point at \(609\.6, 172\.9\), 16% of the "
+        r"image off its centre: these are KITTI's unrectified images",
     ):
-        open_kitti(drive)
+        open_kitti(_kitti_raw_size_drive(tmp_path))
+
+
+def _kitti360_odometry(root: Path, frames: int = 3) -> Path:
+    """KITTI-360's rectified perspective pair (perspective.txt P_rect_00/01: 1408x376,
+    cy 238.77, 13.5 % off centre) in the odometry layout, as SLAM tools convert it."""
+    sequence = root / "sequences" / "00"
+    rng = np.random.default_rng(3)
+    for camera in ("image_0", "image_1"):
+        (sequence / camera).mkdir(parents=True)
+    for i in range(frames):
+        image = rng.integers(0, 256, size=(376, 1408), dtype=np.uint8)
+        assert cv2.imwrite(str(sequence / "image_0" / f"{i:06d}.png"), image)
+        assert cv2.imwrite(str(sequence / "image_1" / f"{i:06d}.png"), np.roll(image, -20, 1))
+    f, cx, cy, baseline = 552.554261, 682.049453, 238.769549, 0.5943
+    p0 = [f, 0, cx, 0, 0, f, cy, 0, 0, 0, 1, 0]
+    p1 = [*p0[:3], -f * baseline, *p0[4:]]
+    (sequence / "calib.txt").write_text(f"P0: {_numbers(p0)}\nP1: {_numbers(p1)}\n")
+    return sequence
+
+
+def test_kitti360_rectified_pair_imports_with_a_warning(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # review 59b F1: refused before ("these are not the rectified images it describes")
+    sequence = _kitti360_odometry(tmp_path)
+    out = tmp_path / "k360.mcap"
+    assert cli.main(["import-kitti", str(sequence), str(out)]) == 0
+    err = capsys.readouterr().err
+    warnings = [line for line in err.splitlines() if line.startswith("warning: ")]
+    assert warnings == [
+        f"warning: P0 of calibration file {sequence / 'calib.txt'} puts the principal point at "
+        f"(682.0, 238.8), 14% of the image off its centre (1408x376, first image "
+        f"{sequence / 'image_0' / '000000.png'}): imported as the rectified camera it "
+        "describes (KITTI-360's is 13.5 % off, a crop's may be); if these images are resized "
+        "or not rectified, the depths are wrong"
+    ]
+    assert "error" not in err
+    camera = open_kitti(sequence).camera
+    assert (camera.width, camera.height, camera.cy) == (1408, 376, pytest.approx(238.769549))
+    assert sum(1 for topic, _, _ in _read(out) if topic.endswith("image_rect")) == 6
 
 
 def test_a_calibration_without_the_raw_cameras_is_refused(tmp_path: Path) -> None:

@@ -119,6 +119,43 @@ def test_two_inputs_of_one_stem_are_named_with_the_output_they_would_share(
     assert not out.exists()
 
 
+def test_a_folder_given_as_dot_dot_is_named_after_itself(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review 59b F5: `densify .. --out-dir D` from inside a rosbag2 folder wrote the hidden
+    D/.._dense.mcap. `.` and `..` are taken lexically, links not followed."""
+    notes = tmp_path / "morning" / "notes"
+    notes.mkdir(parents=True)
+    out = tmp_path / "D"
+    expected = out / "morning_dense.mcap"
+    assert densify_fleet.output_path(notes / "..", out) == expected
+    assert densify_fleet.output_path(tmp_path / "morning" / ".", out) == expected
+    assert densify_fleet.output_path(Path(f"{tmp_path}/morning/"), out) == expected
+    monkeypatch.chdir(notes)
+    assert densify_fleet.output_path(Path(".."), out) == expected
+    assert densify_fleet.output_path(Path("../notes/.."), out) == expected
+    monkeypatch.chdir(notes.parent)
+    assert densify_fleet.output_path(Path("."), out) == expected
+    (tmp_path / "latest").symlink_to(notes.parent)  # a link's own name, as for a log
+    assert densify_fleet.output_path(tmp_path / "latest" / "notes" / "..", out) == (
+        out / "latest_dense.mcap"
+    )
+
+
+def test_one_log_given_twice_through_dot_dot_or_a_link_is_said_so(tmp_path: Path) -> None:
+    """Review 59b F6: `b1.mcap sub/../b1.mcap` got the "share the name stem" advice."""
+    log = tmp_path / "b1.mcap"
+    log.write_bytes(b"")
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "alias").symlink_to(tmp_path)
+    out = tmp_path / "o"
+    for again in (tmp_path / "sub" / ".." / "b1.mcap", tmp_path / "alias" / "b1.mcap"):
+        with pytest.raises(PcaInterpError) as raised:
+            densify_fleet.densify_many([log, again], out, None, None)
+        assert str(raised.value) == f"{log} and {again} are one log given twice; give each once"
+    assert not out.exists()
+
+
 _REPORTED = threading.Event()
 """Set when an outcome was handed over (a module's: Dask pickles a task's function)."""
 _DENSIFY_ONE = densify_fleet._densify_one
