@@ -69,6 +69,8 @@ class ImageClock:
         if self._own is None:
             return Restamp(log_time_ns, by_log_time=True)
         own_ns, own_log_ns = self._own
+        if stamp_ns == own_ns and log_time_ns <= own_log_ns:
+            return None  # its stamp again at the same log time: that message logged twice
         self._run += 1
         since = max(0, log_time_ns - own_log_ns)
         if self._rates:
