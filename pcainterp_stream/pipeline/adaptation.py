@@ -25,8 +25,10 @@ import numpy.typing as npt
 
 from pcainterp_stream.estimate import adapt, fitting, rougher
 from pcainterp_stream.estimate.basis import Basis
+from pcainterp_stream.estimate.cells import Seeding
 from pcainterp_stream.estimate.estimator import densify_batch
 from pcainterp_stream.frontend.motion import Motion, view_shift
+from pcainterp_stream.pipeline.measured import check_cells
 from pcainterp_stream.pipeline.wording import count as _count
 from pcainterp_stream.pipeline.wording import figures as _figures
 from pcainterp_stream.records import StereoCamera, StereoFrame
@@ -152,6 +154,8 @@ class Adaptation:
             scores at least this times linear interpolation's error.
         in_force: each basis the frames were densified with, in stream order, from the
             first frame it took over (:meth:`bind`): the output records them.
+        cells: score an edge-aware prior with the cells densify draws along SGBM's map
+            (sparse stereo mode with ``edge_aware``), as the frames will be densified.
     """
 
     mode: str
@@ -178,6 +182,7 @@ class Adaptation:
     deferred: bool = False
     in_force: list[BasisStart] = field(default_factory=list)
     again: str = MOVED  # the line of a deferred check, "{}": its frames
+    cells: bool = False
     _given: Basis | None = None
     _settings: dict[str, object] = field(default_factory=dict)
     _views: list[AdaptFrame] = field(default_factory=list)
@@ -445,6 +450,8 @@ class Adaptation:
         per_frame: dict[int, list[adapt.FrameCheck]] = {}  # each basis's, by id
 
         def check(candidate: Basis, options: dict[str, object]) -> adapt.FitCheck:
+            cells = self.cells and check_cells(options)
+            grid = candidate.grid_size
             estimates = densify_batch(
                 candidate,
                 [f.pixels for f in usable],
@@ -454,6 +461,7 @@ class Adaptation:
                 focal_baseline=fb,
                 robust=self.robust,
                 with_depth=False,  # scored on the disparity only
+                partitions=[f.cells(grid) for f in usable] if cells else None,
                 **options,  # type: ignore[arg-type]
             )
             scores = [h.score(e.disparity) for e, h in zip(estimates, held_out, strict=True)]
@@ -865,6 +873,11 @@ class AdaptFrame:
         assert self.sgbm_map is not None
         return adapt.Measured(self.pixels, self.disparities, self.sgbm_map)
 
+    def cells(self, basis_grid: tuple[int, int]) -> Seeding | None:
+        """Return the frame's edge-aware cells on a basis's grid, as densify draws them."""
+        assert self.sgbm_map is not None
+        return Seeding.along(self.sgbm_map, self.pixels, self.image_size, basis_grid)
+
 
 def still_links(frames: list[AdaptFrame]) -> list[int]:
     """Return, for each of consecutive frames, the earliest frame of its view by ego-motion.
@@ -885,16 +898,3 @@ def still_links(frames: list[AdaptFrame]) -> list[int]:
             since = np.eye(4)
         links.append(links[-1] if still else index)
     return links
-
-
-def sgbm_maps(
-    disparity_map: npt.NDArray[np.float32], camera: StereoCamera
-) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32] | None]:
-    """Return a frame's SGBM map (NaN where invalid) and its grid map for the log's basis.
-
-    The grid map is None for a blank pair (no valid pixel: no map to learn from).
-    """
-    sgbm_map = np.where(disparity_map > 0, disparity_map, np.nan).astype(np.float32)
-    if not np.isfinite(sgbm_map).any():
-        return sgbm_map, None
-    return sgbm_map, adapt.grid_map(sgbm_map, camera.image_size)

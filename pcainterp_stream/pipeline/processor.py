@@ -76,8 +76,8 @@ from pcainterp_stream.frontend.stereo import (
     to_grey8,
 )
 from pcainterp_stream.interrupt import signalled
-from pcainterp_stream.pipeline.adaptation import FITS_BELOW, OWN_ABOVE_STREET, Candidate, sgbm_maps
-from pcainterp_stream.pipeline.measured import Measured, cells_on_grid
+from pcainterp_stream.pipeline.adaptation import FITS_BELOW, OWN_ABOVE_STREET, Candidate
+from pcainterp_stream.pipeline.measured import Measured, cells_on_grid, sgbm_maps
 from pcainterp_stream.pipeline.prepare import prepare as _prepare  # tools/thread_cpu.py times it
 from pcainterp_stream.pipeline.refit import Camera, Refitting, adapt_frame
 from pcainterp_stream.pipeline.threads import ThreadLimits, finished, gathered, lower_priority
@@ -389,11 +389,8 @@ class FrameProcessor:
         self.near = (
             None if near is None or reach is None else dataclasses.replace(near, match_range=reach)
         )
-        self.temporal = (
-            TemporalPrior(process_noise=self.settings.process_noise)
-            if self.config.temporal
-            else None
-        )
+        noise = self.settings.process_noise
+        self.temporal = TemporalPrior(process_noise=noise) if self.config.temporal else None
         self.dense = self.config.measurements == "dense"
         # --robust applies to the SGBM pixels of dense mode too
         self._dense_model = dataclasses.replace(
@@ -418,6 +415,7 @@ class FrameProcessor:
             advisory=self._alternatives(kind, warn=True),
             own_above=OWN_ABOVE_STREET if kind == "street" else FITS_BELOW,
             options_of=lambda basis: resolve_settings(basis, self.config).densify_options(),
+            cells=self.config.edge_aware and stereo and not self.dense,
         )
         self._camera: Camera | None = None  # the last frame submitted's
         self._changes = 0  # camera changes submitted: their maps are kept (Refitting)

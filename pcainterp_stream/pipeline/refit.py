@@ -27,8 +27,8 @@ from pcainterp_stream.estimate import adapt
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.estimator import densify_batch
 from pcainterp_stream.frontend.near import lookups_only
-from pcainterp_stream.pipeline.adaptation import Adaptation, AdaptFrame, sgbm_maps
-from pcainterp_stream.pipeline.measured import Measured
+from pcainterp_stream.pipeline.adaptation import Adaptation, AdaptFrame
+from pcainterp_stream.pipeline.measured import Measured, check_cells, sgbm_maps
 from pcainterp_stream.records import StereoFrame
 
 WATCH_EVERY = 4
@@ -101,8 +101,13 @@ def score(
     frame: AdaptFrame,
     options: dict[str, object],
     robust: str,
+    cells: bool = False,
 ) -> adapt.FrameCheck:
-    """Score ``basis`` on one frame's held-out SGBM pixels (a solve without std)."""
+    """Score ``basis`` on one frame's held-out SGBM pixels (a solve without std).
+
+    ``cells``: an edge-aware prior is scored with its cells along SGBM's map
+    (:attr:`~.adaptation.Adaptation.cells`).
+    """
     assert frame.sgbm_map is not None
     held = frame.held_out
     if held is None:
@@ -116,6 +121,7 @@ def score(
         focal_baseline=frame.focal_baseline,
         robust=robust,
         with_depth=False,
+        partitions=[frame.cells(basis.grid_size)] if cells and check_cells(options) else None,
         **options,  # type: ignore[arg-type]
     )
     return held.score(estimate.disparity)
@@ -242,7 +248,7 @@ class Refitting(Adaptation):
                     continue
                 if not watch.due():
                     continue
-                check = score(current, frame, options_of(current), self.robust)
+                check = score(current, frame, options_of(current), self.robust, self.cells)
                 stopped = watch.add(frame.index, check)
                 if stopped is not None:
                     return self._stopped(stopped, watch, frame.index, current)
