@@ -63,6 +63,7 @@ from pcainterp_stream.evaluate.metrics import (
     relative_transform,
     stereo_transform,
 )
+from pcainterp_stream.evaluate.per_frame import PerFrame, own_pair_notes
 from pcainterp_stream.evaluate.reference import (
     IMAGE_TYPES,
     SPARSE_BELOW,
@@ -380,6 +381,7 @@ class _Evaluator:
         self.sgbm_empty = 0
         self.other_camera: str | None = None
         """Why the basis is another camera's ("": it is not; None: not yet known)."""
+        self.per_frame = PerFrame(result)
 
     def _stats(self, name: str) -> MethodStats:
         return self.result.methods.setdefault(name, MethodStats())
@@ -406,8 +408,10 @@ class _Evaluator:
         camera, size = frame.camera, frame.camera.image_size
         # the log's measurements are densify's: SGBM's 0 is a match (densify's zero_is_match)
         usable, _, _ = clean_measurements(frame.pixels, frame.disparities, size, zero_is_match=True)
+        self.per_frame.start()  # its own figures: the accumulators' change over the frame
         if usable.shape[0] < MIN_MEASUREMENTS:
             self.result.no_measurement.append(frame.index)
+            self.per_frame.finish(frame.index, frame.stamp_ns, frame.estimate, measured=False)
             return
         view = reference_view(reference, camera, transform)
         has_estimate = ~np.isnan(frame.estimate)  # +inf depth (far) is an estimate; NaN none
@@ -463,6 +467,7 @@ class _Evaluator:
         self.result.reference_area += reference.size
         self.result.frames += 1
         self.result.image_size = size
+        self.per_frame.finish(frame.index, frame.stamp_ns, frame.estimate)
 
     def _stereo_baselines(
         self,
@@ -714,6 +719,7 @@ def evaluate_log(
     )
     result.notes += matcher_notes(front_end, options.sgbm) if has_right else []
     result.notes += tuning_notes(path, topics, basis is not None)  # what the stored rows are
+    result.notes += own_pair_notes(result.reference)  # SGBM of a broken pair agrees with its errors
     if not has_right:
         result.stereo_note = f"skipped, the log has no {images.right_topic}"
     elif not has_truth:

@@ -21,6 +21,7 @@ from pcainterp_stream.evaluate.metrics import (
     CalibrationStats,
     MethodStats,
 )
+from pcainterp_stream.evaluate.per_frame import FrameFigures
 from pcainterp_stream.evaluate.reference import SPARSE_BELOW
 
 PAPER_DELTA_2D = {"KITTI": (3.4, 5.4), "Virtual KITTI": (2.0, 3.3)}
@@ -153,6 +154,8 @@ class Evaluation:
             basis's, of the last frame re-densified); None when no row re-densified.
         input_pair: the input pair SGBM matched: topics, calibration, ``--rectify`` and
             where they came from (densify's record of the log, or found again).
+        per_frame: each frame given to the scoring (in order, those without a measurement
+            too), its own figures (:class:`~pcainterp_stream.evaluate.per_frame.FrameFigures`).
     """
 
     log: str
@@ -188,6 +191,7 @@ class Evaluation:
     notes: list[str] = field(default_factory=list)
     input_pair: str = ""
     sigma_log_px: float | None = None
+    per_frame: list[FrameFigures] = field(default_factory=list)
 
     @property
     def sigma_label(self) -> str:
@@ -284,6 +288,7 @@ class Evaluation:
                 str(points): {name: stats.summary() for name, stats in methods.items()}
                 for points, methods in self.sweep.items()
             },
+            "per_frame": [figures.summary() for figures in self.per_frame],
         }
 
     @property
@@ -296,8 +301,10 @@ class Evaluation:
         more = f" and {count - NAMED_FRAMES} more" if count > NAMED_FRAMES else ""
         return (
             f"{count} {'frame' if count == 1 else 'frames'} left out of every method: no "
-            f"measurement there (black, dark or textureless images), so nearest and linear "
-            f"have nothing to interpolate and PCA-MAP has no estimate "
+            "measurement there (densify matched nothing: black, dark or textureless images, or "
+            "a pair it left unmatched, swapped or one view twice, as its warnings say), so "
+            "nearest and linear have nothing to interpolate and PCA-MAP has no estimate; "
+            f"{'it is' if count == 1 else 'they are'} not in the table "
             f"({'frame' if count == 1 else 'frames'} {shown}{more}, counted from 0)"
         )
 

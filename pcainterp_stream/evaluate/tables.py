@@ -6,6 +6,7 @@ import math
 from pathlib import Path
 
 from pcainterp_stream.evaluate.metrics import SWEEP_POINTS, CalibrationStats, MethodStats
+from pcainterp_stream.evaluate.per_frame import standout_lines
 from pcainterp_stream.evaluate.results import (
     PCA_ON_SGBM,
     SGBM,
@@ -119,6 +120,7 @@ def summary_table(result: Evaluation) -> str:
             f"reference {_percent(r['reference_far'])} "
             f"({_percent(r['reference_far_estimate_agrees'])} found)"
         )
+    lines += [f"stands out: {line}" for line in standout_lines(result.per_frame)]
     return "\n".join(lines)
 
 
@@ -282,5 +284,10 @@ def results_markdown(result: Evaluation, figures: list[str]) -> str:
             f"{', '.join(f'`{n}`' for n in result.calibration if n != 'stored')} are evaluate's "
             f"re-densifications of the same points with the basis at {result.sigma_label}.",
         ]
-    lines += ["", "All numbers, with the accumulated histograms: `results.json`.", ""]
+    lines += [
+        "",
+        "All numbers, with the accumulated histograms and each frame's figures (`per_frame`): "
+        "`results.json`.",
+        "",
+    ]
     return "\n".join(lines)
