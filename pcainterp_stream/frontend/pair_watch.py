@@ -12,8 +12,9 @@ with a 1.25 px std (+-2 sigma covered 0.9 % of the truth), and nothing said so; 
 (:func:`signed_shares`: ~1.4 ms a KITTI pair at 1/8 resolution, ~0.3 ms at 620x188): on a
 pair as recorded 82-89 % of its matched blocks lie at positive disparities and none at
 negative ones; swapped, 79-86 % at negative ones; one view twice, all at 0 with the images
-equal. A
-frame that looks so, while an earlier frame of the log looked right, is confirmed with the
+equal. A scene beyond stereo range looks like one view twice at that size and to the
+corners too: one view twice also needs one image twice, pixel for pixel (:func:`one_image`).
+A frame that looks so, while an earlier frame of the log looked right, is confirmed with the
 row check's own corner matching (:func:`.rectify.correspondences`, 40-70 ms, only then) and
 is not matched (its right image blanked, as a stale one: no estimate, depth NaN). Once per
 :data:`ROW_WATCH_SECONDS` of log time the corners are matched in a thread, and a row
@@ -36,12 +37,13 @@ from pcainterp_stream.frontend.row_check import (
     MAX_ROW_OFFSET_PX,
     MIN_MEDIAN_DISPARITY_PX,
     ROW_CHECK_MIN_MATCHES,
+    SAME_VIEW_CHANGE,
     SAME_VIEW_PX,
     SAME_VIEW_SHARE,
 )
 from pcainterp_stream.records import StereoFrame
 
-__all__ = ["PairWatch", "frame_ranges", "signed_shares"]
+__all__ = ["PairWatch", "frame_ranges", "one_image", "signed_shares"]
 
 WATCH_WIDTH = 160
 """The block matcher sees the pair downscaled to about this width (px)."""
@@ -65,6 +67,15 @@ SAME_VIEW_THUMB = 0.5
 """Largest mean |left - right| over the mean |left - left moved a column| of the
 downscaled pair that says one view twice (identical images 0; pairs 2.0-7.0; a flat
 noisy wall ~1)."""
+
+COPY_SHIFT_PX = 0.1
+"""Largest horizontal shift (px, full resolution) fitted to left - right of one image twice.
+An exact or re-encoded copy: ~0; a far scene matched by two cameras at 0.5 px (96 m on a
+VI-sensor, 780 m on KITTI): 0.4-0.5 (its ``same`` thumbnail ratio 0.1, like a copy's)."""
+
+COPY_MEAN_LEVELS = 0.5
+"""Largest difference of the two images' mean grey levels (0-255) of one image twice: a copy
+or re-encoding keeps the mean; two cameras' gain, exposure and vignetting do not."""
 
 MIN_VALID_SHARE = 0.05
 """Fewer matched blocks than this share of the image: the test says nothing (blank, wall)."""
@@ -105,6 +116,29 @@ def signed_shares(
         float(np.mean(valid < -1.0)),
         same,
     )
+
+
+def one_image(grey_left: npt.NDArray[np.uint8], grey_right: npt.NDArray[np.uint8]) -> bool:
+    """Whether a grey pair is one image twice (a copy or re-encoding), at full resolution.
+
+    A scene beyond stereo range looks like that at the watch's thumbnail size and to ORB's
+    corners (all within :data:`~.row_check.SAME_VIEW_PX`), but two cameras' images differ
+    pixel for pixel: by a sub-pixel shift (:data:`COPY_SHIFT_PX`), their mean level
+    (:data:`COPY_MEAN_LEVELS`) or noise (:func:`~.row_check.view_change` at
+    :data:`~.row_check.SAME_VIEW_CHANGE`). ~2-4 ms a KITTI pair, run only on such a frame.
+    """
+    a = grey_left[::2].astype(np.float32)  # every other row: half the cost, same shift
+    b = grey_right[::2].astype(np.float32)
+    if abs(float(np.mean(a)) - float(np.mean(b))) > COPY_MEAN_LEVELS:
+        return False
+    diff = a[:, 1:-1] - b[:, 1:-1]
+    slope = (a[:, 2:] - a[:, :-2]) / 2  # left(x + s) ~ left(x) + s * slope
+    texture = float(np.mean(np.abs(a[:, 1:] - a[:, :-1])))
+    if float(np.mean(np.abs(diff))) >= SAME_VIEW_CHANGE * max(texture, 1e-6):
+        return False
+    energy = float(np.sum(slope * slope))
+    shift = float(np.sum(diff * slope)) / energy if energy > 0 else 0.0
+    return abs(shift) < COPY_SHIFT_PX
 
 
 def frame_ranges(frames: list[int]) -> str:
@@ -171,7 +205,7 @@ class PairWatch:
             ):
                 self.swapped[frame.index] = offset.median_dx
                 return True
-        elif same < SAME_VIEW_THUMB:
+        elif same < SAME_VIEW_THUMB and one_image(left, right):  # ORB only on a copy
             points = rect.correspondences(left, right)
             if points.shape[0] >= ROW_CHECK_MIN_MATCHES:
                 near = np.abs(points[:, :2] - points[:, 2:]).max(axis=1) < SAME_VIEW_PX

@@ -7,7 +7,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.frontend.frame_checks import StaleRight
-from pcainterp_stream.frontend.pair_watch import frame_ranges
+from pcainterp_stream.frontend.pair_watch import frame_ranges, one_image
 from pcainterp_stream.records import StereoFrame
 
 HEIGHT, WIDTH = 200, 400
@@ -67,6 +67,50 @@ def test_one_view_on_both_topics_mid_log_is_not_matched() -> None:
     assert check.stale == {2}
     (line,) = check.warnings(5, empty=1)
     assert "1 of 5 frames (2) carried one view on both image topics" in line
+
+
+def _far(left: npt.NDArray[np.uint8], disparity: float) -> npt.NDArray[np.uint8]:
+    """The right image of a scene all at one sub-pixel ``disparity``: right(x) = left(x + d)."""
+    move = np.float32([[1, 0, -disparity], [0, 1, 0]])
+    return cv2.warpAffine(
+        left, move, left.shape[::-1], flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT
+    )
+
+
+def test_a_scene_beyond_stereo_range_mid_log_keeps_its_estimate() -> None:
+    # review 59c F1: before, frames whose whole scene went far (0.5-1 px: 96 m on a VI-sensor,
+    # 390-780 m on KITTI) after good ones were blanked as "one view on both topics"
+    check = StaleRight()
+    for index in range(8):
+        left, right = _pair(index)
+        if index >= 3:
+            right = _far(left, 0.5 if index % 2 else 1.0)
+        assert check.check(_frame(index, left, right)).right is right
+    assert check.stale == set()
+    assert check.warnings(8, empty=0) == []
+
+
+def test_one_image_tells_a_copy_from_a_far_scene() -> None:
+    left, right = _pair(1)
+    ok, coded = cv2.imencode(".jpg", left, [cv2.IMWRITE_JPEG_QUALITY, 90])
+    assert ok
+    assert one_image(left, left.copy())
+    assert one_image(left, cv2.imdecode(coded, cv2.IMREAD_GRAYSCALE))  # republished as JPEG
+    assert not one_image(left, _far(left, 0.5))  # a scene beyond range, 0.5 px
+    assert not one_image(left, _far(left, 0.2))
+    assert not one_image(left, np.clip(left.astype(np.int16) + 2, 0, 255).astype(np.uint8))
+    assert not one_image(left, right)
+
+
+def test_a_re_encoded_copy_mid_log_is_still_caught() -> None:
+    check = StaleRight()
+    for index in range(5):
+        left, right = _pair(index)
+        if index == 3:
+            _, coded = cv2.imencode(".jpg", left, [cv2.IMWRITE_JPEG_QUALITY, 90])
+            right = cv2.imdecode(coded, cv2.IMREAD_GRAYSCALE)
+        check.check(_frame(index, left, right))
+    assert check.stale == {3}
 
 
 def test_a_log_swapped_from_the_start_is_left_to_the_row_check() -> None:
