@@ -208,6 +208,11 @@ def pairing_config(args: argparse.Namespace, features_topic: str | None = None) 
             for side, topic in (("left", args.left_topic), ("right", args.right_topic))
             if topic
         ),
+        named_infos=tuple(
+            side
+            for side, topic in (("left", args.left_info_topic), ("right", args.right_info_topic))
+            if topic
+        ),
         check_rows=args.rectify != "never",
     )
 

@@ -92,6 +92,11 @@ def camera_from_infos(
         if not (baseline > 0 and np.isfinite(baseline)):
             left_tx = f", left P[0,3] = {p_left[0, 3]}" if p_left[0, 3] else ""
             fix = "pass --baseline METRES"
+            if left_topic == right_topic:  # one info read for both sides: Tx - Tx = 0
+                fix = (
+                    f"{left_topic} was read for both sides: pass --left-info-topic and "
+                    "--right-info-topic (each camera's own), or --baseline METRES"
+                )
             if baseline < 0:  # a sign problem --baseline cannot fix
                 swap = (
                     f"pass --left-topic {image_topics[1]} --right-topic {image_topics[0]}"
@@ -101,8 +106,8 @@ def camera_from_infos(
                 fix = (
                     f"the sides look swapped ({right_topic}'s camera lies left of "
                     f"{left_topic}'s): if the images are swapped too, {swap} (each with its "
-                    "own camera info); if only the infos are crossed, exchange "
-                    "--left-info-topic and --right-info-topic"
+                    f"own camera info); if only the infos are crossed, pass --left-info-topic "
+                    f"{right_topic} --right-info-topic {left_topic}"
                 )
             raise CalibrationError(
                 f"camera info on {right_topic} gives no baseline (P[0,3] = {p_right[0, 3]}, "

@@ -552,8 +552,9 @@ def resolve_pairing(
 
     With ``config.discover`` set, an image topic of ``config.named_sides`` or other than the
     default one (one side named on the command line) keeps only the pairs with it; an info
-    topic other than the default one stays (named). With ``config.discover`` unset, the
-    named topics are kept, each image with its own camera info (:func:`_named_infos`).
+    topic of ``config.named_infos`` or other than the default one stays (named). With
+    ``config.discover`` unset, the named topics are kept, each image with its own camera
+    info unless its info topic was named (:func:`_named_infos`).
 
     A Kalibr camchain whose cam1 is the left camera (Kalibr numbers the cameras in its
     ``--topics`` order) is said in a line of its own before the topics line.
@@ -646,12 +647,14 @@ def _named_infos(
 ) -> PairingConfig:
     """Return ``config`` (image topics named) with each image's own camera info.
 
-    An info topic left at its default becomes the image's own (:func:`info_topic_of`: below
-    the image, else its sibling) whenever the log has one, the default ``/stereo/...`` ones
-    too (a second head named beside a ``/stereo`` one); the default stays only for an image
-    without one. An info topic named (other than the default) is kept. With image topics
-    named on the command line (``config.named_sides``), both in the log, and no calibration
-    files, a line says which infos were taken and why.
+    An info topic not named becomes the image's own (:func:`info_topic_of`: below the image,
+    else its sibling) whenever the log has one, the default ``/stereo/...`` ones too (a
+    second head named beside a ``/stereo`` one); the default stays only for an image without
+    one. An info topic named (``config.named_infos``, the default name included: the row
+    check's advice for swapped images names the recorded infos) or other than the default
+    is kept. With image topics named on the command line (``config.named_sides``), both in
+    the log, and no calibration files, a line says which infos were taken and why (and when
+    both images took their namespace's one ``camera_info``, that it gives no baseline).
     """
     infos: dict[str, str] = {}
     why: dict[str, str] = {}
@@ -660,7 +663,7 @@ def _named_infos(
         ("right", config.right_topic, config.right_info_topic, DEFAULT_RIGHT_INFO),
     ):
         own = info_topic_of(image, topics)
-        if info != default:
+        if side in config.named_infos or info != default:
             infos[side], why[side] = info, f"--{side}-info-topic"
         elif own is not None:
             infos[side], why[side] = own, "own"
@@ -675,7 +678,9 @@ def _named_infos(
     if not all(image in topics for image in images):
         return resolved  # refused as missing, with the options
     named = "both named" if len(config.named_sides) > 1 else f"{config.named_sides[0]} named"
-    if set(why.values()) == {"own"}:
+    if set(why.values()) == {"own"} and infos["left"] == infos["right"]:
+        said = _shared_info(topics, infos["left"], config.baseline is None)
+    elif set(why.values()) == {"own"}:
         said = "each image with its own camera_info"
     else:
         said = "; ".join(
@@ -686,6 +691,25 @@ def _named_infos(
         f"{infos['right']} ({named}; {said})"
     )
     return resolved
+
+
+def _shared_info(topics: dict[str, TopicInfo], info: str, no_baseline: bool) -> str:
+    """Return the topics line's words on two images taking one camera info, their namespace's.
+
+    Without ``--baseline`` one info gives none: the words name the options (and the log's
+    other camera infos) that give each side its own.
+    """
+    said = f"both images take {info}, the one camera_info of their namespace"
+    if not no_baseline:
+        return said
+    others = [t for t, i in sorted(topics.items()) if i.msgtype == rosmsg.CAMERA_INFO]
+    others = [t for t in others if t != info]
+    listed = f"; other camera infos in the log: {', '.join(others[:4])}" if others else ""
+    more = f" and {len(others) - 4} more" if len(others) > 4 else ""
+    return (
+        f"{said}: one camera info gives no baseline, --left-info-topic and "
+        f"--right-info-topic name each side's{listed}{more}"
+    )
 
 
 def _discover(
@@ -806,13 +830,18 @@ def _discover(
         )
     left_info, right_info = config.left_info_topic, config.right_info_topic
     if best.left.info is not None and best.right.info is not None:
-        # an info topic other than the default one was named: it stays
-        if left_info == DEFAULT_LEFT_INFO:
+        # an info topic named (the default name too) or other than the default one stays
+        if left_info == DEFAULT_LEFT_INFO and "left" not in config.named_infos:
             left_info = best.left.info
-        if right_info == DEFAULT_RIGHT_INFO:
+        if right_info == DEFAULT_RIGHT_INFO and "right" not in config.named_infos:
             right_info = best.right.info
-    if echo is not None:
-        best = dataclasses.replace(best, note="; ".join(n for n in (note, best.note) if n))
+    if echo is not None:  # the line names the infos read
+        best = dataclasses.replace(
+            best,
+            left=dataclasses.replace(best.left, info=left_info if best.left.info else None),
+            right=dataclasses.replace(best.right, info=right_info if best.right.info else None),
+            note="; ".join(n for n in (note, best.note) if n),
+        )
         echo(_found_line(best, len(pairs) - 1, named_left=named_left, named_right=named_right))
     return dataclasses.replace(
         config,

@@ -108,6 +108,8 @@ class PairingConfig:
             (:func:`frontend.discovery.resolve_pairing`).
         named_sides: with ``discover``: the sides (``left``, ``right``) whose image topic was
             named, the default one included; the pair found must have it.
+        named_infos: the sides whose info topic was named on the command line, the default
+            one included: read whatever camera info the image has of its own.
         calibration_topics: with ``discover``: the image topics the calibration file names
             (the ``rostopic`` of a Kalibr camchain's cameras), the pair unless a side is
             named; when the log has not both, the pair is found in it.
@@ -131,6 +133,7 @@ class PairingConfig:
     calibration: rect.StereoCalibration | None = None
     discover: bool = False
     named_sides: tuple[str, ...] = ()
+    named_infos: tuple[str, ...] = ()
     calibration_topics: tuple[str, str] | None = None
     check_rows: bool = True
 

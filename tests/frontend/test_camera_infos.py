@@ -90,7 +90,7 @@ def test_a_negative_baseline_says_the_sides_look_swapped_not_pass_baseline() -> 
     assert (
         "if the images are swapped too, pass --left-topic /s/left/image_rect --right-topic "
         "/s/right/image_rect (each with its own camera info); if only the infos are crossed, "
-        "exchange --left-info-topic and --right-info-topic"
+        f"pass --left-info-topic {INFOS[0]} --right-info-topic {INFOS[1]}"
     ) in message
     assert "--baseline" not in message
     with pytest.raises(

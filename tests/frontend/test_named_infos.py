@@ -8,24 +8,34 @@ the second head was densified with the first head's calibration, or refused for 
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
+import re
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
 from pcainterp_stream import cli
+from pcainterp_stream.cli import pairing as cli_pairing
+from pcainterp_stream.errors import CalibrationError
+from pcainterp_stream.frontend.camera_infos import camera_from_infos
 from pcainterp_stream.frontend.discovery import resolve_pairing
 from pcainterp_stream.frontend.images import PairImages
-from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.frontend.pairing import PairingConfig, iter_stereo_frames
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.logwriter import open_writer
 from pcainterp_stream.io.reader_base import TopicInfo
+from pcainterp_stream.io.stereo_log import stereo_messages
 from pcainterp_stream.pipeline.learn import learn_pairing
+from pcainterp_stream.records import StereoCamera
 
 FRONT = ("/front/left/image_rect", "/front/right/image_rect")
+CAMERA = StereoCamera(width=8, height=6, fx=50.0, fy=51.0, cx=4.0, cy=3.0, baseline=0.25)
 
 
 class _Reader:
@@ -252,3 +262,146 @@ def test_learn_and_evaluate_read_a_named_head_with_its_own_infos(heads: dict[str
     with open_log(log) as reader:
         images.resolve(reader)
     assert images.config.left_info_topic == "/front/left/camera_info"
+
+
+# review 59c F2: an info topic given on the command line is read, the default name too
+
+
+def test_an_info_topic_given_with_the_default_name_wins_over_the_images_own() -> None:
+    # the row check's advice for swapped images: the recorded infos named, each by its name
+    swapped = _named("/stereo/right/image_rect", "/stereo/left/image_rect")
+    given = dataclasses.replace(swapped, named_infos=("left", "right"))
+    config, said = _resolve(_heads("/stereo"), given)
+    assert (config.left_info_topic, config.right_info_topic) == (
+        "/stereo/left/camera_info",
+        "/stereo/right/camera_info",
+    )
+    assert said[0].endswith("(both named; left: --left-info-topic; right: --right-info-topic)")
+    # one given: that side keeps it, the other takes its image's own
+    one = dataclasses.replace(swapped, named_infos=("left",))
+    config, _ = _resolve(_heads("/stereo"), one)
+    assert (config.left_info_topic, config.right_info_topic) == (
+        "/stereo/left/camera_info",
+        "/stereo/left/camera_info",
+    )
+
+
+def test_an_info_topic_given_with_the_default_name_stays_when_the_pair_is_found() -> None:
+    # no image topic named: the pair (/cam) is found, the info topics given are kept
+    reader = _Reader(
+        *(f"/cam/{s}/{t}" for s in ("left", "right") for t in ("image_rect", "camera_info")),
+        "/stereo/left/camera_info",
+        "/stereo/right/camera_info",
+    )
+    given = PairingConfig(discover=True, named_infos=("left", "right"))
+    config, said = _resolve(reader, given)
+    assert (config.left_topic, config.left_info_topic, config.right_info_topic) == (
+        "/cam/left/image_rect",
+        "/stereo/left/camera_info",
+        "/stereo/right/camera_info",
+    )
+    assert " with /stereo/left/camera_info and /stereo/right/camera_info (found" in said[0]
+    # not given: the pair's own
+    config, _ = _resolve(reader, PairingConfig(discover=True))
+    assert config.left_info_topic == "/cam/left/camera_info"
+
+
+def test_the_command_line_records_which_info_topics_were_given() -> None:
+    parser = argparse.ArgumentParser()
+    cli_pairing.add_topic_options(parser)
+    args = parser.parse_args(["--left-topic", "/a", "--right-topic", "/b"])
+    assert cli_pairing.pairing_config(args).named_infos == ()
+    args = parser.parse_args(["--right-info-topic", "/stereo/right/camera_info"])
+    assert cli_pairing.pairing_config(args).named_infos == ("right",)
+
+
+def _swap_images(source: Path, target: Path) -> None:
+    """Write ``source``'s pairs with the two images exchanged, the camera infos as recorded."""
+    stamp = 1_000_000_000
+    with open_log(source) as reader, open_writer(target) as writer:
+        for frame in iter_stereo_frames(reader, PairingConfig()):
+            right, left = np.asarray(frame.right), np.asarray(frame.left)
+            for topic, message in stereo_messages(stamp, right, left, frame.camera):
+                writer.add_message(topic, message, stamp)
+            stamp += 100_000_000
+
+
+def test_a_log_with_swapped_images_densifies_with_the_row_checks_advice(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    # before: the advice's --left-info-topic /stereo/left/camera_info (the default name) was
+    # taken as not given, each image read its own info: "camera info on
+    # /stereo/left/camera_info gives no baseline ... the sides look swapped" (rc 2)
+    recorded, swapped = tmp_path / "kitti.mcap", tmp_path / "swapped.mcap"
+    synth = ["synth", recorded, "--frames", 3, "--scale", 0.25, "--seed", 1]
+    assert cli.main([str(a) for a in synth]) == 0
+    _swap_images(recorded, swapped)
+    out = tmp_path / "dense.mcap"
+    code, _, err = _run(capsys, "densify", swapped, "-o", out)
+    assert code == 2
+    advice = re.search(r"look swapped; pass (--left-topic .*?) \(or fix", err)
+    assert advice is not None, err
+    flags = advice.group(1).split()
+    assert flags == [
+        "--left-topic",
+        "/stereo/right/image_rect",
+        "--right-topic",
+        "/stereo/left/image_rect",
+        "--left-info-topic",
+        "/stereo/left/camera_info",
+        "--right-info-topic",
+        "/stereo/right/camera_info",
+    ]
+    code, printed, err = _run(capsys, "densify", swapped, "-o", out, *flags)
+    assert code == 0, err
+    camera = next(line for line in printed.splitlines() if line.startswith("camera: "))
+    assert "baseline 0.5372 m (from P of /stereo/right/camera_info)" in camera
+    # the images swapped by hand without the infos: the advice on the infos works as given
+    named = ["--left-topic", "/stereo/right/image_rect", "--right-topic", "/stereo/left/image_rect"]
+    code, _, err = _run(capsys, "densify", swapped, "-o", out, *named)
+    assert code == 2
+    fix = re.search(r"infos are crossed, pass (--left-info-topic \S+ --right-info-topic \S+)", err)
+    assert fix is not None, err
+    assert _run(capsys, "densify", swapped, "-o", out, *named, *fix.group(1).split())[0] == 0
+
+
+# review 59c F7: two named images whose one camera info is their namespace's
+
+
+def test_two_images_sharing_their_namespace_info_are_said_so_with_the_fix() -> None:
+    reader = _Reader(
+        "/camera/left_image",
+        "/camera/right_image",
+        "/camera/camera_info",
+        "/stereo/left/camera_info",
+        "/stereo/right/camera_info",
+    )
+    config, said = _resolve(reader, _named("/camera/left_image", "/camera/right_image"))
+    assert config.left_info_topic == config.right_info_topic == "/camera/camera_info"
+    assert "each image with its own camera_info" not in said[0]
+    assert said[0].endswith(
+        "(both named; both images take /camera/camera_info, the one camera_info of their "
+        "namespace: one camera info gives no baseline, --left-info-topic and "
+        "--right-info-topic name each side's; other camera infos in the log: "
+        "/stereo/left/camera_info, /stereo/right/camera_info)"
+    )
+    # with --baseline one info does: no advice
+    with_baseline = dataclasses.replace(
+        _named("/camera/left_image", "/camera/right_image"), baseline=0.1
+    )
+    _, said = _resolve(reader, with_baseline)
+    assert said[0].endswith(
+        "(both named; both images take /camera/camera_info, the one camera_info of their namespace)"
+    )
+
+
+def test_one_info_read_for_both_sides_names_the_info_options() -> None:
+    info = rosmsg.camera_info_message(CAMERA, 0, "l")
+    with pytest.raises(CalibrationError) as caught:
+        camera_from_infos(
+            info, info, width=8, height=6, left_topic="/c/camera_info", right_topic="/c/camera_info"
+        )
+    assert str(caught.value).endswith(
+        "/c/camera_info was read for both sides: pass --left-info-topic and "
+        "--right-info-topic (each camera's own), or --baseline METRES"
+    )
