@@ -47,7 +47,6 @@ from pcainterp_stream.estimate.basis import (
 )
 from pcainterp_stream.estimate.cells import Partition, Seeding, partition_all
 from pcainterp_stream.estimate.prior import (
-    GROUP_RADIUS,
     ROBUST_FROM,
     LocalPrior,
     Model,
@@ -71,7 +70,6 @@ from pcainterp_stream.estimate.variance import (
     _variance_stride,
     _variances,
     innovation_variance_scale,
-    widen_near_group,
     widen_near_range,
 )
 
@@ -510,14 +508,6 @@ def densify_batch(
             disparity_std = resample_grid(grid_std.reshape(variance_size), out_size)
             if match_range is not None:
                 widen_near_range(disparity, disparity_std, match_range)
-            if posterior.group is not None:
-                widen_near_group(
-                    disparity,
-                    disparity_std,
-                    frame_pixels[posterior.group],
-                    frame_disparities[posterior.group],
-                    GROUP_RADIUS * out_size[1] / basis.image_size[1],
-                )
         # REP 118: a disparity below one noise std cannot be told from 0 (infinity)
         min_disparity = posterior.sigma / to_basis
         depth, depth_std = (

@@ -105,15 +105,6 @@ REJECTED_WEIGHT = 1e-12
 DOWNWEIGHTED_BELOW = 0.5
 """A measurement counts as down-weighted when its final IRLS weight is below this."""
 
-GROUP_SIZE = 16
-"""The fewest down-weighted measurements that agree with each other to be kept as a group."""
-
-GROUP_RADIUS = 96.0
-"""The largest distance (basis image px) between two measurements of one group."""
-
-GROUP_AGREE = 0.25
-"""The largest difference of two group members' innovations, as a share of the larger."""
-
 
 _CLAMP_BELOW = -40.0
 """Kernel exponents are clamped at this (see :meth:`LocalPrior.axis`)."""

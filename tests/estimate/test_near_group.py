@@ -3,11 +3,16 @@
 Bug hunt 13A F5: a near object measured by the near-reach match (~30 points at 160 px on a
 620 px camera) was down-weighted point by point by the Cauchy IRLS as outliers against the
 prior, the estimate there fell to ~60 px and the std covered ~20 % of the object.
+
+The fix (a consistent group kept at weight 1, the std widened around it) was reverted after
+review 59c F4, F5 (it made a clean fisheye log worse and was slow at 1280x720): the first test
+is the bug as it stands, an expected failure until a fix that leaves clean logs alone.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from pcainterp_stream import Basis, DensifyResult, densify_batch
 from pcainterp_stream.estimate.prior import LocalPrior, Robust
@@ -64,6 +69,9 @@ def _solve(basis: Basis, pixels: np.ndarray, disparities: np.ndarray) -> Densify
     )[0]
 
 
+@pytest.mark.xfail(
+    strict=True, reason="bug hunt 13A F5: the group fix was reverted (review 59c F4, F5)"
+)
 def test_a_group_beyond_the_prior_is_kept_and_covered() -> None:
     basis = _basis()
     pixels, disparities, near = _frame(basis, 28)
