@@ -47,6 +47,7 @@ from pcainterp_stream.estimate.basis import (
 )
 from pcainterp_stream.estimate.cells import Partition, Seeding, partition_all
 from pcainterp_stream.estimate.prior import (
+    GROUP_RADIUS,
     ROBUST_FROM,
     LocalPrior,
     Model,
@@ -70,6 +71,7 @@ from pcainterp_stream.estimate.variance import (
     _variance_stride,
     _variances,
     innovation_variance_scale,
+    widen_near_group,
     widen_near_range,
 )
 
@@ -508,6 +510,15 @@ def densify_batch(
             disparity_std = resample_grid(grid_std.reshape(variance_size), out_size)
             if match_range is not None:
                 widen_near_range(disparity, disparity_std, match_range)
+            if posterior.group is not None:
+                widen_near_group(
+                    disparity,
+                    disparity_std,
+                    frame_pixels[posterior.group],
+                    frame_disparities[posterior.group],
+                    GROUP_RADIUS * out_size[1] / basis.image_size[1],
+                    (frame_pixels[~posterior.group], frame_disparities[~posterior.group]),
+                )
         # REP 118: a disparity below one noise std cannot be told from 0 (infinity)
         min_disparity = posterior.sigma / to_basis
         depth, depth_std = (

@@ -20,6 +20,11 @@ from pcainterp_stream.estimate.cells import Cells, node_along
 from pcainterp_stream.estimate.lapack import routines
 from pcainterp_stream.estimate.prior import (
     DOWNWEIGHTED_BELOW,
+    GROUP_AGREE,
+    GROUP_BEYOND,
+    GROUP_RADIUS,
+    GROUP_SIZE,
+    GROUP_SPREAD,
     MAD_TO_STD,
     REJECT_FROM,
     REJECTED_WEIGHT,
@@ -90,6 +95,8 @@ class _Posterior:
     weights: npt.NDArray[np.float64] | None = None
     normalised_innovation: float = 0.0
     temporal: str = "static"
+    # the measurements kept as a group the prior cannot reach (_consistent_group), or None
+    group: npt.NDArray[np.bool_] | None = None
 
 
 def _solve(
@@ -302,6 +309,7 @@ def _solve_measurement(
     noise = noise / scale  # the unit prior with the fit's noise-to-signal ratio; sigma is s
     iterations = model.robust_iterations if model.robust is not Robust.NONE else 0
     rejected = np.zeros(k, dtype=bool)  # left out by the trimmed start, for good
+    group = None
     for iteration in range(iterations + 1):
         # K = signal + R, R on the diagonal of the factorisation's own copy
         lower_inverse = _cholesky_inverse(signal, noise / weights) if k else np.zeros((0, 0))
@@ -329,6 +337,10 @@ def _solve_measurement(
         if converged:
             # one more solve with the final weights
             iterations = iteration + 1
+        if iteration + 1 == iterations:  # the weights of the last solve: a group kept
+            # the trimmed start's rejections stand (tuned on other systems' clouds)
+            group = _consistent_group(positions, innovation, weights) & ~rejected
+            weights[group] = 1.0
     coefficients = mean + prior_rows.T @ alpha  # y = mu + P B~^T alpha
     gain = _lower_times(lower_inverse, prior_rows)  # W = L^-1 B~ P (k, l)
     coefficient_variance = prior_diagonal - np.einsum("kl,kl->l", gain, gain)
@@ -355,7 +367,58 @@ def _solve_measurement(
         weights=weights,
         normalised_innovation=float(innovation @ alpha / k) if k else 0.0,
         temporal=label,
+        group=group if group is not None and group.any() else None,
     )
+
+
+def _consistent_group(
+    positions: npt.NDArray[np.float64],
+    innovation: npt.NDArray[np.float64],
+    weights: npt.NDArray[np.float64],
+) -> npt.NDArray[np.bool_]:
+    """Return the down-weighted measurements (k,) that a group of their neighbours agrees with.
+
+    A down-weighted measurement whose innovation has the same sign as a down-weighted
+    neighbour's (within :data:`prior.GROUP_RADIUS` basis px) and is within
+    :data:`prior.GROUP_AGREE` of it is linked to it; the linked sets of at least
+    :data:`prior.GROUP_SIZE` measurements are returned: a surface the prior cannot reach
+    (a near object measured by the near-reach match), not outliers.
+    """
+    down = np.flatnonzero(weights < DOWNWEIGHTED_BELOW)
+    group = np.zeros(weights.size, dtype=bool)
+    if down.size < GROUP_SIZE:
+        return group
+    where = positions[down]
+    value = innovation[down]
+    distance = np.hypot(*(where[:, None, :] - where[None, :, :]).transpose(2, 0, 1))
+    larger = np.maximum(np.abs(value[:, None]), np.abs(value[None, :]))
+    linked = (
+        (distance <= GROUP_RADIUS)
+        & (np.sign(value[:, None]) == np.sign(value[None, :]))
+        & (np.abs(value[:, None] - value[None, :]) <= GROUP_AGREE * larger)
+    )
+    labels = np.arange(down.size)
+    while True:  # each one takes the smallest label it is linked to, until none changes
+        lowest = np.where(linked, labels[None, :], down.size).min(axis=1)
+        if np.array_equal(lowest, labels):
+            break
+        labels = lowest
+    typical = float(np.median(np.abs(innovation)))  # the frame's typical misfit
+    for label in np.flatnonzero(np.bincount(labels, minlength=down.size) >= GROUP_SIZE):
+        members = np.flatnonzero(labels == label)
+        centre = float(np.median(value[members]))
+        # beyond the prior's reach: far off it next to the frame's typical misfit (a
+        # near object beyond the matcher's range), not a modest offset the links chained
+        if abs(centre) < GROUP_BEYOND * typical:
+            continue
+        # the group's own surface: members off its median are left out (an occlusion band's
+        # matches beside a near object are linked through neighbours, not like the object)
+        spread = MAD_TO_STD * float(np.median(np.abs(value[members] - centre)))
+        limit = min(GROUP_AGREE, max(3.0 * spread / abs(centre), GROUP_SPREAD)) * abs(centre)
+        members = members[np.abs(value[members] - centre) <= limit]
+        if members.size >= GROUP_SIZE:
+            group[down[members]] = True
+    return group
 
 
 def _trimmed_residuals(
