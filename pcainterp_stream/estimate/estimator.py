@@ -517,6 +517,7 @@ def densify_batch(
                     frame_pixels[posterior.group],
                     frame_disparities[posterior.group],
                     GROUP_RADIUS * out_size[1] / basis.image_size[1],
+                    (frame_pixels[~posterior.group], frame_disparities[~posterior.group]),
                 )
         # REP 118: a disparity below one noise std cannot be told from 0 (infinity)
         min_disparity = posterior.sigma / to_basis

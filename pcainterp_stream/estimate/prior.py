@@ -114,6 +114,15 @@ GROUP_RADIUS = 96.0
 GROUP_AGREE = 0.25
 """The largest difference of two group members' innovations, as a share of the larger."""
 
+GROUP_BEYOND = 10.0
+"""A group is kept only when its median innovation is this many times the frame's median
+absolute innovation (a surface far beyond the prior, not a modest offset)."""
+
+GROUP_SPREAD = 0.05
+"""A group's member is left out when its innovation is off the group's median by more than
+3 robust std of the group's innovations, at least this share of the median and at most
+:data:`GROUP_AGREE` of it."""
+
 
 _CLAMP_BELOW = -40.0
 """Kernel exponents are clamped at this (see :meth:`LocalPrior.axis`)."""

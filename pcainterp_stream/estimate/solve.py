@@ -21,8 +21,10 @@ from pcainterp_stream.estimate.lapack import routines
 from pcainterp_stream.estimate.prior import (
     DOWNWEIGHTED_BELOW,
     GROUP_AGREE,
+    GROUP_BEYOND,
     GROUP_RADIUS,
     GROUP_SIZE,
+    GROUP_SPREAD,
     MAD_TO_STD,
     REJECT_FROM,
     REJECTED_WEIGHT,
@@ -401,8 +403,21 @@ def _consistent_group(
         if np.array_equal(lowest, labels):
             break
         labels = lowest
-    sizes = np.bincount(labels, minlength=down.size)
-    group[down[sizes[labels] >= GROUP_SIZE]] = True
+    typical = float(np.median(np.abs(innovation)))  # the frame's typical misfit
+    for label in np.flatnonzero(np.bincount(labels, minlength=down.size) >= GROUP_SIZE):
+        members = np.flatnonzero(labels == label)
+        centre = float(np.median(value[members]))
+        # beyond the prior's reach: far off it next to the frame's typical misfit (a
+        # near object beyond the matcher's range), not a modest offset the links chained
+        if abs(centre) < GROUP_BEYOND * typical:
+            continue
+        # the group's own surface: members off its median are left out (an occlusion band's
+        # matches beside a near object are linked through neighbours, not like the object)
+        spread = MAD_TO_STD * float(np.median(np.abs(value[members] - centre)))
+        limit = min(GROUP_AGREE, max(3.0 * spread / abs(centre), GROUP_SPREAD)) * abs(centre)
+        members = members[np.abs(value[members] - centre) <= limit]
+        if members.size >= GROUP_SIZE:
+            group[down[members]] = True
     return group
 
 
