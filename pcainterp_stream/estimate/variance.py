@@ -485,7 +485,7 @@ def widen_near_group(
         up = cv2.resize(grid, None, fx=step, fy=step, interpolation=cv2.INTER_NEAREST)
         return np.asarray(up)[: y1 - y0, : x1 - x0]
 
-    half = cv2.absdiff(blocks(value), disparity[window]) * np.float32(0.5)
+    half = np.abs(blocks(value) - disparity[window]) * np.float32(0.5)  # any float dtype
     view = std[window]
     np.add(view, half, out=view, where=blocks(own.astype(np.uint8)) > 0)
     return std
@@ -498,8 +498,9 @@ def _nearest_value(
 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
     """Return the distance (px) to and the value of the nearest point over ``box``'s pixels.
 
-    ``box`` is (x0, y0, x1, y1), end exclusive; points outside it are moved to its edge (the
-    distance is then a lower bound, only compared with a radius the box already covers).
+    ``box`` is (x0, y0, x1, y1), end exclusive; points outside it are moved to its edge: the
+    distance is then a lower bound and the value theirs, so near the box's edge a point
+    outside it may count as nearer than it is (it decides only which pixels there widen).
     """
     x0, y0, x1, y1 = box
     cols = np.clip(np.rint(pixels[:, 0]).astype(int) - x0, 0, x1 - x0 - 1)

@@ -111,17 +111,19 @@ def _follow(
         given,
         left_topic=front_end.left_topic,
         right_topic=front_end.right_topic,
-        # info topics named on the command line are kept
+        # info topics named on the command line are kept, else the ones densify read: both
+        # are named, so discovery reads them and not each image's own
         left_info_topic=(
             given.left_info_topic
-            if given.left_info_topic != defaults.left_info_topic
+            if "left" in given.named_infos or given.left_info_topic != defaults.left_info_topic
             else front_end.left_info_topic
         ),
         right_info_topic=(
             given.right_info_topic
-            if given.right_info_topic != defaults.right_info_topic
+            if "right" in given.named_infos or given.right_info_topic != defaults.right_info_topic
             else front_end.right_info_topic
         ),
+        named_infos=("left", "right"),
         discover=False,
     )
     others = _other_infos(pairing, front_end)
@@ -188,9 +190,9 @@ def _topics_open(pairing: PairingConfig | None) -> bool:
 
 
 def _infos_named(pairing: PairingConfig) -> bool:
-    """Whether ``pairing`` has an info topic other than the default one (named)."""
+    """Whether ``pairing`` names an info topic (given, or other than the default one)."""
     defaults = PairingConfig()
-    return (pairing.left_info_topic, pairing.right_info_topic) != (
+    return bool(pairing.named_infos) or (pairing.left_info_topic, pairing.right_info_topic) != (
         defaults.left_info_topic,
         defaults.right_info_topic,
     )
@@ -199,7 +201,7 @@ def _infos_named(pairing: PairingConfig) -> bool:
 def _other_infos(pairing: PairingConfig | None, front_end: FrontEnd) -> list[str]:
     """Return the info topics ``pairing`` names that densify did not read ([]: none).
 
-    A named topic (not the default) other than the recorded one, or any named one when
+    A named topic (given, or not the default) other than the recorded one, or any when
     densify read calibration files. None when ``pairing`` gives calibration files itself:
     no info topic is read then.
     """
@@ -208,13 +210,13 @@ def _other_infos(pairing: PairingConfig | None, front_end: FrontEnd) -> list[str
     defaults = PairingConfig()
     files = front_end.calibration == "files"
     named = [
-        (pairing.left_info_topic, defaults.left_info_topic, front_end.left_info_topic),
-        (pairing.right_info_topic, defaults.right_info_topic, front_end.right_info_topic),
+        ("left", pairing.left_info_topic, defaults.left_info_topic, front_end.left_info_topic),
+        ("right", pairing.right_info_topic, defaults.right_info_topic, front_end.right_info_topic),
     ]
     return [
         topic
-        for topic, default, recorded in named
-        if topic != default and (files or topic != recorded)
+        for side, topic, default, recorded in named
+        if (side in pairing.named_infos or topic != default) and (files or topic != recorded)
     ]
 
 

@@ -109,7 +109,7 @@ class PairingConfig:
         named_sides: with ``discover``: the sides (``left``, ``right``) whose image topic was
             named, the default one included; the pair found must have it.
         named_infos: the sides whose info topic was named on the command line, the default
-            one included: read whatever camera info the image has of its own.
+            one included: that topic is read, not the image's own camera info.
         calibration_topics: with ``discover``: the image topics the calibration file names
             (the ``rostopic`` of a Kalibr camchain's cameras), the pair unless a side is
             named; when the log has not both, the pair is found in it.

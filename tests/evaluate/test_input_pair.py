@@ -436,3 +436,43 @@ def test_older_records_of_two_pairs_say_the_pair_may_be_another(two_pairs: Path)
     assert record_of_prefix(records[:1] * 2, "/pcainterp")[1].endswith(
         "the last of those was taken"
     )
+
+
+@pytest.mark.parametrize(
+    "given",
+    [None, PairingConfig(left_info_topic="/stereo/left/camera_info", named_infos=("left",))],
+)
+def test_the_recorded_infos_are_read_not_each_image_s_own(given: PairingConfig | None) -> None:
+    """densify run with the row check's advice for swapped images (the recorded infos named,
+    default names included) read /stereo/left/camera_info for the image on
+    /stereo/right/image_rect: evaluate following its record took each image's own info
+    (review 59d F1), since a default-named info counted as not given."""
+    from pcainterp_stream.evaluate.input_pair import _follow, _topics_open
+    from pcainterp_stream.io.densify_record import FrontEnd
+
+    front_end = FrontEnd(
+        "/stereo/right/image_rect",
+        "/stereo/left/image_rect",
+        "/stereo/left/camera_info",
+        "/stereo/right/camera_info",
+        1_000_000,
+        None,
+        "camera_info",
+        (),
+        None,
+        "auto",
+        "as recorded",
+        0,
+        4,
+        "stereo",
+        None,
+        {},
+    )
+    present = {topic: None for topic in (front_end.left_topic, front_end.right_topic)}
+    pairing, _, _ = _follow(given, front_end, present, _topics_open(given), "again")
+    assert pairing is not None
+    assert (pairing.left_info_topic, pairing.right_info_topic) == (
+        "/stereo/left/camera_info",
+        "/stereo/right/camera_info",
+    )
+    assert set(pairing.named_infos) == {"left", "right"}  # discovery keeps them
