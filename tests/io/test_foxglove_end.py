@@ -7,6 +7,7 @@ import socket
 import sys
 import threading
 import time
+import uuid
 from pathlib import Path
 
 import pytest
@@ -135,20 +136,20 @@ def _slow_client(port: int, got: list[int], read_s: float, ready: threading.Even
 def _stream_to_a_slow_client(
     drain_s: float | None, notes: list[str]
 ) -> tuple[FoxgloveLive, list[int]]:
-    live = FoxgloveLive(
-        ServeAddress("127.0.0.1", 0), rate=0, wait_for=("/slow",), note=notes.append
-    )
+    # a topic of its own: the SDK's context keeps an earlier test's channel of this process
+    topic = f"/slow_{uuid.uuid4().hex[:8]}"
+    live = FoxgloveLive(ServeAddress("127.0.0.1", 0), rate=0, wait_for=(topic,), note=notes.append)
     got: list[int] = []
     ready = threading.Event()
     with live:
-        live.advertise("/slow", "std_msgs/msg/String", schema_data=b"string data")
+        live.advertise(topic, "std_msgs/msg/String", schema_data=b"string data")
         live.start()
         client = threading.Thread(
             target=_slow_client, args=(live.port, got, 0.01, ready), daemon=True
         )
         client.start()
         for index in range(MESSAGES):
-            live.add_frame(index, [LiveMessage("/slow", "std_msgs/msg/String", PAYLOAD)])
+            live.add_frame(index, [LiveMessage(topic, "std_msgs/msg/String", PAYLOAD)])
         live.flush()
         live.close(drain_s=drain_s)
     client.join(20)
