@@ -96,6 +96,12 @@ DRAIN_MAX_S = 10.0
 DRAIN_NOTE_S = 0.5
 """Wait (s) at the end before saying that it waits for a client."""
 
+DRAIN_EMPTY_S = 0.3
+"""How long (s) the kernel must hold nothing for any client before the end counts as drained:
+the SDK queues in its own memory too, and a sender thread it schedules late (a loaded
+machine) leaves the kernel's queue empty for a moment while the stream is not out (two empty
+polls 50 ms apart once let a slow client lose the end unnamed)."""
+
 STOP_TIMEOUT_S = 5.0
 """Longest wait (s) for the server to stop on close; past it the process goes on (and ends)."""
 
@@ -574,13 +580,13 @@ class FoxgloveLive:
             self._context = None
 
     def _drain(self, limit_s: float, poll_s: float = 0.05) -> None:
-        """Wait until no client has anything queued (twice in a row), at most ``limit_s``."""
+        """Wait until nothing is queued for any client for :data:`DRAIN_EMPTY_S`, <= ``limit_s``."""
         started = time.monotonic()
         if queued_bytes(self.port, self._hosts) is None:  # not Linux: the fixed wait of before
             time.sleep(min(1.0, limit_s))
             return
         said, empty, queued = False, 0, {}
-        while empty < 2:
+        while empty * poll_s < DRAIN_EMPTY_S:
             queued = queued_bytes(self.port, self._hosts) or {}
             empty = 0 if queued else empty + 1
             waited = time.monotonic() - started
