@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from fake_port import loopback_port
 
 from pcainterp_stream import interrupt
 from pcainterp_stream.errors import LogWriteError
@@ -702,35 +703,8 @@ def test_a_viewer_listening_gets_the_stream_without_a_display(
 def fake_viewer(request: pytest.FixtureRequest) -> Iterator[int]:
     """A loopback port that accepts connections and then closes them ("close": an `ssh -R`
     with no viewer behind it, a viewer closed) or never answers ("hold": a suspended viewer)."""
-    mode = request.param
-    listener = socket.socket()
-    listener.bind(("127.0.0.1", 0))
-    listener.listen(16)
-    listener.settimeout(0.1)
-    held: list[socket.socket] = []
-    stop = threading.Event()
-
-    def serve() -> None:
-        while not stop.is_set():
-            try:
-                connection, _ = listener.accept()
-            except OSError:
-                continue
-            if mode == "close":
-                connection.close()
-            else:
-                held.append(connection)
-
-    thread = threading.Thread(target=serve, daemon=True)
-    thread.start()
-    try:
-        yield int(listener.getsockname()[1])
-    finally:
-        stop.set()
-        thread.join(2)
-        for connection in held:
-            connection.close()
-        listener.close()
+    with loopback_port(request.param) as port:
+        yield port
 
 
 @pytest.mark.parametrize("fake_viewer", ["close", "hold"], indirect=True)

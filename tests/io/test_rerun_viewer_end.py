@@ -6,14 +6,13 @@ after half a second; a Ctrl-C in it keeps both. F3: the summary's seconds leave 
 
 from __future__ import annotations
 
-import socket
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+from fake_port import loopback_port
 
 from pcainterp_stream import cli
 from pcainterp_stream.io import rerun_sink
@@ -35,23 +34,6 @@ def small_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture
 def silent_viewer(monkeypatch: pytest.MonkeyPatch) -> Iterator[int]:
     """A loopback port that accepts and never answers (a suspended viewer), densify's viewer."""
-    listener = socket.socket()
-    listener.bind(("127.0.0.1", 0))
-    listener.listen(16)
-    listener.settimeout(0.1)
-    held: list[socket.socket] = []
-    stop = threading.Event()
-
-    def serve() -> None:
-        while not stop.is_set():
-            try:
-                held.append(listener.accept()[0])
-            except OSError:
-                continue
-
-    thread = threading.Thread(target=serve, daemon=True)
-    thread.start()
-    port = int(listener.getsockname()[1])
     monkeypatch.setattr(rerun_sink, "spawn_viewer", lambda port: None)
     monkeypatch.setattr(rerun_sink, "has_display", lambda: True)
     monkeypatch.setattr(rerun_sink, "VIEWER_FLUSH_S", 1.0)
@@ -59,15 +41,9 @@ def silent_viewer(monkeypatch: pytest.MonkeyPatch) -> Iterator[int]:
     def sink(**options: Any) -> RerunSink:
         return RerunSink(viewer_port=port, **options)
 
-    monkeypatch.setattr(densify_module, "RerunSink", sink)
-    try:
+    with loopback_port("hold") as port:
+        monkeypatch.setattr(densify_module, "RerunSink", sink)
         yield port
-    finally:
-        stop.set()
-        thread.join(2)
-        for connection in held:
-            connection.close()
-        listener.close()
 
 
 def _densify(log: Path, out: Path, rrd: Path) -> int:
