@@ -530,10 +530,15 @@ def _densified_by(records: list[tuple[str, dict[str, str]]]) -> list[str]:
     ``pcainterp.basis`` record of its prefix, else the basis of its first outputs.
     """
     from pcainterp_stream.evaluate.tuning import describe_tuning, tuning_of
+    from pcainterp_stream.io.loginfo import seconds_text
+    from pcainterp_stream.io.output_cameras import CAMERAS_RECORD, recorded_cameras_of
 
     densified = [fields for name, fields in records if name == DENSIFY_RECORD]
     in_force = {
         fields.get(OUTPUT_PREFIX_KEY): fields for name, fields in records if name == BASES_RECORD
+    }
+    cameras = {
+        fields.get(OUTPUT_PREFIX_KEY): fields for name, fields in records if name == CAMERAS_RECORD
     }
     lines = []
     for record in densified:
@@ -558,6 +563,18 @@ def _densified_by(records: list[tuple[str, dict[str, str]]]) -> list[str]:
                     what = str(err)
                 line += f", tuned by densify's fit check: {what}"
             lines.append(line)
+        if prefix in cameras:  # the camera changed mid-log: each frame decodes with its own
+            try:
+                entries = recorded_cameras_of(cameras[prefix])
+            except ValueError as err:
+                lines.append(f"  cameras: unreadable {CAMERAS_RECORD} record ({err})")
+                continue
+            lines.append(f"  cameras ({len(entries)}; compact depth decodes with each one's f*b):")
+            lines.extend(
+                f"    f*b {entry.focal_baseline:.6g} px*m from frame {entry.first_frame} "
+                f"(stamp {seconds_text(entry.first_stamp_ns)} s)"
+                for entry in entries
+            )
     return lines
 
 

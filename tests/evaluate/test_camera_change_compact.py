@@ -101,6 +101,17 @@ def test_the_record_lists_each_camera_from_its_first_frame(logs: dict[str, Path]
     assert len(FrameCameras.of_log(logs["compact"], "/other")) == 0
 
 
+def test_info_lists_each_camera_of_a_two_camera_log(logs: dict[str, Path]) -> None:
+    from pcainterp_stream.pipeline.jobs import info
+
+    first, second = FrameCameras.of_log(logs["compact"], "/pcainterp").cameras
+    lines = info(logs["compact"]).splitlines()
+    at = lines.index("  cameras (2; compact depth decodes with each one's f*b):")
+    stamp = "(stamp 1.000000000 s)"
+    assert lines[at + 1] == f"    f*b {first.focal_baseline:.6g} px*m from frame 0 {stamp}"
+    assert lines[at + 2].startswith(f"    f*b {second.focal_baseline:.6g} px*m from frame {FRAMES}")
+
+
 def test_a_one_camera_log_records_no_cameras(logs: dict[str, Path], tmp_path: Path) -> None:
     single = tmp_path / "one.mcap"
     write_synthetic_log((f for f in _two_cameras() if f.index < FRAMES), tmp_path / "in.mcap")
