@@ -20,10 +20,14 @@ is not matched (its right image blanked, as a stale one: no estimate, depth NaN)
 :data:`ROW_WATCH_SECONDS` of log time the corners are matched in a thread, and a row
 offset that moved by more than :data:`~.row_check.MAX_ROW_OFFSET_PX` since the first such
 check is warned of once (those frames keep their estimate: the warning says they err more).
+The first check falls on the first frame, which the pairer's row check has matched already:
+with :attr:`PairWatch.row_corners` the watch takes that frame's corners from it (the same
+:func:`.rectify.correspondences` of the same images, bit for bit) instead of matching again.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -40,6 +44,7 @@ from pcainterp_stream.frontend.row_check import (
     SAME_VIEW_CHANGE,
     SAME_VIEW_PX,
     SAME_VIEW_SHARE,
+    Corners,
 )
 from pcainterp_stream.records import StereoFrame
 
@@ -171,11 +176,17 @@ class PairWatch:
     Attributes:
         swapped: frame -> median x_left - x_right (px) of the frames found swapped.
         same_view: frames found to carry one view on both topics.
+        row_corners: frame index -> the corners the row check matched on that frame
+            (:meth:`.StereoPairer.row_corners`), None for one it did not: a row offset
+            check on such a frame takes them. None: every check matches its own.
+        corner_matches: the row offset checks that matched their own corners.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, row_corners: Callable[[int], Corners | None] | None = None) -> None:
         self.swapped: dict[int, float] = {}
         self.same_view: list[int] = []
+        self.row_corners = row_corners
+        self.corner_matches = 0
         self._good = False  # a frame of the log looked as recorded
         self._next_ns: int | None = None  # log time of the next row offset check
         self._pending: list[tuple[int, Future[npt.NDArray[np.float64]]]] = []
@@ -222,16 +233,23 @@ class PairWatch:
         if self._next_ns is not None and at < self._next_ns:
             return
         self._next_ns = at + round(ROW_WATCH_SECONDS * 1e9)
-        if self._executor is None:
-            self._executor = ThreadPoolExecutor(1, thread_name_prefix="pair-watch")
-        matching = self._executor.submit(rect.correspondences, left, right)
+        matching = None
+        if self.row_corners is not None and frame.left.dtype == np.uint8:
+            # 8-bit: the row check's grey images (rect.grey8) are these, its corners ours
+            matching = self.row_corners(frame.index)
+        if matching is None:
+            if self._executor is None:
+                self._executor = ThreadPoolExecutor(1, thread_name_prefix="pair-watch")
+            matching = self._executor.submit(rect.correspondences, left, right)
+            self.corner_matches += 1
         self._pending.append((frame.index, matching))
 
     def _collect(self, *, wait: bool) -> None:
         """Take the row offsets matched so far, in frame order (``wait``: all of them)."""
         while self._pending and (wait or self._pending[0][1].done()):
             index, future = self._pending.pop(0)
-            self._rows(index, future.result())
+            if not future.cancelled():  # (the row check's, had it stopped before matching)
+                self._rows(index, future.result())
 
     def _rows(self, index: int, points: npt.NDArray[np.float64]) -> None:
         if points.shape[0] < ROW_CHECK_MIN_MATCHES:

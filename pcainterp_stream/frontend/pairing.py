@@ -50,7 +50,7 @@ from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.frontend.pairing_window import HeldQueue, Hold, HoldLimits
 from pcainterp_stream.frontend.pairing_window import PendingImage as _Pending
 from pcainterp_stream.frontend.rect_border import BorderFinder, RectifiedBorder
-from pcainterp_stream.frontend.row_check import RowCheck
+from pcainterp_stream.frontend.row_check import Corners, RowCheck
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import LogReader, decode_image
 from pcainterp_stream.records import (
@@ -344,6 +344,10 @@ class StereoPairer:
         if features is not None and isinstance(rectifier, rect.StereoRectifier):  # raw -> rect
             features = features._replace(points=rectifier.rotate_points(features.points))
         return features
+
+    def row_corners(self, index: int) -> Corners | None:
+        """The row check's matched corners of frame ``index`` (:meth:`.RowCheck.corners`)."""
+        return self._rows.corners(index) if self._rows is not None else None
 
     def flush(self) -> list[StereoFrame]:
         """Release the frames still held (call at the end of the stream).
@@ -642,7 +646,7 @@ class StereoPairer:
             camera=camera,
         )
         if self._rows is not None:
-            self._rows.see(left_image, right_image, rectifier=rectifier)
+            self._rows.see(left_image, right_image, rectifier=rectifier, index=self._index)
         keep = MAX_HELD_RECTIFIERS + self.config.hold_count  # frames held for clouds too
         if boxed is not None:
             self._frame_rectifier[self._index] = boxed

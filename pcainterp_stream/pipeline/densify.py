@@ -452,6 +452,8 @@ def densify(
         sgbm = processor.sgbm  # that resolution (a given one as it is)
         pairer = StereoPairer(pairing, echo=echo)
         pairer.read_ahead(reader)  # camera infos recorded after the first images
+        if stale is not None and stale.watch is not None:  # the row check's corners, not again
+            stale.watch.row_corners = pairer.row_corners
         bar = stack.enter_context(_bar(total, f"densify {input_path.name}"))
 
         def emit(results: list[DensifiedFrame]) -> None:

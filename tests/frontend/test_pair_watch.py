@@ -2,13 +2,25 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Any
+
 import cv2
 import numpy as np
 import numpy.typing as npt
+import pytest
 
+from pcainterp_stream.frontend import pair_watch
+from pcainterp_stream.frontend import rectify as rect
 from pcainterp_stream.frontend.frame_checks import StaleRight
-from pcainterp_stream.frontend.pair_watch import frame_ranges, one_image
-from pcainterp_stream.records import StereoFrame
+from pcainterp_stream.frontend.pair_watch import PairWatch, frame_ranges, one_image
+from pcainterp_stream.frontend.pairing import PairingConfig, StereoPairer
+from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.calibration import camera_info_message
+from pcainterp_stream.pipeline.densify import densify
+from pcainterp_stream.pipeline.jobs import synth
+from pcainterp_stream.records import StereoCamera, StereoFrame
+from pcainterp_stream.synth.raw import raw_calibration
 
 HEIGHT, WIDTH = 200, 400
 SECOND = 10**9
@@ -145,3 +157,111 @@ def test_rows_drifting_apart_mid_log_are_warned_of_once() -> None:
 def test_frame_ranges() -> None:
     assert frame_ranges([7, 3, 5, 6]) == "3, 5-7"
     assert frame_ranges(list(range(0, 30, 2))) == "0, 2, 4, 6, 8, 10, ..."
+
+
+class _CountingRect:
+    """The watch's ``rect`` module, counting the corner matches the watch runs itself."""
+
+    def __init__(self) -> None:
+        self.calls = 0
+
+    def correspondences(self, *args: Any) -> npt.NDArray[np.float64]:
+        self.calls += 1
+        return rect.correspondences(*args)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(rect, name)
+
+
+def test_densify_takes_the_first_row_offset_from_the_row_check(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # before: the watch matched frame 0's corners (~55 ms a KITTI pair) although the row
+    # check had just matched the same frame's; a log shorter than 5 s has no other check
+    log = tmp_path / "small.mcap"
+    synth(log, frames=3, seed=3, scale=0.25, fmt="mcap")
+    counting = _CountingRect()
+    monkeypatch.setattr(pair_watch, "rect", counting)
+    summary = densify(log, tmp_path / "out.mcap")
+    assert summary.frames == 3
+    assert summary.pairing.row_check_undecided is None  # the row check matched and passed
+    assert counting.calls == 0
+
+
+_CALIBRATION = raw_calibration(
+    StereoCamera(width=WIDTH, height=HEIGHT, fx=200.0, fy=200.0, cx=199.0, cy=99.0, baseline=0.5),
+    "plumb_bob",
+)
+IDEAL = rect.StereoCalibration(  # a rectified pair's own: K = P[:3, :3], D = 0, R = I
+    *(
+        rect.CameraCalibration(
+            c.width, c.height, "plumb_bob", c.p[:, :3], np.zeros(5), np.eye(3), c.p
+        )
+        for c in (_CALIBRATION.left, _CALIBRATION.right)
+    )
+)
+
+
+def _paired(pairs: list[tuple[Any, Any]], *, seeded: bool) -> StaleRight:
+    """Pair the images (a frame every 3 s, row check on) and watch each frame as densify does."""
+    pairer = StereoPairer(
+        PairingConfig(
+            left_topic="/l/image_rect",
+            right_topic="/r/image_rect",
+            left_info_topic="/l/camera_info",
+            right_info_topic="/r/camera_info",
+        )
+    )
+    check = StaleRight()
+    assert check.watch is not None
+    if seeded:
+        check.watch.row_corners = pairer.row_corners
+    for index, (left, right) in enumerate(pairs):
+        stamp = (index + 1) * 3 * SECOND
+        messages = {
+            "/l/camera_info": camera_info_message(IDEAL.left, stamp, "l"),
+            "/r/camera_info": camera_info_message(IDEAL.right, stamp, "r"),
+            "/l/image_rect": rosmsg.image_message(left, stamp, "l"),
+            "/r/image_rect": rosmsg.image_message(right, stamp, "l"),
+        }
+        for topic, message in messages.items():
+            for frame in pairer.push(topic, stamp, stamp, message):
+                assert check.check(frame).right is frame.right  # kept: estimated
+    for frame in pairer.flush():
+        check.check(frame)
+    pairer.finish()
+    return check
+
+
+@pytest.mark.parametrize("dark", [0, 2])
+def test_drifted_rows_are_warned_of_against_the_row_checks_corners(dark: int) -> None:
+    # the reference the drift is measured from is the row check's corners of the watch's
+    # first frame (after dark start-up frames too, which neither measures): same warning
+    black = np.zeros((HEIGHT, WIDTH), np.uint8)
+    pairs = [(black, black)] * dark + [_pair(i, drop=3 if i >= 5 else 0) for i in range(10)]
+    lines = {}
+    for seeded in (False, True):
+        check = _paired(pairs, seeded=seeded)
+        assert check.watch is not None
+        checks = len(range(0, 10, 2))  # every other frame: one per 5 s of log
+        assert check.watch.corner_matches == checks - seeded
+        (lines[seeded],) = check.warnings(10 + dark, empty=0)
+    assert lines[True] == lines[False]
+    assert lines[True].startswith(
+        f"from frame {6 + dark} the matched corners are 3.0 px apart vertically, 3.0 px more "
+        f"than on the first frames (frame {4 + dark} was within it); in 2 of 4 checks"
+    )
+
+
+def test_a_16_bit_pair_is_matched_by_the_watch_itself() -> None:
+    # the row check's 8-bit images (each scaled by its maximum) are not the watch's (both
+    # scaled by one percentile): its corners are not taken
+    def refuse(index: int) -> None:
+        raise AssertionError(f"asked for frame {index}'s corners")
+
+    watch = PairWatch(row_corners=refuse)
+    left, right = _pair(1)
+    wide = left.astype(np.uint16) * 200, right.astype(np.uint16) * 200
+    assert not watch.broken(_frame(0, *wide))  # type: ignore[arg-type]
+    assert watch.corner_matches == 1
+    watch.close()

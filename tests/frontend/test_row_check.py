@@ -199,3 +199,25 @@ def test_each_refusal_is_worded_for_every_command_that_checks() -> None:
             _run([pair] * 3, IDEAL)
         assert "--rectify never uses the pair as recorded, unchecked" in str(err.value)
         assert "densif" not in str(err.value)
+
+
+def test_each_frames_corners_are_kept_for_the_pair_watch_until_the_verdict() -> None:
+    left, right = _views()
+    check = row_check.RowCheck(LEFT, RIGHT, info_topics=None)
+    check.see(*DARK, rectifier=None, index=0)  # dark: no matches, the check goes on
+    check.see(left, right, rectifier=None, index=1)  # its 150+ matches decide
+    check.see(left, right, rectifier=None, index=2)  # after the verdict: not matched
+    check.finish()
+    assert check.done
+    given = check.corners(1)
+    assert given is not None
+    corners = given.result(timeout=10)
+    assert np.array_equal(corners, rect.correspondences(left, right))  # as the watch matches
+    assert corners.shape[0] >= row_check.ROW_CHECK_MATCHES
+    assert check.corners(1) is None  # given once
+    assert check.corners(0) is None  # an earlier frame's: let go when frame 1's were asked
+    assert check.corners(2) is None
+    unindexed = row_check.RowCheck(LEFT, RIGHT, info_topics=None)
+    unindexed.see(left, right, rectifier=None)
+    unindexed.finish()
+    assert unindexed.corners(0) is None
