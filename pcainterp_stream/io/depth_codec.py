@@ -19,7 +19,9 @@ and NaN for ``q == 0``. ROS's own encoder truncates and drops depths beyond a ``
 decoder: NaN (no estimate) is ``q = 0`` and ``+inf`` (farther than measurable) is ``q = 1``,
 which decodes to ``A / 0 = +inf``. With ``A = f*b / step`` the decoded disparity ``f*b / z``
 is ``(q - 1) * step``: the depth is the disparity rounded to a multiple of ``step`` px
-(:func:`inverse_depth_scale` picks ``A``).
+(:func:`inverse_depth_scale` picks ``A``). No code decodes to 0: a 0 is stored as the
+nearest value, ``A / 65534``, or (``zero_as_nan``: a std image, whose 0 claims certainty, not
+a tiny value) as NaN.
 
 Everything here is vectorised numpy (and OpenCV for PNG); the RVL decoder loops in Python
 once per run of zeros, so an image made of many tiny holes decodes slower, never wrongly.
@@ -112,13 +114,20 @@ def inverse_depth_scale(focal_baseline: float, step: float, max_disparity: float
 
 
 def quantise_inverse_depth(
-    depth: npt.NDArray[np.floating], quant_a: float, quant_b: float = 1.0
+    depth: npt.NDArray[np.floating],
+    quant_a: float,
+    quant_b: float = 1.0,
+    *,
+    zero_as_nan: bool = False,
 ) -> npt.NDArray[np.uint16]:
     """Return the 16-bit codes ``rint(A / z + B)`` of a depth image (m), REP 118 kept.
 
     NaN -> 0, ``+inf`` -> ``B`` (``A / 0`` when decoded), a finite depth never to 0 nor ``B``
     (so never to NaN or infinity), codes clipped to 16 bits (the nearest storable value: 0
     becomes the smallest, ``A / 65534``). Negative values (no depth) are stored as NaN.
+
+    ``zero_as_nan``: store 0 as NaN (code 0, "no value") instead: no code decodes to 0, and
+    for an image that is not depth (a std) 0 is not a small value to round to ``A / 65534``.
     """
     depth = np.asarray(depth, dtype=np.float32)
     # in place on one float32 buffer (a few passes over the image, no temporaries)
@@ -128,7 +137,7 @@ def quantise_inverse_depth(
         code += np.float32(quant_b)
         np.rint(code, out=code)
         np.clip(code, quant_b + 1.0, MAX_CODE, out=code)  # a finite depth: never 0 nor B
-        no_depth = ~(depth >= 0)  # NaN, negative, -inf
+        no_depth = ~(depth > 0) if zero_as_nan else ~(depth >= 0)  # NaN, negative, -inf
     code[no_depth] = 0.0
     code[depth == np.inf] = quant_b
     return code.astype(np.uint16)
@@ -150,6 +159,7 @@ def encode_depth(
     quant_a: float,
     codec: str = "png",
     png_level: int = DEFAULT_PNG_LEVEL,
+    zero_as_nan: bool = False,
 ) -> CompressedDepth:
     """Encode a ``32FC1`` depth image (m, REP 118) as ``32FC1; compressedDepth <codec>``.
 
@@ -158,8 +168,9 @@ def encode_depth(
         quant_a: depthQuantA (:func:`inverse_depth_scale`); depthQuantB is 1.
         codec: "png" or "rvl".
         png_level: deflate level of the PNG (:data:`PNG_LEVELS`, ISA-L's).
+        zero_as_nan: store 0 as NaN (:func:`quantise_inverse_depth`), not as ``A / 65534``.
     """
-    code = quantise_inverse_depth(depth, quant_a, 1.0)
+    code = quantise_inverse_depth(depth, quant_a, 1.0, zero_as_nan=zero_as_nan)
     header = HEADER.pack(INVERSE_DEPTH, float(quant_a), 1.0)
     return CompressedDepth(
         compressed_format("32FC1", codec), header + _encode_16(code, codec, png_level)

@@ -1,17 +1,23 @@
 """The cameras a densified log's outputs were made with: the ``pcainterp.cameras`` record.
 
-A compact log stores depth, whose disparity is f*b / depth: a reader needs each frame's f*b.
-The output channels' metadata holds f*b and the smallest resolvable disparity of the first
+A compact log stores depth, whose disparity is f*b / depth: a reader needs each frame's f*b,
+and the smallest resolvable disparity (below it: "too far") that a full log's
+``DisparityImage`` carries per frame. The output channels' metadata holds both of the first
 outputs (:data:`~.outputs.FOCAL_BASELINE_KEY`, :data:`~.outputs.MIN_DISPARITY_KEY`): a
-channel's metadata is fixed when its first message is written. When the camera changes in
-the log (densify densifies each pair with its own camera), the MCAP metadata record
-:data:`CAMERAS_RECORD`, written at the end as ``pcainterp.basis`` is, lists every camera in
-force from its first frame, with the same per-entry keys: ``count``, ``output_prefix`` and,
-per camera ``N`` (0, 1, ...), ``N.focal_baseline`` (px*m), ``N.min_disparity`` (px),
-``N.first_frame``, ``N.first_stamp_ns`` and ``N.first_log_time_ns``. A frame's values are
-those of the last entry whose ``first_log_time_ns`` is at or before its outputs' log time
-(:meth:`FrameCameras.metadata`). A log without the record (one camera, or densified before
-it was written) has one f*b for every frame: the channels'.
+channel's metadata is fixed when its first message is written. When either changes in the
+log (densify densifies each pair with its own camera; the min disparity is the noise std of
+the basis in force, so it changes with the basis, and may change every frame with ``--sigma
+evidence``, which fits it per frame), the MCAP metadata record :data:`CAMERAS_RECORD`,
+written at the end as ``pcainterp.basis`` is, lists the (camera, min disparity) in force
+from the first frame of each change, with the same per-entry keys: ``count``,
+``output_prefix`` and, per entry ``N`` (0, 1, ...), ``N.focal_baseline`` (px*m),
+``N.min_disparity`` (px), ``N.first_frame``, ``N.first_stamp_ns`` and
+``N.first_log_time_ns``. A frame's values are those of the last entry whose
+``first_log_time_ns`` is at or before its outputs' log time (:meth:`FrameCameras.metadata`).
+A log without the record (neither changed, or densified before it was written) has one f*b
+and min disparity for every frame: the channels'. Logs densified before the min disparity's
+changes were recorded list camera changes only: their frames after a basis change read the
+min disparity of their camera's first frame.
 
 A copy of a log that kept its channels and messages but dropped its MCAP metadata records
 (``mcap filter`` without ``--include-metadata``) lost the record of a camera change. Each
@@ -53,12 +59,12 @@ __all__ = [
 
 
 class CameraInForce(NamedTuple):
-    """One camera a densified log's outputs were made with, from its first frame on.
+    """The camera and min disparity a densified log's outputs were made with, from a frame on.
 
     Attributes:
-        focal_baseline: its f*b (px*m): a compact frame's disparity is f*b / depth.
-        min_disparity: the smallest resolvable disparity (px) of its first frame.
-        first_frame: 0-based index of the first stereo pair densified with it.
+        focal_baseline: the camera's f*b (px*m): a compact frame's disparity is f*b / depth.
+        min_disparity: the smallest resolvable disparity (px) from that frame on.
+        first_frame: 0-based index of the first stereo pair densified with both.
         first_stamp_ns: that pair's header stamp (ns).
         first_log_time_ns: its log time (ns), the log time of its outputs.
     """
@@ -71,22 +77,31 @@ class CameraInForce(NamedTuple):
 
 
 class CamerasInForce:
-    """The cameras of a densify run's outputs, in output order (:meth:`see` each frame)."""
+    """The cameras and min disparities of a densify run's outputs (:meth:`see` each frame)."""
 
     def __init__(self) -> None:
         self.entries: list[CameraInForce] = []
         self._camera: StereoCamera | None = None
 
     def see(self, result: DensifiedFrame) -> None:
-        """Count a densified frame: a new entry at the first frame and when the camera changes."""
+        """Count a densified frame: a new entry at the first frame and at each change.
+
+        A change of the camera or of the min disparity (the basis in force, or ``--sigma
+        evidence``'s fit); one entry per frame at most.
+        """
         camera, frame = result.frame.camera, result.frame
-        if self.entries and camera == self._camera:
+        min_disparity = float(result.min_disparity)
+        if (
+            self.entries
+            and camera == self._camera
+            and min_disparity == self.entries[-1].min_disparity
+        ):
             return
         self._camera = camera
         self.entries.append(
             CameraInForce(
                 float(camera.focal_baseline),
-                float(result.min_disparity),
+                min_disparity,
                 frame.index,
                 frame.stamp_ns,
                 frame.log_time_ns,
@@ -94,12 +109,12 @@ class CamerasInForce:
         )
 
     def record(self, prefix: str | None = None) -> dict[str, str] | None:
-        """Return the :data:`CAMERAS_RECORD` record, or None for one camera (the channels')."""
+        """Return the :data:`CAMERAS_RECORD` record, or None for one entry (the channels')."""
         return cameras_record(self.entries, prefix) if len(self.entries) > 1 else None
 
 
 def cameras_record(cameras: Iterable[CameraInForce], prefix: str | None = None) -> dict[str, str]:
-    """Return the :data:`CAMERAS_RECORD` metadata record of the cameras in force, in order.
+    """Return the :data:`CAMERAS_RECORD` metadata record of the entries in force, in order.
 
     ``prefix``: the output topics' prefix, recorded under ``output_prefix`` (None: not
     recorded). Floats are written as ``repr`` (read back exactly).
@@ -127,7 +142,7 @@ def cameras_record(cameras: Iterable[CameraInForce], prefix: str | None = None) 
 
 
 def recorded_cameras_of(record: dict[str, str]) -> list[CameraInForce]:
-    """Return the cameras a :data:`CAMERAS_RECORD` record lists (:func:`cameras_record`'s inverse).
+    """Return the entries a :data:`CAMERAS_RECORD` record lists (:func:`cameras_record`'s inverse).
 
     Raises:
         ValueError: the record is not one :func:`cameras_record` wrote.
@@ -169,7 +184,7 @@ def features_focal_baseline(features: Any) -> float | None:
 
 
 class FrameCameras:
-    """Each frame's f*b and min disparity in a densified log (the channels' when one camera).
+    """Each frame's f*b and min disparity in a densified log (the channels' without a record).
 
     Attributes:
         unrecorded: without the record, the f*b of each frame whose features stated another
@@ -203,13 +218,13 @@ class FrameCameras:
     def metadata(
         self, channel: dict[str, str], log_time_ns: int, features: Any = None
     ) -> dict[str, str]:
-        """Return a channel's metadata with the f*b and min disparity of a frame's camera.
+        """Return a channel's metadata with the f*b and min disparity in force at a frame.
 
         ``log_time_ns``: the log time of the frame's outputs. The channel's own metadata when
-        the log records no camera change, unless the frame's ``features`` message (given for
-        a compact log) states another f*b than the channel's (the record lost): then that f*b
-        (a frame whose features hold no disparity: the frame before's), counted in
-        :attr:`unrecorded`; the min disparity stays the channel's.
+        the log records no change (no :data:`CAMERAS_RECORD`), unless the frame's
+        ``features`` message (given for a compact log) states another f*b than the channel's
+        (the record lost): then that f*b (a frame whose features hold no disparity: the frame
+        before's), counted in :attr:`unrecorded`; the min disparity stays the channel's.
 
         Examples:
             >>> first, second = CameraInForce(2.0, 0.5, 0, 0, 0), CameraInForce(1.0, 0.25, 6, 6, 60)
@@ -253,5 +268,5 @@ class FrameCameras:
             f"state ({stated} px*m, z * disparity), not the depth channel's: the camera changed "
             f"and the log has no {CAMERAS_RECORD} record (a copy that dropped the MCAP metadata "
             "records, e.g. `mcap filter` without --include-metadata); their smallest "
-            "resolvable disparity is the first camera's; evaluate the log densify wrote to have it"
+            "resolvable disparity is the first frame's; evaluate the log densify wrote to have it"
         )

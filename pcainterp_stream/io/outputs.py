@@ -18,10 +18,10 @@ Two precisions (``densify --precision``), chosen by measurement (docs/benchmarks
   compressedDepth png`` (quantised inverse depth, i.e. the disparity rounded to a multiple
   of a power-of-two step <= 1/32 of the frame's smallest disparity std, so the error is at
   most 1/64 of the posterior std; REP 118's NaN and ``+inf`` kept), ``disparity_std`` the
-  same way (its reciprocal quantised: relative error <= :data:`STD_RELATIVE_ERROR`), a
-  ``16UC1`` millimetre ``depth_mm`` copy for viewers (to the nearest
-  :data:`DISPLAY_DEPTH_STEP_MM` mm, 0 to the display range), ``features`` and
-  ``camera_info``. ``depth_std`` (= f*b / d^2 * disparity_std) and ``disparity``
+  same way (its reciprocal quantised: relative error <= :data:`STD_RELATIVE_ERROR`; a std
+  of 0, which no code decodes to, as NaN: "no value"), a ``16UC1`` millimetre ``depth_mm``
+  copy for viewers (to the nearest :data:`DISPLAY_DEPTH_STEP_MM` mm, 0 to the display range),
+  ``features`` and ``camera_info``. ``depth_std`` (= f*b / d^2 * disparity_std) and ``disparity``
   (= f*b / depth) follow from those and are written, as float32, only when asked for.
 - ``full``: every channel float32 (``depth``, ``depth_std``, ``disparity_std`` as ``32FC1``
   Images, ``disparity`` as a ``stereo_msgs/DisparityImage``), as before.
@@ -277,8 +277,9 @@ FOCAL_BASELINE_KEY = "pcainterp.focal_baseline"
 """Channel metadata key: f*b (px*m) of the first outputs, to turn the depth into disparity."""
 
 CAMERAS_RECORD = "pcainterp.cameras"
-"""Name of the MCAP metadata record of a log whose camera changed: each camera's f*b and min
-disparity from its first frame (``io.output_cameras``); absent, the channels' hold for all."""
+"""Name of the MCAP metadata record of a log whose camera or min disparity changed: an entry
+(f*b, min disparity) from the first frame of each change (``io.output_cameras``); absent,
+the channels' hold for all."""
 
 FOCAL_BASELINE_SCOPE_KEY = "pcainterp.focal_baseline_scope"
 """Channel metadata key: what :data:`FOCAL_BASELINE_KEY` covers (:data:`FOCAL_BASELINE_SCOPE`)."""
@@ -286,8 +287,9 @@ FOCAL_BASELINE_SCOPE = f"the first outputs; each camera's, when it changed: reco
 
 MIN_DISPARITY_KEY = "pcainterp.min_disparity"
 """Channel metadata key of compact logs: the smallest resolvable disparity (px) of the
-first frame (the ``DisparityImage``'s ``min_disparity``; constant unless ``--sigma
-evidence``)."""
+first frame (the ``DisparityImage``'s ``min_disparity``: the noise std of the basis in force,
+so it changes with the basis and, with ``--sigma evidence`` (fitted per frame), may change
+every frame; each change is in :data:`CAMERAS_RECORD`)."""
 
 STAMP_TOLERANCE_KEY = "pcainterp.stamp_tolerance_ns"
 """Channel metadata key: the largest left/right stamp difference (ns) densify paired
@@ -634,8 +636,8 @@ def output_messages(result: DensifiedFrame, topics: OutputTopics) -> list[tuple[
         )
         messages.append((topics.disparity, disparity))
     if topics.writes("disparity_std") and compact:
-        encoded = depth_codec.encode_depth(
-            result.disparity_std, quant_a=std_scale(result.disparity_std)
+        encoded = depth_codec.encode_depth(  # a std of 0 (certain) as NaN: no code reads 0
+            result.disparity_std, quant_a=std_scale(result.disparity_std), zero_as_nan=True
         )
         messages.append((topics.disparity_std, _compressed(encoded, stamp, frame_id)))
     elif topics.writes("disparity_std"):
@@ -677,7 +679,8 @@ def std_scale(std: npt.NDArray[np.float32]) -> float:
     Stored as ``A / s + 1``, the relative rounding error is ``s / (2 A)``, largest at the
     largest std: ``A = max(s) / (2 * error)``. A std below ``A / 65534`` (1/1300 of the
     largest) is stored as that value (absolute error <= max(s) / 1300); KITTI's and the
-    synthetic drives' stds span < 30x, so this never happens there.
+    synthetic drives' stds span < 30x, so this never happens there. A std of 0 is stored as
+    NaN ("no value": no code decodes to 0; ``output_messages``), not as ``A / 65534``.
     """
     largest = _finite_extreme(std, np.max, positive=True)
     if largest is None:

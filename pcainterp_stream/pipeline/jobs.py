@@ -527,12 +527,14 @@ def _densified_by(records: list[tuple[str, dict[str, str]]]) -> list[str]:
     """Name the bases a densified MCAP log was made with, from its records ([]: none).
 
     Per ``pcainterp.densify`` record (one per output prefix), every basis in force from the
-    ``pcainterp.basis`` record of its prefix, else the basis of its first outputs.
+    ``pcainterp.basis`` record of its prefix, else the basis of its first outputs, and the
+    entries (f*b, min disparity) of its ``pcainterp.cameras`` record (the first 12 of them).
     """
     from pcainterp_stream.evaluate.tuning import describe_tuning, tuning_of
     from pcainterp_stream.io.loginfo import seconds_text
     from pcainterp_stream.io.output_cameras import CAMERAS_RECORD, recorded_cameras_of
 
+    shown = 12  # entries of a pcainterp.cameras record listed (--sigma evidence: up to one a frame)
     densified = [fields for name, fields in records if name == DENSIFY_RECORD]
     in_force = {
         fields.get(OUTPUT_PREFIX_KEY): fields for name, fields in records if name == BASES_RECORD
@@ -563,18 +565,29 @@ def _densified_by(records: list[tuple[str, dict[str, str]]]) -> list[str]:
                     what = str(err)
                 line += f", tuned by densify's fit check: {what}"
             lines.append(line)
-        if prefix in cameras:  # the camera changed mid-log: each frame decodes with its own
+        if prefix in cameras:  # the camera or min disparity changed mid-log: each frame's own
             try:
                 entries = recorded_cameras_of(cameras[prefix])
             except ValueError as err:
                 lines.append(f"  cameras: unreadable {CAMERAS_RECORD} record ({err})")
                 continue
-            lines.append(f"  cameras ({len(entries)}; compact depth decodes with each one's f*b):")
-            lines.extend(
-                f"    f*b {entry.focal_baseline:.6g} px*m from frame {entry.first_frame} "
-                f"(stamp {seconds_text(entry.first_stamp_ns)} s)"
-                for entry in entries
+            lines.append(
+                f"  cameras ({len(entries)}, a new one when the camera or the min disparity "
+                "changed; compact depth decodes with each one's f*b and min disparity):"
             )
+            lines.extend(
+                f"    f*b {entry.focal_baseline:.6g} px*m, min disparity "
+                f"{entry.min_disparity:.4g} px from frame {entry.first_frame} "
+                f"(stamp {seconds_text(entry.first_stamp_ns)} s)"
+                for entry in entries[:shown]
+            )
+            if rest := entries[shown:]:  # --sigma evidence: up to an entry per frame
+                low = min(entry.min_disparity for entry in rest)
+                high = max(entry.min_disparity for entry in rest)
+                lines.append(
+                    f"    ... {len(rest)} more to frame {rest[-1].first_frame} (min disparity "
+                    f"{low:.4g}-{high:.4g} px)"
+                )
     return lines
 
 

@@ -106,10 +106,17 @@ def test_info_lists_each_camera_of_a_two_camera_log(logs: dict[str, Path]) -> No
 
     first, second = FrameCameras.of_log(logs["compact"], "/pcainterp").cameras
     lines = info(logs["compact"]).splitlines()
-    at = lines.index("  cameras (2; compact depth decodes with each one's f*b):")
+    at = lines.index(
+        "  cameras (2, a new one when the camera or the min disparity changed; compact depth "
+        "decodes with each one's f*b and min disparity):"
+    )
     stamp = "(stamp 1.000000000 s)"
-    assert lines[at + 1] == f"    f*b {first.focal_baseline:.6g} px*m from frame 0 {stamp}"
-    assert lines[at + 2].startswith(f"    f*b {second.focal_baseline:.6g} px*m from frame {FRAMES}")
+    assert lines[at + 1] == (
+        f"    f*b {first.focal_baseline:.6g} px*m, min disparity {first.min_disparity:.4g} px "
+        f"from frame 0 {stamp}"
+    )
+    assert lines[at + 2].startswith(f"    f*b {second.focal_baseline:.6g} px*m, min disparity ")
+    assert f" from frame {FRAMES} " in lines[at + 2]
 
 
 def test_a_one_camera_log_records_no_cameras(logs: dict[str, Path], tmp_path: Path) -> None:

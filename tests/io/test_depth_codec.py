@@ -232,3 +232,23 @@ def test_every_png_level_is_a_standard_zlib_stream(level: int) -> None:
 def test_png_level_outside_isal_levels_is_refused() -> None:
     with pytest.raises(ValueError, match="ISA-L"):
         depth_codec.png16(np.zeros((2, 2), np.uint16), 6)
+
+
+@pytest.mark.parametrize("codec", depth_codec.CODECS)
+def test_zero_as_nan_stores_zero_as_no_value_and_the_rest_as_before(codec: str) -> None:
+    # bug hunt 14B F1: a std of 0 took the nearest code, 65535, and read back as A / 65534
+    image = np.array([[0.0, -0.0, 0.5, 2.0], [np.nan, np.inf, 1e-9, -1.0]], np.float32)
+    quant_a = 100.0
+    as_before = depth_codec.quantise_inverse_depth(image, quant_a)
+    codes = depth_codec.quantise_inverse_depth(image, quant_a, zero_as_nan=True)
+    assert as_before[0, 0] == depth_codec.MAX_CODE  # depth 0: the nearest storable value
+    assert codes[0, :2].tolist() == [0, 0]  # NaN's code, "no value"; -0.0 too (A / -0 < 0)
+    assert np.array_equal(codes.ravel()[2:], as_before.ravel()[2:])  # a tiny value as before
+    encoded = depth_codec.encode_depth(image, quant_a=quant_a, codec=codec, zero_as_nan=True)
+    decoded = depth_codec.decode(encoded.format, encoded.data)
+    assert np.isnan(decoded[0, :2]).all()
+    assert decoded[1, 1] == np.inf
+    assert decoded[1, 2] == np.float32(quant_a / 65534)
+    # a message written before (0 as the nearest code) still reads as it did
+    old = depth_codec.encode_depth(image, quant_a=quant_a, codec=codec)
+    assert depth_codec.decode(old.format, old.data)[0, 0] == np.float32(quant_a / 65534)
