@@ -87,14 +87,16 @@ class CamerasInForce:
         """Count a densified frame: a new entry at the first frame and at each change.
 
         A change of the camera or of the min disparity (the basis in force, or ``--sigma
-        evidence``'s fit); one entry per frame at most.
+        evidence``'s fit); one entry per frame at most. A frame without an estimate (a black
+        frame: its maps are NaN, its min disparity a fallback's) adds none for its min
+        disparity alone.
         """
         camera, frame = result.frame.camera, result.frame
         min_disparity = float(result.min_disparity)
         if (
             self.entries
             and camera == self._camera
-            and min_disparity == self.entries[-1].min_disparity
+            and (min_disparity == self.entries[-1].min_disparity or not result.estimated)
         ):
             return
         self._camera = camera

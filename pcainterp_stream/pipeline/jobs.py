@@ -575,18 +575,25 @@ def _densified_by(records: list[tuple[str, dict[str, str]]]) -> list[str]:
                 f"  cameras ({len(entries)}, a new one when the camera or the min disparity "
                 "changed; compact depth decodes with each one's f*b and min disparity):"
             )
+            # the first entries, and every one whose f*b changed (a camera change is never hidden)
+            listed = [
+                number
+                for number, entry in enumerate(entries)
+                if number < shown or entry.focal_baseline != entries[number - 1].focal_baseline
+            ]
             lines.extend(
-                f"    f*b {entry.focal_baseline:.6g} px*m, min disparity "
-                f"{entry.min_disparity:.4g} px from frame {entry.first_frame} "
-                f"(stamp {seconds_text(entry.first_stamp_ns)} s)"
-                for entry in entries[:shown]
+                f"    f*b {entries[number].focal_baseline:.6g} px*m, min disparity "
+                f"{entries[number].min_disparity:.4g} px from frame {entries[number].first_frame} "
+                f"(stamp {seconds_text(entries[number].first_stamp_ns)} s)"
+                for number in listed
             )
-            if rest := entries[shown:]:  # --sigma evidence: up to an entry per frame
+            kept = set(listed)
+            if rest := [entry for number, entry in enumerate(entries) if number not in kept]:
                 low = min(entry.min_disparity for entry in rest)
                 high = max(entry.min_disparity for entry in rest)
                 lines.append(
-                    f"    ... {len(rest)} more to frame {rest[-1].first_frame} (min disparity "
-                    f"{low:.4g}-{high:.4g} px)"
+                    f"    ... {len(rest)} more min disparity changes to frame "
+                    f"{rest[-1].first_frame} ({low:.4g}-{high:.4g} px)"
                 )
     return lines
 

@@ -118,3 +118,32 @@ def test_an_entry_per_change_of_camera_or_min_disparity() -> None:
     for index in range(3):
         one.see(_frame(index, 0.25, "a"))
     assert one.record() is None  # nothing changed: the channels' values hold
+
+
+def test_a_frame_without_an_estimate_adds_no_entry_for_its_min_disparity() -> None:
+    # --sigma evidence: a black frame's sigma falls back, and so would its min disparity
+    cameras = CamerasInForce()
+    for index, min_disparity in enumerate([0.25, 1.0, 1.0, 0.25]):
+        frame = _frame(index, min_disparity, "a")
+        if min_disparity == 1.0:  # no estimate: NaN maps
+            nan = np.full_like(frame.disparity, np.nan)
+            frame = frame._replace(disparity=nan)
+        cameras.see(frame)
+    assert [entry.first_frame for entry in cameras.entries] == [0]
+    cameras.see(_frame(4, 0.5, "b")._replace(disparity=np.full((6, 8), np.nan, np.float32)))
+    assert [entry.first_frame for entry in cameras.entries] == [0, 4]  # a camera change counts
+
+
+def test_info_never_hides_a_camera_change_behind_min_disparity_entries() -> None:
+    from pcainterp_stream.io.output_cameras import CAMERAS_RECORD, CameraInForce, cameras_record
+    from pcainterp_stream.pipeline.jobs import _densified_by
+
+    entries = [CameraInForce(96.5, 0.1 + n / 100, n, n, n) for n in range(15)]
+    entries.append(CameraInForce(40.0, 0.3, 15, 15, 15))
+    record = cameras_record(entries, "/pcainterp")
+    densify_record = {"output_prefix": "/pcainterp", "basis": "built-in"}
+    lines = _densified_by([("pcainterp.densify", densify_record), (CAMERAS_RECORD, record)])
+    assert any(
+        line.startswith("    f*b 40 px*m, min disparity 0.3 px from frame 15") for line in lines
+    )
+    assert lines[-1] == "    ... 3 more min disparity changes to frame 14 (0.22-0.24 px)"
