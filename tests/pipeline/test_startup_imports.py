@@ -152,8 +152,9 @@ def test_the_program_freezes_the_imports_for_the_collector_and_main_does_not(
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
     )
     before, in_process, program = map(int, result.stdout.split()[-3:])
-    assert in_process == before == 0
-    assert program > 0
+    # CPython 3.12.1 starts with a frozen collector view already (375 objects): relative
+    assert in_process == before
+    assert program > before
 
 
 def test_the_command_imports_nothing_heavy_before_it_handles_signals() -> None:
