@@ -19,7 +19,9 @@ through it, ``numpy.f2py`` and ``numpy.testing``), paid by every job while its s
 workers match the first pairs. :data:`DEFERRED` names them: while the module loads, each
 stands in ``sys.modules`` as a placeholder (:class:`_Deferred`) that answers the names
 it is given and imports the real module the first time anything else is looked up on it,
-so a program that goes on to use ``scipy.sparse`` gets the real one, as usual.
+so a program that goes on to use ``scipy.sparse`` gets the real one, as usual. From scipy
+1.18 on (Python >= 3.12) Qhull's module itself imports the array API layer (~0.1-0.2 s once a
+job, on the densify thread): not deferred, as its names are used when it loads.
 """
 
 from __future__ import annotations
