@@ -4,12 +4,13 @@ A rig of two cameras of one model gives two images of one encoding; a rig of a c
 mono camera (``bgr8`` + ``mono8``), or of an 8-bit and a 16-bit one (``mono8`` + ``mono16``),
 gives two encodings of one size. The stereo matcher takes 8-bit grey anyway
 (:func:`frontend.stereo.to_grey8_pair`), so :func:`grey_alike` turns such a pair into grey of
-one bit depth, each side on its own. :func:`is_rectified_name` reads a topic name.
+one bit depth, each side on its own. :func:`is_rectified_name` reads a topic name;
+:func:`is_copy` tells an image logged again (a merged bag's copy) from a frame.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -17,7 +18,17 @@ import numpy.typing as npt
 
 from pcainterp_stream.frontend.stereo import to_grey8
 
-__all__ = ["SIDE_BY_SIDE_MATCH", "describe", "grey_alike", "halves_match", "is_rectified_name"]
+if TYPE_CHECKING:
+    from pcainterp_stream.frontend.pairing_window import PendingImage
+
+__all__ = [
+    "SIDE_BY_SIDE_MATCH",
+    "describe",
+    "grey_alike",
+    "halves_match",
+    "is_copy",
+    "is_rectified_name",
+]
 
 SIDE_BY_SIDE_MATCH = 0.6
 """A :func:`halves_match` at or above this says an image holds two views side by side: a
@@ -129,6 +140,21 @@ def is_rectified_name(topic: str, partner: str | None = None) -> bool:
     # a word of its own: "rect", "rect_color", "rectified", not "direct"
     below = parts[sides[-1] + 1 :]
     return any(w.startswith("rect") for p in below for w in p.replace("-", "_").split("_"))
+
+
+def is_copy(new: PendingImage, last: PendingImage | None) -> bool:
+    """Whether an image is its side's last one logged again: a merged bag's copy, a re-send.
+
+    The same header stamp, size, encoding and bytes (:func:`same_image_message`). Without a
+    stamp (0: a driver that sets none) the same log time too: two overlapping bags merged
+    give the copy its original's log time, while a static scene renders identical frames at
+    other log times, and those are frames.
+    """
+    if last is None or new.stamp_ns != last.stamp_ns:
+        return False
+    if not new.stamp_ns and new.log_time_ns != last.log_time_ns:
+        return False
+    return same_image_message(new.message, last.message)
 
 
 def same_image_message(new: Any, old: Any) -> bool:

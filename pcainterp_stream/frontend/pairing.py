@@ -43,8 +43,8 @@ from pcainterp_stream.frontend.image_clock import ImageClock
 from pcainterp_stream.frontend.pair_forms import (
     describe,
     grey_alike,
+    is_copy,
     is_rectified_name,
-    same_image_message,
 )
 from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.frontend.pairing_window import HeldQueue, Hold, HoldLimits
@@ -384,9 +384,9 @@ class StereoPairer:
 
     # images ---------------------------------------------------------------------------
     def _push_image(self, side: str, item: _Pending) -> list[StereoFrame]:
-        if item.stamp_ns and _same_image(item, self._last_image[side]):
+        if is_copy(item, self._last_image[side]):  # the same message again: no frame
             topic = self.config.left_topic if side == "left" else self.config.right_topic
-            self.stats.saw_duplicate(topic, item.stamp_ns)  # the same message again: no frame
+            self.stats.saw_duplicate(topic, item.stamp_ns, item.log_time_ns)
             return []
         self._last_image[side] = item
         if self._last_log[side] >= 0:
@@ -844,13 +844,6 @@ class StereoPairer:
 def _median(values: Sequence[int]) -> int:
     """Return the median of some integers (the lower middle one), 0 for none."""
     return sorted(values)[(len(values) - 1) // 2] if values else 0
-
-
-def _same_image(item: _Pending, last: _Pending | None) -> bool:
-    """Whether an image is the side's last one again: its stamp, size, encoding and bytes."""
-    if last is None or item.stamp_ns != last.stamp_ns:
-        return False
-    return same_image_message(item.message, last.message)
 
 
 def _nearer(miss_ns: int, gap_ns: int) -> int:

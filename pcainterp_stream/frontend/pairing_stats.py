@@ -84,6 +84,8 @@ class PairingStats:
         duplicate_topics: image topic -> how many of its images were so dropped, in the order
             of their first duplicate.
         duplicate_stamp_ns: the first duplicate's header stamp (ns).
+        duplicate_log_ns: the first duplicate's log time (ns): what places it when its
+            stamp is 0.
         unsure_pairs: (left log time, log time between the sides) (ns) of the pairs made by
             stamp before the stamps repeated that have the repeated stamp but whose images
             were recorded beyond the tolerance apart.
@@ -156,6 +158,7 @@ class PairingStats:
     duplicate_images: int = 0
     duplicate_topics: dict[str, int] = field(default_factory=dict)
     duplicate_stamp_ns: int = 0
+    duplicate_log_ns: int = 0
     unsure_pairs: list[tuple[int, int]] = field(default_factory=list)
     tolerance_ns: int = 0
     log_tolerance_ns: int = 0
@@ -237,10 +240,10 @@ class PairingStats:
         notes = [self._duplicate_note(), self._log_time_note()]
         return "; ".join(note for note in notes if note) or None
 
-    def saw_duplicate(self, topic: str, stamp_ns: int) -> None:
+    def saw_duplicate(self, topic: str, stamp_ns: int, log_time_ns: int = 0) -> None:
         """Count an image of ``topic`` that is a copy of its side's last one (a bag merge's)."""
         if not self.duplicate_images:
-            self.duplicate_stamp_ns = stamp_ns
+            self.duplicate_stamp_ns, self.duplicate_log_ns = stamp_ns, log_time_ns
         self.duplicate_images += 1
         self.duplicate_topics[topic] = self.duplicate_topics.get(topic, 0) + 1
 
@@ -254,9 +257,12 @@ class PairingStats:
             for k, (topic, n) in enumerate(self.duplicate_topics.items())
         ]
         how = "made by header stamp" if self.repeated_stamp_topic is None else "made as below"
+        stamp = self.duplicate_stamp_ns
+        log_time = f"log time {_seconds(self.duplicate_log_ns)} s, stamp 0"
+        first = f"stamp {_seconds(stamp)} s" if stamp else log_time
         return (
             f"duplicates: {' and '.join(of)} {'was' if count == 1 else 'were'} logged again "
-            f"(the same message, first at stamp {_seconds(self.duplicate_stamp_ns)} s): the "
+            f"(the same message, first at {first}): the "
             f"{'copy was' if count == 1 else 'copies were'} dropped, the pairs are {how}"
         )
 

@@ -28,10 +28,16 @@ class ImageTooNarrowError(PcaInterpError, ValueError):
     """
 
     def __init__(self, width: int, needed: int, num_disparities: int) -> None:
+        # 16 is SGBM's smallest range (and the refined matcher's +-8 px pass, whatever
+        # --num-disparities): no smaller one to advise
+        fix = (
+            "pass a smaller --num-disparities"
+            if num_disparities > 16
+            else "no disparity range fits images this narrow (16 is the smallest)"
+        )
         super().__init__(
             f"images {width} px wide (at the matching resolution) are narrower than the "
-            f"{needed} px SGBM needs for {num_disparities} disparities; pass a smaller "
-            "--num-disparities"
+            f"{needed} px SGBM needs for {num_disparities} disparities; {fix}"
         )
         self.width = width
         self.needed = needed

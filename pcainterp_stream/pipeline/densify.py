@@ -30,11 +30,16 @@ from pcainterp_stream.evaluate.tuning import tuning_json
 from pcainterp_stream.frontend.discovery import resolve_pairing
 from pcainterp_stream.frontend.far import FarZeros
 from pcainterp_stream.frontend.frame_checks import BeyondRange, StaleRight
+from pcainterp_stream.frontend.image_limits import (
+    SMALL_SIDE,
+    empty_cause,
+    too_narrow,
+    too_small_for_points,
+)
 from pcainterp_stream.frontend.pairing import PairingConfig, StereoPairer
 from pcainterp_stream.frontend.pairing_stats import PairingStats
-from pcainterp_stream.frontend.sgbm_limits import fitting, narrowest_width
 from pcainterp_stream.frontend.sgbm_resolution import by_camera
-from pcainterp_stream.frontend.stereo import SgbmConfig
+from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig
 from pcainterp_stream.io import reader_base, rosmsg
 from pcainterp_stream.io.densify_record import (
     DENSIFY_RECORD,
@@ -344,6 +349,7 @@ def densify(
     # "empty": frames without a single measurement, so without an estimate (NaN)
     robust = {"downweighted": 0, "most": 0, "resets": 0, "carried": 0, "carry_resets": 0}
     robust["empty"] = robust["stale_empty"] = 0
+    small: list[tuple[int, int]] = []  # the size of the first such frame's small images
     stereo = processor.source is MeasurementSource.STEREO
     stale = StaleRight() if stereo else None  # a right image repeated: not matched
     beyond = (
@@ -543,6 +549,9 @@ def densify(
                 robust["stale_empty"] += not result.estimated  # warned of on their own
             else:
                 robust["empty"] += not result.estimated
+                height, width = result.frame.left.shape[:2]
+                if not (result.estimated or small) and min(width, height) < SMALL_SIDE:
+                    small.append((width, height))
             if beyond is not None:
                 beyond.result(result)
             if far is not None:
@@ -557,10 +566,10 @@ def densify(
                 check.result(result)
             bar.update(1)
 
-        checked_width = processor.source is not MeasurementSource.STEREO
+        checked: tuple[int, ...] | None = None  # the image size checked last (stereo)
 
         def submit(frame: StereoFrame) -> None:
-            nonlocal checked_width, engine, matching, sgbm, far
+            nonlocal checked, engine, matching, sgbm, far
             if engine is None:
                 if stereo:  # --stereo-downscale auto: the first pair's camera decides
                     camera = frame.camera
@@ -573,9 +582,11 @@ def densify(
                         beyond.step = 16 * sgbm.downscale
                 config = dataclasses.replace(processor, sgbm=sgbm)
                 engine = stack.enter_context(FrameProcessor(basis, config))
-            if not checked_width:  # SGBM would fail, or crash, on too narrow a pair
-                _check_width(frame, sgbm, input_path, pairing.left_topic)
-                checked_width = True
+            if stereo and frame.left.shape[:2] != checked:  # the first pair, a new size
+                # sparse mode's points on the first pair: later ones may be small (a warning)
+                gftt = processor.gftt if processor.measurements == "sparse" else None
+                _check_size(frame, sgbm, gftt if checked is None else None, input_path, pairing)
+                checked = frame.left.shape[:2]
             features = pairer.features_for(frame)
             refused = check.cloud(frame, features) if check is not None else None
             if refused is not None:  # in the writer's block: no output is left behind
@@ -646,7 +657,11 @@ def densify(
         damage=list(reader.damage),
         written=writer.summary() if writer is not None else None,
         warnings=_order_warnings(reader, stats)
-        + (check.warnings(stats) if check is not None else _empty_warning(robust["empty"], frames))
+        + (
+            check.warnings(stats)
+            if check is not None
+            else _empty_warning(robust["empty"], frames, small)
+        )
         + (stale.warnings(frames, robust["stale_empty"]) if stale is not None else [])
         + (beyond.warnings(frames, sgbm) if beyond is not None else [])
         + (far.warnings(frames) if far is not None else [])
@@ -748,39 +763,40 @@ def basis_label(basis: Path, output: Path | IO[bytes] | None) -> str:
     return Path(relative).as_posix()
 
 
-def _check_width(frame: StereoFrame, sgbm: SgbmConfig, log: Path, topic: str) -> None:
-    """Refuse a pair narrower than SGBM's disparity range, naming the widest range that fits.
+def _check_size(
+    frame: StereoFrame, sgbm: SgbmConfig, gftt: GfttConfig | None, log: Path, pairing: PairingConfig
+) -> None:
+    """Refuse images no measurement can be made on, naming what would do.
+
+    A pair narrower than SGBM's disparity range (it would fail, or crash), checked on the
+    first pair and on each new size; with ``gftt`` (sparse mode's first pair) images too
+    small to place a point on (:mod:`~pcainterp_stream.frontend.image_limits`).
 
     Raises:
-        PcaInterpError: the frame's images are too narrow for ``sgbm``.
+        PcaInterpError: the frame's images are too small.
     """
-    width = int(frame.left.shape[1])
-    needed = narrowest_width(sgbm)
-    if width >= needed:
-        return
-    fits = fitting(sgbm, width)
-    fix = (
-        f"pass --num-disparities {fits.num_disparities} (or less, a multiple of 16)"
-        if fits is not None
-        else "no disparity range fits images this narrow"
-    )
-    raise PcaInterpError(
-        f"{log}: {topic}'s images are {width} px wide, narrower than the {needed} px SGBM "
-        f"needs for {sgbm.num_disparities} disparities; {fix}"
-    )
+    height, width = frame.left.shape[:2]
+    problem = too_narrow(width, sgbm)
+    if problem is None and gftt is not None:
+        problem = too_small_for_points(width, height, gftt, sgbm)
+    if problem is not None:  # the first pair's, or a changed camera's from its first frame
+        since = f" from frame {frame.index} on" if frame.index else ""
+        raise PcaInterpError(f"{log}: {pairing.left_topic}'s images{since} are {problem}")
 
 
-def _empty_warning(empty: int, frames: int) -> list[str]:
+def _empty_warning(empty: int, frames: int, small: list[tuple[int, int]]) -> list[str]:
     """The warning for frames that had no measurement at all (none when there were none).
 
     For measurements from the stereo pair, sparse or dense (a dense frame whose SGBM map
     matched nothing, as a blank pair's); a feature stream's frames without one are warned
     of by :class:`~pcainterp_stream.pipeline.feature_check.FeatureStreamCheck`, by cause.
+    ``small``: the size of the first such frame whose images have a side under
+    :data:`~pcainterp_stream.frontend.image_limits.SMALL_SIDE` (none: no frame that small).
     """
     if not empty:
         return []
     return [
-        f"{empty} of {frames} frames had no measurement (blank, dark or textureless images): "
+        f"{empty} of {frames} frames had no measurement ({empty_cause(next(iter(small), None))}): "
         "they have no estimate, their depth is NaN"
     ]
 

@@ -1005,6 +1005,47 @@ def test_the_same_image_republished_is_dropped_not_restamped() -> None:
     assert (stats.duplicate_images, stats.log_stamped, stats.clock_stamped) == (2, 0, 0)
 
 
+def _stampless_pairs(copied: tuple[int, ...], values: list[int]) -> tuple[list[Any], Any]:
+    """Pair stampless frames (header stamps 0) 100 ms of log apart, the right 2 us after the
+    left; the pairs of ``copied`` are logged twice (a merge of overlapping bags: same bytes,
+    same log time). ``values`` are the frames' grey levels."""
+    pairer = StereoPairer()
+    with_infos(pairer)
+    start, frames = 1_700_000_000 * 10**9, []
+    for index, value in enumerate(values):
+        log_ns = start + index * 100 * MS
+        for _ in range(2 if index in copied else 1):
+            frames += pairer.push(CONFIG.left_topic, 0, log_ns, image(0, value))
+            frames += pairer.push(CONFIG.right_topic, 0, log_ns + 2000, image(0, value))
+    frames += pairer.flush()
+    return frames, pairer
+
+
+def test_a_stampless_pair_logged_twice_is_one_frame() -> None:
+    # bug hunt 14C F1: stamps 0 and one pair logged twice (merged bags) gave two frames of one
+    # stamp and log time: the copy of a stampless image was never told from a frame
+    frames, pairer = _stampless_pairs((1,), [1, 2, 3, 4, 5])
+    outputs = [pairer.full_result(cast(Any, _Result(f))).frame.stamp_ns for f in frames]
+    stats = pairer.finish()
+    assert [int(f.left[0, 0]) for f in frames] == [1, 2, 3, 4, 5]  # was [1, 2, 2, 3, 4, 5]
+    assert len(set(outputs)) == 5
+    assert (stats.pairs, stats.duplicate_images) == (5, 2)
+    assert "2 duplicate images dropped" in stats.summary()
+    assert (stats.stamp_note() or "").startswith(
+        f"duplicates: 1 image of {CONFIG.left_topic} and 1 of {CONFIG.right_topic} were logged "
+        "again (the same message, first at log time 1700000000.100000000 s, stamp 0): the "
+        "copies were dropped"
+    )
+
+
+def test_a_static_stampless_scene_keeps_every_frame() -> None:
+    # identical images without stamps at other log times are frames (a simulator's static
+    # scene, a camera at rest), not copies
+    frames, pairer = _stampless_pairs((), [7, 7, 7, 7])
+    stats = pairer.finish()
+    assert (len(frames), stats.pairs, stats.duplicate_images) == (4, 4, 0)
+
+
 def test_repeated_stamps_pair_by_log_time_after_the_first_pair() -> None:
     pairer = StereoPairer()
     with_infos(pairer)
