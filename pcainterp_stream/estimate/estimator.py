@@ -519,10 +519,8 @@ def densify_batch(
                     GROUP_RADIUS * out_size[1] / basis.image_size[1],
                     (frame_pixels[~posterior.group], frame_disparities[~posterior.group]),
                 )
-        # REP 118: a disparity below one noise std cannot be told from 0 (infinity). The
-        # matcher's noise is px of the image: a camera of more f*b than the basis's (more
-        # resolution, a wider baseline) resolves no coarser than the basis's camera did
-        min_disparity = posterior.sigma / max(to_basis, 1.0)
+        # REP 118: a disparity below one noise std cannot be told from 0 (infinity)
+        min_disparity = posterior.sigma / to_basis
         depth, depth_std = (
             _depth(disparity, disparity_std if with_depth_std else None, fb_out, min_disparity)
             if with_depth
