@@ -84,9 +84,18 @@ def too_small_for_points(width: int, height: int, gftt: Any, sgbm: Any) -> str |
         where += f" and right of SGBM's {band} px unmatched band (--num-disparities narrows it)"
     return (
         f"{width}x{height} px, under the {floor_w}x{floor_h} px (width x height) sparse mode "
-        f"needs to place a measurement (its corners and lattice points are {where}): no frame "
-        "would have one, every depth would be NaN"
+        f"needs to place a measurement (its corners and lattice points are {where})"
     )
+
+
+def small_images_cause(width: int, height: int, gftt: Any, sgbm: Any) -> str | None:
+    """Why a frame of this size had no measurement, if its size says so (None: it does not).
+
+    ``gftt``: sparse mode's detector settings (None in dense mode).
+    """
+    if gftt is not None and (problem := too_small_for_points(width, height, gftt, sgbm)):
+        return f"images of {problem}"
+    return empty_cause((width, height)) if min(width, height) < SMALL_SIDE else None
 
 
 def empty_cause(size: tuple[int, int] | None) -> str:

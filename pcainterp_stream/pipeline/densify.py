@@ -30,16 +30,11 @@ from pcainterp_stream.evaluate.tuning import tuning_json
 from pcainterp_stream.frontend.discovery import resolve_pairing
 from pcainterp_stream.frontend.far import FarZeros
 from pcainterp_stream.frontend.frame_checks import BeyondRange, StaleRight
-from pcainterp_stream.frontend.image_limits import (
-    SMALL_SIDE,
-    empty_cause,
-    too_narrow,
-    too_small_for_points,
-)
+from pcainterp_stream.frontend.image_limits import empty_cause, small_images_cause, too_narrow
 from pcainterp_stream.frontend.pairing import PairingConfig, StereoPairer
 from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.frontend.sgbm_resolution import by_camera
-from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig
+from pcainterp_stream.frontend.stereo import SgbmConfig
 from pcainterp_stream.io import reader_base, rosmsg
 from pcainterp_stream.io.densify_record import (
     DENSIFY_RECORD,
@@ -349,7 +344,7 @@ def densify(
     # "empty": frames without a single measurement, so without an estimate (NaN)
     robust = {"downweighted": 0, "most": 0, "resets": 0, "carried": 0, "carry_resets": 0}
     robust["empty"] = robust["stale_empty"] = 0
-    small: list[tuple[int, int]] = []  # the size of the first such frame's small images
+    small: list[str] = []  # why the first frame without a measurement had none, by its size
     stereo = processor.source is MeasurementSource.STEREO
     stale = StaleRight() if stereo else None  # a right image repeated: not matched
     beyond = (
@@ -550,8 +545,10 @@ def densify(
             else:
                 robust["empty"] += not result.estimated
                 height, width = result.frame.left.shape[:2]
-                if not (result.estimated or small) and min(width, height) < SMALL_SIDE:
-                    small.append((width, height))
+                if not (result.estimated or small):  # its size may say why
+                    gftt = processor.gftt if processor.measurements == "sparse" else None
+                    if cause := small_images_cause(width, height, gftt, sgbm):
+                        small.append(cause)
             if beyond is not None:
                 beyond.result(result)
             if far is not None:
@@ -583,9 +580,7 @@ def densify(
                 config = dataclasses.replace(processor, sgbm=sgbm)
                 engine = stack.enter_context(FrameProcessor(basis, config))
             if stereo and frame.left.shape[:2] != checked:  # the first pair, a new size
-                # sparse mode's points on the first pair: later ones may be small (a warning)
-                gftt = processor.gftt if processor.measurements == "sparse" else None
-                _check_size(frame, sgbm, gftt if checked is None else None, input_path, pairing)
+                _check_size(frame, sgbm, input_path, pairing)
                 checked = frame.left.shape[:2]
             features = pairer.features_for(frame)
             refused = check.cloud(frame, features) if check is not None else None
@@ -763,40 +758,36 @@ def basis_label(basis: Path, output: Path | IO[bytes] | None) -> str:
     return Path(relative).as_posix()
 
 
-def _check_size(
-    frame: StereoFrame, sgbm: SgbmConfig, gftt: GfttConfig | None, log: Path, pairing: PairingConfig
-) -> None:
-    """Refuse images no measurement can be made on, naming what would do.
+def _check_size(frame: StereoFrame, sgbm: SgbmConfig, log: Path, pairing: PairingConfig) -> None:
+    """Refuse a pair narrower than SGBM's disparity range (it would fail, or crash).
 
-    A pair narrower than SGBM's disparity range (it would fail, or crash), checked on the
-    first pair and on each new size; with ``gftt`` (sparse mode's first pair) images too
-    small to place a point on (:mod:`~pcainterp_stream.frontend.image_limits`).
+    Checked on the first pair and on each new size. Images too small for sparse mode to
+    place a point on are not refused (a camera may change to a larger size later): their
+    frames have no estimate, and the warning of such frames says why
+    (:func:`~pcainterp_stream.frontend.image_limits.small_images_cause`).
 
     Raises:
-        PcaInterpError: the frame's images are too small.
+        PcaInterpError: the frame's images are too narrow.
     """
-    height, width = frame.left.shape[:2]
-    problem = too_narrow(width, sgbm)
-    if problem is None and gftt is not None:
-        problem = too_small_for_points(width, height, gftt, sgbm)
+    problem = too_narrow(frame.left.shape[1], sgbm)
     if problem is not None:  # the first pair's, or a changed camera's from its first frame
         since = f" from frame {frame.index} on" if frame.index else ""
         raise PcaInterpError(f"{log}: {pairing.left_topic}'s images{since} are {problem}")
 
 
-def _empty_warning(empty: int, frames: int, small: list[tuple[int, int]]) -> list[str]:
+def _empty_warning(empty: int, frames: int, small: list[str]) -> list[str]:
     """The warning for frames that had no measurement at all (none when there were none).
 
     For measurements from the stereo pair, sparse or dense (a dense frame whose SGBM map
     matched nothing, as a blank pair's); a feature stream's frames without one are warned
     of by :class:`~pcainterp_stream.pipeline.feature_check.FeatureStreamCheck`, by cause.
-    ``small``: the size of the first such frame whose images have a side under
-    :data:`~pcainterp_stream.frontend.image_limits.SMALL_SIDE` (none: no frame that small).
+    ``small``: why the first such frame had none, by its size
+    (:func:`~pcainterp_stream.frontend.image_limits.small_images_cause`; none: not its size).
     """
     if not empty:
         return []
     return [
-        f"{empty} of {frames} frames had no measurement ({empty_cause(next(iter(small), None))}): "
+        f"{empty} of {frames} frames had no measurement ({next(iter(small), empty_cause(None))}): "
         "they have no estimate, their depth is NaN"
     ]
 

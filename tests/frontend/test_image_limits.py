@@ -8,6 +8,7 @@ import pytest
 from pcainterp_stream.frontend.image_limits import (
     empty_cause,
     points_floor,
+    small_images_cause,
     too_narrow,
     too_small_for_points,
 )
@@ -77,3 +78,15 @@ def test_the_matcher_s_own_refusal_advises_no_range_below_16() -> None:
 def test_the_empty_cause_names_small_images_only() -> None:
     assert empty_cause(None) == "blank, dark or textureless images"
     assert empty_cause((24, 18)).startswith("24x18 px images: under 32 px a side")
+
+
+def test_the_cause_of_a_small_frame_names_the_floor_it_is_under() -> None:
+    # review 14b R4: 132x96 at half-resolution SGBM is under the points' floor (137 px wide),
+    # though no side is under 32 px: its frames were blamed on "blank, dark or textureless"
+    half = SgbmConfig(downscale=2)
+    cause = small_images_cause(132, 96, GfttConfig(), half)
+    assert cause is not None
+    assert cause.startswith("images of 132x96 px, under the 137x17 px")
+    assert small_images_cause(132, 96, None, half) is None  # dense mode: no points floor
+    assert small_images_cause(640, 480, GfttConfig(), half) is None
+    assert small_images_cause(24, 18, None, SgbmConfig()) == empty_cause((24, 18))
