@@ -198,10 +198,18 @@ def no_reference_message(frame: Frame, right_topic: str, state: ReadState) -> st
             f"frame {frame.index} has neither {GROUND_TRUTH_DEPTH} nor {right_topic}; "
             "evaluate needs ground truth or the right image for an SGBM reference"
         )
-    return (
+    start = (
         f"frame {frame.index} has no {GROUND_TRUTH_DEPTH} and the right images of "
         f"{right_topic} did not pair with it within {state.tolerance_ns / 1e6:g} ms "
         f"({state.tolerance_from}; the nearest is {gap / 1e6:.2f} ms away), so there is no "
-        f"SGBM reference; pass --stamp-tolerance-ms {math.ceil(gap / 1e6)}"
-        + (" (as densify was given)" if state.tolerance_from.startswith("the default") else "")
+        "SGBM reference"
+    )
+    if gap >= MAX_ADVISED_TOLERANCE_NS:  # no tolerance of a second or more is advised
+        return (
+            f"{start}; a second or more: the right images are not this frame's (stamped on "
+            "another clock, or its own is missing); evaluate a log with ground truth or pass "
+            "--reference-topic"
+        )
+    return f"{start}; pass --stamp-tolerance-ms {math.ceil(gap / 1e6)}" + (
+        " (as densify was given)" if state.tolerance_from.startswith("the default") else ""
     )

@@ -159,6 +159,9 @@ class ReadState:
     copies: dict[str, int] = field(default_factory=dict)
     """Per image topic of the input pair, the images logged again right after themselves (the
     same stamp, size, encoding and bytes): skipped, as densify dropped them."""
+    undecodable: dict[str, int] = field(default_factory=dict)
+    """Per topic of the input pair (images, camera infos), the messages that do not decode (a
+    damaged message, bytes of another type): skipped, as densify skipped them."""
 
     @property
     def reference_tolerance(self) -> tuple[int, str]:
@@ -187,6 +190,17 @@ class ReadState:
             return ""
         counts = ", ".join(f"{n} on {topic}" for topic, n in sorted(self.copies.items()))
         return f"images logged again right after themselves were skipped ({counts}), as densify did"
+
+    @property
+    def undecodable_note(self) -> str:
+        """Return the sentence on input messages that do not decode, skipped ("": none)."""
+        if not self.undecodable:
+            return ""
+        counts = ", ".join(f"{n} on {topic}" for topic, n in sorted(self.undecodable.items()))
+        return (
+            f"messages that do not decode were skipped ({counts}: damaged, or bytes of "
+            "another type), as densify skipped them"
+        )
 
     @property
     def repeated_note(self) -> str:
@@ -281,7 +295,10 @@ def read_frames(
     records densify paired with), each when the log has the topic; a frame without one
     within it has None there and the distance to the nearest (``*_gap_ns``). A complete
     frame waits for each to have a message stamped at or after its own (they come in stamp
-    order, so the nearest one is then known), at most :data:`RIGHT_WAIT_FRAMES` frames for
+    order, so the nearest one is then known) and read as far past the frame's log time as
+    the message it would take is before it (:meth:`_Stamped.settled`: after stamps restart,
+    the message of a stamp nearest the frame in log time may be logged after the frame's
+    left image, whatever the recorder's order), at most :data:`RIGHT_WAIT_FRAMES` frames for
     the right image and :data:`TRUTH_WAIT_FRAMES` for truth and pose; a
     frame whose message never comes (dropped) goes on without it. With a reference topic,
     each frame carries the reference message nearest its stamp within
@@ -339,6 +356,7 @@ def read_frames(
             if t in present
         }
         latest: dict[str, int] = {}
+        logged: dict[str, int] = {}  # the last log time read of each: a topic's come in order
         wanted = [*grouped, *nearby]
         infos = [t for t in images.info_topics if t in present and t not in wanted]
         wanted += infos
@@ -358,15 +376,26 @@ def read_frames(
 
         def ready(frame: _Complete) -> bool:
             """Return True when the oldest waiting frame has all it can still get."""
+            stamp, log_time = frame.stamp_ns, frame.log_time_ns
             for topic in nearby:  # the right image waits less than truth from another source
                 wait = RIGHT_WAIT_FRAMES if topic == right_image else TRUTH_WAIT_FRAMES
-                if latest.get(topic, -1) < frame.stamp_ns and len(waiting) <= wait:
+                # the nearest stamp is known once one at or after it is read; of a stamp that
+                # restarted, the message nearest the frame's log time once the topic is read
+                # as far past the frame as the one kept is before it (whatever the order)
+                if len(waiting) <= wait and (
+                    latest.get(topic, -1) < stamp
+                    or not nearby[topic].settled(stamp, log_time, logged[topic])
+                ):
                     return False
             # the nearest reference is known once one stamped at or after the frame's is
             # read, and whose it is once the next frame's stamp is known
             return (
                 reference is None
-                or (reference_latest >= frame.stamp_ns and len(waiting) > 1)
+                or (
+                    reference_latest >= stamp
+                    and len(waiting) > 1
+                    and references.settled(stamp, log_time, logged[reference.topic])
+                )
                 or len(waiting) > REFERENCE_WAIT_FRAMES
             )
 
@@ -410,7 +439,13 @@ def read_frames(
                 elif recorded is not None:
                     state.tolerance_ns = recorded
                     state.tolerance_from = "the tolerance the log was densified with"
-            message = reader.decode(raw)
+            try:
+                message = reader.decode(raw)
+            except LogReadError:  # densify skipped such an input message: no frame has it
+                if raw.topic not in (left_image, right_image, *infos):
+                    raise
+                state.undecodable[raw.topic] = state.undecodable.get(raw.topic, 0) + 1
+                continue
             if raw.topic in infos:
                 images.see_info(raw.topic, message)
                 continue
@@ -419,7 +454,7 @@ def read_frames(
                 stamp = reference_clock.stamp(raw.topic, rosmsg.stamp_ns(message), raw.log_time_ns)
                 stamps.first(raw.topic, stamp, state)  # a repeat is counted, and kept
                 references.add(stamp, raw.log_time_ns, message)
-                reference_latest = stamp
+                reference_latest, logged[raw.topic] = stamp, raw.log_time_ns
             full_estimate = raw.topic == where.estimate and not where.compact
             stamp = rosmsg.stamp_ns(message.image if full_estimate else message)
             if raw.topic in (left_image, right_image) and unplaced.copy(raw.topic, stamp, message):
@@ -427,6 +462,10 @@ def read_frames(
                 continue  # the same image again (densify dropped it): no frame, no repeat
             if raw.topic in (left_image, right_image, *nearby):
                 stamp = unplaced.stamp(raw.topic, stamp, raw.log_time_ns)
+                for topic, placed, moved in unplaced.moved():  # beside the first left image
+                    nearby[topic].restamp(placed, moved)
+                    if latest.get(topic) == placed:
+                        latest[topic] = moved
             elif stamp == 0 and raw.log_time_ns != 0 and raw.topic in grouped:
                 # (stamp 0 at log time 0 is a clock that starts at 0: KITTI's times.txt)
                 raise LogReadError(_zero_output_message(path, raw.topic, left_image))
@@ -435,7 +474,7 @@ def read_frames(
                 nearby[raw.topic].add(stamp, raw.log_time_ns, message)
                 # the last stamp, not the largest: after stamps restart, a frame of the new
                 # run waits for the new run's messages
-                latest[raw.topic] = stamp
+                latest[raw.topic], logged[raw.topic] = stamp, raw.log_time_ns
             elif raw.topic in grouped:
                 parts = pending.setdefault(stamp, {})
                 state.merged += raw.topic in parts
@@ -550,11 +589,22 @@ class _UnplacedStamps:
     simulator clock repeats their stamps too). An image that is its
     topic's previous one again (same stamp, size, encoding and bytes: a re-send, a merged bag) is a
     copy, which densify drops (``StereoPairer``'s duplicates): :meth:`copy` tells it.
+
+    The first left image stamped 0 (a clock that starts at 0, or none) is placed at its log
+    time, and so is the first message stamped 0 of every other topic, at its own log time:
+    densify paired the first right image with the left by their equal stamps, whatever their
+    log times, so a first message stamped 0 of another topic logged beside it (neither
+    topic's second message read before the other's first) is placed with the left image.
+    When it was read before the left one, :meth:`moved` says where it went.
     """
 
     def __init__(self, *clocked: str) -> None:
         self._clocks = {topic: ImageClock() for topic in clocked}
         self._last_image: dict[str, Any] = {}
+        self._left = clocked[0] if clocked else ""
+        self._read: dict[str, int] = {}  # messages read (copies not) of each topic
+        self._first_zero: dict[str, int] = {}  # where a topic's first message stamped 0 went
+        self._moved: list[tuple[str, int, int]] = []
 
     def copy(self, topic: str, stamp_ns: int, message: Any) -> bool:
         """Return True for an image that repeats its topic's previous one (stamp not 0)."""
@@ -569,7 +619,24 @@ class _UnplacedStamps:
         clock = self._clocks.get(topic)
         if clock is None:
             return log_time_ns if stamp_ns == 0 else stamp_ns
-        return clock.stamp(stamp_ns, log_time_ns)
+        placed = clock.stamp(stamp_ns, log_time_ns)
+        read = self._read[topic] = self._read.get(topic, 0) + 1
+        left = self._first_zero.get(self._left) if self._read.get(self._left) == 1 else None
+        if read == 1 and stamp_ns == 0 and topic == self._left:
+            for other, first in self._first_zero.items():  # read before it, beside it
+                if self._read.get(other) == 1:
+                    self._moved.append((other, first, placed))
+                    self._first_zero[other] = placed
+        elif read == 1 and stamp_ns == 0 and left is not None:
+            placed = left  # beside the first left image, stamped 0 too: with it
+        if read == 1 and stamp_ns == 0:
+            self._first_zero[topic] = placed
+        return placed
+
+    def moved(self) -> list[tuple[str, int, int]]:
+        """Return (and forget) the messages placed again: (topic, placed stamp, new stamp)."""
+        moved, self._moved = self._moved, []
+        return moved
 
 
 def _same_image(message: Any, last: Any, stamp_ns: int) -> bool:
@@ -626,12 +693,43 @@ class _Stamped:
     def __init__(self, limit: int) -> None:
         self._limit = limit
         self._messages: deque[tuple[int, int, Any]] = deque()  # stamp, log time, message
+        self._changes = 0  # messages kept, restamped or claimed: what :meth:`settled` found
+        self._found: tuple[tuple[int, int, int], int | None] = ((-1, -1, -1), None)
 
     def add(self, stamp: int, log_time_ns: int, message: Any) -> None:
         """Keep a message (the oldest one dropped beyond the limit)."""
         self._messages.append((stamp, log_time_ns, message))
+        self._changes += 1
         if len(self._messages) > self._limit:
             self._messages.popleft()
+
+    def restamp(self, stamp: int, new_stamp: int) -> None:
+        """Match the messages kept with ``stamp`` by ``new_stamp`` instead."""
+        self._messages = deque(
+            (new_stamp if kept == stamp else kept, log_time, message)
+            for kept, log_time, message in self._messages
+        )
+        self._changes += 1
+
+    def settled(self, stamp: int, log_time_ns: int, read_ns: int) -> bool:
+        """Whether no message of the topic still to be read can be nearer the frame.
+
+        ``read_ns`` is the log time of the topic's last message read (a topic is logged in
+        order, so the next ones are logged at or after it). True when the message a frame
+        of ``stamp`` and ``log_time_ns`` would take (:meth:`nearest`) is logged at or after
+        the frame's left image, or when the topic is read as far past the frame as that
+        message is before it: a message of its stamp read later (stamps that restarted) is
+        nearer the frame's log time only before then. Whether a nearer stamp may still come
+        is the caller's (one at or after the frame's was read).
+        """
+        key = (stamp, log_time_ns, self._changes)
+        if self._found[0] != key:  # one scan per frame and message kept
+            index = self._index(stamp, log_time_ns)
+            self._found = (key, None if index is None else self._messages[index][1])
+        found = self._found[1]
+        return found is not None and (
+            found >= log_time_ns or read_ns - log_time_ns >= log_time_ns - found
+        )
 
     def _index(self, stamp: int, log_time_ns: int) -> int | None:
         """Return the index of the message nearest ``stamp``, then ``log_time_ns`` (the first)."""
@@ -684,6 +782,7 @@ class _Stamped:
             return None, None if nearest is None else abs(self._messages[nearest][0] - stamp)
         kept, _, message = self._messages[found]
         del self._messages[found]
+        self._changes += 1
         return message, abs(kept - stamp)
 
 

@@ -818,7 +818,7 @@ def evaluate_log(
     causes = left_out.notes(state, GROUND_TRUTH_DEPTH if reference is None else reference.topic)
     causes += [state.incomplete_note] if state.incomplete_note else []
     causes += [state.repeated_note] if state.repeated_note else []
-    result.notes += causes + ([state.copies_note] if state.copies_note else [])
+    result.notes += causes + [n for n in (state.copies_note, state.undecodable_note) if n]
     if evaluator.sgbm_empty:
         result.stereo_note = (
             f"{SGBM_NN} left out on {evaluator.sgbm_empty} frames where SGBM found no pixel"

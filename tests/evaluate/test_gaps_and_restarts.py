@@ -1,4 +1,5 @@
-"""evaluate on logs whose stamps restart mid-log or whose frames pause (bug hunt 9A F1, F3)."""
+"""evaluate on logs whose stamps restart mid-log or whose frames pause (bug hunt 9A F1, F3;
+14C F3: a restart with the right image and truth logged after the left image)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from mcap_copy import McapCopy
 
 from pcainterp_stream.evaluate.metrics import Mode
 from pcainterp_stream.evaluate.report import EvaluateOptions, Evaluation, evaluate_log
+from pcainterp_stream.io.stereo_log import DEPTH, RIGHT_IMAGE
 from pcainterp_stream.pipeline import jobs
 
 PERIOD_NS = 100_000_000  # the synthetic logs' 10 Hz
@@ -25,13 +27,24 @@ def dense(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-def _edited(source: Path, target: Path, *, restart_at: int = -1, drop: range = range(0)) -> Path:
+def _edited(
+    source: Path,
+    target: Path,
+    *,
+    restart_at: int = -1,
+    drop: range = range(0),
+    lags: dict[str, int] | None = None,
+) -> Path:
     """Copy a densified synthetic log, every message's header stamp from frame ``restart_at``
     on set back by that many frames (stamps that restart, log time going on: a simulator
-    restarted mid-recording), the messages of the frames ``drop`` left out (a pause)."""
+    restarted mid-recording), the messages of the frames ``drop`` left out (a pause), the
+    messages of the topics of ``lags`` logged that many ns later (synth logs a frame's
+    messages at one log time; a recorder receives them apart) and all written in log-time
+    order, as densify writes its output (a frame's outputs at its left image's log time)."""
     start: int | None = None
+    written: list[tuple[int, int, bytes]] = []
     with McapCopy(source, target) as copy:
-        for _, channel_id, message in copy.messages():
+        for topic, channel_id, message in copy.messages():
             start = message.log_time if start is None else min(start, message.log_time)
             frame = (message.log_time - start + PERIOD_NS // 2) // PERIOD_NS
             if frame in drop:
@@ -41,7 +54,9 @@ def _edited(source: Path, target: Path, *, restart_at: int = -1, drop: range = r
                 seconds, nanoseconds = struct.unpack_from("<iI", data, 4)
                 stamp = seconds * 1_000_000_000 + nanoseconds - restart_at * PERIOD_NS
                 struct.pack_into("<iI", data, 4, stamp // 1_000_000_000, stamp % 1_000_000_000)
-            copy.add(channel_id, message.log_time, bytes(data))
+            written.append((message.log_time + (lags or {}).get(topic, 0), channel_id, bytes(data)))
+        for log_time, channel_id, data in sorted(written, key=lambda one: one[0]):
+            copy.add(channel_id, log_time, data)
     return target
 
 
@@ -69,6 +84,23 @@ def test_restarted_stamps_take_the_truth_and_right_image_of_their_own_run(
         "4 on /stereo/right/image_rect; stamps that restart, or a message logged twice): a "
         "frame takes the message of its stamp nearest its own log time"
     ) in result.notes
+
+
+def test_a_restart_takes_its_own_run_whatever_the_message_order(
+    dense: Path, tmp_path: Path
+) -> None:
+    # bug hunt 14C F3: with the right image and truth logged after the left image (1 and 4
+    # us, a recorder's usual order), the first frame after the restart was released before
+    # its own were read (the topics' last stamps, frame 3's, were already past its stamp)
+    # and scored against frame 0's truth and right image
+    lags = {RIGHT_IMAGE: 1_000, DEPTH: 4_000}
+    restarted = _edited(dense, tmp_path / "restarted.mcap", restart_at=FRAMES // 2, lags=lags)
+    result = _evaluate(restarted, Mode.STEREO)
+    assert result.frames == FRAMES
+    assert _rows(result) == _rows(
+        _evaluate(_edited(dense, tmp_path / "late.mcap", lags=lags), Mode.STEREO)
+    )
+    assert _rows(result) == _rows(_evaluate(dense, Mode.STEREO))
 
 
 def test_temporal_mode_does_not_pair_across_a_restart_of_the_stamps(

@@ -12,14 +12,15 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any
+from types import SimpleNamespace
+from typing import Any, cast
 
 import pytest
 from mcap_copy import McapCopy
 
 from pcainterp_stream.errors import LogReadError
-from pcainterp_stream.evaluate.left_out import LeftOut
-from pcainterp_stream.evaluate.log_frames import ReadState
+from pcainterp_stream.evaluate.left_out import LeftOut, no_reference_message
+from pcainterp_stream.evaluate.log_frames import Frame, ReadState
 from pcainterp_stream.evaluate.metrics import Mode
 from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log
 from pcainterp_stream.frontend.pairing import StereoPairer
@@ -105,6 +106,16 @@ def test_no_tolerance_of_a_second_or_more_is_advised() -> None:
     single.see(30_000_000, "truth")
     (note,) = single.notes(state, "/ground_truth/depth")
     assert note.endswith("pass --stamp-tolerance-ms 30 to take it")
+    # nor for a frame without truth whose right image is a second or more away (bug hunt 14C
+    # F4: "pass --stamp-tolerance-ms 1699999999901")
+    for gap, advice in ((far, False), (3_000_000, True)):
+        frame = cast(Frame, SimpleNamespace(index=1, right_gap_ns=gap))
+        message = no_reference_message(frame, RIGHT_IMAGE, state)
+        assert ("--stamp-tolerance-ms" in message) is advice
+    assert message.endswith("; pass --stamp-tolerance-ms 3 (as densify was given)")
+    assert "a second or more: the right images are not this frame's" in no_reference_message(
+        cast(Frame, SimpleNamespace(index=1, right_gap_ns=far)), RIGHT_IMAGE, state
+    )
 
 
 def test_a_reference_topic_stamped_zero_is_placed_by_log_time(logs: dict[str, Path]) -> None:
@@ -168,6 +179,32 @@ def test_a_clock_that_starts_at_zero_is_evaluated(tmp_path: Path) -> None:
     jobs.densify(log, tmp_path / "dense.mcap")
     jobs.densify(shifted, tmp_path / "from_zero_dense.mcap")
     assert _scores(tmp_path / "from_zero_dense.mcap") == _scores(tmp_path / "dense.mcap")
+
+
+def test_a_clock_that_starts_at_zero_pairs_its_first_frame_as_densify(tmp_path: Path) -> None:
+    # bug hunt 14C F4: a simulator's header stamps from 0.0 s, log times on the wall clock, the
+    # right image logged 3 ms and the truth 2 ms after the left image. densify pairs the first
+    # images by their equal stamps (0) and stamps the frame's outputs with its log time;
+    # evaluate placed the right image at its own log time, 3 ms off, and refused the whole
+    # log (no SGBM reference; and frame 1, released before its own right image was read, was
+    # advised a tolerance of 41 years)
+    log, sim = tmp_path / "synth.mcap", tmp_path / "sim.mcap"
+    jobs.synth(log, frames=4, seed=43, scale=0.25, fmt="mcap")
+    start = 1_317_046_453_000_000_000  # synth's first stamp
+    lags = {RIGHT_IMAGE: 3_000_000, TRUTH: 2_000_000}
+    with McapCopy(log, sim) as copy:  # (each of synth's topics: a header)
+        for topic, channel_id, message in copy.messages():
+            data = bytearray(message.data)
+            sec, nanosec = (int.from_bytes(data[i : i + 4], "little") for i in (4, 8))
+            stamp = sec * 1_000_000_000 + nanosec - start
+            data[4:8] = (stamp // 1_000_000_000).to_bytes(4, "little")
+            data[8:12] = (stamp % 1_000_000_000).to_bytes(4, "little")
+            copy.add(channel_id, message.log_time + lags.get(topic, 0), bytes(data))
+    jobs.densify(log, tmp_path / "dense.mcap")
+    jobs.densify(sim, tmp_path / "sim_dense.mcap")
+    for options in (OPTIONS, dataclasses.replace(OPTIONS, sgbm_reference=True)):
+        scores = _scores(tmp_path / "sim_dense.mcap", options)
+        assert scores == _scores(tmp_path / "dense.mcap", options)
 
 
 def test_a_coarse_clock_keeps_every_frame_on_it(logs: dict[str, Path]) -> None:
