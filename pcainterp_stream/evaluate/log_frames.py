@@ -457,7 +457,9 @@ def read_frames(
                 reference_latest, logged[raw.topic] = stamp, raw.log_time_ns
             full_estimate = raw.topic == where.estimate and not where.compact
             stamp = rosmsg.stamp_ns(message.image if full_estimate else message)
-            if raw.topic in (left_image, right_image) and unplaced.copy(raw.topic, stamp, message):
+            if raw.topic in (left_image, right_image) and unplaced.copy(
+                raw.topic, stamp, message, raw.log_time_ns
+            ):
                 state.copies[raw.topic] = state.copies.get(raw.topic, 0) + 1
                 continue  # the same image again (densify dropped it): no frame, no repeat
             if raw.topic in (left_image, right_image, *nearby):
@@ -606,12 +608,19 @@ class _UnplacedStamps:
         self._first_zero: dict[str, int] = {}  # where a topic's first message stamped 0 went
         self._moved: list[tuple[str, int, int]] = []
 
-    def copy(self, topic: str, stamp_ns: int, message: Any) -> bool:
-        """Return True for an image that repeats its topic's previous one (stamp not 0)."""
-        last = self._last_image.get(topic)
-        if stamp_ns and last is not None and _same_image(message, last, stamp_ns):
+    def copy(self, topic: str, stamp_ns: int, message: Any, log_time_ns: int) -> bool:
+        """Return True for an image that repeats its topic's previous one (densify's rule).
+
+        Stamped 0, the same log time too (``frontend.pair_forms.is_copy``).
+        """
+        last, last_log_time = self._last_image.get(topic, (None, 0))
+        if (
+            last is not None
+            and (stamp_ns or log_time_ns == last_log_time)
+            and _same_image(message, last, stamp_ns)
+        ):
             return True
-        self._last_image[topic] = message
+        self._last_image[topic] = (message, log_time_ns)
         return False
 
     def stamp(self, topic: str, stamp_ns: int, log_time_ns: int) -> int:

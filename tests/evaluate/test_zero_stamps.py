@@ -161,6 +161,28 @@ def test_an_image_logged_twice_is_skipped_as_densify_drops_it(logs: dict[str, Pa
     assert _scores(folder / "copies_dense.mcap") == _scores(folder / "dense.mcap")
 
 
+def test_a_stampless_image_logged_twice_at_one_log_time_is_skipped(logs: dict[str, Path]) -> None:
+    # review 14b R5: densify drops a stampless copy logged at its original's log time (a merge
+    # of overlapping bags); evaluate took it for a frame and said "give each frame its own stamp"
+    folder = logs["folder"]
+    copies = folder / "zero_copies.mcap"
+    seen = dict.fromkeys((LEFT_IMAGE, RIGHT_IMAGE), 0)
+    with McapCopy(logs["zero"], copies) as copy:  # the 2nd pair twice, at the same log times
+        for topic, channel_id, message in copy.messages():
+            copy.add(channel_id, message.log_time, message.data)
+            if topic in seen:
+                seen[topic] += 1
+                if seen[topic] == 2:
+                    copy.add(channel_id, message.log_time, message.data)
+    jobs.densify(copies, folder / "zero_copies_dense.mcap")
+    result, _ = evaluate_log(folder / "zero_copies_dense.mcap", OPTIONS)
+    assert result.notes == [
+        f"images logged again right after themselves were skipped (1 on {LEFT_IMAGE}, "
+        f"1 on {RIGHT_IMAGE}), as densify did"
+    ]
+    assert _scores(folder / "zero_copies_dense.mcap") == _scores(folder / "zero_dense.mcap")
+
+
 def test_a_clock_that_starts_at_zero_is_evaluated(tmp_path: Path) -> None:
     # KITTI's odometry times start at 0.0 s: import-kitti stamps and logs its first frame at
     # 0, whose outputs densify stamps with that log time, 0; evaluate refused the whole log
