@@ -295,13 +295,13 @@ def read_frames(
     records densify paired with), each when the log has the topic; a frame without one
     within it has None there and the distance to the nearest (``*_gap_ns``). A complete
     frame waits for each to have a message stamped at or after its own (they come in stamp
-    order, so the nearest one is then known) and read as far past the frame's log time as
-    the message it would take is before it (:meth:`_Stamped.settled`: after stamps restart,
-    the message of a stamp nearest the frame in log time may be logged after the frame's
-    left image, whatever the recorder's order), at most :data:`RIGHT_WAIT_FRAMES` frames for
-    the right image and :data:`TRUTH_WAIT_FRAMES` for truth and pose; a
-    frame whose message never comes (dropped) goes on without it. With a reference topic,
-    each frame carries the reference message nearest its stamp within
+    order, so the nearest one is then known) and, once the left stamps went back (a restart),
+    read as far past the frame's log time as the message it would take is before it
+    (:meth:`_Stamped.settled`: the message of a stamp nearest the frame in log time may then
+    be logged after the frame's left image, whatever the recorder's order), at most
+    :data:`RIGHT_WAIT_FRAMES` frames for the right image and :data:`TRUTH_WAIT_FRAMES` for
+    truth and pose; a frame whose message never comes (dropped) goes on without it. With a
+    reference topic, each frame carries the reference message nearest its stamp within
     ``state.reference_tolerance_ns`` (None: the frames' tolerance), each message matched to
     one frame, the one stamped nearest it (:meth:`_Stamped.claim`); a frame waits for a
     reference stamped at or after its own and for the next frame, at most
@@ -373,18 +373,19 @@ def read_frames(
         pending_log_times: dict[int, int] = {}  # of the left image of a pending stamp
         waiting: deque[_Complete] = deque()
         index = yielded = 0
+        left_high, restarted = -1, False  # the left stamps went back: the longer wait applies
 
         def ready(frame: _Complete) -> bool:
             """Return True when the oldest waiting frame has all it can still get."""
             stamp, log_time = frame.stamp_ns, frame.log_time_ns
             for topic in nearby:  # the right image waits less than truth from another source
                 wait = RIGHT_WAIT_FRAMES if topic == right_image else TRUTH_WAIT_FRAMES
-                # the nearest stamp is known once one at or after it is read; of a stamp that
+                # the nearest stamp is known once one at or after it is read; after stamps
                 # restarted, the message nearest the frame's log time once the topic is read
                 # as far past the frame as the one kept is before it (whatever the order)
                 if len(waiting) <= wait and (
                     latest.get(topic, -1) < stamp
-                    or not nearby[topic].settled(stamp, log_time, logged[topic])
+                    or (restarted and not nearby[topic].settled(stamp, log_time, logged[topic]))
                 ):
                     return False
             # the nearest reference is known once one stamped at or after the frame's is
@@ -483,6 +484,8 @@ def read_frames(
                 parts[raw.topic] = message
                 if raw.topic == left_image or stamp not in pending_log_times:
                     pending_log_times[stamp] = raw.log_time_ns
+                if raw.topic == left_image:
+                    restarted, left_high = restarted or stamp < left_high, max(left_high, stamp)
                 if len(parts) == complete:
                     del pending[stamp]
                     log_time = pending_log_times.pop(stamp)

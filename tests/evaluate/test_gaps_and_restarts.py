@@ -142,3 +142,16 @@ def test_progress_names_the_frames_to_come(
     jobs.evaluate(dense, tmp_path / "r", sweep_every=0, linear=False, basis_rows=False)
     jobs.evaluate(dense, tmp_path / "r3", max_frames=3, sweep_every=0, basis_rows=False)
     assert totals == [FRAMES, 3]
+
+
+def test_truth_logged_seconds_before_the_images_is_still_taken(tmp_path: Path) -> None:
+    # review 14c R1: the restart rule's longer wait, applied to every log, held frames past
+    # the 32 truth messages kept when truth was logged >= 1.6 s before the images (monotone
+    # stamps): 79 -> 31 frames scored; the wait now applies once the left stamps went back
+    frames = 40
+    log, out = tmp_path / "long.mcap", tmp_path / "long_dense.mcap"
+    jobs.synth(log, frames=frames, seed=43, scale=0.15, fmt="mcap")
+    jobs.densify(log, out)
+    early = _edited(out, tmp_path / "early.mcap", lags={DEPTH: -20 * PERIOD_NS})
+    assert _rows(_evaluate(early, Mode.STEREO)) == _rows(_evaluate(out, Mode.STEREO))
+    assert _evaluate(early, Mode.STEREO).frames == frames
