@@ -278,8 +278,11 @@ def _stereo(frame: Frame, sgbm: SgbmConfig) -> _Stereo | None:
     if frame.right is None:
         return None
     started = time.perf_counter()
-    # a pair narrower than the reference's range is matched with the widest range it fits
-    narrow = fitting(sgbm, int(frame.left.shape[1])) or sgbm
+    # a pair narrower than the reference's range is matched with the widest range it fits;
+    # none fits a pair too narrow for any (densify had no measurement there either)
+    narrow = fitting(sgbm, int(frame.left.shape[1]))
+    if narrow is None:
+        return None
     disparity = compute_disparity(frame.left, frame.right, narrow)
     return _Stereo(disparity, time.perf_counter() - started)
 
@@ -758,6 +761,7 @@ def evaluate_log(
         poses=mode is Mode.TEMPORAL,
     )
     left_out = LeftOut()
+    narrow: list[str] = []  # the size of frames too narrow for any SGBM range
     if mode is Mode.TEMPORAL:  # a pair is two frames one interval apart
         left_out.step_ns = frame_step_ns(path, topics, options.max_frames)
     for frame in frames:
@@ -780,6 +784,9 @@ def evaluate_log(
             frame_reference: npt.NDArray[np.float64] | None = truth
         elif has_truth:  # never SGBM for a frame of a log with truth: skipped, counted
             frame_reference = None
+        elif stereo is None and frame.right is not None:  # too narrow for SGBM: no reference
+            narrow.append(f"{frame.left.shape[1]}x{frame.left.shape[0]}")
+            continue
         elif stereo is None:
             raise LogReadError(no_reference_message(frame, images.right_topic, state))
         else:
@@ -814,6 +821,11 @@ def evaluate_log(
     result.measurements = state.measurements
     result.damage = list(state.damage)
     result.notes += state.notes + truth_values.notes()
+    if narrow:  # frames of images too narrow for any SGBM range: densify measured none there
+        result.notes.append(
+            f"{len(narrow)} frames left out: their images ({narrow[0]} px first) are too narrow "
+            "for SGBM's smallest range (16 disparities), so they have no SGBM reference"
+        )
     result.notes += [n for n in [state.reference_note(reference.topic)] if n] if reference else []
     causes = left_out.notes(state, GROUND_TRUTH_DEPTH if reference is None else reference.topic)
     causes += [state.incomplete_note] if state.incomplete_note else []

@@ -77,6 +77,15 @@ def test_a_small_first_pair_does_not_refuse_the_log(
     code, text = _run(capsys, "densify", log, "-o", tmp_path / "out.mcap")
     assert code == 0, text
     assert "1 of 4 frames had no measurement (images of 16x12 px" in text
+    # review 14c R3: evaluate refused the log ("pass a smaller --num-disparities", which it
+    # has not): the frame too narrow for any SGBM range has no reference and is left out
+    code, text = _run(capsys, "evaluate", tmp_path / "out.mcap", "-o", tmp_path / "report")
+    assert code == 0, text
+    assert f"3 frames of {tmp_path / 'out.mcap'}, stereo mode" in text
+    assert (
+        "note: 1 frames left out: their images (16x12 px first) are too narrow for SGBM's "
+        "smallest range (16 disparities), so they have no SGBM reference"
+    ) in text
 
 
 def test_dense_mode_names_the_smallest_range_for_a_camera_changed_mid_log(
