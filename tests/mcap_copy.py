@@ -45,11 +45,16 @@ class McapCopy:
         self._out.close()
         self._stream.close()
 
-    def messages(self) -> Iterator[tuple[str, int, Any]]:
-        """Yield (topic, output channel id, message) in file order."""
+    def messages(self, drop: tuple[str, ...] = ()) -> Iterator[tuple[str, int, Any]]:
+        """Yield (topic, output channel id, message) in file order.
+
+        ``drop``: topic prefixes left out, their channels too (a log without them).
+        """
         for schema, channel, message in make_reader(self._stream).iter_messages(
             log_time_order=False
         ):
+            if channel.topic.startswith(drop) and drop:
+                continue
             if channel.id not in self._channels:
                 if schema is not None and schema.id not in self._schemas:
                     self._schemas[schema.id] = self._writer.register_schema(

@@ -204,6 +204,13 @@ def no_reference_message(frame: Frame, right_topic: str, state: ReadState) -> st
         f"({state.tolerance_from}; the nearest is {gap / 1e6:.2f} ms away), so there is no "
         "SGBM reference"
     )
+    if state.undecodable.get(right_topic):  # its own right image may be the one skipped
+        return (
+            f"{start}; {state.undecodable[right_topic]} of {right_topic}'s messages read so far "
+            "do not decode (damaged, or bytes of another type): this frame's may be one of them, "
+            "so no tolerance is advised; evaluate a log with ground truth or pass "
+            "--reference-topic"
+        )
     if gap >= MAX_ADVISED_TOLERANCE_NS:  # no tolerance of a second or more is advised
         return (
             f"{start}; a second or more: the right images are not this frame's (stamped on "

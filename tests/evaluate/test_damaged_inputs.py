@@ -51,3 +51,27 @@ def test_a_damaged_input_message_is_skipped_as_densify_skipped_it(
         f"messages that do not decode were skipped (1 on {topic}: damaged, or bytes of "
         "another type), as densify skipped them"
     ) in result.notes
+
+
+def test_a_right_image_damaged_after_densify_is_not_answered_with_a_tolerance(
+    synth: Path, tmp_path: Path
+) -> None:
+    # review 14c R4: a densified log whose right image went bad afterwards (the frame's outputs
+    # are there) was refused with "pass --stamp-tolerance-ms 100": a neighbour's right image
+    from pcainterp_stream.errors import LogReadError
+
+    stripped = tmp_path / "no_truth.mcap"  # an SGBM reference: no truth in the log
+    with McapCopy(synth, stripped) as copy:
+        for _, channel_id, message in copy.messages(drop=("/ground_truth",)):
+            copy.add(channel_id, message.log_time, message.data)
+    jobs.densify(stripped, tmp_path / "dense.mcap")
+    damaged = tmp_path / "damaged.mcap"
+    seen = 0
+    with McapCopy(tmp_path / "dense.mcap", damaged) as copy:
+        for name, channel_id, message in copy.messages():
+            seen += name == RIGHT_IMAGE
+            cut = name == RIGHT_IMAGE and seen == 2
+            copy.add(channel_id, message.log_time, message.data[:40] if cut else message.data)
+    with pytest.raises(LogReadError, match="do not decode") as raised:
+        evaluate_log(damaged, OPTIONS)
+    assert "--stamp-tolerance-ms" not in str(raised.value)
