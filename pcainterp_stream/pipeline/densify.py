@@ -344,7 +344,7 @@ def densify(
     # "empty": frames without a single measurement, so without an estimate (NaN)
     robust = {"downweighted": 0, "most": 0, "resets": 0, "carried": 0, "carry_resets": 0}
     robust["empty"] = robust["stale_empty"] = 0
-    small: list[str] = []  # why the first frame without a measurement had none, by its size
+    small: list[str] = []  # the cause of the first frame without a measurement its size says
     stereo = processor.source is MeasurementSource.STEREO
     stale = StaleRight() if stereo else None  # a right image repeated: not matched
     beyond = (
@@ -545,10 +545,11 @@ def densify(
             else:
                 robust["empty"] += not result.estimated
                 height, width = result.frame.left.shape[:2]
-                if not (result.estimated or small):  # its size may say why
+                if not result.estimated:  # its size may say why
                     gftt = processor.gftt if processor.measurements == "sparse" else None
                     if cause := small_images_cause(width, height, gftt, sgbm):
-                        small.append(cause)
+                        small[:] = small or [cause]
+                        robust["small"] = robust.get("small", 0) + 1
             if beyond is not None:
                 beyond.result(result)
             if far is not None:
@@ -655,7 +656,7 @@ def densify(
         + (
             check.warnings(stats)
             if check is not None
-            else _empty_warning(robust["empty"], frames, small)
+            else _empty_warning(robust["empty"], frames, small, robust.get("small", 0))
         )
         + (stale.warnings(frames, robust["stale_empty"]) if stale is not None else [])
         + (beyond.warnings(frames, sgbm) if beyond is not None else [])
@@ -775,19 +776,20 @@ def _check_size(frame: StereoFrame, sgbm: SgbmConfig, log: Path, pairing: Pairin
         raise PcaInterpError(f"{log}: {pairing.left_topic}'s images{since} are {problem}")
 
 
-def _empty_warning(empty: int, frames: int, small: list[str]) -> list[str]:
+def _empty_warning(empty: int, frames: int, small: list[str], sized: int) -> list[str]:
     """The warning for frames that had no measurement at all (none when there were none).
 
     For measurements from the stereo pair, sparse or dense (a dense frame whose SGBM map
     matched nothing, as a blank pair's); a feature stream's frames without one are warned
     of by :class:`~pcainterp_stream.pipeline.feature_check.FeatureStreamCheck`, by cause.
-    ``small``: why the first such frame had none, by its size
-    (:func:`~pcainterp_stream.frontend.image_limits.small_images_cause`; none: not its size).
+    ``small``: the cause of the first such frame whose size says why
+    (:func:`~pcainterp_stream.frontend.image_limits.small_images_cause`), ``sized`` how many
+    such frames there were; the others are blamed on their content.
     """
     if not empty:
         return []
     return [
-        f"{empty} of {frames} frames had no measurement ({next(iter(small), empty_cause(None))}): "
+        f"{empty} of {frames} frames had no measurement ({_empty_causes(empty, small, sized)}): "
         "they have no estimate, their depth is NaN"
     ]
 
@@ -823,3 +825,12 @@ def _order_warnings(reader: LogReader, stats: PairingStats) -> list[str]:
         f"read it in that order; this cost up to {lost} stereo pairs ({stats.unpaired_left} "
         f"left and {stats.unpaired_right} right images unpaired); {fix}"
     ]
+
+
+def _empty_causes(empty: int, small: list[str], sized: int) -> str:
+    """Why frames had no measurement: their size (the first such frame's) or their content."""
+    if not small:
+        return empty_cause(None)
+    if sized >= empty:
+        return small[0]
+    return f"{sized} of them {small[0]}; the others {empty_cause(None)}"

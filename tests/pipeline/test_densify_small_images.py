@@ -12,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from mcap_copy import McapCopy
 
 from pcainterp_stream import cli
 from pcainterp_stream.io import rosmsg
@@ -130,3 +131,25 @@ def test_frames_of_small_images_without_a_measurement_name_their_size(
         "leave little to match; or blank, dark or textureless ones): they have no estimate, "
         "their depth is NaN"
     ) in text
+
+
+def test_dark_frames_are_not_blamed_on_a_later_small_camera(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # review 14c R5: two black 96x72 frames were counted under a later 16x12 camera's size
+    log = _tiny_log(tmp_path / "mix.mcap", [(96, 72)] * 4 + [(16, 12)] * 2)
+    dark = tmp_path / "dark.mcap"
+    seen = 0
+    with McapCopy(log, dark) as copy:  # frames 1 and 2 black on both sides
+        for topic, channel_id, message in copy.messages():
+            data = bytearray(message.data)
+            if topic in (LEFT, RIGHT):
+                seen += topic == LEFT
+                if seen in (2, 3):
+                    height, width = 72, 96
+                    data[len(data) - height * width :] = bytes(height * width)
+            copy.add(channel_id, message.log_time, bytes(data))
+    code, text = _run(capsys, "densify", dark, "-o", tmp_path / "out.mcap")
+    assert code == 0, text
+    assert "4 of 6 frames had no measurement (2 of them images of 16x12 px" in text
+    assert "; the others blank, dark or textureless images)" in text
