@@ -18,6 +18,12 @@ the object's disparity. Points placed there were 50-110 px too high and raised t
 the background around them by 11-16 % at 5-20 m on a synthetic drive; the check removes 2 %
 of the added points, these among them (measured in docs/sharper_sparse_2.md).
 
+The candidate grid's side grows with the image as the fill lattice's does
+(:func:`.fill.scaled_spacing`), and the points kept on a frame are capped at
+:data:`MAX_NEAR_POINTS` (the lattice's count on a 1920 x 1080 pair) by keeping every
+k-th grid row and column: a near wall over a whole 1920 x 1080 image would otherwise add
+~4,400 points (3840 x 2160: ~19,000) to a solve cubic in its points.
+
 A cheap trigger (:func:`wants_near`) skips the extra match on frames whose half-resolution
 map has (almost) no values near the range's end. The processor adds these points, with
 ``NearConfig.noise`` extra noise, when ``ProcessorConfig.near`` is set (``densify
@@ -32,6 +38,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from pcainterp_stream.frontend.fill import scaled_spacing
 from pcainterp_stream.frontend.stereo import (
     SgbmConfig,
     _bilinear,
@@ -45,6 +52,7 @@ FloatArray = npt.NDArray[np.float32]
 UInt8Array = npt.NDArray[np.uint8]
 
 __all__ = [
+    "MAX_NEAR_POINTS",
     "NearConfig",
     "NearPoints",
     "extend_near",
@@ -54,6 +62,14 @@ __all__ = [
     "quarter_images",
     "wants_near",
 ]
+
+MAX_NEAR_POINTS = 1250
+"""Most points :func:`near_points` adds on a frame: the fill lattice's count on
+:data:`.fill.FILL_REFERENCE_AREA` at its 40 px side. Above it the kept grid points are
+thinned to every k-th grid row and column (the smallest k that fits): an even, coarser
+grid. Never reached on a KITTI-size image (its grid has ~880 candidates in all). Measured
+on a textured wall at 180 px disparity (docs/sharper_sparse_2.md, "The near reach's
+cost"): 1920 x 1080, 4,433 -> 1,112 points and 3.6 -> 0.5 s per frame."""
 
 
 @dataclass(frozen=True)
@@ -66,7 +82,9 @@ class NearConfig:
         margin: a quarter value from ``match_range - margin`` up is a candidate (px).
         agree: a candidate whose half-resolution value is within this many px is already
             measured there and skipped (px).
-        spacing: side of the candidate grid (full-resolution px).
+        spacing: side of the candidate grid (full-resolution px) on a grid area up to
+            :data:`.fill.FILL_REFERENCE_AREA`; grown beyond it as :func:`.fill.scaled_spacing`
+            grows the fill lattice's.
         min_support: share of valid quarter px required in the 5 x 5 (quarter px) window.
         max_gradient: the smoothness check of the quarter lookup (quarter px per px).
         radius: the quarter lookup's support patch grows this many quarter px around it.
@@ -183,6 +201,24 @@ def _support(quarter: FloatArray) -> FloatArray:
     return np.asarray(cv2.blur(valid, (5, 5), borderType=cv2.BORDER_CONSTANT), np.float32)
 
 
+def _thinned(keep: npt.NDArray[np.bool_], columns: int, most: int) -> npt.NDArray[np.bool_]:
+    """``keep`` over a row-major grid of ``columns`` columns, at most ``most`` kept.
+
+    Above ``most``, only every k-th row and column of the grid stays (the smallest k that
+    fits): an even grid k times coarser, not one side of the image cut off.
+    """
+    if most <= 0 or int(np.count_nonzero(keep)) <= most:
+        return keep
+    index = np.arange(keep.shape[0])
+    row, column = index // columns, index % columns
+    step = 2
+    while True:
+        thin: npt.NDArray[np.bool_] = keep & (row % step == 0) & (column % step == 0)
+        if int(np.count_nonzero(thin)) <= most:
+            return thin
+        step += 1
+
+
 def near_points(
     left: UInt8Array,
     right: UInt8Array,
@@ -190,6 +226,8 @@ def near_points(
     pixels: FloatArray,
     disparities: FloatArray,
     config: NearConfig = NearConfig(),  # frozen, so a shared default is safe
+    *,
+    max_points: int = MAX_NEAR_POINTS,
 ) -> NearPoints:
     """Measure beyond the half-resolution matcher's range where it cannot.
 
@@ -200,6 +238,7 @@ def near_points(
         pixels: (k, 2) the front end's lookups (x, y) px.
         disparities: (k,) their values (px).
         config: the options.
+        max_points: most points added (:data:`MAX_NEAR_POINTS`); 0: no cap.
 
     Returns:
         The new points (full-resolution px and values) and the lookups to drop.
@@ -266,8 +305,10 @@ def near_points(
 
     # the candidate grid, right of the quarter match's own left band
     first_x = max(config.border, int(np.ceil(config.num_disparities * scale)))
-    xs = np.arange(first_x, width - config.border, config.spacing, dtype=np.float32)
-    ys = np.arange(config.border, height - config.border, config.spacing, dtype=np.float32)
+    area = (first_x, config.border, width - config.border, height - config.border)
+    spacing = scaled_spacing(config.spacing, area)
+    xs = np.arange(first_x, width - config.border, spacing, dtype=np.float32)
+    ys = np.arange(config.border, height - config.border, spacing, dtype=np.float32)
     grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2).astype(np.float32)
     values, confident = at_quarter(grid)
     rows = np.clip(np.rint(grid[:, 1]).astype(np.int64), 0, height - 1)
@@ -278,6 +319,7 @@ def near_points(
     keep = confident & ~measured
     # the right view last: only the points every cheaper check kept need it
     keep[keep] = right_agrees(grid[keep], values[keep])
+    keep = _thinned(keep, xs.shape[0], max_points)
     contradicted = np.zeros(count, bool)
     if config.drop_below > 0.0 and count:
         lookups = np.asarray(pixels, np.float32)

@@ -178,3 +178,63 @@ def test_a_16_bit_pair_is_matched_on_one_grey_scale() -> None:
     assert got[0].shape[0] > 20
     np.testing.assert_array_equal(got[0], want[0])
     np.testing.assert_array_equal(got[1], want[1])
+
+
+def _wall(height: int, width: int, disparity: int) -> tuple[npt.NDArray[np.uint8], ...]:
+    """A textured wall over the whole pair at ``disparity`` px (finer texture than _pair's)."""
+    rng = np.random.default_rng(11)
+    noise = cv2.GaussianBlur(rng.random((height, width + disparity)).astype(np.float32), (0, 0), 3)
+    scene = ((noise - noise.min()) / (noise.max() - noise.min()) * 255).astype(np.uint8)
+    return np.ascontiguousarray(scene[:, :width]), np.ascontiguousarray(scene[:, disparity:])
+
+
+def test_a_near_wall_over_a_1080p_pair_adds_at_most_the_lattices_count() -> None:
+    # a 20 px grid over a near wall of a 1920 x 1080 pair was ~4,400 points, a 3840 x 2160
+    # one ~19,000: the estimate's solve is cubic in them (200 s and 12 GB for a 4K frame);
+    # now at most the fill lattice's count on a 1920 x 1080 pair (near.MAX_NEAR_POINTS)
+    most = 1250
+    left, right = _wall(1080, 1920, 180)
+    half = np.full(left.shape, np.nan, np.float32)  # SGBM measured nothing: all candidates
+    empty = np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
+    found = near_points(left, right, half, *empty, NearConfig(trigger_share=0.0))
+    assert most // 2 < found.pixels.shape[0] <= most
+    assert np.median(np.abs(found.disparities - 180)) < 2.0
+    # an even, coarser grid over the whole wall, not one side of it cut off
+    assert found.pixels[:, 0].min() < 300
+    assert found.pixels[:, 0].max() > 1850
+    assert found.pixels[:, 1].min() < 30
+    assert found.pixels[:, 1].max() > 1030
+    xs, ys = np.unique(found.pixels[:, 0]), np.unique(found.pixels[:, 1])
+    assert np.ptp(np.diff(xs)) < 1e-3
+    assert np.ptp(np.diff(ys)) < 1e-3
+    assert np.diff(xs)[0] == pytest.approx(40.0)  # every second column of the 20 px grid
+
+
+def test_the_cap_thins_the_grid_evenly_and_leaves_fewer_points_alone() -> None:
+    left, right = _pair(NEAR)
+    half = compute_disparity(left, right, SgbmConfig(downscale=2))
+    empty = np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
+    always = NearConfig(trigger_share=0.0)
+    full = near_points(left, right, half, *empty, always, max_points=0)
+    same = near_points(left, right, half, *empty, always, max_points=full.pixels.shape[0])
+    np.testing.assert_array_equal(same.pixels, full.pixels)
+    thin = near_points(left, right, half, *empty, always, max_points=full.pixels.shape[0] // 3)
+    assert 0 < thin.pixels.shape[0] <= full.pixels.shape[0] // 3
+    # a subset of the grid's points, every k-th row and column
+    wanted = {tuple(p) for p in full.pixels.tolist()}
+    assert all(tuple(p) in wanted for p in thin.pixels.tolist())
+    assert np.diff(np.unique(thin.pixels[:, 0])).min() >= 2 * always.spacing
+
+
+def test_the_grid_side_grows_with_a_large_image_as_the_lattices_does() -> None:
+    from pcainterp_stream.frontend.fill import scaled_spacing
+
+    left, right = _wall(2160, 3840, 180)
+    half = np.full(left.shape, np.nan, np.float32)
+    empty = np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
+    found = near_points(left, right, half, *empty, NearConfig(trigger_share=0.0), max_points=0)
+    side = scaled_spacing(20.0, (256, 8, 3840 - 8, 2160 - 8))
+    assert side > 38.0
+    xs = np.unique(found.pixels[:, 0])
+    assert np.median(np.diff(xs)) == pytest.approx(side, abs=1.0)
+    assert found.pixels.shape[0] < 5200  # against ~19,000 at 20 px
