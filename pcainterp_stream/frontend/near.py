@@ -20,8 +20,8 @@ of the added points, these among them (measured in docs/sharper_sparse_2.md).
 
 The candidate grid's side grows with the image as the fill lattice's does
 (:func:`.fill.scaled_spacing`), and the points kept on a frame are capped at
-:data:`MAX_NEAR_POINTS` (the lattice's count on a 1920 x 1080 pair) by keeping every
-k-th grid row and column: a near wall over a whole 1920 x 1080 image would otherwise add
+:data:`MAX_NEAR_POINTS` (the lattice's count on a 1920 x 1080 pair) by laying the grid
+again with a wider side: a near wall over a whole 1920 x 1080 image would otherwise add
 ~4,400 points (3840 x 2160: ~19,000) to a solve cubic in its points.
 
 A cheap trigger (:func:`wants_near`) skips the extra match on frames whose half-resolution
@@ -32,6 +32,7 @@ map has (almost) no values near the range's end. The processor adds these points
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import cv2
@@ -65,11 +66,11 @@ __all__ = [
 
 MAX_NEAR_POINTS = 1250
 """Most points :func:`near_points` adds on a frame: the fill lattice's count on
-:data:`.fill.FILL_REFERENCE_AREA` at its 40 px side. Above it the kept grid points are
-thinned to every k-th grid row and column (the smallest k that fits): an even, coarser
-grid. Never reached on a KITTI-size image (its grid has ~880 candidates in all). Measured
-on a textured wall at 180 px disparity (docs/sharper_sparse_2.md, "The near reach's
-cost"): 1920 x 1080, 4,433 -> 1,112 points and 3.6 -> 0.5 s per frame."""
+:data:`.fill.FILL_REFERENCE_AREA` at its 40 px side. Above it the grid is laid again,
+its side widened by the square root of the excess (an even, coarser grid over the whole
+image, not one side cut off), until the kept points fit. Never reached on a KITTI-size
+image (its grid has ~880 candidates in all), so nothing changes there. Measured on a
+textured wall at 180 px disparity (docs/sharper_sparse_2.md, "The near reach's cost")."""
 
 
 @dataclass(frozen=True)
@@ -201,24 +202,6 @@ def _support(quarter: FloatArray) -> FloatArray:
     return np.asarray(cv2.blur(valid, (5, 5), borderType=cv2.BORDER_CONSTANT), np.float32)
 
 
-def _thinned(keep: npt.NDArray[np.bool_], columns: int, most: int) -> npt.NDArray[np.bool_]:
-    """``keep`` over a row-major grid of ``columns`` columns, at most ``most`` kept.
-
-    Above ``most``, only every k-th row and column of the grid stays (the smallest k that
-    fits): an even grid k times coarser, not one side of the image cut off.
-    """
-    if most <= 0 or int(np.count_nonzero(keep)) <= most:
-        return keep
-    index = np.arange(keep.shape[0])
-    row, column = index // columns, index % columns
-    step = 2
-    while True:
-        thin: npt.NDArray[np.bool_] = keep & (row % step == 0) & (column % step == 0)
-        if int(np.count_nonzero(thin)) <= most:
-            return thin
-        step += 1
-
-
 def near_points(
     left: UInt8Array,
     right: UInt8Array,
@@ -303,23 +286,34 @@ def near_points(
             disagrees: npt.NDArray[np.bool_] = np.abs(there - value) > config.lr_max_diff
         return ~disagrees
 
-    # the candidate grid, right of the quarter match's own left band
+    def kept_on_grid(side: float) -> tuple[FloatArray, FloatArray]:
+        """The points every check keeps, and their values, of a grid of ``side`` px.
+
+        The grid lies right of the quarter match's own left band.
+        """
+        xs = np.arange(first_x, width - config.border, side, dtype=np.float32)
+        ys = np.arange(config.border, height - config.border, side, dtype=np.float32)
+        grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2).astype(np.float32)
+        values, confident = at_quarter(grid)
+        rows = np.clip(np.rint(grid[:, 1]).astype(np.int64), 0, height - 1)
+        cols = np.clip(np.rint(grid[:, 0]).astype(np.int64), 0, width - 1)
+        half = half_map[rows, cols]
+        with np.errstate(invalid="ignore"):
+            measured = np.abs(half - values) <= config.agree
+        keep = confident & ~measured
+        # the right view last: only the points every cheaper check kept need it
+        keep[keep] = right_agrees(grid[keep], values[keep])
+        return np.ascontiguousarray(grid[keep]), values[keep].astype(np.float32)
+
     first_x = max(config.border, int(np.ceil(config.num_disparities * scale)))
     area = (first_x, config.border, width - config.border, height - config.border)
-    spacing = scaled_spacing(config.spacing, area)
-    xs = np.arange(first_x, width - config.border, spacing, dtype=np.float32)
-    ys = np.arange(config.border, height - config.border, spacing, dtype=np.float32)
-    grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2).astype(np.float32)
-    values, confident = at_quarter(grid)
-    rows = np.clip(np.rint(grid[:, 1]).astype(np.int64), 0, height - 1)
-    cols = np.clip(np.rint(grid[:, 0]).astype(np.int64), 0, width - 1)
-    half = half_map[rows, cols]
-    with np.errstate(invalid="ignore"):
-        measured = np.abs(half - values) <= config.agree
-    keep = confident & ~measured
-    # the right view last: only the points every cheaper check kept need it
-    keep[keep] = right_agrees(grid[keep], values[keep])
-    keep = _thinned(keep, xs.shape[0], max_points)
+    side = scaled_spacing(config.spacing, area)
+    found, found_values = kept_on_grid(side)
+    # above the cap, the grid again with a side that fits (the points are spread over a
+    # near surface as over the grid: their count falls with the square of the side)
+    while max_points > 0 and found.shape[0] > max_points:
+        side *= max(math.sqrt(found.shape[0] / max_points), 1.02)
+        found, found_values = kept_on_grid(side)
     contradicted = np.zeros(count, bool)
     if config.drop_below > 0.0 and count:
         lookups = np.asarray(pixels, np.float32)
@@ -327,9 +321,7 @@ def near_points(
         with np.errstate(invalid="ignore"):
             contradicted = sure & (disparities < there - np.float32(config.drop_below))
         contradicted[contradicted] = right_agrees(lookups[contradicted], there[contradicted])
-    return NearPoints(
-        np.ascontiguousarray(grid[keep]), values[keep].astype(np.float32), contradicted, True
-    )
+    return NearPoints(found, found_values, contradicted, True)
 
 
 def extend_near(
