@@ -279,7 +279,9 @@ def _add_estimate_options(densify: argparse.ArgumentParser) -> None:
         help="also match at quarter resolution (twice SGBM's range) on frames whose map "
         "nears the range's end, and measure the surfaces nearer than the range there (each "
         "value checked against the right view's quarter map): ~24%% "
-        "lower error on drives with such surfaces, none elsewhere; --no-near-reach: off "
+        "lower error on drives with such surfaces, none elsewhere; at most 1250 points per "
+        "frame (the fill lattice's count at 1920x1080; a surface over the whole image gets "
+        "a coarser grid); --no-near-reach: off "
         "(default: %(default)s; docs/sharper_sparse_2.md)",
     )
     estimate.add_argument(
