@@ -280,8 +280,8 @@ def _add_estimate_options(densify: argparse.ArgumentParser) -> None:
         "nears the range's end, and measure the surfaces nearer than the range there (each "
         "value checked against the right view's quarter map): ~24%% "
         "lower error on drives with such surfaces, none elsewhere; at most 1250 points per "
-        "frame (the fill lattice's count at 1920x1080; a surface over the whole image gets "
-        "a coarser grid); --no-near-reach: off "
+        "frame (the fill lattice's count at 1920x1080; a near surface over more than ~30%% of "
+        "a 1920x1080 image gets a coarser grid); --no-near-reach: off "
         "(default: %(default)s; docs/sharper_sparse_2.md)",
     )
     estimate.add_argument(

@@ -786,6 +786,7 @@ def evaluate_log(
             frame_reference = None
         elif stereo is None and frame.right is not None:  # too narrow for SGBM: no reference
             narrow.append(f"{frame.left.shape[1]}x{frame.left.shape[0]}")
+            previous = None  # the next frame pairs with none (temporal mode)
             continue
         elif stereo is None:
             raise LogReadError(no_reference_message(frame, images.right_topic, state))
@@ -823,8 +824,9 @@ def evaluate_log(
     result.notes += state.notes + truth_values.notes()
     if narrow:  # frames of images too narrow for any SGBM range: densify measured none there
         result.notes.append(
-            f"{len(narrow)} frames left out: their images ({narrow[0]} px first) are too narrow "
-            "for SGBM's smallest range (16 disparities), so they have no SGBM reference"
+            f"{len(narrow)} frame{'s' if len(narrow) > 1 else ''} left out: their images "
+            f"({narrow[0]} px first) are too narrow for SGBM's smallest range (16 disparities), "
+            "so they have no SGBM reference"
         )
     result.notes += [n for n in [state.reference_note(reference.topic)] if n] if reference else []
     causes = left_out.notes(state, GROUND_TRUTH_DEPTH if reference is None else reference.topic)

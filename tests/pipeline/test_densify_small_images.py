@@ -84,7 +84,7 @@ def test_a_small_first_pair_does_not_refuse_the_log(
     assert code == 0, text
     assert f"3 frames of {tmp_path / 'out.mcap'}, stereo mode" in text
     assert (
-        "note: 1 frames left out: their images (16x12 px first) are too narrow for SGBM's "
+        "note: 1 frame left out: their images (16x12 px first) are too narrow for SGBM's "
         "smallest range (16 disparities), so they have no SGBM reference"
     ) in text
 
