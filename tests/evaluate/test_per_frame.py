@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from blanked_log import dense_and_blanked
 
 from pcainterp_stream.evaluate import report as report_module
 from pcainterp_stream.evaluate.log_frames import Frame
@@ -23,45 +24,14 @@ from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log
 from pcainterp_stream.evaluate.report_folder import report_json
 from pcainterp_stream.evaluate.tables import results_markdown, summary_table
 from pcainterp_stream.frontend.stereo import SgbmConfig
-from pcainterp_stream.io import rosmsg
-from pcainterp_stream.io.logreader import decode_image, open_log
-from pcainterp_stream.io.logwriter import open_writer
-from pcainterp_stream.pipeline import jobs
 
-LEFT, RIGHT = "/stereo/left/image_rect", "/stereo/right/image_rect"
 STEREO_SGBM = EvaluateOptions(mode=Mode.STEREO, sweep_every=0, sgbm_reference=True)
 OWN_PAIRS = "the reference is SGBM of the log's own pairs"
 
 
-def _blanked(source: Path, target: Path, frames: set[int]) -> Path:
-    """Copy a log with the stereo images of ``frames`` (counted from 0) all black."""
-    seen: dict[str, int] = {}
-    with open_log(source) as reader, open_writer(target, "mcap") as writer:
-        for raw in reader.messages():
-            message = reader.decode(raw)
-            if raw.topic in (LEFT, RIGHT):
-                index = seen[raw.topic] = seen.get(raw.topic, -1) + 1
-                if index in frames:
-                    black = decode_image(message) * 0
-                    message = rosmsg.image_message(
-                        black,
-                        rosmsg.stamp_ns(message),
-                        message.header.frame_id,
-                        encoding=message.encoding,
-                    )
-            writer.add_message(raw.topic, message, raw.log_time_ns)
-    return target
-
-
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    folder = tmp_path_factory.mktemp("per_frame")
-    log = folder / "drive.mcap"
-    jobs.synth(log, frames=6, seed=31, scale=0.25, fmt="mcap")
-    dense, blank_dense = folder / "dense.mcap", folder / "blank_dense.mcap"
-    jobs.densify(log, dense)
-    jobs.densify(_blanked(log, folder / "blank.mcap", {1, 2}), blank_dense)
-    return {"dense": dense, "blank_dense": blank_dense}
+    return dense_and_blanked(tmp_path_factory.mktemp("per_frame"))
 
 
 def test_results_json_has_each_frames_figures_adding_up_to_the_table(

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from blanked_log import blanked, dense_and_blanked
 
 from pcainterp_stream import cli
 from pcainterp_stream.evaluate import report as report_module
@@ -18,43 +19,12 @@ from pcainterp_stream.evaluate import report_folder
 from pcainterp_stream.evaluate.metrics import Mode
 from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log
 from pcainterp_stream.evaluate.tables import results_markdown, summary_table
-from pcainterp_stream.io import rosmsg
-from pcainterp_stream.io.logreader import decode_image, open_log
-from pcainterp_stream.io.logwriter import open_writer
 from pcainterp_stream.pipeline import jobs
-
-LEFT, RIGHT = "/stereo/left/image_rect", "/stereo/right/image_rect"
-
-
-def _blanked(source: Path, target: Path, frames: set[int]) -> Path:
-    """Copy a log with the stereo images of ``frames`` (counted from 0) all black."""
-    seen: dict[str, int] = {}
-    with open_log(source) as reader, open_writer(target, "mcap") as writer:
-        for raw in reader.messages():
-            message = reader.decode(raw)
-            if raw.topic in (LEFT, RIGHT):
-                index = seen[raw.topic] = seen.get(raw.topic, -1) + 1
-                if index in frames:
-                    black = decode_image(message) * 0
-                    message = rosmsg.image_message(
-                        black,
-                        rosmsg.stamp_ns(message),
-                        message.header.frame_id,
-                        encoding=message.encoding,
-                    )
-            writer.add_message(raw.topic, message, raw.log_time_ns)
-    return target
 
 
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    folder = tmp_path_factory.mktemp("report_output")
-    log = folder / "drive.mcap"
-    jobs.synth(log, frames=6, seed=31, scale=0.25, fmt="mcap")
-    dense, blank_dense = folder / "dense.mcap", folder / "blank_dense.mcap"
-    jobs.densify(log, dense)
-    jobs.densify(_blanked(log, folder / "blank.mcap", {1, 2}), blank_dense)
-    return {"folder": folder, "log": log, "dense": dense, "blank_dense": blank_dense}
+    return dense_and_blanked(tmp_path_factory.mktemp("report_output"))
 
 
 def test_frames_without_a_measurement_are_left_out_of_every_method(
@@ -89,7 +59,7 @@ def test_a_log_without_any_measurement_cannot_be_evaluated(tmp_path: Path) -> No
     log = tmp_path / "drive.mcap"
     jobs.synth(log, frames=2, seed=32, scale=0.25, fmt="mcap")
     dense = tmp_path / "dense.mcap"
-    jobs.densify(_blanked(log, tmp_path / "black.mcap", {0, 1}), dense)
+    jobs.densify(blanked(log, tmp_path / "black.mcap", {0, 1}), dense)
     with pytest.raises(
         LogReadError, match=r"\(2 densified frames read, 2 without a measurement\)$"
     ):
