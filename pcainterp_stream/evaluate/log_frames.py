@@ -25,9 +25,9 @@ import numpy.typing as npt
 
 from pcainterp_stream.errors import LogReadError, PcaInterpError
 from pcainterp_stream.evaluate.reference import ReferenceTopic
-from pcainterp_stream.frontend.image_clock import ImageClock
+from pcainterp_stream.evaluate.stamped import SeenStamps, Stamped, UnplacedStamps
 from pcainterp_stream.frontend.images import PairImages
-from pcainterp_stream.frontend.pair_forms import grey_alike, same_image_message
+from pcainterp_stream.frontend.pair_forms import grey_alike
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import decode_image, open_log
 from pcainterp_stream.io.output_cameras import FrameCameras, features_focal_baseline
@@ -297,13 +297,13 @@ def read_frames(
     frame waits for each to have a message stamped at or after its own (they come in stamp
     order, so the nearest one is then known) and, once the left stamps went back (a restart),
     read as far past the frame's log time as the message it would take is before it
-    (:meth:`_Stamped.settled`: the message of a stamp nearest the frame in log time may then
+    (:meth:`Stamped.settled`: the message of a stamp nearest the frame in log time may then
     be logged after the frame's left image, whatever the recorder's order), at most
     :data:`RIGHT_WAIT_FRAMES` frames for the right image and :data:`TRUTH_WAIT_FRAMES` for
     truth and pose; a frame whose message never comes (dropped) goes on without it. With a
     reference topic, each frame carries the reference message nearest its stamp within
     ``state.reference_tolerance_ns`` (None: the frames' tolerance), each message matched to
-    one frame, the one stamped nearest it (:meth:`_Stamped.claim`); a frame waits for a
+    one frame, the one stamped nearest it (:meth:`Stamped.claim`); a frame waits for a
     reference stamped at or after its own and for the next frame, at most
     :data:`REFERENCE_WAIT_FRAMES` frames. The waits bound the frames held in memory. Of
     messages of one topic with the same stamp (stamps that restart mid-log, as a simulator
@@ -351,7 +351,7 @@ def read_frames(
         truth = [] if reference is not None else [GROUND_TRUTH_DEPTH]
         nearby_topics = [right_image, *truth, *([GROUND_TRUTH_POSE] if poses else [])]
         nearby = {
-            t: _Stamped(POSE_BUFFER if t == GROUND_TRUTH_POSE else PENDING_FRAMES)
+            t: Stamped(POSE_BUFFER if t == GROUND_TRUTH_POSE else PENDING_FRAMES)
             for t in nearby_topics
             if t in present
         }
@@ -362,13 +362,13 @@ def read_frames(
         wanted += infos
         if reference is not None and reference.topic not in wanted:
             wanted.append(reference.topic)
-        references = _Stamped(REFERENCE_BUFFER)
+        references = Stamped(REFERENCE_BUFFER)
         reference_latest = -1  # the last reference stamp read
         released: list[int] = []  # the stamp of the frame released last
-        stamps = _SeenStamps()  # of the topics matched by stamp: repeated stamps counted
-        unplaced = _UnplacedStamps(left_image, *nearby)  # the right image, truth, poses
+        stamps = SeenStamps()  # of the topics matched by stamp: repeated stamps counted
+        unplaced = UnplacedStamps(left_image, *nearby)  # the right image, truth, poses
         # the reference on its own clock, by the same rule (a sim clock stamps every topic)
-        reference_clock = _UnplacedStamps(*([reference.topic] if reference is not None else []))
+        reference_clock = UnplacedStamps(*([reference.topic] if reference is not None else []))
         pending: dict[int, dict[str, Any]] = {}
         pending_log_times: dict[int, int] = {}  # of the left image of a pending stamp
         waiting: deque[_Complete] = deque()
@@ -453,7 +453,7 @@ def read_frames(
             if reference is not None and raw.topic == reference.topic:
                 # stamped 0 or its previous message's: placed as truth and the frames are
                 stamp = reference_clock.stamp(raw.topic, rosmsg.stamp_ns(message), raw.log_time_ns)
-                stamps.first(raw.topic, stamp, state)  # a repeat is counted, and kept
+                stamps.first(raw.topic, stamp, state.repeated)  # a repeat is counted, and kept
                 references.add(stamp, raw.log_time_ns, message)
                 reference_latest, logged[raw.topic] = stamp, raw.log_time_ns
             full_estimate = raw.topic == where.estimate and not where.compact
@@ -473,7 +473,7 @@ def read_frames(
                 # (stamp 0 at log time 0 is a clock that starts at 0: KITTI's times.txt)
                 raise LogReadError(_zero_output_message(path, raw.topic, left_image))
             if raw.topic in nearby:
-                stamps.first(raw.topic, stamp, state)  # a repeat is counted, and kept
+                stamps.first(raw.topic, stamp, state.repeated)  # a repeat is counted, and kept
                 nearby[raw.topic].add(stamp, raw.log_time_ns, message)
                 # the last stamp, not the largest: after stamps restart, a frame of the new
                 # run waits for the new run's messages
@@ -583,79 +583,6 @@ def _count_incomplete(parts: dict[str, Any], grouped: list[str], state: ReadStat
             state.incomplete[topic] = state.incomplete.get(topic, 0) + 1
 
 
-class _UnplacedStamps:
-    """Put at its log time a message whose header stamp does not place it, as densify does.
-
-    densify stamps the outputs of a frame whose left image's header stamp is 0 (not set) or
-    that of the image before it on the images' clock, or with the left image's log time when
-    no image before had a stamp (``StereoPairer.full_result``, :mod:`frontend.image_clock`);
-    its left image is placed so here, and so are a right image (the pair was made by log
-    time), truth, poses and a reference topic's messages (each on its own clock: a coarse or
-    simulator clock repeats their stamps too). An image that is its
-    topic's previous one again (same stamp, size, encoding and bytes: a re-send, a merged bag) is a
-    copy, which densify drops (``StereoPairer``'s duplicates): :meth:`copy` tells it.
-
-    The first left image stamped 0 (a clock that starts at 0, or none) is placed at its log
-    time, and so is the first message stamped 0 of every other topic, at its own log time:
-    densify paired the first right image with the left by their equal stamps, whatever their
-    log times, so a first message stamped 0 of another topic logged beside it (neither
-    topic's second message read before the other's first) is placed with the left image.
-    When it was read before the left one, :meth:`moved` says where it went.
-    """
-
-    def __init__(self, *clocked: str) -> None:
-        self._clocks = {topic: ImageClock() for topic in clocked}
-        self._last_image: dict[str, Any] = {}
-        self._left = clocked[0] if clocked else ""
-        self._read: dict[str, int] = {}  # messages read (copies not) of each topic
-        self._first_zero: dict[str, int] = {}  # where a topic's first message stamped 0 went
-        self._moved: list[tuple[str, int, int]] = []
-
-    def copy(self, topic: str, stamp_ns: int, message: Any, log_time_ns: int) -> bool:
-        """Return True for an image that repeats its topic's previous one (densify's rule).
-
-        Stamped 0, the same log time too (``frontend.pair_forms.is_copy``).
-        """
-        last, last_log_time = self._last_image.get(topic, (None, 0))
-        if (
-            last is not None
-            and (stamp_ns or log_time_ns == last_log_time)
-            and _same_image(message, last, stamp_ns)
-        ):
-            return True
-        self._last_image[topic] = (message, log_time_ns)
-        return False
-
-    def stamp(self, topic: str, stamp_ns: int, log_time_ns: int) -> int:
-        """Return the stamp to match a message of ``topic`` by: its header stamp or log time."""
-        clock = self._clocks.get(topic)
-        if clock is None:
-            return log_time_ns if stamp_ns == 0 else stamp_ns
-        placed = clock.stamp(stamp_ns, log_time_ns)
-        read = self._read[topic] = self._read.get(topic, 0) + 1
-        left = self._first_zero.get(self._left) if self._read.get(self._left) == 1 else None
-        if read == 1 and stamp_ns == 0 and topic == self._left:
-            for other, first in self._first_zero.items():  # read before it, beside it
-                if self._read.get(other) == 1:
-                    self._moved.append((other, first, placed))
-                    self._first_zero[other] = placed
-        elif read == 1 and stamp_ns == 0 and left is not None:
-            placed = left  # beside the first left image, stamped 0 too: with it
-        if read == 1 and stamp_ns == 0:
-            self._first_zero[topic] = placed
-        return placed
-
-    def moved(self) -> list[tuple[str, int, int]]:
-        """Return (and forget) the messages placed again: (topic, placed stamp, new stamp)."""
-        moved, self._moved = self._moved, []
-        return moved
-
-
-def _same_image(message: Any, last: Any, stamp_ns: int) -> bool:
-    """Whether an image is ``last`` again: its stamp, size, encoding and bytes (densify's rule)."""
-    return rosmsg.stamp_ns(last) == stamp_ns and same_image_message(message, last)
-
-
 def _zero_output_message(path: Path, topic: str, left_image: str) -> str:
     """Say that a densified output is stamped 0: written by a densify that copied stamp 0."""
     return (
@@ -664,138 +591,6 @@ def _zero_output_message(path: Path, topic: str, left_image: str) -> str:
         "apart or matched to truth; densify the input again (densify now stamps such frames "
         "with their left image's log time)"
     )
-
-
-class _SeenStamps:
-    """The stamps seen lately of each topic matched by stamp, to count the repeats of each.
-
-    Every message is kept (:class:`_Stamped`), a repeat of a stamp too; only the count of
-    repeats (``ReadState.repeated``) comes from here.
-    """
-
-    LIMIT = 4096
-    """Stamps remembered per topic (the oldest forgotten beyond it)."""
-
-    def __init__(self) -> None:
-        self._seen: dict[str, dict[int, None]] = {}
-
-    def first(self, topic: str, stamp: int, state: ReadState) -> bool:
-        """Count a repeat of ``stamp`` on ``topic``; return whether it is the first.
-
-        The callers keep every message whatever this returns.
-        """
-        seen = self._seen.setdefault(topic, {})
-        if stamp in seen:
-            state.repeated[topic] = state.repeated.get(topic, 0) + 1
-            return False
-        seen[stamp] = None
-        if len(seen) > self.LIMIT:
-            del seen[next(iter(seen))]
-        return True
-
-
-class _Stamped:
-    """The latest messages of a topic matched by stamp, with their log times.
-
-    Stamps may repeat (stamps that restart mid-log, a message logged twice): every message
-    is kept, the oldest in log order dropped beyond ``limit``, and a frame takes the one
-    nearest its stamp and, of those, nearest its log time (:meth:`nearest`).
-    """
-
-    def __init__(self, limit: int) -> None:
-        self._limit = limit
-        self._messages: deque[tuple[int, int, Any]] = deque()  # stamp, log time, message
-        self._changes = 0  # messages kept, restamped or claimed: what :meth:`settled` found
-        self._found: tuple[tuple[int, int, int], int | None] = ((-1, -1, -1), None)
-
-    def add(self, stamp: int, log_time_ns: int, message: Any) -> None:
-        """Keep a message (the oldest one dropped beyond the limit)."""
-        self._messages.append((stamp, log_time_ns, message))
-        self._changes += 1
-        if len(self._messages) > self._limit:
-            self._messages.popleft()
-
-    def restamp(self, stamp: int, new_stamp: int) -> None:
-        """Match the messages kept with ``stamp`` by ``new_stamp`` instead."""
-        self._messages = deque(
-            (new_stamp if kept == stamp else kept, log_time, message)
-            for kept, log_time, message in self._messages
-        )
-        self._changes += 1
-
-    def settled(self, stamp: int, log_time_ns: int, read_ns: int) -> bool:
-        """Whether no message of the topic still to be read can be nearer the frame.
-
-        ``read_ns`` is the log time of the topic's last message read (a topic is logged in
-        order, so the next ones are logged at or after it). True when the message a frame
-        of ``stamp`` and ``log_time_ns`` would take (:meth:`nearest`) is logged at or after
-        the frame's left image, or when the topic is read as far past the frame as that
-        message is before it: a message of its stamp read later (stamps that restarted) is
-        nearer the frame's log time only before then. Whether a nearer stamp may still come
-        is the caller's (one at or after the frame's was read).
-        """
-        key = (stamp, log_time_ns, self._changes)
-        if self._found[0] != key:  # one scan per frame and message kept
-            index = self._index(stamp, log_time_ns)
-            self._found = (key, None if index is None else self._messages[index][1])
-        found = self._found[1]
-        return found is not None and (
-            found >= log_time_ns or read_ns - log_time_ns >= log_time_ns - found
-        )
-
-    def _index(self, stamp: int, log_time_ns: int) -> int | None:
-        """Return the index of the message nearest ``stamp``, then ``log_time_ns`` (the first)."""
-        best: tuple[int, int] | None = None
-        found = None
-        for index, (kept, log_time, _) in enumerate(self._messages):
-            key = (abs(kept - stamp), abs(log_time - log_time_ns))
-            if best is None or key < best:
-                best, found = key, index
-        return found
-
-    def nearest(self, stamp: int, tolerance_ns: int, log_time_ns: int) -> tuple[Any, int | None]:
-        """Return the message nearest ``stamp`` within the tolerance (else None), its gap (ns).
-
-        Of messages of the nearest stamp, the one nearest ``log_time_ns`` (the first of a tie).
-        """
-        index = self._index(stamp, log_time_ns)
-        if index is None:
-            return None, None
-        kept, _, message = self._messages[index]
-        gap = abs(kept - stamp)
-        return (message if gap <= tolerance_ns else None), gap
-
-    def claim(
-        self, stamp: int, log_time_ns: int, tolerance_ns: int, neighbours: Iterable[int] = ()
-    ) -> tuple[Any, int | None]:
-        """Remove and return the message nearest ``stamp`` within the tolerance, and its gap.
-
-        Each message goes to one frame, the one stamped nearest it: one nearer a neighbour
-        frame's stamp (``neighbours``: the frames before and after; a tie goes to the
-        earlier frame) is not this frame's. Of messages of the nearest stamp, the one nearest
-        ``log_time_ns``. Without one: None and the gap of the nearest message kept (None:
-        none kept).
-        """
-        others = list(neighbours)
-        best: tuple[int, int] | None = None
-        found = None
-        for index, (kept, log_time, _) in enumerate(self._messages):
-            gap = abs(kept - stamp)
-            if gap > tolerance_ns or any(
-                abs(kept - other) < gap or (abs(kept - other) == gap and other < stamp)
-                for other in others
-            ):
-                continue
-            key = (gap, abs(log_time - log_time_ns))
-            if best is None or key < best:
-                best, found = key, index
-        if found is None:
-            nearest = self._index(stamp, log_time_ns)
-            return None, None if nearest is None else abs(self._messages[nearest][0] - stamp)
-        kept, _, message = self._messages[found]
-        del self._messages[found]
-        self._changes += 1
-        return message, abs(kept - stamp)
 
 
 def _recover_focal_baseline(frame: _Complete, features_topic: str, state: ReadState) -> float:
@@ -845,7 +640,7 @@ def _camera(info: Any, baseline: float, size: tuple[int, int]) -> StereoCamera:
 def _frame(
     complete: _Complete,
     *,
-    nearby: dict[str, _Stamped],
+    nearby: dict[str, Stamped],
     reference: Any,
     reference_gap_ns: int | None = None,
     topics: OutputTopics,
