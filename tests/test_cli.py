@@ -2076,6 +2076,33 @@ def test_densify_output_is_input(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["drive.mcap"]
 
 
+def test_densify_output_into_the_input_bag_folder_is_refused(
+    pcainterp: Callable[..., Run], basis_path: Path, tmp_path: Path
+) -> None:
+    """`-o BAG/BAG.mcap` replaced a rosbag2 bag's own storage file: the recording was lost
+    (its metadata.yaml still counted the old messages). A new file in the bag is refused too."""
+    bag = tmp_path / "bag"
+    made = pcainterp("synth", bag, "--frames", "2", "--scale", "0.25", "--format", "rosbag2")
+    assert made.code == 0
+    before = {path.name: path.read_bytes() for path in bag.iterdir()}
+    storage = next(path for path in bag.iterdir() if path.suffix == ".mcap")
+    for target in (storage, bag / "dense.mcap"):
+        line = pcainterp(*densify_args(bag, target, basis_path)).error_line()
+        assert f"refusing to write the output {target} inside the input bag {bag}" in line
+        assert "write it beside the bag (e.g. -o bag.dense.mcap)" in line
+    assert {path.name: path.read_bytes() for path in bag.iterdir()} == before
+
+
+def test_an_empty_path_is_named_empty_not_a_folder_dot(
+    pcainterp: Callable[..., Run], small_log: Path
+) -> None:
+    """`-o "$OUT"` with OUT unset said "output . is a folder" (bug hunt 15B F4)."""
+    for args in (("densify", small_log, "-o", ""), ("info", ""), ("learn", small_log, "-o", "")):
+        run = pcainterp(*args)
+        assert run.code == 2
+        assert "the path is empty (an unset shell variable?)" in run.err.splitlines()[-1]
+
+
 def test_learn_output_is_input(
     pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path
 ) -> None:

@@ -36,6 +36,16 @@ OWN_PROCESS = False
 caller running :func:`app.main` in its own program."""
 
 
+def path_arg(value: str) -> Path:
+    """A path on the command line; an empty one (an unset shell variable) is refused.
+
+    ``Path("")`` is ``Path(".")``: without this the error would name a folder "." never given.
+    """
+    if not value:
+        raise argparse.ArgumentTypeError("the path is empty (an unset shell variable?)")
+    return Path(value)
+
+
 def settle_heap() -> None:
     """Move what the imports made out of the garbage collector's sight (own process only).
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pcainterp_stream.cli.common import Commands, echo, formatter
+from pcainterp_stream.cli.common import Commands, echo, formatter, path_arg
 from pcainterp_stream.errors import PcaInterpError
 
 
@@ -28,7 +28,7 @@ def add_parser(commands: Commands) -> None:
     )
     demo.add_argument(
         "--out",
-        type=Path,
+        type=path_arg,
         default=Path("demo_out"),
         metavar="DIR",
         help="folder for the logs, the Rerun recording and the report (default: %(default)s)",

@@ -28,6 +28,7 @@ from pcainterp_stream.cli.common import (
     echo,
     formatter,
     gftt_config,
+    path_arg,
     refuse_overwrites,
     sgbm_config,
     warn,
@@ -78,7 +79,7 @@ def add_parser(commands: Commands) -> None:
     )
     densify.add_argument(
         "input",
-        type=Path,
+        type=path_arg,
         nargs="+",
         metavar="INPUT",
         help="one log ('-': an MCAP stream on standard input); with -o or --foxglove, several "
@@ -90,7 +91,7 @@ def add_parser(commands: Commands) -> None:
     target.add_argument(
         "-o",
         "--output",
-        type=Path,
+        type=path_arg,
         default=None,
         metavar="OUTPUT",
         help="the densified .mcap ('-': standard output, piped or redirected); optional with "
@@ -98,7 +99,7 @@ def add_parser(commands: Commands) -> None:
     )
     target.add_argument(
         "--out-dir",
-        type=Path,
+        type=path_arg,
         default=None,
         metavar="DIR",
         help="write DIR/<stem>_dense.mcap per input, the logs densified in parallel on Dask",
@@ -151,7 +152,7 @@ def add_parser(commands: Commands) -> None:
     )
     densify.add_argument(
         "--basis",
-        type=Path,
+        type=path_arg,
         default=None,
         metavar="BASIS.npz",
         help="the basis: a file; 'builtin' for the built-in ones as they are (the street or "
@@ -163,7 +164,7 @@ def add_parser(commands: Commands) -> None:
     )
     densify.add_argument("--rerun", action="store_true", help="stream to a Rerun viewer")
     densify.add_argument(
-        "--rrd", type=Path, default=None, metavar="FILE.rrd", help="write a Rerun recording"
+        "--rrd", type=path_arg, default=None, metavar="FILE.rrd", help="write a Rerun recording"
     )
     _add_estimate_options(densify)
     densify.add_argument(
@@ -199,7 +200,8 @@ def add_parser(commands: Commands) -> None:
         choices=["compact", "full"],
         default="compact",
         help="compact (default): depth and disparity_std as compressedDepth PNG within 1/64 "
-        "of the posterior std: ~0.8 MB of output per KITTI frame. full: every channel "
+        "of the posterior std (coarser where a near disparity needs it to fit 16 bits): "
+        "~0.8 MB of output per KITTI frame. full: every channel "
         "float32, ~7.3 MB per KITTI frame (docs/benchmarks.md, "
         "'Output encodings')",
     )

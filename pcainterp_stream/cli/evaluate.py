@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pcainterp_stream.cli.common import Commands, basis_option, echo, formatter
+from pcainterp_stream.cli.common import Commands, basis_option, echo, formatter, path_arg
 from pcainterp_stream.cli.pairing import (
     add_input_pair_options,
     pairing_config,
@@ -49,21 +49,21 @@ def add_parser(commands: Commands) -> None:
     )
     evaluate.add_argument(
         "input",
-        type=Path,
+        type=path_arg,
         metavar="DENSIFIED.mcap",
         help="a log written by pcainterp densify (with its input pair, as densify writes it)",
     )
     evaluate.add_argument(
         "-o",
         "--output",
-        type=Path,
+        type=path_arg,
         default=None,
         metavar="REPORT_DIR",
         help="report folder (default: DENSIFIED_report beside the log)",
     )
     evaluate.add_argument(
         "--basis",
-        type=Path,
+        type=path_arg,
         default=None,
         metavar="BASIS.npz",
         help="the basis for the oracle, uncertainty kinds and points sweep: a file; "

@@ -10,10 +10,9 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
-from pathlib import Path
 from typing import Any
 
-from pcainterp_stream.cli.common import Commands, echo, formatter, refuse_stream_output
+from pcainterp_stream.cli.common import Commands, echo, formatter, path_arg, refuse_stream_output
 from pcainterp_stream.errors import PcaInterpError
 
 DEFAULT_MAX_LINES = 20
@@ -52,9 +51,9 @@ def add_parser(commands: Commands) -> None:
         "later log is checked within.",
         epilog="example:\n  pcainterp golden save drive_dense.mcap -o drive.golden.json --arrays",
     )
-    save.add_argument("log", type=Path, metavar="LOG", help="MCAP file, ROS 1 .bag or rosbag2")
+    save.add_argument("log", type=path_arg, metavar="LOG", help="MCAP file, ROS 1 .bag or rosbag2")
     save.add_argument(
-        "-o", "--output", type=Path, required=True, metavar="GOLDEN.json", help="file to write"
+        "-o", "--output", type=path_arg, required=True, metavar="GOLDEN.json", help="file to write"
     )
     save.add_argument(
         "--arrays",
@@ -73,8 +72,8 @@ def add_parser(commands: Commands) -> None:
         "file's tolerances, else exit 1 and the differences.",
         epilog="example:\n  pcainterp golden check drive_dense.mcap drive.golden.json",
     )
-    check.add_argument("log", type=Path, metavar="LOG", help="MCAP file, ROS 1 .bag or rosbag2")
-    check.add_argument("golden", type=Path, metavar="GOLDEN.json", help="a golden file")
+    check.add_argument("log", type=path_arg, metavar="LOG", help="MCAP file, ROS 1 .bag or rosbag2")
+    check.add_argument("golden", type=path_arg, metavar="GOLDEN.json", help="a golden file")
     check.add_argument(
         "--topics", nargs="+", default=None, metavar="TOPIC", help="check only these channels"
     )

@@ -3,9 +3,14 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from pcainterp_stream.cli.common import Commands, check_log_output, formatter, print_written
+from pcainterp_stream.cli.common import (
+    Commands,
+    check_log_output,
+    formatter,
+    path_arg,
+    print_written,
+)
 
 
 def add_parser(commands: Commands) -> None:
@@ -35,7 +40,7 @@ def add_parser(commands: Commands) -> None:
     )
     kitti.add_argument(
         "kitti_dir",
-        type=Path,
+        type=path_arg,
         metavar="KITTI_DIR",
         help="a raw drive folder (<date>/<date>_drive_XXXX_sync, or the unrectified _extract, "
         "its calibration files in the date folder) or an odometry sequence folder "
@@ -43,7 +48,7 @@ def add_parser(commands: Commands) -> None:
     )
     kitti.add_argument(
         "out",
-        type=Path,
+        type=path_arg,
         metavar="OUT",
         help="the log to write: .mcap an MCAP, .bag a ROS 1 bag, a name without a suffix a "
         "rosbag2 folder (MCAP storage)",

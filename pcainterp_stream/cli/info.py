@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from pcainterp_stream.cli.common import Commands, echo, formatter
+from pcainterp_stream.cli.common import Commands, echo, formatter, path_arg
 
 
 def add_parser(commands: Commands) -> None:
@@ -29,7 +28,7 @@ def add_parser(commands: Commands) -> None:
     )
     info.add_argument(
         "file",
-        type=Path,
+        type=path_arg,
         nargs="?",
         default=None,
         metavar="FILE",

@@ -16,6 +16,7 @@ from pcainterp_stream.cli.common import (
     echo,
     formatter,
     gftt_config,
+    path_arg,
     refuse_overwrites,
     refuse_stream_output,
     same_file,
@@ -57,7 +58,7 @@ def add_parser(commands: Commands) -> None:
     )
     learn.add_argument(
         "logs",
-        type=Path,
+        type=path_arg,
         nargs="+",
         metavar="LOG",
         help="the stereo logs to learn from (MCAP, ROS 1 bag or ROS 2 bag), one camera",
@@ -65,7 +66,7 @@ def add_parser(commands: Commands) -> None:
     learn.add_argument(
         "-o",
         "--output",
-        type=Path,
+        type=path_arg,
         required=True,
         metavar="BASIS.npz",
         help="the basis file to write (required); densify --basis reads it",
@@ -142,7 +143,7 @@ def add_parser(commands: Commands) -> None:
     )
     fit.add_argument(
         "--fit-logs",
-        type=Path,
+        type=path_arg,
         nargs="+",
         default=(),
         metavar="LOG",

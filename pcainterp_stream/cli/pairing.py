@@ -11,9 +11,9 @@ a command runs.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 from typing import TYPE_CHECKING
 
+from pcainterp_stream.cli.common import path_arg
 from pcainterp_stream.errors import PcaInterpError
 
 if TYPE_CHECKING:
@@ -50,7 +50,7 @@ def add_topic_options(parser: argparse.ArgumentParser) -> None:
     )
     group.add_argument(
         "--calibration",
-        type=Path,
+        type=path_arg,
         nargs="+",
         default=None,
         metavar="YAML",
@@ -120,7 +120,7 @@ def add_input_pair_options(parser: argparse.ArgumentParser) -> None:
     )
     group.add_argument(
         "--calibration",
-        type=Path,
+        type=path_arg,
         nargs="+",
         default=None,
         metavar="YAML",

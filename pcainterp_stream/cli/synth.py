@@ -3,9 +3,14 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from pcainterp_stream.cli.common import Commands, check_log_output, formatter, print_written
+from pcainterp_stream.cli.common import (
+    Commands,
+    check_log_output,
+    formatter,
+    path_arg,
+    print_written,
+)
 from pcainterp_stream.errors import PcaInterpError
 
 
@@ -28,7 +33,7 @@ def add_parser(commands: Commands) -> None:
             "  pcainterp synth room.mcap --scene indoor --camera 752x480 --frames 50  # indoor\n"
         ),
     )
-    synth.add_argument("out", type=Path, metavar="OUT", help="output log path")
+    synth.add_argument("out", type=path_arg, metavar="OUT", help="output log path")
     synth.add_argument(
         "--frames",
         type=int,

@@ -124,7 +124,8 @@ def quantise_inverse_depth(
 
     NaN -> 0, ``+inf`` -> ``B`` (``A / 0`` when decoded), a finite depth never to 0 nor ``B``
     (so never to NaN or infinity), codes clipped to 16 bits (the nearest storable value: 0
-    becomes the smallest, ``A / 65534``). Negative values (no depth) are stored as NaN.
+    becomes the smallest, ``A / 65534``, and so does -0.0). Negative values (no depth) are
+    stored as NaN.
 
     ``zero_as_nan``: store 0 as NaN (code 0, "no value") instead: no code decodes to 0, and
     for an image that is not depth (a std) 0 is not a small value to round to ``A / 65534``.
@@ -134,6 +135,7 @@ def quantise_inverse_depth(
     code = np.empty_like(depth)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         np.divide(np.float32(quant_a), depth, out=code)
+        np.abs(code, out=code)  # -0.0 (A / -0 = -inf) is the nearest depth, as +0.0 is
         code += np.float32(quant_b)
         np.rint(code, out=code)
         np.clip(code, quant_b + 1.0, MAX_CODE, out=code)  # a finite depth: never 0 nor B

@@ -69,14 +69,18 @@ def _inside(path: Path, folder: Path) -> bool:
 
 
 def check_not_input(target: Path, inputs: Iterable[str | os.PathLike[str]]) -> None:
-    """Refuse a target that is, or contains, one of the inputs.
+    """Refuse a target that is, or contains, one of the inputs, or lies in an input bag.
+
+    A rosbag2 bag is a folder (its ``metadata.yaml`` lists the files that make the
+    recording): a target inside it would replace its storage file or join the recording. A
+    target inside another input folder (a KITTI drive) is allowed: it is not the recording.
 
     Raises:
         LogWriteError: naming the path and the fix.
     """
     resolved = target.resolve()
-    for item in inputs:
-        source = Path(item)
+    sources = [Path(item) for item in inputs]
+    for source in sources:
         same = resolved == source.resolve() or _inside(source.resolve(), resolved)
         if not same and os.path.exists(target) and os.path.exists(source):
             try:
@@ -88,6 +92,15 @@ def check_not_input(target: Path, inputs: Iterable[str | os.PathLike[str]]) -> N
                 f"refusing to write the output onto the input {source}; "
                 "choose a different output path"
             )
+    for source in sources:  # after every input is looked at as a file: that message first
+        folder = os.path.isdir(source) and resolved != source.resolve()
+        if folder and _inside(resolved, source.resolve()):
+            if os.path.isfile(source / "metadata.yaml"):
+                raise LogWriteError(
+                    f"refusing to write the output {target} inside the input bag {source}: "
+                    "it would replace or join the recording's own files; write it beside the "
+                    f"bag (e.g. -o {source.resolve().name}.dense.mcap)"
+                )
 
 
 def _hops(path: Path) -> Iterator[Path]:

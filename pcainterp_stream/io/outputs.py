@@ -17,7 +17,8 @@ Two precisions (``densify --precision``), chosen by measurement (docs/benchmarks
 - ``compact`` (default): ``depth`` as ``sensor_msgs/CompressedImage`` ``32FC1;
   compressedDepth png`` (quantised inverse depth, i.e. the disparity rounded to a multiple
   of a power-of-two step <= 1/32 of the frame's smallest disparity std, so the error is at
-  most 1/64 of the posterior std; REP 118's NaN and ``+inf`` kept), ``disparity_std`` the
+  most 1/64 of the posterior std, or half a coarser step where the frame's nearest disparity
+  needs one to fit 16 bits; REP 118's NaN and ``+inf`` kept), ``disparity_std`` the
   same way (its reciprocal quantised: relative error <= :data:`STD_RELATIVE_ERROR`; a std
   of 0, which no code decodes to, as NaN: "no value"), a ``16UC1`` millimetre ``depth_mm``
   copy for viewers (to the nearest :data:`DISPLAY_DEPTH_STEP_MM` mm, 0 to the display range),

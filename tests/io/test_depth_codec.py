@@ -242,6 +242,8 @@ def test_zero_as_nan_stores_zero_as_no_value_and_the_rest_as_before(codec: str) 
     as_before = depth_codec.quantise_inverse_depth(image, quant_a)
     codes = depth_codec.quantise_inverse_depth(image, quant_a, zero_as_nan=True)
     assert as_before[0, 0] == depth_codec.MAX_CODE  # depth 0: the nearest storable value
+    # bug hunt 15B F3: -0.0 took the farthest code (A / -0 = -inf, clipped to B + 1)
+    assert as_before[0, 1] == depth_codec.MAX_CODE
     assert codes[0, :2].tolist() == [0, 0]  # NaN's code, "no value"; -0.0 too (A / -0 < 0)
     assert np.array_equal(codes.ravel()[2:], as_before.ravel()[2:])  # a tiny value as before
     encoded = depth_codec.encode_depth(image, quant_a=quant_a, codec=codec, zero_as_nan=True)
