@@ -27,7 +27,8 @@ from pcainterp_stream.estimate import adapt
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.estimator import densify_batch
 from pcainterp_stream.frontend.near import lookups_only
-from pcainterp_stream.pipeline.adaptation import Adaptation, AdaptFrame
+from pcainterp_stream.pipeline.adapt_frames import AdaptFrame
+from pcainterp_stream.pipeline.adaptation import Adaptation
 from pcainterp_stream.pipeline.measured import Measured, check_cells, sgbm_maps
 from pcainterp_stream.records import StereoFrame
 
