@@ -140,6 +140,9 @@ class Adaptation:
             interpolation: never chosen, only named in the warning when ``--basis builtin``
             would do better (:meth:`_builtin_advice`).
         switched: the alternative chosen instead of the given basis, if any.
+        builtin_choice: the built-in basis (with its tuning) the check that adopted the log's
+            own basis chose among the built-in ones (None: the given one); it takes over when
+            that own basis stops fitting (:mod:`~.refit`).
         own_above: the log's own basis is tried when the given basis (if it stays chosen)
             scores at least this times linear interpolation's error.
         in_force: each basis the frames were densified with, in stream order, from the
@@ -159,6 +162,7 @@ class Adaptation:
     advisory: list[Callable[[], Candidate]] = field(default_factory=list)
     own_above: float = FITS_BELOW
     switched: Candidate | None = None
+    builtin_choice: Candidate | None = None
     checked: bool = False
     adapted: bool = False
     lines: list[str] = field(default_factory=list)
@@ -664,7 +668,7 @@ class Adaptation:
                 f"{chosen} fits ({self.check.ratio:.2f}x linear), but this log's own basis did "
                 f"better on frames it did not learn ({own_px} px against {prior_px})"
             )
-        self.switched = None
+        self.builtin_choice, self.switched = self.switched, None
         self.adapted = True
         self.own_bases.append(own)
         if self.first_basis is None:  # a later adoption is another basis, another file
