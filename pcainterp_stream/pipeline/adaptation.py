@@ -25,13 +25,13 @@ import numpy.typing as npt
 
 from pcainterp_stream.estimate import adapt, fitting, rougher
 from pcainterp_stream.estimate.basis import Basis
-from pcainterp_stream.estimate.cells import Seeding
 from pcainterp_stream.estimate.estimator import densify_batch
-from pcainterp_stream.frontend.motion import Motion, view_shift
+from pcainterp_stream.frontend.motion import view_shift
+from pcainterp_stream.pipeline.adapt_frames import STILL_SHIFT, AdaptFrame, still_links
 from pcainterp_stream.pipeline.measured import check_cells
 from pcainterp_stream.pipeline.wording import count as _count
 from pcainterp_stream.pipeline.wording import figures as _figures
-from pcainterp_stream.records import StereoCamera, StereoFrame
+from pcainterp_stream.records import StereoFrame
 
 FITS_BELOW = 0.8
 """A basis at most this times linear interpolation's error is kept without trying the other
@@ -47,16 +47,6 @@ pairs the log's own beat the indoor basis by 4x, so that one keeps :data:`FITS_B
 
 MAX_MAPS = 256
 """Most SGBM maps kept for the log's own basis; past it, every other one is dropped."""
-
-STILL_SHIFT = 0.25
-"""A frame whose ego-motion since a frame (chained frame to frame) moves its measurements
-less than this median (px, :func:`~.motion.view_shift`) is that frame's view again. A camera
-standing still measured 0.00-0.02 px from its first frame over 8 frames (the synthetic
-street with fresh sensor noise in every frame, whose SGBM grid maps are 0.07-0.10 px apart,
-where the maps' own test, :data:`~.adapt.SAME_VIEW` = 0.1 px, splits them into views; a
-KITTI frame repeated with noise), 0.03 px creeping 1 cm/s; a camera swaying 1-2 cm and
-0.2-1 degree per frame 1-7 px per frame."""
-
 
 MOVED = "prior: the camera moved: checked again on {} of other views"
 """The line of the check made again after a standing start ("{}": its frames)."""
@@ -150,6 +140,9 @@ class Adaptation:
             interpolation: never chosen, only named in the warning when ``--basis builtin``
             would do better (:meth:`_builtin_advice`).
         switched: the alternative chosen instead of the given basis, if any.
+        builtin_choice: the built-in basis (with its tuning) the check that adopted the log's
+            own basis chose among the built-in ones (None: the given one); it takes over when
+            that own basis stops fitting (:mod:`~.refit`).
         own_above: the log's own basis is tried when the given basis (if it stays chosen)
             scores at least this times linear interpolation's error.
         in_force: each basis the frames were densified with, in stream order, from the
@@ -169,6 +162,7 @@ class Adaptation:
     advisory: list[Callable[[], Candidate]] = field(default_factory=list)
     own_above: float = FITS_BELOW
     switched: Candidate | None = None
+    builtin_choice: Candidate | None = None
     checked: bool = False
     adapted: bool = False
     lines: list[str] = field(default_factory=list)
@@ -674,7 +668,7 @@ class Adaptation:
                 f"{chosen} fits ({self.check.ratio:.2f}x linear), but this log's own basis did "
                 f"better on frames it did not learn ({own_px} px against {prior_px})"
             )
-        self.switched = None
+        self.builtin_choice, self.switched = self.switched, None
         self.adapted = True
         self.own_bases.append(own)
         if self.first_basis is None:  # a later adoption is another basis, another file
@@ -848,53 +842,3 @@ class Adaptation:
         assert frame.grid_map is not None
         last = self._last_map
         return last is not None and adapt.view_distance(frame.grid_map, last) < adapt.SAME_VIEW
-
-
-@dataclass(frozen=True)
-class AdaptFrame:
-    """What the adaptation needs of one measured frame (SGBM maps from the stereo workers)."""
-
-    pixels: npt.NDArray[np.float32]
-    disparities: npt.NDArray[np.float32]
-    sgbm_map: npt.NDArray[np.float32] | None
-    grid_map: npt.NDArray[np.float32] | None
-    image_size: tuple[int, int]
-    focal_baseline: float
-    # the check's held-out pixels and plain interpolation of this frame, when the stereo
-    # worker made them beside SGBM (else the check makes them)
-    held_out: adapt.HeldOut | None = None
-    # the ego-motion from the previous frame (None: unknown) and the camera it is in
-    motion: Motion | None = None
-    camera: StereoCamera | None = None
-    index: int = 0  # the frame's index (the lines name it)
-
-    def measured(self) -> adapt.Measured:
-        """Return the frame as :func:`adapt.refit_prior` and the check take it."""
-        assert self.sgbm_map is not None
-        return adapt.Measured(self.pixels, self.disparities, self.sgbm_map)
-
-    def cells(self, basis_grid: tuple[int, int]) -> Seeding | None:
-        """Return the frame's edge-aware cells on a basis's grid, as densify draws them."""
-        assert self.sgbm_map is not None
-        return Seeding.along(self.sgbm_map, self.pixels, self.image_size, basis_grid)
-
-
-def still_links(frames: list[AdaptFrame]) -> list[int]:
-    """Return, for each of consecutive frames, the earliest frame of its view by ego-motion.
-
-    A frame is the view of an earlier one when the motions chained from that frame move its
-    measurements by less than :data:`STILL_SHIFT` (:func:`~.motion.view_shift`); a frame
-    without a motion (the first, a lost one, another camera) starts a view of its own.
-    """
-    links: list[int] = []
-    since = np.eye(4)
-    for index, frame in enumerate(frames):
-        still = False
-        if index and frame.motion is not None and frame.camera is not None:
-            since = frame.motion.transform @ since
-            shift = view_shift(since, frame.pixels, frame.disparities, frame.camera)
-            still = shift < STILL_SHIFT
-        if not still:
-            since = np.eye(4)
-        links.append(links[-1] if still else index)
-    return links

@@ -12,10 +12,11 @@ first frames. Two things can make that choice wrong later, and both were silent:
   indoors put the street 4-5x too near, its std covering 6-19 %. :class:`FitWatch` scores
   the basis in use on the held-out SGBM pixels of every :data:`WATCH_EVERY`-th frame (the
   pixels and plain interpolation the fit check scores; one solve without std, before the
-  frame's map is learned) and, when it stops beating linear interpolation, the choice is
-  made again on the next frames. A built-in basis kept is not watched: it is the same basis
-  the check chose and costs nothing more (a street basis on an indoor part degraded the
-  depth, but its std covered it: 99 %).
+  frame's map is learned) and, when it stops beating linear interpolation, the built-in basis
+  the check that adopted it chose takes over and the choice is made again on the next frames.
+  A built-in basis kept is not watched: it is the same basis the check chose and costs
+  nothing more (a street basis on an indoor part degraded the depth, but its std covered
+  it: 99 %).
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ from pcainterp_stream.estimate import adapt
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.estimator import densify_batch
 from pcainterp_stream.frontend.near import lookups_only
-from pcainterp_stream.pipeline.adaptation import Adaptation, AdaptFrame
+from pcainterp_stream.pipeline.adapt_frames import AdaptFrame
+from pcainterp_stream.pipeline.adaptation import Adaptation
 from pcainterp_stream.pipeline.measured import Measured, check_cells, sgbm_maps
 from pcainterp_stream.records import StereoFrame
 
@@ -238,8 +240,10 @@ class Refitting(Adaptation):
     def update(self, frames: list[AdaptFrame], current: Basis | None = None) -> Basis | None:
         """Watch the log's own basis in use, then add the frames' maps (see the base class).
 
-        When the basis stops fitting the frames (:class:`FitWatch`), returns the basis
-        given at the start, used from the next frame on while the choice is made again.
+        When the basis stops fitting the frames (:class:`FitWatch`), returns the built-in
+        basis the check that adopted it chose (:attr:`~.adaptation.Adaptation.builtin_choice`,
+        with its tuning; else the basis given at the start), used from the next frame on while
+        the choice is made again.
         """
         watch, options_of = self.watch, self.options_of
         if self.adapted and watch is not None and current is not None and options_of:
@@ -257,18 +261,23 @@ class Refitting(Adaptation):
     def _stopped(
         self, check: adapt.FitCheck, watch: FitWatch, index: int, current: Basis
     ) -> Basis | None:
+        # the built-in basis the check chose (and tuned) when it adopted the own one, not the
+        # given one it may have scored worst (the street basis on a room: 1.16-2.47x linear)
+        choice = self.builtin_choice
+        name = self.name if choice is None else f"{choice.name} (the check's built-in choice)"
         self.lines.append(
             f"prior: this log's own basis stopped fitting at frame {index}: {check.ratio:.2f}x "
             f"linear on held-out SGBM pixels of frames {watch.frames()} "
-            f"({watch.adopted:.2f}x when adopted); {self.name} from the next frame, the basis "
+            f"({watch.adopted:.2f}x when adopted); {name} from the next frame, the basis "
             f"choice made again on the next {self.warmup_frames} frames"
         )
-        self.adapted, self.watch = False, None
+        self.adapted, self.watch, self.switched = False, None, choice  # its tuning with it
         assert self._camera is not None
         self._recheck(
             self._camera, f"prior: the basis choice made again on the {{}} after frame {index}"
         )
-        return None if self._given is current else self._given
+        target = self._given if choice is None else choice.basis
+        return None if target is current else target
 
     def _recheck(self, camera: Camera, line: str) -> None:
         """Make the choice again on the next frames of ``camera`` (:meth:`_revisit`).
