@@ -30,6 +30,8 @@ from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
+import numpy.typing as npt
+
 from pcainterp_stream.errors import CalibrationError, LogReadError
 from pcainterp_stream.frontend import rectify as rect
 from pcainterp_stream.frontend.camera_infos import (
@@ -50,6 +52,7 @@ from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.frontend.pairing_window import HeldQueue, Hold, HoldLimits
 from pcainterp_stream.frontend.pairing_window import PendingImage as _Pending
 from pcainterp_stream.frontend.rect_border import BorderFinder, RectifiedBorder
+from pcainterp_stream.frontend.right_cx import as_is_shift, shift_image
 from pcainterp_stream.frontend.row_check import Corners, RowCheck
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import LogReader, decode_image
@@ -97,6 +100,7 @@ class StereoPairer:
         self._left_clock = ImageClock()  # where such a left image is placed
         self._borders = BorderFinder(echo)
         self._as_is: rect.StereoCalibration | None = None  # of images used as they are
+        self._right_shift = 0.0  # px moving their right images onto the left's cx (right_cx)
         self._rows = (
             RowCheck(
                 self.config.left_topic,
@@ -535,6 +539,7 @@ class StereoPairer:
             camera, seen = rectifier.inner, rectifier.camera
         else:
             camera = seen = self._camera(width, height)
+            right_image = self.as_is(right_image, "right")  # onto the left's cx
             border = None
             if self.config.rectify != "never":  # a black border is estimated around
                 border = self._borders.find(left_image, right_image, camera, self._as_is)
@@ -620,6 +625,7 @@ class StereoPairer:
             self._say(
                 "rectify never: the images are used as recorded, with P of "
                 f"{config.left_info_topic} and {config.right_info_topic} (not checked)"
+                f"{self._shifted()}"
             )
             return None
         if config.calibration is not None:
@@ -644,7 +650,7 @@ class StereoPairer:
                 # unknown model): P alone is what they need
                 self._say(
                     f"rectify auto: {config.left_topic} and {config.right_topic} are named "
-                    "rectified: used as they are, with P of their camera infos"
+                    f"rectified: used as they are, with P of their camera infos{self._shifted()}"
                 )
                 self._rect_infos = (self._left_info, self._right_info)
                 self._rectifier = self._as_is = None
@@ -656,13 +662,14 @@ class StereoPairer:
             if calibration.is_rectified:
                 self._say(
                     f"rectify auto: {source} say the images are rectified (D = 0, R = I, "
-                    "K = P): used as they are"
+                    f"K = P): used as they are{self._shifted()}"
                 )
             elif len(named) == 2:
                 self._say(
                     f"rectify auto: {config.left_topic} and {config.right_topic} are named "
                     "rectified: used as they are, with P of their camera infos (ROS publishes "
                     "image_rect with the raw camera's D and R); --rectify always remaps them"
+                    f"{self._shifted()}"
                 )
             else:
                 rectifier = self._build(calibration)
@@ -670,7 +677,7 @@ class StereoPairer:
                     f"rectify auto: remapping the raw images with {source} "
                     f"({calibration.why_raw()}; {calibration.left.model}), as image_proc does: "
                     f"{_size(rectifier.camera)} rectified, fx={rectifier.camera.fx:g}, "
-                    f"baseline {rectifier.camera.baseline:.4g} m"
+                    f"baseline {rectifier.camera.baseline:.4g} m{rectifier.cx_note}"
                 )
         else:
             rectifier = self._build(calibration)
@@ -678,12 +685,22 @@ class StereoPairer:
                 f"rectify {config.rectify}: remapping the images with {source} "
                 f"({calibration.left.model}): {_size(rectifier.camera)} rectified, "
                 f"fx={rectifier.camera.fx:g}, baseline {rectifier.camera.baseline:.4g} m"
+                f"{rectifier.cx_note}"
             )
         if config.calibration is None:
             self._rect_infos = (self._left_info, self._right_info)
         self._rectifier = rectifier
         self._as_is = calibration if rectifier is None else None
         return rectifier
+
+    def _shifted(self) -> str:
+        """Set the shift of right images used as they are onto the left's cx; say it."""
+        self._right_shift, note = as_is_shift(self._left_info, self._right_info)
+        return note
+
+    def as_is(self, image: npt.NDArray[Any], side: str) -> npt.NDArray[Any]:
+        """Return an image used as it is (no remap): a right one moved onto the left's cx."""
+        return shift_image(image, self._right_shift) if side == "right" else image
 
     def _build(self, calibration: rect.StereoCalibration) -> rect.StereoRectifier:
         """Return the rectifier of a calibration: the current one when no value changed."""

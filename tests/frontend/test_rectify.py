@@ -501,7 +501,7 @@ def test_cameras_of_different_sizes_are_rectified_into_one_image() -> None:
 def test_cameras_of_different_sizes_with_different_rectified_cameras_are_refused() -> None:
     calibration = _narrow_right(raw_calibration(CAMERA, "plumb_bob"), 300)
     p = calibration.right.p.copy()
-    p[0, 2] -= 10  # the right P centred on its own image: no one rectified camera
+    p[1, 2] -= 10  # another cy: no one rectified camera (another cx is moved: test_right_cx)
     other = rect.StereoCalibration(
         dataclasses.replace(calibration.left, name="/l/info"),
         dataclasses.replace(calibration.right, p=p, name="/r/info"),
