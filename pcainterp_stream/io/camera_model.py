@@ -270,13 +270,8 @@ class CameraCalibration:
         out = self if frame is None else frame
         size = (out.width, out.height)
         if self.model == "equidistant":
-            d = np.zeros(4) if self.d.size == 0 else self.d[:4]
-            if d.size < 4:
-                raise CalibrationError(
-                    f"{self.name}: the equidistant model needs 4 coefficients, got {self.d.size}"
-                )
             map_x, map_y = cv2.fisheye.initUndistortRectifyMap(
-                self.k, d.reshape(4, 1), self.r, new_k, size, cv2.CV_32FC1
+                self.k, self._fisheye_d(), self.r, new_k, size, cv2.CV_32FC1
             )
         else:
             d = self.d if self.d.size else np.zeros(5)
@@ -294,6 +289,15 @@ class CameraCalibration:
             map_x, map_y = (map_x - rx) / rbx, (map_y - ry) / rby
         return np.ascontiguousarray(map_x, np.float32), np.ascontiguousarray(map_y, np.float32)
 
+    def _fisheye_d(self) -> npt.NDArray[np.float64]:
+        """Return the (4, 1) coefficients ``cv2.fisheye`` takes: zeros for an empty D."""
+        d = np.zeros(4) if self.d.size == 0 else self.d[:4]
+        if d.size < 4:
+            raise CalibrationError(
+                f"{self.name}: the equidistant model needs 4 coefficients, got {self.d.size}"
+            )
+        return np.asarray(d, np.float64).reshape(4, 1)
+
     def rectified_projection(self) -> npt.NDArray[np.float64]:
         """Return P of the ``image_rect`` images: moved by the ROI, divided by the binning."""
         x, y, _, _ = self.region()
@@ -308,14 +312,19 @@ class CameraCalibration:
             return float((self.p[0, 3] - right.p[0, 3]) / right.p[0, 0])
 
     def raw_to_rectified(self, pixels: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-        """Return the rectified positions of raw full-resolution pixels (n, 2)."""
+        """Return the rectified positions of raw full-resolution pixels (n, 2).
+
+        An empty D is no distortion, as for the maps (an ``equidistant`` one too: it
+        raised a reshape ``ValueError`` in the crossed-cables check before).
+        """
         points = np.asarray(pixels, np.float64).reshape(-1, 1, 2)
         if self.model == "equidistant":
             out = cv2.fisheye.undistortPoints(
-                points, self.k, self.d[:4].reshape(4, 1), R=self.r, P=self.p[:, :3]
+                points, self.k, self._fisheye_d(), R=self.r, P=self.p[:, :3]
             )
         else:
-            out = cv2.undistortPoints(points, self.k, self.d, R=self.r, P=self.p[:, :3])
+            d = self.d if self.d.size else np.zeros(5)  # as the maps take it
+            out = cv2.undistortPoints(points, self.k, d, R=self.r, P=self.p[:, :3])
         return np.asarray(out, np.float64).reshape(-1, 2)
 
 
