@@ -386,6 +386,35 @@ def test_rectified_streams_need_no_raw_calibration() -> None:
     assert said[0].startswith("rectify auto: /cam/left/image_rect and /cam/right/image_rect")
 
 
+@pytest.mark.parametrize(("name", "remapped"), [("image_corrected", True), ("image_rect", False)])
+def test_only_a_name_with_the_word_rect_is_used_without_a_remap(name: str, remapped: bool) -> None:
+    """Bug hunt 15A F3: raw images on image_corrected were used unrectified (substring test)."""
+    from pcainterp_stream.io import rosmsg
+
+    calibration = raw_calibration(CAMERA, "plumb_bob")
+    raw_left, raw_right = Unrectifier(calibration)(*_stereo_views())
+    topics = (f"/cam/left/{name}", f"/cam/right/{name}")
+    said: list[str] = []
+    config = PairingConfig(
+        left_topic=topics[0],
+        right_topic=topics[1],
+        left_info_topic="/cam/left/camera_info",
+        right_info_topic="/cam/right/camera_info",
+        check_rows=False,
+    )
+    pairer = StereoPairer(config, echo=said.append)
+    for topic, message in _messages(calibration, 1000).items():
+        pairer.push(topic, 1000, 1000, message)
+    for topic, image in zip(topics, (raw_left, raw_right), strict=True):
+        pairer.push(topic, 1000, 1000, rosmsg.image_message(image, 1000, "c", encoding="mono8"))
+    assert (pairer.rectification() is not None) is remapped
+    assert said[0].startswith(
+        "rectify auto: remapping the raw images"
+        if remapped
+        else "rectify auto: /cam/left/image_rect and"
+    )
+
+
 def test_guard_decides_at_the_same_frame_however_slow_its_matching(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
