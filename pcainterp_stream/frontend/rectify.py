@@ -38,6 +38,7 @@ from pcainterp_stream.io.camera_model import (
     MODELS,
     CameraCalibration,
     StereoCalibration,
+    stacked_vertically,
     unrectify_maps,
 )
 from pcainterp_stream.records import DensifiedFrame, StereoCamera
@@ -124,7 +125,8 @@ class StereoRectifier:
         cx_note: what the ``rectify`` line says of that (empty when the cx agree).
 
     Raises:
-        CalibrationError: the right P gives no positive baseline and none is given.
+        CalibrationError: the right P gives no positive baseline and none is given, or puts
+            the cameras one above the other (its Ty).
     """
 
     def __init__(self, calibration: StereoCalibration, baseline: float | None = None) -> None:
@@ -139,6 +141,9 @@ class StereoRectifier:
             _check_one_rectified_camera(left, right)
         # both into the left's rectified image: P of both infos define one rectified camera
         self._maps = [cal.rectification_maps(left) for cal in (left, right)]
+        vertical = stacked_vertically(left.p, right.p, right.name)
+        if vertical is not None:
+            raise CalibrationError(vertical)
         p = left.rectified_projection()
         width, height = left.image_size()
         if baseline is None:

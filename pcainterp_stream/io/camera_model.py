@@ -52,6 +52,28 @@ def uncalibrated(name: str, matrix: str) -> str:
     )
 
 
+def stacked_vertically(
+    p_left: npt.NDArray[np.float64], p_right: npt.NDArray[np.float64], right_name: str
+) -> str | None:
+    """Return the error of a pair whose P put the cameras one above the other, else None.
+
+    A vertical stereo pair's right (second) P has its translation in Ty = P[1, 3] (-fy *
+    baseline), not Tx = P[0, 3]: the baseline is mostly along y when |Ty_l - Ty_r| > |Tx_l -
+    Tx_r|. Neither ``--baseline`` nor a remap makes such a pair side-by-side.
+    """
+    with np.errstate(invalid="ignore", over="ignore"):
+        tx = float(p_left[0, 3] - p_right[0, 3])
+        ty = float(p_left[1, 3] - p_right[1, 3])
+    if not (np.isfinite(tx) and np.isfinite(ty) and abs(ty) > abs(tx)):
+        return None
+    return (
+        f"{right_name} has P[1,3] = {p_right[1, 3]:g} and P[0,3] = {p_right[0, 3]:g}: the "
+        "cameras are stacked vertically (baseline mostly along y); only side-by-side stereo "
+        "pairs are supported: rotate both images and their calibrations by 90 degrees so the "
+        "baseline runs along x (--baseline and --rectify do not help)"
+    )
+
+
 def reduced_projection(
     p: npt.NDArray[np.float64], offset: tuple[int, int], binning: tuple[int, int]
 ) -> npt.NDArray[np.float64]:

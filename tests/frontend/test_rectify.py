@@ -564,3 +564,20 @@ def test_a_right_tx_of_the_wrong_sign_is_told_the_baseline_that_works() -> None:
     good = rect.StereoRectifier(calibration)
     for a, b in zip(fixed._maps, good._maps, strict=True):
         np.testing.assert_array_equal(a[0], b[0])
+
+
+def test_a_raw_pair_stacked_vertically_is_named_so() -> None:
+    """Bug hunt 15A F2: the remap path said 'gives no baseline ... pass --baseline' too."""
+    calibration = raw_calibration(CAMERA, "plumb_bob")
+    p = calibration.right.p.copy()
+    p[1, 3], p[0, 3] = p[0, 3], 0.0
+    vertical = rect.StereoCalibration(
+        calibration.left, dataclasses.replace(calibration.right, p=p, name="/r/info")
+    )
+    for baseline in (None, 0.5):
+        with pytest.raises(
+            CalibrationError,
+            match=r"^/r/info has P\[1,3\] = -90 and P\[0,3\] = 0: "
+            "the cameras are stacked vertically",
+        ):
+            rect.StereoRectifier(vertical, baseline=baseline)
