@@ -677,7 +677,8 @@ class StereoPairer:
                     f"rectify auto: remapping the raw images with {source} "
                     f"({calibration.why_raw()}; {calibration.left.model}), as image_proc does: "
                     f"{_size(rectifier.camera)} rectified, fx={rectifier.camera.fx:g}, "
-                    f"baseline {rectifier.camera.baseline:.4g} m{rectifier.cx_note}"
+                    f"baseline {rectifier.camera.baseline:.4g} m{rectifier.cx_note}",
+                    self._new_maps(rectifier),
                 )
         else:
             rectifier = self._build(calibration)
@@ -685,13 +686,20 @@ class StereoPairer:
                 f"rectify {config.rectify}: remapping the images with {source} "
                 f"({calibration.left.model}): {_size(rectifier.camera)} rectified, "
                 f"fx={rectifier.camera.fx:g}, baseline {rectifier.camera.baseline:.4g} m"
-                f"{rectifier.cx_note}"
+                f"{rectifier.cx_note}",
+                self._new_maps(rectifier),
             )
         if config.calibration is None:
             self._rect_infos = (self._left_info, self._right_info)
         self._rectifier = rectifier
         self._as_is = calibration if rectifier is None else None
         return rectifier
+
+    def _new_maps(self, rectifier: rect.StereoRectifier) -> str:
+        """Say maps built anew for a calibration that changed (the line's text may not)."""
+        if self._rectifier is None or self._rectifier is rectifier:
+            return ""
+        return f"; new maps from frame {self._index} on: the calibration changed"
 
     def _shifted(self) -> str:
         """Set the shift of right images used as they are onto the left's cx; say it."""
@@ -726,9 +734,10 @@ class StereoPairer:
             topics = f"{config.left_info_topic} and {topics}"
         return f"P of {topics}" if rectifier is None else topics
 
-    def _say(self, line: str) -> None:
-        if line != self._said and self._echo is not None:
-            self._echo(line)
+    def _say(self, line: str, again: str = "") -> None:
+        """Echo a rectify line unless it was the last one said; with ``again`` in any case."""
+        if (line != self._said or again) and self._echo is not None:
+            self._echo(line + again)
         self._said = line
 
     def _camera(self, width: int, height: int) -> StereoCamera:

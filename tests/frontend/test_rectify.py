@@ -581,3 +581,18 @@ def test_a_raw_pair_stacked_vertically_is_named_so() -> None:
             "the cameras are stacked vertically",
         ):
             rect.StereoRectifier(vertical, baseline=baseline)
+
+
+def test_a_raw_pair_recalibrated_to_the_same_rectified_camera_says_so_once() -> None:
+    """Bug hunt 15A F6: new maps (another D, the same P) gave no second rectify line."""
+    first = raw_calibration(CAMERA, "plumb_bob")
+    second = rect.StereoCalibration(
+        *(dataclasses.replace(c, d=c.d * 0.5) for c in (first.left, first.right))
+    )
+    said: list[str] = []
+    pairer = StereoPairer(dataclasses.replace(_pairer().config, check_rows=False), echo=said.append)
+    views = _stereo_views()
+    for index, calibration in enumerate((first, first, second, second, second)):
+        _push_pair(pairer, 1000 + index, *Unrectifier(calibration)(*views), calibration)
+    assert len(said) == 2
+    assert said[1] == said[0] + "; new maps from frame 2 on: the calibration changed"
