@@ -207,6 +207,10 @@ class CameraCalibration:
     def from_camera_info(cls, message: Any, name: str) -> CameraCalibration:
         """Read a ROS 1 or ROS 2 ``CameraInfo`` message.
 
+        An all-zero K with a P, no distortion and R = I describes rectified images by P
+        alone (``image_geometry`` projects with P): K is taken as P[:3, :3]. Without a P (or
+        with distortion, or a rotation) an all-zero K is "not calibrated", refused.
+
         Raises:
             CalibrationError: an unknown model, missing or non-finite matrices.
         """
@@ -215,14 +219,20 @@ class CameraCalibration:
         region = (0, 0, 0, 0)
         if roi is not None:
             region = (int(roi.x_offset), int(roi.y_offset), int(roi.width), int(roi.height))
+        k = np.asarray(_field(message, "k"), dtype=np.float64).reshape(3, 3)
+        d = np.asarray(_field(message, "d"), dtype=np.float64).reshape(-1)
+        r = np.asarray(_field(message, "r"), dtype=np.float64).reshape(3, 3)
+        p = np.asarray(_field(message, "p"), dtype=np.float64).reshape(3, 4)
+        if not np.any(k) and np.any(p[:, :3]) and not np.any(d) and np.array_equal(r, np.eye(3)):
+            k = p[:, :3].copy()  # rectified images described by P alone, as image_geometry reads
         return cls(
             width=int(message.width),
             height=int(message.height),
             model=str(message.distortion_model),
-            k=np.asarray(_field(message, "k"), dtype=np.float64).reshape(3, 3),
-            d=np.asarray(_field(message, "d"), dtype=np.float64).reshape(-1),
-            r=np.asarray(_field(message, "r"), dtype=np.float64).reshape(3, 3),
-            p=np.asarray(_field(message, "p"), dtype=np.float64).reshape(3, 4),
+            k=k,
+            d=d,
+            r=r,
+            p=p,
             binning=(max(binning[0], 1), max(binning[1], 1)),
             roi=region,
             name=name,

@@ -596,3 +596,29 @@ def test_a_raw_pair_recalibrated_to_the_same_rectified_camera_says_so_once() -> 
         _push_pair(pairer, 1000 + index, *Unrectifier(calibration)(*views), calibration)
     assert len(said) == 2
     assert said[1] == said[0] + "; new maps from frame 2 on: the calibration changed"
+
+
+def test_an_all_zero_k_with_a_p_describes_rectified_images() -> None:
+    """Bug hunt 15A F7: D = 0, R = I, a P but K = 0 was refused as 'not calibrated'."""
+    ideal = _ideal(raw_calibration(CAMERA, "plumb_bob"))
+    messages = _messages(ideal, 1000)
+    for message in messages.values():
+        message.k[:] = 0.0
+    calibration = rect.stereo_from_infos(*messages.values(), "/l", "/r")
+    assert calibration.is_rectified
+    np.testing.assert_array_equal(calibration.left.k, ideal.left.p[:, :3])
+    pairer = _pairer(check_rows=False)
+    frames: list[Any] = []
+    for topic, message in messages.items():
+        frames += pairer.push(topic, 1000, 1000, message)
+    left, right = _stereo_views()
+    from pcainterp_stream.io import rosmsg
+
+    for topic, image in (("/cam/left/image_raw", left), ("/cam/right/image_raw", right)):
+        frames += pairer.push(topic, 1000, 1000, rosmsg.image_message(image, 1000, "c"))
+    assert len(frames) == 1
+    assert frames[0].camera.fx == CAMERA.fx
+    distorted = _messages(raw_calibration(CAMERA, "plumb_bob"), 1000)["/cam/left/camera_info"]
+    distorted.k[:] = 0.0  # with distortion (or no P) it is still not calibrated
+    with pytest.raises(CalibrationError, match="has an all-zero K: the camera is not calibrated"):
+        rect.CameraCalibration.from_camera_info(distorted, "/l")
