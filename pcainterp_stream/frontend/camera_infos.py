@@ -15,7 +15,11 @@ import numpy as np
 
 from pcainterp_stream.errors import CalibrationError, LogReadError
 from pcainterp_stream.io import rosmsg
-from pcainterp_stream.io.camera_model import image_projection, uncalibrated
+from pcainterp_stream.io.camera_model import (
+    image_projection,
+    stacked_vertically,
+    uncalibrated,
+)
 from pcainterp_stream.io.reader_base import LogReader
 from pcainterp_stream.records import StereoCamera
 
@@ -54,8 +58,9 @@ def camera_from_infos(
             baseline (the sides swapped).
 
     Raises:
-        CalibrationError: an info for another image size, an uncalibrated (all-zero) P, fx
-            or fy not positive, or no positive baseline from the P and no override.
+        CalibrationError: an info for another image size, an uncalibrated (all-zero) P, a
+            pair stacked vertically (the right P's Ty), fx or fy not positive, or no positive
+            baseline from the P and no override.
     """
     for info, topic in ((left_info, left_topic), (right_info, right_topic)):
         size = rosmsg.imaged_size(info)
@@ -75,6 +80,9 @@ def camera_from_infos(
             k = getattr(info, "k", getattr(info, "K", None))
             zeros = "K and P" if k is not None and not np.any(k) else "P"
             raise CalibrationError(uncalibrated(f"camera info on {topic}", zeros))
+    vertical = stacked_vertically(p_left, p_right, f"camera info on {right_topic}")
+    if vertical is not None:
+        raise CalibrationError(vertical)
     fx, fy, cx, cy = p_left[0, 0], p_left[1, 1], p_left[0, 2], p_left[1, 2]
     if not (np.isfinite(p_left).all() and fx > 0 and fy > 0):
         raise CalibrationError(

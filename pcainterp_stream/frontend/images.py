@@ -98,6 +98,6 @@ class PairImages:
             return image  # no calibration seen yet: as recorded
         rectifier = pairer.rectification()
         if rectifier is None:
-            return image
+            return np.asarray(pairer.as_is(image, side))  # a right one on the left's cx
         out = rectifier.rectify_one(image, side)
         return np.asarray(out)

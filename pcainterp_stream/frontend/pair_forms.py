@@ -10,6 +10,7 @@ one bit depth, each side on its own. :func:`is_rectified_name` reads a topic nam
 
 from __future__ import annotations
 
+import re
 from typing import TYPE_CHECKING, Any
 
 import cv2
@@ -124,11 +125,12 @@ def is_rectified_name(topic: str, partner: str | None = None) -> bool:
     (``/rectifier/left/image_raw``) say nothing.
     """
     transports = ("compressed", "compressedDepth")
-    parts = [p.lower() for p in topic.split("/") if p and p not in transports]
-    if not parts:
+    names = [p for p in topic.split("/") if p and p not in transports]
+    if not names:
         return False
-    if "rect" in parts[-1]:
+    if _says_rect(names[-1]):  # not "image_corrected" (bug hunt 15A F3), "directional"
         return True
+    parts = [p.lower() for p in names]
     if partner is not None:
         others = [p.lower() for p in partner.split("/") if p and p not in transports]
         sides = [i for i, (a, b) in enumerate(zip(parts, others, strict=False)) if a != b][:1]
@@ -137,9 +139,18 @@ def is_rectified_name(topic: str, partner: str | None = None) -> bool:
         sides = [i for i, k in starts if k == 0 or (k > 0 and not parts[i][k - 1].isalpha())]
     if not sides:
         return False
-    # a word of its own: "rect", "rect_color", "rectified", not "direct"
-    below = parts[sides[-1] + 1 :]
-    return any(w.startswith("rect") for p in below for w in p.replace("-", "_").split("_"))
+    return any(_says_rect(p) for p in names[sides[-1] + 1 :])
+
+
+def _says_rect(name: str) -> bool:
+    """Whether a name of a topic has a word starting with ``rect``.
+
+    Words are split at ``_``, ``-`` and a lower-to-upper case change: ``rect``,
+    ``image_rect_color``, ``image_rect_raw``, ``rectified``, ``imageRect`` do;
+    ``image_corrected``, ``direct``, ``color_corrected`` do not.
+    """
+    words = re.split(r"[_\-]|(?<=[a-z0-9])(?=[A-Z])", name)
+    return any(word.lower().startswith("rect") for word in words)
 
 
 def is_copy(new: PendingImage, last: PendingImage | None) -> bool:

@@ -28,8 +28,9 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
 from typing import Any
+
+import numpy.typing as npt
 
 from pcainterp_stream.errors import CalibrationError, LogReadError
 from pcainterp_stream.frontend import rectify as rect
@@ -46,10 +47,12 @@ from pcainterp_stream.frontend.pair_forms import (
     is_copy,
     is_rectified_name,
 )
+from pcainterp_stream.frontend.pairing_config import PairingConfig as PairingConfig
 from pcainterp_stream.frontend.pairing_stats import PairingStats
 from pcainterp_stream.frontend.pairing_window import HeldQueue, Hold, HoldLimits
 from pcainterp_stream.frontend.pairing_window import PendingImage as _Pending
 from pcainterp_stream.frontend.rect_border import BorderFinder, RectifiedBorder
+from pcainterp_stream.frontend.right_cx import as_is_shift, shift_image
 from pcainterp_stream.frontend.row_check import Corners, RowCheck
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import LogReader, decode_image
@@ -72,96 +75,6 @@ NEAR_MISS_NS = 50_000_000
 
 RECENT_INTERVALS = 16
 """Log-time intervals of a side kept for its frame interval (their median)."""
-
-
-@dataclass(frozen=True)
-class PairingConfig:
-    """Which topics make a stereo frame and how stamps are matched.
-
-    Attributes:
-        left_topic: left rectified image (``Image`` or ``CompressedImage``).
-        right_topic: right rectified image.
-        left_info_topic: left ``CameraInfo`` (P gives fx, fy, cx, cy).
-        right_info_topic: right ``CameraInfo`` (baseline b = -P[0, 3] / P[0, 0]).
-        features_topic: optional ``PointCloud2`` of sparse points (x, y, z, m, left optical
-            frame); None for no feature stream.
-        tolerance_ns: largest difference of header stamps that still pairs (ns).
-        window: pairs held waiting for camera infos (the oldest beyond it is dropped and
-            counted), and the least of each other queue held whatever its log-time span.
-        hold_ns: how long (log time, ns) an unpaired image waits for the other side's image
-            of its stamp, a frame for its feature cloud, a cloud for its frame: streams
-            recorded that far apart still pair (see :mod:`frontend.pairing_window`).
-        hold_count: the most messages a queue holds (unpaired images of a side, frames,
-            clouds), whatever ``hold_ns``.
-        hold_bytes: the most bytes (images, frames and clouds) the queues hold together,
-            whatever ``hold_ns``.
-        baseline: baseline override (m); when set, the right camera info's P[0, 3] is not
-            used and may be 0.
-        fail_on_size_mismatch: raise :class:`~errors.LogReadError` on a left/right size
-            mismatch instead of counting it and skipping the pair.
-        rectify: ``auto`` (remap when the calibration says the images are raw, see
-            :meth:`StereoPairer.rectification`), ``always`` (remap from the calibration) or
-            ``never`` (use the images as recorded and P of the camera infos, unchecked).
-        calibration: the pair's calibration from files, for logs without camera infos
-            (the info topics are then not read).
-        discover: the topics were not named: find the pair in the log
-            (:func:`frontend.discovery.resolve_pairing`).
-        named_sides: with ``discover``: the sides (``left``, ``right``) whose image topic was
-            named, the default one included; the pair found must have it.
-        named_infos: the sides whose info topic was named on the command line, the default
-            one included: that topic is read, not the image's own camera info.
-        calibration_topics: with ``discover``: the image topics the calibration file names
-            (the ``rostopic`` of a Kalibr camchain's cameras), the pair unless a side is
-            named; when the log has not both, the pair is found in it.
-        check_rows: on the first frames, refuse a pair whose matched corners are not on the
-            same rows (or have negative disparities); off with ``rectify="never"``.
-    """
-
-    left_topic: str = "/stereo/left/image_rect"
-    right_topic: str = "/stereo/right/image_rect"
-    left_info_topic: str = "/stereo/left/camera_info"
-    right_info_topic: str = "/stereo/right/camera_info"
-    features_topic: str | None = None
-    tolerance_ns: int = 1_000_000
-    window: int = 8
-    hold_ns: int = 3_000_000_000
-    hold_count: int = 2000
-    hold_bytes: int = 512 * 2**20
-    baseline: float | None = None
-    fail_on_size_mismatch: bool = False
-    rectify: str = "auto"
-    calibration: rect.StereoCalibration | None = None
-    discover: bool = False
-    named_sides: tuple[str, ...] = ()
-    named_infos: tuple[str, ...] = ()
-    calibration_topics: tuple[str, str] | None = None
-    check_rows: bool = True
-
-    def __post_init__(self) -> None:
-        if self.rectify not in ("auto", "always", "never"):
-            raise ValueError(f"rectify must be auto, always or never, got {self.rectify!r}")
-        if self.tolerance_ns < 0:
-            raise ValueError(f"tolerance_ns must be >= 0, got {self.tolerance_ns}")
-        if self.window < 1:
-            raise ValueError(f"window must be >= 1, got {self.window}")
-        HoldLimits(self.window, self.hold_ns, self.hold_count, self.hold_bytes)  # checks them
-        if self.baseline is not None and not self.baseline > 0:
-            raise ValueError(f"baseline override must be > 0 m, got {self.baseline}")
-
-    def required_topics(self) -> dict[str, str]:
-        """Return topic -> command-line option, for :meth:`LogReader.require_topics`."""
-        topics = {self.left_topic: "--left-topic", self.right_topic: "--right-topic"}
-        if self.calibration is None:
-            topics[self.left_info_topic] = "--left-info-topic"
-            topics[self.right_info_topic] = "--right-info-topic"
-        if self.features_topic is not None:
-            topics[self.features_topic] = "--features-topic"
-        return topics
-
-    @property
-    def topics(self) -> list[str]:
-        """Return every topic the pairer reads (to pass to :meth:`LogReader.messages`)."""
-        return list(self.required_topics())
 
 
 class StereoPairer:
@@ -187,6 +100,7 @@ class StereoPairer:
         self._left_clock = ImageClock()  # where such a left image is placed
         self._borders = BorderFinder(echo)
         self._as_is: rect.StereoCalibration | None = None  # of images used as they are
+        self._right_shift = 0.0  # px moving their right images onto the left's cx (right_cx)
         self._rows = (
             RowCheck(
                 self.config.left_topic,
@@ -625,6 +539,7 @@ class StereoPairer:
             camera, seen = rectifier.inner, rectifier.camera
         else:
             camera = seen = self._camera(width, height)
+            right_image = self.as_is(right_image, "right")  # onto the left's cx
             border = None
             if self.config.rectify != "never":  # a black border is estimated around
                 border = self._borders.find(left_image, right_image, camera, self._as_is)
@@ -710,6 +625,7 @@ class StereoPairer:
             self._say(
                 "rectify never: the images are used as recorded, with P of "
                 f"{config.left_info_topic} and {config.right_info_topic} (not checked)"
+                f"{self._shifted()}"
             )
             return None
         if config.calibration is not None:
@@ -734,7 +650,7 @@ class StereoPairer:
                 # unknown model): P alone is what they need
                 self._say(
                     f"rectify auto: {config.left_topic} and {config.right_topic} are named "
-                    "rectified: used as they are, with P of their camera infos"
+                    f"rectified: used as they are, with P of their camera infos{self._shifted()}"
                 )
                 self._rect_infos = (self._left_info, self._right_info)
                 self._rectifier = self._as_is = None
@@ -746,13 +662,14 @@ class StereoPairer:
             if calibration.is_rectified:
                 self._say(
                     f"rectify auto: {source} say the images are rectified (D = 0, R = I, "
-                    "K = P): used as they are"
+                    f"K = P): used as they are{self._shifted()}"
                 )
             elif len(named) == 2:
                 self._say(
                     f"rectify auto: {config.left_topic} and {config.right_topic} are named "
                     "rectified: used as they are, with P of their camera infos (ROS publishes "
                     "image_rect with the raw camera's D and R); --rectify always remaps them"
+                    f"{self._shifted()}"
                 )
             else:
                 rectifier = self._build(calibration)
@@ -760,7 +677,8 @@ class StereoPairer:
                     f"rectify auto: remapping the raw images with {source} "
                     f"({calibration.why_raw()}; {calibration.left.model}), as image_proc does: "
                     f"{_size(rectifier.camera)} rectified, fx={rectifier.camera.fx:g}, "
-                    f"baseline {rectifier.camera.baseline:.4g} m"
+                    f"baseline {rectifier.camera.baseline:.4g} m{rectifier.cx_note}",
+                    self._new_maps(rectifier),
                 )
         else:
             rectifier = self._build(calibration)
@@ -768,12 +686,29 @@ class StereoPairer:
                 f"rectify {config.rectify}: remapping the images with {source} "
                 f"({calibration.left.model}): {_size(rectifier.camera)} rectified, "
                 f"fx={rectifier.camera.fx:g}, baseline {rectifier.camera.baseline:.4g} m"
+                f"{rectifier.cx_note}",
+                self._new_maps(rectifier),
             )
         if config.calibration is None:
             self._rect_infos = (self._left_info, self._right_info)
         self._rectifier = rectifier
         self._as_is = calibration if rectifier is None else None
         return rectifier
+
+    def _new_maps(self, rectifier: rect.StereoRectifier) -> str:
+        """Say maps built anew for a calibration that changed (the line's text may not)."""
+        if self._rectifier is None or self._rectifier is rectifier:
+            return ""
+        return f"; new maps from frame {self._index} on: the calibration changed"
+
+    def _shifted(self) -> str:
+        """Set the shift of right images used as they are onto the left's cx; say it."""
+        self._right_shift, note = as_is_shift(self._left_info, self._right_info)
+        return note
+
+    def as_is(self, image: npt.NDArray[Any], side: str) -> npt.NDArray[Any]:
+        """Return an image used as it is (no remap): a right one moved onto the left's cx."""
+        return shift_image(image, self._right_shift) if side == "right" else image
 
     def _build(self, calibration: rect.StereoCalibration) -> rect.StereoRectifier:
         """Return the rectifier of a calibration: the current one when no value changed."""
@@ -799,9 +734,10 @@ class StereoPairer:
             topics = f"{config.left_info_topic} and {topics}"
         return f"P of {topics}" if rectifier is None else topics
 
-    def _say(self, line: str) -> None:
-        if line != self._said and self._echo is not None:
-            self._echo(line)
+    def _say(self, line: str, again: str = "") -> None:
+        """Echo a rectify line unless it was the last one said; with ``again`` in any case."""
+        if (line != self._said or again) and self._echo is not None:
+            self._echo(line + again)
         self._said = line
 
     def _camera(self, width: int, height: int) -> StereoCamera:

@@ -27,6 +27,18 @@ MAX_BASELINE_M = 3.0
 """Beyond this baseline (m) a calibration is taken for wrong (a rig of trucks' width is ~1.5 m;
 a millimetre P[0, 3] gives a thousand times the real one)."""
 
+MIN_FOCAL_BASELINE = 1.0
+"""Below this f*b (px*m) a calibration is taken for wrong: 1 px of disparity at 1 m, 0.1 px at
+10 m. The smallest real pairs have more (a phone's ~1 cm at fx ~1500 px: ~15 px*m; a 4 mm
+endoscope at fx 500 px: 2 px*m); a P[0, 3] written in metres (-baseline, not -fx * baseline)
+makes f*b the baseline in metres (0.05-0.6 px*m for common rigs) and every depth fx times too
+far. A bound on f*b, not on the baseline: a tiny camera's baseline is small, its f*b is not."""
+
+
+def _plausible(camera: StereoCamera) -> bool:
+    """Whether a camera's baseline and f*b are a stereo rig's (see :data:`MIN_FOCAL_BASELINE`)."""
+    return camera.baseline <= MAX_BASELINE_M and camera.focal_baseline >= MIN_FOCAL_BASELINE
+
 
 @dataclass
 class PairingStats:
@@ -34,7 +46,8 @@ class PairingStats:
 
     Attributes:
         camera: the camera of the first pair, or the first with a baseline beyond
-            :data:`MAX_BASELINE_M`; None before any pair.
+            :data:`MAX_BASELINE_M` or an f*b below :data:`MIN_FOCAL_BASELINE`; None before
+            any pair.
         camera_source: where that camera's baseline came from.
         nearest_gap_ns: the smallest stamp gap (right minus left, ns) seen between an image
             that found no partner and the other side's waiting images; None: none seen.
@@ -412,7 +425,7 @@ class PairingStats:
         :attr:`camera`; the line is returned for the first :data:`MAX_CAMERA_LINES` changes
         (the summary lists every camera).
         """
-        if self.camera is None or (self.camera.baseline <= MAX_BASELINE_M < camera.baseline):
+        if self.camera is None or (_plausible(self.camera) and not _plausible(camera)):
             self.camera, self.camera_source = camera, source
         if self.first_log_ns is None:
             self.first_log_ns = log_time_ns
@@ -481,10 +494,23 @@ class PairingStats:
         return "\n".join(lines)
 
     def baseline_hint(self) -> str | None:
-        """A warning when the baseline is beyond any stereo rig's, else None."""
+        """A warning when the baseline is beyond any stereo rig's, or f*b below any's, else None."""
         camera = self.camera
-        if camera is None or camera.baseline <= MAX_BASELINE_M:
+        if camera is None or _plausible(camera):
             return None
+        if camera.baseline <= MAX_BASELINE_M:  # f*b too small: Tx in metres?
+            fb = camera.focal_baseline
+            guess = (
+                ""
+                if self.camera_source == "--baseline"
+                else f"; if P[0, 3] is the baseline in metres, pass --baseline {fb:.4g}"
+            )
+            return (
+                f"the baseline from {self.camera_source} is {camera.baseline:.4g} m at fx "
+                f"{camera.fx:g} px, f*b {fb:.4g} px*m (1 px of disparity at {fb:.3g} m), below "
+                f"any stereo rig's (>= {MIN_FOCAL_BASELINE:g} px*m), and every depth scales "
+                f"with it: fix the calibration (P[0, 3] = -fx * baseline, in metres){guess}"
+            )
         guess = f"; if it is in millimetres, pass --baseline {camera.baseline / 1000:.4g}"
         return (
             f"the baseline from {self.camera_source} is {camera.baseline:.4g} m, beyond any "

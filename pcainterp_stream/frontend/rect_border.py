@@ -38,6 +38,7 @@ import numpy.typing as npt
 
 from pcainterp_stream.errors import CalibrationError
 from pcainterp_stream.frontend.rectify import box_without, invalid_pixels
+from pcainterp_stream.frontend.right_cx import on_left_cx
 from pcainterp_stream.io.camera_model import StereoCalibration
 from pcainterp_stream.records import StereoCamera
 
@@ -149,9 +150,11 @@ def calibration_border(
         raw position is more than a pixel outside (an ``alpha`` = 0 rectification maps a few
         pixels a fraction of a pixel outside: blends of the edge, not a black border). None
         when the calibration tells nothing of these images: it says they are rectified (D =
-        0, R = I, K = P), is for another size, or has no maps.
+        0, R = I, K = P), is for another size, or has no maps. The right camera's pixels are
+        those of its images moved onto the left's cx, as the pairer moves them
+        (:mod:`frontend.right_cx`).
     """
-    left, right = calibration.left, calibration.right
+    left, right = calibration.left, on_left_cx(calibration.left, calibration.right)
     if calibration.is_rectified or not (left.image_size() == right.image_size() == size):
         return None
     try:

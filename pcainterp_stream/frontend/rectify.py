@@ -9,7 +9,8 @@ P[:3, :3])`` (``cv2.fisheye`` for ``equidistant``; the records and maps are
 measurably worse for matching), at the size ``image_proc``'s ``image_rect`` has: the raw
 image's size (its ROI divided by its binning); the right camera is remapped into the left's
 rectified image, since P of both infos defines one rectified camera (a right sensor of
-another size too). The rectified left camera is then P's
+another size too; a right P with another cx is remapped onto the left's cx, so disparities
+have no offset: :mod:`frontend.right_cx`). The rectified left camera is then P's
 (divided by the binning, moved by the ROI) with D = 0 and R = I; points in the raw left
 camera's frame move into the rectified one by R. The estimate is made in the box of the
 rectified image both raw cameras see (:func:`valid_box`) and padded back to the full size
@@ -32,10 +33,12 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.errors import CalibrationError
+from pcainterp_stream.frontend.right_cx import cx_note, on_left_cx
 from pcainterp_stream.io.camera_model import (
     MODELS,
     CameraCalibration,
     StereoCalibration,
+    stacked_vertically,
     unrectify_maps,
 )
 from pcainterp_stream.records import DensifiedFrame, StereoCamera
@@ -85,7 +88,8 @@ def _check_one_rectified_camera(left: CameraCalibration, right: CameraCalibratio
     """Refuse cameras of different image sizes whose P do not define one rectified camera.
 
     The right camera is rectified into the left's image with its own P: sound only when
-    both P have the same fx, fy, cx, cy (a stereo calibration's; only Tx differs).
+    both P have the same fx, fy, cx, cy (a stereo calibration's; only Tx differs, and cx
+    when the right is moved onto the left's: ``right`` is so moved).
 
     Raises:
         CalibrationError: naming both sizes and the fix.
@@ -114,20 +118,32 @@ class StereoRectifier:
         baseline: baseline override (m); else (P_left[0, 3] - P_right[0, 3]) / fx (ROS
             writes the left Tx 0; a pair calibrated against a third camera does not).
 
+    Attributes:
+        aligned: the calibration the maps are made with: ``calibration`` with the right
+            P's cx replaced by the left's when they differ (:mod:`frontend.right_cx`), so
+            disparities have no cx_left - cx_right offset.
+        cx_note: what the ``rectify`` line says of that (empty when the cx agree).
+
     Raises:
-        CalibrationError: the right P gives no positive baseline and none is given.
+        CalibrationError: the right P gives no positive baseline and none is given, or puts
+            the cameras one above the other (its Ty).
     """
 
     def __init__(self, calibration: StereoCalibration, baseline: float | None = None) -> None:
         self.calibration = calibration
-        left, right = calibration.left, calibration.right
+        left, right = calibration.left, on_left_cx(calibration.left, calibration.right)
+        self.aligned = StereoCalibration(left, right)
+        self.cx_note = cx_note(float(calibration.right.p[0, 2]), float(left.p[0, 2]))
         # an identity remap: resampling would only add rounding (and float maps a hair
         # outside the image would shave a border row and column off the valid box)
-        self.identity = calibration.is_rectified and left.image_size() == right.image_size()
+        self.identity = self.aligned.is_rectified and left.image_size() == right.image_size()
         if _frames_differ(left, right):
             _check_one_rectified_camera(left, right)
         # both into the left's rectified image: P of both infos define one rectified camera
         self._maps = [cal.rectification_maps(left) for cal in (left, right)]
+        vertical = stacked_vertically(left.p, right.p, right.name)
+        if vertical is not None:
+            raise CalibrationError(vertical)
         p = left.rectified_projection()
         width, height = left.image_size()
         if baseline is None:

@@ -319,7 +319,7 @@ def exchanged_offset(
     """
     exchanged = []
     for points, rectifier in chunks:
-        calibration = rectifier.calibration
+        calibration = rectifier.aligned  # the maps' (the right on the left's cx)
         box_x, box_y, _, _ = rectifier.box
         raw: list[npt.NDArray[np.float64]] = []
         for cal, xy in ((calibration.left, points[:, :2]), (calibration.right, points[:, 2:])):

@@ -131,8 +131,17 @@ def camera_images(reader: LogReader) -> Callable[[str, bool], str | None]:
 
 
 def first_tx(reader: LogReader) -> Callable[[str], float | None]:
-    """Return camera info topic -> its first message's P[0, 3] (None: not known)."""
-    return _first(reader, lambda info: float(rosmsg.projection_matrix(info)[0, 3]), None)
+    """Return camera info topic -> its first message's P[0, 3] (None: not known).
+
+    P[1, 3] when P[0, 3] is 0: a vertical pair's second camera has its translation there
+    (Ty), and is no monocular camera (the pairer refuses the pair as stacked vertically).
+    """
+
+    def tx(info: Any) -> float:
+        p = rosmsg.projection_matrix(info)
+        return float(p[0, 3] or p[1, 3])
+
+    return _first(reader, tx, None)
 
 
 def first_uncalibrated(reader: LogReader) -> Callable[[str], bool]:

@@ -52,6 +52,28 @@ def uncalibrated(name: str, matrix: str) -> str:
     )
 
 
+def stacked_vertically(
+    p_left: npt.NDArray[np.float64], p_right: npt.NDArray[np.float64], right_name: str
+) -> str | None:
+    """Return the error of a pair whose P put the cameras one above the other, else None.
+
+    A vertical stereo pair's right (second) P has its translation in Ty = P[1, 3] (-fy *
+    baseline), not Tx = P[0, 3]: the baseline is mostly along y when |Ty_l - Ty_r| > |Tx_l -
+    Tx_r|. Neither ``--baseline`` nor a remap makes such a pair side-by-side.
+    """
+    with np.errstate(invalid="ignore", over="ignore"):
+        tx = float(p_left[0, 3] - p_right[0, 3])
+        ty = float(p_left[1, 3] - p_right[1, 3])
+    if not (np.isfinite(tx) and np.isfinite(ty) and abs(ty) > abs(tx)):
+        return None
+    return (
+        f"{right_name} has P[1,3] = {p_right[1, 3]:g} and P[0,3] = {p_right[0, 3]:g}: the "
+        "cameras are stacked vertically (baseline mostly along y); only side-by-side stereo "
+        "pairs are supported: rotate both images and their calibrations by 90 degrees so the "
+        "baseline runs along x (--baseline and --rectify do not help)"
+    )
+
+
 def reduced_projection(
     p: npt.NDArray[np.float64], offset: tuple[int, int], binning: tuple[int, int]
 ) -> npt.NDArray[np.float64]:
@@ -185,6 +207,10 @@ class CameraCalibration:
     def from_camera_info(cls, message: Any, name: str) -> CameraCalibration:
         """Read a ROS 1 or ROS 2 ``CameraInfo`` message.
 
+        An all-zero K with a P, no distortion and R = I describes rectified images by P
+        alone (``image_geometry`` projects with P): K is taken as P[:3, :3]. Without a P (or
+        with distortion, or a rotation) an all-zero K is "not calibrated", refused.
+
         Raises:
             CalibrationError: an unknown model, missing or non-finite matrices.
         """
@@ -193,14 +219,20 @@ class CameraCalibration:
         region = (0, 0, 0, 0)
         if roi is not None:
             region = (int(roi.x_offset), int(roi.y_offset), int(roi.width), int(roi.height))
+        k = np.asarray(_field(message, "k"), dtype=np.float64).reshape(3, 3)
+        d = np.asarray(_field(message, "d"), dtype=np.float64).reshape(-1)
+        r = np.asarray(_field(message, "r"), dtype=np.float64).reshape(3, 3)
+        p = np.asarray(_field(message, "p"), dtype=np.float64).reshape(3, 4)
+        if not np.any(k) and np.any(p[:, :3]) and not np.any(d) and np.array_equal(r, np.eye(3)):
+            k = p[:, :3].copy()  # rectified images described by P alone, as image_geometry reads
         return cls(
             width=int(message.width),
             height=int(message.height),
             model=str(message.distortion_model),
-            k=np.asarray(_field(message, "k"), dtype=np.float64).reshape(3, 3),
-            d=np.asarray(_field(message, "d"), dtype=np.float64).reshape(-1),
-            r=np.asarray(_field(message, "r"), dtype=np.float64).reshape(3, 3),
-            p=np.asarray(_field(message, "p"), dtype=np.float64).reshape(3, 4),
+            k=k,
+            d=d,
+            r=r,
+            p=p,
             binning=(max(binning[0], 1), max(binning[1], 1)),
             roi=region,
             name=name,
@@ -270,13 +302,8 @@ class CameraCalibration:
         out = self if frame is None else frame
         size = (out.width, out.height)
         if self.model == "equidistant":
-            d = np.zeros(4) if self.d.size == 0 else self.d[:4]
-            if d.size < 4:
-                raise CalibrationError(
-                    f"{self.name}: the equidistant model needs 4 coefficients, got {self.d.size}"
-                )
             map_x, map_y = cv2.fisheye.initUndistortRectifyMap(
-                self.k, d.reshape(4, 1), self.r, new_k, size, cv2.CV_32FC1
+                self.k, self._fisheye_d(), self.r, new_k, size, cv2.CV_32FC1
             )
         else:
             d = self.d if self.d.size else np.zeros(5)
@@ -294,6 +321,15 @@ class CameraCalibration:
             map_x, map_y = (map_x - rx) / rbx, (map_y - ry) / rby
         return np.ascontiguousarray(map_x, np.float32), np.ascontiguousarray(map_y, np.float32)
 
+    def _fisheye_d(self) -> npt.NDArray[np.float64]:
+        """Return the (4, 1) coefficients ``cv2.fisheye`` takes: zeros for an empty D."""
+        d = np.zeros(4) if self.d.size == 0 else self.d[:4]
+        if d.size < 4:
+            raise CalibrationError(
+                f"{self.name}: the equidistant model needs 4 coefficients, got {self.d.size}"
+            )
+        return np.asarray(d, np.float64).reshape(4, 1)
+
     def rectified_projection(self) -> npt.NDArray[np.float64]:
         """Return P of the ``image_rect`` images: moved by the ROI, divided by the binning."""
         x, y, _, _ = self.region()
@@ -308,14 +344,19 @@ class CameraCalibration:
             return float((self.p[0, 3] - right.p[0, 3]) / right.p[0, 0])
 
     def raw_to_rectified(self, pixels: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-        """Return the rectified positions of raw full-resolution pixels (n, 2)."""
+        """Return the rectified positions of raw full-resolution pixels (n, 2).
+
+        An empty D is no distortion, as for the maps (an ``equidistant`` one too: it
+        raised a reshape ``ValueError`` in the crossed-cables check before).
+        """
         points = np.asarray(pixels, np.float64).reshape(-1, 1, 2)
         if self.model == "equidistant":
             out = cv2.fisheye.undistortPoints(
-                points, self.k, self.d[:4].reshape(4, 1), R=self.r, P=self.p[:, :3]
+                points, self.k, self._fisheye_d(), R=self.r, P=self.p[:, :3]
             )
         else:
-            out = cv2.undistortPoints(points, self.k, self.d, R=self.r, P=self.p[:, :3])
+            d = self.d if self.d.size else np.zeros(5)  # as the maps take it
+            out = cv2.undistortPoints(points, self.k, d, R=self.r, P=self.p[:, :3])
         return np.asarray(out, np.float64).reshape(-1, 2)
 
 

@@ -100,3 +100,42 @@ def test_a_negative_baseline_says_the_sides_look_swapped_not_pass_baseline() -> 
     # no Tx at all is no sign problem: --baseline is the fix there
     with pytest.raises(CalibrationError, match=r"finite\); pass --baseline METRES$"):
         camera_from_infos(left, left, width=8, height=6)
+
+
+def _vertical_infos() -> tuple[object, object]:
+    """A rectified pair stacked vertically: the right (lower) P has Ty = -fy * b, Tx = 0."""
+    left = rosmsg.camera_info_message(CAMERA, 0, "l")
+    right = rosmsg.camera_info_message(CAMERA, 0, "r")
+    p = np.array(right.p, dtype=np.float64).reshape(3, 4)
+    p[1, 3] = CAMERA.fy * CAMERA.baseline
+    return left, dataclasses.replace(right, p=p.reshape(-1))
+
+
+@pytest.mark.parametrize("baseline", [None, 0.25])
+def test_a_pair_stacked_vertically_is_named_so(baseline: float | None) -> None:
+    """Bug hunt 15A F2: 'gives no baseline ... pass --baseline', then 'not rectified'."""
+    left, right = _vertical_infos()
+    with pytest.raises(CalibrationError) as err:
+        camera_from_infos(
+            left, right, width=8, height=6, right_topic="/s/right/camera_info", baseline=baseline
+        )
+    assert str(err.value).startswith(
+        "camera info on /s/right/camera_info has P[1,3] = 12.75 and P[0,3] = 0: the cameras "
+        "are stacked vertically (baseline mostly along y); only side-by-side stereo pairs are "
+        "supported"
+    )
+    assert "\n" not in str(err.value)
+
+
+def test_discovery_reads_a_vertical_pairs_ty_as_its_translation(tmp_path: Path) -> None:
+    """Not Tx = 0 on both infos, 'as two monocular cameras have' (bug hunt 15A F2)."""
+    from pcainterp_stream.frontend.stream_kinds import first_tx
+
+    left, right = _vertical_infos()
+    with open_writer(tmp_path / "v.mcap", "mcap") as writer:
+        writer.add_message(INFOS[0], left, 1)
+        writer.add_message(INFOS[1], right, 1)
+    with open_log(tmp_path / "v.mcap") as reader:
+        tx = first_tx(reader)
+        assert tx(INFOS[0]) == 0.0
+        assert tx(INFOS[1]) == pytest.approx(12.75)

@@ -546,6 +546,29 @@ def test_rect_above_the_side_name_says_nothing() -> None:
     assert not is_rectified_name("/stereo/left/direct/image")
 
 
+@pytest.mark.parametrize(
+    ("topic", "rectified"),
+    [
+        ("/camera/left/image_rect", True),
+        ("/camera/left/image_rect_color", True),
+        ("/camera/infra1/image_rect_raw", True),
+        ("/stereo/left/rect", True),
+        ("/stereo/left/image_rectified", True),
+        ("/stereo/left/imageRect", True),
+        ("/camera/left/image_rect/compressed", True),
+        # bug hunt 15A F3: a substring test took these as rectified (used without a remap)
+        ("/camera/left/image_corrected", False),
+        ("/camera/left/image_color_corrected", False),
+        ("/camera/left/directional", False),
+        ("/camera/left/image_raw", False),
+    ],
+)
+def test_the_last_name_says_rectified_by_a_word_not_a_substring(
+    topic: str, rectified: bool
+) -> None:
+    assert is_rectified_name(topic) is rectified
+
+
 def test_a_camchain_read_with_cam1_left_says_so_in_a_line() -> None:
     # bug hunt 7A F14: a camchain whose cam0 is the right camera (Kalibr numbers the cameras
     # in --topics order) is read with cam1 left (io.calibration names the cameras so)

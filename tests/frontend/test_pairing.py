@@ -1375,3 +1375,38 @@ def test_camera_change_is_said_and_summarised() -> None:
     push(one, CONFIG.left_topic, 1, image(1))
     push(one, CONFIG.right_topic, 1, image(1))
     assert (one.finish().camera_note() or "").startswith("camera: 8x6 px, fx 50 px, baseline")
+
+
+@pytest.mark.parametrize(
+    ("fx", "baseline", "source", "says"),
+    [
+        # bug hunt 15A F5: Tx in metres (P[0, 3] = -0.5372, fx 359.428): no warning before
+        (359.428, 0.5372 / 359.428, "P of /r/info", "pass --baseline 0.5372"),
+        (359.428, 0.5372 / 359.428, "--baseline", "(P[0, 3] = -fx * baseline, in metres)"),
+        (359.428, 537.2, "P of /r/info", "if it is in millimetres, pass --baseline 0.5372"),
+        (500.0, 0.004, "P of /r/info", None),  # a 4 mm endoscope: f*b 2 px*m
+        (1500.0, 0.01, "P of /r/info", None),  # a phone's pair
+        (5.0, 0.5, "P of /r/info", None),  # a tiny test camera
+    ],
+)
+def test_a_baseline_beyond_or_an_f_times_b_below_any_rigs_is_warned_of(
+    fx: float, baseline: float, source: str, says: str | None
+) -> None:
+    stats = PairingStats()
+    plain = StereoCamera(640, 480, 500.0, 500.0, 320.0, 240.0, 0.12)
+    stats.saw_camera(plain, source)
+    assert stats.baseline_hint() is None
+    camera = StereoCamera(640, 480, fx, fx, 320.0, 240.0, baseline)
+    stats.saw_camera(camera, source)  # kept as the camera: the implausible one
+    hint = stats.baseline_hint()
+    if says is None:
+        assert hint is None
+        return
+    assert hint is not None
+    assert says in hint
+    if baseline < 1:
+        assert hint.startswith(
+            f"the baseline from {source} is 0.001495 m at fx 359.428 px, f*b 0.5372 px*m (1 px "
+            "of disparity at 0.537 m), below any stereo rig's (>= 1 px*m)"
+        )
+        assert ("pass --baseline" in hint) is (source != "--baseline")

@@ -386,6 +386,35 @@ def test_rectified_streams_need_no_raw_calibration() -> None:
     assert said[0].startswith("rectify auto: /cam/left/image_rect and /cam/right/image_rect")
 
 
+@pytest.mark.parametrize(("name", "remapped"), [("image_corrected", True), ("image_rect", False)])
+def test_only_a_name_with_the_word_rect_is_used_without_a_remap(name: str, remapped: bool) -> None:
+    """Bug hunt 15A F3: raw images on image_corrected were used unrectified (substring test)."""
+    from pcainterp_stream.io import rosmsg
+
+    calibration = raw_calibration(CAMERA, "plumb_bob")
+    raw_left, raw_right = Unrectifier(calibration)(*_stereo_views())
+    topics = (f"/cam/left/{name}", f"/cam/right/{name}")
+    said: list[str] = []
+    config = PairingConfig(
+        left_topic=topics[0],
+        right_topic=topics[1],
+        left_info_topic="/cam/left/camera_info",
+        right_info_topic="/cam/right/camera_info",
+        check_rows=False,
+    )
+    pairer = StereoPairer(config, echo=said.append)
+    for topic, message in _messages(calibration, 1000).items():
+        pairer.push(topic, 1000, 1000, message)
+    for topic, image in zip(topics, (raw_left, raw_right), strict=True):
+        pairer.push(topic, 1000, 1000, rosmsg.image_message(image, 1000, "c", encoding="mono8"))
+    assert (pairer.rectification() is not None) is remapped
+    assert said[0].startswith(
+        "rectify auto: remapping the raw images"
+        if remapped
+        else "rectify auto: /cam/left/image_rect and"
+    )
+
+
 def test_guard_decides_at_the_same_frame_however_slow_its_matching(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -501,7 +530,7 @@ def test_cameras_of_different_sizes_are_rectified_into_one_image() -> None:
 def test_cameras_of_different_sizes_with_different_rectified_cameras_are_refused() -> None:
     calibration = _narrow_right(raw_calibration(CAMERA, "plumb_bob"), 300)
     p = calibration.right.p.copy()
-    p[0, 2] -= 10  # the right P centred on its own image: no one rectified camera
+    p[1, 2] -= 10  # another cy: no one rectified camera (another cx is moved: test_right_cx)
     other = rect.StereoCalibration(
         dataclasses.replace(calibration.left, name="/l/info"),
         dataclasses.replace(calibration.right, p=p, name="/r/info"),
@@ -535,3 +564,61 @@ def test_a_right_tx_of_the_wrong_sign_is_told_the_baseline_that_works() -> None:
     good = rect.StereoRectifier(calibration)
     for a, b in zip(fixed._maps, good._maps, strict=True):
         np.testing.assert_array_equal(a[0], b[0])
+
+
+def test_a_raw_pair_stacked_vertically_is_named_so() -> None:
+    """Bug hunt 15A F2: the remap path said 'gives no baseline ... pass --baseline' too."""
+    calibration = raw_calibration(CAMERA, "plumb_bob")
+    p = calibration.right.p.copy()
+    p[1, 3], p[0, 3] = p[0, 3], 0.0
+    vertical = rect.StereoCalibration(
+        calibration.left, dataclasses.replace(calibration.right, p=p, name="/r/info")
+    )
+    for baseline in (None, 0.5):
+        with pytest.raises(
+            CalibrationError,
+            match=r"^/r/info has P\[1,3\] = -90 and P\[0,3\] = 0: "
+            "the cameras are stacked vertically",
+        ):
+            rect.StereoRectifier(vertical, baseline=baseline)
+
+
+def test_a_raw_pair_recalibrated_to_the_same_rectified_camera_says_so_once() -> None:
+    """Bug hunt 15A F6: new maps (another D, the same P) gave no second rectify line."""
+    first = raw_calibration(CAMERA, "plumb_bob")
+    second = rect.StereoCalibration(
+        *(dataclasses.replace(c, d=c.d * 0.5) for c in (first.left, first.right))
+    )
+    said: list[str] = []
+    pairer = StereoPairer(dataclasses.replace(_pairer().config, check_rows=False), echo=said.append)
+    views = _stereo_views()
+    for index, calibration in enumerate((first, first, second, second, second)):
+        _push_pair(pairer, 1000 + index, *Unrectifier(calibration)(*views), calibration)
+    assert len(said) == 2
+    assert said[1] == said[0] + "; new maps from frame 2 on: the calibration changed"
+
+
+def test_an_all_zero_k_with_a_p_describes_rectified_images() -> None:
+    """Bug hunt 15A F7: D = 0, R = I, a P but K = 0 was refused as 'not calibrated'."""
+    ideal = _ideal(raw_calibration(CAMERA, "plumb_bob"))
+    messages = _messages(ideal, 1000)
+    for message in messages.values():
+        message.k[:] = 0.0
+    calibration = rect.stereo_from_infos(*messages.values(), "/l", "/r")
+    assert calibration.is_rectified
+    np.testing.assert_array_equal(calibration.left.k, ideal.left.p[:, :3])
+    pairer = _pairer(check_rows=False)
+    frames: list[Any] = []
+    for topic, message in messages.items():
+        frames += pairer.push(topic, 1000, 1000, message)
+    left, right = _stereo_views()
+    from pcainterp_stream.io import rosmsg
+
+    for topic, image in (("/cam/left/image_raw", left), ("/cam/right/image_raw", right)):
+        frames += pairer.push(topic, 1000, 1000, rosmsg.image_message(image, 1000, "c"))
+    assert len(frames) == 1
+    assert frames[0].camera.fx == CAMERA.fx
+    distorted = _messages(raw_calibration(CAMERA, "plumb_bob"), 1000)["/cam/left/camera_info"]
+    distorted.k[:] = 0.0  # with distortion (or no P) it is still not calibrated
+    with pytest.raises(CalibrationError, match="has an all-zero K: the camera is not calibrated"):
+        rect.CameraCalibration.from_camera_info(distorted, "/l")

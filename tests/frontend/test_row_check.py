@@ -221,3 +221,22 @@ def test_each_frames_corners_are_kept_for_the_pair_watch_until_the_verdict() -> 
     unindexed.see(left, right, rectifier=None)
     unindexed.finish()
     assert unindexed.corners(0) is None
+
+
+def test_crossed_equidistant_cameras_without_coefficients_are_named_a_swap() -> None:
+    """Bug hunt 15A F4: equidistant infos with D = [] crashed the crossed-cables check."""
+    fisheye = raw_calibration(CAMERA, "equidistant")
+    zeros, empty = (
+        rect.StereoCalibration(
+            *(dataclasses.replace(c, d=d) for c in (fisheye.left, fisheye.right))
+        )
+        for d in (np.zeros(4), np.zeros(0))
+    )
+    pixels = np.array([[10.0, 20.0], [200.0, 100.0]])
+    np.testing.assert_array_equal(
+        empty.right.raw_to_rectified(pixels), zeros.right.raw_to_rectified(pixels)
+    )
+    raw_left, raw_right = Unrectifier(zeros)(*_views())
+    with pytest.raises(CalibrationError) as err:  # before: ValueError, cannot reshape size 0
+        _run([(raw_right, raw_left)], empty)
+    assert "with the two images exchanged: left and right look swapped" in str(err.value)
