@@ -2080,17 +2080,35 @@ def test_densify_output_into_the_input_bag_folder_is_refused(
     pcainterp: Callable[..., Run], basis_path: Path, tmp_path: Path
 ) -> None:
     """`-o BAG/BAG.mcap` replaced a rosbag2 bag's own storage file: the recording was lost
-    (its metadata.yaml still counted the old messages). A new file in the bag is refused too."""
+    (its metadata.yaml still counted the old messages). A new file in the bag, through any
+    option, is refused too, before any work (review 15b B1, B2: `--out-dir BAG` wrote another
+    input's output into it)."""
     bag = tmp_path / "bag"
     made = pcainterp("synth", bag, "--frames", "2", "--scale", "0.25", "--format", "rosbag2")
     assert made.code == 0
+    other = tmp_path / "other.mcap"
+    assert pcainterp("synth", other, "--frames", "2", "--scale", "0.25").code == 0
     before = {path.name: path.read_bytes() for path in bag.iterdir()}
     storage = next(path for path in bag.iterdir() if path.suffix == ".mcap")
-    for target in (storage, bag / "dense.mcap"):
-        line = pcainterp(*densify_args(bag, target, basis_path)).error_line()
-        assert f"refusing to write the output {target} inside the input bag {bag}" in line
-        assert "write it beside the bag (e.g. -o bag.dense.mcap)" in line
+    for given in (bag, storage):
+        for target in (storage, bag / "dense.mcap"):
+            line = pcainterp(*densify_args(given, target, basis_path)).error_line()
+            if target == storage and given == storage:
+                assert "refusing to write the output onto the input" in line
+                continue
+            assert f"refusing to write the output {target} inside the input bag {bag}" in line
+            assert "choose a different output path outside the bag" in line
+    runs = {
+        "--out-dir": ("densify", other, bag, "--basis", basis_path, "--out-dir", bag),
+        "--rrd path": (*densify_args(bag, tmp_path / "d.mcap", basis_path), "--rrd", bag / "x.rrd"),
+        "-o path": ("learn", bag, "-o", bag / "b.npz"),
+    }
+    for fix, args in runs.items():
+        line = pcainterp(*args).error_line()
+        assert f"inside the input bag {bag}: it would replace or join" in line
+        assert f"choose a different {fix} outside the bag" in line
     assert {path.name: path.read_bytes() for path in bag.iterdir()} == before
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["bag", "other.mcap"]
 
 
 def test_an_empty_path_is_named_empty_not_a_folder_dot(

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any, TypeAlias
 
 from pcainterp_stream import defaults
 from pcainterp_stream.errors import LogWriteError, PcaInterpError
-from pcainterp_stream.io.output_paths import name_too_long
+from pcainterp_stream.io.output_paths import input_bag, name_too_long
 
 if TYPE_CHECKING:
     from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig
@@ -151,6 +151,7 @@ def refuse_overwrites(
             choose a different --rrd path".
     """
     others = [(what, path) for what, path in reads if path is not None and path != STREAM]
+    read_paths = list(others)
     for what, path, fix in writes:
         if path is None or path == STREAM:
             continue
@@ -162,6 +163,13 @@ def refuse_overwrites(
         for other, other_path in others:
             if same_file(path, other_path):
                 raise LogWriteError(f"refusing to write {what} onto {other} {other_path}; {fix}")
+        for _, read in others[: len(read_paths)]:
+            bag = input_bag(path, read)
+            if bag is not None:
+                raise LogWriteError(
+                    f"refusing to write {what} {path} inside the input bag {bag}: it would "
+                    f"replace or join the recording's own files; {fix} outside the bag"
+                )
         others.append((what, path))
 
 

@@ -33,6 +33,7 @@ __all__ = [
     "check_output_file",
     "check_output_folder",
     "full_disk_advice",
+    "input_bag",
     "is_standard_output",
     "make_partial_file",
     "name_too_long",
@@ -93,14 +94,26 @@ def check_not_input(target: Path, inputs: Iterable[str | os.PathLike[str]]) -> N
                 "choose a different output path"
             )
     for source in sources:  # after every input is looked at as a file: that message first
-        folder = os.path.isdir(source) and resolved != source.resolve()
-        if folder and _inside(resolved, source.resolve()):
-            if os.path.isfile(source / "metadata.yaml"):
-                raise LogWriteError(
-                    f"refusing to write the output {target} inside the input bag {source}: "
-                    "it would replace or join the recording's own files; write it beside the "
-                    f"bag (e.g. -o {source.resolve().name}.dense.mcap)"
-                )
+        bag = input_bag(target, source)
+        if bag is not None:
+            raise LogWriteError(
+                f"refusing to write the output {target} inside the input bag {bag}: it would "
+                f"replace or join the recording's own files; write it beside the bag (e.g. -o "
+                f"{Path(os.path.abspath(bag)).name}.dense.mcap)"
+            )
+
+
+def input_bag(target: Path, source: Path) -> Path | None:
+    """Return the rosbag2 bag (a folder) of the input ``source`` when ``target`` lies in it.
+
+    ``source`` is the bag's folder or one of its storage files; a bag is a folder with a
+    ``metadata.yaml``, which lists the files that make the recording.
+    """
+    folder = source if os.path.isdir(source) else source.parent
+    if not os.path.isfile(folder / "metadata.yaml"):
+        return None
+    inside = target.resolve()
+    return folder if inside != folder.resolve() and _inside(inside, folder.resolve()) else None
 
 
 def _hops(path: Path) -> Iterator[Path]:

@@ -444,3 +444,22 @@ def test_a_killed_process_not_yet_reaped_is_dead() -> None:
         assert output_paths.process_alive(os.getpid())
     finally:
         child.wait()
+
+
+def test_a_target_inside_an_input_bag_is_refused_a_plain_folder_not(tmp_path: Path) -> None:
+    """A rosbag2 bag is a folder whose metadata.yaml lists its files: writing into it replaced
+    the storage file (bug hunt 15B F1). Another input folder (a KITTI drive) is no bag."""
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    storage = bag / "bag_0.mcap"
+    storage.write_bytes(b"")
+    for source in (bag, storage):
+        with pytest.raises(LogWriteError, match=r"inside the input bag .*bag: it would replace"):
+            output_paths.check_not_input(bag / "new.mcap", [source])
+        assert output_paths.input_bag(bag / "new.mcap", source) == bag
+    assert output_paths.input_bag(tmp_path / "beside.mcap", bag) is None
+    drive = tmp_path / "drive"
+    drive.mkdir()
+    output_paths.check_not_input(drive / "out.mcap", [drive])
+    assert output_paths.input_bag(drive / "out.mcap", drive) is None
