@@ -200,6 +200,11 @@ class Adaptation:
         """Return whether frames are still held back for the check."""
         return self.active and not self.checked
 
+    @property
+    def maps_seen(self) -> int:
+        """Return the maps (distinct views) the log's own basis in force has seen so far."""
+        return self._seen
+
     def wants_maps(self) -> bool:
         """Return whether the stereo workers should keep each frame's SGBM map."""
         return self.warming or self.adapted or self.deferred

@@ -50,6 +50,9 @@ class OwnBasis:
         opening: it densified the first frames (the output's channels name it).
         densified: it densified frames (else it was relearned at the last frame of its
             camera or of the log: saved, and named by no entry of the record).
+        seen: the maps its adoption saw to the log's end (distinct views; 0: not known),
+            of which a basis relearned while streaming learned those up to the last
+            doubling (:meth:`~.adaptation.Adaptation.update`).
     """
 
     basis: Basis
@@ -61,6 +64,7 @@ class OwnBasis:
     path: Path | None
     opening: bool = False
     densified: bool = True
+    seen: int = 0
 
     def frames(self) -> str:
         """Return "frames 16-23" or "frames 16 to the end"."""
@@ -92,9 +96,17 @@ class OwnBasis:
             tail = "" if more else "; densify --basis with it for other logs of this camera"
             return f"{what} ({where}{tail})"
         if self.until is None and not again:
+            # relearned each time the maps double: the last doubling's, not all of them
+            learned = self.basis.n_train
+            maps = (
+                f"{learned} of the {self.seen} maps this log's own basis saw, when they last "
+                "doubled"
+                if self.seen > learned
+                else "all of this log's maps"
+            )
             return (
-                "the basis relearned from all of this log's maps (densify --basis with it for "
-                "other logs of this camera)"
+                f"the basis relearned from {maps} (densify --basis with it for other logs of "
+                "this camera)"
             )
         if not self.densified:
             return (
@@ -153,6 +165,8 @@ def own_bases(
         owns.append(
             OwnBasis(used, adoption, relearned, start.frame.index, until, name, path, at == 0)
         )
+    if owns and owns[-1].until is None and owns[-1].adoption == len(adaptation.own_bases):
+        owns[-1] = replace(owns[-1], seen=adaptation.maps_seen)  # the last adoption's, to the end
     for number, (newest, frame) in adaptation.relearned.items():
         run = [at for at, own in enumerate(owns) if own.adoption == number]
         if not run or any(owns[at].basis is newest for at in run):

@@ -203,6 +203,21 @@ def test_the_basis_relearned_at_the_logs_last_frame_is_saved(tmp_path: Path) -> 
     assert _files_match_the_record(out) == [own_basis_path(out).name]  # no frame used it
 
 
+def test_the_final_basis_line_says_how_many_maps_it_learned(tmp_path: Path) -> None:
+    """Bug hunt 15C F3: relearned at 16 maps (when they doubled) and in force to the end of a
+    24-frame room, the final basis was said to be "relearned from all of this log's maps"."""
+    log, out = tmp_path / "r24.mcap", tmp_path / "r24_dense.mcap"
+    write_synthetic_log(generate(SynthConfig(seed=3, frames=24, scale=0.25, scene="indoor")), log)
+    summary = densify(log, out)
+    final = final_basis_path(out)
+    assert Basis.load(final).n_train == 16
+    written = summary.written_lines()
+    assert written[1] == (
+        f"wrote {final}: the basis relearned from 16 of the 23 maps this log's own basis saw, "
+        "when they last doubled (densify --basis with it for other logs of this camera)"
+    )  # 23: the own basis stopped fitting at frame 23, before its map was added
+
+
 def test_the_basis_relearned_at_a_cameras_last_frame_is_saved(tmp_path: Path) -> None:
     """The same at the last frame of a camera the log then leaves (16 room frames, 4 VI)."""
     log, out = tmp_path / "r16vi.mcap", tmp_path / "r16vi_dense.mcap"
