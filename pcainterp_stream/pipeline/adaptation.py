@@ -141,8 +141,8 @@ class Adaptation:
             would do better (:meth:`_builtin_advice`).
         switched: the alternative chosen instead of the given basis, if any.
         builtin_choice: the built-in basis (with its tuning) the check that adopted the log's
-            own basis chose among the built-in ones (None: the given one); it takes over when
-            that own basis stops fitting (:mod:`~.refit`).
+            own basis chose among the built-in ones (None: the given one); when that own basis
+            stops fitting, it or the given basis takes over (:mod:`~.refit`).
         own_above: the log's own basis is tried when the given basis (if it stays chosen)
             scores at least this times linear interpolation's error.
         in_force: each basis the frames were densified with, in stream order, from the

@@ -13,7 +13,8 @@ first frames. Two things can make that choice wrong later, and both were silent:
   the basis in use on the held-out SGBM pixels of every :data:`WATCH_EVERY`-th frame (the
   pixels and plain interpolation the fit check scores; one solve without std, before the
   frame's map is learned) and, when it stops beating linear interpolation, the built-in basis
-  the check that adopted it chose takes over and the choice is made again on the next frames.
+  the check that adopted it chose or the basis given at the start, whichever does better on
+  the frames it failed on, takes over and the choice is made again on the next frames.
   A built-in basis kept is not watched: it is the same basis the check chose and costs
   nothing more (a street basis on an indoor part degraded the depth, but its std covered
   it: 99 %).
@@ -268,8 +269,9 @@ class Refitting(Adaptation):
 
         When the basis stops fitting the frames (:class:`FitWatch`), returns the built-in
         basis the check that adopted it chose (:attr:`~.adaptation.Adaptation.builtin_choice`,
-        with its tuning; else the basis given at the start), used from the next frame on while
-        the choice is made again.
+        with its tuning) or the basis given at the start, whichever scores better on the
+        frames it failed on (:meth:`_rescored`), used from the next frame on while the choice
+        is made again.
         """
         watch, options_of = self.watch, self.options_of
         if self.adapted and watch is not None and current is not None and options_of:
