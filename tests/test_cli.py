@@ -2858,6 +2858,26 @@ def test_learn_refuses_an_output_not_named_npz_before_learning(
     assert_nothing_written(target)
 
 
+def test_learn_on_one_pair_advises_only_what_helps(
+    pcainterp: Callable[..., Run], tmp_path: Path
+) -> None:
+    """Bug hunt 15C F5: a one-pair log said "note: 1 maps of your own are few ...: merging
+    them" (no merge followed), then advised "a larger --holdout", which no --holdout makes
+    work with one pair (--holdout 0.9 failed the same)."""
+    log, target = tmp_path / "one.mcap", tmp_path / "basis.npz"
+    synth(log, frames=1, seed=3, scale=0.25, fmt="mcap")
+    for holdout in ("0.2", "0.9"):
+        run = pcainterp("learn", log, "-o", target, "--holdout", holdout)
+        line = run.error_line()
+        assert line.endswith(
+            "no held-out stereo pair to fit the prior on: one.mcap has one stereo pair, whose "
+            "map the basis learns; use more frames or --fit-logs LOG (no --holdout leaves both "
+            "a map and a pair to fit on)"
+        ), line
+        assert "merging" not in run.out + run.err
+        assert_nothing_written(target)
+
+
 def test_learn_every_beyond_the_log_names_every(
     pcainterp: Callable[..., Run], small_log: Path, tmp_path: Path
 ) -> None:

@@ -17,7 +17,7 @@ only on the frames and their order: a log gives the same output however it is re
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -141,8 +141,8 @@ class Adaptation:
             would do better (:meth:`_builtin_advice`).
         switched: the alternative chosen instead of the given basis, if any.
         builtin_choice: the built-in basis (with its tuning) the check that adopted the log's
-            own basis chose among the built-in ones (None: the given one); it takes over when
-            that own basis stops fitting (:mod:`~.refit`).
+            own basis chose among the built-in ones (None: the given one); when that own basis
+            stops fitting, it or the given basis takes over (:mod:`~.refit`).
         own_above: the log's own basis is tried when the given basis (if it stays chosen)
             scores at least this times linear interpolation's error.
         in_force: each basis the frames were densified with, in stream order, from the
@@ -199,6 +199,11 @@ class Adaptation:
     def warming(self) -> bool:
         """Return whether frames are still held back for the check."""
         return self.active and not self.checked
+
+    @property
+    def maps_seen(self) -> int:
+        """Return the maps (distinct views) the log's own basis in force has seen so far."""
+        return self._seen
 
     def wants_maps(self) -> bool:
         """Return whether the stereo workers should keep each frame's SGBM map."""
@@ -514,9 +519,11 @@ class Adaptation:
         # frames that repeat one view (a camera standing still) are one piece of evidence:
         # the log's own basis is checked only on views it did not learn from
         # the ego-motion's views, of the frames in order, for the frames kept
+        # (a chain whose first frame is left out, typical_frames or no map: its first kept)
         links, at = still_links(frames), {id(f): k for k, f in enumerate(usable)}
+        first_kept: dict[int, int] = {}
         same_as = [
-            at.get(id(frames[links[j]]), at[id(f)]) for j, f in enumerate(frames) if id(f) in at
+            first_kept.setdefault(links[j], at[id(f)]) for j, f in enumerate(frames) if id(f) in at
         ]
         views = adapt.view_labels(maps, same_as=same_as)
         distinct = int(views.max()) + 1 if views.size else 0
@@ -818,6 +825,11 @@ class Adaptation:
                 continue
             if self._repeats(frame):
                 continue
+            # its motion since the view added before it (frames skipped between): _decide
+            # tells views apart by the motions of the frames it gets (still_links)
+            since, motion = self._since, frame.motion
+            chained = None if since is None or motion is None else motion._replace(transform=since)
+            frame = replace(frame, motion=chained)
             self._last_map, self._since = frame.grid_map, np.eye(4)
             self._views.append(frame)
         if len(self._views) < self.warmup_frames or self._given is None:

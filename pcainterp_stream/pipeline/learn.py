@@ -459,6 +459,19 @@ class MapPlan:
         return [(log, (keep or 0) * options.every) for log, keep in kept]
 
 
+def _smaller_every(options: LearnOptions) -> str:
+    """Return "a smaller --every (--every 50 keeps 1 frame in 50), " when it would help."""
+    every = options.every
+    return f"a smaller --every (--every {every} keeps 1 frame in {every}), " if every > 1 else ""
+
+
+def _one_pair(logs: list[Path], options: LearnOptions) -> str:
+    """Return "fish.mcap has one stereo pair, whose map the basis learns" (or the logs)."""
+    named = logs[0].name if len(logs) == 1 else f"each of the {len(logs)} logs"
+    kept = f" kept (--every {options.every})" if options.every > 1 else ""
+    return f"{named} has one stereo pair{kept}, whose map the basis learns"
+
+
 def plan_maps(
     logs: list[Path], output: Path, options: LearnOptions, pairing: PairingConfig
 ) -> MapPlan:
@@ -505,6 +518,14 @@ def plan_maps(
                 count = counts[index] = _count_frames(logs[index], sources[index], options.every)
             kept[index] = max(1, int(count * (1.0 - options.holdout)))
         total = sum(k for k in kept if k is not None)
+        if 1 in counts and all(count is not None and count <= 1 for count in counts):
+            # one pair each: its map is learned, none is left to hold out (bug hunt 15C F5)
+            every = _smaller_every(options)
+            raise PcaInterpError(
+                f"no held-out stereo pair to fit the prior on: {_one_pair(logs, options)}; "
+                + (f"use more frames, {every}or" if every else "use more frames or")
+                + " --fit-logs LOG (no --holdout leaves both a map and a pair to fit on)"
+            )
     elif requested == AUTO and total is None:
         counts = [
             _count_frames(log, source, options.every) if count is None else count
@@ -801,14 +822,9 @@ def fit_prior(
             if frame.reference is not None
         )
     if not any(frame.residual.size for sequence in sequences for frame in sequence):
-        every = (
-            f"a smaller --every (--every {options.every} keeps 1 frame in {options.every}), "
-            if options.every > 1
-            else ""
-        )
         raise PcaInterpError(
             "no held-out stereo pair with measurements to fit the prior on; use more frames, "
-            f"{every}a larger --holdout or --fit-logs LOG"
+            f"{_smaller_every(options)}a larger --holdout or --fit-logs LOG"
         )
     fit_on = "the --fit-logs logs' frames" if options.fit_logs else "the held-out frames"
     _echo(f"fitting the prior by the evidence on {fit_on}")

@@ -13,6 +13,7 @@ finds them.
 from __future__ import annotations
 
 import errno
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import IO
@@ -50,6 +51,9 @@ class OwnBasis:
         opening: it densified the first frames (the output's channels name it).
         densified: it densified frames (else it was relearned at the last frame of its
             camera or of the log: saved, and named by no entry of the record).
+        seen: the maps its adoption saw to the log's end (distinct views; 0: not known),
+            of which a basis relearned while streaming learned those up to the last
+            doubling (:meth:`~.adaptation.Adaptation.update`).
     """
 
     basis: Basis
@@ -61,6 +65,7 @@ class OwnBasis:
     path: Path | None
     opening: bool = False
     densified: bool = True
+    seen: int = 0
 
     def frames(self) -> str:
         """Return "frames 16-23" or "frames 16 to the end"."""
@@ -92,9 +97,17 @@ class OwnBasis:
             tail = "" if more else "; densify --basis with it for other logs of this camera"
             return f"{what} ({where}{tail})"
         if self.until is None and not again:
+            # relearned each time the maps double: the last doubling's, not all of them
+            learned = self.basis.n_train
+            maps = (
+                f"{learned} of the {self.seen} maps this log's own basis saw, when they last "
+                "doubled"
+                if self.seen > learned
+                else "all of this log's maps"
+            )
             return (
-                "the basis relearned from all of this log's maps (densify --basis with it for "
-                "other logs of this camera)"
+                f"the basis relearned from {maps} (densify --basis with it for other logs of "
+                "this camera)"
             )
         if not self.densified:
             return (
@@ -153,6 +166,8 @@ def own_bases(
         owns.append(
             OwnBasis(used, adoption, relearned, start.frame.index, until, name, path, at == 0)
         )
+    if owns and owns[-1].until is None and owns[-1].adoption == len(adaptation.own_bases):
+        owns[-1] = replace(owns[-1], seen=adaptation.maps_seen)  # the last adoption's, to the end
     for number, (newest, frame) in adaptation.relearned.items():
         run = [at for at, own in enumerate(owns) if own.adoption == number]
         if not run or any(owns[at].basis is newest for at in run):
@@ -167,8 +182,13 @@ def own_bases(
     return owns
 
 
-def save_own_bases(owns: list[OwnBasis], log: Path) -> tuple[list[OwnBasis], list[str]]:
+def save_own_bases(
+    owns: list[OwnBasis], log: Path, read: Sequence[Path] = ()
+) -> tuple[list[OwnBasis], list[str]]:
     """Save each of ``owns`` that has a file beside the output; never fail the run for one.
+
+    ``read``: the log's files, named in each file's meta (``logs``, resolved) as ``learn``
+    names its logs (:func:`learned_from`); not in the fingerprint, which has no meta.
 
     Returns:
         Those saved, and a warning for each that could not be (a full disk, a name too
@@ -179,8 +199,10 @@ def save_own_bases(owns: list[OwnBasis], log: Path) -> tuple[list[OwnBasis], lis
     for own in owns:
         if own.path is None:
             continue
+        logs = [str(path.resolve()) for path in read]
+        named = replace(own.basis, meta={**own.basis.meta, "logs": logs}) if logs else own.basis
         try:
-            own.basis.save(own.path, partial_file=make_partial_file)  # 9C F3, F4
+            named.save(own.path, partial_file=make_partial_file)  # 9C F3, F4
         except BasisError as err:
             cause = err.__cause__
             why = (  # "No space left on device; free some space, or write it elsewhere"
@@ -198,6 +220,31 @@ def save_own_bases(owns: list[OwnBasis], log: Path) -> tuple[list[OwnBasis], lis
         else:
             saved.append(own)
     return saved, warnings
+
+
+def learned_from(basis: Basis, file: Path | None, read: Sequence[Path]) -> str | None:
+    """Return a note when the basis file ``file`` was learned from the log read, else None.
+
+    Its meta names the logs it was learned from (``learn``'s ``source.logs``, densify's
+    ``logs``): the fit check holds pixels out of the measurements, not out of the basis's
+    maps, so its figure there is a training score (bug hunt 15C F4: 0.27x linear, where
+    densify's leave-one-out figure for the same basis was 0.59x).
+    """
+    source = basis.meta.get("source")
+    named = basis.meta.get("logs", source.get("logs") if isinstance(source, dict) else None)
+    if file is None or not read or not isinstance(named, list):
+        return None
+    try:
+        ours = {path.resolve() for path in read}
+        if not any(Path(str(log)).resolve() in ours for log in named):
+            return None
+    except OSError:
+        return None
+    return (
+        f"note: {file.name} was learned from this log's SGBM maps (its meta names the log): "
+        "the fit check's figure is on maps it learned, which flatters it (densify without "
+        "--basis checks a basis of the log's own on frames it did not learn)"
+    )
 
 
 def adoption_lines(owns: list[OwnBasis]) -> list[str]:

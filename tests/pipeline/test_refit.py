@@ -13,6 +13,7 @@ from pcainterp_stream.estimate import adapt
 from pcainterp_stream.estimate.basis import Basis, builtin_kind
 from pcainterp_stream.frontend.sgbm_resolution import by_camera
 from pcainterp_stream.pipeline import adaptation as adaptation_module
+from pcainterp_stream.pipeline.adapt_frames import AdaptFrame
 from pcainterp_stream.pipeline.adaptation import Candidate
 from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
 from pcainterp_stream.pipeline.refit import FitWatch, Refitting
@@ -190,21 +191,35 @@ def test_a_scene_change_under_the_own_basis_makes_the_choice_again() -> None:
     """A room that adapts, then the street with the same camera (a robot leaving a
     building): the room's basis put the street 4-5x too near, its std covering 6-19 %,
     silently; nothing checked it after the warm-up."""
-    room = _frames(SynthConfig(seed=3, frames=12, scale=0.25, scene="indoor"))
-    frames = _then(room, SynthConfig(seed=7, frames=12, scale=0.25))
+    configs = [
+        SynthConfig(seed=3, frames=12, scale=0.25, scene="indoor"),
+        SynthConfig(seed=7, frames=12, scale=0.25),
+    ]
+    frames = _then(_frames(configs[0]), configs[1])
+    truth = [f.camera.focal_baseline / f.depth for config in configs for f in generate(config)]
+    margin = ProcessorConfig().sgbm.valid_min_x
     with FrameProcessor(None, ProcessorConfig()) as engine:
-        list(engine.process(frames))
+        errors = [
+            float(np.nanmean(np.abs(result.disparity - truth[result.frame.index])[:, margin:]))
+            for result in engine.process(frames)
+        ]
         adaptation = engine.adaptation
         assert adaptation.first_basis is not None  # adapted on the room
         stopped = next(line for line in adaptation.lines if "stopped fitting" in line)
         assert stopped.startswith("prior: this log's own basis stopped fitting at frame 15: ")
-        # the room's check chose the indoor basis among the built-in ones (fix-RC15): it
-        # densifies the 8 frames of the check made again, which then chooses the street basis
-        assert "the built-in indoor basis (the check's built-in choice) from the next" in stopped
+        # the room's check chose the indoor basis among the built-in ones (fix-RC15), but on
+        # the street frame the own basis failed on, the street basis given at the start does
+        # better (fix-AD15: the indoor basis gave 2.15 px against the truth on frames 16-23,
+        # the street basis 1.24): it densifies the 8 frames of the check made again
+        assert (
+            "the built-in street basis (given at the start; on frame 15 0.54x linear, the "
+            "check's built-in choice (the built-in indoor basis) 0.80x) from the next frame"
+        ) in stopped
         starts = {start.frame.index: start.basis for start in adaptation.in_force}
-        assert starts[16] is Basis.indoor()
+        assert starts[16] is Basis.default()
         assert engine.basis is Basis.default()  # the street: the check made again chooses it
         assert not adaptation.adapted
+    assert np.mean(errors[16:24]) < 1.6  # the indoor basis: 2.15 px
 
 
 def test_a_basis_that_stops_fitting_gives_way_to_the_checks_built_in_choice() -> None:
@@ -231,8 +246,9 @@ def test_a_basis_that_stops_fitting_gives_way_to_the_checks_built_in_choice() ->
         stopped = next(line for line in adaptation.lines if "stopped fitting" in line)
         assert stopped.startswith("prior: this log's own basis stopped fitting at frame 15: ")
         assert (
-            "the built-in indoor basis (the check's built-in choice) from the next frame, the "
-            "basis choice made again on the next 8 frames"
+            "the built-in indoor basis (the check's built-in choice; on frame 15 0.80x linear, "
+            "the built-in street basis 1.20x) from the next frame, the basis choice made again "
+            "on the next 8 frames"
         ) in stopped
         stretches = [(s.frame.index, builtin_kind(s.basis)) for s in adaptation.in_force]
         assert stretches == [(0, None), (16, "indoor")]  # the check made again keeps it
@@ -271,6 +287,30 @@ def test_the_checks_tuning_comes_back_with_its_choice() -> None:
     adaptation.checked = adaptation.adapted = True
     assert adaptation._stopped(check, watch, 15, own) is Basis.default()
     assert adaptation.tuning(Basis.default()) == {}
+
+
+def test_the_built_in_bases_are_scored_on_the_frames_the_own_basis_failed_on() -> None:
+    """fix-AD15: the watch's pool that stopped the own basis may hold frames of the scene
+    before (a room's frame 11 pooled with the street's frame 15: the street basis 6.27 px
+    there, the indoor one 1.56, which chose the indoor basis for the street); the bases are
+    scored on the frames it failed on alone, else on the newest."""
+    size = (4, 4)
+    frames = [
+        AdaptFrame(
+            np.zeros((1, 2), np.float32), np.ones(1, np.float32), None, None, size, 1.0, index=index
+        )
+        for index in (7, 11, 15)
+    ]
+    watch = FitWatch(0.6)
+    fits, fails = adapt.FrameCheck(100, 1.0, 1.0, 1.1), adapt.FrameCheck(100, 5.0, 1.0, 1.1)
+    for frame, check in zip(frames, (fits, fits, fails), strict=True):
+        watch.add(frame.index, check, frame)
+    assert [frame.index for frame in watch.failed()] == [15]
+    watch = FitWatch(0.6)
+    for frame in frames:
+        watch.add(frame.index, fits, frame)
+    assert [frame.index for frame in watch.failed()] == [15]  # none alone: the newest
+    assert FitWatch(0.6, [(15, fails)]).failed() == []  # no frame kept: nothing to score
 
 
 def test_a_camera_change_drops_the_tuning_fitted_on_the_camera_before() -> None:
