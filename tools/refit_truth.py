@@ -30,7 +30,7 @@ from pcainterp_stream.records import StereoFrame
 from pcainterp_stream.synth import SynthConfig, generate
 
 FIRST_ROOMS = (2, 3, 9, 10, 11, 13)
-"""Room seeds whose 16-frame check adopts the log's own basis (310x94 px, scale 0.25)."""
+"""Room seeds whose 8-frame warm-up check adopts the log's own basis (310x94 px, scale 0.25)."""
 SECOND_ROOMS = (0, 4, 5, 6)
 """Room seeds walked after them."""
 STEP_NS = 100_000_000

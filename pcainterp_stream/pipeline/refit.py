@@ -290,7 +290,7 @@ class Refitting(Adaptation):
         self, check: adapt.FitCheck, watch: FitWatch, index: int, current: Basis
     ) -> Basis | None:
         # the built-in basis the check chose (and tuned) when it adopted the own one, not the
-        # given one it may have scored worst (the street basis on a room: 1.16-2.47x linear);
+        # given one it may have scored worst (the street basis on a room: 1.17-3.68x linear);
         # but the scene changed: both are scored on the watch's frames (:meth:`_rescored`)
         choice, name = self._rescored(watch)
         self.lines.append(

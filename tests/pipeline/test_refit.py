@@ -223,8 +223,8 @@ def test_a_scene_change_under_the_own_basis_makes_the_choice_again() -> None:
 
 
 def test_a_basis_that_stops_fitting_gives_way_to_the_checks_built_in_choice() -> None:
-    """fix-RC15: a room that adopts its own basis (the check scored the street basis 2.14x
-    linear, the indoor one 0.85x), then another room: when the own basis stopped fitting,
+    """fix-RC15: a room that adopts its own basis (the check scored the street basis 1.17x
+    linear, the indoor one 1.07x), then another room: when the own basis stopped fitting,
     the 8 frames of the check made again were densified with the street basis, the one the
     log's check had scored worst (2.76 px mean |disparity error| against the truth, median
     depth error 8.9 %); now with the indoor basis the check chose (1.16 px, 3.0 %)."""
