@@ -12,6 +12,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 from pcainterp_stream.frontend.pairing_window import HoldLimits, Lost
+from pcainterp_stream.io.camera_model import MIN_FOCAL_BASELINE as MIN_FOCAL_BASELINE
 from pcainterp_stream.records import StereoCamera
 
 MAX_PROBLEMS = 20
@@ -26,13 +27,6 @@ MAX_CAMERA_LINES = 5
 MAX_BASELINE_M = 3.0
 """Beyond this baseline (m) a calibration is taken for wrong (a rig of trucks' width is ~1.5 m;
 a millimetre P[0, 3] gives a thousand times the real one)."""
-
-MIN_FOCAL_BASELINE = 1.0
-"""Below this f*b (px*m) a calibration is taken for wrong: 1 px of disparity at 1 m, 0.1 px at
-10 m. The smallest real pairs have more (a phone's ~1 cm at fx ~1500 px: ~15 px*m; a 4 mm
-endoscope at fx 500 px: 2 px*m); a P[0, 3] written in metres (-baseline, not -fx * baseline)
-makes f*b the baseline in metres (0.05-0.6 px*m for common rigs) and every depth fx times too
-far. A bound on f*b, not on the baseline: a tiny camera's baseline is small, its f*b is not."""
 
 
 def _plausible(camera: StereoCamera) -> bool:
