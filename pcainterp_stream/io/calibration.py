@@ -205,7 +205,8 @@ def rectify_pair(
             k1, d1, k2, d2, size, rot, trans.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0
         )
     # stereoRectify puts the whole baseline in Tx or in Ty (the other is 0): no noise floor
-    vertical = stacked_vertically(p1, p2, f"{names[1]} rectified with {names[0]}", least=0.0)
+    p_left, p_right = np.asarray(p1, np.float64), np.asarray(p2, np.float64)
+    vertical = stacked_vertically(p_left, p_right, f"{names[1]} rectified with {names[0]}", least=0)
     if vertical is not None:
         raise CalibrationError(vertical)
     cams = []
