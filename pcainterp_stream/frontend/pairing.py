@@ -540,9 +540,12 @@ class StereoPairer:
         else:
             camera = seen = self._camera(width, height)
             right_image = self.as_is(right_image, "right")  # onto the left's cx
-            border = None
-            if self.config.rectify != "never":  # a black border is estimated around
-                border = self._borders.find(left_image, right_image, camera, self._as_is)
+            # a black border, and the columns the shift brings in, are estimated around
+            look = self.config.rectify != "never"
+            calibration = self._as_is if look else None
+            border = self._borders.find(
+                left_image, right_image, camera, calibration, shift=self._right_shift, look=look
+            )
             if border is not None:
                 left_image, right_image = border.crop(left_image), border.crop(right_image)
                 camera, boxed = border.inner, border
