@@ -236,3 +236,28 @@ def test_the_columns_a_shift_brings_in_are_left_out_of_the_estimate(
     assert f"that their {-more:+g} px shift onto the left's cx brings in, black)" in line
     if "named" not in says:  # no raw calibration: no alpha to blame
         assert "alpha" not in line
+
+
+@pytest.mark.parametrize("rectify", ["auto", "never"])
+def test_evaluate_reads_the_right_images_shifted_as_densify_did(rectify: str) -> None:
+    """Review 15a R4: PairImages.rectified returning the right image as recorded passed."""
+    from pcainterp_stream.frontend.images import PairImages
+
+    left, right = _views()
+    seen = shift_image(right, 3.0)  # a right camera with cx + 3
+    calibration = _right_cx(_ideal(), 3.0)
+    pair = PairImages(
+        PairingConfig(
+            left_topic="/cam/left/image_raw",
+            right_topic="/cam/right/image_raw",
+            left_info_topic="/cam/left/camera_info",
+            right_info_topic="/cam/right/camera_info",
+            rectify=rectify,
+        )
+    )
+    pair.see_info("/cam/left/camera_info", camera_info_message(calibration.left, 1000, "c"))
+    pair.see_info("/cam/right/camera_info", camera_info_message(calibration.right, 1000, "c"))
+    np.testing.assert_array_equal(pair.rectified(left, "left"), left)
+    out = pair.rectified(seen, "right")
+    np.testing.assert_array_equal(out, shift_image(seen, -3.0))
+    np.testing.assert_array_equal(out[:, :-3], right[:, :-3])  # on the left's cx
