@@ -47,7 +47,7 @@ DEPTH_ENCODINGS = frozenset({"16UC1", "32FC1"})
 """Encodings of a depth image (millimetres as ``16UC1``, metres as ``32FC1``)."""
 
 
-def _words(name: str) -> list[str]:
+def name_words(name: str) -> list[str]:
     """Return the words of a name, lower case (``DepthPlanar`` -> ``depth``, ``planar``)."""
     spaced = re.sub(r"(?<=[a-z0-9])(?=[A-Z])", "_", name)
     return [w for w in re.split(r"[^A-Za-z0-9]+", spaced.lower()) if w]
@@ -59,7 +59,7 @@ def depth_name(name: str) -> bool:
     ``depth``, ``DepthPlanar``, ``aligned_depth_to_infra1``, ``disparity_image``,
     ``optical_flow``: True; ``depth_left``, ``stereo_depth_r``, ``image_raw``: False.
     """
-    words = _words(name)
+    words = name_words(name)
     if SIDE_WORDS.intersection(words):
         return False
     joined = "_".join(words)
