@@ -626,10 +626,11 @@ class StereoPairer:
         """
         config = self.config
         if config.rectify == "never":
+            shifted = self._shifted()  # then the right ones are not as recorded
             self._say(
-                "rectify never: the images are used as recorded, with P of "
-                f"{config.left_info_topic} and {config.right_info_topic} (not checked)"
-                f"{self._shifted()}"
+                f"rectify never: the images are used as recorded{' but shifted' if shifted else ''}"
+                f", with P of {config.left_info_topic} and {config.right_info_topic} (not checked)"
+                f"{shifted}"
             )
             return None
         if config.calibration is not None:

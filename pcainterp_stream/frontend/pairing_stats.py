@@ -494,16 +494,17 @@ class PairingStats:
             return None
         if camera.baseline <= MAX_BASELINE_M:  # f*b too small: Tx in metres?
             fb = camera.focal_baseline
-            guess = (
-                ""
+            fix = (
+                "check --baseline (metres)"
                 if self.camera_source == "--baseline"
-                else f"; if P[0, 3] is the baseline in metres, pass --baseline {fb:.4g}"
+                else "fix the calibration (P[0, 3] = -fx * baseline, in metres); if P[0, 3] is "
+                f"the baseline in metres, pass --baseline {fb:.4g}"
             )
             return (
                 f"the baseline from {self.camera_source} is {camera.baseline:.4g} m at fx "
                 f"{camera.fx:g} px, f*b {fb:.4g} px*m (1 px of disparity at {fb:.3g} m), below "
                 f"any stereo rig's (>= {MIN_FOCAL_BASELINE:g} px*m), and every depth scales "
-                f"with it: fix the calibration (P[0, 3] = -fx * baseline, in metres){guess}"
+                f"with it: {fix}"
             )
         guess = f"; if it is in millimetres, pass --baseline {camera.baseline / 1000:.4g}"
         return (
