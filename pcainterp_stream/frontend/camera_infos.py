@@ -80,7 +80,9 @@ def camera_from_infos(
             k = getattr(info, "k", getattr(info, "K", None))
             zeros = "K and P" if k is not None and not np.any(k) else "P"
             raise CalibrationError(uncalibrated(f"camera info on {topic}", zeros))
-    vertical = stacked_vertically(p_left, p_right, f"camera info on {right_topic}")
+    vertical = stacked_vertically(
+        p_left, p_right, f"camera info on {right_topic}", baseline=baseline
+    )
     if vertical is not None:
         raise CalibrationError(vertical)
     fx, fy, cx, cy = p_left[0, 0], p_left[1, 1], p_left[0, 2], p_left[1, 2]

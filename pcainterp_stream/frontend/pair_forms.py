@@ -10,7 +10,6 @@ one bit depth, each side on its own. :func:`is_rectified_name` reads a topic nam
 
 from __future__ import annotations
 
-import re
 from typing import TYPE_CHECKING, Any
 
 import cv2
@@ -18,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.frontend.stereo import to_grey8
+from pcainterp_stream.frontend.stream_kinds import name_words
 
 if TYPE_CHECKING:
     from pcainterp_stream.frontend.pairing_window import PendingImage
@@ -145,12 +145,12 @@ def is_rectified_name(topic: str, partner: str | None = None) -> bool:
 def _says_rect(name: str) -> bool:
     """Whether a name of a topic has a word starting with ``rect``.
 
-    Words are split at ``_``, ``-`` and a lower-to-upper case change: ``rect``,
-    ``image_rect_color``, ``image_rect_raw``, ``rectified``, ``imageRect`` do;
-    ``image_corrected``, ``direct``, ``color_corrected`` do not.
+    Words as :func:`frontend.stream_kinds.name_words` splits them (at any character that is
+    no letter or digit, and a lower-to-upper case change): ``rect``, ``image_rect_color``,
+    ``image_rect_raw``, ``rectified``, ``imageRect``, ``image.rect`` do; ``image_corrected``,
+    ``direct``, ``color_corrected`` do not.
     """
-    words = re.split(r"[_\-]|(?<=[a-z0-9])(?=[A-Z])", name)
-    return any(word.lower().startswith("rect") for word in words)
+    return any(word.startswith("rect") for word in name_words(name))
 
 
 def is_copy(new: PendingImage, last: PendingImage | None) -> bool:

@@ -48,7 +48,7 @@ from pcainterp_stream.frontend.pair_forms import (
     is_rectified_name,
 )
 from pcainterp_stream.frontend.pairing_config import PairingConfig as PairingConfig
-from pcainterp_stream.frontend.pairing_stats import PairingStats
+from pcainterp_stream.frontend.pairing_stats import MAX_CAMERA_LINES, PairingStats
 from pcainterp_stream.frontend.pairing_window import HeldQueue, Hold, HoldLimits
 from pcainterp_stream.frontend.pairing_window import PendingImage as _Pending
 from pcainterp_stream.frontend.rect_border import BorderFinder, RectifiedBorder
@@ -92,6 +92,7 @@ class StereoPairer:
         self._rectifier: rect.StereoRectifier | None = None
         self._rect_infos: tuple[Any, Any] | None = None
         self._said: str | None = None
+        self._rectify_changes = 0  # rectify lines said after the first one (capped)
         self._mixed_said = False  # the encodings line of a pair of two encodings
         # the frames estimated in a box: remapped, or rectified with a border (rect_border)
         self._frame_rectifier: dict[int, rect.StereoRectifier | RectifiedBorder] = {}
@@ -540,9 +541,12 @@ class StereoPairer:
         else:
             camera = seen = self._camera(width, height)
             right_image = self.as_is(right_image, "right")  # onto the left's cx
-            border = None
-            if self.config.rectify != "never":  # a black border is estimated around
-                border = self._borders.find(left_image, right_image, camera, self._as_is)
+            # a black border, and the columns the shift brings in, are estimated around
+            look = self.config.rectify != "never"
+            calibration = self._as_is if look else None
+            border = self._borders.find(
+                left_image, right_image, camera, calibration, shift=self._right_shift, look=look
+            )
             if border is not None:
                 left_image, right_image = border.crop(left_image), border.crop(right_image)
                 camera, boxed = border.inner, border
@@ -622,10 +626,11 @@ class StereoPairer:
         """
         config = self.config
         if config.rectify == "never":
+            shifted = self._shifted()  # then the right ones are not as recorded
             self._say(
-                "rectify never: the images are used as recorded, with P of "
-                f"{config.left_info_topic} and {config.right_info_topic} (not checked)"
-                f"{self._shifted()}"
+                f"rectify never: the images are used as recorded{' but shifted' if shifted else ''}"
+                f", with P of {config.left_info_topic} and {config.right_info_topic} (not checked)"
+                f"{shifted}"
             )
             return None
         if config.calibration is not None:
@@ -735,9 +740,17 @@ class StereoPairer:
         return f"P of {topics}" if rectifier is None else topics
 
     def _say(self, line: str, again: str = "") -> None:
-        """Echo a rectify line unless it was the last one said; with ``again`` in any case."""
+        """Echo a rectify line unless it was the last one said; with ``again`` in any case.
+
+        After the first line, :data:`MAX_CAMERA_LINES` changes are said, the last with a note.
+        """
         if (line != self._said or again) and self._echo is not None:
-            self._echo(line + again)
+            # capped as the camera-change lines are (a calibration that flips every frame)
+            changes, self._rectify_changes = self._rectify_changes, self._rectify_changes + 1
+            if changes < MAX_CAMERA_LINES:
+                self._echo(line + again)
+            elif changes == MAX_CAMERA_LINES:
+                self._echo(f"{line}{again}; later changes are not said ({changes} said)")
         self._said = line
 
     def _camera(self, width: int, height: int) -> StereoCamera:

@@ -12,6 +12,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 from pcainterp_stream.frontend.pairing_window import HoldLimits, Lost
+from pcainterp_stream.io.camera_model import MIN_FOCAL_BASELINE as MIN_FOCAL_BASELINE
 from pcainterp_stream.records import StereoCamera
 
 MAX_PROBLEMS = 20
@@ -26,13 +27,6 @@ MAX_CAMERA_LINES = 5
 MAX_BASELINE_M = 3.0
 """Beyond this baseline (m) a calibration is taken for wrong (a rig of trucks' width is ~1.5 m;
 a millimetre P[0, 3] gives a thousand times the real one)."""
-
-MIN_FOCAL_BASELINE = 1.0
-"""Below this f*b (px*m) a calibration is taken for wrong: 1 px of disparity at 1 m, 0.1 px at
-10 m. The smallest real pairs have more (a phone's ~1 cm at fx ~1500 px: ~15 px*m; a 4 mm
-endoscope at fx 500 px: 2 px*m); a P[0, 3] written in metres (-baseline, not -fx * baseline)
-makes f*b the baseline in metres (0.05-0.6 px*m for common rigs) and every depth fx times too
-far. A bound on f*b, not on the baseline: a tiny camera's baseline is small, its f*b is not."""
 
 
 def _plausible(camera: StereoCamera) -> bool:
@@ -500,16 +494,17 @@ class PairingStats:
             return None
         if camera.baseline <= MAX_BASELINE_M:  # f*b too small: Tx in metres?
             fb = camera.focal_baseline
-            guess = (
-                ""
+            fix = (
+                "check --baseline (metres)"
                 if self.camera_source == "--baseline"
-                else f"; if P[0, 3] is the baseline in metres, pass --baseline {fb:.4g}"
+                else "fix the calibration (P[0, 3] = -fx * baseline, in metres); if P[0, 3] is "
+                f"the baseline in metres, pass --baseline {fb:.4g}"
             )
             return (
                 f"the baseline from {self.camera_source} is {camera.baseline:.4g} m at fx "
                 f"{camera.fx:g} px, f*b {fb:.4g} px*m (1 px of disparity at {fb:.3g} m), below "
                 f"any stereo rig's (>= {MIN_FOCAL_BASELINE:g} px*m), and every depth scales "
-                f"with it: fix the calibration (P[0, 3] = -fx * baseline, in metres){guess}"
+                f"with it: {fix}"
             )
         guess = f"; if it is in millimetres, pass --baseline {camera.baseline / 1000:.4g}"
         return (

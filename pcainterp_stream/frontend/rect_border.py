@@ -22,6 +22,12 @@ rectified already is given the same box here, found once per calibration:
   changes nothing, and a box that grows by less than :data:`SAY_AGAIN` of the frame is not
   taken, so the camera does not change mid-log for a pixel.
 
+Right images shifted onto the left's cx (:mod:`frontend.right_cx`) have black columns at
+one edge, the ones the shift brings in: they are border whatever the images show, with any
+``--rectify`` (:func:`shift_band`, the pixels whose source lies outside the recorded image, as
+:func:`frontend.rectify.invalid_pixels` marks a remap's), and the black found in the images is
+looked for beside them.
+
 The estimate is then made in the box and padded back with no estimate (NaN) outside
 (:func:`frontend.rectify.pad_result`), so corners, lattice lookups and stereo matching never
 see the border.
@@ -57,6 +63,7 @@ __all__ = [
     "calibration_border",
     "frame_border",
     "inner_camera",
+    "shift_band",
 ]
 
 MIN_BORDER_SHARE = 0.005
@@ -101,7 +108,8 @@ class RectifiedBorder:
         camera: the rectified camera at the images' full size.
         inner: the camera of the box (principal point moved by the box's corner).
         border_share: share of the image that is border in either camera (0-1).
-        source: what found the border, for the line that says so.
+        source: what found the border, for the line that says so (empty: only the shift's).
+        shifted: what the right images' shift onto the left's cx brings in (empty: none).
     """
 
     box: tuple[int, int, int, int]
@@ -109,6 +117,7 @@ class RectifiedBorder:
     inner: StereoCamera
     border_share: float
     source: str
+    shifted: str = ""
 
     def crop(self, image: npt.NDArray[np.generic]) -> npt.NDArray[np.generic]:
         """Return the box of a (height, width[, channels]) image at the camera's size."""
@@ -120,12 +129,16 @@ class RectifiedBorder:
         x, y, w, h = self.box
         full = self.camera
         outside = 1.0 - (w * h) / float(full.width * full.height)
+        why = [
+            f"{self.source}: the rectified view reaches beyond the raw images, as alpha > 0 or "
+            "a fisheye balance > 0 makes it"
+        ]
+        why = (why if self.source else []) + ([self.shifted] if self.shifted else [])
         return (
             f"rectified border: {100 * self.border_share:.1f} % of the {full.width}x"
-            f"{full.height} frame is border in the left or the right image ({self.source}: "
-            f"the rectified view reaches beyond the raw images, as alpha > 0 or a fisheye "
-            f"balance > 0 makes it); estimated in the {w}x{h} box at "
-            f"({x}, {y}) inside it, no estimate (NaN) in the {100 * outside:.1f} % outside the box"
+            f"{full.height} frame is border in the left or the right image ({'; '.join(why)}); "
+            f"estimated in the {w}x{h} box at ({x}, {y}) inside it, no estimate (NaN) in the "
+            f"{100 * outside:.1f} % outside the box"
         )
 
 
@@ -133,6 +146,33 @@ def inner_camera(camera: StereoCamera, box: tuple[int, int, int, int]) -> Stereo
     """Return the camera of a box (x, y, width, height) of ``camera``'s image."""
     x, y, w, h = box
     return replace(camera, width=w, height=h, cx=camera.cx - x, cy=camera.cy - y)
+
+
+def shift_band(size: tuple[int, int], shift: float) -> tuple[npt.NDArray[np.bool_], str] | None:
+    """Return the pixels a right image's shift brings in, and what the line says of them.
+
+    Args:
+        size: (width, height) of the images in px.
+        shift: px the right images are moved right (left when negative) onto the left's cx
+            (:func:`frontend.right_cx.shift_image`).
+
+    Returns:
+        (height, width) bool, the columns whose source x - ``shift`` is outside the recorded
+        image, as :func:`frontend.rectify.invalid_pixels` marks a remap's (so the box leaves
+        out the columns a remapped pair's would), and the reason; None for no shift.
+    """
+    if shift == 0:
+        return None
+    width, height = size
+    map_x = np.tile(np.arange(width, dtype=np.float32) - np.float32(shift), (height, 1))
+    map_y = np.tile(np.arange(height, dtype=np.float32)[:, None], (1, width))
+    band = invalid_pixels([(map_x, map_y)], size)
+    columns = int(band[0].sum())
+    where = "left" if shift > 0 else "right"
+    return band, (
+        f"the {columns} column{'' if columns == 1 else 's'} at the {where} of the right images "
+        f"that their {shift:+g} px shift onto the left's cx brings in, black"
+    )
 
 
 def calibration_border(
@@ -233,6 +273,8 @@ class BorderFinder:
         self._sides: list[npt.NDArray[np.bool_] | None] = [None, None]  # black in every frame
         self._looked = 0  # frames of this camera looked at
         self._evidence = 0  # of them, frames that gave evidence on a side
+        self._band_key: tuple[tuple[int, int], float] | None = None
+        self._band_value: tuple[npt.NDArray[np.bool_], str] | None = None
 
     def find(
         self,
@@ -240,6 +282,9 @@ class BorderFinder:
         right: npt.NDArray[np.generic],
         camera: StereoCamera,
         calibration: StereoCalibration | None,
+        *,
+        shift: float = 0.0,
+        look: bool = True,
     ) -> RectifiedBorder | None:
         """Return the border of a pair of rectified images, or None when they have none.
 
@@ -248,13 +293,17 @@ class BorderFinder:
             right: the right image, of the same shape.
             camera: the rectified camera of the images at their full size.
             calibration: the raw calibration recorded with them, or None.
+            shift: px the right image was moved onto the left's cx: the columns that brings
+                in are border (:func:`shift_band`).
+            look: whether to look for a border (``--rectify never``: only the shift's).
         """
         height, width = left.shape[:2]
         if right.shape[:2] != (height, width):
             return None
         size = (int(width), int(height))
-        if calibration is not None:
-            key: tuple[object, ...] = ("calibration", calibration.key(), size, camera)
+        band = self._band(size, shift)
+        if calibration is not None and look:
+            key: tuple[object, ...] = ("calibration", calibration.key(), size, camera, shift)
             if key == self._key:
                 return self._border
             if key != self._silent:
@@ -262,15 +311,22 @@ class BorderFinder:
                 if bad is not None:
                     self._key, self._sides = key, [None, None]
                     source = "no raw pixel maps there by the raw calibration of the camera infos"
-                    self._set(bad, camera, source)
+                    if not bad.any() and band is not None:  # only the shift's
+                        self._set(band[0], camera, "", shifted=band[1])
+                    else:
+                        self._set(bad | _mask(band, size), camera, source, shifted=_why(band))
                     return self._border
                 self._silent = key  # it tells nothing of these images: they are looked at
-        key = ("images", size, camera)
+        key = ("images", size, camera, shift, look)
         if key != self._key:
             self._key, self._sides, self._border = key, [None, None], None
             self._looked = self._evidence = 0
-        if all(side is not None and not side.any() for side in self._sides):
-            return None  # no border on either side: black in every frame from now on cannot be
+            if band is not None:  # border from the first frame on, whatever the images show
+                self._set(band[0], camera, "", shifted=band[1])
+        if not look or all(side is not None and not side.any() for side in self._sides):
+            return (
+                self._border
+            )  # no border on either side: black in every frame from now on cannot be
         if self._looked >= LOOK_FRAMES or self._evidence >= EVIDENCE_FRAMES:
             return self._border  # decided: the camera stays for the rest of the log
         self._looked += 1
@@ -286,19 +342,33 @@ class BorderFinder:
                 continue
             black = frame_border(image)
             if black is not None:  # else a dark frame, or black scene content: no evidence
+                if index == 1 and band is not None:  # the shift's black is said as such
+                    black = black & ~band[0]
                 self._sides[index], changed, evidence = black, True, True
         self._evidence += evidence
         if changed:
             sides = [side for side in self._sides if side is not None]
             union = np.logical_or.reduce(sides) if sides else np.zeros((height, width), bool)
             if union.mean() < MIN_BORDER_SHARE:
-                self._border = None
+                if band is None:
+                    self._border = None
+                else:
+                    self._set(band[0], camera, "", shifted=band[1])
             else:
                 # widened by a pixel: the interpolation blended the next pixels with the black
-                wide = _widen(union)
+                wide = _widen(union) | _mask(band, size)
                 source = "black (0) at the image edge in every frame so far"
-                self._set(wide, camera, source, share=float(union.mean()), keep_close=True)
+                share = float((union | _mask(band, size)).mean())
+                self._set(wide, camera, source, share=share, keep_close=True, shifted=_why(band))
         return self._border
+
+    def _band(
+        self, size: tuple[int, int], shift: float
+    ) -> tuple[npt.NDArray[np.bool_], str] | None:
+        """Return :func:`shift_band` of a size and shift, made once per pair of them."""
+        if (size, shift) != self._band_key:
+            self._band_key, self._band_value = (size, shift), shift_band(size, shift)
+        return self._band_value
 
     def _set(
         self,
@@ -308,21 +378,25 @@ class BorderFinder:
         *,
         share: float | None = None,
         keep_close: bool = False,
+        shifted: str = "",
     ) -> None:
         """Keep the border of a mask of bad pixels and say it (None when there is none).
 
         A box under :data:`MIN_BOX` px a side is no box to estimate in: the images are then
         used whole (a calibration that does not describe them). With ``keep_close`` (a border
         from the images, which only shrinks), the box kept stays unless the new one's area
-        differs by :data:`SAY_AGAIN` of the frame or more.
+        differs by :data:`SAY_AGAIN` of the frame or more. A border of another ``source``
+        (the shift's alone, then black found in the images) is taken and said in any case.
         """
         box = box_without(bad)
         if not bad.any() or min(box[2], box[3]) < MIN_BOX:
             self._border = None
             return
         previous = self._border
-        close = previous is not None and (
-            abs(_area(previous.box) - _area(box)) < SAY_AGAIN * bad.size
+        close = (
+            previous is not None
+            and previous.source == source
+            and abs(_area(previous.box) - _area(box)) < SAY_AGAIN * bad.size
         )
         if close and keep_close:
             return  # the border only shrinks: the box kept holds none of it
@@ -332,9 +406,21 @@ class BorderFinder:
             inner=inner_camera(camera, box),
             border_share=float(bad.mean()) if share is None else share,
             source=source,
+            shifted=shifted,
         )
         if self._echo is not None and not close:
             self._echo(self._border.line())
+
+
+def _mask(
+    band: tuple[npt.NDArray[np.bool_], str] | None, size: tuple[int, int]
+) -> npt.NDArray[np.bool_]:
+    """Return the pixels of a :func:`shift_band` (none for no shift)."""
+    return band[0] if band is not None else np.zeros((size[1], size[0]), dtype=bool)
+
+
+def _why(band: tuple[npt.NDArray[np.bool_], str] | None) -> str:
+    return band[1] if band is not None else ""
 
 
 def _area(box: tuple[int, int, int, int]) -> int:

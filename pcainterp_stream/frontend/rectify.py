@@ -141,7 +141,7 @@ class StereoRectifier:
             _check_one_rectified_camera(left, right)
         # both into the left's rectified image: P of both infos define one rectified camera
         self._maps = [cal.rectification_maps(left) for cal in (left, right)]
-        vertical = stacked_vertically(left.p, right.p, right.name)
+        vertical = stacked_vertically(left.p, right.p, right.name, baseline=baseline)
         if vertical is not None:
             raise CalibrationError(vertical)
         p = left.rectified_projection()

@@ -13,7 +13,8 @@ brought onto the left's cx before it, and the left camera's P describes the pair
   the left's rectified image;
 - images used as they are (rectified already): the right image is shifted horizontally by
   cx_left - cx_right px (:func:`shift_image`, bicubic as the remap; the columns shifted in
-  are black and left out as a border is).
+  are black, and left out of the estimate as a remapped pair's box leaves out the columns
+  no raw pixel reaches: :func:`frontend.rect_border.shift_band`, with any ``--rectify``).
 
 No I/O; the line the ``rectify`` decision says is :func:`cx_note`.
 """

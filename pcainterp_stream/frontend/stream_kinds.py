@@ -23,6 +23,7 @@ import numpy as np
 
 from pcainterp_stream.errors import PcaInterpError
 from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.camera_model import vertical_ty
 from pcainterp_stream.io.reader_base import LogReader
 
 _T = TypeVar("_T")
@@ -46,7 +47,7 @@ DEPTH_ENCODINGS = frozenset({"16UC1", "32FC1"})
 """Encodings of a depth image (millimetres as ``16UC1``, metres as ``32FC1``)."""
 
 
-def _words(name: str) -> list[str]:
+def name_words(name: str) -> list[str]:
     """Return the words of a name, lower case (``DepthPlanar`` -> ``depth``, ``planar``)."""
     spaced = re.sub(r"(?<=[a-z0-9])(?=[A-Z])", "_", name)
     return [w for w in re.split(r"[^A-Za-z0-9]+", spaced.lower()) if w]
@@ -58,7 +59,7 @@ def depth_name(name: str) -> bool:
     ``depth``, ``DepthPlanar``, ``aligned_depth_to_infra1``, ``disparity_image``,
     ``optical_flow``: True; ``depth_left``, ``stereo_depth_r``, ``image_raw``: False.
     """
-    words = _words(name)
+    words = name_words(name)
     if SIDE_WORDS.intersection(words):
         return False
     joined = "_".join(words)
@@ -133,13 +134,14 @@ def camera_images(reader: LogReader) -> Callable[[str, bool], str | None]:
 def first_tx(reader: LogReader) -> Callable[[str], float | None]:
     """Return camera info topic -> its first message's P[0, 3] (None: not known).
 
-    P[1, 3] when P[0, 3] is 0: a vertical pair's second camera has its translation there
-    (Ty), and is no monocular camera (the pairer refuses the pair as stacked vertically).
+    P[1, 3] when P[0, 3] is 0 and it is a rig's Ty (:func:`io.camera_model.vertical_ty`, f*b
+    >= 1 px*m): a vertical pair's second camera has its translation there, and is no monocular
+    camera (the pairer refuses the pair as stacked vertically); a smaller Ty is noise.
     """
 
     def tx(info: Any) -> float:
         p = rosmsg.projection_matrix(info)
-        return float(p[0, 3] or p[1, 3])
+        return float(p[0, 3] or vertical_ty(p))
 
     return _first(reader, tx, None)
 

@@ -30,7 +30,11 @@ import numpy.typing as npt
 import yaml
 
 from pcainterp_stream.errors import CalibrationError
-from pcainterp_stream.io.camera_model import CameraCalibration, StereoCalibration
+from pcainterp_stream.io.camera_model import (
+    CameraCalibration,
+    StereoCalibration,
+    stacked_vertically,
+)
 
 _FISHEYE = ("equidistant", "fisheye", "kannala_brandt")
 
@@ -200,11 +204,11 @@ def rectify_pair(
         r1, r2, p1, p2, *_ = cv2.stereoRectify(
             k1, d1, k2, d2, size, rot, trans.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0
         )
-    if abs(p2[1, 3]) > abs(p2[0, 3]):
-        raise CalibrationError(
-            f"{names[0]} and {names[1]} are stacked vertically (baseline mostly along y); "
-            "only side-by-side stereo pairs are supported"
-        )
+    # stereoRectify puts the whole baseline in Tx or in Ty (the other is 0): no noise floor
+    p_left, p_right = np.asarray(p1, np.float64), np.asarray(p2, np.float64)
+    vertical = stacked_vertically(p_left, p_right, f"{names[1]} rectified with {names[0]}", least=0)
+    if vertical is not None:
+        raise CalibrationError(vertical)
     cams = []
     for name, (mod, k, d, (w, h)), r, p in ((names[0], left, r1, p1), (names[1], right, r2, p2)):
         cams.append(CameraCalibration(w, h, mod, k, d, np.asarray(r), np.asarray(p), name=name))

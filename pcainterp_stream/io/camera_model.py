@@ -52,19 +52,49 @@ def uncalibrated(name: str, matrix: str) -> str:
     )
 
 
+MIN_FOCAL_BASELINE = 1.0
+"""Below this f*b (px*m) a calibration is taken for wrong: 1 px of disparity at 1 m, 0.1 px at
+10 m. The smallest real pairs have more (a phone's ~1 cm at fx ~1500 px: ~15 px*m; a 4 mm
+endoscope at fx 500 px: 2 px*m); a P[0, 3] written in metres (-baseline, not -fx * baseline)
+makes f*b the baseline in metres (0.05-0.6 px*m for common rigs) and every depth fx times too
+far. A bound on f*b, not on the baseline: a tiny camera's baseline is small, its f*b is not.
+A P's Ty = P[1, 3] under it is no vertical baseline either (calibration noise)."""
+
+
+def vertical_ty(p: npt.NDArray[np.float64]) -> float:
+    """Return a P's Ty = P[1, 3] when it is a rig's (>= :data:`MIN_FOCAL_BASELINE` px*m), else 0.
+
+    A vertical pair's second camera has its translation there (-fy * baseline); a smaller Ty
+    (0.001, calibration noise of a side-by-side pair) is none.
+    """
+    ty = float(p[1, 3])
+    return ty if np.isfinite(ty) and abs(ty) >= MIN_FOCAL_BASELINE else 0.0
+
+
 def stacked_vertically(
-    p_left: npt.NDArray[np.float64], p_right: npt.NDArray[np.float64], right_name: str
+    p_left: npt.NDArray[np.float64],
+    p_right: npt.NDArray[np.float64],
+    right_name: str,
+    *,
+    baseline: float | None = None,
+    least: float = MIN_FOCAL_BASELINE,
 ) -> str | None:
     """Return the error of a pair whose P put the cameras one above the other, else None.
 
     A vertical stereo pair's right (second) P has its translation in Ty = P[1, 3] (-fy *
-    baseline), not Tx = P[0, 3]: the baseline is mostly along y when |Ty_l - Ty_r| > |Tx_l -
-    Tx_r|. Neither ``--baseline`` nor a remap makes such a pair side-by-side.
+    baseline), not Tx = P[0, 3]. The pair is stacked vertically when Ty_l - Ty_r is a rig's
+    (``|Ty_l - Ty_r|`` >= ``least`` px*m, by default :data:`MIN_FOCAL_BASELINE`: a smaller
+    one is calibration noise) and larger than ``|Tx_l - Tx_r|``; with a ``baseline`` given
+    (``--baseline``, which says the pair is side by side and may come with Tx = 0), when it is
+    also at least half of fx * ``baseline``: a Ty below is a side-by-side pair's noise. Neither
+    ``--baseline`` nor a remap makes a vertical pair side-by-side.
     """
     with np.errstate(invalid="ignore", over="ignore"):
         tx = float(p_left[0, 3] - p_right[0, 3])
         ty = float(p_left[1, 3] - p_right[1, 3])
-    if not (np.isfinite(tx) and np.isfinite(ty) and abs(ty) > abs(tx)):
+        if baseline is not None:
+            least = max(least, 0.5 * float(p_left[0, 0]) * baseline)
+    if not (np.isfinite(tx) and np.isfinite(ty) and abs(ty) > abs(tx) and abs(ty) >= least):
         return None
     return (
         f"{right_name} has P[1,3] = {p_right[1, 3]:g} and P[0,3] = {p_right[0, 3]:g}: the "

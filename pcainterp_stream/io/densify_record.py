@@ -95,7 +95,9 @@ class FrontEnd:
             so that no file is needed to redo it; None with camera infos.
         rectify: ``--rectify`` as given: ``auto``, ``always`` or ``never``.
         images: what it decided (:data:`IMAGES`): ``as recorded`` (used as they are, with
-            P), ``remapped`` (rectified from the calibration) or ``remapped in part`` (the
+            P; the right ones moved onto the left's cx when the two P's cx differ, as the
+            ``rectify`` line says: the value keeps its name for the records written before),
+            ``remapped`` (rectified from the calibration) or ``remapped in part`` (the
             camera infos changed, and the decision with them).
         remapped_pairs: the pairs remapped, of ``pairs``.
         pairs: the stereo pairs made.

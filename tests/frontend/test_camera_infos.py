@@ -139,3 +139,48 @@ def test_discovery_reads_a_vertical_pairs_ty_as_its_translation(tmp_path: Path) 
         tx = first_tx(reader)
         assert tx(INFOS[0]) == 0.0
         assert tx(INFOS[1]) == pytest.approx(12.75)
+
+
+def _ty_infos(ty: float, tx: float = 0.0) -> tuple[object, object]:
+    """A side-by-side rectified pair whose right P has Ty = ``ty`` and Tx = ``tx`` (px*m)."""
+    left = rosmsg.camera_info_message(CAMERA, 0, "l")
+    right = rosmsg.camera_info_message(CAMERA, 0, "r")
+    p = np.array(right.p, dtype=np.float64).reshape(3, 4)
+    p[0, 3], p[1, 3] = tx, ty
+    return left, dataclasses.replace(right, p=p.reshape(-1))
+
+
+@pytest.mark.parametrize("ty", [0.001, -0.05, 0.9])
+def test_a_noise_ty_with_no_tx_is_no_vertical_pair(ty: float) -> None:
+    """Review 15a R1: Tx = 0 and Ty = 0.001 was 'stacked vertically', --baseline or not."""
+    left, right = _ty_infos(ty)
+    topic = "/s/right/camera_info"
+    camera = camera_from_infos(left, right, width=8, height=6, right_topic=topic, baseline=0.3)
+    assert camera.baseline == 0.3
+    with pytest.raises(CalibrationError) as err:  # the advice that fixes it
+        camera_from_infos(left, right, width=8, height=6, right_topic=topic)
+    assert str(err.value).startswith(f"camera info on {topic} gives no baseline (P[0,3] = 0.0")
+    assert str(err.value).endswith("pass --baseline METRES")
+
+
+def test_a_ty_small_beside_the_baseline_given_is_no_vertical_pair() -> None:
+    """With --baseline 0.25 (fx * b = 12.5 px*m) a Ty of 3 px*m is a side-by-side pair's."""
+    left, right = _ty_infos(3.0)
+    camera = camera_from_infos(left, right, width=8, height=6, baseline=0.25)
+    assert camera.baseline == 0.25
+    with pytest.raises(CalibrationError, match="stacked vertically"):  # no --baseline: a rig's
+        camera_from_infos(left, right, width=8, height=6)
+    with pytest.raises(CalibrationError, match="stacked vertically"):  # Ty = fx * b: a rig's
+        camera_from_infos(*_ty_infos(12.5), width=8, height=6, baseline=0.25)
+
+
+def test_discovery_takes_no_noise_ty_for_a_translation(tmp_path: Path) -> None:
+    """Review 15a R1: first_tx read Ty = 0.001 of a Tx = 0 info as the pair's translation."""
+    from pcainterp_stream.frontend.stream_kinds import first_tx
+
+    left, right = _ty_infos(0.001)
+    with open_writer(tmp_path / "n.mcap", "mcap") as writer:
+        writer.add_message(INFOS[0], left, 1)
+        writer.add_message(INFOS[1], right, 1)
+    with open_log(tmp_path / "n.mcap") as reader:
+        assert first_tx(reader)(INFOS[1]) == 0.0

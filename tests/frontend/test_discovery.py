@@ -561,6 +561,9 @@ def test_rect_above_the_side_name_says_nothing() -> None:
         ("/camera/left/image_color_corrected", False),
         ("/camera/left/directional", False),
         ("/camera/left/image_raw", False),
+        # review 15a R5: words split as stream_kinds splits them (any separator)
+        ("/camera/left/image.rect", True),
+        ("/camera/left/IMAGE_RECT", True),
     ],
 )
 def test_the_last_name_says_rectified_by_a_word_not_a_substring(

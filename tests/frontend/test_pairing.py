@@ -1382,7 +1382,8 @@ def test_camera_change_is_said_and_summarised() -> None:
     [
         # bug hunt 15A F5: Tx in metres (P[0, 3] = -0.5372, fx 359.428): no warning before
         (359.428, 0.5372 / 359.428, "P of /r/info", "pass --baseline 0.5372"),
-        (359.428, 0.5372 / 359.428, "--baseline", "(P[0, 3] = -fx * baseline, in metres)"),
+        # review 15a R6: the f*b of --baseline itself is no calibration's to fix
+        (359.428, 0.5372 / 359.428, "--baseline", "every depth scales with it: check --baseline"),
         (359.428, 537.2, "P of /r/info", "if it is in millimetres, pass --baseline 0.5372"),
         (500.0, 0.004, "P of /r/info", None),  # a 4 mm endoscope: f*b 2 px*m
         (1500.0, 0.01, "P of /r/info", None),  # a phone's pair
@@ -1410,3 +1411,4 @@ def test_a_baseline_beyond_or_an_f_times_b_below_any_rigs_is_warned_of(
             "of disparity at 0.537 m), below any stereo rig's (>= 1 px*m)"
         )
         assert ("pass --baseline" in hint) is (source != "--baseline")
+        assert ("fix the calibration" in hint) is (source != "--baseline")

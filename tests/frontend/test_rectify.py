@@ -622,3 +622,36 @@ def test_an_all_zero_k_with_a_p_describes_rectified_images() -> None:
     distorted.k[:] = 0.0  # with distortion (or no P) it is still not calibrated
     with pytest.raises(CalibrationError, match="has an all-zero K: the camera is not calibrated"):
         rect.CameraCalibration.from_camera_info(distorted, "/l")
+
+
+def test_a_raw_pair_with_a_noise_ty_and_no_tx_takes_the_baseline_given() -> None:
+    """Review 15a R1: Tx = 0, Ty = 0.001 was 'stacked vertically' with --baseline too."""
+    calibration = raw_calibration(CAMERA, "plumb_bob")
+    p = calibration.right.p.copy()
+    p[0, 3], p[1, 3] = 0.0, 0.001
+    noisy = rect.StereoCalibration(
+        calibration.left, dataclasses.replace(calibration.right, p=p, name="/r/info")
+    )
+    assert rect.StereoRectifier(noisy, baseline=0.5).camera.baseline == 0.5
+    with pytest.raises(CalibrationError, match=r"^/r/info gives no baseline \(P\[0,3\] = 0.0"):
+        rect.StereoRectifier(noisy)
+
+
+def test_a_calibration_that_flips_every_frame_says_five_changes() -> None:
+    """Review 15a R3: two calibrations alternating said one rectify line per frame."""
+    first = raw_calibration(CAMERA, "plumb_bob")
+    second = rect.StereoCalibration(
+        *(dataclasses.replace(c, d=c.d * 0.5) for c in (first.left, first.right))
+    )
+    said: list[str] = []
+    pairer = StereoPairer(dataclasses.replace(_pairer().config, check_rows=False), echo=said.append)
+    views = _stereo_views()
+    for index in range(12):
+        calibration = (first, second)[index % 2]
+        _push_pair(pairer, 1000 + index, *Unrectifier(calibration)(*views), calibration)
+    lines = [line for line in said if line.startswith("rectify")]
+    assert len(lines) == 6  # the first and five changes
+    assert lines[4].endswith("; new maps from frame 4 on: the calibration changed")
+    assert lines[5].endswith(
+        "; new maps from frame 5 on: the calibration changed; later changes are not said (5 said)"
+    )

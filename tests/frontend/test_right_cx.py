@@ -194,3 +194,72 @@ def test_cameras_of_different_sizes_whose_p_differ_only_in_cx_are_one_camera() -
         rect.StereoRectifier(
             rect.StereoCalibration(narrow.left, dataclasses.replace(narrow.right, p=p))
         )
+
+
+@pytest.mark.parametrize("more", [1.0, -1.0, 3.0])
+@pytest.mark.parametrize(
+    ("topics", "options", "says"),
+    [
+        (("/cam/left/image_raw", "/cam/right/image_raw"), {}, "say the images are rectified"),
+        (("/cam/left/image_rect", "/cam/right/image_rect"), {}, "are named rectified"),
+        (("/cam/left/image_raw", "/cam/right/image_raw"), {"rectify": "never"}, "rectify never"),
+    ],
+)
+def test_the_columns_a_shift_brings_in_are_left_out_of_the_estimate(
+    more: float, topics: tuple[str, str], options: dict[str, Any], says: str
+) -> None:
+    """Review 15a R2: a band under 0.5 % of the frame (or any, with --rectify never) was
+    matched as scene; now the box leaves the band out, as a remapped pair's does."""
+    left, right = _views()
+    seen = shift_image(right, more)  # a right camera with cx + more
+    calibration = _right_cx(_ideal(), more)
+    if "named" in says:  # image_rect beside the raw camera's info (D != 0)
+        calibration = rect.StereoCalibration(
+            *(
+                dataclasses.replace(c, d=np.full(5, 0.01))
+                for c in (calibration.left, calibration.right)
+            )
+        )
+    pairer, said = _info_pairer(topics, **options)
+    (frame,) = _push(pairer, calibration, (left, seen))
+    assert says in said[0]
+    if options:  # review 15a R6: not "as recorded" alone, the right images are not
+        assert said[0].startswith("rectify never: the images are used as recorded but shifted, ")
+    x, w = round(CAMERA.cx - frame.camera.cx), frame.left.shape[1]
+    band = int(np.ceil(abs(more)))
+    if more > 0:  # moved left by `more`: black at the right edge
+        assert x + w <= CAMERA.width - band
+    else:
+        assert x >= band
+    assert (frame.right != 0).any(axis=0).all()  # no black column is estimated on
+    (line,) = [s for s in said if s.startswith("rectified border:")]
+    side = "right" if more > 0 else "left"
+    assert f"the {band} column{'s' if band > 1 else ''} at the {side} of the right images " in line
+    assert f"that their {-more:+g} px shift onto the left's cx brings in, black)" in line
+    if "named" not in says:  # no raw calibration: no alpha to blame
+        assert "alpha" not in line
+
+
+@pytest.mark.parametrize("rectify", ["auto", "never"])
+def test_evaluate_reads_the_right_images_shifted_as_densify_did(rectify: str) -> None:
+    """Review 15a R4: PairImages.rectified returning the right image as recorded passed."""
+    from pcainterp_stream.frontend.images import PairImages
+
+    left, right = _views()
+    seen = shift_image(right, 3.0)  # a right camera with cx + 3
+    calibration = _right_cx(_ideal(), 3.0)
+    pair = PairImages(
+        PairingConfig(
+            left_topic="/cam/left/image_raw",
+            right_topic="/cam/right/image_raw",
+            left_info_topic="/cam/left/camera_info",
+            right_info_topic="/cam/right/camera_info",
+            rectify=rectify,
+        )
+    )
+    pair.see_info("/cam/left/camera_info", camera_info_message(calibration.left, 1000, "c"))
+    pair.see_info("/cam/right/camera_info", camera_info_message(calibration.right, 1000, "c"))
+    np.testing.assert_array_equal(pair.rectified(left, "left"), left)
+    out = pair.rectified(seen, "right")
+    np.testing.assert_array_equal(out, shift_image(seen, -3.0))
+    np.testing.assert_array_equal(out[:, :-3], right[:, :-3])  # on the left's cx

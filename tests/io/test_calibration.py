@@ -241,3 +241,22 @@ def test_uncalibrated_camera_info_yaml_is_refused(tmp_path: Path) -> None:
     with pytest.raises(CalibrationError, match="camera_matrix is all zeros") as err:
         load_calibration([left_path, right_path])
     assert "\n" not in str(err.value)
+
+
+def test_a_camchain_stacked_vertically_is_refused_in_the_camera_infos_words(
+    tmp_path: Path,
+) -> None:
+    """Review 15a R5: one test of a vertical pair (io.camera_model.stacked_vertically)."""
+    calibration = raw_calibration(CAMERA, "plumb_bob")
+    path = write_camchain(calibration, tmp_path / "camchain.yaml")
+    data = yaml.safe_load(path.read_text())
+    t = np.array(data["cam1"]["T_cn_cnm1"])
+    t[:3, :3], t[:3, 3] = np.eye(3), [0.0, -CAMERA.baseline, 0.0]  # cam1 below cam0
+    data["cam1"]["T_cn_cnm1"] = t.tolist()
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(CalibrationError) as err:
+        load_calibration([path])
+    message = str(err.value)
+    assert message.startswith(f"{path}:cam1 rectified with {path}:cam0 has P[1,3] = ")
+    assert "the cameras are stacked vertically (baseline mostly along y)" in message
+    assert "\n" not in message
