@@ -86,7 +86,6 @@ from pcainterp_stream.pipeline.feature_check import FeatureStreamCheck
 from pcainterp_stream.pipeline.own_bases import (
     RELEARNED,
     adoption_lines,
-    learned_from,
     matched_alone,
     own_bases,
     own_basis_label,
@@ -331,7 +330,6 @@ def densify(
     if not (topics.writes("depth_std") or rrd is not None or spawn_viewer or on_frame is not None):
         # nothing takes the depth's std (the compact output writes the disparity's)
         processor = dataclasses.replace(processor, depth_std=False)
-    basis_file = basis if isinstance(basis, Path) else None
     basis, label = resolve_basis(basis, output)
     kind = builtin_kind(basis)
     if kind is not None and processor.builtin not in ("auto", kind):
@@ -619,15 +617,13 @@ def densify(
         if unusable is not None:  # raised in the writer's block: no output is left behind
             raise PcaInterpError(f"{input_path}: {unusable}")
         prior_lines = list(engine.adaptation.lines)
-        if (learned := learned_from(basis, basis_file, read)) is not None:
-            prior_lines.insert(1, learned)  # after the fit check's line
         ended = engine.adaptation.end_line()  # a check made again that the log cut short
         prior_lines.extend([ended] if ended is not None else [])
         # every basis of the log's own that densified frames, saved as the record names it
         owns = own_bases(engine.adaptation, basis, output)
         prior_lines.extend(adoption_lines(owns))
         # a basis that cannot be written is warned of: the output is written all the same
-        saved, unsaved = save_own_bases(owns, input_path, read)
+        saved, unsaved = save_own_bases(owns, input_path)
         committed.extend(own.path for own in saved if own.path is not None)
         basis_written = next((o.path for o in saved if o.adoption == 1 and not o.relearned), None)
         final_written = next((o.path for o in saved if o.adoption == 1 and o.relearned), None)

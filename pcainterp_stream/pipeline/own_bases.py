@@ -13,7 +13,6 @@ finds them.
 from __future__ import annotations
 
 import errno
-from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import IO
@@ -182,13 +181,8 @@ def own_bases(
     return owns
 
 
-def save_own_bases(
-    owns: list[OwnBasis], log: Path, read: Sequence[Path] = ()
-) -> tuple[list[OwnBasis], list[str]]:
+def save_own_bases(owns: list[OwnBasis], log: Path) -> tuple[list[OwnBasis], list[str]]:
     """Save each of ``owns`` that has a file beside the output; never fail the run for one.
-
-    ``read``: the log's files, named in each file's meta (``logs``, resolved) as ``learn``
-    names its logs (:func:`learned_from`); not in the fingerprint, which has no meta.
 
     Returns:
         Those saved, and a warning for each that could not be (a full disk, a name too
@@ -199,10 +193,8 @@ def save_own_bases(
     for own in owns:
         if own.path is None:
             continue
-        logs = [str(path.resolve()) for path in read]
-        named = replace(own.basis, meta={**own.basis.meta, "logs": logs}) if logs else own.basis
         try:
-            named.save(own.path, partial_file=make_partial_file)  # 9C F3, F4
+            own.basis.save(own.path, partial_file=make_partial_file)  # 9C F3, F4
         except BasisError as err:
             cause = err.__cause__
             why = (  # "No space left on device; free some space, or write it elsewhere"
@@ -220,31 +212,6 @@ def save_own_bases(
         else:
             saved.append(own)
     return saved, warnings
-
-
-def learned_from(basis: Basis, file: Path | None, read: Sequence[Path]) -> str | None:
-    """Return a note when the basis file ``file`` was learned from the log read, else None.
-
-    Its meta names the logs it was learned from (``learn``'s ``source.logs``, densify's
-    ``logs``): the fit check holds pixels out of the measurements, not out of the basis's
-    maps, so its figure there is a training score (bug hunt 15C F4: 0.27x linear, where
-    densify's leave-one-out figure for the same basis was 0.59x).
-    """
-    source = basis.meta.get("source")
-    named = basis.meta.get("logs", source.get("logs") if isinstance(source, dict) else None)
-    if file is None or not read or not isinstance(named, list):
-        return None
-    try:
-        ours = {path.resolve() for path in read}
-        if not any(Path(str(log)).resolve() in ours for log in named):
-            return None
-    except OSError:
-        return None
-    return (
-        f"note: {file.name} was learned from this log's SGBM maps (its meta names the log): "
-        "the fit check's figure is on maps it learned, which flatters it (densify without "
-        "--basis checks a basis of the log's own on frames it did not learn)"
-    )
 
 
 def adoption_lines(owns: list[OwnBasis]) -> list[str]:

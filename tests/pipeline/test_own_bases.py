@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterator
-from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -24,7 +23,6 @@ from pcainterp_stream.io.outputs import (
 from pcainterp_stream.pipeline.adaptation import Adaptation, AdaptFrame
 from pcainterp_stream.pipeline.densify import densify, final_basis_path, own_basis_path
 from pcainterp_stream.pipeline.jobs import evaluation_basis, synth
-from pcainterp_stream.pipeline.own_bases import learned_from
 from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
 from pcainterp_stream.records import StereoCamera, StereoFrame, SynthFrame
 from pcainterp_stream.synth import SynthConfig, generate
@@ -218,37 +216,6 @@ def test_the_final_basis_line_says_how_many_maps_it_learned(tmp_path: Path) -> N
         f"wrote {final}: the basis relearned from 16 of the 23 maps this log's own basis saw, "
         "when they last doubled (densify --basis with it for other logs of this camera)"
     )  # 23: the own basis stopped fitting at frame 23, before its map was added
-
-
-def test_a_basis_file_learned_from_this_log_says_its_figure_is_on_its_maps(
-    tmp_path: Path,
-) -> None:
-    """Bug hunt 15C F4: densify LOG --basis OUTPUT.basis.npz (or a basis `learn LOG` made)
-    fit-checks the basis on the SGBM maps it learned: "0.27x linear" where densify's
-    leave-one-out figure for it was 0.59x, unsaid. Its meta names the log now, and the
-    summary says the figure is on maps it learned."""
-    log, out = tmp_path / "r8.mcap", tmp_path / "r8_dense.mcap"
-    write_synthetic_log(generate(SynthConfig(seed=3, frames=8, scale=0.25, scene="indoor")), log)
-    densify(log, out)
-    own = own_basis_path(out)
-    assert Basis.load(own).meta["logs"] == [str(log.resolve())]
-    again = densify(log, tmp_path / "again.mcap", own).prior_lines
-    note = (
-        "note: r8_dense.basis.npz was learned from this log's SGBM maps (its meta names the "
-        "log): the fit check's figure is on maps it learned, which flatters it"
-    )
-    assert again[1].startswith(note), again
-    other = tmp_path / "other.mcap"  # another log of the camera: its figure is held out
-    write_synthetic_log(generate(SynthConfig(seed=2, frames=3, scale=0.25, scene="indoor")), other)
-    assert not any(
-        "learned from this log" in line
-        for line in densify(other, tmp_path / "o.mcap", own).prior_lines
-    )
-    # learn's meta names its logs as given (source.logs)
-    learned = replace(Basis.indoor(), meta={"source": {"logs": [str(log)]}})
-    assert learned_from(learned, tmp_path / "b.npz", [log]) is not None
-    assert learned_from(learned, tmp_path / "b.npz", [other]) is None
-    assert learned_from(Basis.indoor(), tmp_path / "b.npz", [log]) is None
 
 
 def test_the_basis_relearned_at_a_cameras_last_frame_is_saved(tmp_path: Path) -> None:
