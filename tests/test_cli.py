@@ -2871,11 +2871,14 @@ def test_learn_on_one_pair_advises_only_what_helps(
         line = run.error_line()
         assert line.endswith(
             "no held-out stereo pair to fit the prior on: one.mcap has one stereo pair, whose "
-            "map the basis learns; use more frames or --fit-logs LOG (no --holdout leaves both "
-            "a map and a pair to fit on)"
+            "map the basis learns; use more frames, --fit-logs LOG (no --holdout leaves both "
+            "a map and a pair to fit on), or --no-fit-prior (a basis with no fitted prior)"
         ), line
         assert "merging" not in run.out + run.err
         assert_nothing_written(target)
+    # the last advice works (review 15c R5: it was left out)
+    assert pcainterp("learn", log, "-o", target, "--no-fit-prior").code == 0
+    assert target.is_file()
 
 
 def test_learn_every_beyond_the_log_names_every(

@@ -523,8 +523,9 @@ def plan_maps(
             every = _smaller_every(options)
             raise PcaInterpError(
                 f"no held-out stereo pair to fit the prior on: {_one_pair(logs, options)}; "
-                + (f"use more frames, {every}or" if every else "use more frames or")
-                + " --fit-logs LOG (no --holdout leaves both a map and a pair to fit on)"
+                + (f"use more frames, {every}" if every else "use more frames, ")
+                + "--fit-logs LOG (no --holdout leaves both a map and a pair to fit on), or "
+                "--no-fit-prior (a basis with no fitted prior)"
             )
     elif requested == AUTO and total is None:
         counts = [

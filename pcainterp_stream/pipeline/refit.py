@@ -22,6 +22,7 @@ first frames. Two things can make that choice wrong later, and both were silent:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -331,7 +332,11 @@ class Refitting(Adaptation):
 
         ours, theirs = pooled(choice.basis, choice.settings), pooled(given, self._settings)
         where = f"frame{'s' if len(frames) > 1 else ''} {_names([f.index for f in frames])}"
-        if not theirs.prior < ours.prior:
+        # the given basis only when it scored lower, or scored where the choice could not
+        given_better = theirs.prior < ours.prior or (
+            math.isnan(ours.prior) and not math.isnan(theirs.prior)
+        )
+        if not given_better:
             return (
                 choice,
                 f"{name}; on {where} {ours.ratio:.2f}x linear, {self.name} {theirs.ratio:.2f}x)",

@@ -4,6 +4,7 @@ to linear interpolation, a camera or a scene that changes mid-log."""
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 import numpy as np
@@ -13,6 +14,7 @@ from pcainterp_stream.estimate import adapt
 from pcainterp_stream.estimate.basis import Basis, builtin_kind
 from pcainterp_stream.frontend.sgbm_resolution import by_camera
 from pcainterp_stream.pipeline import adaptation as adaptation_module
+from pcainterp_stream.pipeline import refit
 from pcainterp_stream.pipeline.adapt_frames import AdaptFrame
 from pcainterp_stream.pipeline.adaptation import Candidate
 from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
@@ -341,3 +343,36 @@ def test_a_camera_change_drops_the_tuning_fitted_on_the_camera_before() -> None:
             "choice is made again on its first 8 frames"
         ) in adaptation.lines
         assert adaptation.tuning(Basis.indoor()) == {}
+
+
+def test_a_choice_that_cannot_be_scored_gives_way_to_a_given_basis_that_can(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """review 15c R6: at a stop, a NaN score of the check's choice kept the choice (no
+    number is lower than NaN) although the given basis had a figure; and a NaN of the given
+    basis keeps the choice."""
+    size = (4, 4)
+    frame = AdaptFrame(
+        np.zeros((1, 2), np.float32),
+        np.ones(1, np.float32),
+        np.ones(size, np.float32),
+        None,
+        size,
+        1.0,
+        index=15,
+    )
+    watch = FitWatch(0.6)
+    watch.add(15, adapt.FrameCheck(100, 5.0, 1.0, 1.1), frame)
+    for nan_for, expected in ((Basis.indoor(), None), (Basis.default(), Basis.indoor())):
+
+        def scored(basis: Basis, *_: object, nan_for: Basis = nan_for) -> adapt.FrameCheck:
+            prior = math.nan if basis is nan_for else 2.0
+            return adapt.FrameCheck(100, prior, 1.0, 1.1)
+
+        monkeypatch.setattr(refit, "score", scored)
+        adaptation = Refitting("auto", True, 8, "cauchy", False, name="the built-in street basis")
+        adaptation._given = Basis.default()
+        choice = Candidate("the built-in indoor basis", Basis.indoor(), {})
+        adaptation.builtin_choice = choice
+        chosen, _ = adaptation._rescored(watch)
+        assert (None if chosen is None else chosen.basis) is expected
