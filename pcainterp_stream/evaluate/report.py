@@ -330,7 +330,8 @@ class _Evaluator:
         A frame with fewer than :data:`MIN_MEASUREMENTS` usable measurements is left out of
         every method (nearest and linear have nothing to interpolate, PCA-MAP has no estimate:
         NaN; the prior's mean in logs densified by earlier versions) and only counted in
-        ``result.no_measurement``.
+        ``result.no_measurement``; one whose reference holds no truth on any pixel to score,
+        likewise, in ``result.no_truth``.
         """
         camera, size = frame.camera, frame.camera.image_size
         # the log's measurements are densify's: SGBM's 0 is a match (densify's zero_is_match)
@@ -341,6 +342,10 @@ class _Evaluator:
             self.per_frame.finish(frame.index, frame.stamp_ns, frame.estimate, measured=False)
             return
         view = reference_view(reference, camera, transform)
+        if not view.counted.any():  # the message is there, its truth is not: left out, named
+            self.result.no_truth.append(frame.index)
+            self.per_frame.finish(frame.index, frame.stamp_ns, frame.estimate, truth=False)
+            return
         has_estimate = ~np.isnan(frame.estimate)  # +inf depth (far) is an estimate; NaN none
         self.result.reference_counted += int(np.count_nonzero(view.counted))
         box: tuple[int, int, int, int] | None = (0, 0, size[1], size[0])
@@ -761,6 +766,8 @@ def evaluate_log(
         result.stereo_note = (
             f"{SGBM_NN} left out on {evaluator.sgbm_empty} frames where SGBM found no pixel"
         )
+    if result.frames == 0 and result.no_truth:  # every frame with a reference had no truth
+        raise LogReadError(no_truth_message(path, result, reference, options.max_frames))
     if result.frames == 0:
         name = reference.topic if reference else GROUND_TRUTH_DEPTH
         tolerance = state.reference_tolerance[0] if reference else state.tolerance_ns

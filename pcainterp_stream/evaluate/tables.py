@@ -95,6 +95,8 @@ def summary_table(result: Evaluation) -> str:
         )
     if result.no_measurement:
         lines.append(result.no_measurement_note)
+    if result.no_truth:
+        lines.append(result.no_truth_note)
     if result.no_estimate_note:
         lines.append(result.no_estimate_note)
     lines += [f"damage: {line}; only the frames read before it count" for line in result.damage]
@@ -235,8 +237,8 @@ def results_markdown(result: Evaluation, figures: list[str]) -> str:
         if result.skipped
         else ""
     )
-    if result.no_measurement:
-        skipped += f" {result.no_measurement_note[0].upper()}{result.no_measurement_note[1:]}."
+    for note in (result.no_measurement_note, result.no_truth_note):
+        skipped += f" {note[0].upper()}{note[1:]}." if note else ""
     if result.no_estimate_note:
         skipped += f" {result.no_estimate_note[0].upper()}{result.no_estimate_note[1:]}."
     lines = [

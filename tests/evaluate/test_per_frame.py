@@ -148,11 +148,27 @@ def test_standout_rules() -> None:
         "frame 7: no estimate (NaN in the log), scored on no pixel",
         "frame 4: PCA-MAP error 3.50 px, over 3x the median frame's 1.00 px",
         "frame 5: +-2 sigma covers 30.0 % of the reference (under 50 %)",
-        "frame 6: the reference holds truth on 0.20x the median frame's pixels: it collapsed there",
+        "frame 6: the reference holds truth on 0.20x the median frame's pixels (200 px of "
+        "1000): it collapsed there",
     ]  # frame 8 (no measurement) is named by the no-measurement note instead
     many = [_figures(i, coverage_2sigma=0.1 if i % 2 else 0.96) for i in range(40)]
     (line,) = _standouts(many)
     assert line.startswith("frames 1, 3, 5, 7, 9, 11, 13, 15 and 12 more: +-2 sigma covers")
+
+
+def test_a_collapsed_frame_is_named_once() -> None:
+    # bug hunt 15D F2: a frame with one truth pixel was named three times (its error, its
+    # coverage, its collapse); a frame left out for want of truth is named by its note only
+    frames = [_figures(i) for i in range(5)]
+    frames[1] = _figures(1, pixels=1, delta_2d_mean={"pca_map": 17.35}, coverage_2sigma=0.0)
+    frames[2] = _figures(2, reference_far=0.9, delta_2d_mean={"pca_map": 9.0})
+    frames[3] = _figures(3, truth=False, pixels=0, delta_2d_mean={}, estimate=False)
+    assert _standouts(frames) == [
+        "frame 2: the reference is too far (depth +inf) on 90 % of the pixels (median frame "
+        "1 %): it collapsed there",
+        "frame 1: the reference holds truth on 0.00x the median frame's pixels (1 px of "
+        "1000): it collapsed there",
+    ]
 
 
 def test_frame_ranges() -> None:
