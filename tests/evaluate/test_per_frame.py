@@ -18,7 +18,7 @@ from blanked_log import dense_and_blanked
 
 from pcainterp_stream.evaluate import report as report_module
 from pcainterp_stream.evaluate.log_frames import Frame
-from pcainterp_stream.evaluate.metrics import Mode
+from pcainterp_stream.evaluate.metrics import Mode, compare_with_ground_truth
 from pcainterp_stream.evaluate.per_frame import FrameFigures, frame_ranges, standout_lines
 from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log
 from pcainterp_stream.evaluate.report_folder import report_json
@@ -115,6 +115,22 @@ def test_frames_without_an_estimate_are_counted_and_kept_out_of_the_table(
         assert row["delta_2d_mean"] == {}
         assert row["coverage_2sigma"] is None  # NaN, strict JSON
     assert all(row["measured"] and row["pixels"] > 0 for row in rows[:1] + rows[3:])
+
+
+def test_the_quick_comparison_leaves_pixels_without_an_estimate_out_of_every_method(
+    logs: dict[str, Path],
+) -> None:
+    # bug hunt 15D F7: frames 1-2 have no estimate (NaN); compare_with_ground_truth counted
+    # their pixels with error 0 (np.nansum) and kept them in the count: 0.882 px against the
+    # clean log's 1.286, nearest 2.975 against 4.043
+    dense = compare_with_ground_truth(logs["dense"])
+    blank = compare_with_ground_truth(logs["blank_dense"])
+    assert (dense.frames, dense.no_estimate, dense.no_estimate_frames) == (6, 0, 0)
+    assert (blank.frames, blank.no_estimate_frames) == (4, 2)
+    assert blank.pixels == dense.pixels * 4 // 6  # one image size, truth on every pixel
+    assert blank.no_estimate == dense.pixels * 2 // 6
+    for method in ("pca_map", "nearest", "linear"):  # every method on the same pixels
+        assert blank.mean_abs_error(method) > 0.9 * dense.mean_abs_error(method), method
 
 
 def _figures(index: int, **changes: Any) -> FrameFigures:
