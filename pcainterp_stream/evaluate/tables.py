@@ -141,7 +141,13 @@ def _met(ratio: float | None, target: float) -> str:
 def _targets(result: Evaluation) -> list[str]:
     lines = []
     ratio = result.ratio()
-    if ratio is None:
+    if result.measurements == "dense":  # the features are the prior's points, not the map's
+        verdict = (
+            "not graded: in a dense log nearest neighbour interpolates the points that shaped "
+            "the prior (/pcainterp/features), not the SGBM pixels the map fused; the dense "
+            "targets below are the ones for it"
+        )
+    elif ratio is None:
         verdict = "undefined, nearest neighbour's mean Delta_2D is 0"
     else:
         verdict = "met" if ratio <= TARGET_RATIO else f"missed by {ratio - TARGET_RATIO:.2f}"

@@ -35,6 +35,7 @@ from pcainterp_stream.evaluate.metrics import (
 from pcainterp_stream.evaluate.reference import ReferenceTopic, reference_disparity
 from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log, summary_table
 from pcainterp_stream.evaluate.results import PCA_ON_SGBM, SGBM, SGBM_NN, Evaluation
+from pcainterp_stream.evaluate.tables import results_markdown
 from pcainterp_stream.frontend.stereo import SgbmConfig, compute_disparity
 from pcainterp_stream.io import depth_codec, rosmsg
 from pcainterp_stream.io.logreader import open_log
@@ -555,6 +556,27 @@ def test_a_disparity_image_is_truth_only_where_it_says_its_values_are_valid() ->
     assert truth[2, 20] == 60.0
     assert np.isnan(truth[0, 20])
     assert np.isfinite(truth[:, 8:]).sum() == height * (width - 8) - 1
+
+
+def test_a_dense_log_does_not_grade_the_papers_sparse_target(logs: dict[str, Path]) -> None:
+    # bug hunt 15D F3: a dense log's /pcainterp/features are the prior's points, not the
+    # SGBM pixels its map fused: "PCA-MAP / nearest neighbour = 0.28 (target <= 0.65): met"
+    # compared the map with an interpolation of other points
+    def target_line(result: Evaluation) -> str:
+        markdown = results_markdown(result, [])
+        (line,) = [n for n in markdown.splitlines() if "PCA-MAP / nearest neighbour mean" in n]
+        return line
+
+    dense = _evaluate(logs["references"], "/ref/depth_no_sky")
+    assert dense.measurements == "dense"
+    line = target_line(dense)
+    assert "not graded: in a dense log nearest neighbour interpolates the points that " in line
+    assert not line.endswith(": met.")
+    assert "missed" not in line
+    sparse = _evaluate(logs["dense"], None)
+    assert sparse.measurements != "dense"
+    assert "not graded" not in target_line(sparse)
+    assert ": met." in target_line(sparse) or ": missed by" in target_line(sparse)
 
 
 def test_cli_report_names_a_sparse_reference(
