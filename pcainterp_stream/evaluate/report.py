@@ -748,6 +748,12 @@ def evaluate_log(
                 baselines=before_stereo is not None and has_truth,
             )
         previous = None if frame_reference is None else (frame, frame_reference, stereo)
+    if previous is not None:  # temporal mode: the last frame read has no next frame
+        result.notes.append(
+            f"the last frame ({previous[0].index}) is not scored: temporal mode moves each "
+            "frame's pixels into the next frame, and it has none"
+            + (" (--max-frames N scores N-1)" if options.max_frames is not None else "")
+        )
     result.measurements = state.measurements
     result.damage = list(state.damage)
     result.notes += state.notes + truth_values.notes()

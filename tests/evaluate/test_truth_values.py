@@ -164,6 +164,25 @@ def test_a_frame_whose_reference_holds_no_truth_is_named_and_not_counted(
     assert "(1 px of " in named[0]
 
 
+def test_temporal_mode_says_the_last_frame_is_not_scored(logs: dict[str, Path]) -> None:
+    # bug hunt 15D F4: 4 frames scored 3 and --max-frames 2 scored 1, without a word
+    note = "the last frame (3) is not scored: temporal mode moves each frame's pixels into the"
+    result, _ = evaluate_log(logs["dense"], EvaluateOptions(mode=Mode.TEMPORAL, sweep_every=0))
+    assert result.frames == 3
+    assert any(n.startswith(note) and "--max-frames" not in n for n in result.notes)
+    assert f"note: {note}" in summary_table(result)
+    options = EvaluateOptions(mode=Mode.TEMPORAL, sweep_every=0, max_frames=2)
+    result, _ = evaluate_log(logs["dense"], options)
+    assert result.frames == 1
+    assert any(
+        n.startswith("the last frame (1) is not scored")
+        and n.endswith("(--max-frames N scores N-1)")
+        for n in result.notes
+    )
+    stereo, _ = evaluate_log(logs["dense"], EvaluateOptions(mode=Mode.STEREO, sweep_every=0))
+    assert not any("last frame" in n for n in stereo.notes)
+
+
 @pytest.mark.parametrize("topic", [None, TRUTH])
 def test_a_reference_without_any_truth_is_an_error(
     logs: dict[str, Path], topic: str | None
