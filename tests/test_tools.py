@@ -217,3 +217,42 @@ def test_sgbm_alone_pairs_what_densify_pairs(tmp_path: Path) -> None:
     finally:
         sys.path.remove(str(ROOT / "tools"))
     assert bench_before_after.frame_count(log) == 3
+
+
+def test_sparse_sharpness_depth_rmse_is_evaluates() -> None:
+    """Bug hunt 15D F6: the tool capped truth beyond 80 m at 80 m and counted it (2.249 m on
+    the KITTI LiDAR frames) where evaluate leaves it out (2.240 m, the figure the docs quote
+    beside the tool's command)."""
+    import numpy as np
+
+    from pcainterp_stream.evaluate.metrics import depth_errors
+    from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
+    from pcainterp_stream.synth import SynthConfig, generate
+
+    sys.path.insert(0, str(ROOT / "tools"))
+    try:
+        import sparse_sharpness
+    finally:
+        sys.path.remove(str(ROOT / "tools"))
+    items = []
+    for item in generate(SynthConfig(seed=3, frames=2, scale=0.25)):
+        fb = item.camera.focal_baseline
+        with np.errstate(divide="ignore", invalid="ignore"):
+            truth = (fb / item.depth).astype(np.float32)
+        truth[: truth.shape[0] // 3] = fb / 200.0  # truth 200 m away: beyond the 80 m cap
+        frame = sparse_sharpness._frame(
+            item.index, item.stamp_ns, item.left, item.right, item.camera
+        )
+        items.append((frame, truth))
+    figures = sparse_sharpness.score(items, ProcessorConfig())
+    with FrameProcessor(None, ProcessorConfig()) as processor:
+        results = list(processor.process([frame for frame, _ in items]))
+    squares = count = 0.0
+    for (frame, truth), result in zip(items, results, strict=True):
+        valid = np.isfinite(truth) & (truth > 0)
+        sums = depth_errors(
+            result.disparity, truth, valid, focal_baseline=frame.camera.focal_baseline
+        )
+        squares, count = squares + sums["sq"], count + sums["n"]
+    assert 0 < count
+    assert figures["depth_rmse_m"] == float(np.sqrt(squares / count))

@@ -7,7 +7,9 @@ measurement options at a time:
 - ``lidar``: the three KITTI depth-completion frames (``kitti_depth_annotated_07``), against
   their accumulated-LiDAR truth (disparity = f*b / depth);
 - ``synth``: synthetic street drives of held-out seeds (the built-in basis learned seeds
-  1000-1199), full size, against the renderer's depth;
+  1000-1199), full size, against the renderer's depth, its sky (no surface) left out: unlike
+  ``pcainterp evaluate``, which counts the sky of a synthetic log as disparity 0, so this
+  source's figures are not evaluate's;
 - ``odometry`` and ``raw``: the two KITTI clips, against the full-resolution SGBM map of the
   same pair (the reference ``evaluate`` uses for a stereo log without truth).
 
@@ -16,7 +18,8 @@ discontinuities (> 3 px disparity range in the 9x9 window) and the +-2 sigma cov
 and away from them, the same error for nearest-neighbour and linear (Delaunay)
 interpolation of the points the estimate used (ratios) and of the frame's GFTT corners alone
 (no lattice, no carried points), the share of reference pixels within +-2 sigma, depth RMSE
-(m, depths capped at 80 m), the points used per frame, and the processor's wall time
+(m; as ``pcainterp evaluate`` defines it: over the truth depths up to 80 m, the estimated
+depth capped at 80 m), the points used per frame, and the processor's wall time
 relative to the first variant in the same run. ``--geodesic`` adds two geodesic nearest
 neighbours of the same points: each pixel takes the value of the point nearest along the
 left image (a step on the basis grid costing 1 + 0.2 |grey difference|), or along the
@@ -46,6 +49,7 @@ import numpy.typing as npt
 from pcainterp_stream.estimate.baselines import linear, nearest
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.variance import prior_std_map
+from pcainterp_stream.evaluate.metrics import depth_errors
 from pcainterp_stream.frontend.motion import CarryConfig
 from pcainterp_stream.frontend.near import NearConfig
 from pcainterp_stream.frontend.stereo import SgbmConfig, StereoFrontEnd, compute_disparity
@@ -56,7 +60,8 @@ Array = npt.NDArray[np.float32]
 DEPTH_CAP_M = 80.0
 
 DEPTH_BINS_M = (0.0, 10.0, 20.0, 30.0, 40.0, 60.0, 80.0)
-"""Bins of the truth's depth (m) for ``--depth-bins`` (the last one ends at the depth cap)."""
+"""Bins of the truth's depth (m) for ``--depth-bins`` (the last one ends at the depth cap; truth
+beyond it counts in the last bin's error_px, not in any depth RMSE, as in evaluate)."""
 
 # variant name -> changes to ProcessorConfig's corner options
 STREET = {"builtin": "street", "adapt": "check"}
@@ -406,10 +411,12 @@ def score(
             "near_estimate",
             "near_truth",
             "capped",
+            "depth_px",
         ),
         0.0,
     )
-    bins = np.zeros((len(DEPTH_BINS_M) - 1, 3))  # pixels, sum |error| px, sum sq depth m^2
+    # pixels, sum |error| px, sum sq depth m^2, pixels of truth within the depth cap
+    bins = np.zeros((len(DEPTH_BINS_M) - 1, 4))
     points = 0
     for (frame, truth), result in zip(items, results, strict=True):
         valid = np.isfinite(truth) & (truth > 0)
@@ -452,21 +459,32 @@ def score(
         sums["edge_px"] += edge.sum()
         sums["edge_err"] += error[edge].sum()
         sums["edge_inside"] += inside[edge].sum()
-        depth_true = np.minimum(frame.camera.focal_baseline / truth[valid], DEPTH_CAP_M)
-        with np.errstate(divide="ignore"):
-            depth_est = np.minimum(
-                frame.camera.focal_baseline / np.maximum(estimate[valid], 0), DEPTH_CAP_M
-            )
-        sums["sq_depth"] += ((depth_est - depth_true) ** 2).sum()
+        # depth RMSE as evaluate's (metrics.depth_sums): truth beyond the cap is not counted,
+        # the estimated depth is capped (a disparity <= 0 or NaN is far)
+        depth_true = frame.camera.focal_baseline / truth[valid]
+        near = depth_true <= DEPTH_CAP_M
+        cap_disparity = frame.camera.focal_baseline / DEPTH_CAP_M
+        depth_est = frame.camera.focal_baseline / np.maximum(
+            np.nan_to_num(estimate[valid], nan=0.0), cap_disparity
+        )
+        squares = np.where(near, (depth_est - depth_true) ** 2, 0.0)
+        depth = depth_errors(estimate, truth, valid, focal_baseline=frame.camera.focal_baseline)
+        sums["sq_depth"] += depth["sq"]
+        sums["depth_px"] += depth["n"]
         sums["capped"] += float(
             (depth_est >= DEPTH_CAP_M).sum() - (depth_true >= DEPTH_CAP_M).sum()
         )
-        bin_of = np.clip(np.digitize(depth_true, DEPTH_BINS_M) - 1, 0, len(DEPTH_BINS_M) - 2)
+        bin_of = np.clip(
+            np.digitize(np.minimum(depth_true, DEPTH_CAP_M), DEPTH_BINS_M) - 1,
+            0,
+            len(DEPTH_BINS_M) - 2,
+        )
         for index in range(len(DEPTH_BINS_M) - 1):
             inside_bin = bin_of == index
             bins[index, 0] += inside_bin.sum()
             bins[index, 1] += error[inside_bin].sum()
-            bins[index, 2] += ((depth_est - depth_true)[inside_bin] ** 2).sum()
+            bins[index, 2] += squares[inside_bin].sum()
+            bins[index, 3] += (near & inside_bin).sum()
         points += len(result.pixels)
     return {
         "error_px": sums["err"] / sums["px"],
@@ -492,16 +510,16 @@ def score(
         "away_coverage": 100.0
         * (sums["inside"] - sums["edge_inside"])
         / max(sums["px"] - sums["edge_px"], 1.0),
-        "depth_rmse_m": float(np.sqrt(sums["sq_depth"] / sums["px"])),
+        "depth_rmse_m": float(np.sqrt(sums["sq_depth"] / max(sums["depth_px"], 1.0))),
         # by the truth's depth (DEPTH_BINS_M): mean |disparity error| px and depth RMSE m
         **{
             f"{key}_{low:g}-{high:g}m": value
-            for (low, high), (count, error_sum, squares) in zip(
+            for (low, high), (count, error_sum, squares, near_count) in zip(
                 itertools.pairwise(DEPTH_BINS_M), bins, strict=True
             )
             for key, value in (
                 ("error_px", error_sum / max(count, 1.0)),
-                ("depth_rmse_m", float(np.sqrt(squares / max(count, 1.0)))),
+                ("depth_rmse_m", float(np.sqrt(squares / max(near_count, 1.0)))),
             )
         },
         # estimates at the depth cap where the truth is nearer (net count)

@@ -111,7 +111,8 @@ def add_parser(commands: Commands) -> None:
         type=int,
         default=None,
         metavar="N",
-        help="evaluate the first N densified frames only (default: all)",
+        help="evaluate the first N densified frames only (default: all); temporal mode scores "
+        "N-1 of them, as the last has no next frame to be moved into",
     )
     evaluate.add_argument(
         "--reference-topic",

@@ -173,7 +173,8 @@ def no_truth_message(
     path: Path, result: Evaluation, reference: ReferenceTopic | None, max_frames: int | None
 ) -> str:
     """Say that no evaluated frame's reference had a pixel with truth, and what to do."""
-    frames = f"{result.frames} frame{'' if result.frames == 1 else 's'} evaluated"
+    count = result.frames + len(result.no_truth)
+    frames = f"{count} frame{'' if count == 1 else 's'} evaluated"
     if max_frames is not None:
         frames += f" (at most {max_frames}: --max-frames)"
     if result.reference == "SGBM":

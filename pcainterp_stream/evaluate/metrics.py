@@ -1,10 +1,13 @@
 """Compare a densified log with its ground truth (synthetic logs carry the true depth).
 
-This is the quick check ``pcainterp demo`` prints: mean absolute disparity error of the
-PCA-MAP estimate and of the nearest-neighbour and linear baselines on exactly the same
-sparse points, over every pixel with a ground-truth value. The log's depth is read as REP 118
-(and REP 117, which it cites) says: +inf is "too far" (the synthetic logs' sky), true
-disparity 0, and counts; NaN is "no value" and does not.
+:func:`compare_with_ground_truth` is a quick library check (no command prints it;
+``pcainterp evaluate`` writes the full report): mean absolute disparity error of the PCA-MAP
+estimate and of the nearest-neighbour and linear baselines on exactly the same sparse
+points, over the same pixels for every method: those with a ground-truth value and an
+estimate. As in ``evaluate``, a pixel the log has no estimate for (NaN: outside a raw pair's
+rectified box, a frame densify could not measure) is left out of every method and counted
+apart. The log's depth is read as REP 118 (and REP 117, which it cites) says: +inf is "too
+far" (the synthetic logs' sky), true disparity 0, and counts; NaN is "no value" and does not.
 """
 
 from __future__ import annotations
@@ -42,16 +45,22 @@ class GroundTruthComparison:
     """Mean absolute disparity errors (px) against ground truth, accumulated over frames.
 
     Attributes:
-        frames: frames compared.
-        pixels: ground-truth pixels compared in all.
+        frames: frames compared (a frame with no estimate at any truth pixel is not).
+        pixels: ground-truth pixels compared in all, the same for every method.
         abs_error_sum: per method, the sum of absolute disparity errors (px).
         inside_2sigma: pixels whose true disparity lies within +-2 posterior std.
+        no_estimate: ground-truth pixels left out of every method: the log has no estimate
+            there (NaN).
+        no_estimate_frames: frames with no estimate at any ground-truth pixel (not in
+            ``frames``).
     """
 
     frames: int = 0
     pixels: int = 0
     abs_error_sum: dict[str, float] = field(default_factory=dict)
     inside_2sigma: int = 0
+    no_estimate: int = 0
+    no_estimate_frames: int = 0
 
     def mean_abs_error(self, method: str) -> float:
         """Return the mean absolute disparity error (px) of ``method``."""
@@ -141,7 +150,12 @@ def _accumulate(
     focal_baseline = decoded.focal * decoded.baseline
     depth = rosmsg.image_array(parts[depth_topic]).astype(np.float64)
     truth = disparity_from_reference(depth, kind=ReferenceKind.DEPTH, focal_baseline=focal_baseline)
-    valid = np.isfinite(truth)
+    truthful = np.isfinite(truth)
+    valid = truthful & ~np.isnan(estimate)  # +inf depth (far) is an estimate; NaN none
+    comparison.no_estimate += int(np.count_nonzero(truthful & ~valid))
+    if not valid.any():
+        comparison.no_estimate_frames += 1
+        return
     features = rosmsg.pointcloud2_arrays(parts[topics.features])
     pixels = np.stack([features["u"], features["v"]], axis=1)
     image_size = (int(estimate.shape[0]), int(estimate.shape[1]))

@@ -54,6 +54,8 @@ class FrameFigures:
         estimate: whether the stored estimate has a value at some pixel (False: NaN, no
             estimate; such a frame is in none of the table's rows).
         measured: whether the frame had a measurement (False: left out of every method).
+        truth: whether its reference held truth on some pixel to score (False: left out of
+            every method, named by the report's no-truth note).
         pixels: reference pixels scored (PCA-MAP's).
         delta_2d_mean: per method computed, its mean Delta_2D on the frame (px; NaN when no
             pixel was scored).
@@ -70,6 +72,7 @@ class FrameFigures:
     delta_2d_mean: dict[str, float] = field(default_factory=dict)
     coverage_2sigma: float = math.nan
     reference_far: float = math.nan
+    truth: bool = True
 
     def summary(self) -> dict[str, Any]:
         """Return the plain JSON-able row."""
@@ -78,6 +81,7 @@ class FrameFigures:
             "stamp_ns": self.stamp_ns,
             "estimate": self.estimate,
             "measured": self.measured,
+            "truth": self.truth,
             "pixels": self.pixels,
             "delta_2d_mean": dict(self.delta_2d_mean),
             "coverage_2sigma": self.coverage_2sigma,
@@ -134,7 +138,13 @@ class PerFrame:
         self._mark = self._sums()
 
     def finish(
-        self, index: int, stamp_ns: int, estimate: npt.NDArray[Any], *, measured: bool = True
+        self,
+        index: int,
+        stamp_ns: int,
+        estimate: npt.NDArray[Any],
+        *,
+        measured: bool = True,
+        truth: bool = True,
     ) -> None:
         """Record the frame scored since :meth:`start` (``estimate``: its stored map)."""
         zero = (0.0, 0.0)
@@ -145,7 +155,7 @@ class PerFrame:
         methods = {
             name: _ratio(moved[name][1], moved[name][0])
             for name in PER_FRAME_METHODS
-            if name in moved and measured
+            if name in moved and measured and truth
         }
         stored, far = moved.get("stored", (0.0, 0.0)), moved["far"]
         self.result.per_frame.append(
@@ -158,6 +168,7 @@ class PerFrame:
                 delta_2d_mean=methods,
                 coverage_2sigma=_ratio(stored[1], stored[0]),
                 reference_far=_ratio(far[1], far[0]),
+                truth=truth,
             )
         )
 
@@ -199,37 +210,44 @@ def standout_lines(frames: list[FrameFigures]) -> list[str]:
     A frame stands out when it has no estimate (NaN), when its PCA-MAP mean Delta_2D is
     over :data:`ERROR_FACTOR` times the median frame's, when its stored +-2 sigma covers
     under :data:`LOW_COVERAGE`, or when its reference collapsed (too far on most pixels, or
-    truth on few: :data:`FAR_SHARE`, :data:`FEW_PIXELS`). Empty when none does.
+    truth on few: :data:`FAR_SHARE`, :data:`FEW_PIXELS`). A frame whose reference collapsed
+    is named for that alone: its error and coverage over what is left say little. Frames
+    left out for want of a measurement or of any truth are named by their own notes, not
+    here. Empty when none stands out.
     """
     scored = [f for f in frames if f.pixels > 0]
     lines: list[str] = []
-    empty = [f for f in frames if f.measured and not f.estimate]  # else named as unmeasured
-    if empty:
+    empty = [f for f in frames if f.measured and f.truth and not f.estimate]
+    if empty:  # else named as unmeasured, or as holding no truth
         lines.append(f"{_named(empty)}: no estimate (NaN in the log), scored on no pixel")
     if len(scored) < 2:
         return lines
+    collapsed, collapsed_lines = _collapsed(scored)
     errors = [f.delta_2d_mean.get("pca_map", math.nan) for f in scored]
     median = float(np.nanmedian(errors)) if np.isfinite(errors).any() else math.nan
-    worse = [f for f, e in zip(scored, errors, strict=True) if e > ERROR_FACTOR * median > 0]
+    worse = [
+        f
+        for f, e in zip(scored, errors, strict=True)
+        if e > ERROR_FACTOR * median > 0 and f.index not in collapsed
+    ]
     if worse:
         values = [f.delta_2d_mean["pca_map"] for f in worse]
         lines.append(
             f"{_named(worse)}: PCA-MAP error {_span(values, ' px')}, over {ERROR_FACTOR:g}x "
             f"the median frame's {median:.2f} px"
         )
-    low = [f for f in scored if f.coverage_2sigma < LOW_COVERAGE]
+    low = [f for f in scored if f.coverage_2sigma < LOW_COVERAGE and f.index not in collapsed]
     if low:
         values = [f.coverage_2sigma for f in low]
         lines.append(
             f"{_named(low)}: +-2 sigma covers {_span(values, ' %', 100.0, 1)} of the "
             f"reference (under {100 * LOW_COVERAGE:.0f} %)"
         )
-    lines += _collapsed(scored)
-    return lines
+    return lines + collapsed_lines
 
 
-def _collapsed(scored: list[FrameFigures]) -> list[str]:
-    """The lines on frames whose reference is too far on most pixels, or has truth on few."""
+def _collapsed(scored: list[FrameFigures]) -> tuple[set[int], list[str]]:
+    """Return the frames whose reference is too far or holds truth on few, and the lines."""
     far_shares = [f.reference_far for f in scored]
     median_far = float(np.nanmedian(far_shares)) if np.isfinite(far_shares).any() else math.nan
     median_pixels = float(np.median([f.pixels for f in scored]))
@@ -246,11 +264,13 @@ def _collapsed(scored: list[FrameFigures]) -> list[str]:
         )
     if few:
         values = [f.pixels / median_pixels for f in few]
+        counts = [float(f.pixels) for f in few]
         lines.append(
             f"{_named(few)}: the reference holds truth on {_span(values, 'x', 1.0, 2)} the "
-            "median frame's pixels: it collapsed there"
+            f"median frame's pixels ({_span(counts, ' px', 1.0, 0)} of {median_pixels:.0f}): "
+            "it collapsed there"
         )
-    return lines
+    return named | {f.index for f in few}, lines
 
 
 def own_pair_notes(reference: str) -> list[str]:

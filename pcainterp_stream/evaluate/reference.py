@@ -10,7 +10,9 @@ sensor_msgs/msg/Image 32FC1            depth       metres; NaN, 0, < 0: no truth
 sensor_msgs/msg/Image 16UC1 / mono16   depth       millimetres (REP 118); 0: no truth
 CompressedImage, compressedDepth       depth       as its encoding (32FC1 m or 16UC1 mm)
 sensor_msgs/msg/Image 32FC1            disparity   px (``--reference-kind disparity``)
-stereo_msgs/msg/DisparityImage         disparity   px, rescaled by the log's f*b / its f*t
+stereo_msgs/msg/DisparityImage         disparity   px, rescaled by the log's f*b / its f*t;
+                                                   < min_disparity, > max_disparity (when
+                                                   above min) or outside valid_window: no truth
 =====================================  ==========  ==========================================
 
 This module checks the topic against the log and turns one message into a disparity map of
@@ -160,11 +162,43 @@ def reference_disparity(
     except ValueError as err:
         raise LogReadError(f"reference topic {topic}: {err}") from err
     if reference.msgtype == rosmsg.DISPARITY_IMAGE:
+        values[~disparity_image_valid(message, values)] = np.nan
         # d = f t / Z: a disparity of another focal length or baseline than the log's
         focal_t = float(message.f) * float(message.t)
         if focal_t > 0 and np.isfinite(focal_t):
             values *= focal_baseline / focal_t
     return disparity_from_reference(values, kind=reference.kind, focal_baseline=focal_baseline)
+
+
+def disparity_image_valid(message: Any, values: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:
+    """Return where a ``stereo_msgs/msg/DisparityImage`` says its disparity may be valid.
+
+    As the message defines it (and stereo_image_proc fills it): "any disparity less than
+    min_disparity is invalid" (a driver writes OpenCV's invalid match as min_disparity - 1,
+    > 0 whenever min_disparity > 1); a value above max_disparity is outside the range
+    searched, so no match (a bound only when max_disparity > min_disparity: an unset 0 is
+    none); a pixel outside ``valid_window`` is invalid (a window of width or height 0 reaches
+    the image's edge, so the all-zero RegionOfInterest is the whole image).
+
+    Args:
+        message: the decoded DisparityImage.
+        values: (H, W) its image, in its own px (before any rescaling).
+
+    Returns:
+        (H, W) bool, False where the message says the value is no disparity found.
+    """
+    lowest, highest = float(message.min_disparity), float(message.max_disparity)
+    with np.errstate(invalid="ignore"):
+        valid = ~(values < lowest) if np.isfinite(lowest) else np.ones(values.shape, bool)
+        if np.isfinite(highest) and highest > lowest:
+            valid &= ~(values > highest)
+    window = message.valid_window
+    x, y = int(window.x_offset), int(window.y_offset)
+    width = int(window.width) or values.shape[1] - x
+    height = int(window.height) or values.shape[0] - y
+    inside = np.zeros(values.shape, bool)
+    inside[y : max(y + height, y), x : max(x + width, x)] = True
+    return valid & inside
 
 
 def _check_size(topic: str, size: tuple[int, ...], image_size: tuple[int, int]) -> None:

@@ -32,6 +32,7 @@ from pcainterp_stream.estimate.adapt import other_camera
 from pcainterp_stream.estimate.baselines import linear, nearest
 from pcainterp_stream.estimate.basis import BUILTIN_LABELS, IN_MEMORY, Basis, builtin_kind
 from pcainterp_stream.estimate.estimator import clean_measurements, densify
+from pcainterp_stream.evaluate.box import Boxed, estimate_box
 from pcainterp_stream.evaluate.figures import write_figures
 from pcainterp_stream.evaluate.input_pair import describe_pair, follow_densify, matcher_notes
 from pcainterp_stream.evaluate.left_out import (
@@ -287,83 +288,6 @@ def _stereo(frame: Frame, sgbm: SgbmConfig) -> _Stereo | None:
     return _Stereo(disparity, time.perf_counter() - started)
 
 
-def estimate_box(has_estimate: npt.NDArray[np.bool_]) -> tuple[int, int, int, int] | None:
-    """Return the box (x, y, width, height) a frame's estimate fills exactly, None if none.
-
-    densify estimates a raw or black-bordered pair in the box both cameras see and writes NaN
-    outside it; this recovers that box from the NaN.
-
-    Args:
-        has_estimate: (H, W) bool, where the stored estimate is not NaN.
-
-    Returns:
-        The box, or None when the estimate is empty or not one filled rectangle.
-    """
-    rows = np.flatnonzero(has_estimate.any(axis=1))
-    columns = np.flatnonzero(has_estimate.any(axis=0))
-    if rows.size == 0:
-        return None
-    top, bottom, left, right = rows[0], rows[-1] + 1, columns[0], columns[-1] + 1
-    if not has_estimate[top:bottom, left:right].all():
-        return None
-    return int(left), int(top), int(right - left), int(bottom - top)
-
-
-@dataclass(frozen=True)
-class _Boxed:
-    """A box (x, y, width, height) of a frame's image, where the basis rows re-densify."""
-
-    box: tuple[int, int, int, int]
-    full: StereoCamera
-
-    @property
-    def whole(self) -> bool:
-        """Return whether the box is the whole image."""
-        return self.box == (0, 0, self.full.width, self.full.height)
-
-    @property
-    def camera(self) -> StereoCamera:
-        """Return the camera of the box (principal point moved by its corner)."""
-        x, y, width, height = self.box
-        return dataclasses.replace(
-            self.full, width=width, height=height, cx=self.full.cx - x, cy=self.full.cy - y
-        )
-
-    def inside(self, pixels: npt.NDArray[Any]) -> npt.NDArray[np.bool_]:
-        """Return (k,) bool: which (k, 2) (x, y) image px lie in the box."""
-        x, y, width, height = self.box
-        return (
-            (pixels[:, 0] >= x - 0.5)
-            & (pixels[:, 0] < x + width - 0.5)
-            & (pixels[:, 1] >= y - 0.5)
-            & (pixels[:, 1] < y + height - 0.5)
-        )
-
-    def points(
-        self, pixels: npt.NDArray[Any], disparities: npt.NDArray[Any]
-    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-        """Return the points in the box, (x, y) in box px, and their disparities (px)."""
-        if self.whole:
-            return pixels, disparities
-        keep = self.inside(pixels)
-        corner = np.array(self.box[:2], dtype=np.float64)
-        return pixels[keep].astype(np.float64) - corner, disparities[keep].astype(np.float64)
-
-    def crop(self, image: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-        """Return the box of an (H, W) image."""
-        x, y, width, height = self.box
-        return image[y : y + height, x : x + width]
-
-    def pad(self, image: npt.NDArray[Any]) -> npt.NDArray[Any]:
-        """Return a box-size image placed in a frame-size one, NaN outside the box."""
-        if self.whole:
-            return image
-        x, y, width, height = self.box
-        full = np.full(self.full.image_size, np.nan, dtype=image.dtype)
-        full[y : y + height, x : x + width] = image
-        return full
-
-
 def _timed(stats: MethodStats | CalibrationStats, work: Callable[[], Any]) -> Any:
     started = time.perf_counter()
     result = work()
@@ -406,7 +330,8 @@ class _Evaluator:
         A frame with fewer than :data:`MIN_MEASUREMENTS` usable measurements is left out of
         every method (nearest and linear have nothing to interpolate, PCA-MAP has no estimate:
         NaN; the prior's mean in logs densified by earlier versions) and only counted in
-        ``result.no_measurement``.
+        ``result.no_measurement``; one whose reference holds no truth on any pixel to score,
+        likewise, in ``result.no_truth``.
         """
         camera, size = frame.camera, frame.camera.image_size
         # the log's measurements are densify's: SGBM's 0 is a match (densify's zero_is_match)
@@ -417,6 +342,10 @@ class _Evaluator:
             self.per_frame.finish(frame.index, frame.stamp_ns, frame.estimate, measured=False)
             return
         view = reference_view(reference, camera, transform)
+        if not view.counted.any():  # the message is there, its truth is not: left out, named
+            self.result.no_truth.append(frame.index)
+            self.per_frame.finish(frame.index, frame.stamp_ns, frame.estimate, truth=False)
+            return
         has_estimate = ~np.isnan(frame.estimate)  # +inf depth (far) is an estimate; NaN none
         self.result.reference_counted += int(np.count_nonzero(view.counted))
         box: tuple[int, int, int, int] | None = (0, 0, size[1], size[0])
@@ -451,7 +380,7 @@ class _Evaluator:
         if self.basis is not None and box is None:
             self.result.basis_rows_skipped += 1
         elif self.basis is not None and box is not None:
-            boxed = _Boxed(box, camera)
+            boxed = Boxed(box, camera)
             self._with_basis(frame, reference, view, transform, stereo, sgbm_valid, boxed)
         if frame.index in self.example_at:
             self.examples.append(
@@ -505,7 +434,7 @@ class _Evaluator:
         transform: Any,
         stereo: _Stereo | None,
         sgbm_valid: npt.NDArray[np.bool_] | None,
-        box: _Boxed,
+        box: Boxed,
     ) -> None:
         """The rows that re-densify with the basis: paper, exact, oracle and the sweep.
 
@@ -560,7 +489,7 @@ class _Evaluator:
             self._sweep(frame, stereo, view, transform, box)
 
     def _sweep(
-        self, frame: Frame, stereo: _Stereo, view: ReferenceView, transform: Any, box: _Boxed
+        self, frame: Frame, stereo: _Stereo, view: ReferenceView, transform: Any, box: Boxed
     ) -> None:
         """Error against the number of points: GFTT + SGBM lookups, strongest N corners."""
         assert self.basis is not None
@@ -819,6 +748,12 @@ def evaluate_log(
                 baselines=before_stereo is not None and has_truth,
             )
         previous = None if frame_reference is None else (frame, frame_reference, stereo)
+    if previous is not None:  # temporal mode: the last frame read has no next frame
+        result.notes.append(
+            f"the last frame ({previous[0].index}) is not scored: temporal mode moves each "
+            "frame's pixels into the next frame, and it has none"
+            + (" (--max-frames N scores N-1)" if options.max_frames is not None else "")
+        )
     result.measurements = state.measurements
     result.damage = list(state.damage)
     result.notes += state.notes + truth_values.notes()
@@ -837,6 +772,8 @@ def evaluate_log(
         result.stereo_note = (
             f"{SGBM_NN} left out on {evaluator.sgbm_empty} frames where SGBM found no pixel"
         )
+    if result.frames == 0 and result.no_truth:  # every frame with a reference had no truth
+        raise LogReadError(no_truth_message(path, result, reference, options.max_frames))
     if result.frames == 0:
         name = reference.topic if reference else GROUND_TRUTH_DEPTH
         tolerance = state.reference_tolerance[0] if reference else state.tolerance_ns

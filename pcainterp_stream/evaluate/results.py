@@ -142,6 +142,9 @@ class Evaluation:
         damage: damage found reading the log (a truncated file), one line each.
         no_measurement: indices (from 0, in log order) of the frames left out of every
             method because they had no measurement (black, dark or textureless images).
+        no_truth: indices of the frames left out of every method because their reference
+            held no truth on any pixel that could be scored (the message was there, but NaN,
+            0 or < 0 everywhere: a LiDAR drop-out, SGBM of a pair matching nothing).
         no_estimate: counted reference pixels where the stored estimate is NaN (no estimate:
             outside the rectified box of a raw or black-bordered pair), left out of every
             method and uncertainty row.
@@ -185,6 +188,7 @@ class Evaluation:
     measurements: str | None = None
     damage: list[str] = field(default_factory=list)
     no_measurement: list[int] = field(default_factory=list)
+    no_truth: list[int] = field(default_factory=list)
     no_estimate: int = 0
     reference_counted: int = 0
     basis_rows_skipped: int = 0
@@ -256,6 +260,7 @@ class Evaluation:
             "notes": list(self.notes),
             "input_pair": self.input_pair,
             "left_out_no_measurement": list(self.no_measurement),
+            "left_out_no_truth": list(self.no_truth),
             "left_out_no_estimate": self.no_estimate_fraction,
             "left_out_no_estimate_pixels": self.no_estimate,
             "left_out_of_redensified_rows": self.basis_rows_skipped,
@@ -304,6 +309,22 @@ class Evaluation:
             "measurement there (densify matched nothing: black, dark or textureless images, or "
             "a pair it left unmatched, swapped or one view twice, as its warnings say), so "
             "nearest and linear have nothing to interpolate and PCA-MAP has no estimate; "
+            f"{'it is' if count == 1 else 'they are'} not in the table "
+            f"({'frame' if count == 1 else 'frames'} {shown}{more}, counted from 0)"
+        )
+
+    @property
+    def no_truth_note(self) -> str:
+        """Return the sentence naming the frames whose reference held no truth ("": none)."""
+        count = len(self.no_truth)
+        if not count:
+            return ""
+        shown = ", ".join(str(index) for index in self.no_truth[:NAMED_FRAMES])
+        more = f" and {count - NAMED_FRAMES} more" if count > NAMED_FRAMES else ""
+        return (
+            f"{count} {'frame' if count == 1 else 'frames'} left out of every method: the "
+            f"reference message is there but holds no truth on any pixel to score (NaN, 0 or "
+            f"< 0: no value, REP 118), so there is nothing to score against; "
             f"{'it is' if count == 1 else 'they are'} not in the table "
             f"({'frame' if count == 1 else 'frames'} {shown}{more}, counted from 0)"
         )

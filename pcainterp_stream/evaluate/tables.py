@@ -95,6 +95,8 @@ def summary_table(result: Evaluation) -> str:
         )
     if result.no_measurement:
         lines.append(result.no_measurement_note)
+    if result.no_truth:
+        lines.append(result.no_truth_note)
     if result.no_estimate_note:
         lines.append(result.no_estimate_note)
     lines += [f"damage: {line}; only the frames read before it count" for line in result.damage]
@@ -139,7 +141,13 @@ def _met(ratio: float | None, target: float) -> str:
 def _targets(result: Evaluation) -> list[str]:
     lines = []
     ratio = result.ratio()
-    if ratio is None:
+    if result.measurements == "dense":  # the features are the prior's points, not the map's
+        verdict = (
+            "not graded: in a dense log nearest neighbour interpolates the points that shaped "
+            "the prior (/pcainterp/features), not the SGBM pixels the map fused; the dense "
+            "targets below are the ones for it"
+        )
+    elif ratio is None:
         verdict = "undefined, nearest neighbour's mean Delta_2D is 0"
     else:
         verdict = "met" if ratio <= TARGET_RATIO else f"missed by {ratio - TARGET_RATIO:.2f}"
@@ -235,8 +243,8 @@ def results_markdown(result: Evaluation, figures: list[str]) -> str:
         if result.skipped
         else ""
     )
-    if result.no_measurement:
-        skipped += f" {result.no_measurement_note[0].upper()}{result.no_measurement_note[1:]}."
+    for note in (result.no_measurement_note, result.no_truth_note):
+        skipped += f" {note[0].upper()}{note[1:]}." if note else ""
     if result.no_estimate_note:
         skipped += f" {result.no_estimate_note[0].upper()}{result.no_estimate_note[1:]}."
     lines = [

@@ -784,7 +784,7 @@ def test_pixels_without_an_estimate_are_left_out_of_every_method(
 
 
 def test_the_box_of_an_estimate_is_recovered_from_its_nan() -> None:
-    from pcainterp_stream.evaluate.report import estimate_box
+    from pcainterp_stream.evaluate.box import estimate_box
 
     has_estimate = np.zeros((40, 80), dtype=bool)
     assert estimate_box(has_estimate) is None  # no estimate at all

@@ -18,7 +18,7 @@ from blanked_log import dense_and_blanked
 
 from pcainterp_stream.evaluate import report as report_module
 from pcainterp_stream.evaluate.log_frames import Frame
-from pcainterp_stream.evaluate.metrics import Mode
+from pcainterp_stream.evaluate.metrics import Mode, compare_with_ground_truth
 from pcainterp_stream.evaluate.per_frame import FrameFigures, frame_ranges, standout_lines
 from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log
 from pcainterp_stream.evaluate.report_folder import report_json
@@ -117,6 +117,22 @@ def test_frames_without_an_estimate_are_counted_and_kept_out_of_the_table(
     assert all(row["measured"] and row["pixels"] > 0 for row in rows[:1] + rows[3:])
 
 
+def test_the_quick_comparison_leaves_pixels_without_an_estimate_out_of_every_method(
+    logs: dict[str, Path],
+) -> None:
+    # bug hunt 15D F7: frames 1-2 have no estimate (NaN); compare_with_ground_truth counted
+    # their pixels with error 0 (np.nansum) and kept them in the count: 0.882 px against the
+    # clean log's 1.286, nearest 2.975 against 4.043
+    dense = compare_with_ground_truth(logs["dense"])
+    blank = compare_with_ground_truth(logs["blank_dense"])
+    assert (dense.frames, dense.no_estimate, dense.no_estimate_frames) == (6, 0, 0)
+    assert (blank.frames, blank.no_estimate_frames) == (4, 2)
+    assert blank.pixels == dense.pixels * 4 // 6  # one image size, truth on every pixel
+    assert blank.no_estimate == dense.pixels * 2 // 6
+    for method in ("pca_map", "nearest", "linear"):  # every method on the same pixels
+        assert blank.mean_abs_error(method) > 0.9 * dense.mean_abs_error(method), method
+
+
 def _figures(index: int, **changes: Any) -> FrameFigures:
     base = FrameFigures(
         index=index,
@@ -148,11 +164,27 @@ def test_standout_rules() -> None:
         "frame 7: no estimate (NaN in the log), scored on no pixel",
         "frame 4: PCA-MAP error 3.50 px, over 3x the median frame's 1.00 px",
         "frame 5: +-2 sigma covers 30.0 % of the reference (under 50 %)",
-        "frame 6: the reference holds truth on 0.20x the median frame's pixels: it collapsed there",
+        "frame 6: the reference holds truth on 0.20x the median frame's pixels (200 px of "
+        "1000): it collapsed there",
     ]  # frame 8 (no measurement) is named by the no-measurement note instead
     many = [_figures(i, coverage_2sigma=0.1 if i % 2 else 0.96) for i in range(40)]
     (line,) = _standouts(many)
     assert line.startswith("frames 1, 3, 5, 7, 9, 11, 13, 15 and 12 more: +-2 sigma covers")
+
+
+def test_a_collapsed_frame_is_named_once() -> None:
+    # bug hunt 15D F2: a frame with one truth pixel was named three times (its error, its
+    # coverage, its collapse); a frame left out for want of truth is named by its note only
+    frames = [_figures(i) for i in range(5)]
+    frames[1] = _figures(1, pixels=1, delta_2d_mean={"pca_map": 17.35}, coverage_2sigma=0.0)
+    frames[2] = _figures(2, reference_far=0.9, delta_2d_mean={"pca_map": 9.0})
+    frames[3] = _figures(3, truth=False, pixels=0, delta_2d_mean={}, estimate=False)
+    assert _standouts(frames) == [
+        "frame 2: the reference is too far (depth +inf) on 90 % of the pixels (median frame "
+        "1 %): it collapsed there",
+        "frame 1: the reference holds truth on 0.00x the median frame's pixels (1 px of "
+        "1000): it collapsed there",
+    ]
 
 
 def test_frame_ranges() -> None:

@@ -35,6 +35,7 @@ from pcainterp_stream.evaluate.metrics import (
 from pcainterp_stream.evaluate.reference import ReferenceTopic, reference_disparity
 from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log, summary_table
 from pcainterp_stream.evaluate.results import PCA_ON_SGBM, SGBM, SGBM_NN, Evaluation
+from pcainterp_stream.evaluate.tables import results_markdown
 from pcainterp_stream.frontend.stereo import SgbmConfig, compute_disparity
 from pcainterp_stream.io import depth_codec, rosmsg
 from pcainterp_stream.io.logreader import open_log
@@ -512,6 +513,70 @@ def test_a_damaged_compressed_depth_reference_is_a_log_read_error() -> None:
         reference_disparity(
             message, reference, focal_baseline=FOCAL_BASELINE, image_size=CAMERA.image_size
         )
+
+
+def test_a_disparity_image_is_truth_only_where_it_says_its_values_are_valid() -> None:
+    """stereo_msgs' DisparityImage: "any disparity less than min_disparity is invalid" (a
+    stereo driver writes OpenCV's invalid match as min_disparity - 1, here 3 px), a value
+    above max_disparity was not searched, and a pixel outside valid_window is invalid."""
+    height, width = CAMERA.image_size
+    values = np.full((height, width), 10.0, dtype=np.float32)
+    values[:, :8] = 3.0  # the driver's invalid code in SGBM's empty left band
+    values[0, 20] = 3.99  # below min_disparity: invalid
+    values[1, 20] = 4.0  # at min_disparity: valid
+    values[2, 20] = 60.0  # above max_disparity: not searched
+    message = rosmsg.disparity_image_message(
+        values,
+        5,
+        LEFT_FRAME,
+        focal=CAMERA.fx,
+        baseline=CAMERA.baseline,
+        min_disparity=4.0,
+        max_disparity=50.0,
+    )
+    message.valid_window.x_offset, message.valid_window.width = 8, width - 8
+    message.valid_window.y_offset, message.valid_window.height = 0, height - 1  # not the last row
+    reference = ReferenceTopic("/ref/disparity", rosmsg.DISPARITY_IMAGE, ReferenceKind.DISPARITY)
+    truth = reference_disparity(
+        message, reference, focal_baseline=FOCAL_BASELINE, image_size=CAMERA.image_size
+    )
+    expected = np.full((height, width), 10.0)
+    expected[:, :8] = np.nan
+    expected[-1, :] = np.nan
+    expected[0, 20], expected[1, 20], expected[2, 20] = np.nan, 4.0, np.nan
+    np.testing.assert_allclose(truth, expected)  # f t = f b: no rescaling; NaN where NaN
+    # an unset window (all 0: the whole image) and max_disparity 0 (no bound) keep the rest
+    message.valid_window.x_offset = message.valid_window.y_offset = 0
+    message.valid_window.width = message.valid_window.height = 0
+    message.max_disparity = 0.0
+    truth = reference_disparity(
+        message, reference, focal_baseline=FOCAL_BASELINE, image_size=CAMERA.image_size
+    )
+    assert np.isnan(truth[:, :8]).all()  # the invalid code is below min_disparity anyway
+    assert truth[2, 20] == 60.0
+    assert np.isnan(truth[0, 20])
+    assert np.isfinite(truth[:, 8:]).sum() == height * (width - 8) - 1
+
+
+def test_a_dense_log_does_not_grade_the_papers_sparse_target(logs: dict[str, Path]) -> None:
+    # bug hunt 15D F3: a dense log's /pcainterp/features are the prior's points, not the
+    # SGBM pixels its map fused: "PCA-MAP / nearest neighbour = 0.28 (target <= 0.65): met"
+    # compared the map with an interpolation of other points
+    def target_line(result: Evaluation) -> str:
+        markdown = results_markdown(result, [])
+        (line,) = [n for n in markdown.splitlines() if "PCA-MAP / nearest neighbour mean" in n]
+        return line
+
+    dense = _evaluate(logs["references"], "/ref/depth_no_sky")
+    assert dense.measurements == "dense"
+    line = target_line(dense)
+    assert "not graded: in a dense log nearest neighbour interpolates the points that " in line
+    assert not line.endswith(": met.")
+    assert "missed" not in line
+    sparse = _evaluate(logs["dense"], None)
+    assert sparse.measurements != "dense"
+    assert "not graded" not in target_line(sparse)
+    assert ": met." in target_line(sparse) or ": missed by" in target_line(sparse)
 
 
 def test_cli_report_names_a_sparse_reference(

@@ -18,6 +18,7 @@ from pcainterp_stream import cli
 from pcainterp_stream.errors import LogReadError
 from pcainterp_stream.evaluate.metrics import Mode, compare_with_ground_truth
 from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log
+from pcainterp_stream.evaluate.tables import results_markdown, summary_table
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.pipeline import jobs
@@ -116,6 +117,70 @@ def test_the_quick_comparison_reads_truth_the_same_way(logs: dict[str, Path]) ->
     old = compare_with_ground_truth(_patched(logs["dense"], logs["folder"] / "q.mcap", _sky_as_nan))
     assert plain.pixels == 4 * 94 * 310
     assert 0 < old.pixels < plain.pixels
+
+
+def _frame_1_nan(index: int, values: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
+    """Frame 1's truth message is there, but NaN everywhere (a LiDAR drop-out)."""
+    return np.full_like(values, np.nan) if index == 1 else values
+
+
+def _frame_1_one_pixel(index: int, values: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
+    """Frame 1's truth holds one pixel (mid-image: its match is in the right view too)."""
+    if index != 1:
+        return values
+    one = np.full_like(values, np.nan)
+    middle = values.size // 2 + 150  # 94 x 310 px: row 47, column 150
+    one[middle] = values[middle]
+    return one
+
+
+def test_a_frame_whose_reference_holds_no_truth_is_named_and_not_counted(
+    logs: dict[str, Path],
+) -> None:
+    # bug hunt 15D F2: "4 frames of ..." with frame 1 scored on no pixel and never named
+    log = _patched(logs["dense"], logs["folder"] / "frame_1_nan.mcap", _frame_1_nan)
+    result, _ = evaluate_log(log, EvaluateOptions(mode=Mode.STEREO, sweep_every=0))
+    assert result.frames == 3
+    assert result.no_truth == [1]
+    table = summary_table(result)
+    assert table.startswith("3 frames of ")
+    assert (
+        "1 frame left out of every method: the reference message is there but holds no truth "
+        "on any pixel to score"
+    ) in table
+    assert "it is not in the table (frame 1, counted from 0)" in table
+    assert "holds no truth on any pixel to score" in results_markdown(result, [])
+    summary = result.summary()
+    assert summary["left_out_no_truth"] == [1]
+    row = summary["per_frame"][1]
+    assert (row["truth"], row["pixels"], row["delta_2d_mean"]) == (False, 0, {})
+    assert "stands out" not in table  # the note names it, no line repeats it
+    # one pixel of truth: named once, as collapsed, not also for its error and coverage
+    log = _patched(logs["dense"], logs["folder"] / "frame_1_one.mcap", _frame_1_one_pixel)
+    result, _ = evaluate_log(log, EvaluateOptions(mode=Mode.STEREO, sweep_every=0))
+    named = [line for line in summary_table(result).splitlines() if "stands out" in line]
+    assert len(named) == 1, named
+    assert named[0].startswith("stands out: frame 1: the reference holds truth on 0.00x")
+    assert "(1 px of " in named[0]
+
+
+def test_temporal_mode_says_the_last_frame_is_not_scored(logs: dict[str, Path]) -> None:
+    # bug hunt 15D F4: 4 frames scored 3 and --max-frames 2 scored 1, without a word
+    note = "the last frame (3) is not scored: temporal mode moves each frame's pixels into the"
+    result, _ = evaluate_log(logs["dense"], EvaluateOptions(mode=Mode.TEMPORAL, sweep_every=0))
+    assert result.frames == 3
+    assert any(n.startswith(note) and "--max-frames" not in n for n in result.notes)
+    assert f"note: {note}" in summary_table(result)
+    options = EvaluateOptions(mode=Mode.TEMPORAL, sweep_every=0, max_frames=2)
+    result, _ = evaluate_log(logs["dense"], options)
+    assert result.frames == 1
+    assert any(
+        n.startswith("the last frame (1) is not scored")
+        and n.endswith("(--max-frames N scores N-1)")
+        for n in result.notes
+    )
+    stereo, _ = evaluate_log(logs["dense"], EvaluateOptions(mode=Mode.STEREO, sweep_every=0))
+    assert not any("last frame" in n for n in stereo.notes)
 
 
 @pytest.mark.parametrize("topic", [None, TRUTH])
