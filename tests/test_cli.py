@@ -2814,6 +2814,57 @@ def test_points_by_mode_and_by_choice(
 
 
 @pytest.mark.parametrize(
+    ("options", "named"),
+    [
+        (("--corners", "10"), "--corners 10 applies"),
+        (("--quality", "0.5"), "--quality 0.5 applies"),
+        (("--min-distance", "50"), "--min-distance 50 applies"),
+        (("--fill-spacing", "20"), "--fill-spacing 20 applies"),
+        (("--fill-placement", "lattice"), "--fill-placement lattice applies"),
+        (("--num-disparities", "32"), "--num-disparities 32 applies"),
+        (("--block-size", "11"), "--block-size 11 applies"),
+        (("--sgbm-mode", "hh"), "--sgbm-mode hh applies"),
+        (("--stereo-downscale", "1"), "--stereo-downscale 1 applies"),
+        (("--no-near-reach",), "--no-near-reach applies"),
+        (("--edge-aware",), "--edge-aware applies"),
+        (("--no-edge-aware", "--block-size", "7"), "--block-size 7, --no-edge-aware apply"),
+    ],
+)
+def test_densify_refuses_stereo_options_with_a_feature_stream(
+    pcainterp: Callable[..., Run],
+    small_log: Path,
+    basis_path: Path,
+    out: Path,
+    options: tuple[str, ...],
+    named: str,
+) -> None:
+    """A feature stream replaces GFTT + SGBM: their options did nothing, rc 0 (bug hunt
+    15E F2); refused in one line before any work, as --max-features without a stream is."""
+    line = pcainterp(
+        *densify_args(small_log, out, basis_path, "--features-topic", "/features", *options)
+    ).error_line()
+    assert f"error: {named} to the stereo front end" in line
+    assert "--features-topic /features replaces" in line
+    assert line.endswith(("drop it or --features-topic", "drop them or --features-topic"))
+    assert_nothing_written(out)
+
+
+@pytest.mark.parametrize(
+    ("options", "edge_aware", "near"),
+    [((), True, True), (("--no-edge-aware",), False, True), (("--no-near-reach",), True, False)],
+)
+def test_edge_aware_and_near_reach_are_on_unless_turned_off(
+    options: tuple[str, ...], edge_aware: bool, near: bool
+) -> None:
+    from pcainterp_stream.cli import build_parser
+    from pcainterp_stream.cli.densify import _processor_config
+
+    args = build_parser().parse_args(["densify", "in.mcap", "-o", "out.mcap", *options])
+    config = _processor_config(args, adapt="check")
+    assert (config.edge_aware, config.near is not None) == (edge_aware, near)
+
+
+@pytest.mark.parametrize(
     ("options", "matcher", "downscale"),
     [
         (("--measurements", "dense"), "refined", 1),

@@ -171,7 +171,9 @@ def add_parser(commands: Commands) -> None:
         "--features-topic",
         default=None,
         metavar="TOPIC",
-        help="take measurements from this PointCloud2 stream instead of GFTT + SGBM",
+        help="take measurements from this PointCloud2 stream instead of GFTT + SGBM (the "
+        "stereo front end's options, --edge-aware and --near-reach are then refused: SGBM "
+        "does not run)",
     )
     densify.add_argument(
         "--max-features",
@@ -266,25 +268,26 @@ def _add_estimate_options(densify: argparse.ArgumentParser) -> None:
         help="hybrid = basis + fitted local kernel (fitted by learn); auto uses it when the "
         "basis has one (default)",
     )
+    # default None, read as on: given, either way, with --features-topic it is refused
     estimate.add_argument(
         "--edge-aware",
         action=argparse.BooleanOptionalAction,
-        default=True,
+        default=None,
         help="cut the local kernel along SGBM's depth edges when the basis's prior has a cell "
         "weight (the built-in street basis): ~2-3%% lower error for ~2%% more CPU; "
-        "--no-edge-aware: the stationary kernel (default: %(default)s; docs/sharper_sparse.md)",
+        "--no-edge-aware: the stationary kernel (default: True; docs/sharper_sparse.md)",
     )
     estimate.add_argument(
         "--near-reach",
         action=argparse.BooleanOptionalAction,
-        default=True,
+        default=None,
         help="also match at quarter resolution (twice SGBM's range) on frames whose map "
         "nears the range's end, and measure the surfaces nearer than the range there (each "
         "value checked against the right view's quarter map): ~24%% "
         "lower error on drives with such surfaces, none elsewhere; at most 1250 points per "
         "frame (the fill lattice's count at 1920x1080; a near surface over more than ~30%% of "
         "a 1920x1080 image gets a coarser grid); --no-near-reach: off "
-        "(default: %(default)s; docs/sharper_sparse_2.md)",
+        "(default: True; docs/sharper_sparse_2.md)",
     )
     estimate.add_argument(
         "--robust",
@@ -345,6 +348,8 @@ def run(args: argparse.Namespace) -> int:
             "--measurements dense fuses the whole SGBM map of the stereo pair; "
             "drop --features-topic (a feature stream is sparse)"
         )
+    if args.features_topic:
+        _refuse_stereo_options(args)
     if args.max_features is not None and not args.features_topic:
         raise PcaInterpError(
             f"--max-features {args.max_features} caps the points of a feature stream; "
@@ -402,6 +407,50 @@ def run(args: argparse.Namespace) -> int:
         rrd=args.rrd,
         spawn_viewer=args.rerun,
     )
+
+
+STEREO_OPTIONS = (
+    ("--corners", "corners"),
+    ("--quality", "quality"),
+    ("--min-distance", "min_distance"),
+    ("--fill-spacing", "fill_spacing"),
+    ("--fill-placement", "fill_placement"),
+    ("--num-disparities", "num_disparities"),
+    ("--block-size", "block_size"),
+    ("--sgbm-mode", "sgbm_mode"),
+    ("--stereo-downscale", "stereo_downscale"),
+    ("--edge-aware", "edge_aware"),
+    ("--near-reach", "near_reach"),
+)
+"""The options of the stereo front end (GFTT corners, SGBM lookups and maps): a feature
+stream's points replace it, so with ``--features-topic`` none of them changes the output."""
+
+
+def _refuse_stereo_options(args: argparse.Namespace) -> None:
+    """Refuse, in one line, the stereo front end's options given with ``--features-topic``.
+
+    A feature stream's points are the measurements: no corner is detected, SGBM never runs
+    (no lookup, no held-out pixels, no depth edges, no near-reach match; dense mode is
+    refused), so these options would be accepted and do nothing.
+    """
+    given = []
+    for flag, name in STEREO_OPTIONS:
+        value = getattr(args, name, None)
+        if value is None:
+            continue
+        if isinstance(value, bool):  # --edge-aware / --no-edge-aware
+            given.append(flag if value else flag.replace("--", "--no-", 1))
+        else:
+            given.append(f"{flag} {value:g}" if isinstance(value, float) else f"{flag} {value}")
+    if given:
+        verb = "applies" if len(given) == 1 else "apply"
+        raise PcaInterpError(
+            f"{', '.join(given)} {verb} to the stereo front end (GFTT corners, SGBM and its "
+            f"maps), which --features-topic {args.features_topic} replaces: its points are "
+            "the measurements and SGBM does not run; drop "
+            + ("it" if len(given) == 1 else "them")
+            + " or --features-topic"
+        )
 
 
 def _check_paths(args: argparse.Namespace, *, may_adapt: bool = True) -> None:
@@ -549,7 +598,7 @@ def _processor_config(
         if dense
         else ProcessorConfig().sgbm,
     )
-    near = NearConfig() if getattr(args, "near_reach", True) else None
+    near = NearConfig() if getattr(args, "near_reach", None) is not False else None
     return ProcessorConfig(
         builtin=builtin,
         adapt=adapt,
@@ -566,7 +615,7 @@ def _processor_config(
         calibrate=args.calibrate,
         source=source,
         max_features=args.max_features or defaults.MAX_FEATURES,
-        edge_aware=args.edge_aware,
+        edge_aware=args.edge_aware is not False,  # None: not given, on
         near=near,
     )
 
@@ -675,6 +724,23 @@ def _output_topics(args: argparse.Namespace) -> OutputTopics:
         raise PcaInterpError(f"--outputs: {err}") from None
 
 
+def _check_inputs(paths: list[Path]) -> None:
+    """Refuse a missing input or one that is not a log, by its format, as ``-o`` does.
+
+    Cheap (a file's first bytes, a folder's listing); a pipe or a device is left to its
+    job, which reads it once.
+
+    Raises:
+        LogReadError: the first such input, in one line naming it and the fix.
+    """
+    from pcainterp_stream.io.logreader import sniff_format
+
+    for path in paths:
+        if path.exists() and not (path.is_file() or path.is_dir()):
+            continue
+        sniff_format(path)
+
+
 def _hint_split(paths: list[Path]) -> None:
     """Warn when logs given to --out-dir look like the parts of one split recording."""
     from pcainterp_stream.io.logreader import open_log
@@ -710,6 +776,7 @@ def _densify_many(
         from pcainterp_stream.estimate.basis import check_basis_file
 
         check_basis_file(args.basis)
+    _check_inputs(args.input)  # before the cluster starts and DIR is made
     _hint_split(args.input)
     started = time.perf_counter()
     report = _OutcomeReport(len(args.input))
