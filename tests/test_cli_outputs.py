@@ -177,6 +177,42 @@ def test_out_dir_not_writable_is_refused_before_the_cluster(
     assert "Read-only file system; choose a writable folder" in line
 
 
+@pytest.mark.parametrize(
+    ("bad", "expected"),
+    [
+        ("missing.mcap", "missing.mcap does not exist; pass an MCAP file"),
+        ("notes.txt", "notes.txt is not a log (no MCAP, ROS 1 bag or SQLite magic bytes)"),
+        ("logs", "logs is a folder but not a rosbag2 bag (no metadata.yaml); it holds 2 logs"),
+    ],
+)
+def test_out_dir_inputs_are_checked_before_the_cluster(
+    pcainterp: Callable[..., Run],
+    log: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    bad: str,
+    expected: str,
+) -> None:
+    """Bug hunt 15E F4: a missing or non-log input was found by its Dask task, after the
+    cluster's start, with "(1 of 2 logs done)", and left an empty --out-dir behind."""
+
+    def no_cluster(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the cluster was started")
+
+    from pcainterp_stream.pipeline import distributed
+
+    (tmp_path / "notes.txt").write_text("not a log")
+    (tmp_path / "logs").mkdir()
+    for name in ("a.mcap", "b.mcap"):
+        (tmp_path / "logs" / name).write_bytes(log.read_bytes())
+    monkeypatch.setattr(distributed, "connect", no_cluster)
+    out_dir = tmp_path / "dense"
+    line = pcainterp("densify", log, tmp_path / bad, "--out-dir", out_dir).error_line()
+    assert expected in line
+    assert "logs done" not in line
+    assert not out_dir.exists()
+
+
 def test_out_dir_output_that_is_a_fifo_is_refused(
     pcainterp: Callable[..., Run], log: Path, tmp_path: Path
 ) -> None:

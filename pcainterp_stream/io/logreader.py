@@ -23,6 +23,7 @@ summary); messages, the hot path, are unpacked with :mod:`struct`.
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -89,10 +90,19 @@ def sniff_format(path: str | Path) -> LogFormat:
         from pcainterp_stream.io.rosbags_reader import _storage_files
 
         storage = _storage_files(path)
+        logs = sorted({*storage, *(p for p in path.glob("*.bag") if p.is_file())})
         if looks_like_kitti(path):
             hint = "; it looks like a KITTI folder: convert it with `pcainterp import-kitti`"
-        elif storage:
+        elif len(storage) == 1 and len(logs) == 1:
             hint = f"; pass its storage file {storage[0]} directly"
+        elif len(logs) > 1 and logs == storage and _split_bag(path, storage):
+            hint = f"; pass its storage files directly ({_files_glob(path, storage, bag=True)})"
+        elif len(logs) > 1:  # separate logs, not one recording's storage: never one of them
+            hint = (
+                f"; it holds {len(logs)} logs ({_names(logs)}), not one recording: pass the log "
+                f"files themselves (all of them, {_files_glob(path, logs)}, to learn or "
+                "densify --out-dir DIR)"
+            )
         else:
             hint = "; pass an MCAP file, a ROS 1 .bag or a rosbag2 folder (with metadata.yaml)"
         raise LogReadError(f"{path} is a folder but not a rosbag2 bag (no metadata.yaml){hint}")
@@ -117,6 +127,25 @@ def sniff_format(path: str | Path) -> LogFormat:
         else ("not a log (no MCAP, ROS 1 bag or SQLite magic bytes)")
     )
     raise LogReadError(f"{path} is {what}; pass an MCAP file, a ROS 1 .bag or a rosbag2 folder")
+
+
+def _split_bag(folder: Path, files: list[Path]) -> bool:
+    """Whether ``files`` are named as rosbag2 names a split bag's: ``<folder>_<n>.<ext>``."""
+    pattern = re.compile(re.escape(folder.name) + r"_\d+\.(mcap|db3)")
+    return all(pattern.fullmatch(file.name) for file in files)
+
+
+def _files_glob(folder: Path, files: list[Path], *, bag: bool = False) -> str:
+    """A shell pattern for ``files`` in ``folder``: ``logs/*.mcap``, ``bag/bag_*.mcap``."""
+    stem = f"{folder.name}_*" if bag else "*"
+    return " ".join(f"{folder / stem}{suffix}" for suffix in sorted({f.suffix for f in files}))
+
+
+def _names(files: list[Path], shown: int = 3) -> str:
+    """``a.mcap, b.mcap``; past ``shown`` names, the first ones and how many more."""
+    names = [file.name for file in files[:shown]]
+    more = f" and {len(files) - shown} more" if len(files) > shown else ""
+    return ", ".join(names) + more
 
 
 def log_files(path: str | Path) -> list[Path]:

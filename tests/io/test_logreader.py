@@ -417,6 +417,33 @@ def test_folders_that_are_not_bags(tmp_path: Path) -> None:
         sniff_format(tmp_path / "loose")
 
 
+def test_a_folder_of_several_logs_is_not_named_by_one_of_them(tmp_path: Path) -> None:
+    """Bug hunt 15E F4: "pass its storage file logs/a.mcap directly" named the first of two
+    separate logs as the folder's recording; a split bag without its metadata.yaml (files
+    named <folder>_<n>) still gets its storage files named."""
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    for name in ("a.mcap", "b.mcap", "c.bag"):
+        (logs / name).write_bytes(b"x")
+    with pytest.raises(LogReadError) as raised:
+        sniff_format(logs)
+    message = str(raised.value)
+    assert "storage file" not in message
+    assert message.endswith(
+        "it holds 3 logs (a.mcap, b.mcap, c.bag), not one recording: pass the log files "
+        f"themselves (all of them, {logs}/*.bag {logs}/*.mcap, to learn or densify --out-dir "
+        "DIR)"
+    )
+    bag = tmp_path / "run"
+    bag.mkdir()
+    for name in ("run_0.mcap", "run_1.mcap"):
+        (bag / name).write_bytes(b"x")
+    with pytest.raises(
+        LogReadError, match=r"pass its storage files directly \(.*run/run_\*\.mcap\)$"
+    ):
+        sniff_format(bag)
+
+
 def test_corrupt_ros1_bag_is_a_log_read_error(tmp_path: Path) -> None:
     path = tmp_path / "bad.bag"
     path.write_bytes(b"#ROSBAG V2.0\n" + b"\xff" * 100)
