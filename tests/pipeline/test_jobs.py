@@ -330,7 +330,7 @@ def test_demo_learn_runs_small(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) 
     monkeypatch.setattr(jobs, "DEMO_SCALE", 0.25)
     monkeypatch.setattr(jobs, "DEMO_TRAIN_SEEDS", (1, 3))
     monkeypatch.setattr(jobs, "DEMO_TRAIN_FRAMES", 8)
-    monkeypatch.setattr(jobs, "DEMO_TEST_FRAMES", 3)
+    monkeypatch.setattr(jobs, "DEMO_FRAMES", 3)
     monkeypatch.setattr(jobs, "DEMO_COMPONENTS", 8)
     text = jobs.demo(tmp_path / "demo", learn_basis=True)
     assert "PCA-MAP" in text
@@ -338,6 +338,29 @@ def test_demo_learn_runs_small(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) 
     assert "linear  " in text
     for name in ("train_1.mcap", "train_3.mcap", "heldout.mcap", "basis.npz", "heldout.rrd"):
         assert (tmp_path / "demo" / name).is_file()
+
+
+def test_demo_learn_scores_the_plain_demos_drive(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Bug hunt 15E F5: --learn scored another drive (seed 2, 50 frames), where its basis
+    looked better than the built-in one on the plain demo's; the figures compare now."""
+    rendered: dict[str, tuple[int, int]] = {}
+
+    class Rendered(Exception):
+        pass
+
+    def fake_synth(path: Path, *, frames: int, seed: int, **options: object) -> None:
+        rendered[path.name] = (seed, frames)
+        if path.name == "heldout.mcap":
+            raise Rendered
+
+    monkeypatch.setattr(jobs, "synth", fake_synth)
+    for learn_basis in (False, True):
+        with pytest.raises(Rendered):
+            jobs.demo(tmp_path / str(learn_basis), learn_basis=learn_basis)
+        assert rendered.pop("heldout.mcap") == (jobs.DEMO_SEED, jobs.DEMO_FRAMES)
+    assert jobs.DEMO_SEED not in {seed for seed, _ in rendered.values()}  # the training drives
 
 
 def test_demo_with_the_built_in_basis_runs_small(
