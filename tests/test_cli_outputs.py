@@ -213,6 +213,35 @@ def test_out_dir_inputs_are_checked_before_the_cluster(
     assert not out_dir.exists()
 
 
+def test_out_dir_inputs_are_left_to_a_schedulers_workers(
+    pcainterp: Callable[..., Run], log: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A running scheduler's workers may see files this machine does not: each task checks
+    its paths on its worker (docs/cluster.md), so no input is refused here."""
+
+    class Connected(Exception):
+        pass
+
+    def connect(*args: object, **kwargs: object) -> None:
+        raise Connected
+
+    from pcainterp_stream.pipeline import distributed
+
+    monkeypatch.setattr(distributed, "connect", connect)
+    with pytest.raises(Connected):
+        cli.main(
+            [
+                "densify",
+                str(log),
+                str(tmp_path / "on_the_workers.mcap"),
+                "--out-dir",
+                str(tmp_path / "dense"),
+                "--scheduler",
+                "tcp://127.0.0.1:8786",
+            ]
+        )
+
+
 def test_out_dir_output_that_is_a_fifo_is_refused(
     pcainterp: Callable[..., Run], log: Path, tmp_path: Path
 ) -> None:

@@ -728,7 +728,8 @@ def _check_inputs(paths: list[Path]) -> None:
     """Refuse a missing input or one that is not a log, by its format, as ``-o`` does.
 
     Cheap (a file's first bytes, a folder's listing); a pipe or a device is left to its
-    job, which reads it once.
+    job, which reads it once. Not with ``--scheduler``: its workers may see files this
+    machine does not, and each task checks its paths on its worker (docs/cluster.md).
 
     Raises:
         LogReadError: the first such input, in one line naming it and the fix.
@@ -776,7 +777,8 @@ def _densify_many(
         from pcainterp_stream.estimate.basis import check_basis_file
 
         check_basis_file(args.basis)
-    _check_inputs(args.input)  # before the cluster starts and DIR is made
+    if args.scheduler is None:  # a local cluster reads this machine's files: checked first
+        _check_inputs(args.input)  # before the cluster starts and DIR is made
     _hint_split(args.input)
     started = time.perf_counter()
     report = _OutcomeReport(len(args.input))
