@@ -2813,6 +2813,18 @@ def test_points_by_mode_and_by_choice(
     assert (config.gftt.max_corners, config.gftt.fill_spacing) == (corners, spacing)
 
 
+def test_synth_frames_help_gives_each_scenes_rate(capsys: pytest.CaptureFixture[str]) -> None:
+    """Bug hunt 15E F7: "10 per second of log" for indoor scenes too, rendered at 20 Hz."""
+    from pcainterp_stream.synth import FRAME_PERIOD_NS
+    from pcainterp_stream.synth.indoor import INDOOR_FRAME_PERIOD_NS
+
+    with pytest.raises(SystemExit):
+        cli.main(["synth", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    street, indoor = (f"{1e9 / period:g}" for period in (FRAME_PERIOD_NS, INDOOR_FRAME_PERIOD_NS))
+    assert f"frames to render: {street} per second of log, {indoor} with --scene indoor" in text
+
+
 @pytest.mark.parametrize(
     ("options", "named"),
     [

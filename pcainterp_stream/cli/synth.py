@@ -39,7 +39,8 @@ def add_parser(commands: Commands) -> None:
         type=int,
         default=100,
         metavar="N",
-        help="frames to render, 10 per second of log (default: %(default)s)",
+        help="frames to render: 10 per second of log, 20 with --scene indoor "
+        "(default: %(default)s)",
     )
     synth.add_argument("--seed", type=int, default=0, metavar="S", help="world seed (default: 0)")
     synth.add_argument(
