@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
+import harness
 import numpy as np
 import numpy.typing as npt
 
@@ -203,3 +204,7 @@ def partition_seconds(items: list[tuple[StereoFrame, Array]], repeats: int = 3) 
             _partition(one, camera.image_size, grid)
         best = min(best, (time.process_time() - started) / len(items))
     return best
+
+
+if __name__ == "__main__":
+    harness.module_main(__doc__, "sparse_sharpness.py and nudge_checks.py")
