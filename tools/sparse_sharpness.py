@@ -459,16 +459,15 @@ def score(
         sums["edge_px"] += edge.sum()
         sums["edge_err"] += error[edge].sum()
         sums["edge_inside"] += inside[edge].sum()
-        # depth RMSE as evaluate's (metrics.depth_sums): truth beyond the cap is not counted,
-        # the estimated depth is capped (a disparity <= 0 or NaN is far)
-        depth_true = frame.camera.focal_baseline / truth[valid]
-        near = depth_true <= DEPTH_CAP_M
-        cap_disparity = frame.camera.focal_baseline / DEPTH_CAP_M
-        depth_est = frame.camera.focal_baseline / np.maximum(
+        # depth RMSE by evaluate's rule (metrics.depth_errors), over all pixels and per bin:
+        # truth beyond the cap is not counted, the estimated depth is capped
+        focal_baseline = frame.camera.focal_baseline
+        depth_true = focal_baseline / truth[valid]
+        cap_disparity = focal_baseline / DEPTH_CAP_M
+        depth_est = focal_baseline / np.maximum(
             np.nan_to_num(estimate[valid], nan=0.0), cap_disparity
-        )
-        squares = np.where(near, (depth_est - depth_true) ** 2, 0.0)
-        depth = depth_errors(estimate, truth, valid, focal_baseline=frame.camera.focal_baseline)
+        )  # for the count of capped estimates only
+        depth = depth_errors(estimate, truth, valid, focal_baseline=focal_baseline)
         sums["sq_depth"] += depth["sq"]
         sums["depth_px"] += depth["n"]
         sums["capped"] += float(
@@ -483,8 +482,11 @@ def score(
             inside_bin = bin_of == index
             bins[index, 0] += inside_bin.sum()
             bins[index, 1] += error[inside_bin].sum()
-            bins[index, 2] += squares[inside_bin].sum()
-            bins[index, 3] += (near & inside_bin).sum()
+            in_bin = np.zeros_like(valid)
+            in_bin[valid] = inside_bin
+            binned = depth_errors(estimate, truth, in_bin, focal_baseline=focal_baseline)
+            bins[index, 2] += binned["sq"]
+            bins[index, 3] += binned["n"]
         points += len(result.pixels)
     return {
         "error_px": sums["err"] / sums["px"],
