@@ -10,6 +10,7 @@ and exit 0 without doing any work; the modules of helpers the scripts import
 
 from __future__ import annotations
 
+import itertools
 import os
 import subprocess
 import sys
@@ -256,3 +257,19 @@ def test_sparse_sharpness_depth_rmse_is_evaluates() -> None:
         squares, count = squares + sums["sq"], count + sums["n"]
     assert 0 < count
     assert figures["depth_rmse_m"] == float(np.sqrt(squares / count))
+    # review 15d R7: the --depth-bins RMSE is depth_errors over each bin's pixels too (the
+    # tool kept its own copy of the rule beside the call)
+    edges = sparse_sharpness.DEPTH_BINS_M
+    for low, high in itertools.pairwise(edges):
+        squares = count = 0.0
+        for (frame, truth), result in zip(items, results, strict=True):
+            valid = np.isfinite(truth) & (truth > 0)
+            with np.errstate(divide="ignore"):
+                depth = np.minimum(frame.camera.focal_baseline / truth, edges[-1])
+            inside = valid & (depth >= low) & ((depth < high) | (high == edges[-1]))
+            sums = depth_errors(
+                result.disparity, truth, inside, focal_baseline=frame.camera.focal_baseline
+            )
+            squares, count = squares + sums["sq"], count + sums["n"]
+        expected = float(np.sqrt(squares / max(count, 1.0)))
+        assert figures[f"depth_rmse_m_{low:g}-{high:g}m"] == pytest.approx(expected, rel=1e-9)

@@ -63,6 +63,7 @@ import harness
 import numpy as np
 import numpy.typing as npt
 import sparse_sharpness as sharpness
+import sparse_timing
 from scipy.spatial import cKDTree
 
 import pcainterp_stream.estimate.solve as solve
@@ -412,7 +413,7 @@ def _estimate_cpu(items: Items, thresholds: list[float], repeats: int = 3) -> li
     front_end = StereoFrontEnd(config.gftt, config.sgbm)
     measured = [front_end.measure(frame.left, frame.right) for frame, _ in items]
     camera = items[0][0].camera
-    parts = [sharpness._partition(m, camera.image_size, basis.grid_size) for m in measured]
+    parts = [sparse_timing._partition(m, camera.image_size, basis.grid_size) for m in measured]
     options = resolve_settings(basis, config).densify_options()
     best = [np.inf] * len(thresholds)
     with threadpool_limits(1):

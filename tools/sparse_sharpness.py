@@ -45,10 +45,10 @@ from typing import Any
 import harness
 import numpy as np
 import numpy.typing as npt
+from sparse_timing import estimate_seconds, lookup_seconds, partition_seconds, pool_seconds
 
 from pcainterp_stream.estimate.baselines import linear, nearest
 from pcainterp_stream.estimate.basis import Basis
-from pcainterp_stream.estimate.variance import prior_std_map
 from pcainterp_stream.evaluate.metrics import depth_errors
 from pcainterp_stream.frontend.motion import CarryConfig
 from pcainterp_stream.frontend.near import NearConfig
@@ -459,16 +459,15 @@ def score(
         sums["edge_px"] += edge.sum()
         sums["edge_err"] += error[edge].sum()
         sums["edge_inside"] += inside[edge].sum()
-        # depth RMSE as evaluate's (metrics.depth_sums): truth beyond the cap is not counted,
-        # the estimated depth is capped (a disparity <= 0 or NaN is far)
-        depth_true = frame.camera.focal_baseline / truth[valid]
-        near = depth_true <= DEPTH_CAP_M
-        cap_disparity = frame.camera.focal_baseline / DEPTH_CAP_M
-        depth_est = frame.camera.focal_baseline / np.maximum(
+        # depth RMSE by evaluate's rule (metrics.depth_errors), over all pixels and per bin:
+        # truth beyond the cap is not counted, the estimated depth is capped
+        focal_baseline = frame.camera.focal_baseline
+        depth_true = focal_baseline / truth[valid]
+        cap_disparity = focal_baseline / DEPTH_CAP_M
+        depth_est = focal_baseline / np.maximum(
             np.nan_to_num(estimate[valid], nan=0.0), cap_disparity
-        )
-        squares = np.where(near, (depth_est - depth_true) ** 2, 0.0)
-        depth = depth_errors(estimate, truth, valid, focal_baseline=frame.camera.focal_baseline)
+        )  # for the count of capped estimates only
+        depth = depth_errors(estimate, truth, valid, focal_baseline=focal_baseline)
         sums["sq_depth"] += depth["sq"]
         sums["depth_px"] += depth["n"]
         sums["capped"] += float(
@@ -483,8 +482,11 @@ def score(
             inside_bin = bin_of == index
             bins[index, 0] += inside_bin.sum()
             bins[index, 1] += error[inside_bin].sum()
-            bins[index, 2] += squares[inside_bin].sum()
-            bins[index, 3] += (near & inside_bin).sum()
+            in_bin = np.zeros_like(valid)
+            in_bin[valid] = inside_bin
+            binned = depth_errors(estimate, truth, in_bin, focal_baseline=focal_baseline)
+            bins[index, 2] += binned["sq"]
+            bins[index, 3] += binned["n"]
         points += len(result.pixels)
     return {
         "error_px": sums["err"] / sums["px"],
@@ -581,188 +583,6 @@ def guided_rows(items: list[tuple[StereoFrame, Array]], config: ProcessorConfig)
             row[1] += valid.sum()
             row[2] += (error <= 2.0 * std[valid]).sum()
     return [f"| {k} | {e / n:.3f} | {100 * c / n:.1f} |" for k, (e, n, c) in sums.items()]
-
-
-def estimate_seconds(
-    items: list[tuple[StereoFrame, Array]],
-    configs: list[ProcessorConfig],
-    bases: list[Basis | None],
-    repeats: int = 3,
-) -> list[float]:
-    """CPU seconds per frame of the estimate alone, for each configuration's points.
-
-    ``densify_batch`` of 4 frames at a time, one BLAS thread, the processor's settings, no
-    carried points; the configurations are timed in turns, the best of ``repeats`` kept.
-    An edge-aware prior's seedings (its map on the cell grid) are made beforehand, as the
-    stereo workers make them (:func:`partition_seconds` times that); the label search is
-    part of the estimate, a batch's frames at once, as in the estimate pool.
-    """
-    from threadpoolctl import threadpool_limits
-
-    from pcainterp_stream.estimate.estimator import densify_batch
-    from pcainterp_stream.frontend.stereo import StereoFrontEnd
-    from pcainterp_stream.pipeline.processor import resolve_settings
-
-    measured = []
-    for config, basis in zip(configs, bases, strict=True):
-        prior_std = None
-        if config.gftt.fill_placement == "prior_std":
-            prior_std = prior_std_map(basis or Basis.default())
-        front_end = StereoFrontEnd(config.gftt, config.sgbm, prior_std=prior_std)
-        measured.append([front_end.measure(frame.left, frame.right) for frame, _ in items])
-    best = [np.inf] * len(configs)
-    camera = items[0][0].camera
-    grid = Basis.default().grid_size
-    partitions = [
-        [_partition(m, camera.image_size, grid) if config.edge_aware else None for m in frames]
-        for config, frames in zip(configs, measured, strict=True)
-    ]
-    with threadpool_limits(1):
-        for _ in range(repeats):
-            for index, config in enumerate(configs):
-                basis = bases[index] or Basis.default()
-                options = resolve_settings(basis, config).densify_options()
-                started = time.process_time()
-                for start in range(0, len(items), 4):
-                    batch = measured[index][start : start + 4]
-                    densify_batch(
-                        basis,
-                        [m.pixels for m in batch],
-                        [m.disparities for m in batch],
-                        partitions=partitions[index][start : start + 4],
-                        image_size=camera.image_size,
-                        focal_baseline=camera.focal_baseline,
-                        robust=config.robust,
-                        **options,
-                    )
-                best[index] = min(best[index], (time.process_time() - started) / len(items))
-    return best
-
-
-def pool_seconds(
-    items: list[tuple[StereoFrame, Array]],
-    configs: list[ProcessorConfig],
-    bases: list[Basis | None],
-    rounds: int = 5,
-) -> list[list[float]]:
-    """CPU seconds per frame of the estimate pool's own batches, per configuration and round.
-
-    Each configuration's job runs once through the frame processor (fit check, carried
-    points and all), its estimate batches (``densify_batch`` calls) recorded; then the
-    batches are replayed in one thread, one BLAS thread, the configurations in turns for
-    ``rounds`` rounds. Unlike :func:`estimate_seconds` the cells then hold carried points
-    too, as in a job.
-    """
-    import copy
-
-    from threadpoolctl import threadpool_limits
-
-    from pcainterp_stream.estimate.estimator import densify_batch
-    from pcainterp_stream.pipeline import processor
-
-    recorded: list[list[tuple[Basis, Any, Any, dict[str, Any]]]] = []
-    for config, basis in zip(configs, bases, strict=True):
-        batches: list[tuple[Basis, Any, Any, dict[str, Any]]] = []
-
-        def recording(
-            basis: Basis,
-            pixels: Any,
-            disparities: Any,
-            batches: list[tuple[Basis, Any, Any, dict[str, Any]]] = batches,
-            **options: Any,
-        ) -> Any:
-            batches.append((basis, copy.deepcopy(pixels), copy.deepcopy(disparities), options))
-            return densify_batch(basis, pixels, disparities, **options)
-
-        setattr(processor, "densify_batch", recording)  # noqa: B010
-        try:
-            with FrameProcessor(basis, config) as job:
-                list(job.process([frame for frame, _ in items]))
-        finally:
-            setattr(processor, "densify_batch", densify_batch)  # noqa: B010
-        recorded.append(batches)
-    seconds: list[list[float]] = [[] for _ in configs]
-    with threadpool_limits(1):
-        for _ in range(rounds):
-            for index, batches in enumerate(recorded):
-                started = time.thread_time()
-                for basis, pixels, disparities, options in batches:
-                    densify_batch(basis, pixels, disparities, **copy.copy(options))
-                seconds[index].append((time.thread_time() - started) / len(items))
-    return seconds
-
-
-def lookup_seconds(
-    items: list[tuple[StereoFrame, Array]],
-    configs: list[ProcessorConfig],
-    bases: list[Basis | None],
-    repeats: int = 3,
-) -> tuple[list[float], float]:
-    """CPU seconds per frame of the front end's lookups (corners and fill), per configuration.
-
-    ``sparse_lookups`` on each frame's SGBM map (made beforehand), the configurations in
-    turns, the best of ``repeats``; and the SGBM map itself (the same matcher settings as
-    the first configuration), the reference the lookups' cost is read against.
-    """
-    import cv2
-
-    from pcainterp_stream.frontend.stereo import compute_disparity, sparse_lookups, to_grey8
-
-    sgbm = configs[0].sgbm
-    greys = [to_grey8(frame.left) for frame, _ in items]
-    maps = [compute_disparity(frame.left, frame.right, sgbm) for frame, _ in items]
-    stds = [
-        prior_std_map(basis or Basis.default())
-        if config.gftt.fill_placement == "prior_std"
-        else None
-        for config, basis in zip(configs, bases, strict=True)
-    ]
-    threads = cv2.getNumThreads()
-    cv2.setNumThreads(1)
-    try:
-        best = [np.inf] * len(configs)
-        matching = np.inf
-        for _ in range(repeats):
-            started = time.process_time()
-            for frame, _ in items:
-                compute_disparity(frame.left, frame.right, sgbm)
-            matching = min(matching, (time.process_time() - started) / len(items))
-            for index, config in enumerate(configs):
-                started = time.process_time()
-                for grey, disparity in zip(greys, maps, strict=True):
-                    sparse_lookups(
-                        grey,
-                        disparity,
-                        config.gftt,
-                        min_x=config.sgbm.valid_min_x,
-                        prior_std=stds[index],
-                    )
-                best[index] = min(best[index], (time.process_time() - started) / len(items))
-    finally:
-        cv2.setNumThreads(threads)
-    return best, matching
-
-
-def _partition(measured: Any, image_size: tuple[int, int], grid: tuple[int, int]) -> Any:
-    """What a stereo worker makes of a frame for an edge-aware prior (cells.Seeding)."""
-    from pcainterp_stream.estimate.cells import Seeding
-
-    return Seeding.along(measured.disparity_map, measured.pixels, image_size, grid)
-
-
-def partition_seconds(items: list[tuple[StereoFrame, Array]], repeats: int = 3) -> float:
-    """CPU seconds per frame of the stereo workers' seedings (the best of ``repeats``)."""
-    config = ProcessorConfig()
-    front_end = StereoFrontEnd(config.gftt, config.sgbm)
-    measured = [front_end.measure(frame.left, frame.right) for frame, _ in items]
-    camera, grid = items[0][0].camera, Basis.default().grid_size
-    best = np.inf
-    for _ in range(repeats):
-        started = time.process_time()
-        for one in measured:
-            _partition(one, camera.image_size, grid)
-        best = min(best, (time.process_time() - started) / len(items))
-    return best
 
 
 def main(argv: list[str] | None = None) -> int:

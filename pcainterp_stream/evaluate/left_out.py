@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from pcainterp_stream.evaluate.log_frames import (
     GROUND_TRUTH_DEPTH,
@@ -26,8 +27,9 @@ from pcainterp_stream.evaluate.log_frames import (
     ReadState,
     frame_step_ns,
 )
-from pcainterp_stream.evaluate.reference import ReferenceTopic
-from pcainterp_stream.evaluate.results import Evaluation
+from pcainterp_stream.evaluate.reference import ReferenceTopic, disparity_image_dropped
+from pcainterp_stream.evaluate.results import Evaluation, grouped_causes
+from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.outputs import OutputTopics
 
 __all__ = [
@@ -35,6 +37,7 @@ __all__ = [
     "PAIR_STEP_FACTOR",
     "LeftOut",
     "no_reference_message",
+    "no_truth_cause",
     "no_truth_message",
     "reference_tolerance",
 ]
@@ -184,10 +187,51 @@ def no_truth_message(
             "--reference-topic"
         )
     topic = reference.topic if reference is not None else GROUND_TRUTH_DEPTH
+    causes = grouped_causes(result.no_truth, result.no_truth_causes) or [NO_VALUE]
     return (
-        f"{topic} holds no truth in any of the {frames} of {path}: every pixel is NaN, 0 or "
-        "< 0 (no value, REP 118; +inf, too far, would count), so there is nothing to score "
-        "against; pass a --reference-topic that holds truth"
+        f"{topic} holds no truth in any of the {frames} of {path}: {'; '.join(causes)}, so "
+        "there is nothing to score against; pass a --reference-topic that holds truth"
+    )
+
+
+NO_VALUE = "every pixel is NaN, 0 or < 0 (no value, REP 118; +inf, too far, would count)"
+"""Why a depth or disparity image holds no truth when nothing else explains it."""
+
+
+def no_truth_cause(
+    frame: Frame,
+    reference: npt.NDArray[np.float64],
+    counted: npt.NDArray[np.bool_],
+    topic: ReferenceTopic | None,
+    *,
+    mode: str,
+    sgbm: bool,
+) -> str:
+    """Say why a frame's reference holds no truth on any pixel to score.
+
+    Args:
+        frame: the frame (its reference message, for a DisparityImage's own bounds).
+        reference: its reference disparity (px; NaN: no truth).
+        counted: the reference pixels that land in the other view (``ReferenceView.counted``).
+        topic: the reference topic (None: the ground truth or SGBM).
+        mode: ``stereo`` or ``temporal``.
+        sgbm: the reference is SGBM of the pair.
+    """
+    with np.errstate(invalid="ignore"):
+        truth = np.isfinite(reference) & (reference >= 0)
+    if not truth.any():
+        if sgbm:
+            return "SGBM found no pixel in the pair"
+        if topic is not None and topic.msgtype == rosmsg.DISPARITY_IMAGE:
+            dropped = disparity_image_dropped(frame.reference, frame.cx_offset or 0.0)
+            return dropped or "every pixel is NaN, 0 or < 0 (no value)"
+        return NO_VALUE
+    if not counted.any():
+        other = "the next frame (temporal mode)" if mode == "temporal" else "the right camera"
+        return f"its {int(truth.sum())} px of truth all leave the view of {other}"
+    return (
+        "its truth lies only where the estimate is NaN (outside the rectified box of a raw or "
+        "black-bordered pair)"
     )
 
 

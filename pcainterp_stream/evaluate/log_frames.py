@@ -115,6 +115,9 @@ class Frame:
     """Without ``/ground_truth/depth`` in a log that has it: the nearest one's distance (ns)."""
     pose_gap_ns: int | None = None
     """Without a pose in a log that has them (poses read): the nearest one's distance (ns)."""
+    cx_offset: float | None = None
+    """cx_left - cx_right (px) of the input pair's camera infos when the frame was read
+    (:meth:`~pcainterp_stream.frontend.images.PairImages.cx_offset`; None: unknown)."""
 
 
 @dataclass
@@ -692,4 +695,5 @@ def _frame(
         right_gap_ns=gap if right is None else None,
         depth_gap_ns=depth_gap if depth is None else None,
         pose_gap_ns=pose_gap if pose is None else None,
+        cx_offset=images.cx_offset(),
     )

@@ -33,8 +33,8 @@ LOW_COVERAGE = 0.5
 
 FAR_SHARE = 0.5
 """A frame stands out when its reference is too far (depth +inf) on more than this share of
-its scored pixels, and on more than :data:`ERROR_FACTOR` times the median frame's share: a
-reference that collapsed (SGBM of one view twice finds disparity 0 everywhere)."""
+its scored pixels, and on more than :data:`ERROR_FACTOR` times the median frame's share (SGBM
+of one view twice finds disparity 0 everywhere); every pixel is still scored (disparity 0)."""
 
 FEW_PIXELS = 1 / 3
 """A frame stands out when it scored fewer pixels than this times the median frame's: its
@@ -209,9 +209,12 @@ def standout_lines(frames: list[FrameFigures]) -> list[str]:
 
     A frame stands out when it has no estimate (NaN), when its PCA-MAP mean Delta_2D is
     over :data:`ERROR_FACTOR` times the median frame's, when its stored +-2 sigma covers
-    under :data:`LOW_COVERAGE`, or when its reference collapsed (too far on most pixels, or
-    truth on few: :data:`FAR_SHARE`, :data:`FEW_PIXELS`). A frame whose reference collapsed
-    is named for that alone: its error and coverage over what is left say little. Frames
+    under :data:`LOW_COVERAGE`, when its reference is too far on most pixels
+    (:data:`FAR_SHARE`), or when its reference collapsed to truth on few pixels
+    (:data:`FEW_PIXELS`). A frame whose reference collapsed is named for that alone: its
+    error and coverage over the few pixels left say little. A frame whose reference is too
+    far is scored on every pixel (truth disparity 0), so its error and coverage lines stay.
+    Frames
     left out for want of a measurement or of any truth are named by their own notes, not
     here. Empty when none stands out.
     """
@@ -222,7 +225,7 @@ def standout_lines(frames: list[FrameFigures]) -> list[str]:
         lines.append(f"{_named(empty)}: no estimate (NaN in the log), scored on no pixel")
     if len(scored) < 2:
         return lines
-    collapsed, collapsed_lines = _collapsed(scored)
+    collapsed, collapsed_lines = _far_or_few(scored)
     errors = [f.delta_2d_mean.get("pca_map", math.nan) for f in scored]
     median = float(np.nanmedian(errors)) if np.isfinite(errors).any() else math.nan
     worse = [
@@ -246,21 +249,26 @@ def standout_lines(frames: list[FrameFigures]) -> list[str]:
     return lines + collapsed_lines
 
 
-def _collapsed(scored: list[FrameFigures]) -> tuple[set[int], list[str]]:
-    """Return the frames whose reference is too far or holds truth on few, and the lines."""
+def _far_or_few(scored: list[FrameFigures]) -> tuple[set[int], list[str]]:
+    """Return the frames whose reference collapsed to truth on few, and the standout lines.
+
+    Their error and coverage over the few pixels say little; the lines also name the frames
+    whose reference is too far on most pixels (scored on all of them: not left out).
+    """
     far_shares = [f.reference_far for f in scored]
     median_far = float(np.nanmedian(far_shares)) if np.isfinite(far_shares).any() else math.nan
     median_pixels = float(np.median([f.pixels for f in scored]))
-    far = [f for f in scored if f.reference_far > max(FAR_SHARE, ERROR_FACTOR * median_far)]
-    named = {f.index for f in far}
-    few = [f for f in scored if f.pixels < FEW_PIXELS * median_pixels and f.index not in named]
+    few = [f for f in scored if f.pixels < FEW_PIXELS * median_pixels]
+    named = {f.index for f in few}
+    limit = max(FAR_SHARE, ERROR_FACTOR * median_far)
+    far = [f for f in scored if f.reference_far > limit and f.index not in named]
     lines = []
     if far:
         values = [f.reference_far for f in far]
         lines.append(
             f"{_named(far)}: the reference is too far (depth +inf) on "
             f"{_span(values, ' %', 100.0, 0)} of the pixels (median frame "
-            f"{100 * median_far:.0f} %): it collapsed there"
+            f"{100 * median_far:.0f} %); every pixel is still scored, too far as disparity 0"
         )
     if few:
         values = [f.pixels / median_pixels for f in few]
@@ -270,7 +278,7 @@ def _collapsed(scored: list[FrameFigures]) -> tuple[set[int], list[str]]:
             f"median frame's pixels ({_span(counts, ' px', 1.0, 0)} of {median_pixels:.0f}): "
             "it collapsed there"
         )
-    return named | {f.index for f in few}, lines
+    return named, lines
 
 
 def own_pair_notes(reference: str) -> list[str]:

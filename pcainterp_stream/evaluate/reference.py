@@ -11,9 +11,18 @@ sensor_msgs/msg/Image 16UC1 / mono16   depth       millimetres (REP 118); 0: no 
 CompressedImage, compressedDepth       depth       as its encoding (32FC1 m or 16UC1 mm)
 sensor_msgs/msg/Image 32FC1            disparity   px (``--reference-kind disparity``)
 stereo_msgs/msg/DisparityImage         disparity   px, rescaled by the log's f*b / its f*t;
-                                                   < min_disparity, > max_disparity (when
-                                                   above min) or outside valid_window: no truth
+                                                   value + (cx_l - cx_r) < min_disparity,
+                                                   > max_disparity (when above min) or
+                                                   outside valid_window: no truth
 =====================================  ==========  ==========================================
+
+A DisparityImage's bounds are the matcher's: stereo_image_proc shifts its values by
+-(cx_l - cx_r) (the two rectified P's cx) and writes min_disparity and max_disparity
+unshifted, so its invalid code is min_disparity - 1 - (cx_l - cx_r). The bounds are applied
+to value + (cx_l - cx_r) with cx of the input pair's camera infos in the log, the ones
+densify read (:meth:`~pcainterp_stream.frontend.images.PairImages.cx_offset`); the message
+itself carries no cx. Without those infos (a pair read with calibration files, or none) the
+bounds are applied as they are, and a note says so.
 
 This module checks the topic against the log and turns one message into a disparity map of
 the densified log's camera, NaN where the reference holds no truth
@@ -118,6 +127,7 @@ def reference_disparity(
     *,
     focal_baseline: float,
     image_size: tuple[int, int],
+    cx_offset: float = 0.0,
 ) -> npt.NDArray[np.float64]:
     """Decode one reference message into disparity of the densified log's camera.
 
@@ -126,6 +136,8 @@ def reference_disparity(
         reference: the checked topic.
         focal_baseline: f*b (px*m) of the densified log's camera.
         image_size: (height, width) of the estimate (px).
+        cx_offset: cx_left - cx_right (px) of the pair a DisparityImage was matched on: its
+            bounds apply to value + cx_offset (:func:`disparity_image_valid`).
 
     Returns:
         (H, W) float64 disparity (px), NaN where the reference holds no truth, 0 where a
@@ -162,7 +174,7 @@ def reference_disparity(
     except ValueError as err:
         raise LogReadError(f"reference topic {topic}: {err}") from err
     if reference.msgtype == rosmsg.DISPARITY_IMAGE:
-        values[~disparity_image_valid(message, values)] = np.nan
+        values[~disparity_image_valid(message, values, cx_offset)] = np.nan
         # d = f t / Z: a disparity of another focal length or baseline than the log's
         focal_t = float(message.f) * float(message.t)
         if focal_t > 0 and np.isfinite(focal_t):
@@ -170,35 +182,122 @@ def reference_disparity(
     return disparity_from_reference(values, kind=reference.kind, focal_baseline=focal_baseline)
 
 
-def disparity_image_valid(message: Any, values: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:
+def disparity_image_valid(
+    message: Any, values: npt.NDArray[np.float64], cx_offset: float = 0.0
+) -> npt.NDArray[np.bool_]:
     """Return where a ``stereo_msgs/msg/DisparityImage`` says its disparity may be valid.
 
     As the message defines it (and stereo_image_proc fills it): "any disparity less than
-    min_disparity is invalid" (a driver writes OpenCV's invalid match as min_disparity - 1,
-    > 0 whenever min_disparity > 1); a value above max_disparity is outside the range
-    searched, so no match (a bound only when max_disparity > min_disparity: an unset 0 is
-    none); a pixel outside ``valid_window`` is invalid (a window of width or height 0 reaches
-    the image's edge, so the all-zero RegionOfInterest is the whole image).
+    min_disparity is invalid"; a value above max_disparity is outside the range searched, so
+    no match (a bound only when max_disparity > min_disparity: an unset 0 is none); a pixel
+    outside ``valid_window`` is invalid (a window of width or height 0 reaches the image's
+    edge, so the all-zero RegionOfInterest is the whole image). The bounds are the matcher's:
+    stereo_image_proc writes OpenCV's invalid match as min_disparity - 1 and then shifts
+    every value by -(cx_l - cx_r), the bounds not, so its invalid code is min_disparity - 1 -
+    (cx_l - cx_r): > 0 whenever min_disparity > 1 or cx_r > cx_l. The bounds are applied to
+    value + ``cx_offset``, which undoes that shift.
 
     Args:
         message: the decoded DisparityImage.
         values: (H, W) its image, in its own px (before any rescaling).
+        cx_offset: cx_l - cx_r (px) of the pair's rectified P's (0: equal, or unknown).
 
     Returns:
         (H, W) bool, False where the message says the value is no disparity found.
     """
     lowest, highest = float(message.min_disparity), float(message.max_disparity)
+    matched = values + cx_offset  # the matcher's disparity, which the bounds are of
     with np.errstate(invalid="ignore"):
-        valid = ~(values < lowest) if np.isfinite(lowest) else np.ones(values.shape, bool)
+        valid = ~(matched < lowest) if np.isfinite(lowest) else np.ones(values.shape, bool)
         if np.isfinite(highest) and highest > lowest:
-            valid &= ~(values > highest)
+            valid &= ~(matched > highest)
+    return valid & _inside_window(message, values.shape)
+
+
+def _inside_window(message: Any, shape: tuple[int, ...]) -> npt.NDArray[np.bool_]:
+    """Return where a DisparityImage's ``valid_window`` is (width or height 0: to the edge)."""
     window = message.valid_window
     x, y = int(window.x_offset), int(window.y_offset)
-    width = int(window.width) or values.shape[1] - x
-    height = int(window.height) or values.shape[0] - y
-    inside = np.zeros(values.shape, bool)
+    width = int(window.width) or shape[1] - x
+    height = int(window.height) or shape[0] - y
+    inside = np.zeros(shape[:2], bool)
     inside[y : max(y + height, y), x : max(x + width, x)] = True
-    return valid & inside
+    return inside
+
+
+def reference_floor(
+    message: Any, reference: ReferenceTopic | None, *, focal_baseline: float, cx_offset: float
+) -> float:
+    """Return the lowest disparity (px of the log) a reference message can hold as truth.
+
+    0 but for a DisparityImage: its min_disparity, less ``cx_offset`` (cx_l - cx_r), rescaled
+    as its values are. A reference whose floor is at or above the frame's resolvable minimum
+    cannot say "too far" (:class:`~pcainterp_stream.evaluate.results.RangeStats`).
+    """
+    if reference is None or reference.msgtype != rosmsg.DISPARITY_IMAGE or message is None:
+        return 0.0
+    lowest = float(message.min_disparity) - cx_offset
+    focal_t = float(message.f) * float(message.t)
+    scale = focal_baseline / focal_t if focal_t > 0 and np.isfinite(focal_t) else 1.0
+    return max(lowest * scale, 0.0) if np.isfinite(lowest) else 0.0
+
+
+def disparity_image_dropped(message: Any, cx_offset: float) -> str:
+    """Say how a DisparityImage's own bounds and window leave its values > 0 no truth.
+
+    "" when it has no finite value > 0 (then every pixel is NaN, 0 or < 0). The counts may
+    overlap: a pixel below min_disparity may also be outside valid_window.
+    """
+    try:
+        values = rosmsg.image_array(message.image).astype(np.float64)
+    except ValueError:
+        return ""
+    with np.errstate(invalid="ignore"):
+        positive = np.isfinite(values) & (values > 0)
+    if not positive.any():
+        return ""
+    lowest, highest = float(message.min_disparity), float(message.max_disparity)
+    matched = values + cx_offset
+    shift = f" (value {cx_offset:+g} px: cx_l - cx_r of the pair)" if cx_offset else ""
+    with np.errstate(invalid="ignore"):
+        below = int(np.count_nonzero(positive & (matched < lowest)))
+        above = int(np.count_nonzero(positive & (matched > highest))) if highest > lowest else 0
+    outside = int(np.count_nonzero(positive & ~_inside_window(message, values.shape)))
+    parts = [
+        *([f"{below} below its min_disparity {lowest:g} px{shift}"] if below else []),
+        *([f"{above} above its max_disparity {highest:g} px{shift}"] if above else []),
+        *([f"{outside} outside its valid_window"] if outside else []),
+    ]
+    return (
+        f"of its {int(np.count_nonzero(positive))} px with a value > 0, "
+        f"{', '.join(parts)} (stereo_msgs/DisparityImage: no disparity found there)"
+    )
+
+
+def bounds_notes(reference: ReferenceTopic | None, offsets: set[float | None]) -> list[str]:
+    """Say how a DisparityImage's bounds met the pair's cx (none for another reference).
+
+    ``offsets``: cx_l - cx_r of the frames scored (None: the pair's camera infos unknown).
+    """
+    if reference is None or reference.msgtype != rosmsg.DISPARITY_IMAGE:
+        return []
+    notes = []
+    shifted = sorted(offset for offset in offsets if offset)
+    if shifted:
+        notes.append(
+            f"{reference.topic}'s min_disparity and max_disparity are applied to value + "
+            f"(cx_l - cx_r), with cx_l - cx_r {', '.join(f'{o:+g}' for o in shifted)} px "
+            "from the P of the input pair's camera infos: stereo_image_proc shifts its values "
+            "by -(cx_l - cx_r), its bounds not"
+        )
+    if None in offsets:
+        notes.append(
+            f"the input pair's camera infos were not read (calibration files, or none), so "
+            f"{reference.topic}'s min_disparity and max_disparity are applied as they are: "
+            "right only if the pair's rectified cx are equal (else stereo_image_proc's "
+            "invalid code min_disparity - 1 - (cx_l - cx_r) may be scored)"
+        )
+    return notes
 
 
 def _check_size(topic: str, size: tuple[int, ...], image_size: tuple[int, int]) -> None:

@@ -38,6 +38,7 @@ from pcainterp_stream.evaluate.input_pair import describe_pair, follow_densify, 
 from pcainterp_stream.evaluate.left_out import (
     LeftOut,
     no_reference_message,
+    no_truth_cause,
     no_truth_message,
     reference_tolerance,
 )
@@ -69,7 +70,9 @@ from pcainterp_stream.evaluate.reference import (
     IMAGE_TYPES,
     SPARSE_BELOW,
     ReferenceTopic,
+    bounds_notes,
     reference_disparity,
+    reference_floor,
     resolve_reference,
 )
 from pcainterp_stream.evaluate.report_folder import (
@@ -223,6 +226,7 @@ def _truth(
             reference,
             focal_baseline=frame.camera.focal_baseline,
             image_size=frame.camera.image_size,
+            cx_offset=frame.cx_offset or 0.0,  # unknown: the bounds as they are (a note)
         )
     if frame.depth is not None and use_truth:
         # REP 118 as for a reference topic: NaN no truth, +inf too far (disparity 0)
@@ -309,6 +313,8 @@ class _Evaluator:
         self.other_camera: str | None = None
         """Why the basis is another camera's ("": it is not; None: not yet known)."""
         self.per_frame = PerFrame(result)
+        self.reference: ReferenceTopic | None = None
+        """The reference topic (None: the ground truth or SGBM)."""
 
     def _stats(self, name: str) -> MethodStats:
         return self.result.methods.setdefault(name, MethodStats())
@@ -331,7 +337,8 @@ class _Evaluator:
         every method (nearest and linear have nothing to interpolate, PCA-MAP has no estimate:
         NaN; the prior's mean in logs densified by earlier versions) and only counted in
         ``result.no_measurement``; one whose reference holds no truth on any pixel to score,
-        likewise, in ``result.no_truth``.
+        likewise, in ``result.no_truth`` (and why, in ``result.no_truth_causes``): truth
+        on no pixel that lands in the other view and has an estimate.
         """
         camera, size = frame.camera, frame.camera.image_size
         # the log's measurements are densify's: SGBM's 0 is a match (densify's zero_is_match)
@@ -342,11 +349,17 @@ class _Evaluator:
             self.per_frame.finish(frame.index, frame.stamp_ns, frame.estimate, measured=False)
             return
         view = reference_view(reference, camera, transform)
-        if not view.counted.any():  # the message is there, its truth is not: left out, named
+        has_estimate = ~np.isnan(frame.estimate)  # +inf depth (far) is an estimate; NaN none
+        if not (view.counted & has_estimate).any():  # no truth to score: left out, named
             self.result.no_truth.append(frame.index)
+            sgbm = self.result.reference == "SGBM"
+            self.result.no_truth_causes.append(
+                no_truth_cause(
+                    frame, reference, view.counted, self.reference, mode=self.result.mode, sgbm=sgbm
+                )
+            )
             self.per_frame.finish(frame.index, frame.stamp_ns, frame.estimate, truth=False)
             return
-        has_estimate = ~np.isnan(frame.estimate)  # +inf depth (far) is an estimate; NaN none
         self.result.reference_counted += int(np.count_nonzero(view.counted))
         box: tuple[int, int, int, int] | None = (0, 0, size[1], size[0])
         if not has_estimate.all():  # outside the rectified box: no method is scored there
@@ -359,8 +372,14 @@ class _Evaluator:
             frame.estimate, frame.std, view, delta, sgbm_valid=sgbm_valid
         )
         if frame.min_disparity > 0:
+            floor = reference_floor(
+                frame.reference,
+                self.reference,
+                focal_baseline=camera.focal_baseline,
+                cx_offset=frame.cx_offset or 0.0,
+            )
             self.result.ranges.add(
-                frame.estimate, view.disparity, view.counted, frame.min_disparity
+                frame.estimate, view.disparity, view.counted, frame.min_disparity, floor
             )
         nn_stats = self._stats("nearest")
         linear_stats = self._stats("linear") if self.options.linear else MethodStats()
@@ -668,6 +687,8 @@ def evaluate_log(
             "explained_variance": basis.explained_variance_ratio,
         }
     evaluator = _Evaluator(result, options, basis)
+    evaluator.reference = reference
+    cx_offsets: set[float | None] = set()  # of the frames with a reference message
     total = count if options.max_frames is None else min(count or 0, options.max_frames)
     if total:
         last = total - 2 if mode is Mode.TEMPORAL else total - 1
@@ -699,6 +720,8 @@ def evaluate_log(
             progress(read)
         _check_pair_size(frame, images, estimate_topic, path)
         truth = _truth(frame, reference, has_truth)
+        if truth is not None and reference is not None:
+            cx_offsets.add(frame.cx_offset)
         if truth is not None and reference is None and frame.depth is not None:
             truth_values.add(frame.depth)
         if truth is None and has_truth:  # no truth message of this stamp (within tolerance)
@@ -752,7 +775,7 @@ def evaluate_log(
         result.notes.append(
             f"the last frame ({previous[0].index}) is not scored: temporal mode moves each "
             "frame's pixels into the next frame, and it has none"
-            + (" (--max-frames N scores N-1)" if options.max_frames is not None else "")
+            + (" (--max-frames N scores N-1)" if read == options.max_frames else "")
         )
     result.measurements = state.measurements
     result.damage = list(state.damage)
@@ -764,6 +787,7 @@ def evaluate_log(
             "so they have no SGBM reference"
         )
     result.notes += [n for n in [state.reference_note(reference.topic)] if n] if reference else []
+    result.notes += bounds_notes(reference, cx_offsets)
     causes = left_out.notes(state, GROUND_TRUTH_DEPTH if reference is None else reference.topic)
     causes += [state.incomplete_note] if state.incomplete_note else []
     causes += [state.repeated_note] if state.repeated_note else []

@@ -8,6 +8,7 @@ read by :mod:`~pcainterp_stream.evaluate.tables` (text, ``results.json``) and
 from __future__ import annotations
 
 import dataclasses
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -55,12 +56,16 @@ class RangeStats:
     A pixel is too far for the estimate where its disparity is below the frame's
     resolvable minimum (the ``DisparityImage``'s ``min_disparity``: depth ``+inf``), and
     too far for the reference where the reference disparity is (sky included).
+    ``reference_blind`` counts the pixels of frames whose reference cannot say "too far": a
+    DisparityImage holds no truth below its min_disparity, so one whose lowest truth is at or
+    above the frame's minimum (densify's own ``/pcainterp/disparity``) has no far pixel.
     """
 
     counted: int = 0
     estimate_far: int = 0
     reference_far: int = 0
     both_far: int = 0
+    reference_blind: int = 0
 
     def add(
         self,
@@ -68,8 +73,13 @@ class RangeStats:
         reference: npt.NDArray[np.float64],
         counted: npt.NDArray[np.bool_],
         min_disparity: float,
+        reference_floor: float = 0.0,
     ) -> None:
-        """Count one frame's pixels (``counted`` only)."""
+        """Count one frame's pixels (``counted`` only).
+
+        ``reference_floor``: the lowest disparity the reference can hold as truth (a
+        DisparityImage's min_disparity; 0 for another reference).
+        """
         with np.errstate(invalid="ignore"):
             estimate_far = counted & (estimate < min_disparity)
             reference_far = counted & (reference < min_disparity)
@@ -77,6 +87,13 @@ class RangeStats:
         self.estimate_far += int(estimate_far.sum())
         self.reference_far += int(reference_far.sum())
         self.both_far += int((estimate_far & reference_far).sum())
+        if reference_floor >= min_disparity * (1 - 1e-5):  # both float32 in the messages
+            self.reference_blind += int(counted.sum())
+
+    @property
+    def blind(self) -> bool:
+        """Whether no counted pixel's reference could say "too far" (the shares say nothing)."""
+        return self.counted > 0 and self.reference_blind == self.counted
 
     def summary(self) -> dict[str, float]:
         """Return the shares too far of the counted pixels, and the agreement of each side."""
@@ -143,8 +160,11 @@ class Evaluation:
         no_measurement: indices (from 0, in log order) of the frames left out of every
             method because they had no measurement (black, dark or textureless images).
         no_truth: indices of the frames left out of every method because their reference
-            held no truth on any pixel that could be scored (the message was there, but NaN,
-            0 or < 0 everywhere: a LiDAR drop-out, SGBM of a pair matching nothing).
+            held no truth on any pixel that could be scored (a LiDAR drop-out, SGBM of a
+            pair matching nothing, a DisparityImage whose values are all out of its own
+            bounds or window, truth that leaves the other view or lies only where the
+            estimate is NaN).
+        no_truth_causes: why, one phrase per frame of ``no_truth`` (same order).
         no_estimate: counted reference pixels where the stored estimate is NaN (no estimate:
             outside the rectified box of a raw or black-bordered pair), left out of every
             method and uncertainty row.
@@ -189,6 +209,7 @@ class Evaluation:
     damage: list[str] = field(default_factory=list)
     no_measurement: list[int] = field(default_factory=list)
     no_truth: list[int] = field(default_factory=list)
+    no_truth_causes: list[str] = field(default_factory=list)
     no_estimate: int = 0
     reference_counted: int = 0
     basis_rows_skipped: int = 0
@@ -319,19 +340,37 @@ class Evaluation:
         count = len(self.no_truth)
         if not count:
             return ""
-        shown = ", ".join(str(index) for index in self.no_truth[:NAMED_FRAMES])
-        more = f" and {count - NAMED_FRAMES} more" if count > NAMED_FRAMES else ""
+        groups = grouped_causes(self.no_truth, self.no_truth_causes)
+        sgbm = self.reference == "SGBM"
+        what = "SGBM of the pair" if sgbm else "the reference message is there but"
         return (
-            f"{count} {'frame' if count == 1 else 'frames'} left out of every method: the "
-            f"reference message is there but holds no truth on any pixel to score (NaN, 0 or "
-            f"< 0: no value, REP 118), so there is nothing to score against; "
+            f"{count} {'frame' if count == 1 else 'frames'} left out of every method: "
+            f"{what} holds no truth on any pixel to score, so there is nothing to score against; "
             f"{'it is' if count == 1 else 'they are'} not in the table "
-            f"({'frame' if count == 1 else 'frames'} {shown}{more}, counted from 0)"
+            f"({'; '.join(groups)}; counted from 0)"
         )
 
     def ratio(self) -> float | None:
         """Return PCA-MAP's mean Delta_2D divided by nearest neighbour's (None: undefined)."""
         return mean_ratio(self.methods["pca_map"], self.methods["nearest"])
+
+
+def grouped_causes(indices: list[int], causes: list[str]) -> list[str]:
+    """Return "frame 1: cause" per kind of cause, the other frames of a kind as "likewise".
+
+    Causes of one kind differ in their counts only (digits), so the first is quoted.
+    """
+    kinds: dict[str, tuple[str, list[int]]] = {}
+    for index, cause in zip(indices, causes + [""] * (len(indices) - len(causes)), strict=True):
+        kinds.setdefault(re.sub(r"\d+", "#", cause), (cause, []))[1].append(index)
+    groups = []
+    for cause, frames in kinds.values():
+        first, rest = frames[0], frames[1:]
+        shown = ", ".join(str(index) for index in rest[:NAMED_FRAMES])
+        more = f" and {len(rest) - NAMED_FRAMES} more" if len(rest) > NAMED_FRAMES else ""
+        likewise = f"; likewise frame{'s' if len(rest) > 1 else ''} {shown}{more}" if rest else ""
+        groups.append(f"frame {first}: {cause}{likewise}" if cause else f"frame {first}{likewise}")
+    return groups
 
 
 def mean_ratio(numerator: MethodStats, denominator: MethodStats) -> float | None:

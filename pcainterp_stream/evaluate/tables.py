@@ -15,6 +15,7 @@ from pcainterp_stream.evaluate.results import (
     TARGET_RATIO,
     TARGET_SGBM_NN_RATIO,
     Evaluation,
+    RangeStats,
     mean_ratio,
 )
 
@@ -115,15 +116,27 @@ def summary_table(result: Evaluation) -> str:
     lines += _stereo_lines(result, nearest)
     lines += [_calibration_row(name, stats) for name, stats in result.calibration.items()]
     if result.ranges.counted:
-        r = result.ranges.summary()
-        lines.append(
-            f"too far (depth +inf): estimate {_percent(r['estimate_far'])} of pixels "
-            f"({_percent(r['estimate_far_reference_agrees'])} far in the reference too), "
-            f"reference {_percent(r['reference_far'])} "
-            f"({_percent(r['reference_far_estimate_agrees'])} found)"
-        )
+        lines.append(_far_line(result.ranges))
     lines += [f"stands out: {line}" for line in standout_lines(result.per_frame)]
     return "\n".join(lines)
+
+
+def _far_line(ranges: RangeStats) -> str:
+    """Return the summary's "too far" line (a reference that cannot say it is said so)."""
+    r = ranges.summary()
+    estimate = f"too far (depth +inf): estimate {_percent(r['estimate_far'])} of pixels"
+    if ranges.blind:  # review 15d R3: not "0.0 % (0.0 % found)", 0 of 0
+        return (
+            f'{estimate}; the reference cannot say "too far" (a DisparityImage holds no '
+            "truth below its min_disparity, here at or above the estimate's)"
+        )
+    # a share of none is undefined ("-"), not 0.0 %
+    agrees = _percent(r["estimate_far_reference_agrees"]) if ranges.estimate_far else UNDEFINED
+    found = _percent(r["reference_far_estimate_agrees"]) if ranges.reference_far else UNDEFINED
+    return (
+        f"{estimate} ({agrees} far in the reference too), reference "
+        f"{_percent(r['reference_far'])} ({found} found)"
+    )
 
 
 def _verdict(value: float, low: float, high: float) -> str:

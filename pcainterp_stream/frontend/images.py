@@ -16,6 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.frontend.pairing import PairingConfig, StereoPairer
+from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.reader_base import LogReader
 
 
@@ -84,6 +85,28 @@ class PairImages:
         if self.config.calibration is not None:
             return []
         return [self.config.left_info_topic, self.config.right_info_topic]
+
+    def cx_offset(self) -> float | None:
+        """Return cx_left - cx_right of the pair's camera infos' P (px), None when unknown.
+
+        The P's cx as the infos give it, as ``image_geometry``'s ``StereoCameraModel`` reads
+        it (stereo_image_proc shifts its disparities by -(cx_left - cx_right) with it). None
+        with calibration files (a driver's DisparityImage was made from camera infos the log
+        does not hold), before both infos are read, or when a P gives no camera.
+        """
+        pairer = self._pairer
+        if self.config.calibration is not None:
+            return None
+        infos = (pairer._left_info, pairer._right_info)
+        if infos[0] is None or infos[1] is None:
+            return None
+        try:
+            cx = [rosmsg.projection_matrix(info) for info in infos]
+        except (TypeError, ValueError, AttributeError):
+            return None
+        if not all(np.isfinite(p).all() and p[0, 0] > 0 for p in cx):
+            return None
+        return float(cx[0][0, 2] - cx[1][0, 2])
 
     def see_info(self, topic: str, message: Any) -> None:
         """Take a camera info message of the pair."""

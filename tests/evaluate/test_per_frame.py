@@ -181,10 +181,25 @@ def test_a_collapsed_frame_is_named_once() -> None:
     frames[3] = _figures(3, truth=False, pixels=0, delta_2d_mean={}, estimate=False)
     assert _standouts(frames) == [
         "frame 2: the reference is too far (depth +inf) on 90 % of the pixels (median frame "
-        "1 %): it collapsed there",
+        "1 %); every pixel is still scored, too far as disparity 0",
         "frame 1: the reference holds truth on 0.00x the median frame's pixels (1 px of "
         "1000): it collapsed there",
     ]
+
+
+def test_a_frame_whose_reference_is_too_far_keeps_its_error() -> None:
+    # review 15d R5: a far reference scores every pixel (truth disparity 0), so its error
+    # and coverage mean something; it was named only as "collapsed" and its error hidden
+    frames = [_figures(i) for i in range(5)]
+    frames[2] = _figures(2, reference_far=0.9, delta_2d_mean={"pca_map": 9.0}, coverage_2sigma=0.2)
+    lines = _standouts(frames)
+    assert "frame 2: PCA-MAP error 9.00 px, over 3x the median frame's 1.00 px" in lines
+    assert "frame 2: +-2 sigma covers 20.0 % of the reference (under 50 %)" in lines
+    assert not any("collapsed" in line for line in lines)
+    # a frame with truth on few pixels that are also far is named once, as collapsed
+    frames[2] = _figures(2, pixels=10, reference_far=0.9, delta_2d_mean={"pca_map": 9.0})
+    (line,) = _standouts(frames)
+    assert line.endswith("it collapsed there")
 
 
 def test_frame_ranges() -> None:

@@ -32,7 +32,11 @@ from pcainterp_stream.evaluate.metrics import (
     relative_transform,
     stereo_transform,
 )
-from pcainterp_stream.evaluate.reference import ReferenceTopic, reference_disparity
+from pcainterp_stream.evaluate.reference import (
+    ReferenceTopic,
+    disparity_image_valid,
+    reference_disparity,
+)
 from pcainterp_stream.evaluate.report import EvaluateOptions, evaluate_log, summary_table
 from pcainterp_stream.evaluate.results import PCA_ON_SGBM, SGBM, SGBM_NN, Evaluation
 from pcainterp_stream.evaluate.tables import results_markdown
@@ -51,6 +55,7 @@ from pcainterp_stream.synth.log import (
     LEFT_IMAGE,
     POSE,
     RIGHT_IMAGE,
+    RIGHT_INFO,
     write_synthetic_log,
 )
 
@@ -556,6 +561,154 @@ def test_a_disparity_image_is_truth_only_where_it_says_its_values_are_valid() ->
     assert truth[2, 20] == 60.0
     assert np.isnan(truth[0, 20])
     assert np.isfinite(truth[:, 8:]).sum() == height * (width - 8) - 1
+
+
+def test_disparity_image_bounds_apply_to_the_matchers_disparity() -> None:
+    """stereo_image_proc shifts its values by -(cx_l - cx_r), its bounds not: its invalid
+    code is min_disparity - 1 - (cx_l - cx_r), 1 px with min 0 and cx_r - cx_l = 2."""
+    values = np.array([[1.0, 1.9, 2.0, 10.0, 129.0, 129.5]])
+    message = rosmsg.disparity_image_message(
+        values.astype(np.float32),
+        5,
+        LEFT_FRAME,
+        focal=5.0,
+        baseline=1.0,
+        min_disparity=0.0,
+        max_disparity=127.0,
+    )
+    message.valid_window.width = message.valid_window.height = 0
+    assert disparity_image_valid(message, values).tolist() == [[True] * 4 + [False] * 2]
+    # cx_l - cx_r = -2: the matcher's disparity is value - 2, searched in [0, 127]
+    assert disparity_image_valid(message, values, -2.0).tolist() == [
+        [False, False, True, True, True, False]
+    ]
+    # cx_l - cx_r = +2: value + 2
+    assert disparity_image_valid(message, values, 2.0).tolist() == [[True] * 4 + [False] * 2]
+
+
+def _with_disparity_image(
+    source: Path, target: Path, band: float, right_cx: float, min_disparity: float = 0.0
+) -> None:
+    """Copy a densified log: the right camera info's P cx moved by ``right_cx`` px, and
+    /ref/dimage, true disparity but ``band`` in the 8 left columns."""
+    with open_log(source) as reader, open_writer(target) as writer:
+        for raw in reader.messages():
+            if raw.topic == RIGHT_INFO and right_cx:
+                message = reader.decode(raw)
+                p = message.p.copy()
+                p[2] += right_cx
+                message.p = p
+                writer.add_message(raw.topic, message, raw.log_time_ns)
+                continue
+            writer.add_raw(raw)
+            if raw.topic != DEPTH:
+                continue
+            message = reader.decode(raw)
+            depth = rosmsg.image_array(message).astype(np.float64)
+            with np.errstate(divide="ignore"):
+                values = np.where(np.isinf(depth), 0.0, FOCAL_BASELINE / depth)
+            values[:, :8] = band
+            reference = rosmsg.disparity_image_message(
+                values.astype(np.float32),
+                rosmsg.stamp_ns(message),
+                LEFT_FRAME,
+                focal=CAMERA.fx,
+                baseline=CAMERA.baseline,
+                min_disparity=min_disparity,
+                max_disparity=min_disparity + 127.0,
+            )
+            writer.add_message("/ref/dimage", reference, raw.log_time_ns)
+
+
+def test_a_disparity_image_of_a_pair_whose_cx_differ_drops_its_shifted_code(
+    logs: dict[str, Path],
+) -> None:
+    # review 15d R1: the code 1 px (min 0, cx_r - cx_l = 2) was scored as truth
+    folder = logs["folder"]
+    runs = {}
+    for name, band, right_cx in (("code", 1.0, 2.0), ("nan", np.nan, 2.0), ("equal", 1.0, 0.0)):
+        log = folder / f"dimage_{name}.mcap"
+        _with_disparity_image(logs["dense"], log, band, right_cx)
+        runs[name] = _evaluate(log, "/ref/dimage")
+    code, nan, equal = (runs[name].methods["pca_map"] for name in ("code", "nan", "equal"))
+    assert equal.pixels > nan.pixels  # cx equal: the band's 1 px is a disparity, scored
+    assert code.pixels <= nan.pixels  # the band is the code, not truth (nor are v < 2 px)
+    assert code.pixels > 0.9 * nan.pixels
+    assert any("value + (cx_l - cx_r)" in note for note in runs["code"].notes)
+    assert not any("cx_l - cx_r" in note for note in runs["equal"].notes)
+
+
+def _truth_out_of_reach(source: Path, target: Path) -> None:
+    """Copy a densified log with /ref/reach: the depth, but frame 1's truth only in columns
+    40-47, where its estimate is NaN, and frame 2's only in the 3 left columns, at 1 m (its
+    disparity carries it out of the right view)."""
+    index = {DISPARITY: 0, DEPTH: 0}
+    with open_log(source) as reader, open_writer(target) as writer:
+        for raw in reader.messages():
+            if raw.topic not in index:
+                writer.add_raw(raw)
+                continue
+            message = reader.decode(raw)
+            frame = index[raw.topic]
+            index[raw.topic] += 1
+            if raw.topic == DISPARITY:
+                if frame == 1:
+                    values = rosmsg.image_array(message.image).astype(np.float32)
+                    values[:, 40:48] = np.nan
+                    message.image.data = np.frombuffer(values.tobytes(), np.uint8)
+                writer.add_message(raw.topic, message, raw.log_time_ns)
+                continue
+            writer.add_raw(raw)
+            depth = rosmsg.image_array(message).astype(np.float32)
+            if frame == 1:
+                depth[:, :40], depth[:, 48:] = np.nan, np.nan
+            elif frame == 2:
+                depth[:, :3], depth[:, 3:] = 1.0, np.nan
+            image = _image(depth, rosmsg.stamp_ns(message), "32FC1")
+            writer.add_message("/ref/reach", image, raw.log_time_ns)
+
+
+def test_frames_whose_truth_cannot_be_scored_are_left_out_and_say_why(
+    logs: dict[str, Path],
+) -> None:
+    # review 15d R6: truth only where the estimate is NaN was counted with 0 px, unnamed;
+    # R2: the note said "NaN, 0 or < 0" for every cause
+    log = logs["folder"] / "reach.mcap"
+    _truth_out_of_reach(logs["dense"], log)
+    result = _evaluate(log, "/ref/reach")
+    assert result.frames == 2
+    assert result.no_truth == [1, 2]
+    note = result.no_truth_note
+    assert "frame 1: its truth lies only where the estimate is NaN" in note
+    assert "frame 2: its 282 px of truth all leave the view of the right camera" in note
+    assert "NaN, 0 or < 0" not in note
+    assert "frames 1, 2" not in summary_table(result)  # each named with its own cause
+
+
+def test_a_disparity_image_out_of_its_own_bounds_says_so(logs: dict[str, Path]) -> None:
+    # review 15d R2: "every pixel is NaN, 0 or < 0" of values of 10-60 px
+    log = logs["folder"] / "dimage_below.mcap"
+    _with_disparity_image(logs["dense"], log, 1.0, 0.0, min_disparity=500.0)
+    with pytest.raises(LogReadError) as raised:
+        _evaluate(log, "/ref/dimage")
+    message = str(raised.value)
+    assert "below its min_disparity 500 px" in message
+    assert "likewise frames 1, 2, 3" in message
+    assert "NaN, 0 or < 0" not in message
+    assert "\n" not in message
+
+
+def test_densifys_own_disparity_as_reference_cannot_say_too_far(logs: dict[str, Path]) -> None:
+    # review 15d R3: its values below min_disparity are no truth, so "too far" printed
+    # "reference 0.0 % (0.0 % found)", 0 of 0
+    result = _evaluate(logs["references"], DISPARITY)
+    assert result.ranges.counted > 0
+    assert result.ranges.blind
+    (line,) = [line for line in summary_table(result).splitlines() if line.startswith("too far")]
+    assert 'the reference cannot say "too far"' in line
+    assert "found" not in line
+    truth = _evaluate(logs["references"], "/ref/disparity_32f")  # 0 < d < min can be far
+    assert not truth.ranges.blind
 
 
 def test_a_dense_log_does_not_grade_the_papers_sparse_target(logs: dict[str, Path]) -> None:
