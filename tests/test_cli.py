@@ -2862,6 +2862,29 @@ def test_densify_refuses_stereo_options_with_a_feature_stream(
 
 
 @pytest.mark.parametrize(
+    ("options", "named"),
+    [
+        (("--no-edge-aware",), "--no-edge-aware shapes"),
+        (("--edge-aware", "--no-near-reach"), "--edge-aware and --no-near-reach shape"),
+    ],
+)
+def test_densify_refuses_sparse_estimate_options_in_dense_mode(
+    pcainterp: Callable[..., Run],
+    small_log: Path,
+    basis_path: Path,
+    out: Path,
+    options: tuple[str, ...],
+    named: str,
+) -> None:
+    """Dense mode uses neither the edge-aware prior nor the near reach: with them it gave
+    the same output, rc 0 (review 15e R2)."""
+    args = densify_args(small_log, out, basis_path, "--measurements", "dense", *options)
+    line = pcainterp(*args).error_line()
+    assert f"error: {named} sparse mode's estimate, which --measurements dense does not use" in line
+    assert_nothing_written(out)
+
+
+@pytest.mark.parametrize(
     ("options", "edge_aware", "near"),
     [((), True, True), (("--no-edge-aware",), False, True), (("--no-near-reach",), True, False)],
 )

@@ -210,6 +210,10 @@ def test_out_dir_inputs_are_checked_before_the_cluster(
     line = pcainterp("densify", log, tmp_path / bad, "--out-dir", out_dir).error_line()
     assert expected in line
     assert "logs done" not in line
+    # all or nothing, and said (review 15e R3)
+    assert line.endswith(
+        "none of the 2 logs was densified (every input is checked before the first)"
+    )
     assert not out_dir.exists()
 
 

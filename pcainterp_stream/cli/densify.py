@@ -36,7 +36,7 @@ from pcainterp_stream.cli.common import (
 )
 from pcainterp_stream.cli.densify_one import LiveOptions, densify_one
 from pcainterp_stream.cli.pairing import add_topic_options, pairing_config
-from pcainterp_stream.errors import LogWriteError, PcaInterpError
+from pcainterp_stream.errors import LogReadError, LogWriteError, PcaInterpError
 from pcainterp_stream.io.foxglove import (
     DEFAULT_HOST,
     DEFAULT_PORT,
@@ -350,6 +350,17 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.features_topic:
         _refuse_stereo_options(args)
+    sparse_only = [
+        (flag if value else flag.replace("--", "--no-", 1))
+        for flag, value in (("--edge-aware", args.edge_aware), ("--near-reach", args.near_reach))
+        if value is not None
+    ]
+    if args.measurements == "dense" and sparse_only:
+        raise PcaInterpError(
+            f"{' and '.join(sparse_only)} shape{'s' if len(sparse_only) == 1 else ''} sparse "
+            "mode's estimate, which --measurements dense does not use: drop "
+            + ("it" if len(sparse_only) == 1 else "them")
+        )
     if args.max_features is not None and not args.features_topic:
         raise PcaInterpError(
             f"--max-features {args.max_features} caps the points of a feature stream; "
@@ -732,14 +743,24 @@ def _check_inputs(paths: list[Path]) -> None:
     machine does not, and each task checks its paths on its worker (docs/cluster.md).
 
     Raises:
-        LogReadError: the first such input, in one line naming it and the fix.
+        LogReadError: the first such input, in one line naming it and the fix (and, of
+            several inputs, that none was densified).
     """
     from pcainterp_stream.io.logreader import sniff_format
 
     for path in paths:
         if path.exists() and not (path.is_file() or path.is_dir()):
             continue
-        sniff_format(path)
+        try:
+            sniff_format(path)
+        except LogReadError as err:
+            if len(paths) == 1:
+                raise
+            # all or nothing: say the other logs were not densified either (review 15e R3)
+            raise LogReadError(
+                f"{err}; none of the {len(paths)} logs was densified (every input is checked "
+                "before the first)"
+            ) from err
 
 
 def _hint_split(paths: list[Path]) -> None:
