@@ -20,6 +20,7 @@ import pytest
 
 from pcainterp_stream.errors import PcaInterpError
 from pcainterp_stream.io import output_paths
+from pcainterp_stream.io.reader_base import MCAP_MAGIC
 from pcainterp_stream.pipeline import densify_fleet, distributed, jobs
 
 pytest.importorskip("dask.distributed")
@@ -215,8 +216,9 @@ def test_cli_prints_each_log_when_done_with_a_count_and_names_the_failed_at_the_
     monkeypatch.setattr(distributed, "connect", lambda *args, **kwargs: nullcontext(None))
     monkeypatch.setattr(distributed, "densify_many", densify_many)
     a, b, out_dir = tmp_path / "a.mcap", tmp_path / "b.mcap", tmp_path / "out"
-    a.write_bytes(b"x")
-    b.write_bytes(b"x")
+    # MCAP's magic bytes: densify --out-dir checks each input is a log before the cluster
+    a.write_bytes(MCAP_MAGIC)
+    b.write_bytes(MCAP_MAGIC)
     code = cli.main(["densify", str(a), str(b), "--out-dir", str(out_dir), "--workers", "1"])
     assert code == 1
     assert printed[0] == (
