@@ -96,6 +96,23 @@ def test_a_raw_right_camera_with_another_cx_is_remapped_onto_the_lefts() -> None
     np.testing.assert_array_equal(out_right, ref_right)  # before: 5 px apart
 
 
+def _shifted_pair(
+    more: float, says: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, rect.StereoCalibration]:
+    """The left and right views, the right view of a camera with cx + ``more``, and its
+    calibration (with a raw camera's D != 0 when the topics are ``named`` rectified)."""
+    left, right = _views()
+    calibration = _right_cx(_ideal(), more)
+    if "named" in says:  # image_rect beside the raw camera's info (D != 0)
+        calibration = rect.StereoCalibration(
+            *(
+                dataclasses.replace(c, d=np.full(5, 0.01))
+                for c in (calibration.left, calibration.right)
+            )
+        )
+    return left, right, shift_image(right, more), calibration
+
+
 def _info_pairer(topics: tuple[str, str], **options: Any) -> tuple[StereoPairer, list[str]]:
     said: list[str] = []
     config = PairingConfig(
@@ -134,16 +151,7 @@ def _push(pairer: StereoPairer, calibration: rect.StereoCalibration, images: Any
 def test_images_used_as_they_are_are_shifted_onto_the_lefts_cx(
     topics: tuple[str, str], options: dict[str, Any], says: str
 ) -> None:
-    left, right = _views()
-    seen = shift_image(right, 2.5)  # a right camera with cx + 2.5
-    calibration = _right_cx(_ideal(), 2.5)
-    if "named" in says:  # image_rect beside the raw camera's info (D != 0)
-        calibration = rect.StereoCalibration(
-            *(
-                dataclasses.replace(c, d=np.full(5, 0.01))
-                for c in (calibration.left, calibration.right)
-            )
-        )
+    left, right, seen, calibration = _shifted_pair(2.5, says)
     pairer, said = _info_pairer(topics, **options)
     (frame,) = _push(pairer, calibration, (left, seen))
     assert says in said[0]
@@ -210,16 +218,7 @@ def test_the_columns_a_shift_brings_in_are_left_out_of_the_estimate(
 ) -> None:
     """Review 15a R2: a band under 0.5 % of the frame (or any, with --rectify never) was
     matched as scene; now the box leaves the band out, as a remapped pair's does."""
-    left, right = _views()
-    seen = shift_image(right, more)  # a right camera with cx + more
-    calibration = _right_cx(_ideal(), more)
-    if "named" in says:  # image_rect beside the raw camera's info (D != 0)
-        calibration = rect.StereoCalibration(
-            *(
-                dataclasses.replace(c, d=np.full(5, 0.01))
-                for c in (calibration.left, calibration.right)
-            )
-        )
+    left, _, seen, calibration = _shifted_pair(more, says)
     pairer, said = _info_pairer(topics, **options)
     (frame,) = _push(pairer, calibration, (left, seen))
     assert says in said[0]
