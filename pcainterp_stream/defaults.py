@@ -50,8 +50,7 @@ MIN_FILL_SPACING = 10.0
 default minimum corner distance, so the lattice is no denser than the corners may be. A
 denser lattice measures overlapping SGBM windows (5 px blocks, each lookup's 4x4 px
 support) again as if independent, and the estimate's cost grows faster than its points:
-on 1226x370 KITTI pairs 40 px was ~370 points and 1 s per frame (the default 36 px ~390-450),
-14 px ~1700 and 1.3 s,
+on 1226x370 KITTI pairs 40 px is ~370 points and 1 s per frame, 14 px ~1700 and 1.3 s,
 10 px ~3300 and 10 s, 1 px never finished."""
 
 DISPLAY_MAX_DEPTH = 60.0

@@ -127,8 +127,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
 }
 
 LATTICE = {"fill_placement": "lattice", "fill_min_support": 0.0}
-"""The lattice fill (the default before the nudged lattice): the even lattice of the default's
-side (36 px since 2026-11-28; the variants below that keep it were measured at 40 px)."""
+"""The lattice fill (the default before the nudged lattice): the even 40 px lattice."""
 
 # every variant above was measured with the lattice fill: they keep it
 for _name, _changes in VARIANTS.items():
@@ -155,8 +154,7 @@ VARIANTS.update(
         "lattice": {"gftt": LATTICE},
         # the lattice's points where >= 80 % of SGBM's 21 x 21 px are valid
         "fill_support0.8": {"gftt": {**LATTICE, "fill_min_support": 0.8}},
-        # as many gap-filling lookups as the default's lattice keeps (measured at 40 px, the
-        # default until 2026-11-28; 36 px since), placed greedily where the
+        # as many gap-filling lookups as the 40 px lattice keeps, placed greedily where the
         # gap to the nearest point times a weight is largest (GfttConfig.fill_placement):
         # weight 1 (with the support check 0.8 the measured best, not the default: its
         # front end's cost), the prior's disparity std, or the looked-up disparity, to the

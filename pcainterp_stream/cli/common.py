@@ -315,11 +315,10 @@ def add_stereo_options(parser: argparse.ArgumentParser, *, command: str) -> None
         type=float,
         default=None,
         metavar="PX",
-        help="lattice of extra lookups in the corners' gaps, side in px (default 36"
+        help="lattice of extra lookups in the corners' gaps, side in px (default 40"
         + ("; --measurements dense at full resolution: 34" if densify else "")
-        + "; 0 = off); denser is sharper and slower: 36 measured 2-7 %% lower error than "
-        "40 (the default until 2026-11-28; cheaper) on every real and synthetic log tried, "
-        "for 1.2x the estimate's CPU, 30 11-17 %% lower than 40 on KITTI; at "
+        + "; 0 = off); denser is sharper and slower: 36 measured 4-7 %% lower error on "
+        "KITTI and synthetic drives for 1.2x the estimate's CPU, 30 11-17 %% on KITTI; at "
         f"least {defaults.MIN_FILL_SPACING:g}, GFTT's default min corner distance (denser "
         "lookups share their SGBM windows, and the estimate's cost grows faster than the "
         "points: 10 px is ~10 s per KITTI frame); on images larger than ~1920x1080 the side "

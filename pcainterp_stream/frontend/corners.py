@@ -46,7 +46,7 @@ class GfttConfig:
     which ~200-240 pass the checks of :func:`lookup_disparities`, plus the points of a
     36 px lattice in their gaps (~185-200 with ``fill_placement="nudged"``, each rejected
     lattice point moved a quarter side to where a lookup passes; 36 px since 2026-11-28:
-    2-7 % lower error than 40 px on every real and synthetic log measured, for ~1.2x the
+    4-7 % lower error than 40 px on every real and synthetic log measured, for ~1.2x the
     estimate's CPU and +2.6 % of the whole job's, docs/sharper_sparse_2.md). Corners cluster on
     texture (trees, lane marks, outlines); the fill points measure the surfaces between
     them, where the map erred most (``docs/options.md``, "Where the points are";

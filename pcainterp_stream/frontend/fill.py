@@ -59,10 +59,9 @@ LookUp = Callable[[FloatArray], Looked]
 
 FILL_REFERENCE_AREA = 2_000_000
 """Largest searched area (px^2) whose fill keeps ``fill_spacing`` as given: a 1920 x 1080
-pair's (1.90e6 px^2, 1215 lattice points at 40 px, ~1500 at the default 36 px) and every
-smaller camera's. Measured with the 40 px default of the time (docs/benchmarks.md, "A large
-image's fill lattice"): on a 4096 x 2160 pair the 40 px lattice had 5229 points and took
-43 s per frame; here it keeps ~1300 points."""
+pair's (1.90e6 px^2, 1215 lattice points at 40 px) and every smaller camera's. Measured
+(docs/benchmarks.md, "A large image's fill lattice"): on a 4096 x 2160 pair the 40 px
+lattice had 5229 points and took 43 s per frame; here it keeps ~1300 points."""
 
 
 def scaled_spacing(spacing: float, area: tuple[int, int, int, int]) -> float:

@@ -42,8 +42,7 @@ detector (docs/dense.md). ``--corners`` and ``--fill-spacing`` change it."""
 
 HALF_DENSE_GFTT = GfttConfig(fill_placement="lattice")
 """The points of dense mode's sparse estimate at half resolution: sparse mode's corners and
-lattice (36 px since 2026-11-28; dense mode at half resolution was measured with its 40 px
-lattice), its points not nudged (dense mode was measured with the plain lattice)."""
+40 px lattice, its points not nudged (dense mode was measured with the plain lattice)."""
 
 
 def dense_points(downscale: int | None = None) -> GfttConfig:

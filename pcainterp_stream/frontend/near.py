@@ -66,8 +66,7 @@ __all__ = [
 
 MAX_NEAR_POINTS = 1250
 """Most points :func:`near_points` adds on a frame: the fill lattice's count on
-:data:`.fill.FILL_REFERENCE_AREA` at its 40 px side (the default until 2026-11-28; ~1500
-at today's 36 px). Above it the grid is laid again,
+:data:`.fill.FILL_REFERENCE_AREA` at its 40 px side. Above it the grid is laid again,
 its side widened by the square root of the excess (an even, coarser grid over the whole
 image, not one side cut off), until the kept points fit. Never reached on a KITTI-size
 image (its grid has ~880 candidates in all), so nothing changes there. Measured on a

@@ -791,8 +791,7 @@ def _demo_summary(
         f"  mean Delta_2D ({report['mode']} mode, paper IV-B), same sparse points:",
         f"    PCA-MAP           {means['pca_map']:.3f} px",
         f"    nearest neighbour {means['nearest']:.3f} px  (PCA-MAP / NN ="
-        f" {means['pca_map'] / max(means['nearest'], 1e-12):.2f}; paper 0.61-0.63, its NN"
-        " of ~300 corners alone: this NN gains from the lattice too)",
+        f" {means['pca_map'] / max(means['nearest'], 1e-12):.2f}; paper 0.61-0.63)",
     ]
     if "linear" in means:
         lines.append(f"    linear            {means['linear']:.3f} px")
