@@ -42,12 +42,10 @@ FILL_PLACEMENTS = ("nudged", "lattice", "even", "prior_std", "disparity")
 class GfttConfig:
     """Shi-Tomasi corner detection (``cv2.goodFeaturesToTrack``) and the fill in their gaps.
 
-    The defaults give ~390-450 valid lookups per KITTI frame (1242x375): 250 corners, of
+    The defaults give ~355-405 valid lookups per KITTI frame (1242x375): 250 corners, of
     which ~200-240 pass the checks of :func:`lookup_disparities`, plus the points of a
-    36 px lattice in their gaps (~185-200 with ``fill_placement="nudged"``, each rejected
-    lattice point moved a quarter side to where a lookup passes; 36 px since 2026-11-28:
-    4-7 % lower error than 40 px on every real and synthetic log measured, for ~1.2x the
-    estimate's CPU and +2.6 % of the whole job's, docs/sharper_sparse_2.md). Corners cluster on
+    40 px lattice in their gaps (~150-165 with ``fill_placement="nudged"``, each rejected
+    lattice point moved a quarter side to where a lookup passes). Corners cluster on
     texture (trees, lane marks, outlines); the fill points measure the surfaces between
     them, where the map erred most (``docs/options.md``, "Where the points are";
     ``docs/sharper_sparse_2.md``). Detection takes ~5-7 ms, of which ``cornerSubPix``

@@ -179,15 +179,14 @@ def test_a_4k_pairs_fill_keeps_about_the_reference_areas_points() -> None:
     grey = np.asarray(np.random.default_rng(1).integers(0, 256, (height, width)), np.uint8)
     disparity = np.full((height, width), 20.0, np.float32)
     look_up = _look_up(disparity)
-    spacing = GfttConfig().fill_spacing
-    reference = FILL_REFERENCE_AREA / spacing**2  # the points on the reference area
+    reference = FILL_REFERENCE_AREA / 40.0**2  # the points on the reference area
     for placement in ("nudged", "lattice"):
         gftt = GfttConfig(fill_placement=placement)
         placed = fill_points(grey, disparity, gftt, area, NONE_KEPT, look_up)
         assert 0.9 * reference <= len(placed) <= 1.1 * reference, (placement, len(placed))
     # spread evenly: the lattice of the grown side, every point of it
-    side = scaled_spacing(spacing, area)
-    assert side > 2 * spacing
+    side = scaled_spacing(40.0, area)
+    assert side > 80.0
     np.testing.assert_array_equal(placed, lattice_points(NONE_KEPT, side, area))
 
 
