@@ -120,7 +120,7 @@ class GfttConfig:
     subpixel: bool = True
     subpixel_window: int = 3
     buckets: tuple[int, int] = (1, 1)
-    fill_spacing: float = 36.0
+    fill_spacing: float = 40.0
     fill_min_contrast: float = 1.0
     fill_placement: str = "nudged"
     fill_exponent: float = 1.0
