@@ -97,6 +97,13 @@ def sniff_format(path: str | Path) -> LogFormat:
             hint = f"; pass its storage file {storage[0]} directly"
         elif len(logs) > 1 and logs == storage and _split_bag(path, storage):
             hint = f"; pass its storage files directly ({_files_glob(path, storage, bag=True)})"
+        elif len(logs) > 1 and (prefix := _split_ros1(logs)) is not None:
+            hint = (
+                f"; it holds {len(logs)} ROS 1 bags named as the parts of one split recording "
+                f"({_names(logs)}): pass them together, read as one log (densify "
+                f'{path / prefix}_*.bag -o OUTPUT; docs/raw_logs.md, "A recording split into '
+                'several bags")'
+            )
         elif len(logs) > 1:  # separate logs, not one recording's storage: never one of them
             hint = (
                 f"; it holds {len(logs)} logs ({_names(logs)}), not one recording: pass the log "
@@ -133,6 +140,23 @@ def _split_bag(folder: Path, files: list[Path]) -> bool:
     """Whether ``files`` are named as rosbag2 names a split bag's: ``<folder>_<n>.<ext>``."""
     pattern = re.compile(re.escape(folder.name) + r"_\d+\.(mcap|db3)")
     return all(pattern.fullmatch(file.name) for file in files)
+
+
+def _split_ros1(files: list[Path]) -> str | None:
+    """The prefix of ROS 1 bags named as ``rosbag record --split`` names its parts, else None.
+
+    ``<prefix>_<n>.bag`` (``run_2026-11-28-10-00-00_0.bag``, ``_1.bag``, ...): one prefix, the
+    indices 0, 1, 2, ... with none missing.
+    """
+    pattern = re.compile(r"(.+)_(\d+)\.bag")
+    matches = [pattern.fullmatch(file.name) for file in files]
+    if not all(matches):
+        return None
+    prefixes = {match.group(1) for match in matches if match}
+    indices = sorted(int(match.group(2)) for match in matches if match)
+    if len(prefixes) != 1 or indices != list(range(len(indices))):
+        return None
+    return prefixes.pop()
 
 
 def _files_glob(folder: Path, files: list[Path], *, bag: bool = False) -> str:

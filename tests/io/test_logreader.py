@@ -444,6 +444,29 @@ def test_a_folder_of_several_logs_is_not_named_by_one_of_them(tmp_path: Path) ->
         sniff_format(bag)
 
 
+def test_a_folder_of_ros1_split_parts_is_named_one_recording(tmp_path: Path) -> None:
+    """Review 15e R1: `rosbag record --split` parts in a folder were told "not one recording"
+    and sent to --out-dir, which densifies each part as a log of its own."""
+    parts = tmp_path / "drive"
+    parts.mkdir()
+    for index in range(3):
+        (parts / f"run_2026-11-28-10-00-00_{index}.bag").write_bytes(b"x")
+    with pytest.raises(LogReadError) as raised:
+        sniff_format(parts)
+    message = str(raised.value)
+    assert "not one recording" not in message
+    assert message.endswith(
+        "it holds 3 ROS 1 bags named as the parts of one split recording "
+        "(run_2026-11-28-10-00-00_0.bag, run_2026-11-28-10-00-00_1.bag, "
+        "run_2026-11-28-10-00-00_2.bag): pass them together, read as one log (densify "
+        f'{parts}/run_2026-11-28-10-00-00_*.bag -o OUTPUT; docs/raw_logs.md, "A recording '
+        'split into several bags")'
+    )
+    (parts / "run_2026-11-28-10-00-00_1.bag").unlink()  # a part missing: not said to be one
+    with pytest.raises(LogReadError, match=r"it holds 2 logs .*not one recording"):
+        sniff_format(parts)
+
+
 def test_corrupt_ros1_bag_is_a_log_read_error(tmp_path: Path) -> None:
     path = tmp_path / "bad.bag"
     path.write_bytes(b"#ROSBAG V2.0\n" + b"\xff" * 100)
