@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import os
 import re
+import shlex
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -101,8 +102,8 @@ def sniff_format(path: str | Path) -> LogFormat:
             hint = (
                 f"; it holds {len(logs)} ROS 1 bags named as the parts of one split recording "
                 f"({_names(logs)}): pass them together, read as one log (densify "
-                f'{path / prefix}_*.bag -o OUTPUT; docs/raw_logs.md, "A recording split into '
-                'several bags")'
+                f"{_shell_glob(path, prefix + '_', '*.bag')} -o OUTPUT; docs/raw_logs.md, "
+                '"A recording split into several bags")'
             )
         elif len(logs) > 1:  # separate logs, not one recording's storage: never one of them
             hint = (
@@ -161,8 +162,19 @@ def _split_ros1(files: list[Path]) -> str | None:
 
 def _files_glob(folder: Path, files: list[Path], *, bag: bool = False) -> str:
     """A shell pattern for ``files`` in ``folder``: ``logs/*.mcap``, ``bag/bag_*.mcap``."""
-    stem = f"{folder.name}_*" if bag else "*"
-    return " ".join(f"{folder / stem}{suffix}" for suffix in sorted({f.suffix for f in files}))
+    suffixes = sorted({f.suffix for f in files})
+    start = f"{folder.name}_" if bag else ""
+    return " ".join(_shell_glob(folder, start, f"*{suffix}") for suffix in suffixes)
+
+
+def _shell_glob(folder: Path, start: str, wildcard: str) -> str:
+    """``folder/start`` quoted for a shell where it needs it, then ``wildcard`` unquoted.
+
+    ``'my logs'/*.mcap``, ``'my logs/run 1_'*.bag``: pasted as they are, the shell still
+    expands the pattern (review 15e R5: a folder with a space broke the suggestion).
+    """
+    literal = f"{folder / start}" if start else f"{folder}/"
+    return f"{shlex.quote(literal)}{wildcard}"
 
 
 def _names(files: list[Path], shown: int = 3) -> str:

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -465,6 +466,35 @@ def test_a_folder_of_ros1_split_parts_is_named_one_recording(tmp_path: Path) -> 
     (parts / "run_2026-11-28-10-00-00_1.bag").unlink()  # a part missing: not said to be one
     with pytest.raises(LogReadError, match=r"it holds 2 logs .*not one recording"):
         sniff_format(parts)
+
+
+def test_the_suggested_patterns_work_in_a_shell_for_a_folder_with_a_space(
+    tmp_path: Path,
+) -> None:
+    """Review 15e R5: "logs dir/*.mcap", pasted as it is, is two words for a shell; the
+    folder is quoted and the wildcard left for the shell to expand."""
+    import subprocess
+
+    for folder, names in (
+        (tmp_path / "my logs", ("a.mcap", "b.mcap")),
+        (tmp_path / "my run", ("my run_0.mcap", "my run_1.mcap")),  # a split bag's storage
+        (tmp_path / "my parts", ("run 1_0.bag", "run 1_1.bag")),  # ROS 1 split parts
+    ):
+        folder.mkdir()
+        for name in names:
+            (folder / name).write_bytes(b"x")
+        with pytest.raises(LogReadError) as raised:
+            sniff_format(folder)
+        message = str(raised.value)
+        pattern = re.search(r"('[^']+'[\w*.]*)", message)
+        assert pattern is not None, message
+        listed = subprocess.run(
+            ["bash", "-c", f"printf '%s\\n' {pattern.group(1)}"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.splitlines()
+        assert sorted(listed) == sorted(str(folder / name) for name in names)
 
 
 def test_corrupt_ros1_bag_is_a_log_read_error(tmp_path: Path) -> None:
