@@ -16,6 +16,7 @@ Also the ``full_disk`` fixture: files written through ``Path.open`` on a disk th
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import tempfile
@@ -46,9 +47,19 @@ settings.load_profile(_profile)
 # shows any such dump, so a hang seen once in a whole-suite run leaves its evidence.
 
 
+_made_here: list[Path] = []  # the folder this process made, removed at the end when empty
+
+
 def pytest_configure(config: pytest.Config) -> None:
     if not os.environ.get(STALL_DUMP_VARIABLE):
         os.environ[STALL_DUMP_VARIABLE] = tempfile.mkdtemp(prefix="pcainterp-stalls-")
+        _made_here.append(Path(os.environ[STALL_DUMP_VARIABLE]))
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    for folder in _made_here:  # a dump in it is evidence: the folder stays
+        with contextlib.suppress(OSError):
+            folder.rmdir()
 
 
 def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
