@@ -36,6 +36,7 @@ import numpy.typing as npt
 from threadpoolctl import threadpool_limits
 
 from pcainterp_stream.errors import BasisError
+from pcainterp_stream.estimate.prior_meta import check_fitted_prior
 from pcainterp_stream.interrupt import raise_if_signalled
 
 FORMAT = "pcainterp-basis/1"
@@ -737,6 +738,10 @@ def _from_arrays(data: dict[str, npt.NDArray[Any]], where: Path) -> Basis:
         ) from err
     if not isinstance(meta, dict):
         raise BasisError(f"basis file {where}: key 'meta' is not a JSON object; damaged basis")
+    try:
+        check_fitted_prior(meta)
+    except ValueError as err:
+        raise BasisError(f"basis file {where}: {err}") from err
     if image_size.shape != (2,):
         raise BasisError(
             f"basis file {where}: key 'image_size' has shape {image_size.shape}, expected (2,)"

@@ -68,6 +68,7 @@ import numpy.typing as npt
 from pcainterp_stream.errors import CalibrationError, DatasetImportError
 from pcainterp_stream.io.calibration import kitti_calibration
 from pcainterp_stream.io.camera_model import StereoCalibration
+from pcainterp_stream.io.kitti_images import EXPECTED_LAYOUTS, paired_images, png_images
 from pcainterp_stream.io.logwriter import LogFormat, ProgressCallback, WriteSummary, open_writer
 from pcainterp_stream.io.raw_log import raw_stereo_messages
 from pcainterp_stream.io.rosmsg import image_message
@@ -85,14 +86,6 @@ FRAME_PERIOD_NS = 100_000_000
 
 RAW_CALIBRATION = "calib_cam_to_cam.txt"
 ODOMETRY_CALIBRATION = "calib.txt"
-
-EXPECTED_LAYOUTS = (
-    "expected a KITTI raw drive folder (<date>_drive_XXXX_sync, or the unrectified "
-    "<date>_drive_XXXX_extract, with image_00/data and "
-    "image_01/data, or the colour image_02/data and image_03/data, and calib_cam_to_cam.txt "
-    "in it or one level up) or an odometry sequence folder (sequences/XX with image_0 and "
-    "image_1, or the colour image_2 and image_3, and calib.txt)"
-)
 
 
 class KittiLayout(Enum):
@@ -297,7 +290,7 @@ def _truth_folders(
 ) -> tuple[Path | None, Path | None]:
     """Return (truth folder to import, truth folder found but not usable with ``pair``)."""
     truth = folder / TRUTH_FOLDERS[layout]
-    if not truth.is_dir() or not _pngs(truth):
+    if not truth.is_dir() or not png_images(truth):
         return None, None
     return (truth, None) if pair is KittiPair.COLOUR else (None, truth)
 
@@ -325,23 +318,6 @@ def read_depth_truth(path: Path, image_size: tuple[int, int]) -> npt.NDArray[np.
     return depth
 
 
-def _frame_order(path: Path) -> tuple[list[int | str], str]:
-    """Sort key of an image: its name's numbers compared as numbers (``2.png`` < ``10.png``).
-
-    KITTI's names are zero-padded (``000010.png``), where text order is frame order; other
-    tools' "KITTI-layout" exports (``0.png`` ... ``11.png``) are not, and text order would
-    give frame 10 the second line of ``times.txt`` and the poses.
-    """
-    parts = re.split(r"(\d+)", path.stem)  # text, number, text, ...: one type per position
-    return [int(part) if i % 2 else part for i, part in enumerate(parts)], path.name
-
-
-def _pngs(folder: Path) -> list[Path]:
-    """Return a folder's images in frame order; dot-files (macOS's ``._000000.png``) are not."""
-    images = (p for p in folder.iterdir() if p.suffix.lower() == ".png" and p.name[0] != ".")
-    return sorted(images, key=_frame_order)
-
-
 def _check_increasing(stamps: npt.NDArray[np.int64], path: Path, lines: list[int]) -> None:
     """Refuse times that do not increase: evaluate tells frames apart by their stamps.
 
@@ -356,24 +332,6 @@ def _check_increasing(stamps: npt.NDArray[np.int64], path: Path, lines: list[int
             f"{lines[i]} ({stamps[i] / 1e9:.9f} s): frames need increasing times; fix or "
             "restore the file (without it frames are 10 Hz)"
         )
-
-
-def _paired_images(left_dir: Path, right_dir: Path) -> tuple[list[Path], list[Path]]:
-    left, right = _pngs(left_dir), _pngs(right_dir)
-    if len(left) != len(right):
-        raise DatasetImportError(
-            f"{left_dir} has {len(left)} images but {right_dir} has {len(right)}; "
-            "every left image needs its right image: restore the missing files"
-        )
-    if not left:
-        raise DatasetImportError(f"{left_dir} holds no .png images; {EXPECTED_LAYOUTS}")
-    for a, b in zip(left, right, strict=True):
-        if a.name != b.name:
-            raise DatasetImportError(
-                f"left image {a} has no right image of the same name in {right_dir} "
-                f"(found {b.name}); restore the missing files"
-            )
-    return left, right
 
 
 def _raw_stamps(path: Path, count: int) -> npt.NDArray[np.int64]:
@@ -601,13 +559,13 @@ def _open_raw(drive: Path, pair: KittiPair | None) -> KittiSequence:
     left_p = _projection(calibration, values, left_key)
     right_p = _projection(calibration, values, right_key)
     left_dir, right_dir = drive / left_name / "data", drive / right_name / "data"
-    lefts = _pngs(left_dir)
+    lefts = png_images(left_dir)
     if not lefts:
         raise DatasetImportError(f"{left_dir} holds no .png images; {EXPECTED_LAYOUTS}")
     rectified = _is_rectified(calibration, values, pair.value, lefts[0])
     if rectified is False:
         return _open_unrectified(drive, pair, calibration, left_p, right_p)
-    left, right = _paired_images(left_dir, right_dir)
+    left, right = paired_images(left_dir, right_dir)
     camera = camera_from_projections(left_p, right_p, read_grey(left[0]).shape[:2], calibration)
     # no S_rect: the size as far as P tells it
     warned = () if rectified else _check_centre(camera, left[0], calibration, left_key)
@@ -635,14 +593,14 @@ def _open_unrectified(
             f"{drive} holds unrectified images, which need the raw cameras of the calibration "
             f"file: {err}; restore the file from the KITTI download"
         ) from err
-    lefts = _pngs(drive / left_name / "data")
-    rights = _pngs(drive / right_name / "data")
+    lefts = png_images(drive / left_name / "data")
+    rights = png_images(drive / right_name / "data")
     left_stamps = _raw_stamps(drive / left_name / "timestamps.txt", len(lefts))
     if (drive / right_name / "timestamps.txt").is_file():
         right_stamps = _raw_stamps(drive / right_name / "timestamps.txt", len(rights))
         pairs = _pair_by_stamp(left_stamps, right_stamps)
     else:  # no stamps of its own: the right image of the left one's name
-        lefts, rights = _paired_images(drive / left_name / "data", drive / right_name / "data")
+        lefts, rights = paired_images(drive / left_name / "data", drive / right_name / "data")
         pairs = [(i, i) for i in range(len(lefts))]
     if not pairs:
         raise DatasetImportError(
@@ -742,7 +700,7 @@ def _open_odometry(sequence: Path, pair: KittiPair | None) -> KittiSequence:
     left_p = _projection(calibration, values, left_key)
     right_p = _projection(calibration, values, right_key)
     left_name, right_name = pair.folders(KittiLayout.ODOMETRY)
-    left, right = _paired_images(sequence / left_name, sequence / right_name)
+    left, right = paired_images(sequence / left_name, sequence / right_name)
     camera = camera_from_projections(left_p, right_p, read_grey(left[0]).shape[:2], calibration)
     warned = _check_centre(camera, left[0], calibration, left_key)
     stamps = _odometry_stamps(sequence / "times.txt", left)

@@ -468,7 +468,8 @@ def describe_basis(path: Path | None = None, *, builtin: str = "street") -> str:
     if isinstance(fitted, dict):
         local = fitted.get("local")
         kernel = (
-            f"{local['kernel']} kernel, {local['length_scale']:g} px, {local['variance']:.3g} px^2"
+            f"{local.get('kernel', 'laplace')} kernel, {local['length_scale']:g} px, "
+            f"{local['variance']:.3g} px^2"
             if isinstance(local, dict)
             else "none (the paper's prior had the best evidence)"
         )
@@ -640,16 +641,27 @@ def info(path: Path | None) -> str:
         return golden
     if path.suffix == ".npz":
         return describe_basis(path)
-    if path.is_file():
-        with path.open("rb") as handle:
-            if handle.read(4) == b"PK\x03\x04":
-                try:
-                    return describe_basis(path)
-                except BasisError:
-                    pass
+    if path.is_file() and _starts_as_zip(path):
+        try:
+            return describe_basis(path)
+        except BasisError:
+            pass
     described = describe(path)
     records = [(record.name, dict(record.metadata)) for record in described.metadata]
     return "\n".join([format_info(described), *_densified_by(records)])
+
+
+def _starts_as_zip(path: Path) -> bool:
+    """Return whether a file starts as a zip archive (an ``.npz`` basis under another name).
+
+    False when it cannot be read: the log reader then says so in one line, as densify does
+    (a failing disk, /proc/self/mem: EIO).
+    """
+    try:
+        with path.open("rb") as handle:
+            return handle.read(4) == b"PK\x03\x04"
+    except OSError:
+        return False
 
 
 @restoring_blas_threads
