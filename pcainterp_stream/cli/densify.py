@@ -343,6 +343,11 @@ def run(args: argparse.Namespace) -> int:
     live = _live_options(args)
     if args.out_dir is not None and STREAM in args.input:
         raise PcaInterpError("standard input (-) is one log; pass -o OUTPUT, not --out-dir")
+    if STREAM in args.input and sys.stdin is None:  # closed at start (<&-, a daemon's)
+        raise PcaInterpError(
+            "densify -: standard input is closed; pipe a log into it (densify - < log.mcap) "
+            "or name the log"
+        )
     if args.measurements == "dense" and args.features_topic:
         raise PcaInterpError(
             "--measurements dense fuses the whole SGBM map of the stereo pair; "
@@ -577,6 +582,11 @@ def _check_targets(args: argparse.Namespace) -> None:
             args.output = STREAM
         else:
             check_output_file(args.output, fix=discard)
+    if args.output == STREAM and sys.stdout is None:  # closed at start (>&-, a daemon's)
+        raise LogWriteError(
+            "-o -: standard output is closed; redirect it to a file (-o - > out.mcap) "
+            "or use -o FILE"
+        )
     if args.output == STREAM and sys.stdout.isatty():  # binary would scroll over it
         raise LogWriteError(
             f"-o {args.output} writes the MCAP to standard output, which is a terminal; "
