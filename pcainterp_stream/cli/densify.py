@@ -164,7 +164,13 @@ def add_parser(commands: Commands) -> None:
     )
     densify.add_argument("--rerun", action="store_true", help="stream to a Rerun viewer")
     densify.add_argument(
-        "--rrd", type=path_arg, default=None, metavar="FILE.rrd", help="write a Rerun recording"
+        "--rrd",
+        type=path_arg,
+        default=None,
+        metavar="FILE.rrd",
+        help="write a Rerun recording; one that cannot be written is refused before any "
+        "work, one that fails later (a full disk, its folder removed) is a warning and the "
+        "exit status stays 0 with the MCAP written: a script should check the file is there",
     )
     _add_estimate_options(densify)
     densify.add_argument(
