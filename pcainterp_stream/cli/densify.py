@@ -164,7 +164,13 @@ def add_parser(commands: Commands) -> None:
     )
     densify.add_argument("--rerun", action="store_true", help="stream to a Rerun viewer")
     densify.add_argument(
-        "--rrd", type=path_arg, default=None, metavar="FILE.rrd", help="write a Rerun recording"
+        "--rrd",
+        type=path_arg,
+        default=None,
+        metavar="FILE.rrd",
+        help="write a Rerun recording; one that cannot be written is refused before any "
+        "work, one that fails later (a full disk, its folder removed) is a warning and the "
+        "exit status stays 0 with the MCAP written: a script should check the file is there",
     )
     _add_estimate_options(densify)
     densify.add_argument(
@@ -343,6 +349,11 @@ def run(args: argparse.Namespace) -> int:
     live = _live_options(args)
     if args.out_dir is not None and STREAM in args.input:
         raise PcaInterpError("standard input (-) is one log; pass -o OUTPUT, not --out-dir")
+    if STREAM in args.input and sys.stdin is None:  # closed at start (<&-, a daemon's)
+        raise PcaInterpError(
+            "densify -: standard input is closed; pipe a log into it (densify - < log.mcap) "
+            "or name the log"
+        )
     if args.measurements == "dense" and args.features_topic:
         raise PcaInterpError(
             "--measurements dense fuses the whole SGBM map of the stereo pair; "
@@ -577,6 +588,11 @@ def _check_targets(args: argparse.Namespace) -> None:
             args.output = STREAM
         else:
             check_output_file(args.output, fix=discard)
+    if args.output == STREAM and sys.stdout is None:  # closed at start (>&-, a daemon's)
+        raise LogWriteError(
+            "-o -: standard output is closed; redirect it to a file (-o - > out.mcap) "
+            "or use -o FILE"
+        )
     if args.output == STREAM and sys.stdout.isatty():  # binary would scroll over it
         raise LogWriteError(
             f"-o {args.output} writes the MCAP to standard output, which is a terminal; "

@@ -14,7 +14,6 @@ import difflib
 import json
 import math
 import numbers
-import os
 import zipfile
 import zlib
 from collections.abc import Collection, Iterable, Iterator, Mapping
@@ -26,11 +25,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.errors import GoldenError, GoldenToleranceError, LogWriteError
+from pcainterp_stream.errors import GoldenError, GoldenToleranceError
 from pcainterp_stream.golden.comparison import DEFAULT_TOLERANCE, Difference, compare
+from pcainterp_stream.golden.replacing import replacing_together, staged_at, write_error
 from pcainterp_stream.golden.summary import LogSummary, Progress, summarize_log
-from pcainterp_stream.interrupt import raise_if_signalled
-from pcainterp_stream.io.output_paths import check_output_file, make_partial_file, write_advice
 from pcainterp_stream.version import __version__
 
 __all__ = [
@@ -157,7 +155,7 @@ def _check_writable(golden: Path, array_file: Path | None, log: Path) -> None:
         )
     for target in (golden, array_file):
         if target is not None:
-            _staged_at(target)  # a device, or a folder missing or not writable: refused now
+            staged_at(target)  # a device, or a folder missing or not writable: refused now
     if golden.is_file() and not _is_golden_json(golden):
         raise GoldenError(
             f"{golden} exists and is not a golden file, so it is not overwritten; move it, "
@@ -215,48 +213,6 @@ def _other_owner(path: Path, golden: Path, channels: Mapping[str, Any] | None = 
     if channels is not None and document.get("channels") == channels:
         return None
     return owner
-
-
-@contextmanager
-def _replacing(target: Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``target``; rename it onto ``target`` on success.
-
-    Raises:
-        GoldenError: the file cannot be written (a full disk, a read-only folder, a file
-            where a folder should be); nothing is left at or beside ``target``.
-    """
-    target = _staged_at(target)
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        # owner-named (a killed save's is removed by the next), shortened to fit the name
-        handle, temporary = make_partial_file(target)  # a golden file's mode, not 0600
-    except OSError as err:
-        raise _write_error(target, err) from err
-    os.close(handle)
-    try:
-        yield temporary
-        raise_if_signalled()  # never committed after a signal
-        temporary.replace(target)
-    except OSError as err:
-        raise _write_error(target, err) from err
-    finally:
-        temporary.unlink(missing_ok=True)
-
-
-def _staged_at(target: Path) -> Path:
-    """Return the file to write ``target`` beside and rename onto (a link's own file).
-
-    Raises:
-        GoldenError: a device, a pipe, or a folder above it that is a file or not writable.
-    """
-    try:
-        return check_output_file(target, creates_folders=True)
-    except LogWriteError as err:
-        raise GoldenError(str(err)) from None
-
-
-def _write_error(target: Path, err: OSError) -> GoldenError:
-    return GoldenError(f"cannot write {target}: {err.strerror or err}; {write_advice(err)}")
 
 
 _CHANNEL_TOLERANCE = {k: v for k, v in DEFAULT_TOLERANCE.items() if k not in ("note", "channels")}
@@ -420,13 +376,20 @@ def _write(
     if document["arrays_file"]:
         stale.discard(array_file)
     marker = json.dumps({"format": ARRAYS_FORMAT, "golden": golden.name})
-    with _replacing(golden) as json_tmp:
-        json_tmp.write_text(json.dumps(document, indent=1, allow_nan=True) + "\n")
+    # the arrays renamed first, the JSON naming them last: both or neither (16C F9)
+    targets = (array_file, golden) if document["arrays_file"] else (golden,)
+    with replacing_together(*targets) as temporaries:
         if document["arrays_file"]:
-            with _replacing(array_file) as npz_tmp:
-                stored = {**arrays, ARRAYS_MARKER: np.array(marker)}
-                with npz_tmp.open("wb") as stream:
+            stored = {**arrays, ARRAYS_MARKER: np.array(marker)}
+            try:
+                with temporaries[0].open("wb") as stream:
                     np.savez_compressed(stream, **stored)  # type: ignore[arg-type]
+            except OSError as err:  # a full disk, a file-size limit
+                raise write_error(array_file, err) from err
+        try:
+            temporaries[-1].write_text(json.dumps(document, indent=1, allow_nan=True) + "\n")
+        except OSError as err:
+            raise write_error(golden, err) from err
     for path in stale:
         if path.exists() and path.resolve() != log.resolve() and _arrays_of(path, golden):
             path.unlink()

@@ -381,11 +381,15 @@ class LogWriter(ABC):
         if self._partial_dir is None:
             return None
         during = "the output was being written"
-        reason = removed_meanwhile(self._partial_dir, self.path.parent, during)
+        named = staged_for(self.path)  # --out-dir: the user's folder, not the staging one
+        folder = self.path.parent
+        if named != self.path and not os.path.isdir(named.parent):
+            folder = named.parent
+        reason = removed_meanwhile(self._partial_dir, folder, during)
         return (
             None
             if reason is None
-            else LogWriteError(f"cannot write {self.path}: {reason}; nothing was written")
+            else LogWriteError(f"cannot write {named}: {reason}; nothing was written")
         )
 
     def _stop_thread(self) -> None:
@@ -507,7 +511,7 @@ class LogWriter(ABC):
         except OSError as err:
             raise self._removed() or LogWriteError(
                 f"cannot move the finished output onto {target}: {err.strerror}; "
-                "check the folder's permissions"
+                f"{write_advice(err)}"
             ) from err
         self._remove_partial()
 

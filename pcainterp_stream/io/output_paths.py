@@ -17,6 +17,7 @@ import functools
 import hashlib
 import os
 import re
+import shlex
 import shutil
 import socket
 import stat
@@ -43,8 +44,10 @@ __all__ = [
     "remove_stale_temporaries",
     "removed_meanwhile",
     "saved_elsewhere",
+    "size_limit_advice",
     "staged_for",
     "temporary_prefix",
+    "unreplaceable",
     "write_advice",
 ]
 
@@ -151,38 +154,108 @@ def is_standard_output(path: Path) -> bool:
 
 
 def write_advice(err: OSError) -> str:
-    """Return the fix for an error writing an output: "free some space, ..." for a full disk."""
+    """Return the fix for an error writing an output: "free some space, ..." for a full disk.
+
+    A rename onto a file that cannot be replaced (``err.filename2``) says why
+    (:func:`unreplaceable`); a file or folder gone (ENOENT) whose folder no longer exists
+    says so; a file-size limit (EFBIG) names it.
+    """
     if err.errno in (errno.ENOSPC, errno.EDQUOT):
         return "free some space, or write it elsewhere"
     if err.errno in (errno.ENOTDIR, errno.EEXIST):
         return "a file is in the way of its folder; move it, or write it elsewhere"
     if err.errno == errno.ENAMETOOLONG:
         return "the file name is too long for the file system: choose a shorter name"
+    if err.errno == errno.EFBIG:
+        return SIZE_LIMIT
+    gone = _gone_folder(err)
+    if gone is not None:
+        return (
+            f"folder {gone} no longer exists (removed meanwhile): make it again, or write "
+            "it elsewhere"
+        )
+    if err.filename2 is not None:  # a rename onto the target
+        refused = unreplaceable(Path(os.fsdecode(err.filename2)))
+        if refused is not None:
+            return refused
     return "choose a writable folder"  # read-only, no permission, or a folder refusing files
 
 
+SIZE_LIMIT = (
+    "the file is larger than its file system or a limit (ulimit -f) allows: write it to "
+    "another file system (FAT32 takes at most 4 GiB a file), or raise the limit"
+)
+"""The fix for EFBIG: a file-size limit of the file system (FAT32) or of the process."""
+
+
+def _gone_folder(err: OSError) -> Path | None:
+    """The folder of the file ``err`` names when that is ENOENT and the folder is gone."""
+    if err.errno != errno.ENOENT:
+        return None
+    named = err.filename2 if err.filename2 is not None else err.filename
+    if not isinstance(named, (str, bytes, os.PathLike)):
+        return None
+    folder = Path(os.fsdecode(named)).parent
+    return None if os.path.isdir(folder) else folder
+
+
+def size_limit_advice(error: BaseException) -> str:
+    """Return ``"; "`` and :data:`SIZE_LIMIT` for EFBIG (behind sqlite's "disk I/O error" too).
+
+    sqlite3 reports a write refused by a file-size limit as ``disk I/O error``, without the
+    errno: a limit lower than the file written (``ulimit -f``) is taken as the cause then.
+    """
+    if isinstance(error, OSError) and error.errno == errno.EFBIG:
+        return f"; {SIZE_LIMIT}"
+    if type(error).__name__ == "OperationalError" and "disk I/O error" in str(error):
+        limit = _file_size_limit()
+        if limit is not None:
+            return (
+                f"; likely the file-size limit: this process may write at most "
+                f"{limit / 1e6:.1f} MB a file (ulimit -f): raise it, or write elsewhere"
+            )
+    return ""
+
+
+def _file_size_limit() -> int | None:
+    """This process's file-size limit in bytes (RLIMIT_FSIZE), None when unlimited/unknown."""
+    try:
+        import resource
+
+        soft = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    except (ImportError, OSError, ValueError):
+        return None
+    return None if soft == resource.RLIM_INFINITY else soft
+
+
 def full_disk_advice(error: BaseException) -> str:
-    """Return ``"; free some space, or write it elsewhere"`` for a full disk, else ``""``."""
+    """Return ``"; free some space, or write it elsewhere"`` for a full disk, else ``""``.
+
+    A file-size limit (EFBIG) gets its own fix (:func:`size_limit_advice`).
+    """
     if isinstance(error, OSError) and error.errno in (errno.ENOSPC, errno.EDQUOT):
         return f"; {write_advice(error)}"
     if type(error).__name__ == "OperationalError" and "disk is full" in str(error):
         return "; free some space, or write it elsewhere"  # sqlite3's SQLITE_FULL
-    return ""
+    return size_limit_advice(error)
 
 
 def saved_elsewhere(target: Path, error: BaseException, save: Callable[[Path], object]) -> str:
-    """Save, after a full disk refused ``target``, a small result the run spent long on.
+    """Save, after ``target`` could not be written, a small result the run spent long on.
 
-    A basis ``learn`` spent minutes or hours on is a few MB: where the disk of ``target``
-    is full (``error`` or its cause ENOSPC/EDQUOT), ``save`` writes it to a new folder in
-    the temporary folder (``TMPDIR``), usually another disk.
+    A basis ``learn`` spent minutes or hours on is a few MB: where writing ``target``
+    failed (``error`` or its cause an OSError: a full disk, a folder removed meanwhile, a
+    file that cannot be replaced), ``save`` writes it to a new folder in the temporary
+    folder (``TMPDIR``), usually another disk.
 
     Returns:
-        ``"; it was saved to PATH instead: move it (mv PATH TARGET) once there is room"``,
-        or ``""`` where the disk was not full or that failed too (nothing left behind).
+        ``"; it was saved to PATH instead: move it (mv PATH TARGET) once there is room"``
+        (``mkdir -p FOLDER && mv ...`` where the folder is gone; ``once that is fixed``
+        for any other cause), or ``""`` where the error was not the file system's or that
+        failed too (nothing left behind).
     """
     cause = error if isinstance(error, OSError) else error.__cause__
-    if not full_disk_advice(cause if isinstance(cause, BaseException) else error):
+    if not isinstance(cause, OSError):
         return ""
     try:
         folder = Path(tempfile.mkdtemp(prefix="pcainterp-saved-"))
@@ -194,7 +267,13 @@ def saved_elsewhere(target: Path, error: BaseException, save: Callable[[Path], o
     except Exception:  # the temporary folder is full too: nothing saved, nothing left
         shutil.rmtree(folder, ignore_errors=True)
         return ""
-    return f"; it was saved to {kept} instead: move it (mv {kept} {target}) once there is room"
+    move = f"mv {shlex.quote(str(kept))} {shlex.quote(str(target))}"
+    if full_disk_advice(cause).startswith("; free"):
+        return f"; it was saved to {kept} instead: move it ({move}) once there is room"
+    if not os.path.isdir(target.parent):
+        make = f"mkdir -p {shlex.quote(str(target.parent))}"
+        return f"; it was saved to {kept} instead: move it ({make} && {move})"
+    return f"; it was saved to {kept} instead: move it ({move}) once that is fixed"
 
 
 def removed_meanwhile(partial: Path, folder: Path, during: str) -> str | None:
@@ -317,7 +396,105 @@ def check_output_file(
         raise LogWriteError(
             f"cannot write {path}: {err.strerror or err}; {write_advice(err)}"
         ) from err
+    if mode is not None:
+        refused = unreplaceable(target)
+        if refused is not None:
+            raise LogWriteError(f"cannot replace {path}: {refused}")
     return target
+
+
+_IMMUTABLE_FLAGS = {0x10: "immutable", 0x20: "append-only"}
+"""Linux inode flags (``FS_IMMUTABLE_FL``, ``FS_APPEND_FL``): no rename onto such a file."""
+_BSD_FLAGS = {0x2: "immutable", 0x20000: "immutable", 0x4: "append-only", 0x40000: "append-only"}
+"""``st_flags`` of macOS and the BSDs (``UF_``/``SF_IMMUTABLE``, ``UF_``/``SF_APPEND``)."""
+_FS_IOC_GETFLAGS = 0x80086601 if sys.maxsize > 2**32 else 0x80046601
+
+
+def _inode_flag(path: Path) -> str | None:
+    """Return "immutable" or "append-only" when ``path`` has that flag (None otherwise)."""
+    flags = getattr(os.stat(path), "st_flags", None)
+    if flags is not None:
+        return next((name for bit, name in _BSD_FLAGS.items() if flags & bit), None)
+    if not sys.platform.startswith("linux"):
+        return None
+    import fcntl
+
+    try:  # read-only, no write, so no file watcher sees the file "changed"
+        handle = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY)
+    except OSError:
+        return None  # unreadable: nothing known (the rename is tried at the end)
+    try:
+        buffer = bytearray(8)
+        fcntl.ioctl(handle, _FS_IOC_GETFLAGS, buffer)
+        value = int.from_bytes(buffer[:4], sys.byteorder)
+    except OSError:  # a file system without inode flags
+        return None
+    finally:
+        os.close(handle)
+    return next((name for bit, name in _IMMUTABLE_FLAGS.items() if value & bit), None)
+
+
+def _mount_points() -> set[str]:
+    """The mount points of this process's mount namespace (empty where unknown)."""
+    try:
+        with open("/proc/self/mountinfo", encoding="utf-8", errors="surrogateescape") as file:
+            fields = [line.split(" ")[4] for line in file if line.count(" ") >= 4]
+    except OSError:
+        return set()
+    return {re.sub(r"\\([0-7]{3})", lambda match: chr(int(match[1], 8)), item) for item in fields}
+
+
+def unreplaceable(target: Path) -> str | None:
+    """Say why the existing ``target`` cannot be replaced by a rename, or None.
+
+    The folder may be writable (:func:`check_output_file` makes a folder in it) while the
+    file in it cannot be replaced: it is immutable or append-only (``chattr +i``/``+a``,
+    ``chflags uchg``), on a read-only mount of its own (a file bind-mounted read-only), a
+    mount point, or another user's file in a shared folder with the sticky bit (``chmod
+    1777``, as /tmp), where only the file's or the folder's owner may replace it. Each is
+    looked at without writing to the file.
+
+    Returns:
+        The reason and the fix, e.g. ``it is immutable (chattr +i; lsattr shows it): remove
+        the flag (chattr -i, as root), or choose another name``.
+    """
+    try:
+        info, folder = os.lstat(target), os.stat(target.parent)
+    except OSError:
+        return None  # gone meanwhile, or not to be looked at: the rename tells
+    other = "or choose another name"
+    flag = _inode_flag(target)
+    if flag is not None:
+        letter = "i" if flag == "immutable" else "a"
+        linux = sys.platform.startswith("linux")
+        how = f"chattr +{letter}; lsattr shows it" if linux else "chflags"
+        undo = f"chattr -{letter}, as root" if linux else "chflags"
+        return f"it is {flag} ({how}): remove the flag ({undo}), {other}"
+    real = os.path.realpath(target)
+    if real in _mount_points():
+        return f"a file system or file is mounted at it (mount shows it): unmount it, {other}"
+    with contextlib.suppress(OSError):
+        if os.statvfs(target).f_flag & os.ST_RDONLY:
+            return f"it is on a read-only mount of its own (mounted read-only): {other}"
+    user = os.geteuid() if hasattr(os, "geteuid") else 0
+    sticky = folder.st_mode & stat.S_ISVTX
+    if sticky and user != 0 and user not in (info.st_uid, folder.st_uid):
+        return (
+            f"it belongs to {_user_name(info.st_uid)} and its folder {target.parent} is shared "
+            f"with the sticky bit (as /tmp), where only a file's owner may replace it: ask "
+            f"them to remove it, {other}"
+        )
+    return None
+
+
+def _user_name(uid: int) -> str:
+    """The login name of user ``uid`` (``user UID`` where it has none)."""
+    try:
+        import pwd
+
+        return f"user {pwd.getpwuid(uid).pw_name}"
+    except (ImportError, KeyError):
+        return f"user {uid}"
 
 
 def check_output_folder(folder: Path) -> None:

@@ -6,6 +6,7 @@ import contextlib
 import dataclasses
 import json
 import os
+import sys
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -279,6 +280,43 @@ def front_end(pairing: PairingConfig, processor: ProcessorConfig, stats: Pairing
     )
 
 
+def _bar_description(description: str) -> str:
+    """Return the bar's description to fit the terminal: shorter on a narrow one (16C F5).
+
+    A bar needs about 40 columns for its share, count, times and rate; on a narrower
+    terminal the description took the whole line and the count was cut off. The log's
+    name goes first, then the word ``densify``: the share and count are always shown.
+    """
+    try:
+        width = os.get_terminal_size(sys.stderr.fileno()).columns
+    except (AttributeError, OSError, ValueError):  # not a terminal: plain lines, full name
+        return description
+    if width >= len(description) + 40:
+        return description
+    short = description.split(" ", 1)[0]
+    return short if width >= len(short) + 40 else ""
+
+
+def _above(shown: list[Any], echo: Callable[[str], None]) -> Callable[[str], None]:
+    """Return ``echo`` printing above the progress bar once it is drawn (bug hunt 16C F5).
+
+    A terminal's bar (``tqdm``) is cleared, the line printed, and the bar drawn again below
+    it: printed as it is, the line was glued onto the bar's text.
+    """
+
+    def said(text: str) -> None:
+        bar = shown[0] if shown else None
+        clear, refresh = getattr(bar, "clear", None), getattr(bar, "refresh", None)
+        if clear is None or refresh is None:  # off a terminal: plain lines, nothing drawn
+            echo(text)
+            return
+        clear()
+        echo(text)
+        refresh()
+
+    return said
+
+
 @restoring_blas_threads
 def densify(
     input_path: Path | Sequence[Path] | IO[bytes],
@@ -451,11 +489,13 @@ def densify(
         engine: FrameProcessor | None = None  # made at the first pair (SGBM's resolution)
         matching: str | None = None  # the resolution chosen for the camera, said with it
         sgbm = processor.sgbm  # that resolution (a given one as it is)
-        pairer = StereoPairer(pairing, echo=echo)
+        shown: list[Any] = []  # the progress bar, once drawn
+        pairer = StereoPairer(pairing, echo=None if echo is None else _above(shown, echo))
         pairer.read_ahead(reader)  # camera infos recorded after the first images
         if stale is not None and stale.watch is not None:  # the row check's corners, not again
             stale.watch.row_corners = pairer.row_corners
-        bar = stack.enter_context(_bar(total, f"densify {input_path.name}"))
+        bar = stack.enter_context(_bar(total, _bar_description(f"densify {input_path.name}")))
+        shown.append(bar)
 
         def emit(results: list[DensifiedFrame]) -> None:
             assert engine is not None  # results come from it
