@@ -29,6 +29,7 @@ from pcainterp_stream.evaluate.stamped import SeenStamps, Stamped, UnplacedStamp
 from pcainterp_stream.frontend.images import PairImages
 from pcainterp_stream.frontend.pair_forms import grey_alike
 from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.depth_image import depth_metres
 from pcainterp_stream.io.logreader import decode_image, open_log
 from pcainterp_stream.io.output_cameras import FrameCameras, features_focal_baseline
 from pcainterp_stream.io.outputs import (
@@ -627,6 +628,23 @@ def _recover_focal_baseline(frame: _Complete, features_topic: str, state: ReadSt
     )
 
 
+def truth_depth(message: Any, topic: str = GROUND_TRUTH_DEPTH) -> npt.NDArray[np.float32]:
+    """Read a ground-truth depth image as metres by its encoding (REP 118), as a reference's.
+
+    32FC1 is metres, 16UC1 and mono16 millimetres (0: no value, NaN), as ``--reference-topic``
+    reads them (:func:`~pcainterp_stream.io.depth_image.depth_metres`).
+
+    Raises:
+        LogReadError: the image is no depth image (a camera image's encoding).
+    """
+    try:
+        return depth_metres(message).astype(np.float32)
+    except ValueError as err:
+        raise LogReadError(
+            f"{topic}: {err}; ground-truth depth must be 32FC1 (m) or 16UC1 (mm)"
+        ) from None
+
+
 def _camera(info: Any, baseline: float, size: tuple[int, int]) -> StereoCamera:
     p = rosmsg.projection_matrix(info)
     return StereoCamera(
@@ -687,7 +705,7 @@ def _frame(
         disparities=features["disparity"],
         left=left_image,
         right=right_image,
-        depth=None if depth is None else rosmsg.image_array(depth).astype(np.float32),
+        depth=None if depth is None else truth_depth(depth),
         pose=None if pose is None else rosmsg.pose_matrix(pose),
         min_disparity=decoded.min_disparity,
         reference=reference,
