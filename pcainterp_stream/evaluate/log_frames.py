@@ -119,6 +119,9 @@ class Frame:
     cx_offset: float | None = None
     """cx_left - cx_right (px) of the input pair's camera infos when the frame was read
     (:meth:`~pcainterp_stream.frontend.images.PairImages.cx_offset`; None: unknown)."""
+    shared: tuple[str, ...] = ()
+    """The truth topics (depth, pose) whose message nearest this frame's stamp an earlier
+    frame took already: left without it (one message is not the truth of two frames)."""
 
 
 @dataclass
@@ -166,6 +169,29 @@ class ReadState:
     undecodable: dict[str, int] = field(default_factory=dict)
     """Per topic of the input pair (images, camera infos), the messages that do not decode (a
     damaged message, bytes of another type): skipped, as densify skipped them."""
+
+    shared: dict[str, list[int]] = field(default_factory=dict)
+    """Per truth topic (depth, pose), the frames left without its message because the one
+    nearest their stamp was an earlier frame's (frames stamped closer together than the
+    truth: a camera whose header stamps repeat, placed within one frame interval)."""
+
+    @property
+    def shared_note(self) -> str:
+        """Return the sentence on frames whose nearest truth was another frame's ("": none)."""
+        if not self.shared:
+            return ""
+        count = max(len(frames) for frames in self.shared.values())
+        which = ", ".join(
+            f"{topic} on {len(frames)} (frame {frames[0]} first)"
+            for topic, frames in sorted(self.shared.items())
+        )
+        return (
+            f"{count} frame{'' if count == 1 else 's'} left out: the truth message nearest "
+            f"their stamp was already an earlier frame's ({which}): the frames are stamped "
+            "closer together than the truth, as when the camera's header stamps repeat; "
+            "the frames scored may have been matched to another frame's truth too: give the "
+            "camera images their own stamps (or stamp the truth on the images' clock)"
+        )
 
     @property
     def reference_tolerance(self) -> tuple[int, str]:
@@ -369,6 +395,7 @@ def read_frames(
         references = Stamped(REFERENCE_BUFFER)
         reference_latest = -1  # the last reference stamp read
         released: list[int] = []  # the stamp of the frame released last
+        taken: dict[str, dict[tuple[int, int], int]] = {}  # truth messages frames took
         stamps = SeenStamps()  # of the topics matched by stamp: repeated stamps counted
         unplaced = UnplacedStamps(left_image, *nearby)  # the right image, truth, poses
         # the reference on its own clock, by the same rule (a sim clock stamps every topic)
@@ -420,7 +447,7 @@ def read_frames(
             released[:] = [frame.stamp_ns]
             if matched is not None and reference_gap is not None:
                 state.reference_offsets.append(reference_gap)
-            return _frame(
+            built = _frame(
                 frame,
                 nearby=nearby,
                 reference=matched,
@@ -430,7 +457,11 @@ def read_frames(
                 where=where,
                 metadata=metadata,
                 tolerance_ns=state.tolerance_ns,
+                taken=taken,
             )
+            for topic in built.shared:
+                state.shared.setdefault(topic, []).append(built.index)
+            return built
 
         for raw in reader.messages(wanted):
             if raw.topic == where.estimate and not state.seen_disparity:
@@ -669,9 +700,14 @@ def _frame(
     where: EstimateTopics,
     metadata: dict[str, str],
     tolerance_ns: int = RIGHT_STAMP_TOLERANCE_NS,
+    taken: dict[str, dict[tuple[int, int], int]] | None = None,
 ) -> Frame:
-    """Build a frame from its complete messages and the messages nearest its stamp."""
+    """Build a frame from its complete messages and the messages nearest its stamp.
+
+    ``taken``: the truth messages earlier frames took (:func:`_shared_truth`); None: none.
+    """
     index, stamp, parts = complete.index, complete.stamp_ns, complete.parts
+    taken = {} if taken is None else taken
     try:
         decoded = decode_estimate(
             parts[where.estimate], parts[where.std], parts[topics.camera_info], metadata
@@ -684,9 +720,10 @@ def _frame(
     found = {
         topic: messages.nearest(stamp, tolerance_ns, log_time) for topic, messages in nearby.items()
     }
-    right, gap = found.get(images.right_topic, (None, None))
-    depth, depth_gap = found.get(GROUND_TRUTH_DEPTH, (None, None))
-    pose, pose_gap = found.get(GROUND_TRUTH_POSE, (None, None))
+    shared = _shared_truth(found, taken, index)
+    right, gap, _ = found.get(images.right_topic, (None, None, None))
+    depth, depth_gap, _ = found.get(GROUND_TRUTH_DEPTH, (None, None, None))
+    pose, pose_gap, _ = found.get(GROUND_TRUTH_POSE, (None, None, None))
     left_image = images.rectified(decode_image(parts[images.left_topic]), "left")
     right_image = None if right is None else images.rectified(decode_image(right), "right")
     if right_image is not None:  # a colour + mono or 8 + 16-bit rig: grey, as densify made it
@@ -714,4 +751,34 @@ def _frame(
         depth_gap_ns=depth_gap if depth is None else None,
         pose_gap_ns=pose_gap if pose is None else None,
         cx_offset=images.cx_offset(),
+        shared=shared,
     )
+
+
+def _shared_truth(
+    found: dict[str, tuple[Any, int | None, tuple[int, int] | None]],
+    taken: dict[str, dict[tuple[int, int], int]],
+    index: int,
+) -> tuple[str, ...]:
+    """Drop from ``found`` the truth an earlier frame took; return the topics dropped.
+
+    ``taken``: per truth topic, the messages frames took (their key: placed stamp, log time)
+    and which frame took each (the latest :data:`POSE_BUFFER` kept). One message is the
+    truth of one instant: a second frame that finds it nearest its stamp is stamped off the
+    truth's clock (a camera whose stamps repeat, placed within one frame interval), and
+    scoring it against that message would score it against another frame's truth and pose.
+    """
+    shared = []
+    for topic in (GROUND_TRUTH_DEPTH, GROUND_TRUTH_POSE):
+        message, gap, key = found.get(topic, (None, None, None))
+        if message is None or key is None:
+            continue
+        seen = taken.setdefault(topic, {})
+        if key in seen:
+            found[topic] = (None, gap, None)
+            shared.append(topic)
+            continue
+        seen[key] = index
+        if len(seen) > POSE_BUFFER:
+            del seen[next(iter(seen))]
+    return tuple(shared)
