@@ -644,7 +644,14 @@ def evaluate_log(
         reference = (
             None
             if reference_topic is None
-            else resolve_reference(reference_topic, options.reference_kind, present, path)
+            else resolve_reference(
+                reference_topic,
+                options.reference_kind,
+                present,
+                path,
+                outputs=topics.prefix,
+                reader=reader,
+            )
         )
         has_truth = reference is not None or GROUND_TRUTH_DEPTH in present
         has_pose = GROUND_TRUTH_POSE in present
