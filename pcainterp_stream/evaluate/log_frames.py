@@ -166,6 +166,9 @@ class ReadState:
     copies: dict[str, int] = field(default_factory=dict)
     """Per image topic of the input pair, the images logged again right after themselves (the
     same stamp, size, encoding and bytes): skipped, as densify dropped them."""
+    undecodable_left: int = 0
+    """Left images with no densified output at all whose image does not decode (a damaged
+    JPEG): densify skipped them, no pairing dropped them."""
     undecodable: dict[str, int] = field(default_factory=dict)
     """Per topic of the input pair (images, camera infos), the messages that do not decode (a
     damaged message, bytes of another type): skipped, as densify skipped them."""
@@ -284,11 +287,28 @@ class ReadState:
             return merged
         counts = ", ".join(f"{topic} on {n}" for topic, n in sorted(self.incomplete.items()))
         count = max(self.incomplete.values())
+        why = (
+            "the log is damaged (see damage): the frames at the damage are lost"
+            if self.damage
+            else "densify drops unpaired frames"
+        )
         left_out = (
             f"at least {count} frame{'' if count == 1 else 's'} left out: their densified "
-            f"channels are incomplete (missing {counts}; densify drops unpaired frames)"
+            f"channels are incomplete (missing {counts}; {why})"
         )
         return f"{merged}; {left_out}" if merged else left_out
+
+    @property
+    def undecodable_left_note(self) -> str:
+        """Return the sentence on left images without outputs that do not decode ("": none)."""
+        count = self.undecodable_left
+        if not count:
+            return ""
+        return (
+            f"{count} frame{'' if count == 1 else 's'} left out: {'its' if count == 1 else 'their'}"
+            " left image does not decode (a damaged JPEG or PNG), so densify skipped it and "
+            "wrote no outputs (densify's pairing: line counts it undecodable)"
+        )
 
 
 @dataclass(frozen=True)
@@ -612,7 +632,19 @@ def _missing_advice(
 
 
 def _count_incomplete(parts: dict[str, Any], grouped: list[str], state: ReadState) -> None:
-    """Count a stamp whose densified channels and left image never all came."""
+    """Count a stamp whose densified channels and left image never all came.
+
+    A left image alone (no output of its stamp) whose image does not decode is counted
+    apart (:attr:`ReadState.undecodable_left`): densify skipped it (the last of ``grouped``
+    is the left image topic).
+    """
+    left = grouped[-1]
+    if list(parts) == [left]:
+        try:
+            decode_image(parts[left])
+        except (ValueError, PcaInterpError):
+            state.undecodable_left += 1
+            return
     for topic in grouped:
         if topic not in parts:
             state.incomplete[topic] = state.incomplete.get(topic, 0) + 1

@@ -796,7 +796,7 @@ def evaluate_log(
     result.notes += [n for n in [state.reference_note(reference.topic)] if n] if reference else []
     result.notes += bounds_notes(reference, cx_offsets)
     causes = left_out.notes(state, GROUND_TRUTH_DEPTH if reference is None else reference.topic)
-    causes += [state.incomplete_note] if state.incomplete_note else []
+    causes += [n for n in (state.incomplete_note, state.undecodable_left_note) if n]
     causes += [n for n in (state.repeated_note, state.shared_note) if n]
     result.notes += causes + [n for n in (state.copies_note, state.undecodable_note) if n]
     if evaluator.sgbm_empty:
@@ -822,7 +822,9 @@ def evaluate_log(
         why = "; temporal mode needs two in a row with poses" if temporal else ""
         raise LogReadError(
             f"no frame of {path} could be evaluated ({read} densified frames read{without}"
-            f"{why})" + "".join(f"; {cause}" for cause in causes)
+            f"{why})"
+            + "".join(f"; {cause}" for cause in causes)
+            + "".join(f"; damage: {line}" for line in state.damage)  # a cut-off log, say
         )
     if result.reference_pixels == 0:
         raise LogReadError(no_truth_message(path, result, reference, options.max_frames))
