@@ -78,8 +78,14 @@ class LeftOut:
         self.unpaired += 1
         return False
 
-    def see(self, gap_ns: int | None, what: str) -> None:
-        """Count a frame without ``what`` ("truth" or "pose"); ``gap_ns``: the nearest's."""
+    def see(self, gap_ns: int | None, what: str, *, shared: bool = False) -> None:
+        """Count a frame without ``what`` ("truth" or "pose"); ``gap_ns``: the nearest's.
+
+        ``shared``: the nearest message was an earlier frame's (``ReadState.shared_note``
+        says so): not counted here.
+        """
+        if shared:
+            return
         if what == "truth":
             self.truths += 1
         else:

@@ -29,6 +29,7 @@ from pcainterp_stream.evaluate.stamped import SeenStamps, Stamped, UnplacedStamp
 from pcainterp_stream.frontend.images import PairImages
 from pcainterp_stream.frontend.pair_forms import grey_alike
 from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.depth_image import depth_metres
 from pcainterp_stream.io.logreader import decode_image, open_log
 from pcainterp_stream.io.output_cameras import FrameCameras, features_focal_baseline
 from pcainterp_stream.io.outputs import (
@@ -118,6 +119,9 @@ class Frame:
     cx_offset: float | None = None
     """cx_left - cx_right (px) of the input pair's camera infos when the frame was read
     (:meth:`~pcainterp_stream.frontend.images.PairImages.cx_offset`; None: unknown)."""
+    shared: tuple[str, ...] = ()
+    """The truth topics (depth, pose) whose message nearest this frame's stamp an earlier
+    frame took already: left without it (one message is not the truth of two frames)."""
 
 
 @dataclass
@@ -162,9 +166,35 @@ class ReadState:
     copies: dict[str, int] = field(default_factory=dict)
     """Per image topic of the input pair, the images logged again right after themselves (the
     same stamp, size, encoding and bytes): skipped, as densify dropped them."""
+    undecodable_left: int = 0
+    """Left images with no densified output at all whose image does not decode (a damaged
+    JPEG): densify skipped them, no pairing dropped them."""
     undecodable: dict[str, int] = field(default_factory=dict)
     """Per topic of the input pair (images, camera infos), the messages that do not decode (a
     damaged message, bytes of another type): skipped, as densify skipped them."""
+
+    shared: dict[str, list[int]] = field(default_factory=dict)
+    """Per truth topic (depth, pose), the frames left without its message because the one
+    nearest their stamp was an earlier frame's (frames stamped closer together than the
+    truth: a camera whose header stamps repeat, placed within one frame interval)."""
+
+    @property
+    def shared_note(self) -> str:
+        """Return the sentence on frames whose nearest truth was another frame's ("": none)."""
+        if not self.shared:
+            return ""
+        count = max(len(frames) for frames in self.shared.values())
+        which = ", ".join(
+            f"{topic} on {len(frames)} (frame {frames[0]} first)"
+            for topic, frames in sorted(self.shared.items())
+        )
+        return (
+            f"{count} frame{'' if count == 1 else 's'} left out: the truth message nearest "
+            f"their stamp was already an earlier frame's ({which}): the frames are stamped "
+            "closer together than the truth, as when the camera's header stamps repeat; "
+            "the frames scored may have been matched to another frame's truth too: give the "
+            "camera images their own stamps (or stamp the truth on the images' clock)"
+        )
 
     @property
     def reference_tolerance(self) -> tuple[int, str]:
@@ -257,11 +287,28 @@ class ReadState:
             return merged
         counts = ", ".join(f"{topic} on {n}" for topic, n in sorted(self.incomplete.items()))
         count = max(self.incomplete.values())
+        why = (
+            "the log is damaged (see damage): the frames at the damage are lost"
+            if self.damage
+            else "densify drops unpaired frames"
+        )
         left_out = (
             f"at least {count} frame{'' if count == 1 else 's'} left out: their densified "
-            f"channels are incomplete (missing {counts}; densify drops unpaired frames)"
+            f"channels are incomplete (missing {counts}; {why})"
         )
         return f"{merged}; {left_out}" if merged else left_out
+
+    @property
+    def undecodable_left_note(self) -> str:
+        """Return the sentence on left images without outputs that do not decode ("": none)."""
+        count = self.undecodable_left
+        if not count:
+            return ""
+        return (
+            f"{count} frame{'' if count == 1 else 's'} left out: {'its' if count == 1 else 'their'}"
+            " left image does not decode (a damaged JPEG or PNG), so densify skipped it and "
+            "wrote no outputs (densify's pairing: line counts it undecodable)"
+        )
 
 
 @dataclass(frozen=True)
@@ -368,6 +415,7 @@ def read_frames(
         references = Stamped(REFERENCE_BUFFER)
         reference_latest = -1  # the last reference stamp read
         released: list[int] = []  # the stamp of the frame released last
+        taken: dict[str, dict[tuple[int, int], int]] = {}  # truth messages frames took
         stamps = SeenStamps()  # of the topics matched by stamp: repeated stamps counted
         unplaced = UnplacedStamps(left_image, *nearby)  # the right image, truth, poses
         # the reference on its own clock, by the same rule (a sim clock stamps every topic)
@@ -419,7 +467,7 @@ def read_frames(
             released[:] = [frame.stamp_ns]
             if matched is not None and reference_gap is not None:
                 state.reference_offsets.append(reference_gap)
-            return _frame(
+            built = _frame(
                 frame,
                 nearby=nearby,
                 reference=matched,
@@ -429,7 +477,11 @@ def read_frames(
                 where=where,
                 metadata=metadata,
                 tolerance_ns=state.tolerance_ns,
+                taken=taken,
             )
+            for topic in built.shared:
+                state.shared.setdefault(topic, []).append(built.index)
+            return built
 
         for raw in reader.messages(wanted):
             if raw.topic == where.estimate and not state.seen_disparity:
@@ -580,7 +632,19 @@ def _missing_advice(
 
 
 def _count_incomplete(parts: dict[str, Any], grouped: list[str], state: ReadState) -> None:
-    """Count a stamp whose densified channels and left image never all came."""
+    """Count a stamp whose densified channels and left image never all came.
+
+    A left image alone (no output of its stamp) whose image does not decode is counted
+    apart (:attr:`ReadState.undecodable_left`): densify skipped it (the last of ``grouped``
+    is the left image topic).
+    """
+    left = grouped[-1]
+    if list(parts) == [left]:
+        try:
+            decode_image(parts[left])
+        except (ValueError, PcaInterpError):
+            state.undecodable_left += 1
+            return
     for topic in grouped:
         if topic not in parts:
             state.incomplete[topic] = state.incomplete.get(topic, 0) + 1
@@ -627,6 +691,23 @@ def _recover_focal_baseline(frame: _Complete, features_topic: str, state: ReadSt
     )
 
 
+def truth_depth(message: Any, topic: str = GROUND_TRUTH_DEPTH) -> npt.NDArray[np.float32]:
+    """Read a ground-truth depth image as metres by its encoding (REP 118), as a reference's.
+
+    32FC1 is metres, 16UC1 and mono16 millimetres (0: no value, NaN), as ``--reference-topic``
+    reads them (:func:`~pcainterp_stream.io.depth_image.depth_metres`).
+
+    Raises:
+        LogReadError: the image is no depth image (a camera image's encoding).
+    """
+    try:
+        return depth_metres(message).astype(np.float32)
+    except ValueError as err:
+        raise LogReadError(
+            f"{topic}: {err}; ground-truth depth must be 32FC1 (m) or 16UC1 (mm)"
+        ) from None
+
+
 def _camera(info: Any, baseline: float, size: tuple[int, int]) -> StereoCamera:
     p = rosmsg.projection_matrix(info)
     return StereoCamera(
@@ -651,9 +732,14 @@ def _frame(
     where: EstimateTopics,
     metadata: dict[str, str],
     tolerance_ns: int = RIGHT_STAMP_TOLERANCE_NS,
+    taken: dict[str, dict[tuple[int, int], int]] | None = None,
 ) -> Frame:
-    """Build a frame from its complete messages and the messages nearest its stamp."""
+    """Build a frame from its complete messages and the messages nearest its stamp.
+
+    ``taken``: the truth messages earlier frames took (:func:`_shared_truth`); None: none.
+    """
     index, stamp, parts = complete.index, complete.stamp_ns, complete.parts
+    taken = {} if taken is None else taken
     try:
         decoded = decode_estimate(
             parts[where.estimate], parts[where.std], parts[topics.camera_info], metadata
@@ -666,9 +752,10 @@ def _frame(
     found = {
         topic: messages.nearest(stamp, tolerance_ns, log_time) for topic, messages in nearby.items()
     }
-    right, gap = found.get(images.right_topic, (None, None))
-    depth, depth_gap = found.get(GROUND_TRUTH_DEPTH, (None, None))
-    pose, pose_gap = found.get(GROUND_TRUTH_POSE, (None, None))
+    shared = _shared_truth(found, taken, index)
+    right, gap, _ = found.get(images.right_topic, (None, None, None))
+    depth, depth_gap, _ = found.get(GROUND_TRUTH_DEPTH, (None, None, None))
+    pose, pose_gap, _ = found.get(GROUND_TRUTH_POSE, (None, None, None))
     left_image = images.rectified(decode_image(parts[images.left_topic]), "left")
     right_image = None if right is None else images.rectified(decode_image(right), "right")
     if right_image is not None:  # a colour + mono or 8 + 16-bit rig: grey, as densify made it
@@ -687,7 +774,7 @@ def _frame(
         disparities=features["disparity"],
         left=left_image,
         right=right_image,
-        depth=None if depth is None else rosmsg.image_array(depth).astype(np.float32),
+        depth=None if depth is None else truth_depth(depth),
         pose=None if pose is None else rosmsg.pose_matrix(pose),
         min_disparity=decoded.min_disparity,
         reference=reference,
@@ -696,4 +783,34 @@ def _frame(
         depth_gap_ns=depth_gap if depth is None else None,
         pose_gap_ns=pose_gap if pose is None else None,
         cx_offset=images.cx_offset(),
+        shared=shared,
     )
+
+
+def _shared_truth(
+    found: dict[str, tuple[Any, int | None, tuple[int, int] | None]],
+    taken: dict[str, dict[tuple[int, int], int]],
+    index: int,
+) -> tuple[str, ...]:
+    """Drop from ``found`` the truth an earlier frame took; return the topics dropped.
+
+    ``taken``: per truth topic, the messages frames took (their key: placed stamp, log time)
+    and which frame took each (the latest :data:`POSE_BUFFER` kept). One message is the
+    truth of one instant: a second frame that finds it nearest its stamp is stamped off the
+    truth's clock (a camera whose stamps repeat, placed within one frame interval), and
+    scoring it against that message would score it against another frame's truth and pose.
+    """
+    shared = []
+    for topic in (GROUND_TRUTH_DEPTH, GROUND_TRUTH_POSE):
+        message, gap, key = found.get(topic, (None, None, None))
+        if message is None or key is None:
+            continue
+        seen = taken.setdefault(topic, {})
+        if key in seen:
+            found[topic] = (None, gap, None)
+            shared.append(topic)
+            continue
+        seen[key] = index
+        if len(seen) > POSE_BUFFER:
+            del seen[next(iter(seen))]
+    return tuple(shared)

@@ -26,6 +26,7 @@ from pcainterp_stream.errors import LogReadError
 from pcainterp_stream.estimate.baselines import linear, nearest
 from pcainterp_stream.estimate.basis import Basis, resample_grid
 from pcainterp_stream.io import rosmsg
+from pcainterp_stream.io.depth_image import depth_metres
 from pcainterp_stream.io.logreader import open_log
 from pcainterp_stream.io.output_cameras import FrameCameras
 from pcainterp_stream.io.outputs import (
@@ -83,7 +84,7 @@ def compare_with_ground_truth(
     Args:
         path: a log written by ``pcainterp densify`` from a log with ground truth.
         topics: output topic names (default the standard ``/pcainterp/*`` names).
-        depth_topic: the ground-truth depth topic (32FC1, m).
+        depth_topic: the ground-truth depth topic (32FC1 m, 16UC1 mm).
 
     Returns:
         The accumulated comparison.
@@ -148,7 +149,10 @@ def _accumulate(
     estimate = decoded.disparity.astype(np.float64)
     std = decoded.disparity_std.astype(np.float64)
     focal_baseline = decoded.focal * decoded.baseline
-    depth = rosmsg.image_array(parts[depth_topic]).astype(np.float64)
+    try:  # by its encoding: 16UC1 is millimetres (REP 118)
+        depth = depth_metres(parts[depth_topic])
+    except ValueError as err:
+        raise LogReadError(f"{depth_topic}: {err}") from None
     truth = disparity_from_reference(depth, kind=ReferenceKind.DEPTH, focal_baseline=focal_baseline)
     truthful = np.isfinite(truth)
     valid = truthful & ~np.isnan(estimate)  # +inf depth (far) is an estimate; NaN none

@@ -38,10 +38,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from pcainterp_stream.errors import LogReadError, TopicNotFoundError
+from pcainterp_stream.errors import LogReadError, PcaInterpError, TopicNotFoundError
 from pcainterp_stream.evaluate.metrics import ReferenceKind, disparity_from_reference
-from pcainterp_stream.io import rosmsg
-from pcainterp_stream.io.depth_image import DEPTH_ENCODINGS, depth_metres
+from pcainterp_stream.io import depth_codec, rosmsg
+from pcainterp_stream.io.depth_image import DEPTH_ENCODINGS, depth_metres, first_message
+from pcainterp_stream.io.logreader import LogReader
 from pcainterp_stream.io.reader_base import TopicInfo, closest_topic
 
 IMAGE_TYPES = (rosmsg.IMAGE, rosmsg.COMPRESSED_IMAGE, rosmsg.DISPARITY_IMAGE)
@@ -67,7 +68,13 @@ class ReferenceTopic:
 
 
 def resolve_reference(
-    topic: str, kind: ReferenceKind | str, present: Mapping[str, TopicInfo], log: object
+    topic: str,
+    kind: ReferenceKind | str,
+    present: Mapping[str, TopicInfo],
+    log: object,
+    *,
+    outputs: str | None = None,
+    reader: LogReader | None = None,
 ) -> ReferenceTopic:
     """Check a reference topic against a log's topics and settle its kind.
 
@@ -76,22 +83,34 @@ def resolve_reference(
         kind: the ``--reference-kind``; auto: disparity for a DisparityImage, else depth.
         present: the log's topics (``LogReader.topics()``).
         log: the log, for the messages.
+        outputs: the prefix of densify's output topics (``/pcainterp``): none of them is
+            truth (the estimate scored against itself), nor offered as one.
+        reader: the open log, to offer only image topics whose first message holds depth
+            or disparity when the topic is not found (None: every image topic).
 
     Returns:
         The checked :class:`ReferenceTopic`.
 
     Raises:
         TopicNotFoundError: the topic is not in the log (the message lists its image topics).
-        LogReadError: the topic is not an image, or a DisparityImage called depth.
+        LogReadError: the topic is not an image, a DisparityImage called depth, or one of
+            densify's own outputs.
     """
     kind = ReferenceKind(kind)
     info = present.get(topic)
+    own = outputs is not None and topic.startswith(outputs.rstrip("/") + "/")
+    if info is not None and own:
+        raise LogReadError(
+            f"reference topic {topic} is one of densify's own outputs (under {outputs}): "
+            "scored against them the estimate would be scored against itself; pass a depth "
+            "or disparity topic recorded with the input (`pcainterp info` lists the topics)"
+        )
     if info is None:
-        images = sorted(name for name, other in present.items() if other.msgtype in IMAGE_TYPES)
+        images = _candidates(present, outputs, reader)
         close = closest_topic(topic, images)
         raise TopicNotFoundError(
-            f"reference topic {topic} not found in {log}; image topics present: "
-            f"{', '.join(images) or 'none'}; "
+            f"reference topic {topic} not found in {log}; depth and disparity image topics "
+            f"present: {', '.join(images) or 'none'}; "
             + (
                 f"the closest is {close}: pass it to --reference-topic"
                 if close
@@ -119,6 +138,39 @@ def resolve_reference(
     elif kind is ReferenceKind.AUTO:
         kind = ReferenceKind.DEPTH
     return ReferenceTopic(topic=topic, msgtype=info.msgtype, kind=kind)
+
+
+def _candidates(
+    present: Mapping[str, TopicInfo], outputs: str | None, reader: LogReader | None
+) -> list[str]:
+    """Return the topics a reference could be: image topics, densify's own outputs not.
+
+    With ``reader``, an ``Image`` or ``CompressedImage`` topic only when its first message
+    holds depth or disparity (32FC1, 16UC1, mono16, compressedDepth): a camera image would
+    be refused.
+    """
+    own = None if outputs is None else outputs.rstrip("/") + "/"
+    found = []
+    for name, info in sorted(present.items()):
+        if info.msgtype not in IMAGE_TYPES or (own is not None and name.startswith(own)):
+            continue
+        if reader is not None and info.msgtype != rosmsg.DISPARITY_IMAGE:
+            raw = first_message(reader, name)
+            try:
+                message = None if raw is None else reader.decode(raw)
+                if message is None or not _holds_depth(message):
+                    continue
+            except (ValueError, AttributeError, PcaInterpError):
+                continue  # undecodable: not offered
+        found.append(name)
+    return found
+
+
+def _holds_depth(message: Any) -> bool:
+    """Whether an image message holds depth or disparity (not a camera image)."""
+    if str(message.__msgtype__) == rosmsg.COMPRESSED_IMAGE:
+        return depth_codec.is_compressed_depth(str(message.format))
+    return str(message.encoding) in DEPTH_ENCODINGS
 
 
 def reference_disparity(

@@ -644,7 +644,14 @@ def evaluate_log(
         reference = (
             None
             if reference_topic is None
-            else resolve_reference(reference_topic, options.reference_kind, present, path)
+            else resolve_reference(
+                reference_topic,
+                options.reference_kind,
+                present,
+                path,
+                outputs=topics.prefix,
+                reader=reader,
+            )
         )
         has_truth = reference is not None or GROUND_TRUTH_DEPTH in present
         has_pose = GROUND_TRUTH_POSE in present
@@ -725,9 +732,9 @@ def evaluate_log(
         if truth is not None and reference is None and frame.depth is not None:
             truth_values.add(frame.depth)
         if truth is None and has_truth:  # no truth message of this stamp (within tolerance)
-            result.skipped += 1
+            result.skipped += GROUND_TRUTH_DEPTH not in frame.shared  # (else a note of its own)
             gap = frame.depth_gap_ns if reference is None else frame.reference_gap_ns
-            left_out.see(gap, "truth")
+            left_out.see(gap, "truth", shared=GROUND_TRUTH_DEPTH in frame.shared)
             stereo = None
         else:
             stereo = _stereo(frame, options.sgbm)
@@ -756,7 +763,7 @@ def evaluate_log(
                 )
             continue
         if frame.pose is None:  # no pose within the tolerance: no pair with this frame
-            left_out.see(frame.pose_gap_ns, "pose")
+            left_out.see(frame.pose_gap_ns, "pose", shared=GROUND_TRUTH_POSE in frame.shared)
             previous = None
             continue
         if previous is not None and left_out.pairs(previous[0].stamp_ns, frame.stamp_ns):
@@ -789,8 +796,8 @@ def evaluate_log(
     result.notes += [n for n in [state.reference_note(reference.topic)] if n] if reference else []
     result.notes += bounds_notes(reference, cx_offsets)
     causes = left_out.notes(state, GROUND_TRUTH_DEPTH if reference is None else reference.topic)
-    causes += [state.incomplete_note] if state.incomplete_note else []
-    causes += [state.repeated_note] if state.repeated_note else []
+    causes += [n for n in (state.incomplete_note, state.undecodable_left_note) if n]
+    causes += [n for n in (state.repeated_note, state.shared_note) if n]
     result.notes += causes + [n for n in (state.copies_note, state.undecodable_note) if n]
     if evaluator.sgbm_empty:
         result.stereo_note = (
@@ -802,9 +809,9 @@ def evaluate_log(
         name = reference.topic if reference else GROUND_TRUTH_DEPTH
         tolerance = state.reference_tolerance[0] if reference else state.tolerance_ns
         without = (
-            f", {result.skipped} without a {name} message within {tolerance / 1e6:g} ms of "
+            f", {left_out.truths} without a {name} message within {tolerance / 1e6:g} ms of "
             "their stamp"
-            if result.skipped
+            if left_out.truths
             else ""
         )
         if left_out.poses:
@@ -815,7 +822,9 @@ def evaluate_log(
         why = "; temporal mode needs two in a row with poses" if temporal else ""
         raise LogReadError(
             f"no frame of {path} could be evaluated ({read} densified frames read{without}"
-            f"{why})" + "".join(f"; {cause}" for cause in causes)
+            f"{why})"
+            + "".join(f"; {cause}" for cause in causes)
+            + "".join(f"; damage: {line}" for line in state.damage)  # a cut-off log, say
         )
     if result.reference_pixels == 0:
         raise LogReadError(no_truth_message(path, result, reference, options.max_frames))

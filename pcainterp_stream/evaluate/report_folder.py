@@ -153,9 +153,10 @@ def write_report_folder(folder: Path, write: Callable[[Path], None]) -> None:
 
     A new ``folder`` is the staging folder renamed. An existing one (checked by
     :func:`check_report_folder`; it may be a mount point or the current folder) is never
-    renamed: the report is staged in a hidden folder inside it, each file is moved into
-    place (atomically, one by one), and the report files of an earlier run that this one
-    did not write are removed, so no stale figure stays beside the new report.
+    renamed: the report is staged in a hidden folder inside it, the files of an earlier
+    report are moved aside into it, and the new files into place (:func:`_swap`): a move
+    that fails puts the earlier report back whole, never half of each; no stale figure of
+    the earlier report stays beside the new one.
 
     Raises:
         PcaInterpError: the staging folder cannot be made, or a file cannot be moved.
@@ -182,6 +183,7 @@ def write_report_folder(folder: Path, write: Callable[[Path], None]) -> None:
             ) from err
         raise _not_writable(folder, where, err) from err
     track_partial(staging)  # removed even if a signal forces the end
+    swapping = False  # the files of an earlier report are being swapped (put back on failure)
     try:
         try:
             write(staging)
@@ -199,18 +201,51 @@ def write_report_folder(folder: Path, write: Callable[[Path], None]) -> None:
                 if not path.is_dir():  # else: made meanwhile, move the files into it
                     raise
         check_report_folder(folder)  # nothing was added while the log was evaluated
-        written = {entry.name for entry in staging.iterdir()}
+        swapping = True
         with signals_deferred():  # a Ctrl-C leaves the whole report, never half of it
-            for name in sorted(written):
-                os.replace(staging / name, path / name)
-            for name in REPORT_FILES:
-                if name not in written:
-                    (path / name).unlink(missing_ok=True)
+            _swap(folder, path, staging)
     except OSError as err:
+        kept = "; the earlier report in it is as it was" if swapping else ""
         raise removed("the report was being written") or PcaInterpError(
-            f"cannot move the finished report into {folder}: {err.strerror}; "
+            f"cannot move the finished report into {folder}: {err.strerror}{kept}; "
             "re-run once it is writable"
         ) from err
     finally:
         shutil.rmtree(staging, ignore_errors=True)
         untrack_partial(staging)
+
+
+def _swap(folder: Path, path: Path, staging: Path) -> None:
+    """Move an earlier report's files aside and the staged ones into ``path``: all or none.
+
+    Every move is a rename within ``path`` (the staging folder is inside it). When one
+    fails (a file made immutable or owned by another user in a sticky folder), the files
+    moved are moved back, so the folder holds the earlier report as it was; the error is
+    raised (an OSError), or a :class:`PcaInterpError` when even moving back failed.
+    """
+    written = sorted(entry.name for entry in staging.iterdir())
+    aside = staging / ".earlier"
+    aside.mkdir()
+    moved_aside: list[str] = []
+    moved_in: list[str] = []
+    try:
+        for name in REPORT_FILES:
+            if os.path.lexists(path / name):
+                os.replace(path / name, aside / name)
+                moved_aside.append(name)
+        for name in written:
+            os.replace(staging / name, path / name)
+            moved_in.append(name)
+    except OSError as err:
+        try:
+            for name in moved_in:
+                os.replace(path / name, staging / name)
+            for name in moved_aside:
+                os.replace(aside / name, path / name)
+        except OSError as again:
+            raise PcaInterpError(
+                f"cannot move the finished report into {folder}: {err.strerror}, and the "
+                f"earlier report could not be put back ({again.strerror}): {folder} holds "
+                "parts of both; remove its report files and re-run once it is writable"
+            ) from err
+        raise

@@ -179,17 +179,23 @@ class Stamped:
                 best, found = key, index
         return found
 
-    def nearest(self, stamp: int, tolerance_ns: int, log_time_ns: int) -> tuple[Any, int | None]:
-        """Return the message nearest ``stamp`` within the tolerance (else None), its gap (ns).
+    def nearest(
+        self, stamp: int, tolerance_ns: int, log_time_ns: int
+    ) -> tuple[Any, int | None, tuple[int, int] | None]:
+        """Return the message nearest ``stamp`` within the tolerance (else None), gap, key.
 
-        Of messages of the nearest stamp, the one nearest ``log_time_ns`` (the first of a tie).
+        The gap is in ns; the key tells which message it is: (its stamp as kept, its log
+        time; None: none within the tolerance). Of messages of the nearest stamp, the one
+        nearest ``log_time_ns`` (the first of a tie).
         """
         index = self._index(stamp, log_time_ns)
         if index is None:
-            return None, None
-        kept, _, message = self._messages[index]
+            return None, None, None
+        kept, log_time, message = self._messages[index]
         gap = abs(kept - stamp)
-        return (message if gap <= tolerance_ns else None), gap
+        if gap > tolerance_ns:
+            return None, gap, None
+        return message, gap, (kept, log_time)
 
     def claim(
         self, stamp: int, log_time_ns: int, tolerance_ns: int, neighbours: Iterable[int] = ()

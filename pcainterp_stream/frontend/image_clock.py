@@ -19,6 +19,15 @@ and ``evaluate`` finds its input images (``evaluate.log_frames``) by the same ru
   is placed at ``s + (log time - l) / (k + 1)``: at a steady frame rate within one frame
   interval of ``s`` (1000.05, 1000.067, 1000.075 ... s at 10 Hz), short of the next stamp
   of any clock that ticks no finer than the frames come;
+- a clock whose stamp has not advanced for more than :data:`STUCK_AFTER_NS` of log time
+  (1 s) with no rate measured is taken as stuck (a driver that copies one stamp into every
+  image): squeezed into one frame interval, a long run's stamps would crowd together (1 ns
+  apart after some thousand images) and every stream stamped on another clock (truth,
+  poses) would meet them at the wrong frame, so its images are placed at ``s + (log time -
+  l)``, the log time since its last stamp, as a clock at real time would stamp them. A
+  coarse clock at real time (a stamp of whole seconds) stays short of its next stamp so; a
+  simulator paused, or one below real time whose clock ticks less than once a second of
+  log time, can be passed by them (as a clock that slows down amid a run can);
 - each placed stamp is later than the one placed before it (by 1 ns at least) and than the
   last stamp of its own, so the placed stamps of a run never repeat or go back;
 - before any stamp of its own (a camera that stamps nothing, all 0; or the images before a
@@ -38,6 +47,9 @@ from typing import NamedTuple
 
 RATE_SPAN = 5
 """The clock's rate is the median of its rate over this many last advances."""
+
+STUCK_AFTER_NS = 1_000_000_000
+"""A clock whose stamp repeats for longer than this (log time), no rate measured, is stuck."""
 
 
 class Restamp(NamedTuple):
@@ -75,6 +87,8 @@ class ImageClock:
         since = max(0, log_time_ns - own_log_ns)
         if self._rates:
             placed = own_ns + round(min(1.0, median(self._rates)) * since)
+        elif since > STUCK_AFTER_NS:  # stuck: at the log time since its stamp
+            placed = own_ns + since
         else:  # no rate yet: within one frame interval of the stamp
             placed = own_ns + since // (self._run + 1)
         self._placed = max(placed, self._placed + 1)

@@ -48,7 +48,7 @@ from pcainterp_stream.frontend.pair_forms import (
     is_rectified_name,
 )
 from pcainterp_stream.frontend.pairing_config import PairingConfig as PairingConfig
-from pcainterp_stream.frontend.pairing_stats import MAX_CAMERA_LINES, PairingStats
+from pcainterp_stream.frontend.pairing_stats import MAX_CAMERA_LINES, PairingStats, first_clause
 from pcainterp_stream.frontend.pairing_window import HeldQueue, Hold, HoldLimits
 from pcainterp_stream.frontend.pairing_window import PendingImage as _Pending
 from pcainterp_stream.frontend.rect_border import BorderFinder, RectifiedBorder
@@ -808,7 +808,7 @@ def _size(camera: StereoCamera) -> str:
 
 def _reason(err: BaseException) -> str:
     """Return the reason of a decoding error, short enough to count by (no sizes, formats)."""
-    text = str(err).split(";")[0].split(" (")[0]
+    text = first_clause(str(err))
     return text if len(text) <= 60 else text[:57] + "..."
 
 

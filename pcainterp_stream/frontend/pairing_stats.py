@@ -575,3 +575,27 @@ def _camera_text(camera: StereoCamera, *, baseline: bool = True) -> str:
     """Return "620x188 px, fx 359.428 px" (with ", f*b 193.08 px*m" when ``baseline``)."""
     text = f"{camera.width}x{camera.height} px, fx {camera.fx:.6g} px"
     return text + (f", f*b {camera.focal_baseline:.5g} px*m" if baseline else "")
+
+
+def first_clause(text: str) -> str:
+    """Return ``text`` up to its first ``;`` or `` (`` outside a quoted value.
+
+    A quote opens after a space, ``(``, ``=``, ``:`` or at the start, and closes before a
+    character that is not a letter or digit, so an apostrophe (``densify's``) opens none.
+
+    >>> first_clause("unsupported compressed image format 'rgb8; compressedDepth'; use png")
+    "unsupported compressed image format 'rgb8; compressedDepth'"
+    >>> first_clause("compressed png image does not decode (3 bytes)")
+    'compressed png image does not decode'
+    """
+    quote = ""
+    for index, char in enumerate(text):
+        if quote:
+            after = text[index + 1 : index + 2]
+            if char == quote and not after.isalnum():
+                quote = ""
+        elif char in "'\"" and (index == 0 or text[index - 1] in " (=:"):
+            quote = char
+        elif char == ";" or text.startswith(" (", index):
+            return text[:index]
+    return text

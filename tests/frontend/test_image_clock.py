@@ -70,3 +70,22 @@ def test_missed_stuck_and_restarted_stamps_stay_monotonic() -> None:
     assert placed[-1] < SECOND + 100 * MS
     restart = [5 * SECOND, 5 * SECOND + 100 * MS, SECOND, SECOND]  # the clock restarted
     assert _placed(restart)[3] == SECOND + 50 * MS
+
+
+def test_a_clock_stuck_for_longer_than_a_second_goes_on_at_log_time() -> None:
+    # bug hunt 16B F8: every image stamped 1317046453.0 s; the whole log was squeezed into
+    # one frame interval (1 ns apart after some thousand images); past a second of log time
+    # the images are placed at the stamp plus the log time since it
+    stuck = [LOG_START] * 40  # 4 s at 10 Hz
+    placed = _placed(stuck)
+    assert all(b > a for a, b in itertools.pairwise(placed)), placed
+    assert placed[1] == LOG_START + 50 * MS  # within the first second: within one frame
+    assert placed[11:] == [LOG_START + i * 100 * MS for i in range(11, 40)]
+    long_run = _placed([LOG_START] * 20_000, period_ns=33 * MS)  # 11 min at 30 Hz
+    assert min(b - a for a, b in itertools.pairwise(long_run[31:])) == 33 * MS
+
+
+def test_a_coarse_clock_of_whole_seconds_stays_short_of_its_next_stamp() -> None:
+    seconds = [1000 * SECOND + (i // 15) * SECOND for i in range(45)]  # 15 Hz, 1 s ticks
+    placed = _placed(seconds, period_ns=66_666_667)
+    _strictly_between_own(seconds, placed)
