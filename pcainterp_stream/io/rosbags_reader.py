@@ -44,6 +44,7 @@ from pcainterp_stream.io.reader_base import (
     ros2_type_name,
 )
 from pcainterp_stream.io.rosbag2_record import qos_yaml
+from pcainterp_stream.io.rosbag2_wal import WalView
 from pcainterp_stream.records import RawMessage
 
 try:  # lz4 chunks are rare (the ROS 2 writers use zstd); lz4 is optional, as in mcap
@@ -83,6 +84,7 @@ class RosbagsLogReader(LogReader):
         super().__init__(path)
         self.format = log_format
         self._reader: AnyReader | Ros1Reader | None = None
+        self._wal: WalView | None = None  # rosbag2 sqlite3: a WAL beside it merged in a copy
         self._ros1 = _Ros1Converter(self._warn_once)
         self._schemas: dict[str, bytes] = {}
         # ROS 1: the connections read (definitions mended), those left out and why
@@ -93,7 +95,13 @@ class RosbagsLogReader(LogReader):
         self._skip_lines: dict[str, str] = {}
 
     def _open(self) -> None:
-        self._reader = self._open_any(self.path)
+        if self.format is LogFormat.ROSBAG2:
+            self._wal = WalView(self.path)
+        try:
+            self._reader = self._open_any(self.path)
+        except BaseException:
+            self._close()
+            raise
         try:
             if self.format is LogFormat.ROS1:
                 self._check_ros1_definitions()
@@ -142,12 +150,28 @@ class RosbagsLogReader(LogReader):
                 reader = Ros1Reader(_rosbags_path(path, self.format))
             else:
                 reader = AnyReader(
-                    [_rosbags_path(path, self.format)], default_typestore=rosmsg.TYPESTORE
+                    [_rosbags_path(self._wal_source(path), self.format)],
+                    default_typestore=rosmsg.TYPESTORE,
                 )
             reader.open()
         except Exception as err:  # AnyReaderError, ReaderError, sqlite3, yaml, OSError...
             raise LogReadError(self._open_error(path, err)) from err
         return reader
+
+    def _wal_source(self, path: Path) -> Path:
+        """Return where rosbags reads ``path`` from: a private copy with its WAL merged.
+
+        See :mod:`pcainterp_stream.io.rosbag2_wal`; the notes go to the warnings (merged)
+        or the damage (a WAL that could not be merged: its messages are not read).
+        """
+        if self._wal is None:
+            return path
+        self._wal.source()
+        for note in self._wal.notes:
+            _add_once(self.warnings, f"{self.path.name}: {note}" if path.is_dir() else note)
+        for note in self._wal.failures:
+            _add_once(self.damage, note)
+        return self._wal.viewed(path)
 
     def _check_ros1_definitions(self) -> None:
         """Judge each ROS 1 connection's definition; leave out the topics it cannot decode.
@@ -233,6 +257,9 @@ class RosbagsLogReader(LogReader):
         if self._reader is not None:
             self._reader.close()
             self._reader = None
+        if self._wal is not None:
+            self._wal.close()
+            self._wal = None
 
     def _schema(self, connection: Any) -> tuple[str, str, bytes]:
         """Return (ros2 type name, schema encoding, schema) of a connection.

@@ -85,7 +85,8 @@ def test_an_empty_definition_with_its_own_md5_skips_its_messages_only(tmp_path: 
     extra = ("/weird", "std_msgs/msg/Int8", "", EMPTY_MD5, b"\x05")
     raws, damage, _ = _read(_bag(tmp_path / "weird.bag", extra=extra))
     assert [r.topic for r in raws].count(LEFT) == 6
-    assert len(damage) == 1 and "1 of the 1 messages on /weird do not convert" in damage[0]
+    assert len(damage) == 1
+    assert "1 of the 1 messages on /weird do not convert" in damage[0]
 
 
 def test_a_rosserial_topic_of_a_noetic_type_is_read_with_noetic_definition(
@@ -97,7 +98,8 @@ def test_a_rosserial_topic_of_a_noetic_type_is_read_with_noetic_definition(
     assert damage == []
     assert [r.topic for r in raws].count(LEFT) == 6
     weird = [r for r in raws if r.topic == "/weird"]
-    assert len(weird) == 1 and weird[0].data[4:] == b"\x05"
+    assert len(weird) == 1
+    assert weird[0].data[4:] == b"\x05"
     assert any("/weird" in w and "ROS 1 Noetic's definition" in w for w in warnings), warnings
 
 
@@ -131,5 +133,6 @@ def test_a_damaged_chunk_is_skipped_and_the_later_chunks_read(tmp_path: Path) ->
     raws, damage, _ = _read(bad)
     assert [r.topic for r in raws] == [LEFT] * 5
     assert len(damage) == 1, damage
-    assert "chunk at byte" in damage[0] and "its 1 messages skipped" in damage[0]
+    assert "chunk at byte" in damage[0]
+    assert "its 1 messages skipped" in damage[0]
     assert "closed file" not in " ".join(damage)
