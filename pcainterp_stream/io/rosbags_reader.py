@@ -13,11 +13,13 @@ from __future__ import annotations
 import heapq
 import io
 import os
+import shlex
 import sqlite3
 from collections.abc import Iterable, Iterator
 from pathlib import Path, PosixPath
 from typing import IO, Any
 
+import yaml
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import MessageDefinition, MessageDefinitionFormat
 from rosbags.rosbag1 import Reader as Ros1Reader
@@ -218,6 +220,23 @@ class RosbagsLogReader(LogReader):
                 f"`rosbag reindex {path}` may repair it"
             )
         storage = _storage_files(path) if path.is_dir() else []
+        missing = _missing_parts(path) if path.is_dir() else None
+        if missing is not None:
+            absent, present = missing
+            names = ", ".join(p.name for p in absent)
+            listed = len(absent) + len(present)
+            text = (
+                f"cannot read rosbag2 folder {path}: metadata.yaml lists {listed} storage files "
+                f"and {names} {'is' if len(absent) == 1 else 'are'} missing (an interrupted "
+                "copy?); copy the missing part in"
+            )
+            if not present:
+                return f"{text} (no part it lists is there)"
+            parts = " ".join(shlex.quote(str(p)) for p in present)
+            return (
+                f"{text}, or pass the parts present instead of the folder to read them alone: "
+                f"{parts}"
+            )
         if storage and "Could not parse" in str(err):
             return (
                 f"cannot read rosbag2 folder {path}: rosbags cannot parse a message definition "
@@ -650,6 +669,18 @@ def _rosbags_path(path: Path, log_format: LogFormat) -> Path:
                 head = f.read(len(MCAP_MAGIC))
             wrapped.forced_suffix = ".mcap" if head.startswith(MCAP_MAGIC) else ".db3"
     return wrapped
+
+
+def _missing_parts(folder: Path) -> tuple[list[Path], list[Path]] | None:
+    """Return (missing, present) storage files metadata.yaml lists; None if none is missing."""
+    try:
+        text = (folder / "metadata.yaml").read_text()
+        info = yaml.safe_load(text)["rosbag2_bagfile_information"]
+        listed = [folder / str(name) for name in info["relative_file_paths"]]
+    except Exception:  # OSError, YAMLError, KeyError, TypeError: rosbags' error stands
+        return None
+    absent = [p for p in listed if not p.exists()]
+    return (absent, [p for p in listed if p.exists()]) if absent else None
 
 
 def _storage_files(folder: Path) -> list[Path]:
