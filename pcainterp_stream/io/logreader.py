@@ -303,6 +303,8 @@ def decode_image(message: Any) -> npt.NDArray[np.generic]:
         return rosmsg.image_array(message)
     image_format = str(getattr(message, "format", ""))
     kind = image_format.lower().replace(";", " ").split()
+    if not kind:  # an empty format (hand-written publishers, some bridges): the bytes decide
+        kind = _sniffed_kind(message.data)
     known = {"png", "jpeg", "jpg"}
     if not known.intersection(kind) or "compresseddepth" in kind:
         raise ValueError(
@@ -340,3 +342,13 @@ def decode_image(message: Any) -> npt.NDArray[np.generic]:
     elif not stored_rgb:
         image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
     return np.asarray(image)
+
+
+def _sniffed_kind(data: Any) -> list[str]:
+    """Return ["png"] or ["jpeg"] by a compressed image's magic bytes, [] for neither."""
+    head = bytes(np.asarray(data[:8], dtype=np.uint8))
+    if head == PNG_SIGNATURE:
+        return ["png"]
+    if head[:2] == b"\xff\xd8":
+        return ["jpeg"]
+    return []

@@ -540,7 +540,9 @@ class McapLogReader(LogReader):
 
         The outer loop reads one record at a time (its length is checked against the bytes
         left, so a garbage length cannot make it allocate); damage inside a chunk skips that
-        chunk, damage to the framing ends the walk.
+        chunk. Damage to the framing (a record's opcode or length) ends the walk, unless the
+        summary's chunk index lists the chunks: a chunk it lists at that offset is read with
+        the length it gives, else the walk resumes at the next chunk it lists.
         """
         assert self._file is not None
         f = self._file
@@ -557,6 +559,19 @@ class McapLogReader(LogReader):
                 return
             opcode, length = _RECORD_HEADER.unpack(head)
             remaining = size - offset - _RECORD_HEADER.size
+            indexed = self._indexed_chunk_length(offset, opcode, length)
+            if indexed is not None:
+                opcode, length = Opcode.CHUNK, indexed
+            elif length > remaining and (resume := self._resume_after(offset)) is not None:
+                self._damage(
+                    offset,
+                    f"{_opcode_name(opcode)} record claims {length} bytes but {remaining} remain "
+                    f"(corrupt; the walk resumed at byte {resume}, the next chunk the summary's "
+                    f"chunk index lists{self._chunks_between(offset, resume)})",
+                )
+                offset = resume
+                f.seek(offset)
+                continue
             if length > remaining:
                 self._damage(
                     offset,
@@ -589,6 +604,39 @@ class McapLogReader(LogReader):
             else:
                 f.seek(length, io.SEEK_CUR)
             offset += _RECORD_HEADER.size + length
+
+    def _indexed_chunk_length(self, offset: int, opcode: int, length: int) -> int | None:
+        """Return the record length the chunk index gives a damaged chunk at ``offset``.
+
+        None when the index lists no chunk there, or the record's opcode and length agree
+        with it (the usual case), or its length does not fit in the file. A chunk whose
+        opcode or length field is damaged is noted and read with the index's length (its
+        CRC still checks its records).
+        """
+        index = self._chunk_indexes.get(offset)
+        if index is None:
+            return None
+        indexed = index.chunk_length - _RECORD_HEADER.size
+        if (opcode == Opcode.CHUNK and length == indexed) or not (
+            0 < indexed <= self._size - offset - _RECORD_HEADER.size
+        ):
+            return None
+        self._damage(
+            offset,
+            f"{_opcode_name(opcode)} record of {length} bytes where the summary's chunk index "
+            f"lists a chunk of {indexed} (corrupt); read with the index's length",
+        )
+        return indexed
+
+    def _chunks_between(self, start: int, end: int) -> str:
+        """Say how many chunks the chunk index lists from ``start`` up to ``end`` (skipped)."""
+        skipped = sum(start <= offset < end for offset in self._chunk_indexes)
+        return f"; {skipped} chunks it lists skipped" if skipped else ""
+
+    def _resume_after(self, offset: int) -> int | None:
+        """Return the offset of the first chunk the chunk index lists after ``offset``."""
+        later = [start for start in self._chunk_indexes if start > offset]
+        return min(later) if later and min(later) < self._size else None
 
     def _chunk_records(
         self, body: bytes, offset: int, *, truncated: bool = False

@@ -1,19 +1,30 @@
-"""ROS 1 bags and rosbag2 folders or storage files, read through rosbags' ``AnyReader``.
+"""ROS 1 bags and rosbag2 folders or storage files, read through rosbags.
 
+A rosbag2 log is read through rosbags' ``AnyReader``; an indexed ROS 1 bag through rosbags'
+ROS 1 ``Reader`` (its index and chunk headers), its chunks inflated here one at a time, so
+that one damaged chunk, one message that does not convert or one topic whose definition
+does not match its md5sum is skipped, counted and named, and the rest of the bag read.
 ROS 1 messages are converted to CDR with a ``ros2msg`` schema, so the rest of the pipeline
 sees one kind of log; damage is recorded, not raised.
 """
 
 from __future__ import annotations
 
+import heapq
 import io
 import os
+import shlex
 import sqlite3
 from collections.abc import Iterable, Iterator
 from pathlib import Path, PosixPath
 from typing import IO, Any
 
+import yaml
 from rosbags.highlevel import AnyReader
+from rosbags.interfaces import MessageDefinition, MessageDefinitionFormat
+from rosbags.rosbag1 import Reader as Ros1Reader
+from rosbags.rosbag1.reader import Header, RecordType, read_bytes, read_uint32
+from rosbags.typesys import Stores, get_typestore
 
 from pcainterp_stream.errors import LogReadError
 from pcainterp_stream.io import rosmsg
@@ -27,6 +38,7 @@ from pcainterp_stream.io.reader_base import (
     _matches_humble,
     _one_line,
     _Ros1Converter,
+    _store_from_msg,
     _TimeOrder,
     merge_topic,
     ros1_channel_metadata,
@@ -34,6 +46,7 @@ from pcainterp_stream.io.reader_base import (
     ros2_type_name,
 )
 from pcainterp_stream.io.rosbag2_record import qos_yaml
+from pcainterp_stream.io.rosbag2_wal import WalView
 from pcainterp_stream.records import RawMessage
 
 try:  # lz4 chunks are rare (the ROS 2 writers use zstd); lz4 is optional, as in mcap
@@ -72,13 +85,28 @@ class RosbagsLogReader(LogReader):
     def __init__(self, path: Path, log_format: LogFormat) -> None:
         super().__init__(path)
         self.format = log_format
-        self._reader: AnyReader | None = None
+        self._reader: AnyReader | Ros1Reader | None = None
+        self._wal: WalView | None = None  # rosbag2 sqlite3: a WAL beside it merged in a copy
         self._ros1 = _Ros1Converter(self._warn_once)
         self._schemas: dict[str, bytes] = {}
+        # ROS 1: the connections read (definitions mended), those left out and why
+        self._connections: dict[int, Any] = {}
+        self._left_out: dict[int, str] = {}
+        # ROS 1: messages skipped while reading, by cause: (chunk, offset)s and their line
+        self._skipped: dict[str, set[tuple[int, int]]] = {}
+        self._skip_lines: dict[str, str] = {}
 
     def _open(self) -> None:
-        self._reader = self._open_any(self.path)
+        if self.format is LogFormat.ROSBAG2:
+            self._wal = WalView(self.path)
         try:
+            self._reader = self._open_any(self.path)
+        except BaseException:
+            self._close()
+            raise
+        try:
+            if self.format is LogFormat.ROS1:
+                self._check_ros1_definitions()
             self._check_connections()
             if self.format is LogFormat.ROSBAG2 and self.path.is_dir():
                 self._check_folder_yields()
@@ -109,16 +137,80 @@ class RosbagsLogReader(LogReader):
                     f"{self.path.name}: {where} gives topic {topic} a message count of {count!r}",
                 )
 
-    def _open_any(self, path: Path) -> AnyReader:
+    def _open_any(self, path: Path) -> AnyReader | Ros1Reader:
+        """Open rosbags' reader: ``AnyReader`` for rosbag2, its ROS 1 ``Reader`` for a bag.
+
+        ``AnyReader`` refuses a whole ROS 1 bag when one connection's definition does not
+        parse or does not match its md5sum (rosserial records an empty one); the ROS 1
+        reader opens the index alone, and :meth:`_check_ros1_definitions` judges each
+        connection.
+        """
         _bound_rosbags_decompressors()
+        reader: AnyReader | Ros1Reader
         try:
-            reader = AnyReader(
-                [_rosbags_path(path, self.format)], default_typestore=rosmsg.TYPESTORE
-            )
+            if self.format is LogFormat.ROS1:
+                reader = Ros1Reader(_rosbags_path(path, self.format))
+            else:
+                reader = AnyReader(
+                    [_rosbags_path(self._wal_source(path), self.format)],
+                    default_typestore=rosmsg.TYPESTORE,
+                )
             reader.open()
         except Exception as err:  # AnyReaderError, ReaderError, sqlite3, yaml, OSError...
             raise LogReadError(self._open_error(path, err)) from err
         return reader
+
+    def _wal_source(self, path: Path) -> Path:
+        """Return where rosbags reads ``path`` from: a private copy with its WAL merged.
+
+        See :mod:`pcainterp_stream.io.rosbag2_wal`; the notes go to the warnings (merged)
+        or the damage (a WAL that could not be merged: its messages are not read).
+        """
+        if self._wal is None:
+            return path
+        self._wal.source()
+        for note in self._wal.notes:
+            _add_once(self.warnings, f"{self.path.name}: {note}" if path.is_dir() else note)
+        for note in self._wal.failures:
+            _add_once(self.damage, note)
+        return self._wal.viewed(path)
+
+    def _check_ros1_definitions(self) -> None:
+        """Judge each ROS 1 connection's definition; leave out the topics it cannot decode.
+
+        A definition that does not parse, or whose md5sum is not the one the connection
+        records, cannot decode its messages. rosserial records the right md5sum with an
+        empty definition: when ROS 1 Noetic's type of that name has that md5sum, its
+        definition is used (what ``fix_msg_defs.py`` of rosbag does), with a warning; else
+        the topic is left out, as damage, and the rest of the bag read.
+        """
+        assert isinstance(self._reader, Ros1Reader)
+        counts = {c.id: len(self._reader.indexes.get(c.id, ())) for c in self._reader.connections}
+        for connection in self._reader.connections:
+            problem = _ros1_definition_problem(connection)
+            if problem is not None and connection.digest:
+                mended = _noetic_definition(str(connection.msgtype), str(connection.digest))
+                if mended is not None:
+                    connection = connection._replace(
+                        msgdef=MessageDefinition(MessageDefinitionFormat.MSG, mended)
+                    )
+                    _add_once(
+                        self.warnings,
+                        f"{self.path.name}: {connection.topic}: the bag's definition of "
+                        f"{connection.msgtype} {problem}; read with ROS 1 Noetic's definition, "
+                        "which has that md5sum",
+                    )
+                    problem = None
+            self._connections[connection.id] = connection
+            if problem is None:
+                continue
+            self._left_out[connection.id] = problem
+            _add_once(
+                self.damage,
+                f"{self.path.name}: {connection.topic} ({counts[connection.id]} messages of "
+                f"{connection.msgtype}) left out: its definition {problem}, so its messages "
+                "cannot be decoded; the other topics are read",
+            )
 
     def _open_error(self, path: Path, err: BaseException) -> str:
         text = _one_line(err)
@@ -128,6 +220,23 @@ class RosbagsLogReader(LogReader):
                 f"`rosbag reindex {path}` may repair it"
             )
         storage = _storage_files(path) if path.is_dir() else []
+        missing = _missing_parts(path) if path.is_dir() else None
+        if missing is not None:
+            absent, present = missing
+            names = ", ".join(p.name for p in absent)
+            listed = len(absent) + len(present)
+            text = (
+                f"cannot read rosbag2 folder {path}: metadata.yaml lists {listed} storage files "
+                f"and {names} {'is' if len(absent) == 1 else 'are'} missing (an interrupted "
+                "copy?); copy the missing part in"
+            )
+            if not present:
+                return f"{text} (no part it lists is there)"
+            parts = " ".join(shlex.quote(str(p)) for p in present)
+            return (
+                f"{text}, or pass the parts present instead of the folder to read them alone: "
+                f"{parts}"
+            )
         if storage and "Could not parse" in str(err):
             return (
                 f"cannot read rosbag2 folder {path}: rosbags cannot parse a message definition "
@@ -167,6 +276,9 @@ class RosbagsLogReader(LogReader):
         if self._reader is not None:
             self._reader.close()
             self._reader = None
+        if self._wal is not None:
+            self._wal.close()
+            self._wal = None
 
     def _schema(self, connection: Any) -> tuple[str, str, bytes]:
         """Return (ros2 type name, schema encoding, schema) of a connection.
@@ -193,7 +305,7 @@ class RosbagsLogReader(LogReader):
 
     def _definition(self, msgtype: str) -> bytes:
         """Return the ros2msg text of a rosbag2 type, b"" when rosbags cannot give one."""
-        assert self._reader is not None
+        assert isinstance(self._reader, AnyReader)  # rosbag2 only
         if msgtype not in self._schemas:
             store = self._reader.typestore
             if _matches_humble(store, msgtype):
@@ -243,8 +355,11 @@ class RosbagsLogReader(LogReader):
         """See :meth:`LogReader.messages`."""
         self._check_open()
         assert self._reader is not None
-        reader = self._reader
         wanted = None if topics is None else set(topics)
+        if isinstance(self._reader, Ros1Reader):
+            yield from self._ros1_messages(self._reader, wanted)
+            return
+        reader = self._reader
         connections = [c for c in reader.connections if wanted is None or c.topic in wanted]
         if not connections:
             return
@@ -258,19 +373,8 @@ class RosbagsLogReader(LogReader):
                     break
                 connection, timestamp, data = item
                 msgtype, schema_encoding, schema = self._schema(connection)
-                if self.format is LogFormat.ROS1:
-                    data, schema = self._ros1.convert(  # the type and key _schema used
-                        data,
-                        ros2_type_name(str(connection.msgtype)),
-                        str(connection.msgdef.data),
-                        connection.topic,
-                    )
                 metadata = _connection_metadata(connection)
-                if self.format is LogFormat.ROS1:
-                    metadata = ros1_channel_metadata(
-                        metadata, latching=bool(getattr(connection.ext, "latching", None))
-                    )
-            except (Exception, sqlite3.Error) as err:  # ReaderError, SerdeError, lz4/bz2...
+            except (Exception, sqlite3.Error) as err:  # ReaderError, sqlite3, zstd...
                 _add_once(
                     self.damage,
                     f"{self.path.name}: unreadable after message {count} ({_one_line(err)})",
@@ -292,6 +396,185 @@ class RosbagsLogReader(LogReader):
                 sequence=0,
             )
         order.report(self)
+
+    def _ros1_messages(self, bag: Ros1Reader, wanted: set[str] | None) -> Iterator[RawMessage]:
+        """Yield an indexed ROS 1 bag's messages in log-time order, skipping what is damaged.
+
+        The index (read at open) gives each message's time, chunk and offset in it; a chunk
+        is inflated when its first message is due (one at a time, as rosbags does). A chunk
+        that does not inflate, a message record that does not parse and a message that does
+        not convert are skipped, each cause counted on one damage line; the walk goes on.
+        """
+        connections = [
+            c
+            for c in self._connections.values()
+            if (wanted is None or c.topic in wanted) and c.id not in self._left_out
+        ]
+        if not connections:
+            return
+        order = _TimeOrder()
+        chunk_sizes = {info.pos: sum(info.connection_counts.values()) for info in bag.chunk_infos}
+        current: tuple[int, io.BytesIO | None] = (-1, None)
+        bad_chunks: dict[int, str] = {}
+        entries = heapq.merge(*(bag.indexes.get(c.id, []) for c in connections))
+        for entry in entries:
+            place = (entry.chunk_pos, entry.offset)
+            if entry.chunk_pos in bad_chunks:
+                continue
+            if current[0] != entry.chunk_pos:
+                try:
+                    current = (entry.chunk_pos, io.BytesIO(_inflate_chunk(bag, entry.chunk_pos)))
+                except Exception as err:  # ReaderError, bz2 OSError, lz4 RuntimeError...
+                    bad_chunks[entry.chunk_pos] = _one_line(err)
+                    current = (-1, None)
+                    _add_once(
+                        self.damage,
+                        f"{self.path.name}: chunk at byte {entry.chunk_pos} unreadable "
+                        f"({_one_line(err)}): its {chunk_sizes.get(entry.chunk_pos, 0)} "
+                        "messages skipped",
+                    )
+                    continue
+            assert current[1] is not None
+            try:
+                conn_id, data = _message_record(current[1], entry.offset)
+                connection = self._connections[conn_id]
+            except Exception as err:  # ReaderError, KeyError (an unknown connection)
+                self._skip(
+                    f"record {entry.chunk_pos}",
+                    place,
+                    "{n} of the "
+                    f"{chunk_sizes.get(entry.chunk_pos, 0)} messages in the chunk at byte "
+                    f"{entry.chunk_pos} unreadable ({_one_line(err)}); skipped",
+                )
+                continue
+            if connection.id in self._left_out:
+                continue
+            try:
+                msgtype, schema_encoding, schema = self._schema(connection)
+                data, schema = self._ros1.convert(  # the type and key _schema used
+                    data,
+                    ros2_type_name(str(connection.msgtype)),
+                    str(connection.msgdef.data),
+                    connection.topic,
+                )
+            except Exception as err:  # rosbags SerdeError, TypesysError, struct.error...
+                total = len(bag.indexes.get(connection.id, ()))
+                self._skip(
+                    f"convert {connection.topic}",
+                    place,
+                    "{n} of the "
+                    f"{total} messages on {connection.topic} do not convert "
+                    f"({_one_line(err)}); skipped",
+                )
+                continue
+            metadata = ros1_channel_metadata(
+                _connection_metadata(connection),
+                latching=bool(getattr(connection.ext, "latching", None)),
+            )
+            order.see(int(entry.time))
+            yield RawMessage(
+                topic=connection.topic,
+                msgtype=msgtype,
+                schema_name=msgtype,
+                schema_encoding=schema_encoding,
+                schema_data=schema,
+                message_encoding="cdr",
+                channel_metadata=metadata,
+                data=bytes(data),
+                log_time_ns=int(entry.time),
+                publish_time_ns=int(entry.time),
+                sequence=0,
+            )
+        order.report(self)
+
+    def _skip(self, cause: str, place: tuple[int, int], line: str) -> None:
+        """Count a skipped message under ``cause``; its damage line says how many so far.
+
+        ``line`` starts with ``{n}``, the count. A message is counted once however often the
+        log is read (``place``: its chunk and offset); the cause's line is replaced as the
+        count grows.
+        """
+        places = self._skipped.setdefault(cause, set())
+        places.add(place)
+        text = f"{self.path.name}: {line.replace('{n}', str(len(places)), 1)}"
+        old = self._skip_lines.get(cause)
+        self._skip_lines[cause] = text
+        if old is not None and old in self.damage:
+            self.damage[self.damage.index(old)] = text
+        else:
+            _add_once(self.damage, text)
+
+
+def _inflate_chunk(bag: Ros1Reader, position: int) -> bytes:
+    """Return the records of the ROS 1 chunk at ``position`` (its data, decompressed).
+
+    Raises:
+        ReaderError: the data is cut short; the decompressor's error when it does not inflate.
+    """
+    assert bag.bio is not None
+    chunk = bag.chunks[position]
+    bag.bio.seek(chunk.datapos)
+    return chunk.decompressor(read_bytes(bag.bio, chunk.datasize))
+
+
+def _message_record(chunk: io.BytesIO, offset: int) -> tuple[int, bytes]:
+    """Return (connection id, data) of the message data record at ``offset`` of a chunk.
+
+    Connection records before it are passed over, as rosbags' reader does.
+
+    Raises:
+        ReaderError: the records there do not parse or are no message data.
+    """
+    from rosbags.rosbag1 import ReaderError
+
+    chunk.seek(offset)
+    while True:
+        header = Header.read(chunk)
+        kind = header.get_uint8("op")
+        if kind != RecordType.CONNECTION:
+            break
+        chunk.seek(read_uint32(chunk), os.SEEK_CUR)
+    if kind != RecordType.MSGDATA:
+        raise ReaderError("expected message data")
+    return header.get_uint32("conn"), read_bytes(chunk, read_uint32(chunk))
+
+
+def _ros1_definition_problem(connection: Any) -> str | None:
+    """Return why a ROS 1 connection's definition cannot decode its messages, else None.
+
+    None too when the connection records no md5sum to check it against (then only a
+    definition that does not parse is a problem).
+    """
+    msgtype, text = str(connection.msgtype), str(connection.msgdef.data)
+    try:
+        digest = str(_store_from_msg(text, msgtype).generate_msgdef(msgtype)[1])
+    except Exception as err:  # rosbags TypesysError: the definition does not parse
+        return f"does not parse ({_one_line(err)})"
+    if connection.digest and digest != connection.digest:
+        empty = " (it is empty, as rosserial records it)" if not text.strip() else ""
+        return f"has md5sum {digest}, not the {connection.digest} recorded{empty}"
+    return None
+
+
+def _noetic_definition(msgtype: str, digest: str) -> str | None:
+    """Return ROS 1 Noetic's definition of ``msgtype`` when its md5sum is ``digest``."""
+    store = _noetic_store()
+    if msgtype not in store.fielddefs:
+        return None
+    try:
+        text, noetic_digest = store.generate_msgdef(msgtype)
+    except Exception:  # pragma: no cover - the store's own types generate
+        return None
+    return str(text) if noetic_digest == digest else None
+
+
+_NOETIC: list[Any] = []
+
+
+def _noetic_store() -> Any:
+    if not _NOETIC:
+        _NOETIC.append(get_typestore(Stores.ROS1_NOETIC))
+    return _NOETIC[0]
 
 
 def _message_count(value: Any) -> int | None:
@@ -386,6 +669,18 @@ def _rosbags_path(path: Path, log_format: LogFormat) -> Path:
                 head = f.read(len(MCAP_MAGIC))
             wrapped.forced_suffix = ".mcap" if head.startswith(MCAP_MAGIC) else ".db3"
     return wrapped
+
+
+def _missing_parts(folder: Path) -> tuple[list[Path], list[Path]] | None:
+    """Return (missing, present) storage files metadata.yaml lists; None if none is missing."""
+    try:
+        text = (folder / "metadata.yaml").read_text()
+        info = yaml.safe_load(text)["rosbag2_bagfile_information"]
+        listed = [folder / str(name) for name in info["relative_file_paths"]]
+    except Exception:  # OSError, YAMLError, KeyError, TypeError: rosbags' error stands
+        return None
+    absent = [p for p in listed if not p.exists()]
+    return (absent, [p for p in listed if p.exists()]) if absent else None
 
 
 def _storage_files(folder: Path) -> list[Path]:
