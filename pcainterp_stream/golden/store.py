@@ -14,6 +14,7 @@ import difflib
 import json
 import math
 import numbers
+import os
 import zipfile
 import zlib
 from collections.abc import Collection, Iterable, Iterator, Mapping
@@ -121,6 +122,11 @@ def is_golden_arrays(path: str | Path) -> bool:
     return bool(keys) and all(key[:1] == "a" and key[1:].isdigit() for key in keys)
 
 
+def _same_path(first: Path, second: Path) -> bool:
+    """Whether two paths lead to one place (``Path.resolve()`` raises on a link loop)."""
+    return os.path.realpath(first) == os.path.realpath(second)
+
+
 def _is_golden_json(path: Path) -> bool:
     """Return True for a golden JSON of any format version (a file this package wrote)."""
     try:
@@ -145,7 +151,7 @@ def _check_writable(golden: Path, array_file: Path | None, log: Path) -> None:
             in a folder that cannot be written.
     """
     for target in (golden, array_file):
-        if target is not None and target.resolve() == log.resolve():
+        if target is not None and _same_path(target, log):
             raise GoldenError(
                 f"{target} is the log {log.name} itself; give the golden file another name"
             )
@@ -202,7 +208,7 @@ def _other_owner(path: Path, golden: Path, channels: Mapping[str, Any] | None = 
     if owner is None or owner == golden.name or Path(owner).name != owner:
         return None
     other = path.parent / owner
-    if other.resolve() == golden.resolve() or not _is_golden_json(other):
+    if _same_path(other, golden) or not _is_golden_json(other):
         return None
     try:
         document = json.loads(other.read_text())
@@ -391,7 +397,7 @@ def _write(
         except OSError as err:
             raise write_error(golden, err) from err
     for path in stale:
-        if path.exists() and path.resolve() != log.resolve() and _arrays_of(path, golden):
+        if path.exists() and not _same_path(path, log) and _arrays_of(path, golden):
             path.unlink()
 
 
