@@ -29,6 +29,7 @@ import numpy.typing as npt
 from pcainterp_stream.errors import GoldenError, GoldenToleranceError
 from pcainterp_stream.golden.comparison import DEFAULT_TOLERANCE, Difference, compare
 from pcainterp_stream.golden.replacing import replacing_together, staged_at, write_error
+from pcainterp_stream.golden.shape import damaged_golden, malformed
 from pcainterp_stream.golden.summary import LogSummary, Progress, summarize_log
 from pcainterp_stream.version import __version__
 
@@ -558,6 +559,16 @@ def _arrays_owner_guess(path: Path) -> str:
     return f"{stem}.golden.json"
 
 
+def _refuse_malformed(golden: Path, document: Mapping[str, Any]) -> None:
+    """Refuse a golden document whose shape the comparison cannot read (:func:`malformed`)."""
+    wrong = malformed(document)
+    if wrong is not None:
+        raise GoldenError(
+            f"{golden} is a malformed golden file ({document.get('format')}): {wrong}; write "
+            "it again with `pcainterp golden save`"
+        )
+
+
 def format_version(document: Mapping[str, Any]) -> int:
     """Return the format version of a document :func:`load_golden` returned."""
     return int(str(document.get("format", FORMAT)).partition("/")[2])
@@ -602,6 +613,7 @@ def load_golden(golden: str | Path) -> dict[str, Any]:
         )
     if not isinstance(document.get("channels"), dict):
         raise GoldenError(f"{golden} has no channels; write it again with `pcainterp golden save`")
+    _refuse_malformed(golden, document)  # a channel entry a string, a count "4"
     if "tolerance" in document:
         document["tolerance"] = checked_tolerance(
             document["tolerance"], golden, channels=document["channels"]
@@ -818,18 +830,16 @@ def describe_golden_file(path: str | Path) -> str | None:
             f"`pcainterp golden check LOG {owner or 'GOLDEN.json'}`"
         )
     if not _is_golden_json(path):
+        damaged = damaged_golden(path, FORMAT)  # cut off, a list, {}: not "not a log"
+        if damaged is not None:
+            raise GoldenError(damaged)
         return None
     document = json.loads(path.read_text())
     fmt = document["format"]
-    channels = document.get("channels")
-    channels = channels if isinstance(channels, dict) else {}
-    for topic, channel in channels.items():
-        stated = channel.get("message_count", 0) if isinstance(channel, dict) else None
-        if not isinstance(stated, int) or isinstance(stated, bool) or stated < 0:
-            raise GoldenError(
-                f"{path} is a malformed golden file ({fmt}): channel {topic} has no message "
-                "count; write it again with `pcainterp golden save`"
-            )
+    if not isinstance(document.get("channels"), dict):
+        document["channels"] = {}  # info says 0 channels; check says "has no channels"
+    _refuse_malformed(path, document)
+    channels = document["channels"]
     messages = sum(int(c.get("message_count", 0)) for c in channels.values())
     arrays = document.get("arrays_file")
     lines = [
