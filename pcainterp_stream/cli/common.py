@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any, TypeAlias
 
 from pcainterp_stream import defaults
 from pcainterp_stream.errors import LogWriteError, PcaInterpError
-from pcainterp_stream.io.output_paths import input_bag, name_too_long
+from pcainterp_stream.io.output_paths import input_bag, name_too_long, symlink_loop
 
 if TYPE_CHECKING:
     from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig
@@ -40,9 +40,16 @@ def path_arg(value: str) -> Path:
     """A path on the command line; an empty one (an unset shell variable) is refused.
 
     ``Path("")`` is ``Path(".")``: without this the error would name a folder "." never given.
+    A path through a symbolic link loop, which no command can read or write, ends the
+    parse with one line (exit 2), as a bad option value would without the usage lines.
     """
     if not value:
         raise argparse.ArgumentTypeError("the path is empty (an unset shell variable?)")
+    loop = symlink_loop(value)
+    if loop is not None:
+        with contextlib.suppress(OSError):
+            print(f"{PROG}: error: {loop}", file=sys.stderr, flush=True)
+        raise SystemExit(2)
     return Path(value)
 
 
@@ -132,7 +139,7 @@ def same_file(first: Path, second: Path) -> bool:
     with contextlib.suppress(OSError):  # exists() raises for a name too long (ENAMETOOLONG)
         if first.exists() and second.exists():
             return os.path.samefile(first, second)
-    return first.resolve() == second.resolve()
+    return os.path.realpath(first) == os.path.realpath(second)  # resolve(): a loop raises
 
 
 def refuse_overwrites(

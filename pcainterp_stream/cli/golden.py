@@ -12,7 +12,14 @@ from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from typing import Any
 
-from pcainterp_stream.cli.common import Commands, echo, formatter, path_arg, refuse_stream_output
+from pcainterp_stream.cli.common import (
+    Commands,
+    echo,
+    formatter,
+    path_arg,
+    refuse_stream_output,
+    same_file,
+)
 from pcainterp_stream.errors import PcaInterpError
 
 DEFAULT_MAX_LINES = 20
@@ -128,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
         refuse_stream_output(
             args.output, "-o", "golden save writes a golden file (.json)", "drive.golden.json"
         )
-        if args.output.resolve() == args.log.resolve():
+        if same_file(args.output, args.log):
             raise PcaInterpError(f"-o {args.output} is the log itself; name another file")
         with _progress(f"summarising {args.log.name}") as progress:
             summary = save_golden(

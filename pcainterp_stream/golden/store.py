@@ -14,6 +14,7 @@ import difflib
 import json
 import math
 import numbers
+import os
 import zipfile
 import zlib
 from collections.abc import Collection, Iterable, Iterator, Mapping
@@ -28,6 +29,7 @@ import numpy.typing as npt
 from pcainterp_stream.errors import GoldenError, GoldenToleranceError
 from pcainterp_stream.golden.comparison import DEFAULT_TOLERANCE, Difference, compare
 from pcainterp_stream.golden.replacing import replacing_together, staged_at, write_error
+from pcainterp_stream.golden.shape import damaged_golden, malformed
 from pcainterp_stream.golden.summary import LogSummary, Progress, summarize_log
 from pcainterp_stream.version import __version__
 
@@ -121,6 +123,11 @@ def is_golden_arrays(path: str | Path) -> bool:
     return bool(keys) and all(key[:1] == "a" and key[1:].isdigit() for key in keys)
 
 
+def _same_path(first: Path, second: Path) -> bool:
+    """Whether two paths lead to one place (``Path.resolve()`` raises on a link loop)."""
+    return os.path.realpath(first) == os.path.realpath(second)
+
+
 def _is_golden_json(path: Path) -> bool:
     """Return True for a golden JSON of any format version (a file this package wrote)."""
     try:
@@ -145,7 +152,7 @@ def _check_writable(golden: Path, array_file: Path | None, log: Path) -> None:
             in a folder that cannot be written.
     """
     for target in (golden, array_file):
-        if target is not None and target.resolve() == log.resolve():
+        if target is not None and _same_path(target, log):
             raise GoldenError(
                 f"{target} is the log {log.name} itself; give the golden file another name"
             )
@@ -202,7 +209,7 @@ def _other_owner(path: Path, golden: Path, channels: Mapping[str, Any] | None = 
     if owner is None or owner == golden.name or Path(owner).name != owner:
         return None
     other = path.parent / owner
-    if other.resolve() == golden.resolve() or not _is_golden_json(other):
+    if _same_path(other, golden) or not _is_golden_json(other):
         return None
     try:
         document = json.loads(other.read_text())
@@ -391,7 +398,7 @@ def _write(
         except OSError as err:
             raise write_error(golden, err) from err
     for path in stale:
-        if path.exists() and path.resolve() != log.resolve() and _arrays_of(path, golden):
+        if path.exists() and not _same_path(path, log) and _arrays_of(path, golden):
             path.unlink()
 
 
@@ -552,6 +559,16 @@ def _arrays_owner_guess(path: Path) -> str:
     return f"{stem}.golden.json"
 
 
+def _refuse_malformed(golden: Path, document: Mapping[str, Any]) -> None:
+    """Refuse a golden document whose shape the comparison cannot read (:func:`malformed`)."""
+    wrong = malformed(document)
+    if wrong is not None:
+        raise GoldenError(
+            f"{golden} is a malformed golden file ({document.get('format')}): {wrong}; write "
+            "it again with `pcainterp golden save`"
+        )
+
+
 def format_version(document: Mapping[str, Any]) -> int:
     """Return the format version of a document :func:`load_golden` returned."""
     return int(str(document.get("format", FORMAT)).partition("/")[2])
@@ -596,6 +613,7 @@ def load_golden(golden: str | Path) -> dict[str, Any]:
         )
     if not isinstance(document.get("channels"), dict):
         raise GoldenError(f"{golden} has no channels; write it again with `pcainterp golden save`")
+    _refuse_malformed(golden, document)  # a channel entry a string, a count "4"
     if "tolerance" in document:
         document["tolerance"] = checked_tolerance(
             document["tolerance"], golden, channels=document["channels"]
@@ -812,18 +830,16 @@ def describe_golden_file(path: str | Path) -> str | None:
             f"`pcainterp golden check LOG {owner or 'GOLDEN.json'}`"
         )
     if not _is_golden_json(path):
+        damaged = damaged_golden(path, FORMAT)  # cut off, a list, {}: not "not a log"
+        if damaged is not None:
+            raise GoldenError(damaged)
         return None
     document = json.loads(path.read_text())
     fmt = document["format"]
-    channels = document.get("channels")
-    channels = channels if isinstance(channels, dict) else {}
-    for topic, channel in channels.items():
-        stated = channel.get("message_count", 0) if isinstance(channel, dict) else None
-        if not isinstance(stated, int) or isinstance(stated, bool) or stated < 0:
-            raise GoldenError(
-                f"{path} is a malformed golden file ({fmt}): channel {topic} has no message "
-                "count; write it again with `pcainterp golden save`"
-            )
+    if not isinstance(document.get("channels"), dict):
+        document["channels"] = {}  # info says 0 channels; check says "has no channels"
+    _refuse_malformed(path, document)
+    channels = document["channels"]
     messages = sum(int(c.get("message_count", 0)) for c in channels.values())
     arrays = document.get("arrays_file")
     lines = [

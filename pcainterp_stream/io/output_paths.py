@@ -46,6 +46,7 @@ __all__ = [
     "saved_elsewhere",
     "size_limit_advice",
     "staged_for",
+    "symlink_loop",
     "temporary_prefix",
     "unreplaceable",
     "write_advice",
@@ -72,6 +73,55 @@ def _inside(path: Path, folder: Path) -> bool:
     return path == folder or folder in path.parents
 
 
+def _real(path: str | os.PathLike[str]) -> Path:
+    """``path`` with its symbolic links followed; a link loop is kept as it stands.
+
+    ``Path.resolve()`` raises RuntimeError on a loop (Python 3.11; OSError on 3.13).
+    """
+    return Path(os.path.realpath(path))
+
+
+def symlink_loop(path: str | os.PathLike[str]) -> str | None:
+    """Return the refusal of a path through a symbolic link loop (None: there is none).
+
+    Such a path can be neither read nor written (ELOOP): ``PATH is a symbolic link loop;
+    point it at a real file``, or for a folder above it ``PATH: folder DIR is a symbolic
+    link loop; ...``. A chain of more links than the kernel follows (40) that ends
+    somewhere is named as such.
+    """
+    try:
+        os.stat(path)
+    except OSError as err:
+        if err.errno != errno.ELOOP:
+            return None
+    else:
+        return None
+    given = Path(path)
+    link = given
+    for end in range(1, len(given.parts)):  # the first part that cannot be looked at
+        prefix = Path(*given.parts[:end])
+        try:
+            os.stat(prefix)
+        except OSError:
+            link = prefix
+            break
+    what = "a symbolic link loop" if _loops(link) else "a chain of over 40 symbolic links"
+    if link == given:
+        return f"{given} is {what}; point it at a real file"
+    return f"{given}: folder {link} is {what}; point it at a real folder"
+
+
+def _loops(link: Path) -> bool:
+    """Whether following ``link`` comes back to a link already passed (else: a long chain)."""
+    seen: set[str] = set()
+    current = os.path.abspath(link)
+    while os.path.islink(current) and current not in seen:
+        seen.add(current)
+        folder = os.path.realpath(os.path.dirname(current))
+        current = os.path.abspath(os.path.join(folder, os.readlink(current)))
+    return current in seen
+
+
 def check_not_input(target: Path, inputs: Iterable[str | os.PathLike[str]]) -> None:
     """Refuse a target that is, or contains, one of the inputs, or lies in an input bag.
 
@@ -80,12 +130,15 @@ def check_not_input(target: Path, inputs: Iterable[str | os.PathLike[str]]) -> N
     target inside another input folder (a KITTI drive) is allowed: it is not the recording.
 
     Raises:
-        LogWriteError: naming the path and the fix.
+        LogWriteError: naming the path and the fix; the target is a symbolic link loop.
     """
-    resolved = target.resolve()
+    loop = symlink_loop(target)
+    if loop is not None:
+        raise LogWriteError(f"cannot write the output: {loop}")
+    resolved = _real(target)
     sources = [Path(item) for item in inputs]
     for source in sources:
-        same = resolved == source.resolve() or _inside(source.resolve(), resolved)
+        same = resolved == _real(source) or _inside(_real(source), resolved)
         if not same and os.path.exists(target) and os.path.exists(source):
             try:
                 same = os.path.samefile(target, source)
@@ -115,8 +168,8 @@ def input_bag(target: Path, source: Path) -> Path | None:
     folder = source if os.path.isdir(source) else source.parent
     if not os.path.isfile(folder / "metadata.yaml"):
         return None
-    inside = target.resolve()
-    return folder if inside != folder.resolve() and _inside(inside, folder.resolve()) else None
+    inside = _real(target)
+    return folder if inside != _real(folder) and _inside(inside, _real(folder)) else None
 
 
 def _hops(path: Path) -> Iterator[Path]:

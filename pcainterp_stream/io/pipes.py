@@ -159,7 +159,9 @@ def spool(stream: IO[bytes], name: str = STDIN_NAME) -> Iterator[Path]:
         name: the file's name (what messages about the log call it).
 
     Raises:
-        LogReadError: the stream is empty or cannot be read, or the disk is full.
+        LogReadError: the stream is empty or cannot be read, or the disk is full; a reader's
+            error in the ``with`` block on bytes that are no log is given as
+            :data:`NOT_A_LOG` (standard input, not the temporary copy).
     """
     # owner-named: a killed run's copy of the whole log is removed by the next (bug hunt 9C F5)
     remove_stale_temporaries(Path(tempfile.gettempdir()), "pcainterp-stdin")
@@ -180,6 +182,34 @@ def spool(stream: IO[bytes], name: str = STDIN_NAME) -> Iterator[Path]:
                     "standard input is empty, not a log; pipe an MCAP file (or a ROS 1 bag) into "
                     "`pcainterp densify -`"
                 )
-            yield path
+            try:
+                yield path
+            except LogReadError as err:  # the reader's words name the temporary file
+                if not _is_log(path):
+                    raise LogReadError(NOT_A_LOG) from err
+                raise
         finally:
             untrack_partial(Path(folder))
+
+
+NOT_A_LOG = (
+    "standard input is not a log (no MCAP, ROS 1 bag or SQLite magic bytes); pipe an MCAP "
+    "file, a ROS 1 bag or a rosbag2 sqlite3 .db3 into `pcainterp densify -` (a rosbag2 "
+    "folder cannot be piped: pass its path)"
+)
+"""The refusal of piped bytes that are no log: not the log reader's, which names the
+temporary copy (the user never gave it; it is gone when the command ends) and suggests a
+rosbag2 folder, which cannot be piped."""
+
+
+def _is_log(path: Path) -> bool:
+    """Whether the spooled input starts as a log (MCAP, ROS 1 bag, SQLite; or is unreadable)."""
+    from pcainterp_stream.io.logreader import ROS1_MAGIC
+    from pcainterp_stream.io.reader_base import MCAP_MAGIC, SQLITE_MAGIC
+
+    try:
+        with path.open("rb") as spooled:
+            head = spooled.read(16)
+    except OSError:
+        return True  # the reader's error says what is wrong
+    return head.startswith((MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC))
