@@ -1,0 +1,130 @@
+"""``learn`` scores the built-in bases on its held-out frames (bug hunt 16D F2, F7, F9)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from pcainterp_stream.frontend.pairing import PairingConfig
+from pcainterp_stream.pipeline import jobs
+from pcainterp_stream.synth import SynthConfig, generate
+from pcainterp_stream.synth.indoor import camera_options
+from pcainterp_stream.synth.log import write_synthetic_log
+
+
+def _log(path: Path, **config: object) -> Path:
+    write_synthetic_log(generate(SynthConfig(scale=0.25, scene="indoor", **config)), path)  # type: ignore[arg-type]
+    return path
+
+
+def test_auto_merges_the_indoor_basis_for_a_wide_pair_it_fits(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """16D F7: a 1280x720 pair (aspect 1.78, like neither built-in basis's camera) was
+    learned from its maps alone: 3.38 px on another room, 16x the default densify's 0.211;
+    the indoor basis, learned partly from such cameras, fits its held-out frames (0.76x
+    linear) and is merged now (0.211 px)."""
+    log = _log(tmp_path / "wide.mcap", seed=31, frames=28, **camera_options("1280x720"))
+    capsys.readouterr()
+    basis = jobs.learn(
+        [log], tmp_path / "w.npz", jobs.LearnOptions(with_synthetic="auto"), PairingConfig()
+    )
+    out = capsys.readouterr().out
+    (note,) = [line for line in out.splitlines() if line.startswith("note: 22 maps")]
+    assert "merging them with the built-in indoor basis's synthetic statistics" in note
+    assert (
+        "(the built-in indoor basis fits your camera on your held-out frames: the indoor " in note
+    )
+    assert basis.meta["source"]["with_synthetic_basis"] == "built-in-indoor"
+    check = basis.meta["prior"]["held_out_check"]
+    assert set(check["builtin_px"]) == {"indoor", "street"}
+    assert check["learned_px"] <= check["builtin_px"]["indoor"]  # no warning: not worse
+    assert "warning:" not in out
+
+
+def test_auto_merges_the_built_in_basis_that_fits_not_the_closest_camera(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """16D F2: an indoor log of a KITTI-like camera was merged into the street basis by
+    camera alone (densify's check: street 3.68x linear, indoor 1.23x): 12.5 px on another
+    room against the default's 4.0; merged into the indoor basis now: 3.9 px."""
+    log = _log(tmp_path / "rk.mcap", seed=3, frames=24)
+    capsys.readouterr()
+    basis = jobs.learn(
+        [log], tmp_path / "r.npz", jobs.LearnOptions(with_synthetic="auto"), PairingConfig()
+    )
+    out = capsys.readouterr().out
+    assert (
+        "the built-in indoor basis fits better than the street basis on your held-out frames: "
+        "the indoor basis "
+    ) in out
+    assert basis.meta["source"]["with_synthetic_basis"] == "built-in-indoor"
+
+
+def test_a_prior_fitted_on_few_of_the_held_out_frames_is_said(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """16D F9: with the last 5 of 6 held-out frames blank (a lens cap), the prior was fitted
+    on 1 frame without a word."""
+    from pcainterp_stream.pipeline import learn_check
+
+    measure = learn_check.measure_held_out
+
+    def blanked(*args: object, **kwargs: object) -> list[object]:
+        frames = measure(*args, **kwargs)  # type: ignore[arg-type]
+        return (
+            [frames[0]]
+            + [  # the frames after the first: no measurement
+                type(frame)(
+                    frame.pixels[:0],
+                    frame.disparities[:0],
+                    frame.image_size,
+                    frame.focal_baseline,
+                    None,
+                    None,
+                )
+                for frame in frames[1:]
+            ]
+        )
+
+    monkeypatch.setattr(learn_check, "measure_held_out", blanked)
+    log = _log(tmp_path / "vi.mcap", seed=1, frames=20, **camera_options("752x480"))
+    capsys.readouterr()
+    basis = jobs.learn(
+        [log], tmp_path / "v.npz", jobs.LearnOptions(with_synthetic=0), PairingConfig()
+    )
+    out = capsys.readouterr().out
+    assert (
+        "fitting the prior by the evidence on 1 of the 4 held-out frames (3 without "
+        "measurements: blank, dark or textureless)"
+    ) in out
+    assert basis.meta["prior"]["measured_frames"] == 4
+    assert basis.meta["prior"]["measured_frames_used"] == 1
+
+
+def test_a_learned_basis_worse_than_a_built_in_one_is_warned(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """16D F7: learn wrote a basis as a success that errs more than the built-in one."""
+    from pcainterp_stream.estimate.adapt import FitCheck
+    from pcainterp_stream.estimate.basis import Basis
+    from pcainterp_stream.pipeline import held_out
+    from pcainterp_stream.pipeline.learn_check import BuiltinScore, compare_learned
+
+    monkeypatch.setattr(held_out, "score_fit", lambda *a, **k: FitCheck(6, 600, 0.34, 0.30, 0.4))
+    indoor = BuiltinScore("indoor", Basis.indoor(), FitCheck(6, 600, 0.2, 0.30, 0.4))
+    street = BuiltinScore("street", Basis.default(), FitCheck(6, 600, 0.5, 0.30, 0.4))
+    record, warning = compare_learned(
+        Basis.indoor(), [], {}, [indoor, street], Path("own.npz"), "cauchy"
+    )
+    assert warning == (
+        "warning: own.npz errs more than the built-in indoor basis on the held-out frames' "
+        "SGBM pixels (0.34 px against 0.2; linear interpolation 0.3; 6 frames): densify "
+        "without --basis does better on this camera than --basis own.npz; learn from more "
+        "frames and views of it"
+    )
+    assert record["builtin_better"] == "indoor"
+    record, warning = compare_learned(Basis.indoor(), [], {}, [street], Path("own.npz"), "cauchy")
+    assert warning is None
+    assert "builtin_better" not in record
