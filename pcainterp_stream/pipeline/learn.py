@@ -41,6 +41,7 @@ from pcainterp_stream.pipeline.common import (
     _check_output_folder,
     _echo,
     _expected_frames,
+    count_readable,
 )
 from pcainterp_stream.pipeline.held_out import FIT_SEQUENCE_FRAMES, choose_kernel
 
@@ -169,20 +170,20 @@ def _prefixed(prefix: str) -> Callable[[str], None]:
 
 def _source_topic(log: Path, options: LearnOptions, pairing: PairingConfig) -> str:
     """Return the topic a log's maps are counted on: the depth topic or its left images."""
+    return _source_topics(log, options, pairing)[0]
+
+
+def _source_topics(
+    log: Path, options: LearnOptions, pairing: PairingConfig
+) -> tuple[str, list[str]]:
+    """Return the topic a log's maps are counted on, and every topic they are read from."""
     if options.depth_topic:
-        return options.depth_topic
-    if not pairing.discover:
-        return pairing.left_topic
-    with contextlib.suppress(PcaInterpError), open_log(log) as reader:
-        return log_pairing(reader, pairing).left_topic
-    return pairing.left_topic  # unreadable, or no pair: said when the log is read
-
-
-def _count_frames(log: Path, topic: str, every: int) -> int:
-    """Count the messages of a topic by reading them (a log whose summary has no counts)."""
-    with open_log(log) as reader:
-        count = sum(1 for _ in reader.messages([topic]))
-    return -(-count // every)
+        return options.depth_topic, [pairing.left_info_topic, pairing.right_info_topic]
+    if pairing.discover:
+        with contextlib.suppress(PcaInterpError), open_log(log) as reader:
+            pairing = log_pairing(reader, pairing)
+    # unreadable, or no pair: said when the log is read
+    return pairing.left_topic, list(pairing.required_topics())
 
 
 def source_meta(logs: list[Path], options: LearnOptions) -> dict[str, Any]:
@@ -502,10 +503,10 @@ def plan_maps(
             raise PcaInterpError(f"output {output} is one of the input logs; choose another -o")
     check_logs_once(logs)
     _check_output_folder(output)
-    sources = [_source_topic(log, options, pairing) for log in logs]
-    counts = [
-        _expected_frames(log, source, options.every)
-        for log, source in zip(logs, sources, strict=True)
+    topics = [_source_topics(log, options, pairing) for log in logs]
+    counts: list[int | None] = [
+        count_readable(log, topic, options.every, read)
+        for log, (topic, read) in zip(logs, topics, strict=True)
     ]
     total = None if None in counts else sum(t for t in counts if t is not None)
     holding_out = options.fit_prior and not options.fit_logs
@@ -514,8 +515,7 @@ def plan_maps(
     kept: list[int | None] = [None] * len(logs)
     if holding_out:
         for index, count in enumerate(counts):
-            if count is None:  # the log keeps no counts (or cannot be read: that error now)
-                count = counts[index] = _count_frames(logs[index], sources[index], options.every)
+            assert count is not None  # read
             kept[index] = max(1, int(count * (1.0 - options.holdout)))
         total = sum(k for k in kept if k is not None)
         if 1 in counts and all(count is not None and count <= 1 for count in counts):
@@ -527,12 +527,6 @@ def plan_maps(
                 + "--fit-logs LOG (no --holdout leaves both a map and a pair to fit on), or "
                 "--no-fit-prior (a basis with no fitted prior)"
             )
-    elif requested == AUTO and total is None:
-        counts = [
-            _count_frames(log, source, options.every) if count is None else count
-            for log, source, count in zip(logs, sources, counts, strict=True)
-        ]
-        total = sum(c for c in counts if c is not None)
     camera = one_camera(logs, options, pairing)
     if holding_out and camera.single is not None:
         raise PcaInterpError(

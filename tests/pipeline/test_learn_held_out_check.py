@@ -128,3 +128,96 @@ def test_a_learned_basis_worse_than_a_built_in_one_is_warned(
     record, warning = compare_learned(Basis.indoor(), [], {}, [street], Path("own.npz"), "cauchy")
     assert warning is None
     assert "builtin_better" not in record
+
+
+def _rechunk(log: Path, out: Path) -> Path:
+    """Copy an MCAP in chunks of 256 kB (the synthetic writer makes one)."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with log.open("rb") as source, out.open("wb") as sink:
+        reader = make_reader(source)
+        summary = reader.get_summary()
+        assert summary is not None
+        writer = Writer(sink, chunk_size=256 * 1024)
+        writer.start(profile="ros2", library="test")
+        schemas = {
+            key: writer.register_schema(s.name, s.encoding, s.data)
+            for key, s in summary.schemas.items()
+        }
+        channels = {
+            key: writer.register_channel(
+                c.topic, c.message_encoding, schemas[c.schema_id], c.metadata
+            )
+            for key, c in summary.channels.items()
+        }
+        for _, channel, message in reader.iter_messages(log_time_order=False):
+            writer.add_message(
+                channels[channel.id], message.log_time, message.data, message.publish_time
+            )
+        writer.finish()
+    return out
+
+
+def _cut_message_index(log: Path, out: Path) -> Path:
+    """Copy ``log`` with the message-index records after its middle chunk garbled."""
+    from mcap.reader import make_reader
+
+    log = _rechunk(log, out.with_name("chunked.mcap"))
+    with log.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    chunks = sorted(summary.chunk_indexes, key=lambda chunk: chunk.chunk_start_offset)
+    assert len(chunks) >= 3
+    chunk = chunks[len(chunks) // 2]
+    data = bytearray(log.read_bytes())
+    start = chunk.chunk_start_offset + chunk.chunk_length
+    for at in range(start, start + chunk.message_index_length):
+        data[at] ^= 0x5A
+    out.write_bytes(bytes(data))
+    return out
+
+
+def test_learn_sizes_its_held_out_share_from_the_frames_it_can_read(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """16B F3, F11: a log whose summary lists more frames than can be read had its held-out
+    frames placed past the readable part ("no held-out stereo pair ... use more frames"),
+    and no damage line; densify of the same file prints one."""
+    whole = _log(tmp_path / "whole.mcap", seed=31, frames=12, **camera_options("1280x720"))
+    log = _cut_message_index(whole, tmp_path / "cut.mcap")
+    capsys.readouterr()
+    options = jobs.LearnOptions(with_synthetic=0, n_components=3)
+    basis = jobs.learn([log], tmp_path / "c.npz", options, PairingConfig())
+    out = capsys.readouterr().out
+    read = basis.n_train + basis.meta["prior"]["measured_frames"]
+    if read < 12:  # the reader stops at the damage: said, with the counts
+        (line,) = [line for line in out.splitlines() if line.startswith("damage: cut.mcap: ")]
+        assert line.endswith(
+            f"learn uses the frames it could read ({read} of the 12 frames its summary lists)"
+        )
+
+
+def test_learn_says_damage_met_while_reading(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """16B F11: damage found while reading (not at open) was never printed by learn."""
+    from pcainterp_stream.pipeline import common
+
+    real = common.readable_frames
+    log = _log(tmp_path / "vi.mcap", seed=1, frames=10, **camera_options("752x480"))
+
+    def damaged(*args: object) -> tuple[int, list[str]]:
+        count, _ = real(*args)  # type: ignore[arg-type]
+        return count - 4, ["vi.mcap: corrupt chunk skipped (ValueError: chunk CRC mismatch)"]
+
+    monkeypatch.setattr(common, "readable_frames", damaged)
+    capsys.readouterr()
+    basis = jobs.learn(
+        [log], tmp_path / "v.npz", jobs.LearnOptions(with_synthetic=0), PairingConfig()
+    )
+    assert (
+        "damage: vi.mcap: corrupt chunk skipped (ValueError: chunk CRC mismatch); learn uses "
+        "the frames it could read (6 of the 10 frames its summary lists)"
+    ) in capsys.readouterr().out
+    assert basis.n_train == 4  # 6 read, 20 % held out: 4 learned, 2 fitted on
