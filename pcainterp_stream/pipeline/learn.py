@@ -31,6 +31,7 @@ from pcainterp_stream.estimate.finetune import (
 )
 from pcainterp_stream.estimate.learning import DEFAULT_BOX_SIZE, learn_basis, preprocess_disparity
 from pcainterp_stream.estimate.prior import LocalPrior
+from pcainterp_stream.estimate.solve import DEFAULT_SIGMA
 from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig
 from pcainterp_stream.io.logreader import open_log
@@ -74,6 +75,7 @@ from pcainterp_stream.pipeline.map_checks import FLAT_MAPS as FLAT_MAPS
 from pcainterp_stream.pipeline.map_checks import check_flat as check_flat
 from pcainterp_stream.pipeline.map_checks import is_flat as is_flat
 from pcainterp_stream.pipeline.map_checks import shows_surface as shows_surface
+from pcainterp_stream.pipeline.map_checks import warn_far_cut
 from pcainterp_stream.pipeline.processor import ProcessorConfig
 
 
@@ -694,10 +696,11 @@ def _learn_here(
     image_size, fb = plan.camera.image_size, plan.camera.focal_baseline
     info: list[MapSource] = []
     first: list[Path] = []  # the log of the first map
-    blank = used = flat = 0
+    blank = used = flat = far = valid = 0
+    cut = DEFAULT_SIGMA / plan.target.disparity_scale  # the far cut with no fitted prior
 
     def maps() -> Iterator[npt.NDArray[np.float32]]:
-        nonlocal blank, used, flat
+        nonlocal blank, used, flat, far, valid
         for log, keep in zip(plan.logs, plan.kept, strict=True):
             produce = depth_maps if options.depth_topic else sgbm_maps
             for disparity in itertools.islice(
@@ -720,6 +723,10 @@ def _learn_here(
                 used += 1
                 if not options.depth_topic and is_flat(disparity):
                     flat += 1
+                if not options.fit_prior:
+                    with np.errstate(invalid="ignore"):
+                        valid += int(np.count_nonzero(disparity > 0))
+                        far += int(np.count_nonzero((disparity > 0) & (disparity < cut)))
                 yield disparity
         names = ", ".join(log.name for log in plan.logs)
         found = f"{blank} of {blank + used} maps hold no disparity above 0 ({BLANK_MAPS})"
@@ -728,6 +735,7 @@ def _learn_here(
         if blank:
             _echo(f"note: {found}: they are skipped")
         check_flat(plan.logs, flat, used)
+        warn_far_cut(far, valid, cut, fb)
 
     with _bar(plan.total, "learn") as bar:
         progress = lambda done: bar.update(done - bar.n)  # noqa: E731

@@ -221,3 +221,23 @@ def test_learn_says_damage_met_while_reading(
         "the frames it could read (6 of the 10 frames its summary lists)"
     ) in capsys.readouterr().out
     assert basis.n_train == 4  # 6 read, 20 % held out: 4 learned, 2 fitted on
+
+
+def test_a_basis_with_no_fitted_prior_warns_of_the_far_cut(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """16D F8: `learn --no-fit-prior` on a small-f*b camera (640x480 at half size, f*b 9.6
+    px*m): densify's sigma of 2 px wrote 80 % of a room as too far, and nothing said so."""
+    config = {"seed": 11, "frames": 6, "scale": 0.5, "scene": "indoor"}
+    log = tmp_path / "d.mcap"
+    write_synthetic_log(generate(SynthConfig(**config, **camera_options("640x480"))), log)  # type: ignore[arg-type]
+    capsys.readouterr()
+    options = jobs.LearnOptions(fit_prior=False, n_components=3)
+    jobs.learn([log], tmp_path / "d.npz", options, PairingConfig())
+    (warning,) = [line for line in capsys.readouterr().out.splitlines() if "too far" in line]
+    assert warning.startswith("warning: ")
+    assert "of the maps' pixels have a disparity below 2 px (beyond 4.81 m)" in warning
+    # a fitted prior: no such warning (its sigma is fitted)
+    options = jobs.LearnOptions(n_components=3, with_synthetic=0)
+    jobs.learn([log], tmp_path / "f.npz", options, PairingConfig())
+    assert "too far" not in capsys.readouterr().out
