@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import itertools
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -72,10 +73,10 @@ from pcainterp_stream.pipeline.learn_maps import log_pairing as log_pairing
 from pcainterp_stream.pipeline.map_checks import BLANK_MAPS as BLANK_MAPS
 from pcainterp_stream.pipeline.map_checks import FLAT_FIX as FLAT_FIX
 from pcainterp_stream.pipeline.map_checks import FLAT_MAPS as FLAT_MAPS
+from pcainterp_stream.pipeline.map_checks import ViewCount, warn_far_cut
 from pcainterp_stream.pipeline.map_checks import check_flat as check_flat
 from pcainterp_stream.pipeline.map_checks import is_flat as is_flat
 from pcainterp_stream.pipeline.map_checks import shows_surface as shows_surface
-from pcainterp_stream.pipeline.map_checks import warn_far_cut
 from pcainterp_stream.pipeline.processor import ProcessorConfig
 
 
@@ -698,14 +699,17 @@ def _learn_here(
     first: list[Path] = []  # the log of the first map
     blank = used = flat = far = valid = 0
     cut = DEFAULT_SIGMA / plan.target.disparity_scale  # the far cut with no fitted prior
+    views = ViewCount()
 
     def maps() -> Iterator[npt.NDArray[np.float32]]:
         nonlocal blank, used, flat, far, valid
         for log, keep in zip(plan.logs, plan.kept, strict=True):
-            produce = depth_maps if options.depth_topic else sgbm_maps
-            for disparity in itertools.islice(
-                produce(log, options, pairing, info, focal_baseline=fb), keep
-            ):
+            if options.depth_topic:
+                produced = depth_maps(log, options, pairing, info, focal_baseline=fb)
+            else:
+                see = functools.partial(views.see, log)
+                produced = sgbm_maps(log, options, pairing, info, focal_baseline=fb, seen=see)
+            for disparity in itertools.islice(produced, keep):
                 if not first:
                     first.append(log)
                 if disparity.shape != image_size and close_sizes(disparity.shape, image_size):
@@ -736,6 +740,7 @@ def _learn_here(
             _echo(f"note: {found}: they are skipped")
         check_flat(plan.logs, flat, used)
         warn_far_cut(far, valid, cut, fb)
+        views.check()
 
     with _bar(plan.total, "learn") as bar:
         progress = lambda done: bar.update(done - bar.n)  # noqa: E731

@@ -241,3 +241,50 @@ def test_a_basis_with_no_fitted_prior_warns_of_the_far_cut(
     options = jobs.LearnOptions(n_components=3, with_synthetic=0)
     jobs.learn([log], tmp_path / "f.npz", options, PairingConfig())
     assert "too far" not in capsys.readouterr().out
+
+
+def test_maps_of_a_camera_standing_still_are_counted_as_views(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """16D F3: 28 noisy frames of one view were learned as "22 maps" with no word (densify
+    refuses to adopt such a basis); the SGBM maps cannot tell (one view's grid maps 0.27-0.35
+    px apart, a moving room's 0.16-0.25), the left images can (0.23-0.25 grey levels against
+    1.55 or more)."""
+    import numpy as np
+
+    from pcainterp_stream.pipeline.map_checks import ViewCount
+
+    rng = np.random.default_rng(0)
+    scene = rng.integers(0, 255, (120, 160)).astype(np.float32)
+    scene = np.kron(scene[::8, ::8], np.ones((8, 8), np.float32))  # texture of 8 px cells
+    still = [
+        np.clip(scene + rng.normal(0, 2, scene.shape), 0, 255).astype(np.uint8) for _ in range(6)
+    ]
+    moving = [np.roll(scene, 3 * step, axis=1).astype(np.uint8) for step in range(6)]
+    views = ViewCount()
+    for image in still:
+        views.see(tmp_path / "still.mcap", image)
+    for image in moving:
+        views.see(tmp_path / "moving.mcap", image)
+    assert views.views == {tmp_path / "still.mcap": 1, tmp_path / "moving.mcap": 6}
+    capsys.readouterr()
+    views.check()
+    (warning,) = capsys.readouterr().out.splitlines()
+    assert warning == (
+        "warning: still.mcap: its 6 maps are 1 view (consecutive left images within 0.75 grey "
+        "levels: the camera stood still): the basis learns that view, not 6 maps' worth; learn "
+        "from frames where the camera moves through the scene"
+    )
+
+
+def test_the_view_count_sees_the_left_image_of_each_map_learned(tmp_path: Path) -> None:
+    """The left images go to the view count one per map yielded, no held-out frame's."""
+    import itertools
+
+    from pcainterp_stream.pipeline.learn_maps import sgbm_maps
+
+    log = _log(tmp_path / "vi.mcap", seed=1, frames=6, **camera_options("752x480"))
+    seen: list[object] = []
+    maps = sgbm_maps(log, jobs.LearnOptions(), PairingConfig(), [], seen=seen.append)
+    assert len(list(itertools.islice(maps, 4))) == 4
+    assert len(seen) == 4
