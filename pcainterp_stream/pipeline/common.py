@@ -278,6 +278,44 @@ def damage_at_open(logs: Sequence[Path]) -> list[str]:
     return lines
 
 
+def readable_frames(
+    log: Path, topic: str, every: int, also: Sequence[str] = ()
+) -> tuple[int, list[str]]:
+    """Count a topic's messages by reading them (every N-th); return it and the log's damage.
+
+    The damage the reader met on the way reading ``topic`` and the topics ``also`` (a
+    cut-off bag, a corrupt chunk skipped), which the log's summary or index does not show
+    (bug hunt 16B F3, F11). Raises what opening the log raises.
+    """
+    with open_log(log) as reader:
+        wanted = list(dict.fromkeys([topic, *also]))
+        count = sum(1 for message in reader.messages(wanted) if message.topic == topic)
+        return -(-count // every), list(reader.damage)
+
+
+def count_readable(log: Path, topic: str, every: int, read: Sequence[str]) -> int:
+    """Count a log's frames by reading them (``learn``); print the damage met on the way.
+
+    Not the count its summary or metadata.yaml lists: a log whose readable part is shorter
+    had its held-out share placed past it ("no held-out stereo pair", bug hunt 16B F3),
+    and damage met while reading was never printed (16B F11). The damage seen at open is
+    printed by the command already (:func:`damage_at_open`); the rest here, as
+    densify prints it.
+    """
+    count, damage = readable_frames(log, topic, every, read)
+    listed = _expected_frames(log, topic, every)
+    short = listed is not None and count < listed
+    of = f" ({count} of the {listed} frames its summary lists)" if short else ""
+    at_open = set(damage_at_open([log]))
+    for line in damage:
+        if line not in at_open:
+            _echo(f"damage: {line}; learn uses the frames it could read{of}")
+            of = ""
+    if of:  # short, and no line said why
+        _echo(f"note: {log.name}: {count} of the {listed} frames its summary lists could be read")
+    return count
+
+
 def _expected_frames(log: Path, topic: str, every: int) -> int | None:
     with contextlib.suppress(PcaInterpError), open_log(log) as reader:
         count = reader.topics().get(topic)

@@ -320,6 +320,7 @@ def sgbm_maps(
     info: list[MapSource],
     *,
     focal_baseline: float | None = None,
+    seen: Callable[[npt.NDArray[Any]], None] | None = None,
 ) -> Iterator[npt.NDArray[np.float32]]:
     """Yield SGBM maps of every N-th pair, matching the next pair while this one is used.
 
@@ -330,6 +331,8 @@ def sgbm_maps(
         info: the camera of the first map is appended when empty.
         focal_baseline: the f*b every map is put in (:func:`scaled_to`); None: the first
             map's camera's (``info[0]``).
+        seen: called with each map's left image just before the map is yielded (the
+            views' count, :class:`~.map_checks.ViewCount`).
 
     Yields:
         (H, W) float32 disparity maps (px).
@@ -339,6 +342,7 @@ def sgbm_maps(
         _require_topics(reader, pairing.required_topics(), "stereo pair")
         _check_topic_types(reader, _pairing_types(pairing))
         pending: list[tuple[Future[npt.NDArray[np.float32]], float]] = []
+        lefts: list[npt.NDArray[Any]] = []
         for frame in iter_stereo_frames(reader, pairing):
             if frame.index % options.every:
                 continue
@@ -346,9 +350,15 @@ def sgbm_maps(
                 info.append(MapSource(frame.camera.image_size, frame.camera.focal_baseline))
             future = pool.submit(compute_disparity, frame.left, frame.right, options.sgbm)
             pending.append((future, frame.camera.focal_baseline))
+            lefts.append(frame.left)
             if len(pending) > 1:
+                if seen is not None:
+                    seen(lefts[0])
+                lefts.pop(0)
                 yield _finished(pending.pop(0), info, focal_baseline)
-        for item in pending:
+        for item, left in zip(pending, lefts, strict=True):
+            if seen is not None:
+                seen(left)
             yield _finished(item, info, focal_baseline)
 
 

@@ -53,6 +53,10 @@ class OwnBasis:
         seen: the maps its adoption saw to the log's end (distinct views; 0: not known),
             of which a basis relearned while streaming learned those up to the last
             doubling (:meth:`~.adaptation.Adaptation.update`).
+        stopped: the frame at which its adoption's basis stopped fitting this log
+            (:mod:`~.refit`), None: it did not. Such a basis is not advised for other logs
+            of the camera: on two other rooms of the camera whose log stopped one, it gave
+            4.5x and 5.5x the default's error (bug hunt 16D F1).
     """
 
     basis: Basis
@@ -65,6 +69,16 @@ class OwnBasis:
     opening: bool = False
     densified: bool = True
     seen: int = 0
+    stopped: int | None = None
+
+    def reuse(self) -> str:
+        """Return the advice on other logs: reuse it, or not, when it stopped fitting."""
+        if self.stopped is None:
+            return "densify --basis with it for other logs of this camera"
+        return (
+            f"it stopped fitting this log at frame {self.stopped}: kept for inspection only, "
+            "not for other logs of this camera; plain densify or pcainterp learn for those"
+        )
 
     def frames(self) -> str:
         """Return "frames 16-23" or "frames 16 to the end"."""
@@ -93,7 +107,7 @@ class OwnBasis:
                 else "the basis learned from this log's own SGBM maps by the "
                 + ("check made again" if again else "fit check")
             )
-            tail = "" if more else "; densify --basis with it for other logs of this camera"
+            tail = "" if more and self.stopped is None else f"; {self.reuse()}"
             return f"{what} ({where}{tail})"
         if self.until is None and not again:
             # relearned each time the maps double: the last doubling's, not all of them
@@ -104,20 +118,15 @@ class OwnBasis:
                 if self.seen > learned
                 else "all of this log's maps"
             )
-            return (
-                f"the basis relearned from {maps} (densify --basis with it for other logs of "
-                "this camera)"
-            )
+            return f"the basis relearned from {maps} ({self.reuse()})"
         if not self.densified:
             return (
                 f"the basis relearned from the maps up to frame {self.first}, the last of its "
-                "camera there: it densified no frame (densify --basis with it for other logs "
-                "of this camera)"
+                f"camera there: it densified no frame ({self.reuse()})"
             )
         return (
             f"the basis relearned while streaming, last in force on {self.frames()} (the "
-            f"output's {BASES_RECORD} record names it; densify --basis with it for other "
-            "logs of this camera)"
+            f"output's {BASES_RECORD} record names it; {self.reuse()})"
         )
 
 
@@ -178,7 +187,8 @@ def own_bases(
         name = path.name if path is not None else RELEARNED
         unused = OwnBasis(newest, number, True, frame, owns[end].until, name, path, False, False)
         owns.insert(end + 1, unused)
-    return owns
+    stops = adaptation.stopped
+    return [replace(own, stopped=stops.get(own.adoption)) for own in owns]
 
 
 def save_own_bases(owns: list[OwnBasis], log: Path) -> tuple[list[OwnBasis], list[str]]:
@@ -227,6 +237,8 @@ def adoption_lines(owns: list[OwnBasis]) -> list[str]:
         run = [o for o in owns if o.adoption == own.adoption]
         last, updates = run[-1], sum(o.relearned for o in run)
         when = "at the end" if last.until is None else f"when it gave way at frame {last.until}"
+        if last.stopped is not None and last.until is None:  # stopped at the log's last frame
+            when = f"when it stopped fitting at frame {last.stopped}"
         which = "adapted basis" if own.adoption == 1 else f"adapted basis {own.adoption}"
         lines.append(
             f"{which}: {_count(last.basis.n_train, 'map')}, "

@@ -301,6 +301,7 @@ class Refitting(Adaptation):
             f"choice made again on the next {self.warmup_frames} frames"
         )
         self.adapted, self.watch, self.switched = False, None, choice  # its tuning with it
+        self.stopped[len(self.own_bases)] = index  # not advised for other logs (16D F1)
         assert self._camera is not None
         self._recheck(
             self._camera, f"prior: the basis choice made again on the {{}} after frame {index}"

@@ -551,10 +551,10 @@ def test_builtin_indoor_is_recorded_and_evaluate_finds_it(tmp_path: Path) -> Non
     street = tmp_path / "room_street.mcap"
     summary = densify(log, street, processor=ProcessorConfig(builtin="street", adapt="check"))
     assert summary.prior_lines[0].startswith("prior: the built-in street basis ")
-    # not chosen from: only its warning names the indoor basis, as what --basis builtin picks
+    # not chosen from: only its warning names the indoor basis, as what plain densify picks
     lines = summary.prior_lines
     assert not any(line.startswith("prior:") and "indoor" in line for line in lines)
-    assert all("--basis builtin, which" in line for line in lines if "indoor" in line)
+    assert all("densify without --basis, which" in line for line in lines if "indoor" in line)
     assert recorded_metadata(street)[BASIS_KEY] == BUILT_IN
     with pytest.raises(ValueError, match="builtin"):
         ProcessorConfig(builtin="forest")
@@ -601,7 +601,10 @@ def test_dense_mode_checks_and_chooses_the_built_in_basis_but_learns_none(
     )
     (warning,) = [line for line in forced.warnings + forced.prior_lines if "linear interp" in line]
     assert "; the built-in indoor basis does better (" in warning
-    assert "x linear): densify with --basis builtin, which chooses it; dense mode" in warning
+    assert (
+        "x linear): densify without --basis, which checks it and the built-in bases' other "
+        "kernels and takes the best; dense mode"
+    ) in warning
     assert recorded_metadata(tmp_path / "street.mcap")[BASIS_KEY] == BUILT_IN
 
 
@@ -630,9 +633,10 @@ def test_a_learned_basis_that_loses_is_not_told_to_learn_one_again() -> None:
     given._warn_unfit(False, builtin=given._builtin_advice(check), holes=0.13)
     assert given.lines[-1] == (
         "warning: the prior is worse than linear interpolation on this log's held-out SGBM "
-        "pixels (1.20x); the built-in indoor basis does better (1.12x linear): densify with "
-        "--basis builtin, which chooses it; dense mode does not adapt the basis, and uses it "
-        "mostly to fill SGBM's holes, 13% of this log's pixels (where SGBM matched, its own "
+        "pixels (1.20x); the built-in indoor basis does better (1.12x linear): densify without "
+        "--basis, which checks it and the built-in bases' other kernels and takes the best; "
+        "dense mode does not adapt the basis, and uses it mostly to fill SGBM's holes, 13% of "
+        "this log's pixels (where SGBM matched, its own "
         "value dominates); a basis learned from more frames of this camera may fit: pcainterp "
         "learn LOG [LOG ...] -o BASIS.npz, then densify --basis BASIS.npz"
     )
@@ -640,8 +644,9 @@ def test_a_learned_basis_that_loses_is_not_told_to_learn_one_again() -> None:
     scores[indoor] = adapt.FitCheck(2, 100, 1.7, 2.0, 2.1)
     given._warn_unfit(False, builtin=given._builtin_advice(check))
     assert given.lines[-1].endswith(
-        "the built-in indoor basis does better (0.85x linear): densify with --basis builtin, "
-        "which chooses it; dense mode does not adapt the basis, and uses it mostly to fill "
+        "the built-in indoor basis does better (0.85x linear): densify without --basis, "
+        "which checks it and the built-in bases' other kernels and takes the best; dense mode "
+        "does not adapt the basis, and uses it mostly to fill "
         "SGBM's holes (where SGBM matched, its own value dominates)"
     )
     # a built-in basis does no better: not named; sparse mode: no dense clause

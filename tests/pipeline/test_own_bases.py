@@ -214,8 +214,9 @@ def test_the_final_basis_line_says_how_many_maps_it_learned(tmp_path: Path) -> N
     written = summary.written_lines()
     assert written[1] == (
         f"wrote {final}: the basis relearned from 16 of the 23 maps this log's own basis saw, "
-        "when they last doubled (densify --basis with it for other logs of this camera)"
-    )  # 23: the own basis stopped fitting at frame 23, before its map was added
+        "when they last doubled (it stopped fitting this log at frame 23: kept for inspection "
+        "only, not for other logs of this camera; plain densify or pcainterp learn for those)"
+    )  # 23: the own basis stopped fitting at frame 23, before its map was added (16D F1)
 
 
 def test_the_basis_relearned_at_a_cameras_last_frame_is_saved(tmp_path: Path) -> None:

@@ -83,7 +83,7 @@ def test_an_absurd_fitted_std_scale_is_warned_once() -> None:
         "warning: the basis has a fitted std scale of 2.94e+07: its own posterior std is about "
         "0 (a basis learned from too few maps), so the std written rests on that one factor; "
         "learn a basis from more frames of this camera (pcainterp learn LOG [LOG ...] -o "
-        "BASIS.npz) or densify with --basis builtin"
+        "BASIS.npz) or densify without --basis"
     ]
     engine.adaptation.warn_std_scale(2.94e7)  # a relearned basis as absurd: no second line
     assert len(engine.adaptation.lines) == 1
