@@ -1682,6 +1682,19 @@ def test_info_broken_basis(
     assert names in pcainterp("info", broken).error_line()
 
 
+@pytest.mark.parametrize("kind", ["no_components", "nan_mean"])
+def test_info_broken_basis_under_another_name(
+    pcainterp: Callable[..., Run], kind: str, basis_path: Path, tmp_path: Path
+) -> None:
+    # a basis saved without the .npz suffix is still read as one by its bytes: its damage
+    # is named, not "not a log" (review 16a R3)
+    broken, names = _broken_basis(kind, basis_path, tmp_path)
+    renamed = broken.rename(broken.with_suffix(".basis"))
+    line = pcainterp("info", renamed).error_line()
+    assert names in line
+    assert "not a log" not in line
+
+
 def test_info_basis(pcainterp: Callable[..., Run], basis_path: Path) -> None:
     run = pcainterp("info", basis_path)
     assert run.code == 0, run.err

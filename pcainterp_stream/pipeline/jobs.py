@@ -645,10 +645,23 @@ def info(path: Path | None) -> str:
         try:
             return describe_basis(path)
         except BasisError:
-            pass
+            if _holds_basis_arrays(path):
+                raise  # a damaged basis under another name: its own message, not "not a log"
     described = describe(path)
     records = [(record.name, dict(record.metadata)) for record in described.metadata]
     return "\n".join([format_info(described), *_densified_by(records)])
+
+
+def _holds_basis_arrays(path: Path) -> bool:
+    """Return whether a zip archive holds a basis file's arrays (``mean.npy``, ``meta.npy``...)."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = set(archive.namelist())
+    except (OSError, zipfile.BadZipFile):
+        return False
+    return bool({"mean.npy", "components.npy", "meta.npy"} & names)
 
 
 def _starts_as_zip(path: Path) -> bool:
