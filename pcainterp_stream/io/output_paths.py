@@ -534,8 +534,8 @@ def unreplaceable(target: Path) -> str | None:
     if sticky and user != 0 and user not in (info.st_uid, folder.st_uid):
         return (
             f"it belongs to {_user_name(info.st_uid)} and its folder {target.absolute().parent} "
-            f"is shared with the sticky bit (as /tmp), where only a file's owner may replace it: ask "
-            f"them to remove it, {other}"
+            f"is shared with the sticky bit (as /tmp), where only a file's owner may replace it: "
+            f"ask them to remove it, {other}"
         )
     return None
 
