@@ -41,9 +41,11 @@ def add_parser(commands: Commands) -> None:
             "(or a ground-truth depth topic), the paper's preprocessing, streaming PCA; then\n"
             "fit the hybrid prior, sigma and the std calibration on held-out frames\n"
             "(--no-fit-prior: the paper's model alone). With few maps of your own (fewer\n"
-            "than 1000) from a camera like a built-in basis's (KITTI-like: street; 752x480\n"
-            "VI-sensor-like: indoor), it fine-tunes that basis with them instead, and says\n"
-            "so (--with-synthetic auto, the default; 0 turns it off)."
+            "than 1000) it fine-tunes a built-in basis with them instead, and says so: the\n"
+            "one of your camera's kind (KITTI-like: street; 752x480 VI-sensor-like: indoor),\n"
+            "or the other when the held-out frames find it clearly better, or for a camera\n"
+            "like neither the one that beats linear interpolation there (--with-synthetic\n"
+            "auto, the default; 0 turns it off)."
         ),
         epilog=(
             "examples:\n"
@@ -116,13 +118,16 @@ def add_parser(commands: Commands) -> None:
         "--with-synthetic",
         default="auto",
         metavar="N|auto",
-        help="fine-tune the built-in basis of your camera (learned from synthetic streets, or "
-        "rooms for the indoor one; the closest if none is like it) with these logs' "
-        "maps, counting it as N maps, and keep its local kernel; the result is on that "
-        "basis's grid and camera and applies to yours as any basis does. auto "
-        "(default): N = 1000 when the logs give fewer than 1000 maps and their camera is "
-        "like a built-in basis's (aspect ratio within 10 %%, f*b per image width within "
-        "1.5x), else the maps alone; 0: the maps alone",
+        help="fine-tune a built-in basis (learned from synthetic streets, or rooms for the "
+        "indoor one) with these logs' maps, counting it as N maps, and keep its local "
+        "kernel; the result is on that basis's grid and camera and applies to yours as any "
+        "basis does. Which one: your camera's kind (aspect ratio within 10 %%, f*b per "
+        "image width within 1.5x of the basis's), unless on the held-out frames it loses "
+        "to linear interpolation or the other errs at most 0.8x as much; for a camera like "
+        "neither, the one that beats linear interpolation there (with --no-fit-prior, "
+        "which holds no frames out: the closest camera). auto (default): N = 1000 when "
+        "the logs give fewer than 1000 maps and a built-in basis is chosen, else the maps "
+        "alone; 0: the maps alone",
     )
     fit = learn.add_argument_group("fitted prior (docs/results.md, 'Beyond the paper')")
     fit.add_argument(
