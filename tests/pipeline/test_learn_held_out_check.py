@@ -309,9 +309,12 @@ def test_a_near_tie_keeps_the_built_in_basis_of_the_cameras_kind() -> None:
     assert by_fit("street", False, scores(0.98, 0.96)) == (None, "")  # a near-tie
     assert by_fit("street", False, scores(0.90, 0.73))[0] is None  # 0.81x: not clearly
     chosen, why = by_fit("street", False, scores(0.90, 0.70))  # 0.78x: clearly better
-    assert chosen is not None and chosen.kind == "indoor"
+    assert chosen is not None
+    assert chosen.kind == "indoor"
     assert "fits better than the street basis" in why
     chosen, _ = by_fit("street", False, scores(3.06, 2.9))  # street loses to linear
-    assert chosen is not None and chosen.kind == "indoor"
+    assert chosen is not None
+    assert chosen.kind == "indoor"
     chosen, _ = by_fit("indoor", True, scores(0.9, 1.1))  # a camera like neither
-    assert chosen is not None and chosen.kind == "street"
+    assert chosen is not None
+    assert chosen.kind == "street"
