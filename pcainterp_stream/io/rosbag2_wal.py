@@ -34,7 +34,7 @@ import urllib.parse
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pcainterp_stream.interrupt import track_partial, untrack_partial
+from pcainterp_stream.interrupt import signalled, track_partial, untrack_partial
 from pcainterp_stream.io.output_paths import remove_stale_temporaries, temporary_prefix
 from pcainterp_stream.io.reader_base import _one_line
 
@@ -213,11 +213,17 @@ class WalView:
         return path
 
     def close(self) -> None:
-        """Let go of the copy (removed at the process's end, or when the log changes)."""
+        """Let go of the copy (removed at the process's end, or when the log changes).
+
+        After a signal every copy is removed now: the command then ends without the exit
+        handlers (:func:`.interrupt.end_if_signalled`).
+        """
         if self._copy is not None:
             with _lock:
                 self._copy.users -= 1
             self._copy = None
+        if signalled():
+            release_wal_copies()
 
     def _key(self) -> tuple[object, ...]:
         """The log's identity and state: its walled storage files' and logs' sizes, times."""

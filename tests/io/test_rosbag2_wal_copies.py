@@ -141,9 +141,7 @@ def test_a_log_written_to_since_is_copied_again_and_the_old_copy_removed(
     assert len(list(root.iterdir())) == 1
 
 
-def test_the_copy_of_a_killed_run_is_removed_by_the_next(
-    tmp_path: Path, scratch: Path
-) -> None:
+def test_the_copy_of_a_killed_run_is_removed_by_the_next(tmp_path: Path, scratch: Path) -> None:
     """Before: a SIGKILL (or the OOM killer) left the whole .db3's copy in TMPDIR for good."""
     process = subprocess.Popen([sys.executable, "-c", "pass"])
     process.wait()
@@ -234,3 +232,16 @@ def test_a_wal_that_adds_no_message_leaves_no_note(tmp_path: Path, scratch: Path
         assert reader.damage == []
     for root in scratch.iterdir():
         assert list(root.iterdir()) == []
+
+
+def test_after_a_signal_the_copy_goes_with_the_reader(
+    tmp_path: Path, scratch: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Guard (passes on the old code, which removed the copy at every close): an interrupted
+    command ends without the exit handlers, so the shared copy is removed at close."""
+    reader = open_log(_wal_bag(tmp_path))
+    assert len(list(reader.messages([LEFT]))) == 6
+    assert len(list(scratch.iterdir())) == 1
+    monkeypatch.setattr(interrupt, "_signals_seen", 1)
+    reader.close()
+    assert list(scratch.iterdir()) == []
