@@ -5,21 +5,49 @@ mode; a recorder that is killed leaves ``NAME.db3-wal`` (and ``-shm``) beside it
 every message written since the last checkpoint. rosbags opens the database ``immutable``,
 which makes SQLite ignore that log: those messages were silently dropped. Opening the
 user's file normally would write to its ``-shm`` (and a checkpoint to the database);
-instead, a storage file with a non-empty ``-wal`` is copied with its log into a private
-temporary folder, the log merged into the copy there, and the copy read. The user's files
-are only read.
+instead, a storage file whose ``-wal`` holds pages the database lacks is copied with its log
+into a private temporary folder, the log merged into the copy there, and the copy read. The
+user's files are only read.
+
+The copy costs the size of the ``.db3`` in the temporary folder (``TMPDIR``) and the time to
+copy it, so it is made once per process and log state (the files' sizes and modification
+times) and shared by every open of the log, then removed when the process ends. Its folder
+is named after the process (:func:`.output_paths.temporary_prefix`) and registered as a
+partial output (removed by the watchdog if the command is stopped by force); a run killed
+outright (SIGKILL, out of memory) leaves it, and the next run removes it, as the spooled
+standard input is (:func:`.pipes.spool`). A ``-wal`` whose committed pages the database
+already holds (all checkpointed, as a recorder stopped between a checkpoint and its next
+write leaves it) is seen by reading the log and those pages alone: no copy, no note.
 """
 
 from __future__ import annotations
 
+import atexit
+import itertools
+import shlex
 import shutil
 import sqlite3
+import struct
 import tempfile
+import threading
+import urllib.parse
+from dataclasses import dataclass, field
 from pathlib import Path
 
+from pcainterp_stream.interrupt import signalled, track_partial, untrack_partial
+from pcainterp_stream.io.output_paths import remove_stale_temporaries, temporary_prefix
 from pcainterp_stream.io.reader_base import _one_line
 
-__all__ = ["WalView", "wal_file"]
+__all__ = ["WalView", "release_wal_copies", "wal_file"]
+
+STEM = "pcainterp-wal"
+"""The start of the name of a process's folder of merged copies (then its owner)."""
+
+_WAL_MAGIC = (0x377F0682, 0x377F0683)
+_WAL_HEADER = 32
+_FRAME_HEADER = 24
+_ROOM_MARGIN = 1 << 20
+"""Bytes kept free beyond the copy itself (the sqlite journal of the merge, rounding)."""
 
 
 def wal_file(storage: Path) -> Path | None:
@@ -29,6 +57,106 @@ def wal_file(storage: Path) -> Path | None:
         return wal if wal.is_file() and wal.stat().st_size > 0 else None
     except OSError:
         return None
+
+
+def wal_adds_nothing(storage: Path, wal: Path) -> bool:
+    """Whether merging ``wal`` into ``storage`` would leave the database as it is.
+
+    SQLite applies a log's frames up to its last commit frame whose salts match the log's
+    header. When every page those frames hold (the latest version of each) is already in
+    the database byte for byte, and the database has the size the last commit states, the
+    log was checkpointed and holds nothing new. Reads the log's frame headers and, for each
+    page it holds, that page of the log and of the database (stopping at the first that
+    differs): the log's size at most, never the database's. Frame checksums are not
+    verified: a torn frame can only make a page differ, and so a copy be made.
+    """
+    try:
+        with wal.open("rb") as log, storage.open("rb") as database:
+            header = log.read(_WAL_HEADER)
+            if len(header) < _WAL_HEADER:
+                return True  # SQLite ignores a log without a whole header
+            magic, _version, page_size, _sequence, salt1, salt2 = struct.unpack(">6I", header[:24])
+            if magic not in _WAL_MAGIC or page_size < 512 or page_size & (page_size - 1):
+                return True  # not a log SQLite reads: it ignores it
+            frames: list[tuple[int, int]] = []  # (page number, offset of the page's data)
+            committed, pages_after = 0, 0
+            for index in itertools.count():
+                offset = _WAL_HEADER + index * (_FRAME_HEADER + page_size)
+                log.seek(offset)
+                frame = log.read(_FRAME_HEADER)
+                if len(frame) < _FRAME_HEADER:
+                    break
+                page, commit, salt1_, salt2_ = struct.unpack(">4I", frame[:16])
+                if (salt1_, salt2_) != (salt1, salt2) or page == 0:
+                    break  # a frame of an earlier generation of the log: the end
+                frames.append((page, offset + _FRAME_HEADER))
+                if commit:
+                    committed, pages_after = len(frames), commit
+            if not committed:
+                return True  # no committed frame: nothing SQLite would apply
+            database.seek(0, 2)
+            if database.tell() != pages_after * page_size:
+                return False
+            latest = dict(frames[:committed])  # the last version of each page
+            for page, data_at in latest.items():
+                log.seek(data_at)
+                database.seek((page - 1) * page_size)
+                if log.read(page_size) != database.read(page_size):
+                    return False
+            return True
+    except OSError:
+        return False  # the copy's own error will say what is wrong
+
+
+@dataclass
+class _Copy:
+    """A log's private view (its walled storage merged), shared by the opens of the log."""
+
+    key: tuple[object, ...]
+    path: Path | None  # the log in the view; None: read the log itself
+    notes: list[str] = field(default_factory=list)
+    failures: list[str] = field(default_factory=list)
+    users: int = 0
+    folder: Path | None = None  # the view's own folder (removed with it)
+
+
+_lock = threading.RLock()
+_copies: dict[tuple[object, ...], _Copy] = {}
+_roots: dict[str, Path] = {}  # temporary folder -> this process's folder of copies in it
+_serial = itertools.count()
+
+
+def release_wal_copies() -> None:
+    """Remove every merged copy this process made (at its end; tests call it too)."""
+    with _lock:
+        _copies.clear()
+        for root in _roots.values():
+            shutil.rmtree(root, ignore_errors=True)
+            untrack_partial(root)
+        _roots.clear()
+
+
+def _root() -> Path:
+    """Return this process's folder of copies in the temporary folder; make it when needed."""
+    base = tempfile.gettempdir()
+    root = _roots.get(base)
+    if root is not None and root.is_dir():
+        return root
+    remove_stale_temporaries(Path(base), STEM)  # copies left by runs that were killed
+    if not _roots:
+        atexit.register(release_wal_copies)
+    root = Path(tempfile.mkdtemp(prefix=temporary_prefix(STEM)))
+    track_partial(root)  # removed even if a signal forces the end
+    _roots[base] = root
+    return root
+
+
+def _quoted(storage: Path) -> str:
+    return shlex.quote(str(storage))
+
+
+def _checkpoint_advice(storage: Path) -> str:
+    return f"`sqlite3 {_quoted(storage)} 'PRAGMA wal_checkpoint'` merges them into the bag"
 
 
 class WalView:
@@ -44,7 +172,7 @@ class WalView:
         self.path = path
         self.notes: list[str] = []
         self.failures: list[str] = []
-        self._folder: Path | None = None
+        self._copy: _Copy | None = None
         self._walled = self._walled_storage(path)
 
     @staticmethod
@@ -60,72 +188,196 @@ class WalView:
     def source(self) -> Path:
         """Return the path to hand rosbags (a private copy when a WAL lies beside storage).
 
-        Builds the copy on the first call; a copy that cannot be made (no room in the
-        temporary folder) is noted in :attr:`failures` and the log read as it is.
+        Finds or builds the process's copy on the first call; a copy that cannot be made
+        (no room in the temporary folder) is noted in :attr:`failures` and the log read
+        as it is.
         """
         if not self._walled:
             return self.path
-        if self._folder is None:
-            try:
-                self._folder = Path(tempfile.mkdtemp(prefix="pcainterp-wal-"))
-                self._build(self._folder)
-            except (OSError, sqlite3.Error) as err:
-                self.close()
-                walled, self._walled = self._walled, []
-                for storage in walled:
-                    self.failures.append(
-                        f"{storage.name}: its write-ahead log {storage.name}-wal holds messages "
-                        f"not yet merged, which are not read (a private copy to merge them "
-                        f"failed: {_one_line(err)}); `sqlite3 {storage} 'PRAGMA "
-                        "wal_checkpoint'` merges them into the bag"
-                    )
-                return self.path
+        if self._copy is None:
+            with _lock:
+                copy = self._acquire()
+            self._copy = copy
+            self.notes, self.failures = list(copy.notes), list(copy.failures)
         return self.viewed(self.path)
 
     def viewed(self, path: Path) -> Path:
         """Return where ``path`` (the log or a file of its folder) lies in the view."""
-        if self._folder is None:
+        view = None if self._copy is None else self._copy.path
+        if view is None:
             return path
         if path == self.path:
-            return self._folder / path.name
+            return view
         if path.parent == self.path:
-            return self._folder / self.path.name / path.name
+            return view / path.name
         return path
 
-    def _build(self, folder: Path) -> None:
+    def close(self) -> None:
+        """Let go of the copy (removed at the process's end, or when the log changes).
+
+        After a signal every copy is removed now: the command then ends without the exit
+        handlers (:func:`.interrupt.end_if_signalled`).
+        """
+        if self._copy is not None:
+            with _lock:
+                self._copy.users -= 1
+            self._copy = None
+        if signalled():
+            release_wal_copies()
+
+    def _key(self) -> tuple[object, ...]:
+        """The log's identity and state: its walled storage files' and logs' sizes, times."""
+        state: list[object] = [str(self.path.resolve())]
+        for storage in self._walled:
+            wal = storage.with_name(storage.name + "-wal")
+            for part in (storage, wal):
+                try:
+                    stat = part.stat()
+                    state.append((part.name, stat.st_size, stat.st_mtime_ns))
+                except OSError:
+                    state.append((part.name, None, None))
+        return tuple(state)
+
+    def _acquire(self) -> _Copy:
+        key = self._key()
+        copy = _copies.get(key)
+        if copy is None or (copy.folder is not None and not copy.folder.is_dir()):
+            self._forget_older(str(key[0]))
+            copy = _copies[key] = self._make(key)
+        copy.users += 1
+        return copy
+
+    @staticmethod
+    def _forget_older(log: str) -> None:
+        """Remove the unused copies of an earlier state of the log (it was written to since)."""
+        for key, copy in list(_copies.items()):
+            if key[0] == log and copy.users <= 0:
+                del _copies[key]
+                if copy.folder is not None:
+                    shutil.rmtree(copy.folder, ignore_errors=True)
+
+    def _make(self, key: tuple[object, ...]) -> _Copy:
+        walled = [s for s in self._walled if not wal_adds_nothing(s, _wal_of(s))]
+        if not walled:
+            return _Copy(key, None)
+        needed = sum(_size(s) + _size(_wal_of(s)) for s in walled) + _ROOM_MARGIN
+        base = tempfile.gettempdir()
+        try:
+            free = shutil.disk_usage(base).free
+        except OSError:
+            free = needed
+        if free < needed:
+            reason = (
+                f"it needs {_megabytes(needed)} in the temporary folder {base}, which has "
+                f"{_megabytes(free)} free"
+            )
+            return _Copy(key, None, failures=[_failure(s, reason) for s in walled])
+        folder: Path | None = None
+        try:
+            folder = _root() / str(next(_serial))
+            folder.mkdir()
+            notes = self._build(folder, walled)
+        except (OSError, sqlite3.Error) as err:
+            if folder is not None:
+                shutil.rmtree(folder, ignore_errors=True)
+            return _Copy(key, None, failures=[_failure(s, _one_line(err)) for s in walled])
+        if not notes:  # the logs held no message the databases lack
+            shutil.rmtree(folder, ignore_errors=True)
+            return _Copy(key, None)
+        view = folder / self.path.name
+        return _Copy(key, view, notes=notes, folder=folder)
+
+    def _build(self, folder: Path, walled: list[Path]) -> list[str]:
+        """Make the view in ``folder``; return its notes (none: no message added)."""
+        added: list[tuple[Path, int | None]] = []
         if self.path.is_dir():
             view = folder / self.path.name
             view.mkdir()
             for entry in sorted(self.path.iterdir()):
                 if entry.name.endswith(("-wal", "-shm")) or not entry.is_file():
                     continue
-                if entry in self._walled:
-                    self._merge(entry, view / entry.name)
+                if entry in walled:
+                    added.append((entry, _merge(entry, view / entry.name)))
                 else:
                     (view / entry.name).symlink_to(entry.resolve())
         else:
-            self._merge(self.path, folder / self.path.name)
+            added.append((self.path, _merge(self.path, folder / self.path.name)))
+        if all(count == 0 for _, count in added):
+            return []
+        notes = []
+        for storage, count in added:
+            if count == 0:
+                continue
+            held = "messages" if count is None else f"{count} messages"
+            notes.append(
+                f"{storage.name}: its write-ahead log {storage.name}-wal held {held} not yet "
+                "merged (its recorder was killed, or is still recording); read through a "
+                f"private copy with them merged ({_checkpoint_advice(storage)})"
+            )
+        return notes
 
-    def _merge(self, storage: Path, copy: Path) -> None:
-        """Copy ``storage`` and its WAL to ``copy``; merge the log into the copy."""
-        wal = wal_file(storage)
-        assert wal is not None
-        shutil.copyfile(storage, copy)
-        shutil.copyfile(wal, copy.with_name(copy.name + "-wal"))
-        connection = sqlite3.connect(copy)
+
+def _wal_of(storage: Path) -> Path:
+    return storage.with_name(storage.name + "-wal")
+
+
+def _size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except OSError:
+        return 0
+
+
+def _megabytes(size: int) -> str:
+    return f"{size / 1e6:.0f} MB" if size >= 1e6 else f"{size / 1e3:.0f} kB"
+
+
+def _failure(storage: Path, reason: str) -> str:
+    return (
+        f"{storage.name}: its write-ahead log {storage.name}-wal holds messages not yet "
+        f"merged, which are not read (a private copy to merge them failed: {reason}; set "
+        f"TMPDIR to a folder with room for it); {_checkpoint_advice(storage)}"
+    )
+
+
+def _merge(storage: Path, copy: Path) -> int | None:
+    """Copy ``storage`` and its WAL to ``copy``; merge the log into the copy.
+
+    Returns:
+        The number of messages the log added (None if it cannot be told).
+    """
+    shutil.copyfile(storage, copy)
+    shutil.copyfile(_wal_of(storage), copy.with_name(copy.name + "-wal"))
+    connection = sqlite3.connect(copy)
+    try:
+        connection.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchall()
+        connection.execute("PRAGMA journal_mode=DELETE").fetchall()
+        return _added_messages(storage, connection)
+    finally:
+        connection.close()
+
+
+def _added_messages(storage: Path, merged: sqlite3.Connection) -> int | None:
+    """Count the messages ``merged`` holds beyond the last one of ``storage`` alone.
+
+    rosbag2 appends messages with rising ids and never deletes one: those past the
+    original's highest id (read with the log ignored, as rosbags reads it) are the log's.
+    """
+    uri = f"file:{urllib.parse.quote(str(storage.resolve()))}?immutable=1"
+    try:
+        original = sqlite3.connect(uri, uri=True)
         try:
-            connection.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchall()
-            connection.execute("PRAGMA journal_mode=DELETE").fetchall()
+            last = original.execute("SELECT max(rowid) FROM messages").fetchone()[0]
         finally:
-            connection.close()
-        self.notes.append(
-            f"{storage.name}: its write-ahead log {wal.name} held messages not yet merged (a "
-            "recorder that was killed); read through a private copy with them merged "
-            f"(`sqlite3 {storage} 'PRAGMA wal_checkpoint'` merges them into the bag)"
-        )
-
-    def close(self) -> None:
-        """Remove the private copy."""
-        if self._folder is not None:
-            shutil.rmtree(self._folder, ignore_errors=True)
-            self._folder = None
+            original.close()
+    except sqlite3.Error:  # no messages table without the log: every message is the log's
+        last = None
+    try:
+        if last is None:
+            row = merged.execute("SELECT count(*) FROM messages").fetchone()
+        else:
+            query = "SELECT count(*) FROM messages WHERE rowid > ?"
+            row = merged.execute(query, (last,)).fetchone()
+        return int(row[0])
+    except sqlite3.Error:
+        return None

@@ -10,6 +10,7 @@ sees one kind of log; damage is recorded, not raised.
 
 from __future__ import annotations
 
+import functools
 import heapq
 import io
 import os
@@ -92,6 +93,7 @@ class RosbagsLogReader(LogReader):
         # ROS 1: the connections read (definitions mended), those left out and why
         self._connections: dict[int, Any] = {}
         self._left_out: dict[int, str] = {}
+        self._topic_totals: dict[str, int] = {}  # messages per topic on connections read
         # ROS 1: messages skipped while reading, by cause: (chunk, offset)s and their line
         self._skipped: dict[str, set[tuple[int, int]]] = {}
         self._skip_lines: dict[str, str] = {}
@@ -178,16 +180,28 @@ class RosbagsLogReader(LogReader):
     def _check_ros1_definitions(self) -> None:
         """Judge each ROS 1 connection's definition; leave out the topics it cannot decode.
 
-        A definition that does not parse, or whose md5sum is not the one the connection
-        records, cannot decode its messages. rosserial records the right md5sum with an
-        empty definition: when ROS 1 Noetic's type of that name has that md5sum, its
+        A definition that does not parse, or is empty while the connection records the
+        md5sum of another, cannot decode its messages. rosserial records the right md5sum
+        with an empty definition: when ROS 1 Noetic's type of that name has that md5sum, its
         definition is used (what ``fix_msg_defs.py`` of rosbag does), with a warning; else
-        the topic is left out, as damage, and the rest of the bag read.
+        the topic is left out, as damage, and the rest of the bag read. A whole definition
+        whose md5sum merely differs from the recorded one (a writer that computed it
+        wrongly) is used, as rosbag itself reads it, with a warning: a message it does not
+        fit is skipped and counted when read.
         """
         assert isinstance(self._reader, Ros1Reader)
         counts = {c.id: len(self._reader.indexes.get(c.id, ())) for c in self._reader.connections}
+        self._topic_totals = {}
         for connection in self._reader.connections:
-            problem = _ros1_definition_problem(connection)
+            problem, usable = _ros1_definition_problem(connection)
+            if problem is not None and usable:
+                _add_once(
+                    self.warnings,
+                    f"{self.path.name}: {connection.topic}: the bag's definition of "
+                    f"{connection.msgtype} {problem}; read with the bag's definition (a message "
+                    "it does not fit is counted as damage)",
+                )
+                problem = None
             if problem is not None and connection.digest:
                 mended = _noetic_definition(str(connection.msgtype), str(connection.digest))
                 if mended is not None:
@@ -211,6 +225,11 @@ class RosbagsLogReader(LogReader):
                 f"{connection.msgtype}) left out: its definition {problem}, so its messages "
                 "cannot be decoded; the other topics are read",
             )
+        for connection in self._connections.values():
+            if connection.id not in self._left_out:
+                self._topic_totals[connection.topic] = self._topic_totals.get(
+                    connection.topic, 0
+                ) + counts.get(connection.id, 0)
 
     def _open_error(self, path: Path, err: BaseException) -> str:
         text = _one_line(err)
@@ -458,7 +477,7 @@ class RosbagsLogReader(LogReader):
                     connection.topic,
                 )
             except Exception as err:  # rosbags SerdeError, TypesysError, struct.error...
-                total = len(bag.indexes.get(connection.id, ()))
+                total = self._topic_totals.get(connection.topic, 0)
                 self._skip(
                     f"convert {connection.topic}",
                     place,
@@ -539,21 +558,36 @@ def _message_record(chunk: io.BytesIO, offset: int) -> tuple[int, bytes]:
     return header.get_uint32("conn"), read_bytes(chunk, read_uint32(chunk))
 
 
-def _ros1_definition_problem(connection: Any) -> str | None:
-    """Return why a ROS 1 connection's definition cannot decode its messages, else None.
+def _ros1_definition_problem(connection: Any) -> tuple[str | None, bool]:
+    """Return (what is wrong with a ROS 1 connection's definition, whether it decodes).
 
-    None too when the connection records no md5sum to check it against (then only a
-    definition that does not parse is a problem).
+    (None, True) for a definition that parses and has the recorded md5sum, or when the
+    connection records none to check it against.
     """
-    msgtype, text = str(connection.msgtype), str(connection.msgdef.data)
+    return _judge_definition(
+        str(connection.msgtype), str(connection.msgdef.data), str(connection.digest or "")
+    )
+
+
+@functools.lru_cache(maxsize=1024)
+def _judge_definition(msgtype: str, text: str, recorded: str) -> tuple[str | None, bool]:
+    """:func:`_ros1_definition_problem` of a (type, definition, md5sum), parsed once each.
+
+    A bag repeats one definition on many connections, and a command opens a bag several
+    times: parsing each anew made opening a bag of 300 connections twice as slow.
+    """
     try:
         digest = str(_store_from_msg(text, msgtype).generate_msgdef(msgtype)[1])
     except Exception as err:  # rosbags TypesysError: the definition does not parse
-        return f"does not parse ({_one_line(err)})"
-    if connection.digest and digest != connection.digest:
-        empty = " (it is empty, as rosserial records it)" if not text.strip() else ""
-        return f"has md5sum {digest}, not the {connection.digest} recorded{empty}"
-    return None
+        return f"does not parse ({_one_line(err)})", False
+    if recorded and digest != recorded:
+        if not text.strip():
+            return (
+                f"has md5sum {digest}, not the {recorded} recorded (it is empty, as rosserial "
+                "records it)"
+            ), False
+        return f"has md5sum {digest}, not the {recorded} recorded", True
+    return None, True
 
 
 def _noetic_definition(msgtype: str, digest: str) -> str | None:

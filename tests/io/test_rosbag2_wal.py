@@ -17,6 +17,7 @@ from rosbags.rosbag2 import Writer
 
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import open_log
+from pcainterp_stream.io.rosbag2_wal import release_wal_copies
 
 LEFT = "/stereo/left/image_rect"
 
@@ -79,9 +80,12 @@ def test_the_messages_in_the_wal_are_read_and_the_bag_left_alone(
         assert len(stamps) == 6  # before: 2
         assert reader.damage == []
         assert len(reader.warnings) == 1
-        assert "walbag.db3-wal held messages not yet merged" in reader.warnings[0]
+        assert "walbag.db3-wal held 4 messages not yet merged" in reader.warnings[0]
         assert f"`sqlite3 {bag / 'walbag.db3'} 'PRAGMA wal_checkpoint'`" in reader.warnings[0]
     assert _snapshot(bag) == before
+    # one copy per process, kept for the next open, removed at its end
+    assert [p.name.startswith("pcainterp-wal-") for p in scratch.iterdir()] == [True]
+    release_wal_copies()
     assert list(scratch.iterdir()) == []
 
 
