@@ -9,7 +9,7 @@ messages (:class:`Stamped`) and counts its repeated stamps (:class:`SeenStamps`)
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Container, Iterable
 from typing import Any
 
 from pcainterp_stream.frontend.image_clock import ImageClock
@@ -196,6 +196,46 @@ class Stamped:
         if gap > tolerance_ns:
             return None, gap, None
         return message, gap, (kept, log_time)
+
+    def nearest_own(
+        self,
+        stamp: int,
+        log_time_ns: int,
+        tolerance_ns: int,
+        neighbours: Iterable[tuple[int, int]] = (),
+        taken: Container[tuple[int, int]] = (),
+    ) -> tuple[Any, int | None, tuple[int, int] | None, bool]:
+        """Return the message of this frame nearest ``stamp`` within the tolerance, gap, key, lost.
+
+        As :meth:`nearest`, but one message is the truth of one frame: the frame nearest it by
+        stamp, then by log time (a tie: the earlier logged). A message nearer a neighbour
+        frame (``neighbours``: the frames before and after, (stamp, log time) each) or in
+        ``taken`` (keys an earlier frame took) is not this frame's. ``lost``: with no message
+        of its own, one within the tolerance was another frame's. The message is kept.
+        """
+        others = list(neighbours)
+        best: tuple[int, int] | None = None
+        found: tuple[Any, int, tuple[int, int]] | None = None
+        lost = False
+        for kept, log_time, message in self._messages:
+            gap = abs(kept - stamp)
+            if gap > tolerance_ns:
+                continue
+            mine = (gap, abs(log_time - log_time_ns))
+            if (kept, log_time) in taken or any(
+                (abs(kept - s), abs(log_time - t)) < mine
+                or ((abs(kept - s), abs(log_time - t)) == mine and (t, s) < (log_time_ns, stamp))
+                for s, t in others
+            ):
+                lost = True
+                continue
+            if best is None or mine < best:
+                best, found = mine, (message, gap, (kept, log_time))
+        if found is not None:
+            return *found, False
+        index = self._index(stamp, log_time_ns)
+        gap_of = None if index is None else abs(self._messages[index][0] - stamp)
+        return None, gap_of, None, lost
 
     def claim(
         self, stamp: int, log_time_ns: int, tolerance_ns: int, neighbours: Iterable[int] = ()
