@@ -510,6 +510,7 @@ def read_frames(
                 tolerance_ns=state.tolerance_ns,
                 taken=taken,
                 neighbours=around,
+                squeezed=unplaced.squeezed(frame.stamp_ns),
             )
             for topic in built.shared:
                 state.shared.setdefault(topic, []).append(built.index)
@@ -767,12 +768,14 @@ def _frame(
     tolerance_ns: int = RIGHT_STAMP_TOLERANCE_NS,
     taken: dict[str, dict[tuple[int, int], int]] | None = None,
     neighbours: list[tuple[int, int]] | None = None,
+    squeezed: bool = False,
 ) -> Frame:
     """Build a frame from its complete messages and the messages nearest its stamp.
 
     ``taken``: the truth messages earlier frames took (:func:`_shared_truth`); None: none.
     ``neighbours``: the frames before and after it, (stamp, log time) each: a truth message
-    nearer one of them is that frame's.
+    nearer one of them is that frame's. ``squeezed``: its stamp was placed with no rate
+    measured (:meth:`UnplacedStamps.squeezed`): only a message of that very stamp is its own.
     """
     index, stamp, parts = complete.index, complete.stamp_ns, complete.parts
     taken = {} if taken is None else taken
@@ -790,7 +793,9 @@ def _frame(
         for topic, messages in nearby.items()
         if topic not in TRUTH_TOPICS
     }
-    shared = _truth_of_its_own(nearby, found, taken, complete, tolerance_ns, neighbours or [])
+    shared = _truth_of_its_own(
+        nearby, found, taken, complete, tolerance_ns, neighbours or [], squeezed=squeezed
+    )
     right, gap, _ = found.get(images.right_topic, (None, None, None))
     depth, depth_gap, _ = found.get(GROUND_TRUTH_DEPTH, (None, None, None))
     pose, pose_gap, _ = found.get(GROUND_TRUTH_POSE, (None, None, None))
@@ -833,6 +838,8 @@ def _truth_of_its_own(
     complete: _Complete,
     tolerance_ns: int,
     neighbours: list[tuple[int, int]],
+    *,
+    squeezed: bool = False,
 ) -> tuple[str, ...]:
     """Put in ``found`` the frame's truth and pose messages; return the topics it lost.
 
@@ -843,15 +850,24 @@ def _truth_of_its_own(
     run, the frame after the pause keeps its truth and the paused copies placed before it
     are left out (review 16b R1); frames stamped closer together than the truth (a clock
     stuck for the whole log) are left out, never scored against another frame's truth.
+    A frame placed with no rate measured (``squeezed``: within one frame interval of the
+    last stamp of its own, its time unknown) takes only a message of its very stamp (truth
+    repeated on the same paused clock, placed alike); a message merely near it is the truth
+    of another instant: it is left out, as lost (the 25-frame stuck log of fix EV16 scored
+    its last frame against the second frame's truth, 4.1 px).
     """
     lost = []
     for topic in TRUTH_TOPICS:
         if topic not in nearby:
             continue
         seen = taken.setdefault(topic, {})
+        stamp, log_time = complete.stamp_ns, complete.log_time_ns
         message, gap, key, shared = nearby[topic].nearest_own(
-            complete.stamp_ns, complete.log_time_ns, tolerance_ns, neighbours, seen
+            stamp, log_time, 0 if squeezed else tolerance_ns, neighbours, seen
         )
+        if squeezed and message is None:  # one near it, of another instant: lost
+            near = nearby[topic].nearest_own(stamp, log_time, tolerance_ns, neighbours, seen)
+            gap, shared = near[1], shared or near[0] is not None or near[3]
         found[topic] = (message, gap, key)
         if shared:
             lost.append(topic)

@@ -46,6 +46,7 @@ class UnplacedStamps:
         self._read: dict[str, int] = {}  # messages read (copies not) of each topic
         self._first_zero: dict[str, int] = {}  # where a topic's first message stamped 0 went
         self._moved: list[tuple[str, int, int]] = []
+        self._squeezed: dict[int, None] = {}  # left stamps placed with no rate measured
 
     def copy(self, topic: str, stamp_ns: int, message: Any, log_time_ns: int) -> bool:
         """Return True for an image that repeats its topic's previous one (densify's rule).
@@ -68,6 +69,10 @@ class UnplacedStamps:
         if clock is None:
             return log_time_ns if stamp_ns == 0 else stamp_ns
         placed = clock.stamp(stamp_ns, log_time_ns)
+        if topic == self._left and clock.squeezed:
+            self._squeezed[placed] = None
+            if len(self._squeezed) > SeenStamps.LIMIT:
+                del self._squeezed[next(iter(self._squeezed))]
         read = self._read[topic] = self._read.get(topic, 0) + 1
         left = self._first_zero.get(self._left) if self._read.get(self._left) == 1 else None
         if read == 1 and stamp_ns == 0 and topic == self._left:
@@ -80,6 +85,15 @@ class UnplacedStamps:
         if read == 1 and stamp_ns == 0:
             self._first_zero[topic] = placed
         return placed
+
+    def squeezed(self, stamp_ns: int) -> bool:
+        """Whether the left image placed at ``stamp_ns`` was placed with no rate measured.
+
+        Its clock's stamp repeated before it measured a rate (paused at start, or stuck for
+        the whole log): it was put within one frame interval of the stamp, in order, but its
+        time is not known (:attr:`ImageClock.squeezed`).
+        """
+        return stamp_ns in self._squeezed
 
     def moved(self) -> list[tuple[str, int, int]]:
         """Return (and forget) the messages placed again: (topic, placed stamp, new stamp)."""

@@ -78,10 +78,14 @@ class ImageClock:
         self._placed = 0  # the last stamp placed (or own) since that one
         self._ticks: deque[int] = deque(maxlen=RATE_SPAN)  # the stamp advances
         self._given = -1  # the last stamp given out on this clock (-1: none yet)
+        self.squeezed = False
+        """Whether the last image was placed with no rate measured (within one frame of its
+        stamp: its time is not known, only its order)."""
 
     def place(self, stamp_ns: int, log_time_ns: int) -> Restamp | None:
         """Take the topic's next image; return where it is placed, None: at its own stamp."""
         previous, self._previous = self._previous, stamp_ns
+        self.squeezed = False
         if stamp_ns not in (0, previous):
             passed = self._own is not None and self._own[0] < stamp_ns <= self._given
             self._see_own(stamp_ns, log_time_ns)
@@ -103,6 +107,7 @@ class ImageClock:
             placed = own_ns + min(round(min(1.0, median(self._rates)) * since), short)
         else:  # no rate yet: within one frame interval of the stamp
             placed = own_ns + since // (self._run + 1)
+            self.squeezed = True
         self._placed = self._given = max(placed, self._placed + 1)
         return Restamp(self._placed, by_log_time=False)
 
