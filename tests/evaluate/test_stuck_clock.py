@@ -54,7 +54,7 @@ def test_no_truth_message_is_scored_for_two_frames(stuck: Path) -> None:
 def test_in_stereo_mode_each_truth_message_goes_to_one_frame(stuck: Path) -> None:
     options = EvaluateOptions(mode=Mode.STEREO, sweep_every=0, linear=False)
     result, _ = evaluate_log(stuck, options)
-    assert result.frames == 2, result.notes  # frame 0 and the one nearest 453.1 s
+    assert result.frames == 1, result.notes  # frame 0; the one nearest 453.1 s is not its
     assert any("another frame's, stamped nearer it" in note for note in result.notes)
 
 
@@ -65,7 +65,11 @@ PAUSED, COPIES = 3, 8
 @pytest.fixture(scope="module")
 def paused(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[int]]:
     """A simulator paused amid a run, densified; and the stamps of the log's real frames."""
-    folder = tmp_path_factory.mktemp("paused_clock")
+    return _paused(tmp_path_factory.mktemp("paused_clock"), PAUSED)
+
+
+def _paused(folder: Path, paused_at: int) -> tuple[Path, list[int]]:
+    """A log whose frame ``paused_at`` is re-sent :data:`COPIES` times, densified."""
     log, paused = folder / "synth.mcap", folder / "paused.mcap"
     jobs.synth(log, frames=8, seed=43, scale=0.25, fmt="mcap")
     with open(log, "rb") as stream:
@@ -77,10 +81,10 @@ def paused(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[int]]:
             frame = round((message.log_time - start) / step)
             if topic == LEFT_IMAGE:
                 stamps.append(_stamp(message.data))
-            if frame < PAUSED:
+            if frame < paused_at:
                 copy.add(channel_id, message.log_time, message.data)
                 continue
-            if frame > PAUSED:
+            if frame > paused_at:
                 copy.add(channel_id, message.log_time + COPIES * step, message.data)
                 continue
             for again in range(COPIES + 1):  # the truth once, the images again and again
@@ -144,3 +148,14 @@ def test_a_tolerance_of_half_a_frame_is_named_as_the_cause(tmp_path: Path) -> No
     assert "the stamp tolerance, 60 ms (--stamp-tolerance-ms)" in note, note
     assert "smaller --stamp-tolerance-ms (under 50 ms)" in note, note
     assert "header stamp" not in note, note
+
+
+def test_a_clock_paused_at_start_pairs_the_real_frames_in_temporal_mode(tmp_path: Path) -> None:
+    # review 16b R2: paused 2.5 s at start; the paused copies (placed within one frame of
+    # the first stamp, 3 ms apart) took the median frame step, and no real frame paired
+    # (refused); with the 1 s stuck rule they were scored against truth 1.1-1.5 s later
+    log, stamps = _paused(tmp_path, 0)
+    options = EvaluateOptions(mode=Mode.TEMPORAL, sweep_every=0, linear=False)
+    result, _ = evaluate_log(log, options)
+    scored = [frame.stamp_ns for frame in result.per_frame]
+    assert scored == stamps[1:-1], result.notes  # each real frame with the next one
