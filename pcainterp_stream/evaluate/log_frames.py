@@ -64,6 +64,7 @@ __all__ = [
 
 GROUND_TRUTH_DEPTH = "/ground_truth/depth"
 GROUND_TRUTH_POSE = "/ground_truth/pose"
+TRUTH_TOPICS = (GROUND_TRUTH_DEPTH, GROUND_TRUTH_POSE)
 RIGHT_STAMP_TOLERANCE_NS = 1_000_000
 """The right image belongs to the frame whose stamp is this close (pairing's default), unless
 the log records the tolerance densify paired with or ``stamp_tolerance_ns`` is given."""
@@ -120,8 +121,10 @@ class Frame:
     """cx_left - cx_right (px) of the input pair's camera infos when the frame was read
     (:meth:`~pcainterp_stream.frontend.images.PairImages.cx_offset`; None: unknown)."""
     shared: tuple[str, ...] = ()
-    """The truth topics (depth, pose) whose message nearest this frame's stamp an earlier
-    frame took already: left without it (one message is not the truth of two frames)."""
+    """The truth topics (depth, pose) whose messages within the tolerance are all another
+    frame's (stamped nearer it, or taken): left without it (one message, one frame)."""
+    restamped: bool = False
+    """densify stamped the outputs off the left image's header stamp (0 or a repeat)."""
 
 
 @dataclass
@@ -174,13 +177,22 @@ class ReadState:
     damaged message, bytes of another type): skipped, as densify skipped them."""
 
     shared: dict[str, list[int]] = field(default_factory=dict)
-    """Per truth topic (depth, pose), the frames left without its message because the one
-    nearest their stamp was an earlier frame's (frames stamped closer together than the
-    truth: a camera whose header stamps repeat, placed within one frame interval)."""
+    """Per truth topic (depth, pose), the frames left without its message because each one
+    within the tolerance is another frame's, stamped nearer it."""
+    shared_restamped: int = 0
+    """Of the frames of :attr:`shared`, those densify restamped (their camera's header stamp
+    repeated or 0: placed within one frame interval of the last stamp of its own)."""
+    steps: deque[int] = field(default_factory=lambda: deque(maxlen=64))
+    """The last steps (ns) between the stamps of successive frames read (forward only)."""
 
     @property
     def shared_note(self) -> str:
-        """Return the sentence on frames whose nearest truth was another frame's ("": none)."""
+        """Return the sentence on frames whose truth was all another frame's ("": none).
+
+        The cause named is the frames' stamps (restamped: a camera clock that repeats its
+        stamp) or, for frames with stamps of their own, the tolerance when it is half their
+        interval or more (review 16b R3).
+        """
         if not self.shared:
             return ""
         count = max(len(frames) for frames in self.shared.values())
@@ -188,13 +200,26 @@ class ReadState:
             f"{topic} on {len(frames)} (frame {frames[0]} first)"
             for topic, frames in sorted(self.shared.items())
         )
-        return (
-            f"{count} frame{'' if count == 1 else 's'} left out: the truth message nearest "
-            f"their stamp was already an earlier frame's ({which}): the frames are stamped "
-            "closer together than the truth, as when the camera's header stamps repeat; "
-            "the frames scored may have been matched to another frame's truth too: give the "
-            "camera images their own stamps (or stamp the truth on the images' clock)"
+        head = (
+            f"{count} frame{'' if count == 1 else 's'} left out: each truth message within "
+            f"the stamp tolerance of them is another frame's, stamped nearer it ({which})"
         )
+        step = int(np.median(list(self.steps))) if self.steps else 0
+        if self.shared_restamped:
+            return (
+                f"{head}: {self.shared_restamped} of them repeat their camera's header stamp "
+                "(a paused or stuck camera clock), and densify placed them within one frame "
+                "interval of the last stamp of its own; give the camera images their own "
+                "stamps (or stamp the truth on the images' clock)"
+            )
+        if step and 2 * self.tolerance_ns >= step:
+            return (
+                f"{head}: the stamp tolerance, {self.tolerance_ns / 1e6:g} ms "
+                f"({self.tolerance_from}), is half the frames' interval ({step / 1e6:g} ms) "
+                "or more, so a message between two frames is within it of both; pass a "
+                f"smaller --stamp-tolerance-ms (under {step / 2e6:g} ms)"
+            )
+        return f"{head}: the frames are stamped closer together than the truth"
 
     @property
     def reference_tolerance(self) -> tuple[int, str]:
@@ -415,6 +440,7 @@ def read_frames(
         references = Stamped(REFERENCE_BUFFER)
         reference_latest = -1  # the last reference stamp read
         released: list[int] = []  # the stamp of the frame released last
+        released_at: list[tuple[int, int]] = []  # and its log time
         taken: dict[str, dict[tuple[int, int], int]] = {}  # truth messages frames took
         stamps = SeenStamps()  # of the topics matched by stamp: repeated stamps counted
         unplaced = UnplacedStamps(left_image, *nearby)  # the right image, truth, poses
@@ -434,8 +460,10 @@ def read_frames(
                 # the nearest stamp is known once one at or after it is read; after stamps
                 # restarted, the message nearest the frame's log time once the topic is read
                 # as far past the frame as the one kept is before it (whatever the order)
+                # and the truth's frame once the next frame is known (one message, one frame)
                 if len(waiting) <= wait and (
                     latest.get(topic, -1) < stamp
+                    or (topic != right_image and len(waiting) < 2)
                     or (restarted and not nearby[topic].settled(stamp, log_time, logged[topic]))
                 ):
                     return False
@@ -464,7 +492,10 @@ def read_frames(
             matched, reference_gap = references.claim(
                 frame.stamp_ns, frame.log_time_ns, state.reference_tolerance[0], neighbours
             )
-            released[:] = [frame.stamp_ns]
+            around = [*released_at, *((f.stamp_ns, f.log_time_ns) for f in list(waiting)[:1])]
+            if released and frame.stamp_ns > released[-1]:
+                state.steps.append(frame.stamp_ns - released[-1])
+            released[:], released_at[:] = [frame.stamp_ns], [(frame.stamp_ns, frame.log_time_ns)]
             if matched is not None and reference_gap is not None:
                 state.reference_offsets.append(reference_gap)
             built = _frame(
@@ -478,9 +509,12 @@ def read_frames(
                 metadata=metadata,
                 tolerance_ns=state.tolerance_ns,
                 taken=taken,
+                neighbours=around,
+                squeezed=unplaced.squeezed(frame.stamp_ns),
             )
             for topic in built.shared:
                 state.shared.setdefault(topic, []).append(built.index)
+            state.shared_restamped += bool(built.shared) and built.restamped
             return built
 
         for raw in reader.messages(wanted):
@@ -587,6 +621,9 @@ def frame_step_ns(path: Path, topics: OutputTopics, max_frames: int | None) -> i
 
     Read from the output camera infos (one per frame, small), in log order: the median of
     the steps forward in time, so that a pause or a clock that goes back does not move it.
+    Steps under a quarter of their log-time step are left out while others remain: frames
+    densify placed within one frame interval of a clock paused at start (review 16b: 24
+    such steps of 3 ms beside 15 of 100 ms took the median, and no real frame paired).
     None when there are fewer than two frames or no step forward.
 
     Args:
@@ -595,7 +632,9 @@ def frame_step_ns(path: Path, topics: OutputTopics, max_frames: int | None) -> i
         max_frames: read at most this many frames and one more (None: all).
     """
     previous: int | None = None
+    previous_log = 0
     steps: list[int] = []
+    slow: list[int] = []  # steps under a quarter of their log-time step
     with open_log(path) as reader:
         if topics.camera_info not in reader.topics():
             return None
@@ -604,8 +643,10 @@ def frame_step_ns(path: Path, topics: OutputTopics, max_frames: int | None) -> i
                 break
             stamp = rosmsg.stamp_ns(reader.decode(raw)) or raw.log_time_ns
             if previous is not None and stamp > previous:
-                steps.append(stamp - previous)
-            previous = stamp
+                step = stamp - previous
+                (slow if 4 * step < raw.log_time_ns - previous_log else steps).append(step)
+            previous, previous_log = stamp, raw.log_time_ns
+    steps = steps or slow
     return int(np.median(steps)) if steps else None
 
 
@@ -733,10 +774,15 @@ def _frame(
     metadata: dict[str, str],
     tolerance_ns: int = RIGHT_STAMP_TOLERANCE_NS,
     taken: dict[str, dict[tuple[int, int], int]] | None = None,
+    neighbours: list[tuple[int, int]] | None = None,
+    squeezed: bool = False,
 ) -> Frame:
     """Build a frame from its complete messages and the messages nearest its stamp.
 
     ``taken``: the truth messages earlier frames took (:func:`_shared_truth`); None: none.
+    ``neighbours``: the frames before and after it, (stamp, log time) each: a truth message
+    nearer one of them is that frame's. ``squeezed``: its stamp was placed with no rate
+    measured (:meth:`UnplacedStamps.squeezed`): only a message of that very stamp is its own.
     """
     index, stamp, parts = complete.index, complete.stamp_ns, complete.parts
     taken = {} if taken is None else taken
@@ -750,9 +796,13 @@ def _frame(
     features = rosmsg.pointcloud2_arrays(parts[topics.features])
     log_time = complete.log_time_ns
     found = {
-        topic: messages.nearest(stamp, tolerance_ns, log_time) for topic, messages in nearby.items()
+        topic: messages.nearest(stamp, tolerance_ns, log_time)
+        for topic, messages in nearby.items()
+        if topic not in TRUTH_TOPICS
     }
-    shared = _shared_truth(found, taken, index)
+    shared = _truth_of_its_own(
+        nearby, found, taken, complete, tolerance_ns, neighbours or [], squeezed=squeezed
+    )
     right, gap, _ = found.get(images.right_topic, (None, None, None))
     depth, depth_gap, _ = found.get(GROUND_TRUTH_DEPTH, (None, None, None))
     pose, pose_gap, _ = found.get(GROUND_TRUTH_POSE, (None, None, None))
@@ -784,33 +834,52 @@ def _frame(
         pose_gap_ns=pose_gap if pose is None else None,
         cx_offset=images.cx_offset(),
         shared=shared,
+        restamped=rosmsg.stamp_ns(parts[images.left_topic]) != stamp,
     )
 
 
-def _shared_truth(
+def _truth_of_its_own(
+    nearby: dict[str, Stamped],
     found: dict[str, tuple[Any, int | None, tuple[int, int] | None]],
     taken: dict[str, dict[tuple[int, int], int]],
-    index: int,
+    complete: _Complete,
+    tolerance_ns: int,
+    neighbours: list[tuple[int, int]],
+    *,
+    squeezed: bool = False,
 ) -> tuple[str, ...]:
-    """Drop from ``found`` the truth an earlier frame took; return the topics dropped.
+    """Put in ``found`` the frame's truth and pose messages; return the topics it lost.
 
     ``taken``: per truth topic, the messages frames took (their key: placed stamp, log time)
     and which frame took each (the latest :data:`POSE_BUFFER` kept). One message is the
-    truth of one instant: a second frame that finds it nearest its stamp is stamped off the
-    truth's clock (a camera whose stamps repeat, placed within one frame interval), and
-    scoring it against that message would score it against another frame's truth and pose.
+    truth of one instant, so it goes to one frame, the one stamped nearest it, then logged
+    nearest it (as a reference message, :meth:`Stamped.claim`): of a camera paused amid a
+    run, the frame after the pause keeps its truth and the paused copies placed before it
+    are left out (review 16b R1); frames stamped closer together than the truth (a clock
+    stuck for the whole log) are left out, never scored against another frame's truth.
+    A frame placed with no rate measured (``squeezed``: within one frame interval of the
+    last stamp of its own, its time unknown) takes only a message of its very stamp (truth
+    repeated on the same paused clock, placed alike); a message merely near it is the truth
+    of another instant: it is left out, as lost (the 25-frame stuck log of fix EV16 scored
+    its last frame against the second frame's truth, 4.1 px).
     """
-    shared = []
-    for topic in (GROUND_TRUTH_DEPTH, GROUND_TRUTH_POSE):
-        message, gap, key = found.get(topic, (None, None, None))
-        if message is None or key is None:
+    lost = []
+    for topic in TRUTH_TOPICS:
+        if topic not in nearby:
             continue
         seen = taken.setdefault(topic, {})
-        if key in seen:
-            found[topic] = (None, gap, None)
-            shared.append(topic)
-            continue
-        seen[key] = index
-        if len(seen) > POSE_BUFFER:
-            del seen[next(iter(seen))]
-    return tuple(shared)
+        stamp, log_time = complete.stamp_ns, complete.log_time_ns
+        message, gap, key, shared = nearby[topic].nearest_own(
+            stamp, log_time, 0 if squeezed else tolerance_ns, neighbours, seen
+        )
+        if squeezed and message is None:  # one near it, of another instant: lost
+            near = nearby[topic].nearest_own(stamp, log_time, tolerance_ns, neighbours, seen)
+            gap, shared = near[1], shared or near[0] is not None or near[3]
+        found[topic] = (message, gap, key)
+        if shared:
+            lost.append(topic)
+        if key is not None:
+            seen[key] = complete.index
+            if len(seen) > POSE_BUFFER:
+                del seen[next(iter(seen))]
+    return tuple(lost)

@@ -9,7 +9,7 @@ messages (:class:`Stamped`) and counts its repeated stamps (:class:`SeenStamps`)
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Container, Iterable
 from typing import Any
 
 from pcainterp_stream.frontend.image_clock import ImageClock
@@ -46,6 +46,7 @@ class UnplacedStamps:
         self._read: dict[str, int] = {}  # messages read (copies not) of each topic
         self._first_zero: dict[str, int] = {}  # where a topic's first message stamped 0 went
         self._moved: list[tuple[str, int, int]] = []
+        self._squeezed: dict[int, None] = {}  # left stamps placed with no rate measured
 
     def copy(self, topic: str, stamp_ns: int, message: Any, log_time_ns: int) -> bool:
         """Return True for an image that repeats its topic's previous one (densify's rule).
@@ -68,6 +69,10 @@ class UnplacedStamps:
         if clock is None:
             return log_time_ns if stamp_ns == 0 else stamp_ns
         placed = clock.stamp(stamp_ns, log_time_ns)
+        if topic == self._left and clock.squeezed:
+            self._squeezed[placed] = None
+            if len(self._squeezed) > SeenStamps.LIMIT:
+                del self._squeezed[next(iter(self._squeezed))]
         read = self._read[topic] = self._read.get(topic, 0) + 1
         left = self._first_zero.get(self._left) if self._read.get(self._left) == 1 else None
         if read == 1 and stamp_ns == 0 and topic == self._left:
@@ -80,6 +85,15 @@ class UnplacedStamps:
         if read == 1 and stamp_ns == 0:
             self._first_zero[topic] = placed
         return placed
+
+    def squeezed(self, stamp_ns: int) -> bool:
+        """Whether the left image placed at ``stamp_ns`` was placed with no rate measured.
+
+        Its clock's stamp repeated before it measured a rate (paused at start, or stuck for
+        the whole log): it was put within one frame interval of the stamp, in order, but its
+        time is not known (:attr:`ImageClock.squeezed`).
+        """
+        return stamp_ns in self._squeezed
 
     def moved(self) -> list[tuple[str, int, int]]:
         """Return (and forget) the messages placed again: (topic, placed stamp, new stamp)."""
@@ -196,6 +210,46 @@ class Stamped:
         if gap > tolerance_ns:
             return None, gap, None
         return message, gap, (kept, log_time)
+
+    def nearest_own(
+        self,
+        stamp: int,
+        log_time_ns: int,
+        tolerance_ns: int,
+        neighbours: Iterable[tuple[int, int]] = (),
+        taken: Container[tuple[int, int]] = (),
+    ) -> tuple[Any, int | None, tuple[int, int] | None, bool]:
+        """Return the message of this frame nearest ``stamp`` within the tolerance, gap, key, lost.
+
+        As :meth:`nearest`, but one message is the truth of one frame: the frame nearest it by
+        stamp, then by log time (a tie: the earlier logged). A message nearer a neighbour
+        frame (``neighbours``: the frames before and after, (stamp, log time) each) or in
+        ``taken`` (keys an earlier frame took) is not this frame's. ``lost``: with no message
+        of its own, one within the tolerance was another frame's. The message is kept.
+        """
+        others = list(neighbours)
+        best: tuple[int, int] | None = None
+        found: tuple[Any, int, tuple[int, int]] | None = None
+        lost = False
+        for kept, log_time, message in self._messages:
+            gap = abs(kept - stamp)
+            if gap > tolerance_ns:
+                continue
+            mine = (gap, abs(log_time - log_time_ns))
+            if (kept, log_time) in taken or any(
+                (abs(kept - s), abs(log_time - t)) < mine
+                or ((abs(kept - s), abs(log_time - t)) == mine and (t, s) < (log_time_ns, stamp))
+                for s, t in others
+            ):
+                lost = True
+                continue
+            if best is None or mine < best:
+                best, found = mine, (message, gap, (kept, log_time))
+        if found is not None:
+            return *found, False
+        index = self._index(stamp, log_time_ns)
+        gap_of = None if index is None else abs(self._messages[index][0] - stamp)
+        return None, gap_of, None, lost
 
     def claim(
         self, stamp: int, log_time_ns: int, tolerance_ns: int, neighbours: Iterable[int] = ()

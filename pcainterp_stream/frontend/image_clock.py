@@ -14,24 +14,29 @@ and ``evaluate`` finds its input images (``evaluate.log_frames``) by the same ru
   rate). A coarse clock's 1000.0, 1000.0, 1000.2 s at 10 Hz (rate 1) give 1000.1 for the
   repeat; a simulator at half real time whose stamps repeat (1000.0, 1000.0, 1000.1,
   1000.1 ...: rate 0.5) gives 1000.05, 1000.15 ...: between the stamps of their own around
-  it, as long as the clock keeps its rate;
+  it. The ``k``-th image of a run stays short of ``s`` plus the clock's tick (the least of
+  its last :data:`RATE_SPAN` advances): at most ``s + tick * (1 - TICK_MARGIN / k)``, so a
+  clock that pauses (a simulator paused amid a run: its stamp repeats for seconds, then
+  goes on one tick later) has its repeats placed within one tick of ``s``, before its next
+  stamp, not at rate 1 past the stamps of the frames after the pause. A stamp missed once
+  is placed :data:`TICK_MARGIN` of a tick early (0.5 ms at 10 Hz);
 - while no rate is measured yet (one stamp of its own so far), the ``k``-th image after it
   is placed at ``s + (log time - l) / (k + 1)``: at a steady frame rate within one frame
   interval of ``s`` (1000.05, 1000.067, 1000.075 ... s at 10 Hz), short of the next stamp
-  of any clock that ticks no finer than the frames come;
-- a clock whose stamp has not advanced for more than :data:`STUCK_AFTER_NS` of log time
-  (1 s) with no rate measured is taken as stuck (a driver that copies one stamp into every
-  image): squeezed into one frame interval, a long run's stamps would crowd together (1 ns
-  apart after some thousand images) and every stream stamped on another clock (truth,
-  poses) would meet them at the wrong frame, so its images are placed at ``s + (log time -
-  l)``, the log time since its last stamp, as a clock at real time would stamp them. A
-  coarse clock at real time (a stamp of whole seconds) stays short of its next stamp so; a
-  simulator paused, or one below real time whose clock ticks less than once a second of
-  log time, can be passed by them (as a clock that slows down amid a run can);
+  of any clock that ticks no finer than the frames come (a simulator paused at start);
 - each placed stamp is later than the one placed before it (by 1 ns at least) and than the
-  last stamp of its own, so the placed stamps of a run never repeat or go back;
+  last stamp of its own; an image's own stamp at or before the last stamp placed (a clock
+  that advanced by less than its tick, or after some hundred thousand repeats) is placed
+  1 ns after it instead. So the stamps given out never repeat or go back, except where the
+  clock itself goes back (restarted: its stamps are kept and measured again) and at its
+  first stamp after images placed at their log times (below);
 - before any stamp of its own (a camera that stamps nothing, all 0; or the images before a
   clock's first stamp) the log time is the only clock there is: the image's log time.
+
+A clock stuck for a whole log (every image the same stamp, no rate ever measured) has its
+images placed ever closer within one frame interval of the stamp: ``evaluate`` gives each
+truth or pose message to the one frame stamped nearest it, so such frames are left out
+there and said, never scored against another frame's truth.
 
 No image is held back: the rule looks only at the images before. A clock that starts at 0
 (a simulator's first frame stamped 0.0 s, then 0.1, 0.2 ...) therefore still places that
@@ -48,8 +53,8 @@ from typing import NamedTuple
 RATE_SPAN = 5
 """The clock's rate is the median of its rate over this many last advances."""
 
-STUCK_AFTER_NS = 1_000_000_000
-"""A clock whose stamp repeats for longer than this (log time), no rate measured, is stuck."""
+TICK_MARGIN = 0.005
+"""The first repeat stays this share of the clock's tick short of its next stamp."""
 
 
 class Restamp(NamedTuple):
@@ -71,12 +76,23 @@ class ImageClock:
         self._rates: deque[float] = deque(maxlen=RATE_SPAN)  # stamp / log-time advances
         self._run = 0  # images placed since the last own stamp
         self._placed = 0  # the last stamp placed (or own) since that one
+        self._ticks: deque[int] = deque(maxlen=RATE_SPAN)  # the stamp advances
+        self._given = -1  # the last stamp given out on this clock (-1: none yet)
+        self.squeezed = False
+        """Whether the last image was placed with no rate measured (within one frame of its
+        stamp: its time is not known, only its order)."""
 
     def place(self, stamp_ns: int, log_time_ns: int) -> Restamp | None:
         """Take the topic's next image; return where it is placed, None: at its own stamp."""
         previous, self._previous = self._previous, stamp_ns
+        self.squeezed = False
         if stamp_ns not in (0, previous):
+            passed = self._own is not None and self._own[0] < stamp_ns <= self._given
             self._see_own(stamp_ns, log_time_ns)
+            if passed:  # the placed stamps passed it: after them, in order
+                self._placed = self._given = self._given + 1
+                return Restamp(self._given, by_log_time=False)
+            self._given = stamp_ns
             return None
         if self._own is None:
             return Restamp(log_time_ns, by_log_time=True)
@@ -85,13 +101,14 @@ class ImageClock:
             return None  # its stamp again at the same log time: that message logged twice
         self._run += 1
         since = max(0, log_time_ns - own_log_ns)
-        if self._rates:
-            placed = own_ns + round(min(1.0, median(self._rates)) * since)
-        elif since > STUCK_AFTER_NS:  # stuck: at the log time since its stamp
-            placed = own_ns + since
+        if self._rates:  # on the clock, short of its next tick
+            tick = min(self._ticks)
+            short = tick - round(tick * TICK_MARGIN / self._run)
+            placed = own_ns + min(round(min(1.0, median(self._rates)) * since), short)
         else:  # no rate yet: within one frame interval of the stamp
             placed = own_ns + since // (self._run + 1)
-        self._placed = max(placed, self._placed + 1)
+            self.squeezed = True
+        self._placed = self._given = max(placed, self._placed + 1)
         return Restamp(self._placed, by_log_time=False)
 
     def stamp(self, stamp_ns: int, log_time_ns: int) -> int:
@@ -105,8 +122,10 @@ class ImageClock:
             own_ns, own_log_ns = self._own
             if stamp_ns > own_ns and log_time_ns > own_log_ns:
                 self._rates.append((stamp_ns - own_ns) / (log_time_ns - own_log_ns))
+                self._ticks.append(stamp_ns - own_ns)
             elif stamp_ns < own_ns:  # the clock restarted: its rate is measured again
                 self._rates.clear()
+                self._ticks.clear()
         self._own = (stamp_ns, log_time_ns)
         self._run = 0
         self._placed = stamp_ns

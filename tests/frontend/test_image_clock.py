@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import itertools
 
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis_profiles import examples
+
 from pcainterp_stream.frontend.image_clock import ImageClock
 
 MS = 1_000_000
@@ -60,8 +64,8 @@ def test_the_coarse_clock_of_12c_and_the_all_zero_camera() -> None:
 
 def test_missed_stuck_and_restarted_stamps_stay_monotonic() -> None:
     missed = [1000 * SECOND + i * 100 * MS for i in range(6)]
-    missed[4] = 0  # missed once, with the rate known: on the clock exactly
-    assert _placed(missed)[4] == 1000 * SECOND + 400 * MS
+    missed[4] = 0  # missed once, with the rate known: on the clock, half a ms short of its tick
+    assert _placed(missed)[4] == 1000 * SECOND + 400 * MS - MS // 2
     stuck = [SECOND, 2 * SECOND] + [3 * SECOND] * 5  # a clock that jumps: log-time rate
     assert _placed(stuck)[2:] == [3 * SECOND + i * 100 * MS for i in range(5)]
     first_run = [SECOND] * 6  # no rate ever known: within one frame of the stamp
@@ -72,20 +76,65 @@ def test_missed_stuck_and_restarted_stamps_stay_monotonic() -> None:
     assert _placed(restart)[3] == SECOND + 50 * MS
 
 
-def test_a_clock_stuck_for_longer_than_a_second_goes_on_at_log_time() -> None:
-    # bug hunt 16B F8: every image stamped 1317046453.0 s; the whole log was squeezed into
-    # one frame interval (1 ns apart after some thousand images); past a second of log time
-    # the images are placed at the stamp plus the log time since it
-    stuck = [LOG_START] * 40  # 4 s at 10 Hz
-    placed = _placed(stuck)
+def test_a_clock_stuck_for_a_whole_log_stays_within_one_frame_of_its_stamp() -> None:
+    # bug hunt 16B F8 (every image stamped 1317046453.0 s) is evaluate's to catch: no rate is
+    # ever measured, so the repeats stay within one frame interval, in order (review 16b R2:
+    # placing them at log-time rate past a second passed the stamps of a clock paused at start)
+    placed = _placed([LOG_START] * 40)  # 4 s at 10 Hz
     assert all(b > a for a, b in itertools.pairwise(placed)), placed
-    assert placed[1] == LOG_START + 50 * MS  # within the first second: within one frame
-    assert placed[11:] == [LOG_START + i * 100 * MS for i in range(11, 40)]
-    long_run = _placed([LOG_START] * 20_000, period_ns=33 * MS)  # 11 min at 30 Hz
-    assert min(b - a for a, b in itertools.pairwise(long_run[31:])) == 33 * MS
+    assert placed[1] == LOG_START + 50 * MS
+    assert placed[-1] < LOG_START + 100 * MS
+
+
+def test_a_simulator_paused_at_start_or_amid_a_run_never_goes_back() -> None:
+    # review 16b R2: paused 2.5 s at start, then 10 Hz; the 1 s stuck rule placed the
+    # repeats at 1.1-2.4 s, then the clock's own 0.1 s went back
+    at_start = [1000 * SECOND] * 25 + [1000 * SECOND + i * 100 * MS for i in range(1, 16)]
+    placed = _placed(at_start)
+    _strictly_between_own(at_start, placed)
+    assert placed[25:] == at_start[25:]  # the frames after the pause keep their stamps
+    # review 16b R1: paused 1.5 s after 6 frames; at rate 1 the repeats were placed at
+    # 0.6-2.0 s, past the own stamps 0.6-1.5 s of the frames after the pause
+    amid = [1000 * SECOND + i * 100 * MS for i in range(6)]
+    amid += [amid[-1]] * 15 + [1000 * SECOND + i * 100 * MS for i in range(6, 16)]
+    placed = _placed(amid)
+    _strictly_between_own(amid, placed)
+    assert placed[21:] == amid[21:]
+    assert all(amid[5] < p < amid[21] for p in placed[6:21]), placed
 
 
 def test_a_coarse_clock_of_whole_seconds_stays_short_of_its_next_stamp() -> None:
-    seconds = [1000 * SECOND + (i // 15) * SECOND for i in range(45)]  # 15 Hz, 1 s ticks
-    placed = _placed(seconds, period_ns=66_666_667)
+    # review 16b R5: a second of 1 s ticks at 15 Hz whose last image is logged 80 ms late
+    # (log latency): at rate 1 it fell 1.013 s after its stamp, past the next own stamp 1001.0
+    seconds = [1000 * SECOND + (i // 15) * SECOND for i in range(60)]
+    log_times = [LOG_START + i * 66_666_667 + (80 * MS if i % 15 == 14 else 0) for i in range(60)]
+    clock = ImageClock()
+    placed = [clock.stamp(s, t) for s, t in zip(seconds, log_times, strict=True)]
     _strictly_between_own(seconds, placed)
+    assert placed[15::15] == seconds[15::15]  # each second's first image at its own stamp
+
+
+def _sequence(draw: st.DrawFn) -> tuple[list[int], list[int]]:
+    """A header clock that never goes back, with repeats, zeros and any log-time steps."""
+    count = draw(st.integers(2, 60))
+    stamps, log_times = [1000 * SECOND], [LOG_START]
+    for _ in range(count):
+        log_times.append(log_times[-1] + draw(st.integers(1, 3 * SECOND)))
+        kind = draw(st.sampled_from(["advance", "repeat", "repeat", "zero"]))
+        last = next((s for s in reversed(stamps) if s), stamps[0])
+        if kind == "advance":
+            stamps.append(last + draw(st.integers(1, 3 * SECOND)))
+        else:
+            stamps.append(0 if kind == "zero" else stamps[-1])
+    return stamps, log_times
+
+
+@settings(max_examples=examples(300), deadline=None)
+@given(st.data())
+def test_the_stamps_given_out_never_repeat_or_go_back(data: st.DataObject) -> None:
+    # review 16b R2: for any clock that does not go back itself, whatever its repeats,
+    # pauses, ticks and log times, every stamp given out (own or placed) is after the last
+    stamps, log_times = data.draw(st.composite(_sequence)())
+    clock = ImageClock()
+    given = [clock.stamp(s, t) for s, t in zip(stamps, log_times, strict=True)]
+    assert all(b > a for a, b in itertools.pairwise(given)), (stamps, log_times, given)
