@@ -39,11 +39,13 @@ from pcainterp_stream.frontend.camchain_topics import (
     camchain_order,
     one_topic_both_sides,
 )
-from pcainterp_stream.frontend.pair_forms import (
-    SIDE_BY_SIDE_MATCH,
-    halves_match,
-    is_rectified_name,
+from pcainterp_stream.frontend.discovery_words import (
+    found_line,
+    shared_info,
+    side_by_side,
+    skipped_as_depth,
 )
+from pcainterp_stream.frontend.pair_forms import is_rectified_name
 from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.frontend.stream_kinds import (
     camera_images,
@@ -53,7 +55,6 @@ from pcainterp_stream.frontend.stream_kinds import (
     first_uncalibrated,
 )
 from pcainterp_stream.io import rosmsg
-from pcainterp_stream.io.logreader import decode_image
 from pcainterp_stream.io.reader_base import LogReader, TopicInfo
 
 DEFAULT_LEFT_IMAGE = PairingConfig.left_topic
@@ -101,22 +102,6 @@ class Camera:
         :func:`stream_kinds.depth_named`.
         """
         return depth_named(self.namespace, self.image)
-
-
-def _side_by_side(reader: LogReader, topic: str) -> str:
-    """Return a hint when a lone image topic's first image holds two views side by side."""
-    try:
-        raw = next(iter(reader.messages([topic])), None)
-        image = None if raw is None else decode_image(reader.decode(raw))
-    except (PcaInterpError, ValueError):
-        return ""
-    if image is None or halves_match(image) < SIDE_BY_SIDE_MATCH:
-        return ""
-    return (
-        f"; its {image.shape[1]}x{image.shape[0]} images hold two views side by side (their "
-        "halves show one scene): pcainterp reads one camera per image topic, so split each "
-        "image into a left and a right half on two topics first (with a camera info each)"
-    )
 
 
 def stream_score(left: Camera, right: Camera) -> tuple[int, int, int, int]:
@@ -679,7 +664,7 @@ def _named_infos(
         return resolved  # refused as missing, with the options
     named = "both named" if len(config.named_sides) > 1 else f"{config.named_sides[0]} named"
     if set(why.values()) == {"own"} and infos["left"] == infos["right"]:
-        said = _shared_info(topics, infos["left"], config.baseline is None)
+        said = shared_info(topics, infos["left"], config.baseline is None)
     elif set(why.values()) == {"own"}:
         said = "each image with its own camera_info"
     else:
@@ -691,25 +676,6 @@ def _named_infos(
         f"{infos['right']} ({named}; {said})"
     )
     return resolved
-
-
-def _shared_info(topics: dict[str, TopicInfo], info: str, no_baseline: bool) -> str:
-    """Return the topics line's words on two images taking one camera info, their namespace's.
-
-    Without ``--baseline`` one info gives none: the words name the options (and the log's
-    other camera infos) that give each side its own.
-    """
-    said = f"both images take {info}, the one camera_info of their namespace"
-    if not no_baseline:
-        return said
-    others = [t for t, i in sorted(topics.items()) if i.msgtype == rosmsg.CAMERA_INFO]
-    others = [t for t in others if t != info]
-    listed = f"; other camera infos in the log: {', '.join(others[:4])}" if others else ""
-    more = f" and {len(others) - 4} more" if len(others) > 4 else ""
-    return (
-        f"{said}: one camera info gives no baseline, --left-info-topic and "
-        f"--right-info-topic name each side's{listed}{more}"
-    )
 
 
 def _discover(
@@ -803,14 +769,14 @@ def _discover(
                 f"no stereo pair found in {name}: it has one camera ({images[0]}; camera infos: "
                 f"{', '.join(infos) or 'none'}); pcainterp needs a stereo pair, two cameras side "
                 "by side (--left-topic and --right-topic name them)"
-                + _side_by_side(reader, images[0])
+                + side_by_side(reader, images[0])
             )
         listed = ", ".join(f"{t} (no messages)" if t in empty else t for t in images)
         raise TopicNotFoundError(
             f"no stereo pair found in {name}: it needs two cameras, each {want}, named left/"
             f"right (or cam0/cam1, ...); image topics: {listed or 'none'}; camera "
             f"infos: {', '.join(infos) or 'none'}"
-            f"{_skipped_as_depth(skipped, first_encoding(reader))}; pass "
+            f"{skipped_as_depth(skipped, first_encoding(reader))}; pass "
             "--left-topic and --right-topic"
             + (
                 " (and --calibration LEFT.yaml RIGHT.yaml without camera infos)"
@@ -842,7 +808,7 @@ def _discover(
             right=dataclasses.replace(best.right, info=right_info if best.right.info else None),
             note="; ".join(n for n in (note, best.note) if n),
         )
-        echo(_found_line(best, len(pairs) - 1, named_left=named_left, named_right=named_right))
+        echo(found_line(best, len(pairs) - 1, named_left=named_left, named_right=named_right))
     return dataclasses.replace(
         config,
         discover=False,
@@ -851,42 +817,3 @@ def _discover(
         left_info_topic=left_info,
         right_info_topic=right_info,
     )
-
-
-def _skipped_as_depth(skipped: list[Camera], encoding_of: Callable[[str], str | None]) -> str:
-    """Return the clause of the no-pair error on the streams skipped as depth ("" if none)."""
-    if not skipped:
-        return ""
-    listed = []
-    for cam in skipped:
-        encoding = None if cam.compressed else encoding_of(cam.topic)
-        listed.append(f"{cam.topic} ({encoding})" if encoding else cam.topic)
-    return (
-        f"; skipped as depth, disparity, segmentation ... streams, their names saying so: "
-        f"{', '.join(listed)} (a stereo camera named so is read when its topics are named: "
-        f"--left-topic {skipped[0].topic} and its partner's --right-topic)"
-    )
-
-
-def _found_line(best: StereoTopics, others: int, *, named_left: bool, named_right: bool) -> str:
-    """Return the line that says which pair was found (one side of it may have been named).
-
-    Args:
-        best: the pair chosen.
-        others: how many other pairs were candidates (with the named side, if one was).
-        named_left: the left image topic was named on the command line.
-        named_right: the right one was.
-    """
-    with_infos = f" with {best.left.info} and {best.right.info}" if best.left.info else ""
-    pair = f"topics: left {best.left.topic}, right {best.right.topic}{with_infos}"
-    note = f"; {best.note}" if best.note else ""
-    if named_left and named_right:
-        return f"{pair} (both named{note})"
-    if named_left or named_right:
-        named, found = ("left", "right") if named_left else ("right", "left")
-        return (
-            f"{pair} (the {found} camera found {best.how} for the {named} one named{note}; "
-            f"--{found}-topic chooses another)"
-        )
-    more = f"; {others} other pair{'s' * (others > 1)} less preferred" if others else ""
-    return f"{pair} (found {best.how}{more}{note}; --left-topic/--right-topic choose others)"
