@@ -23,7 +23,8 @@ A log with several heads (``/front/left`` + ``/front/right`` and ``/rear/left`` 
 ``/rear/right``) has cross-head candidates too (``/front/left`` + ``/rear/right``, sides from
 Tx): a pair whose namespaces differ only in the name that says the side comes first, then
 one whose namespaces differ in one name, then the others. Two pairs equally good are an
-error that lists them with the options that choose one.
+error that lists them with the options that choose one; the stream preference chooses among
+one camera's streams only (:func:`head`), so two cameras tie whatever their streams.
 """
 
 from __future__ import annotations
@@ -530,6 +531,39 @@ def _without_crossed_kinds(pairs: list[StereoTopics]) -> list[StereoTopics]:
     return [p for p in pairs if not crossed(p)]
 
 
+def head(pair: StereoTopics) -> str:
+    """Return the namespace of a pair's stereo camera: the names its two sides share first.
+
+    ``/zed/zed_node`` of ``/zed/zed_node/left`` + ``/zed/zed_node/right`` and of
+    ``/zed/zed_node/left_raw`` + ``/zed/zed_node/right_raw`` (two streams of one camera);
+    ``/front`` and ``/rear`` of a robot's two heads.
+    """
+    a, b = pair.left.namespace.split("/"), pair.right.namespace.split("/")
+    k = next((i for i, (x, y) in enumerate(zip(a, b, strict=False)) if x != y), min(len(a), len(b)))
+    return "/".join(a[:k])
+
+
+def _ties(pairs: list[StereoTopics]) -> list[StereoTopics]:
+    """Return the pairs (best first) that are equally good: the best of each stereo camera.
+
+    The stream preference (rectified, one transport, uncompressed, grey: :func:`stream_score`)
+    chooses among the streams of one camera (:func:`head`), never between two cameras: the
+    best pairs of two heads of equal closeness tie whatever their streams (a ZED's colour
+    ``image_rect_color`` and a RealSense's grey ``infra1/image_rect_raw``; a front head with
+    ``image_raw`` only and a rear one with ``image_rect``); two pairs of one camera tie
+    when their streams are alike too.
+    """
+    best: dict[str, StereoTopics] = {}  # pairs come best first
+    ties = []
+    for pair in pairs:
+        if pair.closeness != pairs[0].closeness:
+            continue
+        first = best.setdefault(head(pair), pair)
+        if pair.preference() == first.preference():
+            ties.append(pair)  # two pairs of one camera alike tie too
+    return ties
+
+
 def resolve_pairing(
     reader: LogReader, config: PairingConfig, echo: Callable[[str], None] | None = None
 ) -> PairingConfig:
@@ -785,7 +819,7 @@ def _discover(
             )
         )
     best = pairs[0]
-    ties = [p for p in pairs if p.preference() == best.preference()]
+    ties = _ties(pairs)
     if len(ties) > 1:
         listed = "; ".join(p.describe() for p in ties)
         # one side named keeps the pairs with it: the best of those is the tie with it
