@@ -41,10 +41,10 @@ from pcainterp_stream.frontend.camchain_topics import (
     one_topic_both_sides,
 )
 from pcainterp_stream.frontend.discovery_words import (
+    UNCALIBRATED,
     found_line,
+    no_pair_error,
     shared_info,
-    side_by_side,
-    skipped_as_depth,
 )
 from pcainterp_stream.frontend.pair_forms import is_rectified_name
 from pcainterp_stream.frontend.pairing import PairingConfig
@@ -262,10 +262,6 @@ def _side_by_number(a: str, b: str) -> int | None:
         if nx != ny:
             return -1 if nx < ny else 1
     return None
-
-
-UNCALIBRATED = "are not calibrated"
-"""Said in the reason of two cameras whose camera infos have an all-zero K and P."""
 
 
 def _not_numbered_sides(
@@ -763,60 +759,8 @@ def _discover(
     if not pairs and (reader.damage or all(info.message_count == 0 for info in topics.values())):
         return dataclasses.replace(config, discover=False)  # the defaults: reported as damaged
     if not pairs:
-        images = [t for t, i in sorted(topics.items()) if i.msgtype in _IMAGE_TYPES]
-        empty = [t for t in images if topics[t].message_count == 0]
-        if rejected and all(UNCALIBRATED in r for r in rejected):
-            raise TopicNotFoundError(
-                f"no stereo pair found in {name}: {'; '.join(dict.fromkeys(rejected))}; "
-                "calibrate the pair (ROS camera_calibration) and pass --calibration LEFT.yaml "
-                "RIGHT.yaml"
-            )
-        if rejected:
-            raise TopicNotFoundError(
-                f"no stereo pair found in {name}: {'; '.join(dict.fromkeys(rejected))}; a "
-                "stereo pair's right camera info has Tx = -fx * baseline: if they are the "
-                "two sides of a stereo pair whose infos lack it, name its topics with "
-                "--left-topic and --right-topic and pass --baseline METRES (its images "
-                "rectified) or its stereo --calibration (raw images)"
-            )
-        if images and len(empty) == len(images):
-            raise TopicNotFoundError(
-                f"no stereo pair found in {name}: its image topics have no messages "
-                f"({', '.join(empty)}; see pcainterp info)"
-            )
-        infos = [t for t, i in sorted(topics.items()) if i.msgtype == rosmsg.CAMERA_INFO]
-        want = "an image topic with a sibling camera_info" if need_info else "an image topic"
-        other_images = [  # cameras in a form pcainterp does not decode (theora, ffmpeg, SDK)
-            t
-            for t, i in topics.items()
-            if i.msgtype not in _IMAGE_TYPES and re.search(r"Image|Packet", i.msgtype or "")
-        ]
-        foreign = sorted({str(topics[t].msgtype) for t in other_images})
-        if not images:
-            other = f" (its {', '.join(foreign)} are not read)" if foreign else ""
-            raise TopicNotFoundError(
-                f"no stereo pair found in {name}: it has no camera images{other}; pcainterp "
-                "densifies logs with two cameras' sensor_msgs/Image or CompressedImage topics"
-            )
-        if len(images) == 1 and not other_images and not named:
-            raise TopicNotFoundError(
-                f"no stereo pair found in {name}: it has one camera ({images[0]}; camera infos: "
-                f"{', '.join(infos) or 'none'}); pcainterp needs a stereo pair, two cameras side "
-                "by side (--left-topic and --right-topic name them)"
-                + side_by_side(reader, images[0])
-            )
-        listed = ", ".join(f"{t} (no messages)" if t in empty else t for t in images)
-        raise TopicNotFoundError(
-            f"no stereo pair found in {name}: it needs two cameras, each {want}, named left/"
-            f"right (or cam0/cam1, ...); image topics: {listed or 'none'}; camera "
-            f"infos: {', '.join(infos) or 'none'}"
-            f"{skipped_as_depth(skipped, first_encoding(reader))}; pass "
-            "--left-topic and --right-topic"
-            + (
-                " (and --calibration LEFT.yaml RIGHT.yaml without camera infos)"
-                if need_info
-                else ""
-            )
+        raise no_pair_error(
+            reader, need_info=need_info, named=named, rejected=rejected, skipped=skipped
         )
     best = pairs[0]
     ties = _ties(pairs)

@@ -5,17 +5,95 @@ Kept apart from :mod:`discovery` (which finds the pairs) so that each stays shor
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from pcainterp_stream.errors import PcaInterpError
+from pcainterp_stream.errors import PcaInterpError, TopicNotFoundError
 from pcainterp_stream.frontend.pair_forms import SIDE_BY_SIDE_MATCH, halves_match
+from pcainterp_stream.frontend.stream_kinds import first_encoding
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.logreader import decode_image
 from pcainterp_stream.io.reader_base import LogReader, TopicInfo
 
+_IMAGE_TYPES = (rosmsg.IMAGE, rosmsg.COMPRESSED_IMAGE)
+UNCALIBRATED = "are not calibrated"
+"""Said in the reason of two cameras whose camera infos have an all-zero K and P."""
+
+
 if TYPE_CHECKING:
     from pcainterp_stream.frontend.discovery import Camera, StereoTopics
+
+
+def no_pair_error(
+    reader: LogReader,
+    *,
+    need_info: bool,
+    named: bool,
+    rejected: list[str],
+    skipped: list[Camera],
+) -> TopicNotFoundError:
+    """Return the error of a log in which no stereo pair was found.
+
+    Args:
+        reader: the log.
+        need_info: cameras need a camera info (no calibration files).
+        named: an image topic was named on the command line.
+        rejected: why cameras numbered alike were not taken for a pair.
+        skipped: the depth-named streams left out.
+    """
+    topics = reader.topics()
+    name = str(reader.path)
+    images = [t for t, i in sorted(topics.items()) if i.msgtype in _IMAGE_TYPES]
+    empty = [t for t in images if topics[t].message_count == 0]
+    if rejected and all(UNCALIBRATED in r for r in rejected):
+        return TopicNotFoundError(
+            f"no stereo pair found in {name}: {'; '.join(dict.fromkeys(rejected))}; "
+            "calibrate the pair (ROS camera_calibration) and pass --calibration LEFT.yaml "
+            "RIGHT.yaml"
+        )
+    if rejected:
+        return TopicNotFoundError(
+            f"no stereo pair found in {name}: {'; '.join(dict.fromkeys(rejected))}; a "
+            "stereo pair's right camera info has Tx = -fx * baseline: if they are the "
+            "two sides of a stereo pair whose infos lack it, name its topics with "
+            "--left-topic and --right-topic and pass --baseline METRES (its images "
+            "rectified) or its stereo --calibration (raw images)"
+        )
+    if images and len(empty) == len(images):
+        return TopicNotFoundError(
+            f"no stereo pair found in {name}: its image topics have no messages "
+            f"({', '.join(empty)}; see pcainterp info)"
+        )
+    infos = [t for t, i in sorted(topics.items()) if i.msgtype == rosmsg.CAMERA_INFO]
+    want = "an image topic with a sibling camera_info" if need_info else "an image topic"
+    other_images = [  # cameras in a form pcainterp does not decode (theora, ffmpeg, SDK)
+        t
+        for t, i in topics.items()
+        if i.msgtype not in _IMAGE_TYPES and re.search(r"Image|Packet", i.msgtype or "")
+    ]
+    foreign = sorted({str(topics[t].msgtype) for t in other_images})
+    if not images:
+        other = f" (its {', '.join(foreign)} are not read)" if foreign else ""
+        return TopicNotFoundError(
+            f"no stereo pair found in {name}: it has no camera images{other}; pcainterp "
+            "densifies logs with two cameras' sensor_msgs/Image or CompressedImage topics"
+        )
+    if len(images) == 1 and not other_images and not named:
+        return TopicNotFoundError(
+            f"no stereo pair found in {name}: it has one camera ({images[0]}; camera infos: "
+            f"{', '.join(infos) or 'none'}); pcainterp needs a stereo pair, two cameras side "
+            "by side (--left-topic and --right-topic name them)" + side_by_side(reader, images[0])
+        )
+    listed = ", ".join(f"{t} (no messages)" if t in empty else t for t in images)
+    return TopicNotFoundError(
+        f"no stereo pair found in {name}: it needs two cameras, each {want}, named left/"
+        f"right (or cam0/cam1, ...); image topics: {listed or 'none'}; camera "
+        f"infos: {', '.join(infos) or 'none'}"
+        f"{skipped_as_depth(skipped, first_encoding(reader))}; pass "
+        "--left-topic and --right-topic"
+        + (" (and --calibration LEFT.yaml RIGHT.yaml without camera infos)" if need_info else "")
+    )
 
 
 def side_by_side(reader: LogReader, topic: str) -> str:
