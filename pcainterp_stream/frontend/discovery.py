@@ -43,6 +43,8 @@ from pcainterp_stream.frontend.camchain_topics import (
 from pcainterp_stream.frontend.discovery_words import (
     UNCALIBRATED,
     found_line,
+    named_side_by_side,
+    no_infos_error,
     no_pair_error,
     shared_info,
 )
@@ -625,7 +627,7 @@ def _resolve(
     """Return ``config`` with the topics of the log's stereo pair (:func:`resolve_pairing`)."""
     topics = reader.topics()
     if not config.discover:
-        return _named_infos(topics, config, echo)
+        return _named_infos(topics, config, echo, str(reader.path))
     named_left = "left" in config.named_sides or config.left_topic != DEFAULT_LEFT_IMAGE
     named_right = "right" in config.named_sides or config.right_topic != DEFAULT_RIGHT_IMAGE
     name = str(reader.path)
@@ -658,7 +660,10 @@ def _resolve(
 
 
 def _named_infos(
-    topics: dict[str, TopicInfo], config: PairingConfig, echo: Callable[[str], None] | None
+    topics: dict[str, TopicInfo],
+    config: PairingConfig,
+    echo: Callable[[str], None] | None,
+    name: str = "the log",
 ) -> PairingConfig:
     """Return ``config`` (image topics named) with each image's own camera info.
 
@@ -688,6 +693,13 @@ def _named_infos(
         config, left_info_topic=infos["left"], right_info_topic=infos["right"]
     )
     images = (config.left_topic, config.right_topic)
+    missing = [
+        infos[side]
+        for side in ("left", "right")
+        if why[side] != f"--{side}-info-topic" and topics.get(infos[side]) is None
+    ]
+    if config.calibration is None and missing and all(image in topics for image in images):
+        raise no_infos_error(topics, name, images, missing)
     if echo is None or not config.named_sides or config.calibration is not None:
         return resolved
     if not all(image in topics for image in images):
@@ -747,6 +759,23 @@ def _discover(
         camera_kind=camera_images(reader),
         skipped=skipped,
     )
+    if not pairs and need_info and not reader.damage:  # cameras by name, but no infos?
+        bare = find_pairs(
+            topics,
+            need_info=False,
+            left_topic=config.left_topic if named_left else None,
+            right_topic=config.right_topic if named_right else None,
+        )
+        live = [t for t, i in topics.items() if i.msgtype == rosmsg.CAMERA_INFO and i.message_count]
+        if bare and not live:
+            images = (bare[0].left.topic, bare[0].right.topic)
+            raise no_infos_error(topics, name, images, [])
+    if named and not pairs and not (named_left and named_right):
+        side, topic = ("left", config.left_topic) if named_left else ("right", config.right_topic)
+        if topic in topics and topics[topic].msgtype in _IMAGE_TYPES:
+            said = named_side_by_side(reader, topic, side)
+            if said is not None:  # its other side is a default never named
+                raise TopicNotFoundError(said)
     if named and not pairs:  # the named topic is missing, of another type, or has no partner
         if config.calibration_topics is not None:
             side = "left" if named_left else "right"

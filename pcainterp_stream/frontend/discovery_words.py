@@ -86,6 +86,7 @@ def no_pair_error(
             "by side (--left-topic and --right-topic name them)" + side_by_side(reader, images[0])
         )
     listed = ", ".join(f"{t} (no messages)" if t in empty else t for t in images)
+    depth = {c.topic for c in skipped}
     return TopicNotFoundError(
         f"no stereo pair found in {name}: it needs two cameras, each {want}, named left/"
         f"right (or cam0/cam1, ...); image topics: {listed or 'none'}; camera "
@@ -93,22 +94,105 @@ def no_pair_error(
         f"{skipped_as_depth(skipped, first_encoding(reader))}; pass "
         "--left-topic and --right-topic"
         + (" (and --calibration LEFT.yaml RIGHT.yaml without camera infos)" if need_info else "")
+        + side_by_side_among(reader, [t for t in images if t not in empty and t not in depth])
+    )
+
+
+SPLIT = (
+    "pcainterp reads one camera per image topic, so split each image into a left and a right "
+    "half on two topics first (with a camera info each)"
+)
+"""The advice for a topic whose images hold two views side by side."""
+
+
+def _halves(reader: LogReader, topic: str) -> tuple[int, int] | None:
+    """Return (width, height) when a topic's first image holds two views side by side."""
+    try:
+        raw = next(iter(reader.messages([topic])), None)
+        image = None if raw is None else decode_image(reader.decode(raw))
+    except (PcaInterpError, ValueError):
+        return None
+    if image is None or halves_match(image) < SIDE_BY_SIDE_MATCH:
+        return None
+    return image.shape[1], image.shape[0]
+
+
+def no_infos_error(
+    topics: dict[str, TopicInfo], name: str, images: tuple[str, str], missing: list[str]
+) -> TopicNotFoundError:
+    """Return the error of a stereo pair's images without their camera infos in a log.
+
+    Args:
+        topics: the log's topics.
+        name: the log's name.
+        images: the left and right image topics.
+        missing: the info topics looked for, not in the log ([] when found by name).
+    """
+    infos = [t for t, i in sorted(topics.items()) if i.msgtype == rosmsg.CAMERA_INFO]
+    live = [t for t in infos if topics[t].message_count != 0]
+    looked = f" ({', '.join(missing)} not in it)" if missing else ""
+    if live:
+        return TopicNotFoundError(
+            f"no camera infos for {images[0]} and {images[1]} in {name}{looked}; camera "
+            f"infos in it: {', '.join(live)}: pass --left-info-topic and --right-info-topic"
+        )
+    silent = [t for t in infos if t not in live]
+    listed = f" ({', '.join(silent)} without messages)" if silent else ""
+    return TopicNotFoundError(
+        f"no camera infos in {name}{listed}: its cameras {images[0]} and {images[1]} need "
+        f"them{looked}; a later part of a split recording (rosbag record --split, ros2 bag "
+        "record -b) has none when the cameras latched them in the first part: densify the "
+        "parts together as one log (pcainterp densify PART_0 PART_1 ... -o OUT; a rosbag2 "
+        "bag's folder holds all its parts); else pass --calibration LEFT.yaml RIGHT.yaml "
+        "(the cameras' calibration files)"
     )
 
 
 def side_by_side(reader: LogReader, topic: str) -> str:
     """Return a hint when a lone image topic's first image holds two views side by side."""
-    try:
-        raw = next(iter(reader.messages([topic])), None)
-        image = None if raw is None else decode_image(reader.decode(raw))
-    except (PcaInterpError, ValueError):
-        return ""
-    if image is None or halves_match(image) < SIDE_BY_SIDE_MATCH:
+    size = _halves(reader, topic)
+    if size is None:
         return ""
     return (
-        f"; its {image.shape[1]}x{image.shape[0]} images hold two views side by side (their "
-        "halves show one scene): pcainterp reads one camera per image topic, so split each "
-        "image into a left and a right half on two topics first (with a camera info each)"
+        f"; its {size[0]}x{size[1]} images hold two views side by side (their halves show "
+        f"one scene): {SPLIT}"
+    )
+
+
+def side_by_side_among(reader: LogReader, images: list[str], most: int = 8) -> str:
+    """Return a hint on the first of ``images`` whose images hold two views side by side.
+
+    A ZED's ``stereo/image_rect_color`` beside its depth and confidence streams: the camera
+    images among the first ``most`` topics are looked at ("" when none is side by side).
+    """
+    topics = reader.topics()
+    encoding_of = first_encoding(reader)
+    for topic in images[:most]:
+        compressed = topics[topic].msgtype == rosmsg.COMPRESSED_IMAGE
+        encoding = None if compressed else encoding_of(topic)
+        if encoding is not None and encoding not in rosmsg.CAMERA_IMAGE_ENCODINGS:
+            continue  # depth, disparity, confidence
+        size = _halves(reader, topic)
+        if size is not None:
+            return (
+                f"; {topic} holds two views side by side ({size[0]}x{size[1]} images whose "
+                f"halves show one scene): {SPLIT}, then pass those as --left-topic and "
+                "--right-topic"
+            )
+    return ""
+
+
+def named_side_by_side(reader: LogReader, topic: str, side: str) -> str | None:
+    """Return the error of a topic named as one side whose images hold both views (None: not)."""
+    size = _halves(reader, topic)
+    if size is None:
+        return None
+    other = "right" if side == "left" else "left"
+    return (
+        f"{topic} (--{side}-topic) holds two views side by side in each image ({size[0]}x"
+        f"{size[1]}, its halves show one scene), not one camera's: {SPLIT}, then pass the "
+        f"left half's topic as --left-topic and the right half's as --right-topic "
+        f"(no --{other}-topic in {reader.path.name} pairs with it)"
     )
 
 

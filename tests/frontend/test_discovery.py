@@ -360,7 +360,9 @@ def test_a_camera_in_a_transport_not_decoded_is_not_called_a_one_camera_log() ->
         "/cam/right/camera_info": "sensor_msgs/msg/CameraInfo",
     }
     topics = {t: TopicInfo(t, kind, 10, "cdr", "ros2msg") for t, kind in kinds.items()}
-    reader = SimpleNamespace(path="x.mcap", damage=[], topics=lambda: topics)
+    reader = SimpleNamespace(
+        path="x.mcap", damage=[], topics=lambda: topics, messages=lambda topics=None: iter(())
+    )  # no images read: the side-by-side check of the no-pair error finds none
     with pytest.raises(TopicNotFoundError) as caught:
         resolve_pairing(reader, PairingConfig(discover=True))  # type: ignore[arg-type]
     assert "one camera" not in str(caught.value)  # the right camera is there, as ffmpeg
