@@ -57,6 +57,7 @@ from pcainterp_stream.frontend.stream_kinds import (
     first_tx,
     first_uncalibrated,
 )
+from pcainterp_stream.frontend.tf_baseline import tf_baseline_line
 from pcainterp_stream.io import rosmsg
 from pcainterp_stream.io.reader_base import LogReader, TopicInfo
 
@@ -574,7 +575,8 @@ def resolve_pairing(
     info unless its info topic was named (:func:`_named_infos`).
 
     A Kalibr camchain whose cam1 is the left camera (Kalibr numbers the cameras in its
-    ``--topics`` order) is said in a line of its own before the topics line.
+    ``--topics`` order) is said in a line of its own before the topics line; a right camera
+    info without Tx, the baseline in ``/tf_static``, in one after it (:mod:`tf_baseline`).
 
     Raises:
         TopicNotFoundError: no pair, or two equally good pairs (listing them and the options).
@@ -584,6 +586,8 @@ def resolve_pairing(
         echo(order)
     resolved = _resolve(reader, config, echo)
     _refuse_no_camera_images(reader, resolved)
+    if echo is not None and (line := tf_baseline_line(reader, resolved)):
+        echo(line)  # the right info has no Tx: the baseline /tf_static gives, quoted
     return resolved
 
 

@@ -6,8 +6,8 @@ Kept apart from :mod:`discovery` (which finds the pairs) so that each stays shor
 from __future__ import annotations
 
 import re
-from collections.abc import Callable
-from typing import TYPE_CHECKING
+from collections.abc import Callable, Sequence
+from typing import Protocol
 
 from pcainterp_stream.errors import PcaInterpError, TopicNotFoundError
 from pcainterp_stream.frontend.pair_forms import SIDE_BY_SIDE_MATCH, halves_match
@@ -21,8 +21,40 @@ UNCALIBRATED = "are not calibrated"
 """Said in the reason of two cameras whose camera infos have an all-zero K and P."""
 
 
-if TYPE_CHECKING:
-    from pcainterp_stream.frontend.discovery import Camera, StereoTopics
+class Stream(Protocol):
+    """What these words read of a camera's stream (:class:`discovery.Camera`)."""
+
+    @property
+    def topic(self) -> str:
+        """The image topic."""
+
+    @property
+    def info(self) -> str | None:
+        """Its camera info topic (None: none)."""
+
+    @property
+    def compressed(self) -> bool:
+        """True for a CompressedImage stream."""
+
+
+class Pair(Protocol):
+    """What these words read of a stereo pair found (:class:`discovery.StereoTopics`)."""
+
+    @property
+    def left(self) -> Stream:
+        """The left stream."""
+
+    @property
+    def right(self) -> Stream:
+        """The right stream."""
+
+    @property
+    def how(self) -> str:
+        """How the sides were told apart."""
+
+    @property
+    def note(self) -> str:
+        """What was passed over ("" when nothing)."""
 
 
 def no_pair_error(
@@ -31,7 +63,7 @@ def no_pair_error(
     need_info: bool,
     named: bool,
     rejected: list[str],
-    skipped: list[Camera],
+    skipped: Sequence[Stream],
 ) -> TopicNotFoundError:
     """Return the error of a log in which no stereo pair was found.
 
@@ -139,12 +171,12 @@ def no_infos_error(
     silent = [t for t in infos if t not in live]
     listed = f" ({', '.join(silent)} without messages)" if silent else ""
     return TopicNotFoundError(
-        f"no camera infos in {name}{listed}: its cameras {images[0]} and {images[1]} need "
-        f"them{looked}; a later part of a split recording (rosbag record --split, ros2 bag "
-        "record -b) has none when the cameras latched them in the first part: densify the "
-        "parts together as one log (pcainterp densify PART_0 PART_1 ... -o OUT; a rosbag2 "
-        "bag's folder holds all its parts); else pass --calibration LEFT.yaml RIGHT.yaml "
-        "(the cameras' calibration files)"
+        f"no stereo pair found in {name}: it has no camera infos{listed}; its cameras "
+        f"{images[0]} and {images[1]} need them{looked}; a later part of a split recording "
+        "(rosbag record --split, ros2 bag record -b) has none when the cameras latched them "
+        "in the first part: densify the parts together as one log (pcainterp densify PART_0 "
+        "PART_1 ... -o OUT; a rosbag2 bag's folder holds all its parts); else pass "
+        "--calibration LEFT.yaml RIGHT.yaml (the cameras' calibration files)"
     )
 
 
@@ -215,7 +247,7 @@ def shared_info(topics: dict[str, TopicInfo], info: str, no_baseline: bool) -> s
     )
 
 
-def skipped_as_depth(skipped: list[Camera], encoding_of: Callable[[str], str | None]) -> str:
+def skipped_as_depth(skipped: Sequence[Stream], encoding_of: Callable[[str], str | None]) -> str:
     """Return the clause of the no-pair error on the streams skipped as depth ("" if none)."""
     if not skipped:
         return ""
@@ -230,7 +262,7 @@ def skipped_as_depth(skipped: list[Camera], encoding_of: Callable[[str], str | N
     )
 
 
-def found_line(best: StereoTopics, others: int, *, named_left: bool, named_right: bool) -> str:
+def found_line(best: Pair, others: int, *, named_left: bool, named_right: bool) -> str:
     """Return the line that says which pair was found (one side of it may have been named).
 
     Args:

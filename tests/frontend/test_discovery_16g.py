@@ -90,7 +90,8 @@ def test_a_later_part_of_a_split_recording_is_told_to_be_read_with_the_others(
     topics = {f"{side}_topic": f"/camera/{side}/image_raw" for side in named}
     config = PairingConfig(discover=len(named) < 2, named_sides=named, **topics)  # type: ignore[arg-type]
     message = _error(_part_log(tmp_path / "part_1.mcap"), config)
-    assert message.startswith("no camera infos in ")
+    assert message.startswith("no stereo pair found in ")  # evaluate's hint needs these words
+    assert ": it has no camera infos; " in message
     assert "its cameras /camera/left/image_raw and /camera/right/image_raw need them" in message
     assert "densify the parts together as one log (pcainterp densify PART_0 PART_1" in message
     assert "--calibration LEFT.yaml RIGHT.yaml" in message
