@@ -173,7 +173,9 @@ def pairing_config(args: argparse.Namespace, features_topic: str | None = None) 
     if left_topic == right_topic:
         raise PcaInterpError(
             f"--left-topic and --right-topic are both {left_topic}; a stereo pair needs the "
-            "images of two cameras: pass the right camera's topic as --right-topic"
+            "images of two cameras (a topic whose images hold both views side by side is split "
+            "into a left and a right half on two topics first): pass the right camera's topic "
+            "as --right-topic"
         )
     tolerance_ms = stamp_tolerance_ms(args)
     if tolerance_ms is None:  # evaluate: the log's own, read later

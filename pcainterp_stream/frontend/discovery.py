@@ -23,7 +23,8 @@ A log with several heads (``/front/left`` + ``/front/right`` and ``/rear/left`` 
 ``/rear/right``) has cross-head candidates too (``/front/left`` + ``/rear/right``, sides from
 Tx): a pair whose namespaces differ only in the name that says the side comes first, then
 one whose namespaces differ in one name, then the others. Two pairs equally good are an
-error that lists them with the options that choose one.
+error that lists them with the options that choose one; the stream preference chooses among
+one camera's streams only (:func:`head`), so two cameras tie whatever their streams.
 """
 
 from __future__ import annotations
@@ -39,11 +40,15 @@ from pcainterp_stream.frontend.camchain_topics import (
     camchain_order,
     one_topic_both_sides,
 )
-from pcainterp_stream.frontend.pair_forms import (
-    SIDE_BY_SIDE_MATCH,
-    halves_match,
-    is_rectified_name,
+from pcainterp_stream.frontend.discovery_words import (
+    UNCALIBRATED,
+    found_line,
+    named_side_by_side,
+    no_infos_error,
+    no_pair_error,
+    shared_info,
 )
+from pcainterp_stream.frontend.pair_forms import is_rectified_name
 from pcainterp_stream.frontend.pairing import PairingConfig
 from pcainterp_stream.frontend.stream_kinds import (
     camera_images,
@@ -52,8 +57,8 @@ from pcainterp_stream.frontend.stream_kinds import (
     first_tx,
     first_uncalibrated,
 )
+from pcainterp_stream.frontend.tf_baseline import tf_baseline_line
 from pcainterp_stream.io import rosmsg
-from pcainterp_stream.io.logreader import decode_image
 from pcainterp_stream.io.reader_base import LogReader, TopicInfo
 
 DEFAULT_LEFT_IMAGE = PairingConfig.left_topic
@@ -101,22 +106,6 @@ class Camera:
         :func:`stream_kinds.depth_named`.
         """
         return depth_named(self.namespace, self.image)
-
-
-def _side_by_side(reader: LogReader, topic: str) -> str:
-    """Return a hint when a lone image topic's first image holds two views side by side."""
-    try:
-        raw = next(iter(reader.messages([topic])), None)
-        image = None if raw is None else decode_image(reader.decode(raw))
-    except (PcaInterpError, ValueError):
-        return ""
-    if image is None or halves_match(image) < SIDE_BY_SIDE_MATCH:
-        return ""
-    return (
-        f"; its {image.shape[1]}x{image.shape[0]} images hold two views side by side (their "
-        "halves show one scene): pcainterp reads one camera per image topic, so split each "
-        "image into a left and a right half on two topics first (with a camera info each)"
-    )
 
 
 def stream_score(left: Camera, right: Camera) -> tuple[int, int, int, int]:
@@ -276,10 +265,6 @@ def _side_by_number(a: str, b: str) -> int | None:
         if nx != ny:
             return -1 if nx < ny else 1
     return None
-
-
-UNCALIBRATED = "are not calibrated"
-"""Said in the reason of two cameras whose camera infos have an all-zero K and P."""
 
 
 def _not_numbered_sides(
@@ -545,6 +530,39 @@ def _without_crossed_kinds(pairs: list[StereoTopics]) -> list[StereoTopics]:
     return [p for p in pairs if not crossed(p)]
 
 
+def head(pair: StereoTopics) -> str:
+    """Return the namespace of a pair's stereo camera: the names its two sides share first.
+
+    ``/zed/zed_node`` of ``/zed/zed_node/left`` + ``/zed/zed_node/right`` and of
+    ``/zed/zed_node/left_raw`` + ``/zed/zed_node/right_raw`` (two streams of one camera);
+    ``/front`` and ``/rear`` of a robot's two heads.
+    """
+    a, b = pair.left.namespace.split("/"), pair.right.namespace.split("/")
+    k = next((i for i, (x, y) in enumerate(zip(a, b, strict=False)) if x != y), min(len(a), len(b)))
+    return "/".join(a[:k])
+
+
+def _ties(pairs: list[StereoTopics]) -> list[StereoTopics]:
+    """Return the pairs (best first) that are equally good: the best of each stereo camera.
+
+    The stream preference (rectified, one transport, uncompressed, grey: :func:`stream_score`)
+    chooses among the streams of one camera (:func:`head`), never between two cameras: the
+    best pairs of two heads of equal closeness tie whatever their streams (a ZED's colour
+    ``image_rect_color`` and a RealSense's grey ``infra1/image_rect_raw``; a front head with
+    ``image_raw`` only and a rear one with ``image_rect``); two pairs of one camera tie
+    when their streams are alike too.
+    """
+    best: dict[str, StereoTopics] = {}  # pairs come best first
+    ties = []
+    for pair in pairs:
+        if pair.closeness != pairs[0].closeness:
+            continue
+        first = best.setdefault(head(pair), pair)
+        if pair.preference() == first.preference():
+            ties.append(pair)  # two pairs of one camera alike tie too
+    return ties
+
+
 def resolve_pairing(
     reader: LogReader, config: PairingConfig, echo: Callable[[str], None] | None = None
 ) -> PairingConfig:
@@ -557,7 +575,8 @@ def resolve_pairing(
     info unless its info topic was named (:func:`_named_infos`).
 
     A Kalibr camchain whose cam1 is the left camera (Kalibr numbers the cameras in its
-    ``--topics`` order) is said in a line of its own before the topics line.
+    ``--topics`` order) is said in a line of its own before the topics line; a right camera
+    info without Tx, the baseline in ``/tf_static``, in one after it (:mod:`tf_baseline`).
 
     Raises:
         TopicNotFoundError: no pair, or two equally good pairs (listing them and the options).
@@ -567,6 +586,8 @@ def resolve_pairing(
         echo(order)
     resolved = _resolve(reader, config, echo)
     _refuse_no_camera_images(reader, resolved)
+    if echo is not None and (line := tf_baseline_line(reader, resolved)):
+        echo(line)  # the right info has no Tx: the baseline /tf_static gives, quoted
     return resolved
 
 
@@ -610,7 +631,7 @@ def _resolve(
     """Return ``config`` with the topics of the log's stereo pair (:func:`resolve_pairing`)."""
     topics = reader.topics()
     if not config.discover:
-        return _named_infos(topics, config, echo)
+        return _named_infos(topics, config, echo, str(reader.path))
     named_left = "left" in config.named_sides or config.left_topic != DEFAULT_LEFT_IMAGE
     named_right = "right" in config.named_sides or config.right_topic != DEFAULT_RIGHT_IMAGE
     name = str(reader.path)
@@ -643,7 +664,10 @@ def _resolve(
 
 
 def _named_infos(
-    topics: dict[str, TopicInfo], config: PairingConfig, echo: Callable[[str], None] | None
+    topics: dict[str, TopicInfo],
+    config: PairingConfig,
+    echo: Callable[[str], None] | None,
+    name: str = "the log",
 ) -> PairingConfig:
     """Return ``config`` (image topics named) with each image's own camera info.
 
@@ -673,13 +697,20 @@ def _named_infos(
         config, left_info_topic=infos["left"], right_info_topic=infos["right"]
     )
     images = (config.left_topic, config.right_topic)
+    missing = [
+        infos[side]
+        for side in ("left", "right")
+        if why[side] != f"--{side}-info-topic" and topics.get(infos[side]) is None
+    ]
+    if config.calibration is None and missing and all(image in topics for image in images):
+        raise no_infos_error(topics, name, images, missing)
     if echo is None or not config.named_sides or config.calibration is not None:
         return resolved
     if not all(image in topics for image in images):
         return resolved  # refused as missing, with the options
     named = "both named" if len(config.named_sides) > 1 else f"{config.named_sides[0]} named"
     if set(why.values()) == {"own"} and infos["left"] == infos["right"]:
-        said = _shared_info(topics, infos["left"], config.baseline is None)
+        said = shared_info(topics, infos["left"], config.baseline is None)
     elif set(why.values()) == {"own"}:
         said = "each image with its own camera_info"
     else:
@@ -691,25 +722,6 @@ def _named_infos(
         f"{infos['right']} ({named}; {said})"
     )
     return resolved
-
-
-def _shared_info(topics: dict[str, TopicInfo], info: str, no_baseline: bool) -> str:
-    """Return the topics line's words on two images taking one camera info, their namespace's.
-
-    Without ``--baseline`` one info gives none: the words name the options (and the log's
-    other camera infos) that give each side its own.
-    """
-    said = f"both images take {info}, the one camera_info of their namespace"
-    if not no_baseline:
-        return said
-    others = [t for t, i in sorted(topics.items()) if i.msgtype == rosmsg.CAMERA_INFO]
-    others = [t for t in others if t != info]
-    listed = f"; other camera infos in the log: {', '.join(others[:4])}" if others else ""
-    more = f" and {len(others) - 4} more" if len(others) > 4 else ""
-    return (
-        f"{said}: one camera info gives no baseline, --left-info-topic and "
-        f"--right-info-topic name each side's{listed}{more}"
-    )
 
 
 def _discover(
@@ -751,6 +763,23 @@ def _discover(
         camera_kind=camera_images(reader),
         skipped=skipped,
     )
+    if not pairs and need_info and not reader.damage:  # cameras by name, but no infos?
+        bare = find_pairs(
+            topics,
+            need_info=False,
+            left_topic=config.left_topic if named_left else None,
+            right_topic=config.right_topic if named_right else None,
+        )
+        live = [t for t, i in topics.items() if i.msgtype == rosmsg.CAMERA_INFO and i.message_count]
+        if bare and not live:
+            images = (bare[0].left.topic, bare[0].right.topic)
+            raise no_infos_error(topics, name, images, [])
+    if named and not pairs and not (named_left and named_right):
+        side, topic = ("left", config.left_topic) if named_left else ("right", config.right_topic)
+        if topic in topics and topics[topic].msgtype in _IMAGE_TYPES:
+            said = named_side_by_side(reader, topic, side)
+            if said is not None:  # its other side is a default never named
+                raise TopicNotFoundError(said)
     if named and not pairs:  # the named topic is missing, of another type, or has no partner
         if config.calibration_topics is not None:
             side = "left" if named_left else "right"
@@ -763,63 +792,11 @@ def _discover(
     if not pairs and (reader.damage or all(info.message_count == 0 for info in topics.values())):
         return dataclasses.replace(config, discover=False)  # the defaults: reported as damaged
     if not pairs:
-        images = [t for t, i in sorted(topics.items()) if i.msgtype in _IMAGE_TYPES]
-        empty = [t for t in images if topics[t].message_count == 0]
-        if rejected and all(UNCALIBRATED in r for r in rejected):
-            raise TopicNotFoundError(
-                f"no stereo pair found in {name}: {'; '.join(dict.fromkeys(rejected))}; "
-                "calibrate the pair (ROS camera_calibration) and pass --calibration LEFT.yaml "
-                "RIGHT.yaml"
-            )
-        if rejected:
-            raise TopicNotFoundError(
-                f"no stereo pair found in {name}: {'; '.join(dict.fromkeys(rejected))}; a "
-                "stereo pair's right camera info has Tx = -fx * baseline: if they are the "
-                "two sides of a stereo pair whose infos lack it, name its topics with "
-                "--left-topic and --right-topic and pass --baseline METRES (its images "
-                "rectified) or its stereo --calibration (raw images)"
-            )
-        if images and len(empty) == len(images):
-            raise TopicNotFoundError(
-                f"no stereo pair found in {name}: its image topics have no messages "
-                f"({', '.join(empty)}; see pcainterp info)"
-            )
-        infos = [t for t, i in sorted(topics.items()) if i.msgtype == rosmsg.CAMERA_INFO]
-        want = "an image topic with a sibling camera_info" if need_info else "an image topic"
-        other_images = [  # cameras in a form pcainterp does not decode (theora, ffmpeg, SDK)
-            t
-            for t, i in topics.items()
-            if i.msgtype not in _IMAGE_TYPES and re.search(r"Image|Packet", i.msgtype or "")
-        ]
-        foreign = sorted({str(topics[t].msgtype) for t in other_images})
-        if not images:
-            other = f" (its {', '.join(foreign)} are not read)" if foreign else ""
-            raise TopicNotFoundError(
-                f"no stereo pair found in {name}: it has no camera images{other}; pcainterp "
-                "densifies logs with two cameras' sensor_msgs/Image or CompressedImage topics"
-            )
-        if len(images) == 1 and not other_images and not named:
-            raise TopicNotFoundError(
-                f"no stereo pair found in {name}: it has one camera ({images[0]}; camera infos: "
-                f"{', '.join(infos) or 'none'}); pcainterp needs a stereo pair, two cameras side "
-                "by side (--left-topic and --right-topic name them)"
-                + _side_by_side(reader, images[0])
-            )
-        listed = ", ".join(f"{t} (no messages)" if t in empty else t for t in images)
-        raise TopicNotFoundError(
-            f"no stereo pair found in {name}: it needs two cameras, each {want}, named left/"
-            f"right (or cam0/cam1, ...); image topics: {listed or 'none'}; camera "
-            f"infos: {', '.join(infos) or 'none'}"
-            f"{_skipped_as_depth(skipped, first_encoding(reader))}; pass "
-            "--left-topic and --right-topic"
-            + (
-                " (and --calibration LEFT.yaml RIGHT.yaml without camera infos)"
-                if need_info
-                else ""
-            )
+        raise no_pair_error(
+            reader, need_info=need_info, named=named, rejected=rejected, skipped=skipped
         )
     best = pairs[0]
-    ties = [p for p in pairs if p.preference() == best.preference()]
+    ties = _ties(pairs)
     if len(ties) > 1:
         listed = "; ".join(p.describe() for p in ties)
         # one side named keeps the pairs with it: the best of those is the tie with it
@@ -842,7 +819,7 @@ def _discover(
             right=dataclasses.replace(best.right, info=right_info if best.right.info else None),
             note="; ".join(n for n in (note, best.note) if n),
         )
-        echo(_found_line(best, len(pairs) - 1, named_left=named_left, named_right=named_right))
+        echo(found_line(best, len(pairs) - 1, named_left=named_left, named_right=named_right))
     return dataclasses.replace(
         config,
         discover=False,
@@ -851,42 +828,3 @@ def _discover(
         left_info_topic=left_info,
         right_info_topic=right_info,
     )
-
-
-def _skipped_as_depth(skipped: list[Camera], encoding_of: Callable[[str], str | None]) -> str:
-    """Return the clause of the no-pair error on the streams skipped as depth ("" if none)."""
-    if not skipped:
-        return ""
-    listed = []
-    for cam in skipped:
-        encoding = None if cam.compressed else encoding_of(cam.topic)
-        listed.append(f"{cam.topic} ({encoding})" if encoding else cam.topic)
-    return (
-        f"; skipped as depth, disparity, segmentation ... streams, their names saying so: "
-        f"{', '.join(listed)} (a stereo camera named so is read when its topics are named: "
-        f"--left-topic {skipped[0].topic} and its partner's --right-topic)"
-    )
-
-
-def _found_line(best: StereoTopics, others: int, *, named_left: bool, named_right: bool) -> str:
-    """Return the line that says which pair was found (one side of it may have been named).
-
-    Args:
-        best: the pair chosen.
-        others: how many other pairs were candidates (with the named side, if one was).
-        named_left: the left image topic was named on the command line.
-        named_right: the right one was.
-    """
-    with_infos = f" with {best.left.info} and {best.right.info}" if best.left.info else ""
-    pair = f"topics: left {best.left.topic}, right {best.right.topic}{with_infos}"
-    note = f"; {best.note}" if best.note else ""
-    if named_left and named_right:
-        return f"{pair} (both named{note})"
-    if named_left or named_right:
-        named, found = ("left", "right") if named_left else ("right", "left")
-        return (
-            f"{pair} (the {found} camera found {best.how} for the {named} one named{note}; "
-            f"--{found}-topic chooses another)"
-        )
-    more = f"; {others} other pair{'s' * (others > 1)} less preferred" if others else ""
-    return f"{pair} (found {best.how}{more}{note}; --left-topic/--right-topic choose others)"

@@ -58,7 +58,7 @@ from zlib_ng import zlib_ng
 from pcainterp_stream.errors import LogWriteError
 from pcainterp_stream.interrupt import raise_if_signalled, track_partial, untrack_partial
 from pcainterp_stream.io import rosmsg
-from pcainterp_stream.io.mcap_extras import McapExtras, write_extras
+from pcainterp_stream.io.mcap_extras import McapExtras, filled_schema, write_extras
 from pcainterp_stream.io.output_paths import (
     check_not_input,
     check_output_file,
@@ -594,10 +594,10 @@ class McapLogWriter(LogWriter):
     def _schema_id(self, name: str, encoding: str, data: bytes) -> int:
         if not name and not encoding and not data:
             return 0  # a channel without a schema
-        key = (name, encoding, data)
+        key = (name, encoding, filled_schema(name, encoding, data))  # an empty one: filled
         if key not in self._schemas:
             assert self._writer is not None
-            self._schemas[key] = self._writer.register_schema(name, encoding, data)
+            self._schemas[key] = self._writer.register_schema(*key)
             self._rosbag2.schema_names[self._schemas[key]] = name
         return self._schemas[key]
 

@@ -34,6 +34,8 @@ from mcap.opcode import Opcode
 from mcap.records import Metadata
 from zlib_ng.zlib_ng import crc32
 
+from pcainterp_stream.io import rosmsg
+
 if TYPE_CHECKING:
     from mcap.writer import Writer as McapWriter
 
@@ -302,3 +304,18 @@ def size_text(size: int) -> str:
         if value < 1024 or unit == "GiB":
             break
     return f"{value:.1f} {unit}"
+
+
+def filled_schema(name: str, encoding: str, data: bytes) -> bytes:
+    """Return a schema's text to write: the standard ROS 2 definition for an empty one.
+
+    A writer that lacked the definitions leaves ``ros2msg`` schemas of 0 bytes; the reader
+    decodes their messages with the standard definition, and the copy writes it too, so
+    that mcap_ros2 and viewers decode the copied topics (``CameraInfo()`` with no fields
+    otherwise). A type the standard store does not know keeps its schema as it is.
+    """
+    if data or encoding != "ros2msg" or not name:
+        return data
+    if name not in rosmsg.TYPESTORE.fielddefs:
+        return data
+    return rosmsg.schema_text(name).encode()

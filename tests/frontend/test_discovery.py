@@ -260,11 +260,12 @@ def test_one_named_side_takes_its_sibling_not_another_heads_camera(
 
 
 def test_the_line_counts_the_other_pairs_found() -> None:
+    # one camera's two stream pairs (the ZED wrapper 4.x's left/right and left_raw/right_raw)
     topics = _topics(
         *_camera("/a/left", "image_rect"),
         *_camera("/a/right", "image_rect"),
-        *_camera("/b/left", "image_raw"),
-        *_camera("/b/right", "image_raw"),
+        *_camera("/a/left_raw", "image_raw"),
+        *_camera("/a/right_raw", "image_raw"),
     )
     said: list[str] = []
     resolve_pairing(_Reader(topics), PairingConfig(discover=True), said.append)  # type: ignore[arg-type]
@@ -273,6 +274,40 @@ def test_the_line_counts_the_other_pairs_found() -> None:
         "and /a/right/camera_info (found by name; 1 other pair less preferred; "
         "--left-topic/--right-topic choose others)"
     ]  # before: "(found by name (1 other pair(s) less preferred); ..."
+
+
+@pytest.mark.parametrize(
+    ("first", "second"),
+    [
+        (
+            _camera("/a/left", "image_rect") + _camera("/a/right", "image_rect"),
+            _camera("/b/left", "image_raw") + _camera("/b/right", "image_raw"),
+        ),
+        # a ZED's colour stream beside a RealSense's grey one (bug hunt 16G F1)
+        (
+            _camera("/zed/zed_node/left", "image_rect_color")
+            + _camera("/zed/zed_node/right", "image_rect_color"),
+            _camera("/camera/infra1", "image_rect_raw")
+            + _camera("/camera/infra2", "image_rect_raw"),
+        ),
+    ],
+)
+def test_two_cameras_whose_streams_differ_in_kind_are_equally_good(
+    first: list[str], second: list[str]
+) -> None:
+    """Bug hunt 16G F1: the preference among one camera's streams (rectified, grey) chose
+    between two cameras silently ("1 other pair less preferred", unnamed)."""
+    topics = _topics(*first, *second)
+    with pytest.raises(TopicNotFoundError) as err:
+        resolve_pairing(_Reader(topics), PairingConfig(discover=True))  # type: ignore[arg-type]
+    line = str(err.value)
+    assert "2 stereo pairs in robot.bag are equally good" in line
+    assert f"--left-topic {first[0]} " in line
+    assert f"--left-topic {second[0]} " in line
+    # either is taken when named
+    for named in (first[0], second[0]):
+        config = PairingConfig(discover=True, left_topic=named, named_sides=("left",))
+        assert resolve_pairing(_Reader(topics), config).left_topic == named  # type: ignore[arg-type]
 
 
 def test_heads_named_alike_keep_the_pairs_with_a_side_in_one_name() -> None:
@@ -325,7 +360,9 @@ def test_a_camera_in_a_transport_not_decoded_is_not_called_a_one_camera_log() ->
         "/cam/right/camera_info": "sensor_msgs/msg/CameraInfo",
     }
     topics = {t: TopicInfo(t, kind, 10, "cdr", "ros2msg") for t, kind in kinds.items()}
-    reader = SimpleNamespace(path="x.mcap", damage=[], topics=lambda: topics)
+    reader = SimpleNamespace(
+        path="x.mcap", damage=[], topics=lambda: topics, messages=lambda topics=None: iter(())
+    )  # no images read: the side-by-side check of the no-pair error finds none
     with pytest.raises(TopicNotFoundError) as caught:
         resolve_pairing(reader, PairingConfig(discover=True))  # type: ignore[arg-type]
     assert "one camera" not in str(caught.value)  # the right camera is there, as ffmpeg
