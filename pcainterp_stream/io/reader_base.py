@@ -708,10 +708,11 @@ class LogReader:
         except Exception:  # the log's own error is the one reported
             return None
         self._decoders[(raw.msgtype, raw.schema_encoding, raw.schema_data)] = rosmsg.TYPESTORE
+        said = "is empty" if not raw.schema_data.strip() else "does not match its messages"
         _add_once(
             self.warnings,
-            f"{self.path.name}: the schema stored for {raw.msgtype} on {raw.topic} does not "
-            "match its messages; they were decoded with the standard ROS 2 definition",
+            f"{self.path.name}: the schema stored for {raw.msgtype} on {raw.topic} {said}; "
+            "its messages were decoded with the standard ROS 2 definition",
         )
         return message
 

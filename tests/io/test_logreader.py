@@ -749,6 +749,26 @@ def test_a_placeholder_schema_falls_back_to_the_standard_type(tmp_path: Path) ->
             reader.decode(broken)  # neither its schema nor the standard one decodes it
 
 
+def test_an_empty_schema_is_called_empty(tmp_path: Path) -> None:
+    """Bug hunt 16G F5: an empty ros2msg schema was said not to match its messages."""
+    log = rosmsg.TYPESTORE.types["rcl_interfaces/msg/Log"]
+    time = rosmsg.TYPESTORE.types["builtin_interfaces/msg/Time"]
+    message = log(time(sec=1, nanosec=2), 20, "node", "hello", "f.cpp", "fn", 38)
+    path = tmp_path / "empty.mcap"
+    with path.open("wb") as f:
+        writer = Writer(f)
+        writer.start("ros2", "test")
+        schema = writer.register_schema("rcl_interfaces/msg/Log", "ros2msg", b"")
+        rosout = writer.register_channel("/rosout", "cdr", schema)
+        writer.add_message(rosout, 1, rosmsg.serialize(message), 1)
+        writer.finish()
+    with open_log(path) as reader:
+        (raw,) = list(reader.messages())
+        assert reader.decode(raw).msg == "hello"
+        (warning,) = reader.warnings
+        assert "rcl_interfaces/msg/Log on /rosout is empty; its messages were decoded" in warning
+
+
 # --- real data ------------------------------------------------------------------------------
 
 needs_realdata = pytest.mark.skipif(
