@@ -87,7 +87,7 @@ def to_grey8_pair(left: npt.NDArray[Any], right: npt.NDArray[Any]) -> tuple[UInt
         pair = np.ascontiguousarray(grey_left), np.ascontiguousarray(grey_right)
     else:
         pair = _sixteen_to_eight(grey_left, grey_right)
-    return _unusual_levels(*pair)
+    return levels.adjust_pair(*pair)  # unusual levels only (:mod:`.levels`)
 
 
 def _sixteen_to_eight(
@@ -107,15 +107,6 @@ def _sixteen_to_eight(
         np.asarray(cv2.convertScaleAbs(grey_left, alpha=scale, beta=-floor * scale), np.uint8),
         np.asarray(cv2.convertScaleAbs(grey_right, alpha=scale, beta=-floor * scale), np.uint8),
     )
-
-
-def _unusual_levels(left: UInt8Array, right: UInt8Array) -> tuple[UInt8Array, UInt8Array]:
-    """Undo a left/right level mismatch, stretch a dark pair, note saturation (:mod:`.levels`)."""
-    if left is not right:
-        right = levels.match_right_levels(left, right)
-    left, right = levels.stretch_dark(left, right)
-    levels.note_saturation(left, right)
-    return left, right
 
 
 def to_grey8(image: npt.NDArray[Any]) -> UInt8Array:
