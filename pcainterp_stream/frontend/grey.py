@@ -15,6 +15,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from pcainterp_stream.frontend import levels
+
 __all__ = ["BLANK_SPREAD", "is_blank", "to_grey8", "to_grey8_pair"]
 
 UInt8Array = npt.NDArray[np.uint8]
@@ -57,8 +59,11 @@ def to_grey8_pair(left: npt.NDArray[Any], right: npt.NDArray[Any]) -> tuple[UInt
     for matching as both views get the same) is converted with ``cv2.COLOR_RGB2GRAY``.
     16-bit images are scaled linearly so that the 99.9th percentile of the pair (on a 4x
     subsampled grid, for speed) maps to 255, and clipped: ``>> 8`` would leave 12-bit
-    cameras with 16 grey levels. Both views share one scale, so matching costs are not
-    biased by a per-image gain.
+    cameras with 16 grey levels; a pair on a large offset (a thermal camera, a black level)
+    is mapped from its 0.1st percentile instead of 0. Both views share one scale, so matching
+    costs are not biased by a per-image gain. Pairs outside normal levels are then adjusted
+    (:mod:`.levels`: each step acts only outside them and notes it once): a right image whose
+    levels clearly differ from the left's is mapped onto them, a dark pair is stretched.
 
     Args:
         left: (H, W) uint8/uint16 grey, (H, W, 1), or (H, W, 3) uint8/uint16 RGB left image.
@@ -79,16 +84,28 @@ def to_grey8_pair(left: npt.NDArray[Any], right: npt.NDArray[Any]) -> tuple[UInt
     grey_left = _grey_of(left)
     grey_right = _grey_of(right)
     if grey_left.dtype == np.uint8:
-        return np.ascontiguousarray(grey_left), np.ascontiguousarray(grey_right)
+        pair = np.ascontiguousarray(grey_left), np.ascontiguousarray(grey_right)
+    else:
+        pair = _sixteen_to_eight(grey_left, grey_right)
+    return levels.adjust_pair(*pair)  # unusual levels only (:mod:`.levels`)
+
+
+def _sixteen_to_eight(
+    grey_left: npt.NDArray[Any], grey_right: npt.NDArray[Any]
+) -> tuple[UInt8Array, UInt8Array]:
     top = max(
         float(np.percentile(grey_left[::4, ::4], _UINT16_PERCENTILE)),
         float(np.percentile(grey_right[::4, ::4], _UINT16_PERCENTILE)),
         1.0,
     )
-    scale = 255.0 / top
+    floor = 0.0
+    used = levels.sixteen_bit_range(grey_left, grey_right, top)
+    if used is not None:
+        floor, top = used
+    scale = 255.0 / (top - floor)
     return (
-        np.asarray(cv2.convertScaleAbs(grey_left, alpha=scale), np.uint8),
-        np.asarray(cv2.convertScaleAbs(grey_right, alpha=scale), np.uint8),
+        np.asarray(cv2.convertScaleAbs(grey_left, alpha=scale, beta=-floor * scale), np.uint8),
+        np.asarray(cv2.convertScaleAbs(grey_right, alpha=scale, beta=-floor * scale), np.uint8),
     )
 
 

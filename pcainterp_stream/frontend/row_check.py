@@ -23,10 +23,12 @@ import numpy.typing as npt
 
 from pcainterp_stream.errors import CalibrationError
 from pcainterp_stream.frontend import rectify as rect
+from pcainterp_stream.frontend.levels import note_once
 
 __all__ = ["Corners", "RowCheck", "exchanged_offset"]
 
 Corners: TypeAlias = Future[npt.NDArray[np.float64]]
+_Matched: TypeAlias = tuple[npt.NDArray[np.float64], float, npt.NDArray[np.float64]]
 """One frame's matched corners, (n, 4) x_left, y_left, x_right, y_right (being) matched."""
 
 ROW_CHECK_FRAMES = 5
@@ -93,12 +95,15 @@ class RowCheck:
         self.frames_with_matches = 0
         self.points: list[tuple[Any, rect.StereoRectifier | None]] = []
         self.changes: list[float] = []  # per frame: :func:`view_change`
+        self.refined: list[
+            npt.NDArray[np.float64]
+        ] = []  # per frame: the same-level |dy| (:func:`same_level_dy`)
         self.done = False
         self.undecided: str | None = None
         self._pending: tuple[Future[Any], rect.StereoRectifier | None] | None = None
         self._executor: ThreadPoolExecutor | None = None
         # frame index -> its matching, for :meth:`corners` (only frames before the verdict)
-        self._by_frame: dict[int, Future[tuple[npt.NDArray[np.float64], float]]] = {}
+        self._by_frame: dict[int, Future[_Matched]] = {}
 
     def see(
         self,
@@ -144,7 +149,7 @@ class RowCheck:
             return None
         corners: Corners = Future()
 
-        def hand_on(done: Future[tuple[npt.NDArray[np.float64], float]]) -> None:
+        def hand_on(done: Future[_Matched]) -> None:
             if done.cancelled():
                 corners.cancel()
             elif (error := done.exception()) is not None:
@@ -183,9 +188,10 @@ class RowCheck:
             self._executor.shutdown(wait=False, cancel_futures=True)
             self._executor = None
 
-    def _add(self, matched: tuple[Any, float], rectifier: rect.StereoRectifier | None) -> None:
+    def _add(self, matched: _Matched, rectifier: rect.StereoRectifier | None) -> None:
         """Add one frame's correspondences and change; decide once there are enough."""
-        matches, change = matched
+        matches, change, refined = matched
+        self.refined.append(refined)
         if matches.shape[0]:  # a dark frame (change 0) says nothing of the two views
             self.changes.append(change)
         self.frames += 1
@@ -218,7 +224,7 @@ class RowCheck:
             return
         offset = rect.row_offset(points)
         where = f"median over {offset.matches} matched corners of the first {self.frames} frame(s)"
-        if offset.median_abs_dy > MAX_ROW_OFFSET_PX:
+        if offset.median_abs_dy > MAX_ROW_OFFSET_PX and not self._rows_refined(offset):
             matched = [(p, r) for p, r in chunks if p.shape[0]]
             remapped = [(p, r) for p, r in matched if r is not None]
             if remapped and len(remapped) == len(matched):  # raw pairs: were the sides crossed?
@@ -269,6 +275,26 @@ class RowCheck:
                 "--rectify never uses the pair as recorded, unchecked"
             )
 
+    def _rows_refined(self, offset: rect.RowOffset) -> bool:
+        """Whether the matches found on one pyramid level in both images lie on one row.
+
+        Only asked of a pair the ORB positions would refuse; says so once when they are.
+        """
+        refined = np.concatenate(self.refined) if self.refined else np.zeros(0)
+        refined = refined[np.isfinite(refined)]
+        if refined.size < ROW_CHECK_MIN_MATCHES:
+            return False
+        median = float(np.median(refined))
+        if median > SAME_LEVEL_MAX_PX:
+            return False
+        note_once(
+            "rows_refined",
+            f"the stereo pair {self.pair}'s ORB corners are {offset.median_abs_dy:.2f} px apart "
+            f"vertically, but {median:.2f} px for the {refined.size} found on the same pyramid "
+            "level in both images: rectified (one image is blurred or softer than the other)",
+        )
+        return True
+
     def swap_flags(self) -> str:
         """Return the options that exchange the two image topics, the camera infos kept."""
         left, right = self.topics
@@ -295,9 +321,55 @@ def view_change(left: npt.NDArray[np.generic], right: npt.NDArray[np.generic]) -
 
 def _match(
     left: npt.NDArray[np.generic], right: npt.NDArray[np.generic]
-) -> tuple[npt.NDArray[np.float64], float]:
-    """Return one frame's :func:`~rect.correspondences` and :func:`view_change`."""
-    return rect.correspondences(left, right), view_change(left, right)
+) -> tuple[npt.NDArray[np.float64], float, npt.NDArray[np.float64]]:
+    """Return one frame's correspondences, :func:`view_change` and :func:`same_level_dy`."""
+    points = rect.correspondences(left, right)
+    return points, view_change(left, right), same_level_dy(left, right, points)
+
+
+def same_level_dy(
+    left: npt.NDArray[np.generic], right: npt.NDArray[np.generic], points: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """Return |y_left - y_right| of the ORB matches found on one pyramid level in both images.
+
+    ORB places a keypoint found on pyramid level L to that level's pixel (1.2**L px): with
+    one side blurred vertically (motion blur, 15 px) its corners are found on other levels
+    than the sharp side's, and the |dy| of a rectified pair came in steps of 0, 1.2, 1.44,
+    1.73 px, median 1.44 (a synthetic indoor pair and street drive); the matches found on
+    the same level in both images had a median of 0 (96 of 120). A frame whose ``points``
+    (:func:`~rect.correspondences`) have a median |dy| under :data:`SAME_LEVEL_FROM_PX` is
+    not matched again: their |dy| is returned.
+    """
+    dy = np.abs(points[:, 1] - points[:, 3])
+    if not dy.size or float(np.median(dy)) < SAME_LEVEL_FROM_PX:
+        return dy
+    orb = cv2.ORB.create(nfeatures=1500)  # as rect.correspondences, with the levels kept
+    a, b = cv2.equalizeHist(rect.grey8(left)), cv2.equalizeHist(rect.grey8(right))
+    kp_l, des_l = orb.detectAndCompute(a, None)
+    kp_r, des_r = orb.detectAndCompute(b, None)
+    if des_l is None or des_r is None or len(kp_l) < 8 or len(kp_r) < 8:
+        return np.zeros(0)
+    matches = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(des_l, des_r)
+    if len(matches) < 15:
+        return np.zeros(0)
+    pts = np.array([[*kp_l[m.queryIdx].pt, *kp_r[m.trainIdx].pt] for m in matches])
+    _, mask = cv2.findFundamentalMat(pts[:, :2], pts[:, 2:], cv2.FM_RANSAC, 1.0, 0.999)
+    if mask is None or mask.sum() < rect.MIN_INLIER_SHARE * len(matches):
+        return np.zeros(0)
+    same = np.array([kp_l[m.queryIdx].octave == kp_r[m.trainIdx].octave for m in matches])
+    keep = mask.ravel().astype(bool) & same
+    return np.asarray(np.abs(pts[keep, 1] - pts[keep, 3]), dtype=np.float64)
+
+
+SAME_LEVEL_MAX_PX = 0.5
+"""Largest median |dy| (px) of the matches found on one level (:func:`same_level_dy`) with
+which a pair the ORB positions refuse is taken as rectified: such matches share one pixel
+grid, so a rectified pair's are 0 (the synthetic indoor pair, its right side blurred 15 px:
+0.00 over 196); its raw (unrectified) images, blurred alike: 1.00 px over 148."""
+
+SAME_LEVEL_FROM_PX = 0.5
+"""A checked frame whose matched corners' median |dy| reaches this (px) is matched again for
+:func:`same_level_dy` (a sharp rectified pair's median is 0: 85 % of its |dy| are 0)."""
 
 
 def exchanged_offset(

@@ -240,3 +240,47 @@ def test_crossed_equidistant_cameras_without_coefficients_are_named_a_swap() -> 
     with pytest.raises(CalibrationError) as err:  # before: ValueError, cannot reshape size 0
         _run([(raw_right, raw_left)], empty)
     assert "with the two images exchanged: left and right look swapped" in str(err.value)
+
+
+@pytest.fixture(scope="module")
+def indoor_pairs() -> tuple[list[Pair], StereoCamera]:
+    """The first 2 frames of the synthetic indoor log (752x480, seed 2)."""
+    from pcainterp_stream.synth import SynthConfig, generate
+
+    config = SynthConfig(
+        seed=2,
+        frames=2,
+        width=752,
+        height=480,
+        fx=436.0,
+        fy=436.0,
+        cx=364.4,
+        cy=256.6,
+        baseline=0.11,
+        scene="indoor",
+    )
+    frames = list(generate(config))
+    return [(frame.left, frame.right) for frame in frames], frames[0].camera
+
+
+def test_one_side_blurred_vertically_is_still_rectified(
+    indoor_pairs: tuple[list[Pair], StereoCamera], capfd: pytest.CaptureFixture[str]
+) -> None:
+    # bug hunt 16F F4: ORB's corners on a blurred side sit on other pyramid levels, their rows
+    # quantised to 1.2**L px: the median offset read 1.44 px and the rectified pair was refused
+    pairs, camera = indoor_pairs
+    ideal = _ideal(raw_calibration(camera, "plumb_bob"))
+    blurred = [(left, cv2.blur(right, (1, 15))) for left, right in pairs]
+    assert _run(blurred, ideal).stats.row_check_hint() is None
+    assert "found on the same pyramid level" in capfd.readouterr().err
+
+
+def test_a_blurred_raw_pair_is_still_refused(
+    indoor_pairs: tuple[list[Pair], StereoCamera],
+) -> None:
+    pairs, camera = indoor_pairs
+    calibration = raw_calibration(camera, "plumb_bob")
+    raw = [Unrectifier(calibration)(left, right) for left, right in pairs]
+    blurred = [(left, cv2.blur(right, (1, 15))) for left, right in raw]
+    with pytest.raises(CalibrationError, match="does not look rectified"):
+        _run(blurred, _ideal(calibration))
