@@ -19,7 +19,11 @@ and ``evaluate`` finds its input images (``evaluate.log_frames``) by the same ru
   clock that pauses (a simulator paused amid a run: its stamp repeats for seconds, then
   goes on one tick later) has its repeats placed within one tick of ``s``, before its next
   stamp, not at rate 1 past the stamps of the frames after the pause. A stamp missed once
-  is placed :data:`TICK_MARGIN` of a tick early (0.5 ms at 10 Hz);
+  is placed at least :data:`TICK_MARGIN` of the tick short of ``s`` plus the least of its
+  last advances: 0.5 ms early on an even 10 Hz clock, on an uneven one by its jitter too
+  (stamps +-5 ms at 10 Hz: about 92-95 ms after ``s``). Stamps missed on several images in a
+  row are all placed within that one tick (10 Hz: 99.5, 99.75 ... ms after ``s``), so
+  ``evaluate`` takes their time as unknown from the second on;
 - while no rate is measured yet (one stamp of its own so far), the ``k``-th image after it
   is placed at ``s + (log time - l) / (k + 1)``: at a steady frame rate within one frame
   interval of ``s`` (1000.05, 1000.067, 1000.075 ... s at 10 Hz), short of the next stamp
