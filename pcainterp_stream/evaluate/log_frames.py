@@ -790,8 +790,8 @@ def _frame(
 
     ``taken``: the truth messages earlier frames took (:func:`_shared_truth`); None: none.
     ``neighbours``: the frames before and after it, (stamp, log time) each: a truth message
-    nearer one of them is that frame's. ``squeezed``: its stamp was placed with no rate
-    measured (:meth:`UnplacedStamps.squeezed`) or crowded after the frame before
+    nearer one of them is that frame's. ``squeezed``: its stamp was placed with its time
+    unknown (:meth:`UnplacedStamps.squeezed`) or crowded after the frame before
     (:func:`~pcainterp_stream.evaluate.stamped.crowded_stamp`: the second and later of
     stamps missed in a row): only a message of that very stamp is its own.
     """

@@ -89,11 +89,12 @@ class UnplacedStamps:
         return placed
 
     def squeezed(self, stamp_ns: int) -> bool:
-        """Whether the left image placed at ``stamp_ns`` was placed with no rate measured.
+        """Whether the left image placed at ``stamp_ns`` was placed with its time unknown.
 
         Its clock's stamp repeated before it measured a rate (paused at start, or stuck for
-        the whole log): it was put within one frame interval of the stamp, in order, but its
-        time is not known (:attr:`ImageClock.squeezed`).
+        the whole log): it was put within one frame interval of the stamp; or it is the
+        second or later of a run of missed stamps cut by the clock's tick (review 16e R1):
+        put within one tick. Its order is known, its time not (:attr:`ImageClock.squeezed`).
         """
         return stamp_ns in self._squeezed
 

@@ -84,7 +84,8 @@ class ImageClock:
         self._given = -1  # the last stamp given out on this clock (-1: none yet)
         self.squeezed = False
         """Whether the last image was placed with no rate measured (within one frame of its
-        stamp: its time is not known, only its order)."""
+        stamp), or as the second or later of a run cut by the tick (within one tick: review
+        16e R1): its time is not known, only its order."""
 
     def place(self, stamp_ns: int, log_time_ns: int) -> Restamp | None:
         """Take the topic's next image; return where it is placed, None: at its own stamp."""
@@ -108,7 +109,9 @@ class ImageClock:
         if self._rates:  # on the clock, short of its next tick
             tick = min(self._ticks)
             short = tick - round(tick * TICK_MARGIN / self._run)
-            placed = own_ns + min(round(min(1.0, median(self._rates)) * since), short)
+            at_rate = round(min(1.0, median(self._rates)) * since)
+            placed = own_ns + min(at_rate, short)
+            self.squeezed = self._run > 1 and at_rate > short  # a later one of a run, cut
         else:  # no rate yet: within one frame interval of the stamp
             placed = own_ns + since // (self._run + 1)
             self.squeezed = True

@@ -197,3 +197,17 @@ def test_the_stamps_given_out_keep_order_between_restarts(data: st.DataObject) -
             assert given[segment[0]] == stamps[segment[0]], (stamps, log_times, given)
         order = [given[i] for i in segment]
         assert all(b > a for a, b in itertools.pairwise(order)), (stamps, log_times, given)
+
+
+def test_the_second_of_two_missed_stamps_is_squeezed() -> None:
+    # review 16e R1: 800 and 900 ms missed at 10 Hz are placed at 799.5 and 799.75 ms; the
+    # second's time is unknown (evaluate takes only truth of its exact stamp), the first's not
+    for missed in (700 * MS, 0):
+        clock = ImageClock()
+        flags = []
+        for i, stamp in enumerate(
+            [*(k * 100 * MS for k in range(1, 8)), missed, missed, 1000 * MS]
+        ):
+            clock.stamp(stamp or 0, LOG_START + i * 100 * MS)
+            flags.append(clock.squeezed)
+        assert flags == [False] * 8 + [True, False], flags
