@@ -20,12 +20,12 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from pcainterp_stream.evaluate.frame_step import frame_step_ns
 from pcainterp_stream.evaluate.log_frames import (
     GROUND_TRUTH_DEPTH,
     GROUND_TRUTH_POSE,
     Frame,
     ReadState,
-    frame_step_ns,
 )
 from pcainterp_stream.evaluate.reference import ReferenceTopic, disparity_image_dropped
 from pcainterp_stream.evaluate.results import Evaluation, grouped_causes

@@ -25,7 +25,7 @@ import numpy.typing as npt
 
 from pcainterp_stream.errors import LogReadError, PcaInterpError
 from pcainterp_stream.evaluate.reference import ReferenceTopic
-from pcainterp_stream.evaluate.stamped import SeenStamps, Stamped, UnplacedStamps
+from pcainterp_stream.evaluate.stamped import SeenStamps, Stamped, UnplacedStamps, crowded_stamp
 from pcainterp_stream.frontend.images import PairImages
 from pcainterp_stream.frontend.pair_forms import grey_alike
 from pcainterp_stream.io import rosmsg
@@ -58,7 +58,6 @@ __all__ = [
     "Frame",
     "ReadState",
     "frame_count",
-    "frame_step_ns",
     "read_frames",
 ]
 
@@ -179,6 +178,10 @@ class ReadState:
     shared: dict[str, list[int]] = field(default_factory=dict)
     """Per truth topic (depth, pose), the frames left without its message because each one
     within the tolerance is another frame's, stamped nearer it."""
+    shared_squeezed: int = 0
+    """Of the frames of :attr:`shared`, those placed by densify with their time unknown
+    (before the clock's rate was known, or crowded after a missed stamp): they take only a
+    truth message of their exact stamp."""
     shared_restamped: int = 0
     """Of the frames of :attr:`shared`, those densify restamped (their camera's header stamp
     repeated or 0: placed within one frame interval of the last stamp of its own)."""
@@ -187,11 +190,13 @@ class ReadState:
 
     @property
     def shared_note(self) -> str:
-        """Return the sentence on frames whose truth was all another frame's ("": none).
+        """Return the sentence on frames left without truth of their own ("": none).
 
-        The cause named is the frames' stamps (restamped: a camera clock that repeats its
-        stamp) or, for frames with stamps of their own, the tolerance when it is half their
-        interval or more (review 16b R3).
+        Per cause (review 16e R3): frames densify placed with their time unknown take only a
+        message of their exact stamp, so theirs is untold (no frame may have taken it); the
+        others lost theirs to a frame stamped nearer it, for their stamps (restamped: a
+        camera clock that repeats its stamp) or a tolerance of half their interval or more
+        (review 16b R3).
         """
         if not self.shared:
             return ""
@@ -200,26 +205,46 @@ class ReadState:
             f"{topic} on {len(frames)} (frame {frames[0]} first)"
             for topic, frames in sorted(self.shared.items())
         )
-        head = (
-            f"{count} frame{'' if count == 1 else 's'} left out: each truth message within "
-            f"the stamp tolerance of them is another frame's, stamped nearer it ({which})"
+        head = f"{count} frame{'' if count == 1 else 's'} left out ({which})"
+        squeezed = min(self.shared_squeezed, count)
+        clauses = (
+            []
+            if not squeezed
+            else [
+                f"{squeezed} of them {'has' if squeezed == 1 else 'have'} no time of their "
+                "own: their camera's header stamp repeated or "
+                "was 0 (before the clock's rate was known, or on several frames in a row) and "
+                "densify placed them within one frame interval of the last stamp of its own, so "
+                "only a truth message of their exact stamp is theirs, and none is; give the "
+                "camera images their own stamps (or stamp the truth on the images' clock)"
+            ]
         )
+        if count > squeezed:
+            clauses.append(f"{count - squeezed}: {self._nearer_note}")
+        return f"{head}: {'; '.join(clauses)}"
+
+    @property
+    def _nearer_note(self) -> str:
+        """The clause on frames whose truth within the tolerance went to other frames."""
+        shared = "each truth message within the stamp tolerance of them is another frame's"
         step = int(np.median(list(self.steps))) if self.steps else 0
-        if self.shared_restamped:
+        restamped = self.shared_restamped - self.shared_squeezed
+        if restamped > 0:
             return (
-                f"{head}: {self.shared_restamped} of them repeat their camera's header stamp "
-                "(a paused or stuck camera clock), and densify placed them within one frame "
-                "interval of the last stamp of its own; give the camera images their own "
-                "stamps (or stamp the truth on the images' clock)"
+                f"{shared}, stamped nearer it: {restamped} of them repeat their camera's "
+                "header stamp (a paused or stuck camera clock), and densify placed them "
+                "within one frame interval of the last stamp of its own; give the camera "
+                "images their own stamps (or stamp the truth on the images' clock)"
             )
         if step and 2 * self.tolerance_ns >= step:
             return (
-                f"{head}: the stamp tolerance, {self.tolerance_ns / 1e6:g} ms "
-                f"({self.tolerance_from}), is half the frames' interval ({step / 1e6:g} ms) "
-                "or more, so a message between two frames is within it of both; pass a "
-                f"smaller --stamp-tolerance-ms (under {step / 2e6:g} ms)"
+                f"{shared}, stamped nearer it: the stamp tolerance, "
+                f"{self.tolerance_ns / 1e6:g} ms ({self.tolerance_from}), is half the frames' "
+                f"interval ({step / 1e6:g} ms) or more, so a message between two frames is "
+                "within it of both; pass a smaller --stamp-tolerance-ms (under "
+                f"{step / 2e6:g} ms)"
             )
-        return f"{head}: the frames are stamped closer together than the truth"
+        return f"{shared}, stamped nearer it: the frames are stamped closer together than the truth"
 
     @property
     def reference_tolerance(self) -> tuple[int, str]:
@@ -460,10 +485,11 @@ def read_frames(
                 # the nearest stamp is known once one at or after it is read; after stamps
                 # restarted, the message nearest the frame's log time once the topic is read
                 # as far past the frame as the one kept is before it (whatever the order)
-                # and the truth's frame once the next frame is known (one message, one frame)
+                # and the truth's frame once the next frame not crowded after it is known
+                # (one message, one frame; crowded: placed within a tick, its time unknown)
                 if len(waiting) <= wait and (
                     latest.get(topic, -1) < stamp
-                    or (topic != right_image and len(waiting) < 2)
+                    or (topic != right_image and not next_known(stamp))
                     or (restarted and not nearby[topic].settled(stamp, log_time, logged[topic]))
                 ):
                     return False
@@ -479,6 +505,15 @@ def read_frames(
                 or len(waiting) > REFERENCE_WAIT_FRAMES
             )
 
+        def next_known(stamp: int) -> bool:
+            """Whether a frame after the oldest waiting one is not crowded after it."""
+            return any(not placed_crowded(f, [stamp]) for f in list(waiting)[1:])
+
+        def placed_crowded(frame: _Complete, before: list[int]) -> bool:
+            """Whether densify placed the frame crowded after ``before`` (:func:`crowded_stamp`)."""
+            own = rosmsg.stamp_ns(frame.parts[images.left_topic])
+            return own != frame.stamp_ns and crowded_stamp(frame.stamp_ns, before, state.steps)
+
         def release() -> Frame:
             frame = waiting.popleft()
             # its camera's f*b (a compact frame's features tell a change whose record was lost)
@@ -488,14 +523,19 @@ def read_frames(
             if where.compact and FOCAL_BASELINE_KEY not in metadata:
                 recovered = _recover_focal_baseline(frame, topics.features, state)
                 metadata = {**metadata, FOCAL_BASELINE_KEY: repr(recovered)}
-            neighbours = [*released[-1:], *(f.stamp_ns for f in list(waiting)[:1])]
+            crowded = placed_crowded(frame, released)
+            after = [f for f in waiting if not placed_crowded(f, [frame.stamp_ns])][:1]
+            after = after or list(waiting)[:1]  # after a run of crowded frames (else the next)
+            neighbours = [*released[-1:], *(f.stamp_ns for f in after)]
             matched, reference_gap = references.claim(
                 frame.stamp_ns, frame.log_time_ns, state.reference_tolerance[0], neighbours
             )
-            around = [*released_at, *((f.stamp_ns, f.log_time_ns) for f in list(waiting)[:1])]
-            if released and frame.stamp_ns > released[-1]:
-                state.steps.append(frame.stamp_ns - released[-1])
-            released[:], released_at[:] = [frame.stamp_ns], [(frame.stamp_ns, frame.log_time_ns)]
+            around = [*released_at, *((f.stamp_ns, f.log_time_ns) for f in after)]
+            if not crowded:  # a crowded frame's placed stamp is no neighbour of another's
+                if released and frame.stamp_ns > released[-1]:
+                    state.steps.append(frame.stamp_ns - released[-1])
+                released[:] = [frame.stamp_ns]
+                released_at[:] = [(frame.stamp_ns, frame.log_time_ns)]
             if matched is not None and reference_gap is not None:
                 state.reference_offsets.append(reference_gap)
             built = _frame(
@@ -510,11 +550,14 @@ def read_frames(
                 tolerance_ns=state.tolerance_ns,
                 taken=taken,
                 neighbours=around,
-                squeezed=unplaced.squeezed(frame.stamp_ns),
+                squeezed=crowded or unplaced.squeezed(frame.stamp_ns),
             )
             for topic in built.shared:
                 state.shared.setdefault(topic, []).append(built.index)
             state.shared_restamped += bool(built.shared) and built.restamped
+            state.shared_squeezed += bool(built.shared) and (
+                crowded or unplaced.squeezed(frame.stamp_ns)
+            )
             return built
 
         for raw in reader.messages(wanted):
@@ -614,40 +657,6 @@ def frame_count(path: Path, topics: OutputTopics, max_frames: int | None) -> int
     if not count:
         return None
     return count if max_frames is None else min(count, max_frames)
-
-
-def frame_step_ns(path: Path, topics: OutputTopics, max_frames: int | None) -> int | None:
-    """Return the median step (ns) of a densified log's frame stamps, the frame interval.
-
-    Read from the output camera infos (one per frame, small), in log order: the median of
-    the steps forward in time, so that a pause or a clock that goes back does not move it.
-    Steps under a quarter of their log-time step are left out while others remain: frames
-    densify placed within one frame interval of a clock paused at start (review 16b: 24
-    such steps of 3 ms beside 15 of 100 ms took the median, and no real frame paired).
-    None when there are fewer than two frames or no step forward.
-
-    Args:
-        path: a log written by ``pcainterp densify``.
-        topics: its output topics.
-        max_frames: read at most this many frames and one more (None: all).
-    """
-    previous: int | None = None
-    previous_log = 0
-    steps: list[int] = []
-    slow: list[int] = []  # steps under a quarter of their log-time step
-    with open_log(path) as reader:
-        if topics.camera_info not in reader.topics():
-            return None
-        for count, raw in enumerate(reader.messages([topics.camera_info])):
-            if max_frames is not None and count > max_frames:
-                break
-            stamp = rosmsg.stamp_ns(reader.decode(raw)) or raw.log_time_ns
-            if previous is not None and stamp > previous:
-                step = stamp - previous
-                (slow if 4 * step < raw.log_time_ns - previous_log else steps).append(step)
-            previous, previous_log = stamp, raw.log_time_ns
-    steps = steps or slow
-    return int(np.median(steps)) if steps else None
 
 
 def _missing_advice(
@@ -781,8 +790,10 @@ def _frame(
 
     ``taken``: the truth messages earlier frames took (:func:`_shared_truth`); None: none.
     ``neighbours``: the frames before and after it, (stamp, log time) each: a truth message
-    nearer one of them is that frame's. ``squeezed``: its stamp was placed with no rate
-    measured (:meth:`UnplacedStamps.squeezed`): only a message of that very stamp is its own.
+    nearer one of them is that frame's. ``squeezed``: its stamp was placed with its time
+    unknown (:meth:`UnplacedStamps.squeezed`) or crowded after the frame before
+    (:func:`~pcainterp_stream.evaluate.stamped.crowded_stamp`: the second and later of
+    stamps missed in a row): only a message of that very stamp is its own.
     """
     index, stamp, parts = complete.index, complete.stamp_ns, complete.parts
     taken = {} if taken is None else taken
@@ -857,11 +868,12 @@ def _truth_of_its_own(
     run, the frame after the pause keeps its truth and the paused copies placed before it
     are left out (review 16b R1); frames stamped closer together than the truth (a clock
     stuck for the whole log) are left out, never scored against another frame's truth.
-    A frame placed with no rate measured (``squeezed``: within one frame interval of the
-    last stamp of its own, its time unknown) takes only a message of its very stamp (truth
-    repeated on the same paused clock, placed alike); a message merely near it is the truth
-    of another instant: it is left out, as lost (the 25-frame stuck log of fix EV16 scored
-    its last frame against the second frame's truth, 4.1 px).
+    A frame placed with no rate measured or crowded after the frame before (``squeezed``:
+    within one frame interval of the last stamp of its own, its time unknown) takes only a
+    message of its very stamp (truth repeated on the same paused clock, placed alike); a
+    message merely near it is the truth of another instant: it is left out, as lost (the
+    25-frame stuck log of fix EV16 scored its last frame against the second frame's truth,
+    4.1 px).
     """
     lost = []
     for topic in TRUTH_TOPICS:

@@ -34,6 +34,7 @@ from pcainterp_stream.estimate.basis import BUILTIN_LABELS, IN_MEMORY, Basis, bu
 from pcainterp_stream.estimate.estimator import clean_measurements, densify
 from pcainterp_stream.evaluate.box import Boxed, estimate_box
 from pcainterp_stream.evaluate.figures import write_figures
+from pcainterp_stream.evaluate.frame_step import frame_step_ns
 from pcainterp_stream.evaluate.input_pair import describe_pair, follow_densify, matcher_notes
 from pcainterp_stream.evaluate.left_out import (
     LeftOut,
@@ -47,7 +48,6 @@ from pcainterp_stream.evaluate.log_frames import (
     GROUND_TRUTH_POSE,
     Frame,
     ReadState,
-    frame_step_ns,
     read_frames,
 )
 from pcainterp_stream.evaluate.metrics import (

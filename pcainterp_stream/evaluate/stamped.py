@@ -12,11 +12,13 @@ from collections import deque
 from collections.abc import Container, Iterable
 from typing import Any
 
+import numpy as np
+
 from pcainterp_stream.frontend.image_clock import ImageClock
 from pcainterp_stream.frontend.pair_forms import same_image_message
 from pcainterp_stream.io import rosmsg
 
-__all__ = ["SeenStamps", "Stamped", "UnplacedStamps"]
+__all__ = ["CROWDED_SHARE", "SeenStamps", "Stamped", "UnplacedStamps", "crowded_stamp"]
 
 
 class UnplacedStamps:
@@ -87,11 +89,12 @@ class UnplacedStamps:
         return placed
 
     def squeezed(self, stamp_ns: int) -> bool:
-        """Whether the left image placed at ``stamp_ns`` was placed with no rate measured.
+        """Whether the left image placed at ``stamp_ns`` was placed with its time unknown.
 
         Its clock's stamp repeated before it measured a rate (paused at start, or stuck for
-        the whole log): it was put within one frame interval of the stamp, in order, but its
-        time is not known (:attr:`ImageClock.squeezed`).
+        the whole log): it was put within one frame interval of the stamp; or it is the
+        second or later of a run of missed stamps cut by the clock's tick (review 16e R1):
+        put within one tick. Its order is known, its time not (:attr:`ImageClock.squeezed`).
         """
         return stamp_ns in self._squeezed
 
@@ -282,3 +285,28 @@ class Stamped:
         del self._messages[found]
         self._changes += 1
         return message, abs(kept - stamp)
+
+
+CROWDED_SHARE = 0.1
+"""A frame stamped less than this share of the median frame step after the frame before it
+was placed by densify (:func:`crowded_stamp`)."""
+
+
+def crowded_stamp(stamp: int, before: list[int], steps: Iterable[int]) -> bool:
+    """Whether a frame's stamp is far closer to the frame before than the frames' interval.
+
+    Such a stamp was placed by densify, not given by the camera: of a run of missed stamps
+    (repeated or 0) once the clock's rate is known, the second and later are placed within
+    0.25 % of the clock's tick after the first (``frontend.image_clock``: the k-th at most
+    ``s + tick * (1 - 0.005 / k)``), all short of the next stamp, so their time is not known
+    (review 16e R1: in ``log_frames`` the 900 ms image, placed at 799.75 ms, took the 800 ms
+    truth). A camera's own steps stay near the median interval (jitter, a drop: more):
+    under 10 % of it would need jitter of 45 % of the interval, and the placed steps are
+    40 times below it.
+    ``before``: the stamp of the last frame not crowded (empty: none); ``steps``: the
+    forward steps between such frames.
+    """
+    known = list(steps)
+    if not before or not known or stamp < before[-1]:
+        return False
+    return stamp - before[-1] < CROWDED_SHARE * float(np.median(known))

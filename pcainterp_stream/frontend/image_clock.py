@@ -19,7 +19,11 @@ and ``evaluate`` finds its input images (``evaluate.log_frames``) by the same ru
   clock that pauses (a simulator paused amid a run: its stamp repeats for seconds, then
   goes on one tick later) has its repeats placed within one tick of ``s``, before its next
   stamp, not at rate 1 past the stamps of the frames after the pause. A stamp missed once
-  is placed :data:`TICK_MARGIN` of a tick early (0.5 ms at 10 Hz);
+  is placed at least :data:`TICK_MARGIN` of the tick short of ``s`` plus the least of its
+  last advances: 0.5 ms early on an even 10 Hz clock, on an uneven one by its jitter too
+  (stamps +-5 ms at 10 Hz: about 92-95 ms after ``s``). Stamps missed on several images in a
+  row are all placed within that one tick (10 Hz: 99.5, 99.75 ... ms after ``s``), so
+  ``evaluate`` takes their time as unknown from the second on;
 - while no rate is measured yet (one stamp of its own so far), the ``k``-th image after it
   is placed at ``s + (log time - l) / (k + 1)``: at a steady frame rate within one frame
   interval of ``s`` (1000.05, 1000.067, 1000.075 ... s at 10 Hz), short of the next stamp
@@ -80,7 +84,8 @@ class ImageClock:
         self._given = -1  # the last stamp given out on this clock (-1: none yet)
         self.squeezed = False
         """Whether the last image was placed with no rate measured (within one frame of its
-        stamp: its time is not known, only its order)."""
+        stamp), or as the second or later of a run cut by the tick (within one tick: review
+        16e R1): its time is not known, only its order."""
 
     def place(self, stamp_ns: int, log_time_ns: int) -> Restamp | None:
         """Take the topic's next image; return where it is placed, None: at its own stamp."""
@@ -104,7 +109,9 @@ class ImageClock:
         if self._rates:  # on the clock, short of its next tick
             tick = min(self._ticks)
             short = tick - round(tick * TICK_MARGIN / self._run)
-            placed = own_ns + min(round(min(1.0, median(self._rates)) * since), short)
+            at_rate = round(min(1.0, median(self._rates)) * since)
+            placed = own_ns + min(at_rate, short)
+            self.squeezed = self._run > 1 and at_rate > short  # a later one of a run, cut
         else:  # no rate yet: within one frame interval of the stamp
             placed = own_ns + since // (self._run + 1)
             self.squeezed = True
