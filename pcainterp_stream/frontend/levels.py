@@ -205,12 +205,38 @@ def saturation_share(sample_left: UInt8Array, sample_right: UInt8Array) -> float
     return max(shares)
 
 
+def _normal(sample_left: UInt8Array, sample_right: UInt8Array) -> bool:
+    """Whether no step of :func:`adjust_pair` would act: one histogram of each image.
+
+    The same tests as the steps' own first ones (levels within :data:`MISMATCH_LEVELS`, the
+    pair's 99.9th percentile at or above :data:`DARK_TOP`, at most :data:`SATURATED_SHARE`
+    at 255), so every pair of normal levels (every frame of the real logs) costs one
+    histogram per image instead of one per step.
+    """
+    if not sample_left.size or not sample_right.size:
+        return False
+    counts_left, counts_right = _counts(sample_left), _counts(sample_right)
+    ql = _levels_at(counts_left, _MATCH_QUANTILES)
+    qr = _levels_at(counts_right, _MATCH_QUANTILES)
+    if float(np.median(np.abs(ql - qr))) > MISMATCH_LEVELS:
+        return False
+    top = _levels_at(counts_left + counts_right, _DARK_QUANTILES[1:])[0]
+    if top < DARK_TOP:
+        return False
+    at_255 = [
+        float(counts[-1] - counts[-2]) / float(counts[-1]) for counts in (counts_left, counts_right)
+    ]
+    return max(at_255) <= SATURATED_SHARE
+
+
 def adjust_pair(left: UInt8Array, right: UInt8Array) -> tuple[UInt8Array, UInt8Array]:
     """Undo a left/right level mismatch, stretch a dark pair, note over-exposure.
 
     A pair within normal levels is returned as is.
     """
     samples = _sample(left), _sample(right)
+    if _normal(*samples):
+        return left, right
     if left is not right:
         matched = match_right_levels(left, right, samples)
         if matched is not right:

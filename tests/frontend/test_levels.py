@@ -123,3 +123,29 @@ def test_an_over_exposed_pair_is_noted(capsys: pytest.CaptureFixture[str]) -> No
     assert "% of an image is at 255" in err
     to_grey8_pair(left, right)
     assert capsys.readouterr().err == ""
+
+
+def test_the_normal_path_agrees_with_every_step() -> None:
+    """adjust_pair's one-histogram shortcut is taken exactly when no step would act."""
+    from pcainterp_stream.frontend import levels
+
+    rng = np.random.default_rng(3)
+    base = rng.integers(0, 256, (96, 128)).astype(np.uint8)
+    cases = [
+        (base, base),
+        (base, np.clip(base.astype(int) + 8, 0, 255).astype(np.uint8)),  # within the margin
+        (base, np.clip(base.astype(int) + 40, 0, 255).astype(np.uint8)),  # a clear offset
+        ((base // 7).astype(np.uint8), (base // 7).astype(np.uint8)),  # dark
+        (np.maximum(base, 200).astype(np.uint8) | 0x7F, base),  # bright
+    ]
+    clipped = base.copy()
+    clipped[:60] = 255
+    cases.append((clipped, clipped))  # over half at 255
+    for left, right in cases:
+        samples = levels._sample(left), levels._sample(right)
+        acts = (
+            levels.match_right_levels(left, right, samples) is not right
+            or levels.stretch_dark(left, right, samples)[0] is not left
+            or levels.saturation_share(*samples) > levels.SATURATED_SHARE
+        )
+        assert levels._normal(*samples) is not acts
