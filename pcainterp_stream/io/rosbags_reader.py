@@ -401,18 +401,8 @@ class RosbagsLogReader(LogReader):
                 break
             count += 1
             order.see(int(timestamp))
-            yield RawMessage(
-                topic=connection.topic,
-                msgtype=msgtype,
-                schema_name=msgtype,
-                schema_encoding=schema_encoding,
-                schema_data=schema,
-                message_encoding="cdr",
-                channel_metadata=metadata,
-                data=bytes(data),
-                log_time_ns=int(timestamp),
-                publish_time_ns=int(timestamp),
-                sequence=0,
+            yield _cdr_message(
+                connection.topic, (msgtype, schema_encoding, schema), metadata, data, int(timestamp)
             )
         order.report(self)
 
@@ -491,18 +481,12 @@ class RosbagsLogReader(LogReader):
                 latching=bool(getattr(connection.ext, "latching", None)),
             )
             order.see(int(entry.time))
-            yield RawMessage(
-                topic=connection.topic,
-                msgtype=msgtype,
-                schema_name=msgtype,
-                schema_encoding=schema_encoding,
-                schema_data=schema,
-                message_encoding="cdr",
-                channel_metadata=metadata,
-                data=bytes(data),
-                log_time_ns=int(entry.time),
-                publish_time_ns=int(entry.time),
-                sequence=0,
+            yield _cdr_message(
+                connection.topic,
+                (msgtype, schema_encoding, schema),
+                metadata,
+                data,
+                int(entry.time),
             )
         order.report(self)
 
@@ -719,3 +703,27 @@ def _missing_parts(folder: Path) -> tuple[list[Path], list[Path]] | None:
 
 def _storage_files(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix in (".mcap", ".db3") and p.is_file())
+
+
+def _cdr_message(
+    topic: str,
+    schema: tuple[str, str, bytes],
+    metadata: dict[str, str],
+    data: bytes | bytearray | memoryview,
+    time_ns: int,
+) -> RawMessage:
+    """A message of a bag as the readers hand it on: CDR, logged and published at ``time_ns``."""
+    msgtype, encoding, text = schema
+    return RawMessage(
+        topic=topic,
+        msgtype=msgtype,
+        schema_name=msgtype,
+        schema_encoding=encoding,
+        schema_data=text,
+        message_encoding="cdr",
+        channel_metadata=metadata,
+        data=bytes(data),
+        log_time_ns=time_ns,
+        publish_time_ns=time_ns,
+        sequence=0,
+    )
