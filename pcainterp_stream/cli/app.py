@@ -105,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
     from pcainterp_stream.pipeline.blas_threads import blas_threads_given_back
 
     command: Callable[[argparse.Namespace], int] = COMMANDS[args.command].run
+    common.refuse_stdin_inputs(args)
     with blas_threads_given_back():
         return command(args)
 

@@ -134,6 +134,49 @@ STREAM = Path("-")
 """A log named ``-``: standard input (INPUT) or standard output (``-o``), not a file."""
 
 
+FILE_INPUTS: dict[str, tuple[tuple[str, str, str], ...]] = {
+    "learn": (
+        ("logs", "LOG", "the logs to learn from"),
+        ("fit_logs", "--fit-logs", "the logs to fit on"),
+        ("calibration", "--calibration", "the calibration YAML files"),
+    ),
+    "densify": (
+        ("basis", "--basis", "a basis .npz (or builtin)"),
+        ("calibration", "--calibration", "the calibration YAML files"),
+    ),
+    "evaluate": (
+        ("input", "DENSIFIED.mcap", "the densified log"),
+        ("basis", "--basis", "a basis .npz (or builtin)"),
+        ("calibration", "--calibration", "the calibration YAML files"),
+    ),
+    "info": (("file", "FILE", "a log, a basis .npz or a golden file"),),
+    "golden": (("log", "LOG", "the log"), ("golden", "GOLDEN.json", "the golden file")),
+    "import-kitti": (("kitti_dir", "KITTI_DIR", "the KITTI folder"),),
+}
+"""Command -> (attribute, its name on the command line, what to pass) of each input that is
+read as a file or folder, never from standard input (only ``densify``'s INPUT is)."""
+
+
+def refuse_stdin_inputs(args: argparse.Namespace) -> None:
+    """Refuse ``-`` (:data:`STREAM`) given for an input that is not read from standard input.
+
+    Without this, ``pcainterp info -`` said "- does not exist", as if a file were missing.
+
+    Raises:
+        PcaInterpError: "FILE is -, but info does not read standard input ...".
+    """
+    for attribute, name, what in FILE_INPUTS.get(args.command, ()):
+        value = getattr(args, attribute, None)
+        values = value if isinstance(value, list | tuple) else [value]
+        if any(isinstance(given, Path) and given == STREAM for given in values):
+            command = " ".join([args.command, getattr(args, "golden_command", None) or ""])
+            only = "its" if args.command == "densify" else "densify's"
+            raise PcaInterpError(
+                f"{name} is -, but {command.strip()} does not read standard input (only "
+                f"{only} INPUT does); name {what} by path (a file named -: ./-)"
+            )
+
+
 def same_file(first: Path, second: Path) -> bool:
     """Return whether two paths name one file: one inode where both exist, else one path."""
     with contextlib.suppress(OSError):  # exists() raises for a name too long (ENAMETOOLONG)

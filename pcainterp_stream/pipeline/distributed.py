@@ -67,6 +67,7 @@ from pcainterp_stream.pipeline.learn import (
     learn,
     log_pairing,
     measure_held_out,
+    note_blank,
     shows_surface,
     to_grid,
 )
@@ -74,6 +75,7 @@ from pcainterp_stream.pipeline.learn_maps import close_sizes, depth_maps, resize
 from pcainterp_stream.pipeline.learn_sketch import (
     ChunkSummary,
     combine,
+    empty,
     merge,
     sketch_of,
     summarize,
@@ -193,12 +195,13 @@ def summarize_chunk(
             ``options.grid_scale``, the maps' own units.
 
     Returns:
-        The summary, or None when the chunk has no map.
+        The summary (an empty one counting its blank maps when it has no other), or None
+        when the chunk has no map.
     """
     grids: list[npt.NDArray[np.float32]] = []
     image_size: tuple[int, int] | None = None
     focal_baseline = 0.0
-    flat = 0
+    flat = blank = 0
     fb_target = None if target is None else target.focal_baseline
     for disparity, size, fb in _chunk_maps(log, start, stop, options, pairing, fb_target):
         if image_size is None:
@@ -215,15 +218,18 @@ def summarize_chunk(
             )
         assert target is not None
         if not shows_surface(disparity):
-            continue  # as on one machine (learn.shows_surface)
+            blank += 1  # skipped as on one machine (learn.shows_surface), and counted
+            continue
         if not options.depth_topic and is_flat(disparity):
             flat += 1
         try:
             grids.append(to_grid(disparity, target))
         except ValueError as err:
             raise PcaInterpError(f"cannot learn from a map of {log}: {err}") from err
-    if not grids or target is None or image_size is None:
+    if target is None or image_size is None:
         return None
+    if not grids:
+        return empty(target.grid_size, image_size, focal_baseline, blank)
     summary = summarize(
         np.stack(grids),
         keep,
@@ -231,7 +237,7 @@ def summarize_chunk(
         image_size=image_size,
         focal_baseline=focal_baseline,
     )
-    return dataclasses.replace(summary, flat_maps=flat)
+    return dataclasses.replace(summary, flat_maps=flat, blank_maps=blank)
 
 
 def learn_distributed(
@@ -377,7 +383,9 @@ def learn_on_cluster(
         else:
             final = _reduce(client, specs, options, pairing, keep, plan.target, bar.update)
             total = task_result(final, "a learning task")
-    if total is None:
+    if total is not None:
+        note_blank(plan.logs, total.blank_maps, total.n_maps)  # as one process says
+    if total is None or not total.n_maps:
         raise LogReadError(
             f"no {'depth image' if options.depth_topic else 'stereo pair'} with a disparity "
             f"above 0 found in {', '.join(map(str, plan.logs))}; check the topic options "

@@ -76,6 +76,7 @@ from pcainterp_stream.pipeline.map_checks import FLAT_MAPS as FLAT_MAPS
 from pcainterp_stream.pipeline.map_checks import ViewCount, warn_far_cut
 from pcainterp_stream.pipeline.map_checks import check_flat as check_flat
 from pcainterp_stream.pipeline.map_checks import is_flat as is_flat
+from pcainterp_stream.pipeline.map_checks import note_blank as note_blank
 from pcainterp_stream.pipeline.map_checks import shows_surface as shows_surface
 from pcainterp_stream.pipeline.processor import ProcessorConfig
 
@@ -732,12 +733,7 @@ def _learn_here(
                         valid += int(np.count_nonzero(disparity > 0))
                         far += int(np.count_nonzero((disparity > 0) & (disparity < cut)))
                 yield disparity
-        names = ", ".join(log.name for log in plan.logs)
-        found = f"{blank} of {blank + used} maps hold no disparity above 0 ({BLANK_MAPS})"
-        if blank and not used:
-            raise PcaInterpError(f"{names}: {found}; learn from frames that show the scene")
-        if blank:
-            _echo(f"note: {found}: they are skipped")
+        note_blank(plan.logs, blank, used)
         check_flat(plan.logs, flat, used)
         warn_far_cut(far, valid, cut, fb)
         views.check()

@@ -10,6 +10,7 @@ all their maps, as one process learns maps that fit its memory.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,7 +19,7 @@ import numpy.typing as npt
 from pcainterp_stream.errors import PcaInterpError
 from pcainterp_stream.estimate.learning import Sketch, merge_sketches, truncated_product
 
-__all__ = ["ChunkSummary", "combine", "merge", "sketch_of", "summarize"]
+__all__ = ["ChunkSummary", "combine", "empty", "merge", "sketch_of", "summarize"]
 
 
 @dataclass(frozen=True)
@@ -34,6 +35,9 @@ class ChunkSummary:
         image_size: (H, W) of the images (px).
         focal_baseline: f*b (px*m) the maps are in (the target's, else the first map's camera's).
         flat_maps: SGBM maps among them with almost no disparity (:func:`learn.is_flat`).
+        blank_maps: maps of the frames skipped, with no disparity above 0
+            (:func:`learn.shows_surface`). A summary of blank maps only has n_maps 0
+            (:func:`empty`): merges carry its count and ignore the rest.
     """
 
     n_maps: int
@@ -44,6 +48,33 @@ class ChunkSummary:
     image_size: tuple[int, int]
     focal_baseline: float
     flat_maps: int = 0
+    blank_maps: int = 0
+
+
+def empty(
+    grid_size: tuple[int, int], image_size: tuple[int, int], focal_baseline: float, blank: int
+) -> ChunkSummary:
+    """Return the summary of no map, carrying the count of ``blank`` maps skipped."""
+    cells = grid_size[0] * grid_size[1]
+    return ChunkSummary(
+        n_maps=0,
+        mean=np.zeros(cells, dtype=np.float64),
+        factor=np.zeros((cells, 0), dtype=np.float32),
+        squares=0.0,
+        grid_size=grid_size,
+        image_size=image_size,
+        focal_baseline=focal_baseline,
+        blank_maps=blank,
+    )
+
+
+def _counted(summary: ChunkSummary, others: list[ChunkSummary]) -> ChunkSummary:
+    """Return ``summary`` with the flat and blank maps of ``others`` (empty ones) added."""
+    return dataclasses.replace(
+        summary,
+        flat_maps=summary.flat_maps + sum(other.flat_maps for other in others),
+        blank_maps=summary.blank_maps + sum(other.blank_maps for other in others),
+    )
 
 
 def summarize(
@@ -103,6 +134,8 @@ def merge(
     """
     if first is None or second is None:
         return first if second is None else second
+    if not first.n_maps or not second.n_maps:  # blank maps only: their count is kept
+        return _counted(second, [first]) if first.n_maps == 0 else _counted(first, [second])
     _check_camera(first, second)
     merged = merge_sketches(sketch_of(first), sketch_of(second), keep)
     return ChunkSummary(
@@ -114,6 +147,7 @@ def merge(
         image_size=first.image_size,
         focal_baseline=first.focal_baseline,
         flat_maps=first.flat_maps + second.flat_maps,
+        blank_maps=first.blank_maps + second.blank_maps,
     )
 
 
@@ -144,14 +178,16 @@ def combine(summaries: list[ChunkSummary | None]) -> ChunkSummary | None:
         summaries: the summaries in a fixed order (chunk order); None entries are empty.
 
     Returns:
-        The summary of all their maps (the first one's camera), None when all are empty.
+        The summary of all their maps (the first one's camera), None when all are None;
+        an :func:`empty` one with their blank maps' count when none has a map.
 
     Raises:
         PcaInterpError: two summaries have different image sizes.
     """
-    present = [summary for summary in summaries if summary is not None]
-    if not present:
-        return None
+    given = [summary for summary in summaries if summary is not None]
+    present = [summary for summary in given if summary.n_maps]
+    if not present:  # none, or blank maps only: their count is kept
+        return _counted(given[0], given[1:]) if given else None
     first = present[0]
     for other in present[1:]:
         _check_camera(first, other)
@@ -182,4 +218,5 @@ def combine(summaries: list[ChunkSummary | None]) -> ChunkSummary | None:
         image_size=first.image_size,
         focal_baseline=first.focal_baseline,
         flat_maps=sum(summary.flat_maps for summary in present),
+        blank_maps=sum(summary.blank_maps for summary in given),
     )

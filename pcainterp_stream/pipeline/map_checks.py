@@ -60,6 +60,28 @@ def check_flat(logs: tuple[Path, ...], flat: int, used: int) -> None:
     _echo(f"note: {names}: {said}")
 
 
+def note_blank(logs: tuple[Path, ...], blank: int, used: int) -> None:
+    """Say that ``blank`` maps with no disparity above 0 were skipped; refuse when all were.
+
+    One process and a cluster's learn (its chunks count them) say the same.
+
+    Args:
+        logs: the logs learned from (named).
+        blank: the maps skipped (:func:`shows_surface` false).
+        used: the maps learned from.
+
+    Raises:
+        PcaInterpError: every map is blank.
+    """
+    if not blank:
+        return
+    found = f"{blank} of {blank + used} maps hold no disparity above 0 ({BLANK_MAPS})"
+    if not used:
+        names = ", ".join(log.name for log in logs)
+        raise PcaInterpError(f"{names}: {found}; learn from frames that show the scene")
+    _echo(f"note: {found}: they are skipped")
+
+
 def shows_surface(disparity: npt.NDArray[np.float32]) -> bool:
     """Return whether a map has a disparity above 0 (SGBM gives 0 all over a black pair)."""
     with np.errstate(invalid="ignore"):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 import signal
@@ -62,6 +63,33 @@ def test_merge_of_summaries_matches_one_summary_of_all_maps() -> None:
     gram_whole = whole.factor.astype(np.float64) @ whole.factor.T
     gram_merged = merged.factor.astype(np.float64) @ merged.factor.T
     np.testing.assert_allclose(gram_merged, gram_whole, atol=1e-3 * np.abs(gram_whole).max())
+
+
+def test_merges_carry_the_count_of_a_chunk_of_blank_maps_and_ignore_its_statistics() -> None:
+    # bug hunt 16D F6: a chunk whose maps were all blank returned None, its count lost
+    from pcainterp_stream.pipeline.learn_sketch import empty
+
+    rng = np.random.default_rng(1)
+    maps = rng.normal(size=(9, 200)).astype(np.float32)
+    kwargs: dict[str, Any] = {"grid_size": (10, 20), "image_size": (40, 80), "focal_baseline": 1.0}
+    whole = distributed.summarize(maps, None, **kwargs)
+    blank = empty((10, 20), (40, 80), 1.0, 5)
+    some = dataclasses.replace(whole, blank_maps=2)
+    for merged in (
+        distributed.merge(blank, some, 40),
+        distributed.merge(some, blank, 40),
+        distributed.combine([blank, None, some]),
+        distributed.combine([some, blank]),
+    ):
+        assert merged is not None
+        assert (merged.n_maps, merged.blank_maps) == (9, 7)
+        np.testing.assert_allclose(merged.mean, whole.mean, atol=1e-6)
+        assert merged.squares == pytest.approx(whole.squares, rel=1e-6)
+    only = distributed.combine([blank, None, blank])
+    assert only is not None and (only.n_maps, only.blank_maps) == (0, 10)
+    both = distributed.merge(blank, blank, 40)
+    assert both is not None and (both.n_maps, both.blank_maps) == (0, 10)
+    assert distributed.combine([None, None]) is None
 
 
 def test_learn_on_cluster_matches_local_learner(
