@@ -55,6 +55,7 @@ from pcainterp_stream.pipeline.blas_threads import restoring_blas_threads
 from pcainterp_stream.pipeline.common import _bar, _echo
 from pcainterp_stream.pipeline.densify import DensifySummary, densify
 from pcainterp_stream.pipeline.learn import LearnOptions, fit_prior, learn
+from pcainterp_stream.pipeline.learn_check import check_lines
 from pcainterp_stream.pipeline.processor import ProcessorConfig
 
 __all__ = [
@@ -485,6 +486,7 @@ def describe_basis(path: Path | None = None, *, builtin: str = "street") -> str:
                 else ""
             ),
         ]
+        lines += check_lines(fitted)  # learn's held-out figures
     else:
         lines.append("  fitted prior     none (the paper's model; learn fits one by default)")
     if path is None and builtin == "indoor":

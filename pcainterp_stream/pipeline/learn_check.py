@@ -192,3 +192,40 @@ def compare_learned(
         f"{output.name}; learn from more frames and views of it"
     )
     return record, warning
+
+
+def check_lines(fitted: dict[str, Any]) -> list[str]:
+    """Describe a basis file's ``meta["prior"]["held_out_check"]`` for ``info`` ([]: none).
+
+    ``learn`` measured the learned basis and the built-in ones on its held-out frames and
+    recorded the figures (:func:`compare_learned`); ``info`` showed none of them. A file
+    written before the check, or with ``--no-fit-prior``, has no record and no line.
+    """
+    record = fitted.get("held_out_check")
+    if not isinstance(record, dict):
+        return []
+    learned, linear = record.get("learned_px"), record.get("linear_px")
+    if not isinstance(learned, int | float) or not isinstance(linear, int | float):
+        return []
+    frames, pixels = record.get("frames"), record.get("pixels")
+    where = f"{frames} held-out frames" if isinstance(frames, int) else "the held-out frames"
+    if isinstance(pixels, int):
+        where += f", {pixels} SGBM pixels"
+    builtin = record.get("builtin_px")
+    others = [
+        f"built-in {kind} {value:.3g}"
+        for kind, value in (builtin.items() if isinstance(builtin, dict) else ())
+        if isinstance(value, int | float)
+    ]
+    lines = [
+        f"  held-out check   {learned:.3g} px, linear interpolation {linear:.3g}"
+        + "".join(f", {other}" for other in others)
+        + f" (mean |d - SGBM| on {where}, as densify's fit check scores)"
+    ]
+    better = record.get("builtin_better")
+    if isinstance(better, str):
+        lines.append(
+            f"                   the built-in {better} basis erred less there: densify without "
+            "--basis may do better on this camera"
+        )
+    return lines

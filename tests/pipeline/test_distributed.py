@@ -86,9 +86,11 @@ def test_merges_carry_the_count_of_a_chunk_of_blank_maps_and_ignore_its_statisti
         np.testing.assert_allclose(merged.mean, whole.mean, atol=1e-6)
         assert merged.squares == pytest.approx(whole.squares, rel=1e-6)
     only = distributed.combine([blank, None, blank])
-    assert only is not None and (only.n_maps, only.blank_maps) == (0, 10)
+    assert only is not None
+    assert (only.n_maps, only.blank_maps) == (0, 10)
     both = distributed.merge(blank, blank, 40)
-    assert both is not None and (both.n_maps, both.blank_maps) == (0, 10)
+    assert both is not None
+    assert (both.n_maps, both.blank_maps) == (0, 10)
     assert distributed.combine([None, None]) is None
 
 

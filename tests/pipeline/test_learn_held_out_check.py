@@ -130,6 +130,34 @@ def test_a_learned_basis_worse_than_a_built_in_one_is_warned(
     assert "builtin_better" not in record
 
 
+def test_info_shows_the_held_out_figures_learn_recorded(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """learn measured its basis and the built-in ones on the held-out frames; info showed none."""
+    import dataclasses
+
+    from pcainterp_stream.estimate.adapt import FitCheck
+    from pcainterp_stream.estimate.basis import Basis
+    from pcainterp_stream.pipeline import held_out
+    from pcainterp_stream.pipeline.learn_check import BuiltinScore, compare_learned
+
+    monkeypatch.setattr(held_out, "score_fit", lambda *a, **k: FitCheck(6, 600, 0.34, 0.30, 0.4))
+    indoor = BuiltinScore("indoor", Basis.indoor(), FitCheck(6, 600, 0.2, 0.30, 0.4))
+    record, _ = compare_learned(Basis.indoor(), [], {}, [indoor], Path("own.npz"), "cauchy")
+    basis = Basis.indoor()
+    prior = {**basis.meta["prior"], "held_out_check": record}
+    dataclasses.replace(basis, meta={**basis.meta, "prior": prior}).save(tmp_path / "own.npz")
+    text = jobs.info(tmp_path / "own.npz")
+    assert (
+        "  held-out check   0.34 px, linear interpolation 0.3, built-in indoor 0.2 (mean "
+        "|d - SGBM| on 6 held-out frames, 600 SGBM pixels, as densify's fit check scores)\n"
+        "                   the built-in indoor basis erred less there: densify without "
+        "--basis may do better on this camera"
+    ) in text
+    basis.save(tmp_path / "older.npz")  # a file written before the check: no line, no error
+    assert "held-out check" not in jobs.info(tmp_path / "older.npz")
+
+
 def _rechunk(log: Path, out: Path) -> Path:
     """Copy an MCAP in chunks of 256 kB (the synthetic writer makes one)."""
     from mcap.reader import make_reader
