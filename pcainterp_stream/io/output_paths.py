@@ -261,6 +261,12 @@ def size_limit_advice(error: BaseException) -> str:
     if isinstance(error, OSError) and error.errno == errno.EFBIG:
         return f"; {SIZE_LIMIT}"
     if type(error).__name__ == "OperationalError" and "disk I/O error" in str(error):
+        # Python 3.11+ names sqlite's extended code: a limit refuses a write
+        # (SQLITE_IOERR_WRITE); a read of the file back (READ, SHORT_READ, CORRUPTFS) that
+        # fails is a damaged file or a failing disk, whatever the limit (review 16a R4)
+        name = getattr(error, "sqlite_errorname", None)
+        if isinstance(name, str) and name not in SQLITE_WRITE_ERRORS:
+            return f"; {SQLITE_READ_FAILED} ({name})"
         limit = _file_size_limit()
         if limit is not None:
             return (
@@ -268,6 +274,16 @@ def size_limit_advice(error: BaseException) -> str:
                 f"{limit / 1e6:.1f} MB a file (ulimit -f): raise it, or write elsewhere"
             )
     return ""
+
+
+SQLITE_WRITE_ERRORS = frozenset({"SQLITE_IOERR", "SQLITE_IOERR_WRITE", "SQLITE_IOERR_TRUNCATE"})
+"""sqlite's I/O errors a file-size limit can cause (EFBIG on a write or a truncation)."""
+
+SQLITE_READ_FAILED = (
+    "the file system could not read or sync the file back (a failing disk or file system, "
+    "or a damaged file), not a size limit: write it elsewhere"
+)
+"""The fix for any other sqlite I/O error while writing."""
 
 
 def _file_size_limit() -> int | None:

@@ -744,9 +744,9 @@ class LogReader:
         return store
 
 
-def _one_line(err: BaseException) -> str:
-    """Return an exception as one short line: its class and first line of text."""
-    text = str(err).strip().splitlines()
+def _one_line(err: BaseException, said: str | None = None) -> str:
+    """Return an exception as one short line: its class and first line of text (or ``said``)."""
+    text = (str(err) if said is None else said).strip().splitlines()
     first = text[0] if text else ""
     if len(first) > 160:
         first = first[:157] + "..."

@@ -23,6 +23,7 @@ write leaves it) is seen by reading the log and those pages alone: no copy, no n
 from __future__ import annotations
 
 import atexit
+import errno
 import itertools
 import shlex
 import shutil
@@ -212,6 +213,15 @@ class WalView:
             return view / path.name
         return path
 
+    def named(self, text: str) -> str:
+        """Return ``text`` (an error) with the private copy's paths put back as the user's.
+
+        A damaged storage file whose copy was made fails to open from the copy: the error
+        named a folder in TMPDIR the user never gave and that is gone at the end.
+        """
+        view = None if self._copy is None else self._copy.path
+        return text if view is None else text.replace(str(view), str(self.path))
+
     def close(self) -> None:
         """Let go of the copy (removed at the process's end, or when the log changes).
 
@@ -280,7 +290,9 @@ class WalView:
         except (OSError, sqlite3.Error) as err:
             if folder is not None:
                 shutil.rmtree(folder, ignore_errors=True)
-            return _Copy(key, None, failures=[_failure(s, _one_line(err)) for s in walled])
+            room = isinstance(err, OSError) and err.errno in (errno.ENOSPC, errno.EDQUOT)
+            failures = [_failure(s, _one_line(err), room=room) for s in walled]
+            return _Copy(key, None, failures=failures)
         if not notes:  # the logs held no message the databases lack
             shutil.rmtree(folder, ignore_errors=True)
             return _Copy(key, None)
@@ -332,11 +344,21 @@ def _megabytes(size: int) -> str:
     return f"{size / 1e6:.0f} MB" if size >= 1e6 else f"{size / 1e3:.0f} kB"
 
 
-def _failure(storage: Path, reason: str) -> str:
+def _failure(storage: Path, reason: str, *, room: bool = True) -> str:
+    """The damage line of a WAL not merged; ``room``: for want of room in TMPDIR.
+
+    Otherwise (sqlite's "disk I/O error", "database disk image is malformed" while merging)
+    the bag's own files are damaged or unreadable, which more room would not change.
+    """
+    fix = (
+        "set TMPDIR to a folder with room for it"
+        if room
+        else f"{storage.name} or its -wal is damaged or unreadable"
+    )
     return (
         f"{storage.name}: its write-ahead log {storage.name}-wal holds messages not yet "
-        f"merged, which are not read (a private copy to merge them failed: {reason}; set "
-        f"TMPDIR to a folder with room for it); {_checkpoint_advice(storage)}"
+        f"merged, which are not read (a private copy to merge them failed: {reason}; "
+        f"{fix}); {_checkpoint_advice(storage)}"
     )
 
 

@@ -80,6 +80,9 @@ def _bound_rosbags_decompressors() -> None:
         mcap_table["zstd"] = _unzstd
 
 
+SQLITE_DAMAGE = ("disk I/O error", "database disk image is malformed", "file is not a database")
+"""sqlite's words for a storage file it cannot read: damaged, truncated, or on a failing disk."""
+
 class RosbagsLogReader(LogReader):
     """Reads a ROS 1 bag, a rosbag2 folder or a lone ``.db3`` through rosbags' ``AnyReader``."""
 
@@ -232,7 +235,8 @@ class RosbagsLogReader(LogReader):
                 ) + counts.get(connection.id, 0)
 
     def _open_error(self, path: Path, err: BaseException) -> str:
-        text = _one_line(err)
+        said = str(err) if self._wal is None else self._wal.named(str(err))
+        text = _one_line(err, said)
         if self.format is LogFormat.ROS1:
             return (
                 f"cannot read ROS 1 bag {path} ({text}); if it is damaged, "
@@ -260,6 +264,11 @@ class RosbagsLogReader(LogReader):
             return (
                 f"cannot read rosbag2 folder {path}: rosbags cannot parse a message definition "
                 f"in it ({text}); pass the storage file {storage[0]} to read it directly"
+            )
+        if any(words in said for words in SQLITE_DAMAGE):
+            return (
+                f"cannot read rosbag2 log {path} ({text}): its storage file is damaged or "
+                "cannot be read (an interrupted copy, a failing disk); copy the bag again"
             )
         return f"cannot read rosbag2 log {path} ({text}); check metadata.yaml and the storage"
 

@@ -107,3 +107,52 @@ def test_a_wal_that_cannot_be_merged_is_named_as_damage(
             "which are not read (a private copy to merge them failed: "
         )
         assert reader.damage[0].endswith("'PRAGMA wal_checkpoint'` merges them into the bag")
+
+
+def test_a_damaged_bag_read_through_its_copy_names_the_bag_and_the_damage(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The error named the private copy in TMPDIR (gone at the end) and no cause."""
+    import os
+
+    from pcainterp_stream.errors import LogReadError
+
+    bag = _wal_bag(tmp_path)
+    db = bag / "walbag.db3"
+    os.truncate(db, db.stat().st_size // 2)  # an interrupted copy
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    with pytest.raises(LogReadError) as caught:
+        open_log(bag)
+    said = str(caught.value)
+    release_wal_copies()
+    assert str(scratch) not in said
+    assert f"{bag / 'walbag.db3'}: database disk image is malformed" in said
+    assert said.endswith(
+        "its storage file is damaged or cannot be read (an interrupted copy, a failing disk); "
+        "copy the bag again"
+    )
+
+
+def test_a_wal_merge_that_sqlite_refuses_is_not_put_down_to_room(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """sqlite's "disk I/O error" merging a damaged bag said to set TMPDIR to more room."""
+    from pcainterp_stream.io import rosbag2_wal
+
+    bag = _wal_bag(tmp_path)
+
+    def damaged(*_args: object) -> None:
+        raise sqlite3.OperationalError("disk I/O error")
+
+    monkeypatch.setattr(rosbag2_wal, "_merge", damaged)
+    with open_log(bag) as reader:
+        assert len(list(reader.messages([LEFT]))) == 2
+        assert len(reader.damage) == 1
+        assert "TMPDIR" not in reader.damage[0]
+        assert (
+            "(a private copy to merge them failed: OperationalError: disk I/O error; walbag.db3 "
+            "or its -wal is damaged or unreadable)"
+        ) in reader.damage[0]
+    release_wal_copies()

@@ -127,6 +127,32 @@ def test_the_advice_for_a_failed_rename_names_the_real_cause(
     assert "nothing was written there" in said
 
 
+@pytest.mark.skipif(sys.version_info < (3, 11), reason="sqlite_errorname is Python 3.11's")
+def test_a_sqlite_read_error_is_not_put_down_to_a_file_size_limit(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review 16a R4: any "disk I/O error" was blamed on a set ulimit -f, whatever its cause."""
+    import sqlite3
+
+    monkeypatch.setattr(output_paths, "_file_size_limit", lambda: 100 * 10**9)  # a batch cap
+    # a real read failure: /proc/self/mem reads as EIO at offset 0, as a failing disk does
+    with pytest.raises(sqlite3.OperationalError) as caught:
+        sqlite3.connect("file:/proc/self/mem?immutable=1", uri=True).execute(
+            "SELECT * FROM sqlite_master"
+        ).fetchall()
+    assert "disk I/O error" in str(caught.value)
+    said = str(write_failed(tmp_path / "bag", caught.value))
+    assert "file-size limit" not in said
+    assert "ulimit" not in said
+    assert "could not read or sync the file back (a failing disk or file system, or a " in said
+    # a write refused (what a limit causes) still names the limit
+    refused = sqlite3.OperationalError("disk I/O error")
+    refused.sqlite_errorname = "SQLITE_IOERR_WRITE"  # type: ignore[attr-defined]
+    assert "likely the file-size limit: this process may write at most 100000.0 MB" in str(
+        write_failed(tmp_path / "bag", refused)
+    )
+
+
 @pytest.mark.parametrize("cause", ["EPERM", "ENOENT"])
 def test_a_basis_that_cannot_be_written_is_kept_in_the_temporary_folder(
     tmp_path: Path, cause: str
