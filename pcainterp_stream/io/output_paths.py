@@ -28,6 +28,7 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 from pcainterp_stream.errors import LogWriteError
+from pcainterp_stream.io import mount_points
 
 __all__ = [
     "check_not_input",
@@ -503,16 +504,6 @@ def _inode_flag(path: Path) -> str | None:
     return next((name for bit, name in _IMMUTABLE_FLAGS.items() if value & bit), None)
 
 
-def _mount_points() -> set[str]:
-    """The mount points of this process's mount namespace (empty where unknown)."""
-    try:
-        with open("/proc/self/mountinfo", encoding="utf-8", errors="surrogateescape") as file:
-            fields = [line.split(" ")[4] for line in file if line.count(" ") >= 4]
-    except OSError:
-        return set()
-    return {re.sub(r"\\([0-7]{3})", lambda match: chr(int(match[1], 8)), item) for item in fields}
-
-
 def unreplaceable(target: Path) -> str | None:
     """Say why the existing ``target`` cannot be replaced by a rename, or None.
 
@@ -540,7 +531,7 @@ def unreplaceable(target: Path) -> str | None:
         undo = f"chattr -{letter}, as root" if linux else "chflags"
         return f"it is {flag} ({how}): remove the flag ({undo}), {other}"
     real = os.path.realpath(target)
-    if real in _mount_points():
+    if mount_points.mounted_at(real):
         return f"a file system or file is mounted at it (mount shows it): unmount it, {other}"
     with contextlib.suppress(OSError):
         if os.statvfs(target).f_flag & os.ST_RDONLY:

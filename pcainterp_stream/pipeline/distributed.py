@@ -48,6 +48,7 @@ from pcainterp_stream.errors import LogReadError, PcaInterpError
 from pcainterp_stream.estimate.basis import Basis, grid_size_for
 from pcainterp_stream.estimate.finetune import finetune_from_sketch
 from pcainterp_stream.estimate.learning import basis_from_fit, fit_from_factor
+from pcainterp_stream.estimate.solve import DEFAULT_SIGMA
 from pcainterp_stream.pipeline.cluster_tasks import TaskFailure, run_task, task_result
 from pcainterp_stream.pipeline.common import (
     _bar,
@@ -80,6 +81,7 @@ from pcainterp_stream.pipeline.learn_sketch import (
     sketch_of,
     summarize,
 )
+from pcainterp_stream.pipeline.map_checks import far_cut_counts, warn_far_cut
 from pcainterp_stream.pipeline.scheduler import (
     QUIET_TRACKER,
     WorkerPaths,
@@ -201,7 +203,7 @@ def summarize_chunk(
     grids: list[npt.NDArray[np.float32]] = []
     image_size: tuple[int, int] | None = None
     focal_baseline = 0.0
-    flat = blank = 0
+    flat = blank = far = valid = 0
     fb_target = None if target is None else target.focal_baseline
     for disparity, size, fb in _chunk_maps(log, start, stop, options, pairing, fb_target):
         if image_size is None:
@@ -222,6 +224,9 @@ def summarize_chunk(
             continue
         if not options.depth_topic and is_flat(disparity):
             flat += 1
+        if not options.fit_prior:  # the far cut of the paper's sigma (as on one machine)
+            counted = far_cut_counts(disparity, DEFAULT_SIGMA / target.disparity_scale)
+            far, valid = far + counted[0], valid + counted[1]
         try:
             grids.append(to_grid(disparity, target))
         except ValueError as err:
@@ -237,7 +242,9 @@ def summarize_chunk(
         image_size=image_size,
         focal_baseline=focal_baseline,
     )
-    return dataclasses.replace(summary, flat_maps=flat, blank_maps=blank)
+    return dataclasses.replace(
+        summary, flat_maps=flat, blank_maps=blank, far_pixels=far, valid_pixels=valid
+    )
 
 
 def learn_distributed(
@@ -392,6 +399,8 @@ def learn_on_cluster(
             f"(pcainterp info LOG) and the images ({BLANK_MAPS} give none)"
         )
     check_flat(plan.logs, total.flat_maps, total.n_maps)
+    cut = DEFAULT_SIGMA / plan.target.disparity_scale
+    warn_far_cut(total.far_pixels, total.valid_pixels, cut, plan.camera.focal_baseline)
     merged = "in one step" if exact else "tree"
     meta = {
         **meta,

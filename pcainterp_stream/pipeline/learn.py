@@ -73,7 +73,7 @@ from pcainterp_stream.pipeline.learn_maps import log_pairing as log_pairing
 from pcainterp_stream.pipeline.map_checks import BLANK_MAPS as BLANK_MAPS
 from pcainterp_stream.pipeline.map_checks import FLAT_FIX as FLAT_FIX
 from pcainterp_stream.pipeline.map_checks import FLAT_MAPS as FLAT_MAPS
-from pcainterp_stream.pipeline.map_checks import ViewCount, warn_far_cut
+from pcainterp_stream.pipeline.map_checks import ViewCount, far_cut_counts, warn_far_cut
 from pcainterp_stream.pipeline.map_checks import check_flat as check_flat
 from pcainterp_stream.pipeline.map_checks import is_flat as is_flat
 from pcainterp_stream.pipeline.map_checks import note_blank as note_blank
@@ -729,9 +729,8 @@ def _learn_here(
                 if not options.depth_topic and is_flat(disparity):
                     flat += 1
                 if not options.fit_prior:
-                    with np.errstate(invalid="ignore"):
-                        valid += int(np.count_nonzero(disparity > 0))
-                        far += int(np.count_nonzero((disparity > 0) & (disparity < cut)))
+                    counted = far_cut_counts(disparity, cut)
+                    far, valid = far + counted[0], valid + counted[1]
                 yield disparity
         note_blank(plan.logs, blank, used)
         check_flat(plan.logs, flat, used)

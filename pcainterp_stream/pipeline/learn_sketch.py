@@ -38,6 +38,9 @@ class ChunkSummary:
         blank_maps: maps of the frames skipped, with no disparity above 0
             (:func:`learn.shows_surface`). A summary of blank maps only has n_maps 0
             (:func:`empty`): merges carry its count and ignore the rest.
+        far_pixels: valid map pixels below the far cut of a basis with no fitted prior
+            (``learn --no-fit-prior``; :func:`map_checks.warn_far_cut`), 0 otherwise.
+        valid_pixels: the valid map pixels those are counted among.
     """
 
     n_maps: int
@@ -49,6 +52,12 @@ class ChunkSummary:
     focal_baseline: float
     flat_maps: int = 0
     blank_maps: int = 0
+    far_pixels: int = 0
+    valid_pixels: int = 0
+
+
+COUNTS = ("flat_maps", "blank_maps", "far_pixels", "valid_pixels")
+"""The counts a summary carries beside its statistics: merges add them."""
 
 
 def empty(
@@ -69,11 +78,19 @@ def empty(
 
 
 def _counted(summary: ChunkSummary, others: list[ChunkSummary]) -> ChunkSummary:
-    """Return ``summary`` with the flat and blank maps of ``others`` (empty ones) added."""
+    """Return ``summary`` with the counts (:data:`COUNTS`) of ``others`` added."""
+    return _summed(summary, [summary, *others])
+
+
+def _summed(summary: ChunkSummary, summaries: list[ChunkSummary]) -> ChunkSummary:
+    """Return ``summary`` with its counts (:data:`COUNTS`) the sums of ``summaries``'."""
+    total = {name: sum(getattr(each, name) for each in summaries) for name in COUNTS}
     return dataclasses.replace(
         summary,
-        flat_maps=summary.flat_maps + sum(other.flat_maps for other in others),
-        blank_maps=summary.blank_maps + sum(other.blank_maps for other in others),
+        flat_maps=total["flat_maps"],
+        blank_maps=total["blank_maps"],
+        far_pixels=total["far_pixels"],
+        valid_pixels=total["valid_pixels"],
     )
 
 
@@ -138,7 +155,7 @@ def merge(
         return _counted(second, [first]) if first.n_maps == 0 else _counted(first, [second])
     _check_camera(first, second)
     merged = merge_sketches(sketch_of(first), sketch_of(second), keep)
-    return ChunkSummary(
+    summary = ChunkSummary(
         n_maps=merged.n_maps,
         mean=merged.mean,
         factor=merged.factor,
@@ -146,9 +163,8 @@ def merge(
         grid_size=first.grid_size,
         image_size=first.image_size,
         focal_baseline=first.focal_baseline,
-        flat_maps=first.flat_maps + second.flat_maps,
-        blank_maps=first.blank_maps + second.blank_maps,
     )
+    return _summed(summary, [first, second])
 
 
 def sketch_of(summary: ChunkSummary) -> Sketch:
@@ -209,7 +225,7 @@ def combine(summaries: list[ChunkSummary | None]) -> ChunkSummary | None:
         summary.squares + summary.n_maps * float(shift @ shift)
         for summary, shift in zip(present, shifts, strict=True)
     )
-    return ChunkSummary(
+    summary = ChunkSummary(
         n_maps=total,
         mean=np.asarray(mean, dtype=np.float64),
         factor=factor,
@@ -217,6 +233,5 @@ def combine(summaries: list[ChunkSummary | None]) -> ChunkSummary | None:
         grid_size=first.grid_size,
         image_size=first.image_size,
         focal_baseline=first.focal_baseline,
-        flat_maps=sum(summary.flat_maps for summary in present),
-        blank_maps=sum(summary.blank_maps for summary in given),
     )
+    return _summed(summary, given)

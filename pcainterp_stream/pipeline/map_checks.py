@@ -88,6 +88,13 @@ def shows_surface(disparity: npt.NDArray[np.float32]) -> bool:
         return bool(np.any(disparity > 0))
 
 
+def far_cut_counts(disparity: npt.NDArray[np.float32], cut: float) -> tuple[int, int]:
+    """Return (valid pixels below ``cut``, valid pixels) of a map (:func:`warn_far_cut`)."""
+    with np.errstate(invalid="ignore"):
+        valid = disparity > 0
+        return int(np.count_nonzero(valid & (disparity < cut))), int(np.count_nonzero(valid))
+
+
 def warn_far_cut(far: int, valid: int, cut: float, focal_baseline: float) -> None:
     """Warn when a basis with no fitted prior would write much of the maps as too far.
 

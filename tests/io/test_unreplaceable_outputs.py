@@ -15,7 +15,7 @@ import pytest
 
 from pcainterp_stream.errors import GoldenError, LogWriteError
 from pcainterp_stream.golden import save_golden
-from pcainterp_stream.io import output_paths
+from pcainterp_stream.io import mount_points, output_paths
 from pcainterp_stream.io.logwriter import open_writer, write_failed
 from pcainterp_stream.io.output_paths import (
     check_output_file,
@@ -97,9 +97,53 @@ def test_a_file_mounted_at_the_output_is_refused(
     folder's permissions", after the whole run)."""
     target = tmp_path / "keep.mcap"
     target.write_bytes(b"x")
-    monkeypatch.setattr(output_paths, "_mount_points", lambda: {os.path.realpath(target)})
+    monkeypatch.setattr(mount_points, "_mount_points", lambda: {os.path.realpath(target)})
+    mounts = {os.path.realpath(target): 2, os.path.realpath(tmp_path): 1}
+    monkeypatch.setattr(mount_points, "_mount_id", mounts.get)
     with pytest.raises(LogWriteError, match="a file system or file is mounted at it"):
         check_output_file(target)
+
+
+def test_a_mount_listed_at_the_output_but_hidden_under_a_later_one_is_not_refused(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review 16a R1: a file bind-mounted at t/sub/f.mcap, then a mount on t/sub, is still
+    listed in mountinfo; the t/sub/f.mcap one sees is a plain file there (`mv` onto it works)."""
+    target = tmp_path / "f.mcap"
+    target.write_bytes(b"x")
+    monkeypatch.setattr(mount_points, "_mount_points", lambda: {os.path.realpath(target)})
+    assert check_output_file(target) == target  # the same mount id as its folder: replaced
+    # unreadable ids: the listing is trusted, as before
+    monkeypatch.setattr(mount_points, "_mount_id", lambda path: None)
+    with pytest.raises(LogWriteError, match="a file system or file is mounted at it"):
+        check_output_file(target)
+
+
+@pytest.mark.skipif(
+    not sys.platform.startswith("linux") or os.geteuid() != 0, reason="mounts need root"
+)
+def test_a_real_bind_mount_and_a_shadowed_one(tmp_path: Path) -> None:
+    """Review 16a R1 as the reviewer made it: the mounts themselves (skipped where denied)."""
+    source, folder = tmp_path / "src.mcap", tmp_path / "t"
+    source.write_bytes(b"src")
+    folder.mkdir()
+    bound = folder / "b.mcap"
+    bound.write_bytes(b"x")
+    if subprocess.run(["mount", "--bind", str(source), str(bound)], check=False).returncode:
+        pytest.skip("mount is denied here")
+    shadow = folder / "sub"
+    try:
+        with pytest.raises(LogWriteError, match="a file system or file is mounted at it"):
+            check_output_file(bound)
+        shadow.mkdir()
+        (shadow / "f.mcap").write_bytes(b"x")
+        subprocess.run(["mount", "--bind", str(source), str(shadow / "f.mcap")], check=True)
+        subprocess.run(["mount", "-t", "tmpfs", "tmpfs", str(shadow)], check=True)
+        (shadow / "f.mcap").write_bytes(b"plain")
+        assert check_output_file(shadow / "f.mcap") == shadow / "f.mcap"
+    finally:
+        for point in (shadow, shadow / "f.mcap", bound):
+            subprocess.run(["umount", str(point)], check=False, capture_output=True)
 
 
 def test_the_advice_for_a_failed_rename_names_the_real_cause(

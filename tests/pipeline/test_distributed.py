@@ -119,6 +119,28 @@ def test_learn_on_cluster_matches_local_learner(
     assert np.degrees(subspace_angles(first[:, :5], second[:, :5])).max() < 0.5
 
 
+def test_learn_on_cluster_warns_of_the_far_cut_as_one_process_does(
+    client: Any, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """16D F8: `learn --no-fit-prior --workers N` on a small-f*b camera said nothing of it."""
+    from pcainterp_stream.synth import SynthConfig, generate
+    from pcainterp_stream.synth.indoor import camera_options
+    from pcainterp_stream.synth.log import write_synthetic_log
+
+    config = {"seed": 11, "frames": 6, "scale": 0.5, "scene": "indoor"}
+    log = tmp_path / "d.mcap"
+    write_synthetic_log(generate(SynthConfig(**config, **camera_options("640x480"))), log)  # type: ignore[arg-type]
+    options = jobs.LearnOptions(fit_prior=False, n_components=3)
+    capsys.readouterr()
+    jobs.learn([log], tmp_path / "here.npz", options, PairingConfig())
+    here = [line for line in capsys.readouterr().out.splitlines() if "too far" in line]
+    distributed.learn_distributed([log], tmp_path / "there.npz", options, PairingConfig(), client)
+    there = [line for line in capsys.readouterr().out.splitlines() if "too far" in line]
+    assert len(here) == 1
+    assert "of the maps' pixels have a disparity below 2 px (beyond 4.81 m)" in here[0]
+    assert there == here
+
+
 def test_learn_on_cluster_reads_each_log_with_its_own_topics(
     logs: dict[str, Path], client: Any, tmp_path: Path
 ) -> None:
