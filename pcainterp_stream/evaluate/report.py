@@ -819,10 +819,15 @@ def evaluate_log(
         if result.no_measurement:
             without += f", {len(result.no_measurement)} without a measurement"
         temporal = mode is Mode.TEMPORAL and (left_out.poses or not result.skipped)
-        why = "; temporal mode needs two in a row with poses" if temporal else ""
+        why = (  # a one-frame log: stereo mode scores it (bug hunt 17G F8)
+            "; temporal mode needs two in a row with poses: evaluate with --mode stereo, "
+            "which scores each frame alone"
+            if temporal
+            else ""
+        )
         raise LogReadError(
-            f"no frame of {path} could be evaluated ({read} densified frames read{without}"
-            f"{why})"
+            f"no frame of {path} could be evaluated ({read} densified "
+            f"frame{'' if read == 1 else 's'} read{without}{why})"
             + "".join(f"; {cause}" for cause in causes)
             + "".join(f"; damage: {line}" for line in state.damage)  # a cut-off log, say
         )

@@ -92,7 +92,7 @@ class ImageClock:
         previous, self._previous = self._previous, stamp_ns
         self.squeezed = False
         if stamp_ns not in (0, previous):
-            passed = self._own is not None and self._own[0] < stamp_ns <= self._given
+            passed = self._own is not None and self._own[0] <= stamp_ns <= self._given
             self._see_own(stamp_ns, log_time_ns)
             if passed:  # the placed stamps passed it: after them, in order
                 self._placed = self._given = self._given + 1

@@ -43,6 +43,11 @@ from pcainterp_stream.io.reader_base import (
     ros1_type_name,
     ros2_type_name,
 )
+from pcainterp_stream.io.rosbags_reader import (
+    Ros1Definition,
+    convert_ros1,
+    judge_ros1_definition,
+)
 from pcainterp_stream.records import RawMessage
 
 try:  # lz4 chunks: python-lz4 is installed with rosbags
@@ -93,6 +98,7 @@ class _Connection(NamedTuple):
     msgtype: str  # ROS 2 spelling, as the bag names it
     msgdef: str
     latching: bool
+    md5sum: str  # as recorded ("" when the record has none)
 
     @property
     def ros2_msgtype(self) -> str:
@@ -267,6 +273,7 @@ class Ros1WalkReader(LogReader):
         self._file: IO[bytes] | None = None
         self._ros1 = _Ros1Converter(self._warn_once)
         self._topics: dict[str, TopicInfo] | None = None
+        self._definitions: dict[int, Ros1Definition] = {}  # judged as the indexed reader does
         # the index section starts at index_pos when there is one: stop there
         inside = 0 < header.index_pos <= header.size
         self._end = header.index_pos if inside else header.size
@@ -298,6 +305,9 @@ class Ros1WalkReader(LogReader):
                     counts[item.conn_id] = counts.get(item.conn_id, 0) + 1
             topics: dict[str, TopicInfo] = {}
             for conn_id, connection in connections.items():
+                judged = self._judged(connection)
+                if judged.problem is not None:
+                    _add_once(self.damage, judged.left_out(counts.get(conn_id, 0)))
                 info = TopicInfo(
                     connection.topic,
                     connection.ros2_msgtype,
@@ -328,9 +338,12 @@ class Ros1WalkReader(LogReader):
                 continue
             if wanted is not None and connection.topic not in wanted:
                 continue
+            judged = self._judged(connection)
+            if judged.problem is not None:  # left out, said by topics()
+                continue
             try:
-                cdr, schema = self._ros1.convert(
-                    item.data, connection.msgtype, connection.msgdef, connection.topic
+                cdr, schema = convert_ros1(
+                    self._ros1, item.data, connection.msgtype, judged, self._warn_once
                 )
             except Exception as err:  # rosbags TypesysError, SerdeError, struct.error...
                 if connection.topic not in unconverted:
@@ -356,6 +369,22 @@ class Ros1WalkReader(LogReader):
                 sequence=0,
             )
         order.report(self)
+
+    def _judged(self, connection: _Connection) -> Ros1Definition:
+        """Judge a connection's definition once (:func:`judge_ros1_definition`), warning so."""
+        judged = self._definitions.get(connection.conn_id)
+        if judged is None:
+            judged = judge_ros1_definition(
+                self.path.name,
+                connection.topic,
+                connection.msgtype,
+                connection.msgdef,
+                connection.md5sum,
+            )
+            self._definitions[connection.conn_id] = judged
+            if judged.warning is not None:
+                self._warn_once(judged.warning)
+        return judged
 
     # the walk ----------------------------------------------------------------------------
     def _walk(self) -> Iterator[_Connection | _Message]:
@@ -502,6 +531,7 @@ def _connection(fields: dict[str, bytes], data: bytes | memoryview) -> _Connecti
         ros2_type_name(msgtype.decode()),
         msgdef.decode(),
         latching,
+        described.get("md5sum", b"").decode("utf-8", "replace").strip(),
     )
 
 

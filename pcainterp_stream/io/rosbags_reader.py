@@ -16,9 +16,9 @@ import io
 import os
 import shlex
 import sqlite3
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path, PosixPath
-from typing import IO, Any
+from typing import IO, Any, NamedTuple
 
 import yaml
 from rosbags.highlevel import AnyReader
@@ -95,6 +95,7 @@ class RosbagsLogReader(LogReader):
         self._schemas: dict[str, bytes] = {}
         # ROS 1: the connections read (definitions mended), those left out and why
         self._connections: dict[int, Any] = {}
+        self._definitions: dict[int, Ros1Definition] = {}
         self._left_out: dict[int, str] = {}
         self._topic_totals: dict[str, int] = {}  # messages per topic on connections read
         # ROS 1: messages skipped while reading, by cause: (chunk, offset)s and their line
@@ -183,50 +184,36 @@ class RosbagsLogReader(LogReader):
     def _check_ros1_definitions(self) -> None:
         """Judge each ROS 1 connection's definition; leave out the topics it cannot decode.
 
-        A definition that does not parse, or is empty while the connection records the
-        md5sum of another, cannot decode its messages. rosserial records the right md5sum
-        with an empty definition: when ROS 1 Noetic's type of that name has that md5sum, its
-        definition is used (what ``fix_msg_defs.py`` of rosbag does), with a warning; else
-        the topic is left out, as damage, and the rest of the bag read. A whole definition
-        whose md5sum merely differs from the recorded one (a writer that computed it
-        wrongly) is used, as rosbag itself reads it, with a warning: a message it does not
-        fit is skipped and counted when read.
+        See :func:`judge_ros1_definition` (the walker of unindexed bags judges them so too):
+        a definition that cannot decode its messages is replaced by ROS 1 Noetic's when
+        that has the recorded md5sum, else the topic is left out, as damage, and the rest
+        of the bag read.
         """
         assert isinstance(self._reader, Ros1Reader)
         counts = {c.id: len(self._reader.indexes.get(c.id, ())) for c in self._reader.connections}
         self._topic_totals = {}
         for connection in self._reader.connections:
-            problem, usable = _ros1_definition_problem(connection)
-            if problem is not None and usable:
-                _add_once(
-                    self.warnings,
-                    f"{self.path.name}: {connection.topic}: the bag's definition of "
-                    f"{connection.msgtype} {problem}; read with the bag's definition (a message "
-                    "it does not fit is counted as damage)",
+            judged = judge_ros1_definition(
+                self.path.name,
+                connection.topic,
+                str(connection.msgtype),
+                str(connection.msgdef.data),
+                str(connection.digest or ""),
+            )
+            if judged.warning is not None:
+                _add_once(self.warnings, judged.warning)
+            if judged.text != str(connection.msgdef.data):
+                connection = connection._replace(
+                    msgdef=MessageDefinition(MessageDefinitionFormat.MSG, judged.text)
                 )
-                problem = None
-            if problem is not None and connection.digest:
-                mended = _noetic_definition(str(connection.msgtype), str(connection.digest))
-                if mended is not None:
-                    connection = connection._replace(
-                        msgdef=MessageDefinition(MessageDefinitionFormat.MSG, mended)
-                    )
-                    _add_once(
-                        self.warnings,
-                        f"{self.path.name}: {connection.topic}: the bag's definition of "
-                        f"{connection.msgtype} {problem}; read with ROS 1 Noetic's definition, "
-                        "which has that md5sum",
-                    )
-                    problem = None
             self._connections[connection.id] = connection
-            if problem is None:
+            self._definitions[connection.id] = judged
+            if judged.problem is None:
                 continue
-            self._left_out[connection.id] = problem
+            self._left_out[connection.id] = judged.problem
             _add_once(
                 self.damage,
-                f"{self.path.name}: {connection.topic} ({counts[connection.id]} messages of "
-                f"{connection.msgtype}) left out: its definition {problem}, so its messages "
-                "cannot be decoded; the other topics are read",
+                judged.left_out(counts[connection.id]),
             )
         for connection in self._connections.values():
             if connection.id not in self._left_out:
@@ -469,11 +456,12 @@ class RosbagsLogReader(LogReader):
                 continue
             try:
                 msgtype, schema_encoding, schema = self._schema(connection)
-                data, schema = self._ros1.convert(  # the type and key _schema used
+                data, schema = convert_ros1(  # the type and key _schema used
+                    self._ros1,
                     data,
                     ros2_type_name(str(connection.msgtype)),
-                    str(connection.msgdef.data),
-                    connection.topic,
+                    self._definitions[connection.id],
+                    self._warn_once,
                 )
             except Exception as err:  # rosbags SerdeError, TypesysError, struct.error...
                 total = self._topic_totals.get(connection.topic, 0)
@@ -551,20 +539,123 @@ def _message_record(chunk: io.BytesIO, offset: int) -> tuple[int, bytes]:
     return header.get_uint32("conn"), read_bytes(chunk, read_uint32(chunk))
 
 
-def _ros1_definition_problem(connection: Any) -> tuple[str | None, bool]:
-    """Return (what is wrong with a ROS 1 connection's definition, whether it decodes).
+class Ros1Definition(NamedTuple):
+    """How the messages of a ROS 1 connection are read (see :func:`judge_ros1_definition`).
 
-    (None, True) for a definition that parses and has the recorded md5sum, or when the
-    connection records none to check it against.
+    Attributes:
+        name: the bag's file name, which the lines about it start with.
+        topic: the connection's topic.
+        msgtype: its type as the bag names it (ROS 2 spelling).
+        text: the definition its messages are converted with (the bag's or Noetic's).
+        problem: what is wrong with the bag's definition when neither decodes its messages
+            (the topic is left out), else None.
+        warning: the warning of a definition read though its md5sum is not the recorded one.
+        fallback: ROS 1 Noetic's definition of the recorded md5sum, for the messages a whole
+            definition that contradicts that md5sum does not fit; else None.
     """
-    return _judge_definition(
-        str(connection.msgtype), str(connection.msgdef.data), str(connection.digest or "")
-    )
+
+    name: str
+    topic: str
+    msgtype: str
+    text: str
+    problem: str | None = None
+    warning: str | None = None
+    fallback: str | None = None
+
+    def left_out(self, count: int) -> str:
+        """The damage line of a topic left out: ``count`` messages not decoded."""
+        return (
+            f"{self.name}: {self.topic} ({count} messages of {self.msgtype}) left out: its "
+            f"definition {self.problem}, so its messages cannot be decoded; the other topics "
+            "are read"
+        )
+
+
+def judge_ros1_definition(
+    name: str, topic: str, msgtype: str, text: str, digest: str
+) -> Ros1Definition:
+    """Judge a ROS 1 connection's definition ``text`` against its recorded md5sum ``digest``.
+
+    Both ROS 1 readers (indexed, and the walker of unindexed bags) judge each connection so.
+    A definition that does not parse, or is empty while the connection records the md5sum
+    of another, cannot decode its messages. rosserial records the right md5sum with an
+    empty definition: when ROS 1 Noetic's type of that name has that md5sum, its definition
+    is used (what ``fix_msg_defs.py`` of rosbag does), with a warning; else the topic is
+    left out (``problem``). A whole definition whose md5sum merely differs from the recorded
+    one (a writer that computed it wrongly) is used, as rosbag itself reads it, with a
+    warning; a message it does not fit is read with Noetic's definition when that has the
+    recorded md5sum (``fallback``, :func:`convert_ros1`), else skipped and counted.
+    ``name`` is the bag's file name.
+    """
+    problem, usable = _judge_definition(msgtype, text, digest)
+    if problem is None:
+        return Ros1Definition(name, topic, msgtype, text)
+    noetic = _noetic_definition(msgtype, digest) if digest else None
+    said = f"{name}: {topic}: the bag's definition of {msgtype} {problem}; read with"
+    if usable:
+        fit = "read with ROS 1 Noetic's definition, which has that md5sum"
+        return Ros1Definition(
+            name,
+            topic,
+            msgtype,
+            text,
+            warning=f"{said} the bag's definition (a message it does not fit is "
+            f"{fit if noetic is not None else 'counted as damage'})",
+            fallback=noetic,
+        )
+    if noetic is not None:
+        return Ros1Definition(
+            name,
+            topic,
+            msgtype,
+            noetic,
+            warning=f"{said} ROS 1 Noetic's definition, which has that md5sum",
+        )
+    return Ros1Definition(name, topic, msgtype, text, problem=problem)
+
+
+def convert_ros1(
+    converter: _Ros1Converter,
+    data: bytes | memoryview,
+    msgtype: str,
+    definition: Ros1Definition,
+    warn: Callable[[str], None],
+) -> tuple[bytes, bytes]:
+    """Return (CDR bytes, ros2msg schema) of a ROS 1 message of a judged connection.
+
+    ``msgtype`` as :meth:`_Ros1Converter.convert` takes it. A message the definition does
+    not fit is converted with the connection's ``fallback`` (Noetic's definition of the
+    recorded md5sum) when it has one, warned of once through ``warn``.
+
+    Raises:
+        Exception: the definition's error (rosbags SerdeError ...) when neither fits.
+    """
+    topic = definition.topic
+    try:
+        return converter.convert(data, msgtype, definition.text, topic)
+    except Exception as err:  # rosbags SerdeError, TypesysError, struct.error...
+        failure = err
+    if definition.fallback is not None:
+        try:
+            converted = converter.convert(data, msgtype, definition.fallback, topic)
+        except Exception:  # neither fits: the bag's definition's error is the one to name
+            pass
+        else:
+            warn(
+                f"{definition.name}: {topic}: messages the bag's definition of "
+                f"{definition.msgtype} does not fit are read with ROS 1 Noetic's definition, "
+                "which has the md5sum recorded"
+            )
+            return converted
+    raise failure
 
 
 @functools.lru_cache(maxsize=1024)
 def _judge_definition(msgtype: str, text: str, recorded: str) -> tuple[str | None, bool]:
-    """:func:`_ros1_definition_problem` of a (type, definition, md5sum), parsed once each.
+    """What is wrong with a ROS 1 definition of ``msgtype``, whether it decodes (parsed once).
+
+    (None, True) for a definition that parses and has the ``recorded`` md5sum, or when the
+    connection records none to check it against.
 
     A bag repeats one definition on many connections, and a command opens a bag several
     times: parsing each anew made opening a bag of 300 connections twice as slow.

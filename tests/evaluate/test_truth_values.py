@@ -273,7 +273,8 @@ def test_poses_of_another_clock_are_not_needed_in_stereo_mode(logs: dict[str, Pa
     assert stereo.notes == []
     with pytest.raises(
         LogReadError,
-        match=r"4 without a /ground_truth/pose; temporal mode needs two in a row with poses\); "
+        match=r"4 without a /ground_truth/pose; temporal mode needs two in a row with poses: "
+        r"evaluate with --mode stereo, which scores each frame alone\); "
         r"4 frames left out: no /ground_truth/pose within 1 ms .* 5.00-5.00 ms away: pass "
         r"--stamp-tolerance-ms 5 to take it",
     ):
@@ -366,3 +367,22 @@ def test_a_repeated_truth_stamp_takes_the_nearest_in_log_time_and_says_so(
         "stamps that restart, or a message logged twice): a frame takes the message of its "
         "stamp nearest its own log time"
     ) in result.notes
+
+
+def test_a_one_frame_log_refused_in_temporal_mode_names_stereo_mode(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> None:
+    # bug hunt 17G F8: temporal mode (the default with truth and poses) cannot score one
+    # frame; the refusal names --mode stereo, which scores it
+    folder = tmp_path_factory.mktemp("one_frame")
+    log, dense = folder / "one.mcap", folder / "one_dense.mcap"
+    jobs.synth(log, frames=1, seed=41, scale=0.25, fmt="mcap")
+    jobs.densify(log, dense)
+    with pytest.raises(
+        LogReadError,
+        match=r"\(1 densified frame read; temporal mode needs two in a row with poses: "
+        r"evaluate with --mode stereo, which scores each frame alone\)$",
+    ):
+        evaluate_log(dense, EvaluateOptions(sweep_every=0))
+    stereo, _ = evaluate_log(dense, EvaluateOptions(mode=Mode.STEREO, sweep_every=0))
+    assert stereo.frames == 1

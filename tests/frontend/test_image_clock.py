@@ -115,15 +115,21 @@ def test_a_coarse_clock_of_whole_seconds_stays_short_of_its_next_stamp() -> None
 
 
 def _sequence(draw: st.DrawFn) -> tuple[list[int], list[int]]:
-    """A header clock that never goes back, with repeats, zeros and any log-time steps."""
+    """A header clock that never goes back, with repeats, zeros and any log-time steps.
+
+    ``again`` is the last own stamp once more, after zeros too (bug hunt 17G F3: an own stamp
+    equal to the last own one after an unstamped image was given out again, going back).
+    """
     count = draw(st.integers(2, 60))
     stamps, log_times = [1000 * SECOND], [LOG_START]
     for _ in range(count):
         log_times.append(log_times[-1] + draw(st.integers(1, 3 * SECOND)))
-        kind = draw(st.sampled_from(["advance", "repeat", "repeat", "zero"]))
+        kind = draw(st.sampled_from(["advance", "repeat", "repeat", "zero", "again"]))
         last = next((s for s in reversed(stamps) if s), stamps[0])
         if kind == "advance":
             stamps.append(last + draw(st.integers(1, 3 * SECOND)))
+        elif kind == "again":
+            stamps.append(last)
         else:
             stamps.append(0 if kind == "zero" else stamps[-1])
     return stamps, log_times
@@ -147,12 +153,14 @@ def _sequence_with_restarts(draw: st.DrawFn) -> tuple[list[int], list[int]]:
     stamps, log_times = [first], [LOG_START]
     for _ in range(count):
         log_times.append(log_times[-1] + draw(st.integers(0, 3 * SECOND)))
-        kind = draw(st.sampled_from(["advance", "repeat", "repeat", "zero", "restart"]))
+        kind = draw(st.sampled_from(["advance", "repeat", "repeat", "zero", "restart", "again"]))
         last = next((s for s in reversed(stamps) if s), 0)
-        if kind == "advance" or (kind == "restart" and last <= 1):
+        if kind == "advance" or (kind in ("restart", "again") and last <= 1):
             stamps.append(max(last, 100 * SECOND) + draw(st.integers(1, 3 * SECOND)))
         elif kind == "restart":  # the clock goes back (a restarted driver or simulator)
             stamps.append(draw(st.integers(1, last - 1)))
+        elif kind == "again":  # the last own stamp once more, after zeros too (17G F3)
+            stamps.append(last)
         else:
             stamps.append(0 if kind == "zero" else stamps[-1])
     return stamps, log_times
@@ -211,3 +219,17 @@ def test_the_second_of_two_missed_stamps_is_squeezed() -> None:
             clock.stamp(stamp or 0, LOG_START + i * 100 * MS)
             flags.append(clock.squeezed)
         assert flags == [False] * 8 + [True, False], flags
+
+
+def test_the_last_own_stamp_again_after_an_unstamped_image_is_placed_after() -> None:
+    # bug hunt 17G F3: 1.1 s, 0, 1.1 s gave out 1.1, 1.1995, 1.1 (back and repeated); the
+    # second 1.1 s is placed 1 ns after the stamp placed before it
+    assert _placed([1000 * MS, 1100 * MS, 0, 1100 * MS]) == [
+        1000 * MS,
+        1100 * MS,
+        1_199_500_000,
+        1_199_500_001,
+    ]
+    given = _placed([1000 * MS, 1100 * MS, 1100 * MS, 0, 1100 * MS, 0, 1200 * MS])
+    assert all(b > a for a, b in itertools.pairwise(given)), given
+    assert given[-1] == 1200 * MS  # the clock's next tick is its own stamp again
