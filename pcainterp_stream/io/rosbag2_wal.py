@@ -160,6 +160,21 @@ def _checkpoint_advice(storage: Path) -> str:
     return f"`sqlite3 {_quoted(storage)} 'PRAGMA wal_checkpoint'` merges them into the bag"
 
 
+def _drop_unused() -> bool:
+    """Remove the copies no open reader uses; return whether any folder was removed.
+
+    A closed log's copy is kept for the next open of the same log (learn reads a log several
+    times), so a command over several walled logs would otherwise hold every copy at once.
+    """
+    dropped = False
+    for key, copy in list(_copies.items()):
+        if copy.users <= 0 and copy.folder is not None:
+            del _copies[key]
+            shutil.rmtree(copy.folder, ignore_errors=True)
+            dropped = True
+    return dropped
+
+
 class WalView:
     """Where a rosbag2 log is read from: itself, or a private copy with its WAL merged.
 
@@ -276,6 +291,11 @@ class WalView:
             free = shutil.disk_usage(base).free
         except OSError:
             free = needed
+        if free < needed and _drop_unused():  # copies of logs closed earlier in the run
+            try:
+                free = shutil.disk_usage(base).free
+            except OSError:
+                free = needed
         if free < needed:
             reason = (
                 f"it needs {_megabytes(needed)} in the temporary folder {base}, which has "

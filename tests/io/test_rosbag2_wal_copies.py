@@ -245,3 +245,47 @@ def test_after_a_signal_the_copy_goes_with_the_reader(
     monkeypatch.setattr(interrupt, "_signals_seen", 1)
     reader.close()
     assert list(scratch.iterdir()) == []
+
+
+def test_a_closed_logs_copy_makes_room_for_the_next_log(
+    tmp_path: Path, scratch: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Before: the first log's copy stayed until the process ended, so with room for one copy
+    the second walled log of a run (learn over two logs) lost its WAL's messages."""
+    first, second = _wal_bag(tmp_path / "a", name="a"), _wal_bag(tmp_path / "b", name="b")
+    one = sum(p.stat().st_size for p in first.iterdir() if ".db3" in p.name)
+    usage = shutil.disk_usage(scratch)
+
+    def held() -> int:
+        return sum(p.stat().st_size for p in scratch.rglob("*") if p.is_file())
+
+    room = one + (one // 4) + (1 << 20)  # the margin kept free, and one copy but not two
+    monkeypatch.setattr(shutil, "disk_usage", lambda _p: usage._replace(free=room - held()))
+    for bag in (first, second):
+        with open_log(bag) as reader:
+            assert len(list(reader.messages([LEFT]))) == 6, reader.damage
+            assert reader.damage == []
+    copies = [p for p in scratch.glob("*/*") if p.is_dir()]
+    assert len(copies) == 1, copies
+
+
+def test_an_open_logs_copy_is_kept_when_room_runs_short(
+    tmp_path: Path, scratch: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A copy a reader still uses is never removed to make room for another log's."""
+    first, second = _wal_bag(tmp_path / "a", name="a"), _wal_bag(tmp_path / "b", name="b")
+    one = sum(p.stat().st_size for p in first.iterdir() if ".db3" in p.name)
+    usage = shutil.disk_usage(scratch)
+
+    def held() -> int:
+        return sum(p.stat().st_size for p in scratch.rglob("*") if p.is_file())
+
+    monkeypatch.setattr(
+        shutil, "disk_usage", lambda _p: usage._replace(free=one + (one // 4) + (1 << 20) - held())
+    )
+    with open_log(first) as reader_a:
+        assert len(list(reader_a.messages([LEFT]))) == 6
+        with open_log(second) as reader_b:
+            assert len(list(reader_b.messages([LEFT]))) == 2
+            assert len(reader_b.damage) == 1
+        assert len(list(reader_a.messages([LEFT]))) == 6
