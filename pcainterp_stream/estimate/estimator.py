@@ -71,6 +71,7 @@ from pcainterp_stream.estimate.variance import (
     _variance_stride,
     _variances,
     innovation_variance_scale,
+    widen_at_border,
     widen_near_group,
     widen_near_range,
 )
@@ -508,6 +509,11 @@ def densify_batch(
                 )
             grid_std = np.sqrt(frame_variance) * np.float32(std_scale / to_basis)
             disparity_std = resample_grid(grid_std.reshape(variance_size), out_size)
+            if variance_size != out_size:  # held constant past the outermost cell centres
+                widen_at_border(
+                    disparity_std,
+                    (0.5 * out_size[0] / variance_size[0], 0.5 * out_size[1] / variance_size[1]),
+                )
             if match_range is not None:
                 widen_near_range(disparity, disparity_std, match_range)
             if posterior.group is not None:
