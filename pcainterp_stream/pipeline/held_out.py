@@ -18,6 +18,7 @@ from pcainterp_stream.estimate.adapt import FitCheck, HeldOut
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.prior import LocalPrior
 from pcainterp_stream.frontend.discovery import resolve_pairing
+from pcainterp_stream.frontend.levels import clipped_pixels
 from pcainterp_stream.frontend.pairing import PairingConfig, iter_stereo_frames
 from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig, StereoFrontEnd
 from pcainterp_stream.io.logreader import open_log
@@ -131,7 +132,12 @@ def measure_held_out(
                     frame.camera.image_size,
                     frame.camera.focal_baseline,
                     measured.disparity_map if calibrates else None,
-                    HeldOut.of(measured.disparity_map, measured.pixels, measured.disparities)
+                    HeldOut.of(
+                        measured.disparity_map,
+                        measured.pixels,
+                        measured.disparities,
+                        clipped_pixels(frame.left, frame.right, measured.disparity_map),
+                    )
                     if sample_check
                     else None,
                 )

@@ -67,6 +67,7 @@ from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
 from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
 from pcainterp_stream.estimate.variance import prior_std_map
 from pcainterp_stream.frontend.features import features_to_measurements
+from pcainterp_stream.frontend.levels import clipped_pixels
 from pcainterp_stream.frontend.motion import CarriedPoints, CarryConfig, estimate_motion
 from pcainterp_stream.frontend.near import NearConfig, extend_near, lookups_only
 from pcainterp_stream.frontend.stereo import (
@@ -520,7 +521,8 @@ class FrameProcessor:
                     sgbm_map, grid = sgbm_maps(measurements.disparity_map, frame.camera)
                     if check_frame and grid is not None:
                         checked = lookups_only(pixels, disparities, noise)
-                        held_out = adapt.HeldOut.of(sgbm_map, *checked)
+                        clipped = clipped_pixels(frame.left, frame.right, sgbm_map)
+                        held_out = adapt.HeldOut.of(sgbm_map, *checked, clipped)
                 else:  # matched ahead while the check runs: needed only if it adapts
                     raw_map = measurements.disparity_map
         motion = None
