@@ -209,9 +209,10 @@ def _cli(args: list[str], folder: Path) -> subprocess.CompletedProcess[str]:
     )
 
 
-def _last_line(done: subprocess.CompletedProcess[str]) -> str:
+def _last_line(done: subprocess.CompletedProcess[str], folder: Path) -> str:
     lines = [line for line in (done.stderr + done.stdout).splitlines() if line.strip()]
-    return lines[-1] if lines else f"exit status {done.returncode}"
+    last = lines[-1] if lines else f"exit status {done.returncode}"
+    return last.replace(f"{folder}/", "")  # the scratch folder: named once, by --keep
 
 
 def parse_evaluate(text: str, row: Row) -> None:
@@ -242,12 +243,12 @@ def measure(log: Path, name: str, folder: Path) -> Row:
         line for line in (done.stdout + done.stderr).splitlines() if line.startswith("note:")
     )
     if done.returncode != 0:
-        row.failed = f"densify failed: {_last_line(done)}"
+        row.failed = f"densify failed: {_last_line(done, folder)}"
         return row
     done = _cli(["evaluate", str(dense), "-o", str(folder / f"rep_{name}")], folder)
     (folder / f"{name}.evaluate.txt").write_text(done.stdout + done.stderr)
     if done.returncode != 0:
-        row.failed = f"evaluate failed: {_last_line(done)}"
+        row.failed = f"evaluate failed: {_last_line(done, folder)}"
         return row
     parse_evaluate(done.stdout, row)
     return row

@@ -16,7 +16,8 @@ once per process (:func:`note_once`, on stderr, prefixed ``note:``) when it acts
   the left's (gain, offset, gamma, per-camera auto-exposure).
 * :func:`saturation_share`: the share of the pair at 255, for densify's over-exposure note.
 * :func:`clipped_pixels`: on an over-exposed pair only (the note's trigger), the left pixels
-  at 255 in either view, which the fit check leaves out: SGBM's values there are streaks.
+  at 255 in either view, which the fit check leaves out: SGBM's values there are streaks
+  (:func:`.held_out.clipped_pixels` of the pair as recorded).
 """
 
 from __future__ import annotations
@@ -260,25 +261,22 @@ def adjust_pair(left: UInt8Array, right: UInt8Array) -> tuple[UInt8Array, UInt8A
 
 
 def clipped_pixels(
-    left: npt.NDArray[Any], right: npt.NDArray[Any], disparity: npt.NDArray[Any]
+    grey_left: UInt8Array, grey_right: UInt8Array, disparity: npt.NDArray[Any]
 ) -> npt.NDArray[np.bool_] | None:
     """The left pixels clipped at 255 in either view, on an over-exposed pair only, else None.
 
-    Over-exposed is the note's trigger (more than :data:`SATURATED_SHARE` of an image at 255,
-    after the pair's 8-bit conversion and level steps); any other pair gives None, so a
-    normal log's fit check (a fisheye's white border: 39 %) is untouched. A left pixel is
-    clipped when it is at 255 or its match in the right image (``x - disparity``, rounded;
-    the same column where the disparity is not finite) is: SGBM's values there are streaks
-    (bug hunt 16F F1), which the fit check must not score a basis against.
+    Over-exposed is the note's trigger (more than :data:`SATURATED_SHARE` of an image at 255);
+    any other pair gives None, so a normal log's fit check (a fisheye's white border: 39 %)
+    is untouched. A left pixel is clipped when it is at 255 or its match in the right image
+    (``x - disparity``, rounded; the same column where the disparity is not finite) is:
+    SGBM's values there are streaks (bug hunt 16F F1), which the fit check must not score a
+    basis against.
 
     Args:
-        left: the left image as recorded (any image :func:`.grey.to_grey8_pair` takes).
-        right: the right image, alike.
+        grey_left: the pair's left image as the matcher takes it (:func:`.grey.to_grey8_pair`).
+        grey_right: its right image, alike.
         disparity: (H, W) left disparity map (px), NaN or <= 0 where invalid.
     """
-    from pcainterp_stream.frontend.grey import to_grey8_pair  # grey imports this module
-
-    grey_left, grey_right = to_grey8_pair(left, right)
     if saturation_share(_sample(grey_left), _sample(grey_right)) <= SATURATED_SHARE:
         return None
     height, width = grey_left.shape[:2]

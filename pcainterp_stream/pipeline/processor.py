@@ -67,7 +67,6 @@ from pcainterp_stream.estimate.estimator import DensifyResult, densify_batch
 from pcainterp_stream.estimate.prior import LocalPrior, Robust, TemporalPrior
 from pcainterp_stream.estimate.variance import prior_std_map
 from pcainterp_stream.frontend.features import features_to_measurements
-from pcainterp_stream.frontend.levels import clipped_pixels
 from pcainterp_stream.frontend.motion import CarriedPoints, CarryConfig, estimate_motion
 from pcainterp_stream.frontend.near import NearConfig, extend_near, lookups_only
 from pcainterp_stream.frontend.stereo import (
@@ -78,6 +77,7 @@ from pcainterp_stream.frontend.stereo import (
 )
 from pcainterp_stream.interrupt import signalled
 from pcainterp_stream.pipeline.adaptation import FITS_BELOW, OWN_ABOVE_STREET, Candidate
+from pcainterp_stream.pipeline.held_out import clipped_pixels
 from pcainterp_stream.pipeline.measured import Measured, cells_on_grid, sgbm_maps
 from pcainterp_stream.pipeline.prepare import prepare as _prepare  # tools/thread_cpu.py times it
 from pcainterp_stream.pipeline.refit import Camera, Refitting, adapt_frame

@@ -21,6 +21,7 @@ from pcainterp_stream.estimate import adapt
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.frontend import levels
 from pcainterp_stream.frontend.stereo import SgbmConfig
+from pcainterp_stream.pipeline.held_out import clipped_pixels
 from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
 from pcainterp_stream.records import StereoCamera, StereoFrame
 
@@ -116,7 +117,7 @@ def test_a_pair_under_the_notes_share_is_checked_as_before(
     assert all(0.2 < share < levels.SATURATED_SHARE for share in shares), shares
     for frame in frames:
         sgbm = np.full(frame.left.shape, 5.0, np.float32)
-        assert levels.clipped_pixels(frame.left, frame.right, sgbm) is None
+        assert clipped_pixels(frame.left, frame.right, sgbm) is None
     made, _ = _held_out(frames, monkeypatch)
     assert any(
         np.count_nonzero(frame.left.ravel()[held.flat] == 255) for held in made for frame in frames
@@ -131,6 +132,7 @@ def test_clipped_pixels_are_at_255_in_either_view() -> None:
     disparity = np.full((40, 60), 5.0, np.float32)
     disparity[0, :] = np.nan  # no match: the same column
     clipped = levels.clipped_pixels(left, right, disparity)
+    assert clipped_pixels(left, right, disparity) is not None
     assert clipped is not None
     expected = np.zeros((40, 60), bool)
     expected[:, :35] = True
@@ -138,8 +140,6 @@ def test_clipped_pixels_are_at_255_in_either_view() -> None:
     expected[0, 50:] = True
     np.testing.assert_array_equal(clipped, expected)
     # 16-bit images: judged after their 8-bit conversion, as the note is
-    wide = levels.clipped_pixels(
-        left.astype(np.uint16) * 257, right.astype(np.uint16) * 257, disparity
-    )
+    wide = clipped_pixels(left.astype(np.uint16) * 257, right.astype(np.uint16) * 257, disparity)
     assert wide is not None
     np.testing.assert_array_equal(wide, expected)
