@@ -190,6 +190,7 @@ def heldout_pixels(
     reference: npt.NDArray[np.floating[Any]],
     pixels: npt.NDArray[np.floating[Any]],
     samples: int = HELDOUT_SAMPLES,
+    clipped: npt.NDArray[np.bool_] | None = None,
 ) -> npt.NDArray[np.intp]:
     """Return flat indices of held-out pixels: valid in ``reference``, away from ``pixels``.
 
@@ -197,8 +198,12 @@ def heldout_pixels(
         reference: (H, W) SGBM disparity (px); NaN or <= 0 is invalid.
         pixels: (k, 2) measurement positions (x, y) px.
         samples: at most this many, evenly spaced in raster order (deterministic).
+        clipped: (H, W) pixels left out too (an over-exposed pair's clipped ones:
+            :func:`~pcainterp_stream.frontend.levels.clipped_pixels`); None: none.
     """
     valid = np.isfinite(reference) & (reference > 0)
+    if clipped is not None:
+        valid &= ~clipped
     height, width = valid.shape
     if pixels.size:
         cols = np.clip(np.rint(pixels[:, 0]).astype(np.intp), 0, width - 1)
@@ -310,9 +315,10 @@ class HeldOut:
         reference: npt.NDArray[np.floating[Any]],
         pixels: npt.NDArray[np.floating[Any]],
         disparities: npt.NDArray[np.floating[Any]],
+        clipped: npt.NDArray[np.bool_] | None = None,
     ) -> HeldOut:
-        """Hold pixels out of ``reference`` away from ``pixels`` and interpolate there."""
-        flat = heldout_pixels(reference, pixels)
+        """Hold pixels out of ``reference`` away from ``pixels``, not ``clipped``; interpolate."""
+        flat = heldout_pixels(reference, pixels, clipped=clipped)
         if flat.size == 0 or disparities.size == 0:
             empty = np.zeros(0)
             return cls(np.zeros(0, np.intp), empty, empty, empty)

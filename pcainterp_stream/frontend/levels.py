@@ -15,6 +15,9 @@ once per process (:func:`note_once`, on stderr, prefixed ``note:``) when it acts
   than :data:`MISMATCH_LEVELS` (median over five percentiles) has its histogram mapped onto
   the left's (gain, offset, gamma, per-camera auto-exposure).
 * :func:`saturation_share`: the share of the pair at 255, for densify's over-exposure note.
+* :func:`clipped_pixels`: on an over-exposed pair only (the note's trigger), the left pixels
+  at 255 in either view, which the fit check leaves out: SGBM's values there are streaks
+  (:func:`.held_out.clipped_pixels` of the pair as recorded).
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ __all__ = [
     "MISMATCH_LEVELS",
     "SATURATED_SHARE",
     "adjust_pair",
+    "clipped_pixels",
     "match_right_levels",
     "note_once",
     "saturation_share",
@@ -254,3 +258,30 @@ def adjust_pair(left: UInt8Array, right: UInt8Array) -> tuple[UInt8Array, UInt8A
             "the prior's guess, and the fit check and the result cannot be trusted there",
         )
     return left, right
+
+
+def clipped_pixels(
+    grey_left: UInt8Array, grey_right: UInt8Array, disparity: npt.NDArray[Any]
+) -> npt.NDArray[np.bool_] | None:
+    """The left pixels clipped at 255 in either view, on an over-exposed pair only, else None.
+
+    Over-exposed is the note's trigger (more than :data:`SATURATED_SHARE` of an image at 255);
+    any other pair gives None, so a normal log's fit check (a fisheye's white border: 39 %)
+    is untouched. A left pixel is clipped when it is at 255 or its match in the right image
+    (``x - disparity``, rounded; the same column where the disparity is not finite) is:
+    SGBM's values there are streaks (bug hunt 16F F1), which the fit check must not score a
+    basis against.
+
+    Args:
+        grey_left: the pair's left image as the matcher takes it (:func:`.grey.to_grey8_pair`).
+        grey_right: its right image, alike.
+        disparity: (H, W) left disparity map (px), NaN or <= 0 where invalid.
+    """
+    if saturation_share(_sample(grey_left), _sample(grey_right)) <= SATURATED_SHARE:
+        return None
+    height, width = grey_left.shape[:2]
+    shift = np.nan_to_num(np.asarray(disparity, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    columns = np.arange(width)[None, :] - np.rint(np.maximum(shift, 0.0)).astype(np.intp)
+    columns = np.clip(columns, 0, width - 1)
+    rows = np.arange(height)[:, None]
+    return np.asarray((grey_left == 255) | (grey_right[rows, columns] == 255), np.bool_)

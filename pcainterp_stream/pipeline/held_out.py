@@ -12,12 +12,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
+import numpy as np
 import numpy.typing as npt
 
 from pcainterp_stream.estimate.adapt import FitCheck, HeldOut
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.estimate.prior import LocalPrior
+from pcainterp_stream.frontend import levels
 from pcainterp_stream.frontend.discovery import resolve_pairing
+from pcainterp_stream.frontend.grey import to_grey8_pair
 from pcainterp_stream.frontend.pairing import PairingConfig, iter_stereo_frames
 from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig, StereoFrontEnd
 from pcainterp_stream.io.logreader import open_log
@@ -29,6 +32,7 @@ __all__ = [
     "HeldOutFrame",
     "MeasureOptions",
     "choose_kernel",
+    "clipped_pixels",
     "measure_held_out",
     "rough_std_scales",
     "score_fit",
@@ -56,6 +60,19 @@ CALIBRATION_EVERY = 4
 FIT_SEQUENCE_FRAMES = 16
 """Consecutive held-out frames measured per log (with --fit-logs: per fit log); they are the
 fit's frames and the sequences of the temporal process-noise fit."""
+
+
+def clipped_pixels(
+    left: npt.NDArray[Any], right: npt.NDArray[Any], disparity: npt.NDArray[Any]
+) -> npt.NDArray[np.bool_] | None:
+    """The pixels a fit check leaves out of an over-exposed pair (None: none, any other pair).
+
+    The pair as recorded, converted as the matcher converts it (:func:`.grey.to_grey8_pair`),
+    then :func:`.levels.clipped_pixels`: the left pixels at 255 in either view, only when
+    more than half of an image is at 255 (the over-exposure note's trigger). Used by
+    densify's fit check (:mod:`.processor`) and learn's held-out frames alike.
+    """
+    return levels.clipped_pixels(*to_grey8_pair(left, right), disparity)
 
 
 @dataclass(frozen=True)
@@ -131,7 +148,12 @@ def measure_held_out(
                     frame.camera.image_size,
                     frame.camera.focal_baseline,
                     measured.disparity_map if calibrates else None,
-                    HeldOut.of(measured.disparity_map, measured.pixels, measured.disparities)
+                    HeldOut.of(
+                        measured.disparity_map,
+                        measured.pixels,
+                        measured.disparities,
+                        clipped_pixels(frame.left, frame.right, measured.disparity_map),
+                    )
                     if sample_check
                     else None,
                 )

@@ -77,6 +77,7 @@ from pcainterp_stream.frontend.stereo import (
 )
 from pcainterp_stream.interrupt import signalled
 from pcainterp_stream.pipeline.adaptation import FITS_BELOW, OWN_ABOVE_STREET, Candidate
+from pcainterp_stream.pipeline.held_out import clipped_pixels
 from pcainterp_stream.pipeline.measured import Measured, cells_on_grid, sgbm_maps
 from pcainterp_stream.pipeline.prepare import prepare as _prepare  # tools/thread_cpu.py times it
 from pcainterp_stream.pipeline.refit import Camera, Refitting, adapt_frame
@@ -520,7 +521,8 @@ class FrameProcessor:
                     sgbm_map, grid = sgbm_maps(measurements.disparity_map, frame.camera)
                     if check_frame and grid is not None:
                         checked = lookups_only(pixels, disparities, noise)
-                        held_out = adapt.HeldOut.of(sgbm_map, *checked)
+                        clipped = clipped_pixels(frame.left, frame.right, sgbm_map)
+                        held_out = adapt.HeldOut.of(sgbm_map, *checked, clipped)
                 else:  # matched ahead while the check runs: needed only if it adapts
                     raw_map = measurements.disparity_map
         motion = None
