@@ -15,7 +15,13 @@ import pytest
 from pcainterp_stream import cli
 from pcainterp_stream.cli.app import build_parser
 from pcainterp_stream.errors import StreamError
-from pcainterp_stream.io.foxglove import SUBPROTOCOL, FoxgloveLive, LiveMessage, ServeAddress
+from pcainterp_stream.io.foxglove import (
+    CLIENT_BACKLOG,
+    SUBPROTOCOL,
+    FoxgloveLive,
+    LiveMessage,
+    ServeAddress,
+)
 
 
 def _time_wait_port() -> int:
@@ -134,7 +140,7 @@ def _slow_client(port: int, got: list[int], read_s: float, ready: threading.Even
 
 
 def _stream_to_a_slow_client(
-    drain_s: float | None, notes: list[str], read_s: float = 0.01
+    drain_s: float | None, notes: list[str], read_s: float = 0.01, messages: int = 0
 ) -> tuple[FoxgloveLive, list[int]]:
     # a topic of its own: the SDK's context keeps an earlier test's channel of this process
     topic = f"/slow_{uuid.uuid4().hex[:8]}"
@@ -148,7 +154,7 @@ def _stream_to_a_slow_client(
             target=_slow_client, args=(live.port, got, read_s, ready), daemon=True
         )
         client.start()
-        for index in range(MESSAGES):
+        for index in range(messages or MESSAGES):
             live.add_frame(index, [LiveMessage(topic, "std_msgs/msg/String", PAYLOAD)])
         live.flush()
         live.close(drain_s=drain_s)
@@ -175,9 +181,13 @@ def test_a_slow_client_gets_the_end_of_the_stream_before_the_server_closes() -> 
 def test_a_client_still_behind_at_the_deadline_is_named_with_what_it_lost() -> None:
     notes: list[str] = []
     # a client of 250 kB/s: whatever the machine's load, its queue cannot empty in 0.3 s
-    # (at 100 ms a message it did, once, on a loaded machine: the drain then saw no queue)
-    live, got = _stream_to_a_slow_client(0.3, notes, read_s=0.2)
-    assert len(got) < MESSAGES
+    # (at 100 ms a message it did, once, on a loaded machine: the drain then saw no queue).
+    # Fewer frames than the SDK's per-client control queue holds: each frame's time update
+    # waits there behind the data, and a full control queue disconnects the client
+    # (once, on a loaded machine, before the deadline: nothing was queued then)
+    frames = CLIENT_BACKLOG // 2
+    live, got = _stream_to_a_slow_client(0.3, notes, read_s=0.2, messages=frames)
+    assert len(got) < frames
     ((client, missed),) = live.stats.cut_off.items()
     assert missed >= 1
     (line,) = [note for note in notes if "had not received the end" in note]
