@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import atexit
 import contextlib
+import errno
 import os
 import stat
 import sys
@@ -153,9 +154,22 @@ def main(argv: Sequence[str] | None = None) -> int:
         if isinstance(err, PcaInterpError):
             print(f"{PROG}: error: {err}", file=sys.stderr)
             return 2
+        if isinstance(err, OSError) and err.errno == errno.ENAMETOOLONG:
+            # wherever a path is looked at (an input's exists(), an output's folder, PATH_MAX)
+            print(f"{PROG}: error: {_too_long_line(err)}", file=sys.stderr)
+            return 2
         if isinstance(err, BrokenPipeError):  # the reader of densify -o -'s MCAP went away
             return 1
         raise
+
+
+def _too_long_line(err: OSError) -> str:
+    """The line a path too long for the file system ends a command with (ENAMETOOLONG)."""
+    from pcainterp_stream.io.path_text import shown, too_long
+
+    if err.filename is None:
+        return "a path is too long for the file system: choose a shorter name or path"
+    return f"cannot use {shown(err.filename)}: {too_long(err.filename)}"
 
 
 def console() -> int:

@@ -13,7 +13,7 @@ import dataclasses
 import gc
 import os
 import sys
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeAlias
 
@@ -41,16 +41,70 @@ def path_arg(value: str) -> Path:
 
     ``Path("")`` is ``Path(".")``: without this the error would name a folder "." never given.
     A path through a symbolic link loop, which no command can read or write, ends the
-    parse with one line (exit 2), as a bad option value would without the usage lines.
+    parse with one line (exit 2), as a bad option value would without the usage lines; so
+    does a ``~`` the shell did not expand (``--output=~/x.mcap``: :func:`unexpanded_home`).
+    The string as typed decides what is a stream or a built-in basis: ``./-`` is the file
+    named ``-`` and ``./builtin`` the file named ``builtin`` (pathlib spells both without
+    ``./``, so they are made absolute here).
     """
     if not value:
         raise argparse.ArgumentTypeError("the path is empty (an unset shell variable?)")
-    loop = symlink_loop(value)
-    if loop is not None:
-        with contextlib.suppress(OSError):
-            print(f"{PROG}: error: {loop}", file=sys.stderr, flush=True)
-        raise SystemExit(2)
-    return Path(value)
+    refusal = symlink_loop(value) or unexpanded_home(value)
+    if refusal is not None:
+        _end_parse(refusal)
+    path = Path(value)
+    if value != str(path) and (path == STREAM or str(path) in BUILTIN_BASIS_NAMES):
+        return path.absolute()  # ./- or ./builtin: the file, not the stream or the basis
+    return path
+
+
+def file_output_arg(writes: str, example: str) -> Callable[[str], Path]:
+    """Return the type of an option naming one output file (``-o``, ``--rrd``).
+
+    :func:`path_arg`, and a path ending in ``/`` (a folder meant) refused: it would write a
+    file of that name.
+
+    Args:
+        writes: what the command writes there (``densify writes one MCAP file``).
+        example: the fix, with ``{}`` for the path as given (``-o {}x_dense.mcap``).
+    """
+
+    def output_arg(value: str) -> Path:
+        path = path_arg(value)
+        if value.endswith("/") and value.strip("/"):
+            _end_parse(
+                f"{value} ends with / so names a folder, but {writes}; name the file, "
+                f"e.g. {example.format(value)}"
+            )
+        return path
+
+    return output_arg
+
+
+def unexpanded_home(value: str) -> str | None:
+    """Say why a path starting with a ``~`` the shell did not expand is refused (else None).
+
+    The shell expands ``~`` only at the start of a word (``-o ~/x.mcap``), not after ``=``
+    (``--output=~/x.mcap``) nor inside quotes; the program would read or write a folder
+    literally named ``~`` in the working folder. A path whose first name exists as typed (a
+    folder ``./~``) is taken as it is, and so is ``~name`` when no user is called ``name``.
+    """
+    head, _, rest = value.partition("/")
+    if not head.startswith("~") or os.path.lexists(head) or os.path.expanduser(head) == head:
+        return None
+    home = "$HOME" if head == "~" else os.path.expanduser(head)
+    return (
+        f"{value}: the shell did not expand {head} (it does not after = nor inside quotes); "
+        f"write it unquoted after a space (-o {value}, not --output={value}) or as "
+        + f"{home}/{rest}".rstrip("/")
+    )
+
+
+def _end_parse(line: str) -> None:
+    """End the parse of the command line with one error line (exit 2)."""
+    with contextlib.suppress(OSError):
+        print(f"{PROG}: error: {line}", file=sys.stderr, flush=True)
+    raise SystemExit(2)
 
 
 def settle_heap() -> None:
@@ -111,7 +165,12 @@ def report_line(line: str) -> None:
 
 def _print(text: str, stream: Any, name: str) -> None:
     try:
-        print(text, file=stream, flush=True)
+        try:
+            print(text, file=stream, flush=True)
+        except UnicodeEncodeError:  # a name the stream cannot encode (in-process callers')
+            encoding = getattr(stream, "encoding", None) or "utf-8"
+            escaped = text.encode(encoding, "backslashreplace").decode(encoding)
+            print(escaped, file=stream, flush=True)
     except BrokenPipeError:
         pass  # the reader is gone; the job is not (outside the program: in-process callers)
     except OSError as err:

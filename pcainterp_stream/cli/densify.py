@@ -26,6 +26,7 @@ from pcainterp_stream.cli.common import (
     check_cluster_options,
     cluster_notes,
     echo,
+    file_output_arg,
     formatter,
     gftt_config,
     path_arg,
@@ -47,6 +48,7 @@ from pcainterp_stream.io.foxglove import (
     check_rate,
     log_given_as_address,
 )
+from pcainterp_stream.io.path_text import shown
 
 if TYPE_CHECKING:
     from pcainterp_stream.io.outputs import OutputTopics
@@ -91,7 +93,9 @@ def add_parser(commands: Commands) -> None:
     target.add_argument(
         "-o",
         "--output",
-        type=path_arg,
+        type=file_output_arg(
+            "densify writes one MCAP file", "-o {0}x_dense.mcap, or --out-dir {0} for several logs"
+        ),
         default=None,
         metavar="OUTPUT",
         help="the densified .mcap ('-': standard output, piped or redirected); optional with "
@@ -165,7 +169,7 @@ def add_parser(commands: Commands) -> None:
     densify.add_argument("--rerun", action="store_true", help="stream to a Rerun viewer")
     densify.add_argument(
         "--rrd",
-        type=path_arg,
+        type=file_output_arg("--rrd writes one Rerun recording", "--rrd {}drive.rrd"),
         default=None,
         metavar="FILE.rrd",
         help="write a Rerun recording; one that cannot be written is refused before any "
@@ -499,8 +503,8 @@ def _check_paths(args: argparse.Namespace, *, may_adapt: bool = True) -> None:
             )
         if output.suffix and output.suffix.lower() != ".mcap":
             raise LogWriteError(
-                f"output {output} is named {output.suffix} but densify writes MCAP; "
-                f"name the output .mcap, e.g. -o {_renamed(output, '.mcap')}"
+                f"output {shown(output)} is named {shown(output.suffix)} but densify writes "
+                f"MCAP; name the output .mcap, e.g. -o {shown(_renamed(output, '.mcap'))}"
             )
     reads: list[tuple[str, Path | None]] = [("the input", path) for path in args.input]
     reads.append(("the --basis file", args.basis))

@@ -15,6 +15,7 @@ from typing import Any
 from pcainterp_stream.cli.common import (
     Commands,
     echo,
+    file_output_arg,
     formatter,
     path_arg,
     refuse_stream_output,
@@ -60,7 +61,12 @@ def add_parser(commands: Commands) -> None:
     )
     save.add_argument("log", type=path_arg, metavar="LOG", help="MCAP file, ROS 1 .bag or rosbag2")
     save.add_argument(
-        "-o", "--output", type=path_arg, required=True, metavar="GOLDEN.json", help="file to write"
+        "-o",
+        "--output",
+        type=file_output_arg("golden save writes one JSON file", "-o {}drive.golden.json"),
+        required=True,
+        metavar="GOLDEN.json",
+        help="file to write",
     )
     save.add_argument(
         "--arrays",

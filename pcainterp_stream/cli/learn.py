@@ -14,6 +14,7 @@ from pcainterp_stream.cli.common import (
     check_cluster_options,
     cluster_notes,
     echo,
+    file_output_arg,
     formatter,
     gftt_config,
     path_arg,
@@ -68,7 +69,7 @@ def add_parser(commands: Commands) -> None:
     learn.add_argument(
         "-o",
         "--output",
-        type=path_arg,
+        type=file_output_arg("learn writes one basis file", "-o {}basis.npz"),
         required=True,
         metavar="BASIS.npz",
         help="the basis file to write (required); densify --basis reads it",

@@ -76,6 +76,7 @@ from pcainterp_stream.evaluate.reference import (
     resolve_reference,
 )
 from pcainterp_stream.evaluate.report_folder import (
+    REPORT_TEXT,
     check_report_folder,
     report_json,
     write_report_folder,
@@ -868,8 +869,9 @@ def write_report(
 
     def write(staging: Path) -> None:
         figures = write_figures(result, examples, staging, _load_basis(options))
-        (staging / "results.json").write_text(report_json(result.summary()))
-        (staging / "results.md").write_text(results_markdown(result, figures))
+        # UTF-8 whatever the locale; a name's bytes that are not UTF-8 escaped (\udce9)
+        (staging / "results.json").write_text(report_json(result.summary()), **REPORT_TEXT)
+        (staging / "results.md").write_text(results_markdown(result, figures), **REPORT_TEXT)
 
     write_report_folder(folder, write)  # only now: a log that cannot be evaluated leaves nothing
     return result

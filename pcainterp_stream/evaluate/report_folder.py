@@ -139,6 +139,12 @@ def _finite(value: Any) -> Any:
     return value
 
 
+REPORT_TEXT: dict[str, str] = {"encoding": "utf-8", "errors": "backslashreplace"}
+r"""How the report's text files are written: UTF-8 whatever the locale (Markdown and JSON are
+read as UTF-8); a name's bytes that are not UTF-8 (``caf\xe9``, held as ``\udce9``) escaped,
+so that a report of a whole evaluation is never lost to its log's name."""
+
+
 def report_json(summary: dict[str, Any]) -> str:
     """Return ``results.json``: strict JSON, ``null`` for NaN and infinity (an open bin edge).
 

@@ -73,6 +73,8 @@ from pcainterp_stream.io.outputs import (
     pairing_metadata,
     topic_metadata,
 )
+from pcainterp_stream.io.path_text import path_text
+from pcainterp_stream.io.path_text import shown as shown_name
 from pcainterp_stream.io.pipes import STDIN_NAME, McapStreamWriter, spool
 from pcainterp_stream.io.rerun_sink import RerunSink
 from pcainterp_stream.pipeline.blas_threads import restoring_blas_threads
@@ -494,7 +496,8 @@ def densify(
         pairer.read_ahead(reader)  # camera infos recorded after the first images
         if stale is not None and stale.watch is not None:  # the row check's corners, not again
             stale.watch.row_corners = pairer.row_corners
-        bar = stack.enter_context(_bar(total, _bar_description(f"densify {input_path.name}")))
+        bar_name = shown_name(input_path.name)  # a newline in it would leave a line per redraw
+        bar = stack.enter_context(_bar(total, _bar_description(f"densify {bar_name}")))
         shown.append(bar)
 
         def emit(results: list[DensifiedFrame]) -> None:
@@ -780,7 +783,7 @@ def resolve_basis(
 
 
 def basis_label(basis: Path, output: Path | IO[bytes] | None) -> str:
-    """Return how a densified log names the basis file it was made with.
+    r"""Return how a densified log names the basis file it was made with.
 
     Its path relative to the output's folder, both resolved, with ``/``: the bytes of the
     output do not depend on how either path was spelled nor on the working folder
@@ -788,15 +791,16 @@ def basis_label(basis: Path, output: Path | IO[bytes] | None) -> str:
     ``out/d.mcap``), and ``evaluate`` finds it from any folder through the log's
     (``jobs.evaluation_basis``). The file's name alone when the output is no file (a
     stream, ``-o -``) or no relative path leads there (another drive). The fingerprint
-    recorded beside it identifies the content.
+    recorded beside it identifies the content. Bytes of the path that are not UTF-8 (a
+    latin-1 ``caf\xe9.npz``) are escaped (``caf\udce9.npz``): the metadata is UTF-8.
     """
     if not isinstance(output, Path):
-        return basis.name
+        return path_text(basis.name)
     try:
         relative = os.path.relpath(basis.resolve(), output.resolve().parent)
     except (OSError, ValueError):  # another drive (Windows), or an unreadable folder
-        return basis.name
-    return Path(relative).as_posix()
+        return path_text(basis.name)
+    return path_text(Path(relative).as_posix())
 
 
 def _check_size(frame: StereoFrame, sgbm: SgbmConfig, log: Path, pairing: PairingConfig) -> None:

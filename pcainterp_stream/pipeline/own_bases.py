@@ -24,6 +24,7 @@ from pcainterp_stream.frontend.sgbm_resolution import by_camera
 from pcainterp_stream.frontend.stereo import SgbmConfig
 from pcainterp_stream.io.output_paths import make_partial_file, write_advice
 from pcainterp_stream.io.outputs import BASES_RECORD
+from pcainterp_stream.io.path_text import path_text
 from pcainterp_stream.pipeline.adaptation import Adaptation
 from pcainterp_stream.pipeline.wording import count as _count
 from pcainterp_stream.records import StereoCamera
@@ -292,5 +293,5 @@ def final_basis_path(output: Path, adoption: int = 1) -> Path:
 def own_basis_label(output: Path | IO[bytes] | None) -> str:
     """Return how the output's channels name a basis learned from the log itself."""
     if isinstance(output, Path):
-        return own_basis_path(output).name
+        return path_text(own_basis_path(output).name)  # metadata is UTF-8: bytes escaped
     return "self-supervised"
