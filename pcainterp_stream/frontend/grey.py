@@ -9,6 +9,7 @@ on such a pair instead).
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import cv2
@@ -60,7 +61,8 @@ def to_grey8_pair(left: npt.NDArray[Any], right: npt.NDArray[Any]) -> tuple[UInt
     16-bit images are scaled linearly so that the 99.9th percentile of the pair (on a 4x
     subsampled grid, for speed) maps to 255, and clipped: ``>> 8`` would leave 12-bit
     cameras with 16 grey levels; a pair on a large offset (a thermal camera, a black level)
-    is mapped from its 0.1st percentile instead of 0. Both views share one scale, so matching
+    is mapped from its 0.1st percentile instead of 0, the counts under it (a dead pixel at 0)
+    clipped to 0, not mirrored. Both views share one scale, so matching
     costs are not biased by a per-image gain. Pairs outside normal levels are then adjusted
     (:mod:`.levels`: each step acts only outside them and notes it once): a right image whose
     levels clearly differ from the left's is mapped onto them, a dark pair is stretched.
@@ -103,10 +105,22 @@ def _sixteen_to_eight(
     if used is not None:
         floor, top = used
     scale = 255.0 / (top - floor)
-    return (
-        np.asarray(cv2.convertScaleAbs(grey_left, alpha=scale, beta=-floor * scale), np.uint8),
-        np.asarray(cv2.convertScaleAbs(grey_right, alpha=scale, beta=-floor * scale), np.uint8),
-    )
+    return _scaled(grey_left, floor, scale), _scaled(grey_right, floor, scale)
+
+
+def _scaled(grey: npt.NDArray[Any], floor: float, scale: float) -> UInt8Array:
+    """``(grey - floor) * scale`` to 8 bit, the counts under ``floor`` clipped to 0.
+
+    ``cv2.convertScaleAbs`` takes the absolute value (a dead pixel at 0 would become 255):
+    the pixels under the floor are set to 0 after it, in place: ~0.1 ms of CPU per KITTI-size
+    pair (a clipped 16-bit copy made before it cost ~3 ms more, in allocation).
+    """
+    out = np.asarray(cv2.convertScaleAbs(grey, alpha=scale, beta=-floor * scale), np.uint8)
+    if floor > 0.0:
+        low: Any = math.ceil(floor)  # a scalar, which cv2's stubs do not list
+        below = cv2.compare(grey, low, cv2.CMP_LT)  # 255 under the floor, else 0
+        cv2.subtract(out, below, dst=out)
+    return out
 
 
 def to_grey8(image: npt.NDArray[Any]) -> UInt8Array:

@@ -14,7 +14,9 @@ once per process (:func:`note_once`, on stderr, prefixed ``note:``) when it acts
 * :func:`match_right_levels`: a right image whose grey levels differ from the left's by more
   than :data:`MISMATCH_LEVELS` (median over five percentiles) has its histogram mapped onto
   the left's (gain, offset, gamma, per-camera auto-exposure).
-* :func:`saturation_share`: the share of the pair at 255, for densify's over-exposure note.
+* :func:`saturation_share`: the share of the pair at 255; :func:`over_exposed_share` leaves
+  out a blank image (a flat 16-bit pair scaled to all 255 is blank, not over-exposed) for
+  densify's over-exposure note.
 * :func:`clipped_pixels`: on an over-exposed pair only (the note's trigger), the left pixels
   at 255 in either view, which the fit check leaves out: SGBM's values there are streaks
   (:func:`.held_out.clipped_pixels` of the pair as recorded).
@@ -38,6 +40,7 @@ __all__ = [
     "clipped_pixels",
     "match_right_levels",
     "note_once",
+    "over_exposed_share",
     "saturation_share",
     "sixteen_bit_range",
     "stretch_dark",
@@ -139,9 +142,10 @@ def stretch_dark(
 ) -> tuple[UInt8Array, UInt8Array]:
     """Stretch a dark 8-bit pair (99.9th percentile under :data:`DARK_TOP`) to 0..255.
 
-    One linear mapping for both views; a pair that is not dark, spans fewer than
-    :data:`MIN_DARK_RANGE` levels, or has a blank image, is returned as is. ``samples``:
-    the two images' 4x subsampled pixels when already taken.
+    One linear mapping for both views, the levels under the pair's 0.1st percentile clipped
+    to 0 (a black pixel in a 10..40 pair is 0, not mirrored to 85); a pair that is not dark,
+    spans fewer than :data:`MIN_DARK_RANGE` levels, or has a blank image, is returned as is.
+    ``samples``: the two images' 4x subsampled pixels when already taken.
     """
     sample_left, sample_right = samples or (_sample(left), _sample(right))
     if not sample_left.size:
@@ -157,10 +161,11 @@ def stretch_dark(
         f"dark images (grey levels {low:.0f}..{top:.0f} of 255): stretched to 0..255, "
         "one mapping for both views",
     )
-    return (
-        np.asarray(cv2.convertScaleAbs(left, alpha=scale, beta=-low * scale), np.uint8),
-        np.asarray(cv2.convertScaleAbs(right, alpha=scale, beta=-low * scale), np.uint8),
-    )
+    # convertScaleAbs mirrors the levels under ``low`` (a whole level): clip them to it first,
+    # in a lookup table (the same values, one pass per image)
+    clipped = np.maximum(np.arange(256, dtype=np.uint8), np.uint8(low))
+    lut = np.asarray(cv2.convertScaleAbs(clipped, alpha=scale, beta=-low * scale), np.uint8)
+    return np.asarray(cv2.LUT(left, lut), np.uint8), np.asarray(cv2.LUT(right, lut), np.uint8)
 
 
 def level_difference(sample_left: UInt8Array, sample_right: UInt8Array) -> float:
@@ -209,6 +214,18 @@ def saturation_share(sample_left: UInt8Array, sample_right: UInt8Array) -> float
     return max(shares)
 
 
+def over_exposed_share(sample_left: UInt8Array, sample_right: UInt8Array) -> float:
+    """:func:`saturation_share` of the images that are not blank (0 when both are).
+
+    A blank image (its 1st to 99th percentile within 2 levels: a capped or dropped-out
+    camera, a flat 16-bit pair that the 8-bit scale put at 255) is no exposure to judge:
+    the front end measures nothing in its pair (:func:`.grey.is_blank`) and says so.
+    """
+    kept = [s for s in (sample_left, sample_right) if not _is_flat(s, 2)]
+    empty = np.zeros(0, np.uint8)
+    return saturation_share(kept[0], kept[-1]) if kept else saturation_share(empty, empty)
+
+
 def _normal(sample_left: UInt8Array, sample_right: UInt8Array) -> bool:
     """Whether no step of :func:`adjust_pair` would act: one histogram of each image.
 
@@ -236,7 +253,8 @@ def _normal(sample_left: UInt8Array, sample_right: UInt8Array) -> bool:
 def adjust_pair(left: UInt8Array, right: UInt8Array) -> tuple[UInt8Array, UInt8Array]:
     """Undo a left/right level mismatch, stretch a dark pair, note over-exposure.
 
-    A pair within normal levels is returned as is.
+    A pair within normal levels is returned as is. Over-exposure is judged on the images
+    that are not blank (:func:`over_exposed_share`).
     """
     samples = _sample(left), _sample(right)
     if _normal(*samples):
@@ -250,7 +268,7 @@ def adjust_pair(left: UInt8Array, right: UInt8Array) -> tuple[UInt8Array, UInt8A
     if stretched[0] is not left:
         left, right = stretched
         samples = _sample(left), _sample(right)
-    share = saturation_share(*samples)
+    share = over_exposed_share(*samples)
     if share > SATURATED_SHARE:
         note_once(
             "saturated",
@@ -265,7 +283,8 @@ def clipped_pixels(
 ) -> npt.NDArray[np.bool_] | None:
     """The left pixels clipped at 255 in either view, on an over-exposed pair only, else None.
 
-    Over-exposed is the note's trigger (more than :data:`SATURATED_SHARE` of an image at 255);
+    Over-exposed is the note's trigger (more than :data:`SATURATED_SHARE` of an image that is
+    not blank at 255, :func:`over_exposed_share`);
     any other pair gives None, so a normal log's fit check (a fisheye's white border: 39 %)
     is untouched. A left pixel is clipped when it is at 255 or its match in the right image
     (``x - disparity``, rounded; the same column where the disparity is not finite) is:
@@ -277,7 +296,7 @@ def clipped_pixels(
         grey_right: its right image, alike.
         disparity: (H, W) left disparity map (px), NaN or <= 0 where invalid.
     """
-    if saturation_share(_sample(grey_left), _sample(grey_right)) <= SATURATED_SHARE:
+    if over_exposed_share(_sample(grey_left), _sample(grey_right)) <= SATURATED_SHARE:
         return None
     height, width = grey_left.shape[:2]
     shift = np.nan_to_num(np.asarray(disparity, np.float64), nan=0.0, posinf=0.0, neginf=0.0)

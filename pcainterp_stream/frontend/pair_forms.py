@@ -47,9 +47,11 @@ def grey_alike(
     into grey, each side on its own: colour (RGB) with ``cv2.COLOR_RGB2GRAY``, and when one
     side has 8 bits and the other 16, the 16-bit side is scaled to 8 bits as
     :func:`frontend.stereo.to_grey8` scales one image (its 99.9th percentile to 255); the
-    8-bit side keeps its grey levels. Two 16-bit sides (``rgb16`` + ``mono16``) stay 16-bit,
-    so they still share one scale. Images of two sizes, or of a layout not described here,
-    are returned as they are (the caller refuses them).
+    8-bit side keeps its grey levels (a dark one too: the matcher's
+    :func:`frontend.stereo.to_grey8_pair` then maps the right side's levels onto the left's
+    and stretches the pair with one mapping for both views). Two 16-bit sides (``rgb16`` +
+    ``mono16``) stay 16-bit, so they still share one scale. Images of two sizes, or of a
+    layout not described here, are returned as they are (the caller refuses them).
     """
     if (left.shape == right.shape and left.dtype == right.dtype) or (
         left.shape[:2] != right.shape[:2]
@@ -61,7 +63,16 @@ def grey_alike(
     if grey_left.dtype == grey_right.dtype:
         return grey_left, grey_right, "both converted to grey"
     said = "both converted to 8-bit grey, the 16-bit side scaled on its own"
-    return to_grey8(grey_left), to_grey8(grey_right), said
+    return _eight(grey_left), _eight(grey_right), said
+
+
+def _eight(grey: npt.NDArray[Any]) -> npt.NDArray[Any]:
+    """An 8-bit grey image as it is; a 16-bit one scaled as :func:`.grey.to_grey8` does.
+
+    Not the 8-bit side through ``to_grey8`` too: that would stretch a dark one on its own;
+    the pair-level steps (:mod:`.levels`) act on the pair in :func:`.grey.to_grey8_pair`.
+    """
+    return grey if grey.dtype == np.uint8 else to_grey8(grey)
 
 
 def halves_match(image: npt.NDArray[Any]) -> float:
