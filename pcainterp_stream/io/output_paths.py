@@ -277,8 +277,11 @@ def size_limit_advice(error: BaseException) -> str:
     return ""
 
 
-SQLITE_WRITE_ERRORS = frozenset({"SQLITE_IOERR", "SQLITE_IOERR_WRITE", "SQLITE_IOERR_TRUNCATE"})
-"""sqlite's I/O errors a file-size limit can cause (EFBIG on a write or a truncation)."""
+SQLITE_WRITE_ERRORS = frozenset(
+    {"SQLITE_IOERR", "SQLITE_IOERR_WRITE", "SQLITE_IOERR_TRUNCATE", "SQLITE_IOERR_SHMSIZE"}
+)
+"""sqlite's I/O errors a file-size limit can cause (EFBIG on a write or a truncation, or on
+growing the shared-memory file of a database in WAL mode)."""
 
 SQLITE_READ_FAILED = (
     "the file system could not read or sync the file back (a failing disk or file system, "

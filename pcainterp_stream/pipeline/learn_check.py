@@ -208,7 +208,9 @@ def check_lines(fitted: dict[str, Any]) -> list[str]:
     if not isinstance(learned, int | float) or not isinstance(linear, int | float):
         return []
     frames, pixels = record.get("frames"), record.get("pixels")
-    where = f"{frames} held-out frames" if isinstance(frames, int) else "the held-out frames"
+    where = "the held-out frames"
+    if isinstance(frames, int):
+        where = f"{frames} held-out frame{'' if frames == 1 else 's'}"
     if isinstance(pixels, int):
         where += f", {pixels} SGBM pixels"
     builtin = record.get("builtin_px")

@@ -195,6 +195,9 @@ def test_a_sqlite_read_error_is_not_put_down_to_a_file_size_limit(
     assert "likely the file-size limit: this process may write at most 100000.0 MB" in str(
         write_failed(tmp_path / "bag", refused)
     )
+    # review 17b R7: in WAL mode a limit stops the shared-memory file growing
+    refused.sqlite_errorname = "SQLITE_IOERR_SHMSIZE"  # type: ignore[attr-defined]
+    assert "likely the file-size limit" in str(write_failed(tmp_path / "bag", refused))
 
 
 @pytest.mark.parametrize("cause", ["EPERM", "ENOENT"])

@@ -154,6 +154,10 @@ def test_info_shows_the_held_out_figures_learn_recorded(
         "                   the built-in indoor basis erred less there: densify without "
         "--basis may do better on this camera"
     ) in text
+    one = {**record, "frames": 1}  # review 17b R6: "1 held-out frames"
+    prior = {**basis.meta["prior"], "held_out_check": one}
+    dataclasses.replace(basis, meta={**basis.meta, "prior": prior}).save(tmp_path / "one.npz")
+    assert "on 1 held-out frame, 600 SGBM pixels" in jobs.info(tmp_path / "one.npz")
     basis.save(tmp_path / "older.npz")  # a file written before the check: no line, no error
     assert "held-out check" not in jobs.info(tmp_path / "older.npz")
 
