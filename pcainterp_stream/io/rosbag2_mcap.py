@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import heapq
+import os
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
@@ -263,9 +264,8 @@ def lone_storage_problem(path: Path, *, sqlite: bool) -> str | None:
     starting with the zstd magic (a CDR payload starts with its encapsulation header).
     """
     info = _bag_info(path.parent)
-    listed = info is not None and path.name in [
-        str(p) for p in info.get("relative_file_paths") or []
-    ]
+    names = info.get("relative_file_paths") if info is not None else None
+    listed = isinstance(names, list) and path.name in [str(name) for name in names]
     if listed and message_zstd(path.parent):
         found = "its folder's metadata.yaml says compression_mode: message"
     else:
@@ -276,7 +276,7 @@ def lone_storage_problem(path: Path, *, sqlite: bool) -> str | None:
     folder = f"its folder {path.parent}" if listed else "the bag's folder (with its metadata.yaml)"
     return (
         f"{path} is the storage file of a rosbag2 bag recorded with per-message zstd "
-        f"compression ({found}), which only a bag's folder is read with; pass {folder} "
+        f"compression ({found}), read only through the bag's folder; pass {folder} "
         "instead of the storage file"
     )
 
@@ -309,19 +309,25 @@ def _first_payload_mcap(path: Path) -> bytes | None:
     """
     import struct
 
-    with path.open("rb") as f:
-        if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
-            return None
-        for _ in range(64):  # header, schemas, channels, metadata: a few records
-            head = f.read(9)
-            if len(head) < 9:
+    try:
+        with path.open("rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
                 return None
-            opcode, length = struct.unpack("<BQ", head)
-            if opcode == _MESSAGE:
-                return f.read(min(length, _MESSAGE_DATA + 8))[_MESSAGE_DATA:]
-            if opcode == _CHUNK:
-                return _first_in_records(_chunk_records(f.read(min(length, _CHUNK_PREFIX))))
-            f.seek(length, 1)
+            for _ in range(64):  # header, schemas, channels, metadata: a few records
+                head = f.read(9)
+                if len(head) < 9:
+                    return None
+                opcode, length = struct.unpack("<BQ", head)
+                if length > size - f.tell():  # damaged or cut: the reader says what
+                    return None
+                if opcode == _MESSAGE:
+                    return f.read(min(length, _MESSAGE_DATA + 8))[_MESSAGE_DATA:]
+                if opcode == _CHUNK:
+                    return _first_in_records(_chunk_records(f.read(min(length, _CHUNK_PREFIX))))
+                f.seek(length, 1)
+    except (OSError, ValueError, OverflowError):
+        return None
     return None
 
 
@@ -332,6 +338,7 @@ _CHUNK_PREFIX = 1 << 18  # bytes of a chunk read: more than one zstd block (128 
 
 def _chunk_records(body: bytes) -> bytes:
     """The start of a chunk's records (from the start of its body), decompressed."""
+    import io
     import struct
 
     import zstandard
@@ -343,7 +350,8 @@ def _chunk_records(body: bytes) -> bytes:
         if name == b"":
             return data
         if name == b"zstd":
-            return zstandard.ZstdDecompressor().decompressobj().decompress(data)
+            reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(data))
+            return bytes(reader.read(_CHUNK_PREFIX))  # bounded, whatever the data claims
     except (struct.error, zstandard.ZstdError):
         pass
     return b""
