@@ -136,6 +136,8 @@ class StereoPairer:
         self._last_log = {"left": -1, "right": -1}  # log time of each side's last image
         # each side's last log-time intervals (its frame interval) and image (a duplicate?)
         self._intervals = {side: deque[int](maxlen=RECENT_INTERVALS) for side in _OTHER}
+        # each side's last header-stamp intervals (the frame interval the stamps give)
+        self._stamp_steps = {side: deque[int](maxlen=RECENT_INTERVALS) for side in _OTHER}
         self._last_image: dict[str, _Pending | None] = {"left": None, "right": None}
         self._lag_ns = 0  # by log time: right minus left log time of the pairs made by stamp
         self._info_stamp = {"left": -1, "right": -1}  # header stamp of each side's last info
@@ -284,6 +286,9 @@ class StereoPairer:
             self._rows.finish()
             self.stats.row_check_undecided = self._rows.undecided
         self.flush()
+        self.stats.stamp_period_ns = _median(
+            [*self._stamp_steps["left"], *self._stamp_steps["right"]]
+        )
         self._count_unpaired("left", self._left)
         self._count_unpaired("right", self._right)
         if self._matched:
@@ -314,6 +319,8 @@ class StereoPairer:
             frames = self._stamps_repeat(side, item.stamp_ns, _median(self._intervals[side]))
         if item.stamp_ns < self._last_stamp[side]:
             self.stats.non_monotonic_stamps += 1
+        elif self._last_stamp[side] > 0 and item.stamp_ns > self._last_stamp[side]:
+            self._stamp_steps[side].append(item.stamp_ns - self._last_stamp[side])
         self.stats.first_stamps_ns.setdefault(side, item.stamp_ns)
         self._last_stamp[side] = item.stamp_ns
         self._last_log[side] = item.log_time_ns

@@ -84,6 +84,9 @@ class PairingStats:
         log_lag_ns: by log time, the right images' log time after their left ones' (ns), the
             median on the pairs made by other stamps before the switch, subtracted.
         log_period_ns: by log time, the frame interval (ns) the tolerance is a quarter of.
+        stamp_period_ns: the frame interval (ns) the header stamps give: the median of
+            each side's last stamp intervals, known at :meth:`StereoPairer.finish`; 0 when
+            not known.
         log_gap_ns: by log time, the smallest gap (right minus left log time, less the lag,
             ns) between an image that found no partner and the other side's waiting images.
         duplicate_images: images dropped as the same message as their side's last one again
@@ -162,6 +165,7 @@ class PairingStats:
     log_lag_ns: int = 0
     log_period_ns: int = 0
     log_gap_ns: int | None = None
+    stamp_period_ns: int = 0
     duplicate_images: int = 0
     duplicate_topics: dict[str, int] = field(default_factory=dict)
     duplicate_stamp_ns: int = 0
@@ -201,15 +205,19 @@ class PairingStats:
         )
 
     def _tolerance_advice(self, widest_ms: float) -> str:
-        """The tolerance that pairs the near misses; by log time, only with what it assumes.
+        """The tolerance that pairs the near misses, never half a frame or more.
 
-        By log time an image 40 ms after its partner cannot be told from one 60 ms before
-        the next frame's (at 10 Hz): the advice names which, and a tolerance of half a frame
-        or more, which reaches the neighbouring frame's image, is never advised.
+        A tolerance of half a frame or more reaches the neighbouring frame's image: near
+        misses that far apart are images of different frames (a dropped image on each
+        side), not a stamp offset, and no tolerance is advised for them. By log time an
+        image 40 ms after its partner cannot be told from one 60 ms before the next frame's
+        (at 10 Hz): the advice names which.
         """
+        if self.repeated_stamp_topic is None:
+            return self._stamp_advice()
         advice = f"pass --stamp-tolerance-ms {math.ceil(widest_ms)} to pair them"
         period, gap = self.log_period_ns / 1e6, self.log_gap_ns
-        if self.repeated_stamp_topic is None or not period or gap is None:
+        if not period or gap is None:
             return advice
         if 2 * widest_ms >= period:
             return (
@@ -224,6 +232,30 @@ class PairingStats:
             f"{other:.0f} ms {before} it, a tolerance pairs each image with the neighbouring "
             "frame's: give the images distinct header stamps)"
         )
+
+    def _stamp_advice(self) -> str:
+        """By stamp: the tolerance that pairs the near misses under half the frame interval."""
+        period = self.stamp_period_ns
+
+        def advised(miss_ns: int) -> int:
+            return math.ceil(miss_ns / 1e6)
+
+        near = [
+            miss for miss in self.near_misses_ns if not period or 2 * advised(miss) * 1e6 < period
+        ]
+        far = len(self.near_misses_ns) - len(near)
+        frames = (
+            f"half the {period / 1e6:g} ms frame interval or more apart: images of "
+            "neighbouring frames whose partners are missing (dropped, or stored out of "
+            "order), not a stamp offset (a tolerance would pair each with the other frame's "
+            "image)"
+        )
+        if not near:
+            return f"they are {frames}"
+        advice = f"pass --stamp-tolerance-ms {advised(max(near))} to pair them"
+        if not far:
+            return advice
+        return f"{advice}; {far} of them are {frames}"
 
     def hold_hint(self) -> str | None:
         """A warning when pairs were lost for a side logged later than the pairing held."""

@@ -127,6 +127,15 @@ def sniff_format(path: str | Path) -> LogFormat:
         return LogFormat.ROSBAG2
     if not head:
         raise LogReadError(f"{path} is empty, not a log; pass {_LOG_KINDS}")
+    if head.startswith(b"\x28\xb5\x2f\xfd"):  # a rosbag2 --compression-mode file storage file
+        folder = path.parent if (path.parent / "metadata.yaml").is_file() else None
+        where = (
+            f"its folder {folder}" if folder else "the rosbag2 bag's folder (with metadata.yaml)"
+        )
+        raise LogReadError(
+            f"{path} is zstd-compressed (a rosbag2 bag recorded with --compression-mode file?); "
+            f"pass {where}, or decompress it first (`zstd -d {shlex.quote(str(path))}`)"
+        )
     suffix = {".mcap": "an MCAP file", ".bag": "a ROS 1 bag", ".db3": "a rosbag2 sqlite3 file"}
     expected = suffix.get(path.suffix.lower())
     what = (
@@ -251,6 +260,12 @@ def open_log(path: str | Path | Sequence[str | Path]) -> LogReader:
         path = paths[0]
     path = Path(path)
     log_format = sniff_format(path)
+    if log_format is not LogFormat.ROS1 and path.is_file():
+        from pcainterp_stream.io.rosbag2_mcap import lone_storage_problem
+
+        problem = lone_storage_problem(path, sqlite=log_format is LogFormat.ROSBAG2)
+        if problem is not None:
+            raise LogReadError(problem)
     reader: LogReader
     if log_format is LogFormat.MCAP:
         reader = McapLogReader(path)
@@ -260,11 +275,15 @@ def open_log(path: str | Path | Sequence[str | Path]) -> LogReader:
 
         return open_ros1_bag(path)
     else:
-        from pcainterp_stream.io.rosbag2_mcap import Rosbag2McapReader, mcap_storage_files
+        from pcainterp_stream.io.rosbag2_mcap import (
+            Rosbag2McapReader,
+            mcap_storage_files,
+            message_zstd,
+        )
 
         files = mcap_storage_files(path) if path.is_dir() else None
         if files is not None:  # its MCAP files, as given directly: attachments, publish times
-            reader = Rosbag2McapReader(path, files)
+            reader = Rosbag2McapReader(path, files, message_zstd=message_zstd(path))
         else:
             # imported here: rosbags' readers take ~65 ms to import, which an MCAP job never uses
             from pcainterp_stream.io.rosbags_reader import RosbagsLogReader

@@ -6,19 +6,26 @@ keeps: its attachments and metadata records (``ros2 bag record`` writes a ``rosb
 record in every file; ``mcap add attachment`` adds a URDF), and each message's publish time
 and sequence (rosbags yields the log time only). So the storage files are read with
 :class:`~.mcap_reader.McapLogReader`, one per file, their messages merged in log-time order;
-``metadata.yaml`` only names them. A folder this reader does not take (sqlite3 storage, a
-file-compressed bag, a file missing) is read through rosbags as before
-(:func:`mcap_storage_files` says which).
+``metadata.yaml`` only names them. A bag recorded with zstd compression is read so too:
+``--compression-mode message``, each message's payload decompressed; ``file``, each
+storage file decompressed into the temporary folder first (as rosbags did). A folder this
+reader does not take (sqlite3 storage, another compression, a file missing) is read
+through rosbags as before (:func:`mcap_storage_files` says which).
+
+:func:`lone_storage_problem` refuses the storage file of a compressed bag given without
+its folder: only ``metadata.yaml`` says how its messages are compressed.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import heapq
+import os
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
+from pcainterp_stream.errors import LogReadError
 from pcainterp_stream.io.mcap_extras import ChannelInfo, McapExtras
 from pcainterp_stream.io.mcap_reader import McapLogReader
 from pcainterp_stream.io.reader_base import (
@@ -26,33 +33,66 @@ from pcainterp_stream.io.reader_base import (
     LogFormat,
     LogReader,
     TopicInfo,
+    _one_line,
     merge_topic,
 )
 from pcainterp_stream.records import RawMessage
 
-__all__ = ["Rosbag2McapReader", "mcap_storage_files"]
+__all__ = ["Rosbag2McapReader", "lone_storage_problem", "mcap_storage_files", "message_zstd"]
+
+ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
+"""The first bytes of a zstd frame: a file-compressed storage file, a compressed message."""
+
+
+def _bag_info(folder: Path) -> dict[str, Any] | None:
+    """``metadata.yaml``'s ``rosbag2_bagfile_information`` of a folder, None when unreadable."""
+    import yaml
+
+    try:
+        info = yaml.safe_load((folder / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError):
+        return None
+    return info if isinstance(info, dict) else None
+
+
+def compression(folder: Path) -> str:
+    """A rosbag2 folder's compression, as ``metadata.yaml`` gives it.
+
+    "" (none), "message" or "file" (zstd); "other" for another format or mode.
+    """
+    info = _bag_info(folder) or {}
+    mode = str(info.get("compression_mode") or "").lower()
+    if not mode or mode == "none":
+        return ""
+    form = str(info.get("compression_format") or "").lower()
+    return mode if form == "zstd" and mode in ("message", "file") else "other"
+
+
+def message_zstd(folder: Path) -> bool:
+    """Whether a rosbag2 folder's ``metadata.yaml`` says its messages are zstd-compressed."""
+    return compression(folder) == "message"
 
 
 def mcap_storage_files(folder: Path) -> list[Path] | None:
     """Return a rosbag2 folder's MCAP storage files, None when it is not such a folder.
 
     None (read the folder through rosbags) when ``metadata.yaml`` does not parse, names
-    another storage, compresses whole files, lists no file, or a listed file is missing or
-    does not start with the MCAP magic.
+    another storage or a compression other than zstd by message or file, lists no file, or
+    a listed file is missing or does not start with the MCAP magic (the zstd magic when
+    files are compressed).
     """
-    import yaml
-
+    info = _bag_info(folder)
+    mode = compression(folder)
+    if info is None or info.get("storage_identifier") != "mcap" or mode == "other":
+        return None
+    magic = ZSTD_MAGIC if mode == "file" else MCAP_MAGIC
     try:
-        text = (folder / "metadata.yaml").read_text()
-        info = yaml.safe_load(text)["rosbag2_bagfile_information"]
-        if info.get("storage_identifier") != "mcap" or str(info.get("compression_mode") or ""):
-            return None
         files = [folder / str(name) for name in info["relative_file_paths"]]
         for path in files:
             with path.open("rb") as f:
-                if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+                if f.read(len(magic)) != magic:
                     return None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError, AttributeError):
+    except (OSError, KeyError, TypeError):
         return None
     return files or None
 
@@ -65,24 +105,64 @@ class Rosbag2McapReader(LogReader):
 
     format = LogFormat.ROSBAG2
 
-    def __init__(self, path: Path, files: list[Path]) -> None:
+    def __init__(self, path: Path, files: list[Path], *, message_zstd: bool = False) -> None:
         super().__init__(path)
-        self._parts = [McapLogReader(file) for file in files]
-        for part in self._parts:  # one list for the folder: notes name their file
-            part.damage = self.damage
-            part.warnings = self.warnings
+        self._files = files
+        self._parts: list[McapLogReader] = []
+        self._message_zstd = message_zstd  # each payload is a zstd frame (metadata.yaml)
+        self._temporary: str | None = None  # the files of a file-compressed bag, decompressed
 
     def _open(self) -> None:
         try:
-            for part in self._parts:
+            for file in self._files:
+                part = McapLogReader(self._decompressed_file(file))
+                part.damage = self.damage  # one list for the folder: notes name their file
+                part.warnings = self.warnings
+                self._parts.append(part)
                 part.open()
         except BaseException:
             self._close()
             raise
 
+    def _decompressed_file(self, file: Path) -> Path:
+        """A storage file as MCAP: a file-compressed bag's (``NAME.mcap.zstd``) decompressed.
+
+        It is decompressed into a private folder of the temporary folder (``TMPDIR``), as
+        rosbags did, removed on close.
+        """
+        with file.open("rb") as f:
+            if f.read(len(ZSTD_MAGIC)) != ZSTD_MAGIC:
+                return file
+        import shutil
+        import tempfile
+
+        import zstandard
+
+        if self._temporary is None:
+            self._temporary = tempfile.mkdtemp(prefix="pcainterp-rosbag2-")
+        target = Path(self._temporary) / file.name.removesuffix(".zstd")
+        try:
+            with file.open("rb") as source, target.open("wb") as sink:
+                zstandard.ZstdDecompressor().copy_stream(source, sink)
+        except (OSError, zstandard.ZstdError) as err:
+            free = shutil.disk_usage(self._temporary).free
+            raise LogReadError(
+                f"cannot decompress {file} (a rosbag2 bag recorded with --compression-mode "
+                f"file) into the temporary folder {self._temporary} ({_one_line(err)}; "
+                f"{free / 1e9:.3g} GB free there); set TMPDIR to a folder with room for its "
+                f"decompressed size, or decompress it first (`zstd -d`)"
+            ) from err
+        return target
+
     def _close(self) -> None:
         for part in self._parts:
             part.close()
+        self._parts = []
+        if self._temporary is not None:
+            import shutil
+
+            shutil.rmtree(self._temporary, ignore_errors=True)
+            self._temporary = None
 
     def topics(self) -> dict[str, TopicInfo]:
         """See :meth:`LogReader.topics`: the topics of every storage file, counts summed."""
@@ -125,8 +205,31 @@ class Rosbag2McapReader(LogReader):
         merged: Iterator[RawMessage] = (
             streams[0] if len(streams) == 1 else heapq.merge(*streams, key=_log_time)
         )
+        if self._message_zstd:
+            merged = self._decompressed(merged)
         yield from merged
         self.backward_log_times = max(part.backward_log_times for part in self._parts)
+
+    def _decompressed(self, stream: Iterator[RawMessage]) -> Iterator[RawMessage]:
+        """The messages of a ``--compression-mode message`` bag, their payloads decompressed.
+
+        A payload that is not a zstd frame (or not a whole one) is passed on as it is: its
+        decoding fails and is counted as any damaged message is.
+        """
+        import zstandard
+
+        for raw in stream:
+            try:
+                data = zstandard.ZstdDecompressor().decompressobj().decompress(raw.data)
+            except zstandard.ZstdError as err:
+                self._warn_once(
+                    f"{self.path.name}: a message on {raw.topic} at log time "
+                    f"{raw.log_time_ns} ns is not zstd-compressed as metadata.yaml says "
+                    f"(compression_mode: message): {err}"
+                )
+                yield raw
+                continue
+            yield raw._replace(data=data)
 
     def extras(self, *, verify: bool = False) -> McapExtras:
         """See :meth:`LogReader.extras`: every storage file's, in file order.
@@ -137,11 +240,11 @@ class Rosbag2McapReader(LogReader):
         self._check_open()
         channels: list[ChannelInfo] = []
         extras = McapExtras(self.path, channels)
-        for part in self._parts:
+        for part, file in zip(self._parts, self._files, strict=True):
             found = part.extras(verify=verify)
             channels += [channel for channel in found.channels if channel not in channels]
             extras.attachments.extend(
-                dataclasses.replace(item, file=part.path) for item in found.attachments
+                dataclasses.replace(item, file=file) for item in found.attachments
             )
             extras.metadata.extend(found.metadata)
         return extras
@@ -149,3 +252,120 @@ class Rosbag2McapReader(LogReader):
 
 def _log_time(raw: RawMessage) -> Any:
     return raw.log_time_ns
+
+
+def lone_storage_problem(path: Path, *, sqlite: bool) -> str | None:
+    """Why a rosbag2 storage file given alone cannot be read as it is, else None.
+
+    Its messages compressed one by one (``--compression-mode message``) say so only in
+    ``metadata.yaml`` (and in the file's own metadata, which rosbags does not read given the
+    file alone): every message would fail to decode as "damaged". Known from a
+    ``metadata.yaml`` beside it that lists it, else from the first message's payload
+    starting with the zstd magic (a CDR payload starts with its encapsulation header).
+    """
+    info = _bag_info(path.parent)
+    names = info.get("relative_file_paths") if info is not None else None
+    listed = isinstance(names, list) and path.name in [str(name) for name in names]
+    if listed and message_zstd(path.parent):
+        found = "its folder's metadata.yaml says compression_mode: message"
+    else:
+        first = _first_payload_db3(path) if sqlite else _first_payload_mcap(path)
+        if first is None or not first.startswith(ZSTD_MAGIC):
+            return None
+        found = "its messages start with the zstd magic bytes"
+    folder = f"its folder {path.parent}" if listed else "the bag's folder (with its metadata.yaml)"
+    return (
+        f"{path} is the storage file of a rosbag2 bag recorded with per-message zstd "
+        f"compression ({found}), read only through the bag's folder; pass {folder} "
+        "instead of the storage file"
+    )
+
+
+def _first_payload_db3(path: Path) -> bytes | None:
+    """The first message's payload of a rosbag2 sqlite3 file, None when there is none.
+
+    Read as immutable: nothing is written beside the bag (no ``-shm`` file), and a
+    write-ahead log's messages are not seen (the file's own decide, or nothing does).
+    """
+    import sqlite3
+    from contextlib import closing
+    from urllib.parse import quote
+
+    uri = f"file:{quote(str(path.resolve()))}?mode=ro&immutable=1"
+    try:
+        with closing(sqlite3.connect(uri, uri=True)) as db:
+            row = db.execute("SELECT data FROM messages ORDER BY id LIMIT 1").fetchone()
+    except sqlite3.Error:
+        return None
+    return bytes(row[0]) if row and isinstance(row[0], bytes | memoryview) else None
+
+
+def _first_payload_mcap(path: Path) -> bytes | None:
+    """The first bytes of an MCAP file's first message payload; None when not found cheaply.
+
+    Opened with every MCAP, so it reads little: the records before the first message or
+    chunk, and of a chunk its first :data:`_CHUNK_PREFIX` bytes (decompressed as far as they
+    go; lz4 chunks are not looked into). A message not found there decides nothing.
+    """
+    import struct
+
+    try:
+        with path.open("rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+                return None
+            for _ in range(64):  # header, schemas, channels, metadata: a few records
+                head = f.read(9)
+                if len(head) < 9:
+                    return None
+                opcode, length = struct.unpack("<BQ", head)
+                if length > size - f.tell():  # damaged or cut: the reader says what
+                    return None
+                if opcode == _MESSAGE:
+                    return f.read(min(length, _MESSAGE_DATA + 8))[_MESSAGE_DATA:]
+                if opcode == _CHUNK:
+                    return _first_in_records(_chunk_records(f.read(min(length, _CHUNK_PREFIX))))
+                f.seek(length, 1)
+    except (OSError, ValueError, OverflowError):
+        return None
+    return None
+
+
+_MESSAGE, _CHUNK = 0x05, 0x06
+_MESSAGE_DATA = 22  # a message record's channel id, sequence, log and publish times
+_CHUNK_PREFIX = 1 << 18  # bytes of a chunk read: more than one zstd block (128 kB)
+
+
+def _chunk_records(body: bytes) -> bytes:
+    """The start of a chunk's records (from the start of its body), decompressed."""
+    import io
+    import struct
+
+    import zstandard
+
+    try:
+        (name_length,) = struct.unpack_from("<I", body, 28)
+        name = body[32 : 32 + name_length]
+        data = body[32 + name_length + 8 :]
+        if name == b"":
+            return data
+        if name == b"zstd":
+            reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(data))
+            return bytes(reader.read(_CHUNK_PREFIX))  # bounded, whatever the data claims
+    except (struct.error, zstandard.ZstdError):
+        pass
+    return b""
+
+
+def _first_in_records(records: bytes) -> bytes | None:
+    """The first bytes of the first message's payload among some records, None: none."""
+    import struct
+
+    offset = 0
+    while offset + 9 <= len(records):
+        opcode, length = struct.unpack_from("<BQ", records, offset)
+        if opcode == _MESSAGE:
+            start = offset + 9 + _MESSAGE_DATA
+            return records[start : min(start + 8, offset + 9 + length)]
+        offset += 9 + length
+    return None

@@ -134,6 +134,45 @@ def test_tolerance_hint_gives_each_dropped_image_its_own_partner_not_a_neighbour
     assert run(3 * MS).pairs == 6  # the tolerance it names pairs them all
 
 
+def _run_20hz(rights: dict[int, int], tolerance_ns: int = MS) -> PairingStats:
+    """Pair 8 frames at 20 Hz; ``rights``: frame -> its right stamp's offset (ns, -1: none)."""
+    pairer = StereoPairer(PairingConfig(tolerance_ns=tolerance_ns))
+    with_infos(pairer)
+    for index in range(8):
+        stamp = index * 50 * MS
+        if index != 1:  # frame 1's left image is dropped
+            pairer.push(CONFIG.left_topic, stamp, stamp, image(stamp))
+        offset = rights.get(index, 0)
+        if offset >= 0:
+            pairer.push(CONFIG.right_topic, stamp + offset, stamp + 4 * MS, image(stamp + offset))
+    return pairer.finish()
+
+
+def test_tolerance_hint_never_advises_a_frame_interval_for_dropped_images() -> None:
+    # bug hunt 17A F1: a left and a right image dropped in neighbouring frames left two
+    # images one frame (50 ms) apart; the advised 50 ms paired frame 2's left image with
+    # frame 1's right one (depth error 9.5 % against 2.5 %)
+    stats = _run_20hz({2: -1})
+    assert (stats.pairs, stats.unpaired_left, stats.unpaired_right) == (6, 1, 1)
+    hint = stats.tolerance_hint()
+    assert hint is not None
+    assert "--stamp-tolerance-ms" not in hint
+    assert stats.stamp_period_ns == 50 * MS
+    assert "50.00-50.00 ms away" in hint
+    assert "half the 50 ms frame interval or more apart: images of neighbouring frames" in hint
+    # a genuine offset (right stamps 5-20 ms late) is still advised, under half a frame
+    lagging = {index: (5 + 2 * index) * MS for index in range(8)}
+    hint = _run_20hz({**lagging, 1: -1}).tolerance_hint()
+    assert hint is not None
+    assert hint.endswith("pass --stamp-tolerance-ms 19 to pair them")
+    assert _run_20hz({**lagging, 1: -1}, 19 * MS).pairs == 7
+    # both: the offset is advised, the images a frame apart are named apart
+    hint = _run_20hz({3: 12 * MS, 4: 12 * MS, 5: -1, 6: -1, 7: 12 * MS}).tolerance_hint()
+    assert hint is not None
+    assert "pass --stamp-tolerance-ms 12 to pair them; 2 of them" in hint
+    assert "2 of them are half the 50 ms frame interval or more apart" in hint
+
+
 def _pairs_before_infos(pairer: StereoPairer, count: int) -> None:
     for index in range(count):
         stamp = index * 100 * MS

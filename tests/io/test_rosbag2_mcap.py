@@ -12,10 +12,12 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+import zstandard
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
 from pcainterp_stream import cli
+from pcainterp_stream.errors import LogReadError
 from pcainterp_stream.io.loginfo import describe
 from pcainterp_stream.io.logreader import LogFormat, open_log
 from pcainterp_stream.pipeline.jobs import synth
@@ -31,11 +33,12 @@ def synth_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-def recorded(source: Path, target: Path, *, parts: int = 1) -> Path:
+def recorded(source: Path, target: Path, *, parts: int = 1, compression: str = "") -> Path:
     """Copy a rosbag2 folder, its storage rewritten as a recorder leaves it (``parts`` files).
 
     Publish time = log time - 5 ms, sequence = 1000 + n; every file gets a ``rosbag2``
     metadata record; the last one also ``calibration_info`` and the attachment robot.urdf.
+    ``compression``: "message" or "file" as ``ros2 bag record --compression-mode`` (zstd).
     """
     (storage,) = source.glob("*.mcap")
     target.mkdir()
@@ -64,7 +67,7 @@ def recorded(source: Path, target: Path, *, parts: int = 1) -> Path:
                 writer.add_message(
                     channels[channel.id],
                     message.log_time,
-                    message.data,
+                    zstandard.compress(message.data) if compression == "message" else message.data,
                     message.log_time - 5_000_000,
                     1000 + i * share + n,
                 )
@@ -73,7 +76,17 @@ def recorded(source: Path, target: Path, *, parts: int = 1) -> Path:
                 writer.add_metadata("calibration_info", {"rig": "A7"})
                 writer.add_attachment(7, 8, "robot.urdf", "application/xml", URDF)
             writer.finish()
+    if compression == "file":
+        for i, name in enumerate(names):
+            data = (target / name).read_bytes()
+            (target / name).unlink()
+            names[i] = name + ".zstd"
+            (target / names[i]).write_bytes(zstandard.compress(data))
     text = (source / "metadata.yaml").read_text().replace(storage.name, names[0])
+    if compression:
+        text = text.replace("compression_format: ''", "compression_format: zstd")
+        text = text.replace("compression_mode: ''", f"compression_mode: {compression}")
+        assert f"compression_mode: {compression}" in text
     listed = "\n".join(f"  - {name}" for name in names)
     text = text.replace(
         f"  relative_file_paths:\n  - {names[0]}", f"  relative_file_paths:\n{listed}"
@@ -82,12 +95,17 @@ def recorded(source: Path, target: Path, *, parts: int = 1) -> Path:
     return target
 
 
-@pytest.mark.parametrize("parts", [1, 2])
+@pytest.mark.parametrize(
+    ("parts", "compression"), [(1, ""), (2, ""), (2, "message"), (1, "file"), (2, "file")]
+)
 def test_a_folder_keeps_publish_times_sequences_attachments_and_metadata(
-    synth_folder: Path, tmp_path: Path, parts: int
+    synth_folder: Path, tmp_path: Path, parts: int, compression: str
 ) -> None:
-    """Before: publish time = log time, sequence 0, no attachment or metadata record."""
-    folder = recorded(synth_folder, tmp_path / "rec", parts=parts)
+    """Before: publish time = log time, sequence 0, no attachment or metadata record.
+
+    A compressed folder too (bug hunt 17A F4): it was read through rosbags, which kept none.
+    """
+    folder = recorded(synth_folder, tmp_path / "rec", parts=parts, compression=compression)
     with open_log(folder) as reader:
         assert reader.format is LogFormat.ROSBAG2
         raws = list(reader.messages())
@@ -109,6 +127,10 @@ def test_a_folder_keeps_publish_times_sequences_attachments_and_metadata(
     info = describe(folder)
     assert [a.name for a in info.attachments] == ["robot.urdf"]
     assert [m.name for m in info.metadata][-1] == "calibration_info"
+    if compression == "message":  # each payload decompressed: they decode
+        with open_log(folder) as reader:
+            image = next(reader.messages(["/stereo/left/image_rect"]))
+            assert reader.decode(image).height > 0
 
 
 def test_densify_of_a_folder_copies_its_attachments_and_metadata_records(
@@ -137,3 +159,62 @@ def test_densify_of_a_folder_copies_its_attachments_and_metadata_records(
         "pcainterp.basis",
     ]
     assert publish == {(5_000_000, True)}
+
+
+@pytest.mark.parametrize("beside", [True, False])
+def test_the_storage_file_of_a_message_compressed_bag_alone_is_refused_in_one_line(
+    synth_folder: Path, tmp_path: Path, beside: bool
+) -> None:
+    """Bug hunt 17A F3: every message failed as "damaged message?" (convert to mono8...)."""
+    folder = recorded(synth_folder, tmp_path / "rec", compression="message")
+    (storage,) = folder.glob("*.mcap")
+    if not beside:  # no metadata.yaml: the payloads' zstd magic tells
+        storage = storage.rename(tmp_path / storage.name)
+    with pytest.raises(LogReadError) as caught:
+        open_log(storage)
+    text = str(caught.value)
+    assert "\n" not in text
+    assert text.startswith(f"{storage} is the storage file of a rosbag2 bag recorded with ")
+    assert "per-message zstd compression" in text
+    where = f"its folder {folder} " if beside else "the bag's folder (with its metadata.yaml)"
+    assert f"pass {where}" in text
+    with open_log(recorded(synth_folder, tmp_path / "plain")) as reader:  # not compressed
+        assert reader.damage == []
+
+
+def test_a_file_compressed_storage_file_alone_says_zstd(synth_folder: Path, tmp_path: Path) -> None:
+    """Bug hunt 17A F3: "not a log (no MCAP, ROS 1 bag or SQLite magic bytes)"."""
+    folder = recorded(synth_folder, tmp_path / "rec", compression="file")
+    (storage,) = folder.glob("*.mcap.zstd")
+    with pytest.raises(LogReadError, match=r"is zstd-compressed \(a rosbag2 bag recorded with "):
+        open_log(storage)
+    with pytest.raises(LogReadError, match=rf"pass its folder {folder}, or decompress it first"):
+        open_log(storage)
+
+
+@pytest.mark.parametrize("beside", [True, False])
+def test_the_db3_of_a_message_compressed_bag_alone_is_refused_in_one_line(
+    tmp_path: Path, beside: bool
+) -> None:
+    """Bug hunt 17A F3, sqlite3 storage: "SerdeError ... (damaged message?)" before."""
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    string = store.types["std_msgs/msg/String"]
+    writer = Writer(tmp_path / "bag", version=9, storage_plugin=StoragePlugin.SQLITE3)
+    writer.set_compression(CompressionMode.MESSAGE, CompressionFormat.ZSTD)
+    with writer:
+        connection = writer.add_connection("/chatter", string.__msgtype__, typestore=store)
+        writer.write(connection, 1, store.serialize_cdr(string(data="hi"), string.__msgtype__))
+    (storage,) = (tmp_path / "bag").glob("*.db3")
+    if not beside:
+        storage = storage.rename(tmp_path / storage.name)
+    with pytest.raises(LogReadError, match="per-message zstd compression") as caught:
+        open_log(storage)
+    found = "metadata.yaml says compression_mode" if beside else "start with the zstd magic"
+    assert found in str(caught.value)
+    if beside:
+        with open_log(tmp_path / "bag") as reader:  # the folder reads
+            (raw,) = reader.messages()
+            assert reader.decode(raw).data == "hi"
