@@ -429,12 +429,16 @@ def _live(storage: Path) -> bool:
 
 
 def _changing(storage: Path) -> str:
-    """The damage line of a storage file that changed at every try to copy it."""
+    """The damage line of a storage file that changed at every try to copy it.
+
+    The bag is then read as it is, and a checkpoint of its recorder may change it under the
+    reader: what follows (a "malformed" database, messages out of order) is the recording's.
+    """
     return (
-        f"{storage.name}: its write-ahead log {storage.name}-wal holds messages not yet "
-        f"merged, which are not read (the bag changed each of the {_TRIES} times it was "
-        "copied to merge them: it is still being recorded); read it once the recorder has "
-        f"stopped, or {_checkpoint_advice(storage)}"
+        f"{storage.name} is being recorded: it changed each of the {_TRIES} times it was "
+        "copied, so its write-ahead log's messages are not read and the bag is read in place, "
+        "where the recorder's checkpoints may change it under the reader (later damage or "
+        "out-of-order lines come from that); read it once the recorder has stopped"
     )
 
 

@@ -160,7 +160,7 @@ def test_a_bag_changing_at_every_copy_is_said_to_be_recorded(
     _, warnings, damage = _read(recorder.bag)
     assert not warnings
     (line,) = damage
-    assert "changed each of the 4 times it was copied" in line
+    assert "live.db3 is being recorded: it changed each of the 4 times it was copied" in line
     assert "read it once the recorder has stopped" in line
 
 
