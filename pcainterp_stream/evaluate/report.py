@@ -588,6 +588,7 @@ def evaluate_log(
     *,
     topics: OutputTopics | None = None,
     progress: Callable[[int], None] | None = None,
+    loaded: Basis | None = None,
 ) -> tuple[Evaluation, list[Example]]:
     """Evaluate a densified log (streaming).
 
@@ -596,6 +597,8 @@ def evaluate_log(
         options: evaluation options.
         topics: output topic names (default the standard ``/pcainterp/*`` names).
         progress: called with the number of frames read so far.
+        loaded: the basis ``options.basis`` names, already loaded (:func:`write_report`
+            loads it once for the rows and the figures); None: loaded here.
 
     Returns:
         The :class:`Evaluation` and the example frames kept for the figures.
@@ -666,7 +669,7 @@ def evaluate_log(
         raise LogReadError(
             f"{path} has no {GROUND_TRUTH_POSE}; temporal mode needs poses, use --mode stereo"
         )
-    basis = _load_basis(options)
+    basis = loaded if loaded is not None else _load_basis(options)
     result = Evaluation(
         log=str(path),
         mode=str(mode),
@@ -865,7 +868,11 @@ def write_report(
     """
     options = options or EvaluateOptions()
     check_report_folder(folder)  # before the log is evaluated: a refusal costs nothing
-    result, examples = evaluate_log(path, options, topics=topics, progress=progress)
+    # loaded once: the figures show the basis the rows were computed with, even if the file
+    # is replaced or removed while the log is evaluated (bug hunt 17B F2)
+    basis = _load_basis(options)
+    result, examples = evaluate_log(path, options, topics=topics, progress=progress, loaded=basis)
+    options = dataclasses.replace(options, basis=basis)  # the figures: this one, not a re-read
 
     def write(staging: Path) -> None:
         figures = write_figures(result, examples, staging, _load_basis(options))

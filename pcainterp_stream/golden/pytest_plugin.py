@@ -24,6 +24,13 @@ cases of a parametrized test that must all give the same log, two code paths tha
 agree): the first check of the run that matches or writes it settles it, and the others
 compare with it, never rewrite it, failing in one line naming both when their logs differ.
 
+Under pytest-xdist "the run" is one worker: each worker keeps its own record of the files
+checked, so neither that rule nor the refusal of two tests whose ids give one file name
+holds across workers (two cases on two workers that give different logs both pass, and the
+file holds whichever wrote last). A run that regenerates (``--update-golden``,
+``--force-regen``) on several workers says so once at its end; regenerate without xdist
+(``-p no:xdist`` or ``-n 0``).
+
 The snapshot machinery (naming, the data directory beside the test, the first-run and
 ``--force-regen`` flow) is pytest-regressions' ``perform_regression_check``; this module
 supplies only how a log is dumped (:func:`~.store.save_golden`) and compared
@@ -82,6 +89,40 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     )
 
 
+XDIST_NOTE = (
+    "log_golden: warning: golden files were rewritten (--update-golden/--force-regen) under "
+    "pytest-xdist: each worker is a run of its own, so checks that share a golden file "
+    "(basename=/fullpath=) were not compared across workers, nor two tests whose ids give "
+    "one file name refused, and such a file holds whichever worker wrote it last; "
+    "regenerate golden files without xdist (-p no:xdist, or -n 0)"
+)
+"""Said once at the end of a run that regenerates golden files on several xdist workers."""
+
+
+def _on_xdist_workers(config: pytest.Config) -> bool:
+    """Whether this is the controller of a pytest-xdist run on more than one worker."""
+    if hasattr(config, "workerinput"):  # a worker: the controller says it, once
+        return False
+    try:
+        dist = config.getoption("dist")
+        workers = config.getoption("numprocesses")
+    except ValueError:  # xdist not installed, or -p no:xdist
+        return False
+    return bool(dist != "no" and workers != 1)  # -n 0: dist "no"; --tx specs: workers None
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_terminal_summary(terminalreporter: Any, config: pytest.Config) -> None:
+    """Warn that the run's shared-file rules held only within each xdist worker (17B F3).
+
+    A line, not a warning: a project with ``filterwarnings = error`` (this one) would turn a
+    warning into a failed start.
+    """
+    regenerating = config.getoption("update_golden") or config.getoption("force_regen", False)
+    if regenerating and _on_xdist_workers(config):
+        terminalreporter.write_line(XDIST_NOTE, yellow=True)
+
+
 class LogGolden:
     """Check logs against golden files stored beside the test (the ``log_golden`` fixture).
 
@@ -115,7 +156,8 @@ class LogGolden:
                 ``check(dense, basename="dense")`` and ``check(raw, basename="raw")``.
             fullpath: an explicit golden file path instead (e.g. in a shared data folder).
                 Checks that name one file (``basename=`` or ``fullpath=``) share it: the
-                first of the run to match or write it settles it, the others must match it.
+                first of the run to match or write it settles it, the others must match it
+                (under pytest-xdist: of the worker's run only, see the module's note).
             topics: record and check only these channels.
             arrays: also store and check every array element-wise.
             tolerance: tolerances written into a new golden file (an existing file keeps

@@ -18,6 +18,18 @@ outright (SIGKILL, out of memory) leaves it, and the next run removes it, as the
 standard input is (:func:`.pipes.spool`). A ``-wal`` whose committed pages the database
 already holds (all checkpointed, as a recorder stopped between a checkpoint and its next
 write leaves it) is seen by reading the log and those pages alone: no copy, no note.
+
+A bag still being recorded changes while it is copied: its recorder checkpoints the log
+into the database and then restarts the log. The database and the log are taken as a pair
+only when the log's header salts (new at every restart) were the same before the database
+was copied and after the log was, and they are the same files; else the pair is copied
+again (:data:`_TRIES` times at most). A bag that changed while copied is read through the
+copy (as it was then) with a note saying it is being recorded; one whose log restarted at
+every try, as its last database copy that did not change while copied holds it (the
+recorder's last checkpoint, without the log's messages), with a note; one whose database
+changed at every try is named in a damage line and read as it is. A bag another process
+holds open (a lock on its ``-shm``, Linux; :func:`_live`) is copied, and noted, even when its
+log adds nothing: read in place, it would change under the reader at the next checkpoint.
 """
 
 from __future__ import annotations
@@ -25,10 +37,12 @@ from __future__ import annotations
 import atexit
 import errno
 import itertools
+import os
 import shlex
 import shutil
 import sqlite3
 import struct
+import sys
 import tempfile
 import threading
 import urllib.parse
@@ -282,7 +296,7 @@ class WalView:
                     shutil.rmtree(copy.folder, ignore_errors=True)
 
     def _make(self, key: tuple[object, ...]) -> _Copy:
-        walled = [s for s in self._walled if not wal_adds_nothing(s, _wal_of(s))]
+        walled = [s for s in self._walled if not _checkpointed(s)]
         if not walled:
             return _Copy(key, None)
         needed = sum(_size(s) + _size(_wal_of(s)) for s in walled) + _ROOM_MARGIN
@@ -307,9 +321,11 @@ class WalView:
             folder = _root() / str(next(_serial))
             folder.mkdir()
             notes = self._build(folder, walled)
-        except (OSError, sqlite3.Error) as err:
+        except (OSError, sqlite3.Error, _Changing) as err:
             if folder is not None:
                 shutil.rmtree(folder, ignore_errors=True)
+            if isinstance(err, _Changing):
+                return _Copy(key, None, failures=[_changing(s) for s in walled])
             room = isinstance(err, OSError) and err.errno in (errno.ENOSPC, errno.EDQUOT)
             failures = [_failure(s, _one_line(err), room=room) for s in walled]
             return _Copy(key, None, failures=failures)
@@ -321,7 +337,7 @@ class WalView:
 
     def _build(self, folder: Path, walled: list[Path]) -> list[str]:
         """Make the view in ``folder``; return its notes (none: no message added)."""
-        added: list[tuple[Path, int | None]] = []
+        added: list[tuple[Path, _Merged]] = []
         if self.path.is_dir():
             view = folder / self.path.name
             view.mkdir()
@@ -334,19 +350,96 @@ class WalView:
                     (view / entry.name).symlink_to(entry.resolve())
         else:
             added.append((self.path, _merge(self.path, folder / self.path.name)))
-        if all(count == 0 for _, count in added):
+        if all(merged.added == 0 and not merged.recording for _, merged in added):
             return []
         notes = []
-        for storage, count in added:
-            if count == 0:
+        for storage, merged in added:
+            if merged.without_log:
+                notes.append(
+                    f"{storage.name} is being recorded: its write-ahead log {storage.name}-wal "
+                    f"restarted each of the {_TRIES} times it was copied, so the bag is read "
+                    "as of its recorder's last checkpoint, without the messages that log "
+                    "holds; read it again once the recorder has stopped"
+                )
                 continue
-            held = "messages" if count is None else f"{count} messages"
-            notes.append(
-                f"{storage.name}: its write-ahead log {storage.name}-wal held {held} not yet "
-                "merged (its recorder was killed, or is still recording); read through a "
-                f"private copy with them merged ({_checkpoint_advice(storage)})"
-            )
+            held = "messages" if merged.added is None else f"{merged.added} messages"
+            if merged.recording:  # the copy, not the bag a checkpoint may change under rosbags
+                merged_too = f", with the {held} its write-ahead log held merged"
+                notes.append(
+                    f"{storage.name} is being recorded (it changed while it was copied, or "
+                    "another process holds it open): read through a private copy of it as it "
+                    "was then"
+                    f"{merged_too if merged.added != 0 else ''}; the messages recorded since "
+                    "are not read"
+                )
+            elif merged.added != 0:
+                notes.append(
+                    f"{storage.name}: its write-ahead log {storage.name}-wal held {held} not "
+                    "yet merged (its recorder was killed, or is still recording); read through "
+                    f"a private copy with them merged ({_checkpoint_advice(storage)})"
+                )
         return notes
+
+
+def _checkpointed(storage: Path) -> bool:
+    """Whether the log beside ``storage`` adds nothing, the files unchanged while it is told.
+
+    A recorder that writes on while the log is read may have restarted it (bug hunt 17B F1):
+    then the storage is copied (and the copy checked) as any other.
+    """
+    wal = _wal_of(storage)
+    if _live(storage):  # read in place, the next checkpoint would change it under rosbags
+        return False
+    before = (_state(storage), _state(wal), _generation(wal))
+    return (
+        wal_adds_nothing(storage, wal)
+        and (_state(storage), _state(wal), _generation(wal)) == before
+    )
+
+
+_SHM_DMS = 128
+"""The byte of a ``-shm`` every SQLite connection to the database holds a read lock on."""
+
+
+def _live(storage: Path) -> bool:
+    """Whether another process holds the database open (a recorder still recording).
+
+    SQLite's unix VFS keeps a shared lock on byte 128 of the ``-shm`` for as long as a
+    connection uses it; asking whether a write lock there would conflict (``F_GETLK``)
+    takes no lock and writes nothing. Linux on 64 bits only (the ``struct flock`` layout);
+    elsewhere, or without a ``-shm``, False: the log is judged by its files alone.
+    """
+    if not sys.platform.startswith("linux") or struct.calcsize("P") != 8:
+        return False
+    import fcntl  # POSIX only
+
+    layout = "hh4xqqi4x"  # l_type, l_whence, l_start, l_len, l_pid
+    query = struct.pack(layout, fcntl.F_WRLCK, os.SEEK_SET, _SHM_DMS, 1, 0)
+    try:
+        descriptor = os.open(storage.with_name(storage.name + "-shm"), os.O_RDONLY)
+    except OSError:
+        return False
+    try:
+        answer = fcntl.fcntl(descriptor, fcntl.F_GETLK, query)
+    except OSError:
+        return False
+    finally:
+        os.close(descriptor)
+    return bool(struct.unpack(layout, answer)[0] != fcntl.F_UNLCK)
+
+
+def _changing(storage: Path) -> str:
+    """The damage line of a storage file that changed at every try to copy it.
+
+    The bag is then read as it is, and a checkpoint of its recorder may change it under the
+    reader: what follows (a "malformed" database, messages out of order) is the recording's.
+    """
+    return (
+        f"{storage.name} is being recorded: it changed each of the {_TRIES} times it was "
+        "copied, so its write-ahead log's messages are not read and the bag is read in place, "
+        "where the recorder's checkpoints may change it under the reader (later damage or "
+        "out-of-order lines come from that); read it once the recorder has stopped"
+    )
 
 
 def _wal_of(storage: Path) -> Path:
@@ -382,38 +475,119 @@ def _failure(storage: Path, reason: str, *, room: bool = True) -> str:
     )
 
 
-def _merge(storage: Path, copy: Path) -> int | None:
+_TRIES = 4
+"""Copies of a walled storage file made before its bag is said to be changing as it is copied."""
+
+
+class _Changing(Exception):
+    """A storage file and its log changed at every try to copy them (a recorder writes on)."""
+
+
+@dataclass
+class _Merged:
+    """What :func:`_merge` made: the messages its log added, and whether the bag moved."""
+
+    added: int | None  # the messages the log added (None: cannot be told)
+    recording: bool = False  # the files changed while they were copied (a recorder writes)
+    without_log: bool = False  # no consistent copy with the log: the database alone
+
+
+def _generation(wal: Path) -> bytes | None:
+    """The log's salts: a writer that restarts the log (after a checkpoint) changes them."""
+    try:
+        with wal.open("rb") as log:
+            header = log.read(_WAL_HEADER)
+    except OSError:
+        return None
+    return header[16:24] if len(header) == _WAL_HEADER else None
+
+
+def _state(path: Path) -> tuple[int, ...] | None:
+    """A file's identity and state (device, inode, size, modification time), None if gone."""
+    try:
+        stat = path.stat()
+    except OSError:
+        return None
+    return (stat.st_dev, stat.st_ino, stat.st_size, stat.st_mtime_ns)
+
+
+def _merge(storage: Path, copy: Path) -> _Merged:
     """Copy ``storage`` and its WAL to ``copy``; merge the log into the copy.
 
-    Returns:
-        The number of messages the log added (None if it cannot be told).
+    A recorder still writing the bag checkpoints its log into the database and then
+    restarts the log (new salts in its header): a database copied before that and a log
+    copied after do not fit together (messages lost or repeated, "database disk image is
+    malformed"; bug hunt 17B F1). The pair is consistent when the log's salts were the same
+    before the database was copied and after the log was (a log only grows within one
+    generation, and a checkpoint writes only pages that log holds); else it is copied again,
+    up to :data:`_TRIES` times. If the log restarted each time, the last database copy is
+    read alone when it did not change while copied (the bag as of the recorder's last
+    checkpoint, without the log's messages). The user's files are only read.
+
+    A bag another process holds open (:func:`_live`: its recorder) is noted, and its copy
+    kept, even when the log added nothing: the bag changes at the recorder's next checkpoint.
+
+    Raises:
+        _Changing: neither a consistent pair nor an unchanged database could be copied.
     """
-    shutil.copyfile(storage, copy)
-    shutil.copyfile(_wal_of(storage), copy.with_name(copy.name + "-wal"))
+    wal, copied_wal = _wal_of(storage), copy.with_name(copy.name + "-wal")
+    recording = _live(storage)
+    for attempt in range(_TRIES):
+        generation, database, log = _generation(wal), _state(storage), _state(wal)
+        shutil.copyfile(storage, copy)
+        database_after = _state(storage)
+        last = _last_id(copy)  # the copy's own messages, read before its log is beside it
+        shutil.copyfile(wal, copied_wal)
+        log_after = _state(wal)
+        recording = recording or database_after != database or log_after != log
+        same_files = (
+            database is not None
+            and database_after is not None
+            and log is not None
+            and log_after is not None
+            and database[:2] == database_after[:2]
+            and log[:2] == log_after[:2]
+        )
+        if same_files and generation == _generation(copied_wal) == _generation(wal):
+            return _Merged(_apply(copy, last), recording=recording)
+        recording = True
+        if attempt == _TRIES - 1 and database is not None and database == database_after:
+            copied_wal.unlink()
+            return _Merged(0, recording=True, without_log=True)
+    raise _Changing(storage.name)
+
+
+def _last_id(database: Path) -> int | None:
+    """The highest message id of a database read alone (None: none, or it cannot be read)."""
+    uri = f"file:{urllib.parse.quote(str(database.resolve()))}?immutable=1"
+    try:
+        connection = sqlite3.connect(uri, uri=True)
+        try:
+            row = connection.execute("SELECT max(rowid) FROM messages").fetchone()
+        finally:
+            connection.close()
+    except sqlite3.Error:  # no messages table without the log: every message is the log's
+        return None
+    return None if row is None or row[0] is None else int(row[0])
+
+
+def _apply(copy: Path, last: int | None) -> int | None:
+    """Merge the log beside ``copy`` into it; return the messages past id ``last``."""
     connection = sqlite3.connect(copy)
     try:
         connection.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchall()
         connection.execute("PRAGMA journal_mode=DELETE").fetchall()
-        return _added_messages(storage, connection)
+        return _added_messages(connection, last)
     finally:
         connection.close()
 
 
-def _added_messages(storage: Path, merged: sqlite3.Connection) -> int | None:
-    """Count the messages ``merged`` holds beyond the last one of ``storage`` alone.
+def _added_messages(merged: sqlite3.Connection, last: int | None) -> int | None:
+    """Count the messages ``merged`` holds beyond id ``last`` (its database's alone).
 
     rosbag2 appends messages with rising ids and never deletes one: those past the
-    original's highest id (read with the log ignored, as rosbags reads it) are the log's.
+    database's highest id (read with the log ignored, as rosbags reads it) are the log's.
     """
-    uri = f"file:{urllib.parse.quote(str(storage.resolve()))}?immutable=1"
-    try:
-        original = sqlite3.connect(uri, uri=True)
-        try:
-            last = original.execute("SELECT max(rowid) FROM messages").fetchone()[0]
-        finally:
-            original.close()
-    except sqlite3.Error:  # no messages table without the log: every message is the log's
-        last = None
     try:
         if last is None:
             row = merged.execute("SELECT count(*) FROM messages").fetchone()

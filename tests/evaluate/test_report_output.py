@@ -467,3 +467,38 @@ def test_a_report_folder_name_too_long_is_one_line(tmp_path: Path) -> None:
         f"({limit + 1} bytes, at most {limit}): choose a shorter name"
     )
     report_folder.check_report_folder(tmp_path / ("r" * limit))  # the longest: taken
+
+
+def test_the_basis_file_is_read_once_for_the_rows_and_the_figures(
+    logs: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # before (bug hunt 17B F2): write_report loaded the basis again for the figures: a file
+    # removed while the log was evaluated threw the finished evaluation away ("basis file
+    # ... does not exist", no report); one replaced gave figures of another basis
+    from pcainterp_stream.estimate.basis import Basis
+
+    basis_file = tmp_path / "b.npz"
+    Basis.default().save(basis_file)
+    loads: list[str] = []
+    load = Basis.load.__func__  # type: ignore[attr-defined]
+
+    def counting(cls: type[Basis], path: Any) -> Basis:
+        loads.append(Path(path).name)
+        return load(cls, path)  # type: ignore[no-any-return]
+
+    monkeypatch.setattr(Basis, "load", classmethod(counting))
+    evaluate = report_module.evaluate_log
+
+    def then_removed(*args: Any, **kwargs: Any) -> Any:
+        evaluated = evaluate(*args, **kwargs)
+        basis_file.unlink()  # as `mv b.npz b_old.npz` in another terminal meanwhile
+        return evaluated
+
+    monkeypatch.setattr(report_module, "evaluate_log", then_removed)
+    options = EvaluateOptions(basis_file, mode=Mode.STEREO, sweep_every=0, max_frames=2)
+    report = tmp_path / "report"
+    result = report_module.write_report(logs["dense"], report, options)
+    assert loads == ["b.npz"]
+    assert result.basis is not None
+    assert result.basis["path"] == str(basis_file)
+    assert {"basis.png", "variance.png", "results.md"} <= {p.name for p in report.iterdir()}

@@ -559,3 +559,17 @@ def test_force_regen_rewrites_a_matching_format_2_file_its_note_names(
     assert '"pcainterp-golden/2"' in golden.read_text()
     _run(pytester, "-W", "default", "--update-golden").assert_outcomes(passed=1)
     assert '"pcainterp-golden/3"' in golden.read_text()
+
+
+def test_regenerating_on_xdist_workers_is_warned_once(pytester: pytest.Pytester) -> None:
+    # before (bug hunt 17B F3): `-n 2 --update-golden` with two cases sharing a golden file
+    # but giving different logs passed both, silently: the rules hold within one worker
+    pytester.makepyfile(test_plain="def test_a():\n    pass\n\ndef test_b():\n    pass\n")
+    result = _run(pytester, "-n", "2", "--update-golden")
+    result.assert_outcomes(passed=2)
+    assert result.stdout.str().count("log_golden: warning: golden files were rewritten") == 1
+    assert "regenerate golden files without xdist (-p no:xdist, or -n 0)" in result.stdout.str()
+    for args in (["-n", "2"], ["-n", "1", "--update-golden"], ["-p", "no:xdist", "--force-regen"]):
+        quiet = _run(pytester, *args)
+        quiet.assert_outcomes(passed=2)
+        assert "log_golden: warning" not in quiet.stdout.str(), args
