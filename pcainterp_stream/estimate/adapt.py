@@ -117,6 +117,10 @@ class FitCheck:
         first_column: the leftmost column (px) of those pixels: left of it nothing was
             checked (SGBM's left band when it is not matched); 0 for a feature stream's
             left-out check, where there is no band.
+        far: those of the pixels the prior's map puts below its smallest resolvable
+            disparity: the output writes them as too far (depth ``+inf``, disparity 0), and
+            they are scored so (bug hunt 16D F8).
+        cut: that smallest resolvable disparity (px; the largest of the frames').
     """
 
     frames: int
@@ -125,6 +129,8 @@ class FitCheck:
     linear: float
     nearest: float
     first_column: int = 0
+    far: int = 0
+    cut: float = 0.0
 
     @property
     def ratio(self) -> float:
@@ -157,7 +163,17 @@ class FitCheck:
         return (
             f"{self.ratio:.2f}x linear, {nearest:.2f}x nearest on {where} "
             f"({self.prior:.2f} px against {self.linear:.2f} and {self.nearest:.2f}; "
-            f"{self.frames} frame{'s' if self.frames != 1 else ''})"
+            f"{self.frames} frame{'s' if self.frames != 1 else ''}{self._far()})"
+        )
+
+    def _far(self) -> str:
+        """Return "; 40 % of them written as too far ..." when that share is noticeable."""
+        if self.pixels == 0 or self.far < FAR_NOTED * self.pixels:
+            return ""
+        return (
+            f"; {100 * self.far / self.pixels:.0f} % of them written as too far and scored so: "
+            f"below {self.cut:.2g} px, the smallest disparity the estimate resolves (its sigma, "
+            "which densify --sigma sets)"
         )
 
     @classmethod
@@ -172,18 +188,30 @@ class FitCheck:
             return float(sum(getattr(check, name) * check.pixels for check in used)) / total
 
         first = min(check.first_column for check in used)
-        return cls(len(used), total, mean("prior"), mean("linear"), mean("nearest"), first)
+        errors = mean("prior"), mean("linear"), mean("nearest")
+        far, cut = sum(check.far for check in used), max(check.cut for check in used)
+        return cls(len(used), total, *errors, first, far, cut)
+
+
+FAR_NOTED = 0.05
+"""The share of a check's pixels written as too far from which its line says so."""
 
 
 @dataclass(frozen=True)
 class FrameCheck:
-    """One frame's held-out errors (px), how many pixels they are over and the leftmost's column."""
+    """One frame's held-out errors (px), how many pixels they are over and the leftmost's column.
+
+    ``far``: those of the pixels the estimate puts below ``cut``, its smallest resolvable
+    disparity (px): written as too far, so scored as disparity 0 (:attr:`FitCheck.far`).
+    """
 
     pixels: int
     prior: float
     linear: float
     nearest: float
     first_column: int = 0
+    far: int = 0
+    cut: float = 0.0
 
 
 def heldout_pixels(
@@ -283,6 +311,7 @@ def check_frame(
     reference: npt.NDArray[np.floating[Any]],
     pixels: npt.NDArray[np.floating[Any]],
     disparities: npt.NDArray[np.floating[Any]],
+    min_disparity: float = 0.0,
 ) -> FrameCheck:
     """Score one frame's densified map and plain interpolation against its SGBM map.
 
@@ -291,8 +320,10 @@ def check_frame(
         reference: (H, W) SGBM disparity of the same pair (px; NaN or <= 0 invalid).
         pixels: (k, 2) the measurements the estimate used, (x, y) px.
         disparities: (k,) their disparities (px).
+        min_disparity: the estimate's smallest resolvable disparity (px): below it the
+            output writes too far, so it is scored as 0 (:meth:`HeldOut.score`).
     """
-    return HeldOut.of(reference, pixels, disparities).score(estimate)
+    return HeldOut.of(reference, pixels, disparities).score(estimate, min_disparity)
 
 
 @dataclass(frozen=True)
@@ -326,12 +357,22 @@ class HeldOut:
         linear, nearest = interpolation_at(pixels, disparities, reference.shape[:2], flat)
         return cls(flat, truth, linear, nearest, reference.shape[1])
 
-    def score(self, estimate: npt.NDArray[np.floating[Any]]) -> FrameCheck:
-        """Score a densified (H, W) map and the interpolation at the held-out pixels."""
+    def score(
+        self, estimate: npt.NDArray[np.floating[Any]], min_disparity: float = 0.0
+    ) -> FrameCheck:
+        """Score a densified (H, W) map and the interpolation at the held-out pixels.
+
+        ``min_disparity``: the estimate's smallest resolvable disparity (px,
+        :attr:`~.estimator.DensifyResult.min_disparity`): the output writes a pixel below
+        it as too far (depth ``+inf``: disparity 0 as read back), so it is scored as 0, as
+        ``evaluate`` scores the output (bug hunt 16D F8: a sigma-2 basis on a camera of
+        f*b 9.6 px*m checked 0.39 px, its output 1.16 px). 0: as estimated.
+        """
         if self.flat.size == 0:
             return FrameCheck(0, 0.0, 0.0, 0.0)
         columns = self.flat % self.width
-        return _score(estimate.ravel()[self.flat], self.truth, self.linear, self.nearest, columns)
+        at = estimate.ravel()[self.flat]
+        return _score(at, self.truth, self.linear, self.nearest, columns, min_disparity)
 
 
 def _score(
@@ -340,22 +381,29 @@ def _score(
     linear: npt.NDArray[np.float64],
     nearest: npt.NDArray[np.float64],
     columns: npt.NDArray[np.intp] | None = None,
+    min_disparity: float = 0.0,
 ) -> FrameCheck:
     """Mean |error| of the prior's map, linear and nearest where all three and the truth exist.
 
     ``columns`` are the pixels' columns (px) of an SGBM held-out check: the leftmost scored
     one is kept (None, a left-out check of a feature stream: 0, no band to say; review 57c F3).
+    The prior's values below ``min_disparity`` are scored as 0 (written as too far).
     """
     estimate = prior.astype(np.float64)
     ok = np.isfinite(estimate) & np.isfinite(linear) & np.isfinite(truth)
     if not ok.any():
         return FrameCheck(0, 0.0, 0.0, 0.0)
+    # the float32 comparison the output's depth makes (estimator.depth_from_disparity)
+    far = ok & (prior.astype(np.float32) < np.float32(min_disparity))
+    estimate[far] = 0.0
     return FrameCheck(
         int(ok.sum()),
         float(np.abs(estimate[ok] - truth[ok]).mean()),
         float(np.abs(linear[ok] - truth[ok]).mean()),
         float(np.abs(nearest[ok] - truth[ok]).mean()),
         0 if columns is None else int(columns[ok].min()),
+        int(far.sum()),
+        float(min_disparity),
     )
 
 
@@ -380,6 +428,7 @@ def check_left_out(
     disparities: npt.NDArray[np.floating[Any]],
     kept: npt.NDArray[np.intp],
     left_out: npt.NDArray[np.intp],
+    min_disparity: float = 0.0,
 ) -> FrameCheck:
     """Score a map estimated from the ``kept`` measurements at the ``left_out`` ones.
 
@@ -389,6 +438,8 @@ def check_left_out(
         disparities: (k,) their disparities (px).
         kept: indices the estimate used.
         left_out: indices it did not see.
+        min_disparity: the estimate's smallest resolvable disparity (px): scored as 0
+            below it, as written (:meth:`HeldOut.score`).
     """
     height, width = estimate.shape[:2]
     at = pixels[left_out]
@@ -399,7 +450,8 @@ def check_left_out(
         return FrameCheck(0, 0.0, 0.0, 0.0)
     truth = disparities[left_out].astype(np.float64)
     linear, nearest = interpolation_at(pixels[kept], disparities[kept], (height, width), flat)
-    return _score(estimate.ravel()[flat], truth, linear, nearest)  # no SGBM band to say
+    # no SGBM band to say
+    return _score(estimate.ravel()[flat], truth, linear, nearest, None, min_disparity)
 
 
 def own_grid_size(image_size: tuple[int, int]) -> tuple[int, int]:
@@ -832,7 +884,7 @@ def leave_one_out(
             if held_out is not None
             else HeldOut.of(frame.reference, frame.pixels, frame.disparities)
         )
-        checks.append(scored.score(result.disparity))
+        checks.append(scored.score(result.disparity, result.min_disparity))
         if result.disparity_std is not None:
             estimates.append(result.disparity)
             stds.append(result.disparity_std)

@@ -44,6 +44,8 @@ class AdaptFrame:
     motion: Motion | None = None
     camera: StereoCamera | None = None
     index: int = 0  # the frame's index (the lines name it)
+    # an over-exposed pair's clipped pixels, left out of a check made here (held_out None)
+    clipped: npt.NDArray[np.bool_] | None = None
 
     def measured(self) -> adapt.Measured:
         """Return the frame as :func:`adapt.refit_prior` and the check take it."""

@@ -449,7 +449,7 @@ class Adaptation:
         held_out = [
             f.held_out
             if f.held_out is not None
-            else adapt.HeldOut.of(m.reference, m.pixels, m.disparities)
+            else adapt.HeldOut.of(m.reference, m.pixels, m.disparities, f.clipped)
             for f, m in zip(usable, measured, strict=True)
         ]
 
@@ -470,7 +470,10 @@ class Adaptation:
                 partitions=[f.cells(grid) for f in usable] if cells else None,
                 **options,  # type: ignore[arg-type]
             )
-            scores = [h.score(e.disparity) for e, h in zip(estimates, held_out, strict=True)]
+            scores = [
+                h.score(e.disparity, e.min_disparity)
+                for e, h in zip(estimates, held_out, strict=True)
+            ]
             per_frame[id(candidate)] = scores
             return adapt.FitCheck.combine(scores)
 
@@ -746,7 +749,12 @@ class Adaptation:
                 )
                 checks.append(
                     adapt.check_left_out(
-                        estimate.disparity, frame.pixels, frame.disparities, kept, left_out
+                        estimate.disparity,
+                        frame.pixels,
+                        frame.disparities,
+                        kept,
+                        left_out,
+                        estimate.min_disparity,
                     )
                 )
             return adapt.FitCheck.combine(checks)

@@ -192,7 +192,7 @@ def score_fit(
             focal_baseline=frame.focal_baseline,
             zero_is_match=True,
         )
-        checks.append(frame.check.score(result.disparity))
+        checks.append(frame.check.score(result.disparity, result.min_disparity))
     return FitCheck.combine(checks)
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -156,6 +158,47 @@ def test_held_out_pixels_score_every_map_as_the_check_does() -> None:
         assert held_out.score(estimate) == adapt.check_frame(
             estimate, reference, pixels, disparities
         )
+
+
+def test_pixels_below_the_smallest_resolvable_disparity_are_scored_as_written() -> None:
+    """Bug hunt 16D F8: the output writes an estimate below its min_disparity as too far
+    (depth +inf, disparity 0 read back); the check scored the disparity before that cut, so
+    its line said 0.39 px where the output erred 1.16 px. Before: score took no cut."""
+    reference = _scene(4.0)  # 10 .. 18.7 px
+    pixels = _points(40, seed=1)
+    disparities = _measure(reference, pixels)
+    held_out = adapt.HeldOut.of(reference, pixels, disparities)
+    estimate = reference.copy()
+    estimate[:, :20] = 0.5  # far off, and below the cut of 1 px: written as 0
+    truth = held_out.truth
+    columns = held_out.flat % SIZE[1]
+    cut = columns < 20
+    as_estimated = held_out.score(estimate)
+    assert as_estimated.far == 0
+    assert as_estimated.prior == pytest.approx(np.abs(truth[cut] - 0.5).sum() / truth.size)
+    written = held_out.score(estimate, min_disparity=1.0)
+    assert written.far == cut.sum() > 0
+    assert written.cut == 1.0
+    assert written.prior == pytest.approx(truth[cut].sum() / truth.size)
+    assert (written.linear, written.nearest) == (as_estimated.linear, as_estimated.nearest)
+    assert written == adapt.check_frame(estimate, reference, pixels, disparities, 1.0)
+    # the pooled check says what share was cut, once it is noticeable
+    pooled = adapt.FitCheck.combine([written, written])
+    assert pooled.far == 2 * written.far
+    share = 100 * cut.mean()
+    assert f"; {share:.0f} % of them written as too far and scored so: below 1 px" in (
+        pooled.describe()
+    )
+    assert "too far" not in adapt.FitCheck.combine([as_estimated]).describe()
+    few = adapt.FitCheck(1, 1000, 1.0, 1.0, 1.0, far=49, cut=2.0)
+    assert "too far" not in few.describe()
+    assert "too far" in dataclasses.replace(few, far=50).describe()
+    # a feature stream's left-out check cuts as well
+    kept, left_out = adapt.left_out_split(40)
+    low = np.full(SIZE, 0.5, dtype=np.float32)
+    frame = adapt.check_left_out(low, pixels, disparities, kept, left_out, 1.0)
+    assert frame.far == left_out.size
+    assert frame.prior == pytest.approx(np.abs(disparities[left_out]).mean())
 
 
 def test_own_basis_from_the_log_reproduces_its_scenes() -> None:

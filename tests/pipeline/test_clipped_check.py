@@ -20,9 +20,11 @@ import pytest
 from pcainterp_stream.estimate import adapt
 from pcainterp_stream.estimate.basis import Basis
 from pcainterp_stream.frontend import levels
-from pcainterp_stream.frontend.stereo import SgbmConfig
+from pcainterp_stream.frontend.stereo import SgbmConfig, StereoFrontEnd
 from pcainterp_stream.pipeline.held_out import clipped_pixels
+from pcainterp_stream.pipeline.measured import Measured, sgbm_maps
 from pcainterp_stream.pipeline.processor import FrameProcessor, ProcessorConfig
+from pcainterp_stream.pipeline.refit import adapt_frame, score
 from pcainterp_stream.records import StereoCamera, StereoFrame
 
 HEIGHT, WIDTH = 94, 310
@@ -143,3 +145,68 @@ def test_clipped_pixels_are_at_255_in_either_view() -> None:
     wide = clipped_pixels(left.astype(np.uint16) * 257, right.astype(np.uint16) * 257, disparity)
     assert wide is not None
     np.testing.assert_array_equal(wide, expected)
+
+
+def _measured_later(frames: list[StereoFrame]) -> list[Measured]:
+    """The frames as the stereo workers hand them after the warm-up: maps, no held-out pixels."""
+    front_end = StereoFrontEnd(ProcessorConfig().gftt, SGBM)
+    items = []
+    for frame in frames:
+        measurements = front_end.measure(frame.left, frame.right)
+        sgbm_map, grid = sgbm_maps(measurements.disparity_map, frame.camera)
+        items.append(
+            Measured(
+                frame,
+                measurements.pixels,
+                measurements.disparities,
+                dict(measurements.counts),
+                sgbm_map=sgbm_map,
+                grid_map=grid,
+            )
+        )
+    return items
+
+
+def _none_at_255(made: list[adapt.HeldOut], frames: list[StereoFrame]) -> None:
+    assert len(made) == len(frames)
+    for held, frame in zip(made, frames, strict=True):
+        assert held.flat.size > 0
+        assert np.count_nonzero(frame.left.ravel()[held.flat] == 255) == 0
+
+
+def test_a_check_made_after_the_warm_up_leaves_out_the_clipped_pixels_too(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """fix-LVL17's left-over: a check made again (a camera change, a stop) and the watch of a
+    log's own basis hold pixels out of frames measured after the warm-up, with no held-out
+    pixels from the stereo workers; they kept the clipped pixels. Before: 13000+ of each
+    frame's held-out pixels at 255."""
+    frames = _frames(gain=1.0, offset=150.0)
+    items = _measured_later(frames)
+    adapt_frames = [adapt_frame(item) for item in items]
+    assert all(frame.held_out is None and frame.clipped is not None for frame in adapt_frames)
+    made: list[adapt.HeldOut] = []
+    original = adapt.HeldOut.of
+
+    def recorded(*args: Any, **kwargs: Any) -> adapt.HeldOut:
+        made.append(original(*args, **kwargs))
+        return made[-1]
+
+    monkeypatch.setattr(adapt.HeldOut, "of", recorded)
+    basis = _basis()
+    config = ProcessorConfig(sgbm=SGBM, warmup_frames=len(frames), adapt="check")
+    with FrameProcessor(basis, config) as engine:
+        options = engine.settings.densify_options()
+        # the check (adaptation.py, frames without the workers' held-out pixels)
+        engine.adaptation.warm_up(basis, adapt_frames, options)
+        assert engine.adaptation.check is not None
+        assert engine.adaptation.check.frames > 0
+        _none_at_255(made, frames)
+        # the watch of a log's own basis (refit.score)
+        made.clear()
+        for frame in adapt_frames:
+            assert score(basis, frame, options, "none").pixels > 0
+        _none_at_255(made, frames)
+    # a pair under the note's share has no mask: checked as before
+    normal = [adapt_frame(item) for item in _measured_later(_frames(gain=1.0, offset=110.0))]
+    assert all(frame.clipped is None for frame in normal)
