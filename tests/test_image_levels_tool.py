@@ -91,6 +91,22 @@ def test_a_variant_rewrites_the_pairs_images_only(
     assert (share > 0.5) == (variant == "over_exposed"), share
 
 
+def test_a_raw_logs_pair_is_found_as_densify_finds_it(tool: Any, tmp_path: Path) -> None:
+    # review 17a R2: the tool took /stereo/*/image_rect only and called a raw log imageless
+    from pcainterp_stream.pipeline.jobs import synth_raw
+
+    log = tmp_path / "raw.mcap"
+    synth_raw(log, frames=2, seed=1, scale=0.25, fmt=None, model="plumb_bob")
+    raw_left, raw_right = "/camera/left/image_raw", "/camera/right/image_raw"
+    assert tool.pair_topics(log) == (raw_left, raw_right)
+    out = tmp_path / "over.mcap"
+    assert tool.rewrite(log, out, tool.VARIANTS["over_exposed"]) > 0.5
+    before, after = _messages(log), _messages(out)
+    assert [m[:3] for m in after] == [m[:3] for m in before]
+    for old, new in zip(before, after, strict=True):
+        assert (new[3] != old[3]) == (old[0] in (raw_left, raw_right)), old[0]
+
+
 def _run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.run(

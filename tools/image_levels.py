@@ -17,7 +17,9 @@ Variants (:data:`VARIANTS`): ``original`` (the log as recorded), ``offset16`` (m
 levels 0..40), ``right_gain`` (the right image x0.7), ``right_gamma`` (the right image's
 gamma 0.6), ``over_exposed`` (both images x3, clipped at 255, or brighter until 60 % of an
 image is at 255). The
-``at 255`` column is the left images' mean share at 255 as rewritten.
+``at 255`` column is the left images' mean share at 255 as rewritten. The pair rewritten is
+the one ``densify`` finds with no topic flags; a raw (unrectified) pair is rewritten as
+recorded, before densify rectifies it (as a sensor's levels reach it).
 
 The commands run as ``python -m pcainterp_stream.cli`` of this interpreter, in a scratch
 folder (``--keep``: that folder, kept), so PYTHONPATH chooses the tree measured.
@@ -101,7 +103,12 @@ class BadInput(Exception):
 
 
 def pair_topics(log: Path) -> tuple[str, str]:
-    """The stereo pair densify takes from ``log`` (left, right image topics)."""
+    """The stereo pair densify takes from ``log`` (left, right image topics).
+
+    Found as ``densify`` with no topic flags finds it (the pair discovered in the log: the
+    default ``/stereo/*/image_rect``, a raw pair such as ``/camera/*/image_raw``, EuRoC's
+    ``/cam0`` and ``/cam1``).
+    """
     from pcainterp_stream.errors import PcaInterpError
     from pcainterp_stream.frontend.discovery import resolve_pairing
     from pcainterp_stream.frontend.pairing import PairingConfig
@@ -109,7 +116,7 @@ def pair_topics(log: Path) -> tuple[str, str]:
 
     try:
         with logreader.open_log(log) as reader:
-            pairing = resolve_pairing(reader, PairingConfig())
+            pairing = resolve_pairing(reader, PairingConfig(discover=True))
     except (PcaInterpError, OSError, ValueError) as err:
         first = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise BadInput(first if str(log) in first else f"{log}: {first}") from None

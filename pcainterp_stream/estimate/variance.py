@@ -429,15 +429,18 @@ def widen_at_border(
 ) -> npt.NDArray[np.float32]:
     """Widen the std between the outermost variance-grid cell centres and the image border.
 
-    The variance grid's outermost cell centres sit half a cell inside the image (8 px at
-    the default 1/16 grid); the bilinear resampling holds the std constant beyond them
-    while the estimate, extrapolated past the last measurements, keeps drifting (bug hunt
-    17D F4: 44-62 % inside +-2 sigma in the outermost rows / columns of the synthetic
-    logs). The std is widened there by a ramp, std' = std (1 + g t), t the share of the
-    margin crossed (0 at the cell centre, 1 at the outermost pixel), per side (the corners
-    get both factors), g = ``BORDER_GAIN``: the outermost 8 px then hold 93.8-100 % on
-    the synthetic and real sources (docs/options.md, "The std at depth edges and at the
-    border").
+    The variance grid's outermost cell centres sit half a variance cell inside the image
+    (0.5 x the output size / the grid's size: 8 px at the basis's own image size with the
+    default 1/16 grid, 3.9 px on a 620x188 log with the street basis); the bilinear
+    resampling holds the std constant beyond them while the estimate, extrapolated past
+    the last measurements, keeps drifting (bug hunt 17D F4: 44-62 % inside +-2 sigma in
+    the outermost rows / columns of the synthetic logs). The std is widened there by a
+    ramp, std' = std (1 + g t), t = 1 - i / margin for the i-th pixel from the border
+    (1 at the outermost pixel; the last ramped pixel, i = ceil(margin) - 1, gets a little
+    over 1, e.g. x1.06 at margin 8), per side (a corner pixel gets both factors: x2.25),
+    g = ``BORDER_GAIN``: the outermost 8 px then hold 93.8-100 % on the synthetic and real
+    sources (docs/options.md, "The std at depth edges and at the border"). In dense mode
+    the fusion weighs SGBM against this std, so the fused estimate moves there too.
 
     Args:
         std: (H, W) the std (px); changed in place and returned.
