@@ -19,7 +19,7 @@ once per process (:func:`note_once`, on stderr, prefixed ``note:``) when it acts
   densify's over-exposure note.
 * :func:`clipped_pixels`: on an over-exposed pair only (the note's trigger), the left pixels
   at 255 in either view, which the fit check leaves out: SGBM's values there are streaks
-  (:func:`.held_out.clipped_pixels` of the pair as recorded).
+  (:func:`pcainterp_stream.pipeline.held_out.clipped_pixels` of the pair as recorded).
 """
 
 from __future__ import annotations
