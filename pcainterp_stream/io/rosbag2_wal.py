@@ -326,9 +326,11 @@ class WalView:
                 shutil.rmtree(folder, ignore_errors=True)
             if isinstance(err, _Changing):
                 return _Copy(key, None, failures=[_changing(s) for s in walled])
-            room = isinstance(err, OSError) and err.errno in (errno.ENOSPC, errno.EDQUOT)
-            failures = [_failure(s, _one_line(err), room=room) for s in walled]
-            return _Copy(key, None, failures=failures)
+            reason = _one_line(err)
+            if folder is not None:  # the copy's path means nothing to the user
+                reason = reason.replace(str(folder), f"the copy in {base}")
+            fix = _copy_fix(err, base)
+            return _Copy(key, None, failures=[_failure(s, reason, fix=fix) for s in walled])
         if not notes:  # the logs held no message the databases lack
             shutil.rmtree(folder, ignore_errors=True)
             return _Copy(key, None)
@@ -457,17 +459,37 @@ def _megabytes(size: int) -> str:
     return f"{size / 1e6:.0f} MB" if size >= 1e6 else f"{size / 1e3:.0f} kB"
 
 
-def _failure(storage: Path, reason: str, *, room: bool = True) -> str:
-    """The damage line of a WAL not merged; ``room``: for want of room in TMPDIR.
+ROOM_FIX = "set TMPDIR to a folder with room for it"
 
-    Otherwise (sqlite's "disk I/O error", "database disk image is malformed" while merging)
-    the bag's own files are damaged or unreadable, which more room would not change.
+
+def _copy_fix(err: BaseException, base: str) -> str | None:
+    """What to do about ``err`` from making the copy (None: the bag's own files are at fault).
+
+    Room, a file-size limit or a temporary folder that refuses writes are the machine's,
+    and another TMPDIR helps; sqlite's "disk I/O error" or "database disk image is
+    malformed" while merging, or a read of the bag that fails, are the bag's.
     """
-    fix = (
-        "set TMPDIR to a folder with room for it"
-        if room
-        else f"{storage.name} or its -wal is damaged or unreadable"
-    )
+    if not isinstance(err, OSError):
+        return None
+    if err.errno in (errno.ENOSPC, errno.EDQUOT):
+        return ROOM_FIX
+    if err.errno == errno.EFBIG:
+        return "a file-size limit (ulimit -f) stopped the copy: raise it, or set TMPDIR elsewhere"
+    if err.errno in (errno.EACCES, errno.EPERM, errno.EROFS) and (
+        err.filename is None or str(err.filename).startswith(base)
+    ):
+        return f"the temporary folder {base} refused it: set TMPDIR to a folder you can write"
+    return None
+
+
+def _failure(storage: Path, reason: str, *, fix: str | None = ROOM_FIX) -> str:
+    """The damage line of a WAL not merged, with ``fix`` (None: the bag's files are at fault).
+
+    Without a fix of the machine's (:func:`_copy_fix`), the bag's own files are damaged or
+    unreadable, which more room would not change.
+    """
+    if fix is None:
+        fix = f"{storage.name} or its -wal is damaged or unreadable"
     return (
         f"{storage.name}: its write-ahead log {storage.name}-wal holds messages not yet "
         f"merged, which are not read (a private copy to merge them failed: {reason}; "

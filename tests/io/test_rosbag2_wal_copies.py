@@ -8,6 +8,7 @@ already checkpointed, and the suggested ``sqlite3`` command put the path in unqu
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import sqlite3
@@ -289,3 +290,30 @@ def test_an_open_logs_copy_is_kept_when_room_runs_short(
             assert len(list(reader_b.messages([LEFT]))) == 2
             assert len(reader_b.damage) == 1
         assert len(list(reader_a.messages([LEFT]))) == 6
+
+
+@pytest.mark.parametrize(
+    ("code", "said"),
+    [
+        (errno.EFBIG, "a file-size limit (ulimit -f) stopped the copy"),
+        (errno.EACCES, "refused it: set TMPDIR to a folder you can write"),
+        (errno.ENOSPC, "set TMPDIR to a folder with room for it"),
+    ],
+)
+def test_a_copy_the_machine_refuses_is_not_put_down_to_the_bag(
+    tmp_path: Path, scratch: Path, monkeypatch: pytest.MonkeyPatch, code: int, said: str
+) -> None:
+    """Review 17b R2: a copy stopped by `ulimit -f` (EFBIG) said the healthy bag "is damaged
+    or unreadable", and named the copy's folder in TMPDIR."""
+    bag = _wal_bag(tmp_path)
+
+    def refused(source: Any, target: Any, **kwargs: Any) -> Any:
+        raise OSError(code, os.strerror(code), str(target))
+
+    monkeypatch.setattr(shutil, "copyfile", refused)
+    with open_log(bag) as reader:
+        assert len(list(reader.messages([LEFT]))) == 2
+        (line,) = reader.damage
+    assert said in line
+    assert "damaged or unreadable" not in line
+    assert str(scratch) + "/pcainterp-wal" not in line
