@@ -27,9 +27,9 @@ again (:data:`_TRIES` times at most). A bag that changed while copied is read th
 copy (as it was then) with a note saying it is being recorded; one whose log restarted at
 every try, as its last database copy that did not change while copied holds it (the
 recorder's last checkpoint, without the log's messages), with a note; one whose database
-changed at every try is named in a damage line and read as it is. A bag another process
-holds open (a lock on its ``-shm``, Linux; :func:`_live`) is copied, and noted, even when its
-log adds nothing: read in place, it would change under the reader at the next checkpoint.
+changed at every try is named in a damage line and read as it is. Whether another process
+has the bag open is not asked: SQLite's locks cannot tell a recorder from a reader, and
+probing them from this process would drop its own connections' locks on the file.
 """
 
 from __future__ import annotations
@@ -37,12 +37,10 @@ from __future__ import annotations
 import atexit
 import errno
 import itertools
-import os
 import shlex
 import shutil
 import sqlite3
 import struct
-import sys
 import tempfile
 import threading
 import urllib.parse
@@ -368,9 +366,8 @@ class WalView:
             if merged.recording:  # the copy, not the bag a checkpoint may change under rosbags
                 merged_too = f", with the {held} its write-ahead log held merged"
                 notes.append(
-                    f"{storage.name} is being recorded (it changed while it was copied, or "
-                    "another process holds it open): read through a private copy of it as it "
-                    "was then"
+                    f"{storage.name} is being recorded (it changed while it was copied): "
+                    "read through a private copy of it as it was then"
                     f"{merged_too if merged.added != 0 else ''}; the messages recorded since "
                     "are not read"
                 )
@@ -390,44 +387,11 @@ def _checkpointed(storage: Path) -> bool:
     then the storage is copied (and the copy checked) as any other.
     """
     wal = _wal_of(storage)
-    if _live(storage):  # read in place, the next checkpoint would change it under rosbags
-        return False
     before = (_state(storage), _state(wal), _generation(wal))
     return (
         wal_adds_nothing(storage, wal)
         and (_state(storage), _state(wal), _generation(wal)) == before
     )
-
-
-_SHM_DMS = 128
-"""The byte of a ``-shm`` every SQLite connection to the database holds a read lock on."""
-
-
-def _live(storage: Path) -> bool:
-    """Whether another process holds the database open (a recorder still recording).
-
-    SQLite's unix VFS keeps a shared lock on byte 128 of the ``-shm`` for as long as a
-    connection uses it; asking whether a write lock there would conflict (``F_GETLK``)
-    takes no lock and writes nothing. Linux on 64 bits only (the ``struct flock`` layout);
-    elsewhere, or without a ``-shm``, False: the log is judged by its files alone.
-    """
-    if not sys.platform.startswith("linux") or struct.calcsize("P") != 8:
-        return False
-    import fcntl  # POSIX only
-
-    layout = "hh4xqqi4x"  # l_type, l_whence, l_start, l_len, l_pid
-    query = struct.pack(layout, fcntl.F_WRLCK, os.SEEK_SET, _SHM_DMS, 1, 0)
-    try:
-        descriptor = os.open(storage.with_name(storage.name + "-shm"), os.O_RDONLY)
-    except OSError:
-        return False
-    try:
-        answer = fcntl.fcntl(descriptor, fcntl.F_GETLK, query)
-    except OSError:
-        return False
-    finally:
-        os.close(descriptor)
-    return bool(struct.unpack(layout, answer)[0] != fcntl.F_UNLCK)
 
 
 def _changing(storage: Path) -> str:
@@ -546,14 +510,11 @@ def _merge(storage: Path, copy: Path) -> _Merged:
     read alone when it did not change while copied (the bag as of the recorder's last
     checkpoint, without the log's messages). The user's files are only read.
 
-    A bag another process holds open (:func:`_live`: its recorder) is noted, and its copy
-    kept, even when the log added nothing: the bag changes at the recorder's next checkpoint.
-
     Raises:
         _Changing: neither a consistent pair nor an unchanged database could be copied.
     """
     wal, copied_wal = _wal_of(storage), copy.with_name(copy.name + "-wal")
-    recording = _live(storage)
+    recording = False
     for attempt in range(_TRIES):
         generation, database, log = _generation(wal), _state(storage), _state(wal)
         shutil.copyfile(storage, copy)

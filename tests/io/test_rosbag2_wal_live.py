@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import shutil
 import sqlite3
-import subprocess
-import sys
 import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -173,66 +171,3 @@ def test_a_killed_recorders_bag_is_copied_once_without_a_recording_note(
     assert read == recorder.rows
     (warning,) = warnings
     assert "held 6 messages not yet merged (its recorder was killed" in warning
-
-
-RECORDER = """
-import sqlite3, sys
-connection = sqlite3.connect(sys.argv[1], isolation_level=None)
-connection.execute("PRAGMA journal_mode=WAL").fetchall()
-connection.execute("PRAGMA wal_autocheckpoint=0").fetchall()
-topic, stamp, data = connection.execute(
-    "SELECT topic_id, timestamp, data FROM messages ORDER BY id DESC LIMIT 1"
-).fetchone()
-for line in sys.stdin:
-    what, count = line.split()
-    for _ in range(int(count)):
-        stamp += 100_000_000
-        connection.execute(
-            "INSERT INTO messages (topic_id, timestamp, data) VALUES (?, ?, ?)",
-            (topic, stamp, data),
-        )
-    if what != "record":
-        connection.execute(f"PRAGMA wal_checkpoint({what})").fetchall()
-    print("ok", flush=True)
-"""
-
-
-def test_a_bag_another_process_records_is_read_from_a_copy_even_all_checkpointed(
-    tmp_path: Path,
-) -> None:
-    """Before: a -wal whose pages the database already held meant "no copy": the live
-    database was read in place with no word, and a checkpoint of the recorder meanwhile
-    changes it under the reader (the hunter's run 1: a false log-time warning). Now a copy,
-    the bag as it was when opened, and a note (another process holds its -shm locked)."""
-    live = Recorder(tmp_path)
-    live.close()  # the last connection: the log merged and removed
-    process = subprocess.Popen(
-        [sys.executable, "-c", RECORDER, str(live.db)],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    assert process.stdin is not None
-    assert process.stdout is not None
-
-    def tell(line: str) -> None:
-        process.stdin.write(line + "\n")  # type: ignore[union-attr]
-        process.stdin.flush()  # type: ignore[union-attr]
-        assert process.stdout.readline().strip() == "ok"  # type: ignore[union-attr]
-
-    try:
-        tell("passive 2")  # 2 messages recorded, all checkpointed: the -wal adds nothing
-        with open_log(live.bag) as reader:
-            messages = reader.messages([LEFT])
-            first = next(messages)
-            tell("truncate 3")  # the recorder records on and checkpoints meanwhile
-            read = [first, *messages]
-            warnings = list(reader.warnings)
-    finally:
-        process.stdin.close()
-        process.wait()
-        process.stdout.close()
-    assert len(read) == len(live.rows) + 2  # the bag as it was when opened
-    (warning,) = warnings
-    assert "live.db3 is being recorded" in warning
-    assert "another process holds it open" in warning
