@@ -172,8 +172,8 @@ class FitCheck:
             return ""
         return (
             f"; {100 * self.far / self.pixels:.0f} % of them written as too far and scored so: "
-            f"below {self.cut:.2g} px, the smallest disparity the estimate resolves (its sigma, "
-            "which densify --sigma sets)"
+            f"below {self.cut:.2g} px, the smallest disparity the estimate resolves (its noise "
+            "sigma in this camera's px; densify --sigma sets it on the basis's image)"
         )
 
     @classmethod
