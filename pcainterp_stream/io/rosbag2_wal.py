@@ -324,6 +324,8 @@ class WalView:
                 shutil.rmtree(folder, ignore_errors=True)
             if isinstance(err, _Changing):
                 return _Copy(key, None, failures=[_changing(s) for s in walled])
+            if isinstance(err, FileNotFoundError) and not any(_wal_of(s).exists() for s in walled):
+                return _Copy(key, None)  # the recorder stopped meanwhile: its log is merged
             reason = _one_line(err)
             if folder is not None:  # the copy's path means nothing to the user
                 reason = reason.replace(str(folder), f"the copy in {base}")

@@ -171,3 +171,17 @@ def test_a_killed_recorders_bag_is_copied_once_without_a_recording_note(
     assert read == recorder.rows
     (warning,) = warnings
     assert "held 6 messages not yet merged (its recorder was killed" in warning
+
+
+def test_a_recorder_that_stops_while_the_bag_is_copied_leaves_it_whole(
+    recorder: Recorder, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review 17d R2: the recorder's last close merged and removed its log between the two
+    copies: the missing -wal made "holds messages not yet merged, which are not read ...
+    damaged or unreadable" of a bag that was whole. Now it is read as it is, all of it."""
+    _on_copy(monkeypatch, ".db3", 1, recorder.close)
+    read, warnings, damage = _read(recorder.bag)
+    assert not (recorder.bag / "live.db3-wal").exists()
+    assert read == recorder.rows
+    assert damage == []
+    assert warnings == []
