@@ -111,6 +111,24 @@ def _on_xdist_workers(config: pytest.Config) -> bool:
     return bool(dist != "no" and workers != 1)  # -n 0: dist "no"; --tx specs: workers None
 
 
+_WORKERS_CHECKED = pytest.StashKey[bool]()
+"""On the xdist controller: whether a worker checked a golden file (``log_golden`` ran)."""
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    """On an xdist worker, tell the controller whether a ``log_golden`` check ran."""
+    output = getattr(session.config, "workeroutput", None)
+    if output is not None:
+        output["log_golden_checked"] = bool(session.config.stash.get(_CLAIMED, {}))
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node: Any, error: Any) -> None:
+    """On the xdist controller, note a worker that checked a golden file (review 17d R4)."""
+    if getattr(node, "workeroutput", {}).get("log_golden_checked"):
+        node.config.stash[_WORKERS_CHECKED] = True
+
+
 @pytest.hookimpl(trylast=True)
 def pytest_terminal_summary(terminalreporter: Any, config: pytest.Config) -> None:
     """Warn that the run's shared-file rules held only within each xdist worker (17B F3).
@@ -119,7 +137,8 @@ def pytest_terminal_summary(terminalreporter: Any, config: pytest.Config) -> Non
     warning into a failed start.
     """
     regenerating = config.getoption("update_golden") or config.getoption("force_regen", False)
-    if regenerating and _on_xdist_workers(config):
+    checked = config.stash.get(_WORKERS_CHECKED, False)  # not a run of other tests alone
+    if regenerating and checked and _on_xdist_workers(config):
         terminalreporter.write_line(XDIST_NOTE, yellow=True)
 
 

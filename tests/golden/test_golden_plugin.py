@@ -565,11 +565,17 @@ def test_regenerating_on_xdist_workers_is_warned_once(pytester: pytest.Pytester)
     # before (bug hunt 17B F3): `-n 2 --update-golden` with two cases sharing a golden file
     # but giving different logs passed both, silently: the rules hold within one worker
     pytester.makepyfile(test_plain="def test_a():\n    pass\n\ndef test_b():\n    pass\n")
+    # review 17d R4: the plugin loads in every run; a run with no log_golden check (other
+    # regression tests alone) was warned too
     result = _run(pytester, "-n", "2", "--update-golden")
     result.assert_outcomes(passed=2)
+    assert "log_golden: warning" not in result.stdout.str()
+    pytester.makepyfile(test_poses=POSES)
+    result = _run(pytester, "-n", "2", "--update-golden")
+    result.assert_outcomes(passed=3)
     assert result.stdout.str().count("log_golden: warning: golden files were rewritten") == 1
     assert "regenerate golden files without xdist (-p no:xdist, or -n 0)" in result.stdout.str()
     for args in (["-n", "2"], ["-n", "1", "--update-golden"], ["-p", "no:xdist", "--force-regen"]):
         quiet = _run(pytester, *args)
-        quiet.assert_outcomes(passed=2)
+        quiet.assert_outcomes(passed=3)
         assert "log_golden: warning" not in quiet.stdout.str(), args
