@@ -326,9 +326,10 @@ class WalView:
                 return _Copy(key, None, failures=[_changing(s) for s in walled])
             if isinstance(err, FileNotFoundError) and not any(_wal_of(s).exists() for s in walled):
                 return _Copy(key, None)  # the recorder stopped meanwhile: its log is merged
-            reason = _one_line(err)
+            text = str(err)
             if folder is not None:  # the copy's path means nothing to the user
-                reason = reason.replace(str(folder), f"the copy in {base}")
+                text = text.replace(str(folder.parent), f"the copy in {base}")
+            reason = _one_line(err, text)
             fix = _copy_fix(err, base)
             return _Copy(key, None, failures=[_failure(s, reason, fix=fix) for s in walled])
         if not notes:  # the logs held no message the databases lack
