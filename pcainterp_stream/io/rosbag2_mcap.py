@@ -272,7 +272,7 @@ def lone_storage_problem(path: Path, *, sqlite: bool) -> str | None:
         first = _first_payload_db3(path) if sqlite else _first_payload_mcap(path)
         if first is None or not first.startswith(ZSTD_MAGIC):
             return None
-        found = "its messages start with the zstd magic bytes"
+        found = "its first message starts with the zstd magic bytes"
     folder = f"its folder {path.parent}" if listed else "the bag's folder (with its metadata.yaml)"
     return (
         f"{path} is the storage file of a rosbag2 bag recorded with per-message zstd "
@@ -301,37 +301,62 @@ def _first_payload_db3(path: Path) -> bytes | None:
 
 
 def _first_payload_mcap(path: Path) -> bytes | None:
-    """The first bytes of an MCAP file's first message payload; None when not found cheaply.
+    """The first bytes of a rosbag2 MCAP file's first message payload; None: not found cheaply.
 
     Opened with every MCAP, so it reads little: the records before the first message or
     chunk, and of a chunk its first :data:`_CHUNK_PREFIX` bytes (decompressed as far as they
-    go; lz4 chunks are not looked into). A message not found there decides nothing.
+    go; lz4 chunks are not looked into). A message not found there decides nothing, nor one
+    of a file whose profile is not ``ros2`` or on a channel whose encoding is not ``cdr``
+    (only a CDR payload, which starts with its encapsulation header, tells the zstd magic
+    from data: another channel's payload may be any bytes, zstd data too).
     """
     import struct
 
+    cdr: set[int] = set()
     try:
         with path.open("rb") as f:
             size = os.fstat(f.fileno()).st_size
             if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
                 return None
-            for _ in range(64):  # header, schemas, channels, metadata: a few records
+            head = f.read(9)
+            if len(head) < 9 or head[0] != _HEADER:
+                return None
+            (length,) = struct.unpack_from("<Q", head, 1)
+            if _string(f.read(min(length, 4096)), 0)[0] != b"ros2":
+                return None
+            f.seek(len(MCAP_MAGIC) + 9 + length)
+            for _ in range(64):  # schemas, channels, metadata: a few records
                 head = f.read(9)
                 if len(head) < 9:
                     return None
                 opcode, length = struct.unpack("<BQ", head)
                 if length > size - f.tell():  # damaged or cut: the reader says what
                     return None
-                if opcode == _MESSAGE:
-                    return f.read(min(length, _MESSAGE_DATA + 8))[_MESSAGE_DATA:]
+                if opcode in (_MESSAGE, _CHANNEL):  # a channel's encoding, or the answer
+                    body = f.read(min(length, _CHUNK_PREFIX))
+                    f.seek(length - len(body), 1)
+                    first = _first_in_records(head + body, cdr)
+                    if opcode == _MESSAGE:
+                        return first
+                    continue
                 if opcode == _CHUNK:
-                    return _first_in_records(_chunk_records(f.read(min(length, _CHUNK_PREFIX))))
+                    records = _chunk_records(f.read(min(length, _CHUNK_PREFIX)))
+                    return _first_in_records(records, cdr)
                 f.seek(length, 1)
-    except (OSError, ValueError, OverflowError):
+    except (OSError, ValueError, OverflowError, struct.error):
         return None
     return None
 
 
-_MESSAGE, _CHUNK = 0x05, 0x06
+def _string(data: bytes, offset: int) -> tuple[bytes, int]:
+    """An MCAP string (u32 length, bytes) at ``offset``, and the offset after it."""
+    import struct
+
+    (length,) = struct.unpack_from("<I", data, offset)
+    return data[offset + 4 : offset + 4 + length], offset + 4 + length
+
+
+_HEADER, _CHANNEL, _MESSAGE, _CHUNK = 0x01, 0x04, 0x05, 0x06
 _MESSAGE_DATA = 22  # a message record's channel id, sequence, log and publish times
 _CHUNK_PREFIX = 1 << 18  # bytes of a chunk read: more than one zstd block (128 kB)
 
@@ -357,15 +382,31 @@ def _chunk_records(body: bytes) -> bytes:
     return b""
 
 
-def _first_in_records(records: bytes) -> bytes | None:
-    """The first bytes of the first message's payload among some records, None: none."""
+def _first_in_records(records: bytes, cdr: set[int]) -> bytes | None:
+    """The first bytes of the first message's payload among some records, None: none.
+
+    ``cdr``: the ids of the channels seen so far whose encoding is ``cdr`` (the records'
+    channels are added); a first message on another channel decides nothing (None).
+    """
     import struct
 
     offset = 0
-    while offset + 9 <= len(records):
-        opcode, length = struct.unpack_from("<BQ", records, offset)
-        if opcode == _MESSAGE:
-            start = offset + 9 + _MESSAGE_DATA
-            return records[start : min(start + 8, offset + 9 + length)]
-        offset += 9 + length
+    try:
+        while offset + 9 <= len(records):
+            opcode, length = struct.unpack_from("<BQ", records, offset)
+            body = offset + 9
+            if opcode == _CHANNEL:
+                (channel,) = struct.unpack_from("<H", records, body)
+                _, after_topic = _string(records, body + 4)  # after its id and schema id
+                if _string(records, after_topic)[0] == b"cdr":
+                    cdr.add(channel)
+            if opcode == _MESSAGE:
+                (channel,) = struct.unpack_from("<H", records, body)
+                if channel not in cdr:
+                    return None
+                start = body + _MESSAGE_DATA
+                return records[start : min(start + 8, body + length)]
+            offset = body + length
+    except struct.error:
+        return None
     return None

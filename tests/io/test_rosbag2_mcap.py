@@ -182,6 +182,45 @@ def test_the_storage_file_of_a_message_compressed_bag_alone_is_refused_in_one_li
         assert reader.damage == []
 
 
+@pytest.mark.parametrize("chunked", [True, False])
+def test_a_first_message_of_zstd_data_on_a_non_cdr_channel_reads(
+    synth_folder: Path, tmp_path: Path, chunked: bool
+) -> None:
+    """Review 17c R2: any MCAP whose first payload was zstd data was refused as rosbag2's."""
+    (storage,) = synth_folder.glob("*.mcap")
+    with storage.open("rb") as f:
+        messages = [(s, c, m) for s, c, m in make_reader(f).iter_messages(log_time_order=True)]
+    blob = tmp_path / "blob.mcap"
+    with blob.open("wb") as f:
+        writer = Writer(
+            f,
+            compression=CompressionType.ZSTD if chunked else CompressionType.NONE,
+            use_chunking=chunked,
+        )
+        writer.start(profile="ros2", library="test")
+        first = messages[0][2].log_time - 1
+        channel = writer.register_channel("/blob", "application/zstd", 0, {})
+        writer.add_message(channel, first, zstandard.compress(b"x" * 100), first, 0)
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, chan, message in messages:
+            assert schema is not None
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(
+                    schema.name, schema.encoding, schema.data
+                )
+            if chan.id not in channels:
+                channels[chan.id] = writer.register_channel(
+                    chan.topic, chan.message_encoding, schemas[schema.id], dict(chan.metadata)
+                )
+            writer.add_message(
+                channels[chan.id], message.log_time, message.data, message.log_time, 0
+            )
+        writer.finish()
+    with open_log(blob) as reader:
+        assert sum(1 for _ in reader.messages()) == len(messages) + 1
+
+
 def test_a_file_compressed_storage_file_alone_says_zstd(synth_folder: Path, tmp_path: Path) -> None:
     """Bug hunt 17A F3: "not a log (no MCAP, ROS 1 bag or SQLite magic bytes)"."""
     folder = recorded(synth_folder, tmp_path / "rec", compression="file")
@@ -212,7 +251,7 @@ def test_the_db3_of_a_message_compressed_bag_alone_is_refused_in_one_line(
         storage = storage.rename(tmp_path / storage.name)
     with pytest.raises(LogReadError, match="per-message zstd compression") as caught:
         open_log(storage)
-    found = "metadata.yaml says compression_mode" if beside else "start with the zstd magic"
+    found = "metadata.yaml says compression_mode" if beside else "starts with the zstd magic"
     assert found in str(caught.value)
     if beside:
         with open_log(tmp_path / "bag") as reader:  # the folder reads
