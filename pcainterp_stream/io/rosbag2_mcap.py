@@ -26,8 +26,10 @@ from pathlib import Path
 from typing import Any
 
 from pcainterp_stream.errors import LogReadError
+from pcainterp_stream.interrupt import track_partial, untrack_partial
 from pcainterp_stream.io.mcap_extras import ChannelInfo, McapExtras
 from pcainterp_stream.io.mcap_reader import McapLogReader
+from pcainterp_stream.io.output_paths import remove_stale_temporaries, temporary_prefix
 from pcainterp_stream.io.reader_base import (
     MCAP_MAGIC,
     LogFormat,
@@ -128,30 +130,47 @@ class Rosbag2McapReader(LogReader):
         """A storage file as MCAP: a file-compressed bag's (``NAME.mcap.zstd``) decompressed.
 
         It is decompressed into a private folder of the temporary folder (``TMPDIR``), as
-        rosbags did, removed on close.
+        rosbags did, removed on close; the folder is named after the process and registered
+        as a partial output (removed when a signal forces the end), and the folders of runs
+        that were killed are removed first (as :mod:`.rosbag2_wal` does its copies). When
+        the zstd frame gives its decompressed size and the temporary folder has not that
+        much room, it is refused before writing.
         """
         with file.open("rb") as f:
             if f.read(len(ZSTD_MAGIC)) != ZSTD_MAGIC:
                 return file
+            f.seek(0)
+            head = f.read(18)  # a frame header: its decompressed size when it says it
         import shutil
         import tempfile
 
         import zstandard
 
+        base = Path(tempfile.gettempdir())
+        plain = file.name.removesuffix(".zstd")
+        size = zstandard.frame_content_size(head) if len(head) >= 6 else -1
+        free = shutil.disk_usage(base).free if base.is_dir() else -1
         if self._temporary is None:
-            self._temporary = tempfile.mkdtemp(prefix="pcainterp-rosbag2-")
-        target = Path(self._temporary) / file.name.removesuffix(".zstd")
+            remove_stale_temporaries(base, STEM)  # copies left by runs that were killed
+            if 0 <= free < size:
+                raise LogReadError(_no_room(file, plain, base, size, free))
+            self._temporary = tempfile.mkdtemp(prefix=temporary_prefix(STEM))
+            track_partial(Path(self._temporary))  # removed even if a signal forces the end
+        elif 0 <= free < size:
+            raise LogReadError(_no_room(file, plain, base, size, free))
+        target = Path(self._temporary) / plain
         try:
             with file.open("rb") as source, target.open("wb") as sink:
                 zstandard.ZstdDecompressor().copy_stream(source, sink)
-        except (OSError, zstandard.ZstdError) as err:
-            free = shutil.disk_usage(self._temporary).free
+        except zstandard.ZstdError as err:
+            target.unlink(missing_ok=True)
             raise LogReadError(
                 f"cannot decompress {file} (a rosbag2 bag recorded with --compression-mode "
-                f"file) into the temporary folder {self._temporary} ({_one_line(err)}; "
-                f"{free / 1e9:.3g} GB free there); set TMPDIR to a folder with room for its "
-                f"decompressed size, or decompress it first (`zstd -d`)"
+                f"file): {_one_line(err)} (a damaged or cut file?)"
             ) from err
+        except OSError as err:
+            target.unlink(missing_ok=True)
+            raise LogReadError(_no_room(file, plain, base, size, free, _one_line(err))) from err
         return target
 
     def _close(self) -> None:
@@ -162,6 +181,7 @@ class Rosbag2McapReader(LogReader):
             import shutil
 
             shutil.rmtree(self._temporary, ignore_errors=True)
+            untrack_partial(Path(self._temporary))
             self._temporary = None
 
     def topics(self) -> dict[str, TopicInfo]:
@@ -279,6 +299,30 @@ def lone_storage_problem(path: Path, *, sqlite: bool) -> str | None:
         f"compression ({found}), read only through the bag's folder; pass {folder} "
         "instead of the storage file"
     )
+
+
+STEM = "pcainterp-rosbag2"
+"""The start of the name of a process's folder of decompressed storage files."""
+
+
+def _no_room(
+    file: Path, plain: str, base: Path, size: int, free: int, error: str | None = None
+) -> str:
+    """The line that says a file-compressed storage file could not be decompressed."""
+    needs = f"it needs {_amount(size)}" if size >= 0 else "its decompressed size is not known"
+    has = f"{_amount(free)} free" if free >= 0 else "room unknown"
+    why = f" ({error}; {needs}, {has} before)" if error else f": {needs}, it has {has}"
+    return (
+        f"cannot decompress {file} (a rosbag2 bag recorded with --compression-mode file) into "
+        f"the temporary folder {base}{why}; set TMPDIR to a folder with room for it, or run "
+        f"`zstd -d {file}` and pass the decompressed {file.parent / plain} (the folder still "
+        "lists the .zstd)"
+    )
+
+
+def _amount(size: int) -> str:
+    """A size in bytes as people say it: MB above a megabyte, else kB."""
+    return f"{size / 1e6:.0f} MB" if size >= 1e6 else f"{size / 1e3:.0f} kB"
 
 
 def _first_payload_db3(path: Path) -> bytes | None:

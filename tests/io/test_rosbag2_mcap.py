@@ -257,3 +257,66 @@ def test_the_db3_of_a_message_compressed_bag_alone_is_refused_in_one_line(
         with open_log(tmp_path / "bag") as reader:  # the folder reads
             (raw,) = reader.messages()
             assert reader.decode(raw).data == "hi"
+
+
+def test_the_decompressed_copy_is_owner_named_tracked_and_a_killed_runs_is_removed(
+    synth_folder: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review 17c R3: a SIGKILLed run's bare mkdtemp copy stayed in TMPDIR for good."""
+    import os
+    import subprocess
+    import sys
+    import tempfile
+
+    from pcainterp_stream import interrupt
+    from pcainterp_stream.io.output_paths import temporary_prefix
+
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    folder = recorded(synth_folder, tmp_path / "rec", compression="file")
+    process = subprocess.Popen([sys.executable, "-c", "pass"])
+    process.wait()
+    prefix = temporary_prefix("pcainterp-rosbag2")
+    killed = scratch / (prefix.replace(f"-{os.getpid()}@", f"-{process.pid}@") + "t1x6e3v1")
+    killed.mkdir()
+    (killed / "rec_0.mcap").write_bytes(bytes(1000))
+    live = scratch / (prefix.replace(f"-{os.getpid()}@", f"-{os.getppid()}@") + "abcdefgh")
+    live.mkdir()  # a run still going
+    with open_log(folder) as reader:
+        assert sum(1 for _ in reader.messages()) > 0
+        (mine,) = (p for p in scratch.iterdir() if p != live)
+        assert mine.name.startswith(prefix)
+        assert mine in interrupt._partials  # removed if a signal forces the end
+    assert not killed.exists()
+    assert sorted(os.listdir(scratch)) == [live.name]
+    assert mine not in interrupt._partials
+
+
+def test_no_room_to_decompress_is_said_before_writing_with_the_size_needed(
+    synth_folder: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review 17c R5: the free room was read after the copy filled the disk (always 0 GB)."""
+    import shutil
+    import tempfile
+
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    folder = recorded(synth_folder, tmp_path / "rec", compression="file")
+    (storage,) = folder.glob("*.mcap.zstd")
+    size = zstandard.frame_content_size(storage.read_bytes()[:18])
+    assert size > 1000
+    usage = shutil.disk_usage(scratch)
+    monkeypatch.setattr(shutil, "disk_usage", lambda _path: usage._replace(free=1000))
+    with pytest.raises(LogReadError) as caught:
+        open_log(folder)
+    plain = folder / storage.name.removesuffix(".zstd")
+    needs = f"{size / 1e6:.0f} MB" if size >= 1e6 else f"{size / 1e3:.0f} kB"
+    assert str(caught.value) == (
+        f"cannot decompress {storage} (a rosbag2 bag recorded with --compression-mode file) "
+        f"into the temporary folder {scratch}: it needs {needs}, it has 1 kB free; set TMPDIR "
+        f"to a folder with room for it, or run `zstd -d {storage}` and pass the decompressed "
+        f"{plain} (the folder still lists the .zstd)"
+    )
+    assert list(scratch.iterdir()) == []
