@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 from pcainterp_stream import cli
-from pcainterp_stream.cli.common import STREAM, basis_option, path_arg
+from pcainterp_stream.cli.common import STREAM, basis_option, path_arg, unexpanded_home
 from pcainterp_stream.cli.streams import ReportStream
 from pcainterp_stream.io.path_text import path_text, shown, too_long
 from pcainterp_stream.pipeline.densify import basis_label
@@ -156,6 +156,48 @@ def test_an_unexpanded_tilde_is_refused_and_no_tilde_folder_made(
     assert "the shell did not expand ~" in err
     assert "$HOME/" in err
     assert not (folder / "~").exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "fix"),
+    [
+        (
+            ["densify", "café.mcap", "--basis=~/b.npz", "-o", "o.mcap"],
+            "write it unquoted after a space (--basis ~/b.npz, not --basis=~/b.npz nor quoted)",
+        ),
+        (
+            ["densify", "café.mcap", "--calibration=~/c.yaml", "-o", "o.mcap"],
+            "(--calibration ~/c.yaml, not --calibration=~/c.yaml nor quoted)",
+        ),
+        (
+            ["densify", "café.mcap", "-o~/o.mcap"],
+            "(--output ~/o.mcap, not --output=~/o.mcap nor quoted)",
+        ),
+        (["synth", "~/s.mcap"], "write it unquoted (~/s.mcap, not '~/s.mcap') or as $HOME/s.mcap"),
+        (["info", "~/x.mcap"], "write it unquoted (~/x.mcap, not '~/x.mcap') or as $HOME/x.mcap"),
+    ],
+    ids=["basis", "calibration", "short-o", "synth-positional", "info-positional"],
+)
+def test_the_tilde_refusal_names_the_option_that_held_the_path(
+    folder: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    args: list[str],
+    fix: str,
+) -> None:
+    """Review 17c R1: every option and positional was told to write ``-o ~/x``."""
+    monkeypatch.chdir(folder)
+    assert cli.main(args) == 2
+    err = capsys.readouterr().err
+    assert fix in err, err
+    assert "-o ~" not in err
+    assert not (folder / "~").exists()
+
+
+def test_the_tilde_refusal_outside_argparse_names_no_option() -> None:
+    text = unexpanded_home("~/x.mcap")
+    assert text is not None
+    assert text.endswith("write it unquoted at the start of a word or as $HOME/x.mcap")
 
 
 def test_a_tilde_folder_that_exists_is_taken_as_typed(

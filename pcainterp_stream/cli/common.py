@@ -22,6 +22,8 @@ from pcainterp_stream.errors import LogWriteError, PcaInterpError
 from pcainterp_stream.io.output_paths import input_bag, name_too_long, symlink_loop
 
 if TYPE_CHECKING:
+    from types import FrameType
+
     from pcainterp_stream.frontend.stereo import GfttConfig, SgbmConfig
     from pcainterp_stream.io.logwriter import WriteSummary
 
@@ -93,11 +95,36 @@ def unexpanded_home(value: str) -> str | None:
     if not head.startswith("~") or os.path.lexists(head) or os.path.expanduser(head) == head:
         return None
     home = "$HOME" if head == "~" else os.path.expanduser(head)
+    option = _parsed_option()
+    if option is None:  # not through argparse: no option to name
+        how = "unquoted at the start of a word"
+    elif option:
+        how = f"unquoted after a space ({option} {value}, not {option}={value} nor quoted)"
+    else:  # a positional argument
+        how = f"unquoted ({value}, not '{value}')"
     return (
         f"{value}: the shell did not expand {head} (it does not after = nor inside quotes); "
-        f"write it unquoted after a space (-o {value}, not --output={value}) or as "
-        + f"{home}/{rest}".rstrip("/")
+        f"write it {how} or as " + f"{home}/{rest}".rstrip("/")
     )
+
+
+def _parsed_option() -> str | None:
+    """The option whose value argparse is converting now ("" for a positional), else None.
+
+    A ``type=`` callable is not told which argument it converts: the argparse frame that
+    calls it (``_get_value(action, arg_string)``) is, so its action's long option is read
+    there (the first of its names when it has no long one).
+    """
+    frame: FrameType | None = sys._getframe(1)
+    while frame is not None:
+        action = frame.f_locals.get("action") if frame.f_code.co_name == "_get_value" else None
+        if isinstance(action, argparse.Action):
+            names = action.option_strings
+            return next(
+                (name for name in names if name.startswith("--")), names[0] if names else ""
+            )
+        frame = frame.f_back
+    return None
 
 
 def _end_parse(line: str) -> None:

@@ -340,6 +340,13 @@ class StereoPairer:
             nearest = min(gaps, key=abs, default=None)
             if nearest is not None:
                 self.stats.saw_gap(nearest if side == "left" else -nearest, self._by_log_time)
+            if other and not self._by_log_time:  # its own frame's: the nearest by log time
+                own_frame = min(other, key=lambda p: abs(p.log_time_ns - item.log_time_ns))
+                offset = own_frame.stamp_ns - item.stamp_ns
+                self.stats.saw_frame_offset(
+                    abs(own_frame.log_time_ns - item.log_time_ns),
+                    offset if side == "left" else -offset,
+                )
             self._lost_partner(side, item)
             own.append(item)
             self._count_unpaired(side, self._hold.give_up(side, own))

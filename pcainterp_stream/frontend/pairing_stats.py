@@ -21,6 +21,11 @@ MAX_PROBLEMS = 20
 NEAR_MISS_LIMIT_NS = 1_000_000_000
 """Sides whose nearest stamps are farther apart than this (ns) are on different clocks."""
 
+MAX_FRAME_OFFSETS = 4096
+"""How many unpaired images' offsets to their own frame's other image are kept."""
+
+MS_NS = 1_000_000
+
 MAX_CAMERA_LINES = 5
 """Camera changes said as they happen (each with a line); the summary counts them all."""
 
@@ -73,6 +78,9 @@ class PairingStats:
             the tolerance, or they would have been); -1 when there was none.
         non_monotonic_stamps: images whose stamp is earlier than the previous one on the
             same side.
+        frame_offsets_ns: (log time apart, right minus left stamp) (ns) of an image that
+            found no partner and the waiting other-side image nearest it by log time (its own
+            frame's when they were logged together), the first :data:`MAX_FRAME_OFFSETS`.
         near_misses_ns: the gap (ns) of each image dropped unpaired to the nearest other-side
             image that was waiting unpaired too (recorded before or after it), if beyond the
             tolerance but within :data:`NEAR_MISS_NS`.
@@ -159,6 +167,7 @@ class PairingStats:
     features_nearest_miss_ns: int = -1
     non_monotonic_stamps: int = 0
     near_misses_ns: list[int] = field(default_factory=list)
+    frame_offsets_ns: list[tuple[int, int]] = field(default_factory=list)
     repeated_stamp_topic: str | None = None
     repeated_stamp_ns: int = 0
     pairs_by_stamp: int = 0
@@ -233,8 +242,49 @@ class PairingStats:
             "frame's: give the images distinct header stamps)"
         )
 
+    def saw_frame_offset(self, log_apart_ns: int, right_minus_left_ns: int) -> None:
+        """Keep an unpaired image's stamp offset to the other side's image logged nearest it."""
+        if len(self.frame_offsets_ns) < MAX_FRAME_OFFSETS:
+            self.frame_offsets_ns.append((log_apart_ns, right_minus_left_ns))
+
+    def stamp_offset_ns(self) -> int | None:
+        """The right stamps' steady offset (ns) from their own frame's left ones, else None.
+
+        Own frame: the images logged less than half a frame interval apart. It is steady
+        when such images outnumber the pairs and nine in ten of them are within a twentieth
+        of a frame of their median offset: the cameras' stamps are offset, nothing dropped.
+        """
+        period = self.stamp_period_ns
+        offsets = sorted(
+            off for apart, off in self.frame_offsets_ns if period and 2 * apart < period
+        )
+        if not offsets or len(offsets) <= self.pairs:
+            return None
+        median = offsets[(len(offsets) - 1) // 2]
+        near = sum(abs(off - median) <= max(MS_NS, period // 20) for off in offsets)
+        return median if 10 * near >= 9 * len(offsets) else None
+
+    def _offset_advice(self) -> str | None:
+        """Why no tolerance pairs a steady stamp offset of half a frame or more, else None."""
+        offset_ns = self.stamp_offset_ns()
+        period = self.stamp_period_ns / 1e6
+        if offset_ns is None or 2 * math.ceil(abs(offset_ns) / 1e6) < period:
+            return None
+        offset, how = abs(offset_ns) / 1e6, "after" if offset_ns > 0 else "before"
+        return (
+            f"the right images are stamped {offset:.0f} ms {how} the left image logged with "
+            f"them on most frames: the two cameras' stamps are offset by {offset:.0f} ms, half "
+            f"the {period:g} ms frame interval or more: no tolerance pairs each left image with "
+            "its own frame's right one (it would pair it with the neighbouring frame's); "
+            "densify has no option to shift one side's stamps: re-stamp one side, or "
+            "synchronise the cameras"
+        )
+
     def _stamp_advice(self) -> str:
         """By stamp: the tolerance that pairs the near misses under half the frame interval."""
+        offset = self._offset_advice()
+        if offset is not None:
+            return offset
         period = self.stamp_period_ns
 
         def advised(miss_ns: int) -> int:

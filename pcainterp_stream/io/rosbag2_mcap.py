@@ -26,8 +26,10 @@ from pathlib import Path
 from typing import Any
 
 from pcainterp_stream.errors import LogReadError
+from pcainterp_stream.interrupt import track_partial, untrack_partial
 from pcainterp_stream.io.mcap_extras import ChannelInfo, McapExtras
 from pcainterp_stream.io.mcap_reader import McapLogReader
+from pcainterp_stream.io.output_paths import remove_stale_temporaries, temporary_prefix
 from pcainterp_stream.io.reader_base import (
     MCAP_MAGIC,
     LogFormat,
@@ -128,30 +130,47 @@ class Rosbag2McapReader(LogReader):
         """A storage file as MCAP: a file-compressed bag's (``NAME.mcap.zstd``) decompressed.
 
         It is decompressed into a private folder of the temporary folder (``TMPDIR``), as
-        rosbags did, removed on close.
+        rosbags did, removed on close; the folder is named after the process and registered
+        as a partial output (removed when a signal forces the end), and the folders of runs
+        that were killed are removed first (as :mod:`.rosbag2_wal` does its copies). When
+        the zstd frame gives its decompressed size and the temporary folder has not that
+        much room, it is refused before writing.
         """
         with file.open("rb") as f:
             if f.read(len(ZSTD_MAGIC)) != ZSTD_MAGIC:
                 return file
+            f.seek(0)
+            head = f.read(18)  # a frame header: its decompressed size when it says it
         import shutil
         import tempfile
 
         import zstandard
 
+        base = Path(tempfile.gettempdir())
+        plain = file.name.removesuffix(".zstd")
+        size = zstandard.frame_content_size(head) if len(head) >= 6 else -1
+        free = shutil.disk_usage(base).free if base.is_dir() else -1
         if self._temporary is None:
-            self._temporary = tempfile.mkdtemp(prefix="pcainterp-rosbag2-")
-        target = Path(self._temporary) / file.name.removesuffix(".zstd")
+            remove_stale_temporaries(base, STEM)  # copies left by runs that were killed
+            if 0 <= free < size:
+                raise LogReadError(_no_room(file, plain, base, size, free))
+            self._temporary = tempfile.mkdtemp(prefix=temporary_prefix(STEM))
+            track_partial(Path(self._temporary))  # removed even if a signal forces the end
+        elif 0 <= free < size:
+            raise LogReadError(_no_room(file, plain, base, size, free))
+        target = Path(self._temporary) / plain
         try:
             with file.open("rb") as source, target.open("wb") as sink:
                 zstandard.ZstdDecompressor().copy_stream(source, sink)
-        except (OSError, zstandard.ZstdError) as err:
-            free = shutil.disk_usage(self._temporary).free
+        except zstandard.ZstdError as err:
+            target.unlink(missing_ok=True)
             raise LogReadError(
                 f"cannot decompress {file} (a rosbag2 bag recorded with --compression-mode "
-                f"file) into the temporary folder {self._temporary} ({_one_line(err)}; "
-                f"{free / 1e9:.3g} GB free there); set TMPDIR to a folder with room for its "
-                f"decompressed size, or decompress it first (`zstd -d`)"
+                f"file): {_one_line(err)} (a damaged or cut file?)"
             ) from err
+        except OSError as err:
+            target.unlink(missing_ok=True)
+            raise LogReadError(_no_room(file, plain, base, size, free, _one_line(err))) from err
         return target
 
     def _close(self) -> None:
@@ -162,6 +181,7 @@ class Rosbag2McapReader(LogReader):
             import shutil
 
             shutil.rmtree(self._temporary, ignore_errors=True)
+            untrack_partial(Path(self._temporary))
             self._temporary = None
 
     def topics(self) -> dict[str, TopicInfo]:
@@ -272,13 +292,37 @@ def lone_storage_problem(path: Path, *, sqlite: bool) -> str | None:
         first = _first_payload_db3(path) if sqlite else _first_payload_mcap(path)
         if first is None or not first.startswith(ZSTD_MAGIC):
             return None
-        found = "its messages start with the zstd magic bytes"
+        found = "its first message starts with the zstd magic bytes"
     folder = f"its folder {path.parent}" if listed else "the bag's folder (with its metadata.yaml)"
     return (
         f"{path} is the storage file of a rosbag2 bag recorded with per-message zstd "
         f"compression ({found}), read only through the bag's folder; pass {folder} "
         "instead of the storage file"
     )
+
+
+STEM = "pcainterp-rosbag2"
+"""The start of the name of a process's folder of decompressed storage files."""
+
+
+def _no_room(
+    file: Path, plain: str, base: Path, size: int, free: int, error: str | None = None
+) -> str:
+    """The line that says a file-compressed storage file could not be decompressed."""
+    needs = f"it needs {_amount(size)}" if size >= 0 else "its decompressed size is not known"
+    has = f"{_amount(free)} free" if free >= 0 else "room unknown"
+    why = f" ({error}; {needs}, {has} before)" if error else f": {needs}, it has {has}"
+    return (
+        f"cannot decompress {file} (a rosbag2 bag recorded with --compression-mode file) into "
+        f"the temporary folder {base}{why}; set TMPDIR to a folder with room for it, or run "
+        f"`zstd -d {file}` and pass the decompressed {file.parent / plain} (the folder still "
+        "lists the .zstd)"
+    )
+
+
+def _amount(size: int) -> str:
+    """A size in bytes as people say it: MB above a megabyte, else kB."""
+    return f"{size / 1e6:.0f} MB" if size >= 1e6 else f"{size / 1e3:.0f} kB"
 
 
 def _first_payload_db3(path: Path) -> bytes | None:
@@ -301,37 +345,62 @@ def _first_payload_db3(path: Path) -> bytes | None:
 
 
 def _first_payload_mcap(path: Path) -> bytes | None:
-    """The first bytes of an MCAP file's first message payload; None when not found cheaply.
+    """The first bytes of a rosbag2 MCAP file's first message payload; None: not found cheaply.
 
     Opened with every MCAP, so it reads little: the records before the first message or
     chunk, and of a chunk its first :data:`_CHUNK_PREFIX` bytes (decompressed as far as they
-    go; lz4 chunks are not looked into). A message not found there decides nothing.
+    go; lz4 chunks are not looked into). A message not found there decides nothing, nor one
+    of a file whose profile is not ``ros2`` or on a channel whose encoding is not ``cdr``
+    (only a CDR payload, which starts with its encapsulation header, tells the zstd magic
+    from data: another channel's payload may be any bytes, zstd data too).
     """
     import struct
 
+    cdr: set[int] = set()
     try:
         with path.open("rb") as f:
             size = os.fstat(f.fileno()).st_size
             if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
                 return None
-            for _ in range(64):  # header, schemas, channels, metadata: a few records
+            head = f.read(9)
+            if len(head) < 9 or head[0] != _HEADER:
+                return None
+            (length,) = struct.unpack_from("<Q", head, 1)
+            if _string(f.read(min(length, 4096)), 0)[0] != b"ros2":
+                return None
+            f.seek(len(MCAP_MAGIC) + 9 + length)
+            for _ in range(64):  # schemas, channels, metadata: a few records
                 head = f.read(9)
                 if len(head) < 9:
                     return None
                 opcode, length = struct.unpack("<BQ", head)
                 if length > size - f.tell():  # damaged or cut: the reader says what
                     return None
-                if opcode == _MESSAGE:
-                    return f.read(min(length, _MESSAGE_DATA + 8))[_MESSAGE_DATA:]
+                if opcode in (_MESSAGE, _CHANNEL):  # a channel's encoding, or the answer
+                    body = f.read(min(length, _CHUNK_PREFIX))
+                    f.seek(length - len(body), 1)
+                    first = _first_in_records(head + body, cdr)
+                    if opcode == _MESSAGE:
+                        return first
+                    continue
                 if opcode == _CHUNK:
-                    return _first_in_records(_chunk_records(f.read(min(length, _CHUNK_PREFIX))))
+                    records = _chunk_records(f.read(min(length, _CHUNK_PREFIX)))
+                    return _first_in_records(records, cdr)
                 f.seek(length, 1)
-    except (OSError, ValueError, OverflowError):
+    except (OSError, ValueError, OverflowError, struct.error):
         return None
     return None
 
 
-_MESSAGE, _CHUNK = 0x05, 0x06
+def _string(data: bytes, offset: int) -> tuple[bytes, int]:
+    """An MCAP string (u32 length, bytes) at ``offset``, and the offset after it."""
+    import struct
+
+    (length,) = struct.unpack_from("<I", data, offset)
+    return data[offset + 4 : offset + 4 + length], offset + 4 + length
+
+
+_HEADER, _CHANNEL, _MESSAGE, _CHUNK = 0x01, 0x04, 0x05, 0x06
 _MESSAGE_DATA = 22  # a message record's channel id, sequence, log and publish times
 _CHUNK_PREFIX = 1 << 18  # bytes of a chunk read: more than one zstd block (128 kB)
 
@@ -357,15 +426,31 @@ def _chunk_records(body: bytes) -> bytes:
     return b""
 
 
-def _first_in_records(records: bytes) -> bytes | None:
-    """The first bytes of the first message's payload among some records, None: none."""
+def _first_in_records(records: bytes, cdr: set[int]) -> bytes | None:
+    """The first bytes of the first message's payload among some records, None: none.
+
+    ``cdr``: the ids of the channels seen so far whose encoding is ``cdr`` (the records'
+    channels are added); a first message on another channel decides nothing (None).
+    """
     import struct
 
     offset = 0
-    while offset + 9 <= len(records):
-        opcode, length = struct.unpack_from("<BQ", records, offset)
-        if opcode == _MESSAGE:
-            start = offset + 9 + _MESSAGE_DATA
-            return records[start : min(start + 8, offset + 9 + length)]
-        offset += 9 + length
+    try:
+        while offset + 9 <= len(records):
+            opcode, length = struct.unpack_from("<BQ", records, offset)
+            body = offset + 9
+            if opcode == _CHANNEL:
+                (channel,) = struct.unpack_from("<H", records, body)
+                _, after_topic = _string(records, body + 4)  # after its id and schema id
+                if _string(records, after_topic)[0] == b"cdr":
+                    cdr.add(channel)
+            if opcode == _MESSAGE:
+                (channel,) = struct.unpack_from("<H", records, body)
+                if channel not in cdr:
+                    return None
+                start = body + _MESSAGE_DATA
+                return records[start : min(start + 8, body + length)]
+            offset = body + length
+    except struct.error:
+        return None
     return None

@@ -173,6 +173,45 @@ def test_tolerance_hint_never_advises_a_frame_interval_for_dropped_images() -> N
     assert "2 of them are half the 50 ms frame interval or more apart" in hint
 
 
+def _run_shifted(shift_ms: int, tolerance_ns: int = MS) -> PairingStats:
+    """Pair 20 frames at 10 Hz whose right stamps are ``shift_ms`` late, logged with the left."""
+    pairer = StereoPairer(PairingConfig(tolerance_ns=tolerance_ns))
+    with_infos(pairer)
+    for index in range(20):
+        stamp, right = index * 100 * MS, index * 100 * MS + shift_ms * MS
+        pairer.push(CONFIG.left_topic, stamp, stamp + MS, image(stamp))
+        pairer.push(CONFIG.right_topic, right, stamp + 2 * MS, image(right, 1))
+    return pairer.finish()
+
+
+@pytest.mark.parametrize("shift_ms", [50, 60, 70])
+def test_a_stamp_offset_of_half_a_frame_is_named_and_given_no_tolerance(shift_ms: int) -> None:
+    # review 17c R4: right stamps 50 ms late at 10 Hz (nothing dropped) were called
+    # "neighbouring frames whose partners are missing"; 60 ms late advised 40 ms, which
+    # pairs each left image with the previous frame's right one
+    stats = _run_shifted(shift_ms)
+    assert stats.pairs == 0
+    hint = stats.tolerance_hint()
+    assert hint is not None
+    assert "--stamp-tolerance-ms" not in hint
+    assert "neighbouring frames whose partners are missing" not in hint
+    assert (
+        f"the right images are stamped {shift_ms} ms after the left image logged with them on "
+        f"most frames: the two cameras' stamps are offset by {shift_ms} ms, half the 100 ms "
+        "frame interval or more: no tolerance pairs each left image with its own frame's"
+    ) in hint
+    assert "densify has no option to shift one side's stamps" in hint
+
+
+def test_a_stamp_offset_under_half_a_frame_is_advised_its_own_tolerance() -> None:
+    stats = _run_shifted(40)
+    hint = stats.tolerance_hint()
+    assert hint is not None
+    assert hint.endswith("beyond the 1 ms tolerance; pass --stamp-tolerance-ms 40 to pair them")
+    paired = _run_shifted(40, 40 * MS)
+    assert (paired.pairs, paired.unpaired_left, paired.unpaired_right) == (20, 0, 0)
+
+
 def _pairs_before_infos(pairer: StereoPairer, count: int) -> None:
     for index in range(count):
         stamp = index * 100 * MS

@@ -182,6 +182,45 @@ def test_the_storage_file_of_a_message_compressed_bag_alone_is_refused_in_one_li
         assert reader.damage == []
 
 
+@pytest.mark.parametrize("chunked", [True, False])
+def test_a_first_message_of_zstd_data_on_a_non_cdr_channel_reads(
+    synth_folder: Path, tmp_path: Path, chunked: bool
+) -> None:
+    """Review 17c R2: any MCAP whose first payload was zstd data was refused as rosbag2's."""
+    (storage,) = synth_folder.glob("*.mcap")
+    with storage.open("rb") as f:
+        messages = [(s, c, m) for s, c, m in make_reader(f).iter_messages(log_time_order=True)]
+    blob = tmp_path / "blob.mcap"
+    with blob.open("wb") as f:
+        writer = Writer(
+            f,
+            compression=CompressionType.ZSTD if chunked else CompressionType.NONE,
+            use_chunking=chunked,
+        )
+        writer.start(profile="ros2", library="test")
+        first = messages[0][2].log_time - 1
+        channel = writer.register_channel("/blob", "application/zstd", 0, {})
+        writer.add_message(channel, first, zstandard.compress(b"x" * 100), first, 0)
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, chan, message in messages:
+            assert schema is not None
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(
+                    schema.name, schema.encoding, schema.data
+                )
+            if chan.id not in channels:
+                channels[chan.id] = writer.register_channel(
+                    chan.topic, chan.message_encoding, schemas[schema.id], dict(chan.metadata)
+                )
+            writer.add_message(
+                channels[chan.id], message.log_time, message.data, message.log_time, 0
+            )
+        writer.finish()
+    with open_log(blob) as reader:
+        assert sum(1 for _ in reader.messages()) == len(messages) + 1
+
+
 def test_a_file_compressed_storage_file_alone_says_zstd(synth_folder: Path, tmp_path: Path) -> None:
     """Bug hunt 17A F3: "not a log (no MCAP, ROS 1 bag or SQLite magic bytes)"."""
     folder = recorded(synth_folder, tmp_path / "rec", compression="file")
@@ -212,9 +251,72 @@ def test_the_db3_of_a_message_compressed_bag_alone_is_refused_in_one_line(
         storage = storage.rename(tmp_path / storage.name)
     with pytest.raises(LogReadError, match="per-message zstd compression") as caught:
         open_log(storage)
-    found = "metadata.yaml says compression_mode" if beside else "start with the zstd magic"
+    found = "metadata.yaml says compression_mode" if beside else "starts with the zstd magic"
     assert found in str(caught.value)
     if beside:
         with open_log(tmp_path / "bag") as reader:  # the folder reads
             (raw,) = reader.messages()
             assert reader.decode(raw).data == "hi"
+
+
+def test_the_decompressed_copy_is_owner_named_tracked_and_a_killed_runs_is_removed(
+    synth_folder: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review 17c R3: a SIGKILLed run's bare mkdtemp copy stayed in TMPDIR for good."""
+    import os
+    import subprocess
+    import sys
+    import tempfile
+
+    from pcainterp_stream import interrupt
+    from pcainterp_stream.io.output_paths import temporary_prefix
+
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    folder = recorded(synth_folder, tmp_path / "rec", compression="file")
+    process = subprocess.Popen([sys.executable, "-c", "pass"])
+    process.wait()
+    prefix = temporary_prefix("pcainterp-rosbag2")
+    killed = scratch / (prefix.replace(f"-{os.getpid()}@", f"-{process.pid}@") + "t1x6e3v1")
+    killed.mkdir()
+    (killed / "rec_0.mcap").write_bytes(bytes(1000))
+    live = scratch / (prefix.replace(f"-{os.getpid()}@", f"-{os.getppid()}@") + "abcdefgh")
+    live.mkdir()  # a run still going
+    with open_log(folder) as reader:
+        assert sum(1 for _ in reader.messages()) > 0
+        (mine,) = (p for p in scratch.iterdir() if p != live)
+        assert mine.name.startswith(prefix)
+        assert mine in interrupt._partials  # removed if a signal forces the end
+    assert not killed.exists()
+    assert sorted(os.listdir(scratch)) == [live.name]
+    assert mine not in interrupt._partials
+
+
+def test_no_room_to_decompress_is_said_before_writing_with_the_size_needed(
+    synth_folder: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review 17c R5: the free room was read after the copy filled the disk (always 0 GB)."""
+    import shutil
+    import tempfile
+
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    folder = recorded(synth_folder, tmp_path / "rec", compression="file")
+    (storage,) = folder.glob("*.mcap.zstd")
+    size = zstandard.frame_content_size(storage.read_bytes()[:18])
+    assert size > 1000
+    usage = shutil.disk_usage(scratch)
+    monkeypatch.setattr(shutil, "disk_usage", lambda _path: usage._replace(free=1000))
+    with pytest.raises(LogReadError) as caught:
+        open_log(folder)
+    plain = folder / storage.name.removesuffix(".zstd")
+    needs = f"{size / 1e6:.0f} MB" if size >= 1e6 else f"{size / 1e3:.0f} kB"
+    assert str(caught.value) == (
+        f"cannot decompress {storage} (a rosbag2 bag recorded with --compression-mode file) "
+        f"into the temporary folder {scratch}: it needs {needs}, it has 1 kB free; set TMPDIR "
+        f"to a folder with room for it, or run `zstd -d {storage}` and pass the decompressed "
+        f"{plain} (the folder still lists the .zstd)"
+    )
+    assert list(scratch.iterdir()) == []
