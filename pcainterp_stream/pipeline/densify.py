@@ -47,7 +47,7 @@ from pcainterp_stream.io.densify_record import (
     options_json,
 )
 from pcainterp_stream.io.foxglove import FoxgloveLive, LiveMessage
-from pcainterp_stream.io.log_time_hold import LogTimeHold
+from pcainterp_stream.io.log_time_hold import CamerasRead, LogTimeHold
 from pcainterp_stream.io.logreader import LogReader, open_log
 from pcainterp_stream.io.logwriter import (
     LogFormat,
@@ -83,6 +83,7 @@ from pcainterp_stream.pipeline.common import (
     _check_topic_types,
     _pairing_types,
     _require_topics,
+    _Unshown,
     no_pair_message,
 )
 from pcainterp_stream.pipeline.feature_check import FeatureStreamCheck
@@ -632,20 +633,33 @@ def densify(
                 raise PcaInterpError(f"{input_path}: {refused}")
             emit(engine.submit(stale.check(frame) if stale is not None else frame, features))
 
+        def finish_frames() -> None:
+            for frame in pairer.flush():
+                submit(frame)
+            for batch in engine.finish_batches() if engine is not None else ():
+                emit(batch)  # each batch to the encoders as it is done
+            while encoding:
+                write(*encoding.popleft())
+
+        wanted = reader.topics()  # the frames' topics read whole: their frames finished then
+        cameras_read = CamerasRead({t: wanted[t].message_count for t in pairing.required_topics()})
         for raw in reader.messages():
+            if cameras_read.read(raw.topic, raw.log_time_ns):
+                finish_frames()  # the rest is other topics' messages, said on a terminal's bar
+                if not isinstance(bar, _Unshown):
+                    bar.set_postfix_str("copying the rest of the log")
             if inputs is not None:
                 inputs.add(raw)
+                if raw.topic == pairing.left_topic:  # its outputs may come at its log time
+                    inputs.expect(raw.log_time_ns)
             if live is not None:
                 live.add_raw(raw)
             if pairer.wants(raw.topic):
                 for frame in pairer.push_raw(raw, reader.decode):
                     submit(frame)
-        for frame in pairer.flush():
-            submit(frame)
-        for batch in engine.finish_batches() if engine is not None else ():
-            emit(batch)  # each batch to the encoders as it is done
-        while encoding:
-            write(*encoding.popleft())
+            if inputs is not None:  # what no output can come before any more goes out
+                inputs.passed(raw.log_time_ns)
+        finish_frames()
         if inputs is not None:
             inputs.release()
         if live is not None:
@@ -704,7 +718,8 @@ def densify(
         + (stale.warnings(frames, robust["stale_empty"]) if stale is not None else [])
         + (beyond.warnings(frames, sgbm) if beyond is not None else [])
         + (far.warnings(frames) if far is not None else [])
-        + unsaved,
+        + unsaved
+        + (inputs.notes() if inputs is not None else []),
         downweighted=robust["downweighted"],
         most_downweighted=robust["most"],
         temporal_resets=robust["resets"],
