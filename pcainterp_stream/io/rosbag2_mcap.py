@@ -19,6 +19,7 @@ its folder: only ``metadata.yaml`` says how its messages are compressed.
 from __future__ import annotations
 
 import dataclasses
+import errno
 import heapq
 import os
 from collections.abc import Iterable, Iterator
@@ -148,7 +149,10 @@ class Rosbag2McapReader(LogReader):
 
         base = Path(tempfile.gettempdir())
         plain = file.name.removesuffix(".zstd")
-        size = zstandard.frame_content_size(head) if len(head) >= 6 else -1
+        try:
+            size = zstandard.frame_content_size(head) if len(head) >= 6 else -1
+        except zstandard.ZstdError:  # a header cut short or damaged: the copy says so below
+            size = -1
         free = shutil.disk_usage(base).free if base.is_dir() else -1
         if self._temporary is None:
             remove_stale_temporaries(base, STEM)  # copies left by runs that were killed
@@ -170,7 +174,26 @@ class Rosbag2McapReader(LogReader):
             ) from err
         except OSError as err:
             target.unlink(missing_ok=True)
+            if err.errno == errno.EFBIG:
+                raise LogReadError(
+                    f"cannot decompress {file} (a rosbag2 bag recorded with --compression-mode "
+                    f"file) into the temporary folder {base}: a file-size limit (ulimit -f) "
+                    f"stopped it: raise it, or run `zstd -d {file}` and pass the decompressed "
+                    f"{file.parent / plain}"
+                ) from err
+            if err.errno not in (errno.ENOSPC, errno.EDQUOT):
+                raise LogReadError(
+                    f"cannot decompress {file} into the temporary folder {base}: "
+                    f"{err.strerror or _one_line(err)}; set TMPDIR to a folder you can write, "
+                    f"or run `zstd -d {file}` and pass the decompressed {file.parent / plain}"
+                ) from err
             raise LogReadError(_no_room(file, plain, base, size, free, _one_line(err))) from err
+        if target.stat().st_size < len(MCAP_MAGIC):  # a frame cut inside its header
+            target.unlink(missing_ok=True)
+            raise LogReadError(
+                f"cannot decompress {file} (a rosbag2 bag recorded with --compression-mode "
+                "file): it holds no whole zstd frame (a damaged or cut file?)"
+            )
         return target
 
     def _close(self) -> None:

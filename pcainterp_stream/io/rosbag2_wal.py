@@ -37,6 +37,7 @@ from __future__ import annotations
 import atexit
 import errno
 import itertools
+import os
 import shlex
 import shutil
 import sqlite3
@@ -326,10 +327,7 @@ class WalView:
                 return _Copy(key, None, failures=[_changing(s) for s in walled])
             if isinstance(err, FileNotFoundError) and not any(_wal_of(s).exists() for s in walled):
                 return _Copy(key, None)  # the recorder stopped meanwhile: its log is merged
-            text = str(err)
-            if folder is not None:  # the copy's path means nothing to the user
-                text = text.replace(str(folder.parent), f"the copy in {base}")
-            reason = _one_line(err, text)
+            reason = _copy_reason(err, base)
             fix = _copy_fix(err, base)
             return _Copy(key, None, failures=[_failure(s, reason, fix=fix) for s in walled])
         if not notes:  # the logs held no message the databases lack
@@ -429,22 +427,44 @@ def _megabytes(size: int) -> str:
 ROOM_FIX = "set TMPDIR to a folder with room for it"
 
 
+def _in_copies(name: str | bytes | None, base: str) -> bool:
+    """Whether the file ``name`` of an error is one of this module's copies in ``base``."""
+    return name is not None and os.fsdecode(name).startswith(os.path.join(base, STEM))
+
+
+def _copy_reason(err: BaseException, base: str) -> str:
+    """``err`` from making the copy in one line, the copy's own paths not named.
+
+    ``shutil.copyfile`` names both files (the bag's and the copy's): the copy's folder is
+    gone by the time the user reads the line, and means nothing to them.
+    """
+    if not isinstance(err, OSError) or not err.strerror:
+        return _one_line(err)
+    names = [name for name in (err.filename, err.filename2) if name is not None]
+    user = [os.fsdecode(name) for name in names if not _in_copies(name, base)]
+    if any(_in_copies(name, base) for name in names):
+        into = f"copying {user[0]} into" if user else "writing"
+        where = f" ({into} the private copy in {base})"
+    else:
+        where = f" ({user[0]})" if user else ""
+    return f"{type(err).__name__}: {err.strerror}{where}"  # whole: the paths are the point
+
+
 def _copy_fix(err: BaseException, base: str) -> str | None:
     """What to do about ``err`` from making the copy (None: the bag's own files are at fault).
 
-    Room, a file-size limit or a temporary folder that refuses writes are the machine's,
-    and another TMPDIR helps; sqlite's "disk I/O error" or "database disk image is
-    malformed" while merging, or a read of the bag that fails, are the bag's.
+    Room or a file-size limit are the machine's, as is a temporary folder that refuses to
+    make the copy (another TMPDIR helps); sqlite's "disk I/O error" or "database disk image
+    is malformed" while merging, or a read of the bag that fails, are the bag's.
     """
     if not isinstance(err, OSError):
         return None
     if err.errno in (errno.ENOSPC, errno.EDQUOT):
         return ROOM_FIX
     if err.errno == errno.EFBIG:
-        return "a file-size limit (ulimit -f) stopped the copy: raise it, or set TMPDIR elsewhere"
-    if err.errno in (errno.EACCES, errno.EPERM, errno.EROFS) and (
-        err.filename is None or str(err.filename).startswith(base)
-    ):
+        return "a file-size limit (ulimit -f) stopped the copy: raise it"
+    refused = err.errno in (errno.EACCES, errno.EPERM, errno.EROFS)
+    if refused and err.filename2 is None and _in_copies(err.filename, base):
         return f"the temporary folder {base} refused it: set TMPDIR to a folder you can write"
     return None
 

@@ -320,3 +320,17 @@ def test_no_room_to_decompress_is_said_before_writing_with_the_size_needed(
         f"{plain} (the folder still lists the .zstd)"
     )
     assert list(scratch.iterdir()) == []
+
+
+@pytest.mark.parametrize("keep", [5, 7])
+def test_a_cut_zstd_header_is_one_line_not_a_traceback(
+    synth_folder: Path, tmp_path: Path, keep: int
+) -> None:
+    """Review 17e R3: a `.mcap.zstd` cut inside its frame header raised ZstdError ("error
+    when determining content size") out of the reader: a traceback, exit 1."""
+    folder = recorded(synth_folder, tmp_path / "rec", compression="file")
+    (storage,) = folder.glob("*.mcap.zstd")
+    storage.write_bytes(storage.read_bytes()[:keep])
+    with pytest.raises(LogReadError, match="a damaged or cut file"):
+        with open_log(folder) as reader:
+            list(reader.messages())

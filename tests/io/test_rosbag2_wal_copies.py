@@ -293,27 +293,43 @@ def test_an_open_logs_copy_is_kept_when_room_runs_short(
 
 
 @pytest.mark.parametrize(
-    ("code", "said"),
+    ("code", "names", "said"),
     [
-        (errno.EFBIG, "a file-size limit (ulimit -f) stopped the copy"),
-        (errno.EACCES, "refused it: set TMPDIR to a folder you can write"),
-        (errno.ENOSPC, "set TMPDIR to a folder with room for it"),
+        (errno.EFBIG, "both", "a file-size limit (ulimit -f) stopped the copy: raise it)"),
+        (errno.ENOSPC, "both", "set TMPDIR to a folder with room for it"),
+        (errno.EACCES, "target", "refused it: set TMPDIR to a folder you can write"),
+        (errno.EACCES, "source", "walbag.db3 or its -wal is damaged or unreadable"),
     ],
 )
 def test_a_copy_the_machine_refuses_is_not_put_down_to_the_bag(
-    tmp_path: Path, scratch: Path, monkeypatch: pytest.MonkeyPatch, code: int, said: str
+    tmp_path: Path,
+    scratch: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    code: int,
+    names: str,
+    said: str,
 ) -> None:
     """Review 17b R2: a copy stopped by `ulimit -f` (EFBIG) said the healthy bag "is damaged
-    or unreadable", and named the copy's folder in TMPDIR."""
+    or unreadable", and named the copy's folder in TMPDIR; review 17e R1, R2: the folder was
+    replaced inside the quoted path, and a bag's own unreadable file under TMPDIR was put
+    down to TMPDIR. shutil.copyfile names both files when a write fails, the one it could
+    not open alone."""
     bag = _wal_bag(tmp_path)
 
     def refused(source: Any, target: Any, **kwargs: Any) -> Any:
-        raise OSError(code, os.strerror(code), str(target))
+        text = os.strerror(code)
+        if names == "both":
+            raise OSError(code, text, str(source), None, str(target))
+        raise OSError(code, text, str(target if names == "target" else source))
 
     monkeypatch.setattr(shutil, "copyfile", refused)
     with open_log(bag) as reader:
         assert len(list(reader.messages([LEFT]))) == 2
         (line,) = reader.damage
     assert said in line
-    assert "damaged or unreadable" not in line
-    assert str(scratch) + "/pcainterp-wal" not in line
+    assert "pcainterp-wal" not in line
+    if names != "source":
+        assert "damaged or unreadable" not in line
+        assert f"the private copy in {scratch})" in line
+    else:
+        assert f"({bag / 'walbag.db3'})" in line
