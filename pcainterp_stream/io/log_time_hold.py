@@ -150,17 +150,25 @@ class CamerasRead:
             if known and counts
             else None
         )
+        self._topics = frozenset(counts)
         self._last_ns: int | None = None  # log time of the last of them
         self.done = False
+        self.late = 0  # their messages read after all were counted (the index was wrong)
 
     def read(self, topic: str, log_time_ns: int) -> bool:
         """Count a message read; True once, at the first message after the last of them.
 
         A message at the last one's log time does not end them: the inputs at that log
-        time go out before its frame's outputs, as at the log's end.
+        time go out before its frame's outputs, as at the log's end. Messages of them read
+        after that (an index that under-counts them) are counted in :attr:`late` and said
+        (:meth:`lines`): their frames come after the others were finished, so the fit check
+        may have seen fewer frames than with a right index.
         """
         left = self._left
-        if left is None or self.done:
+        if left is None:
+            return False
+        if self.done:
+            self.late += topic in self._topics
             return False
         if self._last_ns is not None and log_time_ns > self._last_ns:
             self.done = True
@@ -170,3 +178,15 @@ class CamerasRead:
             if all(count <= 0 for count in left.values()):
                 self._last_ns = log_time_ns
         return False
+
+    def lines(self) -> list[str]:
+        """The warning for frame-topic messages read after the index said they had ended."""
+        if not self.late:
+            return []
+        return [
+            f"{self.late} message(s) of the camera topics came after the log's index "
+            "said they had ended (its message counts are wrong: a bag whose metadata.yaml was "
+            "edited or cut?): the frames in progress were finished before them, as at the "
+            "log's end, and the outputs may differ from a right index's; reindex the log "
+            "(ros2 bag reindex, rosbag reindex) for the usual output"
+        ]

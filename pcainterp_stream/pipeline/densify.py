@@ -719,7 +719,8 @@ def densify(
         + (beyond.warnings(frames, sgbm) if beyond is not None else [])
         + (far.warnings(frames) if far is not None else [])
         + unsaved
-        + (inputs.notes() if inputs is not None else []),
+        + (inputs.notes() if inputs is not None else [])
+        + cameras_read.lines(),
         downweighted=robust["downweighted"],
         most_downweighted=robust["most"],
         temporal_resets=robust["resets"],

@@ -161,3 +161,34 @@ def test_a_log_read_out_of_log_time_order_waits_for_the_frames() -> None:
     assert written == [5, 6]
     hold.release(4)
     assert written == [5, 6, 2]
+
+
+def _depths(path: Path) -> list[bytes]:
+    with open(path, "rb") as stream:
+        reader = make_reader(stream)
+        return [
+            bytes(m.data) for _, c, m in reader.iter_messages() if c.topic == "/pcainterp/depth"
+        ]
+
+
+def test_an_index_that_undercounts_the_cameras_is_said(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review 17f R1: with the index counting 3 images a camera topic (a metadata.yaml
+    edited or cut), the frames were finished during the fit check's warm-up: the check saw
+    3 frames instead of 8 and a later frame's depth changed, with no word of it. Now said;
+    every frame is still written."""
+    log = tmp_path / "ten.mcap"
+    write_synthetic_log(generate(SynthConfig(seed=3, frames=10, scale=0.25)), log)
+    true = densify(log, tmp_path / "true.mcap")
+
+    class Undercounted(log_time_hold.CamerasRead):
+        def __init__(self, counts: dict[str, int | None]) -> None:
+            super().__init__({topic: 3 for topic in counts})
+
+    monkeypatch.setattr(densify_module, "CamerasRead", Undercounted)
+    low = densify(log, tmp_path / "low.mcap")
+    assert len(_depths(tmp_path / "low.mcap")) == len(_depths(tmp_path / "true.mcap")) == 10
+    assert not [w for w in true.warnings if "log's index" in w]
+    (said,) = [w for w in low.warnings if "came after the log's index" in w]
+    assert "reindex the log" in said
