@@ -41,7 +41,7 @@ _FISHEYE = ("equidistant", "fisheye", "kannala_brandt")
 
 def _read_yaml(path: Path) -> dict[str, Any]:
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # a byte-order mark, as Notepad saves
     except OSError as err:
         raise CalibrationError(f"cannot read calibration file {path}: {err.strerror}") from err
     except UnicodeDecodeError as err:  # a binary file (an image, a log) given as calibration
@@ -49,22 +49,33 @@ def _read_yaml(path: Path) -> dict[str, Any]:
             f"calibration file {path} is not valid YAML (not UTF-8 text: byte "
             f"0x{err.object[err.start]:02x} at offset {err.start}); pass the calibration YAML"
         ) from err
-    lines = text.splitlines()
-    if lines and lines[0].startswith("%YAML"):  # OpenCV's "%YAML:1.0" is no YAML directive
-        lines = lines[1:]
-    text = "\n".join(line for line in lines if not line.strip().startswith("---"))
-    text = text.replace("!!opencv-matrix", "")
+    # lines left out are blanked, not dropped, so that an error's line is the file's
+    lines = ["" if line.strip().startswith("---") else line for line in text.splitlines()]
+    head = next((i for i, line in enumerate(lines) if line.strip() and line[0] != "#"), None)
+    if head is not None and lines[head].startswith("%YAML"):  # OpenCV's "%YAML:1.0" header
+        lines[head] = ""
+    text = "\n".join(lines).replace("!!opencv-matrix", "")
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as err:
-        first = str(err).splitlines()[0] if str(err) else type(err).__name__
-        raise CalibrationError(f"calibration file {path} is not valid YAML ({first})") from err
+        raise CalibrationError(f"calibration file {path} is not valid YAML ({_said(err)})") from err
     if not isinstance(data, dict):
         raise CalibrationError(
             f"calibration file {path} holds no YAML mapping; expected a camera_info_manager "
             "YAML, a Kalibr camchain.yaml or a EuRoC sensor.yaml"
         )
     return data
+
+
+def _said(err: yaml.YAMLError) -> str:
+    """A YAML error in a few words: what is wrong, and where (line and column, from 1)."""
+    if isinstance(err, yaml.MarkedYAMLError) and err.problem_mark is not None:
+        mark = err.problem_mark
+        what = err.problem or err.context or type(err).__name__
+        if "'\\t'" in what:  # PyYAML quotes the character it found
+            what += ": YAML separates and indents with spaces, not tabs"
+        return f"line {mark.line + 1}, column {mark.column + 1}: {what}"
+    return str(err).splitlines()[0] if str(err) else type(err).__name__
 
 
 def _numbers(

@@ -260,3 +260,35 @@ def test_a_camchain_stacked_vertically_is_refused_in_the_camera_infos_words(
     assert message.startswith(f"{path}:cam1 rectified with {path}:cam0 has P[1,3] = ")
     assert "the cameras are stacked vertically (baseline mostly along y)" in message
     assert "\n" not in message
+
+
+def test_a_byte_order_mark_and_a_comment_above_an_opencv_header_are_read(
+    tmp_path: Path,
+) -> None:
+    """Bug hunt 17C F7: a `%YAML:1.0` file saved with a byte-order mark (Notepad), or with a
+    comment line above its header, was refused: "not valid YAML (while scanning a
+    directive)"."""
+    calibration = raw_calibration(CAMERA, "plumb_bob")
+    left, right = write_camera_info_yaml(calibration, tmp_path)
+    text = left.read_text()
+    left.write_text("\ufeff# calibrated on the bench\n%YAML:1.0\n---\n" + text, encoding="utf-8")
+    right.write_text("\ufeff%YAML:1.0\n" + right.read_text(), encoding="utf-8")
+    loaded, _ = load_calibration([left, right])
+    np.testing.assert_allclose(loaded.left.k, calibration.left.k)
+
+
+def test_a_yaml_error_names_its_line_and_column(tmp_path: Path) -> None:
+    """Bug hunt 17C F7: "not valid YAML (while scanning for the next token)" for a tab, with
+    no line, column or culprit."""
+    calibration = raw_calibration(CAMERA, "plumb_bob")
+    left, right = write_camera_info_yaml(calibration, tmp_path)
+    lines = left.read_text().splitlines()
+    at = next(i for i, line in enumerate(lines) if line.startswith("image_height"))
+    lines[at] = lines[at].replace(": ", ":\t", 1)
+    left.write_text("%YAML:1.0\n" + "\n".join(lines) + "\n")
+    with pytest.raises(CalibrationError) as caught:
+        load_calibration([left, right])
+    said = str(caught.value)
+    assert f"is not valid YAML (line {at + 2}, column " in said
+    assert "found character '\\t' that cannot start any token" in said
+    assert "spaces, not tabs" in said
