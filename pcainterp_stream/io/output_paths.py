@@ -28,6 +28,7 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 from pcainterp_stream.errors import LogWriteError
+from pcainterp_stream.interrupt import track_partial, untrack_partial
 from pcainterp_stream.io import mount_points
 
 __all__ = [
@@ -798,6 +799,24 @@ def remove_stale_temporaries(folder: Path, stem: str) -> None:
     """Remove, silently, ``folder``'s temporaries (:func:`temporary_prefix`) of killed runs."""
     for path in _stale(folder, f"{stem}-"):
         shutil.rmtree(path, ignore_errors=True)
+
+
+def private_folder(stem: str) -> Path:
+    """Make a folder of this process's in TMPDIR (``STEM-OWNER-*``), killed runs' removed.
+
+    Tracked as a partial output: a signal that ends the run removes it; so does
+    :func:`remove_private_folder`.
+    """
+    remove_stale_temporaries(Path(tempfile.gettempdir()), stem)
+    folder = Path(tempfile.mkdtemp(prefix=temporary_prefix(stem)))
+    track_partial(folder)
+    return folder
+
+
+def remove_private_folder(folder: Path) -> None:
+    """Remove a :func:`private_folder` and stop tracking it."""
+    shutil.rmtree(folder, ignore_errors=True)
+    untrack_partial(folder)
 
 
 def remove_stale_partials(

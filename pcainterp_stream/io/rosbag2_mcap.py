@@ -27,10 +27,9 @@ from pathlib import Path
 from typing import Any
 
 from pcainterp_stream.errors import LogReadError
-from pcainterp_stream.interrupt import track_partial, untrack_partial
 from pcainterp_stream.io.mcap_extras import ChannelInfo, McapExtras
 from pcainterp_stream.io.mcap_reader import McapLogReader
-from pcainterp_stream.io.output_paths import remove_stale_temporaries, temporary_prefix
+from pcainterp_stream.io.output_paths import private_folder, remove_private_folder
 from pcainterp_stream.io.reader_base import (
     MCAP_MAGIC,
     LogFormat,
@@ -113,7 +112,7 @@ class Rosbag2McapReader(LogReader):
         self._files = files
         self._parts: list[McapLogReader] = []
         self._message_zstd = message_zstd  # each payload is a zstd frame (metadata.yaml)
-        self._temporary: str | None = None  # the files of a file-compressed bag, decompressed
+        self._temporary: Path | None = None  # the files of a file-compressed bag, decompressed
 
     def _open(self) -> None:
         try:
@@ -155,14 +154,12 @@ class Rosbag2McapReader(LogReader):
             size = -1
         free = shutil.disk_usage(base).free if base.is_dir() else -1
         if self._temporary is None:
-            remove_stale_temporaries(base, STEM)  # copies left by runs that were killed
             if 0 <= free < size:
                 raise LogReadError(_no_room(file, plain, base, size, free))
-            self._temporary = tempfile.mkdtemp(prefix=temporary_prefix(STEM))
-            track_partial(Path(self._temporary))  # removed even if a signal forces the end
+            self._temporary = private_folder(STEM)  # killed runs' copies removed first
         elif 0 <= free < size:
             raise LogReadError(_no_room(file, plain, base, size, free))
-        target = Path(self._temporary) / plain
+        target = self._temporary / plain
         try:
             with file.open("rb") as source, target.open("wb") as sink:
                 zstandard.ZstdDecompressor().copy_stream(source, sink)
@@ -201,10 +198,7 @@ class Rosbag2McapReader(LogReader):
             part.close()
         self._parts = []
         if self._temporary is not None:
-            import shutil
-
-            shutil.rmtree(self._temporary, ignore_errors=True)
-            untrack_partial(Path(self._temporary))
+            remove_private_folder(self._temporary)
             self._temporary = None
 
     def topics(self) -> dict[str, TopicInfo]:

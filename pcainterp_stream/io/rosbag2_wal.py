@@ -48,8 +48,8 @@ import urllib.parse
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pcainterp_stream.interrupt import signalled, track_partial, untrack_partial
-from pcainterp_stream.io.output_paths import remove_stale_temporaries, temporary_prefix
+from pcainterp_stream.interrupt import signalled
+from pcainterp_stream.io.output_paths import private_folder, remove_private_folder
 from pcainterp_stream.io.reader_base import _one_line
 
 __all__ = ["WalView", "release_wal_copies", "wal_file"]
@@ -145,8 +145,7 @@ def release_wal_copies() -> None:
     with _lock:
         _copies.clear()
         for root in _roots.values():
-            shutil.rmtree(root, ignore_errors=True)
-            untrack_partial(root)
+            remove_private_folder(root)
         _roots.clear()
 
 
@@ -156,12 +155,9 @@ def _root() -> Path:
     root = _roots.get(base)
     if root is not None and root.is_dir():
         return root
-    remove_stale_temporaries(Path(base), STEM)  # copies left by runs that were killed
     if not _roots:
         atexit.register(release_wal_copies)
-    root = Path(tempfile.mkdtemp(prefix=temporary_prefix(STEM)))
-    track_partial(root)  # removed even if a signal forces the end
-    _roots[base] = root
+    root = _roots[base] = private_folder(STEM)  # killed runs' copies removed first
     return root
 
 
